@@ -1,0 +1,55 @@
+// Watertight ray-triangle intersection (Woop, Benthin & Wald, JCGT 2013): rays through shared
+// edges and vertices hit exactly one of the adjacent triangles, never none.
+#pragma once
+#include <utility>
+
+#include "geometry/ray.h"
+
+namespace pl {
+
+// Per-ray constants of the watertight test, computed once per ray.
+struct RayPrecomp {
+  int kx, ky, kz;
+  float sx, sy, sz;
+  explicit RayPrecomp(const Vec3& d) {
+    const Vec3 a = vabs(d);
+    kz = max_axis(a);
+    kx = kz == 2 ? 0 : kz + 1;
+    ky = kx == 2 ? 0 : kx + 1;
+    if (d[kz] < 0.0f) std::swap(kx, ky);  // keep the winding of the projected triangle
+    sx = d[kx] / d[kz];
+    sy = d[ky] / d[kz];
+    sz = 1.0f / d[kz];
+  }
+};
+
+// Returns true and fills t, b1, b2 if the ray hits the triangle with 0 < t < tmax.
+inline bool intersect_triangle(const Vec3& org, const RayPrecomp& rp, const Vec3& v0, const Vec3& v1,
+                               const Vec3& v2, float tmax, float& t_out, float& b1_out, float& b2_out) {
+  const Vec3 A = v0 - org, B = v1 - org, C = v2 - org;
+  const float ax = A[rp.kx] - rp.sx * A[rp.kz], ay = A[rp.ky] - rp.sy * A[rp.kz];
+  const float bx = B[rp.kx] - rp.sx * B[rp.kz], by = B[rp.ky] - rp.sy * B[rp.kz];
+  const float cx = C[rp.kx] - rp.sx * C[rp.kz], cy = C[rp.ky] - rp.sy * C[rp.kz];
+  float u = cx * by - cy * bx;
+  float v = ax * cy - ay * cx;
+  float w = bx * ay - by * ax;
+  // On an edge the float edge functions can round to zero: redo them in double (the paper's fallback).
+  if (u == 0.0f || v == 0.0f || w == 0.0f) {
+    u = static_cast<float>(static_cast<double>(cx) * by - static_cast<double>(cy) * bx);
+    v = static_cast<float>(static_cast<double>(ax) * cy - static_cast<double>(ay) * cx);
+    w = static_cast<float>(static_cast<double>(bx) * ay - static_cast<double>(by) * ax);
+  }
+  if ((u < 0.0f || v < 0.0f || w < 0.0f) && (u > 0.0f || v > 0.0f || w > 0.0f)) return false;
+  const float det = u + v + w;
+  if (det == 0.0f) return false;
+  const float az = rp.sz * A[rp.kz], bz = rp.sz * B[rp.kz], cz = rp.sz * C[rp.kz];
+  const float T = u * az + v * bz + w * cz;
+  if (det > 0.0f ? (T <= 0.0f || T >= tmax * det) : (T >= 0.0f || T <= tmax * det)) return false;
+  const float inv = 1.0f / det;
+  t_out = T * inv;
+  b1_out = v * inv;
+  b2_out = w * inv;
+  return true;
+}
+
+}  // namespace pl

@@ -1,0 +1,319 @@
+// The only file that sees Python. Converts and validates numpy input, turns C++ exceptions
+// into Python ones (pybind11 maps std::invalid_argument to ValueError), and releases the GIL
+// around everything that takes time.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <memory>
+#include <stdexcept>
+
+#include "render/session.h"
+
+namespace py = pybind11;
+using namespace pl;
+
+#ifndef PATHLIGHT_SIMD_NAME
+#define PATHLIGHT_SIMD_NAME "generic"
+#endif
+#ifndef PATHLIGHT_VERSION
+#define PATHLIGHT_VERSION "0.0.0"
+#endif
+
+namespace {
+
+using FloatArray = py::array_t<float, py::array::c_style | py::array::forcecast>;
+using IntArray = py::array_t<int64_t, py::array::c_style | py::array::forcecast>;
+
+Vec3 to_color(const py::handle& h, const char* what) {
+  const auto v = py::cast<std::vector<float>>(h);
+  if (v.size() != 3) throw std::invalid_argument(std::string(what) + " must have 3 components");
+  // Colours are radiance/albedo: NaN or negative values have no meaning, so they become 0.
+  auto clean = [](float x) { return std::isfinite(x) && x > 0.0f ? x : 0.0f; };
+  return {clean(v[0]), clean(v[1]), clean(v[2])};
+}
+
+Mat4 to_mat4(const FloatArray& a, const char* what) {
+  if (a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4)
+    throw std::invalid_argument(std::string(what) + " must be a 4x4 matrix");
+  Mat4 m;
+  auto r = a.unchecked<2>();
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) m.m[i][j] = r(i, j);
+  if (!m.is_finite()) throw std::invalid_argument(std::string(what) + " contains NaN or infinite values");
+  return m;
+}
+
+FloatArray from_mat4(const Mat4& m) {
+  FloatArray a({4, 4});
+  auto w = a.mutable_unchecked<2>();
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) w(i, j) = m.m[i][j];
+  return a;
+}
+
+// A scene shared with the sessions that render it; edits are refused while one holds it.
+struct PyScene {
+  std::shared_ptr<Scene> scene = std::make_shared<Scene>();
+  void check_editable() const {
+    if (scene.use_count() > 1) throw std::runtime_error("the scene is in use by a render session");
+  }
+};
+
+uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& triangles, const py::object& normals,
+                  const py::object& material_indices, const std::vector<int64_t>& slots) {
+  self.check_editable();
+  if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
+  if (triangles.ndim() != 2 || triangles.shape(1) != 3) throw std::invalid_argument("triangles must have shape (T, 3)");
+  const size_t nv = size_t(positions.shape(0)), nt = size_t(triangles.shape(0));
+  if (nv > UINT32_MAX || nt > UINT32_MAX / 3) throw std::invalid_argument("mesh is too large");
+  MeshData mesh;
+  mesh.positions.resize(nv);
+  std::memcpy(static_cast<void*>(mesh.positions.data()), positions.data(), nv * sizeof(Vec3));
+  mesh.triangles.resize(nt);
+  const int64_t* tri = triangles.data();
+  for (size_t i = 0; i < nt * 3; ++i) {
+    if (tri[i] < 0 || size_t(tri[i]) >= nv)
+      throw std::invalid_argument("triangle index " + std::to_string(tri[i]) + " out of range for " +
+                                  std::to_string(nv) + " vertices");
+    mesh.triangles[i / 3][i % 3] = uint32_t(tri[i]);
+  }
+  if (!normals.is_none()) {
+    const auto n = normals.cast<FloatArray>();
+    if (n.ndim() != 3 || size_t(n.shape(0)) != nt || n.shape(1) != 3 || n.shape(2) != 3)
+      throw std::invalid_argument("corner_normals must have shape (T, 3, 3)");
+    mesh.corner_normals.resize(nt * 3);
+    std::memcpy(static_cast<void*>(mesh.corner_normals.data()), n.data(), nt * 3 * sizeof(Vec3));
+  }
+  std::vector<uint32_t> slot_ids;
+  for (int64_t s : slots) slot_ids.push_back(s >= 0 && s <= INT32_MAX ? uint32_t(s) : 0u);
+  mesh.materials.assign(nt, slot_ids.empty() ? 0u : slot_ids[0]);
+  if (!material_indices.is_none()) {
+    const auto mi = material_indices.cast<IntArray>();
+    if (mi.ndim() != 1 || size_t(mi.shape(0)) != nt)
+      throw std::invalid_argument("material_indices must have shape (T,)");
+    const int64_t* p = mi.data();
+    for (size_t i = 0; i < nt; ++i)
+      mesh.materials[i] = p[i] >= 0 && size_t(p[i]) < slot_ids.size() ? slot_ids[size_t(p[i])] : 0u;
+  }
+  return self.scene->add_mesh(std::move(mesh));
+}
+
+py::dict scene_stats(const PyScene& self) {
+  const SceneStats& s = self.scene->stats();
+  const BvhStats& b = self.scene->bvh().stats();
+  py::dict d;
+  d["triangles"] = s.triangles;
+  d["instances"] = s.instances;
+  d["meshes"] = s.meshes;
+  d["materials"] = s.materials;
+  d["emissive_triangles"] = s.emissive_triangles;
+  d["dropped_triangles"] = s.dropped_triangles;
+  d["bvh_nodes"] = b.nodes;
+  d["bvh_leaves"] = b.leaves;
+  d["bvh_max_depth"] = b.max_depth;
+  d["bvh_sah_cost"] = b.sah_cost;
+  d["bvh_build_ms"] = b.build_ms;
+  d["bvh_bytes"] = self.scene->bvh().memory_bytes();
+  return d;
+}
+
+struct PySession {
+  std::shared_ptr<Scene> scene;  // keeps the scene alive and locked against edits
+  std::unique_ptr<Session> session;
+};
+
+FloatArray film_rect(PySession& self, int x, int y, int w, int h) {
+  Film& f = self.session->film();
+  if (x < 0 || y < 0 || w < 0 || h < 0 || x + w > f.width() || y + h > f.height())
+    throw std::invalid_argument("film_rect outside the image");
+  FloatArray out({h, w, 4});
+  float* dst = out.mutable_data();
+  {
+    py::gil_scoped_release release;
+    f.read_rect(x, y, w, h, dst);
+  }
+  return out;
+}
+
+}  // namespace
+
+PYBIND11_MODULE(pathlight_core, m) {
+  m.doc() = "Pathlight's compiled core: scene, BVH, path tracer and progressive render sessions.";
+  m.attr("__version__") = PATHLIGHT_VERSION;
+  m.def("build_info", [] {
+    py::dict d;
+    d["simd"] = PATHLIGHT_SIMD_NAME;
+#if defined(__clang__)
+    d["compiler"] = "clang " __clang_version__;
+#elif defined(__GNUC__)
+    d["compiler"] = "gcc " __VERSION__;
+#else
+    d["compiler"] = "unknown";
+#endif
+#ifdef NDEBUG
+    d["build_type"] = "release";
+#else
+    d["build_type"] = "debug";
+#endif
+    return d;
+  });
+
+  py::class_<CameraDesc>(m, "Camera")
+      .def(py::init<>())
+      .def_property(
+          "matrix_world", [](const CameraDesc& c) { return from_mat4(c.matrix_world); },
+          [](CameraDesc& c, const FloatArray& a) { c.matrix_world = to_mat4(a, "matrix_world"); })
+      .def_readwrite("lens", &CameraDesc::lens)
+      .def_readwrite("sensor_width", &CameraDesc::sensor_width)
+      .def_readwrite("sensor_height", &CameraDesc::sensor_height)
+      .def_property(
+          "sensor_fit",
+          [](const CameraDesc& c) {
+            return c.sensor_fit == SensorFit::Auto ? "AUTO" : c.sensor_fit == SensorFit::Horizontal ? "HORIZONTAL" : "VERTICAL";
+          },
+          [](CameraDesc& c, const std::string& s) {
+            if (s == "AUTO") c.sensor_fit = SensorFit::Auto;
+            else if (s == "HORIZONTAL") c.sensor_fit = SensorFit::Horizontal;
+            else if (s == "VERTICAL") c.sensor_fit = SensorFit::Vertical;
+            else throw std::invalid_argument("sensor_fit must be AUTO, HORIZONTAL or VERTICAL");
+          })
+      .def_readwrite("shift_x", &CameraDesc::shift_x)
+      .def_readwrite("shift_y", &CameraDesc::shift_y)
+      .def_readwrite("clip_start", &CameraDesc::clip_start)
+      .def_readwrite("clip_end", &CameraDesc::clip_end)
+      .def_readwrite("pixel_aspect_x", &CameraDesc::pixel_aspect_x)
+      .def_readwrite("pixel_aspect_y", &CameraDesc::pixel_aspect_y);
+
+  py::class_<RenderSettings>(m, "RenderSettings")
+      .def(py::init<>())
+      .def_readwrite("width", &RenderSettings::width)
+      .def_readwrite("height", &RenderSettings::height)
+      .def_readwrite("samples", &RenderSettings::samples)
+      .def_readwrite("time_limit", &RenderSettings::time_limit)
+      .def_readwrite("max_bounces", &RenderSettings::max_bounces)
+      .def_readwrite("seed", &RenderSettings::seed)
+      .def_readwrite("threads", &RenderSettings::threads)
+      .def_readwrite("tile_size", &RenderSettings::tile_size)
+      .def_readwrite("use_nee", &RenderSettings::use_nee);
+
+  py::class_<PyScene>(m, "Scene")
+      .def(py::init<>())
+      .def(
+          "add_material",
+          [](PyScene& self, const std::string& name, const py::object& base_color, const py::object& emission) {
+            self.check_editable();
+            Material mat;
+            mat.name = name;
+            Vec3 albedo = to_color(base_color, "base_color");
+            albedo = vmin(albedo, Vec3(1.0f));  // an albedo above 1 would create energy
+            mat.bsdf = DiffuseBsdf{albedo};
+            mat.emission = to_color(emission, "emission");
+            return self.scene->add_material(std::move(mat));
+          },
+          py::arg("name"), py::arg("base_color") = py::make_tuple(0.8f, 0.8f, 0.8f),
+          py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
+      .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
+           py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{})
+      .def(
+          "add_instance",
+          [](PyScene& self, uint32_t mesh, const FloatArray& matrix) {
+            self.check_editable();
+            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"));
+          },
+          py::arg("mesh"), py::arg("matrix"))
+      .def(
+          "set_world_color",
+          [](PyScene& self, const py::object& c) {
+            self.check_editable();
+            self.scene->set_world_color(to_color(c, "world color"));
+          },
+          py::arg("color"))
+      .def(
+          "set_camera",
+          [](PyScene& self, const CameraDesc& c) {
+            self.check_editable();
+            if (!(c.lens > 0.0f) || !(c.sensor_width > 0.0f) || !(c.sensor_height > 0.0f))
+              throw std::invalid_argument("camera lens and sensor size must be positive");
+            if (!(c.clip_start >= 0.0f) || !(c.clip_end > c.clip_start))
+              throw std::invalid_argument("camera clip_end must be greater than clip_start >= 0");
+            if (!(c.pixel_aspect_x > 0.0f) || !(c.pixel_aspect_y > 0.0f))
+              throw std::invalid_argument("pixel aspect must be positive");
+            self.scene->set_camera(c);
+          },
+          py::arg("camera"))
+      .def(
+          "commit",
+          [](PyScene& self, int threads) {
+            self.check_editable();
+            py::gil_scoped_release release;
+            self.scene->commit(threads);
+          },
+          py::arg("threads") = 0)
+      .def("stats", &scene_stats);
+
+  py::class_<PySession>(m, "Session")
+      .def(py::init([](PyScene& scene, const RenderSettings& settings) {
+             validate(settings);
+             if (!scene.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
+             if (!scene.scene->committed()) {
+               scene.check_editable();
+               py::gil_scoped_release release;
+               scene.scene->commit(settings.threads);
+             }
+             auto s = std::make_unique<PySession>();
+             s->scene = scene.scene;
+             s->session = std::make_unique<Session>(scene.scene, settings);
+             return s;
+           }),
+           py::arg("scene"), py::arg("settings"))
+      .def("start", [](PySession& self) { self.session->start(); })
+      .def(
+          "wait",
+          [](PySession& self, double timeout_s) {
+            bool done;
+            {
+              py::gil_scoped_release release;
+              done = self.session->wait(timeout_s);
+            }
+            if (done) {
+              const std::string err = self.session->error();
+              if (!err.empty()) throw std::runtime_error("render failed: " + err);
+            }
+            return done;
+          },
+          py::arg("timeout_s"))
+      .def("cancel", [](PySession& self) { self.session->cancel(); })
+      .def("is_finished", [](PySession& self) { return self.session->finished(); })
+      .def("progress",
+           [](PySession& self) {
+             const SessionProgress p = self.session->progress();
+             py::dict d;
+             d["samples_done"] = p.samples_done;
+             d["samples_total"] = p.samples_total;
+             d["elapsed_s"] = p.elapsed_s;
+             d["cancelled"] = p.cancelled;
+             d["finished"] = p.finished;
+             return d;
+           })
+      .def("stats",
+           [](PySession& self) {
+             const SessionStats s = self.session->stats();
+             py::dict d;
+             d["samples_done"] = self.session->progress().samples_done;
+             d["paths"] = s.paths;
+             d["rays"] = s.rays;
+             d["rays_per_s"] = s.elapsed_s > 0 ? double(s.rays) / s.elapsed_s : 0.0;
+             d["nonfinite_samples"] = s.nonfinite_samples;
+             d["passes"] = s.passes;
+             d["threads"] = s.threads;
+             d["elapsed_s"] = s.elapsed_s;
+             return d;
+           })
+      .def("film",
+           [](PySession& self) {
+             const Film& f = self.session->film();
+             return film_rect(self, 0, 0, f.width(), f.height());
+           })
+      .def("film_rect", &film_rect, py::arg("x"), py::arg("y"), py::arg("w"), py::arg("h"));
+}

@@ -1,0 +1,165 @@
+#include "render/session.h"
+
+#include <chrono>
+#include <stdexcept>
+
+namespace pl {
+
+void validate(const RenderSettings& s) {
+  if (s.width < 1 || s.height < 1) throw std::invalid_argument("resolution must be at least 1x1");
+  // 20 bytes per pixel of film; refuse before allocating rather than exhausting memory.
+  constexpr double kMaxPixels = 400e6;
+  if (s.width > 65536 || s.height > 65536 || double(s.width) * double(s.height) > kMaxPixels)
+    throw std::invalid_argument("resolution " + std::to_string(s.width) + "x" + std::to_string(s.height) +
+                                " is too large (at most 65536 per side and 400 megapixels)");
+  if (s.samples < 1) throw std::invalid_argument("samples must be at least 1");
+  if (s.max_bounces < 0 || s.max_bounces > 1024) throw std::invalid_argument("max_bounces must be in [0, 1024]");
+  if (!(s.time_limit >= 0.0)) throw std::invalid_argument("time_limit must be >= 0");
+  if (s.threads < 0 || s.threads > 1024) throw std::invalid_argument("threads must be in [0, 1024]");
+  if (s.tile_size < 4 || s.tile_size > 1024) throw std::invalid_argument("tile_size must be in [4, 1024]");
+}
+
+Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings)
+    : scene_(std::move(scene)),
+      settings_((validate(settings), settings)),
+      film_(settings.width, settings.height, settings.tile_size) {
+  if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
+  camera_ = Camera(scene_->camera_desc(), settings_.width, settings_.height);
+  integrator_.max_bounces = settings_.max_bounces;
+  integrator_.use_nee = settings_.use_nee;
+}
+
+Session::~Session() {
+  cancel_.store(true);
+  if (controller_.joinable()) controller_.join();
+}
+
+void Session::start() {
+  if (started_.exchange(true)) throw std::logic_error("session already started");
+  t0_ = std::chrono::steady_clock::now();
+  controller_ = std::thread([this] { run(); });
+}
+
+double Session::elapsed() const {
+  const double e = end_elapsed_.load();
+  if (e >= 0.0) return e;
+  if (!started_.load()) return 0.0;
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count();
+}
+
+bool Session::wait(double timeout_s) {
+  std::unique_lock<std::mutex> lk(m_);
+  const auto ready = [this] { return finished_.load() || passes_.load() != passes_seen_; };
+  if (!started_.load()) return finished_.load();
+  cv_.wait_for(lk, std::chrono::duration<double>(std::max(0.0, timeout_s)), ready);
+  passes_seen_ = passes_.load();
+  return finished_.load();
+}
+
+SessionProgress Session::progress() const {
+  SessionProgress p;
+  p.samples_done = samples_done_.load();
+  p.samples_total = settings_.samples;
+  p.elapsed_s = elapsed();
+  p.cancelled = cancel_.load();
+  p.finished = finished_.load();
+  return p;
+}
+
+SessionStats Session::stats() const {
+  SessionStats s;
+  s.rays = rays_.load();
+  s.paths = paths_.load();
+  s.nonfinite_samples = nonfinite_.load();
+  s.passes = passes_.load();
+  s.threads = pool_ ? pool_->size() : 0;
+  s.elapsed_s = elapsed();
+  return s;
+}
+
+std::string Session::error() const {
+  std::lock_guard<std::mutex> lk(m_);
+  return error_;
+}
+
+void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
+  int x0, y0, x1, y1;
+  film_.tile_rect(tile, x0, y0, x1, y1);
+  const int tw = x1 - x0, th = y1 - y0;
+  std::vector<Rgba> local(size_t(tw) * size_t(th));
+  PathCounters counters;
+  uint64_t nonfinite = 0;
+  for (int s = s0; s < s1; ++s) {
+    if (cancel_.load(std::memory_order_relaxed)) break;
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        // One independent stream per (seed, pixel, sample): thread- and pass-independent.
+        const uint64_t pixel = uint64_t(y) * uint64_t(settings_.width) + uint64_t(x);
+        Pcg32 rng(hash3(settings_.seed, pixel, uint64_t(s)), pixel);
+        const float fx = float(x) + rng.next_float(), fy = float(y) + rng.next_float();
+        const Vec3 L = trace_path(*scene_, camera_.generate(fx, fy), rng, integrator_, counters);
+        Rgba& out = local[size_t(y - y0) * size_t(tw) + size_t(x - x0)];
+        if (is_finite(L)) {
+          out = {L.x, L.y, L.z, 1.0f};
+        } else {  // dropped and counted: one bad path must not poison a pixel forever
+          out = {0.0f, 0.0f, 0.0f, 1.0f};
+          ++nonfinite;
+        }
+      }
+    std::lock_guard<std::mutex> lk(film_.tile_lock(tile));
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) film_.add_sample(x, y, local[size_t(y - y0) * size_t(tw) + size_t(x - x0)]);
+    paths_.fetch_add(uint64_t(tw) * uint64_t(th), std::memory_order_relaxed);
+  }
+  rays_.fetch_add(counters.rays, std::memory_order_relaxed);
+  nonfinite_.fetch_add(nonfinite, std::memory_order_relaxed);
+}
+
+void Session::run() {
+  try {
+    pool_ = std::make_unique<ThreadPool>(settings_.threads);
+    const int total = settings_.samples;
+    double sec_per_sample = 0.0;
+    while (samples_done_.load() < total && !cancel_.load()) {
+      const double now = elapsed();
+      const double limit = settings_.time_limit;
+      if (limit > 0.0 && now >= limit) break;
+      // Passes start at one sample for quick feedback and grow towards ~1 s, never past
+      // the time limit, so updates stay frequent and the limit is met closely.
+      int k = 1;
+      if (sec_per_sample > 0.0) {
+        const double target = std::min(1.0, 0.1 + 0.25 * now);
+        double budget = target;
+        if (limit > 0.0) budget = std::min(budget, limit - now);
+        k = std::max(1, static_cast<int>(budget / sec_per_sample));
+      }
+      const int s0 = samples_done_.load();
+      k = std::min(k, total - s0);
+      const double pass_start = elapsed();
+      pool_->parallel_for(size_t(film_.tile_count()),
+                          [&](size_t tile, int thread) { render_tile(int(tile), s0, s0 + k, thread); });
+      if (cancel_.load()) break;
+      sec_per_sample = std::max(1e-6, (elapsed() - pass_start) / k);
+      samples_done_.store(s0 + k);
+      {
+        std::lock_guard<std::mutex> lk(m_);
+        passes_.fetch_add(1);
+      }
+      cv_.notify_all();
+    }
+  } catch (const std::exception& e) {
+    std::lock_guard<std::mutex> lk(m_);
+    error_ = e.what();
+  } catch (...) {
+    std::lock_guard<std::mutex> lk(m_);
+    error_ = "unknown error in the render thread";
+  }
+  end_elapsed_.store(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count());
+  {
+    std::lock_guard<std::mutex> lk(m_);
+    finished_.store(true);
+  }
+  cv_.notify_all();
+}
+
+}  // namespace pl

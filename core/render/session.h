@@ -1,0 +1,89 @@
+// A progressive render: a controller thread runs passes of a few samples per pixel over all
+// tiles on a thread pool, folding each sample into the film, until the sample count or the
+// time limit is reached or the render is cancelled. Callers poll from their own thread.
+#pragma once
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include "render/film.h"
+#include "render/integrator.h"
+#include "util/thread_pool.h"
+
+namespace pl {
+
+struct RenderSettings {
+  int width = 0, height = 0;
+  int samples = 64;
+  double time_limit = 0.0;  // seconds, 0 = none
+  int max_bounces = 12;
+  uint32_t seed = 0;
+  int threads = 0;
+  int tile_size = 32;
+  bool use_nee = true;
+};
+
+// Throws std::invalid_argument with a readable message for settings that cannot be rendered.
+void validate(const RenderSettings& s);
+
+struct SessionProgress {
+  int samples_done = 0, samples_total = 0;
+  double elapsed_s = 0.0;
+  bool cancelled = false, finished = false;
+};
+
+struct SessionStats {
+  uint64_t rays = 0, paths = 0, nonfinite_samples = 0;
+  int passes = 0, threads = 0;
+  double elapsed_s = 0.0;
+};
+
+class Session {
+ public:
+  Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings);
+  ~Session();
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+
+  void start();
+  // Blocks until a pass completes after the previous call, the render finishes, or the timeout.
+  // Returns true once the render has finished.
+  bool wait(double timeout_s);
+  void cancel() { cancel_.store(true); }
+  bool finished() const { return finished_.load(); }
+  SessionProgress progress() const;
+  SessionStats stats() const;
+  std::string error() const;
+  Film& film() { return film_; }
+  const RenderSettings& settings() const { return settings_; }
+
+ private:
+  void run();
+  void render_tile(int tile, int s0, int s1, int thread);
+  double elapsed() const;
+
+  std::shared_ptr<const Scene> scene_;
+  RenderSettings settings_;
+  Camera camera_;
+  IntegratorSettings integrator_;
+  Film film_;
+  std::unique_ptr<ThreadPool> pool_;
+  std::thread controller_;
+
+  std::atomic<bool> cancel_{false}, finished_{false}, started_{false};
+  std::atomic<int> samples_done_{0}, passes_{0};
+  std::atomic<uint64_t> rays_{0}, paths_{0}, nonfinite_{0};
+  std::chrono::steady_clock::time_point t0_;
+  std::atomic<double> end_elapsed_{-1.0};
+
+  mutable std::mutex m_;
+  std::condition_variable cv_;
+  int passes_seen_ = 0;
+  std::string error_;
+};
+
+}  // namespace pl
