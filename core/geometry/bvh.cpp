@@ -169,8 +169,7 @@ class Builder {
   int parallel_depth_ = 0;
 };
 
-// Slab test; returns the entry distance or +inf on a miss. inv_dir may hold infinities:
-// the max/min ordering below discards the NaN of 0 * inf (origin on a slab plane).
+// Slab test; returns the entry distance or +inf on a miss.
 inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3& inv, float tmax) {
   const float tx0 = (n.lo.x - org.x) * inv.x, tx1 = (n.hi.x - org.x) * inv.x;
   const float ty0 = (n.lo.y - org.y) * inv.y, ty1 = (n.hi.y - org.y) * inv.y;
@@ -182,8 +181,10 @@ inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3& inv, 
   return tmin <= tfar ? tmin : kInf;
 }
 
+// Inverse direction with tiny components clamped: an infinite inverse would turn an origin
+// lying exactly on a slab plane into 0 * inf = NaN and cull a box the ray does hit.
 inline Vec3 safe_inverse(const Vec3& d) {
-  auto inv = [](float v) { return v != 0.0f ? 1.0f / v : std::copysign(kInf, v); };
+  auto inv = [](float v) { return 1.0f / (std::fabs(v) < 1e-20f ? std::copysign(1e-20f, v) : v); };
   return {inv(d.x), inv(d.y), inv(d.z)};
 }
 

@@ -44,7 +44,12 @@ inline bool intersect_triangle(const Vec3& org, const RayPrecomp& rp, const Vec3
   if (det == 0.0f) return false;
   const float az = rp.sz * A[rp.kz], bz = rp.sz * B[rp.kz], cz = rp.sz * C[rp.kz];
   const float T = u * az + v * bz + w * cz;
-  if (det > 0.0f ? (T <= 0.0f || T >= tmax * det) : (T >= 0.0f || T <= tmax * det)) return false;
+  // Written so that a NaN anywhere (degenerate input) rejects the hit.
+  if (det > 0.0f) {
+    if (!(T > 0.0f) || !(T < tmax * det)) return false;
+  } else if (!(T < 0.0f) || !(T > tmax * det)) {
+    return false;
+  }
   const float inv = 1.0f / det;
   t_out = T * inv;
   b1_out = v * inv;

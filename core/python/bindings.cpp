@@ -118,6 +118,50 @@ py::dict scene_stats(const PyScene& self) {
   return d;
 }
 
+void check_rays(const PyScene& self, const FloatArray& o, const FloatArray& d) {
+  if (!self.scene->committed()) throw std::invalid_argument("commit() the scene before tracing rays");
+  if (o.ndim() != 2 || o.shape(1) != 3 || d.ndim() != 2 || d.shape(1) != 3 || o.shape(0) != d.shape(0))
+    throw std::invalid_argument("origins and directions must both have shape (N, 3)");
+}
+
+py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
+  check_rays(self, origins, dirs);
+  const py::ssize_t n = origins.shape(0);
+  py::array_t<float> t(n), b1(n), b2(n);
+  py::array_t<int64_t> prim(n);
+  const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  float *pt = t.mutable_data(), *pb1 = b1.mutable_data(), *pb2 = b2.mutable_data();
+  int64_t* pp = prim.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) {
+      Ray r{o[i], d[i], tmax};
+      Hit h;
+      const bool ok = self.scene->intersect(r, h);
+      pt[i] = ok ? h.t : kInf;
+      pp[i] = ok ? int64_t(h.prim) : -1;
+      pb1[i] = ok ? h.b1 : 0.0f;
+      pb2[i] = ok ? h.b2 : 0.0f;
+    }
+  }
+  return py::make_tuple(t, prim, b1, b2);
+}
+
+py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
+  check_rays(self, origins, dirs);
+  const py::ssize_t n = origins.shape(0);
+  py::array_t<bool> out(n);
+  const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  bool* po = out.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) po[i] = self.scene->occluded(Ray{o[i], d[i], tmax});
+  }
+  return out;
+}
+
 struct PySession {
   std::shared_ptr<Scene> scene;  // keeps the scene alive and locked against edits
   std::unique_ptr<Session> session;
@@ -158,6 +202,22 @@ PYBIND11_MODULE(pathlight_core, m) {
 #endif
     return d;
   });
+
+  m.def(
+      "offset_ray_origin",
+      [](const FloatArray& points, const FloatArray& normals) {
+        if (points.ndim() != 2 || points.shape(1) != 3 || normals.ndim() != 2 || normals.shape(1) != 3 ||
+            points.shape(0) != normals.shape(0))
+          throw std::invalid_argument("points and normals must both have shape (N, 3)");
+        FloatArray out({points.shape(0), py::ssize_t(3)});
+        const Vec3* p = reinterpret_cast<const Vec3*>(points.data());
+        const Vec3* n = reinterpret_cast<const Vec3*>(normals.data());
+        Vec3* o = reinterpret_cast<Vec3*>(out.mutable_data());
+        for (py::ssize_t i = 0; i < points.shape(0); ++i) o[i] = offset_ray_origin(p[i], n[i]);
+        return out;
+      },
+      py::arg("points"), py::arg("normals"),
+      "The offset the integrator applies to spawned rays (exposed for self-intersection tests).");
 
   py::class_<CameraDesc>(m, "Camera")
       .def(py::init<>())
@@ -250,7 +310,11 @@ PYBIND11_MODULE(pathlight_core, m) {
             self.scene->commit(threads);
           },
           py::arg("threads") = 0)
-      .def("stats", &scene_stats);
+      .def("stats", &scene_stats)
+      .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
+           "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim is -1 and t inf on a miss.")
+      .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
+           "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).");
 
   py::class_<PySession>(m, "Session")
       .def(py::init([](PyScene& scene, const RenderSettings& settings) {

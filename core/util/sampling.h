@@ -64,11 +64,10 @@ class Distribution1D {
       cdf_[i + 1] = sum;
     }
     total_ = sum;
-    if (sum > 0.0)
-      for (size_t i = 0; i < n; ++i) {
-        pmf_[i] = static_cast<float>((cdf_[i + 1] - cdf_[i]) / sum);
-        cdf_[i + 1] /= sum;
-      }
+    if (sum > 0.0) {
+      for (size_t i = 0; i < n; ++i) pmf_[i] = static_cast<float>((cdf_[i + 1] - cdf_[i]) / sum);
+      for (size_t i = 1; i <= n; ++i) cdf_[i] /= sum;
+    }
   }
   bool empty() const { return total_ <= 0.0; }
   size_t size() const { return pmf_.size(); }

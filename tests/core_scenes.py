@@ -1,0 +1,110 @@
+"""Small analytic scenes built directly with numpy for tests of the compiled core."""
+import importlib
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def core():
+    """The compiled module, imported the way the add-on imports it (as addon.pathlight_core)."""
+    if str(REPO) not in sys.path:
+        sys.path.insert(0, str(REPO))
+    return importlib.import_module("addon.pathlight_core")
+
+
+def uv_sphere(radius=1.0, nu=48, nv=24, center=(0.0, 0.0, 0.0), inward=False):
+    """Vertices, triangles and per-corner smooth normals of a UV sphere (poles stay degenerate)."""
+    th = np.linspace(0.0, np.pi, nv + 1)
+    ph = np.linspace(0.0, 2.0 * np.pi, nu + 1)[:-1]
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    n = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(nv), np.arange(nu), indexing="ij")
+    a = (i * nu + j).ravel()
+    b = (i * nu + (j + 1) % nu).ravel()
+    c = ((i + 1) * nu + j).ravel()
+    d = ((i + 1) * nu + (j + 1) % nu).ravel()
+    tris = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
+    if inward:
+        tris = tris[:, ::-1]
+    pos = (n * radius + np.asarray(center)).astype(np.float32)
+    normals = (n[tris] * (-1.0 if inward else 1.0)).astype(np.float32)
+    return pos, tris.astype(np.int32), normals
+
+
+def quad(corner, u, v):
+    """Two triangles spanning corner, corner+u, corner+u+v, corner+v (normal = u x v)."""
+    c = np.asarray(corner, np.float32)
+    u = np.asarray(u, np.float32)
+    v = np.asarray(v, np.float32)
+    pos = np.stack([c, c + u, c + u + v, c + v]).astype(np.float32)
+    return pos, np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+
+
+def look_at_matrix(eye, target, up=(0.0, 0.0, 1.0)):
+    """Blender camera matrix: the camera looks down its local -Z with +Y up."""
+    eye, target, up = (np.asarray(x, np.float64) for x in (eye, target, up))
+    back = eye - target
+    back /= np.linalg.norm(back)
+    right = np.cross(up, back)
+    right /= np.linalg.norm(right)
+    upv = np.cross(back, right)
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, upv, back, eye
+    return m
+
+
+def add_object(pc_scene, pos, tris, material, normals=None, matrix=None):
+    mesh = pc_scene.add_mesh(pos, tris, normals, None, [material])
+    pc_scene.add_instance(mesh, np.eye(4, dtype=np.float32) if matrix is None else matrix)
+    return mesh
+
+
+def camera(pc, eye, target, lens=50.0, up=(0.0, 0.0, 1.0)):
+    cam = pc.Camera()
+    cam.matrix_world = look_at_matrix(eye, target, up)
+    cam.lens = lens
+    return cam
+
+
+def cornell(pc, light_strength=12.0, light_size=0.5):
+    """A closed Cornell-like box (2 units) with an emissive quad under the ceiling and a sphere."""
+    s = pc.Scene()
+    white = s.add_material("white", (0.73, 0.73, 0.73))
+    red = s.add_material("red", (0.65, 0.05, 0.05))
+    green = s.add_material("green", (0.12, 0.45, 0.15))
+    light = s.add_material("light", (0.0, 0.0, 0.0), (light_strength, light_strength * 0.85, light_strength * 0.6))
+    walls = [
+        (quad((-1, -1, 0), (2, 0, 0), (0, 2, 0)), white),   # floor
+        (quad((-1, -1, 2), (0, 2, 0), (2, 0, 0)), white),   # ceiling
+        (quad((-1, 1, 0), (2, 0, 0), (0, 0, 2)), white),    # back
+        (quad((-1, -1, 0), (0, 2, 0), (0, 0, 2)), red),     # left
+        (quad((1, -1, 0), (0, 0, 2), (0, 2, 0)), green),    # right
+        (quad((-1, -1, 0), (0, 0, 2), (2, 0, 0)), white),   # front (behind the camera)
+        (quad((-light_size / 2, -light_size / 2, 1.98), (light_size, 0, 0), (0, light_size, 0)), light),
+    ]
+    for (pos, tris), m in walls:
+        add_object(s, pos, tris, m)
+    pos, tris, nrm = uv_sphere(0.4, center=(0.3, 0.2, 0.4))
+    add_object(s, pos, tris, white, nrm)
+    s.set_camera(camera(pc, (0.0, -0.95, 1.0), (0.0, 1.0, 1.0), lens=16.0))
+    return s
+
+
+def render(pc, scene, width=64, height=64, samples=64, **kw):
+    st = pc.RenderSettings()
+    st.width, st.height, st.samples = width, height, samples
+    for k, v in kw.items():
+        setattr(st, k, v)
+    sess = pc.Session(scene, st)
+    sess.start()
+    while not sess.wait(1.0):
+        pass
+    return sess.film(), sess.stats()
+
+
+def region_means(img, grid=8):
+    h, w = img.shape[:2]
+    return img[: h // grid * grid, : w // grid * grid, :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
