@@ -1,0 +1,133 @@
+"""Build the .blend fixtures used by the add-on tests.
+
+    .venv/bin/python blender_scenes/make_fixtures.py
+
+cornell_box.blend: the classic Cornell box (Blender units: the box spans x, y in [-1, 1] and
+z in [0, 2], open towards -y where the camera is). All materials are plain shader nodes, so
+Cycles and Pathlight read the same scene. Stored with the CYCLES engine, since PATHLIGHT
+exists only while the add-on is registered; renders select the engine themselves.
+"""
+
+import math
+from pathlib import Path
+
+import bpy
+import bmesh  # only importable once bpy is
+
+HERE = Path(__file__).resolve().parent
+
+WHITE = (0.73, 0.73, 0.73)
+RED = (0.63, 0.065, 0.05)
+GREEN = (0.14, 0.45, 0.091)
+LIGHT_COLOR = (1.0, 0.85, 0.65)  # warm white
+LIGHT_STRENGTH = 12.0
+
+
+def diffuse_material(name, color):
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    bsdf = nodes.new("ShaderNodeBsdfDiffuse")
+    bsdf.inputs["Color"].default_value = (*color, 1.0)
+    mat.node_tree.links.new(bsdf.outputs["BSDF"], nodes["Material Output"].inputs["Surface"])
+    mat.diffuse_color = (*color, 1.0)  # viewport colour
+    return mat
+
+
+def emission_material(name, color, strength):
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    emission = nodes.new("ShaderNodeEmission")
+    emission.inputs["Color"].default_value = (*color, 1.0)
+    emission.inputs["Strength"].default_value = strength
+    mat.node_tree.links.new(emission.outputs["Emission"],
+                            nodes["Material Output"].inputs["Surface"])
+    return mat
+
+
+def add_object(name, mesh, material, location=(0, 0, 0), rotation=(0, 0, 0), scale=(1, 1, 1)):
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    obj.location, obj.rotation_euler, obj.scale = location, rotation, scale
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def quad_mesh(name, corners):
+    """One quad; corners counter-clockwise seen from the side its normal points to."""
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(corners, [], [(0, 1, 2, 3)])
+    return mesh
+
+
+def bmesh_mesh(name, build):
+    bm = bmesh.new()
+    build(bm)
+    mesh = bpy.data.meshes.new(name)
+    bm.to_mesh(mesh)
+    bm.free()
+    return mesh
+
+
+def make_cornell_box(path):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    white, red, green = (diffuse_material(n, c) for n, c in
+                         (("White", WHITE), ("Red", RED), ("Green", GREEN)))
+
+    # Walls, normals pointing into the box.
+    walls = {
+        "Floor": ([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], white),
+        "Ceiling": ([(-1, -1, 2), (-1, 1, 2), (1, 1, 2), (1, -1, 2)], white),
+        "Back": ([(-1, 1, 0), (1, 1, 0), (1, 1, 2), (-1, 1, 2)], white),
+        "Left": ([(-1, -1, 0), (-1, 1, 0), (-1, 1, 2), (-1, -1, 2)], red),
+        "Right": ([(1, -1, 0), (1, -1, 2), (1, 1, 2), (1, 1, 0)], green),
+    }
+    for name, (corners, mat) in walls.items():
+        add_object(name, quad_mesh(name, corners), mat)
+
+    # Area light: an emissive quad just below the ceiling, facing down.
+    s = 0.25
+    light = quad_mesh("Light", [(-s, -s, 0), (-s, s, 0), (s, s, 0), (s, -s, 0)])
+    add_object("Light", light, emission_material("Light", LIGHT_COLOR, LIGHT_STRENGTH),
+               location=(0, 0.1, 1.98))
+
+    box = bmesh_mesh("Box", lambda bm: bmesh.ops.create_cube(bm, size=1.0))
+    add_object("Box", box, white, location=(-0.35, 0.3, 0.6),
+               rotation=(0, 0, math.radians(28)), scale=(0.55, 0.55, 1.2))
+
+    sphere = bmesh_mesh("Sphere", lambda bm: bmesh.ops.create_uvsphere(
+        bm, u_segments=48, v_segments=24, radius=0.35))
+    sphere.shade_smooth()
+    add_object("Sphere", sphere, white, location=(0.42, -0.3, 0.35))
+
+    cam_data = bpy.data.cameras.new("Camera")
+    cam_data.lens = 50.0
+    camera = bpy.data.objects.new("Camera", cam_data)
+    camera.location = (0.0, -4.0, 1.0)
+    camera.rotation_euler = (math.radians(90), 0.0, 0.0)  # look along +y
+    scene.collection.objects.link(camera)
+    scene.camera = camera
+
+    world = bpy.data.worlds.new("World")
+    world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
+    world.color = (0, 0, 0)
+    scene.world = world
+
+    render = scene.render
+    render.engine = 'CYCLES'
+    render.resolution_x = render.resolution_y = 256
+    render.resolution_percentage = 100
+    render.film_transparent = False
+    scene.view_settings.view_transform = 'Standard'
+    scene.view_settings.look = 'None'
+
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True)
+
+
+if __name__ == "__main__":
+    make_cornell_box(HERE / "cornell_box.blend")
