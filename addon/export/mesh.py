@@ -1,0 +1,86 @@
+"""Evaluated geometry → numpy arrays, one entry per unique mesh with all its instance matrices."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+
+@dataclass
+class MeshData:
+    name: str
+    positions: np.ndarray  # float32 (V, 3), object space
+    triangles: np.ndarray  # int32 (T, 3), indices into positions
+    corner_normals: np.ndarray  # float32 (T, 3, 3), shading normal per triangle corner
+    material_indices: np.ndarray  # int32 (T,), material slot per triangle
+    materials: list  # bpy.types.Material or None per slot
+    matrices: list = field(default_factory=list)  # float32 (4, 4) object-to-world, one per instance
+
+
+def mesh_arrays(mesh):
+    """(positions, triangles, corner_normals, material_indices) of a bpy Mesh, via foreach_get."""
+    mesh.calc_loop_triangles()
+    tris = mesh.loop_triangles
+    n_tris = len(tris)
+
+    positions = np.empty(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", positions)
+    triangles = np.empty(n_tris * 3, np.int32)
+    tris.foreach_get("vertices", triangles)
+    loops = np.empty(n_tris * 3, np.int32)
+    tris.foreach_get("loops", loops)
+    material_indices = np.empty(n_tris, np.int32)
+    tris.foreach_get("material_index", material_indices)
+
+    # Per-corner normals already encode smooth/flat faces, sharp edges and custom normals.
+    normals = np.empty(len(mesh.corner_normals) * 3, np.float32)
+    mesh.corner_normals.foreach_get("vector", normals)
+    corner_normals = normals.reshape(-1, 3)[loops].reshape(n_tris, 3, 3)
+
+    return positions.reshape(-1, 3), triangles.reshape(-1, 3), corner_normals, material_indices
+
+
+def _is_visible(instance):
+    if instance.is_instance:
+        return True  # the instancer's visibility was already applied by the depsgraph
+    if not instance.show_self:
+        return False  # e.g. an instancer that hides itself
+    # A viewport depsgraph still holds objects hidden for render.
+    return not instance.object.original.hide_render
+
+
+def collect_meshes(depsgraph):
+    """All visible geometry of the depsgraph. Instances of the same evaluated geometry (and
+    materials) share one MeshData and add only their matrix_world."""
+    meshes = {}
+    for instance in depsgraph.object_instances:
+        obj = instance.object
+        # Curves, surfaces, text and metaballs are listed too, as MESH instances of their
+        # evaluated surface, next to the original object (which we skip, as Cycles does).
+        if obj.type != 'MESH' or not _is_visible(instance):
+            continue
+        materials = [slot.material for slot in obj.material_slots]
+        # The evaluated data is shared by all instances of one geometry (and by objects sharing
+        # an unmodified mesh); materials can differ per object when slots link to the object.
+        key = (obj.data.as_pointer(), tuple(m.as_pointer() if m else 0 for m in materials))
+        entry = meshes.get(key)
+        if entry is None:
+            entry = meshes[key] = _export_object(obj, materials)
+        if entry is not None:
+            entry.matrices.append(np.array(instance.matrix_world, np.float32))
+    return [m for m in meshes.values() if m is not None]
+
+
+def _export_object(obj, materials):
+    try:
+        mesh = obj.to_mesh()
+        if mesh is None or len(mesh.polygons) == 0:
+            return None
+        positions, triangles, normals, material_indices = mesh_arrays(mesh)
+        if not materials:
+            materials = list(mesh.materials)
+    finally:
+        obj.to_mesh_clear()
+    # Blender and Cycles clamp out-of-range material indices to the last slot.
+    np.clip(material_indices, 0, max(len(materials) - 1, 0), out=material_indices)
+    return MeshData(obj.original.name, positions, triangles, normals, material_indices, materials)
