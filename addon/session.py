@@ -1,0 +1,127 @@
+"""Final-render driver: export the scene, run a core Session, stream its film into the result."""
+
+import logging
+import time
+
+import bpy
+
+from .core import get_core
+from .export import ExportError, export_scene, to_core
+
+log = logging.getLogger(__name__)
+
+_progress_listener = None
+
+
+def set_progress_listener(fn):
+    """Call fn(info) at each progress update of a render, with info = {samples_done,
+    samples_total, elapsed_s, eta_s (None if unknown)}; a truthy return cancels the render
+    (like Esc in Blender). None removes the listener. Used by build.py's render command."""
+    global _progress_listener
+    _progress_listener = fn
+
+
+def render_size(scene):
+    r = scene.render
+    return (r.resolution_x * r.resolution_percentage // 100,
+            r.resolution_y * r.resolution_percentage // 100)
+
+
+def render_settings(pc, scene):
+    props = scene.pathlight
+    st = pc.RenderSettings()
+    st.width, st.height = render_size(scene)
+    st.samples = props.samples
+    st.time_limit = props.time_limit
+    st.max_bounces = props.max_bounces
+    st.seed = props.seed
+    st.use_nee = props.use_nee
+    st.threads = scene.render.threads  # the detected count in AUTO mode
+    return st
+
+
+def render(engine, depsgraph):
+    """RenderEngine.render: never raises; errors go to engine.report."""
+    warn = _warner(engine)
+    try:
+        pc = get_core()
+        scene = depsgraph.scene
+        core_scene = to_core(pc, export_scene(depsgraph, warn))
+        sess = pc.Session(core_scene, render_settings(pc, scene))
+        dropped = core_scene.stats().get("dropped_triangles", 0)
+        if dropped:
+            warn(f"{dropped} degenerate triangle(s) skipped")
+        _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit)
+    except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
+        engine.report({'ERROR'}, f"Pathlight: {e}")
+    except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
+        log.exception("render failed")
+        engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
+
+
+def _warner(engine):
+    seen = set()
+
+    def warn(msg):
+        if msg not in seen:
+            seen.add(msg)
+            log.warning(msg)
+            engine.report({'WARNING'}, msg)
+    return warn
+
+
+def _run(engine, sess, width, height, time_limit):
+    result = engine.begin_result(0, 0, width, height)
+    try:
+        combined = result.layers[0].passes["Combined"]
+        sess.start()
+        shown = -1
+        stats_at = -1.0
+        while True:
+            finished = sess.wait(0.25)
+            info = _progress_info(sess.progress(), time_limit)
+            if info["samples_done"] != shown or finished:
+                # film(): float32 (H, W, 4), row 0 = bottom, which is also Blender's order.
+                combined.rect.foreach_set(sess.film().ravel())  # ~400x faster than `rect = `
+                engine.update_result(result)
+                shown = info["samples_done"]
+            engine.update_progress(info["samples_done"] / max(info["samples_total"], 1))
+            listener = _progress_listener
+            # In background mode Blender prints each stats line to stdout: that is the
+            # terminal progress, about once a second, unless a listener shows its own.
+            now = time.monotonic()
+            if not bpy.app.background or (listener is None and (
+                    finished or now - stats_at >= 1.0)):
+                engine.update_stats("", _status_line(info, sess))
+                stats_at = now
+            cancel = listener is not None and listener(info)  # also sees the final state
+            if finished:
+                break
+            if cancel or engine.test_break():
+                sess.cancel()
+    finally:
+        if not sess.is_finished():  # an exception above: stop the worker threads
+            sess.cancel()
+            sess.wait(5.0)
+        engine.end_result(result)
+
+
+def _progress_info(progress, time_limit):
+    done, total = progress["samples_done"], progress["samples_total"]
+    elapsed = progress["elapsed_s"]
+    eta = elapsed / done * (total - done) if done else None
+    if time_limit > 0:
+        left = max(time_limit - elapsed, 0.0)
+        eta = left if eta is None else min(eta, left)
+    return {"samples_done": done, "samples_total": total, "elapsed_s": elapsed, "eta_s": eta}
+
+
+def _status_line(info, sess):
+    parts = [f"Pathlight | Sample {info['samples_done']}/{info['samples_total']}",
+             f"{info['elapsed_s']:.1f} s"]
+    if info["eta_s"] is not None and info["samples_done"] < info["samples_total"]:
+        parts.append(f"ETA {info['eta_s']:.1f} s")
+    rays = sess.stats().get("rays_per_s")
+    if rays:
+        parts.append(f"{rays / 1e6:.1f} Mrays/s")
+    return " | ".join(parts)
