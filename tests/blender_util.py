@@ -1,0 +1,107 @@
+"""Helpers for the tests that run Blender headless (the `bpy` module)."""
+
+import sys
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+import OpenEXR
+
+REPO = Path(__file__).resolve().parents[1]
+SCENES = REPO / "blender_scenes"
+
+
+def load_addon():
+    """Import the add-on package as `addon` and register it (registering is idempotent)."""
+    if str(REPO) not in sys.path:
+        sys.path.insert(0, str(REPO))
+    import addon
+    addon.register()
+    return addon
+
+
+def core_available():
+    try:
+        load_addon().core.get_core()
+    except RuntimeError:
+        return False
+    return True
+
+
+def open_fixture(name):
+    """Open blender_scenes/<name>(.blend) and return its scene."""
+    path = SCENES / name
+    if path.suffix != ".blend":
+        path = path.with_suffix(".blend")
+    bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+    return bpy.context.scene
+
+
+def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
+    """Render `scene` (default: the current one) with `engine` ("PATHLIGHT" or "CYCLES") and
+    return its linear RGBA as float32 (H, W, 4), row 0 = TOP row (image order, as in image
+    files and viewers; the core's film and Blender's pass rects have row 0 = bottom).
+
+    overrides: the engine's settings (scene.pathlight.<name> / scene.cycles.<name>) or else
+    scene.render.<name>, e.g. samples=16, seed=3, resolution_percentage=25. For CYCLES,
+    max_bounces (default 1024) sets every bounce limit, so only the total limits paths, like
+    Pathlight's max_bounces.
+    """
+    scene = scene or bpy.context.scene
+    render = scene.render
+    render.engine = engine
+    if engine == "PATHLIGHT":
+        settings = scene.pathlight
+    elif engine == "CYCLES":
+        settings = scene.cycles
+        _setup_cycles(settings, overrides.pop("max_bounces", 1024))
+    else:
+        raise ValueError(f"unsupported engine {engine!r}")
+    for name, value in overrides.items():
+        target = settings if hasattr(settings, name) else render
+        if not hasattr(target, name):
+            raise AttributeError(f"no render setting {name!r} for {engine}")
+        setattr(target, name, value)
+
+    # Raw render: linear float, no view transform, compositor or sequencer in between.
+    scene.view_settings.view_transform = 'Standard'
+    scene.view_settings.look = 'None'
+    render.use_compositing = False
+    render.use_sequencer = False
+    image = render.image_settings
+    image.file_format = 'OPEN_EXR'
+    image.color_mode = 'RGBA'
+    image.color_depth = '32'
+    image.exr_codec = 'ZIP'
+
+    with tempfile.TemporaryDirectory(prefix="pathlight_test_") as tmp:
+        render.filepath = str(Path(tmp) / "render.exr")
+        render.use_file_extension = False
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+        return read_exr(render.filepath)
+
+
+def read_exr(path):
+    """RGBA float32 (H, W, 4) of an EXR file, row 0 = top (the file's own order)."""
+    with OpenEXR.File(str(path)) as exr:  # closing it empties channels(): copy first
+        channels = exr.channels()
+        if "RGBA" in channels:  # OpenEXR 3.x groups R, G, B, A into one channel by default
+            rgba = channels["RGBA"].pixels
+        else:
+            rgba = np.stack([channels[c].pixels for c in "RGBA"], axis=-1)
+        return np.array(rgba, dtype=np.float32)
+
+
+def _setup_cycles(cycles, bounces):
+    """Unbiased, deterministic Cycles on the CPU, comparable with Pathlight."""
+    cycles.device = 'CPU'
+    cycles.use_denoising = False
+    cycles.use_adaptive_sampling = False
+    cycles.sample_clamp_direct = 0.0
+    cycles.sample_clamp_indirect = 0.0
+    cycles.blur_glossy = 0.0
+    cycles.max_bounces = bounces
+    for name in ("diffuse_bounces", "glossy_bounces", "transmission_bounces",
+                 "volume_bounces", "transparent_max_bounces"):
+        setattr(cycles, name, bounces)
