@@ -451,6 +451,27 @@ def test_cancel_through_listener(listener):
 
 
 @needs_core
+def test_time_limit_stops_render(listener):
+    scene = open_fixture("cornell_box")
+    start = time.monotonic()
+    render_to_array(scene, samples=100000, time_limit=0.5, resolution_percentage=25)
+    assert time.monotonic() - start < 2.5
+    assert listener.infos[-1]["samples_done"] < 100000
+    assert all(0 <= info["eta_s"] <= 0.5 for info in listener.infos)
+
+
+@needs_core
+def test_seed_and_threads_reach_the_core():
+    scene = open_fixture("cornell_box")
+    scene.render.threads_mode = 'FIXED'
+    scene.render.threads = 1
+    a, b, c = (render_to_array(scene, samples=2, seed=seed, resolution_percentage=12)
+               for seed in (1, 1, 2))
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+@needs_core
 def test_empty_scene_renders_world(scene):
     world = bpy.data.worlds.new("World")
     world.use_nodes = True
@@ -463,7 +484,7 @@ def test_empty_scene_renders_world(scene):
 
 
 @needs_core
-def test_errors_are_reported_not_raised(scene, listener, monkeypatch):
+def test_errors_are_reported_not_raised(scene, listener):
     cube()
     scene.render.engine = "PATHLIGHT"
     listener.answer = lambda info: 1 / 0  # an exception inside the progress loop
