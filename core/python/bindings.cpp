@@ -33,6 +33,36 @@ Vec3 to_color(const py::handle& h, const char* what) {
   return {clean(v[0]), clean(v[1]), clean(v[2])};
 }
 
+Vec3 to_point(const py::handle& h, const char* what) {
+  const auto v = py::cast<std::vector<float>>(h);
+  if (v.size() != 3) throw std::invalid_argument(std::string(what) + " must have 3 components");
+  const Vec3 p{v[0], v[1], v[2]};
+  if (!is_finite(p)) throw std::invalid_argument(std::string(what) + " contains NaN or infinite values");
+  return p;
+}
+
+float finite_nonneg(float x, const char* what) {
+  if (!std::isfinite(x) || x < 0.0f) throw std::invalid_argument(std::string(what) + " must be finite and >= 0");
+  return x;
+}
+
+Mat4 to_mat4(const FloatArray& a, const char* what);
+
+// The inverse of the upper 3x3 of m, for transforming directions into a light's frame.
+Mat4 inverse3x3(const Mat4& m, const char* what) {
+  const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
+  const Vec3 r0 = cross(c1, c2), r1 = cross(c2, c0), r2 = cross(c0, c1);
+  const float det = dot(c0, r0);
+  if (!(std::fabs(det) > 0.0f) || !std::isfinite(det)) throw std::invalid_argument(std::string(what) + " is singular");
+  Mat4 inv;
+  for (int j = 0; j < 3; ++j) {
+    inv.m[0][j] = r0[j] / det;
+    inv.m[1][j] = r1[j] / det;
+    inv.m[2][j] = r2[j] / det;
+  }
+  return inv;
+}
+
 Mat4 to_mat4(const FloatArray& a, const char* what) {
   if (a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4)
     throw std::invalid_argument(std::string(what) + " must be a 4x4 matrix");
@@ -109,6 +139,7 @@ py::dict scene_stats(const PyScene& self) {
   d["materials"] = s.materials;
   d["emissive_triangles"] = s.emissive_triangles;
   d["dropped_triangles"] = s.dropped_triangles;
+  d["lights"] = s.lights;
   d["bvh_nodes"] = b.nodes;
   d["bvh_leaves"] = b.leaves;
   d["bvh_max_depth"] = b.max_depth;
@@ -255,7 +286,19 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("seed", &RenderSettings::seed)
       .def_readwrite("threads", &RenderSettings::threads)
       .def_readwrite("tile_size", &RenderSettings::tile_size)
-      .def_readwrite("use_nee", &RenderSettings::use_nee);
+      .def_readwrite("use_nee", &RenderSettings::use_nee)
+      .def_property(
+          "sampler", [](const RenderSettings& s) { return s.sampler == SamplerType::Sobol ? "sobol" : "random"; },
+          [](RenderSettings& s, const std::string& v) {
+            if (v == "sobol") s.sampler = SamplerType::Sobol;
+            else if (v == "random") s.sampler = SamplerType::Random;
+            else throw std::invalid_argument("sampler must be 'sobol' or 'random'");
+          })
+      .def_readwrite("adaptive_threshold", &RenderSettings::adaptive_threshold)
+      .def_readwrite("adaptive_min_samples", &RenderSettings::adaptive_min_samples)
+      .def_readwrite("diffuse_bounces", &RenderSettings::diffuse_bounces)
+      .def_readwrite("glossy_bounces", &RenderSettings::glossy_bounces)
+      .def_readwrite("transmission_bounces", &RenderSettings::transmission_bounces);
 
   py::class_<PyScene>(m, "Scene")
       .def(py::init<>())
@@ -282,6 +325,109 @@ PYBIND11_MODULE(pathlight_core, m) {
             self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"));
           },
           py::arg("mesh"), py::arg("matrix"))
+      .def(
+          "add_point_light",
+          [](PyScene& self, const py::object& position, const py::object& intensity, float radius, bool cast_shadow) {
+            self.check_editable();
+            Light l;
+            l.type = LightType::Point;
+            l.position = to_point(position, "position");
+            l.color = to_color(intensity, "intensity");
+            l.radius = finite_nonneg(radius, "radius");
+            l.cast_shadow = cast_shadow;
+            self.scene->add_light(l);
+          },
+          py::arg("position"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("cast_shadow") = true)
+      .def(
+          "add_spot_light",
+          [](PyScene& self, const FloatArray& matrix, const py::object& intensity, float radius, float spot_size,
+             float spot_blend, bool cast_shadow) {
+            self.check_editable();
+            const Mat4 m = to_mat4(matrix, "spot light matrix");
+            Light l;
+            l.type = LightType::Spot;
+            l.position = {m.m[0][3], m.m[1][3], m.m[2][3]};
+            l.color = to_color(intensity, "intensity");
+            l.radius = finite_nonneg(radius, "radius");
+            l.to_local = inverse3x3(m, "spot light matrix");
+            const float half = 0.5f * clampf(finite_nonneg(spot_size, "spot_size"), 0.0f, kPi);
+            l.cos_half_spot = std::cos(half);
+            const float blend = clampf(finite_nonneg(spot_blend, "spot_blend"), 0.0f, 1.0f);
+            l.spot_smooth_inv = blend > 0.0f && l.cos_half_spot < 1.0f ? 1.0f / ((1.0f - l.cos_half_spot) * blend) : 0.0f;
+            l.cast_shadow = cast_shadow;
+            self.scene->add_light(l);
+          },
+          py::arg("matrix"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("spot_size") = kPi / 4.0f,
+          py::arg("spot_blend") = 0.15f, py::arg("cast_shadow") = true)
+      .def(
+          "add_sun_light",
+          [](PyScene& self, const py::object& direction, const py::object& irradiance, float angle, bool cast_shadow) {
+            self.check_editable();
+            Light l;
+            l.type = LightType::Sun;
+            const Vec3 d = to_point(direction, "direction");
+            if (!(length(d) > 0.0f)) throw std::invalid_argument("sun direction must be non-zero");
+            l.dir = normalize(d);
+            l.color = to_color(irradiance, "irradiance");
+            const float half = 0.5f * clampf(finite_nonneg(angle, "angle"), 0.0f, kPi * 0.999f);
+            l.cos_half_angle = half > 0.0f ? std::cos(half) : 1.0f;
+            // Cycles' distant light: radiance E / (pi tan^2 h) over the cone of half-angle h.
+            l.sun_radiance_scale = half > 0.0f ? 1.0f / (kPi * std::tan(half) * std::tan(half)) : 0.0f;
+            l.cast_shadow = cast_shadow;
+            self.scene->add_light(l);
+          },
+          py::arg("direction"), py::arg("irradiance"), py::arg("angle") = 0.0f, py::arg("cast_shadow") = true)
+      .def(
+          "add_area_light",
+          [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, const py::object& radiance,
+             bool ellipse, bool cast_shadow) {
+            self.check_editable();
+            const Mat4 m = to_mat4(matrix, "area light matrix");
+            Light l;
+            l.type = ellipse ? LightType::Ellipse : LightType::Rect;
+            l.position = {m.m[0][3], m.m[1][3], m.m[2][3]};
+            l.axis_u = m.vector({finite_nonneg(size_x, "size_x"), 0.0f, 0.0f});
+            l.axis_v = m.vector({0.0f, finite_nonneg(size_y, "size_y"), 0.0f});
+            const Vec3 n = cross(l.axis_u, l.axis_v);
+            l.area = length(n) * (ellipse ? kPi / 4.0f : 1.0f);
+            if (!(l.area > 0.0f) || !std::isfinite(l.area)) return;  // nothing to emit from
+            l.dir = -normalize(m.vector({0.0f, 0.0f, 1.0f}));  // emits along local -Z
+            l.color = to_color(radiance, "radiance");
+            l.cast_shadow = cast_shadow;
+            self.scene->add_light(l);
+          },
+          py::arg("matrix"), py::arg("size_x"), py::arg("size_y"), py::arg("radiance"), py::arg("ellipse") = false,
+          py::arg("cast_shadow") = true)
+      .def(
+          "set_world_texture",
+          [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj) {
+            self.check_editable();
+            if (pixels.ndim() != 3 || (pixels.shape(2) != 3 && pixels.shape(2) != 4) || pixels.shape(0) < 1 ||
+                pixels.shape(1) < 1)
+              throw std::invalid_argument("world texture pixels must have shape (H, W, 3) or (H, W, 4)");
+            if (pixels.shape(0) > 65536 || pixels.shape(1) > 65536)
+              throw std::invalid_argument("world texture is too large");
+            const FloatArray rotation = rotation_obj.is_none()
+                                            ? FloatArray(py::array_t<float>(std::vector<py::ssize_t>{3, 3}))
+                                            : rotation_obj.cast<FloatArray>();
+            if (rotation.ndim() != 2 || rotation.shape(0) != 3 || rotation.shape(1) != 3)
+              throw std::invalid_argument("rotation must be a 3x3 matrix");
+            const int h = int(pixels.shape(0)), w = int(pixels.shape(1)), c = int(pixels.shape(2));
+            std::vector<Vec3> px(size_t(w) * size_t(h));
+            const float* src = pixels.data();
+            auto clean = [](float x) { return std::isfinite(x) && x > 0.0f ? x : 0.0f; };
+            for (size_t i = 0; i < px.size(); ++i)
+              px[i] = {clean(src[i * c]), clean(src[i * c + 1]), clean(src[i * c + 2])};
+            Mat4 rot;
+            auto r = rotation.unchecked<2>();
+            for (int i = 0; i < 3; ++i)
+              for (int j = 0; j < 3; ++j) rot.m[i][j] = rotation_obj.is_none() ? float(i == j) : r(i, j);
+            if (!rot.is_finite()) throw std::invalid_argument("rotation contains NaN or infinite values");
+            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+            py::gil_scoped_release release;
+            self.scene->set_environment(Environment(std::move(px), w, h, k, rot));
+          },
+          py::arg("pixels"), py::arg("strength") = 1.0f, py::arg("rotation") = py::none())
       .def(
           "set_world_color",
           [](PyScene& self, const py::object& c) {
@@ -372,7 +518,19 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["passes"] = s.passes;
              d["threads"] = s.threads;
              d["elapsed_s"] = s.elapsed_s;
+             d["active_pixels"] = s.active_pixels;
              return d;
+           })
+      .def("sample_counts",
+           [](PySession& self) {
+             Film& f = self.session->film();
+             py::array_t<uint32_t> out({f.height(), f.width()});
+             uint32_t* dst = out.mutable_data();
+             {
+               py::gil_scoped_release release;
+               f.read_counts(dst);
+             }
+             return out;
            })
       .def("film",
            [](PySession& self) {

@@ -3,6 +3,7 @@
 // grouped into passes or on which thread rendered them. Rows are stored bottom-up (Blender's order).
 #pragma once
 #include <cstdint>
+#include <algorithm>
 #include <mutex>
 #include <vector>
 
@@ -19,6 +20,8 @@ class Film {
   Film(int width, int height, int tile_size) : w_(width), h_(height), tile_(tile_size) {
     mean_.resize(size_t(w_) * size_t(h_));
     count_.assign(size_t(w_) * size_t(h_), 0u);
+    m2_.assign(size_t(w_) * size_t(h_), 0.0f);
+    done_.assign(size_t(w_) * size_t(h_), 0u);
     tiles_x_ = (w_ + tile_ - 1) / tile_;
     tiles_y_ = (h_ + tile_ - 1) / tile_;
     locks_ = std::vector<std::mutex>(size_t(tiles_x_) * size_t(tiles_y_));
@@ -42,10 +45,66 @@ class Film {
     const uint32_t n = ++count_[i];
     const float k = 1.0f / static_cast<float>(n);
     Rgba& m = mean_[i];
+    // Welford's update of the luminance variance (luminance is linear in the RGB mean).
+    const float l = 0.2126f * v.r + 0.7152f * v.g + 0.0722f * v.b;
+    const float l_old = 0.2126f * m.r + 0.7152f * m.g + 0.0722f * m.b;
     m.r += (v.r - m.r) * k;
     m.g += (v.g - m.g) * k;
     m.b += (v.b - m.b) * k;
     m.a += (v.a - m.a) * k;
+    const float l_new = 0.2126f * m.r + 0.7152f * m.g + 0.0722f * m.b;
+    m2_[i] += (l - l_old) * (l - l_new);
+  }
+
+  bool converged(int x, int y) const { return done_[size_t(y) * size_t(w_) + size_t(x)] != 0; }
+  uint32_t count(int x, int y) const { return count_[size_t(y) * size_t(w_) + size_t(x)]; }
+
+  // Adaptive sampling: marks the pixels of a tile whose estimated error is below `threshold`.
+  // The error is the standard error of the mean luminance over the square root of the mean
+  // (noise as seen after a perceptual, roughly square-root, tone curve), like Cycles' metric.
+  // A pixel only stops when its 4-neighbours inside the tile have converged too, so isolated
+  // lucky pixels keep sampling. Returns the number of pixels still sampling.
+  int update_convergence(int tile, float threshold) {
+    int x0, y0, x1, y1;
+    tile_rect(tile, x0, y0, x1, y1);
+    const int tw = x1 - x0;
+    std::vector<uint8_t> ok(size_t(tw) * size_t(y1 - y0));
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        const size_t i = size_t(y) * size_t(w_) + size_t(x);
+        const uint32_t n = count_[i];
+        const Rgba& m = mean_[i];
+        const float lum = std::max(0.0f, 0.2126f * m.r + 0.7152f * m.g + 0.0722f * m.b);
+        const float var = n > 1 ? std::max(m2_[i], 0.0f) / float(n - 1) : kInf;
+        const float stderr_ = std::sqrt(var / float(std::max(n, 1u)));
+        ok[size_t(y - y0) * tw + size_t(x - x0)] = done_[i] || stderr_ / (1e-4f + std::sqrt(lum)) < threshold;
+      }
+    int active = 0;
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        auto at = [&](int xx, int yy) {
+          xx = std::clamp(xx, x0, x1 - 1);
+          yy = std::clamp(yy, y0, y1 - 1);
+          return ok[size_t(yy - y0) * tw + size_t(xx - x0)] != 0;
+        };
+        const bool stop = at(x, y) && at(x - 1, y) && at(x + 1, y) && at(x, y - 1) && at(x, y + 1);
+        uint8_t& d = done_[size_t(y) * size_t(w_) + size_t(x)];
+        d = d || stop;
+        active += d ? 0 : 1;
+      }
+    return active;
+  }
+
+  // Samples per pixel, rows bottom-up, taking each tile's lock like read_rect.
+  void read_counts(uint32_t* out) {
+    for (int t = 0; t < tile_count(); ++t) {
+      int x0, y0, x1, y1;
+      tile_rect(t, x0, y0, x1, y1);
+      std::lock_guard<std::mutex> lk(locks_[size_t(t)]);
+      for (int y = y0; y < y1; ++y)
+        std::memcpy(out + size_t(y) * size_t(w_) + size_t(x0), &count_[size_t(y) * size_t(w_) + size_t(x0)],
+                    size_t(x1 - x0) * sizeof(uint32_t));
+    }
   }
 
   // Copies a rectangle (x, y from the bottom-left) into `out` (h rows of w RGBA floats).
@@ -69,6 +128,8 @@ class Film {
   int w_, h_, tile_, tiles_x_, tiles_y_;
   std::vector<Rgba> mean_;
   std::vector<uint32_t> count_;
+  std::vector<float> m2_;
+  std::vector<uint8_t> done_;
   std::vector<std::mutex> locks_;
 };
 

@@ -1,24 +1,21 @@
 #include "render/integrator.h"
 
 namespace pl {
-namespace {
 
-inline Vec2 next2(Pcg32& rng) {
-  const float a = rng.next_float();
-  return {a, rng.next_float()};
-}
-
-}  // namespace
-
-Vec3 trace_path(const Scene& scene, Ray ray, Pcg32& rng, const IntegratorSettings& s, PathCounters& c) {
+Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c) {
   Vec3 L(0.0f), beta(1.0f);
   float prev_pdf = 0.0f;  // solid-angle pdf of the BSDF sample that produced `ray`
-  const bool nee = s.use_nee && scene.has_emitters();
+  const bool nee = s.use_nee && scene.has_lights();
+  int diffuse = 0;  // diffuse scattering events so far
+  bool emission_only = false;
   for (int bounce = 0;; ++bounce) {
     Hit hit;
     ++c.rays;
     if (!scene.intersect(ray, hit)) {
-      L += beta * scene.world_color();
+      // Escaped: the world, weighted against the environment light sample that could find it.
+      float w = 1.0f;
+      if (nee && bounce > 0) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
+      L += beta * scene.background(ray.dir) * w;
       break;
     }
     SurfacePoint sp;
@@ -29,15 +26,11 @@ Vec3 trace_path(const Scene& scene, Ray ray, Pcg32& rng, const IntegratorSetting
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.
     if (!is_black(mat.emission)) {
       float w = 1.0f;
-      if (nee && bounce > 0) {
-        const float cos_l = std::fabs(dot(sp.ng, wo));
-        const float pdf_light = scene.emitter_pdf_area(sp.prim) * hit.t * hit.t / cos_l;
-        w = power_heuristic(prev_pdf, pdf_light);
-      }
+      if (nee && bounce > 0) w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, hit.t, std::fabs(dot(sp.ng, wo))));
       L += beta * mat.emission * w;
     }
     // Without light sampling, the vertex past the limit only collects emission.
-    if (bounce > s.max_bounces) break;
+    if (emission_only) break;
 
     // Surfaces are two-sided: shade the side the ray arrived from.
     if (dot(sp.ng, wo) < 0.0f) {
@@ -46,52 +39,56 @@ Vec3 trace_path(const Scene& scene, Ray ray, Pcg32& rng, const IntegratorSetting
     }
     if (dot(sp.ns, sp.ng) <= 0.0f) sp.ns = sp.ng;
     const Frame frame = Frame::from_normal(sp.ns);
-    const bool last = bounce == s.max_bounces;
+    // The last vertex that scatters: no BSDF ray follows (all lobes are diffuse for now).
+    const bool last = bounce >= s.max_bounces || diffuse >= s.diffuse_bounces;
 
     if (nee) {
-      EmitterSample es;
-      const float u_sel = rng.next_float();
-      const Vec2 u_pt = next2(rng);
-      if (scene.sample_emitter(u_sel, u_pt, es)) {
-        Vec3 d = es.p - sp.p;
-        const float dist2 = length_sq(d);
-        const float dist = std::sqrt(dist2);
-        const Vec3 wi = d / dist;
-        const float cos_l = std::fabs(dot(es.n, wi));
-        if (dist > 0.0f && cos_l > 0.0f && dot(sp.ng, wi) > 0.0f) {
-          float bsdf_pdf;
-          const Vec3 f = bsdf_eval(mat.bsdf, frame, wo, wi, bsdf_pdf);
-          if (!is_black(f)) {
-            const float pdf_light = es.pdf_area * dist2 / cos_l;
-            // Offset both ends off their surfaces so neither triangle blocks the segment.
-            const Vec3 o = offset_ray_origin(sp.p, sp.ng);
-            const Vec3 target = offset_ray_origin(es.p, dot(es.n, wi) < 0.0f ? es.n : -es.n);
+      DirectSample ds;
+      const float u_sel = sampler.get1d();
+      const Vec2 u_pt = sampler.get2d();
+      if (scene.sample_direct(sp.p, u_sel, u_pt, ds) && dot(sp.ng, ds.wi) > 0.0f) {
+        float bsdf_pdf;
+        const Vec3 f = bsdf_eval(mat.bsdf, frame, wo, ds.wi, bsdf_pdf);
+        if (!is_black(f) && !is_black(ds.li)) {
+          bool visible = true;
+          if (ds.cast_shadow) {
             Ray shadow;
-            shadow.org = o;
-            shadow.dir = target - o;
-            shadow.tmax = 1.0f;
-            ++c.rays;
-            if (!scene.occluded(shadow)) {
-              // At the last bounce no BSDF ray follows, so the light sample takes all the weight.
-              const float w = last ? 1.0f : power_heuristic(pdf_light, bsdf_pdf);
-              L += beta * f * es.radiance * (w / pdf_light);
+            shadow.org = offset_ray_origin(sp.p, sp.ng);
+            if (std::isinf(ds.dist)) {
+              shadow.dir = ds.wi;
+              shadow.tmax = kInf;
+            } else {
+              // Offset the light end too, so an emissive triangle never blocks its own sample.
+              const Vec3 target = is_black(ds.target_normal) ? ds.target : offset_ray_origin(ds.target, ds.target_normal);
+              shadow.dir = target - shadow.org;
+              shadow.tmax = is_black(ds.target_normal) ? 0.9999f : 1.0f;
             }
+            ++c.rays;
+            visible = !scene.occluded(shadow);
+          }
+          if (visible) {
+            // Delta lights and the last vertex: the light sample is the only technique.
+            const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
+            L += beta * f * ds.li * (w / ds.pdf);  // for delta lights pdf is the choice probability
           }
         }
       }
-      if (last) break;
     }
+    if (last && nee) break;
 
     BsdfSample bs;
-    if (!bsdf_sample(mat.bsdf, frame, wo, next2(rng), bs)) break;
+    if (!bsdf_sample(mat.bsdf, frame, wo, sampler.get2d(), bs)) break;
     // A direction below the geometric surface would leak light through it.
     if (dot(bs.wi, sp.ng) <= 0.0f) break;
     beta *= bs.weight;
     prev_pdf = bs.pdf;
+    ++diffuse;
+    emission_only = last;
 
+    const float u_rr = sampler.get1d();
     if (bounce + 1 >= s.rr_start_bounce) {
       const float survive = std::min(1.0f, max_component(beta));
-      if (!(survive > 0.0f) || rng.next_float() >= survive) break;
+      if (!(survive > 0.0f) || u_rr >= survive) break;
       beta = beta / survive;
     }
     ray.org = offset_ray_origin(sp.p, sp.ng);

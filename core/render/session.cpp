@@ -17,6 +17,11 @@ void validate(const RenderSettings& s) {
   if (!(s.time_limit >= 0.0)) throw std::invalid_argument("time_limit must be >= 0");
   if (s.threads < 0 || s.threads > 1024) throw std::invalid_argument("threads must be in [0, 1024]");
   if (s.tile_size < 4 || s.tile_size > 1024) throw std::invalid_argument("tile_size must be in [4, 1024]");
+  if (!(s.adaptive_threshold >= 0.0f) || !std::isfinite(s.adaptive_threshold))
+    throw std::invalid_argument("adaptive_threshold must be >= 0");
+  if (s.adaptive_min_samples < 0) throw std::invalid_argument("adaptive_min_samples must be >= 0");
+  if (s.diffuse_bounces < 0 || s.glossy_bounces < 0 || s.transmission_bounces < 0)
+    throw std::invalid_argument("bounce limits must be >= 0");
 }
 
 Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings)
@@ -27,6 +32,24 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   camera_ = Camera(scene_->camera_desc(), settings_.width, settings_.height);
   integrator_.max_bounces = settings_.max_bounces;
   integrator_.use_nee = settings_.use_nee;
+  integrator_.diffuse_bounces = settings_.diffuse_bounces;
+  integrator_.glossy_bounces = settings_.glossy_bounces;
+  integrator_.transmission_bounces = settings_.transmission_bounces;
+  if (settings_.adaptive_threshold > 0.0f) {
+    // Enough samples to see noisy features before any pixel may stop (Cycles' idea).
+    min_samples_ = settings_.adaptive_min_samples > 0
+                       ? settings_.adaptive_min_samples
+                       : std::max(16, static_cast<int>(4.0f / std::sqrt(settings_.adaptive_threshold)));
+    min_samples_ = std::min(min_samples_, settings_.samples);
+    check_every_ = std::max(1, min_samples_ / 4);
+  }
+  tile_active_.resize(size_t(film_.tile_count()));
+  for (int t = 0; t < film_.tile_count(); ++t) {
+    int x0, y0, x1, y1;
+    film_.tile_rect(t, x0, y0, x1, y1);
+    tile_active_[size_t(t)] = (x1 - x0) * (y1 - y0);
+  }
+  active_.store(int64_t(settings_.width) * settings_.height);
 }
 
 Session::~Session() {
@@ -72,6 +95,7 @@ SessionStats Session::stats() const {
   s.paths = paths_.load();
   s.nonfinite_samples = nonfinite_.load();
   s.passes = passes_.load();
+  s.active_pixels = active_.load();
   s.threads = pool_ ? pool_->size() : 0;
   s.elapsed_s = elapsed();
   return s;
@@ -88,17 +112,25 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
   const int tw = x1 - x0, th = y1 - y0;
   std::vector<Rgba> local(size_t(tw) * size_t(th));
   PathCounters counters;
-  uint64_t nonfinite = 0;
+  uint64_t nonfinite = 0, paths = 0;
+  const bool adaptive = min_samples_ > 0;
   for (int s = s0; s < s1; ++s) {
     if (cancel_.load(std::memory_order_relaxed)) break;
+    if (adaptive && tile_active_[size_t(tile)] == 0) break;
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
+        Rgba& out = local[size_t(y - y0) * size_t(tw) + size_t(x - x0)];
+        // done flags only change under this thread's own tile work: safe to read here.
+        if (adaptive && film_.converged(x, y)) {
+          out.a = -1.0f;  // marks "no sample"
+          continue;
+        }
         // One independent stream per (seed, pixel, sample): thread- and pass-independent.
         const uint64_t pixel = uint64_t(y) * uint64_t(settings_.width) + uint64_t(x);
-        Pcg32 rng(hash3(settings_.seed, pixel, uint64_t(s)), pixel);
-        const float fx = float(x) + rng.next_float(), fy = float(y) + rng.next_float();
-        const Vec3 L = trace_path(*scene_, camera_.generate(fx, fy), rng, integrator_, counters);
-        Rgba& out = local[size_t(y - y0) * size_t(tw) + size_t(x - x0)];
+        Sampler sampler(settings_.sampler, settings_.seed, pixel, uint32_t(s));
+        const Vec2 j = sampler.get2d();
+        const Vec3 L = trace_path(*scene_, camera_.generate(float(x) + j.x, float(y) + j.y), sampler, integrator_, counters);
+        ++paths;
         if (is_finite(L)) {
           out = {L.x, L.y, L.z, 1.0f};
         } else {  // dropped and counted: one bad path must not poison a pixel forever
@@ -108,9 +140,19 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
       }
     std::lock_guard<std::mutex> lk(film_.tile_lock(tile));
     for (int y = y0; y < y1; ++y)
-      for (int x = x0; x < x1; ++x) film_.add_sample(x, y, local[size_t(y - y0) * size_t(tw) + size_t(x - x0)]);
-    paths_.fetch_add(uint64_t(tw) * uint64_t(th), std::memory_order_relaxed);
+      for (int x = x0; x < x1; ++x) {
+        const Rgba& v = local[size_t(y - y0) * size_t(tw) + size_t(x - x0)];
+        if (v.a >= 0.0f) film_.add_sample(x, y, v);
+      }
+    // Convergence is judged at fixed sample counts, so the result stays deterministic.
+    const int n = s + 1;
+    if (adaptive && n >= min_samples_ && (n - min_samples_) % check_every_ == 0) {
+      const int active = film_.update_convergence(tile, settings_.adaptive_threshold);
+      active_.fetch_sub(tile_active_[size_t(tile)] - active);
+      tile_active_[size_t(tile)] = active;
+    }
   }
+  paths_.fetch_add(paths, std::memory_order_relaxed);
   rays_.fetch_add(counters.rays, std::memory_order_relaxed);
   nonfinite_.fetch_add(nonfinite, std::memory_order_relaxed);
 }
@@ -120,7 +162,7 @@ void Session::run() {
     pool_ = std::make_unique<ThreadPool>(settings_.threads);
     const int total = settings_.samples;
     double sec_per_sample = 0.0;
-    while (samples_done_.load() < total && !cancel_.load()) {
+    while (samples_done_.load() < total && !cancel_.load() && active_.load() > 0) {
       const double now = elapsed();
       const double limit = settings_.time_limit;
       if (limit > 0.0 && now >= limit) break;

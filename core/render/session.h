@@ -25,6 +25,10 @@ struct RenderSettings {
   int threads = 0;
   int tile_size = 32;
   bool use_nee = true;
+  SamplerType sampler = SamplerType::Sobol;
+  float adaptive_threshold = 0.0f;  // 0 = off
+  int adaptive_min_samples = 0;     // 0 = automatic
+  int diffuse_bounces = 1024, glossy_bounces = 1024, transmission_bounces = 1024;
 };
 
 // Throws std::invalid_argument with a readable message for settings that cannot be rendered.
@@ -38,6 +42,7 @@ struct SessionProgress {
 
 struct SessionStats {
   uint64_t rays = 0, paths = 0, nonfinite_samples = 0;
+  int64_t active_pixels = 0;  // pixels adaptive sampling has not stopped yet
   int passes = 0, threads = 0;
   double elapsed_s = 0.0;
 };
@@ -77,6 +82,9 @@ class Session {
   std::atomic<bool> cancel_{false}, finished_{false}, started_{false};
   std::atomic<int> samples_done_{0}, passes_{0};
   std::atomic<uint64_t> rays_{0}, paths_{0}, nonfinite_{0};
+  int min_samples_ = 0, check_every_ = 1;
+  std::vector<int> tile_active_;       // per tile, written by the thread rendering it
+  std::atomic<int64_t> active_{0};
   std::chrono::steady_clock::time_point t0_;
   std::atomic<double> end_elapsed_{-1.0};
 

@@ -78,23 +78,32 @@ void Scene::commit(int threads) {
   opt.threads = threads;
   bvh_.build(tris_, opt);
 
-  // Emissive triangles become lights, chosen in proportion to their power (area x luminance).
+  // Every light in one distribution, chosen in proportion to an estimate of its power.
+  const Aabb bounds = bvh_.bounds();
+  const float radius = bounds.empty() ? 1.0f : std::max(0.5f * length(bounds.extent()), 1e-6f);
+  std::vector<float> weights;
+  for (const Light& l : lights_) weights.push_back(light_power(l, radius));
   emitter_prims_.clear();
   emitter_areas_.clear();
-  std::vector<float> weights;
   for (uint32_t i = 0; i < tris_.size(); ++i) {
     const Vec3 le = materials_[shading_[i].material].emission;
     const float lum = std::max(luminance(le), max_component(le) * 1e-3f);
     if (!(lum > 0.0f) || !std::isfinite(lum)) continue;
     const TriangleVerts& tv = tris_[i];
     const float area = 0.5f * length(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
-    shading_[i].emitter = static_cast<int32_t>(emitter_prims_.size());
+    shading_[i].emitter = static_cast<int32_t>(weights.size());
     emitter_prims_.push_back(i);
     emitter_areas_.push_back(area);
-    weights.push_back(area * lum);
+    weights.push_back(2.0f * kPi * area * lum);  // two-sided
   }
-  emitter_dist_ = Distribution1D(weights);
+  env_index_ = SIZE_MAX;
+  if (env_.valid() && env_.average_luminance() > 0.0f) {
+    env_index_ = weights.size();
+    weights.push_back(4.0f * kPi * kPi * radius * radius * env_.average_luminance());
+  }
+  light_dist_ = Distribution1D(weights);
   stats_.emissive_triangles = emitter_prims_.size();
+  stats_.lights = lights_.size();
   committed_ = true;
 }
 
@@ -115,24 +124,65 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   sp.prim = h.prim;
 }
 
-bool Scene::sample_emitter(float u_select, Vec2 u, EmitterSample& s) const {
-  if (emitter_dist_.empty()) return false;
-  const size_t k = emitter_dist_.sample(u_select);
-  const uint32_t prim = emitter_prims_[k];
+bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const {
+  if (light_dist_.empty()) return false;
+  const size_t k = light_dist_.sample(u_select);
+  const float pmf = light_dist_.pmf(k);
+  if (!(pmf > 0.0f)) return false;
+  s.target_normal = Vec3(0.0f);
+  if (k < lights_.size()) {
+    const Light& l = lights_[k];
+    LightSample ls;
+    if (!sample_light(l, p, u, ls)) return false;
+    s.wi = ls.wi;
+    s.dist = ls.dist;
+    s.target = ls.target;
+    s.li = ls.li;
+    s.pdf = ls.pdf * pmf;
+    s.delta = ls.delta;
+    s.cast_shadow = l.cast_shadow;
+    return true;
+  }
+  s.delta = false;
+  s.cast_shadow = true;
+  if (k == env_index_) {
+    float pdf;
+    if (!env_.sample(u, s.wi, s.li, pdf)) return false;
+    s.dist = kInf;
+    s.pdf = pdf * pmf;
+    return true;
+  }
+  const size_t e = k - lights_.size();
+  const uint32_t prim = emitter_prims_[e];
   const TriangleVerts& tv = tris_[prim];
   float b1, b2;
   sample_triangle_uniform(u, b1, b2);
-  s.p = tv.v0 * (1.0f - b1 - b2) + tv.v1 * b1 + tv.v2 * b2;
-  s.n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
-  s.radiance = materials_[shading_[prim].material].emission;
-  s.pdf_area = emitter_dist_.pmf(k) / emitter_areas_[k];
-  return s.pdf_area > 0.0f && std::isfinite(s.pdf_area);
+  const Vec3 q = tv.v0 * (1.0f - b1 - b2) + tv.v1 * b1 + tv.v2 * b2;
+  const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+  const Vec3 d = q - p;
+  const float dist2 = length_sq(d);
+  const float dist = std::sqrt(dist2);
+  if (!(dist > 0.0f)) return false;
+  s.wi = d / dist;
+  const float cos_l = std::fabs(dot(n, s.wi));
+  if (!(cos_l > 0.0f)) return false;
+  s.dist = dist;
+  s.target = q;
+  s.target_normal = dot(n, s.wi) < 0.0f ? n : -n;  // the side facing p
+  s.li = materials_[shading_[prim].material].emission;
+  s.pdf = pmf / emitter_areas_[e] * dist2 / cos_l;
+  return std::isfinite(s.pdf) && s.pdf > 0.0f;
 }
 
-float Scene::emitter_pdf_area(uint32_t prim) const {
+float Scene::pdf_emitter(uint32_t prim, float t, float cos_l) const {
   const int32_t k = shading_[prim].emitter;
-  if (k < 0) return 0.0f;
-  return emitter_dist_.pmf(size_t(k)) / emitter_areas_[size_t(k)];
+  if (k < 0 || !(cos_l > 0.0f)) return 0.0f;
+  return light_dist_.pmf(size_t(k)) / emitter_areas_[size_t(k) - lights_.size()] * t * t / cos_l;
+}
+
+float Scene::pdf_environment(Vec3 dir) const {
+  if (env_index_ == SIZE_MAX) return 0.0f;
+  return light_dist_.pmf(env_index_) * env_.pdf(dir);
 }
 
 }  // namespace pl

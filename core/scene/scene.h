@@ -10,6 +10,7 @@
 #include "geometry/bvh.h"
 #include "scene/bsdf.h"
 #include "scene/camera.h"
+#include "scene/light.h"
 
 namespace pl {
 
@@ -34,13 +35,21 @@ struct SurfacePoint {
   uint32_t prim = 0;
 };
 
-struct EmitterSample {
-  Vec3 p, n, radiance;
-  float pdf_area = 0.0f;  // probability density per unit area, including the triangle choice
+// A next-event-estimation sample towards any light (analytic, emissive triangle, environment).
+struct DirectSample {
+  Vec3 wi;
+  float dist = kInf;      // distance to the light point; inf for the sun and the environment
+  Vec3 target;            // light point for the shadow ray (finite distances only)
+  Vec3 target_normal;     // its geometric normal (emissive triangles), for the offset; else 0
+  Vec3 li;                // incident radiance (or intensity/r^2, irradiance for delta lights)
+  float pdf = 0.0f;       // solid-angle pdf including the light choice
+  bool delta = false;
+  bool cast_shadow = true;
 };
 
 struct SceneStats {
   size_t triangles = 0, instances = 0, meshes = 0, materials = 0, emissive_triangles = 0, dropped_triangles = 0;
+  size_t lights = 0;
 };
 
 class Scene {
@@ -51,6 +60,8 @@ class Scene {
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
   void add_instance(uint32_t mesh, const Mat4& m);
   void set_world_color(Vec3 c) { world_color_ = c; }
+  void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
+  void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
   void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
   void add_dropped(size_t n) { stats_.dropped_triangles += n; }
 
@@ -67,11 +78,16 @@ class Scene {
   const CameraDesc& camera_desc() const { return camera_; }
   bool has_camera() const { return has_camera_; }
 
-  bool has_emitters() const { return !emitter_dist_.empty(); }
-  bool sample_emitter(float u_select, Vec2 u, EmitterSample& s) const;
-  // Area-measure pdf with which sample_emitter picks a point on triangle `prim`.
-  float emitter_pdf_area(uint32_t prim) const;
-
+  bool has_lights() const { return !light_dist_.empty(); }
+  bool has_environment() const { return env_.valid(); }
+  // Radiance arriving from the world along a ray that escapes the scene.
+  Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
+  // Picks a light with u_select and samples it from point p.
+  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const;
+  // Solid-angle pdfs with which sample_direct finds an emissive triangle hit at distance t and
+  // cosine cos_l, or the environment in direction dir (for MIS of BSDF samples).
+  float pdf_emitter(uint32_t prim, float t, float cos_l) const;
+  float pdf_environment(Vec3 dir) const;
   const SceneStats& stats() const { return stats_; }
   const Bvh& bvh() const { return bvh_; }
 
@@ -79,7 +95,7 @@ class Scene {
   struct TriangleShading {
     Vec3 n[3];       // shading normals at the corners (all zero: flat)
     uint32_t material;
-    int32_t emitter;  // index into emitter arrays or -1
+    int32_t emitter;  // index in the light distribution, or -1
   };
 
   std::vector<Material> materials_;
@@ -93,9 +109,13 @@ class Scene {
   std::vector<TriangleVerts> tris_;
   std::vector<TriangleShading> shading_;
   Bvh bvh_;
+  std::vector<Light> lights_;
+  Environment env_;
+  // One distribution over [analytic lights | emissive triangles | environment], by power.
   std::vector<uint32_t> emitter_prims_;
   std::vector<float> emitter_areas_;
-  Distribution1D emitter_dist_;
+  Distribution1D light_dist_;
+  size_t env_index_ = SIZE_MAX;
   SceneStats stats_;
 };
 

@@ -84,6 +84,13 @@ class Distribution1D {
     while (lo + 1 < pmf_.size() && pmf_[lo] == 0.0f) ++lo;
     return lo;
   }
+  // Same, also returning u's position inside the chosen item's interval, in [0, 1).
+  size_t sample(float u, float& remapped) const {
+    const size_t i = sample(u);
+    const double w = cdf_[i + 1] - cdf_[i];
+    remapped = w > 0.0 ? static_cast<float>(std::min(0.99999994, std::max(0.0, (u - cdf_[i]) / w))) : 0.5f;
+    return i;
+  }
 
  private:
   std::vector<double> cdf_;

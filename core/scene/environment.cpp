@@ -1,0 +1,87 @@
+#include "scene/light.h"
+
+namespace pl {
+
+Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation)
+    : px_(std::move(pixels)), w_(w), h_(h), rot_(rotation) {
+  for (Vec3& c : px_) c = c * strength;
+  // Rows are weighted by the solid angle of their pixels: cos(elevation) at the row centre.
+  std::vector<float> row_weights(static_cast<size_t>(h_));
+  double total = 0.0;
+  rows_.reserve(size_t(h_));
+  for (int y = 0; y < h_; ++y) {
+    const float elevation = kPi * ((y + 0.5f) / h_ - 0.5f);
+    const float c = std::cos(elevation);
+    std::vector<float> wts(static_cast<size_t>(w_));
+    double row_sum = 0.0;
+    for (int x = 0; x < w_; ++x) {
+      const float l = luminance(px_[size_t(y) * w_ + x]);
+      wts[size_t(x)] = std::isfinite(l) && l > 0.0f ? l : 0.0f;
+      row_sum += wts[size_t(x)];
+    }
+    total += row_sum * c;
+    row_weights[size_t(y)] = static_cast<float>(row_sum * c);
+    rows_.emplace_back(wts);
+  }
+  marginal_ = Distribution1D(row_weights);
+  avg_lum_ = static_cast<float>(total / (double(w_) * h_));
+}
+
+void Environment::to_uv(Vec3 t, float& u, float& v) const {
+  const float len = length(t);
+  u = (std::atan2(t.y, t.x) - kPi) / (-2.0f * kPi);
+  v = 0.5f + std::asin(clampf(t.z / len, -1.0f, 1.0f)) / kPi;
+}
+
+Vec3 Environment::lookup(float u, float v) const {
+  // Bilinear, wrapping in u, clamped in v.
+  float fx = u * w_ - 0.5f, fy = v * h_ - 0.5f;
+  fx -= std::floor(fx / w_) * w_;
+  const int x0 = static_cast<int>(std::floor(fx)), y0 = static_cast<int>(std::floor(fy));
+  const float tx = fx - x0, ty = fy - y0;
+  const int xa = x0 % w_, xb = (x0 + 1) % w_;
+  const int ya = std::clamp(y0, 0, h_ - 1), yb = std::clamp(y0 + 1, 0, h_ - 1);
+  auto at = [&](int x, int y) { return px_[size_t(y) * w_ + x]; };
+  return (at(xa, ya) * (1 - tx) + at(xb, ya) * tx) * (1 - ty) + (at(xa, yb) * (1 - tx) + at(xb, yb) * tx) * ty;
+}
+
+Vec3 Environment::eval(Vec3 dir_world) const {
+  float u, v;
+  to_uv(rot_.vector(dir_world), u, v);
+  return lookup(u, v);
+}
+
+bool Environment::sample(Vec2 uu, Vec3& dir, Vec3& radiance, float& pdf_out) const {
+  if (marginal_.empty()) return false;
+  float ry, rx;
+  const size_t y = marginal_.sample(uu.y, ry);
+  const size_t x = rows_[y].sample(uu.x, rx);
+  const float u = (x + rx) / w_, v = (y + ry) / h_;
+  const float elevation = kPi * (v - 0.5f), phi = kPi - 2.0f * kPi * u;
+  const float ce = std::cos(elevation);
+  if (!(ce > 0.0f)) return false;
+  const Vec3 t{ce * std::cos(phi), ce * std::sin(phi), std::sin(elevation)};
+  // Texture -> world: the rotation is orthonormal, so its transpose inverts it.
+  const Mat4& m = rot_;
+  dir = normalize(Vec3{m.m[0][0] * t.x + m.m[1][0] * t.y + m.m[2][0] * t.z,
+                       m.m[0][1] * t.x + m.m[1][1] * t.y + m.m[2][1] * t.z,
+                       m.m[0][2] * t.x + m.m[1][2] * t.y + m.m[2][2] * t.z});
+  // pdf over (u, v) is pmf(row) * h * pmf(col | row) * w; d(omega) = 2 pi^2 cos(elev) du dv.
+  pdf_out = marginal_.pmf(y) * h_ * rows_[y].pmf(x) * w_ / (2.0f * kPi * kPi * ce);
+  radiance = lookup(u, v);
+  return pdf_out > 0.0f && std::isfinite(pdf_out);
+}
+
+float Environment::pdf(Vec3 dir_world) const {
+  if (marginal_.empty()) return 0.0f;
+  float u, v;
+  const Vec3 t = rot_.vector(dir_world);
+  to_uv(t, u, v);
+  const int x = std::clamp(static_cast<int>(u * w_), 0, w_ - 1);
+  const int y = std::clamp(static_cast<int>(v * h_), 0, h_ - 1);
+  const float ce = std::cos(kPi * (v - 0.5f));
+  if (!(ce > 0.0f)) return 0.0f;
+  return marginal_.pmf(size_t(y)) * h_ * rows_[size_t(y)].pmf(size_t(x)) * w_ / (2.0f * kPi * kPi * ce);
+}
+
+}  // namespace pl

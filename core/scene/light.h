@@ -1,0 +1,182 @@
+// Analytic lights (point, spot, sun, rectangle/ellipse area) with Cycles' conventions, and the
+// equirectangular environment. Each light knows how to sample a direction towards itself from a
+// shading point; the scene picks lights. Lights are sampled by next-event estimation only.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "util/sampling.h"
+
+namespace pl {
+
+enum class LightType : uint8_t { Point, Spot, Sun, Rect, Ellipse };
+
+struct Light {
+  LightType type = LightType::Point;
+  Vec3 color;            // point/spot: intensity W/sr; sun: irradiance; area: radiance
+  Vec3 position;         // point/spot/area centre
+  float radius = 0.0f;   // point/spot: radius of the disk facing the shaded point
+  Mat4 to_local;         // spot: world direction -> light-local (inverse 3x3 of the matrix)
+  float cos_half_spot = -1.0f, spot_smooth_inv = 0.0f;  // spot cone and blend
+  Vec3 dir;              // sun: unit direction towards the sun; area: unit emission normal (-Z)
+  float cos_half_angle = 1.0f, sun_radiance_scale = 0.0f;  // sun: cone and 1 / (pi tan^2 h)
+  Vec3 axis_u, axis_v;   // area: full extent vectors
+  float area = 0.0f;
+  bool cast_shadow = true;
+};
+
+// Direction towards a light sample, as seen from a shading point.
+struct LightSample {
+  Vec3 wi;                // unit direction from the shading point
+  float dist = kInf;      // distance to the sampled point (inf for the sun)
+  Vec3 li;                // incident radiance (delta lights: intensity / r^2 or irradiance)
+  float pdf = 0.0f;       // solid-angle pdf (ignored for delta lights)
+  bool delta = false;     // a point/spot/sun without extent: no BSDF sample can find it
+  Vec3 target;            // the sampled point (for the shadow ray; unused for the sun)
+};
+
+inline float smoothstep01(float x) {
+  x = clampf(x, 0.0f, 1.0f);
+  return x * x * (3.0f - 2.0f * x);
+}
+
+inline float spot_attenuation(const Light& l, Vec3 from_light) {
+  Vec3 local = l.to_local.vector(from_light);
+  const float len = length(local);
+  if (!(len > 0.0f)) return 0.0f;
+  const float c = -local.z / len;
+  if (c <= l.cos_half_spot) return 0.0f;
+  if (l.spot_smooth_inv <= 0.0f) return 1.0f;  // blend 0: a hard edge
+  return smoothstep01((c - l.cos_half_spot) * l.spot_smooth_inv);
+}
+
+// Samples light `l` from point p; returns false if it cannot contribute there.
+inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
+  switch (l.type) {
+    case LightType::Point:
+    case LightType::Spot: {
+      Vec3 to_c = l.position - p;
+      const float d2c = length_sq(to_c);
+      if (!(d2c > 0.0f)) return false;
+      Vec3 scale = l.color;
+      if (l.type == LightType::Spot) {
+        const float att = spot_attenuation(l, -to_c);
+        if (att <= 0.0f) return false;
+        scale = scale * att;
+      }
+      if (l.radius <= 0.0f) {
+        const float d = std::sqrt(d2c);
+        s.wi = to_c / d;
+        s.dist = d;
+        s.target = l.position;
+        s.li = scale / d2c;
+        s.pdf = 1.0f;
+        s.delta = true;
+        return true;
+      }
+      // A disk of the light's radius facing p (Cycles' soft-falloff point light).
+      const Vec3 n = -to_c / std::sqrt(d2c);
+      Vec3 t, b;
+      make_basis(n, t, b);
+      const Vec2 dsk = sample_disk_concentric(u);
+      const Vec3 q = l.position + (t * dsk.x + b * dsk.y) * l.radius;
+      const Vec3 d = q - p;
+      const float dist2 = length_sq(d);
+      const float dist = std::sqrt(dist2);
+      s.wi = d / dist;
+      const float cos_l = std::fabs(dot(n, s.wi));
+      if (!(cos_l > 0.0f)) return false;
+      const float disk_area = kPi * l.radius * l.radius;
+      s.dist = dist;
+      s.target = q;
+      s.li = scale / disk_area;  // radiance = I / (pi r^2)
+      s.pdf = dist2 / (cos_l * disk_area);
+      s.delta = false;
+      return true;
+    }
+    case LightType::Sun: {
+      s.dist = kInf;
+      if (l.cos_half_angle >= 1.0f) {
+        s.wi = l.dir;
+        s.li = l.color;
+        s.pdf = 1.0f;
+        s.delta = true;
+        return true;
+      }
+      // Uniform in the cone around the sun direction.
+      const float cos_t = 1.0f - u.x * (1.0f - l.cos_half_angle);
+      const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t));
+      const float phi = 2.0f * kPi * u.y;
+      Vec3 t, b;
+      make_basis(l.dir, t, b);
+      s.wi = normalize(t * (sin_t * std::cos(phi)) + b * (sin_t * std::sin(phi)) + l.dir * cos_t);
+      s.li = l.color * l.sun_radiance_scale;
+      s.pdf = 1.0f / (2.0f * kPi * (1.0f - l.cos_half_angle));
+      s.delta = false;
+      return true;
+    }
+    case LightType::Rect:
+    case LightType::Ellipse: {
+      Vec2 o{u.x - 0.5f, u.y - 0.5f};
+      if (l.type == LightType::Ellipse) {
+        const Vec2 dsk = sample_disk_concentric(u);
+        o = {0.5f * dsk.x, 0.5f * dsk.y};
+      }
+      const Vec3 q = l.position + l.axis_u * o.x + l.axis_v * o.y;
+      const Vec3 d = q - p;
+      const float dist2 = length_sq(d);
+      if (!(dist2 > 0.0f)) return false;
+      const float dist = std::sqrt(dist2);
+      s.wi = d / dist;
+      const float cos_l = -dot(l.dir, s.wi);  // one-sided: emits along dir
+      if (!(cos_l > 0.0f)) return false;
+      s.dist = dist;
+      s.target = q;
+      s.li = l.color;
+      s.pdf = dist2 / (cos_l * l.area);
+      s.delta = false;
+      return true;
+    }
+  }
+  return false;
+}
+
+// Rough emitted power, for choosing among lights (only ratios matter). `scene_radius` bounds
+// the sun's footprint on the scene.
+inline float light_power(const Light& l, float scene_radius) {
+  const float lum = std::max(luminance(l.color), 0.0f);
+  switch (l.type) {
+    case LightType::Point: return 4.0f * kPi * lum;
+    case LightType::Spot: return 4.0f * kPi * lum * std::max(0.05f, 0.5f * (1.0f - l.cos_half_spot));
+    case LightType::Sun: return kPi * scene_radius * scene_radius * lum;
+    case LightType::Rect:
+    case LightType::Ellipse: return kPi * l.area * lum;
+  }
+  return 0.0f;
+}
+
+// Equirectangular environment map in Cycles' convention, importance-sampled by luminance.
+class Environment {
+ public:
+  Environment() = default;
+  // pixels: w*h RGB, row 0 = bottom. rotation: world -> texture directions.
+  Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation);
+  bool valid() const { return w_ > 0; }
+  Vec3 eval(Vec3 dir_world) const;
+  // Samples a world direction; returns radiance and the solid-angle pdf.
+  bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf) const;
+  float pdf(Vec3 dir_world) const;
+  float average_luminance() const { return avg_lum_; }
+
+ private:
+  Vec3 lookup(float u, float v) const;
+  void to_uv(Vec3 t, float& u, float& v) const;
+  std::vector<Vec3> px_;
+  int w_ = 0, h_ = 0;
+  Mat4 rot_;  // world -> texture
+  std::vector<Distribution1D> rows_;  // per row (v), over columns
+  Distribution1D marginal_;            // over rows
+  float avg_lum_ = 0.0f;
+};
+
+}  // namespace pl
