@@ -424,6 +424,16 @@ PYBIND11_MODULE(pathlight_core, m) {
               for (int j = 0; j < 3; ++j) rot.m[i][j] = rotation_obj.is_none() ? float(i == j) : r(i, j);
             if (!rot.is_finite()) throw std::invalid_argument("rotation contains NaN or infinite values");
             const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+            // A constant image is a constant world: no texture lookups, no light sampling
+            // (cosine-weighted BSDF samples are already ideal for it).
+            bool constant = true;
+            for (size_t i = 1; i < px.size() && constant; ++i)
+              constant = px[i].x == px[0].x && px[i].y == px[0].y && px[i].z == px[0].z;
+            if (constant) {
+              self.scene->set_environment(Environment());
+              self.scene->set_world_color(px[0] * k);
+              return;
+            }
             py::gil_scoped_release release;
             self.scene->set_environment(Environment(std::move(px), w, h, k, rot));
           },
@@ -432,6 +442,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           "set_world_color",
           [](PyScene& self, const py::object& c) {
             self.check_editable();
+            self.scene->set_environment(Environment());  // a colour replaces any texture
             self.scene->set_world_color(to_color(c, "world color"));
           },
           py::arg("color"))

@@ -1,0 +1,297 @@
+"""Analytic lights, the environment, the sampler and adaptive sampling, tested through the
+core module against closed forms evaluated in numpy over the same pixels."""
+import numpy as np
+import pytest
+
+from core_scenes import add_object, camera, core, cornell, quad, render, uv_sphere
+
+pc = core()
+W = 32          # image size of the plane tests
+H_CAM = 4.0     # camera height above the plane z = 0, looking straight down
+ALBEDO = 0.5
+
+
+def plane_scene():
+    s = pc.Scene()
+    m = s.add_material("plane", (ALBEDO, ALBEDO, ALBEDO))
+    pos, tris = quad((-50, -50, 0), (100, 0, 0), (0, 100, 0))
+    add_object(s, pos, tris, m)
+    cam = pc.Camera()
+    mw = np.eye(4, dtype=np.float32)
+    mw[2, 3] = H_CAM  # identity rotation: looks down -Z with +Y up
+    cam.matrix_world = mw
+    s.set_camera(cam)
+    return s
+
+
+def plane_points(sub=8):
+    """World points on the plane seen through each pixel, sub x sub per pixel: (W, W, sub*sub, 3),
+    row 0 = bottom (the film's order), using Blender's view plane for a 50 mm lens, 36 mm sensor."""
+    half = 0.5 * 36.0 / 50.0
+    o = (np.arange(sub) + 0.5) / sub
+    px = (np.arange(W)[:, None] + o[None, :]).reshape(-1)
+    coord = (-half + px * (2 * half / W)) * H_CAM
+    x = coord.reshape(W, sub)
+    X = np.broadcast_to(x[None, :, None, :], (W, W, sub, sub))
+    Y = np.broadcast_to(x[:, None, :, None], (W, W, sub, sub))
+    pts = np.stack([X, Y, np.zeros_like(X)], -1).reshape(W, W, sub * sub, 3)
+    return pts
+
+
+def expected(radiance_fn):
+    return radiance_fn(plane_points()).mean(axis=2)
+
+
+def check(img, exp, tol=0.01):
+    got = img[..., 0]
+    mask = exp > 0.02 * exp.max()
+    rel = np.abs(got[mask] - exp[mask]) / exp[mask]
+    assert rel.max() < tol, f"max relative error {rel.max():.4f}"
+
+
+def point_radiance(p, light, intensity):
+    d = light - p
+    r2 = (d**2).sum(-1)
+    cos = d[..., 2] / np.sqrt(r2)
+    return ALBEDO / np.pi * intensity * np.maximum(cos, 0) / r2
+
+
+def test_point_light_irradiance_is_intensity_cos_over_r2():
+    s = plane_scene()
+    light = np.array([0.7, -0.4, 2.0])
+    s.add_point_light(light, (10.0, 10.0, 10.0))
+    img, stats = render(pc, s, W, W, samples=64)
+    check(img, expected(lambda p: point_radiance(p, light, 10.0)), tol=0.005)
+    assert stats["nonfinite_samples"] == 0
+
+
+def test_soft_point_light_matches_its_point_limit():
+    light = np.array([0.2, 0.1, 2.5])
+    s = plane_scene()
+    s.add_point_light(light, (10.0, 10.0, 10.0), radius=0.05)
+    img, _ = render(pc, s, W, W, samples=256)
+    check(img, expected(lambda p: point_radiance(p, light, 10.0)), tol=0.01)
+
+
+def test_sun_irradiance_and_angle():
+    theta = np.radians(30.0)
+    direction = (np.sin(theta), 0.0, np.cos(theta))
+    for angle in (0.0, np.radians(10.0)):
+        s = plane_scene()
+        s.add_sun_light(direction, (3.0, 3.0, 3.0), angle=angle)
+        img, _ = render(pc, s, 16, 16, samples=256)
+        # Cycles' distant light: radiance E / (pi tan^2 h) over a cone of half-angle h, which
+        # gives E cos(theta) cos^2(h) on the plane.
+        exp = ALBEDO / np.pi * 3.0 * np.cos(theta) * np.cos(angle / 2) ** 2
+        assert abs(img[..., 0].mean() / exp - 1.0) < 0.005, (angle, img[..., 0].mean(), exp)
+
+
+def test_area_light_matches_numerical_integration():
+    center, sx, sy = np.array([0.3, 0.0, 1.5]), 1.2, 0.6
+    radiance = 4.0
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 3] = center  # local -Z points down at the plane
+    for ellipse in (False, True):
+        s = plane_scene()
+        s.add_area_light(m, sx, sy, (radiance,) * 3, ellipse=ellipse)
+        img, _ = render(pc, s, W, W, samples=512)
+        # E(x) = L * integral of cos_x cos_l / r^2 over the light, on a fine grid.
+        g = (np.arange(80) + 0.5) / 80 - 0.5
+        U, V = np.meshgrid(g * sx, g * sy, indexing="ij")
+        inside = np.ones_like(U, bool) if not ellipse else (U / sx) ** 2 + (V / sy) ** 2 <= 0.25
+        lp = np.stack([U[inside] + center[0], V[inside] + center[1], np.full(inside.sum(), center[2])], -1)
+        dA = (sx / 80) * (sy / 80)
+
+        def rad(p):
+            d = lp[None, None, None] - p[..., None, :]  # (W, W, S, L, 3)
+            r2 = (d**2).sum(-1)
+            cos2 = d[..., 2] ** 2 / r2  # cos at the plane times cos at the light (both vertical)
+            return ALBEDO / np.pi * radiance * (cos2 / r2).sum(-1) * dA
+
+        pts = plane_points(sub=2)
+        exp = np.stack([rad(pts[i : i + 4]) for i in range(0, W, 4)]).reshape(W, W, -1).mean(-1)
+        check(img, exp, tol=0.03 if ellipse else 0.02)  # the grid's own error is ~1 %
+        assert abs(img[..., 0].mean() / exp.mean() - 1) < 0.01
+
+
+def test_area_light_is_one_sided():
+    s = plane_scene()
+    m = np.diag([1.0, -1.0, -1.0, 1.0]).astype(np.float32)  # flipped: local -Z points up
+    m[:3, 3] = (0.0, 0.0, 1.0)
+    s.add_area_light(m, 1.0, 1.0, (5.0, 5.0, 5.0))
+    img, _ = render(pc, s, 16, 16, samples=16)
+    assert img[..., :3].max() == 0.0
+
+
+def test_spot_cone_and_blend():
+    light = np.array([0.0, 0.0, 2.0])
+    size, blend = np.radians(60.0), 0.3
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 3] = light  # points down -Z
+    s = plane_scene()
+    s.add_spot_light(m, (10.0, 10.0, 10.0), spot_size=size, spot_blend=blend)
+    img, _ = render(pc, s, W, W, samples=64)
+    cos_h = np.cos(size / 2)
+
+    def rad(p):
+        d = p - light
+        c = -d[..., 2] / np.sqrt((d**2).sum(-1))
+        t = np.clip((c - cos_h) / ((1 - cos_h) * blend), 0, 1)
+        return point_radiance(p, light, 10.0) * t * t * (3 - 2 * t)
+
+    exp = expected(rad)
+    assert (exp == 0).any() and (exp > 0).any()  # the cone edge is in view
+    got = img[..., 0]
+    assert np.abs(got - exp).max() < 0.02 * exp.max()
+
+
+def test_lights_cast_shadows_unless_told_not_to():
+    # A black blocker at z = 1 under a point light at z = 2 shadows the square |x|,|y| < 1 of the
+    # plane; the camera sees the ring of it that the blocker itself does not hide.
+    pts = plane_points(sub=1)[:, :, 0, :]
+    ax = np.abs(pts[..., :2]).max(-1)
+    ring = (ax > 0.75) & (ax < 0.95)
+    for cast in (True, False):
+        s = plane_scene()
+        blocker = s.add_material("blocker", (0.0, 0.0, 0.0))
+        pos, tris = quad((-0.5, -0.5, 1.0), (1.0, 0, 0), (0, 1.0, 0))
+        add_object(s, pos, tris, blocker)
+        s.add_point_light((0.0, 0.0, 2.0), (10.0, 10.0, 10.0), cast_shadow=cast)
+        img, _ = render(pc, s, W, W, samples=4)
+        shadowed = img[..., 0][ring]
+        assert ring.sum() > 20
+        assert (shadowed.max() == 0.0) == cast, shadowed.max()
+        assert img[..., 0][ax > 1.1].min() > 0.0  # outside the shadow: lit either way
+
+
+def test_constant_environment_texture_equals_world_colour():
+    def scene(env):
+        s = pc.Scene()
+        m = s.add_material("m", (0.8, 0.8, 0.8))
+        pos, tris, nrm = uv_sphere(1.0)
+        add_object(s, pos, tris, m)
+        if env:
+            s.set_world_texture(np.full((8, 16, 3), 0.5, np.float32), strength=2.0)
+        else:
+            s.set_world_color((1.0, 1.0, 1.0))
+        s.set_camera(camera(pc, (0, -5, 0), (0, 0, 0)))
+        return s
+
+    a, _ = render(pc, scene(True), 32, 32, samples=16)
+    b, _ = render(pc, scene(False), 32, 32, samples=16)
+    assert np.abs(a - b).max() < 1e-3
+    assert abs(a[16, 16, 0] - 0.8) < 0.01
+
+
+def env_image():
+    """A dim sky with one small, very bright patch: hard for BSDF sampling alone."""
+    h, w = 32, 64
+    img = np.full((h, w, 3), 0.05, np.float32)
+    img[24:27, 10:13] = (200.0, 150.0, 100.0)
+    return img
+
+
+def test_environment_direction_convention():
+    h, w = 16, 32
+    u = (np.arange(w) + 0.5) / w
+    v = (np.arange(h) + 0.5) / h
+    img = np.stack(np.broadcast_arrays(u[None, :], v[:, None], np.zeros((h, w))), -1).astype(np.float32)
+    s = pc.Scene()
+    s.set_world_texture(img)
+    for target, (eu, ev) in {(1, 0, 0): (0.5, 0.5), (0, 1, 0): (0.25, 0.5), (-1, 0, 0): (None, 0.5),
+                             (0, -1, 0): (0.75, 0.5)}.items():
+        s.set_camera(camera(pc, (0, 0, 0), target, lens=200.0))
+        got, _ = render(pc, s, 4, 4, samples=4)
+        if eu is not None:
+            assert abs(got[..., 0].mean() - eu) < 0.02, (target, got[..., 0].mean())
+        assert abs(got[..., 1].mean() - ev) < 0.02
+    s.set_camera(camera(pc, (0, 0, 0), (0, 0, 1), lens=200.0, up=(0, 1, 0)))
+    got, _ = render(pc, s, 4, 4, samples=4)
+    assert got[..., 1].mean() > 0.95  # straight up is the top row (v = 1)
+
+
+def test_environment_importance_sampling_is_unbiased():
+    def scene():
+        s = pc.Scene()
+        m = s.add_material("m", (0.7, 0.7, 0.7))
+        pos, tris = quad((-3, -3, 0), (6, 0, 0), (0, 6, 0))
+        add_object(s, pos, tris, m)
+        pos, tris, nrm = uv_sphere(0.6, center=(0, 0, 0.6))
+        add_object(s, pos, tris, m, nrm)
+        s.set_world_texture(env_image(), strength=1.0)
+        s.set_camera(camera(pc, (0, -4, 2.5), (0, 0, 0.4)))
+        return s
+
+    nee, _ = render(pc, scene(), 24, 24, samples=256, use_nee=True)
+    brdf, _ = render(pc, scene(), 24, 24, samples=4096, use_nee=False)
+    assert abs(nee[..., :3].mean() / brdf[..., :3].mean() - 1) < 0.02
+    ref = nee[..., :3].reshape(4, 6, 4, 6, 3).mean(axis=(1, 3))
+    alt = brdf[..., :3].reshape(4, 6, 4, 6, 3).mean(axis=(1, 3))
+    assert np.abs(ref - alt).max() < 0.08 * ref.max()
+
+
+def rmse(a, b):
+    return float(np.sqrt(((a[..., :3] - b[..., :3]) ** 2).mean()))
+
+
+def test_sobol_converges_faster_than_random():
+    ref, _ = render(pc, cornell(pc), 32, 32, samples=2048)
+    errs = {}
+    for sampler in ("sobol", "random"):
+        e = []
+        for seed in range(3):
+            img, _ = render(pc, cornell(pc), 32, 32, samples=16, sampler=sampler, seed=seed)
+            e.append(rmse(img, ref))
+        errs[sampler] = np.mean(e)
+    assert errs["sobol"] < 0.85 * errs["random"], errs
+
+
+def test_adaptive_sampling_stops_converged_pixels_and_is_deterministic():
+    def scene():
+        s = pc.Scene()
+        m = s.add_material("m", (0.8, 0.8, 0.8))
+        pos, tris = quad((-1, 0, -2), (1, 0, 0), (0, 0, 4))  # left half: a wall lit by...
+        add_object(s, pos, tris, m)
+        img = np.full((32, 64, 3), 0.05, np.float32)
+        img[20:23, 46:49] = 500.0  # ...a tiny bright patch behind the camera (found by chance only)
+        s.set_world_texture(img)   # right half: the plain dim sky, noise-free
+        s.set_camera(camera(pc, (0, -3, 0), (0, 0, 0), lens=30.0))
+        return s
+
+    st = pc.RenderSettings()
+    st.width, st.height, st.samples, st.adaptive_threshold, st.use_nee = 32, 32, 512, 0.01, False
+    counts = []
+    for _ in range(2):
+        sess = pc.Session(scene(), st)
+        sess.start()
+        while not sess.wait(1.0):
+            pass
+        counts.append(sess.sample_counts())
+        film = sess.film()
+    c = counts[0]
+    assert np.array_equal(counts[0], counts[1])
+    sky, wall = c[:, 24:], c[:, :8]
+    assert sky.max() < 100 and wall.mean() > 3 * sky.mean(), (sky.max(), wall.mean())
+    assert np.isfinite(film).all()
+
+
+def test_diffuse_bounce_limit_matches_total_limit_for_diffuse_scenes():
+    a, _ = render(pc, cornell(pc), 16, 16, samples=8, max_bounces=12, diffuse_bounces=1)
+    b, _ = render(pc, cornell(pc), 16, 16, samples=8, max_bounces=1, diffuse_bounces=1024)
+    assert np.array_equal(a, b)
+
+
+def test_bad_light_parameters_raise():
+    s = pc.Scene()
+    with pytest.raises(ValueError):
+        s.add_point_light((np.nan, 0, 0), (1, 1, 1))
+    with pytest.raises(ValueError):
+        s.add_point_light((0, 0, 0), (1, 1, 1), radius=-1.0)
+    with pytest.raises(ValueError):
+        s.add_sun_light((0, 0, 0), (1, 1, 1))
+    with pytest.raises(ValueError):
+        s.add_spot_light(np.zeros((4, 4), np.float32), (1, 1, 1))
+    with pytest.raises(ValueError):
+        s.set_world_texture(np.zeros((4, 4), np.float32))
+    # NaN or negative colours are treated as black rather than poisoning the image.
+    s.add_point_light((0, 0, 1), (np.nan, -1.0, 1.0))
