@@ -329,9 +329,9 @@ def runtime_env(args, extra=None):
     env = dict(os.environ)
     env.update(extra or {})
     if args.sanitize:
-        asan = sanitizer_runtime(build_dir(args))
-        if asan:
-            env["LD_PRELOAD"] = ":".join(filter(None, [asan, env.get("LD_PRELOAD")]))
+        preload = sanitizer_runtime(build_dir(args))
+        if preload:
+            env["LD_PRELOAD"] = ":".join(preload + ([env["LD_PRELOAD"]] if env.get("LD_PRELOAD") else []))
         else:
             warn("could not find the AddressSanitizer runtime; loading the core will probably fail")
         # Python and bpy keep memory alive until exit by design: leak reports would be noise.
@@ -341,21 +341,28 @@ def runtime_env(args, extra=None):
 
 
 def sanitizer_runtime(bdir):
-    """Path of the ASan runtime of the compiler that built the core: it must be loaded before Python."""
+    """Libraries to preload for the sanitizer build: the ASan runtime of the compiler that built the
+    core (it must come before everything else in a Python that is not instrumented), then libstdc++:
+    ASan wraps __cxa_throw only if libstdc++ is already loaded when it starts, and the first C++
+    exception thrown otherwise aborts with "CHECK failed: real___cxa_throw"."""
     try:
         cache = (bdir / "CMakeCache.txt").read_text()
     except OSError:
         return None
     m = re.search(r"^CMAKE_CXX_COMPILER:\w+=(.+)$", cache, re.M)
     cxx = m.group(1).strip() if m else "c++"
-    for name in ("libasan.so", "libclang_rt.asan-%s.so" % platform.machine()):
+
+    def find(name):
         try:
             out = subprocess.run([cxx, f"-print-file-name={name}"], capture_output=True, text=True).stdout.strip()
         except OSError:
             return None
-        if os.path.isabs(out) and os.path.exists(out):
-            return out
-    return None
+        return os.path.realpath(out) if os.path.isabs(out) and os.path.exists(out) else None
+
+    asan = find("libasan.so") or find("libclang_rt.asan-%s.so" % platform.machine())
+    if not asan:
+        return None
+    return [asan] + [lib for lib in [find("libstdc++.so")] if lib]
 
 
 # ---------------------------------------------------------------- render
@@ -790,7 +797,7 @@ def relink_section(text):
     return re.sub(r"(\]\s*)\(([^)\s]+)\)", fix, text)
 
 
-def assemble_benchmarks(stamp, started, ran, failed):
+def assemble_benchmarks(stamp, started, ran, failed, extra):
     sections = sorted(BENCH_SECTIONS.glob("*.md")) if BENCH_SECTIONS.is_dir() else []
     lines = [
         "# Benchmarks",
@@ -805,7 +812,7 @@ def assemble_benchmarks(stamp, started, ran, failed):
         f"| Commit | {git_commit()} |",
         f"| Core | {core_build_info()} |",
         f"| Python / bpy | {stamp.get('python', '?')} / {stamp.get('bpy', '?')} |",
-        f"| Scripts run | {', '.join(ran) or 'none'} |",
+        f"| Scripts run | {', '.join(ran) or 'none'}" + (f" with `{' '.join(extra)}`" if extra else "") + " |",
     ]
     if failed:
         lines.append(f"| Failed | {', '.join(failed)} |")
@@ -824,7 +831,7 @@ def assemble_benchmarks(stamp, started, ran, failed):
     log(f"wrote {rel(out)} from {len(sections)} section(s)")
 
 
-def cmd_bench(args):
+def cmd_bench(args, extra):
     stamp = setup_and_build(args)
     scripts = sorted(BENCH_SCRIPTS.glob("bench_*.py")) if BENCH_SCRIPTS.is_dir() else []
     if args.only:
@@ -839,7 +846,7 @@ def cmd_bench(args):
     for script in scripts:
         log(f"running {rel(script)}")
         t0 = time.time()
-        rc = subprocess.call([str(VENV_PY), str(ROOT / "build.py"), "_run", str(script), "--out", "docs/"],
+        rc = subprocess.call([str(VENV_PY), str(ROOT / "build.py"), "_run", str(script), "--out", "docs/", *extra],
                              cwd=ROOT, env=env)
         ran.append(script.stem)
         if rc != 0:
@@ -847,7 +854,7 @@ def cmd_bench(args):
             warn(f"{rel(script)} failed with exit code {rc}")
         else:
             log(f"{rel(script)} took {time.time() - t0:.1f} s")
-    assemble_benchmarks(stamp, started, ran, failed)
+    assemble_benchmarks(stamp, started, ran, failed, extra)
     if failed:
         raise UserError(f"{len(failed)} benchmark script(s) failed: {', '.join(failed)}")
     return 0
@@ -1043,7 +1050,8 @@ def parse_args(argv):
                                "e.g. python3 build.py test -- -k furnace -x")
 
     p = sub.add_parser("bench", parents=[build_opts], help="run the benchmarks into docs/benchmarks.md",
-                       description="Run every tests/bench/bench_*.py and assemble docs/benchmarks.md.")
+                       description="Run every tests/bench/bench_*.py and assemble docs/benchmarks.md; "
+                                   "arguments after -- go to every script, e.g. python3 build.py bench -- --quick")
     p.add_argument("--only", action="append", metavar="TEXT",
                    help="run only the scripts whose name contains TEXT (repeatable)")
 
@@ -1063,8 +1071,8 @@ def parse_args(argv):
     if args.command is None:
         parser.print_help()
         parser.exit(2)
-    if extra and args.command != "test":
-        parser.error(f"only `test` takes arguments after --, not `{args.command}`")
+    if extra and args.command not in ("test", "bench"):
+        parser.error(f"only `test` and `bench` take arguments after --, not `{args.command}`")
     if getattr(args, "jobs", None) is not None and args.jobs < 1:
         parser.error("--jobs must be at least 1")
     return args, extra
@@ -1094,7 +1102,7 @@ def main(argv=None):
         if args.command == "test":
             return cmd_test(args, extra)
         if args.command == "bench":
-            return cmd_bench(args)
+            return cmd_bench(args, extra)
         if args.command == "package":
             return cmd_package(args)
         if args.command == "clean":
