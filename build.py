@@ -663,11 +663,21 @@ def render_in_venv(opts):
         if not opts.get("verbose"):
             status_filter.start()
 
+    out = Path(opts["output"])
+
+    def failed(msg):
+        # Blender saves whatever the film held even when the engine failed; don't leave that
+        # looking like a finished render.
+        if out.is_file() and out.stat().st_mtime >= start - 1:
+            out.unlink()
+            msg += f"; removed the incomplete {out.name}"
+        return UserError(msg)
+
     start = time.time()
     try:
         result = bpy.ops.render.render(write_still=True)
     except RuntimeError as exc:  # the engine's ERROR reports surface here
-        raise UserError(f"render failed: {str(exc).strip()}")
+        raise failed(f"render failed: {str(exc).strip()}")
     finally:
         status_filter.stop()
         progress.finish()
@@ -676,10 +686,9 @@ def render_in_venv(opts):
     elapsed = time.time() - start
 
     if engine_errors:
-        raise UserError("render failed: the add-on raised an error during the render (see above)")
+        raise failed("render failed: the add-on raised an error during the render (see above)")
     if "FINISHED" not in result:
-        raise UserError(f"render failed: the render operator returned {sorted(result)}")
-    out = Path(opts["output"])
+        raise failed(f"render failed: the render operator returned {sorted(result)}")
     if not out.is_file() or out.stat().st_mtime < start - 1:
         raise UserError(f"the render finished but {out} was not written")
 
