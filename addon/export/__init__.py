@@ -2,14 +2,18 @@
 (`to_core`). Only `to_core` touches the core module, which it is given, so the export itself
 can be tested without the core."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from .camera import ExportError, camera_params
+from .light import LightData, collect_lights
 from .material import MaterialData, MaterialTable
-from .mesh import MeshData, collect_meshes
-from .world import world_color
+from .mesh import MeshData, collect_meshes, is_visible
+from .world import WorldTexture, world_color, world_texture
 
-__all__ = ("ExportError", "MaterialData", "MeshData", "SceneData", "export_scene", "to_core")
+__all__ = ("ExportError", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
+           "export_scene", "to_core")
 
 
 @dataclass
@@ -19,6 +23,8 @@ class SceneData:
     materials: list  # MaterialData
     world_color: tuple
     camera: dict  # pc.Camera fields
+    lights: list = field(default_factory=list)  # LightData
+    world_texture: WorldTexture = None  # replaces world_color when set
 
 
 def export_scene(depsgraph, warn):
@@ -29,17 +35,24 @@ def export_scene(depsgraph, warn):
     meshes = collect_meshes(depsgraph)
     table = MaterialTable(warn)
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
-
-    n_lights = sum(1 for obj in depsgraph.objects if obj.type == 'LIGHT')
-    if n_lights:
-        warn(f"{n_lights} light object(s) ignored: Pathlight renders only emissive meshes "
-             "and the world for now")
+    lights = collect_lights(depsgraph, warn, is_visible)
     return SceneData(meshes, material_slots, table.materials,
-                     world_color(scene.world, warn), camera)
+                     world_color(scene.world, warn), camera, lights,
+                     world_texture(scene.world, warn))
 
 
-def to_core(pc, data):
-    """A pc.Scene (not committed) holding SceneData `data`."""
+def mean_radiance(tex):
+    """Solid-angle mean of an equirectangular WorldTexture (rows weighted by cos(latitude))."""
+    h = tex.pixels.shape[0]
+    weights = np.cos((np.arange(h) + 0.5) / h * np.pi - np.pi / 2)
+    rows = tex.pixels.mean(axis=1)  # (H, 3)
+    return weights @ rows / weights.sum() * tex.strength
+
+
+def to_core(pc, data, warn=None):
+    """A pc.Scene (not committed) holding SceneData `data`. warn(msg) hears about what this
+    build of the core cannot do."""
+    warn = warn if warn is not None else (lambda msg: None)
     scene = pc.Scene()
     ids = [scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
            for m in data.materials]
@@ -50,7 +63,22 @@ def to_core(pc, data):
                                  material_slots=[ids[i] for i in slots])
         for matrix in mesh.matrices:
             scene.add_instance(mesh_id, matrix)
-    scene.set_world_color(data.world_color)
+    for light in data.lights:
+        add = getattr(scene, f"add_{light.kind}_light", None)
+        if add is None:  # an older core build
+            warn(f"{light.kind.capitalize()} lights are not supported by this build of the "
+                 "Pathlight core; ignored")
+            continue
+        add(**light.args)
+    tex = data.world_texture
+    if tex is not None and hasattr(scene, "set_world_texture"):
+        scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
+    elif tex is not None:
+        warn("Environment textures are not supported by this build of the Pathlight core; "
+             "using the image's average colour")
+        scene.set_world_color(tuple(float(c) for c in mean_radiance(tex)))
+    else:
+        scene.set_world_color(data.world_color)
     camera = pc.Camera()
     for name, value in data.camera.items():
         setattr(camera, name, value)

@@ -40,7 +40,7 @@ def mesh_arrays(mesh):
     return positions.reshape(-1, 3), triangles.reshape(-1, 3), corner_normals, material_indices
 
 
-def _is_visible(instance):
+def is_visible(instance):
     if instance.is_instance:
         return True  # the instancer's visibility was already applied by the depsgraph
     if not instance.show_self:
@@ -57,7 +57,7 @@ def collect_meshes(depsgraph):
         obj = instance.object
         # Curves, surfaces, text and metaballs are listed too, as MESH instances of their
         # evaluated surface, next to the original object (which we skip, as Cycles does).
-        if obj.type != 'MESH' or not _is_visible(instance):
+        if obj.type != 'MESH' or not is_visible(instance):
             continue
         materials = [slot.material for slot in obj.material_slots]
         # The evaluated data is shared by all instances of one geometry (and by objects sharing

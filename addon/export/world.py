@@ -1,23 +1,195 @@
-"""World → constant background radiance."""
+"""World → constant background radiance, or an equirectangular environment image.
+
+Supported node graph (Cycles' meaning): [Texture Coordinate (Generated/Object)] → [Mapping]
+→ Environment Texture (equirectangular) → Background/Emission Color, times Strength.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
 
 from .material import BLACK, scaled, socket_rgb, surface_node
 
 
-def world_color(world, warn):
-    """Background radiance (colour * strength) as an RGB tuple."""
+@dataclass
+class WorldTexture:
+    pixels: np.ndarray  # float32 (H, W, 3) scene-linear RGB, row 0 = bottom (image.pixels order)
+    strength: float
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
+    # rotation: world direction d -> lookup direction t = rotation @ d (the core's convention)
+    name: str = ""
+
+
+def linked_node(socket):
+    """The node feeding `socket` (through reroutes and ignoring muted links), or None."""
+    while True:
+        links = [link for link in socket.links if not link.is_muted]
+        if not links:
+            return None, None
+        link = links[0]
+        if link.from_node.type != 'REROUTE':
+            return link.from_node, link.from_socket
+        socket = link.from_node.inputs[0]
+
+
+def _background_node(world, warn):
+    """(Background/Emission node, None) or (None, fallback colour) for a world."""
     if world is None:
-        return BLACK
+        return None, BLACK
     if not world.use_nodes or world.node_tree is None:
-        return tuple(world.color)
+        return None, tuple(world.color)
     node = surface_node(world.node_tree)
     if node is None:
-        return BLACK  # nothing connected: Cycles renders a black world
+        return None, BLACK  # nothing connected: Cycles renders a black world
     if node.type in {'BACKGROUND', 'EMISSION'}:  # Cycles treats both alike in a world
-        color, strength = node.inputs["Color"], node.inputs["Strength"]
-        if color.is_linked or strength.is_linked:
-            warn(f"World '{world.name}': linked inputs of '{node.name}' are not supported yet; "
-                 "using their constant values")
-        return scaled(socket_rgb(color), strength.default_value)
+        return node, None
     warn(f"World '{world.name}': node '{node.name}' ({node.bl_idname}) is not supported yet; "
          "using the world's colour")
-    return tuple(world.color)
+    return None, tuple(world.color)
+
+
+def world_color(world, warn):
+    """Background radiance (colour * strength) as an RGB tuple: the world's constant colour,
+    also the fallback when its texture cannot be used (each problem is warned about by
+    world_texture; this warns only about what a constant world cannot show)."""
+    node, fallback = _background_node(world, warn)
+    if node is None:
+        return fallback
+    color, strength = node.inputs["Color"], node.inputs["Strength"]
+    linked = [s.name for s in (color, strength) if s.is_linked]
+    source, _ = linked_node(color)
+    if source is not None and source.type in {'TEX_ENVIRONMENT', 'TEX_SKY'}:
+        linked.remove("Color")  # world_texture() handles (or warns about) these
+    if linked:
+        warn(f"World '{world.name}': linked input(s) {', '.join(linked)} of '{node.name}' are "
+             "not supported yet; using their constant values")
+    return scaled(socket_rgb(color), strength.default_value)
+
+
+def world_texture(world, warn):
+    """WorldTexture for a world lit by an equirectangular Environment Texture, else None
+    (then world_color() is the background). Problems are warned about and fall back to the
+    constant colour."""
+    node, _ = _background_node(world, lambda msg: None)  # world_color() warns about these
+    if node is None:
+        return None
+    source, _ = linked_node(node.inputs["Color"])
+    if source is None:
+        return None
+    if source.type == 'TEX_SKY':
+        warn(f"World '{world.name}': Sky Texture is not supported yet; using a constant "
+             "background (the Background colour)")
+        return None
+    if source.type != 'TEX_ENVIRONMENT':
+        return None
+    what = f"World '{world.name}': Environment Texture '{source.name}'"
+    if source.projection != 'EQUIRECTANGULAR':
+        warn(f"{what}: {source.projection.lower()} projection is not supported; using a "
+             "constant background")
+        return None
+    if source.interpolation != 'Linear':
+        warn(f"{what}: {source.interpolation} interpolation is not supported; using Linear")
+    pixels = image_pixels(source.image, what, warn)
+    if pixels is None:
+        return None
+    rotation = _vector_rotation(source.inputs["Vector"], what, warn)
+    return WorldTexture(pixels, float(node.inputs["Strength"].default_value), rotation,
+                        source.image.name)
+
+
+# ---------------------------------------------------------------- the lookup direction
+
+def _euler_matrix(xyz):
+    """Blender's XYZ Euler rotation matrix (Rz @ Ry @ Rx), as the Mapping node uses."""
+    from mathutils import Euler  # only importable inside Blender
+    return np.array(Euler(tuple(float(a) for a in xyz), 'XYZ').to_matrix(), np.float64)
+
+
+def _vector_rotation(vector_socket, what, warn):
+    """The 3x3 matrix taking a world direction to the texture lookup direction, for what
+    feeds the Environment Texture's Vector: nothing / Texture Coordinate (the direction
+    itself) or a Mapping node (its rotation; uniform scale does not change a direction)."""
+    node, out_socket = linked_node(vector_socket)
+    rotation = np.eye(3)
+    if node is not None and node.type == 'MAPPING':
+        mapping = node
+        # Sockets a vector type does not use (Location of VECTOR/NORMAL, ...) are absent.
+        loc, rot, scale = (mapping.inputs.get(name) for name in ("Location", "Rotation", "Scale"))
+        if any(s is not None and s.is_linked for s in (loc, rot, scale)):
+            warn(f"{what}: linked Mapping inputs are not supported; using their constant values")
+        vtype = mapping.vector_type
+        s = np.ones(3) if scale is None else np.asarray(scale.default_value, np.float64)
+        if not (np.abs(s) > 0).all() or not np.allclose(np.abs(s), np.abs(s[0]), rtol=1e-5):
+            warn(f"{what}: non-uniform Mapping scale is not supported; ignoring the scale")
+            s = np.ones(3)
+        if loc is not None and vtype in {'POINT', 'TEXTURE'} and np.any(
+                np.asarray(loc.default_value) != 0):
+            warn(f"{what}: Mapping location is not supported for a world (it does not move "
+                 "a direction); ignored")
+        flip = np.diag(np.sign(s))  # a uniform negative scale mirrors the direction
+        r = np.eye(3) if rot is None else _euler_matrix(rot.default_value)
+        # POINT/VECTOR/NORMAL: t = R (S d); TEXTURE is the inverse transform: t = S⁻¹ Rᵀ d.
+        rotation = flip @ r.T if vtype == 'TEXTURE' else r @ flip
+        node, out_socket = linked_node(mapping.inputs["Vector"])
+        if node is None:
+            warn(f"{what}: Mapping without an input vector is not supported; using the "
+                 "view direction")
+    if node is not None:
+        ok = node.type == 'TEX_COORD' and out_socket.name in {"Generated", "Object"} and (
+            out_socket.name != "Object" or node.object is None)
+        if not ok:
+            warn(f"{what}: texture coordinates from '{node.name}' "
+                 f"({out_socket.name}) are not supported; using the view direction")
+    return rotation.astype(np.float32)
+
+
+# ---------------------------------------------------------------- image pixels
+
+def srgb_to_linear(c):
+    """The sRGB transfer function (IEC 61966-2-1), as OCIO applies it for 'sRGB' images."""
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+_LINEAR_SPACES = {"Linear Rec.709", "Non-Color", "Raw", "Linear", "Linear Rec.709 (sRGB)"}
+
+
+def image_pixels(image, what, warn):
+    """float32 (H, W, 3) scene-linear RGB of a bpy Image (row 0 = bottom), or None (with a
+    warning) when there is none or it cannot be read. Blender gives float images (.exr,
+    .hdr) already converted to scene linear, and byte images as raw byte/255 values in the
+    image's colour space, which we linearise here (Cycles does the same)."""
+    if image is None:
+        warn(f"{what} has no image; using a constant background")
+        return None
+    if image.source not in {'FILE', 'GENERATED'}:
+        warn(f"{what}: image '{image.name}' of type {image.source} is not supported; using a "
+             "constant background")
+        return None
+    try:
+        width, height = image.size  # loads the image (packed or external) on first access
+        n = len(image.pixels)
+    except (RuntimeError, ReferenceError):
+        width = height = n = 0
+    channels = n // max(width * height, 1)
+    if width * height == 0 or n != width * height * channels or channels not in (1, 2, 3, 4):
+        warn(f"{what}: image '{image.name}' cannot be read (missing file "
+             f"'{image.filepath}'?); using a constant background")
+        return None
+    buf = np.empty(n, np.float32)
+    image.pixels.foreach_get(buf)
+    buf = buf.reshape(height, width, channels)
+    rgb = np.repeat(buf[..., :1], 3, axis=2) if channels < 3 else np.ascontiguousarray(buf[..., :3])
+
+    if not image.is_float:
+        space = image.colorspace_settings.name
+        if space == "sRGB":
+            rgb = srgb_to_linear(rgb)
+        elif space not in _LINEAR_SPACES and not image.colorspace_settings.is_data:
+            warn(f"{what}: colour space '{space}' of byte image '{image.name}' is not "
+                 "supported; decoding it as sRGB")
+            rgb = srgb_to_linear(rgb)
+    if not np.isfinite(rgb).all() or (rgb < 0).any():
+        warn(f"{what}: image '{image.name}' has negative or non-finite pixels; clamped to 0")
+        rgb = np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0)
+        np.maximum(rgb, 0.0, out=rgb)
+    return rgb

@@ -1,0 +1,166 @@
+"""Blender light objects → keyword arguments of the core's add_*_light, in Cycles' units.
+
+Cycles (intern/cycles/blender/light.cpp, scene/light.cpp) takes the light's power
+P = colour * energy * 2^exposure (* temperature colour) and divides it by the emitter's
+"area" when `normalize` is on (the default): point/spot 4π (r = 0) -> intensity P/(4π);
+area π·A -> radiance P/(π·A) with A the world-space area; sun: strength is already the
+irradiance E in W/m². With `normalize` off Cycles skips that division, i.e. P is multiplied
+by the same area; we do exactly that.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .material import surface_node
+
+
+@dataclass
+class LightData:
+    kind: str  # "point" | "spot" | "sun" | "area": the core's scene.add_<kind>_light
+    name: str
+    args: dict  # keyword arguments of that call
+
+
+def _finite_nonneg(values, what, name, warn):
+    """values as floats, NaN/inf/negative replaced by 0 (with a warning): never crash the core."""
+    arr = np.asarray(values, np.float64)
+    bad = ~np.isfinite(arr) | (arr < 0.0)
+    if bad.any():
+        warn(f"Light '{name}': invalid {what} {tuple(np.round(arr, 4).tolist()) if arr.ndim else float(arr)} "
+             "(negative or not finite) clamped to 0")
+        arr = np.where(bad, 0.0, arr)
+    return arr
+
+
+def _node_tree_factor(light, name, warn):
+    """Colour multiplier of a light's node tree: a constant Emission node is applied exactly
+    (Cycles multiplies the light's strength by the shader's emission); anything else is not
+    supported (IES, textures, ...) and ignored with a warning."""
+    if not light.use_nodes or light.node_tree is None:
+        return np.ones(3)
+    node = surface_node(light.node_tree)
+    if node is None:
+        return np.zeros(3)  # nothing connected to the Light Output: Cycles emits nothing
+    if any(n.type == 'TEX_IES' for n in light.node_tree.nodes):
+        warn(f"Light '{name}': IES textures are not supported; ignoring the light's nodes")
+        return np.ones(3)
+    if node.type == 'EMISSION':
+        color, strength = node.inputs["Color"], node.inputs["Strength"]
+        if not (color.is_linked or strength.is_linked):
+            return np.asarray(color.default_value[:3], np.float64) * float(strength.default_value)
+    warn(f"Light '{name}': light node trees other than a constant Emission are not supported; "
+         "ignoring the light's nodes")
+    return np.ones(3)
+
+
+def light_power(light, name, warn):
+    """RGB power (W) as Cycles computes it: colour * energy * 2^exposure, times the
+    temperature colour and a constant Emission node, if any."""
+    color = np.asarray(light.color[:3], np.float64)
+    if getattr(light, "use_temperature", False):
+        color = color * np.asarray(light.temperature_color[:3], np.float64)
+    energy = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
+    color = color * _node_tree_factor(light, name, warn)
+    return _finite_nonneg(color, "colour", name, warn) * float(
+        _finite_nonneg(energy, "power", name, warn))
+
+
+def _unsupported(light, obj, name, warn):
+    if getattr(obj, "visible_camera", False) and (
+            light.type == 'AREA' or light.type == 'SUN' and light.angle > 0
+            or light.type in {'POINT', 'SPOT'} and light.shadow_soft_size > 0):
+        warn(f"Light '{name}': lights visible to the camera are not supported; "
+             "the light is rendered invisible to camera rays")
+    for flag in ("visible_diffuse", "visible_glossy", "visible_transmission"):
+        if not getattr(obj, flag, True):
+            warn(f"Light '{name}': ray visibility '{flag[8:]}' off is not supported; ignored")
+    if light.type in {'POINT', 'SPOT'} and not getattr(light, "use_soft_falloff", True):
+        warn(f"Light '{name}': sphere lights (Soft Falloff off) are not supported; "
+             "rendering with soft falloff")
+    if light.type == 'AREA' and light.spread < math.pi - 1e-6:
+        warn(f"Light '{name}': area light spread below 180° is not supported; using 180°")
+
+
+def convert_light(obj, matrix, warn):
+    """LightData for one light instance (obj: evaluated light object, matrix: (4, 4)
+    world matrix of this instance), or None when it emits nothing."""
+    light = obj.data
+    name = obj.original.name if obj.original is not None else obj.name
+    cycles = getattr(light, "cycles", None)
+    if cycles is not None and getattr(cycles, "is_portal", False):
+        warn(f"Light '{name}': light portals are not supported; ignored")
+        return None
+    power = light_power(light, name, warn)
+    if not power.any():
+        return None
+    _unsupported(light, obj, name, warn)
+    m = np.array(matrix, np.float64)
+    if not np.isfinite(m).all():
+        warn(f"Light '{name}': non-finite transform; skipped")
+        return None
+    # Cycles' light "cast shadow" is the light's own flag; the object's shadow visibility is
+    # honoured too (a light cannot be a shadow caster, so the only meaning is "no shadows").
+    cast_shadow = bool(light.use_shadow) and bool(getattr(obj, "visible_shadow", True))
+    normalize = getattr(light, "normalize", True)
+
+    if light.type in {'POINT', 'SPOT'}:
+        radius = float(_finite_nonneg(light.shadow_soft_size, "radius", name, warn))
+        if not normalize:  # Cycles' sphere area, 4 for a point: intensity = P * area / (4π)
+            power = power * (4.0 * math.pi * radius * radius if radius > 0 else 4.0)
+        intensity = tuple((power / (4.0 * math.pi)).tolist())
+        if light.type == 'POINT':
+            return LightData("point", name, dict(
+                position=tuple(m[:3, 3].tolist()), intensity=intensity, radius=radius,
+                cast_shadow=cast_shadow))
+        spot_size = float(np.clip(np.nan_to_num(light.spot_size, nan=math.pi), 1e-4, math.pi))
+        spot_blend = float(np.clip(np.nan_to_num(light.spot_blend), 0.0, 1.0))
+        return LightData("spot", name, dict(
+            matrix=m.astype(np.float32), intensity=intensity, radius=radius,
+            spot_size=spot_size, spot_blend=spot_blend, cast_shadow=cast_shadow))
+
+    if light.type == 'SUN':
+        z = m[:3, 2]
+        norm = np.linalg.norm(z)
+        if not norm > 0:
+            return None  # zero-scaled: no direction
+        angle = float(np.clip(np.nan_to_num(light.angle), 0.0, math.pi))
+        if not normalize and angle > 0:  # Cycles' sun "area": π sin²(angle/2)
+            power = power * (math.pi * math.sin(angle / 2) ** 2)
+        return LightData("sun", name, dict(
+            direction=tuple((z / norm).tolist()), irradiance=tuple(power.tolist()),
+            angle=angle, cast_shadow=cast_shadow))
+
+    if light.type == 'AREA':
+        size_x = float(_finite_nonneg(light.size, "size", name, warn))
+        size_y = size_x if light.shape in {'SQUARE', 'DISK'} else float(
+            _finite_nonneg(light.size_y, "size", name, warn))
+        ellipse = light.shape in {'DISK', 'ELLIPSE'}
+        # World-space area: the object's scale stretches the light (Cycles: |axis| * size).
+        area = np.linalg.norm(m[:3, 0]) * size_x * np.linalg.norm(m[:3, 1]) * size_y
+        if ellipse:
+            area *= math.pi / 4.0
+        if not area > 0:
+            return None  # Cycles: an area light of zero size does not contribute
+        radiance = power / (math.pi * area) if normalize else power / math.pi
+        return LightData("area", name, dict(
+            matrix=m.astype(np.float32), size_x=size_x, size_y=size_y,
+            radiance=tuple(radiance.tolist()), ellipse=ellipse, cast_shadow=cast_shadow))
+
+    warn(f"Light '{name}': light type {light.type} is not supported; skipped")
+    return None
+
+
+def collect_lights(depsgraph, warn, is_visible):
+    """LightData for every visible light instance of the depsgraph (collection instances
+    included: each instance carries its own matrix_world)."""
+    lights = []
+    for instance in depsgraph.object_instances:
+        obj = instance.object
+        if obj.type != 'LIGHT' or not is_visible(instance):
+            continue
+        data = convert_light(obj, instance.matrix_world, warn)
+        if data is not None:
+            lights.append(data)
+    return lights
