@@ -4,7 +4,7 @@ Threads are not stored here: Blender's own `scene.render.threads_mode` / `thread
 """
 
 import bpy
-from bpy.props import BoolProperty, FloatProperty, IntProperty, PointerProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
 
 class PathlightSceneSettings(bpy.types.PropertyGroup):
@@ -20,9 +20,53 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         name="Max Bounces", description="Total maximum number of bounces of a path",
         default=12, min=0, max=1024,
     )
+    # Per-type limits with Cycles' defaults; the total above still applies.
+    diffuse_bounces: IntProperty(
+        name="Diffuse", description="Maximum number of diffuse reflection bounces",
+        default=4, min=0, max=1024,
+    )
+    glossy_bounces: IntProperty(
+        name="Glossy", description="Maximum number of glossy reflection bounces",
+        default=4, min=0, max=1024,
+    )
+    transmission_bounces: IntProperty(
+        name="Transmission", description="Maximum number of transmission bounces",
+        default=12, min=0, max=1024,
+    )
     seed: IntProperty(
         name="Seed", description="Seed of the random number sequences",
         default=0, min=0,
+    )
+    use_animated_seed: BoolProperty(
+        name="Use Animated Seed",
+        description="Add the frame number to the seed, so that the noise changes from frame "
+                    "to frame (as Cycles' option)",
+        default=False,
+    )
+    sampler: EnumProperty(
+        name="Pattern", description="Random number pattern used to sample pixels and paths",
+        items=(
+            ('SOBOL', "Sobol", "Owen-scrambled Sobol low-discrepancy sequence: less noise"),
+            ('RANDOM', "Random", "Independent pseudo-random numbers"),
+        ),
+        default='SOBOL',
+    )
+    use_adaptive_sampling: BoolProperty(
+        name="Noise Threshold",
+        description="Stop sampling pixels whose noise is below the threshold",
+        default=True,
+    )
+    adaptive_threshold: FloatProperty(
+        name="Noise Threshold",
+        description="Noise level at which a pixel stops being sampled (lower: less noise, "
+                    "longer renders)",
+        default=0.01, min=0.0, soft_min=0.001, max=1.0, step=0.1, precision=4,
+    )
+    adaptive_min_samples: IntProperty(
+        name="Min Samples",
+        description="Samples every pixel gets before adaptive sampling stops any "
+                    "(0 = automatic, from the noise threshold)",
+        default=0, min=0, max=1 << 24,
     )
     use_nee: BoolProperty(
         name="Next-Event Estimation",

@@ -34,10 +34,31 @@ def render_settings(pc, scene):
     st.samples = props.samples
     st.time_limit = props.time_limit
     st.max_bounces = props.max_bounces
-    st.seed = props.seed
+    st.seed = render_seed(scene)
     st.use_nee = props.use_nee
     st.threads = scene.render.threads  # the detected count in AUTO mode
+    # Issue 4 settings; hasattr keeps older core builds working (they render without them).
+    optional = {
+        "sampler": props.sampler.lower(),
+        "adaptive_threshold": props.adaptive_threshold if props.use_adaptive_sampling else 0.0,
+        "adaptive_min_samples": props.adaptive_min_samples,
+        "diffuse_bounces": props.diffuse_bounces,
+        "glossy_bounces": props.glossy_bounces,
+        "transmission_bounces": props.transmission_bounces,
+    }
+    for name, value in optional.items():
+        if hasattr(st, name):
+            setattr(st, name, value)
     return st
+
+
+def render_seed(scene):
+    """The seed of this frame: with use_animated_seed the frame number is added, so that each
+    frame of an animation gets different noise (kept within the core's 32-bit range)."""
+    props = scene.pathlight
+    if not props.use_animated_seed:
+        return props.seed
+    return (props.seed + scene.frame_current) % (1 << 31)
 
 
 def render(engine, depsgraph):
@@ -46,7 +67,7 @@ def render(engine, depsgraph):
     try:
         pc = get_core()
         scene = depsgraph.scene
-        core_scene = to_core(pc, export_scene(depsgraph, warn))
+        core_scene = to_core(pc, export_scene(depsgraph, warn), warn)
         sess = pc.Session(core_scene, render_settings(pc, scene))
         dropped = core_scene.stats().get("dropped_triangles", 0)
         if dropped:

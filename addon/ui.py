@@ -22,13 +22,83 @@ class PATHLIGHT_RENDER_PT_sampling(PathlightPanel, bpy.types.Panel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         settings = context.scene.pathlight
-        col = layout.column()
-        col.prop(settings, "samples")
+        heading = layout.column(align=True, heading="Noise Threshold")
+        row = heading.row(align=True)
+        row.prop(settings, "use_adaptive_sampling", text="")
+        sub = row.row()
+        sub.active = settings.use_adaptive_sampling
+        sub.prop(settings, "adaptive_threshold", text="")
+        col = layout.column(align=True)
+        col.prop(settings, "samples", text="Max Samples" if settings.use_adaptive_sampling
+                 else "Samples")
+        sub = col.column(align=True)
+        sub.active = settings.use_adaptive_sampling
+        sub.prop(settings, "adaptive_min_samples")
         col.prop(settings, "time_limit")
-        col.prop(settings, "seed")
+        col = layout.column(align=True)
+        col.prop(settings, "sampler")
+        row = col.row(align=True)
+        row.prop(settings, "seed")
+        row.prop(settings, "use_animated_seed", text="", icon='TIME')
+        layout.prop(settings, "use_nee")
+
+
+class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
+    bl_label = "Light Paths"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.pathlight
+        col = layout.column(align=True)
+        col.prop(settings, "max_bounces", text="Total")
+        col = layout.column(align=True)
+        col.prop(settings, "diffuse_bounces")
+        col.prop(settings, "glossy_bounces")
+        col.prop(settings, "transmission_bounces")
+
+
+class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
+    """Below Blender's DATA_PT_light (which shows only the light type for other engines)."""
+    bl_label = "Light"
+    bl_context = "data"
+    bl_options = {'HIDE_HEADER'}
+
+    @classmethod
+    def poll(cls, context):
+        return context.light is not None and super().poll(context)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        light = context.light
         col = layout.column()
-        col.prop(settings, "max_bounces")
-        col.prop(settings, "use_nee")
+        row = col.row(align=True, heading="Temperature")
+        row.prop(light, "use_temperature", text="")
+        sub = row.row()
+        sub.active = light.use_temperature
+        sub.prop(light, "temperature", text="")
+        col.prop(light, "color", text="Tint" if light.use_temperature else "Color")
+        col = layout.column()
+        col.prop(light, "energy")
+        col.prop(light, "exposure")
+        col.prop(light, "normalize")
+        col = layout.column()
+        if light.type in {'POINT', 'SPOT'}:
+            col.prop(light, "shadow_soft_size", text="Radius")
+        elif light.type == 'SUN':
+            col.prop(light, "angle")
+        elif light.type == 'AREA':
+            col.prop(light, "shape")
+            sub = col.column(align=True)
+            if light.shape in {'SQUARE', 'DISK'}:
+                sub.prop(light, "size")
+            else:
+                sub.prop(light, "size", text="Size X")
+                sub.prop(light, "size_y", text="Y")
+        col.prop(light, "use_shadow", text="Cast Shadow")
 
 
 class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
@@ -47,7 +117,8 @@ class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
         sub.prop(rd, "threads")
 
 
-classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_performance)
+classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths,
+           PATHLIGHT_RENDER_PT_performance, PATHLIGHT_LIGHT_PT_light)
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles
 # does: output, camera, lens, light, world context, ...) plus EEVEE's node-based material and
