@@ -276,9 +276,13 @@ def test_adaptive_sampling_stops_converged_pixels_and_is_deterministic():
 
 
 def test_diffuse_bounce_limit_matches_total_limit_for_diffuse_scenes():
-    a, _ = render(pc, cornell(pc), 16, 16, samples=8, max_bounces=12, diffuse_bounces=1)
-    b, _ = render(pc, cornell(pc), 16, 16, samples=8, max_bounces=1, diffuse_bounces=1024)
-    assert np.array_equal(a, b)
+    # Same light paths, different estimators at the last vertex (a per-type limit still traces
+    # the BSDF ray to keep MIS weights; the total limit gives the light sample all the weight).
+    a, _ = render(pc, cornell(pc), 24, 24, samples=256, max_bounces=12, diffuse_bounces=1)
+    b, _ = render(pc, cornell(pc), 24, 24, samples=256, max_bounces=1, diffuse_bounces=1024)
+    full, _ = render(pc, cornell(pc), 24, 24, samples=256, max_bounces=12)
+    assert abs(a[..., :3].mean() / b[..., :3].mean() - 1) < 0.01
+    assert full[..., :3].mean() > 1.05 * a[..., :3].mean()
 
 
 def test_bad_light_parameters_raise():

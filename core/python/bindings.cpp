@@ -91,7 +91,7 @@ struct PyScene {
 };
 
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& triangles, const py::object& normals,
-                  const py::object& material_indices, const std::vector<int64_t>& slots) {
+                  const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs) {
   self.check_editable();
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
   if (triangles.ndim() != 2 || triangles.shape(1) != 3) throw std::invalid_argument("triangles must have shape (T, 3)");
@@ -126,7 +126,170 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& tr
     for (size_t i = 0; i < nt; ++i)
       mesh.materials[i] = p[i] >= 0 && size_t(p[i]) < slot_ids.size() ? slot_ids[size_t(p[i])] : 0u;
   }
+  for (const auto& item : uvs) {
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 3 || size_t(a.shape(0)) != nt || a.shape(1) != 3 || a.shape(2) != 2)
+      throw std::invalid_argument("uvs must have shape (T, 3, 2)");
+    if (mesh.uvs.size() <= size_t(k)) mesh.uvs.resize(size_t(k) + 1);
+    auto& dst = mesh.uvs[size_t(k)];
+    dst.resize(nt * 3);
+    const float* src = a.data();
+    for (size_t i = 0; i < nt * 3; ++i) {
+      const float u = src[2 * i], v = src[2 * i + 1];
+      dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
+    }
+  }
   return self.scene->add_mesh(std::move(mesh));
+}
+
+// Parses a shader program (see docs/core_api.md) into core ops, validating every register.
+ShaderProgram parse_program(const PyScene& self, const py::list& program) {
+  ShaderProgram prog;
+  auto regno = [](const py::handle& h) -> int16_t {
+    if (h.is_none()) return kNoReg;
+    const int64_t r = h.cast<int64_t>();
+    if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
+    return int16_t(r);
+  };
+  auto name_of = [](const py::handle& h) { return h.cast<std::string>(); };
+  static const std::vector<std::string> math_ops = {"ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER",
+                                                    "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN", "ABSOLUTE"};
+  static const std::vector<std::string> mix_ops = {"MIX", "MULTIPLY", "ADD", "SUBTRACT", "SCREEN",
+                                                   "DIVIDE", "DIFFERENCE", "DARKEN", "LIGHTEN", "OVERLAY"};
+  auto index_in = [](const std::vector<std::string>& v, const std::string& x, const char* what) {
+    for (size_t i = 0; i < v.size(); ++i)
+      if (v[i] == x) return uint8_t(i);
+    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+  };
+  const int64_t n_images = int64_t(self.scene->image_count());
+  for (const auto& item : program) {
+    const auto t = item.cast<py::tuple>();
+    if (t.size() < 2) throw std::invalid_argument("shader op must be a tuple (name, ...)");
+    const std::string op = name_of(t[0]);
+    ShaderOp o;
+    auto need = [&](size_t n) {
+      if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
+    };
+    if (op == "closure") {
+      need(4);
+      const std::string kind = name_of(t[1]);
+      o.in[0] = regno(t[2]);
+      const auto params = t[3].cast<py::dict>();
+      auto p = [&](const char* key) { return params.contains(key) ? regno(params[key]) : kNoReg; };
+      if (kind == "diffuse") {
+        o.code = OpCode::Diffuse;
+        o.in[1] = p("color"); o.in[2] = p("normal");
+      } else if (kind == "glossy") {
+        o.code = OpCode::Glossy;
+        o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal");
+      } else if (kind == "glass" || kind == "refraction") {
+        o.code = kind == "glass" ? OpCode::Glass : OpCode::Refraction;
+        o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("ior"); o.in[4] = p("normal");
+      } else if (kind == "transparent") {
+        o.code = OpCode::Transparent;
+        o.in[1] = p("color");
+      } else if (kind == "emission") {
+        o.code = OpCode::Emission;
+        o.in[1] = p("color");
+      } else if (kind == "principled") {
+        o.code = OpCode::Principled;
+        o.in[1] = p("base_color"); o.in[2] = p("metallic"); o.in[3] = p("roughness"); o.in[4] = p("ior");
+        o.in[5] = p("transmission"); o.in[6] = p("specular_level"); o.in[7] = p("specular_tint");
+        o.in[8] = p("normal");
+      } else {
+        throw std::invalid_argument("unknown closure '" + kind + "'");
+      }
+      for (const auto& kv : params) {
+        if (o.code == OpCode::Principled || o.code == OpCode::Diffuse || o.code == OpCode::Glossy ||
+            o.code == OpCode::Glass || o.code == OpCode::Refraction || o.code == OpCode::Transparent ||
+            o.code == OpCode::Emission)
+          regno(kv.second);  // validates every register, also of unknown keys
+      }
+      if (p("normal") != kNoReg) prog.varying = true;
+      if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
+      prog.ops.push_back(o);
+      continue;
+    }
+    o.dst = regno(t[1]);
+    if (o.dst == kNoReg) throw std::invalid_argument("shader op '" + op + "' needs a destination register");
+    if (op == "const") {
+      need(3);
+      const auto v = t[2].cast<std::vector<float>>();
+      if (v.empty() || v.size() > 4) throw std::invalid_argument("const takes 1 to 4 values");
+      float f[4] = {v[0], v.size() > 1 ? v[1] : v[0], v.size() > 2 ? v[2] : v[0], v.size() > 3 ? v[3] : 1.0f};
+      for (float& x : f) x = std::isfinite(x) ? x : 0.0f;  // NaN node values become 0
+      o.code = OpCode::Const;
+      o.value = {f[0], f[1], f[2], f[3]};
+    } else if (op == "uv") {
+      need(3);
+      o.code = OpCode::Uv;
+      o.index = t[2].cast<int32_t>();
+      if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+      prog.uses_uv = prog.varying = true;
+    } else if (op == "position" || op == "normal") {
+      need(2);
+      o.code = op == "position" ? OpCode::Position : OpCode::Normal;
+      prog.varying = true;
+    } else if (op == "mapping") {
+      need(4);
+      o.code = OpCode::Mapping;
+      o.in[0] = regno(t[2]);
+      const auto m = t[3].cast<FloatArray>();
+      if (m.ndim() != 2 || m.shape(0) != 3 || m.shape(1) != 4) throw std::invalid_argument("mapping matrix must be 3x4");
+      for (int i = 0; i < 12; ++i) {
+        o.m[i] = m.data()[i];
+        if (!std::isfinite(o.m[i])) throw std::invalid_argument("mapping matrix contains NaN or infinite values");
+      }
+    } else if (op == "image") {
+      need(6);
+      o.code = OpCode::ImageTex;
+      o.in[0] = regno(t[2]);
+      const int64_t img = t[3].cast<int64_t>();
+      if (img < 0 || img >= n_images) throw std::invalid_argument("unknown image id " + std::to_string(img));
+      o.index = int32_t(img);
+      const std::string interp = name_of(t[4]), ext = name_of(t[5]);
+      if (interp == "LINEAR") o.sub = uint8_t(Interp::Linear);
+      else if (interp == "CLOSEST") o.sub = uint8_t(Interp::Closest);
+      else throw std::invalid_argument("interpolation must be LINEAR or CLOSEST");
+      if (ext == "REPEAT") o.ext = uint8_t(Extension::Repeat);
+      else if (ext == "EXTEND") o.ext = uint8_t(Extension::Extend);
+      else if (ext == "CLIP") o.ext = uint8_t(Extension::Clip);
+      else throw std::invalid_argument("extension must be REPEAT, EXTEND or CLIP");
+    } else if (op == "math") {
+      need(6);
+      o.code = OpCode::Math;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.sub = index_in(math_ops, name_of(t[4]), "math op");
+      o.clamp = t[5].cast<bool>();
+    } else if (op == "mix") {
+      need(7);
+      o.code = OpCode::Mix;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.in[2] = regno(t[4]);
+      o.sub = index_in(mix_ops, name_of(t[5]), "mix blend type");
+      o.clamp = t[6].cast<bool>();
+    } else if (op == "rgb_to_bw") {
+      need(3);
+      o.code = OpCode::RgbToBw;
+      o.in[0] = regno(t[2]);
+    } else if (op == "normal_map") {
+      need(5);
+      o.code = OpCode::NormalMap;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.index = t[4].cast<int32_t>();
+      if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+      prog.uses_uv = prog.varying = true;
+    } else {
+      throw std::invalid_argument("unknown shader op '" + op + "'");
+    }
+    prog.ops.push_back(o);
+  }
+  return prog;
 }
 
 py::dict scene_stats(const PyScene& self) {
@@ -306,18 +469,57 @@ PYBIND11_MODULE(pathlight_core, m) {
           "add_material",
           [](PyScene& self, const std::string& name, const py::object& base_color, const py::object& emission) {
             self.check_editable();
-            Material mat;
-            mat.name = name;
-            Vec3 albedo = to_color(base_color, "base_color");
-            albedo = vmin(albedo, Vec3(1.0f));  // an albedo above 1 would create energy
-            mat.bsdf = DiffuseBsdf{albedo};
-            mat.emission = to_color(emission, "emission");
+            const Vec3 albedo = vmin(to_color(base_color, "base_color"), Vec3(1.0f));  // > 1 creates energy
+            Material mat = make_simple_material(name, albedo, to_color(emission, "emission"));
             return self.scene->add_material(std::move(mat));
           },
           py::arg("name"), py::arg("base_color") = py::make_tuple(0.8f, 0.8f, 0.8f),
           py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
-           py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{})
+           py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
+           py::arg("uvs") = py::dict())
+      .def(
+          "add_image",
+          [](PyScene& self, const FloatArray& pixels) {
+            self.check_editable();
+            if (pixels.ndim() != 3 || pixels.shape(2) != 4 || pixels.shape(0) < 1 || pixels.shape(1) < 1)
+              throw std::invalid_argument("image pixels must have shape (H, W, 4)");
+            if (pixels.shape(0) > 65536 || pixels.shape(1) > 65536 || pixels.shape(0) * pixels.shape(1) > (1ll << 28))
+              throw std::invalid_argument("image is too large");
+            Image img;
+            img.h = int(pixels.shape(0));
+            img.w = int(pixels.shape(1));
+            img.px.resize(size_t(img.w) * size_t(img.h));
+            const float* src = pixels.data();
+            for (size_t i = 0; i < img.px.size(); ++i) {
+              float c[4];
+              for (int k = 0; k < 4; ++k) c[k] = std::isfinite(src[4 * i + k]) ? src[4 * i + k] : 0.0f;
+              img.px[i] = {c[0], c[1], c[2], c[3]};
+            }
+            return self.scene->add_image(std::move(img));
+          },
+          py::arg("pixels"))
+      .def(
+          "add_shader",
+          [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,
+             bool use_schlick) {
+            self.check_editable();
+            Material mat;
+            mat.name = name;
+            mat.program = parse_program(self, program);
+            mat.program.schlick = use_schlick;
+            if (!volume_absorption.is_none()) {
+              const auto t = volume_absorption.cast<py::tuple>();
+              if (t.size() != 2) throw std::invalid_argument("volume_absorption must be (color, density)");
+              const Vec3 color = vmin(to_color(t[0], "absorption color"), Vec3(1.0f));
+              float density = t[1].cast<float>();
+              density = std::isfinite(density) && density > 0.0f ? density : 0.0f;
+              mat.program.sigma_a = (Vec3(1.0f) - color) * density;
+            }
+            return self.scene->add_material(std::move(mat));
+          },
+          py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
+          py::arg("use_schlick") = false)
       .def(
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix) {

@@ -1,98 +1,195 @@
 #include "render/integrator.h"
 
 namespace pl {
+namespace {
+
+// Sum of all non-delta closures: f * |cos| and the mixture pdf, counting only lobes on the side
+// (reflection or transmission) that the geometric normal allows, so that shading normals never
+// let light through a surface or reflect it from behind.
+Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
+  Vec3 f(0.0f);
+  pdf = 0.0f;
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    if (c.delta) continue;
+    const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
+    if (same_side(lo, li) != reflection) continue;
+    float p;
+    const Vec3 v = bsdf_eval(c.bsdf, lo, li, p);
+    f += c.weight * v;
+    pdf += c.pick * p;
+  }
+  return f;
+}
+
+struct Medium {  // Beer's law: nested absorbing media, innermost last
+  Vec3 sigma[4];
+  uint32_t material[4];
+  int n = 0;
+  Vec3 current() const { return n ? sigma[n - 1] : Vec3(0.0f); }
+  void enter(uint32_t m, Vec3 s) {
+    if (n < 4) {
+      sigma[n] = s;
+      material[n++] = m;
+    }
+  }
+  void leave(uint32_t m) {
+    for (int i = n - 1; i >= 0; --i)
+      if (material[i] == m) {
+        for (int j = i; j + 1 < n; ++j) {
+          sigma[j] = sigma[j + 1];
+          material[j] = material[j + 1];
+        }
+        --n;
+        return;
+      }
+  }
+};
+
+inline Vec3 beer(Vec3 sigma, float t) {
+  return {std::exp(-sigma.x * t), std::exp(-sigma.y * t), std::exp(-sigma.z * t)};
+}
+
+}  // namespace
 
 Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c) {
   Vec3 L(0.0f), beta(1.0f);
-  float prev_pdf = 0.0f;  // solid-angle pdf of the BSDF sample that produced `ray`
+  float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
+  bool prev_delta = true;   // camera rays and delta lobes: no light sample could find the hit
   const bool nee = s.use_nee && scene.has_lights();
-  int diffuse = 0;  // diffuse scattering events so far
+  int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
   bool emission_only = false;
-  for (int bounce = 0;; ++bounce) {
+  Medium medium;
+  ClosureList cl;
+  for (int bounce = 0;;) {
     Hit hit;
     ++c.rays;
-    if (!scene.intersect(ray, hit)) {
+    const bool found = scene.intersect(ray, hit);
+    const Vec3 sigma = medium.current();
+    if (!is_black(sigma)) beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
+    if (!found) {
       // Escaped: the world, weighted against the environment light sample that could find it.
       float w = 1.0f;
-      if (nee && bounce > 0) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
+      if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
       L += beta * scene.background(ray.dir) * w;
       break;
     }
     SurfacePoint sp;
     scene.surface_point(hit, sp);
-    const Material& mat = scene.material(sp.material);
     const Vec3 wo = -ray.dir;
+    scene.shade(sp, hit.b1, hit.b2, wo, cl);
 
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.
-    if (!is_black(mat.emission)) {
+    if (!is_black(cl.emission)) {
       float w = 1.0f;
-      if (nee && bounce > 0) w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, hit.t, std::fabs(dot(sp.ng, wo))));
-      L += beta * mat.emission * w;
+      if (nee && !prev_delta)
+        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, hit.t, std::fabs(dot(sp.ng, wo))));
+      L += beta * cl.emission * w;
     }
-    // Without light sampling, the vertex past the limit only collects emission.
-    if (emission_only) break;
+    if (emission_only || cl.n == 0) break;
 
-    // Surfaces are two-sided: shade the side the ray arrived from.
-    if (dot(sp.ng, wo) < 0.0f) {
-      sp.ng = -sp.ng;
-      sp.ns = -sp.ns;
-    }
-    if (dot(sp.ns, sp.ng) <= 0.0f) sp.ns = sp.ng;
-    const Frame frame = Frame::from_normal(sp.ns);
-    // The last vertex that scatters: no BSDF ray follows (all lobes are diffuse for now).
-    const bool last = bounce >= s.max_bounces || diffuse >= s.diffuse_bounces;
+    const bool front = dot(sp.ng, wo) > 0.0f;
+    const Vec3 ng_out = front ? sp.ng : -sp.ng;  // geometric normal on the viewer's side
+    // The last vertex that scatters: no BSDF ray follows, so light samples take all the weight.
+    const bool last = bounce >= s.max_bounces;
+    float u_rr = -1.0f;
 
-    if (nee) {
+    if (nee && cl.has_nondelta) {
       DirectSample ds;
-      const float u_sel = sampler.get1d();
+      const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
+      u_rr = u_sel.y;
       const Vec2 u_pt = sampler.get2d();
-      if (scene.sample_direct(sp.p, u_sel, u_pt, ds) && dot(sp.ng, ds.wi) > 0.0f) {
+      if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds)) {
+        const bool reflection = dot(ds.wi, ng_out) > 0.0f;
         float bsdf_pdf;
-        const Vec3 f = bsdf_eval(mat.bsdf, frame, wo, ds.wi, bsdf_pdf);
+        const Vec3 f = eval_mixture(cl, wo, ds.wi, reflection, bsdf_pdf);
         if (!is_black(f) && !is_black(ds.li)) {
-          bool visible = true;
-          if (ds.cast_shadow) {
-            Ray shadow;
-            shadow.org = offset_ray_origin(sp.p, sp.ng);
-            if (std::isinf(ds.dist)) {
-              shadow.dir = ds.wi;
-              shadow.tmax = kInf;
-            } else {
-              // Offset the light end too, so an emissive triangle never blocks its own sample.
-              const Vec3 target = is_black(ds.target_normal) ? ds.target : offset_ray_origin(ds.target, ds.target_normal);
-              shadow.dir = target - shadow.org;
-              shadow.tmax = is_black(ds.target_normal) ? 0.9999f : 1.0f;
-            }
-            ++c.rays;
-            visible = !scene.occluded(shadow);
+          Vec3 vis(1.0f);
+          Ray shadow;
+          shadow.org = offset_ray_origin(sp.p, reflection ? ng_out : -ng_out);
+          if (std::isinf(ds.dist)) {
+            shadow.dir = ds.wi;
+            shadow.tmax = kInf;
+          } else {
+            // Offset the light end too, so an emissive triangle never blocks its own sample.
+            const bool tri = !is_black(ds.target_normal);
+            const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_normal) : ds.target;
+            shadow.dir = target - shadow.org;
+            shadow.tmax = tri ? 1.0f : 0.9999f;
           }
-          if (visible) {
-            // Delta lights and the last vertex: the light sample is the only technique.
+          if (ds.cast_shadow) {
+            ++c.rays;
+            vis = scene.transmittance(shadow);
+          }
+          // Light inside an absorbing medium (only reachable when the segment stays inside it).
+          const Vec3 msig = reflection ? sigma : Vec3(0.0f);
+          if (!is_black(msig) && std::isfinite(ds.dist)) vis = vis * beer(msig, ds.dist);
+          if (!is_black(vis)) {
             const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
-            L += beta * f * ds.li * (w / ds.pdf);  // for delta lights pdf is the choice probability
+            L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
           }
         }
       }
     }
     if (last && nee) break;
 
+    // Choose a closure in proportion to its weight, then sample it.
+    const Vec2 u_lobe = sampler.get2d();  // closure choice, then reflect-or-refract
+    const Vec2 u = sampler.get2d();
+    const float uc = u_lobe.x, ul = u_lobe.y;
+    int k = 0;
+    float acc = cl.c[0].pick;
+    while (k + 1 < cl.n && uc >= acc) acc += cl.c[size_t(++k)].pick;
+    const Closure& ch = cl.c[size_t(k)];
     BsdfSample bs;
-    if (!bsdf_sample(mat.bsdf, frame, wo, sampler.get2d(), bs)) break;
-    // A direction below the geometric surface would leak light through it.
-    if (dot(bs.wi, sp.ng) <= 0.0f) break;
-    beta *= bs.weight;
-    prev_pdf = bs.pdf;
-    ++diffuse;
-    emission_only = last;
+    if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)) break;
+    const Vec3 wi = ch.frame.to_world(bs.wi);
+    const bool reflection = (bs.flags & kReflect) != 0;
+    // The sampled side must agree with the geometric normal, or light would leak.
+    if ((dot(wi, ng_out) > 0.0f) != reflection) break;
+    if (bs.flags & kDelta) {
+      beta *= ch.weight * bs.weight / ch.pick;
+      prev_delta = true;
+    } else {
+      float pdf;
+      const Vec3 f = eval_mixture(cl, wo, wi, reflection, pdf);
+      if (!(pdf > 0.0f) || is_black(f)) break;
+      beta *= f / pdf;
+      prev_pdf = pdf;
+      prev_delta = false;
+    }
 
-    const float u_rr = sampler.get1d();
-    if (bounce + 1 >= s.rr_start_bounce) {
+    // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its
+    // ray collect emission (so the light sample above keeps its MIS weight), then stops.
+    if (bs.flags & kTransparentLobe) {
+      if (++transparent > 256) break;
+    } else {
+      int& count = (bs.flags & kDiffuseLobe) ? diffuse : (bs.flags & kTransmit) ? transmission : glossy;
+      const int limit = (bs.flags & kDiffuseLobe) ? s.diffuse_bounces
+                        : (bs.flags & kTransmit)  ? s.transmission_bounces
+                                                  : s.glossy_bounces;
+      if (count >= limit) emission_only = true;
+      ++count;
+      ++bounce;
+      if (last) emission_only = true;  // no light sampling: the limit still ends the path
+    }
+    if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
+      const Material& mat = scene.material(sp.material);
+      if (!is_black(mat.program.sigma_a)) {
+        if (front) medium.enter(sp.material, mat.program.sigma_a);
+        else medium.leave(sp.material);
+      }
+    }
+
+    if (bounce >= s.rr_start_bounce && !(bs.flags & kTransparentLobe)) {
       const float survive = std::min(1.0f, max_component(beta));
+      if (u_rr < 0.0f) u_rr = sampler.get2d().x;
       if (!(survive > 0.0f) || u_rr >= survive) break;
       beta = beta / survive;
     }
-    ray.org = offset_ray_origin(sp.p, sp.ng);
-    ray.dir = bs.wi;
+    if (!is_finite(beta)) break;
+    ray.org = offset_ray_origin(sp.p, reflection ? ng_out : -ng_out);
+    ray.dir = wi;
     ray.tmax = kInf;
   }
   return L;

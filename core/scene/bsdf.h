@@ -1,14 +1,237 @@
 // The closed set of BSDFs and the one place that dispatches over all of them.
-// To add a BSDF: write a struct with eval/sample below, add it to the `Bsdf` variant, and
-// handle it in bsdf_eval/bsdf_sample (std::visit makes a missing case a compile error).
-// Directions are in world space; `Frame` holds the shading frame.
+// To add a BSDF: write a struct with eval/sample in local coordinates below, add it to the
+// `Bsdf` variant (std::visit then makes every missing case a compile error).
+// Local frame: +Z is the closure's shading normal as the mesh orients it. Reflection-only
+// BSDFs are two-sided (they mirror to wo's side); dielectrics use the side to tell inside from
+// outside. eval returns f * |cos(wi)|.
 #pragma once
 #include <string>
 #include <variant>
 
-#include "util/sampling.h"
+#include "scene/microfacet.h"
 
 namespace pl {
+
+enum BsdfFlags : uint8_t {
+  kReflect = 1,
+  kTransmit = 2,
+  kDelta = 4,
+  kDiffuseLobe = 8,
+  kGlossyLobe = 16,
+  kTransparentLobe = 32,  // straight pass-through: not a bounce
+};
+
+struct BsdfSample {
+  Vec3 wi;
+  Vec3 weight;     // f * |cos| / pdf (for delta lobes: the lobe's weight / its probability)
+  float pdf = 0.0f;
+  uint8_t flags = 0;
+  float eta = 1.0f;  // relative IOR crossed (transmission), for Russian roulette and media
+};
+
+constexpr float kDeltaAlpha = 1e-4f;  // below this roughness a lobe is a perfect mirror/refractor
+
+inline float abs_cos(Vec3 v) { return std::fabs(v.z); }
+inline bool same_side(Vec3 a, Vec3 b) { return a.z * b.z > 0.0f; }
+
+struct DiffuseBsdf {
+  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+    if (!same_side(wo, wi)) {
+      pdf = 0.0f;
+      return Vec3(0.0f);
+    }
+    pdf = abs_cos(wi) * kInvPi;
+    return Vec3(pdf);
+  }
+  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
+    Vec3 l = sample_cosine_hemisphere(u);
+    if (l.z <= 0.0f) return false;
+    if (wo.z < 0.0f) l.z = -l.z;
+    s.wi = l;
+    s.pdf = std::fabs(l.z) * kInvPi;
+    s.weight = Vec3(1.0f);
+    s.flags = kReflect | kDiffuseLobe;
+    return true;
+  }
+};
+
+// GGX reflection. f0 tints it; with `schlick` the tint is Schlick's Fresnel from f0 (metals),
+// without it a constant (Blender's Glossy BSDF).
+struct ConductorBsdf {
+  float alpha = 0.0f;
+  Vec3 f0{1.0f};
+  bool schlick = false;
+  Vec3 fresnel(float c) const { return schlick ? fresnel_schlick(f0, c) : f0; }
+  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+    pdf = 0.0f;
+    if (alpha < kDeltaAlpha || !same_side(wo, wi)) return Vec3(0.0f);
+    if (wo.z < 0.0f) {
+      wo.z = -wo.z;
+      wi.z = -wi.z;
+    }
+    const Vec3 m = normalize(wo + wi);
+    const Ggx g{alpha};
+    const float wom = dot(wo, m);
+    if (!(wom > 0.0f)) return Vec3(0.0f);
+    pdf = g.pdf_visible(wo, m) / (4.0f * wom);
+    return fresnel(wom) * (g.D(m) * g.G(wo, wi) / (4.0f * wo.z));
+  }
+  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
+    const bool flip = wo.z < 0.0f;
+    if (flip) wo.z = -wo.z;
+    if (alpha < kDeltaAlpha) {
+      s.wi = {-wo.x, -wo.y, wo.z};
+      s.weight = fresnel(wo.z);
+      s.pdf = 1.0f;
+      s.flags = kReflect | kDelta | kGlossyLobe;
+    } else {
+      const Ggx g{alpha};
+      const Vec3 m = g.sample_visible(wo, u);
+      s.wi = reflect(wo, m);
+      const float wom = dot(wo, m);
+      if (s.wi.z <= 0.0f || !(wom > 0.0f)) return false;
+      s.pdf = g.pdf_visible(wo, m) / (4.0f * wom);
+      s.weight = fresnel(wom) * (g.G(wo, s.wi) / g.G1(wo));
+      s.flags = kReflect | kGlossyLobe;
+    }
+    if (flip) s.wi.z = -s.wi.z;
+    return true;
+  }
+};
+
+// Dielectric interface (Walter et al. 2007 for rough): glass (both lobes), refraction only, or
+// a reflection-only coating layer. eta = n_inside / n_outside, the normal pointing outside.
+struct DielectricBsdf {
+  float alpha = 0.0f;
+  float eta = 1.5f;
+  bool reflection = true, transmission = true;
+  bool fresnel_on_transmission = true;  // false: Blender's Refraction BSDF (all light refracts)
+  bool schlick = false;
+
+  float fresnel(float cos_i) const {
+    return schlick ? fresnel_schlick_dielectric(cos_i, eta) : fresnel_dielectric(cos_i, eta);
+  }
+  // Probabilities of choosing reflection / transmission given the Fresnel term.
+  void lobe_probs(float F, float& pr, float& pt) const {
+    pr = reflection ? F : 0.0f;
+    pt = transmission ? (fresnel_on_transmission ? 1.0f - F : 1.0f) : 0.0f;
+  }
+
+  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+    pdf = 0.0f;
+    if (alpha < kDeltaAlpha || wo.z == 0.0f || wi.z == 0.0f) return Vec3(0.0f);
+    const bool refl = same_side(wo, wi);
+    if ((refl && !reflection) || (!refl && !transmission)) return Vec3(0.0f);
+    const float etap = refl ? 1.0f : (wo.z > 0.0f ? eta : 1.0f / eta);
+    Vec3 m = wi * etap + wo;
+    if (!(length_sq(m) > 0.0f)) return Vec3(0.0f);
+    m = normalize(m);
+    if (m.z < 0.0f) m = -m;
+    if (dot(m, wi) * wi.z < 0.0f || dot(m, wo) * wo.z < 0.0f) return Vec3(0.0f);  // backfacing microfacet
+    const Ggx g{alpha};
+    const float F = fresnel(dot(wo, m));
+    float pr, pt;
+    lobe_probs(F, pr, pt);
+    if (!(pr + pt > 0.0f)) return Vec3(0.0f);
+    const Vec3 wo_up = wo.z > 0.0f ? wo : -wo;
+    const Vec3 m_up = wo.z > 0.0f ? m : -m;
+    const float pdf_m = g.pdf_visible(wo_up, m_up);
+    if (refl) {
+      pdf = pdf_m / (4.0f * std::fabs(dot(wo, m))) * pr / (pr + pt);
+      return Vec3(g.D(m) * g.G(wo, wi) * pr / (4.0f * std::fabs(wo.z)));
+    }
+    const float denom = (dot(wi, m) + dot(wo, m) / etap) * (dot(wi, m) + dot(wo, m) / etap);
+    if (!(denom > 0.0f)) return Vec3(0.0f);
+    const float dwm_dwi = std::fabs(dot(wi, m)) / denom;
+    pdf = pdf_m * dwm_dwi * pt / (pr + pt);
+    const float ft = g.D(m) * pt * g.G(wo, wi) * std::fabs(dot(wi, m) * dot(wo, m) / (wo.z * denom));
+    return Vec3(ft / (etap * etap));  // radiance is compressed/expanded across the interface
+  }
+
+  bool sample(Vec3 wo, Vec2 u, float uc, BsdfSample& s) const {
+    if (wo.z == 0.0f) return false;
+    if (alpha < kDeltaAlpha) {
+      const float F = fresnel(wo.z);
+      float pr, pt;
+      lobe_probs(F, pr, pt);
+      if (!(pr + pt > 0.0f)) return false;
+      if (uc * (pr + pt) < pr) {
+        s.wi = {-wo.x, -wo.y, wo.z};
+        s.weight = Vec3(1.0f) * ((pr + pt));
+        s.pdf = pr / (pr + pt);
+        s.flags = kReflect | kDelta | kGlossyLobe;
+        s.eta = 1.0f;
+        return true;
+      }
+      float etap;
+      if (!refract(wo, {0.0f, 0.0f, 1.0f}, eta, s.wi, etap) || s.wi.z == 0.0f) return false;
+      s.pdf = pt / (pr + pt);
+      s.weight = Vec3((pr + pt) / (etap * etap));
+      s.flags = kTransmit | kDelta | kGlossyLobe;
+      s.eta = etap;
+      return true;
+    }
+    const Ggx g{alpha};
+    const Vec3 wo_up = wo.z > 0.0f ? wo : -wo;
+    Vec3 m = g.sample_visible(wo_up, u);
+    if (wo.z < 0.0f) m = -m;
+    const float F = fresnel(dot(wo, m));
+    float pr, pt;
+    lobe_probs(F, pr, pt);
+    if (!(pr + pt > 0.0f)) return false;
+    if (uc * (pr + pt) < pr) {
+      s.wi = reflect(wo, m);
+      if (!same_side(wo, s.wi)) return false;
+      s.flags = kReflect | kGlossyLobe;
+      s.eta = 1.0f;
+    } else {
+      float etap;
+      if (!refract(wo, m, eta, s.wi, etap) || same_side(wo, s.wi) || s.wi.z == 0.0f) return false;
+      s.flags = kTransmit | kGlossyLobe;
+      s.eta = etap;
+    }
+    const Vec3 f = eval(wo, s.wi, s.pdf);
+    if (!(s.pdf > 0.0f) || is_black(f)) return false;
+    s.weight = f / s.pdf;
+    return true;
+  }
+};
+
+// Straight pass-through (Transparent BSDF, alpha).
+struct TransparentBsdf {
+  Vec3 eval(Vec3, Vec3, float& pdf) const {
+    pdf = 0.0f;
+    return Vec3(0.0f);
+  }
+  bool sample(Vec3 wo, Vec2, float, BsdfSample& s) const {
+    s.wi = -wo;
+    s.weight = Vec3(1.0f);
+    s.pdf = 1.0f;
+    s.flags = kTransmit | kDelta | kTransparentLobe;
+    s.eta = 1.0f;
+    return true;
+  }
+};
+
+using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf>;
+
+inline Vec3 bsdf_eval(const Bsdf& b, Vec3 wo, Vec3 wi, float& pdf) {
+  return std::visit([&](const auto& x) { return x.eval(wo, wi, pdf); }, b);
+}
+inline bool bsdf_sample(const Bsdf& b, Vec3 wo, Vec2 u, float uc, BsdfSample& s) {
+  return std::visit([&](const auto& x) { return x.sample(wo, u, uc, s); }, b);
+}
+inline bool bsdf_is_delta(const Bsdf& b) {
+  if (std::holds_alternative<TransparentBsdf>(b)) return true;
+  if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->alpha < kDeltaAlpha;
+  if (const auto* d = std::get_if<DielectricBsdf>(&b)) return d->alpha < kDeltaAlpha;
+  return false;
+}
+// A rough guess of how much a closure reflects, to choose among closures when sampling.
+inline float bsdf_albedo_hint(const Bsdf& b) {
+  if (const auto* c = std::get_if<ConductorBsdf>(&b)) return std::max(0.05f, luminance(c->f0));
+  return 1.0f;
+}
 
 struct Frame {
   Vec3 t, b, n;
@@ -20,50 +243,6 @@ struct Frame {
   }
   Vec3 to_local(Vec3 v) const { return {dot(v, t), dot(v, b), dot(v, n)}; }
   Vec3 to_world(Vec3 v) const { return t * v.x + b * v.y + n * v.z; }
-};
-
-struct BsdfSample {
-  Vec3 wi;
-  Vec3 weight;  // f * |cos| / pdf
-  float pdf = 0.0f;
-};
-
-// Lambertian reflection.
-struct DiffuseBsdf {
-  Vec3 albedo{0.8f};
-  Vec3 eval(const Frame& f, Vec3 /*wo*/, Vec3 wi, float& pdf) const {
-    const float c = dot(f.n, wi);
-    if (c <= 0.0f) {
-      pdf = 0.0f;
-      return Vec3(0.0f);
-    }
-    pdf = c * kInvPi;
-    return albedo * (c * kInvPi);  // includes the cosine
-  }
-  bool sample(const Frame& f, Vec3 /*wo*/, Vec2 u, BsdfSample& s) const {
-    const Vec3 l = sample_cosine_hemisphere(u);
-    if (l.z <= 0.0f) return false;
-    s.wi = f.to_world(l);
-    s.pdf = l.z * kInvPi;
-    s.weight = albedo;
-    return true;
-  }
-};
-
-using Bsdf = std::variant<DiffuseBsdf>;
-
-// f(wo, wi) * |cos(wi)| and the pdf of sampling wi.
-inline Vec3 bsdf_eval(const Bsdf& b, const Frame& f, Vec3 wo, Vec3 wi, float& pdf) {
-  return std::visit([&](const auto& x) { return x.eval(f, wo, wi, pdf); }, b);
-}
-inline bool bsdf_sample(const Bsdf& b, const Frame& f, Vec3 wo, Vec2 u, BsdfSample& s) {
-  return std::visit([&](const auto& x) { return x.sample(f, wo, u, s); }, b);
-}
-
-struct Material {
-  std::string name;
-  Bsdf bsdf = DiffuseBsdf{};
-  Vec3 emission{0.0f};  // radiance, emitted from both sides like Cycles' mesh emission
 };
 
 }  // namespace pl

@@ -4,12 +4,41 @@
 
 namespace pl {
 
+Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emission) {
+  Material m;
+  m.name = name;
+  ShaderOp c0;
+  c0.code = OpCode::Const;
+  c0.dst = 0;
+  c0.value = {base_color.x, base_color.y, base_color.z, 1.0f};
+  ShaderOp c1 = c0;
+  c1.dst = 1;
+  c1.value = {emission.x, emission.y, emission.z, 1.0f};
+  ShaderOp diffuse;
+  diffuse.code = OpCode::Diffuse;
+  diffuse.in[1] = 0;
+  ShaderOp emit;
+  emit.code = OpCode::Emission;
+  emit.in[1] = 1;
+  m.program.ops = {c0, c1, diffuse};
+  if (!is_black(emission)) m.program.ops.insert(m.program.ops.end(), {emit});
+  return m;
+}
+
 Scene::Scene() {
   // Material 0: the fallback grey diffuse for unassigned or out-of-range slots.
-  materials_.push_back(Material{"Default", DiffuseBsdf{Vec3(0.8f)}, Vec3(0.0f)});
+  materials_.push_back(make_simple_material("Default", Vec3(0.8f), Vec3(0.0f)));
 }
 
 uint32_t Scene::add_material(Material m) {
+  // The emission at a neutral shading point, to weigh this material's triangles as lights.
+  ShadingContext ctx;
+  ctx.ng = ctx.ns = ctx.wo = {0.0f, 0.0f, 1.0f};
+  ClosureList cl;
+  eval_shader(m.program, images_, ctx, cl);
+  m.emission_estimate = cl.emission;
+  m.transparent = false;
+  for (const ShaderOp& op : m.program.ops) m.transparent = m.transparent || op.code == OpCode::Transparent;
   materials_.push_back(std::move(m));
   committed_ = false;
   return static_cast<uint32_t>(materials_.size() - 1);
@@ -35,6 +64,16 @@ void Scene::commit(int threads) {
   for (const Instance& inst : instances_) total += meshes_[inst.mesh].triangles.size();
   tris_.reserve(total);
   shading_.reserve(total);
+  size_t uv_sets = 0;
+  for (const MeshData& m : meshes_) uv_sets = std::max(uv_sets, m.uvs.size());
+  tri_uvs_.assign(uv_sets, {});
+  for (size_t k = 0; k < uv_sets; ++k) {
+    bool used = false;
+    for (const MeshData& m : meshes_) used = used || (k < m.uvs.size() && !m.uvs[k].empty());
+    if (used) tri_uvs_[k].reserve(3 * total);
+  }
+  any_transparent_ = false;
+  for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
   for (const Instance& inst : instances_) {
     const MeshData& mesh = meshes_[inst.mesh];
     std::vector<Vec3> world(mesh.positions.size());
@@ -66,6 +105,11 @@ void Scene::commit(int threads) {
       }
       tris_.push_back(tv);
       shading_.push_back(sh);
+      for (size_t k = 0; k < uv_sets; ++k) {
+        if (tri_uvs_[k].capacity() == 0) continue;
+        const bool has = k < mesh.uvs.size() && !mesh.uvs[k].empty();
+        for (int c = 0; c < 3; ++c) tri_uvs_[k].push_back(has ? mesh.uvs[k][3 * t + c] : Vec2{});
+      }
     }
   }
   stats_.dropped_triangles += dropped;
@@ -86,7 +130,7 @@ void Scene::commit(int threads) {
   emitter_prims_.clear();
   emitter_areas_.clear();
   for (uint32_t i = 0; i < tris_.size(); ++i) {
-    const Vec3 le = materials_[shading_[i].material].emission;
+    const Vec3 le = materials_[shading_[i].material].emission_estimate;
     const float lum = std::max(luminance(le), max_component(le) * 1e-3f);
     if (!(lum > 0.0f) || !std::isfinite(lum)) continue;
     const TriangleVerts& tv = tris_[i];
@@ -169,9 +213,98 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
   s.dist = dist;
   s.target = q;
   s.target_normal = dot(n, s.wi) < 0.0f ? n : -n;  // the side facing p
-  s.li = materials_[shading_[prim].material].emission;
+  {
+    // The material's emission at the sampled point (textured emission included).
+    SurfacePoint lp;
+    Hit h;
+    h.prim = prim;
+    h.b1 = b1;
+    h.b2 = b2;
+    surface_point(h, lp);
+    ClosureList cl;
+    shade(lp, b1, b2, -s.wi, cl);
+    s.li = cl.emission;
+  }
   s.pdf = pmf / emitter_areas_[e] * dist2 / cos_l;
   return std::isfinite(s.pdf) && s.pdf > 0.0f;
+}
+
+void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out) const {
+  const Material& mat = materials_[sp.material];
+  ShadingContext ctx;
+  ctx.p = sp.p;
+  ctx.ng = sp.ng;
+  ctx.ns = sp.ns;
+  ctx.wo = wo;
+  constexpr int kMaxSets = 8;
+  Vec2 uv[kMaxSets];
+  Vec3 tangents[kMaxSets];
+  float signs[kMaxSets];
+  const int sets = static_cast<int>(std::min<size_t>(tri_uvs_.size(), kMaxSets));
+  if (mat.program.uses_uv && sets > 0) {
+    const float b0 = 1.0f - b1 - b2;
+    const TriangleVerts& tv = tris_[sp.prim];
+    for (int k = 0; k < sets; ++k) {
+      const std::vector<Vec2>& t = tri_uvs_[size_t(k)];
+      if (t.empty()) {
+        uv[k] = {};
+        tangents[k] = Vec3(0.0f);
+        signs[k] = 1.0f;
+        continue;
+      }
+      const Vec2 a = t[3 * size_t(sp.prim)], b = t[3 * size_t(sp.prim) + 1], c = t[3 * size_t(sp.prim) + 2];
+      uv[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2};
+      // Per-triangle tangent from the uv parameterisation (dP/du), sign from the uv winding.
+      const Vec3 e1 = tv.v1 - tv.v0, e2 = tv.v2 - tv.v0;
+      const float du1 = b.x - a.x, dv1 = b.y - a.y, du2 = c.x - a.x, dv2 = c.y - a.y;
+      const float det = du1 * dv2 - du2 * dv1;
+      if (std::fabs(det) > 1e-20f) {
+        const float inv = 1.0f / det;
+        const Vec3 T = (e1 * dv2 - e2 * dv1) * inv;
+        const Vec3 B = (e2 * du1 - e1 * du2) * inv;
+        tangents[k] = T;
+        signs[k] = dot(cross(sp.ns, T), B) < 0.0f ? -1.0f : 1.0f;
+      } else {
+        tangents[k] = Vec3(0.0f);
+        signs[k] = 1.0f;
+      }
+    }
+    ctx.uv = uv;
+    ctx.uv_sets = sets;
+    ctx.tangents = tangents;
+    ctx.tangent_signs = signs;
+  }
+  eval_shader(mat.program, images_, ctx, out);
+}
+
+Vec3 Scene::transmittance(Ray ray) const {
+  if (!any_transparent_) return bvh_.occluded(ray) ? Vec3(0.0f) : Vec3(1.0f);
+  Vec3 T(1.0f);
+  for (int i = 0; i < 64; ++i) {  // bounded: stacked alpha cards
+    Hit h;
+    if (!bvh_.intersect(ray, h)) return T;
+    SurfacePoint sp;
+    surface_point(h, sp);
+    const Material& mat = materials_[sp.material];
+    if (!mat.transparent) return Vec3(0.0f);
+    ClosureList cl;
+    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl);
+    Vec3 pass(0.0f);
+    for (int c = 0; c < cl.n; ++c)
+      if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
+    T = T * vmin(pass, Vec3(1.0f));
+    if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
+    // Continue just past the surface towards the same end point (or to infinity).
+    const Vec3 side = dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
+    const Vec3 org = offset_ray_origin(sp.p, side);
+    if (std::isfinite(ray.tmax)) {
+      const Vec3 end = ray.org + ray.dir * ray.tmax;
+      ray.dir = end - org;
+      ray.tmax = 1.0f;
+    }
+    ray.org = org;
+  }
+  return Vec3(0.0f);
 }
 
 float Scene::pdf_emitter(uint32_t prim, float t, float cos_l) const {

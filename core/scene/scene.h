@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "geometry/bvh.h"
-#include "scene/bsdf.h"
+#include "scene/shader.h"
 #include "scene/camera.h"
 #include "scene/light.h"
 
@@ -19,7 +19,18 @@ struct MeshData {
   std::vector<std::array<uint32_t, 3>> triangles;
   std::vector<Vec3> corner_normals;  // 3 per triangle, or empty for flat shading
   std::vector<uint32_t> materials;   // global material id per triangle
+  std::vector<std::vector<Vec2>> uvs;  // per global uv set: 3 per triangle, or empty (missing)
 };
+
+struct Material {
+  std::string name;
+  ShaderProgram program;
+  Vec3 emission_estimate{0.0f};  // for choosing among lights; the true value is evaluated
+  bool transparent = false;      // has a Transparent closure: shadow rays may pass
+};
+
+// Builds the program of a Diffuse BSDF plus Emission with constant colours.
+Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emission);
 
 struct Instance {
   uint32_t mesh;
@@ -57,6 +68,12 @@ class Scene {
   Scene();
 
   uint32_t add_material(Material m);
+  uint32_t add_image(Image img) {
+    images_.push_back(std::move(img));
+    return static_cast<uint32_t>(images_.size() - 1);
+  }
+  size_t material_count() const { return materials_.size(); }
+  size_t image_count() const { return images_.size(); }
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
   void add_instance(uint32_t mesh, const Mat4& m);
   void set_world_color(Vec3 c) { world_color_ = c; }
@@ -72,6 +89,13 @@ class Scene {
   bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const { return bvh_.intersect(r, h, c); }
   bool occluded(const Ray& r) const { return bvh_.occluded(r); }
   void surface_point(const Hit& h, SurfacePoint& sp) const;
+  // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
+  // and emission. wo points towards the viewer.
+  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out) const;
+  // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
+  // blocked; Transparent surfaces let part of it through).
+  Vec3 transmittance(Ray ray) const;
+  const std::vector<Image>& images() const { return images_; }
 
   const Material& material(uint32_t id) const { return materials_[id]; }
   Vec3 world_color() const { return world_color_; }
@@ -99,6 +123,9 @@ class Scene {
   };
 
   std::vector<Material> materials_;
+  std::vector<Image> images_;
+  std::vector<std::vector<Vec2>> tri_uvs_;  // per uv set: 3 per scene triangle (empty if unused)
+  bool any_transparent_ = false;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
   Vec3 world_color_{0.0f};

@@ -1,0 +1,111 @@
+// Materials as small register programs (like Cycles' SVM): value ops compute float4 registers
+// at a shading point (textures, UVs, math, mixing, normal maps), closure ops add weighted BSDFs
+// and emission. Programs that read nothing from the shading point are evaluated once.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "scene/bsdf.h"
+
+namespace pl {
+
+struct Float4 {
+  float x = 0, y = 0, z = 0, w = 0;
+  Vec3 xyz() const { return {x, y, z}; }
+};
+
+struct Image {
+  int w = 0, h = 0;
+  std::vector<Float4> px;  // row 0 = bottom
+};
+
+enum class Interp : uint8_t { Linear, Closest };
+enum class Extension : uint8_t { Repeat, Extend, Clip };
+
+Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension ext);
+
+enum class OpCode : uint8_t {
+  Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
+  Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
+};
+
+enum class MathOp : uint8_t { Add, Subtract, Multiply, Divide, Power, Minimum, Maximum, LessThan, GreaterThan, Absolute };
+enum class MixOp : uint8_t { Mix, Multiply, Add, Subtract, Screen, Divide, Difference, Darken, Lighten, Overlay };
+
+constexpr int kNoReg = -1;
+constexpr int kMaxRegs = 64;
+
+struct ShaderOp {
+  OpCode code = OpCode::Const;
+  int16_t dst = 0;
+  int16_t in[10] = {kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg};
+  Float4 value;             // Const
+  float m[12] = {};         // Mapping: 3x4 row-major
+  int32_t index = 0;        // uv set / image id
+  uint8_t sub = 0;          // MathOp / MixOp / Interp
+  uint8_t ext = 0;          // Extension
+  bool clamp = false;
+};
+
+struct Closure {
+  Bsdf bsdf;
+  Vec3 weight;
+  Frame frame;
+  float pick = 0.0f;  // probability of choosing it when sampling
+  bool delta = false;
+};
+
+constexpr int kMaxClosures = 8;
+
+struct ClosureList {
+  std::array<Closure, kMaxClosures> c;
+  int n = 0;
+  Vec3 emission{0.0f};
+  bool has_nondelta = false;
+  void add(const Bsdf& b, Vec3 weight, const Frame& f) {
+    if (n >= kMaxClosures || !(max_component(weight) > 0.0f) || !is_finite(weight)) return;
+    c[size_t(n++)] = {b, weight, f, 0.0f, bsdf_is_delta(b)};
+  }
+  // Sampling probabilities in proportion to each closure's expected contribution.
+  void finalize() {
+    float total = 0.0f;
+    for (int i = 0; i < n; ++i) {
+      c[size_t(i)].pick = luminance(c[size_t(i)].weight) * bsdf_albedo_hint(c[size_t(i)].bsdf);
+      if (!(c[size_t(i)].pick > 0.0f)) c[size_t(i)].pick = max_component(c[size_t(i)].weight) * 1e-3f;
+      total += c[size_t(i)].pick;
+    }
+    has_nondelta = false;
+    for (int i = 0; i < n; ++i) {
+      c[size_t(i)].pick = total > 0.0f ? c[size_t(i)].pick / total : 1.0f / n;
+      has_nondelta = has_nondelta || !c[size_t(i)].delta;
+    }
+  }
+};
+
+// What a program can read at a shading point.
+struct ShadingContext {
+  Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
+  Vec3 wo;                   // direction towards the viewer (unit)
+  const Vec2* uv = nullptr;  // per uv set: the interpolated uv (nullptr entries: missing)
+  int uv_sets = 0;
+  const Vec3* tangents = nullptr;  // per uv set: tangent (xyz) with the bitangent sign folded in
+  const float* tangent_signs = nullptr;
+};
+
+struct ShaderProgram {
+  std::vector<ShaderOp> ops;
+  bool varying = false;  // reads the shading point (else evaluated once)
+  bool uses_uv = false;
+  bool schlick = false;
+  Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
+  std::vector<int> normal_map_sets;  // uv sets whose tangents the program needs
+};
+
+// Runs `prog` at `ctx`, filling `out` (closures plus emission), with closure frames built from
+// the given or the context's shading normal.
+void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
+                 ClosureList& out);
+
+}  // namespace pl
