@@ -356,6 +356,32 @@ py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins,
   return out;
 }
 
+// Builds one BSDF from a name and parameters, for the BSDF tests (Mitsuba style).
+Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
+  auto f = [&](const char* k, float d) { return p.contains(k) ? p[k].cast<float>() : d; };
+  auto b = [&](const char* k, bool d) { return p.contains(k) ? p[k].cast<bool>() : d; };
+  if (kind == "diffuse") return DiffuseBsdf{};
+  if (kind == "conductor") {
+    ConductorBsdf c;
+    c.alpha = f("alpha", 0.3f);
+    c.f0 = p.contains("f0") ? to_color(p["f0"], "f0") : Vec3(1.0f);
+    c.schlick = b("schlick", false);
+    return c;
+  }
+  if (kind == "dielectric") {
+    DielectricBsdf d;
+    d.alpha = f("alpha", 0.3f);
+    d.eta = f("eta", 1.5f);
+    d.reflection = b("reflection", true);
+    d.transmission = b("transmission", true);
+    d.fresnel_on_transmission = b("fresnel_on_transmission", true);
+    d.schlick = b("schlick", false);
+    return d;
+  }
+  if (kind == "transparent") return TransparentBsdf{};
+  throw std::invalid_argument("unknown bsdf '" + kind + "'");
+}
+
 struct PySession {
   std::shared_ptr<Scene> scene;  // keeps the scene alive and locked against edits
   std::unique_ptr<Session> session;
@@ -412,6 +438,53 @@ PYBIND11_MODULE(pathlight_core, m) {
       },
       py::arg("points"), py::arg("normals"),
       "The offset the integrator applies to spawned rays (exposed for self-intersection tests).");
+
+  m.def(
+      "bsdf_sample",
+      [](const std::string& kind, const py::dict& params, const py::object& wo_obj, const FloatArray& u) {
+        const Bsdf bsdf = make_test_bsdf(kind, params);
+        const Vec3 wo = normalize(to_point(wo_obj, "wo"));
+        if (u.ndim() != 2 || u.shape(1) != 3) throw std::invalid_argument("u must have shape (N, 3)");
+        const py::ssize_t n = u.shape(0);
+        FloatArray wi({n, py::ssize_t(3)}), weight({n, py::ssize_t(3)});
+        py::array_t<float> pdf(n);
+        py::array_t<int32_t> flags(n);
+        const float* pu = u.data();
+        for (py::ssize_t i = 0; i < n; ++i) {
+          BsdfSample bs;
+          const bool ok = bsdf_sample(bsdf, wo, {pu[3 * i], pu[3 * i + 1]}, pu[3 * i + 2], bs);
+          const Vec3 w = ok ? bs.wi : Vec3(0.0f), g = ok ? bs.weight : Vec3(0.0f);
+          for (int k = 0; k < 3; ++k) {
+            wi.mutable_data()[3 * i + k] = w[k];
+            weight.mutable_data()[3 * i + k] = g[k];
+          }
+          pdf.mutable_data()[i] = ok ? bs.pdf : 0.0f;
+          flags.mutable_data()[i] = ok ? bs.flags : -1;
+        }
+        return py::make_tuple(wi, weight, pdf, flags);
+      },
+      py::arg("kind"), py::arg("params"), py::arg("wo"), py::arg("u"),
+      "Samples a BSDF in its local frame (+Z normal): (wi, weight, pdf, flags); flags -1 = no sample.");
+  m.def(
+      "bsdf_eval",
+      [](const std::string& kind, const py::dict& params, const py::object& wo_obj, const FloatArray& wi) {
+        const Bsdf bsdf = make_test_bsdf(kind, params);
+        const Vec3 wo = normalize(to_point(wo_obj, "wo"));
+        if (wi.ndim() != 2 || wi.shape(1) != 3) throw std::invalid_argument("wi must have shape (N, 3)");
+        const py::ssize_t n = wi.shape(0);
+        FloatArray f({n, py::ssize_t(3)});
+        py::array_t<float> pdf(n);
+        const Vec3* w = reinterpret_cast<const Vec3*>(wi.data());
+        for (py::ssize_t i = 0; i < n; ++i) {
+          float p;
+          const Vec3 v = bsdf_eval(bsdf, wo, w[i], p);
+          for (int k = 0; k < 3; ++k) f.mutable_data()[3 * i + k] = v[k];
+          pdf.mutable_data()[i] = p;
+        }
+        return py::make_tuple(f, pdf);
+      },
+      py::arg("kind"), py::arg("params"), py::arg("wo"), py::arg("wi"),
+      "Evaluates f * |cos(wi)| and the sampling pdf of a BSDF in its local frame.");
 
   py::class_<CameraDesc>(m, "Camera")
       .def(py::init<>())

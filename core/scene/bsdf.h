@@ -133,9 +133,10 @@ struct DielectricBsdf {
     float pr, pt;
     lobe_probs(F, pr, pt);
     if (!(pr + pt > 0.0f)) return Vec3(0.0f);
+    // Visible-normal density seen from wo mirrored to the outside; m (facing +Z) is then the
+    // facet facing it, whichever side wo is on.
     const Vec3 wo_up = wo.z > 0.0f ? wo : -wo;
-    const Vec3 m_up = wo.z > 0.0f ? m : -m;
-    const float pdf_m = g.pdf_visible(wo_up, m_up);
+    const float pdf_m = g.pdf_visible(wo_up, m);
     if (refl) {
       pdf = pdf_m / (4.0f * std::fabs(dot(wo, m))) * pr / (pr + pt);
       return Vec3(g.D(m) * g.G(wo, wi) * pr / (4.0f * std::fabs(wo.z)));
@@ -173,8 +174,9 @@ struct DielectricBsdf {
     }
     const Ggx g{alpha};
     const Vec3 wo_up = wo.z > 0.0f ? wo : -wo;
-    Vec3 m = g.sample_visible(wo_up, u);
-    if (wo.z < 0.0f) m = -m;
+    // The microfacet normal facing outside (+Z side): its sign tells Fresnel and refract
+    // whether wo is inside or outside.
+    const Vec3 m = g.sample_visible(wo_up, u);
     const float F = fresnel(dot(wo, m));
     float pr, pt;
     lobe_probs(F, pr, pt);
