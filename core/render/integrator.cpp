@@ -54,6 +54,7 @@ inline Vec3 beer(Vec3 sigma, float t) {
 
 Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c) {
   Vec3 L(0.0f), beta(1.0f);
+  float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
   bool prev_delta = true;   // camera rays and delta lobes: no light sample could find the hit
   const bool nee = s.use_nee && scene.has_lights();
@@ -173,6 +174,7 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
       ++bounce;
       if (last) emission_only = true;  // no light sampling: the limit still ends the path
     }
+    if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe)) eta_scale *= bs.eta * bs.eta;
     if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
       const Material& mat = scene.material(sp.material);
       if (!is_black(mat.program.sigma_a)) {
@@ -182,7 +184,9 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     }
 
     if (bounce >= s.rr_start_bounce && !(bs.flags & kTransparentLobe)) {
-      const float survive = std::min(1.0f, max_component(beta));
+      // Throughput without the refraction scaling, so paths inside glass are not culled for
+      // carrying compressed radiance (pbrt's etaScale).
+      const float survive = std::min(1.0f, max_component(beta) * eta_scale);
       if (u_rr < 0.0f) u_rr = sampler.get2d().x;
       if (!(survive > 0.0f) || u_rr >= survive) break;
       beta = beta / survive;
