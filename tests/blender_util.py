@@ -46,13 +46,15 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
     overrides: the engine's settings (scene.pathlight.<name> / scene.cycles.<name>) or else
     scene.render.<name>, e.g. samples=16, seed=3, resolution_percentage=25. For CYCLES,
     max_bounces (default 1024) sets every bounce limit, so only the total limits paths, like
-    Pathlight's max_bounces.
+    Pathlight's max_bounces. For PATHLIGHT, adaptive sampling is off and the per-type bounce
+    limits are 1024 unless overridden, so that only max_bounces limits paths there too.
     """
     scene = scene or bpy.context.scene
     render = scene.render
     render.engine = engine
     if engine == "PATHLIGHT":
         settings = scene.pathlight
+        _setup_pathlight(settings)
     elif engine == "CYCLES":
         settings = scene.cycles
         _setup_cycles(settings, overrides.pop("max_bounces", 1024))
@@ -91,6 +93,15 @@ def read_exr(path):
         else:
             rgba = np.stack([channels[c].pixels for c in "RGBA"], axis=-1)
         return np.array(rgba, dtype=np.float32)
+
+
+def _setup_pathlight(settings):
+    """Pathlight with every path-length limit but the total off, no adaptive sampling: the
+    counterpart of _setup_cycles. (Settings the add-on does not have yet are skipped.)"""
+    for name, value in (("use_adaptive_sampling", False), ("diffuse_bounces", 1024),
+                        ("glossy_bounces", 1024), ("transmission_bounces", 1024)):
+        if hasattr(settings, name):
+            setattr(settings, name, value)
 
 
 def _setup_cycles(cycles, bounces):

@@ -371,15 +371,6 @@ def test_no_camera_is_an_export_error(scene):
         export_scene(depsgraph(), Warnings())
 
 
-def test_lights_warn_once(scene):
-    for i in range(3):
-        light = bpy.data.objects.new(f"Lamp{i}", bpy.data.lights.new(f"Lamp{i}", 'POINT'))
-        scene.collection.objects.link(light)
-    warnings = Warnings()
-    export_scene(depsgraph(), warnings)
-    assert len(warnings) == 1 and "3 light" in warnings[0]
-
-
 def test_cornell_box_export():
     open_fixture("cornell_box")
     warnings = Warnings()
