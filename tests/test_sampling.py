@@ -1,0 +1,296 @@
+"""Sampling settings through the add-on (issue 4): the settings reach the core's
+RenderSettings, the animated seed, the panels; renders: NEE/MIS unbiasedness, the Sobol
+sampler, per-type bounce limits against Cycles, adaptive sampling."""
+
+import math
+import time
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import core_available, load_addon, render_to_array
+from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
+                          emission_material, empty_scene, plane)
+
+load_addon()
+from addon import session, ui  # noqa: E402
+from addon.export import export_scene, to_core  # noqa: E402
+
+needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+
+
+def _core_has(obj, name):
+    if not core_available():
+        return False
+    from addon.core import get_core
+    return hasattr(getattr(get_core(), obj), name)
+
+
+needs_lights = pytest.mark.skipif(not _core_has("Scene", "add_area_light"),
+                                  reason="the core has no analytic lights")
+needs_adaptive = pytest.mark.skipif(not _core_has("Session", "sample_counts"),
+                                    reason="the core has no adaptive sampling (sample_counts)")
+needs_settings = pytest.mark.skipif(not _core_has("RenderSettings", "diffuse_bounces"),
+                                    reason="the core has no per-type bounce limits")
+BOX_FILTER = dict(pixel_filter_type='BOX', filter_width=1.0)
+
+
+def region_means(img, grid=8):
+    h, w = img.shape[:2]
+    return img[..., :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
+
+
+class FakeSettings:
+    """A RenderSettings of an older core: only the original fields."""
+    FIELDS = ("width", "height", "samples", "time_limit", "max_bounces", "seed", "use_nee",
+              "threads")
+
+    def __setattr__(self, name, value):
+        if name not in self.FIELDS:
+            raise AttributeError(name)
+        object.__setattr__(self, name, value)
+
+
+class FakeCore:
+    RenderSettings = FakeSettings
+
+
+# ---------------------------------------------------------------- settings (no core)
+
+def test_defaults_are_cycles_defaults():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    props = bpy.context.scene.pathlight
+    cycles = bpy.context.scene.cycles
+    assert props.use_adaptive_sampling is True
+    assert props.adaptive_threshold == pytest.approx(cycles.adaptive_threshold)  # 0.01
+    assert props.adaptive_min_samples == cycles.adaptive_min_samples == 0
+    assert (props.max_bounces, props.diffuse_bounces, props.glossy_bounces,
+            props.transmission_bounces) == (cycles.max_bounces, cycles.diffuse_bounces,
+                                            cycles.glossy_bounces, cycles.transmission_bounces)
+    assert props.sampler == 'SOBOL' and props.use_animated_seed is False
+
+
+def test_settings_skip_fields_an_older_core_lacks():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    st = session.render_settings(FakeCore, bpy.context.scene)  # must not raise
+    assert st.samples == 128 and st.max_bounces == 12
+
+
+@needs_settings
+def test_settings_reach_the_core():
+    from addon.core import get_core
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    props = scene.pathlight
+    props.sampler = 'RANDOM'
+    props.adaptive_threshold = 0.05
+    props.adaptive_min_samples = 24
+    props.diffuse_bounces, props.glossy_bounces, props.transmission_bounces = 3, 5, 7
+    st = session.render_settings(get_core(), scene)
+    assert st.sampler == "random"
+    assert st.adaptive_threshold == pytest.approx(0.05) and st.adaptive_min_samples == 24
+    assert (st.diffuse_bounces, st.glossy_bounces, st.transmission_bounces) == (3, 5, 7)
+    props.use_adaptive_sampling = False
+    props.sampler = 'SOBOL'
+    st = session.render_settings(get_core(), scene)
+    assert st.adaptive_threshold == 0.0 and st.sampler == "sobol"
+
+
+def test_animated_seed_adds_the_frame():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.pathlight.seed = 5
+    scene.frame_set(12)
+    assert session.render_seed(scene) == 5
+    scene.pathlight.use_animated_seed = True
+    assert session.render_seed(scene) == 17
+    scene.frame_set(-20)  # negative frames still give a valid (non-negative) seed
+    assert 0 <= session.render_seed(scene) < 2 ** 31
+
+
+def test_panels_draw_existing_properties():
+    """Draw each Pathlight panel into a recording layout: every property it shows exists."""
+    class Layout:
+        def __init__(self):
+            self.props = []
+
+        def __getattr__(self, name):  # column, row, split, ...: return a sub-layout
+            if name in {"use_property_split", "use_property_decorate", "active", "enabled"}:
+                raise AttributeError(name)
+            return lambda *a, **kw: self
+
+        def prop(self, data, name, **kw):
+            assert hasattr(data, name), name
+            self.props.append(name)
+
+        def separator(self, **kw):
+            pass
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    shown = set()
+    for light_type in ('POINT', 'SPOT', 'SUN', 'AREA'):
+        for shape in ('SQUARE', 'RECTANGLE'):
+            light = bpy.data.lights.new("L", light_type)
+            if light_type == 'AREA':
+                light.shape = shape
+            context = type("Ctx", (), {"scene": scene, "light": light, "engine": "PATHLIGHT"})
+            for cls in ui.classes:
+                layout = Layout()
+                cls.draw(type("Panel", (), {"layout": layout})(), context)
+                shown.update(layout.props)
+    # (Spot size and blend are in Blender's DATA_PT_spot, which Pathlight is added to.)
+    for name in ("samples", "adaptive_threshold", "adaptive_min_samples", "sampler", "seed",
+                 "use_animated_seed", "max_bounces", "diffuse_bounces", "glossy_bounces",
+                 "transmission_bounces", "energy", "exposure", "color", "shadow_soft_size",
+                 "angle", "shape", "size", "size_y", "use_shadow"):
+        assert name in shown, name
+
+
+# ---------------------------------------------------------------- renders (need the core)
+
+def emissive_mesh_scene(size=48):
+    """The diffuse set lit only by an emissive panel (NEE can sample it, BSDF rays hit it)."""
+    scene = diffuse_set(size)
+    # Large enough for BSDF sampling alone to converge in a test's time.
+    plane("Lamp", 1.0, emission_material("Lamp", (1.0, 0.9, 0.7), 3.0),
+          location=(0.3, -0.8, 2.6), rotation_euler=(math.pi, 0.0, 0.0), scale=(3.0, 2.0, 1.0))
+    return scene
+
+
+@needs_core
+def test_nee_on_and_off_converge_to_the_same_image():
+    # MIS must be unbiased: next-event estimation changes the noise, not the mean.
+    scene = emissive_mesh_scene()
+    with_nee = render_to_array(scene, samples=256, max_bounces=3, use_nee=True)
+    without = render_to_array(scene, samples=3072, max_bounces=3, use_nee=False)
+    a, b = region_means(with_nee), region_means(without)
+    rel = np.abs(a - b) / np.maximum(b, 0.1 * b.mean())
+    assert rel.max() < 0.08, np.unravel_index(np.argmax(rel), rel.shape)
+    ratio = with_nee[..., :3].mean(axis=(0, 1)) / without[..., :3].mean(axis=(0, 1))
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
+
+
+@needs_core
+def test_emissive_mesh_scene_agrees_with_cycles():
+    scene = emissive_mesh_scene()
+    ours = render_to_array(scene, samples=256, max_bounces=3)
+    ref = render_to_array(scene, "CYCLES", samples=256, max_bounces=3, **BOX_FILTER)
+    a, b = region_means(ours), region_means(ref)
+    rel = np.abs(a - b) / np.maximum(b, 0.1 * b.mean())
+    assert rel.max() < 0.06, np.unravel_index(np.argmax(rel), rel.shape)
+    ratio = ours[..., :3].mean(axis=(0, 1)) / ref[..., :3].mean(axis=(0, 1))
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
+
+
+def soft_shadow_scene(size=32):
+    """Left half: a floor with a soft shadow from an area light (noisy); right half: the
+    black world (flat, nothing to sample)."""
+    scene = empty_scene(size)
+    white = diffuse_material("White", 0.7)
+    plane("Floor", 4.0, white, location=(-2.0, 0.0, 0.0))  # x < 0: the left half of the view
+    box("Blocker", 0.4, white, location=(-1.0, 0.0, 0.6))
+    add_light('AREA', location=(-1.0, 0.0, 2.0), energy=200.0, size=1.5)
+    camera((0.0, 0.0, 5.0), lens=20.0)
+    return scene
+
+
+def core_render(scene, **props):
+    """Render through the add-on's export and settings, but with a core Session held here,
+    for what a Blender render result cannot show (sample counts, timing)."""
+    from addon.core import get_core
+    pc = get_core()
+    for name, value in props.items():
+        setattr(scene.pathlight, name, value)
+    warnings = []
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings.append)
+    sess = pc.Session(to_core(pc, data, warnings.append), session.render_settings(pc, scene))
+    sess.start()
+    while not sess.wait(1.0):
+        pass
+    return sess
+
+
+@needs_lights
+@needs_settings
+def test_sobol_converges_faster_than_random():
+    # Same scene, same sample count: the scrambled Sobol sequence's error on a soft shadow is
+    # well below independent random numbers', and both converge to the same image.
+    scene = soft_shadow_scene()
+    ref = core_render(scene, samples=2048, use_adaptive_sampling=False, sampler='SOBOL',
+                      seed=99).film()[..., :3]
+    errors = {}
+    for sampler in ('SOBOL', 'RANDOM'):
+        img = core_render(scene, samples=16, use_adaptive_sampling=False, sampler=sampler,
+                          seed=1).film()[..., :3]
+        errors[sampler] = ((img - ref) ** 2).mean()
+        assert abs(img.mean() / ref.mean() - 1) < 0.01
+    assert errors['SOBOL'] < 0.7 * errors['RANDOM'], errors
+
+
+@needs_lights
+@needs_settings
+@pytest.mark.parametrize("diffuse_bounces", [1, 2])
+def test_diffuse_bounce_limit_agrees_with_cycles(diffuse_bounces):
+    scene = diffuse_set(48)
+    add_light('AREA', location=(0.5, -1.5, 3.0), rotation=(0.4, 0.0, 0.0), energy=400.0,
+              size=1.0)
+    ours = render_to_array(scene, samples=128, max_bounces=8, diffuse_bounces=diffuse_bounces)
+    ref = render_to_array(scene, "CYCLES", samples=128, max_bounces=8,
+                          diffuse_bounces=diffuse_bounces, **BOX_FILTER)
+    unlimited = render_to_array(scene, samples=128, max_bounces=8)
+    mean = lambda img: img[..., :3].mean()  # noqa: E731
+    assert mean(unlimited) > mean(ours) * 1.003  # the limit really cuts light (0.7 % at 2)
+    assert abs(mean(ours) / mean(ref) - 1) < 0.01
+    a, b = region_means(ours), region_means(ref)
+    assert (np.abs(a - b) / np.maximum(b, 0.1 * b.mean())).max() < 0.06
+
+
+@needs_lights
+@needs_adaptive
+def test_adaptive_sampling_stops_flat_pixels_and_lowers_the_error_per_time():
+    scene = soft_shadow_scene()
+    ref = core_render(scene, samples=2048, use_adaptive_sampling=False, seed=7).film()[..., :3]
+    runs = {}
+    for adaptive in (False, True):
+        sess = core_render(scene, samples=256, use_adaptive_sampling=adaptive,
+                           adaptive_threshold=0.01, adaptive_min_samples=0, seed=1)
+        img = sess.film()[..., :3]
+        runs[adaptive] = dict(counts=sess.sample_counts(), mse=((img - ref) ** 2).mean(),
+                              time=sess.progress()["elapsed_s"])
+    plain, adapt = runs[False], runs[True]
+    assert (plain["counts"] == 256).all()
+    counts = adapt["counts"]  # (H, W), row 0 = bottom; the floor fills the left half
+    auto_min = max(16, int(4 / math.sqrt(0.01)))  # Cycles' automatic minimum: 40 here
+    assert (counts[:, 18:] == auto_min).all()  # the flat black half stops at the minimum
+    assert counts[:, :14].mean() > 2 * auto_min  # the noisy half keeps sampling
+    assert counts.max() == 256
+    # Same error where it matters, far fewer samples: lower error per unit of work and time.
+    assert adapt["mse"] < 1.1 * plain["mse"]
+    assert counts.sum() < 0.6 * plain["counts"].sum()
+    efficiency = {k: 1.0 / (r["mse"] * r["time"]) for k, r in runs.items()}
+    assert efficiency[True] > efficiency[False], runs
+
+
+@needs_lights
+@needs_adaptive
+def test_adaptive_min_samples_setting():
+    scene = soft_shadow_scene(16)
+    counts = core_render(scene, samples=128, use_adaptive_sampling=True,
+                         adaptive_threshold=0.01, adaptive_min_samples=24).sample_counts()
+    assert (counts[:, 10:] == 24).all() and counts.max() > 24
+
+
+@needs_core
+def test_animated_seed_changes_the_noise_per_frame():
+    scene = soft_shadow_scene(16)
+    scene.render.threads_mode = 'FIXED'
+    scene.render.threads = 1
+    scene.pathlight.use_animated_seed = True
+    frames = []
+    for frame in (1, 1, 2):
+        scene.frame_set(frame)
+        frames.append(render_to_array(scene, samples=2))
+    np.testing.assert_array_equal(frames[0], frames[1])
+    assert not np.array_equal(frames[0], frames[2])
