@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, render_to_array
+from blender_util import core_available, load_addon, open_fixture, render_to_array
 from light_scenes import (camera, diffuse_material, diffuse_set, empty_scene, load_image,
                           synthetic_hdr, uv_sphere, world_color, world_image, write_exr,
                           write_hdr)
@@ -286,6 +286,28 @@ def test_byte_srgb_environment_matches_cycles(tmp_path):
     ours = render_to_array(scene, samples=16)
     ref = render_to_array(scene, "CYCLES", samples=16, **BOX_FILTER)
     np.testing.assert_allclose(region_means(ours), region_means(ref), rtol=0.01, atol=0.002)
+
+
+def test_hdr_fixture_exports_its_packed_sky():
+    open_fixture("hdr_scene")
+    warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert warnings == []
+    tex = data.world_texture
+    assert tex.pixels.shape == (256, 512, 3) and tex.pixels.max() > 1000  # the sun
+    assert not np.allclose(tex.rotation, np.eye(3))  # through the Mapping node
+    assert sorted(m.name for m in data.meshes) == ["Box", "Cylinder", "Floor", "Sphere"]
+
+
+@needs_env
+def test_hdr_fixture_agrees_with_cycles():
+    ours = render_to_array(open_fixture("hdr_scene"), samples=128, resolution_percentage=25)
+    ref = render_to_array(open_fixture("hdr_scene"), "CYCLES", samples=128,
+                          resolution_percentage=25, **BOX_FILTER)
+    ratio = ours[..., :3].mean(axis=(0, 1)) / ref[..., :3].mean(axis=(0, 1))
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
+    a, b = region_means(ours), region_means(ref)
+    assert (np.abs(a - b) / np.maximum(b, 0.1 * b.mean())).max() < 0.05
 
 
 def hot_texel_scene(tmp_path, background):
