@@ -80,9 +80,9 @@ def test_sun_irradiance_and_angle():
         s = plane_scene()
         s.add_sun_light(direction, (3.0, 3.0, 3.0), angle=angle)
         img, _ = render(pc, s, 16, 16, samples=256)
-        # Cycles' distant light: radiance E / (pi tan^2 h) over a cone of half-angle h, which
-        # gives E cos(theta) cos^2(h) on the plane.
-        exp = ALBEDO / np.pi * 3.0 * np.cos(theta) * np.cos(angle / 2) ** 2
+        # Cycles' distant light: radiance E / (pi sin^2 h) over a cone of half-angle h, which
+        # gives exactly E cos(theta) on the plane.
+        exp = ALBEDO / np.pi * 3.0 * np.cos(theta)
         assert abs(img[..., 0].mean() / exp - 1.0) < 0.005, (angle, img[..., 0].mean(), exp)
 
 

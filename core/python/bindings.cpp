@@ -63,6 +63,28 @@ Mat4 inverse3x3(const Mat4& m, const char* what) {
   return inv;
 }
 
+// Gram-Schmidt on the rows of a 3x3 rotation (a Mapping node may add scale); singular -> error.
+Mat4 orthonormal_rotation(const Mat4& m) {
+  Vec3 r0{m.m[0][0], m.m[0][1], m.m[0][2]}, r1{m.m[1][0], m.m[1][1], m.m[1][2]};
+  Vec3 r2in{m.m[2][0], m.m[2][1], m.m[2][2]};
+  // Scale-free test: normalise the rows first (a uniform scale of 1e-20 is still a rotation).
+  for (Vec3* r : {&r0, &r1, &r2in}) {
+    const double l = std::sqrt(double(r->x) * r->x + double(r->y) * r->y + double(r->z) * r->z);
+    if (!(l > 0.0) || !std::isfinite(l)) throw std::invalid_argument("world texture rotation is singular");
+    *r = Vec3{float(r->x / l), float(r->y / l), float(r->z / l)};
+  }
+  const float det = dot(r0, cross(r1, r2in));
+  if (!(std::fabs(det) > 1e-6f)) throw std::invalid_argument("world texture rotation is singular");
+  r1 = normalize(r1 - r0 * dot(r1, r0));
+  Vec3 r2 = cross(r0, r1);
+  if (det < 0.0f) r2 = -r2;  // keep a mirroring mapping a mirror
+  Mat4 out;
+  const Vec3 rows[3] = {r0, r1, r2};
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) out.m[i][j] = rows[i][j];
+  return out;
+}
+
 Mat4 to_mat4(const FloatArray& a, const char* what) {
   if (a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4)
     throw std::invalid_argument(std::string(what) + " must be a 4x4 matrix");
@@ -646,8 +668,9 @@ PYBIND11_MODULE(pathlight_core, m) {
             l.color = to_color(irradiance, "irradiance");
             const float half = 0.5f * clampf(finite_nonneg(angle, "angle"), 0.0f, kPi * 0.999f);
             l.cos_half_angle = half > 0.0f ? std::cos(half) : 1.0f;
-            // Cycles' distant light: radiance E / (pi tan^2 h) over the cone of half-angle h.
-            l.sun_radiance_scale = half > 0.0f ? 1.0f / (kPi * std::tan(half) * std::tan(half)) : 0.0f;
+            // Cycles' distant light: radiance E / (pi sin^2 h) over the cone of half-angle h,
+            // so a surface facing the sun receives exactly E.
+            l.sun_radiance_scale = half > 0.0f ? 1.0f / (kPi * std::sin(half) * std::sin(half)) : 0.0f;
             l.cast_shadow = cast_shadow;
             self.scene->add_light(l);
           },
@@ -698,6 +721,7 @@ PYBIND11_MODULE(pathlight_core, m) {
             for (int i = 0; i < 3; ++i)
               for (int j = 0; j < 3; ++j) rot.m[i][j] = rotation_obj.is_none() ? float(i == j) : r(i, j);
             if (!rot.is_finite()) throw std::invalid_argument("rotation contains NaN or infinite values");
+            rot = orthonormal_rotation(rot);
             const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
             // A constant image is a constant world: no texture lookups, no light sampling
             // (cosine-weighted BSDF samples are already ideal for it).

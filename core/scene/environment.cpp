@@ -4,8 +4,17 @@ namespace pl {
 
 Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation)
     : px_(std::move(pixels)), w_(w), h_(h), rot_(rotation) {
-  for (Vec3& c : px_) c = c * strength;
-  // Rows are weighted by the solid angle of their pixels: cos(elevation) at the row centre.
+  // Kept finite: a texel that overflows with the strength would make samples non-finite.
+  for (Vec3& c : px_) c = vmin(c * strength, Vec3(1e30f));
+  std::vector<float> lum(px_.size());
+  double lum_sum = 0.0;
+  for (size_t i = 0; i < px_.size(); ++i) {
+    lum[i] = std::max(0.0f, luminance(px_[i]));
+    lum_sum += lum[i];
+  }
+  // The lookup is bilinear, so a texel's radiance reaches into its neighbours: sample each texel
+  // by the brightest of its 3x3 neighbourhood. Then every direction with radiance has density
+  // (needed where only light sampling is used) and a bright texel's footprint is sampled well.
   std::vector<float> row_weights(static_cast<size_t>(h_));
   double total = 0.0;
   rows_.reserve(size_t(h_));
@@ -15,16 +24,22 @@ Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength,
     std::vector<float> wts(static_cast<size_t>(w_));
     double row_sum = 0.0;
     for (int x = 0; x < w_; ++x) {
-      const float l = luminance(px_[size_t(y) * w_ + x]);
-      wts[size_t(x)] = std::isfinite(l) && l > 0.0f ? l : 0.0f;
-      row_sum += wts[size_t(x)];
+      float m = 0.0f;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int yy = std::clamp(y + dy, 0, h_ - 1), xx = ((x + dx) % w_ + w_) % w_;
+          m = std::max(m, lum[size_t(yy) * w_ + xx]);
+        }
+      wts[size_t(x)] = m;
+      row_sum += m;
     }
     total += row_sum * c;
     row_weights[size_t(y)] = static_cast<float>(row_sum * c);
     rows_.emplace_back(wts);
   }
   marginal_ = Distribution1D(row_weights);
-  avg_lum_ = static_cast<float>(total / (double(w_) * h_));
+  (void)total;
+  avg_lum_ = static_cast<float>(lum_sum / (double(w_) * h_));
 }
 
 void Environment::to_uv(Vec3 t, float& u, float& v) const {

@@ -19,7 +19,7 @@ struct Light {
   Mat4 to_local;         // spot: world direction -> light-local (inverse 3x3 of the matrix)
   float cos_half_spot = -1.0f, spot_smooth_inv = 0.0f;  // spot cone and blend
   Vec3 dir;              // sun: unit direction towards the sun; area: unit emission normal (-Z)
-  float cos_half_angle = 1.0f, sun_radiance_scale = 0.0f;  // sun: cone and 1 / (pi tan^2 h)
+  float cos_half_angle = 1.0f, sun_radiance_scale = 0.0f;  // sun: cone and 1 / (pi sin^2 h)
   Vec3 axis_u, axis_v;   // area: full extent vectors
   float area = 0.0f;
   bool cast_shadow = true;
@@ -59,12 +59,15 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
       const float d2c = length_sq(to_c);
       if (!(d2c > 0.0f)) return false;
       Vec3 scale = l.color;
-      if (l.type == LightType::Spot) {
-        const float att = spot_attenuation(l, -to_c);
-        if (att <= 0.0f) return false;
-        scale = scale * att;
-      }
-      if (l.radius <= 0.0f) {
+      const float disk_area = kPi * l.radius * l.radius;
+      // A radius too small to matter (or to represent) is a point light.
+      const bool point = !(l.radius > 1e-6f * std::sqrt(d2c)) || !(disk_area > 1e-30f);
+      if (point) {
+        if (l.type == LightType::Spot) {
+          const float att = spot_attenuation(l, -to_c);
+          if (att <= 0.0f) return false;
+          scale = scale * att;
+        }
         const float d = std::sqrt(d2c);
         s.wi = to_c / d;
         s.dist = d;
@@ -86,7 +89,11 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
       s.wi = d / dist;
       const float cos_l = std::fabs(dot(n, s.wi));
       if (!(cos_l > 0.0f)) return false;
-      const float disk_area = kPi * l.radius * l.radius;
+      if (l.type == LightType::Spot) {  // the cone, seen along this sample's own direction
+        const float att = spot_attenuation(l, -s.wi);
+        if (att <= 0.0f) return false;
+        scale = scale * att;
+      }
       s.dist = dist;
       s.target = q;
       s.li = scale / disk_area;  // radiance = I / (pi r^2)
@@ -143,7 +150,13 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
 
 // Rough emitted power, for choosing among lights (only ratios matter). `scene_radius` bounds
 // the sun's footprint on the scene.
+inline float light_power_raw(const Light& l, float scene_radius);
+// Kept finite: an overflowing estimate would drop the light from the distribution.
 inline float light_power(const Light& l, float scene_radius) {
+  const float p = light_power_raw(l, scene_radius);
+  return std::isnan(p) ? 0.0f : std::min(p, 1e30f);
+}
+inline float light_power_raw(const Light& l, float scene_radius) {
   const float lum = std::max(luminance(l.color), 0.0f);
   switch (l.type) {
     case LightType::Point: return 4.0f * kPi * lum;

@@ -37,6 +37,22 @@ uint32_t Scene::add_material(Material m) {
   ClosureList cl;
   eval_shader(m.program, images_, ctx, cl);
   m.emission_estimate = cl.emission;
+  bool emits = false;
+  for (const ShaderOp& op : m.program.ops) emits = emits || op.code == OpCode::Emission;
+  if (emits && m.program.varying) {
+    // Emission that varies (textures): probe a few uvs for the estimate, and never let it be
+    // zero, so its triangles stay in the light distribution (light-only vertices need that).
+    Vec2 uv[8];
+    for (float u : {0.25f, 0.75f})
+      for (float v : {0.25f, 0.75f}) {
+        for (Vec2& x : uv) x = {u, v};
+        ctx.uv = uv;
+        ctx.uv_sets = 8;
+        eval_shader(m.program, images_, ctx, cl);
+        m.emission_estimate = vmax(m.emission_estimate, cl.emission);
+      }
+    if (!(luminance(m.emission_estimate) > 0.0f)) m.emission_estimate = Vec3(1.0f);
+  }
   m.transparent = false;
   for (const ShaderOp& op : m.program.ops) m.transparent = m.transparent || op.code == OpCode::Transparent;
   materials_.push_back(std::move(m));
