@@ -100,9 +100,9 @@ def convert_light(obj, matrix, warn):
     if not np.isfinite(m).all():
         warn(f"Light '{name}': non-finite transform; skipped")
         return None
-    # Cycles' light "cast shadow" is the light's own flag; the object's shadow visibility is
-    # honoured too (a light cannot be a shadow caster, so the only meaning is "no shadows").
-    cast_shadow = bool(light.use_shadow) and bool(getattr(obj, "visible_shadow", True))
+    # Cycles' "Cast Shadow" is the light's own flag; it ignores the light object's Shadow ray
+    # visibility (measured: same image with visible_shadow off), and so do we.
+    cast_shadow = bool(light.use_shadow)
     normalize = getattr(light, "normalize", True)
 
     if light.type in {'POINT', 'SPOT'}:
