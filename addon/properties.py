@@ -68,6 +68,12 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "(0 = automatic, from the noise threshold)",
         default=0, min=0, max=1 << 24,
     )
+    use_schlick_fresnel: BoolProperty(
+        name="Schlick Fresnel",
+        description="Use Schlick's approximation of the dielectric Fresnel reflectance (glass, "
+                    "refraction, Principled specular) instead of the exact formula",
+        default=False,
+    )
     use_nee: BoolProperty(
         name="Next-Event Estimation",
         description="Sample emissive surfaces directly (with MIS): less noise from small lights",

@@ -57,6 +57,7 @@ class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
         col.prop(settings, "diffuse_bounces")
         col.prop(settings, "glossy_bounces")
         col.prop(settings, "transmission_bounces")
+        layout.prop(settings, "use_schlick_fresnel")
 
 
 class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):

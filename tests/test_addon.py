@@ -296,19 +296,23 @@ def test_materials_map_to_colours():
     assert warnings == []
 
 
-def test_unsupported_node_warns_once_and_falls_back_to_grey(scene):
-    glossy = node_material("Shiny", "ShaderNodeBsdfGlossy")
-    cube("A", materials=(glossy,))
-    cube("B", materials=(glossy, glossy), location=(4, 0, 0))
+def test_unsupported_node_warns_once_and_falls_back_to_diffuse(scene):
+    toon = node_material("Toony", "ShaderNodeBsdfToon", Color=(0.2, 0.4, 0.6, 1))
+    cube("A", materials=(toon,))
+    cube("B", materials=(toon, toon), location=(4, 0, 0))
     warnings = Warnings()
     data = export_scene(depsgraph(), warnings)
     assert len(warnings) == 1
-    assert "Shiny" in warnings[0] and "Glossy BSDF" in warnings[0]
-    (shiny,) = [m for m in data.materials if m.name == "Shiny"]
-    assert shiny.base_color == (0.8, 0.8, 0.8) and shiny.emission == (0, 0, 0)
+    assert "Toony" in warnings[0] and "ShaderNodeBsdfToon" in warnings[0]
+    (toony,) = [m for m in data.materials if m.name == "Toony"]
+    # A diffuse closure of the node's own Color input.
+    consts = {op[1]: op[2] for op in toony.program if op[0] == "const"}
+    (closure,) = [op for op in toony.program if op[0] == "closure"]
+    assert closure[1] == "diffuse" and closure[2] is None
+    assert consts[closure[3]["color"]][:3] == pytest.approx((0.2, 0.4, 0.6))
 
 
-def test_linked_input_uses_constant_and_warns():
+def test_unsupported_value_node_uses_the_input_value_and_warns():
     mat = bpy.data.materials.new("Textured")
     mat.use_nodes = True
     tree = mat.node_tree
@@ -319,7 +323,10 @@ def test_linked_input_uses_constant_and_warns():
     warnings = Warnings()
     m = convert_material(mat, warnings)
     assert m.base_color == pytest.approx((0.3, 0.3, 0.3))
-    assert len(warnings) == 1 and "Base Color" in warnings[0]
+    assert len(warnings) == 1 and "Checker Texture" in warnings[0] and "Base Color" in warnings[0]
+    consts = {op[1]: op[2] for op in m.program if op[0] == "const"}
+    (closure,) = [op for op in m.program if op[0] == "closure"]
+    assert consts[closure[3]["base_color"]][:3] == pytest.approx((0.3, 0.3, 0.3))
 
 
 def test_world_color():

@@ -8,7 +8,7 @@ import numpy as np
 
 from .camera import ExportError, camera_params
 from .light import LightData, collect_lights
-from .material import MaterialData, MaterialTable
+from .material import MaterialData, MaterialTable, add_materials
 from .mesh import MeshData, collect_meshes, is_visible
 from .world import WorldTexture, world_color, world_texture
 
@@ -25,6 +25,7 @@ class SceneData:
     camera: dict  # pc.Camera fields
     lights: list = field(default_factory=list)  # LightData
     world_texture: WorldTexture = None  # replaces world_color when set
+    images: list = field(default_factory=list)  # shader.ImageData the material programs use
 
 
 def export_scene(depsgraph, warn):
@@ -32,13 +33,17 @@ def export_scene(depsgraph, warn):
     unsupported features (each call is one message for the user)."""
     scene = depsgraph.scene
     camera = camera_params(scene, depsgraph, warn)
-    meshes = collect_meshes(depsgraph)
-    table = MaterialTable(warn)
+    table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False))
+    meshes = collect_meshes(depsgraph, table.uv_names)
+    for mesh in meshes:
+        if mesh.missing_uv_maps:
+            warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, mesh.missing_uv_maps))} "
+                 "that its materials use; UV (0, 0) is used")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
     lights = collect_lights(depsgraph, warn, is_visible)
     return SceneData(meshes, material_slots, table.materials,
                      world_color(scene.world, warn), camera, lights,
-                     world_texture(scene.world, warn))
+                     world_texture(scene.world, warn), table.images.images)
 
 
 def mean_radiance(tex):
@@ -54,13 +59,13 @@ def to_core(pc, data, warn=None):
     build of the core cannot do."""
     warn = warn if warn is not None else (lambda msg: None)
     scene = pc.Scene()
-    ids = [scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
-           for m in data.materials]
+    ids = add_materials(scene, data.materials, data.images, warn)
     for mesh, slots in zip(data.meshes, data.material_slots):
+        uvs = {"uvs": mesh.uvs} if mesh.uvs else {}  # older core builds take no uvs
         mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
                                  corner_normals=mesh.corner_normals,
                                  material_indices=mesh.material_indices,
-                                 material_slots=[ids[i] for i in slots])
+                                 material_slots=[ids[i] for i in slots], **uvs)
         for matrix in mesh.matrices:
             scene.add_instance(mesh_id, matrix)
     for light in data.lights:

@@ -1,6 +1,9 @@
-"""Blender materials → Pathlight's (base colour, emission) material, from constant node values."""
+"""Blender materials → Pathlight materials: shader programs compiled from the node tree
+(shader.py), with a (base colour, emission) summary for core builds without programs."""
 
 from typing import NamedTuple
+
+from .shader import ImageTable, UvSets, compile_material
 
 BLACK = (0.0, 0.0, 0.0)
 GREY = (0.8, 0.8, 0.8)
@@ -8,8 +11,12 @@ GREY = (0.8, 0.8, 0.8)
 
 class MaterialData(NamedTuple):
     name: str
-    base_color: tuple  # Lambertian albedo, linear RGB
+    base_color: tuple  # Lambertian albedo, linear RGB (the summary for older core builds)
     emission: tuple  # emitted radiance (colour * strength), linear RGB
+    program: list = None  # shader program (docs/core_api.md), None = use the two above
+    volume_absorption: tuple = None  # ((r, g, b), density) or None
+    use_schlick: bool = False
+    uv_sets: dict = {}  # global uv-set index -> UV map name ("" = active render) it reads
 
 
 DEFAULT_MATERIAL = MaterialData("Pathlight Default", GREY, BLACK)
@@ -39,46 +46,57 @@ def surface_node(node_tree):
         socket = node.inputs[0]
 
 
-def convert_material(mat, warn):
-    """MaterialData for a bpy Material (or None = empty slot). Calls warn(msg) at most once."""
+def flat_summary(node_tree):
+    """(base colour, emission) of the node feeding the output: the material as older core
+    builds (without shader programs) render it; constant values only."""
+    node = surface_node(node_tree)
+    if node is None:
+        return BLACK, BLACK
+    inputs = node.inputs
+    if node.type == 'BSDF_DIFFUSE':
+        return socket_rgb(inputs["Color"]), BLACK
+    if node.type == 'EMISSION':
+        return BLACK, scaled(socket_rgb(inputs["Color"]), inputs["Strength"].default_value)
+    if node.type == 'BSDF_PRINCIPLED':
+        return socket_rgb(inputs["Base Color"]), scaled(socket_rgb(inputs["Emission Color"]),
+                                                      inputs["Emission Strength"].default_value)
+    return GREY, BLACK
+
+
+def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False):
+    """MaterialData for a bpy Material (or None = empty slot). Calls warn(msg) at most once:
+    one message naming everything of the material that is approximated or unsupported.
+    images/uv_sets: the scene's ImageTable and UvSets (fresh ones if None)."""
     if mat is None:
         return DEFAULT_MATERIAL
     if not mat.use_nodes or mat.node_tree is None:
         return MaterialData(mat.name, tuple(mat.diffuse_color[:3]), BLACK)
-
-    node = surface_node(mat.node_tree)
-    if node is None:
-        return MaterialData(mat.name, BLACK, BLACK)  # nothing connected: Cycles renders black
-    inputs = node.inputs
-    if node.type == 'BSDF_DIFFUSE':
-        base, emission = socket_rgb(inputs["Color"]), BLACK
-        used = ("Color",)
-    elif node.type == 'EMISSION':
-        base = BLACK
-        emission = scaled(socket_rgb(inputs["Color"]), inputs["Strength"].default_value)
-        used = ("Color", "Strength")
-    elif node.type == 'BSDF_PRINCIPLED':
-        base = socket_rgb(inputs["Base Color"])
-        emission = scaled(socket_rgb(inputs["Emission Color"]),
-                          inputs["Emission Strength"].default_value)
-        used = ("Base Color", "Emission Color", "Emission Strength")
-    else:
-        warn(f"Material '{mat.name}': shader node '{node.name}' ({node.bl_idname}) is not "
-             "supported yet; using grey diffuse")
-        return MaterialData(mat.name, GREY, BLACK)
-
-    linked = [name for name in used if inputs[name].is_linked]
-    if linked:
-        warn(f"Material '{mat.name}': linked input(s) {', '.join(linked)} of '{node.name}' "
-             "are not supported yet; using their constant values")
-    return MaterialData(mat.name, base, emission)
+    images = images if images is not None else ImageTable()
+    uv_sets = uv_sets if uv_sets is not None else UvSets()
+    base, emission = flat_summary(mat.node_tree)
+    try:
+        compiled = compile_material(mat, images, uv_sets)
+    except Exception as e:  # a compiler bug must not stop the render
+        warn(f"Material '{mat.name}': could not be compiled ({type(e).__name__}: {e}); "
+             "using its base colour")
+        return MaterialData(mat.name, base, emission)
+    if compiled is None:  # no output node: Cycles renders black
+        return MaterialData(mat.name, BLACK, BLACK, [], None, use_schlick)
+    if compiled.problems:
+        warn(f"Material '{mat.name}': " + "; ".join(compiled.problems))
+    return MaterialData(mat.name, base, emission, compiled.program, compiled.volume_absorption,
+                        use_schlick, compiled.uv_sets)
 
 
 class MaterialTable:
-    """Converts each material once per export and numbers the results."""
+    """Converts each material once per export and numbers the results; holds the scene's
+    images and uv sets that the materials' programs refer to."""
 
-    def __init__(self, warn):
+    def __init__(self, warn, use_schlick=False):
         self.warn = warn
+        self.use_schlick = use_schlick
+        self.images = ImageTable()
+        self.uv_sets = UvSets()
         self.materials = []  # MaterialData, indexed by the numbers returned by index()
         self._index = {}
 
@@ -86,5 +104,36 @@ class MaterialTable:
         key = mat.as_pointer() if mat is not None else 0
         if key not in self._index:
             self._index[key] = len(self.materials)
-            self.materials.append(convert_material(mat, self.warn))
+            self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
+                                                   self.use_schlick))
         return self._index[key]
+
+    def uv_names(self, materials):
+        """{global uv-set index: UV map name} that meshes with these materials must export."""
+        names = {}
+        for mat in materials:
+            names.update(self.materials[self.index(mat)].uv_sets)
+        return names
+
+
+def add_materials(scene, materials, images, warn):
+    """Adds MaterialData `materials` (and the ImageData `images` their programs use) to a core
+    scene; returns the core material ids. Core builds without shader programs get the
+    (base colour, emission) summary."""
+    if not hasattr(scene, "add_shader"):
+        if any(m.program for m in materials):
+            warn("Shader programs are not supported by this build of the Pathlight core; "
+                 "materials are reduced to their base and emission colours")
+        return [scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
+                for m in materials]
+    image_ids = [scene.add_image(image.pixels) for image in images]
+    ids = []
+    for m in materials:
+        if m.program is None:
+            ids.append(scene.add_material(m.name, base_color=m.base_color, emission=m.emission))
+            continue
+        program = [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op
+                   for op in m.program]
+        ids.append(scene.add_shader(m.name, program, volume_absorption=m.volume_absorption,
+                                    use_schlick=m.use_schlick))
+    return ids

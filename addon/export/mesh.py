@@ -15,6 +15,8 @@ class MeshData:
     material_indices: np.ndarray  # int32 (T,), material slot per triangle
     materials: list  # bpy.types.Material or None per slot
     matrices: list = field(default_factory=list)  # float32 (4, 4) object-to-world, one per instance
+    uvs: dict = field(default_factory=dict)  # global uv-set index -> float32 (T, 3, 2) per corner
+    missing_uv_maps: list = field(default_factory=list)  # UV map names its materials need
 
 
 def mesh_arrays(mesh):
@@ -40,6 +42,27 @@ def mesh_arrays(mesh):
     return positions.reshape(-1, 3), triangles.reshape(-1, 3), corner_normals, material_indices
 
 
+def mesh_uvs(mesh, names):
+    """{k: float32 (T, 3, 2) per-corner UVs} for {k: UV map name} ("" = the active render UV
+    map), and the names the mesh lacks. Call after mesh_arrays (loop triangles computed)."""
+    tris = mesh.loop_triangles
+    loops = np.empty(len(tris) * 3, np.int32)
+    tris.foreach_get("loops", loops)
+    uvs, missing, cache = {}, [], {}
+    active = next((layer for layer in mesh.uv_layers if layer.active_render), None)
+    for k, name in names.items():
+        layer = mesh.uv_layers.get(name) if name else active
+        if layer is None:
+            missing.append(name or "(active render UV map)")
+            continue
+        if layer.name not in cache:
+            corner = np.empty(len(layer.uv) * 2, np.float32)
+            layer.uv.foreach_get("vector", corner)
+            cache[layer.name] = np.ascontiguousarray(corner.reshape(-1, 2)[loops].reshape(-1, 3, 2))
+        uvs[k] = cache[layer.name]
+    return uvs, missing
+
+
 def is_visible(instance):
     if instance.is_instance:
         return True  # the instancer's visibility was already applied by the depsgraph
@@ -49,9 +72,10 @@ def is_visible(instance):
     return not instance.object.original.hide_render
 
 
-def collect_meshes(depsgraph):
+def collect_meshes(depsgraph, uv_names=None):
     """All visible geometry of the depsgraph. Instances of the same evaluated geometry (and
-    materials) share one MeshData and add only their matrix_world."""
+    materials) share one MeshData and add only their matrix_world. uv_names(materials) ->
+    {global uv-set index: UV map name} says which UV maps to export (none if None)."""
     meshes = {}
     for instance in depsgraph.object_instances:
         obj = instance.object
@@ -65,13 +89,13 @@ def collect_meshes(depsgraph):
         key = (obj.data.as_pointer(), tuple(m.as_pointer() if m else 0 for m in materials))
         entry = meshes.get(key)
         if entry is None:
-            entry = meshes[key] = _export_object(obj, materials)
+            entry = meshes[key] = _export_object(obj, materials, uv_names)
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
     return [m for m in meshes.values() if m is not None]
 
 
-def _export_object(obj, materials):
+def _export_object(obj, materials, uv_names=None):
     try:
         mesh = obj.to_mesh()
         if mesh is None or len(mesh.polygons) == 0:
@@ -79,8 +103,10 @@ def _export_object(obj, materials):
         positions, triangles, normals, material_indices = mesh_arrays(mesh)
         if not materials:
             materials = list(mesh.materials)
+        uvs, missing = mesh_uvs(mesh, uv_names(materials)) if uv_names else ({}, [])
     finally:
         obj.to_mesh_clear()
     # Blender and Cycles clamp out-of-range material indices to the last slot.
     np.clip(material_indices, 0, max(len(materials) - 1, 0), out=material_indices)
-    return MeshData(obj.original.name, positions, triangles, normals, material_indices, materials)
+    return MeshData(obj.original.name, positions, triangles, normals, material_indices, materials,
+                    uvs=uvs, missing_uv_maps=missing)

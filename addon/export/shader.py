@@ -1,0 +1,1081 @@
+"""Blender shader node trees → Pathlight shader programs (docs/core_api.md, issue 3).
+
+A material's active output is walked from its Surface (and Volume) socket; value nodes become
+register instructions, BSDF nodes become weighted closures. Constant sub-graphs are folded here,
+so a material of constant inputs compiles to a few "const" ops and its closures.
+
+Nothing here raises for a user's node tree: each unsupported node, link, setting or cycle is a
+*problem*, noted with a fallback (documented at `_fallback_value` / `_fallback_shader`), and all
+problems of one material are reported in ONE warning naming them.
+
+The compiler uses virtual registers (unbounded) and a linear-scan allocation at the end maps
+them onto the core's 64 registers.
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+MAX_REGISTERS = 64
+MAX_UV_SETS = 8
+GREY = (0.8, 0.8, 0.8)
+# Rec.709 luminance, as Blender's RGB to BW and colour → value conversions (scene linear).
+LUMA = (0.2126, 0.7152, 0.0722)
+MISSING_TEXTURE = (1.0, 0.0, 1.0, 1.0)  # Cycles' magenta for an image that cannot be loaded
+
+MATH_OPS = {"ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER", "MINIMUM", "MAXIMUM",
+            "LESS_THAN", "GREATER_THAN", "ABSOLUTE"}
+MIX_BLENDS = {"MIX", "MULTIPLY", "ADD", "SUBTRACT", "SCREEN", "DIVIDE", "DIFFERENCE", "DARKEN",
+              "LIGHTEN", "OVERLAY"}
+
+
+# ---------------------------------------------------------------- values
+
+@dataclass(frozen=True)
+class Val:
+    """A value of the program: a constant (folded here) or a virtual register.
+    kind: 'float' (x = y = z, always broadcast), 'color' (rgb + alpha) or 'vector'."""
+    kind: str
+    const: tuple = None  # 4 floats, when constant
+    reg: int = None
+
+    @property
+    def is_const(self):
+        return self.const is not None
+
+
+def const_float(x):
+    x = float(x)
+    if not math.isfinite(x):
+        x = 0.0
+    return Val("float", (x, x, x, 1.0))
+
+
+def const_color(c):
+    c = [float(v) if math.isfinite(float(v)) else 0.0 for v in c]
+    return Val("color", (c[0], c[1], c[2], c[3] if len(c) > 3 else 1.0))
+
+
+def const_vector(v):
+    v = [float(x) if math.isfinite(float(x)) else 0.0 for x in v]
+    return Val("vector", (v[0], v[1], v[2], 0.0))
+
+
+ONE = const_float(1.0)
+ZERO = const_float(0.0)
+
+
+def _math(op, a, b):
+    """The core's math op on floats (Blender's safe variants), for constant folding."""
+    if op == "ADD":
+        v = a + b
+    elif op == "SUBTRACT":
+        v = a - b
+    elif op == "MULTIPLY":
+        v = a * b
+    elif op == "DIVIDE":
+        v = a / b if b != 0.0 else 0.0
+    elif op == "POWER":
+        if a >= 0.0:
+            try:
+                v = math.pow(a, b)
+            except (OverflowError, ValueError, ZeroDivisionError):
+                v = 0.0
+        else:
+            v = math.pow(a, b) if math.floor(b) == b else 0.0
+    elif op == "MINIMUM":
+        v = min(a, b)
+    elif op == "MAXIMUM":
+        v = max(a, b)
+    elif op == "LESS_THAN":
+        v = 1.0 if a < b else 0.0
+    elif op == "GREATER_THAN":
+        v = 1.0 if a > b else 0.0
+    elif op == "ABSOLUTE":
+        v = abs(a)
+    else:
+        raise ValueError(op)
+    return v if math.isfinite(v) else 0.0
+
+
+def _mix(op, a, b, f):
+    """The core's mix blend of one channel, for constant folding."""
+    g = 1.0 - f
+    if op == "MIX":
+        return g * a + f * b
+    if op == "MULTIPLY":
+        return a * (g + f * b)
+    if op == "ADD":
+        return a + f * b
+    if op == "SUBTRACT":
+        return a - f * b
+    if op == "SCREEN":
+        return 1.0 - (g + f * (1.0 - b)) * (1.0 - a)
+    if op == "DIVIDE":
+        return g * a + f * a / b if b != 0.0 else a
+    if op == "DIFFERENCE":
+        return g * a + f * abs(a - b)
+    if op == "DARKEN":
+        return g * a + f * min(a, b)
+    if op == "LIGHTEN":
+        return g * a + f * max(a, b)
+    if op == "OVERLAY":
+        return a * (g + 2.0 * f * b) if a < 0.5 else 1.0 - (g + 2.0 * f * (1.0 - b)) * (1.0 - a)
+    raise ValueError(op)
+
+
+def _sat(x):
+    return min(max(x, 0.0), 1.0)
+
+
+def euler_matrix(xyz):
+    """Blender's XYZ Euler rotation matrix (Rz @ Ry @ Rx), as the Mapping node uses."""
+    x, y, z = (float(a) for a in xyz)
+    cx, sx, cy, sy, cz, sz = math.cos(x), math.sin(x), math.cos(y), math.sin(y), math.cos(z), math.sin(z)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def mapping_matrix(vector_type, location, rotation, scale):
+    """The 3x4 matrix of a Mapping node (Cycles' definitions): POINT T·R·S, TEXTURE its
+    inverse S⁻¹·Rᵀ·(v − T), VECTOR R·S, NORMAL R·S⁻¹ (not normalised here)."""
+    loc = np.asarray(location, np.float64)
+    r = euler_matrix(rotation)
+    s = np.asarray(scale, np.float64)
+    safe_inv = np.array([1.0 / x if x != 0.0 else 0.0 for x in s])  # Cycles' safe_divide
+    m = np.zeros((3, 4))
+    if vector_type == 'POINT':
+        m[:, :3] = r @ np.diag(s)
+        m[:, 3] = loc
+    elif vector_type == 'TEXTURE':
+        m[:, :3] = np.diag(safe_inv) @ r.T
+        m[:, 3] = -m[:, :3] @ loc
+    elif vector_type == 'VECTOR':
+        m[:, :3] = r @ np.diag(s)
+    else:  # NORMAL
+        m[:, :3] = r @ np.diag(safe_inv)
+    return m.astype(np.float32)
+
+
+# ---------------------------------------------------------------- scene-wide tables
+
+class UvSets:
+    """Global uv-set indices of UV map names across the scene; "" = each mesh's active render
+    UV map."""
+
+    def __init__(self):
+        self.names = []  # index k -> name
+
+    def index(self, name):
+        """k for `name`, or None when all MAX_UV_SETS are taken."""
+        name = name or ""
+        if name in self.names:
+            return self.names.index(name)
+        if len(self.names) >= MAX_UV_SETS:
+            return None
+        self.names.append(name)
+        return len(self.names) - 1
+
+
+@dataclass
+class ImageData:
+    name: str
+    pixels: np.ndarray  # float32 (H, W, 4) scene-linear RGBA, row 0 = bottom
+
+
+@dataclass
+class _LoadedImage:
+    assoc: np.ndarray  # float32 (H, W, 4): colour multiplied by alpha (Cycles' Color output)
+    straight: np.ndarray  # float32 (H, W, 4): colour not multiplied (when Alpha is linked)
+    has_alpha: bool  # any alpha below 1
+    indices: dict = field(default_factory=dict)  # variant -> index in ImageTable.images
+
+
+def srgb_to_linear(c):
+    """The sRGB transfer function (IEC 61966-2-1), as OCIO applies it for 'sRGB' images."""
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+_LINEAR_SPACES = {"Linear Rec.709", "Non-Color", "Raw", "Linear", "Linear Rec.709 (sRGB)"}
+
+
+class ImageTable:
+    """Images of the scene, each bpy Image read once (cached by pointer). Each variant of an
+    image that programs use becomes one ImageData: "color" (what the Color output gives when
+    Alpha is not linked: associated alpha, as Cycles), "straight" (Color when Alpha is linked)
+    and "alpha" (the alpha in all four channels, so that it reads as a float register)."""
+
+    def __init__(self):
+        self.images = []  # ImageData, indexed by the program's image operands
+        self._loaded = {}  # image pointer -> _LoadedImage or None (unreadable)
+
+    def load(self, image, problems):
+        """_LoadedImage or None; what went wrong reading it is added to `problems` (at each
+        call: each material using the image hears about it)."""
+        key = image.as_pointer()
+        if key not in self._loaded:
+            notes = []
+            self._loaded[key] = (_load_image(image, notes), notes)
+        loaded, notes = self._loaded[key]
+        problems.extend(n for n in notes if n not in problems)
+        return loaded
+
+    def index(self, image, loaded, variant):
+        if not loaded.has_alpha and variant == "straight":
+            variant = "color"  # all alpha 1: no difference
+        if variant not in loaded.indices:
+            if variant == "alpha":
+                a = loaded.assoc[..., 3:4]
+                pixels = np.ascontiguousarray(np.repeat(a, 4, axis=2))
+            else:
+                pixels = loaded.assoc if variant == "color" else loaded.straight
+            loaded.indices[variant] = len(self.images)
+            suffix = "" if variant == "color" else f" ({variant})"
+            self.images.append(ImageData(image.name + suffix, pixels))
+        return loaded.indices[variant]
+
+
+def _load_image(image, problems):
+    """_LoadedImage for a bpy Image, or None with a problem noted. Blender gives float images
+    (.exr, .hdr) in scene linear with associated alpha, and byte images as raw byte/255 values
+    in the image's colour space with straight alpha: byte images are linearised here and
+    multiplied by alpha for the Color output (Cycles does the same)."""
+    if image.source not in {'FILE', 'GENERATED'}:
+        problems.append(f"image '{image.name}' of type {image.source} is not supported "
+                        "(magenta)")
+        return None
+    try:
+        width, height = image.size  # loads the image (packed or external) on first access
+        n = len(image.pixels)
+    except (RuntimeError, ReferenceError):
+        width = height = n = 0
+    channels = n // max(width * height, 1)
+    if width * height == 0 or n != width * height * channels or channels not in (1, 2, 3, 4):
+        problems.append(f"image '{image.name}' cannot be read (missing file "
+                        f"'{image.filepath}'?) (magenta)")
+        return None
+    buf = np.empty(n, np.float32)
+    image.pixels.foreach_get(buf)
+    buf = buf.reshape(height, width, channels)
+    if channels < 3:
+        rgb = np.repeat(buf[..., :1], 3, axis=2)
+    else:
+        rgb = np.ascontiguousarray(buf[..., :3])
+    alpha = buf[..., 3] if channels == 4 else (buf[..., 1] if channels == 2 else None)
+    alpha = np.ones((height, width), np.float32) if alpha is None else np.array(alpha)
+
+    space = image.colorspace_settings
+    is_data = space.is_data or space.name == "Non-Color"
+    if not image.is_float and not is_data:
+        if space.name == "sRGB":
+            rgb = srgb_to_linear(rgb)
+        elif space.name not in _LINEAR_SPACES:
+            problems.append(f"colour space '{space.name}' of byte image '{image.name}' is not "
+                            "supported (decoded as sRGB)")
+            rgb = srgb_to_linear(rgb)
+    bad = ~np.isfinite(rgb)
+    if bad.any() or (rgb < 0).any() and not is_data:
+        rgb = np.where(bad, 0.0, rgb)
+        if not is_data:
+            np.maximum(rgb, 0.0, out=rgb)
+    alpha = np.clip(np.nan_to_num(alpha, nan=1.0), 0.0, 1.0)
+
+    mode = image.alpha_mode
+    if mode == 'NONE':
+        alpha[:] = 1.0
+    associate = not is_data and mode not in {'CHANNEL_PACKED', 'NONE'}
+    if associate and image.is_float:  # rgb is associated already
+        assoc = rgb
+        straight = np.where(alpha[..., None] > 0, rgb / np.maximum(alpha[..., None], 1e-12), rgb)
+    elif associate:
+        straight = rgb
+        assoc = rgb * alpha[..., None]
+    else:
+        assoc = straight = rgb
+    has_alpha = bool((alpha < 1.0).any())
+
+    def rgba(c):
+        return np.ascontiguousarray(np.concatenate([c, alpha[..., None]], axis=2), np.float32)
+    assoc_px = rgba(assoc)
+    straight_px = rgba(straight) if has_alpha and straight is not assoc else assoc_px
+    return _LoadedImage(assoc_px, straight_px, has_alpha)
+
+
+# ---------------------------------------------------------------- compiled material
+
+@dataclass
+class CompiledShader:
+    program: list  # tuples of docs/core_api.md; image operands index ImageTable.images
+    volume_absorption: tuple = None  # ((r, g, b), density) or None
+    uv_sets: dict = field(default_factory=dict)  # k -> UV map name this material reads
+    problems: list = field(default_factory=list)  # what was approximated/unsupported
+
+
+class _Cycle(Exception):
+    pass
+
+
+def _fmt(x):
+    return f"{x:g}"
+
+
+class ShaderCompiler:
+    """Compiles one material's node tree. Use `compile_material`."""
+
+    def __init__(self, images, uv_sets):
+        self.images = images
+        self.uv_sets = uv_sets
+        self.ops = []  # with virtual registers
+        self.nreg = 0
+        self.const_regs = {}  # const tuple -> virtual register
+        self.cache = {}  # (node ptr, output identifier, ctx key) -> Val
+        self.visiting = set()
+        self.problems = []
+        self.uv_used = {}
+        self._links = {}  # tree pointer -> {to_socket pointer: link}
+
+    # -------------------------------------------------- problems
+
+    def problem(self, msg):
+        if msg not in self.problems:
+            self.problems.append(msg)
+
+    # -------------------------------------------------- registers
+
+    def new_reg(self):
+        self.nreg += 1
+        return self.nreg - 1
+
+    def reg(self, val):
+        """The register holding `val` (constants are materialised once)."""
+        if not val.is_const:
+            return val.reg
+        r = self.const_regs.get(val.const)
+        if r is None:
+            r = self.const_regs[val.const] = self.new_reg()
+            self.ops.append(("const", r, val.const))
+        return r
+
+    def emit(self, kind, *args):
+        r = self.new_reg()
+        self.ops.append((args[0], r) + tuple(args[1:]))
+        return Val(kind, reg=r)
+
+    # -------------------------------------------------- conversions
+
+    def as_float(self, v, what=""):
+        if v.kind == "float":
+            return v
+        if v.is_const:
+            if v.kind == "vector":  # Blender: the average of the components
+                return const_float(sum(v.const[:3]) / 3.0)
+            return const_float(sum(c * w for c, w in zip(v.const[:3], LUMA)))
+        if v.kind == "vector":
+            self.problem(f"vector-to-value conversion{what} approximated by luminance")
+        return self.emit("float", "rgb_to_bw", self.reg(v))
+
+    def as_color(self, v):
+        if v.kind == "color":
+            return v
+        if v.is_const:
+            c = v.const
+            return Val("color", (c[0], c[1], c[2], 1.0))
+        return Val("color", reg=v.reg)  # floats are broadcast, vectors reinterpreted
+
+    def as_vector(self, v):
+        if v.kind == "vector":
+            return v
+        if v.is_const:
+            c = v.const
+            return Val("vector", (c[0], c[1], c[2], 0.0))
+        return Val("vector", reg=v.reg)
+
+    def convert(self, v, kind, what=""):
+        if kind == "float":
+            return self.as_float(v, what)
+        if kind == "vector":
+            return self.as_vector(v)
+        return self.as_color(v)
+
+    # -------------------------------------------------- arithmetic (folded when constant)
+
+    def math(self, op, a, b, clamp=False):
+        a, b = self.as_float(a), self.as_float(b)
+        if a.is_const and b.is_const:
+            v = _math(op, a.const[0], b.const[0])
+            return const_float(_sat(v) if clamp else v)
+        return self.emit("float", "math", self.reg(a), self.reg(b), op, bool(clamp))
+
+    def mix(self, blend, fac, a, b, clamp=False, kind="color"):
+        """The core's mix: fac (clamped to [0, 1]) in .x, per-channel blend of a and b."""
+        fac = self.as_float(fac)
+        a, b = self.convert(a, kind), self.convert(b, kind)
+        if fac.is_const and a.is_const and b.is_const:
+            f = _sat(fac.const[0])
+            out = [_mix(blend, x, y, f) for x, y in zip(a.const[:3], b.const[:3])]
+            if clamp:
+                out = [_sat(x) for x in out]
+            return Val(kind, tuple(x if math.isfinite(x) else 0.0 for x in out) + (a.const[3],))
+        if fac.is_const and blend == "MIX" and not clamp:
+            f = _sat(fac.const[0])
+            if f == 0.0:
+                return a
+            if f == 1.0:
+                return b
+        return self.emit(kind, "mix", self.reg(fac), self.reg(a), self.reg(b), blend, bool(clamp))
+
+    def scale(self, weight, s):
+        """weight (colour) * s (float or colour), either None meaning 1."""
+        if weight is None:
+            return s
+        if s is None:
+            return weight
+        if weight.is_const and all(x == 1.0 for x in weight.const[:3]):
+            return self.as_color(s)
+        if s.is_const and all(x == 1.0 for x in s.const[:3]):
+            return weight
+        return self.mix("MULTIPLY", ONE, weight, s)
+
+    @staticmethod
+    def is_zero(v):
+        return v is not None and v.is_const and all(x == 0.0 for x in v.const[:3])
+
+    # -------------------------------------------------- graph walking
+
+    def link_into(self, socket):
+        """The valid, unmuted link into an input socket, or None."""
+        tree = socket.id_data
+        key = tree.as_pointer()
+        links = self._links.get(key)
+        if links is None:
+            links = self._links[key] = {}
+            for link in tree.links:
+                links.setdefault(link.to_socket.as_pointer(), link)
+        link = links.get(socket.as_pointer())
+        if link is None or link.is_muted:
+            return None
+        if not link.is_valid:
+            self.problem(f"invalid link from '{link.from_node.name}' to "
+                         f"'{link.to_node.name}' ({socket.name}) ignored")
+            return None
+        return link
+
+    def source(self, socket, ctx):
+        """What feeds input `socket` in group context ctx (a tuple of group nodes), through
+        reroutes, muted nodes, node groups and their Group Input/Output:
+        None (unconnected), ("default", socket) (an unconnected socket whose value applies) or
+        ("node", node, output socket, ctx)."""
+        link = self.link_into(socket)
+        if link is None:
+            return None
+        node, out = link.from_node, link.from_socket
+        for _ in range(10000):  # a reroute loop cannot hang us
+            if node.type == 'REROUTE':
+                link = self.link_into(node.inputs[0])
+                if link is None:
+                    return None
+                node, out = link.from_node, link.from_socket
+            elif node.mute:
+                inner = [l for l in node.internal_links if l.to_socket == out]
+                if not inner:
+                    return None
+                src = inner[0].from_socket
+                link = self.link_into(src)
+                if link is None:
+                    return ("default", src)
+                node, out = link.from_node, link.from_socket
+            elif node.type == 'GROUP':
+                tree = node.node_tree
+                if tree is None:
+                    self.problem(f"node group '{node.name}' has no node tree")
+                    return None
+                outputs = [n for n in tree.nodes if n.type == 'GROUP_OUTPUT']
+                active = [n for n in outputs if n.is_active_output] or outputs
+                if not active:
+                    return None
+                inner = next((s for s in active[0].inputs if s.identifier == out.identifier), None)
+                if inner is None:
+                    return None
+                if len(ctx) > 32:
+                    raise _Cycle(node.name)
+                ctx = ctx + (node,)
+                link = self.link_into(inner)
+                if link is None:
+                    return ("default", inner)
+                node, out = link.from_node, link.from_socket
+            elif node.type == 'GROUP_INPUT':
+                if not ctx:
+                    self.problem(f"Group Input '{node.name}' outside a node group")
+                    return None
+                group = ctx[-1]
+                ctx = ctx[:-1]
+                outer = next((s for s in group.inputs if s.identifier == out.identifier), None)
+                if outer is None:
+                    return None
+                link = self.link_into(outer)
+                if link is None:
+                    return ("default", outer)
+                node, out = link.from_node, link.from_socket
+            else:
+                return ("node", node, out, ctx)
+        raise _Cycle(node.name)
+
+    @staticmethod
+    def ctx_key(ctx):
+        return tuple(n.as_pointer() for n in ctx)
+
+    # -------------------------------------------------- values of inputs
+
+    def socket_default(self, socket, kind):
+        """Val of an unconnected socket's own value, converted to `kind`."""
+        dv = getattr(socket, "default_value", None)
+        if dv is None:
+            return {"float": ZERO, "color": const_color((0, 0, 0, 1)),
+                    "vector": const_vector((0, 0, 0))}[kind]
+        if isinstance(dv, (bool, int, float)):
+            v = const_float(dv)
+        else:
+            vals = tuple(dv)
+            v = const_color(vals) if len(vals) == 4 else const_vector(
+                (vals + (0.0, 0.0, 0.0))[:3])
+            if socket.type == 'RGBA':
+                v = const_color(vals)
+        return self.convert(v, kind)
+
+    def value(self, socket, ctx, kind):
+        """Val of input `socket` (linked or not) as `kind`. Returns None for an unconnected
+        socket whose default is "implicit" (hidden-value vectors: Normal, image Vector...)."""
+        src = self.source(socket, ctx)
+        if src is None:
+            if getattr(socket, "hide_value", False) and socket.type == 'VECTOR':
+                return None
+            return self.socket_default(socket, kind)
+        if src[0] == "default":
+            return self.socket_default(src[1], kind)
+        _, node, out, nctx = src
+        if out.type == 'SHADER':
+            self.problem(f"shader output of '{node.name}' linked to a value input "
+                         f"({socket.name}) ignored")
+            return self.socket_default(socket, kind)
+        v = self.node_output(node, out, nctx, socket, kind)
+        if v is None:  # an implicit value (e.g. the shading normal)
+            if getattr(socket, "hide_value", False) and socket.type == 'VECTOR':
+                return None
+            return self.socket_default(socket, kind)
+        return self.convert(v, kind, f" into {socket.name}")
+
+    def input(self, node, name, ctx, kind):
+        return self.value(node.inputs[name], ctx, kind)
+
+    def const_input(self, node, name, ctx, kind):
+        """A constant input value (used where the core takes constants): a linked input is a
+        problem, its socket's own value is used."""
+        socket = node.inputs[name]
+        v = self.value(socket, ctx, kind)
+        if v is not None and v.is_const:
+            return v
+        self.problem(f"linked input {name} of '{node.name}' is not supported (its value is used)")
+        return self.socket_default(socket, kind)
+
+    def node_output(self, node, out, ctx, consumer, kind):
+        key = (node.as_pointer(), out.identifier, self.ctx_key(ctx))
+        if key in self.cache:
+            return self.cache[key]
+        if key in self.visiting:
+            raise _Cycle(node.name)
+        self.visiting.add(key)
+        try:
+            v = self.eval_value_node(node, out, ctx)
+        finally:
+            self.visiting.discard(key)
+        if v is NotImplemented:
+            return self._fallback_value(node, ctx, consumer, kind)
+        self.cache[key] = v
+        return v
+
+    def _fallback_value(self, node, ctx, consumer, kind):
+        """An unsupported value node: its own Color input when it has one (linked or not),
+        else the consumer socket's own value (None, the implicit value, for hidden vectors)."""
+        color = node.inputs.get("Color")
+        what = f"'{node.name}' ({node.bl_idname}) is not supported"
+        if color is not None and kind == "color":
+            self.problem(f"{what} (its Color input is used)")
+            v = self.value(color, ctx, "color")
+            return v if v is not None else self.socket_default(color, "color")
+        if getattr(consumer, "hide_value", False) and consumer.type == 'VECTOR':
+            self.problem(f"{what} (ignored)")
+            return None
+        self.problem(f"{what} (the value of {consumer.name} is used)")
+        return self.socket_default(consumer, kind)
+
+    # -------------------------------------------------- value nodes
+
+    def uv(self, name, what):
+        k = self.uv_sets.index(name)
+        if k is None:
+            self.problem(f"{what}: more than {MAX_UV_SETS} UV maps in the scene (UV map "
+                         f"'{name}' reads as the first)")
+            k = 0
+        self.uv_used[k] = name or ""
+        return k
+
+    def uv_value(self, name, what):
+        """Val of the UV coordinates of a UV map (one "uv" op per set)."""
+        k = self.uv(name, what)
+        key = ("uv", k)
+        if key not in self.cache:
+            self.cache[key] = self.emit("vector", "uv", k)
+        return self.cache[key]
+
+    def eval_value_node(self, node, out, ctx):
+        t = node.type
+        oid = out.identifier
+        if t == 'RGB':
+            return const_color(out.default_value)
+        if t == 'VALUE':
+            return const_float(out.default_value)
+        if t == 'TEX_IMAGE':
+            return self.image_texture(node, out, ctx)
+        if t == 'TEX_COORD':
+            return self.tex_coord(node, oid)
+        if t == 'UVMAP':
+            if node.from_instancer:
+                self.problem(f"'{node.name}': UV from instancer is not supported")
+            return self.uv_value(node.uv_map, f"'{node.name}'")
+        if t == 'NEW_GEOMETRY':
+            if oid == "Position":
+                return self.emit("vector", "position")
+            if oid == "Normal":
+                return self.emit("vector", "normal")
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO if out.type == 'VALUE' else const_vector((0, 0, 0))
+        if t == 'MAPPING':
+            return self.mapping(node, ctx)
+        if t == 'MIX':
+            return self.mix_node(node, oid, ctx)
+        if t == 'MIX_RGB':
+            return self.mix_color(node, node.blend_type, self.input(node, "Fac", ctx, "float"),
+                                  self.input(node, "Color1", ctx, "color"),
+                                  self.input(node, "Color2", ctx, "color"), node.use_clamp)
+        if t == 'MATH':
+            return self.math_node(node, ctx)
+        if t == 'RGBTOBW':
+            return self.as_float(self.input(node, "Color", ctx, "color"))
+        if t == 'INVERT':
+            fac = self.input(node, "Fac", ctx, "float")
+            c = self.input(node, "Color", ctx, "color")
+            inverted = self.mix("SUBTRACT", ONE, const_color((1, 1, 1, 1)), c)
+            return self.mix("MIX", fac, c, inverted)
+        if t == 'NORMAL_MAP':
+            return self.normal_map(node, ctx)
+        return NotImplemented
+
+    def tex_coord(self, node, oid):
+        if oid == "UV":
+            if node.from_instancer:
+                self.problem(f"'{node.name}': UV from instancer is not supported")
+            return self.uv_value("", f"'{node.name}'")
+        if oid in ("Object", "Generated"):
+            self.problem(f"'{node.name}': {oid} coordinates are approximated by world "
+                         "positions")
+            return self.emit("vector", "position")
+        if oid == "Normal":
+            self.problem(f"'{node.name}': object-space Normal is approximated by the world "
+                         "normal")
+            return self.emit("vector", "normal")
+        self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
+        return const_vector((0, 0, 0))
+
+    def image_texture(self, node, out, ctx):
+        what = f"'{node.name}'"
+        image = node.image
+        loaded = self.images.load(image, self.problems) if image is not None else None
+        if image is None:
+            self.problem(f"{what} has no image (magenta)")
+        if loaded is None:
+            if out.identifier == "Alpha":
+                return ONE
+            return const_color(MISSING_TEXTURE)
+        if out.identifier == "Alpha" and not loaded.has_alpha:
+            return ONE
+        vec = self.value(node.inputs["Vector"], ctx, "vector")
+        if vec is None:
+            vec = self.uv_value("", what)
+        if node.projection != 'FLAT':
+            self.problem(f"{what}: {node.projection.lower()} projection is not supported "
+                         "(flat)")
+        interp = {"Closest": "CLOSEST"}.get(node.interpolation, "LINEAR")
+        if node.interpolation in ("Cubic", "Smart"):
+            self.problem(f"{what}: {node.interpolation} interpolation is approximated by Linear")
+        ext = node.extension
+        if ext == 'MIRROR':
+            self.problem(f"{what}: Mirror extension is not supported (Repeat)")
+            ext = 'REPEAT'
+        if ext not in ('REPEAT', 'EXTEND', 'CLIP'):
+            ext = 'REPEAT'
+        if out.identifier == "Alpha":
+            variant, kind = "alpha", "float"
+        else:
+            alpha_out = node.outputs.get("Alpha")
+            variant = "straight" if alpha_out is not None and alpha_out.is_linked else "color"
+            kind = "color"
+        index = self.images.index(image, loaded, variant)
+        return self.emit(kind, "image", self.reg(vec), index, interp, ext)
+
+    def mapping(self, node, ctx):
+        vec = self.input(node, "Vector", ctx, "vector")
+        vtype = node.vector_type
+        params = {}
+        for name, default in (("Location", (0, 0, 0)), ("Rotation", (0, 0, 0)),
+                              ("Scale", (1, 1, 1))):
+            socket = node.inputs.get(name)
+            if socket is None or not socket.enabled:
+                params[name] = default
+            else:
+                params[name] = self.const_input(node, name, ctx, "vector").const[:3]
+        m = mapping_matrix(vtype, params["Location"], params["Rotation"], params["Scale"])
+        if vec.is_const:
+            v = m[:, :3].astype(np.float64) @ np.array(vec.const[:3]) + m[:, 3]
+            return const_vector(v)
+        return self.emit("vector", "mapping", self.reg(vec), m)
+
+    def mix_color(self, node, blend, fac, a, b, clamp):
+        if blend not in MIX_BLENDS:
+            self.problem(f"'{node.name}': blend mode {blend.replace('_', ' ').title()} is not "
+                         "supported (Mix)")
+            blend = "MIX"
+        return self.mix(blend, fac, a, b, clamp)
+
+    def mix_node(self, node, oid, ctx):
+        dtype = node.data_type
+        if dtype == 'RGBA':
+            fac = self.input(node, "Factor_Float", ctx, "float")
+            self._note_unclamped_factor(node, fac)
+            return self.mix_color(node, node.blend_type, fac,
+                                  self.value(node.inputs["A_Color"], ctx, "color"),
+                                  self.value(node.inputs["B_Color"], ctx, "color"),
+                                  node.clamp_result)
+        if dtype == 'FLOAT':
+            fac = self.input(node, "Factor_Float", ctx, "float")
+            self._note_unclamped_factor(node, fac)
+            return self.mix("MIX", fac, self.value(node.inputs["A_Float"], ctx, "float"),
+                            self.value(node.inputs["B_Float"], ctx, "float"), kind="float")
+        if dtype == 'VECTOR':
+            if node.factor_mode == 'NON_UNIFORM':
+                self.problem(f"'{node.name}': non-uniform factor is not supported (its X is "
+                             "used)")
+                fac = self.input(node, "Factor_Vector", ctx, "vector")
+                fac = const_float(fac.const[0]) if fac.is_const else Val("float", reg=fac.reg)
+            else:
+                fac = self.input(node, "Factor_Float", ctx, "float")
+            self._note_unclamped_factor(node, fac)
+            a = self.value(node.inputs["A_Vector"], ctx, "vector")
+            b = self.value(node.inputs["B_Vector"], ctx, "vector")
+            return self.mix("MIX", fac, a, b, kind="vector")
+        return NotImplemented
+
+    def _note_unclamped_factor(self, node, fac):
+        if not node.clamp_factor and not (fac.is_const and 0.0 <= fac.const[0] <= 1.0):
+            self.problem(f"'{node.name}': an unclamped factor is clamped to [0, 1]")
+
+    def math_node(self, node, ctx):
+        op = node.operation
+        a = self.value(node.inputs[0], ctx, "float")
+        b = self.value(node.inputs[1], ctx, "float")
+        clamp = node.use_clamp
+        if op in MATH_OPS:
+            return self.math(op, a, b, clamp)
+        if op == "SQRT":  # the core's POWER gives 0 for a negative base, like Blender's sqrt
+            return self.math("POWER", a, const_float(0.5), clamp)
+        if op == "MULTIPLY_ADD":
+            c = self.value(node.inputs[2], ctx, "float")
+            return self.math("ADD", self.math("MULTIPLY", a, b), c, clamp)
+        if op == "RADIANS":
+            return self.math("MULTIPLY", a, const_float(math.pi / 180.0), clamp)
+        if op == "DEGREES":
+            return self.math("MULTIPLY", a, const_float(180.0 / math.pi), clamp)
+        self.problem(f"'{node.name}': math operation {op.replace('_', ' ').title()} is not "
+                     "supported (its first value is used)")
+        return self.math("ADD", a, ZERO, clamp)
+
+    def normal_map(self, node, ctx):
+        what = f"'{node.name}'"
+        if node.space != 'TANGENT':
+            self.problem(f"{what}: {node.space.replace('_', ' ').lower()} space normal maps "
+                         "are not supported (ignored)")
+            return None
+        color = self.input(node, "Color", ctx, "color")
+        strength = self.input(node, "Strength", ctx, "float")
+        if strength.is_const and strength.const[0] == 0.0:
+            return None
+        k = self.uv(node.uv_map, what)
+        return self.emit("vector", "normal_map", self.reg(color), self.reg(strength), k)
+
+    # -------------------------------------------------- shaders
+
+    def closure(self, kind, weight, **params):
+        if self.is_zero(weight):
+            return
+        regs = {k: self.reg(v) for k, v in params.items() if v is not None}
+        if weight is not None and weight.is_const and all(x == 1.0 for x in weight.const[:3]):
+            weight = None
+        w = None if weight is None else self.reg(self.as_color(weight))
+        self.ops.append(("closure", kind, w, regs))
+
+    def shader_input(self, socket, ctx, weight):
+        """Emits the closures of what feeds shader input `socket`, scaled by weight."""
+        if self.is_zero(weight):
+            return
+        src = self.source(socket, ctx)
+        if src is None or src[0] == "default":
+            return  # nothing connected: no closure (Cycles renders black)
+        _, node, out, nctx = src
+        if out.type != 'SHADER':  # Cycles turns a value linked into a shader into emission
+            v = self.node_output(node, out, nctx, socket, "color")
+            self.closure("emission", weight, color=self.as_color(v) if v is not None else ONE)
+            return
+        key = (node.as_pointer(), out.identifier, self.ctx_key(nctx))
+        if key in self.visiting:
+            raise _Cycle(node.name)
+        self.visiting.add(key)
+        try:
+            self.shader_node(node, nctx, weight)
+        finally:
+            self.visiting.discard(key)
+
+    def normal(self, node, ctx, name="Normal"):
+        socket = node.inputs.get(name)
+        return None if socket is None else self.value(socket, ctx, "vector")
+
+    def _note_distribution(self, node, roughness, allowed):
+        dist = node.distribution
+        if dist in allowed:
+            return
+        if roughness.is_const and roughness.const[0] == 0.0:
+            return  # every distribution is the same perfect mirror
+        self.problem(f"'{node.name}': {dist.replace('_', ' ').title()} distribution is "
+                     "approximated by GGX")
+
+    def shader_node(self, node, ctx, weight):
+        t = node.type
+        inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
+        if t == 'MIX_SHADER':
+            fac = self.math("ADD", inp("Fac", "float"), ZERO, clamp=True)
+            w2 = self.scale(weight, fac)
+            w1 = self.scale(weight, self.math("SUBTRACT", ONE, fac))
+            self.shader_input(node.inputs[1], ctx, w1)
+            self.shader_input(node.inputs[2], ctx, w2)
+        elif t == 'ADD_SHADER':
+            self.shader_input(node.inputs[0], ctx, weight)
+            self.shader_input(node.inputs[1], ctx, weight)
+        elif t == 'BSDF_DIFFUSE':
+            r = inp("Roughness", "float")
+            if not (r.is_const and r.const[0] == 0.0):
+                self.problem(f"'{node.name}': Oren-Nayar roughness is not supported "
+                             "(Lambertian)")
+            self.closure("diffuse", weight, color=inp("Color", "color"),
+                         normal=self.normal(node, ctx))
+        elif t == 'BSDF_GLOSSY':
+            rough = inp("Roughness", "float")
+            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
+            aniso = inp("Anisotropy", "float")
+            if not (aniso.is_const and aniso.const[0] == 0.0):
+                self.problem(f"'{node.name}': anisotropy is not supported (isotropic)")
+            self.closure("glossy", weight, color=inp("Color", "color"), roughness=rough,
+                         normal=self.normal(node, ctx))
+        elif t in ('BSDF_GLASS', 'BSDF_REFRACTION'):
+            rough = inp("Roughness", "float")
+            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
+            self.closure("glass" if t == 'BSDF_GLASS' else "refraction", weight,
+                         color=inp("Color", "color"), roughness=rough, ior=inp("IOR", "float"),
+                         normal=self.normal(node, ctx))
+        elif t == 'BSDF_TRANSPARENT':
+            self.closure("transparent", weight, color=inp("Color", "color"))
+        elif t == 'EMISSION':
+            color = self.scale(inp("Color", "color"), inp("Strength", "float"))
+            self.closure("emission", weight, color=self.as_color(color))
+        elif t == 'BSDF_PRINCIPLED':
+            self.principled(node, ctx, weight)
+        elif t == 'HOLDOUT':
+            self.problem(f"'{node.name}': Holdout is not supported (ignored)")
+        else:
+            self._fallback_shader(node, ctx, weight)
+
+    def _fallback_shader(self, node, ctx, weight):
+        """An unsupported shader node: a diffuse closure of its Color input if it has one,
+        else grey diffuse."""
+        color = node.inputs.get("Color")
+        if color is not None and color.type == 'RGBA':
+            self.problem(f"'{node.name}' ({node.bl_idname}) is not supported (diffuse of its "
+                         "Color)")
+            c = self.value(color, ctx, "color")
+        else:
+            self.problem(f"'{node.name}' ({node.bl_idname}) is not supported (grey diffuse)")
+            c = const_color(GREY)
+        self.closure("diffuse", weight, color=c)
+
+    def principled(self, node, ctx, weight):
+        inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
+        ignored = []
+        for name, label in (("Coat Weight", "coat"), ("Sheen Weight", "sheen"),
+                            ("Subsurface Weight", "subsurface (as diffuse)"),
+                            ("Anisotropic", "anisotropy"),
+                            ("Thin Film Thickness", "thin film"),
+                            ("Diffuse Roughness", "diffuse roughness")):
+            socket = node.inputs.get(name)
+            if socket is None:
+                continue
+            v = self.value(socket, ctx, "float")
+            if not (v.is_const and v.const[0] == 0.0):
+                ignored.append(label)
+        if ignored:
+            self.problem(f"'{node.name}': {', '.join(ignored)} not supported (ignored)")
+        alpha = self.math("ADD", inp("Alpha", "float"), ZERO, clamp=True)
+        opaque = self.scale(weight, alpha)
+        if not (alpha.is_const and alpha.const[0] == 1.0):
+            self.closure("transparent", self.scale(weight, self.math("SUBTRACT", ONE, alpha)),
+                         color=const_color((1, 1, 1, 1)))
+        rough = inp("Roughness", "float")
+        self.closure("principled", opaque,
+                     base_color=inp("Base Color", "color"),
+                     metallic=inp("Metallic", "float"),
+                     roughness=rough,
+                     ior=inp("IOR", "float"),
+                     transmission=inp("Transmission Weight", "float"),
+                     specular_level=inp("Specular IOR Level", "float"),
+                     specular_tint=inp("Specular Tint", "color"),
+                     normal=self.normal(node, ctx))
+        strength = inp("Emission Strength", "float")
+        if not (strength.is_const and strength.const[0] == 0.0):
+            emission = self.scale(inp("Emission Color", "color"), strength)
+            self.closure("emission", opaque, color=self.as_color(emission))
+
+    # -------------------------------------------------- volume
+
+    def volume(self, socket, name):
+        src = self.source(socket, ())
+        if src is None or src[0] == "default":
+            return None
+        _, node, out, ctx = src
+        if node.type == 'VOLUME_ABSORPTION':
+            color = self.const_input(node, "Color", ctx, "color").const[:3]
+            density = self.const_input(node, "Density", ctx, "float").const[0]
+            return (tuple(color), density)
+        self.problem(f"volume '{node.name}' ({node.bl_idname}) is not supported (ignored; "
+                     "only Volume Absorption is)")
+        return None
+
+    # -------------------------------------------------- entry
+
+    def compile(self, output, name):
+        """CompiledShader for a material output node."""
+        volume = None
+        try:
+            self.shader_input(output.inputs["Surface"], (), None)
+        except _Cycle as e:
+            self.problem(f"node cycle through '{e}' (grey diffuse)")
+            self._reset()
+            self.closure("diffuse", None, color=const_color(GREY))
+        try:
+            volume = self.volume(output.inputs["Volume"], name)
+        except _Cycle as e:
+            self.problem(f"node cycle through '{e}' in the volume (ignored)")
+        disp = output.inputs.get("Displacement")
+        if disp is not None and self.link_into(disp) is not None:
+            self.problem("displacement is not supported (ignored)")
+        program = allocate_registers(eliminate_dead_code(self.ops))
+        if program is None:
+            self.problem(f"the material needs more than {MAX_REGISTERS} registers (grey "
+                         "diffuse)")
+            program = [("const", 0, GREY + (1.0,)),
+                       ("closure", "diffuse", None, {"color": 0})]
+        return CompiledShader(program, volume, dict(self.uv_used), list(self.problems))
+
+    def _reset(self):
+        self.ops = []
+        self.nreg = 0
+        self.const_regs = {}
+        self.cache = {}
+        self.visiting = set()
+        self.uv_used = {}
+
+
+def _reads(op):
+    name = op[0]
+    if name == "closure":
+        regs = [r for r in op[3].values()]
+        return regs + ([op[2]] if op[2] is not None else [])
+    if name in ("const", "uv", "position", "normal"):
+        return []
+    if name in ("mapping", "image", "rgb_to_bw"):
+        return [op[2]]
+    if name == "math":
+        return [op[2], op[3]]
+    if name == "mix":
+        return [op[2], op[3], op[4]]
+    if name == "normal_map":
+        return [op[2], op[3]]
+    raise ValueError(name)
+
+
+def _rename(op, m):
+    name = op[0]
+    if name == "closure":
+        return ("closure", op[1], None if op[2] is None else m[op[2]],
+                {k: m[v] for k, v in op[3].items()})
+    out = [name, m[op[1]]]
+    n_regs = {"const": 0, "uv": 0, "position": 0, "normal": 0, "mapping": 1, "image": 1,
+              "rgb_to_bw": 1, "math": 2, "mix": 3, "normal_map": 2}[name]
+    out += [m[r] for r in op[2:2 + n_regs]]
+    out += list(op[2 + n_regs:])
+    return tuple(out)
+
+
+def eliminate_dead_code(ops):
+    """Drops value ops whose result no closure needs (e.g. after a folded mix)."""
+    live = set()
+    kept = []
+    for op in reversed(ops):
+        if op[0] != "closure" and op[1] not in live:
+            continue
+        live.update(_reads(op))
+        kept.append(op)
+    return kept[::-1]
+
+
+def allocate_registers(ops):
+    """Maps virtual registers onto at most MAX_REGISTERS (linear scan over the straight-line
+    program: a register is free again after its last read). None if that is not enough."""
+    last = {}
+    for i, op in enumerate(ops):
+        for r in _reads(op):
+            last[r] = i
+    free = list(range(MAX_REGISTERS - 1, -1, -1))
+    mapping = {}
+    out = []
+    for i, op in enumerate(ops):
+        m = dict(mapping)  # reads are all defined before (straight-line code)
+        if op[0] != "closure":
+            # The destination never shares a register with this op's own operands.
+            if not free:
+                return None
+            m[op[1]] = mapping[op[1]] = free.pop()
+        for r in set(_reads(op)):
+            if last.get(r) == i:
+                free.append(mapping.pop(r))
+        if op[0] != "closure" and op[1] not in last:  # never read: free at once
+            free.append(mapping.pop(op[1]))
+        out.append(_rename(op, m))
+    return out
+
+
+def compile_material(mat, images, uv_sets):
+    """CompiledShader of a bpy Material with nodes, or None when it has no Cycles output."""
+    tree = mat.node_tree
+    output = tree.get_output_node('CYCLES')
+    if output is None:
+        return None
+    return ShaderCompiler(images, uv_sets).compile(output, mat.name)
