@@ -1,6 +1,8 @@
 // Rays, hits and the self-intersection-safe offset of spawned rays.
 #pragma once
 #include <cstdint>
+#include <cstring>
+#include <limits>
 
 #include "util/math.h"
 
@@ -19,23 +21,49 @@ struct Hit {
   bool valid() const { return prim != UINT32_MAX; }
 };
 
-// Offsets a surface point along its geometric normal by an amount proportional to the
-// magnitude of its coordinates, so that a ray leaving the surface never re-hits it, at any
-// scale (Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection",
-// Ray Tracing Gems, 2019). `n` must point to the side the new ray leaves towards.
-inline float offset_float(float p, float n) {
-  constexpr float origin = 1.0f / 32.0f, float_scale = 1.0f / 65536.0f, int_scale = 256.0f;
-  const int of_i = static_cast<int>(int_scale * n);
-  int32_t bits;
-  std::memcpy(&bits, &p, sizeof(float));
-  bits += (p < 0) ? -of_i : of_i;
-  float p_i;
-  std::memcpy(&p_i, &bits, sizeof(float));
-  return std::fabs(p) < origin ? p + float_scale * n : p_i;
+// Floating-point error bounds (pbrt-v4): gamma(n) bounds the relative error of n operations.
+constexpr float kMachineEpsilon = std::numeric_limits<float>::epsilon() * 0.5f;
+constexpr float gamma_bound(int n) { return (n * kMachineEpsilon) / (1.0f - n * kMachineEpsilon); }
+
+inline float next_float_up(float v) {
+  if (std::isinf(v) && v > 0.0f) return v;
+  if (v == -0.0f) v = 0.0f;
+  uint32_t bits;
+  std::memcpy(&bits, &v, sizeof(float));
+  bits = v >= 0.0f ? bits + 1 : bits - 1;
+  std::memcpy(&v, &bits, sizeof(float));
+  return v;
+}
+inline float next_float_down(float v) {
+  if (std::isinf(v) && v < 0.0f) return v;
+  if (v == 0.0f) v = -0.0f;
+  uint32_t bits;
+  std::memcpy(&bits, &v, sizeof(float));
+  bits = v > 0.0f ? bits - 1 : bits + 1;
+  std::memcpy(&v, &bits, sizeof(float));
+  return v;
 }
 
-inline Vec3 offset_ray_origin(Vec3 p, Vec3 n) {
-  return {offset_float(p.x, n.x), offset_float(p.y, n.y), offset_float(p.z, n.z)};
+// Bound of the rounding error of p = b0 v0 + b1 v1 + b2 v2 computed in float.
+inline Vec3 barycentric_error(const Vec3& v0, const Vec3& v1, const Vec3& v2, float b0, float b1, float b2) {
+  return (vabs(v0 * b0) + vabs(v1 * b1) + vabs(v2 * b2)) * gamma_bound(7);
+}
+
+// Moves a surface point off its surface, to the side of `n`, by just more than the error bound
+// of its coordinates (pbrt-v4's OffsetRayOrigin): a ray leaving from there cannot re-hit the
+// surface (with the triangle test's own conservative t bound), at any scene scale.
+inline Vec3 offset_ray_origin(Vec3 p, Vec3 p_error, Vec3 n) {
+  const float len = length(n);
+  if (!(len > 0.0f)) return p;
+  n = n / len;
+  const float d = dot(vabs(n), p_error);
+  const Vec3 offset = n * d;
+  Vec3 po = p + offset;
+  for (int i = 0; i < 3; ++i) {
+    if (offset[i] > 0.0f) po[i] = next_float_up(po[i]);
+    else if (offset[i] < 0.0f) po[i] = next_float_down(po[i]);
+  }
+  return po;
 }
 
 }  // namespace pl

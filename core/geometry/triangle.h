@@ -51,7 +51,21 @@ inline bool intersect_triangle(const Vec3& org, const RayPrecomp& rp, const Vec3
     return false;
   }
   const float inv = 1.0f / det;
-  t_out = T * inv;
+  const float t = T * inv;
+  // Conservative bound on t's rounding error (pbrt-v4): a "hit" closer than it may be the
+  // surface the ray just left, e.g. on long thin triangles where det is tiny.
+  const float max_zt = std::max(std::fabs(az), std::max(std::fabs(bz), std::fabs(cz)));
+  const float max_xt = std::max(std::fabs(ax), std::max(std::fabs(bx), std::fabs(cx)));
+  const float max_yt = std::max(std::fabs(ay), std::max(std::fabs(by), std::fabs(cy)));
+  const float delta_z = gamma_bound(3) * max_zt;
+  const float delta_x = gamma_bound(5) * (max_xt + max_zt);
+  const float delta_y = gamma_bound(5) * (max_yt + max_zt);
+  const float delta_e = 2.0f * (gamma_bound(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+  const float max_e = std::max(std::fabs(u), std::max(std::fabs(v), std::fabs(w)));
+  const float delta_t =
+      3.0f * (gamma_bound(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * std::fabs(inv);
+  if (!(t > delta_t)) return false;
+  t_out = t;
   b1_out = v * inv;
   b2_out = w * inv;
   return true;

@@ -447,20 +447,31 @@ PYBIND11_MODULE(pathlight_core, m) {
 
   m.def(
       "offset_ray_origin",
-      [](const FloatArray& points, const FloatArray& normals) {
+      [](const FloatArray& points, const FloatArray& normals, const py::object& errors_obj) {
         if (points.ndim() != 2 || points.shape(1) != 3 || normals.ndim() != 2 || normals.shape(1) != 3 ||
             points.shape(0) != normals.shape(0))
           throw std::invalid_argument("points and normals must both have shape (N, 3)");
+        FloatArray errors;
+        if (!errors_obj.is_none()) {
+          errors = errors_obj.cast<FloatArray>();
+          if (errors.ndim() != 2 || errors.shape(1) != 3 || errors.shape(0) != points.shape(0))
+            throw std::invalid_argument("errors must have shape (N, 3)");
+        }
         FloatArray out({points.shape(0), py::ssize_t(3)});
         const Vec3* p = reinterpret_cast<const Vec3*>(points.data());
         const Vec3* n = reinterpret_cast<const Vec3*>(normals.data());
+        const Vec3* e = errors_obj.is_none() ? nullptr : reinterpret_cast<const Vec3*>(errors.data());
         Vec3* o = reinterpret_cast<Vec3*>(out.mutable_data());
-        for (py::ssize_t i = 0; i < points.shape(0); ++i) o[i] = offset_ray_origin(p[i], n[i]);
+        for (py::ssize_t i = 0; i < points.shape(0); ++i)
+          o[i] = offset_ray_origin(p[i], e ? e[i] : vabs(p[i]) * gamma_bound(7), n[i]);
         return out;
       },
-      py::arg("points"), py::arg("normals"),
-      "The offset the integrator applies to spawned rays (exposed for self-intersection tests).");
-
+      py::arg("points"), py::arg("normals"), py::arg("errors") = py::none(),
+      "The offset the integrator applies to spawned rays (exposed for self-intersection tests). "
+      "errors: bounds of the points' rounding errors; default gamma(7)|p|, right for points "
+      "interpolated on triangles whose vertices are no larger than the point.");
+  m.def("barycentric_error_bound", [] { return gamma_bound(7); },
+        "The relative bound gamma(7): |error(b0 v0 + b1 v1 + b2 v2)| <= gamma(7) (|b0 v0| + |b1 v1| + |b2 v2|).");
   m.def(
       "bsdf_sample",
       [](const std::string& kind, const py::dict& params, const py::object& wo_obj, const FloatArray& u) {

@@ -107,16 +107,16 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
         if (!is_black(f) && !is_black(ds.li)) {
           Vec3 vis(1.0f);
           Ray shadow;
-          shadow.org = offset_ray_origin(sp.p, reflection ? ng_out : -ng_out);
+          shadow.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
           if (std::isinf(ds.dist)) {
             shadow.dir = ds.wi;
             shadow.tmax = kInf;
           } else {
             // Offset the light end too, so an emissive triangle never blocks its own sample.
             const bool tri = !is_black(ds.target_normal);
-            const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_normal) : ds.target;
+            const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
             shadow.dir = target - shadow.org;
-            shadow.tmax = tri ? 1.0f : 0.9999f;
+            shadow.tmax = 1.0f - 1e-4f;  // pbrt's ShadowEpsilon, on top of both offsets
           }
           if (ds.cast_shadow) {
             ++c.rays;
@@ -192,7 +192,7 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
       beta = beta / survive;
     }
     if (!is_finite(beta)) break;
-    ray.org = offset_ray_origin(sp.p, reflection ? ng_out : -ng_out);
+    ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
     ray.dir = wi;
     ray.tmax = kInf;
   }

@@ -173,6 +173,7 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   const float b0 = 1.0f - h.b1 - h.b2;
   // From barycentrics rather than org + t * dir: the error does not grow with the distance.
   sp.p = tv.v0 * b0 + tv.v1 * h.b1 + tv.v2 * h.b2;
+  sp.p_error = barycentric_error(tv.v0, tv.v1, tv.v2, b0, h.b1, h.b2);
   sp.ng = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
   sp.ns = sp.ng;
   if (sh.n[0].x != 0.0f || sh.n[0].y != 0.0f || sh.n[0].z != 0.0f) {
@@ -229,6 +230,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
   s.dist = dist;
   s.target = q;
   s.target_normal = dot(n, s.wi) < 0.0f ? n : -n;  // the side facing p
+  s.target_error = barycentric_error(tv.v0, tv.v1, tv.v2, 1.0f - b1 - b2, b1, b2);
   {
     // The material's emission at the sampled point (textured emission included).
     SurfacePoint lp;
@@ -312,7 +314,7 @@ Vec3 Scene::transmittance(Ray ray) const {
     if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
     // Continue just past the surface towards the same end point (or to infinity).
     const Vec3 side = dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
-    const Vec3 org = offset_ray_origin(sp.p, side);
+    const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
     if (std::isfinite(ray.tmax)) {
       const Vec3 end = ray.org + ray.dir * ray.tmax;
       ray.dir = end - org;

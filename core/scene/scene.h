@@ -40,6 +40,7 @@ struct Instance {
 // What the integrator needs about a hit point.
 struct SurfacePoint {
   Vec3 p;
+  Vec3 p_error;  // bound of p's rounding error, for spawning rays
   Vec3 ng;  // unit geometric normal (from the winding)
   Vec3 ns;  // unit interpolated shading normal
   uint32_t material = 0;
@@ -52,6 +53,7 @@ struct DirectSample {
   float dist = kInf;      // distance to the light point; inf for the sun and the environment
   Vec3 target;            // light point for the shadow ray (finite distances only)
   Vec3 target_normal;     // its geometric normal (emissive triangles), for the offset; else 0
+  Vec3 target_error;      // bound of the target's rounding error (emissive triangles)
   Vec3 li;                // incident radiance (or intensity/r^2, irradiance for delta lights)
   float pdf = 0.0f;       // solid-angle pdf including the light choice
   bool delta = false;
