@@ -838,6 +838,41 @@ def assemble_benchmarks(stamp, started, ran, failed, extra):
     out = DOCS / "benchmarks.md"
     out.write_text("\n".join(lines).rstrip() + "\n")
     log(f"wrote {rel(out)} from {len(sections)} section(s)")
+    update_readme_benchmarks(sections, started, extra)
+
+
+README_BENCH_BEGIN, README_BENCH_END = "<!-- bench-table:begin -->", "<!-- bench-table:end -->"
+
+
+def update_readme_benchmarks(sections, started, extra):
+    """The README's benchmark table: the first table of each section this run wrote, under the
+    section's heading, stamped with date, machine and commit (the full report stays in docs/)."""
+    readme = ROOT / "README.md"
+    text = readme.read_text()
+    if README_BENCH_BEGIN not in text or README_BENCH_END not in text:
+        warn("README.md has no benchmark-table markers; its table was not updated")
+        return
+    body = [f"Measured by `python3 build.py bench`{' ' + ' '.join(extra) if extra else ''} on "
+            f"{time.strftime('%Y-%m-%d', time.localtime(started))}, {machine_description()}, "
+            f"commit {git_commit()}. Full report: [docs/benchmarks.md](docs/benchmarks.md).", ""]
+    for path in sections:
+        if path.stat().st_mtime < started:
+            continue
+        sec = path.read_text().splitlines()
+        heading = next((l.lstrip("#").strip() for l in sec if l.startswith("#")), path.stem)
+        table, seen = [], False
+        for line in sec:
+            if line.startswith("|"):
+                table.append(line)
+                seen = True
+            elif seen:
+                break
+        if table:
+            body += [f"**{heading}**", ""] + table + [""]
+    head, _, rest = text.partition(README_BENCH_BEGIN)
+    _, _, tail = rest.partition(README_BENCH_END)
+    readme.write_text(head + README_BENCH_BEGIN + "\n" + "\n".join(body).rstrip() + "\n" + README_BENCH_END + tail)
+    log("updated the benchmark table in README.md")
 
 
 def cmd_bench(args, extra):
