@@ -49,6 +49,12 @@ def one_light():
     return lights[0], warnings
 
 
+@pytest.fixture(autouse=True, scope="module")
+def factory_scene_afterwards():
+    yield
+    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
+
+
 @pytest.fixture
 def scene():
     return empty_scene(16)
@@ -338,12 +344,7 @@ def test_point_light_on_plane_closed_form(radius):
 
 
 @needs_lights
-@pytest.mark.parametrize("angle", [
-    0.0,
-    pytest.param(30.0, marks=pytest.mark.xfail(
-        strict=True, reason="core bug: sun radiance E/(pi tan^2 h) instead of Cycles' "
-                            "E/(pi sin^2 h): irradiance low by cos^2(angle/2)")),
-])
+@pytest.mark.parametrize("angle", [0.0, 30.0])
 @pytest.mark.parametrize("tilt", [0.0, 50.0])
 def test_sun_on_plane_closed_form(angle, tilt):
     n, albedo, strength = 16, 0.5, 3.0
@@ -382,12 +383,17 @@ def test_enclosing_emissive_sphere_closed_form():
     # Inside a closed sphere of albedo a emitting Le (inward normals), every point sees
     # Le + a Le + a^2 Le + ... = Le / (1 - a) in every direction.
     scene = empty_scene(32)
-    mat = bpy.data.materials.new("Glow")
+    mat = bpy.data.materials.new("Glow")  # Diffuse(0.5) + Emission(0.4)
     mat.use_nodes = True
-    bsdf = mat.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (0.5, 0.5, 0.5, 1.0)
-    bsdf.inputs["Emission Color"].default_value = (1.0, 1.0, 1.0, 1.0)
-    bsdf.inputs["Emission Strength"].default_value = 0.4
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.remove(nodes["Principled BSDF"])
+    diffuse, emission = nodes.new("ShaderNodeBsdfDiffuse"), nodes.new("ShaderNodeEmission")
+    diffuse.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
+    emission.inputs["Strength"].default_value = 0.4
+    add = nodes.new("ShaderNodeAddShader")
+    links.new(diffuse.outputs[0], add.inputs[0])
+    links.new(emission.outputs[0], add.inputs[1])
+    links.new(add.outputs[0], nodes["Material Output"].inputs["Surface"])
     sphere = uv_sphere("Enclosure", 3.0, mat, segments=32)
     sphere.data.flip_normals()
     camera((0.0, 0.0, 0.0), rotation=(1.0, 0.3, 0.2))
@@ -397,11 +403,11 @@ def test_enclosing_emissive_sphere_closed_form():
 
 # ---------------------------------------------------------------- against Cycles (need the core)
 
-def assert_agrees_with_cycles(ours, ref, region_tol, mean_tol=0.01, grid=8):
-    """Per-region means (an 8 x 8 grid) within region_tol relative (regions darker than a
-    tenth of the image mean are held to that tenth), the whole image within mean_tol."""
+def assert_agrees_with_cycles(ours, ref, region_tol, mean_tol=0.01, grid=8, floor=0.1):
+    """Per-region means (an 8 x 8 grid) within region_tol relative (regions darker than
+    `floor` times the image mean are held to that), the whole image within mean_tol."""
     a, b = region_means(ours[..., :3], grid), region_means(ref[..., :3], grid)
-    floor = 0.1 * b.mean()
+    floor = floor * b.mean()
     rel = np.abs(a - b) / np.maximum(b, floor)
     worst = np.unravel_index(np.argmax(rel), rel.shape)
     assert rel.max() < region_tol, (worst, a[worst], b[worst])
@@ -411,11 +417,6 @@ def assert_agrees_with_cycles(ours, ref, region_tol, mean_tol=0.01, grid=8):
 
 SPOT = dict(location=(-1.0, -2.0, 3.0), rotation=(0.6, 0.0, -0.4), energy=800.0,
             spot_size=math.radians(100), spot_blend=0.3)
-SPOT_RADIUS_BUG = pytest.mark.xfail(
-    strict=True, reason="core bug: the spot cone is evaluated from the light's centre; Cycles "
-                        "evaluates it along each sampled direction to the disk (soft edge)")
-SUN_ANGLE_BUG = pytest.mark.xfail(
-    strict=True, reason="core bug: sun radiance E/(pi tan^2 h), Cycles E/(pi sin^2 h)")
 LIGHT_CASES = {
     "point": ('POINT', dict(location=(1.5, -1.0, 2.5), energy=300.0, shadow_soft_size=0.2)),
     "point_no_shadow": ('POINT', dict(location=(1.5, -1.0, 2.5), energy=300.0,
@@ -438,12 +439,11 @@ LIGHT_CASES = {
                                   scale=(1.0, 2.0, 1.0), energy=300.0, shape='ELLIPSE',
                                   size=1.0, size_y=0.5)),
 }
-XFAIL = {"sun_angle": SUN_ANGLE_BUG}
+
 
 
 @needs_lights
-@pytest.mark.parametrize("case", [pytest.param(c, marks=XFAIL[c]) if c in XFAIL else c
-                                  for c in LIGHT_CASES])
+@pytest.mark.parametrize("case", list(LIGHT_CASES))
 def test_light_agrees_with_cycles(case):
     kind, props = LIGHT_CASES[case]
     scene = diffuse_set(64)
@@ -456,18 +456,18 @@ def test_light_agrees_with_cycles(case):
 
 
 @needs_lights
-@pytest.mark.parametrize("radius, blend", [
-    (0.0, 0.0), (0.0, 0.4), pytest.param(0.3, 0.0, marks=SPOT_RADIUS_BUG),
-])
+@pytest.mark.parametrize("radius, blend", [(0.0, 0.0), (0.0, 0.4), (0.3, 0.0), (0.3, 0.4)])
 def test_spot_cone_on_plane_agrees_with_cycles(radius, blend):
     # Direct light only, seen from above: the cone's edge (hard, blended, or softened by the
     # light's radius) is all there is to see, without indirect noise.
     scene = plane_scene(48, 20.0, 3.0)
     add_light('SPOT', location=(0.3, 0.0, 1.0), rotation=(0.3, 0.0, 0.0), energy=100.0,
               spot_size=math.radians(70), spot_blend=blend, shadow_soft_size=radius)
-    ours = render_to_array(scene, samples=64, max_bounces=0)
-    ref = render_to_array(scene, "CYCLES", samples=64, max_bounces=0, **BOX_FILTER)
-    assert_agrees_with_cycles(ours, ref, region_tol=0.03)
+    ours = render_to_array(scene, samples=512, max_bounces=0)
+    ref = render_to_array(scene, "CYCLES", samples=512, max_bounces=0, **BOX_FILTER)
+    # Regions holding only a few pixels of the (noisy) soft edge are held to a quarter of the
+    # mean (at 256 spp, four seeds differed from Cycles by up to 4 % of that).
+    assert_agrees_with_cycles(ours, ref, region_tol=0.05, floor=0.25)
 
 
 @needs_lights

@@ -56,6 +56,12 @@ class FakeCore:
     RenderSettings = FakeSettings
 
 
+@pytest.fixture(autouse=True, scope="module")
+def factory_scene_afterwards():
+    yield
+    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
+
+
 # ---------------------------------------------------------------- settings (no core)
 
 def test_defaults_are_cycles_defaults():
