@@ -750,30 +750,32 @@ class ShaderCompiler:
         return self.mix(blend, fac, a, b, clamp)
 
     def mix_node(self, node, oid, ctx):
+        """Blender's Mix node; its sockets share names, so they are found by identifier."""
+        by_id = {s.identifier: s for s in node.inputs}
         dtype = node.data_type
         if dtype == 'RGBA':
-            fac = self.input(node, "Factor_Float", ctx, "float")
+            fac = self.value(by_id["Factor_Float"], ctx, "float")
             self._note_unclamped_factor(node, fac)
             return self.mix_color(node, node.blend_type, fac,
-                                  self.value(node.inputs["A_Color"], ctx, "color"),
-                                  self.value(node.inputs["B_Color"], ctx, "color"),
+                                  self.value(by_id["A_Color"], ctx, "color"),
+                                  self.value(by_id["B_Color"], ctx, "color"),
                                   node.clamp_result)
         if dtype == 'FLOAT':
-            fac = self.input(node, "Factor_Float", ctx, "float")
+            fac = self.value(by_id["Factor_Float"], ctx, "float")
             self._note_unclamped_factor(node, fac)
-            return self.mix("MIX", fac, self.value(node.inputs["A_Float"], ctx, "float"),
-                            self.value(node.inputs["B_Float"], ctx, "float"), kind="float")
+            return self.mix("MIX", fac, self.value(by_id["A_Float"], ctx, "float"),
+                            self.value(by_id["B_Float"], ctx, "float"), kind="float")
         if dtype == 'VECTOR':
             if node.factor_mode == 'NON_UNIFORM':
                 self.problem(f"'{node.name}': non-uniform factor is not supported (its X is "
                              "used)")
-                fac = self.input(node, "Factor_Vector", ctx, "vector")
+                fac = self.value(by_id["Factor_Vector"], ctx, "vector")
                 fac = const_float(fac.const[0]) if fac.is_const else Val("float", reg=fac.reg)
             else:
-                fac = self.input(node, "Factor_Float", ctx, "float")
+                fac = self.value(by_id["Factor_Float"], ctx, "float")
             self._note_unclamped_factor(node, fac)
-            a = self.value(node.inputs["A_Vector"], ctx, "vector")
-            b = self.value(node.inputs["B_Vector"], ctx, "vector")
+            a = self.value(by_id["A_Vector"], ctx, "vector")
+            b = self.value(by_id["B_Vector"], ctx, "vector")
             return self.mix("MIX", fac, a, b, kind="vector")
         return NotImplemented
 

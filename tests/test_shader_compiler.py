@@ -1,0 +1,808 @@
+"""The shader node compiler (addon/export/shader.py) without the core: the programs emitted for
+node setups, evaluated here by a small interpreter of the constant part of the program
+language (docs/core_api.md), plus images, UV sets and warnings. The last tests hand every
+program to the core (when built), which validates it."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+from mathutils import Euler, Matrix, Vector
+
+from blender_util import core_available, load_addon
+import material_scenes as ms
+
+load_addon()
+from addon.export import export_scene, to_core  # noqa: E402
+from addon.export.material import MaterialTable, convert_material  # noqa: E402
+from addon.export.shader import (  # noqa: E402
+    MAX_REGISTERS, ImageTable, UvSets, _math, _mix, mapping_matrix)
+
+
+class Warnings(list):
+    def __call__(self, msg):
+        self.append(msg)
+
+
+@pytest.fixture(autouse=True)
+def empty_scene():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    yield
+
+
+def compile_(mat, images=None, uv_sets=None, schlick=False):
+    warnings = Warnings()
+    data = convert_material(mat, warnings, images, uv_sets, schlick)
+    assert len(warnings) <= 1, warnings  # at most ONE warning per material
+    return data, warnings
+
+
+# ---------------------------------------------------------------- a tiny interpreter
+
+class Sym:
+    """A value read from the shading point (uv, image, normal map...)."""
+
+    def __init__(self, op):
+        self.op = op
+
+    def __repr__(self):
+        return f"Sym({self.op[0]})"
+
+
+def run(program):
+    """Evaluates the constant part of a program: a list of (kind, weight rgb or None|Sym,
+    {param: value 4-tuple | Sym}) closures, plus the register file."""
+    regs = {}
+    closures = []
+    for op in program:
+        name = op[0]
+        if name == "closure":
+            _, kind, w, params = op
+            weight = None if w is None else regs[w]
+            if not isinstance(weight, Sym) and weight is not None:
+                weight = tuple(weight[:3])
+            closures.append((kind, weight, {k: regs[v] for k, v in params.items()}))
+            continue
+        dst = op[1]
+        if name == "const":
+            regs[dst] = tuple(op[2])
+        elif name == "math":
+            a, b = regs[op[2]], regs[op[3]]
+            if isinstance(a, Sym) or isinstance(b, Sym):
+                regs[dst] = Sym(op)
+            else:
+                v = _math(op[4], a[0], b[0])
+                v = min(max(v, 0.0), 1.0) if op[5] else v
+                regs[dst] = (v, v, v, 1.0)
+        elif name == "mix":
+            f, a, b = regs[op[2]], regs[op[3]], regs[op[4]]
+            if any(isinstance(x, Sym) for x in (f, a, b)):
+                regs[dst] = Sym(op)
+            else:
+                fac = min(max(f[0], 0.0), 1.0)
+                out = [_mix(op[5], x, y, fac) for x, y in zip(a[:3], b[:3])]
+                if op[6]:
+                    out = [min(max(x, 0.0), 1.0) for x in out]
+                regs[dst] = tuple(out) + (a[3],)
+        else:
+            regs[dst] = Sym(op)
+    return closures, regs
+
+
+def closures_of(mat, **kw):
+    data, warnings = compile_(mat, **kw)
+    return run(data.program)[0], warnings, data
+
+
+def weight_of(closure):
+    return closure[1] if closure[1] is not None else (1.0, 1.0, 1.0)
+
+
+# ---------------------------------------------------------------- node helpers
+
+def link(tree, a, b):
+    return tree.links.new(a, b)
+
+
+def approx(x, rel=1e-5, abs=1e-6):
+    return pytest.approx(x, rel=rel, abs=abs)
+
+
+# ---------------------------------------------------------------- BSDFs and mixes
+
+@pytest.mark.parametrize("fac", [0.2, 0.5, 1.0])
+def test_mix_of_diffuse_and_glossy(fac):
+    mat = ms.mix_diffuse_glossy("Mix", fac, color=(0.8, 0.3, 0.2), roughness=0.1)
+    closures, warnings, _ = closures_of(mat)
+    assert not warnings
+    by_kind = {c[0]: c for c in closures}
+    if fac == 1.0:  # a zero weight is folded away
+        assert list(by_kind) == ["glossy"]
+    else:
+        assert sorted(by_kind) == ["diffuse", "glossy"]
+        assert weight_of(by_kind["diffuse"]) == approx((1 - fac,) * 3)
+        assert by_kind["diffuse"][2]["color"][:3] == approx((0.8, 0.3, 0.2))
+    assert weight_of(by_kind["glossy"]) == approx((fac,) * 3)
+    assert by_kind["glossy"][2]["roughness"][0] == approx(0.1)
+    assert by_kind["glossy"][2]["color"][:3] == approx((0.9, 0.9, 0.9))
+
+
+def test_each_bsdf_node_maps_to_its_closure():
+    cases = {
+        "ShaderNodeBsdfDiffuse": ("diffuse", dict(Color=(0.1, 0.2, 0.3, 1))),
+        "ShaderNodeBsdfGlossy": ("glossy", dict(Color=(0.4, 0.5, 0.6, 1), Roughness=0.25)),
+        "ShaderNodeBsdfGlass": ("glass", dict(Roughness=0.1, IOR=1.33)),
+        "ShaderNodeBsdfRefraction": ("refraction", dict(Roughness=0.0, IOR=1.7)),
+        "ShaderNodeBsdfTransparent": ("transparent", dict(Color=(0.9, 0.8, 0.7, 1))),
+        "ShaderNodeEmission": ("emission", dict(Color=(1, 0.5, 0.25, 1), Strength=4.0)),
+    }
+    for node_type, (kind, inputs) in cases.items():
+        mat, node = ms.bsdf_material(node_type, node_type, **inputs)
+        if hasattr(node, "distribution"):
+            node.distribution = 'GGX'
+        (closure,), warnings, _ = closures_of(mat)
+        assert not warnings, warnings
+        assert closure[0] == kind and closure[1] is None
+        params = closure[2]
+        if kind == "emission":
+            assert params["color"][:3] == approx((4.0, 2.0, 1.0))
+            continue
+        assert params["color"][:3] == approx(tuple(inputs.get("Color", (1, 1, 1, 1))[:3]))
+        if "Roughness" in inputs:
+            assert params["roughness"][0] == approx(inputs["Roughness"])
+        if "IOR" in inputs:
+            assert params["ior"][0] == approx(inputs["IOR"])
+        assert "normal" not in params  # unconnected: the shading normal
+
+
+def test_multiscatter_glossy_is_single_scatter_ggx_without_warning():
+    # Blender's default distribution; the core's GGX is single-scatter (documented).
+    mat, node = ms.bsdf_material("Glossy", "ShaderNodeBsdfGlossy", Roughness=0.4)
+    assert node.distribution == 'MULTI_GGX'
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "glossy" and not warnings
+    node.distribution = 'BECKMANN'
+    _, warnings, _ = closures_of(mat)
+    assert len(warnings) == 1 and "Beckmann" in warnings[0]
+    node.inputs["Roughness"].default_value = 0.0  # a mirror is a mirror in any distribution
+    _, warnings, _ = closures_of(mat)
+    assert not warnings
+
+
+def test_nested_mix_and_add_multiply_weights():
+    mat, nodes, links, out = ms.new_material("Nested")
+    outer = nodes.new("ShaderNodeMixShader")
+    outer.inputs["Fac"].default_value = 0.25
+    add = nodes.new("ShaderNodeAddShader")
+    inner = nodes.new("ShaderNodeMixShader")
+    inner.inputs["Fac"].default_value = 0.6
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    g = nodes.new("ShaderNodeBsdfGlossy")
+    e = nodes.new("ShaderNodeEmission")
+    t = nodes.new("ShaderNodeBsdfTransparent")
+    link(mat.node_tree, outer.outputs[0], out.inputs["Surface"])
+    link(mat.node_tree, add.outputs[0], outer.inputs[1])
+    link(mat.node_tree, t.outputs[0], outer.inputs[2])
+    link(mat.node_tree, d.outputs[0], add.inputs[0])
+    link(mat.node_tree, inner.outputs[0], add.inputs[1])
+    link(mat.node_tree, g.outputs[0], inner.inputs[1])
+    link(mat.node_tree, e.outputs[0], inner.inputs[2])
+    closures, warnings, _ = closures_of(mat)
+    assert not warnings
+    weights = {c[0]: weight_of(c)[0] for c in closures}
+    assert weights == approx({"diffuse": 0.75, "glossy": 0.75 * 0.4, "emission": 0.75 * 0.6,
+                              "transparent": 0.25})
+
+
+def test_textured_mix_factor_is_computed_per_point():
+    mat = ms.mix_diffuse_glossy("TexMix", 0.5)
+    tree = mat.node_tree
+    tex = tree.nodes.new("ShaderNodeTexImage")
+    tex.image = ms.checker_image("Fac", 2, colorspace="Non-Color")
+    mix = next(n for n in tree.nodes if n.type == 'MIX_SHADER')
+    link(tree, tex.outputs["Color"], mix.inputs["Fac"])
+    data, warnings = compile_(mat)
+    assert not warnings
+    names = [op[0] for op in data.program]
+    # uv → image → luminance (colour into a value input) → clamp → 1 - fac.
+    assert names.count("uv") == 1 and names.count("image") == 1 and "rgb_to_bw" in names
+    closures, regs = run(data.program)
+    assert all(isinstance(c[1], Sym) for c in closures)
+
+
+def test_principled_inputs_alpha_and_emission():
+    mat, node = ms.bsdf_material(
+        "P", "ShaderNodeBsdfPrincipled", Base_Color=(0.8, 0.5, 0.2, 1), Metallic=0.3,
+        Roughness=0.35, IOR=1.45, Transmission_Weight=0.5, Specular_IOR_Level=0.7,
+        Specular_Tint=(1, 0.9, 0.8, 1), Alpha=0.75, Emission_Color=(1, 0.5, 0, 1),
+        Emission_Strength=2.0)
+    closures, warnings, _ = closures_of(mat)
+    assert not warnings
+    by_kind = {c[0]: c for c in closures}
+    assert sorted(by_kind) == ["emission", "principled", "transparent"]
+    assert weight_of(by_kind["transparent"]) == approx((0.25,) * 3)
+    assert weight_of(by_kind["principled"]) == approx((0.75,) * 3)
+    assert weight_of(by_kind["emission"]) == approx((0.75,) * 3)
+    assert by_kind["emission"][2]["color"][:3] == approx((2.0, 1.0, 0.0))
+    p = by_kind["principled"][2]
+    assert p["base_color"][:3] == approx((0.8, 0.5, 0.2))
+    values = {k: p[k][0] for k in ("metallic", "roughness", "ior", "transmission",
+                                   "specular_level")}
+    assert values == approx({"metallic": 0.3, "roughness": 0.35, "ior": 1.45,
+                             "transmission": 0.5, "specular_level": 0.7})
+    assert p["specular_tint"][:3] == approx((1, 0.9, 0.8))
+
+
+def test_principled_coat_sheen_subsurface_warn_once():
+    mat, node = ms.bsdf_material("Layers", "ShaderNodeBsdfPrincipled", Coat_Weight=0.5,
+                                 Sheen_Weight=0.2, Subsurface_Weight=1.0)
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "principled"
+    assert len(warnings) == 1
+    assert all(word in warnings[0] for word in ("Layers", "coat", "sheen", "subsurface"))
+
+
+# ---------------------------------------------------------------- textures and coordinates
+
+def textured_principled(name, image, **tex_settings):
+    mat, nodes, links, out = ms.new_material(name)
+    bsdf = nodes.new("ShaderNodeBsdfPrincipled")
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    for key, value in tex_settings.items():
+        setattr(tex, key, value)
+    links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    links.new(bsdf.outputs[0], out.inputs["Surface"])
+    return mat, tex, bsdf
+
+
+def test_textured_principled():
+    img = ms.checker_image("Checker", 4)
+    mat, tex, _ = textured_principled("Tex", img, interpolation='Closest', extension='EXTEND')
+    images, uv_sets = ImageTable(), UvSets()
+    data, warnings = compile_(mat, images, uv_sets)
+    assert not warnings
+    ops = {op[0]: op for op in data.program}
+    assert ops["uv"][2] == 0 and uv_sets.names == [""] and data.uv_sets == {0: ""}
+    image_op = ops["image"]
+    assert image_op[2] == ops["uv"][1]  # reads the uv register
+    assert image_op[3:] == (0, "CLOSEST", "EXTEND")
+    (closure,) = [op for op in data.program if op[0] == "closure"]
+    assert closure[3]["base_color"] == image_op[1]
+    # The image once, as scene-linear float RGBA (H, W, 4), row 0 = bottom.
+    (image,) = images.images
+    assert image.pixels.shape == (4, 4, 4) and image.pixels.dtype == np.float32
+    byte = lambda c: np.round(np.array(c) * 255) / 255  # noqa: E731 (stored as bytes)
+    light, blue = ms.srgb_linear(byte((0.9, 0.9, 0.9))), ms.srgb_linear(byte((0.1, 0.2, 0.6)))
+    assert image.pixels[0, 0, :3] == approx(light, rel=1e-4)  # bottom-left texel
+    assert image.pixels[0, 1, :3] == approx(blue, rel=1e-4)
+    # A second material and node with the same image share it.
+    mat2, _, _ = textured_principled("Tex2", img, interpolation='Linear')
+    data2, _ = compile_(mat2, images, uv_sets)
+    assert len(images.images) == 1
+    assert [op for op in data2.program if op[0] == "image"][0][3:] == (0, "LINEAR", "REPEAT")
+
+
+def test_interpolation_and_extension_fallbacks_warn():
+    img = ms.checker_image("C", 2)
+    for interp, ext, expect, words in (('Cubic', 'CLIP', ("LINEAR", "CLIP"), ["Cubic"]),
+                                       ('Smart', 'MIRROR', ("LINEAR", "REPEAT"),
+                                        ["Smart", "Mirror"])):
+        mat, _, _ = textured_principled(f"M{interp}", img, interpolation=interp, extension=ext)
+        data, warnings = compile_(mat)
+        assert [op for op in data.program if op[0] == "image"][0][4:] == expect
+        assert len(warnings) == 1 and all(w in warnings[0] for w in words), warnings
+
+
+def test_image_colour_spaces_and_alpha():
+    px = np.zeros((1, 2, 4), np.float32)
+    px[0, 0] = (0.5, 0.25, 1.0, 0.5)
+    px[0, 1] = (0.2, 0.2, 0.2, 1.0)
+    srgb = ms.pixel_image("sRGB", px, "sRGB")
+    data = ms.pixel_image("Data", px, "Non-Color")
+    flt = ms.pixel_image("Float", px, "Linear Rec.709", float_buffer=True)
+    images = ImageTable()
+    loaded = {img.name: images.load(img, []) for img in (srgb, data, flt)}
+    q = np.round(px * 255) / 255  # byte images are stored as bytes
+    # Byte sRGB: decoded to linear, Color (Alpha unlinked) is associated (× alpha).
+    lin = ms.srgb_linear(q[0, 0, :3])
+    assert loaded["sRGB"].assoc[0, 0, :3] == approx(lin * q[0, 0, 3], rel=1e-4)
+    assert loaded["sRGB"].straight[0, 0, :3] == approx(lin, rel=1e-4)
+    assert loaded["sRGB"].assoc[0, 1, :3] == approx(ms.srgb_linear(q[0, 1, :3]), rel=1e-4)
+    # Non-Color: the raw values, not associated (Cycles does not associate data).
+    assert loaded["Data"].assoc[0, 0] == approx(q[0, 0], rel=1e-5)
+    # Float buffers are associated in Blender already: unchanged, straight = divided.
+    assert loaded["Float"].assoc[0, 0] == approx(px[0, 0], rel=1e-5)
+    assert loaded["Float"].straight[0, 0, :3] == approx(px[0, 0, :3] / 0.5, rel=1e-5)
+
+
+def test_alpha_output_uses_straight_colour_and_an_alpha_image():
+    px = np.ones((2, 2, 4), np.float32)
+    px[..., 3] = 0.25
+    img = ms.pixel_image("Leaf", px, "sRGB")
+    mat, tex, bsdf = textured_principled("Leaf", img)
+    link(mat.node_tree, tex.outputs["Alpha"], bsdf.inputs["Alpha"])
+    images = ImageTable()
+    data, warnings = compile_(mat, images)
+    assert not warnings
+    assert sorted(i.name for i in images.images) == ["Leaf (alpha)", "Leaf (straight)"]
+    alpha = next(i for i in images.images if i.name == "Leaf (alpha)")
+    assert alpha.pixels == approx(np.full((2, 2, 4), 64 / 255, np.float32), rel=1e-5)
+    kinds = [c[0] for c in run(data.program)[0]]
+    assert sorted(kinds) == ["principled", "transparent"]
+
+
+def test_missing_image_is_magenta_and_warns():
+    mat, tex, _ = textured_principled("NoImage", None)
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[2]["base_color"][:3] == (1.0, 0.0, 1.0)
+    assert len(warnings) == 1 and "no image" in warnings[0]
+    img = bpy.data.images.new("Missing", 4, 4)
+    img.source = 'FILE'
+    img.filepath = "/nonexistent/pathlight_missing.png"
+    mat, tex, _ = textured_principled("Missing", img)
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[2]["base_color"][:3] == (1.0, 0.0, 1.0)
+    assert len(warnings) == 1 and "cannot be read" in warnings[0]
+
+
+def test_uv_map_node_and_texture_coordinates():
+    mat, tex, _ = textured_principled("UVs", ms.checker_image("C", 2))
+    tree = mat.node_tree
+    uvmap = tree.nodes.new("ShaderNodeUVMap")
+    uvmap.uv_map = "Second"
+    link(tree, uvmap.outputs["UV"], tex.inputs["Vector"])
+    uv_sets = UvSets()
+    uv_sets.index("")  # another material took set 0
+    data, warnings = compile_(mat, uv_sets=uv_sets)
+    assert not warnings
+    assert [op for op in data.program if op[0] == "uv"][0][2] == 1
+    assert data.uv_sets == {1: "Second"} and uv_sets.names == ["", "Second"]
+    # Texture Coordinate: UV is the active map; Object is approximated (warned).
+    coord = tree.nodes.new("ShaderNodeTexCoord")
+    link(tree, coord.outputs["UV"], tex.inputs["Vector"])
+    data, warnings = compile_(mat, uv_sets=uv_sets)
+    assert not warnings and data.uv_sets == {0: ""}
+    link(tree, coord.outputs["Object"], tex.inputs["Vector"])
+    data, warnings = compile_(mat, uv_sets=uv_sets)
+    assert [op[0] for op in data.program][:2] == ["position", "image"]
+    assert len(warnings) == 1 and "Object" in warnings[0]
+    geometry = tree.nodes.new("ShaderNodeNewGeometry")
+    link(tree, geometry.outputs["Position"], tex.inputs["Vector"])
+    data, warnings = compile_(mat, uv_sets=uv_sets)
+    assert not warnings and data.program[0][0] == "position"
+
+
+@pytest.mark.parametrize("vector_type", ['POINT', 'TEXTURE', 'VECTOR', 'NORMAL'])
+def test_mapping_matrix_matches_blender(vector_type):
+    loc, rot, scale = (0.3, -0.2, 0.5), (0.4, -0.7, 1.1), (2.0, 0.5, -1.5)
+    m = mapping_matrix(vector_type, loc, rot, scale).astype(np.float64)
+    v = Vector((0.7, -0.4, 0.25))
+    r = Euler(rot, 'XYZ').to_matrix()
+    s = Matrix.Diagonal(scale)
+    s_inv = Matrix.Diagonal([1 / x for x in scale])
+    expected = {
+        'POINT': r @ s @ v + Vector(loc),
+        'TEXTURE': s_inv @ r.transposed() @ (v - Vector(loc)),
+        'VECTOR': r @ s @ v,
+        'NORMAL': r @ s_inv @ v,  # Blender normalises it; a Normal input does too
+    }[vector_type]
+    assert m[:, :3] @ np.array(v) + m[:, 3] == approx(tuple(expected), rel=1e-5)
+
+
+def test_mapping_node_in_a_program():
+    img = ms.checker_image("C", 2)
+    mat = ms.textured_material("Mapped", img, mapping={"type": 'POINT', "Scale": (2, 3, 1),
+                                                        "Location": (0.5, 0, 0)})
+    data, warnings = compile_(mat)
+    assert not warnings
+    ops = {op[0]: op for op in data.program}
+    assert ops["mapping"][2] == ops["uv"][1] and ops["image"][2] == ops["mapping"][1]
+    m = np.asarray(ops["mapping"][3])
+    assert m.shape == (3, 4) and m[0, 0] == approx(2) and m[1, 1] == approx(3)
+    assert m[0, 3] == approx(0.5)
+
+
+def test_normal_map():
+    mat, nodes, links, out = ms.new_material("Bumpy")
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = ms.checker_image("N", 2, colorspace="Non-Color")
+    nm = nodes.new("ShaderNodeNormalMap")
+    nm.uv_map = "Tangents"
+    nm.inputs["Strength"].default_value = 0.7
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    links.new(tex.outputs["Color"], nm.inputs["Color"])
+    links.new(nm.outputs["Normal"], d.inputs["Normal"])
+    links.new(d.outputs[0], out.inputs["Surface"])
+    uv_sets = UvSets()
+    data, warnings = compile_(mat, uv_sets=uv_sets)
+    assert not warnings
+    ops = [op for op in data.program]
+    (nmap,) = [op for op in ops if op[0] == "normal_map"]
+    (closure,) = [op for op in ops if op[0] == "closure"]
+    assert closure[3]["normal"] == nmap[1]
+    assert nmap[4] == uv_sets.names.index("Tangents")
+    image = next(op for op in ops if op[0] == "image")
+    assert nmap[2] == image[1]
+    regs = run(ops[:ops.index(nmap)])[1]  # registers are reused later
+    assert regs[nmap[3]][0] == approx(0.7)  # strength
+    # The image reads the active UV map, the tangents come from the named one.
+    assert data.uv_sets == {0: "", 1: "Tangents"}
+    # Strength 0: no normal map at all; object space: warned and ignored.
+    nm.inputs["Strength"].default_value = 0.0
+    data, _ = compile_(mat)
+    assert not any(op[0] == "normal_map" for op in data.program)
+    nm.inputs["Strength"].default_value = 1.0
+    nm.space = 'OBJECT'
+    (closure,), warnings, _ = closures_of(mat)
+    assert "normal" not in closure[2] and len(warnings) == 1 and "object" in warnings[0]
+
+
+# ---------------------------------------------------------------- value nodes
+
+def value_into_diffuse(build):
+    """A diffuse whose Color is fed by build(tree, nodes) -> output socket; returns its
+    colour register value from the interpreter (or the Sym) and the warnings."""
+    mat, nodes, links, out = ms.new_material("Values")
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    links.new(d.outputs[0], out.inputs["Surface"])
+    links.new(build(mat.node_tree, nodes), d.inputs["Color"])
+    (closure,), warnings, data = closures_of(mat)
+    return closure[2]["color"], warnings, data
+
+
+def test_rgb_value_math_mix_invert_rgb_to_bw():
+    def rgb(tree, nodes):
+        n = nodes.new("ShaderNodeRGB")
+        n.outputs[0].default_value = (0.2, 0.4, 0.6, 1)
+        return n.outputs[0]
+    color, warnings, data = value_into_diffuse(rgb)
+    assert color[:3] == approx((0.2, 0.4, 0.6)) and not warnings
+    assert [op[0] for op in data.program] == ["const", "closure"]  # folded
+
+    def math(tree, nodes):
+        v = nodes.new("ShaderNodeValue")
+        v.outputs[0].default_value = 0.5
+        m = nodes.new("ShaderNodeMath")
+        m.operation = 'POWER'
+        tree.links.new(v.outputs[0], m.inputs[0])
+        m.inputs[1].default_value = 2.0
+        m2 = nodes.new("ShaderNodeMath")
+        m2.operation = 'MULTIPLY_ADD'
+        tree.links.new(m.outputs[0], m2.inputs[0])
+        m2.inputs[1].default_value = 3.0
+        m2.inputs[2].default_value = 0.1
+        return m2.outputs[0]
+    color, warnings, _ = value_into_diffuse(math)
+    assert color[:3] == approx((0.85,) * 3) and not warnings
+
+    def mix(tree, nodes):
+        n = nodes.new("ShaderNodeMix")
+        n.data_type = 'RGBA'
+        n.blend_type = 'MULTIPLY'
+        n.inputs["Factor"].default_value = 0.5
+        n.inputs[6].default_value = (0.8, 0.6, 0.4, 1)  # A (colour)
+        n.inputs[7].default_value = (0.5, 0.5, 0.5, 1)  # B (colour)
+        return n.outputs[2]
+    color, warnings, _ = value_into_diffuse(mix)
+    assert color[:3] == approx(tuple(a * (0.5 + 0.5 * 0.5) for a in (0.8, 0.6, 0.4)))
+
+    def invert(tree, nodes):
+        n = nodes.new("ShaderNodeInvert")
+        n.inputs["Fac"].default_value = 0.75
+        n.inputs["Color"].default_value = (0.2, 0.4, 1.0, 1)
+        return n.outputs[0]
+    color, _, _ = value_into_diffuse(invert)
+    assert color[:3] == approx(tuple(0.25 * c + 0.75 * (1 - c) for c in (0.2, 0.4, 1.0)))
+
+    def bw(tree, nodes):
+        n = nodes.new("ShaderNodeRGBToBW")
+        n.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1)
+        return n.outputs[0]
+    color, _, _ = value_into_diffuse(bw)
+    assert color[:3] == approx((0.2126 * 0.2 + 0.7152 * 0.4 + 0.0722 * 0.6,) * 3)
+
+
+def test_textured_math_emits_ops():
+    def build(tree, nodes):
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = ms.checker_image("C", 2)
+        m = nodes.new("ShaderNodeMath")
+        m.operation = 'MULTIPLY'
+        m.use_clamp = True
+        tree.links.new(tex.outputs["Color"], m.inputs[0])
+        m.inputs[1].default_value = 1.5
+        mix = nodes.new("ShaderNodeMixRGB")
+        mix.blend_type = 'SCREEN'
+        tree.links.new(m.outputs[0], mix.inputs["Fac"])
+        tree.links.new(tex.outputs["Color"], mix.inputs["Color1"])
+        return mix.outputs[0]
+    color, warnings, data = value_into_diffuse(build)
+    assert not warnings and isinstance(color, Sym)
+    ops = [op for op in data.program if op[0] in ("math", "mix", "image", "rgb_to_bw")]
+    assert [op[0] for op in ops] == ["image", "rgb_to_bw", "math", "mix"]
+    assert ops[2][4:] == ("MULTIPLY", True) and ops[3][5:] == ("SCREEN", False)
+
+
+def test_unsupported_math_and_blend_warn_once_in_one_message():
+    def build(tree, nodes):
+        m = nodes.new("ShaderNodeMath")
+        m.operation = 'SINE'
+        m.inputs[0].default_value = 0.3
+        mix = nodes.new("ShaderNodeMixRGB")
+        mix.blend_type = 'HUE'
+        tree.links.new(m.outputs[0], mix.inputs["Fac"])
+        return mix.outputs[0]
+    color, warnings, _ = value_into_diffuse(build)
+    assert len(warnings) == 1 and "Sine" in warnings[0] and "Hue" in warnings[0]
+    # SINE falls back to its first value (0.3) as the factor of a plain mix.
+    expected = tuple(0.7 * a + 0.3 * b for a, b in zip((0.5, 0.5, 0.5), (0.5, 0.5, 0.5)))
+    assert color[:3] == approx(expected)
+
+
+# ---------------------------------------------------------------- graph structure
+
+def make_group(name="Tint"):
+    """A node group: Color in → Mix (multiply by a constant, Fac from a second input) → out."""
+    group = bpy.data.node_groups.new(name, "ShaderNodeTree")
+    group.interface.new_socket("Color", in_out='INPUT', socket_type='NodeSocketColor')
+    group.interface.new_socket("Amount", in_out='INPUT', socket_type='NodeSocketFloat')
+    group.interface.new_socket("Color", in_out='OUTPUT', socket_type='NodeSocketColor')
+    gin = group.nodes.new("NodeGroupInput")
+    gout = group.nodes.new("NodeGroupOutput")
+    mix = group.nodes.new("ShaderNodeMixRGB")
+    mix.blend_type = 'MULTIPLY'
+    mix.inputs["Color2"].default_value = (0.5, 0.25, 1.0, 1)
+    group.links.new(gin.outputs[0], mix.inputs["Color1"])
+    group.links.new(gin.outputs[1], mix.inputs["Fac"])
+    group.links.new(mix.outputs[0], gout.inputs[0])
+    return group
+
+
+def test_node_groups_are_flattened_and_nest():
+    group = make_group()
+    mat, nodes, links, out = ms.new_material("Grouped")
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    links.new(d.outputs[0], out.inputs["Surface"])
+    g = nodes.new("ShaderNodeGroup")
+    g.node_tree = group
+    g.inputs[0].default_value = (0.8, 0.8, 0.8, 1)
+    g.inputs[1].default_value = 1.0
+    links.new(g.outputs[0], d.inputs["Color"])
+    (closure,), warnings, _ = closures_of(mat)
+    assert not warnings
+    assert closure[2]["color"][:3] == approx((0.4, 0.2, 0.8))
+    # A group inside a group, its input linked from the outer tree.
+    outer = bpy.data.node_groups.new("Outer", "ShaderNodeTree")
+    outer.interface.new_socket("C", in_out='INPUT', socket_type='NodeSocketColor')
+    outer.interface.new_socket("C", in_out='OUTPUT', socket_type='NodeSocketColor')
+    oin, oout = outer.nodes.new("NodeGroupInput"), outer.nodes.new("NodeGroupOutput")
+    inner = outer.nodes.new("ShaderNodeGroup")
+    inner.node_tree = group
+    inner.inputs[1].default_value = 0.5
+    outer.links.new(oin.outputs[0], inner.inputs[0])
+    outer.links.new(inner.outputs[0], oout.inputs[0])
+    g.node_tree = outer
+    links.new(g.outputs[0], d.inputs["Color"])  # new sockets: link again
+    rgb = nodes.new("ShaderNodeRGB")
+    rgb.outputs[0].default_value = (1.0, 1.0, 0.5, 1)
+    links.new(rgb.outputs[0], g.inputs[0])
+    (closure,), warnings, _ = closures_of(mat)
+    assert not warnings
+    expected = tuple(c * (0.5 + 0.5 * k) for c, k in zip((1.0, 1.0, 0.5), (0.5, 0.25, 1.0)))
+    assert closure[2]["color"][:3] == approx(expected)
+
+
+def test_shader_group_and_reroutes_and_muting():
+    group = bpy.data.node_groups.new("Shaders", "ShaderNodeTree")
+    group.interface.new_socket("Fac", in_out='INPUT', socket_type='NodeSocketFloat')
+    group.interface.new_socket("Shader", in_out='OUTPUT', socket_type='NodeSocketShader')
+    gin, gout = group.nodes.new("NodeGroupInput"), group.nodes.new("NodeGroupOutput")
+    mix = group.nodes.new("ShaderNodeMixShader")
+    d = group.nodes.new("ShaderNodeBsdfDiffuse")
+    g = group.nodes.new("ShaderNodeBsdfGlossy")
+    group.links.new(gin.outputs[0], mix.inputs["Fac"])
+    group.links.new(d.outputs[0], mix.inputs[1])
+    group.links.new(g.outputs[0], mix.inputs[2])
+    group.links.new(mix.outputs[0], gout.inputs[0])
+    mat, nodes, links, out = ms.new_material("ShaderGroup")
+    node = nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    node.inputs[0].default_value = 0.3
+    # Surface ← reroute ← reroute ← group
+    r1, r2 = nodes.new("NodeReroute"), nodes.new("NodeReroute")
+    links.new(node.outputs[0], r1.inputs[0])
+    links.new(r1.outputs[0], r2.inputs[0])
+    links.new(r2.outputs[0], out.inputs["Surface"])
+    closures, warnings, _ = closures_of(mat)
+    assert not warnings
+    assert {c[0]: weight_of(c)[0] for c in closures} == approx({"diffuse": 0.7, "glossy": 0.3})
+    # A muted Mix Shader passes its first shader input through.
+    mix.mute = True
+    closures, warnings, _ = closures_of(mat)
+    assert [c[0] for c in closures] == ["diffuse"] and weight_of(closures[0]) == (1, 1, 1)
+    mix.mute = False
+    # A muted link is no link: the Fac default (0.5) applies.
+    group.links[0].is_muted = True
+    closures, _, _ = closures_of(mat)
+    assert {c[0]: weight_of(c)[0] for c in closures} == approx({"diffuse": 0.5, "glossy": 0.5})
+
+
+def test_cycle_warns_once_and_falls_back():
+    mat, nodes, links, out = ms.new_material("Loop")
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    links.new(d.outputs[0], out.inputs["Surface"])
+    a, b = nodes.new("ShaderNodeMixRGB"), nodes.new("ShaderNodeMixRGB")
+    links.new(a.outputs[0], b.inputs["Color1"])
+    links.new(b.outputs[0], a.inputs["Color1"])
+    links.new(a.outputs[0], d.inputs["Color"])
+    closures, warnings, _ = closures_of(mat)
+    assert len(warnings) == 1 and "Loop" in warnings[0]
+    assert len(closures) == 1 and closures[0][0] == "diffuse"
+
+
+def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
+    mat, nodes, links, out = ms.new_material("Odd")
+    mix = nodes.new("ShaderNodeMixShader")
+    toon = nodes.new("ShaderNodeBsdfToon")
+    toon.inputs["Color"].default_value = (0.1, 0.6, 0.2, 1)
+    hair = nodes.new("ShaderNodeBsdfHairPrincipled")  # has a Color input too
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    d.inputs["Color"].default_value = (0.3, 0.3, 0.3, 1)
+    hue = nodes.new("ShaderNodeHueSaturation")
+    hue.inputs["Color"].default_value = (0.9, 0.1, 0.1, 1)
+    links.new(hue.outputs[0], d.inputs["Color"])
+    ramp = nodes.new("ShaderNodeValToRGB")  # no Color input: the consumer's value is used
+    links.new(ramp.outputs["Color"], mix.inputs["Fac"])
+    mix.inputs["Fac"].default_value = 0.4
+    add = nodes.new("ShaderNodeAddShader")
+    links.new(toon.outputs[0], add.inputs[0])
+    links.new(d.outputs[0], add.inputs[1])
+    links.new(add.outputs[0], mix.inputs[1])
+    links.new(hair.outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], out.inputs["Surface"])
+    closures, warnings, _ = closures_of(mat)
+    assert len(warnings) == 1
+    for name in ("Odd", "Toon BSDF", "Principled Hair BSDF", "Hue/Saturation/Value",
+                 "Color Ramp"):
+        assert name in warnings[0], (name, warnings[0])
+    colors = sorted((tuple(round(x, 4) for x in c[2]["color"][:3]), round(weight_of(c)[0], 4))
+                    for c in closures)
+    assert all(c[0] == "diffuse" for c in closures)
+    assert colors == sorted([((0.1, 0.6, 0.2), 0.6), ((0.9, 0.1, 0.1), 0.6),
+                             (tuple(round(x, 4) for x in hair.inputs["Color"].default_value[:3]),
+                              0.4)])
+
+
+def test_value_into_shader_socket_is_emission_and_no_output_is_black():
+    mat, nodes, links, out = ms.new_material("Glow")
+    rgb = nodes.new("ShaderNodeRGB")
+    rgb.outputs[0].default_value = (0.5, 1.0, 2.0, 1)
+    links.new(rgb.outputs[0], out.inputs["Surface"])
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "emission" and closure[2]["color"][:3] == approx((0.5, 1.0, 2.0))
+    mat.node_tree.nodes.remove(out)
+    data, warnings = compile_(mat)
+    assert data.program == [] and not warnings
+    # Inactive outputs and EEVEE-only outputs are skipped.
+    mat, nodes, links, out = ms.new_material("Targets")
+    out.target = 'EEVEE'
+    cyc = nodes.new("ShaderNodeOutputMaterial")
+    cyc.target = 'CYCLES'
+    links.new(nodes.new("ShaderNodeBsdfGlossy").outputs[0], cyc.inputs["Surface"])
+    links.new(nodes.new("ShaderNodeBsdfDiffuse").outputs[0], out.inputs["Surface"])
+    (closure,), _, _ = closures_of(mat)
+    assert closure[0] == "glossy"
+
+
+def test_volume_absorption_and_unsupported_volumes():
+    mat, node = ms.bsdf_material("Beer", "ShaderNodeBsdfGlass")
+    va = mat.node_tree.nodes.new("ShaderNodeVolumeAbsorption")
+    va.inputs["Color"].default_value = (0.9, 0.4, 0.2, 1)
+    va.inputs["Density"].default_value = 2.5
+    mat.node_tree.links.new(va.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Volume"])
+    data, warnings = compile_(mat)
+    assert not warnings
+    color, density = data.volume_absorption
+    assert color == approx((0.9, 0.4, 0.2)) and density == approx(2.5)
+    pv = mat.node_tree.nodes.new("ShaderNodeVolumePrincipled")
+    mat.node_tree.links.new(pv.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Volume"])
+    data, warnings = compile_(mat)
+    assert data.volume_absorption is None
+    assert len(warnings) == 1 and "Principled Volume" in warnings[0]
+
+
+def test_register_allocation_reuses_registers():
+    mat, nodes, links, out = ms.new_material("Long")
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    links.new(d.outputs[0], out.inputs["Surface"])
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = ms.checker_image("C", 2)
+    prev = tex.outputs["Color"]
+    for i in range(150):  # a long chain: far more values than registers, few live at once
+        m = nodes.new("ShaderNodeMath")
+        m.operation = 'ADD'
+        m.inputs[1].default_value = 0.001 * i
+        links.new(prev, m.inputs[0])
+        prev = m.outputs[0]
+    links.new(prev, d.inputs["Color"])
+    data, warnings = compile_(mat)
+    assert not warnings
+    regs = {op[1] for op in data.program if op[0] != "closure"}
+    assert max(regs) < MAX_REGISTERS
+    assert sum(op[0] == "math" for op in data.program) == 150
+
+
+def test_schlick_option_and_scene_export():
+    mat = ms.mix_diffuse_glossy("Mix", 0.5)
+    scene = bpy.context.scene
+    scene.pathlight.use_schlick_fresnel = True
+    ms.add_plane("P", 1.0, mat)
+    ms.add_camera((0, 0, 3), (0, 0, 0))
+    warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    (m,) = [m for m in data.materials if m.name == "Mix"]
+    assert m.use_schlick is True and m.program
+
+
+# ---------------------------------------------------------------- UVs through the export
+
+def test_mesh_export_gathers_uvs_per_corner():
+    img = ms.checker_image("C", 2)
+    mat = ms.textured_material("T", img)
+    obj = ms.add_plane("P", 2.0, mat)
+    second = obj.data.uv_layers.new(name="Second")
+    uv = np.array([[0.1 * i, 0.2 * i] for i in range(len(second.uv))], np.float32)
+    second.uv.foreach_set("vector", uv.ravel())
+    nm = mat.node_tree.nodes.new("ShaderNodeNormalMap")
+    nm.uv_map = "Second"
+    d = next(n for n in mat.node_tree.nodes if n.type == 'BSDF_DIFFUSE')
+    mat.node_tree.links.new(nm.outputs[0], d.inputs["Normal"])
+    ms.add_plane("NoUV", 1.0, mat, uv=False, location=(3, 0, 0))
+    ms.add_camera((0, 0, 3), (0, 0, 0))
+    warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    mesh = next(m for m in data.meshes if m.name == "P")
+    assert sorted(mesh.uvs) == [0, 1]
+    tris = obj.data.loop_triangles
+    loops = np.array([t.loops[:] for t in tris])
+    active = np.array([obj.data.uv_layers["UVMap"].uv[i].vector[:] for i in loops.ravel()])
+    assert mesh.uvs[0].shape == (len(tris), 3, 2) and mesh.uvs[0].dtype == np.float32
+    assert mesh.uvs[0].reshape(-1, 2) == approx(active)
+    assert mesh.uvs[1].reshape(-1, 2) == approx(uv[loops.ravel()])
+    # The mesh without UV maps: one warning naming it, no uvs (the core reads (0, 0)).
+    bare = next(m for m in data.meshes if m.name == "NoUV")
+    assert bare.uvs == {}
+    assert [w for w in warnings if "NoUV" in w and "UV map" in w]
+
+
+# ---------------------------------------------------------------- the core takes them all
+
+needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+
+
+@needs_core
+def test_core_accepts_every_compiled_program():
+    """Every node setup of this file (rebuilt in one scene) compiles to a program that the
+    core's parser validates, with images and uv sets through to_core."""
+    test_mesh_export_gathers_uvs_per_corner()
+    for fn, args in ((test_mix_of_diffuse_and_glossy, (0.3,)),
+                     (test_principled_inputs_alpha_and_emission, ()),
+                     (test_alpha_output_uses_straight_colour_and_an_alpha_image, ()),
+                     (test_normal_map, ()), (test_node_groups_are_flattened_and_nest, ()),
+                     (test_unsupported_nodes_warn_once_naming_each_and_fall_back, ()),
+                     (test_register_allocation_reuses_registers, ()),
+                     (test_volume_absorption_and_unsupported_volumes, ()),
+                     (test_textured_math_emits_ops, ())):
+        fn(*args)
+    pc = load_addon().core.get_core()
+    table = MaterialTable(Warnings())
+    for mat in bpy.data.materials:
+        table.index(mat)
+    scene = pc.Scene()
+    from addon.export.material import add_materials
+    ids = add_materials(scene, table.materials, table.images.images, Warnings())
+    assert len(set(ids)) == len(ids) == len(bpy.data.materials)
+    core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), Warnings()))
+    core_scene.commit()
