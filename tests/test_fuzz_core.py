@@ -260,19 +260,6 @@ def known_nonfinite(program):
             vals = [v for k, v in fields.items() if k != "sensor_fit" and isinstance(v, (int, float))]
             if any(not math.isfinite(v) or abs(v) > 1e6 or 0 < abs(v) < 1e-6 for v in vals):
                 return True  # test_camera_values_raise_or_render_cleanly
-        if op == "world_texture":
-            rot = args[2] if len(args) > 2 else None
-            r = _floats(rot)
-            if r.size == 9 and np.isfinite(r).all() and abs(np.linalg.det(r.reshape(3, 3))) < 1e-6:
-                return True  # test_singular_environment_rotation_is_rejected
-            px, strength = _floats(args[0]), _floats(args[1]) if len(args) > 1 else np.ones(1)
-            with np.errstate(all="ignore"):
-                if px.size and strength.size and np.nanmax(np.where(np.isfinite(px), np.abs(px), 0)) * abs(strength[0]) > 1e37:
-                    return True  # test_environment_texel_times_strength_overflow_is_not_nonfinite
-        if op in ("point", "spot"):
-            radius = args[2] if len(args) > 2 else 0.0
-            if isinstance(radius, float) and 0 < radius < 1e-15:
-                return True  # test_soft_light_with_vanishing_radius_is_the_point_light_limit
     return False
 
 

@@ -302,7 +302,7 @@ def test_reroute_cycle_does_not_hang():
         nt.links.new(a.outputs[0], b.inputs[0])
         bpy.context.object.data.materials.append(mat)
         render()
-    """, timeout=30)
+    """, timeout=20)
     assert "RENDERED" in proc.stdout or "REPORTED" in proc.stdout
 
 
