@@ -17,7 +17,7 @@ from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
 
 load_addon()
 from addon.export import export_scene, to_core  # noqa: E402
-from addon.export.light import collect_lights, convert_light  # noqa: E402
+from addon.export.light import collect_lights  # noqa: E402
 from addon.export.mesh import is_visible  # noqa: E402
 
 
@@ -486,7 +486,7 @@ def test_lights_and_emissive_mesh_together_agree_with_cycles():
 
 
 @needs_lights
-def test_lights_render_without_warnings_and_world_still_lights(tmp_path):
+def test_sun_and_world_light_together():
     # A light + a constant world: both contribute (the world is not replaced by the lights).
     scene = plane_scene(16, 50.0, 2.0, 0.5)
     world_color((0.2, 0.2, 0.2))

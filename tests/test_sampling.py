@@ -3,7 +3,6 @@ RenderSettings, the animated seed, the panels; renders: NEE/MIS unbiasedness, th
 sampler, per-type bounce limits against Cycles, adaptive sampling."""
 
 import math
-import time
 
 import bpy
 import numpy as np

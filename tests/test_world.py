@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from blender_util import core_available, load_addon, open_fixture, render_to_array
-from light_scenes import (camera, diffuse_material, diffuse_set, empty_scene, load_image,
-                          synthetic_hdr, uv_sphere, world_color, world_image, write_exr,
-                          write_hdr)
+from light_scenes import (camera, diffuse_material, diffuse_set, empty_scene, load_image, plane,
+                          synthetic_hdr, uv_sphere, world_color, world_image, write_hdr)
 
 load_addon()
 from addon.export import export_scene, mean_radiance  # noqa: E402
@@ -320,7 +319,6 @@ def hot_texel_scene(tmp_path, background):
     """A diffuse floor under a map of `background` with one texel 4000 times brighter:
     most of the light comes from that texel's bilinear footprint."""
     scene = empty_scene(32)
-    from light_scenes import plane
     plane("Floor", 100.0, diffuse_material("Floor", 0.5))
     camera((0.0, 0.0, 3.0))
     pixels = np.full((64, 128, 3), background, np.float32)

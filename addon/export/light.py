@@ -28,8 +28,8 @@ def _finite_nonneg(values, what, name, warn):
     arr = np.asarray(values, np.float64)
     bad = ~np.isfinite(arr) | (arr < 0.0)
     if bad.any():
-        warn(f"Light '{name}': invalid {what} {tuple(np.round(arr, 4).tolist()) if arr.ndim else float(arr)} "
-             "(negative or not finite) clamped to 0")
+        shown = tuple(arr.tolist()) if arr.ndim else float(arr)
+        warn(f"Light '{name}': invalid {what} {shown} (negative or not finite) clamped to 0")
         arr = np.where(bad, 0.0, arr)
     return arr
 
