@@ -1,0 +1,340 @@
+"""Materials against Cycles in the same bpy (issue 3): each shader node setup rendered by both
+engines from the same Blender scene, compared by per-region means (8x8 grid) and the whole
+image. Small (64x64) renders; Cycles uses a 1-pixel box filter like Pathlight and both trace
+up to 64 bounces (glass needs more than Pathlight's default 12).
+
+Tolerances come from the noise measured at these sample counts: region errors between two
+converged engines stay under ~2.5 % here (seeds are fixed, so the renders are deterministic);
+limits are 5 % per region and 1.5 % for the whole image unless a test says otherwise."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import core_available, load_addon, render_to_array
+import material_scenes as ms
+
+load_addon()
+
+pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+
+CAMERA = ((0.0, -3.6, 1.5), (0.0, 0.0, 0.55))  # a close look at one 0.55 m sphere
+WIDE = ((0.0, -5.0, 2.2), (0.0, 0.0, 0.5))  # three spheres side by side
+
+
+def render_pair(build, samples, bounces=64, **pathlight):
+    """(Pathlight, Cycles) renders of the scene that build() makes (built afresh for each)."""
+    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces,
+                           **pathlight)
+    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces,
+                             **ms.BOX_FILTER)
+    return ours, cycles
+
+
+def assert_agree(ours, cycles, region=0.05, whole=0.015, floor=0.02):
+    ratio, worst, rel = ms.compare(ours, cycles, floor=floor)
+    assert np.isfinite(ours).all()
+    assert abs(ratio - 1.0) < whole, f"image mean ratio {ratio:.4f}"
+    assert worst < region, f"worst region {worst:.3f}\n{np.round(rel, 3)}"
+    return ratio, worst
+
+
+def sphere_scene(material_fn, radius=0.55, camera=CAMERA, **studio):
+    def build():
+        scene = ms.studio(camera=camera, **studio)
+        ms.add_sphere("Ball", radius, material_fn(), location=(0.0, 0.0, radius))
+        return scene
+    return build
+
+
+def glass(name, roughness=0.0, ior=1.5, absorption=None):
+    mat, node = ms.bsdf_material(name, "ShaderNodeBsdfGlass", Roughness=roughness, IOR=ior)
+    node.distribution = 'GGX'
+    if absorption is not None:
+        color, density = absorption
+        va = mat.node_tree.nodes.new("ShaderNodeVolumeAbsorption")
+        va.inputs["Color"].default_value = (*color, 1.0)
+        va.inputs["Density"].default_value = density
+        mat.node_tree.links.new(va.outputs[0],
+                                mat.node_tree.nodes["Material Output"].inputs["Volume"])
+    return mat
+
+
+def principled(name, **inputs):
+    mat, node = ms.bsdf_material(name, "ShaderNodeBsdfPrincipled", **inputs)
+    node.distribution = 'GGX'  # the core is single-scatter GGX (Blender defaults to multiscatter)
+    return mat
+
+
+# ---------------------------------------------------------------- conductors
+
+def test_mirror_sphere():
+    ours, cycles = render_pair(sphere_scene(lambda: ms.glossy("Mirror", roughness=0.0)), 256)
+    assert_agree(ours, cycles)
+
+
+def test_rough_conductor():
+    # Cycles' node set to single-scatter GGX, as the core's (Blender's default is multiscatter).
+    ours, cycles = render_pair(
+        sphere_scene(lambda: ms.glossy("Rough", (0.9, 0.6, 0.3), roughness=0.4)), 256)
+    assert_agree(ours, cycles)
+
+
+@pytest.mark.parametrize("fac", [0.2, 0.5, 1.0])
+def test_mix_of_diffuse_and_glossy(fac):
+    build = sphere_scene(lambda: ms.mix_diffuse_glossy(f"Mix {fac}", fac, roughness=0.1))
+    ours, cycles = render_pair(build, 256)
+    assert_agree(ours, cycles)
+
+
+# ---------------------------------------------------------------- dielectrics
+
+def test_glass_sphere_with_caustics():
+    ours, cycles = render_pair(sphere_scene(lambda: glass("Glass")), 512)
+    assert_agree(ours, cycles)
+    # The caustic: the floor under the ball, lit through it, is brighter than the floor around.
+    for img in (ours, cycles):
+        under = img[44:52, 26:38, :3].mean()
+        beside = img[44:52, 4:14, :3].mean()
+        assert under > 1.5 * beside, (under, beside)
+
+
+def test_rough_glass():
+    ours, cycles = render_pair(sphere_scene(lambda: glass("Rough Glass", roughness=0.3)), 512)
+    assert_agree(ours, cycles)
+
+
+def test_beers_law_glass():
+    absorption = ((0.9, 0.4, 0.2), 1.0)
+    ours, cycles = render_pair(sphere_scene(lambda: glass("Beer", absorption=absorption)), 256)
+    assert_agree(ours, cycles)
+    # Absorption is visible: the ball's blue is well below its red (clear glass is grey).
+    ball = ms.region_means(ours)[2:6, 3:5].reshape(-1, 3).mean(0)
+    assert ball[2] < 0.7 * ball[0], ball
+
+
+def test_refraction_bsdf():
+    def refraction():
+        mat, node = ms.bsdf_material("Refraction", "ShaderNodeBsdfRefraction", Roughness=0.0,
+                                     IOR=1.45)
+        node.distribution = 'GGX'
+        return mat
+    ours, cycles = render_pair(sphere_scene(refraction), 256)
+    assert_agree(ours, cycles)
+
+
+# ---------------------------------------------------------------- Principled
+
+@pytest.mark.parametrize("metallic", [0.0, 1.0])
+def test_principled_opaque(metallic):
+    build = sphere_scene(lambda: principled(f"Principled {metallic}", Base_Color=(0.8, 0.5, 0.2, 1),
+                                            Metallic=metallic, Roughness=0.3))
+    ours, cycles = render_pair(build, 256)
+    assert_agree(ours, cycles)
+
+
+@pytest.mark.xfail(strict=True, reason="core: Principled transmission tints reflection and "
+                   "refraction by Base Color; Cycles tints only refraction, by sqrt(Base Color) "
+                   "per interface, reflection white (× Specular Tint); reported to the lead")
+def test_principled_transmission():
+    build = sphere_scene(lambda: principled("Principled glass", Base_Color=(0.8, 0.5, 0.2, 1),
+                                            Roughness=0.3, Transmission_Weight=1.0))
+    ours, cycles = render_pair(build, 256)
+    assert_agree(ours, cycles)
+
+
+def test_principled_transmission_untinted():
+    # With a white Base Color, Principled transmission is plain (rough) glass in both.
+    build = sphere_scene(lambda: principled("Principled clear", Base_Color=(1, 1, 1, 1),
+                                            Roughness=0.2, Transmission_Weight=1.0))
+    ours, cycles = render_pair(build, 256)
+    assert_agree(ours, cycles)
+
+
+def test_principled_emission():
+    build = sphere_scene(lambda: principled("Glow", Base_Color=(0.2, 0.6, 0.3, 1),
+                                            Emission_Color=(1.0, 0.5, 0.1, 1),
+                                            Emission_Strength=0.8, Roughness=0.5))
+    ours, cycles = render_pair(build, 256)
+    assert_agree(ours, cycles)
+
+
+NEE_THROUGH_TRANSPARENT = (
+    "core: with next-event estimation, light reaching a point through a Transparent closure "
+    "is counted twice (transparent shadow ray and the BSDF path that passes through): a "
+    "Transparent 0.5 ball is 79 % too bright in its worst region (matches Cycles within "
+    "3 % with use_nee off); reported to the lead")
+
+
+def ghost():
+    return principled("Ghost", Base_Color=(0.2, 0.6, 0.3, 1), Alpha=0.4, Roughness=0.5)
+
+
+def veil():
+    """Mix of 0.4 Diffuse and 0.6 Transparent."""
+    mat, nodes, links, out = ms.new_material("Veil")
+    mix = nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = 0.6
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    t = nodes.new("ShaderNodeBsdfTransparent")
+    links.new(d.outputs[0], mix.inputs[1])
+    links.new(t.outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def test_mix_with_transparent_without_nee():
+    # The program is right; with NEE off (noisier: looser regions) the engines agree.
+    ours, cycles = render_pair(sphere_scene(veil), 256, use_nee=False)
+    assert_agree(ours, cycles, region=0.08, whole=0.015)
+
+
+@pytest.mark.xfail(strict=True, reason=NEE_THROUGH_TRANSPARENT)
+def test_mix_with_transparent():
+    ours, cycles = render_pair(sphere_scene(veil), 256)
+    assert_agree(ours, cycles)
+
+
+@pytest.mark.xfail(strict=True, reason=NEE_THROUGH_TRANSPARENT + "; and, NEE off, Principled "
+                   "mixed with Transparent (Alpha 0.4) is still 56 % too bright under the ball "
+                   "while Diffuse mixed with Transparent agrees: reported to the lead")
+def test_principled_alpha():
+    ours, cycles = render_pair(sphere_scene(ghost), 256)
+    assert_agree(ours, cycles)
+
+
+@pytest.mark.xfail(strict=True, reason=NEE_THROUGH_TRANSPARENT)
+def test_transparent_bsdf():
+    build = sphere_scene(lambda: ms.bsdf_material("Veil", "ShaderNodeBsdfTransparent",
+                                                  Color=(0.5, 0.5, 0.5, 1))[0])
+    ours, cycles = render_pair(build, 256)
+    assert_agree(ours, cycles)
+
+
+# ---------------------------------------------------------------- textures
+
+def texture_scene(image_fn, interpolation, mapping=None):
+    """A 1 m plane with a 4x4 texture seen from above under a white world: each pixel is the
+    (interpolated) texel colour, with almost no noise."""
+    def build():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 64
+        ms.set_world((1.0, 1.0, 1.0))
+        mat = ms.textured_material("Texture", image_fn(), interpolation, mapping=mapping)
+        ms.add_plane("Plane", 1.0, mat)
+        ms.add_camera((0.1, 0.05, 1.6), (0.1, 0.05, 0.0))
+        return scene
+    return build
+
+
+def test_textured_plane_closest_vs_linear():
+    """Closest and Linear give different pixel statistics and each matches Cycles. The
+    texture is Non-Color (no colour-space decoding: see the sRGB test below)."""
+    image = lambda: ms.checker_image("Checker", 4, colorspace="Non-Color")  # noqa: E731
+    closest = render_pair(texture_scene(image, 'Closest'), 16)
+    linear = render_pair(texture_scene(image, 'Linear'), 16)
+    for ours, cycles in (closest, linear):
+        assert_agree(ours, cycles, region=0.01, whole=0.005)
+        assert np.abs(ours - cycles)[..., :3].mean() < 0.005
+    # Closest: the texel colours only (edges aside); Linear: a ramp of values in between.
+    c, l = closest[0][8:56, 8:56, 0].ravel(), linear[0][8:56, 8:56, 0].ravel()
+    near = lambda v, x: np.abs(v - x) < 0.02  # noqa: E731
+    assert (near(c, 0.9) | near(c, 0.1)).mean() > 0.75  # texel edges are box-filtered
+    assert (near(l, 0.9) | near(l, 0.1)).mean() < 0.3
+    assert c.std() > l.std() * 1.2
+
+
+def test_textured_plane_srgb_closest_and_mapping():
+    image = lambda: ms.checker_image("Checker", 4)  # noqa: E731  (byte, sRGB)
+    ours, cycles = render_pair(texture_scene(image, 'Closest'), 64)
+    assert_agree(ours, cycles, region=0.02, whole=0.005)
+    mapped = texture_scene(image, 'Closest', mapping={"type": 'POINT', "Scale": (2.0, 3.0, 1.0),
+                                                       "Rotation": (0.0, 0.0, 0.3),
+                                                       "Location": (0.1, 0.0, 0.0)})
+    ours, cycles = render_pair(mapped, 64)
+    assert_agree(ours, cycles, region=0.03, whole=0.005)
+
+
+def test_textured_plane_float_linear():
+    px = np.zeros((4, 4, 4), np.float32)
+    px[..., 3] = 1.0
+    px[..., 0] = np.linspace(0.0, 2.0, 16).reshape(4, 4)  # HDR values too
+    px[..., 1] = 0.3
+    px[..., 2] = np.eye(4)
+    image = lambda: ms.pixel_image("Float", px, "Linear Rec.709", float_buffer=True)  # noqa: E731
+    ours, cycles = render_pair(texture_scene(image, 'Linear'), 16)
+    assert_agree(ours, cycles, region=0.01, whole=0.005)
+
+
+@pytest.mark.xfail(strict=True, reason="core: Cycles interpolates 8-bit sRGB textures in sRGB "
+                   "and decodes afterwards (compress_as_srgb); the core interpolates linear "
+                   "values (up to 0.19 brighter between a 0.9/0.1 sRGB texel pair); reported")
+def test_textured_plane_srgb_linear():
+    image = lambda: ms.checker_image("Checker", 4)  # noqa: E731
+    ours, cycles = render_pair(texture_scene(image, 'Linear'), 16)
+    assert_agree(ours, cycles, region=0.02, whole=0.005)
+
+
+# ---------------------------------------------------------------- normal maps
+
+def normal_map_scene(tilts, strength=1.0, sun=True):
+    """A diffuse plane seen from above whose tangent-space normal map has vertical stripes
+    tilted by `tilts` (degrees about the tangent's bitangent axis, + towards +u), lit by a sun
+    from the +x side (and a dim world), or by a white world only."""
+    def build():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 64
+        ms.set_world((0.1, 0.1, 0.1) if sun else (1.0, 1.0, 1.0))
+        n = len(tilts)
+        px = np.ones((2, n, 4), np.float32)
+        for x, tilt in enumerate(tilts):
+            t = math.radians(tilt)
+            px[:, x, :3] = np.array([math.sin(t), 0.0, math.cos(t)]) * 0.5 + 0.5
+        mat, nodes, links, out = ms.new_material("Bumpy")
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = ms.pixel_image("Normals", px, "Non-Color", float_buffer=True)
+        tex.interpolation = 'Closest'
+        nm = nodes.new("ShaderNodeNormalMap")
+        nm.inputs["Strength"].default_value = strength
+        d = nodes.new("ShaderNodeBsdfDiffuse")
+        d.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
+        links.new(tex.outputs["Color"], nm.inputs["Color"])
+        links.new(nm.outputs["Normal"], d.inputs["Normal"])
+        links.new(d.outputs[0], out.inputs["Surface"])
+        # Rotated, so that the tangent frame is not the world's.
+        ms.add_plane("Plane", 1.0, mat, rotation_euler=(0.0, 0.0, 0.3))
+        if sun:
+            light = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
+            light.data.energy = 3.0
+            light.data.angle = 0.0
+            light.rotation_euler = (0.0, math.radians(50.0), 0.0)
+            scene.collection.objects.link(light)
+        ms.add_camera((0.0, 0.0, 1.6), (0.0, 0.0, 0.0))
+        return scene
+    return build
+
+
+def test_normal_mapped_plane():
+    ours, cycles = render_pair(normal_map_scene([20.0, -20.0, 0.0, 10.0]), 128)
+    assert_agree(ours, cycles, region=0.025, whole=0.01)
+    # The stripes facing the sun are brighter than those facing away, by the expected cosines.
+    plane = ours[12:52, 12:52, 0]
+    assert plane.max() > 1.3 * np.percentile(plane, 10)
+
+
+def test_normal_map_strength():
+    ours, cycles = render_pair(normal_map_scene([35.0, -35.0, 0.0, 15.0], strength=0.5), 128)
+    assert_agree(ours, cycles, region=0.025, whole=0.01)
+
+
+@pytest.mark.xfail(strict=True, reason="core: shading normals tilted far from the geometric "
+                   "normal (normal maps) get the cosine of the lobe above the surface only; "
+                   "Cycles darkens them more (white world, white diffuse, 35° tilt: Cycles "
+                   "0.839, Pathlight 0.910; 60°: 0.566 vs 0.750); reported to the lead")
+def test_strongly_tilted_normal_map_in_a_white_world():
+    ours, cycles = render_pair(normal_map_scene([35.0, 35.0], sun=False), 64)
+    assert_agree(ours, cycles, region=0.025, whole=0.01)
