@@ -255,22 +255,23 @@ def test_diffuse_bounce_limit_agrees_with_cycles(diffuse_bounces):
 @needs_lights
 @needs_adaptive
 def test_adaptive_sampling_stops_flat_pixels_and_lowers_the_error_per_time():
-    scene = soft_shadow_scene()
+    # 48 x 48 at 512 spp: long enough (~0.1 s) for the timing to mean something.
+    scene = soft_shadow_scene(48)
     ref = core_render(scene, samples=2048, use_adaptive_sampling=False, seed=7).film()[..., :3]
     runs = {}
     for adaptive in (False, True):
-        sess = core_render(scene, samples=256, use_adaptive_sampling=adaptive,
+        sess = core_render(scene, samples=512, use_adaptive_sampling=adaptive,
                            adaptive_threshold=0.01, adaptive_min_samples=0, seed=1)
         img = sess.film()[..., :3]
         runs[adaptive] = dict(counts=sess.sample_counts(), mse=((img - ref) ** 2).mean(),
                               time=sess.progress()["elapsed_s"])
     plain, adapt = runs[False], runs[True]
-    assert (plain["counts"] == 256).all()
+    assert (plain["counts"] == 512).all()
     counts = adapt["counts"]  # (H, W), row 0 = bottom; the floor fills the left half
     auto_min = max(16, int(4 / math.sqrt(0.01)))  # Cycles' automatic minimum: 40 here
-    assert (counts[:, 18:] == auto_min).all()  # the flat black half stops at the minimum
-    assert counts[:, :14].mean() > 2 * auto_min  # the noisy half keeps sampling
-    assert counts.max() == 256
+    assert (counts[:, 27:] == auto_min).all()  # the flat black half stops at the minimum
+    assert counts[:, :21].mean() > 2 * auto_min  # the noisy half keeps sampling
+    assert counts.max() == 512
     # Same error where it matters, far fewer samples: lower error per unit of work and time.
     assert adapt["mse"] < 1.1 * plain["mse"]
     assert counts.sum() < 0.6 * plain["counts"].sum()
