@@ -55,6 +55,12 @@ uint32_t Scene::add_material(Material m) {
   }
   m.transparent = false;
   for (const ShaderOp& op : m.program.ops) m.transparent = m.transparent || op.code == OpCode::Transparent;
+  m.constant = !m.program.varying;
+  if (m.constant) {
+    ctx.uv = nullptr;
+    ctx.uv_sets = 0;
+    eval_shader(m.program, images_, ctx, m.cached);
+  }
   materials_.push_back(std::move(m));
   committed_ = false;
   return static_cast<uint32_t>(materials_.size() - 1);
@@ -249,6 +255,17 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
 
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out) const {
   const Material& mat = materials_[sp.material];
+  if (mat.constant) {
+    out.n = mat.cached.n;
+    out.emission = mat.cached.emission;
+    out.has_nondelta = mat.cached.has_nondelta;
+    const Frame f = Frame::from_normal(sp.ns);
+    for (int i = 0; i < out.n; ++i) {
+      out.c[size_t(i)] = mat.cached.c[size_t(i)];
+      out.c[size_t(i)].frame = f;
+    }
+    return;
+  }
   ShadingContext ctx;
   ctx.p = sp.p;
   ctx.ng = sp.ng;

@@ -27,6 +27,10 @@ struct Material {
   ShaderProgram program;
   Vec3 emission_estimate{0.0f};  // for choosing among lights; the true value is evaluated
   bool transparent = false;      // has a Transparent closure: shadow rays may pass
+  // Programs that read nothing from the shading point are evaluated once; a hit only sets the
+  // closures' frames (the common case: constant colours, no textures).
+  bool constant = false;
+  ClosureList cached;
 };
 
 // Builds the program of a Diffuse BSDF plus Emission with constant colours.
