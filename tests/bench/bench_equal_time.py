@@ -1,0 +1,165 @@
+"""Equal-time error against Cycles (CPU), side by side in one process, on the Cornell box, the
+Cornell box with a glass sphere and the HDR-lit scene: samples per second, relative MSE at equal
+render time, and the time each engine needs to reach a target error. Writes
+docs/bench/equal_time.md and a log-log plot of error against time.
+
+The reference of each scene is the mean of a high-sample Pathlight render and a high-sample
+Cycles render (both with a 1-pixel box filter, so they estimate the same image); their mutual
+relative MSE / 4 is reported as the floor below which neither engine's error can be read.
+Cycles runs with its defaults (light tree, Sobol-Burley) but no denoising, no clamping and no
+adaptive sampling, the same bounce limits as Pathlight, and all threads."""
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from blender_util import load_addon, open_fixture, render_to_array  # noqa: E402
+
+SCALE = 50                     # % of the fixtures' 256x256
+TIMES = (1.0, 2.0, 4.0, 8.0)   # equal-time budgets, seconds of rendering (sync excluded)
+REF_SPP = 4096
+ENGINES = ("PATHLIGHT", "CYCLES")
+
+
+def glass_sphere(scene):
+    """The Cornell box with its sphere made of clear glass (caustics on the floor)."""
+    mat = bpy.data.materials.new("BenchGlass")
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.clear()
+    glass = nodes.new("ShaderNodeBsdfGlass")
+    glass.distribution = "SHARP" if "SHARP" in glass.bl_rna.properties["distribution"].enum_items else "BECKMANN"
+    glass.inputs["Roughness"].default_value = 0.0
+    glass.inputs["IOR"].default_value = 1.5
+    out = nodes.new("ShaderNodeOutputMaterial")
+    mat.node_tree.links.new(glass.outputs[0], out.inputs["Surface"])
+    sphere = scene.objects["Sphere"]
+    sphere.data.materials.clear()
+    sphere.data.materials.append(mat)
+
+
+SCENES = {
+    "Cornell box": ("cornell_box", None),
+    "Cornell box, glass sphere": ("cornell_box", glass_sphere),
+    "HDR-lit scene": ("hdr_scene", None),
+}
+
+
+def render(fixture, setup, engine, **settings):
+    scene = open_fixture(fixture)
+    if setup:
+        setup(scene)
+    if engine == "CYCLES":  # the same pixel filter as Pathlight: a 1-pixel box
+        scene.cycles.pixel_filter_type = "BOX"
+        scene.cycles.filter_width = 1.0
+    t = time.perf_counter()
+    img = render_to_array(scene, engine, resolution_percentage=SCALE, max_bounces=12, **settings)
+    return img[..., :3].astype(np.float64), time.perf_counter() - t
+
+
+def rel_mse(img, ref):
+    return float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2)))
+
+
+def time_to(err_curve, times, target):
+    """Log-log interpolation of the time at which an error curve reaches `target`."""
+    e, t = np.log(np.asarray(err_curve)), np.log(np.asarray(times))
+    if target >= err_curve[0]:
+        return times[0]
+    if target < min(err_curve):  # extrapolate along the 1/t slope of Monte Carlo
+        return float(times[-1] * err_curve[-1] / target)
+    for i in range(len(times) - 1):
+        if err_curve[i + 1] <= target <= err_curve[i]:
+            f = (np.log(target) - e[i]) / (e[i + 1] - e[i])
+            return float(np.exp(t[i] + f * (t[i + 1] - t[i])))
+    return float("nan")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default="docs/")
+    ap.add_argument("--quick", action="store_true", help="smaller references and budgets (smoke run)")
+    args = ap.parse_args()
+    ref_spp, times = (REF_SPP, TIMES) if not args.quick else (256, (0.5, 1.0))
+    load_addon()
+    results = {}
+    for name, (fixture, setup) in SCENES.items():
+        sps = {}
+        for e in ENGINES:  # wall time of a fixed-sample render minus a 1-sample one (sync)
+            _, t1 = render(fixture, setup, e, samples=1)
+            _, t65 = render(fixture, setup, e, samples=65)
+            sps[e] = 64.0 / max(t65 - t1, 1e-6)
+        refs = {e: render(fixture, setup, e, samples=ref_spp, seed=12345)[0] for e in ENGINES}
+        ref = 0.5 * (refs["PATHLIGHT"] + refs["CYCLES"])
+        floor = rel_mse(refs["PATHLIGHT"], refs["CYCLES"]) / 4.0
+        errors = {e: [] for e in ENGINES}
+        for budget in times:
+            for e in ENGINES:
+                img, _ = render(fixture, setup, e, samples=1_000_000, time_limit=budget, seed=1)
+                errors[e].append(rel_mse(img, ref))
+        target = errors["CYCLES"][-1]  # the error Cycles reaches with the longest budget
+        tt = {e: time_to(errors[e], times, target) for e in ENGINES}
+        results[name] = dict(sps=sps, errors=errors, floor=floor, target=target, time_to=tt,
+                             mean_ratio=float(refs["PATHLIGHT"].mean() / refs["CYCLES"].mean()))
+        print(name, results[name], flush=True)
+
+    out = Path(args.out) / "bench"
+    out.mkdir(parents=True, exist_ok=True)
+    plot = None
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.4))
+        for ax, (name, r) in zip(np.atleast_1d(axes), results.items()):
+            for e, style in zip(ENGINES, ("o-", "s--")):
+                ax.loglog(times, r["errors"][e], style, label=e.title())
+            ax.axhline(r["floor"], color="grey", ls=":", label="reference floor")
+            ax.set_title(name, fontsize=10)
+            ax.set_xlabel("render time (s)")
+            ax.set_ylabel("relative MSE")
+            ax.legend(fontsize=8)
+        fig.tight_layout()
+        plot = "equal_time.png"
+        fig.savefig(out / plot, dpi=110)
+    except ImportError:
+        pass
+
+    lines = [
+        "## Equal-time error against Cycles (CPU)",
+        "",
+        f"Fixtures at {SCALE} % (128x128), both engines in this process, all threads, no denoising, no",
+        "clamping, no adaptive sampling, max bounces 12 (all types), 1-pixel box filter. Render time",
+        "excludes scene export/sync. 'Lower error' is Cycles' relative MSE over Pathlight's at the same",
+        "time; 'time to target' is the time each needs for the error Cycles reaches at the longest budget.",
+        "",
+        "| Scene | samples/s Pathlight | samples/s Cycles | lower error at " + " / ".join(f"{t:g} s" for t in times)
+        + " | time to target Pathlight / Cycles | mean ratio |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, r in results.items():
+        ratios = " / ".join(f"{c / p:.2f}x" for p, c in zip(r["errors"]["PATHLIGHT"], r["errors"]["CYCLES"]))
+        lines.append(f"| {name} | {r['sps']['PATHLIGHT']:.0f} | {r['sps']['CYCLES']:.0f} | {ratios} | "
+                     f"{r['time_to']['PATHLIGHT']:.2f} s / {r['time_to']['CYCLES']:.2f} s | "
+                     f"{r['mean_ratio']:.4f} |")
+    lines += ["", "Relative MSE per budget (Pathlight, Cycles) and the reference floor:", ""]
+    for name, r in results.items():
+        vals = ", ".join(f"{t:g} s: {p:.2e} / {c:.2e}" for t, p, c in
+                         zip(times, r["errors"]["PATHLIGHT"], r["errors"]["CYCLES"]))
+        lines.append(f"- {name}: {vals}; floor {r['floor']:.1e}")
+    lines += ["", f"References: {ref_spp} spp of each engine. The mean ratio is Pathlight's reference image "
+              "mean over Cycles' (bias between the engines shows there).", ""]
+    if plot:
+        lines += [f"![relative MSE against render time]({plot})", ""]
+    (out / "cornell.md").unlink(missing_ok=True)  # replaced by this section
+    (out / "cornell_rmse.png").unlink(missing_ok=True)
+    (out / "equal_time.md").write_text("\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
