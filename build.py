@@ -373,13 +373,10 @@ OUTPUT_FORMATS = {".png": "PNG", ".exr": "EXR"}
 def render_options(args):
     """Check the render arguments before any slow setup, and turn them into plain data for the venv side."""
     scene = Path(args.scene)
-    if scene.suffix.lower() == ".obj":
-        raise UserError("rendering an .obj directly is not supported yet; import it into Blender "
-                        "(File > Import > Wavefront) and save a .blend")
     if not scene.is_file():
         raise UserError(f"scene not found: {args.scene}")
-    if scene.suffix.lower() != ".blend":
-        raise UserError(f"expected a .blend file, got {args.scene}")
+    if scene.suffix.lower() not in (".blend", ".obj"):
+        raise UserError(f"expected a .blend or .obj file, got {args.scene}")
     out = Path(args.output)
     ext_format = OUTPUT_FORMATS.get(out.suffix.lower())
     fmt = args.format or ext_format
@@ -599,12 +596,20 @@ def render_in_venv(opts):
         default_hook(*exc_info)
     sys.excepthook = hook
 
-    try:
-        bpy.ops.wm.open_mainfile(filepath=opts["scene"])
-    except RuntimeError as exc:
-        raise UserError(f"could not open {opts['scene']}: {exc}")
-
     sys.path.insert(0, str(ROOT))
+    if opts["scene"].lower().endswith(".obj"):
+        # Blender's OBJ importer into an empty scene, a camera framing it and a world light.
+        from addon.obj_scene import ObjSceneError, load_obj_scene
+        try:
+            load_obj_scene(opts["scene"])
+        except ObjSceneError as exc:
+            raise UserError(str(exc))
+    else:
+        try:
+            bpy.ops.wm.open_mainfile(filepath=opts["scene"])
+        except RuntimeError as exc:
+            raise UserError(f"could not open {opts['scene']}: {exc}")
+
     try:
         import addon
         addon.register()
@@ -1076,7 +1081,8 @@ def parse_args(argv):
     p = sub.add_parser("render", parents=[build_opts], help="render a .blend with Pathlight, like blender -b",
                        description="Render a .blend's camera at its resolution with the Pathlight engine, "
                                    "like `blender -b SCENE -E PATHLIGHT -o OUT -f 1`.")
-    p.add_argument("scene", help="the .blend file to render")
+    p.add_argument("scene", help="the .blend file to render, or an .obj (+.mtl) to import with "
+                                 "Blender's importer, framed by a camera and lit by a grey world")
     p.add_argument("-o", "--output", required=True, help="image to write (.png or .exr)")
     p.add_argument("--samples", type=int, help="samples per pixel (default: the scene's)")
     p.add_argument("--time-limit", type=float, metavar="S", help="stop after S seconds (0: no limit)")
