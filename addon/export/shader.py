@@ -189,9 +189,19 @@ class ImageData:
 @dataclass
 class _LoadedImage:
     assoc: np.ndarray  # float32 (H, W, 4): colour multiplied by alpha (Cycles' Color output)
-    straight: np.ndarray  # float32 (H, W, 4): colour not multiplied (when Alpha is linked)
     has_alpha: bool  # any alpha below 1
+    unassociate: bool = True  # False: colour and alpha independent (data, channel packed)
     indices: dict = field(default_factory=dict)  # variant -> index in ImageTable.images
+
+    @property
+    def straight(self):
+        """Colour divided by alpha (Cycles' Color output when Alpha is linked): made on demand,
+        not kept (images can be large)."""
+        if not self.has_alpha or not self.unassociate:
+            return self.assoc
+        a = self.assoc[..., 3:4]
+        rgb = np.where(a > 0, self.assoc[..., :3] / np.maximum(a, 1e-12), 0.0)
+        return np.ascontiguousarray(np.concatenate([rgb, a], axis=2), np.float32)
 
 
 def srgb_to_linear(c):
@@ -287,21 +297,10 @@ def _load_image(image, problems):
     if mode == 'NONE':
         alpha[:] = 1.0
     associate = not is_data and mode not in {'CHANNEL_PACKED', 'NONE'}
-    if associate and image.is_float:  # rgb is associated already
-        assoc = rgb
-        straight = np.where(alpha[..., None] > 0, rgb / np.maximum(alpha[..., None], 1e-12), rgb)
-    elif associate:
-        straight = rgb
-        assoc = rgb * alpha[..., None]
-    else:
-        assoc = straight = rgb
-    has_alpha = bool((alpha < 1.0).any())
-
-    def rgba(c):
-        return np.ascontiguousarray(np.concatenate([c, alpha[..., None]], axis=2), np.float32)
-    assoc_px = rgba(assoc)
-    straight_px = rgba(straight) if has_alpha and straight is not assoc else assoc_px
-    return _LoadedImage(assoc_px, straight_px, has_alpha)
+    if associate and not image.is_float:  # byte images are straight; float ones associated
+        rgb = rgb * alpha[..., None]
+    assoc = np.ascontiguousarray(np.concatenate([rgb, alpha[..., None]], axis=2), np.float32)
+    return _LoadedImage(assoc, bool((alpha < 1.0).any()), associate)
 
 
 # ---------------------------------------------------------------- compiled material
