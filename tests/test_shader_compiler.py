@@ -806,3 +806,15 @@ def test_core_accepts_every_compiled_program():
     assert len(set(ids)) == len(ids) == len(bpy.data.materials)
     core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), Warnings()))
     core_scene.commit()
+
+
+def test_reroute_loop_on_the_surface_terminates():
+    # Output.Surface <- Reroute A <- Reroute B <- Reroute A: Blender marks the closing link
+    # invalid but keeps it. No closure (nothing feeds the loop), no hang.
+    mat, nodes, links, out = ms.new_material("Loop of reroutes")
+    a, b = nodes.new("NodeReroute"), nodes.new("NodeReroute")
+    links.new(a.outputs[0], out.inputs["Surface"])
+    links.new(b.outputs[0], a.inputs[0])
+    links.new(a.outputs[0], b.inputs[0])
+    data, warnings = compile_(mat)
+    assert data.program == [] and data.base_color == (0.0, 0.0, 0.0)

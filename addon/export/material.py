@@ -36,13 +36,17 @@ def surface_node(node_tree):
     if output is None:
         return None
     socket = output.inputs["Surface"]
+    seen = set()
     while True:
-        links = [link for link in socket.links if not link.is_muted]
+        links = [link for link in socket.links if not link.is_muted and link.is_valid]
         if not links:
             return None
         node = links[0].from_node
         if node.type != 'REROUTE':
             return node
+        if node.as_pointer() in seen:  # a loop of reroutes
+            return None
+        seen.add(node.as_pointer())
         socket = node.inputs[0]
 
 
