@@ -115,6 +115,19 @@ def test_beers_law_glass():
     assert ball[2] < 0.7 * ball[0], ball
 
 
+def test_schlick_fresnel_option():
+    """scene.pathlight.use_schlick_fresnel (the seed's approximation) reaches the core: the
+    glass reflections change a little, the image as a whole hardly (no Cycles counterpart)."""
+    build = sphere_scene(lambda: glass("Glass"))
+    renders = []
+    for schlick in (False, True):
+        scene = build()
+        scene.pathlight.use_schlick_fresnel = schlick
+        renders.append(render_to_array(scene, "PATHLIGHT", samples=64, max_bounces=64))
+    ratio, worst, _ = ms.compare(renders[1], renders[0])
+    assert abs(ratio - 1) < 0.01 and 0.01 < worst < 0.15, (ratio, worst)
+
+
 def test_refraction_bsdf():
     def refraction():
         mat, node = ms.bsdf_material("Refraction", "ShaderNodeBsdfRefraction", Roughness=0.0,
