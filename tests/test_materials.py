@@ -148,9 +148,6 @@ def test_principled_opaque(metallic):
     assert_agree(ours, cycles)
 
 
-@pytest.mark.xfail(strict=True, reason="core: Principled transmission tints reflection and "
-                   "refraction by Base Color; Cycles tints only refraction, by sqrt(Base Color) "
-                   "per interface, reflection white (× Specular Tint); reported to the lead")
 def test_principled_transmission():
     build = sphere_scene(lambda: principled("Principled glass", Base_Color=(0.8, 0.5, 0.2, 1),
                                             Roughness=0.3, Transmission_Weight=1.0))
@@ -174,13 +171,6 @@ def test_principled_emission():
     assert_agree(ours, cycles)
 
 
-NEE_THROUGH_TRANSPARENT = (
-    "core: with next-event estimation, light reaching a point through a Transparent closure "
-    "is counted twice (transparent shadow ray and the BSDF path that passes through): a "
-    "Transparent 0.5 ball is 79 % too bright in its worst region (matches Cycles within "
-    "3 % with use_nee off); reported to the lead")
-
-
 def ghost():
     return principled("Ghost", Base_Color=(0.2, 0.6, 0.3, 1), Alpha=0.4, Roughness=0.5)
 
@@ -199,24 +189,16 @@ def veil():
 
 
 def test_mix_with_transparent_without_nee():
-    # The program is right; with NEE off (noisier: looser regions) the engines agree.
+    # Without NEE (noisier: looser regions) the engines agree too.
     ours, cycles = render_pair(sphere_scene(veil), 256, use_nee=False)
     assert_agree(ours, cycles, region=0.08, whole=0.015)
 
 
-@pytest.mark.xfail(strict=True, reason=NEE_THROUGH_TRANSPARENT)
 def test_mix_with_transparent():
     ours, cycles = render_pair(sphere_scene(veil), 256)
     assert_agree(ours, cycles)
 
 
-PRINCIPLED_BACK_FACE = (
-    "core: a Principled surface seen from its back is brighter than from its front (Cycles: "
-    "the same); a plane under a grey world, Base Color (0.2, 0.6, 0.3), roughness 0.5, from "
-    "behind: Pathlight (0.177, 0.369, 0.225), Cycles (0.115, 0.307, 0.163); reported")
-
-
-@pytest.mark.xfail(strict=True, reason=PRINCIPLED_BACK_FACE)
 def test_principled_back_face():
     def build():
         bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -231,14 +213,11 @@ def test_principled_back_face():
     assert_agree(ours, cycles, region=0.03, whole=0.015)
 
 
-@pytest.mark.xfail(strict=True, reason=NEE_THROUGH_TRANSPARENT + "; and " + PRINCIPLED_BACK_FACE
-                   + " (rays through the Transparent part hit the ball's inside)")
 def test_principled_alpha():
     ours, cycles = render_pair(sphere_scene(ghost), 256)
     assert_agree(ours, cycles)
 
 
-@pytest.mark.xfail(strict=True, reason=NEE_THROUGH_TRANSPARENT)
 def test_transparent_bsdf():
     build = sphere_scene(lambda: ms.bsdf_material("Veil", "ShaderNodeBsdfTransparent",
                                                   Color=(0.5, 0.5, 0.5, 1))[0])

@@ -57,6 +57,7 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
   float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
   bool prev_delta = true;   // camera rays and delta lobes: no light sample could find the hit
+  Vec3 mis_org = ray.org;   // the last vertex that scattered (light samples start there)
   const bool nee = s.use_nee && scene.has_lights();
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
   bool emission_only = false;
@@ -83,8 +84,12 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.
     if (!is_black(cl.emission)) {
       float w = 1.0f;
-      if (nee && !prev_delta)
-        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, hit.t, std::fabs(dot(sp.ng, wo))));
+      if (nee && !prev_delta) {
+        // Distance from the last real scattering: transparent crossings in between are part of
+        // the same light-sample segment (which saw them through its transmittance).
+        const float t = length(sp.p - mis_org);
+        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, t, std::fabs(dot(sp.ng, wo))));
+      }
       L += beta * cl.emission * w;
     }
     if (emission_only || cl.n == 0) break;
@@ -150,7 +155,11 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     if ((dot(wi, ng_out) > 0.0f) != reflection) break;
     if (bs.flags & kDelta) {
       beta *= ch.weight * bs.weight / ch.pick;
-      prev_delta = true;
+      // A transparent crossing is not a scattering event: MIS keeps the last real vertex.
+      if (!(bs.flags & kTransparentLobe)) {
+        prev_delta = true;
+        mis_org = sp.p;
+      }
     } else {
       float pdf;
       const Vec3 f = eval_mixture(cl, wo, wi, reflection, pdf);
@@ -158,6 +167,7 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
       beta *= f / pdf;
       prev_pdf = pdf;
       prev_delta = false;
+      mis_org = sp.p;
     }
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its

@@ -107,6 +107,10 @@ struct DielectricBsdf {
   bool reflection = true, transmission = true;
   bool fresnel_on_transmission = true;  // false: Blender's Refraction BSDF (all light refracts)
   bool schlick = false;
+  Vec3 transmission_tint{1.0f};  // tints refracted light only (Principled: sqrt(base) per crossing)
+
+  // A reflection-only layer (a coat) has no inside: seen from behind it behaves as from the front.
+  bool one_sided_coat() const { return !transmission; }
 
   float fresnel(float cos_i) const {
     return schlick ? fresnel_schlick_dielectric(cos_i, eta) : fresnel_dielectric(cos_i, eta);
@@ -120,6 +124,10 @@ struct DielectricBsdf {
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
     if (alpha < kDeltaAlpha || wo.z == 0.0f || wi.z == 0.0f) return Vec3(0.0f);
+    if (one_sided_coat() && wo.z < 0.0f) {
+      wo.z = -wo.z;
+      wi.z = -wi.z;
+    }
     const bool refl = same_side(wo, wi);
     if ((refl && !reflection) || (!refl && !transmission)) return Vec3(0.0f);
     const float etap = refl ? 1.0f : (wo.z > 0.0f ? eta : 1.0f / eta);
@@ -146,11 +154,17 @@ struct DielectricBsdf {
     const float dwm_dwi = std::fabs(dot(wi, m)) / denom;
     pdf = pdf_m * dwm_dwi * pt / (pr + pt);
     const float ft = g.D(m) * pt * g.G(wo, wi) * std::fabs(dot(wi, m) * dot(wo, m) / (wo.z * denom));
-    return Vec3(ft / (etap * etap));  // radiance is compressed/expanded across the interface
+    return transmission_tint * (ft / (etap * etap));  // radiance is compressed/expanded across the interface
   }
 
   bool sample(Vec3 wo, Vec2 u, float uc, BsdfSample& s) const {
     if (wo.z == 0.0f) return false;
+    if (one_sided_coat() && wo.z < 0.0f) {  // mirror to the front and back
+      wo.z = -wo.z;
+      const bool ok = sample(wo, u, uc, s);
+      s.wi.z = -s.wi.z;
+      return ok;
+    }
     if (alpha < kDeltaAlpha) {
       const float F = fresnel(wo.z);
       float pr, pt;
@@ -167,7 +181,7 @@ struct DielectricBsdf {
       float etap;
       if (!refract(wo, {0.0f, 0.0f, 1.0f}, eta, s.wi, etap) || s.wi.z == 0.0f) return false;
       s.pdf = pt / (pr + pt);
-      s.weight = Vec3((pr + pt) / (etap * etap));
+      s.weight = transmission_tint * ((pr + pt) / (etap * etap));
       s.flags = kTransmit | kDelta | kGlossyLobe;
       s.eta = etap;
       return true;

@@ -225,11 +225,14 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         if (metallic > 0.0f) out.add(ConductorBsdf{alpha, vmin(base, Vec3(1.0f)), true}, w * metallic, fr);
         const float dielectric = 1.0f - metallic;
         if (dielectric * transmission > 0.0f) {
+          // As Cycles: the reflection stays untinted, refracted light takes sqrt(base) at each
+          // crossing (base colour once through a closed object).
           DielectricBsdf g;
           g.alpha = alpha;
           g.eta = ior;
           g.schlick = prog.schlick;
-          out.add(g, w * base * (dielectric * transmission), fr);
+          g.transmission_tint = {std::sqrt(base.x), std::sqrt(base.y), std::sqrt(base.z)};
+          out.add(g, w * (dielectric * transmission), fr);
         }
         const float opaque = dielectric * (1.0f - transmission);
         if (opaque > 0.0f) {
