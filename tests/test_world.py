@@ -14,7 +14,8 @@ from light_scenes import (camera, diffuse_material, diffuse_set, empty_scene, lo
 
 load_addon()
 from addon.export import export_scene, mean_radiance  # noqa: E402
-from addon.export.world import srgb_to_linear, world_color as export_world_color  # noqa: E402
+from addon.export.image import srgb_to_linear  # noqa: E402
+from addon.export.world import world_color as export_world_color  # noqa: E402
 from addon.export.world import world_texture  # noqa: E402
 
 

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from .image import read_pixels, rgb_of, to_scene_linear
 
 MAX_REGISTERS = 64
 MAX_UV_SETS = 8
@@ -204,14 +205,6 @@ class _LoadedImage:
         return np.ascontiguousarray(np.concatenate([rgb, a], axis=2), np.float32)
 
 
-def srgb_to_linear(c):
-    """The sRGB transfer function (IEC 61966-2-1), as OCIO applies it for 'sRGB' images."""
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-_LINEAR_SPACES = {"Linear Rec.709", "Non-Color", "Raw", "Linear", "Linear Rec.709 (sRGB)"}
-
-
 class ImageTable:
     """Images of the scene, each bpy Image read once (cached by pointer). Each variant of an
     image that programs use becomes one ImageData: "color" (what the Color output gives when
@@ -253,39 +246,20 @@ def _load_image(image, problems):
     (.exr, .hdr) in scene linear with associated alpha, and byte images as raw byte/255 values
     in the image's colour space with straight alpha: byte images are linearised here and
     multiplied by alpha for the Color output (Cycles does the same)."""
-    if image.source not in {'FILE', 'GENERATED'}:
-        problems.append(f"image '{image.name}' of type {image.source} is not supported "
-                        "(magenta)")
+    buf, why = read_pixels(image)
+    if buf is None:
+        problems.append(why + " (magenta)")
         return None
-    try:
-        width, height = image.size  # loads the image (packed or external) on first access
-        n = len(image.pixels)
-    except (RuntimeError, ReferenceError):
-        width = height = n = 0
-    channels = n // max(width * height, 1)
-    if width * height == 0 or n != width * height * channels or channels not in (1, 2, 3, 4):
-        problems.append(f"image '{image.name}' cannot be read (missing file "
-                        f"'{image.filepath}'?) (magenta)")
-        return None
-    buf = np.empty(n, np.float32)
-    image.pixels.foreach_get(buf)
-    buf = buf.reshape(height, width, channels)
-    if channels < 3:
-        rgb = np.repeat(buf[..., :1], 3, axis=2)
-    else:
-        rgb = np.ascontiguousarray(buf[..., :3])
+    height, width, channels = buf.shape
+    rgb = rgb_of(buf)
     alpha = buf[..., 3] if channels == 4 else (buf[..., 1] if channels == 2 else None)
     alpha = np.ones((height, width), np.float32) if alpha is None else np.array(alpha)
 
     space = image.colorspace_settings
     is_data = space.is_data or space.name == "Non-Color"
-    if not image.is_float and not is_data:
-        if space.name == "sRGB":
-            rgb = srgb_to_linear(rgb)
-        elif space.name not in _LINEAR_SPACES:
-            problems.append(f"colour space '{space.name}' of byte image '{image.name}' is not "
-                            "supported (decoded as sRGB)")
-            rgb = srgb_to_linear(rgb)
+    rgb, note = to_scene_linear(image, rgb)
+    if note:
+        problems.append(note)
     bad = ~np.isfinite(rgb)
     if bad.any() or (rgb < 0).any() and not is_data:
         rgb = np.where(bad, 0.0, rgb)

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .material import BLACK, scaled, socket_rgb, surface_node
+from .image import read_pixels, rgb_of, to_scene_linear
 
 
 @dataclass
@@ -145,14 +146,6 @@ def _vector_rotation(vector_socket, what, warn):
 
 # ---------------------------------------------------------------- image pixels
 
-def srgb_to_linear(c):
-    """The sRGB transfer function (IEC 61966-2-1), as OCIO applies it for 'sRGB' images."""
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-_LINEAR_SPACES = {"Linear Rec.709", "Non-Color", "Raw", "Linear", "Linear Rec.709 (sRGB)"}
-
-
 def image_pixels(image, what, warn):
     """float32 (H, W, 3) scene-linear RGB of a bpy Image (row 0 = bottom), or None (with a
     warning) when there is none or it cannot be read. Blender gives float images (.exr,
@@ -161,33 +154,13 @@ def image_pixels(image, what, warn):
     if image is None:
         warn(f"{what} has no image; using a constant background")
         return None
-    if image.source not in {'FILE', 'GENERATED'}:
-        warn(f"{what}: image '{image.name}' of type {image.source} is not supported; using a "
-             "constant background")
+    buf, why = read_pixels(image)
+    if buf is None:
+        warn(f"{what}: {why}; using a constant background")
         return None
-    try:
-        width, height = image.size  # loads the image (packed or external) on first access
-        n = len(image.pixels)
-    except (RuntimeError, ReferenceError):
-        width = height = n = 0
-    channels = n // max(width * height, 1)
-    if width * height == 0 or n != width * height * channels or channels not in (1, 2, 3, 4):
-        warn(f"{what}: image '{image.name}' cannot be read (missing file "
-             f"'{image.filepath}'?); using a constant background")
-        return None
-    buf = np.empty(n, np.float32)
-    image.pixels.foreach_get(buf)
-    buf = buf.reshape(height, width, channels)
-    rgb = np.repeat(buf[..., :1], 3, axis=2) if channels < 3 else np.ascontiguousarray(buf[..., :3])
-
-    if not image.is_float:
-        space = image.colorspace_settings.name
-        if space == "sRGB":
-            rgb = srgb_to_linear(rgb)
-        elif space not in _LINEAR_SPACES and not image.colorspace_settings.is_data:
-            warn(f"{what}: colour space '{space}' of byte image '{image.name}' is not "
-                 "supported; decoding it as sRGB")
-            rgb = srgb_to_linear(rgb)
+    rgb, note = to_scene_linear(image, rgb_of(buf))
+    if note:
+        warn(f"{what}: {note}")
     if not np.isfinite(rgb).all() or (rgb < 0).any():
         warn(f"{what}: image '{image.name}' has negative or non-finite pixels; clamped to 0")
         rgb = np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0)

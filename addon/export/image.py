@@ -1,0 +1,48 @@
+"""Reading Blender images into numpy, shared by textures and the world: the pixels (row 0 =
+bottom, as image.pixels gives them) and their conversion to scene linear."""
+
+import numpy as np
+
+# Byte-image colour spaces whose values are already linear.
+LINEAR_SPACES = {"Linear Rec.709", "Non-Color", "Raw", "Linear", "Linear Rec.709 (sRGB)"}
+
+
+def srgb_to_linear(c):
+    """The sRGB transfer function (IEC 61966-2-1), as OCIO applies it for 'sRGB' images."""
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def read_pixels(image):
+    """float32 (H, W, C) pixels of a bpy Image with C in 1..4, or (None, why) if it has none.
+    Returns (pixels, None) on success."""
+    if image.source not in {'FILE', 'GENERATED'}:
+        return None, f"image '{image.name}' of type {image.source} is not supported"
+    try:
+        width, height = image.size  # loads the image (packed or external) on first access
+        n = len(image.pixels)
+    except (RuntimeError, ReferenceError):
+        width = height = n = 0
+    channels = n // max(width * height, 1)
+    if width * height == 0 or n != width * height * channels or channels not in (1, 2, 3, 4):
+        return None, f"image '{image.name}' cannot be read (missing file '{image.filepath}'?)"
+    buf = np.empty(n, np.float32)
+    image.pixels.foreach_get(buf)
+    return buf.reshape(height, width, channels), None
+
+
+def rgb_of(buf):
+    """The RGB channels of read_pixels' result (grey images repeated to three channels)."""
+    return np.repeat(buf[..., :1], 3, axis=2) if buf.shape[2] < 3 else np.ascontiguousarray(buf[..., :3])
+
+
+def to_scene_linear(image, rgb):
+    """Blender gives float images (.exr, .hdr) already in scene linear and byte images as raw
+    byte/255 values in the image's colour space, linearised here as Cycles does.
+    Returns (rgb, note or None) where the note names an unsupported colour space."""
+    space = image.colorspace_settings
+    if image.is_float or space.is_data or space.name == "Non-Color" or space.name in LINEAR_SPACES:
+        return rgb, None
+    note = None
+    if space.name != "sRGB":
+        note = f"colour space '{space.name}' of byte image '{image.name}' is not supported (decoded as sRGB)"
+    return srgb_to_linear(rgb), note
