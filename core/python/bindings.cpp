@@ -766,6 +766,16 @@ PYBIND11_MODULE(pathlight_core, m) {
               throw std::invalid_argument("camera clip_end must be greater than clip_start >= 0");
             if (!(c.pixel_aspect_x > 0.0f) || !(c.pixel_aspect_y > 0.0f))
               throw std::invalid_argument("pixel aspect must be positive");
+            for (float v : {c.lens, c.sensor_width, c.sensor_height, c.shift_x, c.shift_y, c.clip_start,
+                            c.pixel_aspect_x, c.pixel_aspect_y})
+              if (!std::isfinite(v)) throw std::invalid_argument("camera parameters must be finite");
+            if (!c.matrix_world.is_finite()) throw std::invalid_argument("camera matrix must be finite");
+            {
+              const Mat4& m = c.matrix_world;
+              const Vec3 x{m.m[0][0], m.m[1][0], m.m[2][0]}, y{m.m[0][1], m.m[1][1], m.m[2][1]};
+              if (!(length_sq(cross(x, y)) > 1e-20f * length_sq(x) * length_sq(y)) || !(length_sq(x) > 0.0f))
+                throw std::invalid_argument("camera matrix is singular: it has no orientation");
+            }
             self.scene->set_camera(c);
           },
           py::arg("camera"))

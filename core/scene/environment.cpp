@@ -49,6 +49,7 @@ void Environment::to_uv(Vec3 t, float& u, float& v) const {
 }
 
 Vec3 Environment::lookup(float u, float v) const {
+  if (!std::isfinite(u) || !std::isfinite(v)) return Vec3(0.0f);  // a NaN direction sees nothing
   // Bilinear, wrapping in u, clamped in v.
   float fx = u * w_ - 0.5f, fy = v * h_ - 0.5f;
   fx -= std::floor(fx / w_) * w_;
@@ -92,6 +93,7 @@ float Environment::pdf(Vec3 dir_world) const {
   float u, v;
   const Vec3 t = rot_.vector(dir_world);
   to_uv(t, u, v);
+  if (!std::isfinite(u) || !std::isfinite(v)) return 0.0f;
   const int x = std::clamp(static_cast<int>(u * w_), 0, w_ - 1);
   const int y = std::clamp(static_cast<int>(v * h_), 0, h_ - 1);
   const float ce = std::cos(kPi * (v - 0.5f));
