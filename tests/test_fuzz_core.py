@@ -206,7 +206,7 @@ def render(scene, fields):
     for bad in ((-1, 0, 1, 1), (0, 0, w + 1, 1), (w, 0, 1, 1)):
         with pytest.raises(ValueError):
             sess.film_rect(*bad)
-    return float(film[..., :3].mean())
+    return float(film[..., :3].mean(dtype=np.float64))
 
 
 def rays(scene, origins, directions, tmax):

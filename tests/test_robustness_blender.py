@@ -6,6 +6,7 @@ interpreter with a timeout / an address-space limit."""
 
 import logging
 import math
+import os
 import subprocess
 import sys
 import tempfile
@@ -100,9 +101,14 @@ def assert_clean(img, err, capfd, expect_image=True):
         assert "Pathlight:" in err or "Error:" in err, err
 
 
+UNDER_ASAN = "asan" in os.environ.get("LD_PRELOAD", "")
+
+
 def run_blender_isolated(code, timeout=120, mem_gb=None):
     """Run code in a fresh interpreter with bpy, the add-on registered and the scene fixture's
     setup available as make_scene(); returns CompletedProcess."""
+    if mem_gb and UNDER_ASAN:
+        pytest.skip("AddressSanitizer's shadow memory cannot live under an address-space limit")
     limit = (f"import resource; resource.setrlimit(resource.RLIMIT_AS, ({mem_gb} << 30, {mem_gb} << 30))\n"
              if mem_gb else "")
     prelude = textwrap.dedent(f"""
