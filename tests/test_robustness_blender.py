@@ -287,14 +287,6 @@ def test_unsupported_nodes_in_the_tree(scene, capfd):
     assert_clean(img, err, capfd)
 
 
-CYCLE_REASON = (
-    "the add-on HANGS on a material whose Surface is fed by a cycle of Reroute nodes: "
-    "export/material.py surface_node() follows reroutes in `while True` without a visited set "
-    "(Blender marks the closing link invalid but keeps it; surface_node ignores is_valid). "
-    "Repro: Output.Surface <- RerouteA <- RerouteB <- RerouteA; convert_material never returns")
-
-
-@pytest.mark.xfail(reason=CYCLE_REASON, strict=True)
 def test_reroute_cycle_does_not_hang():
     proc = run_blender_isolated("""
         sc = make_scene()
