@@ -411,13 +411,19 @@ def programs(draw):
 FUZZ_SETTINGS = settings(
     max_examples=EXAMPLES,
     deadline=None if LONG else 10_000,
-    derandomize=not LONG or "PATHLIGHT_FUZZ_SEED" in os.environ,
+    derandomize=not LONG,
     database=None,
     print_blob=True,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much],
 )
 
 
+def _seeded(test):
+    seed = os.environ.get("PATHLIGHT_FUZZ_SEED")
+    return hypothesis.seed(int(seed))(test) if LONG and seed else test
+
+
+@_seeded
 @FUZZ_SETTINGS
 @given(programs())
 def test_fuzz_scene_api(program):
