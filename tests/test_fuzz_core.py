@@ -223,31 +223,10 @@ def rays(scene, origins, directions, tmax):
 
 # ---------------------------------------------------------------- known open bugs (see the xfails)
 
-def _floats(x):
-    try:
-        return np.asarray(x, dtype=np.float64).ravel()
-    except (TypeError, ValueError):
-        return np.zeros(0)
-
-
 def known_crash(program):
     """Inputs that hit a known, xfailed crash or out-of-bounds read; filtered out until fixed
-    (they would abort the run, or a sanitizer run). Remove a class when its bug is fixed."""
-    mats = [np.asarray(a[1], np.float64) for op, a in program if op == "instance" and _floats(a[1]).size == 16]
-    mats = mats or [np.eye(4)]
-    for op, args in program:
-        if op != "mesh":
-            continue
-        p = _floats(args[0])
-        if p.size % 3 or not p.size:
-            continue
-        p = p.reshape(-1, 3)
-        for m in mats:
-            with np.errstate(all="ignore"):
-                w = p @ m.reshape(4, 4)[:3, :3].T + m.reshape(4, 4)[:3, 3]
-            # test_triangles_near_float_max_do_not_crash_the_bvh_build: centroids overflow
-            if (np.abs(w[np.isfinite(w)]) > 1e37).any():
-                return True
+    (they would abort the run, or a sanitizer run). Add a class when a crash is found and
+    remove it when its bug is fixed. None is open."""
     return False
 
 

@@ -18,6 +18,12 @@ constexpr int kStackSize = 128;
 constexpr int kMaxDepth = 64;
 constexpr uint32_t kParallelMin = 16384;  // subtrees smaller than this are built serially
 
+// Clamped before the cast: a float outside int's range (or NaN) must never become an index.
+inline int bin_of(float c, float lo, float scale, int bins) {
+  const float f = (c - lo) * scale;
+  return f > 0.0f ? (f < float(bins - 1) ? static_cast<int>(f) : bins - 1) : 0;
+}
+
 struct Bin {
   Aabb bounds;
   uint32_t count = 0;
@@ -38,7 +44,7 @@ class Builder {
       b.grow(tris[i].v1);
       b.grow(tris[i].v2);
       prim_bounds_[i] = b;
-      centroids_[i] = b.center();
+      centroids_[i] = b.lo * 0.5f + b.hi * 0.5f;  // (lo + hi) / 2 would overflow near FLT_MAX
       order_[i] = i;
     }
     nodes_.resize(std::max<size_t>(1, 2 * size_t(n)));
@@ -115,7 +121,7 @@ class Builder {
       const float scale = B / ext[axis], lo = cbounds.lo[axis];
       for (uint32_t i = begin; i < end; ++i) {
         const uint32_t p = order_[i];
-        const int b = std::min(B - 1, static_cast<int>((centroids_[p][axis] - lo) * scale));
+        const int b = bin_of(centroids_[p][axis], lo, scale, B);
         bins[b].count++;
         bins[b].bounds.grow(prim_bounds_[p]);
       }
@@ -152,7 +158,7 @@ class Builder {
     }
     const float scale = B / ext[best_axis], lo = cbounds.lo[best_axis];
     auto it = std::partition(order_.begin() + begin, order_.begin() + end, [&](uint32_t p) {
-      return std::min(B - 1, static_cast<int>((centroids_[p][best_axis] - lo) * scale)) < best_bin;
+      return bin_of(centroids_[p][best_axis], lo, scale, B) < best_bin;
     });
     const uint32_t mid = static_cast<uint32_t>(it - order_.begin());
     if (mid == begin || mid == end) return begin + n / 2;

@@ -121,7 +121,7 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& tr
   if (nv > UINT32_MAX || nt > UINT32_MAX / 3) throw std::invalid_argument("mesh is too large");
   MeshData mesh;
   mesh.positions.resize(nv);
-  std::memcpy(static_cast<void*>(mesh.positions.data()), positions.data(), nv * sizeof(Vec3));
+  if (nv) std::memcpy(static_cast<void*>(mesh.positions.data()), positions.data(), nv * sizeof(Vec3));
   mesh.triangles.resize(nt);
   const int64_t* tri = triangles.data();
   for (size_t i = 0; i < nt * 3; ++i) {
@@ -135,7 +135,7 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& tr
     if (n.ndim() != 3 || size_t(n.shape(0)) != nt || n.shape(1) != 3 || n.shape(2) != 3)
       throw std::invalid_argument("corner_normals must have shape (T, 3, 3)");
     mesh.corner_normals.resize(nt * 3);
-    std::memcpy(static_cast<void*>(mesh.corner_normals.data()), n.data(), nt * 3 * sizeof(Vec3));
+    if (nt) std::memcpy(static_cast<void*>(mesh.corner_normals.data()), n.data(), nt * 3 * sizeof(Vec3));
   }
   std::vector<uint32_t> slot_ids;
   for (int64_t s : slots) slot_ids.push_back(s >= 0 && s <= INT32_MAX ? uint32_t(s) : 0u);
@@ -411,7 +411,7 @@ struct PySession {
 
 FloatArray film_rect(PySession& self, int x, int y, int w, int h) {
   Film& f = self.session->film();
-  if (x < 0 || y < 0 || w < 0 || h < 0 || x + w > f.width() || y + h > f.height())
+  if (x < 0 || y < 0 || w < 0 || h < 0 || int64_t(x) + w > f.width() || int64_t(y) + h > f.height())
     throw std::invalid_argument("film_rect outside the image");
   FloatArray out({h, w, 4});
   float* dst = out.mutable_data();

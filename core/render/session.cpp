@@ -1,6 +1,9 @@
 #include "render/session.h"
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <unistd.h>
 #include <stdexcept>
 
 namespace pl {
@@ -8,10 +11,15 @@ namespace pl {
 void validate(const RenderSettings& s) {
   if (s.width < 1 || s.height < 1) throw std::invalid_argument("resolution must be at least 1x1");
   // 20 bytes per pixel of film; refuse before allocating rather than exhausting memory.
-  constexpr double kMaxPixels = 400e6;
-  if (s.width > 65536 || s.height > 65536 || double(s.width) * double(s.height) > kMaxPixels)
+  // The film takes ~20 bytes per pixel and its copies to Python and Blender ~32 more: refuse
+  // what cannot fit in half the physical memory, before allocating anything.
+  double max_pixels = 400e6;
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  if (pages > 0 && page > 0) max_pixels = std::min(max_pixels, 0.5 * double(pages) * double(page) / 52.0);
+  if (s.width > 65536 || s.height > 65536 || double(s.width) * double(s.height) > max_pixels)
     throw std::invalid_argument("resolution " + std::to_string(s.width) + "x" + std::to_string(s.height) +
-                                " is too large (at most 65536 per side and 400 megapixels)");
+                                " is too large (at most 65536 per side and " +
+                                std::to_string(int64_t(max_pixels / 1e6)) + " megapixels on this machine)");
   if (s.samples < 1) throw std::invalid_argument("samples must be at least 1");
   if (s.max_bounces < 0 || s.max_bounces > 1024) throw std::invalid_argument("max_bounces must be in [0, 1024]");
   if (!(s.time_limit >= 0.0)) throw std::invalid_argument("time_limit must be >= 0");
@@ -57,8 +65,16 @@ Session::~Session() {
   if (controller_.joinable()) controller_.join();
 }
 
+void Session::cancel() {
+  cancel_.store(true);
+  std::lock_guard<std::mutex> lk(m_);
+  if (!started_.load()) finished_.store(true);  // never started: nothing will ever run
+  cv_.notify_all();
+}
+
 void Session::start() {
   if (started_.exchange(true)) throw std::logic_error("session already started");
+  if (finished_.load()) return;  // cancelled before it started
   t0_ = std::chrono::steady_clock::now();
   controller_ = std::thread([this] { run(); });
 }
@@ -73,8 +89,13 @@ double Session::elapsed() const {
 bool Session::wait(double timeout_s) {
   std::unique_lock<std::mutex> lk(m_);
   const auto ready = [this] { return finished_.load() || passes_.load() != passes_seen_; };
-  if (!started_.load()) return finished_.load();
-  cv_.wait_for(lk, std::chrono::duration<double>(std::max(0.0, timeout_s)), ready);
+  if (!started_.load() || finished_.load()) {
+    passes_seen_ = passes_.load();
+    return finished_.load();
+  }
+  // Clamped: a huge (or infinite) timeout would overflow the clock's representation.
+  const double t = std::isfinite(timeout_s) ? std::clamp(timeout_s, 0.0, 1e6) : (timeout_s > 0 ? 1e6 : 0.0);
+  cv_.wait_for(lk, std::chrono::duration<double>(t), ready);
   passes_seen_ = passes_.load();
   return finished_.load();
 }

@@ -58,7 +58,7 @@ class Session {
   // Blocks until a pass completes after the previous call, the render finishes, or the timeout.
   // Returns true once the render has finished.
   bool wait(double timeout_s);
-  void cancel() { cancel_.store(true); }
+  void cancel();
   bool finished() const { return finished_.load(); }
   SessionProgress progress() const;
   SessionStats stats() const;

@@ -106,8 +106,10 @@ void Scene::commit(int threads) {
       const TriangleVerts tv{world[idx[0]], world[idx[1]], world[idx[2]]};
       const Vec3 c = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
       // Zero-area or non-finite triangles can never be hit reliably and have no normal.
+      // Coordinates beyond 1e30 cannot be traced meaningfully in float (their products overflow).
+      const float big = std::max(max_component(vabs(tv.v0)), std::max(max_component(vabs(tv.v1)), max_component(vabs(tv.v2))));
       if (!is_finite(tv.v0) || !is_finite(tv.v1) || !is_finite(tv.v2) || !(length_sq(c) > 0.0f) ||
-          !std::isfinite(length_sq(c))) {
+          !std::isfinite(length_sq(c)) || !(big < 1e30f)) {
         ++dropped;
         continue;
       }
