@@ -385,15 +385,6 @@ def test_absurd_resolution_is_a_clear_error_before_allocating():
     assert "Traceback" not in proc.stderr
 
 
-BIG_RES_REASON = (
-    "20000 x 20000 (400 MP) passes the core's resolution check but needs ~10 GB of film "
-    "(25 bytes/pixel) plus Blender's 6.4 GB result: with less memory the allocation fails deep "
-    "in Session() and the user gets 'Pathlight: MemoryError: std::bad_alloc' with a traceback in "
-    "the log, instead of a clear message (e.g. the memory needed for that resolution); without a "
-    "limit the machine may swap or be OOM-killed")
-
-
-@pytest.mark.xfail(reason=BIG_RES_REASON, strict=True)
 def test_large_resolution_without_the_memory_is_a_clear_error():
     proc = run_blender_isolated("""
         sc = make_scene()

@@ -254,8 +254,9 @@ def test_diffuse_bounce_limit_agrees_with_cycles(diffuse_bounces):
 
 @needs_lights
 @needs_adaptive
-def test_adaptive_sampling_stops_flat_pixels_and_lowers_the_error_per_time():
-    # 48 x 48 at 512 spp: long enough (~0.1 s) for the timing to mean something.
+def test_adaptive_sampling_stops_flat_pixels_and_lowers_the_error_per_work():
+    # Work is counted in samples, not seconds: wall time on a shared machine is noise (the
+    # time it saves is a benchmark figure, not a test).
     scene = soft_shadow_scene(48)
     ref = core_render(scene, samples=2048, use_adaptive_sampling=False, seed=7).film()[..., :3]
     runs = {}
@@ -263,8 +264,7 @@ def test_adaptive_sampling_stops_flat_pixels_and_lowers_the_error_per_time():
         sess = core_render(scene, samples=512, use_adaptive_sampling=adaptive,
                            adaptive_threshold=0.01, adaptive_min_samples=0, seed=1)
         img = sess.film()[..., :3]
-        runs[adaptive] = dict(counts=sess.sample_counts(), mse=((img - ref) ** 2).mean(),
-                              time=sess.progress()["elapsed_s"])
+        runs[adaptive] = dict(counts=sess.sample_counts(), mse=((img - ref) ** 2).mean())
     plain, adapt = runs[False], runs[True]
     assert (plain["counts"] == 512).all()
     counts = adapt["counts"]  # (H, W), row 0 = bottom; the floor fills the left half
@@ -272,11 +272,11 @@ def test_adaptive_sampling_stops_flat_pixels_and_lowers_the_error_per_time():
     assert (counts[:, 27:] == auto_min).all()  # the flat black half stops at the minimum
     assert counts[:, :21].mean() > 2 * auto_min  # the noisy half keeps sampling
     assert counts.max() == 512
-    # Same error where it matters, far fewer samples: lower error per unit of work and time.
+    # Same error where it matters, far fewer samples: lower error per unit of work.
     assert adapt["mse"] < 1.1 * plain["mse"]
     assert counts.sum() < 0.6 * plain["counts"].sum()
-    efficiency = {k: 1.0 / (r["mse"] * r["time"]) for k, r in runs.items()}
-    assert efficiency[True] > efficiency[False], runs
+    efficiency = {k: 1.0 / (r["mse"] * r["counts"].sum()) for k, r in runs.items()}
+    assert efficiency[True] > 1.5 * efficiency[False], runs
 
 
 @needs_lights

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <sys/resource.h>
 #include <unistd.h>
 #include <stdexcept>
 
@@ -14,8 +15,13 @@ void validate(const RenderSettings& s) {
   // The film takes ~20 bytes per pixel and its copies to Python and Blender ~32 more: refuse
   // what cannot fit in half the physical memory, before allocating anything.
   double max_pixels = 400e6;
+  double memory = 0.0;
   const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
-  if (pages > 0 && page > 0) max_pixels = std::min(max_pixels, 0.5 * double(pages) * double(page) / 52.0);
+  if (pages > 0 && page > 0) memory = double(pages) * double(page);
+  rlimit rl{};  // an address-space limit (ulimit -v) caps it too
+  if (getrlimit(RLIMIT_AS, &rl) == 0 && rl.rlim_cur != RLIM_INFINITY)
+    memory = memory > 0.0 ? std::min(memory, double(rl.rlim_cur)) : double(rl.rlim_cur);
+  if (memory > 0.0) max_pixels = std::min(max_pixels, 0.5 * memory / 52.0);
   if (s.width > 65536 || s.height > 65536 || double(s.width) * double(s.height) > max_pixels)
     throw std::invalid_argument("resolution " + std::to_string(s.width) + "x" + std::to_string(s.height) +
                                 " is too large (at most 65536 per side and " +
