@@ -116,3 +116,28 @@ def _setup_cycles(cycles, bounces):
     for name in ("diffuse_bounces", "glossy_bounces", "transmission_bounces",
                  "volume_bounces", "transparent_max_bounces"):
         setattr(cycles, name, bounces)
+
+
+# Cycles' pixel filter set to Pathlight's (a 1-pixel box), for per-pixel comparisons.
+BOX_FILTER = dict(pixel_filter_type='BOX', filter_width=1.0)
+
+
+class Warnings(list):
+    """A warn() callback that records its messages."""
+
+    def __call__(self, msg):
+        self.append(msg)
+
+
+def node_material(name, node_type, **inputs):
+    """A material whose output is fed by one node of node_type with constant inputs."""
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    node = nodes.new(node_type)
+    for key, value in inputs.items():
+        node.inputs[key.replace("_", " ")].default_value = value
+    mat.node_tree.links.new(node.outputs[0], nodes["Material Output"].inputs["Surface"])
+    return mat
+

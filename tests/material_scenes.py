@@ -11,7 +11,6 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
-BOX_FILTER = dict(pixel_filter_type='BOX', filter_width=1.0)
 
 
 # ---------------------------------------------------------------- node materials

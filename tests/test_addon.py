@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import REPO, core_available, load_addon, open_fixture, render_to_array
+from blender_util import REPO, core_available, load_addon, open_fixture, render_to_array, Warnings, node_material
 
 addon = load_addon()
 from addon import session, ui  # noqa: E402  (registered above)
@@ -20,13 +20,6 @@ from addon.export.mesh import collect_meshes  # noqa: E402
 from addon.export.world import world_color  # noqa: E402
 
 needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
-
-
-class Warnings(list):
-    """A warn() callback that records its messages."""
-
-    def __call__(self, msg):
-        self.append(msg)
 
 
 @pytest.fixture
@@ -71,19 +64,6 @@ def sphere(name="Sphere", smooth=True, **kw):
     if smooth:
         obj.data.shade_smooth()
     return obj
-
-
-def node_material(name, node_type, **inputs):
-    """A material whose output is fed by one node of node_type with constant inputs."""
-    mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
-    nodes = mat.node_tree.nodes
-    nodes.remove(nodes["Principled BSDF"])
-    node = nodes.new(node_type)
-    for key, value in inputs.items():
-        node.inputs[key.replace("_", " ")].default_value = value
-    mat.node_tree.links.new(node.outputs[0], nodes["Material Output"].inputs["Surface"])
-    return mat
 
 
 def depsgraph():

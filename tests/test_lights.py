@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, render_to_array
+from blender_util import core_available, load_addon, render_to_array, Warnings, BOX_FILTER
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set, emission_material,
                           empty_scene, plane, uv_sphere, world_color)
 
@@ -30,12 +30,6 @@ def _has(name):
 
 needs_lights = pytest.mark.skipif(not _has("add_area_light"),
                                   reason="the core has no analytic lights (add_*_light)")
-BOX_FILTER = dict(pixel_filter_type='BOX', filter_width=1.0)
-
-
-class Warnings(list):
-    def __call__(self, msg):
-        self.append(msg)
 
 
 def export_lights(warn=None):

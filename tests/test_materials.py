@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, render_to_array
+from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
 import material_scenes as ms
 
 load_addon()
@@ -29,7 +29,7 @@ def render_pair(build, samples, bounces=64, **pathlight):
     ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces,
                            **pathlight)
     cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces,
-                             **ms.BOX_FILTER)
+                             **BOX_FILTER)
     return ours, cycles
 
 

@@ -11,18 +11,13 @@ import numpy as np
 import pytest
 from mathutils import Vector
 
-from blender_util import REPO, SCENES, core_available, load_addon, render_to_array
+from blender_util import REPO, SCENES, core_available, load_addon, render_to_array, Warnings
 
 load_addon()
 from addon.export import export_scene  # noqa: E402
 from addon.obj_scene import ObjSceneError, load_obj_scene  # noqa: E402
 
 MODEL = SCENES / "obj_materials" / "model.obj"
-
-
-class Warnings(list):
-    def __call__(self, msg):
-        self.append(msg)
 
 
 def test_fixture_is_up_to_date(tmp_path):

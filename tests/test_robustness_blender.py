@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import REPO, core_available, load_addon, read_exr
+from blender_util import REPO, core_available, load_addon, read_exr, node_material
 
 addon = load_addon()
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
@@ -218,18 +218,6 @@ def test_non_finite_object_transform(scene, capfd):
     cube("Flat", location=(3.0, 0.0, 0.0)).scale = (0.0, 1.0, 1.0)
     img, err = attempt(scene)
     assert_clean(img, err, capfd, expect_image=False)
-
-
-def node_material(name, node_type, **inputs):
-    mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
-    nodes = mat.node_tree.nodes
-    nodes.remove(nodes["Principled BSDF"])
-    node = nodes.new(node_type)
-    for key, value in inputs.items():
-        node.inputs[key.replace("_", " ")].default_value = value
-    mat.node_tree.links.new(node.outputs[0], nodes["Material Output"].inputs["Surface"])
-    return mat
 
 
 @pytest.mark.parametrize("node,inputs", [

@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, render_to_array
+from blender_util import core_available, load_addon, render_to_array, BOX_FILTER
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
                           emission_material, empty_scene, plane)
 
@@ -32,7 +32,6 @@ needs_adaptive = pytest.mark.skipif(not _core_has("Session", "sample_counts"),
                                     reason="the core has no adaptive sampling (sample_counts)")
 needs_settings = pytest.mark.skipif(not _core_has("RenderSettings", "diffuse_bounces"),
                                     reason="the core has no per-type bounce limits")
-BOX_FILTER = dict(pixel_filter_type='BOX', filter_width=1.0)
 
 
 def region_means(img, grid=8):

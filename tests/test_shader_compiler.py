@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from mathutils import Euler, Matrix, Vector
 
-from blender_util import core_available, load_addon
+from blender_util import core_available, load_addon, Warnings
 import material_scenes as ms
 
 load_addon()
@@ -18,11 +18,6 @@ from addon.export import export_scene, to_core  # noqa: E402
 from addon.export.material import MaterialTable, convert_material  # noqa: E402
 from addon.export.shader import (  # noqa: E402
     MAX_REGISTERS, ImageTable, UvSets, _math, _mix, mapping_matrix)
-
-
-class Warnings(list):
-    def __call__(self, msg):
-        self.append(msg)
 
 
 @pytest.fixture(autouse=True)

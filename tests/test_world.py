@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, open_fixture, render_to_array
+from blender_util import core_available, load_addon, open_fixture, render_to_array, Warnings, BOX_FILTER
 from light_scenes import (camera, diffuse_material, diffuse_set, empty_scene, load_image, plane,
                           synthetic_hdr, uv_sphere, world_color, world_image, write_hdr)
 
@@ -28,12 +28,6 @@ def _has(name):
 
 needs_env = pytest.mark.skipif(not _has("set_world_texture"),
                                reason="the core has no set_world_texture")
-BOX_FILTER = dict(pixel_filter_type='BOX', filter_width=1.0)
-
-
-class Warnings(list):
-    def __call__(self, msg):
-        self.append(msg)
 
 
 def marked_image(width=64, height=32, seed=1):
