@@ -1,5 +1,6 @@
 """Helpers for the tests that run Blender headless (the `bpy` module)."""
 
+import math
 import sys
 import tempfile
 from pathlib import Path
@@ -27,6 +28,27 @@ def core_available():
     except RuntimeError:
         return False
     return True
+
+
+def core_has(cls, name):
+    """Whether the built core's class `cls` ("Scene", "Session", ...) has attribute `name`."""
+    if not core_available():
+        return False
+    return hasattr(getattr(load_addon().core.get_core(), cls), name)
+
+
+def empty_scene_with_camera(resolution=32):
+    """The factory-empty scene with a camera at (0, -6, 0) looking at the origin along +y."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    sc = bpy.context.scene
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    cam.location = (0.0, -6.0, 0.0)
+    cam.rotation_euler = (math.pi / 2, 0.0, 0.0)
+    sc.collection.objects.link(cam)
+    sc.camera = cam
+    sc.render.resolution_x = sc.render.resolution_y = resolution
+    sc.render.resolution_percentage = 100
+    return sc
 
 
 def open_fixture(name):

@@ -1,7 +1,6 @@
 """Tests of the Blender add-on through headless bpy: registration, export (no core needed),
 and renders through bpy.ops.render.render (need the compiled core)."""
 
-import math
 import subprocess
 import sys
 import time
@@ -10,7 +9,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import REPO, core_available, load_addon, open_fixture, render_to_array, Warnings, node_material
+from blender_util import REPO, empty_scene_with_camera, core_available, load_addon, open_fixture, render_to_array, Warnings, node_material
 
 addon = load_addon()
 from addon import session, ui  # noqa: E402  (registered above)
@@ -25,15 +24,7 @@ needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is 
 @pytest.fixture
 def scene():
     """An empty scene with a camera looking at the origin from -y."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    sc = bpy.context.scene
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    cam.location = (0.0, -6.0, 0.0)
-    cam.rotation_euler = (math.pi / 2, 0.0, 0.0)
-    sc.collection.objects.link(cam)
-    sc.camera = cam
-    sc.render.resolution_x = sc.render.resolution_y = 32
-    return sc
+    return empty_scene_with_camera(32)
 
 
 def add_mesh_object(name, build, collection=None, materials=(), **transform):

@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, render_to_array, Warnings, BOX_FILTER
+from blender_util import core_has, load_addon, render_to_array, Warnings, BOX_FILTER
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set, emission_material,
                           empty_scene, plane, uv_sphere, world_color)
 
@@ -21,14 +21,7 @@ from addon.export.light import collect_lights  # noqa: E402
 from addon.export.mesh import is_visible  # noqa: E402
 
 
-def _has(name):
-    if not core_available():
-        return False
-    from addon.core import get_core
-    return hasattr(get_core().Scene, name)
-
-
-needs_lights = pytest.mark.skipif(not _has("add_area_light"),
+needs_lights = pytest.mark.skipif(not core_has("Scene", "add_area_light"),
                                   reason="the core has no analytic lights (add_*_light)")
 
 

@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import REPO, core_available, load_addon, read_exr, node_material
+from blender_util import REPO, empty_scene_with_camera, core_available, load_addon, read_exr, node_material
 
 addon = load_addon()
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
@@ -28,19 +28,11 @@ pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is 
 @pytest.fixture
 def scene():
     """An empty scene, a camera at (0, -6, 0) looking at the origin, a grey world, 16x16 pixels."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    sc = bpy.context.scene
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    cam.location = (0.0, -6.0, 0.0)
-    cam.rotation_euler = (math.pi / 2, 0.0, 0.0)
-    sc.collection.objects.link(cam)
-    sc.camera = cam
+    sc = empty_scene_with_camera(16)
     world = bpy.data.worlds.new("World")
     world.use_nodes = True
     world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.5, 0.5, 0.5, 1.0)
     sc.world = world
-    sc.render.resolution_x = sc.render.resolution_y = 16
-    sc.render.resolution_percentage = 100
     return sc
 
 
@@ -116,17 +108,10 @@ def run_blender_isolated(code, timeout=120, mem_gb=None):
         {limit}
         sys.path[:0] = [{str(REPO)!r}, {str(REPO / 'tests')!r}]
         import bpy
-        from blender_util import load_addon
+        from blender_util import empty_scene_with_camera, load_addon
         load_addon()
         def make_scene():
-            bpy.ops.wm.read_factory_settings(use_empty=True)
-            sc = bpy.context.scene
-            cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-            cam.location = (0.0, -6.0, 0.0)
-            cam.rotation_euler = (math.pi / 2, 0.0, 0.0)
-            sc.collection.objects.link(cam)
-            sc.camera = cam
-            sc.render.resolution_x = sc.render.resolution_y = 16
+            sc = empty_scene_with_camera(16)
             sc.render.engine = "PATHLIGHT"
             sc.pathlight.samples = 1
             return sc

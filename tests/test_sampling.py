@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, render_to_array, BOX_FILTER
+from blender_util import core_available, core_has, load_addon, render_to_array, BOX_FILTER
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
                           emission_material, empty_scene, plane)
 
@@ -19,18 +19,11 @@ from addon.export import export_scene, to_core  # noqa: E402
 needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
 
 
-def _core_has(obj, name):
-    if not core_available():
-        return False
-    from addon.core import get_core
-    return hasattr(getattr(get_core(), obj), name)
-
-
-needs_lights = pytest.mark.skipif(not _core_has("Scene", "add_area_light"),
+needs_lights = pytest.mark.skipif(not core_has("Scene", "add_area_light"),
                                   reason="the core has no analytic lights")
-needs_adaptive = pytest.mark.skipif(not _core_has("Session", "sample_counts"),
+needs_adaptive = pytest.mark.skipif(not core_has("Session", "sample_counts"),
                                     reason="the core has no adaptive sampling (sample_counts)")
-needs_settings = pytest.mark.skipif(not _core_has("RenderSettings", "diffuse_bounces"),
+needs_settings = pytest.mark.skipif(not core_has("RenderSettings", "diffuse_bounces"),
                                     reason="the core has no per-type bounce limits")
 
 

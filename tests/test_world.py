@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, open_fixture, render_to_array, Warnings, BOX_FILTER
+from blender_util import core_has, load_addon, open_fixture, render_to_array, Warnings, BOX_FILTER
 from light_scenes import (camera, diffuse_material, diffuse_set, empty_scene, load_image, plane,
                           synthetic_hdr, uv_sphere, world_color, world_image, write_hdr)
 
@@ -19,14 +19,7 @@ from addon.export.world import world_color as export_world_color  # noqa: E402
 from addon.export.world import world_texture  # noqa: E402
 
 
-def _has(name):
-    if not core_available():
-        return False
-    from addon.core import get_core
-    return hasattr(get_core().Scene, name)
-
-
-needs_env = pytest.mark.skipif(not _has("set_world_texture"),
+needs_env = pytest.mark.skipif(not core_has("Scene", "set_world_texture"),
                                reason="the core has no set_world_texture")
 
 
