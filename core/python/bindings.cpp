@@ -223,12 +223,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else {
         throw std::invalid_argument("unknown closure '" + kind + "'");
       }
-      for (const auto& kv : params) {
-        if (o.code == OpCode::Principled || o.code == OpCode::Diffuse || o.code == OpCode::Glossy ||
-            o.code == OpCode::Glass || o.code == OpCode::Refraction || o.code == OpCode::Transparent ||
-            o.code == OpCode::Emission)
-          regno(kv.second);  // validates every register, also of unknown keys
-      }
+      for (const auto& kv : params) regno(kv.second);  // validates every register, also of unknown keys
       if (p("normal") != kNoReg) prog.varying = true;
       if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
       prog.ops.push_back(o);

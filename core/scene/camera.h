@@ -26,7 +26,6 @@ class Camera {
   Camera(const CameraDesc& d, int width, int height);
   // Ray through raster position (x, y), measured in pixels from the bottom-left corner.
   Ray generate(float x, float y) const;
-  Vec3 position() const { return origin_; }
 
  private:
   Vec3 origin_, right_, up_, back_;  // orthonormal world axes of the camera

@@ -16,7 +16,6 @@ Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength,
   // by the brightest of its 3x3 neighbourhood. Then every direction with radiance has density
   // (needed where only light sampling is used) and a bright texel's footprint is sampled well.
   std::vector<float> row_weights(static_cast<size_t>(h_));
-  double total = 0.0;
   rows_.reserve(size_t(h_));
   for (int y = 0; y < h_; ++y) {
     const float elevation = kPi * ((y + 0.5f) / h_ - 0.5f);
@@ -33,12 +32,10 @@ Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength,
       wts[size_t(x)] = m;
       row_sum += m;
     }
-    total += row_sum * c;
     row_weights[size_t(y)] = static_cast<float>(row_sum * c);
     rows_.emplace_back(wts);
   }
   marginal_ = Distribution1D(row_weights);
-  (void)total;
   avg_lum_ = static_cast<float>(lum_sum / (double(w_) * h_));
 }
 

@@ -150,22 +150,18 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
 
 // Rough emitted power, for choosing among lights (only ratios matter). `scene_radius` bounds
 // the sun's footprint on the scene.
-inline float light_power_raw(const Light& l, float scene_radius);
-// Kept finite: an overflowing estimate would drop the light from the distribution.
 inline float light_power(const Light& l, float scene_radius) {
-  const float p = light_power_raw(l, scene_radius);
-  return std::isnan(p) ? 0.0f : std::min(p, 1e30f);
-}
-inline float light_power_raw(const Light& l, float scene_radius) {
   const float lum = std::max(luminance(l.color), 0.0f);
+  float p = 0.0f;
   switch (l.type) {
-    case LightType::Point: return 4.0f * kPi * lum;
-    case LightType::Spot: return 4.0f * kPi * lum * std::max(0.05f, 0.5f * (1.0f - l.cos_half_spot));
-    case LightType::Sun: return kPi * scene_radius * scene_radius * lum;
+    case LightType::Point: p = 4.0f * kPi * lum; break;
+    case LightType::Spot: p = 4.0f * kPi * lum * std::max(0.05f, 0.5f * (1.0f - l.cos_half_spot)); break;
+    case LightType::Sun: p = kPi * scene_radius * scene_radius * lum; break;
     case LightType::Rect:
-    case LightType::Ellipse: return kPi * l.area * lum;
+    case LightType::Ellipse: p = kPi * l.area * lum; break;
   }
-  return 0.0f;
+  // Kept finite: an overflowing estimate would drop the light from the distribution.
+  return std::isnan(p) ? 0.0f : std::min(p, 1e30f);
 }
 
 // Equirectangular environment map in Cycles' convention, importance-sampled by luminance.

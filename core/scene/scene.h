@@ -86,7 +86,6 @@ class Scene {
   void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
   void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
-  void add_dropped(size_t n) { stats_.dropped_triangles += n; }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
   void commit(int threads = 0);
@@ -109,7 +108,6 @@ class Scene {
   bool has_camera() const { return has_camera_; }
 
   bool has_lights() const { return !light_dist_.empty(); }
-  bool has_environment() const { return env_.valid(); }
   // Radiance arriving from the world along a ray that escapes the scene.
   Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
   // Picks a light with u_select and samples it from point p.

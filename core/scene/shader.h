@@ -100,7 +100,6 @@ struct ShaderProgram {
   bool uses_uv = false;
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
-  std::vector<int> normal_map_sets;  // uv sets whose tangents the program needs
 };
 
 // Runs `prog` at `ctx`, filling `out` (closures plus emission), with closure frames built from

@@ -71,7 +71,6 @@ class Distribution1D {
   }
   bool empty() const { return total_ <= 0.0; }
   size_t size() const { return pmf_.size(); }
-  double total() const { return total_; }
   float pmf(size_t i) const { return pmf_[i]; }
   // Returns an index with probability pmf(i); `u` in [0,1).
   size_t sample(float u) const {
