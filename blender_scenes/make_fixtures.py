@@ -124,6 +124,12 @@ def make_cornell_box(path):
     world.color = (0, 0, 0)
     scene.world = world
 
+    save_fixture(scene, path)
+
+
+def save_fixture(scene, path):
+    """The render settings every fixture shares (256x256, Standard view), then a compressed save.
+    The engine stays CYCLES: PATHLIGHT exists only once the add-on is registered."""
     render = scene.render
     render.engine = 'CYCLES'
     render.resolution_x = render.resolution_y = 256
@@ -131,7 +137,6 @@ def make_cornell_box(path):
     render.film_transparent = False
     scene.view_settings.view_transform = 'Standard'
     scene.view_settings.look = 'None'
-
     bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True)
 
 
@@ -190,14 +195,7 @@ def make_hdr_scene(path):
     nt.links.new(env.outputs["Color"], nt.nodes["Background"].inputs["Color"])
     scene.world = world
 
-    render = scene.render
-    render.engine = 'CYCLES'
-    render.resolution_x = render.resolution_y = 256
-    render.resolution_percentage = 100
-    render.film_transparent = False
-    scene.view_settings.view_transform = 'Standard'
-    scene.view_settings.look = 'None'
-    bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True)
+    save_fixture(scene, path)
 
 
 FIXTURES = {"cornell_box": make_cornell_box, "hdr_scene": make_hdr_scene}
