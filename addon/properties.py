@@ -7,6 +7,14 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
 
 
+def _requery_passes(self, context):
+    """Pass switches change the compositor's Render Layers sockets: ask Blender to requery them
+    (it calls RenderEngine.update_render_passes)."""
+    scene = self.id_data
+    for view_layer in getattr(scene, "view_layers", ()):
+        view_layer.update_render_passes()
+
+
 class PathlightSceneSettings(bpy.types.PropertyGroup):
     samples: IntProperty(
         name="Samples", description="Samples per pixel for the final render",
@@ -92,7 +100,7 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
             ('BVH', "BVH", "Heat map of the BVH nodes each pixel's camera ray visits (one ray through "
                            "each pixel centre); the raw counts go to the BVH Nodes and BVH Triangles passes"),
         ),
-        default='NONE',
+        default='NONE', update=_requery_passes,
     )
 
 
@@ -101,12 +109,12 @@ class PathlightViewLayerSettings(bpy.types.PropertyGroup):
     use_pass_denoising_data: BoolProperty(
         name="Denoising Data",
         description="Denoising Normal and Denoising Albedo passes, for the compositor's Denoise node",
-        default=False,
+        default=False, update=_requery_passes,
     )
     use_pass_sample_count: BoolProperty(
         name="Sample Count",
         description="Samples taken in each pixel (differs per pixel with adaptive sampling)",
-        default=False,
+        default=False, update=_requery_passes,
     )
 
 

@@ -124,7 +124,8 @@ def render(engine, depsgraph):
         for name, channels, chan_id, _, _ in passes:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit,
-             passes=[p[0] for p in passes], bvh_view=scene.pathlight.debug_view == 'BVH')
+             passes=[p[0] for p in passes], bvh_view=scene.pathlight.debug_view == 'BVH',
+             layer=view_layer.name)
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
@@ -143,8 +144,9 @@ def _warner(engine):
     return warn
 
 
-def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False):
-    result = engine.begin_result(0, 0, width, height)
+def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer=""):
+    # Only the view layer being rendered (render() runs once per layer; "" would give them all).
+    result = engine.begin_result(0, 0, width, height, layer=layer)
     try:
         layer = result.layers[0]
         combined = layer.passes["Combined"]

@@ -269,3 +269,22 @@ def test_bvh_view_passes_heat_map_and_core_counts(tmp_path, caplog):
     np.testing.assert_array_equal(rgb[nodes == nodes.max()], np.broadcast_to([1, 0, 0], rgb[nodes == nodes.max()].shape))
     np.testing.assert_array_equal(rgb[nodes == 0], 0.0)
     assert any(f"= {nodes.max():.0f}" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+def test_each_view_layer_gets_its_own_passes(tmp_path):
+    sc = wall_scene()
+    sc.view_layers[0].use_pass_z = True
+    second = sc.view_layers.new("Second")
+    second.use_pass_normal = True
+    second.pathlight.use_pass_sample_count = True
+    render_multilayer(sc, tmp_path / "layers.exr", samples=2)
+    with OpenEXR.File(str(tmp_path / "layers.exr"), separate_channels=True) as exr:
+        channels = {k: np.array(v.pixels) for k, v in exr.channels().items()}
+    layers = {}
+    for key in channels:
+        layer, name, _ = key.split(".")
+        layers.setdefault(layer, set()).add(name)
+    assert layers == {"ViewLayer": {"Combined", "Depth"}, "Second": {"Combined", "Normal", "Sample Count"}}
+    np.testing.assert_array_equal(channels["Second.Sample Count.X"], 2.0)
+    np.testing.assert_array_equal(channels["Second.Combined.R"], channels["ViewLayer.Combined.R"])
