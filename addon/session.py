@@ -148,9 +148,9 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     result = engine.begin_result(0, 0, width, height, layer=layer)
     try:
-        layer = result.layers[0]
-        combined = layer.passes["Combined"]
-        targets = [(name, layer.passes.get(name)) for name in passes]
+        render_layer = result.layers[0]
+        combined = render_layer.passes["Combined"]
+        targets = [(name, render_layer.passes.get(name)) for name in passes]
         sess.start()
         shown = -1
         stats_at = -1.0
@@ -187,7 +187,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
         engine.end_result(result)
 
 
-# The BVH view's colour scale: nodes visited, from none (black) to the image's maximum (white).
+# The BVH view's colour scale: nodes visited, from none (black) to the image's maximum (red).
 HEAT_STOPS = np.array([0.0, 0.2, 0.4, 0.6, 0.8, 1.0], np.float32)
 HEAT_COLORS = np.array([[0, 0, 0], [0, 0, 1], [0, 1, 1], [0, 1, 0], [1, 1, 0], [1, 0, 0]], np.float32)
 HEAT_SCALE = "black 0, blue, cyan, green, yellow, red = max"
