@@ -288,3 +288,16 @@ def test_each_view_layer_gets_its_own_passes(tmp_path):
     assert layers == {"ViewLayer": {"Combined", "Depth"}, "Second": {"Combined", "Normal", "Sample Count"}}
     np.testing.assert_array_equal(channels["Second.Sample Count.X"], 2.0)
     np.testing.assert_array_equal(channels["Second.Combined.R"], channels["ViewLayer.Combined.R"])
+
+
+@pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+def test_sample_count_pass_with_adaptive_sampling(tmp_path):
+    sc = wall_scene()
+    sc.view_layers[0].pathlight.use_pass_sample_count = True
+    ch = render_multilayer(sc, tmp_path / "adaptive.exr", samples=128, use_adaptive_sampling=True,
+                           adaptive_threshold=0.002, adaptive_min_samples=16)
+    counts = ch["Sample Count.X"]
+    assert counts.min() >= 16 and counts.max() <= 128
+    assert np.all(counts == np.round(counts))  # whole samples, not a fraction
+    # The flat world converges at once; the noisy wall takes more samples.
+    assert counts[:4].max() < counts[10:22, 10:22].mean()
