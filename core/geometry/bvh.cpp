@@ -6,10 +6,16 @@
 #include <functional>
 #include <thread>
 
+#include "geometry/bvh_common.h"
 #include "geometry/triangle.h"
+#if defined(__x86_64__) || defined(__i386__)
+#include "geometry/bvh_wide.inl"
+#endif
 
 namespace pl {
 namespace {
+
+using bvh_detail::safe_inverse;
 
 constexpr int kMaxBins = 64;
 constexpr int kStackSize = 128;
@@ -55,11 +61,14 @@ class Builder {
     while ((1 << parallel_depth_) < std::max(1, hw)) ++parallel_depth_;
   }
 
-  void run() {
+  // Returns false when cancelled (the nodes are then incomplete and must be dropped).
+  bool run() {
     next_node_ = 1;
     build(0, 0, static_cast<uint32_t>(order_.size()), 0);
+    if (cancelled()) return false;
     nodes_.resize(next_node_.load());
     nodes_.shrink_to_fit();
+    return true;
   }
 
   size_t max_depth() const { return max_depth_.load(); }
@@ -70,7 +79,11 @@ class Builder {
     node.count = end - begin;
   }
 
+  bool cancelled() const { return opt_.cancel && opt_.cancel->load(std::memory_order_relaxed); }
+
   void build(uint32_t node_index, uint32_t begin, uint32_t end, int depth) {
+    // Every node polls the flag: one relaxed load against a binning pass over its triangles.
+    if (cancelled()) return;
     size_t d = max_depth_.load();
     while (size_t(depth) > d && !max_depth_.compare_exchange_weak(d, size_t(depth))) {}
 
@@ -181,36 +194,133 @@ inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3& inv, 
   const float ty0 = (n.lo.y - org.y) * inv.y, ty1 = (n.hi.y - org.y) * inv.y;
   const float tz0 = (n.lo.z - org.z) * inv.z, tz1 = (n.hi.z - org.z) * inv.z;
   const float tmin = std::max(std::max(std::min(tx0, tx1), std::min(ty0, ty1)), std::max(std::min(tz0, tz1), 0.0f));
-  // Conservative exit (pbrt's 1 + 2 gamma(3)) so float rounding never culls a grazing hit.
+  // Conservative exit so float rounding never culls a grazing hit.
   const float tfar = std::min(std::min(std::max(tx0, tx1), std::max(ty0, ty1)), std::min(std::max(tz0, tz1), tmax)) *
-                     1.0000004f;
+                     bvh_detail::kBoxExitScale;
   return tmin <= tfar ? tmin : kInf;
 }
 
-// Inverse direction with tiny components clamped: an infinite inverse would turn an origin
-// lying exactly on a slab plane into 0 * inf = NaN and cull a box the ray does hit.
-inline Vec3 safe_inverse(const Vec3& d) {
-  auto inv = [](float v) { return 1.0f / (std::fabs(v) < 1e-20f ? std::copysign(1e-20f, v) : v); };
-  return {inv(d.x), inv(d.y), inv(d.z)};
+// Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
+// children and keeps opening its largest interior child (the one most rays enter) until it
+// has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
+// the binary leaves, so triangles and their order are shared.
+template <int N>
+void collapse(const std::vector<BvhNode>& bin, std::vector<WideBvhNode<N>>& out) {
+  out.clear();
+  out.reserve(bin.size() / (N - 1) + 1);
+  struct Item {
+    uint32_t bin, wide;
+  };
+  std::vector<Item> todo{{0, 0}};
+  out.emplace_back();
+  while (!todo.empty()) {
+    const Item it = todo.back();
+    todo.pop_back();
+    uint32_t kids[N];
+    int k = 0;
+    if (bin[it.bin].is_leaf()) {
+      kids[k++] = it.bin;  // a root that is a leaf: one lane
+    } else {
+      kids[k++] = bin[it.bin].left_or_first;
+      kids[k++] = bin[it.bin].left_or_first + 1;
+    }
+    while (k < N) {
+      int open = -1;
+      float best = -1.0f;
+      for (int i = 0; i < k; ++i) {
+        const BvhNode& c = bin[kids[i]];
+        const float a = Aabb{c.lo, c.hi}.half_area();
+        if (!c.is_leaf() && a > best) {
+          best = a;
+          open = i;
+        }
+      }
+      if (open < 0) break;
+      const uint32_t l = bin[kids[open]].left_or_first;
+      kids[open] = l;
+      kids[k++] = l + 1;
+    }
+    WideBvhNode<N> node;
+    for (int i = 0; i < N; ++i) {
+      if (i < k) {
+        const BvhNode& c = bin[kids[i]];
+        node.bounds[0][i] = c.lo.x;
+        node.bounds[1][i] = c.hi.x;
+        node.bounds[2][i] = c.lo.y;
+        node.bounds[3][i] = c.hi.y;
+        node.bounds[4][i] = c.lo.z;
+        node.bounds[5][i] = c.hi.z;
+        if (c.is_leaf()) {
+          node.child[i] = c.left_or_first;
+          node.count[i] = c.count;
+        } else {
+          node.child[i] = static_cast<uint32_t>(out.size());
+          node.count[i] = 0;
+          todo.push_back({kids[i], node.child[i]});
+          out.emplace_back();
+        }
+      } else {  // unused lane: an empty box (lo > hi) that the slab test always rejects
+        for (int a = 0; a < 3; ++a) {
+          node.bounds[2 * a][i] = kInf;
+          node.bounds[2 * a + 1][i] = -kInf;
+        }
+        node.child[i] = 0;
+        node.count[i] = 0;
+      }
+    }
+    out[it.wide] = node;
+  }
+  out.shrink_to_fit();
 }
 
 }  // namespace
 
-void Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt) {
+const char* bvh_layout_name(BvhLayout l) {
+  switch (l) {
+    case BvhLayout::Auto: return "auto";
+    case BvhLayout::Binary: return "binary";
+    case BvhLayout::Wide4: return "bvh4";
+    case BvhLayout::Wide8: return "bvh8";
+  }
+  return "?";
+}
+
+bool cpu_has_avx2() {
+#if defined(PL_HAVE_AVX2_KERNEL) && (defined(__x86_64__) || defined(__i386__))
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+#else
+  return false;
+#endif
+}
+
+#if defined(__x86_64__) || defined(__i386__)
+bool bvh4_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters) {
+  return wide_intersect<Sse4>(v, ray, hit, counters);
+}
+bool bvh4_occluded(const WideBvhView& v, const Ray& ray) { return wide_occluded<Sse4>(v, ray); }
+#endif
+
+void Bvh::clear() {
+  *this = Bvh();
+}
+
+bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt) {
   const auto t0 = std::chrono::steady_clock::now();
-  nodes_.clear();
-  tris_.clear();
-  prim_ids_.clear();
-  stats_ = {};
-  if (tris.empty()) return;
+  clear();
+  if (tris.empty()) return !(opt.cancel && opt.cancel->load());
   Builder builder(tris, opt, nodes_, prim_ids_);
-  builder.run();
+  if (!builder.run()) {
+    clear();
+    return false;
+  }
   tris_.resize(prim_ids_.size());
   for (size_t i = 0; i < prim_ids_.size(); ++i) tris_[i] = tris[prim_ids_[i]];
 
+  bounds_ = {nodes_[0].lo, nodes_[0].hi};
   stats_.nodes = nodes_.size();
   stats_.max_depth = builder.max_depth();
-  const float root_area = std::max(Aabb{nodes_[0].lo, nodes_[0].hi}.half_area(), 1e-30f);
+  const float root_area = std::max(bounds_.half_area(), 1e-30f);
   double cost = 0.0;
   for (const BvhNode& n : nodes_) {
     const double rel = Aabb{n.lo, n.hi}.half_area() / root_area;
@@ -222,20 +332,58 @@ void Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
     }
   }
   stats_.sah_cost = cost;
-  stats_.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
 
-Aabb Bvh::bounds() const {
-  if (nodes_.empty()) return {};
-  return {nodes_[0].lo, nodes_[0].hi};
+  BvhLayout layout = opt.layout;
+#if defined(__x86_64__) || defined(__i386__)
+  if (layout == BvhLayout::Auto) layout = cpu_has_avx2() ? BvhLayout::Wide8 : BvhLayout::Wide4;
+  if (layout == BvhLayout::Wide8 && !cpu_has_avx2()) layout = BvhLayout::Wide4;
+#else
+  layout = BvhLayout::Binary;  // the wide kernels are written for x86 SIMD
+#endif
+  if (opt.cancel && opt.cancel->load()) {
+    clear();
+    return false;
+  }
+  if (layout == BvhLayout::Wide4) collapse<4>(nodes_, nodes4_);
+  if (layout == BvhLayout::Wide8) collapse<8>(nodes_, nodes8_);
+  if (layout != BvhLayout::Binary) {
+    stats_.wide_nodes = layout == BvhLayout::Wide4 ? nodes4_.size() : nodes8_.size();
+    std::vector<BvhNode>().swap(nodes_);  // the wide tree replaces it
+  }
+  layout_ = stats_.layout = layout;
+  stats_.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return true;
 }
 
 size_t Bvh::memory_bytes() const {
-  return nodes_.capacity() * sizeof(BvhNode) + tris_.capacity() * sizeof(TriangleVerts) +
+  return nodes_.capacity() * sizeof(BvhNode) + nodes4_.capacity() * sizeof(Bvh4Node) +
+         nodes8_.capacity() * sizeof(Bvh8Node) + tris_.capacity() * sizeof(TriangleVerts) +
          prim_ids_.capacity() * sizeof(uint32_t);
 }
 
 bool Bvh::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
+  if (tris_.empty()) return false;
+  switch (layout_) {
+#if defined(__x86_64__) || defined(__i386__)
+    case BvhLayout::Wide8: return bvh8_intersect({nodes8_.data(), tris_.data(), prim_ids_.data()}, ray, hit, counters);
+    case BvhLayout::Wide4: return bvh4_intersect({nodes4_.data(), tris_.data(), prim_ids_.data()}, ray, hit, counters);
+#endif
+    default: return intersect_binary(ray, hit, counters);
+  }
+}
+
+bool Bvh::occluded(const Ray& ray) const {
+  if (tris_.empty()) return false;
+  switch (layout_) {
+#if defined(__x86_64__) || defined(__i386__)
+    case BvhLayout::Wide8: return bvh8_occluded({nodes8_.data(), tris_.data(), prim_ids_.data()}, ray);
+    case BvhLayout::Wide4: return bvh4_occluded({nodes4_.data(), tris_.data(), prim_ids_.data()}, ray);
+#endif
+    default: return occluded_binary(ray);
+  }
+}
+
+bool Bvh::intersect_binary(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
   if (nodes_.empty()) return false;
   const Vec3 inv = safe_inverse(ray.dir);
   const RayPrecomp rp(ray.dir);
@@ -294,7 +442,7 @@ done:
   return true;
 }
 
-bool Bvh::occluded(const Ray& ray) const {
+bool Bvh::occluded_binary(const Ray& ray) const {
   if (nodes_.empty()) return false;
   const Vec3 inv = safe_inverse(ray.dir);
   const RayPrecomp rp(ray.dir);
