@@ -110,11 +110,31 @@ def test_wide_bvh_hits_are_identical_to_the_binary_bvh(scenes, layout, tmax):
     t1, p1, u1, v1 = scenes[layout].intersect(o, d, tmax)
     hit = p0 >= 0
     assert 0.2 < hit.mean() < 0.95  # the rays do test something
-    assert np.array_equal(t0, t1)   # bit-identical distances (inf for misses)
+    assert np.array_equal(p0 >= 0, p1 >= 0)
     same = p0 == p1
-    # A different triangle only where two triangles are hit at exactly the same t (a tie).
-    assert (~same).sum() <= 1e-4 * len(p0), (~same).sum()
+    # Same triangle: bit-identical t and barycentrics.
+    assert np.array_equal(t0[same], t1[same])
     assert np.array_equal(u0[same], u1[same]) and np.array_equal(v0[same], v1[same])
+    # A different triangle only for ties: the soup has coplanar overlapping cube faces, hit at
+    # the same t up to rounding (which of two such hits wins depends on the visiting order, in
+    # the scalar test too: a hit 1 ulp closer can fail T < tmax * det).
+    diff = ~same
+    assert diff.sum() <= 0.02 * len(p0), diff.sum()  # shared cube faces: many exact ties
+    assert (np.abs(t0[diff] - t1[diff]) <= 2 * np.spacing(t0[diff])).all()
+
+
+@pytest.mark.parametrize("layout", ["bvh4", "bvh8"])
+def test_wide_bvh_hits_are_bit_identical_without_ties(layout):
+    # A closed bumpy sphere (no overlapping faces, so no ties: random rays almost never hit an edge exactly) seen from inside and outside.
+    rng = np.random.default_rng(21)
+    mesh = [noisy_sphere(150, rng)]
+    ref, wide = make_scene(mesh, "binary"), make_scene(mesh, layout)
+    o, d = awkward_rays(rng, 100_000)
+    a, b = ref.intersect(o, d), wide.intersect(o, d)
+    assert 0.2 < (a[1] >= 0).mean() < 0.95
+    for x, y in zip(a, b):
+        assert np.array_equal(x, y)
+    assert np.array_equal(ref.occluded(o, d, 1.0), wide.occluded(o, d, 1.0))
 
 
 def test_generic_and_avx2_kernels_agree(scenes):

@@ -56,6 +56,7 @@ class Builder {
     nodes_.resize(std::max<size_t>(1, 2 * size_t(n)));
     opt_.bins = std::clamp(opt_.bins, 2, kMaxBins);
     opt_.max_leaf_size = std::clamp(opt_.max_leaf_size, 1, 255);
+    block_ = static_cast<uint32_t>(std::clamp(opt_.leaf_block, 1, 16));
     int hw = opt.threads > 0 ? opt.threads : static_cast<int>(std::thread::hardware_concurrency());
     parallel_depth_ = 0;
     while ((1 << parallel_depth_) < std::max(1, hw)) ++parallel_depth_;
@@ -78,6 +79,9 @@ class Builder {
     node.left_or_first = begin;
     node.count = end - begin;
   }
+
+  // Triangle tests of a leaf of n triangles (n / block rounded up: a partial block costs a whole one).
+  float tests(uint32_t n) const { return static_cast<float>((n + block_ - 1) / block_); }
 
   bool cancelled() const { return opt_.cancel && opt_.cancel->load(std::memory_order_relaxed); }
 
@@ -145,7 +149,7 @@ class Builder {
       for (int b = B - 1; b > 0; --b) {
         acc.grow(bins[b].bounds);
         cnt += bins[b].count;
-        right_cost[b] = cnt ? acc.half_area() * cnt : 0.0f;
+        right_cost[b] = cnt ? acc.half_area() * tests(cnt) : 0.0f;
       }
       acc = Aabb();
       cnt = 0;
@@ -153,7 +157,7 @@ class Builder {
         acc.grow(bins[b].bounds);
         cnt += bins[b].count;
         if (cnt == 0 || cnt == n) continue;
-        const float cost = acc.half_area() * cnt + right_cost[b + 1];
+        const float cost = acc.half_area() * tests(cnt) + right_cost[b + 1];
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = axis;
@@ -162,7 +166,7 @@ class Builder {
       }
     }
     const float parent_area = bounds.half_area();
-    const float leaf_cost = static_cast<float>(n);
+    const float leaf_cost = tests(n);
     const float split_cost =
         best_axis < 0 ? kInf : opt_.traversal_cost + (parent_area > 0 ? best_cost / parent_area : 0.0f);
     if (best_axis < 0 || (split_cost >= leaf_cost && n <= uint32_t(opt_.max_leaf_size))) {
@@ -186,6 +190,7 @@ class Builder {
   std::atomic<uint32_t> next_node_{1};
   std::atomic<size_t> max_depth_{0};
   int parallel_depth_ = 0;
+  uint32_t block_ = 1;
 };
 
 // Slab test; returns the entry distance or +inf on a miss.
@@ -204,9 +209,14 @@ inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3& inv, 
 // children and keeps opening its largest interior child (the one most rays enter) until it
 // has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
 // the binary leaves, so triangles and their order are shared.
+// Leaves become runs of TriangleBlock4s, emitted in the order the collapse reaches them.
 template <int N>
-void collapse(const std::vector<BvhNode>& bin, std::vector<WideBvhNode<N>>& out) {
+void collapse(const std::vector<BvhNode>& bin, const std::vector<TriangleVerts>& tris,
+              const std::vector<uint32_t>& prim_ids, std::vector<WideBvhNode<N>>& out,
+              std::vector<TriangleBlock4>& blocks, std::vector<uint32_t>& block_prims) {
   out.clear();
+  blocks.clear();
+  block_prims.clear();
   out.reserve(bin.size() / (N - 1) + 1);
   struct Item {
     uint32_t bin, wide;
@@ -251,8 +261,19 @@ void collapse(const std::vector<BvhNode>& bin, std::vector<WideBvhNode<N>>& out)
         node.bounds[4][i] = c.lo.z;
         node.bounds[5][i] = c.hi.z;
         if (c.is_leaf()) {
-          node.child[i] = c.left_or_first;
+          node.child[i] = static_cast<uint32_t>(blocks.size());
           node.count[i] = c.count;
+          for (uint32_t b = 0; b < c.count; b += 4) {
+            TriangleBlock4 blk;
+            for (uint32_t l = 0; l < 4; ++l) {
+              const bool used = b + l < c.count;
+              const TriangleVerts& tv = tris[c.left_or_first + (used ? b + l : 0)];
+              const Vec3* v[3] = {&tv.v0, &tv.v1, &tv.v2};
+              for (int r = 0; r < 9; ++r) blk.v[r][l] = used ? (*v[r / 3])[r % 3] : std::nanf("");
+              block_prims.push_back(used ? prim_ids[c.left_or_first + b + l] : UINT32_MAX);
+            }
+            blocks.push_back(blk);
+          }
         } else {
           node.child[i] = static_cast<uint32_t>(out.size());
           node.count[i] = 0;
@@ -271,6 +292,8 @@ void collapse(const std::vector<BvhNode>& bin, std::vector<WideBvhNode<N>>& out)
     out[it.wide] = node;
   }
   out.shrink_to_fit();
+  blocks.shrink_to_fit();
+  block_prims.shrink_to_fit();
 }
 
 }  // namespace
@@ -305,10 +328,20 @@ void Bvh::clear() {
   *this = Bvh();
 }
 
-bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt) {
+bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   clear();
-  if (tris.empty()) return !(opt.cancel && opt.cancel->load());
+  BvhBuildOptions opt = options;
+  BvhLayout layout = opt.layout;
+#if defined(__x86_64__) || defined(__i386__)
+  if (layout == BvhLayout::Auto) layout = cpu_has_avx2() ? BvhLayout::Wide8 : BvhLayout::Wide4;
+  if (layout == BvhLayout::Wide8 && !cpu_has_avx2()) layout = BvhLayout::Wide4;
+#else
+  layout = BvhLayout::Binary;  // the wide kernels are written for x86 SIMD
+#endif
+  if (opt.leaf_block <= 0) opt.leaf_block = layout == BvhLayout::Binary ? 1 : 4;
+  const auto cancelled = [&] { return opt.cancel && opt.cancel->load(); };
+  if (tris.empty()) return !cancelled();
   Builder builder(tris, opt, nodes_, prim_ids_);
   if (!builder.run()) {
     clear();
@@ -332,24 +365,20 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
     }
   }
   stats_.sah_cost = cost;
-
-  BvhLayout layout = opt.layout;
-#if defined(__x86_64__) || defined(__i386__)
-  if (layout == BvhLayout::Auto) layout = cpu_has_avx2() ? BvhLayout::Wide8 : BvhLayout::Wide4;
-  if (layout == BvhLayout::Wide8 && !cpu_has_avx2()) layout = BvhLayout::Wide4;
-#else
-  layout = BvhLayout::Binary;  // the wide kernels are written for x86 SIMD
-#endif
-  if (opt.cancel && opt.cancel->load()) {
+  if (cancelled()) {
     clear();
     return false;
   }
-  if (layout == BvhLayout::Wide4) collapse<4>(nodes_, nodes4_);
-  if (layout == BvhLayout::Wide8) collapse<8>(nodes_, nodes8_);
+  if (layout == BvhLayout::Wide4) collapse<4>(nodes_, tris_, prim_ids_, nodes4_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide8) collapse<8>(nodes_, tris_, prim_ids_, nodes8_, blocks_, block_prims_);
   if (layout != BvhLayout::Binary) {
+    // The wide tree and its triangle blocks replace the binary tree and its triangle arrays.
     stats_.wide_nodes = layout == BvhLayout::Wide4 ? nodes4_.size() : nodes8_.size();
-    std::vector<BvhNode>().swap(nodes_);  // the wide tree replaces it
+    std::vector<BvhNode>().swap(nodes_);
+    std::vector<TriangleVerts>().swap(tris_);
+    std::vector<uint32_t>().swap(prim_ids_);
   }
+  triangles_ = tris.size();
   layout_ = stats_.layout = layout;
   stats_.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return true;
@@ -358,26 +387,27 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
 size_t Bvh::memory_bytes() const {
   return nodes_.capacity() * sizeof(BvhNode) + nodes4_.capacity() * sizeof(Bvh4Node) +
          nodes8_.capacity() * sizeof(Bvh8Node) + tris_.capacity() * sizeof(TriangleVerts) +
-         prim_ids_.capacity() * sizeof(uint32_t);
+         prim_ids_.capacity() * sizeof(uint32_t) + blocks_.capacity() * sizeof(TriangleBlock4) +
+         block_prims_.capacity() * sizeof(uint32_t);
 }
 
 bool Bvh::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
-  if (tris_.empty()) return false;
+  if (triangles_ == 0) return false;
   switch (layout_) {
 #if defined(__x86_64__) || defined(__i386__)
-    case BvhLayout::Wide8: return bvh8_intersect({nodes8_.data(), tris_.data(), prim_ids_.data()}, ray, hit, counters);
-    case BvhLayout::Wide4: return bvh4_intersect({nodes4_.data(), tris_.data(), prim_ids_.data()}, ray, hit, counters);
+    case BvhLayout::Wide8: return bvh8_intersect({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+    case BvhLayout::Wide4: return bvh4_intersect({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
 #endif
     default: return intersect_binary(ray, hit, counters);
   }
 }
 
 bool Bvh::occluded(const Ray& ray) const {
-  if (tris_.empty()) return false;
+  if (triangles_ == 0) return false;
   switch (layout_) {
 #if defined(__x86_64__) || defined(__i386__)
-    case BvhLayout::Wide8: return bvh8_occluded({nodes8_.data(), tris_.data(), prim_ids_.data()}, ray);
-    case BvhLayout::Wide4: return bvh4_occluded({nodes4_.data(), tris_.data(), prim_ids_.data()}, ray);
+    case BvhLayout::Wide8: return bvh8_occluded({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray);
+    case BvhLayout::Wide4: return bvh4_occluded({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray);
 #endif
     default: return occluded_binary(ray);
   }

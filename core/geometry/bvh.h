@@ -37,6 +37,13 @@ struct alignas(32) WideBvhNode {
 using Bvh4Node = WideBvhNode<4>;  // 128 bytes
 using Bvh8Node = WideBvhNode<8>;  // 256 bytes
 
+// Four triangles of a leaf of the wide trees, coordinates in SIMD lanes (rows v0.x, v0.y, v0.z,
+// v1.x, ..., v2.z), so one watertight test runs on all four. A leaf of n triangles takes
+// ceil(n / 4) consecutive blocks; unused lanes hold NaN, which the test rejects.
+struct alignas(16) TriangleBlock4 {
+  float v[9][4];
+};
+
 // Which tree the traversal uses. Auto: the 8-wide one where the CPU has AVX2, else the 4-wide
 // (SSE2, every x86-64). Binary is the reference the wide ones are tested against.
 enum class BvhLayout : uint8_t { Auto, Binary, Wide4, Wide8 };
@@ -48,6 +55,9 @@ struct BvhBuildOptions {
   int max_leaf_size = 8;
   float traversal_cost = 1.0f;  // SAH cost of visiting a node, relative to one triangle test
   int threads = 0;              // 0 = hardware threads
+  // Triangles tested together: the SAH charges a leaf ceil(n / leaf_block) tests, so leaves
+  // fill whole blocks. 0 = automatic (4 for the wide layouts, whose leaves are TriangleBlock4s).
+  int leaf_block = 0;
   BvhLayout layout = BvhLayout::Auto;
   // Polled during the build; when it becomes true the build stops, build() returns false and
   // the Bvh is left empty. May be set from any thread.
@@ -73,7 +83,7 @@ class Bvh {
   // (and leaves the Bvh empty) when cancelled through opt.cancel.
   bool build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt = {});
   void clear();
-  bool empty() const { return tris_.empty(); }
+  bool empty() const { return triangles_ == 0; }
   const BvhStats& stats() const { return stats_; }
   BvhLayout layout() const { return layout_; }
   Aabb bounds() const { return bounds_; }
@@ -93,16 +103,19 @@ class Bvh {
   std::vector<BvhNode> nodes_;        // the binary tree (kept only for the Binary layout)
   std::vector<Bvh4Node> nodes4_;
   std::vector<Bvh8Node> nodes8_;
-  std::vector<TriangleVerts> tris_;   // in leaf order, for locality
-  std::vector<uint32_t> prim_ids_;    // leaf order -> input index
+  std::vector<TriangleVerts> tris_;   // in leaf order, for locality (Binary layout)
+  std::vector<uint32_t> prim_ids_;    // leaf order -> input index (Binary layout)
+  std::vector<TriangleBlock4> blocks_;  // the wide layouts' leaves
+  std::vector<uint32_t> block_prims_;   // 4 per block: input index, UINT32_MAX for unused lanes
+  size_t triangles_ = 0;
   BvhStats stats_;
 };
 
 // The traversal kernels of the wide trees (bvh_wide.inl), one instance per SIMD width.
 struct WideBvhView {
   const void* nodes;
-  const TriangleVerts* tris;
-  const uint32_t* prim_ids;
+  const TriangleBlock4* blocks;
+  const uint32_t* block_prims;
 };
 bool bvh4_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
 bool bvh4_occluded(const WideBvhView& v, const Ray& ray);
