@@ -31,8 +31,18 @@ inline int bin_of(float c, float lo, float scale, int bins) {
 }
 
 struct Bin {
-  Aabb bounds;
+  Aabb bounds, cbounds;  // of the triangles, and of their centroids
   uint32_t count = 0;
+};
+
+// A triangle's box and input index, moved (not pointed to) by the partitions: every binning
+// pass then reads memory in order.
+struct PrimRef {
+  Vec3 lo;
+  uint32_t id;
+  Vec3 hi;
+  uint32_t pad;
+  Vec3 centroid() const { return lo * 0.5f + hi * 0.5f; }  // (lo + hi) / 2 would overflow near FLT_MAX
 };
 
 class Builder {
@@ -41,121 +51,148 @@ class Builder {
           std::vector<uint32_t>& order)
       : opt_(opt), nodes_(nodes), order_(order) {
     const uint32_t n = static_cast<uint32_t>(tris.size());
-    prim_bounds_.resize(n);
-    centroids_.resize(n);
-    order_.resize(n);
+    refs_.resize(n);
     for (uint32_t i = 0; i < n; ++i) {
       Aabb b;
       b.grow(tris[i].v0);
       b.grow(tris[i].v1);
       b.grow(tris[i].v2);
-      prim_bounds_[i] = b;
-      centroids_[i] = b.lo * 0.5f + b.hi * 0.5f;  // (lo + hi) / 2 would overflow near FLT_MAX
-      order_[i] = i;
+      refs_[i] = {b.lo, i, b.hi, 0};
     }
     nodes_.resize(std::max<size_t>(1, 2 * size_t(n)));
     opt_.bins = std::clamp(opt_.bins, 2, kMaxBins);
     opt_.max_leaf_size = std::clamp(opt_.max_leaf_size, 1, 255);
     block_ = static_cast<uint32_t>(std::clamp(opt_.leaf_block, 1, 16));
     int hw = opt.threads > 0 ? opt.threads : static_cast<int>(std::thread::hardware_concurrency());
-    parallel_depth_ = 0;
-    while ((1 << parallel_depth_) < std::max(1, hw)) ++parallel_depth_;
+    // Four times as many subtrees as threads, so an unbalanced split leaves no core idle for long.
+    parallel_depth_ = 2;
+    while ((1 << parallel_depth_) < 4 * std::max(1, hw)) ++parallel_depth_;
   }
 
   // Returns false when cancelled (the nodes are then incomplete and must be dropped).
   bool run() {
     next_node_ = 1;
-    build(0, 0, static_cast<uint32_t>(order_.size()), 0);
+    Aabb bounds, cbounds;
+    range_bounds(0, static_cast<uint32_t>(refs_.size()), bounds, cbounds);
+    build(0, 0, static_cast<uint32_t>(refs_.size()), 0, bounds, cbounds);
     if (cancelled()) return false;
     nodes_.resize(next_node_.load());
     nodes_.shrink_to_fit();
+    order_.resize(refs_.size());
+    for (size_t i = 0; i < refs_.size(); ++i) order_[i] = refs_[i].id;
     return true;
   }
 
   size_t max_depth() const { return max_depth_.load(); }
 
  private:
-  void make_leaf(BvhNode& node, uint32_t begin, uint32_t end) {
-    node.left_or_first = begin;
-    node.count = end - begin;
-  }
-
   // Triangle tests of a leaf of n triangles (n / block rounded up: a partial block costs a whole one).
   float tests(uint32_t n) const { return static_cast<float>((n + block_ - 1) / block_); }
 
   bool cancelled() const { return opt_.cancel && opt_.cancel->load(std::memory_order_relaxed); }
 
-  void build(uint32_t node_index, uint32_t begin, uint32_t end, int depth) {
+  void range_bounds(uint32_t begin, uint32_t end, Aabb& bounds, Aabb& cbounds) const {
+    bounds = cbounds = Aabb();
+    for (uint32_t i = begin; i < end; ++i) {
+      bounds.grow(Aabb{refs_[i].lo, refs_[i].hi});
+      cbounds.grow(refs_[i].centroid());
+    }
+  }
+
+  void make_leaf(BvhNode& node, uint32_t begin, uint32_t end) {
+    node.left_or_first = begin;
+    node.count = end - begin;
+  }
+
+  struct Split {
+    uint32_t mid;
+    Aabb lb, lcb, rb, rcb;  // bounds and centroid bounds of both sides
+  };
+
+  void build(uint32_t node_index, uint32_t begin, uint32_t end, int depth, const Aabb& bounds, const Aabb& cbounds) {
     // Every node polls the flag: one relaxed load against a binning pass over its triangles.
     if (cancelled()) return;
     size_t d = max_depth_.load();
     while (size_t(depth) > d && !max_depth_.compare_exchange_weak(d, size_t(depth))) {}
 
-    Aabb bounds, cbounds;
-    for (uint32_t i = begin; i < end; ++i) {
-      bounds.grow(prim_bounds_[order_[i]]);
-      cbounds.grow(centroids_[order_[i]]);
-    }
     BvhNode& node = nodes_[node_index];
     node.lo = bounds.lo;
     node.hi = bounds.hi;
     const uint32_t n = end - begin;
     if (n <= 1 || (n <= uint32_t(opt_.max_leaf_size) && depth >= kMaxDepth)) return make_leaf(node, begin, end);
 
-    uint32_t mid = split(bounds, cbounds, begin, end, depth);
-    if (mid == begin) return make_leaf(node, begin, end);  // the SAH prefers a leaf
+    Split sp;
+    if (!split(bounds, cbounds, begin, end, depth, sp)) return make_leaf(node, begin, end);  // the SAH prefers a leaf
 
     const uint32_t left = next_node_.fetch_add(2);
     node.left_or_first = left;
     node.count = 0;
+    const uint32_t mid = sp.mid;
     if (depth < parallel_depth_ && n >= kParallelMin) {
-      std::thread t([&] { build(left, begin, mid, depth + 1); });
-      build(left + 1, mid, end, depth + 1);
+      std::thread t([&] { build(left, begin, mid, depth + 1, sp.lb, sp.lcb); });
+      build(left + 1, mid, end, depth + 1, sp.rb, sp.rcb);
       t.join();
     } else {
-      build(left, begin, mid, depth + 1);
-      build(left + 1, mid, end, depth + 1);
+      build(left, begin, mid, depth + 1, sp.lb, sp.lcb);
+      build(left + 1, mid, end, depth + 1, sp.rb, sp.rcb);
     }
   }
 
-  // Returns the partition point, or `begin` when a leaf is cheaper (and allowed).
-  uint32_t split(const Aabb& bounds, const Aabb& cbounds, uint32_t begin, uint32_t end, int depth) {
+  bool split_by_count(uint32_t begin, uint32_t end, Split& sp) const {
+    sp.mid = begin + (end - begin) / 2;
+    range_bounds(begin, sp.mid, sp.lb, sp.lcb);
+    range_bounds(sp.mid, end, sp.rb, sp.rcb);
+    return true;
+  }
+
+  // Fills `sp` and returns true, or returns false when a leaf is cheaper (and allowed).
+  bool split(const Aabb& bounds, const Aabb& cbounds, uint32_t begin, uint32_t end, int depth, Split& sp) {
     const uint32_t n = end - begin;
     const Vec3 ext = cbounds.extent();
     const bool too_deep = depth >= kMaxDepth;
     if (max_component(ext) <= 0.0f || too_deep) {
       // All centroids coincide (or the tree is too deep): no plane separates them. Split by
       // count when the range is too big for a leaf, so leaves stay bounded.
-      if (n <= uint32_t(opt_.max_leaf_size)) return begin;
-      return begin + n / 2;
+      if (n <= uint32_t(opt_.max_leaf_size)) return false;
+      return split_by_count(begin, end, sp);
     }
     const int B = opt_.bins;
+    // All three axes binned in one pass over the triangles.
+    Bin bins[3][kMaxBins];
+    float scale[3], lo[3];
+    for (int axis = 0; axis < 3; ++axis) {
+      scale[axis] = ext[axis] > 0.0f ? B / ext[axis] : 0.0f;
+      lo[axis] = cbounds.lo[axis];
+    }
+    for (uint32_t i = begin; i < end; ++i) {
+      const PrimRef& r = refs_[i];
+      const Vec3 c = r.centroid();
+      const Aabb pb{r.lo, r.hi};
+      for (int axis = 0; axis < 3; ++axis) {
+        Bin& bin = bins[axis][bin_of(c[axis], lo[axis], scale[axis], B)];
+        bin.count++;
+        bin.bounds.grow(pb);
+        bin.cbounds.grow(c);
+      }
+    }
     float best_cost = kInf;
     int best_axis = -1, best_bin = 0;
     for (int axis = 0; axis < 3; ++axis) {
       if (ext[axis] <= 0.0f) continue;
-      Bin bins[kMaxBins];
-      const float scale = B / ext[axis], lo = cbounds.lo[axis];
-      for (uint32_t i = begin; i < end; ++i) {
-        const uint32_t p = order_[i];
-        const int b = bin_of(centroids_[p][axis], lo, scale, B);
-        bins[b].count++;
-        bins[b].bounds.grow(prim_bounds_[p]);
-      }
       // Sweep from the right, then from the left, evaluating every plane between bins.
       float right_cost[kMaxBins];
       Aabb acc;
       uint32_t cnt = 0;
       for (int b = B - 1; b > 0; --b) {
-        acc.grow(bins[b].bounds);
-        cnt += bins[b].count;
+        acc.grow(bins[axis][b].bounds);
+        cnt += bins[axis][b].count;
         right_cost[b] = cnt ? acc.half_area() * tests(cnt) : 0.0f;
       }
       acc = Aabb();
       cnt = 0;
       for (int b = 0; b < B - 1; ++b) {
-        acc.grow(bins[b].bounds);
-        cnt += bins[b].count;
+        acc.grow(bins[axis][b].bounds);
+        cnt += bins[axis][b].count;
         if (cnt == 0 || cnt == n) continue;
         const float cost = acc.half_area() * tests(cnt) + right_cost[b + 1];
         if (cost < best_cost) {
@@ -170,23 +207,27 @@ class Builder {
     const float split_cost =
         best_axis < 0 ? kInf : opt_.traversal_cost + (parent_area > 0 ? best_cost / parent_area : 0.0f);
     if (best_axis < 0 || (split_cost >= leaf_cost && n <= uint32_t(opt_.max_leaf_size))) {
-      if (n <= uint32_t(opt_.max_leaf_size)) return begin;
-      return begin + n / 2;  // no useful plane and too many for a leaf
+      if (n <= uint32_t(opt_.max_leaf_size)) return false;
+      return split_by_count(begin, end, sp);  // no useful plane and too many for a leaf
     }
-    const float scale = B / ext[best_axis], lo = cbounds.lo[best_axis];
-    auto it = std::partition(order_.begin() + begin, order_.begin() + end, [&](uint32_t p) {
-      return bin_of(centroids_[p][best_axis], lo, scale, B) < best_bin;
+    const int ax = best_axis;
+    auto it = std::partition(refs_.begin() + begin, refs_.begin() + end, [&](const PrimRef& r) {
+      return bin_of(r.centroid()[ax], lo[ax], scale[ax], B) < best_bin;
     });
-    const uint32_t mid = static_cast<uint32_t>(it - order_.begin());
-    if (mid == begin || mid == end) return begin + n / 2;
-    return mid;
+    sp.mid = static_cast<uint32_t>(it - refs_.begin());
+    if (sp.mid == begin || sp.mid == end) return split_by_count(begin, end, sp);
+    sp.lb = sp.lcb = sp.rb = sp.rcb = Aabb();
+    for (int b = 0; b < B; ++b) {
+      (b < best_bin ? sp.lb : sp.rb).grow(bins[ax][b].bounds);
+      (b < best_bin ? sp.lcb : sp.rcb).grow(bins[ax][b].cbounds);
+    }
+    return true;
   }
 
   BvhBuildOptions opt_;
   std::vector<BvhNode>& nodes_;
   std::vector<uint32_t>& order_;
-  std::vector<Aabb> prim_bounds_;
-  std::vector<Vec3> centroids_;
+  std::vector<PrimRef> refs_;
   std::atomic<uint32_t> next_node_{1};
   std::atomic<size_t> max_depth_{0};
   int parallel_depth_ = 0;
