@@ -326,6 +326,8 @@ py::dict scene_stats(const PyScene& self) {
   d["bvh_sah_cost"] = b.sah_cost;
   d["bvh_build_ms"] = b.build_ms;
   d["bvh_bytes"] = self.scene->bvh().memory_bytes();
+  d["bvh_layout"] = bvh_layout_name(b.layout);
+  d["bvh_wide_nodes"] = b.wide_nodes;
   return d;
 }
 
@@ -496,6 +498,8 @@ PYBIND11_MODULE(pathlight_core, m) {
   m.def("build_info", [] {
     py::dict d;
     d["simd"] = PATHLIGHT_SIMD_NAME;
+    // The BVH kernel commit() picks by default on this CPU (run-time detection).
+    d["bvh"] = cpu_has_avx2() ? "bvh8" : "bvh4";
 #if defined(__clang__)
     d["compiler"] = "clang " __clang_version__;
 #elif defined(__GNUC__)
@@ -878,12 +882,29 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("camera"))
       .def(
           "commit",
-          [](PyScene& self, int threads) {
+          [](PyScene& self, int threads, const std::string& bvh) {
             self.check_editable();
-            py::gil_scoped_release release;
-            self.scene->commit(threads);
+            BvhLayout layout;
+            if (bvh == "auto") layout = BvhLayout::Auto;
+            else if (bvh == "binary") layout = BvhLayout::Binary;
+            else if (bvh == "bvh4") layout = BvhLayout::Wide4;
+            else if (bvh == "bvh8") layout = BvhLayout::Wide8;
+            else throw std::invalid_argument("bvh must be 'auto', 'binary', 'bvh4' or 'bvh8'");
+            bool done;
+            {
+              py::gil_scoped_release release;
+              done = self.scene->commit(threads, layout);
+            }
+            if (!done) throw std::runtime_error("commit cancelled");
           },
-          py::arg("threads") = 0)
+          py::arg("threads") = 0, py::arg("bvh") = "auto",
+          "Builds the BVH and the lights (GIL released). bvh: 'auto' (8-wide with AVX2, else 4-wide), "
+          "or 'binary', 'bvh4', 'bvh8' to test one kernel ('bvh8' falls back to 'bvh4' without AVX2). "
+          "Raises RuntimeError('commit cancelled') when cancel_commit() stopped it.")
+      .def(
+          "cancel_commit", [](PyScene& self) { self.scene->cancel_commit(); },
+          "Stops a commit() running in another thread; that commit raises RuntimeError and leaves the "
+          "scene uncommitted. Has no effect when no commit is running.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim is -1 and t inf on a miss.")
@@ -903,8 +924,12 @@ PYBIND11_MODULE(pathlight_core, m) {
              if (!scene.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
              if (!scene.scene->committed()) {
                scene.check_editable();
-               py::gil_scoped_release release;
-               scene.scene->commit(settings.threads);
+               bool done;
+               {
+                 py::gil_scoped_release release;
+                 done = scene.scene->commit(settings.threads);
+               }
+               if (!done) throw std::runtime_error("commit cancelled");
              }
              auto s = std::make_unique<PySession>();
              s->scene = scene.scene;

@@ -78,7 +78,16 @@ void Scene::add_instance(uint32_t mesh, const Mat4& m) {
   committed_ = false;
 }
 
-void Scene::commit(int threads) {
+bool Scene::commit(int threads, BvhLayout layout) {
+  cancel_.store(false);
+  committed_ = false;
+  const auto cancelled = [&] {
+    if (!cancel_.load(std::memory_order_relaxed)) return false;
+    tris_.clear();
+    shading_.clear();
+    bvh_.clear();
+    return true;
+  };
   tris_.clear();
   shading_.clear();
   size_t dropped = 0;
@@ -97,6 +106,7 @@ void Scene::commit(int threads) {
   any_transparent_ = false;
   for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
   for (const Instance& inst : instances_) {
+    if (cancelled()) return false;
     const MeshData& mesh = meshes_[inst.mesh];
     std::vector<Vec3> world(mesh.positions.size());
     for (size_t i = 0; i < world.size(); ++i) world[i] = inst.matrix.point(mesh.positions[i]);
@@ -144,7 +154,12 @@ void Scene::commit(int threads) {
 
   BvhBuildOptions opt;
   opt.threads = threads;
-  bvh_.build(tris_, opt);
+  opt.layout = layout;
+  opt.cancel = &cancel_;
+  if (!bvh_.build(tris_, opt)) {  // only a cancel makes it fail
+    cancelled();
+    return false;
+  }
 
   // Every light in one distribution, chosen in proportion to an estimate of its power.
   const Aabb bounds = bvh_.bounds();
@@ -173,6 +188,7 @@ void Scene::commit(int threads) {
   stats_.emissive_triangles = emitter_prims_.size();
   stats_.lights = lights_.size();
   committed_ = true;
+  return true;
 }
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {

@@ -3,6 +3,7 @@
 // then read-only and shared by all render threads.
 #pragma once
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -88,7 +89,12 @@ class Scene {
   void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
-  void commit(int threads = 0);
+  // Returns false when cancel_commit() stopped it: the scene is then uncommitted (as if commit
+  // had not been called) and can be committed again. `layout` picks the BVH kernel (tests).
+  bool commit(int threads = 0, BvhLayout layout = BvhLayout::Auto);
+  // Stops a commit running on another thread within milliseconds. It only affects a commit in
+  // progress: commit() clears the request when it starts.
+  void cancel_commit() { cancel_.store(true); }
   bool committed() const { return committed_; }
 
   bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const { return bvh_.intersect(r, h, c); }
@@ -136,6 +142,7 @@ class Scene {
   CameraDesc camera_;
   bool has_camera_ = false;
   bool committed_ = false;
+  std::atomic<bool> cancel_{false};
 
   std::vector<TriangleVerts> tris_;
   std::vector<TriangleShading> shading_;
