@@ -71,14 +71,20 @@ def test_beer_law_through_an_index_matched_box():
     assert (img[..., :3] <= expected + 1e-4).all()
 
 
-def textured_plane(interp):
+def checker(high=1.0, low=0.0, alpha=1.0):
+    tex = np.full((4, 4, 4), low, np.float32)
+    tex[..., 3] = alpha
+    tex[::2, ::2, :3] = high   # a checker with 1-texel squares
+    tex[1::2, 1::2, :3] = high
+    return tex
+
+
+def textured_plane(interp, tex=None, srgb=False, unassociate=None):
     s = pc.Scene()
-    tex = np.zeros((4, 4, 4), np.float32)
-    tex[..., 3] = 1
-    tex[::2, ::2, :3] = 1.0   # a checker with 1-texel squares
-    tex[1::2, 1::2, :3] = 1.0
-    img_id = s.add_image(tex)
-    prog = [("uv", 0, 0), ("image", 1, 0, img_id, interp, "REPEAT"), ("closure", "emission", None, {"color": 1})]
+    tex = checker() if tex is None else tex
+    img_id = s.add_image(tex, srgb=True) if srgb else s.add_image(tex)
+    op = ("image", 1, 0, img_id, interp, "REPEAT") + (() if unassociate is None else (unassociate,))
+    prog = [("uv", 0, 0), op, ("closure", "emission", None, {"color": 1})]
     m = s.add_shader("tex", prog)
     pos, tris = quad((-1, 0, -1), (2, 0, 0), (0, 0, 2))
     uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
@@ -105,6 +111,39 @@ def test_texture_closest_and_linear():
     # the tent over 1/8 texel: 1 - 2/16 + ...), texel boundaries blend towards 0.5.
     assert np.abs(linear[4::8, 4::8] - centres).max() < 0.15
     assert abs(linear[4, 8] - 0.5) < 0.1 and len(np.unique(np.round(linear, 2))) > 10
+
+
+def srgb_to_linear(c):
+    c = np.asarray(c, np.float64)
+    return np.where(c < 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def test_srgb_textures_are_filtered_before_decoding():
+    """Cycles keeps 8-bit sRGB textures encoded, interpolates the encoded values and decodes
+    each lookup: texel centres read the decoded texel, a boundary between 0.9 and 0.1 reads
+    the decoded mean of the encoded values (about 0.21), not the mean of the decoded ones (0.40)."""
+    tex = checker(0.9, 0.1)
+    closest = textured_plane("CLOSEST", tex, srgb=True)
+    expect = np.where(np.array([[1, 0, 1, 0], [0, 1, 0, 1]] * 2) == 1, *srgb_to_linear([0.9, 0.1]))
+    assert np.allclose(closest[4::8, 4::8], expect, rtol=1e-5)
+    linear = textured_plane("LINEAR", tex, srgb=True)
+    as_linear = textured_plane("LINEAR", srgb_to_linear(tex).astype(np.float32))
+    # Pixels 7 and 8 straddle the boundary between texels 0 and 1 (each 1/8 texel wide).
+    boundary = linear[4, 7:9].mean()
+    assert abs(boundary - srgb_to_linear(0.5)) < 0.03, boundary
+    assert as_linear[4, 7:9].mean() > boundary + 0.15
+
+
+def test_image_unassociates_after_filtering():
+    """With the Alpha output linked Cycles divides the filtered (associated) colour by the
+    filtered alpha: a uniform straight colour stays uniform across texels of different alpha."""
+    tex = np.zeros((4, 4, 4), np.float32)
+    tex[..., 3] = np.where(checker()[..., 0] == 1.0, 1.0, 0.25)
+    tex[..., :3] = 0.6 * tex[..., 3:4]  # associated
+    straight = textured_plane("LINEAR", tex, unassociate=True)
+    assert np.allclose(straight[2:30, 2:30], 0.6, rtol=1e-4)
+    assoc = textured_plane("LINEAR", tex, unassociate=False)
+    assert assoc.min() < 0.3 and assoc.max() - assoc.min() > 0.25  # 0.6 x alpha, filtered
 
 
 def test_transparent_card_and_its_shadow():

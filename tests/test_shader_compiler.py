@@ -265,13 +265,14 @@ def test_textured_principled():
     assert image_op[3:] == (0, "CLOSEST", "EXTEND")
     (closure,) = [op for op in data.program if op[0] == "closure"]
     assert closure[3]["base_color"] == image_op[1]
-    # The image once, as scene-linear float RGBA (H, W, 4), row 0 = bottom.
+    # The image once, as float RGBA (H, W, 4), row 0 = bottom: a byte sRGB image keeps its
+    # encoded bytes (/255) for the core to filter before decoding, as Cycles does.
     (image,) = images.images
     assert image.pixels.shape == (4, 4, 4) and image.pixels.dtype == np.float32
+    assert image.srgb
     byte = lambda c: np.round(np.array(c) * 255) / 255  # noqa: E731 (stored as bytes)
-    light, blue = ms.srgb_linear(byte((0.9, 0.9, 0.9))), ms.srgb_linear(byte((0.1, 0.2, 0.6)))
-    assert image.pixels[0, 0, :3] == approx(light, rel=1e-4)  # bottom-left texel
-    assert image.pixels[0, 1, :3] == approx(blue, rel=1e-4)
+    assert image.pixels[0, 0, :3] == approx(byte((0.9, 0.9, 0.9)), rel=1e-6)  # bottom-left texel
+    assert image.pixels[0, 1, :3] == approx(byte((0.1, 0.2, 0.6)), rel=1e-6)
     # A second material and node with the same image share it.
     mat2, _, _ = textured_principled("Tex2", img, interpolation='Linear')
     data2, _ = compile_(mat2, images, uv_sets)
@@ -299,17 +300,16 @@ def test_image_colour_spaces_and_alpha():
     flt = ms.pixel_image("Float", px, "Linear Rec.709", float_buffer=True)
     images = ImageTable()
     loaded = {img.name: images.load(img, []) for img in (srgb, data, flt)}
-    q = np.round(px * 255) / 255  # byte images are stored as bytes
-    # Byte sRGB: decoded to linear, Color (Alpha unlinked) is associated (× alpha).
-    lin = ms.srgb_linear(q[0, 0, :3])
-    assert loaded["sRGB"].assoc[0, 0, :3] == approx(lin * q[0, 0, 3], rel=1e-4)
-    assert loaded["sRGB"].straight[0, 0, :3] == approx(lin, rel=1e-4)
-    assert loaded["sRGB"].assoc[0, 1, :3] == approx(ms.srgb_linear(q[0, 1, :3]), rel=1e-4)
+    q = np.round(px * 255)  # byte images are stored as bytes
+    # Byte sRGB: kept encoded, associated in bytes as Cycles does ((c * a) / 255, integer).
+    assert loaded["sRGB"].srgb and not loaded["Data"].srgb and not loaded["Float"].srgb
+    assert loaded["sRGB"].assoc[0, 0, :3] * 255 == approx(q[0, 0, :3] * q[0, 0, 3] // 255, abs=1e-3)
+    assert loaded["sRGB"].assoc[0, 0, 3] == approx(q[0, 0, 3] / 255, rel=1e-6)
+    assert loaded["sRGB"].assoc[0, 1, :3] == approx(q[0, 1, :3] / 255, rel=1e-6)
     # Non-Color: the raw values, not associated (Cycles does not associate data).
-    assert loaded["Data"].assoc[0, 0] == approx(q[0, 0], rel=1e-5)
-    # Float buffers are associated in Blender already: unchanged, straight = divided.
+    assert loaded["Data"].assoc[0, 0] == approx(q[0, 0] / 255, rel=1e-5)
+    # Float buffers are associated in Blender already: unchanged.
     assert loaded["Float"].assoc[0, 0] == approx(px[0, 0], rel=1e-5)
-    assert loaded["Float"].straight[0, 0, :3] == approx(px[0, 0, :3] / 0.5, rel=1e-5)
 
 
 def test_alpha_output_uses_straight_colour_and_an_alpha_image():
@@ -321,7 +321,12 @@ def test_alpha_output_uses_straight_colour_and_an_alpha_image():
     images = ImageTable()
     data, warnings = compile_(mat, images)
     assert not warnings
-    assert sorted(i.name for i in images.images) == ["Leaf (alpha)", "Leaf (straight)"]
+    assert sorted(i.name for i in images.images) == ["Leaf", "Leaf (alpha)"]
+    # Color with Alpha linked: the associated texels, divided by alpha after filtering (the
+    # op's last operand), as Cycles' NODE_IMAGE_ALPHA_UNASSOCIATE.
+    color = next(k for k, i in enumerate(images.images) if i.name == "Leaf")
+    color_op = next(op for op in data.program if op[0] == "image" and op[3] == color)
+    assert color_op[-1] is True
     alpha = next(i for i in images.images if i.name == "Leaf (alpha)")
     assert alpha.pixels == approx(np.full((2, 2, 4), 64 / 255, np.float32), rel=1e-5)
     kinds = [c[0] for c in run(data.program)[0]]

@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from .image import read_pixels, rgb_of, to_scene_linear
+from .image import is_srgb_bytes, read_pixels, rgb_of, to_scene_linear
 
 MAX_REGISTERS = 64
 MAX_UV_SETS = 8
@@ -184,32 +184,25 @@ class UvSets:
 @dataclass
 class ImageData:
     name: str
-    pixels: np.ndarray  # float32 (H, W, 4) scene-linear RGBA, row 0 = bottom
+    pixels: np.ndarray  # float32 (H, W, 4) RGBA, row 0 = bottom: scene linear, or sRGB-encoded
+    srgb: bool = False  # pixels hold sRGB-encoded colour, decoded by the core after filtering
 
 
 @dataclass
 class _LoadedImage:
-    assoc: np.ndarray  # float32 (H, W, 4): colour multiplied by alpha (Cycles' Color output)
+    assoc: np.ndarray  # float32 (H, W, 4): colour multiplied by alpha, as Cycles stores it
     has_alpha: bool  # any alpha below 1
     unassociate: bool = True  # False: colour and alpha independent (data, channel packed)
+    srgb: bool = False  # assoc holds 8-bit sRGB-encoded colour (byte/255), associated in bytes
     indices: dict = field(default_factory=dict)  # variant -> index in ImageTable.images
-
-    @property
-    def straight(self):
-        """Colour divided by alpha (Cycles' Color output when Alpha is linked): made on demand,
-        not kept (images can be large)."""
-        if not self.has_alpha or not self.unassociate:
-            return self.assoc
-        a = self.assoc[..., 3:4]
-        rgb = np.where(a > 0, self.assoc[..., :3] / np.maximum(a, 1e-12), 0.0)
-        return np.ascontiguousarray(np.concatenate([rgb, a], axis=2), np.float32)
 
 
 class ImageTable:
     """Images of the scene, each bpy Image read once (cached by pointer). Each variant of an
-    image that programs use becomes one ImageData: "color" (what the Color output gives when
-    Alpha is not linked: associated alpha, as Cycles), "straight" (Color when Alpha is linked)
-    and "alpha" (the alpha in all four channels, so that it reads as a float register)."""
+    image that programs use becomes one ImageData: "color" (the texels as Cycles stores them:
+    associated alpha; the Color output divides by the filtered alpha when the Alpha output is
+    linked, an operand of the image op) and "alpha" (the alpha in all four channels, so that it
+    reads as a float register)."""
 
     def __init__(self):
         self.images = []  # ImageData, indexed by the program's image operands
@@ -227,25 +220,25 @@ class ImageTable:
         return loaded
 
     def index(self, image, loaded, variant):
-        if not loaded.has_alpha and variant == "straight":
-            variant = "color"  # all alpha 1: no difference
         if variant not in loaded.indices:
             if variant == "alpha":
                 a = loaded.assoc[..., 3:4]
-                pixels = np.ascontiguousarray(np.repeat(a, 4, axis=2))
+                pixels, srgb = np.ascontiguousarray(np.repeat(a, 4, axis=2)), False
             else:
-                pixels = loaded.assoc if variant == "color" else loaded.straight
+                pixels, srgb = loaded.assoc, loaded.srgb
             loaded.indices[variant] = len(self.images)
             suffix = "" if variant == "color" else f" ({variant})"
-            self.images.append(ImageData(image.name + suffix, pixels))
+            self.images.append(ImageData(image.name + suffix, pixels, srgb))
         return loaded.indices[variant]
 
 
 def _load_image(image, problems):
     """_LoadedImage for a bpy Image, or None with a problem noted. Blender gives float images
     (.exr, .hdr) in scene linear with associated alpha, and byte images as raw byte/255 values
-    in the image's colour space with straight alpha: byte images are linearised here and
-    multiplied by alpha for the Color output (Cycles does the same)."""
+    in the image's colour space with straight alpha (image.pixels does not convert byte
+    images). As Cycles does: byte sRGB images stay sRGB-encoded bytes, associated in bytes
+    ((c * a) / 255, integer), for the core to filter encoded and decode per lookup; other
+    byte images are linearised here and associated; data images are never associated."""
     buf, why = read_pixels(image)
     if buf is None:
         problems.append(why + " (magenta)")
@@ -257,6 +250,21 @@ def _load_image(image, problems):
 
     space = image.colorspace_settings
     is_data = space.is_data or space.name == "Non-Color"
+    mode = image.alpha_mode
+    associate = not is_data and mode not in {'CHANNEL_PACKED', 'NONE'}
+    if is_srgb_bytes(image):
+        if space.name != "sRGB":
+            problems.append(f"colour space '{space.name}' of byte image '{image.name}' is not "
+                            "supported (decoded as sRGB)")
+        to_byte = lambda x: np.clip(np.round(np.nan_to_num(x) * 255.0), 0, 255).astype(np.uint32)  # noqa: E731
+        c, a = to_byte(rgb), to_byte(alpha)
+        if mode == 'NONE':
+            a[:] = 255
+        if associate:
+            c = c * a[..., None] // 255
+        assoc = np.concatenate([c, a[..., None]], axis=2).astype(np.float32) / np.float32(255.0)
+        return _LoadedImage(np.ascontiguousarray(assoc), bool((a < 255).any()), associate, True)
+
     rgb, note = to_scene_linear(image, rgb)
     if note:
         problems.append(note)
@@ -266,11 +274,8 @@ def _load_image(image, problems):
         if not is_data:
             np.maximum(rgb, 0.0, out=rgb)
     alpha = np.clip(np.nan_to_num(alpha, nan=1.0), 0.0, 1.0)
-
-    mode = image.alpha_mode
     if mode == 'NONE':
         alpha[:] = 1.0
-    associate = not is_data and mode not in {'CHANNEL_PACKED', 'NONE'}
     if associate and not image.is_float:  # byte images are straight; float ones associated
         rgb = rgb * alpha[..., None]
     assoc = np.ascontiguousarray(np.concatenate([rgb, alpha[..., None]], axis=2), np.float32)
@@ -690,13 +695,16 @@ class ShaderCompiler:
         if ext not in ('REPEAT', 'EXTEND', 'CLIP'):
             ext = 'REPEAT'
         if out.identifier == "Alpha":
-            variant, kind = "alpha", "float"
-        else:
-            alpha_out = node.outputs.get("Alpha")
-            variant = "straight" if alpha_out is not None and alpha_out.is_linked else "color"
-            kind = "color"
-        index = self.images.index(image, loaded, variant)
-        return self.emit(kind, "image", self.reg(vec), index, interp, ext)
+            index = self.images.index(image, loaded, "alpha")
+            return self.emit("float", "image", self.reg(vec), index, interp, ext)
+        # As Cycles: with the Alpha output in use, Color is divided by the filtered alpha.
+        alpha_out = node.outputs.get("Alpha")
+        unassociate = (alpha_out is not None and alpha_out.is_linked and loaded.has_alpha
+                       and loaded.unassociate)
+        index = self.images.index(image, loaded, "color")
+        if unassociate:
+            return self.emit("color", "image", self.reg(vec), index, interp, ext, True)
+        return self.emit("color", "image", self.reg(vec), index, interp, ext)
 
     def mapping(self, node, ctx):
         vec = self.input(node, "Vector", ctx, "vector")

@@ -260,7 +260,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         if (!std::isfinite(o.m[i])) throw std::invalid_argument("mapping matrix contains NaN or infinite values");
       }
     } else if (op == "image") {
-      need(6);
+      if (t.size() != 6 && t.size() != 7) throw std::invalid_argument("shader op 'image' takes 5 or 6 arguments");
       o.code = OpCode::ImageTex;
       o.in[0] = regno(t[2]);
       const int64_t img = t[3].cast<int64_t>();
@@ -274,6 +274,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       else if (ext == "EXTEND") o.ext = uint8_t(Extension::Extend);
       else if (ext == "CLIP") o.ext = uint8_t(Extension::Clip);
       else throw std::invalid_argument("extension must be REPEAT, EXTEND or CLIP");
+      o.clamp = t.size() == 7 && t[6].cast<bool>();  // unassociate alpha after filtering
     } else if (op == "math") {
       need(6);
       o.code = OpCode::Math;
@@ -581,7 +582,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("uvs") = py::dict())
       .def(
           "add_image",
-          [](PyScene& self, const FloatArray& pixels) {
+          [](PyScene& self, const FloatArray& pixels, bool srgb) {
             self.check_editable();
             if (pixels.ndim() != 3 || pixels.shape(2) != 4 || pixels.shape(0) < 1 || pixels.shape(1) < 1)
               throw std::invalid_argument("image pixels must have shape (H, W, 4)");
@@ -597,9 +598,10 @@ PYBIND11_MODULE(pathlight_core, m) {
               for (int k = 0; k < 4; ++k) c[k] = std::isfinite(src[4 * i + k]) ? src[4 * i + k] : 0.0f;
               img.px[i] = {c[0], c[1], c[2], c[3]};
             }
+            img.srgb = srgb;
             return self.scene->add_image(std::move(img));
           },
-          py::arg("pixels"))
+          py::arg("pixels"), py::arg("srgb") = false)
       .def(
           "add_shader",
           [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,

@@ -103,6 +103,22 @@ Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension
   return lerp4(lerp4(fetch(x0, y0), fetch(x0 + 1, y0), tx), lerp4(fetch(x0, y0 + 1), fetch(x0 + 1, y0 + 1), tx), ty);
 }
 
+float srgb_to_linear(float c) {
+  // Cycles' color_srgb_to_linear (negative values clamp to 0).
+  if (c < 0.04045f) return c < 0.0f ? 0.0f : c * (1.0f / 12.92f);
+  return std::pow((c + 0.055f) * (1.0f / 1.055f), 2.4f);
+}
+
+Float4 image_lookup(const Image& img, float u, float v, Interp interp, Extension ext, bool unassociate) {
+  Float4 r = sample_image(img, u, v, interp, ext);
+  if (unassociate && r.w != 1.0f && r.w != 0.0f) {
+    const float inv = 1.0f / r.w;
+    r = {r.x * inv, r.y * inv, r.z * inv, r.w};
+  }
+  if (img.srgb) r = {srgb_to_linear(r.x), srgb_to_linear(r.y), srgb_to_linear(r.z), r.w};
+  return r;
+}
+
 void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
                  ClosureList& out) {
   Float4 r[kMaxRegs];
@@ -138,7 +154,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::ImageTex: {
         const Float4 s = reg(op.in[0]);
         d = op.index >= 0 && size_t(op.index) < images.size()
-                ? sample_image(images[size_t(op.index)], s.x, s.y, Interp(op.sub), Extension(op.ext))
+                ? image_lookup(images[size_t(op.index)], s.x, s.y, Interp(op.sub), Extension(op.ext), op.clamp)
                 : Float4{1.0f, 0.0f, 1.0f, 1.0f};  // Blender's "missing texture" magenta
         break;
       }

@@ -19,12 +19,19 @@ struct Float4 {
 struct Image {
   int w = 0, h = 0;
   std::vector<Float4> px;  // row 0 = bottom
+  // px hold sRGB-encoded colour (8-bit textures, as Cycles keeps them): lookups interpolate the
+  // encoded values and decode afterwards, so filtering matches Cycles (not linear-then-filter).
+  bool srgb = false;
 };
 
 enum class Interp : uint8_t { Linear, Closest };
 enum class Extension : uint8_t { Repeat, Extend, Clip };
 
 Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension ext);
+// What an Image Texture node reads, in Cycles' order: interpolate the stored (associated)
+// texels, divide by alpha if `unassociate` (Color with the Alpha output in use), then decode sRGB.
+Float4 image_lookup(const Image& img, float u, float v, Interp interp, Extension ext, bool unassociate);
+float srgb_to_linear(float c);
 
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
@@ -46,7 +53,7 @@ struct ShaderOp {
   int32_t index = 0;        // uv set / image id
   uint8_t sub = 0;          // MathOp / MixOp / Interp
   uint8_t ext = 0;          // Extension
-  bool clamp = false;
+  bool clamp = false;        // Math/Mix; ImageTex: unassociate alpha after filtering
 };
 
 struct Closure {
