@@ -263,8 +263,10 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     out.has_nondelta = mat.cached.has_nondelta;
     const Frame f = Frame::from_normal(sp.ns);
     for (int i = 0; i < out.n; ++i) {
-      out.c[size_t(i)] = mat.cached.c[size_t(i)];
-      out.c[size_t(i)].frame = f;
+      Closure& c = out.c[size_t(i)];
+      c = mat.cached.c[size_t(i)];
+      // Glossy lobes: the normal lifted as eval_shader does (Cycles' valid specular reflection).
+      c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
     }
     return;
   }

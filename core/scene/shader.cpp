@@ -128,7 +128,21 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     static const Float4 zero{};
     return i == kNoReg ? zero : r[i];
   };
-  auto frame_for = [&](int16_t normal_reg) { return Frame::from_normal(normal_or(r, normal_reg, ctx.ns)); };
+  // Closure frames as Cycles sets them up: glossy lobes get a normal whose mirror reflection of
+  // the view stays above the surface; diffuse lobes with a bent normal get the bump shadowing.
+  auto glossy_frame = [&](int16_t normal_reg) {
+    return Frame::from_normal(valid_specular_normal(ctx.ng, ctx.wo, normal_or(r, normal_reg, ctx.ns)));
+  };
+  auto diffuse_lobe = [&](int16_t normal_reg, Frame& f) {
+    const Vec3 n = normal_or(r, normal_reg, ctx.ns);
+    f = Frame::from_normal(n);
+    DiffuseBsdf d;
+    if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z) {
+      d.bent = true;
+      d.ns = f.to_local(ctx.ns);
+    }
+    return d;
+  };
   // Closure inputs: an omitted register means the input's default.
   auto col = [&](int16_t i) { return i == kNoReg ? Vec3(1.0f) : r[i].xyz(); };
   auto val = [&](int16_t i, float def) { return i == kNoReg ? def : r[i].x; };
@@ -200,12 +214,15 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = f4(n, 0.0f);
         break;
       }
-      case OpCode::Diffuse:
-        out.add(DiffuseBsdf{}, clean_color(col(op.in[0]) * col(op.in[1])), frame_for(op.in[2]));
+      case OpCode::Diffuse: {
+        Frame f;
+        const DiffuseBsdf d = diffuse_lobe(op.in[2], f);
+        out.add(d, clean_color(col(op.in[0]) * col(op.in[1])), f);
         break;
+      }
       case OpCode::Glossy:
         out.add(ConductorBsdf{roughness_to_alpha(val(op.in[2], 0.5f)), Vec3(1.0f), false},
-                clean_color(col(op.in[0]) * col(op.in[1])), frame_for(op.in[3]));
+                clean_color(col(op.in[0]) * col(op.in[1])), glossy_frame(op.in[3]));
         break;
       case OpCode::Glass:
       case OpCode::Refraction: {
@@ -217,7 +234,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           b.reflection = false;
           b.fresnel_on_transmission = false;
         }
-        out.add(b, clean_color(col(op.in[0]) * col(op.in[1])), frame_for(op.in[4]));
+        out.add(b, clean_color(col(op.in[0]) * col(op.in[1])), glossy_frame(op.in[4]));
         break;
       }
       case OpCode::Transparent:
@@ -237,7 +254,9 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         const float transmission = sat(val(op.in[5], 0.0f));
         const float spec_level = std::isfinite(val(op.in[6], 0.5f)) ? std::max(0.0f, val(op.in[6], 0.5f)) : 0.5f;
         const Vec3 spec_tint = clean_color(col(op.in[7]));
-        const Frame fr = frame_for(op.in[8]);
+        const Frame fr = glossy_frame(op.in[8]);  // Cycles' valid_reflection_N
+        Frame fd;
+        const DiffuseBsdf diffuse = diffuse_lobe(op.in[8], fd);
         if (metallic > 0.0f) out.add(ConductorBsdf{alpha, vmin(base, Vec3(1.0f)), true}, w * metallic, fr);
         const float dielectric = 1.0f - metallic;
         if (dielectric * transmission > 0.0f) {
@@ -266,7 +285,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
             out.add(spec, w * spec_tint * opaque, fr);
             reflected = fresnel_dielectric(std::fabs(dot(fr.n, ctx.wo)), spec.eta);
           }
-          out.add(DiffuseBsdf{}, w * base * (opaque * (1.0f - reflected)), fr);
+          out.add(diffuse, w * base * (opaque * (1.0f - reflected)), fd);
         }
         break;
       }
