@@ -217,3 +217,130 @@ def test_bad_programs_raise():
         s.add_image(np.zeros((4, 4, 3), np.float32))
     # NaN constants become 0 rather than poisoning renders.
     s.add_shader("nan", [("const", 0, (np.nan, 1.0, 1.0)), ("closure", "diffuse", None, {"color": 0})])
+
+
+# ---------------------------------------------------------------- value ops of issue 3
+
+import math  # noqa: E402
+
+from blender_util import load_addon  # noqa: E402
+
+load_addon()
+from addon.export import shader as sh  # noqa: E402  (the compiler's constant folding)
+
+
+def emitted(ops, tilt=0.0, size=3, eye_dist=20.0):
+    """The emission an (uncoloured) program's register 'out' gives at the image centre: a
+    plane (normal towards the camera, tilted by `tilt` radians about x) fills the view."""
+    s = pc.Scene()
+    out = max(op[1] for op in ops if op[0] != "closure") if ops else 0
+    m = s.add_shader("ops", list(ops) + [("closure", "emission", None, {"color": out})])
+    c, sn = math.cos(tilt), math.sin(tilt)
+    pos, tris = quad((-50, 0, -50), (100, 0, 0), (0, 100 * sn, 100 * c))
+    pos -= pos.mean(axis=0)  # centred on the camera axis
+    uvs = {0: np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)}
+    mesh = s.add_mesh(pos, tris, None, None, [m], uvs=uvs)
+    s.add_instance(mesh, np.eye(4, dtype=np.float32))
+    s.set_camera(camera(pc, (0, -eye_dist, 0), (0, 0, 0), lens=5000.0))  # nearly parallel rays
+    img, _ = render(pc, s, size, size, samples=1)
+    return img[size // 2, size // 2, :3]
+
+
+def consts(*values):
+    return [("const", i, tuple(v) if isinstance(v, (tuple, list)) else (v,)) for i, v in enumerate(values)]
+
+
+@pytest.mark.parametrize("conversion", ["RGB_TO_HSV", "HSV_TO_RGB", "RGB_TO_HSL", "HSL_TO_RGB"])
+def test_colour_conversions_match_the_compilers_folding(conversion):
+    for c in ((0.8, 0.3, 0.2), (0.2, 0.9, 0.4), (0.1, 0.2, 0.7), (0.5, 0.5, 0.5), (0.95, 0.0, 0.6)):
+        got = emitted(consts(c + (1.0,)) + [("color_space", 1, 0, conversion)])
+        assert got == pytest.approx(sh._COLOR_SPACES[conversion](c), abs=1e-5), c
+
+
+def test_colour_adjustment_ops_match_the_compilers_folding():
+    c = (0.8, 0.3, 0.2, 1.0)
+    got = emitted(consts(c, 0.6, 0.5, 1.2, 0.75) + [("hsv", 5, 0, 1, 2, 3, 4)])
+    assert got == pytest.approx(sh._hsv_node(c[:3], 0.6, 0.5, 1.2, 0.75), abs=1e-5)
+    got = emitted(consts(c, 2.2) + [("gamma", 2, 0, 1)])
+    assert got == pytest.approx(sh._gamma(c[:3], 2.2), abs=1e-5)
+    got = emitted(consts(c, 0.1, 0.4) + [("bright_contrast", 3, 0, 1, 2)])
+    assert got == pytest.approx([max(1.4 * x - 0.1, 0.0) for x in c[:3]], abs=1e-5)
+    for lo, hi, kind in ((0.2, 0.5, "MINMAX"), (0.5, 0.2, "RANGE"), (0.5, 0.2, "MINMAX")):
+        got = emitted(consts(0.7, lo, hi) + [("clamp", 3, 0, 1, 2, kind)])
+        assert got[0] == pytest.approx(sh._clamp(0.7, lo, hi, kind))
+    for mode in ("LINEAR", "STEPPED", "SMOOTHSTEP", "SMOOTHERSTEP"):
+        for v in (0.3, 0.62, 0.83, 1.4):  # away from float-rounded step edges
+            args = (v, 0.5, 1.0, 3.0, 7.0, 4.0)
+            got = emitted(consts(*args) + [("map_range", 6, 0, 1, 2, 3, 4, 5, mode, True)])
+            assert got[0] == pytest.approx(sh._map_range(*args, mode, True), abs=1e-5), (mode, v)
+
+
+@pytest.mark.parametrize("op", sorted(sh.VECTOR_MATH_OPS))
+def test_vector_math_matches_the_compilers_folding(op):
+    a, b, c, scale = (0.7, -0.4, 2.5), (1.5, 0.3, -0.8), (0.2, 0.9, 0.1), 0.6
+    expect = sh._vector_math(op, a, b, c, scale)
+    expect = (expect,) * 3 if op in sh.VECTOR_MATH_VALUE_OPS else expect
+    # Emission shows only positive values: look at the result and at its negation.
+    prog = consts(a + (0.0,), b + (0.0,), c + (0.0,), scale, -1.0) + [
+        ("vector_math", 5, 0, 1, 2, 3, op)]
+    pos = emitted(prog)
+    neg = emitted(prog + [("vector_math", 6, 5, 5, 5, 4, "SCALE")])
+    got = np.where(np.asarray(expect) >= 0, pos, -neg)
+    assert got == pytest.approx(expect, abs=1e-4)
+
+
+def test_ramp_op_matches_the_compilers_lookup():
+    table = np.stack([np.linspace(0, 1, 8), np.linspace(1, 0, 8) ** 2,
+                      (np.arange(8) % 2).astype(float), np.ones(8)], axis=1).astype(np.float32)
+    for f in (-0.3, 0.0, 0.1, 0.5, 0.93, 1.0, 1.2):
+        for interp, extrap in ((True, False), (False, False), (True, True)):
+            got = emitted(consts(f) + [("ramp", 1, 0, table, interp, extrap, 0.0, 1.0, False)])
+            expect = np.clip(sh.ramp_lookup(table.astype(np.float64), f, interp, extrap)[:3], 0, None)
+            assert got == pytest.approx(expect, abs=1e-5), (f, interp, extrap)
+    # Per-channel lookups over a range (RGB Curves).
+    got = emitted(consts((0.5, 1.0, 2.0, 1.0)) + [("ramp", 1, 0, table, True, False, 0.0, 2.0, True)])
+    expect = [sh.ramp_lookup(table.astype(np.float64), x / 2.0, True, False)[i]
+              for i, x in enumerate((0.5, 1.0, 2.0))]
+    assert got == pytest.approx(expect, abs=1e-5)
+
+
+def test_fresnel_and_layer_weight_follow_the_view_angle():
+    def fresnel(cos_i, eta):  # the Fresnel equations for unpolarised light, from the angles
+        sin_t = math.sqrt(max(0.0, 1 - cos_i ** 2)) / eta
+        cos_t = math.sqrt(1 - sin_t ** 2)
+        rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+        rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+        return 0.5 * (rs * rs + rp * rp)
+    for deg in (0.0, 45.0, 70.0):
+        cos_i = math.cos(math.radians(deg))
+        got = emitted(consts(1.5) + [("fresnel", 1, 0, None)], tilt=math.radians(deg))
+        assert got[0] == pytest.approx(fresnel(cos_i, 1.5), rel=5e-3, abs=1e-4), deg  # pixel jitter: +-0.07 degrees
+        got = emitted(consts(0.25) + [("layer_weight", 1, 0, None, "FACING")], tilt=math.radians(deg))
+        assert got[0] == pytest.approx(1 - cos_i ** 0.5, abs=2e-3), deg
+        got = emitted(consts(0.3) + [("layer_weight", 1, 0, None, "FRESNEL")], tilt=math.radians(deg))
+        assert got[0] == pytest.approx(fresnel(cos_i, 1 / 0.7), rel=5e-3, abs=1e-4), deg  # pixel jitter: +-0.07 degrees
+
+
+def test_bump_tilts_the_normal_by_the_height_slope():
+    # Height = slope * x over the plane y = 0 facing -y (the camera): the bumped normal is
+    # normalize(n - distance * grad h) = normalize((-distance * slope, -1, 0)).
+    for slope, distance, invert in ((-0.5, 1.0, False), (-2.0, 0.3, False), (0.5, 1.0, True)):
+        prog = [("position", 0), ("position", 1, 1), ("position", 2, 2), ("const", 3, (slope,)),
+                ("separate", 4, 0, 0), ("separate", 5, 1, 0), ("separate", 6, 2, 0),
+                ("math", 7, 4, 3, "MULTIPLY", False), ("math", 8, 5, 3, "MULTIPLY", False),
+                ("math", 9, 6, 3, "MULTIPLY", False), ("const", 10, (1.0,)), ("const", 11, (distance,)),
+                ("bump", 12, 7, 8, 9, 10, 11, None, invert),
+                ("vector_math", 13, 12, 12, 12, 10, "ABSOLUTE")]
+        d = -distance if invert else distance
+        n = np.array([-d * slope, -1.0, 0.0])
+        got = emitted(prog)
+        assert got == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=2e-3), (slope, distance)
+    # A uv height (u grows along +x): the same through the uv offsets.
+    prog = [("uv", 0, 0), ("uv", 1, 0, 1), ("uv", 2, 0, 2), ("const", 3, (-0.01,)),
+            ("separate", 4, 0, 0), ("separate", 5, 1, 0), ("separate", 6, 2, 0),
+            ("math", 7, 4, 3, "MULTIPLY", False), ("math", 8, 5, 3, "MULTIPLY", False),
+            ("math", 9, 6, 3, "MULTIPLY", False), ("const", 10, (1.0,)),
+            ("bump", 11, 7, 8, 9, 10, 10, None, False),
+            ("vector_math", 12, 11, 11, 11, 10, "ABSOLUTE")]
+    n = np.array([0.01 / 100.0, -1.0, 0.0])  # u spans 100 units
+    assert emitted(prog) == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=1e-5)

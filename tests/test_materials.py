@@ -360,3 +360,141 @@ def test_strongly_tilted_normal_map_on_a_glossy_plane(sun):
     build = normal_map_scene([60.0, -35.0], sun=sun, bsdf="ShaderNodeBsdfGlossy", Roughness=0.3)
     ours, cycles = render_pair(build, 128)
     assert_agree(ours, cycles, region=0.03, whole=0.01)
+
+
+# ---------------------------------------------------------------- value nodes (issue 3)
+
+def fresnel_mix(name, layer_weight=False):
+    """Diffuse under a glossy coat mixed by Fresnel (IOR 1.45), or by Layer Weight's Fresnel."""
+    mat, nodes, links, out = ms.new_material(name)
+    mix = nodes.new("ShaderNodeMixShader")
+    d = ms.set_inputs(nodes.new("ShaderNodeBsdfDiffuse"), Color=(0.8, 0.25, 0.1, 1.0))
+    g = ms.set_inputs(nodes.new("ShaderNodeBsdfGlossy"), Roughness=0.2)
+    g.distribution = 'GGX'
+    if layer_weight:
+        f = ms.set_inputs(nodes.new("ShaderNodeLayerWeight"), Blend=0.3)
+        links.new(f.outputs["Fresnel"], mix.inputs["Fac"])
+    else:
+        f = ms.set_inputs(nodes.new("ShaderNodeFresnel"), IOR=1.45)
+        links.new(f.outputs["Fac"], mix.inputs["Fac"])
+    links.new(d.outputs[0], mix.inputs[1])
+    links.new(g.outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+@pytest.mark.parametrize("layer_weight", [False, True])
+def test_fresnel_mixed_coat(layer_weight):
+    ours, cycles = render_pair(sphere_scene(lambda: fresnel_mix("Coat", layer_weight)), 256)
+    assert_agree(ours, cycles)
+    # The rim (grazing view) is more glossy than the centre: brighter relative to the diffuse
+    # red than the ball's middle, where the coat is faint.
+    rim, mid = ours[14:18, 29:35, :3].mean(0).mean(0), ours[30:36, 28:36, :3].mean(0).mean(0)
+    assert rim[2] / rim[0] > mid[2] / mid[0]
+
+
+def emission_plane_scene(color_fn):
+    """A 1 m plane seen from above, emitting colour_fn(nodes, links) (a colour socket) with
+    its UV coordinates available; noise-free (the camera sees the emission only)."""
+    def build():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 32
+        ms.set_world((0.0, 0.0, 0.0))
+        mat, nodes, links, out = ms.new_material("Emitter")
+        e = nodes.new("ShaderNodeEmission")
+        links.new(color_fn(nodes, links), e.inputs["Color"])
+        links.new(e.outputs[0], out.inputs["Surface"])
+        ms.add_plane("Plane", 1.0, mat)
+        ms.add_camera((0.0, 0.0, 1.6), (0.0, 0.0, 0.0))
+        return scene
+    return build
+
+
+def uv_x_socket(nodes, links):
+    sep = nodes.new("ShaderNodeSeparateXYZ")
+    links.new(nodes.new("ShaderNodeTexCoord").outputs["UV"], sep.inputs["Vector"])
+    return sep.outputs["X"]
+
+
+@pytest.mark.parametrize("interpolation", ['EASE', 'CONSTANT'])
+def test_color_ramp_over_uv(interpolation):
+    def colors(nodes, links):
+        ramp = nodes.new("ShaderNodeValToRGB")
+        r = ramp.color_ramp
+        r.interpolation = interpolation
+        r.elements[0].color = (0.9, 0.1, 0.05, 1.0)
+        r.elements[1].position = 0.8
+        r.elements[1].color = (0.05, 0.2, 0.9, 1.0)
+        mid = r.elements.new(0.4)
+        mid.color = (0.2, 0.9, 0.1, 1.0)
+        links.new(uv_x_socket(nodes, links), ramp.inputs["Fac"])
+        return ramp.outputs["Color"]
+    ours, cycles = render_pair(emission_plane_scene(colors), 32, bounces=1)
+    assert_agree(ours, cycles, region=0.02, whole=0.005)
+    assert np.abs(ours - cycles)[8:24, 8:24, :3].mean() < 0.01
+    # The ramp shows: red on the left, blue on the right.
+    assert ours[16, 5, 0] > ours[16, 5, 2] and ours[16, 27, 2] > ours[16, 27, 0]  # u ~ 0.1, 0.9
+
+
+def test_hue_saturation_value_and_separate_combine():
+    def colors(nodes, links):
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = ms.checker_image("Checker", 4)
+        tex.interpolation = 'Closest'
+        hsv = ms.set_inputs(nodes.new("ShaderNodeHueSaturation"), Hue=0.3, Saturation=1.5,
+                            Value=0.8, Fac=0.9)
+        links.new(tex.outputs["Color"], hsv.inputs["Color"])
+        sep = nodes.new("ShaderNodeSeparateColor")
+        sep.mode = 'HSV'
+        comb = nodes.new("ShaderNodeCombineColor")
+        comb.mode = 'HSV'
+        links.new(hsv.outputs["Color"], sep.inputs["Color"])
+        links.new(sep.outputs[0], comb.inputs[0])
+        links.new(sep.outputs[2], comb.inputs[1])  # value as saturation: a visible change
+        links.new(sep.outputs[2], comb.inputs[2])
+        gamma = ms.set_inputs(nodes.new("ShaderNodeGamma"), Gamma=1.4)
+        links.new(comb.outputs["Color"], gamma.inputs["Color"])
+        return gamma.outputs["Color"]
+    ours, cycles = render_pair(emission_plane_scene(colors), 32, bounces=1)
+    assert_agree(ours, cycles, region=0.02, whole=0.005)
+    assert np.abs(ours - cycles)[8:24, 8:24, :3].mean() < 0.01
+
+
+def bump_scene(distance, invert=False):
+    """A diffuse plane whose height is a smooth 8x8 float texture (Linear), through a Bump
+    node, lit by a low sun: the slopes facing the sun are brighter."""
+    def build():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 64
+        ms.set_world((0.05, 0.05, 0.05))
+        y, x = np.mgrid[0:8, 0:8] / 7.0
+        px = np.ones((8, 8, 4), np.float32)
+        px[..., :3] = (0.5 + 0.5 * np.sin(2 * np.pi * x) * np.cos(np.pi * y))[..., None]
+        mat, nodes, links, out = ms.new_material("Bumped")
+        tex = nodes.new("ShaderNodeTexImage")
+        tex.image = ms.pixel_image("Height", px, "Non-Color", float_buffer=True)
+        bump = ms.set_inputs(nodes.new("ShaderNodeBump"), Distance=distance)
+        bump.invert = invert
+        d = ms.set_inputs(nodes.new("ShaderNodeBsdfDiffuse"), Color=(0.8, 0.8, 0.8, 1.0))
+        links.new(tex.outputs["Color"], bump.inputs["Height"])
+        links.new(bump.outputs["Normal"], d.inputs["Normal"])
+        links.new(d.outputs[0], out.inputs["Surface"])
+        ms.add_plane("Plane", 1.0, mat, rotation_euler=(0.0, 0.0, 0.3))
+        light = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
+        light.data.energy = 3.0
+        light.data.angle = 0.0
+        light.rotation_euler = (0.0, math.radians(55.0), 0.0)
+        scene.collection.objects.link(light)
+        ms.add_camera((0.0, 0.0, 1.6), (0.0, 0.0, 0.0))
+        return scene
+    return build
+
+
+def test_bump_from_a_texture():
+    ours, cycles = render_pair(bump_scene(0.05), 64)
+    assert_agree(ours, cycles, region=0.03, whole=0.01)
+    flat, _ = render_pair(bump_scene(0.0), 16)
+    # The bump shows: the plane's shading varies far more than without it.
+    assert ours[12:52, 12:52, 0].std() > 3 * flat[12:52, 12:52, 0].std() + 0.02

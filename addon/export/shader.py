@@ -130,6 +130,226 @@ def _sat(x):
     return min(max(x, 0.0), 1.0)
 
 
+RAMP_TABLE_SIZE = 256  # Cycles' RAMP_TABLE_SIZE
+VECTOR_MATH_OPS = {"ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "CROSS_PRODUCT",
+                   "PROJECT", "REFLECT", "REFRACT", "FACEFORWARD", "DOT_PRODUCT", "DISTANCE",
+                   "LENGTH", "SCALE", "NORMALIZE", "ABSOLUTE", "POWER", "SIGN", "MINIMUM",
+                   "MAXIMUM", "FLOOR", "CEIL", "FRACTION", "MODULO", "WRAP", "SNAP", "SINE",
+                   "COSINE", "TANGENT"}
+VECTOR_MATH_VALUE_OPS = {"DOT_PRODUCT", "DISTANCE", "LENGTH"}
+
+
+def ramp_lookup(table, f, interpolate, extrapolate):
+    """Cycles' rgb_ramp_lookup (the core's Ramp op), for constant folding."""
+    n = len(table)
+    if extrapolate and (f < 0.0 or f > 1.0):
+        t0, t1 = (table[0], table[1]) if f < 0.0 else (table[-1], table[-2])
+        k = (-f if f < 0.0 else f - 1.0) * (n - 1)
+        return [a + (a - b) * k for a, b in zip(t0, t1)]
+    f = _sat(f) * (n - 1) if math.isfinite(f) else 0.0
+    i = min(max(int(f), 0), n - 1)
+    w = f - i
+    if interpolate and w > 0.0 and i + 1 < n:
+        return [a + (b - a) * w for a, b in zip(table[i], table[i + 1])]
+    return list(table[i])
+
+
+def _rgb_to_hsv(c):
+    r, g, b = c
+    cmax, cmin = max(r, g, b), min(r, g, b)
+    delta = cmax - cmin
+    s = delta / cmax if cmax != 0.0 else 0.0
+    h = 0.0
+    if s != 0.0:
+        cr, cg, cb = ((cmax - x) / delta for x in (r, g, b))
+        h = (cb - cg) if r == cmax else (2.0 + cr - cb) if g == cmax else (4.0 + cg - cr)
+        h /= 6.0
+        if h < 0.0:
+            h += 1.0
+    return (h, s, cmax)
+
+
+def _hsv_to_rgb(c):
+    h, s, v = c
+    if s == 0.0:
+        return (v, v, v)
+    if h == 1.0:
+        h = 0.0
+    h *= 6.0
+    i = math.floor(h)
+    f = h - i
+    p, q, t = v * (1.0 - s), v * (1.0 - s * f), v * (1.0 - s * (1.0 - f))
+    return [(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v)][int(i)] if 0 <= i < 5 \
+        else (v, p, q)
+
+
+def _rgb_to_hsl(c):
+    r, g, b = c
+    cmax, cmin = max(r, g, b), min(r, g, b)
+    lum = min(1.0, (cmax + cmin) / 2.0)
+    h = s = 0.0
+    if cmax != cmin:
+        d = cmax - cmin
+        s = d / (2.0 - cmax - cmin) if lum > 0.5 else d / (cmax + cmin)
+        if cmax == r:
+            h = (g - b) / d + (6.0 if g < b else 0.0)
+        elif cmax == g:
+            h = (b - r) / d + 2.0
+        else:
+            h = (r - g) / d + 4.0
+    return (h / 6.0, s, lum)
+
+
+def _hsl_to_rgb(c):
+    h, s, lum = c
+    nr = _sat(abs(h * 6.0 - 3.0) - 1.0)
+    ng = _sat(2.0 - abs(h * 6.0 - 2.0))
+    nb = _sat(2.0 - abs(h * 6.0 - 4.0))
+    chroma = (1.0 - abs(2.0 * lum - 1.0)) * s
+    return tuple((x - 0.5) * chroma + lum for x in (nr, ng, nb))
+
+
+_COLOR_SPACES = {"RGB_TO_HSV": _rgb_to_hsv, "HSV_TO_RGB": _hsv_to_rgb,
+                 "RGB_TO_HSL": _rgb_to_hsl, "HSL_TO_RGB": _hsl_to_rgb}
+
+
+def _hsv_node(color, hue, saturation, value, fac):
+    """Cycles' svm_node_hsv."""
+    h, s, v = _rgb_to_hsv(color)
+    h = h + hue + 0.5
+    out = _hsv_to_rgb((h - math.floor(h), _sat(s * saturation), v * value))
+    return [max(fac * o + (1.0 - fac) * i, 0.0) for o, i in zip(out, color)]
+
+
+def _gamma(color, g):
+    if g == 0.0:
+        return (1.0, 1.0, 1.0)
+    out = []
+    for x in color:
+        try:
+            y = math.pow(x, g) if x > 0.0 else x
+        except (OverflowError, ValueError):
+            y = 0.0
+        out.append(y if math.isfinite(y) else 0.0)
+    return out
+
+
+def _clamp(v, lo, hi, clamp_type):
+    if clamp_type == 'RANGE' and lo > hi:
+        lo, hi = hi, lo
+    return min(max(v, lo), hi)
+
+
+def _smoothstep(e0, e1, x):
+    if x < e0:
+        return 0.0
+    if x >= e1:
+        return 1.0
+    t = (x - e0) / (e1 - e0)
+    return (3.0 - 2.0 * t) * t * t
+
+
+def _smootherstep(e0, e1, x):
+    x = _sat((x - e0) / (e1 - e0) if e1 != e0 else 0.0)
+    return x * x * x * (x * (x * 6.0 - 15.0) + 10.0)
+
+
+def _map_range(v, f0, f1, t0, t1, steps, mode, clamp):
+    """Cycles' svm_node_map_range (float), with Blender's clamp of Linear and Stepped."""
+    if f1 == f0:
+        return 0.0
+    if mode in ('LINEAR', 'STEPPED'):
+        factor = (v - f0) / (f1 - f0)
+        if mode == 'STEPPED':
+            factor = math.floor(factor * (steps + 1.0)) / steps if steps > 0.0 else 0.0
+    elif mode == 'SMOOTHSTEP':
+        factor = 1.0 - _smoothstep(f1, f0, v) if f0 > f1 else _smoothstep(f0, f1, v)
+    else:
+        factor = 1.0 - _smootherstep(f1, f0, v) if f0 > f1 else _smootherstep(f0, f1, v)
+    r = t0 + factor * (t1 - t0)
+    if clamp and mode in ('LINEAR', 'STEPPED'):
+        r = min(max(r, min(t0, t1)), max(t0, t1))
+    return r if math.isfinite(r) else 0.0
+
+
+def _vector_math(op, a, b, c, scale):
+    """Blender's Vector Math on constants (the core's VectorMath op)."""
+    a, b, c = (np.asarray(x, np.float64) for x in (a, b, c))
+    safe_div = lambda x, y: np.where(y != 0.0, x / np.where(y != 0.0, y, 1.0), 0.0)  # noqa: E731
+    with np.errstate(all='ignore'):
+        if op == "DOT_PRODUCT":
+            r = float(a @ b)
+        elif op == "DISTANCE":
+            r = float(np.linalg.norm(a - b))
+        elif op == "LENGTH":
+            r = float(np.linalg.norm(a))
+        else:
+            if op == "ADD":
+                v = a + b
+            elif op == "SUBTRACT":
+                v = a - b
+            elif op == "MULTIPLY":
+                v = a * b
+            elif op == "DIVIDE":
+                v = safe_div(a, b)
+            elif op == "MULTIPLY_ADD":
+                v = a * b + c
+            elif op == "CROSS_PRODUCT":
+                v = np.cross(a, b)
+            elif op == "PROJECT":
+                bb = b @ b
+                v = b * (a @ b) / bb if bb != 0.0 else np.zeros(3)
+            elif op == "REFLECT":
+                n = b / np.linalg.norm(b) if (b @ b) > 0.0 else None
+                v = a if n is None else a - 2.0 * (a @ n) * n
+            elif op == "REFRACT":
+                n = b / np.linalg.norm(b) if (b @ b) > 0.0 else b
+                d = n @ a
+                k = 1.0 - scale * scale * (1.0 - d * d)
+                v = np.zeros(3) if k < 0.0 else scale * a - (scale * d + math.sqrt(k)) * n
+            elif op == "FACEFORWARD":
+                v = a if (b @ c) < 0.0 else -a
+            elif op == "SCALE":
+                v = a * scale
+            elif op == "NORMALIZE":
+                ln = np.linalg.norm(a)
+                v = a / ln if ln != 0.0 else np.zeros(3)
+            elif op == "ABSOLUTE":
+                v = np.abs(a)
+            elif op == "POWER":
+                v = np.array([_math("POWER", x, y) for x, y in zip(a, b)])
+            elif op == "SIGN":
+                v = np.sign(a)
+            elif op == "MINIMUM":
+                v = np.minimum(a, b)
+            elif op == "MAXIMUM":
+                v = np.maximum(a, b)
+            elif op == "FLOOR":
+                v = np.floor(a)
+            elif op == "CEIL":
+                v = np.ceil(a)
+            elif op == "FRACTION":
+                v = a - np.floor(a)
+            elif op == "MODULO":
+                v = np.where(b != 0.0, np.fmod(a, np.where(b != 0.0, b, 1.0)), 0.0)
+            elif op == "WRAP":
+                rng = b - c
+                v = np.where(rng != 0.0, a - rng * np.floor((a - c) / np.where(rng != 0.0, rng, 1.0)), c)
+            elif op == "SNAP":
+                v = np.floor(safe_div(a, b)) * b
+            elif op == "SINE":
+                v = np.sin(a)
+            elif op == "COSINE":
+                v = np.cos(a)
+            elif op == "TANGENT":
+                v = np.tan(a)
+            else:
+                raise ValueError(op)
+            v = np.where(np.isfinite(v), v, 0.0)
+            return tuple(float(x) for x in v)
+    return r if math.isfinite(r) else 0.0
+
+
 def euler_matrix(xyz):
     """Blender's XYZ Euler rotation matrix (Rz @ Ry @ Rx), as the Mapping node uses."""
     x, y, z = (float(a) for a in xyz)
@@ -314,6 +534,9 @@ class ShaderCompiler:
         self.problems = []
         self.uv_used = {}
         self._links = {}  # tree pointer -> {to_socket pointer: link}
+        # Where reads of the shading point happen: 0 the point, 1 / 2 the Bump node's offsets
+        # (its Height sub-graph is compiled once per offset, as Cycles duplicates it).
+        self.bump_state = 0
 
     # -------------------------------------------------- problems
 
@@ -559,7 +782,7 @@ class ShaderCompiler:
         return self.socket_default(socket, kind)
 
     def node_output(self, node, out, ctx, consumer, kind):
-        key = (node.as_pointer(), out.identifier, self.ctx_key(ctx))
+        key = (node.as_pointer(), out.identifier, self.ctx_key(ctx), self.bump_state)
         if key in self.cache:
             return self.cache[key]
         if key in self.visiting:
@@ -603,9 +826,18 @@ class ShaderCompiler:
     def uv_value(self, name, what):
         """Val of the UV coordinates of a UV map (one "uv" op per set)."""
         k = self.uv(name, what)
-        key = ("uv", k)
+        key = ("uv", k, self.bump_state)
         if key not in self.cache:
-            self.cache[key] = self.emit("vector", "uv", k)
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", "uv", k, *extra)
+        return self.cache[key]
+
+    def position(self):
+        """Val of the world position (at the current bump offset)."""
+        key = ("position", self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", "position", *extra)
         return self.cache[key]
 
     def eval_value_node(self, node, out, ctx):
@@ -625,7 +857,7 @@ class ShaderCompiler:
             return self.uv_value(node.uv_map, f"'{node.name}'")
         if t == 'NEW_GEOMETRY':
             if oid == "Position":
-                return self.emit("vector", "position")
+                return self.position()
             if oid == "Normal":
                 return self.emit("vector", "normal")
             self.problem(f"'{node.name}': output {out.name} is not supported (0)")
@@ -649,7 +881,215 @@ class ShaderCompiler:
             return self.mix("MIX", fac, c, inverted)
         if t == 'NORMAL_MAP':
             return self.normal_map(node, ctx)
+        handler = self._VALUE_NODES.get(t)
+        if handler is not None:
+            return handler(self, node, out, ctx)
         return NotImplemented
+
+    # -------------------------------------------------- more value nodes (issue 3)
+
+    def fresnel_node(self, node, out, ctx):
+        ior = self.input(node, "IOR", ctx, "float")
+        normal = self.normal(node, ctx)
+        return self.emit("float", "fresnel", self.reg(ior),
+                         None if normal is None else self.reg(normal))
+
+    def layer_weight(self, node, out, ctx):
+        blend = self.input(node, "Blend", ctx, "float")
+        normal = self.normal(node, ctx)
+        which = "FACING" if out.identifier == "Facing" else "FRESNEL"
+        return self.emit("float", "layer_weight", self.reg(blend),
+                         None if normal is None else self.reg(normal), which)
+
+    def bump(self, node, out, ctx):
+        """Cycles' Bump: the height at the point and at two small offsets along the surface
+        (finite differences along the triangle's edges, not Cycles' ray differentials)."""
+        normal = self.normal(node, ctx)
+        strength = self.input(node, "Strength", ctx, "float")
+        distance = self.input(node, "Distance", ctx, "float")
+        height = node.inputs["Height"]
+        if self.source(height, ctx) is None or (strength.is_const and strength.const[0] <= 0.0):
+            return normal  # nothing to differentiate: the input normal (None: the shading one)
+        saved = self.bump_state
+        heights = []
+        try:
+            for state in (0, 1, 2):
+                self.bump_state = state
+                heights.append(self.value(height, ctx, "float"))
+        finally:
+            self.bump_state = saved
+        if all(h.is_const for h in heights):
+            return normal  # a constant height has no slope
+        return self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(strength),
+                         self.reg(distance), None if normal is None else self.reg(normal),
+                         bool(node.invert))
+
+    def light_path(self, node, out, ctx):
+        """Folded as for camera rays: the core's shading does not know the ray type."""
+        value = 1.0 if out.identifier == "Is Camera Ray" else 0.0
+        self.problem(f"'{node.name}': {out.name} is evaluated as for camera rays "
+                     f"({_fmt(value)}: the ray type is not known when shading)")
+        return const_float(value)
+
+    def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
+             kind="color"):
+        if src.is_const:
+            c = src.const
+            rel = lambda v: (v - lo) / (hi - lo) if hi != lo else 0.0  # noqa: E731
+            if channels:
+                out = tuple(ramp_lookup(table, rel(c[i]), interpolate, extrapolate)[i]
+                            for i in range(3)) + (1.0,)
+            else:
+                out = tuple(ramp_lookup(table, rel(c[0]), interpolate, extrapolate))
+            return const_float(out[0]) if kind == "float" else const_color(out)
+        return self.emit(kind, "ramp", self.reg(src), np.ascontiguousarray(table, np.float32),
+                         bool(interpolate), bool(extrapolate), float(lo), float(hi),
+                         bool(channels))
+
+    def color_ramp(self, node, out, ctx):
+        """Cycles bakes the ramp (any interpolation and colour mode) into a 256-entry table."""
+        fac = self.input(node, "Fac", ctx, "float")
+        ramp = node.color_ramp
+        table = np.array([tuple(ramp.evaluate(i / (RAMP_TABLE_SIZE - 1)))
+                          for i in range(RAMP_TABLE_SIZE)], np.float64)
+        interpolate = ramp.interpolation != 'CONSTANT'
+        if out.identifier == "Alpha":
+            return self.ramp(fac, np.repeat(table[:, 3:4], 4, axis=1), interpolate, kind="float")
+        return self.ramp(fac, table, interpolate)
+
+    def rgb_curves(self, node, out, ctx):
+        """Cycles' curvemapping_color_to_array: the combined curve then each channel's, over
+        the range of all curves' points, 256 entries."""
+        fac = self.input(node, "Fac", ctx, "float")
+        color = self.input(node, "Color", ctx, "color")
+        mapping = node.mapping
+        mapping.initialize()
+        curves = list(mapping.curves)
+        los = [c.points[0].location[0] for c in curves[:4] if len(c.points)]
+        his = [c.points[-1].location[0] for c in curves[:4] if len(c.points)]
+        lo, hi = (min(los), max(his)) if los else (0.0, 1.0)
+        table = np.ones((RAMP_TABLE_SIZE, 4))
+        for i in range(RAMP_TABLE_SIZE):
+            t = lo + i / (RAMP_TABLE_SIZE - 1) * (hi - lo)
+            combined = mapping.evaluate(curves[3], t)
+            table[i, :3] = [mapping.evaluate(curves[c], combined) for c in range(3)]
+        curved = self.ramp(color, table, True, mapping.extend == 'EXTRAPOLATED', lo, hi,
+                           channels=True)
+        if not (fac.is_const and 0.0 <= fac.const[0] <= 1.0):
+            self.problem(f"'{node.name}': its factor is clamped to [0, 1]")
+        return self.mix("MIX", fac, color, curved)
+
+    def color_space(self, v, conversion, kind):
+        if v.is_const:
+            c = _COLOR_SPACES[conversion](v.const[:3])
+            return Val(kind, tuple(c) + (v.const[3],))
+        return self.emit(kind, "color_space", self.reg(v), conversion)
+
+    def separate(self, v, axis):
+        if v.is_const:
+            return const_float(v.const[axis])
+        return self.emit("float", "separate", self.reg(v), axis)
+
+    def combine(self, a, b, c, kind):
+        if a.is_const and b.is_const and c.is_const:
+            xyz = (a.const[0], b.const[0], c.const[0])
+            return const_color(xyz + (1.0,)) if kind == "color" else const_vector(xyz)
+        return self.emit(kind, "combine", self.reg(a), self.reg(b), self.reg(c), kind == "color")
+
+    def separate_color(self, node, out, ctx):
+        color = self.input(node, "Color" if "Color" in node.inputs else "Image", ctx, "color")
+        mode = getattr(node, "mode", 'HSV' if node.type == 'SEPHSV' else 'RGB')
+        if mode in ('HSV', 'HSL'):
+            color = self.color_space(color, f"RGB_TO_{mode}", "color")
+        axis = [o.identifier for o in node.outputs].index(out.identifier)
+        return self.separate(color, axis)
+
+    def combine_color(self, node, out, ctx):
+        ins = [self.value(s, ctx, "float") for s in list(node.inputs)[:3]]
+        mode = getattr(node, "mode", 'HSV' if node.type == 'COMBHSV' else 'RGB')
+        color = self.combine(*ins, "color")
+        if mode in ('HSV', 'HSL'):
+            color = self.color_space(color, f"{mode}_TO_RGB", "color")
+        return color
+
+    def separate_xyz(self, node, out, ctx):
+        v = self.input(node, "Vector", ctx, "vector")
+        return self.separate(v, "XYZ".index(out.identifier))
+
+    def combine_xyz(self, node, out, ctx):
+        return self.combine(*(self.input(node, k, ctx, "float") for k in "XYZ"), "vector")
+
+    def hue_saturation(self, node, out, ctx):
+        ins = [self.input(node, "Color", ctx, "color")] + [
+            self.input(node, k, ctx, "float") for k in ("Hue", "Saturation", "Value", "Fac")]
+        if all(v.is_const for v in ins):
+            c = _hsv_node(ins[0].const[:3], *(v.const[0] for v in ins[1:]))
+            return const_color(tuple(c) + (1.0,))
+        return self.emit("color", "hsv", *(self.reg(v) for v in ins))
+
+    def gamma(self, node, out, ctx):
+        c = self.input(node, "Color", ctx, "color")
+        g = self.input(node, "Gamma", ctx, "float")
+        if c.is_const and g.is_const:
+            return const_color(tuple(_gamma(c.const[:3], g.const[0])) + (1.0,))
+        return self.emit("color", "gamma", self.reg(c), self.reg(g))
+
+    def bright_contrast(self, node, out, ctx):
+        c = self.input(node, "Color", ctx, "color")
+        bright = self.input(node, "Bright", ctx, "float")
+        contrast = self.input(node, "Contrast", ctx, "float")
+        if c.is_const and bright.is_const and contrast.is_const:
+            a, b = 1.0 + contrast.const[0], bright.const[0] - contrast.const[0] * 0.5
+            return const_color(tuple(max(a * x + b, 0.0) for x in c.const[:3]) + (1.0,))
+        return self.emit("color", "bright_contrast", self.reg(c), self.reg(bright),
+                         self.reg(contrast))
+
+    def clamp_node(self, node, out, ctx):
+        v, lo, hi = (self.input(node, k, ctx, "float") for k in ("Value", "Min", "Max"))
+        if v.is_const and lo.is_const and hi.is_const:
+            return const_float(_clamp(v.const[0], lo.const[0], hi.const[0], node.clamp_type))
+        return self.emit("float", "clamp", self.reg(v), self.reg(lo), self.reg(hi),
+                         node.clamp_type)
+
+    def map_range(self, node, out, ctx):
+        if node.data_type != 'FLOAT':
+            return NotImplemented
+        by_id = {s.identifier: s for s in node.inputs}
+        ins = [self.value(by_id[k], ctx, "float")
+               for k in ("Value", "From Min", "From Max", "To Min", "To Max", "Steps")]
+        mode = node.interpolation_type
+        if all(v.is_const for v in ins):
+            return const_float(_map_range(*(v.const[0] for v in ins), mode, node.clamp))
+        return self.emit("float", "map_range", *(self.reg(v) for v in ins), mode,
+                         bool(node.clamp))
+
+    def vector_math(self, node, out, ctx):
+        op = node.operation
+        if op not in VECTOR_MATH_OPS:
+            return NotImplemented
+        by_id = {s.identifier: s for s in node.inputs}
+        a, b, c = (self.value(by_id[k], ctx, "vector")
+                   for k in ("Vector", "Vector_001", "Vector_002"))
+        scale = self.value(by_id["Scale"], ctx, "float")
+        value_op = op in VECTOR_MATH_VALUE_OPS
+        if (out.identifier == "Value") != value_op:  # the output this operation leaves at 0
+            return ZERO if out.identifier == "Value" else const_vector((0, 0, 0))
+        kind = "float" if value_op else "vector"
+        if all(v.is_const for v in (a, b, c, scale)):
+            r = _vector_math(op, a.const[:3], b.const[:3], c.const[:3], scale.const[0])
+            return const_float(r) if value_op else const_vector(r)
+        return self.emit(kind, "vector_math", self.reg(a), self.reg(b), self.reg(c),
+                         self.reg(scale), op)
+
+    _VALUE_NODES = {
+        'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
+        'LIGHT_PATH': light_path, 'VALTORGB': color_ramp, 'CURVE_RGB': rgb_curves,
+        'SEPARATE_COLOR': separate_color, 'SEPRGB': separate_color, 'SEPHSV': separate_color,
+        'COMBINE_COLOR': combine_color, 'COMBRGB': combine_color, 'COMBHSV': combine_color,
+        'SEPXYZ': separate_xyz, 'COMBXYZ': combine_xyz, 'HUE_SAT': hue_saturation,
+        'GAMMA': gamma, 'BRIGHTCONTRAST': bright_contrast, 'CLAMP': clamp_node,
+        'MAP_RANGE': map_range, 'VECT_MATH': vector_math,
+    }
 
     def tex_coord(self, node, oid):
         if oid == "UV":
@@ -659,7 +1099,7 @@ class ShaderCompiler:
         if oid in ("Object", "Generated"):
             self.problem(f"'{node.name}': {oid} coordinates are approximated by world "
                          "positions")
-            return self.emit("vector", "position")
+            return self.position()
         if oid == "Normal":
             self.problem(f"'{node.name}': object-space Normal is approximated by the world "
                          "normal")
@@ -986,22 +1426,20 @@ class ShaderCompiler:
         self.uv_used = {}
 
 
+# How many register operands (after the destination) each value op has; None = none given.
+_OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "mapping": 1, "image": 1,
+             "rgb_to_bw": 1, "math": 2, "mix": 3, "normal_map": 2, "fresnel": 2,
+             "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
+             "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
+             "map_range": 6, "vector_math": 4}
+
+
 def _reads(op):
     name = op[0]
     if name == "closure":
         regs = [r for r in op[3].values()]
         return regs + ([op[2]] if op[2] is not None else [])
-    if name in ("const", "uv", "position", "normal"):
-        return []
-    if name in ("mapping", "image", "rgb_to_bw"):
-        return [op[2]]
-    if name == "math":
-        return [op[2], op[3]]
-    if name == "mix":
-        return [op[2], op[3], op[4]]
-    if name == "normal_map":
-        return [op[2], op[3]]
-    raise ValueError(name)
+    return [r for r in op[2:2 + _OPERANDS[name]] if r is not None]
 
 
 def _rename(op, m):
@@ -1009,10 +1447,9 @@ def _rename(op, m):
     if name == "closure":
         return ("closure", op[1], None if op[2] is None else m[op[2]],
                 {k: m[v] for k, v in op[3].items()})
+    n_regs = _OPERANDS[name]
     out = [name, m[op[1]]]
-    n_regs = {"const": 0, "uv": 0, "position": 0, "normal": 0, "mapping": 1, "image": 1,
-              "rgb_to_bw": 1, "math": 2, "mix": 3, "normal_map": 2}[name]
-    out += [m[r] for r in op[2:2 + n_regs]]
+    out += [None if r is None else m[r] for r in op[2:2 + n_regs]]
     out += list(op[2 + n_regs:])
     return tuple(out)
 

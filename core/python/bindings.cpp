@@ -185,6 +185,15 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       if (v[i] == x) return uint8_t(i);
     throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
   };
+  static const std::vector<std::string> vector_math_ops = {
+      "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "CROSS_PRODUCT", "PROJECT", "REFLECT", "REFRACT",
+      "FACEFORWARD", "DOT_PRODUCT", "DISTANCE", "LENGTH", "SCALE", "NORMALIZE", "ABSOLUTE", "POWER", "SIGN",
+      "MINIMUM", "MAXIMUM", "FLOOR", "CEIL", "FRACTION", "MODULO", "WRAP", "SNAP", "SINE", "COSINE", "TANGENT"};
+  auto bump_offset = [](const py::handle& h) {
+    const int64_t v = h.cast<int64_t>();
+    if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
+    return uint8_t(v);
+  };
   const int64_t n_images = int64_t(self.scene->image_count());
   for (const auto& item : program) {
     const auto t = item.cast<py::tuple>();
@@ -240,15 +249,102 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.code = OpCode::Const;
       o.value = {f[0], f[1], f[2], f[3]};
     } else if (op == "uv") {
-      need(3);
+      if (t.size() != 3 && t.size() != 4) throw std::invalid_argument("shader op 'uv' takes 2 or 3 arguments");
       o.code = OpCode::Uv;
       o.index = t[2].cast<int32_t>();
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+      o.sub = t.size() == 4 ? bump_offset(t[3]) : uint8_t(kAtPoint);
       prog.uses_uv = prog.varying = true;
+    } else if (op == "position" && (t.size() == 2 || t.size() == 3)) {
+      o.code = OpCode::Position;
+      o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
+      prog.varying = true;
     } else if (op == "position" || op == "normal") {
       need(2);
       o.code = op == "position" ? OpCode::Position : OpCode::Normal;
       prog.varying = true;
+    } else if (op == "fresnel") {
+      need(4);
+      o.code = OpCode::Fresnel;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      prog.varying = true;
+    } else if (op == "layer_weight") {
+      need(5);
+      o.code = OpCode::LayerWeight;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.sub = index_in({"FRESNEL", "FACING"}, name_of(t[4]), "layer weight output");
+      prog.varying = true;
+    } else if (op == "bump") {
+      need(9);
+      o.code = OpCode::Bump;
+      for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.clamp = t[8].cast<bool>();  // invert
+      prog.varying = true;
+    } else if (op == "ramp") {
+      need(9);
+      o.code = OpCode::Ramp;
+      o.in[0] = regno(t[2]);
+      const auto table = t[3].cast<FloatArray>();
+      if (table.ndim() != 2 || table.shape(1) != 4 || table.shape(0) < 2 || table.shape(0) > 4096)
+        throw std::invalid_argument("ramp table must have shape (N, 4) with 2 <= N <= 4096");
+      o.index = int32_t(prog.tables.size());
+      o.count = int32_t(table.shape(0));
+      const float* src = table.data();
+      auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+      for (int i = 0; i < o.count; ++i)
+        prog.tables.push_back({clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])});
+      o.sub = uint8_t((t[4].cast<bool>() ? 1 : 0) | (t[5].cast<bool>() ? 2 : 0) | (t[8].cast<bool>() ? 4 : 0));
+      o.m[0] = t[6].cast<float>();
+      o.m[1] = t[7].cast<float>();
+      if (!std::isfinite(o.m[0]) || !std::isfinite(o.m[1])) throw std::invalid_argument("ramp range must be finite");
+    } else if (op == "separate") {
+      need(4);
+      o.code = OpCode::Component;
+      o.in[0] = regno(t[2]);
+      const int64_t axis = t[3].cast<int64_t>();
+      if (axis < 0 || axis > 2) throw std::invalid_argument("separate axis must be 0, 1 or 2");
+      o.sub = uint8_t(axis);
+    } else if (op == "combine") {
+      need(6);
+      o.code = OpCode::Combine;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = t[5].cast<bool>() ? 1 : 0;  // a colour (alpha 1) or a vector
+    } else if (op == "color_space") {
+      need(4);
+      o.code = OpCode::ColorSpace;
+      o.in[0] = regno(t[2]);
+      o.sub = index_in({"RGB_TO_HSV", "HSV_TO_RGB", "RGB_TO_HSL", "HSL_TO_RGB"}, name_of(t[3]), "colour conversion");
+    } else if (op == "hsv") {
+      need(7);
+      o.code = OpCode::Hsv;
+      for (int k = 0; k < 5; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    } else if (op == "gamma") {
+      need(4);
+      o.code = OpCode::Gamma;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+    } else if (op == "bright_contrast") {
+      need(5);
+      o.code = OpCode::BrightContrast;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    } else if (op == "clamp") {
+      need(6);
+      o.code = OpCode::Clamp;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in({"MINMAX", "RANGE"}, name_of(t[5]), "clamp type");
+    } else if (op == "map_range") {
+      need(10);
+      o.code = OpCode::MapRange;
+      for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in({"LINEAR", "STEPPED", "SMOOTHSTEP", "SMOOTHERSTEP"}, name_of(t[8]), "map range type");
+      o.clamp = t[9].cast<bool>();
+    } else if (op == "vector_math") {
+      need(7);
+      o.code = OpCode::VectorMath;
+      for (int k = 0; k < 4; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in(vector_math_ops, name_of(t[6]), "vector math op");
     } else if (op == "mapping") {
       need(4);
       o.code = OpCode::Mapping;

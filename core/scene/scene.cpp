@@ -275,8 +275,12 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.ng = sp.ng;
   ctx.ns = sp.ns;
   ctx.wo = wo;
+  const TriangleVerts& hit_tri = tris_[sp.prim];
+  const Vec3 corners[3] = {hit_tri.v0, hit_tri.v1, hit_tri.v2};
+  ctx.tri = corners;  // for the Bump node's offsets
   constexpr int kMaxSets = 8;
   Vec2 uv[kMaxSets];
+  Vec2 corner_uvs[3 * kMaxSets];
   Vec3 tangents[kMaxSets];
   float signs[kMaxSets];
   const int sets = static_cast<int>(std::min<size_t>(tri_uvs_.size(), kMaxSets));
@@ -287,12 +291,16 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       const std::vector<Vec2>& t = tri_uvs_[size_t(k)];
       if (t.empty()) {
         uv[k] = {};
+        corner_uvs[3 * k] = corner_uvs[3 * k + 1] = corner_uvs[3 * k + 2] = {};
         tangents[k] = Vec3(0.0f);
         signs[k] = 1.0f;
         continue;
       }
       const Vec2 a = t[3 * size_t(sp.prim)], b = t[3 * size_t(sp.prim) + 1], c = t[3 * size_t(sp.prim) + 2];
       uv[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2};
+      corner_uvs[3 * k] = a;
+      corner_uvs[3 * k + 1] = b;
+      corner_uvs[3 * k + 2] = c;
       // Per-triangle tangent from the uv parameterisation (dP/du), sign from the uv winding.
       const Vec3 e1 = tv.v1 - tv.v0, e2 = tv.v2 - tv.v0;
       const float du1 = b.x - a.x, dv1 = b.y - a.y, du2 = c.x - a.x, dv2 = c.y - a.y;
@@ -312,6 +320,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.uv_sets = sets;
     ctx.tangents = tangents;
     ctx.tangent_signs = signs;
+    ctx.tri_uv = corner_uvs;
   }
   eval_shader(mat.program, images_, ctx, out);
 }

@@ -35,11 +35,24 @@ float srgb_to_linear(float c);
 
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
+  Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
+  Clamp, MapRange, VectorMath,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
 enum class MathOp : uint8_t { Add, Subtract, Multiply, Divide, Power, Minimum, Maximum, LessThan, GreaterThan, Absolute };
 enum class MixOp : uint8_t { Mix, Multiply, Add, Subtract, Screen, Divide, Difference, Darken, Lighten, Overlay };
+enum class ColorSpaceOp : uint8_t { RgbToHsv, HsvToRgb, RgbToHsl, HslToRgb };
+enum class MapRangeOp : uint8_t { Linear, Stepped, SmoothStep, SmootherStep };
+// Blender's Vector Math operations (its enum's order).
+enum class VectorMathOp : uint8_t {
+  Add, Subtract, Multiply, Divide, MultiplyAdd, CrossProduct, Project, Reflect, Refract, FaceForward,
+  DotProduct, Distance, Length, Scale, Normalize, Absolute, Power, Sign, Minimum, Maximum, Floor, Ceil,
+  Fraction, Modulo, Wrap, Snap, Sine, Cosine, Tangent,
+};
+// Where value ops that read the shading point read it: the point itself, or the small surface
+// offsets that a Bump node differentiates its height with.
+enum BumpOffset : uint8_t { kAtPoint = 0, kOffsetX = 1, kOffsetY = 2 };
 
 constexpr int kNoReg = -1;
 constexpr int kMaxRegs = 64;
@@ -50,8 +63,9 @@ struct ShaderOp {
   int16_t in[10] = {kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg};
   Float4 value;             // Const
   float m[12] = {};         // Mapping: 3x4 row-major
-  int32_t index = 0;        // uv set / image id
-  uint8_t sub = 0;          // MathOp / MixOp / Interp
+  int32_t index = 0;        // uv set / image id / Ramp: first entry in ShaderProgram::tables
+  int32_t count = 0;        // Ramp: table entries
+  uint8_t sub = 0;          // MathOp / MixOp / Interp / BumpOffset (Uv, Position) / ...
   uint8_t ext = 0;          // Extension
   bool clamp = false;        // Math/Mix; ImageTex: unassociate alpha after filtering
 };
@@ -99,6 +113,10 @@ struct ShadingContext {
   int uv_sets = 0;
   const Vec3* tangents = nullptr;  // per uv set: tangent (xyz) with the bitangent sign folded in
   const float* tangent_signs = nullptr;
+  // The triangle hit (world vertices) and per uv set its 3 corner uvs (uv_sets * 3 entries):
+  // the Bump node's offsets move along its edges. nullptr: no offsets (heights not differentiated).
+  const Vec3* tri = nullptr;
+  const Vec2* tri_uv = nullptr;
 };
 
 struct ShaderProgram {
@@ -107,6 +125,7 @@ struct ShaderProgram {
   bool uses_uv = false;
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
+  std::vector<Float4> tables;  // Ramp lookup tables (Color Ramp, RGB Curves), as Cycles bakes them
 };
 
 // Runs `prog` at `ctx`, filling `out` (closures plus emission), with closure frames built from
