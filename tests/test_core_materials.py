@@ -229,7 +229,7 @@ load_addon()
 from addon.export import shader as sh  # noqa: E402  (the compiler's constant folding)
 
 
-def emitted(ops, tilt=0.0, size=3, eye_dist=20.0):
+def emitted(ops, tilt=0.0, size=3, eye_dist=20.0, texspace=None, matrix=None):
     """The emission an (uncoloured) program's register 'out' gives at the image centre: a
     plane (normal towards the camera, tilted by `tilt` radians about x) fills the view."""
     s = pc.Scene()
@@ -239,8 +239,10 @@ def emitted(ops, tilt=0.0, size=3, eye_dist=20.0):
     pos, tris = quad((-50, 0, -50), (100, 0, 0), (0, 100 * sn, 100 * c))
     pos -= pos.mean(axis=0)  # centred on the camera axis
     uvs = {0: np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)}
-    mesh = s.add_mesh(pos, tris, None, None, [m], uvs=uvs)
-    s.add_instance(mesh, np.eye(4, dtype=np.float32))
+    if matrix is not None:  # the same world plane, from an object space
+        pos = (np.linalg.inv(matrix) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3].astype(np.float32)
+    mesh = s.add_mesh(pos, tris, None, None, [m], uvs=uvs, texspace=texspace)
+    s.add_instance(mesh, np.eye(4, dtype=np.float32) if matrix is None else matrix.astype(np.float32))
     s.set_camera(camera(pc, (0, -eye_dist, 0), (0, 0, 0), lens=5000.0))  # nearly parallel rays
     img, _ = render(pc, s, size, size, samples=1)
     return img[size // 2, size // 2, :3]
@@ -344,3 +346,22 @@ def test_bump_tilts_the_normal_by_the_height_slope():
             ("vector_math", 12, 11, 11, 11, 10, "ABSOLUTE")]
     n = np.array([0.01 / 100.0, -1.0, 0.0])  # u spans 100 units
     assert emitted(prog) == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=1e-5)
+
+
+def test_object_and_generated_coordinates_per_instance():
+    # The plane's centre (world origin) in object space, and in its texture space: the
+    # bounding box of the object-space vertices (Blender's automatic one) unless given.
+    m = np.array([[0.0, -2.0, 0.0, 3.0], [1.0, 0.0, 0.0, 5.0], [0.0, 0.0, 0.5, 7.0], [0, 0, 0, 1]])
+    centre = np.linalg.inv(m) @ np.array([0.0, 0.0, 0.0, 1.0])
+    got = emitted([("object", 0), ("vector_math", 1, 0, 0, 0, 0, "ABSOLUTE")], matrix=m)
+    assert got == pytest.approx(np.abs(centre[:3]), abs=0.06)  # pixel jitter: +-0.024 world
+    # Auto texture space: the box's centre maps to 0.5 (where it has extent; y is flat: 0.5 too).
+    assert emitted([("generated", 0)], matrix=m) == pytest.approx((0.5, 0.5, 0.5), abs=1e-3)
+    loc, size = (centre[0] + 10.0, centre[1], centre[2] - 20.0), (40.0, 2.0, 80.0)
+    expect = (np.asarray(centre[:3]) - loc) / size * 0.5 + 0.5
+    got = emitted([("generated", 0)], matrix=m, texspace=(loc, size))
+    assert got == pytest.approx(expect, abs=5e-3)
+    # Object normals: the world normal (0, -1, 0) seen from the object: M^T n, normalised.
+    n = m[:3, :3].T @ np.array([0.0, -1.0, 0.0])
+    got = emitted([("object_normal", 0), ("vector_math", 1, 0, 0, 0, 0, "ABSOLUTE")], matrix=m)
+    assert got == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=1e-4)

@@ -359,15 +359,22 @@ def test_uv_map_node_and_texture_coordinates():
     assert not warnings
     assert [op for op in data.program if op[0] == "uv"][0][2] == 1
     assert data.uv_sets == {1: "Second"} and uv_sets.names == ["", "Second"]
-    # Texture Coordinate: UV is the active map; Object is approximated (warned).
+    # Texture Coordinate: UV is the active map; Object, Generated and Normal are the object's
+    # (per instance in the core); Object coordinates of another object are warned.
     coord = tree.nodes.new("ShaderNodeTexCoord")
     link(tree, coord.outputs["UV"], tex.inputs["Vector"])
     data, warnings = compile_(mat, uv_sets=uv_sets)
     assert not warnings and data.uv_sets == {0: ""}
+    for output, op in (("Object", "object"), ("Generated", "generated"),
+                       ("Normal", "object_normal")):
+        link(tree, coord.outputs[output], tex.inputs["Vector"])
+        data, warnings = compile_(mat, uv_sets=uv_sets)
+        assert [op[0] for op in data.program][:2] == [op, "image"] and not warnings
     link(tree, coord.outputs["Object"], tex.inputs["Vector"])
+    coord.object = bpy.data.objects.new("Elsewhere", None)
     data, warnings = compile_(mat, uv_sets=uv_sets)
-    assert [op[0] for op in data.program][:2] == ["position", "image"]
-    assert len(warnings) == 1 and "Object" in warnings[0]
+    assert [op[0] for op in data.program][:2] == ["object", "image"]
+    assert len(warnings) == 1 and "Elsewhere" in warnings[0]
     geometry = tree.nodes.new("ShaderNodeNewGeometry")
     link(tree, geometry.outputs["Position"], tex.inputs["Vector"])
     data, warnings = compile_(mat, uv_sets=uv_sets)

@@ -832,6 +832,14 @@ class ShaderCompiler:
             self.cache[key] = self.emit("vector", "uv", k, *extra)
         return self.cache[key]
 
+    def object_coords(self, which):
+        """Val of the object-space ("object") or texture-space ("generated") position."""
+        key = (which, self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", which, *extra)
+        return self.cache[key]
+
     def position(self):
         """Val of the world position (at the current bump offset)."""
         key = ("position", self.bump_state)
@@ -1097,13 +1105,12 @@ class ShaderCompiler:
                 self.problem(f"'{node.name}': UV from instancer is not supported")
             return self.uv_value("", f"'{node.name}'")
         if oid in ("Object", "Generated"):
-            self.problem(f"'{node.name}': {oid} coordinates are approximated by world "
-                         "positions")
-            return self.position()
+            if oid == "Object" and node.object is not None:
+                self.problem(f"'{node.name}': Object coordinates of another object "
+                             f"('{node.object.name}') are not supported (its own object's)")
+            return self.object_coords(oid.lower())
         if oid == "Normal":
-            self.problem(f"'{node.name}': object-space Normal is approximated by the world "
-                         "normal")
-            return self.emit("vector", "normal")
+            return self.emit("vector", "object_normal")
         self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
         return const_vector((0, 0, 0))
 
@@ -1427,7 +1434,8 @@ class ShaderCompiler:
 
 
 # How many register operands (after the destination) each value op has; None = none given.
-_OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "mapping": 1, "image": 1,
+_OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
+             "object_normal": 0, "mapping": 1, "image": 1,
              "rgb_to_bw": 1, "math": 2, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
              "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,

@@ -113,7 +113,8 @@ struct PyScene {
 };
 
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& triangles, const py::object& normals,
-                  const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs) {
+                  const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
+                  const py::object& texspace) {
   self.check_editable();
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
   if (triangles.ndim() != 2 || triangles.shape(1) != 3) throw std::invalid_argument("triangles must have shape (T, 3)");
@@ -162,6 +163,13 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& tr
       const float u = src[2 * i], v = src[2 * i + 1];
       dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
     }
+  }
+  if (!texspace.is_none()) {  // (location, size) of Blender's texture space
+    const auto ts = texspace.cast<py::tuple>();
+    if (ts.size() != 2) throw std::invalid_argument("texspace must be (location, size)");
+    mesh.texspace_location = to_point(ts[0], "texspace location");
+    mesh.texspace_size = to_point(ts[1], "texspace size");
+    mesh.has_texspace = true;
   }
   return self.scene->add_mesh(std::move(mesh));
 }
@@ -258,6 +266,14 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
     } else if (op == "position" && (t.size() == 2 || t.size() == 3)) {
       o.code = OpCode::Position;
       o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
+      prog.varying = true;
+    } else if ((op == "object" || op == "generated") && (t.size() == 2 || t.size() == 3)) {
+      o.code = op == "object" ? OpCode::ObjectPos : OpCode::Generated;
+      o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
+      prog.varying = true;
+    } else if (op == "object_normal") {
+      need(2);
+      o.code = OpCode::ObjectNormal;
       prog.varying = true;
     } else if (op == "position" || op == "normal") {
       need(2);
@@ -675,7 +691,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
-           py::arg("uvs") = py::dict())
+           py::arg("uvs") = py::dict(), py::arg("texspace") = py::none())
       .def(
           "add_image",
           [](PyScene& self, const FloatArray& pixels, bool srgb) {

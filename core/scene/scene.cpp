@@ -96,8 +96,14 @@ void Scene::commit(int threads) {
   }
   any_transparent_ = false;
   for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
+  object_coords_.clear();
+  object_coords_.reserve(instances_.size());
   for (const Instance& inst : instances_) {
     const MeshData& mesh = meshes_[inst.mesh];
+    // Object and generated texture coordinates of this instance.
+    Vec3 ts_loc = mesh.texspace_location, ts_size = mesh.texspace_size;
+    if (!mesh.has_texspace) auto_texspace(mesh.positions, ts_loc, ts_size);
+    object_coords_.push_back(make_object_coords(inst.matrix, ts_loc, ts_size));
     std::vector<Vec3> world(mesh.positions.size());
     for (size_t i = 0; i < world.size(); ++i) world[i] = inst.matrix.point(mesh.positions[i]);
     const bool smooth = !mesh.corner_normals.empty();
@@ -117,6 +123,7 @@ void Scene::commit(int threads) {
       sh.material = mesh.materials.empty() ? 0u : mesh.materials[t];
       if (sh.material >= materials_.size()) sh.material = 0;
       sh.emitter = -1;
+      sh.instance = uint32_t(object_coords_.size() - 1);
       if (smooth) {
         bool ok = true;
         for (int k = 0; k < 3; ++k) {
@@ -278,6 +285,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   const TriangleVerts& hit_tri = tris_[sp.prim];
   const Vec3 corners[3] = {hit_tri.v0, hit_tri.v1, hit_tri.v2};
   ctx.tri = corners;  // for the Bump node's offsets
+  ctx.object = &object_coords_[shading_[sp.prim].instance];
   constexpr int kMaxSets = 8;
   Vec2 uv[kMaxSets];
   Vec2 corner_uvs[3 * kMaxSets];

@@ -266,6 +266,54 @@ Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension
   return lerp4(lerp4(fetch(x0, y0), fetch(x0 + 1, y0), tx), lerp4(fetch(x0, y0 + 1), fetch(x0 + 1, y0 + 1), tx), ty);
 }
 
+ObjectCoords make_object_coords(const Mat4& to_world, Vec3 loc, Vec3 size) {
+  ObjectCoords oc;
+  oc.to_world = to_world;
+  // Inverse of the affine 3x4 part: adjugate / determinant, then the translation.
+  const float(&m)[4][4] = to_world.m;
+  const Vec3 c0{m[0][0], m[1][0], m[2][0]}, c1{m[0][1], m[1][1], m[2][1]}, c2{m[0][2], m[1][2], m[2][2]};
+  const Vec3 r0 = cross(c1, c2), r1 = cross(c2, c0), r2 = cross(c0, c1);
+  const float det = dot(c0, r0);
+  if (!(std::fabs(det) > 1e-30f) || !std::isfinite(det)) return oc;
+  const Vec3 rows[3] = {r0 / det, r1 / det, r2 / det};  // rows of the inverse 3x3
+  const Vec3 t{m[0][3], m[1][3], m[2][3]};
+  for (int i = 0; i < 3; ++i) {
+    oc.to_object.m[i][0] = rows[i].x;
+    oc.to_object.m[i][1] = rows[i].y;
+    oc.to_object.m[i][2] = rows[i].z;
+    oc.to_object.m[i][3] = -dot(rows[i], t);
+  }
+  auto axis = [](float l, float sz, float& scale, float& offset) {
+    scale = sz != 0.0f && std::isfinite(sz) ? 0.5f / sz : 0.0f;
+    offset = 0.5f - (std::isfinite(l) ? l : 0.0f) * scale;
+  };
+  axis(loc.x, size.x, oc.gen_scale.x, oc.gen_offset.x);
+  axis(loc.y, size.y, oc.gen_scale.y, oc.gen_offset.y);
+  axis(loc.z, size.z, oc.gen_scale.z, oc.gen_offset.z);
+  oc.valid = oc.to_object.is_finite();
+  return oc;
+}
+
+void auto_texspace(const std::vector<Vec3>& positions, Vec3& location, Vec3& size) {
+  Vec3 lo(-1.0f), hi(1.0f);  // Blender's fallback for an empty mesh
+  bool any = false;
+  for (const Vec3& p : positions) {
+    if (!is_finite(p)) continue;
+    lo = any ? vmin(lo, p) : p;
+    hi = any ? vmax(hi, p) : p;
+    any = true;
+  }
+  location = (lo + hi) * 0.5f;
+  size = (hi - lo) * 0.5f;
+  auto fix = [](float& x) {  // BKE_mesh_texspace_calc's guards against flat boxes
+    if (x == 0.0f) x = 1.0f;
+    else if (x > 0.0f && x < 1e-5f) x = 1e-5f;
+  };
+  fix(size.x);
+  fix(size.y);
+  fix(size.z);
+}
+
 float srgb_to_linear(float c) {
   // Cycles' color_srgb_to_linear (negative values clamp to 0).
   if (c < 0.04045f) return c < 0.0f ? 0.0f : c * (1.0f / 12.92f);
@@ -403,6 +451,29 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
             const Vec3 blended = ctx.ns + (mapped - ctx.ns) * (std::isfinite(strength) ? std::max(strength, 0.0f) : 0.0f);
             if (length_sq(blended) > 1e-12f) n = normalize(blended);
           }
+        }
+        d = f4(n, 0.0f);
+        break;
+      }
+      case OpCode::ObjectPos:
+      case OpCode::Generated: {
+        if (op.sub != kAtPoint && op.sub < 3) make_offsets();
+        const Vec3 p = ctx.p + (op.sub < 3 ? dp[op.sub] : Vec3(0.0f));
+        if (!ctx.object || !ctx.object->valid) {
+          d = f4(p);  // no object space known: world coordinates
+          break;
+        }
+        const Vec3 o = ctx.object->to_object.point(p);
+        d = f4(op.code == OpCode::ObjectPos ? o : o * ctx.object->gen_scale + ctx.object->gen_offset);
+        break;
+      }
+      case OpCode::ObjectNormal: {
+        Vec3 n = ctx.ns;
+        if (ctx.object && ctx.object->valid) {
+          const float(&m)[4][4] = ctx.object->to_world.m;  // transpose: n_obj ~ M^T n_world
+          const Vec3 t{m[0][0] * n.x + m[1][0] * n.y + m[2][0] * n.z, m[0][1] * n.x + m[1][1] * n.y + m[2][1] * n.z,
+                       m[0][2] * n.x + m[1][2] * n.y + m[2][2] * n.z};
+          if (length_sq(t) > 1e-30f && is_finite(t)) n = normalize(t);
         }
         d = f4(n, 0.0f);
         break;

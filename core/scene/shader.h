@@ -36,7 +36,7 @@ float srgb_to_linear(float c);
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
   Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
-  Clamp, MapRange, VectorMath,
+  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
@@ -105,6 +105,20 @@ struct ClosureList {
   }
 };
 
+// Per instance: what the Texture Coordinate node's Object, Generated and Normal outputs need.
+struct ObjectCoords {
+  Mat4 to_object;                  // world -> object space (the inverse of the instance matrix)
+  Mat4 to_world;                   // object -> world (object normals: n_obj ~ to_world^T n)
+  Vec3 gen_scale{1.0f}, gen_offset{0.0f};  // object -> generated: p * gen_scale + gen_offset
+  bool valid = false;              // false: the matrix is singular (world coordinates used)
+};
+// Cycles' generated coordinates: the object-space position in the mesh's texture space
+// (Blender's auto texture space is its bounding box), mapped to [0, 1]:
+// (p - location) / size * 0.5 + 0.5, with size 0 axes giving 0 (Cycles' mesh_texture_space).
+ObjectCoords make_object_coords(const Mat4& to_world, Vec3 texspace_location, Vec3 texspace_size);
+// Blender's automatic texture space of vertex positions: (location, size) of the bounding box.
+void auto_texspace(const std::vector<Vec3>& positions, Vec3& location, Vec3& size);
+
 // What a program can read at a shading point.
 struct ShadingContext {
   Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
@@ -117,6 +131,7 @@ struct ShadingContext {
   // the Bump node's offsets move along its edges. nullptr: no offsets (heights not differentiated).
   const Vec3* tri = nullptr;
   const Vec2* tri_uv = nullptr;
+  const ObjectCoords* object = nullptr;  // the hit instance's (nullptr: world coordinates)
 };
 
 struct ShaderProgram {
