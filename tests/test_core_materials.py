@@ -365,3 +365,17 @@ def test_object_and_generated_coordinates_per_instance():
     n = m[:3, :3].T @ np.array([0.0, -1.0, 0.0])
     got = emitted([("object_normal", 0), ("vector_math", 1, 0, 0, 0, 0, "ABSOLUTE")], matrix=m)
     assert got == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=1e-4)
+
+
+@pytest.mark.parametrize("op", sorted(sh.MATH_OPS))
+def test_math_ops_match_the_compilers_folding(op):
+    for a, b, c in ((0.7, 2.5, 0.3), (-1.3, 0.4, 0.5), (2.0, -0.75, 1.5), (0.25, 0.25, 0.0)):
+        expect = sh._math(op, a, b, c)
+        name = "math3" if op in sh.MATH_OPS_3 else "math"
+        operands = (0, 1, 2) if name == "math3" else (0, 1)
+        prog = consts(a, b, c, -1.0) + [(name, 4) + operands + (op, False)]
+        # Emission shows positive values only: the result and its negation.
+        pos = emitted(prog)[0]
+        neg = emitted(prog + [("math", 5, 4, 3, "MULTIPLY", False)])[0]
+        got = pos if expect >= 0 else -neg
+        assert got == pytest.approx(expect, rel=1e-5, abs=1e-5), (op, a, b, c)

@@ -532,7 +532,7 @@ def test_textured_math_emits_ops():
     assert ops[2][4:] == ("MULTIPLY", True) and ops[3][5:] == ("SCREEN", False)
 
 
-def test_unsupported_math_and_blend_warn_once_in_one_message():
+def test_unsupported_blend_warns_and_sine_folds():
     def build(tree, nodes):
         m = nodes.new("ShaderNodeMath")
         m.operation = 'SINE'
@@ -542,9 +542,10 @@ def test_unsupported_math_and_blend_warn_once_in_one_message():
         tree.links.new(m.outputs[0], mix.inputs["Fac"])
         return mix.outputs[0]
     color, warnings, _ = value_into_diffuse(build)
-    assert len(warnings) == 1 and "Sine" in warnings[0] and "Hue" in warnings[0]
-    # SINE falls back to its first value (0.3) as the factor of a plain mix.
-    expected = tuple(0.7 * a + 0.3 * b for a, b in zip((0.5, 0.5, 0.5), (0.5, 0.5, 0.5)))
+    # Every Math operation is supported now (Sine folds); the Hue blend is not (plain Mix).
+    assert len(warnings) == 1 and "Sine" not in warnings[0] and "Hue" in warnings[0]
+    f = math.sin(0.3)
+    expected = tuple((1 - f) * a + f * b for a, b in zip((0.5, 0.5, 0.5), (0.5, 0.5, 0.5)))
     assert color[:3] == approx(expected)
 
 
@@ -1116,3 +1117,39 @@ def test_light_path_is_folded_for_camera_rays_and_warned():
     data, warnings = compile_(mat)
     assert len(warnings) == 1 and "Light Path" in warnings[0] and "camera" in warnings[0]
     assert constant_color(mat) == approx((0.9, 0.5, 0.2))
+
+
+@pytest.mark.parametrize("op, a, b, c, expect", [
+    ("FLOORED_MODULO", -1.25, 1.0, 0.0, 0.75), ("MODULO", -1.25, 1.0, 0.0, -0.25),
+    ("PINGPONG", 2.5, 1.0, 0.0, 0.5), ("WRAP", 2.5, 1.0, 0.0, 0.5),
+    ("SMOOTH_MIN", 0.3, 0.4, 0.2, 0.3 - (0.1 / 0.2) ** 3 * 0.2 / 6.0),
+    ("COMPARE", 0.3, 0.35, 0.1, 1.0), ("ARCTAN2", 1.0, -1.0, 0.0, 0.75 * math.pi),
+    ("LOGARITHM", 8.0, 2.0, 0.0, 3.0), ("SIGN", -0.2, 0.0, 0.0, -1.0),
+    ("INVERSE_SQRT", 0.25, 0.0, 0.0, 2.0), ("SNAP", 0.77, 0.25, 0.0, 0.75)])
+def test_math_node_operations_fold(op, a, b, c, expect):
+    def build(nodes, links):
+        m = nodes.new("ShaderNodeMath")
+        m.operation = op
+        for i, v in enumerate((a, b, c)):
+            m.inputs[i].default_value = v
+        return m.outputs[0]
+    data, warnings = compile_(diffuse_fed_by(f"Math {op}", build))
+    assert not warnings
+    (closure,), _ = run(data.program)
+    got = closure[2]["color"][0]
+    assert got == approx(expect)
+
+
+def test_math_node_with_a_third_value_emits_math3():
+    def build(nodes, links):
+        m = nodes.new("ShaderNodeMath")
+        m.operation = 'SMOOTH_MAX'
+        links.new(uv_x(nodes, links), m.inputs[0])
+        m.inputs[2].default_value = 0.3
+        return m.outputs[0]
+    data, warnings = compile_(diffuse_fed_by("Smooth", build))
+    assert not warnings
+    (op,) = [op for op in data.program if op[0] == "math3"]
+    assert op[5:] == ("SMOOTH_MAX", False)
+    regs = run(data.program[:data.program.index(op)])[1]
+    assert regs[op[4]][0] == approx(0.3)

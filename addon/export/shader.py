@@ -26,7 +26,12 @@ LUMA = (0.2126, 0.7152, 0.0722)
 MISSING_TEXTURE = (1.0, 0.0, 1.0, 1.0)  # Cycles' magenta for an image that cannot be loaded
 
 MATH_OPS = {"ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER", "MINIMUM", "MAXIMUM",
-            "LESS_THAN", "GREATER_THAN", "ABSOLUTE"}
+            "LESS_THAN", "GREATER_THAN", "ABSOLUTE", "LOGARITHM", "SQRT", "INVERSE_SQRT",
+            "EXPONENT", "SIGN", "ROUND", "FLOOR", "CEIL", "TRUNC", "FRACT", "MODULO",
+            "FLOORED_MODULO", "SNAP", "PINGPONG", "SINE", "COSINE", "TANGENT", "ARCSINE",
+            "ARCCOSINE", "ARCTANGENT", "ARCTAN2", "SINH", "COSH", "TANH", "RADIANS", "DEGREES",
+            "MULTIPLY_ADD", "COMPARE", "SMOOTH_MIN", "SMOOTH_MAX", "WRAP"}
+MATH_OPS_3 = {"MULTIPLY_ADD", "COMPARE", "SMOOTH_MIN", "SMOOTH_MAX", "WRAP"}  # read a third value
 MIX_BLENDS = {"MIX", "MULTIPLY", "ADD", "SUBTRACT", "SCREEN", "DIVIDE", "DIFFERENCE", "DARKEN",
               "LIGHTEN", "OVERLAY"}
 
@@ -67,8 +72,62 @@ ONE = const_float(1.0)
 ZERO = const_float(0.0)
 
 
-def _math(op, a, b):
+def _smooth_min(a, b, c):
+    if c == 0.0:
+        return min(a, b)
+    h = max(c - abs(a - b), 0.0) / c
+    return min(a, b) - h * h * h * c / 6.0
+
+
+def _math(op, a, b, c=0.0):
     """The core's math op on floats (Blender's safe variants), for constant folding."""
+    try:
+        v = _math_unchecked(op, a, b, c)
+    except (OverflowError, ValueError, ZeroDivisionError):
+        v = 0.0
+    return v if math.isfinite(v) else 0.0
+
+
+_MATH_EXTRA = {
+    "LOGARITHM": lambda a, b, c: (math.log(a) / math.log(b)
+                                  if a > 0.0 and b > 0.0 and math.log(b) != 0.0 else 0.0),
+    "SQRT": lambda a, b, c: math.sqrt(a) if a > 0.0 else 0.0,
+    "INVERSE_SQRT": lambda a, b, c: 1.0 / math.sqrt(a) if a > 0.0 else 0.0,
+    "EXPONENT": lambda a, b, c: math.exp(a),
+    "SIGN": lambda a, b, c: 0.0 if a == 0.0 else math.copysign(1.0, a),
+    "ROUND": lambda a, b, c: math.floor(a + 0.5),
+    "FLOOR": lambda a, b, c: math.floor(a),
+    "CEIL": lambda a, b, c: math.ceil(a),
+    "TRUNC": lambda a, b, c: float(math.trunc(a)),
+    "FRACT": lambda a, b, c: a - math.floor(a),
+    "MODULO": lambda a, b, c: math.fmod(a, b) if b != 0.0 else 0.0,
+    "FLOORED_MODULO": lambda a, b, c: a - math.floor(a / b) * b if b != 0.0 else 0.0,
+    "SNAP": lambda a, b, c: math.floor(a / b) * b if b != 0.0 else 0.0,
+    "PINGPONG": lambda a, b, c: (abs(((a - b) / (b * 2.0)) % 1.0 * b * 2.0 - b)
+                                 if b != 0.0 else 0.0),
+    "SINE": lambda a, b, c: math.sin(a),
+    "COSINE": lambda a, b, c: math.cos(a),
+    "TANGENT": lambda a, b, c: math.tan(a),
+    "ARCSINE": lambda a, b, c: math.asin(min(max(a, -1.0), 1.0)),
+    "ARCCOSINE": lambda a, b, c: math.acos(min(max(a, -1.0), 1.0)),
+    "ARCTANGENT": lambda a, b, c: math.atan(a),
+    "ARCTAN2": lambda a, b, c: math.atan2(a, b),
+    "SINH": lambda a, b, c: math.sinh(a),
+    "COSH": lambda a, b, c: math.cosh(a),
+    "TANH": lambda a, b, c: math.tanh(a),
+    "RADIANS": lambda a, b, c: a * math.pi / 180.0,
+    "DEGREES": lambda a, b, c: a * 180.0 / math.pi,
+    "MULTIPLY_ADD": lambda a, b, c: a * b + c,
+    "COMPARE": lambda a, b, c: 1.0 if a == b or abs(a - b) <= max(c, 1.1920929e-7) else 0.0,
+    "SMOOTH_MIN": _smooth_min,
+    "SMOOTH_MAX": lambda a, b, c: -_smooth_min(-a, -b, c),
+    "WRAP": lambda a, b, c: a - (b - c) * math.floor((a - c) / (b - c)) if b != c else c,
+}
+
+
+def _math_unchecked(op, a, b, c):
+    if op in _MATH_EXTRA:
+        return _MATH_EXTRA[op](a, b, c)
     if op == "ADD":
         v = a + b
     elif op == "SUBTRACT":
@@ -97,7 +156,7 @@ def _math(op, a, b):
         v = abs(a)
     else:
         raise ValueError(op)
-    return v if math.isfinite(v) else 0.0
+    return v
 
 
 def _mix(op, a, b, f):
@@ -603,11 +662,15 @@ class ShaderCompiler:
 
     # -------------------------------------------------- arithmetic (folded when constant)
 
-    def math(self, op, a, b, clamp=False):
+    def math(self, op, a, b, clamp=False, c=None):
         a, b = self.as_float(a), self.as_float(b)
-        if a.is_const and b.is_const:
-            v = _math(op, a.const[0], b.const[0])
+        c = ZERO if c is None else self.as_float(c)
+        if a.is_const and b.is_const and c.is_const:
+            v = _math(op, a.const[0], b.const[0], c.const[0])
             return const_float(_sat(v) if clamp else v)
+        if op in MATH_OPS_3:
+            return self.emit("float", "math3", self.reg(a), self.reg(b), self.reg(c), op,
+                             bool(clamp))
         return self.emit("float", "math", self.reg(a), self.reg(b), op, bool(clamp))
 
     def mix(self, blend, fac, a, b, clamp=False, kind="color"):
@@ -1217,16 +1280,8 @@ class ShaderCompiler:
         b = self.value(node.inputs[1], ctx, "float")
         clamp = node.use_clamp
         if op in MATH_OPS:
-            return self.math(op, a, b, clamp)
-        if op == "SQRT":  # the core's POWER gives 0 for a negative base, like Blender's sqrt
-            return self.math("POWER", a, const_float(0.5), clamp)
-        if op == "MULTIPLY_ADD":
-            c = self.value(node.inputs[2], ctx, "float")
-            return self.math("ADD", self.math("MULTIPLY", a, b), c, clamp)
-        if op == "RADIANS":
-            return self.math("MULTIPLY", a, const_float(math.pi / 180.0), clamp)
-        if op == "DEGREES":
-            return self.math("MULTIPLY", a, const_float(180.0 / math.pi), clamp)
+            c = self.value(node.inputs[2], ctx, "float") if op in MATH_OPS_3 else None
+            return self.math(op, a, b, clamp, c)
         self.problem(f"'{node.name}': math operation {op.replace('_', ' ').title()} is not "
                      "supported (its first value is used)")
         return self.math("ADD", a, ZERO, clamp)
@@ -1436,7 +1491,7 @@ class ShaderCompiler:
 # How many register operands (after the destination) each value op has; None = none given.
 _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
              "object_normal": 0, "mapping": 1, "image": 1,
-             "rgb_to_bw": 1, "math": 2, "mix": 3, "normal_map": 2, "fresnel": 2,
+             "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
              "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
              "map_range": 6, "vector_math": 4}

@@ -184,8 +184,12 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
     return int16_t(r);
   };
   auto name_of = [](const py::handle& h) { return h.cast<std::string>(); };
-  static const std::vector<std::string> math_ops = {"ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER",
-                                                    "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN", "ABSOLUTE"};
+  static const std::vector<std::string> math_ops = {
+      "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER", "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN",
+      "ABSOLUTE", "LOGARITHM", "SQRT", "INVERSE_SQRT", "EXPONENT", "SIGN", "ROUND", "FLOOR", "CEIL", "TRUNC",
+      "FRACT", "MODULO", "FLOORED_MODULO", "SNAP", "PINGPONG", "SINE", "COSINE", "TANGENT", "ARCSINE",
+      "ARCCOSINE", "ARCTANGENT", "ARCTAN2", "SINH", "COSH", "TANH", "RADIANS", "DEGREES", "MULTIPLY_ADD",
+      "COMPARE", "SMOOTH_MIN", "SMOOTH_MAX", "WRAP"};
   static const std::vector<std::string> mix_ops = {"MIX", "MULTIPLY", "ADD", "SUBTRACT", "SCREEN",
                                                    "DIVIDE", "DIFFERENCE", "DARKEN", "LIGHTEN", "OVERLAY"};
   auto index_in = [](const std::vector<std::string>& v, const std::string& x, const char* what) {
@@ -394,6 +398,12 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.in[1] = regno(t[3]);
       o.sub = index_in(math_ops, name_of(t[4]), "math op");
       o.clamp = t[5].cast<bool>();
+    } else if (op == "math3") {  // the operations with a third value
+      need(7);
+      o.code = OpCode::Math;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in(math_ops, name_of(t[5]), "math op");
+      o.clamp = t[6].cast<bool>();
     } else if (op == "mix") {
       need(7);
       o.code = OpCode::Mix;

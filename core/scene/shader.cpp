@@ -13,8 +13,52 @@ int wrap(int i, int n) {
   return r < 0 ? r + n : r;
 }
 
-float math_op(MathOp op, float a, float b) {
+float smooth_min(float a, float b, float c) {
+  if (c == 0.0f) return std::min(a, b);
+  const float h = std::max(c - std::fabs(a - b), 0.0f) / c;
+  return std::min(a, b) - h * h * h * c * (1.0f / 6.0f);
+}
+
+float math_op(MathOp op, float a, float b, float c = 0.0f) {
   switch (op) {
+    case MathOp::Logarithm: return a > 0.0f && b > 0.0f && std::log(b) != 0.0f ? std::log(a) / std::log(b) : 0.0f;
+    case MathOp::Sqrt: return a > 0.0f ? std::sqrt(a) : 0.0f;
+    case MathOp::InverseSqrt: return a > 0.0f ? 1.0f / std::sqrt(a) : 0.0f;
+    case MathOp::Exponent: return std::exp(a);
+    case MathOp::Sign: return a == 0.0f ? 0.0f : (a > 0.0f ? 1.0f : -1.0f);
+    case MathOp::Round: return std::floor(a + 0.5f);
+    case MathOp::Floor: return std::floor(a);
+    case MathOp::Ceil: return std::ceil(a);
+    case MathOp::Trunc: return a >= 0.0f ? std::floor(a) : std::ceil(a);
+    case MathOp::Fract: return a - std::floor(a);
+    case MathOp::Modulo: return b != 0.0f ? std::fmod(a, b) : 0.0f;
+    case MathOp::FlooredModulo: return b != 0.0f ? a - std::floor(a / b) * b : 0.0f;
+    case MathOp::Snap: return b != 0.0f ? std::floor(a / b) * b : 0.0f;
+    case MathOp::PingPong: {
+      if (b == 0.0f) return 0.0f;
+      const float x = (a - b) / (b * 2.0f);
+      return std::fabs((x - std::floor(x)) * b * 2.0f - b);
+    }
+    case MathOp::Sine: return std::sin(a);
+    case MathOp::Cosine: return std::cos(a);
+    case MathOp::Tangent: return std::tan(a);
+    case MathOp::Arcsine: return std::asin(clampf(a, -1.0f, 1.0f));
+    case MathOp::Arccosine: return std::acos(clampf(a, -1.0f, 1.0f));
+    case MathOp::Arctangent: return std::atan(a);
+    case MathOp::Arctan2: return std::atan2(a, b);
+    case MathOp::Sinh: return std::sinh(a);
+    case MathOp::Cosh: return std::cosh(a);
+    case MathOp::Tanh: return std::tanh(a);
+    case MathOp::Radians: return a * (kPi / 180.0f);
+    case MathOp::Degrees: return a * (180.0f / kPi);
+    case MathOp::MultiplyAdd: return a * b + c;
+    case MathOp::Compare: return a == b || std::fabs(a - b) <= std::max(c, 1.1920929e-7f) ? 1.0f : 0.0f;
+    case MathOp::SmoothMin: return smooth_min(a, b, c);
+    case MathOp::SmoothMax: return -smooth_min(-a, -b, c);
+    case MathOp::Wrap: {
+      const float range = b - c;
+      return range != 0.0f ? a - range * std::floor((a - c) / range) : c;
+    }
     case MathOp::Add: return a + b;
     case MathOp::Subtract: return a - b;
     case MathOp::Multiply: return a * b;
@@ -414,7 +458,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         break;
       }
       case OpCode::Math: {
-        float v = math_op(MathOp(op.sub), reg(op.in[0]).x, reg(op.in[1]).x);
+        float v = math_op(MathOp(op.sub), reg(op.in[0]).x, reg(op.in[1]).x, reg(op.in[2]).x);
         if (!std::isfinite(v)) v = 0.0f;
         if (op.clamp) v = sat(v);
         d = {v, v, v, 1.0f};

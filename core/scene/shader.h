@@ -40,7 +40,13 @@ enum class OpCode : uint8_t {
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
-enum class MathOp : uint8_t { Add, Subtract, Multiply, Divide, Power, Minimum, Maximum, LessThan, GreaterThan, Absolute };
+enum class MathOp : uint8_t {
+  Add, Subtract, Multiply, Divide, Power, Minimum, Maximum, LessThan, GreaterThan, Absolute,
+  // The rest of Blender's Math node (Cycles' svm_math); the last five read a third value.
+  Logarithm, Sqrt, InverseSqrt, Exponent, Sign, Round, Floor, Ceil, Trunc, Fract, Modulo, FlooredModulo,
+  Snap, PingPong, Sine, Cosine, Tangent, Arcsine, Arccosine, Arctangent, Arctan2, Sinh, Cosh, Tanh,
+  Radians, Degrees, MultiplyAdd, Compare, SmoothMin, SmoothMax, Wrap,
+};
 enum class MixOp : uint8_t { Mix, Multiply, Add, Subtract, Screen, Divide, Difference, Darken, Lighten, Overlay };
 enum class ColorSpaceOp : uint8_t { RgbToHsv, HsvToRgb, RgbToHsl, HslToRgb };
 enum class MapRangeOp : uint8_t { Linear, Stepped, SmoothStep, SmootherStep };
