@@ -379,3 +379,38 @@ def test_math_ops_match_the_compilers_folding(op):
         neg = emitted(prog + [("math", 5, 4, 3, "MULTIPLY", False)])[0]
         got = pos if expect >= 0 else -neg
         assert got == pytest.approx(expect, rel=1e-5, abs=1e-5), (op, a, b, c)
+
+
+def test_value_ops_with_extreme_inputs_render_finite():
+    """Every value op of issue 3 with zero, tiny, huge and negative inputs (also as normals
+    and closure inputs): the render stays finite, with no dropped samples."""
+    table = np.array([[0, 0, 0, 1], [1e30, -1e30, 3e38, 1]], np.float32)
+    bad = [0.0, 1e-30, -1e-30, 3e38, -3e38, 1.0]
+    heads = [("position", 0), ("uv", 1, 0, 1), ("object", 2, 2), ("generated", 3), ("object_normal", 4)]
+    for k, x in enumerate(bad):
+        y = bad[(k + 1) % len(bad)]
+        ops = heads + [("const", 5, (x, y, -x, 1.0)), ("const", 6, (y,)), ("const", 7, (x,))]
+        tail = [("fresnel", 8, 6, 5), ("layer_weight", 9, 7, 5, "FACING"),
+                ("bump", 10, 6, 7, 8, 9, 7, 5, True), ("ramp", 11, 5, table, True, True, x, y, True),
+                ("ramp", 12, 7, table, False, False, 0.0, 1.0, False), ("color_space", 13, 5, "RGB_TO_HSV"),
+                ("color_space", 14, 13, "HSV_TO_RGB"), ("color_space", 15, 5, "HSL_TO_RGB"),
+                ("hsv", 16, 5, 6, 7, 6, 7), ("gamma", 17, 5, 6), ("bright_contrast", 18, 5, 6, 7),
+                ("clamp", 19, 6, 7, 6, "RANGE"), ("map_range", 20, 6, 7, 7, 6, 7, 6, "STEPPED", True),
+                ("vector_math", 21, 5, 10, 0, 6, "REFRACT"), ("vector_math", 22, 5, 21, 2, 7, "WRAP"),
+                ("math3", 23, 6, 7, 6, "SMOOTH_MIN", False), ("math", 24, 6, 7, "PINGPONG", False),
+                ("math", 25, 7, 6, "LOGARITHM", False), ("separate", 26, 22, 1), ("combine", 27, 23, 24, 25, True)]
+        ops += tail
+        s = pc.Scene()
+        closures = [("closure", "diffuse", 27, {"color": 11, "normal": 10}),
+                    ("closure", "glossy", 14, {"roughness": 26, "normal": 21}),
+                    ("closure", "principled", 16, {"base_color": 17, "roughness": 19, "normal": 22}),
+                    ("closure", "emission", 20, {"color": 18})]
+        m = s.add_shader("extreme", ops + closures)
+        pos, tris = quad((-2, -2, 0), (4, 0, 0), (0, 4, 0))
+        uv = np.array([[[0, 0], [x, 0], [1, y]], [[0, 0], [1, 1], [0, 1]]], np.float32)
+        mesh = s.add_mesh(pos, tris, None, None, [m], uvs={0: uv}, texspace=((x, y, 0), (y, 0, x)))
+        s.add_instance(mesh, np.eye(4, dtype=np.float32))
+        s.set_world_color((1.0, 1.0, 1.0))
+        s.set_camera(camera(pc, (0, -3, 3), (0, 0, 0)))
+        img, stats = render(pc, s, 6, 6, samples=2)
+        assert np.isfinite(img).all() and stats["nonfinite_samples"] == 0, (x, y)
