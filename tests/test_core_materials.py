@@ -209,7 +209,7 @@ def test_mix_of_diffuse_and_glossy_weights():
 def test_bad_programs_raise():
     s = pc.Scene()
     for prog in ([("nonsense", 0)], [("const", 99, (1,))], [("image", 0, 0, 5, "LINEAR", "REPEAT")],
-                 [("closure", "velvet", None, {})], [("math", 0, 0, 0, "TANGENT", False)],
+                 [("closure", "velvet", None, {})], [("math", 0, 0, 0, "HYPOTENUSE", False)],
                  [("mapping", 0, 0, np.zeros((2, 2)))], [("uv", 0, 9)]):
         with pytest.raises((ValueError, RuntimeError)):
             s.add_shader("bad", prog)
