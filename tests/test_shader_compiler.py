@@ -989,6 +989,15 @@ def test_rgb_curves_bake_the_combined_and_channel_curves():
               for i, x in enumerate((0.5, 0.25, 1.0))]
     assert constant_color(mat) == approx(expect, abs=2e-3)
     assert expect[2] == approx(0.5, abs=1e-3)  # the combined curve halves white
+    # Fac is not clamped (as Cycles): 1.5 goes past the curve.
+    node.inputs["Fac"].default_value = 1.5
+    color = np.array((0.5, 0.25, 1.0))
+    assert constant_color(mat) == approx(color + 1.5 * (np.array(expect) - color), abs=3e-3)
+    link(mat.node_tree, uv_x(mat.node_tree.nodes, mat.node_tree.links), node.inputs["Fac"])
+    data, warnings = compile_(mat)
+    assert not warnings
+    # (curved - color is constant here, folded)
+    assert [op[6] for op in data.program if op[0] == "vector_math"] == ["MULTIPLY_ADD"]
 
 
 def test_separate_and_combine_colors_and_vectors_fold():

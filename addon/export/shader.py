@@ -1046,9 +1046,20 @@ class ShaderCompiler:
             table[i, :3] = [mapping.evaluate(curves[c], combined) for c in range(3)]
         curved = self.ramp(color, table, True, mapping.extend == 'EXTRAPOLATED', lo, hi,
                            channels=True)
-        if not (fac.is_const and 0.0 <= fac.const[0] <= 1.0):
-            self.problem(f"'{node.name}': its factor is clamped to [0, 1]")
-        return self.mix("MIX", fac, color, curved)
+        if fac.is_const and 0.0 <= fac.const[0] <= 1.0:
+            return self.mix("MIX", fac, color, curved)
+        # Cycles does not clamp this factor: color + fac * (curved - color).
+        delta = self.vector_op("SUBTRACT", curved, color)
+        return self.as_color(self.vector_op("MULTIPLY_ADD", delta, fac, color))
+
+    def vector_op(self, op, a, b, c=None):
+        """Vector Math on values (floats broadcast), folded when constant."""
+        a, b = self.as_vector(a), self.as_vector(b)
+        c = const_vector((0, 0, 0)) if c is None else self.as_vector(c)
+        if a.is_const and b.is_const and c.is_const:
+            return const_vector(_vector_math(op, a.const[:3], b.const[:3], c.const[:3], 1.0))
+        return self.emit("vector", "vector_math", self.reg(a), self.reg(b), self.reg(c), self.reg(ONE),
+                         op)
 
     def color_space(self, v, conversion, kind):
         if v.is_const:
