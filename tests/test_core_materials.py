@@ -275,6 +275,11 @@ def test_colour_adjustment_ops_match_the_compilers_folding():
             args = (v, 0.5, 1.0, 3.0, 7.0, 4.0)
             got = emitted(consts(*args) + [("map_range", 6, 0, 1, 2, 3, 4, 5, mode, True)])
             assert got[0] == pytest.approx(sh._map_range(*args, mode, True), abs=1e-5), (mode, v)
+        # The vector variant: per component, its own parameters (a zero range gives to_min).
+        vec = [(0.3, 0.62, 1.4), (0.5, 0.0, 1.0), (1.0, 0.0, 1.0), (3.0, 0.1, 0.2), (7.0, 0.9, 0.5),
+               (4.0, 2.0, 3.0)]
+        got = emitted(consts(*[x + (0.0,) for x in vec]) + [("map_range_vector", 6, 0, 1, 2, 3, 4, 5, mode, True)])
+        assert got == pytest.approx(sh._map_range_vector(*vec, mode, True), abs=1e-5), mode
 
 
 @pytest.mark.parametrize("op", sorted(sh.VECTOR_MATH_OPS))

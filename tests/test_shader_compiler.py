@@ -1162,3 +1162,27 @@ def test_math_node_with_a_third_value_emits_math3():
     assert op[5:] == ("SMOOTH_MAX", False)
     regs = run(data.program[:data.program.index(op)])[1]
     assert regs[op[4]][0] == approx(0.3)
+
+
+def test_map_range_vector_folds_and_emits():
+    def build(nodes, links, varying=False):
+        n = nodes.new("ShaderNodeMapRange")
+        n.data_type = 'FLOAT_VECTOR'
+        n.interpolation_type = 'LINEAR'
+        by_id = {s.identifier: s for s in n.inputs}
+        by_id["Vector"].default_value = (0.75, 0.0, 2.0)
+        by_id["From_Min_FLOAT3"].default_value = (0.5, 0.0, 1.0)
+        by_id["From_Max_FLOAT3"].default_value = (1.0, 0.0, 3.0)
+        by_id["To_Max_FLOAT3"].default_value = (2.0, 5.0, 1.0)
+        if varying:
+            links.new(nodes.new("ShaderNodeTexCoord").outputs["UV"], by_id["Vector"])
+        rgb = nodes.new("ShaderNodeMix")  # into a colour (a vector would feed the Normal)
+        rgb.data_type = 'RGBA'
+        rgb.inputs["Factor"].default_value = 1.0
+        links.new(n.outputs["Vector"], [s for s in rgb.inputs if s.identifier == "B_Color"][0])
+        return [s for s in rgb.outputs if s.identifier == "Result_Color"][0]
+    # x: half way to 2; y: a zero range gives To Min (0); z: half way to 1.
+    assert constant_color(diffuse_fed_by("MRV", build)) == approx((1.0, 0.0, 0.5))
+    data, warnings = compile_(diffuse_fed_by("MRV2", lambda n, l: build(n, l, True)))
+    assert not warnings and [op[8:] for op in data.program if op[0] == "map_range_vector"] == [
+        ("LINEAR", True)]

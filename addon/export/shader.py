@@ -331,6 +331,26 @@ def _map_range(v, f0, f1, t0, t1, steps, mode, clamp):
     return r if math.isfinite(r) else 0.0
 
 
+def _map_range_vector(v, f0, f1, t0, t1, steps, mode, clamp):
+    """Cycles' svm_node_vector_map_range: per component, with a safe division."""
+    out = []
+    for x, a, b, c, e, n in zip(v, f0, f1, t0, t1, steps):
+        f = (x - a) / (b - a) if b != a else 0.0
+        if mode == 'STEPPED':
+            f = math.floor(f * (n + 1.0)) / n if n > 0.0 else 0.0
+        elif mode == 'SMOOTHSTEP':
+            f = _sat(f)
+            f = (3.0 - 2.0 * f) * f * f
+        elif mode == 'SMOOTHERSTEP':
+            f = _sat(f)
+            f = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
+        r = c + f * (e - c)
+        if clamp and mode in ('LINEAR', 'STEPPED'):
+            r = min(max(r, min(c, e)), max(c, e))
+        out.append(r if math.isfinite(r) else 0.0)
+    return tuple(out)
+
+
 def _vector_math(op, a, b, c, scale):
     """Blender's Vector Math on constants (the core's VectorMath op)."""
     a, b, c = (np.asarray(x, np.float64) for x in (a, b, c))
@@ -1095,7 +1115,8 @@ class ShaderCompiler:
         return color
 
     def separate_xyz(self, node, out, ctx):
-        v = self.input(node, "Vector", ctx, "vector")
+        socket = node.inputs["Vector"]
+        v = self.value(socket, ctx, "vector") or self.socket_default(socket, "vector")
         return self.separate(v, "XYZ".index(out.identifier))
 
     def combine_xyz(self, node, out, ctx):
@@ -1134,9 +1155,21 @@ class ShaderCompiler:
                          node.clamp_type)
 
     def map_range(self, node, out, ctx):
+        by_id = {s.identifier: s for s in node.inputs}
+        mode = node.interpolation_type
+        if node.data_type == 'FLOAT_VECTOR':
+            if out.identifier != "Vector":
+                return ZERO
+            ins = [self.value(by_id[k], ctx, "vector") or self.socket_default(by_id[k], "vector")
+                   for k in ("Vector", "From_Min_FLOAT3", "From_Max_FLOAT3", "To_Min_FLOAT3",
+                             "To_Max_FLOAT3", "Steps_FLOAT3")]
+            if all(v.is_const for v in ins):
+                return const_vector(_map_range_vector(*(v.const[:3] for v in ins), mode,
+                                                      node.clamp))
+            return self.emit("vector", "map_range_vector", *(self.reg(v) for v in ins), mode,
+                             bool(node.clamp))
         if node.data_type != 'FLOAT':
             return NotImplemented
-        by_id = {s.identifier: s for s in node.inputs}
         ins = [self.value(by_id[k], ctx, "float")
                for k in ("Value", "From Min", "From Max", "To Min", "To Max", "Steps")]
         mode = node.interpolation_type
@@ -1150,7 +1183,7 @@ class ShaderCompiler:
         if op not in VECTOR_MATH_OPS:
             return NotImplemented
         by_id = {s.identifier: s for s in node.inputs}
-        a, b, c = (self.value(by_id[k], ctx, "vector")
+        a, b, c = (self.value(by_id[k], ctx, "vector") or self.socket_default(by_id[k], "vector")
                    for k in ("Vector", "Vector_001", "Vector_002"))
         scale = self.value(by_id["Scale"], ctx, "float")
         value_op = op in VECTOR_MATH_VALUE_OPS
@@ -1505,7 +1538,7 @@ _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "gene
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
              "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
-             "map_range": 6, "vector_math": 4}
+             "map_range": 6, "map_range_vector": 6, "vector_math": 4}
 
 
 def _reads(op):

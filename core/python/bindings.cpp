@@ -354,9 +354,10 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.code = OpCode::Clamp;
       for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
       o.sub = index_in({"MINMAX", "RANGE"}, name_of(t[5]), "clamp type");
-    } else if (op == "map_range") {
+    } else if (op == "map_range" || op == "map_range_vector") {
       need(10);
       o.code = OpCode::MapRange;
+      o.ext = op == "map_range_vector" ? 1 : 0;  // per component (Cycles' vector map range)
       for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
       o.sub = index_in({"LINEAR", "STEPPED", "SMOOTHSTEP", "SMOOTHERSTEP"}, name_of(t[8]), "map range type");
       o.clamp = t[9].cast<bool>();

@@ -644,7 +644,29 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = {v, v, v, 1.0f};
         break;
       }
-      case OpCode::MapRange: {  // Cycles' svm_node_map_range (float)
+      case OpCode::MapRange:
+        if (op.ext == 1) {  // Cycles' svm_node_vector_map_range: per component, safe division
+          const Vec3 v = reg(op.in[0]).xyz(), f0 = reg(op.in[1]).xyz(), f1 = reg(op.in[2]).xyz();
+          const Vec3 t0 = reg(op.in[3]).xyz(), t1 = reg(op.in[4]).xyz(), steps = reg(op.in[5]).xyz();
+          const MapRangeOp mode = MapRangeOp(op.sub);
+          auto one = [&](float x, float a, float b, float c, float e, float n) {
+            float f = safe_div(x - a, b - a);
+            switch (mode) {
+              case MapRangeOp::Linear: break;
+              case MapRangeOp::Stepped: f = n > 0.0f ? std::floor(f * (n + 1.0f)) / n : 0.0f; break;
+              case MapRangeOp::SmoothStep: f = sat(f); f = (3.0f - 2.0f * f) * (f * f); break;
+              case MapRangeOp::SmootherStep: f = sat(f); f = f * f * f * (f * (f * 6.0f - 15.0f) + 10.0f); break;
+            }
+            float res = c + f * (e - c);
+            if (op.clamp && (mode == MapRangeOp::Linear || mode == MapRangeOp::Stepped))
+              res = c > e ? clampf(res, e, c) : clampf(res, c, e);
+            return std::isfinite(res) ? res : 0.0f;
+          };
+          d = {one(v.x, f0.x, f1.x, t0.x, t1.x, steps.x), one(v.y, f0.y, f1.y, t0.y, t1.y, steps.y),
+               one(v.z, f0.z, f1.z, t0.z, t1.z, steps.z), 0.0f};
+          break;
+        }
+        {  // Cycles' svm_node_map_range (float)
         const float v = reg(op.in[0]).x, f0 = reg(op.in[1]).x, f1 = reg(op.in[2]).x;
         const float t0 = reg(op.in[3]).x, t1 = reg(op.in[4]).x, steps = reg(op.in[5]).x;
         float res = 0.0f;
