@@ -541,3 +541,32 @@ def test_object_generated_and_normal_coordinates(output):
     # within 1 %, and world positions in place of object space would be far off.
     assert_agree(ours, cycles, region=0.05, whole=0.01)
     assert np.abs(ours - cycles)[..., :3].mean() < 0.005
+
+
+def test_light_path_shadow_ray_card():
+    """A card that is red diffuse to every ray but shadow rays, for which it is transparent
+    (Mix Shader by Is Shadow Ray): the floor under it is lit as if it were not there."""
+    def build():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 32
+        ms.set_world((0.05, 0.05, 0.05))
+        mat, nodes, links, out = ms.new_material("Card")
+        mix = nodes.new("ShaderNodeMixShader")
+        lp = nodes.new("ShaderNodeLightPath")
+        d = ms.set_inputs(nodes.new("ShaderNodeBsdfDiffuse"), Color=(0.8, 0.1, 0.1, 1.0))
+        links.new(lp.outputs["Is Shadow Ray"], mix.inputs["Fac"])
+        links.new(d.outputs[0], mix.inputs[1])
+        links.new(nodes.new("ShaderNodeBsdfTransparent").outputs[0], mix.inputs[2])
+        links.new(mix.outputs[0], out.inputs["Surface"])
+        ms.add_plane("Floor", 6.0, ms.diffuse("Floor", (0.5, 0.5, 0.5)))
+        ms.add_plane("Card", 0.8, mat, location=(0.6, 0.0, 0.5))
+        light = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
+        light.data.energy = 3.0
+        light.data.angle = 0.0
+        scene.collection.objects.link(light)  # straight down: the card's shadow is below it
+        ms.add_camera((0.0, -3.0, 2.5), (0.2, 0.0, 0.2))
+        return scene
+    ours, cycles = render_pair(build, 64, bounces=8)
+    # With the card casting its shadow (Is Shadow Ray read as 0) the image is 5 % darker.
+    assert_agree(ours, cycles, region=0.05, whole=0.015)

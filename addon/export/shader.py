@@ -1016,11 +1016,18 @@ class ShaderCompiler:
                          bool(node.invert))
 
     def light_path(self, node, out, ctx):
-        """Folded as for camera rays: the core's shading does not know the ray type."""
-        value = 1.0 if out.identifier == "Is Camera Ray" else 0.0
-        self.problem(f"'{node.name}': {out.name} is evaluated as for camera rays "
-                     f"({_fmt(value)}: the ray type is not known when shading)")
-        return const_float(value)
+        """The core tells shadow rays (through transparent surfaces) from the rest: Is Shadow
+        Ray is exact, Is Camera Ray is "not a shadow ray" (bounces count as camera rays, warned);
+        the other outputs are folded to their camera-ray values (warned)."""
+        if out.identifier == "Is Shadow Ray":
+            return self.emit("float", "light_path", "IS_SHADOW_RAY")
+        if out.identifier == "Is Camera Ray":
+            self.problem(f"'{node.name}': Is Camera Ray is also 1 for indirect rays (only "
+                         "shadow rays are told apart)")
+            return self.emit("float", "light_path", "IS_CAMERA_RAY")
+        self.problem(f"'{node.name}': {out.name} is evaluated as for camera rays (0: the ray "
+                     "type is not known when shading)")
+        return ZERO
 
     def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
              kind="color"):
@@ -1534,6 +1541,7 @@ class ShaderCompiler:
 
 # How many register operands (after the destination) each value op has; None = none given.
 _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
+             "light_path": 0,
              "object_normal": 0, "mapping": 1, "image": 1,
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,

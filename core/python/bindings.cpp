@@ -275,6 +275,11 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.code = op == "object" ? OpCode::ObjectPos : OpCode::Generated;
       o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
       prog.varying = true;
+    } else if (op == "light_path") {
+      need(3);
+      o.code = OpCode::LightPath;
+      o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY"}, name_of(t[2]), "light path output");
+      prog.varying = true;
     } else if (op == "object_normal") {
       need(2);
       o.code = OpCode::ObjectNormal;

@@ -262,7 +262,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
   return std::isfinite(s.pdf) && s.pdf > 0.0f;
 }
 
-void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out) const {
+void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
     out.n = mat.cached.n;
@@ -282,6 +282,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.ng = sp.ng;
   ctx.ns = sp.ns;
   ctx.wo = wo;
+  ctx.shadow_ray = shadow_ray;
   const TriangleVerts& hit_tri = tris_[sp.prim];
   const Vec3 corners[3] = {hit_tri.v0, hit_tri.v1, hit_tri.v2};
   ctx.tri = corners;  // for the Bump node's offsets
@@ -344,7 +345,7 @@ Vec3 Scene::transmittance(Ray ray) const {
     const Material& mat = materials_[sp.material];
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;
-    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl);
+    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, true);
     Vec3 pass(0.0f);
     for (int c = 0; c < cl.n; ++c)
       if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;

@@ -100,7 +100,8 @@ class Scene {
   void surface_point(const Hit& h, SurfacePoint& sp) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
-  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out) const;
+  // shadow_ray: shading for a shadow ray's transparency (the Light Path node's Is Shadow Ray).
+  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray = false) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
   // blocked; Transparent surfaces let part of it through).
   Vec3 transmittance(Ray ray) const;

@@ -511,6 +511,13 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = f4(op.code == OpCode::ObjectPos ? o : o * ctx.object->gen_scale + ctx.object->gen_offset);
         break;
       }
+      case OpCode::LightPath: {
+        // The core knows shadow rays apart from the rest: Is Shadow Ray, and Is Camera Ray as
+        // "not a shadow ray" (an approximation: bounces count as camera rays).
+        const float v = op.sub == 0 ? (ctx.shadow_ray ? 0.0f : 1.0f) : (ctx.shadow_ray ? 1.0f : 0.0f);
+        d = {v, v, v, 1.0f};
+        break;
+      }
       case OpCode::ObjectNormal: {
         Vec3 n = ctx.ns;
         if (ctx.object && ctx.object->valid) {

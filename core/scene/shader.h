@@ -36,7 +36,7 @@ float srgb_to_linear(float c);
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
   Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
-  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal,
+  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
@@ -138,6 +138,7 @@ struct ShadingContext {
   const Vec3* tri = nullptr;
   const Vec2* tri_uv = nullptr;
   const ObjectCoords* object = nullptr;  // the hit instance's (nullptr: world coordinates)
+  bool shadow_ray = false;  // shading a shadow ray's transparency, not a scattering ray's hit
 };
 
 struct ShaderProgram {
