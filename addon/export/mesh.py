@@ -106,8 +106,11 @@ def _export_object(obj, materials, uv_names=None):
         if not materials:
             materials = list(mesh.materials)
         uvs, missing = mesh_uvs(mesh, uv_names(materials)) if uv_names else ({}, [])
-        # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it.
+        # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
+        # non-finite vertices make it non-finite: then the core's own box of the finite ones.
         texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
+        if not np.isfinite(texspace).all():
+            texspace = None
     finally:
         obj.to_mesh_clear()
     # Blender and Cycles clamp out-of-range material indices to the last slot.
