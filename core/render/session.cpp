@@ -34,16 +34,18 @@ void validate(const RenderSettings& s) {
   if (!(s.adaptive_threshold >= 0.0f) || !std::isfinite(s.adaptive_threshold))
     throw std::invalid_argument("adaptive_threshold must be >= 0");
   if (s.adaptive_min_samples < 0) throw std::invalid_argument("adaptive_min_samples must be >= 0");
+  if (s.sample_offset < 0 || int64_t(s.sample_offset) + int64_t(s.samples) > int64_t(INT32_MAX))
+    throw std::invalid_argument("sample_offset must be >= 0 and sample_offset + samples < 2^31");
   if (s.diffuse_bounces < 0 || s.glossy_bounces < 0 || s.transmission_bounces < 0)
     throw std::invalid_argument("bounce limits must be >= 0");
 }
 
-Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings)
+Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera)
     : scene_(std::move(scene)),
       settings_((validate(settings), settings)),
       film_(settings.width, settings.height, settings.tile_size) {
   if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
-  camera_ = Camera(scene_->camera_desc(), settings_.width, settings_.height);
+  camera_ = Camera(camera ? *camera : scene_->camera_desc(), settings_.width, settings_.height);
   integrator_.max_bounces = settings_.max_bounces;
   integrator_.use_nee = settings_.use_nee;
   integrator_.diffuse_bounces = settings_.diffuse_bounces;
@@ -154,7 +156,7 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
         }
         // One independent stream per (seed, pixel, sample): thread- and pass-independent.
         const uint64_t pixel = uint64_t(y) * uint64_t(settings_.width) + uint64_t(x);
-        Sampler sampler(settings_.sampler, settings_.seed, pixel, uint32_t(s));
+        Sampler sampler(settings_.sampler, settings_.seed, pixel, uint32_t(settings_.sample_offset + s));
         const Vec2 j = sampler.get2d();
         const Vec3 L = trace_path(*scene_, camera_.generate(float(x) + j.x, float(y) + j.y), sampler, integrator_, counters);
         ++paths;

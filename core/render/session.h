@@ -29,6 +29,9 @@ struct RenderSettings {
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic
   int diffuse_bounces = 1024, glossy_bounces = 1024, transmission_bounces = 1024;
+  // Renders sample indices [sample_offset, sample_offset + samples): partial renders of one
+  // frame on several machines, merged by sample count, equal one render of all samples.
+  int sample_offset = 0;
 };
 
 // Throws std::invalid_argument with a readable message for settings that cannot be rendered.
@@ -49,7 +52,8 @@ struct SessionStats {
 
 class Session {
  public:
-  Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings);
+  // camera: overrides the scene's camera (the viewport's view) when not null.
+  Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera = nullptr);
   ~Session();
   Session(const Session&) = delete;
   Session& operator=(const Session&) = delete;
