@@ -12,7 +12,7 @@ from .material import MaterialData, MaterialTable, add_materials
 from .mesh import MeshData, collect_meshes, is_visible
 from .world import WorldTexture, world_color, world_texture
 
-__all__ = ("ExportError", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
+__all__ = ("ExportError", "add_lights", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
            "export_scene", "to_core")
 
 
@@ -26,15 +26,18 @@ class SceneData:
     lights: list = field(default_factory=list)  # LightData
     world_texture: WorldTexture = None  # replaces world_color when set
     images: list = field(default_factory=list)  # shader.ImageData the material programs use
+    material_names: list = field(default_factory=list)  # per material: the bpy name ("" = none)
+    uv_sets: object = None  # shader.UvSets: the global uv-set numbering the programs use
 
 
-def export_scene(depsgraph, warn):
+def export_scene(depsgraph, warn, mesh_cache=None):
     """Everything Pathlight renders, read from the evaluated depsgraph. warn(msg) reports
-    unsupported features (each call is one message for the user)."""
+    unsupported features (each call is one message for the user). mesh_cache: a
+    mesh_cache.MeshCache that keeps unchanged meshes' arrays between exports (animation)."""
     scene = depsgraph.scene
     camera = camera_params(scene, depsgraph, warn)
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False))
-    meshes = collect_meshes(depsgraph, table.uv_names)
+    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache)
     for mesh in meshes:
         if mesh.missing_uv_maps:
             warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, mesh.missing_uv_maps))} "
@@ -43,7 +46,8 @@ def export_scene(depsgraph, warn):
     lights = collect_lights(depsgraph, warn, is_visible)
     return SceneData(meshes, material_slots, table.materials,
                      world_color(scene.world, warn), camera, lights,
-                     world_texture(scene.world, warn), table.images.images)
+                     world_texture(scene.world, warn), table.images.images,
+                     table.material_names(), table.uv_sets)
 
 
 def mean_radiance(tex):
@@ -54,12 +58,15 @@ def mean_radiance(tex):
     return weights @ rows / weights.sum() * tex.strength
 
 
-def to_core(pc, data, warn=None):
+def to_core(pc, data, warn=None, material_ids=None):
     """A pc.Scene (not committed) holding SceneData `data`. warn(msg) hears about what this
-    build of the core cannot do."""
+    build of the core cannot do. material_ids: a list that receives the core id of each of
+    data.materials (for live edits)."""
     warn = warn if warn is not None else (lambda msg: None)
     scene = pc.Scene()
     ids = add_materials(scene, data.materials, data.images, warn)
+    if material_ids is not None:
+        material_ids.extend(ids)
     for mesh, slots in zip(data.meshes, data.material_slots):
         uvs = {"uvs": mesh.uvs} if mesh.uvs else {}  # older core builds take no uvs
         mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
@@ -68,13 +75,28 @@ def to_core(pc, data, warn=None):
                                  material_slots=[ids[i] for i in slots], **uvs)
         for matrix in mesh.matrices:
             scene.add_instance(mesh_id, matrix)
-    for light in data.lights:
+    add_lights(scene, data.lights, warn)
+    set_world(scene, data, warn)
+    camera = pc.Camera()
+    for name, value in data.camera.items():
+        setattr(camera, name, value)
+    scene.set_camera(camera)
+    return scene
+
+
+def add_lights(scene, lights, warn):
+    """Adds LightData `lights` to a core scene."""
+    for light in lights:
         add = getattr(scene, f"add_{light.kind}_light", None)
         if add is None:  # an older core build
             warn(f"{light.kind.capitalize()} lights are not supported by this build of the "
                  "Pathlight core; ignored")
             continue
         add(**light.args)
+
+
+def set_world(scene, data, warn):
+    """Sets the world (texture or colour) of SceneData `data` on a core scene."""
     tex = data.world_texture
     if tex is not None and hasattr(scene, "set_world_texture"):
         scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
@@ -84,8 +106,3 @@ def to_core(pc, data, warn=None):
         scene.set_world_color(tuple(float(c) for c in mean_radiance(tex)))
     else:
         scene.set_world_color(data.world_color)
-    camera = pc.Camera()
-    for name, value in data.camera.items():
-        setattr(camera, name, value)
-    scene.set_camera(camera)
-    return scene
