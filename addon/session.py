@@ -5,12 +5,14 @@ import time
 
 import bpy
 
+from . import render_cache
 from .core import get_core
 from .export import ExportError, export_scene, to_core
 
 log = logging.getLogger(__name__)
 
 _progress_listener = None
+PREVIEW_SAMPLES = 32  # material preview thumbnails
 
 
 def set_progress_listener(fn):
@@ -37,6 +39,8 @@ def render_settings(pc, scene):
     st.seed = render_seed(scene)
     st.use_nee = props.use_nee
     st.threads = scene.render.threads  # the detected count in AUTO mode
+    if hasattr(st, "sample_offset"):
+        st.sample_offset = getattr(props, "sample_offset", 0)
     # Issue 4 settings; hasattr keeps older core builds working (they render without them).
     optional = {
         "sampler": props.sampler.lower(),
@@ -67,12 +71,22 @@ def render(engine, depsgraph):
     try:
         pc = get_core()
         scene = depsgraph.scene
-        core_scene = to_core(pc, export_scene(depsgraph, warn), warn)
-        sess = pc.Session(core_scene, render_settings(pc, scene))
+        cache = None if engine.is_preview else render_cache.MESH_CACHE
+        core_scene = to_core(pc, export_scene(depsgraph, warn, cache), warn)
+        if cache is not None and cache.previous is not None:
+            engine.update_stats("", "Pathlight | meshes: {hits} cached, {misses} exported"
+                                .format(**cache.previous))
+        settings = render_settings(pc, scene)
+        if engine.is_preview:  # material thumbnails: quick, and stop early where smooth
+            settings.samples = min(settings.samples, PREVIEW_SAMPLES)
+            if hasattr(settings, "sample_offset"):
+                settings.sample_offset = 0
+        sess = pc.Session(core_scene, settings)
         dropped = core_scene.stats().get("dropped_triangles", 0)
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
-        _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit)
+        _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit,
+             sample_offset=getattr(settings, "sample_offset", 0))
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
@@ -91,9 +105,10 @@ def _warner(engine):
     return warn
 
 
-def _run(engine, sess, width, height, time_limit):
+def _run(engine, sess, width, height, time_limit, sample_offset=0):
     result = engine.begin_result(0, 0, width, height)
     try:
+        _stamp(result, sample_offset, 0)
         combined = result.layers[0].passes["Combined"]
         sess.start()
         shown = -1
@@ -117,6 +132,7 @@ def _run(engine, sess, width, height, time_limit):
                 stats_at = now
             cancel = listener is not None and listener(info)  # also sees the final state
             if finished:
+                _stamp(result, sample_offset, info["samples_done"])
                 break
             if cancel or engine.test_break():
                 sess.cancel()
@@ -125,6 +141,16 @@ def _run(engine, sess, width, height, time_limit):
             sess.cancel()
             sess.wait(5.0)
         engine.end_result(result)
+
+
+def _stamp(result, sample_offset, samples):
+    """Sample range of the render as image metadata (EXR header attributes, PNG text):
+    `python3 build.py merge` weighs partial renders of one frame by it (docs/farm.md)."""
+    try:
+        result.stamp_data_add_field("Pathlight Sample Offset", str(sample_offset))
+        result.stamp_data_add_field("Pathlight Samples", str(samples))
+    except (AttributeError, RuntimeError, TypeError):  # an older Blender: no metadata
+        pass
 
 
 def _progress_info(progress, time_limit):
