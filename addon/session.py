@@ -85,8 +85,8 @@ def render(engine, depsgraph):
         dropped = core_scene.stats().get("dropped_triangles", 0)
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
-        _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit,
-             sample_offset=getattr(settings, "sample_offset", 0))
+        done = _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit)
+        _stamp(engine, getattr(settings, "sample_offset", 0), done)
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
@@ -105,10 +105,11 @@ def _warner(engine):
     return warn
 
 
-def _run(engine, sess, width, height, time_limit, sample_offset=0):
+def _run(engine, sess, width, height, time_limit):
+    """Streams the session's film into the render result; returns the samples done."""
     result = engine.begin_result(0, 0, width, height)
+    info = {"samples_done": 0}
     try:
-        _stamp(result, sample_offset, 0)
         combined = result.layers[0].passes["Combined"]
         sess.start()
         shown = -1
@@ -132,7 +133,6 @@ def _run(engine, sess, width, height, time_limit, sample_offset=0):
                 stats_at = now
             cancel = listener is not None and listener(info)  # also sees the final state
             if finished:
-                _stamp(result, sample_offset, info["samples_done"])
                 break
             if cancel or engine.test_break():
                 sess.cancel()
@@ -141,16 +141,18 @@ def _run(engine, sess, width, height, time_limit, sample_offset=0):
             sess.cancel()
             sess.wait(5.0)
         engine.end_result(result)
+    return info["samples_done"]
 
 
-def _stamp(result, sample_offset, samples):
+def _stamp(engine, sample_offset, samples):
     """Sample range of the render as image metadata (EXR header attributes, PNG text):
     `python3 build.py merge` weighs partial renders of one frame by it (docs/farm.md)."""
     try:
+        result = engine.get_result()  # the whole frame's result (a tile's stamp is not saved)
         result.stamp_data_add_field("Pathlight Sample Offset", str(sample_offset))
         result.stamp_data_add_field("Pathlight Samples", str(samples))
-    except (AttributeError, RuntimeError, TypeError):  # an older Blender: no metadata
-        pass
+    except (AttributeError, RuntimeError, TypeError, ReferenceError) as e:  # no metadata then
+        log.warning("could not stamp the sample range: %s", e)
 
 
 def _progress_info(progress, time_limit):
