@@ -775,7 +775,7 @@ def cmd_merge(args):
     argv = [str(VENV_PY), str(ROOT / "build.py"), "_merge",
             json.dumps({"inputs": [str(p.resolve()) for p in inputs], "output": str(out.resolve())})]
     sys.stdout.flush()
-    os.execve(str(VENV_PY), argv, runtime_env(args))
+    os.execve(str(VENV_PY), argv, dict(os.environ))  # numpy and OpenEXR only: no core, no bpy
 
 
 def internal_merge(argv):
