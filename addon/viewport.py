@@ -90,14 +90,14 @@ class ViewportSession:
         return plan
 
     def _full_export(self, depsgraph):
-        data = export_scene(depsgraph, self.warn)
+        data = export_scene(depsgraph, self.warn, need_camera=False)
         ids = []
         scene = to_core(self.pc, data, self.warn, material_ids=ids)
         scene.commit()
         self.scene = scene
         self.material_ids = {name: i for name, i in zip(data.material_names, ids) if name}
         self.uv_sets = data.uv_sets
-        self.scene_camera = data.camera
+        self.scene_camera = data.camera or None
         self.state.materials = frozenset(self.material_ids)
         self.state.camera_name = depsgraph.scene.camera.name if depsgraph.scene.camera else ""
         self._read_scene(depsgraph)

@@ -229,3 +229,20 @@ def test_viewport_session_restarts_without_rebuilding(scene):
         _finish(vs)
         assert vs.counters["exports"] == 2 and vs.scene is not core_scene
         vs.free()
+
+
+@pytest.mark.skipif(not core_has("Scene", "set_shader"), reason="core without live edits")
+def test_viewport_needs_no_scene_camera(scene):
+    """The viewport renders through its own view: a scene without a camera still renders."""
+    from addon.core import get_core
+    from addon.viewport import ViewportSession
+    cam = bpy.data.objects["Camera"]
+    view, proj = np.array(cam.matrix_world.inverted()), _proj(cam, 16, 16)
+    bpy.data.objects.remove(cam)
+    scene.pathlight.preview_samples = 1
+    vs = ViewportSession(get_core())
+    vs.set_view(view_camera_params(view, proj, 16, 16, True), 16, 16)
+    vs.sync(bpy.context.evaluated_depsgraph_get())
+    film, n = _finish(vs)
+    assert n == 1 and film.shape == (16, 16, 4) and film[..., :3].max() > 0
+    vs.free()

@@ -30,12 +30,14 @@ class SceneData:
     uv_sets: object = None  # shader.UvSets: the global uv-set numbering the programs use
 
 
-def export_scene(depsgraph, warn, mesh_cache=None):
+def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True):
     """Everything Pathlight renders, read from the evaluated depsgraph. warn(msg) reports
     unsupported features (each call is one message for the user). mesh_cache: a
-    mesh_cache.MeshCache that keeps unchanged meshes' arrays between exports (animation)."""
+    mesh_cache.MeshCache that keeps unchanged meshes' arrays between exports (animation).
+    need_camera=False: a scene without a camera exports with a default one (the viewport
+    renders through its own view)."""
     scene = depsgraph.scene
-    camera = camera_params(scene, depsgraph, warn)
+    camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False))
     meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache)
     for mesh in meshes:
