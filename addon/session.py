@@ -77,7 +77,7 @@ def render(engine, depsgraph):
             engine.update_stats("", "Pathlight | meshes: {hits} cached, {misses} exported"
                                 .format(**cache.previous))
         settings = render_settings(pc, scene)
-        if engine.is_preview:  # material thumbnails: quick, and stop early where smooth
+        if engine.is_preview:  # material thumbnails: small and quick
             settings.samples = min(settings.samples, PREVIEW_SAMPLES)
             if hasattr(settings, "sample_offset"):
                 settings.sample_offset = 0
