@@ -392,7 +392,8 @@ def render_options(args):
             raise UserError(f"--{name.replace('_', '-')} must be at least {low}")
     if args.threads is not None and args.threads > 1024:
         raise UserError("--threads must be at most 1024 (Blender's limit)")
-    if args.sample_offset is not None and args.sample_offset < 0:
+    sample_offset = getattr(args, "sample_offset", None)  # the options added later are optional
+    if sample_offset is not None and sample_offset < 0:
         raise UserError("--sample-offset must be at least 0")
     frames = frame_range(args)
     if frames[0] != frames[1] and "#" not in out.name:
@@ -402,24 +403,26 @@ def render_options(args):
         "scene": str(scene.resolve()), "output": str(out.resolve()), "format": fmt,
         "samples": args.samples, "time_limit": args.time_limit, "threads": args.threads,
         "seed": args.seed, "frame": frames[0], "frame_end": frames[1], "verbose": args.verbose,
-        "sample_offset": args.sample_offset,
+        "sample_offset": sample_offset,
     }
 
 
 def frame_range(args):
     """(first, last) frame from --frame, --frames A-B or --frame-start/--frame-end."""
     first = last = args.frame
-    if args.frames is not None:
-        if args.frame_start is not None or args.frame_end is not None:
+    frames = getattr(args, "frames", None)
+    start, end = getattr(args, "frame_start", None), getattr(args, "frame_end", None)
+    if frames is not None:
+        if start is not None or end is not None:
             raise UserError("give either --frames or --frame-start/--frame-end")
-        m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", args.frames)
+        m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", frames)
         if not m:
-            raise UserError(f"--frames takes FIRST-LAST (e.g. 1-3) or one frame, not '{args.frames}'")
+            raise UserError(f"--frames takes FIRST-LAST (e.g. 1-3) or one frame, not '{frames}'")
         first = int(m.group(1))
         last = int(m.group(2)) if m.group(2) is not None else first
-    elif args.frame_start is not None or args.frame_end is not None:
-        first = args.frame_start if args.frame_start is not None else args.frame
-        last = args.frame_end if args.frame_end is not None else first
+    elif start is not None or end is not None:
+        first = start if start is not None else args.frame
+        last = end if end is not None else first
     if last < first:
         raise UserError(f"the frame range {first}-{last} is empty")
     return first, last

@@ -150,3 +150,23 @@ def test_build_py_renders_a_frame_range_into_numbered_files():
                               capture_output=True, text=True, timeout=300)
         assert proc.returncode == 0, proc.stderr[-2000:]
         assert sorted(p.name for p in Path(tmp).iterdir()) == ["out_0001.png", "out_0002.png"]
+
+
+def test_build_py_merge_command():
+    with tempfile.TemporaryDirectory(prefix="pathlight_mergecli_") as tmp:
+        a, b = Path(tmp) / "a.exr", Path(tmp) / "b.exr"
+        _write_exr(a, np.full((2, 2, 3), 1.0), samples=1)
+        _write_exr(b, np.full((2, 2, 3), 4.0), samples=3)
+        out = Path(tmp) / "m.exr"
+        proc = subprocess.run([sys.executable, str(REPO / "build.py"), "merge", str(a), str(b),
+                               "-o", str(out)], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert "4 samples" in proc.stdout
+        with OpenEXR.File(str(out)) as f:
+            rgb = next(iter(f.channels().values())).pixels.copy()
+            assert f.header()["Pathlight Samples"] == "4"
+        np.testing.assert_allclose(rgb, (1.0 * 1 + 4.0 * 3) / 4, rtol=1e-6)
+        proc = subprocess.run([sys.executable, str(REPO / "build.py"), "merge", str(a),
+                               "-o", str(Path(tmp) / "m.png")], capture_output=True, text=True,
+                              timeout=120)
+        assert proc.returncode == 1 and "must be an .exr" in proc.stderr
