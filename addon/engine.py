@@ -31,6 +31,9 @@ class PathlightRenderEngine(bpy.types.RenderEngine):
     def view_draw(self, context, depsgraph):
         viewport_draw.view_draw(self, context, depsgraph)
 
+    def update_render_passes(self, scene=None, renderlayer=None):
+        session.update_render_passes(self, scene, renderlayer)
+
 
 classes = (PathlightRenderEngine,)
 

@@ -170,3 +170,43 @@ def test_build_py_merge_command():
                                "-o", str(Path(tmp) / "m.png")], capture_output=True, text=True,
                               timeout=120)
         assert proc.returncode == 1 and "must be an .exr" in proc.stderr
+
+
+@needs_offset
+def test_merge_uses_the_sample_count_pass_of_adaptive_renders():
+    """Adaptive partial renders with the Sample Count pass (multilayer EXR): each pixel is
+    weighted by its own count, and the merged file's counts are the sums."""
+    import bpy
+    from blender_util import load_addon, open_fixture
+    load_addon()
+    with tempfile.TemporaryDirectory(prefix="pathlight_farm_ml_") as tmp:
+        paths = []
+        for k in range(2):
+            sc = open_fixture("cornell_box")
+            sc.render.engine = "PATHLIGHT"
+            if not hasattr(sc.view_layers[0], "pathlight"):
+                pytest.skip("add-on without render passes")
+            p = sc.pathlight
+            p.samples, p.sample_offset, p.seed = 32, 32 * k, 3
+            p.use_adaptive_sampling, p.adaptive_threshold = True, 0.05
+            sc.view_layers[0].pathlight.use_pass_sample_count = True
+            sc.render.resolution_percentage = 12
+            image = sc.render.image_settings
+            image.file_format, image.color_depth = 'OPEN_EXR_MULTILAYER', '32'
+            paths.append(str(Path(tmp) / f"part{k}.exr"))
+            sc.render.filepath, sc.render.use_file_extension = paths[-1], False
+            bpy.ops.render.render(write_still=True, scene=sc.name)
+        out = Path(tmp) / "merged.exr"
+        info = build.merge_exr(paths, str(out))
+        assert info["weights"] == "per-pixel sample counts"
+        parts = []
+        for path in paths + [str(out)]:
+            with OpenEXR.File(path) as f:
+                ch = f.channels()
+                parts.append((ch["ViewLayer.Combined"].pixels.copy(),
+                              ch["ViewLayer.Sample Count.X"].pixels.astype(np.float64)))
+        (a, ca), (b, cb), (m, cm) = parts
+        assert ca.min() < ca.max()  # adaptive: the counts differ per pixel
+        np.testing.assert_array_equal(cm, ca + cb)
+        expect = (a * ca[..., None] + b * cb[..., None]) / np.maximum(ca + cb, 1)[..., None]
+        np.testing.assert_allclose(m, expect, rtol=1e-5, atol=1e-7)
