@@ -80,7 +80,9 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     // Enough samples to see noisy features before any pixel may stop (Cycles' idea).
     min_samples_ = settings_.adaptive_min_samples > 0
                        ? settings_.adaptive_min_samples
-                       : std::max(16, static_cast<int>(4.0f / std::sqrt(settings_.adaptive_threshold)));
+                       // clamped before the cast: a tiny threshold would overflow int (UB)
+                       : std::max(16, static_cast<int>(std::min(4.0 / std::sqrt(double(settings_.adaptive_threshold)),
+                                                                double(settings_.samples))));
     min_samples_ = std::min(min_samples_, settings_.samples);
     check_every_ = std::max(1, min_samples_ / 4);
   }
