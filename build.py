@@ -47,7 +47,7 @@ BENCH_SECTIONS = DOCS / "bench"
 
 PYTHON_NEEDED = (3, 11)  # the bpy 4.5 wheels are CPython 3.11 only
 SIMD_LEVELS = ("avx2", "sse4.2", "generic")
-COMMANDS = ("setup", "build", "render", "test", "bench", "package", "clean")
+COMMANDS = ("setup", "build", "render", "merge", "test", "bench", "package", "clean")
 
 
 class UserError(Exception):
@@ -392,11 +392,49 @@ def render_options(args):
             raise UserError(f"--{name.replace('_', '-')} must be at least {low}")
     if args.threads is not None and args.threads > 1024:
         raise UserError("--threads must be at most 1024 (Blender's limit)")
+    sample_offset = getattr(args, "sample_offset", None)  # the options added later are optional
+    if sample_offset is not None and sample_offset < 0:
+        raise UserError("--sample-offset must be at least 0")
+    frames = frame_range(args)
+    if frames[0] != frames[1] and "#" not in out.name:
+        # Blender's convention: '#'s become the zero-padded frame number.
+        out = out.with_name(f"{out.stem}_####{out.suffix}")
     return {
         "scene": str(scene.resolve()), "output": str(out.resolve()), "format": fmt,
         "samples": args.samples, "time_limit": args.time_limit, "threads": args.threads,
-        "seed": args.seed, "frame": args.frame, "verbose": args.verbose,
+        "seed": args.seed, "frame": frames[0], "frame_end": frames[1], "verbose": args.verbose,
+        "sample_offset": sample_offset,
     }
+
+
+def frame_range(args):
+    """(first, last) frame from --frame, --frames A-B or --frame-start/--frame-end."""
+    first = last = args.frame
+    frames = getattr(args, "frames", None)
+    start, end = getattr(args, "frame_start", None), getattr(args, "frame_end", None)
+    if frames is not None:
+        if start is not None or end is not None:
+            raise UserError("give either --frames or --frame-start/--frame-end")
+        m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", frames)
+        if not m:
+            raise UserError(f"--frames takes FIRST-LAST (e.g. 1-3) or one frame, not '{frames}'")
+        first = int(m.group(1))
+        last = int(m.group(2)) if m.group(2) is not None else first
+    elif start is not None or end is not None:
+        first = start if start is not None else args.frame
+        last = end if end is not None else first
+    if last < first:
+        raise UserError(f"the frame range {first}-{last} is empty")
+    return first, last
+
+
+def numbered(path, frame):
+    """path with its last run of '#' replaced by the zero-padded frame number (Blender's rule)."""
+    runs = list(re.finditer(r"#+", path))
+    if not runs:
+        return path
+    m = runs[-1]
+    return path[:m.start()] + f"{frame:0{len(m.group())}d}" + path[m.end():]
 
 
 def cmd_render(args):
@@ -625,7 +663,7 @@ def render_in_venv(opts):
         raise UserError(f"scene '{scene.name}' has no active camera")
 
     settings = getattr(scene, "pathlight", None)
-    for name in ("samples", "time_limit", "seed"):
+    for name in ("samples", "time_limit", "seed", "sample_offset"):
         if opts[name] is not None:
             if settings is None or not hasattr(settings, name):
                 raise UserError(f"the add-on has no scene.pathlight.{name} setting")
@@ -633,7 +671,8 @@ def render_in_venv(opts):
     if opts["threads"] is not None:
         scene.render.threads_mode = "FIXED"
         scene.render.threads = opts["threads"]
-    scene.frame_set(opts["frame"])
+    first, last = opts["frame"], opts.get("frame_end", opts["frame"])
+    scene.frame_set(first)
 
     image = scene.render.image_settings
     if opts["format"] == "EXR":
@@ -654,7 +693,8 @@ def render_in_venv(opts):
     height = r.resolution_y * r.resolution_percentage // 100
     samples = getattr(settings, "samples", None)
     time_limit = getattr(settings, "time_limit", 0)
-    print(f"Rendering {Path(opts['scene']).name}, frame {opts['frame']}, {width}x{height}"
+    frames = f"frame {first}" if first == last else f"frames {first}-{last}"
+    print(f"Rendering {Path(opts['scene']).name}, {frames}, {width}x{height}"
           + (f", {samples} samples" if samples is not None else "")
           + (f", time limit {time_limit:g} s" if time_limit else "")
           + f" -> {opts['output']}", flush=True)
@@ -668,19 +708,27 @@ def render_in_venv(opts):
         if not opts.get("verbose"):
             status_filter.start()
 
-    out = Path(opts["output"])
+    outs = [Path(numbered(opts["output"], f)) for f in range(first, last + 1)]
 
     def failed(msg):
         # Blender saves whatever the film held even when the engine failed; don't leave that
         # looking like a finished render.
-        if out.is_file() and out.stat().st_mtime >= start - 1:
-            out.unlink()
-            msg += f"; removed the incomplete {out.name}"
+        for out in outs:
+            if out.is_file() and out.stat().st_mtime >= start - 1:
+                out.unlink()
+                msg += f"; removed the incomplete {out.name}"
         return UserError(msg)
 
     start = time.time()
     try:
-        result = bpy.ops.render.render(write_still=True)
+        if first == last:
+            scene.render.filepath = str(outs[0])
+            result = bpy.ops.render.render(write_still=True)
+        else:
+            # One animation job, as `blender -a`: meshes that do not change between frames are
+            # exported once (the add-on's export cache lives for the job).
+            scene.frame_start, scene.frame_end, scene.frame_step = first, last, 1
+            result = bpy.ops.render.render(animation=True)
     except RuntimeError as exc:  # the engine's ERROR reports surface here
         raise failed(f"render failed: {str(exc).strip()}")
     finally:
@@ -694,15 +742,130 @@ def render_in_venv(opts):
         raise failed("render failed: the add-on raised an error during the render (see above)")
     if "FINISHED" not in result:
         raise failed(f"render failed: the render operator returned {sorted(result)}")
-    if not out.is_file() or out.stat().st_mtime < start - 1:
-        raise UserError(f"the render finished but {out} was not written")
+    for out in outs:
+        if not out.is_file() or out.stat().st_mtime < start - 1:
+            raise UserError(f"the render finished but {out} was not written")
 
     info = progress.last or {}
     if info.get("samples_total"):
         done = f"{info.get('samples_done', 0)}/{info['samples_total']} samples"
     else:
         done = f"{samples} samples" if samples is not None else "done"
-    print(f"Rendered {done} in {elapsed:.1f} s -> {out}", flush=True)
+    where = outs[0] if len(outs) == 1 else f"{outs[0]} ... {outs[-1].name}"
+    print(f"Rendered {done}{'' if len(outs) == 1 else ' per frame'} in {elapsed:.1f} s -> {where}",
+          flush=True)
+
+
+# ---------------------------------------------------------------- merge
+
+MERGE_SAMPLES = "Pathlight Samples"  # header attributes the add-on stamps into its renders
+MERGE_OFFSET = "Pathlight Sample Offset"
+COUNT_CHANNEL = re.compile(r"(^|\.)(Sample ?Count|Samples)(\.[A-Z])?$", re.IGNORECASE)
+
+
+def cmd_merge(args):
+    inputs = [Path(p) for p in args.inputs]
+    for p in inputs:
+        if not p.is_file():
+            raise UserError(f"not found: {p}")
+    out = Path(args.output)
+    if out.suffix.lower() != ".exr":
+        raise UserError("the merged output must be an .exr")
+    if out.parent != Path("") and not out.parent.resolve().is_dir():
+        raise UserError(f"output directory does not exist: {out.parent}")
+    with Lock():
+        ensure_setup()
+    argv = [str(VENV_PY), str(ROOT / "build.py"), "_merge",
+            json.dumps({"inputs": [str(p.resolve()) for p in inputs], "output": str(out.resolve())})]
+    sys.stdout.flush()
+    os.execve(str(VENV_PY), argv, dict(os.environ))  # numpy and OpenEXR only: no core, no bpy
+
+
+def internal_merge(argv):
+    code = 0
+    try:
+        opts = json.loads(argv[0])
+        info = merge_exr(opts["inputs"], opts["output"])
+        ranges = ", ".join(f"[{a}, {a + n})" if a is not None else f"{n}" for a, n in info["ranges"])
+        print(f"Merged {len(opts['inputs'])} renders ({info['samples']} samples: {ranges}; "
+              f"weights: {info['weights']}) -> {opts['output']}", flush=True)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        code = 1
+    except BaseException:
+        import traceback
+        traceback.print_exc()
+        code = 1
+    hard_exit(code)
+
+
+def merge_exr(inputs, output):
+    """Merges EXR renders of one frame with disjoint sample ranges: every channel is the
+    sample-weighted mean of the inputs' channels, a per-pixel sample-count channel (the
+    "Sample Count" pass, when the files have one) is summed and weighs its pixels; without it
+    each file weighs by its "Pathlight Samples" header attribute. Returns a summary dict."""
+    import numpy as np
+    import OpenEXR
+    parts = []
+    for path in inputs:
+        with OpenEXR.File(str(path)) as exr:
+            header = dict(exr.header())
+            channels = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
+        parts.append((path, header, channels))
+    names = list(parts[0][2])
+    shapes = {n: parts[0][2][n].shape for n in names}
+    for path, _, channels in parts[1:]:
+        if list(channels) != names or any(channels[n].shape != shapes[n] for n in names):
+            raise UserError(f"{Path(path).name} has other channels or another resolution than "
+                            f"{Path(parts[0][0]).name}")
+    count_names = [n for n in names if COUNT_CHANNEL.search(n)]
+    ranges, file_samples = [], []
+    for path, header, _ in parts:
+        samples = header.get(MERGE_SAMPLES)
+        offset = header.get(MERGE_OFFSET)
+        if samples is None and not count_names:
+            raise UserError(f"{Path(path).name} has neither a Sample Count pass nor a "
+                            f"'{MERGE_SAMPLES}' attribute: render it with Pathlight")
+        n = int(float(samples)) if samples is not None else None
+        ranges.append((int(float(offset)) if offset is not None else None, n))
+        file_samples.append(n)
+    known = sorted((a, n) for a, n in ranges if a is not None and n is not None)
+    for (a0, n0), (a1, _) in zip(known, known[1:]):
+        if a1 < a0 + n0:
+            raise UserError(f"sample ranges [{a0}, {a0 + n0}) and [{a1}, ...) overlap: the "
+                            "merged render would count those samples twice (use --sample-offset)")
+
+    def weight(i, shape):
+        channels = parts[i][2]
+        if count_names:
+            w = channels[count_names[0]].astype(np.float64)
+        else:
+            w = np.full(shape[:2], float(file_samples[i]))
+        return w.reshape(w.shape + (1,) * (len(shape) - w.ndim))
+
+    merged = {}
+    for name in names:
+        if name in count_names:
+            merged[name] = sum(p[2][name].astype(np.float64) for p in parts).astype(np.float32)
+            continue
+        shape = shapes[name]
+        num = np.zeros(shape, np.float64)
+        den = np.zeros(shape[:2] + (1,) * (len(shape) - 2), np.float64)
+        for i, part in enumerate(parts):
+            w = weight(i, shape)
+            num += w * part[2][name]
+            den += w
+        merged[name] = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0).astype(np.float32)
+    header = {k: v for k, v in parts[0][1].items()
+              if k in ("compression", "pixelAspectRatio") or not k[:1].islower()}
+    total = sum(n for n in file_samples if n is not None) if all(file_samples) else None
+    if total is not None:
+        header[MERGE_SAMPLES] = str(total)
+        header[MERGE_OFFSET] = str(min(a for a, _ in ranges if a is not None)) \
+            if all(a is not None for a, _ in ranges) else "0"
+    OpenEXR.File(header, merged).write(str(output))
+    return {"samples": total, "ranges": ranges,
+            "weights": "per-pixel sample counts" if count_names else "samples per file"}
 
 
 # ---------------------------------------------------------------- test
@@ -1095,8 +1258,25 @@ def parse_args(argv):
                    help="PNG (8-bit, view transform applied) or EXR (32-bit float linear, ZIP); "
                         "default: from the file name")
     p.add_argument("--frame", type=int, default=1, help="frame to render (default: 1)")
+    p.add_argument("--frames", metavar="FIRST-LAST",
+                   help="render a range of frames (e.g. 1-3) into numbered files: '#'s in the "
+                        "output name become the frame number (out_####.png), else _#### is "
+                        "added before the extension")
+    p.add_argument("--frame-start", type=int, metavar="F", help="first frame of a range")
+    p.add_argument("--frame-end", type=int, metavar="F", help="last frame of a range")
+    p.add_argument("--sample-offset", type=int, metavar="N",
+                   help="render sample indices N .. N+samples-1 (farm splitting: partial renders "
+                        "with consecutive offsets merge with `build.py merge`; docs/farm.md)")
     p.add_argument("-v", "--verbose", action="store_true",
                    help="keep Blender's own status line for every update")
+
+    p = sub.add_parser("merge", help="merge partial EXR renders of one frame (farm splitting)",
+                       description="Merge EXR renders of the same frame with different sample "
+                                   "ranges (render --sample-offset) into one, weighting each by "
+                                   "its sample count (per pixel when the files have a Sample "
+                                   "Count pass, else from the Pathlight Samples metadata).")
+    p.add_argument("inputs", nargs="+", help="partial renders (.exr)")
+    p.add_argument("-o", "--output", required=True, help="merged image to write (.exr)")
 
     sub.add_parser("test", parents=[build_opts], help="run the test suite (pytest arguments after --)",
                    description="Run `pytest tests` in .venv; arguments after -- go to pytest, "
@@ -1132,7 +1312,7 @@ def parse_args(argv):
 
 
 # Internal commands: what runs under .venv's Python on behalf of the public ones.
-INTERNAL = {"_render": internal_render, "_pytest": internal_pytest, "_run": internal_run_script,
+INTERNAL = {"_render": internal_render, "_merge": internal_merge, "_pytest": internal_pytest, "_run": internal_run_script,
             "_check_zip": internal_check_zip}
 
 
@@ -1152,6 +1332,8 @@ def main(argv=None):
             return 0
         if args.command == "render":
             return cmd_render(args)
+        if args.command == "merge":
+            return cmd_merge(args)
         if args.command == "test":
             return cmd_test(args, extra)
         if args.command == "bench":

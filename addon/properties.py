@@ -45,6 +45,17 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         name="Seed", description="Seed of the random number sequences",
         default=0, min=0,
     )
+    sample_offset: IntProperty(
+        name="Sample Offset",
+        description="Render sample indices [offset, offset + samples): partial renders of one "
+                    "frame (e.g. on several farm machines) with consecutive offsets merge into "
+                    "one render of all their samples (python3 build.py merge)",
+        default=0, min=0, max=(1 << 31) - 1,
+    )
+    preview_samples: IntProperty(
+        name="Viewport Samples", description="Samples per pixel in the viewport's rendered shading",
+        default=256, min=1, max=1 << 24, soft_max=4096,
+    )
     use_animated_seed: BoolProperty(
         name="Use Animated Seed",
         description="Add the frame number to the seed, so that the noise changes from frame "

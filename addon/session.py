@@ -6,12 +6,14 @@ import time
 import bpy
 import numpy as np
 
+from . import render_cache
 from .core import get_core
 from .export import ExportError, export_scene, to_core
 
 log = logging.getLogger(__name__)
 
 _progress_listener = None
+PREVIEW_SAMPLES = 32  # material preview thumbnails
 
 
 def set_progress_listener(fn):
@@ -71,6 +73,8 @@ def render_settings(pc, scene):
     st.seed = render_seed(scene)
     st.use_nee = props.use_nee
     st.threads = scene.render.threads  # the detected count in AUTO mode
+    if hasattr(st, "sample_offset"):
+        st.sample_offset = getattr(props, "sample_offset", 0)
     # Issue 4 settings; hasattr keeps older core builds working (they render without them).
     optional = {
         "sampler": props.sampler.lower(),
@@ -108,8 +112,16 @@ def render(engine, depsgraph):
         pc = get_core()
         scene = depsgraph.scene
         view_layer = depsgraph.view_layer
-        core_scene = to_core(pc, export_scene(depsgraph, warn), warn)
+        cache = None if engine.is_preview else render_cache.MESH_CACHE
+        core_scene = to_core(pc, export_scene(depsgraph, warn, cache), warn)
+        if cache is not None and cache.previous is not None:
+            engine.update_stats("", "Pathlight | meshes: {hits} cached, {misses} exported"
+                                .format(**cache.previous))
         settings = render_settings(pc, scene)
+        if engine.is_preview:  # material thumbnails: small and quick
+            settings.samples = min(settings.samples, PREVIEW_SAMPLES)
+            if hasattr(settings, "sample_offset"):
+                settings.sample_offset = 0
         passes = enabled_passes(scene, view_layer)
         known = pc.render_passes() if hasattr(pc, "render_passes") else {}
         for p in [p for p in passes if p[0] not in known]:
@@ -123,9 +135,10 @@ def render(engine, depsgraph):
             warn(f"{dropped} degenerate triangle(s) skipped")
         for name, channels, chan_id, _, _ in passes:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
-        _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit,
-             passes=[p[0] for p in passes], bvh_view=scene.pathlight.debug_view == 'BVH',
-             layer=view_layer.name)
+        done = _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit,
+                    passes=[p[0] for p in passes], bvh_view=scene.pathlight.debug_view == 'BVH',
+                    layer=view_layer.name)
+        _stamp(engine, getattr(settings, "sample_offset", 0), done)
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
@@ -145,8 +158,11 @@ def _warner(engine):
 
 
 def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer=""):
+    """Streams the session's film (and passes) into the render result; returns the samples
+    done."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     result = engine.begin_result(0, 0, width, height, layer=layer)
+    info = {"samples_done": 0}
     try:
         render_layer = result.layers[0]
         combined = render_layer.passes["Combined"]
@@ -185,6 +201,18 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
             sess.cancel()
             sess.wait(5.0)
         engine.end_result(result)
+    return info["samples_done"]
+
+
+def _stamp(engine, sample_offset, samples):
+    """Sample range of the render as image metadata (EXR header attributes, PNG text):
+    `python3 build.py merge` weighs partial renders of one frame by it (docs/farm.md)."""
+    try:
+        result = engine.get_result()  # the whole frame's result (a tile's stamp is not saved)
+        result.stamp_data_add_field("Pathlight Sample Offset", str(sample_offset))
+        result.stamp_data_add_field("Pathlight Samples", str(samples))
+    except (AttributeError, RuntimeError, TypeError, ReferenceError) as e:  # no metadata then
+        log.warning("could not stamp the sample range: %s", e)
 
 
 # The BVH view's colour scale: nodes visited, from none (black) to the image's maximum (red).

@@ -35,11 +35,13 @@ class PATHLIGHT_RENDER_PT_sampling(PathlightPanel, bpy.types.Panel):
         sub.active = settings.use_adaptive_sampling
         sub.prop(settings, "adaptive_min_samples")
         col.prop(settings, "time_limit")
+        col.prop(settings, "preview_samples")
         col = layout.column(align=True)
         col.prop(settings, "sampler")
         row = col.row(align=True)
         row.prop(settings, "seed")
         row.prop(settings, "use_animated_seed", text="", icon='TIME')
+        col.prop(settings, "sample_offset")
         layout.prop(settings, "use_nee")
 
 

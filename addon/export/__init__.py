@@ -12,7 +12,7 @@ from .material import MaterialData, MaterialTable, add_materials
 from .mesh import MeshData, collect_meshes, is_visible
 from .world import WorldTexture, world_color, world_texture
 
-__all__ = ("ExportError", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
+__all__ = ("ExportError", "add_lights", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
            "export_scene", "to_core")
 
 
@@ -26,29 +26,35 @@ class SceneData:
     lights: list = field(default_factory=list)  # LightData
     world_texture: WorldTexture = None  # replaces world_color when set
     images: list = field(default_factory=list)  # shader.ImageData the material programs use
+    material_names: list = field(default_factory=list)  # per material: the bpy name ("" = none)
+    uv_sets: object = None  # shader.UvSets: the global uv-set numbering the programs use
 
 
-def export_scene(depsgraph, warn):
+def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True):
     """Everything Pathlight renders, read from the evaluated depsgraph. warn(msg) reports
-    unsupported features (each call is one message for the user)."""
+    unsupported features (each call is one message for the user). mesh_cache: a
+    mesh_cache.MeshCache that keeps unchanged meshes' arrays between exports (animation).
+    need_camera=False: a scene without a camera exports with a default one (the viewport
+    renders through its own view)."""
     scene = depsgraph.scene
-    camera = camera_params(scene, depsgraph, warn)
+    camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False))
-    meshes = collect_meshes(depsgraph, table.uv_names)
+    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache)
     for mesh in meshes:
         if mesh.missing_uv_maps:
             warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, mesh.missing_uv_maps))} "
                  "that its materials use; UV (0, 0) is used")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
     lights = collect_lights(depsgraph, warn, is_visible)
-    far = distance_from_origin(meshes, camera["matrix_world"])
+    far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
     if far > FAR_FROM_ORIGIN:
         warn(f"The scene lies {far:.3g} units from the world origin: beyond {FAR_FROM_ORIGIN:.0e} "
              "units single-precision hit points lose accuracy (shading and shadows may be off "
              "by a few percent); move the scene closer to the origin")
     return SceneData(meshes, material_slots, table.materials,
                      world_color(scene.world, warn), camera, lights,
-                     world_texture(scene.world, warn), table.images.images)
+                     world_texture(scene.world, warn), table.images.images,
+                     table.material_names(), table.uv_sets)
 
 
 # Measured by tests/test_robustness_numeric.py: a Cornell box stays correct within noise when
@@ -88,12 +94,15 @@ def mean_radiance(tex):
     return weights @ rows / weights.sum() * tex.strength
 
 
-def to_core(pc, data, warn=None):
+def to_core(pc, data, warn=None, material_ids=None):
     """A pc.Scene (not committed) holding SceneData `data`. warn(msg) hears about what this
-    build of the core cannot do."""
+    build of the core cannot do. material_ids: a list that receives the core id of each of
+    data.materials (for live edits)."""
     warn = warn if warn is not None else (lambda msg: None)
     scene = pc.Scene()
     ids = add_materials(scene, data.materials, data.images, warn)
+    if material_ids is not None:
+        material_ids.extend(ids)
     for mesh, slots in zip(data.meshes, data.material_slots):
         uvs = {"uvs": mesh.uvs} if mesh.uvs else {}  # older core builds take no uvs
         if mesh.texspace is not None:
@@ -104,13 +113,28 @@ def to_core(pc, data, warn=None):
                                  material_slots=[ids[i] for i in slots], **uvs)
         for matrix in mesh.matrices:
             scene.add_instance(mesh_id, matrix)
-    for light in data.lights:
+    add_lights(scene, data.lights, warn)
+    set_world(scene, data, warn)
+    camera = pc.Camera()
+    for name, value in data.camera.items():
+        setattr(camera, name, value)
+    scene.set_camera(camera)
+    return scene
+
+
+def add_lights(scene, lights, warn):
+    """Adds LightData `lights` to a core scene."""
+    for light in lights:
         add = getattr(scene, f"add_{light.kind}_light", None)
         if add is None:  # an older core build
             warn(f"{light.kind.capitalize()} lights are not supported by this build of the "
                  "Pathlight core; ignored")
             continue
         add(**light.args)
+
+
+def set_world(scene, data, warn):
+    """Sets the world (texture or colour) of SceneData `data` on a core scene."""
     tex = data.world_texture
     if tex is not None and hasattr(scene, "set_world_texture"):
         scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
@@ -120,8 +144,3 @@ def to_core(pc, data, warn=None):
         scene.set_world_color(tuple(float(c) for c in mean_radiance(tex)))
     else:
         scene.set_world_color(data.world_color)
-    camera = pc.Camera()
-    for name, value in data.camera.items():
-        setattr(camera, name, value)
-    scene.set_camera(camera)
-    return scene

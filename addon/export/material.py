@@ -103,14 +103,23 @@ class MaterialTable:
         self.uv_sets = UvSets()
         self.materials = []  # MaterialData, indexed by the numbers returned by index()
         self._index = {}
+        self._names = {}  # key -> bpy material name
 
     def index(self, mat):
         key = mat.as_pointer() if mat is not None else 0
         if key not in self._index:
             self._index[key] = len(self.materials)
+            self._names[key] = mat.name if mat is not None else ""
             self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
                                                    self.use_schlick))
         return self._index[key]
+
+    def material_names(self):
+        """The bpy material name of each entry of `materials` ("" for the empty slot)."""
+        names = [""] * len(self.materials)
+        for key, i in self._index.items():
+            names[i] = self._names.get(key, "")
+        return names
 
     def uv_names(self, materials):
         """{global uv-set index: UV map name} that meshes with these materials must export."""

@@ -110,10 +110,12 @@ def is_visible(instance):
     return not instance.object.original.hide_render
 
 
-def collect_meshes(depsgraph, uv_names=None):
+def collect_meshes(depsgraph, uv_names=None, cache=None):
     """All visible geometry of the depsgraph. Instances of the same evaluated geometry (and
     materials) share one MeshData and add only their matrix_world. uv_names(materials) ->
-    {global uv-set index: UV map name} says which UV maps to export (none if None)."""
+    {global uv-set index: UV map name} says which UV maps to export (none if None).
+    cache: a mesh_cache.MeshCache that keeps meshes whose evaluated geometry did not change."""
+    export = cache.export if cache is not None else _export_object
     meshes = {}
     for instance in depsgraph.object_instances:
         obj = instance.object
@@ -127,9 +129,11 @@ def collect_meshes(depsgraph, uv_names=None):
         key = (obj.data.as_pointer(), tuple(m.as_pointer() if m else 0 for m in materials))
         entry = meshes.get(key)
         if entry is None:
-            entry = meshes[key] = _export_object(obj, materials, uv_names)
+            entry = meshes[key] = export(obj, materials, uv_names)
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
+    if cache is not None:
+        cache.end_export()
     return [m for m in meshes.values() if m is not None]
 
 

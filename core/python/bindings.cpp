@@ -104,6 +104,25 @@ FloatArray from_mat4(const Mat4& m) {
   return a;
 }
 
+void validate_camera(const CameraDesc& c) {
+  if (!(c.lens > 0.0f) || !(c.sensor_width > 0.0f) || !(c.sensor_height > 0.0f))
+    throw std::invalid_argument("camera lens and sensor size must be positive");
+  if (!(c.clip_start >= 0.0f) || !(c.clip_end > c.clip_start))
+    throw std::invalid_argument("camera clip_end must be greater than clip_start >= 0");
+  if (!(c.pixel_aspect_x > 0.0f) || !(c.pixel_aspect_y > 0.0f))
+    throw std::invalid_argument("pixel aspect must be positive");
+  for (float v : {c.lens, c.sensor_width, c.sensor_height, c.shift_x, c.shift_y, c.clip_start,
+                  c.pixel_aspect_x, c.pixel_aspect_y})
+    if (!std::isfinite(v)) throw std::invalid_argument("camera parameters must be finite");
+  if (!c.matrix_world.is_finite()) throw std::invalid_argument("camera matrix must be finite");
+  {
+    const Mat4& m = c.matrix_world;
+    const Vec3 x{m.m[0][0], m.m[1][0], m.m[2][0]}, y{m.m[0][1], m.m[1][1], m.m[2][1]};
+    if (!(length_sq(cross(x, y)) > 1e-20f * length_sq(x) * length_sq(y)) || !(length_sq(x) > 0.0f))
+      throw std::invalid_argument("camera matrix is singular: it has no orientation");
+  }
+}
+
 // A scene shared with the sessions that render it; edits are refused while one holds it.
 struct PyScene {
   std::shared_ptr<Scene> scene = std::make_shared<Scene>();
@@ -438,6 +457,23 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
   return prog;
 }
 
+Material make_shader(const PyScene& self, const std::string& name, const py::list& program,
+                     const py::object& volume_absorption, bool use_schlick) {
+  Material mat;
+  mat.name = name;
+  mat.program = parse_program(self, program);
+  mat.program.schlick = use_schlick;
+  if (!volume_absorption.is_none()) {
+    const auto t = volume_absorption.cast<py::tuple>();
+    if (t.size() != 2) throw std::invalid_argument("volume_absorption must be (color, density)");
+    const Vec3 color = vmin(to_color(t[0], "absorption color"), Vec3(1.0f));
+    float density = t[1].cast<float>();
+    density = std::isfinite(density) && density > 0.0f ? density : 0.0f;
+    mat.program.sigma_a = (Vec3(1.0f) - color) * density;
+  }
+  return mat;
+}
+
 py::dict scene_stats(const PyScene& self) {
   const SceneStats& s = self.scene->stats();
   const BvhStats& b = self.scene->bvh().stats();
@@ -449,6 +485,8 @@ py::dict scene_stats(const PyScene& self) {
   d["emissive_triangles"] = s.emissive_triangles;
   d["dropped_triangles"] = s.dropped_triangles;
   d["lights"] = s.lights;
+  d["geometry_builds"] = s.geometry_builds;
+  d["light_builds"] = s.light_builds;
   d["bvh_nodes"] = b.nodes;
   d["bvh_leaves"] = b.leaves;
   d["bvh_max_depth"] = b.max_depth;
@@ -788,7 +826,8 @@ PYBIND11_MODULE(pathlight_core, m) {
             if (v == "none") s.debug_view = DebugView::None;
             else if (v == "bvh") s.debug_view = DebugView::Bvh;
             else throw std::invalid_argument("debug_view must be 'none' or 'bvh'");
-          });
+          })
+      .def_readwrite("sample_offset", &RenderSettings::sample_offset);
 
   m.def(
       "render_passes",
@@ -841,22 +880,38 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,
              bool use_schlick) {
             self.check_editable();
-            Material mat;
-            mat.name = name;
-            mat.program = parse_program(self, program);
-            mat.program.schlick = use_schlick;
-            if (!volume_absorption.is_none()) {
-              const auto t = volume_absorption.cast<py::tuple>();
-              if (t.size() != 2) throw std::invalid_argument("volume_absorption must be (color, density)");
-              const Vec3 color = vmin(to_color(t[0], "absorption color"), Vec3(1.0f));
-              float density = t[1].cast<float>();
-              density = std::isfinite(density) && density > 0.0f ? density : 0.0f;
-              mat.program.sigma_a = (Vec3(1.0f) - color) * density;
-            }
+            Material mat = make_shader(self, name, program, volume_absorption, use_schlick);
             return self.scene->add_material(std::move(mat));
           },
           py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
           py::arg("use_schlick") = false)
+      .def(
+          "set_material",
+          [](PyScene& self, uint32_t id, const std::string& name, const py::object& base_color,
+             const py::object& emission) {
+            self.check_editable();
+            const Vec3 albedo = vmin(to_color(base_color, "base_color"), Vec3(1.0f));
+            self.scene->set_material(id, make_simple_material(name, albedo, to_color(emission, "emission")));
+          },
+          py::arg("id"), py::arg("name"), py::arg("base_color") = py::make_tuple(0.8f, 0.8f, 0.8f),
+          py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f),
+          "Replaces material `id` (as add_material); the next commit() keeps the BVH.")
+      .def(
+          "set_shader",
+          [](PyScene& self, uint32_t id, const std::string& name, const py::list& program,
+             const py::object& volume_absorption, bool use_schlick) {
+            self.check_editable();
+            self.scene->set_material(id, make_shader(self, name, program, volume_absorption, use_schlick));
+          },
+          py::arg("id"), py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
+          py::arg("use_schlick") = false, "Replaces material `id` (as add_shader); the next commit() keeps the BVH.")
+      .def(
+          "clear_lights",
+          [](PyScene& self) {
+            self.check_editable();
+            self.scene->clear_lights();
+          },
+          "Removes every analytic light; the next commit() rebuilds only the light distribution.")
       .def(
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix) {
@@ -991,22 +1046,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           "set_camera",
           [](PyScene& self, const CameraDesc& c) {
             self.check_editable();
-            if (!(c.lens > 0.0f) || !(c.sensor_width > 0.0f) || !(c.sensor_height > 0.0f))
-              throw std::invalid_argument("camera lens and sensor size must be positive");
-            if (!(c.clip_start >= 0.0f) || !(c.clip_end > c.clip_start))
-              throw std::invalid_argument("camera clip_end must be greater than clip_start >= 0");
-            if (!(c.pixel_aspect_x > 0.0f) || !(c.pixel_aspect_y > 0.0f))
-              throw std::invalid_argument("pixel aspect must be positive");
-            for (float v : {c.lens, c.sensor_width, c.sensor_height, c.shift_x, c.shift_y, c.clip_start,
-                            c.pixel_aspect_x, c.pixel_aspect_y})
-              if (!std::isfinite(v)) throw std::invalid_argument("camera parameters must be finite");
-            if (!c.matrix_world.is_finite()) throw std::invalid_argument("camera matrix must be finite");
-            {
-              const Mat4& m = c.matrix_world;
-              const Vec3 x{m.m[0][0], m.m[1][0], m.m[2][0]}, y{m.m[0][1], m.m[1][1], m.m[2][1]};
-              if (!(length_sq(cross(x, y)) > 1e-20f * length_sq(x) * length_sq(y)) || !(length_sq(x) > 0.0f))
-                throw std::invalid_argument("camera matrix is singular: it has no orientation");
-            }
+            validate_camera(c);
             self.scene->set_camera(c);
           },
           py::arg("camera"))
@@ -1049,9 +1089,15 @@ PYBIND11_MODULE(pathlight_core, m) {
            "(origins (N,3), directions (N,3), tmax (N,)).");
 
   py::class_<PySession>(m, "Session")
-      .def(py::init([](PyScene& scene, const RenderSettings& settings) {
+      .def(py::init([](PyScene& scene, const RenderSettings& settings, const py::object& camera_obj) {
              validate(settings);
-             if (!scene.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
+             CameraDesc camera;
+             const bool override_camera = !camera_obj.is_none();
+             if (override_camera) {
+               camera = camera_obj.cast<CameraDesc>();
+               validate_camera(camera);
+             }
+             if (!override_camera && !scene.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
              if (!scene.scene->committed()) {
                scene.check_editable();
                bool done;
@@ -1063,10 +1109,10 @@ PYBIND11_MODULE(pathlight_core, m) {
              }
              auto s = std::make_unique<PySession>();
              s->scene = scene.scene;
-             s->session = std::make_unique<Session>(scene.scene, settings);
+             s->session = std::make_unique<Session>(scene.scene, settings, override_camera ? &camera : nullptr);
              return s;
            }),
-           py::arg("scene"), py::arg("settings"))
+           py::arg("scene"), py::arg("settings"), py::arg("camera") = py::none())
       .def("start", [](PySession& self) { self.session->start(); })
       .def(
           "wait",

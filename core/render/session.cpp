@@ -38,6 +38,8 @@ void validate(const RenderSettings& s) {
   if (!(s.adaptive_threshold >= 0.0f) || !std::isfinite(s.adaptive_threshold))
     throw std::invalid_argument("adaptive_threshold must be >= 0");
   if (s.adaptive_min_samples < 0) throw std::invalid_argument("adaptive_min_samples must be >= 0");
+  if (s.sample_offset < 0 || int64_t(s.sample_offset) + int64_t(s.samples) > int64_t(INT32_MAX))
+    throw std::invalid_argument("sample_offset must be >= 0 and sample_offset + samples < 2^31");
   if (s.diffuse_bounces < 0 || s.glossy_bounces < 0 || s.transmission_bounces < 0)
     throw std::invalid_argument("bounce limits must be >= 0");
   if (!(s.exposure >= 0.0f) || !std::isfinite(s.exposure)) throw std::invalid_argument("exposure must be finite and >= 0");
@@ -50,14 +52,16 @@ uint32_t effective_passes(const RenderSettings& s) {
   return p;
 }
 
-Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings)
+Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera)
     : scene_(std::move(scene)),
       settings_((validate(settings), settings)),
       film_(settings.width, settings.height, settings.tile_size, effective_passes(settings), settings.exposure) {
   if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
-  camera_ = Camera(scene_->camera_desc(), settings_.width, settings_.height);
+  // The viewport's camera overrides the scene's (same committed scene, nothing rebuilt).
+  const CameraDesc& view = camera ? *camera : scene_->camera_desc();
+  camera_ = Camera(view, settings_.width, settings_.height);
   {  // the same orthonormal frame as Camera's (Blender ignores the camera's scale)
-    const Mat4& m = scene_->camera_desc().matrix_world;
+    const Mat4& m = view.matrix_world;
     view_origin_ = {m.m[0][3], m.m[1][3], m.m[2][3]};
     view_right_ = normalize(Vec3{m.m[0][0], m.m[1][0], m.m[2][0]});
     view_up_ = Vec3{m.m[0][1], m.m[1][1], m.m[2][1]};
@@ -76,7 +80,9 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     // Enough samples to see noisy features before any pixel may stop (Cycles' idea).
     min_samples_ = settings_.adaptive_min_samples > 0
                        ? settings_.adaptive_min_samples
-                       : std::max(16, static_cast<int>(4.0f / std::sqrt(settings_.adaptive_threshold)));
+                       // clamped before the cast: a tiny threshold would overflow int (UB)
+                       : std::max(16, static_cast<int>(std::min(4.0 / std::sqrt(double(settings_.adaptive_threshold)),
+                                                                double(settings_.samples))));
     min_samples_ = std::min(min_samples_, settings_.samples);
     check_every_ = std::max(1, min_samples_ / 4);
   }
@@ -217,7 +223,7 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
         PathAovs aovs;
         // One independent stream per (seed, pixel, sample): thread- and pass-independent.
         const uint64_t pixel = uint64_t(y) * uint64_t(settings_.width) + uint64_t(x);
-        Sampler sampler(settings_.sampler, settings_.seed, pixel, uint32_t(s));
+        Sampler sampler(settings_.sampler, settings_.seed, pixel, uint32_t(settings_.sample_offset + s));
         const Vec2 j = sampler.get2d();
         const Vec3 L = trace_path(*scene_, camera_.generate(float(x) + j.x, float(y) + j.y), sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
         ++paths;

@@ -33,6 +33,9 @@ struct RenderSettings {
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic
   int diffuse_bounces = 1024, glossy_bounces = 1024, transmission_bounces = 1024;
+  // Renders sample indices [sample_offset, sample_offset + samples): partial renders of one
+  // frame on several machines, merged by sample count, equal one render of all samples.
+  int sample_offset = 0;
   uint32_t passes = 0;            // render passes to keep: pass_bit()s (film.h)
   bool film_transparent = false;  // the world seen directly becomes alpha 0 (Cycles' Transparent film)
   float exposure = 1.0f;          // linear multiplier of Combined and the light passes (Cycles' film_exposure)
@@ -60,7 +63,8 @@ struct SessionStats {
 
 class Session {
  public:
-  Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings);
+  // camera: overrides the scene's camera (the viewport's view) when not null.
+  Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera = nullptr);
   ~Session();
   Session(const Session&) = delete;
   Session& operator=(const Session&) = delete;

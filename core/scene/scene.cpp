@@ -30,12 +30,14 @@ Scene::Scene() {
   materials_.push_back(make_simple_material("Default", Vec3(0.8f), Vec3(0.0f)));
 }
 
-uint32_t Scene::add_material(Material m) {
+namespace {
+// Derived fields of a material: emission estimate, transparency, cached constant closures.
+void prepare_material(Material& m, const std::vector<Image>& images) {
   // The emission at a neutral shading point, to weigh this material's triangles as lights.
   ShadingContext ctx;
   ctx.ng = ctx.ns = ctx.wo = {0.0f, 0.0f, 1.0f};
   ClosureList cl;
-  eval_shader(m.program, images_, ctx, cl);
+  eval_shader(m.program, images, ctx, cl);
   m.emission_estimate = cl.emission;
   bool emits = false;
   for (const ShaderOp& op : m.program.ops) emits = emits || op.code == OpCode::Emission;
@@ -48,7 +50,7 @@ uint32_t Scene::add_material(Material m) {
         for (Vec2& x : uv) x = {u, v};
         ctx.uv = uv;
         ctx.uv_sets = 8;
-        eval_shader(m.program, images_, ctx, cl);
+        eval_shader(m.program, images, ctx, cl);
         m.emission_estimate = vmax(m.emission_estimate, cl.emission);
       }
     if (!(luminance(m.emission_estimate) > 0.0f)) m.emission_estimate = Vec3(1.0f);
@@ -59,16 +61,29 @@ uint32_t Scene::add_material(Material m) {
   if (m.constant) {
     ctx.uv = nullptr;
     ctx.uv_sets = 0;
-    eval_shader(m.program, images_, ctx, m.cached);
+    eval_shader(m.program, images, ctx, m.cached);
   }
+}
+}  // namespace
+
+uint32_t Scene::add_material(Material m) {
+  prepare_material(m, images_);
   materials_.push_back(std::move(m));
   committed_ = false;
   return static_cast<uint32_t>(materials_.size() - 1);
 }
 
+void Scene::set_material(uint32_t id, Material m) {
+  if (id == 0 || id >= materials_.size()) throw std::invalid_argument("set_material: unknown material id");
+  prepare_material(m, images_);
+  materials_[id] = std::move(m);
+  committed_ = false;  // the light distribution depends on the emission estimates
+}
+
 uint32_t Scene::add_mesh(MeshData mesh) {
   meshes_.push_back(std::move(mesh));
   committed_ = false;
+  geometry_dirty_ = true;
   return static_cast<uint32_t>(meshes_.size() - 1);
 }
 
@@ -76,16 +91,27 @@ void Scene::add_instance(uint32_t mesh, const Mat4& m) {
   if (mesh >= meshes_.size()) throw std::invalid_argument("add_instance: unknown mesh id");
   instances_.push_back({mesh, m});
   committed_ = false;
+  geometry_dirty_ = true;
 }
 
 bool Scene::commit(int threads, BvhLayout layout) {
   cancel_.store(false);
   committed_ = false;
+  if (geometry_dirty_ || layout != built_layout_) {
+    if (!build_geometry(threads, layout)) return false;
+  }
+  build_lights();
+  committed_ = true;
+  return true;
+}
+
+bool Scene::build_geometry(int threads, BvhLayout layout) {
   const auto cancelled = [&] {
     if (!cancel_.load(std::memory_order_relaxed)) return false;
     tris_.clear();
     shading_.clear();
     bvh_.clear();
+    geometry_dirty_ = true;
     return true;
   };
   tris_.clear();
@@ -103,8 +129,6 @@ bool Scene::commit(int threads, BvhLayout layout) {
     for (const MeshData& m : meshes_) used = used || (k < m.uvs.size() && !m.uvs[k].empty());
     if (used) tri_uvs_[k].reserve(3 * total);
   }
-  any_transparent_ = false;
-  for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
   object_coords_.clear();
   object_coords_.reserve(instances_.size());
   for (const Instance& inst : instances_) {
@@ -167,6 +191,17 @@ bool Scene::commit(int threads, BvhLayout layout) {
     cancelled();
     return false;
   }
+  geometry_dirty_ = false;
+  built_layout_ = layout;
+  ++stats_.geometry_builds;
+  return true;
+}
+
+void Scene::build_lights() {
+  any_transparent_ = false;
+  for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
+  stats_.materials = materials_.size();
+  for (TriangleShading& sh : shading_) sh.emitter = -1;
 
   // Every light in one distribution, chosen in proportion to an estimate of its power.
   const Aabb bounds = bvh_.bounds();
@@ -194,8 +229,7 @@ bool Scene::commit(int threads, BvhLayout layout) {
   light_dist_ = Distribution1D(weights);
   stats_.emissive_triangles = emitter_prims_.size();
   stats_.lights = lights_.size();
-  committed_ = true;
-  return true;
+  ++stats_.light_builds;
 }
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {

@@ -72,6 +72,7 @@ struct DirectSample {
 struct SceneStats {
   size_t triangles = 0, instances = 0, meshes = 0, materials = 0, emissive_triangles = 0, dropped_triangles = 0;
   size_t lights = 0;
+  size_t geometry_builds = 0, light_builds = 0;  // commits that rebuilt the BVH / the light distribution
 };
 
 class Scene {
@@ -87,6 +88,10 @@ class Scene {
   size_t image_count() const { return images_.size(); }
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
   void add_instance(uint32_t mesh, const Mat4& m);
+  // Live edits (viewport): replace material `id` (not the default 0) or drop every analytic
+  // light; the next commit() then rebuilds only the light distribution, not the BVH.
+  void set_material(uint32_t id, Material m);
+  void clear_lights() { lights_.clear(); committed_ = false; }
   void set_world_color(Vec3 c) { world_color_ = c; }
   void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
@@ -95,6 +100,9 @@ class Scene {
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
   // Returns false when cancel_commit() stopped it: the scene is then uncommitted (as if commit
   // had not been called) and can be committed again. `layout` picks the BVH kernel (tests).
+  // Geometry (flattening and BVH) is rebuilt only when meshes or instances (or the layout)
+  // changed since the last commit; materials, lights and the environment only rebuild the
+  // light distribution.
   bool commit(int threads = 0, BvhLayout layout = BvhLayout::Auto);
   // Stops a commit running on another thread within milliseconds. It only affects a commit in
   // progress: commit() clears the request when it starts.
@@ -150,6 +158,8 @@ class Scene {
   bool has_camera_ = false;
   bool committed_ = false;
   std::atomic<bool> cancel_{false};
+  bool geometry_dirty_ = true;
+  BvhLayout built_layout_ = BvhLayout::Auto;
 
   std::vector<TriangleVerts> tris_;
   std::vector<TriangleShading> shading_;
@@ -162,6 +172,9 @@ class Scene {
   Distribution1D light_dist_;
   size_t env_index_ = SIZE_MAX;
   SceneStats stats_;
+
+  bool build_geometry(int threads, BvhLayout layout);  // false: cancelled
+  void build_lights();
 };
 
 }  // namespace pl

@@ -1,0 +1,107 @@
+"""Animation renders: every frame of a moving object and camera, each equal to a single-frame
+render of that frame, with unchanged meshes served from the export cache."""
+
+import math
+import tempfile
+from pathlib import Path
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import _setup_pathlight, core_available, empty_scene_with_camera, \
+    load_addon, read_exr, render_to_array
+
+pytestmark = pytest.mark.skipif(not core_available(), reason="core module not built")
+
+
+def _animated_scene():
+    load_addon()
+    sc = empty_scene_with_camera(24)
+    import bmesh
+    for name, size, loc in (("Mover", 1.0, (-1.0, 0.0, 0.0)), ("Floor", 6.0, (0.0, 0.0, -1.0))):
+        mesh = bpy.data.meshes.new(name)
+        bm = bmesh.new()
+        bmesh.ops.create_cube(bm, size=size)
+        bm.to_mesh(mesh)
+        bm.free()
+        obj = bpy.data.objects.new(name, mesh)
+        obj.location = loc
+        if name == "Floor":
+            obj.scale = (1.0, 1.0, 0.05)
+        sc.collection.objects.link(obj)
+    mover, cam = bpy.data.objects["Mover"], sc.camera
+    for frame, x in ((1, -1.0), (3, 1.0)):
+        mover.location.x = x
+        mover.keyframe_insert("location", frame=frame)
+    for frame, z in ((1, 0.0), (3, 0.6)):
+        cam.location.z = z
+        cam.keyframe_insert("location", frame=frame)
+    light = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+    light.location = (0.0, -3.0, 3.0)
+    light.data.energy = 400.0
+    sc.collection.objects.link(light)
+    sc.frame_start, sc.frame_end = 1, 3
+    sc.render.engine = "PATHLIGHT"
+    sc.pathlight.samples = 4
+    sc.render.threads_mode = "FIXED"; sc.render.threads = 1
+    sc.pathlight.use_animated_seed = True
+    _setup_pathlight(sc.pathlight)  # the settings render_to_array uses for single frames
+    return sc
+
+
+def test_animation_frames_match_single_frames_and_reuse_meshes():
+    from addon import render_cache
+    sc = _animated_scene()
+    stats = []
+
+    def record(scene, *args):
+        stats.append(dict(render_cache.MESH_CACHE.previous))
+    bpy.app.handlers.render_post.append(record)
+    try:
+        with tempfile.TemporaryDirectory(prefix="pathlight_anim_") as tmp:
+            r = sc.render
+            image = r.image_settings
+            image.file_format, image.color_mode, image.color_depth = 'OPEN_EXR', 'RGBA', '32'
+            sc.view_settings.view_transform = 'Standard'
+            r.use_compositing = r.use_sequencer = False
+            r.filepath = str(Path(tmp) / "frame_####")
+            r.use_file_extension = True
+            bpy.ops.render.render(animation=True, scene=sc.name)
+            frames = [read_exr(Path(tmp) / f"frame_{f:04d}.exr") for f in (1, 2, 3)]
+    finally:
+        bpy.app.handlers.render_post.remove(record)
+
+    # Frame 1 exports both meshes; frames 2 and 3 only move the mover: both come from the cache.
+    assert [(s["hits"], s["misses"]) for s in stats] == [(0, 2), (2, 0), (2, 0)]
+    # The job is over and the scene has no persistent data: the cache was emptied.
+    assert not render_cache.MESH_CACHE._entries
+
+    assert not np.allclose(frames[0], frames[1]) and not np.allclose(frames[1], frames[2])
+    for f in (1, 2, 3):
+        sc.frame_set(f)
+        np.testing.assert_array_equal(frames[f - 1], render_to_array(sc))
+
+
+def test_mesh_cache_sees_geometry_changes():
+    """An edited mesh (same datablock) is exported again; an unchanged one is not."""
+    from addon.export import export_scene
+    from addon.export.mesh_cache import MeshCache
+    sc = _animated_scene()
+    cache = MeshCache()
+    dg = bpy.context.evaluated_depsgraph_get()
+    export_scene(dg, lambda m: None, cache)
+    assert (cache.previous["hits"], cache.previous["misses"]) == (0, 2)
+    mesh = bpy.data.objects["Mover"].data
+    mesh.vertices[0].co.z += 0.25
+    mesh.update()
+    dg = bpy.context.evaluated_depsgraph_get()
+    data = export_scene(dg, lambda m: None, cache)
+    assert cache.previous["missed"] == ["Mover"] and cache.previous["hit"] == ["Floor"]
+    mover = next(m for m in data.meshes if m.name == "Mover")
+    assert np.isclose(mover.positions[0, 2], -0.25)  # the edit is in the export
+    # Adding a modifier changes the evaluated geometry too.
+    bpy.data.objects["Floor"].modifiers.new("Bevel", 'BEVEL')
+    dg = bpy.context.evaluated_depsgraph_get()
+    export_scene(dg, lambda m: None, cache)
+    assert cache.previous["missed"] == ["Floor"]

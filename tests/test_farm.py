@@ -1,0 +1,212 @@
+"""Farm splitting: sample offsets, the merge of partial EXR renders, and build.py's frame
+ranges and numbered outputs."""
+
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import pytest
+
+import build
+from core_scenes import core, cornell
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _has_offset():
+    try:
+        return hasattr(core().RenderSettings(), "sample_offset")
+    except ImportError:
+        return False
+
+
+needs_offset = pytest.mark.skipif(not _has_offset(), reason="core without sample_offset")
+
+
+def _session_film(pc, scene, samples, offset, threads=2):
+    st = pc.RenderSettings()
+    st.width = st.height = 24
+    st.samples, st.sample_offset, st.seed, st.threads = samples, offset, 7, threads
+    sess = pc.Session(scene, st)
+    sess.start()
+    while not sess.wait(1.0):
+        pass
+    return sess.film()
+
+
+@needs_offset
+def test_core_partial_ranges_add_up_to_the_whole():
+    pc = core()
+    scene = cornell(pc)
+    whole = _session_film(pc, scene, 16, 0)
+    parts = [_session_film(pc, scene, 4, 4 * k) for k in range(4)]
+    np.testing.assert_allclose(np.mean(parts, axis=0), whole, rtol=2e-5, atol=2e-6)
+    # Different ranges really are different samples (not the same four samples again).
+    assert not np.allclose(parts[0], parts[1])
+    with pytest.raises(ValueError):
+        _session_film(pc, scene, 4, -1)
+
+
+def _blender_partial(tmp, name, samples, offset):
+    """A Cornell box render through the add-on into an EXR (with its metadata)."""
+    import bpy
+    from blender_util import _setup_pathlight, load_addon, open_fixture
+    load_addon()
+    sc = open_fixture("cornell_box")
+    sc.render.engine = "PATHLIGHT"
+    _setup_pathlight(sc.pathlight)
+    sc.pathlight.samples, sc.pathlight.sample_offset, sc.pathlight.seed = samples, offset, 3
+    sc.render.resolution_percentage = 12  # 30 x 30
+    sc.render.use_compositing = sc.render.use_sequencer = False
+    image = sc.render.image_settings
+    image.file_format, image.color_mode, image.color_depth = 'OPEN_EXR', 'RGBA', '32'
+    path = Path(tmp) / name
+    sc.render.filepath, sc.render.use_file_extension = str(path), False
+    bpy.ops.render.render(write_still=True, scene=sc.name)
+    return path
+
+
+@needs_offset
+def test_four_partial_blender_renders_merge_into_one():
+    with tempfile.TemporaryDirectory(prefix="pathlight_farm_") as tmp:
+        parts = [_blender_partial(tmp, f"part{k}.exr", 4, 4 * k) for k in range(4)]
+        whole = _blender_partial(tmp, "whole.exr", 16, 0)
+        out = Path(tmp) / "merged.exr"
+        info = build.merge_exr([str(p) for p in parts], str(out))
+        assert info["samples"] == 16 and info["weights"] == "samples per file"
+        with OpenEXR.File(str(out)) as a, OpenEXR.File(str(whole)) as b:
+            merged, single = a.channels()["RGBA"].pixels.copy(), b.channels()["RGBA"].pixels.copy()
+            assert a.header()["Pathlight Samples"] == "16"
+            assert a.header()["Pathlight Sample Offset"] == "0"
+        assert merged.mean() > 0.01
+        np.testing.assert_allclose(merged, single, rtol=2e-5, atol=2e-6)
+        # Overlapping ranges would count samples twice: refused.
+        with pytest.raises(build.UserError, match="overlap"):
+            build.merge_exr([str(parts[0]), str(parts[0])], str(out))
+
+
+def _write_exr(path, rgb, count=None, samples=None):
+    channels = {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]}
+    if count is not None:
+        channels["ViewLayer.Sample Count"] = count.astype(np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION}
+    if samples is not None:
+        header["Pathlight Samples"] = str(samples)
+    OpenEXR.File(header, {k: np.ascontiguousarray(v, np.float32) for k, v in channels.items()}
+                 ).write(str(path))
+
+
+def test_merge_weighs_by_the_per_pixel_sample_count_when_present():
+    """With a Sample Count pass (adaptive sampling: each pixel its own count) the weights are
+    per pixel, and the counts add up."""
+    with tempfile.TemporaryDirectory(prefix="pathlight_merge_") as tmp:
+        a, b = np.full((2, 3, 3), 1.0), np.full((2, 3, 3), 4.0)
+        ca, cb = np.array([[1, 3, 0], [2, 2, 5]]), np.array([[3, 1, 4], [2, 0, 0]])
+        _write_exr(Path(tmp) / "a.exr", a, ca, samples=8)
+        _write_exr(Path(tmp) / "b.exr", b, cb, samples=8)
+        out = Path(tmp) / "m.exr"
+        info = build.merge_exr([str(Path(tmp) / "a.exr"), str(Path(tmp) / "b.exr")], str(out))
+        assert info["weights"] == "per-pixel sample counts"
+        with OpenEXR.File(str(out)) as f:
+            ch = {k: v.pixels.copy() for k, v in f.channels().items()}
+        expect = np.where(ca + cb > 0, (ca * 1.0 + cb * 4.0) / np.maximum(ca + cb, 1), 0.0)
+        rgb = ch["RGB"] if "RGB" in ch else np.stack([ch[c] for c in "RGB"], -1)  # OpenEXR 3 groups
+        np.testing.assert_allclose(rgb[..., 0], expect, rtol=1e-6)
+        np.testing.assert_allclose(rgb[..., 2], expect, rtol=1e-6)
+        np.testing.assert_array_equal(ch["ViewLayer.Sample Count"], ca + cb)
+        # Files without counts or metadata cannot be weighed.
+        _write_exr(Path(tmp) / "c.exr", a)
+        with pytest.raises(build.UserError, match="Sample Count"):
+            build.merge_exr([str(Path(tmp) / "c.exr")] * 2, str(out))
+
+
+def test_frame_ranges_and_numbered_names():
+    args = build.parse_args(["render", "x.blend", "-o", "out.png", "--frames", "2-4"])[0]
+    assert build.frame_range(args) == (2, 4)
+    args = build.parse_args(["render", "x.blend", "-o", "o.png", "--frame-start", "5",
+                             "--frame-end", "6"])[0]
+    assert build.frame_range(args) == (5, 6)
+    args = build.parse_args(["render", "x.blend", "-o", "o.png", "--frame", "7"])[0]
+    assert build.frame_range(args) == (7, 7)
+    for bad in ("3-1", "a-b"):
+        args = build.parse_args(["render", "x.blend", "-o", "o.png", "--frames", bad])[0]
+        with pytest.raises(build.UserError):
+            build.frame_range(args)
+    assert build.numbered("/r/out_####.png", 12) == "/r/out_0012.png"
+    assert build.numbered("/r/shot##_v2.exr", 3) == "/r/shot03_v2.exr"
+    assert build.numbered("/r/out.png", 3) == "/r/out.png"
+
+
+@needs_offset
+def test_build_py_renders_a_frame_range_into_numbered_files():
+    with tempfile.TemporaryDirectory(prefix="pathlight_frames_") as tmp:
+        out = Path(tmp) / "out.png"
+        proc = subprocess.run([sys.executable, str(REPO / "build.py"), "render",
+                               str(REPO / "blender_scenes" / "cornell_box.blend"), "-o", str(out),
+                               "--frames", "1-2", "--samples", "1", "--sample-offset", "5"],
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert sorted(p.name for p in Path(tmp).iterdir()) == ["out_0001.png", "out_0002.png"]
+
+
+def test_build_py_merge_command():
+    with tempfile.TemporaryDirectory(prefix="pathlight_mergecli_") as tmp:
+        a, b = Path(tmp) / "a.exr", Path(tmp) / "b.exr"
+        _write_exr(a, np.full((2, 2, 3), 1.0), samples=1)
+        _write_exr(b, np.full((2, 2, 3), 4.0), samples=3)
+        out = Path(tmp) / "m.exr"
+        proc = subprocess.run([sys.executable, str(REPO / "build.py"), "merge", str(a), str(b),
+                               "-o", str(out)], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert "4 samples" in proc.stdout
+        with OpenEXR.File(str(out)) as f:
+            rgb = next(iter(f.channels().values())).pixels.copy()
+            assert f.header()["Pathlight Samples"] == "4"
+        np.testing.assert_allclose(rgb, (1.0 * 1 + 4.0 * 3) / 4, rtol=1e-6)
+        proc = subprocess.run([sys.executable, str(REPO / "build.py"), "merge", str(a),
+                               "-o", str(Path(tmp) / "m.png")], capture_output=True, text=True,
+                              timeout=120)
+        assert proc.returncode == 1 and "must be an .exr" in proc.stderr
+
+
+@needs_offset
+def test_merge_uses_the_sample_count_pass_of_adaptive_renders():
+    """Adaptive partial renders with the Sample Count pass (multilayer EXR): each pixel is
+    weighted by its own count, and the merged file's counts are the sums."""
+    import bpy
+    from blender_util import load_addon, open_fixture
+    load_addon()
+    with tempfile.TemporaryDirectory(prefix="pathlight_farm_ml_") as tmp:
+        paths = []
+        for k in range(2):
+            sc = open_fixture("cornell_box")
+            sc.render.engine = "PATHLIGHT"
+            if not hasattr(sc.view_layers[0], "pathlight"):
+                pytest.skip("add-on without render passes")
+            p = sc.pathlight
+            p.samples, p.sample_offset, p.seed = 32, 32 * k, 3
+            p.use_adaptive_sampling, p.adaptive_threshold = True, 0.05
+            sc.view_layers[0].pathlight.use_pass_sample_count = True
+            sc.render.resolution_percentage = 12
+            image = sc.render.image_settings
+            image.file_format, image.color_depth = 'OPEN_EXR_MULTILAYER', '32'
+            paths.append(str(Path(tmp) / f"part{k}.exr"))
+            sc.render.filepath, sc.render.use_file_extension = paths[-1], False
+            bpy.ops.render.render(write_still=True, scene=sc.name)
+        out = Path(tmp) / "merged.exr"
+        info = build.merge_exr(paths, str(out))
+        assert info["weights"] == "per-pixel sample counts"
+        parts = []
+        for path in paths + [str(out)]:
+            with OpenEXR.File(path) as f:
+                ch = f.channels()
+                parts.append((ch["ViewLayer.Combined"].pixels.copy(),
+                              ch["ViewLayer.Sample Count.X"].pixels.astype(np.float64)))
+        (a, ca), (b, cb), (m, cm) = parts
+        assert ca.min() < ca.max()  # adaptive: the counts differ per pixel
+        np.testing.assert_array_equal(cm, ca + cb)
+        expect = (a * ca[..., None] + b * cb[..., None]) / np.maximum(ca + cb, 1)[..., None]
+        np.testing.assert_allclose(m, expect, rtol=1e-5, atol=1e-7)

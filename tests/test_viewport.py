@@ -1,0 +1,248 @@
+"""Viewport rendering below the gpu drawing: the update planner fed with real depsgraph
+updates (depsgraph_update_post, as view_update receives them), the region-view camera, and
+the ViewportSession's restarts (what is re-exported, rebuilt or only restarted)."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import core_available, core_has, empty_scene_with_camera, load_addon
+
+from addon.viewport_camera import ViewCameraError, view_camera_params
+from addon.viewport_update import Update, ViewState, describe_updates, plan_updates, \
+    settings_signature
+
+
+@pytest.fixture
+def scene():
+    load_addon()
+    sc = empty_scene_with_camera(32)
+    sc.render.engine = "PATHLIGHT"
+    mesh = bpy.data.meshes.new("Cube")
+    import bmesh
+    bm = bmesh.new()
+    bmesh.ops.create_cube(bm, size=2.0)
+    bm.to_mesh(mesh)
+    bm.free()
+    cube = bpy.data.objects.new("Cube", mesh)
+    sc.collection.objects.link(cube)
+    mat = bpy.data.materials.new("M")
+    mat.use_nodes = True
+    mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.8, 0.8, 0.8, 1)
+    mesh.materials.append(mat)
+    light = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+    light.location = (0, -4, 3)
+    light.data.energy = 500
+    sc.collection.objects.link(light)
+    sc.world = bpy.data.worlds.new("W")
+    sc.world.use_nodes = True
+    bpy.context.view_layer.update()
+    return sc
+
+
+class Recorder:
+    """Collects describe_updates() of each depsgraph_update_post, like view_update sees them."""
+
+    def __init__(self):
+        self.updates = []
+
+    def __call__(self, scene, depsgraph):
+        self.updates.extend(describe_updates(depsgraph.updates))
+
+    def __enter__(self):
+        bpy.app.handlers.depsgraph_update_post.append(self)
+        return self
+
+    def __exit__(self, *exc):
+        bpy.app.handlers.depsgraph_update_post.remove(self)
+
+    def take(self):
+        bpy.context.view_layer.update()
+        out, self.updates = self.updates, []
+        return out
+
+
+def _plan(rec, sc, state):
+    return plan_updates(rec.take(), state, settings_signature(sc))
+
+
+def test_plan_from_real_depsgraph_updates(scene):
+    sc = scene
+    state = ViewState(camera_name="Camera", settings=settings_signature(sc),
+                      materials=frozenset({"M"}))
+    cube, light, cam = (bpy.data.objects[n] for n in ("Cube", "Lamp", "Camera"))
+    with Recorder() as rec:
+        rec.take()
+        assert _plan(rec, sc, state).nothing  # no change, no work
+
+        cube.select_set(True)  # a Scene update without flags
+        assert _plan(rec, sc, state).nothing
+
+        cam.location.z += 0.5
+        p = _plan(rec, sc, state)
+        assert p.camera and p.restart_only and not p.rebuild_geometry
+
+        mat = bpy.data.materials["M"]
+        mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (1, 0, 0, 1)
+        p = _plan(rec, sc, state)
+        assert p.materials == ["M"] and not p.rebuild_geometry and not p.restart_only
+
+        light.data.energy = 100
+        p = _plan(rec, sc, state)
+        assert p.lights and not p.rebuild_geometry and not p.materials
+
+        light.location.x += 1
+        p = _plan(rec, sc, state)
+        assert p.lights and not p.rebuild_geometry
+
+        sc.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 2.0
+        p = _plan(rec, sc, state)
+        assert p.lights and not p.rebuild_geometry and not p.materials
+
+        sc.pathlight.max_bounces = 3
+        sc.update_tag()  # what a change in the UI does (a script's change tags nothing)
+        p = _plan(rec, sc, state)
+        assert p.settings and not p.rebuild_geometry and not p.materials
+
+        cube.location.x += 0.25  # transforms rebuild everything (no two-level BVH yet)
+        p = _plan(rec, sc, state)
+        assert p.rebuild_geometry and p.materials == []
+
+        cube.data.vertices[0].co.x += 0.1
+        cube.data.update()
+        assert _plan(rec, sc, state).rebuild_geometry
+
+
+def test_plan_rules_on_plain_updates():
+    state = ViewState(materials=frozenset({"A"}), settings=(1,))
+    # A material not in the core scene yet (just created) needs nothing by itself.
+    assert plan_updates([Update("Material", "B", shading=True)], state, (1,)).nothing
+    # Shading-only updates of objects and meshes come with every material edit.
+    p = plan_updates([Update("Object", "Cube", shading=True, object_type="MESH"),
+                      Update("Mesh", "Cube", shading=True),
+                      Update("Material", "A", shading=True)], state, (1,))
+    assert p.materials == ["A"] and not p.rebuild_geometry
+    # A moved empty that instances a collection moves geometry; a plain empty does not.
+    assert plan_updates([Update("Object", "E", transform=True, object_type="EMPTY",
+                                is_instancer=True)], state, (1,)).rebuild_geometry
+    assert plan_updates([Update("Object", "E", transform=True, object_type="EMPTY")],
+                        state, (1,)).nothing
+
+
+def _proj(cam_obj, width, height):
+    dg = bpy.context.evaluated_depsgraph_get()
+    return np.array(cam_obj.calc_matrix_camera(dg, x=width, y=height))
+
+
+def test_view_camera_reproduces_blender_projection(scene):
+    """A camera view's window matrix (what Blender computes for the camera) gives back the
+    camera's lens, shift and clipping in our camera model."""
+    cam = bpy.data.objects["Camera"]
+    cam.data.lens = 35.0
+    cam.data.shift_x, cam.data.shift_y = 0.1, -0.05
+    cam.data.clip_start, cam.data.clip_end = 0.5, 80.0
+    bpy.context.view_layer.update()
+    width, height = 96, 64  # wider than tall: horizontal fit, as the AUTO sensor fit does
+    proj = _proj(cam, width, height)
+    view = np.array(cam.matrix_world.inverted())
+    p = view_camera_params(view, proj, width, height, True)
+    assert p["lens"] == pytest.approx(35.0, rel=1e-5)
+    assert p["shift_x"] == pytest.approx(0.1, abs=1e-6)
+    assert p["shift_y"] == pytest.approx(-0.05, abs=1e-6)
+    assert p["clip_start"] == pytest.approx(0.5, rel=1e-4)
+    assert p["clip_end"] == pytest.approx(80.0, rel=1e-3)
+    assert p["pixel_aspect_y"] == pytest.approx(1.0, rel=1e-5)
+    np.testing.assert_allclose(p["matrix_world"], np.array(cam.matrix_world), atol=1e-5)
+    ortho = proj.copy()
+    ortho[3] = (0, 0, 0, 1)
+    with pytest.raises(ViewCameraError):
+        view_camera_params(view, ortho, width, height, False)
+
+
+def _finish(vs):
+    for _ in range(2000):  # bounded: never hangs, not a timing assertion
+        if not vs.poll():
+            return vs.display()
+        vs.full.wait(0.05) if vs.full is not None else vs.low.wait(0.05)
+    raise AssertionError("viewport render did not finish")
+
+
+@pytest.mark.skipif(not core_has("Scene", "set_shader"), reason="core without live edits")
+def test_viewport_session_restarts_without_rebuilding(scene):
+    from addon.core import get_core
+    from addon.viewport import LOW_RES_DIVIDER, ViewportSession
+    sc = scene
+    sc.pathlight.preview_samples = 4
+    pc = get_core()
+    with Recorder() as rec:
+        rec.take()
+        vs = ViewportSession(pc)
+        dg = bpy.context.evaluated_depsgraph_get()
+        vs.set_view(None, 64, 64)
+        vs.sync(dg)
+        # The first pass after a change is a low-resolution one.
+        assert vs.low is not None and vs.low.film().shape == (64 // LOW_RES_DIVIDER,) * 2 + (4,)
+        film, n = _finish(vs)
+        assert film.shape == (64, 64, 4) and n == 4
+        core_scene = vs.scene
+        assert core_scene.stats()["geometry_builds"] == 1
+
+        # Navigating: the view's camera overrides the scene's; nothing rebuilt or exported.
+        cam = bpy.data.objects["Camera"]
+        view = np.array(cam.matrix_world.inverted())
+        view[0, 3] += 0.3
+        fields = view_camera_params(view, _proj(cam, 64, 64), 64, 64, True)
+        assert vs.set_view(fields, 64, 64)
+        moved, _ = _finish(vs)
+        assert not np.allclose(moved, film)
+        assert vs.scene is core_scene and core_scene.stats()["geometry_builds"] == 1
+        assert vs.counters["exports"] == 1
+        assert not vs.set_view(fields, 64, 64)  # the same view: no restart
+
+        # Editing the material replaces its program: no export, no BVH build; the image
+        # turns red.
+        builds = core_scene.stats()["light_builds"]
+        mat = bpy.data.materials["M"]
+        mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (1, 0, 0, 1)
+        plan = vs.sync(dg, rec.take())
+        assert plan.materials == ["M"]
+        red, _ = _finish(vs)
+        assert vs.counters == dict(vs.counters, exports=1, material_updates=1)
+        assert core_scene.stats()["geometry_builds"] == 1
+        assert core_scene.stats()["light_builds"] == builds + 1
+        lit = moved[..., 0] > 0.02
+        assert red[lit][:, 1].mean() < 0.5 * moved[lit][:, 1].mean()
+
+        # A light edit: lights re-read, geometry kept.
+        bpy.data.objects["Lamp"].data.energy = 50
+        vs.sync(dg, rec.take())
+        dim, _ = _finish(vs)
+        assert vs.counters["light_updates"] == 1 and vs.counters["exports"] == 1
+        assert core_scene.stats()["geometry_builds"] == 1
+        assert dim[lit][:, 0].mean() < 0.5 * red[lit][:, 0].mean()
+
+        # Moving the object re-exports (until the two-level BVH exists).
+        bpy.data.objects["Cube"].location.x += 0.5
+        vs.sync(dg, rec.take())
+        _finish(vs)
+        assert vs.counters["exports"] == 2 and vs.scene is not core_scene
+        vs.free()
+
+
+@pytest.mark.skipif(not core_has("Scene", "set_shader"), reason="core without live edits")
+def test_viewport_needs_no_scene_camera(scene):
+    """The viewport renders through its own view: a scene without a camera still renders."""
+    from addon.core import get_core
+    from addon.viewport import ViewportSession
+    cam = bpy.data.objects["Camera"]
+    view, proj = np.array(cam.matrix_world.inverted()), _proj(cam, 16, 16)
+    bpy.data.objects.remove(cam)
+    scene.pathlight.preview_samples = 1
+    vs = ViewportSession(get_core())
+    vs.set_view(view_camera_params(view, proj, 16, 16, True), 16, 16)
+    vs.sync(bpy.context.evaluated_depsgraph_get())
+    film, n = _finish(vs)
+    assert n == 1 and film.shape == (16, 16, 4) and film[..., :3].max() > 0
+    vs.free()
