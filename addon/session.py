@@ -1,6 +1,7 @@
 """Final-render driver: export the scene, run a core Session, stream its film into the result."""
 
 import logging
+import threading
 import time
 
 import bpy
@@ -19,7 +20,8 @@ PREVIEW_SAMPLES = 32  # material preview thumbnails
 def set_progress_listener(fn):
     """Call fn(info) at each progress update of a render, with info = {samples_done,
     samples_total, elapsed_s, eta_s (None if unknown)}; a truthy return cancels the render
-    (like Esc in Blender). None removes the listener. Used by build.py's render command."""
+    (like Esc in Blender). While the BVH is being built the info has stage="build" and no
+    samples. None removes the listener. Used by build.py's render command."""
     global _progress_listener
     _progress_listener = fn
 
@@ -129,6 +131,11 @@ def render(engine, depsgraph):
             passes.remove(p)
         if known:
             settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
+        if not _commit(engine, core_scene, settings.threads):
+            # An empty (transparent black) result: Blender may still save the frame, and
+            # bpy crashes saving a frame whose engine gave it no result at all.
+            engine.end_result(engine.begin_result(0, 0, *render_size(scene), layer=view_layer.name))
+            return
         sess = pc.Session(core_scene, settings)
         dropped = core_scene.stats().get("dropped_triangles", 0)
         if dropped:
@@ -144,6 +151,43 @@ def render(engine, depsgraph):
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
         log.exception("render failed")
         engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
+
+
+def _commit(engine, core_scene, threads):
+    """Builds the BVH and the lights on a worker thread (the core releases the GIL) while this
+    thread, the one Blender called, watches for Esc: a cancel stops even a long build within
+    milliseconds. Returns False when the render was cancelled."""
+    if not hasattr(core_scene, "cancel_commit"):  # an older core build
+        core_scene.commit(threads)
+        return True
+    failure = []
+
+    def build():
+        try:
+            core_scene.commit(threads)
+        except BaseException as e:  # handed to the engine's thread below
+            failure.append(e)
+
+    worker = threading.Thread(target=build, name="pathlight-commit", daemon=True)
+    t0 = time.monotonic()
+    worker.start()
+    cancelled = False
+    while worker.is_alive():
+        worker.join(0.05)
+        if cancelled:
+            continue
+        listener = _progress_listener
+        info = {"samples_done": 0, "samples_total": 0, "elapsed_s": time.monotonic() - t0,
+                "eta_s": None, "stage": "build"}
+        if (listener is not None and listener(info)) or engine.test_break():
+            core_scene.cancel_commit()
+            cancelled = True
+    stopped = cancelled and failure and "cancelled" in str(failure[0])
+    if failure and not stopped:
+        raise failure[0]
+    if cancelled:
+        log.info("render cancelled " + ("during the BVH build" if stopped else "before it started"))
+    return not cancelled
 
 
 def _warner(engine):

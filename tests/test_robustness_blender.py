@@ -385,6 +385,43 @@ def test_large_resolution_without_the_memory_is_a_clear_error():
     assert "bad_alloc" not in proc.stdout and "Traceback" not in proc.stderr, proc.stdout + proc.stderr[-2000:]
 
 
+def test_cancel_during_the_bvh_build(scene, capfd, caplog):
+    """Esc while a big mesh's BVH is being built stops the build itself (the core's commit is
+    cancelled from the engine's thread), not only the sampling after it."""
+    q = 1000  # a 2M-triangle heightfield, built with foreach_set
+    xs = np.linspace(-2.0, 2.0, q + 1, dtype=np.float32)
+    x, y = np.meshgrid(xs, xs)
+    co = np.stack([x, y, 0.1 * np.sin(5 * x) * np.cos(3 * y)], -1).reshape(-1)
+    i = (np.arange(q)[None, :] + (q + 1) * np.arange(q)[:, None]).reshape(-1)
+    quads = np.stack([i, i + 1, i + q + 2, i + q + 1], -1).reshape(-1).astype(np.int32)
+    me = bpy.data.meshes.new("Big")
+    me.vertices.add(len(co) // 3)
+    me.vertices.foreach_set("co", co)
+    me.loops.add(len(quads))
+    me.loops.foreach_set("vertex_index", quads)
+    me.polygons.add(q * q)
+    me.polygons.foreach_set("loop_start", np.arange(0, len(quads), 4, dtype=np.int32))
+    me.update()
+    bpy.context.scene.collection.objects.link(bpy.data.objects.new("Big", me))
+    seen = []
+
+    def listener(info):
+        seen.append(info)
+        return info.get("stage") == "build"  # Esc as soon as the build is under way
+
+    addon.session.set_progress_listener(listener)
+    try:
+        with caplog.at_level(logging.INFO):
+            img, err = attempt(scene, samples=64)
+    finally:
+        addon.session.set_progress_listener(None)
+    out, errout = capfd.readouterr()
+    assert "Traceback" not in errout and err is None, (err, errout[-2000:])
+    assert seen and all(i.get("stage") == "build" for i in seen), seen  # no sample was rendered
+    assert any("cancelled during the BVH build" in r.getMessage() for r in caplog.records), \
+        [r.getMessage() for r in caplog.records]
+
+
 def test_render_twice_in_a_row(scene, capfd):
     cube()
     scene.pathlight.seed = 5
