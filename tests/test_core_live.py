@@ -69,3 +69,15 @@ def test_material_and_light_edits_keep_the_bvh():
         scene.set_material(99, "nothing")
     with pytest.raises(ValueError):
         scene.set_shader(grey, "bad", [("closure", "nope", 0, {})])
+
+
+def test_commit_rebuilds_geometry_only_for_a_new_bvh_kind():
+    scene = cornell(pc)
+    scene.commit(bvh="binary")
+    n = scene.stats()["geometry_builds"]
+    scene.commit(bvh="binary")  # nothing changed: the lights only
+    assert scene.stats()["geometry_builds"] == n
+    scene.commit(bvh="bvh4")  # another kernel: the geometry is rebuilt for it
+    assert scene.stats()["geometry_builds"] == n + 1
+    hits = scene.intersect(np.array([[0.0, -3.0, 1.0]], np.float32), np.array([[0.0, 1.0, 0.0]], np.float32))
+    assert hits[0][0] > 0  # a usable scene after the switch
