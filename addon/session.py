@@ -27,7 +27,26 @@ def render_size(scene):
             r.resolution_y * r.resolution_percentage // 100)
 
 
-def render_settings(pc, scene):
+def render_border(scene, warn=None):
+    """The rendered rectangle (x, y, w, h) in pixels from the bottom-left of the full frame:
+    the render border when it is on (Blender's own rounding: truncated fractions of the
+    frame), else the whole frame."""
+    width, height = render_size(scene)
+    r = scene.render
+    if not r.use_border:
+        return 0, 0, width, height
+    x0, x1 = int(r.border_min_x * width), int(r.border_max_x * width)
+    y0, y1 = int(r.border_min_y * height), int(r.border_max_y * height)
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x1, width), min(y1, height)
+    if x1 - x0 < 1 or y1 - y0 < 1:
+        if warn:
+            warn("The render border is empty; rendering the whole frame")
+        return 0, 0, width, height
+    return x0, y0, x1 - x0, y1 - y0
+
+
+def render_settings(pc, scene, warn=None):
     props = scene.pathlight
     st = pc.RenderSettings()
     st.width, st.height = render_size(scene)
@@ -45,7 +64,12 @@ def render_settings(pc, scene):
         "diffuse_bounces": props.diffuse_bounces,
         "glossy_bounces": props.glossy_bounces,
         "transmission_bounces": props.transmission_bounces,
+        "filter_type": props.filter_type.lower(),
+        "filter_width": props.filter_width,
     }
+    x, y, w, h = render_border(scene, warn)
+    if (w, h) != (st.width, st.height):
+        optional.update(border_x=x, border_y=y, border_width=w, border_height=h)
     for name, value in optional.items():
         if hasattr(st, name):
             setattr(st, name, value)
@@ -68,16 +92,30 @@ def render(engine, depsgraph):
         pc = get_core()
         scene = depsgraph.scene
         core_scene = to_core(pc, export_scene(depsgraph, warn), warn)
-        sess = pc.Session(core_scene, render_settings(pc, scene))
+        st = render_settings(pc, scene, warn)
+        sess = pc.Session(core_scene, st)
         dropped = core_scene.stats().get("dropped_triangles", 0)
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
-        _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit)
+        _report_focus(sess, warn)
+        _, _, width, height = render_border(scene)
+        _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit)
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
         log.exception("render failed")
         engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
+
+
+def _report_focus(sess, warn):
+    stats = sess.stats()
+    state = stats.get("autofocus", "off")
+    if state == "hit":
+        log.info("Pathlight: autofocus at %.4g (distance along the view axis)",
+                 stats["focus_distance"])
+    elif state == "miss":
+        warn("Autofocus: nothing under the focus point; using the camera's focus distance "
+             f"{stats['focus_distance']:.4g}")
 
 
 def _warner(engine):
@@ -92,6 +130,8 @@ def _warner(engine):
 
 
 def _run(engine, sess, width, height, time_limit):
+    # With a render border, Blender's result is the border's size (it crops, or pastes the
+    # border into the frame, itself): the film covers exactly that.
     result = engine.begin_result(0, 0, width, height)
     try:
         combined = result.layers[0].passes["Combined"]
@@ -142,7 +182,10 @@ def _status_line(info, sess):
              f"{info['elapsed_s']:.1f} s"]
     if info["eta_s"] is not None and info["samples_done"] < info["samples_total"]:
         parts.append(f"ETA {info['eta_s']:.1f} s")
-    rays = sess.stats().get("rays_per_s")
+    stats = sess.stats()
+    rays = stats.get("rays_per_s")
     if rays:
         parts.append(f"{rays / 1e6:.1f} Mrays/s")
+    if stats.get("autofocus") == "hit":
+        parts.append(f"Focus {stats['focus_distance']:.3g}")
     return " | ".join(parts)

@@ -12,6 +12,7 @@
 
 #include "render/film.h"
 #include "render/integrator.h"
+#include "render/pixel_filter.h"
 #include "util/thread_pool.h"
 
 namespace pl {
@@ -29,6 +30,11 @@ struct RenderSettings {
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic
   int diffuse_bounces = 1024, glossy_bounces = 1024, transmission_bounces = 1024;
+  FilterType filter_type = FilterType::Box;
+  float filter_width = 1.0f;  // pixels
+  // Render border: only this rectangle of the width x height frame (pixels from the
+  // bottom-left) is rendered, and the film is its size; border_width 0 = the whole frame.
+  int border_x = 0, border_y = 0, border_width = 0, border_height = 0;
 };
 
 // Throws std::invalid_argument with a readable message for settings that cannot be rendered.
@@ -45,6 +51,8 @@ struct SessionStats {
   int64_t active_pixels = 0;  // pixels adaptive sampling has not stopped yet
   int passes = 0, threads = 0;
   double elapsed_s = 0.0;
+  float focus_distance = 0.0f;  // of the thin lens, after autofocus
+  int autofocus = 0;            // 0 off, 1 focused on a surface, 2 missed (kept the camera's)
 };
 
 class Session {
@@ -74,6 +82,10 @@ class Session {
   std::shared_ptr<const Scene> scene_;
   RenderSettings settings_;
   Camera camera_;
+  PixelFilter filter_;
+  int region_x_ = 0, region_y_ = 0;  // film pixel (0, 0) in the full frame
+  float focus_distance_ = 0.0f;
+  int autofocus_ = 0;
   IntegratorSettings integrator_;
   Film film_;
   std::unique_ptr<ThreadPool> pool_;
