@@ -104,7 +104,8 @@ Ray Camera::generate(float x, float y, Vec2 lens) const {
   Ray r;
   r.dir = right_ * dc.x + up_ * dc.y - back_ * dc.z;
   const Vec3 lw = origin_ + right_ * L.x + up_ * L.y;
-  // Clipping planes stay planes perpendicular to the view axis (Cycles' clipping).
+  // Clipping planes stay planes perpendicular to the view axis, for every lens point (Cycles
+  // measures the near clip with the pinhole ray's cosine instead: a negligible difference).
   const float z_inv = 1.0f / dc.z;
   r.org = lw + r.dir * (clip_start_ * z_inv);
   r.tmax = clip_len_ * z_inv;
