@@ -276,3 +276,37 @@ def test_bad_camera_settings_warn_and_render():
     sc.pathlight.use_autofocus = True
     img = render_to_array(sc, "PATHLIGHT", samples=2)  # renders, with warnings only
     assert np.isfinite(img).all() and img[..., :3].max() > 0.5
+
+
+
+def bokeh_scene(blades, rotation, ratio):
+    """A small bright emitter far before the focal plane: its image is the aperture's shape
+    (widened by the emitter's own ~3 pixels)."""
+    sc = empty_scene_with_camera(48)
+    cam = sc.camera.data
+    cam.lens, cam.sensor_width = LENS, SENSOR
+    cam.dof.use_dof, cam.dof.focus_distance, cam.dof.aperture_fstop = True, 20.0, 0.1
+    cam.dof.aperture_blades, cam.dof.aperture_rotation, cam.dof.aperture_ratio = blades, rotation, ratio
+    bpy.ops.mesh.primitive_plane_add(size=0.07, location=(0.0, -4.5, 0.0), rotation=(math.pi / 2, 0, 0))
+    bpy.context.active_object.data.materials.append(emission("dot", (1.0, 1.0, 1.0), 10.0))
+    return sc
+
+
+def harmonics(img, orders):
+    """Normalised angular harmonics sum(w z^m) / sum(w |z|^m) of an image about its centroid:
+    m = 2 sees elongation, m = n the orientation of an n-gon."""
+    y, x = np.mgrid[:img.shape[0], :img.shape[1]] + 0.5
+    w = img / img.sum()
+    z = (x - (w * x).sum()) + 1j * (y - (w * y).sum())
+    return np.array([(w * z ** m).sum() / (w * np.abs(z) ** m).sum() for m in orders])
+
+
+@pytest.mark.parametrize("blades,rotation,ratio", [(5, 0.5, 1.0), (0, 0.0, 1.6), (6, -0.3, 0.7)])
+def test_bokeh_shape_matches_cycles(blades, rotation, ratio):
+    ours = render_to_array(bokeh_scene(blades, rotation, ratio), "PATHLIGHT", samples=1024)[..., 0]
+    cycles = render_to_array(bokeh_scene(blades, rotation, ratio), "CYCLES", samples=1024, **BOX_FILTER)[..., 0]
+    orders = [2, blades] if blades else [2]
+    a, b = harmonics(ours, orders), harmonics(cycles, orders)
+    assert np.abs(a - b).max() < 0.2 * np.abs(b).max()
+    assert np.abs(b).max() > 0.02  # the shape is not a round disk: the harmonics mean something
+    assert ours.sum() == pytest.approx(cycles.sum(), rel=0.02)  # the same light, spread alike
