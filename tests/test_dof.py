@@ -274,6 +274,8 @@ def test_bad_camera_settings_warn_and_render():
     assert params["type"] == "PERSP" and any("projection" in m for m in warn)
     cam.dof.aperture_fstop = 0.0
     sc.pathlight.use_autofocus = True
+    params, warn = export_camera(sc)
+    assert not params["use_autofocus"] and any("autofocus needs" in m for m in warn)
     img = render_to_array(sc, "PATHLIGHT", samples=2)  # renders, with warnings only
     assert np.isfinite(img).all() and img[..., :3].max() > 0.5
 

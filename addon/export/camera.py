@@ -46,6 +46,9 @@ def camera_params(scene, depsgraph, warn):
     if cam_type == 'ORTHO':
         params["ortho_scale"] = cam.ortho_scale
     params.update(_dof_params(cam_obj, cam, cam_type, matrix, depsgraph, warn))
+    if params.get("use_autofocus") and "aperture_size" not in params:
+        warn(f"Camera '{cam_obj.name}': autofocus needs the camera's depth of field; ignored")
+        params["use_autofocus"] = False
     return params
 
 
