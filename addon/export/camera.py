@@ -23,7 +23,6 @@ def camera_params(scene, depsgraph, warn):
         pixel_aspect_x=float(render.pixel_aspect_x),
         pixel_aspect_y=float(render.pixel_aspect_y),
     )
-    _autofocus_params(scene, params)
     cam = cam_obj.data
     if cam_obj.type != 'CAMERA':
         return params  # any object can be the camera; Blender then uses the default lens
@@ -46,6 +45,7 @@ def camera_params(scene, depsgraph, warn):
     if cam_type == 'ORTHO':
         params["ortho_scale"] = cam.ortho_scale
     params.update(_dof_params(cam_obj, cam, cam_type, matrix, depsgraph, warn))
+    _autofocus_params(scene, params)
     if params.get("use_autofocus") and "aperture_size" not in params:
         warn(f"Camera '{cam_obj.name}': autofocus needs the camera's depth of field; ignored")
         params["use_autofocus"] = False
