@@ -159,12 +159,15 @@ classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths,
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles
 # does: output, camera, lens, light, world context, ...) plus EEVEE's node-based material and
-# world surface panels, since Pathlight reads the same shader nodes.
+# world surface panels, since Pathlight reads the same shader nodes, and the camera's depth of
+# field panels.
 EXTRA_PANELS = {
     "EEVEE_MATERIAL_PT_context_material",
     "EEVEE_MATERIAL_PT_surface",
     "MATERIAL_PT_preview",
     "EEVEE_WORLD_PT_surface",
+    "DATA_PT_camera_dof",  # depth of field: Pathlight reads Blender's own DOF settings
+    "DATA_PT_camera_dof_aperture",
 }
 # Light previews need bl_use_preview.
 EXCLUDED_PANELS = {"DATA_PT_preview"}

@@ -312,3 +312,11 @@ def test_bokeh_shape_matches_cycles(blades, rotation, ratio):
     assert np.abs(a - b).max() < 0.2 * np.abs(b).max()
     assert np.abs(b).max() > 0.02  # the shape is not a round disk: the harmonics mean something
     assert ours.sum() == pytest.approx(cycles.sum(), rel=0.02)  # the same light, spread alike
+
+
+def test_depth_of_field_panels_are_shown():
+    from bl_ui import properties_data_camera as panels
+    for name in ("DATA_PT_camera_dof", "DATA_PT_camera_dof_aperture", "DATA_PT_lens"):
+        assert "PATHLIGHT" in getattr(panels, name).COMPAT_ENGINES, name
+    assert hasattr(bpy.types, "PATHLIGHT_RENDER_PT_pixel_filter")
+    assert hasattr(bpy.types, "PATHLIGHT_RENDER_PT_autofocus")
