@@ -248,3 +248,31 @@ def test_camera_and_settings_validation():
             setattr(bad, k, v)
         with pytest.raises(ValueError):
             pc.Session(s, bad)
+
+
+@pytest.mark.parametrize("fields", [
+    dict(aperture_size=1e30, focus_distance=1e-30),
+    dict(aperture_size=3e38, aperture_ratio=1e-38, focus_distance=3e38),
+    dict(type="ORTHO", ortho_scale=1e30, aperture_size=1e20, aperture_blades=1024),
+    dict(type="ORTHO", ortho_scale=1e-30, aperture_size=1e-30, focus_distance=1e-30),
+    dict(aperture_size=0.5, aperture_blades=3, aperture_rotation=1e30, use_autofocus=True),
+])
+def test_absurd_lens_values_render_without_crashing(fields):
+    cam = lens_camera()
+    for k, v in fields.items():
+        setattr(cam, k, v)
+    s2 = pc.Scene()
+    m = s2.add_material("grey", (0.5, 0.5, 0.5))
+    pos, tris = quad((-1.5, 2.0, -1.5), (3.0, 0.0, 0.0), (0.0, 0.0, 3.0))
+    add_object(s2, pos, tris, m)
+    s2.set_world_color((0.2, 0.2, 0.2))
+    s2.set_camera(cam)
+    st = pc.RenderSettings()
+    st.width, st.height, st.samples = 16, 12, 4
+    st.filter_type, st.filter_width = "blackman_harris", 100.0
+    sess = pc.Session(s2, st)
+    sess.start()
+    while not sess.wait(1.0):
+        pass
+    img = sess.film()
+    assert np.isfinite(img).all() and img.min() >= 0.0
