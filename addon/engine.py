@@ -15,6 +15,9 @@ class PathlightRenderEngine(bpy.types.RenderEngine):
     def render(self, depsgraph):
         session.render(self, depsgraph)
 
+    def update_render_passes(self, scene=None, renderlayer=None):
+        session.update_render_passes(self, scene, renderlayer)
+
 
 classes = (PathlightRenderEngine,)
 

@@ -8,6 +8,14 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorPro
                        PointerProperty)
 
 
+def _requery_passes(self, context):
+    """Pass switches change the compositor's Render Layers sockets: ask Blender to requery them
+    (it calls RenderEngine.update_render_passes)."""
+    scene = self.id_data
+    for view_layer in getattr(scene, "view_layers", ()):
+        view_layer.update_render_passes()
+
+
 class PathlightSceneSettings(bpy.types.PropertyGroup):
     samples: IntProperty(
         name="Samples", description="Samples per pixel for the final render",
@@ -108,18 +116,49 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "the centre)",
         size=2, default=(0.5, 0.5), min=0.0, max=1.0, subtype='XYZ',
     )
+    film_exposure: FloatProperty(
+        name="Exposure",
+        description="Image brightness scale: a linear multiplier of the image and the light "
+                    "passes (Cycles' film exposure)",
+        default=1.0, min=0.0, soft_max=10.0,
+    )
+    debug_view: EnumProperty(
+        name="Debug View", description="Render a picture of the renderer's work instead of the scene",
+        items=(
+            ('NONE', "None", "Render the scene"),
+            ('BVH', "BVH", "Heat map of the BVH nodes each pixel's camera ray visits (one ray through "
+                           "each pixel centre); the raw counts go to the BVH Nodes and BVH Triangles passes"),
+        ),
+        default='NONE', update=_requery_passes,
+    )
 
 
-classes = (PathlightSceneSettings,)
+class PathlightViewLayerSettings(bpy.types.PropertyGroup):
+    """Passes Blender's view layer has no switch for (the others use view_layer.use_pass_*)."""
+    use_pass_denoising_data: BoolProperty(
+        name="Denoising Data",
+        description="Denoising Normal and Denoising Albedo passes, for the compositor's Denoise node",
+        default=False, update=_requery_passes,
+    )
+    use_pass_sample_count: BoolProperty(
+        name="Sample Count",
+        description="Samples taken in each pixel (differs per pixel with adaptive sampling)",
+        default=False, update=_requery_passes,
+    )
+
+
+classes = (PathlightSceneSettings, PathlightViewLayerSettings)
 
 
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
     bpy.types.Scene.pathlight = PointerProperty(type=PathlightSceneSettings)
+    bpy.types.ViewLayer.pathlight = PointerProperty(type=PathlightViewLayerSettings)
 
 
 def unregister():
+    del bpy.types.ViewLayer.pathlight
     del bpy.types.Scene.pathlight
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -4,6 +4,7 @@ import logging
 import time
 
 import bpy
+import numpy as np
 
 from .core import get_core
 from .export import ExportError, export_scene, to_core
@@ -25,6 +26,39 @@ def render_size(scene):
     r = scene.render
     return (r.resolution_x * r.resolution_percentage // 100,
             r.resolution_y * r.resolution_percentage // 100)
+
+
+# Render passes besides Combined: (name, channels, channel ids, compositor socket type, whether
+# the view layer asks for it). Names and layouts are Cycles' (Depth, Normal, ... are also
+# Blender's built-in pass names), so compositor sockets and EXR layers line up; the core uses
+# the same names. "Sample Count" is the raw number of samples of each pixel (Cycles' "Debug
+# Sample Count" is normalised instead, hence the different name).
+PASSES = (
+    ("Depth", 1, "Z", 'VALUE', lambda sc, vl: vl.use_pass_z),
+    ("Normal", 3, "XYZ", 'VECTOR', lambda sc, vl: vl.use_pass_normal),
+    ("Position", 3, "XYZ", 'VECTOR', lambda sc, vl: vl.use_pass_position),
+    ("Emit", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_emit),
+    ("Env", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_environment),
+    ("Denoising Normal", 3, "XYZ", 'VECTOR', lambda sc, vl: vl.pathlight.use_pass_denoising_data),
+    ("Denoising Albedo", 3, "RGB", 'COLOR', lambda sc, vl: vl.pathlight.use_pass_denoising_data),
+    ("Sample Count", 1, "X", 'VALUE', lambda sc, vl: vl.pathlight.use_pass_sample_count),
+    ("BVH Nodes", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
+    ("BVH Triangles", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
+)
+
+
+def enabled_passes(scene, view_layer):
+    """The PASSES entries this view layer asks for."""
+    return [p for p in PASSES if p[4](scene, view_layer)]
+
+
+def update_render_passes(engine, scene, view_layer):
+    """RenderEngine.update_render_passes: declares the passes, so the compositor shows sockets."""
+    if scene is None or view_layer is None:
+        return
+    engine.register_pass(scene, view_layer, "Combined", 4, "RGBA", 'COLOR')
+    for name, channels, chan_id, socket, _ in enabled_passes(scene, view_layer):
+        engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
 
 
 def render_border(scene, warn=None):
@@ -67,6 +101,12 @@ def render_settings(pc, scene, warn=None):
         "filter_type": props.filter_type.lower(),
         "filter_width": props.filter_width,
     }
+    # Issue 5 settings.
+    optional.update({
+        "film_transparent": scene.render.film_transparent,
+        "exposure": props.film_exposure,
+        "debug_view": props.debug_view.lower(),
+    })
     x, y, w, h = render_border(scene, warn)
     if (w, h) != (st.width, st.height):
         optional.update(border_x=x, border_y=y, border_width=w, border_height=h)
@@ -91,15 +131,27 @@ def render(engine, depsgraph):
     try:
         pc = get_core()
         scene = depsgraph.scene
+        view_layer = depsgraph.view_layer
         core_scene = to_core(pc, export_scene(depsgraph, warn), warn)
-        st = render_settings(pc, scene, warn)
-        sess = pc.Session(core_scene, st)
+        settings = render_settings(pc, scene, warn)
+        passes = enabled_passes(scene, view_layer)
+        known = pc.render_passes() if hasattr(pc, "render_passes") else {}
+        for p in [p for p in passes if p[0] not in known]:
+            warn(f"the {p[0]} pass needs a newer Pathlight core; it stays empty")
+            passes.remove(p)
+        if known:
+            settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
+        sess = pc.Session(core_scene, settings)
         dropped = core_scene.stats().get("dropped_triangles", 0)
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
         _report_focus(sess, warn)
+        for name, channels, chan_id, _, _ in passes:
+            engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _, _, width, height = render_border(scene)
-        _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit)
+        _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit,
+             passes=[p[0] for p in passes], bvh_view=scene.pathlight.debug_view == 'BVH',
+             layer=view_layer.name)
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
@@ -129,12 +181,15 @@ def _warner(engine):
     return warn
 
 
-def _run(engine, sess, width, height, time_limit):
+def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer=""):
+    # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     # With a render border, Blender's result is the border's size (it crops, or pastes the
     # border into the frame, itself): the film covers exactly that.
-    result = engine.begin_result(0, 0, width, height)
+    result = engine.begin_result(0, 0, width, height, layer=layer)
     try:
-        combined = result.layers[0].passes["Combined"]
+        render_layer = result.layers[0]
+        combined = render_layer.passes["Combined"]
+        targets = [(name, render_layer.passes.get(name)) for name in passes]
         sess.start()
         shown = -1
         stats_at = -1.0
@@ -143,7 +198,11 @@ def _run(engine, sess, width, height, time_limit):
             info = _progress_info(sess.progress(), time_limit)
             if info["samples_done"] != shown or finished:
                 # film(): float32 (H, W, 4), row 0 = bottom, which is also Blender's order.
-                combined.rect.foreach_set(sess.film().ravel())  # ~400x faster than `rect = `
+                image = _bvh_heat_map(engine, sess, finished) if bvh_view else sess.film()
+                combined.rect.foreach_set(image.ravel())  # ~400x faster than `rect = `
+                for name, target in targets:  # film_pass(): (H, W, channels), same order
+                    if target is not None:
+                        target.rect.foreach_set(sess.film_pass(name).ravel())
                 engine.update_result(result)
                 shown = info["samples_done"]
             engine.update_progress(info["samples_done"] / max(info["samples_total"], 1))
@@ -165,6 +224,32 @@ def _run(engine, sess, width, height, time_limit):
             sess.cancel()
             sess.wait(5.0)
         engine.end_result(result)
+
+
+# The BVH view's colour scale: nodes visited, from none (black) to the image's maximum (red).
+HEAT_STOPS = np.array([0.0, 0.2, 0.4, 0.6, 0.8, 1.0], np.float32)
+HEAT_COLORS = np.array([[0, 0, 0], [0, 0, 1], [0, 1, 1], [0, 1, 0], [1, 1, 0], [1, 0, 0]], np.float32)
+HEAT_SCALE = "black 0, blue, cyan, green, yellow, red = max"
+
+
+def heat_map(counts, scale_max):
+    """RGBA float32 heat map of counts (H, W) on the linear scale 0..scale_max (HEAT_SCALE)."""
+    t = np.clip(counts / max(float(scale_max), 1.0), 0.0, 1.0)
+    rgb = np.stack([np.interp(t, HEAT_STOPS, HEAT_COLORS[:, c]) for c in range(3)], axis=-1)
+    return np.concatenate([rgb, np.ones(t.shape + (1,))], axis=-1).astype(np.float32)
+
+
+def _bvh_heat_map(engine, sess, finished):
+    nodes = sess.film_pass("BVH Nodes")[..., 0]
+    peak = float(nodes.max()) if nodes.size else 0.0
+    if finished:
+        tris = sess.film_pass("BVH Triangles")[..., 0]
+        msg = (f"Pathlight BVH view: BVH nodes visited per camera ray, {HEAT_SCALE} = {peak:.0f} "
+               f"(mean {nodes.mean():.1f}); triangles tested: max {tris.max():.0f}, "
+               f"mean {tris.mean():.1f}. Raw counts in the BVH Nodes / BVH Triangles passes.")
+        log.info(msg)
+        engine.report({'INFO'}, msg)
+    return heat_map(nodes, peak)
 
 
 def _progress_info(progress, time_limit):

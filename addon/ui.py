@@ -60,6 +60,51 @@ class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
         layout.prop(settings, "use_schlick_fresnel")
 
 
+class PATHLIGHT_RENDER_PT_film(PathlightPanel, bpy.types.Panel):
+    bl_label = "Film"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(context.scene.pathlight, "film_exposure")
+        layout.prop(context.scene.render, "film_transparent", text="Transparent")
+
+
+class PATHLIGHT_RENDER_PT_debug(PathlightPanel, bpy.types.Panel):
+    bl_label = "Debug"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(context.scene.pathlight, "debug_view")
+
+
+class PATHLIGHT_VIEWLAYER_PT_passes(PathlightPanel, bpy.types.Panel):
+    """The passes Pathlight renders; the rest of Blender's pass switches do nothing for it."""
+    bl_label = "Passes"
+    bl_context = "view_layer"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        view_layer = context.view_layer
+        col = layout.column(heading="Data", align=True)
+        col.prop(view_layer, "use_pass_combined")
+        col.prop(view_layer, "use_pass_z")
+        col.prop(view_layer, "use_pass_position")
+        col.prop(view_layer, "use_pass_normal")
+        col.prop(view_layer.pathlight, "use_pass_denoising_data")
+        col.prop(view_layer.pathlight, "use_pass_sample_count")
+        col = layout.column(heading="Light", align=True)
+        col.prop(view_layer, "use_pass_emit", text="Emission")
+        col.prop(view_layer, "use_pass_environment")
+
+
 class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
     """Below Blender's DATA_PT_light (which shows only the light type for other engines)."""
     bl_label = "Light"
@@ -153,9 +198,10 @@ class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
         sub.prop(rd, "threads")
 
 
-classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths,
+classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_film,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
-           PATHLIGHT_RENDER_PT_performance, PATHLIGHT_LIGHT_PT_light)
+           PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
+           PATHLIGHT_VIEWLAYER_PT_passes)
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles
 # does: output, camera, lens, light, world context, ...) plus EEVEE's node-based material and

@@ -205,6 +205,9 @@ def test_border_renders_exactly_its_part_of_the_frame():
     st = pc.RenderSettings()
     st.width, st.height, st.samples, st.seed = 40, 30, 4, 7
     st.filter_type = "blackman_harris"
+    with_passes = hasattr(st, "passes")
+    if with_passes:
+        st.passes = ["Depth", "Normal"]
     full = pc.Session(s, st)
     full.start()
     while not full.wait(1.0):
@@ -218,6 +221,9 @@ def test_border_renders_exactly_its_part_of_the_frame():
     assert img.shape == (20, 17, 4)
     assert part.sample_counts().shape == (20, 17)
     assert np.array_equal(img, full.film()[5:25, 9:26])  # same sample streams, bit for bit
+    if with_passes:
+        for name in ("Depth", "Normal"):
+            assert np.array_equal(part.film_pass(name), full.film_pass(name)[5:25, 9:26]), name
 
 
 def test_camera_and_settings_validation():

@@ -132,7 +132,8 @@ def test_panels_draw_existing_properties():
             light = bpy.data.lights.new("L", light_type)
             if light_type == 'AREA':
                 light.shape = shape
-            context = type("Ctx", (), {"scene": scene, "light": light, "engine": "PATHLIGHT"})
+            context = type("Ctx", (), {"scene": scene, "light": light, "engine": "PATHLIGHT",
+                                       "view_layer": scene.view_layers[0]})
             for cls in ui.classes:
                 layout = Layout()
                 cls.draw(type("Panel", (), {"layout": layout})(), context)
@@ -141,7 +142,9 @@ def test_panels_draw_existing_properties():
     for name in ("samples", "adaptive_threshold", "adaptive_min_samples", "sampler", "seed",
                  "use_animated_seed", "max_bounces", "diffuse_bounces", "glossy_bounces",
                  "transmission_bounces", "energy", "exposure", "color", "shadow_soft_size",
-                 "angle", "shape", "size", "size_y", "use_shadow"):
+                 "angle", "shape", "size", "size_y", "use_shadow", "film_exposure",
+                 "film_transparent", "debug_view", "use_pass_z", "use_pass_denoising_data",
+                 "use_pass_sample_count"):
         assert name in shown, name
 
 

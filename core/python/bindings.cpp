@@ -373,6 +373,63 @@ py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins,
   return out;
 }
 
+// BVH work of a batch of rays (what the BVH debug view shows): nodes visited, triangles tested.
+py::tuple traversal_counts(const PyScene& self, const FloatArray& origins, const FloatArray& dirs,
+                           const py::object& tmax_obj) {
+  check_rays(self, origins, dirs);
+  const py::ssize_t n = origins.shape(0);
+  FloatArray tmax;
+  if (!tmax_obj.is_none()) {
+    tmax = tmax_obj.cast<FloatArray>();
+    if (tmax.ndim() != 1 || tmax.shape(0) != n) throw std::invalid_argument("tmax must have shape (N,)");
+  }
+  py::array_t<uint32_t> nodes(n), tris(n);
+  const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  const float* tm = tmax_obj.is_none() ? nullptr : tmax.data();
+  uint32_t *pn = nodes.mutable_data(), *pt = tris.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) {
+      TraversalCounters c;
+      Hit h;
+      self.scene->intersect(Ray{o[i], d[i], tm ? tm[i] : kInf}, h, &c);
+      pn[i] = c.nodes;
+      pt[i] = c.triangles;
+    }
+  }
+  return py::make_tuple(nodes, tris);
+}
+
+// The renderer's camera rays through raster positions (pixels from the bottom-left corner).
+py::tuple camera_rays(const PyScene& self, int width, int height, const FloatArray& xy) {
+  if (!self.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
+  if (width < 1 || height < 1 || width > 65536 || height > 65536) throw std::invalid_argument("bad resolution");
+  if (xy.ndim() != 2 || xy.shape(1) != 2) throw std::invalid_argument("xy must have shape (N, 2)");
+  const py::ssize_t n = xy.shape(0);
+  const Camera cam(self.scene->camera_desc(), width, height);
+  FloatArray org({n, py::ssize_t(3)}), dir({n, py::ssize_t(3)}), tmax(n);
+  Vec3* po = reinterpret_cast<Vec3*>(org.mutable_data());
+  Vec3* pd = reinterpret_cast<Vec3*>(dir.mutable_data());
+  float* pt = tmax.mutable_data();
+  const float* p = xy.data();
+  for (py::ssize_t i = 0; i < n; ++i) {
+    const Ray r = cam.generate(p[2 * i], p[2 * i + 1]);
+    po[i] = r.org;
+    pd[i] = r.dir;
+    pt[i] = r.tmax;
+  }
+  return py::make_tuple(org, dir, tmax);
+}
+
+Pass pass_by_name(const std::string& name) {
+  for (int p = 0; p < kPassCount; ++p)
+    if (name == pass_desc(Pass(p)).name) return Pass(p);
+  std::string known;
+  for (int p = 0; p < kPassCount; ++p) known += std::string(p ? ", " : "") + "'" + pass_desc(Pass(p)).name + "'";
+  throw std::invalid_argument("unknown render pass '" + name + "' (known: " + known + ")");
+}
+
 // Builds one BSDF from a name and parameters, for the BSDF tests (Mitsuba style).
 Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   auto f = [&](const char* k, float d) { return p.contains(k) ? p[k].cast<float>() : d; };
@@ -403,6 +460,20 @@ struct PySession {
   std::shared_ptr<Scene> scene;  // keeps the scene alive and locked against edits
   std::unique_ptr<Session> session;
 };
+
+FloatArray film_pass(PySession& self, const std::string& name) {
+  const Pass p = pass_by_name(name);
+  Film& f = self.session->film();
+  if (p != Pass::SampleCount && f.pass_offset(p) < 0)
+    throw std::invalid_argument("render pass '" + name + "' was not requested (RenderSettings.passes)");
+  FloatArray out({f.height(), f.width(), pass_desc(p).channels});
+  float* dst = out.mutable_data();
+  {
+    py::gil_scoped_release release;
+    f.read_pass(p, dst);
+  }
+  return out;
+}
 
 FloatArray film_rect(PySession& self, int x, int y, int w, int h) {
   Film& f = self.session->film();
@@ -616,7 +687,38 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("border_x", &RenderSettings::border_x)
       .def_readwrite("border_y", &RenderSettings::border_y)
       .def_readwrite("border_width", &RenderSettings::border_width)
-      .def_readwrite("border_height", &RenderSettings::border_height);
+      .def_readwrite("border_height", &RenderSettings::border_height)
+      .def_property(
+          "passes",
+          [](const RenderSettings& s) {
+            std::vector<std::string> names;
+            for (int p = 0; p < kPassCount; ++p)
+              if (s.passes & pass_bit(Pass(p))) names.emplace_back(pass_desc(Pass(p)).name);
+            return names;
+          },
+          [](RenderSettings& s, const std::vector<std::string>& names) {
+            uint32_t bits = 0;
+            for (const auto& n : names) bits |= pass_bit(pass_by_name(n));
+            s.passes = bits;
+          })
+      .def_readwrite("film_transparent", &RenderSettings::film_transparent)
+      .def_readwrite("exposure", &RenderSettings::exposure)
+      .def_property(
+          "debug_view", [](const RenderSettings& s) { return s.debug_view == DebugView::Bvh ? "bvh" : "none"; },
+          [](RenderSettings& s, const std::string& v) {
+            if (v == "none") s.debug_view = DebugView::None;
+            else if (v == "bvh") s.debug_view = DebugView::Bvh;
+            else throw std::invalid_argument("debug_view must be 'none' or 'bvh'");
+          });
+
+  m.def(
+      "render_passes",
+      [] {
+        py::dict d;
+        for (int p = 0; p < kPassCount; ++p) d[pass_desc(Pass(p)).name] = pass_desc(Pass(p)).channels;
+        return d;
+      },
+      "Every render pass the core can keep: {name: channels}, in the core's order.");
 
   py::class_<PyScene>(m, "Scene")
       .def(py::init<>())
@@ -850,7 +952,14 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim is -1 and t inf on a miss.")
       .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
-           "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).");
+           "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).")
+      .def("traversal_counts", &traversal_counts, py::arg("origins"), py::arg("directions"),
+           py::arg("tmax") = py::none(),
+           "BVH nodes visited and triangles tested by the closest-hit search of each ray: (nodes, triangles), "
+           "uint32 (N,). tmax: float (N,) or None (unbounded).")
+      .def("camera_rays", &camera_rays, py::arg("width"), py::arg("height"), py::arg("xy"),
+           "The render's camera rays through raster positions xy (N, 2), pixels from the bottom-left: "
+           "(origins (N,3), directions (N,3), tmax (N,)).");
 
   py::class_<PySession>(m, "Session")
       .def(py::init([](PyScene& scene, const RenderSettings& settings) {
@@ -929,5 +1038,7 @@ PYBIND11_MODULE(pathlight_core, m) {
              const Film& f = self.session->film();
              return film_rect(self, 0, 0, f.width(), f.height());
            })
-      .def("film_rect", &film_rect, py::arg("x"), py::arg("y"), py::arg("w"), py::arg("h"));
+      .def("film_rect", &film_rect, py::arg("x"), py::arg("y"), py::arg("w"), py::arg("h"))
+      .def("film_pass", &film_pass, py::arg("name"),
+           "One render pass as float32 (H, W, channels), row 0 = bottom (see render_passes()).");
 }

@@ -4,6 +4,7 @@
 #pragma once
 #include <cstdint>
 #include <algorithm>
+#include <cstring>
 #include <mutex>
 #include <vector>
 
@@ -15,9 +16,55 @@ struct Rgba {
   float r = 0, g = 0, b = 0, a = 0;
 };
 
+// Render passes besides Combined, named as Blender/Cycles name them so that the compositor's
+// Render Layers sockets and multilayer EXR layers line up. Each one the render asks for gets
+// its own running-mean plane (Sample Count excepted: it is the film's own sample counter).
+enum class Pass : int {
+  Depth,            // 1: distance along the camera's view axis (Cycles' Z), 1e10 where nothing was hit
+  Normal,           // 3: world shading normal, facing the camera ray
+  Position,         // 3: world position
+  Emit,             // 3: emission seen directly
+  Env,              // 3: the world seen directly
+  DenoisingNormal,  // 3: camera-space normal of the first rough surface (Cycles' denoising feature)
+  DenoisingAlbedo,  // 3: its albedo, times the specular albedo of the surfaces passed on the way
+  BvhNodes,         // 1: BVH nodes visited by the camera ray (debug view)
+  BvhTriangles,     // 1: triangles tested by the camera ray (debug view)
+  SampleCount,      // 1: samples taken in the pixel (not averaged)
+  Count
+};
+constexpr int kPassCount = int(Pass::Count);
+
+struct PassDesc {
+  const char* name;
+  int channels;
+  bool exposure;  // light passes scale with the film exposure, data passes do not
+};
+
+inline const PassDesc& pass_desc(Pass p) {
+  static const PassDesc table[kPassCount] = {
+      {"Depth", 1, false},           {"Normal", 3, false},           {"Position", 3, false},
+      {"Emit", 3, true},             {"Env", 3, true},               {"Denoising Normal", 3, false},
+      {"Denoising Albedo", 3, false}, {"BVH Nodes", 1, false},       {"BVH Triangles", 1, false},
+      {"Sample Count", 1, false},
+  };
+  return table[int(p)];
+}
+
+inline uint32_t pass_bit(Pass p) { return 1u << uint32_t(p); }
+
 class Film {
  public:
-  Film(int width, int height, int tile_size) : w_(width), h_(height), tile_(tile_size) {
+  // passes: a set of pass_bit()s; exposure scales Combined's RGB and the light passes on reading.
+  Film(int width, int height, int tile_size, uint32_t passes = 0, float exposure = 1.0f)
+      : w_(width), h_(height), tile_(tile_size), passes_(passes), exposure_(exposure) {
+    for (int p = 0; p < kPassCount; ++p) {
+      offset_[p] = -1;
+      if ((passes & pass_bit(Pass(p))) && Pass(p) != Pass::SampleCount) {
+        offset_[p] = stride_;
+        stride_ += pass_desc(Pass(p)).channels;
+      }
+    }
+    aux_.assign(size_t(w_) * size_t(h_) * size_t(stride_), 0.0f);  // empty without passes
     mean_.resize(size_t(w_) * size_t(h_));
     count_.assign(size_t(w_) * size_t(h_), 0u);
     m2_.assign(size_t(w_) * size_t(h_), 0.0f);
@@ -40,10 +87,20 @@ class Film {
   // so a copy never sees a half-written pixel and never stalls the renderer for long.
   std::mutex& tile_lock(int tile) { return locks_[size_t(tile)]; }
 
-  void add_sample(int x, int y, const Rgba& v) {
+  bool has_pass(Pass p) const { return (passes_ & pass_bit(p)) != 0; }
+  // Floats per pixel of all pass planes together, and where pass p starts (-1: not kept).
+  int aux_stride() const { return stride_; }
+  int pass_offset(Pass p) const { return offset_[int(p)]; }
+
+  // aux: aux_stride() floats of the pass planes' values for this sample (ignored without passes).
+  void add_sample(int x, int y, const Rgba& v, const float* aux = nullptr) {
     const size_t i = size_t(y) * size_t(w_) + size_t(x);
     const uint32_t n = ++count_[i];
     const float k = 1.0f / static_cast<float>(n);
+    if (stride_ > 0 && aux) {
+      float* a = &aux_[i * size_t(stride_)];
+      for (int c = 0; c < stride_; ++c) a[c] += (aux[c] - a[c]) * k;
+    }
     Rgba& m = mean_[i];
     // Welford's update of the luminance variance (luminance is linear in the RGB mean).
     const float l = 0.2126f * v.r + 0.7152f * v.g + 0.0722f * v.b;
@@ -120,12 +177,48 @@ class Film {
         const Rgba* src = &mean_[size_t(py) * size_t(w_) + size_t(ix0)];
         float* dst = out + (size_t(py - y) * size_t(w) + size_t(ix0 - x)) * 4;
         std::memcpy(dst, src, size_t(ix1 - ix0) * sizeof(Rgba));
+        if (exposure_ != 1.0f)
+          for (int px = 0; px < ix1 - ix0; ++px)
+            for (int c = 0; c < 3; ++c) dst[4 * px + c] *= exposure_;
       }
     }
   }
 
+  // Copies pass p of the whole film into `out` (H rows of W * channels floats, bottom-up), as
+  // Blender and Cycles present it: Depth is 1e10 where no sample hit anything, the light passes
+  // are scaled by the exposure, Sample Count is the count. False if the pass is not kept.
+  bool read_pass(Pass p, float* out) {
+    const int ch = pass_desc(p).channels;
+    const int off = offset_[int(p)];
+    if (p != Pass::SampleCount && off < 0) return false;
+    const float scale = pass_desc(p).exposure ? exposure_ : 1.0f;
+    for (int t = 0; t < tile_count(); ++t) {
+      int x0, y0, x1, y1;
+      tile_rect(t, x0, y0, x1, y1);
+      std::lock_guard<std::mutex> lk(locks_[size_t(t)]);
+      for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x) {
+          const size_t i = size_t(y) * size_t(w_) + size_t(x);
+          float* dst = out + i * size_t(ch);
+          if (p == Pass::SampleCount) {
+            dst[0] = float(count_[i]);
+            continue;
+          }
+          const float* src = &aux_[i * size_t(stride_) + size_t(off)];
+          for (int c = 0; c < ch; ++c) dst[c] = src[c] * scale;
+          if (p == Pass::Depth && dst[0] == 0.0f) dst[0] = 1e10f;  // Cycles' "nothing here"
+        }
+    }
+    return true;
+  }
+
  private:
   int w_, h_, tile_, tiles_x_, tiles_y_;
+  uint32_t passes_;
+  float exposure_;
+  int offset_[kPassCount];
+  int stride_ = 0;
+  std::vector<float> aux_;  // stride_ floats per pixel: the running means of the pass planes
   std::vector<Rgba> mean_;
   std::vector<uint32_t> count_;
   std::vector<float> m2_;

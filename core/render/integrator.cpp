@@ -50,9 +50,57 @@ inline Vec3 beer(Vec3 sigma, float t) {
   return {std::exp(-sigma.x * t), std::exp(-sigma.y * t), std::exp(-sigma.z * t)};
 }
 
+// How much a closure reflects and transmits in total (Cycles' bsdf_albedo, roughly): the
+// closure weight times the BSDF's own albedo, seen from wo.
+Vec3 closure_albedo(const Closure& c, Vec3 wo) {
+  if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) return c.weight * m->f0;
+  if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
+    const float F = d->fresnel(std::fabs(dot(wo, c.frame.n)));
+    float pr, pt;
+    d->lobe_probs(F, pr, pt);
+    return c.weight * (Vec3(pr) + d->transmission_tint * pt);
+  }
+  return c.weight;  // diffuse, transparent
+}
+
+// Cycles' threshold between specular-like and rough closures (on alpha, Blender's roughness^2).
+bool closure_is_rough(const Closure& c) {
+  if (std::holds_alternative<DiffuseBsdf>(c.bsdf)) return true;
+  if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) return m->alpha > 0.075f;
+  if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) return d->alpha > 0.075f;
+  return false;  // transparent
+}
+
+inline float average(Vec3 v) { return (v.x + v.y + v.z) * (1.0f / 3.0f); }
+
 }  // namespace
 
-Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c) {
+bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal, Vec3& diffuse_albedo,
+                        Vec3& specular_albedo) {
+  normal = diffuse_albedo = specular_albedo = Vec3(0.0f);
+  float sum = 0.0f, sum_rough = 0.0f;
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    const float w = std::fabs(average(c.weight));
+    normal += c.frame.n * w;
+    sum += w;
+    const Vec3 a = closure_albedo(c, wo);
+    if (closure_is_rough(c)) {
+      diffuse_albedo += a;
+      sum_rough += w;
+    } else {
+      specular_albedo += a;
+    }
+  }
+  // Mostly (75 % or more) specular: the features come from what is seen through it.
+  if (sum > 0.0f && !(sum_rough * 4.0f > sum)) return false;
+  if (sum > 0.0f) normal = normal / sum;
+  if (flip) normal = -normal;
+  return true;
+}
+
+Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
+                PathAovs* aov) {
   Vec3 L(0.0f), beta(1.0f);
   float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
@@ -63,6 +111,11 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
   bool emission_only = false;
   Medium medium;
   ClosureList cl;
+  // The camera ray and its continuations through Transparent BSDFs: what it finds is "seen
+  // directly" (transparent film, Emit, Env and the data passes).
+  bool direct = true;
+  bool want_data = aov != nullptr, want_features = aov != nullptr;
+  Vec3 feature_throughput(1.0f);
   for (int bounce = 0;;) {
     Hit hit;
     ++c.rays;
@@ -73,7 +126,12 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
       // Escaped: the world, weighted against the environment light sample that could find it.
       float w = 1.0f;
       if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
-      L += beta * scene.background(ray.dir) * w;
+      const Vec3 bg = scene.background(ray.dir);
+      if (direct && aov) {
+        aov->environment = beta * bg;
+        if (s.transparent_background) aov->alpha = clampf(1.0f - average(beta), 0.0f, 1.0f);
+      }
+      if (!(direct && s.transparent_background)) L += beta * bg * w;
       break;
     }
     SurfacePoint sp;
@@ -91,6 +149,31 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
         w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, t, std::fabs(dot(sp.ng, wo))));
       }
       L += beta * cl.emission * w;
+      if (direct && aov) aov->emission += beta * cl.emission;
+    }
+    if (aov && (want_data || want_features)) {
+      const bool flip = dot(sp.ng, wo) < 0.0f;  // normals face the viewer, as Cycles' sd->N
+      if (want_data && direct) {
+        Vec3 transparency(0.0f);
+        for (int i = 0; i < cl.n; ++i)
+          if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(i)].bsdf)) transparency += cl.c[size_t(i)].weight;
+        if (average(transparency) <= 0.5f) {  // Cycles' default pass alpha threshold
+          want_data = false;
+          aov->hit = true;
+          aov->position = sp.p;
+          aov->normal = flip ? -sp.ns : sp.ns;
+        }
+      }
+      if (want_features) {
+        Vec3 n, diffuse, specular;
+        if (denoising_features(cl, wo, flip, n, diffuse, specular)) {
+          want_features = false;
+          aov->denoising_normal = n;
+          aov->denoising_albedo = feature_throughput * diffuse;
+        } else {
+          feature_throughput *= specular;
+        }
+      }
     }
     if (emission_only || cl.n == 0) break;
 
@@ -175,6 +258,8 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     if (bs.flags & kTransparentLobe) {
       if (++transparent > 256) break;
     } else {
+      direct = false;
+      want_data = false;
       int& count = (bs.flags & kDiffuseLobe) ? diffuse : (bs.flags & kTransmit) ? transmission : glossy;
       const int limit = (bs.flags & kDiffuseLobe) ? s.diffuse_bounces
                         : (bs.flags & kTransmit)  ? s.transmission_bounces

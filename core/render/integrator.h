@@ -17,12 +17,41 @@ struct IntegratorSettings {
   int transmission_bounces = 1024;
   bool use_nee = true;
   int rr_start_bounce = 3;  // Russian roulette from this bounce on
+  // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not
+  // in the returned radiance; it becomes alpha instead. It still lights the scene.
+  bool transparent_background = false;
 };
 
 struct PathCounters {
   uint64_t rays = 0;
 };
 
-Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c);
+// What a camera path saw, for render passes (AOVs). trace_path fills it only when the caller
+// passes one, so a render without passes does none of this work.
+struct PathAovs {
+  // First surface that is at least half opaque (Cycles' default pass alpha threshold):
+  bool hit = false;
+  Vec3 position{0.0f};  // world position
+  Vec3 normal{0.0f};    // world shading normal, facing the camera ray
+  // Denoising features as Cycles defines them: the first surface that is not mostly specular
+  // (at most 75 % of its closure weight in closures with alpha <= 0.075), reached through
+  // mirrors, glass and Transparent BSDFs; albedo is the diffuse-like closures' albedo times the
+  // specular albedo of the surfaces passed on the way; normal is their weighted mean normal
+  // (world space, facing the ray; the session turns it into camera space).
+  Vec3 denoising_albedo{0.0f};
+  Vec3 denoising_normal{0.0f};
+  Vec3 emission{0.0f};     // emission seen directly (through Transparent BSDFs only), Cycles' Emit
+  Vec3 environment{0.0f};  // the world seen directly (through Transparent BSDFs only), Cycles' Env
+  float alpha = 1.0f;      // 1 - transmittance to the world through Transparent BSDFs (transparent film)
+};
+
+Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
+                PathAovs* aov = nullptr);
+
+// The denoising features of one shaded point, split as Cycles does: `diffuse_albedo` of the
+// closures rougher than alpha 0.075 and `specular_albedo` of the others; returns true when the
+// point is rough enough (over 25 % of the closure weight) to end the search.
+bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal, Vec3& diffuse_albedo,
+                        Vec3& specular_albedo);
 
 }  // namespace pl

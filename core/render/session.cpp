@@ -21,7 +21,11 @@ void validate(const RenderSettings& s) {
   rlimit rl{};  // an address-space limit (ulimit -v) caps it too
   if (getrlimit(RLIMIT_AS, &rl) == 0 && rl.rlim_cur != RLIM_INFINITY)
     memory = memory > 0.0 ? std::min(memory, double(rl.rlim_cur)) : double(rl.rlim_cur);
-  if (memory > 0.0) max_pixels = std::min(max_pixels, 0.5 * memory / 52.0);
+  // Pass planes add a running mean and its copies (~12 bytes) per channel.
+  int pass_channels = 0;
+  for (int p = 0; p < kPassCount; ++p)
+    if (effective_passes(s) & pass_bit(Pass(p))) pass_channels += pass_desc(Pass(p)).channels;
+  if (memory > 0.0) max_pixels = std::min(max_pixels, 0.5 * memory / (52.0 + 12.0 * pass_channels));
   if (s.width > 65536 || s.height > 65536 || double(s.width) * double(s.height) > max_pixels)
     throw std::invalid_argument("resolution " + std::to_string(s.width) + "x" + std::to_string(s.height) +
                                 " is too large (at most 65536 per side and " +
@@ -43,6 +47,14 @@ void validate(const RenderSettings& s) {
         s.border_x > s.width - s.border_width || s.border_y > s.height - s.border_height)
       throw std::invalid_argument("the render border must be a non-empty rectangle inside the frame");
   }
+  if (!(s.exposure >= 0.0f) || !std::isfinite(s.exposure)) throw std::invalid_argument("exposure must be finite and >= 0");
+  if (s.passes >= (1u << kPassCount)) throw std::invalid_argument("unknown render pass");
+}
+
+uint32_t effective_passes(const RenderSettings& s) {
+  uint32_t p = s.passes;
+  if (s.debug_view == DebugView::Bvh) p |= pass_bit(Pass::BvhNodes) | pass_bit(Pass::BvhTriangles);
+  return p;
 }
 
 namespace {
@@ -54,7 +66,7 @@ int film_height(const RenderSettings& s) { return s.border_height > 0 ? s.border
 Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings)
     : scene_(std::move(scene)),
       settings_((validate(settings), settings)),
-      film_(film_width(settings), film_height(settings), settings.tile_size) {
+      film_(film_width(settings), film_height(settings), settings.tile_size, effective_passes(settings), settings.exposure) {
   if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
   const CameraDesc& cam = scene_->camera_desc();
   camera_ = Camera(cam, settings_.width, settings_.height);
@@ -79,6 +91,17 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     region_x_ = settings_.border_x;
     region_y_ = settings_.border_y;
   }
+  {  // the same orthonormal frame as Camera's (Blender ignores the camera's scale)
+    const Mat4& m = scene_->camera_desc().matrix_world;
+    view_origin_ = {m.m[0][3], m.m[1][3], m.m[2][3]};
+    view_right_ = normalize(Vec3{m.m[0][0], m.m[1][0], m.m[2][0]});
+    view_up_ = Vec3{m.m[0][1], m.m[1][1], m.m[2][1]};
+    view_up_ = normalize(view_up_ - view_right_ * dot(view_up_, view_right_));
+    view_forward_ = -cross(view_right_, view_up_);  // the camera looks down its local -Z
+  }
+  // The debug view is a deterministic picture of the BVH: one ray per pixel is all it takes.
+  total_samples_ = settings_.debug_view == DebugView::Bvh ? 1 : settings_.samples;
+  integrator_.transparent_background = settings_.film_transparent;
   integrator_.max_bounces = settings_.max_bounces;
   integrator_.use_nee = settings_.use_nee;
   integrator_.diffuse_bounces = settings_.diffuse_bounces;
@@ -144,7 +167,7 @@ bool Session::wait(double timeout_s) {
 SessionProgress Session::progress() const {
   SessionProgress p;
   p.samples_done = samples_done_.load();
-  p.samples_total = settings_.samples;
+  p.samples_total = total_samples_;
   p.elapsed_s = elapsed();
   p.cancelled = cancel_.load();
   p.finished = finished_.load();
@@ -170,11 +193,37 @@ std::string Session::error() const {
   return error_;
 }
 
+void Session::write_aux(const PathAovs& a, float* out) const {
+  auto put = [&](Pass p, Vec3 v) {
+    const int off = film_.pass_offset(p);
+    if (off < 0) return;
+    const int ch = pass_desc(p).channels;
+    for (int c = 0; c < ch; ++c) out[off + c] = std::isfinite(v[c]) ? v[c] : 0.0f;
+  };
+  // Misses add 0, as in Cycles: Depth reads 1e10 only where no sample hit anything.
+  const float depth = a.hit ? dot(a.position - view_origin_, view_forward_) : 0.0f;
+  put(Pass::Depth, Vec3(depth));
+  put(Pass::Normal, a.normal);
+  put(Pass::Position, a.position);
+  put(Pass::Emit, a.emission);
+  put(Pass::Env, a.environment);
+  // Camera space as Cycles writes it: x right, y up, z away from the camera (facing: z < 0).
+  const Vec3 n = a.denoising_normal;
+  put(Pass::DenoisingNormal, {dot(n, view_right_), dot(n, view_up_), dot(n, view_forward_)});
+  put(Pass::DenoisingAlbedo, a.denoising_albedo);
+}
+
 void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
   int x0, y0, x1, y1;
   film_.tile_rect(tile, x0, y0, x1, y1);
   const int tw = x1 - x0, th = y1 - y0;
   std::vector<Rgba> local(size_t(tw) * size_t(th));
+  // Pass values of one sample per pixel (nothing without passes), and the path outputs that
+  // feed them: only asked of trace_path when a pass or the transparent film needs them.
+  const size_t stride = size_t(film_.aux_stride());
+  std::vector<float> local_aux(size_t(tw) * size_t(th) * stride);
+  const bool want_aovs = stride > 0 || settings_.film_transparent;
+  const bool bvh_view = settings_.debug_view == DebugView::Bvh;
   PathCounters counters;
   uint64_t nonfinite = 0, paths = 0;
   const bool adaptive = min_samples_ > 0;
@@ -189,9 +238,23 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
           out.a = -1.0f;  // marks "no sample"
           continue;
         }
+        const int fx = x + region_x_, fy = y + region_y_;  // in the full frame
+        float* aux = stride ? &local_aux[(size_t(y - y0) * size_t(tw) + size_t(x - x0)) * stride] : nullptr;
+        if (bvh_view) {
+          // The pixel centre's camera ray, counted by the same traversal that renders.
+          TraversalCounters tc;
+          Hit hit;
+          scene_->intersect(camera_.generate_pinhole(float(fx) + 0.5f, float(fy) + 0.5f), hit, &tc);
+          std::fill(aux, aux + stride, 0.0f);
+          aux[film_.pass_offset(Pass::BvhNodes)] = float(tc.nodes);
+          aux[film_.pass_offset(Pass::BvhTriangles)] = float(tc.triangles);
+          out = {0.0f, 0.0f, 0.0f, 1.0f};
+          ++paths;
+          continue;
+        }
+        PathAovs aovs;
         // One independent stream per (seed, pixel, sample): thread- and pass-independent, and
         // keyed by the full-frame pixel, so a border renders exactly its part of the frame.
-        const int fx = x + region_x_, fy = y + region_y_;
         const uint64_t pixel = uint64_t(fy) * uint64_t(settings_.width) + uint64_t(fx);
         Sampler sampler(settings_.sampler, settings_.seed, pixel, uint32_t(s));
         const Vec2 j = sampler.get2d();  // dimension 0: position in the pixel (filter)
@@ -199,20 +262,23 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
         // same streams for their paths.
         const Vec2 lens = camera_.has_aperture() ? sampler.get2d() : Vec2{0.5f, 0.5f};
         const Ray ray = camera_.generate(float(fx) + filter_.jitter(j.x), float(fy) + filter_.jitter(j.y), lens);
-        const Vec3 L = trace_path(*scene_, ray, sampler, integrator_, counters);
+        const Vec3 L = trace_path(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
         ++paths;
+        const float alpha = std::isfinite(aovs.alpha) ? aovs.alpha : 1.0f;
         if (is_finite(L)) {
-          out = {L.x, L.y, L.z, 1.0f};
+          out = {L.x, L.y, L.z, alpha};
         } else {  // dropped and counted: one bad path must not poison a pixel forever
-          out = {0.0f, 0.0f, 0.0f, 1.0f};
+          out = {0.0f, 0.0f, 0.0f, alpha};
           ++nonfinite;
         }
+        if (aux) write_aux(aovs, aux);
       }
     std::lock_guard<std::mutex> lk(film_.tile_lock(tile));
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
         const Rgba& v = local[size_t(y - y0) * size_t(tw) + size_t(x - x0)];
-        if (v.a >= 0.0f) film_.add_sample(x, y, v);
+        if (v.a >= 0.0f)
+          film_.add_sample(x, y, v, stride ? &local_aux[(size_t(y - y0) * size_t(tw) + size_t(x - x0)) * stride] : nullptr);
       }
     // Convergence is judged at fixed sample counts, so the result stays deterministic.
     const int n = s + 1;
@@ -230,7 +296,7 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
 void Session::run() {
   try {
     pool_ = std::make_unique<ThreadPool>(settings_.threads);
-    const int total = settings_.samples;
+    const int total = total_samples_;
     double sec_per_sample = 0.0;
     while (samples_done_.load() < total && !cancel_.load() && active_.load() > 0) {
       const double now = elapsed();

@@ -17,6 +17,10 @@
 
 namespace pl {
 
+// Bvh: instead of light transport, one camera ray through each pixel centre records the BVH
+// nodes it visits and the triangles it tests (passes BvhNodes and BvhTriangles).
+enum class DebugView { None, Bvh };
+
 struct RenderSettings {
   int width = 0, height = 0;
   int samples = 64;
@@ -35,7 +39,14 @@ struct RenderSettings {
   // Render border: only this rectangle of the width x height frame (pixels from the
   // bottom-left) is rendered, and the film is its size; border_width 0 = the whole frame.
   int border_x = 0, border_y = 0, border_width = 0, border_height = 0;
+  uint32_t passes = 0;            // render passes to keep: pass_bit()s (film.h)
+  bool film_transparent = false;  // the world seen directly becomes alpha 0 (Cycles' Transparent film)
+  float exposure = 1.0f;          // linear multiplier of Combined and the light passes (Cycles' film_exposure)
+  DebugView debug_view = DebugView::None;
 };
+
+// The passes a render keeps: the requested ones plus those a debug view needs.
+uint32_t effective_passes(const RenderSettings& s);
 
 // Throws std::invalid_argument with a readable message for settings that cannot be rendered.
 void validate(const RenderSettings& s);
@@ -77,6 +88,8 @@ class Session {
  private:
   void run();
   void render_tile(int tile, int s0, int s1, int thread);
+  // Lays out one sample's pass values as the film's planes expect them.
+  void write_aux(const PathAovs& a, float* out) const;
   double elapsed() const;
 
   std::shared_ptr<const Scene> scene_;
@@ -86,6 +99,8 @@ class Session {
   int region_x_ = 0, region_y_ = 0;  // film pixel (0, 0) in the full frame
   float focus_distance_ = 0.0f;
   int autofocus_ = 0;
+  Vec3 view_origin_, view_right_, view_up_, view_forward_;  // camera frame, for Depth and Denoising Normal
+  int total_samples_ = 0;
   IntegratorSettings integrator_;
   Film film_;
   std::unique_ptr<ThreadPool> pool_;
