@@ -109,9 +109,10 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   integrator_.transmission_bounces = settings_.transmission_bounces;
   if (settings_.adaptive_threshold > 0.0f) {
     // Enough samples to see noisy features before any pixel may stop (Cycles' idea).
-    min_samples_ = settings_.adaptive_min_samples > 0
-                       ? settings_.adaptive_min_samples
-                       : std::max(16, static_cast<int>(4.0f / std::sqrt(settings_.adaptive_threshold)));
+    // Clamped in float before the cast: a tiny threshold must not overflow int.
+    const float auto_min = std::min(4.0f / std::sqrt(settings_.adaptive_threshold), 1e9f);
+    min_samples_ = settings_.adaptive_min_samples > 0 ? settings_.adaptive_min_samples
+                                                      : std::max(16, static_cast<int>(auto_min));
     min_samples_ = std::min(min_samples_, settings_.samples);
     check_every_ = std::max(1, min_samples_ / 4);
   }
