@@ -850,8 +850,8 @@ README_BENCH_BEGIN, README_BENCH_END = "<!-- bench-table:begin -->", "<!-- bench
 
 
 def update_readme_benchmarks(sections, started, extra):
-    """The README's benchmark table: the first table of each section this run wrote, under the
-    section's heading, stamped with date, machine and commit (the full report stays in docs/)."""
+    """The README's benchmark table: the first table of each section, under the section's heading,
+    stamped with date, machine and commit of this run (the full report stays in docs/)."""
     readme = ROOT / "README.md"
     text = readme.read_text()
     if README_BENCH_BEGIN not in text or README_BENCH_END not in text:
@@ -861,10 +861,13 @@ def update_readme_benchmarks(sections, started, extra):
             f"{time.strftime('%Y-%m-%d', time.localtime(started))}, {machine_description()}, "
             f"commit {git_commit()}. Full report: [docs/benchmarks.md](docs/benchmarks.md).", ""]
     for path in sections:
-        if path.stat().st_mtime < started:
-            continue
+        # A section this run did not rewrite (`bench --only`, or its script failed) keeps its
+        # table, marked as older, rather than vanishing from the README.
+        stale = path.stat().st_mtime < started
         sec = path.read_text().splitlines()
         heading = next((l.lstrip("#").strip() for l in sec if l.startswith("#")), path.stem)
+        if stale:
+            heading += " (not rerun by this run: from an earlier one, see docs/benchmarks.md)"
         table, seen = [], False
         for line in sec:
             if line.startswith("|"):

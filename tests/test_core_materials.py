@@ -71,14 +71,20 @@ def test_beer_law_through_an_index_matched_box():
     assert (img[..., :3] <= expected + 1e-4).all()
 
 
-def textured_plane(interp):
+def checker(high=1.0, low=0.0, alpha=1.0):
+    tex = np.full((4, 4, 4), low, np.float32)
+    tex[..., 3] = alpha
+    tex[::2, ::2, :3] = high   # a checker with 1-texel squares
+    tex[1::2, 1::2, :3] = high
+    return tex
+
+
+def textured_plane(interp, tex=None, srgb=False, unassociate=None):
     s = pc.Scene()
-    tex = np.zeros((4, 4, 4), np.float32)
-    tex[..., 3] = 1
-    tex[::2, ::2, :3] = 1.0   # a checker with 1-texel squares
-    tex[1::2, 1::2, :3] = 1.0
-    img_id = s.add_image(tex)
-    prog = [("uv", 0, 0), ("image", 1, 0, img_id, interp, "REPEAT"), ("closure", "emission", None, {"color": 1})]
+    tex = checker() if tex is None else tex
+    img_id = s.add_image(tex, srgb=True) if srgb else s.add_image(tex)
+    op = ("image", 1, 0, img_id, interp, "REPEAT") + (() if unassociate is None else (unassociate,))
+    prog = [("uv", 0, 0), op, ("closure", "emission", None, {"color": 1})]
     m = s.add_shader("tex", prog)
     pos, tris = quad((-1, 0, -1), (2, 0, 0), (0, 0, 2))
     uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
@@ -105,6 +111,39 @@ def test_texture_closest_and_linear():
     # the tent over 1/8 texel: 1 - 2/16 + ...), texel boundaries blend towards 0.5.
     assert np.abs(linear[4::8, 4::8] - centres).max() < 0.15
     assert abs(linear[4, 8] - 0.5) < 0.1 and len(np.unique(np.round(linear, 2))) > 10
+
+
+def srgb_to_linear(c):
+    c = np.asarray(c, np.float64)
+    return np.where(c < 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def test_srgb_textures_are_filtered_before_decoding():
+    """Cycles keeps 8-bit sRGB textures encoded, interpolates the encoded values and decodes
+    each lookup: texel centres read the decoded texel, a boundary between 0.9 and 0.1 reads
+    the decoded mean of the encoded values (about 0.21), not the mean of the decoded ones (0.40)."""
+    tex = checker(0.9, 0.1)
+    closest = textured_plane("CLOSEST", tex, srgb=True)
+    expect = np.where(np.array([[1, 0, 1, 0], [0, 1, 0, 1]] * 2) == 1, *srgb_to_linear([0.9, 0.1]))
+    assert np.allclose(closest[4::8, 4::8], expect, rtol=1e-5)
+    linear = textured_plane("LINEAR", tex, srgb=True)
+    as_linear = textured_plane("LINEAR", srgb_to_linear(tex).astype(np.float32))
+    # Pixels 7 and 8 straddle the boundary between texels 0 and 1 (each 1/8 texel wide).
+    boundary = linear[4, 7:9].mean()
+    assert abs(boundary - srgb_to_linear(0.5)) < 0.03, boundary
+    assert as_linear[4, 7:9].mean() > boundary + 0.15
+
+
+def test_image_unassociates_after_filtering():
+    """With the Alpha output linked Cycles divides the filtered (associated) colour by the
+    filtered alpha: a uniform straight colour stays uniform across texels of different alpha."""
+    tex = np.zeros((4, 4, 4), np.float32)
+    tex[..., 3] = np.where(checker()[..., 0] == 1.0, 1.0, 0.25)
+    tex[..., :3] = 0.6 * tex[..., 3:4]  # associated
+    straight = textured_plane("LINEAR", tex, unassociate=True)
+    assert np.allclose(straight[2:30, 2:30], 0.6, rtol=1e-4)
+    assoc = textured_plane("LINEAR", tex, unassociate=False)
+    assert assoc.min() < 0.3 and assoc.max() - assoc.min() > 0.25  # 0.6 x alpha, filtered
 
 
 def test_transparent_card_and_its_shadow():
@@ -170,7 +209,7 @@ def test_mix_of_diffuse_and_glossy_weights():
 def test_bad_programs_raise():
     s = pc.Scene()
     for prog in ([("nonsense", 0)], [("const", 99, (1,))], [("image", 0, 0, 5, "LINEAR", "REPEAT")],
-                 [("closure", "velvet", None, {})], [("math", 0, 0, 0, "TANGENT", False)],
+                 [("closure", "velvet", None, {})], [("math", 0, 0, 0, "HYPOTENUSE", False)],
                  [("mapping", 0, 0, np.zeros((2, 2)))], [("uv", 0, 9)]):
         with pytest.raises((ValueError, RuntimeError)):
             s.add_shader("bad", prog)
@@ -178,3 +217,205 @@ def test_bad_programs_raise():
         s.add_image(np.zeros((4, 4, 3), np.float32))
     # NaN constants become 0 rather than poisoning renders.
     s.add_shader("nan", [("const", 0, (np.nan, 1.0, 1.0)), ("closure", "diffuse", None, {"color": 0})])
+
+
+# ---------------------------------------------------------------- value ops of issue 3
+
+import math  # noqa: E402
+
+from blender_util import load_addon  # noqa: E402
+
+load_addon()
+from addon.export import shader as sh  # noqa: E402  (the compiler's constant folding)
+
+
+def emitted(ops, tilt=0.0, size=3, eye_dist=20.0, texspace=None, matrix=None):
+    """The emission an (uncoloured) program's register 'out' gives at the image centre: a
+    plane (normal towards the camera, tilted by `tilt` radians about x) fills the view."""
+    s = pc.Scene()
+    out = max(op[1] for op in ops if op[0] != "closure") if ops else 0
+    m = s.add_shader("ops", list(ops) + [("closure", "emission", None, {"color": out})])
+    c, sn = math.cos(tilt), math.sin(tilt)
+    pos, tris = quad((-50, 0, -50), (100, 0, 0), (0, 100 * sn, 100 * c))
+    pos -= pos.mean(axis=0)  # centred on the camera axis
+    uvs = {0: np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)}
+    if matrix is not None:  # the same world plane, from an object space
+        pos = (np.linalg.inv(matrix) @ np.c_[pos, np.ones(len(pos))].T).T[:, :3].astype(np.float32)
+    mesh = s.add_mesh(pos, tris, None, None, [m], uvs=uvs, texspace=texspace)
+    s.add_instance(mesh, np.eye(4, dtype=np.float32) if matrix is None else matrix.astype(np.float32))
+    s.set_camera(camera(pc, (0, -eye_dist, 0), (0, 0, 0), lens=5000.0))  # nearly parallel rays
+    img, _ = render(pc, s, size, size, samples=1)
+    return img[size // 2, size // 2, :3]
+
+
+def consts(*values):
+    return [("const", i, tuple(v) if isinstance(v, (tuple, list)) else (v,)) for i, v in enumerate(values)]
+
+
+@pytest.mark.parametrize("conversion", ["RGB_TO_HSV", "HSV_TO_RGB", "RGB_TO_HSL", "HSL_TO_RGB"])
+def test_colour_conversions_match_the_compilers_folding(conversion):
+    for c in ((0.8, 0.3, 0.2), (0.2, 0.9, 0.4), (0.1, 0.2, 0.7), (0.5, 0.5, 0.5), (0.95, 0.0, 0.6)):
+        got = emitted(consts(c + (1.0,)) + [("color_space", 1, 0, conversion)])
+        assert got == pytest.approx(sh._COLOR_SPACES[conversion](c), abs=1e-5), c
+
+
+def test_colour_adjustment_ops_match_the_compilers_folding():
+    c = (0.8, 0.3, 0.2, 1.0)
+    got = emitted(consts(c, 0.6, 0.5, 1.2, 0.75) + [("hsv", 5, 0, 1, 2, 3, 4)])
+    assert got == pytest.approx(sh._hsv_node(c[:3], 0.6, 0.5, 1.2, 0.75), abs=1e-5)
+    got = emitted(consts(c, 2.2) + [("gamma", 2, 0, 1)])
+    assert got == pytest.approx(sh._gamma(c[:3], 2.2), abs=1e-5)
+    got = emitted(consts(c, 0.1, 0.4) + [("bright_contrast", 3, 0, 1, 2)])
+    assert got == pytest.approx([max(1.4 * x - 0.1, 0.0) for x in c[:3]], abs=1e-5)
+    for lo, hi, kind in ((0.2, 0.5, "MINMAX"), (0.5, 0.2, "RANGE"), (0.5, 0.2, "MINMAX")):
+        got = emitted(consts(0.7, lo, hi) + [("clamp", 3, 0, 1, 2, kind)])
+        assert got[0] == pytest.approx(sh._clamp(0.7, lo, hi, kind))
+    for mode in ("LINEAR", "STEPPED", "SMOOTHSTEP", "SMOOTHERSTEP"):
+        for v in (0.3, 0.62, 0.83, 1.4):  # away from float-rounded step edges
+            args = (v, 0.5, 1.0, 3.0, 7.0, 4.0)
+            got = emitted(consts(*args) + [("map_range", 6, 0, 1, 2, 3, 4, 5, mode, True)])
+            assert got[0] == pytest.approx(sh._map_range(*args, mode, True), abs=1e-5), (mode, v)
+        # The vector variant: per component, its own parameters (a zero range gives to_min).
+        vec = [(0.3, 0.62, 1.4), (0.5, 0.0, 1.0), (1.0, 0.0, 1.0), (3.0, 0.1, 0.2), (7.0, 0.9, 0.5),
+               (4.0, 2.0, 3.0)]
+        got = emitted(consts(*[x + (0.0,) for x in vec]) + [("map_range_vector", 6, 0, 1, 2, 3, 4, 5, mode, True)])
+        assert got == pytest.approx(sh._map_range_vector(*vec, mode, True), abs=1e-5), mode
+
+
+@pytest.mark.parametrize("op", sorted(sh.VECTOR_MATH_OPS))
+def test_vector_math_matches_the_compilers_folding(op):
+    a, b, c, scale = (0.7, -0.4, 2.5), (1.5, 0.3, -0.8), (0.2, 0.9, 0.1), 0.6
+    expect = sh._vector_math(op, a, b, c, scale)
+    expect = (expect,) * 3 if op in sh.VECTOR_MATH_VALUE_OPS else expect
+    # Emission shows only positive values: look at the result and at its negation.
+    prog = consts(a + (0.0,), b + (0.0,), c + (0.0,), scale, -1.0) + [
+        ("vector_math", 5, 0, 1, 2, 3, op)]
+    pos = emitted(prog)
+    neg = emitted(prog + [("vector_math", 6, 5, 5, 5, 4, "SCALE")])
+    got = np.where(np.asarray(expect) >= 0, pos, -neg)
+    assert got == pytest.approx(expect, abs=1e-4)
+
+
+def test_ramp_op_matches_the_compilers_lookup():
+    table = np.stack([np.linspace(0, 1, 8), np.linspace(1, 0, 8) ** 2,
+                      (np.arange(8) % 2).astype(float), np.ones(8)], axis=1).astype(np.float32)
+    for f in (-0.3, 0.0, 0.1, 0.5, 0.93, 1.0, 1.2):
+        for interp, extrap in ((True, False), (False, False), (True, True)):
+            got = emitted(consts(f) + [("ramp", 1, 0, table, interp, extrap, 0.0, 1.0, False)])
+            expect = np.clip(sh.ramp_lookup(table.astype(np.float64), f, interp, extrap)[:3], 0, None)
+            assert got == pytest.approx(expect, abs=1e-5), (f, interp, extrap)
+    # Per-channel lookups over a range (RGB Curves).
+    got = emitted(consts((0.5, 1.0, 2.0, 1.0)) + [("ramp", 1, 0, table, True, False, 0.0, 2.0, True)])
+    expect = [sh.ramp_lookup(table.astype(np.float64), x / 2.0, True, False)[i]
+              for i, x in enumerate((0.5, 1.0, 2.0))]
+    assert got == pytest.approx(expect, abs=1e-5)
+
+
+def test_fresnel_and_layer_weight_follow_the_view_angle():
+    def fresnel(cos_i, eta):  # the Fresnel equations for unpolarised light, from the angles
+        sin_t = math.sqrt(max(0.0, 1 - cos_i ** 2)) / eta
+        cos_t = math.sqrt(1 - sin_t ** 2)
+        rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+        rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+        return 0.5 * (rs * rs + rp * rp)
+    for deg in (0.0, 45.0, 70.0):
+        cos_i = math.cos(math.radians(deg))
+        got = emitted(consts(1.5) + [("fresnel", 1, 0, None)], tilt=math.radians(deg))
+        assert got[0] == pytest.approx(fresnel(cos_i, 1.5), rel=5e-3, abs=1e-4), deg  # pixel jitter: +-0.07 degrees
+        got = emitted(consts(0.25) + [("layer_weight", 1, 0, None, "FACING")], tilt=math.radians(deg))
+        assert got[0] == pytest.approx(1 - cos_i ** 0.5, abs=2e-3), deg
+        got = emitted(consts(0.3) + [("layer_weight", 1, 0, None, "FRESNEL")], tilt=math.radians(deg))
+        assert got[0] == pytest.approx(fresnel(cos_i, 1 / 0.7), rel=5e-3, abs=1e-4), deg  # pixel jitter: +-0.07 degrees
+
+
+def test_bump_tilts_the_normal_by_the_height_slope():
+    # Height = slope * x over the plane y = 0 facing -y (the camera): the bumped normal is
+    # normalize(n - distance * grad h) = normalize((-distance * slope, -1, 0)).
+    for slope, distance, invert in ((-0.5, 1.0, False), (-2.0, 0.3, False), (0.5, 1.0, True)):
+        prog = [("position", 0), ("position", 1, 1), ("position", 2, 2), ("const", 3, (slope,)),
+                ("separate", 4, 0, 0), ("separate", 5, 1, 0), ("separate", 6, 2, 0),
+                ("math", 7, 4, 3, "MULTIPLY", False), ("math", 8, 5, 3, "MULTIPLY", False),
+                ("math", 9, 6, 3, "MULTIPLY", False), ("const", 10, (1.0,)), ("const", 11, (distance,)),
+                ("bump", 12, 7, 8, 9, 10, 11, None, invert),
+                ("vector_math", 13, 12, 12, 12, 10, "ABSOLUTE")]
+        d = -distance if invert else distance
+        n = np.array([-d * slope, -1.0, 0.0])
+        got = emitted(prog)
+        assert got == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=2e-3), (slope, distance)
+    # A uv height (u grows along +x): the same through the uv offsets.
+    prog = [("uv", 0, 0), ("uv", 1, 0, 1), ("uv", 2, 0, 2), ("const", 3, (-0.01,)),
+            ("separate", 4, 0, 0), ("separate", 5, 1, 0), ("separate", 6, 2, 0),
+            ("math", 7, 4, 3, "MULTIPLY", False), ("math", 8, 5, 3, "MULTIPLY", False),
+            ("math", 9, 6, 3, "MULTIPLY", False), ("const", 10, (1.0,)),
+            ("bump", 11, 7, 8, 9, 10, 10, None, False),
+            ("vector_math", 12, 11, 11, 11, 10, "ABSOLUTE")]
+    n = np.array([0.01 / 100.0, -1.0, 0.0])  # u spans 100 units
+    assert emitted(prog) == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=1e-5)
+
+
+def test_object_and_generated_coordinates_per_instance():
+    # The plane's centre (world origin) in object space, and in its texture space: the
+    # bounding box of the object-space vertices (Blender's automatic one) unless given.
+    m = np.array([[0.0, -2.0, 0.0, 3.0], [1.0, 0.0, 0.0, 5.0], [0.0, 0.0, 0.5, 7.0], [0, 0, 0, 1]])
+    centre = np.linalg.inv(m) @ np.array([0.0, 0.0, 0.0, 1.0])
+    got = emitted([("object", 0), ("vector_math", 1, 0, 0, 0, 0, "ABSOLUTE")], matrix=m)
+    assert got == pytest.approx(np.abs(centre[:3]), abs=0.06)  # pixel jitter: +-0.024 world
+    # Auto texture space: the box's centre maps to 0.5 (where it has extent; y is flat: 0.5 too).
+    assert emitted([("generated", 0)], matrix=m) == pytest.approx((0.5, 0.5, 0.5), abs=1e-3)
+    loc, size = (centre[0] + 10.0, centre[1], centre[2] - 20.0), (40.0, 2.0, 80.0)
+    expect = (np.asarray(centre[:3]) - loc) / size * 0.5 + 0.5
+    got = emitted([("generated", 0)], matrix=m, texspace=(loc, size))
+    assert got == pytest.approx(expect, abs=5e-3)
+    # Object normals: the world normal (0, -1, 0) seen from the object: M^T n, normalised.
+    n = m[:3, :3].T @ np.array([0.0, -1.0, 0.0])
+    got = emitted([("object_normal", 0), ("vector_math", 1, 0, 0, 0, 0, "ABSOLUTE")], matrix=m)
+    assert got == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=1e-4)
+
+
+@pytest.mark.parametrize("op", sorted(sh.MATH_OPS))
+def test_math_ops_match_the_compilers_folding(op):
+    for a, b, c in ((0.7, 2.5, 0.3), (-1.3, 0.4, 0.5), (2.0, -0.75, 1.5), (0.25, 0.25, 0.0)):
+        expect = sh._math(op, a, b, c)
+        name = "math3" if op in sh.MATH_OPS_3 else "math"
+        operands = (0, 1, 2) if name == "math3" else (0, 1)
+        prog = consts(a, b, c, -1.0) + [(name, 4) + operands + (op, False)]
+        # Emission shows positive values only: the result and its negation.
+        pos = emitted(prog)[0]
+        neg = emitted(prog + [("math", 5, 4, 3, "MULTIPLY", False)])[0]
+        got = pos if expect >= 0 else -neg
+        assert got == pytest.approx(expect, rel=1e-5, abs=1e-5), (op, a, b, c)
+
+
+def test_value_ops_with_extreme_inputs_render_finite():
+    """Every value op of issue 3 with zero, tiny, huge and negative inputs (also as normals
+    and closure inputs): the render stays finite, with no dropped samples."""
+    table = np.array([[0, 0, 0, 1], [1e30, -1e30, 3e38, 1]], np.float32)
+    bad = [0.0, 1e-30, -1e-30, 3e38, -3e38, 1.0]
+    heads = [("position", 0), ("uv", 1, 0, 1), ("object", 2, 2), ("generated", 3), ("object_normal", 4)]
+    for k, x in enumerate(bad):
+        y = bad[(k + 1) % len(bad)]
+        ops = heads + [("const", 5, (x, y, -x, 1.0)), ("const", 6, (y,)), ("const", 7, (x,))]
+        tail = [("fresnel", 8, 6, 5), ("layer_weight", 9, 7, 5, "FACING"),
+                ("bump", 10, 6, 7, 8, 9, 7, 5, True), ("ramp", 11, 5, table, True, True, x, y, True),
+                ("ramp", 12, 7, table, False, False, 0.0, 1.0, False), ("color_space", 13, 5, "RGB_TO_HSV"),
+                ("color_space", 14, 13, "HSV_TO_RGB"), ("color_space", 15, 5, "HSL_TO_RGB"),
+                ("hsv", 16, 5, 6, 7, 6, 7), ("gamma", 17, 5, 6), ("bright_contrast", 18, 5, 6, 7),
+                ("clamp", 19, 6, 7, 6, "RANGE"), ("map_range", 20, 6, 7, 7, 6, 7, 6, "STEPPED", True),
+                ("vector_math", 21, 5, 10, 0, 6, "REFRACT"), ("vector_math", 22, 5, 21, 2, 7, "WRAP"),
+                ("math3", 23, 6, 7, 6, "SMOOTH_MIN", False), ("math", 24, 6, 7, "PINGPONG", False),
+                ("math", 25, 7, 6, "LOGARITHM", False), ("separate", 26, 22, 1), ("combine", 27, 23, 24, 25, True)]
+        ops += tail
+        s = pc.Scene()
+        closures = [("closure", "diffuse", 27, {"color": 11, "normal": 10}),
+                    ("closure", "glossy", 14, {"roughness": 26, "normal": 21}),
+                    ("closure", "principled", 16, {"base_color": 17, "roughness": 19, "normal": 22}),
+                    ("closure", "emission", 20, {"color": 18})]
+        m = s.add_shader("extreme", ops + closures)
+        pos, tris = quad((-2, -2, 0), (4, 0, 0), (0, 4, 0))
+        uv = np.array([[[0, 0], [x, 0], [1, y]], [[0, 0], [1, 1], [0, 1]]], np.float32)
+        mesh = s.add_mesh(pos, tris, None, None, [m], uvs={0: uv}, texspace=((x, y, 0), (y, 0, x)))
+        s.add_instance(mesh, np.eye(4, dtype=np.float32))
+        s.set_world_color((1.0, 1.0, 1.0))
+        s.set_camera(camera(pc, (0, -3, 3), (0, 0, 0)))
+        img, stats = render(pc, s, 6, 6, samples=2)
+        assert np.isfinite(img).all() and stats["nonfinite_samples"] == 0, (x, y)

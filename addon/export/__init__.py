@@ -96,6 +96,8 @@ def to_core(pc, data, warn=None):
     ids = add_materials(scene, data.materials, data.images, warn)
     for mesh, slots in zip(data.meshes, data.material_slots):
         uvs = {"uvs": mesh.uvs} if mesh.uvs else {}  # older core builds take no uvs
+        if mesh.texspace is not None:
+            uvs["texspace"] = mesh.texspace
         mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
                                  corner_normals=mesh.corner_normals,
                                  material_indices=mesh.material_indices,

@@ -35,6 +35,14 @@ def rgb_of(buf):
     return np.repeat(buf[..., :1], 3, axis=2) if buf.shape[2] < 3 else np.ascontiguousarray(buf[..., :3])
 
 
+def is_srgb_bytes(image):
+    """True for a byte image that Cycles keeps sRGB-encoded (filtered before decoding): not a
+    float buffer, not data, not a linear space. Spaces other than sRGB are approximated so."""
+    space = image.colorspace_settings
+    return not (image.is_float or space.is_data or space.name == "Non-Color"
+                or space.name in LINEAR_SPACES)
+
+
 def to_scene_linear(image, rgb):
     """Blender gives float images (.exr, .hdr) already in scene linear and byte images as raw
     byte/255 values in the image's colour space, linearised here as Cycles does.

@@ -130,7 +130,8 @@ def add_materials(scene, materials, images, warn):
                  "materials are reduced to their base and emission colours")
         return [scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
                 for m in materials]
-    image_ids = [scene.add_image(image.pixels) for image in images]
+    image_ids = [scene.add_image(image.pixels, srgb=image.srgb) if image.srgb
+                 else scene.add_image(image.pixels) for image in images]
     ids = []
     for m in materials:
         if m.program is None:

@@ -17,6 +17,8 @@ class MeshData:
     matrices: list = field(default_factory=list)  # float32 (4, 4) object-to-world, one per instance
     uvs: dict = field(default_factory=dict)  # global uv-set index -> float32 (T, 3, 2) per corner
     missing_uv_maps: list = field(default_factory=list)  # UV map names its materials need
+    # Blender's texture space ((location), (size)) for generated coordinates, or None.
+    texspace: tuple = None
 
 
 def _int_attribute(mesh, name, size):
@@ -140,9 +142,14 @@ def _export_object(obj, materials, uv_names=None):
         if not materials:
             materials = list(mesh.materials)
         uvs, missing = mesh_uvs(mesh, uv_names(materials)) if uv_names else ({}, [])
+        # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
+        # non-finite vertices make it non-finite: then the core's own box of the finite ones.
+        texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
+        if not np.isfinite(texspace).all():
+            texspace = None
     finally:
         obj.to_mesh_clear()
     # Blender and Cycles clamp out-of-range material indices to the last slot.
     np.clip(material_indices, 0, max(len(materials) - 1, 0), out=material_indices)
     return MeshData(obj.original.name, positions, triangles, normals, material_indices, materials,
-                    uvs=uvs, missing_uv_maps=missing)
+                    uvs=uvs, missing_uv_maps=missing, texspace=texspace)

@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from .image import read_pixels, rgb_of, to_scene_linear
+from .image import is_srgb_bytes, read_pixels, rgb_of, to_scene_linear
 
 MAX_REGISTERS = 64
 MAX_UV_SETS = 8
@@ -26,7 +26,12 @@ LUMA = (0.2126, 0.7152, 0.0722)
 MISSING_TEXTURE = (1.0, 0.0, 1.0, 1.0)  # Cycles' magenta for an image that cannot be loaded
 
 MATH_OPS = {"ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER", "MINIMUM", "MAXIMUM",
-            "LESS_THAN", "GREATER_THAN", "ABSOLUTE"}
+            "LESS_THAN", "GREATER_THAN", "ABSOLUTE", "LOGARITHM", "SQRT", "INVERSE_SQRT",
+            "EXPONENT", "SIGN", "ROUND", "FLOOR", "CEIL", "TRUNC", "FRACT", "MODULO",
+            "FLOORED_MODULO", "SNAP", "PINGPONG", "SINE", "COSINE", "TANGENT", "ARCSINE",
+            "ARCCOSINE", "ARCTANGENT", "ARCTAN2", "SINH", "COSH", "TANH", "RADIANS", "DEGREES",
+            "MULTIPLY_ADD", "COMPARE", "SMOOTH_MIN", "SMOOTH_MAX", "WRAP"}
+MATH_OPS_3 = {"MULTIPLY_ADD", "COMPARE", "SMOOTH_MIN", "SMOOTH_MAX", "WRAP"}  # read a third value
 MIX_BLENDS = {"MIX", "MULTIPLY", "ADD", "SUBTRACT", "SCREEN", "DIVIDE", "DIFFERENCE", "DARKEN",
               "LIGHTEN", "OVERLAY"}
 
@@ -67,8 +72,62 @@ ONE = const_float(1.0)
 ZERO = const_float(0.0)
 
 
-def _math(op, a, b):
+def _smooth_min(a, b, c):
+    if c == 0.0:
+        return min(a, b)
+    h = max(c - abs(a - b), 0.0) / c
+    return min(a, b) - h * h * h * c / 6.0
+
+
+def _math(op, a, b, c=0.0):
     """The core's math op on floats (Blender's safe variants), for constant folding."""
+    try:
+        v = _math_unchecked(op, a, b, c)
+    except (OverflowError, ValueError, ZeroDivisionError):
+        v = 0.0
+    return v if math.isfinite(v) else 0.0
+
+
+_MATH_EXTRA = {
+    "LOGARITHM": lambda a, b, c: (math.log(a) / math.log(b)
+                                  if a > 0.0 and b > 0.0 and math.log(b) != 0.0 else 0.0),
+    "SQRT": lambda a, b, c: math.sqrt(a) if a > 0.0 else 0.0,
+    "INVERSE_SQRT": lambda a, b, c: 1.0 / math.sqrt(a) if a > 0.0 else 0.0,
+    "EXPONENT": lambda a, b, c: math.exp(a),
+    "SIGN": lambda a, b, c: 0.0 if a == 0.0 else math.copysign(1.0, a),
+    "ROUND": lambda a, b, c: math.floor(a + 0.5),
+    "FLOOR": lambda a, b, c: math.floor(a),
+    "CEIL": lambda a, b, c: math.ceil(a),
+    "TRUNC": lambda a, b, c: float(math.trunc(a)),
+    "FRACT": lambda a, b, c: a - math.floor(a),
+    "MODULO": lambda a, b, c: math.fmod(a, b) if b != 0.0 else 0.0,
+    "FLOORED_MODULO": lambda a, b, c: a - math.floor(a / b) * b if b != 0.0 else 0.0,
+    "SNAP": lambda a, b, c: math.floor(a / b) * b if b != 0.0 else 0.0,
+    "PINGPONG": lambda a, b, c: (abs(((a - b) / (b * 2.0)) % 1.0 * b * 2.0 - b)
+                                 if b != 0.0 else 0.0),
+    "SINE": lambda a, b, c: math.sin(a),
+    "COSINE": lambda a, b, c: math.cos(a),
+    "TANGENT": lambda a, b, c: math.tan(a),
+    "ARCSINE": lambda a, b, c: math.asin(min(max(a, -1.0), 1.0)),
+    "ARCCOSINE": lambda a, b, c: math.acos(min(max(a, -1.0), 1.0)),
+    "ARCTANGENT": lambda a, b, c: math.atan(a),
+    "ARCTAN2": lambda a, b, c: math.atan2(a, b),
+    "SINH": lambda a, b, c: math.sinh(a),
+    "COSH": lambda a, b, c: math.cosh(a),
+    "TANH": lambda a, b, c: math.tanh(a),
+    "RADIANS": lambda a, b, c: a * math.pi / 180.0,
+    "DEGREES": lambda a, b, c: a * 180.0 / math.pi,
+    "MULTIPLY_ADD": lambda a, b, c: a * b + c,
+    "COMPARE": lambda a, b, c: 1.0 if a == b or abs(a - b) <= max(c, 1.1920929e-7) else 0.0,
+    "SMOOTH_MIN": _smooth_min,
+    "SMOOTH_MAX": lambda a, b, c: -_smooth_min(-a, -b, c),
+    "WRAP": lambda a, b, c: a - (b - c) * math.floor((a - c) / (b - c)) if b != c else c,
+}
+
+
+def _math_unchecked(op, a, b, c):
+    if op in _MATH_EXTRA:
+        return _MATH_EXTRA[op](a, b, c)
     if op == "ADD":
         v = a + b
     elif op == "SUBTRACT":
@@ -97,7 +156,7 @@ def _math(op, a, b):
         v = abs(a)
     else:
         raise ValueError(op)
-    return v if math.isfinite(v) else 0.0
+    return v
 
 
 def _mix(op, a, b, f):
@@ -128,6 +187,246 @@ def _mix(op, a, b, f):
 
 def _sat(x):
     return min(max(x, 0.0), 1.0)
+
+
+RAMP_TABLE_SIZE = 256  # Cycles' RAMP_TABLE_SIZE
+VECTOR_MATH_OPS = {"ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "CROSS_PRODUCT",
+                   "PROJECT", "REFLECT", "REFRACT", "FACEFORWARD", "DOT_PRODUCT", "DISTANCE",
+                   "LENGTH", "SCALE", "NORMALIZE", "ABSOLUTE", "POWER", "SIGN", "MINIMUM",
+                   "MAXIMUM", "FLOOR", "CEIL", "FRACTION", "MODULO", "WRAP", "SNAP", "SINE",
+                   "COSINE", "TANGENT"}
+VECTOR_MATH_VALUE_OPS = {"DOT_PRODUCT", "DISTANCE", "LENGTH"}
+
+
+def ramp_lookup(table, f, interpolate, extrapolate):
+    """Cycles' rgb_ramp_lookup (the core's Ramp op), for constant folding."""
+    n = len(table)
+    if extrapolate and (f < 0.0 or f > 1.0):
+        t0, t1 = (table[0], table[1]) if f < 0.0 else (table[-1], table[-2])
+        k = (-f if f < 0.0 else f - 1.0) * (n - 1)
+        return [a + (a - b) * k for a, b in zip(t0, t1)]
+    f = _sat(f) * (n - 1) if math.isfinite(f) else 0.0
+    i = min(max(int(f), 0), n - 1)
+    w = f - i
+    if interpolate and w > 0.0 and i + 1 < n:
+        return [a + (b - a) * w for a, b in zip(table[i], table[i + 1])]
+    return list(table[i])
+
+
+def _rgb_to_hsv(c):
+    r, g, b = c
+    cmax, cmin = max(r, g, b), min(r, g, b)
+    delta = cmax - cmin
+    s = delta / cmax if cmax != 0.0 else 0.0
+    h = 0.0
+    if s != 0.0:
+        cr, cg, cb = ((cmax - x) / delta for x in (r, g, b))
+        h = (cb - cg) if r == cmax else (2.0 + cr - cb) if g == cmax else (4.0 + cg - cr)
+        h /= 6.0
+        if h < 0.0:
+            h += 1.0
+    return (h, s, cmax)
+
+
+def _hsv_to_rgb(c):
+    h, s, v = c
+    if s == 0.0:
+        return (v, v, v)
+    if h == 1.0:
+        h = 0.0
+    h *= 6.0
+    i = math.floor(h)
+    f = h - i
+    p, q, t = v * (1.0 - s), v * (1.0 - s * f), v * (1.0 - s * (1.0 - f))
+    return [(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v)][int(i)] if 0 <= i < 5 \
+        else (v, p, q)
+
+
+def _rgb_to_hsl(c):
+    r, g, b = c
+    cmax, cmin = max(r, g, b), min(r, g, b)
+    lum = min(1.0, (cmax + cmin) / 2.0)
+    h = s = 0.0
+    if cmax != cmin:
+        d = cmax - cmin
+        s = d / (2.0 - cmax - cmin) if lum > 0.5 else d / (cmax + cmin)
+        if cmax == r:
+            h = (g - b) / d + (6.0 if g < b else 0.0)
+        elif cmax == g:
+            h = (b - r) / d + 2.0
+        else:
+            h = (r - g) / d + 4.0
+    return (h / 6.0, s, lum)
+
+
+def _hsl_to_rgb(c):
+    h, s, lum = c
+    nr = _sat(abs(h * 6.0 - 3.0) - 1.0)
+    ng = _sat(2.0 - abs(h * 6.0 - 2.0))
+    nb = _sat(2.0 - abs(h * 6.0 - 4.0))
+    chroma = (1.0 - abs(2.0 * lum - 1.0)) * s
+    return tuple((x - 0.5) * chroma + lum for x in (nr, ng, nb))
+
+
+_COLOR_SPACES = {"RGB_TO_HSV": _rgb_to_hsv, "HSV_TO_RGB": _hsv_to_rgb,
+                 "RGB_TO_HSL": _rgb_to_hsl, "HSL_TO_RGB": _hsl_to_rgb}
+
+
+def _hsv_node(color, hue, saturation, value, fac):
+    """Cycles' svm_node_hsv."""
+    h, s, v = _rgb_to_hsv(color)
+    h = h + hue + 0.5
+    out = _hsv_to_rgb((h - math.floor(h), _sat(s * saturation), v * value))
+    return [max(fac * o + (1.0 - fac) * i, 0.0) for o, i in zip(out, color)]
+
+
+def _gamma(color, g):
+    if g == 0.0:
+        return (1.0, 1.0, 1.0)
+    out = []
+    for x in color:
+        try:
+            y = math.pow(x, g) if x > 0.0 else x
+        except (OverflowError, ValueError):
+            y = 0.0
+        out.append(y if math.isfinite(y) else 0.0)
+    return out
+
+
+def _clamp(v, lo, hi, clamp_type):
+    if clamp_type == 'RANGE' and lo > hi:
+        lo, hi = hi, lo
+    return min(max(v, lo), hi)
+
+
+def _smoothstep(e0, e1, x):
+    if x < e0:
+        return 0.0
+    if x >= e1:
+        return 1.0
+    t = (x - e0) / (e1 - e0)
+    return (3.0 - 2.0 * t) * t * t
+
+
+def _smootherstep(e0, e1, x):
+    x = _sat((x - e0) / (e1 - e0) if e1 != e0 else 0.0)
+    return x * x * x * (x * (x * 6.0 - 15.0) + 10.0)
+
+
+def _map_range(v, f0, f1, t0, t1, steps, mode, clamp):
+    """Cycles' svm_node_map_range (float), with Blender's clamp of Linear and Stepped."""
+    if f1 == f0:
+        return 0.0
+    if mode in ('LINEAR', 'STEPPED'):
+        factor = (v - f0) / (f1 - f0)
+        if mode == 'STEPPED':
+            factor = math.floor(factor * (steps + 1.0)) / steps if steps > 0.0 else 0.0
+    elif mode == 'SMOOTHSTEP':
+        factor = 1.0 - _smoothstep(f1, f0, v) if f0 > f1 else _smoothstep(f0, f1, v)
+    else:
+        factor = 1.0 - _smootherstep(f1, f0, v) if f0 > f1 else _smootherstep(f0, f1, v)
+    r = t0 + factor * (t1 - t0)
+    if clamp and mode in ('LINEAR', 'STEPPED'):
+        r = min(max(r, min(t0, t1)), max(t0, t1))
+    return r if math.isfinite(r) else 0.0
+
+
+def _map_range_vector(v, f0, f1, t0, t1, steps, mode, clamp):
+    """Cycles' svm_node_vector_map_range: per component, with a safe division."""
+    out = []
+    for x, a, b, c, e, n in zip(v, f0, f1, t0, t1, steps):
+        f = (x - a) / (b - a) if b != a else 0.0
+        if mode == 'STEPPED':
+            f = math.floor(f * (n + 1.0)) / n if n > 0.0 else 0.0
+        elif mode == 'SMOOTHSTEP':
+            f = _sat(f)
+            f = (3.0 - 2.0 * f) * f * f
+        elif mode == 'SMOOTHERSTEP':
+            f = _sat(f)
+            f = f * f * f * (f * (f * 6.0 - 15.0) + 10.0)
+        r = c + f * (e - c)
+        if clamp and mode in ('LINEAR', 'STEPPED'):
+            r = min(max(r, min(c, e)), max(c, e))
+        out.append(r if math.isfinite(r) else 0.0)
+    return tuple(out)
+
+
+def _vector_math(op, a, b, c, scale):
+    """Blender's Vector Math on constants (the core's VectorMath op)."""
+    a, b, c = (np.asarray(x, np.float64) for x in (a, b, c))
+    safe_div = lambda x, y: np.where(y != 0.0, x / np.where(y != 0.0, y, 1.0), 0.0)  # noqa: E731
+    with np.errstate(all='ignore'):
+        if op == "DOT_PRODUCT":
+            r = float(a @ b)
+        elif op == "DISTANCE":
+            r = float(np.linalg.norm(a - b))
+        elif op == "LENGTH":
+            r = float(np.linalg.norm(a))
+        else:
+            if op == "ADD":
+                v = a + b
+            elif op == "SUBTRACT":
+                v = a - b
+            elif op == "MULTIPLY":
+                v = a * b
+            elif op == "DIVIDE":
+                v = safe_div(a, b)
+            elif op == "MULTIPLY_ADD":
+                v = a * b + c
+            elif op == "CROSS_PRODUCT":
+                v = np.cross(a, b)
+            elif op == "PROJECT":
+                bb = b @ b
+                v = b * (a @ b) / bb if bb != 0.0 else np.zeros(3)
+            elif op == "REFLECT":
+                n = b / np.linalg.norm(b) if (b @ b) > 0.0 else None
+                v = a if n is None else a - 2.0 * (a @ n) * n
+            elif op == "REFRACT":
+                n = b / np.linalg.norm(b) if (b @ b) > 0.0 else b
+                d = n @ a
+                k = 1.0 - scale * scale * (1.0 - d * d)
+                v = np.zeros(3) if k < 0.0 else scale * a - (scale * d + math.sqrt(k)) * n
+            elif op == "FACEFORWARD":
+                v = a if (b @ c) < 0.0 else -a
+            elif op == "SCALE":
+                v = a * scale
+            elif op == "NORMALIZE":
+                ln = np.linalg.norm(a)
+                v = a / ln if ln != 0.0 else np.zeros(3)
+            elif op == "ABSOLUTE":
+                v = np.abs(a)
+            elif op == "POWER":
+                v = np.array([_math("POWER", x, y) for x, y in zip(a, b)])
+            elif op == "SIGN":
+                v = np.sign(a)
+            elif op == "MINIMUM":
+                v = np.minimum(a, b)
+            elif op == "MAXIMUM":
+                v = np.maximum(a, b)
+            elif op == "FLOOR":
+                v = np.floor(a)
+            elif op == "CEIL":
+                v = np.ceil(a)
+            elif op == "FRACTION":
+                v = a - np.floor(a)
+            elif op == "MODULO":
+                v = np.where(b != 0.0, np.fmod(a, np.where(b != 0.0, b, 1.0)), 0.0)
+            elif op == "WRAP":
+                rng = b - c
+                v = np.where(rng != 0.0, a - rng * np.floor((a - c) / np.where(rng != 0.0, rng, 1.0)), c)
+            elif op == "SNAP":
+                v = np.floor(safe_div(a, b)) * b
+            elif op == "SINE":
+                v = np.sin(a)
+            elif op == "COSINE":
+                v = np.cos(a)
+            elif op == "TANGENT":
+                v = np.tan(a)
+            else:
+                raise ValueError(op)
+            v = np.where(np.isfinite(v), v, 0.0)
+            return tuple(float(x) for x in v)
+    return r if math.isfinite(r) else 0.0
 
 
 def euler_matrix(xyz):
@@ -184,32 +483,25 @@ class UvSets:
 @dataclass
 class ImageData:
     name: str
-    pixels: np.ndarray  # float32 (H, W, 4) scene-linear RGBA, row 0 = bottom
+    pixels: np.ndarray  # float32 (H, W, 4) RGBA, row 0 = bottom: scene linear, or sRGB-encoded
+    srgb: bool = False  # pixels hold sRGB-encoded colour, decoded by the core after filtering
 
 
 @dataclass
 class _LoadedImage:
-    assoc: np.ndarray  # float32 (H, W, 4): colour multiplied by alpha (Cycles' Color output)
+    assoc: np.ndarray  # float32 (H, W, 4): colour multiplied by alpha, as Cycles stores it
     has_alpha: bool  # any alpha below 1
     unassociate: bool = True  # False: colour and alpha independent (data, channel packed)
+    srgb: bool = False  # assoc holds 8-bit sRGB-encoded colour (byte/255), associated in bytes
     indices: dict = field(default_factory=dict)  # variant -> index in ImageTable.images
-
-    @property
-    def straight(self):
-        """Colour divided by alpha (Cycles' Color output when Alpha is linked): made on demand,
-        not kept (images can be large)."""
-        if not self.has_alpha or not self.unassociate:
-            return self.assoc
-        a = self.assoc[..., 3:4]
-        rgb = np.where(a > 0, self.assoc[..., :3] / np.maximum(a, 1e-12), 0.0)
-        return np.ascontiguousarray(np.concatenate([rgb, a], axis=2), np.float32)
 
 
 class ImageTable:
     """Images of the scene, each bpy Image read once (cached by pointer). Each variant of an
-    image that programs use becomes one ImageData: "color" (what the Color output gives when
-    Alpha is not linked: associated alpha, as Cycles), "straight" (Color when Alpha is linked)
-    and "alpha" (the alpha in all four channels, so that it reads as a float register)."""
+    image that programs use becomes one ImageData: "color" (the texels as Cycles stores them:
+    associated alpha; the Color output divides by the filtered alpha when the Alpha output is
+    linked, an operand of the image op) and "alpha" (the alpha in all four channels, so that it
+    reads as a float register)."""
 
     def __init__(self):
         self.images = []  # ImageData, indexed by the program's image operands
@@ -227,25 +519,25 @@ class ImageTable:
         return loaded
 
     def index(self, image, loaded, variant):
-        if not loaded.has_alpha and variant == "straight":
-            variant = "color"  # all alpha 1: no difference
         if variant not in loaded.indices:
             if variant == "alpha":
                 a = loaded.assoc[..., 3:4]
-                pixels = np.ascontiguousarray(np.repeat(a, 4, axis=2))
+                pixels, srgb = np.ascontiguousarray(np.repeat(a, 4, axis=2)), False
             else:
-                pixels = loaded.assoc if variant == "color" else loaded.straight
+                pixels, srgb = loaded.assoc, loaded.srgb
             loaded.indices[variant] = len(self.images)
             suffix = "" if variant == "color" else f" ({variant})"
-            self.images.append(ImageData(image.name + suffix, pixels))
+            self.images.append(ImageData(image.name + suffix, pixels, srgb))
         return loaded.indices[variant]
 
 
 def _load_image(image, problems):
     """_LoadedImage for a bpy Image, or None with a problem noted. Blender gives float images
     (.exr, .hdr) in scene linear with associated alpha, and byte images as raw byte/255 values
-    in the image's colour space with straight alpha: byte images are linearised here and
-    multiplied by alpha for the Color output (Cycles does the same)."""
+    in the image's colour space with straight alpha (image.pixels does not convert byte
+    images). As Cycles does: byte sRGB images stay sRGB-encoded bytes, associated in bytes
+    ((c * a) / 255, integer), for the core to filter encoded and decode per lookup; other
+    byte images are linearised here and associated; data images are never associated."""
     buf, why = read_pixels(image)
     if buf is None:
         problems.append(why + " (magenta)")
@@ -257,6 +549,21 @@ def _load_image(image, problems):
 
     space = image.colorspace_settings
     is_data = space.is_data or space.name == "Non-Color"
+    mode = image.alpha_mode
+    associate = not is_data and mode not in {'CHANNEL_PACKED', 'NONE'}
+    if is_srgb_bytes(image):
+        if space.name != "sRGB":
+            problems.append(f"colour space '{space.name}' of byte image '{image.name}' is not "
+                            "supported (decoded as sRGB)")
+        to_byte = lambda x: np.clip(np.round(np.nan_to_num(x) * 255.0), 0, 255).astype(np.uint32)  # noqa: E731
+        c, a = to_byte(rgb), to_byte(alpha)
+        if mode == 'NONE':
+            a[:] = 255
+        if associate:
+            c = c * a[..., None] // 255
+        assoc = np.concatenate([c, a[..., None]], axis=2).astype(np.float32) / np.float32(255.0)
+        return _LoadedImage(np.ascontiguousarray(assoc), bool((a < 255).any()), associate, True)
+
     rgb, note = to_scene_linear(image, rgb)
     if note:
         problems.append(note)
@@ -266,11 +573,8 @@ def _load_image(image, problems):
         if not is_data:
             np.maximum(rgb, 0.0, out=rgb)
     alpha = np.clip(np.nan_to_num(alpha, nan=1.0), 0.0, 1.0)
-
-    mode = image.alpha_mode
     if mode == 'NONE':
         alpha[:] = 1.0
-    associate = not is_data and mode not in {'CHANNEL_PACKED', 'NONE'}
     if associate and not image.is_float:  # byte images are straight; float ones associated
         rgb = rgb * alpha[..., None]
     assoc = np.ascontiguousarray(np.concatenate([rgb, alpha[..., None]], axis=2), np.float32)
@@ -309,6 +613,9 @@ class ShaderCompiler:
         self.problems = []
         self.uv_used = {}
         self._links = {}  # tree pointer -> {to_socket pointer: link}
+        # Where reads of the shading point happen: 0 the point, 1 / 2 the Bump node's offsets
+        # (its Height sub-graph is compiled once per offset, as Cycles duplicates it).
+        self.bump_state = 0
 
     # -------------------------------------------------- problems
 
@@ -375,11 +682,15 @@ class ShaderCompiler:
 
     # -------------------------------------------------- arithmetic (folded when constant)
 
-    def math(self, op, a, b, clamp=False):
+    def math(self, op, a, b, clamp=False, c=None):
         a, b = self.as_float(a), self.as_float(b)
-        if a.is_const and b.is_const:
-            v = _math(op, a.const[0], b.const[0])
+        c = ZERO if c is None else self.as_float(c)
+        if a.is_const and b.is_const and c.is_const:
+            v = _math(op, a.const[0], b.const[0], c.const[0])
             return const_float(_sat(v) if clamp else v)
+        if op in MATH_OPS_3:
+            return self.emit("float", "math3", self.reg(a), self.reg(b), self.reg(c), op,
+                             bool(clamp))
         return self.emit("float", "math", self.reg(a), self.reg(b), op, bool(clamp))
 
     def mix(self, blend, fac, a, b, clamp=False, kind="color"):
@@ -554,7 +865,7 @@ class ShaderCompiler:
         return self.socket_default(socket, kind)
 
     def node_output(self, node, out, ctx, consumer, kind):
-        key = (node.as_pointer(), out.identifier, self.ctx_key(ctx))
+        key = (node.as_pointer(), out.identifier, self.ctx_key(ctx), self.bump_state)
         if key in self.cache:
             return self.cache[key]
         if key in self.visiting:
@@ -598,9 +909,26 @@ class ShaderCompiler:
     def uv_value(self, name, what):
         """Val of the UV coordinates of a UV map (one "uv" op per set)."""
         k = self.uv(name, what)
-        key = ("uv", k)
+        key = ("uv", k, self.bump_state)
         if key not in self.cache:
-            self.cache[key] = self.emit("vector", "uv", k)
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", "uv", k, *extra)
+        return self.cache[key]
+
+    def object_coords(self, which):
+        """Val of the object-space ("object") or texture-space ("generated") position."""
+        key = (which, self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", which, *extra)
+        return self.cache[key]
+
+    def position(self):
+        """Val of the world position (at the current bump offset)."""
+        key = ("position", self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", "position", *extra)
         return self.cache[key]
 
     def eval_value_node(self, node, out, ctx):
@@ -620,7 +948,7 @@ class ShaderCompiler:
             return self.uv_value(node.uv_map, f"'{node.name}'")
         if t == 'NEW_GEOMETRY':
             if oid == "Position":
-                return self.emit("vector", "position")
+                return self.position()
             if oid == "Normal":
                 return self.emit("vector", "normal")
             self.problem(f"'{node.name}': output {out.name} is not supported (0)")
@@ -644,7 +972,246 @@ class ShaderCompiler:
             return self.mix("MIX", fac, c, inverted)
         if t == 'NORMAL_MAP':
             return self.normal_map(node, ctx)
+        handler = self._VALUE_NODES.get(t)
+        if handler is not None:
+            return handler(self, node, out, ctx)
         return NotImplemented
+
+    # -------------------------------------------------- more value nodes (issue 3)
+
+    def fresnel_node(self, node, out, ctx):
+        ior = self.input(node, "IOR", ctx, "float")
+        normal = self.normal(node, ctx)
+        return self.emit("float", "fresnel", self.reg(ior),
+                         None if normal is None else self.reg(normal))
+
+    def layer_weight(self, node, out, ctx):
+        blend = self.input(node, "Blend", ctx, "float")
+        normal = self.normal(node, ctx)
+        which = "FACING" if out.identifier == "Facing" else "FRESNEL"
+        return self.emit("float", "layer_weight", self.reg(blend),
+                         None if normal is None else self.reg(normal), which)
+
+    def bump(self, node, out, ctx):
+        """Cycles' Bump: the height at the point and at two small offsets along the surface
+        (finite differences along the triangle's edges, not Cycles' ray differentials)."""
+        normal = self.normal(node, ctx)
+        strength = self.input(node, "Strength", ctx, "float")
+        distance = self.input(node, "Distance", ctx, "float")
+        height = node.inputs["Height"]
+        if self.source(height, ctx) is None or (strength.is_const and strength.const[0] <= 0.0):
+            return normal  # nothing to differentiate: the input normal (None: the shading one)
+        saved = self.bump_state
+        heights = []
+        try:
+            for state in (0, 1, 2):
+                self.bump_state = state
+                heights.append(self.value(height, ctx, "float"))
+        finally:
+            self.bump_state = saved
+        if all(h.is_const for h in heights):
+            return normal  # a constant height has no slope
+        return self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(strength),
+                         self.reg(distance), None if normal is None else self.reg(normal),
+                         bool(node.invert))
+
+    def light_path(self, node, out, ctx):
+        """The core tells shadow rays (through transparent surfaces) from the rest: Is Shadow
+        Ray is exact, Is Camera Ray is "not a shadow ray" (bounces count as camera rays, warned);
+        the other outputs are folded to their camera-ray values (warned)."""
+        if out.identifier == "Is Shadow Ray":
+            return self.emit("float", "light_path", "IS_SHADOW_RAY")
+        if out.identifier == "Is Camera Ray":
+            self.problem(f"'{node.name}': Is Camera Ray is also 1 for indirect rays (only "
+                         "shadow rays are told apart)")
+            return self.emit("float", "light_path", "IS_CAMERA_RAY")
+        self.problem(f"'{node.name}': {out.name} is evaluated as for camera rays (0: the ray "
+                     "type is not known when shading)")
+        return ZERO
+
+    def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
+             kind="color"):
+        if src.is_const:
+            c = src.const
+            rel = lambda v: (v - lo) / (hi - lo) if hi != lo else 0.0  # noqa: E731
+            if channels:
+                out = tuple(ramp_lookup(table, rel(c[i]), interpolate, extrapolate)[i]
+                            for i in range(3)) + (1.0,)
+            else:
+                out = tuple(ramp_lookup(table, rel(c[0]), interpolate, extrapolate))
+            return const_float(out[0]) if kind == "float" else const_color(out)
+        return self.emit(kind, "ramp", self.reg(src), np.ascontiguousarray(table, np.float32),
+                         bool(interpolate), bool(extrapolate), float(lo), float(hi),
+                         bool(channels))
+
+    def color_ramp(self, node, out, ctx):
+        """Cycles bakes the ramp (any interpolation and colour mode) into a 256-entry table."""
+        fac = self.input(node, "Fac", ctx, "float")
+        ramp = node.color_ramp
+        table = np.array([tuple(ramp.evaluate(i / (RAMP_TABLE_SIZE - 1)))
+                          for i in range(RAMP_TABLE_SIZE)], np.float64)
+        interpolate = ramp.interpolation != 'CONSTANT'
+        if out.identifier == "Alpha":
+            return self.ramp(fac, np.repeat(table[:, 3:4], 4, axis=1), interpolate, kind="float")
+        return self.ramp(fac, table, interpolate)
+
+    def rgb_curves(self, node, out, ctx):
+        """Cycles' curvemapping_color_to_array: the combined curve then each channel's, over
+        the range of all curves' points, 256 entries."""
+        fac = self.input(node, "Fac", ctx, "float")
+        color = self.input(node, "Color", ctx, "color")
+        mapping = node.mapping
+        mapping.initialize()
+        curves = list(mapping.curves)
+        los = [c.points[0].location[0] for c in curves[:4] if len(c.points)]
+        his = [c.points[-1].location[0] for c in curves[:4] if len(c.points)]
+        lo, hi = (min(los), max(his)) if los else (0.0, 1.0)
+        table = np.ones((RAMP_TABLE_SIZE, 4))
+        for i in range(RAMP_TABLE_SIZE):
+            t = lo + i / (RAMP_TABLE_SIZE - 1) * (hi - lo)
+            combined = mapping.evaluate(curves[3], t)
+            table[i, :3] = [mapping.evaluate(curves[c], combined) for c in range(3)]
+        curved = self.ramp(color, table, True, mapping.extend == 'EXTRAPOLATED', lo, hi,
+                           channels=True)
+        if fac.is_const and 0.0 <= fac.const[0] <= 1.0:
+            return self.mix("MIX", fac, color, curved)
+        # Cycles does not clamp this factor: color + fac * (curved - color).
+        delta = self.vector_op("SUBTRACT", curved, color)
+        return self.as_color(self.vector_op("MULTIPLY_ADD", delta, fac, color))
+
+    def vector_op(self, op, a, b, c=None):
+        """Vector Math on values (floats broadcast), folded when constant."""
+        a, b = self.as_vector(a), self.as_vector(b)
+        c = const_vector((0, 0, 0)) if c is None else self.as_vector(c)
+        if a.is_const and b.is_const and c.is_const:
+            return const_vector(_vector_math(op, a.const[:3], b.const[:3], c.const[:3], 1.0))
+        return self.emit("vector", "vector_math", self.reg(a), self.reg(b), self.reg(c), self.reg(ONE),
+                         op)
+
+    def color_space(self, v, conversion, kind):
+        if v.is_const:
+            c = _COLOR_SPACES[conversion](v.const[:3])
+            return Val(kind, tuple(c) + (v.const[3],))
+        return self.emit(kind, "color_space", self.reg(v), conversion)
+
+    def separate(self, v, axis):
+        if v.is_const:
+            return const_float(v.const[axis])
+        return self.emit("float", "separate", self.reg(v), axis)
+
+    def combine(self, a, b, c, kind):
+        if a.is_const and b.is_const and c.is_const:
+            xyz = (a.const[0], b.const[0], c.const[0])
+            return const_color(xyz + (1.0,)) if kind == "color" else const_vector(xyz)
+        return self.emit(kind, "combine", self.reg(a), self.reg(b), self.reg(c), kind == "color")
+
+    def separate_color(self, node, out, ctx):
+        color = self.input(node, "Color" if "Color" in node.inputs else "Image", ctx, "color")
+        mode = getattr(node, "mode", 'HSV' if node.type == 'SEPHSV' else 'RGB')
+        if mode in ('HSV', 'HSL'):
+            color = self.color_space(color, f"RGB_TO_{mode}", "color")
+        axis = [o.identifier for o in node.outputs].index(out.identifier)
+        return self.separate(color, axis)
+
+    def combine_color(self, node, out, ctx):
+        ins = [self.value(s, ctx, "float") for s in list(node.inputs)[:3]]
+        mode = getattr(node, "mode", 'HSV' if node.type == 'COMBHSV' else 'RGB')
+        color = self.combine(*ins, "color")
+        if mode in ('HSV', 'HSL'):
+            color = self.color_space(color, f"{mode}_TO_RGB", "color")
+        return color
+
+    def separate_xyz(self, node, out, ctx):
+        socket = node.inputs["Vector"]
+        v = self.value(socket, ctx, "vector") or self.socket_default(socket, "vector")
+        return self.separate(v, "XYZ".index(out.identifier))
+
+    def combine_xyz(self, node, out, ctx):
+        return self.combine(*(self.input(node, k, ctx, "float") for k in "XYZ"), "vector")
+
+    def hue_saturation(self, node, out, ctx):
+        ins = [self.input(node, "Color", ctx, "color")] + [
+            self.input(node, k, ctx, "float") for k in ("Hue", "Saturation", "Value", "Fac")]
+        if all(v.is_const for v in ins):
+            c = _hsv_node(ins[0].const[:3], *(v.const[0] for v in ins[1:]))
+            return const_color(tuple(c) + (1.0,))
+        return self.emit("color", "hsv", *(self.reg(v) for v in ins))
+
+    def gamma(self, node, out, ctx):
+        c = self.input(node, "Color", ctx, "color")
+        g = self.input(node, "Gamma", ctx, "float")
+        if c.is_const and g.is_const:
+            return const_color(tuple(_gamma(c.const[:3], g.const[0])) + (1.0,))
+        return self.emit("color", "gamma", self.reg(c), self.reg(g))
+
+    def bright_contrast(self, node, out, ctx):
+        c = self.input(node, "Color", ctx, "color")
+        bright = self.input(node, "Bright", ctx, "float")
+        contrast = self.input(node, "Contrast", ctx, "float")
+        if c.is_const and bright.is_const and contrast.is_const:
+            a, b = 1.0 + contrast.const[0], bright.const[0] - contrast.const[0] * 0.5
+            return const_color(tuple(max(a * x + b, 0.0) for x in c.const[:3]) + (1.0,))
+        return self.emit("color", "bright_contrast", self.reg(c), self.reg(bright),
+                         self.reg(contrast))
+
+    def clamp_node(self, node, out, ctx):
+        v, lo, hi = (self.input(node, k, ctx, "float") for k in ("Value", "Min", "Max"))
+        if v.is_const and lo.is_const and hi.is_const:
+            return const_float(_clamp(v.const[0], lo.const[0], hi.const[0], node.clamp_type))
+        return self.emit("float", "clamp", self.reg(v), self.reg(lo), self.reg(hi),
+                         node.clamp_type)
+
+    def map_range(self, node, out, ctx):
+        by_id = {s.identifier: s for s in node.inputs}
+        mode = node.interpolation_type
+        if node.data_type == 'FLOAT_VECTOR':
+            if out.identifier != "Vector":
+                return ZERO
+            ins = [self.value(by_id[k], ctx, "vector") or self.socket_default(by_id[k], "vector")
+                   for k in ("Vector", "From_Min_FLOAT3", "From_Max_FLOAT3", "To_Min_FLOAT3",
+                             "To_Max_FLOAT3", "Steps_FLOAT3")]
+            if all(v.is_const for v in ins):
+                return const_vector(_map_range_vector(*(v.const[:3] for v in ins), mode,
+                                                      node.clamp))
+            return self.emit("vector", "map_range_vector", *(self.reg(v) for v in ins), mode,
+                             bool(node.clamp))
+        if node.data_type != 'FLOAT':
+            return NotImplemented
+        ins = [self.value(by_id[k], ctx, "float")
+               for k in ("Value", "From Min", "From Max", "To Min", "To Max", "Steps")]
+        mode = node.interpolation_type
+        if all(v.is_const for v in ins):
+            return const_float(_map_range(*(v.const[0] for v in ins), mode, node.clamp))
+        return self.emit("float", "map_range", *(self.reg(v) for v in ins), mode,
+                         bool(node.clamp))
+
+    def vector_math(self, node, out, ctx):
+        op = node.operation
+        if op not in VECTOR_MATH_OPS:
+            return NotImplemented
+        by_id = {s.identifier: s for s in node.inputs}
+        a, b, c = (self.value(by_id[k], ctx, "vector") or self.socket_default(by_id[k], "vector")
+                   for k in ("Vector", "Vector_001", "Vector_002"))
+        scale = self.value(by_id["Scale"], ctx, "float")
+        value_op = op in VECTOR_MATH_VALUE_OPS
+        if (out.identifier == "Value") != value_op:  # the output this operation leaves at 0
+            return ZERO if out.identifier == "Value" else const_vector((0, 0, 0))
+        kind = "float" if value_op else "vector"
+        if all(v.is_const for v in (a, b, c, scale)):
+            r = _vector_math(op, a.const[:3], b.const[:3], c.const[:3], scale.const[0])
+            return const_float(r) if value_op else const_vector(r)
+        return self.emit(kind, "vector_math", self.reg(a), self.reg(b), self.reg(c),
+                         self.reg(scale), op)
+
+    _VALUE_NODES = {
+        'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
+        'LIGHT_PATH': light_path, 'VALTORGB': color_ramp, 'CURVE_RGB': rgb_curves,
+        'SEPARATE_COLOR': separate_color, 'SEPRGB': separate_color, 'SEPHSV': separate_color,
+        'COMBINE_COLOR': combine_color, 'COMBRGB': combine_color, 'COMBHSV': combine_color,
+        'SEPXYZ': separate_xyz, 'COMBXYZ': combine_xyz, 'HUE_SAT': hue_saturation,
+        'GAMMA': gamma, 'BRIGHTCONTRAST': bright_contrast, 'CLAMP': clamp_node,
+        'MAP_RANGE': map_range, 'VECT_MATH': vector_math,
+    }
 
     def tex_coord(self, node, oid):
         if oid == "UV":
@@ -652,13 +1219,12 @@ class ShaderCompiler:
                 self.problem(f"'{node.name}': UV from instancer is not supported")
             return self.uv_value("", f"'{node.name}'")
         if oid in ("Object", "Generated"):
-            self.problem(f"'{node.name}': {oid} coordinates are approximated by world "
-                         "positions")
-            return self.emit("vector", "position")
+            if oid == "Object" and node.object is not None:
+                self.problem(f"'{node.name}': Object coordinates of another object "
+                             f"('{node.object.name}') are not supported (its own object's)")
+            return self.object_coords(oid.lower())
         if oid == "Normal":
-            self.problem(f"'{node.name}': object-space Normal is approximated by the world "
-                         "normal")
-            return self.emit("vector", "normal")
+            return self.emit("vector", "object_normal")
         self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
         return const_vector((0, 0, 0))
 
@@ -690,13 +1256,16 @@ class ShaderCompiler:
         if ext not in ('REPEAT', 'EXTEND', 'CLIP'):
             ext = 'REPEAT'
         if out.identifier == "Alpha":
-            variant, kind = "alpha", "float"
-        else:
-            alpha_out = node.outputs.get("Alpha")
-            variant = "straight" if alpha_out is not None and alpha_out.is_linked else "color"
-            kind = "color"
-        index = self.images.index(image, loaded, variant)
-        return self.emit(kind, "image", self.reg(vec), index, interp, ext)
+            index = self.images.index(image, loaded, "alpha")
+            return self.emit("float", "image", self.reg(vec), index, interp, ext)
+        # As Cycles: with the Alpha output in use, Color is divided by the filtered alpha.
+        alpha_out = node.outputs.get("Alpha")
+        unassociate = (alpha_out is not None and alpha_out.is_linked and loaded.has_alpha
+                       and loaded.unassociate)
+        index = self.images.index(image, loaded, "color")
+        if unassociate:
+            return self.emit("color", "image", self.reg(vec), index, interp, ext, True)
+        return self.emit("color", "image", self.reg(vec), index, interp, ext)
 
     def mapping(self, node, ctx):
         vec = self.input(node, "Vector", ctx, "vector")
@@ -762,16 +1331,8 @@ class ShaderCompiler:
         b = self.value(node.inputs[1], ctx, "float")
         clamp = node.use_clamp
         if op in MATH_OPS:
-            return self.math(op, a, b, clamp)
-        if op == "SQRT":  # the core's POWER gives 0 for a negative base, like Blender's sqrt
-            return self.math("POWER", a, const_float(0.5), clamp)
-        if op == "MULTIPLY_ADD":
-            c = self.value(node.inputs[2], ctx, "float")
-            return self.math("ADD", self.math("MULTIPLY", a, b), c, clamp)
-        if op == "RADIANS":
-            return self.math("MULTIPLY", a, const_float(math.pi / 180.0), clamp)
-        if op == "DEGREES":
-            return self.math("MULTIPLY", a, const_float(180.0 / math.pi), clamp)
+            c = self.value(node.inputs[2], ctx, "float") if op in MATH_OPS_3 else None
+            return self.math(op, a, b, clamp, c)
         self.problem(f"'{node.name}': math operation {op.replace('_', ' ').title()} is not "
                      "supported (its first value is used)")
         return self.math("ADD", a, ZERO, clamp)
@@ -978,22 +1539,22 @@ class ShaderCompiler:
         self.uv_used = {}
 
 
+# How many register operands (after the destination) each value op has; None = none given.
+_OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
+             "light_path": 0,
+             "object_normal": 0, "mapping": 1, "image": 1,
+             "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
+             "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
+             "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
+             "map_range": 6, "map_range_vector": 6, "vector_math": 4}
+
+
 def _reads(op):
     name = op[0]
     if name == "closure":
         regs = [r for r in op[3].values()]
         return regs + ([op[2]] if op[2] is not None else [])
-    if name in ("const", "uv", "position", "normal"):
-        return []
-    if name in ("mapping", "image", "rgb_to_bw"):
-        return [op[2]]
-    if name == "math":
-        return [op[2], op[3]]
-    if name == "mix":
-        return [op[2], op[3], op[4]]
-    if name == "normal_map":
-        return [op[2], op[3]]
-    raise ValueError(name)
+    return [r for r in op[2:2 + _OPERANDS[name]] if r is not None]
 
 
 def _rename(op, m):
@@ -1001,10 +1562,9 @@ def _rename(op, m):
     if name == "closure":
         return ("closure", op[1], None if op[2] is None else m[op[2]],
                 {k: m[v] for k, v in op[3].items()})
+    n_regs = _OPERANDS[name]
     out = [name, m[op[1]]]
-    n_regs = {"const": 0, "uv": 0, "position": 0, "normal": 0, "mapping": 1, "image": 1,
-              "rgb_to_bw": 1, "math": 2, "mix": 3, "normal_map": 2}[name]
-    out += [m[r] for r in op[2:2 + n_regs]]
+    out += [None if r is None else m[r] for r in op[2:2 + n_regs]]
     out += list(op[2 + n_regs:])
     return tuple(out)
 

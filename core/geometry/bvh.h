@@ -1,7 +1,9 @@
-// Binary bounding volume hierarchy over triangles, built with the binned surface area
-// heuristic (Wald 2007) and traversed front to back. It knows triangles only: hits name
-// triangle indices, and everything else (materials, lights) lives in the scene layer.
+// Bounding volume hierarchy over triangles, built with the binned surface area heuristic
+// (Wald 2007) as a binary tree, then collapsed into a 4- or 8-wide tree whose child boxes sit
+// in SIMD lanes (tinybvh's and Embree's layouts, our own code). It knows triangles only: hits
+// name triangle indices, and everything else (materials, lights) lives in the scene layer.
 #pragma once
+#include <atomic>
 #include <cstdint>
 #include <vector>
 
@@ -23,17 +25,51 @@ struct BvhNode {
   bool is_leaf() const { return count != 0; }
 };
 
+// A node of the wide BVH: the boxes of up to N children as six rows of N floats (lo x, hi x,
+// lo y, hi y, lo z, hi z), so one SIMD register holds one plane of all children. Unused lanes
+// have lo = +inf, hi = -inf, which every ray misses.
+template <int N>
+struct alignas(32) WideBvhNode {
+  float bounds[6][N];
+  uint32_t child[N];  // interior: index of the child node; leaf: first triangle (leaf order)
+  uint32_t count[N];  // 0: interior child (or unused lane); else number of triangles of the leaf
+};
+using Bvh4Node = WideBvhNode<4>;  // 128 bytes
+using Bvh8Node = WideBvhNode<8>;  // 256 bytes
+
+// Four triangles of a leaf of the wide trees, coordinates in SIMD lanes (rows v0.x, v0.y, v0.z,
+// v1.x, ..., v2.z), so one watertight test runs on all four. A leaf of n triangles takes
+// ceil(n / 4) consecutive blocks; unused lanes hold NaN, which the test rejects.
+struct alignas(16) TriangleBlock4 {
+  float v[9][4];
+};
+
+// Which tree the traversal uses. Auto: the 8-wide one where the CPU has AVX2, else the 4-wide
+// (SSE2, every x86-64). Binary is the reference the wide ones are tested against.
+enum class BvhLayout : uint8_t { Auto, Binary, Wide4, Wide8 };
+const char* bvh_layout_name(BvhLayout l);
+bool cpu_has_avx2();
+
 struct BvhBuildOptions {
   int bins = 32;
   int max_leaf_size = 8;
   float traversal_cost = 1.0f;  // SAH cost of visiting a node, relative to one triangle test
   int threads = 0;              // 0 = hardware threads
+  // Triangles tested together: the SAH charges a leaf ceil(n / leaf_block) tests, so leaves
+  // fill whole blocks. 0 = automatic (4 for the wide layouts, whose leaves are TriangleBlock4s).
+  int leaf_block = 0;
+  BvhLayout layout = BvhLayout::Auto;
+  // Polled during the build; when it becomes true the build stops, build() returns false and
+  // the Bvh is left empty. May be set from any thread.
+  const std::atomic<bool>* cancel = nullptr;
 };
 
 struct BvhStats {
-  size_t nodes = 0, leaves = 0, max_depth = 0;
+  size_t nodes = 0, leaves = 0, max_depth = 0;  // of the binary tree
+  size_t wide_nodes = 0;                         // of the wide tree (0 for Binary)
   double sah_cost = 0.0;  // expected cost of a random ray, in triangle tests (traversal weighted)
-  double build_ms = 0.0;
+  double build_ms = 0.0;  // binary build and collapse
+  BvhLayout layout = BvhLayout::Binary;
 };
 
 // Counters for BVH visualisation and statistics.
@@ -43,12 +79,15 @@ struct TraversalCounters {
 
 class Bvh {
  public:
-  // Builds over `tris`; triangle i of the input is reported as hit.prim == i.
-  void build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt = {});
-  bool empty() const { return nodes_.empty(); }
+  // Builds over `tris`; triangle i of the input is reported as hit.prim == i. Returns false
+  // (and leaves the Bvh empty) when cancelled through opt.cancel.
+  bool build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt = {});
+  void clear();
+  bool empty() const { return triangles_ == 0; }
   const BvhStats& stats() const { return stats_; }
-  Aabb bounds() const;
-  size_t memory_bytes() const;
+  BvhLayout layout() const { return layout_; }
+  Aabb bounds() const { return bounds_; }
+  size_t memory_bytes() const;  // nodes, triangles and index arrays, as allocated
 
   // Closest hit with 0 < t < ray.tmax. Returns true on a hit and fills `hit`.
   bool intersect(const Ray& ray, Hit& hit, TraversalCounters* counters = nullptr) const;
@@ -56,10 +95,32 @@ class Bvh {
   bool occluded(const Ray& ray) const;
 
  private:
-  std::vector<BvhNode> nodes_;
-  std::vector<TriangleVerts> tris_;   // in leaf order, for locality
-  std::vector<uint32_t> prim_ids_;    // leaf order -> input index
+  bool intersect_binary(const Ray& ray, Hit& hit, TraversalCounters* counters) const;
+  bool occluded_binary(const Ray& ray) const;
+
+  BvhLayout layout_ = BvhLayout::Binary;
+  Aabb bounds_;
+  std::vector<BvhNode> nodes_;        // the binary tree (kept only for the Binary layout)
+  std::vector<Bvh4Node> nodes4_;
+  std::vector<Bvh8Node> nodes8_;
+  std::vector<TriangleVerts> tris_;   // in leaf order, for locality (Binary layout)
+  std::vector<uint32_t> prim_ids_;    // leaf order -> input index (Binary layout)
+  std::vector<TriangleBlock4> blocks_;  // the wide layouts' leaves
+  std::vector<uint32_t> block_prims_;   // 4 per block: input index, UINT32_MAX for unused lanes
+  size_t triangles_ = 0;
   BvhStats stats_;
 };
+
+// The traversal kernels of the wide trees (bvh_wide.inl), one instance per SIMD width.
+struct WideBvhView {
+  const void* nodes;
+  const TriangleBlock4* blocks;
+  const uint32_t* block_prims;
+};
+bool bvh4_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
+bool bvh4_occluded(const WideBvhView& v, const Ray& ray);
+// Only called where cpu_has_avx2(): compiled for AVX2 in bvh8_avx2.cpp.
+bool bvh8_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
+bool bvh8_occluded(const WideBvhView& v, const Ray& ray);
 
 }  // namespace pl

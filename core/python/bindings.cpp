@@ -113,7 +113,8 @@ struct PyScene {
 };
 
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& triangles, const py::object& normals,
-                  const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs) {
+                  const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
+                  const py::object& texspace) {
   self.check_editable();
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
   if (triangles.ndim() != 2 || triangles.shape(1) != 3) throw std::invalid_argument("triangles must have shape (T, 3)");
@@ -163,6 +164,13 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& tr
       dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
     }
   }
+  if (!texspace.is_none()) {  // (location, size) of Blender's texture space
+    const auto ts = texspace.cast<py::tuple>();
+    if (ts.size() != 2) throw std::invalid_argument("texspace must be (location, size)");
+    mesh.texspace_location = to_point(ts[0], "texspace location");
+    mesh.texspace_size = to_point(ts[1], "texspace size");
+    mesh.has_texspace = true;
+  }
   return self.scene->add_mesh(std::move(mesh));
 }
 
@@ -176,14 +184,27 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
     return int16_t(r);
   };
   auto name_of = [](const py::handle& h) { return h.cast<std::string>(); };
-  static const std::vector<std::string> math_ops = {"ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER",
-                                                    "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN", "ABSOLUTE"};
+  static const std::vector<std::string> math_ops = {
+      "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER", "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN",
+      "ABSOLUTE", "LOGARITHM", "SQRT", "INVERSE_SQRT", "EXPONENT", "SIGN", "ROUND", "FLOOR", "CEIL", "TRUNC",
+      "FRACT", "MODULO", "FLOORED_MODULO", "SNAP", "PINGPONG", "SINE", "COSINE", "TANGENT", "ARCSINE",
+      "ARCCOSINE", "ARCTANGENT", "ARCTAN2", "SINH", "COSH", "TANH", "RADIANS", "DEGREES", "MULTIPLY_ADD",
+      "COMPARE", "SMOOTH_MIN", "SMOOTH_MAX", "WRAP"};
   static const std::vector<std::string> mix_ops = {"MIX", "MULTIPLY", "ADD", "SUBTRACT", "SCREEN",
                                                    "DIVIDE", "DIFFERENCE", "DARKEN", "LIGHTEN", "OVERLAY"};
   auto index_in = [](const std::vector<std::string>& v, const std::string& x, const char* what) {
     for (size_t i = 0; i < v.size(); ++i)
       if (v[i] == x) return uint8_t(i);
     throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+  };
+  static const std::vector<std::string> vector_math_ops = {
+      "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "CROSS_PRODUCT", "PROJECT", "REFLECT", "REFRACT",
+      "FACEFORWARD", "DOT_PRODUCT", "DISTANCE", "LENGTH", "SCALE", "NORMALIZE", "ABSOLUTE", "POWER", "SIGN",
+      "MINIMUM", "MAXIMUM", "FLOOR", "CEIL", "FRACTION", "MODULO", "WRAP", "SNAP", "SINE", "COSINE", "TANGENT"};
+  auto bump_offset = [](const py::handle& h) {
+    const int64_t v = h.cast<int64_t>();
+    if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
+    return uint8_t(v);
   };
   const int64_t n_images = int64_t(self.scene->image_count());
   for (const auto& item : program) {
@@ -240,15 +261,116 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.code = OpCode::Const;
       o.value = {f[0], f[1], f[2], f[3]};
     } else if (op == "uv") {
-      need(3);
+      if (t.size() != 3 && t.size() != 4) throw std::invalid_argument("shader op 'uv' takes 2 or 3 arguments");
       o.code = OpCode::Uv;
       o.index = t[2].cast<int32_t>();
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+      o.sub = t.size() == 4 ? bump_offset(t[3]) : uint8_t(kAtPoint);
       prog.uses_uv = prog.varying = true;
+    } else if (op == "position" && (t.size() == 2 || t.size() == 3)) {
+      o.code = OpCode::Position;
+      o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
+      prog.varying = true;
+    } else if ((op == "object" || op == "generated") && (t.size() == 2 || t.size() == 3)) {
+      o.code = op == "object" ? OpCode::ObjectPos : OpCode::Generated;
+      o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
+      prog.varying = true;
+    } else if (op == "light_path") {
+      need(3);
+      o.code = OpCode::LightPath;
+      o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY"}, name_of(t[2]), "light path output");
+      prog.varying = true;
+    } else if (op == "object_normal") {
+      need(2);
+      o.code = OpCode::ObjectNormal;
+      prog.varying = true;
     } else if (op == "position" || op == "normal") {
       need(2);
       o.code = op == "position" ? OpCode::Position : OpCode::Normal;
       prog.varying = true;
+    } else if (op == "fresnel") {
+      need(4);
+      o.code = OpCode::Fresnel;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      prog.varying = true;
+    } else if (op == "layer_weight") {
+      need(5);
+      o.code = OpCode::LayerWeight;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.sub = index_in({"FRESNEL", "FACING"}, name_of(t[4]), "layer weight output");
+      prog.varying = true;
+    } else if (op == "bump") {
+      need(9);
+      o.code = OpCode::Bump;
+      for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.clamp = t[8].cast<bool>();  // invert
+      prog.varying = true;
+    } else if (op == "ramp") {
+      need(9);
+      o.code = OpCode::Ramp;
+      o.in[0] = regno(t[2]);
+      const auto table = t[3].cast<FloatArray>();
+      if (table.ndim() != 2 || table.shape(1) != 4 || table.shape(0) < 2 || table.shape(0) > 4096)
+        throw std::invalid_argument("ramp table must have shape (N, 4) with 2 <= N <= 4096");
+      o.index = int32_t(prog.tables.size());
+      o.count = int32_t(table.shape(0));
+      const float* src = table.data();
+      auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+      for (int i = 0; i < o.count; ++i)
+        prog.tables.push_back({clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])});
+      o.sub = uint8_t((t[4].cast<bool>() ? 1 : 0) | (t[5].cast<bool>() ? 2 : 0) | (t[8].cast<bool>() ? 4 : 0));
+      o.m[0] = t[6].cast<float>();
+      o.m[1] = t[7].cast<float>();
+      if (!std::isfinite(o.m[0]) || !std::isfinite(o.m[1])) throw std::invalid_argument("ramp range must be finite");
+    } else if (op == "separate") {
+      need(4);
+      o.code = OpCode::Component;
+      o.in[0] = regno(t[2]);
+      const int64_t axis = t[3].cast<int64_t>();
+      if (axis < 0 || axis > 2) throw std::invalid_argument("separate axis must be 0, 1 or 2");
+      o.sub = uint8_t(axis);
+    } else if (op == "combine") {
+      need(6);
+      o.code = OpCode::Combine;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = t[5].cast<bool>() ? 1 : 0;  // a colour (alpha 1) or a vector
+    } else if (op == "color_space") {
+      need(4);
+      o.code = OpCode::ColorSpace;
+      o.in[0] = regno(t[2]);
+      o.sub = index_in({"RGB_TO_HSV", "HSV_TO_RGB", "RGB_TO_HSL", "HSL_TO_RGB"}, name_of(t[3]), "colour conversion");
+    } else if (op == "hsv") {
+      need(7);
+      o.code = OpCode::Hsv;
+      for (int k = 0; k < 5; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    } else if (op == "gamma") {
+      need(4);
+      o.code = OpCode::Gamma;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+    } else if (op == "bright_contrast") {
+      need(5);
+      o.code = OpCode::BrightContrast;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    } else if (op == "clamp") {
+      need(6);
+      o.code = OpCode::Clamp;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in({"MINMAX", "RANGE"}, name_of(t[5]), "clamp type");
+    } else if (op == "map_range" || op == "map_range_vector") {
+      need(10);
+      o.code = OpCode::MapRange;
+      o.ext = op == "map_range_vector" ? 1 : 0;  // per component (Cycles' vector map range)
+      for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in({"LINEAR", "STEPPED", "SMOOTHSTEP", "SMOOTHERSTEP"}, name_of(t[8]), "map range type");
+      o.clamp = t[9].cast<bool>();
+    } else if (op == "vector_math") {
+      need(7);
+      o.code = OpCode::VectorMath;
+      for (int k = 0; k < 4; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in(vector_math_ops, name_of(t[6]), "vector math op");
     } else if (op == "mapping") {
       need(4);
       o.code = OpCode::Mapping;
@@ -260,7 +382,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         if (!std::isfinite(o.m[i])) throw std::invalid_argument("mapping matrix contains NaN or infinite values");
       }
     } else if (op == "image") {
-      need(6);
+      if (t.size() != 6 && t.size() != 7) throw std::invalid_argument("shader op 'image' takes 5 or 6 arguments");
       o.code = OpCode::ImageTex;
       o.in[0] = regno(t[2]);
       const int64_t img = t[3].cast<int64_t>();
@@ -274,6 +396,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       else if (ext == "EXTEND") o.ext = uint8_t(Extension::Extend);
       else if (ext == "CLIP") o.ext = uint8_t(Extension::Clip);
       else throw std::invalid_argument("extension must be REPEAT, EXTEND or CLIP");
+      o.clamp = t.size() == 7 && t[6].cast<bool>();  // unassociate alpha after filtering
     } else if (op == "math") {
       need(6);
       o.code = OpCode::Math;
@@ -281,6 +404,12 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.in[1] = regno(t[3]);
       o.sub = index_in(math_ops, name_of(t[4]), "math op");
       o.clamp = t[5].cast<bool>();
+    } else if (op == "math3") {  // the operations with a third value
+      need(7);
+      o.code = OpCode::Math;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in(math_ops, name_of(t[5]), "math op");
+      o.clamp = t[6].cast<bool>();
     } else if (op == "mix") {
       need(7);
       o.code = OpCode::Mix;
@@ -326,6 +455,8 @@ py::dict scene_stats(const PyScene& self) {
   d["bvh_sah_cost"] = b.sah_cost;
   d["bvh_build_ms"] = b.build_ms;
   d["bvh_bytes"] = self.scene->bvh().memory_bytes();
+  d["bvh_layout"] = bvh_layout_name(b.layout);
+  d["bvh_wide_nodes"] = b.wide_nodes;
   return d;
 }
 
@@ -496,6 +627,8 @@ PYBIND11_MODULE(pathlight_core, m) {
   m.def("build_info", [] {
     py::dict d;
     d["simd"] = PATHLIGHT_SIMD_NAME;
+    // The BVH kernel commit() picks by default on this CPU (run-time detection).
+    d["bvh"] = cpu_has_avx2() ? "bvh8" : "bvh4";
 #if defined(__clang__)
     d["compiler"] = "clang " __clang_version__;
 #elif defined(__GNUC__)
@@ -734,10 +867,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
-           py::arg("uvs") = py::dict())
+           py::arg("uvs") = py::dict(), py::arg("texspace") = py::none())
       .def(
           "add_image",
-          [](PyScene& self, const FloatArray& pixels) {
+          [](PyScene& self, const FloatArray& pixels, bool srgb) {
             self.check_editable();
             if (pixels.ndim() != 3 || pixels.shape(2) != 4 || pixels.shape(0) < 1 || pixels.shape(1) < 1)
               throw std::invalid_argument("image pixels must have shape (H, W, 4)");
@@ -753,9 +886,10 @@ PYBIND11_MODULE(pathlight_core, m) {
               for (int k = 0; k < 4; ++k) c[k] = std::isfinite(src[4 * i + k]) ? src[4 * i + k] : 0.0f;
               img.px[i] = {c[0], c[1], c[2], c[3]};
             }
+            img.srgb = srgb;
             return self.scene->add_image(std::move(img));
           },
-          py::arg("pixels"))
+          py::arg("pixels"), py::arg("srgb") = false)
       .def(
           "add_shader",
           [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,
@@ -942,12 +1076,29 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("camera"))
       .def(
           "commit",
-          [](PyScene& self, int threads) {
+          [](PyScene& self, int threads, const std::string& bvh) {
             self.check_editable();
-            py::gil_scoped_release release;
-            self.scene->commit(threads);
+            BvhLayout layout;
+            if (bvh == "auto") layout = BvhLayout::Auto;
+            else if (bvh == "binary") layout = BvhLayout::Binary;
+            else if (bvh == "bvh4") layout = BvhLayout::Wide4;
+            else if (bvh == "bvh8") layout = BvhLayout::Wide8;
+            else throw std::invalid_argument("bvh must be 'auto', 'binary', 'bvh4' or 'bvh8'");
+            bool done;
+            {
+              py::gil_scoped_release release;
+              done = self.scene->commit(threads, layout);
+            }
+            if (!done) throw std::runtime_error("commit cancelled");
           },
-          py::arg("threads") = 0)
+          py::arg("threads") = 0, py::arg("bvh") = "auto",
+          "Builds the BVH and the lights (GIL released). bvh: 'auto' (8-wide with AVX2, else 4-wide), "
+          "or 'binary', 'bvh4', 'bvh8' to test one kernel ('bvh8' falls back to 'bvh4' without AVX2). "
+          "Raises RuntimeError('commit cancelled') when cancel_commit() stopped it.")
+      .def(
+          "cancel_commit", [](PyScene& self) { self.scene->cancel_commit(); },
+          "Stops a commit() running in another thread; that commit raises RuntimeError and leaves the "
+          "scene uncommitted. Has no effect when no commit is running.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim is -1 and t inf on a miss.")
@@ -967,8 +1118,12 @@ PYBIND11_MODULE(pathlight_core, m) {
              if (!scene.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
              if (!scene.scene->committed()) {
                scene.check_editable();
-               py::gil_scoped_release release;
-               scene.scene->commit(settings.threads);
+               bool done;
+               {
+                 py::gil_scoped_release release;
+                 done = scene.scene->commit(settings.threads);
+               }
+               if (!done) throw std::runtime_error("commit cancelled");
              }
              auto s = std::make_unique<PySession>();
              s->scene = scene.scene;

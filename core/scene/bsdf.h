@@ -34,14 +34,33 @@ constexpr float kDeltaAlpha = 1e-4f;  // below this roughness a lobe is a perfec
 inline float abs_cos(Vec3 v) { return std::fabs(v.z); }
 inline bool same_side(Vec3 a, Vec3 b) { return a.z * b.z > 0.0f; }
 
+// Cycles' bump shadowing term for a diffuse lobe whose normal (+Z) was bent away from the
+// smooth normal `ns` (local coordinates) by a normal map or bump: light from behind the smooth
+// surface is rejected, and grazing light is softened by a GGX masking term whose roughness
+// grows with the bend (Conty Estevez et al., "A Microfacet-Based Shadowing Function to Solve
+// the Bump Terminator Problem"), so bent normals do not light up where the surface cannot be lit.
+inline float bump_shadowing(Vec3 ns, Vec3 wi) {
+  const float cos_ns_i = dot(ns, wi), cos_ns_n = ns.z, cos_n_i = wi.z;
+  if (cos_ns_i * cos_ns_n * cos_n_i < 0.0f) return 0.0f;
+  const float cos_i = std::fabs(cos_ns_i), cos_d = std::fabs(cos_ns_n);
+  if (cos_d >= 1.0f || cos_i >= 1.0f) return 1.0f;
+  if (cos_i < 1e-6f) return 0.0f;
+  const float tan2_d = 1.0f / (cos_d * cos_d) - 1.0f;
+  const float alpha2 = clampf(0.125f * tan2_d, 0.0f, 1.0f);
+  const float tan2_i = (1.0f - cos_i * cos_i) / (cos_i * cos_i);
+  return 2.0f / (1.0f + std::sqrt(1.0f + alpha2 * tan2_i));
+}
+
 struct DiffuseBsdf {
+  Vec3 ns{0.0f, 0.0f, 1.0f};  // the smooth (unbent) normal in the local frame
+  bool bent = false;          // the lobe's normal differs from ns: apply bump_shadowing
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     if (!same_side(wo, wi)) {
       pdf = 0.0f;
       return Vec3(0.0f);
     }
     pdf = abs_cos(wi) * kInvPi;
-    return Vec3(pdf);
+    return Vec3(bent ? pdf * bump_shadowing(ns, wi) : pdf);
   }
   bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     Vec3 l = sample_cosine_hemisphere(u);
@@ -49,7 +68,7 @@ struct DiffuseBsdf {
     if (wo.z < 0.0f) l.z = -l.z;
     s.wi = l;
     s.pdf = std::fabs(l.z) * kInvPi;
-    s.weight = Vec3(1.0f);
+    s.weight = Vec3(bent ? bump_shadowing(ns, l) : 1.0f);
     s.flags = kReflect | kDiffuseLobe;
     return true;
   }
@@ -247,6 +266,39 @@ inline bool bsdf_is_delta(const Bsdf& b) {
 inline float bsdf_albedo_hint(const Bsdf& b) {
   if (const auto* c = std::get_if<ConductorBsdf>(&b)) return std::max(0.05f, luminance(c->f0));
   return 1.0f;
+}
+
+// Whether Cycles lifts a closure's shading normal so that the mirror reflection of the view
+// stays above the surface (ensure_valid_specular_reflection): its glossy closures, not diffuse.
+inline bool bsdf_wants_valid_reflection(const Bsdf& b) {
+  return std::holds_alternative<ConductorBsdf>(b) || std::holds_alternative<DielectricBsdf>(b);
+}
+
+// Cycles' ensure_valid_specular_reflection: if the view direction wo mirrored about the shading
+// normal n would go below the geometric surface (normal ng), n is rotated towards ng just
+// enough that the reflection stays slightly above it. Works on either side (wo decides).
+inline Vec3 valid_specular_normal(Vec3 ng, Vec3 wo, Vec3 n) {
+  const float side = dot(ng, wo) < 0.0f ? -1.0f : 1.0f;
+  const Vec3 Ng = ng * side, N = n * side;
+  if (N.x == Ng.x && N.y == Ng.y && N.z == Ng.z) return n;
+  const Vec3 R = N * (2.0f * dot(N, wo)) - wo;
+  const float iz = dot(wo, Ng);
+  const float threshold = std::min(0.9f * iz, 0.01f);  // reflections at least as shallow as wo
+  if (!(dot(Ng, R) < threshold)) return n;
+  // In the frame (X, Ng) with N in the X-Z plane, solve 2 dot(N', wo) N'.z - wo.z = threshold.
+  Vec3 X = N - Ng * dot(N, Ng);
+  const float lx = length_sq(X);
+  X = lx > 1e-20f ? X / std::sqrt(lx) : N;
+  const float ix = dot(wo, X);
+  const float a = ix * ix + iz * iz;
+  if (!(a > 0.0f)) return n;
+  const float b = 2.0f * (a + iz * threshold);
+  const float c = (threshold + iz) * (threshold + iz);
+  const float disc = std::sqrt(std::max(0.0f, b * b - 4.0f * a * c));
+  const float nz2 = ix < 0.0f ? 0.25f * (b + disc) / a : 0.25f * (b - disc) / a;
+  const float nx = std::sqrt(std::max(0.0f, 1.0f - nz2)), nz = std::sqrt(std::max(0.0f, nz2));
+  const Vec3 out = (X * nx + Ng * nz) * side;
+  return is_finite(out) && length_sq(out) > 0.5f ? out : n;
 }
 
 struct Frame {

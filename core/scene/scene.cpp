@@ -78,7 +78,16 @@ void Scene::add_instance(uint32_t mesh, const Mat4& m) {
   committed_ = false;
 }
 
-void Scene::commit(int threads) {
+bool Scene::commit(int threads, BvhLayout layout) {
+  cancel_.store(false);
+  committed_ = false;
+  const auto cancelled = [&] {
+    if (!cancel_.load(std::memory_order_relaxed)) return false;
+    tris_.clear();
+    shading_.clear();
+    bvh_.clear();
+    return true;
+  };
   tris_.clear();
   shading_.clear();
   size_t dropped = 0;
@@ -96,8 +105,15 @@ void Scene::commit(int threads) {
   }
   any_transparent_ = false;
   for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
+  object_coords_.clear();
+  object_coords_.reserve(instances_.size());
   for (const Instance& inst : instances_) {
+    if (cancelled()) return false;
     const MeshData& mesh = meshes_[inst.mesh];
+    // Object and generated texture coordinates of this instance.
+    Vec3 ts_loc = mesh.texspace_location, ts_size = mesh.texspace_size;
+    if (!mesh.has_texspace) auto_texspace(mesh.positions, ts_loc, ts_size);
+    object_coords_.push_back(make_object_coords(inst.matrix, ts_loc, ts_size));
     std::vector<Vec3> world(mesh.positions.size());
     for (size_t i = 0; i < world.size(); ++i) world[i] = inst.matrix.point(mesh.positions[i]);
     const bool smooth = !mesh.corner_normals.empty();
@@ -117,6 +133,7 @@ void Scene::commit(int threads) {
       sh.material = mesh.materials.empty() ? 0u : mesh.materials[t];
       if (sh.material >= materials_.size()) sh.material = 0;
       sh.emitter = -1;
+      sh.instance = uint32_t(object_coords_.size() - 1);
       if (smooth) {
         bool ok = true;
         for (int k = 0; k < 3; ++k) {
@@ -144,7 +161,12 @@ void Scene::commit(int threads) {
 
   BvhBuildOptions opt;
   opt.threads = threads;
-  bvh_.build(tris_, opt);
+  opt.layout = layout;
+  opt.cancel = &cancel_;
+  if (!bvh_.build(tris_, opt)) {  // only a cancel makes it fail
+    cancelled();
+    return false;
+  }
 
   // Every light in one distribution, chosen in proportion to an estimate of its power.
   const Aabb bounds = bvh_.bounds();
@@ -173,6 +195,7 @@ void Scene::commit(int threads) {
   stats_.emissive_triangles = emitter_prims_.size();
   stats_.lights = lights_.size();
   committed_ = true;
+  return true;
 }
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
@@ -255,7 +278,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
   return std::isfinite(s.pdf) && s.pdf > 0.0f;
 }
 
-void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out) const {
+void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
     out.n = mat.cached.n;
@@ -263,8 +286,10 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     out.has_nondelta = mat.cached.has_nondelta;
     const Frame f = Frame::from_normal(sp.ns);
     for (int i = 0; i < out.n; ++i) {
-      out.c[size_t(i)] = mat.cached.c[size_t(i)];
-      out.c[size_t(i)].frame = f;
+      Closure& c = out.c[size_t(i)];
+      c = mat.cached.c[size_t(i)];
+      // Glossy lobes: the normal lifted as eval_shader does (Cycles' valid specular reflection).
+      c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
     }
     return;
   }
@@ -273,8 +298,14 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.ng = sp.ng;
   ctx.ns = sp.ns;
   ctx.wo = wo;
+  ctx.shadow_ray = shadow_ray;
+  const TriangleVerts& hit_tri = tris_[sp.prim];
+  const Vec3 corners[3] = {hit_tri.v0, hit_tri.v1, hit_tri.v2};
+  ctx.tri = corners;  // for the Bump node's offsets
+  ctx.object = &object_coords_[shading_[sp.prim].instance];
   constexpr int kMaxSets = 8;
   Vec2 uv[kMaxSets];
+  Vec2 corner_uvs[3 * kMaxSets];
   Vec3 tangents[kMaxSets];
   float signs[kMaxSets];
   const int sets = static_cast<int>(std::min<size_t>(tri_uvs_.size(), kMaxSets));
@@ -285,12 +316,16 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       const std::vector<Vec2>& t = tri_uvs_[size_t(k)];
       if (t.empty()) {
         uv[k] = {};
+        corner_uvs[3 * k] = corner_uvs[3 * k + 1] = corner_uvs[3 * k + 2] = {};
         tangents[k] = Vec3(0.0f);
         signs[k] = 1.0f;
         continue;
       }
       const Vec2 a = t[3 * size_t(sp.prim)], b = t[3 * size_t(sp.prim) + 1], c = t[3 * size_t(sp.prim) + 2];
       uv[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2};
+      corner_uvs[3 * k] = a;
+      corner_uvs[3 * k + 1] = b;
+      corner_uvs[3 * k + 2] = c;
       // Per-triangle tangent from the uv parameterisation (dP/du), sign from the uv winding.
       const Vec3 e1 = tv.v1 - tv.v0, e2 = tv.v2 - tv.v0;
       const float du1 = b.x - a.x, dv1 = b.y - a.y, du2 = c.x - a.x, dv2 = c.y - a.y;
@@ -310,6 +345,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.uv_sets = sets;
     ctx.tangents = tangents;
     ctx.tangent_signs = signs;
+    ctx.tri_uv = corner_uvs;
   }
   eval_shader(mat.program, images_, ctx, out);
 }
@@ -325,7 +361,7 @@ Vec3 Scene::transmittance(Ray ray) const {
     const Material& mat = materials_[sp.material];
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;
-    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl);
+    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, true);
     Vec3 pass(0.0f);
     for (int c = 0; c < cl.n; ++c)
       if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;

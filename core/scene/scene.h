@@ -3,6 +3,7 @@
 // then read-only and shared by all render threads.
 #pragma once
 #include <array>
+#include <atomic>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -20,6 +21,10 @@ struct MeshData {
   std::vector<Vec3> corner_normals;  // 3 per triangle, or empty for flat shading
   std::vector<uint32_t> materials;   // global material id per triangle
   std::vector<std::vector<Vec2>> uvs;  // per global uv set: 3 per triangle, or empty (missing)
+  // Texture space for generated coordinates (Blender's texspace_location / texspace_size);
+  // without it, Blender's automatic one (the bounding box) is computed at commit.
+  bool has_texspace = false;
+  Vec3 texspace_location{0.0f}, texspace_size{1.0f};
 };
 
 struct Material {
@@ -88,7 +93,12 @@ class Scene {
   void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
-  void commit(int threads = 0);
+  // Returns false when cancel_commit() stopped it: the scene is then uncommitted (as if commit
+  // had not been called) and can be committed again. `layout` picks the BVH kernel (tests).
+  bool commit(int threads = 0, BvhLayout layout = BvhLayout::Auto);
+  // Stops a commit running on another thread within milliseconds. It only affects a commit in
+  // progress: commit() clears the request when it starts.
+  void cancel_commit() { cancel_.store(true); }
   bool committed() const { return committed_; }
 
   bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const { return bvh_.intersect(r, h, c); }
@@ -96,7 +106,8 @@ class Scene {
   void surface_point(const Hit& h, SurfacePoint& sp) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
-  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out) const;
+  // shadow_ray: shading for a shadow ray's transparency (the Light Path node's Is Shadow Ray).
+  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray = false) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
   // blocked; Transparent surfaces let part of it through).
   Vec3 transmittance(Ray ray) const;
@@ -124,6 +135,7 @@ class Scene {
     Vec3 n[3];       // shading normals at the corners (all zero: flat)
     uint32_t material;
     int32_t emitter;  // index in the light distribution, or -1
+    uint32_t instance;  // index in object_coords_ (texture coordinates)
   };
 
   std::vector<Material> materials_;
@@ -132,10 +144,12 @@ class Scene {
   bool any_transparent_ = false;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
+  std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
   Vec3 world_color_{0.0f};
   CameraDesc camera_;
   bool has_camera_ = false;
   bool committed_ = false;
+  std::atomic<bool> cancel_{false};
 
   std::vector<TriangleVerts> tris_;
   std::vector<TriangleShading> shading_;

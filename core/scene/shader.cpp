@@ -13,8 +13,52 @@ int wrap(int i, int n) {
   return r < 0 ? r + n : r;
 }
 
-float math_op(MathOp op, float a, float b) {
+float smooth_min(float a, float b, float c) {
+  if (c == 0.0f) return std::min(a, b);
+  const float h = std::max(c - std::fabs(a - b), 0.0f) / c;
+  return std::min(a, b) - h * h * h * c * (1.0f / 6.0f);
+}
+
+float math_op(MathOp op, float a, float b, float c = 0.0f) {
   switch (op) {
+    case MathOp::Logarithm: return a > 0.0f && b > 0.0f && std::log(b) != 0.0f ? std::log(a) / std::log(b) : 0.0f;
+    case MathOp::Sqrt: return a > 0.0f ? std::sqrt(a) : 0.0f;
+    case MathOp::InverseSqrt: return a > 0.0f ? 1.0f / std::sqrt(a) : 0.0f;
+    case MathOp::Exponent: return std::exp(a);
+    case MathOp::Sign: return a == 0.0f ? 0.0f : (a > 0.0f ? 1.0f : -1.0f);
+    case MathOp::Round: return std::floor(a + 0.5f);
+    case MathOp::Floor: return std::floor(a);
+    case MathOp::Ceil: return std::ceil(a);
+    case MathOp::Trunc: return a >= 0.0f ? std::floor(a) : std::ceil(a);
+    case MathOp::Fract: return a - std::floor(a);
+    case MathOp::Modulo: return b != 0.0f ? std::fmod(a, b) : 0.0f;
+    case MathOp::FlooredModulo: return b != 0.0f ? a - std::floor(a / b) * b : 0.0f;
+    case MathOp::Snap: return b != 0.0f ? std::floor(a / b) * b : 0.0f;
+    case MathOp::PingPong: {
+      if (b == 0.0f) return 0.0f;
+      const float x = (a - b) / (b * 2.0f);
+      return std::fabs((x - std::floor(x)) * b * 2.0f - b);
+    }
+    case MathOp::Sine: return std::sin(a);
+    case MathOp::Cosine: return std::cos(a);
+    case MathOp::Tangent: return std::tan(a);
+    case MathOp::Arcsine: return std::asin(clampf(a, -1.0f, 1.0f));
+    case MathOp::Arccosine: return std::acos(clampf(a, -1.0f, 1.0f));
+    case MathOp::Arctangent: return std::atan(a);
+    case MathOp::Arctan2: return std::atan2(a, b);
+    case MathOp::Sinh: return std::sinh(a);
+    case MathOp::Cosh: return std::cosh(a);
+    case MathOp::Tanh: return std::tanh(a);
+    case MathOp::Radians: return a * (kPi / 180.0f);
+    case MathOp::Degrees: return a * (180.0f / kPi);
+    case MathOp::MultiplyAdd: return a * b + c;
+    case MathOp::Compare: return a == b || std::fabs(a - b) <= std::max(c, 1.1920929e-7f) ? 1.0f : 0.0f;
+    case MathOp::SmoothMin: return smooth_min(a, b, c);
+    case MathOp::SmoothMax: return -smooth_min(-a, -b, c);
+    case MathOp::Wrap: {
+      const float range = b - c;
+      return range != 0.0f ? a - range * std::floor((a - c) / range) : c;
+    }
     case MathOp::Add: return a + b;
     case MathOp::Subtract: return a - b;
     case MathOp::Multiply: return a * b;
@@ -72,6 +116,169 @@ Vec3 clean_color(Vec3 c) {
   return {f(c.x), f(c.y), f(c.z)};
 }
 
+// Colour conversions as Cycles' util/color.h (hue in [0, 1)).
+Vec3 rgb_to_hsv(Vec3 rgb) {
+  const float cmax = std::max(rgb.x, std::max(rgb.y, rgb.z));
+  const float cmin = std::min(rgb.x, std::min(rgb.y, rgb.z));
+  const float cdelta = cmax - cmin;
+  const float v = cmax;
+  const float s = cmax != 0.0f ? cdelta / cmax : 0.0f;
+  float h = 0.0f;
+  if (s != 0.0f) {
+    const Vec3 c = (Vec3(cmax) - rgb) / cdelta;
+    if (rgb.x == cmax) h = c.z - c.y;
+    else if (rgb.y == cmax) h = 2.0f + c.x - c.z;
+    else h = 4.0f + c.y - c.x;
+    h /= 6.0f;
+    if (h < 0.0f) h += 1.0f;
+  }
+  return {h, s, v};
+}
+
+Vec3 hsv_to_rgb(Vec3 hsv) {
+  float h = hsv.x;
+  const float s = hsv.y, v = hsv.z;
+  if (s == 0.0f) return Vec3(v);
+  if (h == 1.0f) h = 0.0f;
+  h *= 6.0f;
+  const float i = std::floor(h), f = h - i;
+  const float p = v * (1.0f - s), q = v * (1.0f - s * f), t = v * (1.0f - s * (1.0f - f));
+  if (i == 0.0f) return {v, t, p};
+  if (i == 1.0f) return {q, v, p};
+  if (i == 2.0f) return {p, v, t};
+  if (i == 3.0f) return {p, q, v};
+  if (i == 4.0f) return {t, p, v};
+  return {v, p, q};
+}
+
+Vec3 rgb_to_hsl(Vec3 rgb) {
+  const float cmax = std::max(rgb.x, std::max(rgb.y, rgb.z));
+  const float cmin = std::min(rgb.x, std::min(rgb.y, rgb.z));
+  const float l = std::min(1.0f, (cmax + cmin) / 2.0f);
+  float h = 0.0f, s = 0.0f;
+  if (cmax != cmin) {
+    const float cdelta = cmax - cmin;
+    s = l > 0.5f ? cdelta / (2.0f - cmax - cmin) : cdelta / (cmax + cmin);
+    if (cmax == rgb.x) h = (rgb.y - rgb.z) / cdelta + (rgb.y < rgb.z ? 6.0f : 0.0f);
+    else if (cmax == rgb.y) h = (rgb.z - rgb.x) / cdelta + 2.0f;
+    else h = (rgb.x - rgb.y) / cdelta + 4.0f;
+  }
+  return {h / 6.0f, s, l};
+}
+
+Vec3 hsl_to_rgb(Vec3 hsl) {
+  const float h = hsl.x, s = hsl.y, l = hsl.z;
+  const float nr = sat(std::fabs(h * 6.0f - 3.0f) - 1.0f);
+  const float ng = sat(2.0f - std::fabs(h * 6.0f - 2.0f));
+  const float nb = sat(2.0f - std::fabs(h * 6.0f - 4.0f));
+  const float chroma = (1.0f - std::fabs(2.0f * l - 1.0f)) * s;
+  return {(nr - 0.5f) * chroma + l, (ng - 0.5f) * chroma + l, (nb - 0.5f) * chroma + l};
+}
+
+// Cycles' fresnel_dielectric_cos (the Fresnel and Layer Weight nodes).
+float fresnel_node(float cosi, float eta) {
+  const float c = std::fabs(cosi);
+  float g = eta * eta - 1.0f + c * c;
+  if (!(g > 0.0f)) return 1.0f;  // total internal reflection
+  g = std::sqrt(g);
+  const float A = (g - c) / (g + c);
+  const float B = (c * (g + c) - 1.0f) / (c * (g - c) + 1.0f);
+  return 0.5f * A * A * (1.0f + B * B);
+}
+
+float safe_div(float a, float b) { return b != 0.0f ? a / b : 0.0f; }
+float safe_mod(float a, float b) { return b != 0.0f ? std::fmod(a, b) : 0.0f; }
+float wrapf(float v, float hi, float lo) {
+  const float range = hi - lo;
+  return range != 0.0f ? v - range * std::floor((v - lo) / range) : lo;
+}
+float sign_of(float f) { return f == 0.0f ? 0.0f : (f > 0.0f ? 1.0f : -1.0f); }
+float smoothstep(float e0, float e1, float x) {
+  if (x < e0) return 0.0f;
+  if (x >= e1) return 1.0f;
+  const float t = (x - e0) / (e1 - e0);
+  return (3.0f - 2.0f * t) * (t * t);
+}
+float smootherstep(float e0, float e1, float x) {
+  x = sat(safe_div(x - e0, e1 - e0));
+  return x * x * x * (x * (x * 6.0f - 15.0f) + 10.0f);
+}
+
+template <class F>
+Vec3 per_component(Vec3 a, Vec3 b, Vec3 c, F f) {
+  return {f(a.x, b.x, c.x), f(a.y, b.y, c.y), f(a.z, b.z, c.z)};
+}
+
+// Blender's Vector Math; `value` is set for the operations whose result is a value.
+Vec3 vector_math(VectorMathOp op, Vec3 a, Vec3 b, Vec3 c, float scale, float& value, bool& is_value) {
+  is_value = false;
+  switch (op) {
+    case VectorMathOp::Add: return a + b;
+    case VectorMathOp::Subtract: return a - b;
+    case VectorMathOp::Multiply: return a * b;
+    case VectorMathOp::Divide: return per_component(a, b, c, [](float x, float y, float) { return safe_div(x, y); });
+    case VectorMathOp::MultiplyAdd: return a * b + c;
+    case VectorMathOp::CrossProduct: return cross(a, b);
+    case VectorMathOp::Project: {
+      const float l2 = dot(b, b);
+      return l2 != 0.0f ? b * (dot(a, b) / l2) : Vec3(0.0f);
+    }
+    case VectorMathOp::Reflect: {
+      const float l2 = length_sq(b);
+      if (!(l2 > 0.0f)) return a;
+      const Vec3 n = b / std::sqrt(l2);
+      return a - n * (2.0f * dot(a, n));
+    }
+    case VectorMathOp::Refract: {
+      const float l2 = length_sq(b);
+      const Vec3 n = l2 > 0.0f ? b / std::sqrt(l2) : b;
+      const float d = dot(n, a);
+      const float k = 1.0f - scale * scale * (1.0f - d * d);
+      return k < 0.0f ? Vec3(0.0f) : a * scale - n * (scale * d + std::sqrt(k));
+    }
+    case VectorMathOp::FaceForward: return dot(b, c) < 0.0f ? a : -a;
+    case VectorMathOp::DotProduct: is_value = true; value = dot(a, b); return Vec3(0.0f);
+    case VectorMathOp::Distance: is_value = true; value = length(a - b); return Vec3(0.0f);
+    case VectorMathOp::Length: is_value = true; value = length(a); return Vec3(0.0f);
+    case VectorMathOp::Scale: return a * scale;
+    case VectorMathOp::Normalize: {
+      const float l = length(a);
+      return l != 0.0f ? a / l : Vec3(0.0f);
+    }
+    case VectorMathOp::Absolute: return vabs(a);
+    case VectorMathOp::Power:
+      return per_component(a, b, c, [](float x, float y, float) { return math_op(MathOp::Power, x, y); });
+    case VectorMathOp::Sign: return {sign_of(a.x), sign_of(a.y), sign_of(a.z)};
+    case VectorMathOp::Minimum: return vmin(a, b);
+    case VectorMathOp::Maximum: return vmax(a, b);
+    case VectorMathOp::Floor: return {std::floor(a.x), std::floor(a.y), std::floor(a.z)};
+    case VectorMathOp::Ceil: return {std::ceil(a.x), std::ceil(a.y), std::ceil(a.z)};
+    case VectorMathOp::Fraction: return a - Vec3{std::floor(a.x), std::floor(a.y), std::floor(a.z)};
+    case VectorMathOp::Modulo: return per_component(a, b, c, [](float x, float y, float) { return safe_mod(x, y); });
+    case VectorMathOp::Wrap: return per_component(a, b, c, [](float x, float y, float z) { return wrapf(x, y, z); });
+    case VectorMathOp::Snap:
+      return per_component(a, b, c, [](float x, float y, float) { return std::floor(safe_div(x, y)) * y; });
+    case VectorMathOp::Sine: return {std::sin(a.x), std::sin(a.y), std::sin(a.z)};
+    case VectorMathOp::Cosine: return {std::cos(a.x), std::cos(a.y), std::cos(a.z)};
+    case VectorMathOp::Tangent: return {std::tan(a.x), std::tan(a.y), std::tan(a.z)};
+  }
+  return Vec3(0.0f);
+}
+
+// Cycles' rgb_ramp_lookup over a baked table of n >= 2 entries.
+Float4 ramp_lookup(const Float4* t, int n, float f, bool interpolate, bool extrapolate) {
+  if (extrapolate && (f < 0.0f || f > 1.0f)) {
+    const bool low = f < 0.0f;
+    const Float4 t0 = low ? t[0] : t[n - 1], t1 = low ? t[1] : t[n - 2];
+    const float k = (low ? -f : f - 1.0f) * float(n - 1);
+    return {t0.x + (t0.x - t1.x) * k, t0.y + (t0.y - t1.y) * k, t0.z + (t0.z - t1.z) * k, t0.w + (t0.w - t1.w) * k};
+  }
+  f = std::isfinite(f) ? sat(f) * float(n - 1) : 0.0f;
+  const int i = std::clamp(int(f), 0, n - 1);
+  const float w = f - float(i);
+  return interpolate && w > 0.0f && i + 1 < n ? lerp4(t[i], t[i + 1], w) : t[i];
+}
+
 }  // namespace
 
 Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension ext) {
@@ -103,6 +310,70 @@ Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension
   return lerp4(lerp4(fetch(x0, y0), fetch(x0 + 1, y0), tx), lerp4(fetch(x0, y0 + 1), fetch(x0 + 1, y0 + 1), tx), ty);
 }
 
+ObjectCoords make_object_coords(const Mat4& to_world, Vec3 loc, Vec3 size) {
+  ObjectCoords oc;
+  oc.to_world = to_world;
+  // Inverse of the affine 3x4 part: adjugate / determinant, then the translation.
+  const float(&m)[4][4] = to_world.m;
+  const Vec3 c0{m[0][0], m[1][0], m[2][0]}, c1{m[0][1], m[1][1], m[2][1]}, c2{m[0][2], m[1][2], m[2][2]};
+  const Vec3 r0 = cross(c1, c2), r1 = cross(c2, c0), r2 = cross(c0, c1);
+  const float det = dot(c0, r0);
+  if (!(std::fabs(det) > 1e-30f) || !std::isfinite(det)) return oc;
+  const Vec3 rows[3] = {r0 / det, r1 / det, r2 / det};  // rows of the inverse 3x3
+  const Vec3 t{m[0][3], m[1][3], m[2][3]};
+  for (int i = 0; i < 3; ++i) {
+    oc.to_object.m[i][0] = rows[i].x;
+    oc.to_object.m[i][1] = rows[i].y;
+    oc.to_object.m[i][2] = rows[i].z;
+    oc.to_object.m[i][3] = -dot(rows[i], t);
+  }
+  auto axis = [](float l, float sz, float& scale, float& offset) {
+    scale = sz != 0.0f && std::isfinite(sz) ? 0.5f / sz : 0.0f;
+    offset = 0.5f - (std::isfinite(l) ? l : 0.0f) * scale;
+  };
+  axis(loc.x, size.x, oc.gen_scale.x, oc.gen_offset.x);
+  axis(loc.y, size.y, oc.gen_scale.y, oc.gen_offset.y);
+  axis(loc.z, size.z, oc.gen_scale.z, oc.gen_offset.z);
+  oc.valid = oc.to_object.is_finite();
+  return oc;
+}
+
+void auto_texspace(const std::vector<Vec3>& positions, Vec3& location, Vec3& size) {
+  Vec3 lo(-1.0f), hi(1.0f);  // Blender's fallback for an empty mesh
+  bool any = false;
+  for (const Vec3& p : positions) {
+    if (!is_finite(p)) continue;
+    lo = any ? vmin(lo, p) : p;
+    hi = any ? vmax(hi, p) : p;
+    any = true;
+  }
+  location = (lo + hi) * 0.5f;
+  size = (hi - lo) * 0.5f;
+  auto fix = [](float& x) {  // BKE_mesh_texspace_calc's guards against flat boxes
+    if (x == 0.0f) x = 1.0f;
+    else if (x > 0.0f && x < 1e-5f) x = 1e-5f;
+  };
+  fix(size.x);
+  fix(size.y);
+  fix(size.z);
+}
+
+float srgb_to_linear(float c) {
+  // Cycles' color_srgb_to_linear (negative values clamp to 0).
+  if (c < 0.04045f) return c < 0.0f ? 0.0f : c * (1.0f / 12.92f);
+  return std::pow((c + 0.055f) * (1.0f / 1.055f), 2.4f);
+}
+
+Float4 image_lookup(const Image& img, float u, float v, Interp interp, Extension ext, bool unassociate) {
+  Float4 r = sample_image(img, u, v, interp, ext);
+  if (unassociate && r.w != 1.0f && r.w != 0.0f) {
+    const float inv = 1.0f / r.w;
+    r = {r.x * inv, r.y * inv, r.z * inv, r.w};
+  }
+  if (img.srgb) r = {srgb_to_linear(r.x), srgb_to_linear(r.y), srgb_to_linear(r.z), r.w};
+  return r;
+}
+
 void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
                  ClosureList& out) {
   Float4 r[kMaxRegs];
@@ -112,21 +383,65 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     static const Float4 zero{};
     return i == kNoReg ? zero : r[i];
   };
-  auto frame_for = [&](int16_t normal_reg) { return Frame::from_normal(normal_or(r, normal_reg, ctx.ns)); };
+  // Closure frames as Cycles sets them up: glossy lobes get a normal whose mirror reflection of
+  // the view stays above the surface; diffuse lobes with a bent normal get the bump shadowing.
+  auto glossy_frame = [&](int16_t normal_reg) {
+    return Frame::from_normal(valid_specular_normal(ctx.ng, ctx.wo, normal_or(r, normal_reg, ctx.ns)));
+  };
+  auto diffuse_lobe = [&](int16_t normal_reg, Frame& f) {
+    const Vec3 n = normal_or(r, normal_reg, ctx.ns);
+    f = Frame::from_normal(n);
+    DiffuseBsdf d;
+    if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z) {
+      d.bent = true;
+      d.ns = f.to_local(ctx.ns);
+    }
+    return d;
+  };
   // Closure inputs: an omitted register means the input's default.
   auto col = [&](int16_t i) { return i == kNoReg ? Vec3(1.0f) : r[i].xyz(); };
   auto val = [&](int16_t i, float def) { return i == kNoReg ? def : r[i].x; };
+  // The Bump node's offsets (made on first use): small steps along the triangle's two edges
+  // from the shading point, as barycentric steps (for uvs) and world vectors. Their length is
+  // tiny against the scene but far above float rounding at the point's magnitude.
+  bool offsets_made = false;
+  Vec3 dp[3] = {Vec3(0.0f), Vec3(0.0f), Vec3(0.0f)};
+  float db[3][2] = {{0.0f, 0.0f}, {0.0f, 0.0f}, {0.0f, 0.0f}};
+  auto make_offsets = [&]() {
+    if (offsets_made) return;
+    offsets_made = true;
+    if (!ctx.tri) return;
+    const Vec3 e1 = ctx.tri[1] - ctx.tri[0], e2 = ctx.tri[2] - ctx.tri[0];
+    const float step = 1e-4f * (1.0f + max_component(vabs(ctx.p)));
+    const float l1 = length(e1), l2 = length(e2);
+    if (!(l1 > 0.0f) || !(l2 > 0.0f) || !std::isfinite(l1 * l2) || !std::isfinite(step)) return;
+    db[kOffsetX][0] = step / l1;
+    db[kOffsetY][1] = step / l2;
+    dp[kOffsetX] = e1 * db[kOffsetX][0];
+    dp[kOffsetY] = e2 * db[kOffsetY][1];
+  };
   for (const ShaderOp& op : prog.ops) {
     Float4& d = r[op.dst];
     switch (op.code) {
       case OpCode::Const: d = op.value; break;
       case OpCode::Uv: {
         const bool ok = op.index >= 0 && op.index < ctx.uv_sets && ctx.uv;
-        const Vec2 uv = ok ? ctx.uv[op.index] : Vec2{};
+        Vec2 uv = ok ? ctx.uv[op.index] : Vec2{};
+        if (ok && op.sub != kAtPoint && op.sub < 3 && ctx.tri_uv) {
+          make_offsets();
+          const Vec2* t = ctx.tri_uv + 3 * op.index;
+          const float s1 = db[op.sub][0], s2 = db[op.sub][1];
+          uv = {uv.x + (t[1].x - t[0].x) * s1 + (t[2].x - t[0].x) * s2,
+                uv.y + (t[1].y - t[0].y) * s1 + (t[2].y - t[0].y) * s2};
+        }
         d = {uv.x, uv.y, 0.0f, 0.0f};
         break;
       }
-      case OpCode::Position: d = f4(ctx.p); break;
+      case OpCode::Position: {
+        if (op.sub != kAtPoint && op.sub < 3) make_offsets();
+        d = f4(ctx.p + (op.sub < 3 ? dp[op.sub] : Vec3(0.0f)));
+        break;
+      }
       case OpCode::Normal: d = f4(ctx.ns, 0.0f); break;
       case OpCode::Mapping: {
         const Float4 s = reg(op.in[0]);
@@ -138,12 +453,12 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::ImageTex: {
         const Float4 s = reg(op.in[0]);
         d = op.index >= 0 && size_t(op.index) < images.size()
-                ? sample_image(images[size_t(op.index)], s.x, s.y, Interp(op.sub), Extension(op.ext))
+                ? image_lookup(images[size_t(op.index)], s.x, s.y, Interp(op.sub), Extension(op.ext), op.clamp)
                 : Float4{1.0f, 0.0f, 1.0f, 1.0f};  // Blender's "missing texture" magenta
         break;
       }
       case OpCode::Math: {
-        float v = math_op(MathOp(op.sub), reg(op.in[0]).x, reg(op.in[1]).x);
+        float v = math_op(MathOp(op.sub), reg(op.in[0]).x, reg(op.in[1]).x, reg(op.in[2]).x);
         if (!std::isfinite(v)) v = 0.0f;
         if (op.clamp) v = sat(v);
         d = {v, v, v, 1.0f};
@@ -184,12 +499,231 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = f4(n, 0.0f);
         break;
       }
-      case OpCode::Diffuse:
-        out.add(DiffuseBsdf{}, clean_color(col(op.in[0]) * col(op.in[1])), frame_for(op.in[2]));
+      case OpCode::ObjectPos:
+      case OpCode::Generated: {
+        if (op.sub != kAtPoint && op.sub < 3) make_offsets();
+        const Vec3 p = ctx.p + (op.sub < 3 ? dp[op.sub] : Vec3(0.0f));
+        if (!ctx.object || !ctx.object->valid) {
+          d = f4(p);  // no object space known: world coordinates
+          break;
+        }
+        const Vec3 o = ctx.object->to_object.point(p);
+        d = f4(op.code == OpCode::ObjectPos ? o : o * ctx.object->gen_scale + ctx.object->gen_offset);
         break;
+      }
+      case OpCode::LightPath: {
+        // The core knows shadow rays apart from the rest: Is Shadow Ray, and Is Camera Ray as
+        // "not a shadow ray" (an approximation: bounces count as camera rays).
+        const float v = op.sub == 0 ? (ctx.shadow_ray ? 0.0f : 1.0f) : (ctx.shadow_ray ? 1.0f : 0.0f);
+        d = {v, v, v, 1.0f};
+        break;
+      }
+      case OpCode::ObjectNormal: {
+        Vec3 n = ctx.ns;
+        if (ctx.object && ctx.object->valid) {
+          const float(&m)[4][4] = ctx.object->to_world.m;  // transpose: n_obj ~ M^T n_world
+          const Vec3 t{m[0][0] * n.x + m[1][0] * n.y + m[2][0] * n.z, m[0][1] * n.x + m[1][1] * n.y + m[2][1] * n.z,
+                       m[0][2] * n.x + m[1][2] * n.y + m[2][2] * n.z};
+          if (length_sq(t) > 1e-30f && is_finite(t)) n = normalize(t);
+        }
+        d = f4(n, 0.0f);
+        break;
+      }
+      case OpCode::Fresnel:
+      case OpCode::LayerWeight: {
+        // Cycles' nodes: the view against the (unnormalised, as Cycles) input or shading normal.
+        const Vec3 n = op.in[1] == kNoReg ? ctx.ns : r[op.in[1]].xyz();
+        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        const float c = dot(ctx.wo, n);
+        const float x = reg(op.in[0]).x;
+        float f;
+        if (op.code == OpCode::Fresnel) {
+          float eta = std::max(std::isfinite(x) ? x : 1.0f, 1e-5f);
+          f = fresnel_node(c, backfacing ? 1.0f / eta : eta);
+        } else if (op.sub == 0) {  // Fresnel output
+          const float eta = std::max(1.0f - (std::isfinite(x) ? x : 0.0f), 1e-5f);
+          f = fresnel_node(c, backfacing ? eta : 1.0f / eta);
+        } else {  // Facing output
+          f = std::fabs(c);
+          float blend = std::isfinite(x) ? x : 0.5f;
+          if (blend != 0.5f) {
+            blend = clampf(blend, 0.0f, 1.0f - 1e-5f);
+            blend = blend < 0.5f ? 2.0f * blend : 0.5f / (1.0f - blend);
+            f = std::pow(f, blend);
+          }
+          f = 1.0f - f;
+        }
+        if (!std::isfinite(f)) f = 0.0f;
+        d = {f, f, f, 1.0f};
+        break;
+      }
+      case OpCode::Bump: {
+        // Cycles' svm_node_set_bump with the height at the point and at the two offsets.
+        make_offsets();
+        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        const float side = backfacing ? -1.0f : 1.0f;  // Cycles flips N towards the viewer
+        const Vec3 n_in = normal_or(r, op.in[5], ctx.ns) * side;
+        const Vec3 rx = cross(dp[kOffsetY], n_in), ry = cross(n_in, dp[kOffsetX]);
+        const float hc = reg(op.in[0]).x, hx = reg(op.in[1]).x, hy = reg(op.in[2]).x;
+        const float det = dot(dp[kOffsetX], rx);
+        const Vec3 surfgrad = rx * (hx - hc) + ry * (hy - hc);
+        float strength = op.in[3] == kNoReg ? 1.0f : reg(op.in[3]).x;
+        float distance = op.in[4] == kNoReg ? 1.0f : reg(op.in[4]).x;
+        if (op.clamp) distance = -distance;  // Invert
+        strength = std::isfinite(strength) ? std::max(strength, 0.0f) : 0.0f;
+        Vec3 out_n = n_in;
+        const Vec3 raw = n_in * std::fabs(det) - surfgrad * (distance * sign_of(det));
+        const float l2 = length_sq(raw);
+        if (l2 > 0.0f && std::isfinite(l2)) {
+          const Vec3 blended = raw / std::sqrt(l2) * strength + n_in * (1.0f - strength);
+          if (length_sq(blended) > 1e-20f && is_finite(blended)) out_n = normalize(blended);
+        }
+        d = f4(out_n * side, 0.0f);
+        break;
+      }
+      case OpCode::Ramp: {
+        const Float4 s = reg(op.in[0]);
+        const Float4* table = prog.tables.data() + op.index;
+        const bool interpolate = op.sub & 1, extrapolate = op.sub & 2, channels = op.sub & 4;
+        const float lo = op.m[0], range = op.m[1] - op.m[0];
+        auto rel = [&](float v) { return range != 0.0f ? (v - lo) / range : 0.0f; };
+        if (channels) {  // RGB Curves: each channel through its own column
+          d = {ramp_lookup(table, op.count, rel(s.x), interpolate, extrapolate).x,
+               ramp_lookup(table, op.count, rel(s.y), interpolate, extrapolate).y,
+               ramp_lookup(table, op.count, rel(s.z), interpolate, extrapolate).z, 1.0f};
+        } else {
+          d = ramp_lookup(table, op.count, rel(s.x), interpolate, extrapolate);
+        }
+        break;
+      }
+      case OpCode::Component: {
+        const Float4 s = reg(op.in[0]);
+        const float v = op.sub == 0 ? s.x : op.sub == 1 ? s.y : s.z;
+        d = {v, v, v, 1.0f};
+        break;
+      }
+      case OpCode::Combine:
+        d = {reg(op.in[0]).x, reg(op.in[1]).x, reg(op.in[2]).x, op.sub ? 1.0f : 0.0f};
+        break;
+      case OpCode::ColorSpace: {
+        const Float4 s = reg(op.in[0]);
+        Vec3 c = s.xyz();
+        switch (ColorSpaceOp(op.sub)) {
+          case ColorSpaceOp::RgbToHsv: c = rgb_to_hsv(c); break;
+          case ColorSpaceOp::HsvToRgb: c = hsv_to_rgb(c); break;
+          case ColorSpaceOp::RgbToHsl: c = rgb_to_hsl(c); break;
+          case ColorSpaceOp::HslToRgb: c = hsl_to_rgb(c); break;
+        }
+        d = f4(c, s.w);
+        break;
+      }
+      case OpCode::Hsv: {  // Cycles' svm_node_hsv
+        const Vec3 in = reg(op.in[0]).xyz();
+        Vec3 c = rgb_to_hsv(in);
+        const float hue = reg(op.in[1]).x, saturation = reg(op.in[2]).x, value = reg(op.in[3]).x;
+        const float fac = reg(op.in[4]).x;
+        const float h = c.x + hue + 0.5f;
+        c = {h - std::floor(h), sat(c.y * saturation), c.z * value};
+        c = hsv_to_rgb(c);
+        c = c * fac + in * (1.0f - fac);
+        d = f4(vmax(c, Vec3(0.0f)), 1.0f);
+        break;
+      }
+      case OpCode::Gamma: {  // Cycles' svm_math_gamma_color
+        const Vec3 c = reg(op.in[0]).xyz();
+        const float g = reg(op.in[1]).x;
+        auto pw = [&](float x) { return x > 0.0f ? std::pow(x, g) : x; };
+        const Vec3 o = g == 0.0f ? Vec3(1.0f) : Vec3{pw(c.x), pw(c.y), pw(c.z)};
+        d = f4(is_finite(o) ? o : Vec3(0.0f), 1.0f);
+        break;
+      }
+      case OpCode::BrightContrast: {  // Cycles' svm_brightness_contrast
+        const Vec3 c = reg(op.in[0]).xyz();
+        const float contrast = reg(op.in[2]).x;
+        const float a = 1.0f + contrast, b = reg(op.in[1]).x - contrast * 0.5f;
+        d = f4(vmax(c * a + Vec3(b), Vec3(0.0f)), 1.0f);
+        break;
+      }
+      case OpCode::Clamp: {
+        float lo = reg(op.in[1]).x, hi = reg(op.in[2]).x;
+        if (op.sub == 1 && lo > hi) std::swap(lo, hi);  // Range: either order
+        const float v = std::min(std::max(reg(op.in[0]).x, lo), hi);
+        d = {v, v, v, 1.0f};
+        break;
+      }
+      case OpCode::MapRange:
+        if (op.ext == 1) {  // Cycles' svm_node_vector_map_range: per component, safe division
+          const Vec3 v = reg(op.in[0]).xyz(), f0 = reg(op.in[1]).xyz(), f1 = reg(op.in[2]).xyz();
+          const Vec3 t0 = reg(op.in[3]).xyz(), t1 = reg(op.in[4]).xyz(), steps = reg(op.in[5]).xyz();
+          const MapRangeOp mode = MapRangeOp(op.sub);
+          auto one = [&](float x, float a, float b, float c, float e, float n) {
+            float f = safe_div(x - a, b - a);
+            switch (mode) {
+              case MapRangeOp::Linear: break;
+              case MapRangeOp::Stepped: f = n > 0.0f ? std::floor(f * (n + 1.0f)) / n : 0.0f; break;
+              case MapRangeOp::SmoothStep: f = sat(f); f = (3.0f - 2.0f * f) * (f * f); break;
+              case MapRangeOp::SmootherStep: f = sat(f); f = f * f * f * (f * (f * 6.0f - 15.0f) + 10.0f); break;
+            }
+            float res = c + f * (e - c);
+            if (op.clamp && (mode == MapRangeOp::Linear || mode == MapRangeOp::Stepped))
+              res = c > e ? clampf(res, e, c) : clampf(res, c, e);
+            return std::isfinite(res) ? res : 0.0f;
+          };
+          d = {one(v.x, f0.x, f1.x, t0.x, t1.x, steps.x), one(v.y, f0.y, f1.y, t0.y, t1.y, steps.y),
+               one(v.z, f0.z, f1.z, t0.z, t1.z, steps.z), 0.0f};
+          break;
+        }
+        {  // Cycles' svm_node_map_range (float)
+        const float v = reg(op.in[0]).x, f0 = reg(op.in[1]).x, f1 = reg(op.in[2]).x;
+        const float t0 = reg(op.in[3]).x, t1 = reg(op.in[4]).x, steps = reg(op.in[5]).x;
+        float res = 0.0f;
+        if (f1 != f0) {
+          float factor = v;
+          switch (MapRangeOp(op.sub)) {
+            case MapRangeOp::Linear: factor = (v - f0) / (f1 - f0); break;
+            case MapRangeOp::Stepped:
+              factor = (v - f0) / (f1 - f0);
+              factor = steps > 0.0f ? std::floor(factor * (steps + 1.0f)) / steps : 0.0f;
+              break;
+            case MapRangeOp::SmoothStep:
+              factor = f0 > f1 ? 1.0f - smoothstep(f1, f0, v) : smoothstep(f0, f1, v);
+              break;
+            case MapRangeOp::SmootherStep:
+              factor = f0 > f1 ? 1.0f - smootherstep(f1, f0, v) : smootherstep(f0, f1, v);
+              break;
+          }
+          res = t0 + factor * (t1 - t0);
+          // Blender clamps Linear and Stepped results to the target range (a Clamp node in Cycles).
+          if (op.clamp && (MapRangeOp(op.sub) == MapRangeOp::Linear || MapRangeOp(op.sub) == MapRangeOp::Stepped))
+            res = std::min(std::max(res, std::min(t0, t1)), std::max(t0, t1));
+        }
+        if (!std::isfinite(res)) res = 0.0f;
+        d = {res, res, res, 1.0f};
+        break;
+      }
+      case OpCode::VectorMath: {
+        float value = 0.0f;
+        bool is_value = false;
+        Vec3 v = vector_math(VectorMathOp(op.sub), reg(op.in[0]).xyz(), reg(op.in[1]).xyz(), reg(op.in[2]).xyz(),
+                             op.in[3] == kNoReg ? 1.0f : reg(op.in[3]).x, value, is_value);
+        if (is_value) {
+          if (!std::isfinite(value)) value = 0.0f;
+          d = {value, value, value, 1.0f};
+        } else {
+          if (!is_finite(v)) v = Vec3(0.0f);
+          d = f4(v, 0.0f);
+        }
+        break;
+      }
+      case OpCode::Diffuse: {
+        Frame f;
+        const DiffuseBsdf d = diffuse_lobe(op.in[2], f);
+        out.add(d, clean_color(col(op.in[0]) * col(op.in[1])), f);
+        break;
+      }
       case OpCode::Glossy:
         out.add(ConductorBsdf{roughness_to_alpha(val(op.in[2], 0.5f)), Vec3(1.0f), false},
-                clean_color(col(op.in[0]) * col(op.in[1])), frame_for(op.in[3]));
+                clean_color(col(op.in[0]) * col(op.in[1])), glossy_frame(op.in[3]));
         break;
       case OpCode::Glass:
       case OpCode::Refraction: {
@@ -201,7 +735,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           b.reflection = false;
           b.fresnel_on_transmission = false;
         }
-        out.add(b, clean_color(col(op.in[0]) * col(op.in[1])), frame_for(op.in[4]));
+        out.add(b, clean_color(col(op.in[0]) * col(op.in[1])), glossy_frame(op.in[4]));
         break;
       }
       case OpCode::Transparent:
@@ -221,7 +755,9 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         const float transmission = sat(val(op.in[5], 0.0f));
         const float spec_level = std::isfinite(val(op.in[6], 0.5f)) ? std::max(0.0f, val(op.in[6], 0.5f)) : 0.5f;
         const Vec3 spec_tint = clean_color(col(op.in[7]));
-        const Frame fr = frame_for(op.in[8]);
+        const Frame fr = glossy_frame(op.in[8]);  // Cycles' valid_reflection_N
+        Frame fd;
+        const DiffuseBsdf diffuse = diffuse_lobe(op.in[8], fd);
         if (metallic > 0.0f) out.add(ConductorBsdf{alpha, vmin(base, Vec3(1.0f)), true}, w * metallic, fr);
         const float dielectric = 1.0f - metallic;
         if (dielectric * transmission > 0.0f) {
@@ -250,7 +786,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
             out.add(spec, w * spec_tint * opaque, fr);
             reflected = fresnel_dielectric(std::fabs(dot(fr.n, ctx.wo)), spec.eta);
           }
-          out.add(DiffuseBsdf{}, w * base * (opaque * (1.0f - reflected)), fr);
+          out.add(diffuse, w * base * (opaque * (1.0f - reflected)), fd);
         }
         break;
       }

@@ -19,20 +19,46 @@ struct Float4 {
 struct Image {
   int w = 0, h = 0;
   std::vector<Float4> px;  // row 0 = bottom
+  // px hold sRGB-encoded colour (8-bit textures, as Cycles keeps them): lookups interpolate the
+  // encoded values and decode afterwards, so filtering matches Cycles (not linear-then-filter).
+  bool srgb = false;
 };
 
 enum class Interp : uint8_t { Linear, Closest };
 enum class Extension : uint8_t { Repeat, Extend, Clip };
 
 Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension ext);
+// What an Image Texture node reads, in Cycles' order: interpolate the stored (associated)
+// texels, divide by alpha if `unassociate` (Color with the Alpha output in use), then decode sRGB.
+Float4 image_lookup(const Image& img, float u, float v, Interp interp, Extension ext, bool unassociate);
+float srgb_to_linear(float c);
 
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
+  Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
+  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
-enum class MathOp : uint8_t { Add, Subtract, Multiply, Divide, Power, Minimum, Maximum, LessThan, GreaterThan, Absolute };
+enum class MathOp : uint8_t {
+  Add, Subtract, Multiply, Divide, Power, Minimum, Maximum, LessThan, GreaterThan, Absolute,
+  // The rest of Blender's Math node (Cycles' svm_math); the last five read a third value.
+  Logarithm, Sqrt, InverseSqrt, Exponent, Sign, Round, Floor, Ceil, Trunc, Fract, Modulo, FlooredModulo,
+  Snap, PingPong, Sine, Cosine, Tangent, Arcsine, Arccosine, Arctangent, Arctan2, Sinh, Cosh, Tanh,
+  Radians, Degrees, MultiplyAdd, Compare, SmoothMin, SmoothMax, Wrap,
+};
 enum class MixOp : uint8_t { Mix, Multiply, Add, Subtract, Screen, Divide, Difference, Darken, Lighten, Overlay };
+enum class ColorSpaceOp : uint8_t { RgbToHsv, HsvToRgb, RgbToHsl, HslToRgb };
+enum class MapRangeOp : uint8_t { Linear, Stepped, SmoothStep, SmootherStep };
+// Blender's Vector Math operations (its enum's order).
+enum class VectorMathOp : uint8_t {
+  Add, Subtract, Multiply, Divide, MultiplyAdd, CrossProduct, Project, Reflect, Refract, FaceForward,
+  DotProduct, Distance, Length, Scale, Normalize, Absolute, Power, Sign, Minimum, Maximum, Floor, Ceil,
+  Fraction, Modulo, Wrap, Snap, Sine, Cosine, Tangent,
+};
+// Where value ops that read the shading point read it: the point itself, or the small surface
+// offsets that a Bump node differentiates its height with.
+enum BumpOffset : uint8_t { kAtPoint = 0, kOffsetX = 1, kOffsetY = 2 };
 
 constexpr int kNoReg = -1;
 constexpr int kMaxRegs = 64;
@@ -43,10 +69,11 @@ struct ShaderOp {
   int16_t in[10] = {kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg};
   Float4 value;             // Const
   float m[12] = {};         // Mapping: 3x4 row-major
-  int32_t index = 0;        // uv set / image id
-  uint8_t sub = 0;          // MathOp / MixOp / Interp
+  int32_t index = 0;        // uv set / image id / Ramp: first entry in ShaderProgram::tables
+  int32_t count = 0;        // Ramp: table entries
+  uint8_t sub = 0;          // MathOp / MixOp / Interp / BumpOffset (Uv, Position) / ...
   uint8_t ext = 0;          // Extension
-  bool clamp = false;
+  bool clamp = false;        // Math/Mix; ImageTex: unassociate alpha after filtering
 };
 
 struct Closure {
@@ -84,6 +111,20 @@ struct ClosureList {
   }
 };
 
+// Per instance: what the Texture Coordinate node's Object, Generated and Normal outputs need.
+struct ObjectCoords {
+  Mat4 to_object;                  // world -> object space (the inverse of the instance matrix)
+  Mat4 to_world;                   // object -> world (object normals: n_obj ~ to_world^T n)
+  Vec3 gen_scale{1.0f}, gen_offset{0.0f};  // object -> generated: p * gen_scale + gen_offset
+  bool valid = false;              // false: the matrix is singular (world coordinates used)
+};
+// Cycles' generated coordinates: the object-space position in the mesh's texture space
+// (Blender's auto texture space is its bounding box), mapped to [0, 1]:
+// (p - location) / size * 0.5 + 0.5, with size 0 axes giving 0 (Cycles' mesh_texture_space).
+ObjectCoords make_object_coords(const Mat4& to_world, Vec3 texspace_location, Vec3 texspace_size);
+// Blender's automatic texture space of vertex positions: (location, size) of the bounding box.
+void auto_texspace(const std::vector<Vec3>& positions, Vec3& location, Vec3& size);
+
 // What a program can read at a shading point.
 struct ShadingContext {
   Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
@@ -92,6 +133,12 @@ struct ShadingContext {
   int uv_sets = 0;
   const Vec3* tangents = nullptr;  // per uv set: tangent (xyz) with the bitangent sign folded in
   const float* tangent_signs = nullptr;
+  // The triangle hit (world vertices) and per uv set its 3 corner uvs (uv_sets * 3 entries):
+  // the Bump node's offsets move along its edges. nullptr: no offsets (heights not differentiated).
+  const Vec3* tri = nullptr;
+  const Vec2* tri_uv = nullptr;
+  const ObjectCoords* object = nullptr;  // the hit instance's (nullptr: world coordinates)
+  bool shadow_ray = false;  // shading a shadow ray's transparency, not a scattering ray's hit
 };
 
 struct ShaderProgram {
@@ -100,6 +147,7 @@ struct ShaderProgram {
   bool uses_uv = false;
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
+  std::vector<Float4> tables;  // Ramp lookup tables (Color Ramp, RGB Curves), as Cycles bakes them
 };
 
 // Runs `prog` at `ctx`, filling `out` (closures plus emission), with closure frames built from

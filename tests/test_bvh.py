@@ -1,0 +1,218 @@
+"""The wide BVHs (4-wide SSE, 8-wide AVX2) against the binary one they are collapsed from: the
+same closest hits (t, triangle, barycentrics) on many rays, including the awkward ones (axis-
+parallel directions with zero and negative-zero components, origins inside boxes and on box
+planes, slivers, coincident centroids); occluded() agrees with intersect(); commit can be
+cancelled from another thread."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from core_scenes import core
+
+pc = core()
+LAYOUTS = ("binary", "bvh4", "bvh8")
+HAS_AVX2 = pc.build_info()["bvh"] == "bvh8"
+
+
+def noisy_sphere(n, rng, radius=1.0, center=(0, 0, 0)):
+    th = np.linspace(0.0, np.pi, n + 1)
+    ph = np.linspace(0.0, 2.0 * np.pi, 2 * n + 1)
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    r = radius * (1 + 0.05 * np.sin(7 * t) * np.cos(5 * p) + 0.01 * rng.standard_normal(t.shape))
+    pos = np.stack([r * np.sin(t) * np.cos(p), r * np.sin(t) * np.sin(p), r * np.cos(t)], -1).reshape(-1, 3)
+    w = 2 * n + 1
+    i, j = np.meshgrid(np.arange(n), np.arange(2 * n), indexing="ij")
+    a = (i * w + j).ravel()
+    tris = np.concatenate([np.stack([a, a + w, a + 1], 1), np.stack([a + 1, a + w, a + w + 1], 1)])
+    return (pos + center).astype(np.float32), tris.astype(np.int32)
+
+
+def awkward_soup(rng):
+    """Random triangles of all sizes, slivers, axis-aligned cubes sharing planes with box bounds,
+    and a fan of triangles with one centroid (no plane splits them: count splits)."""
+    parts = []
+    c = rng.uniform(-3, 3, (3000, 1, 3))
+    parts.append(c + rng.normal(size=(3000, 3, 3)) * rng.choice([1e-3, 0.05, 0.5], (3000, 1, 1)))
+    a = rng.uniform(-3, 3, (500, 1, 3))
+    e = rng.normal(size=(500, 1, 3))
+    parts.append(np.concatenate([a, a + e, a + e * (1 + 1e-4) + rng.normal(size=(500, 1, 3)) * 1e-5], 1))  # slivers
+    for k in range(40):  # unit cubes on an integer grid: faces on exact, shared planes
+        o = rng.integers(-3, 3, 3).astype(float)
+        q = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]]) + o
+        f = [(0, 2, 1), (0, 3, 2), (4, 5, 6), (4, 6, 7), (0, 1, 5), (0, 5, 4), (2, 3, 7), (2, 7, 6), (1, 2, 6),
+             (1, 6, 5), (0, 4, 7), (0, 7, 3)]
+        parts.append(q[np.array(f)])
+    ang = rng.uniform(0, 2 * np.pi, 200)
+    fan = np.stack([np.stack([np.cos(ang), np.sin(ang), 0 * ang], 1),
+                    np.stack([np.cos(ang + 2.1), np.sin(ang + 2.1), 0.1 + 0 * ang], 1),
+                    np.stack([np.cos(ang + 4.2), np.sin(ang + 4.2), -0.1 + 0 * ang], 1)], 1)
+    parts.append(fan * 0.5 + 1.5)
+    v = np.concatenate(parts).astype(np.float32)
+    return v.reshape(-1, 3), np.arange(len(v) * 3, dtype=np.int32).reshape(-1, 3)
+
+
+def make_scene(meshes, layout):
+    s = pc.Scene()
+    for pos, tris in meshes:
+        s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
+    s.commit(bvh=layout)
+    return s
+
+
+def awkward_rays(rng, n=60_000):
+    o = rng.uniform(-3.5, 3.5, (n, 3)).astype(np.float32)
+    d = rng.normal(size=(n, 3)).astype(np.float32)
+    # Axis-parallel directions, with +0 and -0 in the other components.
+    k = n // 4
+    axis = rng.integers(0, 3, k)
+    dd = np.zeros((k, 3), np.float32)
+    dd[np.arange(k), axis] = rng.choice([-1.0, 1.0], k)
+    dd[rng.uniform(size=(k, 3)) < 0.5] *= -1.0  # negative zeros
+    d[:k] = dd
+    # Origins on the cubes' integer planes (box planes of the leaves), some inside the sphere.
+    o[k: 2 * k] = np.round(o[k: 2 * k])
+    o[2 * k: 3 * k] *= 0.1
+    # Directions with one zero component.
+    d[3 * k:, 0] = 0.0
+    return o, d
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    rng = np.random.default_rng(7)
+    meshes = [noisy_sphere(120, rng), awkward_soup(rng)]
+    return {lay: make_scene(meshes, lay) for lay in LAYOUTS}
+
+
+def test_layouts_are_built_as_asked(scenes):
+    assert scenes["binary"].stats()["bvh_layout"] == "binary"
+    assert scenes["bvh4"].stats()["bvh_layout"] == "bvh4"
+    assert scenes["bvh8"].stats()["bvh_layout"] == ("bvh8" if HAS_AVX2 else "bvh4")
+    for lay in ("bvh4", "bvh8"):
+        st = scenes[lay].stats()
+        assert st["bvh_wide_nodes"] > 0
+        assert st["bvh_wide_nodes"] < st["bvh_nodes"] / 2  # 4 and 8 children per node, not 2
+        assert st["bvh_bytes"] > 36 * st["triangles"]      # triangles are in there
+    auto = make_scene([noisy_sphere(8, np.random.default_rng(0))], "auto")
+    assert auto.stats()["bvh_layout"] == pc.build_info()["bvh"]
+    with pytest.raises(ValueError):
+        auto.commit(bvh="bvh16")
+
+
+@pytest.mark.parametrize("layout", ["bvh4", "bvh8"])
+@pytest.mark.parametrize("tmax", [np.inf, 2.0])
+def test_wide_bvh_hits_are_identical_to_the_binary_bvh(scenes, layout, tmax):
+    rng = np.random.default_rng(11)
+    o, d = awkward_rays(rng)
+    t0, p0, u0, v0 = scenes["binary"].intersect(o, d, tmax)
+    t1, p1, u1, v1 = scenes[layout].intersect(o, d, tmax)
+    hit = p0 >= 0
+    assert 0.2 < hit.mean() < 0.95  # the rays do test something
+    assert np.array_equal(p0 >= 0, p1 >= 0)
+    same = p0 == p1
+    # Same triangle: bit-identical t and barycentrics.
+    assert np.array_equal(t0[same], t1[same])
+    assert np.array_equal(u0[same], u1[same]) and np.array_equal(v0[same], v1[same])
+    # A different triangle only for ties: the soup has coplanar overlapping cube faces, hit at
+    # the same t up to rounding (which of two such hits wins depends on the visiting order, in
+    # the scalar test too: a hit 1 ulp closer can fail T < tmax * det).
+    diff = ~same
+    assert diff.sum() <= 0.02 * len(p0), diff.sum()  # shared cube faces: many exact ties
+    assert (np.abs(t0[diff] - t1[diff]) <= 2 * np.spacing(t0[diff])).all()
+
+
+@pytest.mark.parametrize("layout", ["bvh4", "bvh8"])
+def test_wide_bvh_hits_are_bit_identical_without_ties(layout):
+    # A closed bumpy sphere (no overlapping faces, so no ties: random rays almost never hit an edge exactly) seen from inside and outside.
+    rng = np.random.default_rng(21)
+    mesh = [noisy_sphere(150, rng)]
+    ref, wide = make_scene(mesh, "binary"), make_scene(mesh, layout)
+    o, d = awkward_rays(rng, 100_000)
+    a, b = ref.intersect(o, d), wide.intersect(o, d)
+    assert 0.2 < (a[1] >= 0).mean() < 0.95
+    for x, y in zip(a, b):
+        assert np.array_equal(x, y)
+    assert np.array_equal(ref.occluded(o, d, 1.0), wide.occluded(o, d, 1.0))
+
+
+def test_generic_and_avx2_kernels_agree(scenes):
+    if not HAS_AVX2:
+        pytest.skip("this CPU has no AVX2: the 8-wide kernel is never used")
+    rng = np.random.default_rng(12)
+    o, d = awkward_rays(rng)
+    a, b = scenes["bvh4"].intersect(o, d), scenes["bvh8"].intersect(o, d)
+    assert np.array_equal(a[0], b[0])
+    assert (a[1] != b[1]).sum() <= 1e-4 * len(o)
+    assert np.array_equal(scenes["bvh4"].occluded(o, d, 1.5), scenes["bvh8"].occluded(o, d, 1.5))
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("tmax", [np.inf, 0.5, 3.0])
+def test_occluded_agrees_with_intersect(scenes, layout, tmax):
+    rng = np.random.default_rng(13)
+    o, d = awkward_rays(rng)
+    t, prim, _, _ = scenes[layout].intersect(o, d, tmax)
+    occ = scenes[layout].occluded(o, d, tmax)
+    assert 0.05 < occ.mean() < 0.95
+    assert np.array_equal(occ, prim >= 0)
+    assert (t[occ] < tmax).all()
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_tiny_scenes(layout):
+    # One triangle: the root is a leaf, and a wide root with one used lane.
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    s = make_scene([(pos, np.array([[0, 1, 2]], np.int32))], layout)
+    o = np.array([[0.2, 0.2, 1], [2, 2, 1], [0.2, 0.2, -1]], np.float32)
+    d = np.array([[0, 0, -1], [0, 0, -1], [0, 0, -1]], np.float32)
+    t, prim, b1, b2 = s.intersect(o, d)
+    assert prim.tolist() == [0, -1, -1] and t[0] == 1.0
+    assert s.occluded(o, d).tolist() == [True, False, False]
+    e = pc.Scene()
+    e.commit(bvh=layout)
+    assert e.intersect(o, d)[1].tolist() == [-1, -1, -1]
+    assert not e.occluded(o, d).any()
+
+
+def big_grid(n):
+    """A noisy height field of 2 n^2 triangles (one mesh, so the BVH build dominates commit)."""
+    rng = np.random.default_rng(3)
+    x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
+    z = 0.01 * rng.standard_normal(x.shape)
+    pos = np.stack([x, y, z], -1).reshape(-1, 3).astype(np.float32)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    a = (i * (n + 1) + j).ravel()
+    tris = np.concatenate([np.stack([a, a + n + 1, a + 1], 1), np.stack([a + 1, a + n + 1, a + n + 2], 1)])
+    return pos, tris.astype(np.int32)
+
+
+def test_commit_can_be_cancelled_from_another_thread_and_run_again():
+    pos, tris = big_grid(700)  # ~1M triangles: a commit takes a second or more
+    s = pc.Scene()
+    s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
+    s.cancel_commit()  # no commit running: no effect on the next one
+    errors = []
+
+    def run():
+        try:
+            s.commit()
+        except RuntimeError as e:
+            errors.append(e)
+
+    th = threading.Thread(target=run)
+    th.start()
+    while th.is_alive():  # commit() clears the request when it starts, so keep asking
+        s.cancel_commit()
+        time.sleep(0.002)
+    th.join()
+    assert len(errors) == 1 and "cancelled" in str(errors[0])
+    o = np.array([[0.5, 0.5, 1.0]], np.float32)
+    d = np.array([[0.0, 0.0, -1.0]], np.float32)
+    with pytest.raises(ValueError, match="commit"):
+        s.intersect(o, d)  # uncommitted, not half-built
+    s.commit()  # usable: commit again works
+    t, prim, _, _ = s.intersect(o, d)
+    assert prim[0] >= 0 and abs(t[0] - 1.0) < 0.1
+    assert s.stats()["triangles"] == len(tris)
