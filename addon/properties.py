@@ -4,7 +4,8 @@ Threads are not stored here: Blender's own `scene.render.threads_mode` / `thread
 """
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
+                       PointerProperty)
 
 
 def _requery_passes(self, context):
@@ -97,6 +98,34 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         name="Next-Event Estimation",
         description="Sample emissive surfaces directly (with MIS): less noise from small lights",
         default=True,
+    )
+    # Pixel filter: Cycles' film filter and its default (Blackman-Harris, 1.5 px), so images
+    # look the same in both engines.
+    filter_type: EnumProperty(
+        name="Pixel Filter", description="Pixel filter type",
+        items=(
+            ('BOX', "Box", "Box filter: sharpest, may alias"),
+            ('GAUSSIAN', "Gaussian", "Gaussian filter"),
+            ('BLACKMAN_HARRIS', "Blackman-Harris", "Blackman-Harris filter: smooth, little "
+                                                   "blurring (Cycles' default)"),
+        ),
+        default='BLACKMAN_HARRIS',
+    )
+    filter_width: FloatProperty(
+        name="Width", description="Pixel filter width",
+        default=1.5, min=0.01, max=10.0, soft_max=3.0, subtype='PIXEL',
+    )
+    use_autofocus: BoolProperty(
+        name="Autofocus",
+        description="Focus the camera's depth of field on the surface seen at the focus point "
+                    "(instead of the camera's focus distance or object)",
+        default=False,
+    )
+    autofocus_point: FloatVectorProperty(
+        name="Focus Point",
+        description="Point of the image to focus on (0..1 from the bottom-left; 0.5, 0.5 is "
+                    "the centre)",
+        size=2, default=(0.5, 0.5), min=0.0, max=1.0, subtype='XYZ',
     )
     film_exposure: FloatProperty(
         name="Exposure",

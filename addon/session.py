@@ -65,7 +65,26 @@ def update_render_passes(engine, scene, view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
 
 
-def render_settings(pc, scene):
+def render_border(scene, warn=None):
+    """The rendered rectangle (x, y, w, h) in pixels from the bottom-left of the full frame:
+    the render border when it is on (Blender's own rounding: truncated fractions of the
+    frame), else the whole frame."""
+    width, height = render_size(scene)
+    r = scene.render
+    if not r.use_border:
+        return 0, 0, width, height
+    x0, x1 = int(r.border_min_x * width), int(r.border_max_x * width)
+    y0, y1 = int(r.border_min_y * height), int(r.border_max_y * height)
+    x0, y0 = max(x0, 0), max(y0, 0)
+    x1, y1 = min(x1, width), min(y1, height)
+    if x1 - x0 < 1 or y1 - y0 < 1:
+        if warn:
+            warn("The render border is empty; rendering the whole frame")
+        return 0, 0, width, height
+    return x0, y0, x1 - x0, y1 - y0
+
+
+def render_settings(pc, scene, warn=None):
     props = scene.pathlight
     st = pc.RenderSettings()
     st.width, st.height = render_size(scene)
@@ -85,6 +104,8 @@ def render_settings(pc, scene):
         "diffuse_bounces": props.diffuse_bounces,
         "glossy_bounces": props.glossy_bounces,
         "transmission_bounces": props.transmission_bounces,
+        "filter_type": props.filter_type.lower(),
+        "filter_width": props.filter_width,
     }
     # Issue 5 settings.
     optional.update({
@@ -92,6 +113,9 @@ def render_settings(pc, scene):
         "exposure": props.film_exposure,
         "debug_view": props.debug_view.lower(),
     })
+    x, y, w, h = render_border(scene, warn)
+    if (w, h) != (st.width, st.height):
+        optional.update(border_x=x, border_y=y, border_width=w, border_height=h)
     for name, value in optional.items():
         if hasattr(st, name):
             setattr(st, name, value)
@@ -119,7 +143,7 @@ def render(engine, depsgraph):
         if cache is not None and cache.previous is not None:
             engine.update_stats("", "Pathlight | meshes: {hits} cached, {misses} exported"
                                 .format(**cache.previous))
-        settings = render_settings(pc, scene)
+        settings = render_settings(pc, scene, warn)
         if engine.is_preview:  # material thumbnails: small and quick
             settings.samples = min(settings.samples, PREVIEW_SAMPLES)
             if hasattr(settings, "sample_offset"):
@@ -131,18 +155,20 @@ def render(engine, depsgraph):
             passes.remove(p)
         if known:
             settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
-        if not _commit(engine, core_scene, settings.threads):
+        if not _commit(engine, core_scene, settings.threads, scene.pathlight.time_limit):
             # An empty (transparent black) result: Blender may still save the frame, and
             # bpy crashes saving a frame whose engine gave it no result at all.
-            engine.end_result(engine.begin_result(0, 0, *render_size(scene), layer=view_layer.name))
+            engine.end_result(engine.begin_result(0, 0, *render_border(scene)[2:], layer=view_layer.name))
             return
         sess = pc.Session(core_scene, settings)
         dropped = core_scene.stats().get("dropped_triangles", 0)
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
+        _report_focus(sess, warn)
         for name, channels, chan_id, _, _ in passes:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
-        done = _run(engine, sess, *render_size(scene), time_limit=scene.pathlight.time_limit,
+        _, _, width, height = render_border(scene)
+        done = _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit,
                     passes=[p[0] for p in passes], bvh_view=scene.pathlight.debug_view == 'BVH',
                     layer=view_layer.name)
         _stamp(engine, getattr(settings, "sample_offset", 0), done)
@@ -153,10 +179,11 @@ def render(engine, depsgraph):
         engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
 
 
-def _commit(engine, core_scene, threads):
+def _commit(engine, core_scene, threads, time_limit=0.0):
     """Builds the BVH and the lights on a worker thread (the core releases the GIL) while this
     thread, the one Blender called, watches for Esc: a cancel stops even a long build within
-    milliseconds. Returns False when the render was cancelled."""
+    milliseconds. Returns False when the render was cancelled. The listener hears stage="build"
+    with no samples; its ETA is the time limit, when there is one (sampling starts after)."""
     if not hasattr(core_scene, "cancel_commit"):  # an older core build
         core_scene.commit(threads)
         return True
@@ -178,7 +205,7 @@ def _commit(engine, core_scene, threads):
             continue
         listener = _progress_listener
         info = {"samples_done": 0, "samples_total": 0, "elapsed_s": time.monotonic() - t0,
-                "eta_s": None, "stage": "build"}
+                "eta_s": time_limit if time_limit > 0 else None, "stage": "build"}
         if (listener is not None and listener(info)) or engine.test_break():
             core_scene.cancel_commit()
             cancelled = True
@@ -188,6 +215,17 @@ def _commit(engine, core_scene, threads):
     if cancelled:
         log.info("render cancelled " + ("during the BVH build" if stopped else "before it started"))
     return not cancelled
+
+
+def _report_focus(sess, warn):
+    stats = sess.stats()
+    state = stats.get("autofocus", "off")
+    if state == "hit":
+        log.info("Pathlight: autofocus at %.4g (distance along the view axis)",
+                 stats["focus_distance"])
+    elif state == "miss":
+        warn("Autofocus: nothing under the focus point; using the camera's focus distance "
+             f"{stats['focus_distance']:.4g}")
 
 
 def _warner(engine):
@@ -205,6 +243,8 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
     """Streams the session's film (and passes) into the render result; returns the samples
     done."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
+    # With a render border, Blender's result is the border's size (it crops, or pastes the
+    # border into the frame, itself): the film covers exactly that.
     result = engine.begin_result(0, 0, width, height, layer=layer)
     info = {"samples_done": 0}
     try:
@@ -300,7 +340,10 @@ def _status_line(info, sess):
              f"{info['elapsed_s']:.1f} s"]
     if info["eta_s"] is not None and info["samples_done"] < info["samples_total"]:
         parts.append(f"ETA {info['eta_s']:.1f} s")
-    rays = sess.stats().get("rays_per_s")
+    stats = sess.stats()
+    rays = stats.get("rays_per_s")
     if rays:
         parts.append(f"{rays / 1e6:.1f} Mrays/s")
+    if stats.get("autofocus") == "hit":
+        parts.append(f"Focus {stats['focus_distance']:.3g}")
     return " | ".join(parts)

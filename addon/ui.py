@@ -149,6 +149,41 @@ class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
         col.prop(light, "use_shadow", text="Cast Shadow")
 
 
+class PATHLIGHT_RENDER_PT_pixel_filter(PathlightPanel, bpy.types.Panel):
+    bl_label = "Pixel Filter"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.pathlight
+        col = layout.column()
+        col.prop(settings, "filter_type", text="Type")
+        col.prop(settings, "filter_width")
+
+
+class PATHLIGHT_RENDER_PT_autofocus(PathlightPanel, bpy.types.Panel):
+    bl_label = "Autofocus"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.pathlight, "use_autofocus", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.pathlight
+        col = layout.column()
+        col.active = settings.use_autofocus
+        col.prop(settings, "autofocus_point")
+        cam = context.scene.camera
+        if settings.use_autofocus and cam is not None and cam.type == 'CAMERA' \
+                and not cam.data.dof.use_dof:
+            col.label(text="Turn on the camera's Depth of Field", icon='INFO')
+
+
 class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
     bl_label = "Performance"
     bl_options = {'DEFAULT_CLOSED'}
@@ -166,17 +201,21 @@ class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
 
 
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_film,
+           PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
            PATHLIGHT_VIEWLAYER_PT_passes)
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles
 # does: output, camera, lens, light, world context, ...) plus EEVEE's node-based material and
-# world surface panels, since Pathlight reads the same shader nodes.
+# world surface panels, since Pathlight reads the same shader nodes, and the camera's depth of
+# field panels.
 EXTRA_PANELS = {
     "EEVEE_MATERIAL_PT_context_material",
     "EEVEE_MATERIAL_PT_surface",
     "MATERIAL_PT_preview",
     "EEVEE_WORLD_PT_surface",
+    "DATA_PT_camera_dof",  # depth of field: Pathlight reads Blender's own DOF settings
+    "DATA_PT_camera_dof_aperture",
 }
 # Light previews need bl_use_preview.
 EXCLUDED_PANELS = {"DATA_PT_preview"}

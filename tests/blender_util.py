@@ -70,6 +70,10 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
     max_bounces (default 1024) sets every bounce limit, so only the total limits paths, like
     Pathlight's max_bounces. For PATHLIGHT, adaptive sampling is off and the per-type bounce
     limits are 1024 unless overridden, so that only max_bounces limits paths there too.
+    Pixel filters: Pathlight renders with the 1-pixel box here unless overridden
+    (filter_type='GAUSSIAN', filter_width=1.5, ...; Cycles' names pixel_filter_type and
+    filter_width also work, so BOX_FILTER sets both engines alike), as before Pathlight had
+    filters; Cycles keeps its own default (Blackman-Harris 1.5 px) unless overridden.
     """
     scene = scene or bpy.context.scene
     render = scene.render
@@ -82,6 +86,8 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
         _setup_cycles(settings, overrides.pop("max_bounces", 1024))
     else:
         raise ValueError(f"unsupported engine {engine!r}")
+    if engine == "PATHLIGHT" and "pixel_filter_type" in overrides:
+        overrides["filter_type"] = overrides.pop("pixel_filter_type")
     for name, value in overrides.items():
         target = settings if hasattr(settings, name) else render
         if not hasattr(target, name):
@@ -121,7 +127,8 @@ def _setup_pathlight(settings):
     """Pathlight with every path-length limit but the total off, no adaptive sampling: the
     counterpart of _setup_cycles. (Settings the add-on does not have yet are skipped.)"""
     for name, value in (("use_adaptive_sampling", False), ("diffuse_bounces", 1024),
-                        ("glossy_bounces", 1024), ("transmission_bounces", 1024)):
+                        ("glossy_bounces", 1024), ("transmission_bounces", 1024),
+                        ("filter_type", 'BOX'), ("filter_width", 1.0)):
         if hasattr(settings, name):
             setattr(settings, name, value)
 
@@ -140,7 +147,8 @@ def _setup_cycles(cycles, bounces):
         setattr(cycles, name, bounces)
 
 
-# Cycles' pixel filter set to Pathlight's (a 1-pixel box), for per-pixel comparisons.
+# The 1-pixel box filter, for per-pixel comparisons (Pathlight's default in render_to_array;
+# passing it to either engine sets it).
 BOX_FILTER = dict(pixel_filter_type='BOX', filter_width=1.0)
 
 

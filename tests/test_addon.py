@@ -338,9 +338,12 @@ def test_camera_export(scene):
     np.testing.assert_allclose(-m[:3, 2], (0, 1, 0), atol=1e-6)  # looks down its local -Z
     assert warnings == []
 
-    cam.data.type = 'ORTHO'
-    export_scene(depsgraph(), warnings)
-    assert len(warnings) == 1 and "ortho" in warnings[0]
+    cam.data.type = 'ORTHO'  # supported since issue 5: no warning
+    params = export_scene(depsgraph(), warnings).camera
+    assert warnings == [] and params["type"] == 'ORTHO'
+    cam.data.type = 'PANO'  # still unsupported: a warning, and a perspective render
+    params = export_scene(depsgraph(), warnings).camera
+    assert len(warnings) == 1 and "pano" in warnings[0] and params["type"] == 'PERSP'
 
 
 def test_no_camera_is_an_export_error(scene):

@@ -57,6 +57,9 @@ def render_multilayer(sc, path, samples=4, **props):
     sc.render.engine = 'PATHLIGHT'
     sc.pathlight.samples = samples
     sc.pathlight.use_adaptive_sampling = False
+    # The 1-pixel box filter, as render_to_array's default: the masks below are one pixel in
+    # from each edge (the add-on's default is now Blackman-Harris 1.5 px, as Cycles').
+    props = {"filter_type": 'BOX', "filter_width": 1.0, **props}
     for key, value in props.items():
         setattr(sc.pathlight, key, value)
     sc.render.use_compositing = False

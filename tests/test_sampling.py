@@ -201,6 +201,8 @@ def core_render(scene, **props):
     for what a Blender render result cannot show (sample counts, timing)."""
     from addon.core import get_core
     pc = get_core()
+    # The 1-pixel box, as render_to_array's default (these tests predate the pixel filters).
+    props = {"filter_type": 'BOX', "filter_width": 1.0, **props}
     for name, value in props.items():
         setattr(scene.pathlight, name, value)
     warnings = []

@@ -1,4 +1,6 @@
-"""Scene camera → the fields of pc.Camera (Blender's conventions and units)."""
+"""Scene camera → the fields of pc.Camera (Blender's conventions and units, as Cycles reads them)."""
+
+import math
 
 import numpy as np
 
@@ -24,10 +26,13 @@ def camera_params(scene, depsgraph, warn):
     cam = cam_obj.data
     if cam_obj.type != 'CAMERA':
         return params  # any object can be the camera; Blender then uses the default lens
-    if cam.type != 'PERSP':
-        warn(f"Camera '{cam_obj.name}': {cam.type.lower()} projection is not supported yet; "
+    cam_type = cam.type
+    if cam_type not in ('PERSP', 'ORTHO'):
+        warn(f"Camera '{cam_obj.name}': {cam_type.lower()} projection is not supported yet; "
              "rendering with a perspective projection")
+        cam_type = 'PERSP'
     params.update(
+        type=cam_type,
         lens=cam.lens,
         sensor_width=cam.sensor_width,
         sensor_height=cam.sensor_height,
@@ -37,4 +42,83 @@ def camera_params(scene, depsgraph, warn):
         clip_start=cam.clip_start,
         clip_end=cam.clip_end,
     )
+    if cam_type == 'ORTHO':
+        params["ortho_scale"] = cam.ortho_scale
+    params.update(_dof_params(cam_obj, cam, cam_type, matrix, depsgraph, warn))
+    _autofocus_params(scene, params)
+    if params.get("use_autofocus") and "aperture_size" not in params:
+        warn(f"Camera '{cam_obj.name}': autofocus needs the camera's depth of field; ignored")
+        params["use_autofocus"] = False
     return params
+
+
+def _autofocus_params(scene, params):
+    props = getattr(scene, "pathlight", None)
+    if props is None or not getattr(props, "use_autofocus", False):
+        return
+    x, y = props.autofocus_point
+    ok = all(math.isfinite(v) for v in (x, y))
+    params.update(use_autofocus=True,
+                  autofocus_x=min(max(float(x), 0.0), 1.0) if ok else 0.5,
+                  autofocus_y=min(max(float(y), 0.0), 1.0) if ok else 0.5)
+
+
+def _dof_params(cam_obj, cam, cam_type, matrix, depsgraph, warn):
+    """Thin-lens fields as Cycles' Blender sync computes them: aperture radius from the F-stop
+    (focal length in mm read as metres / (2 F), or 1 / (2 F) for orthographic cameras), focus
+    distance along the view axis (a focus object's position projected on that axis)."""
+    dof = cam.dof
+    if not dof.use_dof:
+        return {}
+    name = cam_obj.name
+    fstop = float(dof.aperture_fstop)
+    if not (fstop > 0.0 and math.isfinite(fstop)):
+        warn(f"Camera '{name}': F-stop {fstop:g} is not positive; rendering without depth of field")
+        return {}
+    if cam_type == 'ORTHO':
+        aperture = 1.0 / (2.0 * fstop)
+    else:
+        aperture = float(cam.lens) * 1e-3 / (2.0 * fstop)
+    if not math.isfinite(aperture) or aperture > 1e6:
+        warn(f"Camera '{name}': F-stop {fstop:g} gives an absurd aperture; rendering without depth "
+             "of field")
+        return {}
+    ratio = float(dof.aperture_ratio)
+    if not (ratio > 0.0 and math.isfinite(ratio)):
+        warn(f"Camera '{name}': aperture ratio {ratio:g} is not positive; using 1")
+        ratio = 1.0
+    rotation = float(dof.aperture_rotation)
+    focus = _focus_distance(cam_obj, dof, matrix, depsgraph, warn)
+    if focus is None:
+        return {}
+    return dict(aperture_size=aperture, focus_distance=focus,
+                aperture_blades=int(dof.aperture_blades),
+                aperture_rotation=rotation if math.isfinite(rotation) else 0.0,
+                aperture_ratio=ratio)
+
+
+def _focus_distance(cam_obj, dof, matrix, depsgraph, warn):
+    """Focus distance along the view axis, or None (with a warning) when there is none."""
+    name = cam_obj.name
+    target = dof.focus_object
+    distance = float(dof.focus_distance)
+    if target is not None:
+        target_eval = target.evaluated_get(depsgraph)
+        position = np.array(target_eval.matrix_world, np.float64)[:3, 3]
+        sub = dof.focus_subtarget
+        if sub and target_eval.pose is not None:  # a bone: its head, as Cycles
+            bone = target_eval.pose.bones.get(sub)
+            if bone is not None:
+                head = np.array(target_eval.matrix_world, np.float64) @ np.array(bone.matrix, np.float64)
+                position = head[:3, 3]
+        view_axis = matrix[:3, 2].astype(np.float64)  # local +Z, unit (scale removed)
+        depth = abs(float(np.dot(view_axis, matrix[:3, 3] - position)))
+        if math.isfinite(depth) and depth > 1e-6:
+            return depth
+        warn(f"Camera '{name}': focus object '{target.name}' lies in the camera's plane; using the "
+             f"focus distance {distance:g} instead")
+    if distance > 0.0 and math.isfinite(distance):
+        return distance
+    warn(f"Camera '{name}': focus distance {distance:g} is not positive; rendering without depth "
+         "of field")
+    return None

@@ -112,8 +112,18 @@ void validate_camera(const CameraDesc& c) {
   if (!(c.pixel_aspect_x > 0.0f) || !(c.pixel_aspect_y > 0.0f))
     throw std::invalid_argument("pixel aspect must be positive");
   for (float v : {c.lens, c.sensor_width, c.sensor_height, c.shift_x, c.shift_y, c.clip_start,
-                  c.pixel_aspect_x, c.pixel_aspect_y})
+                  c.pixel_aspect_x, c.pixel_aspect_y, c.ortho_scale, c.aperture_size, c.focus_distance,
+                  c.aperture_rotation, c.aperture_ratio, c.autofocus_x, c.autofocus_y})
     if (!std::isfinite(v)) throw std::invalid_argument("camera parameters must be finite");
+  if (c.type == CameraType::Orthographic && !(c.ortho_scale > 0.0f))
+    throw std::invalid_argument("camera ortho_scale must be positive");
+  if (!(c.aperture_size >= 0.0f)) throw std::invalid_argument("camera aperture_size must be >= 0");
+  if (!(c.focus_distance > 0.0f)) throw std::invalid_argument("camera focus_distance must be positive");
+  if (!(c.aperture_ratio > 0.0f)) throw std::invalid_argument("camera aperture_ratio must be positive");
+  if (c.aperture_blades < 0 || c.aperture_blades > 1024)
+    throw std::invalid_argument("camera aperture_blades must be in [0, 1024]");
+  if (!(c.autofocus_x >= 0.0f && c.autofocus_x <= 1.0f && c.autofocus_y >= 0.0f && c.autofocus_y <= 1.0f))
+    throw std::invalid_argument("camera autofocus point must be in [0, 1]");
   if (!c.matrix_world.is_finite()) throw std::invalid_argument("camera matrix must be finite");
   {
     const Mat4& m = c.matrix_world;
@@ -780,7 +790,44 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("clip_start", &CameraDesc::clip_start)
       .def_readwrite("clip_end", &CameraDesc::clip_end)
       .def_readwrite("pixel_aspect_x", &CameraDesc::pixel_aspect_x)
-      .def_readwrite("pixel_aspect_y", &CameraDesc::pixel_aspect_y);
+      .def_readwrite("pixel_aspect_y", &CameraDesc::pixel_aspect_y)
+      .def_property(
+          "type", [](const CameraDesc& c) { return c.type == CameraType::Orthographic ? "ORTHO" : "PERSP"; },
+          [](CameraDesc& c, const std::string& s) {
+            if (s == "PERSP") c.type = CameraType::Perspective;
+            else if (s == "ORTHO") c.type = CameraType::Orthographic;
+            else throw std::invalid_argument("camera type must be PERSP or ORTHO");
+          })
+      .def_readwrite("ortho_scale", &CameraDesc::ortho_scale)
+      .def_readwrite("aperture_size", &CameraDesc::aperture_size)
+      .def_readwrite("focus_distance", &CameraDesc::focus_distance)
+      .def_readwrite("aperture_blades", &CameraDesc::aperture_blades)
+      .def_readwrite("aperture_rotation", &CameraDesc::aperture_rotation)
+      .def_readwrite("aperture_ratio", &CameraDesc::aperture_ratio)
+      .def_readwrite("use_autofocus", &CameraDesc::use_autofocus)
+      .def_readwrite("autofocus_x", &CameraDesc::autofocus_x)
+      .def_readwrite("autofocus_y", &CameraDesc::autofocus_y)
+      .def(
+          "generate_ray",
+          [](const CameraDesc& c, int width, int height, float x, float y, py::object lens) {
+            if (width < 1 || height < 1 || width > 65536 || height > 65536)
+              throw std::invalid_argument("resolution must be in [1, 65536]");
+            Vec2 u{0.5f, 0.5f};
+            bool pinhole = lens.is_none();
+            if (!pinhole) {
+              auto t = lens.cast<std::pair<float, float>>();
+              u = {t.first, t.second};
+              if (!(u.x >= 0.0f && u.x <= 1.0f && u.y >= 0.0f && u.y <= 1.0f))
+                throw std::invalid_argument("lens sample must be in [0, 1]^2");
+            }
+            const Camera cam(c, width, height);
+            const Ray r = pinhole ? cam.generate_pinhole(x, y) : cam.generate(x, y, u);
+            return py::make_tuple(py::make_tuple(r.org.x, r.org.y, r.org.z), py::make_tuple(r.dir.x, r.dir.y, r.dir.z),
+                                  r.tmax);
+          },
+          py::arg("width"), py::arg("height"), py::arg("x"), py::arg("y"), py::arg("lens") = py::none(),
+          "The camera ray through raster (x, y) of a width x height frame: (origin, direction, tmax). "
+          "lens: a point of the unit square on the aperture, or None for the lens centre.");
 
   py::class_<RenderSettings>(m, "RenderSettings")
       .def(py::init<>())
@@ -805,6 +852,23 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("diffuse_bounces", &RenderSettings::diffuse_bounces)
       .def_readwrite("glossy_bounces", &RenderSettings::glossy_bounces)
       .def_readwrite("transmission_bounces", &RenderSettings::transmission_bounces)
+      .def_property(
+          "filter_type",
+          [](const RenderSettings& s) {
+            return s.filter_type == FilterType::Box ? "box" : s.filter_type == FilterType::Gaussian ? "gaussian"
+                                                                                                    : "blackman_harris";
+          },
+          [](RenderSettings& s, const std::string& v) {
+            if (v == "box") s.filter_type = FilterType::Box;
+            else if (v == "gaussian") s.filter_type = FilterType::Gaussian;
+            else if (v == "blackman_harris") s.filter_type = FilterType::BlackmanHarris;
+            else throw std::invalid_argument("filter_type must be 'box', 'gaussian' or 'blackman_harris'");
+          })
+      .def_readwrite("filter_width", &RenderSettings::filter_width)
+      .def_readwrite("border_x", &RenderSettings::border_x)
+      .def_readwrite("border_y", &RenderSettings::border_y)
+      .def_readwrite("border_width", &RenderSettings::border_width)
+      .def_readwrite("border_height", &RenderSettings::border_height)
       .def_property(
           "passes",
           [](const RenderSettings& s) {
@@ -1155,6 +1219,8 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["threads"] = s.threads;
              d["elapsed_s"] = s.elapsed_s;
              d["active_pixels"] = s.active_pixels;
+             d["focus_distance"] = s.focus_distance;
+             d["autofocus"] = s.autofocus == 0 ? "off" : s.autofocus == 1 ? "hit" : "miss";
              return d;
            })
       .def("sample_counts",

@@ -42,6 +42,13 @@ void validate(const RenderSettings& s) {
     throw std::invalid_argument("sample_offset must be >= 0 and sample_offset + samples < 2^31");
   if (s.diffuse_bounces < 0 || s.glossy_bounces < 0 || s.transmission_bounces < 0)
     throw std::invalid_argument("bounce limits must be >= 0");
+  if (!(s.filter_width > 0.0f) || !(s.filter_width <= 100.0f))
+    throw std::invalid_argument("filter_width must be in (0, 100] pixels");
+  if (s.border_width != 0 || s.border_height != 0) {
+    if (s.border_width < 1 || s.border_height < 1 || s.border_x < 0 || s.border_y < 0 ||
+        s.border_x > s.width - s.border_width || s.border_y > s.height - s.border_height)
+      throw std::invalid_argument("the render border must be a non-empty rectangle inside the frame");
+  }
   if (!(s.exposure >= 0.0f) || !std::isfinite(s.exposure)) throw std::invalid_argument("exposure must be finite and >= 0");
   if (s.passes >= (1u << kPassCount)) throw std::invalid_argument("unknown render pass");
 }
@@ -52,14 +59,41 @@ uint32_t effective_passes(const RenderSettings& s) {
   return p;
 }
 
+namespace {
+// The film's size: the border's, or the whole frame's.
+int film_width(const RenderSettings& s) { return s.border_width > 0 ? s.border_width : s.width; }
+int film_height(const RenderSettings& s) { return s.border_height > 0 ? s.border_height : s.height; }
+}  // namespace
+
 Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera)
     : scene_(std::move(scene)),
       settings_((validate(settings), settings)),
-      film_(settings.width, settings.height, settings.tile_size, effective_passes(settings), settings.exposure) {
+      film_(film_width(settings), film_height(settings), settings.tile_size, effective_passes(settings), settings.exposure) {
   if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
   // The viewport's camera overrides the scene's (same committed scene, nothing rebuilt).
   const CameraDesc& view = camera ? *camera : scene_->camera_desc();
   camera_ = Camera(view, settings_.width, settings_.height);
+  if (view.use_autofocus) {
+    // Focus where the pinhole ray through the chosen point first meets a surface, measured
+    // along the view axis, so the focal plane passes exactly through that point.
+    const float fx = std::isfinite(view.autofocus_x) ? std::clamp(view.autofocus_x, 0.0f, 1.0f) : 0.5f;
+    const float fy = std::isfinite(view.autofocus_y) ? std::clamp(view.autofocus_y, 0.0f, 1.0f) : 0.5f;
+    const Ray r = camera_.generate_pinhole(fx * float(settings_.width), fy * float(settings_.height));
+    Hit h;
+    h.t = r.tmax;
+    if (scene_->intersect(r, h) && h.valid()) {
+      camera_.set_focus_distance(camera_.view_depth(r.org + r.dir * h.t));
+      autofocus_ = 1;
+    } else {
+      autofocus_ = 2;
+    }
+  }
+  focus_distance_ = camera_.focus_distance();
+  filter_ = PixelFilter(settings_.filter_type, settings_.filter_width);
+  if (settings_.border_width > 0) {
+    region_x_ = settings_.border_x;
+    region_y_ = settings_.border_y;
+  }
   {  // the same orthonormal frame as Camera's (Blender ignores the camera's scale)
     const Mat4& m = view.matrix_world;
     view_origin_ = {m.m[0][3], m.m[1][3], m.m[2][3]};
@@ -92,7 +126,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     film_.tile_rect(t, x0, y0, x1, y1);
     tile_active_[size_t(t)] = (x1 - x0) * (y1 - y0);
   }
-  active_.store(int64_t(settings_.width) * settings_.height);
+  active_.store(int64_t(film_.width()) * film_.height());
 }
 
 Session::~Session() {
@@ -154,6 +188,8 @@ SessionStats Session::stats() const {
   s.active_pixels = active_.load();
   s.threads = pool_ ? pool_->size() : 0;
   s.elapsed_s = elapsed();
+  s.focus_distance = focus_distance_;
+  s.autofocus = autofocus_;
   return s;
 }
 
@@ -207,12 +243,13 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
           out.a = -1.0f;  // marks "no sample"
           continue;
         }
+        const int fx = x + region_x_, fy = y + region_y_;  // in the full frame
         float* aux = stride ? &local_aux[(size_t(y - y0) * size_t(tw) + size_t(x - x0)) * stride] : nullptr;
         if (bvh_view) {
           // The pixel centre's camera ray, counted by the same traversal that renders.
           TraversalCounters tc;
           Hit hit;
-          scene_->intersect(camera_.generate(float(x) + 0.5f, float(y) + 0.5f), hit, &tc);
+          scene_->intersect(camera_.generate_pinhole(float(fx) + 0.5f, float(fy) + 0.5f), hit, &tc);
           std::fill(aux, aux + stride, 0.0f);
           aux[film_.pass_offset(Pass::BvhNodes)] = float(tc.nodes);
           aux[film_.pass_offset(Pass::BvhTriangles)] = float(tc.triangles);
@@ -221,11 +258,16 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
           continue;
         }
         PathAovs aovs;
-        // One independent stream per (seed, pixel, sample): thread- and pass-independent.
-        const uint64_t pixel = uint64_t(y) * uint64_t(settings_.width) + uint64_t(x);
+        // One independent stream per (seed, pixel, sample): thread- and pass-independent, and
+        // keyed by the full-frame pixel, so a border renders exactly its part of the frame.
+        const uint64_t pixel = uint64_t(fy) * uint64_t(settings_.width) + uint64_t(fx);
         Sampler sampler(settings_.sampler, settings_.seed, pixel, uint32_t(settings_.sample_offset + s));
-        const Vec2 j = sampler.get2d();
-        const Vec3 L = trace_path(*scene_, camera_.generate(float(x) + j.x, float(y) + j.y), sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
+        const Vec2 j = sampler.get2d();  // dimension 0: position in the pixel (filter)
+        // Dimension 1: the lens, taken only with an aperture, so pinhole renders keep the
+        // same streams for their paths.
+        const Vec2 lens = camera_.has_aperture() ? sampler.get2d() : Vec2{0.5f, 0.5f};
+        const Ray ray = camera_.generate(float(fx) + filter_.jitter(j.x), float(fy) + filter_.jitter(j.y), lens);
+        const Vec3 L = trace_path(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
         ++paths;
         const float alpha = std::isfinite(aovs.alpha) ? aovs.alpha : 1.0f;
         if (is_finite(L)) {

@@ -12,6 +12,7 @@
 
 #include "render/film.h"
 #include "render/integrator.h"
+#include "render/pixel_filter.h"
 #include "util/thread_pool.h"
 
 namespace pl {
@@ -36,6 +37,11 @@ struct RenderSettings {
   // Renders sample indices [sample_offset, sample_offset + samples): partial renders of one
   // frame on several machines, merged by sample count, equal one render of all samples.
   int sample_offset = 0;
+  FilterType filter_type = FilterType::Box;
+  float filter_width = 1.0f;  // pixels
+  // Render border: only this rectangle of the width x height frame (pixels from the
+  // bottom-left) is rendered, and the film is its size; border_width 0 = the whole frame.
+  int border_x = 0, border_y = 0, border_width = 0, border_height = 0;
   uint32_t passes = 0;            // render passes to keep: pass_bit()s (film.h)
   bool film_transparent = false;  // the world seen directly becomes alpha 0 (Cycles' Transparent film)
   float exposure = 1.0f;          // linear multiplier of Combined and the light passes (Cycles' film_exposure)
@@ -59,6 +65,8 @@ struct SessionStats {
   int64_t active_pixels = 0;  // pixels adaptive sampling has not stopped yet
   int passes = 0, threads = 0;
   double elapsed_s = 0.0;
+  float focus_distance = 0.0f;  // of the thin lens, after autofocus
+  int autofocus = 0;            // 0 off, 1 focused on a surface, 2 missed (kept the camera's)
 };
 
 class Session {
@@ -91,6 +99,10 @@ class Session {
   std::shared_ptr<const Scene> scene_;
   RenderSettings settings_;
   Camera camera_;
+  PixelFilter filter_;
+  int region_x_ = 0, region_y_ = 0;  // film pixel (0, 0) in the full frame
+  float focus_distance_ = 0.0f;
+  int autofocus_ = 0;
   Vec3 view_origin_, view_right_, view_up_, view_forward_;  // camera frame, for Depth and Denoising Normal
   int total_samples_ = 0;
   IntegratorSettings integrator_;

@@ -1,9 +1,12 @@
 #include "scene/camera.h"
 
+#include <algorithm>
+
 namespace pl {
 
 Camera::Camera(const CameraDesc& d, int width, int height) {
   const Mat4& m = d.matrix_world;
+  type_ = d.type;
   origin_ = {m.m[0][3], m.m[1][3], m.m[2][3]};
   // Blender ignores the camera object's scale: keep only its rotation (orthonormalised).
   right_ = normalize(Vec3{m.m[0][0], m.m[1][0], m.m[2][0]});
@@ -18,7 +21,9 @@ Camera::Camera(const CameraDesc& d, int width, int height) {
   if (fit == SensorFit::Auto)
     fit = d.pixel_aspect_x * winx >= d.pixel_aspect_y * winy ? SensorFit::Horizontal : SensorFit::Vertical;
   const float viewfac = fit == SensorFit::Horizontal ? winx : ycor * winy;
-  const float pixsize = sensor / d.lens / viewfac;  // view-plane units per pixel at distance 1
+  // View-plane units per pixel: at distance 1 (perspective) or in world units (orthographic,
+  // where ortho_scale spans the fitted side).
+  const float pixsize = (type_ == CameraType::Orthographic ? d.ortho_scale : sensor / d.lens) / viewfac;
   const float shx = d.shift_x * viewfac, shy = d.shift_y * viewfac;
   x0_ = (-0.5f * winx + shx) * pixsize;
   y0_ = (-0.5f * ycor * winy + shy) * pixsize;
@@ -26,17 +31,83 @@ Camera::Camera(const CameraDesc& d, int width, int height) {
   dy_ = ycor * pixsize;
   clip_start_ = d.clip_start;
   clip_len_ = d.clip_end - d.clip_start;
+
+  aperture_ = std::isfinite(d.aperture_size) ? std::max(d.aperture_size, 0.0f) : 0.0f;
+  blades_ = d.aperture_blades >= 3 ? d.aperture_blades : 0;
+  blade_rotation_ = std::isfinite(d.aperture_rotation) ? d.aperture_rotation : 0.0f;
+  inv_aperture_ratio_ = d.aperture_ratio > 0.0f && std::isfinite(d.aperture_ratio) ? 1.0f / d.aperture_ratio : 1.0f;
+  set_focus_distance(d.focus_distance);
 }
 
-Ray Camera::generate(float x, float y) const {
-  const Vec3 local{x0_ + x * dx_, y0_ + y * dy_, -1.0f};
+void Camera::set_focus_distance(float d) {
+  // Cycles clamps the same way: a zero distance would put every ray through one point.
+  focus_ = std::isfinite(d) ? std::max(d, 1e-5f) : 1e-5f;
+}
+
+Vec2 Camera::sample_aperture(Vec2 u) const {
+  Vec2 p;
+  if (blades_ == 0) {
+    p = sample_disk_concentric(u);
+  } else {
+    // Regular polygon with unit circumradius (Cycles' layout: corners at rotation + pi/n +
+    // 2 pi k / n): pick wedge k, then a uniform point in the triangle (centre, its corners).
+    const float n = float(blades_);
+    const float k = std::min(std::floor(u.x * n), n - 1.0f);
+    const float s = std::sqrt(std::clamp(u.x * n - k, 0.0f, 1.0f));
+    const float a = 1.0f - s, b = u.y * s;  // weights of the corners at +half and -half
+    const float half = kPi / n;
+    const Vec2 q{(a + b) * std::cos(half), (a - b) * std::sin(half)};
+    const float rot = blade_rotation_ + k * 2.0f * half;
+    const float c = std::cos(rot), sn = std::sin(rot);
+    p = {c * q.x - sn * q.y, sn * q.x + c * q.y};
+  }
+  p.x *= inv_aperture_ratio_;  // anamorphic bokeh, as Cycles
+  return p;
+}
+
+Ray Camera::generate_pinhole(float x, float y) const {
+  const float px = x0_ + x * dx_, py = y0_ + y * dy_;
+  Ray r;
+  if (type_ == CameraType::Orthographic) {
+    r.org = origin_ + right_ * px + up_ * py - back_ * clip_start_;
+    r.dir = -back_;
+    r.tmax = clip_len_;
+    return r;
+  }
+  const Vec3 local{px, py, -1.0f};
   const float inv_len = 1.0f / length(local);
   // Unit direction; -local.z * inv_len is the cosine to the view axis.
   const Vec3 dir = (right_ * local.x + up_ * local.y + back_ * local.z) * inv_len;
   const float z_inv = 1.0f / inv_len;  // distance along the ray per unit of view depth
-  Ray r;
   r.org = origin_ + dir * (clip_start_ * z_inv);
   r.dir = dir;
+  r.tmax = clip_len_ * z_inv;
+  return r;
+}
+
+Ray Camera::generate(float x, float y, Vec2 lens) const {
+  if (aperture_ <= 0.0f) return generate_pinhole(x, y);
+  const Vec2 a = sample_aperture(lens);
+  const float lx = a.x * aperture_, ly = a.y * aperture_;
+  const float px = x0_ + x * dx_, py = y0_ + y * dy_;
+  // In camera space (x right, y up, z forward): the ray leaves the lens point L and passes
+  // through the pinhole ray's point at depth focus_, so the focal plane is exactly there.
+  Vec3 L, F;
+  if (type_ == CameraType::Orthographic) {
+    L = {px + lx, py + ly, 0.0f};
+    F = {px, py, focus_};
+  } else {
+    L = {lx, ly, 0.0f};
+    F = {px * focus_, py * focus_, focus_};
+  }
+  const Vec3 dc = normalize(F - L);
+  Ray r;
+  r.dir = right_ * dc.x + up_ * dc.y - back_ * dc.z;
+  const Vec3 lw = origin_ + right_ * L.x + up_ * L.y;
+  // Clipping planes stay planes perpendicular to the view axis, for every lens point (Cycles
+  // measures the near clip with the pinhole ray's cosine instead: a negligible difference).
+  const float z_inv = 1.0f / dc.z;
+  r.org = lw + r.dir * (clip_start_ * z_inv);
   r.tmax = clip_len_ * z_inv;
   return r;
 }

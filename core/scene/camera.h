@@ -1,36 +1,68 @@
-// Perspective camera with Blender's conventions: looks down local -Z with +Y up, view plane
-// from sensor size, fit, focal length and shift exactly as Blender computes it
-// (BKE_camera_params_compute_viewplane), near/far clipping measured along the view axis.
+// Perspective and orthographic cameras with Blender's conventions: looks down local -Z with +Y
+// up, view plane from sensor size (or ortho scale), fit, focal length and shift exactly as
+// Blender computes it (BKE_camera_params_compute_viewplane), near/far clipping measured along
+// the view axis. Optional thin lens (Cycles' model): a disk or polygonal aperture of a given
+// radius, every ray through a pixel meets the pinhole ray at the focal plane, which lies at
+// focus_distance along the view axis.
 #pragma once
 #include <string>
 
 #include "geometry/ray.h"
+#include "util/sampling.h"
 
 namespace pl {
 
 enum class SensorFit { Auto, Horizontal, Vertical };
+enum class CameraType { Perspective, Orthographic };
 
 struct CameraDesc {
   Mat4 matrix_world;
+  CameraType type = CameraType::Perspective;
   float lens = 50.0f;  // mm
+  float ortho_scale = 6.0f;  // view width (or height, by the fit) of an orthographic camera
   float sensor_width = 36.0f, sensor_height = 24.0f;
   SensorFit sensor_fit = SensorFit::Auto;
   float shift_x = 0.0f, shift_y = 0.0f;
   float clip_start = 0.1f, clip_end = 1000.0f;
   float pixel_aspect_x = 1.0f, pixel_aspect_y = 1.0f;
+  // Thin lens, in world units (the add-on converts Blender's F-stop as Cycles does).
+  float aperture_size = 0.0f;     // aperture radius; 0 = pinhole
+  float focus_distance = 10.0f;   // along the view axis
+  int aperture_blades = 0;        // < 3: round aperture
+  float aperture_rotation = 0.0f; // radians
+  float aperture_ratio = 1.0f;    // anamorphic bokeh: > 1 squeezes it horizontally
+  // Autofocus: the session sets focus_distance from the surface seen through this point
+  // (0..1 over the full frame, from the bottom-left).
+  bool use_autofocus = false;
+  float autofocus_x = 0.5f, autofocus_y = 0.5f;
 };
 
 class Camera {
  public:
   Camera() = default;
   Camera(const CameraDesc& d, int width, int height);
-  // Ray through raster position (x, y), measured in pixels from the bottom-left corner.
-  Ray generate(float x, float y) const;
+  // Ray through raster position (x, y), measured in pixels from the bottom-left corner of the
+  // full frame; `lens` (unit square) picks the point on the aperture (ignored for a pinhole).
+  Ray generate(float x, float y, Vec2 lens = {0.5f, 0.5f}) const;
+  // The same ray through the lens centre: what autofocus and the focal plane are defined by.
+  Ray generate_pinhole(float x, float y) const;
+  bool has_aperture() const { return aperture_ > 0.0f; }
+  float focus_distance() const { return focus_; }
+  void set_focus_distance(float d);
+  // Distance of a world point from the camera along the view axis.
+  float view_depth(Vec3 p) const { return -dot(p - origin_, back_); }
+  // Point on the aperture (camera-plane offsets along right/up, before scaling by the radius).
+  Vec2 sample_aperture(Vec2 u) const;
 
  private:
+  CameraType type_ = CameraType::Perspective;
   Vec3 origin_, right_, up_, back_;  // orthonormal world axes of the camera
-  float x0_ = 0, y0_ = 0, dx_ = 0, dy_ = 0;  // view plane at distance 1: left, bottom, size per pixel
+  // View plane at distance 1 (perspective) or in world units (orthographic): left, bottom,
+  // size per pixel.
+  float x0_ = 0, y0_ = 0, dx_ = 0, dy_ = 0;
   float clip_start_ = 0, clip_len_ = kInf;
+  float aperture_ = 0.0f, focus_ = 10.0f, blade_rotation_ = 0.0f, inv_aperture_ratio_ = 1.0f;
+  int blades_ = 0;
 };
 
 }  // namespace pl
