@@ -85,10 +85,9 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     if (!is_black(cl.emission)) {
       float w = 1.0f;
       if (nee && !prev_delta) {
-        // Distance from the last real scattering: transparent crossings in between are part of
-        // the same light-sample segment (which saw them through its transmittance).
-        const float t = length(sp.p - mis_org);
-        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, t, std::fabs(dot(sp.ng, wo))));
+        // Seen from the last real scattering: transparent crossings in between are part of the
+        // same light-sample segment (which saw them through its transmittance).
+        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, mis_org, sp.p, std::fabs(dot(sp.ng, wo))));
       }
       L += beta * cl.emission * w;
     }

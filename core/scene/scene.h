@@ -112,9 +112,10 @@ class Scene {
   Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
   // Picks a light with u_select and samples it from point p.
   bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const;
-  // Solid-angle pdfs with which sample_direct finds an emissive triangle hit at distance t and
-  // cosine cos_l, or the environment in direction dir (for MIS of BSDF samples).
-  float pdf_emitter(uint32_t prim, float t, float cos_l) const;
+  // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
+  // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
+  // BSDF samples).
+  float pdf_emitter(uint32_t prim, Vec3 from, Vec3 at, float cos_l) const;
   float pdf_environment(Vec3 dir) const;
   const SceneStats& stats() const { return stats_; }
   const Bvh& bvh() const { return bvh_; }
