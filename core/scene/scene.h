@@ -86,6 +86,10 @@ class Scene {
   void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
   void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
+  // Emissive triangles are light-sampled uniformly in solid angle (default) or, with false,
+  // uniformly by area everywhere (the old technique; kept to compare the two in tests).
+  void set_solid_angle_triangle_sampling(bool on) { solid_angle_triangles_ = on; }
+  bool solid_angle_triangle_sampling() const { return solid_angle_triangles_; }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
   void commit(int threads = 0);
@@ -137,6 +141,7 @@ class Scene {
   CameraDesc camera_;
   bool has_camera_ = false;
   bool committed_ = false;
+  bool solid_angle_triangles_ = true;
 
   std::vector<TriangleVerts> tris_;
   std::vector<TriangleShading> shading_;

@@ -32,7 +32,7 @@ def open_scene(fixture, setup):
     return scene
 
 
-def pathlight_images(fixture, setup, seeds, spp, **settings):
+def pathlight_images(fixture, setup, seeds, spp, max_bounces=12, **settings):
     addon = load_addon()
     from addon.export import export_scene, to_core
     from addon.session import render_settings
@@ -43,7 +43,7 @@ def pathlight_images(fixture, setup, seeds, spp, **settings):
     core_scene = to_core(pc, data)
     st = render_settings(pc, scene)
     st.adaptive_threshold = 0.0
-    st.max_bounces = 12
+    st.max_bounces = max_bounces
     st.diffuse_bounces = st.glossy_bounces = st.transmission_bounces = 1024
     st.samples = spp
     for k, v in settings.items():
@@ -64,8 +64,8 @@ def pathlight_images(fixture, setup, seeds, spp, **settings):
     return np.stack(out)
 
 
-def cycles_images(fixture, setup, seeds, spp):
-    key = hashlib.sha1(f"{fixture}{setup and setup.__name__}{seeds}{spp}{SCALE}".encode()).hexdigest()[:12]
+def cycles_images(fixture, setup, seeds, spp, max_bounces=12):
+    key = hashlib.sha1(f"{fixture}{setup and setup.__name__}{seeds}{spp}{SCALE}{max_bounces}".encode()).hexdigest()[:12]
     cache = Path("/tmp") / f"pathlight_cycles_var_{key}.npy"
     if cache.exists():
         return np.load(cache)
@@ -74,7 +74,7 @@ def cycles_images(fixture, setup, seeds, spp):
         scene = open_scene(fixture, setup)
         scene.cycles.pixel_filter_type = "BOX"
         scene.cycles.filter_width = 1.0
-        img = render_to_array(scene, "CYCLES", resolution_percentage=SCALE, max_bounces=12,
+        img = render_to_array(scene, "CYCLES", resolution_percentage=SCALE, max_bounces=max_bounces,
                               samples=spp, seed=1000 + seed)
         out.append(img[::-1, :, :3].astype(np.float64))  # row 0 = bottom, as the core's film
     out = np.stack(out)
@@ -92,6 +92,7 @@ def main():
     ap.add_argument("--spp", type=int, nargs="+", default=[1, 16])
     ap.add_argument("--scenes", nargs="+", default=list(SCENES))
     ap.add_argument("--no-cycles", action="store_true")
+    ap.add_argument("--max-bounces", type=int, default=12)
     ap.add_argument("--save", help="save the per-pixel variance maps (npz) here")
     args = ap.parse_args()
     load_addon()
@@ -99,12 +100,12 @@ def main():
     for name in args.scenes:
         fixture, setup = SCENES[name]
         for spp in args.spp:
-            pl = pathlight_images(fixture, setup, args.seeds, spp)
+            pl = pathlight_images(fixture, setup, args.seeds, spp, args.max_bounces)
             line = (f"{name} @ {spp} spp: Pathlight rel. variance/sample {{pl:.4g}} "
                     f"({pathlight_images.rays_per_path:.2f} rays/path)")
             ref = pl.mean(axis=0)
             if not args.no_cycles:
-                cy = cycles_images(fixture, setup, args.seeds, spp)
+                cy = cycles_images(fixture, setup, args.seeds, spp, args.max_bounces)
                 ref = 0.5 * (ref + cy.mean(axis=0))
                 c = rel_var(cy, ref, spp)
                 line += f", Cycles {c:.4g}, ratio PL/Cycles {{ratio:.3f}}, mean ratio {pl.mean() / cy.mean():.4f}"
