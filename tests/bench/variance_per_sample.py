@@ -64,11 +64,11 @@ def pathlight_images(fixture, setup, seeds, spp, max_bounces=12, **settings):
     return np.stack(out)
 
 
-def cycles_images(fixture, setup, seeds, spp, max_bounces=12):
+def cycles_images(fixture, setup, seeds, spp, max_bounces=12, cache=True):
     key = hashlib.sha1(f"{fixture}{setup and setup.__name__}{seeds}{spp}{SCALE}{max_bounces}".encode()).hexdigest()[:12]
-    cache = Path("/tmp") / f"pathlight_cycles_var_{key}.npy"
-    if cache.exists():
-        return np.load(cache)
+    cache_file = Path("/tmp") / f"pathlight_cycles_var_{key}.npy"
+    if cache and cache_file.exists():
+        return np.load(cache_file)
     out = []
     for seed in range(seeds):
         scene = open_scene(fixture, setup)
@@ -78,8 +78,17 @@ def cycles_images(fixture, setup, seeds, spp, max_bounces=12):
                               samples=spp, seed=1000 + seed)
         out.append(img[::-1, :, :3].astype(np.float64))  # row 0 = bottom, as the core's film
     out = np.stack(out)
-    np.save(cache, out)
+    if cache:
+        np.save(cache_file, out)
     return out
+
+
+def per_sample_variance(fixture, setup, seeds, spp, cache=True):
+    """Relative variance of one sample (at `spp` samples per pixel) of Pathlight and Cycles."""
+    pl = pathlight_images(fixture, setup, seeds, spp)
+    cy = cycles_images(fixture, setup, seeds, spp, cache=cache)
+    ref = 0.5 * (pl.mean(axis=0) + cy.mean(axis=0))
+    return rel_var(pl, ref, spp), rel_var(cy, ref, spp)
 
 
 def rel_var(imgs, ref, spp):
