@@ -234,10 +234,11 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
   const TriangleVerts& tv = tris_[prim];
   const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
   float b1, b2;
-  const double omega = spherical_triangle_solid_angle(p, tv.v0, tv.v1, tv.v2);
+  const SphericalTriangle st = spherical_triangle(p, tv.v0, tv.v1, tv.v2);
+  const double omega = st.solid_angle;
   const bool spherical = solid_angle_triangles_ && use_spherical_sampling(omega);
   DVec3 w;
-  if (spherical && sample_spherical_triangle(p, tv.v0, tv.v1, tv.v2, u, w)) {
+  if (spherical && sample_spherical_triangle(st, u, w)) {
     // The point where the sampled direction meets the triangle, as barycentrics (clamped into
     // the triangle against rounding: the direction's density stays 1 / omega either way).
     const DVec3 d0(tv.v0), e1 = DVec3(tv.v1) - d0, e2 = DVec3(tv.v2) - d0, nd = dcross(e1, e2);
@@ -380,7 +381,7 @@ float Scene::pdf_emitter(uint32_t prim, Vec3 from, Vec3 at, float cos_l) const {
   const float pmf = light_dist_.pmf(size_t(k));
   // The same choice of technique as sample_direct made from this point.
   const TriangleVerts& tv = tris_[prim];
-  const double omega = spherical_triangle_solid_angle(from, tv.v0, tv.v1, tv.v2);
+  const double omega = spherical_triangle(from, tv.v0, tv.v1, tv.v2).solid_angle;
   if (solid_angle_triangles_ && use_spherical_sampling(omega)) return float(pmf / omega);
   const float t2 = length_sq(at - from);
   return pmf / emitter_areas_[size_t(k) - lights_.size()] * t2 / cos_l;

@@ -71,42 +71,46 @@ inline bool dnormalize(DVec3& v) {
   return true;
 }
 
-// Solid angle of the triangle (v0, v1, v2) seen from p (Van Oosterom & Strackee 1983); 0 when
-// degenerate or p lies in its plane.
-inline double spherical_triangle_solid_angle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2) {
-  DVec3 a = DVec3(v0) - DVec3(p), b = DVec3(v1) - DVec3(p), c = DVec3(v2) - DVec3(p);
-  if (!dnormalize(a) || !dnormalize(b) || !dnormalize(c)) return 0.0;
-  const double triple = std::fabs(ddot(a, dcross(b, c)));
-  const double denom = 1.0 + ddot(a, b) + ddot(b, c) + ddot(c, a);
+// A triangle as seen from a point: unit directions to its corners and its solid angle.
+struct SphericalTriangle {
+  DVec3 a, b, c;
+  double solid_angle = 0.0;  // 0: degenerate, or the point lies in the triangle's plane
+};
+
+// Solid angle by Van Oosterom & Strackee (1983): one atan2, and the same value sampling uses
+// for the sub-triangle areas, so the density is exactly 1 / solid_angle.
+inline SphericalTriangle spherical_triangle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2) {
+  SphericalTriangle t;
+  t.a = DVec3(v0) - DVec3(p);
+  t.b = DVec3(v1) - DVec3(p);
+  t.c = DVec3(v2) - DVec3(p);
+  if (!dnormalize(t.a) || !dnormalize(t.b) || !dnormalize(t.c)) return t;
+  const double triple = std::fabs(ddot(t.a, dcross(t.b, t.c)));
+  const double denom = 1.0 + ddot(t.a, t.b) + ddot(t.b, t.c) + ddot(t.c, t.a);
   const double omega = 2.0 * std::atan2(triple, denom);
-  return std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+  t.solid_angle = std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+  return t;
 }
 
-// Angle between unit vectors, accurate for nearly (anti)parallel ones.
-inline double angle_between(DVec3 a, DVec3 b) {
-  if (ddot(a, b) < 0.0) return kPi - 2.0 * std::asin(std::min(1.0, 0.5 * dlength(a + b)));
-  return 2.0 * std::asin(std::min(1.0, 0.5 * dlength(b - a)));
-}
-
-// A unit direction from p, uniform over the solid angle of triangle (v0, v1, v2), for u in
-// [0,1)^2; false when the triangle is degenerate as seen from p. The density is
-// 1 / spherical_triangle_solid_angle(p, v0, v1, v2).
-inline bool sample_spherical_triangle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2, Vec2 u, DVec3& dir) {
-  DVec3 a = DVec3(v0) - DVec3(p), b = DVec3(v1) - DVec3(p), c = DVec3(v2) - DVec3(p);
-  if (!dnormalize(a) || !dnormalize(b) || !dnormalize(c)) return false;
-  // Normals of the great circles through the edges, and the triangle's interior angles.
-  DVec3 n_ab = dcross(a, b), n_bc = dcross(b, c), n_ca = dcross(c, a);
-  if (!dnormalize(n_ab) || !dnormalize(n_bc) || !dnormalize(n_ca)) return false;
-  const double alpha = angle_between(n_ab, n_ca * -1.0);
-  const double beta = angle_between(n_bc, n_ab * -1.0);
-  const double gamma = angle_between(n_ca, n_bc * -1.0);
-  // Pick the sub-triangle (a, b, c') with area u.x * A: c' lies on the arc from a to c.
-  const double area_pi = alpha + beta + gamma;  // A + pi
-  if (!(area_pi > kPi)) return false;
-  const double sub_pi = kPi + double(u.x) * (area_pi - kPi);  // A' + pi
-  const double cos_alpha = std::cos(alpha), sin_alpha = std::sin(alpha);
-  const double sin_phi = std::sin(sub_pi) * cos_alpha - std::cos(sub_pi) * sin_alpha;
-  const double cos_phi = std::cos(sub_pi) * cos_alpha + std::sin(sub_pi) * sin_alpha;
+// A unit direction uniform over the triangle's solid angle, for u in [0,1)^2 (Arvo's inversion,
+// with the angle at corner a from the edge planes' normals: one sincos and one atan2 in all).
+// False when the triangle is degenerate as seen from the point.
+inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3& dir) {
+  if (!(t.solid_angle > 0.0)) return false;
+  const DVec3 &a = t.a, &b = t.b, &c = t.c;
+  // Interior angle alpha at a: between the planes through (a, b) and (a, c).
+  DVec3 n_ab = dcross(a, b), n_ca = dcross(c, a);
+  if (!dnormalize(n_ab) || !dnormalize(n_ca)) return false;
+  const double cos_alpha = -ddot(n_ab, n_ca);
+  const double sin_alpha = dlength(dcross(n_ab, n_ca));
+  if (!(sin_alpha > 0.0)) return false;
+  // The sub-triangle (a, b, c') of area u.x * A, with c' on the arc from a to c: its area plus pi
+  // is alpha + beta + gamma', and phi = A' - alpha below.
+  const double sub = double(u.x) * t.solid_angle;
+  const double sin_sub = std::sin(sub), cos_sub = std::cos(sub);
+  // sin/cos of (A' + pi) - alpha, using sin(A' + pi) = -sin A', cos(A' + pi) = -cos A'.
+  const double sin_phi = -sin_sub * cos_alpha + cos_sub * sin_alpha;
+  const double cos_phi = -cos_sub * cos_alpha - sin_sub * sin_alpha;
   const double k1 = cos_phi + cos_alpha;
   const double k2 = sin_phi - sin_alpha * ddot(a, b);
   double cos_b = (k2 + (k2 * cos_phi - k1 * sin_phi) * cos_alpha) / ((k2 * sin_phi + k1 * cos_phi) * sin_alpha);
