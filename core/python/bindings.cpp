@@ -1139,6 +1139,14 @@ PYBIND11_MODULE(pathlight_core, m) {
           "cancel_commit", [](PyScene& self) { self.scene->cancel_commit(); },
           "Stops a commit() running in another thread; that commit raises RuntimeError and leaves the "
           "scene uncommitted. Has no effect when no commit is running.")
+      .def_property(
+          "solid_angle_triangle_sampling",
+          [](const PyScene& self) { return self.scene->solid_angle_triangle_sampling(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_solid_angle_triangle_sampling(on);
+          },
+          "Light-sample emissive triangles uniformly in solid angle (True, the default) or by area.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim is -1 and t inf on a miss.")

@@ -3,6 +3,14 @@
 #include <stdexcept>
 
 namespace pl {
+namespace {
+
+// Emissive triangles are sampled uniformly in the solid angle they subtend, except where that
+// angle is tiny (far away: area sampling is as good, cheaper and better conditioned) or close to
+// a hemisphere (the spherical construction loses precision there).
+inline bool use_spherical_sampling(double omega) { return omega > 2e-4 && omega < 6.2; }
+
+}  // namespace
 
 Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emission) {
   Material m;
@@ -281,10 +289,33 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
   const size_t e = k - lights_.size();
   const uint32_t prim = emitter_prims_[e];
   const TriangleVerts& tv = tris_[prim];
-  float b1, b2;
-  sample_triangle_uniform(u, b1, b2);
-  const Vec3 q = tv.v0 * (1.0f - b1 - b2) + tv.v1 * b1 + tv.v2 * b2;
   const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+  float b1, b2;
+  const SphericalTriangle st = spherical_triangle(p, tv.v0, tv.v1, tv.v2);
+  const double omega = st.solid_angle;
+  const bool spherical = solid_angle_triangles_ && use_spherical_sampling(omega);
+  DVec3 w;
+  if (spherical && sample_spherical_triangle(st, u, w)) {
+    // The point where the sampled direction meets the triangle, as barycentrics (clamped into
+    // the triangle against rounding: the direction's density stays 1 / omega either way).
+    const DVec3 d0(tv.v0), e1 = DVec3(tv.v1) - d0, e2 = DVec3(tv.v2) - d0, nd = dcross(e1, e2);
+    const double nn = ddot(nd, nd), wn = ddot(w, nd);
+    if (!(std::fabs(wn) > 0.0)) return false;
+    const DVec3 r = DVec3(p) + w * (ddot(d0 - DVec3(p), nd) / wn) - d0;
+    double db1 = std::max(0.0, ddot(dcross(r, e2), nd) / nn), db2 = std::max(0.0, ddot(dcross(e1, r), nd) / nn);
+    const double sum = db1 + db2;
+    if (sum > 1.0) {
+      db1 /= sum;
+      db2 /= sum;
+    }
+    b1 = float(db1);
+    b2 = float(db2);
+  } else if (spherical) {
+    return false;  // degenerate as seen from p: it subtends no solid angle
+  } else {
+    sample_triangle_uniform(u, b1, b2);
+  }
+  const Vec3 q = tv.v0 * (1.0f - b1 - b2) + tv.v1 * b1 + tv.v2 * b2;
   const Vec3 d = q - p;
   const float dist2 = length_sq(d);
   const float dist = std::sqrt(dist2);
@@ -308,7 +339,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
     shade(lp, b1, b2, -s.wi, cl);
     s.li = cl.emission;
   }
-  s.pdf = pmf / emitter_areas_[e] * dist2 / cos_l;
+  s.pdf = spherical ? float(pmf / omega) : pmf / emitter_areas_[e] * dist2 / cos_l;
   return std::isfinite(s.pdf) && s.pdf > 0.0f;
 }
 
@@ -414,10 +445,16 @@ Vec3 Scene::transmittance(Ray ray) const {
   return Vec3(0.0f);
 }
 
-float Scene::pdf_emitter(uint32_t prim, float t, float cos_l) const {
+float Scene::pdf_emitter(uint32_t prim, Vec3 from, Vec3 at, float cos_l) const {
   const int32_t k = shading_[prim].emitter;
   if (k < 0 || !(cos_l > 0.0f)) return 0.0f;
-  return light_dist_.pmf(size_t(k)) / emitter_areas_[size_t(k) - lights_.size()] * t * t / cos_l;
+  const float pmf = light_dist_.pmf(size_t(k));
+  // The same choice of technique as sample_direct made from this point.
+  const TriangleVerts& tv = tris_[prim];
+  const double omega = spherical_triangle(from, tv.v0, tv.v1, tv.v2).solid_angle;
+  if (solid_angle_triangles_ && use_spherical_sampling(omega)) return float(pmf / omega);
+  const float t2 = length_sq(at - from);
+  return pmf / emitter_areas_[size_t(k) - lights_.size()] * t2 / cos_l;
 }
 
 float Scene::pdf_environment(Vec3 dir) const {

@@ -96,6 +96,10 @@ class Scene {
   void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
   void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
+  // Emissive triangles are light-sampled uniformly in solid angle (default) or, with false,
+  // uniformly by area everywhere (the old technique; kept to compare the two in tests).
+  void set_solid_angle_triangle_sampling(bool on) { solid_angle_triangles_ = on; }
+  bool solid_angle_triangle_sampling() const { return solid_angle_triangles_; }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
   // Returns false when cancel_commit() stopped it: the scene is then uncommitted (as if commit
@@ -131,9 +135,10 @@ class Scene {
   Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
   // Picks a light with u_select and samples it from point p.
   bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const;
-  // Solid-angle pdfs with which sample_direct finds an emissive triangle hit at distance t and
-  // cosine cos_l, or the environment in direction dir (for MIS of BSDF samples).
-  float pdf_emitter(uint32_t prim, float t, float cos_l) const;
+  // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
+  // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
+  // BSDF samples).
+  float pdf_emitter(uint32_t prim, Vec3 from, Vec3 at, float cos_l) const;
   float pdf_environment(Vec3 dir) const;
   const SceneStats& stats() const { return stats_; }
   const Bvh& bvh() const { return bvh_; }
@@ -160,6 +165,7 @@ class Scene {
   std::atomic<bool> cancel_{false};
   bool geometry_dirty_ = true;
   BvhLayout built_layout_ = BvhLayout::Auto;
+  bool solid_angle_triangles_ = true;
 
   std::vector<TriangleVerts> tris_;
   std::vector<TriangleShading> shading_;

@@ -7,7 +7,11 @@ The reference of each scene is the mean of a high-sample Pathlight render and a 
 Cycles render (both with a 1-pixel box filter, so they estimate the same image); their mutual
 relative MSE / 4 is reported as the floor below which neither engine's error can be read.
 Cycles runs with its defaults (light tree, Sobol-Burley) but no denoising, no clamping and no
-adaptive sampling, the same bounce limits as Pathlight, and all threads."""
+adaptive sampling, the same bounce limits as Pathlight, and all threads.
+
+Alongside, the per-sample variance of each engine (variance_per_sample.py: VAR_SEEDS renders of
+VAR_SPP samples with different seeds): unlike the timings, it does not depend on the machine's
+load, and equal-time error is that variance over the samples per second."""
 import argparse
 import sys
 import time
@@ -23,6 +27,7 @@ SCALE = 50                     # % of the fixtures' 256x256
 TIMES = (1.0, 2.0, 4.0, 8.0)   # equal-time budgets, seconds of rendering (sync excluded)
 REF_SPP = 4096
 ENGINES = ("PATHLIGHT", "CYCLES")
+VAR_SEEDS, VAR_SPP = 16, 16
 
 
 def glass_sphere(scene):
@@ -86,6 +91,8 @@ def main():
     args = ap.parse_args()
     ref_spp, times = (REF_SPP, TIMES) if not args.quick else (256, (0.5, 1.0))
     load_addon()
+    from variance_per_sample import per_sample_variance  # imports this module: not at the top
+    var_seeds, var_spp = (VAR_SEEDS, VAR_SPP) if not args.quick else (4, 4)
     results = {}
     for name, (fixture, setup) in SCENES.items():
         sps = {}
@@ -101,9 +108,10 @@ def main():
             for e in ENGINES:
                 img, _ = render(fixture, setup, e, samples=1_000_000, time_limit=budget, seed=1)
                 errors[e].append(rel_mse(img, ref))
+        var = per_sample_variance(fixture, setup, var_seeds, var_spp, cache=False)
         target = errors["CYCLES"][-1]  # the error Cycles reaches with the longest budget
         tt = {e: time_to(errors[e], times, target) for e in ENGINES}
-        results[name] = dict(sps=sps, errors=errors, floor=floor, target=target, time_to=tt,
+        results[name] = dict(sps=sps, errors=errors, floor=floor, target=target, time_to=tt, var=var,
                              mean_ratio=float(refs["PATHLIGHT"].mean() / refs["CYCLES"].mean()))
         print(name, results[name], flush=True)
 
@@ -136,21 +144,24 @@ def main():
         "clamping, no adaptive sampling, max bounces 12 (all types), 1-pixel box filter. Render time",
         "excludes scene export/sync. 'Lower error' is Cycles' relative MSE over Pathlight's at the same",
         "time; 'time to target' is the time each needs for the error Cycles reaches at the longest budget.",
+        f"'Variance/sample' is Pathlight's relative variance of one sample over Cycles' ({var_seeds} seeds x "
+        f"{var_spp} spp each; independent of the machine's load, unlike the timings).",
         "",
         "| Scene | samples/s Pathlight | samples/s Cycles | lower error at " + " / ".join(f"{t:g} s" for t in times)
-        + " | time to target Pathlight / Cycles | mean ratio |",
-        "|---|---|---|---|---|---|",
+        + " | time to target Pathlight / Cycles | variance/sample Pathlight / Cycles | mean ratio |",
+        "|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
         ratios = " / ".join(f"{c / p:.2f}x" for p, c in zip(r["errors"]["PATHLIGHT"], r["errors"]["CYCLES"]))
         lines.append(f"| {name} | {r['sps']['PATHLIGHT']:.0f} | {r['sps']['CYCLES']:.0f} | {ratios} | "
                      f"{r['time_to']['PATHLIGHT']:.2f} s / {r['time_to']['CYCLES']:.2f} s | "
-                     f"{r['mean_ratio']:.4f} |")
+                     f"{r['var'][0] / r['var'][1]:.2f}x | {r['mean_ratio']:.4f} |")
     lines += ["", "Relative MSE per budget (Pathlight, Cycles) and the reference floor:", ""]
     for name, r in results.items():
         vals = ", ".join(f"{t:g} s: {p:.2e} / {c:.2e}" for t, p, c in
                          zip(times, r["errors"]["PATHLIGHT"], r["errors"]["CYCLES"]))
-        lines.append(f"- {name}: {vals}; floor {r['floor']:.1e}")
+        lines.append(f"- {name}: {vals}; floor {r['floor']:.1e}; relative variance of one sample "
+                     f"{r['var'][0]:.3g} / {r['var'][1]:.3g}")
     lines += ["", f"References: {ref_spp} spp of each engine. The mean ratio is Pathlight's reference image "
               "mean over Cycles' (bias between the engines shows there).", ""]
     if plot:
