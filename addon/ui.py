@@ -3,6 +3,13 @@
 import bpy
 
 
+def split(layout):
+    """The layout with labels left of the values, as Cycles' panels draw."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    return layout
+
+
 class PathlightPanel:
     bl_space_type = 'PROPERTIES'
     bl_region_type = 'WINDOW'
@@ -18,9 +25,7 @@ class PATHLIGHT_RENDER_PT_sampling(PathlightPanel, bpy.types.Panel):
     bl_label = "Sampling"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         settings = context.scene.pathlight
         heading = layout.column(align=True, heading="Noise Threshold")
         row = heading.row(align=True)
@@ -49,9 +54,7 @@ class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
     bl_label = "Light Paths"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         settings = context.scene.pathlight
         col = layout.column(align=True)
         col.prop(settings, "max_bounces", text="Total")
@@ -67,9 +70,7 @@ class PATHLIGHT_RENDER_PT_film(PathlightPanel, bpy.types.Panel):
     bl_options = {'DEFAULT_CLOSED'}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         layout.prop(context.scene.pathlight, "film_exposure")
         layout.prop(context.scene.render, "film_transparent", text="Transparent")
 
@@ -79,9 +80,7 @@ class PATHLIGHT_RENDER_PT_debug(PathlightPanel, bpy.types.Panel):
     bl_options = {'DEFAULT_CLOSED'}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         layout.prop(context.scene.pathlight, "debug_view")
 
 
@@ -91,9 +90,7 @@ class PATHLIGHT_VIEWLAYER_PT_passes(PathlightPanel, bpy.types.Panel):
     bl_context = "view_layer"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         view_layer = context.view_layer
         col = layout.column(heading="Data", align=True)
         col.prop(view_layer, "use_pass_combined")
@@ -118,9 +115,7 @@ class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
         return context.light is not None and super().poll(context)
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         light = context.light
         col = layout.column()
         row = col.row(align=True, heading="Temperature")
@@ -154,9 +149,7 @@ class PATHLIGHT_RENDER_PT_pixel_filter(PathlightPanel, bpy.types.Panel):
     bl_options = {'DEFAULT_CLOSED'}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         settings = context.scene.pathlight
         col = layout.column()
         col.prop(settings, "filter_type", text="Type")
@@ -171,9 +164,7 @@ class PATHLIGHT_RENDER_PT_autofocus(PathlightPanel, bpy.types.Panel):
         self.layout.prop(context.scene.pathlight, "use_autofocus", text="")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         settings = context.scene.pathlight
         col = layout.column()
         col.active = settings.use_autofocus
@@ -189,9 +180,7 @@ class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
     bl_options = {'DEFAULT_CLOSED'}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = split(self.layout)
         rd = context.scene.render
         col = layout.column()
         col.prop(rd, "threads_mode")
