@@ -602,11 +602,12 @@ def exit_on_signals():
     threading.Thread(target=wait, name="pathlight-signals", daemon=True).start()
 
 
-def internal_render(argv):
-    """`build.py _render OPTIONS_JSON`: the `render` command's second half, under .venv's Python."""
+def run_internal(body):
+    """Runs body() for an internal command under .venv's Python: a UserError is one line on
+    stderr, anything else a traceback; then a hard exit (see hard_exit)."""
     code = 0
     try:
-        render_in_venv(json.loads(argv[0]))
+        body()
     except UserError as exc:
         print(f"error: {exc}", file=sys.stderr)
         code = 1
@@ -615,6 +616,11 @@ def internal_render(argv):
         traceback.print_exc()
         code = 1
     hard_exit(code)
+
+
+def internal_render(argv):
+    """`build.py _render OPTIONS_JSON`: the `render` command's second half, under .venv's Python."""
+    run_internal(lambda: render_in_venv(json.loads(argv[0])))
 
 
 def render_in_venv(opts):
@@ -782,21 +788,14 @@ def cmd_merge(args):
 
 
 def internal_merge(argv):
-    code = 0
-    try:
+    """`build.py _merge OPTIONS_JSON`: the `merge` command, under .venv's Python."""
+    def merge():
         opts = json.loads(argv[0])
         info = merge_exr(opts["inputs"], opts["output"])
         ranges = ", ".join(f"[{a}, {a + n})" if a is not None else f"{n}" for a, n in info["ranges"])
         print(f"Merged {len(opts['inputs'])} renders ({info['samples']} samples: {ranges}; "
               f"weights: {info['weights']}) -> {opts['output']}", flush=True)
-    except UserError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        code = 1
-    except BaseException:
-        import traceback
-        traceback.print_exc()
-        code = 1
-    hard_exit(code)
+    run_internal(merge)
 
 
 def merge_exr(inputs, output):
