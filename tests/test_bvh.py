@@ -156,8 +156,14 @@ def test_occluded_agrees_with_intersect(scenes, layout, tmax):
     t, prim, _, _ = scenes[layout].intersect(o, d, tmax)
     occ = scenes[layout].occluded(o, d, tmax)
     assert 0.05 < occ.mean() < 0.95
-    assert np.array_equal(occ, prim >= 0)
+    hit = prim >= 0
+    assert not (occ & ~hit).any()  # an occluder is always a real hit before tmax
     assert (t[occ] < tmax).all()
+    # Shadow rays count only hits certainly before tmax (t plus its error bound), so a hit
+    # within rounding of tmax may not occlude; every other hit does.
+    missed = hit & ~occ
+    assert missed.sum() <= 1e-3 * len(o), missed.sum()
+    assert (t[missed] > tmax * (1 - 1e-4)).all(), t[missed].min()
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)

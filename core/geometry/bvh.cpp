@@ -527,7 +527,7 @@ bool Bvh::occluded_binary(const Ray& ray) const {
       for (uint32_t i = n.left_or_first, e = n.left_or_first + n.count; i < e; ++i) {
         const TriangleVerts& tv = tris_[i];
         float t, b1, b2;
-        if (intersect_triangle(ray.org, rp, tv.v0, tv.v1, tv.v2, ray.tmax, t, b1, b2)) return true;
+        if (intersect_triangle(ray.org, rp, tv.v0, tv.v1, tv.v2, ray.tmax, t, b1, b2, /*any_hit=*/true)) return true;
       }
     } else {
       const uint32_t c0 = n.left_or_first, c1 = c0 + 1;

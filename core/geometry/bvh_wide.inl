@@ -126,7 +126,8 @@ struct BlockResult {
 inline __m128 abs4(__m128 x) { return _mm_andnot_ps(_mm_set1_ps(-0.0f), x); }
 
 // triangle.h's intersect_triangle on the four lanes of a block (see it for the why of each step).
-inline void block_test(const TriangleBlock4& b, const BlockRay& r, float tmax, unsigned valid, BlockResult& out) {
+inline void block_test(const TriangleBlock4& b, const BlockRay& r, float tmax, unsigned valid, BlockResult& out,
+                       bool any_hit = false) {
   const RayPrecomp& rp = r.rp;
   const __m128 Akx = _mm_sub_ps(_mm_load_ps(b.v[0 + rp.kx]), r.okx);
   const __m128 Aky = _mm_sub_ps(_mm_load_ps(b.v[0 + rp.ky]), r.oky);
@@ -176,6 +177,7 @@ inline void block_test(const TriangleBlock4& b, const BlockRay& r, float tmax, u
                                                _mm_mul_ps(delta_z, max_e))),
       abs4(inv));
   ok = _mm_and_ps(ok, _mm_cmpgt_ps(t, delta_t));
+  if (any_hit) ok = _mm_and_ps(ok, _mm_cmplt_ps(_mm_add_ps(t, delta_t), _mm_set1_ps(tmax)));
   const unsigned zero_mask = static_cast<unsigned>(_mm_movemask_ps(any_zero)) & valid;
   out.scalar = zero_mask;
   out.pass = static_cast<unsigned>(_mm_movemask_ps(ok)) & valid & ~zero_mask;
@@ -189,10 +191,10 @@ inline void block_test(const TriangleBlock4& b, const BlockRay& r, float tmax, u
 }
 
 inline bool lane_triangle(const TriangleBlock4& b, int l, const Ray& ray, const RayPrecomp& rp, float tmax, float& t,
-                          float& b1, float& b2) {
+                          float& b1, float& b2, bool any_hit = false) {
   const Vec3 v0{b.v[0][l], b.v[1][l], b.v[2][l]}, v1{b.v[3][l], b.v[4][l], b.v[5][l]},
       v2{b.v[6][l], b.v[7][l], b.v[8][l]};
-  return intersect_triangle(ray.org, rp, v0, v1, v2, tmax, t, b1, b2);
+  return intersect_triangle(ray.org, rp, v0, v1, v2, tmax, t, b1, b2, any_hit);
 }
 
 // The closest hit among a leaf's `count` triangles in blocks from `first`, updating tmax and
@@ -233,11 +235,11 @@ inline bool leaf_any(const WideBvhView& v, uint32_t first, uint32_t count, const
     const unsigned valid = left >= 4 ? 0xFu : (1u << left) - 1u;
     left = left >= 4 ? left - 4 : 0;
     BlockResult r;
-    block_test(v.blocks[blk], br, tmax, valid, r);
+    block_test(v.blocks[blk], br, tmax, valid, r, /*any_hit=*/true);
     if (r.pass) return true;
     for (unsigned lanes = r.scalar; lanes; lanes &= lanes - 1) {
       float t, b1, b2;
-      if (lane_triangle(v.blocks[blk], lowest_bit(lanes), ray, br.rp, tmax, t, b1, b2)) return true;
+      if (lane_triangle(v.blocks[blk], lowest_bit(lanes), ray, br.rp, tmax, t, b1, b2, /*any_hit=*/true)) return true;
     }
   }
   return false;

@@ -24,8 +24,12 @@ struct RayPrecomp {
 };
 
 // Returns true and fills t, b1, b2 if the ray hits the triangle with 0 < t < tmax.
+// any_hit (shadow rays): only a hit certainly before tmax counts, t plus its error bound, so the
+// surface a shadow ray ends on cannot block it even when the ray grazes it (t's error grows as
+// 1 / cos and a fixed shadow epsilon is then too short).
 inline bool intersect_triangle(const Vec3& org, const RayPrecomp& rp, const Vec3& v0, const Vec3& v1,
-                               const Vec3& v2, float tmax, float& t_out, float& b1_out, float& b2_out) {
+                               const Vec3& v2, float tmax, float& t_out, float& b1_out, float& b2_out,
+                               bool any_hit = false) {
   const Vec3 A = v0 - org, B = v1 - org, C = v2 - org;
   const float ax = A[rp.kx] - rp.sx * A[rp.kz], ay = A[rp.ky] - rp.sy * A[rp.kz];
   const float bx = B[rp.kx] - rp.sx * B[rp.kz], by = B[rp.ky] - rp.sy * B[rp.kz];
@@ -65,6 +69,7 @@ inline bool intersect_triangle(const Vec3& org, const RayPrecomp& rp, const Vec3
   const float delta_t =
       3.0f * (gamma_bound(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * std::fabs(inv);
   if (!(t > delta_t)) return false;
+  if (any_hit && !(t + delta_t < tmax)) return false;
   t_out = t;
   b1_out = v * inv;
   b2_out = w * inv;
