@@ -9,7 +9,7 @@ import numpy as np
 
 from . import render_cache
 from .core import get_core
-from .export import ExportError, export_scene, to_core
+from .export import ExportCancelled, ExportError, export_scene, to_core
 
 log = logging.getLogger(__name__)
 
@@ -20,8 +20,8 @@ PREVIEW_SAMPLES = 32  # material preview thumbnails
 def set_progress_listener(fn):
     """Call fn(info) at each progress update of a render, with info = {samples_done,
     samples_total, elapsed_s, eta_s (None if unknown)}; a truthy return cancels the render
-    (like Esc in Blender). While the BVH is being built the info has stage="build" and no
-    samples. None removes the listener. Used by build.py's render command."""
+    (like Esc in Blender). While the scene is exported and its BVH built the info has
+    stage="export" or "build" and no samples. None removes the listener. Used by build.py's render command."""
     global _progress_listener
     _progress_listener = fn
 
@@ -139,7 +139,15 @@ def render(engine, depsgraph):
         scene = depsgraph.scene
         view_layer = depsgraph.view_layer
         cache = None if engine.is_preview else render_cache.MESH_CACHE
-        core_scene = to_core(pc, export_scene(depsgraph, warn, cache), warn)
+        t0 = time.monotonic()
+        try:
+            data = export_scene(depsgraph, warn, cache, should_stop=lambda: _stop_requested(
+                engine, "export", time.monotonic() - t0, scene.pathlight.time_limit))
+        except ExportCancelled:
+            log.info("render cancelled during the export")
+            _empty_result(engine, scene, view_layer)
+            return
+        core_scene = to_core(pc, data, warn)
         if cache is not None and cache.previous is not None:
             engine.update_stats("", "Pathlight | meshes: {hits} cached, {misses} exported"
                                 .format(**cache.previous))
@@ -156,9 +164,7 @@ def render(engine, depsgraph):
         if known:
             settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
         if not _commit(engine, core_scene, settings.threads, scene.pathlight.time_limit):
-            # An empty (transparent black) result: Blender may still save the frame, and
-            # bpy crashes saving a frame whose engine gave it no result at all.
-            engine.end_result(engine.begin_result(0, 0, *render_border(scene)[2:], layer=view_layer.name))
+            _empty_result(engine, scene, view_layer)
             return
         sess = pc.Session(core_scene, settings)
         dropped = core_scene.stats().get("dropped_triangles", 0)
@@ -179,11 +185,26 @@ def render(engine, depsgraph):
         engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
 
 
+def _stop_requested(engine, stage, elapsed, time_limit):
+    """Esc in Blender, or a truthy answer of the progress listener, before sampling starts.
+    The listener hears the stage ("export" or "build") with no samples; its ETA is the time
+    limit, when there is one (sampling starts after)."""
+    listener = _progress_listener
+    info = {"samples_done": 0, "samples_total": 0, "elapsed_s": elapsed,
+            "eta_s": time_limit if time_limit > 0 else None, "stage": stage}
+    return bool(listener is not None and listener(info)) or engine.test_break()
+
+
+def _empty_result(engine, scene, view_layer):
+    """An empty (transparent black) result for a render cancelled before sampling: Blender may
+    still save the frame, and bpy crashes saving a frame whose engine gave it no result."""
+    engine.end_result(engine.begin_result(0, 0, *render_border(scene)[2:], layer=view_layer.name))
+
+
 def _commit(engine, core_scene, threads, time_limit=0.0):
     """Builds the BVH and the lights on a worker thread (the core releases the GIL) while this
     thread, the one Blender called, watches for Esc: a cancel stops even a long build within
-    milliseconds. Returns False when the render was cancelled. The listener hears stage="build"
-    with no samples; its ETA is the time limit, when there is one (sampling starts after)."""
+    milliseconds. Returns False when the render was cancelled."""
     if not hasattr(core_scene, "cancel_commit"):  # an older core build
         core_scene.commit(threads)
         return True
@@ -201,12 +222,7 @@ def _commit(engine, core_scene, threads, time_limit=0.0):
     cancelled = False
     while worker.is_alive():
         worker.join(0.05)
-        if cancelled:
-            continue
-        listener = _progress_listener
-        info = {"samples_done": 0, "samples_total": 0, "elapsed_s": time.monotonic() - t0,
-                "eta_s": time_limit if time_limit > 0 else None, "stage": "build"}
-        if (listener is not None and listener(info)) or engine.test_break():
+        if not cancelled and _stop_requested(engine, "build", time.monotonic() - t0, time_limit):
             core_scene.cancel_commit()
             cancelled = True
     stopped = cancelled and failure and "cancelled" in str(failure[0])

@@ -417,8 +417,32 @@ def test_cancel_during_the_bvh_build(scene, capfd, caplog):
         addon.session.set_progress_listener(None)
     out, errout = capfd.readouterr()
     assert "Traceback" not in errout and err is None, (err, errout[-2000:])
-    assert seen and all(i.get("stage") == "build" for i in seen), seen  # no sample was rendered
+    assert seen and all(i.get("stage") in ("export", "build") for i in seen), seen  # no sample rendered
     assert any("cancelled during the BVH build" in r.getMessage() for r in caplog.records), \
+        [r.getMessage() for r in caplog.records]
+
+
+def test_cancel_during_the_export(scene, capfd, caplog):
+    """Esc while the meshes are being exported stops the export between meshes: nothing is
+    built or rendered, the render ends cleanly."""
+    for k in range(8):
+        cube(f"Cube{k}", location=(3.0 * k, 0.0, 0.0))
+    seen = []
+
+    def listener(info):
+        seen.append(info)
+        return info.get("stage") == "export" and len(seen) >= 3  # after two meshes
+
+    addon.session.set_progress_listener(listener)
+    try:
+        with caplog.at_level(logging.INFO):
+            img, err = attempt(scene, samples=64)
+    finally:
+        addon.session.set_progress_listener(None)
+    out, errout = capfd.readouterr()
+    assert "Traceback" not in errout and err is None, (err, errout[-2000:])
+    assert [i.get("stage") for i in seen] == ["export"] * 3, seen  # no build, no samples
+    assert any("cancelled during the export" in r.getMessage() for r in caplog.records), \
         [r.getMessage() for r in caplog.records]
 
 

@@ -9,10 +9,10 @@ import numpy as np
 from .camera import ExportError, camera_params
 from .light import LightData, collect_lights
 from .material import MaterialData, MaterialTable, add_materials
-from .mesh import MeshData, collect_meshes, is_visible
+from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .world import WorldTexture, world_color, world_texture
 
-__all__ = ("ExportError", "add_lights", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
+__all__ = ("ExportCancelled", "ExportError", "add_lights", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
            "export_scene", "to_core")
 
 
@@ -30,16 +30,17 @@ class SceneData:
     uv_sets: object = None  # shader.UvSets: the global uv-set numbering the programs use
 
 
-def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True):
+def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None):
     """Everything Pathlight renders, read from the evaluated depsgraph. warn(msg) reports
     unsupported features (each call is one message for the user). mesh_cache: a
     mesh_cache.MeshCache that keeps unchanged meshes' arrays between exports (animation).
     need_camera=False: a scene without a camera exports with a default one (the viewport
-    renders through its own view)."""
+    renders through its own view). should_stop(): polled between meshes; True raises
+    ExportCancelled."""
     scene = depsgraph.scene
     camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False))
-    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache)
+    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop)
     for mesh in meshes:
         if mesh.missing_uv_maps:
             warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, mesh.missing_uv_maps))} "

@@ -110,11 +110,16 @@ def is_visible(instance):
     return not instance.object.original.hide_render
 
 
-def collect_meshes(depsgraph, uv_names=None, cache=None):
+class ExportCancelled(Exception):
+    """The user cancelled the render while the scene was being exported."""
+
+
+def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
     """All visible geometry of the depsgraph. Instances of the same evaluated geometry (and
     materials) share one MeshData and add only their matrix_world. uv_names(materials) ->
     {global uv-set index: UV map name} says which UV maps to export (none if None).
-    cache: a mesh_cache.MeshCache that keeps meshes whose evaluated geometry did not change."""
+    cache: a mesh_cache.MeshCache that keeps meshes whose evaluated geometry did not change.
+    should_stop(): asked before each mesh is exported; True raises ExportCancelled."""
     export = cache.export if cache is not None else _export_object
     meshes = {}
     for instance in depsgraph.object_instances:
@@ -129,6 +134,8 @@ def collect_meshes(depsgraph, uv_names=None, cache=None):
         key = (obj.data.as_pointer(), tuple(m.as_pointer() if m else 0 for m in materials))
         entry = meshes.get(key)
         if entry is None:
+            if should_stop is not None and should_stop():
+                raise ExportCancelled()
             entry = meshes[key] = export(obj, materials, uv_names)
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
