@@ -93,7 +93,8 @@ def cornell(pc, light_strength=12.0, light_size=0.5):
     return s
 
 
-def render(pc, scene, width=64, height=64, samples=64, **kw):
+def run_session(pc, scene, width=64, height=64, samples=64, **kw):
+    """A finished pc.Session of scene; kw: other RenderSettings fields."""
     st = pc.RenderSettings()
     st.width, st.height, st.samples = width, height, samples
     for k, v in kw.items():
@@ -102,6 +103,11 @@ def render(pc, scene, width=64, height=64, samples=64, **kw):
     sess.start()
     while not sess.wait(1.0):
         pass
+    return sess
+
+
+def render(pc, scene, width=64, height=64, samples=64, **kw):
+    sess = run_session(pc, scene, width, height, samples, **kw)
     return sess.film(), sess.stats()
 
 

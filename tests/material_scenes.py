@@ -169,6 +169,16 @@ def add_camera(location, target, lens=50.0):
     return cam
 
 
+def add_sun(energy=3.0, tilt_deg=0.0):
+    """A sharp sun (angle 0) tilted about Y by tilt_deg from straight down."""
+    light = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
+    light.data.energy = energy
+    light.data.angle = 0.0
+    light.rotation_euler = (0.0, math.radians(tilt_deg), 0.0)
+    bpy.context.scene.collection.objects.link(light)
+    return light
+
+
 def set_world(color):
     world = bpy.data.worlds.new("World")
     world.use_nodes = True

@@ -5,22 +5,13 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, load_addon, render_to_array
+from blender_util import BOX_FILTER, load_addon, node_material, render_to_array
 
 load_addon()
 
 
 def emissive_material(name, color):
-    mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
-    nodes = mat.node_tree.nodes
-    nodes.clear()
-    em = nodes.new("ShaderNodeEmission")
-    em.inputs["Color"].default_value = (*color, 1.0)
-    em.inputs["Strength"].default_value = 1.0
-    out = nodes.new("ShaderNodeOutputMaterial")
-    mat.node_tree.links.new(em.outputs["Emission"], out.inputs["Surface"])
-    return mat
+    return node_material(name, "ShaderNodeEmission", Color=(*color, 1.0), Strength=1.0)
 
 
 def target_scene(res, fit, shift, aspect, lens=35.0, clip=(0.1, 100.0), ortho_scale=None):

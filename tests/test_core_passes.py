@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, quad, render, uv_sphere
+from core_scenes import add_object, camera, core, quad, render, run_session, uv_sphere
 
 pc = core()
 pytestmark = pytest.mark.skipif(not hasattr(pc.RenderSettings(), "passes"), reason="core without render passes")
@@ -42,16 +42,7 @@ def wall(scene, mat, y=0.0, half=3.0, facing=-1.0):
 
 
 def session(scene, width=24, height=16, samples=4, **kw):
-    st = pc.RenderSettings()
-    st.width, st.height, st.samples = width, height, samples
-    st.threads = 2
-    for k, v in kw.items():
-        setattr(st, k, v)
-    sess = pc.Session(scene, st)
-    sess.start()
-    while not sess.wait(1.0):
-        pass
-    return sess
+    return run_session(pc, scene, width, height, samples, **{"threads": 2, **kw})
 
 
 def test_pass_table_names_and_channels():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from blender_util import (BOX_FILTER, Warnings, core_has, empty_scene_with_camera, load_addon,
-                          render_to_array)
+                          node_material, render_to_array)
 
 addon = load_addon()
 pytestmark = pytest.mark.skipif(not core_has("Camera", "generate_ray"), reason="core without thin lens")
@@ -18,16 +18,7 @@ SENSOR, LENS = 36.0, 50.0
 
 
 def emission(name, color, strength=1.0):
-    mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
-    nodes = mat.node_tree.nodes
-    nodes.clear()
-    em = nodes.new("ShaderNodeEmission")
-    em.inputs["Color"].default_value = (*color, 1.0)
-    em.inputs["Strength"].default_value = strength
-    out = nodes.new("ShaderNodeOutputMaterial")
-    mat.node_tree.links.new(em.outputs["Emission"], out.inputs["Surface"])
-    return mat
+    return node_material(name, "ShaderNodeEmission", Color=(*color, 1.0), Strength=strength)
 
 
 def add_box(location, size, color):

@@ -323,11 +323,7 @@ def normal_map_scene(tilts, strength=1.0, sun=True, bsdf="ShaderNodeBsdfDiffuse"
         # Rotated, so that the tangent frame is not the world's.
         ms.add_plane("Plane", 1.0, mat, rotation_euler=(0.0, 0.0, 0.3))
         if sun:
-            light = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
-            light.data.energy = 3.0
-            light.data.angle = 0.0
-            light.rotation_euler = (0.0, math.radians(50.0), 0.0)
-            scene.collection.objects.link(light)
+            ms.add_sun(3.0, 50.0)
         ms.add_camera((0.0, 0.0, 1.6), (0.0, 0.0, 0.0))
         return scene
     return build
@@ -483,11 +479,7 @@ def bump_scene(distance, invert=False):
         links.new(bump.outputs["Normal"], d.inputs["Normal"])
         links.new(d.outputs[0], out.inputs["Surface"])
         ms.add_plane("Plane", 1.0, mat, rotation_euler=(0.0, 0.0, 0.3))
-        light = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
-        light.data.energy = 3.0
-        light.data.angle = 0.0
-        light.rotation_euler = (0.0, math.radians(55.0), 0.0)
-        scene.collection.objects.link(light)
+        ms.add_sun(3.0, 55.0)
         ms.add_camera((0.0, 0.0, 1.6), (0.0, 0.0, 0.0))
         return scene
     return build
@@ -561,10 +553,7 @@ def test_light_path_shadow_ray_card():
         links.new(mix.outputs[0], out.inputs["Surface"])
         ms.add_plane("Floor", 6.0, ms.diffuse("Floor", (0.5, 0.5, 0.5)))
         ms.add_plane("Card", 0.8, mat, location=(0.6, 0.0, 0.5))
-        light = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
-        light.data.energy = 3.0
-        light.data.angle = 0.0
-        scene.collection.objects.link(light)  # straight down: the card's shadow is below it
+        ms.add_sun(3.0)  # straight down: the card's shadow is below it
         ms.add_camera((0.0, -3.0, 2.5), (0.2, 0.0, 0.2))
         return scene
     ours, cycles = render_pair(build, 64, bounces=8)

@@ -385,6 +385,27 @@ def test_large_resolution_without_the_memory_is_a_clear_error():
     assert "bad_alloc" not in proc.stdout and "Traceback" not in proc.stderr, proc.stdout + proc.stderr[-2000:]
 
 
+def cancel_with(scene, capfd, caplog, stop, logged):
+    """Render with a progress listener that cancels when stop(info, seen so far) is true; the
+    render must end cleanly and log `logged`. Returns the progress reports seen."""
+    seen = []
+
+    def listener(info):
+        seen.append(info)
+        return stop(info, seen)
+
+    addon.session.set_progress_listener(listener)
+    try:
+        with caplog.at_level(logging.INFO):
+            img, err = attempt(scene, samples=64)
+    finally:
+        addon.session.set_progress_listener(None)
+    out, errout = capfd.readouterr()
+    assert "Traceback" not in errout and err is None, (err, errout[-2000:])
+    assert any(logged in r.getMessage() for r in caplog.records), [r.getMessage() for r in caplog.records]
+    return seen
+
+
 def test_cancel_during_the_bvh_build(scene, capfd, caplog):
     """Esc while a big mesh's BVH is being built stops the build itself (the core's commit is
     cancelled from the engine's thread), not only the sampling after it."""
@@ -403,23 +424,10 @@ def test_cancel_during_the_bvh_build(scene, capfd, caplog):
     me.polygons.foreach_set("loop_start", np.arange(0, len(quads), 4, dtype=np.int32))
     me.update()
     bpy.context.scene.collection.objects.link(bpy.data.objects.new("Big", me))
-    seen = []
-
-    def listener(info):
-        seen.append(info)
-        return info.get("stage") == "build"  # Esc as soon as the build is under way
-
-    addon.session.set_progress_listener(listener)
-    try:
-        with caplog.at_level(logging.INFO):
-            img, err = attempt(scene, samples=64)
-    finally:
-        addon.session.set_progress_listener(None)
-    out, errout = capfd.readouterr()
-    assert "Traceback" not in errout and err is None, (err, errout[-2000:])
+    # Esc as soon as the build is under way.
+    seen = cancel_with(scene, capfd, caplog, lambda info, seen: info.get("stage") == "build",
+                       "cancelled during the BVH build")
     assert seen and all(i.get("stage") in ("export", "build") for i in seen), seen  # no sample rendered
-    assert any("cancelled during the BVH build" in r.getMessage() for r in caplog.records), \
-        [r.getMessage() for r in caplog.records]
 
 
 def test_cancel_during_the_export(scene, capfd, caplog):
@@ -427,23 +435,10 @@ def test_cancel_during_the_export(scene, capfd, caplog):
     built or rendered, the render ends cleanly."""
     for k in range(8):
         cube(f"Cube{k}", location=(3.0 * k, 0.0, 0.0))
-    seen = []
-
-    def listener(info):
-        seen.append(info)
-        return info.get("stage") == "export" and len(seen) >= 3  # after two meshes
-
-    addon.session.set_progress_listener(listener)
-    try:
-        with caplog.at_level(logging.INFO):
-            img, err = attempt(scene, samples=64)
-    finally:
-        addon.session.set_progress_listener(None)
-    out, errout = capfd.readouterr()
-    assert "Traceback" not in errout and err is None, (err, errout[-2000:])
+    # Esc after two meshes.
+    seen = cancel_with(scene, capfd, caplog, lambda info, seen: info.get("stage") == "export" and len(seen) >= 3,
+                       "cancelled during the export")
     assert [i.get("stage") for i in seen] == ["export"] * 3, seen  # no build, no samples
-    assert any("cancelled during the export" in r.getMessage() for r in caplog.records), \
-        [r.getMessage() for r in caplog.records]
 
 
 def test_render_twice_in_a_row(scene, capfd):
