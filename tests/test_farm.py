@@ -1,6 +1,9 @@
 """Farm splitting: sample offsets, the merge of partial EXR renders, and build.py's frame
 ranges and numbered outputs."""
 
+import json
+import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -210,3 +213,128 @@ def test_merge_uses_the_sample_count_pass_of_adaptive_renders():
         np.testing.assert_array_equal(cm, ca + cb)
         expect = (a * ca[..., None] + b * cb[..., None]) / np.maximum(ca + cb, 1)[..., None]
         np.testing.assert_allclose(m, expect, rtol=1e-5, atol=1e-7)
+
+
+# ---------------------------------------------------------------- Flamenco job type
+
+SPLIT_JOB = REPO / "tools" / "flamenco" / "pathlight_split_frame.js"
+NODE = shutil.which("node")
+needs_node = pytest.mark.skipif(NODE is None, reason="Node.js (node) not installed")
+
+
+def _compile_job(settings):
+    """Runs the job type under tests/flamenco_mock.js (Flamenco's job-compiler globals)."""
+    proc = subprocess.run([NODE, str(REPO / "tests" / "flamenco_mock.js"), str(SPLIT_JOB),
+                           json.dumps({"settings": settings})],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout)
+
+
+def _split_settings(samples, pieces, frame=7):
+    return dict(frame=frame, samples=samples, pieces=pieces, render_output_root="/farm/out",
+                blendfile="/farm/shots/heavy.blend")
+
+
+def _task_range(task):
+    """(offset, count) from the task's Python expression (what Blender will run)."""
+    expr = task["commands"][0]["parameters"]["args"][1]
+    count = int(re.search(r"pathlight\.samples = (\d+)", expr).group(1))
+    offset = int(re.search(r"pathlight\.sample_offset = (\d+)", expr).group(1))
+    return offset, count
+
+
+@needs_node
+@pytest.mark.parametrize("samples,pieces", [(1024, 4), (10, 4), (7, 3), (5, 5), (3, 8),
+                                            (1, 1), (1000, 7)])
+def test_flamenco_split_frame_tasks_cover_the_samples_once(samples, pieces):
+    out = _compile_job(_split_settings(samples, pieces))
+    assert "error" not in out, out
+    assert out["job_type"]["label"] == "Pathlight Split Frame"
+    keys = {s["key"] for s in out["job_type"]["settings"]}
+    assert {"frame", "samples", "pieces", "render_output_root", "blendfile"} <= keys
+    tasks = out["tasks"]
+    assert len(tasks) == min(samples, pieces)  # pieces > samples: one sample per task
+    ranges = [_task_range(t) for t in tasks]
+    # Consecutive, disjoint, covering [0, samples) exactly once; balanced to within one.
+    covered = np.zeros(samples, int)
+    for offset, count in ranges:
+        assert count >= 1
+        covered[offset:offset + count] += 1
+    assert (covered == 1).all()
+    assert [o for o, _ in ranges] == sorted(o for o, _ in ranges)
+    counts = [c for _, c in ranges]
+    assert max(counts) - min(counts) <= 1 and sum(counts) == samples
+    names = [t["name"] for t in tasks]
+    assert names == [f"samples-{o}-{o + c}" for o, c in ranges] and len(set(names)) == len(names)
+    for k, task in enumerate(tasks):
+        assert task["type"] == "blender" and len(task["commands"]) == 1
+        cmd = task["commands"][0]
+        assert cmd["name"] == "blender-render"
+        p = cmd["parameters"]
+        assert p["exe"] == "{blender}" and p["exeArgs"] == "{blenderArgs}"
+        assert p["argsBefore"] == [] and p["blendfile"] == "/farm/shots/heavy.blend"
+        args = p["args"]
+        # The Python expression comes first (it runs after the file is loaded), the frame
+        # last (Blender renders when it reads --render-frame, with what came before).
+        assert args[0] == "--python-expr"
+        assert args[2:] == ["--render-output", f"/farm/out/part{k}_######",
+                            "--render-format", "OPEN_EXR", "--render-frame", "7"]
+        compile(args[1], "<python-expr>", "exec")  # valid Python
+
+
+@needs_node
+@pytest.mark.parametrize("bad", [dict(samples=0), dict(pieces=0), dict(samples=-3),
+                                 dict(pieces=2.5), dict(frame="x")])
+def test_flamenco_split_frame_refuses_bad_settings(bad):
+    out = _compile_job(dict(_split_settings(8, 2), **bad))
+    assert "error" in out and not out.get("tasks")
+
+
+@needs_node
+@needs_offset
+def test_flamenco_split_frame_tasks_render_and_merge_into_the_whole_frame():
+    """The compiled tasks' Python expressions, run in Blender on the Cornell box, render the
+    pieces; `build.py merge` of the pieces equals one render of all samples."""
+    import bpy
+    from blender_util import _setup_pathlight, load_addon, open_fixture
+    out = _compile_job(_split_settings(9, 4, frame=1))
+    with tempfile.TemporaryDirectory(prefix="pathlight_flamenco_") as tmp:
+        def render(name, expr=None, samples=None):
+            load_addon()
+            sc = open_fixture("cornell_box")
+            sc.render.engine = "PATHLIGHT"
+            _setup_pathlight(sc.pathlight)
+            sc.pathlight.seed = 3
+            sc.render.resolution_percentage = 12  # 30 x 30
+            sc.render.use_sequencer = False
+            if expr is not None:
+                exec(expr, {})  # what --python-expr runs in the task
+                assert not sc.render.use_compositing and not sc.pathlight.use_adaptive_sampling
+            else:
+                sc.pathlight.samples, sc.pathlight.sample_offset = samples, 0
+                sc.render.use_compositing = False
+                sc.render.image_settings.file_format = 'OPEN_EXR'
+                sc.render.image_settings.color_depth = '32'
+            sc.render.filepath = str(Path(tmp) / name)  # what --render-output sets
+            sc.render.use_file_extension = True
+            # --render-frame 1 is RE_RenderAnim(frame 1..1): a one-frame animation job.
+            sc.frame_start = sc.frame_end = 1
+            bpy.ops.render.render(animation=True, scene=sc.name)
+            return Path(sc.render.frame_path(frame=1))
+
+        parts = []
+        for k, task in enumerate(out["tasks"]):
+            args = task["commands"][0]["parameters"]["args"]
+            name = Path(args[args.index("--render-output") + 1]).name
+            parts.append(render(name, expr=args[1]))
+        assert [p.name for p in parts] == [f"part{k}_000001.exr" for k in range(4)]
+        whole = render("whole_######", samples=9)
+        merged = Path(tmp) / "frame_000001.exr"
+        info = build.merge_exr([str(p) for p in sorted(Path(tmp).glob("part*_000001.exr"))],
+                               str(merged))
+        assert info["samples"] == 9
+        with OpenEXR.File(str(merged)) as a, OpenEXR.File(str(whole)) as b:
+            m, w = a.channels()["RGBA"].pixels.copy(), b.channels()["RGBA"].pixels.copy()
+        assert m.dtype == np.float32 and m.mean() > 0.01
+        np.testing.assert_allclose(m, w, rtol=2e-5, atol=2e-6)
