@@ -11,6 +11,9 @@ const vm = require("vm");
 const [scriptFile, jobJson] = process.argv.slice(2);
 const jobIn = JSON.parse(jobJson);
 
+// The worker's blender-render parameters (internal/worker/command_blender.go): exe a non-empty
+// string, exeArgs an optional string, argsBefore and args lists of strings, blendfile a
+// string (empty: Blender starts without a file).
 const BLENDER_RENDER = { exe: "string", exeArgs: "string", argsBefore: "strings",
                          blendfile: "string", args: "strings" };
 
@@ -21,10 +24,22 @@ function checkCommand(name, params) {
     }
     for (const [key, kind] of Object.entries(BLENDER_RENDER)) {
         const v = params[key];
+        if (key === "exeArgs" && v === undefined) continue;
         const ok = kind === "string" ? typeof v === "string"
             : Array.isArray(v) && v.every((x) => typeof x === "string");
         if (!ok) throw new Error(`blender-render: ${key} must be ${kind}, got ${JSON.stringify(v)}`);
     }
+    if (params.exe === "") throw new Error("blender-render: missing 'exe' parameter");
+}
+
+// The command line the worker runs (variables such as {blender} left unexpanded).
+function commandLine(params) {
+    const cli = [params.exe];
+    if (params.exeArgs) cli.push(...params.exeArgs.split(/\s+/).filter((x) => x));
+    cli.push(...params.argsBefore);
+    if (params.blendfile !== "") cli.push(params.blendfile);
+    cli.push(...params.args);
+    return cli;
 }
 
 const tasks = [];
@@ -32,12 +47,17 @@ const author = {
     Task(name, type) {
         const task = { name: name, type: type, commands: [], dependencies: [] };
         task.addCommand = (cmd) => { task.commands.push(cmd); };
-        task.addDependency = (other) => { task.dependencies.push(other.name); };
+        task.addDependency = (other) => {
+            if (!tasks.includes(other)) throw new Error("dependency on a task not added to the job");
+            task.dependencies.push(other.name);
+        };
         return task;
     },
     Command(name, parameters) {
         checkCommand(name, parameters);
-        return { name: name, parameters: parameters };
+        const cmd = { name: name, parameters: parameters };
+        if (name === "blender-render") cmd.cli = commandLine(parameters);
+        return cmd;
     },
 };
 const path = {  // Flamenco's path helpers work on forward-slash paths

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: GPL-3.0-or-later
 // Flamenco job type: one heavy Pathlight frame split into sample ranges, one render task per
-// range. Copy into the `scripts/` directory next to flamenco-manager (docs/farm.md). Merge
-// the parts afterwards with `python3 build.py merge` (docs/farm.md).
+// range, then a merge task (in Blender, through the Pathlight add-on) that depends on them all.
+// Copy into the `scripts/` directory next to flamenco-manager (docs/farm.md).
 
 const JOB_TYPE = {
     label: "Pathlight Split Frame",
@@ -41,8 +41,11 @@ function compileJob(job) {
     if (!Number.isInteger(pieces) || pieces < 1) throw `pieces must be a positive integer, not ${s.pieces}`;
     if (!Number.isInteger(frame)) throw `frame must be an integer, not ${s.frame}`;
     const ranges = sampleRanges(samples, pieces);
+    const renderTasks = [], parts = [];
     for (let k = 0; k < ranges.length; k++) {
         const r = ranges[k];
+        const output = path.join(s.render_output_root, `part${k}_######`);
+        parts.push([output, r.offset, r.count]);
         const task = author.Task(`samples-${r.offset}-${r.offset + r.count}`, "blender");
         task.addCommand(author.Command("blender-render", {
             exe: "{blender}",
@@ -50,24 +53,49 @@ function compileJob(job) {
             argsBefore: [],
             blendfile: s.blendfile,
             args: [
-                // After the file is loaded, before the render: this task's sample range,
-                // no adaptive sampling (each piece would converge on its own samples), raw
-                // 32-bit float EXR (the merge needs linear data; composite after merging).
+                // After the file is loaded, before the render: this task's sample range, all
+                // of it (no adaptive sampling, no time limit: the merge weighs each piece by
+                // its range), raw
+                // 32-bit float EXR (the merge needs linear data; composite after merging;
+                // no --render-format, which could reset the colour depth).
                 "--python-expr", [
                     "import bpy",
                     "sc = bpy.context.scene",
                     `sc.pathlight.samples = ${r.count}`,
                     `sc.pathlight.sample_offset = ${r.offset}`,
                     "sc.pathlight.use_adaptive_sampling = False",
+                    "sc.pathlight.time_limit = 0",
                     "sc.render.use_compositing = False",
                     "sc.render.image_settings.file_format = 'OPEN_EXR'",
                     "sc.render.image_settings.color_depth = '32'",
                 ].join("; "),
-                "--render-output", path.join(s.render_output_root, `part${k}_######`),
-                "--render-format", "OPEN_EXR",
+                "--render-output", output,
                 "--render-frame", `${frame}`,
             ],
         }));
         job.addTask(task);
+        renderTasks.push(task);
     }
+
+    // The merge: Blender without a file (the add-on is enabled in the workers' Blender) runs
+    // farm_merge.merge_frame of the add-on, found through its scene settings' module (the
+    // add-on's package name depends on where it was installed).
+    const merge = author.Task("merge", "blender");
+    merge.addCommand(author.Command("blender-render", {
+        exe: "{blender}",
+        exeArgs: "{blenderArgs}",
+        argsBefore: [],
+        blendfile: "",
+        args: [
+            "--python-expr", [
+                "import bpy, importlib",
+                "pkg = type(bpy.context.scene.pathlight).__module__.rpartition('.')[0]",
+                "merge = importlib.import_module(pkg + '.farm_merge').merge_frame",
+                `merge(${frame}, ${JSON.stringify(parts)}, ` +
+                `${JSON.stringify(path.join(s.render_output_root, "frame_######"))})`,
+            ].join("; "),
+        ],
+    }));
+    for (const t of renderTasks) merge.addDependency(t);
+    job.addTask(merge);
 }
