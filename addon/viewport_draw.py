@@ -16,8 +16,11 @@ Drawing, as Blender expects it from a render engine (and as Cycles' display driv
 - RGBA16F (half float, what Cycles uses for display): values are clamped to +-65504 so that
   bright pixels stay bright instead of turning into inf. Alpha is premultiplied (the film's
   alpha is coverage), hence blend 'ALPHA_PREMULT'.
-- The pixels reach gpu.types.Buffer as one contiguous float32 numpy array (buffer protocol,
-  no Python lists), reused from draw to draw.
+- The pixels reach gpu.types.Buffer as one contiguous float32 numpy array, reused from draw
+  to draw. Buffer wraps an object with the buffer protocol without copying it and checks only
+  its total length, not its element type (gpu_py_buffer.cc, pygpu_buffer__tp_new), so the
+  array must be float32; a Python list would be converted item by item instead. The texture
+  copies the data when it is created, so the array can be overwritten by the next draw.
 texture_pixels() and draw_film() are tested headless (tests/test_viewport_draw.py, with a
 recording stand-in for the gpu module: bpy has no GPU context in background mode).
 """
