@@ -50,8 +50,13 @@ def _animated_scene():
     return sc
 
 
-def test_animation_frames_match_single_frames_and_reuse_meshes():
+def test_animation_frames_match_single_frames_and_reuse_meshes(monkeypatch):
     from addon import render_cache
+    # As in interactive Blender, where the cache is emptied when the job ends (a background
+    # process keeps it: see test_render_frame_range_jobs_keep_the_cache_in_background).
+    keep = render_cache.keep_between_jobs
+    monkeypatch.setattr(render_cache, "keep_between_jobs",
+                        lambda scene: keep(scene, background=False))
     sc = _animated_scene()
     stats = []
 
@@ -105,3 +110,56 @@ def test_mesh_cache_sees_geometry_changes():
     dg = bpy.context.evaluated_depsgraph_get()
     export_scene(dg, lambda m: None, cache)
     assert cache.previous["missed"] == ["Floor"]
+
+
+def _one_frame_jobs(sc, frames, tmp):
+    """What `blender -b file -f 1..3` does: one RE_RenderAnim(frame, frame) job per frame
+    (creator_args.cc, arg_handle_frame_render). Returns each job's export-cache counts."""
+    from addon import render_cache
+    stats = []
+
+    def record(scene, *args):
+        stats.append((render_cache.MESH_CACHE.previous["hits"],
+                      render_cache.MESH_CACHE.previous["misses"]))
+    bpy.app.handlers.render_post.append(record)
+    try:
+        r = sc.render
+        r.image_settings.file_format = 'PNG'
+        r.use_compositing = r.use_sequencer = False
+        r.filepath = str(Path(tmp) / "f_####")
+        for f in frames:
+            sc.frame_start = sc.frame_end = f
+            bpy.ops.render.render(animation=True, scene=sc.name)
+    finally:
+        bpy.app.handlers.render_post.remove(record)
+    return stats
+
+
+def test_render_frame_range_jobs_keep_the_cache_in_background(monkeypatch):
+    """`--render-frame A..B` (a Flamenco chunk) renders each frame as its own job: in a
+    background process the cache survives from job to job, so unchanged meshes are exported
+    once per chunk; interactive Blender empties it after every job."""
+    from addon import render_cache
+    assert bpy.app.background  # the bpy module runs as background Blender
+    sc = _animated_scene()
+    render_cache.MESH_CACHE.clear()
+    with tempfile.TemporaryDirectory(prefix="pathlight_chunk_") as tmp:
+        assert _one_frame_jobs(sc, (1, 2, 3), tmp) == [(0, 2), (2, 0), (2, 0)]
+        assert render_cache.MESH_CACHE._entries  # kept after the last job too
+        # Loading a file empties it.
+        blend = str(Path(tmp) / "chunk.blend")
+        bpy.ops.wm.save_as_mainfile(filepath=blend)
+        bpy.ops.wm.open_mainfile(filepath=blend)
+        assert not render_cache.MESH_CACHE._entries
+        sc = bpy.context.scene
+        # Interactive Blender: every job starts from an empty cache, unless the scene uses
+        # persistent data.
+        assert not render_cache.keep_between_jobs(sc, background=False)
+        assert render_cache.keep_between_jobs(sc)
+        keep = render_cache.keep_between_jobs
+        monkeypatch.setattr(render_cache, "keep_between_jobs",
+                            lambda scene: keep(scene, background=False))
+        assert _one_frame_jobs(sc, (1, 2), tmp) == [(0, 2), (0, 2)]
+        assert not render_cache.MESH_CACHE._entries
+        sc.render.use_persistent_data = True
+        assert keep(sc, background=False)

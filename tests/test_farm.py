@@ -1,6 +1,9 @@
 """Farm splitting: sample offsets, the merge of partial EXR renders, and build.py's frame
 ranges and numbered outputs."""
 
+import json
+import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -210,3 +213,193 @@ def test_merge_uses_the_sample_count_pass_of_adaptive_renders():
         np.testing.assert_array_equal(cm, ca + cb)
         expect = (a * ca[..., None] + b * cb[..., None]) / np.maximum(ca + cb, 1)[..., None]
         np.testing.assert_allclose(m, expect, rtol=1e-5, atol=1e-7)
+
+
+# ---------------------------------------------------------------- Flamenco job type
+
+SPLIT_JOB = REPO / "tools" / "flamenco" / "pathlight_split_frame.js"
+NODE = shutil.which("node")
+needs_node = pytest.mark.skipif(NODE is None, reason="Node.js (node) not installed")
+
+
+def _compile_job(settings):
+    """Runs the job type under tests/flamenco_mock.js (Flamenco's job-compiler globals)."""
+    proc = subprocess.run([NODE, str(REPO / "tests" / "flamenco_mock.js"), str(SPLIT_JOB),
+                           json.dumps({"settings": settings})],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout)
+
+
+def _split_settings(samples, pieces, frame=7):
+    return dict(frame=frame, samples=samples, pieces=pieces, render_output_root="/farm/out",
+                blendfile="/farm/shots/heavy.blend")
+
+
+def _task_range(task):
+    """(offset, count) from the task's Python expression (what Blender will run)."""
+    expr = task["commands"][0]["parameters"]["args"][1]
+    count = int(re.search(r"pathlight\.samples = (\d+)", expr).group(1))
+    offset = int(re.search(r"pathlight\.sample_offset = (\d+)", expr).group(1))
+    return offset, count
+
+
+@needs_node
+@pytest.mark.parametrize("samples,pieces", [(1024, 4), (10, 4), (7, 3), (5, 5), (3, 8),
+                                            (1, 1), (1000, 7)])
+def test_flamenco_split_frame_tasks_cover_the_samples_once(samples, pieces):
+    out = _compile_job(_split_settings(samples, pieces))
+    assert "error" not in out, out
+    assert out["job_type"]["label"] == "Pathlight Split Frame"
+    keys = {s["key"] for s in out["job_type"]["settings"]}
+    assert {"frame", "samples", "pieces", "render_output_root", "blendfile"} <= keys
+    *tasks, merge = out["tasks"]
+    assert len(tasks) == min(samples, pieces)  # pieces > samples: one sample per task
+    ranges = [_task_range(t) for t in tasks]
+    # Consecutive, disjoint, covering [0, samples) exactly once; balanced to within one.
+    covered = np.zeros(samples, int)
+    for offset, count in ranges:
+        assert count >= 1
+        covered[offset:offset + count] += 1
+    assert (covered == 1).all()
+    assert [o for o, _ in ranges] == sorted(o for o, _ in ranges)
+    counts = [c for _, c in ranges]
+    assert max(counts) - min(counts) <= 1 and sum(counts) == samples
+    names = [t["name"] for t in tasks]
+    assert names == [f"samples-{o}-{o + c}" for o, c in ranges] and len(set(names)) == len(names)
+    for k, task in enumerate(tasks):
+        assert task["type"] == "blender" and len(task["commands"]) == 1
+        assert task["dependencies"] == []
+        cmd = task["commands"][0]
+        assert cmd["name"] == "blender-render"
+        # What the worker runs: Blender, the Manager's arguments, the file, then ours: the
+        # Python expression first (it runs once the file is loaded), the frame last (Blender
+        # renders when it reads --render-frame, with everything before it applied).
+        cli = cmd["cli"]
+        assert cli[:4] == ["{blender}", "{blenderArgs}", "/farm/shots/heavy.blend",
+                           "--python-expr"]
+        assert cli[5:] == ["--render-output", f"/farm/out/part{k}_######",
+                           "--render-frame", "7"]
+        compile(cli[4], "<python-expr>", "exec")  # valid Python
+    # The merge runs after every render task, in Blender without a file.
+    assert merge["name"] == "merge" and merge["type"] == "blender"
+    assert sorted(merge["dependencies"]) == sorted(names)
+    cli = merge["commands"][0]["cli"]
+    assert cli[:3] == ["{blender}", "{blenderArgs}", "--python-expr"] and len(cli) == 4
+    compile(cli[3], "<python-expr>", "exec")
+    call = cli[3].rsplit("; ", 1)[1]
+    assert call.startswith("merge(7, ")
+    parts = json.loads(call[len("merge(7, "):call.rindex("], ") + 1])
+    assert parts == [[f"/farm/out/part{k}_######", o, c] for k, (o, c) in enumerate(ranges)]
+    assert call.endswith(', "/farm/out/frame_######")')
+
+
+@needs_node
+@pytest.mark.parametrize("bad", [dict(samples=0), dict(pieces=0), dict(samples=-3),
+                                 dict(pieces=2.5), dict(frame="x")])
+def test_flamenco_split_frame_refuses_bad_settings(bad):
+    out = _compile_job(dict(_split_settings(8, 2), **bad))
+    assert "error" in out and not out.get("tasks")
+
+
+@needs_node
+@needs_offset
+def test_flamenco_split_frame_tasks_render_and_merge_into_the_whole_frame():
+    """The compiled tasks' Python expressions, run in Blender on the Cornell box, render the
+    pieces; the merge task's expression (the add-on's farm_merge, in Blender) writes what
+    `build.py merge` writes, which equals one render of all samples."""
+    import bpy
+    from blender_util import _setup_pathlight, load_addon, open_fixture
+    out = _compile_job(dict(_split_settings(9, 4, frame=1)))
+    with tempfile.TemporaryDirectory(prefix="pathlight_flamenco_") as tmp:
+        def render(name, expr=None, samples=None):
+            load_addon()
+            sc = open_fixture("cornell_box")
+            sc.render.engine = "PATHLIGHT"
+            _setup_pathlight(sc.pathlight)
+            sc.pathlight.seed = 3
+            sc.render.resolution_percentage = 12  # 30 x 30
+            sc.render.use_sequencer = False
+            if expr is not None:
+                # The artist's settings that would spoil a piece; the task turns them off.
+                sc.render.use_compositing = sc.pathlight.use_adaptive_sampling = True
+                sc.pathlight.time_limit = 100.0
+                sc.render.image_settings.file_format = 'PNG'
+                exec(expr, {})  # what --python-expr runs in the task
+                assert not sc.render.use_compositing and not sc.pathlight.use_adaptive_sampling
+                assert sc.pathlight.time_limit == 0
+                assert sc.render.image_settings.file_format == 'OPEN_EXR'
+                assert sc.render.image_settings.color_depth == '32'
+            else:
+                sc.pathlight.samples, sc.pathlight.sample_offset = samples, 0
+                sc.render.use_compositing = False
+                sc.render.image_settings.file_format = 'OPEN_EXR'
+                sc.render.image_settings.color_depth = '32'
+            sc.render.filepath = str(Path(tmp) / name)  # what --render-output sets
+            sc.render.use_file_extension = True
+            # --render-frame 1 is RE_RenderAnim(frame 1..1): a one-frame animation job.
+            sc.frame_start = sc.frame_end = 1
+            bpy.ops.render.render(animation=True, scene=sc.name)
+            return Path(sc.render.frame_path(frame=1))
+
+        *tasks, merge_task = out["tasks"]
+        parts = []
+        for task in tasks:
+            args = task["commands"][0]["parameters"]["args"]
+            name = Path(args[args.index("--render-output") + 1]).name
+            parts.append(render(name, expr=args[1]))
+        assert [p.name for p in parts] == [f"part{k}_000001.exr" for k in range(4)]
+        whole = render("whole_######", samples=9)
+        reference = Path(tmp) / "reference.exr"
+        info = build.merge_exr([str(p) for p in parts], str(reference))
+        assert info["samples"] == 9
+        # The merge task, run in Blender (outputs under tmp instead of /farm/out).
+        expr = merge_task["commands"][0]["parameters"]["args"][1]
+        exec(expr.replace("/farm/out", tmp), {})
+        merged = Path(tmp) / "frame_000001.exr"
+        with OpenEXR.File(str(merged)) as a, OpenEXR.File(str(whole)) as b, \
+                OpenEXR.File(str(reference)) as c:
+            m, w = a.channels()["RGBA"].pixels.copy(), b.channels()["RGBA"].pixels.copy()
+            r = c.channels()["RGBA"].pixels.copy()
+        assert m.dtype == np.float32 and m.mean() > 0.01
+        np.testing.assert_allclose(m, r, rtol=1e-6, atol=1e-7)  # = build.py merge
+        np.testing.assert_allclose(m, w, rtol=2e-5, atol=2e-6)  # = one render of all samples
+
+
+def test_blender_side_merge_weighs_and_refuses():
+    """addon/farm_merge.py (the Flamenco merge task): the sample-weighted mean of the pieces
+    in a 32-bit float EXR, rows kept in place; overlapping ranges, differently sized pieces and
+    non-float images refused."""
+    import bpy
+    from blender_util import load_addon
+    load_addon()
+    from addon.farm_merge import frame_file, merge_pieces
+    with tempfile.TemporaryDirectory(prefix="pathlight_bmerge_") as tmp:
+        rng = np.random.default_rng(5)
+        a, b = rng.uniform(0, 50, (3, 4, 3)), rng.uniform(-1, 2, (3, 4, 3))
+        a[0, 0] = (1e-7, 3e4, 0.5)  # tiny, huge and exact values survive
+        pa, pb = str(Path(tmp) / "a.exr"), str(Path(tmp) / "b.exr")
+        _write_exr(pa, a)
+        _write_exr(pb, b)
+        out = str(Path(tmp) / "m.exr")
+        assert merge_pieces([(pa, 0, 3), (pb, 3, 1)], out) == 4
+        with OpenEXR.File(out) as f:
+            ch = f.channels()
+            rgba = ch["RGBA"].pixels.copy()
+        assert rgba.dtype == np.float32 and rgba.shape == (3, 4, 4)
+        expect = ((3 * a.astype(np.float32).astype(np.float64) + b.astype(np.float32)) / 4)
+        np.testing.assert_allclose(rgba[..., :3], expect, rtol=1e-6)
+        with pytest.raises(ValueError, match="overlap"):
+            merge_pieces([(pa, 0, 3), (pb, 2, 1)], out)
+        _write_exr(Path(tmp) / "small.exr", a[:2])
+        with pytest.raises(ValueError, match="the first piece"):
+            merge_pieces([(pa, 0, 3), (str(Path(tmp) / "small.exr"), 3, 1)], out)
+        img = bpy.data.images.new("png", 2, 2)
+        img.filepath_raw, img.file_format = str(Path(tmp) / "p.png"), 'PNG'
+        img.save()
+        with pytest.raises(ValueError, match="float"):
+            merge_pieces([(str(Path(tmp) / "p.png"), 0, 1)], out)
+        with pytest.raises(RuntimeError):
+            merge_pieces([(str(Path(tmp) / "missing.exr"), 0, 1)], out)
+        # Blender's naming of a frame's file, as --render-output/--render-frame write it.
+        assert frame_file(str(Path(tmp) / "part0_######"), 7) == str(Path(tmp) / "part0_000007.exr")

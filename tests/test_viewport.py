@@ -155,10 +155,130 @@ def test_view_camera_reproduces_blender_projection(scene):
     assert p["clip_end"] == pytest.approx(80.0, rel=1e-3)
     assert p["pixel_aspect_y"] == pytest.approx(1.0, rel=1e-5)
     np.testing.assert_allclose(p["matrix_world"], np.array(cam.matrix_world), atol=1e-5)
-    ortho = proj.copy()
-    ortho[3] = (0, 0, 0, 1)
+    _assert_rays_hit_projected_points(p, view, proj, width, height)
+    # A matrix that is neither projection, or one that contradicts the perspective flag.
+    bad = proj.copy()
+    bad[3] = (0, 0, 0.5, 0.5)
     with pytest.raises(ViewCameraError):
-        view_camera_params(view, ortho, width, height, False)
+        view_camera_params(view, bad, width, height, True)
+    with pytest.raises(ViewCameraError):
+        view_camera_params(view, proj, width, height, False)
+
+
+def _core_camera(fields):
+    from addon.core import get_core
+    cam = get_core().Camera()
+    for name, value in fields.items():
+        setattr(cam, name, value)
+    return cam
+
+
+def _assert_rays_hit_projected_points(fields, view, proj, width, height, depths=None):
+    """World points that Blender's matrices put at raster (x, y) lie on the core camera's ray
+    through (x, y), within its clipping range; points outside the clipping range do not."""
+    if not core_available():
+        return
+    cam = _core_camera(fields)
+    rng = np.random.default_rng(3)
+    inv = np.linalg.inv(proj @ view)
+    for _ in range(40):
+        ndc = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-0.999, 0.999), 1.0])
+        world = inv @ ndc
+        world = world[:3] / world[3]
+        x, y = (ndc[0] + 1) * 0.5 * width, (ndc[1] + 1) * 0.5 * height
+        org, d, tmax = (np.array(v, np.float64) for v in cam.generate_ray(width, height, x, y))
+        t = float(np.dot(world - org, d))
+        scale = max(1.0, float(np.abs(world).max()))
+        # Pixel-exact: the miss distance is a tiny fraction of a pixel's footprint.
+        assert np.linalg.norm(org + t * d - world) < 1e-4 * scale
+        assert -1e-3 * scale <= t <= tmax + 1e-3 * scale
+    for z in (-1.02, 1.02):  # beyond the near and far planes: outside the ray's range
+        world = inv @ np.array([0.1, -0.2, z, 1.0])
+        world = world[:3] / world[3]
+        x, y = 1.1 * 0.5 * width, 0.8 * 0.5 * height
+        org, d, tmax = (np.array(v, np.float64) for v in cam.generate_ray(width, height, x, y))
+        t = float(np.dot(world - org, d))
+        assert t < 0 or t > tmax
+
+
+def _ortho_matrix(left, right, bottom, top, near, far):
+    """OpenGL's glOrtho, which is what Blender's orthographic_m4 builds for the region."""
+    m = np.zeros((4, 4))
+    m[0, 0], m[1, 1], m[2, 2] = 2 / (right - left), 2 / (top - bottom), -2 / (far - near)
+    m[0, 3] = -(right + left) / (right - left)
+    m[1, 3] = -(top + bottom) / (top - bottom)
+    m[2, 3] = -(far + near) / (far - near)
+    m[3, 3] = 1.0
+    return m
+
+
+def test_view_camera_reproduces_blender_orthographic_projection(scene):
+    """Camera view through an orthographic scene camera: Blender's own window matrix gives
+    back its ortho scale, shift and clipping, and the core's rays go through the points the
+    matrices project to each pixel."""
+    cam = bpy.data.objects["Camera"]
+    cam.data.type = 'ORTHO'
+    cam.data.ortho_scale = 5.0
+    cam.data.shift_x, cam.data.shift_y = 0.15, -0.1
+    cam.data.clip_start, cam.data.clip_end = 0.5, 40.0
+    cam.rotation_euler = (1.3, 0.2, 0.4)
+    bpy.context.view_layer.update()
+    width, height = 96, 64
+    proj = _proj(cam, width, height)
+    view = np.array(cam.matrix_world.inverted())
+    p = view_camera_params(view, proj, width, height, False)
+    assert p["type"] == "ORTHO"
+    assert p["ortho_scale"] == pytest.approx(5.0, rel=1e-5)
+    assert p["shift_x"] == pytest.approx(0.15, abs=1e-6)
+    assert p["shift_y"] == pytest.approx(-0.1, abs=1e-6)
+    assert p["clip_start"] == pytest.approx(0.5, rel=1e-4)
+    assert p["clip_end"] == pytest.approx(40.0, rel=1e-4)
+    assert p["pixel_aspect_y"] == pytest.approx(1.0, rel=1e-5)
+    np.testing.assert_allclose(p["matrix_world"], np.array(cam.matrix_world), atol=1e-5)
+    _assert_rays_hit_projected_points(p, view, proj, width, height)
+    # Taller than wide (Blender fits the ortho scale to the height then).
+    proj = _proj(cam, 40, 90)
+    p = view_camera_params(view, proj, 40, 90, False)
+    _assert_rays_hit_projected_points(p, view, proj, 40, 90)
+
+
+def test_view_camera_free_orthographic_view():
+    """Free orthographic navigation: an off-centre box (the view's offset and zoom), a
+    non-square pixel footprint, and Blender's near plane behind the view point
+    (-clip_end / 2): the camera moves back so every visible point stays reachable."""
+    rot = np.array([[0.8, -0.6, 0.0], [0.36, 0.48, -0.8], [0.48, 0.64, 0.6]])
+    view = np.eye(4)
+    view[:3, :3] = rot
+    view[:3, 3] = (0.3, -0.2, -7.0)
+    width, height = 120, 70
+    proj = _ortho_matrix(-2.1, 1.7, -1.3, 1.0, -50.0, 50.0)
+    p = view_camera_params(view, proj, width, height, False)
+    assert p["type"] == "ORTHO" and p["clip_start"] == 0.0
+    assert p["clip_end"] == pytest.approx(100.0, rel=1e-6)
+    assert p["ortho_scale"] == pytest.approx(3.8, rel=1e-6)
+    _assert_rays_hit_projected_points(p, view, proj, width, height)
+    with pytest.raises(ViewCameraError):
+        view_camera_params(view, proj, width, height, True)  # says perspective: contradiction
+
+
+@pytest.mark.skipif(not core_has("Scene", "set_shader"), reason="core without live edits")
+def test_viewport_session_renders_an_orthographic_view(scene):
+    """The session renders through an orthographic view: the cube (2 units wide) fills the
+    middle of a view 4 units wide and leaves its border empty."""
+    from addon.core import get_core
+    from addon.viewport import ViewportSession
+    scene.pathlight.preview_samples = 1
+    scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    view = np.array(bpy.data.objects["Camera"].matrix_world.inverted())
+    vs = ViewportSession(get_core())
+    vs.set_view(view_camera_params(view, _ortho_matrix(-2, 2, -2, 2, -20, 20), 16, 16, False),
+                16, 16)
+    vs.sync(bpy.context.evaluated_depsgraph_get())
+    film, n = _finish(vs)
+    lum = film[..., :3].sum(axis=2)
+    assert n == 1 and film.shape == (16, 16, 4)
+    assert lum[5:11, 5:11].min() > 0 and lum[:3].max() == 0 and lum[:, :3].max() == 0
+    vs.free()
 
 
 def _finish(vs):
