@@ -165,6 +165,11 @@ inline float light_power(const Light& l, float scene_radius) {
 }
 
 // Equirectangular environment map in Cycles' convention, importance-sampled by luminance.
+// The lookup is bilinear between texel centres, so the sampling density is too: the map is
+// split into cells between four texel centres (half cells along the poles), a cell is chosen by
+// its integral (the mean of its corners times cos(elevation) at its centre) and a point in it
+// in proportion to the bilinear luminance. The density is then luminance * cos(cell) / norm:
+// exactly proportional to the radiance within a row of cells, and nonzero wherever it is.
 class Environment {
  public:
   Environment() = default;
@@ -180,11 +185,18 @@ class Environment {
  private:
   Vec3 lookup(float u, float v) const;
   void to_uv(Vec3 t, float& u, float& v) const;
+  // Cell row j (0..h) spans v in [max(0, (j - 0.5) / h), min(1, (j + 0.5) / h)].
+  float cell_v0(int j) const { return std::max(0.0f, (j - 0.5f) / h_); }
+  float cell_v1(int j) const { return std::min(1.0f, (j + 0.5f) / h_); }
+  float pdf_uv(float u, float v) const;  // density over the (u, v) square
   std::vector<Vec3> px_;
+  std::vector<float> lum_;  // sampling weight per texel: its luminance, >= 0
   int w_ = 0, h_ = 0;
   Mat4 rot_;  // world -> texture
-  std::vector<Distribution1D> rows_;  // per row (v), over columns
-  Distribution1D marginal_;            // over rows
+  std::vector<Distribution1D> rows_;  // per cell row, over its w cells
+  Distribution1D marginal_;            // over the h + 1 cell rows
+  std::vector<float> cell_cos_;        // cos(elevation) at each cell row's centre
+  double norm_ = 0.0;                  // integral of luminance * cell_cos over (u, v)
   float avg_lum_ = 0.0f;
 };
 

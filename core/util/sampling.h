@@ -129,6 +129,23 @@ inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3&
   return dnormalize(dir);
 }
 
+// x in [0,1) with density proportional to the line from a (at 0) to b (at 1), a, b >= 0
+// (pbrt-v4's SampleLinear, in double: the ends may differ by many orders of magnitude).
+inline double sample_linear(double u, double a, double b) {
+  if (!(a + b > 0.0)) return u;
+  if (u == 0.0 && a == 0.0) return 0.0;
+  const double x = u * (a + b) / (a + std::sqrt((1.0 - u) * a * a + u * b * b));
+  return std::min(x, 1.0 - 1e-9);
+}
+
+// A point of the unit square with density proportional to the bilinear interpolation of the
+// corner weights w00 (0,0), w10 (1,0), w01 (0,1), w11 (1,1): the marginal in y, then x given y.
+// The density is bilerp(x, y) / mean(w).
+inline void sample_bilinear(Vec2 u, double w00, double w10, double w01, double w11, double& x, double& y) {
+  y = sample_linear(u.y, w00 + w10, w01 + w11);
+  x = sample_linear(u.x, w00 + (w01 - w00) * y, w10 + (w11 - w10) * y);
+}
+
 inline float power_heuristic(float pdf_a, float pdf_b) {
   const float a = pdf_a * pdf_a, b = pdf_b * pdf_b;
   if (std::isinf(a)) return 1.0f;
