@@ -50,8 +50,13 @@ inline float spot_attenuation(const Light& l, Vec3 from_light) {
   return smoothstep01((c - l.cos_half_spot) * l.spot_smooth_inv);
 }
 
-// Samples light `l` from point p; returns false if it cannot contribute there.
-inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
+// Solid angles a rectangle light is sampled over uniformly (spherical rectangles); outside it,
+// uniformly by area. Below, the light is a speck and area sampling is as good and cheaper.
+inline bool use_spherical_rect(double omega) { return omega > 2e-4; }
+
+// Samples light `l` from point p; returns false if it cannot contribute there. `solid_angle`:
+// rectangles by their solid angle where it is large enough (else uniformly by area).
+inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool solid_angle = true) {
   switch (l.type) {
     case LightType::Point:
     case LightType::Spot: {
@@ -124,6 +129,27 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
     }
     case LightType::Rect:
     case LightType::Ellipse: {
+      if (l.type == LightType::Rect && solid_angle) {
+        if (!(dot(p - l.position, l.dir) > 0.0f)) return false;  // behind: one-sided
+        // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
+        const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
+        const SphericalRect sr = spherical_rect(p, l.position - (l.axis_u + l.axis_v) * 0.5f, l.axis_u, l.axis_v);
+        if (uv * uv <= 1e-8f * uu * vv && use_spherical_rect(sr.solid_angle)) {
+          DVec3 q;
+          if (!sample_spherical_rect(sr, u, q)) return false;
+          DVec3 d = q - DVec3(p);
+          const double dist = dlength(d);
+          if (!dnormalize(d)) return false;
+          s.wi = d.to_float();
+          if (!(-dot(l.dir, s.wi) > 0.0f)) return false;
+          s.dist = float(dist);
+          s.target = q.to_float();
+          s.li = l.color;
+          s.pdf = float(1.0 / sr.solid_angle);
+          s.delta = false;
+          return true;
+        }
+      }
       Vec2 o{u.x - 0.5f, u.y - 0.5f};
       if (l.type == LightType::Ellipse) {
         const Vec2 dsk = sample_disk_concentric(u);
