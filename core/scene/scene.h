@@ -136,7 +136,9 @@ class Scene {
   // Radiance arriving from the world along a ray that escapes the scene.
   Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
   // Picks a light with u_select and samples it from point p.
-  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const;
+  // bsdf_follows: a BSDF sample from p will be traced and MIS-weighted against this one; if not,
+  // every direction the light can come from must have density here.
+  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true) const;
   // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).
