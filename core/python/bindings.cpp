@@ -1147,6 +1147,15 @@ PYBIND11_MODULE(pathlight_core, m) {
             self.scene->set_solid_angle_triangle_sampling(on);
           },
           "Light-sample emissive triangles uniformly in solid angle (True, the default) or by area.")
+      .def_property(
+          "solid_angle_rect_sampling",
+          [](const PyScene& self) { return self.scene->solid_angle_rect_sampling(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_solid_angle_rect_sampling(on);
+          },
+          "Light-sample rectangle lights uniformly in solid angle where it is not tiny (True, the "
+          "default) or always by area.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim is -1 and t inf on a miss.")

@@ -187,7 +187,7 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
       const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
       u_rr = u_sel.y;
       const Vec2 u_pt = sampler.get2d();
-      if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds)) {
+      if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) {
         const bool reflection = dot(ds.wi, ng_out) > 0.0f;
         float bsdf_pdf;
         const Vec3 f = eval_mixture(cl, wo, ds.wi, reflection, bsdf_pdf);

@@ -50,8 +50,13 @@ inline float spot_attenuation(const Light& l, Vec3 from_light) {
   return smoothstep01((c - l.cos_half_spot) * l.spot_smooth_inv);
 }
 
-// Samples light `l` from point p; returns false if it cannot contribute there.
-inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
+// Solid angles a rectangle light is sampled over uniformly (spherical rectangles); outside it,
+// uniformly by area. Below, the light is a speck and area sampling is as good and cheaper.
+inline bool use_spherical_rect(double omega) { return omega > 2e-4; }
+
+// Samples light `l` from point p; returns false if it cannot contribute there. `solid_angle`:
+// rectangles by their solid angle where it is large enough (else uniformly by area).
+inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool solid_angle = true) {
   switch (l.type) {
     case LightType::Point:
     case LightType::Spot: {
@@ -124,6 +129,27 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
     }
     case LightType::Rect:
     case LightType::Ellipse: {
+      if (l.type == LightType::Rect && solid_angle) {
+        if (!(dot(p - l.position, l.dir) > 0.0f)) return false;  // behind: one-sided
+        // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
+        const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
+        const SphericalRect sr = spherical_rect(p, l.position - (l.axis_u + l.axis_v) * 0.5f, l.axis_u, l.axis_v);
+        if (uv * uv <= 1e-8f * uu * vv && use_spherical_rect(sr.solid_angle)) {
+          DVec3 q;
+          if (!sample_spherical_rect(sr, u, q)) return false;
+          DVec3 d = q - DVec3(p);
+          const double dist = dlength(d);
+          if (!dnormalize(d)) return false;
+          s.wi = d.to_float();
+          if (!(-dot(l.dir, s.wi) > 0.0f)) return false;
+          s.dist = float(dist);
+          s.target = q.to_float();
+          s.li = l.color;
+          s.pdf = float(1.0 / sr.solid_angle);
+          s.delta = false;
+          return true;
+        }
+      }
       Vec2 o{u.x - 0.5f, u.y - 0.5f};
       if (l.type == LightType::Ellipse) {
         const Vec2 dsk = sample_disk_concentric(u);
@@ -164,7 +190,14 @@ inline float light_power(const Light& l, float scene_radius) {
   return std::isnan(p) ? 0.0f : std::min(p, 1e30f);
 }
 
-// Equirectangular environment map in Cycles' convention, importance-sampled by luminance.
+// Equirectangular environment map in Cycles' convention, importance-sampled by luminance. The
+// lookup is bilinear between texel centres, so the sampling density is too: the map is split
+// into cells between four texel centres (half cells along the poles), a cell is chosen by its
+// integral (the mean of its corners times cos(elevation) at its centre) and a point in it in
+// proportion to the bilinear weight: the density is weight * cos(cell row) / norm. Two such
+// distributions: weight = luminance where no BSDF sample follows (every direction with radiance
+// has density), and max(0, luminance - its mean over the sphere) where one does (MIS
+// compensation: the dim remainder is left to the BSDF sample).
 class Environment {
  public:
   Environment() = default;
@@ -172,19 +205,33 @@ class Environment {
   Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation);
   bool valid() const { return w_ > 0; }
   Vec3 eval(Vec3 dir_world) const;
-  // Samples a world direction; returns radiance and the solid-angle pdf.
-  bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf) const;
-  float pdf(Vec3 dir_world) const;
+  // Samples a world direction; returns radiance and the solid-angle pdf. cover_all: no BSDF
+  // sample follows, so every direction with radiance needs density (else the compensated one).
+  bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf, bool cover_all = false) const;
+  float pdf(Vec3 dir_world, bool cover_all = false) const;
   float average_luminance() const { return avg_lum_; }
 
  private:
+  struct Cells {  // a piecewise-bilinear distribution over the cells, of max(0, lum - sub)
+    std::vector<Distribution1D> rows;  // per cell row, over its w cells
+    Distribution1D marginal;           // over the h + 1 cell rows
+    double norm = 0.0;                 // integral of weight * cell_cos over (u, v)
+    float sub = 0.0f;
+  };
   Vec3 lookup(float u, float v) const;
   void to_uv(Vec3 t, float& u, float& v) const;
+  // Cell row j (0..h) spans v in [max(0, (j - 0.5) / h), min(1, (j + 0.5) / h)].
+  float cell_v0(int j) const { return std::max(0.0f, (j - 0.5f) / h_); }
+  float cell_v1(int j) const { return std::min(1.0f, (j + 0.5f) / h_); }
+  float weight(const Cells& d, int x, int y) const;
+  void build_cells(Cells& d, float sub);
+  bool sample_cells(const Cells& d, Vec2 uu, Vec3& dir, float& u, float& v, float& pdf) const;
   std::vector<Vec3> px_;
+  std::vector<float> lum_;  // luminance per texel, >= 0
   int w_ = 0, h_ = 0;
   Mat4 rot_;  // world -> texture
-  std::vector<Distribution1D> rows_;  // per row (v), over columns
-  Distribution1D marginal_;            // over rows
+  std::vector<float> cell_cos_;  // cos(elevation) at each cell row's centre
+  Cells full_, comp_;
   float avg_lum_ = 0.0f;
 };
 

@@ -258,7 +258,7 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   sp.prim = h.prim;
 }
 
-bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const {
+bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
   if (light_dist_.empty()) return false;
   const size_t k = light_dist_.sample(u_select);
   const float pmf = light_dist_.pmf(k);
@@ -267,13 +267,15 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
   if (k < lights_.size()) {
     const Light& l = lights_[k];
     LightSample ls;
-    if (!sample_light(l, p, u, ls)) return false;
+    if (!sample_light(l, p, u, ls, solid_angle_rects_)) return false;
     s.wi = ls.wi;
     s.dist = ls.dist;
     s.target = ls.target;
     s.li = ls.li;
     s.pdf = ls.pdf * pmf;
-    s.delta = ls.delta;
+    // BSDF rays never hit analytic lights (they are not geometry), so the light sample is the
+    // only estimator and keeps the full weight: MIS against the BSDF pdf lost energy here.
+    s.delta = true;
     s.cast_shadow = l.cast_shadow;
     return true;
   }
@@ -281,7 +283,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const
   s.cast_shadow = true;
   if (k == env_index_) {
     float pdf;
-    if (!env_.sample(u, s.wi, s.li, pdf)) return false;
+    if (!env_.sample(u, s.wi, s.li, pdf, !bsdf_follows)) return false;
     s.dist = kInf;
     s.pdf = pdf * pmf;
     return true;

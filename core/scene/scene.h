@@ -65,7 +65,7 @@ struct DirectSample {
   Vec3 target_error;      // bound of the target's rounding error (emissive triangles)
   Vec3 li;                // incident radiance (or intensity/r^2, irradiance for delta lights)
   float pdf = 0.0f;       // solid-angle pdf including the light choice
-  bool delta = false;
+  bool delta = false;      // no BSDF ray can find this light (delta or analytic): full weight
   bool cast_shadow = true;
 };
 
@@ -100,6 +100,8 @@ class Scene {
   // uniformly by area everywhere (the old technique; kept to compare the two in tests).
   void set_solid_angle_triangle_sampling(bool on) { solid_angle_triangles_ = on; }
   bool solid_angle_triangle_sampling() const { return solid_angle_triangles_; }
+  void set_solid_angle_rect_sampling(bool on) { solid_angle_rects_ = on; }
+  bool solid_angle_rect_sampling() const { return solid_angle_rects_; }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
   // Returns false when cancel_commit() stopped it: the scene is then uncommitted (as if commit
@@ -134,7 +136,9 @@ class Scene {
   // Radiance arriving from the world along a ray that escapes the scene.
   Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
   // Picks a light with u_select and samples it from point p.
-  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s) const;
+  // bsdf_follows: a BSDF sample from p will be traced and MIS-weighted against this one; if not,
+  // every direction the light can come from must have density here.
+  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true) const;
   // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).
@@ -166,6 +170,7 @@ class Scene {
   bool geometry_dirty_ = true;
   BvhLayout built_layout_ = BvhLayout::Auto;
   bool solid_angle_triangles_ = true;
+  bool solid_angle_rects_ = true;
 
   std::vector<TriangleVerts> tris_;
   std::vector<TriangleShading> shading_;

@@ -129,6 +129,85 @@ inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3&
   return dnormalize(dir);
 }
 
+// Spherical rectangles (Urena, Fajardo, King 2013, "An area-preserving parametrization for
+// spherical rectangles"): directions uniform in the solid angle of a rectangle, for rectangle
+// lights close to the shaded point. In double for the same reasons as the triangles.
+struct SphericalRect {
+  DVec3 o, x, y, z;           // the shaded point; the frame: x, y along the edges, z away from it
+  double x0 = 0, x1 = 0, y0 = 0, y1 = 0, z0 = 0;  // the rectangle in that frame (z0 < 0)
+  double b0 = 0, b1 = 0, k = 0;
+  double solid_angle = 0.0;  // 0: degenerate, or the point lies in the rectangle's plane
+};
+
+// Corner c and orthogonal edges ex, ey, seen from p.
+inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
+  SphericalRect r;
+  r.o = DVec3(p);
+  r.x = DVec3(ex);
+  r.y = DVec3(ey);
+  const double exl = dlength(r.x), eyl = dlength(r.y);
+  if (!dnormalize(r.x) || !dnormalize(r.y)) return r;
+  r.z = dcross(r.x, r.y);
+  const DVec3 d = DVec3(c) - r.o;
+  r.z0 = ddot(d, r.z);
+  if (r.z0 > 0.0) {  // z points away from the rectangle
+    r.z = r.z * -1.0;
+    r.z0 = -r.z0;
+  }
+  if (!(r.z0 < 0.0)) return r;
+  r.x0 = ddot(d, r.x);
+  r.y0 = ddot(d, r.y);
+  r.x1 = r.x0 + exl;
+  r.y1 = r.y0 + eyl;
+  const DVec3 v00(r.x0, r.y0, r.z0), v01(r.x0, r.y1, r.z0), v10(r.x1, r.y0, r.z0), v11(r.x1, r.y1, r.z0);
+  DVec3 n0 = dcross(v00, v10), n1 = dcross(v10, v11), n2 = dcross(v11, v01), n3 = dcross(v01, v00);
+  if (!dnormalize(n0) || !dnormalize(n1) || !dnormalize(n2) || !dnormalize(n3)) return r;
+  auto angle = [](DVec3 a, DVec3 b) { return std::acos(std::clamp(-ddot(a, b), -1.0, 1.0)); };
+  const double g0 = angle(n0, n1), g1 = angle(n1, n2), g2 = angle(n2, n3), g3 = angle(n3, n0);
+  const double omega = g0 + g1 + g2 + g3 - 2.0 * kPi;
+  r.b0 = n0.z;
+  r.b1 = n2.z;
+  r.k = 2.0 * kPi - g2 - g3;
+  r.solid_angle = std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+  return r;
+}
+
+// A point of the rectangle whose direction from r.o is uniform in its solid angle.
+inline bool sample_spherical_rect(const SphericalRect& r, Vec2 u, DVec3& point) {
+  if (!(r.solid_angle > 0.0)) return false;
+  const double au = double(u.x) * r.solid_angle + r.k;
+  const double fu = (std::cos(au) * r.b0 - r.b1) / std::sin(au);
+  double cu = std::copysign(1.0, fu) / std::sqrt(fu * fu + r.b0 * r.b0);
+  if (!std::isfinite(cu)) return false;
+  cu = std::clamp(cu, -1.0 + 1e-12, 1.0 - 1e-12);
+  double xu = -(cu * r.z0) / std::sqrt(std::max(0.0, 1.0 - cu * cu));
+  xu = std::clamp(xu, r.x0, r.x1);
+  const double dd = std::sqrt(xu * xu + r.z0 * r.z0);
+  const double h0 = r.y0 / std::sqrt(dd * dd + r.y0 * r.y0), h1 = r.y1 / std::sqrt(dd * dd + r.y1 * r.y1);
+  const double hv = h0 + double(u.y) * (h1 - h0), hv2 = hv * hv;
+  double yv = hv2 < 1.0 - 1e-12 ? hv * dd / std::sqrt(1.0 - hv2) : r.y1;
+  yv = std::clamp(yv, r.y0, r.y1);
+  point = r.o + r.x * xu + r.y * yv + r.z * r.z0;
+  return std::isfinite(point.x) && std::isfinite(point.y) && std::isfinite(point.z);
+}
+
+// x in [0,1) with density proportional to the line from a (at 0) to b (at 1), a, b >= 0
+// (pbrt-v4's SampleLinear, in double: the ends may differ by many orders of magnitude).
+inline double sample_linear(double u, double a, double b) {
+  if (!(a + b > 0.0)) return u;
+  if (u == 0.0 && a == 0.0) return 0.0;
+  const double x = u * (a + b) / (a + std::sqrt((1.0 - u) * a * a + u * b * b));
+  return std::min(x, 1.0 - 1e-9);
+}
+
+// A point of the unit square with density proportional to the bilinear interpolation of the
+// corner weights w00 (0,0), w10 (1,0), w01 (0,1), w11 (1,1): the marginal in y, then x given y.
+// The density is bilerp(x, y) / mean(w).
+inline void sample_bilinear(Vec2 u, double w00, double w10, double w01, double w11, double& x, double& y) {
+  y = sample_linear(u.y, w00 + w10, w01 + w11);
+  x = sample_linear(u.x, w00 + (w01 - w00) * y, w10 + (w11 - w10) * y);
+}
+
 inline float power_heuristic(float pdf_a, float pdf_b) {
   const float a = pdf_a * pdf_a, b = pdf_b * pdf_b;
   if (std::isinf(a)) return 1.0f;
