@@ -21,8 +21,7 @@ inline uint32_t reverse_bits(uint32_t x) {
   x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
   x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
   x = ((x >> 4) & 0x0F0F0F0Fu) | ((x & 0x0F0F0F0Fu) << 4);
-  x = ((x >> 8) & 0x00FF00FFu) | ((x & 0x00FF00FFu) << 8);
-  return (x >> 16) | (x << 16);
+  return __builtin_bswap32(x);  // the byte-level swaps in one instruction
 }
 
 // Owen scrambling of a bit-reversed value: a hash in which each bit depends only on the bits
@@ -58,10 +57,25 @@ struct SobolDim1Table {
 };
 inline constexpr SobolDim1Table kSobolDim1Reversed{};
 
+// The same XOR of direction numbers, a byte of the index at a time: a bit loop over a
+// scrambled (random-looking) index runs ~16 times and was 5 % of a Cornell box sample.
+struct SobolDim1ByteTable {
+  uint32_t t[4][256];
+  constexpr SobolDim1ByteTable() : t() {
+    for (int k = 0; k < 4; ++k)
+      for (int b = 0; b < 256; ++b) {
+        uint32_t r = 0;
+        for (int i = 0; i < 8; ++i)
+          if (b & (1 << i)) r ^= kSobolDim1Reversed.v[8 * k + i];
+        t[k][b] = r;
+      }
+  }
+};
+inline constexpr SobolDim1ByteTable kSobolDim1Bytes{};
+
 inline uint32_t sobol_dim1_reversed(uint32_t index) {
-  uint32_t r = 0;
-  for (; index; index &= index - 1) r ^= kSobolDim1Reversed.v[__builtin_ctz(index)];
-  return r;
+  return kSobolDim1Bytes.t[0][index & 0xFFu] ^ kSobolDim1Bytes.t[1][(index >> 8) & 0xFFu] ^
+         kSobolDim1Bytes.t[2][(index >> 16) & 0xFFu] ^ kSobolDim1Bytes.t[3][index >> 24];
 }
 
 inline float u32_to_unit(uint32_t x) { return static_cast<float>(x >> 8) * 0x1p-24f; }
