@@ -83,7 +83,10 @@ inline float u32_to_unit(uint32_t x) { return static_cast<float>(x >> 8) * 0x1p-
 class Sampler {
  public:
   Sampler(SamplerType type, uint32_t seed, uint64_t pixel, uint32_t sample)
-      : type_(type), sample_(sample), base_(hash3(seed, pixel, 0x5EEDull)), rng_(hash3(seed, pixel, sample), pixel) {}
+      : type_(type),
+        sample_reversed_(reverse_bits(sample)),
+        base_(hash3(seed, pixel, 0x5EEDull)),
+        rng_(hash3(seed, pixel, sample), pixel) {}
 
   // Low discrepancy matters most for the first bounces; deeper dimensions use the cheaper
   // PCG32 stream of the same (seed, pixel, sample), which keeps results deterministic.
@@ -96,7 +99,8 @@ class Sampler {
       return {a, rng_.next_float()};
     }
     const uint64_t h = mix64(base_ ^ (uint64_t(dim) * 0x9E3779B97F4A7C15ULL));
-    const uint32_t index = nested_uniform_scramble(sample_, uint32_t(h));
+    // nested_uniform_scramble(sample, h), with the sample's reversal done once per sampler
+    const uint32_t index = reverse_bits(laine_karras_permutation(sample_reversed_, uint32_t(h)));
     // Owen-scrambled dimension 0 (van der Corput: the reversed index) and dimension 1; the
     // scramble acts on reversed bits, which dimension 0 already is and dimension 1 is stored as.
     const uint32_t x = reverse_bits(laine_karras_permutation(index, uint32_t(h >> 32)));
@@ -107,7 +111,7 @@ class Sampler {
 
  private:
   SamplerType type_;
-  uint32_t sample_;
+  uint32_t sample_reversed_;
   uint64_t base_;
   uint32_t dim_ = 0;
   Pcg32 rng_;
