@@ -3,9 +3,9 @@
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \
         .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--size 64] [--spp 16]
 
-Only the render itself is instrumented (toggled through callgrind's client request in the
-core? no: by the CALLGRIND_START env below, see callgrind_control), so the counts are of the
-render, one thread, fixed seed."""
+Only the render itself is instrumented (callgrind_control switches instrumentation on and off
+around it), so the counts are of the render: one thread, a fixed seed. PL_CORE_DIR=<dir> imports
+pathlight_core from <dir> (a build with -g, for callgrind_annotate)."""
 import argparse
 import os
 import subprocess

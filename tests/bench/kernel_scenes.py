@@ -39,8 +39,9 @@ def _box(center, size, angle_z):
     return pos.astype(np.float32), np.asarray(tris, np.int32)
 
 
-def cornell_fixture(pc=None):
-    """The Cornell box fixture, uncommitted."""
+def cornell_fixture(pc=None, glass=False):
+    """The Cornell box fixture, uncommitted; glass: its sphere made of clear glass (IOR 1.5),
+    as bench_equal_time's glass Cornell box."""
     pc = pc or core()
     s = pc.Scene()
     white, red, green = (s.add_material(n, c) for n, c in (("White", WHITE), ("Red", RED), ("Green", GREEN)))
@@ -58,7 +59,11 @@ def cornell_fixture(pc=None):
     add_object(s, *_quad([(-q, 0.1 - q, 1.98), (-q, 0.1 + q, 1.98), (q, 0.1 + q, 1.98), (q, 0.1 - q, 1.98)]), light)
     add_object(s, *_box((-0.35, 0.3, 0.6), (0.55, 0.55, 1.2), np.radians(28.0)), white)
     pos, tris, nrm = uv_sphere(0.35, center=(0.42, -0.3, 0.35))
-    add_object(s, pos, tris, white, nrm)
+    sphere = white
+    if glass:
+        sphere = s.add_shader("Glass", [("const", 0, (0.0,)), ("const", 1, (1.5,)),
+                                        ("closure", "glass", None, {"roughness": 0, "ior": 1})])
+    add_object(s, pos, tris, sphere, nrm)
     cam = pc.Camera()
     m = np.eye(4, dtype=np.float32)
     # rotation_euler (90 deg, 0, 0): local -Z looks along +y, local +Y is world +z
