@@ -143,6 +143,7 @@ CASES = {
                {"diffuse", "mesh lights", "passes"}, "general"),
     "transparent film": (environment_scene, {"film_transparent": True},
                          {"diffuse", "environment", "transparent film"}, "general"),
+    "random sampler": (lambda: cornell(pc), {"sampler": "random"}, {"diffuse", "mesh lights"}, "diffuse"),
     "adaptive": (lambda: cornell(pc), {"adaptive_threshold": 0.05, "adaptive_min_samples": 4},
                  {"diffuse", "mesh lights", "adaptive sampling"}, "diffuse"),
 }

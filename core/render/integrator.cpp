@@ -262,7 +262,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     if (last && nee) break;
 
     // Choose a closure in proportion to its weight, then sample it.
-    const Vec2 u_lobe = sampler.get2d();  // closure choice, then reflect-or-refract
+    // Closure choice, then reflect-or-refract: neither is read for a lone diffuse closure.
+    Vec2 u_lobe{0.0f, 0.0f};
+    if (kNonDiffuse || cl.n > 1) u_lobe = sampler.get2d();
+    else sampler.skip2d();
     const Vec2 u = sampler.get2d();
     const float uc = u_lobe.x, ul = u_lobe.y;
     int k = 0;

@@ -108,6 +108,15 @@ class Sampler {
     return {u32_to_unit(x), u32_to_unit(y)};
   }
   float get1d() { return get2d().x; }
+  // Moves past one 2-D dimension without computing it: the later dimensions stay the same as
+  // after get2d() (kernels that know a draw is unused skip its cost, not its place).
+  void skip2d() {
+    if (type_ == SamplerType::Random || dim_ >= kSobolDims) {
+      rng_.next_u32();
+      rng_.next_u32();
+    }
+    ++dim_;
+  }
 
  private:
   SamplerType type_;
