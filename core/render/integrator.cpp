@@ -111,7 +111,9 @@ Vec3 eval_diffuse_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflecti
     const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
     if (same_side(lo, li) != reflection) continue;
     float p;
-    const Vec3 v = std::get_if<DiffuseBsdf>(&c.bsdf)->eval(lo, li, p);
+    // Only diffuse-only scenes get here; anything else still goes through the variant.
+    const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf);
+    const Vec3 v = d ? d->eval(lo, li, p) : bsdf_eval(c.bsdf, lo, li, p);
     f += c.weight * v;
     pdf += c.pick * p;
   }
@@ -276,7 +278,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     if constexpr (kNonDiffuse) {
       if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)) break;
     } else {
-      if (!std::get_if<DiffuseBsdf>(&ch.bsdf)->sample(ch.frame.to_local(wo), u, ul, bs)) break;
+      const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&ch.bsdf);
+      if (!(d ? d->sample(ch.frame.to_local(wo), u, ul, bs) : bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)))
+        break;
     }
     const Vec3 wi = ch.frame.to_world(bs.wi);
     const bool reflection = (bs.flags & kReflect) != 0;
