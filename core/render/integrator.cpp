@@ -111,9 +111,10 @@ Vec3 eval_diffuse_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflecti
     const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
     if (same_side(lo, li) != reflection) continue;
     float p;
-    // Only diffuse-only scenes get here; anything else still goes through the variant.
+    // Only diffuse-only scenes get here; anything else (unreachable) would add nothing.
     const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf);
-    const Vec3 v = d ? d->eval(lo, li, p) : bsdf_eval(c.bsdf, lo, li, p);
+    if (!d) continue;
+    const Vec3 v = d->eval(lo, li, p);
     f += c.weight * v;
     pdf += c.pick * p;
   }
@@ -279,8 +280,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)) break;
     } else {
       const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&ch.bsdf);
-      if (!(d ? d->sample(ch.frame.to_local(wo), u, ul, bs) : bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)))
-        break;
+      if (!d || !d->sample(ch.frame.to_local(wo), u, ul, bs)) break;  // (!d: unreachable, ends the path)
     }
     const Vec3 wi = ch.frame.to_world(bs.wi);
     const bool reflection = (bs.flags & kReflect) != 0;
