@@ -265,9 +265,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     if (last && nee) break;
 
     // Choose a closure in proportion to its weight, then sample it.
-    // Closure choice, then reflect-or-refract: neither is read for a lone diffuse closure.
+    // Closure choice, then reflect-or-refract: neither is read for a lone diffuse closure, so
+    // its draw is skipped (every kernel alike: they keep the same sample streams).
     Vec2 u_lobe{0.0f, 0.0f};
-    if (kNonDiffuse || cl.n > 1) u_lobe = sampler.get2d();
+    if (cl.n > 1 || (kNonDiffuse && !std::holds_alternative<DiffuseBsdf>(cl.c[0].bsdf))) u_lobe = sampler.get2d();
     else sampler.skip2d();
     const Vec2 u = sampler.get2d();
     const float uc = u_lobe.x, ul = u_lobe.y;
