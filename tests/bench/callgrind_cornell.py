@@ -1,7 +1,7 @@
 """Instruction counts per sample of the Cornell box fixture's replica, for callgrind:
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \
-        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--size 64] [--spp 16]
+        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--size 64] [--spp 16]
 
 Only the render itself is instrumented (callgrind_control switches instrumentation on and off
 around it), so the counts are of the render: one thread, a fixed seed. PL_CORE_DIR=<dir> imports
@@ -17,11 +17,12 @@ from kernel_scenes import cornell_fixture, core, settings  # noqa: E402
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--general", action="store_true")
+ap.add_argument("--glass", action="store_true", help="the glass-sphere variant")
 ap.add_argument("--size", type=int, default=64)
 ap.add_argument("--spp", type=int, default=16)
 a = ap.parse_args()
 pc = core()
-scene = cornell_fixture(pc)
+scene = cornell_fixture(pc, glass=a.glass)
 scene.commit()
 st = settings(pc, a.size, a.size, a.spp, threads=1)
 if a.general and hasattr(st, "force_general_kernel"):
