@@ -142,6 +142,12 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         ),
         default='NONE', update=_requery_passes,
     )
+    use_general_kernel: BoolProperty(
+        name="General Kernel",
+        description="Render with the general integrator kernel instead of the one specialised for "
+                    "the scene's features (same image, slower; for comparisons)",
+        default=False,
+    )
 
 
 class PathlightViewLayerSettings(bpy.types.PropertyGroup):

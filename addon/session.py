@@ -113,6 +113,7 @@ def render_settings(pc, scene, warn=None):
         "exposure": props.film_exposure,
         "debug_view": props.debug_view.lower(),
     })
+    optional["force_general_kernel"] = props.use_general_kernel  # issue 6
     x, y, w, h = render_border(scene, warn)
     if (w, h) != (st.width, st.height):
         optional.update(border_x=x, border_y=y, border_width=w, border_height=h)
@@ -171,6 +172,7 @@ def render(engine, depsgraph):
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
         _report_focus(sess, warn)
+        _report_kernel(sess)
         for name, channels, chan_id, _, _ in passes:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _, _, width, height = render_border(scene)
@@ -242,6 +244,20 @@ def _report_focus(sess, warn):
     elif state == "miss":
         warn("Autofocus: nothing under the focus point; using the camera's focus distance "
              f"{stats['focus_distance']:.4g}")
+
+
+def kernel_line(stats):
+    """The render log's line naming the integrator kernel the core chose and why: the features
+    of the scene and render in use, and those it was compiled without."""
+    used = ", ".join(stats.get("features", [])) or "nothing"
+    unused = ", ".join(stats.get("unused_features", [])) or "nothing"
+    return f"Pathlight: kernel {stats['kernel']} (uses {used}; without {unused})"
+
+
+def _report_kernel(sess):
+    stats = sess.stats()
+    if "kernel" in stats:  # an older core build has one kernel
+        log.info(kernel_line(stats))
 
 
 def _warner(engine):

@@ -82,6 +82,7 @@ class PATHLIGHT_RENDER_PT_debug(PathlightPanel, bpy.types.Panel):
     def draw(self, context):
         layout = split(self.layout)
         layout.prop(context.scene.pathlight, "debug_view")
+        layout.prop(context.scene.pathlight, "use_general_kernel")
 
 
 class PATHLIGHT_VIEWLAYER_PT_passes(PathlightPanel, bpy.types.Panel):

@@ -505,6 +505,7 @@ py::dict scene_stats(const PyScene& self) {
   d["bvh_bytes"] = self.scene->bvh().memory_bytes();
   d["bvh_layout"] = bvh_layout_name(b.layout);
   d["bvh_wide_nodes"] = b.wide_nodes;
+  d["features"] = self.scene->features().names();  // of the last commit
   return d;
 }
 
@@ -891,7 +892,9 @@ PYBIND11_MODULE(pathlight_core, m) {
             else if (v == "bvh") s.debug_view = DebugView::Bvh;
             else throw std::invalid_argument("debug_view must be 'none' or 'bvh'");
           })
-      .def_readwrite("sample_offset", &RenderSettings::sample_offset);
+      .def_readwrite("sample_offset", &RenderSettings::sample_offset)
+      .def_readwrite("force_general_kernel", &RenderSettings::force_general_kernel,
+                     "Run the general integrator kernel, not the scene-specialised one (same image).");
 
   m.def(
       "render_passes",
@@ -1238,6 +1241,9 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["active_pixels"] = s.active_pixels;
              d["focus_distance"] = s.focus_distance;
              d["autofocus"] = s.autofocus == 0 ? "off" : s.autofocus == 1 ? "hit" : "miss";
+             d["kernel"] = s.kernel;
+             d["features"] = s.features;
+             d["unused_features"] = s.unused_features;
              return d;
            })
       .def("sample_counts",

@@ -99,8 +99,38 @@ bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal,
   return true;
 }
 
-Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
-                PathAovs* aov) {
+namespace {
+
+// Diffuse-only scenes: every closure is a DiffuseBsdf, so its eval is called directly rather
+// than through the variant's dispatch (the same arithmetic, so the same result).
+Vec3 eval_diffuse_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
+  Vec3 f(0.0f);
+  pdf = 0.0f;
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
+    if (same_side(lo, li) != reflection) continue;
+    float p;
+    // Only diffuse-only scenes get here; anything else (unreachable) would add nothing.
+    const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf);
+    if (!d) continue;
+    const Vec3 v = d->eval(lo, li, p);
+    f += c.weight * v;
+    pdf += c.pick * p;
+  }
+  return f;
+}
+
+// The path tracer, compiled for the kernel features F (KernelFeature bits): what a scene does
+// not use is left out with if constexpr; kKernelAll is the general kernel.
+template <uint32_t F>
+Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
+                  PathAovs* aov_in) {
+  constexpr bool kMedia = (F & kKernelMedia) != 0;
+  constexpr bool kAovs = (F & kKernelAovs) != 0;
+  constexpr bool kNonDiffuse = (F & kKernelNonDiffuse) != 0;
+  constexpr bool kEnv = (F & kKernelEnvironment) != 0;
+  PathAovs* const aov = kAovs ? aov_in : nullptr;
   Vec3 L(0.0f), beta(1.0f);
   float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
@@ -120,18 +150,27 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     Hit hit;
     ++c.rays;
     const bool found = scene.intersect(ray, hit);
-    const Vec3 sigma = medium.current();
-    if (!is_black(sigma)) beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
+    Vec3 sigma(0.0f);
+    if constexpr (kMedia) {
+      sigma = medium.current();
+      if (!is_black(sigma)) beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
+    }
     if (!found) {
-      // Escaped: the world, weighted against the environment light sample that could find it.
+      // Escaped: the world, weighted against the environment light sample that could find it
+      // (without an environment that pdf is 0 and the weight 1).
       float w = 1.0f;
-      if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
+      if constexpr (kEnv)
+        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
       const Vec3 bg = scene.background(ray.dir);
-      if (direct && aov) {
-        aov->environment = beta * bg;
-        if (s.transparent_background) aov->alpha = clampf(1.0f - average(beta), 0.0f, 1.0f);
+      if constexpr (kAovs) {
+        if (direct && aov) {
+          aov->environment = beta * bg;
+          if (s.transparent_background) aov->alpha = clampf(1.0f - average(beta), 0.0f, 1.0f);
+        }
+        if (!(direct && s.transparent_background)) L += beta * bg * w;
+      } else {
+        L += beta * bg * w;  // transparent film always comes with the aov kernel
       }
-      if (!(direct && s.transparent_background)) L += beta * bg * w;
       break;
     }
     SurfacePoint sp;
@@ -148,9 +187,10 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
         w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, mis_org, sp.p, std::fabs(dot(sp.ng, wo))));
       }
       L += beta * cl.emission * w;
-      if (direct && aov) aov->emission += beta * cl.emission;
+      if constexpr (kAovs)
+        if (direct && aov) aov->emission += beta * cl.emission;
     }
-    if (aov && (want_data || want_features)) {
+    if (kAovs && aov && (want_data || want_features)) {
       const bool flip = dot(sp.ng, wo) < 0.0f;  // normals face the viewer, as Cycles' sd->N
       if (want_data && direct) {
         Vec3 transparency(0.0f);
@@ -182,7 +222,7 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     const bool last = bounce >= s.max_bounces;
     float u_rr = -1.0f;
 
-    if (nee && cl.has_nondelta) {
+    if (nee && (!kNonDiffuse || cl.has_nondelta)) {
       DirectSample ds;
       const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
       u_rr = u_sel.y;
@@ -190,7 +230,8 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
       if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) {
         const bool reflection = dot(ds.wi, ng_out) > 0.0f;
         float bsdf_pdf;
-        const Vec3 f = eval_mixture(cl, wo, ds.wi, reflection, bsdf_pdf);
+        const Vec3 f = kNonDiffuse ? eval_mixture(cl, wo, ds.wi, reflection, bsdf_pdf)
+                                   : eval_diffuse_mixture(cl, wo, ds.wi, reflection, bsdf_pdf);
         if (!is_black(f) && !is_black(ds.li)) {
           Vec3 vis(1.0f);
           Ray shadow;
@@ -210,8 +251,10 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
             vis = scene.transmittance(shadow);
           }
           // Light inside an absorbing medium (only reachable when the segment stays inside it).
-          const Vec3 msig = reflection ? sigma : Vec3(0.0f);
-          if (!is_black(msig) && std::isfinite(ds.dist)) vis = vis * beer(msig, ds.dist);
+          if constexpr (kMedia) {
+            const Vec3 msig = reflection ? sigma : Vec3(0.0f);
+            if (!is_black(msig) && std::isfinite(ds.dist)) vis = vis * beer(msig, ds.dist);
+          }
           if (!is_black(vis)) {
             const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
             L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
@@ -222,7 +265,11 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     if (last && nee) break;
 
     // Choose a closure in proportion to its weight, then sample it.
-    const Vec2 u_lobe = sampler.get2d();  // closure choice, then reflect-or-refract
+    // Closure choice, then reflect-or-refract: neither is read for a lone diffuse closure, so
+    // its draw is skipped (every kernel alike: they keep the same sample streams).
+    Vec2 u_lobe{0.0f, 0.0f};
+    if (cl.n > 1 || (kNonDiffuse && !std::holds_alternative<DiffuseBsdf>(cl.c[0].bsdf))) u_lobe = sampler.get2d();
+    else sampler.skip2d();
     const Vec2 u = sampler.get2d();
     const float uc = u_lobe.x, ul = u_lobe.y;
     int k = 0;
@@ -230,12 +277,17 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     while (k + 1 < cl.n && uc >= acc) acc += cl.c[size_t(++k)].pick;
     const Closure& ch = cl.c[size_t(k)];
     BsdfSample bs;
-    if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)) break;
+    if constexpr (kNonDiffuse) {
+      if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)) break;
+    } else {
+      const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&ch.bsdf);
+      if (!d || !d->sample(ch.frame.to_local(wo), u, ul, bs)) break;  // (!d: unreachable, ends the path)
+    }
     const Vec3 wi = ch.frame.to_world(bs.wi);
     const bool reflection = (bs.flags & kReflect) != 0;
     // The sampled side must agree with the geometric normal, or light would leak.
     if ((dot(wi, ng_out) > 0.0f) != reflection) break;
-    if (bs.flags & kDelta) {
+    if (kNonDiffuse && (bs.flags & kDelta)) {
       beta *= ch.weight * bs.weight / ch.pick;
       // A transparent crossing is not a scattering event: MIS keeps the last real vertex.
       if (!(bs.flags & kTransparentLobe)) {
@@ -244,7 +296,8 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
       }
     } else {
       float pdf;
-      const Vec3 f = eval_mixture(cl, wo, wi, reflection, pdf);
+      const Vec3 f = kNonDiffuse ? eval_mixture(cl, wo, wi, reflection, pdf)
+                                 : eval_diffuse_mixture(cl, wo, wi, reflection, pdf);
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
       prev_pdf = pdf;
@@ -254,7 +307,7 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its
     // ray collect emission (so the light sample above keeps its MIS weight), then stops.
-    if (bs.flags & kTransparentLobe) {
+    if (kNonDiffuse && (bs.flags & kTransparentLobe)) {
       if (++transparent > 256) break;
     } else {
       direct = false;
@@ -268,16 +321,20 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
       ++bounce;
       if (last) emission_only = true;  // no light sampling: the limit still ends the path
     }
-    if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe)) eta_scale *= bs.eta * bs.eta;
-    if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
-      const Material& mat = scene.material(sp.material);
-      if (!is_black(mat.program.sigma_a)) {
-        if (front) medium.enter(sp.material, mat.program.sigma_a);
-        else medium.leave(sp.material);
+    if constexpr (kNonDiffuse) {
+      if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe)) eta_scale *= bs.eta * bs.eta;
+      if constexpr (kMedia) {
+        if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
+          const Material& mat = scene.material(sp.material);
+          if (!is_black(mat.program.sigma_a)) {
+            if (front) medium.enter(sp.material, mat.program.sigma_a);
+            else medium.leave(sp.material);
+          }
+        }
       }
     }
 
-    if (bounce >= s.rr_start_bounce && !(bs.flags & kTransparentLobe)) {
+    if (bounce >= s.rr_start_bounce && !(kNonDiffuse && (bs.flags & kTransparentLobe))) {
       // Throughput without the refraction scaling, so paths inside glass are not culled for
       // carrying compressed radiance (pbrt's etaScale). Its square root, as Cycles: the first
       // roulette sees the product of three bounces' albedos (0.73^3 = 0.39 in a white Cornell box)
@@ -296,6 +353,54 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
     ray.tmax = kInf;
   }
   return L;
+}
+
+// The instantiated kernels, fastest first: a render runs the first that covers its features.
+struct KernelEntry {
+  uint32_t features;
+  TraceFn fn;
+};
+constexpr KernelEntry kKernels[] = {
+    {0u, &trace_path_t<0u>},
+    {kKernelEnvironment, &trace_path_t<kKernelEnvironment>},
+    {kKernelNonDiffuse, &trace_path_t<kKernelNonDiffuse>},
+    {kKernelNonDiffuse | kKernelEnvironment, &trace_path_t<kKernelNonDiffuse | kKernelEnvironment>},
+    {kKernelAll, &trace_path_t<kKernelAll>},
+};
+
+}  // namespace
+
+Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
+                PathAovs* aov) {
+  return trace_path_t<kKernelAll>(scene, ray, sampler, s, c, aov);
+}
+
+uint32_t kernel_features(const SceneFeatures& f, bool aovs) {
+  uint32_t k = 0;
+  if (f.media) k |= kKernelMedia;
+  if (aovs) k |= kKernelAovs;
+  if (!f.diffuse_only()) k |= kKernelNonDiffuse;
+  if (f.environment) k |= kKernelEnvironment;
+  return k;
+}
+
+TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
+  for (const KernelEntry& e : kKernels)
+    if (!force_general ? (needed & ~e.features) == 0 : e.features == kKernelAll) {
+      chosen = e.features;
+      return e.fn;
+    }
+  chosen = kKernelAll;
+  return &trace_path_t<kKernelAll>;
+}
+
+std::string kernel_name(uint32_t features) {
+  if (features == kKernelAll) return "general";
+  std::string n = (features & kKernelNonDiffuse) ? "surfaces" : "diffuse";
+  if (features & kKernelEnvironment) n += "+env";
+  if (features & kKernelMedia) n += "+media";
+  if (features & kKernelAovs) n += "+passes";
+  return n;
 }
 
 }  // namespace pl

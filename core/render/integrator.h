@@ -4,6 +4,7 @@
 // limits (total and per type; bounce 0 is direct light).
 #pragma once
 #include <cstdint>
+#include <string>
 
 #include "scene/scene.h"
 #include "util/sampler.h"
@@ -45,8 +46,27 @@ struct PathAovs {
   float alpha = 1.0f;      // 1 - transmittance to the world through Transparent BSDFs (transparent film)
 };
 
+// The general kernel: every feature compiled in.
 Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
                 PathAovs* aov = nullptr);
+
+// Scene-specialised kernels: trace_path compiled without the work a render does not need.
+// Each bit is a feature that, when absent, is left out of the kernel's per-ray loop.
+enum KernelFeature : uint32_t {
+  kKernelMedia = 1,        // Beer's law media stack
+  kKernelAovs = 2,         // render passes and transparent film (camera-path bookkeeping)
+  kKernelNonDiffuse = 4,   // closures other than diffuse (glossy, glass, transparent, delta lobes)
+  kKernelEnvironment = 8,  // MIS of escaped rays against the environment light
+  kKernelAll = 15,         // the general kernel
+};
+using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
+// The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
+uint32_t kernel_features(const SceneFeatures& f, bool aovs);
+// The fastest instantiated kernel that has every feature in `needed` (or the general one when
+// force_general); `chosen` gets its feature bits. Every kernel gives the general one's result.
+TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen);
+// "general", or "diffuse" / "surfaces" plus "+env", "+media", "+passes".
+std::string kernel_name(uint32_t features);
 
 // The denoising features of one shaded point, split as Cycles does: `diffuse_albedo` of the
 // closures rougher than alpha 0.075 and `specular_albedo` of the others; returns true when the

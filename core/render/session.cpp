@@ -120,6 +120,22 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     min_samples_ = std::min(min_samples_, settings_.samples);
     check_every_ = std::max(1, min_samples_ / 4);
   }
+  {
+    // The kernel: chosen here from what the scene and this render use, never per ray.
+    const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent;
+    kernel_ = select_kernel(kernel_features(scene_->features(), aovs), settings_.force_general_kernel, kernel_bits_);
+    const bool filter = !(settings_.filter_type == FilterType::Box && settings_.filter_width == 1.0f);
+    std::vector<std::pair<std::string, bool>> all;
+    const std::vector<std::string> used = scene_->features().names();
+    for (const std::string& n : SceneFeatures::all_names())
+      all.emplace_back(n, std::find(used.begin(), used.end(), n) != used.end());
+    all.emplace_back("dof", camera_.has_aperture());
+    all.emplace_back("pixel filter", filter);
+    all.emplace_back("passes", film_.aux_stride() > 0);
+    all.emplace_back("transparent film", settings_.film_transparent);
+    all.emplace_back("adaptive sampling", settings_.adaptive_threshold > 0.0f);
+    for (const auto& [n, on] : all) (on ? features_ : unused_features_).push_back(n);
+  }
   tile_active_.resize(size_t(film_.tile_count()));
   for (int t = 0; t < film_.tile_count(); ++t) {
     int x0, y0, x1, y1;
@@ -190,6 +206,9 @@ SessionStats Session::stats() const {
   s.elapsed_s = elapsed();
   s.focus_distance = focus_distance_;
   s.autofocus = autofocus_;
+  s.kernel = kernel_name(kernel_bits_);
+  s.features = features_;
+  s.unused_features = unused_features_;
   return s;
 }
 
@@ -267,7 +286,7 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
         // same streams for their paths.
         const Vec2 lens = camera_.has_aperture() ? sampler.get2d() : Vec2{0.5f, 0.5f};
         const Ray ray = camera_.generate(float(fx) + filter_.jitter(j.x), float(fy) + filter_.jitter(j.y), lens);
-        const Vec3 L = trace_path(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
+        const Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
         ++paths;
         const float alpha = std::isfinite(aovs.alpha) ? aovs.alpha : 1.0f;
         if (is_finite(L)) {

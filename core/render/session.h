@@ -9,6 +9,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "render/film.h"
 #include "render/integrator.h"
@@ -46,6 +47,9 @@ struct RenderSettings {
   bool film_transparent = false;  // the world seen directly becomes alpha 0 (Cycles' Transparent film)
   float exposure = 1.0f;          // linear multiplier of Combined and the light passes (Cycles' film_exposure)
   DebugView debug_view = DebugView::None;
+  // Run the general integrator kernel even where a specialised one covers the scene (tests and
+  // benchmarks compare the two).
+  bool force_general_kernel = false;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs.
@@ -67,6 +71,10 @@ struct SessionStats {
   double elapsed_s = 0.0;
   float focus_distance = 0.0f;  // of the thin lens, after autofocus
   int autofocus = 0;            // 0 off, 1 focused on a surface, 2 missed (kept the camera's)
+  std::string kernel;           // the integrator kernel it runs (kernel_name)
+  // The features of scene and render in use and not in use (SceneFeatures names, then "dof",
+  // "pixel filter", "passes", "transparent film", "adaptive sampling").
+  std::vector<std::string> features, unused_features;
 };
 
 class Session {
@@ -106,6 +114,9 @@ class Session {
   Vec3 view_origin_, view_right_, view_up_, view_forward_;  // camera frame, for Depth and Denoising Normal
   int total_samples_ = 0;
   IntegratorSettings integrator_;
+  TraceFn kernel_ = nullptr;  // chosen once per session: no per-ray feature dispatch
+  uint32_t kernel_bits_ = kKernelAll;
+  std::vector<std::string> features_, unused_features_;
   Film film_;
   std::unique_ptr<ThreadPool> pool_;
   std::thread controller_;

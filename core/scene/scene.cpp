@@ -238,6 +238,82 @@ void Scene::build_lights() {
   stats_.emissive_triangles = emitter_prims_.size();
   stats_.lights = lights_.size();
   ++stats_.light_builds;
+  detect_features();
+}
+
+namespace {
+// (name, in use) for every scene feature, in the order logs list them.
+std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) {
+  const auto light = [&](LightType t) { return (f.light_kinds >> uint32_t(t) & 1u) != 0; };
+  return {{"diffuse", f.diffuse},
+          {"glossy", f.glossy},
+          {"glass", f.transmission},
+          {"transparent", f.transparent},
+          {"varying shaders", f.varying},
+          {"textures", f.textures},
+          {"normal maps", f.normal_maps},
+          {"media", f.media},
+          {"mesh lights", f.emission},
+          {"point lights", light(LightType::Point)},
+          {"spot lights", light(LightType::Spot)},
+          {"sun lights", light(LightType::Sun)},
+          {"area lights", light(LightType::Rect) || light(LightType::Ellipse)},
+          {"environment", f.environment},
+          {"world light", f.world_light}};
+}
+}  // namespace
+
+std::vector<std::string> SceneFeatures::names() const {
+  std::vector<std::string> out;
+  for (const auto& [name, on] : feature_table(*this))
+    if (on) out.emplace_back(name);
+  return out;
+}
+
+std::vector<std::string> SceneFeatures::all_names() {
+  std::vector<std::string> out;
+  for (const auto& e : feature_table(SceneFeatures{})) out.emplace_back(e.first);
+  return out;
+}
+
+void Scene::detect_features() {
+  SceneFeatures f;
+  std::vector<uint8_t> used(materials_.size(), 0);
+  for (const TriangleShading& sh : shading_) used[sh.material] = 1;
+  for (size_t id = 0; id < materials_.size(); ++id) {
+    if (!used[id]) continue;
+    const Material& m = materials_[id];
+    f.media = f.media || !is_black(m.program.sigma_a);
+    if (m.constant) {  // the closures it does add
+      for (int i = 0; i < m.cached.n; ++i) {
+        const Bsdf& b = m.cached.c[size_t(i)].bsdf;
+        if (std::holds_alternative<DiffuseBsdf>(b)) f.diffuse = true;
+        else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
+        else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
+        else if (std::get<DielectricBsdf>(b).transmission) f.transmission = true;
+        else f.glossy = true;
+      }
+    }
+    f.varying = f.varying || m.program.varying;
+    for (const ShaderOp& op : m.program.ops) {
+      f.textures = f.textures || op.code == OpCode::ImageTex;
+      f.normal_maps = f.normal_maps || op.code == OpCode::NormalMap || op.code == OpCode::Bump;
+      if (m.constant) continue;
+      switch (op.code) {  // every kind the op can add
+        case OpCode::Diffuse: f.diffuse = true; break;
+        case OpCode::Glossy: f.glossy = true; break;
+        case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
+        case OpCode::Transparent: f.transparent = true; break;
+        case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
+        default: break;
+      }
+    }
+  }
+  f.emission = !emitter_prims_.empty();
+  f.environment = env_.valid();
+  f.world_light = !env_.valid() && !is_black(world_color_);
+  for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
+  features_ = f;
 }
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
@@ -329,7 +405,9 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   s.target = q;
   s.target_normal = dot(n, s.wi) < 0.0f ? n : -n;  // the side facing p
   s.target_error = barycentric_error(tv.v0, tv.v1, tv.v2, 1.0f - b1 - b2, b1, b2);
-  {
+  if (const Material& lm = materials_[shading_[prim].material]; lm.constant) {
+    s.li = lm.cached.emission;  // what shade() returns for it, without building closures
+  } else {
     // The material's emission at the sampled point (textured emission included).
     SurfacePoint lp;
     Hit h;

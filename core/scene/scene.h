@@ -75,6 +75,27 @@ struct SceneStats {
   size_t geometry_builds = 0, light_builds = 0;  // commits that rebuilt the BVH / the light distribution
 };
 
+// What a committed scene uses (materials on its triangles, lights, world), so that a render
+// can run an integrator compiled without the rest, and say in its log which one it chose.
+struct SceneFeatures {
+  // Closure kinds the materials in use can produce (varying programs: every kind their ops can
+  // add; constant ones: the closures they do add).
+  bool diffuse = false, glossy = false, transmission = false, transparent = false;
+  bool varying = false;      // programs that read the shading point (evaluated per hit)
+  bool textures = false;     // Image Texture nodes
+  bool normal_maps = false;  // Normal Map or Bump nodes
+  bool media = false;        // Beer's law absorption inside some material
+  bool emission = false;     // emissive triangles (mesh lights)
+  bool environment = false;  // an HDR environment (importance-sampled) rather than a constant world
+  bool world_light = false;  // a non-black constant world colour
+  uint32_t light_kinds = 0;  // bit 1 << LightType of each analytic light kind present
+  // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
+  bool diffuse_only() const { return !glossy && !transmission && !transparent; }
+  // Names of the features in use, and of every feature a scene can have (for logs and tests).
+  std::vector<std::string> names() const;
+  static std::vector<std::string> all_names();
+};
+
 class Scene {
  public:
   Scene();
@@ -145,6 +166,7 @@ class Scene {
   float pdf_emitter(uint32_t prim, Vec3 from, Vec3 at, float cos_l) const;
   float pdf_environment(Vec3 dir) const;
   const SceneStats& stats() const { return stats_; }
+  const SceneFeatures& features() const { return features_; }
   const Bvh& bvh() const { return bvh_; }
 
  private:
@@ -183,9 +205,11 @@ class Scene {
   Distribution1D light_dist_;
   size_t env_index_ = SIZE_MAX;
   SceneStats stats_;
+  SceneFeatures features_;
 
   bool build_geometry(int threads, BvhLayout layout);  // false: cancelled
   void build_lights();
+  void detect_features();
 };
 
 }  // namespace pl

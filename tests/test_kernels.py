@@ -1,0 +1,197 @@
+"""Scene-specialised integrator kernels (issue 6): the features the core detects in a scene and
+a render, the kernel it picks from them, and that every specialised kernel renders exactly the
+image of the general one (same sample streams, so bit for bit)."""
+import numpy as np
+import pytest
+
+from core_scenes import add_object, camera, core, cornell, quad, run_session, uv_sphere
+
+pc = core()
+
+ALL = set(pc.Scene().stats().get("features", [])) | {
+    "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
+    "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
+    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling"}
+
+
+def shader(s, name, kind, sigma=None, **params):
+    """A constant-input closure material (test_core_materials' closure())."""
+    regs, prog = {}, []
+    for i, (k, v) in enumerate(params.items()):
+        prog.append(("const", i, v if isinstance(v, tuple) else (v,)))
+        regs[k] = i
+    prog.append(("closure", kind, None, regs))
+    return s.add_shader(name, prog, **({} if sigma is None else {"volume_absorption": sigma}))
+
+
+def with_sphere(material_fn):
+    """The Cornell box with its sphere's material replaced by material_fn(scene)."""
+    def build():
+        s = cornell(pc)
+        pos, tris, nrm = uv_sphere(0.3, center=(-0.4, 0.4, 0.3))
+        add_object(s, pos, tris, material_fn(s), nrm)
+        return s
+    return build
+
+
+def textured(s):
+    tex = np.zeros((4, 4, 4), np.float32)
+    tex[..., :3] = 0.2
+    tex[::2, ::2, :3] = 0.8
+    tex[..., 3] = 1.0
+    img = s.add_image(tex)
+    return s.add_shader("tex", [("uv", 0, 0), ("image", 1, 0, img, "LINEAR", "REPEAT"),
+                               ("closure", "diffuse", None, {"color": 1})])
+
+
+def textured_scene():
+    s = pc.Scene()
+    m = textured(s)
+    pos, tris = quad((-2, -2, 0), (4, 0, 0), (0, 4, 0))
+    uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
+    s.add_instance(s.add_mesh(pos, tris, None, None, [m], uvs={0: uv}), np.eye(4, dtype=np.float32))
+    s.add_sun_light((0.3, 0.2, 1.0), (3.0, 3.0, 3.0), angle=0.1)
+    s.set_camera(camera(pc, (0, -3, 3), (0, 0, 0)))
+    return s
+
+
+def normal_map_scene():
+    s = pc.Scene()
+    prog = [("const", 0, (0.6, 0.5, 0.9)), ("normal_map", 1, 0, None, 0),
+            ("closure", "diffuse", None, {"normal": 1})]
+    m = s.add_shader("nm", prog)
+    pos, tris = quad((-2, -2, 0), (4, 0, 0), (0, 4, 0))
+    uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], np.float32)
+    s.add_instance(s.add_mesh(pos, tris, None, None, [m], uvs={0: uv}), np.eye(4, dtype=np.float32))
+    s.add_point_light((0.5, 0.0, 1.5), (20.0, 20.0, 20.0), radius=0.1)
+    s.set_camera(camera(pc, (0, -3, 3), (0, 0, 0)))
+    return s
+
+
+def environment_scene():
+    s = pc.Scene()
+    m = s.add_material("grey", (0.6, 0.6, 0.6))
+    pos, tris, nrm = uv_sphere(0.8)
+    add_object(s, pos, tris, m, nrm)
+    pos, tris = quad((-3, -3, -0.8), (6, 0, 0), (0, 6, 0))
+    add_object(s, pos, tris, m)
+    h, w = 16, 32
+    sky = np.full((h, w, 3), 0.2, np.float32)
+    sky[12:14, 5:8] = 200.0  # a small bright sun
+    s.set_world_texture(sky, 1.0)
+    s.set_camera(camera(pc, (0, -4, 1.5), (0, 0, 0)))
+    return s
+
+
+def lights_scene():
+    s = pc.Scene()
+    m = s.add_material("grey", (0.7, 0.7, 0.7))
+    pos, tris = quad((-3, -3, 0), (6, 0, 0), (0, 6, 0))
+    add_object(s, pos, tris, m)
+    pos, tris, nrm = uv_sphere(0.5, center=(0, 0, 0.5))
+    add_object(s, pos, tris, m, nrm)
+    s.add_point_light((1.0, -1.0, 2.0), (30.0, 30.0, 30.0), radius=0.1)
+    spot = np.eye(4, dtype=np.float32)
+    spot[:3, 3] = (-1.0, -1.0, 3.0)
+    s.add_spot_light(spot, (50.0, 40.0, 30.0), radius=0.05)
+    s.add_sun_light((0.2, -0.3, 1.0), (1.0, 1.0, 1.0), angle=0.05)
+    area = np.eye(4, dtype=np.float32)
+    area[:3, 3] = (0.0, 1.0, 2.5)
+    s.add_area_light(area, 0.5, 0.3, (8.0, 8.0, 8.0))
+    s.set_world_color((0.05, 0.05, 0.08))
+    s.set_camera(camera(pc, (0, -4, 2.5), (0, 0, 0.3)))
+    return s
+
+
+def transparent_scene():
+    s = with_sphere(lambda s: s.add_shader("card", [
+        ("const", 0, (0.5,)), ("const", 1, (0.5,)), ("const", 2, (0.8, 0.3, 0.2)),
+        ("closure", "transparent", 0, {}), ("closure", "diffuse", 1, {"color": 2})]))()
+    return s
+
+
+def dof_scene():
+    s = cornell(pc)
+    cam = camera(pc, (0.0, -0.95, 1.0), (0.0, 1.0, 1.0), lens=16.0)
+    cam.aperture_size = 0.05
+    cam.focus_distance = 1.2
+    s.set_camera(cam)
+    return s
+
+
+# name: (scene builder, RenderSettings fields, features expected, kernel expected)
+CASES = {
+    "diffuse": (lambda: cornell(pc), {}, {"diffuse", "mesh lights"}, "diffuse"),
+    "glass": (with_sphere(lambda s: shader(s, "glass", "glass", roughness=0.0, ior=1.5)), {},
+              {"diffuse", "glass", "mesh lights"}, "surfaces"),
+    "glossy": (with_sphere(lambda s: shader(s, "metal", "glossy", roughness=0.2)), {},
+               {"diffuse", "glossy", "mesh lights"}, "surfaces"),
+    "media": (with_sphere(lambda s: shader(s, "absorber", "glass", sigma=((0.5, 0.8, 1.0), 2.0),
+                                           roughness=0.0, ior=1.3)), {},
+              {"diffuse", "glass", "media", "mesh lights"}, "general"),
+    "transparent": (transparent_scene, {}, {"diffuse", "transparent", "mesh lights"}, "surfaces"),
+    "textures": (textured_scene, {}, {"diffuse", "varying shaders", "textures", "sun lights"}, "diffuse"),
+    "normal maps": (normal_map_scene, {}, {"diffuse", "varying shaders", "normal maps", "point lights"},
+                    "diffuse"),
+    "environment": (environment_scene, {}, {"diffuse", "environment"}, "diffuse+env"),
+    "lights": (lights_scene, {}, {"diffuse", "point lights", "spot lights", "sun lights", "area lights",
+                                  "world light"}, "diffuse"),
+    "dof": (dof_scene, {}, {"diffuse", "mesh lights", "dof"}, "diffuse"),
+    "filter": (lambda: cornell(pc), {"filter_type": "blackman_harris", "filter_width": 1.5},
+               {"diffuse", "mesh lights", "pixel filter"}, "diffuse"),
+    "passes": (lambda: cornell(pc), {"passes": ["Depth", "Normal", "Denoising Albedo", "Emit"]},
+               {"diffuse", "mesh lights", "passes"}, "general"),
+    "transparent film": (environment_scene, {"film_transparent": True},
+                         {"diffuse", "environment", "transparent film"}, "general"),
+    "random sampler": (lambda: cornell(pc), {"sampler": "random"}, {"diffuse", "mesh lights"}, "diffuse"),
+    "adaptive": (lambda: cornell(pc), {"adaptive_threshold": 0.05, "adaptive_min_samples": 4},
+                 {"diffuse", "mesh lights", "adaptive sampling"}, "diffuse"),
+}
+
+
+def session(build, fields, general, size=24, samples=8):
+    return run_session(pc, build(), size, size, samples, threads=2, force_general_kernel=general, **fields)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_features_detected_and_kernel_chosen(name):
+    build, fields, expected, kernel = CASES[name]
+    st = session(build, fields, general=False, samples=1).stats()
+    assert set(st["features"]) == expected
+    assert set(st["unused_features"]) == ALL - expected  # and nothing else is claimed
+    assert st["kernel"] == kernel
+    assert session(build, fields, general=True, samples=1).stats()["kernel"] == "general"
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_specialised_kernel_renders_the_general_kernels_image(name):
+    build, fields, _, _ = CASES[name]
+    spec, gen = session(build, fields, general=False), session(build, fields, general=True)
+    a, b = spec.film(), gen.film()
+    assert a[..., :3].max() > 0.0  # something was rendered
+    assert np.array_equal(a, b)
+    for p in fields.get("passes", []):
+        assert np.array_equal(spec.film_pass(p), gen.film_pass(p)), p
+    assert spec.stats()["rays"] == gen.stats()["rays"]
+
+
+def test_scene_features_are_detected_again_at_each_commit():
+    s = cornell(pc)
+    s.commit()
+    assert "glass" not in s.stats()["features"]
+    glass = shader(s, "glass", "glass", roughness=0.0, ior=1.5)
+    pos, tris, nrm = uv_sphere(0.3, center=(-0.4, 0.4, 0.3))
+    add_object(s, pos, tris, glass, nrm)
+    s.commit()
+    assert set(s.stats()["features"]) == {"glass", "diffuse", "mesh lights"}
+    s.set_world_color((0.1, 0.1, 0.1))  # a light-only change: no geometry rebuild
+    s.commit()
+    assert set(s.stats()["features"]) == {"glass", "diffuse", "mesh lights", "world light"}
+
+
+def test_unused_materials_add_no_features():
+    s = cornell(pc)
+    shader(s, "glass", "glass", roughness=0.0, ior=1.5)  # on no triangle
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.commit()
+    assert set(s.stats()["features"]) == {"diffuse", "mesh lights"}
