@@ -386,6 +386,15 @@ def test_dynamic_mode_switch_and_bad_edits():
     assert (prim >= 0).sum() > 1000 and not (inst == 1).any()
     img, st = render(pc, s, 16, 16, samples=4)
     assert np.isfinite(img).all() and st["nonfinite_samples"] == 0
+    # The only instance singular: nothing to trace, nothing hit (no top level, no BLAS traced).
+    lone = pc.Scene(dynamic=True)
+    lone.add_instance(lone.add_mesh(*sphere_mesh()[:2]), flat)
+    lone.commit()
+    assert lone.stats()["real_instances"] == 0 and lone.stats()["triangles"] == 0
+    assert (lone.intersect(o, d)[1] == -1).all() and not lone.occluded(o, d).any()
+    lone.set_instance_transform(0, np.eye(4, dtype=np.float32))
+    lone.commit()
+    assert lone.stats()["top_level_builds"] == 1 and (lone.intersect(o, d)[1] >= 0).sum() > 1000
 
 
 # ---------------------------------------------------------------- robustness through transforms

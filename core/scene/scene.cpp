@@ -172,7 +172,7 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
     inst_.clear();
     tlas_entries_.clear();
     tlas_.clear();
-    use_tlas_ = false;
+    use_tlas_ = direct_ = false;
     geometry_dirty_ = true;
     return true;
   };
@@ -352,13 +352,14 @@ void Scene::build_top_level() {
     entries.push_back(e);
   }
   // A lone merged BLAS is traced directly: no top level, no transforms.
-  use_tlas_ = !(entries.size() == 1 && tlas_entries_[0].merged) && !entries.empty();
+  direct_ = entries.size() == 1 && tlas_entries_[0].merged;
+  use_tlas_ = !direct_ && !entries.empty();
   if (use_tlas_) {
     tlas_.build(std::move(entries));
     world_bounds_ = tlas_.bounds();
   } else {
     tlas_.clear();
-    world_bounds_ = blases_.empty() ? Aabb() : blases_[0].bvh.bounds();
+    world_bounds_ = direct_ ? blases_[0].bvh.bounds() : Aabb();
   }
   stats_.tlas_instances = use_tlas_ ? tlas_.stats().instances : 0;
 }

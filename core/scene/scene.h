@@ -110,7 +110,10 @@ class Scene {
   // transform edits never rebuild bottom-level BVHs. Off (final renders): single-use meshes
   // are merged into world space (faster tracing). Changing it rebuilds the geometry.
   void set_dynamic(bool on) {
-    if (on != dynamic_) geometry_dirty_ = true, committed_ = false;
+    if (on != dynamic_) {
+      geometry_dirty_ = true;
+      committed_ = false;
+    }
     dynamic_ = on;
   }
   bool dynamic() const { return dynamic_; }
@@ -143,7 +146,7 @@ class Scene {
   // and global_prim read them).
   bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const {
     if (!use_tlas_) {
-      if (blases_.empty() || !blases_[0].bvh.intersect(r, h, c)) return false;
+      if (!direct_ || !blases_[0].bvh.intersect(r, h, c)) return false;
       h.inst = blases_[0].src_inst[h.prim];
       return true;
     }
@@ -153,7 +156,7 @@ class Scene {
     return true;
   }
   bool occluded(const Ray& r) const {
-    if (!use_tlas_) return !blases_.empty() && blases_[0].bvh.occluded(r);
+    if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);
     return tlas_.occluded(r);
   }
   // The row of a hit triangle in its mesh's triangles.
@@ -253,6 +256,7 @@ class Scene {
   std::vector<TlasEntry> tlas_entries_;
   Tlas tlas_;
   bool use_tlas_ = false;
+  bool direct_ = false;  // no top level: the merged BLAS (blases_[0]) alone is traced
   size_t largest_blas_ = 0;
   Bvh empty_bvh_;
   Aabb world_bounds_;
