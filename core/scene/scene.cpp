@@ -1,6 +1,7 @@
 #include "scene/scene.h"
 
 #include <stdexcept>
+#include <utility>
 
 namespace pl {
 namespace {
@@ -291,14 +292,21 @@ void Scene::build_instances() {
   object_coords_.reserve(instances_.size());
   uint32_t prim = 0;
   size_t real = 0;
+  // Texture spaces once per mesh, not per instance (the automatic one reads every vertex).
+  std::vector<std::pair<Vec3, Vec3>> texspace(meshes_.size());
+  std::vector<char> have_texspace(meshes_.size(), 0);
   for (size_t i = 0; i < instances_.size(); ++i) {
     const Instance& inst = instances_[i];
     const MeshData& mesh = meshes_[inst.mesh];
     InstanceData& in = inst_[i];
     // Object and generated texture coordinates of this instance.
-    Vec3 ts_loc = mesh.texspace_location, ts_size = mesh.texspace_size;
-    if (!mesh.has_texspace) auto_texspace(mesh.positions, ts_loc, ts_size);
-    object_coords_.push_back(make_object_coords(inst.matrix, ts_loc, ts_size));
+    if (!have_texspace[inst.mesh]) {
+      Vec3 ts_loc = mesh.texspace_location, ts_size = mesh.texspace_size;
+      if (!mesh.has_texspace) auto_texspace(mesh.positions, ts_loc, ts_size);
+      texspace[inst.mesh] = {ts_loc, ts_size};
+      have_texspace[inst.mesh] = 1;
+    }
+    object_coords_.push_back(make_object_coords(inst.matrix, texspace[inst.mesh].first, texspace[inst.mesh].second));
     in.to_world = inst.matrix;
     const Mat4& m = inst.matrix;
     const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
