@@ -115,9 +115,10 @@ inline float box_entry(const BvhNode& n, const Vec3& org, const Vec3& inv, float
 }  // namespace
 
 void Tlas::clear() {
-  nodes_.clear();
-  refs_.clear();
-  insts_.clear();
+  // Released, not just emptied: memory_bytes() reports capacity.
+  nodes_ = {};
+  refs_ = {};
+  insts_ = {};
   bounds_ = Aabb();
   stats_ = TlasStats();
 }
