@@ -10,14 +10,20 @@ What each change costs (the plan comes from viewport_update.plan_updates):
 - material edited: the material is recompiled and replaced in the committed scene
   (scene.set_shader), lights/world re-read (scene.clear_lights + add): commit() then rebuilds
   only the light distribution (scene.stats()["geometry_builds"] does not change);
-- object moved, mesh edited, object hidden: full re-export and BVH rebuild. Transforms
-  rebuild everything until the two-level BVH exists (instances in their own BVHs).
+- object moved: the core scene is dynamic (every instance over its mesh's own BVH), so the
+  moved objects' instances get their new matrices (scene.set_instance_transform) and commit()
+  rebuilds only the top level of the BVH and the lights (stats: top_level_builds, not
+  geometry_builds). Objects that are also the source of an instancer (collection instances,
+  particles, geometry-node instances) or that do not map to one instance re-export instead;
+- mesh edited, object hidden, an instancer moved: full re-export and BVH rebuild.
 
 Threads: the core Session renders on its own C++ threads with the GIL released; every method
 here runs on Blender's main thread (the engine callbacks), and only polls the session.
 """
 
 import logging
+
+import numpy as np
 
 from .export import add_lights, export_scene, set_world, to_core
 from .export.light import collect_lights
@@ -50,7 +56,11 @@ class ViewportSession:
         self._base_settings = None  # pc.RenderSettings of the scene, viewport samples
         self.low = self.full = None  # the running low-resolution and full sessions
         self.counters = dict(exports=0, restarts=0, camera_restarts=0, material_updates=0,
-                             light_updates=0)
+                             light_updates=0, transform_updates=0)
+        # Object name -> its core instance (objects the depsgraph lists once, not through an
+        # instancer), and the names that instancers also use (those re-export when moved).
+        self.instance_index = {}
+        self.instanced_names = frozenset()
 
     # ------------------------------------------------------------ scene sync
 
@@ -69,7 +79,7 @@ class ViewportSession:
         if plan.nothing:
             return plan
         self.stop()
-        if plan.rebuild_geometry:
+        if plan.rebuild_geometry or (plan.transforms and not self._move_objects(depsgraph, plan.transforms)):
             self._full_export(depsgraph)
         else:
             for name in plan.materials:
@@ -79,8 +89,9 @@ class ViewportSession:
             else:
                 if plan.lights:
                     self._replace_lights(depsgraph)
-                if plan.materials or plan.lights:
-                    self.scene.commit()  # the light distribution only: geometry is unchanged
+                if plan.materials or plan.lights or plan.transforms:
+                    # The light distribution (and the top level for moved objects) only.
+                    self.scene.commit()
         if plan.camera or plan.settings:
             self._read_scene(depsgraph)
         self.state.settings = signature
@@ -93,7 +104,10 @@ class ViewportSession:
         data = export_scene(depsgraph, self.warn, need_camera=False)
         ids = []
         scene = to_core(self.pc, data, self.warn, material_ids=ids)
+        if hasattr(scene, "dynamic"):
+            scene.dynamic = True  # every instance its own transform: moves rebuild the top level only
         scene.commit()
+        self._map_instances(data)
         self.scene = scene
         self.material_ids = {name: i for name, i in zip(data.material_names, ids) if name}
         self.uv_sets = data.uv_sets
@@ -102,6 +116,41 @@ class ViewportSession:
         self.state.camera_name = depsgraph.scene.camera.name if depsgraph.scene.camera else ""
         self._read_scene(depsgraph)
         self.counters["exports"] += 1
+
+    def _map_instances(self, data):
+        """Core instance index of each plain object, in to_core's order (meshes, then matrices)."""
+        index, seen, instanced = {}, set(), set()
+        i = 0
+        for mesh in data.meshes:
+            owners = getattr(mesh, "owners", None) or [(None, True)] * len(mesh.matrices)
+            for name, by_instancer in owners:
+                if by_instancer:
+                    instanced.add(name)
+                elif name in seen:
+                    index.pop(name, None)  # listed twice: not one instance
+                else:
+                    seen.add(name)
+                    index[name] = i
+                i += 1
+        self.instance_index = index
+        self.instanced_names = frozenset(instanced)
+
+    def _move_objects(self, depsgraph, names):
+        """Gives the moved objects' instances their new matrices; False when one cannot be mapped
+        (the caller then re-exports)."""
+        if not hasattr(self.scene, "set_instance_transform") or not getattr(self.scene, "dynamic", False):
+            return False
+        moves = []
+        for name in names:
+            idx = self.instance_index.get(name)
+            obj = depsgraph.objects.get(name)
+            if idx is None or name in self.instanced_names or obj is None:
+                return False
+            moves.append((idx, np.array(obj.matrix_world, np.float32)))
+        for idx, matrix in moves:
+            self.scene.set_instance_transform(idx, matrix)
+        self.counters["transform_updates"] += 1
+        return True
 
     def _read_scene(self, depsgraph):
         from .export.camera import camera_params

@@ -6,7 +6,8 @@ decides from those records, the previous `ViewState` and the current settings wh
 redone. The viewport session (viewport.py) carries the plan out.
 
 What Blender reports (checked with depsgraph_update_post in bpy 4.5; tests/test_viewport.py):
-- moving an object: its Object with is_updated_transform only;
+- moving an object: its Object with is_updated_transform only (planned as a transform update:
+  new instance matrices, the core rebuilds only the top level of its two-level BVH);
 - editing a mesh: the Object and its Mesh with is_updated_geometry;
 - editing a material (nodes or properties): the Material, and the Objects and Meshes using it
   with is_updated_shading only (no geometry, no transform);
@@ -55,12 +56,17 @@ class UpdatePlan:
     materials: list = field(default_factory=list)  # material names to recompile and replace
     lights: bool = False  # re-read lights and the world, rebuild the light distribution only
     rebuild_geometry: bool = False  # re-export everything and rebuild the BVH
+    # Names of geometry objects that only moved: their instances get new matrices and only the
+    # top level of the BVH is rebuilt (the session falls back to a re-export for objects it
+    # cannot map to one instance, e.g. the sources of instancers).
+    transforms: list = field(default_factory=list)
     settings: bool = False  # render settings changed (samples, bounces, ...): new session only
 
     @property
     def restart_only(self):
         """Only the render restarts: nothing of the core scene changes."""
-        return self.restart and not (self.materials or self.lights or self.rebuild_geometry)
+        return self.restart and not (self.materials or self.lights or self.rebuild_geometry
+                                     or self.transforms)
 
     @property
     def nothing(self):
@@ -88,12 +94,18 @@ def plan_updates(updates, state, settings=None):
     itself was updated (that also happens on a mere selection change)."""
     plan = UpdatePlan()
     materials = []
+    transforms = []
     for u in updates:
         if u.id_type == "Object":
             moved = u.geometry or u.transform
             if u.object_type in GEOMETRY_OBJECTS:
                 # Shading-only updates of an object come with its material's own update.
-                plan.rebuild_geometry |= moved
+                if u.transform and not u.geometry and not u.is_instancer:
+                    if u.name not in transforms:
+                        transforms.append(u.name)  # moved: new matrix, top level only
+                else:
+                    # New triangles, or an instancer whose instance set may have changed.
+                    plan.rebuild_geometry |= moved
             elif u.object_type == "LIGHT":
                 plan.lights |= moved or u.shading
             elif u.object_type == "CAMERA":
@@ -128,9 +140,11 @@ def plan_updates(updates, state, settings=None):
     if plan.rebuild_geometry:
         plan.lights = True  # a full re-export reads everything again
         materials = []  # ... materials included
+        transforms = []  # ... and matrices
     plan.materials = materials
+    plan.transforms = transforms
     plan.restart = (plan.camera or plan.lights or plan.rebuild_geometry or plan.settings
-                    or bool(plan.materials))
+                    or bool(plan.materials) or bool(plan.transforms))
     return plan
 
 

@@ -106,9 +106,14 @@ def test_plan_from_real_depsgraph_updates(scene):
         p = _plan(rec, sc, state)
         assert p.settings and not p.rebuild_geometry and not p.materials
 
-        cube.location.x += 0.25  # transforms rebuild everything (no two-level BVH yet)
+        cube.location.x += 0.25  # a move: new matrices, the top level only
         p = _plan(rec, sc, state)
-        assert p.rebuild_geometry and p.materials == []
+        assert p.transforms == ["Cube"] and not p.rebuild_geometry and not p.lights
+        assert p.restart and not p.restart_only and p.materials == []
+
+        cube.rotation_euler.z += 0.3
+        cube.scale.y = 1.5
+        assert _plan(rec, sc, state).transforms == ["Cube"]
 
         cube.data.vertices[0].co.x += 0.1
         cube.data.update()
@@ -129,6 +134,22 @@ def test_plan_rules_on_plain_updates():
                                 is_instancer=True)], state, (1,)).rebuild_geometry
     assert plan_updates([Update("Object", "E", transform=True, object_type="EMPTY")],
                         state, (1,)).nothing
+    # A moved mesh: a transform update; one that instances (verts, faces) re-exports, and so
+    # does a move together with new geometry (which also drops the transform list).
+    p = plan_updates([Update("Object", "Cube", transform=True, object_type="MESH")], state, (1,))
+    assert p.transforms == ["Cube"] and not p.rebuild_geometry and p.restart
+    p = plan_updates([Update("Object", "V", transform=True, object_type="MESH", is_instancer=True)],
+                     state, (1,))
+    assert p.rebuild_geometry and p.transforms == []
+    p = plan_updates([Update("Object", "Cube", transform=True, object_type="MESH"),
+                      Update("Object", "Cube", transform=True, object_type="MESH"),
+                      Update("Object", "B", transform=True, geometry=True, object_type="MESH")],
+                     state, (1,))
+    assert p.rebuild_geometry and p.transforms == [] and p.lights
+    p = plan_updates([Update("Object", "Cube", transform=True, object_type="MESH"),
+                      Update("Object", "Cube", transform=True, object_type="MESH"),
+                      Update("Object", "Ball", transform=True, object_type="CURVE")], state, (1,))
+    assert p.transforms == ["Cube", "Ball"] and not p.lights
 
 
 def _proj(cam_obj, width, height):
@@ -343,8 +364,32 @@ def test_viewport_session_restarts_without_rebuilding(scene):
         assert core_scene.stats()["geometry_builds"] == 1
         assert dim[lit][:, 0].mean() < 0.5 * red[lit][:, 0].mean()
 
-        # Moving the object re-exports (until the two-level BVH exists).
+        # Moving the object: its instance gets the new matrix, only the top level is rebuilt,
+        # and the image is the one a fresh export of the moved scene renders.
+        stats = core_scene.stats()
+        assert stats["dynamic"] and stats["real_instances"] == 1
         bpy.data.objects["Cube"].location.x += 0.5
+        bpy.data.objects["Cube"].rotation_euler.z += 0.4
+        plan = vs.sync(dg, rec.take())
+        assert plan.transforms == ["Cube"] and not plan.rebuild_geometry
+        moved_cube, _ = _finish(vs)
+        assert vs.counters == dict(vs.counters, exports=1, transform_updates=1)
+        assert vs.scene is core_scene
+        assert core_scene.stats()["geometry_builds"] == stats["geometry_builds"]
+        assert core_scene.stats()["top_level_builds"] == stats["top_level_builds"] + 1
+        assert not np.array_equal(moved_cube, dim)
+        fresh = ViewportSession(pc)
+        fresh.set_view(fields, 64, 64)
+        fresh.sync(bpy.context.evaluated_depsgraph_get())
+        expect, _ = _finish(fresh)
+        assert fresh.scene.stats()["top_level_builds"] == 0
+        assert np.array_equal(moved_cube, expect)
+        fresh.free()
+
+        # Editing the mesh still re-exports.
+        cube = bpy.data.objects["Cube"]
+        cube.data.vertices[0].co.x += 0.1
+        cube.data.update()
         vs.sync(dg, rec.take())
         _finish(vs)
         assert vs.counters["exports"] == 2 and vs.scene is not core_scene
@@ -366,3 +411,56 @@ def test_viewport_needs_no_scene_camera(scene):
     film, n = _finish(vs)
     assert n == 1 and film.shape == (16, 16, 4) and film[..., :3].max() > 0
     vs.free()
+
+
+@pytest.mark.skipif(not core_has("Scene", "set_instance_transform"), reason="core without instances")
+def test_viewport_re_exports_when_a_moved_object_is_also_instanced(scene):
+    """An object that a collection instance also shows moves in two places: the session cannot
+    move just its own instance, so it re-exports; a plain object next to it still moves alone."""
+    from addon.core import get_core
+    from addon.viewport import ViewportSession
+    sc = scene
+    sc.pathlight.preview_samples = 2
+    cube = bpy.data.objects["Cube"]
+    coll = bpy.data.collections.new("Shown")
+    coll.objects.link(cube)
+    empty = bpy.data.objects.new("Instancer", None)
+    empty.instance_type = "COLLECTION"
+    empty.instance_collection = coll
+    empty.location = (2.5, 2.0, 0.0)
+    sc.collection.objects.link(empty)
+    ball_mesh = bpy.data.meshes.new("Ball")
+    import bmesh
+    bm = bmesh.new()
+    bmesh.ops.create_uvsphere(bm, u_segments=12, v_segments=6, radius=0.5)
+    bm.to_mesh(ball_mesh)
+    bm.free()
+    ball = bpy.data.objects.new("Ball", ball_mesh)
+    ball.location = (-1.5, -1.0, 0.0)
+    sc.collection.objects.link(ball)
+    bpy.context.view_layer.update()
+    with Recorder() as rec:
+        rec.take()
+        vs = ViewportSession(get_core())
+        vs.set_view(None, 32, 32)
+        dg = bpy.context.evaluated_depsgraph_get()
+        vs.sync(dg)
+        _finish(vs)
+        assert "Cube" in vs.instanced_names and "Ball" in vs.instance_index
+        assert vs.scene.stats()["instances"] == 3
+        ball.location.z += 0.7
+        plan = vs.sync(dg, rec.take())
+        assert plan.transforms == ["Ball"]
+        _finish(vs)
+        assert vs.counters["exports"] == 1 and vs.counters["transform_updates"] == 1
+        cube.location.z += 0.5
+        plan = vs.sync(dg, rec.take())
+        assert "Cube" in plan.transforms or plan.rebuild_geometry
+        img, _ = _finish(vs)
+        assert vs.counters["exports"] == 2 and vs.counters["transform_updates"] == 1
+        fresh = ViewportSession(get_core())
+        fresh.set_view(None, 32, 32)
+        fresh.sync(bpy.context.evaluated_depsgraph_get())
+        assert np.array_equal(img, _finish(fresh)[0])
+        fresh.free()
+        vs.free()

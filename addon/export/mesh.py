@@ -15,6 +15,8 @@ class MeshData:
     material_indices: np.ndarray  # int32 (T,), material slot per triangle
     materials: list  # bpy.types.Material or None per slot
     matrices: list = field(default_factory=list)  # float32 (4, 4) object-to-world, one per instance
+    # Per matrix: (object name, made by an instancer), so live edits can find an object's instance.
+    owners: list = field(default_factory=list)
     uvs: dict = field(default_factory=dict)  # global uv-set index -> float32 (T, 3, 2) per corner
     missing_uv_maps: list = field(default_factory=list)  # UV map names its materials need
     # Blender's texture space ((location), (size)) for generated coordinates, or None.
@@ -137,8 +139,11 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
             if should_stop is not None and should_stop():
                 raise ExportCancelled()
             entry = meshes[key] = export(obj, materials, uv_names)
+            if entry is not None:
+                entry.owners = []  # this export's (a cached entry may carry an older list)
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
+            entry.owners.append((obj.name, bool(instance.is_instance)))
     if cache is not None:
         cache.end_export()
     return [m for m in meshes.values() if m is not None]

@@ -17,7 +17,8 @@ struct Ray {
 struct Hit {
   float t = kInf;
   float b1 = 0, b2 = 0;          // barycentrics of vertices 1 and 2
-  uint32_t prim = UINT32_MAX;    // triangle index in the scene's triangle arrays
+  uint32_t prim = UINT32_MAX;    // triangle index in the BVH's input (a BLAS's triangle under a Tlas)
+  uint32_t inst = 0;             // instance (set by the top level and the scene; 0 for a lone Bvh)
   bool valid() const { return prim != UINT32_MAX; }
 };
 

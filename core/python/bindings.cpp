@@ -497,12 +497,19 @@ py::dict scene_stats(const PyScene& self) {
   d["lights"] = s.lights;
   d["geometry_builds"] = s.geometry_builds;
   d["light_builds"] = s.light_builds;
+  d["top_level_builds"] = s.top_level_builds;
+  d["blases"] = s.blases;
+  d["blas_triangles"] = s.blas_triangles;
+  d["tlas_instances"] = s.tlas_instances;
+  d["real_instances"] = s.real_instances;
+  d["dynamic"] = self.scene->dynamic();
+  d["geometry_bytes"] = s.geometry_bytes;
   d["bvh_nodes"] = b.nodes;
   d["bvh_leaves"] = b.leaves;
   d["bvh_max_depth"] = b.max_depth;
   d["bvh_sah_cost"] = b.sah_cost;
   d["bvh_build_ms"] = b.build_ms;
-  d["bvh_bytes"] = self.scene->bvh().memory_bytes();
+  d["bvh_bytes"] = s.bvh_bytes;  // every BLAS and the top level
   d["bvh_layout"] = bvh_layout_name(b.layout);
   d["bvh_wide_nodes"] = b.wide_nodes;
   d["features"] = self.scene->features().names();  // of the last commit
@@ -515,11 +522,14 @@ void check_rays(const PyScene& self, const FloatArray& o, const FloatArray& d) {
     throw std::invalid_argument("origins and directions must both have shape (N, 3)");
 }
 
-py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
+py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax,
+                          bool instances) {
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
   py::array_t<float> t(n), b1(n), b2(n);
-  py::array_t<int64_t> prim(n);
+  py::array_t<int64_t> prim(n), inst(n), local(n);
+  int64_t* pi = inst.mutable_data();
+  int64_t* pl = local.mutable_data();
   const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
   const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
   float *pt = t.mutable_data(), *pb1 = b1.mutable_data(), *pb2 = b2.mutable_data();
@@ -531,11 +541,14 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
       Hit h;
       const bool ok = self.scene->intersect(r, h);
       pt[i] = ok ? h.t : kInf;
-      pp[i] = ok ? int64_t(h.prim) : -1;
+      pp[i] = ok ? int64_t(self.scene->global_prim(h)) : -1;
+      pi[i] = ok ? int64_t(h.inst) : -1;
+      pl[i] = ok ? int64_t(self.scene->mesh_triangle(h)) : -1;
       pb1[i] = ok ? h.b1 : 0.0f;
       pb2[i] = ok ? h.b2 : 0.0f;
     }
   }
+  if (instances) return py::make_tuple(t, prim, b1, b2, inst, local);
   return py::make_tuple(t, prim, b1, b2);
 }
 
@@ -906,7 +919,12 @@ PYBIND11_MODULE(pathlight_core, m) {
       "Every render pass the core can keep: {name: channels}, in the core's order.");
 
   py::class_<PyScene>(m, "Scene")
-      .def(py::init<>())
+      .def(py::init([](bool dynamic) {
+             PyScene s;
+             s.scene->set_dynamic(dynamic);
+             return s;
+           }),
+           py::arg("dynamic") = false)
       .def(
           "add_material",
           [](PyScene& self, const std::string& name, const py::object& base_color, const py::object& emission) {
@@ -986,6 +1004,23 @@ PYBIND11_MODULE(pathlight_core, m) {
             self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"));
           },
           py::arg("mesh"), py::arg("matrix"))
+      .def(
+          "set_instance_transform",
+          [](PyScene& self, uint32_t index, const FloatArray& matrix) {
+            self.check_editable();
+            self.scene->set_instance_transform(index, to_mat4(matrix, "instance matrix"));
+          },
+          py::arg("index"), py::arg("matrix"),
+          "Moves instance `index` (add_instance order). In dynamic mode (or for a mesh with several "
+          "instances) the next commit() rebuilds only the top level and the lights.")
+      .def_property(
+          "dynamic", [](const PyScene& self) { return self.scene->dynamic(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_dynamic(on);
+          },
+          "Every instance its own transform over a per-mesh BLAS (viewport: transform edits rebuild only "
+          "the top level); False (default): meshes used once are merged in world space (faster tracing).")
       .def(
           "add_point_light",
           [](PyScene& self, const py::object& position, const py::object& intensity, float radius, bool cast_shadow) {
@@ -1161,7 +1196,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           "default) or always by area.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
-           "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim is -1 and t inf on a miss.")
+           py::arg("instances") = false,
+           "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim (the triangle's index in the "
+           "flattened scene, instance by instance) is -1 and t inf on a miss. instances=True adds two "
+           "int64 arrays: the hit instance (add_instance order) and the triangle's row in its mesh (-1 on a miss).")
       .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).")
       .def("traversal_counts", &traversal_counts, py::arg("origins"), py::arg("directions"),

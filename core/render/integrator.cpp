@@ -184,7 +184,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (nee && !prev_delta) {
         // Seen from the last real scattering: transparent crossings in between are part of the
         // same light-sample segment (which saw them through its transmittance).
-        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp.prim, mis_org, sp.p, std::fabs(dot(sp.ng, wo))));
+        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo))));
       }
       L += beta * cl.emission * w;
       if constexpr (kAovs)

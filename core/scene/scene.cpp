@@ -1,6 +1,7 @@
 #include "scene/scene.h"
 
 #include <stdexcept>
+#include <utility>
 
 namespace pl {
 namespace {
@@ -102,132 +103,353 @@ void Scene::add_instance(uint32_t mesh, const Mat4& m) {
   geometry_dirty_ = true;
 }
 
+void Scene::set_instance_transform(uint32_t index, const Mat4& m) {
+  if (index >= instances_.size()) throw std::invalid_argument("set_instance_transform: unknown instance");
+  instances_[index].matrix = m;
+  committed_ = false;
+  // A real instance only moves in the top level; a merged one is baked into the merged BLAS.
+  if (!geometry_dirty_ && index < inst_.size() && inst_[index].transformed) top_dirty_ = true;
+  else geometry_dirty_ = true;
+}
+
 bool Scene::commit(int threads, BvhLayout layout) {
   cancel_.store(false);
   committed_ = false;
   if (geometry_dirty_ || layout != built_layout_) {
     if (!build_geometry(threads, layout)) return false;
+  } else if (top_dirty_) {
+    build_instances();
+    build_top_level();
+    ++stats_.top_level_builds;
   }
+  top_dirty_ = false;
   build_lights();
+  update_memory_stats();
   committed_ = true;
   return true;
 }
 
+namespace {
+// Zero-area or non-finite triangles can never be hit reliably and have no normal. Coordinates
+// beyond 1e30 cannot be traced meaningfully in float (their products overflow).
+bool usable_triangle(const TriangleVerts& tv) {
+  const Vec3 c = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
+  const float big = std::max(max_component(vabs(tv.v0)), std::max(max_component(vabs(tv.v1)), max_component(vabs(tv.v2))));
+  return is_finite(tv.v0) && is_finite(tv.v1) && is_finite(tv.v2) && length_sq(c) > 0.0f &&
+         std::isfinite(length_sq(c)) && big < 1e30f;
+}
+
+// Inverse of an affine matrix, computed in double; false if singular or not finite.
+bool affine_inverse(const Mat4& m, Mat4& inv) {
+  double a[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) a[i][j] = m.m[i][j];
+  const double c00 = a[1][1] * a[2][2] - a[1][2] * a[2][1], c01 = a[1][2] * a[2][0] - a[1][0] * a[2][2],
+               c02 = a[1][0] * a[2][1] - a[1][1] * a[2][0];
+  const double det = a[0][0] * c00 + a[0][1] * c01 + a[0][2] * c02;
+  if (!(std::fabs(det) > 0.0) || !std::isfinite(det)) return false;
+  const double r = 1.0 / det;
+  double b[3][3] = {{c00 * r, (a[0][2] * a[2][1] - a[0][1] * a[2][2]) * r, (a[0][1] * a[1][2] - a[0][2] * a[1][1]) * r},
+                    {c01 * r, (a[0][0] * a[2][2] - a[0][2] * a[2][0]) * r, (a[0][2] * a[1][0] - a[0][0] * a[1][2]) * r},
+                    {c02 * r, (a[0][1] * a[2][0] - a[0][0] * a[2][1]) * r, (a[0][0] * a[1][1] - a[0][1] * a[1][0]) * r}};
+  for (int i = 0; i < 3; ++i) {
+    double t = 0.0;
+    for (int j = 0; j < 3; ++j) {
+      inv.m[i][j] = float(b[i][j]);
+      t -= b[i][j] * double(m.m[j][3]);
+    }
+    inv.m[i][3] = float(t);
+  }
+  inv.m[3][0] = inv.m[3][1] = inv.m[3][2] = 0.0f;
+  inv.m[3][3] = 1.0f;
+  return inv.is_finite() && m.is_finite();
+}
+}  // namespace
+
 bool Scene::build_geometry(int threads, BvhLayout layout) {
   const auto cancelled = [&] {
     if (!cancel_.load(std::memory_order_relaxed)) return false;
-    tris_.clear();
-    shading_.clear();
-    bvh_.clear();
+    blases_.clear();
+    inst_.clear();
+    tlas_entries_.clear();
+    tlas_.clear();
+    use_tlas_ = direct_ = false;
     geometry_dirty_ = true;
     return true;
   };
-  tris_.clear();
-  shading_.clear();
-  size_t dropped = 0;
-  size_t total = 0;
-  for (const Instance& inst : instances_) total += meshes_[inst.mesh].triangles.size();
-  tris_.reserve(total);
-  shading_.reserve(total);
-  size_t uv_sets = 0;
-  for (const MeshData& m : meshes_) uv_sets = std::max(uv_sets, m.uvs.size());
-  tri_uvs_.assign(uv_sets, {});
-  for (size_t k = 0; k < uv_sets; ++k) {
-    bool used = false;
-    for (const MeshData& m : meshes_) used = used || (k < m.uvs.size() && !m.uvs[k].empty());
-    if (used) tri_uvs_[k].reserve(3 * total);
+  blases_.clear();
+  tlas_.clear();
+  uv_sets_ = 0;
+  for (const MeshData& m : meshes_) uv_sets_ = std::max(uv_sets_, m.uvs.size());
+  // Cycles' rule: a mesh used once is merged into world space, one used more is instanced
+  // (dynamic mode: every one is instanced).
+  std::vector<uint32_t> uses(meshes_.size(), 0);
+  for (const Instance& inst : instances_) ++uses[inst.mesh];
+  inst_.assign(instances_.size(), InstanceData());
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    inst_[i].mesh = instances_[i].mesh;
+    inst_[i].transformed = dynamic_ || uses[instances_[i].mesh] > 1;
   }
-  object_coords_.clear();
-  object_coords_.reserve(instances_.size());
-  for (const Instance& inst : instances_) {
+  size_t dropped = 0;
+
+  // The merged BLAS (index 0 when present): single-use meshes in world space, instance order.
+  Blas merged;
+  merged.merged = true;
+  size_t merged_total = 0;
+  for (size_t i = 0; i < instances_.size(); ++i)
+    if (!inst_[i].transformed) merged_total += meshes_[instances_[i].mesh].triangles.size();
+  merged.tris.reserve(merged_total);
+  merged.src_tri.reserve(merged_total);
+  merged.src_inst.reserve(merged_total);
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    if (inst_[i].transformed) continue;
     if (cancelled()) return false;
+    const Instance& inst = instances_[i];
     const MeshData& mesh = meshes_[inst.mesh];
-    // Object and generated texture coordinates of this instance.
-    Vec3 ts_loc = mesh.texspace_location, ts_size = mesh.texspace_size;
-    if (!mesh.has_texspace) auto_texspace(mesh.positions, ts_loc, ts_size);
-    object_coords_.push_back(make_object_coords(inst.matrix, ts_loc, ts_size));
     std::vector<Vec3> world(mesh.positions.size());
-    for (size_t i = 0; i < world.size(); ++i) world[i] = inst.matrix.point(mesh.positions[i]);
-    const bool smooth = !mesh.corner_normals.empty();
+    for (size_t k = 0; k < world.size(); ++k) world[k] = inst.matrix.point(mesh.positions[k]);
+    inst_[i].tri_base = uint32_t(merged.tris.size());
     for (size_t t = 0; t < mesh.triangles.size(); ++t) {
       const auto& idx = mesh.triangles[t];
       const TriangleVerts tv{world[idx[0]], world[idx[1]], world[idx[2]]};
-      const Vec3 c = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
-      // Zero-area or non-finite triangles can never be hit reliably and have no normal.
-      // Coordinates beyond 1e30 cannot be traced meaningfully in float (their products overflow).
-      const float big = std::max(max_component(vabs(tv.v0)), std::max(max_component(vabs(tv.v1)), max_component(vabs(tv.v2))));
-      if (!is_finite(tv.v0) || !is_finite(tv.v1) || !is_finite(tv.v2) || !(length_sq(c) > 0.0f) ||
-          !std::isfinite(length_sq(c)) || !(big < 1e30f)) {
+      if (!usable_triangle(tv)) {
         ++dropped;
         continue;
       }
-      TriangleShading sh{};
-      sh.material = mesh.materials.empty() ? 0u : mesh.materials[t];
-      if (sh.material >= materials_.size()) sh.material = 0;
-      sh.emitter = -1;
-      sh.instance = uint32_t(object_coords_.size() - 1);
-      if (smooth) {
-        bool ok = true;
-        for (int k = 0; k < 3; ++k) {
-          const Vec3 n = inst.matrix.normal(mesh.corner_normals[3 * t + k]);
-          const float l2 = length_sq(n);
-          ok = ok && std::isfinite(l2) && l2 > 0.0f;
-          sh.n[k] = ok ? n / std::sqrt(l2) : Vec3(0.0f);
-        }
-        if (!ok) sh.n[0] = sh.n[1] = sh.n[2] = Vec3(0.0f);  // bad normals: shade flat
-      }
-      tris_.push_back(tv);
-      shading_.push_back(sh);
-      for (size_t k = 0; k < uv_sets; ++k) {
-        if (tri_uvs_[k].capacity() == 0) continue;
-        const bool has = k < mesh.uvs.size() && !mesh.uvs[k].empty();
-        for (int c = 0; c < 3; ++c) tri_uvs_[k].push_back(has ? mesh.uvs[k][3 * t + c] : Vec2{});
-      }
+      merged.tris.push_back(tv);
+      merged.src_tri.push_back(uint32_t(t));
+      merged.src_inst.push_back(uint32_t(i));
     }
+    inst_[i].kept = uint32_t(merged.tris.size()) - inst_[i].tri_base;
+    inst_[i].blas = 0;
   }
-  stats_.dropped_triangles += dropped;
-  stats_.triangles = tris_.size();
-  stats_.instances = instances_.size();
-  stats_.meshes = meshes_.size();
-  stats_.materials = materials_.size();
+  if (!merged.tris.empty()) blases_.push_back(std::move(merged));
+  else
+    for (InstanceData& in : inst_) in.blas = in.transformed ? in.blas : UINT32_MAX;
+
+  // One object-space BLAS per instanced mesh.
+  mesh_blas_.assign(meshes_.size(), UINT32_MAX);
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    const uint32_t mi = instances_[i].mesh;
+    if (!inst_[i].transformed || mesh_blas_[mi] != UINT32_MAX) continue;
+    if (cancelled()) return false;
+    const MeshData& mesh = meshes_[mi];
+    Blas b;
+    b.mesh = mi;
+    b.tris.reserve(mesh.triangles.size());
+    b.src_tri.reserve(mesh.triangles.size());
+    for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+      const auto& idx = mesh.triangles[t];
+      const TriangleVerts tv{mesh.positions[idx[0]], mesh.positions[idx[1]], mesh.positions[idx[2]]};
+      if (!usable_triangle(tv)) {
+        ++b.dropped;
+        continue;
+      }
+      b.tris.push_back(tv);
+      b.src_tri.push_back(uint32_t(t));
+    }
+    if (b.tris.empty()) {
+      mesh_blas_[mi] = UINT32_MAX - 1;  // nothing to trace: its instances are left out
+      dropped += b.dropped * uses[mi];
+      continue;
+    }
+    dropped += b.dropped * uses[mi];
+    mesh_blas_[mi] = uint32_t(blases_.size());
+    blases_.push_back(std::move(b));
+  }
 
   BvhBuildOptions opt;
   opt.threads = threads;
   opt.layout = layout;
   opt.cancel = &cancel_;
-  if (!bvh_.build(tris_, opt)) {  // only a cancel makes it fail
-    cancelled();
-    return false;
+  largest_blas_ = 0;
+  size_t blas_tris = 0;
+  for (size_t k = 0; k < blases_.size(); ++k) {
+    if (!blases_[k].bvh.build(blases_[k].tris, opt)) {  // only a cancel makes it fail
+      cancelled();
+      return false;
+    }
+    blas_tris += blases_[k].tris.size();
+    if (blases_[k].tris.size() > blases_[largest_blas_].tris.size()) largest_blas_ = k;
   }
+  build_instances();
+  build_top_level();
+
+  stats_.dropped_triangles += dropped;
+  stats_.instances = instances_.size();
+  stats_.meshes = meshes_.size();
+  stats_.materials = materials_.size();
+  stats_.blases = blases_.size();
+  stats_.blas_triangles = blas_tris;
   geometry_dirty_ = false;
   built_layout_ = layout;
   ++stats_.geometry_builds;
   return true;
 }
 
+void Scene::build_instances() {
+  object_coords_.clear();
+  object_coords_.reserve(instances_.size());
+  uint32_t prim = 0;
+  size_t real = 0;
+  // Texture spaces once per mesh, not per instance (the automatic one reads every vertex).
+  std::vector<std::pair<Vec3, Vec3>> texspace(meshes_.size());
+  std::vector<char> have_texspace(meshes_.size(), 0);
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    const Instance& inst = instances_[i];
+    const MeshData& mesh = meshes_[inst.mesh];
+    InstanceData& in = inst_[i];
+    // Object and generated texture coordinates of this instance.
+    if (!have_texspace[inst.mesh]) {
+      Vec3 ts_loc = mesh.texspace_location, ts_size = mesh.texspace_size;
+      if (!mesh.has_texspace) auto_texspace(mesh.positions, ts_loc, ts_size);
+      texspace[inst.mesh] = {ts_loc, ts_size};
+      have_texspace[inst.mesh] = 1;
+    }
+    object_coords_.push_back(make_object_coords(inst.matrix, texspace[inst.mesh].first, texspace[inst.mesh].second));
+    in.to_world = inst.matrix;
+    const Mat4& m = inst.matrix;
+    const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
+    in.nrow[0] = cross(c1, c2);
+    in.nrow[1] = cross(c2, c0);
+    in.nrow[2] = cross(c0, c1);
+    in.negative = dot(c0, in.nrow[0]) < 0;
+    if (in.transformed) {
+      in.blas = UINT32_MAX;
+      in.kept = 0;
+      const uint32_t b = mesh_blas_[inst.mesh];
+      if (b < blases_.size() && affine_inverse(m, in.to_object)) {
+        // Left out where its world box leaves the traceable range (as flattening drops triangles).
+        const Aabb bb = blases_[b].bvh.bounds();
+        Aabb wb;
+        for (int c = 0; c < 8; ++c)
+          wb.grow(m.point({(c & 1) ? bb.hi.x : bb.lo.x, (c & 2) ? bb.hi.y : bb.lo.y, (c & 4) ? bb.hi.z : bb.lo.z}));
+        if (is_finite(wb.lo) && is_finite(wb.hi) && max_component(vmax(vabs(wb.lo), vabs(wb.hi))) < 1e30f) {
+          in.blas = b;
+          in.kept = uint32_t(blases_[b].tris.size());
+          ++real;
+        }
+      }
+      in.tri_base = 0;
+    }
+    in.prim_base = prim;
+    prim += in.kept;
+  }
+  stats_.triangles = prim;
+  stats_.real_instances = real;
+}
+
+void Scene::build_top_level() {
+  tlas_entries_.clear();
+  std::vector<TlasInstance> entries;
+  if (!blases_.empty() && blases_[0].merged) {
+    tlas_entries_.push_back({0, 0, true});
+    TlasInstance e;
+    e.blas = &blases_[0].bvh;
+    e.identity = true;
+    entries.push_back(e);
+  }
+  for (size_t i = 0; i < inst_.size(); ++i) {
+    const InstanceData& in = inst_[i];
+    if (!in.transformed || in.blas == UINT32_MAX) continue;
+    tlas_entries_.push_back({in.blas, uint32_t(i), false});
+    TlasInstance e;
+    e.blas = &blases_[in.blas].bvh;
+    e.to_world = in.to_world;
+    e.to_object = in.to_object;
+    entries.push_back(e);
+  }
+  // A lone merged BLAS is traced directly: no top level, no transforms.
+  direct_ = entries.size() == 1 && tlas_entries_[0].merged;
+  use_tlas_ = !direct_ && !entries.empty();
+  if (use_tlas_) {
+    tlas_.build(std::move(entries));
+    world_bounds_ = tlas_.bounds();
+  } else {
+    tlas_.clear();
+    world_bounds_ = direct_ ? blases_[0].bvh.bounds() : Aabb();
+  }
+  stats_.tlas_instances = use_tlas_ ? tlas_.stats().instances : 0;
+}
+
+void Scene::update_memory_stats() {
+  size_t bvh = tlas_.memory_bytes(), geo = 0;
+  for (const Blas& b : blases_) {
+    bvh += b.bvh.memory_bytes();
+    geo += b.tris.capacity() * sizeof(TriangleVerts) + b.src_tri.capacity() * 4 + b.src_inst.capacity() * 4 +
+           b.emitter.capacity() * 4 + b.emissive.capacity() * 4;
+  }
+  geo += inst_.capacity() * sizeof(InstanceData) + object_coords_.capacity() * sizeof(ObjectCoords) +
+         tlas_entries_.capacity() * sizeof(TlasEntry) + instances_.capacity() * sizeof(Instance);
+  for (const MeshData& m : meshes_) {
+    geo += m.positions.capacity() * sizeof(Vec3) + m.triangles.capacity() * 12 + m.corner_normals.capacity() * sizeof(Vec3) +
+           m.materials.capacity() * 4;
+    for (const auto& uv : m.uvs) geo += uv.capacity() * sizeof(Vec2);
+  }
+  stats_.bvh_bytes = bvh;
+  stats_.geometry_bytes = geo;
+}
+
+namespace {
+inline uint32_t material_of(const MeshData& m, uint32_t tri, size_t materials) {
+  const uint32_t id = m.materials.empty() ? 0u : m.materials[tri];
+  return id < materials ? id : 0u;
+}
+}  // namespace
+
 void Scene::build_lights() {
   any_transparent_ = false;
   for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
   stats_.materials = materials_.size();
-  for (TriangleShading& sh : shading_) sh.emitter = -1;
 
   // Every light in one distribution, chosen in proportion to an estimate of its power.
-  const Aabb bounds = bvh_.bounds();
+  const Aabb bounds = world_bounds_;
   const float radius = bounds.empty() ? 1.0f : std::max(0.5f * length(bounds.extent()), 1e-6f);
   std::vector<float> weights;
   for (const Light& l : lights_) weights.push_back(light_power(l, radius));
-  emitter_prims_.clear();
+  emitters_.clear();
   emitter_areas_.clear();
-  for (uint32_t i = 0; i < tris_.size(); ++i) {
-    const Vec3 le = materials_[shading_[i].material].emission_estimate;
+  const auto emission_weight = [&](uint32_t material) {
+    const Vec3 le = materials_[material].emission_estimate;
     const float lum = std::max(luminance(le), max_component(le) * 1e-3f);
-    if (!(lum > 0.0f) || !std::isfinite(lum)) continue;
-    const TriangleVerts& tv = tris_[i];
+    return lum > 0.0f && std::isfinite(lum) ? lum : 0.0f;
+  };
+  const auto add_emitter = [&](uint32_t instance, uint32_t tri, const TriangleVerts& tv, float lum) {
     const float area = 0.5f * length(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
-    shading_[i].emitter = static_cast<int32_t>(weights.size());
-    emitter_prims_.push_back(i);
+    emitters_.push_back({instance, tri});
     emitter_areas_.push_back(area);
     weights.push_back(2.0f * kPi * area * lum);  // two-sided
+  };
+  // Emitters in flattened order for the merged triangles (as one world-space BVH had them),
+  // then (instance, triangle) pairs of the real instances.
+  for (Blas& b : blases_) {
+    b.emitter.clear();
+    b.emissive.clear();
+    if (b.merged) {
+      for (uint32_t t = 0; t < b.tris.size(); ++t) {
+        const float lum = emission_weight(material_of(meshes_[inst_[b.src_inst[t]].mesh], b.src_tri[t], materials_.size()));
+        if (!(lum > 0.0f)) continue;
+        if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
+        b.emitter[t] = int32_t(emitters_.size());
+        add_emitter(b.src_inst[t], t, b.tris[t], lum);
+      }
+    } else {
+      for (uint32_t t = 0; t < b.tris.size(); ++t) {
+        if (!(emission_weight(material_of(meshes_[b.mesh], b.src_tri[t], materials_.size())) > 0.0f)) continue;
+        if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
+        b.emitter[t] = int32_t(b.emissive.size());
+        b.emissive.push_back(t);
+      }
+    }
+  }
+  for (size_t i = 0; i < inst_.size(); ++i) {
+    InstanceData& in = inst_[i];
+    if (!in.transformed || in.blas == UINT32_MAX) continue;
+    const Blas& b = blases_[in.blas];
+    in.emitter_base = uint32_t(emitters_.size());
+    for (uint32_t t : b.emissive)
+      add_emitter(uint32_t(i), t, world_triangle(in, b.tris[t]),
+                  emission_weight(material_of(meshes_[b.mesh], b.src_tri[t], materials_.size())));
   }
   env_index_ = SIZE_MAX;
   if (env_.valid() && env_.average_luminance() > 0.0f) {
@@ -235,7 +457,7 @@ void Scene::build_lights() {
     weights.push_back(4.0f * kPi * kPi * radius * radius * env_.average_luminance());
   }
   light_dist_ = Distribution1D(weights);
-  stats_.emissive_triangles = emitter_prims_.size();
+  stats_.emissive_triangles = emitters_.size();
   stats_.lights = lights_.size();
   ++stats_.light_builds;
   detect_features();
@@ -279,7 +501,11 @@ std::vector<std::string> SceneFeatures::all_names() {
 void Scene::detect_features() {
   SceneFeatures f;
   std::vector<uint8_t> used(materials_.size(), 0);
-  for (const TriangleShading& sh : shading_) used[sh.material] = 1;
+  for (const Blas& b : blases_)
+    for (size_t t = 0; t < b.src_tri.size(); ++t) {
+      const MeshData& mesh = meshes_[b.merged ? inst_[b.src_inst[t]].mesh : b.mesh];
+      used[material_of(mesh, b.src_tri[t], materials_.size())] = 1;
+    }
   for (size_t id = 0; id < materials_.size(); ++id) {
     if (!used[id]) continue;
     const Material& m = materials_[id];
@@ -309,7 +535,7 @@ void Scene::detect_features() {
       }
     }
   }
-  f.emission = !emitter_prims_.empty();
+  f.emission = !emitters_.empty();
   f.environment = env_.valid();
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
@@ -317,21 +543,46 @@ void Scene::detect_features() {
 }
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
-  const TriangleVerts& tv = tris_[h.prim];
-  const TriangleShading& sh = shading_[h.prim];
+  const InstanceData& in = inst_[h.inst];
+  const Blas& b = blases_[in.blas];
+  const TriangleVerts& tv = b.tris[h.prim];
+  const uint32_t st = b.src_tri[h.prim];
+  const MeshData& mesh = meshes_[in.mesh];
   const float b0 = 1.0f - h.b1 - h.b2;
   // From barycentrics rather than org + t * dir: the error does not grow with the distance.
-  sp.p = tv.v0 * b0 + tv.v1 * h.b1 + tv.v2 * h.b2;
-  sp.p_error = barycentric_error(tv.v0, tv.v1, tv.v2, b0, h.b1, h.b2);
-  sp.ng = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
-  sp.ns = sp.ng;
-  if (sh.n[0].x != 0.0f || sh.n[0].y != 0.0f || sh.n[0].z != 0.0f) {
-    const Vec3 n = sh.n[0] * b0 + sh.n[1] * h.b1 + sh.n[2] * h.b2;
-    const float l2 = length_sq(n);
-    if (l2 > 1e-12f) sp.ns = n / std::sqrt(l2);
+  if (!in.transformed) {
+    sp.p = tv.v0 * b0 + tv.v1 * h.b1 + tv.v2 * h.b2;
+    sp.p_error = barycentric_error(tv.v0, tv.v1, tv.v2, b0, h.b1, h.b2);
+    sp.ng = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+  } else {
+    // The object-space point carried to world space with its error bound grown by the transform.
+    const Vec3 po = tv.v0 * b0 + tv.v1 * h.b1 + tv.v2 * h.b2;
+    sp.p = in.to_world.point(po);
+    sp.p_error = transform_point_error(in.to_world, po, barycentric_error(tv.v0, tv.v1, tv.v2, b0, h.b1, h.b2));
+    // Cofactors map the object-space edge cross product to the world one (winding included).
+    const Vec3 c = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
+    sp.ng = normalize(in.nrow[0] * c.x + in.nrow[1] * c.y + in.nrow[2] * c.z);
   }
-  sp.material = sh.material;
-  sp.prim = h.prim;
+  sp.ns = sp.ng;
+  if (!mesh.corner_normals.empty()) {
+    Vec3 n[3];
+    bool ok = true;
+    for (int k = 0; k < 3 && ok; ++k) {
+      n[k] = in.normal(mesh.corner_normals[3 * size_t(st) + k]);
+      const float l2 = length_sq(n[k]);
+      ok = std::isfinite(l2) && l2 > 0.0f;
+      n[k] = n[k] / std::sqrt(l2);
+    }
+    if (ok) {  // bad normals: shade flat
+      const Vec3 ni = n[0] * b0 + n[1] * h.b1 + n[2] * h.b2;
+      const float l2 = length_sq(ni);
+      if (l2 > 1e-12f) sp.ns = ni / std::sqrt(l2);
+    }
+  }
+  sp.material = material_of(mesh, st, materials_.size());
+  sp.prim = global_prim(h);
+  sp.instance = h.inst;
+  sp.tri = h.prim;
 }
 
 bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
@@ -365,8 +616,9 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
     return true;
   }
   const size_t e = k - lights_.size();
-  const uint32_t prim = emitter_prims_[e];
-  const TriangleVerts& tv = tris_[prim];
+  const Emitter& em = emitters_[e];
+  const InstanceData& in = inst_[em.instance];
+  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
   const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
   float b1, b2;
   const SphericalTriangle st = spherical_triangle(p, tv.v0, tv.v1, tv.v2);
@@ -393,7 +645,16 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   } else {
     sample_triangle_uniform(u, b1, b2);
   }
-  const Vec3 q = tv.v0 * (1.0f - b1 - b2) + tv.v1 * b1 + tv.v2 * b2;
+  // The light point as a hit on it: position and error bound exactly as a ray would find it
+  // (through the instance's transform where it has one).
+  SurfacePoint lp;
+  Hit h;
+  h.prim = em.tri;
+  h.inst = em.instance;
+  h.b1 = b1;
+  h.b2 = b2;
+  surface_point(h, lp);
+  const Vec3 q = lp.p;
   const Vec3 d = q - p;
   const float dist2 = length_sq(d);
   const float dist = std::sqrt(dist2);
@@ -404,17 +665,11 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   s.dist = dist;
   s.target = q;
   s.target_normal = dot(n, s.wi) < 0.0f ? n : -n;  // the side facing p
-  s.target_error = barycentric_error(tv.v0, tv.v1, tv.v2, 1.0f - b1 - b2, b1, b2);
-  if (const Material& lm = materials_[shading_[prim].material]; lm.constant) {
+  s.target_error = lp.p_error;
+  if (const Material& lm = materials_[lp.material]; lm.constant) {
     s.li = lm.cached.emission;  // what shade() returns for it, without building closures
   } else {
     // The material's emission at the sampled point (textured emission included).
-    SurfacePoint lp;
-    Hit h;
-    h.prim = prim;
-    h.b1 = b1;
-    h.b2 = b2;
-    surface_point(h, lp);
     ClosureList cl;
     shade(lp, b1, b2, -s.wi, cl);
     s.li = cl.emission;
@@ -444,29 +699,32 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.ns = sp.ns;
   ctx.wo = wo;
   ctx.shadow_ray = shadow_ray;
-  const TriangleVerts& hit_tri = tris_[sp.prim];
-  const Vec3 corners[3] = {hit_tri.v0, hit_tri.v1, hit_tri.v2};
+  const InstanceData& in = inst_[sp.instance];
+  const Blas& blas = blases_[in.blas];
+  const TriangleVerts tv = world_triangle(in, blas.tris[sp.tri]);
+  const Vec3 corners[3] = {tv.v0, tv.v1, tv.v2};
   ctx.tri = corners;  // for the Bump node's offsets
-  ctx.object = &object_coords_[shading_[sp.prim].instance];
+  ctx.object = &object_coords_[sp.instance];
   constexpr int kMaxSets = 8;
   Vec2 uv[kMaxSets];
   Vec2 corner_uvs[3 * kMaxSets];
   Vec3 tangents[kMaxSets];
   float signs[kMaxSets];
-  const int sets = static_cast<int>(std::min<size_t>(tri_uvs_.size(), kMaxSets));
+  const int sets = static_cast<int>(std::min<size_t>(uv_sets_, kMaxSets));
   if (mat.program.uses_uv && sets > 0) {
     const float b0 = 1.0f - b1 - b2;
-    const TriangleVerts& tv = tris_[sp.prim];
+    const MeshData& mesh = meshes_[in.mesh];
+    const size_t st = blas.src_tri[sp.tri];
     for (int k = 0; k < sets; ++k) {
-      const std::vector<Vec2>& t = tri_uvs_[size_t(k)];
-      if (t.empty()) {
+      if (size_t(k) >= mesh.uvs.size() || mesh.uvs[size_t(k)].empty()) {  // missing: zeros
         uv[k] = {};
         corner_uvs[3 * k] = corner_uvs[3 * k + 1] = corner_uvs[3 * k + 2] = {};
         tangents[k] = Vec3(0.0f);
         signs[k] = 1.0f;
         continue;
       }
-      const Vec2 a = t[3 * size_t(sp.prim)], b = t[3 * size_t(sp.prim) + 1], c = t[3 * size_t(sp.prim) + 2];
+      const std::vector<Vec2>& t = mesh.uvs[size_t(k)];
+      const Vec2 a = t[3 * st], b = t[3 * st + 1], c = t[3 * st + 2];
       uv[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2};
       corner_uvs[3 * k] = a;
       corner_uvs[3 * k + 1] = b;
@@ -496,11 +754,11 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
 }
 
 Vec3 Scene::transmittance(Ray ray) const {
-  if (!any_transparent_) return bvh_.occluded(ray) ? Vec3(0.0f) : Vec3(1.0f);
+  if (!any_transparent_) return occluded(ray) ? Vec3(0.0f) : Vec3(1.0f);
   Vec3 T(1.0f);
   for (int i = 0; i < 64; ++i) {  // bounded: stacked alpha cards
     Hit h;
-    if (!bvh_.intersect(ray, h)) return T;
+    if (!intersect(ray, h)) return T;
     SurfacePoint sp;
     surface_point(h, sp);
     const Material& mat = materials_[sp.material];
@@ -525,16 +783,17 @@ Vec3 Scene::transmittance(Ray ray) const {
   return Vec3(0.0f);
 }
 
-float Scene::pdf_emitter(uint32_t prim, Vec3 from, Vec3 at, float cos_l) const {
-  const int32_t k = shading_[prim].emitter;
-  if (k < 0 || !(cos_l > 0.0f)) return 0.0f;
-  const float pmf = light_dist_.pmf(size_t(k));
+float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l) const {
+  const InstanceData& in = inst_[sp.instance];
+  const int32_t e = emitter_of(in, sp.tri);
+  if (e < 0 || !(cos_l > 0.0f)) return 0.0f;
+  const float pmf = light_dist_.pmf(lights_.size() + size_t(e));
   // The same choice of technique as sample_direct made from this point.
-  const TriangleVerts& tv = tris_[prim];
+  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[sp.tri]);
   const double omega = spherical_triangle(from, tv.v0, tv.v1, tv.v2).solid_angle;
   if (solid_angle_triangles_ && use_spherical_sampling(omega)) return float(pmf / omega);
   const float t2 = length_sq(at - from);
-  return pmf / emitter_areas_[size_t(k) - lights_.size()] * t2 / cos_l;
+  return pmf / emitter_areas_[size_t(e)] * t2 / cos_l;
 }
 
 float Scene::pdf_environment(Vec3 dir) const {

@@ -1,6 +1,12 @@
-// The renderable scene: meshes and their instances flattened into world-space triangles,
-// materials, emissive triangles as lights, the world and the camera. Built once (commit),
-// then read-only and shared by all render threads.
+// The renderable scene: meshes and their instances in a two-level BVH, materials, emissive
+// triangles as lights, the world and the camera. Built once (commit), then read-only and
+// shared by all render threads.
+//
+// Geometry layout (as Cycles does it): in a final render, meshes used by exactly one instance
+// are transformed into world space and merged into one BLAS; meshes used by two or more
+// instances get one object-space BLAS each, shared by their instances through the top level.
+// A scene with only the merged BLAS skips the top level at trace time. Dynamic mode (the
+// viewport) makes every instance a real one, so a transform edit rebuilds only the top level.
 #pragma once
 #include <array>
 #include <atomic>
@@ -9,6 +15,7 @@
 #include <vector>
 
 #include "geometry/bvh.h"
+#include "geometry/tlas.h"
 #include "scene/shader.h"
 #include "scene/camera.h"
 #include "scene/light.h"
@@ -53,7 +60,9 @@ struct SurfacePoint {
   Vec3 ng;  // unit geometric normal (from the winding)
   Vec3 ns;  // unit interpolated shading normal
   uint32_t material = 0;
-  uint32_t prim = 0;
+  uint32_t prim = 0;      // the triangle's index in the flattened scene (instance by instance)
+  uint32_t instance = 0;  // the hit instance
+  uint32_t tri = 0;       // the triangle in its BLAS (internal)
 };
 
 // A next-event-estimation sample towards any light (analytic, emissive triangle, environment).
@@ -73,6 +82,11 @@ struct SceneStats {
   size_t triangles = 0, instances = 0, meshes = 0, materials = 0, emissive_triangles = 0, dropped_triangles = 0;
   size_t lights = 0;
   size_t geometry_builds = 0, light_builds = 0;  // commits that rebuilt the BVH / the light distribution
+  size_t top_level_builds = 0;  // commits that rebuilt only the top level (transform edits)
+  size_t blases = 0, blas_triangles = 0;  // bottom-level BVHs and the triangles stored in them
+  size_t tlas_instances = 0;              // entries of the top level (0: a single BLAS, no top level)
+  size_t real_instances = 0;              // instances traced through a transform (not merged)
+  size_t bvh_bytes = 0, geometry_bytes = 0;  // BLASes + top level; triangle copies, maps and mesh data
 };
 
 // What a committed scene uses (materials on its triangles, lights, world), so that a render
@@ -109,6 +123,21 @@ class Scene {
   size_t image_count() const { return images_.size(); }
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
   void add_instance(uint32_t mesh, const Mat4& m);
+  size_t instance_count() const { return instances_.size(); }
+  // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
+  // commit() rebuilds only the top level and the lights; else the merged geometry.
+  void set_instance_transform(uint32_t index, const Mat4& m);
+  // Dynamic mode (viewport): every instance gets its own transform over a per-mesh BLAS, so
+  // transform edits never rebuild bottom-level BVHs. Off (final renders): single-use meshes
+  // are merged into world space (faster tracing). Changing it rebuilds the geometry.
+  void set_dynamic(bool on) {
+    if (on != dynamic_) {
+      geometry_dirty_ = true;
+      committed_ = false;
+    }
+    dynamic_ = on;
+  }
+  bool dynamic() const { return dynamic_; }
   // Live edits (viewport): replace material `id` (not the default 0) or drop every analytic
   // light; the next commit() then rebuilds only the light distribution, not the BVH.
   void set_material(uint32_t id, Material m);
@@ -136,8 +165,30 @@ class Scene {
   void cancel_commit() { cancel_.store(true); }
   bool committed() const { return committed_; }
 
-  bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const { return bvh_.intersect(r, h, c); }
-  bool occluded(const Ray& r) const { return bvh_.occluded(r); }
+  // Closest hit: h.prim is the triangle in its BLAS, h.inst the scene instance (surface_point
+  // and global_prim read them).
+  bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const {
+    if (!use_tlas_) {
+      if (!direct_ || !blases_[0].bvh.intersect(r, h, c)) return false;
+      h.inst = blases_[0].src_inst[h.prim];
+      return true;
+    }
+    if (!tlas_.intersect(r, h, c)) return false;
+    const TlasEntry& e = tlas_entries_[h.inst];
+    h.inst = e.merged ? blases_[e.blas].src_inst[h.prim] : e.instance;
+    return true;
+  }
+  bool occluded(const Ray& r) const {
+    if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);
+    return tlas_.occluded(r);
+  }
+  // The row of a hit triangle in its mesh's triangles.
+  uint32_t mesh_triangle(const Hit& h) const { return blases_[inst_[h.inst].blas].src_tri[h.prim]; }
+  // The flattened-scene index of a hit triangle (what a single world-space BVH would report).
+  uint32_t global_prim(const Hit& h) const {
+    const InstanceData& in = inst_[h.inst];
+    return in.prim_base + (h.prim - in.tri_base);
+  }
   void surface_point(const Hit& h, SurfacePoint& sp) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
@@ -163,23 +214,53 @@ class Scene {
   // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).
-  float pdf_emitter(uint32_t prim, Vec3 from, Vec3 at, float cos_l) const;
+  float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l) const;
   float pdf_environment(Vec3 dir) const;
   const SceneStats& stats() const { return stats_; }
   const SceneFeatures& features() const { return features_; }
-  const Bvh& bvh() const { return bvh_; }
+  // The largest BLAS (its build statistics stand for the scene's); an empty Bvh when there is none.
+  const Bvh& bvh() const { return blases_.empty() ? empty_bvh_ : blases_[largest_blas_].bvh; }
+  const Tlas& tlas() const { return tlas_; }
 
  private:
-  struct TriangleShading {
-    Vec3 n[3];       // shading normals at the corners (all zero: flat)
-    uint32_t material;
-    int32_t emitter;  // index in the light distribution, or -1
-    uint32_t instance;  // index in object_coords_ (texture coordinates)
+  // A bottom-level BVH and what maps its triangles back to the meshes.
+  struct Blas {
+    Bvh bvh;
+    std::vector<TriangleVerts> tris;  // in BLAS space (world for the merged one), BVH input order
+    std::vector<uint32_t> src_tri;    // the mesh triangle of each
+    std::vector<uint32_t> src_inst;   // the instance of each (merged BLAS); else empty
+    std::vector<int32_t> emitter;     // per triangle: merged: emitter index; else index among
+                                      // this BLAS's emissive triangles; -1 none (empty: none)
+    std::vector<uint32_t> emissive;   // object-space BLAS: its emissive triangles
+    size_t dropped = 0;
+    uint32_t mesh = 0;  // object-space BLAS: its mesh
+    bool merged = false;
+  };
+  // Per scene instance, made at commit.
+  struct InstanceData {
+    uint32_t blas = UINT32_MAX;  // UINT32_MAX: left out (singular transform or no triangles)
+    uint32_t mesh = 0;
+    uint32_t tri_base = 0;       // merged: its first triangle in the merged BLAS
+    uint32_t prim_base = 0;      // its first triangle in the flattened scene order
+    uint32_t emitter_base = 0;   // object-space BLAS: its first emitter
+    uint32_t kept = 0;           // its triangles in the flattened scene
+    bool transformed = false;    // a real instance: traced through to_object, hit data in object space
+    Mat4 to_world, to_object;
+    Vec3 nrow[3];                // cofactors: normal (and cross product) transform
+    bool negative = false;       // negative determinant: mirrored
+    Vec3 normal(Vec3 n) const {  // Mat4::normal's arithmetic, cofactors precomputed
+      const Vec3 out = nrow[0] * n.x + nrow[1] * n.y + nrow[2] * n.z;
+      return negative ? -out : out;
+    }
+  };
+  struct TlasEntry {
+    uint32_t blas = 0, instance = 0;
+    bool merged = false;
   };
 
   std::vector<Material> materials_;
   std::vector<Image> images_;
-  std::vector<std::vector<Vec2>> tri_uvs_;  // per uv set: 3 per scene triangle (empty if unused)
+  size_t uv_sets_ = 0;  // most uv sets of any mesh
   bool any_transparent_ = false;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
@@ -190,17 +271,29 @@ class Scene {
   bool committed_ = false;
   std::atomic<bool> cancel_{false};
   bool geometry_dirty_ = true;
+  bool top_dirty_ = false;  // only instance transforms changed (dynamic / real instances)
+  bool dynamic_ = false;
   BvhLayout built_layout_ = BvhLayout::Auto;
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
 
-  std::vector<TriangleVerts> tris_;
-  std::vector<TriangleShading> shading_;
-  Bvh bvh_;
+  std::vector<Blas> blases_;
+  std::vector<InstanceData> inst_;
+  std::vector<uint32_t> mesh_blas_;  // per mesh: its object-space BLAS, or UINT32_MAX
+  std::vector<TlasEntry> tlas_entries_;
+  Tlas tlas_;
+  bool use_tlas_ = false;
+  bool direct_ = false;  // no top level: the merged BLAS (blases_[0]) alone is traced
+  size_t largest_blas_ = 0;
+  Bvh empty_bvh_;
+  Aabb world_bounds_;
   std::vector<Light> lights_;
   Environment env_;
   // One distribution over [analytic lights | emissive triangles | environment], by power.
-  std::vector<uint32_t> emitter_prims_;
+  struct Emitter {
+    uint32_t instance, tri;  // tri: in the instance's BLAS
+  };
+  std::vector<Emitter> emitters_;
   std::vector<float> emitter_areas_;
   Distribution1D light_dist_;
   size_t env_index_ = SIZE_MAX;
@@ -208,8 +301,21 @@ class Scene {
   SceneFeatures features_;
 
   bool build_geometry(int threads, BvhLayout layout);  // false: cancelled
+  void build_instances();  // transforms, object coordinates, flattened offsets
+  void build_top_level();
   void build_lights();
   void detect_features();
+  void update_memory_stats();
+  // World-space corners of a BLAS triangle of an instance.
+  TriangleVerts world_triangle(const InstanceData& in, const TriangleVerts& tv) const {
+    if (!in.transformed) return tv;
+    return {in.to_world.point(tv.v0), in.to_world.point(tv.v1), in.to_world.point(tv.v2)};
+  }
+  int32_t emitter_of(const InstanceData& in, uint32_t tri) const {
+    const Blas& b = blases_[in.blas];
+    if (b.emitter.empty() || b.emitter[tri] < 0) return -1;
+    return b.merged ? b.emitter[tri] : int32_t(in.emitter_base) + b.emitter[tri];
+  }
 };
 
 }  // namespace pl

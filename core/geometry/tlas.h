@@ -1,0 +1,80 @@
+// The top level of a two-level BVH: a binary SAH tree over instances, each a bottom-level Bvh
+// (in its own object space) and an affine transform. Traversal carries the ray into object
+// space per instance with its direction unnormalised, so hit distances stay world distances.
+// Like Bvh, it knows triangles and transforms only; hits name (instance, triangle).
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "geometry/bvh.h"
+
+namespace pl {
+
+struct TlasInstance {
+  const Bvh* blas = nullptr;  // must outlive the Tlas (or its next build)
+  Mat4 to_world;              // object -> world (affine)
+  Mat4 to_object;             // its inverse
+  bool identity = false;      // the BLAS is already in world space: no ray transform
+};
+
+// Bound of the rounding error of M.point(p) where p itself carries the error p_error
+// (pbrt-v4's Transform of a Point3fi): |M| p_error (1 + gamma3) + gamma3 (|M| |p| + |t|).
+inline Vec3 transform_point_error(const Mat4& m, Vec3 p, Vec3 p_error) {
+  Vec3 e;
+  const float g = gamma_bound(3);
+  for (int i = 0; i < 3; ++i) {
+    const float ap = std::fabs(m.m[i][0] * p.x) + std::fabs(m.m[i][1] * p.y) + std::fabs(m.m[i][2] * p.z) +
+                     std::fabs(m.m[i][3]);
+    const float ae = std::fabs(m.m[i][0]) * p_error.x + std::fabs(m.m[i][1]) * p_error.y +
+                     std::fabs(m.m[i][2]) * p_error.z;
+    e[i] = (g + 1.0f) * ae + g * ap;
+  }
+  return e;
+}
+
+// The ray in an instance's object space, origin moved forward along the direction past its own
+// rounding error (pbrt-v4): the transformed origin of a spawned ray cannot land behind the
+// surface it left. `dt` is that move in ray parameter units: world t = object t + dt.
+inline Ray ray_to_object(const Mat4& to_object, const Ray& r, float& dt) {
+  Ray o;
+  o.org = to_object.point(r.org);
+  o.dir = to_object.vector(r.dir);
+  const Vec3 err = transform_point_error(to_object, r.org, Vec3(0.0f));
+  const float l2 = length_sq(o.dir);
+  dt = l2 > 0.0f ? dot(vabs(o.dir), err) / l2 : 0.0f;
+  if (!std::isfinite(dt)) dt = 0.0f;
+  o.org += o.dir * dt;
+  o.tmax = r.tmax - dt;
+  return o;
+}
+
+struct TlasStats {
+  size_t instances = 0, nodes = 0;
+  double build_ms = 0.0;
+};
+
+class Tlas {
+ public:
+  // Builds over the instances (copied); hit.inst names the index in `instances`. Instances with
+  // an empty BLAS or a non-finite world box are left out.
+  void build(std::vector<TlasInstance> instances);
+  void clear();
+  bool empty() const { return nodes_.empty(); }
+  Aabb bounds() const { return bounds_; }
+  const TlasStats& stats() const { return stats_; }
+  size_t memory_bytes() const { return nodes_.capacity() * sizeof(BvhNode) + refs_.capacity() * sizeof(uint32_t) + insts_.capacity() * sizeof(TlasInstance); }
+
+  // Closest hit with 0 < t < ray.tmax; fills hit (prim: the BLAS's triangle, inst: the instance).
+  bool intersect(const Ray& ray, Hit& hit, TraversalCounters* counters = nullptr) const;
+  // Any hit certainly before ray.tmax (the BLAS's any-hit contract), stops at the first.
+  bool occluded(const Ray& ray) const;
+
+ private:
+  std::vector<BvhNode> nodes_;      // binary; leaves index refs_
+  std::vector<uint32_t> refs_;      // leaf order -> instance
+  std::vector<TlasInstance> insts_;
+  Aabb bounds_;
+  TlasStats stats_;
+};
+
+}  // namespace pl
