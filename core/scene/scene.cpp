@@ -113,6 +113,18 @@ bool Scene::commit(int threads, BvhLayout layout) {
   return true;
 }
 
+size_t Scene::geometry_bytes() const {
+  size_t bytes = tris_.capacity() * sizeof(TriangleVerts) + shading_.capacity() * sizeof(TriangleShading) +
+                 object_coords_.capacity() * sizeof(ObjectCoords);
+  for (const auto& uv : tri_uvs_) bytes += uv.capacity() * sizeof(Vec2);
+  for (const MeshData& m : meshes_) {
+    bytes += m.positions.capacity() * sizeof(Vec3) + m.triangles.capacity() * sizeof(m.triangles[0]) +
+             m.corner_normals.capacity() * sizeof(Vec3) + m.materials.capacity() * sizeof(uint32_t);
+    for (const auto& uv : m.uvs) bytes += uv.capacity() * sizeof(Vec2);
+  }
+  return bytes;
+}
+
 bool Scene::build_geometry(int threads, BvhLayout layout) {
   const auto cancelled = [&] {
     if (!cancel_.load(std::memory_order_relaxed)) return false;

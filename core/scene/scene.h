@@ -142,6 +142,9 @@ class Scene {
   float pdf_environment(Vec3 dir) const;
   const SceneStats& stats() const { return stats_; }
   const Bvh& bvh() const { return bvh_; }
+  // Bytes allocated for geometry besides the BVH (bvh().memory_bytes()): the meshes as added
+  // and, once committed, the world-space triangles with their shading data and uvs.
+  size_t geometry_bytes() const;
 
  private:
   struct TriangleShading {
