@@ -625,14 +625,21 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
   stats_.nodes = nodes_.size();
   stats_.max_depth = builder.max_depth();
   const float root_area = std::max(bounds_.half_area(), 1e-30f);
+  // Summed in tree order: subtrees built in parallel place their nodes in an order that depends
+  // on thread timing, and the sum must not.
   double cost = 0.0;
-  for (const BvhNode& n : nodes_) {
+  std::vector<uint32_t> stack{0};
+  while (!stack.empty()) {
+    const BvhNode& n = nodes_[stack.back()];
+    stack.pop_back();
     const double rel = Aabb{n.lo, n.hi}.half_area() / root_area;
     if (n.is_leaf()) {
       stats_.leaves++;
       cost += rel * n.count;
     } else {
       cost += rel * opt.traversal_cost;
+      stack.push_back(n.left_or_first + 1);
+      stack.push_back(n.left_or_first);
     }
   }
   stats_.sah_cost = cost;
