@@ -1,8 +1,8 @@
-"""The mesh export reads Blender's own arrays and works out the split of quads itself
-(addon/export/mesh.py: triangle_corners), and hands normals to the core as Blender stores them
-(per vertex, face or corner, with an index per triangle corner). It must give exactly what
-Blender's per-element collections give: loop_triangles, corner normals, UVs, material indices;
-and the core must render the compact normals exactly as the expanded ones."""
+"""The mesh export hands normals to the core as Blender stores them (per vertex, face or
+corner, with an index per triangle corner: addon/export/mesh.py) and reads UVs through the
+triangles' corner indices it already has. It must give exactly what Blender's per-element
+collections give (loop triangles, corner normals, UVs, material indices), and the core must
+render the shared normals exactly as the expanded ones."""
 
 import bpy
 import numpy as np
@@ -11,7 +11,6 @@ import pytest
 from blender_util import core_available, empty_scene_with_camera, load_addon
 
 load_addon()
-from addon.export import mesh as mesh_export  # noqa: E402
 from addon.export.mesh import collect_meshes  # noqa: E402
 
 needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
@@ -37,70 +36,6 @@ def blender_loops(me):
     return loops
 
 
-def our_loops(me):
-    me.calc_loop_triangles()
-    pos = np.empty(len(me.vertices) * 3, np.float32)
-    me.vertices.foreach_get("co", pos)
-    tri_polys = np.empty(len(me.loop_triangles), np.int32)
-    me.loop_triangle_polygons.foreach_get("value", tri_polys)
-    corner_verts = np.empty(len(me.loops), np.int32)
-    me.loops.foreach_get("vertex_index", corner_verts)
-    return mesh_export.triangle_corners(me, pos.reshape(-1, 3), corner_verts, tri_polys)
-
-
-def quads(kind, n=3000, seed=3):
-    """n separate quads of one kind: corner positions (n * 4, 3)."""
-    rng = np.random.default_rng(seed)
-    base = rng.uniform(-1, 1, (n, 1, 3))
-    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float64)
-    if kind == "convex":
-        q = base + square * rng.uniform(0.1, 2, (n, 1, 1))
-    elif kind == "concave_and_bowtie":  # random planar quads: many concave or self-crossing
-        q = base + rng.uniform(-1, 1, (n, 4, 3)) * [1, 1, 0]
-    elif kind == "nonplanar":
-        q = base + square + rng.uniform(-0.8, 0.8, (n, 4, 3))
-    elif kind == "degenerate":  # all four corners at one point, or on one line
-        q = np.repeat(base, 4, axis=1)
-        q[::2, 2] += 0.5
-    elif kind == "far_from_origin":  # tiny quads where float rounding is large
-        q = 1000.0 + base * 1e-3 + rng.uniform(-1e-3, 1e-3, (n, 4, 3))
-    else:
-        raise ValueError(kind)
-    return q.reshape(-1, 3)
-
-
-@pytest.mark.parametrize("cached_normals", [False, True])
-@pytest.mark.parametrize("kind", ["convex", "concave_and_bowtie", "nonplanar", "degenerate", "far_from_origin"])
-def test_quad_split_matches_blender(scene, kind, cached_normals):
-    co = quads(kind)
-    me = new_mesh(co, np.arange(len(co)).reshape(-1, 4))
-    if cached_normals:  # Blender then splits with its other quad-flip test (the one with the normal)
-        fn = np.empty(len(me.polygons) * 3, np.float32)
-        me.polygon_normals.foreach_get("vector", fn)
-    ref = blender_loops(me)
-    if kind in ("concave_and_bowtie", "nonplanar"):
-        first = ref.reshape(-1, 2, 3)[:, 0]
-        assert (first[:, 2] % 4 == 3).sum() > 50  # many quads are cut along 1-3: the test sees both cuts
-    np.testing.assert_array_equal(our_loops(me), ref)
-
-
-def test_mixed_faces_and_ngons_match_blender(scene):
-    rng = np.random.default_rng(1)
-    # Triangles and quads interleaved, then a mesh with an n-gon (read from Blender whole).
-    co = rng.uniform(-1, 1, (700, 3))
-    faces = []
-    i = 0
-    while i + 4 <= len(co):
-        size = 3 if rng.uniform() < 0.4 else 4
-        faces.append(range(i, i + size))
-        i += size
-    me = new_mesh(co, faces)
-    np.testing.assert_array_equal(our_loops(me), blender_loops(me))
-    ngon = new_mesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0.5, 1.5, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]],
-                    [(0, 1, 2, 3, 4), (1, 5, 6, 2)], "Ngon")
-    np.testing.assert_array_equal(our_loops(ngon), blender_loops(ngon))
-
-
 def reference(me, uv=False):
     """What the export used to build from Blender's per-element collections: (triangles,
     corner normals, material indices, uvs) per loop triangle."""
@@ -120,7 +55,7 @@ def reference(me, uv=False):
 
 
 def grid_object(kind):
-    """A bumpy grid of quads (with some triangles) set up for one export path."""
+    """A bumpy grid of quads (with some triangles and an n-gon) set up for one export path."""
     rng = np.random.default_rng(7)
     n = 24
     x, y = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
@@ -129,6 +64,9 @@ def grid_object(kind):
     i = np.arange(n)[None, :] + (n + 1) * np.arange(n)[:, None]
     faces = [tuple(q) for q in np.stack([i, i + 1, i + n + 2, i + n + 1], -1).reshape(-1, 4)]
     faces = faces[:-20] + [f[:3] for f in faces[-20:]]  # a few triangles
+    ang = np.linspace(0, 2 * np.pi, 6)[:-1]  # and an n-gon (a pentagon) beside the grid
+    co = np.concatenate([co, np.stack([1.5 + 0.3 * np.cos(ang), 0.3 * np.sin(ang), 0.1 * np.cos(2 * ang)], 1)])
+    faces.append(tuple(range(len(co) - 5, len(co))))
     me = new_mesh(co, faces, kind)
     if kind == "smooth":
         me.shade_smooth()
