@@ -155,29 +155,3 @@ def test_core_expands_shared_normals_like_corner_normals(scene, index_dtype):
     assert images[0][..., :3].mean() > 0.05
     np.testing.assert_array_equal(images[1], images[0])
     np.testing.assert_array_equal(images[2], images[0])
-
-
-@needs_core
-def test_shared_normals_are_validated():
-    from addon.core import get_core
-    pc = get_core()
-    s = pc.Scene()
-    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
-    tri = np.array([[0, 1, 2]], np.int32)
-    n = np.array([[0, 0, 1]], np.float32)
-    with pytest.raises(ValueError, match="normal index 1 out of range"):
-        s.add_mesh(pos, tri, normals=n, normal_indices=np.array([[0, 0, 1]], np.int32))
-    with pytest.raises(ValueError, match="normal index -1"):
-        s.add_mesh(pos, tri, normals=n, normal_indices=np.array([[0, 0, -1]], np.int64))
-    with pytest.raises(ValueError, match="normal_indices must have shape"):
-        s.add_mesh(pos, tri, normals=n, normal_indices=np.zeros((2, 3), np.int32))
-    with pytest.raises(ValueError, match="normals need normal_indices"):
-        s.add_mesh(pos, tri, normals=n)
-    with pytest.raises(ValueError, match="normal_indices need normals"):
-        s.add_mesh(pos, tri, normal_indices=np.zeros((1, 3), np.int32))
-    with pytest.raises(ValueError, match="not both"):
-        s.add_mesh(pos, tri, corner_normals=np.zeros((1, 3, 3), np.float32), normals=n,
-                   normal_indices=np.zeros((1, 3), np.int32))
-    with pytest.raises(ValueError, match="triangle index 3 out of range for 3 vertices"):
-        s.add_mesh(pos, np.array([[0, 1, 3]], np.int32))
-    assert s.add_mesh(pos, tri, normals=n, normal_indices=np.zeros((1, 3), np.int32)) == 0  # none half-added
