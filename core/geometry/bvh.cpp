@@ -150,13 +150,23 @@ void run_chunks(int chunks, F&& fn) {
   for (std::thread& t : threads) t.join();
 }
 
-static_assert(std::is_trivially_copyable_v<BvhNode>, "the builder keeps nodes in raw storage");
+// Raw storage for arrays the builder writes in full before reading: no pass that zeroes them
+// first, and their pages are first touched by the (parallel) code that fills them.
+struct FreeRaw {
+  void operator()(void* p) const { std::free(p); }
+};
+template <class T>
+std::unique_ptr<T[], FreeRaw> raw_array(size_t n) {
+  static_assert(std::is_trivially_copyable_v<T>, "raw storage holds trivially copyable types only");
+  std::unique_ptr<T[], FreeRaw> p(static_cast<T*>(std::malloc(std::max<size_t>(1, n) * sizeof(T))));
+  if (!p) throw std::bad_alloc();
+  return p;
+}
 
 class Builder {
  public:
-  Builder(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt, std::vector<BvhNode>& nodes,
-          std::vector<uint32_t>& order)
-      : opt_(opt), nodes_(nodes), order_(order) {
+  Builder(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt, std::vector<uint32_t>& order)
+      : opt_(opt), order_(order) {
     opt_.bins = std::clamp(opt_.bins, 2, kMaxBins);
     opt_.max_leaf_size = std::clamp(opt_.max_leaf_size, 1, 255);
     block_ = static_cast<uint32_t>(std::clamp(opt_.leaf_block, 1, 16));
@@ -167,7 +177,8 @@ class Builder {
     parallel_depth_ = 2;
     while ((1 << parallel_depth_) < 4 * hw_) ++parallel_depth_;
     const uint32_t n = static_cast<uint32_t>(tris.size());
-    refs_.resize(n);
+    refs_ = raw_array<PrimRef>(n);
+    n_refs_ = n;
     // The references and the root's boxes, in parallel chunks merged in a fixed order.
     const int chunks = chunk_count(n, 0);
     std::vector<BoxAcc> b(chunks), cb(chunks);
@@ -193,22 +204,23 @@ class Builder {
     root_cbounds_ = cb.empty() ? Aabb() : cb[0].aabb();
     // A binary tree with n leaves or fewer has at most 2n - 1 nodes; every node is written
     // by the build, so the storage is left uninitialised (no pass over it before the build).
-    node_store_.reset(static_cast<BvhNode*>(std::malloc(std::max<size_t>(1, 2 * size_t(n)) * sizeof(BvhNode))));
-    if (!node_store_) throw std::bad_alloc();
+    node_store_ = raw_array<BvhNode>(2 * size_t(n));
   }
 
   // Returns false when cancelled (the nodes are then incomplete and must be dropped).
   bool run() {
     next_node_ = 1;
-    build(0, 0, static_cast<uint32_t>(refs_.size()), 0, root_bounds_, root_cbounds_);
+    build(0, 0, static_cast<uint32_t>(n_refs_), 0, root_bounds_, root_cbounds_);
     if (cancelled()) return false;
-    nodes_.assign(node_store_.get(), node_store_.get() + next_node_.load());
-    node_store_.reset();
-    order_.resize(refs_.size());
-    for (size_t i = 0; i < refs_.size(); ++i) order_[i] = refs_[i].id;
-    std::vector<PrimRef>().swap(refs_);
+    order_.resize(n_refs_);
+    for (size_t i = 0; i < n_refs_; ++i) order_[i] = refs_[i].id;
+    refs_.reset();
     return true;
   }
+
+  // The binary tree (root at 0; children of an interior node side by side), valid after run().
+  const BvhNode* nodes() const { return node_store_.get(); }
+  size_t node_count() const { return next_node_.load(); }
 
   size_t max_depth() const { return max_depth_.load(); }
 
@@ -442,13 +454,10 @@ class Builder {
   }
 
   BvhBuildOptions opt_;
-  std::vector<BvhNode>& nodes_;
   std::vector<uint32_t>& order_;
-  std::vector<PrimRef> refs_;
-  struct Free {
-    void operator()(BvhNode* p) const { std::free(p); }
-  };
-  std::unique_ptr<BvhNode[], Free> node_store_;  // raw storage: every node used is written by the build
+  std::unique_ptr<PrimRef[], FreeRaw> refs_;
+  size_t n_refs_ = 0;
+  std::unique_ptr<BvhNode[], FreeRaw> node_store_;  // up to 2n - 1 nodes; those used are all written
   Aabb root_bounds_, root_cbounds_;
   std::atomic<uint32_t> next_node_{1};
   std::atomic<size_t> max_depth_{0};
@@ -476,15 +485,15 @@ inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3& inv, 
 // the binary leaves; `tris` is the build's input, reached through prim_ids (leaf order).
 // Leaves become runs of TriangleBlock4s, emitted in the order the collapse reaches them.
 template <int N>
-void collapse(const std::vector<BvhNode>& bin, const std::vector<TriangleVerts>& tris,
+void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>& tris,
               const std::vector<uint32_t>& prim_ids, std::vector<WideBvhNode<N>>& out,
               std::vector<TriangleBlock4>& blocks, std::vector<uint32_t>& block_prims) {
   out.clear();
   blocks.clear();
   block_prims.clear();
-  out.reserve(bin.size() / (N - 1) + 1);
+  out.reserve(n_bin / (N - 1) + 1);
   size_t n_blocks = 0;  // exact sizes: no regrowth, nothing for shrink_to_fit to copy
-  for (const BvhNode& c : bin) n_blocks += (c.count + 3) / 4;
+  for (size_t i = 0; i < n_bin; ++i) n_blocks += (bin[i].count + 3) / 4;
   blocks.reserve(n_blocks);
   block_prims.reserve(4 * n_blocks);
   struct Item {
@@ -611,18 +620,21 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
   if (opt.leaf_block <= 0) opt.leaf_block = layout == BvhLayout::Binary ? 1 : 4;
   const auto cancelled = [&] { return opt.cancel && opt.cancel->load(); };
   if (tris.empty()) return !cancelled();
-  Builder builder(tris, opt, nodes_, prim_ids_);
+  Builder builder(tris, opt, prim_ids_);
   if (!builder.run()) {
     clear();
     return false;
   }
-  if (layout == BvhLayout::Binary) {  // the wide layouts copy the triangles into their blocks instead
+  const BvhNode* bin = builder.nodes();
+  const size_t n_bin = builder.node_count();
+  if (layout == BvhLayout::Binary) {  // kept; the wide layouts copy the triangles into their blocks instead
+    nodes_.assign(bin, bin + n_bin);
     tris_.resize(prim_ids_.size());
     for (size_t i = 0; i < prim_ids_.size(); ++i) tris_[i] = tris[prim_ids_[i]];
   }
 
-  bounds_ = {nodes_[0].lo, nodes_[0].hi};
-  stats_.nodes = nodes_.size();
+  bounds_ = {bin[0].lo, bin[0].hi};
+  stats_.nodes = n_bin;
   stats_.max_depth = builder.max_depth();
   const float root_area = std::max(bounds_.half_area(), 1e-30f);
   // Summed in tree order: subtrees built in parallel place their nodes in an order that depends
@@ -630,7 +642,7 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
   double cost = 0.0;
   std::vector<uint32_t> stack{0};
   while (!stack.empty()) {
-    const BvhNode& n = nodes_[stack.back()];
+    const BvhNode& n = bin[stack.back()];
     stack.pop_back();
     const double rel = Aabb{n.lo, n.hi}.half_area() / root_area;
     if (n.is_leaf()) {
@@ -647,13 +659,11 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
     clear();
     return false;
   }
-  if (layout == BvhLayout::Wide4) collapse<4>(nodes_, tris, prim_ids_, nodes4_, blocks_, block_prims_);
-  if (layout == BvhLayout::Wide8) collapse<8>(nodes_, tris, prim_ids_, nodes8_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide4) collapse<4>(bin, n_bin, tris, prim_ids_, nodes4_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide8) collapse<8>(bin, n_bin, tris, prim_ids_, nodes8_, blocks_, block_prims_);
   if (layout != BvhLayout::Binary) {
-    // The wide tree and its triangle blocks replace the binary tree and its triangle arrays.
+    // The wide tree and its triangle blocks replace the binary tree and the leaf order.
     stats_.wide_nodes = layout == BvhLayout::Wide4 ? nodes4_.size() : nodes8_.size();
-    std::vector<BvhNode>().swap(nodes_);
-    std::vector<TriangleVerts>().swap(tris_);
     std::vector<uint32_t>().swap(prim_ids_);
   }
   triangles_ = tris.size();
