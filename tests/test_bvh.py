@@ -222,3 +222,47 @@ def test_commit_can_be_cancelled_from_another_thread_and_run_again():
     t, prim, _, _ = s.intersect(o, d)
     assert prim[0] >= 0 and abs(t[0] - 1.0) < 0.1
     assert s.stats()["triangles"] == len(tris)
+
+
+def test_build_is_the_same_on_any_number_of_threads():
+    """Parallel binning near the root and parallel subtrees give the same tree as one thread:
+    same statistics (SAH cost to the bit) and the same hits. 270k triangles, so that the root is
+    binned in several chunks (65536 triangles or more each)."""
+    rng = np.random.default_rng(11)
+    meshes = [noisy_sphere(260, rng), awkward_soup(rng)]
+    o = rng.uniform(-2, 2, (20_000, 3)).astype(np.float32)
+    d = rng.normal(size=(20_000, 3)).astype(np.float32)
+    results = []
+    for threads in (1, 2, 7):
+        s = pc.Scene()
+        for pos, tris in meshes:
+            s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
+        s.commit(threads=threads)
+        st = s.stats()
+        results.append(({k: st[k] for k in ("triangles", "bvh_nodes", "bvh_leaves", "bvh_max_depth", "bvh_wide_nodes",
+                                            "bvh_sah_cost", "bvh_bytes")}, s.intersect(o, d)))
+    assert results[0][0]["triangles"] > 2 * 65536 and results[0][0]["bvh_nodes"] > 50_000
+    for stats, hits in results[1:]:
+        assert stats == results[0][0]
+        for a, b in zip(hits, results[0][1]):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_memory_per_triangle_is_bounded():
+    """Bytes per triangle as allocated, a regression bound: the BVH (wide nodes and 4-triangle
+    blocks, about 58 now) and the scene's geometry with smooth normals (the mesh as added with its
+    corner normals, and the merged BLAS's world-space triangle copy and maps, about 102 now; the
+    flattened layout before the two-level BVH also kept per-triangle shading normals, ~142). At
+    these rates 10M triangles take about 2 GiB in the core (tests/bench/bench_scaling.py renders
+    such a scene)."""
+    rng = np.random.default_rng(2)
+    pos, tris = noisy_sphere(150, rng)
+    normals = pos / np.linalg.norm(pos, axis=1, keepdims=True)
+    s = pc.Scene()
+    s.add_instance(s.add_mesh(pos, tris, normals=normals, normal_indices=tris), np.eye(4, dtype=np.float32))
+    s.commit()
+    st = s.stats()
+    n = st["triangles"]
+    assert n > 80_000
+    assert 40 * n < st["bvh_bytes"] < 64 * n   # 36 bytes of coordinates per triangle at least
+    assert 36 * 2 * n < st["geometry_bytes"] < 120 * n  # corner normals and world triangles at least

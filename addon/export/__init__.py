@@ -110,7 +110,7 @@ def to_core(pc, data, warn=None, material_ids=None):
         if mesh.texspace is not None:
             uvs["texspace"] = mesh.texspace
         mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
-                                 corner_normals=mesh.corner_normals,
+                                 normals=mesh.normals, normal_indices=mesh.normal_indices,
                                  material_indices=mesh.material_indices,
                                  material_slots=[ids[i] for i in slots], **uvs)
         for matrix in mesh.matrices:

@@ -11,7 +11,10 @@ class MeshData:
     name: str
     positions: np.ndarray  # float32 (V, 3), object space
     triangles: np.ndarray  # int32 (T, 3), indices into positions
-    corner_normals: np.ndarray  # float32 (T, 3, 3), shading normal per triangle corner
+    # Shading normals, shared: corner k of triangle t has normals[normal_indices[t, k]]. Per
+    # vertex, per face or per corner as the mesh stores them; the core expands them.
+    normals: np.ndarray  # float32 (N, 3)
+    normal_indices: np.ndarray  # int32 (T, 3)
     material_indices: np.ndarray  # int32 (T,), material slot per triangle
     materials: list  # bpy.types.Material or None per slot
     matrices: list = field(default_factory=list)  # float32 (4, 4) object-to-world, one per instance
@@ -21,6 +24,11 @@ class MeshData:
     missing_uv_maps: list = field(default_factory=list)  # UV map names its materials need
     # Blender's texture space ((location), (size)) for generated coordinates, or None.
     texspace: tuple = None
+
+    @property
+    def corner_normals(self):
+        """float32 (T, 3, 3): the shading normal of every triangle corner (expanded)."""
+        return self.normals[self.normal_indices]
 
 
 def _int_attribute(mesh, name, size):
@@ -35,20 +43,20 @@ def _int_attribute(mesh, name, size):
 
 
 def mesh_arrays(mesh):
-    """(positions, triangles, corner_normals, material_indices) of a bpy Mesh, via foreach_get.
+    """(positions, triangles, normals, normal_indices, material_indices, corners) of a bpy Mesh,
+    via foreach_get; corners: int32 (T * 3,) corner (loop) index of every triangle corner.
 
     Only the triangles' corner indices go through the loop-triangle collection (slow per
-    element); vertex indices, material indices and normals come from the mesh's own arrays and
-    are gathered with numpy: 1M triangles export about twice as fast (tests/bench/bench_export.py)."""
+    element); vertex indices, material indices and normals come from the mesh's own arrays.
+    Normals stay as Blender stores them (per vertex, face or corner) with an index per triangle
+    corner, and the core expands them: no per-corner gather in numpy (bench_export.py)."""
     mesh.calc_loop_triangles()
-    tris = mesh.loop_triangles
-    n_tris = len(tris)
+    n_tris = len(mesh.loop_triangles)
     n_corners = len(mesh.loops)
 
     positions = np.empty(len(mesh.vertices) * 3, np.float32)
     mesh.vertices.foreach_get("co", positions)
-    loops = np.empty(n_tris * 3, np.int32)
-    tris.foreach_get("loops", loops)
+    positions = positions.reshape(-1, 3)
     tri_polys = np.empty(n_tris, np.int32)
     mesh.loop_triangle_polygons.foreach_get("value", tri_polys)
 
@@ -56,6 +64,11 @@ def mesh_arrays(mesh):
     if corner_verts is None:
         corner_verts = np.empty(n_corners, np.int32)
         mesh.loops.foreach_get("vertex_index", corner_verts)
+    # Read through RNA one element at a time (about 0.13 s for 1M triangles). Working out
+    # Blender's quad splits in numpy instead (both of its quad-flip tests, unsure quads read
+    # back) was measured no faster, so this stays the one per-element read.
+    loops = np.empty(n_tris * 3, np.int32)
+    mesh.loop_triangles.foreach_get("loops", loops)
     triangles = corner_verts[loops].reshape(-1, 3)
 
     poly_materials = _int_attribute(mesh, "material_index", len(mesh.polygons))
@@ -66,28 +79,25 @@ def mesh_arrays(mesh):
     # says its normals live on points or faces, those (cheaper) arrays give the same vectors.
     domain = mesh.normals_domain
     if domain == 'POINT':
-        vn = np.empty(len(mesh.vertices) * 3, np.float32)
-        mesh.vertex_normals.foreach_get("vector", vn)
-        corner_normals = vn.reshape(-1, 3)[triangles].reshape(n_tris, 3, 3)
+        normals = np.empty(len(mesh.vertices) * 3, np.float32)
+        mesh.vertex_normals.foreach_get("vector", normals)
+        normal_indices = triangles
     elif domain == 'FACE':
-        fn = np.empty(len(mesh.polygons) * 3, np.float32)
-        mesh.polygon_normals.foreach_get("vector", fn)
-        corner_normals = np.repeat(fn.reshape(-1, 3)[tri_polys][:, None, :], 3, axis=1)
+        normals = np.empty(len(mesh.polygons) * 3, np.float32)
+        mesh.polygon_normals.foreach_get("vector", normals)
+        normal_indices = np.repeat(tri_polys, 3).reshape(-1, 3)
     else:
-        cn = np.empty(len(mesh.corner_normals) * 3, np.float32)
-        mesh.corner_normals.foreach_get("vector", cn)
-        corner_normals = cn.reshape(-1, 3)[loops].reshape(n_tris, 3, 3)
+        normals = np.empty(len(mesh.corner_normals) * 3, np.float32)
+        mesh.corner_normals.foreach_get("vector", normals)
+        normal_indices = loops.reshape(-1, 3)
 
-    return (positions.reshape(-1, 3), np.ascontiguousarray(triangles, np.int32),
-            np.ascontiguousarray(corner_normals, np.float32), material_indices)
+    return (positions, np.ascontiguousarray(triangles, np.int32), normals.reshape(-1, 3),
+            np.ascontiguousarray(normal_indices, np.int32), material_indices, loops)
 
 
-def mesh_uvs(mesh, names):
+def mesh_uvs(mesh, names, loops):
     """{k: float32 (T, 3, 2) per-corner UVs} for {k: UV map name} ("" = the active render UV
-    map), and the names the mesh lacks. Call after mesh_arrays (loop triangles computed)."""
-    tris = mesh.loop_triangles
-    loops = np.empty(len(tris) * 3, np.int32)
-    tris.foreach_get("loops", loops)
+    map), and the names the mesh lacks. loops: the triangles' corner indices (mesh_arrays)."""
     uvs, missing, cache = {}, [], {}
     active = next((layer for layer in mesh.uv_layers if layer.active_render), None)
     for k, name in names.items():
@@ -154,10 +164,10 @@ def _export_object(obj, materials, uv_names=None):
         mesh = obj.to_mesh()
         if mesh is None or len(mesh.polygons) == 0:
             return None
-        positions, triangles, normals, material_indices = mesh_arrays(mesh)
+        positions, triangles, normals, normal_indices, material_indices, loops = mesh_arrays(mesh)
         if not materials:
             materials = list(mesh.materials)
-        uvs, missing = mesh_uvs(mesh, uv_names(materials)) if uv_names else ({}, [])
+        uvs, missing = mesh_uvs(mesh, uv_names(materials), loops) if uv_names else ({}, [])
         # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
         # non-finite vertices make it non-finite: then the core's own box of the finite ones.
         texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
@@ -167,5 +177,5 @@ def _export_object(obj, materials, uv_names=None):
         obj.to_mesh_clear()
     # Blender and Cycles clamp out-of-range material indices to the last slot.
     np.clip(material_indices, 0, max(len(materials) - 1, 0), out=material_indices)
-    return MeshData(obj.original.name, positions, triangles, normals, material_indices, materials,
+    return MeshData(obj.original.name, positions, triangles, normals, normal_indices, material_indices, materials,
                     uvs=uvs, missing_uv_maps=missing, texspace=texspace)

@@ -3,8 +3,15 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdlib>
 #include <functional>
+#include <memory>
+#include <new>
 #include <thread>
+#include <type_traits>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "geometry/bvh_common.h"
 #include "geometry/triangle.h"
@@ -23,80 +30,224 @@ constexpr int kStackSize = 128;
 // traversal stacks of kStackSize entries never overflow.
 constexpr int kMaxDepth = 64;
 constexpr uint32_t kParallelMin = 16384;  // subtrees smaller than this are built serially
+constexpr uint32_t kChunkMin = 65536;     // fewest triangles per thread when one node is binned by several
+constexpr uint32_t kSmallNode = 32;       // nodes this small clear and sweep only the bins they use
 
 // Clamped before the cast: a float outside int's range (or NaN) must never become an index.
+// The SIMD binning below computes exactly this per lane.
 inline int bin_of(float c, float lo, float scale, int bins) {
   const float f = (c - lo) * scale;
   return f > 0.0f ? (f < float(bins - 1) ? static_cast<int>(f) : bins - 1) : 0;
 }
 
-struct Bin {
-  Aabb bounds, cbounds;  // of the triangles, and of their centroids
-  uint32_t count = 0;
+// Four floats in one SSE register (x, y, z and an unused lane); plain floats elsewhere.
+#if defined(__SSE2__)
+struct V4 {
+  __m128 v;
+  static V4 load(const float* p) { return {_mm_load_ps(p)}; }
+  static V4 set1(float f) { return {_mm_set1_ps(f)}; }
+  static V4 set(float x, float y, float z) { return {_mm_setr_ps(x, y, z, 0.0f)}; }
+  void store(float* p) const { _mm_store_ps(p, v); }
+  // Lane 3 of a PrimRef holds its id bits (a denormal as a float): cleared before arithmetic.
+  V4 xyz() const { return {_mm_and_ps(v, _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0)))}; }
+  friend V4 operator+(V4 a, V4 b) { return {_mm_add_ps(a.v, b.v)}; }
+  friend V4 operator-(V4 a, V4 b) { return {_mm_sub_ps(a.v, b.v)}; }
+  friend V4 operator*(V4 a, V4 b) { return {_mm_mul_ps(a.v, b.v)}; }
+  // NaN in a: b (as _mm_min_ps / _mm_max_ps), which the bin clamp relies on.
+  friend V4 vmin(V4 a, V4 b) { return {_mm_min_ps(a.v, b.v)}; }
+  friend V4 vmax(V4 a, V4 b) { return {_mm_max_ps(a.v, b.v)}; }
+  // bin_of() on each lane: clamp to [0, bins - 1] (NaN -> 0), then truncate.
+  void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
+    const __m128 f = _mm_mul_ps(_mm_sub_ps(v, lo.v), scale.v);
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out), _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), top.v)));
+  }
 };
+#else
+struct V4 {
+  float f[4];
+  static V4 load(const float* p) { return {{p[0], p[1], p[2], p[3]}}; }
+  static V4 set1(float x) { return {{x, x, x, x}}; }
+  static V4 set(float x, float y, float z) { return {{x, y, z, 0.0f}}; }
+  void store(float* p) const { for (int i = 0; i < 4; ++i) p[i] = f[i]; }
+  V4 xyz() const { return {{f[0], f[1], f[2], 0.0f}}; }
+  template <class Op>
+  static V4 map(V4 a, V4 b, Op op) { return {{op(a.f[0], b.f[0]), op(a.f[1], b.f[1]), op(a.f[2], b.f[2]), op(a.f[3], b.f[3])}}; }
+  friend V4 operator+(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x + y; }); }
+  friend V4 operator-(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x - y; }); }
+  friend V4 operator*(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x * y; }); }
+  friend V4 vmin(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x < y ? x : y; }); }
+  friend V4 vmax(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x > y ? x : y; }); }
+  void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
+    for (int i = 0; i < 3; ++i) out[i] = bin_of(f[i], lo.f[i], scale.f[i], static_cast<int>(top.f[i]) + 1);
+  }
+};
+#endif
 
 // A triangle's box and input index, moved (not pointed to) by the partitions: every binning
-// pass then reads memory in order.
-struct PrimRef {
+// pass then reads memory in order. 32 bytes; lo and hi load as one SIMD register each.
+struct alignas(16) PrimRef {
   Vec3 lo;
   uint32_t id;
   Vec3 hi;
   uint32_t pad;
-  Vec3 centroid() const { return lo * 0.5f + hi * 0.5f; }  // (lo + hi) / 2 would overflow near FLT_MAX
+  V4 vlo() const { return V4::load(&lo.x).xyz(); }
+  V4 vhi() const { return V4::load(&hi.x).xyz(); }
+  // (lo + hi) / 2 would overflow near FLT_MAX.
+  V4 centroid() const { return vlo() * V4::set1(0.5f) + vhi() * V4::set1(0.5f); }
 };
+
+// Box and centroid box accumulated in SIMD registers; lanes 0-2 are x, y, z.
+struct BoxAcc {
+  V4 lo = V4::set1(kInf), hi = V4::set1(-kInf);
+  void grow(V4 l, V4 h) { lo = vmin(lo, l); hi = vmax(hi, h); }
+  void grow(const BoxAcc& b) { grow(b.lo, b.hi); }
+  Aabb aabb() const {
+    alignas(16) float l[4], h[4];
+    lo.store(l);
+    hi.store(h);
+    return {{l[0], l[1], l[2]}, {h[0], h[1], h[2]}};
+  }
+};
+
+// The bins of all three axes, filled in one pass over a range of triangles. Not initialised on
+// construction: reset() clears only the bins in use (small nodes are many, their bins few).
+struct BinSet {
+  V4 lo[3][kMaxBins], hi[3][kMaxBins];
+  uint32_t count[3][kMaxBins];
+  void reset(int bins) {
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < bins; ++b) {
+        lo[a][b] = V4::set1(kInf);
+        hi[a][b] = V4::set1(-kInf);
+        count[a][b] = 0;
+      }
+  }
+  void merge(const BinSet& o, int bins) {
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < bins; ++b) {
+        lo[a][b] = vmin(lo[a][b], o.lo[a][b]);
+        hi[a][b] = vmax(hi[a][b], o.hi[a][b]);
+        count[a][b] += o.count[a][b];
+      }
+  }
+};
+
+// Half the surface area of the box (lo, hi), the same arithmetic as Aabb::half_area() on a
+// non-empty box, so SIMD accumulation picks the same splits as the scalar code did.
+inline float half_area(V4 lo, V4 hi) {
+  alignas(16) float e[4];
+  (hi - lo).store(e);
+  return e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+}
+
+// Runs fn(chunk) for chunk in [0, chunks) on that many threads (this one included).
+template <class F>
+void run_chunks(int chunks, F&& fn) {
+  std::vector<std::thread> threads;
+  threads.reserve(chunks > 0 ? chunks - 1 : 0);
+  for (int c = 1; c < chunks; ++c) threads.emplace_back([&fn, c] { fn(c); });
+  fn(0);
+  for (std::thread& t : threads) t.join();
+}
+
+// Raw storage for arrays the builder writes in full before reading: no pass that zeroes them
+// first, and their pages are first touched by the (parallel) code that fills them.
+struct FreeRaw {
+  void operator()(void* p) const { std::free(p); }
+};
+template <class T>
+std::unique_ptr<T[], FreeRaw> raw_array(size_t n) {
+  static_assert(std::is_trivially_copyable_v<T>, "raw storage holds trivially copyable types only");
+  std::unique_ptr<T[], FreeRaw> p(static_cast<T*>(std::malloc(std::max<size_t>(1, n) * sizeof(T))));
+  if (!p) throw std::bad_alloc();
+  return p;
+}
 
 class Builder {
  public:
-  Builder(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt, std::vector<BvhNode>& nodes,
-          std::vector<uint32_t>& order)
-      : opt_(opt), nodes_(nodes), order_(order) {
-    const uint32_t n = static_cast<uint32_t>(tris.size());
-    refs_.resize(n);
-    for (uint32_t i = 0; i < n; ++i) {
-      Aabb b;
-      b.grow(tris[i].v0);
-      b.grow(tris[i].v1);
-      b.grow(tris[i].v2);
-      refs_[i] = {b.lo, i, b.hi, 0};
-    }
-    nodes_.resize(std::max<size_t>(1, 2 * size_t(n)));
+  Builder(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt, std::vector<uint32_t>& order)
+      : opt_(opt), order_(order) {
     opt_.bins = std::clamp(opt_.bins, 2, kMaxBins);
     opt_.max_leaf_size = std::clamp(opt_.max_leaf_size, 1, 255);
     block_ = static_cast<uint32_t>(std::clamp(opt_.leaf_block, 1, 16));
-    int hw = opt.threads > 0 ? opt.threads : static_cast<int>(std::thread::hardware_concurrency());
+    for (int k = 0; k < 5; ++k)
+      if (block_ == 1u << k) block_shift_ = k;
+    hw_ = std::max(1, opt.threads > 0 ? opt.threads : static_cast<int>(std::thread::hardware_concurrency()));
     // Four times as many subtrees as threads, so an unbalanced split leaves no core idle for long.
     parallel_depth_ = 2;
-    while ((1 << parallel_depth_) < 4 * std::max(1, hw)) ++parallel_depth_;
+    while ((1 << parallel_depth_) < 4 * hw_) ++parallel_depth_;
+    const uint32_t n = static_cast<uint32_t>(tris.size());
+    refs_ = raw_array<PrimRef>(n);
+    n_refs_ = n;
+    // The references and the root's boxes, in parallel chunks merged in a fixed order.
+    const int chunks = chunk_count(n, 0);
+    std::vector<BoxAcc> b(chunks), cb(chunks);
+    run_chunks(chunks, [&](int c) {
+      const uint32_t lo = uint32_t(uint64_t(n) * c / chunks), hi = uint32_t(uint64_t(n) * (c + 1) / chunks);
+      for (uint32_t i = lo; i < hi; ++i) {
+        const TriangleVerts& t = tris[i];
+        PrimRef& r = refs_[i];
+        r.lo = vmin(vmin(t.v0, t.v1), t.v2);
+        r.hi = vmax(vmax(t.v0, t.v1), t.v2);
+        r.id = i;
+        r.pad = 0;
+        b[c].grow(r.vlo(), r.vhi());
+        const V4 ct = r.centroid();
+        cb[c].grow(ct, ct);
+      }
+    });
+    for (int c = 1; c < chunks; ++c) {
+      b[0].grow(b[c]);
+      cb[0].grow(cb[c]);
+    }
+    root_bounds_ = b.empty() ? Aabb() : b[0].aabb();
+    root_cbounds_ = cb.empty() ? Aabb() : cb[0].aabb();
+    // A binary tree with n leaves or fewer has at most 2n - 1 nodes; every node is written
+    // by the build, so the storage is left uninitialised (no pass over it before the build).
+    node_store_ = raw_array<BvhNode>(2 * size_t(n));
   }
 
   // Returns false when cancelled (the nodes are then incomplete and must be dropped).
   bool run() {
     next_node_ = 1;
-    Aabb bounds, cbounds;
-    range_bounds(0, static_cast<uint32_t>(refs_.size()), bounds, cbounds);
-    build(0, 0, static_cast<uint32_t>(refs_.size()), 0, bounds, cbounds);
+    build(0, 0, static_cast<uint32_t>(n_refs_), 0, root_bounds_, root_cbounds_);
     if (cancelled()) return false;
-    nodes_.resize(next_node_.load());
-    nodes_.shrink_to_fit();
-    order_.resize(refs_.size());
-    for (size_t i = 0; i < refs_.size(); ++i) order_[i] = refs_[i].id;
+    order_.resize(n_refs_);
+    for (size_t i = 0; i < n_refs_; ++i) order_[i] = refs_[i].id;
+    refs_.reset();
     return true;
   }
+
+  // The binary tree (root at 0; children of an interior node side by side), valid after run().
+  const BvhNode* nodes() const { return node_store_.get(); }
+  size_t node_count() const { return next_node_.load(); }
 
   size_t max_depth() const { return max_depth_.load(); }
 
  private:
   // Triangle tests of a leaf of n triangles (n / block rounded up: a partial block costs a whole one).
-  float tests(uint32_t n) const { return static_cast<float>((n + block_ - 1) / block_); }
+  float tests(uint32_t n) const {
+    return static_cast<float>(block_shift_ >= 0 ? (n + block_ - 1) >> block_shift_ : (n + block_ - 1) / block_);
+  }
 
   bool cancelled() const { return opt_.cancel && opt_.cancel->load(std::memory_order_relaxed); }
 
+  // Threads that share the work on one node of n triangles at `depth`: only near the root,
+  // where fewer subtrees than threads are being built at once.
+  int chunk_count(uint32_t n, int depth) const {
+    const int idle = depth < 30 ? std::max(1, hw_ >> depth) : 1;
+    return std::max(1, std::min<int>(idle, static_cast<int>(n / kChunkMin)));
+  }
+
   void range_bounds(uint32_t begin, uint32_t end, Aabb& bounds, Aabb& cbounds) const {
-    bounds = cbounds = Aabb();
+    BoxAcc b, cb;
     for (uint32_t i = begin; i < end; ++i) {
-      bounds.grow(Aabb{refs_[i].lo, refs_[i].hi});
-      cbounds.grow(refs_[i].centroid());
+      b.grow(refs_[i].vlo(), refs_[i].vhi());
+      const V4 c = refs_[i].centroid();
+      cb.grow(c, c);
     }
+    bounds = b.aabb();
+    cbounds = cb.aabb();
   }
 
   void make_leaf(BvhNode& node, uint32_t begin, uint32_t end) {
@@ -115,7 +266,7 @@ class Builder {
     size_t d = max_depth_.load();
     while (size_t(depth) > d && !max_depth_.compare_exchange_weak(d, size_t(depth))) {}
 
-    BvhNode& node = nodes_[node_index];
+    BvhNode& node = node_store_[node_index];
     node.lo = bounds.lo;
     node.hi = bounds.hi;
     const uint32_t n = end - begin;
@@ -145,6 +296,21 @@ class Builder {
     return true;
   }
 
+  // All three axes binned in one pass over refs_[begin, end).
+  void bin_range(uint32_t begin, uint32_t end, V4 lo, V4 scale, V4 top, BinSet& bins) const {
+    alignas(16) int idx[4];
+    for (uint32_t i = begin; i < end; ++i) {
+      const PrimRef& r = refs_[i];
+      const V4 l = r.vlo(), h = r.vhi();
+      (l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx);
+      for (int a = 0; a < 3; ++a) {
+        bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
+        bins.hi[a][idx[a]] = vmax(bins.hi[a][idx[a]], h);
+        bins.count[a][idx[a]]++;
+      }
+    }
+  }
+
   // Fills `sp` and returns true, or returns false when a leaf is cheaper (and allowed).
   bool split(const Aabb& bounds, const Aabb& cbounds, uint32_t begin, uint32_t end, int depth, Split& sp) {
     const uint32_t n = end - begin;
@@ -157,48 +323,89 @@ class Builder {
       return split_by_count(begin, end, sp);
     }
     const int B = opt_.bins;
-    // All three axes binned in one pass over the triangles.
-    Bin bins[3][kMaxBins];
     float scale[3], lo[3];
     for (int axis = 0; axis < 3; ++axis) {
       scale[axis] = ext[axis] > 0.0f ? B / ext[axis] : 0.0f;
       lo[axis] = cbounds.lo[axis];
     }
-    for (uint32_t i = begin; i < end; ++i) {
-      const PrimRef& r = refs_[i];
-      const Vec3 c = r.centroid();
-      const Aabb pb{r.lo, r.hi};
-      for (int axis = 0; axis < 3; ++axis) {
-        Bin& bin = bins[axis][bin_of(c[axis], lo[axis], scale[axis], B)];
-        bin.count++;
-        bin.bounds.grow(pb);
-        bin.cbounds.grow(c);
+    const V4 vlo = V4::set(lo[0], lo[1], lo[2]), vscale = V4::set(scale[0], scale[1], scale[2]);
+    const V4 top = V4::set1(float(B - 1));
+    BinSet bins;
+    int used[3][kMaxBins], n_used[3] = {0, 0, 0};  // the non-empty bins of each axis, in order
+    const int chunks = chunk_count(n, depth);
+    if (n <= kSmallNode) {
+      // Small nodes (most of them) touch few bins: only those are cleared and listed.
+      alignas(16) int idx[kSmallNode][4];
+      uint64_t mask[3] = {0, 0, 0};
+      for (uint32_t i = 0; i < n; ++i) {
+        refs_[begin + i].centroid().bins(vlo, vscale, top, idx[i]);
+        for (int a = 0; a < 3; ++a) mask[a] |= uint64_t(1) << idx[i][a];
       }
+      for (int a = 0; a < 3; ++a)
+        for (uint64_t m = mask[a]; m; m &= m - 1) {
+          const int b = __builtin_ctzll(m);
+          bins.lo[a][b] = V4::set1(kInf);
+          bins.hi[a][b] = V4::set1(-kInf);
+          bins.count[a][b] = 0;
+          used[a][n_used[a]++] = b;
+        }
+      for (uint32_t i = 0; i < n; ++i) {
+        const V4 l = refs_[begin + i].vlo(), h = refs_[begin + i].vhi();
+        for (int a = 0; a < 3; ++a) {
+          bins.lo[a][idx[i][a]] = vmin(bins.lo[a][idx[i][a]], l);
+          bins.hi[a][idx[i][a]] = vmax(bins.hi[a][idx[i][a]], h);
+          bins.count[a][idx[i][a]]++;
+        }
+      }
+    } else if (chunks == 1) {
+      bins.reset(B);
+      bin_range(begin, end, vlo, vscale, top, bins);
+    } else {
+      // Chunks merged in a fixed order: min, max and counts give the same bins in any order anyway.
+      std::vector<BinSet> part(chunks);
+      run_chunks(chunks, [&](int c) {
+        part[c].reset(B);
+        bin_range(begin + uint32_t(uint64_t(n) * c / chunks), begin + uint32_t(uint64_t(n) * (c + 1) / chunks), vlo,
+                  vscale, top, part[c]);
+      });
+      bins.reset(B);
+      for (const BinSet& p : part) bins.merge(p, B);
     }
+    if (n > kSmallNode)
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < B; ++b)
+          if (bins.count[a][b]) used[a][n_used[a]++] = b;
+    // Planes are evaluated between non-empty bins only: the planes inside a run of empty bins
+    // all split the triangles alike and cost the same, and the first of them (the one taken
+    // before) is the one right after the non-empty bin. Small nodes have few non-empty bins.
     float best_cost = kInf;
     int best_axis = -1, best_bin = 0;
     for (int axis = 0; axis < 3; ++axis) {
       if (ext[axis] <= 0.0f) continue;
-      // Sweep from the right, then from the left, evaluating every plane between bins.
+      const int* used_bins = used[axis];
+      const int m = n_used[axis];
+      // Sweep from the right, then from the left.
       float right_cost[kMaxBins];
-      Aabb acc;
+      V4 alo = V4::set1(kInf), ahi = V4::set1(-kInf);
       uint32_t cnt = 0;
-      for (int b = B - 1; b > 0; --b) {
-        acc.grow(bins[axis][b].bounds);
-        cnt += bins[axis][b].count;
-        right_cost[b] = cnt ? acc.half_area() * tests(cnt) : 0.0f;
+      for (int j = m - 1; j > 0; --j) {
+        alo = vmin(alo, bins.lo[axis][used_bins[j]]);
+        ahi = vmax(ahi, bins.hi[axis][used_bins[j]]);
+        cnt += bins.count[axis][used_bins[j]];
+        right_cost[j] = half_area(alo, ahi) * tests(cnt);
       }
-      acc = Aabb();
+      alo = V4::set1(kInf);
+      ahi = V4::set1(-kInf);
       cnt = 0;
-      for (int b = 0; b < B - 1; ++b) {
-        acc.grow(bins[axis][b].bounds);
-        cnt += bins[axis][b].count;
-        if (cnt == 0 || cnt == n) continue;
-        const float cost = acc.half_area() * tests(cnt) + right_cost[b + 1];
+      for (int j = 0; j < m - 1; ++j) {
+        alo = vmin(alo, bins.lo[axis][used_bins[j]]);
+        ahi = vmax(ahi, bins.hi[axis][used_bins[j]]);
+        cnt += bins.count[axis][used_bins[j]];
+        const float cost = half_area(alo, ahi) * tests(cnt) + right_cost[j + 1];
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = axis;
-          best_bin = b + 1;
+          best_bin = used_bins[j] + 1;
         }
       }
     }
@@ -210,28 +417,54 @@ class Builder {
       if (n <= uint32_t(opt_.max_leaf_size)) return false;
       return split_by_count(begin, end, sp);  // no useful plane and too many for a leaf
     }
+    // Partition in place, collecting both sides' centroid boxes on the way (the triangle boxes
+    // come from the bins).
     const int ax = best_axis;
-    auto it = std::partition(refs_.begin() + begin, refs_.begin() + end, [&](const PrimRef& r) {
-      return bin_of(r.centroid()[ax], lo[ax], scale[ax], B) < best_bin;
-    });
-    sp.mid = static_cast<uint32_t>(it - refs_.begin());
-    if (sp.mid == begin || sp.mid == end) return split_by_count(begin, end, sp);
-    sp.lb = sp.lcb = sp.rb = sp.rcb = Aabb();
-    for (int b = 0; b < B; ++b) {
-      (b < best_bin ? sp.lb : sp.rb).grow(bins[ax][b].bounds);
-      (b < best_bin ? sp.lcb : sp.rcb).grow(bins[ax][b].cbounds);
+    alignas(16) float c4[4];
+    BoxAcc lcb, rcb;
+    const auto left_side = [&](const PrimRef& r, BoxAcc& lacc, BoxAcc& racc) {
+      const V4 c = r.centroid();
+      c.store(c4);
+      const bool left = bin_of(c4[ax], lo[ax], scale[ax], B) < best_bin;
+      (left ? lacc : racc).grow(c, c);
+      return left;
+    };
+    uint32_t i = begin, j = end;
+    for (;;) {
+      while (i < j && left_side(refs_[i], lcb, rcb)) ++i;
+      while (i < j && !left_side(refs_[j - 1], lcb, rcb)) --j;
+      if (i >= j) break;
+      // refs_[i] belongs right and refs_[j - 1] left: both were counted; swap and step over them.
+      std::swap(refs_[i], refs_[j - 1]);
+      ++i;
+      --j;
     }
+    sp.mid = i;
+    if (sp.mid == begin || sp.mid == end) return split_by_count(begin, end, sp);
+    BoxAcc lb, rb;
+    for (int k = 0; k < n_used[ax]; ++k) {
+      const int b = used[ax][k];
+      (b < best_bin ? lb : rb).grow(bins.lo[ax][b], bins.hi[ax][b]);
+    }
+    sp.lb = lb.aabb();
+    sp.rb = rb.aabb();
+    sp.lcb = lcb.aabb();
+    sp.rcb = rcb.aabb();
     return true;
   }
 
   BvhBuildOptions opt_;
-  std::vector<BvhNode>& nodes_;
   std::vector<uint32_t>& order_;
-  std::vector<PrimRef> refs_;
+  std::unique_ptr<PrimRef[], FreeRaw> refs_;
+  size_t n_refs_ = 0;
+  std::unique_ptr<BvhNode[], FreeRaw> node_store_;  // up to 2n - 1 nodes; those used are all written
+  Aabb root_bounds_, root_cbounds_;
   std::atomic<uint32_t> next_node_{1};
   std::atomic<size_t> max_depth_{0};
   int parallel_depth_ = 0;
+  int hw_ = 1;
   uint32_t block_ = 1;
+  int block_shift_ = -1;  // log2(block_) when it is a power of two
 };
 
 // Slab test; returns the entry distance or +inf on a miss.
@@ -249,16 +482,20 @@ inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3& inv, 
 // Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
 // children and keeps opening its largest interior child (the one most rays enter) until it
 // has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
-// the binary leaves, so triangles and their order are shared.
+// the binary leaves; `tris` is the build's input, reached through prim_ids (leaf order).
 // Leaves become runs of TriangleBlock4s, emitted in the order the collapse reaches them.
 template <int N>
-void collapse(const std::vector<BvhNode>& bin, const std::vector<TriangleVerts>& tris,
+void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>& tris,
               const std::vector<uint32_t>& prim_ids, std::vector<WideBvhNode<N>>& out,
               std::vector<TriangleBlock4>& blocks, std::vector<uint32_t>& block_prims) {
   out.clear();
   blocks.clear();
   block_prims.clear();
-  out.reserve(bin.size() / (N - 1) + 1);
+  out.reserve(n_bin / (N - 1) + 1);
+  size_t n_blocks = 0;  // exact sizes: no regrowth, nothing for shrink_to_fit to copy
+  for (size_t i = 0; i < n_bin; ++i) n_blocks += (bin[i].count + 3) / 4;
+  blocks.reserve(n_blocks);
+  block_prims.reserve(4 * n_blocks);
   struct Item {
     uint32_t bin, wide;
   };
@@ -308,7 +545,7 @@ void collapse(const std::vector<BvhNode>& bin, const std::vector<TriangleVerts>&
             TriangleBlock4 blk;
             for (uint32_t l = 0; l < 4; ++l) {
               const bool used = b + l < c.count;
-              const TriangleVerts& tv = tris[c.left_or_first + (used ? b + l : 0)];
+              const TriangleVerts& tv = tris[prim_ids[c.left_or_first + (used ? b + l : 0)]];
               const Vec3* v[3] = {&tv.v0, &tv.v1, &tv.v2};
               for (int r = 0; r < 9; ++r) blk.v[r][l] = used ? (*v[r / 3])[r % 3] : std::nanf("");
               block_prims.push_back(used ? prim_ids[c.left_or_first + b + l] : UINT32_MAX);
@@ -383,26 +620,38 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
   if (opt.leaf_block <= 0) opt.leaf_block = layout == BvhLayout::Binary ? 1 : 4;
   const auto cancelled = [&] { return opt.cancel && opt.cancel->load(); };
   if (tris.empty()) return !cancelled();
-  Builder builder(tris, opt, nodes_, prim_ids_);
+  Builder builder(tris, opt, prim_ids_);
   if (!builder.run()) {
     clear();
     return false;
   }
-  tris_.resize(prim_ids_.size());
-  for (size_t i = 0; i < prim_ids_.size(); ++i) tris_[i] = tris[prim_ids_[i]];
+  const BvhNode* bin = builder.nodes();
+  const size_t n_bin = builder.node_count();
+  if (layout == BvhLayout::Binary) {  // kept; the wide layouts copy the triangles into their blocks instead
+    nodes_.assign(bin, bin + n_bin);
+    tris_.resize(prim_ids_.size());
+    for (size_t i = 0; i < prim_ids_.size(); ++i) tris_[i] = tris[prim_ids_[i]];
+  }
 
-  bounds_ = {nodes_[0].lo, nodes_[0].hi};
-  stats_.nodes = nodes_.size();
+  bounds_ = {bin[0].lo, bin[0].hi};
+  stats_.nodes = n_bin;
   stats_.max_depth = builder.max_depth();
   const float root_area = std::max(bounds_.half_area(), 1e-30f);
+  // Summed in tree order: subtrees built in parallel place their nodes in an order that depends
+  // on thread timing, and the sum must not.
   double cost = 0.0;
-  for (const BvhNode& n : nodes_) {
+  std::vector<uint32_t> stack{0};
+  while (!stack.empty()) {
+    const BvhNode& n = bin[stack.back()];
+    stack.pop_back();
     const double rel = Aabb{n.lo, n.hi}.half_area() / root_area;
     if (n.is_leaf()) {
       stats_.leaves++;
       cost += rel * n.count;
     } else {
       cost += rel * opt.traversal_cost;
+      stack.push_back(n.left_or_first + 1);
+      stack.push_back(n.left_or_first);
     }
   }
   stats_.sah_cost = cost;
@@ -410,13 +659,11 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
     clear();
     return false;
   }
-  if (layout == BvhLayout::Wide4) collapse<4>(nodes_, tris_, prim_ids_, nodes4_, blocks_, block_prims_);
-  if (layout == BvhLayout::Wide8) collapse<8>(nodes_, tris_, prim_ids_, nodes8_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide4) collapse<4>(bin, n_bin, tris, prim_ids_, nodes4_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide8) collapse<8>(bin, n_bin, tris, prim_ids_, nodes8_, blocks_, block_prims_);
   if (layout != BvhLayout::Binary) {
-    // The wide tree and its triangle blocks replace the binary tree and its triangle arrays.
+    // The wide tree and its triangle blocks replace the binary tree and the leaf order.
     stats_.wide_nodes = layout == BvhLayout::Wide4 ? nodes4_.size() : nodes8_.size();
-    std::vector<BvhNode>().swap(nodes_);
-    std::vector<TriangleVerts>().swap(tris_);
     std::vector<uint32_t>().swap(prim_ids_);
   }
   triangles_ = tris.size();

@@ -141,10 +141,48 @@ struct PyScene {
   }
 };
 
-uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& triangles, const py::object& normals,
+// An index array read in place when it is C-contiguous int32 (what the add-on exports), so a
+// million-triangle mesh is not first converted to int64; any other integer array is converted.
+class IndexArray {
+ public:
+  IndexArray(const py::handle& h, const char* what) {
+    if (py::isinstance<py::array_t<int32_t>>(h)) {
+      const auto a = py::reinterpret_borrow<py::array>(h);
+      if (a.flags() & py::array::c_style) {
+        i32_ = py::reinterpret_borrow<py::array_t<int32_t>>(h);
+        arr_ = i32_;
+        is_i32_ = true;
+        return;
+      }
+    }
+    try {
+      i64_ = h.cast<IntArray>();
+    } catch (const py::cast_error&) {
+      throw std::invalid_argument(std::string(what) + " must be an integer array");
+    }
+    arr_ = i64_;
+  }
+  int ndim() const { return int(arr_.ndim()); }
+  size_t shape(int i) const { return size_t(arr_.shape(i)); }
+  // fn(pointer) with a pointer to the int32 or int64 data: loops without a branch per element.
+  template <class F>
+  void visit(F&& fn) const {
+    if (is_i32_) fn(static_cast<const int32_t*>(i32_.data()));
+    else fn(static_cast<const int64_t*>(i64_.data()));
+  }
+
+ private:
+  py::array arr_;
+  py::array_t<int32_t> i32_;  // (a default-constructed array_t is an empty array, not null)
+  IntArray i64_;
+  bool is_i32_ = false;
+};
+
+uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
                   const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
-                  const py::object& texspace) {
+                  const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices) {
   self.check_editable();
+  const IndexArray triangles(triangles_obj, "triangles");
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
   if (triangles.ndim() != 2 || triangles.shape(1) != 3) throw std::invalid_argument("triangles must have shape (T, 3)");
   const size_t nv = size_t(positions.shape(0)), nt = size_t(triangles.shape(0));
@@ -153,30 +191,65 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const IntArray& tr
   mesh.positions.resize(nv);
   if (nv) std::memcpy(static_cast<void*>(mesh.positions.data()), positions.data(), nv * sizeof(Vec3));
   mesh.triangles.resize(nt);
-  const int64_t* tri = triangles.data();
-  for (size_t i = 0; i < nt * 3; ++i) {
-    if (tri[i] < 0 || size_t(tri[i]) >= nv)
-      throw std::invalid_argument("triangle index " + std::to_string(tri[i]) + " out of range for " +
-                                  std::to_string(nv) + " vertices");
-    mesh.triangles[i / 3][i % 3] = uint32_t(tri[i]);
-  }
+  // Copies (T, 3) indices into `out`, checking each is in [0, n).
+  const auto copy_indices = [](const IndexArray& idx, size_t count, size_t n, const char* what, auto& out) {
+    idx.visit([&](const auto* p) {
+      for (size_t i = 0; i < count; ++i)
+        for (int k = 0; k < 3; ++k) {
+          const int64_t v = int64_t(p[3 * i + k]);
+          if (v < 0 || uint64_t(v) >= n)
+            throw std::invalid_argument(std::string(what) + " index " + std::to_string(v) + " out of range for " +
+                                        std::to_string(n) + (what[0] == 't' ? " vertices" : " normals"));
+          out[i][k] = uint32_t(v);
+        }
+    });
+  };
+  copy_indices(triangles, nt, nv, "triangle", mesh.triangles);
+  if (!normals.is_none() && !shared_normals.is_none())
+    throw std::invalid_argument("give corner_normals or normals with normal_indices, not both");
   if (!normals.is_none()) {
     const auto n = normals.cast<FloatArray>();
     if (n.ndim() != 3 || size_t(n.shape(0)) != nt || n.shape(1) != 3 || n.shape(2) != 3)
       throw std::invalid_argument("corner_normals must have shape (T, 3, 3)");
     mesh.corner_normals.resize(nt * 3);
     if (nt) std::memcpy(static_cast<void*>(mesh.corner_normals.data()), n.data(), nt * 3 * sizeof(Vec3));
+  } else if (!shared_normals.is_none()) {
+    // Corner k of triangle t gets normals[normal_indices[t, k]]: per-vertex, per-face or
+    // per-corner normals are expanded here rather than in numpy.
+    const auto n = shared_normals.cast<FloatArray>();
+    if (n.ndim() != 2 || n.shape(1) != 3) throw std::invalid_argument("normals must have shape (N, 3)");
+    if (normal_indices.is_none()) throw std::invalid_argument("normals need normal_indices");
+    const IndexArray ni(normal_indices, "normal_indices");
+    if (ni.ndim() != 2 || ni.shape(0) != nt || ni.shape(1) != 3)
+      throw std::invalid_argument("normal_indices must have shape (T, 3)");
+    const size_t nn = size_t(n.shape(0));
+    const Vec3* src = reinterpret_cast<const Vec3*>(n.data());
+    mesh.corner_normals.resize(nt * 3);
+    Vec3* dst = mesh.corner_normals.data();
+    ni.visit([&](const auto* p) {
+      for (size_t i = 0; i < 3 * nt; ++i) {
+        const int64_t v = int64_t(p[i]);
+        if (v < 0 || uint64_t(v) >= nn)
+          throw std::invalid_argument("normal index " + std::to_string(v) + " out of range for " + std::to_string(nn) +
+                                      " normals");
+        dst[i] = src[v];
+      }
+    });
+  } else if (!normal_indices.is_none()) {
+    throw std::invalid_argument("normal_indices need normals");
   }
   std::vector<uint32_t> slot_ids;
   for (int64_t s : slots) slot_ids.push_back(s >= 0 && s <= INT32_MAX ? uint32_t(s) : 0u);
   mesh.materials.assign(nt, slot_ids.empty() ? 0u : slot_ids[0]);
   if (!material_indices.is_none()) {
-    const auto mi = material_indices.cast<IntArray>();
-    if (mi.ndim() != 1 || size_t(mi.shape(0)) != nt)
-      throw std::invalid_argument("material_indices must have shape (T,)");
-    const int64_t* p = mi.data();
-    for (size_t i = 0; i < nt; ++i)
-      mesh.materials[i] = p[i] >= 0 && size_t(p[i]) < slot_ids.size() ? slot_ids[size_t(p[i])] : 0u;
+    const IndexArray mi(material_indices, "material_indices");
+    if (mi.ndim() != 1 || mi.shape(0) != nt) throw std::invalid_argument("material_indices must have shape (T,)");
+    mi.visit([&](const auto* p) {
+      for (size_t i = 0; i < nt; ++i) {
+        const int64_t v = int64_t(p[i]);
+        mesh.materials[i] = v >= 0 && uint64_t(v) < slot_ids.size() ? slot_ids[size_t(v)] : 0u;
+      }
+    });
   }
   for (const auto& item : uvs) {
     const int64_t k = item.first.cast<int64_t>();
@@ -937,7 +1010,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
-           py::arg("uvs") = py::dict(), py::arg("texspace") = py::none())
+           py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
+           py::arg("normal_indices") = py::none())
       .def(
           "add_image",
           [](PyScene& self, const FloatArray& pixels, bool srgb) {
