@@ -191,8 +191,8 @@ def spherical_configs():
         out.append((np.array([2.0, 0.5, h]), base))
     for d in (1e2, 3e2, 1e3):  # tiny solid angles
         out.append((np.array([0.3, 0.3, d]), base))
-    for h in (1e-3, 1e-2, 0.05):  # over the middle: close to a hemisphere
-        out.append((np.array([0.4, 0.3, h]), base * 50 - 20))
+    for h in (1e-3, 1e-2, 0.05, 0.5):  # over the middle of a big one: 6.28 to 6.11 sr
+        out.append((np.array([0.4, 0.3, h]), base * 50 - [20, 20, 0]))
     out.append((np.array([0.5, 0.0, 0.5]), np.array([[0, 0, 0], [1, 0, 0], [0.5, 1e-3, 0]])))  # needle
     return [(np.float32(p), np.float32(t)) for p, t in out]
 
@@ -209,6 +209,10 @@ def test_spherical_triangle_solid_angle_matches_double_reference():
         worst[ref > 1e-6] = max(worst[ref > 1e-6], abs(omega - ref) / ref)
     assert worst[True] < 1e-10, worst
     assert worst[False] < 1e-4, worst
+    # Uniforms outside [0, 1) or NaN give no sample rather than undefined behaviour.
+    p, tri = spherical_configs()[-3]
+    _, _, ok = pc.spherical_triangle_sample(tuple(map(float, p)), tri, np.float32([[np.nan, 0.5], [-1.0, 0.5], [0.5, 0.5]]))
+    assert ok.tolist() == [False, False, True]
 
 
 @pytest.mark.parametrize("case", ["near", "far", "needle", "edge_on", "hemisphere"])
@@ -219,7 +223,7 @@ def test_spherical_triangle_samples_are_uniform_in_solid_angle(case):
         "far": ([0.3, 0.3, 40.0], base),         # about 3e-4 sr: just above the area-sampling switch
         "needle": ([0.5, 0.0, 0.5], np.array([[0, 0, 0], [1, 0, 0], [0.5, 1e-3, 0]])),
         "edge_on": ([2.0, 0.5, 1e-2], base),
-        "hemisphere": ([0.4, 0.3, 0.05], base * 50 - 20),
+        "hemisphere": ([0.4, 0.3, 0.5], base * 50 - [20, 20, 0]),  # 6.11 sr (spherical up to 6.2)
     }[case]
     p, tri = np.float32(p), np.float32(tri)
     n = 256
@@ -519,6 +523,66 @@ def test_compensated_environment_sampling_has_low_variance():
 
 def rmse(a, b):
     return float(np.sqrt(((a[..., :3] - b[..., :3]) ** 2).mean()))
+
+
+M32, M64 = (1 << 32) - 1, (1 << 64) - 1
+
+
+def _mix64(x):
+    x ^= x >> 33
+    x = (x * 0xFF51AFD7ED558CCD) & M64
+    x ^= x >> 33
+    x = (x * 0xC4CEB9FE1A85EC53) & M64
+    return x ^ (x >> 33)
+
+
+def _rev(x):
+    return int(f"{x:032b}"[::-1], 2)
+
+
+def _laine_karras(x, seed):
+    x = (x + seed) & M32
+    for k in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6):
+        x ^= (x * k) & M32
+    return x
+
+
+def _nested_uniform_scramble(v, seed):
+    return _rev(_laine_karras(_rev(v), seed))
+
+
+def _sobol_dim1(index):
+    d, r = 1 << 31, 0
+    for i in range(32):
+        if index >> i & 1:
+            r ^= d
+        d ^= d >> 1
+    return r
+
+
+def sobol_reference(seed, pixel, sample, dims):
+    """The sampler's Owen-scrambled Sobol draws, written out in Python integers from the
+    definitions (Burley 2020), not from the core's shortcuts (byte tables, shuffle reversals)."""
+    base = _mix64(((seed * 0x9E3779B97F4A7C15) & M64) ^ _mix64((pixel + 0x632BE59BD9B4E019) & M64)
+                  ^ _mix64(0x5EED ^ 0x8CB92BA72F3D8DD7))
+    out = []
+    for dim in range(dims):
+        h = _mix64(base ^ ((dim * 0x9E3779B97F4A7C15) & M64))
+        index = _nested_uniform_scramble(sample, h & M32)  # the shuffled sample index
+        x = _nested_uniform_scramble(_rev(index), h >> 32)  # dimension 0: van der Corput
+        y = _nested_uniform_scramble(_sobol_dim1(index), _mix64(h) >> 32)
+        out.append(((x >> 8) * 2.0**-24, (y >> 8) * 2.0**-24))
+    return np.array(out, np.float32)
+
+
+def test_sobol_sampler_matches_its_definition_bit_for_bit():
+    rng = np.random.default_rng(11)
+    cases = [(0, 0, 0), (1, 5, 1), (7, 123456, 1023), (2**32 - 1, 2**40 + 3, 2**31 + 5)]
+    cases += [tuple(int(v) for v in (rng.integers(0, 2**32), rng.integers(0, 2**48), rng.integers(0, 2**32)))
+              for _ in range(40)]
+    for seed, pixel, sample in cases:
+        got = pc.sampler_values(seed, pixel, sample, 16)  # the Sobol dimensions (PCG32 after them)
+        np.testing.assert_array_equal(got, sobol_reference(seed, pixel, sample, 16), err_msg=str((seed, pixel, sample)))
 
 
 def test_sobol_converges_faster_than_random():

@@ -807,6 +807,23 @@ PYBIND11_MODULE(pathlight_core, m) {
       "The solid angle a triangle (3 x 3 corners) subtends at p, and the directions the light "
       "sampler draws in it for u (N x 2): (solid_angle, dirs, ok). Exposed for tests.");
 
+  m.def(
+      "sampler_values",
+      [](uint32_t seed, uint64_t pixel, uint32_t sample, int dims) {
+        if (dims < 0 || dims > 1024) throw std::invalid_argument("dims must be in [0, 1024]");
+        Sampler sampler(SamplerType::Sobol, seed, pixel, sample);
+        py::array_t<float> out({py::ssize_t(dims), py::ssize_t(2)});
+        for (int d = 0; d < dims; ++d) {
+          const Vec2 u = sampler.get2d();
+          out.mutable_data()[2 * d] = u.x;
+          out.mutable_data()[2 * d + 1] = u.y;
+        }
+        return out;
+      },
+      py::arg("seed"), py::arg("pixel"), py::arg("sample"), py::arg("dims"),
+      "The first `dims` 2-D draws of the Sobol sampler for (seed, pixel, sample): (dims, 2). "
+      "Exposed for tests.");
+
   py::class_<CameraDesc>(m, "Camera")
       .def(py::init<>())
       .def_property(

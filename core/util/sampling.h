@@ -178,8 +178,9 @@ inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3&
   // The sub-triangle (a, b, c') of area u.x * A, with c' on the arc from a to c: its area plus pi
   // is alpha + beta + gamma', and phi = A' - alpha below.
   const double sub = double(u.x) * t.solid_angle;
+  if (!(sub >= 0.0 && sub <= 2.0 * kPi)) return false;  // u outside [0, 1] (or NaN)
   double sin_sub, cos_sub;
-  sincos_nonneg(sub, sin_sub, cos_sub);  // sub < 2 pi
+  sincos_nonneg(sub, sin_sub, cos_sub);
   // sin/cos of (A' + pi) - alpha, using sin(A' + pi) = -sin A', cos(A' + pi) = -cos A'.
   const double sin_phi = -sin_sub * cos_alpha + cos_sub * sin_alpha;
   const double cos_phi = -cos_sub * cos_alpha - sin_sub * sin_alpha;
