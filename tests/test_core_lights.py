@@ -209,7 +209,8 @@ def test_spherical_triangle_solid_angle_matches_double_reference():
         worst[ref > 1e-6] = max(worst[ref > 1e-6], abs(omega - ref) / ref)
     assert worst[True] < 1e-10, worst
     assert worst[False] < 1e-4, worst
-    # Uniforms outside [0, 1) or NaN give no sample rather than undefined behaviour.
+    # Uniforms outside [0, 1] or NaN (never drawn by the renderer) give no sample, not undefined
+    # behaviour.
     p, tri = spherical_configs()[-3]
     _, _, ok = pc.spherical_triangle_sample(tuple(map(float, p)), tri, np.float32([[np.nan, 0.5], [-1.0, 0.5], [0.5, 0.5]]))
     assert ok.tolist() == [False, False, True]

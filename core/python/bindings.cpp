@@ -795,7 +795,10 @@ PYBIND11_MODULE(pathlight_core, m) {
         const float* pu = u.data();
         for (py::ssize_t i = 0; i < n; ++i) {
           DVec3 d;
-          const bool good = sample_spherical_triangle(st, {pu[2 * i], pu[2 * i + 1]}, d);
+          const float ux = pu[2 * i], uy = pu[2 * i + 1];
+          // The sampler's contract (the renderer's uniforms always keep it): u in [0, 1]^2.
+          const bool in_range = ux >= 0.0f && ux <= 1.0f && uy >= 0.0f && uy <= 1.0f;
+          const bool good = in_range && sample_spherical_triangle(st, {ux, uy}, d);
           ok.mutable_data()[i] = good;
           dirs.mutable_data()[3 * i] = good ? d.x : 0.0;
           dirs.mutable_data()[3 * i + 1] = good ? d.y : 0.0;

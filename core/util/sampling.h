@@ -162,7 +162,7 @@ inline SphericalTriangle spherical_triangle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2) {
   return t;
 }
 
-// A unit direction (to rounding) uniform over the triangle's solid angle, for u in [0,1)^2
+// A unit direction (to rounding) uniform over the triangle's solid angle, for u in [0,1]^2
 // (Arvo's inversion, with the angle at corner a from the edge planes' normals: one sincos and
 // one atan2 in all, both inline).
 // False when the triangle is degenerate as seen from the point.
@@ -178,9 +178,8 @@ inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3&
   // The sub-triangle (a, b, c') of area u.x * A, with c' on the arc from a to c: its area plus pi
   // is alpha + beta + gamma', and phi = A' - alpha below.
   const double sub = double(u.x) * t.solid_angle;
-  if (!(sub >= 0.0 && sub <= 2.0 * kPi)) return false;  // u outside [0, 1] (or NaN)
   double sin_sub, cos_sub;
-  sincos_nonneg(sub, sin_sub, cos_sub);
+  sincos_nonneg(sub, sin_sub, cos_sub);  // u.x in [0, 1], so 0 <= sub <= 2 pi
   // sin/cos of (A' + pi) - alpha, using sin(A' + pi) = -sin A', cos(A' + pi) = -cos A'.
   const double sin_phi = -sin_sub * cos_alpha + cos_sub * sin_alpha;
   const double cos_phi = -cos_sub * cos_alpha - sin_sub * sin_alpha;
