@@ -169,6 +169,93 @@ def test_solid_angle_sampling_lowers_variance_near_a_triangle_light():
     assert np.median(rel_var[True]) < 0.5 * np.median(rel_var[False])
 
 
+def solid_angle_ref(p, tri):
+    """Van Oosterom & Strackee in numpy float64 (libm's arctan2), from the same float32 inputs."""
+    a, b, c = (np.asarray(v, np.float64) - np.asarray(p, np.float64) for v in tri)
+    a, b, c = (v / np.linalg.norm(v) for v in (a, b, c))
+    triple = abs(np.dot(a, np.cross(b, c)))
+    return 2.0 * np.arctan2(triple, 1.0 + a @ b + b @ c + c @ a)
+
+
+def spherical_configs():
+    """(point, triangle) pairs: random ones from 1e-7 sr to nearly a hemisphere, and near-degenerate
+    ones (nearly edge-on, tiny and far, needles)."""
+    rng = np.random.default_rng(7)
+    out = []
+    for _ in range(300):
+        tri = rng.uniform(-1, 1, (3, 3)) * 10.0 ** rng.uniform(-3, 1)
+        p = rng.uniform(-1, 1, 3) * 10.0 ** rng.uniform(-2, 3)
+        out.append((p, tri))
+    base = np.array([[0, 0, 0], [1, 0, 0], [0.3, 1, 0]], np.float64)
+    for h in (1e-4, 1e-3, 1e-2):  # just above the plane, beside the triangle: nearly edge-on
+        out.append((np.array([2.0, 0.5, h]), base))
+    for d in (1e2, 3e2, 1e3):  # tiny solid angles
+        out.append((np.array([0.3, 0.3, d]), base))
+    for h in (1e-3, 1e-2, 0.05, 0.5):  # over the middle of a big one: 6.28 to 6.11 sr
+        out.append((np.array([0.4, 0.3, h]), base * 50 - [20, 20, 0]))
+    out.append((np.array([0.5, 0.0, 0.5]), np.array([[0, 0, 0], [1, 0, 0], [0.5, 1e-3, 0]])))  # needle
+    return [(np.float32(p), np.float32(t)) for p, t in out]
+
+
+def test_spherical_triangle_solid_angle_matches_double_reference():
+    # The core's solid angle uses its own inline atan (Cephes' rational fit), not libm's. Below
+    # 1e-6 sr (area sampling takes over at 2e-4) the triple product's cancellation, not the atan,
+    # sets the agreement: measured 4e-12 relative above 1e-6 sr, 2e-6 down to 5e-13 sr.
+    worst = {True: 0.0, False: 0.0}
+    for p, tri in spherical_configs():
+        omega, _, _ = pc.spherical_triangle_sample(tuple(map(float, p)), tri, np.zeros((0, 2), np.float32))
+        ref = solid_angle_ref(p, tri)
+        assert ref > 0.0
+        worst[ref > 1e-6] = max(worst[ref > 1e-6], abs(omega - ref) / ref)
+    assert worst[True] < 1e-10, worst
+    assert worst[False] < 1e-4, worst
+    # Uniforms outside [0, 1] or NaN (never drawn by the renderer) give no sample, not undefined
+    # behaviour.
+    p, tri = spherical_configs()[-3]
+    _, _, ok = pc.spherical_triangle_sample(tuple(map(float, p)), tri, np.float32([[np.nan, 0.5], [-1.0, 0.5], [0.5, 0.5]]))
+    assert ok.tolist() == [False, False, True]
+
+
+@pytest.mark.parametrize("case", ["near", "far", "needle", "edge_on", "hemisphere"])
+def test_spherical_triangle_samples_are_uniform_in_solid_angle(case):
+    base = np.array([[0, 0, 0], [1, 0, 0], [0.3, 1, 0]], np.float64)
+    p, tri = {
+        "near": ([0.4, 0.3, 0.3], base),
+        "far": ([0.3, 0.3, 40.0], base),         # about 3e-4 sr: just above the area-sampling switch
+        "needle": ([0.5, 0.0, 0.5], np.array([[0, 0, 0], [1, 0, 0], [0.5, 1e-3, 0]])),
+        "edge_on": ([2.0, 0.5, 1e-2], base),
+        "hemisphere": ([0.4, 0.3, 0.5], base * 50 - [20, 20, 0]),  # 6.11 sr (spherical up to 6.2)
+    }[case]
+    p, tri = np.float32(p), np.float32(tri)
+    n = 256
+    rng = np.random.default_rng(3)
+    g = (np.stack(np.meshgrid(np.arange(n), np.arange(n)), -1).reshape(-1, 2) + rng.random((n * n, 2))) / n
+    omega, dirs, ok = pc.spherical_triangle_sample(tuple(map(float, p)), tri, g.astype(np.float32))
+    assert ok.all()
+    assert np.abs(np.linalg.norm(dirs, axis=1) - 1).max() < 1e-12
+    # Where the directions meet the triangle's plane: barycentrics, all inside (to rounding).
+    p64, t64 = p.astype(np.float64), tri.astype(np.float64)
+    e1, e2 = t64[1] - t64[0], t64[2] - t64[0]
+    nrm = np.cross(e1, e2)
+    t = ((t64[0] - p64) @ nrm) / (dirs @ nrm)
+    assert (t > 0).all()
+    r = p64 + dirs * t[:, None] - t64[0]
+    b1 = (np.cross(r, e2) @ nrm) / (nrm @ nrm)
+    b2 = (np.cross(e1, r) @ nrm) / (nrm @ nrm)
+    assert min(b1.min(), b2.min(), (1 - b1 - b2).min()) > -1e-6
+    # Uniform in solid angle: the four midpoint sub-triangles get samples in proportion to the
+    # solid angles they subtend (5 sigma of a binomial count; the stratified grid does better).
+    m01, m12, m20 = (t64[0] + t64[1]) / 2, (t64[1] + t64[2]) / 2, (t64[2] + t64[0]) / 2
+    subs = [(t64[0], m01, m20), (m01, t64[1], m12), (m20, m12, t64[2]), (m01, m12, m20)]
+    b0 = 1 - b1 - b2
+    which = np.where(b0 > 0.5, 0, np.where(b1 > 0.5, 1, np.where(b2 > 0.5, 2, 3)))
+    assert abs(omega / solid_angle_ref(p, tri) - 1) < 1e-9
+    for k, sub in enumerate(subs):
+        f = solid_angle_ref(p64, sub) / omega
+        got = np.mean(which == k)
+        assert abs(got - f) < 5 * np.sqrt(f * (1 - f) / len(g)) + 1e-6, (k, got, f)
+
+
 # A rectangle light 25 cm above the plane: next to it, area sampling has the 1/r^2 tail that
 # spherical-rectangle sampling (uniform in solid angle) does not.
 NEAR_RECT_C, NEAR_RECT_SX, NEAR_RECT_SY, NEAR_RECT_L = np.array([0.3, 0.0, 0.25]), 1.2, 0.6, 4.0
@@ -437,6 +524,66 @@ def test_compensated_environment_sampling_has_low_variance():
 
 def rmse(a, b):
     return float(np.sqrt(((a[..., :3] - b[..., :3]) ** 2).mean()))
+
+
+M32, M64 = (1 << 32) - 1, (1 << 64) - 1
+
+
+def _mix64(x):
+    x ^= x >> 33
+    x = (x * 0xFF51AFD7ED558CCD) & M64
+    x ^= x >> 33
+    x = (x * 0xC4CEB9FE1A85EC53) & M64
+    return x ^ (x >> 33)
+
+
+def _rev(x):
+    return int(f"{x:032b}"[::-1], 2)
+
+
+def _laine_karras(x, seed):
+    x = (x + seed) & M32
+    for k in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6):
+        x ^= (x * k) & M32
+    return x
+
+
+def _nested_uniform_scramble(v, seed):
+    return _rev(_laine_karras(_rev(v), seed))
+
+
+def _sobol_dim1(index):
+    d, r = 1 << 31, 0
+    for i in range(32):
+        if index >> i & 1:
+            r ^= d
+        d ^= d >> 1
+    return r
+
+
+def sobol_reference(seed, pixel, sample, dims):
+    """The sampler's Owen-scrambled Sobol draws, written out in Python integers from the
+    definitions (Burley 2020), not from the core's shortcuts (byte tables, shuffle reversals)."""
+    base = _mix64(((seed * 0x9E3779B97F4A7C15) & M64) ^ _mix64((pixel + 0x632BE59BD9B4E019) & M64)
+                  ^ _mix64(0x5EED ^ 0x8CB92BA72F3D8DD7))
+    out = []
+    for dim in range(dims):
+        h = _mix64(base ^ ((dim * 0x9E3779B97F4A7C15) & M64))
+        index = _nested_uniform_scramble(sample, h & M32)  # the shuffled sample index
+        x = _nested_uniform_scramble(_rev(index), h >> 32)  # dimension 0: van der Corput
+        y = _nested_uniform_scramble(_sobol_dim1(index), _mix64(h) >> 32)
+        out.append(((x >> 8) * 2.0**-24, (y >> 8) * 2.0**-24))
+    return np.array(out, np.float32)
+
+
+def test_sobol_sampler_matches_its_definition_bit_for_bit():
+    rng = np.random.default_rng(11)
+    cases = [(0, 0, 0), (1, 5, 1), (7, 123456, 1023), (2**32 - 1, 2**40 + 3, 2**31 + 5)]
+    cases += [tuple(int(v) for v in (rng.integers(0, 2**32), rng.integers(0, 2**48), rng.integers(0, 2**32)))
+              for _ in range(40)]
+    for seed, pixel, sample in cases:
+        got = pc.sampler_values(seed, pixel, sample, 16)  # the Sobol dimensions (PCG32 after them)
+        np.testing.assert_array_equal(got, sobol_reference(seed, pixel, sample, 16), err_msg=str((seed, pixel, sample)))
 
 
 def test_sobol_converges_faster_than_random():

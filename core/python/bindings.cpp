@@ -853,6 +853,53 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("kind"), py::arg("params"), py::arg("wo"), py::arg("wi"),
       "Evaluates f * |cos(wi)| and the sampling pdf of a BSDF in its local frame.");
 
+  m.def(
+      "spherical_triangle_sample",
+      [](const py::object& p_obj, const FloatArray& tri, const FloatArray& u) {
+        if (tri.ndim() != 2 || tri.shape(0) != 3 || tri.shape(1) != 3)
+          throw std::invalid_argument("tri must have shape (3, 3)");
+        if (u.ndim() != 2 || u.shape(1) != 2) throw std::invalid_argument("u must have shape (N, 2)");
+        const Vec3 p = to_point(p_obj, "p");
+        const Vec3* v = reinterpret_cast<const Vec3*>(tri.data());
+        const SphericalTriangle st = spherical_triangle(p, v[0], v[1], v[2]);
+        const py::ssize_t n = u.shape(0);
+        py::array_t<double> dirs({n, py::ssize_t(3)});
+        py::array_t<bool> ok(n);
+        const float* pu = u.data();
+        for (py::ssize_t i = 0; i < n; ++i) {
+          DVec3 d;
+          const float ux = pu[2 * i], uy = pu[2 * i + 1];
+          // The sampler's contract (the renderer's uniforms always keep it): u in [0, 1]^2.
+          const bool in_range = ux >= 0.0f && ux <= 1.0f && uy >= 0.0f && uy <= 1.0f;
+          const bool good = in_range && sample_spherical_triangle(st, {ux, uy}, d);
+          ok.mutable_data()[i] = good;
+          dirs.mutable_data()[3 * i] = good ? d.x : 0.0;
+          dirs.mutable_data()[3 * i + 1] = good ? d.y : 0.0;
+          dirs.mutable_data()[3 * i + 2] = good ? d.z : 0.0;
+        }
+        return py::make_tuple(st.solid_angle, dirs, ok);
+      },
+      py::arg("p"), py::arg("tri"), py::arg("u"),
+      "The solid angle a triangle (3 x 3 corners) subtends at p, and the directions the light "
+      "sampler draws in it for u (N x 2): (solid_angle, dirs, ok). Exposed for tests.");
+
+  m.def(
+      "sampler_values",
+      [](uint32_t seed, uint64_t pixel, uint32_t sample, int dims) {
+        if (dims < 0 || dims > 1024) throw std::invalid_argument("dims must be in [0, 1024]");
+        Sampler sampler(SamplerType::Sobol, seed, pixel, sample);
+        py::array_t<float> out({py::ssize_t(dims), py::ssize_t(2)});
+        for (int d = 0; d < dims; ++d) {
+          const Vec2 u = sampler.get2d();
+          out.mutable_data()[2 * d] = u.x;
+          out.mutable_data()[2 * d + 1] = u.y;
+        }
+        return out;
+      },
+      py::arg("seed"), py::arg("pixel"), py::arg("sample"), py::arg("dims"),
+      "The first `dims` 2-D draws of the Sobol sampler for (seed, pixel, sample): (dims, 2). "
+      "Exposed for tests.");
+
   py::class_<CameraDesc>(m, "Camera")
       .def(py::init<>())
       .def_property(

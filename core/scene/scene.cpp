@@ -542,6 +542,21 @@ void Scene::detect_features() {
   features_ = f;
 }
 
+inline void Scene::triangle_point(const InstanceData& in, const TriangleVerts& tv, float b1, float b2, Vec3& p,
+                                  Vec3& p_error) {
+  const float b0 = 1.0f - b1 - b2;
+  // From barycentrics rather than org + t * dir: the error does not grow with the distance.
+  if (!in.transformed) {
+    p = tv.v0 * b0 + tv.v1 * b1 + tv.v2 * b2;
+    p_error = barycentric_error(tv.v0, tv.v1, tv.v2, b0, b1, b2);
+  } else {
+    // The object-space point carried to world space with its error bound grown by the transform.
+    const Vec3 po = tv.v0 * b0 + tv.v1 * b1 + tv.v2 * b2;
+    p = in.to_world.point(po);
+    p_error = transform_point_error(in.to_world, po, barycentric_error(tv.v0, tv.v1, tv.v2, b0, b1, b2));
+  }
+}
+
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   const InstanceData& in = inst_[h.inst];
   const Blas& b = blases_[in.blas];
@@ -549,16 +564,10 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   const uint32_t st = b.src_tri[h.prim];
   const MeshData& mesh = meshes_[in.mesh];
   const float b0 = 1.0f - h.b1 - h.b2;
-  // From barycentrics rather than org + t * dir: the error does not grow with the distance.
+  triangle_point(in, tv, h.b1, h.b2, sp.p, sp.p_error);
   if (!in.transformed) {
-    sp.p = tv.v0 * b0 + tv.v1 * h.b1 + tv.v2 * h.b2;
-    sp.p_error = barycentric_error(tv.v0, tv.v1, tv.v2, b0, h.b1, h.b2);
     sp.ng = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
   } else {
-    // The object-space point carried to world space with its error bound grown by the transform.
-    const Vec3 po = tv.v0 * b0 + tv.v1 * h.b1 + tv.v2 * h.b2;
-    sp.p = in.to_world.point(po);
-    sp.p_error = transform_point_error(in.to_world, po, barycentric_error(tv.v0, tv.v1, tv.v2, b0, h.b1, h.b2));
     // Cofactors map the object-space edge cross product to the world one (winding included).
     const Vec3 c = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
     sp.ng = normalize(in.nrow[0] * c.x + in.nrow[1] * c.y + in.nrow[2] * c.z);
@@ -646,14 +655,21 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
     sample_triangle_uniform(u, b1, b2);
   }
   // The light point as a hit on it: position and error bound exactly as a ray would find it
-  // (through the instance's transform where it has one).
+  // (through the instance's transform where it has one); normals only for a shaded emission.
+  const Blas& blas = blases_[in.blas];
+  const uint32_t lmat = material_of(meshes_[in.mesh], blas.src_tri[em.tri], materials_.size());
+  const bool shaded = !materials_[lmat].constant;
   SurfacePoint lp;
-  Hit h;
-  h.prim = em.tri;
-  h.inst = em.instance;
-  h.b1 = b1;
-  h.b2 = b2;
-  surface_point(h, lp);
+  if (shaded) {
+    Hit h;
+    h.prim = em.tri;
+    h.inst = em.instance;
+    h.b1 = b1;
+    h.b2 = b2;
+    surface_point(h, lp);
+  } else {
+    triangle_point(in, blas.tris[em.tri], b1, b2, lp.p, lp.p_error);
+  }
   const Vec3 q = lp.p;
   const Vec3 d = q - p;
   const float dist2 = length_sq(d);
@@ -666,8 +682,8 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   s.target = q;
   s.target_normal = dot(n, s.wi) < 0.0f ? n : -n;  // the side facing p
   s.target_error = lp.p_error;
-  if (const Material& lm = materials_[lp.material]; lm.constant) {
-    s.li = lm.cached.emission;  // what shade() returns for it, without building closures
+  if (!shaded) {
+    s.li = materials_[lmat].cached.emission;  // what shade() returns for it, without building closures
   } else {
     // The material's emission at the sampled point (textured emission included).
     ClosureList cl;

@@ -311,6 +311,10 @@ class Scene {
     if (!in.transformed) return tv;
     return {in.to_world.point(tv.v0), in.to_world.point(tv.v1), in.to_world.point(tv.v2)};
   }
+  // A triangle's point at barycentrics (b1, b2) in world space and its rounding-error bound:
+  // what surface_point gives, for light samples that need no normals.
+  static void triangle_point(const InstanceData& in, const TriangleVerts& tv, float b1, float b2, Vec3& p,
+                             Vec3& p_error);
   int32_t emitter_of(const InstanceData& in, uint32_t tri) const {
     const Blas& b = blases_[in.blas];
     if (b.emitter.empty() || b.emitter[tri] < 0) return -1;

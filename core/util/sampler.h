@@ -9,6 +9,9 @@
 // bounces.
 #pragma once
 #include <cstdint>
+#if defined(__SSSE3__)
+#include <tmmintrin.h>
+#endif
 
 #include "util/rng.h"
 #include "util/sampling.h"
@@ -18,10 +21,24 @@ namespace pl {
 enum class SamplerType : uint8_t { Sobol, Random };
 
 inline uint32_t reverse_bits(uint32_t x) {
+#if defined(__SSSE3__)
+  // Each nibble reversed by a 16-entry shuffle table (the low nibble lands in the high one),
+  // then the bytes swapped: 9 instructions instead of 19; three per 2-D sample were 4 % of a
+  // Cornell box sample. Checked equal to the shifts below for all 2^32 inputs.
+  const __m128i nib = _mm_set1_epi8(0x0F);
+  const __m128i rev_to_hi = _mm_setr_epi8(0x00, char(0x80), 0x40, char(0xC0), 0x20, char(0xA0), 0x60, char(0xE0),
+                                          0x10, char(0x90), 0x50, char(0xD0), 0x30, char(0xB0), 0x70, char(0xF0));
+  const __m128i rev_to_lo = _mm_setr_epi8(0x0, 0x8, 0x4, 0xC, 0x2, 0xA, 0x6, 0xE, 0x1, 0x9, 0x5, 0xD, 0x3, 0xB, 0x7, 0xF);
+  const __m128i v = _mm_cvtsi32_si128(int(x));
+  const __m128i lo = _mm_and_si128(v, nib), hi = _mm_and_si128(_mm_srli_epi16(v, 4), nib);
+  const __m128i r = _mm_or_si128(_mm_shuffle_epi8(rev_to_hi, lo), _mm_shuffle_epi8(rev_to_lo, hi));
+  return __builtin_bswap32(uint32_t(_mm_cvtsi128_si32(r)));
+#else
   x = ((x >> 1) & 0x55555555u) | ((x & 0x55555555u) << 1);
   x = ((x >> 2) & 0x33333333u) | ((x & 0x33333333u) << 2);
   x = ((x >> 4) & 0x0F0F0F0Fu) | ((x & 0x0F0F0F0Fu) << 4);
   return __builtin_bswap32(x);  // the byte-level swaps in one instruction
+#endif
 }
 
 // Owen scrambling of a bit-reversed value: a hash in which each bit depends only on the bits
