@@ -200,7 +200,6 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
     if (!inst_[i].transformed) merged_total += meshes_[instances_[i].mesh].triangles.size();
   merged.tris.reserve(merged_total);
   merged.src_tri.reserve(merged_total);
-  merged.src_inst.reserve(merged_total);
   for (size_t i = 0; i < instances_.size(); ++i) {
     if (inst_[i].transformed) continue;
     if (cancelled()) return false;
@@ -218,9 +217,12 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
       }
       merged.tris.push_back(tv);
       merged.src_tri.push_back(uint32_t(t));
-      merged.src_inst.push_back(uint32_t(i));
     }
     inst_[i].kept = uint32_t(merged.tris.size()) - inst_[i].tri_base;
+    if (inst_[i].kept > 0) {
+      merged.run_first.push_back(inst_[i].tri_base);
+      merged.run_inst.push_back(uint32_t(i));
+    }
     inst_[i].blas = 0;
   }
   if (!merged.tris.empty()) blases_.push_back(std::move(merged));
@@ -376,7 +378,7 @@ void Scene::update_memory_stats() {
   size_t bvh = tlas_.memory_bytes(), geo = 0;
   for (const Blas& b : blases_) {
     bvh += b.bvh.memory_bytes();
-    geo += b.tris.capacity() * sizeof(TriangleVerts) + b.src_tri.capacity() * 4 + b.src_inst.capacity() * 4 +
+    geo += b.tris.capacity() * sizeof(TriangleVerts) + b.src_tri.capacity() * 4 + (b.run_first.capacity() + b.run_inst.capacity()) * 4 +
            b.emitter.capacity() * 4 + b.emissive.capacity() * 4;
   }
   geo += inst_.capacity() * sizeof(InstanceData) + object_coords_.capacity() * sizeof(ObjectCoords) +
@@ -427,11 +429,12 @@ void Scene::build_lights() {
     b.emissive.clear();
     if (b.merged) {
       for (uint32_t t = 0; t < b.tris.size(); ++t) {
-        const float lum = emission_weight(material_of(meshes_[inst_[b.src_inst[t]].mesh], b.src_tri[t], materials_.size()));
+        const uint32_t in = b.instance_of(t);
+        const float lum = emission_weight(material_of(meshes_[inst_[in].mesh], b.src_tri[t], materials_.size()));
         if (!(lum > 0.0f)) continue;
         if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
         b.emitter[t] = int32_t(emitters_.size());
-        add_emitter(b.src_inst[t], t, b.tris[t], lum);
+        add_emitter(in, t, b.tris[t], lum);
       }
     } else {
       for (uint32_t t = 0; t < b.tris.size(); ++t) {
@@ -503,7 +506,7 @@ void Scene::detect_features() {
   std::vector<uint8_t> used(materials_.size(), 0);
   for (const Blas& b : blases_)
     for (size_t t = 0; t < b.src_tri.size(); ++t) {
-      const MeshData& mesh = meshes_[b.merged ? inst_[b.src_inst[t]].mesh : b.mesh];
+      const MeshData& mesh = meshes_[b.merged ? inst_[b.instance_of(uint32_t(t))].mesh : b.mesh];
       used[material_of(mesh, b.src_tri[t], materials_.size())] = 1;
     }
   for (size_t id = 0; id < materials_.size(); ++id) {

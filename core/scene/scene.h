@@ -170,12 +170,12 @@ class Scene {
   bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const {
     if (!use_tlas_) {
       if (!direct_ || !blases_[0].bvh.intersect(r, h, c)) return false;
-      h.inst = blases_[0].src_inst[h.prim];
+      h.inst = blases_[0].instance_of(h.prim);
       return true;
     }
     if (!tlas_.intersect(r, h, c)) return false;
     const TlasEntry& e = tlas_entries_[h.inst];
-    h.inst = e.merged ? blases_[e.blas].src_inst[h.prim] : e.instance;
+    h.inst = e.merged ? blases_[e.blas].instance_of(h.prim) : e.instance;
     return true;
   }
   bool occluded(const Ray& r) const {
@@ -228,7 +228,21 @@ class Scene {
     Bvh bvh;
     std::vector<TriangleVerts> tris;  // in BLAS space (world for the merged one), BVH input order
     std::vector<uint32_t> src_tri;    // the mesh triangle of each
-    std::vector<uint32_t> src_inst;   // the instance of each (merged BLAS); else empty
+    // Merged BLAS: its triangles are runs, one per instance in instance order; run k starts at
+    // triangle run_first[k] (run_first[0] == 0) and belongs to instance run_inst[k]. A search in
+    // this small table instead of a per-triangle array: no cache miss per hit, 4 bytes less per
+    // triangle.
+    std::vector<uint32_t> run_first, run_inst;
+    uint32_t instance_of(uint32_t prim) const {  // branchless: the last run starting at or before prim
+      const uint32_t* f = run_first.data();
+      size_t n = run_first.size();
+      while (n > 1) {
+        const size_t half = n / 2;
+        f = f[half] <= prim ? f + half : f;
+        n -= half;
+      }
+      return run_inst[size_t(f - run_first.data())];
+    }
     std::vector<int32_t> emitter;     // per triangle: merged: emitter index; else index among
                                       // this BLAS's emissive triangles; -1 none (empty: none)
     std::vector<uint32_t> emissive;   // object-space BLAS: its emissive triangles
