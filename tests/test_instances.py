@@ -97,6 +97,38 @@ def assert_same_hits(a, b, min_hits=1000):
 
 # ---------------------------------------------------------------- hits and stats
 
+def test_merged_hits_name_their_instance_with_empty_instances_between():
+    """The merged BLAS finds a hit's instance from its runs of triangles (one per instance, in
+    instance order); instances whose triangles are all dropped own no run and must not shift the
+    instances after them."""
+    s = pc.Scene()
+    m = s.add_material("m", (0.5, 0.5, 0.5))
+    pos, tris, nrm, _ = sphere_mesh()
+    centers = {}
+    for i in range(12):
+        if i % 3 == 1:  # a mesh of one zero-area triangle: dropped at commit
+            s.add_instance(s.add_mesh(np.zeros((3, 3), np.float32), np.array([[0, 1, 2]], np.int32)),
+                           np.eye(4, dtype=np.float32))
+            continue
+        centers[i] = np.array([3.0 * (i % 4), 3.0 * (i // 4), 0.0], np.float32)
+        s.add_instance(s.add_mesh(pos, tris, nrm, None, [m]), affine(np.eye(3), centers[i]))
+    s.commit()
+    st = s.stats()
+    assert st["tlas_instances"] == 0 and st["dropped_triangles"] == 4  # one merged BLAS, traced directly
+    rng = np.random.default_rng(3)
+    expect, origins = [], []
+    for i, c in centers.items():
+        for _ in range(50):
+            origins.append(c + np.array([*rng.uniform(-0.5, 0.5, 2), 5.0], np.float32))
+            expect.append(i)
+    origins = np.array(origins, np.float32)
+    dirs = np.tile(np.array([0.0, 0.0, -1.0], np.float32), (len(origins), 1))
+    t, prim, _, _, inst, row = s.intersect(origins, dirs, instances=True)
+    assert (prim >= 0).all()
+    np.testing.assert_array_equal(inst, expect)
+    assert (row >= 0).all() and (row < len(tris)).all()
+
+
 @pytest.mark.parametrize("kind", sorted(KINDS))
 def test_instanced_hits_agree_with_merged(kind):
     mats = matrices(kind)
