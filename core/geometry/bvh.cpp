@@ -22,6 +22,7 @@
 namespace pl {
 namespace {
 
+using bvh_detail::intersect_node;
 using bvh_detail::safe_inverse;
 
 constexpr int kMaxBins = 64;
@@ -466,18 +467,6 @@ class Builder {
   uint32_t block_ = 1;
   int block_shift_ = -1;  // log2(block_) when it is a power of two
 };
-
-// Slab test; returns the entry distance or +inf on a miss.
-inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3& inv, float tmax) {
-  const float tx0 = (n.lo.x - org.x) * inv.x, tx1 = (n.hi.x - org.x) * inv.x;
-  const float ty0 = (n.lo.y - org.y) * inv.y, ty1 = (n.hi.y - org.y) * inv.y;
-  const float tz0 = (n.lo.z - org.z) * inv.z, tz1 = (n.hi.z - org.z) * inv.z;
-  const float tmin = std::max(std::max(std::min(tx0, tx1), std::min(ty0, ty1)), std::max(std::min(tz0, tz1), 0.0f));
-  // Conservative exit so float rounding never culls a grazing hit.
-  const float tfar = std::min(std::min(std::max(tx0, tx1), std::max(ty0, ty1)), std::min(std::max(tz0, tz1), tmax)) *
-                     bvh_detail::kBoxExitScale;
-  return tmin <= tfar ? tmin : kInf;
-}
 
 // Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
 // children and keeps opening its largest interior child (the one most rays enter) until it

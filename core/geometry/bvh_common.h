@@ -3,8 +3,10 @@
 // also compiled for AVX2 in bvh8_avx2.cpp, and an out-of-line AVX2 copy must never be linked
 // into code that runs on other CPUs.
 #pragma once
+#include <algorithm>
 #include <cmath>
 
+#include "geometry/bvh.h"
 #include "geometry/ray.h"
 
 namespace pl {
@@ -18,6 +20,18 @@ constexpr float kBoxExitScale = 1.0000004f;
 static inline Vec3 safe_inverse(const Vec3& d) {
   auto inv = [](float v) { return 1.0f / (std::fabs(v) < 1e-20f ? std::copysign(1e-20f, v) : v); };
   return {inv(d.x), inv(d.y), inv(d.z)};
+}
+
+// Slab test of a binary node's box (the binary BVH and the top level); returns the entry
+// distance or +inf on a miss.
+static inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3& inv, float tmax) {
+  const float tx0 = (n.lo.x - org.x) * inv.x, tx1 = (n.hi.x - org.x) * inv.x;
+  const float ty0 = (n.lo.y - org.y) * inv.y, ty1 = (n.hi.y - org.y) * inv.y;
+  const float tz0 = (n.lo.z - org.z) * inv.z, tz1 = (n.hi.z - org.z) * inv.z;
+  const float tmin = std::max(std::max(std::min(tx0, tx1), std::min(ty0, ty1)), std::max(std::min(tz0, tz1), 0.0f));
+  const float tfar = std::min(std::min(std::max(tx0, tx1), std::max(ty0, ty1)), std::min(std::max(tz0, tz1), tmax)) *
+                     kBoxExitScale;
+  return tmin <= tfar ? tmin : kInf;
 }
 
 }  // namespace bvh_detail

@@ -102,16 +102,6 @@ struct Builder {
   }
 };
 
-inline float box_entry(const BvhNode& n, const Vec3& org, const Vec3& inv, float tmax) {
-  const float tx0 = (n.lo.x - org.x) * inv.x, tx1 = (n.hi.x - org.x) * inv.x;
-  const float ty0 = (n.lo.y - org.y) * inv.y, ty1 = (n.hi.y - org.y) * inv.y;
-  const float tz0 = (n.lo.z - org.z) * inv.z, tz1 = (n.hi.z - org.z) * inv.z;
-  const float tmin = std::max(std::max(std::min(tx0, tx1), std::min(ty0, ty1)), std::max(std::min(tz0, tz1), 0.0f));
-  const float tfar = std::min(std::min(std::max(tx0, tx1), std::max(ty0, ty1)), std::min(std::max(tz0, tz1), tmax)) *
-                     bvh_detail::kBoxExitScale;
-  return tmin <= tfar ? tmin : kInf;
-}
-
 }  // namespace
 
 void Tlas::clear() {
@@ -159,7 +149,7 @@ bool traverse(const std::vector<BvhNode>& nodes, const std::vector<uint32_t>& re
   bool found = false;
   uint32_t stack[kStackSize];
   int sp = 0;
-  if (box_entry(nodes[0], ray.org, inv, tmax) == kInf) return false;
+  if (bvh_detail::intersect_node(nodes[0], ray.org, inv, tmax) == kInf) return false;
   uint32_t ni = 0;
   for (;;) {
     const BvhNode& n = nodes[ni];
@@ -188,7 +178,8 @@ bool traverse(const std::vector<BvhNode>& nodes, const std::vector<uint32_t>& re
     } else {
       const BvhNode& a = nodes[n.left_or_first];
       const BvhNode& c = nodes[n.left_or_first + 1];
-      const float ta = box_entry(a, ray.org, inv, tmax), tc = box_entry(c, ray.org, inv, tmax);
+      const float ta = bvh_detail::intersect_node(a, ray.org, inv, tmax);
+      const float tc = bvh_detail::intersect_node(c, ray.org, inv, tmax);
       if (ta != kInf && tc != kInf) {
         const bool a_first = ta <= tc;
         ni = a_first ? n.left_or_first : n.left_or_first + 1;

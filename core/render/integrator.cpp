@@ -5,17 +5,28 @@ namespace {
 
 // Sum of all non-delta closures: f * |cos| and the mixture pdf, counting only lobes on the side
 // (reflection or transmission) that the geometric normal allows, so that shading normals never
-// let light through a surface or reflect it from behind.
+// let light through a surface or reflect it from behind. kDiffuseOnly (diffuse-only kernels):
+// every closure is a DiffuseBsdf, whose eval is called directly rather than through the
+// variant's dispatch (the same arithmetic, so the same result).
+template <bool kDiffuseOnly = false>
 Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
   Vec3 f(0.0f);
   pdf = 0.0f;
   for (int i = 0; i < cl.n; ++i) {
     const Closure& c = cl.c[size_t(i)];
-    if (c.delta) continue;
+    if (!kDiffuseOnly && c.delta) continue;
     const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
     if (same_side(lo, li) != reflection) continue;
     float p;
-    const Vec3 v = bsdf_eval(c.bsdf, lo, li, p);
+    Vec3 v;
+    if constexpr (kDiffuseOnly) {
+      // Only diffuse-only scenes get here; anything else (unreachable) would add nothing.
+      const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf);
+      if (!d) continue;
+      v = d->eval(lo, li, p);
+    } else {
+      v = bsdf_eval(c.bsdf, lo, li, p);
+    }
     f += c.weight * v;
     pdf += c.pick * p;
   }
@@ -100,26 +111,6 @@ bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal,
 }
 
 namespace {
-
-// Diffuse-only scenes: every closure is a DiffuseBsdf, so its eval is called directly rather
-// than through the variant's dispatch (the same arithmetic, so the same result).
-Vec3 eval_diffuse_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
-  Vec3 f(0.0f);
-  pdf = 0.0f;
-  for (int i = 0; i < cl.n; ++i) {
-    const Closure& c = cl.c[size_t(i)];
-    const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
-    if (same_side(lo, li) != reflection) continue;
-    float p;
-    // Only diffuse-only scenes get here; anything else (unreachable) would add nothing.
-    const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf);
-    if (!d) continue;
-    const Vec3 v = d->eval(lo, li, p);
-    f += c.weight * v;
-    pdf += c.pick * p;
-  }
-  return f;
-}
 
 // The path tracer, compiled for the kernel features F (KernelFeature bits): what a scene does
 // not use is left out with if constexpr; kKernelAll is the general kernel.
@@ -230,8 +221,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) {
         const bool reflection = dot(ds.wi, ng_out) > 0.0f;
         float bsdf_pdf;
-        const Vec3 f = kNonDiffuse ? eval_mixture(cl, wo, ds.wi, reflection, bsdf_pdf)
-                                   : eval_diffuse_mixture(cl, wo, ds.wi, reflection, bsdf_pdf);
+        const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
         if (!is_black(f) && !is_black(ds.li)) {
           Vec3 vis(1.0f);
           Ray shadow;
@@ -296,8 +286,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     } else {
       float pdf;
-      const Vec3 f = kNonDiffuse ? eval_mixture(cl, wo, wi, reflection, pdf)
-                                 : eval_diffuse_mixture(cl, wo, wi, reflection, pdf);
+      const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf);
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
       prev_pdf = pdf;
