@@ -43,6 +43,16 @@ def quad(corner, u, v):
     return pos, np.array([[0, 1, 2], [0, 2, 3]], np.int32)
 
 
+def random_rotation(seed):
+    """A uniformly random rotation matrix (from a random unit quaternion)."""
+    q = np.random.default_rng(seed).normal(size=4)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
 def look_at_matrix(eye, target, up=(0.0, 0.0, 1.0)):
     """Blender camera matrix: the camera looks down its local -Z with +Y up."""
     eye, target, up = (np.asarray(x, np.float64) for x in (eye, target, up))
@@ -109,6 +119,19 @@ def run_session(pc, scene, width=64, height=64, samples=64, **kw):
 def render(pc, scene, width=64, height=64, samples=64, **kw):
     sess = run_session(pc, scene, width, height, samples, **kw)
     return sess.film(), sess.stats()
+
+
+def render_lit_mesh(pc, pos, tris, size=24, samples=4, **mesh_kw):
+    """The film of one grey mesh (add_mesh's keywords: normals, uvs, ...) lit by a sun and seen
+    obliquely from above: for checking that two ways of passing a mesh render alike."""
+    s = pc.Scene()
+    mat = s.add_material("grey", base_color=(0.8, 0.8, 0.8))
+    s.add_instance(s.add_mesh(pos, tris, material_slots=[mat], **mesh_kw), np.eye(4, dtype=np.float32))
+    s.add_sun_light((0.3, -0.5, 0.8), (2.0, 2.0, 2.0))
+    cam = pc.Camera()
+    cam.matrix_world = look_at_matrix((0.0, -2.5, 2.0), (0.0, 0.0, 0.0))
+    s.set_camera(cam)
+    return render(pc, s, size, size, samples)[0]
 
 
 def region_means(img, grid=8):

@@ -5,7 +5,7 @@ exactly as the expanded corner_normals; bad inputs raise ValueError and add noth
 import numpy as np
 import pytest
 
-from core_scenes import core, look_at_matrix
+from core_scenes import core, render_lit_mesh
 
 pc = core()
 
@@ -27,21 +27,7 @@ def bumpy_grid(n=20, seed=4):
 
 
 def render_mesh(pos, tris, **kw):
-    s = pc.Scene()
-    mat = s.add_material("grey", base_color=(0.8, 0.8, 0.8))
-    s.add_instance(s.add_mesh(pos, tris, material_slots=[mat], **kw), np.eye(4, dtype=np.float32))
-    s.add_sun_light((0.3, -0.5, 0.8), (2.0, 2.0, 2.0))
-    cam = pc.Camera()
-    cam.matrix_world = look_at_matrix((0.0, -2.5, 2.0), (0.0, 0.0, 0.0))
-    s.set_camera(cam)
-    st = pc.RenderSettings()
-    st.width = st.height = 24
-    st.samples = 4
-    sess = pc.Session(s, st)
-    sess.start()
-    while not sess.wait(1.0):
-        pass
-    return sess.film()
+    return render_lit_mesh(pc, pos, tris, **kw)
 
 
 @pytest.mark.parametrize("dtype", [np.int32, np.int64, np.uint32, np.int16])

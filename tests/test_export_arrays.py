@@ -121,15 +121,13 @@ def test_core_expands_shared_normals_like_corner_normals(scene, index_dtype):
     """add_mesh(normals=, normal_indices=) renders exactly as add_mesh(corner_normals=) with the
     expanded array, with int32 or int64 indices, contiguous or not."""
     from addon.core import get_core
-    from core_scenes import look_at_matrix
+    from core_scenes import render_lit_mesh
     pc = get_core()
     obj = grid_object("smooth")
     dg = bpy.context.evaluated_depsgraph_get()
     (data,) = collect_meshes(dg)
     images = []
     for variant in ("expanded", "shared", "strided"):
-        s = pc.Scene()
-        mat = s.add_material("grey", base_color=(0.8, 0.8, 0.8))
         tris = data.triangles.astype(index_dtype)
         if variant == "expanded":
             kw = dict(corner_normals=data.corner_normals)
@@ -139,19 +137,7 @@ def test_core_expands_shared_normals_like_corner_normals(scene, index_dtype):
             wide = np.repeat(data.normal_indices.astype(index_dtype), 2, axis=1)[:, ::2]
             assert not wide.flags.c_contiguous
             kw = dict(normals=data.normals, normal_indices=wide)
-        s.add_instance(s.add_mesh(data.positions, tris, material_slots=[mat], **kw), np.eye(4, dtype=np.float32))
-        s.add_sun_light((0.3, -0.5, 0.8), (2.0, 2.0, 2.0))
-        cam = pc.Camera()
-        cam.matrix_world = look_at_matrix((0.0, -2.5, 2.0), (0.0, 0.0, 0.0))
-        s.set_camera(cam)
-        st = pc.RenderSettings()
-        st.width = st.height = 24
-        st.samples = 4
-        sess = pc.Session(s, st)
-        sess.start()
-        while not sess.wait(1.0):
-            pass
-        images.append(sess.film())
+        images.append(render_lit_mesh(pc, data.positions, tris, **kw))
     assert images[0][..., :3].mean() > 0.05
     np.testing.assert_array_equal(images[1], images[0])
     np.testing.assert_array_equal(images[2], images[0])

@@ -8,20 +8,11 @@ the viewport's mode: every instance real, so moving one rebuilds only the top le
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, cornell, quad, region_means, render, uv_sphere
+from core_scenes import add_object, camera, core, cornell, quad, random_rotation as rotation, region_means, render, uv_sphere
 
 pc = core()
 
 MODES = ["merged", "shared", "dynamic"]
-
-
-def rotation(seed):
-    q = np.random.default_rng(seed).normal(size=4)
-    q /= np.linalg.norm(q)
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 def affine(linear, shift):
@@ -282,19 +273,29 @@ def test_shading_normals_and_texture_coordinates_agree_with_merged(kind):
             assert_images_agree(imgs[mode], imgs["merged"], f"{name} {mode}")
 
 
-def emitter_scene(mode, use_nee=True, seed=1):
-    """A floor lit only by two instances of an emissive sphere (and a grey sphere)."""
-    def material(s):
-        return s.add_material("lamp", (0.0, 0.0, 0.0), (12.0, 10.0, 8.0))
-    lamp = [affine(rotation(1) @ np.diag([0.3, 0.25, 0.2]), (-0.8, 0.3, 1.2)),
-            affine(rotation(2) @ np.diag([-0.25, 0.3, 0.3]), (0.9, -0.2, 0.9))]
-    s = build(mode, lamp, material)
+def lamp_material(s):
+    return s.add_material("lamp", (0.0, 0.0, 0.0), (12.0, 10.0, 8.0))
+
+
+LAMPS = [affine(rotation(1) @ np.diag([0.3, 0.25, 0.2]), (-0.8, 0.3, 1.2)),
+         affine(rotation(2) @ np.diag([-0.25, 0.3, 0.3]), (0.9, -0.2, 0.9))]
+
+
+def lamp_scene(mode, lamps=LAMPS):
+    """A floor lit only by instances of an emissive sphere under `lamps`, committed."""
+    s = build(mode, lamps, lamp_material)
     floor = s.add_material("floor", (0.8, 0.8, 0.8))
     pos, tris = quad((-4, -4, 0), (8, 0, 0), (0, 8, 0))
     add_object(s, pos, tris, floor)
     s.set_world_color((0.0, 0.0, 0.0))
     s.set_camera(camera(pc, (0.0, -5.0, 4.0), (0.0, 0.0, 0.3), lens=30.0))
     s.commit()
+    return s
+
+
+def emitter_scene(mode, use_nee=True, seed=1):
+    """lamp_scene and its image."""
+    s = lamp_scene(mode)
     img, _ = render(pc, s, 32, 32, samples=256, seed=seed, use_nee=use_nee)
     return s, img
 
@@ -376,21 +377,12 @@ def test_moving_a_merged_instance_rebuilds_the_geometry_and_equals_a_fresh_scene
 def test_moving_an_instanced_emitter_moves_its_light():
     s, _ = emitter_scene("dynamic")
     g, lb = s.stats()["geometry_builds"], s.stats()["light_builds"]
-    lamp = affine(rotation(1) @ np.diag([0.3, 0.25, 0.2]), (-0.8, 0.3, 2.5))
+    lamp = affine(rotation(1) @ np.diag([0.3, 0.25, 0.2]), (-0.8, 0.3, 2.5))  # LAMPS[0], higher
     s.set_instance_transform(0, lamp)
     s.commit()
     assert s.stats()["geometry_builds"] == g and s.stats()["light_builds"] == lb + 1
     moved = render(pc, s, 32, 32, samples=64, seed=1)[0]
-
-    def material(sc):
-        return sc.add_material("lamp", (0.0, 0.0, 0.0), (12.0, 10.0, 8.0))
-    fresh = build("dynamic", [lamp, affine(rotation(2) @ np.diag([-0.25, 0.3, 0.3]), (0.9, -0.2, 0.9))], material)
-    floor = fresh.add_material("floor", (0.8, 0.8, 0.8))
-    pos, tris = quad((-4, -4, 0), (8, 0, 0), (0, 8, 0))
-    add_object(fresh, pos, tris, floor)
-    fresh.set_world_color((0.0, 0.0, 0.0))
-    fresh.set_camera(camera(pc, (0.0, -5.0, 4.0), (0.0, 0.0, 0.3), lens=30.0))
-    fresh.commit()
+    fresh = lamp_scene("dynamic", [lamp] + LAMPS[1:])
     assert np.array_equal(moved, render(pc, fresh, 32, 32, samples=64, seed=1)[0])
 
 

@@ -23,7 +23,7 @@ The furnace (convex) stays exact to 0.1 % everywhere: its rays never come back t
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, cornell, look_at_matrix, quad, region_means, render, uv_sphere
+from core_scenes import add_object, camera, core, cornell, look_at_matrix, quad, random_rotation, region_means, render, uv_sphere
 
 pc = core()
 
@@ -174,15 +174,6 @@ def test_cornell_box_far_away_still_renders_cleanly():
 
 
 # ---------------------------------------------------------------- shadow acne
-
-def random_rotation(seed):
-    q = np.random.default_rng(seed).normal(size=4)
-    q /= np.linalg.norm(q)
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
 
 def grid(n, half):
     """An n x n grid of quads spanning [-half, half]^2 at z = 0 (2 n^2 triangles, shared vertices)."""
