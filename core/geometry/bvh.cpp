@@ -726,9 +726,9 @@ class Builder {
         }
       }
     }
-    if (best_axis < 0) return false;
     const float parent_area = bounds.half_area();
     const float cost = opt_.traversal_cost + (parent_area > 0 ? best_cost / parent_area : 0.0f);
+    if (best_axis < 0) return false;
     if (!(cost < to_beat)) return false;
 
     // Partition, with reference unsplitting (Stich et al. section 4.4): a triangle the plane
