@@ -164,5 +164,8 @@ def sliver_room(seed=0, spheres=200, beams=60, sphere_res=(24, 12)):
         pos.append(p)
         tris.append(np.asarray(t) + base)
         base += len(p)
-    rot = random_rotation(3)
-    return (np.concatenate(pos) @ rot.T).astype(np.float32), np.concatenate(tris).astype(np.int32)
+    pos = (np.concatenate(pos) @ random_rotation(3).T).astype(np.float32)
+    tris = np.concatenate(tris).astype(np.int32)
+    v = pos[tris]
+    keep = np.any(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]) != 0, axis=1)  # not the spheres' pole slivers
+    return pos, tris[keep]

@@ -682,7 +682,10 @@ class Builder {
       scale[a] = ok ? B / ext[a] : 0.0f;
       step[a] = ok ? ext[a] / B : 0.0f;
     }
-    auto sb = std::make_unique<SpatialBinSet>();
+    // One bin set per thread, reused: a node's attempt must not cost an allocation.
+    thread_local std::unique_ptr<SpatialBinSet> bin_store;
+    if (!bin_store) bin_store = std::make_unique<SpatialBinSet>();
+    SpatialBinSet* sb = bin_store.get();
     const int chunks = chunk_count(n, depth);
     if (chunks == 1) {
       sb->reset(B);
