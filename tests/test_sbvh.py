@@ -220,3 +220,35 @@ def test_setting_rebuilds_the_geometry():
     s.commit()
     st = s.stats()
     assert st["geometry_builds"] == builds + 2 and st["bvh_references"] == st["triangles"]
+
+
+def test_commit_with_spatial_splits_can_be_cancelled_and_run_again():
+    import threading
+    import time
+    pos, tris = sliver_room(spheres=500)  # ~270k triangles: the build takes most of a second or more
+    s = pc.Scene()
+    s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
+    s.spatial_splits = True
+    errors = []
+
+    def run():
+        try:
+            s.commit()
+        except RuntimeError as e:
+            errors.append(e)
+
+    th = threading.Thread(target=run)
+    th.start()
+    while th.is_alive():  # commit() clears the request when it starts, so keep asking
+        s.cancel_commit()
+        time.sleep(0.002)
+    th.join()
+    assert len(errors) == 1 and "cancelled" in str(errors[0])
+    o = np.zeros((1, 3), np.float32)
+    d = np.array([[0.0, 0.0, 1.0]], np.float32)
+    with pytest.raises(ValueError, match="commit"):
+        s.intersect(o, d)  # uncommitted, not half-built
+    s.commit()
+    st = s.stats()
+    assert st["bvh_references"] > st["triangles"] == len(tris)
+    assert s.intersect(o, d)[1][0] >= 0  # inside the closed room every ray hits

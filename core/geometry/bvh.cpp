@@ -615,6 +615,7 @@ class Builder {
                          SpatialBinSet& sb) const {
     Aabb part[kMaxBins];
     for (uint32_t i = begin; i < end; ++i) {
+      if ((i & 4095) == 0 && cancelled()) return;  // a big node's clipping takes a while: stay cancellable
       const PrimRef& r = refs_[i];
       const Aabb box{r.lo, r.hi};
       for (int a = 0; a < 3; ++a) {
@@ -701,6 +702,7 @@ class Builder {
       sb->reset(B);
       for (const auto& p : part) sb->merge(*p, B);
     }
+    if (cancelled()) return false;
     float best_cost = kInf;
     int best_axis = -1, best_plane = 0;
     for (int a = 0; a < 3; ++a) {
