@@ -59,6 +59,8 @@ struct V4 {
   // NaN in a: b (as _mm_min_ps / _mm_max_ps), which the bin clamp relies on.
   friend V4 vmin(V4 a, V4 b) { return {_mm_min_ps(a.v, b.v)}; }
   friend V4 vmax(V4 a, V4 b) { return {_mm_max_ps(a.v, b.v)}; }
+  // Whether a > b in any of lanes 0-2 (an empty box when a = lo, b = hi).
+  static bool any_gt_xyz(V4 a, V4 b) { return (_mm_movemask_ps(_mm_cmpgt_ps(a.v, b.v)) & 7) != 0; }
   // bin_of() on each lane: clamp to [0, bins - 1] (NaN -> 0), then truncate.
   void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
     const __m128 f = _mm_mul_ps(_mm_sub_ps(v, lo.v), scale.v);
@@ -80,6 +82,7 @@ struct V4 {
   friend V4 operator*(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x * y; }); }
   friend V4 vmin(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x < y ? x : y; }); }
   friend V4 vmax(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x > y ? x : y; }); }
+  static bool any_gt_xyz(V4 a, V4 b) { return a.f[0] > b.f[0] || a.f[1] > b.f[1] || a.f[2] > b.f[2]; }
   void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
     for (int i = 0; i < 3; ++i) out[i] = bin_of(f[i], lo.f[i], scale.f[i], static_cast<int>(top.f[i]) + 1);
   }
@@ -613,54 +616,65 @@ class Builder {
   // clipped to every bin slab it spans.
   void spatial_bin_range(uint32_t begin, uint32_t end, const float lo[3], const float scale[3], const float step[3],
                          SpatialBinSet& sb) const {
-    Aabb part[kMaxBins];
+    V4 plo[kMaxBins], phi[kMaxBins];  // the triangle's part in each bin it spans
     for (uint32_t i = begin; i < end; ++i) {
       if ((i & 4095) == 0 && cancelled()) return;  // a big node's clipping takes a while: stay cancellable
       const PrimRef& r = refs_[i];
-      const Aabb box{r.lo, r.hi};
+      const V4 box_lo = r.vlo(), box_hi = r.vhi();
+      const bool finite = is_finite(r.lo) && is_finite(r.hi);
+      const TriangleVerts& t = tris_[r.id];
+      const Vec3* v[3] = {&t.v0, &t.v1, &t.v2};
+      V4 vv[3];
+      bool loaded = false;
       for (int a = 0; a < 3; ++a) {
         if (!(scale[a] > 0.0f)) continue;
-        int f, l;
-        span(r, a, lo[a], scale[a], f, l);
+        const int f = bin_of(r.lo[a], lo[a], scale[a], opt_.bins);
+        const int l = finite ? std::max(f, bin_of(r.hi[a], lo[a], scale[a], opt_.bins)) : f;  // as span()
         sb.entry[a][f]++;
         sb.exit[a][l]++;
         if (f == l) {
-          sb.lo[a][f] = vmin(sb.lo[a][f], r.vlo());
-          sb.hi[a][f] = vmax(sb.hi[a][f], r.vhi());
+          sb.lo[a][f] = vmin(sb.lo[a][f], box_lo);
+          sb.hi[a][f] = vmax(sb.hi[a][f], box_hi);
           continue;
         }
         // The triangle's part in each slab: its vertices there and its edges' crossings of the
         // slab's planes, one walk along each edge (float: the bins only estimate costs; the
         // partition clips exactly).
-        for (int b = f; b <= l; ++b) part[b] = Aabb();
-        const TriangleVerts& t = tris_[r.id];
-        const Vec3* v[3] = {&t.v0, &t.v1, &t.v2};
+        if (!loaded) {
+          for (int k = 0; k < 3; ++k) vv[k] = V4::set(v[k]->x, v[k]->y, v[k]->z);
+          loaded = true;
+        }
+        for (int b = f; b <= l; ++b) {
+          plo[b] = V4::set1(kInf);
+          phi[b] = V4::set1(-kInf);
+        }
+        int vb[3];
+        for (int k = 0; k < 3; ++k) {
+          vb[k] = std::clamp(bin_of((*v[k])[a], lo[a], scale[a], opt_.bins), f, l);
+          plo[vb[k]] = vmin(plo[vb[k]], vv[k]);
+          phi[vb[k]] = vmax(phi[vb[k]], vv[k]);
+        }
         for (int e = 0; e < 3; ++e) {
-          const Vec3* p0 = v[e];
-          const Vec3* p1 = v[e == 2 ? 0 : e + 1];
-          const int b0 = std::clamp(bin_of((*p0)[a], lo[a], scale[a], opt_.bins), f, l);
-          part[b0].grow(*p0);
-          int b1 = std::clamp(bin_of((*p1)[a], lo[a], scale[a], opt_.bins), f, l);
-          int lo_b = b0;
-          if (lo_b > b1) {
-            std::swap(lo_b, b1);
-            std::swap(p0, p1);
-          }
-          const float da = (*p1)[a] - (*p0)[a];
-          for (int j = lo_b + 1; j <= b1; ++j) {  // plane j: between bins j - 1 and j
+          int k0 = e, k1 = e == 2 ? 0 : e + 1;
+          if (vb[k0] == vb[k1]) continue;
+          if (vb[k0] > vb[k1]) std::swap(k0, k1);
+          const float a0 = (*v[k0])[a], da = (*v[k1])[a] - a0;
+          const float inv = da > 0.0f ? 1.0f / da : 0.0f;
+          const V4 d = vv[k1] - vv[k0];
+          for (int j = vb[k0] + 1; j <= vb[k1]; ++j) {  // plane j: between bins j - 1 and j
             const float q = lo[a] + float(j) * step[a];
-            const float s = da > 0.0f ? std::clamp((q - (*p0)[a]) / da, 0.0f, 1.0f) : 0.0f;
-            Vec3 x = *p0 + (*p1 - *p0) * s;
-            x[a] = q;
-            part[j - 1].grow(x);
-            part[j].grow(x);
+            const V4 x = vv[k0] + d * V4::set1(std::clamp((q - a0) * inv, 0.0f, 1.0f));
+            plo[j - 1] = vmin(plo[j - 1], x);
+            phi[j - 1] = vmax(phi[j - 1], x);
+            plo[j] = vmin(plo[j], x);
+            phi[j] = vmax(phi[j], x);
           }
         }
         for (int b = f; b <= l; ++b) {
-          Aabb c{vmax(part[b].lo, box.lo), vmin(part[b].hi, box.hi)};
-          if (c.empty()) continue;
-          sb.lo[a][b] = vmin(sb.lo[a][b], V4::set(c.lo.x, c.lo.y, c.lo.z));
-          sb.hi[a][b] = vmax(sb.hi[a][b], V4::set(c.hi.x, c.hi.y, c.hi.z));
+          const V4 cl = vmax(plo[b], box_lo), ch = vmin(phi[b], box_hi);
+          if (V4::any_gt_xyz(cl, ch)) continue;
+          sb.lo[a][b] = vmin(sb.lo[a][b], cl);
+          sb.hi[a][b] = vmax(sb.hi[a][b], ch);
         }
       }
     }
@@ -714,7 +728,7 @@ class Builder {
       for (int j = B - 1; j > 0; --j) {
         acc.grow(sb->lo[a][j], sb->hi[a][j]);
         cnt += sb->exit[a][j];
-        right_cost[j] = acc.aabb().half_area() * tests(cnt);
+        right_cost[j] = half_area(acc.lo, acc.hi) * tests(cnt);  // +inf for an empty box: never chosen
         right_n[j] = cnt;
       }
       acc = BoxAcc();
@@ -723,7 +737,7 @@ class Builder {
         acc.grow(sb->lo[a][j - 1], sb->hi[a][j - 1]);
         cnt += sb->entry[a][j - 1];
         if (cnt == 0 || right_n[j] == 0 || uint64_t(cnt) + right_n[j] > room) continue;
-        const float cost = acc.aabb().half_area() * tests(cnt) + right_cost[j];
+        const float cost = half_area(acc.lo, acc.hi) * tests(cnt) + right_cost[j];
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = a;
