@@ -142,6 +142,13 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         ),
         default='NONE', update=_requery_passes,
     )
+    use_spatial_splits: BoolProperty(
+        name="Spatial Splits",
+        description="Build the BVH of final renders with spatial splits (SBVH): triangles may be cut "
+                    "between nodes, which makes tracing faster where big or long thin triangles overlap "
+                    "other geometry (architecture), at a slower build. The viewport never uses them",
+        default=False,
+    )
     use_general_kernel: BoolProperty(
         name="General Kernel",
         description="Render with the general integrator kernel instead of the one specialised for "

@@ -188,6 +188,8 @@ class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
         sub = col.column()
         sub.enabled = rd.threads_mode == 'FIXED'
         sub.prop(rd, "threads")
+        col = layout.column(heading="Acceleration Structure")
+        col.prop(context.scene.pathlight, "use_spatial_splits")
 
 
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_film,

@@ -137,3 +137,35 @@ def render_lit_mesh(pc, pos, tris, size=24, samples=4, **mesh_kw):
 def region_means(img, grid=8):
     h, w = img.shape[:2]
     return img[: h // grid * grid, : w // grid * grid, :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
+
+
+def sliver_room(seed=0, spheres=200, beams=60, sphere_res=(24, 12)):
+    """An architectural scene where spatial splits matter (a procedural stand-in for Sponza): a
+    20 x 20 x 8 room of 12 huge triangles, long thin beams and columns (boxes of sliver
+    triangles) and small detailed spheres, all rotated off the axes, so the big triangles' boxes
+    overlap everything. Returns (positions, triangles) of one mesh."""
+    rng = np.random.default_rng(seed)
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1], [1, 1, 1]], float)
+    faces = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
+                      [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+    parts = [(corners * [20, 20, 8] + [-10, -10, -4], faces)]
+    for _ in range(beams):
+        y, z = rng.uniform(-9, 9), rng.uniform(-3.5, 3.5)
+        parts.append((corners * [19.6, 0.15, 0.15] + [-9.8, y, z], faces))
+    for _ in range(beams // 2):
+        x, y = rng.uniform(-9, 9, 2)
+        parts.append((corners * [0.2, 0.2, 8] + [x, y, -4], faces))
+    for _ in range(spheres):
+        c = rng.uniform([-9, -9, -3.5], [9, 9, 3.5])
+        p, t, _ = uv_sphere(rng.uniform(0.1, 0.4), sphere_res[0], sphere_res[1], c)
+        parts.append((p, t))
+    pos, tris, base = [], [], 0
+    for p, t in parts:
+        pos.append(p)
+        tris.append(np.asarray(t) + base)
+        base += len(p)
+    pos = (np.concatenate(pos) @ random_rotation(3).T).astype(np.float32)
+    tris = np.concatenate(tris).astype(np.int32)
+    v = pos[tris]
+    keep = np.any(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]) != 0, axis=1)  # not the spheres' pole slivers
+    return pos, tris[keep]

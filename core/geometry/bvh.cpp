@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
+#include <cstring>
 #include <cstdlib>
 #include <functional>
 #include <memory>
@@ -57,6 +59,8 @@ struct V4 {
   // NaN in a: b (as _mm_min_ps / _mm_max_ps), which the bin clamp relies on.
   friend V4 vmin(V4 a, V4 b) { return {_mm_min_ps(a.v, b.v)}; }
   friend V4 vmax(V4 a, V4 b) { return {_mm_max_ps(a.v, b.v)}; }
+  // Whether a > b in any of lanes 0-2 (an empty box when a = lo, b = hi).
+  static bool any_gt_xyz(V4 a, V4 b) { return (_mm_movemask_ps(_mm_cmpgt_ps(a.v, b.v)) & 7) != 0; }
   // bin_of() on each lane: clamp to [0, bins - 1] (NaN -> 0), then truncate.
   void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
     const __m128 f = _mm_mul_ps(_mm_sub_ps(v, lo.v), scale.v);
@@ -78,6 +82,7 @@ struct V4 {
   friend V4 operator*(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x * y; }); }
   friend V4 vmin(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x < y ? x : y; }); }
   friend V4 vmax(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x > y ? x : y; }); }
+  static bool any_gt_xyz(V4 a, V4 b) { return a.f[0] > b.f[0] || a.f[1] > b.f[1] || a.f[2] > b.f[2]; }
   void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
     for (int i = 0; i < 3; ++i) out[i] = bin_of(f[i], lo.f[i], scale.f[i], static_cast<int>(top.f[i]) + 1);
   }
@@ -164,10 +169,83 @@ std::unique_ptr<T[], FreeRaw> raw_array(size_t n) {
   return p;
 }
 
+// The bins of a spatial split (Stich et al. 2009) on all three axes: each bin's box holds the
+// parts of the triangles inside its slab; entry / exit count the references starting / ending
+// in it.
+struct SpatialBinSet {
+  V4 lo[3][kMaxBins], hi[3][kMaxBins];
+  uint32_t entry[3][kMaxBins], exit[3][kMaxBins];
+  void reset(int bins) {
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < bins; ++b) {
+        lo[a][b] = V4::set1(kInf);
+        hi[a][b] = V4::set1(-kInf);
+        entry[a][b] = exit[a][b] = 0;
+      }
+  }
+  void merge(const SpatialBinSet& o, int bins) {
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < bins; ++b) {
+        lo[a][b] = vmin(lo[a][b], o.lo[a][b]);
+        hi[a][b] = vmax(hi[a][b], o.hi[a][b]);
+        entry[a][b] += o.entry[a][b];
+        exit[a][b] += o.exit[a][b];
+      }
+  }
+};
+
+inline float round_down(double d) {
+  const float f = static_cast<float>(d);
+  return std::nextafter(static_cast<double>(f) > d ? std::nextafter(f, -kInf) : f, -kInf);
+}
+inline float round_up(double d) {
+  const float f = static_cast<float>(d);
+  return std::nextafter(static_cast<double>(f) < d ? std::nextafter(f, kInf) : f, kInf);
+}
+
+// The box of the part of the triangle with plo <= x[axis] <= phi, intersected with `box` (the
+// reference's box). The real triangle is clipped (in double, then rounded outwards one ulp
+// more than needed), so the box always contains that part of it: a hit in it is never culled
+// by the slab tests. Empty (lo > hi) when nothing of the triangle is left.
+Aabb clip_triangle(const TriangleVerts& t, int axis, float plo, float phi, const Aabb& box) {
+  const Vec3* v[3] = {&t.v0, &t.v1, &t.v2};
+  double lo[3] = {kInf, kInf, kInf}, hi[3] = {-kInf, -kInf, -kInf};
+  const auto grow = [&](const double p[3]) {
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = std::min(lo[k], p[k]);
+      hi[k] = std::max(hi[k], p[k]);
+    }
+  };
+  for (int i = 0; i < 3; ++i) {
+    const Vec3& a = *v[i];
+    const Vec3& b = *v[i == 2 ? 0 : i + 1];
+    const double pa[3] = {a.x, a.y, a.z}, pb[3] = {b.x, b.y, b.z};
+    if (pa[axis] >= plo && pa[axis] <= phi) grow(pa);
+    for (const float q : {plo, phi}) {
+      if (!std::isfinite(q)) continue;
+      const double da = pa[axis] - q, db = pb[axis] - q;
+      if (!((da < 0 && db > 0) || (da > 0 && db < 0))) continue;  // the edge does not cross the plane
+      const double s = da / (da - db);
+      double p[3];
+      for (int k = 0; k < 3; ++k) p[k] = pa[k] + s * (pb[k] - pa[k]);
+      p[axis] = q;
+      grow(p);
+    }
+  }
+  Aabb r;
+  if (!(lo[0] <= hi[0] && lo[1] <= hi[1] && lo[2] <= hi[2])) return r;  // empty (or NaN)
+  r.lo = vmax(Vec3(round_down(lo[0]), round_down(lo[1]), round_down(lo[2])), box.lo);
+  r.hi = vmin(Vec3(round_up(hi[0]), round_up(hi[1]), round_up(hi[2])), box.hi);
+  if (std::isfinite(plo)) r.lo[axis] = std::max(r.lo[axis], plo);
+  if (std::isfinite(phi)) r.hi[axis] = std::min(r.hi[axis], phi);
+  if (r.lo.x > r.hi.x || r.lo.y > r.hi.y || r.lo.z > r.hi.z) return Aabb();
+  return r;
+}
+
 class Builder {
  public:
   Builder(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt, std::vector<uint32_t>& order)
-      : opt_(opt), order_(order) {
+      : opt_(opt), order_(order), tris_(tris) {
     opt_.bins = std::clamp(opt_.bins, 2, kMaxBins);
     opt_.max_leaf_size = std::clamp(opt_.max_leaf_size, 1, 255);
     block_ = static_cast<uint32_t>(std::clamp(opt_.leaf_block, 1, 16));
@@ -178,7 +256,13 @@ class Builder {
     parallel_depth_ = 2;
     while ((1 << parallel_depth_) < 4 * hw_) ++parallel_depth_;
     const uint32_t n = static_cast<uint32_t>(tris.size());
-    refs_ = raw_array<PrimRef>(n);
+    // With spatial splits, room for the duplicates: each subtree gets a share of the spare slots
+    // after its references, so the budget holds without a shared counter.
+    spatial_ = opt_.spatial_splits && n > 1;
+    const double extra = spatial_ ? std::clamp(double(opt_.max_duplicates), 0.0, 4.0) * n : 0.0;
+    cap_ = uint32_t(std::min<double>(double(n) + std::floor(extra), double(UINT32_MAX / 2)));
+    if (cap_ == n) spatial_ = false;
+    refs_ = raw_array<PrimRef>(cap_);
     n_refs_ = n;
     // The references and the root's boxes, in parallel chunks merged in a fixed order.
     const int chunks = chunk_count(n, 0);
@@ -205,19 +289,42 @@ class Builder {
     root_cbounds_ = cb.empty() ? Aabb() : cb[0].aabb();
     // A binary tree with n leaves or fewer has at most 2n - 1 nodes; every node is written
     // by the build, so the storage is left uninitialised (no pass over it before the build).
-    node_store_ = raw_array<BvhNode>(2 * size_t(n));
+    node_store_ = raw_array<BvhNode>(2 * size_t(cap_));
+    spatial_min_area_ = std::max(0.0f, opt_.spatial_alpha) * root_bounds_.half_area();
   }
 
   // Returns false when cancelled (the nodes are then incomplete and must be dropped).
   bool run() {
     next_node_ = 1;
-    build(0, 0, static_cast<uint32_t>(n_refs_), 0, root_bounds_, root_cbounds_);
+    build(0, 0, static_cast<uint32_t>(n_refs_), cap_, 0, root_bounds_, root_cbounds_);
     if (cancelled()) return false;
-    order_.resize(n_refs_);
-    for (size_t i = 0; i < n_refs_; ++i) order_[i] = refs_[i].id;
+    if (!spatial_) {
+      order_.resize(n_refs_);
+      for (size_t i = 0; i < n_refs_; ++i) order_[i] = refs_[i].id;
+    } else {
+      // Leaves are spread over the reference array with spare slots between subtrees: packed
+      // here in depth-first order.
+      order_.clear();
+      std::vector<uint32_t> stack{0};
+      while (!stack.empty()) {
+        BvhNode& nd = node_store_[stack.back()];
+        stack.pop_back();
+        if (nd.is_leaf()) {
+          const uint32_t first = static_cast<uint32_t>(order_.size());
+          for (uint32_t i = nd.left_or_first; i < nd.left_or_first + nd.count; ++i) order_.push_back(refs_[i].id);
+          nd.left_or_first = first;
+        } else {
+          stack.push_back(nd.left_or_first + 1);
+          stack.push_back(nd.left_or_first);
+        }
+      }
+      order_.shrink_to_fit();
+    }
     refs_.reset();
     return true;
   }
+
+  size_t spatial_splits() const { return spatial_splits_.load(); }
 
   // The binary tree (root at 0; children of an interior node side by side), valid after run().
   const BvhNode* nodes() const { return node_store_.get(); }
@@ -259,9 +366,31 @@ class Builder {
   struct Split {
     uint32_t mid;
     Aabb lb, lcb, rb, rcb;  // bounds and centroid bounds of both sides
+    // Spatial splits: where the children's references now lie ([lbegin, lend) and [rbegin,
+    // rend)) and the end of each one's spare slots. Object splits leave placed false (left
+    // [begin, mid), right [mid, end)) and build() hands out the spare slots.
+    bool placed = false;
+    uint32_t lbegin, lend, lcap, rbegin, rend, rcap;
   };
 
-  void build(uint32_t node_index, uint32_t begin, uint32_t end, int depth, const Aabb& bounds, const Aabb& cbounds) {
+  // Gives each side of an object split a share of the node's spare slots [end, cap_end) in
+  // proportion to its references, moving the right side up to make the left side's room.
+  void place(Split& sp, uint32_t begin, uint32_t end, uint32_t cap_end) {
+    if (sp.placed) return;
+    const uint32_t nl = sp.mid - begin, nr = end - sp.mid, spare = cap_end - end;
+    const uint32_t sl = uint32_t(uint64_t(spare) * nl / (uint64_t(nl) + nr));
+    if (sl > 0) std::memmove(&refs_[sp.mid + sl], &refs_[sp.mid], size_t(nr) * sizeof(PrimRef));
+    sp.lbegin = begin;
+    sp.lend = sp.mid;
+    sp.lcap = sp.mid + sl;
+    sp.rbegin = sp.mid + sl;
+    sp.rend = end + sl;
+    sp.rcap = cap_end;
+    sp.placed = true;
+  }
+
+  void build(uint32_t node_index, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, const Aabb& bounds,
+             const Aabb& cbounds) {
     // Every node polls the flag: one relaxed load against a binning pass over its triangles.
     if (cancelled()) return;
     size_t d = max_depth_.load();
@@ -274,19 +403,27 @@ class Builder {
     if (n <= 1 || (n <= uint32_t(opt_.max_leaf_size) && depth >= kMaxDepth)) return make_leaf(node, begin, end);
 
     Split sp;
-    if (!split(bounds, cbounds, begin, end, depth, sp)) return make_leaf(node, begin, end);  // the SAH prefers a leaf
+    if (!split(bounds, cbounds, begin, end, cap_end, depth, sp)) return make_leaf(node, begin, end);  // the SAH prefers a leaf
 
     const uint32_t left = next_node_.fetch_add(2);
     node.left_or_first = left;
     node.count = 0;
-    const uint32_t mid = sp.mid;
+    if (!sp.placed) {
+      if (cap_end > end) {
+        place(sp, begin, end, cap_end);
+      } else {  // no spare slots (always so without spatial splits): the children split the range
+        sp.lbegin = begin;
+        sp.lend = sp.lcap = sp.rbegin = sp.mid;
+        sp.rend = sp.rcap = end;
+      }
+    }
     if (depth < parallel_depth_ && n >= kParallelMin) {
-      std::thread t([&] { build(left, begin, mid, depth + 1, sp.lb, sp.lcb); });
-      build(left + 1, mid, end, depth + 1, sp.rb, sp.rcb);
+      std::thread t([&] { build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb); });
+      build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
       t.join();
     } else {
-      build(left, begin, mid, depth + 1, sp.lb, sp.lcb);
-      build(left + 1, mid, end, depth + 1, sp.rb, sp.rcb);
+      build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb);
+      build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
     }
   }
 
@@ -313,7 +450,8 @@ class Builder {
   }
 
   // Fills `sp` and returns true, or returns false when a leaf is cheaper (and allowed).
-  bool split(const Aabb& bounds, const Aabb& cbounds, uint32_t begin, uint32_t end, int depth, Split& sp) {
+  bool split(const Aabb& bounds, const Aabb& cbounds, uint32_t begin, uint32_t end, uint32_t cap_end, int depth,
+             Split& sp) {
     const uint32_t n = end - begin;
     const Vec3 ext = cbounds.extent();
     const bool too_deep = depth >= kMaxDepth;
@@ -414,6 +552,23 @@ class Builder {
     const float leaf_cost = tests(n);
     const float split_cost =
         best_axis < 0 ? kInf : opt_.traversal_cost + (parent_area > 0 ? best_cost / parent_area : 0.0f);
+    // The object split's child boxes, from the bins.
+    BoxAcc lb, rb;
+    if (best_axis >= 0)
+      for (int k = 0; k < n_used[best_axis]; ++k) {
+        const int b = used[best_axis][k];
+        (b < best_bin ? lb : rb).grow(bins.lo[best_axis][b], bins.hi[best_axis][b]);
+      }
+    if (cap_end > end) {
+      // Spatial splits where the object split's children overlap by a noticeable area (and
+      // there are spare slots for the duplicates).
+      const Aabb l = lb.aabb(), r = rb.aabb();
+      const Aabb overlap{vmax(l.lo, r.lo), vmin(l.hi, r.hi)};
+      if (best_axis < 0 || overlap.half_area() > spatial_min_area_) {
+        const float cost = split_cost < leaf_cost || n > uint32_t(opt_.max_leaf_size) ? split_cost : leaf_cost;
+        if (spatial_split(bounds, begin, end, cap_end, depth, cost, sp)) return true;
+      }
+    }
     if (best_axis < 0 || (split_cost >= leaf_cost && n <= uint32_t(opt_.max_leaf_size))) {
       if (n <= uint32_t(opt_.max_leaf_size)) return false;
       return split_by_count(begin, end, sp);  // no useful plane and too many for a leaf
@@ -442,11 +597,6 @@ class Builder {
     }
     sp.mid = i;
     if (sp.mid == begin || sp.mid == end) return split_by_count(begin, end, sp);
-    BoxAcc lb, rb;
-    for (int k = 0; k < n_used[ax]; ++k) {
-      const int b = used[ax][k];
-      (b < best_bin ? lb : rb).grow(bins.lo[ax][b], bins.hi[ax][b]);
-    }
     sp.lb = lb.aabb();
     sp.rb = rb.aabb();
     sp.lcb = lcb.aabb();
@@ -454,8 +604,239 @@ class Builder {
     return true;
   }
 
+  // First and last spatial bin of a reference on `axis`. References with a non-finite box are
+  // never cut (clipping them means nothing): they stay whole in their first bin.
+  void span(const PrimRef& r, int axis, float lo, float scale, int& first, int& last) const {
+    const int B = opt_.bins;
+    first = bin_of(r.lo[axis], lo, scale, B);
+    last = is_finite(r.lo) && is_finite(r.hi) ? std::max(first, bin_of(r.hi[axis], lo, scale, B)) : first;
+  }
+
+  // Spatial bins of refs_[begin, end) on every axis with scale > 0: each reference's triangle
+  // clipped to every bin slab it spans.
+  void spatial_bin_range(uint32_t begin, uint32_t end, const float lo[3], const float scale[3], const float step[3],
+                         SpatialBinSet& sb) const {
+    V4 plo[kMaxBins], phi[kMaxBins];  // the triangle's part in each bin it spans
+    for (uint32_t i = begin; i < end; ++i) {
+      if ((i & 4095) == 0 && cancelled()) return;  // a big node's clipping takes a while: stay cancellable
+      const PrimRef& r = refs_[i];
+      const V4 box_lo = r.vlo(), box_hi = r.vhi();
+      const bool finite = is_finite(r.lo) && is_finite(r.hi);
+      const TriangleVerts& t = tris_[r.id];
+      const Vec3* v[3] = {&t.v0, &t.v1, &t.v2};
+      V4 vv[3];
+      bool loaded = false;
+      for (int a = 0; a < 3; ++a) {
+        if (!(scale[a] > 0.0f)) continue;
+        const int f = bin_of(r.lo[a], lo[a], scale[a], opt_.bins);
+        const int l = finite ? std::max(f, bin_of(r.hi[a], lo[a], scale[a], opt_.bins)) : f;  // as span()
+        sb.entry[a][f]++;
+        sb.exit[a][l]++;
+        if (f == l) {
+          sb.lo[a][f] = vmin(sb.lo[a][f], box_lo);
+          sb.hi[a][f] = vmax(sb.hi[a][f], box_hi);
+          continue;
+        }
+        // The triangle's part in each slab: its vertices there and its edges' crossings of the
+        // slab's planes, one walk along each edge (float: the bins only estimate costs; the
+        // partition clips exactly).
+        if (!loaded) {
+          for (int k = 0; k < 3; ++k) vv[k] = V4::set(v[k]->x, v[k]->y, v[k]->z);
+          loaded = true;
+        }
+        for (int b = f; b <= l; ++b) {
+          plo[b] = V4::set1(kInf);
+          phi[b] = V4::set1(-kInf);
+        }
+        int vb[3];
+        for (int k = 0; k < 3; ++k) {
+          vb[k] = std::clamp(bin_of((*v[k])[a], lo[a], scale[a], opt_.bins), f, l);
+          plo[vb[k]] = vmin(plo[vb[k]], vv[k]);
+          phi[vb[k]] = vmax(phi[vb[k]], vv[k]);
+        }
+        for (int e = 0; e < 3; ++e) {
+          int k0 = e, k1 = e == 2 ? 0 : e + 1;
+          if (vb[k0] == vb[k1]) continue;
+          if (vb[k0] > vb[k1]) std::swap(k0, k1);
+          const float a0 = (*v[k0])[a], da = (*v[k1])[a] - a0;
+          const float inv = da > 0.0f ? 1.0f / da : 0.0f;
+          const V4 d = vv[k1] - vv[k0];
+          for (int j = vb[k0] + 1; j <= vb[k1]; ++j) {  // plane j: between bins j - 1 and j
+            const float q = lo[a] + float(j) * step[a];
+            const V4 x = vv[k0] + d * V4::set1(std::clamp((q - a0) * inv, 0.0f, 1.0f));
+            plo[j - 1] = vmin(plo[j - 1], x);
+            phi[j - 1] = vmax(phi[j - 1], x);
+            plo[j] = vmin(plo[j], x);
+            phi[j] = vmax(phi[j], x);
+          }
+        }
+        for (int b = f; b <= l; ++b) {
+          const V4 cl = vmax(plo[b], box_lo), ch = vmin(phi[b], box_hi);
+          if (V4::any_gt_xyz(cl, ch)) continue;
+          sb.lo[a][b] = vmin(sb.lo[a][b], cl);
+          sb.hi[a][b] = vmax(sb.hi[a][b], ch);
+        }
+      }
+    }
+  }
+
+  // Looks for a spatial split of refs_[begin, end) (Stich et al. 2009) cheaper than `to_beat`
+  // (the SAH cost of the object split or leaf the node would otherwise get, in the same units)
+  // whose duplicates fit in the node's spare slots. On success the children's references are
+  // written in place (left from begin, right after the left's share of the spare slots), `sp`
+  // is filled and placed, and it returns true; else refs_ is untouched.
+  bool spatial_split(const Aabb& bounds, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, float to_beat,
+                     Split& sp) {
+    const uint32_t n = end - begin, room = cap_end - begin;
+    const int B = opt_.bins;
+    const Vec3 ext = bounds.extent();
+    float lo[3], scale[3], step[3];
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = bounds.lo[a];
+      const bool ok = ext[a] > 0.0f && std::isfinite(ext[a]);
+      scale[a] = ok ? B / ext[a] : 0.0f;
+      step[a] = ok ? ext[a] / B : 0.0f;
+    }
+    // One bin set per thread, reused: a node's attempt must not cost an allocation.
+    thread_local std::unique_ptr<SpatialBinSet> bin_store;
+    if (!bin_store) bin_store = std::make_unique<SpatialBinSet>();
+    SpatialBinSet* sb = bin_store.get();
+    const int chunks = chunk_count(n, depth);
+    if (chunks == 1) {
+      sb->reset(B);
+      spatial_bin_range(begin, end, lo, scale, step, *sb);
+    } else {  // merged in a fixed order (min, max and sums: the same bins in any order anyway)
+      std::vector<std::unique_ptr<SpatialBinSet>> part(chunks);
+      run_chunks(chunks, [&](int c) {
+        part[c] = std::make_unique<SpatialBinSet>();
+        part[c]->reset(B);
+        spatial_bin_range(begin + uint32_t(uint64_t(n) * c / chunks), begin + uint32_t(uint64_t(n) * (c + 1) / chunks),
+                          lo, scale, step, *part[c]);
+      });
+      sb->reset(B);
+      for (const auto& p : part) sb->merge(*p, B);
+    }
+    if (cancelled()) return false;
+    float best_cost = kInf;
+    int best_axis = -1, best_plane = 0;
+    for (int a = 0; a < 3; ++a) {
+      if (!(scale[a] > 0.0f)) continue;
+      float right_cost[kMaxBins];
+      uint32_t right_n[kMaxBins];
+      BoxAcc acc;
+      uint32_t cnt = 0;
+      for (int j = B - 1; j > 0; --j) {
+        acc.grow(sb->lo[a][j], sb->hi[a][j]);
+        cnt += sb->exit[a][j];
+        right_cost[j] = half_area(acc.lo, acc.hi) * tests(cnt);  // +inf for an empty box: never chosen
+        right_n[j] = cnt;
+      }
+      acc = BoxAcc();
+      cnt = 0;
+      for (int j = 1; j < B; ++j) {  // the plane between bins j - 1 and j
+        acc.grow(sb->lo[a][j - 1], sb->hi[a][j - 1]);
+        cnt += sb->entry[a][j - 1];
+        if (cnt == 0 || right_n[j] == 0 || uint64_t(cnt) + right_n[j] > room) continue;
+        const float cost = half_area(acc.lo, acc.hi) * tests(cnt) + right_cost[j];
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = a;
+          best_plane = j;
+        }
+      }
+    }
+    const float parent_area = bounds.half_area();
+    const float cost = opt_.traversal_cost + (parent_area > 0 ? best_cost / parent_area : 0.0f);
+    if (best_axis < 0) return false;
+    if (!(cost < to_beat)) return false;
+
+    // Partition, with reference unsplitting (Stich et al. section 4.4): a triangle the plane
+    // cuts goes whole to one side when that costs less than referencing it on both.
+    const int a = best_axis;
+    const float plane = lo[a] + float(best_plane) * step[a];
+    Aabb lbox, rbox;
+    uint32_t nl = 0, nr = 0;
+    for (int b = 0; b < B; ++b) {
+      const Aabb c = BoxAcc{sb->lo[a][b], sb->hi[a][b]}.aabb();
+      if (b < best_plane) {
+        if (!c.empty()) lbox.grow(c);
+        nl += sb->entry[a][b];
+      } else {
+        if (!c.empty()) rbox.grow(c);
+        nr += sb->exit[a][b];
+      }
+    }
+    std::vector<PrimRef> left, right;
+    left.reserve(nl);
+    right.reserve(nr);
+    for (uint32_t i = begin; i < end; ++i) {
+      const PrimRef& r = refs_[i];
+      int f, l;
+      span(r, a, lo[a], scale[a], f, l);
+      if (l < best_plane) {
+        left.push_back(r);
+      } else if (f >= best_plane) {
+        right.push_back(r);
+      } else {
+        const Aabb whole{r.lo, r.hi};
+        Aabb l1 = lbox, r1 = rbox;
+        l1.grow(whole);
+        r1.grow(whole);
+        const float c_split = lbox.half_area() * tests(nl) + rbox.half_area() * tests(nr);
+        const float c_left = l1.half_area() * tests(nl) + rbox.half_area() * tests(nr - 1);
+        const float c_right = lbox.half_area() * tests(nl - 1) + r1.half_area() * tests(nr);
+        if (c_left < c_split && c_left <= c_right) {
+          left.push_back(r);
+          lbox = l1;
+          --nr;
+        } else if (c_right < c_split) {
+          right.push_back(r);
+          rbox = r1;
+          --nl;
+        } else {
+          const TriangleVerts& t = tris_[r.id];
+          const Aabb cl = clip_triangle(t, a, -kInf, plane, whole), cr = clip_triangle(t, a, plane, kInf, whole);
+          PrimRef x = r;
+          if (!cl.empty()) {
+            x.lo = cl.lo;
+            x.hi = cl.hi;
+            left.push_back(x);
+          }
+          if (!cr.empty()) {
+            x.lo = cr.lo;
+            x.hi = cr.hi;
+            right.push_back(x);
+          }
+          if (cl.empty() && cr.empty()) left.push_back(r);  // cannot happen for a finite triangle; kept whole
+        }
+      }
+    }
+    if (left.empty() || right.empty() || left.size() + right.size() > room) return false;
+    const uint32_t ln = uint32_t(left.size()), rn = uint32_t(right.size());
+    const uint32_t spare = room - ln - rn;
+    const uint32_t sl = uint32_t(uint64_t(spare) * ln / (uint64_t(ln) + rn));
+    std::copy(left.begin(), left.end(), &refs_[begin]);
+    std::copy(right.begin(), right.end(), &refs_[begin + ln + sl]);
+    sp.lbegin = begin;
+    sp.lend = begin + ln;
+    sp.lcap = sp.rbegin = begin + ln + sl;
+    sp.rend = sp.rbegin + rn;
+    sp.rcap = cap_end;
+    sp.placed = true;
+    sp.mid = sp.lend;
+    range_bounds(sp.lbegin, sp.lend, sp.lb, sp.lcb);
+    range_bounds(sp.rbegin, sp.rend, sp.rb, sp.rcb);
+    spatial_splits_.fetch_add(1, std::memory_order_relaxed);
+    return true;
+  }
+
   BvhBuildOptions opt_;
   std::vector<uint32_t>& order_;
+  const std::vector<TriangleVerts>& tris_;
+  bool spatial_ = false;
+  uint32_t cap_ = 0;                // reference slots: triangles plus the duplicate budget
+  float spatial_min_area_ = 0.0f;   // alpha x the root's half area
+  std::atomic<size_t> spatial_splits_{0};
   std::unique_ptr<PrimRef[], FreeRaw> refs_;
   size_t n_refs_ = 0;
   std::unique_ptr<BvhNode[], FreeRaw> node_store_;  // up to 2n - 1 nodes; those used are all written
@@ -625,6 +1006,9 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
   bounds_ = {bin[0].lo, bin[0].hi};
   stats_.nodes = n_bin;
   stats_.max_depth = builder.max_depth();
+  stats_.triangles = tris.size();
+  stats_.references = prim_ids_.size();
+  stats_.spatial_splits = builder.spatial_splits();
   const float root_area = std::max(bounds_.half_area(), 1e-30f);
   // Summed in tree order: subtrees built in parallel place their nodes in an order that depends
   // on thread timing, and the sum must not.

@@ -59,6 +59,15 @@ struct BvhBuildOptions {
   // fill whole blocks. 0 = automatic (4 for the wide layouts, whose leaves are TriangleBlock4s).
   int leaf_block = 0;
   BvhLayout layout = BvhLayout::Auto;
+  // Spatial splits (SBVH, Stich, Friedrich & Dietrich 2009): where the best object split's
+  // children overlap by more than spatial_alpha x the root's surface area, binned planes that
+  // cut the triangles themselves are tried too; a cut triangle is referenced by both children
+  // (hits still name the input index). At most max_duplicates x triangles extra references,
+  // shared out between subtrees (not a global counter), so the tree is the same on any thread
+  // count. Slower builds, fewer triangle and node tests on long thin triangles: final renders.
+  bool spatial_splits = false;
+  float spatial_alpha = 1e-5f;
+  float max_duplicates = 0.3f;
   // Polled during the build; when it becomes true the build stops, build() returns false and
   // the Bvh is left empty. May be set from any thread.
   const std::atomic<bool>* cancel = nullptr;
@@ -69,6 +78,9 @@ struct BvhStats {
   size_t wide_nodes = 0;                         // of the wide tree (0 for Binary)
   double sah_cost = 0.0;  // expected cost of a random ray, in triangle tests (traversal weighted)
   double build_ms = 0.0;  // binary build and collapse
+  size_t triangles = 0;       // input triangles
+  size_t references = 0;      // triangle references in leaves: triangles + duplicates of cut ones
+  size_t spatial_splits = 0;  // nodes split by a spatial (cutting) plane
   BvhLayout layout = BvhLayout::Binary;
 };
 

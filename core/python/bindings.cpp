@@ -573,6 +573,7 @@ py::dict scene_stats(const PyScene& self) {
   d["top_level_builds"] = s.top_level_builds;
   d["blases"] = s.blases;
   d["blas_triangles"] = s.blas_triangles;
+  d["blas_references"] = s.blas_references;
   d["tlas_instances"] = s.tlas_instances;
   d["real_instances"] = s.real_instances;
   d["dynamic"] = self.scene->dynamic();
@@ -585,6 +586,10 @@ py::dict scene_stats(const PyScene& self) {
   d["bvh_bytes"] = s.bvh_bytes;  // every BLAS and the top level
   d["bvh_layout"] = bvh_layout_name(b.layout);
   d["bvh_wide_nodes"] = b.wide_nodes;
+  d["spatial_splits"] = self.scene->spatial_splits();  // the setting (applies from the next commit)
+  d["bvh_triangles"] = b.triangles;                    // of the largest BLAS, as the other bvh_ entries
+  d["bvh_references"] = b.references;
+  d["bvh_spatial_splits"] = b.spatial_splits;
   d["features"] = self.scene->features().names();  // of the last commit
   return d;
 }
@@ -1134,6 +1139,14 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("index"), py::arg("matrix"),
           "Moves instance `index` (add_instance order). In dynamic mode (or for a mesh with several "
           "instances) the next commit() rebuilds only the top level and the lights.")
+      .def_property(
+          "spatial_splits", [](const PyScene& self) { return self.scene->spatial_splits(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_spatial_splits(on);
+          },
+          "Spatial splits (SBVH) in the BVH builds of the next commit(): slower builds, fewer "
+          "triangle and node tests on long thin triangles (final renders). Default off.")
       .def_property(
           "dynamic", [](const PyScene& self) { return self.scene->dynamic(); },
           [](PyScene& self, bool on) {

@@ -115,7 +115,7 @@ void Scene::set_instance_transform(uint32_t index, const Mat4& m) {
 bool Scene::commit(int threads, BvhLayout layout) {
   cancel_.store(false);
   committed_ = false;
-  if (geometry_dirty_ || layout != built_layout_) {
+  if (geometry_dirty_ || layout != built_layout_ || spatial_splits_ != built_spatial_splits_) {
     if (!build_geometry(threads, layout)) return false;
   } else if (top_dirty_) {
     build_instances();
@@ -264,14 +264,16 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   opt.threads = threads;
   opt.layout = layout;
   opt.cancel = &cancel_;
+  opt.spatial_splits = spatial_splits_;
   largest_blas_ = 0;
-  size_t blas_tris = 0;
+  size_t blas_tris = 0, blas_refs = 0;
   for (size_t k = 0; k < blases_.size(); ++k) {
     if (!blases_[k].bvh.build(blases_[k].tris, opt)) {  // only a cancel makes it fail
       cancelled();
       return false;
     }
     blas_tris += blases_[k].tris.size();
+    blas_refs += blases_[k].bvh.stats().references;
     if (blases_[k].tris.size() > blases_[largest_blas_].tris.size()) largest_blas_ = k;
   }
   build_instances();
@@ -283,8 +285,10 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   stats_.materials = materials_.size();
   stats_.blases = blases_.size();
   stats_.blas_triangles = blas_tris;
+  stats_.blas_references = blas_refs;
   geometry_dirty_ = false;
   built_layout_ = layout;
+  built_spatial_splits_ = spatial_splits_;
   ++stats_.geometry_builds;
   return true;
 }

@@ -84,6 +84,7 @@ struct SceneStats {
   size_t geometry_builds = 0, light_builds = 0;  // commits that rebuilt the BVH / the light distribution
   size_t top_level_builds = 0;  // commits that rebuilt only the top level (transform edits)
   size_t blases = 0, blas_triangles = 0;  // bottom-level BVHs and the triangles stored in them
+  size_t blas_references = 0;  // triangle references in their leaves (> blas_triangles with spatial splits)
   size_t tlas_instances = 0;              // entries of the top level (0: a single BLAS, no top level)
   size_t real_instances = 0;              // instances traced through a transform (not merged)
   size_t bvh_bytes = 0, geometry_bytes = 0;  // BLASes + top level; triangle copies, maps and mesh data
@@ -138,6 +139,13 @@ class Scene {
     dynamic_ = on;
   }
   bool dynamic() const { return dynamic_; }
+  // Spatial splits (SBVH) in the BLAS builds (BvhBuildOptions::spatial_splits): slower builds,
+  // faster tracing of long thin triangles; for final renders. Changing it rebuilds the geometry.
+  void set_spatial_splits(bool on) {
+    if (on != spatial_splits_) committed_ = false;
+    spatial_splits_ = on;
+  }
+  bool spatial_splits() const { return spatial_splits_; }
   // Live edits (viewport): replace material `id` (not the default 0) or drop every analytic
   // light; the next commit() then rebuilds only the light distribution, not the BVH.
   void set_material(uint32_t id, Material m);
@@ -288,6 +296,7 @@ class Scene {
   bool top_dirty_ = false;  // only instance transforms changed (dynamic / real instances)
   bool dynamic_ = false;
   BvhLayout built_layout_ = BvhLayout::Auto;
+  bool spatial_splits_ = false, built_spatial_splits_ = false;
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
 
