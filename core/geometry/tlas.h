@@ -53,6 +53,10 @@ struct TlasStats {
   double build_ms = 0.0;
 };
 
+// Top-level nodes are 8 wide: a node holds the boxes of up to 8 children (interior nodes or
+// instances, count 1) in rows, as the wide BVH does.
+using TlasNode = WideBvhNode<8>;
+
 class Tlas {
  public:
   // Builds over the instances (copied); hit.inst names the index in `instances`. Instances with
@@ -62,7 +66,7 @@ class Tlas {
   bool empty() const { return nodes_.empty(); }
   Aabb bounds() const { return bounds_; }
   const TlasStats& stats() const { return stats_; }
-  size_t memory_bytes() const { return nodes_.capacity() * sizeof(BvhNode) + refs_.capacity() * sizeof(uint32_t) + insts_.capacity() * sizeof(TlasInstance); }
+  size_t memory_bytes() const { return nodes_.capacity() * sizeof(TlasNode) + insts_.capacity() * sizeof(TlasInstance); }
 
   // Closest hit with 0 < t < ray.tmax; fills hit (prim: the BLAS's triangle, inst: the instance).
   bool intersect(const Ray& ray, Hit& hit, TraversalCounters* counters = nullptr) const;
@@ -70,8 +74,7 @@ class Tlas {
   bool occluded(const Ray& ray) const;
 
  private:
-  std::vector<BvhNode> nodes_;      // binary; leaves index refs_
-  std::vector<uint32_t> refs_;      // leaf order -> instance
+  std::vector<TlasNode> nodes_;     // 8 wide, root first; a lane with count 1 names an instance
   std::vector<TlasInstance> insts_;
   Aabb bounds_;
   TlasStats stats_;
