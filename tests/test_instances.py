@@ -29,6 +29,7 @@ KINDS = {
     "nonuniform": lambda i: rotation(i) @ np.diag([0.4, 1.3, 0.7]) @ rotation(i + 50),
     "mirrored": lambda i: rotation(i) @ np.diag([-0.8, 0.9, 1.1]),  # negative determinant
     "sheared": lambda i: rotation(i) @ np.array([[1.0, 0.6, 0.0], [0.0, 1.0, 0.3], [0.0, 0.0, 0.8]]),
+    "translated": lambda i: np.eye(3),  # moved only: the top level shifts rays without matrix products
 }
 
 
@@ -533,16 +534,18 @@ def test_dynamic_room_visits_few_more_nodes_than_the_merged_one():
 
 
 def test_moves_to_and_from_identity_equal_a_fresh_scene():
-    """An identity matrix skips the ray transform, so moving an object onto or off the identity
-    changes how it is traced; every state must still render and hit exactly as a scene built
-    fresh with those matrices (a function of the matrices, not of the edits before)."""
+    """An identity matrix skips the ray transform and a translation the matrix products, so
+    moving an object onto or off them changes how it is traced; every state must still render
+    and hit exactly as a scene built fresh with those matrices (a function of the matrices, not
+    of the edits before)."""
     eye = np.eye(4, dtype=np.float32)
     mats = matrices("scaled")
     s = lit_scene("dynamic", mats)
     s.commit()
     g = s.stats()["geometry_builds"]
     o, d = random_rays(5000, 9)
-    steps = [{1: eye}, {1: affine(rotation(3) * 0.5, (0.2, -0.4, 0.3)), 0: eye}, {0: mats[0], 3: eye}]
+    moved = affine(np.eye(3), (0.4, 0.1, -0.2))
+    steps = [{1: eye, 2: moved}, {1: affine(rotation(3) * 0.5, (0.2, -0.4, 0.3)), 0: eye}, {0: mats[0], 3: eye, 2: mats[2]}]
     current = list(mats)
     for k, step in enumerate(steps):
         for i, m in step.items():

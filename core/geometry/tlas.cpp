@@ -32,6 +32,14 @@ Aabb world_box(const Aabb& b, const Mat4& m) {
   return out;
 }
 
+// Whether the 3x3 part (and, with translation, the last column) is exactly the identity's.
+bool is_identity(const Mat4& m, bool translation) {
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < (translation ? 4 : 3); ++j)
+      if (m.m[i][j] != (i == j ? 1.0f : 0.0f)) return false;
+  return true;
+}
+
 struct Builder {
   std::vector<BvhNode>& nodes;
   std::vector<uint32_t>& refs;
@@ -191,7 +199,13 @@ void Tlas::build(std::vector<TlasInstance> instances) {
   std::vector<uint32_t> refs;
   Builder b{bin, refs, boxes, std::vector<Vec3>(insts_.size())};
   for (uint32_t i = 0; i < insts_.size(); ++i) {
-    const TlasInstance& in = insts_[i];
+    TlasInstance& in = insts_[i];
+    // Objects with applied transforms (identity) need no ray transform, moved-only ones
+    // (translations) no matrix products.
+    if (!in.identity && is_identity(in.to_world, true) && is_identity(in.to_object, true)) in.identity = true;
+    in.space = in.identity ? TlasSpace::World
+               : is_identity(in.to_world, false) && is_identity(in.to_object, false) ? TlasSpace::Translated
+                                                                                    : TlasSpace::Affine;
     if (!in.blas || in.blas->empty()) continue;
     boxes[i] = in.identity ? in.blas->bounds() : world_box(in.blas->bounds(), in.to_world);
     if (boxes[i].empty() || !is_finite(boxes[i].lo) || !is_finite(boxes[i].hi)) continue;
@@ -280,7 +294,8 @@ inline bool enter(const TlasInstance& in, uint32_t i, const Ray& ray, float tmax
   Ray r = ray;
   r.tmax = tmax;
   float dt = 0.0f;
-  if (!in.identity) r = ray_to_object(in.to_object, r, dt);
+  if (in.space == TlasSpace::Affine) r = ray_to_object(in.to_object, r, dt);
+  else if (in.space == TlasSpace::Translated) r = ray_to_object_translated(in.to_object, r, dt);
   if (!(r.tmax > 0.0f)) return false;
   if (AnyHit) return in.blas->occluded(r);
   Hit h;

@@ -10,11 +10,20 @@
 
 namespace pl {
 
+// How a ray reaches an instance's BLAS space, decided by Tlas::build from the matrices alone
+// (so a moved instance is traced exactly as a freshly added one with the same matrix).
+enum class TlasSpace : uint8_t {
+  World,      // identity (or `identity`): the ray as it is
+  Translated, // the linear part is the identity: the origin only moves
+  Affine,     // the full transform
+};
+
 struct TlasInstance {
   const Bvh* blas = nullptr;  // must outlive the Tlas (or its next build)
   Mat4 to_world;              // object -> world (affine)
   Mat4 to_object;             // its inverse
   bool identity = false;      // the BLAS is already in world space: no ray transform
+  TlasSpace space = TlasSpace::Affine;  // set by Tlas::build
 };
 
 // Bound of the rounding error of M.point(p) where p itself carries the error p_error
@@ -40,6 +49,23 @@ inline Ray ray_to_object(const Mat4& to_object, const Ray& r, float& dt) {
   o.org = to_object.point(r.org);
   o.dir = to_object.vector(r.dir);
   const Vec3 err = transform_point_error(to_object, r.org, Vec3(0.0f));
+  const float l2 = length_sq(o.dir);
+  dt = l2 > 0.0f ? dot(vabs(o.dir), err) / l2 : 0.0f;
+  if (!std::isfinite(dt)) dt = 0.0f;
+  o.org += o.dir * dt;
+  o.tmax = r.tmax - dt;
+  return o;
+}
+
+// ray_to_object for a to_object whose linear part is the identity: the same origin, error bound
+// and move (the products by 1 and 0 are exact), without the matrix products.
+inline Ray ray_to_object_translated(const Mat4& to_object, const Ray& r, float& dt) {
+  Ray o;
+  const Vec3 t{to_object.m[0][3], to_object.m[1][3], to_object.m[2][3]};
+  o.org = r.org + t;
+  o.dir = r.dir;
+  const float g = gamma_bound(3);
+  const Vec3 err = (vabs(r.org) + vabs(t)) * g;
   const float l2 = length_sq(o.dir);
   dt = l2 > 0.0f ? dot(vabs(o.dir), err) / l2 : 0.0f;
   if (!std::isfinite(dt)) dt = 0.0f;

@@ -139,13 +139,6 @@ bool usable_triangle(const TriangleVerts& tv) {
          std::isfinite(length_sq(c)) && big < 1e30f;
 }
 
-bool is_identity(const Mat4& m) {
-  for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j)
-      if (m.m[i][j] != (i == j ? 1.0f : 0.0f)) return false;
-  return true;
-}
-
 // Inverse of an affine matrix, computed in double; false if singular or not finite.
 bool affine_inverse(const Mat4& m, Mat4& inv) {
   double a[3][3];
@@ -366,10 +359,6 @@ void Scene::build_top_level() {
     e.blas = &blases_[in.blas].bvh;
     e.to_world = in.to_world;
     e.to_object = in.to_object;
-    // An identity matrix (objects with applied transforms) needs no ray transform: the BLAS's
-    // space is world space. A function of the matrix alone, so a moved render still equals a
-    // fresh one.
-    e.identity = is_identity(in.to_world);
     entries.push_back(e);
   }
   // A lone merged BLAS is traced directly: no top level, no transforms.
