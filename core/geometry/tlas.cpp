@@ -230,7 +230,7 @@ namespace {
 
 // Entry distances of the 8 lanes' boxes and the mask of those hit before tmax: the binary
 // slab test (near and far planes picked by the direction's signs, as the wide BVH does; the
-// same conservative exit scale), four lanes per SSE operation.
+// same conservative exit scale), all 8 lanes in one AVX operation or four per SSE one.
 struct RayBoxes {
   int near[3], far[3];
   float org[3], inv[3];
@@ -243,7 +243,19 @@ struct RayBoxes {
     }
   }
   unsigned test(const TlasNode& n, float tmax, float* dist) const {
-#if defined(__SSE2__)
+#if defined(__AVX__)
+    __m256 tmin = _mm256_setzero_ps(), tfar = _mm256_set1_ps(tmax);
+    for (int a = 0; a < 3; ++a) {
+      const __m256 o = _mm256_set1_ps(org[a]), iv = _mm256_set1_ps(inv[a]);
+      const __m256 t0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_load_ps(n.bounds[near[a]]), o), iv);
+      const __m256 t1 = _mm256_mul_ps(_mm256_sub_ps(_mm256_load_ps(n.bounds[far[a]]), o), iv);
+      tmin = _mm256_max_ps(t0, tmin);
+      tfar = _mm256_min_ps(t1, tfar);
+    }
+    tfar = _mm256_mul_ps(tfar, _mm256_set1_ps(bvh_detail::kBoxExitScale));
+    _mm256_storeu_ps(dist, tmin);
+    return unsigned(_mm256_movemask_ps(_mm256_cmp_ps(tmin, tfar, _CMP_LE_OQ)));
+#elif defined(__SSE2__)
     unsigned mask = 0;
     for (int h = 0; h < kWidth; h += 4) {
       __m128 tmin = _mm_setzero_ps(), tfar = _mm_set1_ps(tmax);

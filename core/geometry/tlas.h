@@ -1,7 +1,9 @@
-// The top level of a two-level BVH: a binary SAH tree over instances, each a bottom-level Bvh
-// (in its own object space) and an affine transform. Traversal carries the ray into object
-// space per instance with its direction unnormalised, so hit distances stay world distances.
-// Like Bvh, it knows triangles and transforms only; hits name (instance, triangle).
+// The top level of a two-level BVH: a binned SAH tree over instances (one per leaf), each a
+// bottom-level Bvh (in its own object space) and an affine transform, collapsed into 8-wide
+// nodes tested four lanes per SSE operation, nearest child first. Traversal carries the ray
+// into object space per instance with its direction unnormalised, so hit distances stay world
+// distances; identity and translation-only instances skip the matrix products. Like Bvh, it
+// knows triangles and transforms only; hits name (instance, triangle).
 #pragma once
 #include <cstdint>
 #include <vector>
