@@ -121,7 +121,7 @@ struct Builder {
 
 // Collapses the binary tree into 8-wide nodes (each interior child replaced by its two children,
 // the largest first, while there is room): a room's few objects sit in one or two nodes, and a
-// ray tests all of them with two SSE box tests instead of one binary node per level.
+// ray tests all of them at once (one AVX or two SSE box tests) instead of one binary node per level.
 struct Collapser {
   const std::vector<BvhNode>& bin;
   const std::vector<uint32_t>& refs;
