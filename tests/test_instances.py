@@ -29,6 +29,7 @@ KINDS = {
     "nonuniform": lambda i: rotation(i) @ np.diag([0.4, 1.3, 0.7]) @ rotation(i + 50),
     "mirrored": lambda i: rotation(i) @ np.diag([-0.8, 0.9, 1.1]),  # negative determinant
     "sheared": lambda i: rotation(i) @ np.array([[1.0, 0.6, 0.0], [0.0, 1.0, 0.3], [0.0, 0.0, 0.8]]),
+    "translated": lambda i: np.eye(3),  # moved only: the top level shifts rays without matrix products
 }
 
 
@@ -496,3 +497,100 @@ def test_rays_at_shared_edges_of_an_instance_never_pass_through(scale, shift):
     t, prim, _, _ = s.intersect(o, d)
     assert (prim < 0).sum() == 0, f"{(prim < 0).sum()} of {len(o)} rays passed through"
     assert np.abs(t - 1.0).max() < 1e-3 + 1e-6 * abs(shift) / scale
+
+
+# ---------------------------------------------------------------- the top level's cost (dynamic mode)
+
+def _room_rays(n, shift, seed):
+    """Rays from random points inside the Cornell box (moved by shift) in random directions:
+    bounce-like rays, which cross several objects' boxes."""
+    rng = np.random.default_rng(seed)
+    o = np.stack([rng.uniform(-0.95, 0.95, n), rng.uniform(-0.95, 0.95, n), rng.uniform(0.05, 1.95, n)], 1) + shift
+    return o.astype(np.float32), rng.normal(size=(n, 3)).astype(np.float32)
+
+
+def test_dynamic_room_visits_few_more_nodes_than_the_merged_one():
+    """The viewport's layout (every object its own BVH under the top level) against the final
+    render's (one merged BVH), on a room whose objects all carry real transforms: BVH nodes
+    visited per ray, a deterministic stand-in for the per-sample cost (build.py bench and
+    tests/bench/callgrind_*.py --dynamic measure the time). The 8-wide top level holds the
+    room's 8 objects in one node; the binary one visited about 7x the merged BVH's nodes."""
+    shift = np.array([0.25, -0.5, 0.125])
+    counts = {}
+    for dyn in (False, True):
+        s = cornell(_Scaled(1.0, shift, dyn)).real
+        s.commit()
+        assert s.stats()["real_instances"] == (8 if dyn else 0)
+        o, d = _room_rays(20_000, shift, 5)
+        xy = np.stack(np.meshgrid(np.arange(48) + 0.5, np.arange(48) + 0.5), -1).reshape(-1, 2).astype(np.float32)
+        co, cd, ct = s.camera_rays(48, 48, xy)
+        counts[dyn] = [s.traversal_counts(o, d), s.traversal_counts(co, cd, ct)]
+        if dyn:
+            assert (s.intersect(o, d)[1] >= 0).all()  # a closed room: every ray hits
+    for (mn, mt), (dn, dt) in zip(counts[False], counts[True]):
+        assert dn.mean() < 2.0 * mn.mean(), (dn.mean(), mn.mean())
+        # Per-object boxes cull at least as well as the merged tree's leaves.
+        assert dt.mean() <= mt.mean(), (dt.mean(), mt.mean())
+
+
+def test_moves_to_and_from_identity_equal_a_fresh_scene():
+    """An identity matrix skips the ray transform and a translation the matrix products, so
+    moving an object onto or off them changes how it is traced; every state must still render
+    and hit exactly as a scene built fresh with those matrices (a function of the matrices, not
+    of the edits before)."""
+    eye = np.eye(4, dtype=np.float32)
+    mats = matrices("scaled")
+    s = lit_scene("dynamic", mats)
+    s.commit()
+    g = s.stats()["geometry_builds"]
+    o, d = random_rays(5000, 9)
+    moved = affine(np.eye(3), (0.4, 0.1, -0.2))
+    steps = [{1: eye, 2: moved}, {1: affine(rotation(3) * 0.5, (0.2, -0.4, 0.3)), 0: eye}, {0: mats[0], 3: eye, 2: mats[2]}]
+    current = list(mats)
+    for k, step in enumerate(steps):
+        for i, m in step.items():
+            s.set_instance_transform(i, m)
+            current[i] = m
+        s.commit()
+        st = s.stats()
+        assert st["geometry_builds"] == g and st["top_level_builds"] == k + 1
+        fresh = lit_scene("dynamic", current)
+        fresh.commit()
+        assert fresh.stats()["top_level_builds"] == 0 and fresh.stats()["real_instances"] == st["real_instances"] == 5
+        got, expect = s.intersect(o, d, instances=True), fresh.intersect(o, d, instances=True)
+        assert all(np.array_equal(x, y) for x, y in zip(got, expect)), k
+        assert set(got[4][got[1] >= 0].tolist()) >= {0, 1, 2, 3}
+        assert np.array_equal(render(pc, s, 24, 24, samples=8, seed=4)[0], render(pc, fresh, 24, 24, samples=8, seed=4)[0]), k
+
+
+def test_wide_top_level_over_many_lopsided_instances_agrees_with_merged():
+    """Hundreds of instances at exponentially growing distances and sizes (lopsided SAH splits,
+    a deep top level that falls back to halving by count) and a dense grid of small ones: the
+    wide top level finds the merged BVH's hits, and occluded() agrees with intersect()."""
+    pos, tris, nrm = clean(*uv_sphere(0.5, nu=8, nv=4))
+    mats = []
+    for i in range(300):
+        r = 1.06 ** i
+        mats.append(affine(rotation(i) * (0.2 * r), (r * np.cos(i), r * np.sin(i), 0.0)))
+    for i in range(400):
+        mats.append(affine(rotation(i + 7) * 0.1, (0.25 * (i % 20) - 2.4, 0.25 * (i // 20) - 2.4, 0.5)))
+    res = {}
+    for mode in ("merged", "dynamic"):
+        s = build(mode, mats, mesh=(pos, tris, nrm, np.zeros((len(tris), 3, 2), np.float32)))
+        s.commit()
+        res[mode] = s
+        assert s.stats()["tlas_instances"] == (700 if mode == "dynamic" else 0)
+    rng = np.random.default_rng(4)
+    for scale in (3.0, 40.0, 1e4):
+        o = rng.normal(size=(6000, 3)) * scale
+        o[:, 2] = np.abs(o[:, 2]) + 1.0
+        target = rng.normal(size=(6000, 3)) * scale * 0.5
+        target[:, 2] *= 0.01
+        o, d = o.astype(np.float32), (target - o).astype(np.float32)
+        a = res["dynamic"].intersect(o, d, instances=True)
+        assert_same_hits(res["merged"].intersect(o, d, instances=True), a, min_hits=300)
+        t, prim = a[0], a[1]
+        occ = res["dynamic"].occluded(o, d, 1.0)
+        assert not (occ & ~(prim >= 0)).any()
+        clear = (prim >= 0) & (t < 1.0 - 1e-4)
+        assert occ[clear].all()

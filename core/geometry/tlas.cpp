@@ -2,6 +2,9 @@
 
 #include <algorithm>
 #include <chrono>
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
 
 #include "geometry/bvh_common.h"
 
@@ -9,8 +12,12 @@ namespace pl {
 namespace {
 
 constexpr int kBins = 16;
-constexpr uint32_t kMaxLeaf = 2;
-constexpr int kStackSize = 64;
+// One instance per leaf: every instance is entered only after a test of its own world box
+// (entering one costs a ray transform and a BLAS traversal's set-up, far more than a box).
+constexpr uint32_t kMaxLeaf = 1;
+constexpr int kSahDepth = 48;
+constexpr int kMaxDepth = kSahDepth + 32;
+constexpr int kWidth = 8;
 
 // World box of a BLAS's box under an affine transform, grown by the transform's rounding so a
 // ray the object-space traversal would hit is never culled here.
@@ -23,6 +30,14 @@ Aabb world_box(const Aabb& b, const Mat4& m) {
     out.grow(w + e);
   }
   return out;
+}
+
+// Whether the 3x3 part (and, with translation, the last column) is exactly the identity's.
+bool is_identity(const Mat4& m, bool translation) {
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < (translation ? 4 : 3); ++j)
+      if (m.m[i][j] != (i == j ? 1.0f : 0.0f)) return false;
+  return true;
 }
 
 struct Builder {
@@ -41,10 +56,12 @@ struct Builder {
     nodes[node].hi = b.hi;
     const uint32_t n = end - begin;
     uint32_t mid = begin;
-    if (n > kMaxLeaf && depth < kStackSize - 8) {
+    if (n > kMaxLeaf) {
       const int axis = max_axis(cb.extent());
       const float lo = cb.lo[axis], ext = cb.extent()[axis];
-      if (ext > 0.0f) {
+      // Deep down, halves by count: the depth (and the traversal stack) stays below
+      // kSahDepth + 32 levels however lopsided the SAH splits above were.
+      if (ext > 0.0f && depth < kSahDepth) {
         // Binned SAH (Wald 2007) on the centroids.
         Aabb bin_box[kBins];
         uint32_t bin_n[kBins] = {};
@@ -102,12 +119,72 @@ struct Builder {
   }
 };
 
+// Collapses the binary tree into 8-wide nodes (each interior child replaced by its two children,
+// the largest first, while there is room): a room's few objects sit in one or two nodes, and a
+// ray tests all of them at once (one AVX or two SSE box tests) instead of one binary node per level.
+struct Collapser {
+  const std::vector<BvhNode>& bin;
+  const std::vector<uint32_t>& refs;
+  std::vector<TlasNode>& out;
+
+  uint32_t collapse(uint32_t b) {
+    uint32_t kids[kWidth];
+    int n = 0;
+    if (bin[b].is_leaf()) {
+      kids[n++] = b;  // a lone instance: a root with one lane
+    } else {
+      kids[n++] = bin[b].left_or_first;
+      kids[n++] = bin[b].left_or_first + 1;
+      while (n < kWidth) {
+        int best = -1;
+        float area = -1.0f;
+        for (int k = 0; k < n; ++k) {
+          const BvhNode& c = bin[kids[k]];
+          const float a = Aabb{c.lo, c.hi}.half_area();
+          if (!c.is_leaf() && a > area) {
+            area = a;
+            best = k;
+          }
+        }
+        if (best < 0) break;
+        const uint32_t l = bin[kids[best]].left_or_first;
+        kids[best] = l;
+        kids[n++] = l + 1;
+      }
+    }
+    const uint32_t w = uint32_t(out.size());
+    out.emplace_back();
+    for (int k = 0; k < kWidth; ++k) {
+      for (int r = 0; r < 3; ++r) {
+        out[w].bounds[2 * r][k] = kInf;
+        out[w].bounds[2 * r + 1][k] = -kInf;
+      }
+      out[w].child[k] = 0;
+      out[w].count[k] = 0;
+    }
+    for (int k = 0; k < n; ++k) {
+      const BvhNode& c = bin[kids[k]];
+      for (int r = 0; r < 3; ++r) {
+        out[w].bounds[2 * r][k] = c.lo[r];
+        out[w].bounds[2 * r + 1][k] = c.hi[r];
+      }
+      if (c.is_leaf()) {
+        out[w].child[k] = refs[c.left_or_first];  // kMaxLeaf == 1: one instance
+        out[w].count[k] = 1;
+      } else {
+        const uint32_t ci = collapse(kids[k]);
+        out[w].child[k] = ci;
+      }
+    }
+    return w;
+  }
+};
+
 }  // namespace
 
 void Tlas::clear() {
   // Released, not just emptied: memory_bytes() reports capacity.
   nodes_ = {};
-  refs_ = {};
   insts_ = {};
   bounds_ = Aabb();
   stats_ = TlasStats();
@@ -118,97 +195,199 @@ void Tlas::build(std::vector<TlasInstance> instances) {
   clear();
   insts_ = std::move(instances);
   std::vector<Aabb> boxes(insts_.size());
-  Builder b{nodes_, refs_, boxes, std::vector<Vec3>(insts_.size())};
+  std::vector<BvhNode> bin;
+  std::vector<uint32_t> refs;
+  Builder b{bin, refs, boxes, std::vector<Vec3>(insts_.size())};
   for (uint32_t i = 0; i < insts_.size(); ++i) {
-    const TlasInstance& in = insts_[i];
+    TlasInstance& in = insts_[i];
+    // Objects with applied transforms (identity) need no ray transform, moved-only ones
+    // (translations) no matrix products.
+    if (!in.identity && is_identity(in.to_world, true) && is_identity(in.to_object, true)) in.identity = true;
+    in.space = in.identity ? TlasSpace::World
+               : is_identity(in.to_world, false) && is_identity(in.to_object, false) ? TlasSpace::Translated
+                                                                                    : TlasSpace::Affine;
     if (!in.blas || in.blas->empty()) continue;
     boxes[i] = in.identity ? in.blas->bounds() : world_box(in.blas->bounds(), in.to_world);
     if (boxes[i].empty() || !is_finite(boxes[i].lo) || !is_finite(boxes[i].hi)) continue;
     b.centers[i] = boxes[i].center();
-    refs_.push_back(i);
+    refs.push_back(i);
     bounds_.grow(boxes[i]);
   }
-  if (!refs_.empty()) {
-    nodes_.reserve(2 * refs_.size());
-    nodes_.emplace_back();
-    b.build(0, 0, uint32_t(refs_.size()), 0);
+  if (!refs.empty()) {
+    bin.reserve(2 * refs.size());
+    bin.emplace_back();
+    b.build(0, 0, uint32_t(refs.size()), 0);
+    nodes_.reserve(refs.size() / (kWidth - 1) + 1);  // full nodes; fewer when lanes stay empty
+    Collapser{bin, refs, nodes_}.collapse(0);
+    nodes_.shrink_to_fit();
   }
-  stats_.instances = refs_.size();
+  stats_.instances = refs.size();
   stats_.nodes = nodes_.size();
   stats_.build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
 }
 
 namespace {
-// The one traversal of both queries: any_hit stops at the first hit.
-template <bool AnyHit>
-bool traverse(const std::vector<BvhNode>& nodes, const std::vector<uint32_t>& refs,
-              const std::vector<TlasInstance>& insts, const Ray& ray, Hit& hit, TraversalCounters* counters) {
-  if (nodes.empty()) return false;
-  const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
-  float tmax = ray.tmax;
-  bool found = false;
-  uint32_t stack[kStackSize];
-  int sp = 0;
-  if (bvh_detail::intersect_node(nodes[0], ray.org, inv, tmax) == kInf) return false;
-  uint32_t ni = 0;
-  for (;;) {
-    const BvhNode& n = nodes[ni];
-    if (counters) counters->nodes++;
-    if (n.is_leaf()) {
-      for (uint32_t i = n.left_or_first, e = n.left_or_first + n.count; i < e; ++i) {
-        const TlasInstance& in = insts[refs[i]];
-        Ray r = ray;
-        r.tmax = tmax;
-        float dt = 0.0f;
-        if (!in.identity) r = ray_to_object(in.to_object, r, dt);
-        if (!(r.tmax > 0.0f)) continue;
-        if (AnyHit) {
-          if (in.blas->occluded(r)) return true;
-          continue;
-        }
-        Hit h;
-        if (in.blas->intersect(r, h, counters)) {
-          hit = h;
-          hit.t = h.t + dt;
-          hit.inst = refs[i];
-          tmax = hit.t;
-          found = true;
-        }
-      }
-    } else {
-      const BvhNode& a = nodes[n.left_or_first];
-      const BvhNode& c = nodes[n.left_or_first + 1];
-      const float ta = bvh_detail::intersect_node(a, ray.org, inv, tmax);
-      const float tc = bvh_detail::intersect_node(c, ray.org, inv, tmax);
-      if (ta != kInf && tc != kInf) {
-        const bool a_first = ta <= tc;
-        ni = a_first ? n.left_or_first : n.left_or_first + 1;
-        stack[sp++] = a_first ? n.left_or_first + 1 : n.left_or_first;
-        continue;
-      }
-      if (ta != kInf) {
-        ni = n.left_or_first;
-        continue;
-      }
-      if (tc != kInf) {
-        ni = n.left_or_first + 1;
-        continue;
-      }
+
+// Entry distances of the 8 lanes' boxes and the mask of those hit before tmax: the binary
+// slab test (near and far planes picked by the direction's signs, as the wide BVH does; the
+// same conservative exit scale), all 8 lanes in one AVX operation or four per SSE one.
+struct RayBoxes {
+  int near[3], far[3];
+  float org[3], inv[3];
+  RayBoxes(const Ray& r, const Vec3& iv) {
+    for (int a = 0; a < 3; ++a) {
+      org[a] = r.org[a];
+      inv[a] = iv[a];
+      near[a] = iv[a] < 0.0f ? 2 * a + 1 : 2 * a;
+      far[a] = near[a] ^ 1;
     }
-    if (sp == 0) break;
-    ni = stack[--sp];
   }
-  return found;
+  unsigned test(const TlasNode& n, float tmax, float* dist) const {
+#if defined(__AVX__)
+    __m256 tmin = _mm256_setzero_ps(), tfar = _mm256_set1_ps(tmax);
+    for (int a = 0; a < 3; ++a) {
+      const __m256 o = _mm256_set1_ps(org[a]), iv = _mm256_set1_ps(inv[a]);
+      const __m256 t0 = _mm256_mul_ps(_mm256_sub_ps(_mm256_load_ps(n.bounds[near[a]]), o), iv);
+      const __m256 t1 = _mm256_mul_ps(_mm256_sub_ps(_mm256_load_ps(n.bounds[far[a]]), o), iv);
+      tmin = _mm256_max_ps(t0, tmin);
+      tfar = _mm256_min_ps(t1, tfar);
+    }
+    tfar = _mm256_mul_ps(tfar, _mm256_set1_ps(bvh_detail::kBoxExitScale));
+    _mm256_storeu_ps(dist, tmin);
+    return unsigned(_mm256_movemask_ps(_mm256_cmp_ps(tmin, tfar, _CMP_LE_OQ)));
+#elif defined(__SSE2__)
+    unsigned mask = 0;
+    for (int h = 0; h < kWidth; h += 4) {
+      __m128 tmin = _mm_setzero_ps(), tfar = _mm_set1_ps(tmax);
+      for (int a = 0; a < 3; ++a) {
+        const __m128 o = _mm_set1_ps(org[a]), iv = _mm_set1_ps(inv[a]);
+        const __m128 t0 = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(&n.bounds[near[a]][h]), o), iv);
+        const __m128 t1 = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(&n.bounds[far[a]][h]), o), iv);
+        tmin = _mm_max_ps(t0, tmin);  // (t0 > tmin) ? t0 : tmin, NaN-safe towards tmin
+        tfar = _mm_min_ps(t1, tfar);
+      }
+      tfar = _mm_mul_ps(tfar, _mm_set1_ps(bvh_detail::kBoxExitScale));
+      _mm_storeu_ps(dist + h, tmin);
+      mask |= unsigned(_mm_movemask_ps(_mm_cmple_ps(tmin, tfar))) << h;
+    }
+    return mask;
+#else
+    unsigned mask = 0;
+    for (int k = 0; k < kWidth; ++k) {
+      float tmin = 0.0f, tfar = tmax;
+      for (int a = 0; a < 3; ++a) {
+        const float t0 = (n.bounds[near[a]][k] - org[a]) * inv[a];
+        const float t1 = (n.bounds[far[a]][k] - org[a]) * inv[a];
+        tmin = t0 > tmin ? t0 : tmin;
+        tfar = t1 < tfar ? t1 : tfar;
+      }
+      dist[k] = tmin;
+      if (tmin <= tfar * bvh_detail::kBoxExitScale) mask |= 1u << k;
+    }
+    return mask;
+#endif
+  }
+};
+
+// One entry of the traversal stack: a node (or, with kLeafBit, an instance) and the distance
+// at which the ray enters its box.
+constexpr uint32_t kLeafBit = 0x80000000u;
+struct StackEntry {
+  uint32_t id;
+  float t;
+};
+// A node pops one entry and pushes at most kWidth; the wide tree has at most kMaxDepth + 1 levels.
+constexpr int kWideStack = (kMaxDepth + 1) * kWidth;
+
+// Enters instance `i` with the ray (up to tmax): closest hit into `hit` / any hit.
+template <bool AnyHit>
+inline bool enter(const TlasInstance& in, uint32_t i, const Ray& ray, float tmax, Hit& hit,
+                  TraversalCounters* counters) {
+  Ray r = ray;
+  r.tmax = tmax;
+  float dt = 0.0f;
+  if (in.space == TlasSpace::Affine) r = ray_to_object(in.to_object, r, dt);
+  else if (in.space == TlasSpace::Translated) r = ray_to_object_translated(in.to_object, r, dt);
+  if (!(r.tmax > 0.0f)) return false;
+  if (AnyHit) return in.blas->occluded(r);
+  Hit h;
+  if (!in.blas->intersect(r, h, counters)) return false;
+  hit = h;
+  hit.t = h.t + dt;
+  hit.inst = i;
+  return true;
 }
+
 }  // namespace
 
 bool Tlas::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
-  return traverse<false>(nodes_, refs_, insts_, ray, hit, counters);
+  if (nodes_.empty()) return false;
+  const RayBoxes rb(ray, bvh_detail::safe_inverse(ray.dir));
+  float tmax = ray.tmax;
+  bool found = false;
+  StackEntry stack[kWideStack];
+  int sp = 0;
+  stack[sp++] = {0, 0.0f};
+  while (sp > 0) {
+    const StackEntry e = stack[--sp];
+    // Boxes entered at or beyond the closest hit so far hold nothing closer (the box test's
+    // own rule, applied again now that tmax has shrunk).
+    if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
+    if (e.id & kLeafBit) {
+      const uint32_t i = e.id & ~kLeafBit;
+      if (enter<false>(insts_[i], i, ray, tmax, hit, counters)) {
+        tmax = hit.t;
+        found = true;
+      }
+      continue;
+    }
+    const TlasNode& n = nodes_[e.id];
+    if (counters) counters->nodes++;
+    alignas(16) float dist[kWidth];
+    unsigned mask = rb.test(n, tmax, dist);
+    // Nearest first: pushed farthest first (insertion order by distance, at most 8).
+    StackEntry hits[kWidth];
+    int nh = 0;
+    while (mask) {
+      const int k = __builtin_ctz(mask);
+      mask &= mask - 1;
+      StackEntry x{n.count[k] ? (n.child[k] | kLeafBit) : n.child[k], dist[k]};
+      int j = nh++;
+      while (j > 0 && hits[j - 1].t < x.t) {
+        hits[j] = hits[j - 1];
+        --j;
+      }
+      hits[j] = x;
+    }
+    for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
+  }
+  return found;
 }
 
 bool Tlas::occluded(const Ray& ray) const {
+  if (nodes_.empty()) return false;
+  const RayBoxes rb(ray, bvh_detail::safe_inverse(ray.dir));
+  uint32_t stack[kWideStack];
+  int sp = 0;
+  stack[sp++] = 0;
   Hit unused;
-  return traverse<true>(nodes_, refs_, insts_, ray, unused, nullptr);
+  while (sp > 0) {
+    const uint32_t id = stack[--sp];
+    if (id & kLeafBit) {
+      const uint32_t i = id & ~kLeafBit;
+      if (enter<true>(insts_[i], i, ray, ray.tmax, unused, nullptr)) return true;
+      continue;
+    }
+    const TlasNode& n = nodes_[id];
+    alignas(16) float dist[kWidth];
+    unsigned mask = rb.test(n, ray.tmax, dist);
+    while (mask) {
+      const int k = __builtin_ctz(mask);
+      mask &= mask - 1;
+      stack[sp++] = n.count[k] ? (n.child[k] | kLeafBit) : n.child[k];
+    }
+  }
+  return false;
 }
 
 }  // namespace pl

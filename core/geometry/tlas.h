@@ -1,7 +1,9 @@
-// The top level of a two-level BVH: a binary SAH tree over instances, each a bottom-level Bvh
-// (in its own object space) and an affine transform. Traversal carries the ray into object
-// space per instance with its direction unnormalised, so hit distances stay world distances.
-// Like Bvh, it knows triangles and transforms only; hits name (instance, triangle).
+// The top level of a two-level BVH: a binned SAH tree over instances (one per leaf), each a
+// bottom-level Bvh (in its own object space) and an affine transform, collapsed into 8-wide
+// nodes tested four lanes per SSE operation, nearest child first. Traversal carries the ray
+// into object space per instance with its direction unnormalised, so hit distances stay world
+// distances; identity and translation-only instances skip the matrix products. Like Bvh, it
+// knows triangles and transforms only; hits name (instance, triangle).
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -10,11 +12,20 @@
 
 namespace pl {
 
+// How a ray reaches an instance's BLAS space, decided by Tlas::build from the matrices alone
+// (so a moved instance is traced exactly as a freshly added one with the same matrix).
+enum class TlasSpace : uint8_t {
+  World,      // identity (or `identity`): the ray as it is
+  Translated, // the linear part is the identity: the origin only moves
+  Affine,     // the full transform
+};
+
 struct TlasInstance {
   const Bvh* blas = nullptr;  // must outlive the Tlas (or its next build)
   Mat4 to_world;              // object -> world (affine)
   Mat4 to_object;             // its inverse
   bool identity = false;      // the BLAS is already in world space: no ray transform
+  TlasSpace space = TlasSpace::Affine;  // set by Tlas::build
 };
 
 // Bound of the rounding error of M.point(p) where p itself carries the error p_error
@@ -48,10 +59,31 @@ inline Ray ray_to_object(const Mat4& to_object, const Ray& r, float& dt) {
   return o;
 }
 
+// ray_to_object for a to_object whose linear part is the identity: the same origin, error bound
+// and move (the products by 1 and 0 are exact), without the matrix products.
+inline Ray ray_to_object_translated(const Mat4& to_object, const Ray& r, float& dt) {
+  Ray o;
+  const Vec3 t{to_object.m[0][3], to_object.m[1][3], to_object.m[2][3]};
+  o.org = r.org + t;
+  o.dir = r.dir;
+  const float g = gamma_bound(3);
+  const Vec3 err = (vabs(r.org) + vabs(t)) * g;
+  const float l2 = length_sq(o.dir);
+  dt = l2 > 0.0f ? dot(vabs(o.dir), err) / l2 : 0.0f;
+  if (!std::isfinite(dt)) dt = 0.0f;
+  o.org += o.dir * dt;
+  o.tmax = r.tmax - dt;
+  return o;
+}
+
 struct TlasStats {
   size_t instances = 0, nodes = 0;
   double build_ms = 0.0;
 };
+
+// Top-level nodes are 8 wide: a node holds the boxes of up to 8 children (interior nodes or
+// instances, count 1) in rows, as the wide BVH does.
+using TlasNode = WideBvhNode<8>;
 
 class Tlas {
  public:
@@ -62,7 +94,7 @@ class Tlas {
   bool empty() const { return nodes_.empty(); }
   Aabb bounds() const { return bounds_; }
   const TlasStats& stats() const { return stats_; }
-  size_t memory_bytes() const { return nodes_.capacity() * sizeof(BvhNode) + refs_.capacity() * sizeof(uint32_t) + insts_.capacity() * sizeof(TlasInstance); }
+  size_t memory_bytes() const { return nodes_.capacity() * sizeof(TlasNode) + insts_.capacity() * sizeof(TlasInstance); }
 
   // Closest hit with 0 < t < ray.tmax; fills hit (prim: the BLAS's triangle, inst: the instance).
   bool intersect(const Ray& ray, Hit& hit, TraversalCounters* counters = nullptr) const;
@@ -70,8 +102,7 @@ class Tlas {
   bool occluded(const Ray& ray) const;
 
  private:
-  std::vector<BvhNode> nodes_;      // binary; leaves index refs_
-  std::vector<uint32_t> refs_;      // leaf order -> instance
+  std::vector<TlasNode> nodes_;     // 8 wide, root first; a lane with count 1 names an instance
   std::vector<TlasInstance> insts_;
   Aabb bounds_;
   TlasStats stats_;
