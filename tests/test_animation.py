@@ -163,3 +163,28 @@ def test_render_frame_range_jobs_keep_the_cache_in_background(monkeypatch):
         assert not render_cache.MESH_CACHE._entries
         sc.render.use_persistent_data = True
         assert keep(sc, background=False)
+
+
+def test_single_frame_renders_skip_the_cache(monkeypatch):
+    """A single-frame render (F12, render(write_still=True)) of a scene without persistent data
+    computes no fingerprints (nothing could reuse its meshes; they cost about half of a big
+    mesh's export) and leaves no entries; with persistent data it fills the cache."""
+    from addon import render_cache
+    from addon.export import mesh_cache
+    calls = []
+    real = mesh_cache.mesh_fingerprint
+    monkeypatch.setattr(mesh_cache, "mesh_fingerprint", lambda mesh: calls.append(1) or real(mesh))
+    sc = _animated_scene()
+    render_cache.MESH_CACHE.clear()
+    image = render_to_array(sc)
+    assert image[..., :3].mean() > 0.0  # rendered the scene
+    assert calls == [] and not render_cache.MESH_CACHE._entries
+    sc.render.use_persistent_data = True
+    try:
+        render_to_array(sc)
+        assert len(calls) == 2 and len(render_cache.MESH_CACHE._entries) == 2
+        render_to_array(sc)
+        assert render_cache.MESH_CACHE.previous["hits"] == 2
+    finally:
+        sc.render.use_persistent_data = False
+        render_cache.MESH_CACHE.clear()

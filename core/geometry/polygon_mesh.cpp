@@ -1,0 +1,159 @@
+#include "geometry/polygon_mesh.h"
+
+#include <algorithm>
+#include <atomic>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace pl {
+namespace {
+
+// Runs fn(begin, end) over [0, count) split into one range per thread (this one included);
+// small counts stay on this thread (starting threads costs more than the work).
+template <class F>
+void parallel_ranges(size_t count, int threads, F&& fn) {
+  const size_t hw = threads > 0 ? size_t(threads) : std::max(1u, std::thread::hardware_concurrency());
+  const size_t n = std::min(hw, std::max<size_t>(1, count / 32768));
+  if (n <= 1) {
+    fn(size_t(0), count);
+    return;
+  }
+  std::vector<std::thread> pool;
+  pool.reserve(n - 1);
+  for (size_t k = 1; k < n; ++k) pool.emplace_back([&fn, k, n, count] { fn(count * k / n, count * (k + 1) / n); });
+  fn(size_t(0), count / n);
+  for (std::thread& t : pool) t.join();
+}
+
+// Blender's float normalisation: multiply by the reciprocal length, zero below 1e-35.
+inline float normalize_v3(Vec3& v) {
+  float d = dot(v, v);
+  if (d > 1.0e-35f) {
+    d = std::sqrt(d);
+    v = v * (1.0f / d);
+    return d;
+  }
+  v = Vec3(0.0f);
+  return 0.0f;
+}
+
+// Blender's math::normalize: per-component division.
+inline Vec3 normalize_div(Vec3 v) {
+  const float d = dot(v, v);
+  if (!(d > 1.0e-35f)) return Vec3(0.0f);
+  const float len = std::sqrt(d);
+  return {v.x / len, v.y / len, v.z / len};
+}
+
+// Blender's safe_acos_approx: a polynomial arccos, within 4.6e-5 rad of acos on [-1, 1].
+inline float safe_acos_approx(float x) {
+  const float f = std::fabs(x);
+  const float m = f < 1.0f ? 1.0f - (1.0f - f) : 1.0f;
+  const float a = std::sqrt(1.0f - m) * (1.5707963267f + m * (-0.213300989f + m * (0.077980478f + m * -0.02164095f)));
+  return x < 0.0f ? 3.14159265359f - a : a;
+}
+
+// Newell's method, as Blender's normal_calc_ngon (degenerate faces get +z).
+Vec3 face_normal(const PolygonMesh& m, size_t f) {
+  const int32_t b = m.offsets[f], e = m.offsets[f + 1];
+  Vec3 n(0.0f);
+  Vec3 prev = m.positions[m.corner_verts[e - 1]];
+  for (int32_t c = b; c < e; ++c) {
+    const Vec3 cur = m.positions[m.corner_verts[c]];
+    n.x += (prev.y - cur.y) * (prev.z + cur.z);
+    n.y += (prev.z - cur.z) * (prev.x + cur.x);
+    n.z += (prev.x - cur.x) * (prev.y + cur.y);
+    prev = cur;
+  }
+  if (normalize_v3(n) == 0.0f) n.z = 1.0f;
+  return n;
+}
+
+}  // namespace
+
+void validate_polygon_mesh(const PolygonMesh& m) {
+  if (m.faces > 0 && m.offsets == nullptr) throw std::invalid_argument("face offsets missing");
+  if (m.offsets[0] != 0) throw std::invalid_argument("face offsets must start at 0");
+  for (size_t f = 0; f < m.faces; ++f)
+    if (int64_t(m.offsets[f + 1]) - int64_t(m.offsets[f]) < 3)
+      throw std::invalid_argument("face " + std::to_string(f) + " has fewer than 3 corners");
+  if (size_t(m.offsets[m.faces]) != m.corners)
+    throw std::invalid_argument("face offsets end at " + std::to_string(m.offsets[m.faces]) + ", not at the " +
+                                std::to_string(m.corners) + " corners");
+  for (size_t c = 0; c < m.corners; ++c)
+    if (m.corner_verts[c] < 0 || size_t(m.corner_verts[c]) >= m.vertices)
+      throw std::invalid_argument("corner vertex " + std::to_string(m.corner_verts[c]) + " out of range for " +
+                                  std::to_string(m.vertices) + " vertices");
+}
+
+size_t polygon_mesh_triangles(const PolygonMesh& m) { return m.corners - 2 * m.faces; }
+
+size_t triangulate_polygons(const PolygonMesh& m, uint32_t* out, int threads) {
+  std::atomic<size_t> total{0};
+  parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
+    size_t n = 0;
+    for (size_t f = begin; f < end; ++f) {
+      const uint32_t b = uint32_t(m.offsets[f]), size = uint32_t(m.offsets[f + 1]) - b;
+      uint32_t* t = out + 3 * (size_t(b) - 2 * f);
+      if (size == 4) {
+        // Blender's is_quad_flip_v3_first_third_fast: do triangles (0 1 2) and (0 2 3) face
+        // away from each other? Same operations in the same order (no FMA: -ffp-contract=off).
+        const Vec3 v1 = m.positions[m.corner_verts[b]], v2 = m.positions[m.corner_verts[b + 1]],
+                   v3 = m.positions[m.corner_verts[b + 2]], v4 = m.positions[m.corner_verts[b + 3]];
+        const Vec3 d12 = v2 - v1, d13 = v3 - v1, d14 = v4 - v1;
+        if (dot(cross(d12, d13), cross(d14, d13)) > 0.0f) {
+          t[0] = b, t[1] = b + 1, t[2] = b + 3;
+          t[3] = b + 1, t[4] = b + 2, t[5] = b + 3;
+        } else {
+          t[0] = b, t[1] = b + 1, t[2] = b + 2;
+          t[3] = b, t[4] = b + 2, t[5] = b + 3;
+        }
+        continue;
+      }
+      n += size > 4;
+      for (uint32_t k = 0; k + 2 < size; ++k) t[3 * k] = b, t[3 * k + 1] = b + k + 1, t[3 * k + 2] = b + k + 2;
+    }
+    total.fetch_add(n);
+  });
+  return total.load();
+}
+
+void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
+  std::vector<Vec3> fn(m.faces);
+  std::vector<float> weight(m.corners);
+  // Face normals and each corner's angle, face by face.
+  parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
+    for (size_t f = begin; f < end; ++f) {
+      fn[f] = face_normal(m, f);
+      const int32_t b = m.offsets[f], e = m.offsets[f + 1];
+      for (int32_t c = b; c < e; ++c) {
+        // The face's first corner at this vertex, as Blender's face_find_adjacent_verts finds
+        // it (they differ only where a face visits a vertex twice).
+        const int32_t v = m.corner_verts[c];
+        int32_t first = b;
+        while (m.corner_verts[first] != v) ++first;
+        const int32_t prev = m.corner_verts[first == b ? e - 1 : first - 1];
+        const int32_t next = m.corner_verts[first + 1 == e ? b : first + 1];
+        const Vec3 p = m.positions[v];
+        const Vec3 dir_prev = normalize_div(m.positions[prev] - p), dir_next = normalize_div(m.positions[next] - p);
+        weight[size_t(c)] = safe_acos_approx(dot(dir_prev, dir_next));
+      }
+    }
+  });
+  // Sums in face order per vertex, as Blender's vertex-to-face map orders them.
+  std::fill(out, out + m.vertices, Vec3(0.0f));
+  std::vector<char> used(m.vertices, 0);
+  for (size_t f = 0; f < m.faces; ++f)
+    for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
+      const int32_t v = m.corner_verts[c];
+      out[v] += fn[f] * weight[size_t(c)];
+      used[size_t(v)] = 1;
+    }
+  parallel_ranges(m.vertices, threads, [&](size_t begin, size_t end) {
+    for (size_t v = begin; v < end; ++v) out[v] = normalize_div(used[v] ? out[v] : m.positions[v]);
+  });
+}
+
+}  // namespace pl
