@@ -180,3 +180,45 @@ def test_smooth_mesh_export_uses_the_core_normals(pc, monkeypatch):
     for a, b in zip(fast[:2] + fast[3:], slow[:2] + slow[3:]):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_allclose(fast[2], slow[2], atol=1e-6, rtol=0)
+
+
+def _distance_reference(meshes, camera_matrix):
+    """The former float64, filter-first distance_from_origin."""
+    far = float(np.linalg.norm(np.asarray(camera_matrix, np.float64)[:3, 3]))
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for mesh in meshes:
+        p = np.asarray(mesh.positions, np.float64)
+        p = p[np.isfinite(p).all(axis=1)]
+        if not len(p) or not mesh.matrices:
+            continue
+        a, b = p.min(axis=0), p.max(axis=0)
+        corners = np.array([[(a, b)[i >> k & 1][k] for k in range(3)] for i in range(8)])
+        m = np.asarray(mesh.matrices, np.float64)
+        world = (corners @ m[:, :3, :3].transpose(0, 2, 1) + m[:, None, :3, 3]).reshape(-1, 3)
+        world = world[np.isfinite(world).all(axis=1)]
+        if len(world):
+            lo, hi = np.minimum(lo, world.min(axis=0)), np.maximum(hi, world.max(axis=0))
+    if np.all(lo <= hi):
+        far = max(far, float(np.linalg.norm((lo + hi) / 2)))
+    return far
+
+
+@pytest.mark.parametrize("bad", [None, np.nan, np.inf, -np.inf, "all"])
+def test_distance_from_origin_fast_path(bad):
+    """The column-wise float32 bounds give the former result, with non-finite vertices too."""
+    from types import SimpleNamespace
+    from addon.export import distance_from_origin
+    rng = np.random.default_rng(1)
+    p = (rng.normal(size=(1000, 3)) * 50 + [4e4, -2e4, 10]).astype(np.float32)
+    if bad == "all":
+        p[:] = np.nan
+    elif bad is not None:
+        p[::7, 1] = bad
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 3] = (5, 6, 7)
+    meshes = [SimpleNamespace(positions=p, matrices=[m, np.eye(4, dtype=np.float32)]),
+              SimpleNamespace(positions=np.zeros((0, 3), np.float32), matrices=[m])]
+    cam = np.eye(4)
+    got, want = distance_from_origin(meshes, cam), _distance_reference(meshes, cam)
+    assert got == pytest.approx(want, rel=1e-12)
+    assert (got > 1e4) == (bad != "all")

@@ -74,8 +74,10 @@ def distance_from_origin(meshes, camera_matrix):
         if not len(p) or not mesh.matrices:
             continue
         # float32 min/max are exact and propagate NaN and inf: only a mesh with non-finite
-        # vertices needs the filtered (slower, float64) pass.
-        a, b = p.min(axis=0).astype(np.float64), p.max(axis=0).astype(np.float64)
+        # vertices needs the filtered (slower, float64) pass. Column by column: numpy's
+        # reduction over axis 0 of an (N, 3) array is ~40x slower (27 ms for 0.5M vertices).
+        a = np.array([p[:, k].min() for k in range(3)], np.float64)
+        b = np.array([p[:, k].max() for k in range(3)], np.float64)
         if not (np.isfinite(a).all() and np.isfinite(b).all()):
             p = np.asarray(p, np.float64)
             p = p[np.isfinite(p).all(axis=1)]
