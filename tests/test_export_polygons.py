@@ -98,12 +98,13 @@ def test_core_triangulation_is_blenders(pc, case):
         faces = [t for q in quads for t in ((q[0], q[1], q[2]), (q[2], q[3], q[0]))]
     me = new_mesh(co, faces)
     loops, _, pos, cv, offsets = blender_arrays(me)
-    corners, ngons = pc.triangulate_polygons(pos, cv, offsets)
+    corners, verts, ngons = pc.triangulate_polygons(pos, cv, offsets)
     sizes = np.diff(offsets)
     assert ngons == int((sizes > 4).sum())
     tri_sizes = np.repeat(sizes, sizes - 2)
     keep = tri_sizes <= 4
     np.testing.assert_array_equal(corners[keep], loops[keep])
+    np.testing.assert_array_equal(verts, cv[corners])
     if case == "random_quads":  # both splits occur
         flipped = (corners[0::2, 2] - corners[0::2, 0]) == 3
         assert 100 < flipped.sum() < len(flipped) - 100

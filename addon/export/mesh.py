@@ -87,14 +87,15 @@ NGON_PATCH_FRACTION = 1 / 64
 
 
 def triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris):
-    """int32 (T * 3,) corner index of every triangle corner, Blender's triangulation: the core
-    triangulates triangles and quads (as Blender does, tested against loop_triangles); n-gon
-    triangles come from Blender's loop_triangles."""
+    """(corners, triangles): int32 (T * 3,) corner index and int32 (T, 3) vertex indices of
+    every triangle corner, Blender's triangulation. The core triangulates triangles and quads
+    (as Blender does, tested against loop_triangles); n-gon triangles come from Blender's
+    loop_triangles."""
     if pc is not None and offsets is not None:
-        corners, ngons = pc.triangulate_polygons(positions, corner_verts, offsets)
+        corners, triangles, ngons = pc.triangulate_polygons(positions, corner_verts, offsets)
         loops = corners.reshape(-1)
         if not ngons:
-            return loops
+            return loops, triangles
         sizes = np.diff(offsets)
         tri_sizes = np.repeat(sizes, sizes - 2)
         patch = np.flatnonzero(tri_sizes > 4)
@@ -102,11 +103,12 @@ def triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris):
             tris = mesh.loop_triangles
             for t in patch.tolist():
                 loops[3 * t:3 * t + 3] = tris[t].loops
-            return loops
+            triangles[patch] = corner_verts[corners[patch]]
+            return loops, triangles
     # Read through RNA one element at a time (about 0.14 s for 1M triangles).
     loops = np.empty(n_tris * 3, np.int32)
     mesh.loop_triangles.foreach_get("loops", loops)
-    return loops
+    return loops, corner_verts[loops].reshape(-1, 3)
 
 
 def mesh_arrays(mesh):
@@ -134,8 +136,7 @@ def mesh_arrays(mesh):
         mesh.loops.foreach_get("vertex_index", corner_verts)
     pc = _polygon_core()
     offsets = face_offsets(tri_polys, n_faces, n_corners) if pc is not None else None
-    loops = triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris)
-    triangles = corner_verts[loops].reshape(-1, 3)
+    loops, triangles = triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris)
 
     poly_materials = _int_attribute(mesh, "material_index", n_faces)
     material_indices = (poly_materials[tri_polys] if poly_materials is not None

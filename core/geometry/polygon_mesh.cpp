@@ -90,7 +90,7 @@ void validate_polygon_mesh(const PolygonMesh& m) {
 
 size_t polygon_mesh_triangles(const PolygonMesh& m) { return m.corners - 2 * m.faces; }
 
-size_t triangulate_polygons(const PolygonMesh& m, uint32_t* out, int threads) {
+size_t triangulate_polygons(const PolygonMesh& m, uint32_t* out, uint32_t* verts, int threads) {
   std::atomic<size_t> total{0};
   parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
     size_t n = 0;
@@ -110,10 +110,13 @@ size_t triangulate_polygons(const PolygonMesh& m, uint32_t* out, int threads) {
           t[0] = b, t[1] = b + 1, t[2] = b + 2;
           t[3] = b, t[4] = b + 2, t[5] = b + 3;
         }
-        continue;
+      } else {
+        n += size > 4;
+        for (uint32_t k = 0; k + 2 < size; ++k) t[3 * k] = b, t[3 * k + 1] = b + k + 1, t[3 * k + 2] = b + k + 2;
       }
-      n += size > 4;
-      for (uint32_t k = 0; k + 2 < size; ++k) t[3 * k] = b, t[3 * k + 1] = b + k + 1, t[3 * k + 2] = b + k + 2;
+      if (verts != nullptr)
+        for (size_t k = size_t(b) - 2 * f, e = k + size_t(size) - 2; k < e; ++k)
+          for (int j = 0; j < 3; ++j) verts[3 * k + j] = uint32_t(m.corner_verts[out[3 * k + j]]);
     }
     total.fetch_add(n);
   });
@@ -123,22 +126,26 @@ size_t triangulate_polygons(const PolygonMesh& m, uint32_t* out, int threads) {
 void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
   std::vector<Vec3> fn(m.faces);
   std::vector<float> weight(m.corners);
-  // Face normals and each corner's angle, face by face.
+  // Face normals and each corner's angle, face by face. Each edge's unit direction serves both
+  // corners it touches: normalize(p - q) is exactly -normalize(q - p), and so are the dots.
   parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
+    std::vector<Vec3> edge;
     for (size_t f = begin; f < end; ++f) {
       fn[f] = face_normal(m, f);
-      const int32_t b = m.offsets[f], e = m.offsets[f + 1];
-      for (int32_t c = b; c < e; ++c) {
+      const int32_t b = m.offsets[f], e = m.offsets[f + 1], n = e - b;
+      edge.resize(size_t(n));
+      for (int32_t k = 0; k < n; ++k) {
+        const int32_t next = k + 1 == n ? b : b + k + 1;
+        edge[size_t(k)] = normalize_div(m.positions[m.corner_verts[next]] - m.positions[m.corner_verts[b + k]]);
+      }
+      for (int32_t k = 0; k < n; ++k) {
         // The face's first corner at this vertex, as Blender's face_find_adjacent_verts finds
-        // it (they differ only where a face visits a vertex twice).
-        const int32_t v = m.corner_verts[c];
-        int32_t first = b;
-        while (m.corner_verts[first] != v) ++first;
-        const int32_t prev = m.corner_verts[first == b ? e - 1 : first - 1];
-        const int32_t next = m.corner_verts[first + 1 == e ? b : first + 1];
-        const Vec3 p = m.positions[v];
-        const Vec3 dir_prev = normalize_div(m.positions[prev] - p), dir_next = normalize_div(m.positions[next] - p);
-        weight[size_t(c)] = safe_acos_approx(dot(dir_prev, dir_next));
+        // it (another one only where a face visits a vertex twice).
+        const int32_t v = m.corner_verts[b + k];
+        int32_t first = 0;
+        while (m.corner_verts[b + first] != v) ++first;
+        const Vec3 in = edge[size_t(first == 0 ? n - 1 : first - 1)], out_dir = edge[size_t(first)];
+        weight[size_t(b + k)] = safe_acos_approx(-dot(in, out_dir));
       }
     }
   });

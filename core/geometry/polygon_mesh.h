@@ -32,7 +32,8 @@ size_t polygon_mesh_triangles(const PolygonMesh& mesh);
 // and corner order as Blender's tessellation (mesh_tessellate.cc), so the exported triangles are
 // the ones Blender shows. Faces of 5 or more corners get a fan from their first corner: the
 // caller replaces those (the return value counts them; Blender's n-gon fill is not reproduced).
-size_t triangulate_polygons(const PolygonMesh& mesh, uint32_t* out, int threads = 0);
+// verts (optional, same size): the triangles' vertex indices.
+size_t triangulate_polygons(const PolygonMesh& mesh, uint32_t* out, uint32_t* verts = nullptr, int threads = 0);
 
 // Smooth vertex normals: per vertex, the sum of its faces' unit (Newell) normals weighted by
 // the face's angle at that corner, normalised; a vertex of no face gets its normalised position.

@@ -827,19 +827,20 @@ PYBIND11_MODULE(pathlight_core, m) {
       [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads) {
         const PolygonMesh pm = polygon_mesh(positions, corner_verts, offsets);
         const size_t nt = polygon_mesh_triangles(pm);
-        py::array_t<int32_t> out({py::ssize_t(nt), py::ssize_t(3)});
+        py::array_t<int32_t> out({py::ssize_t(nt), py::ssize_t(3)}), verts({py::ssize_t(nt), py::ssize_t(3)});
         uint32_t* dst = reinterpret_cast<uint32_t*>(out.mutable_data());
+        uint32_t* vdst = reinterpret_cast<uint32_t*>(verts.mutable_data());
         size_t ngons;
         {
           py::gil_scoped_release release;
-          ngons = triangulate_polygons(pm, dst, threads);
+          ngons = triangulate_polygons(pm, dst, vdst, threads);
         }
-        return py::make_tuple(out, ngons);
+        return py::make_tuple(out, verts, ngons);
       },
       py::arg("positions"), py::arg("corner_verts"), py::arg("face_offsets"), py::arg("threads") = 0,
-      "(corners int32 (T, 3), n-gon count): the corner indices of the triangles of a polygon mesh (face f: "
-      "corners face_offsets[f] to face_offsets[f + 1] - 1), face by face, quads split as Blender does; faces of "
-      "5+ corners get a fan (counted: the caller replaces those).");
+      "(corners int32 (T, 3), vertices int32 (T, 3), n-gon count): the corner and vertex indices of the triangles "
+      "of a polygon mesh (face f: corners face_offsets[f] to face_offsets[f + 1] - 1), face by face, quads split as "
+      "Blender does; faces of 5+ corners get a fan (counted: the caller replaces those).");
   m.def(
       "polygon_vertex_normals",
       [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads) {
