@@ -223,3 +223,93 @@ def test_distance_from_origin_fast_path(bad):
     got, want = distance_from_origin(meshes, cam), _distance_reference(meshes, cam)
     assert got == pytest.approx(want, rel=1e-12)
     assert (got > 1e4) == (bad != "all")
+
+
+def corner_inputs(me):
+    """(corner_edges, edge count, sharp_edges or None, sharp_faces or None) of a bpy Mesh."""
+    ce = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("edge_index", ce)
+    out = [ce, len(me.edges)]
+    for name, n in (("sharp_edge", len(me.edges)), ("sharp_face", len(me.polygons))):
+        attr = me.attributes.get(name)
+        if attr is None:
+            out.append(None)
+            continue
+        a = np.empty(n, bool)
+        attr.data.foreach_get("value", a)
+        out.append(a)
+    return out
+
+
+def corner_case(case, rng):
+    if case == "sharp_edges":
+        co, faces = mixed()
+        me = new_mesh(co, faces)
+        me.shade_smooth()
+        sharp = me.attributes.new("sharp_edge", 'BOOLEAN', 'EDGE')
+        sharp.data.foreach_set("value", rng.uniform(size=len(me.edges)) < 0.3)
+    elif case == "sharp_faces":
+        co, faces = mixed()
+        me = new_mesh(co, faces)
+        me.shade_smooth()
+        me.polygons.foreach_set("use_smooth", rng.uniform(size=len(me.polygons)) < 0.6)
+    elif case == "by_angle":  # what Smooth by Angle (auto smooth) leaves: sharp edges over 30 degrees
+        bpy.ops.mesh.primitive_cylinder_add(vertices=40)
+        src = bpy.context.object.data
+        me = new_mesh([v.co[:] for v in src.vertices], [tuple(p.vertices) for p in src.polygons])
+        me.shade_smooth()
+        me.set_sharp_from_angle(angle=np.radians(30))
+    elif case == "non_manifold":  # an edge of three faces, a face wound the other way, a boundary
+        co, faces = grid(6)
+        faces = [tuple(f) for f in faces]
+        faces[7] = faces[7][::-1]
+        co = np.concatenate([co, [[0.0, 0.0, 1.0]]])
+        a, b = faces[14][0], faces[14][1]
+        faces.append((a, b, len(co) - 1))
+        me = new_mesh(co, faces)
+        me.shade_smooth()
+        me.polygons[3].use_smooth = False
+    me.update()
+    return me
+
+
+@pytest.mark.parametrize("case", ["sharp_edges", "sharp_faces", "by_angle", "non_manifold"])
+def test_core_corner_normals_are_blenders(pc, case):
+    me = corner_case(case, np.random.default_rng(11))
+    assert me.normals_domain == 'CORNER' and not me.has_custom_normals
+    _, _, pos, cv, offsets = blender_arrays(me)
+    cn = np.empty(len(me.loops) * 3, np.float32)
+    me.corner_normals.foreach_get("vector", cn)
+    ce, n_edges, sharp_edges, sharp_faces = corner_inputs(me)
+    got = pc.polygon_corner_normals(pos, cv, offsets, ce, n_edges, sharp_edges, sharp_faces)
+    np.testing.assert_allclose(got, cn.reshape(-1, 3), atol=1e-6, rtol=0)
+    # Not the vertex normals: sharp corners differ.
+    vn = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertex_normals.foreach_get("vector", vn)
+    assert np.abs(got - vn.reshape(-1, 3)[cv]).max() > 0.1
+
+
+@pytest.mark.parametrize("case", ["sharp_edges", "sharp_faces", "by_angle", "custom"])
+def test_corner_domain_export_uses_the_core_unless_custom_normals(pc, monkeypatch, case):
+    """Corner-domain meshes export the core's corner normals (Blender's within 1e-6, same
+    arrays otherwise); custom normals are read from Blender."""
+    me = corner_case("sharp_edges" if case == "custom" else case, np.random.default_rng(3))
+    if case == "custom":
+        rng = np.random.default_rng(4)
+        normals = rng.normal(size=(len(me.loops), 3)) * 0.3 + [0, 0, 1]
+        me.normals_split_custom_set((normals / np.linalg.norm(normals, axis=1, keepdims=True)).tolist())
+    assert me.normals_domain == 'CORNER'
+    used = []
+
+    class Recording:
+        def __getattr__(self, name):
+            used.append(name)
+            return getattr(pc, name)
+    monkeypatch.setattr(mesh_export, "_polygon_core", lambda: Recording())
+    fast = mesh_export.mesh_arrays(me)
+    assert ("polygon_corner_normals" in used) == (case != "custom")
+    monkeypatch.setattr(mesh_export, "_polygon_core", lambda: None)
+    slow = mesh_export.mesh_arrays(me)
+    for a, b in zip(fast[:2] + fast[3:], slow[:2] + slow[3:]):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(fast[2], slow[2], atol=1e-6, rtol=0)

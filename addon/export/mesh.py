@@ -42,6 +42,16 @@ def _int_attribute(mesh, name, size):
     return out
 
 
+def _bool_attribute(mesh, name, domain, size):
+    """A boolean attribute of `domain` as a bool array, or None when the mesh lacks it."""
+    attr = mesh.attributes.get(name)
+    if attr is None or attr.data_type != 'BOOLEAN' or attr.domain != domain or len(attr.data) != size:
+        return None
+    out = np.empty(size, bool)
+    attr.data.foreach_get("value", out)
+    return out
+
+
 def mesh_positions(mesh):
     """float32 (V, 3) vertex positions. The "position" attribute's data is read as one raw
     array (under 1 ms for 0.5M vertices); vertices.co goes element by element (about 20 ms)."""
@@ -116,9 +126,10 @@ def mesh_arrays(mesh):
     via foreach_get; corners: int32 (T * 3,) corner (loop) index of every triangle corner.
 
     Everything is read from the mesh's raw arrays (positions, corner vertices, the face of each
-    triangle, material indices): triangles and quads are triangulated by the core, and smooth
-    (point-domain) normals are computed there too; only n-gons' triangles and face/corner
-    normals come from Blender's own (slower, per-element or lazily computed) collections.
+    triangle, material indices, corner edges, sharp flags): triangles and quads are
+    triangulated by the core, and smooth (point-domain) and sharp-edged (corner-domain)
+    normals are computed there too; only n-gons' triangles, flat (face-domain) normals and
+    custom normals come from Blender's own (per-element or lazily computed) collections.
     Normals stay as stored (per vertex, face or corner) with an index per triangle corner, and
     the core expands them: no per-corner gather in numpy (bench_export.py)."""
     mesh.calc_loop_triangles()
@@ -156,7 +167,18 @@ def mesh_arrays(mesh):
         normals = np.empty(n_faces * 3, np.float32)
         mesh.polygon_normals.foreach_get("vector", normals)
         normal_indices = np.repeat(tri_polys, 3).reshape(-1, 3)
-    else:
+    elif offsets is not None and not mesh.has_custom_normals and hasattr(pc, "polygon_corner_normals"):
+        # Sharp edges/faces (e.g. Smooth by Angle): Blender's fans, computed by the core.
+        n_edges = len(mesh.edges)
+        corner_edges = _int_attribute(mesh, ".corner_edge", n_corners)
+        if corner_edges is None:
+            corner_edges = np.empty(n_corners, np.int32)
+            mesh.loops.foreach_get("edge_index", corner_edges)
+        normals = pc.polygon_corner_normals(positions, corner_verts, offsets, corner_edges, n_edges,
+                                            _bool_attribute(mesh, "sharp_edge", 'EDGE', n_edges),
+                                            _bool_attribute(mesh, "sharp_face", 'FACE', n_faces))
+        normal_indices = loops.reshape(-1, 3)
+    else:  # custom normals: Blender's
         normals = np.empty(len(mesh.corner_normals) * 3, np.float32)
         mesh.corner_normals.foreach_get("vector", normals)
         normal_indices = loops.reshape(-1, 3)

@@ -123,9 +123,11 @@ size_t triangulate_polygons(const PolygonMesh& m, uint32_t* out, uint32_t* verts
   return total.load();
 }
 
-void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
-  std::vector<Vec3> fn(m.faces);
-  std::vector<float> weight(m.corners);
+namespace {
+// Face normals and each corner's angle weight.
+void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::vector<float>& weight, int threads) {
+  fn.resize(m.faces);
+  weight.resize(m.corners);
   // Face normals and each corner's angle, face by face. Each edge's unit direction serves both
   // corners it touches: normalize(p - q) is exactly -normalize(q - p), and so are the dots.
   parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
@@ -149,6 +151,13 @@ void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
       }
     }
   });
+}
+}  // namespace
+
+void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
+  std::vector<Vec3> fn;
+  std::vector<float> weight;
+  face_normals_and_weights(m, fn, weight, threads);
   // Sums in face order per vertex, as Blender's vertex-to-face map orders them.
   std::fill(out, out + m.vertices, Vec3(0.0f));
   std::vector<char> used(m.vertices, 0);
@@ -160,6 +169,69 @@ void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
     }
   parallel_ranges(m.vertices, threads, [&](size_t begin, size_t end) {
     for (size_t v = begin; v < end; ++v) out[v] = normalize_div(used[v] ? out[v] : m.positions[v]);
+  });
+}
+
+namespace {
+uint32_t find_root(std::vector<uint32_t>& parent, uint32_t c) {
+  while (parent[c] != c) c = parent[c] = parent[parent[c]];
+  return c;
+}
+}  // namespace
+
+void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, size_t edges,
+                            const uint8_t* sharp_edges, const uint8_t* sharp_faces, Vec3* out, int threads) {
+  for (size_t c = 0; c < m.corners; ++c)
+    if (corner_edges[c] < 0 || size_t(corner_edges[c]) >= edges)
+      throw std::invalid_argument("corner edge " + std::to_string(corner_edges[c]) + " out of range for " +
+                                  std::to_string(edges) + " edges");
+  std::vector<Vec3> fn;
+  std::vector<float> weight;
+  face_normals_and_weights(m, fn, weight, threads);
+  std::vector<uint32_t> face_of(m.corners), next(m.corners);
+  for (size_t f = 0; f < m.faces; ++f)
+    for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
+      face_of[size_t(c)] = uint32_t(f);
+      next[size_t(c)] = uint32_t(c + 1 == m.offsets[f + 1] ? m.offsets[f] : c + 1);
+    }
+  // The (up to) two corners using each edge, and how many do.
+  constexpr uint32_t kNone = UINT32_MAX;
+  std::vector<uint32_t> user0(edges, kNone), user1(edges, kNone), users(edges, 0);
+  for (size_t c = 0; c < m.corners; ++c) {
+    const size_t e = size_t(corner_edges[c]);
+    if (users[e] == 0) user0[e] = uint32_t(c);
+    else if (users[e] == 1) user1[e] = uint32_t(c);
+    ++users[e];
+  }
+  // Corners joined across smooth edges share a fan (union-find).
+  std::vector<uint32_t> parent(m.corners);
+  for (size_t c = 0; c < m.corners; ++c) parent[c] = uint32_t(c);
+  const auto join = [&](uint32_t a, uint32_t b) {
+    a = find_root(parent, a), b = find_root(parent, b);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  };
+  for (size_t e = 0; e < edges; ++e) {
+    if (users[e] != 2 || (sharp_edges && sharp_edges[e])) continue;
+    const uint32_t c1 = user0[e], c2 = user1[e], f1 = face_of[c1], f2 = face_of[c2];
+    if (f1 == f2 || (sharp_faces && (sharp_faces[f1] || sharp_faces[f2]))) continue;
+    const int32_t a = m.corner_verts[c1], b = m.corner_verts[next[c1]];
+    // Used in opposite directions (consistent winding), else the edge is sharp.
+    if (m.corner_verts[c2] != b || m.corner_verts[next[c2]] != a) continue;
+    join(c1, next[c2]);  // both at vertex a
+    join(next[c1], c2);  // both at vertex b
+  }
+  std::vector<Vec3> sum(m.corners, Vec3(0.0f));
+  std::vector<uint32_t> count(m.corners, 0);
+  for (size_t c = 0; c < m.corners; ++c) {
+    const uint32_t r = parent[c] = find_root(parent, uint32_t(c));  // every corner now points at its root
+    sum[r] += fn[face_of[c]] * weight[c];
+    ++count[r];
+  }
+  parallel_ranges(m.corners, threads, [&](size_t begin, size_t end) {
+    for (size_t c = begin; c < end; ++c) {
+      const uint32_t r = parent[c];
+      out[c] = count[r] == 1 ? fn[face_of[c]] : normalize_div(sum[r]);
+    }
   });
 }
 

@@ -41,4 +41,13 @@ size_t triangulate_polygons(const PolygonMesh& mesh, uint32_t* out, uint32_t* ve
 // normals agree with Blender's vertex normals to float rounding.
 void polygon_vertex_normals(const PolygonMesh& mesh, Vec3* out, int threads = 0);
 
+// Per-corner normals with sharp edges and faces: corners around a vertex form smooth fans across
+// edges that are used by exactly two faces in opposite directions and are neither marked sharp
+// nor border a sharp face; a fan's normal is the angle-weighted sum of its faces' normals,
+// normalised (a fan of one corner: its face's normal). corner_edges[c]: the edge from corner c
+// to the next corner of its face (< edges); sharp_edges (edges) and sharp_faces (faces) may be
+// null (none sharp). Blender's corner normals without custom normals, to float rounding.
+void polygon_corner_normals(const PolygonMesh& mesh, const int32_t* corner_edges, size_t edges,
+                            const uint8_t* sharp_edges, const uint8_t* sharp_faces, Vec3* out, int threads = 0);
+
 }  // namespace pl

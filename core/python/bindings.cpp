@@ -856,6 +856,41 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("positions"), py::arg("corner_verts"), py::arg("face_offsets"), py::arg("threads") = 0,
       "float32 (V, 3): smooth vertex normals of a polygon mesh, corner-angle-weighted face normals (as "
       "Blender's vertex normals).");
+  m.def(
+      "polygon_corner_normals",
+      [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets,
+                     const I32Array& corner_edges, int64_t edges, const py::object& sharp_edges_obj,
+                     const py::object& sharp_faces_obj, int threads) {
+        const PolygonMesh pm = polygon_mesh(positions, corner_verts, offsets);
+        if (corner_edges.ndim() != 1 || size_t(corner_edges.shape(0)) != pm.corners)
+          throw std::invalid_argument("corner_edges must have shape (C,)");
+        if (edges < 0) throw std::invalid_argument("edges must be >= 0");
+        using BoolArray = py::array_t<uint8_t, py::array::c_style | py::array::forcecast>;
+        BoolArray sharp_edges, sharp_faces;
+        if (!sharp_edges_obj.is_none()) {
+          sharp_edges = sharp_edges_obj.cast<BoolArray>();
+          if (sharp_edges.ndim() != 1 || sharp_edges.shape(0) != edges)
+            throw std::invalid_argument("sharp_edges must have shape (edges,)");
+        }
+        if (!sharp_faces_obj.is_none()) {
+          sharp_faces = sharp_faces_obj.cast<BoolArray>();
+          if (sharp_faces.ndim() != 1 || size_t(sharp_faces.shape(0)) != pm.faces)
+            throw std::invalid_argument("sharp_faces must have shape (F,)");
+        }
+        FloatArray out({py::ssize_t(pm.corners), py::ssize_t(3)});
+        Vec3* dst = reinterpret_cast<Vec3*>(out.mutable_data());
+        const uint8_t* se = sharp_edges_obj.is_none() ? nullptr : sharp_edges.data();
+        const uint8_t* sf = sharp_faces_obj.is_none() ? nullptr : sharp_faces.data();
+        {
+          py::gil_scoped_release release;
+          polygon_corner_normals(pm, corner_edges.data(), size_t(edges), se, sf, dst, threads);
+        }
+        return out;
+      },
+      py::arg("positions"), py::arg("corner_verts"), py::arg("face_offsets"), py::arg("corner_edges"), py::arg("edges"),
+      py::arg("sharp_edges") = py::none(), py::arg("sharp_faces") = py::none(), py::arg("threads") = 0,
+      "float32 (C, 3): per-corner normals of a polygon mesh with sharp edges/faces (smooth fans across manifold, "
+      "consistently wound, unmarked edges; as Blender's corner normals without custom normals).");
   m.def("barycentric_error_bound", [] { return gamma_bound(7); },
         "The relative bound gamma(7): |error(b0 v0 + b1 v1 + b2 v2)| <= gamma(7) (|b0 v0| + |b1 v1| + |b2 v2|).");
   m.def(
