@@ -313,3 +313,11 @@ def test_corner_domain_export_uses_the_core_unless_custom_normals(pc, monkeypatc
     for a, b in zip(fast[:2] + fast[3:], slow[:2] + slow[3:]):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_allclose(fast[2], slow[2], atol=1e-6, rtol=0)
+
+
+def test_face_offsets_refuse_faces_without_triangles():
+    """A face of under 3 corners has no loop triangle: no offsets (the export then reads
+    Blender's collections instead of raising in the core)."""
+    np.testing.assert_array_equal(mesh_export.face_offsets(np.array([0, 0, 1], np.int32), 2, 7), [0, 4, 7])
+    assert mesh_export.face_offsets(np.array([0, 0, 2], np.int32), 3, 9) is None  # face 1: no triangle
+    assert mesh_export.face_offsets(np.array([0, 0, 1], np.int32), 2, 8) is None  # corners do not add up

@@ -79,9 +79,10 @@ def _polygon_core():
 def face_offsets(tri_polys, n_faces, n_corners):
     """int32 (F + 1,) start corner of every face (and the corner count), from the face of each
     of Blender's triangles (a face of k corners has k - 2 of them; one fast raw-array read
-    instead of polygons.loop_start's per-element one); None if they do not add up."""
+    instead of polygons.loop_start's per-element one); None if they do not add up or a face
+    has no triangle (an invalid mesh: then Blender's own collections are read)."""
     sizes = np.bincount(tri_polys, minlength=n_faces)
-    if len(sizes) != n_faces:
+    if len(sizes) != n_faces or (n_faces and sizes.min() == 0):  # a face of under 3 corners
         return None
     offsets = np.empty(n_faces + 1, np.int64)
     offsets[0] = 0
