@@ -1,5 +1,7 @@
 #include "geometry/polygon_mesh.h"
 
+#include "util/parallel.h"
+
 #include <algorithm>
 #include <atomic>
 #include <stdexcept>
@@ -9,23 +11,6 @@
 
 namespace pl {
 namespace {
-
-// Runs fn(begin, end) over [0, count) split into one range per thread (this one included);
-// small counts stay on this thread (starting threads costs more than the work).
-template <class F>
-void parallel_ranges(size_t count, int threads, F&& fn) {
-  const size_t hw = threads > 0 ? size_t(threads) : std::max(1u, std::thread::hardware_concurrency());
-  const size_t n = std::min(hw, std::max<size_t>(1, count / 32768));
-  if (n <= 1) {
-    fn(size_t(0), count);
-    return;
-  }
-  std::vector<std::thread> pool;
-  pool.reserve(n - 1);
-  for (size_t k = 1; k < n; ++k) pool.emplace_back([&fn, k, n, count] { fn(count * k / n, count * (k + 1) / n); });
-  fn(size_t(0), count / n);
-  for (std::thread& t : pool) t.join();
-}
 
 // Blender's float normalisation: multiply by the reciprocal length, zero below 1e-35.
 inline float normalize_v3(Vec3& v) {
