@@ -254,20 +254,25 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
 
 def _export_object(obj, materials, uv_names=None):
     try:
-        mesh = obj.to_mesh()
-        if mesh is None or len(mesh.polygons) == 0:
-            return None
-        positions, triangles, normals, normal_indices, material_indices, loops = mesh_arrays(mesh)
-        if not materials:
-            materials = list(mesh.materials)
-        uvs, missing = mesh_uvs(mesh, uv_names(materials), loops) if uv_names else ({}, [])
-        # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
-        # non-finite vertices make it non-finite: then the core's own box of the finite ones.
-        texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
-        if not np.isfinite(texspace).all():
-            texspace = None
+        return mesh_data(obj, obj.to_mesh(), materials, uv_names)
     finally:
         obj.to_mesh_clear()
+
+
+def mesh_data(obj, mesh, materials, uv_names=None):
+    """The MeshData of obj's evaluated mesh `mesh` (obj.to_mesh(); the caller clears it), or
+    None when it has no faces."""
+    if mesh is None or len(mesh.polygons) == 0:
+        return None
+    positions, triangles, normals, normal_indices, material_indices, loops = mesh_arrays(mesh)
+    if not materials:
+        materials = list(mesh.materials)
+    uvs, missing = mesh_uvs(mesh, uv_names(materials), loops) if uv_names else ({}, [])
+    # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
+    # non-finite vertices make it non-finite: then the core's own box of the finite ones.
+    texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
+    if not np.isfinite(texspace).all():
+        texspace = None
     # Blender and Cycles clamp out-of-range material indices to the last slot.
     np.clip(material_indices, 0, max(len(materials) - 1, 0), out=material_indices)
     return MeshData(obj.original.name, positions, triangles, normals, normal_indices, material_indices, materials,

@@ -86,30 +86,32 @@ class MeshCache:
         self._used.clear()
 
     def export(self, obj, materials, uv_names=None):
-        from .mesh import _export_object  # noqa: avoid an import cycle at module load
+        from .mesh import mesh_data  # noqa: avoid an import cycle at module load
         key = self._key(obj, materials, uv_names)
+        self._used.add(key)
+        # One evaluated mesh for the fingerprint and, on a miss, the export (its triangulation
+        # and normals caches are then warm).
         mesh = obj.to_mesh()
         try:
             fingerprint = mesh_fingerprint(mesh) if mesh is not None else None
+            entry = self._entries.get(key)
+            if entry is not None and fingerprint is not None and entry[0] == fingerprint:
+                self.hits += 1
+                self.current["hits"] += 1
+                self.current["hit"].append(obj.original.name)
+                data = entry[1]
+                if data is None:
+                    return None
+                # Fresh instance list and the slots' materials of this export; arrays are
+                # shared (nothing modifies them after export).
+                return dataclasses.replace(data, materials=list(materials) or data.materials,
+                                           matrices=[])
+            self.misses += 1
+            self.current["misses"] += 1
+            self.current["missed"].append(obj.original.name)
+            data = mesh_data(obj, mesh, materials, uv_names)
         finally:
             obj.to_mesh_clear()
-        self._used.add(key)
-        entry = self._entries.get(key)
-        if entry is not None and fingerprint is not None and entry[0] == fingerprint:
-            self.hits += 1
-            self.current["hits"] += 1
-            self.current["hit"].append(obj.original.name)
-            data = entry[1]
-            if data is None:
-                return None
-            # Fresh instance list and the slots' materials of this export; arrays are shared
-            # (nothing modifies them after export).
-            return dataclasses.replace(data, materials=list(materials) or data.materials,
-                                       matrices=[])
-        self.misses += 1
-        self.current["misses"] += 1
-        self.current["missed"].append(obj.original.name)
-        data = _export_object(obj, materials, uv_names)
         if fingerprint is not None:
             self._entries[key] = (fingerprint, data)
         return data
