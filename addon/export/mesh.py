@@ -93,8 +93,9 @@ def face_offsets(tri_polys, n_faces, n_corners):
 
 
 # Up to this fraction of a mesh's triangles from n-gons (5+ corners) are read from Blender one
-# by one (about 2 us each); more, and the whole triangulation is read (0.14 us per triangle).
-NGON_PATCH_FRACTION = 1 / 64
+# by one (about 2.2 us each); more, and the whole triangulation is read (0.09-0.14 us per
+# triangle, measured on 0.2M and 1M triangles): below the break-even of about 1/20.
+NGON_PATCH_FRACTION = 1 / 32
 
 
 def triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris):
