@@ -11,7 +11,10 @@ RE_RenderAnim or RE_RenderFrame call) completes or is cancelled:
   RE_RenderAnim(frame, frame) once per frame, and each fires render_complete), so clearing
   would re-export every mesh on every frame of a farm chunk. The fingerprint check makes a
   kept entry safe to reuse; loading another file empties the cache.
-Preview renders (material thumbnails) never use it.
+Preview renders (material thumbnails) never use it, nor do single-frame renders (F12,
+`render(write_still=True)`) of scenes without persistent data: no later frame could reuse their
+meshes, and the fingerprints cost about half an export (0.4 s of a 1M-triangle mesh's 0.8 s
+render in tests/bench/bench_export.py).
 """
 
 import bpy
@@ -28,6 +31,17 @@ def keep_between_jobs(scene, background=None):
     if scene is not None and scene.render.use_persistent_data:
         return True
     return bool(bpy.app.background if background is None else background)
+
+
+def cache_for(engine, scene):
+    """The cache a render of `scene` by `engine` uses, or None: frames of an animation job
+    (`-a`, `-f A..B`: each is an animation job) and scenes with persistent data use it."""
+    if engine.is_preview:
+        return None
+    if engine.is_animation or (scene is not None and scene.render.use_persistent_data):
+        return MESH_CACHE
+    MESH_CACHE.clear()  # nothing reuses what an earlier job left
+    return None
 
 
 @persistent

@@ -139,7 +139,7 @@ def render(engine, depsgraph):
         pc = get_core()
         scene = depsgraph.scene
         view_layer = depsgraph.view_layer
-        cache = None if engine.is_preview else render_cache.MESH_CACHE
+        cache = render_cache.cache_for(engine, scene)
         t0 = time.monotonic()
         try:
             data = export_scene(depsgraph, warn, cache, should_stop=lambda: _stop_requested(

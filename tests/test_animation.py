@@ -163,3 +163,73 @@ def test_render_frame_range_jobs_keep_the_cache_in_background(monkeypatch):
         assert not render_cache.MESH_CACHE._entries
         sc.render.use_persistent_data = True
         assert keep(sc, background=False)
+
+
+def test_single_frame_renders_skip_the_cache(monkeypatch):
+    """A single-frame render (F12, render(write_still=True)) of a scene without persistent data
+    computes no fingerprints (nothing could reuse its meshes; they cost about half of a big
+    mesh's export) and leaves no entries; with persistent data it fills the cache."""
+    from addon import render_cache
+    from addon.export import mesh_cache
+    calls = []
+    real = mesh_cache.mesh_fingerprint
+    monkeypatch.setattr(mesh_cache, "mesh_fingerprint", lambda mesh: calls.append(1) or real(mesh))
+    sc = _animated_scene()
+    render_cache.MESH_CACHE.clear()
+    image = render_to_array(sc)
+    assert image[..., :3].mean() > 0.0  # rendered the scene
+    assert calls == [] and not render_cache.MESH_CACHE._entries
+    sc.render.use_persistent_data = True
+    try:
+        render_to_array(sc)
+        assert len(calls) == 2 and len(render_cache.MESH_CACHE._entries) == 2
+        render_to_array(sc)
+        assert render_cache.MESH_CACHE.previous["hits"] == 2
+    finally:
+        sc.render.use_persistent_data = False
+        render_cache.MESH_CACHE.clear()
+
+
+def _raw_mesh(co, corner_verts, loop_starts):
+    me = bpy.data.meshes.new("Raw")
+    me.vertices.add(len(co))
+    me.vertices.foreach_set("co", np.asarray(co, np.float32).ravel())
+    me.loops.add(len(corner_verts))
+    me.loops.foreach_set("vertex_index", np.asarray(corner_verts, np.int32))
+    me.polygons.add(len(loop_starts))
+    me.polygons.foreach_set("loop_start", np.asarray(loop_starts, np.int32))
+    me.update(calc_edges=True)
+    return me
+
+
+def test_mesh_fingerprint_sees_what_the_export_reads():
+    """The fingerprint (raw arrays only) changes with positions, the split of the corners into
+    faces, face and corner attributes (sharp faces, materials, UVs), and not with selection."""
+    from addon.export.mesh_cache import mesh_fingerprint
+    load_addon()
+    co = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (2, 1, 0), (3, 0.5, 0)]
+    cv = [0, 1, 2, 3, 1, 4, 5, 2, 4, 6, 5]
+    base = mesh_fingerprint(_raw_mesh(co, cv, [0, 4, 8]))
+    assert mesh_fingerprint(_raw_mesh(co, cv, [0, 4, 8])) == base  # deterministic
+    moved = [list(p) for p in co]
+    moved[6][2] = 0.5
+    assert mesh_fingerprint(_raw_mesh(moved, cv, [0, 4, 8])) != base
+    assert mesh_fingerprint(_raw_mesh(co, cv, [0, 4, 7])) != base  # same corners, other faces
+    # Each edit against the same mesh with the attribute present but unchanged.
+    for edit in ("sharp", "material", "uv", "select"):
+        prints = []
+        for change in (False, True):
+            me = _raw_mesh(co, cv, [0, 4, 8])
+            if edit == "sharp":
+                me.shade_smooth()
+                me.polygons[0].use_smooth = not change
+            elif edit == "material":
+                me.polygons[0].material_index = 1
+                me.polygons[2].material_index = 1 if change else 0
+            elif edit == "uv":
+                me.uv_layers.new(name="UVMap").uv[3].vector = (0.5, 0.25 if change else 0.0)
+            else:
+                me.vertices[0].select = me.polygons[1].select = True
+                me.polygons[0].select = me.vertices[2].select = change
+            prints.append(mesh_fingerprint(me))
+        assert (prints[0] != prints[1]) == (edit != "select"), edit

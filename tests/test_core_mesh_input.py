@@ -85,3 +85,90 @@ def test_shared_normals_are_validated():
         s.add_mesh(pos, tri, material_indices=np.zeros(2, np.int32))
     # None of the failed calls added a mesh: the next one gets id 0.
     assert s.add_mesh(pos, tri, normals=n, normal_indices=np.zeros((1, 3), np.int32)) == 0
+
+
+# Polygon meshes (the export's fast path; compared with Blender itself in test_export_polygons.py).
+
+def polygon_grid(n=12, seed=6, spread=0.3):
+    """A bumpy grid of quads (some non-planar enough to flip), as flat polygon arrays."""
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
+    z = spread * rng.standard_normal(x.shape)
+    pos = np.stack([x, y, z], -1).reshape(-1, 3).astype(np.float32)
+    i = np.arange(n)[None, :] + (n + 1) * np.arange(n)[:, None]
+    cv = np.stack([i, i + 1, i + n + 2, i + n + 1], -1).reshape(-1).astype(np.int32)
+    return pos, cv, np.arange(0, len(cv) + 1, 4, dtype=np.int32)
+
+
+def test_polygon_triangulation_follows_the_quad_flip_rule():
+    """Triangles stay, quads split along 0-2 unless (0 1 2) and (0 2 3) face away from each
+    other (then 1-3), n-gons get a fan and are counted; vertex triangles match the corners."""
+    pos, cv, off = polygon_grid()
+    # Append a triangle and a pentagon.
+    cv = np.concatenate([cv, [0, 1, 2], [3, 4, 5, 6, 7]]).astype(np.int32)
+    off = np.concatenate([off, [off[-1] + 3, off[-1] + 8]]).astype(np.int32)
+    corners, verts, ngons = pc.triangulate_polygons(pos, cv, off)
+    assert ngons == 1 and corners.shape == (len(cv) - 2 * (len(off) - 1), 3)
+    np.testing.assert_array_equal(verts, cv[corners])
+    p = pos[cv].astype(np.float32)
+    flips = 0
+    for f in range(len(off) - 1):
+        b, size = off[f], off[f + 1] - off[f]
+        t0 = b - 2 * f
+        got = corners[t0:t0 + size - 2]
+        if size == 4:
+            v1, v2, v3, v4 = p[b:b + 4]
+            flip = np.dot(np.cross(v2 - v1, v3 - v1), np.cross(v4 - v1, v3 - v1)) > 0
+            flips += flip
+            want = [[b, b + 1, b + 3], [b + 1, b + 2, b + 3]] if flip else [[b, b + 1, b + 2], [b, b + 2, b + 3]]
+        else:
+            want = [[b, b + k + 1, b + k + 2] for k in range(size - 2)]
+        np.testing.assert_array_equal(got, want)
+    assert 5 < flips < len(off) - 10  # both splits occur
+
+
+def _reference_vertex_normals(pos, cv, off):
+    """Angle-weighted Newell face normals per vertex, in float64."""
+    p = pos.astype(np.float64)
+    out = np.zeros_like(p)
+    for f in range(len(off) - 1):
+        vs = cv[off[f]:off[f + 1]]
+        q = p[vs]
+        fn = np.cross(q, np.roll(q, -1, axis=0)).sum(0)
+        fn /= np.linalg.norm(fn)
+        for k, v in enumerate(vs):
+            a, b = q[k - 1] - q[k], q[(k + 1) % len(vs)] - q[k]
+            ang = np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))
+            out[v] += fn * ang
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_polygon_vertex_and_corner_normals(threads):
+    """Vertex normals are the angle-weighted face normals (arccos approximated within 5e-5);
+    corner normals without sharp edges are the vertex normals, with every face sharp the face
+    normals, and a sharp edge splits only the corners along it."""
+    pos, cv, off = polygon_grid(8, spread=0.1)
+    vn = pc.polygon_vertex_normals(pos, cv, off, threads)
+    np.testing.assert_allclose(vn, _reference_vertex_normals(pos, cv, off), atol=2e-4)
+    # Edges: one id per undirected vertex pair.
+    nxt = cv.reshape(-1, 4)[:, [1, 2, 3, 0]].ravel()
+    pairs = np.sort(np.stack([cv, nxt], 1), axis=1)
+    keys, ce = np.unique(pairs[:, 0] * len(pos) + pairs[:, 1], return_inverse=True)
+    ce = ce.astype(np.int32)
+    smooth = pc.polygon_corner_normals(pos, cv, off, ce, len(keys), None, None, threads)
+    np.testing.assert_allclose(smooth, vn[cv], atol=1e-6)
+    flat = pc.polygon_corner_normals(pos, cv, off, ce, len(keys), None, np.ones(len(off) - 1, bool), threads)
+    p = pos[cv].reshape(-1, 4, 3).astype(np.float64)
+    fn = np.cross(p, np.roll(p, -1, axis=1)).sum(1)
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    np.testing.assert_allclose(flat, np.repeat(fn, 4, axis=0), atol=1e-6)
+    sharp = np.zeros(len(keys), bool)
+    sharp[ce[5]] = True  # the edge from corner 5 to corner 6
+    one = pc.polygon_corner_normals(pos, cv, off, ce, len(keys), sharp, None, threads)
+    changed = np.flatnonzero(np.abs(one - smooth).max(1) > 1e-6)
+    assert set(cv[changed]) <= {cv[5], cv[6]} and len(changed) >= 2
+    with pytest.raises(ValueError, match="corner edge"):
+        pc.polygon_corner_normals(pos, cv, off, ce + len(keys), len(keys))
+    with pytest.raises(ValueError, match="sharp_faces"):
+        pc.polygon_corner_normals(pos, cv, off, ce, len(keys), None, np.ones(3, bool))

@@ -70,12 +70,21 @@ def distance_from_origin(meshes, camera_matrix):
     far = float(np.linalg.norm(np.asarray(camera_matrix, np.float64)[:3, 3]))
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for mesh in meshes:
-        p = np.asarray(mesh.positions, np.float64)
-        p = p[np.isfinite(p).all(axis=1)]
+        p = mesh.positions
         if not len(p) or not mesh.matrices:
             continue
+        # float32 min/max are exact and propagate NaN and inf: only a mesh with non-finite
+        # vertices needs the filtered (slower, float64) pass. Column by column: numpy's
+        # reduction over axis 0 of an (N, 3) array is ~40x slower (27 ms for 0.5M vertices).
+        a = np.array([p[:, k].min() for k in range(3)], np.float64)
+        b = np.array([p[:, k].max() for k in range(3)], np.float64)
+        if not (np.isfinite(a).all() and np.isfinite(b).all()):
+            p = np.asarray(p, np.float64)
+            p = p[np.isfinite(p).all(axis=1)]
+            if not len(p):
+                continue
+            a, b = p.min(axis=0), p.max(axis=0)
         # The 8 corners of the local box, through every instance matrix: (I, 8, 3).
-        a, b = p.min(axis=0), p.max(axis=0)
         corners = np.array([[(a, b)[i >> k & 1][k] for k in range(3)] for i in range(8)])
         m = np.asarray(mesh.matrices, np.float64)
         world = corners @ m[:, :3, :3].transpose(0, 2, 1) + m[:, None, :3, 3]

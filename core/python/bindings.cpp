@@ -8,6 +8,7 @@
 #include <memory>
 #include <stdexcept>
 
+#include "geometry/polygon_mesh.h"
 #include "render/session.h"
 
 namespace py = pybind11;
@@ -809,6 +810,92 @@ PYBIND11_MODULE(pathlight_core, m) {
       "The offset the integrator applies to spawned rays (exposed for self-intersection tests). "
       "errors: bounds of the points' rounding errors; default gamma(7)|p|, right for points "
       "interpolated on triangles whose vertices are no larger than the point.");
+  // Polygon meshes: the exporter's cheap path from faces to triangles and smooth normals.
+  using I32Array = py::array_t<int32_t, py::array::c_style | py::array::forcecast>;
+  const auto polygon_mesh = [](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets) {
+    if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
+    if (corner_verts.ndim() != 1) throw std::invalid_argument("corner_verts must have shape (C,)");
+    if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("face_offsets must have shape (F + 1,)");
+    PolygonMesh m;
+    m.positions = reinterpret_cast<const Vec3*>(positions.data());
+    m.vertices = size_t(positions.shape(0));
+    m.corner_verts = corner_verts.data();
+    m.corners = size_t(corner_verts.shape(0));
+    m.offsets = offsets.data();
+    m.faces = size_t(offsets.shape(0)) - 1;
+    if (m.corners > size_t(INT32_MAX)) throw std::invalid_argument("mesh is too large");
+    validate_polygon_mesh(m);
+    return m;
+  };
+  m.def(
+      "triangulate_polygons",
+      [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads) {
+        const PolygonMesh pm = polygon_mesh(positions, corner_verts, offsets);
+        const size_t nt = polygon_mesh_triangles(pm);
+        py::array_t<int32_t> out({py::ssize_t(nt), py::ssize_t(3)}), verts({py::ssize_t(nt), py::ssize_t(3)});
+        uint32_t* dst = reinterpret_cast<uint32_t*>(out.mutable_data());
+        uint32_t* vdst = reinterpret_cast<uint32_t*>(verts.mutable_data());
+        size_t ngons;
+        {
+          py::gil_scoped_release release;
+          ngons = triangulate_polygons(pm, dst, vdst, threads);
+        }
+        return py::make_tuple(out, verts, ngons);
+      },
+      py::arg("positions"), py::arg("corner_verts"), py::arg("face_offsets"), py::arg("threads") = 0,
+      "(corners int32 (T, 3), vertices int32 (T, 3), n-gon count): the corner and vertex indices of the triangles "
+      "of a polygon mesh (face f: corners face_offsets[f] to face_offsets[f + 1] - 1), face by face, quads split as "
+      "Blender does; faces of 5+ corners get a fan (counted: the caller replaces those).");
+  m.def(
+      "polygon_vertex_normals",
+      [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads) {
+        const PolygonMesh pm = polygon_mesh(positions, corner_verts, offsets);
+        FloatArray out({py::ssize_t(pm.vertices), py::ssize_t(3)});
+        Vec3* dst = reinterpret_cast<Vec3*>(out.mutable_data());
+        {
+          py::gil_scoped_release release;
+          polygon_vertex_normals(pm, dst, threads);
+        }
+        return out;
+      },
+      py::arg("positions"), py::arg("corner_verts"), py::arg("face_offsets"), py::arg("threads") = 0,
+      "float32 (V, 3): smooth vertex normals of a polygon mesh, corner-angle-weighted face normals (as "
+      "Blender's vertex normals).");
+  m.def(
+      "polygon_corner_normals",
+      [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets,
+                     const I32Array& corner_edges, int64_t edges, const py::object& sharp_edges_obj,
+                     const py::object& sharp_faces_obj, int threads) {
+        const PolygonMesh pm = polygon_mesh(positions, corner_verts, offsets);
+        if (corner_edges.ndim() != 1 || size_t(corner_edges.shape(0)) != pm.corners)
+          throw std::invalid_argument("corner_edges must have shape (C,)");
+        if (edges < 0) throw std::invalid_argument("edges must be >= 0");
+        using BoolArray = py::array_t<uint8_t, py::array::c_style | py::array::forcecast>;
+        BoolArray sharp_edges, sharp_faces;
+        if (!sharp_edges_obj.is_none()) {
+          sharp_edges = sharp_edges_obj.cast<BoolArray>();
+          if (sharp_edges.ndim() != 1 || sharp_edges.shape(0) != edges)
+            throw std::invalid_argument("sharp_edges must have shape (edges,)");
+        }
+        if (!sharp_faces_obj.is_none()) {
+          sharp_faces = sharp_faces_obj.cast<BoolArray>();
+          if (sharp_faces.ndim() != 1 || size_t(sharp_faces.shape(0)) != pm.faces)
+            throw std::invalid_argument("sharp_faces must have shape (F,)");
+        }
+        FloatArray out({py::ssize_t(pm.corners), py::ssize_t(3)});
+        Vec3* dst = reinterpret_cast<Vec3*>(out.mutable_data());
+        const uint8_t* se = sharp_edges_obj.is_none() ? nullptr : sharp_edges.data();
+        const uint8_t* sf = sharp_faces_obj.is_none() ? nullptr : sharp_faces.data();
+        {
+          py::gil_scoped_release release;
+          polygon_corner_normals(pm, corner_edges.data(), size_t(edges), se, sf, dst, threads);
+        }
+        return out;
+      },
+      py::arg("positions"), py::arg("corner_verts"), py::arg("face_offsets"), py::arg("corner_edges"), py::arg("edges"),
+      py::arg("sharp_edges") = py::none(), py::arg("sharp_faces") = py::none(), py::arg("threads") = 0,
+      "float32 (C, 3): per-corner normals of a polygon mesh with sharp edges/faces (smooth fans across manifold, "
+      "consistently wound, unmarked edges; as Blender's corner normals without custom normals).");
   m.def("barycentric_error_bound", [] { return gamma_bound(7); },
         "The relative bound gamma(7): |error(b0 v0 + b1 v1 + b2 v2)| <= gamma(7) (|b0 v0| + |b1 v1| + |b2 v2|).");
   m.def(

@@ -426,23 +426,35 @@ void Scene::build_lights() {
     emitter_areas_.push_back(area);
     weights.push_back(2.0f * kPi * area * lum);  // two-sided
   };
+  // Per material once; a scene without emissive materials skips the per-triangle scans.
+  std::vector<float> material_lum(materials_.size());
+  bool any_emissive = false;
+  for (size_t id = 0; id < materials_.size(); ++id) {
+    material_lum[id] = emission_weight(uint32_t(id));
+    any_emissive = any_emissive || material_lum[id] > 0.0f;
+  }
   // Emitters in flattened order for the merged triangles (as one world-space BVH had them),
   // then (instance, triangle) pairs of the real instances.
   for (Blas& b : blases_) {
     b.emitter.clear();
     b.emissive.clear();
+    if (!any_emissive) continue;
     if (b.merged) {
-      for (uint32_t t = 0; t < b.tris.size(); ++t) {
-        const uint32_t in = b.instance_of(t);
-        const float lum = emission_weight(material_of(meshes_[inst_[in].mesh], b.src_tri[t], materials_.size()));
-        if (!(lum > 0.0f)) continue;
-        if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
-        b.emitter[t] = int32_t(emitters_.size());
-        add_emitter(in, t, b.tris[t], lum);
+      for (size_t r = 0; r < b.run_first.size(); ++r) {  // runs of one instance's triangles
+        const uint32_t in = b.run_inst[r];
+        const MeshData& mesh = meshes_[inst_[in].mesh];
+        const uint32_t end = r + 1 < b.run_first.size() ? b.run_first[r + 1] : uint32_t(b.tris.size());
+        for (uint32_t t = b.run_first[r]; t < end; ++t) {
+          const float lum = material_lum[material_of(mesh, b.src_tri[t], materials_.size())];
+          if (!(lum > 0.0f)) continue;
+          if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
+          b.emitter[t] = int32_t(emitters_.size());
+          add_emitter(in, t, b.tris[t], lum);
+        }
       }
     } else {
       for (uint32_t t = 0; t < b.tris.size(); ++t) {
-        if (!(emission_weight(material_of(meshes_[b.mesh], b.src_tri[t], materials_.size())) > 0.0f)) continue;
+        if (!(material_lum[material_of(meshes_[b.mesh], b.src_tri[t], materials_.size())] > 0.0f)) continue;
         if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
         b.emitter[t] = int32_t(b.emissive.size());
         b.emissive.push_back(t);
@@ -508,11 +520,16 @@ std::vector<std::string> SceneFeatures::all_names() {
 void Scene::detect_features() {
   SceneFeatures f;
   std::vector<uint8_t> used(materials_.size(), 0);
-  for (const Blas& b : blases_)
-    for (size_t t = 0; t < b.src_tri.size(); ++t) {
-      const MeshData& mesh = meshes_[b.merged ? inst_[b.instance_of(uint32_t(t))].mesh : b.mesh];
-      used[material_of(mesh, b.src_tri[t], materials_.size())] = 1;
+  for (const Blas& b : blases_) {
+    // Merged: runs of one instance's triangles (no run search per triangle); else one run.
+    const size_t runs = b.merged ? b.run_first.size() : 1;
+    for (size_t r = 0; r < runs; ++r) {
+      const MeshData& mesh = meshes_[b.merged ? inst_[b.run_inst[r]].mesh : b.mesh];
+      const size_t begin = b.merged ? b.run_first[r] : 0;
+      const size_t end = b.merged && r + 1 < runs ? b.run_first[r + 1] : b.src_tri.size();
+      for (size_t t = begin; t < end; ++t) used[material_of(mesh, b.src_tri[t], materials_.size())] = 1;
     }
+  }
   for (size_t id = 0; id < materials_.size(); ++id) {
     if (!used[id]) continue;
     const Material& m = materials_[id];
