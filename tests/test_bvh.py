@@ -194,11 +194,8 @@ def big_grid(n):
     return pos, tris.astype(np.int32)
 
 
-def test_commit_can_be_cancelled_from_another_thread_and_run_again():
-    pos, tris = big_grid(700)  # ~1M triangles: a commit takes a second or more
-    s = pc.Scene()
-    s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
-    s.cancel_commit()  # no commit running: no effect on the next one
+def commit_cancelled_from_another_thread(s):
+    """Commits `s` on a thread while this one keeps asking it to stop; the RuntimeErrors raised."""
     errors = []
 
     def run():
@@ -213,6 +210,15 @@ def test_commit_can_be_cancelled_from_another_thread_and_run_again():
         s.cancel_commit()
         time.sleep(0.002)
     th.join()
+    return errors
+
+
+def test_commit_can_be_cancelled_from_another_thread_and_run_again():
+    pos, tris = big_grid(700)  # ~1M triangles: a commit takes a second or more
+    s = pc.Scene()
+    s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
+    s.cancel_commit()  # no commit running: no effect on the next one
+    errors = commit_cancelled_from_another_thread(s)
     assert len(errors) == 1 and "cancelled" in str(errors[0])
     o = np.array([[0.5, 0.5, 1.0]], np.float32)
     d = np.array([[0.0, 0.0, -1.0]], np.float32)

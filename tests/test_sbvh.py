@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from core_scenes import core, random_rotation, sliver_room
-from test_bvh import awkward_rays, awkward_soup, noisy_sphere
+from test_bvh import awkward_rays, awkward_soup, commit_cancelled_from_another_thread, noisy_sphere
 
 pc = core()
 LAYOUTS = ("binary", "bvh4", "bvh8")
@@ -223,26 +223,11 @@ def test_setting_rebuilds_the_geometry():
 
 
 def test_commit_with_spatial_splits_can_be_cancelled_and_run_again():
-    import threading
-    import time
     pos, tris = sliver_room(spheres=500)  # ~270k triangles: the build takes most of a second or more
     s = pc.Scene()
     s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
     s.spatial_splits = True
-    errors = []
-
-    def run():
-        try:
-            s.commit()
-        except RuntimeError as e:
-            errors.append(e)
-
-    th = threading.Thread(target=run)
-    th.start()
-    while th.is_alive():  # commit() clears the request when it starts, so keep asking
-        s.cancel_commit()
-        time.sleep(0.002)
-    th.join()
+    errors = commit_cancelled_from_another_thread(s)
     assert len(errors) == 1 and "cancelled" in str(errors[0])
     o = np.zeros((1, 3), np.float32)
     d = np.array([[0.0, 0.0, 1.0]], np.float32)
