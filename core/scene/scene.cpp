@@ -482,16 +482,14 @@ void Scene::build_lights() {
       }
       if (g.count > 1) {
         const Blas& b = blases_[inst_[emitters_[k].instance].blas];
-        Vec3 pos[3 * kMaxEmitterGroup];
         for (uint32_t t = 0; t < g.count; ++t) {
           const TriangleVerts& tv = b.tris[emitters_[k + t].tri];
           const Vec3 v[3] = {tv.v0, tv.v1, tv.v2};
           for (int c = 0; c < 3; ++c) {
             uint8_t j = 0;
-            while (j < g.corners && !(pos[j].x == v[c].x && pos[j].y == v[c].y && pos[j].z == v[c].z)) ++j;
+            while (j < g.corners && !(g.corner[j].x == v[c].x && g.corner[j].y == v[c].y && g.corner[j].z == v[c].z)) ++j;
             if (j == g.corners) {
-              pos[j] = v[c];
-              g.corner_src[j] = uint8_t(3 * t + c);
+              g.corner[j] = v[c];
               ++g.corners;
             }
             g.tri_corner[t][c] = j;
@@ -649,12 +647,9 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
 // Inlined into sample_direct: as a call it cost a fifth of a light sample in argument passing.
 [[gnu::always_inline]] inline bool Scene::group_solid_angles(const EmitterGroup& g, Vec3 p, double (*dirs)[3], double* omega, double& total) const {
   const InstanceData& in = inst_[emitters_[g.first].instance];
-  const std::vector<TriangleVerts>& tris = blases_[in.blas].tris;
   uint32_t bad = 0;  // corners without a direction (p on them)
   for (uint32_t c = 0; c < g.corners; ++c) {
-    const uint32_t src = g.corner_src[c];
-    const TriangleVerts& tv = tris[emitters_[g.first + src / 3].tri];
-    Vec3 v = src % 3 == 0 ? tv.v0 : src % 3 == 1 ? tv.v1 : tv.v2;
+    Vec3 v = g.corner[c];
     if (in.transformed) v = in.to_world.point(v);  // as world_triangle
     DVec3 d = DVec3(v) - DVec3(p);
     if (!dnormalize(d)) bad |= 1u << c;
@@ -679,10 +674,11 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   return all;
 }
 
-[[gnu::always_inline]] inline bool Scene::sample_emitter(size_t e, Vec3 p, const TriangleVerts& tv, const SphericalTriangle& st, bool spherical,
-                           float pdf_solid, float pmf_e, Vec2 u, DirectSample& s) const {
+[[gnu::always_inline]] inline bool Scene::sample_emitter(size_t e, Vec3 p, const SphericalTriangle& st, bool spherical,
+                                                         float pdf_solid, float pmf_e, Vec2 u, DirectSample& s) const {
   const Emitter& em = emitters_[e];
   const InstanceData& in = inst_[em.instance];
+  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
   const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
   float b1, b2;
   DVec3 w;
@@ -777,44 +773,50 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
     return true;
   }
   const EmitterGroup& g = groups_[k - lights_.size()];
+  size_t e = g.first;
+  SphericalTriangle st;
+  bool spherical;
+  float pdf_solid, pmf_e = pmf;
   if (g.count == 1) {
-    const Emitter& em = emitters_[g.first];
+    const Emitter& em = emitters_[e];
     const InstanceData& in = inst_[em.instance];
     const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
-    const SphericalTriangle st = spherical_triangle(p, tv.v0, tv.v1, tv.v2);
-    const bool spherical = solid_angle_triangles_ && use_spherical_sampling(st.solid_angle);
-    return sample_emitter(g.first, p, tv, st, spherical, float(pmf / st.solid_angle), pmf, u, s);
+    st = spherical_triangle(p, tv.v0, tv.v1, tv.v2);
+    spherical = solid_angle_triangles_ && use_spherical_sampling(st.solid_angle);
+    pdf_solid = float(pmf / st.solid_angle);
+  } else {
+    // A group: one triangle chosen by u.x, in proportion to its solid angle (by area where the
+    // group is not sampled by solid angle from p), and u.x rescaled into its share, so that the
+    // sample stays stratified over the whole group.
+    double dirs[3 * kMaxEmitterGroup][3], omega[kMaxEmitterGroup], total;
+    const bool whole = group_solid_angles(g, p, dirs, omega, total);
+    const auto weight = [&](uint32_t i) { return whole ? omega[i] : double(emitter_areas_[g.first + i]); };
+    const double x = double(u.x) * (whole ? total : double(g.area));
+    double acc = 0.0;
+    uint32_t i = 0;
+    for (; i + 1 < g.count && !(x < acc + weight(i)); ++i) acc += weight(i);
+    const double wi = weight(i);
+    if (!(wi > 0.0)) return false;
+    u.x = float(std::clamp((x - acc) / wi, 0.0, 1.0));
+    e += i;
+    const auto dir = [&](int c) {
+      const double* d = dirs[g.tri_corner[i][c]];
+      return DVec3(d[0], d[1], d[2]);
+    };
+    st.a = dir(0);
+    st.b = dir(1);
+    st.c = dir(2);
+    st.solid_angle = omega[i];
+    if (whole) {
+      spherical = true;
+      pdf_solid = float(pmf / total);
+    } else {
+      spherical = solid_angle_triangles_ && use_spherical_sampling(omega[i]);
+      pmf_e = float(double(pmf) * double(emitter_areas_[e]) / double(g.area));
+      pdf_solid = float(pmf_e / omega[i]);
+    }
   }
-  // A group: one triangle chosen by u.x, in proportion to its solid angle (by area where the
-  // group is not sampled by solid angle from p), and u.x rescaled into its share, so that the
-  // sample stays stratified over the whole group.
-  double dirs[3 * kMaxEmitterGroup][3], omega[kMaxEmitterGroup], total;
-  const bool spherical = group_solid_angles(g, p, dirs, omega, total);
-  const auto weight = [&](uint32_t i) { return spherical ? omega[i] : double(emitter_areas_[g.first + i]); };
-  const double x = double(u.x) * (spherical ? total : double(g.area));
-  double acc = 0.0;
-  uint32_t i = 0;
-  for (; i + 1 < g.count && !(x < acc + weight(i)); ++i) acc += weight(i);
-  const double wi = weight(i);
-  if (!(wi > 0.0)) return false;
-  u.x = float(std::clamp((x - acc) / wi, 0.0, 1.0));
-  const size_t e = g.first + i;
-  SphericalTriangle st;
-  const auto dir = [&](int c) {
-    const double* d = dirs[g.tri_corner[i][c]];
-    return DVec3(d[0], d[1], d[2]);
-  };
-  st.a = dir(0);
-  st.b = dir(1);
-  st.c = dir(2);
-  st.solid_angle = omega[i];
-  const Emitter& em = emitters_[e];
-  const InstanceData& in = inst_[em.instance];
-  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
-  if (spherical) return sample_emitter(e, p, tv, st, true, float(pmf / total), pmf, u, s);
-  const bool tri_spherical = solid_angle_triangles_ && use_spherical_sampling(omega[i]);
-  const float pmf_e = float(double(pmf) * double(emitter_areas_[e]) / double(g.area));
-  return sample_emitter(e, p, tv, st, tri_spherical, float(pmf_e / omega[i]), pmf_e, u, s);
+  return sample_emitter(e, p, st, spherical, pdf_solid, pmf_e, u, s);
 }
 
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray) const {

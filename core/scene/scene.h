@@ -325,11 +325,11 @@ class Scene {
   struct EmitterGroup {
     uint32_t first = 0, count = 1;
     float area = 0.0f;
-    // The group's distinct corners (shared ones once: a quad has 4, not 6), each as
-    // triangle * 3 + vertex of its first use, and each triangle's corners in that list.
+    // The group's distinct corners (shared ones once: a quad has 4, not 6) in BLAS space, and
+    // each triangle's corners in that list.
     uint8_t corners = 0;
-    uint8_t corner_src[3 * kMaxEmitterGroup] = {};
     uint8_t tri_corner[kMaxEmitterGroup][3] = {};
+    Vec3 corner[3 * kMaxEmitterGroup];
   };
   std::vector<EmitterGroup> groups_;
   std::vector<uint32_t> emitter_group_;  // per emitter
@@ -355,8 +355,8 @@ class Scene {
                              Vec3& p_error);
   // Samples emitter e from p given its spherical triangle (st, from p): the solid-angle pdf is
   // `pdf_solid` where `spherical`, else pmf_e over its area (converted to solid angle).
-  bool sample_emitter(size_t e, Vec3 p, const TriangleVerts& tv, const SphericalTriangle& st, bool spherical,
-                      float pdf_solid, float pmf_e, Vec2 u, DirectSample& s) const;
+  bool sample_emitter(size_t e, Vec3 p, const SphericalTriangle& st, bool spherical, float pdf_solid, float pmf_e,
+                      Vec2 u, DirectSample& s) const;
   // Group g (two or more triangles) as seen from p: the unit directions to its distinct corners
   // and each triangle's solid angle; true when the group is sampled as a whole by solid angle
   // from p (every triangle would be on its own), with `total` the sum of the solid angles.
