@@ -171,7 +171,9 @@ inline SphericalTriangle spherical_triangle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2) {
 // (Arvo's inversion, with the angle at corner a from the edge planes' normals: one sincos and
 // one atan2 in all, both inline).
 // False when the triangle is degenerate as seen from the point.
-inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3& dir) {
+// (Always inlined: its one caller in the light sampler is large, and as a call it cost ~40
+// instructions per light sample in argument passing and spills.)
+[[gnu::always_inline]] inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3& dir) {
   if (!(t.solid_angle > 0.0)) return false;
   const DVec3 &a = t.a, &b = t.b, &c = t.c;
   // Interior angle alpha at a: between the planes through (a, b) and (a, c).
