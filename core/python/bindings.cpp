@@ -631,6 +631,44 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
   return py::make_tuple(t, prim, b1, b2);
 }
 
+// Light samples from points p with uniforms u (N x 3: light choice, then the 2-D sample), and
+// the pdf pdf_emitter gives the emitter the ray along each sample's direction hits (MIS's view of
+// the same direction), for tests of the light sampler's densities.
+py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u) {
+  check_rays(self, points, u);
+  const py::ssize_t n = points.shape(0);
+  py::array_t<bool> ok(n);
+  py::array_t<float> wi({n, py::ssize_t(3)}), dist(n), pdf(n), pdf_hit(n), t_hit(n);
+  const Vec3* p = reinterpret_cast<const Vec3*>(points.data());
+  const float* pu = u.data();
+  bool* pok = ok.mutable_data();
+  float *pw = wi.mutable_data(), *pd = dist.mutable_data(), *pp = pdf.mutable_data(), *ph = pdf_hit.mutable_data(),
+        *pt = t_hit.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) {
+      DirectSample ds;
+      const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds);
+      pok[i] = good;
+      pw[3 * i] = good ? ds.wi.x : 0.0f;
+      pw[3 * i + 1] = good ? ds.wi.y : 0.0f;
+      pw[3 * i + 2] = good ? ds.wi.z : 0.0f;
+      pd[i] = good ? ds.dist : 0.0f;
+      pp[i] = good ? ds.pdf : 0.0f;
+      ph[i] = 0.0f;
+      pt[i] = kInf;
+      Hit h;
+      if (good && self.scene->intersect(Ray{p[i], ds.wi, kInf}, h)) {
+        pt[i] = h.t;
+        SurfacePoint sp;
+        self.scene->surface_point(h, sp);
+        ph[i] = self.scene->pdf_emitter(sp, p[i], sp.p, std::fabs(dot(sp.ng, ds.wi)));
+      }
+    }
+  }
+  return py::make_tuple(ok, wi, dist, pdf, pdf_hit, t_hit);
+}
+
 py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
@@ -1415,6 +1453,21 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           "Light-sample rectangle lights uniformly in solid angle where it is not tiny (True, the "
           "default) or always by area.")
+      .def_property(
+          "emitter_groups",
+          [](const PyScene& self) { return self.scene->emitter_groups(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_emitter_groups(on);
+          },
+          "Sample a small mesh light (up to 4 triangles of one material in one object, such as a "
+          "quad) as one light, each triangle chosen in proportion to its solid angle (True, the "
+          "default), or each triangle as a light of its own. Takes effect at the next commit().")
+      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"),
+           "Light samples (next-event estimation) from points (N, 3) with uniforms u (N, 3: the light "
+           "choice and the 2-D sample): (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "
+           "renderer's MIS gives the emitter the ray p + t wi hits first at t_hit (0 and inf for none). "
+           "Exposed for tests.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            py::arg("instances") = false,

@@ -420,11 +420,14 @@ void Scene::build_lights() {
     const float lum = std::max(luminance(le), max_component(le) * 1e-3f);
     return lum > 0.0f && std::isfinite(lum) ? lum : 0.0f;
   };
-  const auto add_emitter = [&](uint32_t instance, uint32_t tri, const TriangleVerts& tv, float lum) {
+  std::vector<float> emitter_weights;
+  std::vector<uint32_t> emitter_materials;
+  const auto add_emitter = [&](uint32_t instance, uint32_t tri, const TriangleVerts& tv, float lum, uint32_t material) {
     const float area = 0.5f * length(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
     emitters_.push_back({instance, tri});
     emitter_areas_.push_back(area);
-    weights.push_back(2.0f * kPi * area * lum);  // two-sided
+    emitter_weights.push_back(2.0f * kPi * area * lum);  // two-sided
+    emitter_materials.push_back(material);
   };
   // Per material once; a scene without emissive materials skips the per-triangle scans.
   std::vector<float> material_lum(materials_.size());
@@ -445,11 +448,12 @@ void Scene::build_lights() {
         const MeshData& mesh = meshes_[inst_[in].mesh];
         const uint32_t end = r + 1 < b.run_first.size() ? b.run_first[r + 1] : uint32_t(b.tris.size());
         for (uint32_t t = b.run_first[r]; t < end; ++t) {
-          const float lum = material_lum[material_of(mesh, b.src_tri[t], materials_.size())];
+          const uint32_t mat = material_of(mesh, b.src_tri[t], materials_.size());
+          const float lum = material_lum[mat];
           if (!(lum > 0.0f)) continue;
           if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
           b.emitter[t] = int32_t(emitters_.size());
-          add_emitter(in, t, b.tris[t], lum);
+          add_emitter(in, t, b.tris[t], lum, mat);
         }
       }
     } else {
@@ -466,9 +470,52 @@ void Scene::build_lights() {
     if (!in.transformed || in.blas == UINT32_MAX) continue;
     const Blas& b = blases_[in.blas];
     in.emitter_base = uint32_t(emitters_.size());
-    for (uint32_t t : b.emissive)
-      add_emitter(uint32_t(i), t, world_triangle(in, b.tris[t]),
-                  emission_weight(material_of(meshes_[b.mesh], b.src_tri[t], materials_.size())));
+    for (uint32_t t : b.emissive) {
+      const uint32_t mat = material_of(meshes_[b.mesh], b.src_tri[t], materials_.size());
+      add_emitter(uint32_t(i), t, world_triangle(in, b.tris[t]), material_lum[mat], mat);
+    }
+  }
+  // Groups: an object's emitters of one material when there are at most kMaxEmitterGroup of
+  // them (a quad, a small polygon: sampled as one), else one group per triangle (a big mesh
+  // light would cost a solid angle per triangle of the group on every sample). An object's
+  // emitters are consecutive in emitters_.
+  groups_.clear();
+  emitter_group_.assign(emitters_.size(), 0);
+  for (size_t e = 0; e < emitters_.size();) {
+    size_t end = e + 1;
+    while (end < emitters_.size() && emitters_[end].instance == emitters_[e].instance) ++end;
+    bool one = emitter_groups_ && end - e <= kMaxEmitterGroup && end - e > 1;
+    for (size_t k = e + 1; k < end && one; ++k) one = emitter_materials[k] == emitter_materials[e];
+    for (size_t k = e; k < end; k += one ? end - e : 1) {
+      EmitterGroup g;
+      g.first = uint32_t(k);
+      g.count = one ? uint32_t(end - e) : 1u;
+      float w = 0.0f;
+      for (size_t j = k; j < k + g.count; ++j) {
+        g.area += emitter_areas_[j];
+        w += emitter_weights[j];
+        emitter_group_[j] = uint32_t(groups_.size());
+      }
+      if (g.count > 1) {
+        const Blas& b = blases_[inst_[emitters_[k].instance].blas];
+        for (uint32_t t = 0; t < g.count; ++t) {
+          const TriangleVerts& tv = b.tris[emitters_[k + t].tri];
+          const Vec3 v[3] = {tv.v0, tv.v1, tv.v2};
+          for (int c = 0; c < 3; ++c) {
+            uint8_t j = 0;
+            while (j < g.corners && !(g.corner[j].x == v[c].x && g.corner[j].y == v[c].y && g.corner[j].z == v[c].z)) ++j;
+            if (j == g.corners) {
+              g.corner[j] = v[c];
+              ++g.corners;
+            }
+            g.tri_corner[t][c] = j;
+          }
+        }
+      }
+      groups_.push_back(g);
+      weights.push_back(w);
+    }
+    e = end;
   }
   env_index_ = SIZE_MAX;
   if (env_.valid() && env_.average_luminance() > 0.0f) {
@@ -618,45 +665,43 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   sp.tri = h.prim;
 }
 
-bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
-  if (light_dist_.empty()) return false;
-  const size_t k = light_dist_.sample(u_select);
-  const float pmf = light_dist_.pmf(k);
-  if (!(pmf > 0.0f)) return false;
-  s.target_normal = Vec3(0.0f);
-  if (k < lights_.size()) {
-    const Light& l = lights_[k];
-    LightSample ls;
-    if (!sample_light(l, p, u, ls, solid_angle_rects_)) return false;
-    s.wi = ls.wi;
-    s.dist = ls.dist;
-    s.target = ls.target;
-    s.li = ls.li;
-    s.pdf = ls.pdf * pmf;
-    // BSDF rays never hit analytic lights (they are not geometry), so the light sample is the
-    // only estimator and keeps the full weight: MIS against the BSDF pdf lost energy here.
-    s.delta = true;
-    s.cast_shadow = l.cast_shadow;
-    return true;
+// Inlined into sample_direct: as a call it cost a fifth of a light sample in argument passing.
+[[gnu::always_inline]] inline bool Scene::group_solid_angles(const EmitterGroup& g, Vec3 p, double (*dirs)[3], double* omega, double& total) const {
+  const InstanceData& in = inst_[emitters_[g.first].instance];
+  uint32_t bad = 0;  // corners without a direction (p on them)
+  for (uint32_t c = 0; c < g.corners; ++c) {
+    Vec3 v = g.corner[c];
+    if (in.transformed) v = in.to_world.point(v);  // as world_triangle
+    DVec3 d = DVec3(v) - DVec3(p);
+    if (!dnormalize(d)) bad |= 1u << c;
+    dirs[c][0] = d.x;
+    dirs[c][1] = d.y;
+    dirs[c][2] = d.z;
   }
-  s.delta = false;
-  s.cast_shadow = true;
-  if (k == env_index_) {
-    float pdf;
-    if (!env_.sample(u, s.wi, s.li, pdf, !bsdf_follows)) return false;
-    s.dist = kInf;
-    s.pdf = pdf * pmf;
-    return true;
+  total = 0.0;
+  bool all = solid_angle_triangles_;
+  for (uint32_t i = 0; i < g.count; ++i) {
+    const uint8_t* tc = g.tri_corner[i];
+    omega[i] = 0.0;  // as spherical_triangle gives for a corner at p
+    if (!(bad >> tc[0] & 1u) && !(bad >> tc[1] & 1u) && !(bad >> tc[2] & 1u)) {
+      const double *a = dirs[tc[0]], *b = dirs[tc[1]], *c = dirs[tc[2]];
+      omega[i] = spherical_triangle_solid_angle({a[0], a[1], a[2]}, {b[0], b[1], b[2]}, {c[0], c[1], c[2]});
+    }
+    total += omega[i];
+    // Only where every triangle would be sampled by solid angle on its own: elsewhere the
+    // group falls back to what its triangles alone would do.
+    all = all && use_spherical_sampling(omega[i]);
   }
-  const size_t e = k - lights_.size();
+  return all;
+}
+
+[[gnu::always_inline]] inline bool Scene::sample_emitter(size_t e, Vec3 p, const SphericalTriangle& st, bool spherical,
+                                                         float pdf_solid, float pmf_e, Vec2 u, DirectSample& s) const {
   const Emitter& em = emitters_[e];
   const InstanceData& in = inst_[em.instance];
   const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
   const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
   float b1, b2;
-  const SphericalTriangle st = spherical_triangle(p, tv.v0, tv.v1, tv.v2);
-  const double omega = st.solid_angle;
-  const bool spherical = solid_angle_triangles_ && use_spherical_sampling(omega);
   DVec3 w;
   if (spherical && sample_spherical_triangle(st, u, w)) {
     // The point where the sampled direction meets the triangle, as barycentrics (clamped into
@@ -714,8 +759,85 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
     shade(lp, b1, b2, -s.wi, cl);
     s.li = cl.emission;
   }
-  s.pdf = spherical ? float(pmf / omega) : pmf / emitter_areas_[e] * dist2 / cos_l;
+  s.pdf = spherical ? pdf_solid : pmf_e / emitter_areas_[e] * dist2 / cos_l;
   return std::isfinite(s.pdf) && s.pdf > 0.0f;
+}
+
+bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
+  if (light_dist_.empty()) return false;
+  const size_t k = light_dist_.sample(u_select);
+  const float pmf = light_dist_.pmf(k);
+  if (!(pmf > 0.0f)) return false;
+  s.target_normal = Vec3(0.0f);
+  if (k < lights_.size()) {
+    const Light& l = lights_[k];
+    LightSample ls;
+    if (!sample_light(l, p, u, ls, solid_angle_rects_)) return false;
+    s.wi = ls.wi;
+    s.dist = ls.dist;
+    s.target = ls.target;
+    s.li = ls.li;
+    s.pdf = ls.pdf * pmf;
+    // BSDF rays never hit analytic lights (they are not geometry), so the light sample is the
+    // only estimator and keeps the full weight: MIS against the BSDF pdf lost energy here.
+    s.delta = true;
+    s.cast_shadow = l.cast_shadow;
+    return true;
+  }
+  s.delta = false;
+  s.cast_shadow = true;
+  if (k == env_index_) {
+    float pdf;
+    if (!env_.sample(u, s.wi, s.li, pdf, !bsdf_follows)) return false;
+    s.dist = kInf;
+    s.pdf = pdf * pmf;
+    return true;
+  }
+  const EmitterGroup& g = groups_[k - lights_.size()];
+  size_t e = g.first;
+  SphericalTriangle st;
+  bool spherical;
+  float pdf_solid, pmf_e = pmf;
+  if (g.count == 1) {
+    const Emitter& em = emitters_[e];
+    const InstanceData& in = inst_[em.instance];
+    const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
+    st = spherical_triangle(p, tv.v0, tv.v1, tv.v2);
+    spherical = solid_angle_triangles_ && use_spherical_sampling(st.solid_angle);
+    pdf_solid = float(pmf / st.solid_angle);
+  } else {
+    // A group: one triangle chosen by u.x, in proportion to its solid angle (by area where the
+    // group is not sampled by solid angle from p), and u.x rescaled into its share, so that the
+    // sample stays stratified over the whole group.
+    double dirs[3 * kMaxEmitterGroup][3], omega[kMaxEmitterGroup], total;
+    const bool whole = group_solid_angles(g, p, dirs, omega, total);
+    const auto weight = [&](uint32_t i) { return whole ? omega[i] : double(emitter_areas_[g.first + i]); };
+    const double x = double(u.x) * (whole ? total : double(g.area));
+    double acc = 0.0;
+    uint32_t i = 0;
+    for (; i + 1 < g.count && !(x < acc + weight(i)); ++i) acc += weight(i);
+    const double wi = weight(i);
+    if (!(wi > 0.0)) return false;
+    u.x = float(std::clamp((x - acc) / wi, 0.0, 1.0));
+    e += i;
+    const auto dir = [&](int c) {
+      const double* d = dirs[g.tri_corner[i][c]];
+      return DVec3(d[0], d[1], d[2]);
+    };
+    st.a = dir(0);
+    st.b = dir(1);
+    st.c = dir(2);
+    st.solid_angle = omega[i];
+    if (whole) {
+      spherical = true;
+      pdf_solid = float(pmf / total);
+    } else {
+      spherical = solid_angle_triangles_ && use_spherical_sampling(omega[i]);
+      pmf_e = float(double(pmf) * double(emitter_areas_[e]) / double(g.area));
+      pdf_solid = float(pmf_e / omega[i]);
+    }
+  }
+  return sample_emitter(e, p, st, spherical, pdf_solid, pmf_e, u, s);
 }
 
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray) const {
@@ -827,13 +949,24 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
   const InstanceData& in = inst_[sp.instance];
   const int32_t e = emitter_of(in, sp.tri);
   if (e < 0 || !(cos_l > 0.0f)) return 0.0f;
-  const float pmf = light_dist_.pmf(lights_.size() + size_t(e));
-  // The same choice of technique as sample_direct made from this point.
-  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[sp.tri]);
-  const double omega = spherical_triangle(from, tv.v0, tv.v1, tv.v2).solid_angle;
-  if (solid_angle_triangles_ && use_spherical_sampling(omega)) return float(pmf / omega);
+  const uint32_t gi = emitter_group_[size_t(e)];
+  const EmitterGroup& g = groups_[gi];
+  const float pmf = light_dist_.pmf(lights_.size() + gi);
+  // The same choices sample_direct makes from this point.
+  double omega;
+  float pmf_e = pmf;
+  if (g.count == 1) {
+    const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[sp.tri]);
+    omega = spherical_triangle(from, tv.v0, tv.v1, tv.v2).solid_angle;
+  } else {
+    double dirs[3 * kMaxEmitterGroup][3], omegas[kMaxEmitterGroup], total;
+    if (group_solid_angles(g, from, dirs, omegas, total)) return float(pmf / total);
+    omega = omegas[size_t(e) - g.first];
+    pmf_e = float(double(pmf) * double(emitter_areas_[size_t(e)]) / double(g.area));
+  }
+  if (solid_angle_triangles_ && use_spherical_sampling(omega)) return float(pmf_e / omega);
   const float t2 = length_sq(at - from);
-  return pmf / emitter_areas_[size_t(e)] * t2 / cos_l;
+  return pmf_e / emitter_areas_[size_t(e)] * t2 / cos_l;
 }
 
 float Scene::pdf_environment(Vec3 dir) const {

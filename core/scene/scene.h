@@ -160,6 +160,13 @@ class Scene {
   bool solid_angle_triangle_sampling() const { return solid_angle_triangles_; }
   void set_solid_angle_rect_sampling(bool on) { solid_angle_rects_ = on; }
   bool solid_angle_rect_sampling() const { return solid_angle_rects_; }
+  // Small mesh lights (up to kMaxEmitterGroup triangles of one material in one object, such as
+  // a quad) chosen as one light and sampled over their whole solid angle (on by default).
+  void set_emitter_groups(bool on) {
+    emitter_groups_ = on;
+    committed_ = false;
+  }
+  bool emitter_groups() const { return emitter_groups_; }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
   // Returns false when cancel_commit() stopped it: the scene is then uncommitted (as if commit
@@ -299,6 +306,7 @@ class Scene {
   bool spatial_splits_ = false, built_spatial_splits_ = false;
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
+  bool emitter_groups_ = true;
 
   std::vector<Blas> blases_;
   std::vector<InstanceData> inst_;
@@ -312,12 +320,28 @@ class Scene {
   Aabb world_bounds_;
   std::vector<Light> lights_;
   Environment env_;
-  // One distribution over [analytic lights | emissive triangles | environment], by power.
+  // One distribution over [analytic lights | emitter groups | environment], by power.
   struct Emitter {
     uint32_t instance, tri;  // tri: in the instance's BLAS
   };
   std::vector<Emitter> emitters_;
   std::vector<float> emitter_areas_;
+  // Runs of emitters chosen as one light: a small mesh light's triangles (one object, one
+  // material), or a single triangle. Inside a group sample_direct picks a triangle in proportion
+  // to the solid angle it subtends (as one spherical polygon: picking one of a quad's two
+  // triangles by power alone doubles one triangle's contribution and drops the other's).
+  static constexpr uint32_t kMaxEmitterGroup = 4;
+  struct EmitterGroup {
+    uint32_t first = 0, count = 1;
+    float area = 0.0f;
+    // The group's distinct corners (shared ones once: a quad has 4, not 6) in BLAS space, and
+    // each triangle's corners in that list.
+    uint8_t corners = 0;
+    uint8_t tri_corner[kMaxEmitterGroup][3] = {};
+    Vec3 corner[3 * kMaxEmitterGroup];
+  };
+  std::vector<EmitterGroup> groups_;
+  std::vector<uint32_t> emitter_group_;  // per emitter
   Distribution1D light_dist_;
   size_t env_index_ = SIZE_MAX;
   SceneStats stats_;
@@ -338,6 +362,14 @@ class Scene {
   // what surface_point gives, for light samples that need no normals.
   static void triangle_point(const InstanceData& in, const TriangleVerts& tv, float b1, float b2, Vec3& p,
                              Vec3& p_error);
+  // Samples emitter e from p given its spherical triangle (st, from p): the solid-angle pdf is
+  // `pdf_solid` where `spherical`, else pmf_e over its area (converted to solid angle).
+  bool sample_emitter(size_t e, Vec3 p, const SphericalTriangle& st, bool spherical, float pdf_solid, float pmf_e,
+                      Vec2 u, DirectSample& s) const;
+  // Group g (two or more triangles) as seen from p: the unit directions to its distinct corners
+  // and each triangle's solid angle; true when the group is sampled as a whole by solid angle
+  // from p (every triangle would be on its own), with `total` the sum of the solid angles.
+  bool group_solid_angles(const EmitterGroup& g, Vec3 p, double (*dirs)[3], double* omega, double& total) const;
   int32_t emitter_of(const InstanceData& in, uint32_t tri) const {
     const Blas& b = blases_[in.blas];
     if (b.emitter.empty() || b.emitter[tri] < 0) return -1;

@@ -149,16 +149,21 @@ struct SphericalTriangle {
 
 // Solid angle by Van Oosterom & Strackee (1983): one atan2, and the same value sampling uses
 // for the sub-triangle areas, so the density is exactly 1 / solid_angle.
+// From the unit directions to the corners (several triangles sharing corners normalise them once).
+inline double spherical_triangle_solid_angle(DVec3 a, DVec3 b, DVec3 c) {
+  const double triple = std::fabs(ddot(a, dcross(b, c)));
+  const double denom = 1.0 + ddot(a, b) + ddot(b, c) + ddot(c, a);
+  const double omega = 2.0 * atan2_nonneg(triple, denom);
+  return std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+}
+
 inline SphericalTriangle spherical_triangle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2) {
   SphericalTriangle t;
   t.a = DVec3(v0) - DVec3(p);
   t.b = DVec3(v1) - DVec3(p);
   t.c = DVec3(v2) - DVec3(p);
   if (!dnormalize(t.a) || !dnormalize(t.b) || !dnormalize(t.c)) return t;
-  const double triple = std::fabs(ddot(t.a, dcross(t.b, t.c)));
-  const double denom = 1.0 + ddot(t.a, t.b) + ddot(t.b, t.c) + ddot(t.c, t.a);
-  const double omega = 2.0 * atan2_nonneg(triple, denom);
-  t.solid_angle = std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+  t.solid_angle = spherical_triangle_solid_angle(t.a, t.b, t.c);
   return t;
 }
 
@@ -166,7 +171,9 @@ inline SphericalTriangle spherical_triangle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2) {
 // (Arvo's inversion, with the angle at corner a from the edge planes' normals: one sincos and
 // one atan2 in all, both inline).
 // False when the triangle is degenerate as seen from the point.
-inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3& dir) {
+// (Always inlined: its one caller in the light sampler is large, and as a call it cost ~40
+// instructions per light sample in argument passing and spills.)
+[[gnu::always_inline]] inline bool sample_spherical_triangle(const SphericalTriangle& t, Vec2 u, DVec3& dir) {
   if (!(t.solid_angle > 0.0)) return false;
   const DVec3 &a = t.a, &b = t.b, &c = t.c;
   // Interior angle alpha at a: between the planes through (a, b) and (a, c).
