@@ -113,17 +113,12 @@ def test_core_triangulation_is_blenders(pc, case):
 
 
 def test_export_of_mixed_mesh_matches_blender(pc):
-    """mesh_arrays: the core's triangles plus Blender's n-gon triangles (read one by one) are
-    exactly Blender's loop triangles; a mesh of many n-gons reads the whole triangulation."""
-    for fraction in (1 / 64, 0.0):
-        old = mesh_export.NGON_PATCH_FRACTION
-        mesh_export.NGON_PATCH_FRACTION = fraction
-        try:
-            me = new_mesh(*mixed())
-            loops, _, _, cv, _ = blender_arrays(me)
-            _, triangles, _, _, _, corners = mesh_export.mesh_arrays(me)
-        finally:
-            mesh_export.NGON_PATCH_FRACTION = old
+    """mesh_arrays: a mesh with n-gons gives exactly Blender's loop triangles (read from
+    Blender), a mesh of triangles and quads the core's, also exactly Blender's."""
+    for faces in (mixed(), grid()):
+        me = new_mesh(*faces)
+        loops, _, _, cv, _ = blender_arrays(me)
+        _, triangles, _, _, _, corners = mesh_export.mesh_arrays(me)
         np.testing.assert_array_equal(corners.reshape(-1, 3), loops)
         np.testing.assert_array_equal(triangles, cv[loops])
 

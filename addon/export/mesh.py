@@ -92,32 +92,18 @@ def face_offsets(tri_polys, n_faces, n_corners):
     return offsets.astype(np.int32)
 
 
-# Up to this fraction of a mesh's triangles from n-gons (5+ corners) are read from Blender one
-# by one (about 2.2 us each); more, and the whole triangulation is read (0.09-0.14 us per
-# triangle, measured on 0.2M and 1M triangles): below the break-even of about 1/20.
-NGON_PATCH_FRACTION = 1 / 32
-
-
 def triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris):
     """(corners, triangles): int32 (T * 3,) corner index and int32 (T, 3) vertex indices of
-    every triangle corner, Blender's triangulation. The core triangulates triangles and quads
-    (as Blender does, tested against loop_triangles); n-gon triangles come from Blender's
-    loop_triangles."""
+    every triangle corner, Blender's triangulation. The core triangulates meshes of triangles
+    and quads (as Blender does, tested against loop_triangles); meshes with n-gons are read from
+    Blender's loop_triangles."""
     if pc is not None and offsets is not None:
         corners, triangles, ngons = pc.triangulate_polygons(positions, corner_verts, offsets)
-        loops = corners.reshape(-1)
         if not ngons:
-            return loops, triangles
-        sizes = np.diff(offsets)
-        tri_sizes = np.repeat(sizes, sizes - 2)
-        patch = np.flatnonzero(tri_sizes > 4)
-        if len(patch) <= n_tris * NGON_PATCH_FRACTION:
-            tris = mesh.loop_triangles
-            for t in patch.tolist():
-                loops[3 * t:3 * t + 3] = tris[t].loops
-            triangles[patch] = corner_verts[corners[patch]]
-            return loops, triangles
-    # Read through RNA one element at a time (about 0.14 s for 1M triangles).
+            return corners.reshape(-1), triangles
+    # Meshes with n-gons (Blender's polyfill + beautify is not reproduced by the core): the
+    # whole triangulation, read through RNA one element at a time (about 0.14 s for 1M
+    # triangles); patching only the n-gons' triangles would need a per-element Python loop.
     loops = np.empty(n_tris * 3, np.int32)
     mesh.loop_triangles.foreach_get("loops", loops)
     return loops, corner_verts[loops].reshape(-1, 3)
@@ -130,8 +116,9 @@ def mesh_arrays(mesh):
     Everything is read from the mesh's raw arrays (positions, corner vertices, the face of each
     triangle, material indices, corner edges, sharp flags): triangles and quads are
     triangulated by the core, and smooth (point-domain) and sharp-edged (corner-domain)
-    normals are computed there too; only n-gons' triangles, flat (face-domain) normals and
-    custom normals come from Blender's own (per-element or lazily computed) collections.
+    normals are computed there too; only the triangulation of meshes with n-gons, flat
+    (face-domain) normals and custom normals come from Blender's own (per-element or lazily
+    computed) collections.
     Normals stay as stored (per vertex, face or corner) with an index per triangle corner, and
     the core expands them: no per-corner gather in numpy (bench_export.py)."""
     mesh.calc_loop_triangles()
