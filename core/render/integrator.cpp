@@ -9,7 +9,7 @@ namespace {
 // every closure is a DiffuseBsdf, whose eval is called directly rather than through the
 // variant's dispatch (the same arithmetic, so the same result).
 template <bool kDiffuseOnly = false>
-Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
+[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
   Vec3 f(0.0f);
   pdf = 0.0f;
   for (int i = 0; i < cl.n; ++i) {
@@ -24,6 +24,8 @@ Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, floa
       const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf);
       if (!d) continue;
       v = d->eval(lo, li, p);
+    } else if (const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf)) {
+      v = d->eval(lo, li, p);  // the common lobe without the variant's out-of-line visit
     } else {
       v = bsdf_eval(c.bsdf, lo, li, p);
     }
@@ -268,7 +270,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     const Closure& ch = cl.c[size_t(k)];
     BsdfSample bs;
     if constexpr (kNonDiffuse) {
-      if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)) break;
+      // Diffuse lobes directly (inlined), the rest through the variant: the same arithmetic.
+      const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&ch.bsdf);
+      if (!(d ? d->sample(ch.frame.to_local(wo), u, ul, bs) : bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)))
+        break;
     } else {
       const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&ch.bsdf);
       if (!d || !d->sample(ch.frame.to_local(wo), u, ul, bs)) break;  // (!d: unreachable, ends the path)
