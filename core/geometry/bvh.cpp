@@ -875,29 +875,7 @@ void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>
     const Item it = todo.back();
     todo.pop_back();
     uint32_t kids[N];
-    int k = 0;
-    if (bin[it.bin].is_leaf()) {
-      kids[k++] = it.bin;  // a root that is a leaf: one lane
-    } else {
-      kids[k++] = bin[it.bin].left_or_first;
-      kids[k++] = bin[it.bin].left_or_first + 1;
-    }
-    while (k < N) {
-      int open = -1;
-      float best = -1.0f;
-      for (int i = 0; i < k; ++i) {
-        const BvhNode& c = bin[kids[i]];
-        const float a = Aabb{c.lo, c.hi}.half_area();
-        if (!c.is_leaf() && a > best) {
-          best = a;
-          open = i;
-        }
-      }
-      if (open < 0) break;
-      const uint32_t l = bin[kids[open]].left_or_first;
-      kids[open] = l;
-      kids[k++] = l + 1;
-    }
+    const int k = bvh_detail::gather_wide_children(bin, it.bin, kids, N);
     WideBvhNode<N> node;
     for (int i = 0; i < N; ++i) {
       if (i < k) {

@@ -34,5 +34,35 @@ static inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3
   return tmin <= tfar ? tmin : kInf;
 }
 
+// The children of a wide node collapsed from binary node `b` (its index when it is a leaf: one
+// lane): its two children, then the interior child with the largest box replaced by its two
+// children while fewer than `width` lanes are used. Returns the lane count.
+static inline int gather_wide_children(const BvhNode* bin, uint32_t b, uint32_t* kids, int width) {
+  int k = 0;
+  if (bin[b].is_leaf()) {
+    kids[k++] = b;
+    return k;
+  }
+  kids[k++] = bin[b].left_or_first;
+  kids[k++] = bin[b].left_or_first + 1;
+  while (k < width) {
+    int open = -1;
+    float best = -1.0f;
+    for (int i = 0; i < k; ++i) {
+      const BvhNode& c = bin[kids[i]];
+      const float a = Aabb{c.lo, c.hi}.half_area();
+      if (!c.is_leaf() && a > best) {
+        best = a;
+        open = i;
+      }
+    }
+    if (open < 0) break;
+    const uint32_t l = bin[kids[open]].left_or_first;
+    kids[open] = l;
+    kids[k++] = l + 1;
+  }
+  return k;
+}
+
 }  // namespace bvh_detail
 }  // namespace pl

@@ -129,29 +129,7 @@ struct Collapser {
 
   uint32_t collapse(uint32_t b) {
     uint32_t kids[kWidth];
-    int n = 0;
-    if (bin[b].is_leaf()) {
-      kids[n++] = b;  // a lone instance: a root with one lane
-    } else {
-      kids[n++] = bin[b].left_or_first;
-      kids[n++] = bin[b].left_or_first + 1;
-      while (n < kWidth) {
-        int best = -1;
-        float area = -1.0f;
-        for (int k = 0; k < n; ++k) {
-          const BvhNode& c = bin[kids[k]];
-          const float a = Aabb{c.lo, c.hi}.half_area();
-          if (!c.is_leaf() && a > area) {
-            area = a;
-            best = k;
-          }
-        }
-        if (best < 0) break;
-        const uint32_t l = bin[kids[best]].left_or_first;
-        kids[best] = l;
-        kids[n++] = l + 1;
-      }
-    }
+    const int n = bvh_detail::gather_wide_children(bin.data(), b, kids, kWidth);
     const uint32_t w = uint32_t(out.size());
     out.emplace_back();
     for (int k = 0; k < kWidth; ++k) {
