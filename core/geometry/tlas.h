@@ -43,19 +43,24 @@ inline Vec3 transform_point_error(const Mat4& m, Vec3 p, Vec3 p_error) {
   return e;
 }
 
-// The ray in an instance's object space, origin moved forward along the direction past its own
-// rounding error (pbrt-v4): the transformed origin of a spawned ray cannot land behind the
-// surface it left. `dt` is that move in ray parameter units: world t = object t + dt.
+// Moves a transformed ray's origin forward past its rounding error `err` (pbrt-v4): the
+// transformed origin of a spawned ray cannot land behind the surface it left. `dt` is that move
+// in ray parameter units: world t = object t + dt.
+inline void offset_past_error(Ray& o, const Vec3& err, float world_tmax, float& dt) {
+  const float l2 = length_sq(o.dir);
+  dt = l2 > 0.0f ? dot(vabs(o.dir), err) / l2 : 0.0f;
+  if (!std::isfinite(dt)) dt = 0.0f;
+  o.org += o.dir * dt;
+  o.tmax = world_tmax - dt;
+}
+
+// The ray in an instance's object space, origin moved forward past its own rounding error.
 inline Ray ray_to_object(const Mat4& to_object, const Ray& r, float& dt) {
   Ray o;
   o.org = to_object.point(r.org);
   o.dir = to_object.vector(r.dir);
   const Vec3 err = transform_point_error(to_object, r.org, Vec3(0.0f));
-  const float l2 = length_sq(o.dir);
-  dt = l2 > 0.0f ? dot(vabs(o.dir), err) / l2 : 0.0f;
-  if (!std::isfinite(dt)) dt = 0.0f;
-  o.org += o.dir * dt;
-  o.tmax = r.tmax - dt;
+  offset_past_error(o, err, r.tmax, dt);
   return o;
 }
 
@@ -68,11 +73,7 @@ inline Ray ray_to_object_translated(const Mat4& to_object, const Ray& r, float& 
   o.dir = r.dir;
   const float g = gamma_bound(3);
   const Vec3 err = (vabs(r.org) + vabs(t)) * g;
-  const float l2 = length_sq(o.dir);
-  dt = l2 > 0.0f ? dot(vabs(o.dir), err) / l2 : 0.0f;
-  if (!std::isfinite(dt)) dt = 0.0f;
-  o.org += o.dir * dt;
-  o.tmax = r.tmax - dt;
+  offset_past_error(o, err, r.tmax, dt);
   return o;
 }
 
