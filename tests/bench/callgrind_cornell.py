@@ -7,8 +7,6 @@ Only the render itself is instrumented (callgrind_control switches instrumentati
 around it), so the counts are of the render: one thread, a fixed seed. PL_CORE_DIR=<dir> imports
 pathlight_core from <dir> (a build with -g, for callgrind_annotate)."""
 import argparse
-import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
 
 import kernel_scenes  # noqa: E402
-from kernel_scenes import cornell_fixture, core, settings  # noqa: E402
+from kernel_scenes import cornell_fixture, core, instrumented_render, settings  # noqa: E402
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--general", action="store_true")
@@ -60,10 +58,4 @@ scene.commit()
 st = settings(pc, a.size, a.size, a.spp, threads=1)
 if a.general and hasattr(st, "force_general_kernel"):
     st.force_general_kernel = True
-sess = pc.Session(scene, st)
-subprocess.run(["callgrind_control", "-i", "on", str(os.getpid())], capture_output=True)
-sess.start()
-while not sess.wait(1.0):
-    pass
-subprocess.run(["callgrind_control", "-i", "off", str(os.getpid())], capture_output=True)
-print(sess.stats())
+print(instrumented_render(pc, scene, st))

@@ -10,15 +10,13 @@ Each mesh is stored about its own centre under a translation (as Blender objects
 dynamic layout traces through real transforms. Only the render is instrumented (one thread, a
 fixed seed), as in callgrind_cornell.py; PL_CORE_DIR=<dir> imports pathlight_core from <dir>."""
 import argparse
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from kernel_scenes import core, settings  # noqa: E402
+from kernel_scenes import core, instrumented_render, settings  # noqa: E402
 
 sys.modules.setdefault("addon.pathlight_core", core())  # PL_CORE_DIR's module for bench_rays too
 from bench_rays import make_scene, pc  # noqa: E402
@@ -42,10 +40,4 @@ s.set_world_color((0.2, 0.2, 0.25))
 s.set_camera(camera(pc, (0.0, -5.5, 1.6), (0.0, 0.0, -0.3), lens=35.0))
 s.commit()
 print(s.stats())
-sess = pc.Session(s, settings(pc, a.size, a.size, a.spp, threads=1))
-subprocess.run(["callgrind_control", "-i", "on", str(os.getpid())], capture_output=True)
-sess.start()
-while not sess.wait(1.0):
-    pass
-subprocess.run(["callgrind_control", "-i", "off", str(os.getpid())], capture_output=True)
-print(sess.stats())
+print(instrumented_render(pc, s, settings(pc, a.size, a.size, a.spp, threads=1)))

@@ -81,3 +81,16 @@ def settings(pc, width=64, height=64, samples=16, **kw):
     for k, v in kw.items():
         setattr(st, k, v)
     return st
+
+
+def instrumented_render(pc, scene, st):
+    """Renders `scene` with callgrind's instrumentation switched on around the render only (the
+    process runs under valgrind --instr-atstart=no); returns the session's stats."""
+    import subprocess
+    sess = pc.Session(scene, st)
+    subprocess.run(["callgrind_control", "-i", "on", str(os.getpid())], capture_output=True)
+    sess.start()
+    while not sess.wait(1.0):
+        pass
+    subprocess.run(["callgrind_control", "-i", "off", str(os.getpid())], capture_output=True)
+    return sess.stats()
