@@ -12,6 +12,7 @@ from blender_util import core_available, empty_scene_with_camera, load_addon
 
 load_addon()
 from addon.export import mesh as mesh_export  # noqa: E402
+from test_export_arrays import blender_loops, new_mesh  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
 
@@ -23,18 +24,9 @@ def pc():
     return get_core()
 
 
-def new_mesh(co, faces, name="P"):
-    me = bpy.data.meshes.new(name)
-    me.from_pydata(np.asarray(co, np.float64).tolist(), [], [tuple(int(i) for i in f) for f in faces])
-    me.update()
-    return me
-
-
 def blender_arrays(me):
     """Blender's loop-triangle corners, vertex normals, positions, corner verts, face offsets."""
-    me.calc_loop_triangles()
-    loops = np.empty(len(me.loop_triangles) * 3, np.int32)
-    me.loop_triangles.foreach_get("loops", loops)
+    loops = blender_loops(me)
     vn = np.empty(len(me.vertices) * 3, np.float32)
     me.vertex_normals.foreach_get("vector", vn)
     co = np.empty(len(me.vertices) * 3, np.float32)
