@@ -1,4 +1,5 @@
-"""The mesh export cache of final renders (export/mesh_cache.py) and its lifetime.
+"""What final renders keep between renders, and for how long: the mesh export cache
+(export/mesh_cache.py) and the last committed core scene (CommittedScene).
 
 One module-level cache, because Blender makes a new engine instance for every frame of an
 animation unless render.use_persistent_data is on. Each export drops the entries it did not
@@ -18,11 +19,100 @@ render in tests/bench/bench_export.py).
 """
 
 import bpy
+import numpy as np
 from bpy.app.handlers import persistent
 
+from .export import add_lights, set_camera, set_world, to_core
+from .export.material import put_material
 from .export.mesh_cache import MeshCache
 
+
+class CommittedScene:
+    """The core scene of the last render that used the mesh cache (animation frames, scenes
+    with persistent data), kept so that the next render can skip the BVH build, as Cycles
+    keeps its scene with persistent data: when every mesh came from the cache (the same
+    arrays) with the same material slots, materials, images and UV sets, the kept scene gets
+    this render's camera, lights, world and materials, and the matrices that changed
+    (Scene.set_instance_transform); its commit() then rebuilds only the light distribution,
+    or the geometry when a merged object moved. Anything else builds a new scene."""
+
+    def __init__(self):
+        self.clear()
+
+    def clear(self):
+        self.pc = self.data = self.scene = None
+        self.image_ids = []
+        self.material_ids = []
+        self.reused = False  # whether the last scene_for() returned the kept scene
+
+    def scene_for(self, pc, data, warn):
+        """A core scene (not committed) holding SceneData `data`: the kept one, updated, when
+        its geometry is this data's, else a new one. Call keep() once it is committed."""
+        self.reused = False
+        if self.scene is not None and self.pc is pc and _same_geometry(self.data, data):
+            scene = self.scene
+            self.scene = None  # kept again only after a successful commit
+            for i, (old, new) in enumerate(zip(_matrices(self.data), _matrices(data))):
+                if not np.array_equal(old, new):
+                    scene.set_instance_transform(i, new)
+            for core_id, material in zip(self.material_ids, data.materials):
+                put_material(scene, material, self.image_ids, core_id)
+            scene.clear_lights()
+            add_lights(scene, data.lights, warn)
+            set_world(scene, data, warn)
+            set_camera(pc, scene, data.camera)
+            self.data, self.reused = data, True
+            return scene
+        self.clear()
+        material_ids, image_ids = [], []
+        scene = to_core(pc, data, warn, material_ids=material_ids, image_ids=image_ids)
+        self.pc, self.data, self.material_ids, self.image_ids = pc, data, material_ids, image_ids
+        return scene
+
+    def keep(self, scene):
+        """Keeps a committed scene that scene_for() returned, for the next render."""
+        self.scene = scene
+
+
+def _matrices(data):
+    """Every instance matrix of SceneData `data`, in to_core's order (meshes, then matrices)."""
+    return [np.asarray(m, np.float32) for mesh in data.meshes for m in mesh.matrices]
+
+
+def _same_geometry(old, new):
+    """Whether SceneData `new` has exactly `old`'s meshes (the same cached arrays) and material
+    table (slots, names, images, UV sets), so that a core scene of `old` can render `new` after
+    its matrices, materials, lights, world and camera are set."""
+    if old is None or len(old.meshes) != len(new.meshes) or old.material_slots != new.material_slots:
+        return False
+    if old.material_names != new.material_names or len(old.materials) != len(new.materials):
+        return False
+    if getattr(old.uv_sets, "names", None) != getattr(new.uv_sets, "names", None):
+        return False
+    if len(old.images) != len(new.images) or any(
+            a.srgb != b.srgb or not np.array_equal(a.pixels, b.pixels)
+            for a, b in zip(old.images, new.images)):
+        return False
+    for a, b in zip(old.meshes, new.meshes):
+        if len(a.matrices) != len(b.matrices) or a.uvs.keys() != b.uvs.keys():
+            return False
+        arrays = [(a.positions, b.positions), (a.triangles, b.triangles), (a.normals, b.normals),
+                  (a.normal_indices, b.normal_indices), (a.material_indices, b.material_indices)]
+        arrays += [(a.uvs[k], b.uvs[k]) for k in a.uvs]
+        # `is`: the mesh cache hands out its own arrays, never copies.
+        if not all(x is y for x, y in arrays) or a.texspace != b.texspace:
+            return False
+    return True
+
+
 MESH_CACHE = MeshCache()
+SCENE_CACHE = CommittedScene()
+
+
+def clear():
+    """Empties both caches (the memory goes back to the user)."""
+    MESH_CACHE.clear()
+    SCENE_CACHE.clear()
 
 
 def keep_between_jobs(scene, background=None):
@@ -40,19 +130,19 @@ def cache_for(engine, scene):
         return None
     if engine.is_animation or (scene is not None and scene.render.use_persistent_data):
         return MESH_CACHE
-    MESH_CACHE.clear()  # nothing reuses what an earlier job left
+    clear()  # nothing reuses what an earlier job left
     return None
 
 
 @persistent
 def _render_ended(scene, *args):
     if not keep_between_jobs(scene):
-        MESH_CACHE.clear()
+        clear()
 
 
 @persistent
 def _file_loading(*args):
-    MESH_CACHE.clear()
+    clear()
 
 
 _HANDLERS = ((bpy.app.handlers.render_complete, _render_ended),
@@ -70,4 +160,4 @@ def unregister():
     for handlers, func in _HANDLERS:
         if func in handlers:
             handlers.remove(func)
-    MESH_CACHE.clear()
+    clear()

@@ -148,10 +148,11 @@ def render(engine, depsgraph):
             log.info("render cancelled during the export")
             _empty_result(engine, scene, view_layer)
             return
-        core_scene = to_core(pc, data, warn)
+        kept = render_cache.SCENE_CACHE
+        core_scene = kept.scene_for(pc, data, warn) if cache is not None else to_core(pc, data, warn)
         if cache is not None and cache.previous is not None:
-            engine.update_stats("", "Pathlight | meshes: {hits} cached, {misses} exported"
-                                .format(**cache.previous))
+            engine.update_stats("", "Pathlight | meshes: {hits} cached, {misses} exported{kept}".format(
+                **cache.previous, kept=", scene kept" if kept.reused else ""))
         settings = render_settings(pc, scene, warn)
         if engine.is_preview:  # material thumbnails: small and quick
             settings.samples = min(settings.samples, PREVIEW_SAMPLES)
@@ -169,6 +170,12 @@ def render(engine, depsgraph):
         if not _commit(engine, core_scene, settings.threads, scene.pathlight.time_limit):
             _empty_result(engine, scene, view_layer)
             return
+        if cache is not None:
+            kept.keep(core_scene)
+            if kept.reused:
+                log.info("scene kept from the last render: %d BVH build(s), %d top-level build(s) so far",
+                         core_scene.stats().get("geometry_builds", 0),
+                         core_scene.stats().get("top_level_builds", 0))
         log.info(bvh_line(core_scene.stats()))
         sess = pc.Session(core_scene, settings)
         dropped = core_scene.stats().get("dropped_triangles", 0)

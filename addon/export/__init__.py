@@ -12,7 +12,7 @@ from .material import MaterialData, MaterialTable, add_materials
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .world import WorldTexture, world_color, world_texture
 
-__all__ = ("ExportCancelled", "ExportError", "add_lights", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
+__all__ = ("ExportCancelled", "ExportError", "add_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
            "export_scene", "to_core")
 
 
@@ -105,13 +105,13 @@ def mean_radiance(tex):
     return weights @ rows / weights.sum() * tex.strength
 
 
-def to_core(pc, data, warn=None, material_ids=None):
+def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
     """A pc.Scene (not committed) holding SceneData `data`. warn(msg) hears about what this
-    build of the core cannot do. material_ids: a list that receives the core id of each of
-    data.materials (for live edits)."""
+    build of the core cannot do. material_ids, image_ids: lists that receive the core id of
+    each of data.materials and data.images (for live edits and reuse)."""
     warn = warn if warn is not None else (lambda msg: None)
     scene = pc.Scene()
-    ids = add_materials(scene, data.materials, data.images, warn)
+    ids = add_materials(scene, data.materials, data.images, warn, image_ids)
     if material_ids is not None:
         material_ids.extend(ids)
     for mesh, slots in zip(data.meshes, data.material_slots):
@@ -126,11 +126,16 @@ def to_core(pc, data, warn=None, material_ids=None):
             scene.add_instance(mesh_id, matrix)
     add_lights(scene, data.lights, warn)
     set_world(scene, data, warn)
+    set_camera(pc, scene, data.camera)
+    return scene
+
+
+def set_camera(pc, scene, params):
+    """Sets the camera of a core scene from pc.Camera fields `params`."""
     camera = pc.Camera()
-    for name, value in data.camera.items():
+    for name, value in params.items():
         setattr(camera, name, value)
     scene.set_camera(camera)
-    return scene
 
 
 def add_lights(scene, lights, warn):
