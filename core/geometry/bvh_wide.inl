@@ -238,6 +238,14 @@ inline void block_test(const TriangleBlock4* b, const RayPrecomp& rp, const Lane
   const V in_neg = L::andnot(det_pos, L::and_(L::lt(T, zero), L::gt(T, tdet)));
   V ok = L::andnot(L::and_(any_neg, any_pos), L::or_(in_pos, in_neg));
   ok = L::andnot(L::eq(det, zero), ok);
+  const unsigned zero_mask = L::mask(any_zero) & valid;
+  out.scalar = zero_mask;
+  // Most blocks a ray visits have no lane left here: skip t and its error bound (the lanes
+  // they could still reject are none).
+  if (!(L::mask(ok) & valid & ~zero_mask)) {
+    out.pass = 0;
+    return;
+  }
   const V inv = L::div(L::set1(1.0f), det);
   const V t = L::mul(T, inv);
   const V max_zt = L::max(abs_lanes<L>(az), L::max(abs_lanes<L>(bz), abs_lanes<L>(cz)));
@@ -256,8 +264,6 @@ inline void block_test(const TriangleBlock4* b, const RayPrecomp& rp, const Lane
       abs_lanes<L>(inv));
   ok = L::and_(ok, L::gt(t, delta_t));
   if (any_hit) ok = L::and_(ok, L::lt(L::add(t, delta_t), L::set1(tmax)));
-  const unsigned zero_mask = L::mask(any_zero) & valid;
-  out.scalar = zero_mask;
   out.pass = L::mask(ok) & valid & ~zero_mask;
   if (out.pass) {
     L::store(out.t, t);
