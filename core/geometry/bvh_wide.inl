@@ -395,21 +395,31 @@ bool wide_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCou
           count = n.count[i];
           continue;
         }
-        // Push the others farthest first so the nearest is popped first; go to the nearest.
-        WideEntry e[N];
-        int k = 0;
-        e[k++] = {n.child[i], n.count[i], tn[i]};
+        // Go to the nearest hit child; push the others farthest first, so they pop nearest first.
+        const int j0 = lowest_bit(mask);
+        mask &= mask - 1;
+        if (!mask) {  // two (the usual case): one comparison, ordering ties as the sort below does
+          const int nr = tn[i] < tn[j0] ? i : j0, fr = nr == i ? j0 : i;
+          stack[sp++] = {n.child[fr], n.count[fr], tn[fr]};
+          ref = n.child[nr];
+          count = n.count[nr];
+          continue;
+        }
+        // Three or more: insertion sort straight onto the stack (no copy), nearest on top.
+        const int base = sp;
+        stack[sp++] = {n.child[i], n.count[i], tn[i]};
+        mask |= 1u << j0;
         while (mask) {
           i = lowest_bit(mask);
           mask &= mask - 1;
-          WideEntry x{n.child[i], n.count[i], tn[i]};
-          int j = k++;
-          for (; j > 0 && e[j - 1].t < x.t; --j) e[j] = e[j - 1];
-          e[j] = x;
+          const WideEntry x{n.child[i], n.count[i], tn[i]};
+          int j = sp++;
+          for (; j > base && stack[j - 1].t < x.t; --j) stack[j] = stack[j - 1];
+          stack[j] = x;
         }
-        for (int j = 0; j < k - 1; ++j) stack[sp++] = e[j];
-        ref = e[k - 1].ref;
-        count = e[k - 1].count;
+        --sp;
+        ref = stack[sp].ref;
+        count = stack[sp].count;
         continue;
       }
     } else {
