@@ -3,9 +3,9 @@
 // target pragma). Everything here has internal linkage so the two compilations never merge.
 //
 // Exactness: the box test is the binary tree's (same products, same conservative exit scale);
-// the block test (four triangles; eight, two blocks of one leaf, under AVX2) is triangle.h's
-// watertight test, operation for operation in lanes
-// (no FMA, same association), and its results are taken lane by lane in triangle order,
+// the block test (four triangles; under AVX2 eight, two blocks of one leaf) is triangle.h's
+// watertight test, operation for operation in lanes (no FMA, same association; it stops early
+// only when no lane can pass), and its results are taken lane by lane in triangle order,
 // re-checking each against the closest hit so far exactly as the scalar loop would; lanes whose
 // edge functions round to zero go through the scalar test itself (its double fallback).
 // it picks the near and far planes by the sign of the inverse direction, which gives the same
