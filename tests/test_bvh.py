@@ -272,3 +272,61 @@ def test_memory_per_triangle_is_bounded():
     assert n > 80_000
     assert 40 * n < st["bvh_bytes"] < 64 * n   # 36 bytes of coordinates per triangle at least
     assert 36 * 2 * n < st["geometry_bytes"] < 120 * n  # corner normals and world triangles at least
+
+
+
+def books(sizes, spacing=4.0):
+    """Per size n, a "book" of n triangular pages sharing one spine edge (along x, at y = z = 0
+    around its corner), page k turned 0.05 + 0.1 k rad about it: every subset of pages has
+    nearly the whole book's box, so the SAH keeps each book one leaf (n <= 8). Returns the
+    triangles, and per page rays from the gaps above and below it straight onto its centroid
+    (unique closest hits; the upward ones pass through later pages, farther away), plus per book a ray straight down onto the spine, which every page
+    shares (edge functions exactly zero: the scalar fallback, a tie broken by triangle order)."""
+    pos, tris, org, dirs, spine = [], [], [], [], []
+    for c, n in enumerate(sizes):
+        cx, cy = spacing * (c % 6), spacing * (c // 6)
+        a = 0.05 + 0.1 * np.arange(n)
+        base = sum(len(p) for p in pos)
+        tip = np.stack([cx + 0.5 + 0 * a, cy + np.cos(a), np.sin(a)], 1)
+        pos.append(np.concatenate([[[cx, cy, 0.0], [cx + 1.0, cy, 0.0]], tip]))
+        tris.append(np.stack([np.zeros(n), np.ones(n), 2 + np.arange(n)], 1) + base)
+        normal = np.stack([0 * a, -np.sin(a), np.cos(a)], 1)
+        centroid = (pos[-1][0] + pos[-1][1] + tip) / 3.0
+        org += [centroid + 0.01 * normal, centroid - 0.01 * normal]
+        dirs += [-normal, normal]
+        spine.append([cx + 0.5, cy, 1.0])
+    return (np.concatenate(pos).astype(np.float32), np.concatenate(tris).astype(np.int32),
+            np.concatenate(org).astype(np.float32), np.concatenate(dirs).astype(np.float32),
+            np.asarray(spine, np.float32))
+
+
+def test_leaves_of_every_size_hit_as_the_block_test_in_order():
+    # Leaves of 3 to 8 triangles: one or two four-lane blocks (under AVX2 both in one eight-lane
+    # test, lanes 4-7 from the second block). Rays onto every page (each lane) must hit as in the
+    # binary tree (a different build, but unique hits), rays onto the spines (a tie among all
+    # pages, by the scalar fallback, in either block's lanes) as in the four-wide tree, which
+    # has the same leaves and tests their blocks one at a time; shadow rays stop just short of
+    # the hits or reach past them.
+    sizes = [3, 4, 5, 6, 7, 8, 8, 7, 6, 5, 4, 3]
+    pos, tris, o, d, spine = books(sizes)
+    s = {lay: make_scene([(pos, tris)], lay) for lay in LAYOUTS}
+    assert s["bvh8"].stats()["bvh_leaves"] == len(sizes)  # one leaf per book: sizes 3 to 8
+    hits = {lay: s[lay].intersect(o, d) for lay in LAYOUTS}
+    pages = np.concatenate([np.tile(np.arange(f, f + n), 2) for f, n in zip(np.cumsum([0] + sizes[:-1]), sizes)])
+    assert (hits["binary"][1] == pages).all()  # each page ray hits its page
+    assert hits["binary"][0].max() < 0.0101
+    for lay in ("bvh4", "bvh8"):
+        for x, y in zip(hits["binary"], hits[lay]):
+            assert np.array_equal(x, y)
+    for tilt in ((0.0, 0.0), (0.3, 0.0)):
+        sd = np.tile(np.array([[tilt[0], tilt[1], -1.0]], np.float32), (len(spine), 1))
+        a, b = s["bvh4"].intersect(spine, sd), s["bvh8"].intersect(spine, sd)
+        assert (a[1] >= 0).all()
+        first = np.cumsum([0] + sizes[:-1])  # a book's first page wins the tie... or another one
+        assert np.isin(a[1], np.concatenate([np.arange(f, f + n) for f, n in zip(first, sizes)])).all()
+        for x, y in zip(a, b):
+            assert np.array_equal(x, y)
+    for lay in LAYOUTS:
+        assert not s[lay].occluded(o, d, 0.0099).any()
+        assert s[lay].occluded(o, d, 0.0101).all()
+        assert s[lay].occluded(spine, np.tile([[0, 0, -1.0]], (len(spine), 1)).astype(np.float32), 1.01).all()

@@ -1030,28 +1030,6 @@ size_t Bvh::memory_bytes() const {
          block_prims_.capacity() * sizeof(uint32_t);
 }
 
-bool Bvh::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
-  if (triangles_ == 0) return false;
-  switch (layout_) {
-#if defined(__x86_64__) || defined(__i386__)
-    case BvhLayout::Wide8: return bvh8_intersect({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
-    case BvhLayout::Wide4: return bvh4_intersect({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
-#endif
-    default: return intersect_binary(ray, hit, counters);
-  }
-}
-
-bool Bvh::occluded(const Ray& ray) const {
-  if (triangles_ == 0) return false;
-  switch (layout_) {
-#if defined(__x86_64__) || defined(__i386__)
-    case BvhLayout::Wide8: return bvh8_occluded({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray);
-    case BvhLayout::Wide4: return bvh4_occluded({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray);
-#endif
-    default: return occluded_binary(ray);
-  }
-}
-
 bool Bvh::intersect_binary(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
   if (nodes_.empty()) return false;
   const Vec3 inv = safe_inverse(ray.dir);

@@ -102,9 +102,9 @@ class Bvh {
   size_t memory_bytes() const;  // nodes, triangles and index arrays, as allocated
 
   // Closest hit with 0 < t < ray.tmax. Returns true on a hit and fills `hit`.
-  bool intersect(const Ray& ray, Hit& hit, TraversalCounters* counters = nullptr) const;
+  inline bool intersect(const Ray& ray, Hit& hit, TraversalCounters* counters = nullptr) const;
   // Any hit with 0 < t < ray.tmax (shadow rays): stops at the first one found.
-  bool occluded(const Ray& ray) const;
+  inline bool occluded(const Ray& ray) const;
 
  private:
   bool intersect_binary(const Ray& ray, Hit& hit, TraversalCounters* counters) const;
@@ -134,5 +134,28 @@ bool bvh4_occluded(const WideBvhView& v, const Ray& ray);
 // Only called where cpu_has_avx2(): compiled for AVX2 in bvh8_avx2.cpp.
 bool bvh8_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
 bool bvh8_occluded(const WideBvhView& v, const Ray& ray);
+
+// Inline: the kernel choice is part of every ray's call.
+inline bool Bvh::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
+  if (triangles_ == 0) return false;
+  switch (layout_) {
+#if defined(__x86_64__) || defined(__i386__)
+    case BvhLayout::Wide8: return bvh8_intersect({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+    case BvhLayout::Wide4: return bvh4_intersect({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+#endif
+    default: return intersect_binary(ray, hit, counters);
+  }
+}
+
+inline bool Bvh::occluded(const Ray& ray) const {
+  if (triangles_ == 0) return false;
+  switch (layout_) {
+#if defined(__x86_64__) || defined(__i386__)
+    case BvhLayout::Wide8: return bvh8_occluded({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray);
+    case BvhLayout::Wide4: return bvh4_occluded({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray);
+#endif
+    default: return occluded_binary(ray);
+  }
+}
 
 }  // namespace pl

@@ -3,8 +3,9 @@
 // target pragma). Everything here has internal linkage so the two compilations never merge.
 //
 // Exactness: the box test is the binary tree's (same products, same conservative exit scale);
-// the four-triangle test is triangle.h's watertight test, operation for operation in lanes
-// (no FMA, same association), and its results are taken lane by lane in triangle order,
+// the block test (four triangles; under AVX2 eight, two blocks of one leaf) is triangle.h's
+// watertight test, operation for operation in lanes (no FMA, same association; it stops early
+// only when no lane can pass), and its results are taken lane by lane in triangle order,
 // re-checking each against the closest hit so far exactly as the scalar loop would; lanes whose
 // edge functions round to zero go through the scalar test itself (its double fallback).
 // it picks the near and far planes by the sign of the inverse direction, which gives the same
@@ -103,144 +104,267 @@ struct WideRay {
 
 inline int lowest_bit(unsigned m) { return __builtin_ctz(m); }
 
-// The per-ray constants of the watertight test, in lanes.
-struct BlockRay {
-  RayPrecomp rp;
-  __m128 okx, oky, okz, sx, sy, sz;
-  explicit BlockRay(const Ray& ray) : rp(ray.dir) {
-    okx = _mm_set1_ps(ray.org[rp.kx]);
-    oky = _mm_set1_ps(ray.org[rp.ky]);
-    okz = _mm_set1_ps(ray.org[rp.kz]);
-    sx = _mm_set1_ps(rp.sx);
-    sy = _mm_set1_ps(rp.sy);
-    sz = _mm_set1_ps(rp.sz);
-  }
+// The watertight test's lane operations: four triangles (one block) with SSE, and under AVX2
+// eight (two consecutive blocks of one leaf), the same operations lane for lane, so both give
+// the scalar test's bits.
+struct Lanes4 {
+  static constexpr int N = 4;
+  using V = __m128;
+  static V row(const TriangleBlock4* b, int r) { return _mm_load_ps(b->v[r]); }
+  static V set1(float x) { return _mm_set1_ps(x); }
+  static V zero() { return _mm_setzero_ps(); }
+  static V add(V a, V b) { return _mm_add_ps(a, b); }
+  static V sub(V a, V b) { return _mm_sub_ps(a, b); }
+  static V mul(V a, V b) { return _mm_mul_ps(a, b); }
+  static V div(V a, V b) { return _mm_div_ps(a, b); }
+  static V max(V a, V b) { return _mm_max_ps(a, b); }
+  static V and_(V a, V b) { return _mm_and_ps(a, b); }
+  static V or_(V a, V b) { return _mm_or_ps(a, b); }
+  static V andnot(V a, V b) { return _mm_andnot_ps(a, b); }
+  static V eq(V a, V b) { return _mm_cmpeq_ps(a, b); }
+  static V lt(V a, V b) { return _mm_cmplt_ps(a, b); }
+  static V gt(V a, V b) { return _mm_cmpgt_ps(a, b); }
+  static unsigned mask(V a) { return static_cast<unsigned>(_mm_movemask_ps(a)); }
+  static void store(float* p, V v) { _mm_store_ps(p, v); }
 };
 
+#ifdef PL_WIDE_AVX2
+struct Lanes8 {
+  static constexpr int N = 8;
+  using V = __m256;
+  static V row(const TriangleBlock4* b, int r) {
+    return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_load_ps(b[0].v[r])), _mm_load_ps(b[1].v[r]), 1);
+  }
+  static V set1(float x) { return _mm256_set1_ps(x); }
+  static V zero() { return _mm256_setzero_ps(); }
+  static V add(V a, V b) { return _mm256_add_ps(a, b); }
+  static V sub(V a, V b) { return _mm256_sub_ps(a, b); }
+  static V mul(V a, V b) { return _mm256_mul_ps(a, b); }
+  static V div(V a, V b) { return _mm256_div_ps(a, b); }
+  static V max(V a, V b) { return _mm256_max_ps(a, b); }
+  static V and_(V a, V b) { return _mm256_and_ps(a, b); }
+  static V or_(V a, V b) { return _mm256_or_ps(a, b); }
+  static V andnot(V a, V b) { return _mm256_andnot_ps(a, b); }
+  static V eq(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_EQ_OQ); }
+  static V lt(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_LT_OS); }
+  static V gt(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_GT_OS); }
+  static unsigned mask(V a) { return static_cast<unsigned>(_mm256_movemask_ps(a)); }
+  static void store(float* p, V v) { _mm256_store_ps(p, v); }
+};
+#endif
+
+// The per-ray constants of the watertight test, broadcast in L's lanes.
+template <class L>
+struct LaneConsts {
+  typename L::V okx, oky, okz, sx, sy, sz;
+  LaneConsts(const Ray& ray, const RayPrecomp& rp)
+      : okx(L::set1(ray.org[rp.kx])),
+        oky(L::set1(ray.org[rp.ky])),
+        okz(L::set1(ray.org[rp.kz])),
+        sx(L::set1(rp.sx)),
+        sy(L::set1(rp.sy)),
+        sz(L::set1(rp.sz)) {}
+  LaneConsts() = default;
+};
+
+// The leaves' per-ray constants: four lanes, and under AVX2 eight (whose low halves are the
+// four-lane ones, so they are broadcast once).
+struct BlockRay {
+  RayPrecomp rp;
+#ifdef PL_WIDE_AVX2
+  LaneConsts<Lanes8> c8;
+  explicit BlockRay(const Ray& ray) : rp(ray.dir), c8(ray, rp) {}
+  LaneConsts<Lanes4> c4() const {
+    LaneConsts<Lanes4> c;
+    c.okx = _mm256_castps256_ps128(c8.okx);
+    c.oky = _mm256_castps256_ps128(c8.oky);
+    c.okz = _mm256_castps256_ps128(c8.okz);
+    c.sx = _mm256_castps256_ps128(c8.sx);
+    c.sy = _mm256_castps256_ps128(c8.sy);
+    c.sz = _mm256_castps256_ps128(c8.sz);
+    return c;
+  }
+#else
+  LaneConsts<Lanes4> c4_;
+  explicit BlockRay(const Ray& ray) : rp(ray.dir), c4_(ray, rp) {}
+  const LaneConsts<Lanes4>& c4() const { return c4_; }
+#endif
+};
+
+template <int N>
 struct BlockResult {
-  alignas(16) float t[4], b1[4], b2[4], T[4], det[4];
+  alignas(32) float t[N], b1[N], b2[N], T[N], det[N];
   unsigned pass;    // lanes hit with 0 < t < tmax (the tmax given to block_test)
   unsigned scalar;  // lanes that need the scalar test (an edge function is exactly zero)
 };
 
-inline __m128 abs4(__m128 x) { return _mm_andnot_ps(_mm_set1_ps(-0.0f), x); }
+template <class L>
+inline typename L::V abs_lanes(typename L::V x) {
+  return L::andnot(L::set1(-0.0f), x);
+}
 
-// triangle.h's intersect_triangle on the four lanes of a block (see it for the why of each step).
-inline void block_test(const TriangleBlock4& b, const BlockRay& r, float tmax, unsigned valid, BlockResult& out,
-                       bool any_hit = false) {
-  const RayPrecomp& rp = r.rp;
-  const __m128 Akx = _mm_sub_ps(_mm_load_ps(b.v[0 + rp.kx]), r.okx);
-  const __m128 Aky = _mm_sub_ps(_mm_load_ps(b.v[0 + rp.ky]), r.oky);
-  const __m128 Akz = _mm_sub_ps(_mm_load_ps(b.v[0 + rp.kz]), r.okz);
-  const __m128 Bkx = _mm_sub_ps(_mm_load_ps(b.v[3 + rp.kx]), r.okx);
-  const __m128 Bky = _mm_sub_ps(_mm_load_ps(b.v[3 + rp.ky]), r.oky);
-  const __m128 Bkz = _mm_sub_ps(_mm_load_ps(b.v[3 + rp.kz]), r.okz);
-  const __m128 Ckx = _mm_sub_ps(_mm_load_ps(b.v[6 + rp.kx]), r.okx);
-  const __m128 Cky = _mm_sub_ps(_mm_load_ps(b.v[6 + rp.ky]), r.oky);
-  const __m128 Ckz = _mm_sub_ps(_mm_load_ps(b.v[6 + rp.kz]), r.okz);
-  const __m128 ax = _mm_sub_ps(Akx, _mm_mul_ps(r.sx, Akz)), ay = _mm_sub_ps(Aky, _mm_mul_ps(r.sy, Akz));
-  const __m128 bx = _mm_sub_ps(Bkx, _mm_mul_ps(r.sx, Bkz)), by = _mm_sub_ps(Bky, _mm_mul_ps(r.sy, Bkz));
-  const __m128 cx = _mm_sub_ps(Ckx, _mm_mul_ps(r.sx, Ckz)), cy = _mm_sub_ps(Cky, _mm_mul_ps(r.sy, Ckz));
-  const __m128 u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
-  const __m128 v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
-  const __m128 w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
-  const __m128 zero = _mm_setzero_ps();
-  const __m128 any_zero = _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(v, zero)), _mm_cmpeq_ps(w, zero));
-  const __m128 any_neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)), _mm_cmplt_ps(w, zero));
-  const __m128 any_pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)), _mm_cmpgt_ps(w, zero));
-  const __m128 det = _mm_add_ps(_mm_add_ps(u, v), w);
-  const __m128 az = _mm_mul_ps(r.sz, Akz), bz = _mm_mul_ps(r.sz, Bkz), cz = _mm_mul_ps(r.sz, Ckz);
-  const __m128 T = _mm_add_ps(_mm_add_ps(_mm_mul_ps(u, az), _mm_mul_ps(v, bz)), _mm_mul_ps(w, cz));
-  const __m128 tdet = _mm_mul_ps(_mm_set1_ps(tmax), det);
-  const __m128 det_pos = _mm_cmpgt_ps(det, zero);
+// triangle.h's intersect_triangle on the lanes of one block (Lanes4) or of two consecutive
+// ones (Lanes8), operation for operation (see it for the why of each step).
+template <class L>
+inline void block_test(const TriangleBlock4* b, const RayPrecomp& rp, const LaneConsts<L>& r, float tmax,
+                       unsigned valid, BlockResult<L::N>& out, bool any_hit = false) {
+  using V = typename L::V;
+  const V Akx = L::sub(L::row(b, 0 + rp.kx), r.okx);
+  const V Aky = L::sub(L::row(b, 0 + rp.ky), r.oky);
+  const V Akz = L::sub(L::row(b, 0 + rp.kz), r.okz);
+  const V Bkx = L::sub(L::row(b, 3 + rp.kx), r.okx);
+  const V Bky = L::sub(L::row(b, 3 + rp.ky), r.oky);
+  const V Bkz = L::sub(L::row(b, 3 + rp.kz), r.okz);
+  const V Ckx = L::sub(L::row(b, 6 + rp.kx), r.okx);
+  const V Cky = L::sub(L::row(b, 6 + rp.ky), r.oky);
+  const V Ckz = L::sub(L::row(b, 6 + rp.kz), r.okz);
+  const V ax = L::sub(Akx, L::mul(r.sx, Akz)), ay = L::sub(Aky, L::mul(r.sy, Akz));
+  const V bx = L::sub(Bkx, L::mul(r.sx, Bkz)), by = L::sub(Bky, L::mul(r.sy, Bkz));
+  const V cx = L::sub(Ckx, L::mul(r.sx, Ckz)), cy = L::sub(Cky, L::mul(r.sy, Ckz));
+  const V u = L::sub(L::mul(cx, by), L::mul(cy, bx));
+  const V v = L::sub(L::mul(ax, cy), L::mul(ay, cx));
+  const V w = L::sub(L::mul(bx, ay), L::mul(by, ax));
+  const V zero = L::zero();
+  const V any_zero = L::or_(L::or_(L::eq(u, zero), L::eq(v, zero)), L::eq(w, zero));
+  const V any_neg = L::or_(L::or_(L::lt(u, zero), L::lt(v, zero)), L::lt(w, zero));
+  const V any_pos = L::or_(L::or_(L::gt(u, zero), L::gt(v, zero)), L::gt(w, zero));
+  const V det = L::add(L::add(u, v), w);
+  const V az = L::mul(r.sz, Akz), bz = L::mul(r.sz, Bkz), cz = L::mul(r.sz, Ckz);
+  const V T = L::add(L::add(L::mul(u, az), L::mul(v, bz)), L::mul(w, cz));
+  const V tdet = L::mul(L::set1(tmax), det);
+  const V det_pos = L::gt(det, zero);
   // det > 0: 0 < T < tmax det; otherwise (det < 0, or NaN which fails both): tmax det < T < 0.
-  const __m128 in_pos = _mm_and_ps(det_pos, _mm_and_ps(_mm_cmpgt_ps(T, zero), _mm_cmplt_ps(T, tdet)));
-  const __m128 in_neg = _mm_andnot_ps(det_pos, _mm_and_ps(_mm_cmplt_ps(T, zero), _mm_cmpgt_ps(T, tdet)));
-  __m128 ok = _mm_andnot_ps(_mm_and_ps(any_neg, any_pos), _mm_or_ps(in_pos, in_neg));
-  ok = _mm_andnot_ps(_mm_cmpeq_ps(det, zero), ok);
-  const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), det);
-  const __m128 t = _mm_mul_ps(T, inv);
-  const __m128 max_zt = _mm_max_ps(abs4(az), _mm_max_ps(abs4(bz), abs4(cz)));
-  const __m128 max_xt = _mm_max_ps(abs4(ax), _mm_max_ps(abs4(bx), abs4(cx)));
-  const __m128 max_yt = _mm_max_ps(abs4(ay), _mm_max_ps(abs4(by), abs4(cy)));
-  const __m128 g2 = _mm_set1_ps(gamma_bound(2)), g3 = _mm_set1_ps(gamma_bound(3)), g5 = _mm_set1_ps(gamma_bound(5));
-  const __m128 delta_z = _mm_mul_ps(g3, max_zt);
-  const __m128 delta_x = _mm_mul_ps(g5, _mm_add_ps(max_xt, max_zt));
-  const __m128 delta_y = _mm_mul_ps(g5, _mm_add_ps(max_yt, max_zt));
-  const __m128 delta_e = _mm_mul_ps(
-      _mm_set1_ps(2.0f), _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(g2, max_xt), max_yt), _mm_mul_ps(delta_y, max_xt)),
-                                    _mm_mul_ps(delta_x, max_yt)));
-  const __m128 max_e = _mm_max_ps(abs4(u), _mm_max_ps(abs4(v), abs4(w)));
-  const __m128 delta_t = _mm_mul_ps(
-      _mm_mul_ps(_mm_set1_ps(3.0f), _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(g3, max_e), max_zt),
-                                                          _mm_mul_ps(delta_e, max_zt)),
-                                               _mm_mul_ps(delta_z, max_e))),
-      abs4(inv));
-  ok = _mm_and_ps(ok, _mm_cmpgt_ps(t, delta_t));
-  if (any_hit) ok = _mm_and_ps(ok, _mm_cmplt_ps(_mm_add_ps(t, delta_t), _mm_set1_ps(tmax)));
-  const unsigned zero_mask = static_cast<unsigned>(_mm_movemask_ps(any_zero)) & valid;
+  const V in_pos = L::and_(det_pos, L::and_(L::gt(T, zero), L::lt(T, tdet)));
+  const V in_neg = L::andnot(det_pos, L::and_(L::lt(T, zero), L::gt(T, tdet)));
+  V ok = L::andnot(L::and_(any_neg, any_pos), L::or_(in_pos, in_neg));
+  ok = L::andnot(L::eq(det, zero), ok);
+  const unsigned zero_mask = L::mask(any_zero) & valid;
   out.scalar = zero_mask;
-  out.pass = static_cast<unsigned>(_mm_movemask_ps(ok)) & valid & ~zero_mask;
+  // Most blocks a ray visits have no lane left here: skip t and its error bound (the lanes
+  // they could still reject are none).
+  if (!(L::mask(ok) & valid & ~zero_mask)) {
+    out.pass = 0;
+    return;
+  }
+  const V inv = L::div(L::set1(1.0f), det);
+  const V t = L::mul(T, inv);
+  const V max_zt = L::max(abs_lanes<L>(az), L::max(abs_lanes<L>(bz), abs_lanes<L>(cz)));
+  const V max_xt = L::max(abs_lanes<L>(ax), L::max(abs_lanes<L>(bx), abs_lanes<L>(cx)));
+  const V max_yt = L::max(abs_lanes<L>(ay), L::max(abs_lanes<L>(by), abs_lanes<L>(cy)));
+  const V g2 = L::set1(gamma_bound(2)), g3 = L::set1(gamma_bound(3)), g5 = L::set1(gamma_bound(5));
+  const V delta_z = L::mul(g3, max_zt);
+  const V delta_x = L::mul(g5, L::add(max_xt, max_zt));
+  const V delta_y = L::mul(g5, L::add(max_yt, max_zt));
+  const V delta_e = L::mul(L::set1(2.0f), L::add(L::add(L::mul(L::mul(g2, max_xt), max_yt), L::mul(delta_y, max_xt)),
+                                                 L::mul(delta_x, max_yt)));
+  const V max_e = L::max(abs_lanes<L>(u), L::max(abs_lanes<L>(v), abs_lanes<L>(w)));
+  const V delta_t = L::mul(
+      L::mul(L::set1(3.0f),
+             L::add(L::add(L::mul(L::mul(g3, max_e), max_zt), L::mul(delta_e, max_zt)), L::mul(delta_z, max_e))),
+      abs_lanes<L>(inv));
+  ok = L::and_(ok, L::gt(t, delta_t));
+  if (any_hit) ok = L::and_(ok, L::lt(L::add(t, delta_t), L::set1(tmax)));
+  out.pass = L::mask(ok) & valid & ~zero_mask;
   if (out.pass) {
-    _mm_store_ps(out.t, t);
-    _mm_store_ps(out.b1, _mm_mul_ps(v, inv));
-    _mm_store_ps(out.b2, _mm_mul_ps(w, inv));
-    _mm_store_ps(out.T, T);
-    _mm_store_ps(out.det, det);
+    L::store(out.t, t);
+    L::store(out.b1, L::mul(v, inv));
+    L::store(out.b2, L::mul(w, inv));
+    L::store(out.T, T);
+    L::store(out.det, det);
   }
 }
 
-inline bool lane_triangle(const TriangleBlock4& b, int l, const Ray& ray, const RayPrecomp& rp, float tmax, float& t,
+// Lane l of the blocks from b (l >= 4: the next block's) through the scalar test.
+inline bool lane_triangle(const TriangleBlock4* b, int l, const Ray& ray, const RayPrecomp& rp, float tmax, float& t,
                           float& b1, float& b2, bool any_hit = false) {
-  const Vec3 v0{b.v[0][l], b.v[1][l], b.v[2][l]}, v1{b.v[3][l], b.v[4][l], b.v[5][l]},
-      v2{b.v[6][l], b.v[7][l], b.v[8][l]};
+  const TriangleBlock4& k = b[l >> 2];
+  l &= 3;
+  const Vec3 v0{k.v[0][l], k.v[1][l], k.v[2][l]}, v1{k.v[3][l], k.v[4][l], k.v[5][l]},
+      v2{k.v[6][l], k.v[7][l], k.v[8][l]};
   return intersect_triangle(ray.org, rp, v0, v1, v2, tmax, t, b1, b2, any_hit);
 }
 
+// Takes a block test's hits lane by lane in triangle order, updating tmax and best exactly as
+// the scalar loop over those triangles would.
+template <int N>
+inline void take_closest(const BlockResult<N>& r, const TriangleBlock4* b, uint32_t blk, const Ray& ray,
+                         const RayPrecomp& rp, float tmax_block, float& tmax, uint32_t& best, float& bb1, float& bb2) {
+  unsigned lanes = r.pass | r.scalar;
+  while (lanes) {
+    const int l = lowest_bit(lanes);
+    lanes &= lanes - 1;
+    float t, b1, b2;
+    if (r.scalar >> l & 1u) {
+      if (!lane_triangle(b, l, ray, rp, tmax, t, b1, b2)) continue;
+    } else {
+      // Passed against tmax_block; an earlier lane may have lowered tmax since.
+      if (tmax != tmax_block && !(r.det[l] > 0.0f ? r.T[l] < tmax * r.det[l] : r.T[l] > tmax * r.det[l])) continue;
+      t = r.t[l];
+      b1 = r.b1[l];
+      b2 = r.b2[l];
+    }
+    tmax = t;
+    best = blk * 4 + uint32_t(l);
+    bb1 = b1;
+    bb2 = b2;
+  }
+}
+
 // The closest hit among a leaf's `count` triangles in blocks from `first`, updating tmax and
-// best exactly as the scalar loop over them in order would.
+// best exactly as the scalar loop over them in order would. Under AVX2 a leaf of more than
+// four triangles tests two blocks at once (lanes beyond `count` hold NaN and are masked off).
 inline void leaf_closest(const WideBvhView& v, uint32_t first, uint32_t count, const Ray& ray, const BlockRay& br,
                          float& tmax, uint32_t& best, float& bb1, float& bb2) {
-  for (uint32_t blk = first, left = count; left > 0; ++blk) {
-    const unsigned valid = left >= 4 ? 0xFu : (1u << left) - 1u;
-    left = left >= 4 ? left - 4 : 0;
-    BlockResult r;
+  for (uint32_t blk = first, left = count; left > 0;) {
+    const TriangleBlock4* b = v.blocks + blk;
     const float tmax_block = tmax;
-    block_test(v.blocks[blk], br, tmax_block, valid, r);
-    unsigned lanes = r.pass | r.scalar;
-    while (lanes) {
-      const int l = lowest_bit(lanes);
-      lanes &= lanes - 1;
-      float t, b1, b2;
-      if (r.scalar >> l & 1u) {
-        if (!lane_triangle(v.blocks[blk], l, ray, br.rp, tmax, t, b1, b2)) continue;
-      } else {
-        // Passed against tmax_block; an earlier lane may have lowered tmax since.
-        if (tmax != tmax_block && !(r.det[l] > 0.0f ? r.T[l] < tmax * r.det[l] : r.T[l] > tmax * r.det[l])) continue;
-        t = r.t[l];
-        b1 = r.b1[l];
-        b2 = r.b2[l];
-      }
-      tmax = t;
-      best = blk * 4 + uint32_t(l);
-      bb1 = b1;
-      bb2 = b2;
+#ifdef PL_WIDE_AVX2
+    if (left > 4) {
+      BlockResult<8> r;
+      block_test<Lanes8>(b, br.rp, br.c8, tmax_block, left >= 8 ? 0xFFu : (1u << left) - 1u, r);
+      take_closest(r, b, blk, ray, br.rp, tmax_block, tmax, best, bb1, bb2);
+      blk += 2;
+      left = left >= 8 ? left - 8 : 0;
+      continue;
     }
+#endif
+    BlockResult<4> r;
+    block_test<Lanes4>(b, br.rp, br.c4(), tmax_block, left >= 4 ? 0xFu : (1u << left) - 1u, r);
+    take_closest(r, b, blk, ray, br.rp, tmax_block, tmax, best, bb1, bb2);
+    blk += 1;
+    left = left >= 4 ? left - 4 : 0;
   }
+}
+
+template <int N>
+inline bool any_of(const BlockResult<N>& r, const TriangleBlock4* b, const Ray& ray, const RayPrecomp& rp, float tmax) {
+  if (r.pass) return true;
+  for (unsigned lanes = r.scalar; lanes; lanes &= lanes - 1) {
+    float t, b1, b2;
+    if (lane_triangle(b, lowest_bit(lanes), ray, rp, tmax, t, b1, b2, /*any_hit=*/true)) return true;
+  }
+  return false;
 }
 
 inline bool leaf_any(const WideBvhView& v, uint32_t first, uint32_t count, const Ray& ray, const BlockRay& br,
                      float tmax) {
-  for (uint32_t blk = first, left = count; left > 0; ++blk) {
-    const unsigned valid = left >= 4 ? 0xFu : (1u << left) - 1u;
-    left = left >= 4 ? left - 4 : 0;
-    BlockResult r;
-    block_test(v.blocks[blk], br, tmax, valid, r, /*any_hit=*/true);
-    if (r.pass) return true;
-    for (unsigned lanes = r.scalar; lanes; lanes &= lanes - 1) {
-      float t, b1, b2;
-      if (lane_triangle(v.blocks[blk], lowest_bit(lanes), ray, br.rp, tmax, t, b1, b2, /*any_hit=*/true)) return true;
+  for (uint32_t blk = first, left = count; left > 0;) {
+    const TriangleBlock4* b = v.blocks + blk;
+#ifdef PL_WIDE_AVX2
+    if (left > 4) {
+      BlockResult<8> r;
+      block_test<Lanes8>(b, br.rp, br.c8, tmax, left >= 8 ? 0xFFu : (1u << left) - 1u, r, /*any_hit=*/true);
+      if (any_of(r, b, ray, br.rp, tmax)) return true;
+      blk += 2;
+      left = left >= 8 ? left - 8 : 0;
+      continue;
     }
+#endif
+    BlockResult<4> r;
+    block_test<Lanes4>(b, br.rp, br.c4(), tmax, left >= 4 ? 0xFu : (1u << left) - 1u, r, /*any_hit=*/true);
+    if (any_of(r, b, ray, br.rp, tmax)) return true;
+    blk += 1;
+    left = left >= 4 ? left - 4 : 0;
   }
   return false;
 }
@@ -271,21 +395,31 @@ bool wide_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCou
           count = n.count[i];
           continue;
         }
-        // Push the others farthest first so the nearest is popped first; go to the nearest.
-        WideEntry e[N];
-        int k = 0;
-        e[k++] = {n.child[i], n.count[i], tn[i]};
+        // Go to the nearest hit child; push the others farthest first, so they pop nearest first.
+        const int j0 = lowest_bit(mask);
+        mask &= mask - 1;
+        if (!mask) {  // two (the usual case): one comparison, ordering ties as the sort below does
+          const int nr = tn[i] < tn[j0] ? i : j0, fr = nr == i ? j0 : i;
+          stack[sp++] = {n.child[fr], n.count[fr], tn[fr]};
+          ref = n.child[nr];
+          count = n.count[nr];
+          continue;
+        }
+        // Three or more: insertion sort straight onto the stack (no copy), nearest on top.
+        const int base = sp;
+        stack[sp++] = {n.child[i], n.count[i], tn[i]};
+        mask |= 1u << j0;
         while (mask) {
           i = lowest_bit(mask);
           mask &= mask - 1;
-          WideEntry x{n.child[i], n.count[i], tn[i]};
-          int j = k++;
-          for (; j > 0 && e[j - 1].t < x.t; --j) e[j] = e[j - 1];
-          e[j] = x;
+          const WideEntry x{n.child[i], n.count[i], tn[i]};
+          int j = sp++;
+          for (; j > base && stack[j - 1].t < x.t; --j) stack[j] = stack[j - 1];
+          stack[j] = x;
         }
-        for (int j = 0; j < k - 1; ++j) stack[sp++] = e[j];
-        ref = e[k - 1].ref;
-        count = e[k - 1].count;
+        --sp;
+        ref = stack[sp].ref;
+        count = stack[sp].count;
         continue;
       }
     } else {

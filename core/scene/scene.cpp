@@ -915,8 +915,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   eval_shader(mat.program, images_, ctx, out);
 }
 
-Vec3 Scene::transmittance(Ray ray) const {
-  if (!any_transparent_) return occluded(ray) ? Vec3(0.0f) : Vec3(1.0f);
+Vec3 Scene::transmittance_through(Ray ray) const {
   Vec3 T(1.0f);
   for (int i = 0; i < 64; ++i) {  // bounded: stacked alpha cards
     Hit h;

@@ -211,7 +211,11 @@ class Scene {
   void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray = false) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
   // blocked; Transparent surfaces let part of it through).
-  Vec3 transmittance(Ray ray) const;
+  // Inline: without Transparent BSDFs (most scenes) a shadow ray is one any-hit query.
+  Vec3 transmittance(const Ray& ray) const {
+    if (!any_transparent_) return occluded(ray) ? Vec3(0.0f) : Vec3(1.0f);
+    return transmittance_through(ray);
+  }
   const std::vector<Image>& images() const { return images_; }
 
   const Material& material(uint32_t id) const { return materials_[id]; }
@@ -291,6 +295,8 @@ class Scene {
   std::vector<Image> images_;
   size_t uv_sets_ = 0;  // most uv sets of any mesh
   bool any_transparent_ = false;
+  // transmittance() through Transparent surfaces (closest hits shaded one by one).
+  Vec3 transmittance_through(Ray ray) const;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
