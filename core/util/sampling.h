@@ -209,15 +209,48 @@ inline SphericalTriangle spherical_triangle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2) {
   return std::isfinite(dir.x) && std::isfinite(dir.y) && std::isfinite(dir.z);
 }
 
+// atan(x) for any x (odd), inline.
+inline double atan_signed(double x) { return std::copysign(atan_nonneg(std::fabs(x)), x); }
+
 // Spherical rectangles (Urena, Fajardo, King 2013, "An area-preserving parametrization for
 // spherical rectangles"): directions uniform in the solid angle of a rectangle, for rectangle
 // lights close to the shaded point. In double for the same reasons as the triangles.
+// In the rectangle's frame at the shaded point (x, y along its edges, z0 < 0 the signed distance
+// to its plane) it is [x0, x1] x [y0, y1]; the interior angle at corner (x_i, y_j) is
+// pi/2 -+ atan(x_i y_j / (|z0| r_ij)) (Urena's acos of the edge planes' normals, in closed
+// form), so the solid angle and the warp's offset k take four inline atans instead of four
+// normalised cross products and four acos.
 struct SphericalRect {
   DVec3 o, x, y, z;           // the shaded point; the frame: x, y along the edges, z away from it
   double x0 = 0, x1 = 0, y0 = 0, y1 = 0, z0 = 0;  // the rectangle in that frame (z0 < 0)
   double b0 = 0, b1 = 0, k = 0;
   double solid_angle = 0.0;  // 0: degenerate, or the point lies in the rectangle's plane
 };
+
+// The rectangle [x0, x0 + lx] x [y0, y0 + ly] at signed distance z0 (coordinates relative to the
+// shaded point in an orthonormal frame with x, y along its edges); only r's local part is set.
+inline void spherical_rect_local(double x0, double y0, double z0, double lx, double ly, SphericalRect& r) {
+  const double z = std::fabs(z0);
+  r.solid_angle = 0.0;
+  if (!(z > 0.0) || !(lx > 0.0) || !(ly > 0.0)) return;
+  r.z0 = -z;
+  r.x0 = x0;
+  r.x1 = x0 + lx;
+  r.y0 = y0;
+  r.y1 = y0 + ly;
+  const double z2 = z * z, sy0 = r.y0 * r.y0 + z2, sy1 = r.y1 * r.y1 + z2;
+  const double xx0 = r.x0 * r.x0, xx1 = r.x1 * r.x1;
+  const double a00 = atan_signed(r.x0 * r.y0 / (z * std::sqrt(xx0 + sy0)));
+  const double a01 = atan_signed(r.x0 * r.y1 / (z * std::sqrt(xx0 + sy1)));
+  const double a10 = atan_signed(r.x1 * r.y0 / (z * std::sqrt(xx1 + sy0)));
+  const double a11 = atan_signed(r.x1 * r.y1 / (z * std::sqrt(xx1 + sy1)));
+  // Angles g0..g3 at (x1,y0), (x1,y1), (x0,y1), (x0,y0); omega = sum - 2 pi, k = 2 pi - g2 - g3.
+  const double omega = (a11 - a10) + (a00 - a01);
+  r.k = 3.14159265358979323846 + (a01 - a00);
+  r.b0 = -r.y0 / std::sqrt(sy0);
+  r.b1 = r.y1 / std::sqrt(sy1);
+  r.solid_angle = std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+}
 
 // Corner c and orthogonal edges ex, ey, seen from p.
 inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
@@ -229,44 +262,40 @@ inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
   if (!dnormalize(r.x) || !dnormalize(r.y)) return r;
   r.z = dcross(r.x, r.y);
   const DVec3 d = DVec3(c) - r.o;
-  r.z0 = ddot(d, r.z);
-  if (r.z0 > 0.0) {  // z points away from the rectangle
+  double z0 = ddot(d, r.z);
+  if (z0 > 0.0) {  // z points away from the rectangle
     r.z = r.z * -1.0;
-    r.z0 = -r.z0;
+    z0 = -z0;
   }
-  if (!(r.z0 < 0.0)) return r;
-  r.x0 = ddot(d, r.x);
-  r.y0 = ddot(d, r.y);
-  r.x1 = r.x0 + exl;
-  r.y1 = r.y0 + eyl;
-  const DVec3 v00(r.x0, r.y0, r.z0), v01(r.x0, r.y1, r.z0), v10(r.x1, r.y0, r.z0), v11(r.x1, r.y1, r.z0);
-  DVec3 n0 = dcross(v00, v10), n1 = dcross(v10, v11), n2 = dcross(v11, v01), n3 = dcross(v01, v00);
-  if (!dnormalize(n0) || !dnormalize(n1) || !dnormalize(n2) || !dnormalize(n3)) return r;
-  auto angle = [](DVec3 a, DVec3 b) { return std::acos(std::clamp(-ddot(a, b), -1.0, 1.0)); };
-  const double g0 = angle(n0, n1), g1 = angle(n1, n2), g2 = angle(n2, n3), g3 = angle(n3, n0);
-  const double omega = g0 + g1 + g2 + g3 - 2.0 * kPi;
-  r.b0 = n0.z;
-  r.b1 = n2.z;
-  r.k = 2.0 * kPi - g2 - g3;
-  r.solid_angle = std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+  spherical_rect_local(ddot(d, r.x), ddot(d, r.y), z0, exl, eyl, r);
   return r;
+}
+
+// The frame coordinates (xu, yv) of a point of the rectangle whose direction from the shaded
+// point is uniform in its solid angle, for u in [0, 1]^2 (u.x along x, u.y along y: stratified).
+[[gnu::always_inline]] inline bool sample_spherical_rect_local(const SphericalRect& r, Vec2 u, double& xu, double& yv) {
+  if (!(r.solid_angle > 0.0)) return false;
+  const double au = std::max(0.0, double(u.x) * r.solid_angle + r.k);  // in [0, 4 pi)
+  double sin_au, cos_au;
+  sincos_nonneg(au, sin_au, cos_au);
+  const double fu = (cos_au * r.b0 - r.b1) / sin_au;
+  double cu = std::copysign(1.0, fu) / std::sqrt(fu * fu + r.b0 * r.b0);
+  if (!std::isfinite(cu)) return false;
+  cu = std::clamp(cu, -1.0 + 1e-12, 1.0 - 1e-12);
+  xu = -(cu * r.z0) / std::sqrt(std::max(0.0, 1.0 - cu * cu));
+  xu = std::clamp(xu, r.x0, r.x1);
+  const double dd2 = xu * xu + r.z0 * r.z0, dd = std::sqrt(dd2);
+  const double h0 = r.y0 / std::sqrt(dd2 + r.y0 * r.y0), h1 = r.y1 / std::sqrt(dd2 + r.y1 * r.y1);
+  const double hv = h0 + double(u.y) * (h1 - h0), hv2 = hv * hv;
+  yv = hv2 < 1.0 - 1e-12 ? hv * dd / std::sqrt(1.0 - hv2) : r.y1;
+  yv = std::clamp(yv, r.y0, r.y1);
+  return std::isfinite(xu) && std::isfinite(yv);
 }
 
 // A point of the rectangle whose direction from r.o is uniform in its solid angle.
 inline bool sample_spherical_rect(const SphericalRect& r, Vec2 u, DVec3& point) {
-  if (!(r.solid_angle > 0.0)) return false;
-  const double au = double(u.x) * r.solid_angle + r.k;
-  const double fu = (std::cos(au) * r.b0 - r.b1) / std::sin(au);
-  double cu = std::copysign(1.0, fu) / std::sqrt(fu * fu + r.b0 * r.b0);
-  if (!std::isfinite(cu)) return false;
-  cu = std::clamp(cu, -1.0 + 1e-12, 1.0 - 1e-12);
-  double xu = -(cu * r.z0) / std::sqrt(std::max(0.0, 1.0 - cu * cu));
-  xu = std::clamp(xu, r.x0, r.x1);
-  const double dd = std::sqrt(xu * xu + r.z0 * r.z0);
-  const double h0 = r.y0 / std::sqrt(dd * dd + r.y0 * r.y0), h1 = r.y1 / std::sqrt(dd * dd + r.y1 * r.y1);
-  const double hv = h0 + double(u.y) * (h1 - h0), hv2 = hv * hv;
-  double yv = hv2 < 1.0 - 1e-12 ? hv * dd / std::sqrt(1.0 - hv2) : r.y1;
-  yv = std::clamp(yv, r.y0, r.y1);
+  double xu, yv;
+  if (!sample_spherical_rect_local(r, u, xu, yv)) return false;
   point = r.o + r.x * xu + r.y * yv + r.z * r.z0;
   return std::isfinite(point.x) && std::isfinite(point.y) && std::isfinite(point.z);
 }
