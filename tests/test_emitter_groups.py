@@ -429,3 +429,73 @@ def test_rect_group_with_varying_emission_renders_the_two_triangle_image():
     # The image tells u from v: red (u) grows along +x, green (v) along +y under the light, so a
     # swapped or mirrored mapping would differ (measured: 2.4x and 3.0x).
     assert (a[1:3, 2, 0] > 1.5 * a[1:3, 1, 0]).all() and (a[2, 1:3, 1] > 1.5 * a[1, 1:3, 1]).all()
+
+
+# Product sampling: with the receiver's normal, a rectangle group's sample is first warped
+# bilinearly by the cosines towards the rectangle's corners (Hart et al. 2020, as pbrt-v4), so the
+# samples follow cos * solid angle; the MIS pdf inverts the spherical rectangle's warp to find it.
+
+def projected_solid_angle(p, corners, n):
+    """Integral of cos(n, w) over the polygon's solid angle (Lambert's formula; the polygon wholly
+    on n's side)."""
+    a = corners - p
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = np.roll(a, -1, axis=0)
+    c = np.cross(a, b)
+    theta = np.arccos(np.clip((a * b).sum(-1), -1.0, 1.0))
+    return abs(0.5 * (theta * (c @ n) / np.linalg.norm(c, axis=-1)).sum())
+
+
+PRODUCT_CASES = [  # (point, normal): the rectangle wholly above the receiver's tangent plane
+    ((0.1, 0.0, 0.3), (0.0, 0.0, 1.0)),
+    ((0.9, 0.2, -0.2), (-0.6, 0.0, -0.8)),
+    ((2.0, 0.5, 0.5), (-0.6, 0.0, -0.8)),
+    ((0.3, -0.1, -1.0), (0.0, 0.0, 1.0)),
+    ((-0.6, 0.0, 0.05), (0.8, 0.0, 0.6)),    # beside it, just above its plane, facing it
+    ((0.0, 0.0, 1e-3), (0.0, 0.0, 1.0)),     # nearly a hemisphere, facing it
+]
+
+
+@pytest.mark.parametrize("case", range(len(PRODUCT_CASES)))
+def test_rect_product_sampling_is_unbiased_and_has_the_mis_pdf(case):
+    p, nrm = (np.float32(v) for v in PRODUCT_CASES[case])
+    nrm = (nrm / np.linalg.norm(nrm)).astype(np.float32)
+    pos, tris = RECT
+    s = rect_group_scene(pos, tris)
+    assert s.rect_product_sampling
+    n = 65536
+    u = np.random.default_rng(case).random((n, 3), dtype=np.float32)
+    pts, nrms = np.repeat(p[None], n, 0), np.repeat(nrm[None], n, 0)
+    ok, wi, _, pdf, pdf_hit, _ = s.light_samples(pts, u, nrms)
+    assert ok.mean() > 0.999
+    hit = ok & (pdf_hit > 0)
+    assert hit.mean() > 0.99
+    # The pdf MIS computes (inverting the warps) is the sample's.
+    np.testing.assert_allclose(pdf_hit[hit], pdf[hit], rtol=1e-4)
+    # Unbiased: E[1/pdf] is the solid angle, E[cos/pdf] the projected solid angle (closed forms).
+    omega = total_solid_angle(p, pos, tris)
+    proj = projected_solid_angle(p.astype(np.float64), pos[[0, 1, 2, 3]].astype(np.float64), nrm.astype(np.float64))
+    inv = np.where(ok, 1.0 / np.where(ok, pdf, 1.0), 0.0)
+    cos_est = inv * np.abs(wi @ nrm)
+    for est, ref in ((inv, omega), (cos_est, proj)):
+        err = est.std() / np.sqrt(n)
+        assert abs(est.mean() - ref) < 5 * err + 1e-4 * ref, (est.mean(), ref, err)
+    # Without a normal (or with the warp off) the samples are uniform in solid angle.
+    ok0, wi0, _, pdf0, _, _ = s.light_samples(pts, u)
+    np.testing.assert_allclose(pdf0[ok0], 1.0 / omega, rtol=1e-5)
+    # The standard deviation of cos/pdf against uniform sampling: measured 0.98x, 0.17x, 0.14x,
+    # 0.48x, 1.14x (the bilinear fit is poor edge-on) and 1.0x (facing a whole hemisphere).
+    cos0 = np.where(ok0, np.abs(wi0 @ nrm) / np.where(ok0, pdf0, 1.0), 0.0)
+    assert cos_est.std() < {1: 0.25, 2: 0.25, 3: 0.6}.get(case, 1.2) * cos0.std(), (cos_est.std(), cos0.std())
+
+
+def test_rect_product_sampling_renders_the_uniform_image():
+    # The Cornell box with and without the cosine warp: the same image within the regions' noise.
+    imgs = {}
+    for product in (True, False):
+        s = cornell(pc)
+        s.rect_product_sampling = product
+        imgs[product] = render(pc, s, 48, 48, samples=512, max_bounces=6, seed=7)[0][..., :3]
+    a, b = region_means(imgs[True], 6), region_means(imgs[False], 6)
+    assert abs(imgs[True].mean() / imgs[False].mean() - 1) < 0.005
+    np.testing.assert_allclose(a, b, rtol=0.03)
