@@ -635,15 +635,8 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
 // Light samples from points p with uniforms u (N x 3: light choice, then the 2-D sample), and
 // the pdf pdf_emitter gives the emitter the ray along each sample's direction hits (MIS's view of
 // the same direction), for tests of the light sampler's densities.
-py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u, const py::object& normals_obj) {
+py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u) {
   check_rays(self, points, u);
-  FloatArray normals;
-  if (!normals_obj.is_none()) {
-    normals = normals_obj.cast<FloatArray>();
-    if (normals.ndim() != 2 || normals.shape(1) != 3 || normals.shape(0) != points.shape(0))
-      throw std::invalid_argument("normals must have shape (N, 3)");
-  }
-  const Vec3* nrm = normals_obj.is_none() ? nullptr : reinterpret_cast<const Vec3*>(normals.data());
   const py::ssize_t n = points.shape(0);
   py::array_t<bool> ok(n);
   py::array_t<float> wi({n, py::ssize_t(3)}), dist(n), pdf(n), pdf_hit(n), t_hit(n);
@@ -656,8 +649,7 @@ py::tuple light_samples(const PyScene& self, const FloatArray& points, const Flo
     py::gil_scoped_release release;
     for (py::ssize_t i = 0; i < n; ++i) {
       DirectSample ds;
-      const Vec3 n = nrm ? nrm[i] : Vec3(0.0f);
-      const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds, true, n);
+      const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds);
       pok[i] = good;
       pw[3 * i] = good ? ds.wi.x : 0.0f;
       pw[3 * i + 1] = good ? ds.wi.y : 0.0f;
@@ -671,7 +663,7 @@ py::tuple light_samples(const PyScene& self, const FloatArray& points, const Flo
         pt[i] = h.t;
         SurfacePoint sp;
         self.scene->surface_point(h, sp);
-        ph[i] = self.scene->pdf_emitter(sp, p[i], sp.p, std::fabs(dot(sp.ng, ds.wi)), n);
+        ph[i] = self.scene->pdf_emitter(sp, p[i], sp.p, std::fabs(dot(sp.ng, ds.wi)));
       }
     }
   }
@@ -1509,19 +1501,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Sample an emitter group whose two triangles form a rectangle as one spherical rectangle "
           "(True, the default; same distribution, less work) or as two spherical triangles. Takes "
           "effect at the next commit().")
-      .def_property(
-          "rect_product_sampling",
-          [](const PyScene& self) { return self.scene->rect_product_sampling(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_rect_product_sampling(on);
-          },
-          "Warp a rectangle group's light samples by the cosines at the receiver towards its corners "
-          "(a bilinear warp before the spherical rectangle's, as pbrt-v4; True, the default) or "
-          "sample it uniformly in solid angle.")
-      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"), py::arg("normals") = py::none(),
+      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"),
            "Light samples (next-event estimation) from points (N, 3) with uniforms u (N, 3: the light "
-           "choice and the 2-D sample) and optional unit normals (N, 3) at the points: (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "
+           "choice and the 2-D sample): (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "
            "renderer's MIS gives the emitter the ray p + t wi hits first at t_hit (0 and inf for none). "
            "Exposed for tests.")
       .def("stats", &scene_stats)

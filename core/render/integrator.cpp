@@ -129,7 +129,6 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
   bool prev_delta = true;   // camera rays and delta lobes: no light sample could find the hit
   Vec3 mis_org = ray.org;   // the last vertex that scattered (light samples start there)
-  Vec3 mis_n(0.0f);         // its shading normal (the light sample's product warp used it)
   const bool nee = s.use_nee && scene.has_lights();
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
   bool emission_only = false;
@@ -178,7 +177,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (nee && !prev_delta) {
         // Seen from the last real scattering: transparent crossings in between are part of the
         // same light-sample segment (which saw them through its transmittance).
-        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n));
+        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo))));
       }
       L += beta * cl.emission * w;
       if constexpr (kAovs)
@@ -221,7 +220,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
       u_rr = u_sel.y;
       const Vec2 u_pt = sampler.get2d();
-      if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last, sp.ns)) {
+      if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) {
         const bool reflection = dot(ds.wi, ng_out) > 0.0f;
         float bsdf_pdf;
         const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
@@ -289,7 +288,6 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (!(bs.flags & kTransparentLobe)) {
         prev_delta = true;
         mis_org = sp.p;
-        mis_n = sp.ns;
       }
     } else {
       float pdf;
@@ -299,7 +297,6 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       prev_pdf = pdf;
       prev_delta = false;
       mis_org = sp.p;
-      mis_n = sp.ns;
     }
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its

@@ -812,7 +812,7 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   return emitter_point_sample(e, p, b1, b2, n, spherical, pdf_solid, pmf_e, s);
 }
 
-bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows, Vec3 n_p) const {
+bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
   if (light_dist_.empty()) return false;
   const size_t k = light_dist_.sample(u_select);
   const float pmf = light_dist_.pmf(k);
@@ -852,15 +852,8 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
       // One spherical rectangle over both triangles: the point's rectangle coordinates (s, t)
       // give the triangle (s + t <= 1: triangle 0, which has the origin corner) and its
       // barycentrics (the rectangle's corners' weights at (s, t)).
-      double ux = u.x, uy = u.y, warp_pdf = 1.0;
-      if (rect_product_ && !is_black(n_p)) {
-        double w[4];
-        rect_corner_cosines(g, sr, p, n_p, w);
-        sample_bilinear(u, w[0], w[1], w[2], w[3], ux, uy);
-        warp_pdf = bilinear_pdf(ux, uy, w[0], w[1], w[2], w[3]);
-      }
       double xu, yv;
-      if (!sample_spherical_rect_local(sr, ux, uy, xu, yv)) return false;
+      if (!sample_spherical_rect_local(sr, u, xu, yv)) return false;
       const double rs = std::clamp((xu - sr.x0) / g.rect_lx, 0.0, 1.0), rt = std::clamp((yv - sr.y0) / g.rect_ly, 0.0, 1.0);
       const int i = rs + rt <= 1.0 ? 0 : 1;
       const double w[4] = {std::max(0.0, 1.0 - rs - rt), i == 0 ? rs : 1.0 - rt, i == 0 ? rt : 1.0 - rs, std::max(0.0, rs + rt - 1.0)};
@@ -869,7 +862,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
       const TriangleVerts tv = world_triangle(inst_[em.instance], blases_[inst_[em.instance].blas].tris[em.tri]);
       const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
       return emitter_point_sample(e, p, float(w[g.rect_corner[i][1]]), float(w[g.rect_corner[i][2]]), n, true,
-                                  float(double(pmf) * warp_pdf / sr.solid_angle), pmf, s);
+                                  float(pmf / sr.solid_angle), pmf, s);
     }
     // A speck from p (or p in its plane): by area, as the triangles would be (each subtends
     // less), without their solid angles.
@@ -1032,7 +1025,7 @@ Vec3 Scene::transmittance(Ray ray) const {
   return Vec3(0.0f);
 }
 
-float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n) const {
+float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l) const {
   const InstanceData& in = inst_[sp.instance];
   const int32_t e = emitter_of(in, sp.tri);
   if (e < 0 || !(cos_l > 0.0f)) return 0.0f;
@@ -1041,19 +1034,8 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
   const float pmf = light_dist_.pmf(lights_.size() + gi);
   // The same choices sample_direct makes from this point.
   if (g.rect && solid_angle_triangles_) {
-    const SphericalRect sr = group_rect(g, from);
-    const double omega = sr.solid_angle;
-    if (use_spherical_rect(omega)) {
-      double warp_pdf = 1.0;
-      if (rect_product_ && !is_black(from_n)) {  // the warp's density where it put `at`
-        const DVec3 q = DVec3(at) - DVec3(from);
-        double ux, uy, w[4];
-        invert_spherical_rect_local(sr, ddot(q, g.rect_x), ddot(q, g.rect_y), ux, uy);
-        rect_corner_cosines(g, sr, from, from_n, w);
-        warp_pdf = bilinear_pdf(ux, uy, w[0], w[1], w[2], w[3]);
-      }
-      return float(double(pmf) * warp_pdf / omega);
-    }
+    const double omega = group_rect(g, from).solid_angle;
+    if (use_spherical_rect(omega)) return float(pmf / omega);
     const float pmf_e = float(double(pmf) * double(emitter_areas_[size_t(e)]) / double(g.area));  // by area
     return pmf_e / emitter_areas_[size_t(e)] * length_sq(at - from) / cos_l;
   }

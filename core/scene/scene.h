@@ -170,11 +170,6 @@ class Scene {
     committed_ = false;
   }
   bool rect_groups() const { return rect_groups_; }
-  // Rectangle groups' light samples warped by the cosines at the receiver (Hart et al. 2020,
-  // "Practical product sampling by fitting and composing warps", as pbrt-v4) where sample_direct
-  // has a normal (on by default; off: uniform in solid angle).
-  void set_rect_product_sampling(bool on) { rect_product_ = on; }
-  bool rect_product_sampling() const { return rect_product_; }
   void set_emitter_groups(bool on) {
     emitter_groups_ = on;
     committed_ = false;
@@ -238,15 +233,11 @@ class Scene {
   // Picks a light with u_select and samples it from point p.
   // bsdf_follows: a BSDF sample from p will be traced and MIS-weighted against this one; if not,
   // every direction the light can come from must have density here.
-  // n: the unit shading normal at p, for product sampling of the cosine there (rectangle groups);
-  // zero: none (uniform in solid angle).
-  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true,
-                     Vec3 n = Vec3(0.0f)) const;
+  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true) const;
   // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).
-  // from_n: the normal sample_direct was given at `from`.
-  float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n = Vec3(0.0f)) const;
+  float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l) const;
   float pdf_environment(Vec3 dir) const;
   const SceneStats& stats() const { return stats_; }
   const SceneFeatures& features() const { return features_; }
@@ -325,7 +316,6 @@ class Scene {
   bool solid_angle_rects_ = true;
   bool emitter_groups_ = true;
   bool rect_groups_ = true;
-  bool rect_product_ = true;
 
   std::vector<Blas> blases_;
   std::vector<InstanceData> inst_;
@@ -407,16 +397,6 @@ class Scene {
     SphericalRect r;
     spherical_rect_local(ddot(d, g.rect_x), ddot(d, g.rect_y), ddot(d, g.rect_n), g.rect_lx, g.rect_ly, r);
     return r;
-  }
-  // The bilinear warp's corner weights for a rectangle group seen from p with unit normal n: the
-  // cosines towards its corners (00, 10, 01, 11), floored at 0.01 as pbrt-v4 does.
-  static void rect_corner_cosines(const EmitterGroup& g, const SphericalRect& r, Vec3 p, Vec3 n, double w[4]) {
-    const DVec3 dn(n);
-    const double nd = ddot(dn, g.rect_o - DVec3(p)), nx = ddot(dn, g.rect_x) * g.rect_lx, ny = ddot(dn, g.rect_y) * g.rect_ly;
-    w[0] = std::max(0.01, std::fabs(nd) / r.r00);
-    w[1] = std::max(0.01, std::fabs(nd + nx) / r.r10);
-    w[2] = std::max(0.01, std::fabs(nd + ny) / r.r01);
-    w[3] = std::max(0.01, std::fabs(nd + nx + ny) / r.r11);
   }
   // Makes g a rectangle group when its two triangles form one (world space, tight tolerance).
   void detect_rect(EmitterGroup& g, const InstanceData& in) const;

@@ -225,8 +225,6 @@ struct SphericalRect {
   double x0 = 0, x1 = 0, y0 = 0, y1 = 0, z0 = 0;  // the rectangle in that frame (z0 < 0)
   double b0 = 0, b1 = 0, k = 0;
   double solid_angle = 0.0;  // 0: degenerate, or the point lies in the rectangle's plane
-  double r00 = 0, r01 = 0, r10 = 0, r11 = 0;  // distances to the corners (x_i, y_j)
-  double a00 = 0, a01 = 0;  // atan(x0 y_j / (|z0| r0j)), for the inverse
 };
 
 // The rectangle [x0, x0 + lx] x [y0, y0 + ly] at signed distance z0 (coordinates relative to the
@@ -242,16 +240,10 @@ inline void spherical_rect_local(double x0, double y0, double z0, double lx, dou
   r.y1 = y0 + ly;
   const double z2 = z * z, sy0 = r.y0 * r.y0 + z2, sy1 = r.y1 * r.y1 + z2;
   const double xx0 = r.x0 * r.x0, xx1 = r.x1 * r.x1;
-  r.r00 = std::sqrt(xx0 + sy0);
-  r.r01 = std::sqrt(xx0 + sy1);
-  r.r10 = std::sqrt(xx1 + sy0);
-  r.r11 = std::sqrt(xx1 + sy1);
-  const double a00 = atan_signed(r.x0 * r.y0 / (z * r.r00));
-  const double a01 = atan_signed(r.x0 * r.y1 / (z * r.r01));
-  const double a10 = atan_signed(r.x1 * r.y0 / (z * r.r10));
-  const double a11 = atan_signed(r.x1 * r.y1 / (z * r.r11));
-  r.a00 = a00;
-  r.a01 = a01;
+  const double a00 = atan_signed(r.x0 * r.y0 / (z * std::sqrt(xx0 + sy0)));
+  const double a01 = atan_signed(r.x0 * r.y1 / (z * std::sqrt(xx0 + sy1)));
+  const double a10 = atan_signed(r.x1 * r.y0 / (z * std::sqrt(xx1 + sy0)));
+  const double a11 = atan_signed(r.x1 * r.y1 / (z * std::sqrt(xx1 + sy1)));
   // Angles g0..g3 at (x1,y0), (x1,y1), (x0,y1), (x0,y0); omega = sum - 2 pi, k = 2 pi - g2 - g3.
   const double omega = (a11 - a10) + (a00 - a01);
   r.k = 3.14159265358979323846 + (a01 - a00);
@@ -281,10 +273,9 @@ inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
 
 // The frame coordinates (xu, yv) of a point of the rectangle whose direction from the shaded
 // point is uniform in its solid angle, for u in [0, 1]^2 (u.x along x, u.y along y: stratified).
-[[gnu::always_inline]] inline bool sample_spherical_rect_local(const SphericalRect& r, double ux, double uy, double& xu,
-                                                               double& yv) {
+[[gnu::always_inline]] inline bool sample_spherical_rect_local(const SphericalRect& r, Vec2 u, double& xu, double& yv) {
   if (!(r.solid_angle > 0.0)) return false;
-  const double au = std::max(0.0, ux * r.solid_angle + r.k);  // in [0, 4 pi)
+  const double au = std::max(0.0, double(u.x) * r.solid_angle + r.k);  // in [0, 4 pi)
   double sin_au, cos_au;
   sincos_nonneg(au, sin_au, cos_au);
   const double fu = (cos_au * r.b0 - r.b1) / sin_au;
@@ -295,7 +286,7 @@ inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
   xu = std::clamp(xu, r.x0, r.x1);
   const double dd2 = xu * xu + r.z0 * r.z0, dd = std::sqrt(dd2);
   const double h0 = r.y0 / std::sqrt(dd2 + r.y0 * r.y0), h1 = r.y1 / std::sqrt(dd2 + r.y1 * r.y1);
-  const double hv = h0 + uy * (h1 - h0), hv2 = hv * hv;
+  const double hv = h0 + double(u.y) * (h1 - h0), hv2 = hv * hv;
   yv = hv2 < 1.0 - 1e-12 ? hv * dd / std::sqrt(1.0 - hv2) : r.y1;
   yv = std::clamp(yv, r.y0, r.y1);
   return std::isfinite(xu) && std::isfinite(yv);
@@ -304,31 +295,9 @@ inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
 // A point of the rectangle whose direction from r.o is uniform in its solid angle.
 inline bool sample_spherical_rect(const SphericalRect& r, Vec2 u, DVec3& point) {
   double xu, yv;
-  if (!sample_spherical_rect_local(r, double(u.x), double(u.y), xu, yv)) return false;
+  if (!sample_spherical_rect_local(r, u, xu, yv)) return false;
   point = r.o + r.x * xu + r.y * yv + r.z * r.z0;
   return std::isfinite(point.x) && std::isfinite(point.y) && std::isfinite(point.z);
-}
-
-// The inverse of sample_spherical_rect_local: the (ux, uy) that give the point (xu, yv) of the
-// rectangle (for the pdf of a product-sampling warp applied before it). u.x is the share of the
-// solid angle left of xu, u.y the position of xu's direction between the column's ends.
-inline void invert_spherical_rect_local(const SphericalRect& r, double xu, double yv, double& ux, double& uy) {
-  const double z = -r.z0, zz = z * z, xx = xu * xu;
-  const double left = (atan_signed(xu * r.y1 / (z * std::sqrt(xx + r.y1 * r.y1 + zz))) -
-                       atan_signed(xu * r.y0 / (z * std::sqrt(xx + r.y0 * r.y0 + zz)))) +
-                      (r.a00 - r.a01);
-  ux = std::clamp(left / r.solid_angle, 0.0, 1.0);
-  const double dd2 = xx + zz;
-  const double h0 = r.y0 / std::sqrt(dd2 + r.y0 * r.y0), h1 = r.y1 / std::sqrt(dd2 + r.y1 * r.y1);
-  const double hv = yv / std::sqrt(dd2 + yv * yv);
-  uy = h1 > h0 ? std::clamp((hv - h0) / (h1 - h0), 0.0, 1.0) : 0.5;
-}
-
-// The density of sample_bilinear at (x, y): the bilinear interpolation over its mean.
-inline double bilinear_pdf(double x, double y, double w00, double w10, double w01, double w11) {
-  const double sum = w00 + w10 + w01 + w11;
-  if (!(sum > 0.0)) return 1.0;
-  return 4.0 * ((1 - x) * (1 - y) * w00 + x * (1 - y) * w10 + (1 - x) * y * w01 + x * y * w11) / sum;
 }
 
 // x in [0,1) with density proportional to the line from a (at 0) to b (at 1), a, b >= 0

@@ -43,8 +43,6 @@ def pathlight_images(fixture, setup, seeds, spp, max_bounces=12, **settings):
     core_scene = to_core(pc, data)
     if pathlight_images.no_rect:  # rectangle lights as two spherical triangles (before rect groups)
         core_scene.rect_groups = False
-    if pathlight_images.no_product:  # rectangle lights uniform in solid angle, without the cosine warp
-        core_scene.rect_product_sampling = False
     st = render_settings(pc, scene)
     st.adaptive_threshold = 0.0
     st.max_bounces = max_bounces
@@ -69,7 +67,6 @@ def pathlight_images(fixture, setup, seeds, spp, max_bounces=12, **settings):
 
 
 pathlight_images.no_rect = False
-pathlight_images.no_product = False
 
 
 def cycles_images(fixture, setup, seeds, spp, max_bounces=12, cache=True):
@@ -113,11 +110,8 @@ def main():
     ap.add_argument("--save", help="save the per-pixel variance maps (npz) here")
     ap.add_argument("--no-rect", action="store_true",
                     help="quad lights as two spherical triangles (Scene.rect_groups off), as before rectangle groups")
-    ap.add_argument("--no-product", action="store_true",
-                    help="rectangle groups without the cosine (product) warp (Scene.rect_product_sampling off)")
     args = ap.parse_args()
     pathlight_images.no_rect = args.no_rect
-    pathlight_images.no_product = args.no_product
     load_addon()
     maps = {}
     for name in args.scenes:
