@@ -436,6 +436,8 @@ void Scene::detect_rect(EmitterGroup& g, const InstanceData& in) const {
   g.rect_lx = lx;
   g.rect_ly = ddot(ey, y);
   if (!(g.rect_ly > 0.0) || !dnormalize(g.rect_n)) return;
+  g.rect_inv_lx = 1.0 / g.rect_lx;
+  g.rect_inv_ly = 1.0 / g.rect_ly;
   const auto rect_index = [&](int c) { return uint8_t(c == o ? 0 : c == a ? 1 : c == b ? 2 : 3); };
   for (int t = 0; t < 2; ++t)
     for (int k = 0; k < 3; ++k) g.rect_corner[t][k] = rect_index(g.tri_corner[t][k]);
@@ -854,7 +856,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
       // barycentrics (the rectangle's corners' weights at (s, t)).
       double xu, yv;
       if (!sample_spherical_rect_local(sr, u, xu, yv)) return false;
-      const double rs = std::clamp((xu - sr.x0) / g.rect_lx, 0.0, 1.0), rt = std::clamp((yv - sr.y0) / g.rect_ly, 0.0, 1.0);
+      const double rs = std::clamp((xu - sr.x0) * g.rect_inv_lx, 0.0, 1.0), rt = std::clamp((yv - sr.y0) * g.rect_inv_ly, 0.0, 1.0);
       const int i = rs + rt <= 1.0 ? 0 : 1;
       const double w[4] = {std::max(0.0, 1.0 - rs - rt), i == 0 ? rs : 1.0 - rt, i == 0 ? rt : 1.0 - rs, std::max(0.0, rs + rt - 1.0)};
       e += size_t(i);

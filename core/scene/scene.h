@@ -356,7 +356,7 @@ class Scene {
     bool rect = false;
     uint8_t rect_corner[2][3] = {};
     DVec3 rect_o, rect_x, rect_y, rect_n;
-    double rect_lx = 0.0, rect_ly = 0.0;
+    double rect_lx = 0.0, rect_ly = 0.0, rect_inv_lx = 0.0, rect_inv_ly = 0.0;
   };
   std::vector<EmitterGroup> groups_;
   std::vector<uint32_t> emitter_group_;  // per emitter
