@@ -323,6 +323,18 @@ def test_rect_groups_only_for_rectangles():
         s = rect_group_scene(p, t, matrix, two=bool(far_z), far_z=far_z or 0.0)
         assert s.stats()["rect_emitters"] == want, k
     assert rect_group_scene(pos, tris, rect=False).stats()["rect_emitters"] == 0
+    # Live transform edits (the viewport's dynamic scene) re-detect it.
+    s = pc.Scene(dynamic=True)
+    m = s.add_material("light", (0.0, 0.0, 0.0), (2.0, 2.0, 2.0))
+    add_object(s, pos, tris, m, matrix=turned(7))
+    s.commit()
+    assert s.stats()["rect_emitters"] == 1
+    s.set_instance_transform(0, turned(7) @ shear)
+    s.commit()
+    assert s.stats()["rect_emitters"] == 0
+    s.set_instance_transform(0, turned(8, (0.5, 2.0, 1.0)))
+    s.commit()
+    assert s.stats()["rect_emitters"] == 1
     # A quad of two materials is two lights, not a group.
     s = pc.Scene()
     a = s.add_material("a", (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
