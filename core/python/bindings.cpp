@@ -569,6 +569,7 @@ py::dict scene_stats(const PyScene& self) {
   d["emissive_triangles"] = s.emissive_triangles;
   d["dropped_triangles"] = s.dropped_triangles;
   d["lights"] = s.lights;
+  d["rect_emitters"] = s.rect_emitters;
   d["geometry_builds"] = s.geometry_builds;
   d["light_builds"] = s.light_builds;
   d["top_level_builds"] = s.top_level_builds;
@@ -1012,6 +1013,33 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("p"), py::arg("tri"), py::arg("u"),
       "The solid angle a triangle (3 x 3 corners) subtends at p, and the directions the light "
       "sampler draws in it for u (N x 2): (solid_angle, dirs, ok). Exposed for tests.");
+
+  m.def(
+      "spherical_rect_sample",
+      [](const py::object& p_obj, const py::object& c_obj, const py::object& ex_obj, const py::object& ey_obj,
+         const FloatArray& u) {
+        if (u.ndim() != 2 || u.shape(1) != 2) throw std::invalid_argument("u must have shape (N, 2)");
+        const SphericalRect r =
+            spherical_rect(to_point(p_obj, "p"), to_point(c_obj, "corner"), to_point(ex_obj, "ex"), to_point(ey_obj, "ey"));
+        const py::ssize_t n = u.shape(0);
+        py::array_t<double> pts({n, py::ssize_t(3)});
+        py::array_t<bool> ok(n);
+        const float* pu = u.data();
+        for (py::ssize_t i = 0; i < n; ++i) {
+          DVec3 q;
+          const float ux = pu[2 * i], uy = pu[2 * i + 1];
+          const bool in_range = ux >= 0.0f && ux <= 1.0f && uy >= 0.0f && uy <= 1.0f;  // the sampler's contract
+          const bool good = in_range && sample_spherical_rect(r, {ux, uy}, q);
+          ok.mutable_data()[i] = good;
+          pts.mutable_data()[3 * i] = good ? q.x : 0.0;
+          pts.mutable_data()[3 * i + 1] = good ? q.y : 0.0;
+          pts.mutable_data()[3 * i + 2] = good ? q.z : 0.0;
+        }
+        return py::make_tuple(r.solid_angle, pts, ok);
+      },
+      py::arg("p"), py::arg("corner"), py::arg("ex"), py::arg("ey"), py::arg("u"),
+      "The solid angle a rectangle (corner, orthogonal edges ex, ey) subtends at p, and the points "
+      "of it the light sampler draws for u (N x 2): (solid_angle, points, ok). Exposed for tests.");
 
   m.def(
       "sampler_values",
@@ -1463,6 +1491,16 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Sample a small mesh light (up to 4 triangles of one material in one object, such as a "
           "quad) as one light, each triangle chosen in proportion to its solid angle (True, the "
           "default), or each triangle as a light of its own. Takes effect at the next commit().")
+      .def_property(
+          "rect_groups",
+          [](const PyScene& self) { return self.scene->rect_groups(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_rect_groups(on);
+          },
+          "Sample an emitter group whose two triangles form a rectangle as one spherical rectangle "
+          "(True, the default; same distribution, less work) or as two spherical triangles. Takes "
+          "effect at the next commit().")
       .def("light_samples", &light_samples, py::arg("points"), py::arg("u"),
            "Light samples (next-event estimation) from points (N, 3) with uniforms u (N, 3: the light "
            "choice and the 2-D sample): (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "

@@ -403,6 +403,47 @@ inline uint32_t material_of(const MeshData& m, uint32_t tri, size_t materials) {
 }
 }  // namespace
 
+void Scene::detect_rect(EmitterGroup& g, const InstanceData& in) const {
+  g.rect = false;
+  if (g.count != 2 || g.corners != 4) return;
+  const auto has = [&](int t, uint8_t c) { return g.tri_corner[t][0] == c || g.tri_corner[t][1] == c || g.tri_corner[t][2] == c; };
+  // The corner only triangle 0 has (the origin), the one only triangle 1 has (opposite it), and
+  // the shared diagonal's two in triangle 0's order.
+  int o = -1, far = -1, a = -1, b = -1;
+  for (int k = 0; k < 3; ++k) {
+    const uint8_t c = g.tri_corner[0][k];
+    if (!has(1, c)) o = c;
+    else (a < 0 ? a : b) = c;
+    if (!has(0, g.tri_corner[1][k])) far = g.tri_corner[1][k];
+  }
+  if (o < 0 || far < 0 || b < 0) return;
+  DVec3 w[4];
+  for (int c = 0; c < 4; ++c) w[c] = DVec3(in.transformed ? in.to_world.point(g.corner[c]) : g.corner[c]);  // as world_triangle
+  const DVec3 ex = w[a] - w[o], ey = w[b] - w[o];
+  const double lx = dlength(ex), ly = dlength(ey);
+  if (!(lx > 0.0) || !(ly > 0.0) || !std::isfinite(lx * ly)) return;
+  // A rectangle to 1e-5 of its edges: right-angled, and the fourth corner where the first three
+  // put it (planar). Float corners (a rotated quad's) are off by ~1e-7; sheared ones by far more.
+  constexpr double kTol = 1e-5;
+  const DVec3 off = w[far] - (w[o] + ex + ey);
+  if (!(std::fabs(ddot(ex, ey)) <= kTol * lx * ly) || !(dlength(off) <= kTol * std::min(lx, ly))) return;
+  g.rect_o = w[o];
+  g.rect_x = ex * (1.0 / lx);
+  DVec3 y = ey - g.rect_x * ddot(ey, g.rect_x);  // exactly orthogonal for the warp
+  if (!dnormalize(y)) return;
+  g.rect_y = y;
+  g.rect_n = dcross(g.rect_x, g.rect_y);
+  g.rect_lx = lx;
+  g.rect_ly = ddot(ey, y);
+  if (!(g.rect_ly > 0.0) || !dnormalize(g.rect_n)) return;
+  g.rect_inv_lx = 1.0 / g.rect_lx;
+  g.rect_inv_ly = 1.0 / g.rect_ly;
+  const auto rect_index = [&](int c) { return uint8_t(c == o ? 0 : c == a ? 1 : c == b ? 2 : 3); };
+  for (int t = 0; t < 2; ++t)
+    for (int k = 0; k < 3; ++k) g.rect_corner[t][k] = rect_index(g.tri_corner[t][k]);
+  g.rect = true;
+}
+
 void Scene::build_lights() {
   any_transparent_ = false;
   for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
@@ -480,6 +521,7 @@ void Scene::build_lights() {
   // light would cost a solid angle per triangle of the group on every sample). An object's
   // emitters are consecutive in emitters_.
   groups_.clear();
+  stats_.rect_emitters = 0;
   emitter_group_.assign(emitters_.size(), 0);
   for (size_t e = 0; e < emitters_.size();) {
     size_t end = e + 1;
@@ -512,6 +554,8 @@ void Scene::build_lights() {
           }
         }
       }
+      if (g.count == 2 && rect_groups_) detect_rect(g, inst_[emitters_[k].instance]);
+      stats_.rect_emitters += g.rect;
       groups_.push_back(g);
       weights.push_back(w);
     }
@@ -695,34 +739,10 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   return all;
 }
 
-[[gnu::always_inline]] inline bool Scene::sample_emitter(size_t e, Vec3 p, const SphericalTriangle& st, bool spherical,
-                                                         float pdf_solid, float pmf_e, Vec2 u, DirectSample& s) const {
+[[gnu::always_inline]] inline bool Scene::emitter_point_sample(size_t e, Vec3 p, float b1, float b2, Vec3 n, bool spherical,
+                                                               float pdf_solid, float pmf_e, DirectSample& s) const {
   const Emitter& em = emitters_[e];
   const InstanceData& in = inst_[em.instance];
-  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
-  const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
-  float b1, b2;
-  DVec3 w;
-  if (spherical && sample_spherical_triangle(st, u, w)) {
-    // The point where the sampled direction meets the triangle, as barycentrics (clamped into
-    // the triangle against rounding: the direction's density stays 1 / omega either way).
-    const DVec3 d0(tv.v0), e1 = DVec3(tv.v1) - d0, e2 = DVec3(tv.v2) - d0, nd = dcross(e1, e2);
-    const double nn = ddot(nd, nd), wn = ddot(w, nd);
-    if (!(std::fabs(wn) > 0.0)) return false;
-    const DVec3 r = DVec3(p) + w * (ddot(d0 - DVec3(p), nd) / wn) - d0;
-    double db1 = std::max(0.0, ddot(dcross(r, e2), nd) / nn), db2 = std::max(0.0, ddot(dcross(e1, r), nd) / nn);
-    const double sum = db1 + db2;
-    if (sum > 1.0) {
-      db1 /= sum;
-      db2 /= sum;
-    }
-    b1 = float(db1);
-    b2 = float(db2);
-  } else if (spherical) {
-    return false;  // degenerate as seen from p: it subtends no solid angle
-  } else {
-    sample_triangle_uniform(u, b1, b2);
-  }
   // The light point as a hit on it: position and error bound exactly as a ray would find it
   // (through the instance's transform where it has one); normals only for a shaded emission.
   const Blas& blas = blases_[in.blas];
@@ -763,6 +783,37 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   return std::isfinite(s.pdf) && s.pdf > 0.0f;
 }
 
+[[gnu::always_inline]] inline bool Scene::sample_emitter(size_t e, Vec3 p, const SphericalTriangle& st, bool spherical,
+                                                         float pdf_solid, float pmf_e, Vec2 u, DirectSample& s) const {
+  const Emitter& em = emitters_[e];
+  const InstanceData& in = inst_[em.instance];
+  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
+  const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+  float b1, b2;
+  DVec3 w;
+  if (spherical && sample_spherical_triangle(st, u, w)) {
+    // The point where the sampled direction meets the triangle, as barycentrics (clamped into
+    // the triangle against rounding: the direction's density stays 1 / omega either way).
+    const DVec3 d0(tv.v0), e1 = DVec3(tv.v1) - d0, e2 = DVec3(tv.v2) - d0, nd = dcross(e1, e2);
+    const double nn = ddot(nd, nd), wn = ddot(w, nd);
+    if (!(std::fabs(wn) > 0.0)) return false;
+    const DVec3 r = DVec3(p) + w * (ddot(d0 - DVec3(p), nd) / wn) - d0;
+    double db1 = std::max(0.0, ddot(dcross(r, e2), nd) / nn), db2 = std::max(0.0, ddot(dcross(e1, r), nd) / nn);
+    const double sum = db1 + db2;
+    if (sum > 1.0) {
+      db1 /= sum;
+      db2 /= sum;
+    }
+    b1 = float(db1);
+    b2 = float(db2);
+  } else if (spherical) {
+    return false;  // degenerate as seen from p: it subtends no solid angle
+  } else {
+    sample_triangle_uniform(u, b1, b2);
+  }
+  return emitter_point_sample(e, p, b1, b2, n, spherical, pdf_solid, pmf_e, s);
+}
+
 bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
   if (light_dist_.empty()) return false;
   const size_t k = light_dist_.sample(u_select);
@@ -795,6 +846,37 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   }
   const EmitterGroup& g = groups_[k - lights_.size()];
   size_t e = g.first;
+  if (g.rect && solid_angle_triangles_) {
+    // Uniform in the rectangle's solid angle above the triangles' lower limit (its warp stays
+    // well conditioned up to a whole hemisphere: tests/test_emitter_groups.py), else by area.
+    const SphericalRect sr = group_rect(g, p);
+    if (use_spherical_rect(sr.solid_angle)) {
+      // One spherical rectangle over both triangles: the point's rectangle coordinates (s, t)
+      // give the triangle (s + t <= 1: triangle 0, which has the origin corner) and its
+      // barycentrics (the rectangle's corners' weights at (s, t)).
+      double xu, yv;
+      if (!sample_spherical_rect_local(sr, u, xu, yv)) return false;
+      const double rs = std::clamp((xu - sr.x0) * g.rect_inv_lx, 0.0, 1.0), rt = std::clamp((yv - sr.y0) * g.rect_inv_ly, 0.0, 1.0);
+      const int i = rs + rt <= 1.0 ? 0 : 1;
+      const double w[4] = {std::max(0.0, 1.0 - rs - rt), i == 0 ? rs : 1.0 - rt, i == 0 ? rt : 1.0 - rs, std::max(0.0, rs + rt - 1.0)};
+      e += size_t(i);
+      const Emitter& em = emitters_[e];
+      const TriangleVerts tv = world_triangle(inst_[em.instance], blases_[inst_[em.instance].blas].tris[em.tri]);
+      const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+      return emitter_point_sample(e, p, float(w[g.rect_corner[i][1]]), float(w[g.rect_corner[i][2]]), n, true,
+                                  float(pmf / sr.solid_angle), pmf, s);
+    }
+    // A speck from p (or p in its plane): by area, as the triangles would be (each subtends
+    // less), without their solid angles.
+    const double x = double(u.x) * double(g.area), a0 = double(emitter_areas_[e]);
+    const uint32_t i = x < a0 ? 0u : 1u;
+    const double wi = i == 0 ? a0 : double(emitter_areas_[e + 1]);
+    if (!(wi > 0.0)) return false;
+    u.x = float(std::clamp((x - (i == 0 ? 0.0 : a0)) / wi, 0.0, 1.0));
+    e += i;
+    const float pmf_e = float(double(pmf) * double(emitter_areas_[e]) / double(g.area));
+    return sample_emitter(e, p, SphericalTriangle(), false, 0.0f, pmf_e, u, s);
+  }
   SphericalTriangle st;
   bool spherical;
   float pdf_solid, pmf_e = pmf;
@@ -952,6 +1034,12 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
   const EmitterGroup& g = groups_[gi];
   const float pmf = light_dist_.pmf(lights_.size() + gi);
   // The same choices sample_direct makes from this point.
+  if (g.rect && solid_angle_triangles_) {
+    const double omega = group_rect(g, from).solid_angle;
+    if (use_spherical_rect(omega)) return float(pmf / omega);
+    const float pmf_e = float(double(pmf) * double(emitter_areas_[size_t(e)]) / double(g.area));  // by area
+    return pmf_e / emitter_areas_[size_t(e)] * length_sq(at - from) / cos_l;
+  }
   double omega;
   float pmf_e = pmf;
   if (g.count == 1) {

@@ -81,6 +81,7 @@ struct DirectSample {
 struct SceneStats {
   size_t triangles = 0, instances = 0, meshes = 0, materials = 0, emissive_triangles = 0, dropped_triangles = 0;
   size_t lights = 0;
+  size_t rect_emitters = 0;  // emitter groups sampled as spherical rectangles
   size_t geometry_builds = 0, light_builds = 0;  // commits that rebuilt the BVH / the light distribution
   size_t top_level_builds = 0;  // commits that rebuilt only the top level (transform edits)
   size_t blases = 0, blas_triangles = 0;  // bottom-level BVHs and the triangles stored in them
@@ -162,6 +163,13 @@ class Scene {
   bool solid_angle_rect_sampling() const { return solid_angle_rects_; }
   // Small mesh lights (up to kMaxEmitterGroup triangles of one material in one object, such as
   // a quad) chosen as one light and sampled over their whole solid angle (on by default).
+  // Quads among them that are rectangles are sampled as spherical rectangles (on by default;
+  // off: as two spherical triangles, for tests that compare the two).
+  void set_rect_groups(bool on) {
+    rect_groups_ = on;
+    committed_ = false;
+  }
+  bool rect_groups() const { return rect_groups_; }
   void set_emitter_groups(bool on) {
     emitter_groups_ = on;
     committed_ = false;
@@ -313,6 +321,7 @@ class Scene {
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
   bool emitter_groups_ = true;
+  bool rect_groups_ = true;
 
   std::vector<Blas> blases_;
   std::vector<InstanceData> inst_;
@@ -345,6 +354,15 @@ class Scene {
     uint8_t corners = 0;
     uint8_t tri_corner[kMaxEmitterGroup][3] = {};
     Vec3 corner[3 * kMaxEmitterGroup];
+    // Two triangles forming a rectangle in world space: sampled as one spherical rectangle
+    // (where its solid angle is in the range that sampling is for). rect_o: the corner only
+    // triangle 0 has; rect_x, rect_y: unit edge directions from it (lengths rect_lx, rect_ly);
+    // rect_n: the unit normal. rect_corner: each triangle's corners as rectangle corners
+    // (0: o, 1: o + x, 2: o + y, 3: o + x + y).
+    bool rect = false;
+    uint8_t rect_corner[2][3] = {};
+    DVec3 rect_o, rect_x, rect_y, rect_n;
+    double rect_lx = 0.0, rect_ly = 0.0, rect_inv_lx = 0.0, rect_inv_ly = 0.0;
   };
   std::vector<EmitterGroup> groups_;
   std::vector<uint32_t> emitter_group_;  // per emitter
@@ -372,10 +390,22 @@ class Scene {
   // `pdf_solid` where `spherical`, else pmf_e over its area (converted to solid angle).
   bool sample_emitter(size_t e, Vec3 p, const SphericalTriangle& st, bool spherical, float pdf_solid, float pmf_e,
                       Vec2 u, DirectSample& s) const;
+  // The light sample at barycentrics (b1, b2) of emitter e (unit normal n), with sample_emitter's pdfs.
+  bool emitter_point_sample(size_t e, Vec3 p, float b1, float b2, Vec3 n, bool spherical, float pdf_solid, float pmf_e,
+                            DirectSample& s) const;
   // Group g (two or more triangles) as seen from p: the unit directions to its distinct corners
   // and each triangle's solid angle; true when the group is sampled as a whole by solid angle
   // from p (every triangle would be on its own), with `total` the sum of the solid angles.
   bool group_solid_angles(const EmitterGroup& g, Vec3 p, double (*dirs)[3], double* omega, double& total) const;
+  // A rectangle group as seen from p (its spherical rectangle).
+  static SphericalRect group_rect(const EmitterGroup& g, Vec3 p) {
+    const DVec3 d = g.rect_o - DVec3(p);
+    SphericalRect r;
+    spherical_rect_local(ddot(d, g.rect_x), ddot(d, g.rect_y), ddot(d, g.rect_n), g.rect_lx, g.rect_ly, r);
+    return r;
+  }
+  // Makes g a rectangle group when its two triangles form one (world space, tight tolerance).
+  void detect_rect(EmitterGroup& g, const InstanceData& in) const;
   int32_t emitter_of(const InstanceData& in, uint32_t tri) const {
     const Blas& b = blases_[in.blas];
     if (b.emitter.empty() || b.emitter[tri] < 0) return -1;

@@ -99,6 +99,28 @@ inline double atan_nonneg(double x) {
   return y + (x * (z * p / q) + x + extra);
 }
 
+// atan(a / b) for a >= 0, b > 0: atan_nonneg with the quotient folded into its range reduction
+// (one division fewer on the dependency chain).
+inline double atan_ratio(double a, double b) {
+  constexpr double P0 = -8.750608600031904122785e-1, P1 = -1.615753718733365076637e1,
+                   P2 = -7.500855792314704667340e1, P3 = -1.228866684490136173410e2,
+                   P4 = -6.485021904942025371773e1;
+  constexpr double Q0 = 2.485846490142306297962e1, Q1 = 1.650270098316988542046e2,
+                   Q2 = 4.328810604912902668951e2, Q3 = 4.853903996359136964868e2,
+                   Q4 = 1.945506571482613964425e2;
+  constexpr double kPiOver2 = 1.57079632679489661923, kPiOver4 = 0.785398163397448309616;
+  constexpr double kMoreBits = 6.123233995736765886130e-17;  // pi/2 - double(pi/2)
+  // Selects rather than branches: the reduction's case is data-dependent (mispredicted).
+  const bool big = a > 2.41421356237309504880 * b, mid = a > 0.66 * b;  // tan(3 pi / 8)
+  const double num = big ? -b : mid ? a - b : a, den = big ? a : mid ? a + b : b;
+  const double y = big ? kPiOver2 : mid ? kPiOver4 : 0.0, extra = big ? kMoreBits : mid ? 0.5 * kMoreBits : 0.0;
+  const double x = num / den;
+  const double z = x * x;
+  const double p = (((P0 * z + P1) * z + P2) * z + P3) * z + P4;
+  const double q = ((((z + Q0) * z + Q1) * z + Q2) * z + Q3) * z + Q4;
+  return y + (x * (z * p / q) + x + extra);
+}
+
 // sin and cos of 0 <= x < 2^20 in double, to within 3e-16 (Cephes' sin/cos: reduction by pi/4
 // in three parts, then degree-13/14 polynomials), inline instead of libm's sincos call.
 inline void sincos_nonneg(double x, double& s, double& c) {
@@ -209,15 +231,50 @@ inline SphericalTriangle spherical_triangle(Vec3 p, Vec3 v0, Vec3 v1, Vec3 v2) {
   return std::isfinite(dir.x) && std::isfinite(dir.y) && std::isfinite(dir.z);
 }
 
+// atan(a / b) for b > 0 and any a (odd in a), inline.
+inline double atan_signed_ratio(double a, double b) { return std::copysign(atan_ratio(std::fabs(a), b), a); }
+
 // Spherical rectangles (Urena, Fajardo, King 2013, "An area-preserving parametrization for
 // spherical rectangles"): directions uniform in the solid angle of a rectangle, for rectangle
 // lights close to the shaded point. In double for the same reasons as the triangles.
+// In the rectangle's frame at the shaded point (x, y along its edges, z0 < 0 the signed distance
+// to its plane) it is [x0, x1] x [y0, y1]; the interior angle at corner (x_i, y_j) is
+// pi/2 -+ atan(x_i y_j / (|z0| r_ij)) (Urena's acos of the edge planes' normals, in closed
+// form), so the solid angle and the warp's offset k take four inline atans instead of four
+// normalised cross products and four acos.
 struct SphericalRect {
   DVec3 o, x, y, z;           // the shaded point; the frame: x, y along the edges, z away from it
   double x0 = 0, x1 = 0, y0 = 0, y1 = 0, z0 = 0;  // the rectangle in that frame (z0 < 0)
-  double b0 = 0, b1 = 0, k = 0;
+  double b0 = 0, b1 = 0, k = 0, q = 0;  // q = 1 - b0^2
   double solid_angle = 0.0;  // 0: degenerate, or the point lies in the rectangle's plane
 };
+
+// The rectangle [x0, x0 + lx] x [y0, y0 + ly] at signed distance z0 (coordinates relative to the
+// shaded point in an orthonormal frame with x, y along its edges); only r's local part is set.
+inline void spherical_rect_local(double x0, double y0, double z0, double lx, double ly, SphericalRect& r) {
+  const double z = std::fabs(z0);
+  r.solid_angle = 0.0;
+  if (!(z > 0.0) || !(lx > 0.0) || !(ly > 0.0)) return;
+  r.z0 = -z;
+  r.x0 = x0;
+  r.x1 = x0 + lx;
+  r.y0 = y0;
+  r.y1 = y0 + ly;
+  const double z2 = z * z, sy0 = r.y0 * r.y0 + z2, sy1 = r.y1 * r.y1 + z2;
+  const double xx0 = r.x0 * r.x0, xx1 = r.x1 * r.x1;
+  const double a00 = atan_signed_ratio(r.x0 * r.y0, z * std::sqrt(xx0 + sy0));
+  const double a01 = atan_signed_ratio(r.x0 * r.y1, z * std::sqrt(xx0 + sy1));
+  const double a10 = atan_signed_ratio(r.x1 * r.y0, z * std::sqrt(xx1 + sy0));
+  const double a11 = atan_signed_ratio(r.x1 * r.y1, z * std::sqrt(xx1 + sy1));
+  // Angles g0..g3 at (x1,y0), (x1,y1), (x0,y1), (x0,y0); omega = sum - 2 pi, k = 2 pi - g2 - g3.
+  const double omega = (a11 - a10) + (a00 - a01);
+  r.k = 3.14159265358979323846 + (a01 - a00);
+  const double inv0 = 1.0 / std::sqrt(sy0);
+  r.b0 = -r.y0 * inv0;
+  r.q = z2 * (inv0 * inv0);
+  r.b1 = r.y1 / std::sqrt(sy1);
+  r.solid_angle = std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+}
 
 // Corner c and orthogonal edges ex, ey, seen from p.
 inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
@@ -229,44 +286,42 @@ inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
   if (!dnormalize(r.x) || !dnormalize(r.y)) return r;
   r.z = dcross(r.x, r.y);
   const DVec3 d = DVec3(c) - r.o;
-  r.z0 = ddot(d, r.z);
-  if (r.z0 > 0.0) {  // z points away from the rectangle
+  double z0 = ddot(d, r.z);
+  if (z0 > 0.0) {  // z points away from the rectangle
     r.z = r.z * -1.0;
-    r.z0 = -r.z0;
+    z0 = -z0;
   }
-  if (!(r.z0 < 0.0)) return r;
-  r.x0 = ddot(d, r.x);
-  r.y0 = ddot(d, r.y);
-  r.x1 = r.x0 + exl;
-  r.y1 = r.y0 + eyl;
-  const DVec3 v00(r.x0, r.y0, r.z0), v01(r.x0, r.y1, r.z0), v10(r.x1, r.y0, r.z0), v11(r.x1, r.y1, r.z0);
-  DVec3 n0 = dcross(v00, v10), n1 = dcross(v10, v11), n2 = dcross(v11, v01), n3 = dcross(v01, v00);
-  if (!dnormalize(n0) || !dnormalize(n1) || !dnormalize(n2) || !dnormalize(n3)) return r;
-  auto angle = [](DVec3 a, DVec3 b) { return std::acos(std::clamp(-ddot(a, b), -1.0, 1.0)); };
-  const double g0 = angle(n0, n1), g1 = angle(n1, n2), g2 = angle(n2, n3), g3 = angle(n3, n0);
-  const double omega = g0 + g1 + g2 + g3 - 2.0 * kPi;
-  r.b0 = n0.z;
-  r.b1 = n2.z;
-  r.k = 2.0 * kPi - g2 - g3;
-  r.solid_angle = std::isfinite(omega) && omega > 0.0 ? omega : 0.0;
+  spherical_rect_local(ddot(d, r.x), ddot(d, r.y), z0, exl, eyl, r);
   return r;
+}
+
+// The frame coordinates (xu, yv) of a point of the rectangle whose direction from the shaded
+// point is uniform in its solid angle, for u in [0, 1]^2 (u.x along x, u.y along y: stratified).
+[[gnu::always_inline]] inline bool sample_spherical_rect_local(const SphericalRect& r, Vec2 u, double& xu, double& yv) {
+  if (!(r.solid_angle > 0.0)) return false;
+  const double au = std::max(0.0, double(u.x) * r.solid_angle + r.k);  // in [0, 4 pi)
+  double sin_au, cos_au;
+  sincos_nonneg(au, sin_au, cos_au);
+  // Urena's fu = (cos au b0 - b1) / sin au, cu = sign(fu) / sqrt(fu^2 + b0^2) and
+  // xu = -cu z0 / sqrt(1 - cu^2), folded into one square root and one division (1 - b0^2 is
+  // q = z0^2 / (y0^2 + z0^2), kept exact): xu = |z0| sin au sign(nu) / sqrt(nu^2 - q sin^2 au).
+  const double nu = cos_au * r.b0 - r.b1;
+  const double den = std::sqrt(std::max(0.0, nu * nu - r.q * (sin_au * sin_au)));
+  xu = std::copysign(-r.z0 * std::fabs(sin_au), nu * sin_au) / den;
+  if (std::isnan(xu)) return false;
+  xu = std::clamp(xu, r.x0, r.x1);
+  const double dd2 = xu * xu + r.z0 * r.z0, dd = std::sqrt(dd2);
+  const double h0 = r.y0 / std::sqrt(dd2 + r.y0 * r.y0), h1 = r.y1 / std::sqrt(dd2 + r.y1 * r.y1);
+  const double hv = h0 + double(u.y) * (h1 - h0), hv2 = hv * hv;
+  yv = hv2 < 1.0 - 1e-12 ? hv * dd / std::sqrt(1.0 - hv2) : r.y1;
+  yv = std::clamp(yv, r.y0, r.y1);
+  return std::isfinite(xu) && std::isfinite(yv);
 }
 
 // A point of the rectangle whose direction from r.o is uniform in its solid angle.
 inline bool sample_spherical_rect(const SphericalRect& r, Vec2 u, DVec3& point) {
-  if (!(r.solid_angle > 0.0)) return false;
-  const double au = double(u.x) * r.solid_angle + r.k;
-  const double fu = (std::cos(au) * r.b0 - r.b1) / std::sin(au);
-  double cu = std::copysign(1.0, fu) / std::sqrt(fu * fu + r.b0 * r.b0);
-  if (!std::isfinite(cu)) return false;
-  cu = std::clamp(cu, -1.0 + 1e-12, 1.0 - 1e-12);
-  double xu = -(cu * r.z0) / std::sqrt(std::max(0.0, 1.0 - cu * cu));
-  xu = std::clamp(xu, r.x0, r.x1);
-  const double dd = std::sqrt(xu * xu + r.z0 * r.z0);
-  const double h0 = r.y0 / std::sqrt(dd * dd + r.y0 * r.y0), h1 = r.y1 / std::sqrt(dd * dd + r.y1 * r.y1);
-  const double hv = h0 + double(u.y) * (h1 - h0), hv2 = hv * hv;
-  double yv = hv2 < 1.0 - 1e-12 ? hv * dd / std::sqrt(1.0 - hv2) : r.y1;
-  yv = std::clamp(yv, r.y0, r.y1);
+  double xu, yv;
+  if (!sample_spherical_rect_local(r, u, xu, yv)) return false;
   point = r.o + r.x * xu + r.y * yv + r.z * r.z0;
   return std::isfinite(point.x) && std::isfinite(point.y) && std::isfinite(point.z);
 }

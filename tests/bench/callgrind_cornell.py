@@ -1,7 +1,7 @@
 """Instruction counts per sample of the Cornell box fixture's replica, for callgrind:
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \
-        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--dynamic] [--size 64] [--spp 16]
+        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--dynamic] [--no-rect] [--size 64] [--spp 16]
 
 Only the render itself is instrumented (callgrind_control switches instrumentation on and off
 around it), so the counts are of the render: one thread, a fixed seed. PL_CORE_DIR=<dir> imports
@@ -22,6 +22,8 @@ ap.add_argument("--glass", action="store_true", help="the glass-sphere variant")
 ap.add_argument("--dynamic", action="store_true", help="Scene(dynamic=True), the viewport's layout")
 ap.add_argument("--transformed", action="store_true",
                 help="each object's mesh in object space (centred, turned) under a matrix, as Blender objects are")
+ap.add_argument("--no-rect", action="store_true",
+                help="the quad light as two spherical triangles (Scene.rect_groups off), as before rectangle groups")
 ap.add_argument("--size", type=int, default=64)
 ap.add_argument("--spp", type=int, default=16)
 a = ap.parse_args()
@@ -54,6 +56,8 @@ if a.transformed:
 scene = cornell_fixture(pc, glass=a.glass)
 if a.dynamic:
     scene.dynamic = True
+if a.no_rect:
+    scene.rect_groups = False
 scene.commit()
 st = settings(pc, a.size, a.size, a.spp, threads=1)
 if a.general and hasattr(st, "force_general_kernel"):

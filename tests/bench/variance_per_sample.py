@@ -41,6 +41,8 @@ def pathlight_images(fixture, setup, seeds, spp, max_bounces=12, **settings):
     pc = addon.core.get_core()
     data = export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None)
     core_scene = to_core(pc, data)
+    if pathlight_images.no_rect:  # rectangle lights as two spherical triangles (before rect groups)
+        core_scene.rect_groups = False
     st = render_settings(pc, scene)
     st.adaptive_threshold = 0.0
     st.max_bounces = max_bounces
@@ -62,6 +64,9 @@ def pathlight_images(fixture, setup, seeds, spp, max_bounces=12, **settings):
         paths += stats["paths"]
     pathlight_images.rays_per_path = rays / max(paths, 1)
     return np.stack(out)
+
+
+pathlight_images.no_rect = False
 
 
 def cycles_images(fixture, setup, seeds, spp, max_bounces=12, cache=True):
@@ -103,7 +108,10 @@ def main():
     ap.add_argument("--no-cycles", action="store_true")
     ap.add_argument("--max-bounces", type=int, default=12)
     ap.add_argument("--save", help="save the per-pixel variance maps (npz) here")
+    ap.add_argument("--no-rect", action="store_true",
+                    help="quad lights as two spherical triangles (Scene.rect_groups off), as before rectangle groups")
     args = ap.parse_args()
+    pathlight_images.no_rect = args.no_rect
     load_addon()
     maps = {}
     for name in args.scenes:
