@@ -35,6 +35,7 @@ constexpr int kMaxDepth = 64;
 constexpr uint32_t kParallelMin = 16384;  // subtrees smaller than this are built serially
 constexpr uint32_t kChunkMin = 65536;     // fewest triangles per thread when one node is binned by several
 constexpr uint32_t kSmallNode = 32;       // nodes this small clear and sweep only the bins they use
+constexpr uint32_t kCopyPartition = 256;  // nodes this small are partitioned through a stack buffer
 
 // Clamped before the cast: a float outside int's range (or NaN) must never become an index.
 // The SIMD binning below computes exactly this per lane.
@@ -95,7 +96,9 @@ struct alignas(16) PrimRef {
   Vec3 lo;
   uint32_t id;
   Vec3 hi;
-  uint32_t pad;
+  // The centroid's bin on x, y, z (one byte each) in the node binned last: the binning pass
+  // writes it, so the partition that follows compares a byte instead of recomputing the bin.
+  uint32_t bins;
   V4 vlo() const { return V4::load(&lo.x).xyz(); }
   V4 vhi() const { return V4::load(&hi.x).xyz(); }
   // (lo + hi) / 2 would overflow near FLT_MAX.
@@ -275,7 +278,7 @@ class Builder {
         r.lo = vmin(vmin(t.v0, t.v1), t.v2);
         r.hi = vmax(vmax(t.v0, t.v1), t.v2);
         r.id = i;
-        r.pad = 0;
+        r.bins = 0;
         b[c].grow(r.vlo(), r.vhi());
         const V4 ct = r.centroid();
         cb[c].grow(ct, ct);
@@ -358,6 +361,10 @@ class Builder {
     cbounds = cb.aabb();
   }
 
+  static uint32_t pack_bins(const int idx[4]) {
+    return uint32_t(idx[0]) | uint32_t(idx[1]) << 8 | uint32_t(idx[2]) << 16;
+  }
+
   void make_leaf(BvhNode& node, uint32_t begin, uint32_t end) {
     node.left_or_first = begin;
     node.count = end - begin;
@@ -434,13 +441,14 @@ class Builder {
     return true;
   }
 
-  // All three axes binned in one pass over refs_[begin, end).
-  void bin_range(uint32_t begin, uint32_t end, V4 lo, V4 scale, V4 top, BinSet& bins) const {
+  // All three axes binned in one pass over refs_[begin, end); each reference keeps its bins.
+  void bin_range(uint32_t begin, uint32_t end, V4 lo, V4 scale, V4 top, BinSet& bins) {
     alignas(16) int idx[4];
     for (uint32_t i = begin; i < end; ++i) {
-      const PrimRef& r = refs_[i];
+      PrimRef& r = refs_[i];
       const V4 l = r.vlo(), h = r.vhi();
       (l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx);
+      r.bins = pack_bins(idx);
       for (int a = 0; a < 3; ++a) {
         bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
         bins.hi[a][idx[a]] = vmax(bins.hi[a][idx[a]], h);
@@ -478,6 +486,7 @@ class Builder {
       uint64_t mask[3] = {0, 0, 0};
       for (uint32_t i = 0; i < n; ++i) {
         refs_[begin + i].centroid().bins(vlo, vscale, top, idx[i]);
+        refs_[begin + i].bins = pack_bins(idx[i]);
         for (int a = 0; a < 3; ++a) mask[a] |= uint64_t(1) << idx[i][a];
       }
       for (int a = 0; a < 3; ++a)
@@ -573,27 +582,51 @@ class Builder {
       if (n <= uint32_t(opt_.max_leaf_size)) return false;
       return split_by_count(begin, end, sp);  // no useful plane and too many for a leaf
     }
-    // Partition in place, collecting both sides' centroid boxes on the way (the triangle boxes
-    // come from the bins).
-    const int ax = best_axis;
-    alignas(16) float c4[4];
+    // Partition by the bins the binning pass stored (the same bin_of() of the same centroid).
+    const uint32_t shift = 8 * uint32_t(best_axis), split_bin = uint32_t(best_bin);
+    const auto goes_left = [shift, split_bin](const PrimRef& r) { return ((r.bins >> shift) & 0xff) < split_bin; };
     BoxAcc lcb, rcb;
-    const auto left_side = [&](const PrimRef& r, BoxAcc& lacc, BoxAcc& racc) {
-      const V4 c = r.centroid();
-      c.store(c4);
-      const bool left = bin_of(c4[ax], lo[ax], scale[ax], B) < best_bin;
-      (left ? lacc : racc).grow(c, c);
-      return left;
-    };
-    uint32_t i = begin, j = end;
-    for (;;) {
-      while (i < j && left_side(refs_[i], lcb, rcb)) ++i;
-      while (i < j && !left_side(refs_[j - 1], lcb, rcb)) --j;
-      if (i >= j) break;
-      // refs_[i] belongs right and refs_[j - 1] left: both were counted; swap and step over them.
-      std::swap(refs_[i], refs_[j - 1]);
-      ++i;
-      --j;
+    uint32_t i = begin;
+    if (n <= kCopyPartition) {
+      // Small nodes: branch-free, through a buffer (left side in order, right side reversed);
+      // a swapping partition's branches mispredict on about every other reference.
+      PrimRef tmp[kCopyPartition];
+      uint32_t l = 0, r = n;
+      for (uint32_t k = begin; k < end; ++k) {
+        const bool left = goes_left(refs_[k]);
+        tmp[left ? l : r - 1] = refs_[k];
+        l += left;
+        r -= !left;
+      }
+      std::memcpy(&refs_[begin], tmp, size_t(n) * sizeof(PrimRef));
+      i = begin + l;
+      for (uint32_t k = begin; k < i; ++k) {
+        const V4 c = refs_[k].centroid();
+        lcb.grow(c, c);
+      }
+      for (uint32_t k = i; k < end; ++k) {
+        const V4 c = refs_[k].centroid();
+        rcb.grow(c, c);
+      }
+    } else {
+      // In place, collecting both sides' centroid boxes on the way (the triangle boxes come
+      // from the bins).
+      const auto left_side = [&](const PrimRef& r, BoxAcc& lacc, BoxAcc& racc) {
+        const V4 c = r.centroid();
+        const bool left = goes_left(r);
+        (left ? lacc : racc).grow(c, c);
+        return left;
+      };
+      uint32_t j = end;
+      for (;;) {
+        while (i < j && left_side(refs_[i], lcb, rcb)) ++i;
+        while (i < j && !left_side(refs_[j - 1], lcb, rcb)) --j;
+        if (i >= j) break;
+        // refs_[i] belongs right and refs_[j - 1] left: both were counted; swap and step over them.
+        std::swap(refs_[i], refs_[j - 1]);
+        ++i;
+        --j;
+      }
     }
     sp.mid = i;
     if (sp.mid == begin || sp.mid == end) return split_by_count(begin, end, sp);
