@@ -17,6 +17,7 @@
 
 #include "geometry/bvh_common.h"
 #include "geometry/triangle.h"
+#include "util/parallel.h"
 #if defined(__x86_64__) || defined(__i386__)
 #include "geometry/bvh_wide.inl"
 #endif
@@ -886,19 +887,24 @@ class Builder {
 // children and keeps opening its largest interior child (the one most rays enter) until it
 // has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
 // the binary leaves; `tris` is the build's input, reached through prim_ids (leaf order).
-// Leaves become runs of TriangleBlock4s, emitted in the order the collapse reaches them.
+// Leaves become runs of TriangleBlock4s, placed in the order the collapse reaches them: the
+// nodes are made in one pass that hands out the block slots, then the blocks are filled on
+// `threads` threads (the triangle gathers and the writes of 36+ bytes per triangle are most of
+// the work), so the result is the same on any thread count.
 template <int N>
 void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>& tris,
-              const std::vector<uint32_t>& prim_ids, std::vector<WideBvhNode<N>>& out,
-              std::vector<TriangleBlock4>& blocks, std::vector<uint32_t>& block_prims) {
+              const std::vector<uint32_t>& prim_ids, int threads, std::vector<WideBvhNode<N>>& out,
+              RawVector<TriangleBlock4>& blocks, RawVector<uint32_t>& block_prims) {
   out.clear();
-  blocks.clear();
-  block_prims.clear();
   out.reserve(n_bin / (N - 1) + 1);
-  size_t n_blocks = 0;  // exact sizes: no regrowth, nothing for shrink_to_fit to copy
-  for (size_t i = 0; i < n_bin; ++i) n_blocks += (bin[i].count + 3) / 4;
-  blocks.reserve(n_blocks);
-  block_prims.reserve(4 * n_blocks);
+  size_t n_leaves = 0;
+  for (size_t i = 0; i < n_bin; ++i) n_leaves += bin[i].is_leaf();
+  struct LeafJob {
+    uint32_t first, count, block;
+  };
+  std::vector<LeafJob> jobs;
+  jobs.reserve(n_leaves);
+  uint32_t n_blocks = 0;
   struct Item {
     uint32_t bin, wide;
   };
@@ -920,19 +926,10 @@ void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>
         node.bounds[4][i] = c.lo.z;
         node.bounds[5][i] = c.hi.z;
         if (c.is_leaf()) {
-          node.child[i] = static_cast<uint32_t>(blocks.size());
+          node.child[i] = n_blocks;
           node.count[i] = c.count;
-          for (uint32_t b = 0; b < c.count; b += 4) {
-            TriangleBlock4 blk;
-            for (uint32_t l = 0; l < 4; ++l) {
-              const bool used = b + l < c.count;
-              const TriangleVerts& tv = tris[prim_ids[c.left_or_first + (used ? b + l : 0)]];
-              const Vec3* v[3] = {&tv.v0, &tv.v1, &tv.v2};
-              for (int r = 0; r < 9; ++r) blk.v[r][l] = used ? (*v[r / 3])[r % 3] : std::nanf("");
-              block_prims.push_back(used ? prim_ids[c.left_or_first + b + l] : UINT32_MAX);
-            }
-            blocks.push_back(blk);
-          }
+          jobs.push_back({c.left_or_first, c.count, n_blocks});
+          n_blocks += (c.count + 3) / 4;
         } else {
           node.child[i] = static_cast<uint32_t>(out.size());
           node.count[i] = 0;
@@ -951,8 +948,35 @@ void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>
     out[it.wide] = node;
   }
   out.shrink_to_fit();
+  // Exact sizes, every element written below.
+  blocks.clear();
+  block_prims.clear();
+  blocks.resize(n_blocks);
+  block_prims.resize(4 * size_t(n_blocks));
   blocks.shrink_to_fit();
   block_prims.shrink_to_fit();
+  const float nan = std::nanf("");
+  parallel_ranges(jobs.size(), threads, [&](size_t lo, size_t hi) {
+    for (size_t j = lo; j < hi; ++j) {
+      const LeafJob& job = jobs[j];
+      for (uint32_t b = 0; b < job.count; b += 4) {
+        TriangleBlock4& blk = blocks[job.block + b / 4];
+        uint32_t* ids = &block_prims[4 * (size_t(job.block) + b / 4)];
+        for (uint32_t l = 0; l < 4; ++l) {
+          if (b + l < job.count) {
+            const uint32_t id = prim_ids[job.first + b + l];
+            const TriangleVerts& tv = tris[id];
+            const Vec3* v[3] = {&tv.v0, &tv.v1, &tv.v2};
+            for (int r = 0; r < 9; ++r) blk.v[r][l] = (*v[r / 3])[r % 3];
+            ids[l] = id;
+          } else {
+            for (int r = 0; r < 9; ++r) blk.v[r][l] = nan;
+            ids[l] = UINT32_MAX;
+          }
+        }
+      }
+    }
+  }, 4096);
 }
 
 }  // namespace
@@ -1043,8 +1067,8 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
     clear();
     return false;
   }
-  if (layout == BvhLayout::Wide4) collapse<4>(bin, n_bin, tris, prim_ids_, nodes4_, blocks_, block_prims_);
-  if (layout == BvhLayout::Wide8) collapse<8>(bin, n_bin, tris, prim_ids_, nodes8_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide4) collapse<4>(bin, n_bin, tris, prim_ids_, opt.threads, nodes4_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide8) collapse<8>(bin, n_bin, tris, prim_ids_, opt.threads, nodes8_, blocks_, block_prims_);
   if (layout != BvhLayout::Binary) {
     // The wide tree and its triangle blocks replace the binary tree and the leaf order.
     stats_.wide_nodes = layout == BvhLayout::Wide4 ? nodes4_.size() : nodes8_.size();
