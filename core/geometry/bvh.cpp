@@ -37,6 +37,7 @@ constexpr uint32_t kParallelMin = 16384;  // subtrees smaller than this are buil
 constexpr uint32_t kChunkMin = 65536;     // fewest triangles per thread when one node is binned by several
 constexpr uint32_t kSmallNode = 32;       // nodes this small clear and sweep only the bins they use
 constexpr uint32_t kCopyPartition = 256;  // nodes this small are partitioned through a stack buffer
+constexpr uint32_t kAlternateBins = 1024; // ranges this big are binned into two sets alternately
 
 // Clamped before the cast: a float outside int's range (or NaN) must never become an index.
 // The SIMD binning below computes exactly this per lane.
@@ -442,20 +443,36 @@ class Builder {
     return true;
   }
 
-  // All three axes binned in one pass over refs_[begin, end); each reference keeps its bins.
-  void bin_range(uint32_t begin, uint32_t end, V4 lo, V4 scale, V4 top, BinSet& bins) {
+  // One reference into `bins` (all three axes); the reference keeps its bins.
+  void bin_one(PrimRef& r, V4 lo, V4 scale, V4 top, BinSet& bins) {
     alignas(16) int idx[4];
-    for (uint32_t i = begin; i < end; ++i) {
-      PrimRef& r = refs_[i];
-      const V4 l = r.vlo(), h = r.vhi();
-      (l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx);
-      r.bins = pack_bins(idx);
-      for (int a = 0; a < 3; ++a) {
-        bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
-        bins.hi[a][idx[a]] = vmax(bins.hi[a][idx[a]], h);
-        bins.count[a][idx[a]]++;
-      }
+    const V4 l = r.vlo(), h = r.vhi();
+    (l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx);
+    r.bins = pack_bins(idx);
+    for (int a = 0; a < 3; ++a) {
+      bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
+      bins.hi[a][idx[a]] = vmax(bins.hi[a][idx[a]], h);
+      bins.count[a][idx[a]]++;
     }
+  }
+
+  // All three axes binned in one pass over refs_[begin, end) into `bins` (reset).
+  void bin_range(uint32_t begin, uint32_t end, V4 lo, V4 scale, V4 top, int B, BinSet& bins) {
+    if (end - begin < kAlternateBins) {
+      for (uint32_t i = begin; i < end; ++i) bin_one(refs_[i], lo, scale, top, bins);
+      return;
+    }
+    // Neighbouring references mostly share bins, and each update of a bin waits for the last
+    // one's store: two bin sets taking every other reference run two such chains at once.
+    BinSet odd;
+    odd.reset(B);
+    uint32_t i = begin;
+    for (; i + 1 < end; i += 2) {
+      bin_one(refs_[i], lo, scale, top, bins);
+      bin_one(refs_[i + 1], lo, scale, top, odd);
+    }
+    if (i < end) bin_one(refs_[i], lo, scale, top, bins);
+    bins.merge(odd, B);
   }
 
   // Fills `sp` and returns true, or returns false when a leaf is cheaper (and allowed).
@@ -508,14 +525,14 @@ class Builder {
       }
     } else if (chunks == 1) {
       bins.reset(B);
-      bin_range(begin, end, vlo, vscale, top, bins);
+      bin_range(begin, end, vlo, vscale, top, B, bins);
     } else {
       // Chunks merged in a fixed order: min, max and counts give the same bins in any order anyway.
       std::vector<BinSet> part(chunks);
       run_chunks(chunks, [&](int c) {
         part[c].reset(B);
         bin_range(begin + uint32_t(uint64_t(n) * c / chunks), begin + uint32_t(uint64_t(n) * (c + 1) / chunks), vlo,
-                  vscale, top, part[c]);
+                  vscale, top, B, part[c]);
       });
       bins.reset(B);
       for (const BinSet& p : part) bins.merge(p, B);
