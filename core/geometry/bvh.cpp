@@ -164,12 +164,13 @@ void run_chunks(int chunks, F&& fn) {
 // Raw storage for arrays the builder writes in full before reading: no pass that zeroes them
 // first, and their pages are first touched by the (parallel) code that fills them.
 struct FreeRaw {
-  void operator()(void* p) const { std::free(p); }
+  void operator()(void* p) const { big_free(p); }
 };
 template <class T>
 std::unique_ptr<T[], FreeRaw> raw_array(size_t n) {
   static_assert(std::is_trivially_copyable_v<T>, "raw storage holds trivially copyable types only");
-  std::unique_ptr<T[], FreeRaw> p(static_cast<T*>(std::malloc(std::max<size_t>(1, n) * sizeof(T))));
+  static_assert(alignof(T) <= alignof(std::max_align_t), "big_alloc aligns to max_align_t");
+  std::unique_ptr<T[], FreeRaw> p(static_cast<T*>(big_alloc(std::max<size_t>(1, n) * sizeof(T))));
   if (!p) throw std::bad_alloc();
   return p;
 }
@@ -301,7 +302,7 @@ class Builder {
   // Returns false when cancelled (the nodes are then incomplete and must be dropped).
   bool run() {
     next_node_ = 1;
-    build(0, 0, static_cast<uint32_t>(n_refs_), cap_, 0, root_bounds_, root_cbounds_);
+    max_depth_ = size_t(build(0, 0, static_cast<uint32_t>(n_refs_), cap_, 0, root_bounds_, root_cbounds_));
     if (cancelled()) return false;
     if (!spatial_) {
       order_.resize(n_refs_);
@@ -335,7 +336,7 @@ class Builder {
   const BvhNode* nodes() const { return node_store_.get(); }
   size_t node_count() const { return next_node_.load(); }
 
-  size_t max_depth() const { return max_depth_.load(); }
+  size_t max_depth() const { return max_depth_; }
 
  private:
   // Triangle tests of a leaf of n triangles (n / block rounded up: a partial block costs a whole one).
@@ -398,21 +399,26 @@ class Builder {
     sp.placed = true;
   }
 
-  void build(uint32_t node_index, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, const Aabb& bounds,
-             const Aabb& cbounds) {
+  // Builds the subtree of node_index; returns its deepest level (the maximum is gathered up
+  // the recursion: no shared counter that both threads write).
+  int build(uint32_t node_index, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, const Aabb& bounds,
+            const Aabb& cbounds) {
     // Every node polls the flag: one relaxed load against a binning pass over its triangles.
-    if (cancelled()) return;
-    size_t d = max_depth_.load();
-    while (size_t(depth) > d && !max_depth_.compare_exchange_weak(d, size_t(depth))) {}
+    if (cancelled()) return depth;
 
     BvhNode& node = node_store_[node_index];
     node.lo = bounds.lo;
     node.hi = bounds.hi;
     const uint32_t n = end - begin;
-    if (n <= 1 || (n <= uint32_t(opt_.max_leaf_size) && depth >= kMaxDepth)) return make_leaf(node, begin, end);
-
+    // One block of triangles is a leaf without binning: a split costs a traversal step (at
+    // least one block test) plus its children's tests, never less than the leaf's one test.
+    const bool one_block = n <= block_ && n <= uint32_t(opt_.max_leaf_size) && opt_.traversal_cost >= 1.0f;
     Split sp;
-    if (!split(bounds, cbounds, begin, end, cap_end, depth, sp)) return make_leaf(node, begin, end);  // the SAH prefers a leaf
+    if (n <= 1 || (n <= uint32_t(opt_.max_leaf_size) && depth >= kMaxDepth) || one_block ||
+        !split(bounds, cbounds, begin, end, cap_end, depth, sp)) {  // split() false: the SAH prefers a leaf
+      make_leaf(node, begin, end);
+      return depth;
+    }
 
     const uint32_t left = next_node_.fetch_add(2);
     node.left_or_first = left;
@@ -426,14 +432,16 @@ class Builder {
         sp.rend = sp.rcap = end;
       }
     }
+    int dl, dr;
     if (depth < parallel_depth_ && n >= kParallelMin) {
-      std::thread t([&] { build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb); });
-      build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
+      std::thread t([&] { dl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb); });
+      dr = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
       t.join();
     } else {
-      build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb);
-      build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
+      dl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb);
+      dr = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
     }
+    return std::max(dl, dr);
   }
 
   bool split_by_count(uint32_t begin, uint32_t end, Split& sp) const {
@@ -893,7 +901,7 @@ class Builder {
   std::unique_ptr<BvhNode[], FreeRaw> node_store_;  // up to 2n - 1 nodes; those used are all written
   Aabb root_bounds_, root_cbounds_;
   std::atomic<uint32_t> next_node_{1};
-  std::atomic<size_t> max_depth_{0};
+  size_t max_depth_ = 0;
   int parallel_depth_ = 0;
   int hw_ = 1;
   uint32_t block_ = 1;
