@@ -13,12 +13,14 @@
 
 #include "geometry/aabb.h"
 #include "geometry/ray.h"
+#include "util/big_alloc.h"
 
 namespace pl {
 
 // An allocator whose resize() leaves new elements uninitialised (default-initialised), for big
 // arrays the build writes in full: no serial pass zeroes them first, and their pages are first
 // touched by the (parallel) code that fills them.
+// Big ones come from big_alloc (huge pages).
 template <class T>
 struct NoInitAllocator : std::allocator<T> {
   template <class U>
@@ -28,6 +30,13 @@ struct NoInitAllocator : std::allocator<T> {
   NoInitAllocator() = default;
   template <class U>
   NoInitAllocator(const NoInitAllocator<U>&) noexcept {}
+  T* allocate(size_t n) {
+    static_assert(alignof(T) <= alignof(std::max_align_t), "big_alloc aligns to max_align_t");
+    if (n > size_t(-1) / sizeof(T)) throw std::bad_alloc();
+    if (void* p = big_alloc(n * sizeof(T))) return static_cast<T*>(p);
+    throw std::bad_alloc();
+  }
+  void deallocate(T* p, size_t) noexcept { big_free(p); }
   template <class U>
   void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
     ::new (static_cast<void*>(p)) U;
