@@ -305,6 +305,8 @@ class Builder {
     max_depth_ = size_t(build(0, 0, static_cast<uint32_t>(n_refs_), cap_, 0, root_bounds_, root_cbounds_));
     if (cancelled()) return false;
     if (!spatial_) {
+      order_.reserve(n_refs_);
+      advise_huge_pages(order_.data(), n_refs_ * sizeof(uint32_t));
       order_.resize(n_refs_);
       for (size_t i = 0; i < n_refs_; ++i) order_[i] = refs_[i].id;
     } else {
@@ -922,6 +924,7 @@ void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>
               RawVector<TriangleBlock4>& blocks, RawVector<uint32_t>& block_prims) {
   out.clear();
   out.reserve(n_bin / (N - 1) + 1);
+  advise_huge_pages(out.data(), out.capacity() * sizeof(WideBvhNode<N>));
   size_t n_leaves = 0;
   for (size_t i = 0; i < n_bin; ++i) n_leaves += bin[i].is_leaf();
   struct LeafJob {

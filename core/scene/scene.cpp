@@ -3,6 +3,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "util/big_alloc.h"
 #include "util/parallel.h"
 
 namespace pl {
@@ -202,6 +203,8 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
     if (!inst_[i].transformed) merged_total += meshes_[instances_[i].mesh].triangles.size();
   merged.tris.reserve(merged_total);
   merged.src_tri.reserve(merged_total);
+  advise_huge_pages(merged.tris.data(), merged_total * sizeof(TriangleVerts));
+  advise_huge_pages(merged.src_tri.data(), merged_total * sizeof(uint32_t));
   for (size_t i = 0; i < instances_.size(); ++i) {
     if (inst_[i].transformed) continue;
     if (cancelled()) return false;
