@@ -549,8 +549,10 @@ class Builder {
     }
     if (n > kSmallNode)
       for (int a = 0; a < 3; ++a)
-        for (int b = 0; b < B; ++b)
-          if (bins.count[a][b]) used[a][n_used[a]++] = b;
+        for (int b = 0; b < B; ++b) {  // without a branch: which bins are empty is data
+          used[a][n_used[a]] = b;
+          n_used[a] += bins.count[a][b] != 0;
+        }
     // Planes are evaluated between non-empty bins only: the planes inside a run of empty bins
     // all split the triangles alike and cost the same, and the first of them (the one taken
     // before) is the one right after the non-empty bin. Small nodes have few non-empty bins.
@@ -618,15 +620,16 @@ class Builder {
     if (n <= kCopyPartition) {
       // Small nodes: branch-free, through a buffer (left side in order, right side reversed);
       // a swapping partition's branches mispredict on about every other reference.
-      PrimRef tmp[kCopyPartition];
+      // Raw bytes, not PrimRef[]: PrimRef's Vec3s would zero all 8 KB on every call.
+      alignas(PrimRef) unsigned char tmp[kCopyPartition * sizeof(PrimRef)];
       uint32_t l = 0, r = n;
       for (uint32_t k = begin; k < end; ++k) {
         const bool left = goes_left(refs_[k]);
-        tmp[left ? l : r - 1] = refs_[k];
+        std::memcpy(tmp + size_t(left ? l : r - 1) * sizeof(PrimRef), &refs_[k], sizeof(PrimRef));
         l += left;
         r -= !left;
       }
-      std::memcpy(&refs_[begin], tmp, size_t(n) * sizeof(PrimRef));
+      std::memcpy(static_cast<void*>(&refs_[begin]), tmp, size_t(n) * sizeof(PrimRef));
       i = begin + l;
       for (uint32_t k = begin; k < i; ++k) {
         const V4 c = refs_[k].centroid();
