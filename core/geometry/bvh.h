@@ -19,8 +19,7 @@ namespace pl {
 
 // An allocator whose resize() leaves new elements uninitialised (default-initialised), for big
 // arrays the build writes in full: no serial pass zeroes them first, and their pages are first
-// touched by the (parallel) code that fills them.
-// Big ones come from big_alloc (huge pages).
+// touched by the (parallel) code that fills them. Memory from big_alloc (huge pages when big).
 template <class T>
 struct NoInitAllocator : std::allocator<T> {
   template <class U>
