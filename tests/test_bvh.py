@@ -274,7 +274,6 @@ def test_memory_per_triangle_is_bounded():
     assert 36 * 2 * n < st["geometry_bytes"] < 120 * n  # corner normals and world triangles at least
 
 
-
 def books(sizes, spacing=4.0):
     """Per size n, a "book" of n triangular pages sharing one spine edge (along x, at y = z = 0
     around its corner), page k turned 0.05 + 0.1 k rad about it: every subset of pages has
@@ -330,3 +329,86 @@ def test_leaves_of_every_size_hit_as_the_block_test_in_order():
         assert not s[lay].occluded(o, d, 0.0099).any()
         assert s[lay].occluded(o, d, 0.0101).all()
         assert s[lay].occluded(spine, np.tile([[0, 0, -1.0]], (len(spine), 1)).astype(np.float32), 1.01).all()
+
+
+def hostile_soup(rng, n=70_000):
+    """Triangles for the build's hostile cases, shuffled: random ones of many sizes, exact
+    duplicates, 600 with one shared centroid (no plane separates them, beyond any leaf and any
+    partition buffer), zero-area ones (a repeated vertex), and unusable ones (NaN, inf, beyond
+    1e30) that the scene drops. Returns (triangles (T, 3, 3) float32, usable mask)."""
+    c = rng.uniform(-10, 10, (n, 1, 3))
+    tri = c + rng.normal(size=(n, 3, 3)) * rng.choice([1e-3, 0.02, 0.2, 1.0], (n, 1, 1))
+    dup = tri[rng.integers(0, n, 3000)]
+    # 600 boxes centred exactly on (0, 0, 3) (v0 = c + a, v1 = c - a, v2 = c + b with |b| <= |a|,
+    # all on a 1/1024 grid: exact in float), so 600 equal centroids.
+    ang = rng.uniform(0, 2 * np.pi, 600)
+    a = np.round(np.stack([np.cos(ang), np.sin(ang), 0.5 + 0 * ang], 1) * 1024) / 1024
+    b = a * [0.5, -0.5, 0.25]
+    fan = np.stack([a, -a, b], 1) + [0, 0, 3]
+    zero = tri[:1000].copy()
+    zero[:, 1] = zero[:, 0]  # zero area
+    nan = tri[1000:1500].copy()
+    nan[np.arange(500), rng.integers(0, 3, 500), rng.integers(0, 3, 500)] = np.nan
+    inf = tri[1500:2000].copy()
+    inf[np.arange(500), rng.integers(0, 3, 500), rng.integers(0, 3, 500)] = np.inf * rng.choice([-1, 1], 500)
+    huge = tri[2000:2200] * 1e31
+    parts = [tri, dup, fan, zero, nan, inf, huge]
+    usable = np.concatenate([np.ones(len(tri) + len(dup) + len(fan), bool), np.zeros(2200, bool)])
+    allt = np.concatenate(parts)
+    order = rng.permutation(len(allt))
+    return allt[order].astype(np.float32), usable[order]
+
+
+def brute_force_t(tri, o, d):
+    """Möller-Trumbore in float64 against every triangle: the hit distance per triangle (inf where missed)."""
+    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    with np.errstate(all="ignore"):
+        p = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        s = o - v0
+        u = np.einsum("ij,ij->i", s, p) / det
+        q = np.cross(s, e1)
+        v = (q @ d) / det
+        t = np.einsum("ij,ij->i", e2, q) / det
+        ok = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & np.isfinite(t)
+    return np.where(ok, t, np.inf)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_build_matches_brute_force_on_hostile_soups(layout, threads):
+    """Every build path (parallel world copy and triangle filtering, binning into alternating bin
+    sets, buffered and in-place partitions, count splits of coincident centroids, blocks filled
+    on several threads) against a brute-force test of every triangle: the same closest t and a
+    triangle that is hit there, the unusable triangles dropped (and the others' rows kept)."""
+    rng = np.random.default_rng(5)
+    tri, usable = hostile_soup(rng)
+    s = pc.Scene()
+    s.add_instance(s.add_mesh(tri.reshape(-1, 3), np.arange(3 * len(tri), dtype=np.int32).reshape(-1, 3)),
+                   np.eye(4, dtype=np.float32))
+    s.commit(threads=threads, bvh=layout)
+    assert s.stats()["dropped_triangles"] == (~usable).sum()
+    assert s.stats()["triangles"] == usable.sum()
+    # Rays at random usable triangles' centroids (from outside the soup), at the fan, and away.
+    target = np.flatnonzero(usable)[rng.integers(0, usable.sum(), 300)]
+    aim = tri[target].astype(np.float64).mean(1)
+    o = rng.normal(size=(300, 3)) * 30
+    o[:20] = [0, 0, 20]
+    aim[:20] = [0, 0, 3] + rng.normal(size=(20, 3)) * [0.2, 0.2, 0]
+    d = aim - o
+    d[-20:] = -o[-20:]  # through the soup's middle, most hit something
+    d[-5:] = o[-5:]     # away from everything: misses
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    t, prim, _, _, inst, row = s.intersect(o32, d32, instances=True)
+    tri64 = np.where(usable[:, None, None], tri, np.nan).astype(np.float64)
+    for k in range(len(o)):
+        bt = brute_force_t(tri64, o32[k].astype(np.float64), d32[k].astype(np.float64))
+        best = bt.min()
+        if not np.isfinite(best):
+            assert prim[k] == -1 and row[k] == -1, k
+            continue
+        assert prim[k] >= 0 and inst[k] == 0, k
+        assert usable[row[k]], k
+        assert abs(t[k] - best) <= 1e-5 * best, (k, t[k], best)
+        assert abs(bt[row[k]] - best) <= 1e-5 * best, (k, bt[row[k]], best)  # that triangle is hit there
+    assert (prim[-5:] == -1).all() and (prim[:-20] >= 0).all()

@@ -17,6 +17,7 @@
 
 #include "geometry/bvh_common.h"
 #include "geometry/triangle.h"
+#include "util/parallel.h"
 #if defined(__x86_64__) || defined(__i386__)
 #include "geometry/bvh_wide.inl"
 #endif
@@ -35,6 +36,8 @@ constexpr int kMaxDepth = 64;
 constexpr uint32_t kParallelMin = 16384;  // subtrees smaller than this are built serially
 constexpr uint32_t kChunkMin = 65536;     // fewest triangles per thread when one node is binned by several
 constexpr uint32_t kSmallNode = 32;       // nodes this small clear and sweep only the bins they use
+constexpr uint32_t kCopyPartition = 256;  // nodes this small are partitioned through a stack buffer
+constexpr uint32_t kAlternateBins = 1024; // ranges this big are binned into two sets alternately
 
 // Clamped before the cast: a float outside int's range (or NaN) must never become an index.
 // The SIMD binning below computes exactly this per lane.
@@ -95,7 +98,9 @@ struct alignas(16) PrimRef {
   Vec3 lo;
   uint32_t id;
   Vec3 hi;
-  uint32_t pad;
+  // The centroid's bin on x, y, z (one byte each) in the node binned last: the binning pass
+  // writes it, so the partition that follows compares a byte instead of recomputing the bin.
+  uint32_t bins;
   V4 vlo() const { return V4::load(&lo.x).xyz(); }
   V4 vhi() const { return V4::load(&hi.x).xyz(); }
   // (lo + hi) / 2 would overflow near FLT_MAX.
@@ -159,12 +164,13 @@ void run_chunks(int chunks, F&& fn) {
 // Raw storage for arrays the builder writes in full before reading: no pass that zeroes them
 // first, and their pages are first touched by the (parallel) code that fills them.
 struct FreeRaw {
-  void operator()(void* p) const { std::free(p); }
+  void operator()(void* p) const { big_free(p); }
 };
 template <class T>
 std::unique_ptr<T[], FreeRaw> raw_array(size_t n) {
   static_assert(std::is_trivially_copyable_v<T>, "raw storage holds trivially copyable types only");
-  std::unique_ptr<T[], FreeRaw> p(static_cast<T*>(std::malloc(std::max<size_t>(1, n) * sizeof(T))));
+  static_assert(alignof(T) <= alignof(std::max_align_t), "big_alloc aligns to max_align_t");
+  std::unique_ptr<T[], FreeRaw> p(static_cast<T*>(big_alloc(std::max<size_t>(1, n) * sizeof(T))));
   if (!p) throw std::bad_alloc();
   return p;
 }
@@ -275,7 +281,7 @@ class Builder {
         r.lo = vmin(vmin(t.v0, t.v1), t.v2);
         r.hi = vmax(vmax(t.v0, t.v1), t.v2);
         r.id = i;
-        r.pad = 0;
+        r.bins = 0;
         b[c].grow(r.vlo(), r.vhi());
         const V4 ct = r.centroid();
         cb[c].grow(ct, ct);
@@ -296,9 +302,11 @@ class Builder {
   // Returns false when cancelled (the nodes are then incomplete and must be dropped).
   bool run() {
     next_node_ = 1;
-    build(0, 0, static_cast<uint32_t>(n_refs_), cap_, 0, root_bounds_, root_cbounds_);
+    max_depth_ = size_t(build(0, 0, static_cast<uint32_t>(n_refs_), cap_, 0, root_bounds_, root_cbounds_));
     if (cancelled()) return false;
     if (!spatial_) {
+      order_.reserve(n_refs_);
+      advise_huge_pages(order_.data(), n_refs_ * sizeof(uint32_t));
       order_.resize(n_refs_);
       for (size_t i = 0; i < n_refs_; ++i) order_[i] = refs_[i].id;
     } else {
@@ -330,7 +338,7 @@ class Builder {
   const BvhNode* nodes() const { return node_store_.get(); }
   size_t node_count() const { return next_node_.load(); }
 
-  size_t max_depth() const { return max_depth_.load(); }
+  size_t max_depth() const { return max_depth_; }
 
  private:
   // Triangle tests of a leaf of n triangles (n / block rounded up: a partial block costs a whole one).
@@ -356,6 +364,10 @@ class Builder {
     }
     bounds = b.aabb();
     cbounds = cb.aabb();
+  }
+
+  static uint32_t pack_bins(const int idx[4]) {
+    return uint32_t(idx[0]) | uint32_t(idx[1]) << 8 | uint32_t(idx[2]) << 16;
   }
 
   void make_leaf(BvhNode& node, uint32_t begin, uint32_t end) {
@@ -389,21 +401,26 @@ class Builder {
     sp.placed = true;
   }
 
-  void build(uint32_t node_index, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, const Aabb& bounds,
-             const Aabb& cbounds) {
+  // Builds the subtree of node_index; returns its deepest level (the maximum is gathered up
+  // the recursion: no shared counter that both threads write).
+  int build(uint32_t node_index, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, const Aabb& bounds,
+            const Aabb& cbounds) {
     // Every node polls the flag: one relaxed load against a binning pass over its triangles.
-    if (cancelled()) return;
-    size_t d = max_depth_.load();
-    while (size_t(depth) > d && !max_depth_.compare_exchange_weak(d, size_t(depth))) {}
+    if (cancelled()) return depth;
 
     BvhNode& node = node_store_[node_index];
     node.lo = bounds.lo;
     node.hi = bounds.hi;
     const uint32_t n = end - begin;
-    if (n <= 1 || (n <= uint32_t(opt_.max_leaf_size) && depth >= kMaxDepth)) return make_leaf(node, begin, end);
-
+    // One block of triangles is a leaf without binning: a split costs a traversal step (at
+    // least one block test) plus its children's tests, never less than the leaf's one test.
+    const bool one_block = n <= block_ && n <= uint32_t(opt_.max_leaf_size) && opt_.traversal_cost >= 1.0f;
     Split sp;
-    if (!split(bounds, cbounds, begin, end, cap_end, depth, sp)) return make_leaf(node, begin, end);  // the SAH prefers a leaf
+    if (n <= 1 || (n <= uint32_t(opt_.max_leaf_size) && depth >= kMaxDepth) || one_block ||
+        !split(bounds, cbounds, begin, end, cap_end, depth, sp)) {  // split() false: the SAH prefers a leaf
+      make_leaf(node, begin, end);
+      return depth;
+    }
 
     const uint32_t left = next_node_.fetch_add(2);
     node.left_or_first = left;
@@ -417,14 +434,16 @@ class Builder {
         sp.rend = sp.rcap = end;
       }
     }
+    int dl, dr;
     if (depth < parallel_depth_ && n >= kParallelMin) {
-      std::thread t([&] { build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb); });
-      build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
+      std::thread t([&] { dl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb); });
+      dr = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
       t.join();
     } else {
-      build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb);
-      build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
+      dl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb);
+      dr = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb);
     }
+    return std::max(dl, dr);
   }
 
   bool split_by_count(uint32_t begin, uint32_t end, Split& sp) const {
@@ -434,19 +453,36 @@ class Builder {
     return true;
   }
 
-  // All three axes binned in one pass over refs_[begin, end).
-  void bin_range(uint32_t begin, uint32_t end, V4 lo, V4 scale, V4 top, BinSet& bins) const {
+  // One reference into `bins` (all three axes); the reference keeps its bins.
+  void bin_one(PrimRef& r, V4 lo, V4 scale, V4 top, BinSet& bins) {
     alignas(16) int idx[4];
-    for (uint32_t i = begin; i < end; ++i) {
-      const PrimRef& r = refs_[i];
-      const V4 l = r.vlo(), h = r.vhi();
-      (l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx);
-      for (int a = 0; a < 3; ++a) {
-        bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
-        bins.hi[a][idx[a]] = vmax(bins.hi[a][idx[a]], h);
-        bins.count[a][idx[a]]++;
-      }
+    const V4 l = r.vlo(), h = r.vhi();
+    (l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx);
+    r.bins = pack_bins(idx);
+    for (int a = 0; a < 3; ++a) {
+      bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
+      bins.hi[a][idx[a]] = vmax(bins.hi[a][idx[a]], h);
+      bins.count[a][idx[a]]++;
     }
+  }
+
+  // All three axes binned in one pass over refs_[begin, end) into `bins` (reset).
+  void bin_range(uint32_t begin, uint32_t end, V4 lo, V4 scale, V4 top, int B, BinSet& bins) {
+    if (end - begin < kAlternateBins) {
+      for (uint32_t i = begin; i < end; ++i) bin_one(refs_[i], lo, scale, top, bins);
+      return;
+    }
+    // Neighbouring references mostly share bins, and each update of a bin waits for the last
+    // one's store: two bin sets taking every other reference run two such chains at once.
+    BinSet odd;
+    odd.reset(B);
+    uint32_t i = begin;
+    for (; i + 1 < end; i += 2) {
+      bin_one(refs_[i], lo, scale, top, bins);
+      bin_one(refs_[i + 1], lo, scale, top, odd);
+    }
+    if (i < end) bin_one(refs_[i], lo, scale, top, bins);
+    bins.merge(odd, B);
   }
 
   // Fills `sp` and returns true, or returns false when a leaf is cheaper (and allowed).
@@ -478,6 +514,7 @@ class Builder {
       uint64_t mask[3] = {0, 0, 0};
       for (uint32_t i = 0; i < n; ++i) {
         refs_[begin + i].centroid().bins(vlo, vscale, top, idx[i]);
+        refs_[begin + i].bins = pack_bins(idx[i]);
         for (int a = 0; a < 3; ++a) mask[a] |= uint64_t(1) << idx[i][a];
       }
       for (int a = 0; a < 3; ++a)
@@ -498,22 +535,24 @@ class Builder {
       }
     } else if (chunks == 1) {
       bins.reset(B);
-      bin_range(begin, end, vlo, vscale, top, bins);
+      bin_range(begin, end, vlo, vscale, top, B, bins);
     } else {
       // Chunks merged in a fixed order: min, max and counts give the same bins in any order anyway.
       std::vector<BinSet> part(chunks);
       run_chunks(chunks, [&](int c) {
         part[c].reset(B);
         bin_range(begin + uint32_t(uint64_t(n) * c / chunks), begin + uint32_t(uint64_t(n) * (c + 1) / chunks), vlo,
-                  vscale, top, part[c]);
+                  vscale, top, B, part[c]);
       });
       bins.reset(B);
       for (const BinSet& p : part) bins.merge(p, B);
     }
     if (n > kSmallNode)
       for (int a = 0; a < 3; ++a)
-        for (int b = 0; b < B; ++b)
-          if (bins.count[a][b]) used[a][n_used[a]++] = b;
+        for (int b = 0; b < B; ++b) {  // without a branch: which bins are empty is data
+          used[a][n_used[a]] = b;
+          n_used[a] += bins.count[a][b] != 0;
+        }
     // Planes are evaluated between non-empty bins only: the planes inside a run of empty bins
     // all split the triangles alike and cost the same, and the first of them (the one taken
     // before) is the one right after the non-empty bin. Small nodes have few non-empty bins.
@@ -573,27 +612,52 @@ class Builder {
       if (n <= uint32_t(opt_.max_leaf_size)) return false;
       return split_by_count(begin, end, sp);  // no useful plane and too many for a leaf
     }
-    // Partition in place, collecting both sides' centroid boxes on the way (the triangle boxes
-    // come from the bins).
-    const int ax = best_axis;
-    alignas(16) float c4[4];
+    // Partition by the bins the binning pass stored (the same bin_of() of the same centroid).
+    const uint32_t shift = 8 * uint32_t(best_axis), split_bin = uint32_t(best_bin);
+    const auto goes_left = [shift, split_bin](const PrimRef& r) { return ((r.bins >> shift) & 0xff) < split_bin; };
     BoxAcc lcb, rcb;
-    const auto left_side = [&](const PrimRef& r, BoxAcc& lacc, BoxAcc& racc) {
-      const V4 c = r.centroid();
-      c.store(c4);
-      const bool left = bin_of(c4[ax], lo[ax], scale[ax], B) < best_bin;
-      (left ? lacc : racc).grow(c, c);
-      return left;
-    };
-    uint32_t i = begin, j = end;
-    for (;;) {
-      while (i < j && left_side(refs_[i], lcb, rcb)) ++i;
-      while (i < j && !left_side(refs_[j - 1], lcb, rcb)) --j;
-      if (i >= j) break;
-      // refs_[i] belongs right and refs_[j - 1] left: both were counted; swap and step over them.
-      std::swap(refs_[i], refs_[j - 1]);
-      ++i;
-      --j;
+    uint32_t i = begin;
+    if (n <= kCopyPartition) {
+      // Small nodes: branch-free, through a buffer (left side in order, right side reversed);
+      // a swapping partition's branches mispredict on about every other reference.
+      // Raw bytes, not PrimRef[]: PrimRef's Vec3s would zero all 8 KB on every call.
+      alignas(PrimRef) unsigned char tmp[kCopyPartition * sizeof(PrimRef)];
+      uint32_t l = 0, r = n;
+      for (uint32_t k = begin; k < end; ++k) {
+        const bool left = goes_left(refs_[k]);
+        std::memcpy(tmp + size_t(left ? l : r - 1) * sizeof(PrimRef), &refs_[k], sizeof(PrimRef));
+        l += left;
+        r -= !left;
+      }
+      std::memcpy(static_cast<void*>(&refs_[begin]), tmp, size_t(n) * sizeof(PrimRef));
+      i = begin + l;
+      for (uint32_t k = begin; k < i; ++k) {
+        const V4 c = refs_[k].centroid();
+        lcb.grow(c, c);
+      }
+      for (uint32_t k = i; k < end; ++k) {
+        const V4 c = refs_[k].centroid();
+        rcb.grow(c, c);
+      }
+    } else {
+      // In place, collecting both sides' centroid boxes on the way (the triangle boxes come
+      // from the bins).
+      const auto left_side = [&](const PrimRef& r, BoxAcc& lacc, BoxAcc& racc) {
+        const V4 c = r.centroid();
+        const bool left = goes_left(r);
+        (left ? lacc : racc).grow(c, c);
+        return left;
+      };
+      uint32_t j = end;
+      for (;;) {
+        while (i < j && left_side(refs_[i], lcb, rcb)) ++i;
+        while (i < j && !left_side(refs_[j - 1], lcb, rcb)) --j;
+        if (i >= j) break;
+        // refs_[i] belongs right and refs_[j - 1] left: both were counted; swap and step over them.
+        std::swap(refs_[i], refs_[j - 1]);
+        ++i;
+        --j;
+      }
     }
     sp.mid = i;
     if (sp.mid == begin || sp.mid == end) return split_by_count(begin, end, sp);
@@ -842,7 +906,7 @@ class Builder {
   std::unique_ptr<BvhNode[], FreeRaw> node_store_;  // up to 2n - 1 nodes; those used are all written
   Aabb root_bounds_, root_cbounds_;
   std::atomic<uint32_t> next_node_{1};
-  std::atomic<size_t> max_depth_{0};
+  size_t max_depth_ = 0;
   int parallel_depth_ = 0;
   int hw_ = 1;
   uint32_t block_ = 1;
@@ -853,19 +917,25 @@ class Builder {
 // children and keeps opening its largest interior child (the one most rays enter) until it
 // has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
 // the binary leaves; `tris` is the build's input, reached through prim_ids (leaf order).
-// Leaves become runs of TriangleBlock4s, emitted in the order the collapse reaches them.
+// Leaves become runs of TriangleBlock4s, placed in the order the collapse reaches them: the
+// nodes are made in one pass that hands out the block slots, then the blocks are filled on
+// `threads` threads (the triangle gathers and the writes of 36+ bytes per triangle are most of
+// the work), so the result is the same on any thread count.
 template <int N>
 void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>& tris,
-              const std::vector<uint32_t>& prim_ids, std::vector<WideBvhNode<N>>& out,
-              std::vector<TriangleBlock4>& blocks, std::vector<uint32_t>& block_prims) {
+              const std::vector<uint32_t>& prim_ids, int threads, std::vector<WideBvhNode<N>>& out,
+              RawVector<TriangleBlock4>& blocks, RawVector<uint32_t>& block_prims) {
   out.clear();
-  blocks.clear();
-  block_prims.clear();
   out.reserve(n_bin / (N - 1) + 1);
-  size_t n_blocks = 0;  // exact sizes: no regrowth, nothing for shrink_to_fit to copy
-  for (size_t i = 0; i < n_bin; ++i) n_blocks += (bin[i].count + 3) / 4;
-  blocks.reserve(n_blocks);
-  block_prims.reserve(4 * n_blocks);
+  advise_huge_pages(out.data(), out.capacity() * sizeof(WideBvhNode<N>));
+  size_t n_leaves = 0;
+  for (size_t i = 0; i < n_bin; ++i) n_leaves += bin[i].is_leaf();
+  struct LeafJob {
+    uint32_t first, count, block;
+  };
+  std::vector<LeafJob> jobs;
+  jobs.reserve(n_leaves);
+  uint32_t n_blocks = 0;
   struct Item {
     uint32_t bin, wide;
   };
@@ -887,19 +957,10 @@ void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>
         node.bounds[4][i] = c.lo.z;
         node.bounds[5][i] = c.hi.z;
         if (c.is_leaf()) {
-          node.child[i] = static_cast<uint32_t>(blocks.size());
+          node.child[i] = n_blocks;
           node.count[i] = c.count;
-          for (uint32_t b = 0; b < c.count; b += 4) {
-            TriangleBlock4 blk;
-            for (uint32_t l = 0; l < 4; ++l) {
-              const bool used = b + l < c.count;
-              const TriangleVerts& tv = tris[prim_ids[c.left_or_first + (used ? b + l : 0)]];
-              const Vec3* v[3] = {&tv.v0, &tv.v1, &tv.v2};
-              for (int r = 0; r < 9; ++r) blk.v[r][l] = used ? (*v[r / 3])[r % 3] : std::nanf("");
-              block_prims.push_back(used ? prim_ids[c.left_or_first + b + l] : UINT32_MAX);
-            }
-            blocks.push_back(blk);
-          }
+          jobs.push_back({c.left_or_first, c.count, n_blocks});
+          n_blocks += (c.count + 3) / 4;
         } else {
           node.child[i] = static_cast<uint32_t>(out.size());
           node.count[i] = 0;
@@ -918,8 +979,35 @@ void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>
     out[it.wide] = node;
   }
   out.shrink_to_fit();
+  // Exact sizes, every element written below.
+  blocks.clear();
+  block_prims.clear();
+  blocks.resize(n_blocks);
+  block_prims.resize(4 * size_t(n_blocks));
   blocks.shrink_to_fit();
   block_prims.shrink_to_fit();
+  const float nan = std::nanf("");
+  parallel_ranges(jobs.size(), threads, [&](size_t lo, size_t hi) {
+    for (size_t j = lo; j < hi; ++j) {
+      const LeafJob& job = jobs[j];
+      for (uint32_t b = 0; b < job.count; b += 4) {
+        TriangleBlock4& blk = blocks[job.block + b / 4];
+        uint32_t* ids = &block_prims[4 * (size_t(job.block) + b / 4)];
+        for (uint32_t l = 0; l < 4; ++l) {
+          if (b + l < job.count) {
+            const uint32_t id = prim_ids[job.first + b + l];
+            const TriangleVerts& tv = tris[id];
+            const Vec3* v[3] = {&tv.v0, &tv.v1, &tv.v2};
+            for (int r = 0; r < 9; ++r) blk.v[r][l] = (*v[r / 3])[r % 3];
+            ids[l] = id;
+          } else {
+            for (int r = 0; r < 9; ++r) blk.v[r][l] = nan;
+            ids[l] = UINT32_MAX;
+          }
+        }
+      }
+    }
+  }, 4096);
 }
 
 }  // namespace
@@ -1010,8 +1098,8 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
     clear();
     return false;
   }
-  if (layout == BvhLayout::Wide4) collapse<4>(bin, n_bin, tris, prim_ids_, nodes4_, blocks_, block_prims_);
-  if (layout == BvhLayout::Wide8) collapse<8>(bin, n_bin, tris, prim_ids_, nodes8_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide4) collapse<4>(bin, n_bin, tris, prim_ids_, opt.threads, nodes4_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide8) collapse<8>(bin, n_bin, tris, prim_ids_, opt.threads, nodes8_, blocks_, block_prims_);
   if (layout != BvhLayout::Binary) {
     // The wide tree and its triangle blocks replace the binary tree and the leaf order.
     stats_.wide_nodes = layout == BvhLayout::Wide4 ? nodes4_.size() : nodes8_.size();
