@@ -8,9 +8,10 @@ Cycles render (both with a 1-pixel box filter, so they estimate the same image);
 relative MSE / 4 estimates the reference's own error (the floor). An image's MSE against the
 reference is its error against the truth plus that floor, for both engines alike (the renders are
 independent of the references), so the floor is subtracted before the engines' errors are compared:
-left in, it would pull every ratio towards 1. Each budget is rendered REPEATS times by each engine
-(different seeds, the engines alternating) and the errors averaged, which halves the timing noise of
-this shared machine.
+left in, it would pull every ratio towards 1. Each budget is rendered several times by each engine
+(different seeds, the engines alternating; at least MIN_REPEATS times and at least REPEAT_SECONDS of
+rendering per budget, so short budgets get as precise an error as long ones) and the errors
+averaged: one render's error is itself noisy (the glass box's caustics are rare bright samples).
 Cycles runs with its defaults (light tree, Sobol-Burley) but no denoising, no clamping and no
 adaptive sampling, the same bounce limits as Pathlight, and all threads.
 
@@ -33,7 +34,12 @@ TIMES = (1.0, 2.0, 4.0, 8.0)   # equal-time budgets, seconds of rendering (sync 
 REF_SPP = 4096
 ENGINES = ("PATHLIGHT", "CYCLES")
 VAR_SEEDS, VAR_SPP = 16, 16
-REPEATS = 2                    # renders per engine and budget (seeds 1..REPEATS), errors averaged
+MIN_REPEATS = 2                # renders per engine and budget (seeds 1, 2, ...), errors averaged
+REPEAT_SECONDS = 8.0           # ... and at least this much rendering per budget
+
+
+def repeats_for(budget):
+    return max(MIN_REPEATS, int(round(REPEAT_SECONDS / budget)))
 
 
 def glass_sphere(scene):
@@ -101,7 +107,7 @@ def main():
     ap.add_argument("--quick", action="store_true", help="smaller references and budgets (smoke run)")
     args = ap.parse_args()
     ref_spp, times = (REF_SPP, TIMES) if not args.quick else (256, (0.5, 1.0))
-    repeats = REPEATS if not args.quick else 1
+    repeats = repeats_for if not args.quick else (lambda budget: 1)
     load_addon()
     from variance_per_sample import per_sample_variance  # imports this module: not at the top
     var_seeds, var_spp = (VAR_SEEDS, VAR_SPP) if not args.quick else (4, 4)
@@ -118,7 +124,7 @@ def main():
         raw = {e: [] for e in ENGINES}
         for budget in times:
             per = {e: [] for e in ENGINES}
-            for k in range(repeats):
+            for k in range(repeats(budget)):
                 for e in ENGINES:
                     img, _ = render(fixture, setup, e, samples=1_000_000, time_limit=budget, seed=1 + k)
                     per[e].append(rel_mse(img, ref))
@@ -160,7 +166,8 @@ def main():
         f"Fixtures at {SCALE} % (128x128), both engines in this process, all threads, no denoising, no",
         "clamping, no adaptive sampling, max bounces 12 (all types), 1-pixel box filter. Render time",
         "excludes scene export/sync. 'Lower error' is Cycles' relative MSE over Pathlight's at the same",
-        f"time (each the mean of {repeats} renders with different seeds, less the reference's own error, the floor",
+        "time (the mean of " + " / ".join(f"{repeats(t)}" for t in times) + " renders at those budgets, with "
+        "different seeds, less the reference's own error, the floor",
         "below); 'time to target' is the time each needs for the error Cycles reaches at the longest budget.",
         f"'Variance/sample' is Pathlight's relative variance of one sample over Cycles' ({var_seeds} seeds x "
         f"{var_spp} spp each; independent of the machine's load, unlike the timings).",
