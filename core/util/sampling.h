@@ -71,54 +71,42 @@ inline bool dnormalize(DVec3& v) {
   return true;
 }
 
-// atan(x) for x >= 0 in double, to within 3e-16 relative (Cephes' atan: range reduction to
-// |x| <= 0.66, then a 4/5 rational function). Inline, it is a third of libm's atan2, which was
-// a tenth of every light sample.
-inline double atan_nonneg(double x) {
+// Cephes' atan kernel: y + atan(x) for the range-reduced |x| <= 0.66 (a 4/5 rational function);
+// `extra` carries the low bits of the reduction's offset y.
+inline double atan_reduced(double x, double y, double extra) {
   constexpr double P0 = -8.750608600031904122785e-1, P1 = -1.615753718733365076637e1,
                    P2 = -7.500855792314704667340e1, P3 = -1.228866684490136173410e2,
                    P4 = -6.485021904942025371773e1;
   constexpr double Q0 = 2.485846490142306297962e1, Q1 = 1.650270098316988542046e2,
                    Q2 = 4.328810604912902668951e2, Q3 = 4.853903996359136964868e2,
                    Q4 = 1.945506571482613964425e2;
-  constexpr double kPiOver2 = 1.57079632679489661923, kPiOver4 = 0.785398163397448309616;
-  constexpr double kMoreBits = 6.123233995736765886130e-17;  // pi/2 - double(pi/2)
-  double y = 0.0, extra = 0.0;
-  if (x > 2.41421356237309504880) {  // tan(3 pi / 8)
-    y = kPiOver2;
-    extra = kMoreBits;
-    x = -1.0 / x;
-  } else if (x > 0.66) {
-    y = kPiOver4;
-    extra = 0.5 * kMoreBits;
-    x = (x - 1.0) / (x + 1.0);
-  }
   const double z = x * x;
   const double p = (((P0 * z + P1) * z + P2) * z + P3) * z + P4;
   const double q = ((((z + Q0) * z + Q1) * z + Q2) * z + Q3) * z + Q4;
   return y + (x * (z * p / q) + x + extra);
 }
 
+constexpr double kAtanPiOver2 = 1.57079632679489661923, kAtanPiOver4 = 0.785398163397448309616;
+constexpr double kAtanMoreBits = 6.123233995736765886130e-17;  // pi/2 - double(pi/2)
+
+// atan(x) for x >= 0 in double, to within 3e-16 relative (Cephes' atan: range reduction to
+// |x| <= 0.66, then atan_reduced). Inline, it is a third of libm's atan2, which was a tenth of
+// every light sample.
+inline double atan_nonneg(double x) {
+  if (x > 2.41421356237309504880) return atan_reduced(-1.0 / x, kAtanPiOver2, kAtanMoreBits);  // tan(3 pi / 8)
+  if (x > 0.66) return atan_reduced((x - 1.0) / (x + 1.0), kAtanPiOver4, 0.5 * kAtanMoreBits);
+  return atan_reduced(x, 0.0, 0.0);
+}
+
 // atan(a / b) for a >= 0, b > 0: atan_nonneg with the quotient folded into its range reduction
 // (one division fewer on the dependency chain).
 inline double atan_ratio(double a, double b) {
-  constexpr double P0 = -8.750608600031904122785e-1, P1 = -1.615753718733365076637e1,
-                   P2 = -7.500855792314704667340e1, P3 = -1.228866684490136173410e2,
-                   P4 = -6.485021904942025371773e1;
-  constexpr double Q0 = 2.485846490142306297962e1, Q1 = 1.650270098316988542046e2,
-                   Q2 = 4.328810604912902668951e2, Q3 = 4.853903996359136964868e2,
-                   Q4 = 1.945506571482613964425e2;
-  constexpr double kPiOver2 = 1.57079632679489661923, kPiOver4 = 0.785398163397448309616;
-  constexpr double kMoreBits = 6.123233995736765886130e-17;  // pi/2 - double(pi/2)
   // Selects rather than branches: the reduction's case is data-dependent (mispredicted).
   const bool big = a > 2.41421356237309504880 * b, mid = a > 0.66 * b;  // tan(3 pi / 8)
   const double num = big ? -b : mid ? a - b : a, den = big ? a : mid ? a + b : b;
-  const double y = big ? kPiOver2 : mid ? kPiOver4 : 0.0, extra = big ? kMoreBits : mid ? 0.5 * kMoreBits : 0.0;
-  const double x = num / den;
-  const double z = x * x;
-  const double p = (((P0 * z + P1) * z + P2) * z + P3) * z + P4;
-  const double q = ((((z + Q0) * z + Q1) * z + Q2) * z + Q3) * z + Q4;
-  return y + (x * (z * p / q) + x + extra);
+  const double y = big ? kAtanPiOver2 : mid ? kAtanPiOver4 : 0.0;
+  const double extra = big ? kAtanMoreBits : mid ? 0.5 * kAtanMoreBits : 0.0;
+  return atan_reduced(num / den, y, extra);
 }
 
 // sin and cos of 0 <= x < 2^20 in double, to within 3e-16 (Cephes' sin/cos: reduction by pi/4
