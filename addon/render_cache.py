@@ -22,7 +22,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from .export import add_lights, set_camera, set_world, to_core
+from .export import replace_lights, set_camera, to_core
 from .export.material import put_material
 from .export.mesh_cache import MeshCache
 
@@ -57,9 +57,7 @@ class CommittedScene:
                     scene.set_instance_transform(i, new)
             for core_id, material in zip(self.material_ids, data.materials):
                 put_material(scene, material, self.image_ids, core_id)
-            scene.clear_lights()
-            add_lights(scene, data.lights, warn)
-            set_world(scene, data, warn)
+            replace_lights(scene, data.lights, data, warn)
             set_camera(pc, scene, data.camera)
             self.data, self.reused = data, True
             return scene

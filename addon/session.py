@@ -170,15 +170,15 @@ def render(engine, depsgraph):
         if not _commit(engine, core_scene, settings.threads, scene.pathlight.time_limit):
             _empty_result(engine, scene, view_layer)
             return
+        stats = core_scene.stats()
         if cache is not None:
             kept.keep(core_scene)
             if kept.reused:
                 log.info("scene kept from the last render: %d BVH build(s), %d top-level build(s) so far",
-                         core_scene.stats().get("geometry_builds", 0),
-                         core_scene.stats().get("top_level_builds", 0))
-        log.info(bvh_line(core_scene.stats()))
+                         stats.get("geometry_builds", 0), stats.get("top_level_builds", 0))
+        log.info(bvh_line(stats))
         sess = pc.Session(core_scene, settings)
-        dropped = core_scene.stats().get("dropped_triangles", 0)
+        dropped = stats.get("dropped_triangles", 0)
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
         _report_focus(sess, warn)

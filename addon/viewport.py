@@ -25,9 +25,9 @@ import logging
 
 import numpy as np
 
-from .export import add_lights, export_scene, set_world, to_core
+from .export import export_scene, replace_lights, to_core
 from .export.light import collect_lights
-from .export.material import convert_material
+from .export.material import convert_material, put_material
 from .export.mesh import is_visible
 from .export.shader import ImageTable, UvSets
 from .export.world import world_color, world_texture
@@ -182,13 +182,7 @@ class ViewportSession:
         data = convert_material(mat, self.warn, images, uv_sets, use_schlick)
         if images.images or len(uv_sets.names) != len(self.uv_sets.names if self.uv_sets else []):
             return False
-        if data.program is None or not hasattr(self.scene, "set_shader"):
-            self.scene.set_material(core_id, data.name, base_color=data.base_color,
-                                    emission=data.emission)
-        else:
-            self.scene.set_shader(core_id, data.name, data.program,
-                                  volume_absorption=data.volume_absorption,
-                                  use_schlick=data.use_schlick)
+        put_material(self.scene, data, [], core_id)  # no images: checked above
         self.counters["material_updates"] += 1
         return True
 
@@ -199,9 +193,7 @@ class ViewportSession:
         class _World:  # what set_world reads of SceneData
             world_texture = world_texture(scene.world, self.warn)
             world_color = world_color(scene.world, self.warn)
-        self.scene.clear_lights()
-        add_lights(self.scene, collect_lights(depsgraph, self.warn, is_visible), self.warn)
-        set_world(self.scene, _World, self.warn)
+        replace_lights(self.scene, collect_lights(depsgraph, self.warn, is_visible), _World, self.warn)
         self.counters["light_updates"] += 1
 
     def check_settings(self, depsgraph):

@@ -12,7 +12,7 @@ from .material import MaterialData, MaterialTable, add_materials
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .world import WorldTexture, world_color, world_texture
 
-__all__ = ("ExportCancelled", "ExportError", "add_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
+__all__ = ("ExportCancelled", "ExportError", "add_lights", "replace_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
            "export_scene", "to_core")
 
 
@@ -147,6 +147,14 @@ def add_lights(scene, lights, warn):
                  "Pathlight core; ignored")
             continue
         add(**light.args)
+
+
+def replace_lights(scene, lights, world, warn):
+    """Replaces a committed core scene's lights (LightData) and world (`world`: what set_world
+    reads of SceneData); its next commit() rebuilds only the light distribution."""
+    scene.clear_lights()
+    add_lights(scene, lights, warn)
+    set_world(scene, world, warn)
 
 
 def set_world(scene, data, warn):

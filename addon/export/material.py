@@ -138,8 +138,7 @@ def add_materials(scene, materials, images, warn, image_ids=None):
         if any(m.program for m in materials):
             warn("Shader programs are not supported by this build of the Pathlight core; "
                  "materials are reduced to their base and emission colours")
-        return [scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
-                for m in materials]
+        return [put_material(scene, m, []) for m in materials]
     ids = [scene.add_image(image.pixels, srgb=image.srgb) if image.srgb
            else scene.add_image(image.pixels) for image in images]
     if image_ids is not None:
@@ -149,8 +148,9 @@ def add_materials(scene, materials, images, warn, image_ids=None):
 
 def put_material(scene, m, image_ids, core_id=None):
     """Adds MaterialData `m` to a core scene (core_id None) or replaces material `core_id` with
-    it; image_ids: the core ids of the images its program reads. Returns the material's id."""
-    if m.program is None:
+    it; image_ids: the core ids of the images its program reads. Returns the material's id.
+    Core builds without shader programs get the (base colour, emission) summary."""
+    if m.program is None or not hasattr(scene, "add_shader"):
         if core_id is None:
             return scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
         scene.set_material(core_id, m.name, base_color=m.base_color, emission=m.emission)
