@@ -310,30 +310,44 @@ inline void take_closest(const BlockResult<N>& r, const TriangleBlock4* b, uint3
   }
 }
 
-// The closest hit among a leaf's `count` triangles in blocks from `first`, updating tmax and
-// best exactly as the scalar loop over them in order would. Under AVX2 a leaf of more than
-// four triangles tests two blocks at once (lanes beyond `count` hold NaN and are masked off).
-inline void leaf_closest(const WideBvhView& v, uint32_t first, uint32_t count, const Ray& ray, const BlockRay& br,
-                         float& tmax, uint32_t& best, float& bb1, float& bb2) {
+// Runs the block tests of a leaf's `count` triangles in blocks from `first`, in triangle order:
+// under AVX2 two blocks at once while more than four triangles are left (lanes beyond `count`
+// hold NaN and are masked off). take(result, blocks, first block, the tmax tested against)
+// returns true to stop; tmax is read again before every test (take may lower it).
+template <bool AnyHit, class Take>
+inline bool for_each_block_test(const WideBvhView& v, uint32_t first, uint32_t count, const BlockRay& br,
+                                const float& tmax, Take&& take) {
   for (uint32_t blk = first, left = count; left > 0;) {
     const TriangleBlock4* b = v.blocks + blk;
     const float tmax_block = tmax;
 #ifdef PL_WIDE_AVX2
     if (left > 4) {
       BlockResult<8> r;
-      block_test<Lanes8>(b, br.rp, br.c8, tmax_block, left >= 8 ? 0xFFu : (1u << left) - 1u, r);
-      take_closest(r, b, blk, ray, br.rp, tmax_block, tmax, best, bb1, bb2);
+      block_test<Lanes8>(b, br.rp, br.c8, tmax_block, left >= 8 ? 0xFFu : (1u << left) - 1u, r, AnyHit);
+      if (take(r, b, blk, tmax_block)) return true;
       blk += 2;
       left = left >= 8 ? left - 8 : 0;
       continue;
     }
 #endif
     BlockResult<4> r;
-    block_test<Lanes4>(b, br.rp, br.c4(), tmax_block, left >= 4 ? 0xFu : (1u << left) - 1u, r);
-    take_closest(r, b, blk, ray, br.rp, tmax_block, tmax, best, bb1, bb2);
+    block_test<Lanes4>(b, br.rp, br.c4(), tmax_block, left >= 4 ? 0xFu : (1u << left) - 1u, r, AnyHit);
+    if (take(r, b, blk, tmax_block)) return true;
     blk += 1;
     left = left >= 4 ? left - 4 : 0;
   }
+  return false;
+}
+
+// The closest hit among a leaf's triangles, updating tmax and best exactly as the scalar loop
+// over them in order would.
+inline void leaf_closest(const WideBvhView& v, uint32_t first, uint32_t count, const Ray& ray, const BlockRay& br,
+                         float& tmax, uint32_t& best, float& bb1, float& bb2) {
+  for_each_block_test<false>(v, first, count, br, tmax,
+                             [&](const auto& r, const TriangleBlock4* b, uint32_t blk, float tmax_block) {
+                               take_closest(r, b, blk, ray, br.rp, tmax_block, tmax, best, bb1, bb2);
+                               return false;
+                             });
 }
 
 template <int N>
@@ -348,25 +362,10 @@ inline bool any_of(const BlockResult<N>& r, const TriangleBlock4* b, const Ray& 
 
 inline bool leaf_any(const WideBvhView& v, uint32_t first, uint32_t count, const Ray& ray, const BlockRay& br,
                      float tmax) {
-  for (uint32_t blk = first, left = count; left > 0;) {
-    const TriangleBlock4* b = v.blocks + blk;
-#ifdef PL_WIDE_AVX2
-    if (left > 4) {
-      BlockResult<8> r;
-      block_test<Lanes8>(b, br.rp, br.c8, tmax, left >= 8 ? 0xFFu : (1u << left) - 1u, r, /*any_hit=*/true);
-      if (any_of(r, b, ray, br.rp, tmax)) return true;
-      blk += 2;
-      left = left >= 8 ? left - 8 : 0;
-      continue;
-    }
-#endif
-    BlockResult<4> r;
-    block_test<Lanes4>(b, br.rp, br.c4(), tmax, left >= 4 ? 0xFu : (1u << left) - 1u, r, /*any_hit=*/true);
-    if (any_of(r, b, ray, br.rp, tmax)) return true;
-    blk += 1;
-    left = left >= 4 ? left - 4 : 0;
-  }
-  return false;
+  return for_each_block_test<true>(v, first, count, br, tmax,
+                                   [&](const auto& r, const TriangleBlock4* b, uint32_t, float) {
+                                     return any_of(r, b, ray, br.rp, tmax);
+                                   });
 }
 
 template <class S>
