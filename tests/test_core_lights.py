@@ -131,15 +131,8 @@ def near_triangle_scene(solid_angle=True):
 
 
 def triangle_radiance(p):
-    """Plane radiance under NEAR_TRI: Lambert's polygon formula (the triangle's form factor),
-    E = L/2 |sum over edges of theta_i n . unit(a_i x a_(i+1))|, valid as the whole triangle is
-    above the plane."""
-    a = NEAR_TRI[None, None, None] - p[..., None, :]
-    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    b = np.roll(a, -1, axis=-2)
-    c = np.cross(a, b)
-    theta = np.arccos(np.clip((a * b).sum(-1), -1.0, 1.0))
-    return ALBEDO / np.pi * NEAR_L * 0.5 * np.abs((theta * c[..., 2] / np.linalg.norm(c, axis=-1)).sum(-1))
+    """Plane radiance under NEAR_TRI (valid as the whole triangle is above the plane)."""
+    return polygon_radiance(p, NEAR_TRI, NEAR_L)
 
 
 def test_emissive_triangle_near_a_plane_matches_its_form_factor():

@@ -139,15 +139,9 @@ def near_quad_scene(groups=True):
 
 
 def quad_radiance(p):
-    """Lambert's polygon formula over the quad's four edges (as test_core_lights' triangle)."""
-    from test_core_lights import ALBEDO
-    poly = NEAR_QUAD[0]
-    a = poly[None, None, None] - p[..., None, :]
-    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    b = np.roll(a, -1, axis=-2)
-    c = np.cross(a, b)
-    theta = np.arccos(np.clip((a * b).sum(-1), -1.0, 1.0))
-    return ALBEDO / np.pi * NEAR_L * 0.5 * np.abs((theta * c[..., 2] / np.linalg.norm(c, axis=-1)).sum(-1))
+    """Lambert's polygon formula over the quad's four edges."""
+    from test_core_lights import polygon_radiance
+    return polygon_radiance(p, NEAR_QUAD[0], NEAR_L)
 
 
 def test_grouped_quad_near_a_plane_matches_its_form_factor():
