@@ -913,14 +913,6 @@ class Builder {
   int block_shift_ = -1;  // log2(block_) when it is a power of two
 };
 
-// Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
-// children and keeps opening its largest interior child (the one most rays enter) until it
-// has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
-// the binary leaves; `tris` is the build's input, reached through prim_ids (leaf order).
-// Leaves become runs of TriangleBlock4s, placed in the order the collapse reaches them: the
-// nodes are made in one pass that hands out the block slots, then the blocks are filled on
-// `threads` threads (the triangle gathers and the writes of 36+ bytes per triangle are most of
-// the work), so the result is the same on any thread count.
 // The compressed form of float node `f` (k used lanes): per axis the origin is the lanes' lowest
 // plane and the step the smallest power of two whose 255 steps reach the highest, both checked
 // in float as the traversal computes planes (QuantWideNode::plane); each byte is then rounded
@@ -978,7 +970,15 @@ bool quantise_node(const WideBvhNode<N>& f, int k, QuantWideNode<N>& q) {
   return true;
 }
 
-// Collapses into float nodes (Node = WideBvhNode<N>) or compressed ones (QuantWideNode<N>);
+// Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
+// children and keeps opening its largest interior child (the one most rays enter) until it
+// has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
+// the binary leaves; `tris` is the build's input, reached through prim_ids (leaf order).
+// Leaves become runs of TriangleBlock4s, placed in the order the collapse reaches them: the
+// nodes are made in one pass that hands out the block slots, then the blocks are filled on
+// `threads` threads (the triangle gathers and the writes of 36+ bytes per triangle are most of
+// the work), so the result is the same on any thread count. Into float nodes (Node =
+// WideBvhNode<N>) or compressed ones (QuantWideNode<N>, from the float node of the same lanes);
 // false when a node cannot be compressed (quantise_node), the outputs then unspecified.
 template <int N, class Node>
 bool collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>& tris,

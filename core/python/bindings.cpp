@@ -1364,7 +1364,8 @@ PYBIND11_MODULE(pathlight_core, m) {
             else throw std::invalid_argument("compact_bvh must be 'auto', 'on' or 'off'");
           },
           "Compressed (quantised) wide BVH nodes from the next commit(): 'on', 'off' or 'auto' "
-          "(the default: on for meshes of many triangles, where memory matters). Same hits.")
+          "(the default: on for BLASes of 8M triangles or more, where memory matters more than the "
+          "few percent more work per ray). Same hits.")
       .def("wide_bvh_nodes", &wide_bvh_nodes,
            "The largest BLAS's wide tree for tests: dict of box (M, N, 6: lo x, hi x, lo y, hi y, "
            "lo z, hi z; compressed nodes dequantised as the traversal computes them), child, count "
