@@ -913,6 +913,63 @@ class Builder {
   int block_shift_ = -1;  // log2(block_) when it is a power of two
 };
 
+// The compressed form of float node `f` (k used lanes): per axis the origin is the lanes' lowest
+// plane and the step the smallest power of two whose 255 steps reach the highest, both checked
+// in float as the traversal computes planes (QuantWideNode::plane); each byte is then rounded
+// outwards and moved until its plane lies outside the child's box (never inside it). False
+// when the boxes are not finite or too large for the steps (or a leaf is over 255 triangles).
+template <int N>
+bool quantise_node(const WideBvhNode<N>& f, int k, QuantWideNode<N>& q) {
+  std::memset(&q, 0, sizeof(q));
+  q.valid = static_cast<uint8_t>((1u << k) - 1u);
+  for (int i = 0; i < N; ++i) {
+    if (f.count[i] > 255) return false;
+    q.child[i] = f.child[i];
+    q.count[i] = static_cast<uint8_t>(f.count[i]);
+  }
+  for (int a = 0; a < 3; ++a) {
+    float lo = kInf, hi = -kInf;
+    for (int i = 0; i < k; ++i) {
+      const float cl = f.bounds[2 * a][i], ch = f.bounds[2 * a + 1][i];
+      if (!(std::isfinite(cl) && std::isfinite(ch) && cl <= ch)) return false;
+      lo = std::min(lo, cl);
+      hi = std::max(hi, ch);
+    }
+    const float ext = hi - lo;
+    if (!std::isfinite(ext)) return false;
+    int e = -126;  // 2^-126: the smallest normal step, so scale * q stays exact
+    if (ext > 0.0f) {
+      std::frexp(ext / 255.0f, &e);  // ext / 255 < 2^e: usually 2^(e - 1) is too short
+      e = std::max(e - 1, -126);
+    }
+    float scale;
+    for (;; ++e) {
+      if (e > 119) return false;  // 255 * 2^119 < 2^127: the largest step without overflow
+      scale = std::ldexp(1.0f, e);
+      if (lo + scale * 255.0f >= hi) break;
+    }
+    q.origin[a] = lo;
+    q.scale[a] = scale;
+    const auto plane = [&](int b) { return lo + scale * float(b); };  // as QuantWideNode::plane
+    for (int i = 0; i < N; ++i) {
+      if (i >= k) {  // unused lane: an empty box (the traversal also masks it off)
+        q.q[2 * a][i] = 255;
+        q.q[2 * a + 1][i] = 0;
+        continue;
+      }
+      const float cl = f.bounds[2 * a][i], ch = f.bounds[2 * a + 1][i];
+      int bl = static_cast<int>(std::clamp(std::floor((cl - lo) / scale), 0.0f, 255.0f));
+      while (bl > 0 && plane(bl) > cl) --bl;  // plane(0) = lo <= cl
+      int bh = static_cast<int>(std::clamp(std::ceil((ch - lo) / scale), 0.0f, 255.0f));
+      while (bh < 255 && plane(bh) < ch) ++bh;
+      if (plane(bl) > cl || plane(bh) < ch) return false;  // cannot happen: plane(255) >= hi
+      q.q[2 * a][i] = static_cast<uint8_t>(bl);
+      q.q[2 * a + 1][i] = static_cast<uint8_t>(bh);
+    }
+  }
+  return true;
+}
+
 // Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
 // children and keeps opening its largest interior child (the one most rays enter) until it
 // has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
@@ -920,14 +977,16 @@ class Builder {
 // Leaves become runs of TriangleBlock4s, placed in the order the collapse reaches them: the
 // nodes are made in one pass that hands out the block slots, then the blocks are filled on
 // `threads` threads (the triangle gathers and the writes of 36+ bytes per triangle are most of
-// the work), so the result is the same on any thread count.
-template <int N>
-void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>& tris,
-              const std::vector<uint32_t>& prim_ids, int threads, std::vector<WideBvhNode<N>>& out,
+// the work), so the result is the same on any thread count. Into float nodes (Node =
+// WideBvhNode<N>) or compressed ones (QuantWideNode<N>, from the float node of the same lanes);
+// false when a node cannot be compressed (quantise_node), the outputs then unspecified.
+template <int N, class Node>
+bool collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>& tris,
+              const std::vector<uint32_t>& prim_ids, int threads, std::vector<Node>& out,
               RawVector<TriangleBlock4>& blocks, RawVector<uint32_t>& block_prims) {
   out.clear();
   out.reserve(n_bin / (N - 1) + 1);
-  advise_huge_pages(out.data(), out.capacity() * sizeof(WideBvhNode<N>));
+  advise_huge_pages(out.data(), out.capacity() * sizeof(Node));
   size_t n_leaves = 0;
   for (size_t i = 0; i < n_bin; ++i) n_leaves += bin[i].is_leaf();
   struct LeafJob {
@@ -976,7 +1035,11 @@ void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>
         node.count[i] = 0;
       }
     }
-    out[it.wide] = node;
+    if constexpr (std::is_same_v<Node, WideBvhNode<N>>) {
+      out[it.wide] = node;
+    } else if (!quantise_node(node, k, out[it.wide])) {
+      return false;
+    }
   }
   out.shrink_to_fit();
   // Exact sizes, every element written below.
@@ -1008,6 +1071,7 @@ void collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>
       }
     }
   }, 4096);
+  return true;
 }
 
 }  // namespace
@@ -1024,7 +1088,7 @@ const char* bvh_layout_name(BvhLayout l) {
 
 bool cpu_has_avx2() {
 #if defined(PL_HAVE_AVX2_KERNEL) && (defined(__x86_64__) || defined(__i386__))
-  static const bool has = __builtin_cpu_supports("avx2");
+  static const bool has = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");  // the 8-wide kernel uses both
   return has;
 #else
   return false;
@@ -1036,6 +1100,10 @@ bool bvh4_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCou
   return wide_intersect<Sse4>(v, ray, hit, counters);
 }
 bool bvh4_occluded(const WideBvhView& v, const Ray& ray) { return wide_occluded<Sse4>(v, ray); }
+bool bvh4q_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters) {
+  return wide_intersect<Sse4, Bvh4QNode>(v, ray, hit, counters);
+}
+bool bvh4q_occluded(const WideBvhView& v, const Ray& ray) { return wide_occluded<Sse4, Bvh4QNode>(v, ray); }
 #endif
 
 void Bvh::clear() {
@@ -1098,11 +1166,24 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
     clear();
     return false;
   }
-  if (layout == BvhLayout::Wide4) collapse<4>(bin, n_bin, tris, prim_ids_, opt.threads, nodes4_, blocks_, block_prims_);
-  if (layout == BvhLayout::Wide8) collapse<8>(bin, n_bin, tris, prim_ids_, opt.threads, nodes8_, blocks_, block_prims_);
+  if (layout != BvhLayout::Binary && opt.compact) {
+    compact_ = layout == BvhLayout::Wide4
+                   ? collapse<4>(bin, n_bin, tris, prim_ids_, opt.threads, nodes4q_, blocks_, block_prims_)
+                   : collapse<8>(bin, n_bin, tris, prim_ids_, opt.threads, nodes8q_, blocks_, block_prims_);
+    if (!compact_) {  // a box that bytes cannot hold: float nodes
+      std::vector<Bvh4QNode>().swap(nodes4q_);
+      std::vector<Bvh8QNode>().swap(nodes8q_);
+    }
+  }
+  if (layout == BvhLayout::Wide4 && !compact_)
+    collapse<4>(bin, n_bin, tris, prim_ids_, opt.threads, nodes4_, blocks_, block_prims_);
+  if (layout == BvhLayout::Wide8 && !compact_)
+    collapse<8>(bin, n_bin, tris, prim_ids_, opt.threads, nodes8_, blocks_, block_prims_);
   if (layout != BvhLayout::Binary) {
     // The wide tree and its triangle blocks replace the binary tree and the leaf order.
-    stats_.wide_nodes = layout == BvhLayout::Wide4 ? nodes4_.size() : nodes8_.size();
+    stats_.wide_nodes = compact_ ? (layout == BvhLayout::Wide4 ? nodes4q_.size() : nodes8q_.size())
+                                 : (layout == BvhLayout::Wide4 ? nodes4_.size() : nodes8_.size());
+    stats_.compact = compact_;
     std::vector<uint32_t>().swap(prim_ids_);
   }
   triangles_ = tris.size();
@@ -1113,9 +1194,39 @@ bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& o
 
 size_t Bvh::memory_bytes() const {
   return nodes_.capacity() * sizeof(BvhNode) + nodes4_.capacity() * sizeof(Bvh4Node) +
-         nodes8_.capacity() * sizeof(Bvh8Node) + tris_.capacity() * sizeof(TriangleVerts) +
+         nodes8_.capacity() * sizeof(Bvh8Node) + nodes4q_.capacity() * sizeof(Bvh4QNode) +
+         nodes8q_.capacity() * sizeof(Bvh8QNode) + tris_.capacity() * sizeof(TriangleVerts) +
          prim_ids_.capacity() * sizeof(uint32_t) + blocks_.capacity() * sizeof(TriangleBlock4) +
          block_prims_.capacity() * sizeof(uint32_t);
+}
+
+namespace {
+template <int N, class Node>
+void append_lanes(const std::vector<Node>& nodes, std::vector<Bvh::WideLane>& out) {
+  for (const Node& n : nodes) {
+    for (int i = 0; i < N; ++i) {
+      Bvh::WideLane l;
+      for (int r = 0; r < 6; ++r) {
+        if constexpr (std::is_same_v<Node, WideBvhNode<N>>) l.box[r] = n.bounds[r][i];
+        else l.box[r] = n.plane(r, i);
+      }
+      l.child = n.child[i];
+      l.count = n.count[i];
+      if constexpr (std::is_same_v<Node, WideBvhNode<N>>) l.valid = n.bounds[0][i] <= n.bounds[1][i];
+      else l.valid = (n.valid >> i) & 1u;
+      out.push_back(l);
+    }
+  }
+}
+}  // namespace
+
+std::vector<Bvh::WideLane> Bvh::wide_lanes() const {
+  std::vector<WideLane> out;
+  append_lanes<4>(nodes4_, out);
+  append_lanes<8>(nodes8_, out);
+  append_lanes<4>(nodes4q_, out);
+  append_lanes<8>(nodes8q_, out);
+  return out;
 }
 
 bool Bvh::intersect_binary(const Ray& ray, Hit& hit, TraversalCounters* counters) const {

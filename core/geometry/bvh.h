@@ -73,6 +73,26 @@ struct alignas(32) WideBvhNode {
 using Bvh4Node = WideBvhNode<4>;  // 128 bytes
 using Bvh8Node = WideBvhNode<8>;  // 256 bytes
 
+// A compressed wide node (Ylitie, Karras & Laine 2017; Embree's compact BVH8): the child boxes
+// as bytes q, a plane being origin[a] + scale[a] * q with scale a power of two, so scale * q is
+// exact and one FMA or a multiply and an add give the same float. The collapse picks each
+// byte so that this float lies outside the child's true box (conservative), and the traversal
+// runs the float nodes' slab test on it: it visits every box the float tree visits, so hits
+// are the same. Half the float node's size (8-wide: 128 bytes, two cache lines; 4-wide: 80).
+template <int N>
+struct alignas(N == 8 ? 64 : 16) QuantWideNode {
+  float origin[3];
+  float scale[3];     // powers of two, 2^-126 .. 2^119 (normal: scale * q is exact)
+  uint8_t q[6][N];    // rows as WideBvhNode::bounds (lo x, hi x, lo y, ...)
+  uint32_t child[N];  // as WideBvhNode
+  uint8_t count[N];   // as WideBvhNode (leaves have at most 255 triangles)
+  uint8_t valid;      // mask of the used lanes
+  float plane(int row, int lane) const { return origin[row >> 1] + scale[row >> 1] * float(q[row][lane]); }
+};
+using Bvh4QNode = QuantWideNode<4>;  // 80 bytes
+using Bvh8QNode = QuantWideNode<8>;  // 128 bytes
+static_assert(sizeof(Bvh8QNode) == 128 && sizeof(Bvh4QNode) == 80, "node sizes");
+
 // Four triangles of a leaf of the wide trees, coordinates in SIMD lanes (rows v0.x, v0.y, v0.z,
 // v1.x, ..., v2.z), so one watertight test runs on all four. A leaf of n triangles takes
 // ceil(n / 4) consecutive blocks; unused lanes hold NaN, which the test rejects.
@@ -95,6 +115,9 @@ struct BvhBuildOptions {
   // fill whole blocks. 0 = automatic (4 for the wide layouts, whose leaves are TriangleBlock4s).
   int leaf_block = 0;
   BvhLayout layout = BvhLayout::Auto;
+  // Compressed (quantised) wide nodes: half the node memory, the same hits. Trees whose boxes
+  // are not finite (never the scene's: it drops such triangles) keep float nodes.
+  bool compact = false;
   // Spatial splits (SBVH, Stich, Friedrich & Dietrich 2009): where the best object split's
   // children overlap by more than spatial_alpha x the root's surface area, binned planes that
   // cut the triangles themselves are tried too; a cut triangle is referenced by both children
@@ -118,6 +141,7 @@ struct BvhStats {
   size_t references = 0;      // triangle references in leaves: triangles + duplicates of cut ones
   size_t spatial_splits = 0;  // nodes split by a spatial (cutting) plane
   BvhLayout layout = BvhLayout::Binary;
+  bool compact = false;  // the wide nodes are QuantWideNodes
 };
 
 // Counters for BVH visualisation and statistics.
@@ -134,6 +158,20 @@ class Bvh {
   bool empty() const { return triangles_ == 0; }
   const BvhStats& stats() const { return stats_; }
   BvhLayout layout() const { return layout_; }
+  bool compact() const { return compact_; }
+  // The wide tree's nodes for tests: per node and lane the box (dequantised for compact nodes)
+  // as lo x, hi x, lo y, hi y, lo z, hi z, the child and the count (as WideBvhNode's), and
+  // whether the lane is used. Empty for the binary layout.
+  struct WideLane {
+    float box[6];
+    uint32_t child, count;
+    bool valid;
+  };
+  int wide_width() const { return layout_ == BvhLayout::Wide8 ? 8 : layout_ == BvhLayout::Wide4 ? 4 : 0; }
+  std::vector<WideLane> wide_lanes() const;
+  // The wide layouts' triangle blocks and their input indices (4 per block), for tests.
+  const RawVector<TriangleBlock4>& blocks() const { return blocks_; }
+  const RawVector<uint32_t>& block_prims() const { return block_prims_; }
   Aabb bounds() const { return bounds_; }
   size_t memory_bytes() const;  // nodes, triangles and index arrays, as allocated
 
@@ -151,6 +189,9 @@ class Bvh {
   std::vector<BvhNode> nodes_;        // the binary tree (kept only for the Binary layout)
   std::vector<Bvh4Node> nodes4_;
   std::vector<Bvh8Node> nodes8_;
+  std::vector<Bvh4QNode> nodes4q_;  // compact_: these instead of nodes4_ / nodes8_
+  std::vector<Bvh8QNode> nodes8q_;
+  bool compact_ = false;
   std::vector<TriangleVerts> tris_;   // in leaf order, for locality (Binary layout)
   std::vector<uint32_t> prim_ids_;    // leaf order -> input index (Binary layout)
   RawVector<TriangleBlock4> blocks_;  // the wide layouts' leaves
@@ -170,14 +211,23 @@ bool bvh4_occluded(const WideBvhView& v, const Ray& ray);
 // Only called where cpu_has_avx2(): compiled for AVX2 in bvh8_avx2.cpp.
 bool bvh8_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
 bool bvh8_occluded(const WideBvhView& v, const Ray& ray);
+// The same over compressed nodes.
+bool bvh4q_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
+bool bvh4q_occluded(const WideBvhView& v, const Ray& ray);
+bool bvh8q_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
+bool bvh8q_occluded(const WideBvhView& v, const Ray& ray);
 
 // Inline: the kernel choice is part of every ray's call.
 inline bool Bvh::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
   if (triangles_ == 0) return false;
   switch (layout_) {
 #if defined(__x86_64__) || defined(__i386__)
-    case BvhLayout::Wide8: return bvh8_intersect({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
-    case BvhLayout::Wide4: return bvh4_intersect({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+    case BvhLayout::Wide8:
+      if (compact_) return bvh8q_intersect({nodes8q_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+      return bvh8_intersect({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+    case BvhLayout::Wide4:
+      if (compact_) return bvh4q_intersect({nodes4q_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+      return bvh4_intersect({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
 #endif
     default: return intersect_binary(ray, hit, counters);
   }
@@ -187,8 +237,12 @@ inline bool Bvh::occluded(const Ray& ray) const {
   if (triangles_ == 0) return false;
   switch (layout_) {
 #if defined(__x86_64__) || defined(__i386__)
-    case BvhLayout::Wide8: return bvh8_occluded({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray);
-    case BvhLayout::Wide4: return bvh4_occluded({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray);
+    case BvhLayout::Wide8:
+      if (compact_) return bvh8q_occluded({nodes8q_.data(), blocks_.data(), block_prims_.data()}, ray);
+      return bvh8_occluded({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray);
+    case BvhLayout::Wide4:
+      if (compact_) return bvh4q_occluded({nodes4q_.data(), blocks_.data(), block_prims_.data()}, ray);
+      return bvh4_occluded({nodes4_.data(), blocks_.data(), block_prims_.data()}, ray);
 #endif
     default: return occluded_binary(ray);
   }

@@ -1,5 +1,6 @@
-// The 8-wide traversal compiled for AVX2 in an otherwise portable build: only the functions
-// defined under the target pragma use AVX2, and Bvh calls them only where cpu_has_avx2(), so
+// The 8-wide traversal compiled for AVX2 (and FMA, which the compressed nodes' dequantisation
+// uses) in an otherwise portable build: only the functions defined under the target pragma use
+// them, and Bvh calls them only where cpu_has_avx2() (which checks both), so
 // one binary runs everywhere and uses 8 lanes where it can. The headers come first, outside
 // the pragma, so their inline functions are never emitted as AVX2 code.
 #include <immintrin.h>
@@ -14,10 +15,10 @@
 #include "geometry/triangle.h"
 
 #if defined(__clang__)
-#pragma clang attribute push(__attribute__((target("avx2"))), apply_to = function)
+#pragma clang attribute push(__attribute__((target("avx2,fma"))), apply_to = function)
 #else
 #pragma GCC push_options
-#pragma GCC target("avx2")
+#pragma GCC target("avx2,fma")
 #endif
 #define PL_WIDE_AVX2 1
 #include "geometry/bvh_wide.inl"
@@ -28,6 +29,10 @@ bool bvh8_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCou
   return wide_intersect<Avx8>(v, ray, hit, counters);
 }
 bool bvh8_occluded(const WideBvhView& v, const Ray& ray) { return wide_occluded<Avx8>(v, ray); }
+bool bvh8q_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters) {
+  return wide_intersect<Avx8, Bvh8QNode>(v, ray, hit, counters);
+}
+bool bvh8q_occluded(const WideBvhView& v, const Ray& ray) { return wide_occluded<Avx8, Bvh8QNode>(v, ray); }
 
 }  // namespace pl
 #if defined(__clang__)

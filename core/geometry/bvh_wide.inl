@@ -1,4 +1,5 @@
 // Traversal of the wide BVH, written once over a SIMD width S (4 lanes with SSE2, 8 with AVX2)
+// and a node type (float WideBvhNode or compressed QuantWideNode: only the box test differs)
 // and included by bvh.cpp (4 wide, every x86-64) and bvh8_avx2.cpp (8 wide, under an AVX2
 // target pragma). Everything here has internal linkage so the two compilations never merge.
 //
@@ -17,6 +18,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <cstring>
 #include <utility>
 
 #include "geometry/bvh.h"
@@ -39,6 +41,20 @@ struct Sse4 {
   static V max(V a, V b) { return _mm_max_ps(b, a); }
   static unsigned le_mask(V a, V b) { return static_cast<unsigned>(_mm_movemask_ps(_mm_cmple_ps(a, b))); }
   static void store(float* p, V v) { _mm_store_ps(p, v); }
+  // Four bytes as floats, and the dequantisation origin + scale * q: scale * q is exact (a
+  // power of two times a byte), so a multiply and an add round once, as an FMA does.
+  static V bytes(const uint8_t* p) {
+    int32_t x;
+    std::memcpy(&x, p, 4);
+    const __m128i v = _mm_cvtsi32_si128(x);
+#ifdef __SSE4_1__
+    return _mm_cvtepi32_ps(_mm_cvtepu8_epi32(v));
+#else
+    const __m128i z = _mm_setzero_si128();
+    return _mm_cvtepi32_ps(_mm_unpacklo_epi16(_mm_unpacklo_epi8(v, z), z));
+#endif
+  }
+  static V madd(V a, V b, V c) { return _mm_add_ps(_mm_mul_ps(a, b), c); }
 };
 
 #ifdef PL_WIDE_AVX2
@@ -55,6 +71,10 @@ struct Avx8 {
     return static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(a, b, _CMP_LE_OQ)));
   }
   static void store(float* p, V v) { _mm256_store_ps(p, v); }
+  static V bytes(const uint8_t* p) {
+    return _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p))));
+  }
+  static V madd(V a, V b, V c) { return _mm256_fmadd_ps(a, b, c); }
 };
 #endif
 
@@ -99,6 +119,23 @@ struct WideRay {
     const V tfar = S::mul(S::min(S::min(tx1, ty1), S::min(tz1, S::set1(tmax))), S::set1(bvh_detail::kBoxExitScale));
     S::store(tn, tmin);
     return S::le_mask(tmin, tfar);
+  }
+
+  // The same on a compressed node: each plane dequantised (one FMA), then the same slab test.
+  unsigned test(const QuantWideNode<S::N>& n, float tmax, float* tn) const {
+    using V = typename S::V;
+    const V sx = S::set1(n.scale[0]), sy = S::set1(n.scale[1]), sz = S::set1(n.scale[2]);
+    const V px = S::set1(n.origin[0]), py = S::set1(n.origin[1]), pz = S::set1(n.origin[2]);
+    const V tx0 = S::mul(S::sub(S::madd(sx, S::bytes(n.q[nx]), px), ox), ix);
+    const V ty0 = S::mul(S::sub(S::madd(sy, S::bytes(n.q[ny]), py), oy), iy);
+    const V tz0 = S::mul(S::sub(S::madd(sz, S::bytes(n.q[nz]), pz), oz), iz);
+    const V tx1 = S::mul(S::sub(S::madd(sx, S::bytes(n.q[nx ^ 1]), px), ox), ix);
+    const V ty1 = S::mul(S::sub(S::madd(sy, S::bytes(n.q[ny ^ 1]), py), oy), iy);
+    const V tz1 = S::mul(S::sub(S::madd(sz, S::bytes(n.q[nz ^ 1]), pz), oz), iz);
+    const V tmin = S::max(S::max(tx0, ty0), S::max(tz0, S::set1(0.0f)));
+    const V tfar = S::mul(S::min(S::min(tx1, ty1), S::min(tz1, S::set1(tmax))), S::set1(bvh_detail::kBoxExitScale));
+    S::store(tn, tmin);
+    return S::le_mask(tmin, tfar) & n.valid;
   }
 };
 
@@ -368,10 +405,10 @@ inline bool leaf_any(const WideBvhView& v, uint32_t first, uint32_t count, const
                                    });
 }
 
-template <class S>
+template <class S, class Node = WideBvhNode<S::N>>
 bool wide_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters) {
   constexpr int N = S::N;
-  const auto* nodes = static_cast<const WideBvhNode<N>*>(v.nodes);
+  const auto* nodes = static_cast<const Node*>(v.nodes);
   const WideRay<S> wr(ray);
   const BlockRay br(ray);
   float tmax = ray.tmax;
@@ -383,7 +420,7 @@ bool wide_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCou
   alignas(32) float tn[N];
   for (;;) {
     if (count == 0) {
-      const WideBvhNode<N>& n = nodes[ref];
+      const Node& n = nodes[ref];
       if (counters) counters->nodes++;
       unsigned mask = wr.test(n, tmax, tn);
       if (mask) {
@@ -442,10 +479,10 @@ done:
   return true;
 }
 
-template <class S>
+template <class S, class Node = WideBvhNode<S::N>>
 bool wide_occluded(const WideBvhView& v, const Ray& ray) {
   constexpr int N = S::N;
-  const auto* nodes = static_cast<const WideBvhNode<N>*>(v.nodes);
+  const auto* nodes = static_cast<const Node*>(v.nodes);
   const WideRay<S> wr(ray);
   const BlockRay br(ray);
   const float tmax = ray.tmax;
@@ -455,7 +492,7 @@ bool wide_occluded(const WideBvhView& v, const Ray& ray) {
   alignas(32) float tn[N];
   for (;;) {
     if (count == 0) {
-      const WideBvhNode<N>& n = nodes[ref];
+      const Node& n = nodes[ref];
       unsigned mask = wr.test(n, tmax, tn);
       if (mask) {
         // Any order finds an occluder; the nearest child first tends to find it sooner.

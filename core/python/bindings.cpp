@@ -603,7 +603,43 @@ py::dict scene_stats(const PyScene& self) {
   d["bvh_triangles"] = b.triangles;                    // of the largest BLAS, as the other bvh_ entries
   d["bvh_references"] = b.references;
   d["bvh_spatial_splits"] = b.spatial_splits;
+  d["bvh_compact"] = b.compact;  // the largest BLAS's wide nodes are compressed
   d["features"] = self.scene->features().names();  // of the last commit
+  return d;
+}
+
+py::dict wide_bvh_nodes(const PyScene& self) {
+  const Bvh& bvh = self.scene->bvh();
+  const int w = bvh.wide_width();
+  const std::vector<Bvh::WideLane> lanes = bvh.wide_lanes();
+  const size_t m = w ? lanes.size() / size_t(w) : 0;
+  py::array_t<float> box({m, size_t(w), size_t(6)});
+  py::array_t<uint32_t> child({m, size_t(w)}), count({m, size_t(w)});
+  py::array_t<bool> valid({m, size_t(w)});
+  for (size_t i = 0; i < lanes.size(); ++i) {
+    for (int r = 0; r < 6; ++r) box.mutable_data()[6 * i + r] = lanes[i].box[r];
+    child.mutable_data()[i] = lanes[i].child;
+    count.mutable_data()[i] = lanes[i].count;
+    valid.mutable_data()[i] = lanes[i].valid;
+  }
+  const size_t nb = bvh.blocks().size();
+  py::array_t<float> tris({nb, size_t(4), size_t(3), size_t(3)});
+  py::array_t<int64_t> prims({nb, size_t(4)});
+  for (size_t b = 0; b < nb; ++b) {
+    for (int l = 0; l < 4; ++l) {
+      for (int r = 0; r < 9; ++r) tris.mutable_data()[(b * 4 + l) * 9 + r] = bvh.blocks()[b].v[r][l];
+      const uint32_t id = bvh.block_prims()[4 * b + l];
+      prims.mutable_data()[b * 4 + l] = id == UINT32_MAX ? -1 : int64_t(id);
+    }
+  }
+  py::dict d;
+  d["box"] = box;
+  d["child"] = child;
+  d["count"] = count;
+  d["valid"] = valid;
+  d["compact"] = bvh.compact();
+  d["triangles"] = tris;
+  d["prims"] = prims;
   return d;
 }
 
@@ -1311,6 +1347,30 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           "Spatial splits (SBVH) in the BVH builds of the next commit(): slower builds, fewer "
           "triangle and node tests on long thin triangles (final renders). Default off.")
+      .def_property(
+          "compact_bvh",
+          [](const PyScene& self) {
+            switch (self.scene->compact_bvh()) {
+              case Scene::CompactBvh::On: return "on";
+              case Scene::CompactBvh::Off: return "off";
+              default: return "auto";
+            }
+          },
+          [](PyScene& self, const std::string& v) {
+            self.check_editable();
+            if (v == "auto") self.scene->set_compact_bvh(Scene::CompactBvh::Auto);
+            else if (v == "on") self.scene->set_compact_bvh(Scene::CompactBvh::On);
+            else if (v == "off") self.scene->set_compact_bvh(Scene::CompactBvh::Off);
+            else throw std::invalid_argument("compact_bvh must be 'auto', 'on' or 'off'");
+          },
+          "Compressed (quantised) wide BVH nodes from the next commit(): 'on', 'off' or 'auto' "
+          "(the default: on for BLASes of 8M triangles or more, where memory matters more than the "
+          "few percent more work per ray). Same hits.")
+      .def("wide_bvh_nodes", &wide_bvh_nodes,
+           "The largest BLAS's wide tree for tests: dict of box (M, N, 6: lo x, hi x, lo y, hi y, "
+           "lo z, hi z; compressed nodes dequantised as the traversal computes them), child, count "
+           "(M, N uint32), valid (M, N bool), compact, and the leaves' triangles (B, 4, 3, 3: "
+           "block, lane, vertex, axis) with their input indices prims (B, 4; -1 unused).")
       .def_property(
           "dynamic", [](const PyScene& self) { return self.scene->dynamic(); },
           [](PyScene& self, bool on) {

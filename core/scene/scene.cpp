@@ -118,7 +118,8 @@ void Scene::set_instance_transform(uint32_t index, const Mat4& m) {
 bool Scene::commit(int threads, BvhLayout layout) {
   cancel_.store(false);
   committed_ = false;
-  if (geometry_dirty_ || layout != built_layout_ || spatial_splits_ != built_spatial_splits_) {
+  if (geometry_dirty_ || layout != built_layout_ || spatial_splits_ != built_spatial_splits_ ||
+      compact_bvh_ != built_compact_bvh_) {
     if (!build_geometry(threads, layout)) return false;
   } else if (top_dirty_) {
     build_instances();
@@ -295,6 +296,8 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   largest_blas_ = 0;
   size_t blas_tris = 0, blas_refs = 0;
   for (size_t k = 0; k < blases_.size(); ++k) {
+    opt.compact = compact_bvh_ == CompactBvh::On ||
+                  (compact_bvh_ == CompactBvh::Auto && blases_[k].tris.size() >= kCompactAutoTriangles);
     if (!blases_[k].bvh.build(blases_[k].tris, opt)) {  // only a cancel makes it fail
       cancelled();
       return false;
@@ -316,6 +319,7 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   geometry_dirty_ = false;
   built_layout_ = layout;
   built_spatial_splits_ = spatial_splits_;
+  built_compact_bvh_ = compact_bvh_;
   ++stats_.geometry_builds;
   return true;
 }

@@ -147,6 +147,17 @@ class Scene {
     spatial_splits_ = on;
   }
   bool spatial_splits() const { return spatial_splits_; }
+  // Compressed (quantised) wide BVH nodes (BvhBuildOptions::compact): half the node memory,
+  // the same hits, more instructions per ray. Auto: for BLASes of at least
+  // kCompactAutoTriangles triangles (float nodes over 64 MB), where memory matters more.
+  // Changing it rebuilds the geometry.
+  enum class CompactBvh : uint8_t { Auto, Off, On };
+  static constexpr size_t kCompactAutoTriangles = size_t(1) << 23;
+  void set_compact_bvh(CompactBvh c) {
+    if (c != compact_bvh_) committed_ = false;
+    compact_bvh_ = c;
+  }
+  CompactBvh compact_bvh() const { return compact_bvh_; }
   // Live edits (viewport): replace material `id` (not the default 0) or drop every analytic
   // light; the next commit() then rebuilds only the light distribution, not the BVH.
   void set_material(uint32_t id, Material m);
@@ -318,6 +329,7 @@ class Scene {
   bool dynamic_ = false;
   BvhLayout built_layout_ = BvhLayout::Auto;
   bool spatial_splits_ = false, built_spatial_splits_ = false;
+  CompactBvh compact_bvh_ = CompactBvh::Auto, built_compact_bvh_ = CompactBvh::Auto;
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
   bool emitter_groups_ = true;

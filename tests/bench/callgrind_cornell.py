@@ -1,7 +1,7 @@
 """Instruction counts per sample of the Cornell box fixture's replica, for callgrind:
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \
-        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--dynamic] [--no-rect] [--size 64] [--spp 16]
+        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--dynamic] [--no-rect] [--compact auto|on|off] [--size 64] [--spp 16]
 
 Only the render itself is instrumented (callgrind_control switches instrumentation on and off
 around it), so the counts are of the render: one thread, a fixed seed. PL_CORE_DIR=<dir> imports
@@ -24,6 +24,8 @@ ap.add_argument("--transformed", action="store_true",
                 help="each object's mesh in object space (centred, turned) under a matrix, as Blender objects are")
 ap.add_argument("--no-rect", action="store_true",
                 help="the quad light as two spherical triangles (Scene.rect_groups off), as before rectangle groups")
+ap.add_argument("--compact", choices=("auto", "on", "off"), default="auto",
+                help="Scene.compact_bvh: compressed (quantised) wide BVH nodes")
 ap.add_argument("--size", type=int, default=64)
 ap.add_argument("--spp", type=int, default=16)
 a = ap.parse_args()
@@ -58,6 +60,8 @@ if a.dynamic:
     scene.dynamic = True
 if a.no_rect:
     scene.rect_groups = False
+if hasattr(scene, "compact_bvh"):
+    scene.compact_bvh = a.compact
 scene.commit()
 st = settings(pc, a.size, a.size, a.spp, threads=1)
 if a.general and hasattr(st, "force_general_kernel"):
