@@ -415,7 +415,8 @@ void Scene::update_memory_stats() {
   geo += inst_.capacity() * sizeof(InstanceData) + object_coords_.capacity() * sizeof(ObjectCoords) +
          tlas_entries_.capacity() * sizeof(TlasEntry) + instances_.capacity() * sizeof(Instance);
   for (const MeshData& m : meshes_) {
-    geo += m.positions.capacity() * sizeof(Vec3) + m.triangles.capacity() * 12 + m.corner_normals.capacity() * sizeof(Vec3) +
+    geo += m.positions.capacity() * sizeof(Vec3) + m.triangles.capacity() * 12 + m.normals.capacity() * sizeof(Vec3) +
+           m.normal_indices.capacity() * 12 +
            m.materials.capacity() * 4;
     for (const auto& uv : m.uvs) geo += uv.capacity() * sizeof(Vec2);
   }
@@ -715,11 +716,12 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
     sp.ng = normalize(in.nrow[0] * c.x + in.nrow[1] * c.y + in.nrow[2] * c.z);
   }
   sp.ns = sp.ng;
-  if (!mesh.corner_normals.empty()) {
+  if (!mesh.normals.empty()) {
+    const std::array<uint32_t, 3>& ni = mesh.normal_indices.empty() ? mesh.triangles[st] : mesh.normal_indices[st];
     Vec3 n[3];
     bool ok = true;
     for (int k = 0; k < 3 && ok; ++k) {
-      n[k] = in.normal(mesh.corner_normals[3 * size_t(st) + k]);
+      n[k] = in.normal(mesh.normals[ni[k]]);
       const float l2 = length_sq(n[k]);
       ok = std::isfinite(l2) && l2 > 0.0f;
       n[k] = n[k] / std::sqrt(l2);
