@@ -68,16 +68,25 @@ Vec3 face_normal(const PolygonMesh& m, size_t f) {
 void validate_polygon_mesh(const PolygonMesh& m) {
   if (m.faces > 0 && m.offsets == nullptr) throw std::invalid_argument("face offsets missing");
   if (m.offsets[0] != 0) throw std::invalid_argument("face offsets must start at 0");
-  for (size_t f = 0; f < m.faces; ++f)
-    if (int64_t(m.offsets[f + 1]) - int64_t(m.offsets[f]) < 3)
-      throw std::invalid_argument("face " + std::to_string(f) + " has fewer than 3 corners");
+  // Branch-free reductions first (vectorised: this runs on every export call); the loops that
+  // name the first bad entry only when one exists.
+  int64_t smallest = 3;
+  for (size_t f = 0; f < m.faces; ++f) smallest = std::min(smallest, int64_t(m.offsets[f + 1]) - int64_t(m.offsets[f]));
+  if (smallest < 3)
+    for (size_t f = 0; f < m.faces; ++f)
+      if (int64_t(m.offsets[f + 1]) - int64_t(m.offsets[f]) < 3)
+        throw std::invalid_argument("face " + std::to_string(f) + " has fewer than 3 corners");
   if (size_t(m.offsets[m.faces]) != m.corners)
     throw std::invalid_argument("face offsets end at " + std::to_string(m.offsets[m.faces]) + ", not at the " +
                                 std::to_string(m.corners) + " corners");
-  for (size_t c = 0; c < m.corners; ++c)
-    if (m.corner_verts[c] < 0 || size_t(m.corner_verts[c]) >= m.vertices)
-      throw std::invalid_argument("corner vertex " + std::to_string(m.corner_verts[c]) + " out of range for " +
-                                  std::to_string(m.vertices) + " vertices");
+  // As unsigned, negative vertex indices are out of range too.
+  uint32_t largest = 0;
+  for (size_t c = 0; c < m.corners; ++c) largest = std::max(largest, uint32_t(m.corner_verts[c]));
+  if (m.corners > 0 && size_t(largest) >= m.vertices)
+    for (size_t c = 0; c < m.corners; ++c)
+      if (m.corner_verts[c] < 0 || size_t(m.corner_verts[c]) >= m.vertices)
+        throw std::invalid_argument("corner vertex " + std::to_string(m.corner_verts[c]) + " out of range for " +
+                                    std::to_string(m.vertices) + " vertices");
 }
 
 size_t polygon_mesh_triangles(const PolygonMesh& m) { return m.corners - 2 * m.faces; }
