@@ -144,44 +144,12 @@ bool polygon_offsets_from_triangle_faces(const int32_t* tri_faces, size_t tris, 
 }
 
 namespace {
-// Face normals and each corner's angle weight.
-void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::vector<float>& weight, int threads) {
-  fn.resize(m.faces);
-  weight.resize(m.corners);
-  // Face normals and each corner's angle, face by face. Each edge's unit direction serves both
-  // corners it touches: normalize(p - q) is exactly -normalize(q - p), and so are the dots.
-  parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
-    std::vector<Vec3> edge;
-    for (size_t f = begin; f < end; ++f) {
-      fn[f] = face_normal(m, f);
-      const int32_t b = m.offsets[f], e = m.offsets[f + 1], n = e - b;
-      edge.resize(size_t(n));
-      for (int32_t k = 0; k < n; ++k) {
-        const int32_t next = k + 1 == n ? b : b + k + 1;
-        edge[size_t(k)] = normalize_div(m.positions[m.corner_verts[next]] - m.positions[m.corner_verts[b + k]]);
-      }
-      for (int32_t k = 0; k < n; ++k) {
-        // The face's first corner at this vertex, as Blender's face_find_adjacent_verts finds
-        // it (another one only where a face visits a vertex twice).
-        const int32_t v = m.corner_verts[b + k];
-        int32_t first = 0;
-        while (m.corner_verts[b + first] != v) ++first;
-        const Vec3 in = edge[size_t(first == 0 ? n - 1 : first - 1)], out_dir = edge[size_t(first)];
-        weight[size_t(b + k)] = safe_acos_approx(-dot(in, out_dir));
-      }
-    }
-  });
-}
-}  // namespace
-
-namespace {
 #if defined(__SSE2__)
 // add_face_normal for a triangle or quad of distinct vertices: its edges' normalisations and
 // corner angles four lanes at a time. Every lane does the scalar code's IEEE operations in its
 // order (division, square root, no FMA), so the normals are bit for bit the scalar ones.
 template <int N>
-inline void add_small_face_normal(const PolygonMesh& m, int32_t b, const int32_t* v, uint32_t lo, uint32_t hi,
-                                  Vec3* out, uint8_t* used) {
+inline void small_face_normal_and_weights(const PolygonMesh& m, const int32_t* v, Vec3& face_n, float* w) {
   Vec3 p[4];
   for (int k = 0; k < N; ++k) p[k] = m.positions[v[k]];
   if (N == 3) p[3] = p[2];  // an unused lane
@@ -196,7 +164,7 @@ inline void add_small_face_normal(const PolygonMesh& m, int32_t b, const int32_t
     prev = cur;
   }
   if (normalize_v3(fn) == 0.0f) fn.z = 1.0f;
-  (void)b;
+  face_n = fn;
   // Edge k runs from corner k to the next one: normalize_div(p[next] - p[k]).
   const int n1 = 1 % N, n2 = 2 % N, n3 = 3 % N;
   const __m128 x = _mm_setr_ps(p[0].x, p[1].x, p[2].x, p[3].x), y = _mm_setr_ps(p[0].y, p[1].y, p[2].y, p[3].y),
@@ -232,8 +200,24 @@ inline void add_small_face_normal(const PolygonMesh& m, int32_t b, const int32_t
   const __m128 a = _mm_mul_ps(_mm_sqrt_ps(_mm_sub_ps(one, mm)), poly);
   const __m128 neg = _mm_cmplt_ps(c, _mm_setzero_ps());
   const __m128 w4 = _mm_or_ps(_mm_and_ps(neg, _mm_sub_ps(_mm_set1_ps(3.14159265359f), a)), _mm_andnot_ps(neg, a));
+  _mm_storeu_ps(w, w4);
+}
+
+// Whether face f is a triangle or quad of distinct vertices (those take the four-lane path).
+inline int small_face(const PolygonMesh& m, size_t f) {
+  const int32_t* v = m.corner_verts + m.offsets[f];
+  const int32_t n = m.offsets[f + 1] - m.offsets[f];
+  if (n == 4 && v[0] != v[1] && v[0] != v[2] && v[0] != v[3] && v[1] != v[2] && v[1] != v[3] && v[2] != v[3]) return 4;
+  if (n == 3 && v[0] != v[1] && v[0] != v[2] && v[1] != v[2]) return 3;
+  return 0;
+}
+
+template <int N>
+inline void add_small_face_normal(const PolygonMesh& m, const int32_t* v, uint32_t lo, uint32_t hi, Vec3* out,
+                                  uint8_t* used) {
+  Vec3 fn;
   alignas(16) float w[4];
-  _mm_store_ps(w, w4);
+  small_face_normal_and_weights<N>(m, v, fn, w);
   for (int k = 0; k < N; ++k) {
     if (uint32_t(v[k]) < lo || uint32_t(v[k]) >= hi) continue;
     out[v[k]] += fn * w[k];
@@ -242,6 +226,49 @@ inline void add_small_face_normal(const PolygonMesh& m, int32_t b, const int32_t
 }
 #endif
 
+// Face normals and each corner's angle weight. lanes: triangles and quads of distinct vertices
+// four lanes at a time (the same bits; false keeps the scalar code, the tests' reference).
+void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::vector<float>& weight, int threads,
+                              bool lanes = false) {
+  fn.resize(m.faces);
+  weight.resize(m.corners);
+  // Face normals and each corner's angle, face by face. Each edge's unit direction serves both
+  // corners it touches: normalize(p - q) is exactly -normalize(q - p), and so are the dots.
+  parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
+    std::vector<Vec3> edge;
+    for (size_t f = begin; f < end; ++f) {
+#if defined(__SSE2__)
+      if (const int small = lanes ? small_face(m, f) : 0) {
+        alignas(16) float w[4];
+        const int32_t b = m.offsets[f];
+        if (small == 4) small_face_normal_and_weights<4>(m, m.corner_verts + b, fn[f], w);
+        else small_face_normal_and_weights<3>(m, m.corner_verts + b, fn[f], w);
+        for (int k = 0; k < small; ++k) weight[size_t(b + k)] = w[k];
+        continue;
+      }
+#else
+      (void)lanes;
+#endif
+      fn[f] = face_normal(m, f);
+      const int32_t b = m.offsets[f], e = m.offsets[f + 1], n = e - b;
+      edge.resize(size_t(n));
+      for (int32_t k = 0; k < n; ++k) {
+        const int32_t next = k + 1 == n ? b : b + k + 1;
+        edge[size_t(k)] = normalize_div(m.positions[m.corner_verts[next]] - m.positions[m.corner_verts[b + k]]);
+      }
+      for (int32_t k = 0; k < n; ++k) {
+        // The face's first corner at this vertex, as Blender's face_find_adjacent_verts finds
+        // it (another one only where a face visits a vertex twice).
+        const int32_t v = m.corner_verts[b + k];
+        int32_t first = 0;
+        while (m.corner_verts[b + first] != v) ++first;
+        const Vec3 in = edge[size_t(first == 0 ? n - 1 : first - 1)], out_dir = edge[size_t(first)];
+        weight[size_t(b + k)] = safe_acos_approx(-dot(in, out_dir));
+      }
+    }
+  });
+}
+
 // Adds face f's unit normal, weighted by its angle at each corner, to the normals of the
 // corners' vertices in [lo, hi) (marking them used): the same operations as
 // face_normals_and_weights followed by the sum, for one face. edge: scratch space.
@@ -249,11 +276,9 @@ inline void add_face_normal(const PolygonMesh& m, size_t f, uint32_t lo, uint32_
                             std::vector<Vec3>& edge) {
   const int32_t b = m.offsets[f], e = m.offsets[f + 1], n = e - b;
 #if defined(__SSE2__)
-  const int32_t* v = m.corner_verts + b;
-  if (n == 4 && v[0] != v[1] && v[0] != v[2] && v[0] != v[3] && v[1] != v[2] && v[1] != v[3] && v[2] != v[3])
-    return add_small_face_normal<4>(m, b, v, lo, hi, out, used);
-  if (n == 3 && v[0] != v[1] && v[0] != v[2] && v[1] != v[2])
-    return add_small_face_normal<3>(m, b, v, lo, hi, out, used);
+  if (const int small = small_face(m, f))
+    return small == 4 ? add_small_face_normal<4>(m, m.corner_verts + b, lo, hi, out, used)
+                      : add_small_face_normal<3>(m, m.corner_verts + b, lo, hi, out, used);
 #endif
   const Vec3 fn = face_normal(m, f);
   edge.resize(size_t(n));
@@ -345,13 +370,16 @@ uint32_t find_root(std::vector<uint32_t>& parent, uint32_t c) {
 
 void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, size_t edges,
                             const uint8_t* sharp_edges, const uint8_t* sharp_faces, Vec3* out, int threads) {
-  for (size_t c = 0; c < m.corners; ++c)
-    if (corner_edges[c] < 0 || size_t(corner_edges[c]) >= edges)
-      throw std::invalid_argument("corner edge " + std::to_string(corner_edges[c]) + " out of range for " +
-                                  std::to_string(edges) + " edges");
+  uint32_t largest = 0;  // as unsigned, negative edge indices are out of range too
+  for (size_t c = 0; c < m.corners; ++c) largest = std::max(largest, uint32_t(corner_edges[c]));
+  if (m.corners > 0 && size_t(largest) >= edges)
+    for (size_t c = 0; c < m.corners; ++c)
+      if (corner_edges[c] < 0 || size_t(corner_edges[c]) >= edges)
+        throw std::invalid_argument("corner edge " + std::to_string(corner_edges[c]) + " out of range for " +
+                                    std::to_string(edges) + " edges");
   std::vector<Vec3> fn;
   std::vector<float> weight;
-  face_normals_and_weights(m, fn, weight, threads);
+  face_normals_and_weights(m, fn, weight, threads, true);
   std::vector<uint32_t> face_of(m.corners), next(m.corners);
   for (size_t f = 0; f < m.faces; ++f)
     for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
