@@ -257,19 +257,14 @@ def test_triangulation_without_corner_indices(threads):
 
 def test_face_offsets_from_triangle_faces():
     """polygon_face_offsets: the faces' first corners from the face of each triangle (a face
-    of k corners has k - 2), as the add-on's numpy fallback gives them; None for triangles out
-    of face order, a face without a triangle or corners that do not add up."""
-    from blender_util import load_addon  # noqa: only for the add-on's numpy version
-    load_addon()
-    from addon.export.mesh import face_offsets
+    of k corners has k - 2); None for triangles out of face order, a face without a triangle
+    or corners that do not add up (the add-on's numpy fallback: test_export_polygons.py)."""
     pos, cv, off = awkward_mesh(30)
     sizes = np.diff(off)
     tri_faces = np.repeat(np.arange(len(sizes), dtype=np.int32), sizes - 2)
     got = pc.polygon_face_offsets(tri_faces, len(sizes), len(cv))
     assert got.dtype == np.int32
     np.testing.assert_array_equal(got, off)
-    np.testing.assert_array_equal(face_offsets(tri_faces, len(sizes), len(cv)), off)
-    np.testing.assert_array_equal(face_offsets(tri_faces, len(sizes), len(cv), pc), off)
     np.testing.assert_array_equal(pc.polygon_face_offsets(np.zeros(0, np.int32), 0, 0), [0])
     swapped = tri_faces.copy()
     swapped[[0, -1]] = swapped[[-1, 0]]

@@ -308,6 +308,13 @@ def test_face_offsets_refuse_faces_without_triangles():
     np.testing.assert_array_equal(mesh_export.face_offsets(np.array([0, 0, 1], np.int32), 2, 7), [0, 4, 7])
     assert mesh_export.face_offsets(np.array([0, 0, 2], np.int32), 3, 9) is None  # face 1: no triangle
     assert mesh_export.face_offsets(np.array([0, 0, 1], np.int32), 2, 8) is None  # corners do not add up
+    # The core's one-pass version (the export's) agrees, refusals included.
+    from addon.core import get_core
+    pc = get_core()
+    for args in (([0, 0, 1], 2, 7), ([0, 0, 2], 3, 9), ([0, 0, 1], 2, 8), ([0, 1, 1, 1, 2], 3, 11)):
+        a = mesh_export.face_offsets(np.array(args[0], np.int32), *args[1:])
+        b = mesh_export.face_offsets(np.array(args[0], np.int32), *args[1:], pc)
+        assert (a is None) == (b is None) and (a is None or np.array_equal(a, b))
 
 
 @pytest.mark.parametrize("case", ["smooth", "flat", "sharp_edges", "ngons"])
