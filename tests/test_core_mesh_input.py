@@ -1,6 +1,6 @@
 """add_mesh's index and normal inputs through the core module alone (no Blender, so the
 sanitizer build runs them): int32 index arrays read in place and other integer arrays converted
-give the same scene; shared normals (normals + normal_indices, expanded by the core) render
+give the same scene; shared normals (normals + normal_indices, kept shared by the core) render
 exactly as the expanded corner_normals; bad inputs raise ValueError and add nothing."""
 import numpy as np
 import pytest
@@ -55,6 +55,29 @@ def test_shared_normals_render_as_the_expanded_ones():
     per_face = np.repeat(np.arange(len(tris), dtype=np.int32), 3).reshape(-1, 3)
     np.testing.assert_array_equal(render_mesh(pos, tris, normals=face, normal_indices=per_face),
                                   render_mesh(pos, tris, corner_normals=np.repeat(face[:, None], 3, 1)))
+
+
+def test_per_vertex_normals_are_kept_shared():
+    """Normals indexed by the triangles' own vertex indices (the add-on's smooth meshes) are kept
+    per vertex: 36 bytes per triangle less than expanded corner normals, the same image; other
+    indices are kept as given (3 indices, not 3 normals, per triangle)."""
+    pos, tris, nrm = bumpy_grid(40)
+
+    def geometry(**kw):
+        s = pc.Scene()
+        s.add_instance(s.add_mesh(pos, tris, **kw), np.eye(4, dtype=np.float32))
+        s.commit()
+        return s.stats()["geometry_bytes"]
+    expanded = geometry(corner_normals=nrm[tris])
+    shared = geometry(normals=nrm, normal_indices=tris)
+    indexed = geometry(normals=nrm, normal_indices=tris[:, [1, 2, 0]][:, [2, 0, 1]].copy())  # equal, another array
+    corner = geometry(normals=nrm[tris].reshape(-1, 3), normal_indices=np.arange(3 * len(tris), dtype=np.int32).reshape(-1, 3))
+    n = len(tris)
+    assert expanded - shared >= 32 * n and indexed == shared
+    assert 0 < corner - (shared + 12 * len(tris) * 3 - 12 * len(pos)) <= 12 * n  # 3 normals + 3 indices per triangle
+    # Fewer normals than vertices: the triangles' indices must still be in range for them.
+    with pytest.raises(ValueError, match="normal index"):
+        pc.Scene().add_mesh(pos, tris, normals=nrm[:10], normal_indices=tris)
 
 
 def test_shared_normals_are_validated():
@@ -172,3 +195,83 @@ def test_polygon_vertex_and_corner_normals(threads):
         pc.polygon_corner_normals(pos, cv, off, ce + len(keys), len(keys))
     with pytest.raises(ValueError, match="sharp_faces"):
         pc.polygon_corner_normals(pos, cv, off, ce, len(keys), None, np.ones(3, bool))
+
+
+def shuffled(pos, cv, seed=1):
+    """The same mesh with its vertices renumbered at random (faces then use vertices from all
+    over the array) and the permutation: vertex v of the result is vertex perm[v]."""
+    perm = np.random.default_rng(seed).permutation(len(pos))
+    return pos[perm], np.argsort(perm)[cv].astype(np.int32), perm
+
+
+def awkward_mesh(n=160):
+    """A large grid (over 3 x 32768 corners, so up to three threads share the normals) with
+    triangles, n-gons, degenerate faces (a zero-area quad, a face using one vertex twice) and
+    loose vertices, as flat polygon arrays."""
+    pos, cv, off = polygon_grid(n, seed=9, spread=0.05)
+    faces = [list(cv[off[f]:off[f + 1]]) for f in range(len(off) - 1)]
+    for k in range(0, len(faces), 37):  # a triangle and a pentagon in place of two quads
+        if k + 1 < len(faces):
+            a, b = faces[k], faces[k + 1]
+            faces[k], faces[k + 1] = a[:3], [a[0], a[1], b[1], b[2], a[3]]
+    faces[5] = [faces[5][0], faces[5][1], faces[5][1], faces[5][2]]  # a vertex twice
+    pos = np.concatenate([pos, np.zeros((2, 3), np.float32), [[7.0, 7.0, 7.0]]]).astype(np.float32)
+    v = len(pos) - 3
+    faces.append([v, v + 1, v, v + 1])  # zero area: Newell gives +z
+    sizes = [len(f) for f in faces]
+    return pos, np.concatenate(faces).astype(np.int32), np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
+
+
+def test_vertex_normals_are_the_same_on_any_thread_count():
+    """Each vertex sums its faces in face order however the work is split (threads owning
+    vertex ranges of a well-numbered mesh; face normals on all threads and the sum on one
+    for scattered vertex numbers): bit for bit the same normals."""
+    pos, cv, off = awkward_mesh()
+    assert len(cv) > 3 * 32768 and (np.diff(off) > 4).any() and (np.diff(off) == 3).any()
+    one = pc.polygon_vertex_normals(pos, cv, off, 1)
+    assert np.isfinite(one).all() and np.abs(one).max() > 0.5
+    for threads in (2, 3, 0):
+        np.testing.assert_array_equal(pc.polygon_vertex_normals(pos, cv, off, threads), one)
+    spos, scv, perm = shuffled(pos, cv)
+    for threads in (1, 2):
+        np.testing.assert_array_equal(pc.polygon_vertex_normals(spos, scv, off, threads), one[perm])
+    # The corner normals without sharp edges (a separate implementation) agree with them bit for
+    # bit wherever a vertex's corners form one fan (all but a few around the odd faces).
+    nxt = np.concatenate([np.roll(cv[off[f]:off[f + 1]], -1) for f in range(len(off) - 1)])
+    keys, ce = np.unique(np.sort(np.stack([cv, nxt], 1), axis=1) @ [len(pos), 1], return_inverse=True)
+    corner = pc.polygon_corner_normals(pos, cv, off, ce.astype(np.int32), len(keys), None, None, 2)
+    interior = np.flatnonzero(np.abs(corner - one[cv]).max(1) == 0)
+    assert len(interior) > 0.9 * len(cv)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_triangulation_without_corner_indices(threads):
+    """corners=False gives the same vertex triangles and n-gon count, and no corner indices."""
+    pos, cv, off = awkward_mesh(40)
+    corners, verts, ngons = pc.triangulate_polygons(pos, cv, off, threads)
+    none, verts2, ngons2 = pc.triangulate_polygons(pos, cv, off, threads, corners=False)
+    assert none is None and ngons2 == ngons > 0
+    np.testing.assert_array_equal(verts2, verts)
+    np.testing.assert_array_equal(verts, cv[corners])
+
+
+def test_face_offsets_from_triangle_faces():
+    """polygon_face_offsets: the faces' first corners from the face of each triangle (a face
+    of k corners has k - 2); None for triangles out of face order, a face without a triangle
+    or corners that do not add up (the add-on's numpy fallback: test_export_polygons.py)."""
+    pos, cv, off = awkward_mesh(30)
+    sizes = np.diff(off)
+    tri_faces = np.repeat(np.arange(len(sizes), dtype=np.int32), sizes - 2)
+    got = pc.polygon_face_offsets(tri_faces, len(sizes), len(cv))
+    assert got.dtype == np.int32
+    np.testing.assert_array_equal(got, off)
+    np.testing.assert_array_equal(pc.polygon_face_offsets(np.zeros(0, np.int32), 0, 0), [0])
+    swapped = tri_faces.copy()
+    swapped[[0, -1]] = swapped[[-1, 0]]
+    assert pc.polygon_face_offsets(swapped, len(sizes), len(cv)) is None
+    assert pc.polygon_face_offsets(tri_faces[tri_faces != 3], len(sizes), len(cv)) is None  # face 3: none
+    assert pc.polygon_face_offsets(tri_faces, len(sizes), len(cv) + 1) is None
+    assert pc.polygon_face_offsets(tri_faces, len(sizes) - 1, len(cv)) is None  # a face too many
+    assert pc.polygon_face_offsets(tri_faces, len(sizes), len(cv) - 1) is None
+    with pytest.raises(ValueError):
+        pc.polygon_face_offsets(tri_faces, -1, len(cv))

@@ -308,3 +308,37 @@ def test_face_offsets_refuse_faces_without_triangles():
     np.testing.assert_array_equal(mesh_export.face_offsets(np.array([0, 0, 1], np.int32), 2, 7), [0, 4, 7])
     assert mesh_export.face_offsets(np.array([0, 0, 2], np.int32), 3, 9) is None  # face 1: no triangle
     assert mesh_export.face_offsets(np.array([0, 0, 1], np.int32), 2, 8) is None  # corners do not add up
+    # The core's one-pass version (the export's) agrees, refusals included.
+    from addon.core import get_core
+    pc = get_core()
+    for args in (([0, 0, 1], 2, 7), ([0, 0, 2], 3, 9), ([0, 0, 1], 2, 8), ([0, 1, 1, 1, 2], 3, 11)):
+        a = mesh_export.face_offsets(np.array(args[0], np.int32), *args[1:])
+        b = mesh_export.face_offsets(np.array(args[0], np.int32), *args[1:], pc)
+        assert (a is None) == (b is None) and (a is None or np.array_equal(a, b))
+
+
+@pytest.mark.parametrize("case", ["smooth", "flat", "sharp_edges", "ngons"])
+def test_corner_indices_only_when_needed(pc, case):
+    """mesh_arrays(corners=False) skips the triangles' corner indices where the normals do not
+    need them (smooth and flat meshes of triangles and quads; n-gon meshes read them from
+    Blender anyway) and gives the same arrays otherwise; slots= clamps material indices per
+    face as the per-triangle clamp did."""
+    if case == "sharp_edges":
+        me = corner_case("sharp_edges", np.random.default_rng(5))
+    else:
+        co, faces = mixed() if case == "ngons" else grid(20)
+        me = new_mesh(co, faces)
+        if case != "flat":
+            me.shade_smooth()
+    mi = me.attributes.new("material_index", 'INT', 'FACE')
+    mi.data.foreach_set("value", np.arange(len(me.polygons), dtype=np.int32) % 5 - 1)
+    full = mesh_export.mesh_arrays(me)
+    lean = mesh_export.mesh_arrays(me, corners=False, slots=3)
+    needs = case in ("sharp_edges", "ngons")
+    assert (lean[5] is None) != needs
+    for k in range(4):
+        np.testing.assert_array_equal(lean[k], full[k])
+    if needs:
+        np.testing.assert_array_equal(lean[5], full[5])
+    assert full[4].min() == -1 and full[4].max() == 3  # unclamped without slots
+    np.testing.assert_array_equal(lean[4], np.clip(full[4], 0, 2))

@@ -195,3 +195,37 @@ def test_unused_materials_add_no_features():
     s.set_world_color((0.0, 0.0, 0.0))
     s.commit()
     assert set(s.stats()["features"]) == {"diffuse", "mesh lights"}
+
+
+@pytest.mark.parametrize("instanced", [False, True])
+def test_a_material_on_one_kept_triangle_adds_its_features(instanced):
+    """Meshes of one material are checked by one scan of their material ids, others triangle by
+    triangle: glass on one triangle of a sphere counts, glass only on a dropped (degenerate)
+    triangle does not, and a mesh all of glass does."""
+    def features(material_indices, positions_edit=None):
+        s = cornell(pc)
+        s.set_world_color((0.0, 0.0, 0.0))
+        glass = shader(s, "glass", "glass", roughness=0.0, ior=1.5)
+        diffuse = shader(s, "grey", "diffuse")
+        pos, tris, nrm = uv_sphere(0.3, center=(-0.4, 0.4, 0.3))
+        if positions_edit is not None:
+            pos, tris = positions_edit(pos.copy(), tris)
+        mesh = s.add_mesh(pos, tris, None, np.asarray(material_indices(len(tris)), np.int32), [diffuse, glass])
+        for k in range(2 if instanced else 1):
+            m = np.eye(4, dtype=np.float32)
+            m[0, 3] = 0.1 * k
+            s.add_instance(mesh, m)
+        s.commit()
+        return set(s.stats()["features"])
+    assert "glass" not in features(lambda n: np.zeros(n))
+    assert "glass" in features(lambda n: np.ones(n))
+    one = lambda n: np.eye(1, n, n // 2)[0]  # noqa: E731  glass on triangle n // 2 only
+    assert "glass" in features(one)
+
+    def degenerate_middle(pos, tris):  # triangle n // 2 collapsed to a point: dropped
+        t = tris[len(tris) // 2]
+        pos = np.concatenate([pos, pos[t[:1]]])
+        tris = tris.copy()
+        tris[len(tris) // 2] = len(pos) - 1
+        return pos.astype(np.float32), tris
+    assert "glass" not in features(one, degenerate_middle)

@@ -76,11 +76,15 @@ def _polygon_core():
     return pc if hasattr(pc, "triangulate_polygons") else None
 
 
-def face_offsets(tri_polys, n_faces, n_corners):
+def face_offsets(tri_polys, n_faces, n_corners, pc=None):
     """int32 (F + 1,) start corner of every face (and the corner count), from the face of each
     of Blender's triangles (a face of k corners has k - 2 of them; one fast raw-array read
     instead of polygons.loop_start's per-element one); None if they do not add up or a face
-    has no triangle (an invalid mesh: then Blender's own collections are read)."""
+    has no triangle (an invalid mesh: then Blender's own collections are read). pc: the core,
+    which does it in one pass over Blender's face-ordered triangles (numpy's bincount and
+    cumsum take ~10 ms and ~14 MB of temporaries for 1M triangles)."""
+    if pc is not None and hasattr(pc, "polygon_face_offsets"):
+        return pc.polygon_face_offsets(tri_polys, n_faces, n_corners)
     sizes = np.bincount(tri_polys, minlength=n_faces)
     if len(sizes) != n_faces or (n_faces and sizes.min() == 0):  # a face of under 3 corners
         return None
@@ -92,15 +96,18 @@ def face_offsets(tri_polys, n_faces, n_corners):
     return offsets.astype(np.int32)
 
 
-def triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris):
+def triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris, corners=True):
     """(corners, triangles): int32 (T * 3,) corner index and int32 (T, 3) vertex indices of
     every triangle corner, Blender's triangulation. The core triangulates meshes of triangles
     and quads (as Blender does, tested against loop_triangles); meshes with n-gons are read from
-    Blender's loop_triangles."""
+    Blender's loop_triangles. corners=False: the core may skip the corner indices (None)."""
     if pc is not None and offsets is not None:
-        corners, triangles, ngons = pc.triangulate_polygons(positions, corner_verts, offsets)
+        if corners or not hasattr(pc, "polygon_face_offsets"):  # older cores always give corners
+            loops, triangles, ngons = pc.triangulate_polygons(positions, corner_verts, offsets)
+        else:
+            loops, triangles, ngons = pc.triangulate_polygons(positions, corner_verts, offsets, corners=False)
         if not ngons:
-            return corners.reshape(-1), triangles
+            return (loops.reshape(-1) if loops is not None else None), triangles
     # Meshes with n-gons (Blender's polyfill + beautify is not reproduced by the core): the
     # whole triangulation, read through RNA one element at a time (about 0.14 s for 1M
     # triangles); patching only the n-gons' triangles would need a per-element Python loop.
@@ -109,9 +116,11 @@ def triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris):
     return loops, corner_verts[loops].reshape(-1, 3)
 
 
-def mesh_arrays(mesh):
+def mesh_arrays(mesh, corners=True, slots=None):
     """(positions, triangles, normals, normal_indices, material_indices, corners) of a bpy Mesh,
-    via foreach_get; corners: int32 (T * 3,) corner (loop) index of every triangle corner.
+    via foreach_get; corners: int32 (T * 3,) corner (loop) index of every triangle corner, or
+    None when corners=False and the normals do not need them (only UV maps do then).
+    slots: the number of material slots; indices beyond them are clamped to the last one.
 
     Everything is read from the mesh's raw arrays (positions, corner vertices, the face of each
     triangle, material indices, corner edges, sharp flags): triangles and quads are
@@ -120,7 +129,7 @@ def mesh_arrays(mesh):
     (face-domain) normals and custom normals come from Blender's own (per-element or lazily
     computed) collections.
     Normals stay as stored (per vertex, face or corner) with an index per triangle corner, and
-    the core expands them: no per-corner gather in numpy (bench_export.py)."""
+    the core keeps them shared: no per-corner gather in numpy (bench_export.py)."""
     mesh.calc_loop_triangles()
     n_tris = len(mesh.loop_triangles)
     n_corners = len(mesh.loops)
@@ -135,16 +144,21 @@ def mesh_arrays(mesh):
         corner_verts = np.empty(n_corners, np.int32)
         mesh.loops.foreach_get("vertex_index", corner_verts)
     pc = _polygon_core()
-    offsets = face_offsets(tri_polys, n_faces, n_corners) if pc is not None else None
-    loops, triangles = triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris)
-
-    poly_materials = _int_attribute(mesh, "material_index", n_faces)
-    material_indices = (poly_materials[tri_polys] if poly_materials is not None
-                        else np.zeros(n_tris, np.int32))
-
+    offsets = face_offsets(tri_polys, n_faces, n_corners, pc) if pc is not None else None
     # Per-corner normals encode smooth/flat faces, sharp edges and custom normals; when the mesh
     # says its normals live on points or faces, those (cheaper) arrays give the same vectors.
     domain = mesh.normals_domain
+    loops, triangles = triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris,
+                                        corners or domain not in ('POINT', 'FACE'))
+
+    poly_materials = _int_attribute(mesh, "material_index", n_faces)
+    if poly_materials is None:
+        material_indices = np.zeros(n_tris, np.int32)
+    else:
+        if slots is not None:  # per face, before the per-triangle gather
+            np.clip(poly_materials, 0, max(slots - 1, 0), out=poly_materials)
+        material_indices = poly_materials[tri_polys]
+
     if domain == 'POINT':
         if offsets is not None:  # Blender's formula, multi-threaded (Blender's: ~80 ms per 1M)
             normals = pc.polygon_vertex_normals(positions, corner_verts, offsets)
@@ -252,16 +266,18 @@ def mesh_data(obj, mesh, materials, uv_names=None):
     None when it has no faces."""
     if mesh is None or len(mesh.polygons) == 0:
         return None
-    positions, triangles, normals, normal_indices, material_indices, loops = mesh_arrays(mesh)
     if not materials:
         materials = list(mesh.materials)
-    uvs, missing = mesh_uvs(mesh, uv_names(materials), loops) if uv_names else ({}, [])
+    names = uv_names(materials) if uv_names else {}
+    # Blender and Cycles clamp out-of-range material indices to the last slot. Triangle corner
+    # indices only for UV maps (and corner normals): 12 bytes per triangle less otherwise.
+    positions, triangles, normals, normal_indices, material_indices, loops = mesh_arrays(
+        mesh, corners=bool(names), slots=len(materials))
+    uvs, missing = mesh_uvs(mesh, names, loops) if names else ({}, [])
     # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
     # non-finite vertices make it non-finite: then the core's own box of the finite ones.
     texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
     if not np.isfinite(texspace).all():
         texspace = None
-    # Blender and Cycles clamp out-of-range material indices to the last slot.
-    np.clip(material_indices, 0, max(len(materials) - 1, 0), out=material_indices)
     return MeshData(obj.original.name, positions, triangles, normals, normal_indices, material_indices, materials,
                     uvs=uvs, missing_uv_maps=missing, texspace=texspace)

@@ -2,6 +2,10 @@
 
 #include "util/parallel.h"
 
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
+
 #include <algorithm>
 #include <atomic>
 #include <stdexcept>
@@ -11,6 +15,9 @@
 
 namespace pl {
 namespace {
+
+// Below this many corners per thread, polygon work stays on fewer threads.
+constexpr size_t kMinCornersPerThread = 32768;
 
 // Blender's float normalisation: multiply by the reciprocal length, zero below 1e-35.
 inline float normalize_v3(Vec3& v) {
@@ -61,16 +68,25 @@ Vec3 face_normal(const PolygonMesh& m, size_t f) {
 void validate_polygon_mesh(const PolygonMesh& m) {
   if (m.faces > 0 && m.offsets == nullptr) throw std::invalid_argument("face offsets missing");
   if (m.offsets[0] != 0) throw std::invalid_argument("face offsets must start at 0");
-  for (size_t f = 0; f < m.faces; ++f)
-    if (int64_t(m.offsets[f + 1]) - int64_t(m.offsets[f]) < 3)
-      throw std::invalid_argument("face " + std::to_string(f) + " has fewer than 3 corners");
+  // Branch-free reductions first (vectorised: this runs on every export call); the loops that
+  // name the first bad entry only when one exists.
+  int64_t smallest = 3;
+  for (size_t f = 0; f < m.faces; ++f) smallest = std::min(smallest, int64_t(m.offsets[f + 1]) - int64_t(m.offsets[f]));
+  if (smallest < 3)
+    for (size_t f = 0; f < m.faces; ++f)
+      if (int64_t(m.offsets[f + 1]) - int64_t(m.offsets[f]) < 3)
+        throw std::invalid_argument("face " + std::to_string(f) + " has fewer than 3 corners");
   if (size_t(m.offsets[m.faces]) != m.corners)
     throw std::invalid_argument("face offsets end at " + std::to_string(m.offsets[m.faces]) + ", not at the " +
                                 std::to_string(m.corners) + " corners");
-  for (size_t c = 0; c < m.corners; ++c)
-    if (m.corner_verts[c] < 0 || size_t(m.corner_verts[c]) >= m.vertices)
-      throw std::invalid_argument("corner vertex " + std::to_string(m.corner_verts[c]) + " out of range for " +
-                                  std::to_string(m.vertices) + " vertices");
+  // As unsigned, negative vertex indices are out of range too.
+  uint32_t largest = 0;
+  for (size_t c = 0; c < m.corners; ++c) largest = std::max(largest, uint32_t(m.corner_verts[c]));
+  if (m.corners > 0 && size_t(largest) >= m.vertices)
+    for (size_t c = 0; c < m.corners; ++c)
+      if (m.corner_verts[c] < 0 || size_t(m.corner_verts[c]) >= m.vertices)
+        throw std::invalid_argument("corner vertex " + std::to_string(m.corner_verts[c]) + " out of range for " +
+                                    std::to_string(m.vertices) + " vertices");
 }
 
 size_t polygon_mesh_triangles(const PolygonMesh& m) { return m.corners - 2 * m.faces; }
@@ -79,9 +95,16 @@ size_t triangulate_polygons(const PolygonMesh& m, uint32_t* out, uint32_t* verts
   std::atomic<size_t> total{0};
   parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
     size_t n = 0;
+    // Triangle `tri` from corners (a, b, c): its corner indices and/or its vertex indices.
+    const auto emit = [&](size_t tri, uint32_t a, uint32_t b, uint32_t c) {
+      if (out != nullptr) out[3 * tri] = a, out[3 * tri + 1] = b, out[3 * tri + 2] = c;
+      if (verts != nullptr)
+        verts[3 * tri] = uint32_t(m.corner_verts[a]), verts[3 * tri + 1] = uint32_t(m.corner_verts[b]),
+                    verts[3 * tri + 2] = uint32_t(m.corner_verts[c]);
+    };
     for (size_t f = begin; f < end; ++f) {
       const uint32_t b = uint32_t(m.offsets[f]), size = uint32_t(m.offsets[f + 1]) - b;
-      uint32_t* t = out + 3 * (size_t(b) - 2 * f);
+      const size_t t = size_t(b) - 2 * f;
       if (size == 4) {
         // Blender's is_quad_flip_v3_first_third_fast: do triangles (0 1 2) and (0 2 3) face
         // away from each other? Same operations in the same order (no FMA: -ffp-contract=off).
@@ -89,28 +112,124 @@ size_t triangulate_polygons(const PolygonMesh& m, uint32_t* out, uint32_t* verts
                    v3 = m.positions[m.corner_verts[b + 2]], v4 = m.positions[m.corner_verts[b + 3]];
         const Vec3 d12 = v2 - v1, d13 = v3 - v1, d14 = v4 - v1;
         if (dot(cross(d12, d13), cross(d14, d13)) > 0.0f) {
-          t[0] = b, t[1] = b + 1, t[2] = b + 3;
-          t[3] = b + 1, t[4] = b + 2, t[5] = b + 3;
+          emit(t, b, b + 1, b + 3);
+          emit(t + 1, b + 1, b + 2, b + 3);
         } else {
-          t[0] = b, t[1] = b + 1, t[2] = b + 2;
-          t[3] = b, t[4] = b + 2, t[5] = b + 3;
+          emit(t, b, b + 1, b + 2);
+          emit(t + 1, b, b + 2, b + 3);
         }
       } else {
         n += size > 4;
-        for (uint32_t k = 0; k + 2 < size; ++k) t[3 * k] = b, t[3 * k + 1] = b + k + 1, t[3 * k + 2] = b + k + 2;
+        for (uint32_t k = 0; k + 2 < size; ++k) emit(t + k, b, b + k + 1, b + k + 2);
       }
-      if (verts != nullptr)
-        for (size_t k = size_t(b) - 2 * f, e = k + size_t(size) - 2; k < e; ++k)
-          for (int j = 0; j < 3; ++j) verts[3 * k + j] = uint32_t(m.corner_verts[out[3 * k + j]]);
     }
     total.fetch_add(n);
   });
   return total.load();
 }
 
+bool polygon_offsets_from_triangle_faces(const int32_t* tri_faces, size_t tris, size_t faces, size_t corners,
+                                         int32_t* offsets) {
+  if (corners > size_t(INT32_MAX)) return false;
+  offsets[0] = 0;
+  size_t t = 0;
+  for (size_t f = 0; f < faces; ++f) {
+    const size_t first = t;
+    while (t < tris && tri_faces[t] == int32_t(f)) ++t;
+    const size_t next = size_t(offsets[f]) + (t - first) + 2;
+    if (t == first || next > corners) return false;  // a face without a triangle, or too many corners
+    offsets[f + 1] = int32_t(next);
+  }
+  return t == tris && size_t(offsets[faces]) == corners;
+}
+
 namespace {
-// Face normals and each corner's angle weight.
-void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::vector<float>& weight, int threads) {
+#if defined(__SSE2__)
+// add_face_normal for a triangle or quad of distinct vertices: its edges' normalisations and
+// corner angles four lanes at a time. Every lane does the scalar code's IEEE operations in its
+// order (division, square root, no FMA), so the normals are bit for bit the scalar ones.
+template <int N>
+inline void small_face_normal_and_weights(const PolygonMesh& m, const int32_t* v, Vec3& face_n, float* w) {
+  Vec3 p[4];
+  for (int k = 0; k < N; ++k) p[k] = m.positions[v[k]];
+  if (N == 3) p[3] = p[2];  // an unused lane
+  // Newell's normal, as face_normal.
+  Vec3 fn(0.0f);
+  Vec3 prev = p[N - 1];
+  for (int k = 0; k < N; ++k) {
+    const Vec3 cur = p[k];
+    fn.x += (prev.y - cur.y) * (prev.z + cur.z);
+    fn.y += (prev.z - cur.z) * (prev.x + cur.x);
+    fn.z += (prev.x - cur.x) * (prev.y + cur.y);
+    prev = cur;
+  }
+  if (normalize_v3(fn) == 0.0f) fn.z = 1.0f;
+  face_n = fn;
+  // Edge k runs from corner k to the next one: normalize_div(p[next] - p[k]).
+  const int n1 = 1 % N, n2 = 2 % N, n3 = 3 % N;
+  const __m128 x = _mm_setr_ps(p[0].x, p[1].x, p[2].x, p[3].x), y = _mm_setr_ps(p[0].y, p[1].y, p[2].y, p[3].y),
+               z = _mm_setr_ps(p[0].z, p[1].z, p[2].z, p[3].z);
+  const __m128 ex0 = _mm_sub_ps(_mm_setr_ps(p[n1].x, p[n2].x, p[n3].x, p[0].x), x),
+               ey0 = _mm_sub_ps(_mm_setr_ps(p[n1].y, p[n2].y, p[n3].y, p[0].y), y),
+               ez0 = _mm_sub_ps(_mm_setr_ps(p[n1].z, p[n2].z, p[n3].z, p[0].z), z);
+  const __m128 d = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ex0, ex0), _mm_mul_ps(ey0, ey0)), _mm_mul_ps(ez0, ez0));
+  const __m128 ok = _mm_cmpgt_ps(d, _mm_set1_ps(1.0e-35f));
+  const __m128 len = _mm_sqrt_ps(d);
+  const __m128 ex = _mm_and_ps(ok, _mm_div_ps(ex0, len)), ey = _mm_and_ps(ok, _mm_div_ps(ey0, len)),
+               ez = _mm_and_ps(ok, _mm_div_ps(ez0, len));
+  // The edge into corner k: edge N - 1 for corner 0, else edge k - 1.
+  __m128 ix, iy, iz;
+  if (N == 4) {
+    ix = _mm_shuffle_ps(ex, ex, _MM_SHUFFLE(2, 1, 0, 3));
+    iy = _mm_shuffle_ps(ey, ey, _MM_SHUFFLE(2, 1, 0, 3));
+    iz = _mm_shuffle_ps(ez, ez, _MM_SHUFFLE(2, 1, 0, 3));
+  } else {
+    ix = _mm_shuffle_ps(ex, ex, _MM_SHUFFLE(3, 1, 0, 2));
+    iy = _mm_shuffle_ps(ey, ey, _MM_SHUFFLE(3, 1, 0, 2));
+    iz = _mm_shuffle_ps(ez, ez, _MM_SHUFFLE(3, 1, 0, 2));
+  }
+  // safe_acos_approx(-dot(in, out)).
+  const __m128 sign = _mm_set1_ps(-0.0f), one = _mm_set1_ps(1.0f);
+  const __m128 c = _mm_xor_ps(sign, _mm_add_ps(_mm_add_ps(_mm_mul_ps(ix, ex), _mm_mul_ps(iy, ey)), _mm_mul_ps(iz, ez)));
+  const __m128 f = _mm_andnot_ps(sign, c);
+  const __m128 lt = _mm_cmplt_ps(f, one);
+  const __m128 mm = _mm_or_ps(_mm_and_ps(lt, _mm_sub_ps(one, _mm_sub_ps(one, f))), _mm_andnot_ps(lt, one));
+  __m128 poly = _mm_add_ps(_mm_set1_ps(0.077980478f), _mm_mul_ps(mm, _mm_set1_ps(-0.02164095f)));
+  poly = _mm_add_ps(_mm_set1_ps(-0.213300989f), _mm_mul_ps(mm, poly));
+  poly = _mm_add_ps(_mm_set1_ps(1.5707963267f), _mm_mul_ps(mm, poly));
+  const __m128 a = _mm_mul_ps(_mm_sqrt_ps(_mm_sub_ps(one, mm)), poly);
+  const __m128 neg = _mm_cmplt_ps(c, _mm_setzero_ps());
+  const __m128 w4 = _mm_or_ps(_mm_and_ps(neg, _mm_sub_ps(_mm_set1_ps(3.14159265359f), a)), _mm_andnot_ps(neg, a));
+  _mm_storeu_ps(w, w4);
+}
+
+// Whether face f is a triangle or quad of distinct vertices (those take the four-lane path).
+inline int small_face(const PolygonMesh& m, size_t f) {
+  const int32_t* v = m.corner_verts + m.offsets[f];
+  const int32_t n = m.offsets[f + 1] - m.offsets[f];
+  if (n == 4 && v[0] != v[1] && v[0] != v[2] && v[0] != v[3] && v[1] != v[2] && v[1] != v[3] && v[2] != v[3]) return 4;
+  if (n == 3 && v[0] != v[1] && v[0] != v[2] && v[1] != v[2]) return 3;
+  return 0;
+}
+
+template <int N>
+inline void add_small_face_normal(const PolygonMesh& m, const int32_t* v, uint32_t lo, uint32_t hi, Vec3* out,
+                                  uint8_t* used) {
+  Vec3 fn;
+  alignas(16) float w[4];
+  small_face_normal_and_weights<N>(m, v, fn, w);
+  for (int k = 0; k < N; ++k) {
+    if (uint32_t(v[k]) < lo || uint32_t(v[k]) >= hi) continue;
+    out[v[k]] += fn * w[k];
+    used[size_t(v[k])] = 1;
+  }
+}
+#endif
+
+// Face normals and each corner's angle weight. lanes: triangles and quads of distinct vertices
+// four lanes at a time (the same bits; false keeps the scalar code, the tests' reference).
+void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::vector<float>& weight, int threads,
+                              bool lanes = false) {
   fn.resize(m.faces);
   weight.resize(m.corners);
   // Face normals and each corner's angle, face by face. Each edge's unit direction serves both
@@ -118,6 +237,18 @@ void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::
   parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
     std::vector<Vec3> edge;
     for (size_t f = begin; f < end; ++f) {
+#if defined(__SSE2__)
+      if (const int small = lanes ? small_face(m, f) : 0) {
+        alignas(16) float w[4];
+        const int32_t b = m.offsets[f];
+        if (small == 4) small_face_normal_and_weights<4>(m, m.corner_verts + b, fn[f], w);
+        else small_face_normal_and_weights<3>(m, m.corner_verts + b, fn[f], w);
+        for (int k = 0; k < small; ++k) weight[size_t(b + k)] = w[k];
+        continue;
+      }
+#else
+      (void)lanes;
+#endif
       fn[f] = face_normal(m, f);
       const int32_t b = m.offsets[f], e = m.offsets[f + 1], n = e - b;
       edge.resize(size_t(n));
@@ -137,21 +268,94 @@ void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::
     }
   });
 }
+
+// Adds face f's unit normal, weighted by its angle at each corner, to the normals of the
+// corners' vertices in [lo, hi) (marking them used): the same operations as
+// face_normals_and_weights followed by the sum, for one face. edge: scratch space.
+inline void add_face_normal(const PolygonMesh& m, size_t f, uint32_t lo, uint32_t hi, Vec3* out, uint8_t* used,
+                            std::vector<Vec3>& edge) {
+  const int32_t b = m.offsets[f], e = m.offsets[f + 1], n = e - b;
+#if defined(__SSE2__)
+  if (const int small = small_face(m, f))
+    return small == 4 ? add_small_face_normal<4>(m, m.corner_verts + b, lo, hi, out, used)
+                      : add_small_face_normal<3>(m, m.corner_verts + b, lo, hi, out, used);
+#endif
+  const Vec3 fn = face_normal(m, f);
+  edge.resize(size_t(n));
+  for (int32_t k = 0; k < n; ++k) {
+    const int32_t next = k + 1 == n ? b : b + k + 1;
+    edge[size_t(k)] = normalize_div(m.positions[m.corner_verts[next]] - m.positions[m.corner_verts[b + k]]);
+  }
+  for (int32_t k = 0; k < n; ++k) {
+    const int32_t v = m.corner_verts[b + k];
+    if (uint32_t(v) < lo || uint32_t(v) >= hi) continue;
+    int32_t first = 0;
+    while (m.corner_verts[b + first] != v) ++first;
+    const Vec3 in = edge[size_t(first == 0 ? n - 1 : first - 1)], out_dir = edge[size_t(first)];
+    out[v] += fn * safe_acos_approx(-dot(in, out_dir));
+    used[size_t(v)] = 1;
+  }
+}
 }  // namespace
 
 void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
-  std::vector<Vec3> fn;
-  std::vector<float> weight;
-  face_normals_and_weights(m, fn, weight, threads);
-  // Sums in face order per vertex, as Blender's vertex-to-face map orders them.
+  // Every vertex sums its faces' weighted normals in face order (as Blender's vertex-to-face
+  // map orders them), so the result is the same on any number of threads: each thread owns a
+  // range of vertices and walks the faces in order, adding only to its own vertices.
   std::fill(out, out + m.vertices, Vec3(0.0f));
-  std::vector<char> used(m.vertices, 0);
-  for (size_t f = 0; f < m.faces; ++f)
-    for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
-      const int32_t v = m.corner_verts[c];
-      out[v] += fn[f] * weight[size_t(c)];
-      used[size_t(v)] = 1;
+  std::vector<uint8_t> used(m.vertices, 0);
+  const size_t hw = threads > 0 ? size_t(threads) : std::max(1u, std::thread::hardware_concurrency());
+  const size_t parts = std::min(hw, std::max<size_t>(1, m.corners / kMinCornersPerThread));
+  std::vector<Vec3> edge;
+  const uint32_t all = UINT32_MAX;
+  if (parts <= 1) {
+    for (size_t f = 0; f < m.faces; ++f) add_face_normal(m, f, 0, all, out, used.data(), edge);
+  } else {
+    // Blocks of faces and the range of vertices each uses: a thread skips the blocks that
+    // never reach its vertices (meshes usually number faces and vertices in similar orders).
+    constexpr size_t kBlock = 512;
+    const size_t blocks = (m.faces + kBlock - 1) / kBlock;
+    std::vector<uint32_t> block_lo(blocks), block_hi(blocks);
+    parallel_ranges(blocks, int(parts), [&](size_t begin, size_t end) {
+      for (size_t k = begin; k < end; ++k) {
+        uint32_t lo = UINT32_MAX, hi = 0;
+        for (int32_t c = m.offsets[k * kBlock], e = m.offsets[std::min(m.faces, (k + 1) * kBlock)]; c < e; ++c) {
+          lo = std::min(lo, uint32_t(m.corner_verts[c]));
+          hi = std::max(hi, uint32_t(m.corner_verts[c]));
+        }
+        block_lo[k] = lo, block_hi[k] = hi;
+      }
+    }, 64);
+    const auto part_lo = [&](size_t p) { return uint32_t(m.vertices * p / parts); };
+    size_t visits = 0;
+    for (size_t p = 0; p < parts; ++p)
+      for (size_t k = 0; k < blocks; ++k) visits += block_lo[k] < part_lo(p + 1) && block_hi[k] >= part_lo(p);
+    if (visits * 4 <= blocks * 5) {  // at most 25 % of the faces done twice
+      parallel_ranges(parts, int(parts), [&](size_t begin, size_t end) {
+        std::vector<Vec3> scratch;
+        for (size_t p = begin; p < end; ++p) {
+          const uint32_t lo = part_lo(p), hi = part_lo(p + 1);
+          for (size_t k = 0; k < blocks; ++k) {
+            if (block_lo[k] >= hi || block_hi[k] < lo) continue;
+            for (size_t f = k * kBlock, e = std::min(m.faces, (k + 1) * kBlock); f < e; ++f)
+              add_face_normal(m, f, lo, hi, out, used.data(), scratch);
+          }
+        }
+      }, 1);
+    } else {
+      // Vertices scattered over the faces: face normals and corner weights on all threads,
+      // summed on one.
+      std::vector<Vec3> fn;
+      std::vector<float> weight;
+      face_normals_and_weights(m, fn, weight, threads);
+      for (size_t f = 0; f < m.faces; ++f)
+        for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
+          const int32_t v = m.corner_verts[c];
+          out[v] += fn[f] * weight[size_t(c)];
+          used[size_t(v)] = 1;
+        }
     }
+  }
   parallel_ranges(m.vertices, threads, [&](size_t begin, size_t end) {
     for (size_t v = begin; v < end; ++v) out[v] = normalize_div(used[v] ? out[v] : m.positions[v]);
   });
@@ -166,13 +370,16 @@ uint32_t find_root(std::vector<uint32_t>& parent, uint32_t c) {
 
 void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, size_t edges,
                             const uint8_t* sharp_edges, const uint8_t* sharp_faces, Vec3* out, int threads) {
-  for (size_t c = 0; c < m.corners; ++c)
-    if (corner_edges[c] < 0 || size_t(corner_edges[c]) >= edges)
-      throw std::invalid_argument("corner edge " + std::to_string(corner_edges[c]) + " out of range for " +
-                                  std::to_string(edges) + " edges");
+  uint32_t largest = 0;  // as unsigned, negative edge indices are out of range too
+  for (size_t c = 0; c < m.corners; ++c) largest = std::max(largest, uint32_t(corner_edges[c]));
+  if (m.corners > 0 && size_t(largest) >= edges)
+    for (size_t c = 0; c < m.corners; ++c)
+      if (corner_edges[c] < 0 || size_t(corner_edges[c]) >= edges)
+        throw std::invalid_argument("corner edge " + std::to_string(corner_edges[c]) + " out of range for " +
+                                    std::to_string(edges) + " edges");
   std::vector<Vec3> fn;
   std::vector<float> weight;
-  face_normals_and_weights(m, fn, weight, threads);
+  face_normals_and_weights(m, fn, weight, threads, true);
   std::vector<uint32_t> face_of(m.corners), next(m.corners);
   for (size_t f = 0; f < m.faces; ++f)
     for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {

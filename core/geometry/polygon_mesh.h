@@ -32,13 +32,21 @@ size_t polygon_mesh_triangles(const PolygonMesh& mesh);
 // and corner order as Blender's tessellation (mesh_tessellate.cc), so the exported triangles are
 // the ones Blender shows. Faces of 5 or more corners get a fan from their first corner: the
 // caller replaces those (the return value counts them; Blender's n-gon fill is not reproduced).
-// verts (optional, same size): the triangles' vertex indices.
+// out and verts (the triangles' vertex indices, same size) may each be null (not wanted).
 size_t triangulate_polygons(const PolygonMesh& mesh, uint32_t* out, uint32_t* verts = nullptr, int threads = 0);
+
+// Face offsets (faces + 1 entries) from the face of every triangle of a triangulation that lists
+// them face by face (as triangulate_polygons and Blender's loop triangles do: a face of k corners
+// has k - 2 triangles). False, with offsets unspecified, unless tri_faces is in that order, every
+// face has a triangle and the corners add up to `corners`.
+bool polygon_offsets_from_triangle_faces(const int32_t* tri_faces, size_t tris, size_t faces, size_t corners,
+                                         int32_t* offsets);
 
 // Smooth vertex normals: per vertex, the sum of its faces' unit (Newell) normals weighted by
 // the face's angle at that corner, normalised; a vertex of no face gets its normalised position.
 // The weights use the same arccos approximation as Blender's (within 5e-5 of acos), so the
-// normals agree with Blender's vertex normals to float rounding.
+// normals agree with Blender's vertex normals to float rounding. Each vertex sums in face order, so
+// the result is bit for bit the same on any number of threads.
 void polygon_vertex_normals(const PolygonMesh& mesh, Vec3* out, int threads = 0);
 
 // Per-corner normals with sharp edges and faces: corners around a vertex form smooth fans across

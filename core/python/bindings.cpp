@@ -221,11 +221,14 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
     const auto n = normals.cast<FloatArray>();
     if (n.ndim() != 3 || size_t(n.shape(0)) != nt || n.shape(1) != 3 || n.shape(2) != 3)
       throw std::invalid_argument("corner_normals must have shape (T, 3, 3)");
-    mesh.corner_normals.resize(nt * 3);
-    if (nt) std::memcpy(static_cast<void*>(mesh.corner_normals.data()), n.data(), nt * 3 * sizeof(Vec3));
+    mesh.normals.resize(nt * 3);
+    if (nt) std::memcpy(static_cast<void*>(mesh.normals.data()), n.data(), nt * 3 * sizeof(Vec3));
+    mesh.normal_indices.resize(nt);
+    for (size_t t = 0; t < nt; ++t) mesh.normal_indices[t] = {uint32_t(3 * t), uint32_t(3 * t + 1), uint32_t(3 * t + 2)};
   } else if (!shared_normals.is_none()) {
-    // Corner k of triangle t gets normals[normal_indices[t, k]]: per-vertex, per-face or
-    // per-corner normals are expanded here rather than in numpy.
+    // Corner k of triangle t gets normals[normal_indices[t, k]] (per-vertex, per-face or
+    // per-corner normals). Kept shared; indices equal to the triangles' (per-vertex normals)
+    // are not stored at all.
     const auto n = shared_normals.cast<FloatArray>();
     if (n.ndim() != 2 || n.shape(1) != 3) throw std::invalid_argument("normals must have shape (N, 3)");
     if (normal_indices.is_none()) throw std::invalid_argument("normals need normal_indices");
@@ -233,19 +236,19 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
     if (ni.ndim() != 2 || ni.shape(0) != nt || ni.shape(1) != 3)
       throw std::invalid_argument("normal_indices must have shape (T, 3)");
     const size_t nn = size_t(n.shape(0));
-    const Vec3* src = reinterpret_cast<const Vec3*>(n.data());
-    huge(mesh.corner_normals, nt * 3);
-    mesh.corner_normals.resize(nt * 3);
-    Vec3* dst = mesh.corner_normals.data();
+    bool per_vertex = true;  // the indices are the triangles' own
     ni.visit([&](const auto* p) {
-      for (size_t i = 0; i < 3 * nt; ++i) {
-        const int64_t v = int64_t(p[i]);
-        if (v < 0 || uint64_t(v) >= nn)
-          throw std::invalid_argument("normal index " + std::to_string(v) + " out of range for " + std::to_string(nn) +
-                                      " normals");
-        dst[i] = src[v];
-      }
+      const uint32_t* tri = mesh.triangles.empty() ? nullptr : mesh.triangles[0].data();
+      for (size_t i = 0; i < 3 * nt && per_vertex; ++i) per_vertex = int64_t(p[i]) == int64_t(tri[i]);
     });
+    if (!per_vertex || nn < nv) {  // stored (and checked against the normals' count)
+      huge(mesh.normal_indices, nt);
+      mesh.normal_indices.resize(nt);
+      copy_indices(ni, nt, nn, "normal", mesh.normal_indices);
+    }
+    huge(mesh.normals, nn);
+    mesh.normals.resize(nn);
+    if (nn) std::memcpy(static_cast<void*>(mesh.normals.data()), n.data(), nn * sizeof(Vec3));
   } else if (!normal_indices.is_none()) {
     throw std::invalid_argument("normal_indices need normals");
   }
@@ -915,23 +918,45 @@ PYBIND11_MODULE(pathlight_core, m) {
   };
   m.def(
       "triangulate_polygons",
-      [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads) {
+      [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads,
+                     bool want_corners) {
         const PolygonMesh pm = polygon_mesh(positions, corner_verts, offsets);
         const size_t nt = polygon_mesh_triangles(pm);
-        py::array_t<int32_t> out({py::ssize_t(nt), py::ssize_t(3)}), verts({py::ssize_t(nt), py::ssize_t(3)});
-        uint32_t* dst = reinterpret_cast<uint32_t*>(out.mutable_data());
+        py::array_t<int32_t> out, verts({py::ssize_t(nt), py::ssize_t(3)});
+        if (want_corners) out = py::array_t<int32_t>({py::ssize_t(nt), py::ssize_t(3)});
+        uint32_t* dst = want_corners ? reinterpret_cast<uint32_t*>(out.mutable_data()) : nullptr;
         uint32_t* vdst = reinterpret_cast<uint32_t*>(verts.mutable_data());
         size_t ngons;
         {
           py::gil_scoped_release release;
           ngons = triangulate_polygons(pm, dst, vdst, threads);
         }
-        return py::make_tuple(out, verts, ngons);
+        return py::make_tuple(want_corners ? py::object(out) : py::none(), verts, ngons);
       },
       py::arg("positions"), py::arg("corner_verts"), py::arg("face_offsets"), py::arg("threads") = 0,
+      py::arg("corners") = true,
       "(corners int32 (T, 3), vertices int32 (T, 3), n-gon count): the corner and vertex indices of the triangles "
       "of a polygon mesh (face f: corners face_offsets[f] to face_offsets[f + 1] - 1), face by face, quads split as "
-      "Blender does; faces of 5+ corners get a fan (counted: the caller replaces those).");
+      "Blender does; faces of 5+ corners get a fan (counted: the caller replaces those). corners=False: None "
+      "instead of the corner indices (not computed).");
+  m.def(
+      "polygon_face_offsets",
+      [](const I32Array& tri_faces, int64_t faces, int64_t corners) -> py::object {
+        if (tri_faces.ndim() != 1) throw std::invalid_argument("triangle_faces must have shape (T,)");
+        if (faces < 0 || corners < 0) throw std::invalid_argument("faces and corners must be >= 0");
+        py::array_t<int32_t> out(py::ssize_t(faces) + 1);
+        bool ok;
+        {
+          py::gil_scoped_release release;
+          ok = polygon_offsets_from_triangle_faces(tri_faces.data(), size_t(tri_faces.shape(0)), size_t(faces),
+                                                   size_t(corners), out.mutable_data());
+        }
+        return ok ? py::object(out) : py::none();
+      },
+      py::arg("triangle_faces"), py::arg("faces"), py::arg("corners"),
+      "int32 (F + 1,) face offsets (face f: corners offsets[f] to offsets[f + 1] - 1) from the face of every "
+      "triangle of a triangulation listed face by face (Blender's loop_triangle_polygons: a face of k corners has "
+      "k - 2 triangles); None unless they are in that order, every face has a triangle and the corners add up.");
   m.def(
       "polygon_vertex_normals",
       [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads) {

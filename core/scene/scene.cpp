@@ -419,7 +419,8 @@ void Scene::update_memory_stats() {
   geo += inst_.capacity() * sizeof(InstanceData) + object_coords_.capacity() * sizeof(ObjectCoords) +
          tlas_entries_.capacity() * sizeof(TlasEntry) + instances_.capacity() * sizeof(Instance);
   for (const MeshData& m : meshes_) {
-    geo += m.positions.capacity() * sizeof(Vec3) + m.triangles.capacity() * 12 + m.corner_normals.capacity() * sizeof(Vec3) +
+    geo += m.positions.capacity() * sizeof(Vec3) + m.triangles.capacity() * 12 + m.normals.capacity() * sizeof(Vec3) +
+           m.normal_indices.capacity() * 12 +
            m.materials.capacity() * 4;
     for (const auto& uv : m.uvs) geo += uv.capacity() * sizeof(Vec2);
   }
@@ -642,13 +643,30 @@ std::vector<std::string> SceneFeatures::all_names() {
 void Scene::detect_features() {
   SceneFeatures f;
   std::vector<uint8_t> used(materials_.size(), 0);
+  // Meshes of one material (the common case) need no per-triangle look-up: one sequential
+  // scan says so (0: not scanned, 1: one material, 2: several).
+  std::vector<uint8_t> uniform(meshes_.size(), 0);
+  const auto one_material = [&](uint32_t mi) {
+    if (uniform[mi] == 0) {
+      const std::vector<uint32_t>& ids = meshes_[mi].materials;
+      bool same = true;
+      for (size_t t = 1; t < ids.size(); ++t) same &= ids[t] == ids[0];
+      uniform[mi] = same ? 1 : 2;
+    }
+    return uniform[mi] == 1;
+  };
   for (const Blas& b : blases_) {
     // Merged: runs of one instance's triangles (no run search per triangle); else one run.
     const size_t runs = b.merged ? b.run_first.size() : 1;
     for (size_t r = 0; r < runs; ++r) {
-      const MeshData& mesh = meshes_[b.merged ? inst_[b.run_inst[r]].mesh : b.mesh];
+      const uint32_t mi = b.merged ? inst_[b.run_inst[r]].mesh : b.mesh;
+      const MeshData& mesh = meshes_[mi];
       const size_t begin = b.merged ? b.run_first[r] : 0;
       const size_t end = b.merged && r + 1 < runs ? b.run_first[r + 1] : b.src_tri.size();
+      if (begin < end && one_material(mi)) {
+        used[material_of(mesh, b.src_tri[begin], materials_.size())] = 1;
+        continue;
+      }
       for (size_t t = begin; t < end; ++t) used[material_of(mesh, b.src_tri[t], materials_.size())] = 1;
     }
   }
@@ -719,11 +737,12 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
     sp.ng = normalize(in.nrow[0] * c.x + in.nrow[1] * c.y + in.nrow[2] * c.z);
   }
   sp.ns = sp.ng;
-  if (!mesh.corner_normals.empty()) {
+  if (!mesh.normals.empty()) {
+    const std::array<uint32_t, 3>& ni = mesh.normal_indices.empty() ? mesh.triangles[st] : mesh.normal_indices[st];
     Vec3 n[3];
     bool ok = true;
     for (int k = 0; k < 3 && ok; ++k) {
-      n[k] = in.normal(mesh.corner_normals[3 * size_t(st) + k]);
+      n[k] = in.normal(mesh.normals[ni[k]]);
       const float l2 = length_sq(n[k]);
       ok = std::isfinite(l2) && l2 > 0.0f;
       n[k] = n[k] / std::sqrt(l2);

@@ -25,7 +25,11 @@ namespace pl {
 struct MeshData {
   std::vector<Vec3> positions;
   std::vector<std::array<uint32_t, 3>> triangles;
-  std::vector<Vec3> corner_normals;  // 3 per triangle, or empty for flat shading
+  // Shading normals, or empty for flat shading. Corner k of triangle t has
+  // normals[normal_indices[t][k]], or normals[triangles[t][k]] when normal_indices is empty (one
+  // normal per vertex, the smooth case): shared, not expanded to 36 bytes per triangle.
+  std::vector<Vec3> normals;
+  std::vector<std::array<uint32_t, 3>> normal_indices;
   std::vector<uint32_t> materials;   // global material id per triangle
   std::vector<std::vector<Vec2>> uvs;  // per global uv set: 3 per triangle, or empty (missing)
   // Texture space for generated coordinates (Blender's texspace_location / texspace_size);
