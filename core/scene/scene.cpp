@@ -295,6 +295,8 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   largest_blas_ = 0;
   size_t blas_tris = 0, blas_refs = 0;
   for (size_t k = 0; k < blases_.size(); ++k) {
+    opt.morton_clusters = build_quality_ == BuildQuality::Fast ||
+                          (build_quality_ == BuildQuality::Auto && dynamic_ && blases_[k].tris.size() >= kFastBuildMin);
     if (!blases_[k].bvh.build(blases_[k].tris, opt)) {  // only a cancel makes it fail
       cancelled();
       return false;
