@@ -446,9 +446,10 @@ class Builder {
     const uint32_t m = static_cast<uint32_t>(first.size());
     first.push_back(n);
     if (cancelled()) return;
-    // One reference per run; its members' input positions kept in sorted order.
+    // One reference per run; the triangles' references copied in sorted order, so a run's
+    // members are read back as one contiguous piece.
     auto crefs = raw_array<PrimRef>(m);
-    cluster_ids_ = raw_array<uint32_t>(n);
+    auto sorted = raw_array<PrimRef>(n);
     const int cchunks = chunk_count(m, 0);
     std::vector<BoxAcc> cb(cchunks);
     run_chunks(cchunks, [&](int c) {
@@ -456,10 +457,9 @@ class Builder {
       for (uint32_t k = b; k < e; ++k) {
         BoxAcc box;
         for (uint32_t j = first[k]; j < first[k + 1]; ++j) {
-          const uint32_t i = uint32_t(keys[j]);
-          const PrimRef& r = refs_[i];
+          const PrimRef& r = refs_[uint32_t(keys[j])];
           box.grow(r.vlo(), r.vhi());
-          cluster_ids_[j] = r.id;
+          sorted[j] = r;
         }
         PrimRef& cr = crefs[k];
         box.lo.store(&cr.lo.x);  // lane 3 lands on id, set next
@@ -473,7 +473,7 @@ class Builder {
     for (int c = 1; c < cchunks; ++c) cb[0].grow(cb[c]);
     root_cbounds_ = cb[0].aabb();
     cluster_first_ = std::move(first);
-    tri_refs_ = std::move(refs_);
+    tri_refs_ = std::move(sorted);
     refs_ = std::move(crefs);
     n_refs_ = cap_ = m;
     clusters_ = m;
@@ -497,8 +497,8 @@ class Builder {
     parallel_ranges(m, opt_.threads, [&](size_t lo, size_t hi) {
       for (size_t i = lo; i < hi; ++i) {
         const uint32_t c = refs_[i].id;
-        PrimRef* out = &xrefs[start[i]];
-        for (uint32_t j = cluster_first_[c]; j < cluster_first_[c + 1]; ++j) *out++ = tri_refs_[cluster_ids_[j]];
+        std::memcpy(static_cast<void*>(&xrefs[start[i]]), &tri_refs_[cluster_first_[c]],
+                    size_t(cluster_first_[c + 1] - cluster_first_[c]) * sizeof(PrimRef));
       }
     }, 8192);
     // Leaves in tree order with their depth, renumbered to triangle ranges.
@@ -525,7 +525,6 @@ class Builder {
     n_refs_ = cap_ = sum;
     pending_max_ = 0;
     tri_refs_.reset();
-    cluster_ids_.reset();
     std::vector<uint32_t>().swap(cluster_first_);
     std::atomic<int> deepest{int(max_depth_)};
     parallel_ranges(leaves.size(), opt_.threads, [&](size_t lo, size_t hi) {
@@ -1130,9 +1129,8 @@ class Builder {
   uint32_t pending_max_ = 0;  // while building over the runs: nodes of this many triangles or fewer become leaves (refined later)
   bool clustered_ = false;                          // refs_ are Morton runs (make_clusters)
   size_t clusters_ = 0;                             // Morton runs made (0: full SAH)
-  std::unique_ptr<PrimRef[], FreeRaw> tri_refs_;    // while clustered: the triangles' references
-  std::unique_ptr<uint32_t[], FreeRaw> cluster_ids_;  // the runs' triangles (input indices), run after run
-  std::vector<uint32_t> cluster_first_;             // run k: cluster_ids_[first[k], first[k + 1])
+  std::unique_ptr<PrimRef[], FreeRaw> tri_refs_;    // while clustered: the triangles' references, run after run
+  std::vector<uint32_t> cluster_first_;             // run k: tri_refs_[first[k], first[k + 1])
   std::unique_ptr<BvhNode[], FreeRaw> node_store_;  // up to 2n - 1 nodes; those used are all written
   Aabb root_bounds_, root_cbounds_;
   std::atomic<uint32_t> next_node_{1};
