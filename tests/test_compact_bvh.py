@@ -263,3 +263,22 @@ def test_images_are_bit_for_bit_the_float_trees(layout):
         films.append(film)
     assert films[0].mean() > 0.01
     assert np.array_equal(films[0], films[1])
+
+
+@pytest.mark.parametrize("layout", WIDE)
+def test_compact_nodes_over_the_clustered_build(awkward, layout):
+    # The two build options meet in collapse(): a clustered ("fast") tree compressed must still
+    # be conservative and hit exactly as the same tree in float nodes.
+    meshes, _ = awkward
+    sc = {}
+    for c in ("off", "on"):
+        s = pc.Scene()
+        s.compact_bvh, s.build_quality = c, "fast"
+        for pos, tris in meshes:
+            s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
+        s.commit(bvh=layout)
+        assert s.stats()["bvh_clusters"] > 0 and s.stats()["bvh_compact"] == (c == "on")
+        sc[c] = s
+    check_conservative(sc["on"])
+    o, d = awkward_rays(np.random.default_rng(12))
+    same_hits(sc["off"], sc["on"], o, d)

@@ -125,6 +125,12 @@ struct BvhBuildOptions {
   // shared out between subtrees (not a global counter), so the tree is the same on any thread
   // count. Slower builds, fewer triangle and node tests on long thin triangles: final renders.
   bool spatial_splits = false;
+  // Clustered build (ignored with spatial splits): the triangles sorted along a Morton curve and
+  // cut at code bits into runs of at most 8, the binned SAH over the runs (one reference each,
+  // weighted by its triangles) down to nodes of 24 triangles, then the binned SAH over those
+  // nodes' triangles. About 1.6x less build work on 1M triangles; trees up to ~12 % worse in SAH
+  // cost on rough height fields (about 1 % on tessellated objects): for the viewport.
+  bool morton_clusters = false;
   float spatial_alpha = 1e-5f;
   float max_duplicates = 0.3f;
   // Polled during the build; when it becomes true the build stops, build() returns false and
@@ -140,6 +146,7 @@ struct BvhStats {
   size_t triangles = 0;       // input triangles
   size_t references = 0;      // triangle references in leaves: triangles + duplicates of cut ones
   size_t spatial_splits = 0;  // nodes split by a spatial (cutting) plane
+  size_t clusters = 0;        // Morton runs of the clustered build (0: the full binned SAH)
   BvhLayout layout = BvhLayout::Binary;
   bool compact = false;  // the wide nodes are QuantWideNodes
 };

@@ -607,6 +607,7 @@ py::dict scene_stats(const PyScene& self) {
   d["bvh_references"] = b.references;
   d["bvh_spatial_splits"] = b.spatial_splits;
   d["bvh_compact"] = b.compact;  // the largest BLAS's wide nodes are compressed
+  d["bvh_clusters"] = b.clusters;  // Morton runs of the clustered build (0: full SAH)
   d["features"] = self.scene->features().names();  // of the last commit
   return d;
 }
@@ -1396,6 +1397,26 @@ PYBIND11_MODULE(pathlight_core, m) {
            "lo z, hi z; compressed nodes dequantised as the traversal computes them), child, count "
            "(M, N uint32), valid (M, N bool), compact, and the leaves' triangles (B, 4, 3, 3: "
            "block, lane, vertex, axis) with their input indices prims (B, 4; -1 unused).")
+      .def_property(
+          "build_quality",
+          [](const PyScene& self) {
+            switch (self.scene->build_quality()) {
+              case Scene::BuildQuality::Auto: return "auto";
+              case Scene::BuildQuality::Fast: return "fast";
+              default: return "sah";
+            }
+          },
+          [](PyScene& self, const std::string& q) {
+            self.check_editable();
+            if (q == "auto") self.scene->set_build_quality(Scene::BuildQuality::Auto);
+            else if (q == "sah") self.scene->set_build_quality(Scene::BuildQuality::Sah);
+            else if (q == "fast") self.scene->set_build_quality(Scene::BuildQuality::Fast);
+            else throw std::invalid_argument("build_quality must be 'auto', 'sah' or 'fast'");
+          },
+          "How the next commit() builds the BVHs: 'sah' (the full binned SAH), 'fast' (clustered: "
+          "the triangles sorted along a Morton curve into runs of up to 8, the binned SAH over the runs, "
+          "then over the triangles of nodes of 24 or fewer; less build work, somewhat worse trees), "
+          "'auto' (default: 'fast' for the BVHs of 100,000 triangles or more of a dynamic scene, else 'sah').")
       .def_property(
           "dynamic", [](const PyScene& self) { return self.scene->dynamic(); },
           [](PyScene& self, bool on) {

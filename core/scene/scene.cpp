@@ -298,6 +298,8 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   for (size_t k = 0; k < blases_.size(); ++k) {
     opt.compact = compact_bvh_ == CompactBvh::On ||
                   (compact_bvh_ == CompactBvh::Auto && blases_[k].tris.size() >= kCompactAutoTriangles);
+    opt.morton_clusters = build_quality_ == BuildQuality::Fast ||
+                          (build_quality_ == BuildQuality::Auto && dynamic_ && blases_[k].tris.size() >= kFastBuildMin);
     if (!blases_[k].bvh.build(blases_[k].tris, opt)) {  // only a cancel makes it fail
       cancelled();
       return false;

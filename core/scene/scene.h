@@ -162,6 +162,17 @@ class Scene {
     compact_bvh_ = c;
   }
   CompactBvh compact_bvh() const { return compact_bvh_; }
+  // How the BLASes are built (BvhBuildOptions::morton_clusters): Sah, the full binned SAH;
+  // Fast, the clustered build; Auto (default), Fast for the BLASes of kFastBuildMin triangles
+  // or more of dynamic (viewport) scenes, where build latency counts, else Sah (final renders
+  // keep the best trees). Changing it rebuilds the geometry.
+  enum class BuildQuality : uint8_t { Auto, Sah, Fast };
+  static constexpr size_t kFastBuildMin = 100000;
+  void set_build_quality(BuildQuality q) {
+    if (q != build_quality_) geometry_dirty_ = true, committed_ = false;
+    build_quality_ = q;
+  }
+  BuildQuality build_quality() const { return build_quality_; }
   // Live edits (viewport): replace material `id` (not the default 0) or drop every analytic
   // light; the next commit() then rebuilds only the light distribution, not the BVH.
   void set_material(uint32_t id, Material m);
@@ -334,6 +345,7 @@ class Scene {
   BvhLayout built_layout_ = BvhLayout::Auto;
   bool spatial_splits_ = false, built_spatial_splits_ = false;
   CompactBvh compact_bvh_ = CompactBvh::Auto, built_compact_bvh_ = CompactBvh::Auto;
+  BuildQuality build_quality_ = BuildQuality::Auto;
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
   bool emitter_groups_ = true;
