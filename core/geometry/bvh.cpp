@@ -260,7 +260,7 @@ Aabb clip_triangle(const TriangleVerts& t, int axis, float plo, float phi, const
 
 class Builder {
  public:
-  Builder(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt, std::vector<uint32_t>& order)
+  Builder(TriangleSpan tris, const BvhBuildOptions& opt, std::vector<uint32_t>& order)
       : opt_(opt), order_(order), tris_(tris) {
     opt_.bins = std::clamp(opt_.bins, 2, kMaxBins);
     opt_.max_leaf_size = std::clamp(opt_.max_leaf_size, 1, 255);
@@ -1118,7 +1118,7 @@ class Builder {
 
   BvhBuildOptions opt_;
   std::vector<uint32_t>& order_;
-  const std::vector<TriangleVerts>& tris_;
+  TriangleSpan tris_;
   bool spatial_ = false;
   uint32_t cap_ = 0;                // reference slots: triangles plus the duplicate budget
   float spatial_min_area_ = 0.0f;   // alpha x the root's half area
@@ -1209,7 +1209,7 @@ bool quantise_node(const WideBvhNode<N>& f, int k, QuantWideNode<N>& q) {
 // WideBvhNode<N>) or compressed ones (QuantWideNode<N>, from the float node of the same lanes);
 // false when a node cannot be compressed (quantise_node), the outputs then unspecified.
 template <int N, class Node>
-bool collapse(const BvhNode* bin, size_t n_bin, const std::vector<TriangleVerts>& tris,
+bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
               const std::vector<uint32_t>& prim_ids, int threads, std::vector<Node>& out,
               RawVector<TriangleBlock4>& blocks, RawVector<uint32_t>& block_prims) {
   out.clear();
@@ -1338,7 +1338,7 @@ void Bvh::clear() {
   *this = Bvh();
 }
 
-bool Bvh::build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& options) {
+bool Bvh::build(TriangleSpan tris, const BvhBuildOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   clear();
   BvhBuildOptions opt = options;

@@ -38,7 +38,9 @@ struct NoInitAllocator : std::allocator<T> {
   void deallocate(T* p, size_t) noexcept { big_free(p); }
   template <class U>
   void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
-    ::new (static_cast<void*>(p)) U;
+    // `new U` would still zero a type with member initialisers (Vec3's): a trivially copyable
+    // element is left as allocated, for the code that fills it.
+    if constexpr (!std::is_trivially_copyable_v<U>) ::new (static_cast<void*>(p)) U;
   }
   template <class U, class... Args>
   void construct(U* p, Args&&... args) {
@@ -156,11 +158,23 @@ struct TraversalCounters {
   uint32_t nodes = 0, triangles = 0;
 };
 
+// A read-only view of a build's input triangles (a std::vector or a RawVector of them).
+struct TriangleSpan {
+  const TriangleVerts* p = nullptr;
+  size_t n = 0;
+  TriangleSpan() = default;
+  template <class Alloc>
+  TriangleSpan(const std::vector<TriangleVerts, Alloc>& v) : p(v.data()), n(v.size()) {}
+  const TriangleVerts& operator[](size_t i) const { return p[i]; }
+  size_t size() const { return n; }
+  bool empty() const { return n == 0; }
+};
+
 class Bvh {
  public:
   // Builds over `tris`; triangle i of the input is reported as hit.prim == i. Returns false
   // (and leaves the Bvh empty) when cancelled through opt.cancel.
-  bool build(const std::vector<TriangleVerts>& tris, const BvhBuildOptions& opt = {});
+  bool build(TriangleSpan tris, const BvhBuildOptions& opt = {});
   void clear();
   bool empty() const { return triangles_ == 0; }
   const BvhStats& stats() const { return stats_; }

@@ -279,8 +279,10 @@ class Scene {
   // A bottom-level BVH and what maps its triangles back to the meshes.
   struct Blas {
     Bvh bvh;
-    std::vector<TriangleVerts> tris;  // in BLAS space (world for the merged one), BVH input order
-    std::vector<uint32_t> src_tri;    // the mesh triangle of each
+    // In BLAS space (world for the merged one), BVH input order. RawVectors: the merged BLAS's
+    // copy is written in full on all threads, so resize() must not zero it first on one.
+    RawVector<TriangleVerts> tris;
+    RawVector<uint32_t> src_tri;  // the mesh triangle of each
     // Merged BLAS: its triangles are runs, one per instance in instance order; run k starts at
     // triangle run_first[k] (run_first[0] == 0) and belongs to instance run_inst[k]. A search in
     // this small table instead of a per-triangle array: no cache miss per hit, 4 bytes less per
