@@ -182,6 +182,46 @@ def test_tiny_scenes(layout):
     assert not e.occluded(o, d).any()
 
 
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_short_directions_hit_as_unit_ones(layout):
+    # The triangle test's rounding-error bound on t must scale with the direction: a bound that
+    # grew as 1 / |d|^2 (pbrt-v4's, which assumes unit directions) rejected true hits of short
+    # ones, as the batch API allows and as object space gives the rays of instances scaled up.
+    rng = np.random.default_rng(3)
+    s = make_scene([noisy_sphere(60, rng)], layout)
+    o = rng.uniform(-3, 3, (20_000, 3)).astype(np.float32)
+    d = rng.normal(size=(20_000, 3)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t1, p1, _, _ = s.intersect(o, d)
+    assert 0.03 < (p1 >= 0).mean() < 0.5
+    for scale in (1e-2, 1e-4, 1e-6):
+        ds = (d * np.float32(scale)).astype(np.float32)
+        t, p, _, _ = s.intersect(o, ds)
+        assert np.array_equal(p, p1), (scale, (p != p1).sum())
+        assert np.allclose(t[p1 >= 0] * scale, t1[p1 >= 0], rtol=1e-5)
+        assert np.array_equal(s.occluded(o, ds, 2.0 / scale), s.occluded(o, d, 2.0))
+
+
+def test_instances_scaled_up_hit_as_merged_ones():
+    # A mesh instanced at scale 1e4 traces its rays in object space with directions of length
+    # 1e-4: it must hit what the same mesh merged in world space hits.
+    rng = np.random.default_rng(4)
+    pos, tris = noisy_sphere(60, rng)
+    m = np.diag([1e4, 1e4, 1e4, 1]).astype(np.float32)
+    hits = {}
+    o = (rng.uniform(-3, 3, (20_000, 3)) * 1e4).astype(np.float32)
+    d = rng.normal(size=(20_000, 3)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    for dynamic in (False, True):
+        s = pc.Scene(dynamic=dynamic)
+        s.add_instance(s.add_mesh(pos, tris), m)
+        s.commit()
+        assert s.stats()["real_instances"] == int(dynamic)
+        hits[dynamic] = s.intersect(o, d)[1]
+    assert (hits[False] >= 0).sum() > 500
+    assert (hits[True] != hits[False]).sum() <= 2  # near-ties between the two roundings
+
+
 def big_grid(n):
     """A noisy height field of 2 n^2 triangles (one mesh, so the BVH build dominates commit)."""
     rng = np.random.default_rng(3)

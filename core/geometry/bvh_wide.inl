@@ -286,12 +286,13 @@ inline void block_test(const TriangleBlock4* b, const RayPrecomp& rp, const Lane
   const V inv = L::div(L::set1(1.0f), det);
   const V t = L::mul(T, inv);
   const V max_zt = L::max(abs_lanes<L>(az), L::max(abs_lanes<L>(bz), abs_lanes<L>(cz)));
+  const V max_zu = L::max(abs_lanes<L>(Akz), L::max(abs_lanes<L>(Bkz), abs_lanes<L>(Ckz)));
   const V max_xt = L::max(abs_lanes<L>(ax), L::max(abs_lanes<L>(bx), abs_lanes<L>(cx)));
   const V max_yt = L::max(abs_lanes<L>(ay), L::max(abs_lanes<L>(by), abs_lanes<L>(cy)));
   const V g2 = L::set1(gamma_bound(2)), g3 = L::set1(gamma_bound(3)), g5 = L::set1(gamma_bound(5));
   const V delta_z = L::mul(g3, max_zt);
-  const V delta_x = L::mul(g5, L::add(max_xt, max_zt));
-  const V delta_y = L::mul(g5, L::add(max_yt, max_zt));
+  const V delta_x = L::mul(g5, L::add(max_xt, max_zu));
+  const V delta_y = L::mul(g5, L::add(max_yt, max_zu));
   const V delta_e = L::mul(L::set1(2.0f), L::add(L::add(L::mul(L::mul(g2, max_xt), max_yt), L::mul(delta_y, max_xt)),
                                                  L::mul(delta_x, max_yt)));
   const V max_e = L::max(abs_lanes<L>(u), L::max(abs_lanes<L>(v), abs_lanes<L>(w)));

@@ -58,12 +58,15 @@ inline bool intersect_triangle(const Vec3& org, const RayPrecomp& rp, const Vec3
   const float t = T * inv;
   // Conservative bound on t's rounding error (pbrt-v4): a "hit" closer than it may be the
   // surface the ray just left, e.g. on long thin triangles where det is tiny.
+  // The shear's error in x and y is bounded by the unscaled z (|sx|, |sy| <= 1), not by the
+  // scaled one pbrt-v4 uses: with a short direction (sz >> 1) that bound rejected true hits.
   const float max_zt = std::max(std::fabs(az), std::max(std::fabs(bz), std::fabs(cz)));
+  const float max_zu = std::max(std::fabs(A[rp.kz]), std::max(std::fabs(B[rp.kz]), std::fabs(C[rp.kz])));
   const float max_xt = std::max(std::fabs(ax), std::max(std::fabs(bx), std::fabs(cx)));
   const float max_yt = std::max(std::fabs(ay), std::max(std::fabs(by), std::fabs(cy)));
   const float delta_z = gamma_bound(3) * max_zt;
-  const float delta_x = gamma_bound(5) * (max_xt + max_zt);
-  const float delta_y = gamma_bound(5) * (max_yt + max_zt);
+  const float delta_x = gamma_bound(5) * (max_xt + max_zu);
+  const float delta_y = gamma_bound(5) * (max_yt + max_zu);
   const float delta_e = 2.0f * (gamma_bound(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
   const float max_e = std::max(std::fabs(u), std::max(std::fabs(v), std::fabs(w)));
   const float delta_t =
