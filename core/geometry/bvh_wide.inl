@@ -155,6 +155,7 @@ struct Lanes4 {
   static V mul(V a, V b) { return _mm_mul_ps(a, b); }
   static V div(V a, V b) { return _mm_div_ps(a, b); }
   static V max(V a, V b) { return _mm_max_ps(a, b); }
+  static V min(V a, V b) { return _mm_min_ps(a, b); }
   static V and_(V a, V b) { return _mm_and_ps(a, b); }
   static V or_(V a, V b) { return _mm_or_ps(a, b); }
   static V andnot(V a, V b) { return _mm_andnot_ps(a, b); }
@@ -179,6 +180,7 @@ struct Lanes8 {
   static V mul(V a, V b) { return _mm256_mul_ps(a, b); }
   static V div(V a, V b) { return _mm256_div_ps(a, b); }
   static V max(V a, V b) { return _mm256_max_ps(a, b); }
+  static V min(V a, V b) { return _mm256_min_ps(a, b); }
   static V and_(V a, V b) { return _mm256_and_ps(a, b); }
   static V or_(V a, V b) { return _mm256_or_ps(a, b); }
   static V andnot(V a, V b) { return _mm256_andnot_ps(a, b); }
@@ -286,7 +288,7 @@ inline void block_test(const TriangleBlock4* b, const RayPrecomp& rp, const Lane
   const V inv = L::div(L::set1(1.0f), det);
   const V t = L::mul(T, inv);
   const V max_zt = L::max(abs_lanes<L>(az), L::max(abs_lanes<L>(bz), abs_lanes<L>(cz)));
-  const V max_zu = L::max(abs_lanes<L>(Akz), L::max(abs_lanes<L>(Bkz), abs_lanes<L>(Ckz)));
+  const V max_zu = L::mul(L::max(abs_lanes<L>(Akz), L::max(abs_lanes<L>(Bkz), abs_lanes<L>(Ckz))), L::set1(rp.shear));
   const V max_xt = L::max(abs_lanes<L>(ax), L::max(abs_lanes<L>(bx), abs_lanes<L>(cx)));
   const V max_yt = L::max(abs_lanes<L>(ay), L::max(abs_lanes<L>(by), abs_lanes<L>(cy)));
   const V g2 = L::set1(gamma_bound(2)), g3 = L::set1(gamma_bound(3)), g5 = L::set1(gamma_bound(5));
@@ -296,10 +298,12 @@ inline void block_test(const TriangleBlock4* b, const RayPrecomp& rp, const Lane
   const V delta_e = L::mul(L::set1(2.0f), L::add(L::add(L::mul(L::mul(g2, max_xt), max_yt), L::mul(delta_y, max_xt)),
                                                  L::mul(delta_x, max_yt)));
   const V max_e = L::max(abs_lanes<L>(u), L::max(abs_lanes<L>(v), abs_lanes<L>(w)));
-  const V delta_t = L::mul(
+  const V delta_pbrt = L::mul(
       L::mul(L::set1(3.0f),
              L::add(L::add(L::mul(L::mul(g3, max_e), max_zt), L::mul(delta_e, max_zt)), L::mul(delta_z, max_e))),
       abs_lanes<L>(inv));
+  const V spread = L::sub(L::max(az, L::max(bz, cz)), L::min(az, L::min(bz, cz)));
+  const V delta_t = L::min(delta_pbrt, L::add(spread, L::mul(L::set1(gamma_bound(10)), max_zt)));
   ok = L::and_(ok, L::gt(t, delta_t));
   if (any_hit) ok = L::and_(ok, L::lt(L::add(t, delta_t), L::set1(tmax)));
   out.pass = L::mask(ok) & valid & ~zero_mask;

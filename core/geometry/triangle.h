@@ -1,6 +1,7 @@
 // Watertight ray-triangle intersection (Woop, Benthin & Wald, JCGT 2013): rays through shared
 // edges and vertices hit exactly one of the adjacent triangles, never none.
 #pragma once
+#include <cmath>
 #include <utility>
 
 #include "geometry/ray.h"
@@ -20,7 +21,9 @@ struct RayPrecomp {
     sx = d[kx] / d[kz];
     sy = d[ky] / d[kz];
     sz = 1.0f / d[kz];
+    shear = std::sqrt(1.0f + sx * sx + sy * sy);  // |d| / |d[kz]|, in [1, sqrt(3)]
   }
+  float shear;
 };
 
 // Returns true and fills t, b1, b2 if the ray hits the triangle with 0 < t < tmax.
@@ -58,10 +61,11 @@ inline bool intersect_triangle(const Vec3& org, const RayPrecomp& rp, const Vec3
   const float t = T * inv;
   // Conservative bound on t's rounding error (pbrt-v4): a "hit" closer than it may be the
   // surface the ray just left, e.g. on long thin triangles where det is tiny.
-  // The shear's error in x and y is bounded by the unscaled z (|sx|, |sy| <= 1), not by the
-  // scaled one pbrt-v4 uses: with a short direction (sz >> 1) that bound rejected true hits.
+  // pbrt-v4 bounds the shear's error in x and y by the scaled z (max_zt), which for a unit
+  // direction is max_zu * shear; written so, the bound no longer grows as 1 / |d|^2, which
+  // rejected true hits of short directions (unnormalised batch rays, instances scaled up).
   const float max_zt = std::max(std::fabs(az), std::max(std::fabs(bz), std::fabs(cz)));
-  const float max_zu = std::max(std::fabs(A[rp.kz]), std::max(std::fabs(B[rp.kz]), std::fabs(C[rp.kz])));
+  const float max_zu = std::max(std::fabs(A[rp.kz]), std::max(std::fabs(B[rp.kz]), std::fabs(C[rp.kz]))) * rp.shear;
   const float max_xt = std::max(std::fabs(ax), std::max(std::fabs(bx), std::fabs(cx)));
   const float max_yt = std::max(std::fabs(ay), std::max(std::fabs(by), std::fabs(cy)));
   const float delta_z = gamma_bound(3) * max_zt;
@@ -69,8 +73,15 @@ inline bool intersect_triangle(const Vec3& org, const RayPrecomp& rp, const Vec3
   const float delta_y = gamma_bound(5) * (max_yt + max_zu);
   const float delta_e = 2.0f * (gamma_bound(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
   const float max_e = std::max(std::fabs(u), std::max(std::fabs(v), std::fabs(w)));
-  const float delta_t =
+  const float delta_pbrt =
       3.0f * (gamma_bound(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * std::fabs(inv);
+  // The edge functions share a sign, so t is a convex combination of the scaled z of the
+  // vertices (up to the rounding of T and the division): its error is also bounded by their
+  // spread. Far tighter for small or distant triangles, where the bound above, loose for
+  // slivers seen from afar, rejected true hits. And t > spread + rounding puts every vertex in
+  // front of the origin, so a hit on the surface the ray left is still rejected.
+  const float spread = std::max(az, std::max(bz, cz)) - std::min(az, std::min(bz, cz));
+  const float delta_t = std::min(delta_pbrt, spread + gamma_bound(10) * max_zt);
   if (!(t > delta_t)) return false;
   if (any_hit && !(t + delta_t < tmax)) return false;
   t_out = t;
