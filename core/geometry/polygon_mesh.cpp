@@ -226,6 +226,25 @@ inline void add_small_face_normal(const PolygonMesh& m, const int32_t* v, uint32
 }
 #endif
 
+// The unit edge directions of the face of corners [b, b + n): edge k from corner k to the next.
+inline void face_edges(const PolygonMesh& m, int32_t b, int32_t n, std::vector<Vec3>& edge) {
+  edge.resize(size_t(n));
+  for (int32_t k = 0; k < n; ++k) {
+    const int32_t next = k + 1 == n ? b : b + k + 1;
+    edge[size_t(k)] = normalize_div(m.positions[m.corner_verts[next]] - m.positions[m.corner_verts[b + k]]);
+  }
+}
+
+// The face's angle at corner k, taken at the face's first corner at that vertex, as Blender's
+// face_find_adjacent_verts finds it (another one only where a face visits a vertex twice).
+inline float corner_angle(const PolygonMesh& m, int32_t b, int32_t n, int32_t k, const std::vector<Vec3>& edge) {
+  const int32_t v = m.corner_verts[b + k];
+  int32_t first = 0;
+  while (m.corner_verts[b + first] != v) ++first;
+  const Vec3 in = edge[size_t(first == 0 ? n - 1 : first - 1)], out_dir = edge[size_t(first)];
+  return safe_acos_approx(-dot(in, out_dir));
+}
+
 // Face normals and each corner's angle weight. lanes: triangles and quads of distinct vertices
 // four lanes at a time (the same bits; false keeps the scalar code, the tests' reference).
 void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::vector<float>& weight, int threads,
@@ -250,21 +269,9 @@ void face_normals_and_weights(const PolygonMesh& m, std::vector<Vec3>& fn, std::
       (void)lanes;
 #endif
       fn[f] = face_normal(m, f);
-      const int32_t b = m.offsets[f], e = m.offsets[f + 1], n = e - b;
-      edge.resize(size_t(n));
-      for (int32_t k = 0; k < n; ++k) {
-        const int32_t next = k + 1 == n ? b : b + k + 1;
-        edge[size_t(k)] = normalize_div(m.positions[m.corner_verts[next]] - m.positions[m.corner_verts[b + k]]);
-      }
-      for (int32_t k = 0; k < n; ++k) {
-        // The face's first corner at this vertex, as Blender's face_find_adjacent_verts finds
-        // it (another one only where a face visits a vertex twice).
-        const int32_t v = m.corner_verts[b + k];
-        int32_t first = 0;
-        while (m.corner_verts[b + first] != v) ++first;
-        const Vec3 in = edge[size_t(first == 0 ? n - 1 : first - 1)], out_dir = edge[size_t(first)];
-        weight[size_t(b + k)] = safe_acos_approx(-dot(in, out_dir));
-      }
+      const int32_t b = m.offsets[f], n = m.offsets[f + 1] - b;
+      face_edges(m, b, n, edge);
+      for (int32_t k = 0; k < n; ++k) weight[size_t(b + k)] = corner_angle(m, b, n, k, edge);
     }
   });
 }
@@ -281,18 +288,11 @@ inline void add_face_normal(const PolygonMesh& m, size_t f, uint32_t lo, uint32_
                       : add_small_face_normal<3>(m, m.corner_verts + b, lo, hi, out, used);
 #endif
   const Vec3 fn = face_normal(m, f);
-  edge.resize(size_t(n));
-  for (int32_t k = 0; k < n; ++k) {
-    const int32_t next = k + 1 == n ? b : b + k + 1;
-    edge[size_t(k)] = normalize_div(m.positions[m.corner_verts[next]] - m.positions[m.corner_verts[b + k]]);
-  }
+  face_edges(m, b, n, edge);
   for (int32_t k = 0; k < n; ++k) {
     const int32_t v = m.corner_verts[b + k];
     if (uint32_t(v) < lo || uint32_t(v) >= hi) continue;
-    int32_t first = 0;
-    while (m.corner_verts[b + first] != v) ++first;
-    const Vec3 in = edge[size_t(first == 0 ? n - 1 : first - 1)], out_dir = edge[size_t(first)];
-    out[v] += fn * safe_acos_approx(-dot(in, out_dir));
+    out[v] += fn * corner_angle(m, b, n, k, edge);
     used[size_t(v)] = 1;
   }
 }
