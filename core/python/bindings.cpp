@@ -612,6 +612,32 @@ py::dict scene_stats(const PyScene& self) {
   return d;
 }
 
+// A setting Python names by strings: its enum's values and their names in one table, read
+// both ways; an unknown name is a ValueError that lists the names.
+template <class E>
+using EnumNames = std::initializer_list<std::pair<E, const char*>>;
+template <class E>
+const char* enum_name(E v, EnumNames<E> names) {
+  for (const auto& [e, n] : names)
+    if (e == v) return n;
+  return names.begin()->second;
+}
+template <class E>
+E enum_from_name(const std::string& s, const char* setting, EnumNames<E> names) {
+  std::string list;
+  size_t k = 0;
+  for (const auto& [e, n] : names) {
+    if (s == n) return e;
+    list += std::string(k == 0 ? "" : k + 1 == names.size() ? " or " : ", ") + "'" + n + "'";
+    ++k;
+  }
+  throw std::invalid_argument(std::string(setting) + " must be " + list);
+}
+constexpr EnumNames<Scene::CompactBvh> kCompactBvhNames = {
+    {Scene::CompactBvh::Auto, "auto"}, {Scene::CompactBvh::On, "on"}, {Scene::CompactBvh::Off, "off"}};
+constexpr EnumNames<Scene::BuildQuality> kBuildQualityNames = {
+    {Scene::BuildQuality::Auto, "auto"}, {Scene::BuildQuality::Sah, "sah"}, {Scene::BuildQuality::Fast, "fast"}};
+
 py::dict wide_bvh_nodes(const PyScene& self) {
   const Bvh& bvh = self.scene->bvh();
   const int w = bvh.wide_width();
@@ -1375,19 +1401,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           "triangle and node tests on long thin triangles (final renders). Default off.")
       .def_property(
           "compact_bvh",
-          [](const PyScene& self) {
-            switch (self.scene->compact_bvh()) {
-              case Scene::CompactBvh::On: return "on";
-              case Scene::CompactBvh::Off: return "off";
-              default: return "auto";
-            }
-          },
+          [](const PyScene& self) { return enum_name(self.scene->compact_bvh(), kCompactBvhNames); },
           [](PyScene& self, const std::string& v) {
             self.check_editable();
-            if (v == "auto") self.scene->set_compact_bvh(Scene::CompactBvh::Auto);
-            else if (v == "on") self.scene->set_compact_bvh(Scene::CompactBvh::On);
-            else if (v == "off") self.scene->set_compact_bvh(Scene::CompactBvh::Off);
-            else throw std::invalid_argument("compact_bvh must be 'auto', 'on' or 'off'");
+            self.scene->set_compact_bvh(enum_from_name(v, "compact_bvh", kCompactBvhNames));
           },
           "Compressed (quantised) wide BVH nodes from the next commit(): 'on', 'off' or 'auto' "
           "(the default: on for BLASes of 8M triangles or more, where memory matters more than the "
@@ -1399,19 +1416,10 @@ PYBIND11_MODULE(pathlight_core, m) {
            "block, lane, vertex, axis) with their input indices prims (B, 4; -1 unused).")
       .def_property(
           "build_quality",
-          [](const PyScene& self) {
-            switch (self.scene->build_quality()) {
-              case Scene::BuildQuality::Auto: return "auto";
-              case Scene::BuildQuality::Fast: return "fast";
-              default: return "sah";
-            }
-          },
+          [](const PyScene& self) { return enum_name(self.scene->build_quality(), kBuildQualityNames); },
           [](PyScene& self, const std::string& q) {
             self.check_editable();
-            if (q == "auto") self.scene->set_build_quality(Scene::BuildQuality::Auto);
-            else if (q == "sah") self.scene->set_build_quality(Scene::BuildQuality::Sah);
-            else if (q == "fast") self.scene->set_build_quality(Scene::BuildQuality::Fast);
-            else throw std::invalid_argument("build_quality must be 'auto', 'sah' or 'fast'");
+            self.scene->set_build_quality(enum_from_name(q, "build_quality", kBuildQualityNames));
           },
           "How the next commit() builds the BVHs: 'sah' (the full binned SAH), 'fast' (clustered: "
           "the triangles sorted along a Morton curve into runs of up to 8, the binned SAH over the runs, "
