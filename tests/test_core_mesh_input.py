@@ -244,6 +244,65 @@ def test_vertex_normals_are_the_same_on_any_thread_count():
     assert len(interior) > 0.9 * len(cv)
 
 
+def _edges(pos, cv, off):
+    """One edge id per undirected vertex pair, as Blender numbers them (an edge per pair)."""
+    nxt = np.concatenate([np.roll(cv[off[f]:off[f + 1]], -1) for f in range(len(off) - 1)])
+    keys, ce = np.unique(np.sort(np.stack([cv, nxt], 1), axis=1) @ [len(pos), 1], return_inverse=True)
+    return ce.astype(np.int32).ravel(), len(keys)
+
+
+def hostile_corner_mesh():
+    """awkward_mesh (triangles, n-gons, a face using a vertex twice, a zero-area face, loose
+    vertices) plus a fin (three faces on one edge), a face wound against its neighbours, a face
+    of one vertex three times and one folded back on itself, with random sharp edges and faces."""
+    pos, cv, off = awkward_mesh()
+    faces = [list(cv[off[f]:off[f + 1]]) for f in range(len(off) - 1)]
+    faces[100] = faces[100][::-1]
+    a, b = faces[200][0], faces[200][1]
+    x = len(pos)
+    pos = np.concatenate([pos, [[0.3, 0.2, 1.0], [5.0, 5.0, 5.0]]]).astype(np.float32)  # the last one loose
+    faces += [[a, b, x], [b, a, x], [3, 3, 3], [0, 1, 2, 1]]
+    cv = np.concatenate(faces).astype(np.int32)
+    off = np.concatenate([[0], np.cumsum([len(f) for f in faces])]).astype(np.int32)
+    ce, edges = _edges(pos, cv, off)
+    rng = np.random.default_rng(4)
+    return pos, cv, off, ce, edges, rng.random(edges) < 0.1, rng.random(len(off) - 1) < 0.05
+
+
+def test_corner_normals_are_the_same_on_any_thread_count():
+    """Sharp edges and faces, non-manifold and inconsistently wound edges, degenerate faces,
+    loose vertices: each fan sums its corners in corner order however the work is split (threads
+    owning vertex and edge ranges; one thread where the numbers are scattered), so the corner
+    normals are bit for bit the same on any number of threads and under any vertex or edge
+    numbering."""
+    pos, cv, off, ce, edges, sharp_edges, sharp_faces = hostile_corner_mesh()
+    assert len(cv) > 3 * 32768
+    one = pc.polygon_corner_normals(pos, cv, off, ce, edges, sharp_edges, sharp_faces, 1)
+    assert np.isfinite(one).all()
+    for threads in (2, 3, 0):
+        np.testing.assert_array_equal(pc.polygon_corner_normals(pos, cv, off, ce, edges, sharp_edges, sharp_faces,
+                                                                threads), one)
+    # Vertices and edges renumbered at random (each thread's range would reach every face).
+    spos, scv, _ = shuffled(pos, cv)
+    eperm = np.random.default_rng(2).permutation(edges)
+    sce = np.argsort(eperm)[ce].astype(np.int32)
+    for threads in (1, 2):
+        got = pc.polygon_corner_normals(spos, scv, off, sce, edges, sharp_edges[eperm], sharp_faces, threads)
+        np.testing.assert_array_equal(got, one)
+    # A sharp face's corners are its face normal; a smooth mesh's corners (no marks) differ from
+    # the marked one's only at vertices of marked edges or faces.
+    flat = pc.polygon_corner_normals(pos, cv, off, ce, edges, None, np.ones(len(off) - 1, bool), 2)
+    corner_face = np.repeat(np.arange(len(off) - 1), np.diff(off))
+    np.testing.assert_array_equal(one[sharp_faces[corner_face]], flat[sharp_faces[corner_face]])
+    smooth = pc.polygon_corner_normals(pos, cv, off, ce, edges, None, None, 2)
+    marked = np.zeros(len(pos), bool)
+    marked[cv[sharp_faces[corner_face]]] = True
+    nxt = np.concatenate([np.roll(cv[off[f]:off[f + 1]], -1) for f in range(len(off) - 1)])
+    marked[cv[sharp_edges[ce]]] = marked[nxt[sharp_edges[ce]]] = True
+    differ = np.abs(one - smooth).max(1) > 0
+    assert differ.any() and not differ[~marked[cv]].any()
+
+
 @pytest.mark.parametrize("threads", [1, 2])
 def test_triangulation_without_corner_indices(threads):
     """corners=False gives the same vertex triangles and n-gon count, and no corner indices."""

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -296,6 +297,66 @@ inline void add_face_normal(const PolygonMesh& m, size_t f, uint32_t lo, uint32_
     used[size_t(v)] = 1;
   }
 }
+// Threads owning ranges of what the corners name (index[c]: their vertices or their edges), each
+// walking the faces in order and doing only the work at its own: per-vertex (per-edge) results
+// in face order on any number of threads, without atomics or per-thread copies. A thread skips
+// the blocks of faces that never reach its range (meshes usually number faces, vertices and
+// edges in similar orders).
+struct OwnerRanges {
+  static constexpr size_t kBlock = 512;
+  const PolygonMesh& m;
+  const int32_t* index;
+  size_t n;                // indices are in [0, n)
+  size_t parts = 1;        // 1: one thread does it all (lo 0, hi all)
+  bool scattered = false;  // the indices are spread over the faces: each thread would walk most
+  std::vector<uint32_t> block_lo, block_hi;
+
+  OwnerRanges(const PolygonMesh& mesh, const int32_t* idx, size_t count, int threads) : m(mesh), index(idx), n(count) {
+    const size_t hw = threads > 0 ? size_t(threads) : std::max(1u, std::thread::hardware_concurrency());
+    parts = std::min(hw, std::max<size_t>(1, m.corners / kMinCornersPerThread));
+    if (parts <= 1) return;
+    const size_t blocks = (m.faces + kBlock - 1) / kBlock;
+    block_lo.resize(blocks), block_hi.resize(blocks);
+    parallel_ranges(blocks, int(parts), [&](size_t begin, size_t end) {
+      for (size_t k = begin; k < end; ++k) {
+        uint32_t lo = UINT32_MAX, hi = 0;
+        for (int32_t c = m.offsets[k * kBlock], e = m.offsets[std::min(m.faces, (k + 1) * kBlock)]; c < e; ++c) {
+          lo = std::min(lo, uint32_t(index[c]));
+          hi = std::max(hi, uint32_t(index[c]));
+        }
+        block_lo[k] = lo, block_hi[k] = hi;
+      }
+    }, 64);
+    size_t visits = 0;
+    for (size_t p = 0; p < parts; ++p)
+      for (size_t k = 0; k < blocks; ++k) visits += block_lo[k] < lo(p + 1) && block_hi[k] >= lo(p);
+    scattered = visits * 4 > blocks * 5;  // more than 25 % of the faces done twice
+  }
+  uint32_t lo(size_t p) const { return uint32_t(n * p / parts); }
+  // fn(lo, hi, for_faces) for every part on its own thread (one part: lo 0, hi all, every face);
+  // for_faces(g) calls g(f) for the faces, in order, that may name an index in [lo, hi).
+  template <class F>
+  void run(F&& fn) const {
+    if (parts <= 1 || scattered) {
+      fn(0u, UINT32_MAX, [&](auto&& g) {
+        for (size_t f = 0; f < m.faces; ++f) g(f);
+      });
+      return;
+    }
+    parallel_ranges(parts, int(parts), [&](size_t begin, size_t end) {
+      for (size_t p = begin; p < end; ++p) {
+        const uint32_t l = lo(p), h = lo(p + 1);
+        const auto for_faces = [&](auto&& g) {
+          for (size_t k = 0; k < block_lo.size(); ++k) {
+            if (block_lo[k] >= h || block_hi[k] < l) continue;
+            for (size_t f = k * kBlock, e = std::min(m.faces, (k + 1) * kBlock); f < e; ++f) g(f);
+          }
+        };
+        fn(l, h, for_faces);
+      }
+    }, 1);
+  }
+};
 }  // namespace
 
 void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
@@ -304,69 +365,29 @@ void polygon_vertex_normals(const PolygonMesh& m, Vec3* out, int threads) {
   // range of vertices and walks the faces in order, adding only to its own vertices.
   std::fill(out, out + m.vertices, Vec3(0.0f));
   std::vector<uint8_t> used(m.vertices, 0);
-  const size_t hw = threads > 0 ? size_t(threads) : std::max(1u, std::thread::hardware_concurrency());
-  const size_t parts = std::min(hw, std::max<size_t>(1, m.corners / kMinCornersPerThread));
-  std::vector<Vec3> edge;
-  const uint32_t all = UINT32_MAX;
-  if (parts <= 1) {
-    for (size_t f = 0; f < m.faces; ++f) add_face_normal(m, f, 0, all, out, used.data(), edge);
+  const OwnerRanges ranges(m, m.corner_verts, m.vertices, threads);
+  if (!ranges.scattered) {
+    ranges.run([&](uint32_t lo, uint32_t hi, const auto& for_faces) {
+      std::vector<Vec3> scratch;
+      for_faces([&](size_t f) { add_face_normal(m, f, lo, hi, out, used.data(), scratch); });
+    });
   } else {
-    // Blocks of faces and the range of vertices each uses: a thread skips the blocks that
-    // never reach its vertices (meshes usually number faces and vertices in similar orders).
-    constexpr size_t kBlock = 512;
-    const size_t blocks = (m.faces + kBlock - 1) / kBlock;
-    std::vector<uint32_t> block_lo(blocks), block_hi(blocks);
-    parallel_ranges(blocks, int(parts), [&](size_t begin, size_t end) {
-      for (size_t k = begin; k < end; ++k) {
-        uint32_t lo = UINT32_MAX, hi = 0;
-        for (int32_t c = m.offsets[k * kBlock], e = m.offsets[std::min(m.faces, (k + 1) * kBlock)]; c < e; ++c) {
-          lo = std::min(lo, uint32_t(m.corner_verts[c]));
-          hi = std::max(hi, uint32_t(m.corner_verts[c]));
-        }
-        block_lo[k] = lo, block_hi[k] = hi;
+    // Vertices scattered over the faces: face normals and corner weights on all threads,
+    // summed on one.
+    std::vector<Vec3> fn;
+    std::vector<float> weight;
+    face_normals_and_weights(m, fn, weight, threads);
+    for (size_t f = 0; f < m.faces; ++f)
+      for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
+        const int32_t v = m.corner_verts[c];
+        out[v] += fn[f] * weight[size_t(c)];
+        used[size_t(v)] = 1;
       }
-    }, 64);
-    const auto part_lo = [&](size_t p) { return uint32_t(m.vertices * p / parts); };
-    size_t visits = 0;
-    for (size_t p = 0; p < parts; ++p)
-      for (size_t k = 0; k < blocks; ++k) visits += block_lo[k] < part_lo(p + 1) && block_hi[k] >= part_lo(p);
-    if (visits * 4 <= blocks * 5) {  // at most 25 % of the faces done twice
-      parallel_ranges(parts, int(parts), [&](size_t begin, size_t end) {
-        std::vector<Vec3> scratch;
-        for (size_t p = begin; p < end; ++p) {
-          const uint32_t lo = part_lo(p), hi = part_lo(p + 1);
-          for (size_t k = 0; k < blocks; ++k) {
-            if (block_lo[k] >= hi || block_hi[k] < lo) continue;
-            for (size_t f = k * kBlock, e = std::min(m.faces, (k + 1) * kBlock); f < e; ++f)
-              add_face_normal(m, f, lo, hi, out, used.data(), scratch);
-          }
-        }
-      }, 1);
-    } else {
-      // Vertices scattered over the faces: face normals and corner weights on all threads,
-      // summed on one.
-      std::vector<Vec3> fn;
-      std::vector<float> weight;
-      face_normals_and_weights(m, fn, weight, threads);
-      for (size_t f = 0; f < m.faces; ++f)
-        for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
-          const int32_t v = m.corner_verts[c];
-          out[v] += fn[f] * weight[size_t(c)];
-          used[size_t(v)] = 1;
-        }
-    }
   }
   parallel_ranges(m.vertices, threads, [&](size_t begin, size_t end) {
     for (size_t v = begin; v < end; ++v) out[v] = normalize_div(used[v] ? out[v] : m.positions[v]);
   });
 }
-
-namespace {
-uint32_t find_root(std::vector<uint32_t>& parent, uint32_t c) {
-  while (parent[c] != c) c = parent[c] = parent[parent[c]];
-  return c;
-}
-}  // namespace
 
 void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, size_t edges,
                             const uint8_t* sharp_edges, const uint8_t* sharp_faces, Vec3* out, int threads) {
@@ -380,49 +401,83 @@ void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, s
   std::vector<Vec3> fn;
   std::vector<float> weight;
   face_normals_and_weights(m, fn, weight, threads, true);
-  std::vector<uint32_t> face_of(m.corners), next(m.corners);
-  for (size_t f = 0; f < m.faces; ++f)
-    for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
-      face_of[size_t(c)] = uint32_t(f);
-      next[size_t(c)] = uint32_t(c + 1 == m.offsets[f + 1] ? m.offsets[f] : c + 1);
-    }
-  // The (up to) two corners using each edge, and how many do.
-  constexpr uint32_t kNone = UINT32_MAX;
-  std::vector<uint32_t> user0(edges, kNone), user1(edges, kNone), users(edges, 0);
-  for (size_t c = 0; c < m.corners; ++c) {
-    const size_t e = size_t(corner_edges[c]);
-    if (users[e] == 0) user0[e] = uint32_t(c);
-    else if (users[e] == 1) user1[e] = uint32_t(c);
-    ++users[e];
-  }
-  // Corners joined across smooth edges share a fan (union-find).
-  std::vector<uint32_t> parent(m.corners);
-  for (size_t c = 0; c < m.corners; ++c) parent[c] = uint32_t(c);
+  // Big scratch arrays, each written before it is read: no serial initialisation.
+  const auto scratch = [&](size_t n) { return std::unique_ptr<uint32_t[]>(new uint32_t[n]); };
+  const std::unique_ptr<uint32_t[]> face_of = scratch(m.corners), next = scratch(m.corners),
+                                    parent = scratch(m.corners), count = scratch(m.corners);
+  const std::unique_ptr<float[]> sum(new float[3 * m.corners]);
+  parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
+    for (size_t f = begin; f < end; ++f)
+      for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
+        face_of[size_t(c)] = uint32_t(f);
+        next[size_t(c)] = uint32_t(c + 1 == m.offsets[f + 1] ? m.offsets[f] : c + 1);
+        parent[size_t(c)] = uint32_t(c);
+      }
+  });
+  // How many corners use each edge, and the first two (read only where exactly two do): threads
+  // owning ranges of edges.
+  const std::unique_ptr<uint32_t[]> user0 = scratch(edges), user1 = scratch(edges), users = scratch(edges);
+  parallel_ranges(edges, threads, [&](size_t begin, size_t end) { std::fill(users.get() + begin, users.get() + end, 0u); });
+  OwnerRanges(m, corner_edges, edges, threads).run([&](uint32_t lo, uint32_t hi, const auto& for_faces) {
+    for_faces([&](size_t f) {
+      for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
+        const uint32_t e = uint32_t(corner_edges[c]);
+        if (e < lo || e >= hi) continue;
+        if (users[e] == 0) user0[e] = uint32_t(c);
+        else if (users[e] == 1) user1[e] = uint32_t(c);
+        ++users[e];
+      }
+    });
+  });
+  // Corners joined across smooth edges share a fan (union-find). A fan's corners all use one
+  // vertex, and each corner joins (at its own vertex) the corner after the edge's other user,
+  // so threads that own ranges of vertices join and sum their own corners only; a fan's root is
+  // its first corner and it sums its corners in order, whatever the split.
+  const auto find = [&](uint32_t c) {
+    while (parent[c] != c) c = parent[c] = parent[parent[c]];
+    return c;
+  };
   const auto join = [&](uint32_t a, uint32_t b) {
-    a = find_root(parent, a), b = find_root(parent, b);
+    a = find(a), b = find(b);
     if (a != b) parent[std::max(a, b)] = std::min(a, b);
   };
-  for (size_t e = 0; e < edges; ++e) {
-    if (users[e] != 2 || (sharp_edges && sharp_edges[e])) continue;
-    const uint32_t c1 = user0[e], c2 = user1[e], f1 = face_of[c1], f2 = face_of[c2];
-    if (f1 == f2 || (sharp_faces && (sharp_faces[f1] || sharp_faces[f2]))) continue;
-    const int32_t a = m.corner_verts[c1], b = m.corner_verts[next[c1]];
-    // Used in opposite directions (consistent winding), else the edge is sharp.
-    if (m.corner_verts[c2] != b || m.corner_verts[next[c2]] != a) continue;
-    join(c1, next[c2]);  // both at vertex a
-    join(next[c1], c2);  // both at vertex b
-  }
-  std::vector<Vec3> sum(m.corners, Vec3(0.0f));
-  std::vector<uint32_t> count(m.corners, 0);
-  for (size_t c = 0; c < m.corners; ++c) {
-    const uint32_t r = parent[c] = find_root(parent, uint32_t(c));  // every corner now points at its root
-    sum[r] += fn[face_of[c]] * weight[c];
-    ++count[r];
-  }
+  OwnerRanges(m, m.corner_verts, m.vertices, threads).run([&](uint32_t lo, uint32_t hi, const auto& for_faces) {
+    for_faces([&](size_t f) {
+      for (int32_t ci = m.offsets[f]; ci < m.offsets[f + 1]; ++ci) {
+        const uint32_t c = uint32_t(ci);
+        const int32_t a = m.corner_verts[c];
+        if (uint32_t(a) < lo || uint32_t(a) >= hi) continue;
+        const size_t e = size_t(corner_edges[c]);
+        if (users[e] != 2 || (sharp_edges && sharp_edges[e])) continue;
+        const uint32_t o = user0[e] == c ? user1[e] : user0[e];  // the edge's other user
+        const uint32_t f1 = face_of[c], f2 = face_of[o];
+        if (f1 == f2 || (sharp_faces && (sharp_faces[f1] || sharp_faces[f2]))) continue;
+        // Used in opposite directions (consistent winding), else the edge is sharp.
+        if (m.corner_verts[o] != m.corner_verts[next[c]] || m.corner_verts[next[o]] != a) continue;
+        join(c, next[o]);  // both at vertex a
+      }
+    });
+    for_faces([&](size_t f) {
+      for (int32_t ci = m.offsets[f]; ci < m.offsets[f + 1]; ++ci) {
+        const uint32_t c = uint32_t(ci);
+        if (uint32_t(m.corner_verts[c]) < lo || uint32_t(m.corner_verts[c]) >= hi) continue;
+        const uint32_t r = parent[c] = find(c);  // every corner now points at its root
+        const Vec3 add = fn[f] * weight[c];
+        float* acc = sum.get() + 3 * size_t(r);
+        if (r == c) {  // the root: its fan's first corner, so the first one summed here
+          acc[0] = acc[1] = acc[2] = 0.0f;
+          count[r] = 0;
+        }
+        acc[0] += add.x, acc[1] += add.y, acc[2] += add.z;
+        ++count[r];
+      }
+    });
+  });
   parallel_ranges(m.corners, threads, [&](size_t begin, size_t end) {
     for (size_t c = begin; c < end; ++c) {
       const uint32_t r = parent[c];
-      out[c] = count[r] == 1 ? fn[face_of[c]] : normalize_div(sum[r]);
+      const float* acc = sum.get() + 3 * size_t(r);
+      out[c] = count[r] == 1 ? fn[face_of[c]] : normalize_div(Vec3(acc[0], acc[1], acc[2]));
     }
   });
 }

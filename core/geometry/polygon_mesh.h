@@ -54,7 +54,8 @@ void polygon_vertex_normals(const PolygonMesh& mesh, Vec3* out, int threads = 0)
 // nor border a sharp face; a fan's normal is the angle-weighted sum of its faces' normals,
 // normalised (a fan of one corner: its face's normal). corner_edges[c]: the edge from corner c
 // to the next corner of its face (< edges); sharp_edges (edges) and sharp_faces (faces) may be
-// null (none sharp). Blender's corner normals without custom normals, to float rounding.
+// null (none sharp). Blender's corner normals without custom normals, to float rounding. Each fan
+// sums its corners in corner order, so the result is bit for bit the same on any number of threads.
 void polygon_corner_normals(const PolygonMesh& mesh, const int32_t* corner_edges, size_t edges,
                             const uint8_t* sharp_edges, const uint8_t* sharp_faces, Vec3* out, int threads = 0);
 

@@ -48,6 +48,46 @@ float finite_nonneg(float x, const char* what) {
   return x;
 }
 
+// A setting Python names by strings: its enum's values and their names in one table, read
+// both ways; an unknown name is a ValueError that lists the names (quoted, or bare as Blender's
+// upper-case enum names have always been listed).
+template <class E>
+using EnumNames = std::initializer_list<std::pair<E, const char*>>;
+template <class E>
+const char* enum_name(E v, EnumNames<E> names) {
+  for (const auto& [e, n] : names)
+    if (e == v) return n;
+  return names.begin()->second;
+}
+template <class E>
+E enum_from_name(const std::string& s, const char* setting, EnumNames<E> names, bool quoted = true) {
+  const std::string q = quoted ? "'" : "";
+  std::string list;
+  size_t k = 0;
+  for (const auto& [e, n] : names) {
+    if (s == n) return e;
+    list += std::string(k == 0 ? "" : k + 1 == names.size() ? " or " : ", ") + q + n + q;
+    ++k;
+  }
+  throw std::invalid_argument(std::string(setting) + " must be " + list);
+}
+constexpr EnumNames<Scene::CompactBvh> kCompactBvhNames = {
+    {Scene::CompactBvh::Auto, "auto"}, {Scene::CompactBvh::On, "on"}, {Scene::CompactBvh::Off, "off"}};
+constexpr EnumNames<Scene::BuildQuality> kBuildQualityNames = {
+    {Scene::BuildQuality::Auto, "auto"}, {Scene::BuildQuality::Sah, "sah"}, {Scene::BuildQuality::Fast, "fast"}};
+constexpr EnumNames<BvhLayout> kBvhLayoutNames = {
+    {BvhLayout::Auto, "auto"}, {BvhLayout::Binary, "binary"}, {BvhLayout::Wide4, "bvh4"}, {BvhLayout::Wide8, "bvh8"}};
+constexpr EnumNames<SamplerType> kSamplerNames = {{SamplerType::Sobol, "sobol"}, {SamplerType::Random, "random"}};
+constexpr EnumNames<FilterType> kFilterNames = {
+    {FilterType::Box, "box"}, {FilterType::Gaussian, "gaussian"}, {FilterType::BlackmanHarris, "blackman_harris"}};
+constexpr EnumNames<DebugView> kDebugViewNames = {{DebugView::None, "none"}, {DebugView::Bvh, "bvh"}};
+constexpr EnumNames<SensorFit> kSensorFitNames = {
+    {SensorFit::Auto, "AUTO"}, {SensorFit::Horizontal, "HORIZONTAL"}, {SensorFit::Vertical, "VERTICAL"}};
+constexpr EnumNames<CameraType> kCameraTypeNames = {{CameraType::Perspective, "PERSP"}, {CameraType::Orthographic, "ORTHO"}};
+constexpr EnumNames<Interp> kInterpNames = {{Interp::Linear, "LINEAR"}, {Interp::Closest, "CLOSEST"}};
+constexpr EnumNames<Extension> kExtensionNames = {
+    {Extension::Repeat, "REPEAT"}, {Extension::Extend, "EXTEND"}, {Extension::Clip, "CLIP"}};
+
 Mat4 to_mat4(const FloatArray& a, const char* what);
 
 // The inverse of the upper 3x3 of m, for transforming directions into a light's frame.
@@ -506,13 +546,8 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       if (img < 0 || img >= n_images) throw std::invalid_argument("unknown image id " + std::to_string(img));
       o.index = int32_t(img);
       const std::string interp = name_of(t[4]), ext = name_of(t[5]);
-      if (interp == "LINEAR") o.sub = uint8_t(Interp::Linear);
-      else if (interp == "CLOSEST") o.sub = uint8_t(Interp::Closest);
-      else throw std::invalid_argument("interpolation must be LINEAR or CLOSEST");
-      if (ext == "REPEAT") o.ext = uint8_t(Extension::Repeat);
-      else if (ext == "EXTEND") o.ext = uint8_t(Extension::Extend);
-      else if (ext == "CLIP") o.ext = uint8_t(Extension::Clip);
-      else throw std::invalid_argument("extension must be REPEAT, EXTEND or CLIP");
+      o.sub = uint8_t(enum_from_name(interp, "interpolation", kInterpNames, false));
+      o.ext = uint8_t(enum_from_name(ext, "extension", kExtensionNames, false));
       o.clamp = t.size() == 7 && t[6].cast<bool>();  // unassociate alpha after filtering
     } else if (op == "math") {
       need(6);
@@ -611,32 +646,6 @@ py::dict scene_stats(const PyScene& self) {
   d["features"] = self.scene->features().names();  // of the last commit
   return d;
 }
-
-// A setting Python names by strings: its enum's values and their names in one table, read
-// both ways; an unknown name is a ValueError that lists the names.
-template <class E>
-using EnumNames = std::initializer_list<std::pair<E, const char*>>;
-template <class E>
-const char* enum_name(E v, EnumNames<E> names) {
-  for (const auto& [e, n] : names)
-    if (e == v) return n;
-  return names.begin()->second;
-}
-template <class E>
-E enum_from_name(const std::string& s, const char* setting, EnumNames<E> names) {
-  std::string list;
-  size_t k = 0;
-  for (const auto& [e, n] : names) {
-    if (s == n) return e;
-    list += std::string(k == 0 ? "" : k + 1 == names.size() ? " or " : ", ") + "'" + n + "'";
-    ++k;
-  }
-  throw std::invalid_argument(std::string(setting) + " must be " + list);
-}
-constexpr EnumNames<Scene::CompactBvh> kCompactBvhNames = {
-    {Scene::CompactBvh::Auto, "auto"}, {Scene::CompactBvh::On, "on"}, {Scene::CompactBvh::Off, "off"}};
-constexpr EnumNames<Scene::BuildQuality> kBuildQualityNames = {
-    {Scene::BuildQuality::Auto, "auto"}, {Scene::BuildQuality::Sah, "sah"}, {Scene::BuildQuality::Fast, "fast"}};
 
 py::dict wide_bvh_nodes(const PyScene& self) {
   const Bvh& bvh = self.scene->bvh();
@@ -1167,15 +1176,8 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("sensor_height", &CameraDesc::sensor_height)
       .def_property(
           "sensor_fit",
-          [](const CameraDesc& c) {
-            return c.sensor_fit == SensorFit::Auto ? "AUTO" : c.sensor_fit == SensorFit::Horizontal ? "HORIZONTAL" : "VERTICAL";
-          },
-          [](CameraDesc& c, const std::string& s) {
-            if (s == "AUTO") c.sensor_fit = SensorFit::Auto;
-            else if (s == "HORIZONTAL") c.sensor_fit = SensorFit::Horizontal;
-            else if (s == "VERTICAL") c.sensor_fit = SensorFit::Vertical;
-            else throw std::invalid_argument("sensor_fit must be AUTO, HORIZONTAL or VERTICAL");
-          })
+          [](const CameraDesc& c) { return enum_name(c.sensor_fit, kSensorFitNames); },
+          [](CameraDesc& c, const std::string& s) { c.sensor_fit = enum_from_name(s, "sensor_fit", kSensorFitNames, false); })
       .def_readwrite("shift_x", &CameraDesc::shift_x)
       .def_readwrite("shift_y", &CameraDesc::shift_y)
       .def_readwrite("clip_start", &CameraDesc::clip_start)
@@ -1183,12 +1185,8 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("pixel_aspect_x", &CameraDesc::pixel_aspect_x)
       .def_readwrite("pixel_aspect_y", &CameraDesc::pixel_aspect_y)
       .def_property(
-          "type", [](const CameraDesc& c) { return c.type == CameraType::Orthographic ? "ORTHO" : "PERSP"; },
-          [](CameraDesc& c, const std::string& s) {
-            if (s == "PERSP") c.type = CameraType::Perspective;
-            else if (s == "ORTHO") c.type = CameraType::Orthographic;
-            else throw std::invalid_argument("camera type must be PERSP or ORTHO");
-          })
+          "type", [](const CameraDesc& c) { return enum_name(c.type, kCameraTypeNames); },
+          [](CameraDesc& c, const std::string& s) { c.type = enum_from_name(s, "camera type", kCameraTypeNames, false); })
       .def_readwrite("ortho_scale", &CameraDesc::ortho_scale)
       .def_readwrite("aperture_size", &CameraDesc::aperture_size)
       .def_readwrite("focus_distance", &CameraDesc::focus_distance)
@@ -1232,29 +1230,16 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("tile_size", &RenderSettings::tile_size)
       .def_readwrite("use_nee", &RenderSettings::use_nee)
       .def_property(
-          "sampler", [](const RenderSettings& s) { return s.sampler == SamplerType::Sobol ? "sobol" : "random"; },
-          [](RenderSettings& s, const std::string& v) {
-            if (v == "sobol") s.sampler = SamplerType::Sobol;
-            else if (v == "random") s.sampler = SamplerType::Random;
-            else throw std::invalid_argument("sampler must be 'sobol' or 'random'");
-          })
+          "sampler", [](const RenderSettings& s) { return enum_name(s.sampler, kSamplerNames); },
+          [](RenderSettings& s, const std::string& v) { s.sampler = enum_from_name(v, "sampler", kSamplerNames); })
       .def_readwrite("adaptive_threshold", &RenderSettings::adaptive_threshold)
       .def_readwrite("adaptive_min_samples", &RenderSettings::adaptive_min_samples)
       .def_readwrite("diffuse_bounces", &RenderSettings::diffuse_bounces)
       .def_readwrite("glossy_bounces", &RenderSettings::glossy_bounces)
       .def_readwrite("transmission_bounces", &RenderSettings::transmission_bounces)
       .def_property(
-          "filter_type",
-          [](const RenderSettings& s) {
-            return s.filter_type == FilterType::Box ? "box" : s.filter_type == FilterType::Gaussian ? "gaussian"
-                                                                                                    : "blackman_harris";
-          },
-          [](RenderSettings& s, const std::string& v) {
-            if (v == "box") s.filter_type = FilterType::Box;
-            else if (v == "gaussian") s.filter_type = FilterType::Gaussian;
-            else if (v == "blackman_harris") s.filter_type = FilterType::BlackmanHarris;
-            else throw std::invalid_argument("filter_type must be 'box', 'gaussian' or 'blackman_harris'");
-          })
+          "filter_type", [](const RenderSettings& s) { return enum_name(s.filter_type, kFilterNames); },
+          [](RenderSettings& s, const std::string& v) { s.filter_type = enum_from_name(v, "filter_type", kFilterNames); })
       .def_readwrite("filter_width", &RenderSettings::filter_width)
       .def_readwrite("border_x", &RenderSettings::border_x)
       .def_readwrite("border_y", &RenderSettings::border_y)
@@ -1276,12 +1261,8 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("film_transparent", &RenderSettings::film_transparent)
       .def_readwrite("exposure", &RenderSettings::exposure)
       .def_property(
-          "debug_view", [](const RenderSettings& s) { return s.debug_view == DebugView::Bvh ? "bvh" : "none"; },
-          [](RenderSettings& s, const std::string& v) {
-            if (v == "none") s.debug_view = DebugView::None;
-            else if (v == "bvh") s.debug_view = DebugView::Bvh;
-            else throw std::invalid_argument("debug_view must be 'none' or 'bvh'");
-          })
+          "debug_view", [](const RenderSettings& s) { return enum_name(s.debug_view, kDebugViewNames); },
+          [](RenderSettings& s, const std::string& v) { s.debug_view = enum_from_name(v, "debug_view", kDebugViewNames); })
       .def_readwrite("sample_offset", &RenderSettings::sample_offset)
       .def_readwrite("force_general_kernel", &RenderSettings::force_general_kernel,
                      "Run the general integrator kernel, not the scene-specialised one (same image).");
@@ -1568,12 +1549,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           "commit",
           [](PyScene& self, int threads, const std::string& bvh) {
             self.check_editable();
-            BvhLayout layout;
-            if (bvh == "auto") layout = BvhLayout::Auto;
-            else if (bvh == "binary") layout = BvhLayout::Binary;
-            else if (bvh == "bvh4") layout = BvhLayout::Wide4;
-            else if (bvh == "bvh8") layout = BvhLayout::Wide8;
-            else throw std::invalid_argument("bvh must be 'auto', 'binary', 'bvh4' or 'bvh8'");
+            const BvhLayout layout = enum_from_name(bvh, "bvh", kBvhLayoutNames);
             bool done;
             {
               py::gil_scoped_release release;

@@ -14,6 +14,26 @@ namespace {
 // a hemisphere (the spherical construction loses precision there).
 inline bool use_spherical_sampling(double omega) { return omega > 2e-4 && omega < 6.2; }
 
+// One of a group's `count` triangles picked by x in [0, the weights' sum) in proportion to
+// weight(i), and x rescaled into [0, 1] within its share, so that the sample stays stratified
+// over the whole group. False where the pick has no weight.
+template <class Weight>
+inline bool pick_weighted(uint32_t count, const Weight& weight, double x, uint32_t& i, float& x_in_share) {
+  double acc = 0.0;
+  i = 0;
+  for (; i + 1 < count && !(x < acc + weight(i)); ++i) acc += weight(i);
+  const double wi = weight(i);
+  if (!(wi > 0.0)) return false;
+  x_in_share = float(std::clamp((x - acc) / wi, 0.0, 1.0));
+  return true;
+}
+
+// The probability of picking triangle `area` of a group of `group_area` by area, times the
+// group's own.
+inline float area_pmf(float pmf, float area, float group_area) {
+  return float(double(pmf) * double(area) / double(group_area));
+}
+
 }  // namespace
 
 Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emission) {
@@ -920,14 +940,11 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
     }
     // A speck from p (or p in its plane): by area, as the triangles would be (each subtends
     // less), without their solid angles.
-    const double x = double(u.x) * double(g.area), a0 = double(emitter_areas_[e]);
-    const uint32_t i = x < a0 ? 0u : 1u;
-    const double wi = i == 0 ? a0 : double(emitter_areas_[e + 1]);
-    if (!(wi > 0.0)) return false;
-    u.x = float(std::clamp((x - (i == 0 ? 0.0 : a0)) / wi, 0.0, 1.0));
+    const auto area = [&](uint32_t i) { return double(emitter_areas_[g.first + i]); };
+    uint32_t i;
+    if (!pick_weighted(g.count, area, double(u.x) * double(g.area), i, u.x)) return false;
     e += i;
-    const float pmf_e = float(double(pmf) * double(emitter_areas_[e]) / double(g.area));
-    return sample_emitter(e, p, SphericalTriangle(), false, 0.0f, pmf_e, u, s);
+    return sample_emitter(e, p, SphericalTriangle(), false, 0.0f, area_pmf(pmf, emitter_areas_[e], g.area), u, s);
   }
   SphericalTriangle st;
   bool spherical;
@@ -946,13 +963,8 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
     double dirs[3 * kMaxEmitterGroup][3], omega[kMaxEmitterGroup], total;
     const bool whole = group_solid_angles(g, p, dirs, omega, total);
     const auto weight = [&](uint32_t i) { return whole ? omega[i] : double(emitter_areas_[g.first + i]); };
-    const double x = double(u.x) * (whole ? total : double(g.area));
-    double acc = 0.0;
-    uint32_t i = 0;
-    for (; i + 1 < g.count && !(x < acc + weight(i)); ++i) acc += weight(i);
-    const double wi = weight(i);
-    if (!(wi > 0.0)) return false;
-    u.x = float(std::clamp((x - acc) / wi, 0.0, 1.0));
+    uint32_t i;
+    if (!pick_weighted(g.count, weight, double(u.x) * (whole ? total : double(g.area)), i, u.x)) return false;
     e += i;
     const auto dir = [&](int c) {
       const double* d = dirs[g.tri_corner[i][c]];
@@ -967,7 +979,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
       pdf_solid = float(pmf / total);
     } else {
       spherical = solid_angle_triangles_ && use_spherical_sampling(omega[i]);
-      pmf_e = float(double(pmf) * double(emitter_areas_[e]) / double(g.area));
+      pmf_e = area_pmf(pmf, emitter_areas_[e], g.area);
       pdf_solid = float(pmf_e / omega[i]);
     }
   }
@@ -1089,7 +1101,7 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
   if (g.rect && solid_angle_triangles_) {
     const double omega = group_rect(g, from).solid_angle;
     if (use_spherical_rect(omega)) return float(pmf / omega);
-    const float pmf_e = float(double(pmf) * double(emitter_areas_[size_t(e)]) / double(g.area));  // by area
+    const float pmf_e = area_pmf(pmf, emitter_areas_[size_t(e)], g.area);  // by area
     return pmf_e / emitter_areas_[size_t(e)] * length_sq(at - from) / cos_l;
   }
   double omega;
@@ -1101,7 +1113,7 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
     double dirs[3 * kMaxEmitterGroup][3], omegas[kMaxEmitterGroup], total;
     if (group_solid_angles(g, from, dirs, omegas, total)) return float(pmf / total);
     omega = omegas[size_t(e) - g.first];
-    pmf_e = float(double(pmf) * double(emitter_areas_[size_t(e)]) / double(g.area));
+    pmf_e = area_pmf(pmf, emitter_areas_[size_t(e)], g.area);
   }
   if (solid_angle_triangles_ && use_spherical_sampling(omega)) return float(pmf_e / omega);
   const float t2 = length_sq(at - from);

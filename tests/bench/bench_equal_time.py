@@ -18,7 +18,6 @@ adaptive sampling, the same bounce limits as Pathlight, and all threads.
 Alongside, the per-sample variance of each engine (variance_per_sample.py: VAR_SEEDS renders of
 VAR_SPP samples with different seeds): unlike the timings, it does not depend on the machine's
 load, and equal-time error is that variance over the samples per second."""
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from blender_util import load_addon, open_fixture, render_to_array  # noqa: E402
+from benchutil import parse_args, section_dir, write_section  # noqa: E402
 
 SCALE = 50                     # % of the fixtures' 256x256
 TIMES = (1.0, 2.0, 4.0, 8.0)   # equal-time budgets, seconds of rendering (sync excluded)
@@ -102,10 +102,7 @@ def time_to(err_curve, times, target):
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="docs/")
-    ap.add_argument("--quick", action="store_true", help="smaller references and budgets (smoke run)")
-    args = ap.parse_args()
+    args = parse_args("smaller references and budgets (smoke run)")
     ref_spp, times = (REF_SPP, TIMES) if not args.quick else (256, (0.5, 1.0))
     repeats = repeats_for if not args.quick else (lambda budget: 1)
     load_addon()
@@ -138,8 +135,7 @@ def main():
                              mean_ratio=float(refs["PATHLIGHT"].mean() / refs["CYCLES"].mean()))
         print(name, results[name], flush=True)
 
-    out = Path(args.out) / "bench"
-    out.mkdir(parents=True, exist_ok=True)
+    out = section_dir(args)
     plot = None
     try:
         import matplotlib
@@ -194,8 +190,7 @@ def main():
         lines += [f"![relative MSE against render time]({plot})", ""]
     (out / "cornell.md").unlink(missing_ok=True)  # replaced by this section
     (out / "cornell_rmse.png").unlink(missing_ok=True)
-    (out / "equal_time.md").write_text("\n".join(lines))
-    print("\n".join(lines))
+    write_section(out, "equal_time", lines)
 
 
 if __name__ == "__main__":

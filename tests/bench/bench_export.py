@@ -9,12 +9,11 @@ process would leave Blender's caches of the mesh (normals, triangulation) warm f
 which Cycles never gets. Neither render can skip its scene sync or BVH build: the warm-up render
 is of an empty scene and persistent data is off (Blender's default), so Cycles syncs the mesh
 and builds its BVH (Embree) inside the timed render call. Writes docs/bench/export.md."""
-import argparse
-import json
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
+
+from benchutil import parse_args, run_child as run_json_child, section_dir, write_section
 
 TESTS = Path(__file__).resolve().parents[1]
 REPO = TESTS.parent
@@ -23,16 +22,11 @@ REPEATS = 3
 
 CHILD = textwrap.dedent("""
     import json, sys, time
-    sys.path[:0] = [{repo!r}, {tests!r}]
+    sys.path[:0] = [{repo!r}, {tests!r}, {bench!r}]
     import bpy
     import numpy as np
+    from benchutil import proc_status as status
     from blender_util import empty_scene_with_camera, load_addon, render_to_array
-
-    def status(key):
-        for line in open("/proc/self/status"):
-            if line.startswith(key + ":"):
-                return int(line.split()[1]) * 1024
-        return 0
 
     def heightfield(n_tris):
         # A noisy heightfield of quads (two triangles each), built with foreach_set.
@@ -92,20 +86,12 @@ CHILD = textwrap.dedent("""
 
 
 def run_child(engine, n_tris, mode="render"):
-    code = CHILD.format(repo=str(REPO), tests=str(TESTS))
-    proc = subprocess.run([sys.executable, "-c", code, engine, str(n_tris), mode], capture_output=True, text=True,
-                          timeout=1800)
-    for line in proc.stdout.splitlines():
-        if line.startswith("RESULT "):
-            return json.loads(line[7:])
-    raise RuntimeError(f"{engine} run failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+    code = CHILD.format(repo=str(REPO), tests=str(TESTS), bench=str(TESTS / "bench"))
+    return run_json_child([sys.executable, "-c", code, engine, str(n_tris), mode], f"{engine} run", 1800)
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="docs/")
-    ap.add_argument("--quick", action="store_true", help="100k triangles only (smoke run)")
-    args = ap.parse_args()
+    args = parse_args("100k triangles only (smoke run)")
     sizes = SIZES[:1] if args.quick else SIZES
     rows = []
     for n in sizes:
@@ -144,10 +130,8 @@ def main():
                      f"| {p['geometry_bytes'] / p['scene_triangles']:.0f} + {p['bvh_bytes'] / p['scene_triangles']:.0f} "
                      f"| {p['cpu_s']:.2f} / {c['cpu_s']:.2f} |")
     lines += ["", "Above 1: Pathlight is faster; below 1: Cycles is.", ""]
-    out = Path(args.out) / "bench"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "export.md").write_text("\n".join(lines))
-    print("\n".join(lines))
+    out = section_dir(args)
+    write_section(out, "export", lines)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,6 @@ too). Writes docs/bench/kernels.md.
 The scenes are core-only replicas of blender_scenes/cornell_box.blend (tests/bench/kernel_scenes.py):
 the diffuse Cornell box (the diffuse kernel) and the same box with a clear glass sphere (the
 surfaces kernel)."""
-import argparse
 import os
 import re
 import shutil
@@ -21,6 +20,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from benchutil import parse_args, section_dir, write_section  # noqa: E402
 from kernel_scenes import cornell_fixture, core, settings  # noqa: E402
 
 pc = core()
@@ -52,10 +52,7 @@ def callgrind_per_sample(general, size=64, spp=16):
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="docs/")
-    ap.add_argument("--quick", action="store_true", help="fewer, smaller runs (smoke run)")
-    args = ap.parse_args()
+    args = parse_args("fewer, smaller runs (smoke run)")
     size, spp, pairs = (64, 8, 2) if args.quick else (128, 32, 6)
     rows = []
     for name, glass in SCENES.items():
@@ -95,10 +92,8 @@ def main():
                   f"({ir[True] / ir[False]:.2f}x as many in the general kernel).", ""]
     else:
         lines += ["(valgrind is not installed: no instruction counts.)", ""]
-    out = Path(args.out) / "bench"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "kernels.md").write_text("\n".join(lines))
-    print("\n".join(lines))
+    out = section_dir(args)
+    write_section(out, "kernels", lines)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,6 @@ Both batch APIs trace on the calling thread (embreex loops over rtcIntersect1/rt
 one thread, Scene.intersect/occluded do the same), so the comparison is one thread against one
 thread. Each timing is the best of a few repetitions, which filters out the other processes of
 a shared machine; ratios are measured in the same run."""
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchutil import parse_args, section_dir, write_section  # noqa: E402
 from core_scenes import core, look_at_matrix  # noqa: E402
 
 pc = core()
@@ -177,14 +177,10 @@ def trace_both(s, es, o, d, kind):
 # ---------------------------------------------------------------- main
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="docs/")
-    ap.add_argument("--quick", action="store_true", help="smaller scenes and fewer rays (smoke run)")
-    args = ap.parse_args()
+    args = parse_args("smaller scenes and fewer rays (smoke run)")
     quick = args.quick
     rng = np.random.default_rng(5)
-    out = Path(args.out) / "bench"
-    out.mkdir(parents=True, exist_ok=True)
+    out = section_dir(args)
     info = pc.build_info()
 
     # 1. Throughput on the ~1M-triangle scene.
@@ -354,8 +350,7 @@ def main():
     lines.append("")
     for p in plots:
         lines += [f"![time per ray against triangles and resolution; throughput by ray type]({p})", ""]
-    (out / "rays.md").write_text("\n".join(lines))
-    print("\n".join(lines))
+    write_section(out, "rays", lines)
 
 
 def embree_version():

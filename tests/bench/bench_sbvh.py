@@ -5,7 +5,6 @@ scene where spatial splits matter (tests/core_scenes.sliver_room: a rotated room
 triangles with long thin beams and small spheres, a procedural stand-in for Sponza; camera
 inside) and on the ~1M-triangle scene of bench_rays.py (bumpy spheres on a ground grid: small
 triangles, where they should change little). Writes docs/bench/sbvh.md."""
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -16,6 +15,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
 from bench_rays import best_time, camera_rays, embree_scene, make_scene, secondary_rays  # noqa: E402
+from benchutil import parse_args, section_dir, write_section  # noqa: E402
 from core_scenes import core, sliver_room  # noqa: E402
 
 pc = core()
@@ -64,14 +64,10 @@ def measure(name, meshes, eye, target, res, rng):
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="docs/")
-    ap.add_argument("--quick", action="store_true", help="smaller scenes and fewer rays (smoke run)")
-    args = ap.parse_args()
+    args = parse_args("smaller scenes and fewer rays (smoke run)")
     quick = args.quick
     rng = np.random.default_rng(5)
-    out = Path(args.out) / "bench"
-    out.mkdir(parents=True, exist_ok=True)
+    out = section_dir(args)
     res = 192 if quick else 512
     scenes = {
         "Sliver room": ([sliver_room(spheres=150 if quick else 600)], (0.0, -1.5, 0.3), (0.3, 1.0, -0.2)),
@@ -114,8 +110,7 @@ def main():
             lines.append(f"| {name} | {'on' if r['spatial'] else 'off'} | {p[0]:.1f} / {p[1]:.1f} | {q[0]:.1f} / {q[1]:.1f} |")
     lines += ["", "Embree's build (on the first query, through embreex): " + ", ".join(
         f"{name} {eb * 1e3:.0f} ms" for name, (_, eb) in results.items()) + "."]
-    (out / "sbvh.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_section(out, "sbvh", lines + [""])
 
 
 if __name__ == "__main__":

@@ -9,12 +9,12 @@ elapsed time over its samples. Memory: the process's peak resident size (VmHWM) 
 the numpy arrays of the scene included, and the core's own bytes per triangle (geometry:
 meshes as added, world-space triangles and shading data; BVH: nodes and triangle blocks). The
 10M run is the check that such a scene renders in 24 GiB. Writes docs/bench/scaling.md."""
-import argparse
 import json
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
+
+from benchutil import parse_args, run_child as run_json_child, section_dir, write_section
 
 TESTS = Path(__file__).resolve().parents[1]
 REPO = TESTS.parent
@@ -27,13 +27,8 @@ CHILD = textwrap.dedent("""
     sys.path[:0] = [{tests!r}, {bench!r}]
     import numpy as np
     from bench_rays import make_scene, pc
+    from benchutil import proc_status as status
     from core_scenes import look_at_matrix
-
-    def status(key):
-        for line in open("/proc/self/status"):
-            if line.startswith(key + ":"):
-                return int(line.split()[1]) * 1024
-        return 0
 
     n, resolutions, samples = int(sys.argv[1]), json.loads(sys.argv[2]), int(sys.argv[3])
     meshes = make_scene(n)
@@ -73,19 +68,12 @@ CHILD = textwrap.dedent("""
 
 def run_child(n, resolutions, samples):
     code = CHILD.format(tests=str(TESTS), bench=str(TESTS / "bench"))
-    proc = subprocess.run([sys.executable, "-c", code, str(n), json.dumps(list(resolutions)), str(samples)],
-                          capture_output=True, text=True, timeout=3600)
-    for line in proc.stdout.splitlines():
-        if line.startswith("RESULT "):
-            return json.loads(line[7:])
-    raise RuntimeError(f"scaling run of {n} triangles failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+    return run_json_child([sys.executable, "-c", code, str(n), json.dumps(list(resolutions)), str(samples)],
+                          f"scaling run of {n} triangles", 3600)
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default="docs/")
-    ap.add_argument("--quick", action="store_true", help="up to 100k triangles (smoke run)")
-    args = ap.parse_args()
+    args = parse_args("up to 100k triangles (smoke run)")
     counts = (10_000, 100_000) if args.quick else COUNTS
     samples = 8
     rows = []
@@ -120,10 +108,8 @@ def main():
     fits = biggest["peak_rss"] < LIMIT_GIB * gib
     lines += ["", f"Memory check: the {biggest['triangles']:,}-triangle scene rendered with a peak of "
               f"{biggest['peak_rss'] / gib:.2f} GiB, {'within' if fits else 'OVER'} the {LIMIT_GIB} GiB budget.", ""]
-    out = Path(args.out) / "bench"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "scaling.md").write_text("\n".join(lines))
-    print("\n".join(lines))
+    out = section_dir(args)
+    write_section(out, "scaling", lines)
     if not fits:
         sys.exit(f"peak RSS {biggest['peak_rss'] / gib:.2f} GiB exceeds {LIMIT_GIB} GiB")
 
