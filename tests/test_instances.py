@@ -119,6 +119,11 @@ def test_merged_hits_name_their_instance_with_empty_instances_between():
     assert (prim >= 0).all()
     np.testing.assert_array_equal(inst, expect)
     assert (row >= 0).all() and (row < len(tris)).all()
+    # Without instances=True the batch skips the instance outputs; the four it returns are the same.
+    plain = s.intersect(origins, dirs)
+    assert len(plain) == 4
+    for x, y in zip(plain, s.intersect(origins, dirs, instances=True)[:4]):
+        np.testing.assert_array_equal(x, y)
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))

@@ -693,7 +693,8 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
   py::array_t<float> t(n), b1(n), b2(n);
-  py::array_t<int64_t> prim(n), inst(n), local(n);
+  // The instance outputs only when returned: mesh_triangle reads a table (a cache miss per hit).
+  py::array_t<int64_t> prim(n), inst(instances ? n : 0), local(instances ? n : 0);
   int64_t* pi = inst.mutable_data();
   int64_t* pl = local.mutable_data();
   const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
@@ -708,8 +709,10 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
       const bool ok = self.scene->intersect(r, h);
       pt[i] = ok ? h.t : kInf;
       pp[i] = ok ? int64_t(self.scene->global_prim(h)) : -1;
-      pi[i] = ok ? int64_t(h.inst) : -1;
-      pl[i] = ok ? int64_t(self.scene->mesh_triangle(h)) : -1;
+      if (instances) {
+        pi[i] = ok ? int64_t(h.inst) : -1;
+        pl[i] = ok ? int64_t(self.scene->mesh_triangle(h)) : -1;
+      }
       pb1[i] = ok ? h.b1 : 0.0f;
       pb2[i] = ok ? h.b2 : 0.0f;
     }
