@@ -268,9 +268,11 @@ class Builder {
     for (int k = 0; k < 5; ++k)
       if (block_ == 1u << k) block_shift_ = k;
     hw_ = std::max(1, opt.threads > 0 ? opt.threads : static_cast<int>(std::thread::hardware_concurrency()));
-    // Four times as many subtrees as threads, so an unbalanced split leaves no core idle for long.
-    parallel_depth_ = 2;
-    while ((1 << parallel_depth_) < 4 * hw_) ++parallel_depth_;
+    // Four times as many subtrees as threads, so an unbalanced split leaves no core idle for long;
+    // none on one thread (threads = 1 must not start any).
+    parallel_depth_ = 0;
+    if (hw_ > 1)
+      while ((1 << parallel_depth_) < 4 * hw_) ++parallel_depth_;
     const uint32_t n = static_cast<uint32_t>(tris.size());
     // With spatial splits, room for the duplicates: each subtree gets a share of the spare slots
     // after its references, so the budget holds without a shared counter.
