@@ -323,7 +323,9 @@ class Builder {
       order_.reserve(n_refs_);
       advise_huge_pages(order_.data(), n_refs_ * sizeof(uint32_t));
       order_.resize(n_refs_);
-      for (size_t i = 0; i < n_refs_; ++i) order_[i] = refs_[i].id;
+      parallel_ranges(n_refs_, hw_, [&](size_t lo, size_t hi) {
+        for (size_t i = lo; i < hi; ++i) order_[i] = refs_[i].id;
+      }, 131072);
     } else {
       // Leaves are spread over the reference array with spare slots between subtrees: packed
       // here in depth-first order.
@@ -1200,78 +1202,224 @@ bool quantise_node(const WideBvhNode<N>& f, int k, QuantWideNode<N>& q) {
   return true;
 }
 
+struct LeafJob {
+  uint32_t first, count, block;  // the leaf's triangles (leaf order) and its first block
+};
+struct CollapseItem {
+  uint32_t bin, wide;  // a binary node and the wide node it becomes
+};
+
+// The wide node of binary node `b` (as float lanes; `k` gets the used lanes): interior children
+// are numbered from `next` on and pushed onto `todo` in lane order, leaf children get blocks
+// from `n_blocks` on and a job each.
+template <int N>
+void make_wide_node(const BvhNode* bin, uint32_t b, uint32_t& next, uint32_t& n_blocks,
+                    std::vector<CollapseItem>& todo, std::vector<LeafJob>& jobs, WideBvhNode<N>& node, int& k) {
+  uint32_t kids[N];
+  k = bvh_detail::gather_wide_children(bin, b, kids, N);
+  for (int i = 0; i < N; ++i) {
+    if (i < k) {
+      const BvhNode& c = bin[kids[i]];
+      node.bounds[0][i] = c.lo.x;
+      node.bounds[1][i] = c.hi.x;
+      node.bounds[2][i] = c.lo.y;
+      node.bounds[3][i] = c.hi.y;
+      node.bounds[4][i] = c.lo.z;
+      node.bounds[5][i] = c.hi.z;
+      if (c.is_leaf()) {
+        node.child[i] = n_blocks;
+        node.count[i] = c.count;
+        jobs.push_back({c.left_or_first, c.count, n_blocks});
+        n_blocks += (c.count + 3) / 4;
+      } else {
+        node.child[i] = next++;
+        node.count[i] = 0;
+        todo.push_back({kids[i], node.child[i]});
+      }
+    } else {  // unused lane: an empty box (lo > hi) that the slab test always rejects
+      for (int a = 0; a < 3; ++a) {
+        node.bounds[2 * a][i] = kInf;
+        node.bounds[2 * a + 1][i] = -kInf;
+      }
+      node.child[i] = 0;
+      node.count[i] = 0;
+    }
+  }
+}
+
+template <int N, class Node>
+bool store_wide_node(const WideBvhNode<N>& node, int k, Node& out) {
+  if constexpr (std::is_same_v<Node, WideBvhNode<N>>) {
+    out = node;
+    return true;
+  } else {
+    return quantise_node(node, k, out);
+  }
+}
+
+// The references under binary node b: a subtree's leaves are one range of the leaf order, from
+// its leftmost leaf's first to its rightmost leaf's last.
+inline uint32_t subtree_refs(const BvhNode* bin, uint32_t b) {
+  uint32_t l = b, r = b;
+  while (!bin[l].is_leaf()) l = bin[l].left_or_first;
+  while (!bin[r].is_leaf()) r = bin[r].left_or_first + 1;
+  return bin[r].left_or_first + bin[r].count - bin[l].left_or_first;
+}
+
+// One subtree of the collapse made on its own: its wide nodes in the order the serial pass
+// makes them (index 0 its root, children numbered from 1), its blocks numbered from 0.
+template <int N, class Node>
+struct CollapsePart {
+  uint32_t bin = 0, wide = 0;              // its root: binary node and (global) wide index
+  uint32_t node_base = 0, block_base = 0;  // where its nodes 1.. and its blocks go
+  std::vector<Node> nodes;
+  std::vector<uint8_t> lanes;  // used lanes of each node
+  std::vector<LeafJob> jobs;
+  uint32_t n_blocks = 0;
+  bool ok = true;
+};
+
 // Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
 // children and keeps opening its largest interior child (the one most rays enter) until it
 // has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
 // the binary leaves; `tris` is the build's input, reached through prim_ids (leaf order).
-// Leaves become runs of TriangleBlock4s, placed in the order the collapse reaches them: the
-// nodes are made in one pass that hands out the block slots, then the blocks are filled on
-// `threads` threads (the triangle gathers and the writes of 36+ bytes per triangle are most of
-// the work), so the result is the same on any thread count. Into float nodes (Node =
-// WideBvhNode<N>) or compressed ones (QuantWideNode<N>, from the float node of the same lanes);
-// false when a node cannot be compressed (quantise_node), the outputs then unspecified.
+// Nodes and blocks are numbered in the order of one depth-first pass (a stack: a node's
+// interior children get consecutive indices, the last one's subtree is made first), and leaves
+// become runs of TriangleBlock4s in that order. On several threads the same numbering comes
+// from parts: the top of the tree is walked as that pass would (twice: first to find the
+// subtrees of few enough references, then, knowing their sizes, to number everything), the
+// subtrees are collapsed on their own in parallel and copied into place with their indices
+// offset; the blocks are filled in parallel. So the result is the same on any thread count.
+// Into float nodes (Node = WideBvhNode<N>) or compressed ones (QuantWideNode<N>, from the
+// float node of the same lanes); false when a node cannot be compressed (quantise_node), the
+// outputs then unspecified.
 template <int N, class Node>
 bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
               const std::vector<uint32_t>& prim_ids, int threads, std::vector<Node>& out,
               RawVector<TriangleBlock4>& blocks, RawVector<uint32_t>& block_prims) {
-  out.clear();
-  out.reserve(n_bin / (N - 1) + 1);
-  advise_huge_pages(out.data(), out.capacity() * sizeof(Node));
-  size_t n_leaves = 0;
-  for (size_t i = 0; i < n_bin; ++i) n_leaves += bin[i].is_leaf();
-  struct LeafJob {
-    uint32_t first, count, block;
-  };
+  const int hw = std::max(1, threads > 0 ? threads : static_cast<int>(std::thread::hardware_concurrency()));
+  const uint32_t refs = static_cast<uint32_t>(prim_ids.size());
+  // Subtrees of at most this many references are parts (about 8 per thread); none on one thread.
+  const uint32_t part_max = hw > 1 && refs >= 65536 ? std::max<uint32_t>(8192, refs / (8 * uint32_t(hw))) : 0;
+  const auto is_part = [&](uint32_t b) { return b != 0 && subtree_refs(bin, b) <= part_max; };
+  std::vector<CollapsePart<N, Node>> parts;
+  std::vector<CollapseItem> todo;
   std::vector<LeafJob> jobs;
-  jobs.reserve(n_leaves);
-  uint32_t n_blocks = 0;
-  struct Item {
-    uint32_t bin, wide;
-  };
-  std::vector<Item> todo{{0, 0}};
-  out.emplace_back();
-  while (!todo.empty()) {
-    const Item it = todo.back();
-    todo.pop_back();
-    uint32_t kids[N];
-    const int k = bvh_detail::gather_wide_children(bin, it.bin, kids, N);
-    WideBvhNode<N> node;
-    for (int i = 0; i < N; ++i) {
-      if (i < k) {
-        const BvhNode& c = bin[kids[i]];
-        node.bounds[0][i] = c.lo.x;
-        node.bounds[1][i] = c.hi.x;
-        node.bounds[2][i] = c.lo.y;
-        node.bounds[3][i] = c.hi.y;
-        node.bounds[4][i] = c.lo.z;
-        node.bounds[5][i] = c.hi.z;
-        if (c.is_leaf()) {
-          node.child[i] = n_blocks;
-          node.count[i] = c.count;
-          jobs.push_back({c.left_or_first, c.count, n_blocks});
-          n_blocks += (c.count + 3) / 4;
-        } else {
-          node.child[i] = static_cast<uint32_t>(out.size());
-          node.count[i] = 0;
-          todo.push_back({kids[i], node.child[i]});
-          out.emplace_back();
-        }
-      } else {  // unused lane: an empty box (lo > hi) that the slab test always rejects
-        for (int a = 0; a < 3; ++a) {
-          node.bounds[2 * a][i] = kInf;
-          node.bounds[2 * a + 1][i] = -kInf;
-        }
-        node.child[i] = 0;
-        node.count[i] = 0;
+  WideBvhNode<N> node;
+  int k = 0;
+  if (part_max > 0) {
+    // The top walk, numbering nothing: which subtrees are parts, in the order the pass meets them.
+    uint32_t next = 1, nb = 0;
+    todo.push_back({0, 0});
+    while (!todo.empty()) {
+      const CollapseItem it = todo.back();
+      todo.pop_back();
+      if (is_part(it.bin)) {
+        parts.emplace_back();
+        parts.back().bin = it.bin;
+        continue;
       }
+      make_wide_node<N>(bin, it.bin, next, nb, todo, jobs, node, k);
     }
-    if constexpr (std::is_same_v<Node, WideBvhNode<N>>) {
-      out[it.wide] = node;
-    } else if (!quantise_node(node, k, out[it.wide])) {
-      return false;
+    jobs.clear();
+    // Each part collapsed on its own, parts handed out in turn (any thread may make any one).
+    std::atomic<size_t> next_part{0};
+    run_chunks(std::min<int>(hw, int(parts.size())), [&](int) {
+      std::vector<CollapseItem> stack;
+      WideBvhNode<N> wn;
+      int lanes = 0;
+      for (size_t p; (p = next_part.fetch_add(1)) < parts.size();) {
+        CollapsePart<N, Node>& part = parts[p];
+        uint32_t count = 1;
+        stack.assign(1, {part.bin, 0});
+        while (!stack.empty() && part.ok) {
+          const CollapseItem it = stack.back();
+          stack.pop_back();
+          make_wide_node<N>(bin, it.bin, count, part.n_blocks, stack, part.jobs, wn, lanes);
+          part.nodes.resize(count);
+          part.lanes.resize(count);
+          part.ok = store_wide_node<N>(wn, lanes, part.nodes[it.wide]);
+          part.lanes[it.wide] = uint8_t(lanes);
+        }
+      }
+    });
+    for (const auto& part : parts)
+      if (!part.ok) return false;
+  }
+  // The pass itself: the top nodes made, each part's nodes and blocks given their place. On one
+  // thread (no parts) the nodes go straight into `out`; else the top ones wait until `out` has
+  // its final size.
+  uint32_t next = 1, n_blocks = 0;
+  size_t part_no = 0;
+  std::vector<std::pair<uint32_t, int>> top;  // with parts: the top nodes' indices and lanes
+  std::vector<WideBvhNode<N>> top_nodes;
+  out.clear();
+  if (part_max == 0) {
+    jobs.reserve((n_bin + 1) / 2);  // one per leaf
+    out.reserve((n_bin + 1) / 2);  // at most one wide node per interior binary node
+    advise_huge_pages(out.data(), out.capacity() * sizeof(Node));
+    out.emplace_back();
+  }
+  todo.assign(1, {0, 0});
+  while (!todo.empty()) {
+    const CollapseItem it = todo.back();
+    todo.pop_back();
+    if (part_max > 0 && is_part(it.bin)) {
+      CollapsePart<N, Node>& part = parts[part_no++];
+      part.wide = it.wide;
+      part.node_base = next;
+      part.block_base = n_blocks;
+      next += uint32_t(part.nodes.size()) - 1;
+      n_blocks += part.n_blocks;
+      continue;
+    }
+    make_wide_node<N>(bin, it.bin, next, n_blocks, todo, jobs, node, k);
+    if (part_max > 0) {
+      top.push_back({it.wide, k});
+      top_nodes.push_back(node);
+    } else {
+      out.resize(next);
+      if (!store_wide_node<N>(node, k, out[it.wide])) return false;
     }
   }
-  out.shrink_to_fit();
+  if (part_max > 0) {
+    out.reserve(next);
+    advise_huge_pages(out.data(), out.capacity() * sizeof(Node));
+    out.resize(next);
+    for (size_t i = 0; i < top.size(); ++i)
+      if (!store_wide_node<N>(top_nodes[i], top[i].second, out[top[i].first])) return false;
+  } else {
+    out.shrink_to_fit();
+  }
+  if (!parts.empty()) {
+    // Parts copied into place with their child indices offset, and their leaf jobs appended.
+    size_t n_jobs = jobs.size();
+    std::vector<size_t> job_base(parts.size());
+    for (size_t p = 0; p < parts.size(); ++p) {
+      job_base[p] = n_jobs;
+      n_jobs += parts[p].jobs.size();
+    }
+    jobs.resize(n_jobs);
+    std::atomic<size_t> next_part{0};
+    run_chunks(std::min<int>(hw, int(parts.size())), [&](int) {
+      for (size_t p; (p = next_part.fetch_add(1)) < parts.size();) {
+        const CollapsePart<N, Node>& part = parts[p];
+        for (size_t j = 0; j < part.nodes.size(); ++j) {
+          Node& dst = out[j == 0 ? part.wide : part.node_base + j - 1];
+          dst = part.nodes[j];
+          for (int i = 0; i < part.lanes[j]; ++i) {
+            if (dst.count[i] != 0) dst.child[i] += part.block_base;  // leaf: its first block
+            else dst.child[i] += part.node_base - 1;                // interior: local index >= 1
+          }
+        }
+        for (size_t j = 0; j < part.jobs.size(); ++j) {
+          LeafJob job = part.jobs[j];
+          job.block += part.block_base;
+          jobs[job_base[p] + j] = job;
+        }
+      }
+    });
+  }
   // Exact sizes, every element written below.
   blocks.clear();
   block_prims.clear();
