@@ -288,6 +288,10 @@ class Builder {
     std::vector<BoxAcc> b(chunks), cb(chunks);
     run_chunks(chunks, [&](int c) {
       const uint32_t lo = uint32_t(uint64_t(n) * c / chunks), hi = uint32_t(uint64_t(n) * (c + 1) / chunks);
+      // Boxes in locals, stored once: the chunks' accumulators share a cache line, and the
+      // reference stores may alias them (__m128 may alias floats), so growing them in place
+      // wrote that line on every triangle from both threads (2.5x slower than one thread).
+      BoxAcc box, cbox;
       for (uint32_t i = lo; i < hi; ++i) {
         const TriangleVerts& t = tris[i];
         PrimRef& r = refs_[i];
@@ -295,10 +299,12 @@ class Builder {
         r.hi = vmax(vmax(t.v0, t.v1), t.v2);
         r.id = i;
         r.bins = 1u << 24;  // weight 1
-        b[c].grow(r.vlo(), r.vhi());
+        box.grow(r.vlo(), r.vhi());
         const V4 ct = r.centroid();
-        cb[c].grow(ct, ct);
+        cbox.grow(ct, ct);
       }
+      b[c] = box;
+      cb[c] = cbox;
     });
     for (int c = 1; c < chunks; ++c) {
       b[0].grow(b[c]);
@@ -458,6 +464,7 @@ class Builder {
     std::vector<BoxAcc> cb(cchunks);
     run_chunks(cchunks, [&](int c) {
       const uint32_t b = uint32_t(uint64_t(m) * c / cchunks), e = uint32_t(uint64_t(m) * (c + 1) / cchunks);
+      BoxAcc cbox;  // stored once (as the root's boxes above)
       for (uint32_t k = b; k < e; ++k) {
         BoxAcc box;
         for (uint32_t j = first[k]; j < first[k + 1]; ++j) {
@@ -471,8 +478,9 @@ class Builder {
         cr.id = k;
         cr.bins = (first[k + 1] - first[k]) << 24;
         const V4 ct = cr.centroid();
-        cb[c].grow(ct, ct);
+        cbox.grow(ct, ct);
       }
+      cb[c] = cbox;
     });
     for (int c = 1; c < cchunks; ++c) cb[0].grow(cb[c]);
     root_cbounds_ = cb[0].aabb();
@@ -1266,17 +1274,13 @@ inline uint32_t subtree_refs(const BvhNode* bin, uint32_t b) {
   return bin[r].left_or_first + bin[r].count - bin[l].left_or_first;
 }
 
-// One subtree of the collapse made on its own: its wide nodes in the order the serial pass
-// makes them (index 0 its root, children numbered from 1), its blocks numbered from 0.
-template <int N, class Node>
+// One subtree of the collapse, made on its own thread: first counted, then, once the top walk
+// has given it its place, written straight into the output.
 struct CollapsePart {
-  uint32_t bin = 0, wide = 0;              // its root: binary node and (global) wide index
-  uint32_t node_base = 0, block_base = 0;  // where its nodes 1.. and its blocks go
-  std::vector<Node> nodes;
-  std::vector<uint8_t> lanes;  // used lanes of each node
-  std::vector<LeafJob> jobs;
-  uint32_t n_blocks = 0;
-  bool ok = true;
+  uint32_t bin = 0, wide = 0;             // its root: binary node and (global) wide index
+  uint32_t nodes = 0, blocks = 0, leaves = 0;  // its size
+  uint32_t node_base = 0, block_base = 0;  // where its nodes below the root and its blocks go
+  size_t job_base = 0;                     // and its leaves' jobs
 };
 
 // Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
@@ -1286,13 +1290,12 @@ struct CollapsePart {
 // Nodes and blocks are numbered in the order of one depth-first pass (a stack: a node's
 // interior children get consecutive indices, the last one's subtree is made first), and leaves
 // become runs of TriangleBlock4s in that order. On several threads the same numbering comes
-// from parts: the top of the tree is walked as that pass would (twice: first to find the
-// subtrees of few enough references, then, knowing their sizes, to number everything), the
-// subtrees are collapsed on their own in parallel and copied into place with their indices
-// offset; the blocks are filled in parallel. So the result is the same on any thread count.
-// Into float nodes (Node = WideBvhNode<N>) or compressed ones (QuantWideNode<N>, from the
-// float node of the same lanes); false when a node cannot be compressed (quantise_node), the
-// outputs then unspecified.
+// from parts: subtrees of few enough references are counted in parallel, the top of the tree
+// is walked as that pass would, each part taking as many indices as it counted, then the
+// parts are made in parallel straight into their places; the blocks are filled in parallel.
+// So the result is the same on any thread count. Into float nodes (Node = WideBvhNode<N>) or
+// compressed ones (QuantWideNode<N>, from the float node of the same lanes); false when a node
+// cannot be compressed (quantise_node), the outputs then unspecified.
 template <int N, class Node>
 bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
               const std::vector<uint32_t>& prim_ids, int threads, std::vector<Node>& out,
@@ -1301,12 +1304,19 @@ bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
   const uint32_t refs = static_cast<uint32_t>(prim_ids.size());
   // Subtrees of at most this many references are parts (about 8 per thread); none on one thread.
   const uint32_t part_max = hw > 1 && refs >= 65536 ? std::max<uint32_t>(8192, refs / (8 * uint32_t(hw))) : 0;
-  const auto is_part = [&](uint32_t b) { return b != 0 && subtree_refs(bin, b) <= part_max; };
-  std::vector<CollapsePart<N, Node>> parts;
+  const auto is_part = [&](uint32_t b) { return part_max > 0 && b != 0 && subtree_refs(bin, b) <= part_max; };
+  std::vector<CollapsePart> parts;
   std::vector<CollapseItem> todo;
   std::vector<LeafJob> jobs;
   WideBvhNode<N> node;
   int k = 0;
+  // Runs fn(part) for every part, parts handed out in turn (any thread may take any one).
+  const auto for_parts = [&](auto&& fn) {
+    std::atomic<size_t> next_part{0};
+    run_chunks(std::min<int>(hw, int(parts.size())), [&](int) {
+      for (size_t p; (p = next_part.fetch_add(1)) < parts.size();) fn(parts[p]);
+    });
+  };
   if (part_max > 0) {
     // The top walk, numbering nothing: which subtrees are parts, in the order the pass meets them.
     uint32_t next = 1, nb = 0;
@@ -1322,33 +1332,33 @@ bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
       make_wide_node<N>(bin, it.bin, next, nb, todo, jobs, node, k);
     }
     jobs.clear();
-    // Each part collapsed on its own, parts handed out in turn (any thread may make any one).
-    std::atomic<size_t> next_part{0};
-    run_chunks(std::min<int>(hw, int(parts.size())), [&](int) {
-      std::vector<CollapseItem> stack;
-      WideBvhNode<N> wn;
-      int lanes = 0;
-      for (size_t p; (p = next_part.fetch_add(1)) < parts.size();) {
-        CollapsePart<N, Node>& part = parts[p];
-        uint32_t count = 1;
-        stack.assign(1, {part.bin, 0});
-        while (!stack.empty() && part.ok) {
-          const CollapseItem it = stack.back();
-          stack.pop_back();
-          make_wide_node<N>(bin, it.bin, count, part.n_blocks, stack, part.jobs, wn, lanes);
-          part.nodes.resize(count);
-          part.lanes.resize(count);
-          part.ok = store_wide_node<N>(wn, lanes, part.nodes[it.wide]);
-          part.lanes[it.wide] = uint8_t(lanes);
+    // Each part's wide nodes, blocks and leaves counted (the same walk, nothing written).
+    for_parts([&](CollapsePart& part) {
+      uint32_t kids[N];
+      std::vector<uint32_t> stack{part.bin};
+      uint32_t nodes = 0, blocks = 0, leaves = 0;  // locals: neighbouring parts share cache lines
+      while (!stack.empty()) {
+        const uint32_t b = stack.back();
+        stack.pop_back();
+        ++nodes;
+        const int m = bvh_detail::gather_wide_children(bin, b, kids, N);
+        for (int i = 0; i < m; ++i) {
+          const BvhNode& c = bin[kids[i]];
+          if (c.is_leaf()) {
+            blocks += (c.count + 3) / 4;
+            ++leaves;
+          } else {
+            stack.push_back(kids[i]);
+          }
         }
       }
+      part.nodes = nodes;
+      part.blocks = blocks;
+      part.leaves = leaves;
     });
-    for (const auto& part : parts)
-      if (!part.ok) return false;
   }
-  // The pass itself: the top nodes made, each part's nodes and blocks given their place. On one
-  // thread (no parts) the nodes go straight into `out`; else the top ones wait until `out` has
-  // its final size.
+  // The pass itself: the top nodes made, each part given its indices. On one thread (no parts)
+  // the nodes go straight into `out`; else the top ones wait until `out` has its final size.
   uint32_t next = 1, n_blocks = 0;
   size_t part_no = 0;
   std::vector<std::pair<uint32_t, int>> top;  // with parts: the top nodes' indices and lanes
@@ -1356,7 +1366,7 @@ bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
   out.clear();
   if (part_max == 0) {
     jobs.reserve((n_bin + 1) / 2);  // one per leaf
-    out.reserve((n_bin + 1) / 2);  // at most one wide node per interior binary node
+    out.reserve((n_bin + 1) / 2);   // at most one wide node per interior binary node
     advise_huge_pages(out.data(), out.capacity() * sizeof(Node));
     out.emplace_back();
   }
@@ -1364,13 +1374,13 @@ bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
   while (!todo.empty()) {
     const CollapseItem it = todo.back();
     todo.pop_back();
-    if (part_max > 0 && is_part(it.bin)) {
-      CollapsePart<N, Node>& part = parts[part_no++];
+    if (is_part(it.bin)) {
+      CollapsePart& part = parts[part_no++];
       part.wide = it.wide;
       part.node_base = next;
       part.block_base = n_blocks;
-      next += uint32_t(part.nodes.size()) - 1;
-      n_blocks += part.n_blocks;
+      next += part.nodes - 1;
+      n_blocks += part.blocks;
       continue;
     }
     make_wide_node<N>(bin, it.bin, next, n_blocks, todo, jobs, node, k);
@@ -1388,37 +1398,33 @@ bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
     out.resize(next);
     for (size_t i = 0; i < top.size(); ++i)
       if (!store_wide_node<N>(top_nodes[i], top[i].second, out[top[i].first])) return false;
-  } else {
-    out.shrink_to_fit();
-  }
-  if (!parts.empty()) {
-    // Parts copied into place with their child indices offset, and their leaf jobs appended.
     size_t n_jobs = jobs.size();
-    std::vector<size_t> job_base(parts.size());
-    for (size_t p = 0; p < parts.size(); ++p) {
-      job_base[p] = n_jobs;
-      n_jobs += parts[p].jobs.size();
+    for (CollapsePart& part : parts) {
+      part.job_base = n_jobs;
+      n_jobs += part.leaves;
     }
     jobs.resize(n_jobs);
-    std::atomic<size_t> next_part{0};
-    run_chunks(std::min<int>(hw, int(parts.size())), [&](int) {
-      for (size_t p; (p = next_part.fetch_add(1)) < parts.size();) {
-        const CollapsePart<N, Node>& part = parts[p];
-        for (size_t j = 0; j < part.nodes.size(); ++j) {
-          Node& dst = out[j == 0 ? part.wide : part.node_base + j - 1];
-          dst = part.nodes[j];
-          for (int i = 0; i < part.lanes[j]; ++i) {
-            if (dst.count[i] != 0) dst.child[i] += part.block_base;  // leaf: its first block
-            else dst.child[i] += part.node_base - 1;                // interior: local index >= 1
-          }
-        }
-        for (size_t j = 0; j < part.jobs.size(); ++j) {
-          LeafJob job = part.jobs[j];
-          job.block += part.block_base;
-          jobs[job_base[p] + j] = job;
-        }
+    // The parts made in their places: the same walk as the pass, its root at part.wide, the
+    // nodes below from node_base on, the blocks from block_base on.
+    std::atomic<bool> ok{true};
+    for_parts([&](CollapsePart& part) {
+      std::vector<CollapseItem> stack{{part.bin, part.wide}};
+      std::vector<LeafJob> part_jobs;
+      part_jobs.reserve(part.leaves);
+      uint32_t pnext = part.node_base, pblocks = part.block_base;
+      WideBvhNode<N> wn;
+      int lanes = 0;
+      while (!stack.empty()) {
+        const CollapseItem it = stack.back();
+        stack.pop_back();
+        make_wide_node<N>(bin, it.bin, pnext, pblocks, stack, part_jobs, wn, lanes);
+        if (!store_wide_node<N>(wn, lanes, out[it.wide])) ok = false;
       }
+      std::copy(part_jobs.begin(), part_jobs.end(), jobs.begin() + std::ptrdiff_t(part.job_base));
     });
+    if (!ok) return false;
+  } else {
+    out.shrink_to_fit();
   }
   // Exact sizes, every element written below.
   blocks.clear();
