@@ -132,7 +132,8 @@ struct BoxAcc {
 
 // The bins of all three axes, filled in one pass over a range of triangles. Not initialised on
 // construction: reset() clears only the bins in use (small nodes are many, their bins few).
-struct BinSet {
+// Cache-line aligned: the root's chunks bin into neighbouring BinSets on different threads.
+struct alignas(64) BinSet {
   V4 lo[3][kMaxBins], hi[3][kMaxBins];
   uint32_t count[3][kMaxBins];
   void reset(int bins) {
