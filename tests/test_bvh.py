@@ -275,33 +275,42 @@ def test_commit_can_be_cancelled_from_another_thread_and_run_again(quality):
     assert (s.stats()["bvh_clusters"] > 0) == (quality == "fast")
 
 
-@pytest.mark.parametrize("quality", ["sah", "fast"])
-def test_build_is_the_same_on_any_number_of_threads(quality):
+@pytest.mark.parametrize("quality,compact", [("sah", "off"), ("fast", "off"), ("sah", "on")])
+def test_build_is_the_same_on_any_number_of_threads(quality, compact):
     """Parallel binning near the root and parallel subtrees give the same tree as one thread:
     same statistics (SAH cost to the bit) and the same hits. 270k triangles, so that the root is
     binned in several chunks (65536 triangles or more each). The clustered build too (Morton
     keys and run boxes in parallel chunks, its second pass over the runs' leaves on several
-    threads)."""
+    threads). The wide tree too, float and compressed: on one thread the collapse is one
+    serial pass, on several its subtrees are collapsed apart and copied into place, and every
+    node, lane and triangle block must come out the same, in the same order."""
     rng = np.random.default_rng(11)
     meshes = [noisy_sphere(260, rng), awkward_soup(rng)]
     o = rng.uniform(-2, 2, (20_000, 3)).astype(np.float32)
     d = rng.normal(size=(20_000, 3)).astype(np.float32)
     results = []
-    for threads in (1, 2, 7):
+    for threads in (1, 2, 3, 7):
         s = pc.Scene()
         s.build_quality = quality
+        s.compact_bvh = compact
         for pos, tris in meshes:
             s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
         s.commit(threads=threads)
         st = s.stats()
         results.append(({k: st[k] for k in ("triangles", "bvh_nodes", "bvh_leaves", "bvh_max_depth", "bvh_wide_nodes",
-                                            "bvh_sah_cost", "bvh_bytes", "bvh_clusters")}, s.intersect(o, d)))
+                                            "bvh_sah_cost", "bvh_bytes", "bvh_clusters", "bvh_compact")},
+                        s.intersect(o, d), s.wide_bvh_nodes()))
     assert (results[0][0]["bvh_clusters"] > 0) == (quality == "fast")
+    assert results[0][0]["bvh_compact"] == (compact == "on")
     assert results[0][0]["triangles"] > 2 * 65536 and results[0][0]["bvh_nodes"] > 50_000
-    for stats, hits in results[1:]:
+    assert results[0][0]["bvh_wide_nodes"] > 5_000
+    for stats, hits, wide in results[1:]:
         assert stats == results[0][0]
         for a, b in zip(hits, results[0][1]):
             np.testing.assert_array_equal(a, b)
+        assert wide.keys() == results[0][2].keys()
+        for k in wide:
+            np.testing.assert_array_equal(wide[k], results[0][2][k], err_msg=k)
 
 
 def test_memory_per_triangle_is_bounded():

@@ -132,7 +132,8 @@ struct BoxAcc {
 
 // The bins of all three axes, filled in one pass over a range of triangles. Not initialised on
 // construction: reset() clears only the bins in use (small nodes are many, their bins few).
-struct BinSet {
+// Cache-line aligned: the root's chunks bin into neighbouring BinSets on different threads.
+struct alignas(64) BinSet {
   V4 lo[3][kMaxBins], hi[3][kMaxBins];
   uint32_t count[3][kMaxBins];
   void reset(int bins) {
@@ -268,9 +269,11 @@ class Builder {
     for (int k = 0; k < 5; ++k)
       if (block_ == 1u << k) block_shift_ = k;
     hw_ = std::max(1, opt.threads > 0 ? opt.threads : static_cast<int>(std::thread::hardware_concurrency()));
-    // Four times as many subtrees as threads, so an unbalanced split leaves no core idle for long.
-    parallel_depth_ = 2;
-    while ((1 << parallel_depth_) < 4 * hw_) ++parallel_depth_;
+    // Four times as many subtrees as threads, so an unbalanced split leaves no core idle for long;
+    // none on one thread (threads = 1 must not start any).
+    parallel_depth_ = 0;
+    if (hw_ > 1)
+      while ((1 << parallel_depth_) < 4 * hw_) ++parallel_depth_;
     const uint32_t n = static_cast<uint32_t>(tris.size());
     // With spatial splits, room for the duplicates: each subtree gets a share of the spare slots
     // after its references, so the budget holds without a shared counter.
@@ -286,6 +289,10 @@ class Builder {
     std::vector<BoxAcc> b(chunks), cb(chunks);
     run_chunks(chunks, [&](int c) {
       const uint32_t lo = uint32_t(uint64_t(n) * c / chunks), hi = uint32_t(uint64_t(n) * (c + 1) / chunks);
+      // Boxes in locals, stored once: the chunks' accumulators share a cache line, and the
+      // reference stores may alias them (__m128 may alias floats), so growing them in place
+      // wrote that line on every triangle from both threads (2.5x slower than one thread).
+      BoxAcc box, cbox;
       for (uint32_t i = lo; i < hi; ++i) {
         const TriangleVerts& t = tris[i];
         PrimRef& r = refs_[i];
@@ -293,10 +300,12 @@ class Builder {
         r.hi = vmax(vmax(t.v0, t.v1), t.v2);
         r.id = i;
         r.bins = 1u << 24;  // weight 1
-        b[c].grow(r.vlo(), r.vhi());
+        box.grow(r.vlo(), r.vhi());
         const V4 ct = r.centroid();
-        cb[c].grow(ct, ct);
+        cbox.grow(ct, ct);
       }
+      b[c] = box;
+      cb[c] = cbox;
     });
     for (int c = 1; c < chunks; ++c) {
       b[0].grow(b[c]);
@@ -321,7 +330,9 @@ class Builder {
       order_.reserve(n_refs_);
       advise_huge_pages(order_.data(), n_refs_ * sizeof(uint32_t));
       order_.resize(n_refs_);
-      for (size_t i = 0; i < n_refs_; ++i) order_[i] = refs_[i].id;
+      parallel_ranges(n_refs_, hw_, [&](size_t lo, size_t hi) {
+        for (size_t i = lo; i < hi; ++i) order_[i] = refs_[i].id;
+      }, 131072);
     } else {
       // Leaves are spread over the reference array with spare slots between subtrees: packed
       // here in depth-first order.
@@ -454,6 +465,7 @@ class Builder {
     std::vector<BoxAcc> cb(cchunks);
     run_chunks(cchunks, [&](int c) {
       const uint32_t b = uint32_t(uint64_t(m) * c / cchunks), e = uint32_t(uint64_t(m) * (c + 1) / cchunks);
+      BoxAcc cbox;  // stored once (as the root's boxes above)
       for (uint32_t k = b; k < e; ++k) {
         BoxAcc box;
         for (uint32_t j = first[k]; j < first[k + 1]; ++j) {
@@ -467,8 +479,9 @@ class Builder {
         cr.id = k;
         cr.bins = (first[k + 1] - first[k]) << 24;
         const V4 ct = cr.centroid();
-        cb[c].grow(ct, ct);
+        cbox.grow(ct, ct);
       }
+      cb[c] = cbox;
     });
     for (int c = 1; c < cchunks; ++c) cb[0].grow(cb[c]);
     root_cbounds_ = cb[0].aabb();
@@ -1198,78 +1211,222 @@ bool quantise_node(const WideBvhNode<N>& f, int k, QuantWideNode<N>& q) {
   return true;
 }
 
+struct LeafJob {
+  uint32_t first, count, block;  // the leaf's triangles (leaf order) and its first block
+};
+struct CollapseItem {
+  uint32_t bin, wide;  // a binary node and the wide node it becomes
+};
+
+// The wide node of binary node `b` (as float lanes; `k` gets the used lanes): interior children
+// are numbered from `next` on and pushed onto `todo` in lane order, leaf children get blocks
+// from `n_blocks` on and a job each.
+template <int N>
+void make_wide_node(const BvhNode* bin, uint32_t b, uint32_t& next, uint32_t& n_blocks,
+                    std::vector<CollapseItem>& todo, std::vector<LeafJob>& jobs, WideBvhNode<N>& node, int& k) {
+  uint32_t kids[N];
+  k = bvh_detail::gather_wide_children(bin, b, kids, N);
+  for (int i = 0; i < N; ++i) {
+    if (i < k) {
+      const BvhNode& c = bin[kids[i]];
+      node.bounds[0][i] = c.lo.x;
+      node.bounds[1][i] = c.hi.x;
+      node.bounds[2][i] = c.lo.y;
+      node.bounds[3][i] = c.hi.y;
+      node.bounds[4][i] = c.lo.z;
+      node.bounds[5][i] = c.hi.z;
+      if (c.is_leaf()) {
+        node.child[i] = n_blocks;
+        node.count[i] = c.count;
+        jobs.push_back({c.left_or_first, c.count, n_blocks});
+        n_blocks += (c.count + 3) / 4;
+      } else {
+        node.child[i] = next++;
+        node.count[i] = 0;
+        todo.push_back({kids[i], node.child[i]});
+      }
+    } else {  // unused lane: an empty box (lo > hi) that the slab test always rejects
+      for (int a = 0; a < 3; ++a) {
+        node.bounds[2 * a][i] = kInf;
+        node.bounds[2 * a + 1][i] = -kInf;
+      }
+      node.child[i] = 0;
+      node.count[i] = 0;
+    }
+  }
+}
+
+template <int N, class Node>
+bool store_wide_node(const WideBvhNode<N>& node, int k, Node& out) {
+  if constexpr (std::is_same_v<Node, WideBvhNode<N>>) {
+    out = node;
+    return true;
+  } else {
+    return quantise_node(node, k, out);
+  }
+}
+
+// The references under binary node b: a subtree's leaves are one range of the leaf order, from
+// its leftmost leaf's first to its rightmost leaf's last.
+inline uint32_t subtree_refs(const BvhNode* bin, uint32_t b) {
+  uint32_t l = b, r = b;
+  while (!bin[l].is_leaf()) l = bin[l].left_or_first;
+  while (!bin[r].is_leaf()) r = bin[r].left_or_first + 1;
+  return bin[r].left_or_first + bin[r].count - bin[l].left_or_first;
+}
+
+// One subtree of the collapse, made on its own thread: first counted, then, once the top walk
+// has given it its place, written straight into the output.
+struct CollapsePart {
+  uint32_t bin = 0, wide = 0;             // its root: binary node and (global) wide index
+  uint32_t nodes = 0, blocks = 0, leaves = 0;  // its size
+  uint32_t node_base = 0, block_base = 0;  // where its nodes below the root and its blocks go
+  size_t job_base = 0;                     // and its leaves' jobs
+};
+
 // Collapses the binary tree into an N-wide one: each wide node takes a binary node's two
 // children and keeps opening its largest interior child (the one most rays enter) until it
 // has N children or only leaves (Wald et al. 2008, as in Embree and tinybvh). Leaves stay
 // the binary leaves; `tris` is the build's input, reached through prim_ids (leaf order).
-// Leaves become runs of TriangleBlock4s, placed in the order the collapse reaches them: the
-// nodes are made in one pass that hands out the block slots, then the blocks are filled on
-// `threads` threads (the triangle gathers and the writes of 36+ bytes per triangle are most of
-// the work), so the result is the same on any thread count. Into float nodes (Node =
-// WideBvhNode<N>) or compressed ones (QuantWideNode<N>, from the float node of the same lanes);
-// false when a node cannot be compressed (quantise_node), the outputs then unspecified.
+// Nodes and blocks are numbered in the order of one depth-first pass (a stack: a node's
+// interior children get consecutive indices, the last one's subtree is made first), and leaves
+// become runs of TriangleBlock4s in that order. On several threads the same numbering comes
+// from parts: subtrees of few enough references are counted in parallel, the top of the tree
+// is walked as that pass would, each part taking as many indices as it counted, then the
+// parts are made in parallel straight into their places; the blocks are filled in parallel.
+// So the result is the same on any thread count. Into float nodes (Node = WideBvhNode<N>) or
+// compressed ones (QuantWideNode<N>, from the float node of the same lanes); false when a node
+// cannot be compressed (quantise_node), the outputs then unspecified.
 template <int N, class Node>
 bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
               const std::vector<uint32_t>& prim_ids, int threads, std::vector<Node>& out,
               RawVector<TriangleBlock4>& blocks, RawVector<uint32_t>& block_prims) {
-  out.clear();
-  out.reserve(n_bin / (N - 1) + 1);
-  advise_huge_pages(out.data(), out.capacity() * sizeof(Node));
-  size_t n_leaves = 0;
-  for (size_t i = 0; i < n_bin; ++i) n_leaves += bin[i].is_leaf();
-  struct LeafJob {
-    uint32_t first, count, block;
-  };
+  const int hw = std::max(1, threads > 0 ? threads : static_cast<int>(std::thread::hardware_concurrency()));
+  const uint32_t refs = static_cast<uint32_t>(prim_ids.size());
+  // Subtrees of at most this many references are parts (about 8 per thread); none on one thread.
+  const uint32_t part_max = hw > 1 && refs >= 65536 ? std::max<uint32_t>(8192, refs / (8 * uint32_t(hw))) : 0;
+  const auto is_part = [&](uint32_t b) { return part_max > 0 && b != 0 && subtree_refs(bin, b) <= part_max; };
+  std::vector<CollapsePart> parts;
+  std::vector<CollapseItem> todo;
   std::vector<LeafJob> jobs;
-  jobs.reserve(n_leaves);
-  uint32_t n_blocks = 0;
-  struct Item {
-    uint32_t bin, wide;
+  WideBvhNode<N> node;
+  int k = 0;
+  // Runs fn(part) for every part, parts handed out in turn (any thread may take any one).
+  const auto for_parts = [&](auto&& fn) {
+    std::atomic<size_t> next_part{0};
+    run_chunks(std::min<int>(hw, int(parts.size())), [&](int) {
+      for (size_t p; (p = next_part.fetch_add(1)) < parts.size();) fn(parts[p]);
+    });
   };
-  std::vector<Item> todo{{0, 0}};
-  out.emplace_back();
-  while (!todo.empty()) {
-    const Item it = todo.back();
-    todo.pop_back();
-    uint32_t kids[N];
-    const int k = bvh_detail::gather_wide_children(bin, it.bin, kids, N);
-    WideBvhNode<N> node;
-    for (int i = 0; i < N; ++i) {
-      if (i < k) {
-        const BvhNode& c = bin[kids[i]];
-        node.bounds[0][i] = c.lo.x;
-        node.bounds[1][i] = c.hi.x;
-        node.bounds[2][i] = c.lo.y;
-        node.bounds[3][i] = c.hi.y;
-        node.bounds[4][i] = c.lo.z;
-        node.bounds[5][i] = c.hi.z;
-        if (c.is_leaf()) {
-          node.child[i] = n_blocks;
-          node.count[i] = c.count;
-          jobs.push_back({c.left_or_first, c.count, n_blocks});
-          n_blocks += (c.count + 3) / 4;
-        } else {
-          node.child[i] = static_cast<uint32_t>(out.size());
-          node.count[i] = 0;
-          todo.push_back({kids[i], node.child[i]});
-          out.emplace_back();
-        }
-      } else {  // unused lane: an empty box (lo > hi) that the slab test always rejects
-        for (int a = 0; a < 3; ++a) {
-          node.bounds[2 * a][i] = kInf;
-          node.bounds[2 * a + 1][i] = -kInf;
-        }
-        node.child[i] = 0;
-        node.count[i] = 0;
+  if (part_max > 0) {
+    // The top walk, numbering nothing: which subtrees are parts, in the order the pass meets them.
+    uint32_t next = 1, nb = 0;
+    todo.push_back({0, 0});
+    while (!todo.empty()) {
+      const CollapseItem it = todo.back();
+      todo.pop_back();
+      if (is_part(it.bin)) {
+        parts.emplace_back();
+        parts.back().bin = it.bin;
+        continue;
       }
+      make_wide_node<N>(bin, it.bin, next, nb, todo, jobs, node, k);
     }
-    if constexpr (std::is_same_v<Node, WideBvhNode<N>>) {
-      out[it.wide] = node;
-    } else if (!quantise_node(node, k, out[it.wide])) {
-      return false;
+    jobs.clear();
+    // Each part's wide nodes, blocks and leaves counted (the same walk, nothing written).
+    for_parts([&](CollapsePart& part) {
+      uint32_t kids[N];
+      std::vector<uint32_t> stack{part.bin};
+      uint32_t nodes = 0, blocks = 0, leaves = 0;  // locals: neighbouring parts share cache lines
+      while (!stack.empty()) {
+        const uint32_t b = stack.back();
+        stack.pop_back();
+        ++nodes;
+        const int m = bvh_detail::gather_wide_children(bin, b, kids, N);
+        for (int i = 0; i < m; ++i) {
+          const BvhNode& c = bin[kids[i]];
+          if (c.is_leaf()) {
+            blocks += (c.count + 3) / 4;
+            ++leaves;
+          } else {
+            stack.push_back(kids[i]);
+          }
+        }
+      }
+      part.nodes = nodes;
+      part.blocks = blocks;
+      part.leaves = leaves;
+    });
+  }
+  // The pass itself: the top nodes made, each part given its indices. On one thread (no parts)
+  // the nodes go straight into `out`; else the top ones wait until `out` has its final size.
+  uint32_t next = 1, n_blocks = 0;
+  size_t part_no = 0;
+  std::vector<std::pair<uint32_t, int>> top;  // with parts: the top nodes' indices and lanes
+  std::vector<WideBvhNode<N>> top_nodes;
+  out.clear();
+  if (part_max == 0) {
+    jobs.reserve((n_bin + 1) / 2);  // one per leaf
+    out.reserve((n_bin + 1) / 2);   // at most one wide node per interior binary node
+    advise_huge_pages(out.data(), out.capacity() * sizeof(Node));
+    out.emplace_back();
+  }
+  todo.assign(1, {0, 0});
+  while (!todo.empty()) {
+    const CollapseItem it = todo.back();
+    todo.pop_back();
+    if (is_part(it.bin)) {
+      CollapsePart& part = parts[part_no++];
+      part.wide = it.wide;
+      part.node_base = next;
+      part.block_base = n_blocks;
+      next += part.nodes - 1;
+      n_blocks += part.blocks;
+      continue;
+    }
+    make_wide_node<N>(bin, it.bin, next, n_blocks, todo, jobs, node, k);
+    if (part_max > 0) {
+      top.push_back({it.wide, k});
+      top_nodes.push_back(node);
+    } else {
+      out.resize(next);
+      if (!store_wide_node<N>(node, k, out[it.wide])) return false;
     }
   }
-  out.shrink_to_fit();
+  if (part_max > 0) {
+    out.reserve(next);
+    advise_huge_pages(out.data(), out.capacity() * sizeof(Node));
+    out.resize(next);
+    for (size_t i = 0; i < top.size(); ++i)
+      if (!store_wide_node<N>(top_nodes[i], top[i].second, out[top[i].first])) return false;
+    size_t n_jobs = jobs.size();
+    for (CollapsePart& part : parts) {
+      part.job_base = n_jobs;
+      n_jobs += part.leaves;
+    }
+    jobs.resize(n_jobs);
+    // The parts made in their places: the same walk as the pass, its root at part.wide, the
+    // nodes below from node_base on, the blocks from block_base on.
+    std::atomic<bool> ok{true};
+    for_parts([&](CollapsePart& part) {
+      std::vector<CollapseItem> stack{{part.bin, part.wide}};
+      std::vector<LeafJob> part_jobs;
+      part_jobs.reserve(part.leaves);
+      uint32_t pnext = part.node_base, pblocks = part.block_base;
+      WideBvhNode<N> wn;
+      int lanes = 0;
+      while (!stack.empty()) {
+        const CollapseItem it = stack.back();
+        stack.pop_back();
+        make_wide_node<N>(bin, it.bin, pnext, pblocks, stack, part_jobs, wn, lanes);
+        if (!store_wide_node<N>(wn, lanes, out[it.wide])) ok = false;
+      }
+      std::copy(part_jobs.begin(), part_jobs.end(), jobs.begin() + std::ptrdiff_t(part.job_base));
+    });
+    if (!ok) return false;
+  } else {
+    out.shrink_to_fit();
+  }
   // Exact sizes, every element written below.
   blocks.clear();
   block_prims.clear();
