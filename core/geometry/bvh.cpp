@@ -315,7 +315,7 @@ class Builder {
     root_cbounds_ = cb.empty() ? Aabb() : cb[0].aabb();
     // A subtree of c reference slots has at most 2c - 2 nodes below its root (build()'s node
     // pools): the root's pool ends at 2 cap_ - 1. The clustered build's second phase builds
-    // under the first phase's leaves in pools after that one, 2t - 2 slots for a leaf of t
+    // under the first phase's leaves in pools after its nodes, 2t - 2 slots for a leaf of t
     // triangles: at most 2 n_tris_ - 2 more. Nodes used are all written; the gaps between
     // pools are never read, so the storage is left uninitialised (no pass over it first).
     // (Under 2^30 triangles: the clustered build's pools take up to 2 (n + runs) 32-bit indices.)
@@ -331,7 +331,7 @@ class Builder {
     max_depth_ = size_t(root.depth);
     n_nodes_ = root.nodes;
     if (cancelled()) return false;
-    if (clustered_ && !refine_clusters()) return false;
+    if (clustered_ && !refine_clusters(next)) return false;
     if (!spatial_) {
       order_.reserve(n_refs_);
       advise_huge_pages(order_.data(), n_refs_ * sizeof(uint32_t));
@@ -505,7 +505,8 @@ class Builder {
   // After the SAH over the runs: the leaves (runs of runs) get their triangles, in leaf order,
   // and each leaf of more than one block is built on by the same binned SAH over its
   // triangles, so the SAH still shapes the tree's bottom levels. Returns false when cancelled.
-  bool refine_clusters() {
+  // `first_free`: past the first phase's nodes (at most 2 m - 1).
+  bool refine_clusters(uint32_t first_free) {
     const size_t m = n_refs_;
     std::vector<uint32_t> start(m + 1);
     uint32_t sum = 0;
@@ -542,12 +543,12 @@ class Builder {
         stack.push_back({nd.left_or_first, it.depth + 1});
       }
     }
-    // Node pools after the first phase's (which end at 2 m - 1): a leaf of t triangles gets
-    // 2t - 2 slots, in leaf order. Each thread's range of leaves bumps one counter from its
-    // first leaf's pool on, so its nodes are dense, one gap per thread (pools per leaf would
-    // leave a gap after every leaf, and their pages would all be touched).
+    // Node pools after the first phase's nodes: a leaf of t triangles gets 2t - 2 slots, in
+    // leaf order. Each thread's range of leaves bumps one counter from its first leaf's pool
+    // on, so its nodes are dense, one gap per thread (pools per leaf would leave a gap after
+    // every leaf, and their pages would all be touched). On one thread: no gap at all.
     std::vector<uint32_t> pool(leaves.size());
-    uint32_t sum_pools = uint32_t(2 * m - 1);
+    uint32_t sum_pools = first_free;
     for (size_t k = 0; k < leaves.size(); ++k) {
       pool[k] = sum_pools;
       sum_pools += 2 * node_store_[leaves[k].node].count - 2;
@@ -695,10 +696,10 @@ class Builder {
     Built bl, br;
     if (depth < parallel_depth_ && n >= kParallelMin) {
       uint32_t lnext = next, rnext = next + 2 * (sp.lcap - sp.lbegin) - 2;
-      next = rnext + 2 * (sp.rcap - sp.rbegin) - 2;
       std::thread t([&] { bl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb, sp.lt, lnext); });
       br = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb, sp.rt, rnext);
       t.join();
+      next = rnext;  // past the right pool's nodes, so past all of this subtree's
     } else {
       bl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb, sp.lt, next);
       br = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb, sp.rt, next);
