@@ -366,8 +366,9 @@ class Builder {
   size_t clusters() const { return clusters_; }
 
   // The binary tree (root at 0; children of an interior node side by side), valid after run().
-  // Reached through indices only: subtrees built apart sit in separate pools with unused
-  // (unwritten) slots between them, so node_count() nodes lie anywhere below 2 node_count().
+  // Reached through child indices only: subtrees built apart sit in separate pools with
+  // unused (unwritten) slots between them, so the node_count() nodes are spread over more
+  // slots than that.
   const BvhNode* nodes() const { return node_store_.get(); }
   size_t node_count() const { return n_nodes_; }
 
