@@ -331,7 +331,7 @@ class Builder {
     max_depth_ = size_t(root.depth);
     n_nodes_ = root.nodes;
     if (cancelled()) return false;
-    if (clustered_ && !refine_clusters(next)) return false;
+    if (clustered_ && !refine_clusters()) return false;
     if (!spatial_) {
       order_.reserve(n_refs_);
       advise_huge_pages(order_.data(), n_refs_ * sizeof(uint32_t));
@@ -506,8 +506,7 @@ class Builder {
   // After the SAH over the runs: the leaves (runs of runs) get their triangles, in leaf order,
   // and each leaf of more than one block is built on by the same binned SAH over its
   // triangles, so the SAH still shapes the tree's bottom levels. Returns false when cancelled.
-  // `first_free`: past the first phase's nodes (at most 2 m - 1).
-  bool refine_clusters(uint32_t first_free) {
+  bool refine_clusters() {
     const size_t m = n_refs_;
     std::vector<uint32_t> start(m + 1);
     uint32_t sum = 0;
@@ -530,9 +529,11 @@ class Builder {
     };
     std::vector<Leaf> leaves;
     std::vector<Leaf> stack{{0, 0}};
+    uint32_t first_free = 1;  // past the first phase's nodes
     while (!stack.empty()) {
       const Leaf it = stack.back();
       stack.pop_back();
+      first_free = std::max(first_free, it.node + 1);
       BvhNode& nd = node_store_[it.node];
       if (nd.is_leaf()) {
         const uint32_t f = nd.left_or_first;
@@ -661,7 +662,7 @@ class Builder {
   // stay dense, in depth-first order); subtrees built on two threads get pools of their own
   // (2 lc - 2 and 2 rc - 2 slots after the pair), so the threads write separate cache lines
   // and the numbering does not depend on their timing. On return `next` is past the
-  // subtree's nodes.
+  // subtree's nodes (after a split on two threads: past its pool).
   Built build(uint32_t node_index, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, const Aabb& bounds,
               const Aabb& cbounds, uint32_t nt, uint32_t& next) {
     // Every node polls the flag: one relaxed load against a binning pass over its triangles.
@@ -697,10 +698,10 @@ class Builder {
     Built bl, br;
     if (depth < parallel_depth_ && n >= kParallelMin) {
       uint32_t lnext = next, rnext = next + 2 * (sp.lcap - sp.lbegin) - 2;
+      next = rnext + 2 * (sp.rcap - sp.rbegin) - 2;
       std::thread t([&] { bl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb, sp.lt, lnext); });
       br = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb, sp.rt, rnext);
       t.join();
-      next = rnext;  // past the right pool's nodes, so past all of this subtree's
     } else {
       bl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb, sp.lt, next);
       br = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb, sp.rt, next);
