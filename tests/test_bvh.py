@@ -299,18 +299,99 @@ def test_build_is_the_same_on_any_number_of_threads(quality, compact):
         st = s.stats()
         results.append(({k: st[k] for k in ("triangles", "bvh_nodes", "bvh_leaves", "bvh_max_depth", "bvh_wide_nodes",
                                             "bvh_sah_cost", "bvh_bytes", "bvh_clusters", "bvh_compact")},
-                        s.intersect(o, d), s.wide_bvh_nodes()))
+                        s.intersect(o, d), s.wide_bvh_nodes(), binary_layout_nodes(s, threads, compact)))
     assert (results[0][0]["bvh_clusters"] > 0) == (quality == "fast")
     assert results[0][0]["bvh_compact"] == (compact == "on")
     assert results[0][0]["triangles"] > 2 * 65536 and results[0][0]["bvh_nodes"] > 50_000
     assert results[0][0]["bvh_wide_nodes"] > 5_000
-    for stats, hits, wide in results[1:]:
+    if compact == "off":
+        assert len(results[0][3]["count"]) > 50_000
+    for stats, hits, wide, binary in results[1:]:
         assert stats == results[0][0]
         for a, b in zip(hits, results[0][1]):
             np.testing.assert_array_equal(a, b)
         assert wide.keys() == results[0][2].keys()
         for k in wide:
             np.testing.assert_array_equal(wide[k], results[0][2][k], err_msg=k)
+        # The binary layout's nodes too: the same tree, numbered the same (no gaps, depth first).
+        assert binary.keys() == results[0][3].keys()
+        for k in binary:
+            np.testing.assert_array_equal(binary[k], results[0][3][k], err_msg=k)
+
+
+def binary_layout_nodes(scene, threads, compact):
+    """The binary layout's nodes of the scene's meshes (built again with bvh="binary"); {} for
+    compressed nodes (the binary layout has none)."""
+    if compact == "on":
+        return {}
+    scene.commit(threads=threads, bvh="binary")
+    return scene.binary_bvh_nodes()
+
+
+def check_binary_nodes(b, stats):
+    """The binary layout's node array is one tree without gaps: node count = the stats' nodes,
+    every interior node's children in range and numbered after it (so no cycles), every node the
+    child of exactly one node (the root of none), children's boxes inside their parent's, and the
+    leaves' triangle ranges tiling the leaf order."""
+    lo, hi, first, count, prims = b["lo"], b["hi"], b["left_or_first"], b["count"], b["prims"]
+    m = len(count)
+    assert m == stats["bvh_nodes"] and m % 2 == 1
+    inner = np.flatnonzero(count == 0)
+    leaf = np.flatnonzero(count > 0)
+    assert len(leaf) == stats["bvh_leaves"] == (m + 1) // 2
+    left = first[inner].astype(np.int64)
+    assert (left > inner).all() and (left + 1 < m).all()
+    parents = np.bincount(np.concatenate([[0], left, left + 1]), minlength=m)
+    assert (parents == 1).all()  # the root (counted once above) and every child reached exactly once
+    for c in (left, left + 1):
+        assert (lo[c] >= lo[inner]).all() and (hi[c] <= hi[inner]).all()
+    order = leaf[np.argsort(first[leaf], kind="stable")]
+    starts = first[order].astype(np.int64)
+    ends = starts + count[order]
+    assert starts[0] == 0 and (starts[1:] == ends[:-1]).all() and ends[-1] == len(prims)
+    assert len(prims) == stats["bvh_references"]
+    assert np.array_equal(np.unique(prims), np.arange(stats["triangles"]))  # every triangle in a leaf
+
+
+@pytest.mark.parametrize("kind", ["sah", "fast", "spatial"])
+def test_binary_layout_is_one_tree_without_gaps_and_hits_as_the_wide_one(kind):
+    """The builder numbers nodes in pools (each subtree built on another thread gets 2c - 2 slots
+    for its c references, the clustered build's second phase one pool per group of leaves), which
+    leaves unused slots between them: the binary layout's array is renumbered without them, and
+    its hits are the wide layout's. Big enough (70k triangles) that subtrees are built on two
+    threads (16384 references or more)."""
+    from core_scenes import sliver_room
+    rng = np.random.default_rng(17)
+    meshes = [noisy_sphere(130, rng)]
+    if kind == "spatial":
+        meshes.append(sliver_room(seed=3, spheres=40, beams=60, sphere_res=(16, 8)))
+    o, d = awkward_rays(rng, 40_000)
+    scenes = {}
+    for layout in ("binary", "auto"):
+        s = pc.Scene()
+        s.build_quality = "fast" if kind == "fast" else "sah"
+        s.spatial_splits = kind == "spatial"
+        for pos, tris in meshes:
+            s.add_instance(s.add_mesh(pos, tris), np.eye(4, dtype=np.float32))
+        s.commit(threads=2, bvh=layout)
+        scenes[layout] = s
+    st = scenes["binary"].stats()
+    assert st["triangles"] > 4 * 16384
+    assert (st["bvh_clusters"] > 0) == (kind == "fast")
+    assert (st["bvh_spatial_splits"] > 0) == (kind == "spatial")
+    check_binary_nodes(scenes["binary"].binary_bvh_nodes(), st)
+    wide = scenes["auto"].stats()  # another tree (leaves of 4-triangle blocks): its node count from the builder
+    assert wide["bvh_nodes"] == 2 * wide["bvh_leaves"] - 1 and wide["bvh_leaves"] > 5000
+    t0, p0, u0, v0 = scenes["binary"].intersect(o, d)
+    t1, p1, u1, v1 = scenes["auto"].intersect(o, d)
+    assert 0.2 < (p0 >= 0).mean()
+    assert np.array_equal(p0 >= 0, p1 >= 0)
+    same = p0 == p1
+    assert np.array_equal(t0[same], t1[same])
+    assert np.array_equal(u0[same], u1[same]) and np.array_equal(v0[same], v1[same])
+    diff = ~same  # ties only (the room's overlapping faces)
+    assert diff.sum() <= 0.01 * len(p0), diff.sum()
+    assert (np.abs(t0[diff] - t1[diff]) <= 2 * np.spacing(t0[diff])).all()
 
 
 def test_memory_per_triangle_is_bounded():

@@ -313,17 +313,23 @@ class Builder {
     }
     root_bounds_ = b.empty() ? Aabb() : b[0].aabb();
     root_cbounds_ = cb.empty() ? Aabb() : cb[0].aabb();
-    // A binary tree with n leaves or fewer has at most 2n - 1 nodes; every node is written
-    // by the build, so the storage is left uninitialised (no pass over it before the build).
-    if (opt_.morton_clusters && !spatial_ && n > kClusterLeafMax) make_clusters();
-    node_store_ = raw_array<BvhNode>(2 * size_t(std::max<size_t>(cap_, n_tris_)));
+    // A subtree of c reference slots has at most 2c - 2 nodes below its root (build()'s node
+    // pools): the root's pool ends at 2 cap_ - 1. The clustered build's second phase builds
+    // under the first phase's leaves in pools after its nodes, 2t - 2 slots for a leaf of t
+    // triangles: at most 2 n_tris_ - 2 more. Nodes used are all written; the gaps between
+    // pools are never read, so the storage is left uninitialised (no pass over it first).
+    // (Under 2^30 triangles: the clustered build's pools take up to 2 (n + runs) 32-bit indices.)
+    if (opt_.morton_clusters && !spatial_ && n > kClusterLeafMax && n < (1u << 30)) make_clusters();
+    node_store_ = raw_array<BvhNode>(2 * size_t(std::max<size_t>(cap_, n_tris_)) + (clustered_ ? 2 * size_t(cap_) : 0));
     spatial_min_area_ = std::max(0.0f, opt_.spatial_alpha) * root_bounds_.half_area();
   }
 
   // Returns false when cancelled (the nodes are then incomplete and must be dropped).
   bool run() {
-    next_node_ = 1;
-    max_depth_ = size_t(build(0, 0, static_cast<uint32_t>(n_refs_), cap_, 0, root_bounds_, root_cbounds_, n_tris_));
+    uint32_t next = 1;  // the root's pool: [1, 2 cap_ - 1)
+    const Built root = build(0, 0, static_cast<uint32_t>(n_refs_), cap_, 0, root_bounds_, root_cbounds_, n_tris_, next);
+    max_depth_ = size_t(root.depth);
+    n_nodes_ = root.nodes;
     if (cancelled()) return false;
     if (clustered_ && !refine_clusters()) return false;
     if (!spatial_) {
@@ -360,8 +366,11 @@ class Builder {
   size_t clusters() const { return clusters_; }
 
   // The binary tree (root at 0; children of an interior node side by side), valid after run().
+  // Reached through child indices only: subtrees built apart sit in separate pools with
+  // unused (unwritten) slots between them, so the node_count() nodes are spread over more
+  // slots than that.
   const BvhNode* nodes() const { return node_store_.get(); }
-  size_t node_count() const { return next_node_.load(); }
+  size_t node_count() const { return n_nodes_; }
 
   size_t max_depth() const { return max_depth_; }
 
@@ -520,9 +529,11 @@ class Builder {
     };
     std::vector<Leaf> leaves;
     std::vector<Leaf> stack{{0, 0}};
+    uint32_t first_free = 1;  // past the first phase's nodes
     while (!stack.empty()) {
       const Leaf it = stack.back();
       stack.pop_back();
+      first_free = std::max(first_free, it.node + 1);
       BvhNode& nd = node_store_[it.node];
       if (nd.is_leaf()) {
         const uint32_t f = nd.left_or_first;
@@ -534,26 +545,43 @@ class Builder {
         stack.push_back({nd.left_or_first, it.depth + 1});
       }
     }
+    // Node pools after the first phase's nodes: a leaf of t triangles gets 2t - 2 slots, in
+    // leaf order. Each thread's range of leaves bumps one counter from its first leaf's pool
+    // on, so its nodes are dense, one gap per thread (pools per leaf would leave a gap after
+    // every leaf, and their pages would all be touched). On one thread: no gap at all.
+    std::vector<uint32_t> pool(leaves.size());
+    uint32_t sum_pools = first_free;
+    for (size_t k = 0; k < leaves.size(); ++k) {
+      pool[k] = sum_pools;
+      sum_pools += 2 * node_store_[leaves[k].node].count - 2;
+    }
     refs_ = std::move(xrefs);
     n_refs_ = cap_ = sum;
     pending_max_ = 0;
     tri_refs_.reset();
     std::vector<uint32_t>().swap(cluster_first_);
     std::atomic<int> deepest{int(max_depth_)};
+    std::atomic<size_t> added{0};
     parallel_ranges(leaves.size(), opt_.threads, [&](size_t lo, size_t hi) {
       int d = 0;
+      size_t nodes = 0;
+      uint32_t next = lo < hi ? pool[lo] : 0;
       for (size_t k = lo; k < hi && !cancelled(); ++k) {
         const BvhNode nd = node_store_[leaves[k].node];
         Aabb bounds, cbounds;
         range_bounds(nd.left_or_first, nd.left_or_first + nd.count, bounds, cbounds);
-        d = std::max(d, build(leaves[k].node, nd.left_or_first, nd.left_or_first + nd.count,
-                              nd.left_or_first + nd.count, int(leaves[k].depth), bounds, cbounds, nd.count));
+        const Built b = build(leaves[k].node, nd.left_or_first, nd.left_or_first + nd.count,
+                              nd.left_or_first + nd.count, int(leaves[k].depth), bounds, cbounds, nd.count, next);
+        d = std::max(d, b.depth);
+        nodes += b.nodes - 1;  // the leaf itself is counted already
       }
+      added.fetch_add(nodes);
       int cur = deepest.load();
       while (d > cur && !deepest.compare_exchange_weak(cur, d)) {
       }
     }, 2048);
     max_depth_ = size_t(deepest.load());
+    n_nodes_ += added.load();
     return !cancelled();
   }
 
@@ -619,13 +647,26 @@ class Builder {
     sp.placed = true;
   }
 
-  // Builds the subtree of node_index; returns its deepest level (the maximum is gathered up
-  // the recursion: no shared counter that both threads write).
+  struct Built {
+    int depth;       // the subtree's deepest level
+    uint32_t nodes;  // its nodes, root included
+  };
+
+  // Builds the subtree of node_index; returns its deepest level and its node count (gathered
+  // up the recursion: no shared counter that both threads write).
   // nt: the node's triangles (its references' weights summed; n without clusters).
-  int build(uint32_t node_index, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, const Aabb& bounds,
-            const Aabb& cbounds, uint32_t nt) {
+  // Node pools: a subtree of c = cap_end - begin reference slots has at most 2c - 2 nodes
+  // below its root (a full binary tree has 2c - 1 nodes; its children's slots add up to c,
+  // each at least 1). `next` is the first free slot of this subtree's pool, at least 2c - 2
+  // long; a split takes the children's pair from it. Serial subtrees bump it on (their nodes
+  // stay dense, in depth-first order); subtrees built on two threads get pools of their own
+  // (2 lc - 2 and 2 rc - 2 slots after the pair), so the threads write separate cache lines
+  // and the numbering does not depend on their timing. On return `next` is past the
+  // subtree's nodes (after a split on two threads: past its pool).
+  Built build(uint32_t node_index, uint32_t begin, uint32_t end, uint32_t cap_end, int depth, const Aabb& bounds,
+              const Aabb& cbounds, uint32_t nt, uint32_t& next) {
     // Every node polls the flag: one relaxed load against a binning pass over its triangles.
-    if (cancelled()) return depth;
+    if (cancelled()) return {depth, 1};
 
     BvhNode& node = node_store_[node_index];
     node.lo = bounds.lo;
@@ -638,10 +679,11 @@ class Builder {
     if (n <= 1 || (nt <= uint32_t(opt_.max_leaf_size) && depth >= kMaxDepth) || one_block || nt <= pending_max_ ||
         !split(bounds, cbounds, begin, end, cap_end, depth, nt, sp)) {  // split() false: the SAH prefers a leaf
       make_leaf(node, begin, end);
-      return depth;
+      return {depth, 1};
     }
 
-    const uint32_t left = next_node_.fetch_add(2);
+    const uint32_t left = next;
+    next += 2;
     node.left_or_first = left;
     node.count = 0;
     if (!sp.placed) {
@@ -653,16 +695,18 @@ class Builder {
         sp.rend = sp.rcap = end;
       }
     }
-    int dl, dr;
+    Built bl, br;
     if (depth < parallel_depth_ && n >= kParallelMin) {
-      std::thread t([&] { dl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb, sp.lt); });
-      dr = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb, sp.rt);
+      uint32_t lnext = next, rnext = next + 2 * (sp.lcap - sp.lbegin) - 2;
+      next = rnext + 2 * (sp.rcap - sp.rbegin) - 2;
+      std::thread t([&] { bl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb, sp.lt, lnext); });
+      br = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb, sp.rt, rnext);
       t.join();
     } else {
-      dl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb, sp.lt);
-      dr = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb, sp.rt);
+      bl = build(left, sp.lbegin, sp.lend, sp.lcap, depth + 1, sp.lb, sp.lcb, sp.lt, next);
+      br = build(left + 1, sp.rbegin, sp.rend, sp.rcap, depth + 1, sp.rb, sp.rcb, sp.rt, next);
     }
-    return std::max(dl, dr);
+    return {std::max(bl.depth, br.depth), 1 + bl.nodes + br.nodes};
   }
 
   uint32_t weight_sum(uint32_t begin, uint32_t end) const {
@@ -1144,9 +1188,9 @@ class Builder {
   size_t clusters_ = 0;                             // Morton runs made (0: full SAH)
   std::unique_ptr<PrimRef[], FreeRaw> tri_refs_;    // while clustered: the triangles' references, run after run
   std::vector<uint32_t> cluster_first_;             // run k: tri_refs_[first[k], first[k + 1])
-  std::unique_ptr<BvhNode[], FreeRaw> node_store_;  // up to 2n - 1 nodes; those used are all written
+  std::unique_ptr<BvhNode[], FreeRaw> node_store_;  // the node pools (constructor); those used are all written
   Aabb root_bounds_, root_cbounds_;
-  std::atomic<uint32_t> next_node_{1};
+  size_t n_nodes_ = 0;  // nodes in the tree (the pools' used slots)
   size_t max_depth_ = 0;
   int parallel_depth_ = 0;
   int hw_ = 1;
@@ -1517,7 +1561,23 @@ bool Bvh::build(TriangleSpan tris, const BvhBuildOptions& options) {
   const BvhNode* bin = builder.nodes();
   const size_t n_bin = builder.node_count();
   if (layout == BvhLayout::Binary) {  // kept; the wide layouts copy the triangles into their blocks instead
-    nodes_.assign(bin, bin + n_bin);
+    // Renumbered without the pools' gaps, in depth-first order, each pair side by side (as one
+    // serial build numbers them).
+    nodes_.resize(n_bin);
+    std::vector<std::pair<uint32_t, uint32_t>> todo{{0u, 0u}};  // (builder's index, ours)
+    uint32_t next = 1;
+    while (!todo.empty()) {
+      const auto [from, to] = todo.back();
+      todo.pop_back();
+      BvhNode& nd = nodes_[to];
+      nd = bin[from];
+      if (!nd.is_leaf()) {
+        todo.push_back({nd.left_or_first + 1, next + 1});
+        todo.push_back({nd.left_or_first, next});
+        nd.left_or_first = next;
+        next += 2;
+      }
+    }
     tris_.resize(prim_ids_.size());
     for (size_t i = 0; i < prim_ids_.size(); ++i) tris_[i] = tris[prim_ids_[i]];
   }
@@ -1530,8 +1590,8 @@ bool Bvh::build(TriangleSpan tris, const BvhBuildOptions& options) {
   stats_.spatial_splits = builder.spatial_splits();
   stats_.clusters = builder.clusters();
   const float root_area = std::max(bounds_.half_area(), 1e-30f);
-  // Summed in tree order: subtrees built in parallel place their nodes in an order that depends
-  // on thread timing, and the sum must not.
+  // Summed in tree order (the builder's node pools have gaps, and the sum's order must be the
+  // same on any thread count).
   double cost = 0.0;
   std::vector<uint32_t> stack{0};
   while (!stack.empty()) {

@@ -194,6 +194,10 @@ class Bvh {
   const RawVector<TriangleBlock4>& blocks() const { return blocks_; }
   const RawVector<uint32_t>& block_prims() const { return block_prims_; }
   Aabb bounds() const { return bounds_; }
+  // The binary layout's tree (root at 0, no gaps) and its leaf order's input indices, for
+  // tests. Empty for the wide layouts.
+  const std::vector<BvhNode>& binary_nodes() const { return nodes_; }
+  const std::vector<uint32_t>& leaf_prims() const { return prim_ids_; }
   size_t memory_bytes() const;  // nodes, triangles and index arrays, as allocated
 
   // Closest hit with 0 < t < ray.tmax. Returns true on a hit and fills `hit`.

@@ -682,6 +682,32 @@ py::dict wide_bvh_nodes(const PyScene& self) {
   return d;
 }
 
+py::dict binary_bvh_nodes(const PyScene& self) {
+  const Bvh& bvh = self.scene->bvh();
+  const std::vector<BvhNode>& nodes = bvh.binary_nodes();
+  const size_t m = nodes.size();
+  py::array_t<float> lo({m, size_t(3)}), hi({m, size_t(3)});
+  py::array_t<uint32_t> left_or_first(m), count(m);
+  for (size_t i = 0; i < m; ++i) {
+    for (int a = 0; a < 3; ++a) {
+      lo.mutable_data()[3 * i + a] = nodes[i].lo[a];
+      hi.mutable_data()[3 * i + a] = nodes[i].hi[a];
+    }
+    left_or_first.mutable_data()[i] = nodes[i].left_or_first;
+    count.mutable_data()[i] = nodes[i].count;
+  }
+  const std::vector<uint32_t>& ids = bvh.leaf_prims();
+  py::array_t<uint32_t> prims(ids.size());
+  std::copy(ids.begin(), ids.end(), prims.mutable_data());
+  py::dict d;
+  d["lo"] = lo;
+  d["hi"] = hi;
+  d["left_or_first"] = left_or_first;
+  d["count"] = count;
+  d["prims"] = prims;
+  return d;
+}
+
 void check_rays(const PyScene& self, const FloatArray& o, const FloatArray& d) {
   if (!self.scene->committed()) throw std::invalid_argument("commit() the scene before tracing rays");
   if (o.ndim() != 2 || o.shape(1) != 3 || d.ndim() != 2 || d.shape(1) != 3 || o.shape(0) != d.shape(0))
@@ -1393,6 +1419,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Compressed (quantised) wide BVH nodes from the next commit(): 'on', 'off' or 'auto' "
           "(the default: on for BLASes of 8M triangles or more, where memory matters more than the "
           "few percent more work per ray). Same hits.")
+      .def("binary_bvh_nodes", &binary_bvh_nodes,
+           "The largest BLAS's binary tree for tests (commit(bvh='binary'); empty arrays for the "
+           "wide layouts): dict of lo, hi (M, 3 float32), left_or_first, count (M uint32; interior: "
+           "left child (right = left + 1) and 0; leaf: first position in the leaf order and its "
+           "triangle count) and prims (the leaf order's input indices, uint32).")
       .def("wide_bvh_nodes", &wide_bvh_nodes,
            "The largest BLAS's wide tree for tests: dict of box (M, N, 6: lo x, hi x, lo y, hi y, "
            "lo z, hi z; compressed nodes dequantised as the traversal computes them), child, count "
