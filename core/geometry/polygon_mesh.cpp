@@ -1,5 +1,6 @@
 #include "geometry/polygon_mesh.h"
 
+#include "util/big_alloc.h"
 #include "util/parallel.h"
 
 #if defined(__SSE2__)
@@ -8,7 +9,6 @@
 
 #include <algorithm>
 #include <atomic>
-#include <memory>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -402,10 +402,8 @@ void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, s
   std::vector<float> weight;
   face_normals_and_weights(m, fn, weight, threads, true);
   // Big scratch arrays, each written before it is read: no serial initialisation.
-  const auto scratch = [&](size_t n) { return std::unique_ptr<uint32_t[]>(new uint32_t[n]); };
-  const std::unique_ptr<uint32_t[]> face_of = scratch(m.corners), next = scratch(m.corners),
-                                    parent = scratch(m.corners), count = scratch(m.corners);
-  const std::unique_ptr<float[]> sum(new float[3 * m.corners]);
+  RawVector<uint32_t> face_of(m.corners), next(m.corners), parent(m.corners), count(m.corners);
+  RawVector<Vec3> sum(m.corners);
   parallel_ranges(m.faces, threads, [&](size_t begin, size_t end) {
     for (size_t f = begin; f < end; ++f)
       for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
@@ -416,8 +414,8 @@ void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, s
   });
   // How many corners use each edge, and the first two (read only where exactly two do): threads
   // owning ranges of edges.
-  const std::unique_ptr<uint32_t[]> user0 = scratch(edges), user1 = scratch(edges), users = scratch(edges);
-  parallel_ranges(edges, threads, [&](size_t begin, size_t end) { std::fill(users.get() + begin, users.get() + end, 0u); });
+  RawVector<uint32_t> user0(edges), user1(edges), users(edges);
+  parallel_ranges(edges, threads, [&](size_t begin, size_t end) { std::fill(users.begin() + begin, users.begin() + end, 0u); });
   OwnerRanges(m, corner_edges, edges, threads).run([&](uint32_t lo, uint32_t hi, const auto& for_faces) {
     for_faces([&](size_t f) {
       for (int32_t c = m.offsets[f]; c < m.offsets[f + 1]; ++c) {
@@ -462,13 +460,11 @@ void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, s
         const uint32_t c = uint32_t(ci);
         if (uint32_t(m.corner_verts[c]) < lo || uint32_t(m.corner_verts[c]) >= hi) continue;
         const uint32_t r = parent[c] = find(c);  // every corner now points at its root
-        const Vec3 add = fn[f] * weight[c];
-        float* acc = sum.get() + 3 * size_t(r);
         if (r == c) {  // the root: its fan's first corner, so the first one summed here
-          acc[0] = acc[1] = acc[2] = 0.0f;
+          sum[r] = Vec3(0.0f);
           count[r] = 0;
         }
-        acc[0] += add.x, acc[1] += add.y, acc[2] += add.z;
+        sum[r] += fn[f] * weight[c];
         ++count[r];
       }
     });
@@ -476,8 +472,7 @@ void polygon_corner_normals(const PolygonMesh& m, const int32_t* corner_edges, s
   parallel_ranges(m.corners, threads, [&](size_t begin, size_t end) {
     for (size_t c = begin; c < end; ++c) {
       const uint32_t r = parent[c];
-      const float* acc = sum.get() + 3 * size_t(r);
-      out[c] = count[r] == 1 ? fn[face_of[c]] : normalize_div(Vec3(acc[0], acc[1], acc[2]));
+      out[c] = count[r] == 1 ? fn[face_of[c]] : normalize_div(sum[r]);
     }
   });
 }

@@ -7,6 +7,11 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
+#include <memory>
+#include <new>
+#include <type_traits>
+#include <utility>
+#include <vector>
 #if defined(__linux__)
 #include <sys/mman.h>
 #endif
@@ -42,5 +47,38 @@ inline void advise_huge_pages(const void* p, size_t bytes) {
   (void)bytes;
 #endif
 }
+
+// An allocator whose resize() leaves new elements uninitialised (default-initialised), for big
+// arrays their code writes in full: no serial pass zeroes them first, and their pages are first
+// touched by the (parallel) code that fills them. Memory from big_alloc (huge pages when big).
+template <class T>
+struct NoInitAllocator : std::allocator<T> {
+  template <class U>
+  struct rebind {
+    using other = NoInitAllocator<U>;
+  };
+  NoInitAllocator() = default;
+  template <class U>
+  NoInitAllocator(const NoInitAllocator<U>&) noexcept {}
+  T* allocate(size_t n) {
+    static_assert(alignof(T) <= alignof(std::max_align_t), "big_alloc aligns to max_align_t");
+    if (n > size_t(-1) / sizeof(T)) throw std::bad_alloc();
+    if (void* p = big_alloc(n * sizeof(T))) return static_cast<T*>(p);
+    throw std::bad_alloc();
+  }
+  void deallocate(T* p, size_t) noexcept { big_free(p); }
+  template <class U>
+  void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
+    // `new U` would still zero a type with member initialisers (Vec3's): a trivially copyable
+    // element is left as allocated, for the code that fills it.
+    if constexpr (!std::is_trivially_copyable_v<U>) ::new (static_cast<void*>(p)) U;
+  }
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+template <class T>
+using RawVector = std::vector<T, NoInitAllocator<T>>;
 
 }  // namespace pl
