@@ -1505,16 +1505,6 @@ bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
 
 }  // namespace
 
-const char* bvh_layout_name(BvhLayout l) {
-  switch (l) {
-    case BvhLayout::Auto: return "auto";
-    case BvhLayout::Binary: return "binary";
-    case BvhLayout::Wide4: return "bvh4";
-    case BvhLayout::Wide8: return "bvh8";
-  }
-  return "?";
-}
-
 bool cpu_has_avx2() {
 #if defined(PL_HAVE_AVX2_KERNEL) && (defined(__x86_64__) || defined(__i386__))
   static const bool has = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");  // the 8-wide kernel uses both

@@ -72,7 +72,6 @@ struct alignas(16) TriangleBlock4 {
 // Which tree the traversal uses. Auto: the 8-wide one where the CPU has AVX2, else the 4-wide
 // (SSE2, every x86-64). Binary is the reference the wide ones are tested against.
 enum class BvhLayout : uint8_t { Auto, Binary, Wide4, Wide8 };
-const char* bvh_layout_name(BvhLayout l);
 bool cpu_has_avx2();
 
 struct BvhBuildOptions {

@@ -635,7 +635,7 @@ py::dict scene_stats(const PyScene& self) {
   d["bvh_sah_cost"] = b.sah_cost;
   d["bvh_build_ms"] = b.build_ms;
   d["bvh_bytes"] = s.bvh_bytes;  // every BLAS and the top level
-  d["bvh_layout"] = bvh_layout_name(b.layout);
+  d["bvh_layout"] = enum_name(b.layout, kBvhLayoutNames);
   d["bvh_wide_nodes"] = b.wide_nodes;
   d["spatial_splits"] = self.scene->spatial_splits();  // the setting (applies from the next commit)
   d["bvh_triangles"] = b.triangles;                    // of the largest BLAS, as the other bvh_ entries
