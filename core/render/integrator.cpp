@@ -328,7 +328,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     }
 
-    if (bounce >= s.rr_start_bounce && !(kNonDiffuse && (bs.flags & kTransparentLobe))) {
+    // No roulette after delta lobes (glass, mirrors, transparency): they barely change the
+    // throughput, so a roll there (the square root's survival below 1 again) only re-kills
+    // what the last rough vertex already rolled for, and amplifies what survives: in glass it
+    // cut the caustic chains before they reach the light. The next rough vertex rolls instead.
+    if (bounce >= s.rr_start_bounce && !(kNonDiffuse && (bs.flags & kDelta))) {
       // Throughput without the refraction scaling, so paths inside glass are not culled for
       // carrying compressed radiance (pbrt's etaScale). Its square root, as Cycles: the first
       // roulette sees the product of three bounces' albedos (0.73^3 = 0.39 in a white Cornell box)
