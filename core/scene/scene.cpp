@@ -921,7 +921,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   if (g.rect && solid_angle_triangles_) {
     // Uniform in the rectangle's solid angle above the triangles' lower limit (its warp stays
     // well conditioned up to a whole hemisphere: tests/test_emitter_groups.py), else by area.
-    const SphericalRect sr = group_rect(g, p);
+    const SphericalRectLocal sr = group_rect(g, p);
     if (use_spherical_rect(sr.solid_angle)) {
       // One spherical rectangle over both triangles: the point's rectangle coordinates (s, t)
       // give the triangle (s + t <= 1: triangle 0, which has the origin corner) and its

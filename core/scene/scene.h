@@ -428,9 +428,9 @@ class Scene {
   // from p (every triangle would be on its own), with `total` the sum of the solid angles.
   bool group_solid_angles(const EmitterGroup& g, Vec3 p, double (*dirs)[3], double* omega, double& total) const;
   // A rectangle group as seen from p (its spherical rectangle).
-  static SphericalRect group_rect(const EmitterGroup& g, Vec3 p) {
+  static SphericalRectLocal group_rect(const EmitterGroup& g, Vec3 p) {
     const DVec3 d = g.rect_o - DVec3(p);
-    SphericalRect r;
+    SphericalRectLocal r;
     spherical_rect_local(ddot(d, g.rect_x), ddot(d, g.rect_y), ddot(d, g.rect_n), g.rect_lx, g.rect_ly, r);
     return r;
   }

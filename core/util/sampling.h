@@ -230,16 +230,21 @@ inline double atan_signed_ratio(double a, double b) { return std::copysign(atan_
 // pi/2 -+ atan(x_i y_j / (|z0| r_ij)) (Urena's acos of the edge planes' normals, in closed
 // form), so the solid angle and the warp's offset k take four inline atans instead of four
 // normalised cross products and four acos.
-struct SphericalRect {
-  DVec3 o, x, y, z;           // the shaded point; the frame: x, y along the edges, z away from it
-  double x0 = 0, x1 = 0, y0 = 0, y1 = 0, z0 = 0;  // the rectangle in that frame (z0 < 0)
-  double b0 = 0, b1 = 0, k = 0, q = 0;  // q = 1 - b0^2
-  double solid_angle = 0.0;  // 0: degenerate, or the point lies in the rectangle's plane
+// The part in the rectangle's frame. No default member initialisers: it is built per light sample
+// and spherical_rect_local sets solid_angle first (zero-filling it cost a rep stos per sample);
+// the other fields are meaningful only where solid_angle > 0.
+struct SphericalRectLocal {
+  double x0, x1, y0, y1, z0;  // the rectangle in that frame (z0 < 0)
+  double b0, b1, k, q;        // q = 1 - b0^2
+  double solid_angle;         // 0: degenerate, or the point lies in the rectangle's plane
+};
+struct SphericalRect : SphericalRectLocal {
+  DVec3 o, x, y, z;  // the shaded point; the frame: x, y along the edges, z away from it
 };
 
 // The rectangle [x0, x0 + lx] x [y0, y0 + ly] at signed distance z0 (coordinates relative to the
 // shaded point in an orthonormal frame with x, y along its edges); only r's local part is set.
-inline void spherical_rect_local(double x0, double y0, double z0, double lx, double ly, SphericalRect& r) {
+inline void spherical_rect_local(double x0, double y0, double z0, double lx, double ly, SphericalRectLocal& r) {
   const double z = std::fabs(z0);
   r.solid_angle = 0.0;
   if (!(z > 0.0) || !(lx > 0.0) || !(ly > 0.0)) return;
@@ -267,6 +272,7 @@ inline void spherical_rect_local(double x0, double y0, double z0, double lx, dou
 // Corner c and orthogonal edges ex, ey, seen from p.
 inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
   SphericalRect r;
+  r.solid_angle = 0.0;
   r.o = DVec3(p);
   r.x = DVec3(ex);
   r.y = DVec3(ey);
@@ -285,7 +291,7 @@ inline SphericalRect spherical_rect(Vec3 p, Vec3 c, Vec3 ex, Vec3 ey) {
 
 // The frame coordinates (xu, yv) of a point of the rectangle whose direction from the shaded
 // point is uniform in its solid angle, for u in [0, 1]^2 (u.x along x, u.y along y: stratified).
-[[gnu::always_inline]] inline bool sample_spherical_rect_local(const SphericalRect& r, Vec2 u, double& xu, double& yv) {
+[[gnu::always_inline]] inline bool sample_spherical_rect_local(const SphericalRectLocal& r, Vec2 u, double& xu, double& yv) {
   if (!(r.solid_angle > 0.0)) return false;
   const double au = std::max(0.0, double(u.x) * r.solid_angle + r.k);  // in [0, 4 pi)
   double sin_au, cos_au;
