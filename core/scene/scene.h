@@ -393,6 +393,9 @@ class Scene {
     uint8_t rect_corner[2][3] = {};
     DVec3 rect_o, rect_x, rect_y, rect_n;
     double rect_lx = 0.0, rect_ly = 0.0, rect_inv_lx = 0.0, rect_inv_ly = 0.0;
+    // Each triangle's unit normal as sample_emitter computes it from its world-space corners
+    // (the same float operations), kept so rectangle samples skip the corner loads.
+    Vec3 rect_tri_n[2];
   };
   std::vector<EmitterGroup> groups_;
   std::vector<uint32_t> emitter_group_;  // per emitter
