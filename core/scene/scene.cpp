@@ -495,6 +495,11 @@ void Scene::detect_rect(EmitterGroup& g, const InstanceData& in) const {
   const auto rect_index = [&](int c) { return uint8_t(c == o ? 0 : c == a ? 1 : c == b ? 2 : 3); };
   for (int t = 0; t < 2; ++t)
     for (int k = 0; k < 3; ++k) g.rect_corner[t][k] = rect_index(g.tri_corner[t][k]);
+  for (int t = 0; t < 2; ++t) {
+    const Emitter& em = emitters_[g.first + size_t(t)];
+    const TriangleVerts tv = world_triangle(inst_[em.instance], blases_[inst_[em.instance].blas].tris[em.tri]);
+    g.rect_tri_n[t] = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+  }
   g.rect = true;
 }
 
@@ -921,7 +926,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   if (g.rect && solid_angle_triangles_) {
     // Uniform in the rectangle's solid angle above the triangles' lower limit (its warp stays
     // well conditioned up to a whole hemisphere: tests/test_emitter_groups.py), else by area.
-    const SphericalRect sr = group_rect(g, p);
+    const SphericalRectLocal sr = group_rect(g, p);
     if (use_spherical_rect(sr.solid_angle)) {
       // One spherical rectangle over both triangles: the point's rectangle coordinates (s, t)
       // give the triangle (s + t <= 1: triangle 0, which has the origin corner) and its
@@ -932,10 +937,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
       const int i = rs + rt <= 1.0 ? 0 : 1;
       const double w[4] = {std::max(0.0, 1.0 - rs - rt), i == 0 ? rs : 1.0 - rt, i == 0 ? rt : 1.0 - rs, std::max(0.0, rs + rt - 1.0)};
       e += size_t(i);
-      const Emitter& em = emitters_[e];
-      const TriangleVerts tv = world_triangle(inst_[em.instance], blases_[inst_[em.instance].blas].tris[em.tri]);
-      const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
-      return emitter_point_sample(e, p, float(w[g.rect_corner[i][1]]), float(w[g.rect_corner[i][2]]), n, true,
+      return emitter_point_sample(e, p, float(w[g.rect_corner[i][1]]), float(w[g.rect_corner[i][2]]), g.rect_tri_n[i], true,
                                   float(pmf / sr.solid_angle), pmf, s);
     }
     // A speck from p (or p in its plane): by area, as the triangles would be (each subtends

@@ -393,6 +393,9 @@ class Scene {
     uint8_t rect_corner[2][3] = {};
     DVec3 rect_o, rect_x, rect_y, rect_n;
     double rect_lx = 0.0, rect_ly = 0.0, rect_inv_lx = 0.0, rect_inv_ly = 0.0;
+    // Each triangle's unit normal as sample_emitter computes it from its world-space corners
+    // (the same float operations), kept so rectangle samples skip the corner loads.
+    Vec3 rect_tri_n[2];
   };
   std::vector<EmitterGroup> groups_;
   std::vector<uint32_t> emitter_group_;  // per emitter
@@ -428,9 +431,9 @@ class Scene {
   // from p (every triangle would be on its own), with `total` the sum of the solid angles.
   bool group_solid_angles(const EmitterGroup& g, Vec3 p, double (*dirs)[3], double* omega, double& total) const;
   // A rectangle group as seen from p (its spherical rectangle).
-  static SphericalRect group_rect(const EmitterGroup& g, Vec3 p) {
+  static SphericalRectLocal group_rect(const EmitterGroup& g, Vec3 p) {
     const DVec3 d = g.rect_o - DVec3(p);
-    SphericalRect r;
+    SphericalRectLocal r;
     spherical_rect_local(ddot(d, g.rect_x), ddot(d, g.rect_y), ddot(d, g.rect_n), g.rect_lx, g.rect_ly, r);
     return r;
   }

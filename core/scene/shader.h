@@ -5,6 +5,7 @@
 #include <array>
 #include <cstdint>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "scene/bsdf.h"
@@ -86,8 +87,21 @@ struct Closure {
 
 constexpr int kMaxClosures = 8;
 
+// Closure slots that construction leaves unset (only the first n of a list are meaningful): a
+// std::array of them was zero-filled (a rep stos of 8 closures) for every path traced.
+struct ClosureSlots {
+  static_assert(std::is_trivially_copyable_v<Closure> && std::is_trivially_destructible_v<Closure>,
+                "slots are copied and overwritten as bytes");
+  union {
+    Closure v[kMaxClosures];
+  };
+  ClosureSlots() {}
+  Closure& operator[](size_t i) { return v[i]; }
+  const Closure& operator[](size_t i) const { return v[i]; }
+};
+
 struct ClosureList {
-  std::array<Closure, kMaxClosures> c;
+  ClosureSlots c;
   int n = 0;
   Vec3 emission{0.0f};
   bool has_nondelta = false;
