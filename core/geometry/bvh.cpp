@@ -1343,7 +1343,7 @@ struct CollapsePart {
 // cannot be compressed (quantise_node), the outputs then unspecified.
 template <int N, class Node>
 bool collapse(const BvhNode* bin, size_t n_bin, TriangleSpan tris,
-              const std::vector<uint32_t>& prim_ids, int threads, std::vector<Node>& out,
+              const std::vector<uint32_t>& prim_ids, int threads, RawVector<Node>& out,
               RawVector<TriangleBlock4>& blocks, RawVector<uint32_t>& block_prims) {
   const int hw = std::max(1, threads > 0 ? threads : static_cast<int>(std::thread::hardware_concurrency()));
   const uint32_t refs = static_cast<uint32_t>(prim_ids.size());
@@ -1607,8 +1607,8 @@ bool Bvh::build(TriangleSpan tris, const BvhBuildOptions& options) {
                    ? collapse<4>(bin, n_bin, tris, prim_ids_, opt.threads, nodes4q_, blocks_, block_prims_)
                    : collapse<8>(bin, n_bin, tris, prim_ids_, opt.threads, nodes8q_, blocks_, block_prims_);
     if (!compact_) {  // a box that bytes cannot hold: float nodes
-      std::vector<Bvh4QNode>().swap(nodes4q_);
-      std::vector<Bvh8QNode>().swap(nodes8q_);
+      RawVector<Bvh4QNode>().swap(nodes4q_);
+      RawVector<Bvh8QNode>().swap(nodes8q_);
     }
   }
   if (layout == BvhLayout::Wide4 && !compact_)
@@ -1638,7 +1638,7 @@ size_t Bvh::memory_bytes() const {
 
 namespace {
 template <int N, class Node>
-void append_lanes(const std::vector<Node>& nodes, std::vector<Bvh::WideLane>& out) {
+void append_lanes(const RawVector<Node>& nodes, std::vector<Bvh::WideLane>& out) {
   for (const Node& n : nodes) {
     for (int i = 0; i < N; ++i) {
       Bvh::WideLane l;

@@ -178,10 +178,12 @@ class Bvh {
   BvhLayout layout_ = BvhLayout::Binary;
   Aabb bounds_;
   std::vector<BvhNode> nodes_;        // the binary tree (kept only for the Binary layout)
-  std::vector<Bvh4Node> nodes4_;
-  std::vector<Bvh8Node> nodes8_;
-  std::vector<Bvh4QNode> nodes4q_;  // compact_: these instead of nodes4_ / nodes8_
-  std::vector<Bvh8QNode> nodes8q_;
+  // RawVectors: the collapse writes every node, so resize() must not zero them first (on one
+  // thread, ahead of the parallel writes).
+  RawVector<Bvh4Node> nodes4_;
+  RawVector<Bvh8Node> nodes8_;
+  RawVector<Bvh4QNode> nodes4q_;  // compact_: these instead of nodes4_ / nodes8_
+  RawVector<Bvh8QNode> nodes8q_;
   bool compact_ = false;
   std::vector<TriangleVerts> tris_;   // in leaf order, for locality (Binary layout)
   std::vector<uint32_t> prim_ids_;    // leaf order -> input index (Binary layout)

@@ -34,6 +34,8 @@ static inline float intersect_node(const BvhNode& n, const Vec3& org, const Vec3
   return tmin <= tfar ? tmin : kInf;
 }
 
+constexpr int kMaxGatherWidth = 8;  // the widest node collapsed
+
 // The children of a wide node collapsed from binary node `b` (its index when it is a leaf: one
 // lane): its two children, then the interior child with the largest box replaced by its two
 // children while fewer than `width` lanes are used. Returns the lane count.
@@ -43,26 +45,38 @@ static inline int gather_wide_children(const BvhNode* bin, uint32_t b, uint32_t*
     kids[k++] = b;
     return k;
   }
-  kids[k++] = bin[b].left_or_first;
-  kids[k++] = bin[b].left_or_first + 1;
+  // Each lane's opening priority computed once, when the lane is added (not again on every
+  // round): the same value, so the same lanes are opened in the same order. Leaves: -1, never
+  // opened (boxes are never inverted: areas are >= 0 or NaN, which is never opened either).
+  float prio[kMaxGatherWidth];
+  const auto priority = [&](uint32_t n) {
+    const BvhNode& c = bin[n];
+    if (c.is_leaf()) return -1.0f;
+    float a = Aabb{c.lo, c.hi}.half_area();
+    // A child whose two children are leaves would become a wide node of two lanes: opened
+    // first, it costs this node one lane and saves a node and a traversal step.
+    if (bin[c.left_or_first].is_leaf() && bin[c.left_or_first + 1].is_leaf()) a *= 4.0f;
+    return a;
+  };
+  width = std::min(width, kMaxGatherWidth);
+  for (uint32_t c = bin[b].left_or_first; c < bin[b].left_or_first + 2; ++c) {
+    prio[k] = priority(c);
+    kids[k++] = c;
+  }
   while (k < width) {
     int open = -1;
     float best = -1.0f;
-    for (int i = 0; i < k; ++i) {
-      const BvhNode& c = bin[kids[i]];
-      float a = Aabb{c.lo, c.hi}.half_area();
-      // A child whose two children are leaves would become a wide node of two lanes: opened
-      // first, it costs this node one lane and saves a node and a traversal step.
-      if (!c.is_leaf() && bin[c.left_or_first].is_leaf() && bin[c.left_or_first + 1].is_leaf()) a *= 4.0f;
-      if (!c.is_leaf() && a > best) {
-        best = a;
+    for (int i = 0; i < k; ++i)
+      if (prio[i] > best) {
+        best = prio[i];
         open = i;
       }
-    }
     if (open < 0) break;
     const uint32_t l = bin[kids[open]].left_or_first;
     kids[open] = l;
-    kids[k++] = l + 1;
+    prio[open] = priority(l);
+    kids[k] = l + 1;
+    prio[k++] = priority(l + 1);
   }
   return k;
 }

@@ -234,7 +234,7 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
     // On all threads (a 1M-triangle mesh takes tens of ms on one): world positions, then every
     // triangle written in place with its source index, UINT32_MAX where unusable; the rare
     // unusable ones are squeezed out afterwards in order.
-    std::vector<Vec3> world(mesh.positions.size());
+    RawVector<Vec3> world(mesh.positions.size());  // written in full below: not zeroed on one thread first
     parallel_ranges(world.size(), threads, [&](size_t lo, size_t hi) {
       for (size_t k = lo; k < hi; ++k) world[k] = inst.matrix.point(mesh.positions[k]);
     });

@@ -18,8 +18,11 @@
 
 namespace pl {
 
-inline void* big_alloc(size_t bytes) {
+// `align`: a power of two up to 2 MiB (over-aligned types: the wide BVH's nodes).
+inline void* big_alloc(size_t bytes, size_t align = alignof(std::max_align_t)) {
   constexpr size_t kHuge = size_t(1) << 21;
+  if (align > alignof(std::max_align_t) && bytes < 2 * kHuge)
+    return std::aligned_alloc(align, (std::max<size_t>(bytes, 1) + align - 1) & ~(align - 1));
   if (bytes >= 2 * kHuge) {
     const size_t size = (bytes + kHuge - 1) & ~(kHuge - 1);
     if (void* p = std::aligned_alloc(kHuge, size)) {
@@ -61,9 +64,9 @@ struct NoInitAllocator : std::allocator<T> {
   template <class U>
   NoInitAllocator(const NoInitAllocator<U>&) noexcept {}
   T* allocate(size_t n) {
-    static_assert(alignof(T) <= alignof(std::max_align_t), "big_alloc aligns to max_align_t");
+    static_assert(alignof(T) <= (size_t(1) << 21), "big_alloc aligns to at most 2 MiB");
     if (n > size_t(-1) / sizeof(T)) throw std::bad_alloc();
-    if (void* p = big_alloc(n * sizeof(T))) return static_cast<T*>(p);
+    if (void* p = big_alloc(n * sizeof(T), std::max(alignof(T), alignof(std::max_align_t)))) return static_cast<T*>(p);
     throw std::bad_alloc();
   }
   void deallocate(T* p, size_t) noexcept { big_free(p); }
