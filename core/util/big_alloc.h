@@ -21,8 +21,11 @@ namespace pl {
 // `align`: a power of two up to 2 MiB (over-aligned types: the wide BVH's nodes).
 inline void* big_alloc(size_t bytes, size_t align = alignof(std::max_align_t)) {
   constexpr size_t kHuge = size_t(1) << 21;
-  if (align > alignof(std::max_align_t) && bytes < 2 * kHuge)
-    return std::aligned_alloc(align, (std::max<size_t>(bytes, 1) + align - 1) & ~(align - 1));
+  const bool over_aligned = align > alignof(std::max_align_t);
+  const auto plain = [&] {  // malloc, or aligned_alloc where malloc's alignment is not enough
+    const size_t n = std::max<size_t>(bytes, 1);
+    return over_aligned ? std::aligned_alloc(align, (n + align - 1) & ~(align - 1)) : std::malloc(n);
+  };
   if (bytes >= 2 * kHuge) {
     const size_t size = (bytes + kHuge - 1) & ~(kHuge - 1);
     if (void* p = std::aligned_alloc(kHuge, size)) {
@@ -32,7 +35,7 @@ inline void* big_alloc(size_t bytes, size_t align = alignof(std::max_align_t)) {
       return p;
     }
   }
-  return std::malloc(std::max<size_t>(bytes, 1));
+  return plain();  // also when the huge-page-aligned block was refused: never under-aligned
 }
 
 inline void big_free(void* p) { std::free(p); }
