@@ -328,6 +328,9 @@ def runtime_env(args, extra=None):
     """Environment for processes that load the core; a sanitizer build needs its runtime preloaded."""
     env = dict(os.environ)
     env.update(extra or {})
+    # numpy's OpenBLAS threads spin (sched_yield) after every product, taking cores from the
+    # core's own threads; the tests' and benchmarks' arrays are too small to gain from them.
+    env.setdefault("OPENBLAS_NUM_THREADS", "1")
     if args.sanitize:
         preload = sanitizer_runtime(build_dir(args))
         if preload:

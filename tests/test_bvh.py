@@ -3,6 +3,7 @@ same closest hits (t, triangle, barycentrics) on many rays, including the awkwar
 parallel directions with zero and negative-zero components, origins inside boxes and on box
 planes, slivers, coincident centroids); occluded() agrees with intersect(); commit can be
 cancelled from another thread."""
+import functools
 import threading
 import time
 
@@ -510,10 +511,37 @@ def brute_force_t(tri, o, d):
         s = o - v0
         u = np.einsum("ij,ij->i", s, p) / det
         q = np.cross(s, e1)
-        v = (q @ d) / det
+        v = np.einsum("ij,j->i", q, d) / det  # not BLAS: its spinning threads cost more than the product
         t = np.einsum("ij,ij->i", e2, q) / det
         ok = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & np.isfinite(t)
     return np.where(ok, t, np.inf)
+
+
+@functools.lru_cache(maxsize=None)
+def hostile_case():
+    """The hostile soup, rays at it and brute force's closest t per ray: the same for every build
+    path below, so computed once (brute force was most of each test's time, 5x more under ASan).
+    Returns read-only (triangles, usable mask, float64 triangles with NaN for unusable ones,
+    origins, directions, closest t (inf where nothing is hit))."""
+    rng = np.random.default_rng(5)
+    tri, usable = hostile_soup(rng)
+    # Rays at random usable triangles' centroids (from outside the soup), at the fan, and away.
+    target = np.flatnonzero(usable)[rng.integers(0, usable.sum(), 300)]
+    aim = tri[target].astype(np.float64).mean(1)
+    o = rng.normal(size=(300, 3)) * 30
+    o[:20] = [0, 0, 20]
+    aim[:20] = [0, 0, 3] + rng.normal(size=(20, 3)) * [0.2, 0.2, 0]
+    d = aim - o
+    d[-20:] = -o[-20:]  # through the soup's middle, most hit something
+    d[-5:] = o[-5:]     # away from everything: misses
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    tri64 = np.where(usable[:, None, None], tri, np.nan).astype(np.float64)
+    best = np.array([brute_force_t(tri64, o32[k].astype(np.float64), d32[k].astype(np.float64)).min()
+                     for k in range(len(o))])
+    case = (tri, usable, tri64, o32, d32, best)
+    for a in case:
+        a.setflags(write=False)
+    return case
 
 
 @pytest.mark.parametrize("quality", ["sah", "fast"])
@@ -525,8 +553,7 @@ def test_build_matches_brute_force_on_hostile_soups(layout, threads, quality):
     on several threads; the clustered build's Morton runs, with 600 equal codes cut by count)
     against a brute-force test of every triangle: the same closest t and a triangle that is hit
     there, the unusable triangles dropped (and the others' rows kept)."""
-    rng = np.random.default_rng(5)
-    tri, usable = hostile_soup(rng)
+    tri, usable, tri64, o32, d32, best = hostile_case()
     s = pc.Scene()
     s.build_quality = quality
     s.add_instance(s.add_mesh(tri.reshape(-1, 3), np.arange(3 * len(tri), dtype=np.int32).reshape(-1, 3)),
@@ -534,28 +561,16 @@ def test_build_matches_brute_force_on_hostile_soups(layout, threads, quality):
     s.commit(threads=threads, bvh=layout)
     assert s.stats()["dropped_triangles"] == (~usable).sum()
     assert s.stats()["triangles"] == usable.sum()
-    # Rays at random usable triangles' centroids (from outside the soup), at the fan, and away.
-    target = np.flatnonzero(usable)[rng.integers(0, usable.sum(), 300)]
-    aim = tri[target].astype(np.float64).mean(1)
-    o = rng.normal(size=(300, 3)) * 30
-    o[:20] = [0, 0, 20]
-    aim[:20] = [0, 0, 3] + rng.normal(size=(20, 3)) * [0.2, 0.2, 0]
-    d = aim - o
-    d[-20:] = -o[-20:]  # through the soup's middle, most hit something
-    d[-5:] = o[-5:]     # away from everything: misses
-    o32, d32 = o.astype(np.float32), d.astype(np.float32)
     t, prim, _, _, inst, row = s.intersect(o32, d32, instances=True)
-    tri64 = np.where(usable[:, None, None], tri, np.nan).astype(np.float64)
-    for k in range(len(o)):
-        bt = brute_force_t(tri64, o32[k].astype(np.float64), d32[k].astype(np.float64))
-        best = bt.min()
-        if not np.isfinite(best):
+    for k in range(len(o32)):
+        if not np.isfinite(best[k]):
             assert prim[k] == -1 and row[k] == -1, k
             continue
         assert prim[k] >= 0 and inst[k] == 0, k
         assert usable[row[k]], k
-        assert abs(t[k] - best) <= 1e-5 * best, (k, t[k], best)
-        assert abs(bt[row[k]] - best) <= 1e-5 * best, (k, bt[row[k]], best)  # that triangle is hit there
+        assert abs(t[k] - best[k]) <= 1e-5 * best[k], (k, t[k], best[k])
+        bt = brute_force_t(tri64[row[k]:row[k] + 1], o32[k].astype(np.float64), d32[k].astype(np.float64))[0]
+        assert abs(bt - best[k]) <= 1e-5 * best[k], (k, bt, best[k])  # that triangle is hit there
     assert (prim[-5:] == -1).all() and (prim[:-20] >= 0).all()
     assert (s.stats()["bvh_clusters"] > 0) == (quality == "fast")
 

@@ -572,7 +572,7 @@ def test_wait_with_odd_timeouts_returns_promptly(timeout):
 
 @pytest.mark.parametrize("timeout", [np.inf, 1e300])
 def test_wait_with_an_infinite_timeout_blocks_until_a_pass(timeout):
-    sess = pc.Session(cornell(pc), settings(512, 512, 1_000_000, threads=1))
+    sess = pc.Session(cornell(pc), settings(256, 256, 1_000_000, threads=1))
     sess.start()
     try:
         sess.wait(30.0)  # the first (1-sample) pass
