@@ -8,3 +8,11 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers",
+        "converged: renders millions of samples to compare two estimators at low noise; the "
+        "sanitizer step of .ci/run deselects it (5x slower there), and cheaper tests run the same "
+        "code paths under the sanitizer")

@@ -52,6 +52,7 @@ def test_emitting_enclosure_reaches_le_over_one_minus_albedo():
         assert stats["nonfinite_samples"] == 0
 
 
+@pytest.mark.converged
 def test_nee_and_brdf_sampling_converge_to_the_same_image():
     # A larger light keeps pure BSDF sampling's noise low enough to compare region means.
     with_nee, _ = render(pc, cornell(pc, 3.0, 1.0), 48, 48, samples=256, use_nee=True)

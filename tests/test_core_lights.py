@@ -579,6 +579,7 @@ def test_sobol_sampler_matches_its_definition_bit_for_bit():
         np.testing.assert_array_equal(got, sobol_reference(seed, pixel, sample, 16), err_msg=str((seed, pixel, sample)))
 
 
+@pytest.mark.converged
 def test_sobol_converges_faster_than_random():
     ref, _ = render(pc, cornell(pc), 32, 32, samples=2048)
     errs = {}

@@ -166,6 +166,7 @@ def test_grouped_quad_lowers_variance_near_it():
     assert rel_var[True] < 0.7 * rel_var[False], rel_var
 
 
+@pytest.mark.converged
 def test_grouped_lights_render_the_per_triangle_image():
     # The Cornell box (its light one quad) at high sample counts: the same image either way, to
     # within the noise of the regions; the whole-image means within 0.5 %.
@@ -396,6 +397,7 @@ def test_rect_group_samples_have_the_mis_pdf_and_the_two_triangle_distribution(m
     assert kinds["spherical"] >= 30 and kinds["area"] >= 3, kinds
 
 
+@pytest.mark.converged
 def test_rect_group_renders_the_two_triangle_image():
     # The Cornell box (its light a rectangle) at high sample counts: the same image as with two
     # spherical triangles, within the noise of the regions; the whole-image means within 0.5 %.
