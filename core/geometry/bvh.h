@@ -19,6 +19,8 @@ namespace pl {
 
 struct TriangleVerts {
   Vec3 v0, v1, v2;
+  // The geometric normal, winding included (NaN for a zero-area triangle).
+  Vec3 unit_normal() const { return normalize(cross(v1 - v0, v2 - v0)); }
 };
 
 // 32 bytes: two nodes per cache line. Children of an interior node are stored side by side.

@@ -498,7 +498,7 @@ void Scene::detect_rect(EmitterGroup& g, const InstanceData& in) const {
   for (int t = 0; t < 2; ++t) {
     const Emitter& em = emitters_[g.first + size_t(t)];
     const TriangleVerts tv = world_triangle(inst_[em.instance], blases_[inst_[em.instance].blas].tris[em.tri]);
-    g.rect_tri_n[t] = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+    g.rect_tri_n[t] = tv.unit_normal();
   }
   g.rect = true;
 }
@@ -757,7 +757,7 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   const float b0 = 1.0f - h.b1 - h.b2;
   triangle_point(in, tv, h.b1, h.b2, sp.p, sp.p_error);
   if (!in.transformed) {
-    sp.ng = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+    sp.ng = tv.unit_normal();
   } else {
     // Cofactors map the object-space edge cross product to the world one (winding included).
     const Vec3 c = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
@@ -865,7 +865,7 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   const Emitter& em = emitters_[e];
   const InstanceData& in = inst_[em.instance];
   const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
-  const Vec3 n = normalize(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+  const Vec3 n = tv.unit_normal();
   float b1, b2;
   DVec3 w;
   if (spherical && sample_spherical_triangle(st, u, w)) {
