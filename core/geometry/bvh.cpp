@@ -72,9 +72,14 @@ struct V4 {
   // Whether a > b in any of lanes 0-2 (an empty box when a = lo, b = hi).
   static bool any_gt_xyz(V4 a, V4 b) { return (_mm_movemask_ps(_mm_cmpgt_ps(a.v, b.v)) & 7) != 0; }
   // bin_of() on each lane: clamp to [0, bins - 1] (NaN -> 0), then truncate.
-  void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
+  // Returns them packed too, lane k in byte k (bins < 256), packed in registers: reading the
+  // stored ints back to pack them waited on the store.
+  uint32_t bins(V4 lo, V4 scale, V4 top, int out[4]) const {
     const __m128 f = _mm_mul_ps(_mm_sub_ps(v, lo.v), scale.v);
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(out), _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), top.v)));
+    const __m128i i = _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), top.v));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out), i);
+    const __m128i w = _mm_packs_epi32(i, i);
+    return uint32_t(_mm_cvtsi128_si32(_mm_packus_epi16(w, w)));
   }
 };
 #else
@@ -93,8 +98,9 @@ struct V4 {
   friend V4 vmin(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x < y ? x : y; }); }
   friend V4 vmax(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x > y ? x : y; }); }
   static bool any_gt_xyz(V4 a, V4 b) { return a.f[0] > b.f[0] || a.f[1] > b.f[1] || a.f[2] > b.f[2]; }
-  void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
+  uint32_t bins(V4 lo, V4 scale, V4 top, int out[4]) const {
     for (int i = 0; i < 3; ++i) out[i] = bin_of(f[i], lo.f[i], scale.f[i], static_cast<int>(top.f[i]) + 1);
+    return uint32_t(out[0]) | uint32_t(out[1]) << 8 | uint32_t(out[2]) << 16;
   }
 };
 #endif
@@ -157,9 +163,18 @@ struct alignas(64) BinSet {
 // Half the surface area of the box (lo, hi), the same arithmetic as Aabb::half_area() on a
 // non-empty box, so SIMD accumulation picks the same splits as the scalar code did.
 inline float half_area(V4 lo, V4 hi) {
+#if defined(__SSE2__)
+  // In registers (a store and three loads waited on the store): e0 e1 + e1 e2 + e2 e0, summed
+  // in that order as below.
+  const __m128 e = _mm_sub_ps(hi.v, lo.v);
+  const __m128 p = _mm_mul_ps(e, _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1)));
+  const __m128 s = _mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1)));
+  return _mm_cvtss_f32(_mm_add_ss(s, _mm_movehl_ps(p, p)));
+#else
   alignas(16) float e[4];
   (hi - lo).store(e);
   return e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+#endif
 }
 
 // Runs fn(chunk) for chunk in [0, chunks) on that many threads (this one included).
@@ -610,9 +625,9 @@ class Builder {
     cbounds = cb.aabb();
   }
 
-  // The bins of idx, keeping the reference's weight (bits 24-31).
-  static uint32_t pack_bins(const int idx[4], uint32_t old) {
-    return uint32_t(idx[0]) | uint32_t(idx[1]) << 8 | uint32_t(idx[2]) << 16 | (old & 0xff000000u);
+  // The bins packed by V4::bins(), keeping the reference's weight (bits 24-31).
+  static uint32_t pack_bins(uint32_t packed, uint32_t old) {
+    return (packed & 0x00ffffffu) | (old & 0xff000000u);
   }
 
   void make_leaf(BvhNode& node, uint32_t begin, uint32_t end) {
@@ -728,8 +743,7 @@ class Builder {
   void bin_one(PrimRef& r, V4 lo, V4 scale, V4 top, BinSet& bins) {
     alignas(16) int idx[4];
     const V4 l = r.vlo(), h = r.vhi();
-    (l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx);
-    r.bins = pack_bins(idx, r.bins);
+    r.bins = pack_bins((l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx), r.bins);
     const uint32_t w = r.weight();
     for (int a = 0; a < 3; ++a) {
       bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
@@ -785,8 +799,7 @@ class Builder {
       alignas(16) int idx[kSmallNode][4];
       uint64_t mask[3] = {0, 0, 0};
       for (uint32_t i = 0; i < n; ++i) {
-        refs_[begin + i].centroid().bins(vlo, vscale, top, idx[i]);
-        refs_[begin + i].bins = pack_bins(idx[i], refs_[begin + i].bins);
+        refs_[begin + i].bins = pack_bins(refs_[begin + i].centroid().bins(vlo, vscale, top, idx[i]), refs_[begin + i].bins);
         for (int a = 0; a < 3; ++a) mask[a] |= uint64_t(1) << idx[i][a];
       }
       for (int a = 0; a < 3; ++a)
