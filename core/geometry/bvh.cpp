@@ -15,6 +15,9 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 
 #include "geometry/bvh_common.h"
 #include "geometry/triangle.h"
@@ -136,25 +139,50 @@ struct BoxAcc {
   }
 };
 
+// A bin's box. With AVX one register holds lo and -hi, so growing it is one min instead of a
+// min and a max: -max(a, b) = min(-a, -b) bit for bit (also for NaN, where both return the
+// second operand, and for zeros of either sign), so the boxes are those of the pair.
+#if defined(__AVX__)
+struct BinBox {
+  __m256 v;
+  static __m128 sign() { return _mm_set1_ps(-0.0f); }
+  static BinBox empty() { return {_mm256_set1_ps(kInf)}; }  // lo = +inf, -hi = +inf
+  static BinBox of(V4 l, V4 h) { return {_mm256_insertf128_ps(_mm256_castps128_ps256(l.v), _mm_xor_ps(h.v, sign()), 1)}; }
+  void grow(BinBox b) { v = _mm256_min_ps(v, b.v); }
+  V4 lo() const { return {_mm256_castps256_ps128(v)}; }
+  V4 hi() const { return {_mm_xor_ps(_mm256_extractf128_ps(v, 1), sign())}; }
+};
+#else
+struct BinBox {
+  V4 l, h;
+  static BinBox empty() { return {V4::set1(kInf), V4::set1(-kInf)}; }
+  static BinBox of(V4 lo, V4 hi) { return {lo, hi}; }
+  void grow(BinBox b) {
+    l = vmin(l, b.l);
+    h = vmax(h, b.h);
+  }
+  V4 lo() const { return l; }
+  V4 hi() const { return h; }
+};
+#endif
+
 // The bins of all three axes, filled in one pass over a range of triangles. Not initialised on
 // construction: reset() clears only the bins in use (small nodes are many, their bins few).
 // Cache-line aligned: the root's chunks bin into neighbouring BinSets on different threads.
 struct alignas(64) BinSet {
-  V4 lo[3][kMaxBins], hi[3][kMaxBins];
+  BinBox box[3][kMaxBins];
   uint32_t count[3][kMaxBins];
   void reset(int bins) {
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < bins; ++b) {
-        lo[a][b] = V4::set1(kInf);
-        hi[a][b] = V4::set1(-kInf);
+        box[a][b] = BinBox::empty();
         count[a][b] = 0;
       }
   }
   void merge(const BinSet& o, int bins) {
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < bins; ++b) {
-        lo[a][b] = vmin(lo[a][b], o.lo[a][b]);
-        hi[a][b] = vmax(hi[a][b], o.hi[a][b]);
+        box[a][b].grow(o.box[a][b]);
         count[a][b] += o.count[a][b];
       }
   }
@@ -745,9 +773,9 @@ class Builder {
     const V4 l = r.vlo(), h = r.vhi();
     r.bins = pack_bins((l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx), r.bins);
     const uint32_t w = r.weight();
+    const BinBox lh = BinBox::of(l, h);
     for (int a = 0; a < 3; ++a) {
-      bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
-      bins.hi[a][idx[a]] = vmax(bins.hi[a][idx[a]], h);
+      bins.box[a][idx[a]].grow(lh);
       bins.count[a][idx[a]] += w;
     }
   }
@@ -805,17 +833,15 @@ class Builder {
       for (int a = 0; a < 3; ++a)
         for (uint64_t m = mask[a]; m; m &= m - 1) {
           const int b = __builtin_ctzll(m);
-          bins.lo[a][b] = V4::set1(kInf);
-          bins.hi[a][b] = V4::set1(-kInf);
+          bins.box[a][b] = BinBox::empty();
           bins.count[a][b] = 0;
           used[a][n_used[a]++] = b;
         }
       for (uint32_t i = 0; i < n; ++i) {
-        const V4 l = refs_[begin + i].vlo(), h = refs_[begin + i].vhi();
+        const BinBox lh = BinBox::of(refs_[begin + i].vlo(), refs_[begin + i].vhi());
         const uint32_t w = refs_[begin + i].weight();
         for (int a = 0; a < 3; ++a) {
-          bins.lo[a][idx[i][a]] = vmin(bins.lo[a][idx[i][a]], l);
-          bins.hi[a][idx[i][a]] = vmax(bins.hi[a][idx[i][a]], h);
+          bins.box[a][idx[i][a]].grow(lh);
           bins.count[a][idx[i][a]] += w;
         }
       }
@@ -850,22 +876,19 @@ class Builder {
       const int m = n_used[axis];
       // Sweep from the right, then from the left.
       float right_cost[kMaxBins];
-      V4 alo = V4::set1(kInf), ahi = V4::set1(-kInf);
+      BinBox acc = BinBox::empty();
       uint32_t cnt = 0;
       for (int j = m - 1; j > 0; --j) {
-        alo = vmin(alo, bins.lo[axis][used_bins[j]]);
-        ahi = vmax(ahi, bins.hi[axis][used_bins[j]]);
+        acc.grow(bins.box[axis][used_bins[j]]);
         cnt += bins.count[axis][used_bins[j]];
-        right_cost[j] = half_area(alo, ahi) * tests(cnt);
+        right_cost[j] = half_area(acc.lo(), acc.hi()) * tests(cnt);
       }
-      alo = V4::set1(kInf);
-      ahi = V4::set1(-kInf);
+      acc = BinBox::empty();
       cnt = 0;
       for (int j = 0; j < m - 1; ++j) {
-        alo = vmin(alo, bins.lo[axis][used_bins[j]]);
-        ahi = vmax(ahi, bins.hi[axis][used_bins[j]]);
+        acc.grow(bins.box[axis][used_bins[j]]);
         cnt += bins.count[axis][used_bins[j]];
-        const float cost = half_area(alo, ahi) * tests(cnt) + right_cost[j + 1];
+        const float cost = half_area(acc.lo(), acc.hi()) * tests(cnt) + right_cost[j + 1];
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = axis;
@@ -883,7 +906,7 @@ class Builder {
     if (best_axis >= 0)
       for (int k = 0; k < n_used[best_axis]; ++k) {
         const int b = used[best_axis][k];
-        (b < best_bin ? lb : rb).grow(bins.lo[best_axis][b], bins.hi[best_axis][b]);
+        (b < best_bin ? lb : rb).grow(bins.box[best_axis][b].lo(), bins.box[best_axis][b].hi());
         if (b < best_bin) left_tris += bins.count[best_axis][b];
       }
     if (cap_end > end) {
