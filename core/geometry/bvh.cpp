@@ -15,6 +15,9 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 
 #include "geometry/bvh_common.h"
 #include "geometry/triangle.h"
@@ -72,9 +75,14 @@ struct V4 {
   // Whether a > b in any of lanes 0-2 (an empty box when a = lo, b = hi).
   static bool any_gt_xyz(V4 a, V4 b) { return (_mm_movemask_ps(_mm_cmpgt_ps(a.v, b.v)) & 7) != 0; }
   // bin_of() on each lane: clamp to [0, bins - 1] (NaN -> 0), then truncate.
-  void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
+  // Returns them packed too, lane k in byte k (bins < 256), packed in registers: reading the
+  // stored ints back to pack them waited on the store.
+  uint32_t bins(V4 lo, V4 scale, V4 top, int out[4]) const {
     const __m128 f = _mm_mul_ps(_mm_sub_ps(v, lo.v), scale.v);
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(out), _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), top.v)));
+    const __m128i i = _mm_cvttps_epi32(_mm_min_ps(_mm_max_ps(f, _mm_setzero_ps()), top.v));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out), i);
+    const __m128i w = _mm_packs_epi32(i, i);
+    return uint32_t(_mm_cvtsi128_si32(_mm_packus_epi16(w, w)));
   }
 };
 #else
@@ -93,8 +101,9 @@ struct V4 {
   friend V4 vmin(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x < y ? x : y; }); }
   friend V4 vmax(V4 a, V4 b) { return map(a, b, [](float x, float y) { return x > y ? x : y; }); }
   static bool any_gt_xyz(V4 a, V4 b) { return a.f[0] > b.f[0] || a.f[1] > b.f[1] || a.f[2] > b.f[2]; }
-  void bins(V4 lo, V4 scale, V4 top, int out[4]) const {
+  uint32_t bins(V4 lo, V4 scale, V4 top, int out[4]) const {
     for (int i = 0; i < 3; ++i) out[i] = bin_of(f[i], lo.f[i], scale.f[i], static_cast<int>(top.f[i]) + 1);
+    return uint32_t(out[0]) | uint32_t(out[1]) << 8 | uint32_t(out[2]) << 16;
   }
 };
 #endif
@@ -130,25 +139,50 @@ struct BoxAcc {
   }
 };
 
+// A bin's box. With AVX one register holds lo and -hi, so growing it is one min instead of a
+// min and a max: -max(a, b) = min(-a, -b) bit for bit (also for NaN, where both return the
+// second operand, and for zeros of either sign), so the boxes are those of the pair.
+#if defined(__AVX__)
+struct BinBox {
+  __m256 v;
+  static __m128 sign() { return _mm_set1_ps(-0.0f); }
+  static BinBox empty() { return {_mm256_set1_ps(kInf)}; }  // lo = +inf, -hi = +inf
+  static BinBox of(V4 l, V4 h) { return {_mm256_insertf128_ps(_mm256_castps128_ps256(l.v), _mm_xor_ps(h.v, sign()), 1)}; }
+  void grow(BinBox b) { v = _mm256_min_ps(v, b.v); }
+  V4 lo() const { return {_mm256_castps256_ps128(v)}; }
+  V4 hi() const { return {_mm_xor_ps(_mm256_extractf128_ps(v, 1), sign())}; }
+};
+#else
+struct BinBox {
+  V4 l, h;
+  static BinBox empty() { return {V4::set1(kInf), V4::set1(-kInf)}; }
+  static BinBox of(V4 lo, V4 hi) { return {lo, hi}; }
+  void grow(BinBox b) {
+    l = vmin(l, b.l);
+    h = vmax(h, b.h);
+  }
+  V4 lo() const { return l; }
+  V4 hi() const { return h; }
+};
+#endif
+
 // The bins of all three axes, filled in one pass over a range of triangles. Not initialised on
 // construction: reset() clears only the bins in use (small nodes are many, their bins few).
 // Cache-line aligned: the root's chunks bin into neighbouring BinSets on different threads.
 struct alignas(64) BinSet {
-  V4 lo[3][kMaxBins], hi[3][kMaxBins];
+  BinBox box[3][kMaxBins];
   uint32_t count[3][kMaxBins];
   void reset(int bins) {
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < bins; ++b) {
-        lo[a][b] = V4::set1(kInf);
-        hi[a][b] = V4::set1(-kInf);
+        box[a][b] = BinBox::empty();
         count[a][b] = 0;
       }
   }
   void merge(const BinSet& o, int bins) {
     for (int a = 0; a < 3; ++a)
       for (int b = 0; b < bins; ++b) {
-        lo[a][b] = vmin(lo[a][b], o.lo[a][b]);
-        hi[a][b] = vmax(hi[a][b], o.hi[a][b]);
+        box[a][b].grow(o.box[a][b]);
         count[a][b] += o.count[a][b];
       }
   }
@@ -157,9 +191,18 @@ struct alignas(64) BinSet {
 // Half the surface area of the box (lo, hi), the same arithmetic as Aabb::half_area() on a
 // non-empty box, so SIMD accumulation picks the same splits as the scalar code did.
 inline float half_area(V4 lo, V4 hi) {
+#if defined(__SSE2__)
+  // In registers (a store and three loads waited on the store): e0 e1 + e1 e2 + e2 e0, summed
+  // in that order as below.
+  const __m128 e = _mm_sub_ps(hi.v, lo.v);
+  const __m128 p = _mm_mul_ps(e, _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1)));
+  const __m128 s = _mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1)));
+  return _mm_cvtss_f32(_mm_add_ss(s, _mm_movehl_ps(p, p)));
+#else
   alignas(16) float e[4];
   (hi - lo).store(e);
   return e[0] * e[1] + e[1] * e[2] + e[2] * e[0];
+#endif
 }
 
 // Runs fn(chunk) for chunk in [0, chunks) on that many threads (this one included).
@@ -610,9 +653,9 @@ class Builder {
     cbounds = cb.aabb();
   }
 
-  // The bins of idx, keeping the reference's weight (bits 24-31).
-  static uint32_t pack_bins(const int idx[4], uint32_t old) {
-    return uint32_t(idx[0]) | uint32_t(idx[1]) << 8 | uint32_t(idx[2]) << 16 | (old & 0xff000000u);
+  // The bins packed by V4::bins(), keeping the reference's weight (bits 24-31).
+  static uint32_t pack_bins(uint32_t packed, uint32_t old) {
+    return (packed & 0x00ffffffu) | (old & 0xff000000u);
   }
 
   void make_leaf(BvhNode& node, uint32_t begin, uint32_t end) {
@@ -728,12 +771,11 @@ class Builder {
   void bin_one(PrimRef& r, V4 lo, V4 scale, V4 top, BinSet& bins) {
     alignas(16) int idx[4];
     const V4 l = r.vlo(), h = r.vhi();
-    (l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx);
-    r.bins = pack_bins(idx, r.bins);
+    r.bins = pack_bins((l * V4::set1(0.5f) + h * V4::set1(0.5f)).bins(lo, scale, top, idx), r.bins);
     const uint32_t w = r.weight();
+    const BinBox lh = BinBox::of(l, h);
     for (int a = 0; a < 3; ++a) {
-      bins.lo[a][idx[a]] = vmin(bins.lo[a][idx[a]], l);
-      bins.hi[a][idx[a]] = vmax(bins.hi[a][idx[a]], h);
+      bins.box[a][idx[a]].grow(lh);
       bins.count[a][idx[a]] += w;
     }
   }
@@ -785,24 +827,21 @@ class Builder {
       alignas(16) int idx[kSmallNode][4];
       uint64_t mask[3] = {0, 0, 0};
       for (uint32_t i = 0; i < n; ++i) {
-        refs_[begin + i].centroid().bins(vlo, vscale, top, idx[i]);
-        refs_[begin + i].bins = pack_bins(idx[i], refs_[begin + i].bins);
+        refs_[begin + i].bins = pack_bins(refs_[begin + i].centroid().bins(vlo, vscale, top, idx[i]), refs_[begin + i].bins);
         for (int a = 0; a < 3; ++a) mask[a] |= uint64_t(1) << idx[i][a];
       }
       for (int a = 0; a < 3; ++a)
         for (uint64_t m = mask[a]; m; m &= m - 1) {
           const int b = __builtin_ctzll(m);
-          bins.lo[a][b] = V4::set1(kInf);
-          bins.hi[a][b] = V4::set1(-kInf);
+          bins.box[a][b] = BinBox::empty();
           bins.count[a][b] = 0;
           used[a][n_used[a]++] = b;
         }
       for (uint32_t i = 0; i < n; ++i) {
-        const V4 l = refs_[begin + i].vlo(), h = refs_[begin + i].vhi();
+        const BinBox lh = BinBox::of(refs_[begin + i].vlo(), refs_[begin + i].vhi());
         const uint32_t w = refs_[begin + i].weight();
         for (int a = 0; a < 3; ++a) {
-          bins.lo[a][idx[i][a]] = vmin(bins.lo[a][idx[i][a]], l);
-          bins.hi[a][idx[i][a]] = vmax(bins.hi[a][idx[i][a]], h);
+          bins.box[a][idx[i][a]].grow(lh);
           bins.count[a][idx[i][a]] += w;
         }
       }
@@ -837,22 +876,19 @@ class Builder {
       const int m = n_used[axis];
       // Sweep from the right, then from the left.
       float right_cost[kMaxBins];
-      V4 alo = V4::set1(kInf), ahi = V4::set1(-kInf);
+      BinBox acc = BinBox::empty();
       uint32_t cnt = 0;
       for (int j = m - 1; j > 0; --j) {
-        alo = vmin(alo, bins.lo[axis][used_bins[j]]);
-        ahi = vmax(ahi, bins.hi[axis][used_bins[j]]);
+        acc.grow(bins.box[axis][used_bins[j]]);
         cnt += bins.count[axis][used_bins[j]];
-        right_cost[j] = half_area(alo, ahi) * tests(cnt);
+        right_cost[j] = half_area(acc.lo(), acc.hi()) * tests(cnt);
       }
-      alo = V4::set1(kInf);
-      ahi = V4::set1(-kInf);
+      acc = BinBox::empty();
       cnt = 0;
       for (int j = 0; j < m - 1; ++j) {
-        alo = vmin(alo, bins.lo[axis][used_bins[j]]);
-        ahi = vmax(ahi, bins.hi[axis][used_bins[j]]);
+        acc.grow(bins.box[axis][used_bins[j]]);
         cnt += bins.count[axis][used_bins[j]];
-        const float cost = half_area(alo, ahi) * tests(cnt) + right_cost[j + 1];
+        const float cost = half_area(acc.lo(), acc.hi()) * tests(cnt) + right_cost[j + 1];
         if (cost < best_cost) {
           best_cost = cost;
           best_axis = axis;
@@ -870,7 +906,7 @@ class Builder {
     if (best_axis >= 0)
       for (int k = 0; k < n_used[best_axis]; ++k) {
         const int b = used[best_axis][k];
-        (b < best_bin ? lb : rb).grow(bins.lo[best_axis][b], bins.hi[best_axis][b]);
+        (b < best_bin ? lb : rb).grow(bins.box[best_axis][b].lo(), bins.box[best_axis][b].hi());
         if (b < best_bin) left_tris += bins.count[best_axis][b];
       }
     if (cap_end > end) {
