@@ -517,6 +517,11 @@ def brute_force_t(tri, o, d):
     return np.where(ok, t, np.inf)
 
 
+def brute_force_closest(tri, o, d):
+    """brute_force_t's closest t for each ray of float32 rays (o, d) (inf where all miss)."""
+    return np.array([brute_force_t(tri, a.astype(np.float64), b.astype(np.float64)).min() for a, b in zip(o, d)])
+
+
 @functools.lru_cache(maxsize=None)
 def hostile_case():
     """The hostile soup, rays at it and brute force's closest t per ray: the same for every build
@@ -536,8 +541,7 @@ def hostile_case():
     d[-5:] = o[-5:]     # away from everything: misses
     o32, d32 = o.astype(np.float32), d.astype(np.float32)
     tri64 = np.where(usable[:, None, None], tri, np.nan).astype(np.float64)
-    best = np.array([brute_force_t(tri64, o32[k].astype(np.float64), d32[k].astype(np.float64)).min()
-                     for k in range(len(o))])
+    best = brute_force_closest(tri64, o32, d32)
     case = (tri, usable, tri64, o32, d32, best)
     for a in case:
         a.setflags(write=False)
