@@ -1,10 +1,19 @@
-// The module: the shared helpers, the module-level functions, Camera, RenderSettings and Session;
-// Scene is bound in scene_bindings.cpp. core/python is the only code that sees Python: it converts
-// and validates numpy input, turns C++ exceptions into Python ones (pybind11 maps
-// std::invalid_argument to ValueError), and releases the GIL around everything that takes time.
-#include "bindings.h"
+// The only file that sees Python. Converts and validates numpy input, turns C++ exceptions
+// into Python ones (pybind11 maps std::invalid_argument to ValueError), and releases the GIL
+// around everything that takes time.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <memory>
+#include <stdexcept>
 
 #include "geometry/polygon_mesh.h"
+#include "render/session.h"
+#include "util/big_alloc.h"
+
+namespace py = pybind11;
+using namespace pl;
 
 #ifndef PATHLIGHT_SIMD_NAME
 #define PATHLIGHT_SIMD_NAME "generic"
@@ -13,7 +22,10 @@
 #define PATHLIGHT_VERSION "0.0.0"
 #endif
 
-namespace plpy {
+namespace {
+
+using FloatArray = py::array_t<float, py::array::c_style | py::array::forcecast>;
+using IntArray = py::array_t<int64_t, py::array::c_style | py::array::forcecast>;
 
 Vec3 to_color(const py::handle& h, const char* what) {
   const auto v = py::cast<std::vector<float>>(h);
@@ -34,6 +46,85 @@ Vec3 to_point(const py::handle& h, const char* what) {
 float finite_nonneg(float x, const char* what) {
   if (!std::isfinite(x) || x < 0.0f) throw std::invalid_argument(std::string(what) + " must be finite and >= 0");
   return x;
+}
+
+// A setting Python names by strings: its enum's values and their names in one table, read
+// both ways; an unknown name is a ValueError that lists the names (quoted, or bare as Blender's
+// upper-case enum names have always been listed).
+template <class E>
+using EnumNames = std::initializer_list<std::pair<E, const char*>>;
+template <class E>
+const char* enum_name(E v, EnumNames<E> names) {
+  for (const auto& [e, n] : names)
+    if (e == v) return n;
+  return names.begin()->second;
+}
+template <class E>
+E enum_from_name(const std::string& s, const char* setting, EnumNames<E> names, bool quoted = true) {
+  const std::string q = quoted ? "'" : "";
+  std::string list;
+  size_t k = 0;
+  for (const auto& [e, n] : names) {
+    if (s == n) return e;
+    list += std::string(k == 0 ? "" : k + 1 == names.size() ? " or " : ", ") + q + n + q;
+    ++k;
+  }
+  throw std::invalid_argument(std::string(setting) + " must be " + list);
+}
+constexpr EnumNames<Scene::CompactBvh> kCompactBvhNames = {
+    {Scene::CompactBvh::Auto, "auto"}, {Scene::CompactBvh::On, "on"}, {Scene::CompactBvh::Off, "off"}};
+constexpr EnumNames<Scene::BuildQuality> kBuildQualityNames = {
+    {Scene::BuildQuality::Auto, "auto"}, {Scene::BuildQuality::Sah, "sah"}, {Scene::BuildQuality::Fast, "fast"}};
+constexpr EnumNames<BvhLayout> kBvhLayoutNames = {
+    {BvhLayout::Auto, "auto"}, {BvhLayout::Binary, "binary"}, {BvhLayout::Wide4, "bvh4"}, {BvhLayout::Wide8, "bvh8"}};
+constexpr EnumNames<SamplerType> kSamplerNames = {{SamplerType::Sobol, "sobol"}, {SamplerType::Random, "random"}};
+constexpr EnumNames<FilterType> kFilterNames = {
+    {FilterType::Box, "box"}, {FilterType::Gaussian, "gaussian"}, {FilterType::BlackmanHarris, "blackman_harris"}};
+constexpr EnumNames<DebugView> kDebugViewNames = {{DebugView::None, "none"}, {DebugView::Bvh, "bvh"}};
+constexpr EnumNames<SensorFit> kSensorFitNames = {
+    {SensorFit::Auto, "AUTO"}, {SensorFit::Horizontal, "HORIZONTAL"}, {SensorFit::Vertical, "VERTICAL"}};
+constexpr EnumNames<CameraType> kCameraTypeNames = {{CameraType::Perspective, "PERSP"}, {CameraType::Orthographic, "ORTHO"}};
+constexpr EnumNames<Interp> kInterpNames = {{Interp::Linear, "LINEAR"}, {Interp::Closest, "CLOSEST"}};
+constexpr EnumNames<Extension> kExtensionNames = {
+    {Extension::Repeat, "REPEAT"}, {Extension::Extend, "EXTEND"}, {Extension::Clip, "CLIP"}};
+
+Mat4 to_mat4(const FloatArray& a, const char* what);
+
+// The inverse of the upper 3x3 of m, for transforming directions into a light's frame.
+Mat4 inverse3x3(const Mat4& m, const char* what) {
+  const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
+  const Vec3 r0 = cross(c1, c2), r1 = cross(c2, c0), r2 = cross(c0, c1);
+  const float det = dot(c0, r0);
+  if (!(std::fabs(det) > 0.0f) || !std::isfinite(det)) throw std::invalid_argument(std::string(what) + " is singular");
+  Mat4 inv;
+  for (int j = 0; j < 3; ++j) {
+    inv.m[0][j] = r0[j] / det;
+    inv.m[1][j] = r1[j] / det;
+    inv.m[2][j] = r2[j] / det;
+  }
+  return inv;
+}
+
+// Gram-Schmidt on the rows of a 3x3 rotation (a Mapping node may add scale); singular -> error.
+Mat4 orthonormal_rotation(const Mat4& m) {
+  Vec3 r0{m.m[0][0], m.m[0][1], m.m[0][2]}, r1{m.m[1][0], m.m[1][1], m.m[1][2]};
+  Vec3 r2in{m.m[2][0], m.m[2][1], m.m[2][2]};
+  // Scale-free test: normalise the rows first (a uniform scale of 1e-20 is still a rotation).
+  for (Vec3* r : {&r0, &r1, &r2in}) {
+    const double l = std::sqrt(double(r->x) * r->x + double(r->y) * r->y + double(r->z) * r->z);
+    if (!(l > 0.0) || !std::isfinite(l)) throw std::invalid_argument("world texture rotation is singular");
+    *r = Vec3{float(r->x / l), float(r->y / l), float(r->z / l)};
+  }
+  const float det = dot(r0, cross(r1, r2in));
+  if (!(std::fabs(det) > 1e-6f)) throw std::invalid_argument("world texture rotation is singular");
+  r1 = normalize(r1 - r0 * dot(r1, r0));
+  Vec3 r2 = cross(r0, r1);
+  if (det < 0.0f) r2 = -r2;  // keep a mirroring mapping a mirror
+  Mat4 out;
+  const Vec3 rows[3] = {r0, r1, r2};
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) out.m[i][j] = rows[i][j];
+  return out;
 }
 
 Mat4 to_mat4(const FloatArray& a, const char* what) {
@@ -84,6 +175,679 @@ void validate_camera(const CameraDesc& c) {
   }
 }
 
+// A scene shared with the sessions that render it; edits are refused while one holds it.
+struct PyScene {
+  std::shared_ptr<Scene> scene = std::make_shared<Scene>();
+  void check_editable() const {
+    if (scene.use_count() > 1) throw std::runtime_error("the scene is in use by a render session");
+  }
+};
+
+// An index array read in place when it is C-contiguous int32 (what the add-on exports), so a
+// million-triangle mesh is not first converted to int64; any other integer array is converted.
+class IndexArray {
+ public:
+  IndexArray(const py::handle& h, const char* what) {
+    if (py::isinstance<py::array_t<int32_t>>(h)) {
+      const auto a = py::reinterpret_borrow<py::array>(h);
+      if (a.flags() & py::array::c_style) {
+        i32_ = py::reinterpret_borrow<py::array_t<int32_t>>(h);
+        arr_ = i32_;
+        is_i32_ = true;
+        return;
+      }
+    }
+    try {
+      i64_ = h.cast<IntArray>();
+    } catch (const py::cast_error&) {
+      throw std::invalid_argument(std::string(what) + " must be an integer array");
+    }
+    arr_ = i64_;
+  }
+  int ndim() const { return int(arr_.ndim()); }
+  size_t shape(int i) const { return size_t(arr_.shape(i)); }
+  // fn(pointer) with a pointer to the int32 or int64 data: loops without a branch per element.
+  template <class F>
+  void visit(F&& fn) const {
+    if (is_i32_) fn(static_cast<const int32_t*>(i32_.data()));
+    else fn(static_cast<const int64_t*>(i64_.data()));
+  }
+
+ private:
+  py::array arr_;
+  py::array_t<int32_t> i32_;  // (a default-constructed array_t is an empty array, not null)
+  IntArray i64_;
+  bool is_i32_ = false;
+};
+
+uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
+                  const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
+                  const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices) {
+  self.check_editable();
+  const IndexArray triangles(triangles_obj, "triangles");
+  if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
+  if (triangles.ndim() != 2 || triangles.shape(1) != 3) throw std::invalid_argument("triangles must have shape (T, 3)");
+  const size_t nv = size_t(positions.shape(0)), nt = size_t(triangles.shape(0));
+  if (nv > UINT32_MAX || nt > UINT32_MAX / 3) throw std::invalid_argument("mesh is too large");
+  MeshData mesh;
+  // Big meshes' arrays on transparent huge pages: a 1M-triangle mesh's 60 MB are otherwise
+  // ~15k page faults.
+  const auto huge = [](auto& v, size_t n) {
+    v.reserve(n);
+    advise_huge_pages(v.data(), n * sizeof(v[0]));
+  };
+  huge(mesh.positions, nv);
+  huge(mesh.triangles, nt);
+  mesh.positions.resize(nv);
+  if (nv) std::memcpy(static_cast<void*>(mesh.positions.data()), positions.data(), nv * sizeof(Vec3));
+  mesh.triangles.resize(nt);
+  // Copies (T, 3) indices into `out`, checking each is in [0, n).
+  const auto copy_indices = [](const IndexArray& idx, size_t count, size_t n, const char* what, auto& out) {
+    idx.visit([&](const auto* p) {
+      for (size_t i = 0; i < count; ++i)
+        for (int k = 0; k < 3; ++k) {
+          const int64_t v = int64_t(p[3 * i + k]);
+          if (v < 0 || uint64_t(v) >= n)
+            throw std::invalid_argument(std::string(what) + " index " + std::to_string(v) + " out of range for " +
+                                        std::to_string(n) + (what[0] == 't' ? " vertices" : " normals"));
+          out[i][k] = uint32_t(v);
+        }
+    });
+  };
+  copy_indices(triangles, nt, nv, "triangle", mesh.triangles);
+  if (!normals.is_none() && !shared_normals.is_none())
+    throw std::invalid_argument("give corner_normals or normals with normal_indices, not both");
+  if (!normals.is_none()) {
+    const auto n = normals.cast<FloatArray>();
+    if (n.ndim() != 3 || size_t(n.shape(0)) != nt || n.shape(1) != 3 || n.shape(2) != 3)
+      throw std::invalid_argument("corner_normals must have shape (T, 3, 3)");
+    mesh.normals.resize(nt * 3);
+    if (nt) std::memcpy(static_cast<void*>(mesh.normals.data()), n.data(), nt * 3 * sizeof(Vec3));
+    mesh.normal_indices.resize(nt);
+    for (size_t t = 0; t < nt; ++t) mesh.normal_indices[t] = {uint32_t(3 * t), uint32_t(3 * t + 1), uint32_t(3 * t + 2)};
+  } else if (!shared_normals.is_none()) {
+    // Corner k of triangle t gets normals[normal_indices[t, k]] (per-vertex, per-face or
+    // per-corner normals). Kept shared; indices equal to the triangles' (per-vertex normals)
+    // are not stored at all.
+    const auto n = shared_normals.cast<FloatArray>();
+    if (n.ndim() != 2 || n.shape(1) != 3) throw std::invalid_argument("normals must have shape (N, 3)");
+    if (normal_indices.is_none()) throw std::invalid_argument("normals need normal_indices");
+    const IndexArray ni(normal_indices, "normal_indices");
+    if (ni.ndim() != 2 || ni.shape(0) != nt || ni.shape(1) != 3)
+      throw std::invalid_argument("normal_indices must have shape (T, 3)");
+    const size_t nn = size_t(n.shape(0));
+    bool per_vertex = true;  // the indices are the triangles' own
+    ni.visit([&](const auto* p) {
+      const uint32_t* tri = mesh.triangles.empty() ? nullptr : mesh.triangles[0].data();
+      for (size_t i = 0; i < 3 * nt && per_vertex; ++i) per_vertex = int64_t(p[i]) == int64_t(tri[i]);
+    });
+    if (!per_vertex || nn < nv) {  // stored (and checked against the normals' count)
+      huge(mesh.normal_indices, nt);
+      mesh.normal_indices.resize(nt);
+      copy_indices(ni, nt, nn, "normal", mesh.normal_indices);
+    }
+    huge(mesh.normals, nn);
+    mesh.normals.resize(nn);
+    if (nn) std::memcpy(static_cast<void*>(mesh.normals.data()), n.data(), nn * sizeof(Vec3));
+  } else if (!normal_indices.is_none()) {
+    throw std::invalid_argument("normal_indices need normals");
+  }
+  std::vector<uint32_t> slot_ids;
+  for (int64_t s : slots) slot_ids.push_back(s >= 0 && s <= INT32_MAX ? uint32_t(s) : 0u);
+  huge(mesh.materials, nt);
+  mesh.materials.assign(nt, slot_ids.empty() ? 0u : slot_ids[0]);
+  if (!material_indices.is_none()) {
+    const IndexArray mi(material_indices, "material_indices");
+    if (mi.ndim() != 1 || mi.shape(0) != nt) throw std::invalid_argument("material_indices must have shape (T,)");
+    mi.visit([&](const auto* p) {
+      for (size_t i = 0; i < nt; ++i) {
+        const int64_t v = int64_t(p[i]);
+        mesh.materials[i] = v >= 0 && uint64_t(v) < slot_ids.size() ? slot_ids[size_t(v)] : 0u;
+      }
+    });
+  }
+  for (const auto& item : uvs) {
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 3 || size_t(a.shape(0)) != nt || a.shape(1) != 3 || a.shape(2) != 2)
+      throw std::invalid_argument("uvs must have shape (T, 3, 2)");
+    if (mesh.uvs.size() <= size_t(k)) mesh.uvs.resize(size_t(k) + 1);
+    auto& dst = mesh.uvs[size_t(k)];
+    dst.resize(nt * 3);
+    const float* src = a.data();
+    for (size_t i = 0; i < nt * 3; ++i) {
+      const float u = src[2 * i], v = src[2 * i + 1];
+      dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
+    }
+  }
+  if (!texspace.is_none()) {  // (location, size) of Blender's texture space
+    const auto ts = texspace.cast<py::tuple>();
+    if (ts.size() != 2) throw std::invalid_argument("texspace must be (location, size)");
+    mesh.texspace_location = to_point(ts[0], "texspace location");
+    mesh.texspace_size = to_point(ts[1], "texspace size");
+    mesh.has_texspace = true;
+  }
+  return self.scene->add_mesh(std::move(mesh));
+}
+
+// Parses a shader program (see docs/core_api.md) into core ops, validating every register.
+ShaderProgram parse_program(const PyScene& self, const py::list& program) {
+  ShaderProgram prog;
+  auto regno = [](const py::handle& h) -> int16_t {
+    if (h.is_none()) return kNoReg;
+    const int64_t r = h.cast<int64_t>();
+    if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
+    return int16_t(r);
+  };
+  auto name_of = [](const py::handle& h) { return h.cast<std::string>(); };
+  static const std::vector<std::string> math_ops = {
+      "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER", "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN",
+      "ABSOLUTE", "LOGARITHM", "SQRT", "INVERSE_SQRT", "EXPONENT", "SIGN", "ROUND", "FLOOR", "CEIL", "TRUNC",
+      "FRACT", "MODULO", "FLOORED_MODULO", "SNAP", "PINGPONG", "SINE", "COSINE", "TANGENT", "ARCSINE",
+      "ARCCOSINE", "ARCTANGENT", "ARCTAN2", "SINH", "COSH", "TANH", "RADIANS", "DEGREES", "MULTIPLY_ADD",
+      "COMPARE", "SMOOTH_MIN", "SMOOTH_MAX", "WRAP"};
+  static const std::vector<std::string> mix_ops = {"MIX", "MULTIPLY", "ADD", "SUBTRACT", "SCREEN",
+                                                   "DIVIDE", "DIFFERENCE", "DARKEN", "LIGHTEN", "OVERLAY"};
+  auto index_in = [](const std::vector<std::string>& v, const std::string& x, const char* what) {
+    for (size_t i = 0; i < v.size(); ++i)
+      if (v[i] == x) return uint8_t(i);
+    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+  };
+  static const std::vector<std::string> vector_math_ops = {
+      "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "CROSS_PRODUCT", "PROJECT", "REFLECT", "REFRACT",
+      "FACEFORWARD", "DOT_PRODUCT", "DISTANCE", "LENGTH", "SCALE", "NORMALIZE", "ABSOLUTE", "POWER", "SIGN",
+      "MINIMUM", "MAXIMUM", "FLOOR", "CEIL", "FRACTION", "MODULO", "WRAP", "SNAP", "SINE", "COSINE", "TANGENT"};
+  auto bump_offset = [](const py::handle& h) {
+    const int64_t v = h.cast<int64_t>();
+    if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
+    return uint8_t(v);
+  };
+  const int64_t n_images = int64_t(self.scene->image_count());
+  for (const auto& item : program) {
+    const auto t = item.cast<py::tuple>();
+    if (t.size() < 2) throw std::invalid_argument("shader op must be a tuple (name, ...)");
+    const std::string op = name_of(t[0]);
+    ShaderOp o;
+    auto need = [&](size_t n) {
+      if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
+    };
+    if (op == "closure") {
+      need(4);
+      const std::string kind = name_of(t[1]);
+      o.in[0] = regno(t[2]);
+      const auto params = t[3].cast<py::dict>();
+      auto p = [&](const char* key) { return params.contains(key) ? regno(params[key]) : kNoReg; };
+      if (kind == "diffuse") {
+        o.code = OpCode::Diffuse;
+        o.in[1] = p("color"); o.in[2] = p("normal");
+      } else if (kind == "glossy") {
+        o.code = OpCode::Glossy;
+        o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal");
+      } else if (kind == "glass" || kind == "refraction") {
+        o.code = kind == "glass" ? OpCode::Glass : OpCode::Refraction;
+        o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("ior"); o.in[4] = p("normal");
+      } else if (kind == "transparent") {
+        o.code = OpCode::Transparent;
+        o.in[1] = p("color");
+      } else if (kind == "emission") {
+        o.code = OpCode::Emission;
+        o.in[1] = p("color");
+      } else if (kind == "principled") {
+        o.code = OpCode::Principled;
+        o.in[1] = p("base_color"); o.in[2] = p("metallic"); o.in[3] = p("roughness"); o.in[4] = p("ior");
+        o.in[5] = p("transmission"); o.in[6] = p("specular_level"); o.in[7] = p("specular_tint");
+        o.in[8] = p("normal");
+      } else {
+        throw std::invalid_argument("unknown closure '" + kind + "'");
+      }
+      for (const auto& kv : params) regno(kv.second);  // validates every register, also of unknown keys
+      if (p("normal") != kNoReg) prog.varying = true;
+      if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
+      prog.ops.push_back(o);
+      continue;
+    }
+    o.dst = regno(t[1]);
+    if (o.dst == kNoReg) throw std::invalid_argument("shader op '" + op + "' needs a destination register");
+    if (op == "const") {
+      need(3);
+      const auto v = t[2].cast<std::vector<float>>();
+      if (v.empty() || v.size() > 4) throw std::invalid_argument("const takes 1 to 4 values");
+      float f[4] = {v[0], v.size() > 1 ? v[1] : v[0], v.size() > 2 ? v[2] : v[0], v.size() > 3 ? v[3] : 1.0f};
+      for (float& x : f) x = std::isfinite(x) ? x : 0.0f;  // NaN node values become 0
+      o.code = OpCode::Const;
+      o.value = {f[0], f[1], f[2], f[3]};
+    } else if (op == "uv") {
+      if (t.size() != 3 && t.size() != 4) throw std::invalid_argument("shader op 'uv' takes 2 or 3 arguments");
+      o.code = OpCode::Uv;
+      o.index = t[2].cast<int32_t>();
+      if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+      o.sub = t.size() == 4 ? bump_offset(t[3]) : uint8_t(kAtPoint);
+      prog.uses_uv = prog.varying = true;
+    } else if (op == "position" && (t.size() == 2 || t.size() == 3)) {
+      o.code = OpCode::Position;
+      o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
+      prog.varying = true;
+    } else if ((op == "object" || op == "generated") && (t.size() == 2 || t.size() == 3)) {
+      o.code = op == "object" ? OpCode::ObjectPos : OpCode::Generated;
+      o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
+      prog.varying = true;
+    } else if (op == "light_path") {
+      need(3);
+      o.code = OpCode::LightPath;
+      o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY"}, name_of(t[2]), "light path output");
+      prog.varying = true;
+    } else if (op == "object_normal") {
+      need(2);
+      o.code = OpCode::ObjectNormal;
+      prog.varying = true;
+    } else if (op == "position" || op == "normal") {
+      need(2);
+      o.code = op == "position" ? OpCode::Position : OpCode::Normal;
+      prog.varying = true;
+    } else if (op == "fresnel") {
+      need(4);
+      o.code = OpCode::Fresnel;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      prog.varying = true;
+    } else if (op == "layer_weight") {
+      need(5);
+      o.code = OpCode::LayerWeight;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.sub = index_in({"FRESNEL", "FACING"}, name_of(t[4]), "layer weight output");
+      prog.varying = true;
+    } else if (op == "bump") {
+      need(9);
+      o.code = OpCode::Bump;
+      for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.clamp = t[8].cast<bool>();  // invert
+      prog.varying = true;
+    } else if (op == "ramp") {
+      need(9);
+      o.code = OpCode::Ramp;
+      o.in[0] = regno(t[2]);
+      const auto table = t[3].cast<FloatArray>();
+      if (table.ndim() != 2 || table.shape(1) != 4 || table.shape(0) < 2 || table.shape(0) > 4096)
+        throw std::invalid_argument("ramp table must have shape (N, 4) with 2 <= N <= 4096");
+      o.index = int32_t(prog.tables.size());
+      o.count = int32_t(table.shape(0));
+      const float* src = table.data();
+      auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+      for (int i = 0; i < o.count; ++i)
+        prog.tables.push_back({clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])});
+      o.sub = uint8_t((t[4].cast<bool>() ? 1 : 0) | (t[5].cast<bool>() ? 2 : 0) | (t[8].cast<bool>() ? 4 : 0));
+      o.m[0] = t[6].cast<float>();
+      o.m[1] = t[7].cast<float>();
+      if (!std::isfinite(o.m[0]) || !std::isfinite(o.m[1])) throw std::invalid_argument("ramp range must be finite");
+    } else if (op == "separate") {
+      need(4);
+      o.code = OpCode::Component;
+      o.in[0] = regno(t[2]);
+      const int64_t axis = t[3].cast<int64_t>();
+      if (axis < 0 || axis > 2) throw std::invalid_argument("separate axis must be 0, 1 or 2");
+      o.sub = uint8_t(axis);
+    } else if (op == "combine") {
+      need(6);
+      o.code = OpCode::Combine;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = t[5].cast<bool>() ? 1 : 0;  // a colour (alpha 1) or a vector
+    } else if (op == "color_space") {
+      need(4);
+      o.code = OpCode::ColorSpace;
+      o.in[0] = regno(t[2]);
+      o.sub = index_in({"RGB_TO_HSV", "HSV_TO_RGB", "RGB_TO_HSL", "HSL_TO_RGB"}, name_of(t[3]), "colour conversion");
+    } else if (op == "hsv") {
+      need(7);
+      o.code = OpCode::Hsv;
+      for (int k = 0; k < 5; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    } else if (op == "gamma") {
+      need(4);
+      o.code = OpCode::Gamma;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+    } else if (op == "bright_contrast") {
+      need(5);
+      o.code = OpCode::BrightContrast;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    } else if (op == "clamp") {
+      need(6);
+      o.code = OpCode::Clamp;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in({"MINMAX", "RANGE"}, name_of(t[5]), "clamp type");
+    } else if (op == "map_range" || op == "map_range_vector") {
+      need(10);
+      o.code = OpCode::MapRange;
+      o.ext = op == "map_range_vector" ? 1 : 0;  // per component (Cycles' vector map range)
+      for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in({"LINEAR", "STEPPED", "SMOOTHSTEP", "SMOOTHERSTEP"}, name_of(t[8]), "map range type");
+      o.clamp = t[9].cast<bool>();
+    } else if (op == "vector_math") {
+      need(7);
+      o.code = OpCode::VectorMath;
+      for (int k = 0; k < 4; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in(vector_math_ops, name_of(t[6]), "vector math op");
+    } else if (op == "mapping") {
+      need(4);
+      o.code = OpCode::Mapping;
+      o.in[0] = regno(t[2]);
+      const auto m = t[3].cast<FloatArray>();
+      if (m.ndim() != 2 || m.shape(0) != 3 || m.shape(1) != 4) throw std::invalid_argument("mapping matrix must be 3x4");
+      for (int i = 0; i < 12; ++i) {
+        o.m[i] = m.data()[i];
+        if (!std::isfinite(o.m[i])) throw std::invalid_argument("mapping matrix contains NaN or infinite values");
+      }
+    } else if (op == "image") {
+      if (t.size() != 6 && t.size() != 7) throw std::invalid_argument("shader op 'image' takes 5 or 6 arguments");
+      o.code = OpCode::ImageTex;
+      o.in[0] = regno(t[2]);
+      const int64_t img = t[3].cast<int64_t>();
+      if (img < 0 || img >= n_images) throw std::invalid_argument("unknown image id " + std::to_string(img));
+      o.index = int32_t(img);
+      const std::string interp = name_of(t[4]), ext = name_of(t[5]);
+      o.sub = uint8_t(enum_from_name(interp, "interpolation", kInterpNames, false));
+      o.ext = uint8_t(enum_from_name(ext, "extension", kExtensionNames, false));
+      o.clamp = t.size() == 7 && t[6].cast<bool>();  // unassociate alpha after filtering
+    } else if (op == "math") {
+      need(6);
+      o.code = OpCode::Math;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.sub = index_in(math_ops, name_of(t[4]), "math op");
+      o.clamp = t[5].cast<bool>();
+    } else if (op == "math3") {  // the operations with a third value
+      need(7);
+      o.code = OpCode::Math;
+      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+      o.sub = index_in(math_ops, name_of(t[5]), "math op");
+      o.clamp = t[6].cast<bool>();
+    } else if (op == "mix") {
+      need(7);
+      o.code = OpCode::Mix;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.in[2] = regno(t[4]);
+      o.sub = index_in(mix_ops, name_of(t[5]), "mix blend type");
+      o.clamp = t[6].cast<bool>();
+    } else if (op == "rgb_to_bw") {
+      need(3);
+      o.code = OpCode::RgbToBw;
+      o.in[0] = regno(t[2]);
+    } else if (op == "normal_map") {
+      need(5);
+      o.code = OpCode::NormalMap;
+      o.in[0] = regno(t[2]);
+      o.in[1] = regno(t[3]);
+      o.index = t[4].cast<int32_t>();
+      if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+      prog.uses_uv = prog.varying = true;
+    } else {
+      throw std::invalid_argument("unknown shader op '" + op + "'");
+    }
+    prog.ops.push_back(o);
+  }
+  return prog;
+}
+
+Material make_shader(const PyScene& self, const std::string& name, const py::list& program,
+                     const py::object& volume_absorption, bool use_schlick) {
+  Material mat;
+  mat.name = name;
+  mat.program = parse_program(self, program);
+  mat.program.schlick = use_schlick;
+  if (!volume_absorption.is_none()) {
+    const auto t = volume_absorption.cast<py::tuple>();
+    if (t.size() != 2) throw std::invalid_argument("volume_absorption must be (color, density)");
+    const Vec3 color = vmin(to_color(t[0], "absorption color"), Vec3(1.0f));
+    float density = t[1].cast<float>();
+    density = std::isfinite(density) && density > 0.0f ? density : 0.0f;
+    mat.program.sigma_a = (Vec3(1.0f) - color) * density;
+  }
+  return mat;
+}
+
+py::dict scene_stats(const PyScene& self) {
+  const SceneStats& s = self.scene->stats();
+  const BvhStats& b = self.scene->bvh().stats();
+  py::dict d;
+  d["triangles"] = s.triangles;
+  d["instances"] = s.instances;
+  d["meshes"] = s.meshes;
+  d["materials"] = s.materials;
+  d["emissive_triangles"] = s.emissive_triangles;
+  d["dropped_triangles"] = s.dropped_triangles;
+  d["lights"] = s.lights;
+  d["rect_emitters"] = s.rect_emitters;
+  d["geometry_builds"] = s.geometry_builds;
+  d["light_builds"] = s.light_builds;
+  d["top_level_builds"] = s.top_level_builds;
+  d["blases"] = s.blases;
+  d["blas_triangles"] = s.blas_triangles;
+  d["blas_references"] = s.blas_references;
+  d["tlas_instances"] = s.tlas_instances;
+  d["real_instances"] = s.real_instances;
+  d["dynamic"] = self.scene->dynamic();
+  d["geometry_bytes"] = s.geometry_bytes;
+  d["bvh_nodes"] = b.nodes;
+  d["bvh_leaves"] = b.leaves;
+  d["bvh_max_depth"] = b.max_depth;
+  d["bvh_sah_cost"] = b.sah_cost;
+  d["bvh_build_ms"] = b.build_ms;
+  d["bvh_bytes"] = s.bvh_bytes;  // every BLAS and the top level
+  d["bvh_layout"] = enum_name(b.layout, kBvhLayoutNames);
+  d["bvh_wide_nodes"] = b.wide_nodes;
+  d["spatial_splits"] = self.scene->spatial_splits();  // the setting (applies from the next commit)
+  d["bvh_triangles"] = b.triangles;                    // of the largest BLAS, as the other bvh_ entries
+  d["bvh_references"] = b.references;
+  d["bvh_spatial_splits"] = b.spatial_splits;
+  d["bvh_compact"] = b.compact;  // the largest BLAS's wide nodes are compressed
+  d["bvh_clusters"] = b.clusters;  // Morton runs of the clustered build (0: full SAH)
+  d["features"] = self.scene->features().names();  // of the last commit
+  return d;
+}
+
+py::dict wide_bvh_nodes(const PyScene& self) {
+  const Bvh& bvh = self.scene->bvh();
+  const int w = bvh.wide_width();
+  const std::vector<Bvh::WideLane> lanes = bvh.wide_lanes();
+  const size_t m = w ? lanes.size() / size_t(w) : 0;
+  py::array_t<float> box({m, size_t(w), size_t(6)});
+  py::array_t<uint32_t> child({m, size_t(w)}), count({m, size_t(w)});
+  py::array_t<bool> valid({m, size_t(w)});
+  for (size_t i = 0; i < lanes.size(); ++i) {
+    for (int r = 0; r < 6; ++r) box.mutable_data()[6 * i + r] = lanes[i].box[r];
+    child.mutable_data()[i] = lanes[i].child;
+    count.mutable_data()[i] = lanes[i].count;
+    valid.mutable_data()[i] = lanes[i].valid;
+  }
+  const size_t nb = bvh.blocks().size();
+  py::array_t<float> tris({nb, size_t(4), size_t(3), size_t(3)});
+  py::array_t<int64_t> prims({nb, size_t(4)});
+  for (size_t b = 0; b < nb; ++b) {
+    for (int l = 0; l < 4; ++l) {
+      for (int r = 0; r < 9; ++r) tris.mutable_data()[(b * 4 + l) * 9 + r] = bvh.blocks()[b].v[r][l];
+      const uint32_t id = bvh.block_prims()[4 * b + l];
+      prims.mutable_data()[b * 4 + l] = id == UINT32_MAX ? -1 : int64_t(id);
+    }
+  }
+  py::dict d;
+  d["box"] = box;
+  d["child"] = child;
+  d["count"] = count;
+  d["valid"] = valid;
+  d["compact"] = bvh.compact();
+  d["triangles"] = tris;
+  d["prims"] = prims;
+  return d;
+}
+
+py::dict binary_bvh_nodes(const PyScene& self) {
+  const Bvh& bvh = self.scene->bvh();
+  const std::vector<BvhNode>& nodes = bvh.binary_nodes();
+  const size_t m = nodes.size();
+  py::array_t<float> lo({m, size_t(3)}), hi({m, size_t(3)});
+  py::array_t<uint32_t> left_or_first(m), count(m);
+  for (size_t i = 0; i < m; ++i) {
+    for (int a = 0; a < 3; ++a) {
+      lo.mutable_data()[3 * i + a] = nodes[i].lo[a];
+      hi.mutable_data()[3 * i + a] = nodes[i].hi[a];
+    }
+    left_or_first.mutable_data()[i] = nodes[i].left_or_first;
+    count.mutable_data()[i] = nodes[i].count;
+  }
+  const std::vector<uint32_t>& ids = bvh.leaf_prims();
+  py::array_t<uint32_t> prims(ids.size());
+  std::copy(ids.begin(), ids.end(), prims.mutable_data());
+  py::dict d;
+  d["lo"] = lo;
+  d["hi"] = hi;
+  d["left_or_first"] = left_or_first;
+  d["count"] = count;
+  d["prims"] = prims;
+  return d;
+}
+
+void check_rays(const PyScene& self, const FloatArray& o, const FloatArray& d) {
+  if (!self.scene->committed()) throw std::invalid_argument("commit() the scene before tracing rays");
+  if (o.ndim() != 2 || o.shape(1) != 3 || d.ndim() != 2 || d.shape(1) != 3 || o.shape(0) != d.shape(0))
+    throw std::invalid_argument("origins and directions must both have shape (N, 3)");
+}
+
+py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax,
+                          bool instances) {
+  check_rays(self, origins, dirs);
+  const py::ssize_t n = origins.shape(0);
+  py::array_t<float> t(n), b1(n), b2(n);
+  // The instance outputs only when returned: mesh_triangle reads a table (a cache miss per hit).
+  py::array_t<int64_t> prim(n), inst(instances ? n : 0), local(instances ? n : 0);
+  int64_t* pi = inst.mutable_data();
+  int64_t* pl = local.mutable_data();
+  const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  float *pt = t.mutable_data(), *pb1 = b1.mutable_data(), *pb2 = b2.mutable_data();
+  int64_t* pp = prim.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) {
+      Ray r{o[i], d[i], tmax};
+      Hit h;
+      const bool ok = self.scene->intersect(r, h);
+      pt[i] = ok ? h.t : kInf;
+      pp[i] = ok ? int64_t(self.scene->global_prim(h)) : -1;
+      if (instances) {
+        pi[i] = ok ? int64_t(h.inst) : -1;
+        pl[i] = ok ? int64_t(self.scene->mesh_triangle(h)) : -1;
+      }
+      pb1[i] = ok ? h.b1 : 0.0f;
+      pb2[i] = ok ? h.b2 : 0.0f;
+    }
+  }
+  if (instances) return py::make_tuple(t, prim, b1, b2, inst, local);
+  return py::make_tuple(t, prim, b1, b2);
+}
+
+// Light samples from points p with uniforms u (N x 3: light choice, then the 2-D sample), and
+// the pdf pdf_emitter gives the emitter the ray along each sample's direction hits (MIS's view of
+// the same direction), for tests of the light sampler's densities.
+py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u) {
+  check_rays(self, points, u);
+  const py::ssize_t n = points.shape(0);
+  py::array_t<bool> ok(n);
+  py::array_t<float> wi({n, py::ssize_t(3)}), dist(n), pdf(n), pdf_hit(n), t_hit(n);
+  const Vec3* p = reinterpret_cast<const Vec3*>(points.data());
+  const float* pu = u.data();
+  bool* pok = ok.mutable_data();
+  float *pw = wi.mutable_data(), *pd = dist.mutable_data(), *pp = pdf.mutable_data(), *ph = pdf_hit.mutable_data(),
+        *pt = t_hit.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) {
+      DirectSample ds;
+      const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds);
+      pok[i] = good;
+      pw[3 * i] = good ? ds.wi.x : 0.0f;
+      pw[3 * i + 1] = good ? ds.wi.y : 0.0f;
+      pw[3 * i + 2] = good ? ds.wi.z : 0.0f;
+      pd[i] = good ? ds.dist : 0.0f;
+      pp[i] = good ? ds.pdf : 0.0f;
+      ph[i] = 0.0f;
+      pt[i] = kInf;
+      Hit h;
+      if (good && self.scene->intersect(Ray{p[i], ds.wi, kInf}, h)) {
+        pt[i] = h.t;
+        SurfacePoint sp;
+        self.scene->surface_point(h, sp);
+        ph[i] = self.scene->pdf_emitter(sp, p[i], sp.p, std::fabs(dot(sp.ng, ds.wi)));
+      }
+    }
+  }
+  return py::make_tuple(ok, wi, dist, pdf, pdf_hit, t_hit);
+}
+
+py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
+  check_rays(self, origins, dirs);
+  const py::ssize_t n = origins.shape(0);
+  py::array_t<bool> out(n);
+  const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  bool* po = out.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) po[i] = self.scene->occluded(Ray{o[i], d[i], tmax});
+  }
+  return out;
+}
+
+// BVH work of a batch of rays (what the BVH debug view shows): nodes visited, triangles tested.
+py::tuple traversal_counts(const PyScene& self, const FloatArray& origins, const FloatArray& dirs,
+                           const py::object& tmax_obj) {
+  check_rays(self, origins, dirs);
+  const py::ssize_t n = origins.shape(0);
+  FloatArray tmax;
+  if (!tmax_obj.is_none()) {
+    tmax = tmax_obj.cast<FloatArray>();
+    if (tmax.ndim() != 1 || tmax.shape(0) != n) throw std::invalid_argument("tmax must have shape (N,)");
+  }
+  py::array_t<uint32_t> nodes(n), tris(n);
+  const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  const float* tm = tmax_obj.is_none() ? nullptr : tmax.data();
+  uint32_t *pn = nodes.mutable_data(), *pt = tris.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) {
+      TraversalCounters c;
+      Hit h;
+      self.scene->intersect(Ray{o[i], d[i], tm ? tm[i] : kInf}, h, &c);
+      pn[i] = c.nodes;
+      pt[i] = c.triangles;
+    }
+  }
+  return py::make_tuple(nodes, tris);
+}
+
+// The renderer's camera rays through raster positions (pixels from the bottom-left corner).
+py::tuple camera_rays(const PyScene& self, int width, int height, const FloatArray& xy) {
+  if (!self.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
+  if (width < 1 || height < 1 || width > 65536 || height > 65536) throw std::invalid_argument("bad resolution");
+  if (xy.ndim() != 2 || xy.shape(1) != 2) throw std::invalid_argument("xy must have shape (N, 2)");
+  const py::ssize_t n = xy.shape(0);
+  const Camera cam(self.scene->camera_desc(), width, height);
+  FloatArray org({n, py::ssize_t(3)}), dir({n, py::ssize_t(3)}), tmax(n);
+  Vec3* po = reinterpret_cast<Vec3*>(org.mutable_data());
+  Vec3* pd = reinterpret_cast<Vec3*>(dir.mutable_data());
+  float* pt = tmax.mutable_data();
+  const float* p = xy.data();
+  for (py::ssize_t i = 0; i < n; ++i) {
+    const Ray r = cam.generate(p[2 * i], p[2 * i + 1]);
+    po[i] = r.org;
+    pd[i] = r.dir;
+    pt[i] = r.tmax;
+  }
+  return py::make_tuple(org, dir, tmax);
+}
+
 Pass pass_by_name(const std::string& name) {
   for (int p = 0; p < kPassCount; ++p)
     if (name == pass_desc(Pass(p)).name) return Pass(p);
@@ -91,12 +855,6 @@ Pass pass_by_name(const std::string& name) {
   for (int p = 0; p < kPassCount; ++p) known += std::string(p ? ", " : "") + "'" + pass_desc(Pass(p)).name + "'";
   throw std::invalid_argument("unknown render pass '" + name + "' (known: " + known + ")");
 }
-
-}  // namespace plpy
-
-namespace {
-
-using namespace plpy;
 
 // Builds one BSDF from a name and parameters, for the BSDF tests (Mitsuba style).
 Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
@@ -156,8 +914,31 @@ FloatArray film_rect(PySession& self, int x, int y, int w, int h) {
   return out;
 }
 
-// The module-level functions.
-void bind_functions(py::module_& m) {
+}  // namespace
+
+PYBIND11_MODULE(pathlight_core, m) {
+  m.doc() = "Pathlight's compiled core: scene, BVH, path tracer and progressive render sessions.";
+  m.attr("__version__") = PATHLIGHT_VERSION;
+  m.def("build_info", [] {
+    py::dict d;
+    d["simd"] = PATHLIGHT_SIMD_NAME;
+    // The BVH kernel commit() picks by default on this CPU (run-time detection).
+    d["bvh"] = cpu_has_avx2() ? "bvh8" : "bvh4";
+#if defined(__clang__)
+    d["compiler"] = "clang " __clang_version__;
+#elif defined(__GNUC__)
+    d["compiler"] = "gcc " __VERSION__;
+#else
+    d["compiler"] = "unknown";
+#endif
+#ifdef NDEBUG
+    d["build_type"] = "release";
+#else
+    d["build_type"] = "debug";
+#endif
+    return d;
+  });
+
   m.def(
       "offset_ray_origin",
       [](const FloatArray& points, const FloatArray& normals, const py::object& errors_obj) {
@@ -413,10 +1194,7 @@ void bind_functions(py::module_& m) {
       py::arg("seed"), py::arg("pixel"), py::arg("sample"), py::arg("dims"),
       "The first `dims` 2-D draws of the Sobol sampler for (seed, pixel, sample): (dims, 2). "
       "Exposed for tests.");
-}
 
-// Camera, RenderSettings and render_passes.
-void bind_settings(py::module_& m) {
   py::class_<CameraDesc>(m, "Camera")
       .def(py::init<>())
       .def_property(
@@ -526,9 +1304,359 @@ void bind_settings(py::module_& m) {
         return d;
       },
       "Every render pass the core can keep: {name: channels}, in the core's order.");
-}
 
-void bind_session(py::module_& m) {
+  py::class_<PyScene>(m, "Scene")
+      .def(py::init([](bool dynamic) {
+             PyScene s;
+             s.scene->set_dynamic(dynamic);
+             return s;
+           }),
+           py::arg("dynamic") = false)
+      .def(
+          "add_material",
+          [](PyScene& self, const std::string& name, const py::object& base_color, const py::object& emission) {
+            self.check_editable();
+            const Vec3 albedo = vmin(to_color(base_color, "base_color"), Vec3(1.0f));  // > 1 creates energy
+            Material mat = make_simple_material(name, albedo, to_color(emission, "emission"));
+            return self.scene->add_material(std::move(mat));
+          },
+          py::arg("name"), py::arg("base_color") = py::make_tuple(0.8f, 0.8f, 0.8f),
+          py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
+      .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
+           py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
+           py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
+           py::arg("normal_indices") = py::none())
+      .def(
+          "add_image",
+          [](PyScene& self, const FloatArray& pixels, bool srgb) {
+            self.check_editable();
+            if (pixels.ndim() != 3 || pixels.shape(2) != 4 || pixels.shape(0) < 1 || pixels.shape(1) < 1)
+              throw std::invalid_argument("image pixels must have shape (H, W, 4)");
+            if (pixels.shape(0) > 65536 || pixels.shape(1) > 65536 || pixels.shape(0) * pixels.shape(1) > (1ll << 28))
+              throw std::invalid_argument("image is too large");
+            Image img;
+            img.h = int(pixels.shape(0));
+            img.w = int(pixels.shape(1));
+            img.px.resize(size_t(img.w) * size_t(img.h));
+            const float* src = pixels.data();
+            for (size_t i = 0; i < img.px.size(); ++i) {
+              float c[4];
+              for (int k = 0; k < 4; ++k) c[k] = std::isfinite(src[4 * i + k]) ? src[4 * i + k] : 0.0f;
+              img.px[i] = {c[0], c[1], c[2], c[3]};
+            }
+            img.srgb = srgb;
+            return self.scene->add_image(std::move(img));
+          },
+          py::arg("pixels"), py::arg("srgb") = false)
+      .def(
+          "add_shader",
+          [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,
+             bool use_schlick) {
+            self.check_editable();
+            Material mat = make_shader(self, name, program, volume_absorption, use_schlick);
+            return self.scene->add_material(std::move(mat));
+          },
+          py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
+          py::arg("use_schlick") = false)
+      .def(
+          "set_material",
+          [](PyScene& self, uint32_t id, const std::string& name, const py::object& base_color,
+             const py::object& emission) {
+            self.check_editable();
+            const Vec3 albedo = vmin(to_color(base_color, "base_color"), Vec3(1.0f));
+            self.scene->set_material(id, make_simple_material(name, albedo, to_color(emission, "emission")));
+          },
+          py::arg("id"), py::arg("name"), py::arg("base_color") = py::make_tuple(0.8f, 0.8f, 0.8f),
+          py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f),
+          "Replaces material `id` (as add_material); the next commit() keeps the BVH.")
+      .def(
+          "set_shader",
+          [](PyScene& self, uint32_t id, const std::string& name, const py::list& program,
+             const py::object& volume_absorption, bool use_schlick) {
+            self.check_editable();
+            self.scene->set_material(id, make_shader(self, name, program, volume_absorption, use_schlick));
+          },
+          py::arg("id"), py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
+          py::arg("use_schlick") = false, "Replaces material `id` (as add_shader); the next commit() keeps the BVH.")
+      .def(
+          "clear_lights",
+          [](PyScene& self) {
+            self.check_editable();
+            self.scene->clear_lights();
+          },
+          "Removes every analytic light; the next commit() rebuilds only the light distribution.")
+      .def(
+          "add_instance",
+          [](PyScene& self, uint32_t mesh, const FloatArray& matrix) {
+            self.check_editable();
+            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"));
+          },
+          py::arg("mesh"), py::arg("matrix"))
+      .def(
+          "set_instance_transform",
+          [](PyScene& self, uint32_t index, const FloatArray& matrix) {
+            self.check_editable();
+            self.scene->set_instance_transform(index, to_mat4(matrix, "instance matrix"));
+          },
+          py::arg("index"), py::arg("matrix"),
+          "Moves instance `index` (add_instance order). In dynamic mode (or for a mesh with several "
+          "instances) the next commit() rebuilds only the top level and the lights.")
+      .def_property(
+          "spatial_splits", [](const PyScene& self) { return self.scene->spatial_splits(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_spatial_splits(on);
+          },
+          "Spatial splits (SBVH) in the BVH builds of the next commit(): slower builds, fewer "
+          "triangle and node tests on long thin triangles (final renders). Default off.")
+      .def_property(
+          "compact_bvh",
+          [](const PyScene& self) { return enum_name(self.scene->compact_bvh(), kCompactBvhNames); },
+          [](PyScene& self, const std::string& v) {
+            self.check_editable();
+            self.scene->set_compact_bvh(enum_from_name(v, "compact_bvh", kCompactBvhNames));
+          },
+          "Compressed (quantised) wide BVH nodes from the next commit(): 'on', 'off' or 'auto' "
+          "(the default: on for BLASes of 8M triangles or more, where memory matters more than the "
+          "few percent more work per ray). Same hits.")
+      .def("binary_bvh_nodes", &binary_bvh_nodes,
+           "The largest BLAS's binary tree for tests (commit(bvh='binary'); empty arrays for the "
+           "wide layouts): dict of lo, hi (M, 3 float32), left_or_first, count (M uint32; interior: "
+           "left child (right = left + 1) and 0; leaf: first position in the leaf order and its "
+           "triangle count) and prims (the leaf order's input indices, uint32).")
+      .def("wide_bvh_nodes", &wide_bvh_nodes,
+           "The largest BLAS's wide tree for tests: dict of box (M, N, 6: lo x, hi x, lo y, hi y, "
+           "lo z, hi z; compressed nodes dequantised as the traversal computes them), child, count "
+           "(M, N uint32), valid (M, N bool), compact, and the leaves' triangles (B, 4, 3, 3: "
+           "block, lane, vertex, axis) with their input indices prims (B, 4; -1 unused).")
+      .def_property(
+          "build_quality",
+          [](const PyScene& self) { return enum_name(self.scene->build_quality(), kBuildQualityNames); },
+          [](PyScene& self, const std::string& q) {
+            self.check_editable();
+            self.scene->set_build_quality(enum_from_name(q, "build_quality", kBuildQualityNames));
+          },
+          "How the next commit() builds the BVHs: 'sah' (the full binned SAH), 'fast' (clustered: "
+          "the triangles sorted along a Morton curve into runs of up to 8, the binned SAH over the runs, "
+          "then over the triangles of nodes of 24 or fewer; less build work, somewhat worse trees), "
+          "'auto' (default: 'fast' for the BVHs of 100,000 triangles or more of a dynamic scene, else 'sah').")
+      .def_property(
+          "dynamic", [](const PyScene& self) { return self.scene->dynamic(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_dynamic(on);
+          },
+          "Every instance its own transform over a per-mesh BLAS (viewport: transform edits rebuild only "
+          "the top level); False (default): meshes used once are merged in world space (faster tracing).")
+      .def(
+          "add_point_light",
+          [](PyScene& self, const py::object& position, const py::object& intensity, float radius, bool cast_shadow) {
+            self.check_editable();
+            Light l;
+            l.type = LightType::Point;
+            l.position = to_point(position, "position");
+            l.color = to_color(intensity, "intensity");
+            l.radius = finite_nonneg(radius, "radius");
+            l.cast_shadow = cast_shadow;
+            self.scene->add_light(l);
+          },
+          py::arg("position"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("cast_shadow") = true)
+      .def(
+          "add_spot_light",
+          [](PyScene& self, const FloatArray& matrix, const py::object& intensity, float radius, float spot_size,
+             float spot_blend, bool cast_shadow) {
+            self.check_editable();
+            const Mat4 m = to_mat4(matrix, "spot light matrix");
+            Light l;
+            l.type = LightType::Spot;
+            l.position = {m.m[0][3], m.m[1][3], m.m[2][3]};
+            l.color = to_color(intensity, "intensity");
+            l.radius = finite_nonneg(radius, "radius");
+            l.to_local = inverse3x3(m, "spot light matrix");
+            const float half = 0.5f * clampf(finite_nonneg(spot_size, "spot_size"), 0.0f, kPi);
+            l.cos_half_spot = std::cos(half);
+            const float blend = clampf(finite_nonneg(spot_blend, "spot_blend"), 0.0f, 1.0f);
+            l.spot_smooth_inv = blend > 0.0f && l.cos_half_spot < 1.0f ? 1.0f / ((1.0f - l.cos_half_spot) * blend) : 0.0f;
+            l.cast_shadow = cast_shadow;
+            self.scene->add_light(l);
+          },
+          py::arg("matrix"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("spot_size") = kPi / 4.0f,
+          py::arg("spot_blend") = 0.15f, py::arg("cast_shadow") = true)
+      .def(
+          "add_sun_light",
+          [](PyScene& self, const py::object& direction, const py::object& irradiance, float angle, bool cast_shadow) {
+            self.check_editable();
+            Light l;
+            l.type = LightType::Sun;
+            const Vec3 d = to_point(direction, "direction");
+            if (!(length(d) > 0.0f)) throw std::invalid_argument("sun direction must be non-zero");
+            l.dir = normalize(d);
+            l.color = to_color(irradiance, "irradiance");
+            const float half = 0.5f * clampf(finite_nonneg(angle, "angle"), 0.0f, kPi * 0.999f);
+            l.cos_half_angle = half > 0.0f ? std::cos(half) : 1.0f;
+            // Cycles' distant light: radiance E / (pi sin^2 h) over the cone of half-angle h,
+            // so a surface facing the sun receives exactly E.
+            l.sun_radiance_scale = half > 0.0f ? 1.0f / (kPi * std::sin(half) * std::sin(half)) : 0.0f;
+            l.cast_shadow = cast_shadow;
+            self.scene->add_light(l);
+          },
+          py::arg("direction"), py::arg("irradiance"), py::arg("angle") = 0.0f, py::arg("cast_shadow") = true)
+      .def(
+          "add_area_light",
+          [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, const py::object& radiance,
+             bool ellipse, bool cast_shadow) {
+            self.check_editable();
+            const Mat4 m = to_mat4(matrix, "area light matrix");
+            Light l;
+            l.type = ellipse ? LightType::Ellipse : LightType::Rect;
+            l.position = {m.m[0][3], m.m[1][3], m.m[2][3]};
+            l.axis_u = m.vector({finite_nonneg(size_x, "size_x"), 0.0f, 0.0f});
+            l.axis_v = m.vector({0.0f, finite_nonneg(size_y, "size_y"), 0.0f});
+            const Vec3 n = cross(l.axis_u, l.axis_v);
+            l.area = length(n) * (ellipse ? kPi / 4.0f : 1.0f);
+            if (!(l.area > 0.0f) || !std::isfinite(l.area)) return;  // nothing to emit from
+            l.dir = -normalize(m.vector({0.0f, 0.0f, 1.0f}));  // emits along local -Z
+            l.color = to_color(radiance, "radiance");
+            l.cast_shadow = cast_shadow;
+            self.scene->add_light(l);
+          },
+          py::arg("matrix"), py::arg("size_x"), py::arg("size_y"), py::arg("radiance"), py::arg("ellipse") = false,
+          py::arg("cast_shadow") = true)
+      .def(
+          "set_world_texture",
+          [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj) {
+            self.check_editable();
+            if (pixels.ndim() != 3 || (pixels.shape(2) != 3 && pixels.shape(2) != 4) || pixels.shape(0) < 1 ||
+                pixels.shape(1) < 1)
+              throw std::invalid_argument("world texture pixels must have shape (H, W, 3) or (H, W, 4)");
+            if (pixels.shape(0) > 65536 || pixels.shape(1) > 65536)
+              throw std::invalid_argument("world texture is too large");
+            const FloatArray rotation = rotation_obj.is_none()
+                                            ? FloatArray(py::array_t<float>(std::vector<py::ssize_t>{3, 3}))
+                                            : rotation_obj.cast<FloatArray>();
+            if (rotation.ndim() != 2 || rotation.shape(0) != 3 || rotation.shape(1) != 3)
+              throw std::invalid_argument("rotation must be a 3x3 matrix");
+            const int h = int(pixels.shape(0)), w = int(pixels.shape(1)), c = int(pixels.shape(2));
+            std::vector<Vec3> px(size_t(w) * size_t(h));
+            const float* src = pixels.data();
+            auto clean = [](float x) { return std::isfinite(x) && x > 0.0f ? x : 0.0f; };
+            for (size_t i = 0; i < px.size(); ++i)
+              px[i] = {clean(src[i * c]), clean(src[i * c + 1]), clean(src[i * c + 2])};
+            Mat4 rot;
+            auto r = rotation.unchecked<2>();
+            for (int i = 0; i < 3; ++i)
+              for (int j = 0; j < 3; ++j) rot.m[i][j] = rotation_obj.is_none() ? float(i == j) : r(i, j);
+            if (!rot.is_finite()) throw std::invalid_argument("rotation contains NaN or infinite values");
+            rot = orthonormal_rotation(rot);
+            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+            // A constant image is a constant world: no texture lookups, no light sampling
+            // (cosine-weighted BSDF samples are already ideal for it).
+            bool constant = true;
+            for (size_t i = 1; i < px.size() && constant; ++i)
+              constant = px[i].x == px[0].x && px[i].y == px[0].y && px[i].z == px[0].z;
+            if (constant) {
+              self.scene->set_environment(Environment());
+              self.scene->set_world_color(px[0] * k);
+              return;
+            }
+            py::gil_scoped_release release;
+            self.scene->set_environment(Environment(std::move(px), w, h, k, rot));
+          },
+          py::arg("pixels"), py::arg("strength") = 1.0f, py::arg("rotation") = py::none())
+      .def(
+          "set_world_color",
+          [](PyScene& self, const py::object& c) {
+            self.check_editable();
+            self.scene->set_environment(Environment());  // a colour replaces any texture
+            self.scene->set_world_color(to_color(c, "world color"));
+          },
+          py::arg("color"))
+      .def(
+          "set_camera",
+          [](PyScene& self, const CameraDesc& c) {
+            self.check_editable();
+            validate_camera(c);
+            self.scene->set_camera(c);
+          },
+          py::arg("camera"))
+      .def(
+          "commit",
+          [](PyScene& self, int threads, const std::string& bvh) {
+            self.check_editable();
+            const BvhLayout layout = enum_from_name(bvh, "bvh", kBvhLayoutNames);
+            bool done;
+            {
+              py::gil_scoped_release release;
+              done = self.scene->commit(threads, layout);
+            }
+            if (!done) throw std::runtime_error("commit cancelled");
+          },
+          py::arg("threads") = 0, py::arg("bvh") = "auto",
+          "Builds the BVH and the lights (GIL released). bvh: 'auto' (8-wide with AVX2, else 4-wide), "
+          "or 'binary', 'bvh4', 'bvh8' to test one kernel ('bvh8' falls back to 'bvh4' without AVX2). "
+          "Raises RuntimeError('commit cancelled') when cancel_commit() stopped it.")
+      .def(
+          "cancel_commit", [](PyScene& self) { self.scene->cancel_commit(); },
+          "Stops a commit() running in another thread; that commit raises RuntimeError and leaves the "
+          "scene uncommitted. Has no effect when no commit is running.")
+      .def_property(
+          "solid_angle_triangle_sampling",
+          [](const PyScene& self) { return self.scene->solid_angle_triangle_sampling(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_solid_angle_triangle_sampling(on);
+          },
+          "Light-sample emissive triangles uniformly in solid angle (True, the default) or by area.")
+      .def_property(
+          "solid_angle_rect_sampling",
+          [](const PyScene& self) { return self.scene->solid_angle_rect_sampling(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_solid_angle_rect_sampling(on);
+          },
+          "Light-sample rectangle lights uniformly in solid angle where it is not tiny (True, the "
+          "default) or always by area.")
+      .def_property(
+          "emitter_groups",
+          [](const PyScene& self) { return self.scene->emitter_groups(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_emitter_groups(on);
+          },
+          "Sample a small mesh light (up to 4 triangles of one material in one object, such as a "
+          "quad) as one light, each triangle chosen in proportion to its solid angle (True, the "
+          "default), or each triangle as a light of its own. Takes effect at the next commit().")
+      .def_property(
+          "rect_groups",
+          [](const PyScene& self) { return self.scene->rect_groups(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_rect_groups(on);
+          },
+          "Sample an emitter group whose two triangles form a rectangle as one spherical rectangle "
+          "(True, the default; same distribution, less work) or as two spherical triangles. Takes "
+          "effect at the next commit().")
+      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"),
+           "Light samples (next-event estimation) from points (N, 3) with uniforms u (N, 3: the light "
+           "choice and the 2-D sample): (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "
+           "renderer's MIS gives the emitter the ray p + t wi hits first at t_hit (0 and inf for none). "
+           "Exposed for tests.")
+      .def("stats", &scene_stats)
+      .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
+           py::arg("instances") = false,
+           "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim (the triangle's index in the "
+           "flattened scene, instance by instance) is -1 and t inf on a miss. instances=True adds two "
+           "int64 arrays: the hit instance (add_instance order) and the triangle's row in its mesh (-1 on a miss).")
+      .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
+           "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).")
+      .def("traversal_counts", &traversal_counts, py::arg("origins"), py::arg("directions"),
+           py::arg("tmax") = py::none(),
+           "BVH nodes visited and triangles tested by the closest-hit search of each ray: (nodes, triangles), "
+           "uint32 (N,). tmax: float (N,) or None (unbounded).")
+      .def("camera_rays", &camera_rays, py::arg("width"), py::arg("height"), py::arg("xy"),
+           "The render's camera rays through raster positions xy (N, 2), pixels from the bottom-left: "
+           "(origins (N,3), directions (N,3), tmax (N,)).");
+
   py::class_<PySession>(m, "Session")
       .def(py::init([](PyScene& scene, const RenderSettings& settings, const py::object& camera_obj) {
              validate(settings);
@@ -622,34 +1750,4 @@ void bind_session(py::module_& m) {
       .def("film_rect", &film_rect, py::arg("x"), py::arg("y"), py::arg("w"), py::arg("h"))
       .def("film_pass", &film_pass, py::arg("name"),
            "One render pass as float32 (H, W, channels), row 0 = bottom (see render_passes()).");
-}
-
-}  // namespace
-
-PYBIND11_MODULE(pathlight_core, m) {
-  m.doc() = "Pathlight's compiled core: scene, BVH, path tracer and progressive render sessions.";
-  m.attr("__version__") = PATHLIGHT_VERSION;
-  m.def("build_info", [] {
-    py::dict d;
-    d["simd"] = PATHLIGHT_SIMD_NAME;
-    // The BVH kernel commit() picks by default on this CPU (run-time detection).
-    d["bvh"] = cpu_has_avx2() ? "bvh8" : "bvh4";
-#if defined(__clang__)
-    d["compiler"] = "clang " __clang_version__;
-#elif defined(__GNUC__)
-    d["compiler"] = "gcc " __VERSION__;
-#else
-    d["compiler"] = "unknown";
-#endif
-#ifdef NDEBUG
-    d["build_type"] = "release";
-#else
-    d["build_type"] = "debug";
-#endif
-    return d;
-  });
-  bind_functions(m);
-  bind_settings(m);
-  plpy::bind_scene(m);
-  bind_session(m);
 }
