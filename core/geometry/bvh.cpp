@@ -448,7 +448,6 @@ class Builder {
     const V4 scale = V4::set1(inv), top = V4::set1(1023.0f);
     // Keys: code << 32 | input position; sorted on bits 32-61, 10 at a time.
     auto keys = raw_array<uint64_t>(n), tmp = raw_array<uint64_t>(n);
-    uint32_t hist[3][1024] = {};
     const int chunks = chunk_count(n, 0);
     std::vector<std::array<std::array<uint32_t, 1024>, 3>> part(chunks);
     run_chunks(chunks, [&](int c) {
@@ -461,51 +460,96 @@ class Builder {
         const uint32_t code = morton3(q);
         keys[i] = uint64_t(code) << 32 | i;
         h[0][code & 1023]++;
-        h[1][(code >> 10) & 1023]++;
-        h[2][code >> 20]++;
       }
     });
-    for (int c = 0; c < chunks; ++c)
-      for (int p = 0; p < 3; ++p)
-        for (int k = 0; k < 1024; ++k) hist[p][k] += part[c][p][k];
+    // Each pass scatters on all threads: chunk c of the current order writes its keys of digit
+    // k from the keys of digits below k (all chunks) plus those of digit k in chunks before c,
+    // so the sort stays stable and its result the same on any thread count. Pass 0's chunk
+    // histograms come from the code pass above; the later ones are counted over the new order.
     for (int p = 0; p < 3; ++p) {
       if (cancelled()) return;
-      uint32_t off[1024], sum = 0;
-      for (int k = 0; k < 1024; ++k) {
-        off[k] = sum;
-        sum += hist[p][k];
-      }
       const int shift = 32 + 10 * p;
-      for (uint32_t i = 0; i < n; ++i) {
-        const uint64_t k = keys[i];
-        tmp[off[(k >> shift) & 1023]++] = k;
-      }
+      if (p > 0)
+        run_chunks(chunks, [&](int c) {
+          auto& h = part[c][p];
+          h.fill(0);
+          const uint32_t b = uint32_t(uint64_t(n) * c / chunks), e = uint32_t(uint64_t(n) * (c + 1) / chunks);
+          for (uint32_t i = b; i < e; ++i) h[(keys[i] >> shift) & 1023]++;
+        });
+      uint32_t sum = 0;
+      for (int k = 0; k < 1024; ++k)
+        for (int c = 0; c < chunks; ++c) {
+          const uint32_t cnt = part[c][p][k];
+          part[c][p][k] = sum;  // now chunk c's first slot for digit k
+          sum += cnt;
+        }
+      run_chunks(chunks, [&](int c) {
+        auto& off = part[c][p];
+        const uint32_t b = uint32_t(uint64_t(n) * c / chunks), e = uint32_t(uint64_t(n) * (c + 1) / chunks);
+        for (uint32_t i = b; i < e; ++i) {
+          const uint64_t k = keys[i];
+          tmp[off[(k >> shift) & 1023]++] = k;
+        }
+      });
       std::swap(keys, tmp);
     }
     if (cancelled()) return;
     // Runs, in order: cut [b, e) at its highest differing code bit until it fits one block.
-    std::vector<uint32_t> first;
-    first.reserve(n / 2 + 2);
-    std::vector<std::pair<uint32_t, uint32_t>> stack{{0u, n}};
-    while (!stack.empty()) {
-      const auto [b, e] = stack.back();
-      stack.pop_back();
-      if (e - b <= C) {
-        first.push_back(b);
-        continue;
+    // A range's cuts depend on that range alone, so the top ranges are cut here, breadth-first
+    // and kept in order, until there are enough to share out; each is then cut down to runs on
+    // whichever thread takes it, and the runs are joined in order: the same runs on any thread
+    // count.
+    const uint64_t* k = keys.get();
+    const auto cut = [k](uint32_t b, uint32_t e) {
+      const uint32_t c0 = uint32_t(k[b] >> 32), c1 = uint32_t(k[e - 1] >> 32);
+      if (c0 == c1) return b + (e - b) / 2;
+      const uint32_t bit = 31u - uint32_t(__builtin_clz(c0 ^ c1));
+      return uint32_t(std::partition_point(k + b, k + e, [bit](uint64_t x) { return !((x >> (32 + bit)) & 1); }) - k);
+    };
+    using Range = std::pair<uint32_t, uint32_t>;
+    std::vector<Range> tops{{0u, n}};
+    const size_t want = hw_ > 1 && n >= kParallelMin ? 16 * size_t(hw_) : 1;
+    for (bool again = true; again && tops.size() < want;) {
+      again = false;
+      std::vector<Range> next;
+      for (const auto& [b, e] : tops) {
+        if (e - b <= C) {
+          next.push_back({b, e});
+          continue;
+        }
+        const uint32_t mid = cut(b, e);
+        next.push_back({b, mid});
+        next.push_back({mid, e});
+        again = true;
       }
-      const uint32_t c0 = uint32_t(keys[b] >> 32), c1 = uint32_t(keys[e - 1] >> 32);
-      uint32_t mid;
-      if (c0 == c1) {
-        mid = b + (e - b) / 2;
-      } else {
-        const uint32_t bit = 31u - uint32_t(__builtin_clz(c0 ^ c1));
-        const uint64_t* k = keys.get();
-        mid = uint32_t(std::partition_point(k + b, k + e, [&](uint64_t x) { return !((x >> (32 + bit)) & 1); }) - k);
-      }
-      stack.push_back({mid, e});
-      stack.push_back({b, mid});
+      tops.swap(next);
     }
+    std::vector<std::vector<uint32_t>> runs(tops.size());
+    std::atomic<size_t> next_range{0};
+    run_chunks(tops.size() > 1 ? hw_ : 1, [&](int) {
+      std::vector<Range> stack;
+      for (size_t r; (r = next_range.fetch_add(1)) < tops.size();) {
+        std::vector<uint32_t>& out = runs[r];
+        out.reserve((tops[r].second - tops[r].first) / 2 + 1);
+        stack.assign(1, tops[r]);
+        while (!stack.empty()) {
+          const auto [b, e] = stack.back();
+          stack.pop_back();
+          if (e - b <= C) {
+            out.push_back(b);
+            continue;
+          }
+          const uint32_t mid = cut(b, e);
+          stack.push_back({mid, e});
+          stack.push_back({b, mid});
+        }
+      }
+    });
+    std::vector<uint32_t> first;
+    size_t total = 1;
+    for (const auto& r : runs) total += r.size();
+    first.reserve(total);
+    for (const auto& r : runs) first.insert(first.end(), r.begin(), r.end());
     const uint32_t m = static_cast<uint32_t>(first.size());
     first.push_back(n);
     if (cancelled()) return;
