@@ -205,6 +205,11 @@ inline float half_area(V4 lo, V4 hi) {
 #endif
 }
 
+// Where chunk c of `chunks` equal chunks of [0, n) starts (c = chunks: n).
+inline uint32_t chunk_start(uint32_t n, int c, int chunks) {
+  return uint32_t(uint64_t(n) * uint32_t(c) / uint32_t(chunks));
+}
+
 // Runs fn(chunk) for chunk in [0, chunks) on that many threads (this one included).
 template <class F>
 void run_chunks(int chunks, F&& fn) {
@@ -331,7 +336,7 @@ class Builder {
     const int chunks = chunk_count(n, 0);
     std::vector<BoxAcc> b(chunks), cb(chunks);
     run_chunks(chunks, [&](int c) {
-      const uint32_t lo = uint32_t(uint64_t(n) * c / chunks), hi = uint32_t(uint64_t(n) * (c + 1) / chunks);
+      const uint32_t lo = chunk_start(n, c, chunks), hi = chunk_start(n, c + 1, chunks);
       // Boxes in locals, stored once: the chunks' accumulators share a cache line, and the
       // reference stores may alias them (__m128 may alias floats), so growing them in place
       // wrote that line on every triangle from both threads (2.5x slower than one thread).
@@ -453,7 +458,7 @@ class Builder {
     run_chunks(chunks, [&](int c) {
       auto& h = part[c];
       for (auto& row : h) row.fill(0);
-      const uint32_t b = uint32_t(uint64_t(n) * c / chunks), e = uint32_t(uint64_t(n) * (c + 1) / chunks);
+      const uint32_t b = chunk_start(n, c, chunks), e = chunk_start(n, c + 1, chunks);
       alignas(16) int q[4];
       for (uint32_t i = b; i < e; ++i) {
         refs_[i].centroid().bins(lo, scale, top, q);  // clamped to the grid, NaN -> 0
@@ -473,7 +478,7 @@ class Builder {
         run_chunks(chunks, [&](int c) {
           auto& h = part[c][p];
           h.fill(0);
-          const uint32_t b = uint32_t(uint64_t(n) * c / chunks), e = uint32_t(uint64_t(n) * (c + 1) / chunks);
+          const uint32_t b = chunk_start(n, c, chunks), e = chunk_start(n, c + 1, chunks);
           for (uint32_t i = b; i < e; ++i) h[(keys[i] >> shift) & 1023]++;
         });
       uint32_t sum = 0;
@@ -485,7 +490,7 @@ class Builder {
         }
       run_chunks(chunks, [&](int c) {
         auto& off = part[c][p];
-        const uint32_t b = uint32_t(uint64_t(n) * c / chunks), e = uint32_t(uint64_t(n) * (c + 1) / chunks);
+        const uint32_t b = chunk_start(n, c, chunks), e = chunk_start(n, c + 1, chunks);
         for (uint32_t i = b; i < e; ++i) {
           const uint64_t k = keys[i];
           tmp[off[(k >> shift) & 1023]++] = k;
@@ -560,7 +565,7 @@ class Builder {
     const int cchunks = chunk_count(m, 0);
     std::vector<BoxAcc> cb(cchunks);
     run_chunks(cchunks, [&](int c) {
-      const uint32_t b = uint32_t(uint64_t(m) * c / cchunks), e = uint32_t(uint64_t(m) * (c + 1) / cchunks);
+      const uint32_t b = chunk_start(m, c, cchunks), e = chunk_start(m, c + 1, cchunks);
       BoxAcc cbox;  // stored once (as the root's boxes above)
       for (uint32_t k = b; k < e; ++k) {
         BoxAcc box;
@@ -897,7 +902,7 @@ class Builder {
       std::vector<BinSet> part(chunks);
       run_chunks(chunks, [&](int c) {
         part[c].reset(B);
-        bin_range(begin + uint32_t(uint64_t(n) * c / chunks), begin + uint32_t(uint64_t(n) * (c + 1) / chunks), vlo,
+        bin_range(begin + chunk_start(n, c, chunks), begin + chunk_start(n, c + 1, chunks), vlo,
                   vscale, top, B, part[c]);
       });
       bins.reset(B);
@@ -1131,7 +1136,7 @@ class Builder {
       run_chunks(chunks, [&](int c) {
         part[c] = std::make_unique<SpatialBinSet>();
         part[c]->reset(B);
-        spatial_bin_range(begin + uint32_t(uint64_t(n) * c / chunks), begin + uint32_t(uint64_t(n) * (c + 1) / chunks),
+        spatial_bin_range(begin + chunk_start(n, c, chunks), begin + chunk_start(n, c + 1, chunks),
                           lo, scale, step, *part[c]);
       });
       sb->reset(B);
