@@ -39,13 +39,17 @@ def mesh_fingerprint(mesh):
     Only raw-array reads (attributes, the face of each loop triangle): the per-element
     collections vertices.co, loops.vertex_index and polygons.loop_total took 0.22 s of a
     1M-triangle mesh's 0.41 s fingerprint and hold nothing the "position" and ".corner_vert"
-    attributes and the triangles' faces do not (a face of k corners has k - 2 triangles)."""
+    attributes and the triangles' faces do not (a face of k corners has k - 2 triangles).
+    Each array is hashed by the core's XXH64 (5 ms for 36 MB, where BLAKE2b took 65 ms), the
+    names, sizes and those hashes by BLAKE2b."""
+    from ..core import get_core
+    hash_buffer = get_core().hash_buffer
     h = hashlib.blake2b(digest_size=16)
 
     def add(collection, name, dtype, width=1):
         a = np.empty(len(collection) * width, dtype)
         collection.foreach_get(name, a)
-        h.update(memoryview(a))
+        h.update(np.array([a.nbytes, hash_buffer(a)], np.uint64).tobytes())
 
     h.update(np.array([len(mesh.vertices), len(mesh.loops), len(mesh.polygons)], np.int64).tobytes())
     names = {attr.name for attr in mesh.attributes}

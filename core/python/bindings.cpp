@@ -11,6 +11,7 @@
 #include "geometry/polygon_mesh.h"
 #include "render/session.h"
 #include "util/big_alloc.h"
+#include "util/hash.h"
 
 namespace py = pybind11;
 using namespace pl;
@@ -1004,6 +1005,18 @@ PYBIND11_MODULE(pathlight_core, m) {
       "of a polygon mesh (face f: corners face_offsets[f] to face_offsets[f + 1] - 1), face by face, quads split as "
       "Blender does; faces of 5+ corners get a fan (counted: the caller replaces those). corners=False: None "
       "instead of the corner indices (not computed).");
+  m.def(
+      "hash_buffer",
+      [](const py::object& data, uint64_t seed) {
+        Py_buffer view;  // any C-contiguous buffer (numpy arrays, bytes); others raise BufferError
+        if (PyObject_GetBuffer(data.ptr(), &view, PyBUF_C_CONTIGUOUS) != 0) throw py::error_already_set();
+        const std::unique_ptr<Py_buffer, void (*)(Py_buffer*)> held(&view, PyBuffer_Release);
+        py::gil_scoped_release release;
+        return xxh64(view.buf, size_t(view.len), seed);
+      },
+      py::arg("data"), py::arg("seed") = 0,
+      "XXH64 of a C-contiguous buffer's bytes (a numpy array, bytes): a fast non-cryptographic 64-bit hash, "
+      "for change detection.");
   m.def(
       "polygon_face_offsets",
       [](const I32Array& tri_faces, int64_t faces, int64_t corners) -> py::object {
