@@ -121,12 +121,19 @@ def keep_between_jobs(scene, background=None):
     return bool(bpy.app.background if background is None else background)
 
 
-def cache_for(engine, scene):
-    """The cache a render of `scene` by `engine` uses, or None: frames of an animation job
-    (`-a`, `-f A..B`: each is an animation job) and scenes with persistent data use it."""
+def cache_for(engine, depsgraph):
+    """The cache a render of `depsgraph` by `engine` uses, or None: frames of an animation job
+    (`-a`, `-f A..B`: each is an animation job) and scenes with persistent data use it. Call it
+    first in the render: it reads what the depsgraph updated (see MeshCache.begin_export)."""
     if engine.is_preview:
         return None
-    if engine.is_animation or (scene is not None and scene.render.use_persistent_data):
+    scene = depsgraph.scene
+    persistent = scene.render.use_persistent_data
+    if engine.is_animation or persistent:
+        # Persistent data keeps one depsgraph between renders of one view layer; with several,
+        # Blender switches that depsgraph's view layer, and its updates list the switch.
+        layers = 1 if scene.render.use_single_layer else sum(1 for vl in scene.view_layers if vl.use)
+        MESH_CACHE.begin_export(depsgraph, tracked=persistent and layers == 1)
         return MESH_CACHE
     clear()  # nothing reuses what an earlier job left
     return None

@@ -136,10 +136,10 @@ def render(engine, depsgraph):
     """RenderEngine.render: never raises; errors go to engine.report."""
     warn = _warner(engine)
     try:
+        cache = render_cache.cache_for(engine, depsgraph)  # first: it reads the depsgraph's updates
         pc = get_core()
         scene = depsgraph.scene
         view_layer = depsgraph.view_layer
-        cache = render_cache.cache_for(engine, scene)
         t0 = time.monotonic()
         try:
             data = export_scene(depsgraph, warn, cache, should_stop=lambda: _stop_requested(

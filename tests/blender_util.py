@@ -77,7 +77,8 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
     """
     scene = scene or bpy.context.scene
     render = scene.render
-    render.engine = engine
+    if render.engine != engine:  # setting it, even unchanged, tags every ID of the depsgraph
+        render.engine = engine
     if engine == "PATHLIGHT":
         settings = scene.pathlight
         _setup_pathlight(settings)

@@ -95,3 +95,187 @@ def test_persistent_data_reuses_the_committed_scene():
     # Each step changed the image (so the kept scene really took the change).
     for a, b in zip(kept, kept[1:]):
         assert not np.array_equal(a, b)
+
+
+def _cache_counts():
+    from addon import render_cache
+    prev = render_cache.MESH_CACHE.previous
+    return sorted(prev["hit"]), sorted(prev["missed"])
+
+
+def _fresh_render(sc):
+    """A render of the scene as it is now, from nothing (no persistent data, empty caches)."""
+    from addon import render_cache
+    sc.render.use_persistent_data = False
+    render_cache.clear()
+    image = render_to_array(sc)
+    sc.render.use_persistent_data = True
+    return image
+
+
+def test_persistent_data_trusts_the_depsgraph_updates(monkeypatch):
+    """With persistent data (one view layer) the depsgraph's updates say which meshes changed:
+    no fingerprints, unchanged meshes reused, changed ones (an edit, a new modifier, a modifier
+    setting, an animated modifier on a new frame) exported again; every image equals a fresh
+    render of the same state."""
+    from addon import render_cache
+    from addon.export import mesh_cache
+    calls = []
+    real = mesh_cache.mesh_fingerprint
+    monkeypatch.setattr(mesh_cache, "mesh_fingerprint", lambda mesh: calls.append(1) or real(mesh))
+    render_cache.clear()
+    sc = _scene_with_material()
+    sc.render.use_persistent_data = True
+    floor = bpy.data.objects["Floor"]
+
+    def add_modifier(sc):
+        floor.modifiers.new("Wave", 'WAVE')
+
+    def wave_height(sc):
+        floor.modifiers["Wave"].height = 0.3
+
+    def next_frame(sc):  # the wave is animated: its geometry changes with the frame
+        sc.frame_set(sc.frame_current + 1)
+
+    steps = [(None, [], ["Floor", "Mover"]),
+             (_move_camera, ["Floor", "Mover"], []),
+             (_move_object, ["Floor", "Mover"], []),  # a transform: the same arrays
+             (_edit_mesh, ["Floor"], ["Mover"]),
+             (add_modifier, ["Mover"], ["Floor"]),
+             (wave_height, ["Mover"], ["Floor"]),
+             (next_frame, ["Mover"], ["Floor"]),
+             # Blender re-evaluates time-dependent geometry (the wave) for every render.
+             (None, ["Mover"], ["Floor"]),
+             (lambda sc: floor.modifiers.remove(floor.modifiers["Wave"]), ["Mover"], ["Floor"]),
+             (None, ["Floor", "Mover"], [])]
+    try:
+        for step, hit, missed in steps:
+            if step is not None:
+                step(sc)
+            image = render_to_array(sc)
+            assert _cache_counts() == (hit, missed), getattr(step, "__name__", "no change")
+            np.testing.assert_array_equal(image, _fresh_render(sc), err_msg=getattr(step, "__name__", ""))
+            # _fresh_render emptied the caches: render once more with persistent data, so the
+            # next step's render starts from this state's tracked export.
+            render_to_array(sc)
+        assert calls == []  # tracked renders compute no fingerprints
+    finally:
+        sc.render.use_persistent_data = False
+        render_cache.clear()
+
+
+def test_a_failed_render_forgets_the_depsgraph_updates(monkeypatch):
+    """A render that fails before its export ends has read (and so used up) the depsgraph's
+    updates: the next render must not trust them, and exports every mesh again."""
+    from addon import render_cache, session
+    render_cache.clear()
+    sc = _scene_with_material()
+    sc.render.use_persistent_data = True
+    try:
+        render_to_array(sc)
+        _edit_mesh(sc)
+
+        def broken():
+            raise RuntimeError("no core")
+        with monkeypatch.context() as m:
+            m.setattr(session, "get_core", broken)
+            with pytest.raises(RuntimeError, match="no core"):  # the operator raises the report
+                render_to_array(sc)  # the edit's update is gone with this render
+        image = render_to_array(sc)
+        assert _cache_counts() == ([], ["Floor", "Mover"])
+        np.testing.assert_array_equal(image, _fresh_render(sc))
+    finally:
+        sc.render.use_persistent_data = False
+        render_cache.clear()
+
+
+def test_several_view_layers_compare_fingerprints():
+    """With two view layers Blender switches one depsgraph between them, and its updates list
+    the switch, not the edits: such renders compare fingerprints."""
+    from addon import render_cache
+    render_cache.clear()
+    sc = _scene_with_material()
+    sc.view_layers.new("Second")
+    sc.render.use_persistent_data = True
+    cache = render_cache.MESH_CACHE
+
+    def render_counts():  # hits and misses over both layers' exports
+        hits, misses = cache.hits, cache.misses
+        image = render_to_array(sc)
+        return image, (cache.hits - hits, cache.misses - misses)
+    try:
+        render_to_array(sc)
+        assert render_counts()[1] == (4, 0)
+        _edit_mesh(sc)
+        # The first layer exports the edited mesh; the second finds it by its fingerprint.
+        image, counts = render_counts()
+        assert counts == (3, 1)
+        layers = sc.view_layers
+        layers.remove(layers["Second"])
+        np.testing.assert_array_equal(image, _fresh_render(sc))
+    finally:
+        sc.render.use_persistent_data = False
+        render_cache.clear()
+
+
+def _instancing_plane():
+    """A plane whose geometry nodes put a generated cube on each of its corners (and keep
+    the plane): generated geometry, whose `original` is the plane."""
+    bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.0))
+    plane = bpy.context.active_object
+    tree = bpy.data.node_groups.new("Corners", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, links = tree.nodes, tree.links
+    group_in, group_out = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+    on_points, cube = nodes.new("GeometryNodeInstanceOnPoints"), nodes.new("GeometryNodeMeshCube")
+    join = nodes.new("GeometryNodeJoinGeometry")
+    cube.inputs["Size"].default_value = (0.5, 0.5, 0.5)
+    links.new(group_in.outputs[0], on_points.inputs["Points"])
+    links.new(cube.outputs[0], on_points.inputs["Instance"])
+    links.new(on_points.outputs[0], join.inputs[0])
+    links.new(group_in.outputs[0], join.inputs[0])
+    links.new(join.outputs[0], group_out.inputs[0])
+    plane.modifiers.new("Corners", "NODES").node_group = tree
+    return plane, cube
+
+
+@pytest.mark.parametrize("persistent", [True, False])
+def test_generated_instances_are_not_cached_under_their_instancer(persistent):
+    """Geometry-nodes instances have their instancer as `original`: caching them under its key
+    would hand the plane's arrays to the cubes (or the reverse). They are exported every time;
+    the plane's own geometry is cached. Tracked (persistent data) and fingerprinted exports."""
+    from addon import render_cache
+    from addon.export import export_scene
+    from addon.export.mesh_cache import MeshCache
+    render_cache.clear()
+    sc = _scene_with_material()
+    for name in ("Mover", "Floor"):
+        bpy.data.objects.remove(bpy.data.objects[name])
+    plane, cube = _instancing_plane()
+    if not persistent:  # the animation path: fingerprints
+        cache = MeshCache()
+        for _ in range(2):
+            data = export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None, cache)
+        assert _counts(cache) == (["Plane"], ["Plane"])
+        sizes = sorted(len(m.triangles) for m in data.meshes)
+        assert sizes == [2, 12]  # the plane's quad and the cube, not one of them twice
+        return
+    sc.render.use_persistent_data = True
+    try:
+        render_to_array(sc)
+        image = render_to_array(sc)
+        assert _cache_counts() == (["Plane"], ["Plane"])
+        np.testing.assert_array_equal(image, _fresh_render(sc))
+        render_to_array(sc)
+        cube.inputs["Size"].default_value = (0.8, 0.8, 0.8)
+        image = render_to_array(sc)
+        assert _cache_counts() == ([], ["Plane", "Plane"])  # the instancer's geometry changed
+        np.testing.assert_array_equal(image, _fresh_render(sc))
+    finally:
+        sc.render.use_persistent_data = False
+        render_cache.clear()
+
+
+def _counts(cache):
+    return sorted(cache.previous["hit"]), sorted(cache.previous["missed"])

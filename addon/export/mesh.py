@@ -227,7 +227,6 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
     {global uv-set index: UV map name} says which UV maps to export (none if None).
     cache: a mesh_cache.MeshCache that keeps meshes whose evaluated geometry did not change.
     should_stop(): asked before each mesh is exported; True raises ExportCancelled."""
-    export = cache.export if cache is not None else _export_object
     meshes = {}
     for instance in depsgraph.object_instances:
         obj = instance.object
@@ -243,7 +242,14 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
         if entry is None:
             if should_stop is not None and should_stop():
                 raise ExportCancelled()
-            entry = meshes[key] = export(obj, materials, uv_names)
+            if cache is None:
+                entry = _export_object(obj, materials, uv_names)
+            else:
+                # Geometry nodes' generated instances have their instancer as `original`.
+                generated = bool(instance.is_instance) and instance.parent is not None and \
+                    instance.parent.original == obj.original
+                entry = cache.export(obj, materials, uv_names, generated=generated)
+            meshes[key] = entry
             if entry is not None:
                 entry.owners = []  # this export's (a cached entry may carry an older list)
         if entry is not None:
