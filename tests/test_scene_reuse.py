@@ -97,10 +97,14 @@ def test_persistent_data_reuses_the_committed_scene():
         assert not np.array_equal(a, b)
 
 
+def _counts(cache):
+    """The last export's hits and misses, by object name."""
+    return sorted(cache.previous["hit"]), sorted(cache.previous["missed"])
+
+
 def _cache_counts():
     from addon import render_cache
-    prev = render_cache.MESH_CACHE.previous
-    return sorted(prev["hit"]), sorted(prev["missed"])
+    return _counts(render_cache.MESH_CACHE)
 
 
 def _fresh_render(sc):
@@ -128,32 +132,41 @@ def test_persistent_data_trusts_the_depsgraph_updates(monkeypatch):
     sc.render.use_persistent_data = True
     floor = bpy.data.objects["Floor"]
 
-    def add_modifier(sc):
-        floor.modifiers.new("Wave", 'WAVE')
+    def add_modifier(sc):  # pushes the floor along its normals by half the strength
+        floor.modifiers.new("Lift", 'DISPLACE')
 
-    def wave_height(sc):
-        floor.modifiers["Wave"].height = 0.3
+    def modifier_setting(sc):
+        floor.modifiers["Lift"].strength = 0.2
 
-    def next_frame(sc):  # the wave is animated: its geometry changes with the frame
-        sc.frame_set(sc.frame_current + 1)
+    def next_frame(sc):  # the strength is animated: the geometry changes with the frame
+        lift, frame = floor.modifiers["Lift"], sc.frame_current
+        lift.keyframe_insert("strength", frame=frame)
+        lift.strength = 0.6
+        lift.keyframe_insert("strength", frame=frame + 1)
+        sc.frame_set(frame + 1)
 
     steps = [(None, [], ["Floor", "Mover"]),
              (_move_camera, ["Floor", "Mover"], []),
              (_move_object, ["Floor", "Mover"], []),  # a transform: the same arrays
              (_edit_mesh, ["Floor"], ["Mover"]),
              (add_modifier, ["Mover"], ["Floor"]),
-             (wave_height, ["Mover"], ["Floor"]),
+             (modifier_setting, ["Mover"], ["Floor"]),
              (next_frame, ["Mover"], ["Floor"]),
-             # Blender re-evaluates time-dependent geometry (the wave) for every render.
+             # Blender re-evaluates animated geometry for every render (it lists it again).
              (None, ["Mover"], ["Floor"]),
-             (lambda sc: floor.modifiers.remove(floor.modifiers["Wave"]), ["Mover"], ["Floor"]),
+             (lambda sc: floor.modifiers.remove(floor.modifiers["Lift"]), ["Mover"], ["Floor"]),
              (None, ["Floor", "Mover"], [])]
     try:
+        last = None
         for step, hit, missed in steps:
             if step is not None:
                 step(sc)
             image = render_to_array(sc)
             assert _cache_counts() == (hit, missed), getattr(step, "__name__", "no change")
+            # Every change shows in the image, so a stale mesh could not pass as a fresh one.
+            if last is not None:
+                assert (step is None) == np.array_equal(image, last), getattr(step, "__name__", step)
+            last = image
             np.testing.assert_array_equal(image, _fresh_render(sc), err_msg=getattr(step, "__name__", ""))
             # _fresh_render emptied the caches: render once more with persistent data, so the
             # next step's render starts from this state's tracked export.
@@ -269,13 +282,11 @@ def test_generated_instances_are_not_cached_under_their_instancer(persistent):
         np.testing.assert_array_equal(image, _fresh_render(sc))
         render_to_array(sc)
         cube.inputs["Size"].default_value = (0.8, 0.8, 0.8)
-        image = render_to_array(sc)
+        bigger = render_to_array(sc)
         assert _cache_counts() == ([], ["Plane", "Plane"])  # the instancer's geometry changed
-        np.testing.assert_array_equal(image, _fresh_render(sc))
+        assert not np.array_equal(bigger, image)  # the cubes are in view
+        np.testing.assert_array_equal(bigger, _fresh_render(sc))
     finally:
         sc.render.use_persistent_data = False
         render_cache.clear()
 
-
-def _counts(cache):
-    return sorted(cache.previous["hit"]), sorted(cache.previous["missed"])
