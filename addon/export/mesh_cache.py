@@ -119,11 +119,12 @@ class MeshCache:
         depsgraph's updates of this render are read here or never (a render that fails before
         its export ends leaves no token, so the next one compares fingerprints or exports).
         tracked: the depsgraph is the final render's with persistent data and one view layer."""
+        previous, self._token, self._next_token, self._changed = self._token, None, None, None
         token = None
         if tracked:
             token = (depsgraph.as_pointer(), depsgraph.scene.name, depsgraph.view_layer.name)
-        self._changed = changed_ids(depsgraph) if tracked and token == self._token else None
-        self._token, self._next_token = None, token
+        self._changed = changed_ids(depsgraph) if tracked and token == previous else None
+        self._next_token = token
 
     def export(self, obj, materials, uv_names=None, generated=False):
         """generated: geometry that geometry nodes made for an instance (never cached)."""
