@@ -228,6 +228,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
     cache: a mesh_cache.MeshCache that keeps meshes whose evaluated geometry did not change.
     should_stop(): asked before each mesh is exported; True raises ExportCancelled."""
     meshes = {}
+    generated = {}  # instancer -> how many generated geometries of it were exported so far
     for instance in depsgraph.object_instances:
         obj = instance.object
         # Curves, surfaces, text and metaballs are listed too, as MESH instances of their
@@ -245,10 +246,14 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
             if cache is None:
                 entry = _export_object(obj, materials, uv_names)
             else:
-                # Geometry nodes' generated instances have their instancer as `original`.
-                generated = bool(instance.is_instance) and instance.parent is not None and \
-                    instance.parent.original == obj.original
-                entry = cache.export(obj, materials, uv_names, generated=generated)
+                # Geometry nodes' generated instances have their instancer as `original`: each
+                # gets its ordinal among the instancer's (the same while it is not re-evaluated).
+                ordinal = 0
+                if instance.is_instance and instance.parent is not None and \
+                        instance.parent.original == obj.original:
+                    ordinal = generated[obj.original.as_pointer()] = \
+                        generated.get(obj.original.as_pointer(), 0) + 1
+                entry = cache.export(obj, materials, uv_names, generated=ordinal)
             meshes[key] = entry
             if entry is not None:
                 entry.owners = []  # this export's (a cached entry may carry an older list)

@@ -22,8 +22,10 @@ no fingerprints (~30 ms for a 1M-triangle mesh); any other export compares finge
 entry without one never serves it.
 
 Geometry that geometry nodes generate as instances has its instancer as `original` (and the
-instancer's mesh as `original.data`): it is never cached, as one key would stand for the
-instancer's own mesh and every generated one.
+instancer's mesh as `original.data`): its key adds its ordinal among the instancer's generated
+geometries in the depsgraph's order, else one key would stand for the instancer's own mesh and
+every generated one. The order holds while the instancer is not re-evaluated (tracked exports
+re-export all of them when it is listed as changed; fingerprints check the rest).
 """
 
 import dataclasses
@@ -126,17 +128,11 @@ class MeshCache:
         self._changed = changed_ids(depsgraph) if tracked and token == previous else None
         self._next_token = token
 
-    def export(self, obj, materials, uv_names=None, generated=False):
-        """generated: geometry that geometry nodes made for an instance (never cached)."""
+    def export(self, obj, materials, uv_names=None, generated=0):
+        """generated: for geometry that geometry nodes made for an instance, its ordinal (from
+        1) among its instancer's in this export; 0 for an object's own geometry."""
         from .mesh import mesh_data  # noqa: avoid an import cycle at module load
-        if generated:
-            self._count("misses", obj)
-            mesh = obj.to_mesh()
-            try:
-                return mesh_data(obj, mesh, materials, uv_names)
-            finally:
-                obj.to_mesh_clear()
-        key = self._key(obj, materials, uv_names)
+        key = self._key(obj, materials, uv_names) + (generated,)
         self._used.add(key)
         entry = self._entries.get(key)
         if entry is not None and self._changed is not None and not self._is_changed(obj):
