@@ -251,8 +251,8 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
                 ordinal = 0
                 if instance.is_instance and instance.parent is not None and \
                         instance.parent.original == obj.original:
-                    ordinal = generated[obj.original.as_pointer()] = \
-                        generated.get(obj.original.as_pointer(), 0) + 1
+                    instancer = obj.original.as_pointer()
+                    ordinal = generated[instancer] = generated.get(instancer, 0) + 1
                 entry = cache.export(obj, materials, uv_names, generated=ordinal)
             meshes[key] = entry
             if entry is not None:

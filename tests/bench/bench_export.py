@@ -60,6 +60,12 @@ CHILD = textwrap.dedent("""
     tris = heightfield(n_tris)
     sc.camera.location = (0.0, -6.0, 4.0)
     out = dict(engine=engine, triangles=tris)
+
+    def timed():  # one render: wall and process CPU time (all threads: a loaded machine inflates it less)
+        t0, c0 = time.perf_counter(), time.process_time()
+        render_to_array(sc, engine, samples=1)
+        return time.perf_counter() - t0, time.process_time() - c0
+
     if mode == "steps":  # the add-on's own steps, timed one by one (fresh caches, like a render)
         from addon.core import get_core
         from addon.export import export_scene, to_core
@@ -103,10 +109,6 @@ CHILD = textwrap.dedent("""
         os._exit(0)
     if mode == "rerender":  # persistent data on: a cold render, then two re-renders
         sc.render.use_persistent_data = True
-        def timed():
-            t0, c0 = time.perf_counter(), time.process_time()
-            render_to_array(sc, engine, samples=1)
-            return time.perf_counter() - t0, time.process_time() - c0
         out["cold_s"], out["cold_cpu_s"] = timed()
         sc.camera.location = (0.5, -6.0, 4.0)  # the camera moves, the mesh does not
         out["camera_s"], out["camera_cpu_s"] = timed()
@@ -119,10 +121,7 @@ CHILD = textwrap.dedent("""
         sys.exit(0)
     before = status("VmRSS")
     open("/proc/self/clear_refs", "w").write("5")
-    t0, c0 = time.perf_counter(), time.process_time()
-    render_to_array(sc, engine, samples=1)
-    out["render_s"] = time.perf_counter() - t0
-    out["cpu_s"] = time.process_time() - c0  # all threads: less sensitive to a loaded machine
+    out["render_s"], out["cpu_s"] = timed()
     out["peak_bytes"] = max(status("VmHWM") - before, 0)
     print("RESULT " + json.dumps(out), flush=True)
 """)
