@@ -876,7 +876,10 @@ def cmd_test(args, extra):
     setup_and_build(args)
     if not (ROOT / "tests").is_dir():
         raise UserError("tests/ does not exist")
-    pytest_args = ["tests"]
+    # Test paths among the arguments (`build.py test -- tests/test_bsdf.py`) replace the whole
+    # suite; options alone (`-k furnace`) select from all of tests/.
+    paths = [a for a in extra if not a.startswith("-") and (ROOT / a.split("::")[0]).exists()]
+    pytest_args = [] if paths else ["tests"]
     if args.sanitize:
         # A sanitizer report goes to fd 2 and then the process dies: with pytest's default fd capture
         # the report would vanish with it. Capture only Python-level output (later options override).
