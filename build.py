@@ -1016,39 +1016,87 @@ def assemble_benchmarks(stamp, started, ran, failed, extra):
 
 README_BENCH_BEGIN, README_BENCH_END = "<!-- bench-table:begin -->", "<!-- bench-table:end -->"
 
+# The README's headline of each section (docs/bench/<stem>.md): what its figure means, and the
+# text of one row of the section's first table (a dict of column header -> cell), or None to
+# leave the row out. A section not listed here, or whose columns were renamed, gets its first
+# column and its last one, so a new benchmark still shows up.
+README_BENCH_HEADLINES = {
+    "equal_time": ("Cycles' error over Pathlight's at equal time, all budgets pooled "
+                   "(above 1: Pathlight ahead)",
+                   lambda r: f"{r['Scene']} {r['all budgets pooled']}"),
+    "export": ("Cold render of a mesh (export, scene, BVH, 1 sample): Cycles' time over Pathlight's",
+               lambda r: f"{r['Triangles']} triangles {r['Cycles time / Pathlight time']}"),
+    "export_rerender": ("Re-renders: Cycles' time over Pathlight's",
+                        lambda r: f"{r['Triangles']} triangles, {r['Render']} {r['Cycles time / Pathlight time']}"),
+    "kernels": ("The specialised kernel's samples/s over the general kernel's",
+                lambda r: f"{r['Scene']} {r['Speed-up']}"),
+    "rays": ("Embree's rays/s over Pathlight's, one thread each (above 1: Embree ahead)",
+             lambda r: f"{r['Rays']} {r['Embree / Pathlight']}"),
+    "sbvh": ("Ray speed-up from spatial splits, primary / diffuse",
+             lambda r: f"{r['Scene']} {r['Speed-up, primary / diffuse']}"
+             if r["Spatial splits"].startswith("on") else None),
+    "scaling": ("Milliseconds per sample at 128x128 (peak memory)",
+                lambda r: f"{r['Triangles']} triangles {r['ms per sample at 128x128']} ms "
+                          f"({r['peak RSS (MiB)']} MiB)"),
+}
 
-def update_readme_benchmarks(sections, started, extra):
-    """The README's benchmark table: the first table of each section, under the section's heading,
-    stamped with date, machine and commit of this run (the full report stays in docs/)."""
-    readme = ROOT / "README.md"
+
+def first_table(lines):
+    """The first Markdown table in `lines`: its header cells and its rows as dicts."""
+    rows, header = [], None
+    for line in lines:
+        if not line.startswith("|"):
+            if header is not None:
+                break
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if header is None:
+            header = cells
+        elif not all(set(c) <= set("-: ") for c in cells):
+            rows.append(dict(zip(header, cells)))
+    return header or [], rows
+
+
+def bench_headline(stem, lines):
+    """(what the figure means, the section's headline figures) for the README's table."""
+    header, rows = first_table(lines)
+    if not rows:
+        return None
+    if stem in README_BENCH_HEADLINES:
+        what, fmt = README_BENCH_HEADLINES[stem]
+        try:
+            return what, "; ".join(s for s in map(fmt, rows) if s)
+        except (KeyError, AttributeError):
+            pass  # its columns changed: the generic headline below
+    return header[-1], "; ".join(f"{r.get(header[0], '')} {r.get(header[-1], '')}" for r in rows)
+
+
+def update_readme_benchmarks(sections, started, extra, readme=None):
+    """The README's benchmark table: one line per section with its headline figures, stamped with
+    date, machine and commit of this run (the full tables stay in docs/benchmarks.md)."""
+    readme = readme or ROOT / "README.md"
     text = readme.read_text()
     if README_BENCH_BEGIN not in text or README_BENCH_END not in text:
-        warn("README.md has no benchmark-table markers; its table was not updated")
+        warn(f"{readme.name} has no benchmark-table markers; its table was not updated")
         return
     body = [f"Measured by `python3 build.py bench`{' ' + ' '.join(extra) if extra else ''} on "
             f"{time.strftime('%Y-%m-%d', time.localtime(started))}, {machine_description()}, "
-            f"commit {git_commit()}. Full report: [docs/benchmarks.md](docs/benchmarks.md).", ""]
+            f"commit {git_commit()}. Full tables: [docs/benchmarks.md](docs/benchmarks.md).", "",
+            "| Benchmark | Figure | Result |", "|---|---|---|"]
     for path in sections:
-        # A section this run did not rewrite (`bench --only`, or its script failed) keeps its
-        # table, marked as older, rather than vanishing from the README.
-        stale = path.stat().st_mtime < started
         sec = path.read_text().splitlines()
         heading = next((l.lstrip("#").strip() for l in sec if l.startswith("#")), path.stem)
-        if stale:
-            heading += " (not rerun by this run: from an earlier one, see docs/benchmarks.md)"
-        table, seen = [], False
-        for line in sec:
-            if line.startswith("|"):
-                table.append(line)
-                seen = True
-            elif seen:
-                break
-        if table:
-            body += [f"**{heading}**", ""] + table + [""]
+        # A section this run did not rewrite (`bench --only`, or its script failed) keeps its
+        # line, marked as older, rather than vanishing from the README.
+        if path.stat().st_mtime < started:
+            heading += " (from an earlier run)"
+        line = bench_headline(path.stem, sec)
+        if line:
+            body.append(f"| {heading} | {line[0]} | {line[1]} |")
     head, _, rest = text.partition(README_BENCH_BEGIN)
     _, _, tail = rest.partition(README_BENCH_END)
     readme.write_text(head + README_BENCH_BEGIN + "\n" + "\n".join(body).rstrip() + "\n" + README_BENCH_END + tail)
-    log("updated the benchmark table in README.md")
+    log(f"updated the benchmark table in {readme.name}")
 
 
 def cmd_bench(args, extra):

@@ -16,3 +16,8 @@ def pytest_configure(config):
         "converged: renders millions of samples to compare two estimators at low noise; the "
         "sanitizer step of .ci/run deselects it (5x slower there), and cheaper tests run the same "
         "code paths under the sanitizer")
+    config.addinivalue_line(
+        "markers",
+        "sanitize: a test of the core module that .ci/run also runs against the AddressSanitizer "
+        "and UBSan build (`build.py test --sanitize -- -m \"sanitize and not converged\"`); set "
+        "per file with `pytestmark`: the core's own tests, not the Blender-side ones")

@@ -9,6 +9,7 @@ import pytest
 from core_scenes import core
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 N = 200_000
 CASES = [
     ("diffuse", {}),

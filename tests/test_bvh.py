@@ -13,6 +13,7 @@ import pytest
 from core_scenes import core
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 LAYOUTS = ("binary", "bvh4", "bvh8")
 HAS_AVX2 = pc.build_info()["bvh"] == "bvh8"
 

@@ -10,7 +10,8 @@ import pytest
 from core_scenes import add_object, core, look_at_matrix, quad
 
 pc = core()
-pytestmark = pytest.mark.skipif(not hasattr(pc.Camera, "generate_ray"), reason="core without thin lens")
+pytestmark = [pytest.mark.sanitize,
+              pytest.mark.skipif(not hasattr(pc.Camera, "generate_ray"), reason="core without thin lens")]
 
 EYE = np.array([1.0, -7.0, 2.0])
 TARGET = np.array([0.3, 0.0, 1.2])

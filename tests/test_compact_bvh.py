@@ -12,6 +12,7 @@ from core_scenes import core, cornell, render, uv_sphere
 from test_bvh import awkward_rays, awkward_soup, brute_force_closest, hostile_soup, noisy_sphere
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 HAS_AVX2 = pc.build_info()["bvh"] == "bvh8"
 WIDE = ("bvh4", "bvh8")
 

@@ -8,6 +8,7 @@ import pytest
 from core_scenes import add_object, camera, core, cornell, quad, region_means, render, uv_sphere
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 
 def furnace_scene(albedo, smooth=True):

@@ -6,6 +6,7 @@ import pytest
 from core_scenes import add_object, camera, core, cornell, quad, render, uv_sphere
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 W = 32          # image size of the plane tests
 H_CAM = 4.0     # camera height above the plane z = 0, looking straight down
 ALBEDO = 0.5

@@ -7,7 +7,8 @@ import pytest
 from core_scenes import camera, core, cornell, look_at_matrix
 
 pc = core()
-pytestmark = pytest.mark.skipif(not hasattr(pc.Scene, "set_shader"), reason="core without live edits")
+pytestmark = [pytest.mark.sanitize,
+              pytest.mark.skipif(not hasattr(pc.Scene, "set_shader"), reason="core without live edits")]
 
 
 def _render(scene, samples=2, size=16, **kw):

@@ -7,6 +7,7 @@ import pytest
 from core_scenes import add_object, camera, core, quad, render, uv_sphere
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 
 def furnace(program, samples=64, size=32, world=1.0, **kw):

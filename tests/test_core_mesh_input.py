@@ -8,6 +8,7 @@ import pytest
 from core_scenes import core, render_lit_mesh
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 
 def bumpy_grid(n=20, seed=4):

@@ -6,7 +6,8 @@ import pytest
 from core_scenes import add_object, camera, core, quad, render, run_session, uv_sphere
 
 pc = core()
-pytestmark = pytest.mark.skipif(not hasattr(pc.RenderSettings(), "passes"), reason="core without render passes")
+pytestmark = [pytest.mark.sanitize,
+              pytest.mark.skipif(not hasattr(pc.RenderSettings(), "passes"), reason="core without render passes")]
 
 EYE = (0.0, -5.0, 0.0)  # cameras look along +y from here at the plane y = 0
 ALL = ["Depth", "Normal", "Position", "Emit", "Env", "Denoising Normal", "Denoising Albedo", "Sample Count"]

@@ -10,6 +10,7 @@ from core_scenes import add_object, core, cornell, quad, random_rotation, region
 from test_core_lights import W, check, expected, plane_scene, solid_angle_ref
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 
 def light_scene(pos, tris, groups=True, matrix=None, emission=2.0, extra=None):

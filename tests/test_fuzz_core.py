@@ -36,6 +36,7 @@ from hypothesis.extra import numpy as hnp  # noqa: E402
 from core_scenes import REPO, core  # noqa: E402
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 FUZZ_DIR = Path(__file__).resolve().parent / "fuzz"
 LONG = "PATHLIGHT_FUZZ_EXAMPLES" in os.environ
 EXAMPLES = int(os.environ.get("PATHLIGHT_FUZZ_EXAMPLES", "500"))

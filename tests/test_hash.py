@@ -6,7 +6,7 @@ import pytest
 
 from blender_util import core_available
 
-pytestmark = pytest.mark.skipif(not core_available(), reason="core module not built")
+pytestmark = [pytest.mark.sanitize, pytest.mark.skipif(not core_available(), reason="core module not built")]
 
 
 def _core():

@@ -11,6 +11,7 @@ import pytest
 from core_scenes import add_object, camera, core, cornell, quad, random_rotation as rotation, region_means, render, uv_sphere
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 MODES = ["merged", "shared", "dynamic"]
 

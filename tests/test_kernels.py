@@ -7,6 +7,7 @@ import pytest
 from core_scenes import add_object, camera, core, cornell, quad, run_session, uv_sphere
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",

@@ -15,6 +15,7 @@ import pytest
 from core_scenes import REPO, add_object, camera, core, cornell, quad, render
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 TESTS = REPO / "tests"
 CLEAN_ERRORS = (ValueError, RuntimeError, TypeError)  # TypeError: pybind11's wrong-argument-type error
 

@@ -26,6 +26,7 @@ import pytest
 from core_scenes import add_object, camera, core, cornell, look_at_matrix, quad, random_rotation, region_means, render, uv_sphere
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 
 # ---------------------------------------------------------------- helpers

@@ -21,6 +21,7 @@ from core_scenes import core, random_rotation, sliver_room
 from test_bvh import awkward_rays, awkward_soup, commit_cancelled_from_another_thread, noisy_sphere
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 LAYOUTS = ("binary", "bvh4", "bvh8")
 BUDGET = 0.3  # BvhBuildOptions::max_duplicates
 
