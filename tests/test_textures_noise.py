@@ -1,0 +1,325 @@
+"""Noise, Wave, Magic and White Noise textures against Cycles in the same bpy (issue 21).
+
+Each image is a grid of unit planes seen by an orthographic camera from above, one texture
+setup per plane, its output as the plane's emission (bounces=1, so a pixel is the emission
+seen). Both engines use the box filter at its smallest width (0.01 px) and one sample, so
+each pixel's sample lands within 0.005 px of its centre and the two images compare per pixel
+(Cycles' later samples spread over the whole pixel whatever the box's width: measured, 4
+samples differ from 1 by ~1e-3 on a smooth noise, so more samples would only add that);
+plane edges lie on pixel boundaries. Outputs go through value * 0.25 + 2 (Math / Vector Math
+Multiply Add, the same in both engines) so that negative or large values stay emissive: the
+agreement limit (mean absolute difference under 1e-3 of the value range) is relative, so the
+affine map leaves it unchanged."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import core_available, load_addon, render_to_array
+import material_scenes as ms
+
+load_addon()
+
+pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+
+PX = 24  # pixels per plane side
+TINY_BOX = dict(pixel_filter_type='BOX', filter_width=0.01)
+
+
+def _emit(mat, nodes, links, out, socket):
+    """Emission of socket * 0.25 + 2 (a value or a colour)."""
+    is_color = socket.type in ('RGBA', 'VECTOR')
+    if is_color:
+        m = nodes.new("ShaderNodeVectorMath")
+        m.operation = 'MULTIPLY_ADD'
+        m.inputs[1].default_value = (0.25, 0.25, 0.25)
+        m.inputs[2].default_value = (2.0, 2.0, 2.0)
+    else:
+        m = nodes.new("ShaderNodeMath")
+        m.operation = 'MULTIPLY_ADD'
+        m.inputs[1].default_value = 0.25
+        m.inputs[2].default_value = 2.0
+    links.new(socket, m.inputs[0])
+    em = nodes.new("ShaderNodeEmission")
+    links.new(m.outputs[0], em.inputs["Color"])
+    links.new(em.outputs[0], out.inputs["Surface"])
+
+
+def texture_material(name, node_type, output, settings=None, inputs=None, setup=None):
+    """A material emitting `output` of one texture node with the given properties and inputs;
+    setup(nodes, links, node) may link more."""
+    mat, nodes, links, out = ms.new_material(name)
+    node = nodes.new(node_type)
+    for key, value in (settings or {}).items():
+        setattr(node, key, value)
+    by_id = {s.identifier: s for s in node.inputs}  # inputs[name] skips unavailable sockets
+    for key, value in (inputs or {}).items():
+        by_id[key].default_value = value
+    if setup is not None:
+        setup(nodes, links, node)
+    _emit(mat, nodes, links, out, node.outputs[output])
+    return mat
+
+
+def grid_scene(make_materials, cols=None):
+    """An empty scene with one unit plane per material of make_materials() in a grid, seen
+    from above."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    materials = make_materials()
+    n = len(materials)
+    cols = cols or math.ceil(math.sqrt(n))
+    rows = math.ceil(n / cols)
+    for i, mat in enumerate(materials):
+        r, c = divmod(i, cols)
+        ms.add_plane(f"P{i}", 1.0, mat, location=(c - (cols - 1) / 2.0, (rows - 1) / 2.0 - r, 0.0))
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    cam.data.type = 'ORTHO'
+    cam.data.ortho_scale = float(max(cols, rows))
+    cam.location = (0.0, 0.0, 5.0)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    scene.render.resolution_x = cols * PX
+    scene.render.resolution_y = rows * PX
+    scene.render.resolution_percentage = 100
+    return scene, rows, cols
+
+
+def render_grid(make_materials, cols=None):
+    """(Pathlight, Cycles, rows, cols) images of the grid of make_materials()' materials."""
+    images = []
+    for engine in ("PATHLIGHT", "CYCLES"):
+        scene, rows, cols = grid_scene(make_materials, cols)
+        images.append(render_to_array(scene, engine, samples=1, max_bounces=1, **TINY_BOX))
+    return images[0], images[1], rows, cols
+
+
+def cell(img, i, rows, cols):
+    r, c = divmod(i, cols)
+    return img[r * PX:(r + 1) * PX, c * PX:(c + 1) * PX, :3]
+
+
+def assert_cells_agree(ours, cycles, rows, cols, labels, limit=1e-3):
+    """Per plane: the mean absolute difference under `limit` of the plane's value range (at
+    least the map's 0.25 of a unit range's tenth, so a flat plane is not divided by ~0)."""
+    report = []
+    for i, label in enumerate(labels):
+        a, b = cell(ours, i, rows, cols), cell(cycles, i, rows, cols)
+        assert np.isfinite(a).all(), label
+        assert b.min() > 0.0, f"{label}: Cycles' output left the emissive range"
+        value_range = max(float(b.max() - b.min()), 0.025)
+        err = float(np.abs(a - b).mean()) / value_range
+        report.append((label, err, value_range / 0.25))
+    bad = [r for r in report if not r[1] < limit]
+    assert not bad, "\n".join(f"{l}: {e:.2e} of range {v:.3f}" for l, e, v in report)
+    return report
+
+
+def noise(name, output="Fac", dims="3D", ntype='FBM', normalize=True, setup=None, **inputs):
+    base = {"Scale": 2.0, "Detail": 2.5, "Roughness": 0.6, "Lacunarity": 2.2, "W": 0.37}
+    base.update(inputs)
+    return texture_material(name, "ShaderNodeTexNoise", output,
+                            dict(noise_dimensions=dims, noise_type=ntype, normalize=normalize),
+                            base, setup)
+
+
+def check(make, labels, cols=None, limit=1e-3):
+    ours, cycles, rows, cols = render_grid(make, cols)
+    return assert_cells_agree(ours, cycles, rows, cols, labels, limit)
+
+
+DIMS = ("1D", "2D", "3D", "4D")
+
+
+def test_noise_fbm_dimensions_normalize_distortion_color():
+    variants = (("normalized", {}), ("raw", dict(normalize=False)),
+                ("distorted", dict(Distortion=0.7)), ("color", dict(output="Color")))
+    labels = [f"fBM {d} {v}" for d in DIMS for v, _ in variants]
+
+    def make():
+        return [noise(f"N{d}{v}", dims=d, **kw) for d in DIMS for v, kw in variants]
+    check(make, labels, cols=4)
+
+
+FRACTALS = (("MULTIFRACTAL", dict(Roughness=0.5)),
+            ("HETERO_TERRAIN", dict(Offset=0.5, Roughness=0.5)),
+            ("HYBRID_MULTIFRACTAL", dict(Offset=0.7, Gain=1.2)),
+            ("RIDGED_MULTIFRACTAL", dict(Offset=1.0, Gain=2.0, Detail=3.0)))
+
+
+def test_noise_fractal_types_in_every_dimension():
+    labels = [f"{t} {d}" for t, _ in FRACTALS for d in DIMS]
+
+    def make():
+        return [noise(f"F{t}{d}", dims=d, ntype=t, Detail=kw.pop("Detail", 3.3), **kw)
+                for t, kw0 in FRACTALS for d in DIMS for kw in (dict(kw0),)]
+    check(make, labels, cols=4)
+
+
+def test_noise_fractal_types_distortion_and_color():
+    labels = [f"{t} {x}" for t, _ in FRACTALS for x in ("distorted 2D", "color 3D")]
+
+    def make():
+        out = []
+        for t, kw in FRACTALS:
+            out.append(noise(f"D{t}", dims="2D", ntype=t, Distortion=0.5, **kw))
+            out.append(noise(f"C{t}", output="Color", dims="3D", ntype=t, **kw))
+        return out
+    check(make, labels, cols=4)
+
+
+def _generated_component(nodes, links, axis):
+    coords = nodes.new("ShaderNodeTexCoord")
+    sep = nodes.new("ShaderNodeSeparateXYZ")
+    links.new(coords.outputs["Generated"], sep.inputs[0])
+    return sep.outputs[axis]
+
+
+def _math(nodes, links, op, a, b):
+    m = nodes.new("ShaderNodeMath")
+    m.operation = op
+    for i, v in enumerate((a, b)):
+        if isinstance(v, (int, float)):
+            m.inputs[i].default_value = v
+        else:
+            links.new(v, m.inputs[i])
+    return m.outputs[0]
+
+
+def test_noise_linked_inputs():
+    """Every input linked from the shading point (Scale, W, Detail, Roughness, Lacunarity,
+    Offset, Gain, Distortion, and Vector from Object coordinates through a Mapping)."""
+    def link(name, lo, span, axis="X"):
+        def setup(nodes, links, node):
+            v = _math(nodes, links, 'MULTIPLY_ADD' if False else 'MULTIPLY',
+                      _generated_component(nodes, links, axis), span)
+            v = _math(nodes, links, 'ADD', v, lo)
+            links.new(v, {s.identifier: s for s in node.inputs}[name])
+        return setup
+
+    def vector_setup(nodes, links, node):
+        coords = nodes.new("ShaderNodeTexCoord")
+        mapping = nodes.new("ShaderNodeMapping")
+        mapping.inputs["Location"].default_value = (0.3, -0.2, 0.1)
+        mapping.inputs["Rotation"].default_value = (0.2, 0.1, 0.4)
+        mapping.inputs["Scale"].default_value = (1.5, 1.0, 0.7)
+        links.new(coords.outputs["Object"], mapping.inputs["Vector"])
+        links.new(mapping.outputs["Vector"], node.inputs["Vector"])
+
+    cases = (("scale", {}, link("Scale", 1.0, 2.0)),
+             ("w 1D", dict(dims="1D"), link("W", 0.0, 3.0)),
+             ("w 4D", dict(dims="4D"), link("W", 0.0, 1.5, "Y")),
+             ("detail", {}, link("Detail", 0.0, 4.0)),
+             ("roughness", {}, link("Roughness", 0.2, 0.7, "Y")),
+             ("lacunarity", {}, link("Lacunarity", 1.5, 1.5)),
+             ("offset", dict(ntype='HETERO_TERRAIN', Roughness=0.5), link("Offset", 0.0, 1.0)),
+             ("gain", dict(ntype='RIDGED_MULTIFRACTAL', Offset=1.0), link("Gain", 0.5, 2.0, "Y")),
+             ("distortion", {}, link("Distortion", 0.0, 2.0)),
+             ("vector", {}, vector_setup))
+    labels = [c[0] for c in cases]
+
+    def make():
+        return [noise(f"L{label}", setup=setup, **kw) for label, kw, setup in cases]
+    check(make, labels, cols=5)
+
+
+BANDS = ("X", "Y", "Z", "DIAGONAL")
+RINGS = ("X", "Y", "Z", "SPHERICAL")
+PROFILES = ("SIN", "SAW", "TRI")
+
+
+def wave(name, wave_type, direction, profile, output="Fac", setup=None, **inputs):
+    base = {"Scale": 0.8, "Distortion": 0.0, "Detail": 2.0, "Detail Scale": 1.0,
+            "Detail Roughness": 0.5, "Phase Offset": 0.0}
+    base.update(inputs)
+    settings = dict(wave_type=wave_type, wave_profile=profile)
+    settings["bands_direction" if wave_type == 'BANDS' else "rings_direction"] = direction
+    return texture_material(name, "ShaderNodeTexWave", output, settings, base, setup)
+
+
+def test_wave_bands_and_rings_every_direction_and_profile():
+    cases = [(t, d, p) for t, dirs in (('BANDS', BANDS), ('RINGS', RINGS)) for d in dirs
+             for p in PROFILES]
+    labels = [" ".join(c) for c in cases]
+
+    def make():
+        # Z bands and rings see the plane's constant generated z: offset it in the Mapping-free
+        # way, a phase, so the band is not flat at a profile's edge.
+        return [wave(f"W{i}", *c, **{"Phase Offset": 0.4}) for i, c in enumerate(cases)]
+    check(make, labels, cols=6)
+
+
+def test_wave_distortion_detail_phase_and_color():
+    cases = (("bands distorted", ('BANDS', "X", 'SIN'), dict(Distortion=4.0)),
+             ("bands detail", ('BANDS', "DIAGONAL", 'TRI'),
+              {"Distortion": 3.0, "Detail": 4.5, "Detail Scale": 2.0, "Detail Roughness": 0.7}),
+             ("rings distorted", ('RINGS', "SPHERICAL", 'SAW'),
+              {"Distortion": 2.0, "Detail": 0.0, "Detail Scale": 3.0}),
+             ("rings phase", ('RINGS', "Z", 'SIN'), {"Phase Offset": 2.5, "Scale": 1.3}),
+             ("color", ('BANDS', "Y", 'SIN'), dict(output="Color", Distortion=1.0)),
+             ("linked scale", ('BANDS', "X", 'TRI'), dict(setup=_linked_wave_scale)))
+    labels = [c[0] for c in cases]
+
+    def make():
+        return [wave(f"V{i}", *args, **dict(kw)) for i, (_, args, kw) in enumerate(cases)]
+    check(make, labels, cols=3)
+
+
+def _linked_wave_scale(nodes, links, node):
+    links.new(_math(nodes, links, 'ADD', _generated_component(nodes, links, "Y"), 0.5),
+              node.inputs["Scale"])
+
+
+def magic(name, depth, output="Fac", **inputs):
+    base = {"Scale": 1.0, "Distortion": 1.0}
+    base.update(inputs)
+    return texture_material(name, "ShaderNodeTexMagic", output, dict(turbulence_depth=depth),
+                            base)
+
+
+def test_magic_depths_distortion_and_color():
+    cases = [(f"depth {d}", d, {}) for d in range(11)]
+    cases += [("color depth 2", 2, dict(output="Color")),
+              ("color depth 5", 5, dict(output="Color", Distortion=2.0, Scale=0.5)),
+              ("no distortion", 0, dict(Distortion=0.0, Scale=0.7)),
+              ("distortion 3", 4, dict(Distortion=3.0, Scale=0.4)),
+              ("scale 2", 1, dict(Scale=2.0))]
+    labels = [c[0] for c in cases]
+
+    def make():
+        return [magic(f"M{i}", d, **kw) for i, (_, d, kw) in enumerate(cases)]
+    check(make, labels, cols=4)
+
+
+def test_white_noise_every_dimension_value_and_color():
+    """White noise hashes the coordinates' bits: fed snapped coordinates (Vector Math Snap,
+    Math Floor for W), each cell has one value, the same in both engines."""
+    def setup(dims):
+        def f(nodes, links, node):
+            coords = nodes.new("ShaderNodeTexCoord")
+            snap = nodes.new("ShaderNodeVectorMath")
+            snap.operation = 'SNAP'
+            snap.inputs[1].default_value = (0.125, 0.125, 0.125)
+            # Off the cell edges: the plane's generated z (0.5, give or take the hit point's
+            # rounding) would otherwise sit on a cell boundary.
+            shift = nodes.new("ShaderNodeVectorMath")
+            shift.inputs[1].default_value = (0.03, 0.03, 0.03)
+            links.new(coords.outputs["Generated"], shift.inputs[0])
+            links.new(shift.outputs[0], snap.inputs[0])
+            links.new(snap.outputs[0], {s.identifier: s for s in node.inputs}["Vector"])
+            w = _math(nodes, links, 'FLOOR',
+                      _math(nodes, links, 'MULTIPLY', _generated_component(nodes, links, "X"),
+                            6.0), 0.0)
+            links.new(w, {s.identifier: s for s in node.inputs}["W"])
+        return f
+
+    cases = [(d, out) for d in DIMS for out in ("Value", "Color")]
+    labels = [f"{d} {out}" for d, out in cases]
+
+    def make():
+        return [texture_material(f"WN{i}", "ShaderNodeTexWhiteNoise", out,
+                                 dict(noise_dimensions=d), {}, setup(d))
+                for i, (d, out) in enumerate(cases)]
+    check(make, labels, cols=4)
