@@ -323,3 +323,167 @@ def test_white_noise_every_dimension_value_and_color():
                                  dict(noise_dimensions=d), {}, setup(d))
                 for i, (d, out) in enumerate(cases)]
     check(make, labels, cols=4)
+
+
+# ---------------------------------------------------------------- the compiled programs
+
+def _compile(mat):
+    from addon.export.material import convert_material
+    from blender_util import Warnings
+    warnings = Warnings()
+    data = convert_material(mat, warnings, None, None, False)
+    return data.program, warnings
+
+
+def _ops(program, name):
+    return [op for op in program if op[0] == name]
+
+
+def test_compiled_ops_read_generated_coordinates_and_warn_nothing():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    for node_type, op, output in (("ShaderNodeTexNoise", "tex_noise", "Color"),
+                                  ("ShaderNodeTexWave", "tex_wave", "Fac"),
+                                  ("ShaderNodeTexMagic", "tex_magic", "Color")):
+        program, warnings = _compile(texture_material(op, node_type, output))
+        assert not warnings, warnings
+        (tex,) = _ops(program, op)
+        # The unlinked Vector: Generated coordinates (registers are allocated by now, so the
+        # op that writes the texture's vector register last before it).
+        writer = [o for o in program[:program.index(tex)] if o[0] != "closure" and o[1] == tex[2]]
+        assert writer[-1][0] == "generated", program
+    # 1D noise reads only W: no coordinates, so a constant W leaves the program non-varying.
+    program, warnings = _compile(noise("N1", dims="1D"))
+    assert not warnings and not _ops(program, "generated")
+    assert _ops(program, "tex_noise")[0][2] is None
+    # White Noise's unlinked Vector is (0, 0, 0), as in Cycles (no implicit coordinates).
+    program, warnings = _compile(texture_material("WN", "ShaderNodeTexWhiteNoise", "Value"))
+    assert not warnings and not _ops(program, "generated")
+    (tex,) = _ops(program, "tex_white_noise")
+    vec = [o for o in program[:program.index(tex)] if o[0] != "closure" and o[1] == tex[2]][-1]
+    assert vec[0] == "const" and tuple(vec[2][:3]) == (0.0, 0.0, 0.0)
+
+
+def test_constant_inputs_are_not_folded_and_bump_offsets_reach_the_texture():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    mat, nodes, links, out = ms.new_material("Bumpy")
+    tex = nodes.new("ShaderNodeTexNoise")
+    bump = nodes.new("ShaderNodeBump")
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    links.new(tex.outputs["Fac"], bump.inputs["Height"])
+    links.new(bump.outputs["Normal"], d.inputs["Normal"])
+    links.new(d.outputs[0], out.inputs["Surface"])
+    program, warnings = _compile(mat)
+    assert not warnings, warnings
+    # The height at the point and at the two offsets: three texture ops on three coordinates.
+    assert len(_ops(program, "tex_noise")) == 3
+    assert sorted(op[2:] for op in _ops(program, "generated")) == [(), (1,), (2,)]
+    # A texture of constants is still emitted (the core evaluates it once).
+    program, _ = _compile(noise("Const", dims="1D"))
+    assert len(_ops(program, "tex_noise")) == 1
+
+
+# ---------------------------------------------------------------- the core's ops
+
+def _core_emission(ops, out):
+    """(emission at the image centre, scene features) of a program on a plane."""
+    from core_scenes import camera, core, quad, render
+    pc = core()
+    s = pc.Scene()
+    m = s.add_shader("tex", list(ops) + [("closure", "emission", None, {"color": out})])
+    pos, tris = quad((-5, 0, -5), (10, 0, 0), (0, 0, 10))
+    s.add_instance(s.add_mesh(pos, tris, None, None, [m]), np.eye(4, dtype=np.float32))
+    s.set_camera(camera(pc, (0, -20, 0), (0, 0, 0)))
+    img, _ = render(pc, s, 8, 8, samples=1)
+    return img[4, 4, :3], s.stats()["features"]
+
+
+def _noise_op(dst, dims, ntype="FBM", color=False):
+    return ("tex_noise", dst, 0, 1, 2, 3, 4, 5, 6, 7, 8, dims, ntype, True, color)
+
+
+def _noise_inputs(vector=(0.3, 0.6, 0.2), w=0.37, scale=2.0, detail=2.5, roughness=0.6,
+                  lacunarity=2.2, offset=0.0, gain=1.0, distortion=0.0):
+    values = (vector, w, scale, detail, roughness, lacunarity, offset, gain, distortion)
+    return [("const", i, tuple(v) if isinstance(v, tuple) else (v,)) for i, v in enumerate(values)]
+
+
+def test_core_texture_of_constants_is_evaluated_once():
+    """A texture of constant inputs does not make the program varying (its closures are
+    cached once); the value depends on the inputs the mode reads and on nothing else."""
+    base, features = _core_emission(_noise_inputs() + [_noise_op(9, 3, color=True)], 9)
+    assert "varying shaders" not in features and "mesh lights" in features
+    assert np.isfinite(base).all() and 0.0 < base.min() and len(set(base.tolist())) == 3
+    same, _ = _core_emission(_noise_inputs(w=5.0) + [_noise_op(9, 3, color=True)], 9)  # 3D: W unused
+    assert (same == base).all()
+    moved, _ = _core_emission(_noise_inputs(vector=(0.31, 0.6, 0.2)) + [_noise_op(9, 3, color=True)], 9)
+    assert not (moved == base).all()
+    w4, _ = _core_emission(_noise_inputs(w=5.0) + [_noise_op(9, 4, color=True)], 9)
+    w4b, _ = _core_emission(_noise_inputs(w=5.3) + [_noise_op(9, 4, color=True)], 9)
+    assert not (w4 == w4b).all()
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf"), 1e30, -1e30])
+def test_core_textures_survive_non_finite_and_huge_inputs(bad):
+    """Every input of every texture at NaN, infinities and huge values: no crash, no hang
+    (Detail is bounded by the node's 15), and the emission the film gets stays finite."""
+    programs = [_noise_inputs(vector=(bad, bad, bad), w=bad) + [_noise_op(9, d)] for d in (1, 2, 3, 4)]
+    for field in ("scale", "detail", "roughness", "lacunarity", "offset", "gain", "distortion"):
+        programs.append(_noise_inputs(**{field: bad}) + [_noise_op(9, 3, "HYBRID_MULTIFRACTAL")])
+    consts = [("const", i, (bad,)) for i in range(7)]
+    programs.append(consts + [("tex_wave", 9, 0, 1, 2, 3, 4, 5, 6, "RINGS", "SPHERICAL", "SAW")])
+    programs.append(consts + [("tex_magic", 9, 0, 1, 2, 10, True)])
+    programs.append(consts + [("tex_white_noise", 9, 0, 1, 4, True)])
+    for ops in programs:
+        value, _ = _core_emission(ops, 9)
+        assert np.isfinite(value).all(), ops[-1]
+
+
+# ---------------------------------------------------------------- Bump fed by a Noise
+
+def test_bump_with_a_noise_height_looks_like_cycles():
+    """A Bump node fed by a Noise texture on a lit diffuse plane. Ours differentiates the
+    height along the triangle's edges at a tiny step, Cycles along the ray differentials (a
+    pixel's footprint), so Cycles' normal is the slope averaged over about a pixel: the
+    images agree as a whole, and per pixel only loosely."""
+    def build():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        mat, nodes, links, out = ms.new_material("Bumped")
+        tex = nodes.new("ShaderNodeTexNoise")
+        tex.inputs["Scale"].default_value = 4.0
+        tex.inputs["Detail"].default_value = 1.0
+        bump = nodes.new("ShaderNodeBump")
+        bump.inputs["Strength"].default_value = 1.0
+        bump.inputs["Distance"].default_value = 0.5
+        d = nodes.new("ShaderNodeBsdfDiffuse")
+        links.new(tex.outputs["Fac"], bump.inputs["Height"])
+        links.new(bump.outputs["Normal"], d.inputs["Normal"])
+        links.new(d.outputs[0], out.inputs["Surface"])
+        ms.add_plane("Ground", 2.0, mat)
+        sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
+        sun.data.energy = 3.0
+        sun.data.angle = 0.0
+        sun.rotation_euler = (math.radians(50), 0.0, math.radians(30))
+        scene.collection.objects.link(sun)
+        cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+        cam.data.type = 'ORTHO'
+        cam.data.ortho_scale = 2.0
+        cam.location = (0.0, 0.0, 5.0)
+        scene.collection.objects.link(cam)
+        scene.camera = cam
+        scene.render.resolution_x = scene.render.resolution_y = 48
+        scene.render.resolution_percentage = 100
+        return scene
+    ours = render_to_array(build(), "PATHLIGHT", samples=1, max_bounces=1, **TINY_BOX)[..., :3]
+    cycles = render_to_array(build(), "CYCLES", samples=1, max_bounces=1, **TINY_BOX)[..., :3]
+    flat = float(cycles.mean())
+    print(f"bump: Cycles mean {flat:.4f}, std {float(cycles.std()):.4f}")
+    assert flat > 0.05 and float(cycles.std()) > 0.05 * flat  # the bump shows
+    ratio = float(ours.mean()) / flat
+    per_pixel = float(np.abs(ours - cycles).mean()) / float(cycles.max() - cycles.min())
+    corr = float(np.corrcoef(ours.mean(axis=2).ravel(), cycles.mean(axis=2).ravel())[0, 1])
+    print(f"bump: mean ratio {ratio:.4f}, per-pixel MAD {per_pixel:.2e} of range, "
+          f"correlation {corr:.4f}")
+    assert abs(ratio - 1.0) < 0.01
+    assert corr > 0.995
+    assert per_pixel < 0.01
