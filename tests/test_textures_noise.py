@@ -351,6 +351,11 @@ def test_compiled_ops_read_generated_coordinates_and_warn_nothing():
         # op that writes the texture's vector register last before it).
         writer = [o for o in program[:program.index(tex)] if o[0] != "closure" and o[1] == tex[2]]
         assert writer[-1][0] == "generated", program
+    # The node's own Texture Mapping (sidebar) is ignored, with a warning.
+    mat = texture_material("Mapped", "ShaderNodeTexWave", "Fac")
+    next(n for n in mat.node_tree.nodes if n.type == 'TEX_WAVE').texture_mapping.scale[0] = 2.0
+    program, warnings = _compile(mat)
+    assert len(warnings) == 1 and "Texture Mapping" in warnings[0], warnings
     # 1D noise reads only W: no coordinates, so a constant W leaves the program non-varying.
     program, warnings = _compile(noise("N1", dims="1D"))
     assert not warnings and not _ops(program, "generated")

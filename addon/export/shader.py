@@ -1208,6 +1208,12 @@ class ShaderCompiler:
     def texture_vector(self, node, ctx):
         """A texture node's Vector: the linked value, or (unlinked) Generated coordinates, as
         Cycles links them in (its ops follow the Bump node's offsets)."""
+        tm = node.texture_mapping  # the sidebar's Texture Mapping panel, rarely changed
+        if (any(tm.translation) or any(tm.rotation) or tuple(tm.scale) != (1.0, 1.0, 1.0)
+                or tm.use_min or tm.use_max or tm.mapping != 'FLAT'
+                or (tm.mapping_x, tm.mapping_y, tm.mapping_z) != ('X', 'Y', 'Z')):
+            self.problem(f"'{node.name}': its Texture Mapping settings are not supported "
+                         "(ignored; a Mapping node works)")
         vec = self.value(node.inputs["Vector"], ctx, "vector")
         return self.object_coords("generated") if vec is None else vec
 
