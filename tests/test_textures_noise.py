@@ -9,7 +9,14 @@ samples differ from 1 by ~1e-3 on a smooth noise, so more samples would only add
 plane edges lie on pixel boundaries. Outputs go through value * 0.25 + 2 (Math / Vector Math
 Multiply Add, the same in both engines) so that negative or large values stay emissive: the
 agreement limit (mean absolute difference under 1e-3 of the value range) is relative, so the
-affine map leaves it unchanged."""
+affine map leaves it unchanged.
+
+What difference remains comes from where the samples land, not from the textures: Cycles'
+single sample sits at the same place whatever the seed, ours within the 0.01 px box, and two
+of our renders with different seeds differ from each other by as much as from Cycles (e.g.
+1.25e-3 against 0.95e-3 of the range on Magic at distortion 2, 24 px planes). So setups keep
+their features several pixels wide (32 px planes, moderate scales), where that stays under
+the limit; at higher frequencies the same algorithms measure worse only through it."""
 
 import math
 
@@ -24,7 +31,7 @@ load_addon()
 
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
 
-PX = 24  # pixels per plane side
+PX = 32  # pixels per plane side
 TINY_BOX = dict(pixel_filter_type='BOX', filter_width=0.01)
 
 
@@ -112,6 +119,8 @@ def assert_cells_agree(ours, cycles, rows, cols, labels, limit=1e-3):
         value_range = max(float(b.max() - b.min()), 0.025)
         err = float(np.abs(a - b).mean()) / value_range
         report.append((label, err, value_range / 0.25))
+    for label, err, value_range in report:  # the measured agreement, with -s
+        print(f"  {label}: {err:.2e} of range {value_range:.3f}")
     bad = [r for r in report if not r[1] < limit]
     assert not bad, "\n".join(f"{l}: {e:.2e} of range {v:.3f}" for l, e, v in report)
     return report
@@ -120,6 +129,10 @@ def assert_cells_agree(ours, cycles, rows, cols, labels, limit=1e-3):
 def noise(name, output="Fac", dims="3D", ntype='FBM', normalize=True, setup=None, **inputs):
     base = {"Scale": 2.0, "Detail": 2.5, "Roughness": 0.6, "Lacunarity": 2.2, "W": 0.37}
     base.update(inputs)
+    if dims == "1D" and setup is None:  # W across the plane (1D noise reads nothing else)
+        def setup(nodes, links, node):
+            w = _math(nodes, links, 'MULTIPLY', _generated_component(nodes, links, "X"), 1.5)
+            links.new(_math(nodes, links, 'ADD', w, 0.2), {s.identifier: s for s in node.inputs}["W"])
     return texture_material(name, "ShaderNodeTexNoise", output,
                             dict(noise_dimensions=dims, noise_type=ntype, normalize=normalize),
                             base, setup)
@@ -245,9 +258,11 @@ def test_wave_bands_and_rings_every_direction_and_profile():
     labels = [" ".join(c) for c in cases]
 
     def make():
-        # Z bands and rings see the plane's constant generated z: offset it in the Mapping-free
-        # way, a phase, so the band is not flat at a profile's edge.
-        return [wave(f"W{i}", *c, **{"Phase Offset": 0.4}) for i, c in enumerate(cases)]
+        # The plane's generated z is constant: Z bands and rings read coordinates tilted by
+        # a Mapping, the others the unlinked (Generated) Vector.
+        return [wave(f"W{i}", *c, setup=_tilted_vector if c[1] == "Z" else None,
+                     **{"Phase Offset": 0.4, "Scale": 0.5 if c[1] == "Z" else 0.8})
+                for i, c in enumerate(cases)]
     check(make, labels, cols=6)
 
 
@@ -265,6 +280,14 @@ def test_wave_distortion_detail_phase_and_color():
     def make():
         return [wave(f"V{i}", *args, **dict(kw)) for i, (_, args, kw) in enumerate(cases)]
     check(make, labels, cols=3)
+
+
+def _tilted_vector(nodes, links, node):
+    coords = nodes.new("ShaderNodeTexCoord")
+    mapping = nodes.new("ShaderNodeMapping")
+    mapping.inputs["Rotation"].default_value = (0.7, 0.4, 0.0)
+    links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
+    links.new(mapping.outputs["Vector"], node.inputs["Vector"])
 
 
 def _linked_wave_scale(nodes, links, node):
@@ -357,7 +380,7 @@ def test_compiled_ops_read_generated_coordinates_and_warn_nothing():
     program, warnings = _compile(mat)
     assert len(warnings) == 1 and "Texture Mapping" in warnings[0], warnings
     # 1D noise reads only W: no coordinates, so a constant W leaves the program non-varying.
-    program, warnings = _compile(noise("N1", dims="1D"))
+    program, warnings = _compile(noise("N1", dims="1D", setup=lambda *links: None))
     assert not warnings and not _ops(program, "generated")
     assert _ops(program, "tex_noise")[0][2] is None
     # White Noise's unlinked Vector is (0, 0, 0), as in Cycles (no implicit coordinates).
@@ -383,7 +406,7 @@ def test_constant_inputs_are_not_folded_and_bump_offsets_reach_the_texture():
     assert len(_ops(program, "tex_noise")) == 3
     assert sorted(op[2:] for op in _ops(program, "generated")) == [(), (1,), (2,)]
     # A texture of constants is still emitted (the core evaluates it once).
-    program, _ = _compile(noise("Const", dims="1D"))
+    program, _ = _compile(noise("Const", dims="1D", setup=lambda *links: None))
     assert len(_ops(program, "tex_noise")) == 1
 
 
