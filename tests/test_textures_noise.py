@@ -201,16 +201,29 @@ def _math(nodes, links, op, a, b):
     return m.outputs[0]
 
 
+def _link_input(name, lo, span, axis="X"):
+    """A setup linking input `name` to lo + span * (a generated coordinate)."""
+    def setup(nodes, links, node):
+        v = _math(nodes, links, 'MULTIPLY', _generated_component(nodes, links, axis), span)
+        v = _math(nodes, links, 'ADD', v, lo)
+        links.new(v, {s.identifier: s for s in node.inputs}[name])
+    return setup
+
+
+def _far_vector(nodes, links, node):
+    """Generated coordinates moved far out (Cycles repeats noise every 100000 per axis)."""
+    coords = nodes.new("ShaderNodeTexCoord")
+    add = nodes.new("ShaderNodeVectorMath")
+    add.inputs[1].default_value = (250000.3, -180000.7, 33333.3)
+    links.new(coords.outputs["Generated"], add.inputs[0])
+    links.new(add.outputs[0], node.inputs["Vector"])
+
+
 def test_noise_linked_inputs():
     """Every input linked from the shading point (Scale, W, Detail, Roughness, Lacunarity,
-    Offset, Gain, Distortion, and Vector from Object coordinates through a Mapping)."""
-    def link(name, lo, span, axis="X"):
-        def setup(nodes, links, node):
-            v = _math(nodes, links, 'MULTIPLY_ADD' if False else 'MULTIPLY',
-                      _generated_component(nodes, links, axis), span)
-            v = _math(nodes, links, 'ADD', v, lo)
-            links.new(v, {s.identifier: s for s in node.inputs}[name])
-        return setup
+    Offset, Gain, Distortion, and Vector from Object coordinates through a Mapping), and
+    coordinates far from the origin."""
+    link = _link_input
 
     def vector_setup(nodes, links, node):
         coords = nodes.new("ShaderNodeTexCoord")
@@ -230,7 +243,8 @@ def test_noise_linked_inputs():
              ("offset", dict(ntype='HETERO_TERRAIN', Roughness=0.5), link("Offset", 0.0, 1.0)),
              ("gain", dict(ntype='RIDGED_MULTIFRACTAL', Offset=1.0), link("Gain", 0.5, 2.0, "Y")),
              ("distortion", {}, link("Distortion", 0.0, 2.0)),
-             ("vector", {}, vector_setup))
+             ("vector", {}, vector_setup),
+             ("far vector", dict(Scale=1.0, Detail=1.0), _far_vector))
     labels = [c[0] for c in cases]
 
     def make():
@@ -293,6 +307,36 @@ def _tilted_vector(nodes, links, node):
 def _linked_wave_scale(nodes, links, node):
     links.new(_math(nodes, links, 'ADD', _generated_component(nodes, links, "Y"), 0.5),
               node.inputs["Scale"])
+
+
+def test_wave_and_magic_linked_inputs():
+    link = _link_input
+    cases = (("wave distortion", lambda: wave("LW0", 'BANDS', "X", 'SIN', Detail=2.0,
+                                              setup=link("Distortion", 0.0, 4.0, "Y"))),
+             ("wave detail", lambda: wave("LW1", 'BANDS', "DIAGONAL", 'TRI', Distortion=3.0,
+                                          setup=link("Detail", 0.0, 5.0))),
+             ("wave detail scale", lambda: wave("LW2", 'RINGS', "SPHERICAL", 'SIN', Distortion=2.0,
+                                                setup=link("Detail Scale", 0.5, 2.0, "Y"))),
+             ("wave detail roughness", lambda: wave(
+                 "LW3", 'RINGS', "X", 'TRI', Distortion=2.0, Detail=3.0,
+                 setup=link("Detail Roughness", 0.2, 0.8))),
+             ("wave phase", lambda: wave("LW4", 'BANDS', "Y", 'SAW',
+                                         setup=link("Phase Offset", 0.0, 3.0))),
+             ("wave vector", lambda: wave("LW5", 'RINGS', "Z", 'SIN', Scale=0.5,
+                                          setup=_tilted_vector)),
+             ("magic scale", lambda: _linked_magic("LM0", link("Scale", 0.5, 1.0, "Y"))),
+             ("magic distortion", lambda: _linked_magic("LM1", link("Distortion", 0.5, 1.5))),
+             ("magic vector", lambda: _linked_magic("LM2", _tilted_vector)))
+    labels = [c[0] for c in cases]
+
+    def make():
+        return [build() for _, build in cases]
+    check(make, labels, cols=3)
+
+
+def _linked_magic(name, setup):
+    return texture_material(name, "ShaderNodeTexMagic", "Color", dict(turbulence_depth=3),
+                            {"Scale": 1.0, "Distortion": 1.0}, setup)
 
 
 def magic(name, depth, output="Fac", **inputs):
