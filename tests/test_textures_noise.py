@@ -382,14 +382,17 @@ def test_white_noise_every_dimension_value_and_color():
             links.new(w, {s.identifier: s for s in node.inputs}["W"])
         return f
 
-    cases = [(d, out) for d in DIMS for out in ("Value", "Color")]
-    labels = [f"{d} {out}" for d, out in cases]
+    cases = [(d, out, True) for d in DIMS for out in ("Value", "Color")]
+    # Unlinked, the Vector is (0, 0, 0) in Cycles (no implicit coordinates): one colour.
+    cases += [("3D", "Color", False), ("4D", "Value", False)]
+    labels = [f"{d} {out}" + ("" if linked else " unlinked") for d, out, linked in cases]
 
     def make():
         return [texture_material(f"WN{i}", "ShaderNodeTexWhiteNoise", out,
-                                 dict(noise_dimensions=d), {}, setup(d))
-                for i, (d, out) in enumerate(cases)]
-    check(make, labels, cols=4)
+                                 dict(noise_dimensions=d), {"W": 0.3},
+                                 setup(d) if linked else None)
+                for i, (d, out, linked) in enumerate(cases)]
+    check(make, labels, cols=5)
 
 
 # ---------------------------------------------------------------- the compiled programs

@@ -1214,7 +1214,8 @@ class ShaderCompiler:
                 or (tm.mapping_x, tm.mapping_y, tm.mapping_z) != ('X', 'Y', 'Z')):
             self.problem(f"'{node.name}': its Texture Mapping settings are not supported "
                          "(ignored; a Mapping node works)")
-        vec = self.value(node.inputs["Vector"], ctx, "vector")
+        socket = next(s for s in node.inputs if s.identifier == "Vector")
+        vec = self.value(socket, ctx, "vector")
         return self.object_coords("generated") if vec is None else vec
 
     def _texture_floats(self, node, names, ctx):
@@ -1254,7 +1255,8 @@ class ShaderCompiler:
         dims = int(node.noise_dimensions[0])
         vec = None
         if dims != 1:
-            v = self.value(node.inputs["Vector"], ctx, "vector")
+            v = self.value(next(s for s in node.inputs if s.identifier == "Vector"), ctx,
+                           "vector")
             # Cycles gives this node no implicit coordinates: unlinked, its Vector is (0, 0, 0).
             vec = self.reg(v if v is not None else const_vector((0, 0, 0)))
         (w,) = self._texture_floats(node, ("W",), ctx)
