@@ -256,15 +256,6 @@ Vec3 noise_nd(P<N> p, NoiseType type, bool normalize, bool color, const NoiseInp
 
 }  // namespace
 
-float signed_noise(int dims, const float* p) {
-  switch (dims) {
-    case 1: return snoise<1>({p[0]});
-    case 2: return snoise<2>({p[0], p[1]});
-    case 3: return snoise<3>({p[0], p[1], p[2]});
-    default: return snoise<4>({p[0], p[1], p[2], p[3]});
-  }
-}
-
 Vec3 noise_texture(int dims, NoiseType type, bool normalize, bool color, const NoiseInputs& raw) {
   NoiseInputs in = raw;
   in.detail = std::isfinite(in.detail) ? clampf(in.detail, 0.0f, 15.0f) : 0.0f;

@@ -30,7 +30,4 @@ Vec3 magic_texture(Vec3 co, float scale, int depth, float distortion);
 // White Noise Texture in `dims` (1-4) dimensions: Value in all three, or its Color.
 Vec3 white_noise_texture(int dims, bool color, Vec3 co, float w);
 
-// Perlin noise as Cycles' snoise_*d: signed, roughly [-1, 1], repeating every 100000 per axis.
-float signed_noise(int dims, const float* p);
-
 }  // namespace pl
