@@ -1203,6 +1203,66 @@ class ShaderCompiler:
         return self.emit(kind, "vector_math", self.reg(a), self.reg(b), self.reg(c),
                          self.reg(scale), op)
 
+    # -------------------------------------------------- procedural textures (issue 21)
+
+    def texture_vector(self, node, ctx):
+        """A texture node's Vector: the linked value, or (unlinked) Generated coordinates, as
+        Cycles links them in (its ops follow the Bump node's offsets)."""
+        tm = node.texture_mapping  # the sidebar's Texture Mapping panel, rarely changed
+        if (any(tm.translation) or any(tm.rotation) or tuple(tm.scale) != (1.0, 1.0, 1.0)
+                or tm.use_min or tm.use_max or tm.mapping != 'FLAT'
+                or (tm.mapping_x, tm.mapping_y, tm.mapping_z) != ('X', 'Y', 'Z')):
+            self.problem(f"'{node.name}': its Texture Mapping settings are not supported "
+                         "(ignored; a Mapping node works)")
+        socket = next(s for s in node.inputs if s.identifier == "Vector")
+        vec = self.value(socket, ctx, "vector")
+        return self.object_coords("generated") if vec is None else vec
+
+    def _texture_floats(self, node, names, ctx):
+        """Registers of float inputs, found by identifier: inputs[name] skips the sockets
+        that the node's mode makes unavailable (W of 3D noise), which still read as their
+        values (the core ignores what the mode does not use)."""
+        by_id = {s.identifier: s for s in node.inputs}
+        return [self.reg(self.value(by_id[name], ctx, "float")) for name in names]
+
+    def noise_texture(self, node, out, ctx):
+        """Cycles' Noise Texture (always emitted: the core evaluates a non-varying program once)."""
+        dims = int(node.noise_dimensions[0])
+        vec = None if dims == 1 else self.reg(self.texture_vector(node, ctx))  # 1D reads only W
+        floats = self._texture_floats(node, ("W", "Scale", "Detail", "Roughness", "Lacunarity",
+                                             "Offset", "Gain", "Distortion"), ctx)
+        color = out.identifier == "Color"
+        return self.emit("color" if color else "float", "tex_noise", vec, *floats, dims,
+                         node.noise_type, bool(node.normalize), color)
+
+    def wave_texture(self, node, out, ctx):
+        vec = self.reg(self.texture_vector(node, ctx))
+        floats = self._texture_floats(node, ("Scale", "Distortion", "Detail", "Detail Scale",
+                                             "Detail Roughness", "Phase Offset"), ctx)
+        direction = node.bands_direction if node.wave_type == 'BANDS' else node.rings_direction
+        kind = "color" if out.identifier == "Color" else "float"  # Color is (Fac, Fac, Fac)
+        return self.emit(kind, "tex_wave", vec, *floats, node.wave_type, direction,
+                         node.wave_profile)
+
+    def magic_texture(self, node, out, ctx):
+        vec = self.reg(self.texture_vector(node, ctx))
+        floats = self._texture_floats(node, ("Scale", "Distortion"), ctx)
+        color = out.identifier == "Color"
+        return self.emit("color" if color else "float", "tex_magic", vec, *floats,
+                         int(node.turbulence_depth), color)
+
+    def white_noise_texture(self, node, out, ctx):
+        dims = int(node.noise_dimensions[0])
+        vec = None
+        if dims != 1:
+            v = self.value(next(s for s in node.inputs if s.identifier == "Vector"), ctx,
+                           "vector")
+            # Cycles gives this node no implicit coordinates: unlinked, its Vector is (0, 0, 0).
+            vec = self.reg(v if v is not None else const_vector((0, 0, 0)))
+        (w,) = self._texture_floats(node, ("W",), ctx)
+        color = out.identifier == "Color"
+        return self.emit("color" if color else "float", "tex_white_noise", vec, w, dims, color)
+
     _VALUE_NODES = {
         'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
         'LIGHT_PATH': light_path, 'VALTORGB': color_ramp, 'CURVE_RGB': rgb_curves,
@@ -1211,6 +1271,8 @@ class ShaderCompiler:
         'SEPXYZ': separate_xyz, 'COMBXYZ': combine_xyz, 'HUE_SAT': hue_saturation,
         'GAMMA': gamma, 'BRIGHTCONTRAST': bright_contrast, 'CLAMP': clamp_node,
         'MAP_RANGE': map_range, 'VECT_MATH': vector_math,
+        'TEX_NOISE': noise_texture, 'TEX_WAVE': wave_texture, 'TEX_MAGIC': magic_texture,
+        'TEX_WHITE_NOISE': white_noise_texture,
     }
 
     def tex_coord(self, node, oid):
@@ -1546,7 +1608,8 @@ _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "gene
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
              "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
-             "map_range": 6, "map_range_vector": 6, "vector_math": 4}
+             "map_range": 6, "map_range_vector": 6, "vector_math": 4,
+             "tex_noise": 9, "tex_wave": 7, "tex_magic": 3, "tex_white_noise": 2}
 
 
 def _reads(op):

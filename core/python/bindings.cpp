@@ -332,6 +332,66 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
   return self.scene->add_mesh(std::move(mesh));
 }
 
+// The Noise, Wave, Magic and White Noise texture ops (scene/tex_noise.h); false: not one of them.
+bool parse_noise_texture_op(const std::string& op, const py::tuple& t, ShaderOp& o) {
+  auto regno = [](const py::handle& h) -> int16_t {
+    if (h.is_none()) return kNoReg;
+    const int64_t r = h.cast<int64_t>();
+    if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
+    return int16_t(r);
+  };
+  auto need = [&](size_t n) {
+    if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
+  };
+  auto index_in = [](const std::vector<std::string>& v, const py::handle& h, const char* what) {
+    const std::string x = h.cast<std::string>();
+    for (size_t i = 0; i < v.size(); ++i)
+      if (v[i] == x) return uint8_t(i);
+    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+  };
+  auto dims = [](const py::handle& h) {
+    const int64_t d = h.cast<int64_t>();
+    if (d < 1 || d > 4) throw std::invalid_argument("texture dimensions must be 1 to 4");
+    return uint8_t(d);
+  };
+  if (op == "tex_noise") {  // vector, w, scale, detail, roughness, lacunarity, offset, gain, distortion
+    need(15);
+    o.code = OpCode::TexNoise;
+    for (int k = 0; k < 9; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    o.sub = dims(t[11]);
+    o.ext = index_in({"MULTIFRACTAL", "FBM", "HYBRID_MULTIFRACTAL", "RIDGED_MULTIFRACTAL", "HETERO_TERRAIN"}, t[12],
+                     "noise type");
+    o.clamp = t[13].cast<bool>();  // normalize
+    o.index = t[14].cast<bool>() ? 1 : 0;  // the Color output
+  } else if (op == "tex_wave") {  // vector, scale, distortion, detail, detail scale, detail roughness, phase
+    need(12);
+    o.code = OpCode::TexWave;
+    for (int k = 0; k < 7; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    o.sub = index_in({"BANDS", "RINGS"}, t[9], "wave type");
+    o.ext = o.sub == 0 ? index_in({"X", "Y", "Z", "DIAGONAL"}, t[10], "bands direction")
+                       : index_in({"X", "Y", "Z", "SPHERICAL"}, t[10], "rings direction");
+    o.index = index_in({"SIN", "SAW", "TRI"}, t[11], "wave profile");
+  } else if (op == "tex_magic") {  // vector, scale, distortion
+    need(7);
+    o.code = OpCode::TexMagic;
+    for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    const int64_t depth = t[5].cast<int64_t>();
+    if (depth < 0 || depth > 10) throw std::invalid_argument("magic texture depth must be 0 to 10");
+    o.sub = uint8_t(depth);
+    o.index = t[6].cast<bool>() ? 1 : 0;
+  } else if (op == "tex_white_noise") {  // vector, w
+    need(6);
+    o.code = OpCode::TexWhiteNoise;
+    o.in[0] = regno(t[2]);
+    o.in[1] = regno(t[3]);
+    o.sub = dims(t[4]);
+    o.index = t[5].cast<bool>() ? 1 : 0;
+  } else {
+    return false;
+  }
+  return true;
+}
+
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
 ShaderProgram parse_program(const PyScene& self, const py::list& program) {
   ShaderProgram prog;
@@ -583,7 +643,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.index = t[4].cast<int32_t>();
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
       prog.uses_uv = prog.varying = true;
-    } else {
+    } else if (!parse_noise_texture_op(op, t, o)) {
       throw std::invalid_argument("unknown shader op '" + op + "'");
     }
     prog.ops.push_back(o);

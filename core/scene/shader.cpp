@@ -1,5 +1,7 @@
 #include "scene/shader.h"
 
+#include "scene/tex_noise.h"
+
 namespace pl {
 namespace {
 
@@ -715,6 +717,35 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         }
         break;
       }
+      case OpCode::TexNoise: {
+        NoiseInputs in;
+        in.co = reg(op.in[0]).xyz();
+        in.w = reg(op.in[1]).x;
+        in.scale = reg(op.in[2]).x;
+        in.detail = reg(op.in[3]).x;
+        in.roughness = reg(op.in[4]).x;
+        in.lacunarity = reg(op.in[5]).x;
+        in.offset = reg(op.in[6]).x;
+        in.gain = reg(op.in[7]).x;
+        in.distortion = reg(op.in[8]).x;
+        d = f4(noise_texture(op.sub, NoiseType(op.ext), op.clamp, op.index != 0, in));
+        break;
+      }
+      case OpCode::TexWave: {
+        const float f = wave_texture(op.sub, op.ext, op.index, reg(op.in[0]).xyz(), reg(op.in[1]).x, reg(op.in[2]).x,
+                                     reg(op.in[3]).x, reg(op.in[4]).x, reg(op.in[5]).x, reg(op.in[6]).x);
+        d = {f, f, f, 1.0f};
+        break;
+      }
+      case OpCode::TexMagic: {
+        const Vec3 c = magic_texture(reg(op.in[0]).xyz(), reg(op.in[1]).x, op.sub, reg(op.in[2]).x);
+        const float fac = (c.x + c.y + c.z) * (1.0f / 3.0f);  // Cycles' average()
+        d = op.index != 0 ? f4(c) : Float4{fac, fac, fac, 1.0f};
+        break;
+      }
+      case OpCode::TexWhiteNoise:
+        d = f4(white_noise_texture(op.sub, op.index != 0, reg(op.in[0]).xyz(), reg(op.in[1]).x));
+        break;
       case OpCode::Diffuse: {
         Frame f;
         const DiffuseBsdf d = diffuse_lobe(op.in[2], f);
