@@ -122,8 +122,16 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
                                  normals=mesh.normals, normal_indices=mesh.normal_indices,
                                  material_indices=mesh.material_indices,
                                  material_slots=[ids[i] for i in slots], **uvs)
-        for matrix in mesh.matrices:
-            scene.add_instance(mesh_id, matrix)
+        infos = mesh.infos if len(mesh.infos) == len(mesh.matrices) else [None] * len(mesh.matrices)
+        names = [name for name, _ in mesh.owners] if len(mesh.owners) == len(mesh.matrices) else None
+        for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
+            if info is None:
+                scene.add_instance(mesh_id, matrix)
+                continue
+            color, pass_index, random_id = info
+            if random_id is None:
+                random_id = pc.object_random_id(names[k]) if names else 0
+            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id)
     add_lights(scene, data.lights, warn)
     set_world(scene, data, warn)
     set_camera(pc, scene, data.camera)

@@ -20,6 +20,9 @@ class MeshData:
     matrices: list = field(default_factory=list)  # float32 (4, 4) object-to-world, one per instance
     # Per matrix: (object name, made by an instancer), so live edits can find an object's instance.
     owners: list = field(default_factory=list)
+    # Per matrix, what the Object Info node reads: (RGBA colour, pass index, random id), the
+    # random id None for a plain object (the core derives it from the name, as Cycles).
+    infos: list = field(default_factory=list)
     uvs: dict = field(default_factory=dict)  # global uv-set index -> float32 (T, 3, 2) per corner
     missing_uv_maps: list = field(default_factory=list)  # UV map names its materials need
     # Blender's texture space ((location), (size)) for generated coordinates, or None.
@@ -256,13 +259,22 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
                 entry = cache.export(obj, materials, uv_names, generated=ordinal)
             meshes[key] = entry
             if entry is not None:
-                entry.owners = []  # this export's (a cached entry may carry an older list)
+                entry.owners = []  # this export's (a cached entry may carry older lists)
+                entry.infos = []
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.owners.append((obj.name, bool(instance.is_instance)))
+            entry.infos.append(object_info(instance))
     if cache is not None:
         cache.end_export()
     return [m for m in meshes.values() if m is not None]
+
+
+def object_info(instance):
+    """(RGBA colour, pass index, random id or None) of a depsgraph object instance."""
+    obj = instance.object
+    random_id = (instance.random_id & 0xFFFFFFFF) if instance.is_instance else None
+    return tuple(obj.color), int(obj.pass_index), random_id
 
 
 def _export_object(obj, materials, uv_names=None):

@@ -602,9 +602,10 @@ def _fmt(x):
 class ShaderCompiler:
     """Compiles one material's node tree. Use `compile_material`."""
 
-    def __init__(self, images, uv_sets):
+    def __init__(self, images, uv_sets, material_index=0):
         self.images = images
         self.uv_sets = uv_sets
+        self.material_index = material_index  # the material's pass index (Object Info)
         self.ops = []  # with virtual registers
         self.nreg = 0
         self.const_regs = {}  # const tuple -> virtual register
@@ -1029,6 +1030,21 @@ class ShaderCompiler:
                      "type is not known when shading)")
         return ZERO
 
+    _OBJECT_INFO = {"Location": ("vector", "LOCATION"), "Color": ("color", "COLOR"),
+                    "Alpha": ("float", "ALPHA"), "Object Index": ("float", "OBJECT_INDEX"),
+                    "Random": ("float", "RANDOM")}
+
+    def object_info(self, node, out, ctx):
+        """Object Info: the hit instance's location, colour, alpha, pass index and random
+        number (per instance in the core); Material Index is this material's pass index."""
+        if out.identifier == "Material Index":
+            return const_float(float(self.material_index))
+        kind, which = self._OBJECT_INFO.get(out.identifier, (None, None))
+        if kind is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit(kind, "object_info", which)
+
     def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
              kind="color"):
         if src.is_const:
@@ -1205,7 +1221,8 @@ class ShaderCompiler:
 
     _VALUE_NODES = {
         'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
-        'LIGHT_PATH': light_path, 'VALTORGB': color_ramp, 'CURVE_RGB': rgb_curves,
+        'LIGHT_PATH': light_path, 'OBJECT_INFO': object_info, 'VALTORGB': color_ramp,
+        'CURVE_RGB': rgb_curves,
         'SEPARATE_COLOR': separate_color, 'SEPRGB': separate_color, 'SEPHSV': separate_color,
         'COMBINE_COLOR': combine_color, 'COMBRGB': combine_color, 'COMBHSV': combine_color,
         'SEPXYZ': separate_xyz, 'COMBXYZ': combine_xyz, 'HUE_SAT': hue_saturation,
@@ -1541,7 +1558,7 @@ class ShaderCompiler:
 
 # How many register operands (after the destination) each value op has; None = none given.
 _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
-             "light_path": 0,
+             "light_path": 0, "object_info": 0,
              "object_normal": 0, "mapping": 1, "image": 1,
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
@@ -1613,4 +1630,4 @@ def compile_material(mat, images, uv_sets):
     output = tree.get_output_node('CYCLES')
     if output is None:
         return None
-    return ShaderCompiler(images, uv_sets).compile(output, mat.name)
+    return ShaderCompiler(images, uv_sets, material_index=mat.pass_index).compile(output, mat.name)

@@ -12,6 +12,7 @@
 #include "render/session.h"
 #include "util/big_alloc.h"
 #include "util/hash.h"
+#include "util/lookup3.h"
 
 namespace py = pybind11;
 using namespace pl;
@@ -438,6 +439,11 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.code = OpCode::LightPath;
       o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY"}, name_of(t[2]), "light path output");
       prog.varying = true;
+    } else if (op == "object_info") {
+      need(3);
+      o.code = OpCode::ObjectInfo;
+      o.sub = index_in({"LOCATION", "COLOR", "ALPHA", "OBJECT_INDEX", "RANDOM"}, name_of(t[2]), "object info output");
+      prog.varying = true;  // per instance
     } else if (op == "object_normal") {
       need(2);
       o.code = OpCode::ObjectNormal;
@@ -1006,6 +1012,17 @@ PYBIND11_MODULE(pathlight_core, m) {
       "Blender does; faces of 5+ corners get a fan (counted: the caller replaces those). corners=False: None "
       "instead of the corner indices (not computed).");
   m.def(
+      "object_random_id",
+      [](const std::string& name) {
+        // Cycles' id of an object that is not an instance: hash_string (i * 37 + c over the
+        // name's UTF-8 bytes, unsigned: what Blender's Cycles gives for non-ASCII names) then
+        // lookup3 of (that, 0).
+        uint32_t h = 0;
+        for (const char c : name) h = h * 37u + uint32_t(uint8_t(c));
+        return lookup3::hash(h, 0u);
+      },
+      py::arg("name"), "Cycles' random id of a (non-instanced) object named `name`.");
+  m.def(
       "hash_buffer",
       [](const py::object& data, uint64_t seed) {
         Py_buffer view;  // any C-contiguous buffer (numpy arrays, bytes); others raise BufferError
@@ -1400,11 +1417,25 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Removes every analytic light; the next commit() rebuilds only the light distribution.")
       .def(
           "add_instance",
-          [](PyScene& self, uint32_t mesh, const FloatArray& matrix) {
+          [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
+             uint32_t random_id) {
             self.check_editable();
-            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"));
+            ObjectInfo info;
+            if (!color.is_none()) {
+              const auto c = color.cast<std::vector<float>>();
+              if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("instance color takes 3 or 4 values");
+              auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+              info.color = {clean(c[0]), clean(c[1]), clean(c[2]), c.size() == 4 ? clean(c[3]) : 1.0f};
+            }
+            info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
+            info.random = object_random(random_id);
+            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info);
           },
-          py::arg("mesh"), py::arg("matrix"))
+          py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
+          py::arg("random_id") = 0u,
+          "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
+          "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32).")
+
       .def(
           "set_instance_transform",
           [](PyScene& self, uint32_t index, const FloatArray& matrix) {

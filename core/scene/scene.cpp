@@ -119,9 +119,9 @@ uint32_t Scene::add_mesh(MeshData mesh) {
   return static_cast<uint32_t>(meshes_.size() - 1);
 }
 
-void Scene::add_instance(uint32_t mesh, const Mat4& m) {
+void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info) {
   if (mesh >= meshes_.size()) throw std::invalid_argument("add_instance: unknown mesh id");
-  instances_.push_back({mesh, m});
+  instances_.push_back({mesh, m, info});
   committed_ = false;
   geometry_dirty_ = true;
 }
@@ -366,6 +366,7 @@ void Scene::build_instances() {
       have_texspace[inst.mesh] = 1;
     }
     object_coords_.push_back(make_object_coords(inst.matrix, texspace[inst.mesh].first, texspace[inst.mesh].second));
+    object_coords_.back().info = inst.info;
     in.to_world = inst.matrix;
     const Mat4& m = inst.matrix;
     const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};

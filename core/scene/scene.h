@@ -55,6 +55,7 @@ Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emi
 struct Instance {
   uint32_t mesh;
   Mat4 matrix;
+  ObjectInfo info;
 };
 
 // What the integrator needs about a hit point.
@@ -128,7 +129,7 @@ class Scene {
   size_t material_count() const { return materials_.size(); }
   size_t image_count() const { return images_.size(); }
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
-  void add_instance(uint32_t mesh, const Mat4& m);
+  void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {});
   size_t instance_count() const { return instances_.size(); }
   // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
   // commit() rebuilds only the top level and the lights; else the merged geometry.

@@ -518,6 +518,21 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = {v, v, v, 1.0f};
         break;
       }
+      case OpCode::ObjectInfo: {
+        // Cycles' svm_node_object_info: the hit instance's location, colour, alpha, pass index
+        // and random number (Material Index is a constant of the material, folded by the add-on).
+        static const ObjectInfo none;
+        const ObjectInfo& info = ctx.object ? ctx.object->info : none;
+        switch (op.sub) {
+          case 0: d = f4(ctx.object ? ctx.object->to_world.point(Vec3(0.0f)) : Vec3(0.0f), 0.0f); break;
+          case 1: d = {info.color.x, info.color.y, info.color.z, 1.0f}; break;
+          default: {
+            const float v = op.sub == 2 ? info.color.w : op.sub == 3 ? info.pass_index : info.random;
+            d = {v, v, v, 1.0f};
+          }
+        }
+        break;
+      }
       case OpCode::ObjectNormal: {
         Vec3 n = ctx.ns;
         if (ctx.object && ctx.object->valid) {

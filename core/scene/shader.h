@@ -37,7 +37,7 @@ float srgb_to_linear(float c);
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
   Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
-  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath,
+  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
@@ -125,12 +125,25 @@ struct ClosureList {
   }
 };
 
-// Per instance: what the Texture Coordinate node's Object, Generated and Normal outputs need.
+// Per instance: what the Object Info node reads (Blender's object colour, pass index and
+// random number; the location comes from the matrix).
+struct ObjectInfo {
+  Float4 color{1.0f, 1.0f, 1.0f, 1.0f};  // Object ▸ Viewport Display ▸ Color, with alpha
+  float pass_index = 0.0f;
+  float random = 0.0f;  // in [0, 1]: Cycles' random_id * 2^-32
+};
+// Object Info's Random from a 32-bit id as Cycles makes it: (float)id / (float)0xFFFFFFFF,
+// whose divisor rounds to 2^32 in float.
+inline float object_random(uint32_t id) { return float(id) * (1.0f / 4294967296.0f); }
+
+// Per instance: what the Texture Coordinate node's Object, Generated and Normal outputs and the
+// Object Info node need.
 struct ObjectCoords {
   Mat4 to_object;                  // world -> object space (the inverse of the instance matrix)
   Mat4 to_world;                   // object -> world (object normals: n_obj ~ to_world^T n)
   Vec3 gen_scale{1.0f}, gen_offset{0.0f};  // object -> generated: p * gen_scale + gen_offset
   bool valid = false;              // false: the matrix is singular (world coordinates used)
+  ObjectInfo info;
 };
 // Cycles' generated coordinates: the object-space position in the mesh's texture space
 // (Blender's auto texture space is its bounding box), mapped to [0, 1]:

@@ -1,0 +1,141 @@
+"""The Object Info node against Cycles in the same bpy (issue 21): planes whose Emission is one
+of its outputs, for plain objects (colour, alpha, pass index, location, the random number Cycles
+derives from the object's name) and for geometry-nodes instances (Blender's per-instance random
+id), rendered by both engines and compared pixel by pixel."""
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
+import material_scenes as ms
+
+load_addon()
+
+pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+
+# Tiny box filter: every sample at the pixel centre, so both engines see the same points.
+CENTRES = dict(pixel_filter_type='BOX', filter_width=0.01)
+
+
+def info_material(output, scale=1.0, name=None, offset=0.0):
+    """Emission = Object Info's `output` * `scale` + `offset` (emission is positive in
+    Pathlight, Cycles lets it go negative), Material Index from pass_index 3."""
+    mat, nodes, links, out = ms.new_material(name or f"Info{output}")
+    mat.pass_index = 3
+    info = nodes.new("ShaderNodeObjectInfo")
+    emit = nodes.new("ShaderNodeEmission")
+    src = info.outputs[output]
+    if scale != 1.0 or offset != 0.0:
+        mul = nodes.new("ShaderNodeVectorMath")
+        mul.operation = 'MULTIPLY_ADD'
+        mul.inputs[1].default_value = (scale,) * 3
+        mul.inputs[2].default_value = (offset,) * 3
+        links.new(src, mul.inputs[0])
+        src = mul.outputs[0]
+    links.new(src, emit.inputs["Color"])
+    links.new(emit.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def top_view(resolution):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.resolution_percentage = 100
+    scene.render.resolution_x = scene.render.resolution_y = resolution
+    ms.set_world((0.0, 0.0, 0.0))
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    cam.data.type = 'ORTHO'
+    cam.data.ortho_scale = 4.0
+    cam.location = (0.0, 0.0, 5.0)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    return scene
+
+
+PLANES = [  # name, location, colour, pass index
+    ("Alpha", (-1.0, -1.0, 0.0), (0.9, 0.2, 0.1, 0.25), 2),
+    ("Beta", (1.0, -1.0, 0.0), (0.1, 0.7, 0.3, 0.5), 5),
+    ("Gamma Ω", (-1.0, 1.0, 0.0), (0.2, 0.3, 0.95, 0.75), 7),  # a non-ASCII name
+    ("Delta.001", (1.0, 1.0, 0.0), (0.5, 0.5, 0.5, 1.0), 0),
+]
+
+
+def planes_scene(output, scale, offset):
+    def build():
+        scene = top_view(32)
+        mat = info_material(output, scale, offset=offset)
+        for name, loc, color, index in PLANES:
+            obj = ms.add_plane(name, 1.8, mat, location=loc)
+            obj.color = color
+            obj.pass_index = index
+        return scene
+    return build
+
+
+def render_both(build, samples=1):
+    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=1, **CENTRES)
+    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=1, **CENTRES)
+    return ours, cycles
+
+
+@pytest.mark.parametrize("output, scale, offset", [
+    ("Color", 1.0, 0.0), ("Alpha", 1.0, 0.0), ("Object Index", 0.1, 0.0),
+    ("Material Index", 0.1, 0.0), ("Random", 1.0, 0.0), ("Location", 0.4, 0.5),
+])
+def test_object_info_of_plain_objects(output, scale, offset):
+    ours, cycles = render_both(planes_scene(output, scale, offset))
+    diff = np.abs(ours[..., :3] - cycles[..., :3])
+    assert diff.mean() < 1e-4, f"mean abs difference {diff.mean():.2e}"
+    assert diff.max() < 1e-3, f"max abs difference {diff.max():.2e}"
+    if output != "Material Index":  # the planes tell apart
+        quads = [ours[8, 8, :3], ours[8, 24, :3], ours[24, 8, :3], ours[24, 24, :3]]
+        assert len({tuple(np.round(q, 4)) for q in quads}) == 4, quads
+    else:
+        assert np.allclose(ours[8, 8, :3], 0.3, atol=1e-6)
+
+
+def instances_scene():
+    """A 4x4 grid of small planes as geometry-nodes instances on one object."""
+    scene = top_view(32)
+    mat = info_material("Random", name="InstRandom")
+    # The instanced plane: a separate object, hidden, referenced by the node tree.
+    tile = ms.add_plane("Tile", 0.9, mat)
+    tile.hide_render = True
+    host = ms.add_plane("Host", 0.01, None)
+    tree = bpy.data.node_groups.new("Scatter", 'GeometryNodeTree')
+    tree.interface.new_socket("Geometry", in_out='INPUT', socket_type='NodeSocketGeometry')
+    tree.interface.new_socket("Geometry", in_out='OUTPUT', socket_type='NodeSocketGeometry')
+    n = tree.nodes
+    grid = n.new("GeometryNodeMeshGrid")
+    grid.inputs["Size X"].default_value = grid.inputs["Size Y"].default_value = 3.0
+    grid.inputs["Vertices X"].default_value = grid.inputs["Vertices Y"].default_value = 4
+    inst = n.new("GeometryNodeInstanceOnPoints")
+    obj_info = n.new("GeometryNodeObjectInfo")
+    obj_info.inputs["Object"].default_value = tile
+    out = n.new("NodeGroupOutput")
+    tree.links.new(grid.outputs["Mesh"], inst.inputs["Points"])
+    tree.links.new(obj_info.outputs["Geometry"], inst.inputs["Instance"])
+    tree.links.new(inst.outputs["Instances"], out.inputs[0])
+    mod = host.modifiers.new("Scatter", 'NODES')
+    mod.node_group = tree
+    return scene
+
+
+def test_object_info_random_of_instances():
+    ours, cycles = render_both(instances_scene)
+    diff = np.abs(ours[..., :3] - cycles[..., :3])
+    assert diff.mean() < 1e-4, f"mean abs difference {diff.mean():.2e}"
+    # Sixteen instances, sixteen different random numbers.
+    centres = np.linspace(4, 28, 4).astype(int)
+    values = {round(float(ours[y, x, 0]), 5) for y in centres for x in centres}
+    assert len(values) == 16, values
+
+
+def test_object_random_id_is_cycles_name_hash():
+    pc = load_addon().core.get_core()
+    # The same name, the same id; a different name, another one (the render test above checks
+    # the values against Cycles, a non-ASCII name included).
+    assert pc.object_random_id("Cube") == pc.object_random_id("Cube")
+    ids = {pc.object_random_id(n) for n in ("Cube", "Cube.001", "Gamma Ω", "")}
+    assert len(ids) == 4
