@@ -97,6 +97,9 @@ def _same_geometry(old, new):
         arrays = [(a.positions, b.positions), (a.triangles, b.triangles), (a.normals, b.normals),
                   (a.normal_indices, b.normal_indices), (a.material_indices, b.material_indices)]
         arrays += [(a.uvs[k], b.uvs[k]) for k in a.uvs]
+        if a.attributes.keys() != b.attributes.keys():
+            return False
+        arrays += [(a.attributes[k], b.attributes[k]) for k in a.attributes]
         # `is`: the mesh cache hands out its own arrays, never copies.
         if not all(x is y for x, y in arrays) or a.texspace != b.texspace:
             return False

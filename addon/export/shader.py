@@ -587,7 +587,9 @@ def _load_image(image, problems):
 class CompiledShader:
     program: list  # tuples of docs/core_api.md; image operands index ImageTable.images
     volume_absorption: tuple = None  # ((r, g, b), density) or None
-    uv_sets: dict = field(default_factory=dict)  # k -> UV map name this material reads
+    # k -> UV map name this material reads, or for attribute sets (numbered with the uv sets)
+    # ("attr", name) (the Attribute node) / ("color", name) (Color Attribute; "" = the render one).
+    uv_sets: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)  # what was approximated/unsupported
 
 
@@ -916,6 +918,40 @@ class ShaderCompiler:
             self.cache[key] = self.emit("vector", "uv", k, *extra)
         return self.cache[key]
 
+    def attribute_value(self, kind, name, output, what):
+        """Val of a mesh attribute's output ("COLOR", "FAC" or "ALPHA"): kind "attr" (by name)
+        or "color" (a colour attribute; "" = the mesh's render colour attribute)."""
+        k = self.uv_sets.index((kind, name))
+        if k is None:
+            self.problem(f"{what}: more than {MAX_UV_SETS} UV maps and attributes in the scene "
+                         "(reads 0)")
+            return ZERO if output != "COLOR" else const_color((0, 0, 0, 0))
+        self.uv_used[k] = (kind, name)
+        key = ("attribute", k, output)
+        if key not in self.cache:
+            self.cache[key] = self.emit("float" if output != "COLOR" else "color", "attribute", k,
+                                        output)
+        return self.cache[key]
+
+    def color_attribute(self, node, out, ctx):
+        """Color Attribute: a colour attribute of the mesh (its render one when unnamed)."""
+        output = "ALPHA" if out.identifier == "Alpha" else "COLOR"
+        return self.attribute_value("color", node.layer_name, output, f"'{node.name}'")
+
+    def attribute_node(self, node, out, ctx):
+        """Attribute: a geometry attribute of the mesh by name (any domain but edges, any
+        type: floats read as grey, 2D vectors with z = 0). Object, instancer and view-layer
+        attributes are not supported (0)."""
+        if node.attribute_type != 'GEOMETRY':
+            self.problem(f"'{node.name}': {node.attribute_type.lower().replace('_', ' ')} "
+                         "attributes are not supported (0)")
+            return ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 1))
+        if not node.attribute_name:
+            return ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 1))
+        output = {"Fac": "FAC", "Alpha": "ALPHA"}.get(out.identifier, "COLOR")
+        v = self.attribute_value("attr", node.attribute_name, output, f"'{node.name}'")
+        return Val("vector", reg=v.reg) if out.identifier == "Vector" else v
+
     def object_coords(self, which):
         """Val of the object-space ("object") or texture-space ("generated") position."""
         key = (which, self.bump_state)
@@ -1222,7 +1258,7 @@ class ShaderCompiler:
     _VALUE_NODES = {
         'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
         'LIGHT_PATH': light_path, 'OBJECT_INFO': object_info, 'VALTORGB': color_ramp,
-        'CURVE_RGB': rgb_curves,
+        'CURVE_RGB': rgb_curves, 'VERTEX_COLOR': color_attribute, 'ATTRIBUTE': attribute_node,
         'SEPARATE_COLOR': separate_color, 'SEPRGB': separate_color, 'SEPHSV': separate_color,
         'COMBINE_COLOR': combine_color, 'COMBRGB': combine_color, 'COMBHSV': combine_color,
         'SEPXYZ': separate_xyz, 'COMBXYZ': combine_xyz, 'HUE_SAT': hue_saturation,
@@ -1558,7 +1594,7 @@ class ShaderCompiler:
 
 # How many register operands (after the destination) each value op has; None = none given.
 _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
-             "light_path": 0, "object_info": 0,
+             "light_path": 0, "object_info": 0, "attribute": 0,
              "object_normal": 0, "mapping": 1, "image": 1,
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,

@@ -224,7 +224,8 @@ class IndexArray {
 
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
                   const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
-                  const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices) {
+                  const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
+                  const py::dict& attributes) {
   self.check_editable();
   const IndexArray triangles(triangles_obj, "triangles");
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
@@ -322,6 +323,21 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
       const float u = src[2 * i], v = src[2 * i + 1];
       dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
     }
+  }
+  for (const auto& item : attributes) {
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 3 || size_t(a.shape(0)) != nt || a.shape(1) != 3 || a.shape(2) != 4)
+      throw std::invalid_argument("attributes must have shape (T, 3, 4)");
+    if (mesh.attributes.size() <= size_t(k)) mesh.attributes.resize(size_t(k) + 1);
+    auto& dst = mesh.attributes[size_t(k)];
+    huge(dst, nt * 3);
+    dst.resize(nt * 3);
+    const float* src = a.data();
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    for (size_t i = 0; i < nt * 3; ++i)
+      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
   }
   if (!texspace.is_none()) {  // (location, size) of Blender's texture space
     const auto ts = texspace.cast<py::tuple>();
@@ -444,6 +460,13 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.code = OpCode::ObjectInfo;
       o.sub = index_in({"LOCATION", "COLOR", "ALPHA", "OBJECT_INDEX", "RANDOM"}, name_of(t[2]), "object info output");
       prog.varying = true;  // per instance
+    } else if (op == "attribute") {
+      need(4);
+      o.code = OpCode::Attribute;
+      o.index = int32_t(t[2].cast<int64_t>());
+      if (o.index < 0 || o.index >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
+      o.sub = index_in({"COLOR", "FAC", "ALPHA"}, name_of(t[3]), "attribute output");
+      prog.uses_attributes = prog.varying = true;
     } else if (op == "object_normal") {
       need(2);
       o.code = OpCode::ObjectNormal;
@@ -1355,7 +1378,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
-           py::arg("normal_indices") = py::none())
+           py::arg("normal_indices") = py::none(), py::arg("attributes") = py::dict())
       .def(
           "add_image",
           [](PyScene& self, const FloatArray& pixels, bool srgb) {

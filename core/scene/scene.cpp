@@ -446,6 +446,7 @@ void Scene::update_memory_stats() {
            m.normal_indices.capacity() * 12 +
            m.materials.capacity() * 4;
     for (const auto& uv : m.uvs) geo += uv.capacity() * sizeof(Vec2);
+    for (const auto& a : m.attributes) geo += a.capacity() * sizeof(Float4);
   }
   stats_.bvh_bytes = bvh;
   stats_.geometry_bytes = geo;
@@ -1060,6 +1061,25 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.tangents = tangents;
     ctx.tangent_signs = signs;
     ctx.tri_uv = corner_uvs;
+  }
+  Float4 attrs[kMaxSets];
+  if (mat.program.uses_attributes) {
+    const MeshData& mesh = meshes_[in.mesh];
+    const int n = static_cast<int>(std::min<size_t>(mesh.attributes.size(), kMaxSets));
+    const float b0 = 1.0f - b1 - b2;
+    const size_t st = blas.src_tri[sp.tri];
+    for (int k = 0; k < n; ++k) {
+      const std::vector<Float4>& t = mesh.attributes[size_t(k)];
+      if (t.empty()) {
+        attrs[k] = {};
+        continue;
+      }
+      const Float4 &a = t[3 * st], &b = t[3 * st + 1], &c = t[3 * st + 2];
+      attrs[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2, a.z * b0 + b.z * b1 + c.z * b2,
+                  a.w * b0 + b.w * b1 + c.w * b2};
+    }
+    ctx.attrs = attrs;
+    ctx.attr_sets = n;
   }
   eval_shader(mat.program, images_, ctx, out);
 }

@@ -32,6 +32,9 @@ struct MeshData {
   std::vector<std::array<uint32_t, 3>> normal_indices;
   std::vector<uint32_t> materials;   // global material id per triangle
   std::vector<std::vector<Vec2>> uvs;  // per global uv set: 3 per triangle, or empty (missing)
+  // Per global attribute set (the Attribute and Color Attribute nodes; numbered with the uv
+  // sets): RGBA of every triangle corner, 3 per triangle, or empty (missing: reads 0).
+  std::vector<std::vector<Float4>> attributes;
   // Texture space for generated coordinates (Blender's texspace_location / texspace_size);
   // without it, Blender's automatic one (the bounding box) is computed at commit.
   bool has_texspace = false;

@@ -533,6 +533,18 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         }
         break;
       }
+      case OpCode::Attribute: {
+        // Cycles' svm_node_attr of a mesh attribute: Color/Vector (RGB with alpha), Fac (the
+        // mean of RGB), Alpha; a missing attribute reads 0.
+        const Float4 a = op.index >= 0 && op.index < ctx.attr_sets && ctx.attrs ? ctx.attrs[op.index] : Float4{};
+        if (op.sub == 0) {
+          d = a;
+        } else {
+          const float v = op.sub == 1 ? (a.x + a.y + a.z) * (1.0f / 3.0f) : a.w;
+          d = {v, v, v, 1.0f};
+        }
+        break;
+      }
       case OpCode::ObjectNormal: {
         Vec3 n = ctx.ns;
         if (ctx.object && ctx.object->valid) {

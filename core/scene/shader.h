@@ -37,7 +37,7 @@ float srgb_to_linear(float c);
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
   Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
-  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo,
+  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo, Attribute,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
@@ -165,6 +165,8 @@ struct ShadingContext {
   const Vec3* tri = nullptr;
   const Vec2* tri_uv = nullptr;
   const ObjectCoords* object = nullptr;  // the hit instance's (nullptr: world coordinates)
+  const Float4* attrs = nullptr;  // per attribute set: the interpolated value (nullptr: none)
+  int attr_sets = 0;
   bool shadow_ray = false;  // shading a shadow ray's transparency, not a scattering ray's hit
 };
 
@@ -172,6 +174,7 @@ struct ShaderProgram {
   std::vector<ShaderOp> ops;
   bool varying = false;  // reads the shading point (else evaluated once)
   bool uses_uv = false;
+  bool uses_attributes = false;
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
   std::vector<Float4> tables;  // Ramp lookup tables (Color Ramp, RGB Curves), as Cycles bakes them

@@ -1,7 +1,9 @@
-"""The Object Info node against Cycles in the same bpy (issue 21): planes whose Emission is one
-of its outputs, for plain objects (colour, alpha, pass index, location, the random number Cycles
-derives from the object's name) and for geometry-nodes instances (Blender's per-instance random
-id), rendered by both engines and compared pixel by pixel."""
+"""Scene inputs against Cycles in the same bpy (issue 21), rendered by both engines and compared
+pixel by pixel (samples at the pixel centres): the Object Info node on plain objects (colour,
+alpha, pass index, location, the random number Cycles derives from the object's name) and on
+geometry-nodes instances (Blender's per-instance random id), and mesh attributes through the
+Attribute and Color Attribute nodes (point, corner and face domains; float, vector, 2D and
+colour types; byte colours)."""
 
 import bpy
 import numpy as np
@@ -139,3 +141,81 @@ def test_object_random_id_is_cycles_name_hash():
     assert pc.object_random_id("Cube") == pc.object_random_id("Cube")
     ids = {pc.object_random_id(n) for n in ("Cube", "Cube.001", "Gamma Ω", "")}
     assert len(ids) == 4
+
+
+# ---------------------------------------------------------------- attributes
+
+def attribute_grid(name="Grid", size=3.6, cuts=5):
+    """A subdivided plane with attributes on every domain, deterministic pseudo-random values."""
+    obj = ms.add_mesh_object(name, lambda bm: __import__("bmesh").ops.create_grid(
+        bm, x_segments=cuts, y_segments=cuts, size=size / 2))
+    mesh = obj.data
+    rng = np.random.default_rng(7)
+
+    def fill(attr_name, data_type, domain, width, field):
+        attr = mesh.attributes.new(attr_name, data_type, domain)
+        vals = rng.uniform(0.05, 0.95, len(attr.data) * width).astype(np.float32)
+        attr.data.foreach_set(field, vals)
+        return attr
+    byte = mesh.color_attributes.new("Paint", 'BYTE_COLOR', 'CORNER')
+    byte.data.foreach_set("color", rng.uniform(0.0, 1.0, len(byte.data) * 4).astype(np.float32))
+    mesh.color_attributes.new("Other", 'FLOAT_COLOR', 'POINT')  # not the render one
+    mesh.color_attributes.render_color_index = 0
+    fill("pcol", 'FLOAT_COLOR', 'POINT', 4, "color")
+    fill("pfloat", 'FLOAT', 'POINT', 1, "value")
+    fill("fvec", 'FLOAT_VECTOR', 'FACE', 3, "vector")
+    fill("cuv", 'FLOAT2', 'CORNER', 2, "vector")
+    return obj
+
+
+def attribute_material(node_type, output, **props):
+    mat, nodes, links, out = ms.new_material(f"A{node_type}{output}{sorted(props.items())}")
+    node = nodes.new(node_type)
+    for k, v in props.items():
+        setattr(node, k, v)
+    emit = nodes.new("ShaderNodeEmission")
+    links.new(node.outputs[output], emit.inputs["Color"])
+    links.new(emit.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+@pytest.mark.parametrize("node_type, output, props", [
+    ("ShaderNodeVertexColor", "Color", {}),  # the render colour attribute (byte, corners)
+    ("ShaderNodeVertexColor", "Alpha", {}),
+    ("ShaderNodeVertexColor", "Color", {"layer_name": "pcol"}),
+    ("ShaderNodeAttribute", "Color", {"attribute_name": "pcol"}),
+    ("ShaderNodeAttribute", "Alpha", {"attribute_name": "pcol"}),
+    ("ShaderNodeAttribute", "Fac", {"attribute_name": "pfloat"}),
+    ("ShaderNodeAttribute", "Color", {"attribute_name": "pfloat"}),
+    ("ShaderNodeAttribute", "Vector", {"attribute_name": "fvec"}),
+    ("ShaderNodeAttribute", "Fac", {"attribute_name": "fvec"}),
+    ("ShaderNodeAttribute", "Vector", {"attribute_name": "cuv"}),
+    ("ShaderNodeAttribute", "Color", {"attribute_name": "Paint"}),
+])
+def test_mesh_attributes_as_cycles_reads_them(node_type, output, props):
+    def build():
+        scene = top_view(32)
+        grid = attribute_grid()
+        grid.data.materials.append(attribute_material(node_type, output, **props))
+        return scene
+    ours, cycles = render_both(build)
+    diff = np.abs(ours[..., :3] - cycles[..., :3])
+    assert diff.mean() < 2e-4, f"mean abs difference {diff.mean():.2e}"
+    assert diff.max() < 2e-3, f"max abs difference {diff.max():.2e}"
+    assert ours[..., :3].std() > 0.05  # the values vary over the grid
+
+
+def test_missing_attribute_reads_zero_with_a_warning():
+    from blender_util import Warnings
+    from addon.export import export_scene
+    def build():
+        scene = top_view(16)
+        grid = attribute_grid()
+        grid.data.materials.append(attribute_material("ShaderNodeAttribute", "Color",
+                                                      attribute_name="nope"))
+        return scene
+    ours, cycles = render_both(build)
+    assert np.abs(ours[..., :3]).max() == 0.0 and np.abs(cycles[..., :3]).max() == 0.0
+    warnings = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert any("no attribute 'nope'" in w for w in warnings), warnings
