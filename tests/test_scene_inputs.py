@@ -1,9 +1,11 @@
-"""Scene inputs against Cycles in the same bpy (issue 21), rendered by both engines and compared
-pixel by pixel (samples at the pixel centres): the Object Info node on plain objects (colour,
-alpha, pass index, location, the random number Cycles derives from the object's name) and on
-geometry-nodes instances (Blender's per-instance random id), and mesh attributes through the
+"""Scene inputs against Cycles in the same bpy (issue 21): the Object Info node on plain objects
+(colour, alpha, pass index, location, the random number Cycles derives from the object's name)
+and on geometry-nodes instances (Blender's per-instance random id); mesh attributes through the
 Attribute and Color Attribute nodes (point, corner and face domains; float, vector, 2D and
-colour types; byte colours)."""
+colour types; byte colours); the Geometry node's True Normal, Incoming, Parametric and
+Backfacing; all compared pixel by pixel (samples at the pixel centres). The Light Path node's
+outputs drive a floor's colour seen directly, in a mirror, through glass and behind a
+transparent card, compared with Cycles at 256 samples by regions."""
 
 import bpy
 import numpy as np
@@ -219,3 +221,98 @@ def test_missing_attribute_reads_zero_with_a_warning():
     warnings = Warnings()
     export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
     assert any("no attribute 'nope'" in w for w in warnings), warnings
+
+
+# ---------------------------------------------------------------- light path and geometry
+
+def driven_material(name, output_of, node_type="ShaderNodeLightPath", scale=1.0):
+    """Diffuse whose colour mixes dark grey into orange by a node's output (times `scale`)."""
+    mat, nodes, links, out = ms.new_material(name)
+    src = nodes.new(node_type)
+    mix = nodes.new("ShaderNodeMix")
+    mix.data_type = 'RGBA'
+    mix.clamp_factor = True
+    fac = src.outputs[output_of]
+    if scale != 1.0:
+        mul = nodes.new("ShaderNodeMath")
+        mul.operation = 'MULTIPLY'
+        mul.inputs[1].default_value = scale
+        links.new(fac, mul.inputs[0])
+        fac = mul.outputs[0]
+    links.new(fac, mix.inputs["Factor"])
+    [s for s in mix.inputs if s.identifier == "A_Color"][0].default_value = (0.15, 0.15, 0.15, 1)
+    [s for s in mix.inputs if s.identifier == "B_Color"][0].default_value = (0.9, 0.6, 0.3, 1)
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    links.new([s for s in mix.outputs if s.identifier == "Result_Color"][0], d.inputs["Color"])
+    links.new(d.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def light_path_scene(output, scale):
+    """A floor whose colour follows a Light Path output, seen directly, in a mirror ball,
+    through a glass ball and behind a half-transparent card, lit by a panel."""
+    def build():
+        scene = ms.studio(size=48, world=(0.1, 0.1, 0.1),
+                          camera=((0.0, -4.5, 2.4), (0.0, 0.0, 0.4)))
+        bpy.data.objects["Floor"].data.materials[0] = driven_material("Driven", output, scale=scale)
+        ms.add_sphere("Mirror", 0.45, ms.glossy("Mirror", roughness=0.0), location=(-0.8, 0.3, 0.45))
+        glass, node = ms.bsdf_material("Glass", "ShaderNodeBsdfGlass", Roughness=0.0, IOR=1.45)
+        node.distribution = 'GGX'
+        ms.add_sphere("Glass", 0.45, glass, location=(0.8, 0.3, 0.45))
+        card, nodes, links, out = ms.new_material("Card")
+        mix = nodes.new("ShaderNodeMixShader")
+        mix.inputs["Fac"].default_value = 0.5
+        links.new(nodes.new("ShaderNodeBsdfTransparent").outputs[0], mix.inputs[1])
+        links.new(ms.set_inputs(nodes.new("ShaderNodeBsdfGlossy"), Roughness=0.3).outputs[0],
+                  mix.inputs[2])
+        links.new(mix.outputs[0], out.inputs["Surface"])
+        ms.add_plane("Card", 0.7, card, location=(0.0, -1.2, 0.5), rotation_euler=(1.4, 0.0, 0.0))
+        return scene
+    return build
+
+
+@pytest.mark.parametrize("output, scale", [
+    ("Is Camera Ray", 1.0), ("Is Diffuse Ray", 1.0), ("Is Glossy Ray", 1.0),
+    ("Is Singular Ray", 1.0), ("Is Reflection Ray", 1.0), ("Is Transmission Ray", 1.0),
+    ("Ray Length", 0.2), ("Ray Depth", 0.5), ("Diffuse Depth", 0.5), ("Glossy Depth", 0.5),
+    ("Transparent Depth", 1.0), ("Transmission Depth", 0.5),
+])
+def test_light_path_outputs_match_cycles(output, scale):
+    build = light_path_scene(output, scale)
+    ours = render_to_array(build(), "PATHLIGHT", samples=256, max_bounces=8)
+    cycles = render_to_array(build(), "CYCLES", samples=256, max_bounces=8, **BOX_FILTER)
+    ratio, worst, rel = ms.compare(ours, cycles, grid=6)
+    assert abs(ratio - 1.0) < 0.02, f"image mean ratio {ratio:.4f}"
+    assert worst < 0.06, f"worst region {worst:.3f}\n{np.round(rel, 3)}"
+
+
+@pytest.mark.parametrize("output", ["True Normal", "Incoming", "Parametric", "Backfacing"])
+def test_geometry_outputs_match_cycles(output):
+    """Emission = a Geometry output (vectors mapped by 0.5 v + 0.5) on a smooth sphere and a
+    plane seen from behind, per pixel at the pixel centres."""
+    def build():
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 32
+        scene.render.resolution_percentage = 100
+        ms.set_world((0.0, 0.0, 0.0))
+        mat, nodes, links, out = ms.new_material("Geo")
+        geo = nodes.new("ShaderNodeNewGeometry")
+        emit = nodes.new("ShaderNodeEmission")
+        src = geo.outputs[output]
+        if output != "Backfacing":
+            vm = nodes.new("ShaderNodeVectorMath")
+            vm.operation = 'MULTIPLY_ADD'
+            vm.inputs[1].default_value = (0.5, 0.5, 0.5)
+            vm.inputs[2].default_value = (0.5, 0.5, 0.5)
+            links.new(src, vm.inputs[0])
+            src = vm.outputs[0]
+        links.new(src, emit.inputs["Color"])
+        links.new(emit.outputs[0], out.inputs["Surface"])
+        ms.add_sphere("Ball", 0.6, mat, segments=16, rings=8, location=(-0.7, 0.0, 0.6))
+        ms.add_plane("Back", 1.2, mat, location=(0.8, 0.0, 0.6), rotation_euler=(-1.2, 0.0, 0.3))
+        ms.add_camera((0.0, -4.0, 1.2), (0.0, 0.0, 0.6))
+        return scene
+    ours, cycles = render_both(build)
+    diff = np.abs(ours[..., :3] - cycles[..., :3])
+    assert diff.mean() < 1e-3, f"mean abs difference {diff.mean():.2e}"

@@ -988,6 +988,9 @@ class ShaderCompiler:
                 return self.position()
             if oid == "Normal":
                 return self.emit("vector", "normal")
+            which = self._GEOMETRY.get(oid)
+            if which is not None:
+                return self.emit("float" if oid == "Backfacing" else "vector", "geometry", which)
             self.problem(f"'{node.name}': output {out.name} is not supported (0)")
             return ZERO if out.type == 'VALUE' else const_vector((0, 0, 0))
         if t == 'MAPPING':
@@ -1052,19 +1055,24 @@ class ShaderCompiler:
                          self.reg(distance), None if normal is None else self.reg(normal),
                          bool(node.invert))
 
+    _GEOMETRY = {"True Normal": "TRUE_NORMAL", "Incoming": "INCOMING",
+                 "Parametric": "PARAMETRIC", "Backfacing": "BACKFACING"}
+
     def light_path(self, node, out, ctx):
-        """The core tells shadow rays (through transparent surfaces) from the rest: Is Shadow
-        Ray is exact, Is Camera Ray is "not a shadow ray" (bounces count as camera rays, warned);
-        the other outputs are folded to their camera-ray values (warned)."""
-        if out.identifier == "Is Shadow Ray":
-            return self.emit("float", "light_path", "IS_SHADOW_RAY")
-        if out.identifier == "Is Camera Ray":
-            self.problem(f"'{node.name}': Is Camera Ray is also 1 for indirect rays (only "
-                         "shadow rays are told apart)")
-            return self.emit("float", "light_path", "IS_CAMERA_RAY")
-        self.problem(f"'{node.name}': {out.name} is evaluated as for camera rays (0: the ray "
-                     "type is not known when shading)")
-        return ZERO
+        """Light Path: every output from the core's path state, as Cycles' (Is Volume Scatter
+        Ray is 0: there is no volume scattering)."""
+        which = out.identifier.upper().replace(" ", "_")
+        if which == "IS_VOLUME_SCATTER_RAY":
+            return ZERO
+        if which not in self._LIGHT_PATH:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit("float", "light_path", which)
+
+    _LIGHT_PATH = {"IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY",
+                   "IS_SINGULAR_RAY", "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY", "RAY_LENGTH",
+                   "RAY_DEPTH", "DIFFUSE_DEPTH", "GLOSSY_DEPTH", "TRANSPARENT_DEPTH",
+                   "TRANSMISSION_DEPTH"}
 
     _OBJECT_INFO = {"Location": ("vector", "LOCATION"), "Color": ("color", "COLOR"),
                     "Alpha": ("float", "ALPHA"), "Object Index": ("float", "OBJECT_INDEX"),
@@ -1278,6 +1286,8 @@ class ShaderCompiler:
             return self.object_coords(oid.lower())
         if oid == "Normal":
             return self.emit("vector", "object_normal")
+        if oid == "Reflection":
+            return self.emit("vector", "geometry", "REFLECTION")
         self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
         return const_vector((0, 0, 0))
 
@@ -1594,7 +1604,7 @@ class ShaderCompiler:
 
 # How many register operands (after the destination) each value op has; None = none given.
 _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
-             "light_path": 0, "object_info": 0, "attribute": 0,
+             "light_path": 0, "object_info": 0, "attribute": 0, "geometry": 0,
              "object_normal": 0, "mapping": 1, "image": 1,
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,

@@ -453,7 +453,16 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
     } else if (op == "light_path") {
       need(3);
       o.code = OpCode::LightPath;
-      o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY"}, name_of(t[2]), "light path output");
+      o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY", "IS_SINGULAR_RAY",
+                        "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY", "IS_VOLUME_SCATTER_RAY", "RAY_LENGTH",
+                        "RAY_DEPTH", "DIFFUSE_DEPTH", "GLOSSY_DEPTH", "TRANSPARENT_DEPTH", "TRANSMISSION_DEPTH"},
+                       name_of(t[2]), "light path output");
+      prog.varying = true;
+    } else if (op == "geometry") {
+      need(3);
+      o.code = OpCode::Geometry;
+      o.sub = index_in({"TRUE_NORMAL", "INCOMING", "PARAMETRIC", "BACKFACING", "REFLECTION"}, name_of(t[2]),
+                       "geometry output");
       prog.varying = true;
     } else if (op == "object_info") {
       need(3);

@@ -855,7 +855,11 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   } else {
     // The material's emission at the sampled point (textured emission included).
     ClosureList cl;
-    shade(lp, b1, b2, -s.wi, cl);
+    // As Cycles evaluates a light sample's shader: no ray kind set, the path's bounce counts.
+    RayState emission = s.path ? *s.path : RayState{};
+    emission.flags = 0;
+    emission.length = dist;
+    shade(lp, b1, b2, -s.wi, cl, emission);
     s.li = cl.emission;
   }
   s.pdf = spherical ? pdf_solid : pmf_e / emitter_areas_[e] * dist2 / cos_l;
@@ -990,7 +994,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   return sample_emitter(e, p, st, spherical, pdf_solid, pmf_e, u, s);
 }
 
-void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray) const {
+void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
     out.n = mat.cached.n;
@@ -1010,7 +1014,9 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.ng = sp.ng;
   ctx.ns = sp.ns;
   ctx.wo = wo;
-  ctx.shadow_ray = shadow_ray;
+  ctx.ray = ray;
+  ctx.b1 = b1;
+  ctx.b2 = b2;
   const InstanceData& in = inst_[sp.instance];
   const Blas& blas = blases_[in.blas];
   const TriangleVerts tv = world_triangle(in, blas.tris[sp.tri]);
@@ -1094,7 +1100,10 @@ Vec3 Scene::transmittance_through(Ray ray) const {
     const Material& mat = materials_[sp.material];
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;
-    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, true);
+    RayState shadow;
+    shadow.flags = kRayShadow;
+    shadow.length = h.t * length(ray.dir);
+    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, shadow);
     Vec3 pass(0.0f);
     for (int c = 0; c < cl.n; ++c)
       if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;

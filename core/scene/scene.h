@@ -84,6 +84,8 @@ struct DirectSample {
   float pdf = 0.0f;       // solid-angle pdf including the light choice
   bool delta = false;      // no BSDF ray can find this light (delta or analytic): full weight
   bool cast_shadow = true;
+  // In: the path at the shading point, for textured emitters' Light Path nodes (null: none).
+  const RayState* path = nullptr;
 };
 
 struct SceneStats {
@@ -245,8 +247,8 @@ class Scene {
   void surface_point(const Hit& h, SurfacePoint& sp) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
-  // shadow_ray: shading for a shadow ray's transparency (the Light Path node's Is Shadow Ray).
-  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray = false) const;
+  // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
+  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray = {}) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
   // blocked; Transparent surfaces let part of it through).
   // Inline: without Transparent BSDFs (most scenes) a shadow ray is one any-hit query.

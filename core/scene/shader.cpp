@@ -512,9 +512,18 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         break;
       }
       case OpCode::LightPath: {
-        // The core knows shadow rays apart from the rest: Is Shadow Ray, and Is Camera Ray as
-        // "not a shadow ray" (an approximation: bounces count as camera rays).
-        const float v = op.sub == 0 ? (ctx.shadow_ray ? 0.0f : 1.0f) : (ctx.shadow_ray ? 1.0f : 0.0f);
+        // Cycles' svm_node_light_path: the ray's kind (flags) and its bounce counts.
+        const RayState& ray = ctx.ray;
+        static constexpr uint8_t kFlagOf[] = {kRayCamera, kRayShadow, kRayDiffuse, kRayGlossy,
+                                              kRaySingular, kRayReflect, kRayTransmit};
+        float v = 0.0f;
+        if (op.sub < 7) v = (ray.flags & kFlagOf[op.sub]) ? 1.0f : 0.0f;
+        else if (op.sub == 7) v = 0.0f;  // Is Volume Scatter Ray: no volume scattering yet
+        else if (op.sub == 8) v = ray.length;
+        else {
+          const uint16_t counts[] = {ray.depth, ray.diffuse, ray.glossy, ray.transparent, ray.transmission};
+          v = float(counts[std::min(op.sub - 9, 4)]);
+        }
         d = {v, v, v, 1.0f};
         break;
       }
@@ -529,6 +538,25 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           default: {
             const float v = op.sub == 2 ? info.color.w : op.sub == 3 ? info.pass_index : info.random;
             d = {v, v, v, 1.0f};
+          }
+        }
+        break;
+      }
+      case OpCode::Geometry: {
+        // Cycles' svm_node_geometry: its normals face the viewer (back faces flipped).
+        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        switch (op.sub) {
+          case 0: d = f4(backfacing ? -ctx.ng : ctx.ng, 0.0f); break;  // True Normal
+          case 1: d = f4(ctx.wo, 0.0f); break;                           // Incoming
+          case 2: d = {1.0f - ctx.b1 - ctx.b2, ctx.b1, 0.0f, 0.0f}; break;  // Parametric
+          case 3: {                                                       // Backfacing
+            const float v = backfacing ? 1.0f : 0.0f;
+            d = {v, v, v, 1.0f};
+            break;
+          }
+          default: {  // Texture Coordinate's Reflection: the view mirrored about the normal
+            const Vec3 n = backfacing ? -ctx.ns : ctx.ns;
+            d = f4(n * (2.0f * dot(n, ctx.wo)) - ctx.wo, 0.0f);
           }
         }
         break;

@@ -37,7 +37,7 @@ float srgb_to_linear(float c);
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
   Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
-  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo, Attribute,
+  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo, Attribute, Geometry,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
@@ -152,6 +152,23 @@ ObjectCoords make_object_coords(const Mat4& to_world, Vec3 texspace_location, Ve
 // Blender's automatic texture space of vertex positions: (location, size) of the bounding box.
 void auto_texspace(const std::vector<Vec3>& positions, Vec3& location, Vec3& size);
 
+// The ray that reached a shading point, as Cycles' path state tells it to the Light Path node:
+// what the last scattering was (flags) and the bounces so far of each kind.
+enum RayFlags : uint8_t {
+  kRayCamera = 1,     // the camera ray, and its continuations through Transparent BSDFs
+  kRayShadow = 2,     // a shadow ray shading a surface's transparency
+  kRayDiffuse = 4,    // after a diffuse bounce
+  kRayGlossy = 8,     // after a glossy (or singular) bounce
+  kRaySingular = 16,  // after a delta (sharp mirror or glass) bounce
+  kRayReflect = 32,   // after a reflection
+  kRayTransmit = 64,  // after a transmission
+};
+struct RayState {
+  uint8_t flags = kRayCamera;
+  uint16_t depth = 0, diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
+  float length = 0.0f;  // distance from the ray's origin to the hit
+};
+
 // What a program can read at a shading point.
 struct ShadingContext {
   Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
@@ -167,7 +184,8 @@ struct ShadingContext {
   const ObjectCoords* object = nullptr;  // the hit instance's (nullptr: world coordinates)
   const Float4* attrs = nullptr;  // per attribute set: the interpolated value (nullptr: none)
   int attr_sets = 0;
-  bool shadow_ray = false;  // shading a shadow ray's transparency, not a scattering ray's hit
+  RayState ray;  // the ray that hit (Light Path node)
+  float b1 = 0.0f, b2 = 0.0f;  // barycentrics of the hit in its triangle (Geometry ▸ Parametric)
 };
 
 struct ShaderProgram {
