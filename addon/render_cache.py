@@ -92,11 +92,14 @@ def _same_geometry(old, new):
             for a, b in zip(old.images, new.images)):
         return False
     for a, b in zip(old.meshes, new.meshes):
-        if len(a.matrices) != len(b.matrices) or a.uvs.keys() != b.uvs.keys():
+        if len(a.matrices) != len(b.matrices) or a.uvs.keys() != b.uvs.keys() or a.infos != b.infos:
             return False
         arrays = [(a.positions, b.positions), (a.triangles, b.triangles), (a.normals, b.normals),
                   (a.normal_indices, b.normal_indices), (a.material_indices, b.material_indices)]
         arrays += [(a.uvs[k], b.uvs[k]) for k in a.uvs]
+        if a.attributes.keys() != b.attributes.keys():
+            return False
+        arrays += [(a.attributes[k], b.attributes[k]) for k in a.attributes]
         # `is`: the mesh cache hands out its own arrays, never copies.
         if not all(x is y for x, y in arrays) or a.texspace != b.texspace:
             return False

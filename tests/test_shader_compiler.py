@@ -808,7 +808,7 @@ def test_core_accepts_every_compiled_program():
     for fn in ("test_fresnel_and_layer_weight_mix", "test_bump_of_a_position_height_offsets_the_position",
                "test_color_ramp_bakes_blenders_evaluation", "test_rgb_curves_bake_the_combined_and_channel_curves",
                "test_separate_and_combine_colors_and_vectors_fold", "test_colour_adjustments_fold_as_cycles",
-               "test_light_path_shadow_and_camera_rays_and_folded_outputs"):
+               "test_light_path_outputs_are_ops"):
         globals()[fn]()
     test_map_range_and_clamp_fold('SMOOTHSTEP', False, 0.75, 5.0)
     test_vector_math_folds("SCALE", (0.5, 0.0, 1.5))
@@ -1113,7 +1113,7 @@ def test_vector_math_folds(op, expect):
     assert got == approx(expect)
 
 
-def test_light_path_shadow_and_camera_rays_and_folded_outputs():
+def test_light_path_outputs_are_ops():
     def build(nodes, links, output):
         lp = nodes.new("ShaderNodeLightPath")
         mix = nodes.new("ShaderNodeMix")
@@ -1122,19 +1122,17 @@ def test_light_path_shadow_and_camera_rays_and_folded_outputs():
         [s for s in mix.inputs if s.identifier == "A_Color"][0].default_value = (0.1, 0.1, 0.1, 1)
         [s for s in mix.inputs if s.identifier == "B_Color"][0].default_value = (0.9, 0.5, 0.2, 1)
         return [s for s in mix.outputs if s.identifier == "Result_Color"][0]
-    # Is Shadow Ray: exact, no warning.
-    data, warnings = compile_(diffuse_fed_by("Shadow", lambda n, l: build(n, l, "Is Shadow Ray")))
-    assert not warnings
-    assert [op[2] for op in data.program if op[0] == "light_path"] == ["IS_SHADOW_RAY"]
-    # Is Camera Ray: "not a shadow ray" (warned: bounces count as camera rays).
-    data, warnings = compile_(diffuse_fed_by("Camera", lambda n, l: build(n, l, "Is Camera Ray")))
-    assert len(warnings) == 1 and "Is Camera Ray" in warnings[0] and "indirect" in warnings[0]
-    assert [op[2] for op in data.program if op[0] == "light_path"] == ["IS_CAMERA_RAY"]
-    # The rest: folded as for camera rays (0), warned.
-    mat = diffuse_fed_by("Depth", lambda n, l: build(n, l, "Ray Depth"))
+    # Every output the core's path state knows: one op each, no warning.
+    for output in ("Is Shadow Ray", "Is Camera Ray", "Is Diffuse Ray", "Is Singular Ray",
+                   "Ray Length", "Ray Depth", "Transparent Depth", "Transmission Depth"):
+        data, warnings = compile_(diffuse_fed_by(output, lambda n, l: build(n, l, output)))
+        assert not warnings, warnings
+        assert [op[2] for op in data.program if op[0] == "light_path"] == \
+            [output.upper().replace(" ", "_")]
+    # Is Volume Scatter Ray: 0 without volume scattering (folded, no warning).
+    mat = diffuse_fed_by("Volume", lambda n, l: build(n, l, "Is Volume Scatter Ray"))
     data, warnings = compile_(mat)
-    assert len(warnings) == 1 and "Ray Depth" in warnings[0] and "camera" in warnings[0]
-    assert constant_color(mat) == approx((0.1, 0.1, 0.1))
+    assert not warnings and constant_color(mat) == approx((0.1, 0.1, 0.1))
 
 
 @pytest.mark.parametrize("op, a, b, c, expect", [

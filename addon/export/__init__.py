@@ -45,6 +45,9 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         if mesh.missing_uv_maps:
             warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, mesh.missing_uv_maps))} "
                  "that its materials use; UV (0, 0) is used")
+        if mesh.missing_attributes:
+            warn(f"Mesh '{mesh.name}' has no attribute "
+                 f"{', '.join(map(repr, mesh.missing_attributes))} that its materials read; 0 is used")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
     lights = collect_lights(depsgraph, warn, is_visible)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
@@ -115,15 +118,25 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
     if material_ids is not None:
         material_ids.extend(ids)
     for mesh, slots in zip(data.meshes, data.material_slots):
-        uvs = {"uvs": mesh.uvs} if mesh.uvs else {}  # older core builds take no uvs
+        uvs = {"uvs": mesh.uvs} if mesh.uvs else {}
+        if mesh.attributes:
+            uvs["attributes"] = mesh.attributes
         if mesh.texspace is not None:
             uvs["texspace"] = mesh.texspace
         mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
                                  normals=mesh.normals, normal_indices=mesh.normal_indices,
                                  material_indices=mesh.material_indices,
                                  material_slots=[ids[i] for i in slots], **uvs)
-        for matrix in mesh.matrices:
-            scene.add_instance(mesh_id, matrix)
+        infos = mesh.infos if len(mesh.infos) == len(mesh.matrices) else [None] * len(mesh.matrices)
+        names = [name for name, _ in mesh.owners] if len(mesh.owners) == len(mesh.matrices) else None
+        for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
+            if info is None:
+                scene.add_instance(mesh_id, matrix)
+                continue
+            color, pass_index, random_id = info
+            if random_id is None:
+                random_id = pc.object_random_id(names[k]) if names else 0
+            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id)
     add_lights(scene, data.lights, warn)
     set_world(scene, data, warn)
     set_camera(pc, scene, data.camera)

@@ -20,10 +20,15 @@ class MeshData:
     matrices: list = field(default_factory=list)  # float32 (4, 4) object-to-world, one per instance
     # Per matrix: (object name, made by an instancer), so live edits can find an object's instance.
     owners: list = field(default_factory=list)
+    # Per matrix, what the Object Info node reads: (RGBA colour, pass index, random id), the
+    # random id None for a plain object (the core derives it from the name, as Cycles).
+    infos: list = field(default_factory=list)
     uvs: dict = field(default_factory=dict)  # global uv-set index -> float32 (T, 3, 2) per corner
     missing_uv_maps: list = field(default_factory=list)  # UV map names its materials need
     # Blender's texture space ((location), (size)) for generated coordinates, or None.
     texspace: tuple = None
+    attributes: dict = field(default_factory=dict)  # attribute set k -> float32 (T, 3, 4) RGBA
+    missing_attributes: list = field(default_factory=list)  # attribute names its materials read
 
     @property
     def corner_normals(self):
@@ -196,6 +201,8 @@ def mesh_uvs(mesh, names, loops):
     uvs, missing, cache = {}, [], {}
     active = next((layer for layer in mesh.uv_layers if layer.active_render), None)
     for k, name in names.items():
+        if isinstance(name, tuple):  # an attribute set (mesh_attributes)
+            continue
         layer = mesh.uv_layers.get(name) if name else active
         if layer is None:
             missing.append(name or "(active render UV map)")
@@ -206,6 +213,74 @@ def mesh_uvs(mesh, names, loops):
             cache[layer.name] = np.ascontiguousarray(corner.reshape(-1, 2)[loops].reshape(-1, 3, 2))
         uvs[k] = cache[layer.name]
     return uvs, missing
+
+
+# Attribute data types: foreach_get field and values per element (all read as float32).
+_ATTRIBUTE_TYPES = {"FLOAT": ("value", 1), "INT": ("value", 1), "INT8": ("value", 1),
+                    "BOOLEAN": ("value", 1), "FLOAT2": ("vector", 2), "INT32_2D": ("value", 2),
+                    "FLOAT_VECTOR": ("vector", 3), "FLOAT_COLOR": ("color", 4),
+                    "BYTE_COLOR": ("color", 4), "QUATERNION": ("value", 4)}
+
+
+def _attribute_rgba(attr):
+    """float32 (N, 4) of an attribute's values as Cycles reads them: one value as grey, 2D
+    vectors with z = 0, alpha 1 unless it is a colour (byte colours come linear from `color`).
+    None for types without a meaning as a colour (matrices, strings)."""
+    kind = _ATTRIBUTE_TYPES.get(attr.data_type)
+    if kind is None:
+        return None
+    field, width = kind
+    n = len(attr.data)
+    raw = np.empty(n * width, np.float32 if attr.data_type not in ("INT", "INT8", "INT32_2D", "BOOLEAN")
+                   else (bool if attr.data_type == "BOOLEAN" else np.int32))
+    attr.data.foreach_get(field, raw)
+    raw = raw.reshape(n, width).astype(np.float32, copy=False)
+    out = np.ones((n, 4), np.float32)
+    if width == 1:
+        out[:, :3] = raw
+    else:
+        out[:, :width] = raw
+        if width == 2:
+            out[:, 2] = 0.0
+    return out
+
+
+def mesh_attributes(mesh, names, loops):
+    """{k: float32 (T, 3, 4) per-corner RGBA} for the attribute sets among {k: name}
+    (("attr", name) or ("color", name), "" = the render colour attribute), and the names the
+    mesh lacks. Point, corner and face attributes; loops: the triangles' corner indices."""
+    out, missing = {}, []
+    wanted = {k: n for k, n in names.items() if isinstance(n, tuple)}
+    if not wanted:
+        return out, missing
+    corner_verts = tri_faces = None
+    for k, (kind, name) in wanted.items():
+        if kind == "color" and not name:
+            name = mesh.color_attributes.default_color_name or \
+                (mesh.color_attributes[0].name if len(mesh.color_attributes) else "")
+        attr = mesh.attributes.get(name) if name else None
+        if kind == "color" and attr is not None and attr.data_type not in ("FLOAT_COLOR", "BYTE_COLOR"):
+            attr = None
+        values = _attribute_rgba(attr) if attr is not None and attr.domain != 'EDGE' else None
+        if values is None:
+            missing.append(name or "(render colour attribute)")
+            continue
+        if attr.domain == 'CORNER':
+            index = loops
+        elif attr.domain == 'POINT':
+            if corner_verts is None:
+                corner_verts = _int_attribute(mesh, ".corner_vert", len(mesh.loops))
+                if corner_verts is None:
+                    corner_verts = np.empty(len(mesh.loops), np.int32)
+                    mesh.loops.foreach_get("vertex_index", corner_verts)
+            index = corner_verts[loops]
+        else:  # FACE
+            if tri_faces is None:
+                tri_faces = np.empty(len(mesh.loop_triangles), np.int32)
+                mesh.loop_triangle_polygons.foreach_get("value", tri_faces)
+            index = np.repeat(tri_faces, 3)
+        out[k] = np.ascontiguousarray(values[index].reshape(-1, 3, 4))
+    return out, missing
 
 
 def is_visible(instance):
@@ -256,13 +331,22 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
                 entry = cache.export(obj, materials, uv_names, generated=ordinal)
             meshes[key] = entry
             if entry is not None:
-                entry.owners = []  # this export's (a cached entry may carry an older list)
+                entry.owners = []  # this export's (a cached entry may carry older lists)
+                entry.infos = []
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.owners.append((obj.name, bool(instance.is_instance)))
+            entry.infos.append(object_info(instance))
     if cache is not None:
         cache.end_export()
     return [m for m in meshes.values() if m is not None]
+
+
+def object_info(instance):
+    """(RGBA colour, pass index, random id or None) of a depsgraph object instance."""
+    obj = instance.object
+    random_id = (instance.random_id & 0xFFFFFFFF) if instance.is_instance else None
+    return tuple(obj.color), int(obj.pass_index), random_id
 
 
 def _export_object(obj, materials, uv_names=None):
@@ -285,10 +369,12 @@ def mesh_data(obj, mesh, materials, uv_names=None):
     positions, triangles, normals, normal_indices, material_indices, loops = mesh_arrays(
         mesh, corners=bool(names), slots=len(materials))
     uvs, missing = mesh_uvs(mesh, names, loops) if names else ({}, [])
+    attributes, missing_attributes = mesh_attributes(mesh, names, loops) if names else ({}, [])
     # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
     # non-finite vertices make it non-finite: then the core's own box of the finite ones.
     texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
     if not np.isfinite(texspace).all():
         texspace = None
     return MeshData(obj.original.name, positions, triangles, normals, normal_indices, material_indices, materials,
-                    uvs=uvs, missing_uv_maps=missing, texspace=texspace)
+                    uvs=uvs, missing_uv_maps=missing, texspace=texspace, attributes=attributes,
+                    missing_attributes=missing_attributes)

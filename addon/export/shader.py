@@ -587,7 +587,9 @@ def _load_image(image, problems):
 class CompiledShader:
     program: list  # tuples of docs/core_api.md; image operands index ImageTable.images
     volume_absorption: tuple = None  # ((r, g, b), density) or None
-    uv_sets: dict = field(default_factory=dict)  # k -> UV map name this material reads
+    # k -> UV map name this material reads, or for attribute sets (numbered with the uv sets)
+    # ("attr", name) (the Attribute node) / ("color", name) (Color Attribute; "" = the render one).
+    uv_sets: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)  # what was approximated/unsupported
 
 
@@ -602,9 +604,10 @@ def _fmt(x):
 class ShaderCompiler:
     """Compiles one material's node tree. Use `compile_material`."""
 
-    def __init__(self, images, uv_sets):
+    def __init__(self, images, uv_sets, material_index=0):
         self.images = images
         self.uv_sets = uv_sets
+        self.material_index = material_index  # the material's pass index (Object Info)
         self.ops = []  # with virtual registers
         self.nreg = 0
         self.const_regs = {}  # const tuple -> virtual register
@@ -915,6 +918,40 @@ class ShaderCompiler:
             self.cache[key] = self.emit("vector", "uv", k, *extra)
         return self.cache[key]
 
+    def attribute_value(self, kind, name, output, what):
+        """Val of a mesh attribute's output ("COLOR", "FAC" or "ALPHA"): kind "attr" (by name)
+        or "color" (a colour attribute; "" = the mesh's render colour attribute)."""
+        k = self.uv_sets.index((kind, name))
+        if k is None:
+            self.problem(f"{what}: more than {MAX_UV_SETS} UV maps and attributes in the scene "
+                         "(reads 0)")
+            return ZERO if output != "COLOR" else const_color((0, 0, 0, 0))
+        self.uv_used[k] = (kind, name)
+        key = ("attribute", k, output)
+        if key not in self.cache:
+            self.cache[key] = self.emit("float" if output != "COLOR" else "color", "attribute", k,
+                                        output)
+        return self.cache[key]
+
+    def color_attribute(self, node, out, ctx):
+        """Color Attribute: a colour attribute of the mesh (its render one when unnamed)."""
+        output = "ALPHA" if out.identifier == "Alpha" else "COLOR"
+        return self.attribute_value("color", node.layer_name, output, f"'{node.name}'")
+
+    def attribute_node(self, node, out, ctx):
+        """Attribute: a geometry attribute of the mesh by name (any domain but edges, any
+        type: floats read as grey, 2D vectors with z = 0). Object, instancer and view-layer
+        attributes are not supported (0)."""
+        if node.attribute_type != 'GEOMETRY':
+            self.problem(f"'{node.name}': {node.attribute_type.lower().replace('_', ' ')} "
+                         "attributes are not supported (0)")
+            return ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 1))
+        if not node.attribute_name:
+            return ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 1))
+        output = {"Fac": "FAC", "Alpha": "ALPHA"}.get(out.identifier, "COLOR")
+        v = self.attribute_value("attr", node.attribute_name, output, f"'{node.name}'")
+        return Val("vector", reg=v.reg) if out.identifier == "Vector" else v
+
     def object_coords(self, which):
         """Val of the object-space ("object") or texture-space ("generated") position."""
         key = (which, self.bump_state)
@@ -951,6 +988,9 @@ class ShaderCompiler:
                 return self.position()
             if oid == "Normal":
                 return self.emit("vector", "normal")
+            which = self._GEOMETRY.get(oid)
+            if which is not None:
+                return self.emit("float" if oid == "Backfacing" else "vector", "geometry", which)
             self.problem(f"'{node.name}': output {out.name} is not supported (0)")
             return ZERO if out.type == 'VALUE' else const_vector((0, 0, 0))
         if t == 'MAPPING':
@@ -1015,19 +1055,39 @@ class ShaderCompiler:
                          self.reg(distance), None if normal is None else self.reg(normal),
                          bool(node.invert))
 
+    _GEOMETRY = {"True Normal": "TRUE_NORMAL", "Incoming": "INCOMING",
+                 "Parametric": "PARAMETRIC", "Backfacing": "BACKFACING"}
+
     def light_path(self, node, out, ctx):
-        """The core tells shadow rays (through transparent surfaces) from the rest: Is Shadow
-        Ray is exact, Is Camera Ray is "not a shadow ray" (bounces count as camera rays, warned);
-        the other outputs are folded to their camera-ray values (warned)."""
-        if out.identifier == "Is Shadow Ray":
-            return self.emit("float", "light_path", "IS_SHADOW_RAY")
-        if out.identifier == "Is Camera Ray":
-            self.problem(f"'{node.name}': Is Camera Ray is also 1 for indirect rays (only "
-                         "shadow rays are told apart)")
-            return self.emit("float", "light_path", "IS_CAMERA_RAY")
-        self.problem(f"'{node.name}': {out.name} is evaluated as for camera rays (0: the ray "
-                     "type is not known when shading)")
-        return ZERO
+        """Light Path: every output from the core's path state, as Cycles' (Is Volume Scatter
+        Ray is 0: there is no volume scattering)."""
+        which = out.identifier.upper().replace(" ", "_")
+        if which == "IS_VOLUME_SCATTER_RAY":
+            return ZERO
+        if which not in self._LIGHT_PATH:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit("float", "light_path", which)
+
+    _LIGHT_PATH = {"IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY",
+                   "IS_SINGULAR_RAY", "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY", "RAY_LENGTH",
+                   "RAY_DEPTH", "DIFFUSE_DEPTH", "GLOSSY_DEPTH", "TRANSPARENT_DEPTH",
+                   "TRANSMISSION_DEPTH"}
+
+    _OBJECT_INFO = {"Location": ("vector", "LOCATION"), "Color": ("color", "COLOR"),
+                    "Alpha": ("float", "ALPHA"), "Object Index": ("float", "OBJECT_INDEX"),
+                    "Random": ("float", "RANDOM")}
+
+    def object_info(self, node, out, ctx):
+        """Object Info: the hit instance's location, colour, alpha, pass index and random
+        number (per instance in the core); Material Index is this material's pass index."""
+        if out.identifier == "Material Index":
+            return const_float(float(self.material_index))
+        kind, which = self._OBJECT_INFO.get(out.identifier, (None, None))
+        if kind is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit(kind, "object_info", which)
 
     def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
              kind="color"):
@@ -1265,7 +1325,8 @@ class ShaderCompiler:
 
     _VALUE_NODES = {
         'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
-        'LIGHT_PATH': light_path, 'VALTORGB': color_ramp, 'CURVE_RGB': rgb_curves,
+        'LIGHT_PATH': light_path, 'OBJECT_INFO': object_info, 'VALTORGB': color_ramp,
+        'CURVE_RGB': rgb_curves, 'VERTEX_COLOR': color_attribute, 'ATTRIBUTE': attribute_node,
         'SEPARATE_COLOR': separate_color, 'SEPRGB': separate_color, 'SEPHSV': separate_color,
         'COMBINE_COLOR': combine_color, 'COMBRGB': combine_color, 'COMBHSV': combine_color,
         'SEPXYZ': separate_xyz, 'COMBXYZ': combine_xyz, 'HUE_SAT': hue_saturation,
@@ -1287,6 +1348,8 @@ class ShaderCompiler:
             return self.object_coords(oid.lower())
         if oid == "Normal":
             return self.emit("vector", "object_normal")
+        if oid == "Reflection":
+            return self.emit("vector", "geometry", "REFLECTION")
         self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
         return const_vector((0, 0, 0))
 
@@ -1603,7 +1666,7 @@ class ShaderCompiler:
 
 # How many register operands (after the destination) each value op has; None = none given.
 _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
-             "light_path": 0,
+             "light_path": 0, "object_info": 0, "attribute": 0, "geometry": 0,
              "object_normal": 0, "mapping": 1, "image": 1,
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
@@ -1676,4 +1739,4 @@ def compile_material(mat, images, uv_sets):
     output = tree.get_output_node('CYCLES')
     if output is None:
         return None
-    return ShaderCompiler(images, uv_sets).compile(output, mat.name)
+    return ShaderCompiler(images, uv_sets, material_index=mat.pass_index).compile(output, mat.name)

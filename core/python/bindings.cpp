@@ -12,6 +12,7 @@
 #include "render/session.h"
 #include "util/big_alloc.h"
 #include "util/hash.h"
+#include "util/lookup3.h"
 
 namespace py = pybind11;
 using namespace pl;
@@ -223,7 +224,8 @@ class IndexArray {
 
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
                   const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
-                  const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices) {
+                  const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
+                  const py::dict& attributes) {
   self.check_editable();
   const IndexArray triangles(triangles_obj, "triangles");
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
@@ -321,6 +323,21 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
       const float u = src[2 * i], v = src[2 * i + 1];
       dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
     }
+  }
+  for (const auto& item : attributes) {
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 3 || size_t(a.shape(0)) != nt || a.shape(1) != 3 || a.shape(2) != 4)
+      throw std::invalid_argument("attributes must have shape (T, 3, 4)");
+    if (mesh.attributes.size() <= size_t(k)) mesh.attributes.resize(size_t(k) + 1);
+    auto& dst = mesh.attributes[size_t(k)];
+    huge(dst, nt * 3);
+    dst.resize(nt * 3);
+    const float* src = a.data();
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    for (size_t i = 0; i < nt * 3; ++i)
+      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
   }
   if (!texspace.is_none()) {  // (location, size) of Blender's texture space
     const auto ts = texspace.cast<py::tuple>();
@@ -496,8 +513,29 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
     } else if (op == "light_path") {
       need(3);
       o.code = OpCode::LightPath;
-      o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY"}, name_of(t[2]), "light path output");
+      o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY", "IS_SINGULAR_RAY",
+                        "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY", "IS_VOLUME_SCATTER_RAY", "RAY_LENGTH",
+                        "RAY_DEPTH", "DIFFUSE_DEPTH", "GLOSSY_DEPTH", "TRANSPARENT_DEPTH", "TRANSMISSION_DEPTH"},
+                       name_of(t[2]), "light path output");
       prog.varying = true;
+    } else if (op == "geometry") {
+      need(3);
+      o.code = OpCode::Geometry;
+      o.sub = index_in({"TRUE_NORMAL", "INCOMING", "PARAMETRIC", "BACKFACING", "REFLECTION"}, name_of(t[2]),
+                       "geometry output");
+      prog.varying = true;
+    } else if (op == "object_info") {
+      need(3);
+      o.code = OpCode::ObjectInfo;
+      o.sub = index_in({"LOCATION", "COLOR", "ALPHA", "OBJECT_INDEX", "RANDOM"}, name_of(t[2]), "object info output");
+      prog.varying = true;  // per instance
+    } else if (op == "attribute") {
+      need(4);
+      o.code = OpCode::Attribute;
+      o.index = int32_t(t[2].cast<int64_t>());
+      if (o.index < 0 || o.index >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
+      o.sub = index_in({"COLOR", "FAC", "ALPHA"}, name_of(t[3]), "attribute output");
+      prog.uses_attributes = prog.varying = true;
     } else if (op == "object_normal") {
       need(2);
       o.code = OpCode::ObjectNormal;
@@ -1066,6 +1104,17 @@ PYBIND11_MODULE(pathlight_core, m) {
       "Blender does; faces of 5+ corners get a fan (counted: the caller replaces those). corners=False: None "
       "instead of the corner indices (not computed).");
   m.def(
+      "object_random_id",
+      [](const std::string& name) {
+        // Cycles' id of an object that is not an instance: hash_string (i * 37 + c over the
+        // name's UTF-8 bytes, unsigned: what Blender's Cycles gives for non-ASCII names) then
+        // lookup3 of (that, 0).
+        uint32_t h = 0;
+        for (const char c : name) h = h * 37u + uint32_t(uint8_t(c));
+        return lookup3::hash(h, 0u);
+      },
+      py::arg("name"), "Cycles' random id of a (non-instanced) object named `name`.");
+  m.def(
       "hash_buffer",
       [](const py::object& data, uint64_t seed) {
         Py_buffer view;  // any C-contiguous buffer (numpy arrays, bytes); others raise BufferError
@@ -1398,7 +1447,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
-           py::arg("normal_indices") = py::none())
+           py::arg("normal_indices") = py::none(), py::arg("attributes") = py::dict())
       .def(
           "add_image",
           [](PyScene& self, const FloatArray& pixels, bool srgb) {
@@ -1460,11 +1509,25 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Removes every analytic light; the next commit() rebuilds only the light distribution.")
       .def(
           "add_instance",
-          [](PyScene& self, uint32_t mesh, const FloatArray& matrix) {
+          [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
+             uint32_t random_id) {
             self.check_editable();
-            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"));
+            ObjectInfo info;
+            if (!color.is_none()) {
+              const auto c = color.cast<std::vector<float>>();
+              if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("instance color takes 3 or 4 values");
+              auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+              info.color = {clean(c[0]), clean(c[1]), clean(c[2]), c.size() == 4 ? clean(c[3]) : 1.0f};
+            }
+            info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
+            info.random = object_random(random_id);
+            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info);
           },
-          py::arg("mesh"), py::arg("matrix"))
+          py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
+          py::arg("random_id") = 0u,
+          "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
+          "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32).")
+
       .def(
           "set_instance_transform",
           [](PyScene& self, uint32_t index, const FloatArray& matrix) {

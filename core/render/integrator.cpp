@@ -131,6 +131,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   Vec3 mis_org = ray.org;   // the last vertex that scattered (light samples start there)
   const bool nee = s.use_nee && scene.has_lights();
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
+  RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
+  float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
   Medium medium;
   ClosureList cl;
@@ -169,7 +171,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     SurfacePoint sp;
     scene.surface_point(hit, sp);
     const Vec3 wo = -ray.dir;
-    scene.shade(sp, hit.b1, hit.b2, wo, cl);
+    ray_state.length = length_before + hit.t * length(ray.dir);
+    scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
 
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.
     if (!is_black(cl.emission)) {
@@ -217,6 +220,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
 
     if (nee && (!kNonDiffuse || cl.has_nondelta)) {
       DirectSample ds;
+      ds.path = &ray_state;
       const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
       u_rr = u_sel.y;
       const Vec2 u_pt = sampler.get2d();
@@ -303,6 +307,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     // ray collect emission (so the light sample above keeps its MIS weight), then stops.
     if (kNonDiffuse && (bs.flags & kTransparentLobe)) {
       if (++transparent > 256) break;
+      ray_state.transparent = uint16_t(transparent);  // the ray keeps its kind, as Cycles'
+      length_before = ray_state.length;
     } else {
       direct = false;
       want_data = false;
@@ -313,6 +319,16 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (count >= limit) emission_only = true;
       ++count;
       ++bounce;
+      length_before = 0.0f;
+      // Cycles' path_state_next: reflection or transmission, diffuse, glossy or singular.
+      ray_state.flags = uint8_t(((bs.flags & kReflect) ? kRayReflect : kRayTransmit) |
+                                ((bs.flags & kDiffuseLobe) ? kRayDiffuse
+                                 : (bs.flags & kDelta)     ? (kRayGlossy | kRaySingular)
+                                                           : kRayGlossy));
+      ray_state.depth = uint16_t(std::min(bounce, 65535));
+      ray_state.diffuse = uint16_t(std::min(diffuse, 65535));
+      ray_state.glossy = uint16_t(std::min(glossy, 65535));
+      ray_state.transmission = uint16_t(std::min(transmission, 65535));
       if (last) emission_only = true;  // no light sampling: the limit still ends the path
     }
     if constexpr (kNonDiffuse) {

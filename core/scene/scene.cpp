@@ -119,9 +119,9 @@ uint32_t Scene::add_mesh(MeshData mesh) {
   return static_cast<uint32_t>(meshes_.size() - 1);
 }
 
-void Scene::add_instance(uint32_t mesh, const Mat4& m) {
+void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info) {
   if (mesh >= meshes_.size()) throw std::invalid_argument("add_instance: unknown mesh id");
-  instances_.push_back({mesh, m});
+  instances_.push_back({mesh, m, info});
   committed_ = false;
   geometry_dirty_ = true;
 }
@@ -366,6 +366,7 @@ void Scene::build_instances() {
       have_texspace[inst.mesh] = 1;
     }
     object_coords_.push_back(make_object_coords(inst.matrix, texspace[inst.mesh].first, texspace[inst.mesh].second));
+    object_coords_.back().info = inst.info;
     in.to_world = inst.matrix;
     const Mat4& m = inst.matrix;
     const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
@@ -445,6 +446,7 @@ void Scene::update_memory_stats() {
            m.normal_indices.capacity() * 12 +
            m.materials.capacity() * 4;
     for (const auto& uv : m.uvs) geo += uv.capacity() * sizeof(Vec2);
+    for (const auto& a : m.attributes) geo += a.capacity() * sizeof(Float4);
   }
   stats_.bvh_bytes = bvh;
   stats_.geometry_bytes = geo;
@@ -853,7 +855,11 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   } else {
     // The material's emission at the sampled point (textured emission included).
     ClosureList cl;
-    shade(lp, b1, b2, -s.wi, cl);
+    // As Cycles evaluates a light sample's shader: no ray kind set, the path's bounce counts.
+    RayState emission = s.path ? *s.path : RayState{};
+    emission.flags = 0;
+    emission.length = dist;
+    shade(lp, b1, b2, -s.wi, cl, emission);
     s.li = cl.emission;
   }
   s.pdf = spherical ? pdf_solid : pmf_e / emitter_areas_[e] * dist2 / cos_l;
@@ -988,7 +994,7 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   return sample_emitter(e, p, st, spherical, pdf_solid, pmf_e, u, s);
 }
 
-void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray) const {
+void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
     out.n = mat.cached.n;
@@ -1008,7 +1014,9 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.ng = sp.ng;
   ctx.ns = sp.ns;
   ctx.wo = wo;
-  ctx.shadow_ray = shadow_ray;
+  ctx.ray = ray;
+  ctx.b1 = b1;
+  ctx.b2 = b2;
   const InstanceData& in = inst_[sp.instance];
   const Blas& blas = blases_[in.blas];
   const TriangleVerts tv = world_triangle(in, blas.tris[sp.tri]);
@@ -1060,6 +1068,25 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.tangent_signs = signs;
     ctx.tri_uv = corner_uvs;
   }
+  Float4 attrs[kMaxSets];
+  if (mat.program.uses_attributes) {
+    const MeshData& mesh = meshes_[in.mesh];
+    const int n = static_cast<int>(std::min<size_t>(mesh.attributes.size(), kMaxSets));
+    const float b0 = 1.0f - b1 - b2;
+    const size_t st = blas.src_tri[sp.tri];
+    for (int k = 0; k < n; ++k) {
+      const std::vector<Float4>& t = mesh.attributes[size_t(k)];
+      if (t.empty()) {
+        attrs[k] = {};
+        continue;
+      }
+      const Float4 &a = t[3 * st], &b = t[3 * st + 1], &c = t[3 * st + 2];
+      attrs[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2, a.z * b0 + b.z * b1 + c.z * b2,
+                  a.w * b0 + b.w * b1 + c.w * b2};
+    }
+    ctx.attrs = attrs;
+    ctx.attr_sets = n;
+  }
   eval_shader(mat.program, images_, ctx, out);
 }
 
@@ -1073,7 +1100,10 @@ Vec3 Scene::transmittance_through(Ray ray) const {
     const Material& mat = materials_[sp.material];
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;
-    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, true);
+    RayState shadow;
+    shadow.flags = kRayShadow;
+    shadow.length = h.t * length(ray.dir);
+    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, shadow);
     Vec3 pass(0.0f);
     for (int c = 0; c < cl.n; ++c)
       if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;

@@ -32,6 +32,9 @@ struct MeshData {
   std::vector<std::array<uint32_t, 3>> normal_indices;
   std::vector<uint32_t> materials;   // global material id per triangle
   std::vector<std::vector<Vec2>> uvs;  // per global uv set: 3 per triangle, or empty (missing)
+  // Per global attribute set (the Attribute and Color Attribute nodes; numbered with the uv
+  // sets): RGBA of every triangle corner, 3 per triangle, or empty (missing: reads 0).
+  std::vector<std::vector<Float4>> attributes;
   // Texture space for generated coordinates (Blender's texspace_location / texspace_size);
   // without it, Blender's automatic one (the bounding box) is computed at commit.
   bool has_texspace = false;
@@ -55,6 +58,7 @@ Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emi
 struct Instance {
   uint32_t mesh;
   Mat4 matrix;
+  ObjectInfo info;
 };
 
 // What the integrator needs about a hit point.
@@ -80,6 +84,8 @@ struct DirectSample {
   float pdf = 0.0f;       // solid-angle pdf including the light choice
   bool delta = false;      // no BSDF ray can find this light (delta or analytic): full weight
   bool cast_shadow = true;
+  // In: the path at the shading point, for textured emitters' Light Path nodes (null: none).
+  const RayState* path = nullptr;
 };
 
 struct SceneStats {
@@ -128,7 +134,7 @@ class Scene {
   size_t material_count() const { return materials_.size(); }
   size_t image_count() const { return images_.size(); }
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
-  void add_instance(uint32_t mesh, const Mat4& m);
+  void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {});
   size_t instance_count() const { return instances_.size(); }
   // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
   // commit() rebuilds only the top level and the lights; else the merged geometry.
@@ -241,8 +247,8 @@ class Scene {
   void surface_point(const Hit& h, SurfacePoint& sp) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
-  // shadow_ray: shading for a shadow ray's transparency (the Light Path node's Is Shadow Ray).
-  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, bool shadow_ray = false) const;
+  // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
+  void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray = {}) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
   // blocked; Transparent surfaces let part of it through).
   // Inline: without Transparent BSDFs (most scenes) a shadow ray is one any-hit query.

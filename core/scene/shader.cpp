@@ -514,10 +514,65 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         break;
       }
       case OpCode::LightPath: {
-        // The core knows shadow rays apart from the rest: Is Shadow Ray, and Is Camera Ray as
-        // "not a shadow ray" (an approximation: bounces count as camera rays).
-        const float v = op.sub == 0 ? (ctx.shadow_ray ? 0.0f : 1.0f) : (ctx.shadow_ray ? 1.0f : 0.0f);
+        // Cycles' svm_node_light_path: the ray's kind (flags) and its bounce counts.
+        const RayState& ray = ctx.ray;
+        static constexpr uint8_t kFlagOf[] = {kRayCamera, kRayShadow, kRayDiffuse, kRayGlossy,
+                                              kRaySingular, kRayReflect, kRayTransmit};
+        float v = 0.0f;
+        if (op.sub < 7) v = (ray.flags & kFlagOf[op.sub]) ? 1.0f : 0.0f;
+        else if (op.sub == 7) v = 0.0f;  // Is Volume Scatter Ray: no volume scattering yet
+        else if (op.sub == 8) v = ray.length;
+        else {
+          const uint16_t counts[] = {ray.depth, ray.diffuse, ray.glossy, ray.transparent, ray.transmission};
+          v = float(counts[std::min(op.sub - 9, 4)]);
+        }
         d = {v, v, v, 1.0f};
+        break;
+      }
+      case OpCode::ObjectInfo: {
+        // Cycles' svm_node_object_info: the hit instance's location, colour, alpha, pass index
+        // and random number (Material Index is a constant of the material, folded by the add-on).
+        static const ObjectInfo none;
+        const ObjectInfo& info = ctx.object ? ctx.object->info : none;
+        switch (op.sub) {
+          case 0: d = f4(ctx.object ? ctx.object->to_world.point(Vec3(0.0f)) : Vec3(0.0f), 0.0f); break;
+          case 1: d = {info.color.x, info.color.y, info.color.z, 1.0f}; break;
+          default: {
+            const float v = op.sub == 2 ? info.color.w : op.sub == 3 ? info.pass_index : info.random;
+            d = {v, v, v, 1.0f};
+          }
+        }
+        break;
+      }
+      case OpCode::Geometry: {
+        // Cycles' svm_node_geometry: its normals face the viewer (back faces flipped).
+        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        switch (op.sub) {
+          case 0: d = f4(backfacing ? -ctx.ng : ctx.ng, 0.0f); break;  // True Normal
+          case 1: d = f4(ctx.wo, 0.0f); break;                           // Incoming
+          case 2: d = {1.0f - ctx.b1 - ctx.b2, ctx.b1, 0.0f, 0.0f}; break;  // Parametric
+          case 3: {                                                       // Backfacing
+            const float v = backfacing ? 1.0f : 0.0f;
+            d = {v, v, v, 1.0f};
+            break;
+          }
+          default: {  // Texture Coordinate's Reflection: the view mirrored about the normal
+            const Vec3 n = backfacing ? -ctx.ns : ctx.ns;
+            d = f4(n * (2.0f * dot(n, ctx.wo)) - ctx.wo, 0.0f);
+          }
+        }
+        break;
+      }
+      case OpCode::Attribute: {
+        // Cycles' svm_node_attr of a mesh attribute: Color/Vector (RGB with alpha), Fac (the
+        // mean of RGB), Alpha; a missing attribute reads 0.
+        const Float4 a = op.index >= 0 && op.index < ctx.attr_sets && ctx.attrs ? ctx.attrs[op.index] : Float4{};
+        if (op.sub == 0) {
+          d = a;
+        } else {
+          const float v = op.sub == 1 ? (a.x + a.y + a.z) * (1.0f / 3.0f) : a.w;
+          d = {v, v, v, 1.0f};
+        }
         break;
       }
       case OpCode::ObjectNormal: {

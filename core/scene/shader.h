@@ -37,7 +37,7 @@ float srgb_to_linear(float c);
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
   Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
-  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath,
+  Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo, Attribute, Geometry,
   TexNoise, TexWave, TexMagic, TexWhiteNoise,  // procedural textures (scene/tex_noise.h)
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
@@ -126,12 +126,25 @@ struct ClosureList {
   }
 };
 
-// Per instance: what the Texture Coordinate node's Object, Generated and Normal outputs need.
+// Per instance: what the Object Info node reads (Blender's object colour, pass index and
+// random number; the location comes from the matrix).
+struct ObjectInfo {
+  Float4 color{1.0f, 1.0f, 1.0f, 1.0f};  // Object ▸ Viewport Display ▸ Color, with alpha
+  float pass_index = 0.0f;
+  float random = 0.0f;  // in [0, 1]: Cycles' random_id * 2^-32
+};
+// Object Info's Random from a 32-bit id as Cycles makes it: (float)id / (float)0xFFFFFFFF,
+// whose divisor rounds to 2^32 in float.
+inline float object_random(uint32_t id) { return float(id) * (1.0f / 4294967296.0f); }
+
+// Per instance: what the Texture Coordinate node's Object, Generated and Normal outputs and the
+// Object Info node need.
 struct ObjectCoords {
   Mat4 to_object;                  // world -> object space (the inverse of the instance matrix)
   Mat4 to_world;                   // object -> world (object normals: n_obj ~ to_world^T n)
   Vec3 gen_scale{1.0f}, gen_offset{0.0f};  // object -> generated: p * gen_scale + gen_offset
   bool valid = false;              // false: the matrix is singular (world coordinates used)
+  ObjectInfo info;
 };
 // Cycles' generated coordinates: the object-space position in the mesh's texture space
 // (Blender's auto texture space is its bounding box), mapped to [0, 1]:
@@ -139,6 +152,23 @@ struct ObjectCoords {
 ObjectCoords make_object_coords(const Mat4& to_world, Vec3 texspace_location, Vec3 texspace_size);
 // Blender's automatic texture space of vertex positions: (location, size) of the bounding box.
 void auto_texspace(const std::vector<Vec3>& positions, Vec3& location, Vec3& size);
+
+// The ray that reached a shading point, as Cycles' path state tells it to the Light Path node:
+// what the last scattering was (flags) and the bounces so far of each kind.
+enum RayFlags : uint8_t {
+  kRayCamera = 1,     // the camera ray, and its continuations through Transparent BSDFs
+  kRayShadow = 2,     // a shadow ray shading a surface's transparency
+  kRayDiffuse = 4,    // after a diffuse bounce
+  kRayGlossy = 8,     // after a glossy (or singular) bounce
+  kRaySingular = 16,  // after a delta (sharp mirror or glass) bounce
+  kRayReflect = 32,   // after a reflection
+  kRayTransmit = 64,  // after a transmission
+};
+struct RayState {
+  uint8_t flags = kRayCamera;
+  uint16_t depth = 0, diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
+  float length = 0.0f;  // distance from the ray's origin to the hit
+};
 
 // What a program can read at a shading point.
 struct ShadingContext {
@@ -153,13 +183,17 @@ struct ShadingContext {
   const Vec3* tri = nullptr;
   const Vec2* tri_uv = nullptr;
   const ObjectCoords* object = nullptr;  // the hit instance's (nullptr: world coordinates)
-  bool shadow_ray = false;  // shading a shadow ray's transparency, not a scattering ray's hit
+  const Float4* attrs = nullptr;  // per attribute set: the interpolated value (nullptr: none)
+  int attr_sets = 0;
+  RayState ray;  // the ray that hit (Light Path node)
+  float b1 = 0.0f, b2 = 0.0f;  // barycentrics of the hit in its triangle (Geometry ▸ Parametric)
 };
 
 struct ShaderProgram {
   std::vector<ShaderOp> ops;
   bool varying = false;  // reads the shading point (else evaluated once)
   bool uses_uv = false;
+  bool uses_attributes = false;
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
   std::vector<Float4> tables;  // Ramp lookup tables (Color Ramp, RGB Curves), as Cycles bakes them
