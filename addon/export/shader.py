@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from . import tex_patterns
 from .image import is_srgb_bytes, read_pixels, rgb_of, to_scene_linear
 
 MAX_REGISTERS = 64
@@ -1211,6 +1212,7 @@ class ShaderCompiler:
         'SEPXYZ': separate_xyz, 'COMBXYZ': combine_xyz, 'HUE_SAT': hue_saturation,
         'GAMMA': gamma, 'BRIGHTCONTRAST': bright_contrast, 'CLAMP': clamp_node,
         'MAP_RANGE': map_range, 'VECT_MATH': vector_math,
+        **tex_patterns.NODES,
     }
 
     def tex_coord(self, node, oid):
@@ -1546,7 +1548,8 @@ _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "gene
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
              "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
-             "map_range": 6, "map_range_vector": 6, "vector_math": 4}
+             "map_range": 6, "map_range_vector": 6, "vector_math": 4,
+             **tex_patterns.OPERANDS}
 
 
 def _reads(op):

@@ -1,5 +1,7 @@
 #include "scene/shader.h"
 
+#include "scene/tex_patterns.h"
+
 namespace pl {
 namespace {
 
@@ -715,6 +717,12 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         }
         break;
       }
+      case OpCode::Checker:
+      case OpCode::Gradient:
+      case OpCode::Brick:
+      case OpCode::Voronoi:
+        d = tex::eval_pattern_op(op, r);
+        break;
       case OpCode::Diffuse: {
         Frame f;
         const DiffuseBsdf d = diffuse_lobe(op.in[2], f);
