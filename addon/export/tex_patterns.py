@@ -12,7 +12,7 @@ OPERANDS = {"checker": 4, "gradient": 1, "brick": 10, "voronoi": 9}
 
 def _vector(c, node, ctx):
     """The Vector input, or the Generated coordinates when it is not linked."""
-    v = c.value(node.inputs["Vector"], ctx, "vector")
+    v = _input(c, node, "Vector", ctx, "vector")
     if v is None:
         v = c.object_coords("generated")
     _note_texture_mapping(c, node)
@@ -32,13 +32,26 @@ def _note_texture_mapping(c, node):
         c.problem(f"'{node.name}': its Texture Mapping settings are not supported (ignored)")
 
 
+def _input(c, node, name, ctx, kind):
+    """An input by identifier: Blender's inputs[name] skips sockets the node's settings make
+    unavailable (Voronoi's Smoothness, Exponent, W), which Cycles then does not read either."""
+    for socket in node.inputs:
+        if socket.identifier == name:
+            return c.value(socket, ctx, kind)
+    raise KeyError(f"'{node.name}' has no input {name}")
+
+
 def _floats(c, node, ctx, names):
-    return [c.reg(c.input(node, name, ctx, "float")) for name in names]
+    return [c.reg(_input(c, node, name, ctx, "float")) for name in names]
+
+
+def _colors(c, node, ctx, names):
+    return [c.reg(_input(c, node, name, ctx, "color")) for name in names]
 
 
 def checker(c, node, out, ctx):
     vec = _vector(c, node, ctx)
-    colors = [c.reg(c.input(node, k, ctx, "color")) for k in ("Color1", "Color2")]
+    colors = _colors(c, node, ctx, ("Color1", "Color2"))
     fac = out.identifier == "Fac"
     return c.emit("float" if fac else "color", "checker", c.reg(vec), *colors,
                   *_floats(c, node, ctx, ("Scale",)), "FAC" if fac else "COLOR")
@@ -52,7 +65,7 @@ def gradient(c, node, out, ctx):
 
 def brick(c, node, out, ctx):
     vec = _vector(c, node, ctx)
-    colors = [c.reg(c.input(node, k, ctx, "color")) for k in ("Color1", "Color2", "Mortar")]
+    colors = _colors(c, node, ctx, ("Color1", "Color2", "Mortar"))
     floats = _floats(c, node, ctx, ("Scale", "Mortar Size", "Mortar Smooth", "Bias",
                                     "Brick Width", "Row Height"))
     fac = out.identifier == "Fac"
@@ -70,7 +83,7 @@ def voronoi(c, node, out, ctx):
     dims = node.voronoi_dimensions
     kind, which = _VORONOI_OUTPUTS.get(out.identifier, ("float", "DISTANCE"))
     vec = None if dims == '1D' else c.reg(_vector(c, node, ctx))
-    w = c.reg(c.input(node, "W", ctx, "float")) if dims in ('1D', '4D') else None
+    w = c.reg(_input(c, node, "W", ctx, "float")) if dims in ('1D', '4D') else None
     floats = _floats(c, node, ctx, ("Scale", "Detail", "Roughness", "Lacunarity", "Smoothness",
                                     "Exponent", "Randomness"))
     return c.emit(kind, "voronoi", vec, w, *floats, dims, node.feature, node.distance,
