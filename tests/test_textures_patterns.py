@@ -468,3 +468,54 @@ def test_bump_of_a_voronoi_distance():
     assert abs(ratio - 1.0) < 0.01 and worst < 0.03, f"{ratio:.4f} {worst:.4f}"
     # The bump shows: a flat plane under the sun would be one grey (std ~0.001 from noise).
     assert ours[..., 0].std() > 0.02
+
+
+# ---------------------------------------------------------------- every input linked
+
+def from_gradient(*names, lo=0.0, hi=1.0, kind='LINEAR'):
+    """A links_fn feeding inputs `names` from a Gradient's Fac mapped to [lo, hi]."""
+    def fn(nodes, links, n):
+        g = node(nodes, "ShaderNodeTexGradient", gradient_type=kind)
+        m = node(nodes, "ShaderNodeMapRange")
+        m.inputs["To Min"].default_value, m.inputs["To Max"].default_value = lo, hi
+        links.new(g.outputs["Fac"], m.inputs["Value"])
+        for name in names:
+            links.new(m.outputs["Result"], next(s for s in n.inputs if s.identifier == name))
+    return fn
+
+
+def chain(*fns):
+    def fn(nodes, links, n):
+        for f in fns:
+            f(nodes, links, n)
+    return fn
+
+
+def test_voronoi_linked_inputs():
+    ours, cycles = render_both(channels(
+        voronoi('3D', 'F1', Scale=3.0, normalize=True, links_fn=chain(
+            from_gradient("Detail", lo=0.0, hi=3.0), from_gradient("Roughness", kind='DIAGONAL'),
+            from_gradient("Lacunarity", lo=1.5, hi=3.0, kind='EASING'))),
+        voronoi('2D', 'SMOOTH_F1', Scale=4.0, links_fn=from_gradient("Smoothness")),
+        voronoi('4D', 'F2', metric='MINKOWSKI', Scale=3.0,
+                links_fn=from_gradient("Exponent", lo=0.6, hi=3.0))))
+    assert_agree(ours, cycles, label="voronoi linked inputs")
+
+
+def test_brick_and_checker_linked_inputs():
+    def color(nodes, links):
+        n = node(nodes, "ShaderNodeTexBrick", in_Scale=3.0)
+        chain(from_gradient("Mortar Size", lo=0.01, hi=0.1),
+              from_gradient("Mortar Smooth", lo=0.0, hi=1.0, kind='DIAGONAL'),
+              from_gradient("Bias", lo=-0.5, hi=0.5, kind='EASING'),
+              from_gradient("Brick Width", lo=0.3, hi=0.7, kind='RADIAL'),
+              from_gradient("Row Height", lo=0.2, hi=0.3, kind='QUADRATIC'))(nodes, links, n)
+        checker = node(nodes, "ShaderNodeTexChecker", in_Scale=3.0)
+        g = node(nodes, "ShaderNodeTexGradient", gradient_type='DIAGONAL')
+        links.new(g.outputs["Color"], checker.inputs["Color2"])
+        links.new(g.outputs["Fac"], checker.inputs["Scale"])
+        links.new(checker.outputs["Color"], n.inputs["Mortar"])
+        links.new(checker.outputs["Color"], n.inputs["Color2"])
+        return n.outputs["Color"]
+    ours, cycles = render_both(color)
+    assert_agree(ours, cycles, label="brick and checker linked inputs")
