@@ -519,3 +519,17 @@ def test_brick_and_checker_linked_inputs():
         return n.outputs["Color"]
     ours, cycles = render_both(color)
     assert_agree(ours, cycles, label="brick and checker linked inputs")
+
+
+def test_degenerate_inputs_render_finite():
+    """Zero sizes and exponents, huge scales, out-of-range settings: finite values (no NaN
+    or crash; Cycles' own results there are not compared)."""
+    build = pattern_scene(channels(
+        output("ShaderNodeTexBrick", "Fac", in_Row_Height=0.0, in_Brick_Width=0.0,
+               in_Mortar_Size=0.0, in_Scale=1e30),
+        voronoi('4D', 'F1', metric='MINKOWSKI', Exponent=0.0, Scale=1e30, Lacunarity=0.0,
+                Detail=3.0, normalize=True),
+        voronoi('2D', 'DISTANCE_TO_EDGE', Scale=-1e-30, Randomness=-5.0, Detail=40.0,
+                Roughness=7.0, normalize=True)))
+    img = render_to_array(build(), "PATHLIGHT", samples=1, max_bounces=1)
+    assert np.isfinite(img).all()
