@@ -533,3 +533,15 @@ def test_degenerate_inputs_render_finite():
                 Roughness=7.0, normalize=True)))
     img = render_to_array(build(), "PATHLIGHT", samples=1, max_bounces=1)
     assert np.isfinite(img).all()
+
+
+@pytest.mark.parametrize("dims", DIMS)
+def test_voronoi_smooth_and_f2_colors(dims):
+    """Colour components (through Separate XYZ) of Smooth F1 (blended cell colours), F2, and
+    a fractal Smooth F1 whose Normalize divides the colour too."""
+    ours, cycles = render_both(channels(
+        voronoi(dims, 'SMOOTH_F1', out="Color", component=0, Scale=4.0, Smoothness=0.6),
+        voronoi(dims, 'F2', out="Color", component=1, Scale=4.0),
+        voronoi(dims, 'SMOOTH_F1', out="Color", component=2, Scale=3.0, Smoothness=0.3,
+                Detail=1.5, Roughness=0.7, normalize=True)))
+    assert_agree(ours, cycles, label=f"voronoi {dims} smooth/F2 colours")

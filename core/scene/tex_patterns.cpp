@@ -223,7 +223,7 @@ inline Vec3 cell_color(V<4> k) {
 struct Params {
   VoronoiFeature feature;
   VoronoiMetric metric;
-  bool normalize;
+  bool normalize, need_color;
   float scale, detail, roughness, lacunarity, smoothness, exponent, randomness;
   float max_distance = 0.0f;
 };
@@ -321,9 +321,11 @@ Octave voronoi_smooth_f1(const Params& p, V<N> coord) {
     float correction = p.smoothness * h * (1.0f - h);
     smooth_distance = mix_c(smooth_distance, d, h) - correction;
     correction /= 1.0f + 3.0f * p.smoothness;
-    const Vec3 c = cell_color(cell + off);
-    smooth_color = {mix_c(smooth_color.x, c.x, h) - correction, mix_c(smooth_color.y, c.y, h) - correction,
-                    mix_c(smooth_color.z, c.z, h) - correction};
+    if (p.need_color) {
+      const Vec3 c = cell_color(cell + off);
+      smooth_color = {mix_c(smooth_color.x, c.x, h) - correction, mix_c(smooth_color.y, c.y, h) - correction,
+                      mix_c(smooth_color.z, c.z, h) - correction};
+    }
     V<N> sp = vmix(smooth_position, point, h);
     for (int i = 0; i < N; ++i) sp.c[i] -= correction;
     smooth_position = sp;
@@ -543,7 +545,7 @@ VoronoiResult voronoi_n(Params& p, V<N> coord) {
 }  // namespace
 
 VoronoiResult voronoi(const VoronoiParams& in, Vec3 coord, float w) {
-  Params p{in.feature, in.metric, in.normalize, in.scale, in.detail, in.roughness, in.lacunarity,
+  Params p{in.feature, in.metric, in.normalize, in.need_color, in.scale, in.detail, in.roughness, in.lacunarity,
            in.smoothness, in.exponent, in.randomness};
   p.detail = clamp_c(p.detail, 0.0f, 15.0f);
   p.roughness = clamp_c(p.roughness, 0.0f, 1.0f);
@@ -617,6 +619,7 @@ Float4 eval_pattern_op(const ShaderOp& op, const Float4* r) {
       vp.smoothness = val(6);
       vp.exponent = val(7);
       vp.randomness = val(8);
+      vp.need_color = op.sub == 1;
       const VoronoiResult v = voronoi(vp, reg(0).xyz(), val(1));
       switch (op.sub) {
         case 1: return vec4(v.color, 1.0f);

@@ -46,6 +46,9 @@ struct VoronoiParams {
   // The node's inputs as given (the clamps Cycles applies happen inside voronoi()).
   float scale = 5.0f, detail = 0.0f, roughness = 0.5f, lacunarity = 2.0f;
   float smoothness = 1.0f, exponent = 0.5f, randomness = 1.0f;
+  // Whether the Color output is read: Smooth F1 otherwise skips hashing every cell's colour
+  // (3 of its 7 hashes per cell; the other outputs are unchanged).
+  bool need_color = true;
 };
 struct VoronoiResult {
   float distance = 0.0f;
