@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from . import tex_patterns
 from .image import is_srgb_bytes, read_pixels, rgb_of, to_scene_linear
 
 MAX_REGISTERS = 64
@@ -1334,6 +1335,7 @@ class ShaderCompiler:
         'MAP_RANGE': map_range, 'VECT_MATH': vector_math,
         'TEX_NOISE': noise_texture, 'TEX_WAVE': wave_texture, 'TEX_MAGIC': magic_texture,
         'TEX_WHITE_NOISE': white_noise_texture,
+        **tex_patterns.NODES,
     }
 
     def tex_coord(self, node, oid):
@@ -1672,7 +1674,8 @@ _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "gene
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
              "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
              "map_range": 6, "map_range_vector": 6, "vector_math": 4,
-             "tex_noise": 9, "tex_wave": 7, "tex_magic": 3, "tex_white_noise": 2}
+             "tex_noise": 9, "tex_wave": 7, "tex_magic": 3, "tex_white_noise": 2,
+             **tex_patterns.OPERANDS}
 
 
 def _reads(op):

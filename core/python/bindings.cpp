@@ -409,6 +409,67 @@ bool parse_noise_texture_op(const std::string& op, const py::tuple& t, ShaderOp&
   return true;
 }
 
+// The procedural texture ops (Checker, Gradient, Brick, Voronoi; scene/tex_patterns.h): false
+// if `op` is none of them. `regno` validates a register operand.
+template <class RegNo>
+bool parse_pattern_op(const std::string& op, const py::tuple& t, ShaderOp& o, RegNo&& regno) {
+  auto need = [&](size_t n) {
+    if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
+  };
+  auto pick = [&](const py::handle& h, std::initializer_list<const char*> names, const char* what) {
+    const std::string x = h.cast<std::string>();
+    uint8_t i = 0;
+    for (const char* n : names) {
+      if (x == n) return i;
+      ++i;
+    }
+    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+  };
+  auto regs = [&](int n) {
+    for (int k = 0; k < n; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+  };
+  if (op == "checker") {  // (vector, color1, color2, scale, output)
+    need(7);
+    o.code = OpCode::Checker;
+    regs(4);
+    o.sub = pick(t[6], {"COLOR", "FAC"}, "checker output");
+  } else if (op == "gradient") {  // (vector, type)
+    need(4);
+    o.code = OpCode::Gradient;
+    regs(1);
+    o.sub = pick(t[3], {"LINEAR", "QUADRATIC", "EASING", "DIAGONAL", "SPHERICAL", "QUADRATIC_SPHERE", "RADIAL"},
+                 "gradient type");
+  } else if (op == "brick") {
+    // (vector, color1, color2, mortar, scale, mortar size, mortar smooth, bias, brick width,
+    //  row height, offset, offset frequency, squash, squash frequency, output)
+    need(17);
+    o.code = OpCode::Brick;
+    regs(10);
+    o.m[0] = t[12].cast<float>();
+    o.index = t[13].cast<int32_t>();
+    o.m[1] = t[14].cast<float>();
+    o.count = t[15].cast<int32_t>();
+    if (!std::isfinite(o.m[0]) || !std::isfinite(o.m[1])) throw std::invalid_argument("brick offset and squash must be finite");
+    if (o.index < 1 || o.index > 99 || o.count < 1 || o.count > 99)
+      throw std::invalid_argument("brick frequencies must be in [1, 99]");
+    o.sub = pick(t[16], {"COLOR", "FAC"}, "brick output");
+  } else if (op == "voronoi") {
+    // (vector, w, scale, detail, roughness, lacunarity, smoothness, exponent, randomness,
+    //  dimensions, feature, metric, normalize, output)
+    need(16);
+    o.code = OpCode::Voronoi;
+    regs(9);
+    o.ext = pick(t[11], {"1D", "2D", "3D", "4D"}, "voronoi dimensions") + 1;
+    o.index = pick(t[12], {"F1", "F2", "SMOOTH_F1", "DISTANCE_TO_EDGE", "N_SPHERE_RADIUS"}, "voronoi feature");
+    o.count = pick(t[13], {"EUCLIDEAN", "MANHATTAN", "CHEBYCHEV", "MINKOWSKI"}, "voronoi distance metric");
+    o.clamp = t[14].cast<bool>();
+    o.sub = pick(t[15], {"DISTANCE", "COLOR", "POSITION", "W", "RADIUS"}, "voronoi output");
+  } else {
+    return false;
+  }
+  return true;
+}
+
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
 ShaderProgram parse_program(const PyScene& self, const py::list& program) {
   ShaderProgram prog;
@@ -681,7 +742,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.index = t[4].cast<int32_t>();
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
       prog.uses_uv = prog.varying = true;
-    } else if (!parse_noise_texture_op(op, t, o)) {
+    } else if (!parse_noise_texture_op(op, t, o) && !parse_pattern_op(op, t, o, regno)) {
       throw std::invalid_argument("unknown shader op '" + op + "'");
     }
     prog.ops.push_back(o);

@@ -1,6 +1,7 @@
 #include "scene/shader.h"
 
 #include "scene/tex_noise.h"
+#include "scene/tex_patterns.h"
 
 namespace pl {
 namespace {
@@ -800,6 +801,12 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       }
       case OpCode::TexWhiteNoise:
         d = f4(white_noise_texture(op.sub, op.index != 0, reg(op.in[0]).xyz(), reg(op.in[1]).x));
+        break;
+      case OpCode::Checker:
+      case OpCode::Gradient:
+      case OpCode::Brick:
+      case OpCode::Voronoi:
+        d = tex::eval_pattern_op(op, r);
         break;
       case OpCode::Diffuse: {
         Frame f;

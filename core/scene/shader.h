@@ -38,7 +38,8 @@ enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
   Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
   Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo, Attribute, Geometry,
-  TexNoise, TexWave, TexMagic, TexWhiteNoise,  // procedural textures (scene/tex_noise.h)
+  TexNoise, TexWave, TexMagic, TexWhiteNoise,  // procedural textures: scene/tex_noise.h
+  Checker, Gradient, Brick, Voronoi,           // procedural textures: scene/tex_patterns.h
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
