@@ -661,8 +661,8 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     hue = nodes.new("ShaderNodeAmbientOcclusion")
     hue.inputs["Color"].default_value = (0.9, 0.1, 0.1, 1)
     links.new(hue.outputs["Color"], d.inputs["Color"])
-    ramp = nodes.new("ShaderNodeWavelength")  # no Color input: the consumer's value is used
-    links.new(ramp.outputs["Color"], mix.inputs["Fac"])
+    ramp = nodes.new("ShaderNodeParticleInfo")  # no Color input: the consumer's value is used
+    links.new(ramp.outputs["Random"], mix.inputs["Fac"])
     mix.inputs["Fac"].default_value = 0.4
     add = nodes.new("ShaderNodeAddShader")
     links.new(toon.outputs[0], add.inputs[0])
@@ -673,7 +673,7 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     closures, warnings, _ = closures_of(mat)
     assert len(warnings) == 1
     for name in ("Odd", "Toon BSDF", "Principled Hair BSDF", "Ambient Occlusion",
-                 "Wavelength"):
+                 "Particle Info"):
         assert name in warnings[0], (name, warnings[0])
     colors = sorted((tuple(round(x, 4) for x in c[2]["color"][:3]), round(weight_of(c)[0], 4))
                     for c in closures)

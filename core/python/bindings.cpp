@@ -409,6 +409,68 @@ bool parse_noise_texture_op(const std::string& op, const py::tuple& t, ShaderOp&
   return true;
 }
 
+// The Vector Rotate, Vector Transform, Blackbody, Wavelength, Texture Coordinate Camera/Window
+// and Tangent ops (scene/vector_nodes.h); false: not one of them.
+bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o, ShaderProgram& prog) {
+  auto regno = [](const py::handle& h) -> int16_t {
+    if (h.is_none()) return kNoReg;
+    const int64_t r = h.cast<int64_t>();
+    if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
+    return int16_t(r);
+  };
+  auto need = [&](size_t n) {
+    if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
+  };
+  auto index_in = [](const std::vector<std::string>& v, const py::handle& h, const char* what) {
+    const std::string x = h.cast<std::string>();
+    for (size_t i = 0; i < v.size(); ++i)
+      if (v[i] == x) return uint8_t(i);
+    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+  };
+  static const std::vector<std::string> spaces = {"WORLD", "OBJECT", "CAMERA"};
+  if (op == "vector_rotate") {  // vector, center, axis, angle, rotation, type, invert
+    need(9);
+    o.code = OpCode::VectorRotate;
+    for (int k = 0; k < 5; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    o.sub = index_in({"AXIS_ANGLE", "X_AXIS", "Y_AXIS", "Z_AXIS", "EULER_XYZ"}, t[7], "vector rotate type");
+    o.clamp = t[8].cast<bool>();
+  } else if (op == "vector_transform") {  // vector, type, from, to
+    need(6);
+    o.code = OpCode::VectorTransform;
+    o.in[0] = regno(t[2]);
+    o.sub = index_in({"POINT", "VECTOR", "NORMAL"}, t[3], "vector transform type");
+    o.index = index_in(spaces, t[4], "vector transform space");
+    o.count = index_in(spaces, t[5], "vector transform space");
+    prog.varying = true;  // object and camera space differ per instance and render
+  } else if (op == "blackbody" || op == "wavelength") {
+    need(3);
+    o.code = op == "blackbody" ? OpCode::Blackbody : OpCode::Wavelength;
+    o.in[0] = regno(t[2]);
+  } else if (op == "camera_coords") {  // which [, bump offset]
+    if (t.size() != 3 && t.size() != 4) throw std::invalid_argument("shader op 'camera_coords' takes 2 or 3 arguments");
+    o.code = OpCode::CameraCoords;
+    o.sub = index_in({"CAMERA", "WINDOW"}, t[2], "camera coordinates");
+    o.ext = uint8_t(kAtPoint);
+    if (t.size() == 4) {
+      const int64_t v = t[3].cast<int64_t>();
+      if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
+      o.ext = uint8_t(v);
+    }
+    prog.varying = true;
+  } else if (op == "tangent") {  // direction ("X", "Y", "Z": radial; "UV_MAP"), uv set
+    need(4);
+    o.code = OpCode::Tangent;
+    o.sub = index_in({"X", "Y", "Z", "UV_MAP"}, t[2], "tangent direction");
+    o.index = int32_t(t[3].cast<int64_t>());
+    if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+    if (o.sub == 3) prog.uses_uv = true;
+    prog.varying = true;
+  } else {
+    return false;
+  }
+  return true;
+}
+
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
 ShaderProgram parse_program(const PyScene& self, const py::list& program) {
   ShaderProgram prog;
@@ -681,7 +743,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.index = t[4].cast<int32_t>();
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
       prog.uses_uv = prog.varying = true;
-    } else if (!parse_noise_texture_op(op, t, o)) {
+    } else if (!parse_noise_texture_op(op, t, o) && !parse_vector_node_op(op, t, o, prog)) {
       throw std::invalid_argument("unknown shader op '" + op + "'");
     }
     prog.ops.push_back(o);

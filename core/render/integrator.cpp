@@ -132,6 +132,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   const bool nee = s.use_nee && scene.has_lights();
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
+  ray_state.camera = s.camera;
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
   Medium medium;

@@ -1,6 +1,8 @@
 #include "scene/shader.h"
 
+#include "scene/camera.h"
 #include "scene/tex_noise.h"
+#include "scene/vector_nodes.h"
 
 namespace pl {
 namespace {
@@ -801,6 +803,51 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::TexWhiteNoise:
         d = f4(white_noise_texture(op.sub, op.index != 0, reg(op.in[0]).xyz(), reg(op.in[1]).x));
         break;
+      case OpCode::VectorRotate: {
+        // in: vector, center, axis, angle, rotation; sub: the type; clamp: Invert.
+        const Vec3 v = vector_rotate(op.sub, op.clamp, reg(op.in[0]).xyz(), reg(op.in[1]).xyz(), reg(op.in[2]).xyz(),
+                                     reg(op.in[3]).x, reg(op.in[4]).xyz());
+        d = f4(is_finite(v) ? v : Vec3(0.0f), 0.0f);
+        break;
+      }
+      case OpCode::VectorTransform: {
+        const Vec3 v = vector_transform(op.sub, op.index, op.count, reg(op.in[0]).xyz(), ctx.object, ctx.ray.camera);
+        d = f4(is_finite(v) ? v : Vec3(0.0f), 0.0f);
+        break;
+      }
+      case OpCode::Blackbody: d = f4(blackbody_color(reg(op.in[0]).x)); break;
+      case OpCode::Wavelength: d = f4(wavelength_color(reg(op.in[0]).x)); break;
+      case OpCode::CameraCoords: {
+        // Texture Coordinate's Camera (sub 0) and Window (sub 1), at the point or a Bump offset.
+        if (op.ext != kAtPoint && op.ext < 3) make_offsets();
+        const Vec3 p = ctx.p + (op.ext < 3 ? dp[op.ext] : Vec3(0.0f));
+        const Camera* cam = ctx.ray.camera;
+        d = f4(op.sub == 0 ? world_to_camera_point(cam, p) : cam ? cam->to_ndc(p) : Vec3(0.0f), 0.0f);
+        break;
+      }
+      case OpCode::Tangent: {
+        // Cycles' svm_node_tangent: radial around an object axis (sub 0-2, from the generated
+        // coordinates) or a UV map's (sub 3, uv set `index`), turned like a normal, then made
+        // perpendicular to the shading normal.
+        Vec3 t(0.0f);
+        if (op.sub < 3) {
+          Vec3 g = ctx.p;
+          if (ctx.object && ctx.object->valid)
+            g = ctx.object->to_object.point(ctx.p) * ctx.object->gen_scale + ctx.object->gen_offset;
+          g = g - Vec3(0.5f);
+          t = op.sub == 0 ? Vec3{0.0f, -g.z, g.y} : op.sub == 1 ? Vec3{-g.z, 0.0f, g.x} : Vec3{-g.y, g.x, 0.0f};
+          t = object_to_world_normal(ctx.object, t);
+        } else if (op.index >= 0 && op.index < ctx.uv_sets && ctx.tangents) {
+          t = ctx.tangents[op.index];
+        } else {
+          d = Float4{};
+          break;
+        }
+        const Vec3 n = ctx.ns;
+        t = cross(n, normalize(cross(t, n)));
+        d = f4(is_finite(t) ? t : Vec3(0.0f), 0.0f);
+        break;
+      }
       case OpCode::Diffuse: {
         Frame f;
         const DiffuseBsdf d = diffuse_lobe(op.in[2], f);

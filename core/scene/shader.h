@@ -12,6 +12,8 @@
 
 namespace pl {
 
+class Camera;
+
 struct Float4 {
   float x = 0, y = 0, z = 0, w = 0;
   Vec3 xyz() const { return {x, y, z}; }
@@ -39,6 +41,7 @@ enum class OpCode : uint8_t {
   Fresnel, LayerWeight, Bump, Ramp, Component, Combine, ColorSpace, Hsv, Gamma, BrightContrast,
   Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo, Attribute, Geometry,
   TexNoise, TexWave, TexMagic, TexWhiteNoise,  // procedural textures (scene/tex_noise.h)
+  VectorRotate, VectorTransform, Blackbody, Wavelength, CameraCoords, Tangent,  // scene/vector_nodes.h
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
@@ -168,6 +171,9 @@ struct RayState {
   uint8_t flags = kRayCamera;
   uint16_t depth = 0, diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
   float length = 0.0f;  // distance from the ray's origin to the hit
+  // The render's camera (Texture Coordinate's Camera and Window, Vector Transform's camera
+  // space); nullptr where none is known (camera space is then world space).
+  const Camera* camera = nullptr;
 };
 
 // What a program can read at a shading point.
