@@ -1368,6 +1368,15 @@ class ShaderCompiler:
             return self.emit("vector", "tangent", "UV_MAP", k)
         return self.emit("vector", "tangent", node.axis, 0)
 
+    def gabor_texture(self, node, out, ctx):
+        """Cycles' Gabor Texture, 2D and 3D, every output."""
+        vec = self.reg(self.texture_vector(node, ctx))
+        floats = self._texture_floats(node, ("Scale", "Frequency", "Anisotropy", "Orientation 2D"),
+                                      ctx)
+        o3 = self.reg(self._vector_or_zero(node, "Orientation 3D", ctx))
+        which = {"Phase": "PHASE", "Intensity": "INTENSITY"}.get(out.identifier, "VALUE")
+        return self.emit("float", "tex_gabor", vec, *floats, o3, node.gabor_type, which)
+
     def camera_coords(self, which):
         """Texture Coordinate's Camera or Window (at the current bump offset)."""
         key = ("camera_coords", which, self.bump_state)
@@ -1389,6 +1398,7 @@ class ShaderCompiler:
         'TEX_WHITE_NOISE': white_noise_texture,
         'VECTOR_ROTATE': vector_rotate, 'VECT_TRANSFORM': vector_transform,
         'BLACKBODY': blackbody, 'WAVELENGTH': wavelength, 'TANGENT': tangent_node,
+        'TEX_GABOR': gabor_texture,
     }
 
     def tex_coord(self, node, oid):
@@ -1731,7 +1741,7 @@ _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "gene
              "map_range": 6, "map_range_vector": 6, "vector_math": 4,
              "tex_noise": 9, "tex_wave": 7, "tex_magic": 3, "tex_white_noise": 2,
              "vector_rotate": 5, "vector_transform": 1, "blackbody": 1, "wavelength": 1,
-             "camera_coords": 0, "tangent": 0}
+             "camera_coords": 0, "tangent": 0, "tex_gabor": 6}
 
 
 def _reads(op):

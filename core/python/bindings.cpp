@@ -410,7 +410,7 @@ bool parse_noise_texture_op(const std::string& op, const py::tuple& t, ShaderOp&
 }
 
 // The Vector Rotate, Vector Transform, Blackbody, Wavelength, Texture Coordinate Camera/Window
-// and Tangent ops (scene/vector_nodes.h); false: not one of them.
+// and Tangent ops (scene/vector_nodes.h) and the Gabor texture; false: not one of them.
 bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o, ShaderProgram& prog) {
   auto regno = [](const py::handle& h) -> int16_t {
     if (h.is_none()) return kNoReg;
@@ -465,6 +465,13 @@ bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o
     if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
     if (o.sub == 3) prog.uses_uv = true;
     prog.varying = true;
+  } else if (op == "tex_gabor") {  // vector, scale, frequency, anisotropy, orientation 2D, 3D
+    need(10);
+    o.code = OpCode::TexGabor;
+    for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    o.sub = index_in({"", "", "2D", "3D"}, t[8], "gabor type");
+    if (o.sub < 2) throw std::invalid_argument("gabor type must be '2D' or '3D'");
+    o.ext = index_in({"VALUE", "PHASE", "INTENSITY"}, t[9], "gabor output");
   } else {
     return false;
   }

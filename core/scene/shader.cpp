@@ -1,6 +1,7 @@
 #include "scene/shader.h"
 
 #include "scene/camera.h"
+#include "scene/tex_gabor.h"
 #include "scene/tex_noise.h"
 #include "scene/vector_nodes.h"
 
@@ -846,6 +847,15 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         const Vec3 n = ctx.ns;
         t = cross(n, normalize(cross(t, n)));
         d = f4(is_finite(t) ? t : Vec3(0.0f), 0.0f);
+        break;
+      }
+      case OpCode::TexGabor: {
+        // in: vector, scale, frequency, anisotropy, orientation 2D, 3D; ext: the output.
+        const GaborOutput g = gabor_texture(op.sub, reg(op.in[0]).xyz(), reg(op.in[1]).x, reg(op.in[2]).x,
+                                            reg(op.in[3]).x, reg(op.in[4]).x, reg(op.in[5]).xyz());
+        float v = op.ext == 0 ? g.value : op.ext == 1 ? g.phase : g.intensity;
+        if (!std::isfinite(v)) v = 0.0f;
+        d = {v, v, v, 1.0f};
         break;
       }
       case OpCode::Diffuse: {

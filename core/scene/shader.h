@@ -42,6 +42,7 @@ enum class OpCode : uint8_t {
   Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo, Attribute, Geometry,
   TexNoise, TexWave, TexMagic, TexWhiteNoise,  // procedural textures (scene/tex_noise.h)
   VectorRotate, VectorTransform, Blackbody, Wavelength, CameraCoords, Tangent,  // scene/vector_nodes.h
+  TexGabor,  // scene/tex_gabor.h
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
