@@ -302,3 +302,38 @@ def test_gabor_texture_matches_cycles(gabor_type, output):
         d = ours - cycles
         ours = cycles + (d - np.round(d))  # the nearest of the phases one turn apart
     assert_matches(ours, cycles)
+
+
+# ---------------------------------------------------------------- Ambient Occlusion
+
+@pytest.mark.parametrize("setting", ["plain", "inside", "only_local", "color"])
+def test_ambient_occlusion_matches_cycles_statistically(setting):
+    """A ball resting on a floor by a wall, each emitting its Ambient Occlusion (4 rays per
+    shading point, distance 1.5): the contact shadows, the corner, Inside (the ball occludes
+    itself from within: dark; the floor's rays go into the ground: light) and Only Local (the
+    floor ignores the ball and wall). Region means at 64 samples against Cycles'."""
+    def source(nodes, links):
+        ao = nodes.new("ShaderNodeAmbientOcclusion")
+        ao.samples = 4
+        ao.inside = setting == "inside"
+        ao.only_local = setting == "only_local"
+        ao.inputs["Distance"].default_value = 1.5
+        ao.inputs["Color"].default_value = (0.9, 0.5, 0.2, 1.0)
+        return ao.outputs["Color" if setting == "color" else "AO"]
+
+    def build():
+        scene = new_scene(32, 32, camera_type='PERSP', location=(0.0, -5.0, 3.0),
+                          rotation=(math.radians(58), 0.0, 0.0))
+        mat = emission_material(f"AO{setting}", source)
+        ms.add_plane("Floor", 6.0, mat)
+        ms.add_plane("Wall", 6.0, mat, location=(0.0, 1.5, 3.0), rotation_euler=(math.pi / 2, 0, 0))
+        ms.add_sphere("Ball", 0.7, mat, segments=24, rings=12, location=(-0.3, 0.2, 0.7))
+        return scene
+    ours = render_to_array(build(), "PATHLIGHT", samples=64, max_bounces=1)[..., :3]
+    cycles = render_to_array(build(), "CYCLES", samples=64, max_bounces=1,
+                             pixel_filter_type='BOX', filter_width=1.0)[..., :3]
+    ratio, worst, rel = ms.compare(ours, cycles, grid=4, floor=0.05)
+    print(f"  AO {setting}: mean ratio {ratio:.4f}, worst 8x8 region {worst:.4f}")
+    assert abs(ratio - 1.0) < 0.02, f"image mean ratio {ratio:.4f}"
+    assert worst < 0.05, f"worst region {worst:.3f}\n{np.round(rel, 3)}"
+    assert cycles.std() > 0.05  # occlusion varies over the picture

@@ -1377,6 +1377,17 @@ class ShaderCompiler:
         which = {"Phase": "PHASE", "Intensity": "INTENSITY"}.get(out.identifier, "VALUE")
         return self.emit("float", "tex_gabor", vec, *floats, o3, node.gabor_type, which)
 
+    def ambient_occlusion(self, node, out, ctx):
+        """Ambient Occlusion: rays traced from the shading point as Cycles' (Samples,
+        Distance, Inside, Only Local); Color is AO times the Color input."""
+        color = self.reg(self.input(node, "Color", ctx, "color"))
+        (dist,) = self._texture_floats(node, ("Distance",), ctx)
+        normal = self.normal(node, ctx)
+        which = "AO" if out.identifier == "AO" else "COLOR"
+        return self.emit("float" if which == "AO" else "color", "ambient_occlusion", color, dist,
+                         None if normal is None else self.reg(normal), int(node.samples),
+                         bool(node.inside), bool(node.only_local), which)
+
     def camera_coords(self, which):
         """Texture Coordinate's Camera or Window (at the current bump offset)."""
         key = ("camera_coords", which, self.bump_state)
@@ -1398,7 +1409,7 @@ class ShaderCompiler:
         'TEX_WHITE_NOISE': white_noise_texture,
         'VECTOR_ROTATE': vector_rotate, 'VECT_TRANSFORM': vector_transform,
         'BLACKBODY': blackbody, 'WAVELENGTH': wavelength, 'TANGENT': tangent_node,
-        'TEX_GABOR': gabor_texture,
+        'TEX_GABOR': gabor_texture, 'AMBIENT_OCCLUSION': ambient_occlusion,
     }
 
     def tex_coord(self, node, oid):
@@ -1741,7 +1752,8 @@ _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "gene
              "map_range": 6, "map_range_vector": 6, "vector_math": 4,
              "tex_noise": 9, "tex_wave": 7, "tex_magic": 3, "tex_white_noise": 2,
              "vector_rotate": 5, "vector_transform": 1, "blackbody": 1, "wavelength": 1,
-             "camera_coords": 0, "tangent": 0, "tex_gabor": 6}
+             "camera_coords": 0, "tangent": 0, "tex_gabor": 6,
+             "ambient_occlusion": 3}
 
 
 def _reads(op):

@@ -465,6 +465,16 @@ bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o
     if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
     if (o.sub == 3) prog.uses_uv = true;
     prog.varying = true;
+  } else if (op == "ambient_occlusion") {  // color, distance, normal, samples, inside, only local, output
+    need(9);
+    o.code = OpCode::AmbientOcclusion;
+    for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    const int64_t samples = t[5].cast<int64_t>();
+    if (samples < 0 || samples > 1024) throw std::invalid_argument("ambient occlusion samples must be 0 to 1024");
+    o.index = int32_t(samples);
+    o.sub = uint8_t((t[6].cast<bool>() ? 1 : 0) | (t[7].cast<bool>() ? 2 : 0));
+    o.ext = index_in({"COLOR", "AO"}, t[8], "ambient occlusion output");
+    prog.varying = true;
   } else if (op == "tex_gabor") {  // vector, scale, frequency, anisotropy, orientation 2D, 3D
     need(10);
     o.code = OpCode::TexGabor;

@@ -858,6 +858,19 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = {v, v, v, 1.0f};
         break;
       }
+      case OpCode::AmbientOcclusion: {
+        // Cycles' svm_node_ao: in color, distance, normal; sub bit 0 Inside, bit 1 Only Local;
+        // index the samples; ext the output (0 Color = AO * Color, 1 AO).
+        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        Vec3 n = op.in[2] == kNoReg ? (backfacing ? -ctx.ns : ctx.ns) : r[op.in[2]].xyz();
+        if (op.sub & 1) n = -n;
+        const float dist = reg(op.in[1]).x;
+        float ao = 1.0f;
+        if (dist > 0.0f && op.index >= 1 && ctx.scene && length_sq(n) > 0.0f && is_finite(n))
+          ao = trace_ambient_occlusion(ctx, normalize(n), std::isfinite(dist) ? dist : kInf, op.index, op.sub & 2);
+        d = op.ext == 1 ? Float4{ao, ao, ao, 1.0f} : f4(reg(op.in[0]).xyz() * ao);
+        break;
+      }
       case OpCode::Diffuse: {
         Frame f;
         const DiffuseBsdf d = diffuse_lobe(op.in[2], f);
