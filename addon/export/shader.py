@@ -990,9 +990,8 @@ class ShaderCompiler:
                 return self.emit("vector", "normal")
             if oid == "Tangent":  # Cycles: radial around the object's Z axis
                 return self.emit("vector", "tangent", "Z", 0)
-            if oid == "Pointiness":
-                self.problem(f"'{node.name}': Pointiness is not computed (reads 0.5)")
-                return const_float(0.5)
+            if oid == "Pointiness":  # per vertex, computed at export as Cycles does
+                return self.attribute_value("pointiness", "", "ALPHA", f"'{node.name}'")
             which = self._GEOMETRY.get(oid)
             if which is not None:
                 return self.emit("float" if oid == "Backfacing" else "vector", "geometry", which)
