@@ -658,11 +658,11 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     hair = nodes.new("ShaderNodeBsdfHairPrincipled")  # has a Color input too
     d = nodes.new("ShaderNodeBsdfDiffuse")
     d.inputs["Color"].default_value = (0.3, 0.3, 0.3, 1)
-    hue = nodes.new("ShaderNodeAmbientOcclusion")
+    hue = nodes.new("ShaderNodeAmbientOcclusion")  # supported: traced, no fallback
     hue.inputs["Color"].default_value = (0.9, 0.1, 0.1, 1)
     links.new(hue.outputs["Color"], d.inputs["Color"])
-    ramp = nodes.new("ShaderNodeWavelength")  # no Color input: the consumer's value is used
-    links.new(ramp.outputs["Color"], mix.inputs["Fac"])
+    ramp = nodes.new("ShaderNodeParticleInfo")  # no Color input: the consumer's value is used
+    links.new(ramp.outputs["Random"], mix.inputs["Fac"])
     mix.inputs["Fac"].default_value = 0.4
     add = nodes.new("ShaderNodeAddShader")
     links.new(toon.outputs[0], add.inputs[0])
@@ -672,13 +672,15 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     links.new(mix.outputs[0], out.inputs["Surface"])
     closures, warnings, _ = closures_of(mat)
     assert len(warnings) == 1
-    for name in ("Odd", "Toon BSDF", "Principled Hair BSDF", "Ambient Occlusion",
-                 "Wavelength"):
+    for name in ("Odd", "Toon BSDF", "Principled Hair BSDF", "Particle Info"):
         assert name in warnings[0], (name, warnings[0])
+    assert "Ambient Occlusion" not in warnings[0]
+    traced = [c for c in closures if isinstance(c[2]["color"], Sym)]
+    assert len(traced) == 1 and traced[0][2]["color"].op[0] == "ambient_occlusion"
     colors = sorted((tuple(round(x, 4) for x in c[2]["color"][:3]), round(weight_of(c)[0], 4))
-                    for c in closures)
+                    for c in closures if c not in traced)
     assert all(c[0] == "diffuse" for c in closures)
-    assert colors == sorted([((0.1, 0.6, 0.2), 0.6), ((0.9, 0.1, 0.1), 0.6),
+    assert colors == sorted([((0.1, 0.6, 0.2), 0.6),
                              (tuple(round(x, 4) for x in hair.inputs["Color"].default_value[:3]),
                               0.4)])
 

@@ -245,6 +245,56 @@ def _attribute_rgba(attr):
     return out
 
 
+def _corner_verts(mesh):
+    corner_verts = _int_attribute(mesh, ".corner_vert", len(mesh.loops))
+    if corner_verts is None:
+        corner_verts = np.empty(len(mesh.loops), np.int32)
+        mesh.loops.foreach_get("vertex_index", corner_verts)
+    return corner_verts
+
+
+def vertex_pointiness(mesh):
+    """float32 per vertex: Cycles' Pointiness (its attr_create_pointiness, vectorised):
+    vertices at the same position welded, the angle between each welded vertex's normal and
+    the mean direction of its unique edges (over pi), then averaged with its edge neighbours.
+    Cycles also welds vertices closer than ~3e-4; exact duplicates only here."""
+    n = len(mesh.vertices)
+    if n == 0:
+        return np.zeros(0, np.float32)
+    pos = mesh_positions(mesh)
+    vnorm = np.empty(n * 3, np.float32)
+    mesh.vertex_normals.foreach_get("vector", vnorm)
+    vnorm = vnorm.reshape(-1, 3)
+    edges = np.empty(len(mesh.edges) * 2, np.int32)
+    mesh.edges.foreach_get("vertices", edges)
+    _, first, inverse = np.unique(pos, axis=0, return_index=True, return_inverse=True)
+    orig = first[inverse.reshape(-1)].astype(np.int64)  # each vertex's representative
+    acc = np.zeros((n, 3), np.float32)
+    np.add.at(acc, orig, vnorm)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal = acc / np.linalg.norm(acc, axis=1, keepdims=True)
+    pairs = np.sort(orig[edges.reshape(-1, 2)], axis=1)
+    pairs = np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+    v0, v1 = pairs[:, 0], pairs[:, 1]
+    e = pos[v1] - pos[v0]
+    e = e / np.linalg.norm(e, axis=1, keepdims=True)
+    edge_sum = np.zeros((n, 3), np.float32)
+    np.add.at(edge_sum, v0, e)
+    np.add.at(edge_sum, v1, -e)
+    count = np.bincount(v0, minlength=n) + np.bincount(v1, minlength=n)
+    raw = np.zeros(n, np.float32)
+    sel = (orig == np.arange(n)) & (count > 0)
+    mean_dir = edge_sum[sel] / count[sel, None].astype(np.float32)
+    cosine = np.clip(np.einsum("ij,ij->i", normal[sel], mean_dir), -1.0, 1.0)
+    raw[sel] = np.arccos(cosine) * np.float32(1.0 / np.pi)
+    data = raw.copy()
+    np.add.at(data, v0, raw[v1])
+    np.add.at(data, v1, raw[v0])
+    data /= (count + 1).astype(np.float32)
+    out = data[orig]
+    return np.where(np.isfinite(out), out, 0.0).astype(np.float32)
+
+
 def mesh_attributes(mesh, names, loops):
     """{k: float32 (T, 3, 4) per-corner RGBA} for the attribute sets among {k: name}
     (("attr", name) or ("color", name), "" = the render colour attribute), and the names the
@@ -255,6 +305,13 @@ def mesh_attributes(mesh, names, loops):
         return out, missing
     corner_verts = tri_faces = None
     for k, (kind, name) in wanted.items():
+        if kind == "pointiness":  # Geometry ▸ Pointiness, per vertex, in every channel
+            p = vertex_pointiness(mesh)
+            if corner_verts is None:
+                corner_verts = _corner_verts(mesh)
+            out[k] = np.ascontiguousarray(np.repeat(p[:, None], 4, 1)[corner_verts[loops]]
+                                          .reshape(-1, 3, 4))
+            continue
         if kind == "color" and not name:
             name = mesh.color_attributes.default_color_name or \
                 (mesh.color_attributes[0].name if len(mesh.color_attributes) else "")
@@ -269,10 +326,7 @@ def mesh_attributes(mesh, names, loops):
             index = loops
         elif attr.domain == 'POINT':
             if corner_verts is None:
-                corner_verts = _int_attribute(mesh, ".corner_vert", len(mesh.loops))
-                if corner_verts is None:
-                    corner_verts = np.empty(len(mesh.loops), np.int32)
-                    mesh.loops.foreach_get("vertex_index", corner_verts)
+                corner_verts = _corner_verts(mesh)
             index = corner_verts[loops]
         else:  # FACE
             if tri_faces is None:

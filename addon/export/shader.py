@@ -989,6 +989,10 @@ class ShaderCompiler:
                 return self.position()
             if oid == "Normal":
                 return self.emit("vector", "normal")
+            if oid == "Tangent":  # Cycles: radial around the object's Z axis
+                return self.emit("vector", "tangent", "Z", 0)
+            if oid == "Pointiness":  # per vertex, computed at export as Cycles does
+                return self.attribute_value("pointiness", "", "ALPHA", f"'{node.name}'")
             which = self._GEOMETRY.get(oid)
             if which is not None:
                 return self.emit("float" if oid == "Backfacing" else "vector", "geometry", which)
@@ -1324,6 +1328,74 @@ class ShaderCompiler:
         color = out.identifier == "Color"
         return self.emit("color" if color else "float", "tex_white_noise", vec, w, dims, color)
 
+    # -------------------------------------------------- vector and colour nodes (issue 21)
+
+    def _vector_or_zero(self, node, identifier, ctx):
+        """A vector input found by identifier (also when the node's mode hides it); an
+        unlinked hidden-value one reads (0, 0, 0), as Cycles gives these nodes no implicit
+        coordinates."""
+        socket = next(s for s in node.inputs if s.identifier == identifier)
+        v = self.value(socket, ctx, "vector")
+        return v if v is not None else const_vector((0, 0, 0))
+
+    def vector_rotate(self, node, out, ctx):
+        """Vector Rotate, every type, Invert, every input linkable (always emitted: the core
+        evaluates a program that reads no shading point once)."""
+        regs = [self.reg(self._vector_or_zero(node, name, ctx)) for name in ("Vector", "Center", "Axis")]
+        regs += self._texture_floats(node, ("Angle",), ctx)
+        regs.append(self.reg(self._vector_or_zero(node, "Rotation", ctx)))
+        return self.emit("vector", "vector_rotate", *regs, node.rotation_type, bool(node.invert))
+
+    def vector_transform(self, node, out, ctx):
+        """Vector Transform between world, object and camera space (points, vectors, normals)."""
+        v = self.reg(self._vector_or_zero(node, "Vector", ctx))
+        return self.emit("vector", "vector_transform", v, node.vector_type, node.convert_from,
+                         node.convert_to)
+
+    def blackbody(self, node, out, ctx):
+        (t,) = self._texture_floats(node, ("Temperature",), ctx)
+        return self.emit("color", "blackbody", t)
+
+    def wavelength(self, node, out, ctx):
+        (w,) = self._texture_floats(node, ("Wavelength",), ctx)
+        return self.emit("color", "wavelength", w)
+
+    def tangent_node(self, node, out, ctx):
+        """Tangent: radial around an object axis (from the generated coordinates) or a UV
+        map's tangent (per triangle from its uvs, where Cycles interpolates MikkTSpace's)."""
+        if node.direction_type == 'UV_MAP':
+            k = self.uv(node.uv_map, f"'{node.name}'")
+            return self.emit("vector", "tangent", "UV_MAP", k)
+        return self.emit("vector", "tangent", node.axis, 0)
+
+    def gabor_texture(self, node, out, ctx):
+        """Cycles' Gabor Texture, 2D and 3D, every output."""
+        vec = self.reg(self.texture_vector(node, ctx))
+        floats = self._texture_floats(node, ("Scale", "Frequency", "Anisotropy", "Orientation 2D"),
+                                      ctx)
+        o3 = self.reg(self._vector_or_zero(node, "Orientation 3D", ctx))
+        which = {"Phase": "PHASE", "Intensity": "INTENSITY"}.get(out.identifier, "VALUE")
+        return self.emit("float", "tex_gabor", vec, *floats, o3, node.gabor_type, which)
+
+    def ambient_occlusion(self, node, out, ctx):
+        """Ambient Occlusion: rays traced from the shading point as Cycles' (Samples,
+        Distance, Inside, Only Local); Color is AO times the Color input."""
+        color = self.reg(self.input(node, "Color", ctx, "color"))
+        (dist,) = self._texture_floats(node, ("Distance",), ctx)
+        normal = self.normal(node, ctx)
+        which = "AO" if out.identifier == "AO" else "COLOR"
+        return self.emit("float" if which == "AO" else "color", "ambient_occlusion", color, dist,
+                         None if normal is None else self.reg(normal), int(node.samples),
+                         bool(node.inside), bool(node.only_local), which)
+
+    def camera_coords(self, which):
+        """Texture Coordinate's Camera or Window (at the current bump offset)."""
+        key = ("camera_coords", which, self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", "camera_coords", which, *extra)
+        return self.cache[key]
+
     _VALUE_NODES = {
         'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
         'LIGHT_PATH': light_path, 'OBJECT_INFO': object_info, 'VALTORGB': color_ramp,
@@ -1336,6 +1408,9 @@ class ShaderCompiler:
         'TEX_NOISE': noise_texture, 'TEX_WAVE': wave_texture, 'TEX_MAGIC': magic_texture,
         'TEX_WHITE_NOISE': white_noise_texture,
         **tex_patterns.NODES,
+        'VECTOR_ROTATE': vector_rotate, 'VECT_TRANSFORM': vector_transform,
+        'BLACKBODY': blackbody, 'WAVELENGTH': wavelength, 'TANGENT': tangent_node,
+        'TEX_GABOR': gabor_texture, 'AMBIENT_OCCLUSION': ambient_occlusion,
     }
 
     def tex_coord(self, node, oid):
@@ -1352,6 +1427,8 @@ class ShaderCompiler:
             return self.emit("vector", "object_normal")
         if oid == "Reflection":
             return self.emit("vector", "geometry", "REFLECTION")
+        if oid in ("Camera", "Window"):
+            return self.camera_coords(oid.upper())
         self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
         return const_vector((0, 0, 0))
 
@@ -1675,6 +1752,9 @@ _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "gene
              "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
              "map_range": 6, "map_range_vector": 6, "vector_math": 4,
              "tex_noise": 9, "tex_wave": 7, "tex_magic": 3, "tex_white_noise": 2,
+             "vector_rotate": 5, "vector_transform": 1, "blackbody": 1, "wavelength": 1,
+             "camera_coords": 0, "tangent": 0, "tex_gabor": 6,
+             "ambient_occlusion": 3,
              **tex_patterns.OPERANDS}
 
 

@@ -470,6 +470,85 @@ bool parse_pattern_op(const std::string& op, const py::tuple& t, ShaderOp& o, Re
   return true;
 }
 
+// The Vector Rotate, Vector Transform, Blackbody, Wavelength, Texture Coordinate Camera/Window
+// and Tangent ops (scene/vector_nodes.h) and the Gabor texture; false: not one of them.
+bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o, ShaderProgram& prog) {
+  auto regno = [](const py::handle& h) -> int16_t {
+    if (h.is_none()) return kNoReg;
+    const int64_t r = h.cast<int64_t>();
+    if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
+    return int16_t(r);
+  };
+  auto need = [&](size_t n) {
+    if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
+  };
+  auto index_in = [](const std::vector<std::string>& v, const py::handle& h, const char* what) {
+    const std::string x = h.cast<std::string>();
+    for (size_t i = 0; i < v.size(); ++i)
+      if (v[i] == x) return uint8_t(i);
+    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+  };
+  static const std::vector<std::string> spaces = {"WORLD", "OBJECT", "CAMERA"};
+  if (op == "vector_rotate") {  // vector, center, axis, angle, rotation, type, invert
+    need(9);
+    o.code = OpCode::VectorRotate;
+    for (int k = 0; k < 5; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    o.sub = index_in({"AXIS_ANGLE", "X_AXIS", "Y_AXIS", "Z_AXIS", "EULER_XYZ"}, t[7], "vector rotate type");
+    o.clamp = t[8].cast<bool>();
+  } else if (op == "vector_transform") {  // vector, type, from, to
+    need(6);
+    o.code = OpCode::VectorTransform;
+    o.in[0] = regno(t[2]);
+    o.sub = index_in({"POINT", "VECTOR", "NORMAL"}, t[3], "vector transform type");
+    o.index = index_in(spaces, t[4], "vector transform space");
+    o.count = index_in(spaces, t[5], "vector transform space");
+    prog.varying = true;  // object and camera space differ per instance and render
+  } else if (op == "blackbody" || op == "wavelength") {
+    need(3);
+    o.code = op == "blackbody" ? OpCode::Blackbody : OpCode::Wavelength;
+    o.in[0] = regno(t[2]);
+  } else if (op == "camera_coords") {  // which [, bump offset]
+    if (t.size() != 3 && t.size() != 4) throw std::invalid_argument("shader op 'camera_coords' takes 2 or 3 arguments");
+    o.code = OpCode::CameraCoords;
+    o.sub = index_in({"CAMERA", "WINDOW"}, t[2], "camera coordinates");
+    o.ext = uint8_t(kAtPoint);
+    if (t.size() == 4) {
+      const int64_t v = t[3].cast<int64_t>();
+      if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
+      o.ext = uint8_t(v);
+    }
+    prog.varying = true;
+  } else if (op == "tangent") {  // direction ("X", "Y", "Z": radial; "UV_MAP"), uv set
+    need(4);
+    o.code = OpCode::Tangent;
+    o.sub = index_in({"X", "Y", "Z", "UV_MAP"}, t[2], "tangent direction");
+    o.index = int32_t(t[3].cast<int64_t>());
+    if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+    if (o.sub == 3) prog.uses_uv = true;
+    prog.varying = true;
+  } else if (op == "ambient_occlusion") {  // color, distance, normal, samples, inside, only local, output
+    need(9);
+    o.code = OpCode::AmbientOcclusion;
+    for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    const int64_t samples = t[5].cast<int64_t>();
+    if (samples < 0 || samples > 1024) throw std::invalid_argument("ambient occlusion samples must be 0 to 1024");
+    o.index = int32_t(samples);
+    o.sub = uint8_t((t[6].cast<bool>() ? 1 : 0) | (t[7].cast<bool>() ? 2 : 0));
+    o.ext = index_in({"COLOR", "AO"}, t[8], "ambient occlusion output");
+    prog.varying = true;
+  } else if (op == "tex_gabor") {  // vector, scale, frequency, anisotropy, orientation 2D, 3D
+    need(10);
+    o.code = OpCode::TexGabor;
+    for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
+    o.sub = index_in({"", "", "2D", "3D"}, t[8], "gabor type");
+    if (o.sub < 2) throw std::invalid_argument("gabor type must be '2D' or '3D'");
+    o.ext = index_in({"VALUE", "PHASE", "INTENSITY"}, t[9], "gabor output");
+  } else {
+    return false;
+  }
+  return true;
+}
+
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
 ShaderProgram parse_program(const PyScene& self, const py::list& program) {
   ShaderProgram prog;
@@ -742,7 +821,8 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.index = t[4].cast<int32_t>();
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
       prog.uses_uv = prog.varying = true;
-    } else if (!parse_noise_texture_op(op, t, o) && !parse_pattern_op(op, t, o, regno)) {
+    } else if (!parse_noise_texture_op(op, t, o) && !parse_pattern_op(op, t, o, regno) &&
+               !parse_vector_node_op(op, t, o, prog)) {
       throw std::invalid_argument("unknown shader op '" + op + "'");
     }
     prog.ops.push_back(o);

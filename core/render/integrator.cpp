@@ -132,6 +132,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   const bool nee = s.use_nee && scene.has_lights();
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
+  ray_state.camera = s.camera;
+  const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
   Medium medium;
@@ -172,6 +174,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     scene.surface_point(hit, sp);
     const Vec3 wo = -ray.dir;
     ray_state.length = length_before + hit.t * length(ray.dir);
+    ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
 
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.

@@ -21,6 +21,8 @@ struct IntegratorSettings {
   // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not
   // in the returned radiance; it becomes alpha instead. It still lights the scene.
   bool transparent_background = false;
+  // The render's camera, for the shader nodes that read camera space (nullptr: world space).
+  const Camera* camera = nullptr;
 };
 
 struct PathCounters {

@@ -105,6 +105,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   // The debug view is a deterministic picture of the BVH: one ray per pixel is all it takes.
   total_samples_ = settings_.debug_view == DebugView::Bvh ? 1 : settings_.samples;
   integrator_.transparent_background = settings_.film_transparent;
+  integrator_.camera = &camera_;  // Session is neither copied nor moved
   integrator_.max_bounces = settings_.max_bounces;
   integrator_.use_nee = settings_.use_nee;
   integrator_.diffuse_bounces = settings_.diffuse_bounces;

@@ -15,6 +15,8 @@ Camera::Camera(const CameraDesc& d, int width, int height) {
   back_ = cross(right_, up_);
 
   const float winx = static_cast<float>(width), winy = static_cast<float>(height);
+  winx_ = width > 0 ? winx : 1.0f;
+  winy_ = height > 0 ? winy : 1.0f;
   const float ycor = d.pixel_aspect_y / d.pixel_aspect_x;
   const float sensor = d.sensor_fit == SensorFit::Vertical ? d.sensor_height : d.sensor_width;
   SensorFit fit = d.sensor_fit;
@@ -63,6 +65,18 @@ Vec2 Camera::sample_aperture(Vec2 u) const {
   }
   p.x *= inv_aperture_ratio_;  // anamorphic bokeh, as Cycles
   return p;
+}
+
+Vec3 Camera::to_ndc(Vec3 p) const {
+  const Vec3 c = to_camera(p);
+  float sx = c.x, sy = c.y;
+  if (type_ == CameraType::Perspective) {
+    if (c.z == 0.0f) return Vec3(0.0f);  // Cycles' perspective divide gives 0 there
+    sx /= c.z;
+    sy /= c.z;
+  }
+  const Vec3 ndc{(sx - x0_) / dx_ / winx_, (sy - y0_) / dy_ / winy_, 0.0f};
+  return is_finite(ndc) ? ndc : Vec3(0.0f);
 }
 
 Ray Camera::generate_pinhole(float x, float y) const {

@@ -53,6 +53,15 @@ class Camera {
   float view_depth(Vec3 p) const { return -dot(p - origin_, back_); }
   // Point on the aperture (camera-plane offsets along right/up, before scaling by the radius).
   Vec2 sample_aperture(Vec2 u) const;
+  // Cycles' camera space (x right, y up, z forward: Blender's -Z), without the object's scale:
+  // what the Texture Coordinate and Vector Transform nodes call Camera.
+  Vec3 dir_to_camera(Vec3 v) const { return {dot(v, right_), dot(v, up_), -dot(v, back_)}; }
+  Vec3 to_camera(Vec3 p) const { return dir_to_camera(p - origin_); }
+  Vec3 dir_from_camera(Vec3 v) const { return right_ * v.x + up_ * v.y - back_ * v.z; }
+  Vec3 from_camera(Vec3 p) const { return origin_ + dir_from_camera(p); }
+  // Where a world point projects in the frame, 0..1 from the bottom-left corner (Cycles'
+  // NDC, the Texture Coordinate node's Window; z is 0).
+  Vec3 to_ndc(Vec3 p) const;
 
  private:
   CameraType type_ = CameraType::Perspective;
@@ -63,6 +72,7 @@ class Camera {
   float clip_start_ = 0, clip_len_ = kInf;
   float aperture_ = 0.0f, focus_ = 10.0f, blade_rotation_ = 0.0f, inv_aperture_ratio_ = 1.0f;
   int blades_ = 0;
+  float winx_ = 1.0f, winy_ = 1.0f;  // the full frame in pixels
 };
 
 }  // namespace pl

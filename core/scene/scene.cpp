@@ -4,6 +4,7 @@
 #include <utility>
 
 #include "util/big_alloc.h"
+#include "util/rng.h"
 #include "util/parallel.h"
 
 namespace pl {
@@ -1017,6 +1018,9 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.ray = ray;
   ctx.b1 = b1;
   ctx.b2 = b2;
+  ctx.scene = this;  // the Ambient Occlusion node traces
+  ctx.instance = sp.instance;
+  ctx.p_error = sp.p_error;
   const InstanceData& in = inst_[sp.instance];
   const Blas& blas = blases_[in.blas];
   const TriangleVerts tv = world_triangle(in, blas.tris[sp.tri]);
@@ -1155,6 +1159,50 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
 float Scene::pdf_environment(Vec3 dir) const {
   if (env_index_ == SIZE_MAX) return 0.0f;
   return light_dist_.pmf(env_index_) * env_.pdf(dir);
+}
+
+float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance, int samples, bool only_local) {
+  // Cycles' svm_ao: cosine-distributed directions about n (a concentric disk point lifted to
+  // the hemisphere), each an occlusion ray of length `distance` from the point; the fraction
+  // that escapes. Random numbers from the path's, stratified over the samples.
+  const Scene& scene = *ctx.scene;
+  Vec3 t, b;
+  make_basis(n, t, b);
+  uint32_t pb[3];
+  std::memcpy(pb, &ctx.p, sizeof pb);
+  Pcg32 rng(hash3(ctx.ray.rng, pb[0] ^ (uint64_t(pb[1]) << 32), pb[2]), 0xA0u);
+  int unoccluded = 0;
+  for (int k = 0; k < samples; ++k) {
+    const Vec2 u{(float(k) + rng.next_float()) / float(samples), rng.next_float()};
+    const Vec2 dsk = sample_disk_concentric({std::min(u.x, 0x1.fffffep-1f), u.y});
+    const float z = std::sqrt(std::max(0.0f, 1.0f - dsk.x * dsk.x - dsk.y * dsk.y));
+    const Vec3 dir = t * dsk.x + b * dsk.y + n * z;
+    Ray ray;
+    ray.org = offset_ray_origin(ctx.p, ctx.p_error, dot(dir, ctx.ng) >= 0.0f ? ctx.ng : -ctx.ng);
+    ray.dir = dir;
+    ray.tmax = distance;
+    if (!only_local) {
+      if (!scene.occluded(ray)) ++unoccluded;
+      continue;
+    }
+    // Only Local: walk past the hits on other objects (bounded, like stacked alpha cards).
+    bool hit_self = false;
+    for (int i = 0; i < 64; ++i) {
+      Hit h;
+      h.t = ray.tmax;
+      if (!scene.intersect(ray, h) || !h.valid()) break;
+      if (h.inst == ctx.instance) {
+        hit_self = true;
+        break;
+      }
+      const Vec3 q = ray.org + ray.dir * h.t;
+      ray.tmax -= h.t;
+      ray.org = q + ray.dir * (1e-4f * (1.0f + max_component(vabs(q))));
+      if (!(ray.tmax > 0.0f)) break;
+    }
+    if (!hit_self) ++unoccluded;
+  }
+  return float(unoccluded) / float(samples);
 }
 
 }  // namespace pl

@@ -1,7 +1,10 @@
 #include "scene/shader.h"
 
+#include "scene/camera.h"
+#include "scene/tex_gabor.h"
 #include "scene/tex_noise.h"
 #include "scene/tex_patterns.h"
+#include "scene/vector_nodes.h"
 
 namespace pl {
 namespace {
@@ -808,6 +811,73 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::Voronoi:
         d = tex::eval_pattern_op(op, r);
         break;
+      case OpCode::VectorRotate: {
+        // in: vector, center, axis, angle, rotation; sub: the type; clamp: Invert.
+        const Vec3 v = vector_rotate(op.sub, op.clamp, reg(op.in[0]).xyz(), reg(op.in[1]).xyz(), reg(op.in[2]).xyz(),
+                                     reg(op.in[3]).x, reg(op.in[4]).xyz());
+        d = f4(is_finite(v) ? v : Vec3(0.0f), 0.0f);
+        break;
+      }
+      case OpCode::VectorTransform: {
+        const Vec3 v = vector_transform(op.sub, op.index, op.count, reg(op.in[0]).xyz(), ctx.object, ctx.ray.camera);
+        d = f4(is_finite(v) ? v : Vec3(0.0f), 0.0f);
+        break;
+      }
+      case OpCode::Blackbody: d = f4(blackbody_color(reg(op.in[0]).x)); break;
+      case OpCode::Wavelength: d = f4(wavelength_color(reg(op.in[0]).x)); break;
+      case OpCode::CameraCoords: {
+        // Texture Coordinate's Camera (sub 0) and Window (sub 1), at the point or a Bump offset.
+        if (op.ext != kAtPoint && op.ext < 3) make_offsets();
+        const Vec3 p = ctx.p + (op.ext < 3 ? dp[op.ext] : Vec3(0.0f));
+        const Camera* cam = ctx.ray.camera;
+        d = f4(op.sub == 0 ? world_to_camera_point(cam, p) : cam ? cam->to_ndc(p) : Vec3(0.0f), 0.0f);
+        break;
+      }
+      case OpCode::Tangent: {
+        // Cycles' svm_node_tangent: radial around an object axis (sub 0-2, from the generated
+        // coordinates) or a UV map's (sub 3, uv set `index`), turned like a normal, then made
+        // perpendicular to the shading normal.
+        Vec3 t(0.0f);
+        if (op.sub < 3) {
+          Vec3 g = ctx.p;
+          if (ctx.object && ctx.object->valid)
+            g = ctx.object->to_object.point(ctx.p) * ctx.object->gen_scale + ctx.object->gen_offset;
+          g = g - Vec3(0.5f);
+          t = op.sub == 0 ? Vec3{0.0f, -g.z, g.y} : op.sub == 1 ? Vec3{-g.z, 0.0f, g.x} : Vec3{-g.y, g.x, 0.0f};
+          t = object_to_world_normal(ctx.object, t);
+        } else if (op.index >= 0 && op.index < ctx.uv_sets && ctx.tangents) {
+          t = ctx.tangents[op.index];
+        } else {
+          d = Float4{};
+          break;
+        }
+        const Vec3 n = ctx.ns;
+        t = cross(n, normalize(cross(t, n)));
+        d = f4(is_finite(t) ? t : Vec3(0.0f), 0.0f);
+        break;
+      }
+      case OpCode::TexGabor: {
+        // in: vector, scale, frequency, anisotropy, orientation 2D, 3D; ext: the output.
+        const GaborOutput g = gabor_texture(op.sub, reg(op.in[0]).xyz(), reg(op.in[1]).x, reg(op.in[2]).x,
+                                            reg(op.in[3]).x, reg(op.in[4]).x, reg(op.in[5]).xyz());
+        float v = op.ext == 0 ? g.value : op.ext == 1 ? g.phase : g.intensity;
+        if (!std::isfinite(v)) v = 0.0f;
+        d = {v, v, v, 1.0f};
+        break;
+      }
+      case OpCode::AmbientOcclusion: {
+        // Cycles' svm_node_ao: in color, distance, normal; sub bit 0 Inside, bit 1 Only Local;
+        // index the samples; ext the output (0 Color = AO * Color, 1 AO).
+        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        Vec3 n = op.in[2] == kNoReg ? (backfacing ? -ctx.ns : ctx.ns) : r[op.in[2]].xyz();
+        if (op.sub & 1) n = -n;
+        const float dist = reg(op.in[1]).x;
+        float ao = 1.0f;
+        if (dist > 0.0f && op.index >= 1 && ctx.scene && length_sq(n) > 0.0f && is_finite(n))
+          ao = trace_ambient_occlusion(ctx, normalize(n), std::isfinite(dist) ? dist : kInf, op.index, op.sub & 2);
+        d = op.ext == 1 ? Float4{ao, ao, ao, 1.0f} : f4(reg(op.in[0]).xyz() * ao);
+        break;
+      }
       case OpCode::Diffuse: {
         Frame f;
         const DiffuseBsdf d = diffuse_lobe(op.in[2], f);

@@ -12,6 +12,9 @@
 
 namespace pl {
 
+class Camera;
+class Scene;
+
 struct Float4 {
   float x = 0, y = 0, z = 0, w = 0;
   Vec3 xyz() const { return {x, y, z}; }
@@ -40,6 +43,9 @@ enum class OpCode : uint8_t {
   Clamp, MapRange, VectorMath, ObjectPos, Generated, ObjectNormal, LightPath, ObjectInfo, Attribute, Geometry,
   TexNoise, TexWave, TexMagic, TexWhiteNoise,  // procedural textures: scene/tex_noise.h
   Checker, Gradient, Brick, Voronoi,           // procedural textures: scene/tex_patterns.h
+  VectorRotate, VectorTransform, Blackbody, Wavelength, CameraCoords, Tangent,  // scene/vector_nodes.h
+  TexGabor,  // scene/tex_gabor.h
+  AmbientOcclusion,  // traced by the scene (trace_ambient_occlusion)
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
 };
 
@@ -169,6 +175,10 @@ struct RayState {
   uint8_t flags = kRayCamera;
   uint16_t depth = 0, diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
   float length = 0.0f;  // distance from the ray's origin to the hit
+  // The render's camera (Texture Coordinate's Camera and Window, Vector Transform's camera
+  // space); nullptr where none is known (camera space is then world space).
+  const Camera* camera = nullptr;
+  uint32_t rng = 0;  // a random number of this path and bounce (the Ambient Occlusion node's rays)
 };
 
 // What a program can read at a shading point.
@@ -188,7 +198,17 @@ struct ShadingContext {
   int attr_sets = 0;
   RayState ray;  // the ray that hit (Light Path node)
   float b1 = 0.0f, b2 = 0.0f;  // barycentrics of the hit in its triangle (Geometry ▸ Parametric)
+  // What the Ambient Occlusion node traces against (nullptr: nothing, AO reads 1): the scene,
+  // the hit instance and the bound of the position's rounding error (ray offsets).
+  const Scene* scene = nullptr;
+  uint32_t instance = 0;
+  Vec3 p_error{0.0f};
 };
+
+// The Ambient Occlusion node's fraction of `samples` rays over the hemisphere about n (cosine
+// distributed, as Cycles) that travel `distance` without a hit (only_local: ignoring other
+// objects). Implemented by the scene (scene.cpp).
+float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance, int samples, bool only_local);
 
 struct ShaderProgram {
   std::vector<ShaderOp> ops;

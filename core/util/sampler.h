@@ -125,6 +125,9 @@ class Sampler {
     return {u32_to_unit(x), u32_to_unit(y)};
   }
   float get1d() { return get2d().x; }
+  // A hash of this (seed, pixel, sample) that uses up no dimension: seeds for the few draws
+  // that do not follow the path's dimension layout (the Ambient Occlusion node's rays).
+  uint64_t path_key() const { return mix64(base_ ^ (uint64_t(sample_reversed_) * 0xD1B54A32D192ED03ULL)); }
   // Moves past one 2-D dimension without computing it: the later dimensions stay the same as
   // after get2d() (kernels that know a draw is unused skip its cost, not its place).
   void skip2d() {
