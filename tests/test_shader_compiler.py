@@ -151,12 +151,23 @@ def test_each_bsdf_node_maps_to_its_closure():
         assert "normal" not in params  # unconnected: the shading normal
 
 
-def test_multiscatter_glossy_is_single_scatter_ggx_without_warning():
-    # Blender's default distribution; the core's GGX is single-scatter (documented).
+def test_multiscatter_glossy_passes_its_distribution_without_warning():
+    # Blender's default distribution: the closure carries the multiscatter flag (a register of
+    # 1) that turns on the core's energy compensation; single-scatter GGX carries none.
     mat, node = ms.bsdf_material("Glossy", "ShaderNodeBsdfGlossy", Roughness=0.4)
     assert node.distribution == 'MULTI_GGX'
     (closure,), warnings, _ = closures_of(mat)
     assert closure[0] == "glossy" and not warnings
+    assert closure[2]["multiscatter"][0] == 1.0
+    node.distribution = 'GGX'
+    (closure,), warnings, _ = closures_of(mat)
+    assert "multiscatter" not in closure[2] and not warnings
+    for node_type, kind in (("ShaderNodeBsdfPrincipled", "principled"), ("ShaderNodeBsdfGlass", "glass")):
+        m, n = ms.bsdf_material(kind, node_type, Roughness=0.3)
+        assert n.distribution == 'MULTI_GGX'
+        closures, _, _ = closures_of(m)
+        (c,) = [c for c in closures if c[0] == kind]
+        assert c[2]["multiscatter"][0] == 1.0
     node.distribution = 'BECKMANN'
     _, warnings, _ = closures_of(mat)
     assert len(warnings) == 1 and "Beckmann" in warnings[0]

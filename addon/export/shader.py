@@ -1395,6 +1395,16 @@ class ShaderCompiler:
         self.problem(f"'{node.name}': {dist.replace('_', ' ').title()} distribution is "
                      "approximated by GGX")
 
+    @staticmethod
+    def _multiscatter(node, roughness):
+        """ONE (a flag register) for Multiscatter GGX, which the core's energy compensation
+        follows; None for single-scatter GGX and for a constant zero roughness (a mirror)."""
+        if node.distribution != 'MULTI_GGX':
+            return None
+        if roughness.is_const and roughness.const[0] == 0.0:
+            return None
+        return ONE
+
     def shader_node(self, node, ctx, weight):
         t = node.type
         inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
@@ -1421,13 +1431,15 @@ class ShaderCompiler:
             if not (aniso.is_const and aniso.const[0] == 0.0):
                 self.problem(f"'{node.name}': anisotropy is not supported (isotropic)")
             self.closure("glossy", weight, color=inp("Color", "color"), roughness=rough,
-                         normal=self.normal(node, ctx))
+                         normal=self.normal(node, ctx),
+                         multiscatter=self._multiscatter(node, rough))
         elif t in ('BSDF_GLASS', 'BSDF_REFRACTION'):
             rough = inp("Roughness", "float")
             self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
             self.closure("glass" if t == 'BSDF_GLASS' else "refraction", weight,
                          color=inp("Color", "color"), roughness=rough, ior=inp("IOR", "float"),
-                         normal=self.normal(node, ctx))
+                         normal=self.normal(node, ctx),
+                         multiscatter=self._multiscatter(node, rough) if t == 'BSDF_GLASS' else None)
         elif t == 'BSDF_TRANSPARENT':
             self.closure("transparent", weight, color=inp("Color", "color"))
         elif t == 'EMISSION':
@@ -1483,7 +1495,8 @@ class ShaderCompiler:
                      transmission=inp("Transmission Weight", "float"),
                      specular_level=inp("Specular IOR Level", "float"),
                      specular_tint=inp("Specular Tint", "color"),
-                     normal=self.normal(node, ctx))
+                     normal=self.normal(node, ctx),
+                     multiscatter=self._multiscatter(node, rough))
         strength = inp("Emission Strength", "float")
         if not (strength.is_const and strength.const[0] == 0.0):
             emission = self.scale(inp("Emission Color", "color"), strength)

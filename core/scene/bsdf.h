@@ -8,7 +8,7 @@
 #include <string>
 #include <variant>
 
-#include "scene/microfacet.h"
+#include "scene/microfacet_energy.h"
 
 namespace pl {
 
@@ -74,13 +74,37 @@ struct DiffuseBsdf {
   }
 };
 
-// GGX reflection. f0 tints it; with `schlick` the tint is Schlick's Fresnel from f0 (metals),
-// without it a constant (Blender's Glossy BSDF).
+// How a GGX reflection lobe's Fresnel term follows the angle to its microfacet.
+enum class ConductorFresnel : uint8_t {
+  Constant,    // f0 (Blender's Glossy BSDF)
+  Schlick,     // Schlick's curve from f0
+  F82Tint,     // Cycles' F82-Tint: Schlick from f0 less b cos (1 - cos)^6 (Principled metal)
+  Dielectric,  // Cycles' generalized Schlick in its physical mode: mix(f0, 1, s), s the real
+               // Fresnel of eta remapped from [F0(eta), 1] to [0, 1] (Principled specular)
+};
+
+// GGX reflection, tinted by one of the Fresnel models above.
 struct ConductorBsdf {
   float alpha = 0.0f;
   Vec3 f0{1.0f};
-  bool schlick = false;
-  Vec3 fresnel(float c) const { return schlick ? fresnel_schlick(f0, c) : f0; }
+  ConductorFresnel mode = ConductorFresnel::Constant;
+  bool exact = true;  // Dielectric: the real Fresnel equations (false: Schlick's approximation)
+  float eta = 1.5f;   // Dielectric
+  Vec3 b{0.0f};       // F82Tint
+  Vec3 fresnel(float c) const {
+    switch (mode) {
+      case ConductorFresnel::Constant: return f0;
+      case ConductorFresnel::Schlick: return fresnel_schlick(f0, c);
+      case ConductorFresnel::F82Tint: return fresnel_f82(c, f0, b);
+      case ConductorFresnel::Dielectric: {
+        const float F = exact ? fresnel_dielectric(c, eta) : fresnel_schlick_dielectric(c, eta);
+        const float F0 = f0_from_ior(eta);
+        const float s = F0 < 1.0f ? clampf((F - F0) / (1.0f - F0), 0.0f, 1.0f) : 1.0f;
+        return f0 + (Vec3(1.0f) - f0) * s;
+      }
+    }
+    return f0;
+  }
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
     if (alpha < kDeltaAlpha || !same_side(wo, wi)) return Vec3(0.0f);
