@@ -99,3 +99,30 @@ def spheres(distribution):
 def test_metal_tint_and_specular_level_spheres(distribution):
     ours, cycles = render_pair(spheres(distribution), 512)
     assert_agree(f"spheres {distribution}", ours, cycles)
+
+
+def coated(distribution):
+    """A tinted glossy coat over a rough diffuse base, a clear rough coat over a metal."""
+    def principled(name, **inputs):
+        mat, node = ms.bsdf_material(name, "ShaderNodeBsdfPrincipled", **inputs)
+        node.distribution = distribution
+        return mat
+
+    def build():
+        scene = ms.studio(size=64, camera=((0.0, -5.0, 2.2), (0.0, 0.0, 0.5)))
+        ms.add_sphere("Lacquer", 0.6, principled("Lacquer", Base_Color=(0.8, 0.1, 0.1, 1), Roughness=0.6,
+                                                 Coat_Weight=1.0, Coat_Roughness=0.08, Coat_IOR=1.5,
+                                                 Coat_Tint=(0.9, 0.6, 0.3, 1)),
+                      location=(-0.7, 0.0, 0.6))
+        ms.add_sphere("Coated metal", 0.6, principled("Coated metal", Base_Color=(0.9, 0.9, 0.9, 1),
+                                                      Metallic=1.0, Roughness=0.5, Coat_Weight=0.7,
+                                                      Coat_Roughness=0.3, Coat_IOR=1.8),
+                      location=(0.7, 0.0, 0.6))
+        return scene
+    return build
+
+
+@pytest.mark.parametrize("distribution", ["GGX", "MULTI_GGX"])
+def test_coat_over_diffuse_and_metal(distribution):
+    ours, cycles = render_pair(coated(distribution), 512)
+    assert_agree(f"coat {distribution}", ours, cycles)

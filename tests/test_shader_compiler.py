@@ -240,13 +240,20 @@ def test_principled_inputs_alpha_and_emission():
     assert p["specular_tint"][:3] == approx((1, 0.9, 0.8))
 
 
-def test_principled_coat_sheen_subsurface_warn_once():
+def test_principled_sheen_subsurface_warn_once_and_coat_is_passed():
     mat, node = ms.bsdf_material("Layers", "ShaderNodeBsdfPrincipled", Coat_Weight=0.5,
-                                 Sheen_Weight=0.2, Subsurface_Weight=1.0)
+                                 Sheen_Weight=0.2, Subsurface_Weight=1.0, Coat_IOR=1.7)
     (closure,), warnings, _ = closures_of(mat)
     assert closure[0] == "principled"
     assert len(warnings) == 1
-    assert all(word in warnings[0] for word in ("Layers", "coat", "sheen", "subsurface"))
+    assert all(word in warnings[0] for word in ("Layers", "sheen", "subsurface"))
+    assert "coat" not in warnings[0]  # the core layers the coat (Cycles' model)
+    p = closure[2]
+    assert p["coat_weight"][0] == approx(0.5) and p["coat_ior"][0] == approx(1.7)
+    assert p["coat_roughness"][0] == approx(0.03) and "coat_normal" not in p
+    node.inputs["Coat Weight"].default_value = 0.0  # no coat: none of its inputs
+    (closure,), _, _ = closures_of(mat)
+    assert not any(k.startswith("coat") for k in closure[2])
 
 
 # ---------------------------------------------------------------- textures and coordinates

@@ -1468,7 +1468,7 @@ class ShaderCompiler:
     def principled(self, node, ctx, weight):
         inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
         ignored = []
-        for name, label in (("Coat Weight", "coat"), ("Sheen Weight", "sheen"),
+        for name, label in (("Sheen Weight", "sheen"),
                             ("Subsurface Weight", "subsurface (as diffuse)"),
                             ("Anisotropic", "anisotropy"),
                             ("Thin Film Thickness", "thin film"),
@@ -1487,6 +1487,12 @@ class ShaderCompiler:
             self.closure("transparent", self.scale(weight, self.math("SUBTRACT", ONE, alpha)),
                          color=const_color((1, 1, 1, 1)))
         rough = inp("Roughness", "float")
+        coat = {}
+        coat_weight = inp("Coat Weight", "float")
+        if not (coat_weight.is_const and coat_weight.const[0] <= 0.0):
+            coat = dict(coat_weight=coat_weight, coat_roughness=inp("Coat Roughness", "float"),
+                        coat_ior=inp("Coat IOR", "float"), coat_tint=inp("Coat Tint", "color"),
+                        coat_normal=self.normal(node, ctx, "Coat Normal"))
         self.closure("principled", opaque,
                      base_color=inp("Base Color", "color"),
                      metallic=inp("Metallic", "float"),
@@ -1496,9 +1502,12 @@ class ShaderCompiler:
                      specular_level=inp("Specular IOR Level", "float"),
                      specular_tint=inp("Specular Tint", "color"),
                      normal=self.normal(node, ctx),
-                     multiscatter=self._multiscatter(node, rough))
+                     multiscatter=self._multiscatter(node, rough),
+                     **coat)
         strength = inp("Emission Strength", "float")
         if not (strength.is_const and strength.const[0] == 0.0):
+            if coat:
+                self.problem(f"'{node.name}': emission under a coat is not dimmed by the coat")
             emission = self.scale(inp("Emission Color", "color"), strength)
             self.closure("emission", opaque, color=self.as_color(emission))
 

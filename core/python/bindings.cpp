@@ -400,11 +400,13 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         o.in[1] = p("base_color"); o.in[2] = p("metallic"); o.in[3] = p("roughness"); o.in[4] = p("ior");
         o.in[5] = p("transmission"); o.in[6] = p("specular_level"); o.in[7] = p("specular_tint");
         o.in[8] = p("normal"); o.in[9] = p("multiscatter");
+        o.in[10] = p("coat_weight"); o.in[11] = p("coat_roughness"); o.in[12] = p("coat_ior");
+        o.in[13] = p("coat_tint"); o.in[14] = p("coat_normal");
       } else {
         throw std::invalid_argument("unknown closure '" + kind + "'");
       }
       for (const auto& kv : params) regno(kv.second);  // validates every register, also of unknown keys
-      if (p("normal") != kNoReg) prog.varying = true;
+      if (p("normal") != kNoReg || p("coat_normal") != kNoReg) prog.varying = true;
       if (p("multiscatter") != kNoReg) prog.varying = true;  // its compensation depends on the view
       if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
       prog.ops.push_back(o);

@@ -763,9 +763,10 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         out.emission += clean_color(col(op.in[0]) * col(op.in[1]));
         break;
       case OpCode::Principled: {
-        // Cycles 4.5's layering (svm_closure.h, CLOSURE_BSDF_PRINCIPLED_ID): metal, then glass,
-        // then a dielectric specular layer over diffuse, each taking its share of the weight
-        // and the specular layer attenuating the diffuse below by its estimated albedo.
+        // Cycles 4.5's layering (svm_closure.h, CLOSURE_BSDF_PRINCIPLED_ID): a coat over metal,
+        // then glass, then a dielectric specular layer over diffuse, each taking its share of
+        // the weight and the coat and specular layers attenuating what lies below by their
+        // estimated albedo.
         const Vec3 w = clean_color(col(op.in[0]));
         const Vec3 base = op.in[1] == kNoReg ? Vec3(0.8f) : clean_color(r[op.in[1]].xyz());
         const Vec3 base_c = vmin(base, Vec3(1.0f));
@@ -782,6 +783,45 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         Frame fd;
         const DiffuseBsdf diffuse = diffuse_lobe(op.in[8], fd);
         Vec3 weight = w;
+        // Cycles' closure_layering_weight: what lies below a layer keeps 1 - max(albedo / weight)
+        // of the weight (albedo: the layer's, relative to the weight it was given).
+        auto layer_below = [](Vec3 wt, Vec3 albedo) {
+          float top = 0.0f;
+          if (wt.x > 0.0f) top = std::max(top, albedo.x);
+          if (wt.y > 0.0f) top = std::max(top, albedo.y);
+          if (wt.z > 0.0f) top = std::max(top, albedo.z);
+          return wt * sat(1.0f - top);
+        };
+        const float coat_in = val(op.in[10], 0.0f);
+        const float coat = std::isfinite(coat_in) ? std::max(0.0f, coat_in) : 0.0f;
+        if (coat > 1e-5f) {
+          // The coat: a dielectric GGX reflection with its own roughness, IOR and normal, always
+          // energy-preserving (Cycles' bsdf_microfacet_setup_fresnel_dielectric), over the rest.
+          ConductorBsdf c;
+          c.alpha = roughness_to_alpha(val(op.in[11], 0.03f));
+          c.mode = ConductorFresnel::Dielectric;
+          c.exact = !prog.schlick;
+          c.eta = std::max(1.0f, clean_ior(val(op.in[12], 1.5f)));
+          c.f0 = Vec3(f0_from_ior(c.eta));
+          const Frame fc = glossy_frame(op.in[14] != kNoReg ? op.in[14] : op.in[8]);
+          const float mu_c = std::fabs(dot(fc.n, ctx.wo));
+          const float rc = std::sqrt(c.alpha);
+          const EnergyCompensation comp =
+              ggx_reflection_compensation(rc, mu_c, Vec3(fresnel_dielectric_fss(c.eta)));
+          const Vec3 albedo = comp.darkening * dielectric_specular_albedo(rc, mu_c, c.eta, c.f0);
+          out.add(c, weight * (coat * comp.scale), fc, average(albedo));
+          weight = layer_below(weight, albedo * coat);
+          const Vec3 tint = clean_color(col(op.in[13]));
+          if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) {
+            // Cycles: the tint is the coat's transmittance at normal incidence (unit thickness);
+            // the view's path through it, refracted, is 1 / cos(theta_t) long (Beer's law).
+            const float inv = 1.0f / c.eta;
+            const float cos_t = std::sqrt(std::max(1e-8f, 1.0f - inv * inv * (1.0f - mu_c * mu_c)));
+            const float depth = 1.0f / cos_t;
+            const Vec3 through = {std::pow(tint.x, depth), std::pow(tint.y, depth), std::pow(tint.z, depth)};
+            weight *= Vec3(1.0f) + (through - Vec3(1.0f)) * coat;
+          }
+        }
         if (metallic > 0.0f) {
           ConductorBsdf m;
           m.alpha = alpha;
@@ -831,14 +871,9 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
             sw *= c.scale;
             darkening = c.darkening;
           }
-          // Cycles' closure_layering_weight: what lies below keeps 1 - max(albedo / weight).
           const Vec3 albedo = darkening * dielectric_specular_albedo(rough, mu, eta, s.f0);
           out.add(s, sw, fr, average(albedo));
-          float top = 0.0f;
-          if (weight.x > 0.0f) top = std::max(top, albedo.x);
-          if (weight.y > 0.0f) top = std::max(top, albedo.y);
-          if (weight.z > 0.0f) top = std::max(top, albedo.z);
-          weight *= sat(1.0f - top);
+          weight = layer_below(weight, albedo);
         }
         out.add(diffuse, weight * base, fd);
         break;

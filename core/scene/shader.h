@@ -67,7 +67,8 @@ constexpr int kMaxRegs = 64;
 struct ShaderOp {
   OpCode code = OpCode::Const;
   int16_t dst = 0;
-  int16_t in[10] = {kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg};
+  int16_t in[16] = {kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg,
+                    kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg};
   Float4 value;             // Const
   float m[12] = {};         // Mapping: 3x4 row-major
   int32_t index = 0;        // uv set / image id / Ramp: first entry in ShaderProgram::tables
