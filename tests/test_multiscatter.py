@@ -106,3 +106,18 @@ def test_coat_layers_over_the_base():
     assert np.allclose(mid, (0.5, 0.25, 1.0), atol=0.01), mid
     # Away from face-on the path is longer: darker than there.
     assert img[12:20, 12:20, 0].mean() < mid[0] - 0.005
+
+
+def test_specular_tint_on_glass_colours_the_reflection_only():
+    # Smooth Principled glass seen face-on: reflections carry F0 * tint (F0 = 0.04 here), the
+    # transmitted rest 1 - F0 * tint per channel (before the eta^2 radiance scaling).
+    tint = np.array([1.0, 0.5, 0.2])
+    u = np.random.default_rng(4).random((200_000, 3), dtype=np.float32)
+    p = {"alpha": 0.0, "eta": 1.5, "f0_tint": tuple(tint)}
+    wi, w, pdf, flags = pc.bsdf_sample("dielectric", p, (0.0, 0.0, 1.0), u)
+    refl, trans = (flags & 1) != 0, (flags & 2) != 0
+    f0 = 0.04 * tint
+    energy_r = (w * refl[:, None]).mean(0)
+    energy_t = (w * trans[:, None]).mean(0) * 1.5**2
+    assert np.allclose(energy_r, f0, rtol=0.03), energy_r
+    assert np.allclose(energy_t, 1.0 - f0, rtol=0.01), energy_t

@@ -889,6 +889,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     d.transmission = b("transmission", true);
     d.fresnel_on_transmission = b("fresnel_on_transmission", true);
     d.schlick = b("schlick", false);
+    if (p.contains("f0_tint")) d.f0_tint = to_color(p["f0_tint"], "f0_tint");
     return d;
   }
   if (kind == "transparent") return TransparentBsdf{};

@@ -73,10 +73,10 @@ Vec3 closure_albedo(const Closure& c, Vec3 wo) {
     return c.weight * m->f0;
   }
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
-    const float F = d->fresnel(std::fabs(dot(wo, c.frame.n)));
+    Vec3 cr, ct;
     float pr, pt;
-    d->lobe_probs(F, pr, pt);
-    return c.weight * (Vec3(pr) + d->transmission_tint * pt);
+    d->lobes(d->fresnel(std::fabs(dot(wo, c.frame.n))), cr, ct, pr, pt);
+    return c.weight * ((d->reflection ? cr : Vec3(0.0f)) + (d->transmission ? d->transmission_tint * ct : Vec3(0.0f)));
   }
   return c.weight;  // diffuse, transparent
 }

@@ -842,6 +842,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           g.eta = ior;
           g.schlick = prog.schlick;
           g.transmission_tint = {std::sqrt(base_c.x), std::sqrt(base_c.y), std::sqrt(base_c.z)};
+          g.f0_tint = spec_tint;
           Vec3 gw = weight * transmission;
           if (multi) gw *= glass_compensation(g, fr, g.transmission_tint);
           out.add(g, gw, fr);
