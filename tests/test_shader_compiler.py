@@ -256,6 +256,20 @@ def test_principled_sheen_subsurface_warn_once_and_coat_is_passed():
     assert not any(k.startswith("coat") for k in closure[2])
 
 
+
+def test_principled_coat_normal_is_its_own():
+    # A normal map on Coat Normal only: the coat gets it, the base keeps the shading normal.
+    mat, node = ms.bsdf_material("Coat normal", "ShaderNodeBsdfPrincipled", Coat_Weight=1.0)
+    tree = mat.node_tree
+    nm = tree.nodes.new("ShaderNodeNormalMap")
+    nm.inputs["Color"].default_value = (0.7, 0.5, 1.0, 1.0)
+    tree.links.new(nm.outputs["Normal"], node.inputs["Coat Normal"])
+    data, warnings = compile_(mat, uv_sets=UvSets())
+    (nmap,) = [op for op in data.program if op[0] == "normal_map"]
+    (closure,) = [op for op in data.program if op[0] == "closure"]
+    assert closure[3]["coat_normal"] == nmap[1] and "normal" not in closure[3]
+
+
 # ---------------------------------------------------------------- textures and coordinates
 
 def textured_principled(name, image, **tex_settings):
