@@ -238,7 +238,7 @@ def main():
     ap.add_argument("-n", type=int, default=64, help="visible normals per axis per entry")
     args = ap.parse_args()
     if args.check:
-        coarse = compute(32, 16, 32)
+        coarse = compute(48, 24, 32)
         stored = read_header()
         worst = max(float(np.abs(coarse[k].ravel() - stored[k]).max()) for k in coarse)
         print(f"largest difference to a coarse run: {worst:.4f}")
