@@ -235,7 +235,7 @@ def read_header():
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="compare a coarse run with the header")
-    ap.add_argument("-n", type=int, default=64, help="visible normals per axis per entry")
+    ap.add_argument("-n", type=int, default=96, help="visible normals per axis per entry (the header: 96)")
     args = ap.parse_args()
     if args.check:
         coarse = compute(48, 24, 32)
