@@ -16,8 +16,13 @@ CASES = [
     ("conductor", {"alpha": 0.05}),
     ("conductor", {"alpha": 0.3}),
     ("conductor", {"alpha": 0.8, "f0": (0.9, 0.6, 0.3), "schlick": True}),
+    # Principled's metal (F82-Tint) and dielectric specular (generalized Schlick, real Fresnel).
+    ("conductor", {"alpha": 0.25, "f0": (0.9, 0.6, 0.3), "f82_tint": (0.4, 0.8, 1.0)}),
+    ("conductor", {"alpha": 0.36, "f0": (0.06, 0.04, 0.02), "specular_eta": 1.5}),
     ("dielectric", {"alpha": 0.1, "eta": 1.5}),
     ("dielectric", {"alpha": 0.4, "eta": 1.33}),
+    # Principled glass with a Specular Tint: coloured reflection, the rest transmitted.
+    ("dielectric", {"alpha": 0.3, "eta": 1.5, "f0_tint": (1.0, 0.5, 0.2)}),
     ("dielectric", {"alpha": 0.4, "eta": 1.5, "transmission": False}),
     ("dielectric", {"alpha": 0.3, "eta": 1.5, "reflection": False, "fresnel_on_transmission": False}),
 ]

@@ -65,7 +65,7 @@ def glass(name, roughness=0.0, ior=1.5, absorption=None):
 
 def principled(name, **inputs):
     mat, node = ms.bsdf_material(name, "ShaderNodeBsdfPrincipled", **inputs)
-    node.distribution = 'GGX'  # the core is single-scatter GGX (Blender defaults to multiscatter)
+    node.distribution = 'GGX'  # single-scatter (Blender's default Multiscatter GGX: test_principled_cycles)
     return mat
 
 

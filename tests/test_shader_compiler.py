@@ -151,12 +151,23 @@ def test_each_bsdf_node_maps_to_its_closure():
         assert "normal" not in params  # unconnected: the shading normal
 
 
-def test_multiscatter_glossy_is_single_scatter_ggx_without_warning():
-    # Blender's default distribution; the core's GGX is single-scatter (documented).
+def test_multiscatter_glossy_passes_its_distribution_without_warning():
+    # Blender's default distribution: the closure carries the multiscatter flag (a register of
+    # 1) that turns on the core's energy compensation; single-scatter GGX carries none.
     mat, node = ms.bsdf_material("Glossy", "ShaderNodeBsdfGlossy", Roughness=0.4)
     assert node.distribution == 'MULTI_GGX'
     (closure,), warnings, _ = closures_of(mat)
     assert closure[0] == "glossy" and not warnings
+    assert closure[2]["multiscatter"][0] == 1.0
+    node.distribution = 'GGX'
+    (closure,), warnings, _ = closures_of(mat)
+    assert "multiscatter" not in closure[2] and not warnings
+    for node_type, kind in (("ShaderNodeBsdfPrincipled", "principled"), ("ShaderNodeBsdfGlass", "glass")):
+        m, n = ms.bsdf_material(kind, node_type, Roughness=0.3)
+        assert n.distribution == 'MULTI_GGX'
+        closures, _, _ = closures_of(m)
+        (c,) = [c for c in closures if c[0] == kind]
+        assert c[2]["multiscatter"][0] == 1.0
     node.distribution = 'BECKMANN'
     _, warnings, _ = closures_of(mat)
     assert len(warnings) == 1 and "Beckmann" in warnings[0]
@@ -229,13 +240,34 @@ def test_principled_inputs_alpha_and_emission():
     assert p["specular_tint"][:3] == approx((1, 0.9, 0.8))
 
 
-def test_principled_coat_sheen_subsurface_warn_once():
+def test_principled_sheen_subsurface_warn_once_and_coat_is_passed():
     mat, node = ms.bsdf_material("Layers", "ShaderNodeBsdfPrincipled", Coat_Weight=0.5,
-                                 Sheen_Weight=0.2, Subsurface_Weight=1.0)
+                                 Sheen_Weight=0.2, Subsurface_Weight=1.0, Coat_IOR=1.7)
     (closure,), warnings, _ = closures_of(mat)
     assert closure[0] == "principled"
     assert len(warnings) == 1
-    assert all(word in warnings[0] for word in ("Layers", "coat", "sheen", "subsurface"))
+    assert all(word in warnings[0] for word in ("Layers", "sheen", "subsurface"))
+    assert "coat" not in warnings[0]  # the core layers the coat (Cycles' model)
+    p = closure[2]
+    assert p["coat_weight"][0] == approx(0.5) and p["coat_ior"][0] == approx(1.7)
+    assert p["coat_roughness"][0] == approx(0.03) and "coat_normal" not in p
+    node.inputs["Coat Weight"].default_value = 0.0  # no coat: none of its inputs
+    (closure,), _, _ = closures_of(mat)
+    assert not any(k.startswith("coat") for k in closure[2])
+
+
+
+def test_principled_coat_normal_is_its_own():
+    # A normal map on Coat Normal only: the coat gets it, the base keeps the shading normal.
+    mat, node = ms.bsdf_material("Coat normal", "ShaderNodeBsdfPrincipled", Coat_Weight=1.0)
+    tree = mat.node_tree
+    nm = tree.nodes.new("ShaderNodeNormalMap")
+    nm.inputs["Color"].default_value = (0.7, 0.5, 1.0, 1.0)
+    tree.links.new(nm.outputs["Normal"], node.inputs["Coat Normal"])
+    data, warnings = compile_(mat, uv_sets=UvSets())
+    (nmap,) = [op for op in data.program if op[0] == "normal_map"]
+    (closure,) = [op for op in data.program if op[0] == "closure"]
+    assert closure[3]["coat_normal"] == nmap[1] and "normal" not in closure[3]
 
 
 # ---------------------------------------------------------------- textures and coordinates

@@ -1599,6 +1599,16 @@ class ShaderCompiler:
         self.problem(f"'{node.name}': {dist.replace('_', ' ').title()} distribution is "
                      "approximated by GGX")
 
+    @staticmethod
+    def _multiscatter(node, roughness):
+        """ONE (a flag register) for Multiscatter GGX, which the core's energy compensation
+        follows; None for single-scatter GGX and for a constant zero roughness (a mirror)."""
+        if node.distribution != 'MULTI_GGX':
+            return None
+        if roughness.is_const and roughness.const[0] == 0.0:
+            return None
+        return ONE
+
     def shader_node(self, node, ctx, weight):
         t = node.type
         inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
@@ -1625,13 +1635,15 @@ class ShaderCompiler:
             if not (aniso.is_const and aniso.const[0] == 0.0):
                 self.problem(f"'{node.name}': anisotropy is not supported (isotropic)")
             self.closure("glossy", weight, color=inp("Color", "color"), roughness=rough,
-                         normal=self.normal(node, ctx))
+                         normal=self.normal(node, ctx),
+                         multiscatter=self._multiscatter(node, rough))
         elif t in ('BSDF_GLASS', 'BSDF_REFRACTION'):
             rough = inp("Roughness", "float")
             self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
             self.closure("glass" if t == 'BSDF_GLASS' else "refraction", weight,
                          color=inp("Color", "color"), roughness=rough, ior=inp("IOR", "float"),
-                         normal=self.normal(node, ctx))
+                         normal=self.normal(node, ctx),
+                         multiscatter=self._multiscatter(node, rough) if t == 'BSDF_GLASS' else None)
         elif t == 'BSDF_TRANSPARENT':
             self.closure("transparent", weight, color=inp("Color", "color"))
         elif t == 'EMISSION':
@@ -1660,7 +1672,7 @@ class ShaderCompiler:
     def principled(self, node, ctx, weight):
         inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
         ignored = []
-        for name, label in (("Coat Weight", "coat"), ("Sheen Weight", "sheen"),
+        for name, label in (("Sheen Weight", "sheen"),
                             ("Subsurface Weight", "subsurface (as diffuse)"),
                             ("Anisotropic", "anisotropy"),
                             ("Thin Film Thickness", "thin film"),
@@ -1679,6 +1691,12 @@ class ShaderCompiler:
             self.closure("transparent", self.scale(weight, self.math("SUBTRACT", ONE, alpha)),
                          color=const_color((1, 1, 1, 1)))
         rough = inp("Roughness", "float")
+        coat = {}
+        coat_weight = inp("Coat Weight", "float")
+        if not (coat_weight.is_const and coat_weight.const[0] <= 0.0):
+            coat = dict(coat_weight=coat_weight, coat_roughness=inp("Coat Roughness", "float"),
+                        coat_ior=inp("Coat IOR", "float"), coat_tint=inp("Coat Tint", "color"),
+                        coat_normal=self.normal(node, ctx, "Coat Normal"))
         self.closure("principled", opaque,
                      base_color=inp("Base Color", "color"),
                      metallic=inp("Metallic", "float"),
@@ -1687,9 +1705,13 @@ class ShaderCompiler:
                      transmission=inp("Transmission Weight", "float"),
                      specular_level=inp("Specular IOR Level", "float"),
                      specular_tint=inp("Specular Tint", "color"),
-                     normal=self.normal(node, ctx))
+                     normal=self.normal(node, ctx),
+                     multiscatter=self._multiscatter(node, rough),
+                     **coat)
         strength = inp("Emission Strength", "float")
         if not (strength.is_const and strength.const[0] == 0.0):
+            if coat:
+                self.problem(f"'{node.name}': emission under a coat is not dimmed by the coat")
             emission = self.scale(inp("Emission Color", "color"), strength)
             self.closure("emission", opaque, color=self.as_color(emission))
 

@@ -601,10 +601,11 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         o.in[1] = p("color"); o.in[2] = p("normal");
       } else if (kind == "glossy") {
         o.code = OpCode::Glossy;
-        o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal");
+        o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal"); o.in[4] = p("multiscatter");
       } else if (kind == "glass" || kind == "refraction") {
         o.code = kind == "glass" ? OpCode::Glass : OpCode::Refraction;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("ior"); o.in[4] = p("normal");
+        o.in[5] = p("multiscatter");
       } else if (kind == "transparent") {
         o.code = OpCode::Transparent;
         o.in[1] = p("color");
@@ -615,12 +616,15 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         o.code = OpCode::Principled;
         o.in[1] = p("base_color"); o.in[2] = p("metallic"); o.in[3] = p("roughness"); o.in[4] = p("ior");
         o.in[5] = p("transmission"); o.in[6] = p("specular_level"); o.in[7] = p("specular_tint");
-        o.in[8] = p("normal");
+        o.in[8] = p("normal"); o.in[9] = p("multiscatter");
+        o.in[10] = p("coat_weight"); o.in[11] = p("coat_roughness"); o.in[12] = p("coat_ior");
+        o.in[13] = p("coat_tint"); o.in[14] = p("coat_normal");
       } else {
         throw std::invalid_argument("unknown closure '" + kind + "'");
       }
       for (const auto& kv : params) regno(kv.second);  // validates every register, also of unknown keys
-      if (p("normal") != kNoReg) prog.varying = true;
+      if (p("normal") != kNoReg || p("coat_normal") != kNoReg) prog.varying = true;
+      if (p("multiscatter") != kNoReg) prog.varying = true;  // its compensation depends on the view
       if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
       prog.ops.push_back(o);
       continue;
@@ -1105,7 +1109,15 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     ConductorBsdf c;
     c.alpha = f("alpha", 0.3f);
     c.f0 = p.contains("f0") ? to_color(p["f0"], "f0") : Vec3(1.0f);
-    c.schlick = b("schlick", false);
+    if (b("schlick", false)) c.mode = ConductorFresnel::Schlick;
+    if (p.contains("f82_tint")) {  // Principled's metal
+      c.mode = ConductorFresnel::F82Tint;
+      c.b = f82_tint_b(c.f0, to_color(p["f82_tint"], "f82_tint"));
+    }
+    if (p.contains("specular_eta")) {  // Principled's dielectric specular (f0: its tinted F0)
+      c.mode = ConductorFresnel::Dielectric;
+      c.eta = f("specular_eta", 1.5f);
+    }
     return c;
   }
   if (kind == "dielectric") {
@@ -1116,6 +1128,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     d.transmission = b("transmission", true);
     d.fresnel_on_transmission = b("fresnel_on_transmission", true);
     d.schlick = b("schlick", false);
+    if (p.contains("f0_tint")) d.f0_tint = to_color(p["f0_tint"], "f0_tint");
     return d;
   }
   if (kind == "transparent") return TransparentBsdf{};

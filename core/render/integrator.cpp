@@ -66,12 +66,17 @@ inline Vec3 beer(Vec3 sigma, float t) {
 // How much a closure reflects and transmits in total (Cycles' bsdf_albedo, roughly): the
 // closure weight times the BSDF's own albedo, seen from wo.
 Vec3 closure_albedo(const Closure& c, Vec3 wo) {
-  if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) return c.weight * m->f0;
+  if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) {
+    // Principled's lobes: their Fresnel at the view (a colour, not just F0, for the specular).
+    if (m->mode == ConductorFresnel::F82Tint || m->mode == ConductorFresnel::Dielectric)
+      return c.weight * m->fresnel(std::fabs(dot(wo, c.frame.n)));
+    return c.weight * m->f0;
+  }
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
-    const float F = d->fresnel(std::fabs(dot(wo, c.frame.n)));
+    Vec3 cr, ct;
     float pr, pt;
-    d->lobe_probs(F, pr, pt);
-    return c.weight * (Vec3(pr) + d->transmission_tint * pt);
+    d->lobes(d->fresnel(std::fabs(dot(wo, c.frame.n))), cr, ct, pr, pt);
+    return c.weight * ((d->reflection ? cr : Vec3(0.0f)) + (d->transmission ? d->transmission_tint * ct : Vec3(0.0f)));
   }
   return c.weight;  // diffuse, transparent
 }
@@ -83,8 +88,6 @@ bool closure_is_rough(const Closure& c) {
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) return d->alpha > 0.075f;
   return false;  // transparent
 }
-
-inline float average(Vec3 v) { return (v.x + v.y + v.z) * (1.0f / 3.0f); }
 
 }  // namespace
 

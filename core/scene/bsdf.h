@@ -8,7 +8,7 @@
 #include <string>
 #include <variant>
 
-#include "scene/microfacet.h"
+#include "scene/microfacet_energy.h"
 
 namespace pl {
 
@@ -74,13 +74,37 @@ struct DiffuseBsdf {
   }
 };
 
-// GGX reflection. f0 tints it; with `schlick` the tint is Schlick's Fresnel from f0 (metals),
-// without it a constant (Blender's Glossy BSDF).
+// How a GGX reflection lobe's Fresnel term follows the angle to its microfacet.
+enum class ConductorFresnel : uint8_t {
+  Constant,    // f0 (Blender's Glossy BSDF)
+  Schlick,     // Schlick's curve from f0
+  F82Tint,     // Cycles' F82-Tint: Schlick from f0 less b cos (1 - cos)^6 (Principled metal)
+  Dielectric,  // Cycles' generalized Schlick in its physical mode: mix(f0, 1, s), s the real
+               // Fresnel of eta remapped from [F0(eta), 1] to [0, 1] (Principled specular)
+};
+
+// GGX reflection, tinted by one of the Fresnel models above.
 struct ConductorBsdf {
   float alpha = 0.0f;
   Vec3 f0{1.0f};
-  bool schlick = false;
-  Vec3 fresnel(float c) const { return schlick ? fresnel_schlick(f0, c) : f0; }
+  ConductorFresnel mode = ConductorFresnel::Constant;
+  bool exact = true;  // Dielectric: the real Fresnel equations (false: Schlick's approximation)
+  float eta = 1.5f;   // Dielectric
+  Vec3 b{0.0f};       // F82Tint
+  Vec3 fresnel(float c) const {
+    switch (mode) {
+      case ConductorFresnel::Constant: return f0;
+      case ConductorFresnel::Schlick: return fresnel_schlick(f0, c);
+      case ConductorFresnel::F82Tint: return fresnel_f82(c, f0, b);
+      case ConductorFresnel::Dielectric: {
+        const float F = exact ? fresnel_dielectric(c, eta) : fresnel_schlick_dielectric(c, eta);
+        const float F0 = f0_from_ior(eta);
+        const float s = F0 < 1.0f ? clampf((F - F0) / (1.0f - F0), 0.0f, 1.0f) : 1.0f;
+        return f0 + (Vec3(1.0f) - f0) * s;
+      }
+    }
+    return f0;
+  }
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
     if (alpha < kDeltaAlpha || !same_side(wo, wi)) return Vec3(0.0f);
@@ -127,6 +151,10 @@ struct DielectricBsdf {
   bool fresnel_on_transmission = true;  // false: Blender's Refraction BSDF (all light refracts)
   bool schlick = false;
   Vec3 transmission_tint{1.0f};  // tints refracted light only (Principled: sqrt(base) per crossing)
+  // Principled's Specular Tint on its glass: Cycles' generalized Schlick in its physical mode,
+  // reflection mix(F0 tint, 1, s) with s the real Fresnel remapped from [F0, 1], transmission
+  // the rest (1 white: the plain Fresnel equations).
+  Vec3 f0_tint{1.0f};
 
   // A reflection-only layer (a coat) has no inside: seen from behind it behaves as from the front.
   bool one_sided_coat() const { return !transmission; }
@@ -134,10 +162,19 @@ struct DielectricBsdf {
   float fresnel(float cos_i) const {
     return schlick ? fresnel_schlick_dielectric(cos_i, eta) : fresnel_dielectric(cos_i, eta);
   }
-  // Probabilities of choosing reflection / transmission given the Fresnel term.
-  void lobe_probs(float F, float& pr, float& pt) const {
-    pr = reflection ? F : 0.0f;
-    pt = transmission ? (fresnel_on_transmission ? 1.0f - F : 1.0f) : 0.0f;
+  // Given the real Fresnel term F: the colours of reflection (cr) and transmission (ct, before
+  // transmission_tint) and the probabilities of choosing them.
+  void lobes(float F, Vec3& cr, Vec3& ct, float& pr, float& pt) const {
+    cr = Vec3(F);
+    if (!(f0_tint.x == 1.0f && f0_tint.y == 1.0f && f0_tint.z == 1.0f)) {
+      const float F0 = f0_from_ior(eta);
+      const float t = F0 < 1.0f ? clampf((F - F0) / (1.0f - F0), 0.0f, 1.0f) : 1.0f;
+      const Vec3 f0 = vmin(f0_tint * F0, Vec3(1.0f));
+      cr = f0 + (Vec3(1.0f) - f0) * t;
+    }
+    ct = fresnel_on_transmission ? Vec3(1.0f) - cr : Vec3(1.0f);
+    pr = reflection ? average(cr) : 0.0f;
+    pt = transmission ? average(ct) : 0.0f;
   }
 
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
@@ -156,9 +193,9 @@ struct DielectricBsdf {
     if (m.z < 0.0f) m = -m;
     if (dot(m, wi) * wi.z < 0.0f || dot(m, wo) * wo.z < 0.0f) return Vec3(0.0f);  // backfacing microfacet
     const Ggx g{alpha};
-    const float F = fresnel(dot(wo, m));
+    Vec3 cr, ct;
     float pr, pt;
-    lobe_probs(F, pr, pt);
+    lobes(fresnel(dot(wo, m)), cr, ct, pr, pt);
     if (!(pr + pt > 0.0f)) return Vec3(0.0f);
     // Visible-normal density seen from wo mirrored to the outside; m (facing +Z) is then the
     // facet facing it, whichever side wo is on.
@@ -166,14 +203,14 @@ struct DielectricBsdf {
     const float pdf_m = g.pdf_visible(wo_up, m);
     if (refl) {
       pdf = pdf_m / (4.0f * std::fabs(dot(wo, m))) * pr / (pr + pt);
-      return Vec3(g.D(m) * g.G(wo, wi) * pr / (4.0f * std::fabs(wo.z)));
+      return cr * (g.D(m) * g.G(wo, wi) / (4.0f * std::fabs(wo.z)));
     }
     const float denom = (dot(wi, m) + dot(wo, m) / etap) * (dot(wi, m) + dot(wo, m) / etap);
     if (!(denom > 0.0f)) return Vec3(0.0f);
     const float dwm_dwi = std::fabs(dot(wi, m)) / denom;
     pdf = pdf_m * dwm_dwi * pt / (pr + pt);
-    const float ft = g.D(m) * pt * g.G(wo, wi) * std::fabs(dot(wi, m) * dot(wo, m) / (wo.z * denom));
-    return transmission_tint * (ft / (etap * etap));  // radiance is compressed/expanded across the interface
+    const float ft = g.D(m) * g.G(wo, wi) * std::fabs(dot(wi, m) * dot(wo, m) / (wo.z * denom));
+    return transmission_tint * ct * (ft / (etap * etap));  // radiance is compressed/expanded across the interface
   }
 
   bool sample(Vec3 wo, Vec2 u, float uc, BsdfSample& s) const {
@@ -185,13 +222,13 @@ struct DielectricBsdf {
       return ok;
     }
     if (alpha < kDeltaAlpha) {
-      const float F = fresnel(wo.z);
+      Vec3 cr, ct;
       float pr, pt;
-      lobe_probs(F, pr, pt);
+      lobes(fresnel(wo.z), cr, ct, pr, pt);
       if (!(pr + pt > 0.0f)) return false;
       if (uc * (pr + pt) < pr) {
         s.wi = {-wo.x, -wo.y, wo.z};
-        s.weight = Vec3(1.0f) * ((pr + pt));
+        s.weight = cr * ((pr + pt) / pr);
         s.pdf = pr / (pr + pt);
         s.flags = kReflect | kDelta | kGlossyLobe;
         s.eta = 1.0f;
@@ -200,7 +237,7 @@ struct DielectricBsdf {
       float etap;
       if (!refract(wo, {0.0f, 0.0f, 1.0f}, eta, s.wi, etap) || s.wi.z == 0.0f) return false;
       s.pdf = pt / (pr + pt);
-      s.weight = transmission_tint * ((pr + pt) / (etap * etap));
+      s.weight = transmission_tint * ct * ((pr + pt) / (pt * etap * etap));
       s.flags = kTransmit | kDelta | kGlossyLobe;
       s.eta = etap;
       return true;
@@ -210,9 +247,9 @@ struct DielectricBsdf {
     // The microfacet normal facing outside (+Z side): its sign tells Fresnel and refract
     // whether wo is inside or outside.
     const Vec3 m = g.sample_visible(wo_up, u);
-    const float F = fresnel(dot(wo, m));
+    Vec3 cr, ct;
     float pr, pt;
-    lobe_probs(F, pr, pt);
+    lobes(fresnel(dot(wo, m)), cr, ct, pr, pt);
     if (!(pr + pt > 0.0f)) return false;
     if (uc * (pr + pt) < pr) {
       s.wi = reflect(wo, m);

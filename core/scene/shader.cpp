@@ -394,6 +394,13 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
   auto glossy_frame = [&](int16_t normal_reg) {
     return Frame::from_normal(valid_specular_normal(ctx.ng, ctx.wo, normal_or(r, normal_reg, ctx.ns)));
   };
+  // Blender's Multiscatter GGX: the add-on passes a register holding 1 for it.
+  auto multiscatter = [&](int16_t i) { return i != kNoReg && r[i].x > 0.5f; };
+  // Multiscatter GGX glass: the view's side decides the relative IOR (Cycles' ior or 1 / ior).
+  auto glass_compensation = [&](const DielectricBsdf& b, const Frame& f, Vec3 fss) {
+    const float c = dot(f.n, ctx.wo);
+    return ggx_glass_compensation(std::sqrt(b.alpha), std::fabs(c), c >= 0.0f ? b.eta : 1.0f / b.eta, fss).scale;
+  };
   auto diffuse_lobe = [&](int16_t normal_reg, Frame& f) {
     const Vec3 n = normal_or(r, normal_reg, ctx.ns);
     f = Frame::from_normal(n);
@@ -884,10 +891,17 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         out.add(d, clean_color(col(op.in[0]) * col(op.in[1])), f);
         break;
       }
-      case OpCode::Glossy:
-        out.add(ConductorBsdf{roughness_to_alpha(val(op.in[2], 0.5f)), Vec3(1.0f), false},
-                clean_color(col(op.in[0]) * col(op.in[1])), glossy_frame(op.in[3]));
+      case OpCode::Glossy: {
+        ConductorBsdf g;
+        g.alpha = roughness_to_alpha(val(op.in[2], 0.5f));
+        const Frame f = glossy_frame(op.in[3]);
+        Vec3 w = clean_color(col(op.in[0]) * col(op.in[1]));
+        if (multiscatter(op.in[4]))  // Cycles: the colour is the lobe's Fresnel (Fss)
+          w *= ggx_reflection_compensation(std::sqrt(g.alpha), std::fabs(dot(f.n, ctx.wo)),
+                                           clean_color(col(op.in[1]))).scale;
+        out.add(g, w, f);
         break;
+      }
       case OpCode::Glass:
       case OpCode::Refraction: {
         DielectricBsdf b;
@@ -898,7 +912,11 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           b.reflection = false;
           b.fresnel_on_transmission = false;
         }
-        out.add(b, clean_color(col(op.in[0]) * col(op.in[1])), glossy_frame(op.in[4]));
+        const Frame f = glossy_frame(op.in[4]);
+        Vec3 w = clean_color(col(op.in[0]) * col(op.in[1]));
+        if (op.code == OpCode::Glass && multiscatter(op.in[5]))
+          w *= glass_compensation(b, f, clean_color(col(op.in[1])));
+        out.add(b, w, f);
         break;
       }
       case OpCode::Transparent:
@@ -908,49 +926,120 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         out.emission += clean_color(col(op.in[0]) * col(op.in[1]));
         break;
       case OpCode::Principled: {
-        // A layered approximation of Blender's Principled BSDF: metal | (glass | (dielectric
-        // specular over diffuse)), the diffuse base keeping what the specular layer lets through.
+        // Cycles 4.5's layering (svm_closure.h, CLOSURE_BSDF_PRINCIPLED_ID): a coat over metal,
+        // then glass, then a dielectric specular layer over diffuse, each taking its share of
+        // the weight and the coat and specular layers attenuating what lies below by their
+        // estimated albedo.
         const Vec3 w = clean_color(col(op.in[0]));
         const Vec3 base = op.in[1] == kNoReg ? Vec3(0.8f) : clean_color(r[op.in[1]].xyz());
+        const Vec3 base_c = vmin(base, Vec3(1.0f));
         const float metallic = sat(val(op.in[2], 0.0f));
         const float alpha = roughness_to_alpha(val(op.in[3], 0.5f));
+        const float rough = std::sqrt(alpha);
         const float ior = clean_ior(val(op.in[4], 1.5f));
         const float transmission = sat(val(op.in[5], 0.0f));
         const float spec_level = std::isfinite(val(op.in[6], 0.5f)) ? std::max(0.0f, val(op.in[6], 0.5f)) : 0.5f;
         const Vec3 spec_tint = clean_color(col(op.in[7]));
+        const bool multi = multiscatter(op.in[9]);
         const Frame fr = glossy_frame(op.in[8]);  // Cycles' valid_reflection_N
+        const float mu = std::fabs(dot(fr.n, ctx.wo));
         Frame fd;
         const DiffuseBsdf diffuse = diffuse_lobe(op.in[8], fd);
-        if (metallic > 0.0f) out.add(ConductorBsdf{alpha, vmin(base, Vec3(1.0f)), true}, w * metallic, fr);
-        const float dielectric = 1.0f - metallic;
-        if (dielectric * transmission > 0.0f) {
+        Vec3 weight = w;
+        // Cycles' closure_layering_weight: what lies below a layer keeps 1 - max(albedo / weight)
+        // of the weight (albedo: the layer's, relative to the weight it was given).
+        auto layer_below = [](Vec3 wt, Vec3 albedo) {
+          float top = 0.0f;
+          if (wt.x > 0.0f) top = std::max(top, albedo.x);
+          if (wt.y > 0.0f) top = std::max(top, albedo.y);
+          if (wt.z > 0.0f) top = std::max(top, albedo.z);
+          return wt * sat(1.0f - top);
+        };
+        const float coat_in = val(op.in[10], 0.0f);
+        const float coat = std::isfinite(coat_in) ? std::max(0.0f, coat_in) : 0.0f;
+        if (coat > 1e-5f) {
+          // The coat: a dielectric GGX reflection with its own roughness, IOR and normal, always
+          // energy-preserving (Cycles' bsdf_microfacet_setup_fresnel_dielectric), over the rest.
+          ConductorBsdf c;
+          c.alpha = roughness_to_alpha(val(op.in[11], 0.03f));
+          c.mode = ConductorFresnel::Dielectric;
+          c.exact = !prog.schlick;
+          c.eta = std::max(1.0f, clean_ior(val(op.in[12], 1.5f)));
+          c.f0 = Vec3(f0_from_ior(c.eta));
+          const Frame fc = glossy_frame(op.in[14] != kNoReg ? op.in[14] : op.in[8]);
+          const float mu_c = std::fabs(dot(fc.n, ctx.wo));
+          const float rc = std::sqrt(c.alpha);
+          const EnergyCompensation comp =
+              ggx_reflection_compensation(rc, mu_c, Vec3(fresnel_dielectric_fss(c.eta)));
+          const Vec3 albedo = comp.darkening * dielectric_specular_albedo(rc, mu_c, c.eta, c.f0);
+          out.add(c, weight * (coat * comp.scale), fc, average(albedo));
+          weight = layer_below(weight, albedo * coat);
+          const Vec3 tint = clean_color(col(op.in[13]));
+          if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) {
+            // Cycles: the tint is the coat's transmittance at normal incidence (unit thickness);
+            // the view's path through it, refracted, is 1 / cos(theta_t) long (Beer's law).
+            const float inv = 1.0f / c.eta;
+            const float cos_t = std::sqrt(std::max(1e-8f, 1.0f - inv * inv * (1.0f - mu_c * mu_c)));
+            const float depth = 1.0f / cos_t;
+            const Vec3 through = {std::pow(tint.x, depth), std::pow(tint.y, depth), std::pow(tint.z, depth)};
+            weight *= Vec3(1.0f) + (through - Vec3(1.0f)) * coat;
+          }
+        }
+        if (metallic > 0.0f) {
+          ConductorBsdf m;
+          m.alpha = alpha;
+          m.f0 = base_c;
+          m.mode = ConductorFresnel::F82Tint;
+          const Vec3 tint = vmin(spec_tint, Vec3(1.0f));
+          if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) m.b = f82_tint_b(m.f0, tint);
+          Vec3 mw = weight * metallic;
+          if (multi) mw *= ggx_reflection_compensation(rough, mu, f82_fss(m.f0, m.b)).scale;
+          out.add(m, mw, fr, average(fresnel_f82(mu, m.f0, m.b)));
+          weight *= 1.0f - metallic;
+        }
+        if (transmission > 0.0f) {
           // As Cycles: the reflection stays untinted, refracted light takes sqrt(base) at each
           // crossing (base colour once through a closed object).
           DielectricBsdf g;
           g.alpha = alpha;
           g.eta = ior;
           g.schlick = prog.schlick;
-          g.transmission_tint = {std::sqrt(base.x), std::sqrt(base.y), std::sqrt(base.z)};
-          out.add(g, w * (dielectric * transmission), fr);
+          g.transmission_tint = {std::sqrt(base_c.x), std::sqrt(base_c.y), std::sqrt(base_c.z)};
+          g.f0_tint = spec_tint;
+          Vec3 gw = weight * transmission;
+          if (multi) gw *= glass_compensation(g, fr, g.transmission_tint);
+          out.add(g, gw, fr);
+          weight *= 1.0f - transmission;
         }
-        const float opaque = dielectric * (1.0f - transmission);
-        if (opaque > 0.0f) {
-          // Specular IOR Level scales F0; 0.5 keeps the IOR's own reflectance.
-          const float r0 = (ior - 1.0f) / (ior + 1.0f);
-          const float f0 = std::min(0.999f, r0 * r0 * 2.0f * spec_level);
-          float reflected = 0.0f;
-          if (f0 > 0.0f) {
-            const float s = std::sqrt(f0);
-            DielectricBsdf spec;
-            spec.alpha = alpha;
-            spec.eta = (1.0f + s) / (1.0f - s);
-            spec.transmission = false;
-            spec.schlick = prog.schlick;
-            out.add(spec, w * spec_tint * opaque, fr);
-            reflected = fresnel_dielectric(std::fabs(dot(fr.n, ctx.wo)), spec.eta);
+        // Specular IOR Level scales F0 (0.5 keeps the IOR's own), as an IOR of its own.
+        float eta = ior, f0 = f0_from_ior(ior);
+        if (spec_level != 0.5f) {
+          f0 *= 2.0f * spec_level;
+          eta = ior_from_f0(f0);
+          if (ior < 1.0f) eta = 1.0f / eta;
+        }
+        if (eta != 1.0f) {
+          ConductorBsdf s;
+          s.alpha = alpha;
+          s.mode = ConductorFresnel::Dielectric;
+          s.exact = !prog.schlick;
+          s.eta = eta;
+          s.f0 = vmin(spec_tint * f0, Vec3(1.0f));  // Specular Tint tints F0 only (f90 = 1)
+          Vec3 sw = weight, darkening(1.0f);
+          if (multi) {
+            // The mean single-scatter Fresnel: the real curve's average remapped as the lobe's.
+            const float F0 = f0_from_ior(eta);
+            const float s_avg = F0 < 1.0f ? sat((fresnel_dielectric_fss(eta) - F0) / (1.0f - F0)) : 1.0f;
+            const EnergyCompensation c =
+                ggx_reflection_compensation(rough, mu, s.f0 + (Vec3(1.0f) - s.f0) * s_avg);
+            sw *= c.scale;
+            darkening = c.darkening;
           }
-          out.add(diffuse, w * base * (opaque * (1.0f - reflected)), fd);
+          const Vec3 albedo = darkening * dielectric_specular_albedo(rough, mu, eta, s.f0);
+          out.add(s, sw, fr, average(albedo));
+          weight = layer_below(weight, albedo);
         }
+        out.add(diffuse, weight * base, fd);
         break;
       }
     }

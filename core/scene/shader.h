@@ -75,7 +75,8 @@ constexpr int kMaxRegs = 64;
 struct ShaderOp {
   OpCode code = OpCode::Const;
   int16_t dst = 0;
-  int16_t in[10] = {kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg};
+  int16_t in[16] = {kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg,
+                    kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg, kNoReg};
   Float4 value;             // Const
   float m[12] = {};         // Mapping: 3x4 row-major
   int32_t index = 0;        // uv set / image id / Ramp: first entry in ShaderProgram::tables
@@ -113,15 +114,18 @@ struct ClosureList {
   int n = 0;
   Vec3 emission{0.0f};
   bool has_nondelta = false;
-  void add(const Bsdf& b, Vec3 weight, const Frame& f) {
+  // `albedo`: an estimate of how much the BSDF reflects from this view (Cycles' sample weight
+  // factor), for choosing among closures; negative: bsdf_albedo_hint's guess.
+  void add(const Bsdf& b, Vec3 weight, const Frame& f, float albedo = -1.0f) {
     if (n >= kMaxClosures || !(max_component(weight) > 0.0f) || !is_finite(weight)) return;
-    c[size_t(n++)] = {b, weight, f, 0.0f, bsdf_is_delta(b)};
+    c[size_t(n++)] = {b, weight, f, albedo, bsdf_is_delta(b)};
   }
   // Sampling probabilities in proportion to each closure's expected contribution.
   void finalize() {
     float total = 0.0f;
     for (int i = 0; i < n; ++i) {
-      c[size_t(i)].pick = luminance(c[size_t(i)].weight) * bsdf_albedo_hint(c[size_t(i)].bsdf);
+      const float albedo = c[size_t(i)].pick >= 0.0f ? c[size_t(i)].pick : bsdf_albedo_hint(c[size_t(i)].bsdf);
+      c[size_t(i)].pick = luminance(c[size_t(i)].weight) * albedo;
       if (!(c[size_t(i)].pick > 0.0f)) c[size_t(i)].pick = max_component(c[size_t(i)].weight) * 1e-3f;
       total += c[size_t(i)].pick;
     }

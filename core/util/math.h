@@ -51,6 +51,7 @@ inline bool is_finite(Vec3 a) { return std::isfinite(a.x) && std::isfinite(a.y) 
 inline bool is_black(Vec3 a) { return a.x == 0.0f && a.y == 0.0f && a.z == 0.0f; }
 // Rec.709 luminance: Blender's default scene-linear space.
 inline float luminance(Vec3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+inline float average(Vec3 c) { return (c.x + c.y + c.z) * (1.0f / 3.0f); }
 inline float clampf(float v, float lo, float hi) { return std::min(std::max(v, lo), hi); }
 
 // Orthonormal basis from a unit vector (Duff et al. 2017, branchless and robust).

@@ -1,7 +1,7 @@
 """Instruction counts per sample of the Cornell box fixture's replica, for callgrind:
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \
-        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--dynamic] [--no-rect] [--compact auto|on|off] [--size 64] [--spp 16]
+        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--principled] [--dynamic] [--no-rect] [--compact auto|on|off] [--size 64] [--spp 16]
 
 Only the render itself is instrumented (callgrind_control switches instrumentation on and off
 around it), so the counts are of the render: one thread, a fixed seed. PL_CORE_DIR=<dir> imports
@@ -19,6 +19,8 @@ from kernel_scenes import cornell_fixture, core, instrumented_render, settings  
 ap = argparse.ArgumentParser()
 ap.add_argument("--general", action="store_true")
 ap.add_argument("--glass", action="store_true", help="the glass-sphere variant")
+ap.add_argument("--principled", action="store_true",
+                help="the white surfaces of Blender's default material (Principled, Multiscatter GGX)")
 ap.add_argument("--dynamic", action="store_true", help="Scene(dynamic=True), the viewport's layout")
 ap.add_argument("--transformed", action="store_true",
                 help="each object's mesh in object space (centred, turned) under a matrix, as Blender objects are")
@@ -55,7 +57,7 @@ if a.transformed:
         s.add_instance(mesh, m)
         return mesh
     kernel_scenes.add_object = add_object_transformed
-scene = cornell_fixture(pc, glass=a.glass)
+scene = cornell_fixture(pc, glass=a.glass, principled=a.principled)
 if a.dynamic:
     scene.dynamic = True
 if a.no_rect:

@@ -39,12 +39,23 @@ def _box(center, size, angle_z):
     return pos.astype(np.float32), np.asarray(tris, np.int32)
 
 
-def cornell_fixture(pc=None, glass=False):
+# Blender's default material as the add-on compiles it: a Principled BSDF with Multiscatter GGX
+# and its default inputs (Base Color 0.8, Roughness 0.5, IOR 1.5).
+DEFAULT_PRINCIPLED = [("const", 0, (0.8, 0.8, 0.8)), ("const", 1, (0.5,)), ("const", 2, (1.5,)),
+                      ("const", 3, (1.0,)),
+                      ("closure", "principled", None,
+                       {"base_color": 0, "roughness": 1, "ior": 2, "multiscatter": 3})]
+
+
+def cornell_fixture(pc=None, glass=False, principled=False):
     """The Cornell box fixture, uncommitted; glass: its sphere made of clear glass (IOR 1.5),
-    as bench_equal_time's glass Cornell box."""
+    as bench_equal_time's glass Cornell box; principled: its white surfaces made of Blender's
+    default material (DEFAULT_PRINCIPLED)."""
     pc = pc or core()
     s = pc.Scene()
     white, red, green = (s.add_material(n, c) for n, c in (("White", WHITE), ("Red", RED), ("Green", GREEN)))
+    if principled:
+        white = s.add_shader("Material", DEFAULT_PRINCIPLED)
     light = s.add_material("Light", (0.0, 0.0, 0.0), tuple(12.0 * np.array([1.0, 0.85, 0.65])))
     walls = [
         ([(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], white),
