@@ -1,7 +1,8 @@
 """World → constant background radiance, or an equirectangular environment image.
 
 Supported node graph (Cycles' meaning): [Texture Coordinate (Generated/Object)] → [Mapping]
-→ Environment Texture (equirectangular) → Background/Emission Color, times Strength.
+→ Environment Texture (equirectangular) or Sky Texture (Nishita) → Background/Emission Color,
+times Strength.
 """
 
 from dataclasses import dataclass, field
@@ -19,6 +20,25 @@ class WorldTexture:
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
     # rotation: world direction d -> lookup direction t = rotation @ d (the core's convention)
     name: str = ""
+
+
+@dataclass
+class WorldSky:
+    """Blender's Sky Texture (Nishita), computed by the core: the node's settings (radians,
+    metres, densities), as pc.Scene.set_world_sky takes them."""
+    params: dict
+    strength: float
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
+    name: str = ""
+
+
+def sky_params(node):
+    """set_world_sky's keyword arguments for a Nishita Sky Texture node."""
+    return {"sun_elevation": float(node.sun_elevation), "sun_rotation": float(node.sun_rotation),
+            "sun_size": float(node.sun_size), "sun_intensity": float(node.sun_intensity),
+            "sun_disc": bool(node.sun_disc), "altitude": float(node.altitude),
+            "air": float(node.air_density), "dust": float(node.dust_density),
+            "ozone": float(node.ozone_density)}
 
 
 def linked_node(socket):
@@ -68,7 +88,8 @@ def world_color(world, warn):
 
 
 def world_texture(world, warn):
-    """WorldTexture for a world lit by an equirectangular Environment Texture, else None
+    """WorldTexture for a world lit by an equirectangular Environment Texture, WorldSky for a
+    Nishita Sky Texture, else None
     (then world_color() is the background). Problems are warned about and fall back to the
     constant colour."""
     node, _ = _background_node(world, lambda msg: None)  # world_color() warns about these
@@ -78,9 +99,18 @@ def world_texture(world, warn):
     if source is None:
         return None
     if source.type == 'TEX_SKY':
-        warn(f"World '{world.name}': Sky Texture is not supported yet; using a constant "
-             "background (the Background colour)")
-        return None
+        what = f"World '{world.name}': Sky Texture '{source.name}'"
+        if source.sky_type != 'NISHITA':
+            kind = {'PREETHAM': "Preetham", 'HOSEK_WILKIE': "Hosek / Wilkie"}.get(
+                source.sky_type, source.sky_type)
+            warn(f"{what}: the {kind} sky type is not supported yet (only Nishita); using a "
+                 "constant background (the Background colour)")
+            return None
+        vector = source.inputs.get("Vector")  # absent from a node tree not yet updated
+        rotation = (np.eye(3, dtype=np.float32) if vector is None
+                    else _vector_rotation(vector, what, warn))
+        return WorldSky(sky_params(source), float(node.inputs["Strength"].default_value),
+                        rotation, source.name)
     if source.type != 'TEX_ENVIRONMENT':
         return None
     what = f"World '{world.name}': Environment Texture '{source.name}'"

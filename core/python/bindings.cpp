@@ -849,6 +849,79 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
 // Light samples from points p with uniforms u (N x 3: light choice, then the 2-D sample), and
 // the pdf pdf_emitter gives the emitter the ray along each sample's direction hits (MIS's view of
 // the same direction), for tests of the light sampler's densities.
+// An optional 3x3 world -> texture rotation, made exactly orthonormal.
+Mat4 rotation_or_identity(const py::object& rotation_obj) {
+  Mat4 rot;
+  if (rotation_obj.is_none()) return rot;
+  const FloatArray rotation = rotation_obj.cast<FloatArray>();
+  if (rotation.ndim() != 2 || rotation.shape(0) != 3 || rotation.shape(1) != 3)
+    throw std::invalid_argument("rotation must be a 3x3 matrix");
+  auto r = rotation.unchecked<2>();
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) rot.m[i][j] = r(i, j);
+  if (!rot.is_finite()) throw std::invalid_argument("rotation contains NaN or infinite values");
+  return orthonormal_rotation(rot);
+}
+
+SkyParams sky_params(float elevation, float rotation, float size, float intensity, bool disc, float altitude, float air,
+                     float dust, float ozone) {
+  SkyParams p;
+  p.sun_elevation = elevation;
+  p.sun_rotation = rotation;
+  p.sun_size = size;
+  p.sun_intensity = intensity;
+  p.sun_disc = disc;
+  p.altitude = altitude;
+  p.air = air;
+  p.dust = dust;
+  p.ozone = ozone;
+  return p;  // NishitaSky clamps what is out of range, as Cycles does
+}
+
+// CIE XYZ -> scene linear: Blender's default (Linear Rec.709, D65, its OCIO config's matrix).
+void xyz_matrix(const py::object& obj, float m[9]) {
+  static constexpr float kRec709[9] = {3.2404373564920070f,  -1.5371305409000549f, -0.4985288240756933f,
+                                       -0.9692674982687597f, 1.8760136862977035f,  0.0415560804587997f,
+                                       0.0556434463874256f,  -0.2040259700872272f, 1.0572254813610864f};
+  std::copy(kRec709, kRec709 + 9, m);
+  if (obj.is_none()) return;
+  const FloatArray a = obj.cast<FloatArray>();
+  if (a.ndim() != 2 || a.shape(0) != 3 || a.shape(1) != 3) throw std::invalid_argument("xyz_to_rgb must be 3x3");
+  auto r = a.unchecked<2>();
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      m[3 * i + j] = r(i, j);
+      if (!std::isfinite(m[3 * i + j])) throw std::invalid_argument("xyz_to_rgb contains NaN or infinite values");
+    }
+}
+
+// The sky's radiance (strength 1) along unit directions (N, 3), for tests and tools.
+py::array_t<float> sky_radiance(const FloatArray& dirs, float sun_elevation, float sun_rotation, float sun_size,
+                                float sun_intensity, bool sun_disc, float altitude, float air, float dust, float ozone,
+                                const py::object& xyz_to_rgb) {
+  if (dirs.ndim() != 2 || dirs.shape(1) != 3) throw std::invalid_argument("directions must have shape (N, 3)");
+  float m[9];
+  xyz_matrix(xyz_to_rgb, m);
+  const py::ssize_t n = dirs.shape(0);
+  py::array_t<float> out({n, py::ssize_t(3)});
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  float* o = out.mutable_data();
+  {
+    py::gil_scoped_release release;
+    const NishitaSky sky(sky_params(sun_elevation, sun_rotation, sun_size, sun_intensity, sun_disc, altitude, air,
+                                    dust, ozone),
+                         m);
+    for (py::ssize_t i = 0; i < n; ++i) {
+      const float len = length(d[i]);
+      const Vec3 c = len > 0.0f ? sky.eval(d[i] / len) : Vec3(0.0f);
+      o[3 * i] = c.x;
+      o[3 * i + 1] = c.y;
+      o[3 * i + 2] = c.z;
+    }
+  }
+  return out;
+}
+
 py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u) {
   check_rays(self, points, u);
   const py::ssize_t n = points.shape(0);
@@ -1194,6 +1267,12 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("sharp_edges") = py::none(), py::arg("sharp_faces") = py::none(), py::arg("threads") = 0,
       "float32 (C, 3): per-corner normals of a polygon mesh with sharp edges/faces (smooth fans across manifold, "
       "consistently wound, unmarked edges; as Blender's corner normals without custom normals).");
+  m.def("sky_radiance", &sky_radiance, py::arg("directions"), py::arg("sun_elevation") = 0.2617994f,
+        py::arg("sun_rotation") = 0.0f, py::arg("sun_size") = 0.009512f, py::arg("sun_intensity") = 1.0f,
+        py::arg("sun_disc") = true, py::arg("altitude") = 0.0f, py::arg("air") = 1.0f, py::arg("dust") = 1.0f,
+        py::arg("ozone") = 1.0f, py::arg("xyz_to_rgb") = py::none(),
+        "Radiance (N, 3) of Blender's Nishita Sky Texture along directions (N, 3), as set_world_sky "
+        "evaluates it (strength 1).");
   m.def("barycentric_error_bound", [] { return gamma_bound(7); },
         "The relative bound gamma(7): |error(b0 v0 + b1 v1 + b2 v2)| <= gamma(7) (|b0 v0| + |b1 v1| + |b2 v2|).");
   m.def(
@@ -1699,6 +1778,31 @@ PYBIND11_MODULE(pathlight_core, m) {
             self.scene->set_environment(Environment(std::move(px), w, h, k, rot));
           },
           py::arg("pixels"), py::arg("strength") = 1.0f, py::arg("rotation") = py::none())
+      .def(
+          "set_world_sky",
+          [](PyScene& self, float sun_elevation, float sun_rotation, float sun_size, float sun_intensity,
+             bool sun_disc, float altitude, float air, float dust, float ozone, float strength,
+             const py::object& rotation_obj, const py::object& xyz_to_rgb, int width) {
+            self.check_editable();
+            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
+            const Mat4 rot = rotation_or_identity(rotation_obj);
+            const SkyParams p = sky_params(sun_elevation, sun_rotation, sun_size, sun_intensity, sun_disc, altitude,
+                                           air, dust, ozone);
+            float m[9];
+            xyz_matrix(xyz_to_rgb, m);
+            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+            py::gil_scoped_release release;
+            auto sky = std::make_shared<const NishitaSky>(p, m);
+            self.scene->set_environment(Environment(std::move(sky), width, width / 2, k, rot));
+          },
+          py::arg("sun_elevation") = 0.2617994f, py::arg("sun_rotation") = 0.0f, py::arg("sun_size") = 0.009512f,
+          py::arg("sun_intensity") = 1.0f, py::arg("sun_disc") = true, py::arg("altitude") = 0.0f,
+          py::arg("air") = 1.0f, py::arg("dust") = 1.0f, py::arg("ozone") = 1.0f, py::arg("strength") = 1.0f,
+          py::arg("rotation") = py::none(), py::arg("xyz_to_rgb") = py::none(), py::arg("width") = 1024,
+          "Blender's Sky Texture (Nishita) as the world, times strength: angles in radians, altitude in "
+          "metres, air/dust/ozone densities as the node's. rotation: world -> sky directions (3x3, as "
+          "set_world_texture). xyz_to_rgb: CIE XYZ -> scene linear (3x3; default Blender's Rec.709). width: "
+          "of the equirectangular image that steers the samples (the disc is sampled on its own).")
       .def(
           "set_world_color",
           [](PyScene& self, const py::object& c) {
