@@ -106,7 +106,9 @@ def world_texture(world, warn):
             warn(f"{what}: the {kind} sky type is not supported yet (only Nishita); using a "
                  "constant background (the Background colour)")
             return None
-        vector = source.inputs.get("Vector")  # absent from a node tree not yet updated
+        # Blender 4.5 makes Nishita's Vector socket unavailable (get() does not find it), and
+        # Cycles then looks the sky up along the view direction itself.
+        vector = source.inputs.get("Vector")
         rotation = (np.eye(3, dtype=np.float32) if vector is None
                     else _vector_rotation(vector, what, warn))
         return WorldSky(sky_params(source), float(node.inputs["Strength"].default_value),

@@ -922,7 +922,7 @@ py::array_t<float> sky_radiance(const FloatArray& dirs, float sun_elevation, flo
   return out;
 }
 
-py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u) {
+py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u, bool bsdf_follows) {
   check_rays(self, points, u);
   const py::ssize_t n = points.shape(0);
   py::array_t<bool> ok(n);
@@ -936,7 +936,7 @@ py::tuple light_samples(const PyScene& self, const FloatArray& points, const Flo
     py::gil_scoped_release release;
     for (py::ssize_t i = 0; i < n; ++i) {
       DirectSample ds;
-      const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds);
+      const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds, bsdf_follows);
       pok[i] = good;
       pw[3 * i] = good ? ds.wi.x : 0.0f;
       pw[3 * i + 1] = good ? ds.wi.y : 0.0f;
@@ -1876,11 +1876,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Sample an emitter group whose two triangles form a rectangle as one spherical rectangle "
           "(True, the default; same distribution, less work) or as two spherical triangles. Takes "
           "effect at the next commit().")
-      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"),
+      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"), py::arg("bsdf_follows") = true,
            "Light samples (next-event estimation) from points (N, 3) with uniforms u (N, 3: the light "
            "choice and the 2-D sample): (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "
            "renderer's MIS gives the emitter the ray p + t wi hits first at t_hit (0 and inf for none). "
-           "Exposed for tests.")
+           "bsdf_follows=False: the distribution used where no BSDF sample follows. Exposed for tests.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            py::arg("instances") = false,

@@ -1,0 +1,183 @@
+"""Blender's Sky Texture (Nishita) as the world: the sky seen directly and the light it casts,
+against Cycles in the same bpy, and the core's sampling of it (the map and the sun disc)."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import core_has, load_addon, render_to_array, Warnings, BOX_FILTER
+from light_scenes import camera, diffuse_material, empty_scene, plane, uv_sphere
+
+load_addon()
+from core_scenes import core  # noqa: E402
+
+pc = core()
+from addon.export import export_scene  # noqa: E402
+
+pytestmark = pytest.mark.skipif(not core_has("Scene", "set_world_sky"),
+                                reason="the core has no set_world_sky")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def factory_scene_afterwards():
+    yield
+    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
+
+
+def sky_world(strength=1.0, **settings):
+    """World = Sky Texture (Nishita, `settings` as the node's properties) -> Background x
+    strength."""
+    world = bpy.data.worlds.new("Sky")
+    world.use_nodes = True
+    nt = world.node_tree
+    bg = nt.nodes["Background"]
+    bg.inputs["Strength"].default_value = strength
+    sky = nt.nodes.new("ShaderNodeTexSky")
+    sky.sky_type = 'NISHITA'
+    for name, value in settings.items():
+        setattr(sky, name, value)
+    nt.links.new(sky.outputs["Color"], bg.inputs["Color"])
+    bpy.context.scene.world = world
+    return sky
+
+
+def region_means(img, grid=8):
+    h, w = img.shape[:2]
+    return img[..., :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
+
+
+def assert_agrees(ours, ref, mean_tol=0.01, region_tol=0.03, what="", skip_edges=False):
+    """Mean RGB within mean_tol and each 8 x 8 region's within region_tol (relative; regions
+    darker than 5 % of the image mean are compared against that floor). skip_edges: regions
+    across the sun disc's edge (pixels there 10x apart in the reference) are left to the mean:
+    a step of 10^4 in radiance makes them the engines' pixel jitter, not their sky."""
+    ratio = ours[..., :3].mean(axis=(0, 1)) / ref[..., :3].mean(axis=(0, 1))
+    np.testing.assert_allclose(ratio, 1.0, atol=mean_tol, err_msg=f"mean ratio {what}")
+    a, b = region_means(ours), region_means(ref)
+    rel = np.abs(a - b) / np.maximum(b, 0.05 * b.mean())
+    if skip_edges:
+        h, w = ref.shape[:2]
+        lum = ref[..., 1].reshape(8, h // 8, 8, w // 8)
+        edge = lum.max(axis=(1, 3)) > 10 * np.maximum(lum.min(axis=(1, 3)), 1e-30)
+        assert edge.mean() < 0.5
+        rel = np.where(edge[..., None], 0.0, rel)
+    assert rel.max() < region_tol, (what, float(rel.max()), np.unravel_index(np.argmax(rel), rel.shape))
+    return ratio, float(rel.max())
+
+
+DEG = math.pi / 180
+# (settings, strength): default air, low sun with thick air and dust, high sun high up with
+# ozone; the disc, where it is in view, made wide enough (8 degrees) for 32 x 32 pixels to
+# resolve it (the default 0.545 degrees covers 2 % of a pixel: noise, not a comparison).
+SKIES = [
+    (dict(sun_elevation=15 * DEG, sun_disc=False), 1.0),
+    (dict(sun_elevation=3 * DEG, sun_rotation=-100 * DEG, altitude=2000.0, air_density=2.0,
+          dust_density=4.0, ozone_density=0.5, sun_disc=False), 0.5),
+    (dict(sun_elevation=40 * DEG, sun_rotation=60 * DEG, sun_size=8 * DEG, sun_intensity=0.5,
+          altitude=20000.0, air_density=0.6, dust_density=0.0, ozone_density=3.0), 1.0),
+]
+# Wide views (10 mm): the horizon towards +y and towards +x, and the zenith; the last sky's
+# disc (azimuth 30 degrees, elevation 40) wholly out of the wide views and seen up close
+# (150 mm) instead: a disc 2 pixels wide would compare the two engines' pixel jitter.
+LOOKS = [((-0.3, 1.0, 0.12), 10.0), ((1.0, 0.35, 0.5), 10.0), ((-0.4, -0.4, 1.0), 10.0)]
+DISC_LOOKS = [LOOKS[0], LOOKS[2], ((0.6634, 0.3830, 0.6428), 150.0)]
+
+
+@pytest.mark.parametrize("settings, strength", SKIES, ids=["default", "low-dusty", "high-disc"])
+def test_sky_seen_directly_matches_cycles(settings, strength):
+    from mathutils import Vector
+    scene = empty_scene(32)
+    sky_world(strength, **settings)
+    cam = camera((0, 0, 0))
+    for look, lens in DISC_LOOKS if settings.get("sun_disc", True) else LOOKS:
+        cam.data.lens = lens
+        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
+        # Pixels across the horizon or the disc's edge average a steep step: 64 samples each.
+        ours = render_to_array(scene, samples=64)
+        ref = render_to_array(scene, "CYCLES", samples=64, **BOX_FILTER)
+        assert_agrees(ours, ref, what=f"looking along {look}", skip_edges=lens > 100)
+
+
+def test_nishita_has_no_vector_input():
+    # Blender 4.5 makes the Nishita type's Vector socket unavailable (Cycles uses the view
+    # direction as is): the export needs no Mapping and warns about nothing.
+    empty_scene(8)
+    camera((0, 0, 0))
+    sky = sky_world(1.0)
+    assert sky.inputs.get("Vector") is None
+    warnings = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert not warnings
+
+
+def test_lit_scene_matches_cycles():
+    # A diffuse floor and sphere under the default sky and its (tiny, very bright) sun: the
+    # sun's share of the light samples must find it, as Cycles' sun sampling does.
+    scene = empty_scene(32)
+    white, red = diffuse_material("White", 0.7), diffuse_material("Red", (0.7, 0.2, 0.1))
+    plane("Floor", 40.0, white)
+    uv_sphere("Sphere", 0.8, red, location=(0.0, 0.0, 0.8))
+    camera((0.0, -5.0, 2.2), look_at=(0.0, 0.0, 0.6), lens=30.0)
+    sky_world(1.0, sun_elevation=35 * DEG, sun_rotation=30 * DEG)
+    ours = render_to_array(scene, samples=512, max_bounces=3)
+    ref = render_to_array(scene, "CYCLES", samples=1024, max_bounces=3, **BOX_FILTER)
+    assert_agrees(ours, ref)
+
+
+def test_export_and_fallbacks():
+    empty_scene(8)
+    camera((0, 0, 0))
+    sky = sky_world(2.0, sun_elevation=20 * DEG, altitude=500.0)
+    warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert data.world_texture.strength == 2.0
+    assert data.world_texture.params["sun_elevation"] == pytest.approx(20 * DEG)
+    assert data.world_texture.params["altitude"] == 500.0
+    assert not warnings
+    for kind in ('PREETHAM', 'HOSEK_WILKIE'):
+        sky.sky_type = kind
+        warnings = Warnings()
+        data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+        assert data.world_texture is None
+        assert len(warnings) == 1 and "not supported yet" in warnings[0]
+
+
+# ---------------------------------------------------------------- the core's sampling
+
+def sky_scene(**settings):
+    s = pc.Scene()  # nothing but the world
+    s.set_world_sky(**settings)
+    s.commit()
+    return s
+
+
+@pytest.mark.parametrize("settings", [dict(sun_elevation=25 * DEG, sun_rotation=1.0),
+                                      dict(sun_elevation=0.2 * DEG, dust=3.0)])
+def test_sampling_pdf_matches_the_directions(settings):
+    # E[g(w) / pdf(w)] = integral of g: for g = 1 over the upper hemisphere (radiance > 0
+    # everywhere there) it is 2 pi, and for g = 1 in the sun's cone its solid angle; the cone
+    # must also get a fair share of the samples (NEE finds the disc).
+    s = sky_scene(**settings)
+    n = 200000
+    rng = np.random.default_rng(3)
+    e, r = settings["sun_elevation"], math.tau - settings.get("sun_rotation", 0.0)
+    sun = np.array([-math.cos(e) * math.sin(r), math.cos(e) * math.cos(r), math.sin(e)])
+    half = 0.009512 / 2
+    cone = 2 * np.pi * (1 - math.cos(half))
+    for bsdf_follows in (False, True):
+        ok, wi, dist, pdf, _, _ = s.light_samples(np.zeros((n, 3), np.float32),
+                                                 rng.random((n, 3), dtype=np.float32),
+                                                 bsdf_follows=bsdf_follows)
+        assert ok.mean() > 0.99 and np.all(pdf[ok] > 0) and np.all(np.isinf(dist[ok]))
+        w, p = wi[ok], pdf[ok]
+        if not bsdf_follows:  # this one covers every direction with radiance
+            est = np.sum(1.0 / p[w[:, 2] > 0]) / n
+            assert est == pytest.approx(2 * np.pi, rel=0.02)
+        in_cone = w @ sun > math.cos(half)
+        assert in_cone.mean() > 0.04  # the disc keeps at least a 5 % share
+        assert np.sum(1.0 / p[in_cone]) / n == pytest.approx(cone, rel=0.02)
+    # The disc is where the sky evaluator says it is (brighter than any sky texel by far).
+    rad = pc.sky_radiance(np.vstack([sun, [0, 0, 1]]).astype(np.float32), **settings)
+    assert rad[0].sum() > 100 * rad[1].sum()
