@@ -1,5 +1,6 @@
-"""Blender's Sky Texture (Nishita) as the world: the sky seen directly and the light it casts,
-against Cycles in the same bpy, and the core's sampling of it (the map and the sun disc)."""
+"""Blender's Sky Texture (Nishita, Preetham) as the world: the sky seen directly and the light
+it casts, against Cycles in the same bpy, and the core's sampling of it (the map and the sun
+disc)."""
 
 import math
 
@@ -26,19 +27,25 @@ def factory_scene_afterwards():
     bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
 
 
-def sky_world(strength=1.0, **settings):
-    """World = Sky Texture (Nishita, `settings` as the node's properties) -> Background x
-    strength."""
+def sky_world(strength=1.0, sky_type='NISHITA', mapping_rotation=None, **settings):
+    """World = Sky Texture (`settings` as the node's properties) [through Texture Coordinate
+    -> Mapping(rotation), where the type has a Vector input] -> Background x strength."""
     world = bpy.data.worlds.new("Sky")
     world.use_nodes = True
     nt = world.node_tree
     bg = nt.nodes["Background"]
     bg.inputs["Strength"].default_value = strength
     sky = nt.nodes.new("ShaderNodeTexSky")
-    sky.sky_type = 'NISHITA'
+    sky.sky_type = sky_type
     for name, value in settings.items():
         setattr(sky, name, value)
     nt.links.new(sky.outputs["Color"], bg.inputs["Color"])
+    if mapping_rotation is not None:
+        coords = nt.nodes.new("ShaderNodeTexCoord")
+        mapping = nt.nodes.new("ShaderNodeMapping")
+        mapping.inputs["Rotation"].default_value = mapping_rotation
+        nt.links.new(coords.outputs["Generated"], mapping.inputs["Vector"])
+        nt.links.new(mapping.outputs["Vector"], sky.inputs["Vector"])
     bpy.context.scene.world = world
     return sky
 
@@ -100,6 +107,23 @@ def test_sky_seen_directly_matches_cycles(settings, strength):
         assert_agrees(ours, ref, what=f"looking along {look}", skip_edges=lens > 100)
 
 
+@pytest.mark.parametrize("sun, turbidity, rotation", [
+    ((0.3, 0.5, 0.8), 2.2, None),
+    ((-0.7, 0.1, 0.25), 6.0, (0.2, 0.0, 0.9)),
+])
+def test_preetham_seen_directly_matches_cycles(sun, turbidity, rotation):
+    from mathutils import Vector
+    scene = empty_scene(32)
+    sky_world(0.8, 'PREETHAM', mapping_rotation=rotation, sun_direction=sun,
+              turbidity=turbidity)
+    cam = camera((0, 0, 0), lens=10.0)
+    for look in ((0.0, 1.0, 0.15), sun, (1.0, 0.0, -0.3)):  # horizon, the sun, below it
+        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
+        ours = render_to_array(scene, samples=16)
+        ref = render_to_array(scene, "CYCLES", samples=16, **BOX_FILTER)
+        assert_agrees(ours, ref, what=f"looking along {look}")
+
+
 def test_nishita_has_no_vector_input():
     # Blender 4.5 makes the Nishita type's Vector socket unavailable (Cycles uses the view
     # direction as is): the export needs no Mapping and warns about nothing.
@@ -136,12 +160,17 @@ def test_export_and_fallbacks():
     assert data.world_texture.params["sun_elevation"] == pytest.approx(20 * DEG)
     assert data.world_texture.params["altitude"] == 500.0
     assert not warnings
-    for kind in ('PREETHAM', 'HOSEK_WILKIE'):
-        sky.sky_type = kind
-        warnings = Warnings()
-        data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
-        assert data.world_texture is None
-        assert len(warnings) == 1 and "not supported yet" in warnings[0]
+    sky.sky_type = 'PREETHAM'
+    sky.turbidity = 3.5
+    warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert data.world_texture.kind == "preetham" and not warnings
+    assert data.world_texture.params["turbidity"] == 3.5
+    sky.sky_type = 'HOSEK_WILKIE'
+    warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert data.world_texture is None
+    assert len(warnings) == 1 and "Hosek / Wilkie sky type is not supported yet" in warnings[0]
 
 
 # ---------------------------------------------------------------- the core's sampling

@@ -174,8 +174,9 @@ def set_world(scene, data, warn):
     """Sets the world (texture or colour) of SceneData `data` on a core scene."""
     tex = data.world_texture
     if isinstance(tex, WorldSky):
-        if hasattr(scene, "set_world_sky"):
-            scene.set_world_sky(strength=tex.strength, rotation=tex.rotation, **tex.params)
+        setter = getattr(scene, f"set_world_{'sky' if tex.kind == 'nishita' else tex.kind}", None)
+        if setter is not None:
+            setter(strength=tex.strength, rotation=tex.rotation, **tex.params)
         else:
             warn("Sky textures are not supported by this build of the Pathlight core; using "
                  "the Background colour")

@@ -1,8 +1,8 @@
 """World → constant background radiance, or an equirectangular environment image.
 
 Supported node graph (Cycles' meaning): [Texture Coordinate (Generated/Object)] → [Mapping]
-→ Environment Texture (equirectangular) or Sky Texture (Nishita) → Background/Emission Color,
-times Strength.
+→ Environment Texture (equirectangular) or Sky Texture (Nishita, Preetham) → Background/Emission
+Color, times Strength.
 """
 
 from dataclasses import dataclass, field
@@ -24,12 +24,14 @@ class WorldTexture:
 
 @dataclass
 class WorldSky:
-    """Blender's Sky Texture (Nishita), computed by the core: the node's settings (radians,
-    metres, densities), as pc.Scene.set_world_sky takes them."""
+    """Blender's Sky Texture, computed by the core: the node's settings as
+    pc.Scene.set_world_sky (Nishita: radians, metres, densities) or set_world_preetham (sun
+    direction, turbidity) takes them."""
     params: dict
     strength: float
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
     name: str = ""
+    kind: str = "nishita"  # or "preetham"
 
 
 def sky_params(node):
@@ -100,11 +102,16 @@ def world_texture(world, warn):
         return None
     if source.type == 'TEX_SKY':
         what = f"World '{world.name}': Sky Texture '{source.name}'"
+        if source.sky_type == 'PREETHAM':
+            params = {"sun_direction": tuple(float(c) for c in source.sun_direction),
+                      "turbidity": float(source.turbidity)}
+            rotation = _vector_rotation(source.inputs["Vector"], what, warn)
+            return WorldSky(params, float(node.inputs["Strength"].default_value), rotation,
+                            source.name, "preetham")
         if source.sky_type != 'NISHITA':
-            kind = {'PREETHAM': "Preetham", 'HOSEK_WILKIE': "Hosek / Wilkie"}.get(
-                source.sky_type, source.sky_type)
-            warn(f"{what}: the {kind} sky type is not supported yet (only Nishita); using a "
-                 "constant background (the Background colour)")
+            kind = {'HOSEK_WILKIE': "Hosek / Wilkie"}.get(source.sky_type, source.sky_type)
+            warn(f"{what}: the {kind} sky type is not supported yet (Nishita and Preetham are); "
+                 "using a constant background (the Background colour)")
             return None
         # Blender 4.5 makes Nishita's Vector socket unavailable (get() does not find it), and
         # Cycles then looks the sky up along the view direction itself.

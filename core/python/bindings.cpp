@@ -875,7 +875,7 @@ SkyParams sky_params(float elevation, float rotation, float size, float intensit
   p.air = air;
   p.dust = dust;
   p.ozone = ozone;
-  return p;  // NishitaSky clamps what is out of range, as Cycles does
+  return p;  // SkyModel clamps what is out of range, as Cycles does
 }
 
 // CIE XYZ -> scene linear: Blender's default (Linear Rec.709, D65, its OCIO config's matrix).
@@ -908,7 +908,7 @@ py::array_t<float> sky_radiance(const FloatArray& dirs, float sun_elevation, flo
   float* o = out.mutable_data();
   {
     py::gil_scoped_release release;
-    const NishitaSky sky(sky_params(sun_elevation, sun_rotation, sun_size, sun_intensity, sun_disc, altitude, air,
+    const SkyModel sky(sky_params(sun_elevation, sun_rotation, sun_size, sun_intensity, sun_disc, altitude, air,
                                     dust, ozone),
                          m);
     for (py::ssize_t i = 0; i < n; ++i) {
@@ -1792,7 +1792,7 @@ PYBIND11_MODULE(pathlight_core, m) {
             xyz_matrix(xyz_to_rgb, m);
             const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
             py::gil_scoped_release release;
-            auto sky = std::make_shared<const NishitaSky>(p, m);
+            auto sky = std::make_shared<const SkyModel>(p, m);
             self.scene->set_environment(Environment(std::move(sky), width, width / 2, k, rot));
           },
           py::arg("sun_elevation") = 0.2617994f, py::arg("sun_rotation") = 0.0f, py::arg("sun_size") = 0.009512f,
@@ -1803,6 +1803,26 @@ PYBIND11_MODULE(pathlight_core, m) {
           "metres, air/dust/ozone densities as the node's. rotation: world -> sky directions (3x3, as "
           "set_world_texture). xyz_to_rgb: CIE XYZ -> scene linear (3x3; default Blender's Rec.709). width: "
           "of the equirectangular image that steers the samples (the disc is sampled on its own).")
+      .def(
+          "set_world_preetham",
+          [](PyScene& self, const py::object& sun_direction, float turbidity, float strength,
+             const py::object& rotation_obj, const py::object& xyz_to_rgb, int width) {
+            self.check_editable();
+            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
+            const Mat4 rot = rotation_or_identity(rotation_obj);
+            const Vec3 sun = to_point(sun_direction, "sun_direction");
+            float m[9];
+            xyz_matrix(xyz_to_rgb, m);
+            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+            py::gil_scoped_release release;
+            auto sky = std::make_shared<const SkyModel>(sun, turbidity, m);
+            self.scene->set_environment(Environment(std::move(sky), width, width / 2, k, rot));
+          },
+          py::arg("sun_direction") = py::make_tuple(0.0f, 0.0f, 1.0f), py::arg("turbidity") = 2.2f,
+          py::arg("strength") = 1.0f, py::arg("rotation") = py::none(), py::arg("xyz_to_rgb") = py::none(),
+          py::arg("width") = 1024,
+          "Blender's Sky Texture (Preetham) as the world, times strength: the node's Sun Direction and "
+          "Turbidity; rotation, xyz_to_rgb and width as set_world_sky.")
       .def(
           "set_world_color",
           [](PyScene& self, const py::object& c) {

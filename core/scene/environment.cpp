@@ -28,7 +28,7 @@ Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength,
   init_distributions();
 }
 
-Environment::Environment(std::shared_ptr<const NishitaSky> sky, int w, int h, float strength, const Mat4& rotation)
+Environment::Environment(std::shared_ptr<const SkyModel> sky, int w, int h, float strength, const Mat4& rotation)
     : w_(w), h_(h), rot_(rotation) {
   sky_ = std::move(sky);
   strength_ = strength;

@@ -209,7 +209,7 @@ class Environment {
   // A procedural sky: radiance from the model itself; a w x h equirectangular image of it
   // (without the sun disc) steers the samples, and the disc, far smaller than a texel, gets
   // its own share of them, uniform in its cone.
-  Environment(std::shared_ptr<const NishitaSky> sky, int w, int h, float strength, const Mat4& rotation);
+  Environment(std::shared_ptr<const SkyModel> sky, int w, int h, float strength, const Mat4& rotation);
   bool valid() const { return w_ > 0; }
   Vec3 eval(Vec3 dir_world) const;
   // Samples a world direction; returns radiance and the solid-angle pdf. cover_all: no BSDF
@@ -239,7 +239,7 @@ class Environment {
   // The sun disc's share of the samples and its cone (texture space), for a sky with a disc.
   float sun_pdf(Vec3 dir_world) const;
   float sun_share(bool cover_all) const { return cover_all ? sun_share_full_ : sun_share_comp_; }
-  std::shared_ptr<const NishitaSky> sky_;
+  std::shared_ptr<const SkyModel> sky_;
   float strength_ = 1.0f;
   Vec3 sun_dir_;            // texture space
   double sun_one_minus_cos_ = 0.0;  // 1 - cos(half angle), exactly

@@ -140,7 +140,7 @@ Vec3 sun_radiance(Vec3 dir, float altitude, float air, float dust, float solid_a
 
 }  // namespace
 
-NishitaSky::NishitaSky(const SkyParams& p, const float xyz_to_rgb[9], int threads) {
+SkyModel::SkyModel(const SkyParams& p, const float xyz_to_rgb[9], int threads) {
   std::copy(xyz_to_rgb, xyz_to_rgb + 9, m_);
   auto finite = [](float v, float fallback) { return std::isfinite(v) ? v : fallback; };
   // Cycles' node setup: the elevation wrapped into [-pi/2, pi/2] (the sun keeps its place in
@@ -202,13 +202,64 @@ NishitaSky::NishitaSky(const SkyParams& p, const float xyz_to_rgb[9], int thread
   sun_visible_ = p.sun_disc && size > 0.0f && elevation_ + half_angle_ > 0.0f && intensity_ > 0.0f;
 }
 
-Vec3 NishitaSky::to_rgb(Vec3 c) const {
+namespace {
+
+float perez(const float lam[5], float theta, float gamma) {
+  const float cg = std::cos(gamma);
+  return (1.0f + lam[0] * std::exp(lam[1] / std::cos(theta))) * (1.0f + lam[2] * std::exp(lam[3] * gamma) + lam[4] * cg * cg);
+}
+
+}  // namespace
+
+SkyModel::SkyModel(Vec3 sun_direction, float turbidity, const float xyz_to_rgb[9]) : preetham_(true) {
+  std::copy(xyz_to_rgb, xyz_to_rgb + 9, m_);
+  const float len = length(sun_direction);
+  const Vec3 d = len > 0.0f && std::isfinite(len) ? sun_direction / len : Vec3(0.0f, 0.0f, 1.0f);
+  const float theta = std::acos(clampf(d.z, -1.0f, 1.0f)), phi = std::atan2(d.x, d.y);
+  sun_theta_ = theta;
+  sun_phi_ = phi;
+  const float T = std::isfinite(turbidity) ? turbidity : 2.2f, T2 = T * T;
+  const float t2 = theta * theta, t3 = t2 * theta;
+  // Zenith luminance (kcd/m^2, Blender's 0.06 scale) and chromaticity (Preetham's fits).
+  const float chi = (4.0f / 9.0f - T / 120.0f) * (kPi - 2.0f * theta);
+  float zY = ((4.0453f * T - 4.9710f) * std::tan(chi) - 0.2155f * T + 2.4192f) * 0.06f;
+  float zx = (0.00166f * t3 - 0.00375f * t2 + 0.00209f * theta) * T2 +
+             (-0.02903f * t3 + 0.06377f * t2 - 0.03202f * theta + 0.00394f) * T +
+             (0.11693f * t3 - 0.21196f * t2 + 0.06052f * theta + 0.25886f);
+  float zy = (0.00275f * t3 - 0.00610f * t2 + 0.00317f * theta) * T2 +
+             (-0.04214f * t3 + 0.08970f * t2 - 0.04153f * theta + 0.00516f) * T +
+             (0.15346f * t3 - 0.26756f * t2 + 0.06670f * theta + 0.26688f);
+  const float c[3][5][2] = {{{0.1787f, -1.4630f}, {-0.3554f, 0.4275f}, {-0.0227f, 5.3251f}, {0.1206f, -2.5771f}, {-0.0670f, 0.3703f}},
+                            {{-0.0193f, -0.2592f}, {-0.0665f, 0.0008f}, {-0.0004f, 0.2125f}, {-0.0641f, -0.8989f}, {-0.0033f, 0.0452f}},
+                            {{-0.0167f, -0.2608f}, {-0.0950f, 0.0092f}, {-0.0079f, 0.2102f}, {-0.0441f, -1.6537f}, {-0.0109f, 0.0529f}}};
+  for (int k = 0; k < 3; ++k)
+    for (int i = 0; i < 5; ++i) perez_[k][i] = c[k][i][0] * T + c[k][i][1];
+  // Normalised so that the zenith has the zenith values.
+  zY /= perez(perez_[0], 0.0f, theta);
+  zx /= perez(perez_[1], 0.0f, theta);
+  zy /= perez(perez_[2], 0.0f, theta);
+  zenith_ = {zY, zx, zy};
+}
+
+Vec3 SkyModel::eval_preetham(Vec3 t) const {
+  float theta = std::acos(clampf(t.z, -1.0f, 1.0f));
+  const float phi = 0.5f * kPi - std::atan2(t.y, t.x);
+  const float cos_psi = std::sin(theta) * std::sin(sun_theta_) * std::cos(sun_phi_ - phi) + std::cos(theta) * std::cos(sun_theta_);
+  const float gamma = std::acos(clampf(cos_psi, -1.0f, 1.0f));
+  theta = std::min(theta, 0.5f * kPi - 0.001f);  // below the horizon: the horizon's colour
+  const float Y = zenith_.x * perez(perez_[0], theta, gamma);
+  const float x = zenith_.y * perez(perez_[1], theta, gamma), y = zenith_.z * perez(perez_[2], theta, gamma);
+  const float X = y != 0.0f ? x / y * Y : 0.0f, Z = y != 0.0f && Y != 0.0f ? (1.0f - x - y) / y * Y : 0.0f;
+  return to_rgb(Vec3(X, Y, Z));
+}
+
+Vec3 SkyModel::to_rgb(Vec3 c) const {
   return vmax(Vec3(m_[0] * c.x + m_[1] * c.y + m_[2] * c.z, m_[3] * c.x + m_[4] * c.y + m_[5] * c.z,
                    m_[6] * c.x + m_[7] * c.y + m_[8] * c.z),
               Vec3(0.0f));
 }
 
-Vec3 NishitaSky::texel(float x, float y) const {
+Vec3 SkyModel::texel(float x, float y) const {
   const float fx = x * kWidth - 0.5f, fy = y * kHeight - 0.5f;
   const float ix = std::floor(fx), iy = std::floor(fy);
   const float tx = fx - ix, ty = fy - iy;
@@ -220,8 +271,9 @@ Vec3 NishitaSky::texel(float x, float y) const {
          (at(ix, iy + 1.0f) * (1.0f - tx) + at(ix + 1.0f, iy + 1.0f) * tx) * ty;
 }
 
-Vec3 NishitaSky::eval(Vec3 t, bool with_sun) const {
+Vec3 SkyModel::eval(Vec3 t, bool with_sun) const {
   if (!is_finite(t)) return Vec3(0.0f);
+  if (preetham_) return eval_preetham(t);
   const float phi = std::atan2(t.y, t.x);
   float x = (-phi - 0.5f * kPi + rotation_) / (2.0f * kPi);
   x -= std::floor(x);
@@ -248,7 +300,7 @@ Vec3 NishitaSky::eval(Vec3 t, bool with_sun) const {
   return to_rgb(texel(x, std::sqrt(std::max(0.0f, elev / (0.5f * kPi)))));
 }
 
-Vec3 NishitaSky::sun_center_radiance() const {
+Vec3 SkyModel::sun_center_radiance() const {
   return to_rgb((sun_bottom_ + sun_top_) * (0.5f * intensity_));
 }
 

@@ -1,8 +1,9 @@
-// Blender's Sky Texture, Nishita type (Cycles 4.5): single scattering through a spherical
-// atmosphere of air (Rayleigh), dust (Mie) and ozone, precomputed into a 512 x 128 XYZ texture of
-// the upper hemisphere (rows denser towards the horizon), and a sun disc with limb darkening.
-// Our own implementation of the published model (Nishita et al. 1993) with Blender's constants,
-// texture layout and lookup, so that the same node gives the same radiance.
+// Blender's Sky Texture (Cycles 4.5). Nishita: single scattering through a spherical atmosphere
+// of air (Rayleigh), dust (Mie) and ozone, precomputed into a 512 x 128 XYZ texture of the upper
+// hemisphere (rows denser towards the horizon), and a sun disc with limb darkening. Preetham:
+// the analytic daylight model (Preetham, Shirley, Smits 1999; Perez distribution in xyY), no disc.
+// Our own implementation of the published models with Blender's constants, texture layout and
+// lookup, so that the same node gives the same radiance.
 #pragma once
 #include "util/math.h"
 
@@ -20,10 +21,12 @@ struct SkyParams {
   float air = 1.0f, dust = 1.0f, ozone = 1.0f;
 };
 
-class NishitaSky {
+class SkyModel {
  public:
-  // xyz_to_rgb: row-major 3x3, CIE XYZ -> scene-linear RGB. threads <= 0: all cores.
-  NishitaSky(const SkyParams& p, const float xyz_to_rgb[9], int threads = 0);
+  // Nishita. xyz_to_rgb: row-major 3x3, CIE XYZ -> scene-linear RGB. threads <= 0: all cores.
+  SkyModel(const SkyParams& p, const float xyz_to_rgb[9], int threads = 0);
+  // Preetham: the node's Sun Direction (any length) and Turbidity.
+  SkyModel(Vec3 sun_direction, float turbidity, const float xyz_to_rgb[9]);
   // Radiance towards unit direction t (texture space), the sun disc included or not.
   Vec3 eval(Vec3 t, bool with_sun = true) const;
   // The disc, for sampling: unit direction, half angle, and whether any of it is visible.
@@ -37,6 +40,11 @@ class NishitaSky {
 
  private:
   Vec3 to_rgb(Vec3 xyz) const;
+  Vec3 eval_preetham(Vec3 t) const;
+  bool preetham_ = false;
+  float sun_theta_ = 0.0f, sun_phi_ = 0.0f;
+  Vec3 zenith_;                  // Preetham: Y, x, y at the zenith over their Perez value there
+  float perez_[3][5] = {};       // Preetham: Perez coefficients of Y, x, y
   Vec3 texel(float x, float y) const;  // bilinear, clamped at the edges (Cycles' Extend)
   std::vector<Vec3> xyz_;
   float m_[9];
