@@ -70,6 +70,7 @@ def assert_agrees(ours, ref, mean_tol=0.01, region_tol=0.03, what="", skip_edges
         edge = lum.max(axis=(1, 3)) > 10 * np.maximum(lum.min(axis=(1, 3)), 1e-30)
         assert edge.mean() < 0.5
         rel = np.where(edge[..., None], 0.0, rel)
+    print(f"sky agreement {what}: mean ratio {np.round(ratio, 4)}, worst region {rel.max():.4f}")
     assert rel.max() < region_tol, (what, float(rel.max()), np.unravel_index(np.argmax(rel), rel.shape))
     return ratio, float(rel.max())
 
@@ -101,9 +102,10 @@ def test_sky_seen_directly_matches_cycles(settings, strength):
     for look, lens in DISC_LOOKS if settings.get("sun_disc", True) else LOOKS:
         cam.data.lens = lens
         cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
-        # Pixels across the horizon or the disc's edge average a steep step: 64 samples each.
-        ours = render_to_array(scene, samples=64)
-        ref = render_to_array(scene, "CYCLES", samples=64, **BOX_FILTER)
+        # Pixels across the horizon or the disc's edge average a steep step: 128 samples each
+        # (at 64 a horizon region of the dusty sky differs by 2.5 %, all of it pixel jitter).
+        ours = render_to_array(scene, samples=128)
+        ref = render_to_array(scene, "CYCLES", samples=128, **BOX_FILTER)
         assert_agrees(ours, ref, what=f"looking along {look}", skip_edges=lens > 100)
 
 
@@ -210,3 +212,26 @@ def test_sampling_pdf_matches_the_directions(settings):
     # The disc is where the sky evaluator says it is (brighter than any sky texel by far).
     rad = pc.sky_radiance(np.vstack([sun, [0, 0, 1]]).astype(np.float32), **settings)
     assert rad[0].sum() > 100 * rad[1].sum()
+
+
+@pytest.mark.parametrize("args", [
+    dict(sun_elevation=float("nan"), sun_rotation=float("inf"), sun_size=float("nan")),
+    dict(sun_elevation=1e30, altitude=-5.0, air=float("inf"), dust=-1.0, ozone=float("nan")),
+    dict(sun_elevation=-1.4, sun_size=10.0, sun_intensity=float("nan"), altitude=1e9),
+    dict(sun_elevation=7.0, sun_rotation=-20.0, sun_disc=False, strength=float("nan")),
+])
+def test_bad_settings_give_finite_light(args):
+    # Never a crash nor a NaN: out-of-range settings are clamped as Cycles clamps them.
+    s = pc.Scene()
+    s.set_world_sky(**args)
+    s.commit()
+    n = 2000
+    ok, _, _, pdf, _, _ = s.light_samples(np.zeros((n, 3), np.float32),
+                                         np.random.default_rng(1).random((n, 3), dtype=np.float32))
+    assert np.isfinite(pdf).all()
+    d = np.random.default_rng(2).normal(size=(500, 3)).astype(np.float32)
+    sky = {k: v for k, v in args.items() if k != "strength"}
+    assert np.isfinite(pc.sky_radiance(d, **sky)).all()
+    p = pc.Scene()
+    p.set_world_preetham(sun_direction=(0.0, 0.0, 0.0), turbidity=float(args.get("air", 1e6)))
+    p.commit()

@@ -6,6 +6,7 @@
 #include <pybind11/stl.h>
 
 #include <memory>
+#include <mutex>
 #include <stdexcept>
 
 #include "geometry/polygon_mesh.h"
@@ -893,6 +894,26 @@ void xyz_matrix(const py::object& obj, float m[9]) {
       m[3 * i + j] = r(i, j);
       if (!std::isfinite(m[3 * i + j])) throw std::invalid_argument("xyz_to_rgb contains NaN or infinite values");
     }
+}
+
+// The Nishita precomputation (half a second) for these settings, reused while they stay the
+// same: the viewport sets the world again on every light edit.
+std::shared_ptr<const SkyModel> nishita_sky(const SkyParams& p, const float m[9]) {
+  static std::mutex mu;
+  static SkyParams last;
+  static float last_m[9];
+  static std::shared_ptr<const SkyModel> sky;
+  const std::lock_guard<std::mutex> lock(mu);
+  const bool same = sky && p.sun_elevation == last.sun_elevation && p.sun_rotation == last.sun_rotation &&
+                    p.sun_size == last.sun_size && p.sun_intensity == last.sun_intensity &&
+                    p.sun_disc == last.sun_disc && p.altitude == last.altitude && p.air == last.air &&
+                    p.dust == last.dust && p.ozone == last.ozone && std::equal(m, m + 9, last_m);
+  if (!same) {
+    sky = std::make_shared<const SkyModel>(p, m);
+    last = p;
+    std::copy(m, m + 9, last_m);
+  }
+  return sky;
 }
 
 // The sky's radiance (strength 1) along unit directions (N, 3), for tests and tools.
@@ -1792,8 +1813,7 @@ PYBIND11_MODULE(pathlight_core, m) {
             xyz_matrix(xyz_to_rgb, m);
             const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
             py::gil_scoped_release release;
-            auto sky = std::make_shared<const SkyModel>(p, m);
-            self.scene->set_environment(Environment(std::move(sky), width, width / 2, k, rot));
+            self.scene->set_environment(Environment(nishita_sky(p, m), width, width / 2, k, rot));
           },
           py::arg("sun_elevation") = 0.2617994f, py::arg("sun_rotation") = 0.0f, py::arg("sun_size") = 0.009512f,
           py::arg("sun_intensity") = 1.0f, py::arg("sun_disc") = true, py::arg("altitude") = 0.0f,

@@ -254,9 +254,10 @@ Vec3 SkyModel::eval_preetham(Vec3 t) const {
 }
 
 Vec3 SkyModel::to_rgb(Vec3 c) const {
-  return vmax(Vec3(m_[0] * c.x + m_[1] * c.y + m_[2] * c.z, m_[3] * c.x + m_[4] * c.y + m_[5] * c.z,
-                   m_[6] * c.x + m_[7] * c.y + m_[8] * c.z),
-              Vec3(0.0f));
+  const Vec3 rgb = vmax(Vec3(m_[0] * c.x + m_[1] * c.y + m_[2] * c.z, m_[3] * c.x + m_[4] * c.y + m_[5] * c.z,
+                             m_[6] * c.x + m_[7] * c.y + m_[8] * c.z),
+                        Vec3(0.0f));
+  return is_finite(rgb) ? rgb : Vec3(0.0f);  // extreme settings (turbidity 1e6) see nothing
 }
 
 Vec3 SkyModel::texel(float x, float y) const {
