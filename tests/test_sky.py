@@ -1,6 +1,5 @@
 """Blender's Sky Texture (Nishita, Preetham) as the world: the sky seen directly and the light
-it casts, against Cycles in the same bpy, and the core's sampling of it (the map and the sun
-disc)."""
+it casts, against Cycles in the same bpy (the core's sampling of it: test_sky_core.py)."""
 
 import math
 
@@ -12,9 +11,6 @@ from blender_util import core_has, load_addon, render_to_array, Warnings, BOX_FI
 from light_scenes import camera, diffuse_material, empty_scene, plane, uv_sphere
 
 load_addon()
-from core_scenes import core  # noqa: E402
-
-pc = core()
 from addon.export import export_scene  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not core_has("Scene", "set_world_sky"),
@@ -177,6 +173,11 @@ def test_export_and_fallbacks():
     assert data.world_texture.params["sun_elevation"] == pytest.approx(20 * DEG)
     assert data.world_texture.params["altitude"] == 500.0
     assert not warnings
+    sky.texture_mapping.rotation = (0.0, 0.0, 0.5)
+    warnings = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert len(warnings) == 1 and "texture_mapping" in warnings[0]
+    sky.texture_mapping.rotation = (0.0, 0.0, 0.0)
     sky.sky_type = 'PREETHAM'
     sky.turbidity = 3.5
     warnings = Warnings()
@@ -188,65 +189,3 @@ def test_export_and_fallbacks():
     data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
     assert data.world_texture is None
     assert len(warnings) == 1 and "Hosek / Wilkie sky type is not supported yet" in warnings[0]
-
-
-# ---------------------------------------------------------------- the core's sampling
-
-def sky_scene(**settings):
-    s = pc.Scene()  # nothing but the world
-    s.set_world_sky(**settings)
-    s.commit()
-    return s
-
-
-@pytest.mark.parametrize("settings", [dict(sun_elevation=25 * DEG, sun_rotation=1.0),
-                                      dict(sun_elevation=0.2 * DEG, dust=3.0)])
-def test_sampling_pdf_matches_the_directions(settings):
-    # E[g(w) / pdf(w)] = integral of g: for g = 1 over the upper hemisphere (radiance > 0
-    # everywhere there) it is 2 pi, and for g = 1 in the sun's cone its solid angle; the cone
-    # must also get a fair share of the samples (NEE finds the disc).
-    s = sky_scene(**settings)
-    n = 200000
-    rng = np.random.default_rng(3)
-    e, r = settings["sun_elevation"], math.tau - settings.get("sun_rotation", 0.0)
-    sun = np.array([-math.cos(e) * math.sin(r), math.cos(e) * math.cos(r), math.sin(e)])
-    half = 0.009512 / 2
-    cone = 2 * np.pi * (1 - math.cos(half))
-    for bsdf_follows in (False, True):
-        ok, wi, dist, pdf, _, _ = s.light_samples(np.zeros((n, 3), np.float32),
-                                                 rng.random((n, 3), dtype=np.float32),
-                                                 bsdf_follows=bsdf_follows)
-        assert ok.mean() > 0.99 and np.all(pdf[ok] > 0) and np.all(np.isinf(dist[ok]))
-        w, p = wi[ok], pdf[ok]
-        if not bsdf_follows:  # this one covers every direction with radiance
-            est = np.sum(1.0 / p[w[:, 2] > 0]) / n
-            assert est == pytest.approx(2 * np.pi, rel=0.02)
-        in_cone = w @ sun > math.cos(half)
-        assert in_cone.mean() > 0.04  # the disc keeps at least a 5 % share
-        assert np.sum(1.0 / p[in_cone]) / n == pytest.approx(cone, rel=0.02)
-    # The disc is where the sky evaluator says it is (brighter than any sky texel by far).
-    rad = pc.sky_radiance(np.vstack([sun, [0, 0, 1]]).astype(np.float32), **settings)
-    assert rad[0].sum() > 100 * rad[1].sum()
-
-
-@pytest.mark.parametrize("args", [
-    dict(sun_elevation=float("nan"), sun_rotation=float("inf"), sun_size=float("nan")),
-    dict(sun_elevation=1e30, altitude=-5.0, air=float("inf"), dust=-1.0, ozone=float("nan")),
-    dict(sun_elevation=-1.4, sun_size=10.0, sun_intensity=float("nan"), altitude=1e9),
-    dict(sun_elevation=7.0, sun_rotation=-20.0, sun_disc=False, strength=float("nan")),
-])
-def test_bad_settings_give_finite_light(args):
-    # Never a crash nor a NaN: out-of-range settings are clamped as Cycles clamps them.
-    s = pc.Scene()
-    s.set_world_sky(**args)
-    s.commit()
-    n = 2000
-    ok, _, _, pdf, _, _ = s.light_samples(np.zeros((n, 3), np.float32),
-                                         np.random.default_rng(1).random((n, 3), dtype=np.float32))
-    assert np.isfinite(pdf).all()
-    d = np.random.default_rng(2).normal(size=(500, 3)).astype(np.float32)
-    sky = {k: v for k, v in args.items() if k != "strength"}
-    assert np.isfinite(pc.sky_radiance(d, **sky)).all()
-    p = pc.Scene()
-    p.set_world_preetham(sun_direction=(0.0, 0.0, 0.0), turbidity=float(args.get("air", 1e6)))
-    p.commit()

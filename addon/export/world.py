@@ -102,6 +102,10 @@ def world_texture(world, warn):
         return None
     if source.type == 'TEX_SKY':
         what = f"World '{world.name}': Sky Texture '{source.name}'"
+        tm = getattr(source, "texture_mapping", None)  # Python-only; Cycles applies it
+        if tm is not None and (any(tm.rotation) or any(tm.translation)
+                               or tuple(tm.scale) != (1.0, 1.0, 1.0)):
+            warn(f"{what}: its texture_mapping (set from Python) is not supported; ignored")
         if source.sky_type == 'PREETHAM':
             params = {"sun_direction": tuple(float(c) for c in source.sun_direction),
                       "turbidity": float(source.turbidity)}
