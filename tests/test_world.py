@@ -167,12 +167,13 @@ def test_sky_texture_falls_back_with_a_warning(scene):
     world = world_color((0.1, 0.2, 0.3), strength=2.0)
     nt = world.node_tree
     sky = nt.nodes.new("ShaderNodeTexSky")
+    sky.sky_type = 'HOSEK_WILKIE'  # Nishita and Preetham are supported (tests/test_sky.py)
     nt.links.new(sky.outputs["Color"], nt.nodes["Background"].inputs["Color"])
     warnings = Warnings()
     data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
     assert data.world_texture is None
     assert data.world_color == pytest.approx((0.2, 0.4, 0.6))
-    assert len(warnings) == 1 and "Sky Texture is not supported" in warnings[0]
+    assert len(warnings) == 1 and "Hosek / Wilkie sky type is not supported" in warnings[0]
 
 
 def test_mean_radiance_weights_by_solid_angle():

@@ -10,9 +10,9 @@ from .camera import ExportError, camera_params
 from .light import LightData, collect_lights
 from .material import MaterialData, MaterialTable, add_materials
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
-from .world import WorldTexture, world_color, world_texture
+from .world import WorldSky, WorldTexture, world_color, world_texture
 
-__all__ = ("ExportCancelled", "ExportError", "add_lights", "replace_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldTexture",
+__all__ = ("ExportCancelled", "ExportError", "add_lights", "replace_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldSky", "WorldTexture",
            "export_scene", "to_core")
 
 
@@ -24,7 +24,7 @@ class SceneData:
     world_color: tuple
     camera: dict  # pc.Camera fields
     lights: list = field(default_factory=list)  # LightData
-    world_texture: WorldTexture = None  # replaces world_color when set
+    world_texture: WorldTexture = None  # or a WorldSky; replaces world_color when set
     images: list = field(default_factory=list)  # shader.ImageData the material programs use
     material_names: list = field(default_factory=list)  # per material: the bpy name ("" = none)
     uv_sets: object = None  # shader.UvSets: the global uv-set numbering the programs use
@@ -173,7 +173,15 @@ def replace_lights(scene, lights, world, warn):
 def set_world(scene, data, warn):
     """Sets the world (texture or colour) of SceneData `data` on a core scene."""
     tex = data.world_texture
-    if tex is not None and hasattr(scene, "set_world_texture"):
+    if isinstance(tex, WorldSky):
+        setter = getattr(scene, f"set_world_{'sky' if tex.kind == 'nishita' else tex.kind}", None)
+        if setter is not None:
+            setter(strength=tex.strength, rotation=tex.rotation, **tex.params)
+        else:
+            warn("Sky textures are not supported by this build of the Pathlight core; using "
+                 "the Background colour")
+            scene.set_world_color(data.world_color)
+    elif tex is not None and hasattr(scene, "set_world_texture"):
         scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
     elif tex is not None:
         warn("Environment textures are not supported by this build of the Pathlight core; "

@@ -1,7 +1,8 @@
 """World → constant background radiance, or an equirectangular environment image.
 
 Supported node graph (Cycles' meaning): [Texture Coordinate (Generated/Object)] → [Mapping]
-→ Environment Texture (equirectangular) → Background/Emission Color, times Strength.
+→ Environment Texture (equirectangular) or Sky Texture (Nishita, Preetham) → Background/Emission
+Color, times Strength.
 """
 
 from dataclasses import dataclass, field
@@ -19,6 +20,27 @@ class WorldTexture:
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
     # rotation: world direction d -> lookup direction t = rotation @ d (the core's convention)
     name: str = ""
+
+
+@dataclass
+class WorldSky:
+    """Blender's Sky Texture, computed by the core: the node's settings as
+    pc.Scene.set_world_sky (Nishita: radians, metres, densities) or set_world_preetham (sun
+    direction, turbidity) takes them."""
+    params: dict
+    strength: float
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
+    name: str = ""
+    kind: str = "nishita"  # or "preetham"
+
+
+def sky_params(node):
+    """set_world_sky's keyword arguments for a Nishita Sky Texture node."""
+    return {"sun_elevation": float(node.sun_elevation), "sun_rotation": float(node.sun_rotation),
+            "sun_size": float(node.sun_size), "sun_intensity": float(node.sun_intensity),
+            "sun_disc": bool(node.sun_disc), "altitude": float(node.altitude),
+            "air": float(node.air_density), "dust": float(node.dust_density),
+            "ozone": float(node.ozone_density)}
 
 
 def linked_node(socket):
@@ -68,7 +90,8 @@ def world_color(world, warn):
 
 
 def world_texture(world, warn):
-    """WorldTexture for a world lit by an equirectangular Environment Texture, else None
+    """WorldTexture for a world lit by an equirectangular Environment Texture, WorldSky for a
+    Nishita Sky Texture, else None
     (then world_color() is the background). Problems are warned about and fall back to the
     constant colour."""
     node, _ = _background_node(world, lambda msg: None)  # world_color() warns about these
@@ -78,9 +101,29 @@ def world_texture(world, warn):
     if source is None:
         return None
     if source.type == 'TEX_SKY':
-        warn(f"World '{world.name}': Sky Texture is not supported yet; using a constant "
-             "background (the Background colour)")
-        return None
+        what = f"World '{world.name}': Sky Texture '{source.name}'"
+        tm = getattr(source, "texture_mapping", None)  # Python-only; Cycles applies it
+        if tm is not None and (any(tm.rotation) or any(tm.translation)
+                               or tuple(tm.scale) != (1.0, 1.0, 1.0)):
+            warn(f"{what}: its texture_mapping (set from Python) is not supported; ignored")
+        if source.sky_type == 'PREETHAM':
+            params = {"sun_direction": tuple(float(c) for c in source.sun_direction),
+                      "turbidity": float(source.turbidity)}
+            rotation = _vector_rotation(source.inputs["Vector"], what, warn)
+            return WorldSky(params, float(node.inputs["Strength"].default_value), rotation,
+                            source.name, "preetham")
+        if source.sky_type != 'NISHITA':
+            kind = {'HOSEK_WILKIE': "Hosek / Wilkie"}.get(source.sky_type, source.sky_type)
+            warn(f"{what}: the {kind} sky type is not supported yet (Nishita and Preetham are); "
+                 "using a constant background (the Background colour)")
+            return None
+        # Blender 4.5 makes Nishita's Vector socket unavailable (get() does not find it), and
+        # Cycles then looks the sky up along the view direction itself.
+        vector = source.inputs.get("Vector")
+        rotation = (np.eye(3, dtype=np.float32) if vector is None
+                    else _vector_rotation(vector, what, warn))
+        return WorldSky(sky_params(source), float(node.inputs["Strength"].default_value),
+                        rotation, source.name)
     if source.type != 'TEX_ENVIRONMENT':
         return None
     what = f"World '{world.name}': Environment Texture '{source.name}'"

@@ -6,6 +6,7 @@
 #include <pybind11/stl.h>
 
 #include <memory>
+#include <mutex>
 #include <stdexcept>
 
 #include "geometry/polygon_mesh.h"
@@ -994,7 +995,100 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
 // Light samples from points p with uniforms u (N x 3: light choice, then the 2-D sample), and
 // the pdf pdf_emitter gives the emitter the ray along each sample's direction hits (MIS's view of
 // the same direction), for tests of the light sampler's densities.
-py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u) {
+// An optional 3x3 world -> texture rotation, made exactly orthonormal.
+Mat4 rotation_or_identity(const py::object& rotation_obj) {
+  Mat4 rot;
+  if (rotation_obj.is_none()) return rot;
+  const FloatArray rotation = rotation_obj.cast<FloatArray>();
+  if (rotation.ndim() != 2 || rotation.shape(0) != 3 || rotation.shape(1) != 3)
+    throw std::invalid_argument("rotation must be a 3x3 matrix");
+  auto r = rotation.unchecked<2>();
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) rot.m[i][j] = r(i, j);
+  if (!rot.is_finite()) throw std::invalid_argument("rotation contains NaN or infinite values");
+  return orthonormal_rotation(rot);
+}
+
+SkyParams sky_params(float elevation, float rotation, float size, float intensity, bool disc, float altitude, float air,
+                     float dust, float ozone) {
+  SkyParams p;
+  p.sun_elevation = elevation;
+  p.sun_rotation = rotation;
+  p.sun_size = size;
+  p.sun_intensity = intensity;
+  p.sun_disc = disc;
+  p.altitude = altitude;
+  p.air = air;
+  p.dust = dust;
+  p.ozone = ozone;
+  return p;  // SkyModel clamps what is out of range, as Cycles does
+}
+
+// CIE XYZ -> scene linear: Blender's default (Linear Rec.709, D65, its OCIO config's matrix).
+void xyz_matrix(const py::object& obj, float m[9]) {
+  static constexpr float kRec709[9] = {3.2404373564920070f,  -1.5371305409000549f, -0.4985288240756933f,
+                                       -0.9692674982687597f, 1.8760136862977035f,  0.0415560804587997f,
+                                       0.0556434463874256f,  -0.2040259700872272f, 1.0572254813610864f};
+  std::copy(kRec709, kRec709 + 9, m);
+  if (obj.is_none()) return;
+  const FloatArray a = obj.cast<FloatArray>();
+  if (a.ndim() != 2 || a.shape(0) != 3 || a.shape(1) != 3) throw std::invalid_argument("xyz_to_rgb must be 3x3");
+  auto r = a.unchecked<2>();
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      m[3 * i + j] = r(i, j);
+      if (!std::isfinite(m[3 * i + j])) throw std::invalid_argument("xyz_to_rgb contains NaN or infinite values");
+    }
+}
+
+// The Nishita precomputation (half a second) for these settings, reused while they stay the
+// same: the viewport sets the world again on every light edit.
+std::shared_ptr<const SkyModel> nishita_sky(const SkyParams& p, const float m[9]) {
+  static std::mutex mu;
+  static SkyParams last;
+  static float last_m[9];
+  static std::shared_ptr<const SkyModel> sky;
+  const std::lock_guard<std::mutex> lock(mu);
+  const bool same = sky && p.sun_elevation == last.sun_elevation && p.sun_rotation == last.sun_rotation &&
+                    p.sun_size == last.sun_size && p.sun_intensity == last.sun_intensity &&
+                    p.sun_disc == last.sun_disc && p.altitude == last.altitude && p.air == last.air &&
+                    p.dust == last.dust && p.ozone == last.ozone && std::equal(m, m + 9, last_m);
+  if (!same) {
+    sky = std::make_shared<const SkyModel>(p, m);
+    last = p;
+    std::copy(m, m + 9, last_m);
+  }
+  return sky;
+}
+
+// The sky's radiance (strength 1) along unit directions (N, 3), for tests and tools.
+py::array_t<float> sky_radiance(const FloatArray& dirs, float sun_elevation, float sun_rotation, float sun_size,
+                                float sun_intensity, bool sun_disc, float altitude, float air, float dust, float ozone,
+                                const py::object& xyz_to_rgb) {
+  if (dirs.ndim() != 2 || dirs.shape(1) != 3) throw std::invalid_argument("directions must have shape (N, 3)");
+  float m[9];
+  xyz_matrix(xyz_to_rgb, m);
+  const py::ssize_t n = dirs.shape(0);
+  py::array_t<float> out({n, py::ssize_t(3)});
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  float* o = out.mutable_data();
+  {
+    py::gil_scoped_release release;
+    const SkyModel sky(sky_params(sun_elevation, sun_rotation, sun_size, sun_intensity, sun_disc, altitude, air,
+                                    dust, ozone),
+                         m);
+    for (py::ssize_t i = 0; i < n; ++i) {
+      const float len = length(d[i]);
+      const Vec3 c = len > 0.0f ? sky.eval(d[i] / len) : Vec3(0.0f);
+      o[3 * i] = c.x;
+      o[3 * i + 1] = c.y;
+      o[3 * i + 2] = c.z;
+    }
+  }
+  return out;
+}
+
+py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u, bool bsdf_follows) {
   check_rays(self, points, u);
   const py::ssize_t n = points.shape(0);
   py::array_t<bool> ok(n);
@@ -1008,7 +1102,7 @@ py::tuple light_samples(const PyScene& self, const FloatArray& points, const Flo
     py::gil_scoped_release release;
     for (py::ssize_t i = 0; i < n; ++i) {
       DirectSample ds;
-      const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds);
+      const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds, bsdf_follows);
       pok[i] = good;
       pw[3 * i] = good ? ds.wi.x : 0.0f;
       pw[3 * i + 1] = good ? ds.wi.y : 0.0f;
@@ -1348,6 +1442,12 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("sharp_edges") = py::none(), py::arg("sharp_faces") = py::none(), py::arg("threads") = 0,
       "float32 (C, 3): per-corner normals of a polygon mesh with sharp edges/faces (smooth fans across manifold, "
       "consistently wound, unmarked edges; as Blender's corner normals without custom normals).");
+  m.def("sky_radiance", &sky_radiance, py::arg("directions"), py::arg("sun_elevation") = 0.2617994f,
+        py::arg("sun_rotation") = 0.0f, py::arg("sun_size") = 0.009512f, py::arg("sun_intensity") = 1.0f,
+        py::arg("sun_disc") = true, py::arg("altitude") = 0.0f, py::arg("air") = 1.0f, py::arg("dust") = 1.0f,
+        py::arg("ozone") = 1.0f, py::arg("xyz_to_rgb") = py::none(),
+        "Radiance (N, 3) of Blender's Nishita Sky Texture along directions (N, 3), as set_world_sky "
+        "evaluates it (strength 1).");
   m.def("barycentric_error_bound", [] { return gamma_bound(7); },
         "The relative bound gamma(7): |error(b0 v0 + b1 v1 + b2 v2)| <= gamma(7) (|b0 v0| + |b1 v1| + |b2 v2|).");
   m.def(
@@ -1854,6 +1954,50 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("pixels"), py::arg("strength") = 1.0f, py::arg("rotation") = py::none())
       .def(
+          "set_world_sky",
+          [](PyScene& self, float sun_elevation, float sun_rotation, float sun_size, float sun_intensity,
+             bool sun_disc, float altitude, float air, float dust, float ozone, float strength,
+             const py::object& rotation_obj, const py::object& xyz_to_rgb, int width) {
+            self.check_editable();
+            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
+            const Mat4 rot = rotation_or_identity(rotation_obj);
+            const SkyParams p = sky_params(sun_elevation, sun_rotation, sun_size, sun_intensity, sun_disc, altitude,
+                                           air, dust, ozone);
+            float m[9];
+            xyz_matrix(xyz_to_rgb, m);
+            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+            py::gil_scoped_release release;
+            self.scene->set_environment(Environment(nishita_sky(p, m), width, width / 2, k, rot));
+          },
+          py::arg("sun_elevation") = 0.2617994f, py::arg("sun_rotation") = 0.0f, py::arg("sun_size") = 0.009512f,
+          py::arg("sun_intensity") = 1.0f, py::arg("sun_disc") = true, py::arg("altitude") = 0.0f,
+          py::arg("air") = 1.0f, py::arg("dust") = 1.0f, py::arg("ozone") = 1.0f, py::arg("strength") = 1.0f,
+          py::arg("rotation") = py::none(), py::arg("xyz_to_rgb") = py::none(), py::arg("width") = 1024,
+          "Blender's Sky Texture (Nishita) as the world, times strength: angles in radians, altitude in "
+          "metres, air/dust/ozone densities as the node's. rotation: world -> sky directions (3x3, as "
+          "set_world_texture). xyz_to_rgb: CIE XYZ -> scene linear (3x3; default Blender's Rec.709). width: "
+          "of the equirectangular image that steers the samples (the disc is sampled on its own).")
+      .def(
+          "set_world_preetham",
+          [](PyScene& self, const py::object& sun_direction, float turbidity, float strength,
+             const py::object& rotation_obj, const py::object& xyz_to_rgb, int width) {
+            self.check_editable();
+            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
+            const Mat4 rot = rotation_or_identity(rotation_obj);
+            const Vec3 sun = to_point(sun_direction, "sun_direction");
+            float m[9];
+            xyz_matrix(xyz_to_rgb, m);
+            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+            py::gil_scoped_release release;
+            auto sky = std::make_shared<const SkyModel>(sun, turbidity, m);
+            self.scene->set_environment(Environment(std::move(sky), width, width / 2, k, rot));
+          },
+          py::arg("sun_direction") = py::make_tuple(0.0f, 0.0f, 1.0f), py::arg("turbidity") = 2.2f,
+          py::arg("strength") = 1.0f, py::arg("rotation") = py::none(), py::arg("xyz_to_rgb") = py::none(),
+          py::arg("width") = 1024,
+          "Blender's Sky Texture (Preetham) as the world, times strength: the node's Sun Direction and "
+          "Turbidity; rotation, xyz_to_rgb and width as set_world_sky.")
+      .def(
           "set_world_color",
           [](PyScene& self, const py::object& c) {
             self.check_editable();
@@ -1926,11 +2070,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Sample an emitter group whose two triangles form a rectangle as one spherical rectangle "
           "(True, the default; same distribution, less work) or as two spherical triangles. Takes "
           "effect at the next commit().")
-      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"),
+      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"), py::arg("bsdf_follows") = true,
            "Light samples (next-event estimation) from points (N, 3) with uniforms u (N, 3: the light "
            "choice and the 2-D sample): (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "
            "renderer's MIS gives the emitter the ray p + t wi hits first at t_hit (0 and inf for none). "
-           "Exposed for tests.")
+           "bsdf_follows=False: the distribution used where no BSDF sample follows. Exposed for tests.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            py::arg("instances") = false,

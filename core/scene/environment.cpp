@@ -1,5 +1,7 @@
 #include "scene/light.h"
 
+#include "util/parallel.h"
+
 namespace pl {
 
 namespace {
@@ -23,6 +25,51 @@ Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength,
     : px_(std::move(pixels)), w_(w), h_(h), rot_(rotation) {
   // Kept finite: a texel that overflows with the strength would make samples non-finite.
   for (Vec3& c : px_) c = vmin(c * strength, Vec3(1e30f));
+  init_distributions();
+}
+
+Environment::Environment(std::shared_ptr<const SkyModel> sky, int w, int h, float strength, const Mat4& rotation)
+    : w_(w), h_(h), rot_(rotation) {
+  sky_ = std::move(sky);
+  strength_ = strength;
+  // The sampling image: the sky without its disc at the texel centres.
+  px_.resize(size_t(w_) * h_);
+  parallel_ranges(
+      size_t(h_), 0,
+      [&](size_t y0, size_t y1) {
+        for (size_t y = y0; y < y1; ++y) {
+          const float elevation = kPi * ((y + 0.5f) / h_ - 0.5f), ce = std::cos(elevation);
+          for (int x = 0; x < w_; ++x) {
+            const float phi = kPi - 2.0f * kPi * ((x + 0.5f) / w_);
+            const Vec3 t{ce * std::cos(phi), ce * std::sin(phi), std::sin(elevation)};
+            px_[y * w_ + size_t(x)] = vmin(sky_->eval(t, false) * strength_, Vec3(1e30f));
+          }
+        }
+      },
+      16);
+  init_distributions();
+  if (sky_->has_sun()) {
+    sun_dir_ = sky_->sun_dir();
+    const double s = std::sin(0.5 * double(sky_->sun_half_angle()));
+    sun_one_minus_cos_ = 2.0 * s * s;
+    // Its power over the disc (limb darkening averages 0.8 of the centre), in the units of the
+    // cells' norm (integral over (u, v) of weight * cos: d(omega) / (2 pi^2)).
+    const double solid = 2.0 * kPi * sun_one_minus_cos_;
+    const double power = 0.8 * luminance(sky_->sun_center_radiance() * strength_) * solid / (2.0 * kPi * kPi);
+    auto share = [&](const Cells& d) {
+      if (!(power > 0.0) || !std::isfinite(power)) return 0.0f;
+      if (d.marginal.empty()) return 1.0f;
+      return static_cast<float>(std::clamp(power / (power + d.norm), 0.05, 0.95));
+    };
+    sun_share_full_ = share(full_);
+    sun_share_comp_ = share(comp_);
+    // The scene's choice among lights: the disc's mean over (u, v) as the texels count.
+    const float ce = std::max(0.1f, std::sqrt(std::max(0.0f, 1.0f - sun_dir_.z * sun_dir_.z)));
+    if (std::isfinite(power)) avg_lum_ += static_cast<float>(power / ce);
+  }
+}
+
+void Environment::init_distributions() {
   lum_.resize(px_.size());
   double lum_sum = 0.0, e_all = 0.0, solid = 0.0;
   for (int y = 0; y < h_; ++y) {
@@ -92,6 +139,7 @@ Vec3 Environment::lookup(float u, float v) const {
 }
 
 Vec3 Environment::eval(Vec3 dir_world) const {
+  if (sky_) return vmin(sky_->eval(normalize(rot_.vector(dir_world))) * strength_, Vec3(1e30f));
   float u, v;
   to_uv(rot_.vector(dir_world), u, v);
   return lookup(u, v);
@@ -115,11 +163,7 @@ bool Environment::sample_cells(const Cells& d, Vec2 uu, Vec3& dir, float& u, flo
   const float ce = std::cos(elevation);
   if (!(ce > 0.0f)) return false;
   const Vec3 t{ce * std::cos(phi), ce * std::sin(phi), std::sin(elevation)};
-  // Texture -> world: the rotation is orthonormal, so its transpose inverts it.
-  const Mat4& m = rot_;
-  dir = normalize(Vec3{m.m[0][0] * t.x + m.m[1][0] * t.y + m.m[2][0] * t.z,
-                       m.m[0][1] * t.x + m.m[1][1] * t.y + m.m[2][1] * t.z,
-                       m.m[0][2] * t.x + m.m[1][2] * t.y + m.m[2][2] * t.z});
+  dir = to_world(t);
   // The density in (u, v) from this cell's own corners (no re-lookup of the cell), then
   // d(omega) = 2 pi^2 cos(elev) du dv.
   const double wt = (w00 * (1 - sx) + w10 * sx) * (1 - sy) + (w01 * (1 - sx) + w11 * sx) * sy;
@@ -127,15 +171,59 @@ bool Environment::sample_cells(const Cells& d, Vec2 uu, Vec3& dir, float& u, flo
   return pdf_out > 0.0f && std::isfinite(pdf_out);
 }
 
+Vec3 Environment::to_world(Vec3 t) const {
+  // Texture -> world: the rotation is orthonormal, so its transpose inverts it.
+  const Mat4& m = rot_;
+  return normalize(Vec3{m.m[0][0] * t.x + m.m[1][0] * t.y + m.m[2][0] * t.z,
+                        m.m[0][1] * t.x + m.m[1][1] * t.y + m.m[2][1] * t.z,
+                        m.m[0][2] * t.x + m.m[1][2] * t.y + m.m[2][2] * t.z});
+}
+
+float Environment::sun_pdf(Vec3 dir_world) const {
+  if (!(sun_one_minus_cos_ > 0.0)) return 0.0f;
+  const Vec3 t = normalize(rot_.vector(dir_world));
+  // 1 - cos of the angle to the sun, from the chord (no cancellation for tiny angles).
+  const double chord2 = length_sq(t - sun_dir_);
+  if (!(0.5 * chord2 < sun_one_minus_cos_)) return 0.0f;
+  return static_cast<float>(1.0 / (2.0 * kPi * sun_one_minus_cos_));
+}
+
 bool Environment::sample(Vec2 uu, Vec3& dir, Vec3& radiance, float& pdf_out, bool cover_all) const {
-  float u, v;
-  if (!sample_cells(cover_all ? full_ : comp_, uu, dir, u, v, pdf_out)) return false;
-  radiance = lookup(u, v);
-  return true;
+  const float share = sun_share(cover_all);
+  if (share <= 0.0f) {
+    float u, v;
+    if (!sample_cells(cover_all ? full_ : comp_, uu, dir, u, v, pdf_out)) return false;
+    radiance = sky_ ? eval(dir) : lookup(u, v);
+    return true;
+  }
+  // A sky with a sun disc: one of the two strategies, the pdf of their mixture.
+  if (uu.x < share) {
+    const double r = std::min(uu.x / share, 0x1.fffffep-1f);
+    const double omc = r * sun_one_minus_cos_;  // 1 - cos(theta), uniform in the cone
+    const double sin_t = std::sqrt(std::max(0.0, omc * (2.0 - omc)));
+    const double phi = 2.0 * kPi * uu.y;
+    Vec3 a, b;
+    make_basis(sun_dir_, a, b);
+    const Vec3 t = a * float(sin_t * std::cos(phi)) + b * float(sin_t * std::sin(phi)) + sun_dir_ * float(1.0 - omc);
+    dir = to_world(normalize(t));
+  } else {
+    float u, v, p;
+    uu.x = std::min((uu.x - share) / (1.0f - share), 0x1.fffffep-1f);
+    if (!sample_cells(cover_all ? full_ : comp_, uu, dir, u, v, p)) return false;
+  }
+  pdf_out = pdf(dir, cover_all);
+  radiance = eval(dir);
+  return pdf_out > 0.0f && std::isfinite(pdf_out);
 }
 
 float Environment::pdf(Vec3 dir_world, bool cover_all) const {
-  const Cells& d = cover_all ? full_ : comp_;
+  const float share = sun_share(cover_all);
+  const float map = pdf_cells(cover_all ? full_ : comp_, dir_world);
+  if (share <= 0.0f) return map;
+  return share * sun_pdf(dir_world) + (1.0f - share) * map;
+}
+
+float Environment::pdf_cells(const Cells& d, Vec3 dir_world) const {
   if (d.marginal.empty()) return 0.0f;
   float u, v;
   to_uv(rot_.vector(dir_world), u, v);

@@ -3,7 +3,10 @@
 // shading point; the scene picks lights. Lights are sampled by next-event estimation only.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <vector>
+
+#include "scene/sky.h"
 
 #include "util/sampling.h"
 
@@ -203,6 +206,10 @@ class Environment {
   Environment() = default;
   // pixels: w*h RGB, row 0 = bottom. rotation: world -> texture directions.
   Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation);
+  // A procedural sky: radiance from the model itself; a w x h equirectangular image of it
+  // (without the sun disc) steers the samples, and the disc, far smaller than a texel, gets
+  // its own share of them, uniform in its cone.
+  Environment(std::shared_ptr<const SkyModel> sky, int w, int h, float strength, const Mat4& rotation);
   bool valid() const { return w_ > 0; }
   Vec3 eval(Vec3 dir_world) const;
   // Samples a world direction; returns radiance and the solid-angle pdf. cover_all: no BSDF
@@ -226,6 +233,17 @@ class Environment {
   float weight(const Cells& d, int x, int y) const;
   void build_cells(Cells& d, float sub);
   bool sample_cells(const Cells& d, Vec2 uu, Vec3& dir, float& u, float& v, float& pdf) const;
+  float pdf_cells(const Cells& d, Vec3 dir_world) const;
+  void init_distributions();
+  Vec3 to_world(Vec3 t) const;
+  // The sun disc's share of the samples and its cone (texture space), for a sky with a disc.
+  float sun_pdf(Vec3 dir_world) const;
+  float sun_share(bool cover_all) const { return cover_all ? sun_share_full_ : sun_share_comp_; }
+  std::shared_ptr<const SkyModel> sky_;
+  float strength_ = 1.0f;
+  Vec3 sun_dir_;            // texture space
+  double sun_one_minus_cos_ = 0.0;  // 1 - cos(half angle), exactly
+  float sun_share_full_ = 0.0f, sun_share_comp_ = 0.0f;
   std::vector<Vec3> px_;
   std::vector<float> lum_;  // luminance per texel, >= 0
   int w_ = 0, h_ = 0;
