@@ -350,23 +350,30 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
   return self.scene->add_mesh(std::move(mesh));
 }
 
+// What the op parsers share: a register operand (None: no register), validated.
+int16_t op_register(const py::handle& h) {
+  if (h.is_none()) return kNoReg;
+  const int64_t r = h.cast<int64_t>();
+  if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
+  return int16_t(r);
+}
+// Throws unless op tuple `t` holds its name and n - 1 arguments.
+void op_arity(const std::string& op, const py::tuple& t, size_t n) {
+  if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
+}
+// The index of the setting named by `h` in `names`.
+uint8_t op_choice(const std::vector<std::string>& names, const py::handle& h, const char* what) {
+  const std::string x = h.cast<std::string>();
+  for (size_t i = 0; i < names.size(); ++i)
+    if (names[i] == x) return uint8_t(i);
+  throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+}
+
 // The Noise, Wave, Magic and White Noise texture ops (scene/tex_noise.h); false: not one of them.
 bool parse_noise_texture_op(const std::string& op, const py::tuple& t, ShaderOp& o) {
-  auto regno = [](const py::handle& h) -> int16_t {
-    if (h.is_none()) return kNoReg;
-    const int64_t r = h.cast<int64_t>();
-    if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
-    return int16_t(r);
-  };
-  auto need = [&](size_t n) {
-    if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
-  };
-  auto index_in = [](const std::vector<std::string>& v, const py::handle& h, const char* what) {
-    const std::string x = h.cast<std::string>();
-    for (size_t i = 0; i < v.size(); ++i)
-      if (v[i] == x) return uint8_t(i);
-    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
-  };
+  const auto regno = op_register;
+  auto need = [&](size_t n) { op_arity(op, t, n); };
+  const auto index_in = op_choice;
   auto dims = [](const py::handle& h) {
     const int64_t d = h.cast<int64_t>();
     if (d < 1 || d > 4) throw std::invalid_argument("texture dimensions must be 1 to 4");
@@ -414,9 +421,7 @@ bool parse_noise_texture_op(const std::string& op, const py::tuple& t, ShaderOp&
 // if `op` is none of them. `regno` validates a register operand.
 template <class RegNo>
 bool parse_pattern_op(const std::string& op, const py::tuple& t, ShaderOp& o, RegNo&& regno) {
-  auto need = [&](size_t n) {
-    if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
-  };
+  auto need = [&](size_t n) { op_arity(op, t, n); };
   auto pick = [&](const py::handle& h, std::initializer_list<const char*> names, const char* what) {
     const std::string x = h.cast<std::string>();
     uint8_t i = 0;
@@ -474,21 +479,9 @@ bool parse_pattern_op(const std::string& op, const py::tuple& t, ShaderOp& o, Re
 // The Vector Rotate, Vector Transform, Blackbody, Wavelength, Texture Coordinate Camera/Window
 // and Tangent ops (scene/vector_nodes.h) and the Gabor texture; false: not one of them.
 bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o, ShaderProgram& prog) {
-  auto regno = [](const py::handle& h) -> int16_t {
-    if (h.is_none()) return kNoReg;
-    const int64_t r = h.cast<int64_t>();
-    if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
-    return int16_t(r);
-  };
-  auto need = [&](size_t n) {
-    if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
-  };
-  auto index_in = [](const std::vector<std::string>& v, const py::handle& h, const char* what) {
-    const std::string x = h.cast<std::string>();
-    for (size_t i = 0; i < v.size(); ++i)
-      if (v[i] == x) return uint8_t(i);
-    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
-  };
+  const auto regno = op_register;
+  auto need = [&](size_t n) { op_arity(op, t, n); };
+  const auto index_in = op_choice;
   static const std::vector<std::string> spaces = {"WORLD", "OBJECT", "CAMERA"};
   if (op == "vector_rotate") {  // vector, center, axis, angle, rotation, type, invert
     need(9);
@@ -553,12 +546,7 @@ bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
 ShaderProgram parse_program(const PyScene& self, const py::list& program) {
   ShaderProgram prog;
-  auto regno = [](const py::handle& h) -> int16_t {
-    if (h.is_none()) return kNoReg;
-    const int64_t r = h.cast<int64_t>();
-    if (r < 0 || r >= kMaxRegs) throw std::invalid_argument("register out of range: " + std::to_string(r));
-    return int16_t(r);
-  };
+  const auto regno = op_register;
   auto name_of = [](const py::handle& h) { return h.cast<std::string>(); };
   static const std::vector<std::string> math_ops = {
       "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER", "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN",
@@ -588,9 +576,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
     if (t.size() < 2) throw std::invalid_argument("shader op must be a tuple (name, ...)");
     const std::string op = name_of(t[0]);
     ShaderOp o;
-    auto need = [&](size_t n) {
-      if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
-    };
+    auto need = [&](size_t n) { op_arity(op, t, n); };
     if (op == "closure") {
       need(4);
       const std::string kind = name_of(t[1]);
