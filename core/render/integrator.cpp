@@ -129,6 +129,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
   bool prev_delta = true;   // camera rays and delta lobes: no light sample could find the hit
   Vec3 mis_org = ray.org;   // the last vertex that scattered (light samples start there)
+  Vec3 mis_n(0.0f);         // its shading normal (the light tree's choice depends on it)
   const bool nee = s.use_nee && scene.has_lights();
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
@@ -180,7 +181,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (nee && !prev_delta) {
         // Seen from the last real scattering: transparent crossings in between are part of the
         // same light-sample segment (which saw them through its transmittance).
-        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo))));
+        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n));
       }
       L += beta * cl.emission * w;
       if constexpr (kAovs)
@@ -221,6 +222,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     if (nee && (!kNonDiffuse || cl.has_nondelta)) {
       DirectSample ds;
       ds.path = &ray_state;
+      ds.n = sp.ns;
       const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
       u_rr = u_sel.y;
       const Vec2 u_pt = sampler.get2d();
@@ -292,6 +294,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (!(bs.flags & kTransparentLobe)) {
         prev_delta = true;
         mis_org = sp.p;
+        mis_n = sp.ns;
       }
     } else {
       float pdf;
@@ -301,6 +304,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       prev_pdf = pdf;
       prev_delta = false;
       mis_org = sp.p;
+      mis_n = sp.ns;
     }
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its

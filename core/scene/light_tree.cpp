@@ -1,0 +1,257 @@
+#include "scene/light_tree.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace pl {
+
+namespace {
+
+float safe_sqrt(float x) { return std::sqrt(std::max(0.0f, x)); }
+float safe_acos(float x) { return std::acos(std::clamp(x, -1.0f, 1.0f)); }
+
+// cos(max(0, a - b)) and sin(max(0, a - b)) from the sines and cosines of angles a, b in [0, pi].
+float cos_sub_clamped(float sin_a, float cos_a, float sin_b, float cos_b) {
+  if (cos_a > cos_b) return 1.0f;  // a < b
+  return cos_a * cos_b + sin_a * sin_b;
+}
+float sin_sub_clamped(float sin_a, float cos_a, float sin_b, float cos_b) {
+  if (cos_a > cos_b) return 0.0f;
+  return sin_a * cos_b - cos_a * sin_b;
+}
+
+// v rotated by angle theta about the unit axis k (Rodrigues).
+Vec3 rotate(Vec3 v, Vec3 k, float theta) {
+  const float c = std::cos(theta), s = std::sin(theta);
+  return v * c + cross(k, v) * s + k * (dot(k, v) * (1.0f - c));
+}
+
+// The cost of a node with bounds b (pbrt-v4's EvaluateCost: power times the solid angle its
+// cone can emit into, times its surface area, stretched along thin axes by kr).
+float split_cost(const LightBounds& b, const Aabb& node, int axis) {
+  const float theta_o = safe_acos(b.cos_theta_o), theta_e = safe_acos(b.cos_theta_e);
+  const float theta_w = std::min(theta_o + theta_e, kPi);
+  const float sin_o = safe_sqrt(1.0f - b.cos_theta_o * b.cos_theta_o);
+  const float m_omega = 2.0f * kPi * (1.0f - b.cos_theta_o) +
+                        0.5f * kPi * (2.0f * theta_w * sin_o - std::cos(theta_o - 2.0f * theta_w) -
+                                      2.0f * theta_o * sin_o + b.cos_theta_o);
+  const Vec3 d = node.extent();
+  const float kr = d[axis] > 0.0f ? max_component(d) / d[axis] : 1.0f;
+  const Vec3 e = b.bounds.extent();
+  const float area = 2.0f * (e.x * e.y + e.y * e.z + e.z * e.x);
+  return b.phi * m_omega * kr * area;
+}
+
+}  // namespace
+
+LightBounds light_bounds_union(const LightBounds& a, const LightBounds& b) {
+  if (!(a.phi > 0.0f)) return b;
+  if (!(b.phi > 0.0f)) return a;
+  LightBounds r;
+  r.bounds = a.bounds;
+  r.bounds.grow(b.bounds);
+  r.phi = a.phi + b.phi;
+  r.cos_theta_e = std::min(a.cos_theta_e, b.cos_theta_e);
+  r.two_sided = a.two_sided || b.two_sided;
+  // The cone around both cones.
+  const float theta_a = safe_acos(a.cos_theta_o), theta_b = safe_acos(b.cos_theta_o);
+  const float theta_d = safe_acos(dot(a.w, b.w));
+  if (std::min(theta_d + theta_b, kPi) <= theta_a) {
+    r.w = a.w;
+    r.cos_theta_o = a.cos_theta_o;
+    return r;
+  }
+  if (std::min(theta_d + theta_a, kPi) <= theta_b) {
+    r.w = b.w;
+    r.cos_theta_o = b.cos_theta_o;
+    return r;
+  }
+  const float theta_o = 0.5f * (theta_a + theta_d + theta_b);
+  const Vec3 k = cross(a.w, b.w);
+  if (theta_o >= kPi || !(length_sq(k) > 0.0f)) {
+    r.w = a.w;
+    r.cos_theta_o = -1.0f;  // the whole sphere
+    return r;
+  }
+  r.w = normalize(rotate(a.w, normalize(k), theta_o - theta_a));
+  // Rounding must not shrink the cone below either input: widened by a hair.
+  r.cos_theta_o = std::cos(std::min(theta_o * 1.0001f + 1e-5f, kPi));
+  return r;
+}
+
+LightTree::LightTree(const std::vector<LightBounds>& items) {
+  std::vector<std::pair<LightBounds, uint32_t>> work;
+  trail_.assign(items.size(), 0);
+  in_tree_.assign(items.size(), 0);
+  for (size_t i = 0; i < items.size(); ++i) {
+    const LightBounds& b = items[i];
+    if (!(b.phi > 0.0f) || !std::isfinite(b.phi) || b.bounds.empty() || !is_finite(b.bounds.lo) ||
+        !is_finite(b.bounds.hi))
+      continue;
+    work.emplace_back(b, uint32_t(i));
+    in_tree_[i] = 1;
+  }
+  if (work.empty()) return;
+  nodes_.reserve(2 * work.size() - 1);
+  build(work, 0, work.size(), 0, 0);
+}
+
+uint32_t LightTree::build(std::vector<std::pair<LightBounds, uint32_t>>& items, size_t begin, size_t end,
+                          uint64_t trail, int depth) {
+  depth_ = std::max(depth_, depth);
+  const uint32_t index = uint32_t(nodes_.size());
+  nodes_.emplace_back();
+  LightBounds all;
+  Aabb centroids;
+  for (size_t i = begin; i < end; ++i) {
+    all = light_bounds_union(all, items[i].first);
+    centroids.grow(items[i].first.bounds.center());
+  }
+  const auto store = [&](const LightBounds& b, uint32_t idx, bool leaf) {
+    Node& n = nodes_[index];
+    n.lo = b.bounds.lo;
+    n.hi = b.bounds.hi;
+    n.w = b.w;
+    n.phi = b.phi;
+    n.cos_theta_o = b.cos_theta_o;
+    n.cos_theta_e = b.cos_theta_e;
+    n.index = idx;
+    n.leaf = leaf;
+    n.two_sided = b.two_sided;
+  };
+  if (end - begin == 1) {
+    trail_[items[begin].second] = trail;
+    store(items[begin].first, items[begin].second, true);
+    return index;
+  }
+  // Binned split by pbrt-v4's cost over 12 buckets per axis; past depth 40 (only for
+  // pathological inputs) an even split keeps every path within the 64 bits of a trail.
+  constexpr int kBuckets = 12;
+  size_t mid = begin + (end - begin) / 2;
+  if (depth < 40) {
+    float best = kInf;
+    int best_axis = -1, best_bucket = -1;
+    const Vec3 cext = centroids.extent();
+    for (int axis = 0; axis < 3; ++axis) {
+      if (!(cext[axis] > 0.0f)) continue;
+      LightBounds buckets[kBuckets];
+      const auto bucket_of = [&](const LightBounds& b) {
+        const int k = int(kBuckets * ((b.bounds.center()[axis] - centroids.lo[axis]) / cext[axis]));
+        return std::clamp(k, 0, kBuckets - 1);
+      };
+      for (size_t i = begin; i < end; ++i) {
+        LightBounds& bk = buckets[bucket_of(items[i].first)];
+        bk = light_bounds_union(bk, items[i].first);
+      }
+      for (int s = 0; s + 1 < kBuckets; ++s) {
+        LightBounds below, above;
+        for (int k = 0; k <= s; ++k) below = light_bounds_union(below, buckets[k]);
+        for (int k = s + 1; k < kBuckets; ++k) above = light_bounds_union(above, buckets[k]);
+        if (!(below.phi > 0.0f) || !(above.phi > 0.0f)) continue;
+        const float cost = split_cost(below, all.bounds, axis) + split_cost(above, all.bounds, axis);
+        if (cost < best) {
+          best = cost;
+          best_axis = axis;
+          best_bucket = s;
+        }
+      }
+    }
+    if (best_axis >= 0) {
+      const auto it = std::stable_partition(items.begin() + std::ptrdiff_t(begin), items.begin() + std::ptrdiff_t(end),
+                                            [&](const std::pair<LightBounds, uint32_t>& e) {
+                                              const int k = int(kBuckets * ((e.first.bounds.center()[best_axis] -
+                                                                             centroids.lo[best_axis]) /
+                                                                            cext[best_axis]));
+                                              return std::clamp(k, 0, kBuckets - 1) <= best_bucket;
+                                            });
+      const size_t m = size_t(it - items.begin());
+      if (m > begin && m < end) mid = m;
+    }
+  }
+  build(items, begin, mid, trail, depth + 1);
+  const uint32_t second = build(items, mid, end, trail | (uint64_t(1) << depth), depth + 1);
+  store(all, second, false);
+  return index;
+}
+
+[[gnu::noinline]] float LightTree::importance(const Node& node, Vec3 p, Vec3 n) const {
+  // pbrt-v4's LightBounds::Importance: power over distance squared (floored by the node's size),
+  // times the cosine bounds at the light (its cone against the directions to p) and at p.
+  const Vec3 pc = (node.lo + node.hi) * 0.5f;
+  const Vec3 diag = node.hi - node.lo;
+  const float dc2 = length_sq(p - pc);
+  const float d2 = std::max(dc2, 0.5f * length(diag));
+  const Vec3 wi = dc2 > 0.0f ? (p - pc) / std::sqrt(dc2) : node.w;
+  float cos_w = dot(node.w, wi);
+  if (node.two_sided) cos_w = std::fabs(cos_w);
+  const float sin_w = safe_sqrt(1.0f - cos_w * cos_w);
+  // The cone of directions from p that the node's bounding sphere subtends.
+  const float r2 = 0.25f * length_sq(diag);
+  float cos_b = -1.0f;
+  if (dc2 > r2) cos_b = safe_sqrt(1.0f - r2 / dc2);
+  const float sin_b = safe_sqrt(1.0f - cos_b * cos_b);
+  const float sin_o = safe_sqrt(1.0f - node.cos_theta_o * node.cos_theta_o);
+  const float cos_x = cos_sub_clamped(sin_w, cos_w, sin_o, node.cos_theta_o);
+  const float sin_x = sin_sub_clamped(sin_w, cos_w, sin_o, node.cos_theta_o);
+  const float cos_p = cos_sub_clamped(sin_x, cos_x, sin_b, cos_b);
+  if (cos_p <= node.cos_theta_e) return 0.0f;
+  // In double and capped: a light almost at p must not overflow (inf / inf is NaN).
+  double imp = double(node.phi) * double(cos_p) / std::max(double(d2), 1e-30);
+  if (n.x != 0.0f || n.y != 0.0f || n.z != 0.0f) {
+    const float cos_i = std::fabs(dot(wi, n));
+    const float sin_i = safe_sqrt(1.0f - cos_i * cos_i);
+    imp *= double(cos_sub_clamped(sin_i, cos_i, sin_b, cos_b));
+  }
+  return imp > 0.0 ? float(std::min(imp, 1e30)) : 0.0f;
+}
+
+bool LightTree::sample(Vec3 p, Vec3 n, float u, uint32_t& item, float& pmf) const {
+  if (nodes_.empty()) return false;
+  uint32_t i = 0;
+  float prob = 1.0f;
+  if (nodes_[0].leaf && !(importance(nodes_[0], p, n) > 0.0f)) return false;
+  while (!nodes_[i].leaf) {
+    const uint32_t c0 = i + 1, c1 = nodes_[i].index;
+    const float i0 = importance(nodes_[c0], p, n), i1 = importance(nodes_[c1], p, n);
+    const float sum = i0 + i1;
+    if (!(sum > 0.0f)) return false;
+    const float p0 = i0 / sum;
+    if (u < p0) {
+      prob *= p0;
+      u = std::min(u / p0, 0x1.fffffep-1f);
+      i = c0;
+    } else {
+      prob *= i1 / sum;
+      u = std::min((u - p0) / (1.0f - p0), 0x1.fffffep-1f);
+      i = c1;
+    }
+  }
+  item = nodes_[i].index;
+  pmf = prob;
+  return prob > 0.0f;
+}
+
+float LightTree::pmf(Vec3 p, Vec3 n, uint32_t item) const {
+  if (item >= in_tree_.size() || !in_tree_[item]) return 0.0f;
+  uint64_t trail = trail_[item];
+  uint32_t i = 0;
+  float prob = 1.0f;
+  if (nodes_[0].leaf && !(importance(nodes_[0], p, n) > 0.0f)) return 0.0f;
+  while (!nodes_[i].leaf) {
+    const uint32_t c0 = i + 1, c1 = nodes_[i].index;
+    const float i0 = importance(nodes_[c0], p, n), i1 = importance(nodes_[c1], p, n);
+    const float sum = i0 + i1;
+    if (!(sum > 0.0f)) return 0.0f;
+    if (trail & 1u) {
+      prob *= i1 / sum;
+      i = c1;
+    } else {
+      prob *= i0 / sum;
+      i = c0;
+    }
+    trail >>= 1;
+  }
+  return prob;
+}
+
+}  // namespace pl
