@@ -109,11 +109,14 @@ uint32_t LightTree::build(std::vector<std::pair<LightBounds, uint32_t>>& items, 
   }
   const auto store = [&](const LightBounds& b, uint32_t idx, bool leaf) {
     Node& n = nodes_[index];
-    n.lo = b.bounds.lo;
-    n.hi = b.bounds.hi;
+    const Vec3 diag = b.bounds.extent();
+    n.center = b.bounds.center();
+    n.r2 = 0.25f * length_sq(diag);
+    n.d2_min = 0.5f * length(diag);  // pbrt-v4's floor: half the diagonal
     n.w = b.w;
     n.phi = b.phi;
     n.cos_theta_o = b.cos_theta_o;
+    n.sin_theta_o = safe_sqrt(1.0f - b.cos_theta_o * b.cos_theta_o);
     n.cos_theta_e = b.cos_theta_e;
     n.index = idx;
     n.leaf = leaf;
@@ -177,20 +180,21 @@ uint32_t LightTree::build(std::vector<std::pair<LightBounds, uint32_t>>& items, 
 [[gnu::noinline]] float LightTree::importance(const Node& node, Vec3 p, Vec3 n) const {
   // pbrt-v4's LightBounds::Importance: power over distance squared (floored by the node's size),
   // times the cosine bounds at the light (its cone against the directions to p) and at p.
-  const Vec3 pc = (node.lo + node.hi) * 0.5f;
-  const Vec3 diag = node.hi - node.lo;
+  const Vec3 pc = node.center;
   const float dc2 = length_sq(p - pc);
-  const float d2 = std::max(dc2, 0.5f * length(diag));
+  const float d2 = std::max(dc2, node.d2_min);
   const Vec3 wi = dc2 > 0.0f ? (p - pc) / std::sqrt(dc2) : node.w;
   float cos_w = dot(node.w, wi);
   if (node.two_sided) cos_w = std::fabs(cos_w);
   const float sin_w = safe_sqrt(1.0f - cos_w * cos_w);
   // The cone of directions from p that the node's bounding sphere subtends.
-  const float r2 = 0.25f * length_sq(diag);
-  float cos_b = -1.0f;
-  if (dc2 > r2) cos_b = safe_sqrt(1.0f - r2 / dc2);
-  const float sin_b = safe_sqrt(1.0f - cos_b * cos_b);
-  const float sin_o = safe_sqrt(1.0f - node.cos_theta_o * node.cos_theta_o);
+  float cos_b = -1.0f, sin_b = 0.0f;
+  if (dc2 > node.r2) {
+    const float s2 = node.r2 / dc2;
+    cos_b = safe_sqrt(1.0f - s2);
+    sin_b = std::sqrt(s2);
+  }
+  const float sin_o = node.sin_theta_o;
   const float cos_x = cos_sub_clamped(sin_w, cos_w, sin_o, node.cos_theta_o);
   const float sin_x = sin_sub_clamped(sin_w, cos_w, sin_o, node.cos_theta_o);
   const float cos_p = cos_sub_clamped(sin_x, cos_x, sin_b, cos_b);

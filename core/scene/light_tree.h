@@ -42,9 +42,10 @@ class LightTree {
   float pmf(Vec3 p, Vec3 n, uint32_t item) const;
 
  private:
-  struct Node {
-    Vec3 lo, hi, w;
-    float phi, cos_theta_o, cos_theta_e;
+  struct Node {  // a LightBounds with what importance() derives from it precomputed
+    Vec3 center, w;
+    float r2, d2_min;  // bounding sphere radius squared; the distance squared floor
+    float phi, cos_theta_o, sin_theta_o, cos_theta_e;
     uint32_t index;  // interior: the second child (the first follows the node); leaf: the item
     uint8_t leaf, two_sided;
   };
