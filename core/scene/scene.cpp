@@ -773,7 +773,8 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"sun lights", light(LightType::Sun)},
           {"area lights", light(LightType::Rect) || light(LightType::Ellipse)},
           {"environment", f.environment},
-          {"world light", f.world_light}};
+          {"world light", f.world_light},
+          {"light tree", f.light_tree}};
 }
 }  // namespace
 
@@ -853,10 +854,11 @@ void Scene::detect_features() {
   f.environment = env_.valid();
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
+  f.light_tree = use_tree_;
   features_ = f;
 }
 
-inline void Scene::triangle_point(const InstanceData& in, const TriangleVerts& tv, float b1, float b2, Vec3& p,
+[[gnu::always_inline]] inline void Scene::triangle_point(const InstanceData& in, const TriangleVerts& tv, float b1, float b2, Vec3& p,
                                   Vec3& p_error) {
   const float b0 = 1.0f - b1 - b2;
   // From barycentrics rather than org + t * dir: the error does not grow with the distance.
@@ -1018,11 +1020,12 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   return emitter_point_sample(e, p, b1, b2, n, spherical, pdf_solid, pmf_e, s);
 }
 
-bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
+template <bool kTree>
+bool Scene::sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
   if (light_dist_.empty()) return false;
   size_t k;
   float pmf;
-  if (!choose_light(p, s.n, u_select, k, pmf) || !(pmf > 0.0f)) return false;
+  if (!choose_light_t<kTree>(p, s.n, u_select, k, pmf) || !(pmf > 0.0f)) return false;
   s.target_normal = Vec3(0.0f);
   if (k < lights_.size()) {
     const Light& l = lights_[k];
@@ -1114,6 +1117,9 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   }
   return sample_emitter(e, p, st, spherical, pdf_solid, pmf_e, u, s);
 }
+
+template bool Scene::sample_direct_t<false>(Vec3, float, Vec2, DirectSample&, bool) const;
+template bool Scene::sample_direct_t<true>(Vec3, float, Vec2, DirectSample&, bool) const;
 
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];

@@ -120,6 +120,7 @@ struct SceneFeatures {
   bool environment = false;  // an HDR environment (importance-sampled) rather than a constant world
   bool world_light = false;  // a non-black constant world colour
   uint32_t light_kinds = 0;  // bit 1 << LightType of each analytic light kind present
+  bool light_tree = false;   // lights chosen by the light tree (many lights)
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
   // Names of the features in use, and of every feature a scene can have (for logs and tests).
@@ -293,7 +294,11 @@ class Scene {
   // Picks a light with u_select and samples it from point p.
   // bsdf_follows: a BSDF sample from p will be traced and MIS-weighted against this one; if not,
   // every direction the light can come from must have density here.
-  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true) const;
+  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true) const {
+    // Two instances: the power sampler's compiles as it did before there was a tree.
+    return use_tree_ ? sample_direct_t<true>(p, u_select, u, s, bsdf_follows)
+                     : sample_direct_t<false>(p, u_select, u, s, bsdf_follows);
+  }
   // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).
@@ -443,24 +448,31 @@ class Scene {
   std::vector<uint32_t> inf_items_;
   std::vector<float> inf_pmf_;  // per light_dist_ entry: its pmf when infinite (tree in use)
   // The light's index and the probability of that choice, at p with normal n.
-  bool choose_light(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
-    if (!use_tree_) {
+  template <bool kTree>
+  bool choose_light_t(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
+    if constexpr (!kTree) {
       k = light_dist_.sample(u);
       pmf = light_dist_.pmf(k);
       return true;
-    }
-    if (u < inf_share_) {
-      k = inf_items_[inf_dist_.sample(u / inf_share_)];
-      pmf = inf_pmf_[k];
+    } else {
+      if (u < inf_share_) {
+        k = inf_items_[inf_dist_.sample(u / inf_share_)];
+        pmf = inf_pmf_[k];
+        return true;
+      }
+      uint32_t item;
+      float tp;
+      if (!tree_.sample(p, n, std::min((u - inf_share_) / tree_share_, 0x1.fffffep-1f), item, tp)) return false;
+      k = item;
+      pmf = tree_share_ * tp;
       return true;
     }
-    uint32_t item;
-    float tp;
-    if (!tree_.sample(p, n, std::min((u - inf_share_) / tree_share_, 0x1.fffffep-1f), item, tp)) return false;
-    k = item;
-    pmf = tree_share_ * tp;
-    return true;
   }
+  bool choose_light(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
+    return use_tree_ ? choose_light_t<true>(p, n, u, k, pmf) : choose_light_t<false>(p, n, u, k, pmf);
+  }
+  template <bool kTree>
+  bool sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const;
   float light_pmf(Vec3 p, Vec3 n, size_t k) const {
     if (!use_tree_) return light_dist_.pmf(k);
     if (inf_pmf_[k] > 0.0f) return inf_pmf_[k];
