@@ -196,3 +196,25 @@ def test_tree_with_sun_and_environment_is_unbiased():
     imgs = {tree: renders(lamp_room(tree, lamps=16, sun=True, env=True), seeds=4, spp=16).mean(0)
             for tree in ("off", "on")}
     assert abs(imgs["on"].mean() / imgs["off"].mean() - 1.0) < 0.015
+
+
+def test_unbalanced_trees_keep_exact_probabilities():
+    """Lights at geometrically growing distances make a deep, unbalanced tree (the split peels a
+    few lights per level): the probabilities along its long paths stay exact."""
+    s = pc.Scene()
+    white = s.add_material("white", (0.7, 0.7, 0.7))
+    add_object(s, *quad((-1, -1, 0), (2, 0, 0), (0, 2, 0)), white)
+    for k in range(40):  # up to 2^117
+        s.add_point_light((8.0 ** k, 0.0, 1.0), (1.0, 1.0, 1.0))
+    s.light_tree = "on"
+    s.commit()
+    assert s.light_tree_active and s.stats()["light_tree_depth"] >= 16  # a balanced one: 6
+    rng = np.random.default_rng(3)
+    p = np.column_stack([8.0 ** rng.uniform(0, 12, 300), rng.uniform(-1, 1, 300), rng.uniform(0, 2, 300)])
+    p = p.astype(np.float32)
+    n = np.zeros_like(p)
+    u = rng.random(len(p)).astype(np.float32)
+    k, pmf, pmfs = s.light_choices(p, n, u, all_pmfs=True)
+    assert (k >= 0).all()
+    np.testing.assert_allclose(pmfs.sum(axis=1), 1.0, atol=1e-4)
+    assert np.array_equal(pmf, pmfs[np.arange(len(p)), k])

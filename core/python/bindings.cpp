@@ -719,6 +719,7 @@ py::dict scene_stats(const PyScene& self) {
   d["lights"] = s.lights;
   d["rect_emitters"] = s.rect_emitters;
   d["light_tree_nodes"] = s.light_tree_nodes;
+  d["light_tree_depth"] = s.light_tree_depth;
   d["geometry_builds"] = s.geometry_builds;
   d["light_builds"] = s.light_builds;
   d["top_level_builds"] = s.top_level_builds;

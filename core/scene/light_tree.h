@@ -44,13 +44,14 @@ class LightTree {
  private:
   struct Node {  // a LightBounds with what importance() derives from it precomputed
     Vec3 center, w;
-    float r2, d2_min;  // bounding sphere radius squared; the distance squared floor
+    float radius;  // of the bounding sphere; pbrt-v4's distance-squared floor too
     float phi, cos_theta_o, sin_theta_o, cos_theta_e;
     uint32_t index;  // interior: the second child (the first follows the node); leaf: the item
     uint8_t leaf, two_sided;
   };
   // Not inlined on purpose: sample() and pmf() must round it identically.
-  float importance(const Node& node, Vec3 p, Vec3 n) const;
+  // In double: far nodes' importances underflow float, and both children at 0 ends the walk.
+  double importance(const Node& node, Vec3 p, Vec3 n) const;
   uint32_t build(std::vector<std::pair<LightBounds, uint32_t>>& items, size_t begin, size_t end, uint64_t trail,
                  int depth);
   std::vector<Node> nodes_;

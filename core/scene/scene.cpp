@@ -745,6 +745,7 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
   tree_ = want && finite > 0 ? LightTree(items) : LightTree();
   use_tree_ = !tree_.empty();
   stats_.light_tree_nodes = tree_.node_count();
+  stats_.light_tree_depth = size_t(tree_.depth());
   // The infinite lights keep the share of the power the single distribution gives them.
   inf_share_ = !use_tree_ ? 0.0f : inf_items_.empty() ? 0.0f : float(inf_total / total);
   if (use_tree_ && !(inf_share_ < 1.0f)) use_tree_ = false;  // nothing finite has power

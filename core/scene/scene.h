@@ -97,6 +97,7 @@ struct SceneStats {
   size_t lights = 0;
   size_t rect_emitters = 0;  // emitter groups sampled as spherical rectangles
   size_t light_tree_nodes = 0;  // nodes of the light tree (0: lights chosen by power alone)
+  size_t light_tree_depth = 0;  // its deepest leaf's depth
   size_t geometry_builds = 0, light_builds = 0;  // commits that rebuilt the BVH / the light distribution
   size_t top_level_builds = 0;  // commits that rebuilt only the top level (transform edits)
   size_t blases = 0, blas_triangles = 0;  // bottom-level BVHs and the triangles stored in them
