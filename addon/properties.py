@@ -149,6 +149,17 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "other geometry (architecture), at a slower build. The viewport never uses them",
         default=False,
     )
+    light_tree: EnumProperty(
+        name="Light Tree",
+        description="How next-event estimation picks a light in final renders",
+        items=(
+            ('AUTO', "Auto", "A light tree where the scene has more than 8 lights (sun and world "
+                             "aside), else one distribution by power"),
+            ('ON', "On", "Always the light tree: lights chosen by their importance at the shading point"),
+            ('OFF', "Off", "Always one distribution by power (each light as often everywhere)"),
+        ),
+        default='AUTO',
+    )
     use_general_kernel: BoolProperty(
         name="General Kernel",
         description="Render with the general integrator kernel instead of the one specialised for "

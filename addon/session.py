@@ -167,6 +167,8 @@ def render(engine, depsgraph):
             settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
         if hasattr(core_scene, "spatial_splits"):  # final renders only: not thumbnails, never the viewport
             core_scene.spatial_splits = scene.pathlight.use_spatial_splits and not engine.is_preview
+        if hasattr(core_scene, "light_tree"):
+            core_scene.light_tree = scene.pathlight.light_tree.lower()
         if not _commit(engine, core_scene, settings.threads, scene.pathlight.time_limit):
             _empty_result(engine, scene, view_layer)
             return

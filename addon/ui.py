@@ -190,6 +190,8 @@ class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
         sub.prop(rd, "threads")
         col = layout.column(heading="Acceleration Structure")
         col.prop(context.scene.pathlight, "use_spatial_splits")
+        col = layout.column(heading="Lights")
+        col.prop(context.scene.pathlight, "light_tree")
 
 
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_film,

@@ -12,7 +12,7 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
     "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
-    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling"}
+    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -120,6 +120,14 @@ def dof_scene():
     return s
 
 
+def many_lights_scene(glossy=False):
+    s = with_sphere(lambda s: shader(s, "metal", "glossy", roughness=0.2))() if glossy else cornell(pc)
+    rng = np.random.default_rng(4)
+    for _ in range(12):  # more than Scene's kLightTreeMinLights: the light tree
+        s.add_point_light(tuple(rng.uniform((-0.9, -0.9, 0.2), (0.9, 0.9, 1.9))), (0.3, 0.3, 0.3), radius=0.02)
+    return s
+
+
 # name: (scene builder, RenderSettings fields, features expected, kernel expected)
 CASES = {
     "diffuse": (lambda: cornell(pc), {}, {"diffuse", "mesh lights"}, "diffuse"),
@@ -144,6 +152,9 @@ CASES = {
                {"diffuse", "mesh lights", "passes"}, "general"),
     "transparent film": (environment_scene, {"film_transparent": True},
                          {"diffuse", "environment", "transparent film"}, "general"),
+    "light tree": (many_lights_scene, {}, {"diffuse", "mesh lights", "point lights", "light tree"}, "diffuse+tree"),
+    "light tree glossy": (lambda: many_lights_scene(True), {},
+                          {"diffuse", "glossy", "mesh lights", "point lights", "light tree"}, "surfaces+tree"),
     "random sampler": (lambda: cornell(pc), {"sampler": "random"}, {"diffuse", "mesh lights"}, "diffuse"),
     "adaptive": (lambda: cornell(pc), {"adaptive_threshold": 0.05, "adaptive_min_samples": 4},
                  {"diffuse", "mesh lights", "adaptive sampling"}, "diffuse"),

@@ -46,7 +46,7 @@ inline float next_float_down(float v) {
 }
 
 // Bound of the rounding error of p = b0 v0 + b1 v1 + b2 v2 computed in float.
-inline Vec3 barycentric_error(const Vec3& v0, const Vec3& v1, const Vec3& v2, float b0, float b1, float b2) {
+[[gnu::always_inline]] inline Vec3 barycentric_error(const Vec3& v0, const Vec3& v1, const Vec3& v2, float b0, float b1, float b2) {
   return (vabs(v0 * b0) + vabs(v1 * b1) + vabs(v2 * b2)) * gamma_bound(7);
 }
 

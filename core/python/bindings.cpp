@@ -850,6 +850,8 @@ py::dict scene_stats(const PyScene& self) {
   d["dropped_triangles"] = s.dropped_triangles;
   d["lights"] = s.lights;
   d["rect_emitters"] = s.rect_emitters;
+  d["light_tree_nodes"] = s.light_tree_nodes;
+  d["light_tree_depth"] = s.light_tree_depth;
   d["geometry_builds"] = s.geometry_builds;
   d["light_builds"] = s.light_builds;
   d["top_level_builds"] = s.top_level_builds;
@@ -1074,8 +1076,16 @@ py::array_t<float> sky_radiance(const FloatArray& dirs, float sun_elevation, flo
   return out;
 }
 
-py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u, bool bsdf_follows) {
+py::tuple light_samples(const PyScene& self, const FloatArray& points, const FloatArray& u, const py::object& normals_obj,
+                        bool bsdf_follows) {
   check_rays(self, points, u);
+  FloatArray normals;
+  const Vec3* nn = nullptr;
+  if (!normals_obj.is_none()) {
+    normals = normals_obj.cast<FloatArray>();
+    check_rays(self, points, normals);
+    nn = reinterpret_cast<const Vec3*>(normals.data());
+  }
   const py::ssize_t n = points.shape(0);
   py::array_t<bool> ok(n);
   py::array_t<float> wi({n, py::ssize_t(3)}), dist(n), pdf(n), pdf_hit(n), t_hit(n);
@@ -1088,6 +1098,7 @@ py::tuple light_samples(const PyScene& self, const FloatArray& points, const Flo
     py::gil_scoped_release release;
     for (py::ssize_t i = 0; i < n; ++i) {
       DirectSample ds;
+      if (nn) ds.n = nn[i];
       const bool good = self.scene->sample_direct(p[i], pu[3 * i], {pu[3 * i + 1], pu[3 * i + 2]}, ds, bsdf_follows);
       pok[i] = good;
       pw[3 * i] = good ? ds.wi.x : 0.0f;
@@ -1102,11 +1113,43 @@ py::tuple light_samples(const PyScene& self, const FloatArray& points, const Flo
         pt[i] = h.t;
         SurfacePoint sp;
         self.scene->surface_point(h, sp);
-        ph[i] = self.scene->pdf_emitter(sp, p[i], sp.p, std::fabs(dot(sp.ng, ds.wi)));
+        ph[i] = self.scene->pdf_emitter(sp, p[i], sp.p, std::fabs(dot(sp.ng, ds.wi)), ds.n);
       }
     }
   }
   return py::make_tuple(ok, wi, dist, pdf, pdf_hit, t_hit);
+}
+
+// The light choices from points p (normals n, rows of zeros: none) with uniforms u (N): the
+// chosen entry (-1: none) and its probability; and, with all_pmfs, the probability of every
+// entry (N, K) at each point.
+py::tuple light_choices(const PyScene& self, const FloatArray& points, const FloatArray& normals, const FloatArray& u,
+                        bool all_pmfs) {
+  check_rays(self, points, normals);
+  const py::ssize_t n = points.shape(0);
+  if (u.ndim() != 1 || u.shape(0) != n) throw std::invalid_argument("u must have shape (N,)");
+  const py::ssize_t kk = py::ssize_t(self.scene->light_choices());
+  py::array_t<int64_t> idx(n);
+  py::array_t<float> pmf(n);
+  py::array_t<float> pmfs({all_pmfs ? n : py::ssize_t(0), kk});
+  const Vec3* p = reinterpret_cast<const Vec3*>(points.data());
+  const Vec3* nn = reinterpret_cast<const Vec3*>(normals.data());
+  const float* pu = u.data();
+  int64_t* pi = idx.mutable_data();
+  float *pp = pmf.mutable_data(), *pa = pmfs.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) {
+      size_t k;
+      float q;
+      const bool ok = self.scene->pick_light(p[i], nn[i], pu[i], k, q);
+      pi[i] = ok ? int64_t(k) : -1;
+      pp[i] = ok ? q : 0.0f;
+      if (all_pmfs)
+        for (py::ssize_t j = 0; j < kk; ++j) pa[i * kk + j] = self.scene->pick_light_pmf(p[i], nn[i], size_t(j));
+    }
+  }
+  return py::make_tuple(idx, pmf, pmfs);
 }
 
 py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
@@ -2056,11 +2099,35 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Sample an emitter group whose two triangles form a rectangle as one spherical rectangle "
           "(True, the default; same distribution, less work) or as two spherical triangles. Takes "
           "effect at the next commit().")
-      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"), py::arg("bsdf_follows") = true,
+      .def("light_samples", &light_samples, py::arg("points"), py::arg("u"), py::arg("normals") = py::none(),
+           py::arg("bsdf_follows") = true,
            "Light samples (next-event estimation) from points (N, 3) with uniforms u (N, 3: the light "
            "choice and the 2-D sample): (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "
            "renderer's MIS gives the emitter the ray p + t wi hits first at t_hit (0 and inf for none). "
+           "normals (N, 3): the shading normals the light tree's choice reads (None: none). "
            "bsdf_follows=False: the distribution used where no BSDF sample follows. Exposed for tests.")
+      .def("light_choices", &light_choices, py::arg("points"), py::arg("normals"), py::arg("u"),
+           py::arg("all_pmfs") = false,
+           "The light chosen from points (N, 3) with normals (N, 3; zero rows: none) by uniforms u (N,), "
+           "over the entries [analytic lights | emitter groups | environment]: (index (-1: none), pmf, "
+           "pmfs (N, K) of every entry when all_pmfs). Exposed for tests.")
+      .def_property(
+          "light_tree",
+          [](const PyScene& self) {
+            const Scene::LightTreeMode m = self.scene->light_tree();
+            return std::string(m == Scene::LightTreeMode::On ? "on" : m == Scene::LightTreeMode::Off ? "off" : "auto");
+          },
+          [](PyScene& self, const std::string& mode) {
+            self.check_editable();
+            if (mode == "auto") self.scene->set_light_tree(Scene::LightTreeMode::Auto);
+            else if (mode == "on") self.scene->set_light_tree(Scene::LightTreeMode::On);
+            else if (mode == "off") self.scene->set_light_tree(Scene::LightTreeMode::Off);
+            else throw std::invalid_argument("light_tree must be 'auto', 'on' or 'off'");
+          },
+          "Many-light sampling by a light tree: 'auto' (the default: where the scene has more than "
+          "8 finite lights), 'on' or 'off' (one distribution by power). Takes effect at the next commit().")
+      .def_property_readonly("light_tree_active", [](const PyScene& self) { return self.scene->light_tree_active(); },
+                             "Whether the last commit() built a light tree that sample_direct uses.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            py::arg("instances") = false,

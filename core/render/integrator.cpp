@@ -2,93 +2,7 @@
 
 namespace pl {
 namespace {
-
-// Sum of all non-delta closures: f * |cos| and the mixture pdf, counting only lobes on the side
-// (reflection or transmission) that the geometric normal allows, so that shading normals never
-// let light through a surface or reflect it from behind. kDiffuseOnly (diffuse-only kernels):
-// every closure is a DiffuseBsdf, whose eval is called directly rather than through the
-// variant's dispatch (the same arithmetic, so the same result).
-template <bool kDiffuseOnly = false>
-[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
-  Vec3 f(0.0f);
-  pdf = 0.0f;
-  for (int i = 0; i < cl.n; ++i) {
-    const Closure& c = cl.c[size_t(i)];
-    if (!kDiffuseOnly && c.delta) continue;
-    const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
-    if (same_side(lo, li) != reflection) continue;
-    float p;
-    Vec3 v;
-    if constexpr (kDiffuseOnly) {
-      // Only diffuse-only scenes get here; anything else (unreachable) would add nothing.
-      const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf);
-      if (!d) continue;
-      v = d->eval(lo, li, p);
-    } else if (const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf)) {
-      v = d->eval(lo, li, p);  // the common lobe without the variant's out-of-line visit
-    } else {
-      v = bsdf_eval(c.bsdf, lo, li, p);
-    }
-    f += c.weight * v;
-    pdf += c.pick * p;
-  }
-  return f;
-}
-
-struct Medium {  // Beer's law: nested absorbing media, innermost last
-  Vec3 sigma[4];
-  uint32_t material[4];
-  int n = 0;
-  Vec3 current() const { return n ? sigma[n - 1] : Vec3(0.0f); }
-  void enter(uint32_t m, Vec3 s) {
-    if (n < 4) {
-      sigma[n] = s;
-      material[n++] = m;
-    }
-  }
-  void leave(uint32_t m) {
-    for (int i = n - 1; i >= 0; --i)
-      if (material[i] == m) {
-        for (int j = i; j + 1 < n; ++j) {
-          sigma[j] = sigma[j + 1];
-          material[j] = material[j + 1];
-        }
-        --n;
-        return;
-      }
-  }
-};
-
-inline Vec3 beer(Vec3 sigma, float t) {
-  return {std::exp(-sigma.x * t), std::exp(-sigma.y * t), std::exp(-sigma.z * t)};
-}
-
-// How much a closure reflects and transmits in total (Cycles' bsdf_albedo, roughly): the
-// closure weight times the BSDF's own albedo, seen from wo.
-Vec3 closure_albedo(const Closure& c, Vec3 wo) {
-  if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) {
-    // Principled's lobes: their Fresnel at the view (a colour, not just F0, for the specular).
-    if (m->mode == ConductorFresnel::F82Tint || m->mode == ConductorFresnel::Dielectric)
-      return c.weight * m->fresnel(std::fabs(dot(wo, c.frame.n)));
-    return c.weight * m->f0;
-  }
-  if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
-    Vec3 cr, ct;
-    float pr, pt;
-    d->lobes(d->fresnel(std::fabs(dot(wo, c.frame.n))), cr, ct, pr, pt);
-    return c.weight * ((d->reflection ? cr : Vec3(0.0f)) + (d->transmission ? d->transmission_tint * ct : Vec3(0.0f)));
-  }
-  return c.weight;  // diffuse, transparent
-}
-
-// Cycles' threshold between specular-like and rough closures (on alpha, Blender's roughness^2).
-bool closure_is_rough(const Closure& c) {
-  if (std::holds_alternative<DiffuseBsdf>(c.bsdf)) return true;
-  if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) return m->alpha > 0.075f;
-  if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) return d->alpha > 0.075f;
-  return false;  // transparent
-}
-
+#include "render/trace_path.inl"
 }  // namespace
 
 bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal, Vec3& diffuse_albedo,
@@ -117,264 +31,6 @@ bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal,
 
 namespace {
 
-// The path tracer, compiled for the kernel features F (KernelFeature bits): what a scene does
-// not use is left out with if constexpr; kKernelAll is the general kernel.
-template <uint32_t F>
-Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
-                  PathAovs* aov_in) {
-  constexpr bool kMedia = (F & kKernelMedia) != 0;
-  constexpr bool kAovs = (F & kKernelAovs) != 0;
-  constexpr bool kNonDiffuse = (F & kKernelNonDiffuse) != 0;
-  constexpr bool kEnv = (F & kKernelEnvironment) != 0;
-  PathAovs* const aov = kAovs ? aov_in : nullptr;
-  Vec3 L(0.0f), beta(1.0f);
-  float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
-  float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
-  bool prev_delta = true;   // camera rays and delta lobes: no light sample could find the hit
-  Vec3 mis_org = ray.org;   // the last vertex that scattered (light samples start there)
-  const bool nee = s.use_nee && scene.has_lights();
-  int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
-  RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
-  ray_state.camera = s.camera;
-  const uint64_t path_key = sampler.path_key();
-  float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
-  bool emission_only = false;
-  Medium medium;
-  ClosureList cl;
-  // The camera ray and its continuations through Transparent BSDFs: what it finds is "seen
-  // directly" (transparent film, Emit, Env and the data passes).
-  bool direct = true;
-  bool want_data = aov != nullptr, want_features = aov != nullptr;
-  Vec3 feature_throughput(1.0f);
-  for (int bounce = 0;;) {
-    Hit hit;
-    ++c.rays;
-    const bool found = scene.intersect(ray, hit);
-    Vec3 sigma(0.0f);
-    if constexpr (kMedia) {
-      sigma = medium.current();
-      if (!is_black(sigma)) beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
-    }
-    if (!found) {
-      // Escaped: the world, weighted against the environment light sample that could find it
-      // (without an environment that pdf is 0 and the weight 1).
-      float w = 1.0f;
-      if constexpr (kEnv)
-        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
-      const Vec3 bg = scene.background(ray.dir);
-      if constexpr (kAovs) {
-        if (direct && aov) {
-          aov->environment = beta * bg;
-          if (s.transparent_background) aov->alpha = clampf(1.0f - average(beta), 0.0f, 1.0f);
-        }
-        if (!(direct && s.transparent_background)) L += beta * bg * w;
-      } else {
-        L += beta * bg * w;  // transparent film always comes with the aov kernel
-      }
-      break;
-    }
-    SurfacePoint sp;
-    scene.surface_point(hit, sp);
-    const Vec3 wo = -ray.dir;
-    ray_state.length = length_before + hit.t * length(ray.dir);
-    ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
-    scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
-
-    // Emission found by the BSDF ray: weighted against the light sample that could have found it.
-    if (!is_black(cl.emission)) {
-      float w = 1.0f;
-      if (nee && !prev_delta) {
-        // Seen from the last real scattering: transparent crossings in between are part of the
-        // same light-sample segment (which saw them through its transmittance).
-        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo))));
-      }
-      L += beta * cl.emission * w;
-      if constexpr (kAovs)
-        if (direct && aov) aov->emission += beta * cl.emission;
-    }
-    if (kAovs && aov && (want_data || want_features)) {
-      const bool flip = dot(sp.ng, wo) < 0.0f;  // normals face the viewer, as Cycles' sd->N
-      if (want_data && direct) {
-        Vec3 transparency(0.0f);
-        for (int i = 0; i < cl.n; ++i)
-          if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(i)].bsdf)) transparency += cl.c[size_t(i)].weight;
-        if (average(transparency) <= 0.5f) {  // Cycles' default pass alpha threshold
-          want_data = false;
-          aov->hit = true;
-          aov->position = sp.p;
-          aov->normal = flip ? -sp.ns : sp.ns;
-        }
-      }
-      if (want_features) {
-        Vec3 n, diffuse, specular;
-        if (denoising_features(cl, wo, flip, n, diffuse, specular)) {
-          want_features = false;
-          aov->denoising_normal = n;
-          aov->denoising_albedo = feature_throughput * diffuse;
-        } else {
-          feature_throughput *= specular;
-        }
-      }
-    }
-    if (emission_only || cl.n == 0) break;
-
-    const bool front = dot(sp.ng, wo) > 0.0f;
-    const Vec3 ng_out = front ? sp.ng : -sp.ng;  // geometric normal on the viewer's side
-    // The last vertex that scatters: no BSDF ray follows, so light samples take all the weight.
-    const bool last = bounce >= s.max_bounces;
-    float u_rr = -1.0f;
-
-    if (nee && (!kNonDiffuse || cl.has_nondelta)) {
-      DirectSample ds;
-      ds.path = &ray_state;
-      const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
-      u_rr = u_sel.y;
-      const Vec2 u_pt = sampler.get2d();
-      if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) {
-        const bool reflection = dot(ds.wi, ng_out) > 0.0f;
-        float bsdf_pdf;
-        const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
-        if (!is_black(f) && !is_black(ds.li)) {
-          Vec3 vis(1.0f);
-          Ray shadow;
-          shadow.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
-          if (std::isinf(ds.dist)) {
-            shadow.dir = ds.wi;
-            shadow.tmax = kInf;
-          } else {
-            // Offset the light end too, so an emissive triangle never blocks its own sample.
-            const bool tri = !is_black(ds.target_normal);
-            const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
-            shadow.dir = target - shadow.org;
-            shadow.tmax = 1.0f - 1e-4f;  // pbrt's ShadowEpsilon, on top of both offsets
-          }
-          if (ds.cast_shadow) {
-            ++c.rays;
-            vis = scene.transmittance(shadow);
-          }
-          // Light inside an absorbing medium (only reachable when the segment stays inside it).
-          if constexpr (kMedia) {
-            const Vec3 msig = reflection ? sigma : Vec3(0.0f);
-            if (!is_black(msig) && std::isfinite(ds.dist)) vis = vis * beer(msig, ds.dist);
-          }
-          if (!is_black(vis)) {
-            const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
-            L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
-          }
-        }
-      }
-    }
-    if (last && nee) break;
-
-    // Choose a closure in proportion to its weight, then sample it.
-    // Closure choice, then reflect-or-refract: neither is read for a lone diffuse closure, so
-    // its draw is skipped (every kernel alike: they keep the same sample streams).
-    Vec2 u_lobe{0.0f, 0.0f};
-    if (cl.n > 1 || (kNonDiffuse && !std::holds_alternative<DiffuseBsdf>(cl.c[0].bsdf))) u_lobe = sampler.get2d();
-    else sampler.skip2d();
-    const Vec2 u = sampler.get2d();
-    const float uc = u_lobe.x, ul = u_lobe.y;
-    int k = 0;
-    float acc = cl.c[0].pick;
-    while (k + 1 < cl.n && uc >= acc) acc += cl.c[size_t(++k)].pick;
-    const Closure& ch = cl.c[size_t(k)];
-    BsdfSample bs;
-    if constexpr (kNonDiffuse) {
-      // Diffuse lobes directly (inlined), the rest through the variant: the same arithmetic.
-      const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&ch.bsdf);
-      if (!(d ? d->sample(ch.frame.to_local(wo), u, ul, bs) : bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)))
-        break;
-    } else {
-      const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&ch.bsdf);
-      if (!d || !d->sample(ch.frame.to_local(wo), u, ul, bs)) break;  // (!d: unreachable, ends the path)
-    }
-    const Vec3 wi = ch.frame.to_world(bs.wi);
-    const bool reflection = (bs.flags & kReflect) != 0;
-    // The sampled side must agree with the geometric normal, or light would leak.
-    if ((dot(wi, ng_out) > 0.0f) != reflection) break;
-    if (kNonDiffuse && (bs.flags & kDelta)) {
-      beta *= ch.weight * bs.weight / ch.pick;
-      // A transparent crossing is not a scattering event: MIS keeps the last real vertex.
-      if (!(bs.flags & kTransparentLobe)) {
-        prev_delta = true;
-        mis_org = sp.p;
-      }
-    } else {
-      float pdf;
-      const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf);
-      if (!(pdf > 0.0f) || is_black(f)) break;
-      beta *= f / pdf;
-      prev_pdf = pdf;
-      prev_delta = false;
-      mis_org = sp.p;
-    }
-
-    // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its
-    // ray collect emission (so the light sample above keeps its MIS weight), then stops.
-    if (kNonDiffuse && (bs.flags & kTransparentLobe)) {
-      if (++transparent > 256) break;
-      ray_state.transparent = uint16_t(transparent);  // the ray keeps its kind, as Cycles'
-      length_before = ray_state.length;
-    } else {
-      direct = false;
-      want_data = false;
-      int& count = (bs.flags & kDiffuseLobe) ? diffuse : (bs.flags & kTransmit) ? transmission : glossy;
-      const int limit = (bs.flags & kDiffuseLobe) ? s.diffuse_bounces
-                        : (bs.flags & kTransmit)  ? s.transmission_bounces
-                                                  : s.glossy_bounces;
-      if (count >= limit) emission_only = true;
-      ++count;
-      ++bounce;
-      length_before = 0.0f;
-      // Cycles' path_state_next: reflection or transmission, diffuse, glossy or singular.
-      ray_state.flags = uint8_t(((bs.flags & kReflect) ? kRayReflect : kRayTransmit) |
-                                ((bs.flags & kDiffuseLobe) ? kRayDiffuse
-                                 : (bs.flags & kDelta)     ? (kRayGlossy | kRaySingular)
-                                                           : kRayGlossy));
-      ray_state.depth = uint16_t(std::min(bounce, 65535));
-      ray_state.diffuse = uint16_t(std::min(diffuse, 65535));
-      ray_state.glossy = uint16_t(std::min(glossy, 65535));
-      ray_state.transmission = uint16_t(std::min(transmission, 65535));
-      if (last) emission_only = true;  // no light sampling: the limit still ends the path
-    }
-    if constexpr (kNonDiffuse) {
-      if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe)) eta_scale *= bs.eta * bs.eta;
-      if constexpr (kMedia) {
-        if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
-          const Material& mat = scene.material(sp.material);
-          if (!is_black(mat.program.sigma_a)) {
-            if (front) medium.enter(sp.material, mat.program.sigma_a);
-            else medium.leave(sp.material);
-          }
-        }
-      }
-    }
-
-    // No roulette after delta lobes (glass, mirrors, transparency): they barely change the
-    // throughput, so a roll there (the square root's survival below 1 again) only re-kills
-    // what the last rough vertex already rolled for, and amplifies what survives: in glass it
-    // cut the caustic chains before they reach the light. The next rough vertex rolls instead.
-    if (bounce >= s.rr_start_bounce && !(kNonDiffuse && (bs.flags & kDelta))) {
-      // Throughput without the refraction scaling, so paths inside glass are not culled for
-      // carrying compressed radiance (pbrt's etaScale). Its square root, as Cycles: the first
-      // roulette sees the product of three bounces' albedos (0.73^3 = 0.39 in a white Cornell box)
-      // and plain throughput killed most paths there, which in a closed, bright room still carry
-      // a large share of the light. Per-sample variance x rays per path, the equal-time error, is
-      // 11 % lower on the Cornell box (measured with tests/bench/variance_per_sample.py); later
-      // bounces converge to the same survival (the albedo) either way.
-      const float survive = std::min(1.0f, std::sqrt(max_component(beta) * eta_scale));
-      if (u_rr < 0.0f) u_rr = sampler.get2d().x;
-      if (!(survive > 0.0f) || u_rr >= survive) break;
-      beta = beta / survive;
-    }
-    if (!is_finite(beta)) break;
-    ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
-    ray.dir = wi;
-    ray.tmax = kInf;
-  }
-  return L;
-}
-
 // The instantiated kernels, fastest first: a render runs the first that covers its features.
 struct KernelEntry {
   uint32_t features;
@@ -385,10 +41,16 @@ constexpr KernelEntry kKernels[] = {
     {kKernelEnvironment, &trace_path_t<kKernelEnvironment>},
     {kKernelNonDiffuse, &trace_path_t<kKernelNonDiffuse>},
     {kKernelNonDiffuse | kKernelEnvironment, &trace_path_t<kKernelNonDiffuse | kKernelEnvironment>},
-    {kKernelAll, &trace_path_t<kKernelAll>},
 };
+// The light tree's kernels, in the same order (integrator_tree.cpp).
+constexpr uint32_t kTreeKernels[] = {kKernelLightTree, kKernelLightTree | kKernelEnvironment,
+                                     kKernelLightTree | kKernelNonDiffuse,
+                                     kKernelLightTree | kKernelNonDiffuse | kKernelEnvironment};
 
 }  // namespace
+
+// The light tree kernel with exactly the features f (one of kTreeKernels).
+TraceFn light_tree_kernel(uint32_t f);
 
 Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
                 PathAovs* aov) {
@@ -401,15 +63,23 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs) {
   if (aovs) k |= kKernelAovs;
   if (!f.diffuse_only()) k |= kKernelNonDiffuse;
   if (f.environment) k |= kKernelEnvironment;
+  if (f.light_tree) k |= kKernelLightTree;
   return k;
 }
 
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
-  for (const KernelEntry& e : kKernels)
-    if (!force_general ? (needed & ~e.features) == 0 : e.features == kKernelAll) {
-      chosen = e.features;
-      return e.fn;
-    }
+  if (!force_general) {
+    for (const KernelEntry& e : kKernels)
+      if ((needed & ~e.features) == 0) {
+        chosen = e.features;
+        return e.fn;
+      }
+    for (const uint32_t f : kTreeKernels)
+      if ((needed & ~f) == 0) {
+        chosen = f;
+        return light_tree_kernel(f);
+      }
+  }
   chosen = kKernelAll;
   return &trace_path_t<kKernelAll>;
 }
@@ -418,6 +88,7 @@ std::string kernel_name(uint32_t features) {
   if (features == kKernelAll) return "general";
   std::string n = (features & kKernelNonDiffuse) ? "surfaces" : "diffuse";
   if (features & kKernelEnvironment) n += "+env";
+  if (features & kKernelLightTree) n += "+tree";
   if (features & kKernelMedia) n += "+media";
   if (features & kKernelAovs) n += "+passes";
   return n;

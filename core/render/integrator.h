@@ -59,7 +59,8 @@ enum KernelFeature : uint32_t {
   kKernelAovs = 2,         // render passes and transparent film (camera-path bookkeeping)
   kKernelNonDiffuse = 4,   // closures other than diffuse (glossy, glass, transparent, delta lobes)
   kKernelEnvironment = 8,  // MIS of escaped rays against the environment light
-  kKernelAll = 15,         // the general kernel
+  kKernelLightTree = 16,   // the shading normals the light tree's choice reads, kept for MIS
+  kKernelAll = 31,         // the general kernel
 };
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
@@ -67,7 +68,7 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs);
 // The fastest instantiated kernel that has every feature in `needed` (or the general one when
 // force_general); `chosen` gets its feature bits. Every kernel gives the general one's result.
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen);
-// "general", or "diffuse" / "surfaces" plus "+env", "+media", "+passes".
+// "general", or "diffuse" / "surfaces" plus "+env", "+tree", "+media", "+passes".
 std::string kernel_name(uint32_t features);
 
 // The denoising features of one shaded point, split as Cycles does: `diffuse_albedo` of the

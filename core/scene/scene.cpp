@@ -629,10 +629,132 @@ void Scene::build_lights() {
     weights.push_back(4.0f * kPi * kPi * radius * radius * env_.average_luminance());
   }
   light_dist_ = Distribution1D(weights);
+  build_light_tree(weights);
   stats_.emissive_triangles = emitters_.size();
   stats_.lights = lights_.size();
   ++stats_.light_builds;
   detect_features();
+}
+
+void Scene::build_light_tree(const std::vector<float>& weights) {
+  // Bounds of every finite entry of light_dist_ (same indices; zero power: left out), and the
+  // infinite ones beside the tree.
+  std::vector<LightBounds> items(weights.size());
+  inf_items_.clear();
+  std::vector<float> inf_weights;
+  double inf_total = 0.0, total = 0.0;
+  const auto finite_weight = [](float w) { return std::isfinite(w) && w > 0.0f ? w : 0.0f; };
+  size_t finite = 0;
+  for (size_t k = 0; k < weights.size(); ++k) {
+    const float w = finite_weight(weights[k]);
+    total += w;
+    const bool infinite = k == env_index_ || (k < lights_.size() && lights_[k].type == LightType::Sun);
+    if (infinite) {
+      inf_items_.push_back(uint32_t(k));
+      inf_weights.push_back(w);
+      inf_total += w;
+      continue;
+    }
+    if (!(w > 0.0f)) continue;
+    LightBounds& b = items[k];
+    if (k < lights_.size()) {
+      const Light& l = lights_[k];
+      const float lum = std::max(luminance(l.color), 0.0f);
+      switch (l.type) {
+        case LightType::Point:
+        case LightType::Spot: {
+          b.bounds.grow(l.position - Vec3(l.radius));
+          b.bounds.grow(l.position + Vec3(l.radius));
+          b.phi = 4.0f * kPi * lum;  // a spot's cone is in its direction bounds
+          b.cos_theta_o = -1.0f;     // every direction
+          b.cos_theta_e = 0.0f;
+          if (l.type == LightType::Spot) {
+            // The axis: the world direction that to_local takes to local -Z, where to_local is a
+            // similarity (rows orthogonal, of one length); else the whole sphere stays.
+            const Vec3 r0{l.to_local.m[0][0], l.to_local.m[0][1], l.to_local.m[0][2]};
+            const Vec3 r1{l.to_local.m[1][0], l.to_local.m[1][1], l.to_local.m[1][2]};
+            const Vec3 r2{l.to_local.m[2][0], l.to_local.m[2][1], l.to_local.m[2][2]};
+            const float s0 = length_sq(r0), s1 = length_sq(r1), s2 = length_sq(r2);
+            const float tol = 1e-4f * std::max(s0, std::max(s1, s2));
+            const bool similar = std::fabs(s0 - s2) <= tol && std::fabs(s1 - s2) <= tol && std::fabs(dot(r0, r1)) <= tol &&
+                                 std::fabs(dot(r0, r2)) <= tol && std::fabs(dot(r1, r2)) <= tol && s2 > 0.0f;
+            if (similar && l.cos_half_spot > -1.0f) {
+              b.w = -r2 / std::sqrt(s2);
+              // Full strength inside theta_o (where the blend ends), falling to 0 at the cone's
+              // edge theta_o + theta_e (widened by a hair against rounding).
+              const float outer = std::acos(std::clamp(l.cos_half_spot, -1.0f, 1.0f));
+              const float cos_inner =
+                  l.spot_smooth_inv > 0.0f ? std::min(1.0f, l.cos_half_spot + 1.0f / l.spot_smooth_inv) : l.cos_half_spot;
+              const float inner = std::acos(std::clamp(cos_inner, -1.0f, 1.0f));
+              b.cos_theta_o = std::cos(inner);
+              b.cos_theta_e = std::cos(std::min(outer - inner + 1e-3f, kPi));
+            }
+          }
+          break;
+        }
+        case LightType::Rect:
+        case LightType::Ellipse:
+          for (int i = 0; i < 4; ++i)
+            b.bounds.grow(l.position + l.axis_u * ((i & 1) ? 0.5f : -0.5f) + l.axis_v * ((i & 2) ? 0.5f : -0.5f));
+          b.phi = kPi * l.area * lum;
+          b.w = l.dir;  // one-sided
+          b.cos_theta_o = 1.0f;
+          b.cos_theta_e = 0.0f;
+          break;
+        case LightType::Sun:
+          break;
+      }
+    } else {
+      // An emitter group: its world-space triangles, two-sided, normals in one cone.
+      const EmitterGroup& g = groups_[k - lights_.size()];
+      b.phi = w;
+      b.two_sided = true;
+      b.cos_theta_e = 0.0f;
+      bool any = false;
+      for (uint32_t j = g.first; j < g.first + g.count; ++j) {
+        const Emitter& em = emitters_[j];
+        const InstanceData& in = inst_[em.instance];
+        const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
+        b.bounds.grow(tv.v0);
+        b.bounds.grow(tv.v1);
+        b.bounds.grow(tv.v2);
+        const Vec3 n = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
+        if (!(length_sq(n) > 0.0f) || !is_finite(n)) continue;
+        LightBounds t;
+        t.w = normalize(n);
+        t.phi = 1.0f;
+        t.cos_theta_o = 1.0f;
+        if (!any) {
+          b.w = t.w;
+          b.cos_theta_o = 1.0f;
+          any = true;
+        } else {
+          LightBounds c = b;
+          c.phi = 1.0f;
+          c = light_bounds_union(c, t);
+          b.w = c.w;
+          b.cos_theta_o = c.cos_theta_o;
+        }
+      }
+      if (!any) b.cos_theta_o = -1.0f;
+      b.phi = b.bounds.empty() ? 0.0f : w;
+    }
+    finite += b.phi > 0.0f;
+  }
+  const bool want = light_tree_mode_ == LightTreeMode::On ||
+                    (light_tree_mode_ == LightTreeMode::Auto && finite > kLightTreeMinLights);
+  tree_ = want && finite > 0 ? LightTree(items) : LightTree();
+  use_tree_ = !tree_.empty();
+  stats_.light_tree_nodes = tree_.node_count();
+  stats_.light_tree_depth = size_t(tree_.depth());
+  // The infinite lights keep the share of the power the single distribution gives them.
+  inf_share_ = !use_tree_ ? 0.0f : inf_items_.empty() ? 0.0f : float(inf_total / total);
+  if (use_tree_ && !(inf_share_ < 1.0f)) use_tree_ = false;  // nothing finite has power
+  tree_share_ = 1.0f - inf_share_;
+  inf_dist_ = Distribution1D(inf_weights);
+  inf_pmf_.assign(weights.size(), 0.0f);
+  for (size_t j = 0; j < inf_items_.size(); ++j) inf_pmf_[inf_items_[j]] = inf_share_ * inf_dist_.pmf(j);
+  if (!(inf_share_ > 0.0f) || inf_dist_.empty()) inf_share_ = 0.0f, tree_share_ = 1.0f;
 }
 
 namespace {
@@ -653,7 +775,8 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"sun lights", light(LightType::Sun)},
           {"area lights", light(LightType::Rect) || light(LightType::Ellipse)},
           {"environment", f.environment},
-          {"world light", f.world_light}};
+          {"world light", f.world_light},
+          {"light tree", f.light_tree}};
 }
 }  // namespace
 
@@ -733,10 +856,11 @@ void Scene::detect_features() {
   f.environment = env_.valid();
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
+  f.light_tree = use_tree_;
   features_ = f;
 }
 
-inline void Scene::triangle_point(const InstanceData& in, const TriangleVerts& tv, float b1, float b2, Vec3& p,
+[[gnu::always_inline]] inline void Scene::triangle_point(const InstanceData& in, const TriangleVerts& tv, float b1, float b2, Vec3& p,
                                   Vec3& p_error) {
   const float b0 = 1.0f - b1 - b2;
   // From barycentrics rather than org + t * dir: the error does not grow with the distance.
@@ -898,11 +1022,12 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   return emitter_point_sample(e, p, b1, b2, n, spherical, pdf_solid, pmf_e, s);
 }
 
-bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
+template <bool kTree>
+bool Scene::sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
   if (light_dist_.empty()) return false;
-  const size_t k = light_dist_.sample(u_select);
-  const float pmf = light_dist_.pmf(k);
-  if (!(pmf > 0.0f)) return false;
+  size_t k;
+  float pmf;
+  if (!choose_light_t<kTree>(p, s.n, u_select, k, pmf) || !(pmf > 0.0f)) return false;
   s.target_normal = Vec3(0.0f);
   if (k < lights_.size()) {
     const Light& l = lights_[k];
@@ -994,6 +1119,9 @@ bool Scene::sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool 
   }
   return sample_emitter(e, p, st, spherical, pdf_solid, pmf_e, u, s);
 }
+
+template bool Scene::sample_direct_t<false>(Vec3, float, Vec2, DirectSample&, bool) const;
+template bool Scene::sample_direct_t<true>(Vec3, float, Vec2, DirectSample&, bool) const;
 
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
@@ -1126,13 +1254,14 @@ Vec3 Scene::transmittance_through(Ray ray) const {
   return Vec3(0.0f);
 }
 
-float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l) const {
+float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n) const {
   const InstanceData& in = inst_[sp.instance];
   const int32_t e = emitter_of(in, sp.tri);
   if (e < 0 || !(cos_l > 0.0f)) return 0.0f;
   const uint32_t gi = emitter_group_[size_t(e)];
   const EmitterGroup& g = groups_[gi];
-  const float pmf = light_dist_.pmf(lights_.size() + gi);
+  const float pmf = light_pmf(from, from_n, lights_.size() + gi);
+  if (!(pmf > 0.0f)) return 0.0f;
   // The same choices sample_direct makes from this point.
   if (g.rect && solid_angle_triangles_) {
     const double omega = group_rect(g, from).solid_angle;
@@ -1158,7 +1287,7 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
 
 float Scene::pdf_environment(Vec3 dir) const {
   if (env_index_ == SIZE_MAX) return 0.0f;
-  return light_dist_.pmf(env_index_) * env_.pdf(dir);
+  return (use_tree_ ? inf_pmf_[env_index_] : light_dist_.pmf(env_index_)) * env_.pdf(dir);
 }
 
 float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance, int samples, bool only_local) {

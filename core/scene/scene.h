@@ -19,6 +19,7 @@
 #include "scene/shader.h"
 #include "scene/camera.h"
 #include "scene/light.h"
+#include "scene/light_tree.h"
 
 namespace pl {
 
@@ -86,12 +87,17 @@ struct DirectSample {
   bool cast_shadow = true;
   // In: the path at the shading point, for textured emitters' Light Path nodes (null: none).
   const RayState* path = nullptr;
+  // In: the unit shading normal at the shading point, for the light tree's importance (zero:
+  // none); pdf_emitter must be given the same one.
+  Vec3 n{0.0f};
 };
 
 struct SceneStats {
   size_t triangles = 0, instances = 0, meshes = 0, materials = 0, emissive_triangles = 0, dropped_triangles = 0;
   size_t lights = 0;
   size_t rect_emitters = 0;  // emitter groups sampled as spherical rectangles
+  size_t light_tree_nodes = 0;  // nodes of the light tree (0: lights chosen by power alone)
+  size_t light_tree_depth = 0;  // its deepest leaf's depth
   size_t geometry_builds = 0, light_builds = 0;  // commits that rebuilt the BVH / the light distribution
   size_t top_level_builds = 0;  // commits that rebuilt only the top level (transform edits)
   size_t blases = 0, blas_triangles = 0;  // bottom-level BVHs and the triangles stored in them
@@ -115,6 +121,7 @@ struct SceneFeatures {
   bool environment = false;  // an HDR environment (importance-sampled) rather than a constant world
   bool world_light = false;  // a non-black constant world colour
   uint32_t light_kinds = 0;  // bit 1 << LightType of each analytic light kind present
+  bool light_tree = false;   // lights chosen by the light tree (many lights)
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
   // Names of the features in use, and of every feature a scene can have (for logs and tests).
@@ -207,6 +214,25 @@ class Scene {
     committed_ = false;
   }
   bool emitter_groups() const { return emitter_groups_; }
+  // Many-light sampling (light_tree.h) over the analytic lights and emitter groups, with the
+  // sun and the environment chosen beside it. Auto: where a scene has more than
+  // kLightTreeMinLights finite lights (below, the single distribution by power is as good and
+  // cheaper: docs/design/lights.md); On/Off force it. Takes effect at the next commit().
+  enum class LightTreeMode : uint8_t { Auto, Off, On };
+  static constexpr size_t kLightTreeMinLights = 8;
+  void set_light_tree(LightTreeMode m) {
+    if (m != light_tree_mode_) committed_ = false;
+    light_tree_mode_ = m;
+  }
+  LightTreeMode light_tree() const { return light_tree_mode_; }
+  bool light_tree_active() const { return use_tree_; }
+  // The light choice sample_direct makes at p (normal n, zero: none) from u, over the entries
+  // [analytic lights | emitter groups | environment], and the probability of each (for tests).
+  size_t light_choices() const { return light_dist_.size(); }
+  bool pick_light(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
+    return !light_dist_.empty() && choose_light(p, n, u, k, pmf);
+  }
+  float pick_light_pmf(Vec3 p, Vec3 n, size_t k) const { return k < light_dist_.size() ? light_pmf(p, n, k) : 0.0f; }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
   // Returns false when cancel_commit() stopped it: the scene is then uncommitted (as if commit
@@ -269,11 +295,16 @@ class Scene {
   // Picks a light with u_select and samples it from point p.
   // bsdf_follows: a BSDF sample from p will be traced and MIS-weighted against this one; if not,
   // every direction the light can come from must have density here.
-  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true) const;
+  bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true) const {
+    // Two instances: the power sampler's compiles as it did before there was a tree.
+    return use_tree_ ? sample_direct_t<true>(p, u_select, u, s, bsdf_follows)
+                     : sample_direct_t<false>(p, u_select, u, s, bsdf_follows);
+  }
   // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).
-  float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l) const;
+  // from_n: the shading normal at `from` that sample_direct was given (DirectSample::n).
+  float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n = Vec3(0.0f)) const;
   float pdf_environment(Vec3 dir) const;
   const SceneStats& stats() const { return stats_; }
   const SceneFeatures& features() const { return features_; }
@@ -407,6 +438,48 @@ class Scene {
   std::vector<uint32_t> emitter_group_;  // per emitter
   Distribution1D light_dist_;
   size_t env_index_ = SIZE_MAX;
+  // The light tree over the finite entries of light_dist_ (same indices), and the infinite ones
+  // (suns, the environment) beside it: chosen with probability inf_share_ (their share of the
+  // power, as the single distribution gives them), then by inf_dist_ over inf_items_.
+  LightTreeMode light_tree_mode_ = LightTreeMode::Auto;
+  bool use_tree_ = false;
+  LightTree tree_;
+  float inf_share_ = 0.0f, tree_share_ = 1.0f;
+  Distribution1D inf_dist_;
+  std::vector<uint32_t> inf_items_;
+  std::vector<float> inf_pmf_;  // per light_dist_ entry: its pmf when infinite (tree in use)
+  // The light's index and the probability of that choice, at p with normal n.
+  template <bool kTree>
+  bool choose_light_t(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
+    if constexpr (!kTree) {
+      k = light_dist_.sample(u);
+      pmf = light_dist_.pmf(k);
+      return true;
+    } else {
+      if (u < inf_share_) {
+        k = inf_items_[inf_dist_.sample(u / inf_share_)];
+        pmf = inf_pmf_[k];
+        return true;
+      }
+      uint32_t item;
+      float tp;
+      if (!tree_.sample(p, n, std::min((u - inf_share_) / tree_share_, 0x1.fffffep-1f), item, tp)) return false;
+      k = item;
+      pmf = tree_share_ * tp;
+      return true;
+    }
+  }
+  bool choose_light(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
+    return use_tree_ ? choose_light_t<true>(p, n, u, k, pmf) : choose_light_t<false>(p, n, u, k, pmf);
+  }
+  template <bool kTree>
+  bool sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const;
+  float light_pmf(Vec3 p, Vec3 n, size_t k) const {
+    if (!use_tree_) return light_dist_.pmf(k);
+    if (inf_pmf_[k] > 0.0f) return inf_pmf_[k];
+    return tree_share_ * tree_.pmf(p, n, uint32_t(k));
+  }
+  void build_light_tree(const std::vector<float>& weights);
   SceneStats stats_;
   SceneFeatures features_;
 

@@ -281,7 +281,7 @@ struct SphericalRect : SphericalRectLocal {
 
 // The rectangle [x0, x0 + lx] x [y0, y0 + ly] at signed distance z0 (coordinates relative to the
 // shaded point in an orthonormal frame with x, y along its edges); only r's local part is set.
-inline void spherical_rect_local(double x0, double y0, double z0, double lx, double ly, SphericalRectLocal& r) {
+[[gnu::always_inline]] inline void spherical_rect_local(double x0, double y0, double z0, double lx, double ly, SphericalRectLocal& r) {
   const double z = std::fabs(z0);
   r.solid_angle = 0.0;
   if (!(z > 0.0) || !(lx > 0.0) || !(ly > 0.0)) return;
