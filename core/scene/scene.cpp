@@ -647,6 +647,7 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"textures", f.textures},
           {"normal maps", f.normal_maps},
           {"media", f.media},
+          {"volumes", f.volumes},
           {"mesh lights", f.emission},
           {"point lights", light(LightType::Point)},
           {"spot lights", light(LightType::Spot)},
@@ -703,7 +704,9 @@ void Scene::detect_features() {
   for (size_t id = 0; id < materials_.size(); ++id) {
     if (!used[id]) continue;
     const Material& m = materials_[id];
-    f.media = f.media || !is_black(m.program.sigma_a);
+    f.media = f.media || m.program.has_medium();
+    f.volumes = f.volumes || (m.program.has_medium() && (!is_black(m.program.sigma_s) ||
+                                                         !is_black(m.program.volume_emission) || m.transparent));
     if (m.constant) {  // the closures it does add
       for (int i = 0; i < m.cached.n; ++i) {
         const Bsdf& b = m.cached.c[size_t(i)].bsdf;

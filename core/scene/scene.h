@@ -111,6 +111,9 @@ struct SceneFeatures {
   bool textures = false;     // Image Texture nodes
   bool normal_maps = false;  // Normal Map or Bump nodes
   bool media = false;        // Beer's law absorption inside some material
+  // Media that scatter or emit, or volume boundaries that shadow rays pass (a Volume without a
+  // Surface): shadow rays then sum the media they cross, and paths sample distances in them.
+  bool volumes = false;
   bool emission = false;     // emissive triangles (mesh lights)
   bool environment = false;  // an HDR environment (importance-sampled) rather than a constant world
   bool world_light = false;  // a non-black constant world colour
