@@ -148,3 +148,31 @@ def test_bad_volume_values_are_cleaned():
     assert stats["nonfinite_samples"] == 0 and np.all(np.isfinite(img))
     with pytest.raises(ValueError):
         pc.Scene().add_shader("x", [], volume={"density": 1.0})
+
+
+def test_world_volume_closed_forms():
+    """The world's Volume fills the scene: an infinite emitting, absorbing and scattering medium
+    is in equilibrium at emission / sigma_a in every direction; an emitter seen through
+    absorbing fog at distance 3 is dimmed by exp(-3 sigma_a)."""
+    s = pc.Scene()
+    s.set_world_color((5.0, 5.0, 5.0))  # hidden by the fog, which never ends
+    s.set_world_volume({"sigma_a": (0.5, 1.0, 2.0), "sigma_s": (1.0, 0.5, 0.2), "g": 0.5,
+                        "emission": (0.5, 0.5, 0.5)})
+    s.set_camera(camera(pc, (0, -4, 0), (0, 0, 0), lens=60.0))
+    img, stats = render(pc, s, 8, 8, samples=64, max_bounces=256)
+    assert "volumes" in stats["features"]
+    assert np.allclose(img[..., :3].mean(axis=(0, 1)), [1.0, 0.5, 0.25], rtol=0.01)
+    s = pc.Scene()
+    light = s.add_shader("light", [("const", 0, (2.0, 2.0, 2.0)), ("closure", "emission", None, {"color": 0})])
+    pos, tris = quad((-5.0, 3.0, -5.0), (10.0, 0.0, 0.0), (0.0, 0.0, 10.0))
+    add_object(s, pos, tris, light)
+    sa = np.array([0.1, 0.3, 0.6])
+    s.set_world_volume({"sigma_a": tuple(sa)})
+    cam = camera(pc, (0, 0, 0), (0, 1, 0), lens=200.0)
+    cam.clip_start = 1e-4  # rays (and so the fog they cross) start at the clip distance
+    s.set_camera(cam)
+    img, _ = render(pc, s, 5, 5, samples=4)
+    assert np.allclose(img[2, 2, :3], 2.0 * np.exp(-3.0 * sa), rtol=0.01)
+    s.set_world_volume(None)  # removed again: no medium, no feature
+    img, stats = render(pc, s, 5, 5, samples=4)
+    assert "volumes" not in stats["features"] and np.allclose(img[2, 2, :3], 2.0, rtol=1e-4)

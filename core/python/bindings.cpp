@@ -1904,6 +1904,17 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("color"))
       .def(
+          "set_world_volume",
+          [](PyScene& self, const py::object& volume) {
+            self.check_editable();
+            ShaderProgram v;
+            if (!volume.is_none()) v = make_shader(self, "world volume", py::list(), py::none(), false, volume).program;
+            self.scene->set_world_volume(v);
+          },
+          py::arg("volume"),
+          "The world's Volume (add_shader's volume dict, or None): a homogeneous medium filling the "
+          "scene outside objects' media.")
+      .def(
           "set_camera",
           [](PyScene& self, const CameraDesc& c) {
             self.check_editable();

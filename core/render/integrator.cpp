@@ -44,6 +44,8 @@ struct MediumLayer {
   float g;
   uint32_t material;
 };
+constexpr uint32_t kWorldMedium = 0xFFFFFFFFu;  // the world's Volume: never left
+
 struct Medium {
   MediumLayer layer[4];
   int n = 0;
@@ -209,6 +211,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
   Medium medium;
+  if constexpr (kMedia)
+    if (volumes && scene.world_volume().has_medium()) medium.enter(kWorldMedium, scene.world_volume());
   ClosureList cl;
   // The camera ray and its continuations through Transparent BSDFs: what it finds is "seen
   // directly" (transparent film, Emit, Env and the data passes).
