@@ -121,3 +121,20 @@ def test_world_fog_with_a_spot_light_agrees_with_cycles():
     np.testing.assert_allclose(ratio, 1.0, atol=0.01)
     assert np.median(rel) < 0.02 and np.percentile(rel, 90) < 0.06
     assert ours[:, :, 1].max() > 0.0 and ours.mean() > 0.02  # the lit fog is there
+
+
+@needs_volumes
+def test_bad_volume_values_render_without_nan():
+    """NaN and negative densities, colours and emission in object and world volumes: clamped
+    (warned by the compiler), and the render stays finite."""
+    scene = fog_scene("ShaderNodeVolumePrincipled", dict(Density=float("nan"), Emission_Strength=-1.0,
+                                                          Anisotropy=float("nan")), size=16)
+    box("Fog2", 0.5, volume_cube("ShaderNodeVolumeScatter", Density=-2.0, Anisotropy=5.0), location=(1.0, 0.0, 0.5))
+    world = bpy.data.worlds.new("BadFog")
+    world.use_nodes = True
+    ab = world.node_tree.nodes.new("ShaderNodeVolumeAbsorption")
+    ab.inputs["Density"].default_value = -1.0
+    world.node_tree.links.new(ab.outputs[0], world.node_tree.nodes["World Output"].inputs["Volume"])
+    scene.world = world
+    img = render_to_array(scene, samples=8, max_bounces=8)
+    assert np.all(np.isfinite(img)) and img[..., :3].max() > 0.0
