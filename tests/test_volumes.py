@@ -18,6 +18,12 @@ needs_volumes = pytest.mark.skipif(not (core_available() and hasattr(load_addon(
                                    reason="the core has no scattering volumes")
 
 
+@pytest.fixture(autouse=True, scope="module")
+def factory_scene_afterwards():
+    yield
+    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
+
+
 def region_means(img, grid=8):
     h, w = img.shape[:2]
     return img[: h // grid * grid, : w // grid * grid].reshape(grid, h // grid, grid, w // grid, -1).mean(axis=(1, 3))
@@ -138,3 +144,21 @@ def test_bad_volume_values_render_without_nan():
     scene.world = world
     img = render_to_array(scene, samples=8, max_bounces=8)
     assert np.all(np.isfinite(img)) and img[..., :3].max() > 0.0
+
+
+@needs_volumes
+def test_volume_bounce_limit_agrees_with_cycles():
+    """Volume bounces 0 (Cycles' default): the first scattering's light sample only; darker than
+    unlimited scattering, and as Cycles renders it."""
+    kind, inputs = CASES["scatter"]
+    scene = fog_scene(kind, inputs)
+    ours = render_to_array(scene, samples=1024, max_bounces=8, volume_bounces=0)[..., :3]
+    ref = render_to_array(scene, "CYCLES", samples=1024, max_bounces=8, volume_bounces=0, **BOX_FILTER)[..., :3]
+    full = render_to_array(scene, samples=256, max_bounces=8)[..., :3]
+    a, b = region_means(ours), region_means(ref)
+    rel = np.abs(a - b) / np.maximum(b, 0.25 * b.mean())
+    ratio = ours.mean(axis=(0, 1)) / ref.mean(axis=(0, 1))
+    print("volume bounces 0: mean ratio", ratio, "worst region", rel.max())
+    assert full[12:28, 12:28].mean() > 1.05 * ours[12:28, 12:28].mean()  # the limit is applied
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
+    assert rel.max() < 0.03, np.unravel_index(np.argmax(rel), rel.shape)

@@ -1582,6 +1582,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("diffuse_bounces", &RenderSettings::diffuse_bounces)
       .def_readwrite("glossy_bounces", &RenderSettings::glossy_bounces)
       .def_readwrite("transmission_bounces", &RenderSettings::transmission_bounces)
+      .def_readwrite("volume_bounces", &RenderSettings::volume_bounces)
       .def_property(
           "filter_type", [](const RenderSettings& s) { return enum_name(s.filter_type, kFilterNames); },
           [](RenderSettings& s, const std::string& v) { s.filter_type = enum_from_name(v, "filter_type", kFilterNames); })

@@ -204,7 +204,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // Media that scatter or emit, or volume-only boundaries: distance sampling and shadow rays
   // through media (else the media kernel keeps plain Beer's law, as before volumes).
   const bool volumes = kMedia && scene.features().volumes;
-  int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
+  int diffuse = 0, glossy = 0, transmission = 0, transparent = 0, volume_count = 0;
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
   const uint64_t path_key = sampler.path_key();
@@ -287,6 +287,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             prev_pdf = ph_pdf;
             prev_delta = false;
             mis_org = p;
+            // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
+            if (volume_count >= s.volume_bounces) emission_only = true;
+            ++volume_count;
             ++bounce;
             length_before = 0.0f;
             ray_state.flags = kRayVolume;
