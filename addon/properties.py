@@ -42,6 +42,11 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         name="Transmission", description="Maximum number of transmission bounces",
         default=12, min=0, max=1024,
     )
+    volume_bounces: IntProperty(
+        name="Volume", description="Maximum number of volume scattering events (0: only the "
+        "direct light of the first scattering, as Cycles' default)",
+        default=0, min=0, max=1024,
+    )
     seed: IntProperty(
         name="Seed", description="Seed of the random number sequences",
         default=0, min=0,

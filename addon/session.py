@@ -104,6 +104,7 @@ def render_settings(pc, scene, warn=None):
         "diffuse_bounces": props.diffuse_bounces,
         "glossy_bounces": props.glossy_bounces,
         "transmission_bounces": props.transmission_bounces,
+        "volume_bounces": props.volume_bounces,
         "filter_type": props.filter_type.lower(),
         "filter_width": props.filter_width,
     }

@@ -62,6 +62,7 @@ class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
         col.prop(settings, "diffuse_bounces")
         col.prop(settings, "glossy_bounces")
         col.prop(settings, "transmission_bounces")
+        col.prop(settings, "volume_bounces")
         layout.prop(settings, "use_schlick_fresnel")
 
 

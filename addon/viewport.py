@@ -30,7 +30,7 @@ from .export.light import collect_lights
 from .export.material import convert_material, put_material
 from .export.mesh import is_visible
 from .export.shader import ImageTable, UvSets
-from .export.world import world_color, world_texture
+from .export.world import world_color, world_texture, world_volume
 from .viewport_update import ViewState, plan_updates, settings_signature
 
 log = logging.getLogger(__name__)
@@ -193,6 +193,7 @@ class ViewportSession:
         class _World:  # what set_world reads of SceneData
             world_texture = world_texture(scene.world, self.warn)
             world_color = world_color(scene.world, self.warn)
+            world_volume = world_volume(scene.world, self.warn)
         replace_lights(self.scene, collect_lights(depsgraph, self.warn, is_visible), _World, self.warn)
         self.counters["light_updates"] += 1
 

@@ -152,7 +152,7 @@ def settings_signature(scene):
     """The scene values whose change must restart the viewport render (bpy Scene in, tuple out)."""
     props = scene.pathlight
     names = ("samples", "preview_samples", "max_bounces", "diffuse_bounces", "glossy_bounces",
-             "transmission_bounces", "seed", "sampler", "use_nee", "use_schlick_fresnel",
+             "transmission_bounces", "volume_bounces", "seed", "sampler", "use_nee", "use_schlick_fresnel",
              "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples")
     r = scene.render
     return (tuple(getattr(props, n, None) for n in names)

@@ -11,7 +11,7 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
-    "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
+    "volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
     "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree"}
 
 
@@ -138,6 +138,10 @@ CASES = {
     "media": (with_sphere(lambda s: shader(s, "absorber", "glass", sigma=((0.5, 0.8, 1.0), 2.0),
                                            roughness=0.0, ior=1.3)), {},
               {"diffuse", "glass", "media", "mesh lights"}, "general"),
+    "volumes": (with_sphere(lambda s: s.add_shader("fog", [("const", 0, (1.0, 1.0, 1.0)),
+                                                            ("closure", "transparent", None, {"color": 0})],
+                                                    volume={"sigma_s": (2.0, 2.0, 2.0), "g": 0.3})), {},
+                {"diffuse", "transparent", "media", "volumes", "mesh lights"}, "general"),
     "transparent": (transparent_scene, {}, {"diffuse", "transparent", "mesh lights"}, "surfaces"),
     "textures": (textured_scene, {}, {"diffuse", "varying shaders", "textures", "sun lights"}, "diffuse"),
     "normal maps": (normal_map_scene, {}, {"diffuse", "varying shaders", "normal maps", "point lights"},

@@ -749,10 +749,15 @@ def test_volume_absorption_and_unsupported_volumes():
     color, density = data.volume_absorption
     assert color == approx((0.9, 0.4, 0.2)) and density == approx(2.5)
     pv = mat.node_tree.nodes.new("ShaderNodeVolumePrincipled")
+    pv.inputs["Blackbody Intensity"].default_value = 0.5
     mat.node_tree.links.new(pv.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Volume"])
     data, warnings = compile_(mat)
-    assert data.volume_absorption is None
-    assert len(warnings) == 1 and "Principled Volume" in warnings[0]
+    assert data.volume_absorption is None and data.volume is not None
+    assert len(warnings) == 1 and "blackbody" in warnings[0]
+    info = mat.node_tree.nodes.new("ShaderNodeHoldout")  # no volume meaning
+    mat.node_tree.links.new(info.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Volume"])
+    data, warnings = compile_(mat)
+    assert data.volume is None and len(warnings) == 1 and "Holdout" in warnings[0]
 
 
 def test_register_allocation_reuses_registers():
@@ -1227,3 +1232,49 @@ def test_map_range_vector_folds_and_emits():
     data, warnings = compile_(diffuse_fed_by("MRV2", lambda n, l: build(n, l, True)))
     assert not warnings and [op[8:] for op in data.program if op[0] == "map_range_vector"] == [
         ("LINEAR", True)]
+
+
+def volume_material(name, build):
+    """A material whose Volume is build(nodes, links) (its output socket) and no Surface."""
+    mat, nodes, links, out = ms.new_material(name)
+    links.new(build(nodes, links), out.inputs["Volume"])
+    return mat
+
+
+def test_volumes_compile_to_cycles_coefficients():
+    def scatter_plus_absorption(nodes, links):
+        sc = ms.set_inputs(nodes.new("ShaderNodeVolumeScatter"), Color=(0.8, 0.6, 0.4, 1), Density=2.0,
+                           Anisotropy=0.3)
+        ab = ms.set_inputs(nodes.new("ShaderNodeVolumeAbsorption"), Color=(0.5, 1.0, 0.0, 1), Density=4.0)
+        add = nodes.new("ShaderNodeAddShader")
+        links.new(sc.outputs[0], add.inputs[0])
+        links.new(ab.outputs[0], add.inputs[1])
+        return add.outputs[0]
+    (closure,), warnings, data = closures_of(volume_material("Fog", scatter_plus_absorption))
+    assert not warnings
+    assert closure[0] == "transparent" and weight_of(closure) == approx((1, 1, 1))  # pass-through
+    v = data.volume
+    assert v["sigma_s"] == approx((1.6, 1.2, 0.8)) and v["g"] == approx(0.3)
+    assert v["sigma_a"] == approx((2.0, 0.0, 4.0)) and v["emission"] == approx((0, 0, 0))
+
+    def principled(nodes, links):
+        return ms.set_inputs(nodes.new("ShaderNodeVolumePrincipled"), Color=(0.5, 0.25, 1.0, 1), Density=2.0,
+                             Anisotropy=-0.2, Absorption_Color=(0.25, 0.0, 1.0, 1), Emission_Strength=3.0,
+                             Emission_Color=(1.0, 0.5, 0.0, 1)).outputs[0]
+    _, warnings, data = closures_of(volume_material("PV", principled))
+    assert not warnings
+    v = data.volume
+    # Cycles: sigma_s = colour * density, sigma_t = (colour + (1 - colour)(1 - sqrt(absorption))) * density
+    assert v["sigma_s"] == approx((1.0, 0.5, 2.0)) and v["g"] == approx(-0.2)
+    assert v["sigma_a"] == approx((0.5, 1.5, 0.0)) and v["emission"] == approx((3.0, 1.5, 0.0))
+
+
+def test_bad_volume_inputs_warn_and_clamp():
+    def bad(density):
+        return lambda nodes, links: ms.set_inputs(nodes.new("ShaderNodeVolumeScatter"), Color=(0.5, 0.5, 0.5, 1),
+                                                  Density=density).outputs[0]
+    _, warnings, data = closures_of(volume_material("Neg", bad(-3.0)))
+    assert len(warnings) == 1 and "clamped" in warnings[0]
+    assert data.volume is None  # nothing left: no medium
+    _, warnings, data = closures_of(volume_material("NaN", bad(float("nan"))))
+    assert data.volume is None or all(math.isfinite(x) for x in data.volume["sigma_s"])

@@ -10,7 +10,7 @@ from .camera import ExportError, camera_params
 from .light import LightData, collect_lights
 from .material import MaterialData, MaterialTable, add_materials
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
-from .world import WorldSky, WorldTexture, world_color, world_texture
+from .world import WorldSky, WorldTexture, world_color, world_texture, world_volume
 
 __all__ = ("ExportCancelled", "ExportError", "add_lights", "replace_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldSky", "WorldTexture",
            "export_scene", "to_core")
@@ -28,6 +28,7 @@ class SceneData:
     images: list = field(default_factory=list)  # shader.ImageData the material programs use
     material_names: list = field(default_factory=list)  # per material: the bpy name ("" = none)
     uv_sets: object = None  # shader.UvSets: the global uv-set numbering the programs use
+    world_volume: dict = None  # the world's homogeneous medium (add_shader's volume dict) or None
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None):
@@ -58,7 +59,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     return SceneData(meshes, material_slots, table.materials,
                      world_color(scene.world, warn), camera, lights,
                      world_texture(scene.world, warn), table.images.images,
-                     table.material_names(), table.uv_sets)
+                     table.material_names(), table.uv_sets, world_volume(scene.world, warn))
 
 
 # Measured by tests/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise
@@ -189,3 +190,8 @@ def set_world(scene, data, warn):
         scene.set_world_color(tuple(float(c) for c in mean_radiance(tex)))
     else:
         scene.set_world_color(data.world_color)
+    volume = getattr(data, "world_volume", None)
+    if hasattr(scene, "set_world_volume"):
+        scene.set_world_volume(volume)
+    elif volume is not None:
+        warn("World volumes are not supported by this build of the Pathlight core; ignored")

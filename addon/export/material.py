@@ -17,6 +17,7 @@ class MaterialData(NamedTuple):
     volume_absorption: tuple = None  # ((r, g, b), density) or None
     use_schlick: bool = False
     uv_sets: dict = {}  # global uv-set index -> UV map name ("" = active render) it reads
+    volume: dict = None  # the homogeneous medium inside (sigma_a, sigma_s, g, emission) or None
 
 
 DEFAULT_MATERIAL = MaterialData("Pathlight Default", GREY, BLACK)
@@ -89,7 +90,7 @@ def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False):
     if compiled.problems:
         warn(f"Material '{mat.name}': " + "; ".join(compiled.problems))
     return MaterialData(mat.name, base, emission, compiled.program, compiled.volume_absorption,
-                        use_schlick, compiled.uv_sets)
+                        use_schlick, compiled.uv_sets, compiled.volume)
 
 
 class MaterialTable:
@@ -157,9 +158,10 @@ def put_material(scene, m, image_ids, core_id=None):
         return core_id
     program = [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op
                for op in m.program]
+    kw = {} if m.volume is None else {"volume": m.volume}  # older cores lack it
     if core_id is None:
         return scene.add_shader(m.name, program, volume_absorption=m.volume_absorption,
-                                use_schlick=m.use_schlick)
+                                use_schlick=m.use_schlick, **kw)
     scene.set_shader(core_id, m.name, program, volume_absorption=m.volume_absorption,
-                     use_schlick=m.use_schlick)
+                     use_schlick=m.use_schlick, **kw)
     return core_id

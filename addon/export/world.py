@@ -5,6 +5,7 @@ Supported node graph (Cycles' meaning): [Texture Coordinate (Generated/Object)] 
 Color, times Strength.
 """
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -87,6 +88,31 @@ def world_color(world, warn):
         warn(f"World '{world.name}': linked input(s) {', '.join(linked)} of '{node.name}' are "
              "not supported yet; using their constant values")
     return scaled(socket_rgb(color), strength.default_value)
+
+
+def world_volume(world, warn):
+    """The world's Volume as the core's homogeneous-medium dict (sigma_a, sigma_s, g,
+    emission), or None: constant inputs, as materials' volumes (shader.ShaderCompiler)."""
+    if world is None or not world.use_nodes or world.node_tree is None:
+        return None
+    output = world.node_tree.get_output_node('CYCLES')
+    socket = output.inputs.get("Volume") if output is not None else None
+    if socket is None or not socket.is_linked:
+        return None
+    from .shader import ShaderCompiler
+    compiler = ShaderCompiler([], {})
+    try:
+        vol = compiler.volume(socket, world.name)
+    except Exception as e:  # a compiler bug must not stop the render
+        warn(f"World '{world.name}': its Volume could not be compiled ({type(e).__name__}: {e}); ignored")
+        return None
+    if compiler.problems:
+        warn(f"World '{world.name}' volume: " + "; ".join(compiler.problems))
+    if isinstance(vol, tuple):  # a lone Volume Absorption
+        (color, density) = vol
+        d = max(float(density), 0.0) if math.isfinite(density) else 0.0
+        vol = {"sigma_a": tuple(max(1.0 - min(max(c, 0.0), 1.0), 0.0) * d for c in color)}
+    return vol
 
 
 def world_texture(world, warn):

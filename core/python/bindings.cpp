@@ -11,6 +11,7 @@
 
 #include "geometry/polygon_mesh.h"
 #include "render/session.h"
+#include "scene/phase.h"
 #include "util/big_alloc.h"
 #include "util/hash.h"
 #include "util/lookup3.h"
@@ -822,7 +823,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
 }
 
 Material make_shader(const PyScene& self, const std::string& name, const py::list& program,
-                     const py::object& volume_absorption, bool use_schlick) {
+                     const py::object& volume_absorption, bool use_schlick, const py::object& volume = py::none()) {
   Material mat;
   mat.name = name;
   mat.program = parse_program(self, program);
@@ -834,6 +835,19 @@ Material make_shader(const PyScene& self, const std::string& name, const py::lis
     float density = t[1].cast<float>();
     density = std::isfinite(density) && density > 0.0f ? density : 0.0f;
     mat.program.sigma_a = (Vec3(1.0f) - color) * density;
+  }
+  if (!volume.is_none()) {
+    // The homogeneous medium inside: coefficients per unit length (NaN or negative: 0, as the
+    // colours of to_color), anisotropy clamped into (-1, 1).
+    const auto d = volume.cast<py::dict>();
+    for (const auto& kv : d) {
+      const std::string k = kv.first.cast<std::string>();
+      if (k == "sigma_a") mat.program.sigma_a = to_color(kv.second, "volume sigma_a");
+      else if (k == "sigma_s") mat.program.sigma_s = to_color(kv.second, "volume sigma_s");
+      else if (k == "emission") mat.program.volume_emission = to_color(kv.second, "volume emission");
+      else if (k == "g") mat.program.phase_g = clamp_phase_g(kv.second.cast<float>());
+      else throw std::invalid_argument("unknown volume key '" + k + "' (sigma_a, sigma_s, g, emission)");
+    }
   }
   return mat;
 }
@@ -1381,6 +1395,45 @@ PYBIND11_MODULE(pathlight_core, m) {
       "Blender does; faces of 5+ corners get a fan (counted: the caller replaces those). corners=False: None "
       "instead of the corner indices (not computed).");
   m.def(
+      "sample_henyey_greenstein",
+      [](float g, const FloatArray& u) {
+        if (u.ndim() != 2 || u.shape(1) != 2) throw std::invalid_argument("u must have shape (N, 2)");
+        const float gc = clamp_phase_g(g);
+        FloatArray dirs({u.shape(0), py::ssize_t(3)}), pdfs({u.shape(0)});
+        const float* up = u.data();
+        float* d = dirs.mutable_data();
+        float* p = pdfs.mutable_data();
+        for (py::ssize_t i = 0; i < u.shape(0); ++i) {
+          const Vec3 w = hg_sample(gc, Vec3(0.0f, 0.0f, 1.0f), up[2 * i], up[2 * i + 1], p[i]);
+          d[3 * i] = w.x, d[3 * i + 1] = w.y, d[3 * i + 2] = w.z;
+        }
+        return py::make_tuple(dirs, pdfs);
+      },
+      py::arg("g"), py::arg("u"),
+      "(directions (N, 3), pdfs (N,)): the integrator's Henyey-Greenstein samples about +z for "
+      "uniform numbers u (N, 2) (g clamped as the integrator does); for sampling tests.");
+  m.def(
+      "henyey_greenstein_pdf",
+      [](float g, const FloatArray& cos_t) {
+        FloatArray out({cos_t.size()});
+        for (py::ssize_t i = 0; i < cos_t.size(); ++i) out.mutable_data()[i] = hg_phase(clamp_phase_g(g), cos_t.data()[i]);
+        return out;
+      },
+      py::arg("g"), py::arg("cos_theta"), "The phase function's density at the given cosines.");
+  m.def(
+      "sample_free_flight",
+      [](const py::object& sigma_t, const FloatArray& u) {
+        if (u.ndim() != 2 || u.shape(1) != 2) throw std::invalid_argument("u must have shape (N, 2)");
+        const Vec3 st = to_color(sigma_t, "sigma_t");
+        FloatArray t({u.shape(0)});
+        for (py::ssize_t i = 0; i < u.shape(0); ++i)
+          t.mutable_data()[i] = sample_free_flight(st, u.data()[2 * i], u.data()[2 * i + 1]);
+        return t;
+      },
+      py::arg("sigma_t"), py::arg("u"),
+      "The integrator's free-flight distances in a homogeneous medium of RGB extinction sigma_t for "
+      "uniform numbers u (N, 2); for sampling tests (their density: the channels' average).");
+  m.def(
       "object_random_id",
       [](const std::string& name) {
         // Cycles' id of an object that is not an instance: hash_string (i * 37 + c over the
@@ -1671,6 +1724,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("diffuse_bounces", &RenderSettings::diffuse_bounces)
       .def_readwrite("glossy_bounces", &RenderSettings::glossy_bounces)
       .def_readwrite("transmission_bounces", &RenderSettings::transmission_bounces)
+      .def_readwrite("volume_bounces", &RenderSettings::volume_bounces)
       .def_property(
           "filter_type", [](const RenderSettings& s) { return enum_name(s.filter_type, kFilterNames); },
           [](RenderSettings& s, const std::string& v) { s.filter_type = enum_from_name(v, "filter_type", kFilterNames); })
@@ -1756,13 +1810,15 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "add_shader",
           [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,
-             bool use_schlick) {
+             bool use_schlick, const py::object& volume) {
             self.check_editable();
-            Material mat = make_shader(self, name, program, volume_absorption, use_schlick);
+            Material mat = make_shader(self, name, program, volume_absorption, use_schlick, volume);
             return self.scene->add_material(std::move(mat));
           },
           py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
-          py::arg("use_schlick") = false)
+          py::arg("use_schlick") = false, py::arg("volume") = py::none(),
+          "volume: the homogeneous medium inside, a dict of sigma_a, sigma_s, emission (RGB per unit "
+          "length) and g (Henyey-Greenstein anisotropy); it replaces volume_absorption's sigma_a.")
       .def(
           "set_material",
           [](PyScene& self, uint32_t id, const std::string& name, const py::object& base_color,
@@ -1777,12 +1833,12 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "set_shader",
           [](PyScene& self, uint32_t id, const std::string& name, const py::list& program,
-             const py::object& volume_absorption, bool use_schlick) {
+             const py::object& volume_absorption, bool use_schlick, const py::object& volume) {
             self.check_editable();
-            self.scene->set_material(id, make_shader(self, name, program, volume_absorption, use_schlick));
+            self.scene->set_material(id, make_shader(self, name, program, volume_absorption, use_schlick, volume));
           },
           py::arg("id"), py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
-          py::arg("use_schlick") = false, "Replaces material `id` (as add_shader); the next commit() keeps the BVH.")
+          py::arg("use_schlick") = false, py::arg("volume") = py::none(), "Replaces material `id` (as add_shader); the next commit() keeps the BVH.")
       .def(
           "clear_lights",
           [](PyScene& self) {
@@ -2034,6 +2090,17 @@ PYBIND11_MODULE(pathlight_core, m) {
             self.scene->set_world_color(to_color(c, "world color"));
           },
           py::arg("color"))
+      .def(
+          "set_world_volume",
+          [](PyScene& self, const py::object& volume) {
+            self.check_editable();
+            ShaderProgram v;
+            if (!volume.is_none()) v = make_shader(self, "world volume", py::list(), py::none(), false, volume).program;
+            self.scene->set_world_volume(v);
+          },
+          py::arg("volume"),
+          "The world's Volume (add_shader's volume dict, or None): a homogeneous medium filling the "
+          "scene outside objects' media.")
       .def(
           "set_camera",
           [](PyScene& self, const CameraDesc& c) {

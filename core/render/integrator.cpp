@@ -1,4 +1,5 @@
 #include "render/integrator.h"
+#include "scene/phase.h"
 
 namespace pl {
 namespace {

@@ -16,6 +16,7 @@ struct IntegratorSettings {
   int diffuse_bounces = 1024;
   int glossy_bounces = 1024;
   int transmission_bounces = 1024;
+  int volume_bounces = 1024;  // scatterings in volumes (Blender's Volume bounces)
   bool use_nee = true;
   int rr_start_bounce = 3;  // Russian roulette from this bounce on
   // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not

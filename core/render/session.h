@@ -34,7 +34,7 @@ struct RenderSettings {
   SamplerType sampler = SamplerType::Sobol;
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic
-  int diffuse_bounces = 1024, glossy_bounces = 1024, transmission_bounces = 1024;
+  int diffuse_bounces = 1024, glossy_bounces = 1024, transmission_bounces = 1024, volume_bounces = 1024;
   // Renders sample indices [sample_offset, sample_offset + samples): partial renders of one
   // frame on several machines, merged by sample count, equal one render of all samples.
   int sample_offset = 0;

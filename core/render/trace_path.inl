@@ -36,29 +36,98 @@ template <bool kDiffuseOnly = false>
   return f;
 }
 
-struct Medium {  // Beer's law: nested absorbing media, innermost last
-  Vec3 sigma[4];
-  uint32_t material[4];
+// The media a path is inside, innermost last (nested glass, volumes in volumes): each layer is
+// a material's homogeneous medium.
+struct MediumLayer {
+  Vec3 sigma_a, sigma_s, emission;
+  float g;
+  uint32_t material;
+};
+constexpr uint32_t kWorldMedium = 0xFFFFFFFFu;  // the world's Volume: never left
+
+struct Medium {
+  MediumLayer layer[4];
   int n = 0;
-  Vec3 current() const { return n ? sigma[n - 1] : Vec3(0.0f); }
-  void enter(uint32_t m, Vec3 s) {
-    if (n < 4) {
-      sigma[n] = s;
-      material[n++] = m;
-    }
+  const MediumLayer* top() const { return n ? &layer[n - 1] : nullptr; }
+  Vec3 current() const { return n ? layer[n - 1].sigma_a : Vec3(0.0f); }  // Beer's law only
+  void enter(uint32_t m, const ShaderProgram& p) {
+    if (n < 4) layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase_g, m};
   }
   void leave(uint32_t m) {
     for (int i = n - 1; i >= 0; --i)
-      if (material[i] == m) {
-        for (int j = i; j + 1 < n; ++j) {
-          sigma[j] = sigma[j + 1];
-          material[j] = material[j + 1];
-        }
+      if (layer[i].material == m) {
+        for (int j = i; j + 1 < n; ++j) layer[j] = layer[j + 1];
         --n;
         return;
       }
   }
+  // Crossing a surface of material m (front: from outside, along its normal's opposite).
+  void cross(uint32_t m, const ShaderProgram& p, bool front) {
+    if (!p.has_medium()) return;
+    if (front) enter(m, p);
+    else leave(m);
+  }
 };
+
+// Radiance a homogeneous medium emits along a segment of length t, seen through its own
+// extinction: the integral of exp(-sigma_t s) Le ds from 0 to t.
+inline Vec3 medium_emission(const MediumLayer& m, float t) {
+  const Vec3 st = m.sigma_a + m.sigma_s;
+  const auto one = [t](float s, float e) {
+    if (e == 0.0f) return 0.0f;
+    if (s > 0.0f) return e * -std::expm1(-s * std::min(t, 1e30f)) / s;
+    return std::isfinite(t) ? e * t : 0.0f;  // no extinction, unbounded: nothing sensible
+  };
+  return {one(st.x, m.emission.x), one(st.y, m.emission.y), one(st.z, m.emission.z)};
+}
+
+// Transmittance of a shadow ray that starts in `medium`: surfaces must be transparent (as
+// Scene::transmittance_through), and the media between them attenuate by Beer's law; crossing
+// a surface with a medium enters or leaves it. occlude false: the ray sees no surfaces, only
+// the medium it starts in.
+Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude) {
+  Vec3 T(1.0f);
+  if (!occlude) {
+    if (const MediumLayer* m = medium.top())
+      T = medium_transmittance(m->sigma_a + m->sigma_s, ray.tmax * length(ray.dir));
+    return T;
+  }
+  for (int i = 0; i < 64; ++i) {
+    const float len = length(ray.dir);  // each crossing shortens it (the end point stays)
+    Hit h;
+    const bool found = scene.intersect(ray, h);
+    if (const MediumLayer* m = medium.top()) {
+      const float seg = found ? h.t * len : ray.tmax * len;
+      T = T * medium_transmittance(m->sigma_a + m->sigma_s, seg);
+    }
+    if (!found) return T;
+    SurfacePoint sp;
+    scene.surface_point(h, sp);
+    const Material& mat = scene.material(sp.material);
+    if (!mat.transparent) return Vec3(0.0f);
+    ClosureList cl;
+    RayState shadow;
+    shadow.flags = kRayShadow;
+    shadow.length = h.t * len;
+    scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
+    Vec3 pass(0.0f);
+    for (int c = 0; c < cl.n; ++c)
+      if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
+    T = T * vmin(pass, Vec3(1.0f));
+    if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
+    const bool front = dot(ray.dir, sp.ng) < 0.0f;
+    medium.cross(sp.material, mat.program, front);
+    const Vec3 side = front ? -sp.ng : sp.ng;
+    const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+    if (std::isfinite(ray.tmax)) {
+      const Vec3 end = ray.org + ray.dir * ray.tmax;
+      ray.dir = end - org;
+      ray.tmax = 1.0f;
+    }
+    ray.org = org;
+  }
+  return Vec3(0.0f);
+}
 
 inline Vec3 beer(Vec3 sigma, float t) {
   return {std::exp(-sigma.x * t), std::exp(-sigma.y * t), std::exp(-sigma.z * t)};
@@ -111,13 +180,18 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   Vec3 mis_n(0.0f);         // its shading normal (the light tree's choice depends on it)
                             // (without the tree: stays zero, unused)
   const bool nee = s.use_nee && scene.has_lights();
-  int diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
+  // Media that scatter or emit, or volume-only boundaries: distance sampling and shadow rays
+  // through media (else the media kernel keeps plain Beer's law, as before volumes).
+  const bool volumes = kMedia && scene.features().volumes;
+  int diffuse = 0, glossy = 0, transmission = 0, transparent = 0, volume_count = 0;
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
   const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
   Medium medium;
+  if constexpr (kMedia)
+    if (volumes && scene.world_volume().has_medium()) medium.enter(kWorldMedium, scene.world_volume());
   ClosureList cl;
   // The camera ray and its continuations through Transparent BSDFs: what it finds is "seen
   // directly" (transparent film, Emit, Env and the data passes).
@@ -131,7 +205,97 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     Vec3 sigma(0.0f);
     if constexpr (kMedia) {
       sigma = medium.current();
-      if (!is_black(sigma)) beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
+      const MediumLayer* m = medium.top();
+      if (m && volumes) {
+        // A homogeneous medium: its emission along the segment (analytic), then a free-flight
+        // distance that either scatters before the surface or reaches it.
+        sigma = Vec3(0.0f);  // this surface's light samples go through shadow_transmittance
+        const float len = length(ray.dir);
+        const float seg = found ? hit.t * len : kInf;
+        if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
+        const Vec3 st = m->sigma_a + m->sigma_s;
+        if (!is_black(m->sigma_s)) {
+          const Vec2 ud = sampler.get2d();
+          const float t = sample_free_flight(st, ud.x, ud.y);
+          if (t < seg) {
+            const float pdf = free_flight_pdf(st, t);
+            if (!(pdf > 0.0f)) break;
+            beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
+            if (emission_only) break;
+            const Vec3 d = ray.dir / len;
+            const Vec3 p = ray.org + d * t;
+            const float g = m->g;
+            direct = false;
+            want_data = false;
+            const bool last = bounce >= s.max_bounces;
+            float u_rr = -1.0f;
+            if (nee) {  // a light sample, weighted against the phase function's sample
+              DirectSample ds;
+              ds.path = &ray_state;
+              const Vec2 u_sel = sampler.get2d();
+              u_rr = u_sel.y;
+              const Vec2 u_pt = sampler.get2d();
+              if (scene.sample_direct(p, u_sel.x, u_pt, ds, !last)) {
+                const float ph = hg_phase(g, dot(d, ds.wi));
+                if (ph > 0.0f && !is_black(ds.li)) {
+                  Ray shadow;
+                  shadow.org = p;
+                  if (std::isinf(ds.dist)) {
+                    shadow.dir = ds.wi;
+                    shadow.tmax = kInf;
+                  } else {
+                    const bool tri = !is_black(ds.target_normal);
+                    const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
+                    shadow.dir = target - shadow.org;
+                    shadow.tmax = 1.0f - 1e-4f;
+                  }
+                  ++c.rays;
+                  const Vec3 vis = shadow_transmittance(scene, shadow, medium, ds.cast_shadow);
+                  if (!is_black(vis)) {
+                    const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
+                    L += beta * ds.li * vis * (ph * w / ds.pdf);
+                  }
+                }
+              }
+            }
+            if (last && nee) break;
+            const Vec2 u = sampler.get2d();
+            float ph_pdf;
+            const Vec3 wi = hg_sample(g, d, u.x, u.y, ph_pdf);  // exact: the weight is 1
+            if (!(ph_pdf > 0.0f)) break;
+            prev_pdf = ph_pdf;
+            prev_delta = false;
+            mis_org = p;
+            mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
+            // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
+            if (volume_count >= s.volume_bounces) emission_only = true;
+            ++volume_count;
+            ++bounce;
+            length_before = 0.0f;
+            ray_state.flags = kRayVolume;
+            ray_state.depth = uint16_t(std::min(bounce, 65535));
+            if (last) emission_only = true;
+            if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
+              const float survive = std::min(1.0f, std::sqrt(max_component(beta) * eta_scale));
+              if (u_rr < 0.0f) u_rr = sampler.get2d().x;
+              if (!(survive > 0.0f) || u_rr >= survive) break;
+              beta = beta / survive;
+            }
+            if (!is_finite(beta)) break;
+            ray.org = p;
+            ray.dir = wi;
+            ray.tmax = kInf;
+            continue;
+          }
+          const float pass = free_flight_survival(st, seg);
+          if (!(pass > 0.0f)) break;
+          beta *= medium_transmittance(st, seg) / pass;
+        } else if (!is_black(st)) {
+          beta *= medium_transmittance(st, seg);
+        }
+      } else if (!is_black(sigma)) {
+        beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
+      }
     }
     if (!found) {
       // Escaped: the world, weighted against the environment light sample that could find it
@@ -227,7 +391,13 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             shadow.dir = target - shadow.org;
             shadow.tmax = 1.0f - 1e-4f;  // pbrt's ShadowEpsilon, on top of both offsets
           }
-          if (ds.cast_shadow) {
+          if (kMedia && volumes) {
+            // Through the media on the sample's side of the surface and the volumes beyond.
+            Medium side = medium;
+            if (!reflection) side.cross(sp.material, scene.material(sp.material).program, front);
+            ++c.rays;
+            vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow);
+          } else if (ds.cast_shadow) {
             ++c.rays;
             vis = scene.transmittance(shadow);
           }
@@ -322,11 +492,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe)) eta_scale *= bs.eta * bs.eta;
       if constexpr (kMedia) {
         if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
-          const Material& mat = scene.material(sp.material);
-          if (!is_black(mat.program.sigma_a)) {
-            if (front) medium.enter(sp.material, mat.program.sigma_a);
-            else medium.leave(sp.material);
-          }
+          medium.cross(sp.material, scene.material(sp.material).program, front);
         }
       }
     }

@@ -769,6 +769,7 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"textures", f.textures},
           {"normal maps", f.normal_maps},
           {"media", f.media},
+          {"volumes", f.volumes},
           {"mesh lights", f.emission},
           {"point lights", light(LightType::Point)},
           {"spot lights", light(LightType::Spot)},
@@ -826,7 +827,9 @@ void Scene::detect_features() {
   for (size_t id = 0; id < materials_.size(); ++id) {
     if (!used[id]) continue;
     const Material& m = materials_[id];
-    f.media = f.media || !is_black(m.program.sigma_a);
+    f.media = f.media || m.program.has_medium();
+    f.volumes = f.volumes || (m.program.has_medium() && (!is_black(m.program.sigma_s) ||
+                                                         !is_black(m.program.volume_emission) || m.transparent));
     if (m.constant) {  // the closures it does add
       for (int i = 0; i < m.cached.n; ++i) {
         const Bsdf& b = m.cached.c[size_t(i)].bsdf;
@@ -854,6 +857,7 @@ void Scene::detect_features() {
   }
   f.emission = !emitters_.empty();
   f.environment = env_.valid();
+  if (world_volume_.has_medium()) f.media = f.volumes = true;
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
   f.light_tree = use_tree_;

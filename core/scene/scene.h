@@ -117,6 +117,9 @@ struct SceneFeatures {
   bool textures = false;     // Image Texture nodes
   bool normal_maps = false;  // Normal Map or Bump nodes
   bool media = false;        // Beer's law absorption inside some material
+  // Media that scatter or emit, or volume boundaries that shadow rays pass (a Volume without a
+  // Surface): shadow rays then sum the media they cross, and paths sample distances in them.
+  bool volumes = false;
   bool emission = false;     // emissive triangles (mesh lights)
   bool environment = false;  // an HDR environment (importance-sampled) rather than a constant world
   bool world_light = false;  // a non-black constant world colour
@@ -191,6 +194,10 @@ class Scene {
   void set_material(uint32_t id, Material m);
   void clear_lights() { lights_.clear(); committed_ = false; }
   void set_world_color(Vec3 c) { world_color_ = c; }
+  // The world's Volume: a homogeneous medium filling all space outside objects' media (only
+  // its medium fields are read); the camera starts in it.
+  void set_world_volume(const ShaderProgram& v) { world_volume_ = v; committed_ = false; }
+  const ShaderProgram& world_volume() const { return world_volume_; }
   void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
   void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
@@ -374,6 +381,7 @@ class Scene {
   std::vector<Instance> instances_;
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
   Vec3 world_color_{0.0f};
+  ShaderProgram world_volume_;
   CameraDesc camera_;
   bool has_camera_ = false;
   bool committed_ = false;

@@ -531,7 +531,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
                                               kRaySingular, kRayReflect, kRayTransmit};
         float v = 0.0f;
         if (op.sub < 7) v = (ray.flags & kFlagOf[op.sub]) ? 1.0f : 0.0f;
-        else if (op.sub == 7) v = 0.0f;  // Is Volume Scatter Ray: no volume scattering yet
+        else if (op.sub == 7) v = (ray.flags & kRayVolume) ? 1.0f : 0.0f;  // Is Volume Scatter Ray
         else if (op.sub == 8) v = ray.length;
         else {
           const uint16_t counts[] = {ray.depth, ray.diffuse, ray.glossy, ray.transparent, ray.transmission};

@@ -174,6 +174,7 @@ enum RayFlags : uint8_t {
   kRaySingular = 16,  // after a delta (sharp mirror or glass) bounce
   kRayReflect = 32,   // after a reflection
   kRayTransmit = 64,  // after a transmission
+  kRayVolume = 128,   // after a scattering in a volume
 };
 struct RayState {
   uint8_t flags = kRayCamera;
@@ -221,6 +222,12 @@ struct ShaderProgram {
   bool uses_attributes = false;
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
+  // The homogeneous medium inside (the material's Volume): scattering (per unit length), its
+  // Henyey-Greenstein anisotropy and the emitted radiance per unit length.
+  Vec3 sigma_s{0.0f};
+  float phase_g = 0.0f;
+  Vec3 volume_emission{0.0f};
+  bool has_medium() const { return !is_black(sigma_a) || !is_black(sigma_s) || !is_black(volume_emission); }
   std::vector<Float4> tables;  // Ramp lookup tables (Color Ramp, RGB Curves), as Cycles bakes them
 };
 
