@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from core_scenes import core
 from test_core_materials import closure, furnace
@@ -14,6 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 import gen_microfacet_tables as gen  # noqa: E402
 
 pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 
 def test_tables_match_a_fresh_integration():
