@@ -1163,15 +1163,12 @@ def test_light_path_outputs_are_ops():
         return [s for s in mix.outputs if s.identifier == "Result_Color"][0]
     # Every output the core's path state knows: one op each, no warning.
     for output in ("Is Shadow Ray", "Is Camera Ray", "Is Diffuse Ray", "Is Singular Ray",
-                   "Ray Length", "Ray Depth", "Transparent Depth", "Transmission Depth"):
+                   "Is Volume Scatter Ray", "Ray Length", "Ray Depth", "Transparent Depth",
+                   "Transmission Depth"):
         data, warnings = compile_(diffuse_fed_by(output, lambda n, l: build(n, l, output)))
         assert not warnings, warnings
         assert [op[2] for op in data.program if op[0] == "light_path"] == \
             [output.upper().replace(" ", "_")]
-    # Is Volume Scatter Ray: 0 without volume scattering (folded, no warning).
-    mat = diffuse_fed_by("Volume", lambda n, l: build(n, l, "Is Volume Scatter Ray"))
-    data, warnings = compile_(mat)
-    assert not warnings and constant_color(mat) == approx((0.1, 0.1, 0.1))
 
 
 @pytest.mark.parametrize("op, a, b, c, expect", [

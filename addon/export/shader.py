@@ -1065,18 +1065,16 @@ class ShaderCompiler:
                  "Parametric": "PARAMETRIC", "Backfacing": "BACKFACING"}
 
     def light_path(self, node, out, ctx):
-        """Light Path: every output from the core's path state, as Cycles' (Is Volume Scatter
-        Ray is 0: there is no volume scattering)."""
+        """Light Path: every output from the core's path state, as Cycles'."""
         which = out.identifier.upper().replace(" ", "_")
-        if which == "IS_VOLUME_SCATTER_RAY":
-            return ZERO
         if which not in self._LIGHT_PATH:
             self.problem(f"'{node.name}': output {out.name} is not supported (0)")
             return ZERO
         return self.emit("float", "light_path", which)
 
     _LIGHT_PATH = {"IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY",
-                   "IS_SINGULAR_RAY", "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY", "RAY_LENGTH",
+                   "IS_SINGULAR_RAY", "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY",
+                   "IS_VOLUME_SCATTER_RAY", "RAY_LENGTH",
                    "RAY_DEPTH", "DIFFUSE_DEPTH", "GLOSSY_DEPTH", "TRANSPARENT_DEPTH",
                    "TRANSMISSION_DEPTH"}
 
