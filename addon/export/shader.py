@@ -1653,7 +1653,7 @@ class ShaderCompiler:
         elif t == 'BSDF_PRINCIPLED':
             self.principled(node, ctx, weight)
         elif t == 'HOLDOUT':
-            self.problem(f"'{node.name}': Holdout is not supported (ignored)")
+            self.closure("holdout", weight)
         else:
             self._fallback_shader(node, ctx, weight)
 

@@ -597,6 +597,8 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else if (kind == "transparent") {
         o.code = OpCode::Transparent;
         o.in[1] = p("color");
+      } else if (kind == "holdout") {
+        o.code = OpCode::Holdout;
       } else if (kind == "emission") {
         o.code = OpCode::Emission;
         o.in[1] = p("color");

@@ -307,7 +307,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if constexpr (kAovs) {
         if (direct && aov) {
           aov->environment = beta * bg;
-          if (s.transparent_background) aov->alpha = clampf(1.0f - average(beta), 0.0f, 1.0f);
+          // Alpha is 1 less what reaches the film transparently (the world and holdouts).
+          if (s.transparent_background) aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         }
         if (!(direct && s.transparent_background)) L += beta * bg * w;
       } else {
@@ -334,6 +335,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if constexpr (kAovs)
         if (direct && aov) aov->emission += beta * cl.emission;
     }
+    // Holdout seen directly (also through Transparent BSDFs), as Cycles' film_write_holdout:
+    // its weight times the throughput leaves the film transparent; other closures go on.
+    if constexpr (kAovs)
+      if (direct && aov && !is_black(cl.holdout)) aov->alpha = clampf(aov->alpha - average(beta * cl.holdout), 0.0f, 1.0f);
     if (kAovs && aov && (want_data || want_features)) {
       const bool flip = dot(sp.ng, wo) < 0.0f;  // normals face the viewer, as Cycles' sd->N
       if (want_data && direct) {

@@ -89,7 +89,11 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
     if (!(luminance(m.emission_estimate) > 0.0f)) m.emission_estimate = Vec3(1.0f);
   }
   m.transparent = false;
-  for (const ShaderOp& op : m.program.ops) m.transparent = m.transparent || op.code == OpCode::Transparent;
+  m.holdout = false;
+  for (const ShaderOp& op : m.program.ops) {
+    m.transparent = m.transparent || op.code == OpCode::Transparent;
+    m.holdout = m.holdout || op.code == OpCode::Holdout;
+  }
   m.constant = !m.program.varying;
   if (m.constant) {
     ctx.uv = nullptr;
@@ -508,7 +512,11 @@ void Scene::detect_rect(EmitterGroup& g, const InstanceData& in) const {
 
 void Scene::build_lights() {
   any_transparent_ = false;
-  for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
+  any_holdout_ = false;
+  for (const Material& m : materials_) {
+    any_transparent_ = any_transparent_ || m.transparent;
+    any_holdout_ = any_holdout_ || m.holdout;
+  }
   stats_.materials = materials_.size();
 
   // Every light in one distribution, chosen in proportion to an estimate of its power.
@@ -1132,6 +1140,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   if (mat.constant) {
     out.n = mat.cached.n;
     out.emission = mat.cached.emission;
+    out.holdout = mat.cached.holdout;
     out.has_nondelta = mat.cached.has_nondelta;
     const Frame f = Frame::from_normal(sp.ns);
     for (int i = 0; i < out.n; ++i) {

@@ -385,6 +385,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
   Float4 r[kMaxRegs];
   out.n = 0;
   out.emission = Vec3(0.0f);
+  out.holdout = Vec3(0.0f);
   auto reg = [&](int16_t i) -> const Float4& {
     static const Float4 zero{};
     return i == kNoReg ? zero : r[i];
@@ -921,6 +922,9 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       }
       case OpCode::Transparent:
         out.add(TransparentBsdf{}, clean_color(col(op.in[0]) * col(op.in[1])), Frame::from_normal(ctx.ns));
+        break;
+      case OpCode::Holdout:
+        out.holdout += clean_color(col(op.in[0]));
         break;
       case OpCode::Emission:
         out.emission += clean_color(col(op.in[0]) * col(op.in[1]));
