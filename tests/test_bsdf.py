@@ -13,6 +13,7 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 N = 200_000
 CASES = [
     ("diffuse", {}),
+    ("translucent", {}),  # diffuse transmission (Translucent BSDF)
     ("conductor", {"alpha": 0.05}),
     ("conductor", {"alpha": 0.3}),
     ("conductor", {"alpha": 0.8, "f0": (0.9, 0.6, 0.3), "schlick": True}),
@@ -149,6 +150,18 @@ def test_white_furnace_energy():
             a = albedo(kind, params, w, 50_000)
             scale = 1.5**2 if kind == "dielectric" and params.get("transmission", True) else 1.0
             assert a.max() <= 1.0 * scale + 0.01, (kind, params, w, a)
+
+
+def test_translucent_transmits_all_to_the_other_side():
+    # A white Translucent BSDF conserves energy (Cycles' bsdf_translucent: cos / pi on the far
+    # side), from either side, and never reflects.
+    u = np.random.default_rng(4).random((100_000, 3), dtype=np.float32)
+    for wo in WO:
+        wi, w, pdf, flags = pc.bsdf_sample("translucent", {}, wo, u)
+        assert abs(w[:, 0].mean() - 1.0) < 1e-3
+        assert ((flags & 2) != 0).all() and (wi[:, 2] * wo[2] < 0).all()
+        f, _ = pc.bsdf_eval("translucent", {}, wo, np.array([(0.0, 0.0, math.copysign(1.0, wo[2]))], np.float32))
+        assert f[0, 0] == 0.0
 
 
 def test_fresnel_and_total_internal_reflection():

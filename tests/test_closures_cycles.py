@@ -67,3 +67,17 @@ def test_holdout_alpha_and_colour(film_transparent):
     assert cycles[..., 3].min() < 0.05 and 0.3 < cycles[..., 3].max()  # the scene shows holdouts
     assert np.abs(a - b).max() < 0.02, np.round(a - b, 3)
     assert_agree(f"holdout RGB (film_transparent={film_transparent})", ours, cycles)
+
+
+def test_translucent_sphere_and_card():
+    # A translucent sphere (light crosses it twice, diffusely) and a translucent card lit from
+    # above, seen from above: what it shows is the floor's light transmitted through it.
+    def build():
+        scene = ms.studio(48)
+        mat = ms.bsdf_material("Translucent", "ShaderNodeBsdfTranslucent", Color=(0.8, 0.6, 0.3, 1.0))[0]
+        ms.add_sphere("Sphere", 0.6, mat, location=(-0.7, 0.0, 0.6))
+        card = ms.bsdf_material("Card", "ShaderNodeBsdfTranslucent", Color=(0.3, 0.7, 0.9, 1.0))[0]
+        ms.add_plane("Card", 1.0, card, location=(0.8, 0.0, 1.0), rotation_euler=(0.3, 0.0, 0.0))
+        return scene
+    ours, cycles = render_pair(build, 256)
+    assert_agree("translucent", ours, cycles)

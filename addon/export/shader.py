@@ -1645,6 +1645,9 @@ class ShaderCompiler:
                          color=inp("Color", "color"), roughness=rough, ior=inp("IOR", "float"),
                          normal=self.normal(node, ctx),
                          multiscatter=self._multiscatter(node, rough) if t == 'BSDF_GLASS' else None)
+        elif t == 'BSDF_TRANSLUCENT':
+            self.closure("translucent", weight, color=inp("Color", "color"),
+                         normal=self.normal(node, ctx))
         elif t == 'BSDF_TRANSPARENT':
             self.closure("transparent", weight, color=inp("Color", "color"))
         elif t == 'EMISSION':

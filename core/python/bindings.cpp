@@ -597,6 +597,9 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else if (kind == "transparent") {
         o.code = OpCode::Transparent;
         o.in[1] = p("color");
+      } else if (kind == "translucent") {
+        o.code = OpCode::Translucent;
+        o.in[1] = p("color"); o.in[2] = p("normal");
       } else if (kind == "holdout") {
         o.code = OpCode::Holdout;
       } else if (kind == "emission") {
@@ -1271,6 +1274,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     return d;
   }
   if (kind == "transparent") return TransparentBsdf{};
+  if (kind == "translucent") return TranslucentBsdf{};
   throw std::invalid_argument("unknown bsdf '" + kind + "'");
 }
 

@@ -153,7 +153,7 @@ inline Vec3 closure_albedo(const Closure& c, Vec3 wo) {
 
 // Cycles' threshold between specular-like and rough closures (on alpha, Blender's roughness^2).
 inline bool closure_is_rough(const Closure& c) {
-  if (std::holds_alternative<DiffuseBsdf>(c.bsdf)) return true;
+  if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<TranslucentBsdf>(c.bsdf)) return true;
   if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) return m->alpha > 0.075f;
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) return d->alpha > 0.075f;
   return false;  // transparent
@@ -474,10 +474,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     } else {
       direct = false;
       want_data = false;
-      int& count = (bs.flags & kDiffuseLobe) ? diffuse : (bs.flags & kTransmit) ? transmission : glossy;
-      const int limit = (bs.flags & kDiffuseLobe) ? s.diffuse_bounces
-                        : (bs.flags & kTransmit)  ? s.transmission_bounces
-                                                  : s.glossy_bounces;
+      // Cycles' path_state_next: any transmission (Translucent's too) is a transmission bounce.
+      int& count = (bs.flags & kTransmit) ? transmission : (bs.flags & kDiffuseLobe) ? diffuse : glossy;
+      const int limit = (bs.flags & kTransmit)      ? s.transmission_bounces
+                        : (bs.flags & kDiffuseLobe) ? s.diffuse_bounces
+                                                    : s.glossy_bounces;
       if (count >= limit) emission_only = true;
       ++count;
       ++bounce;

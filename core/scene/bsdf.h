@@ -74,6 +74,30 @@ struct DiffuseBsdf {
   }
 };
 
+// Diffuse transmission (Blender's Translucent BSDF, Cycles' bsdf_translucent): Lambertian on
+// the side opposite wo, cosine-sampled there.
+struct TranslucentBsdf {
+  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+    if (same_side(wo, wi) || wo.z == 0.0f) {
+      pdf = 0.0f;
+      return Vec3(0.0f);
+    }
+    pdf = abs_cos(wi) * kInvPi;
+    return Vec3(pdf);
+  }
+  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
+    Vec3 l = sample_cosine_hemisphere(u);
+    if (l.z <= 0.0f || wo.z == 0.0f) return false;
+    if (wo.z > 0.0f) l.z = -l.z;
+    s.wi = l;
+    s.pdf = std::fabs(l.z) * kInvPi;
+    s.weight = Vec3(1.0f);
+    s.flags = kTransmit | kDiffuseLobe;
+    s.eta = 1.0f;
+    return true;
+  }
+};
+
 // How a GGX reflection lobe's Fresnel term follows the angle to its microfacet.
 enum class ConductorFresnel : uint8_t {
   Constant,    // f0 (Blender's Glossy BSDF)
@@ -285,7 +309,7 @@ struct TransparentBsdf {
   }
 };
 
-using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf>;
+using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf>;
 
 inline Vec3 bsdf_eval(const Bsdf& b, Vec3 wo, Vec3 wi, float& pdf) {
   return std::visit([&](const auto& x) { return x.eval(wo, wi, pdf); }, b);

@@ -842,6 +842,7 @@ void Scene::detect_features() {
       for (int i = 0; i < m.cached.n; ++i) {
         const Bsdf& b = m.cached.c[size_t(i)].bsdf;
         if (std::holds_alternative<DiffuseBsdf>(b)) f.diffuse = true;
+        else if (std::holds_alternative<TranslucentBsdf>(b)) f.diffuse = f.transmission = true;
         else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
         else if (std::get<DielectricBsdf>(b).transmission) f.transmission = true;
@@ -855,6 +856,7 @@ void Scene::detect_features() {
       if (m.constant) continue;
       switch (op.code) {  // every kind the op can add
         case OpCode::Diffuse: f.diffuse = true; break;
+        case OpCode::Translucent: f.diffuse = f.transmission = true; break;
         case OpCode::Glossy: f.glossy = true; break;
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
         case OpCode::Transparent: f.transparent = true; break;

@@ -892,6 +892,12 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         out.add(d, clean_color(col(op.in[0]) * col(op.in[1])), f);
         break;
       }
+      case OpCode::Translucent: {
+        Frame f;
+        diffuse_lobe(op.in[2], f);  // its frame only: Cycles applies no bump shadowing here
+        out.add(TranslucentBsdf{}, clean_color(col(op.in[0]) * col(op.in[1])), f);
+        break;
+      }
       case OpCode::Glossy: {
         ConductorBsdf g;
         g.alpha = roughness_to_alpha(val(op.in[2], 0.5f));
