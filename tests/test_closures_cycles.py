@@ -81,3 +81,32 @@ def test_translucent_sphere_and_card():
         return scene
     ours, cycles = render_pair(build, 256)
     assert_agree("translucent", ours, cycles)
+
+
+def metallic_scene(distribution):
+    """Metallic BSDF spheres: F82 Tint (Blender's defaults; a coloured one, rougher) and Physical
+    Conductor (the default IOR/Extinction; a copper-like one, smoother)."""
+    def build():
+        scene = ms.studio(48, camera=((0.0, -6.0, 2.4), (0.0, 0.0, 0.7)))
+        cases = [
+            ("F82", {}),
+            ("F82", {"Base_Color": (0.9, 0.5, 0.2, 1.0), "Edge_Tint": (0.3, 0.9, 1.0, 1.0), "Roughness": 0.7}),
+            ("PHYSICAL_CONDUCTOR", {}),
+            ("PHYSICAL_CONDUCTOR", {"IOR": (0.27, 0.68, 1.22), "Extinction": (3.6, 2.6, 2.3), "Roughness": 0.3}),
+        ]
+        for i, (mode, inputs) in enumerate(cases):
+            mat, nodes, links, out = ms.new_material(f"Metal{i}")
+            node = nodes.new("ShaderNodeBsdfMetallic")
+            node.fresnel_type = mode  # first: only the mode's sockets can be found by name
+            node.distribution = distribution
+            ms.set_inputs(node, **inputs)
+            links.new(node.outputs[0], out.inputs["Surface"])
+            ms.add_sphere(f"S{i}", 0.45, mat, location=(-1.5 + i, 0.0, 0.45 + 0.5 * (i % 2)))
+        return scene
+    return build
+
+
+@pytest.mark.parametrize("distribution", ["MULTI_GGX", "GGX"])
+def test_metallic_bsdf(distribution):
+    ours, cycles = render_pair(metallic_scene(distribution), 1024)
+    assert_agree(f"metallic {distribution}", ours, cycles)

@@ -138,7 +138,8 @@ inline Vec3 beer(Vec3 sigma, float t) {
 inline Vec3 closure_albedo(const Closure& c, Vec3 wo) {
   if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) {
     // Principled's lobes: their Fresnel at the view (a colour, not just F0, for the specular).
-    if (m->mode == ConductorFresnel::F82Tint || m->mode == ConductorFresnel::Dielectric)
+    if (m->mode == ConductorFresnel::F82Tint || m->mode == ConductorFresnel::Dielectric ||
+        m->mode == ConductorFresnel::Conductor)
       return c.weight * m->fresnel(std::fabs(dot(wo, c.frame.n)));
     return c.weight * m->f0;
   }

@@ -103,6 +103,8 @@ enum class ConductorFresnel : uint8_t {
   Constant,    // f0 (Blender's Glossy BSDF)
   Schlick,     // Schlick's curve from f0
   F82Tint,     // Cycles' F82-Tint: Schlick from f0 less b cos (1 - cos)^6 (Principled metal)
+  Conductor,   // a physical conductor's exact Fresnel for complex IOR n + ik (Metallic BSDF):
+               // f0 holds n and b holds k per channel
   Dielectric,  // Cycles' generalized Schlick in its physical mode: mix(f0, 1, s), s the real
                // Fresnel of eta remapped from [F0(eta), 1] to [0, 1] (Principled specular)
 };
@@ -120,6 +122,7 @@ struct ConductorBsdf {
       case ConductorFresnel::Constant: return f0;
       case ConductorFresnel::Schlick: return fresnel_schlick(f0, c);
       case ConductorFresnel::F82Tint: return fresnel_f82(c, f0, b);
+      case ConductorFresnel::Conductor: return fresnel_conductor(c, f0, b);
       case ConductorFresnel::Dielectric: {
         const float F = exact ? fresnel_dielectric(c, eta) : fresnel_schlick_dielectric(c, eta);
         const float F0 = f0_from_ior(eta);

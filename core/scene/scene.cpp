@@ -857,7 +857,7 @@ void Scene::detect_features() {
       switch (op.code) {  // every kind the op can add
         case OpCode::Diffuse: f.diffuse = true; break;
         case OpCode::Translucent: f.diffuse = f.transmission = true; break;
-        case OpCode::Glossy: f.glossy = true; break;
+        case OpCode::Glossy: case OpCode::Metallic: f.glossy = true; break;
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
         case OpCode::Transparent: f.transparent = true; break;
         case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;

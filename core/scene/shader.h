@@ -47,7 +47,7 @@ enum class OpCode : uint8_t {
   TexGabor,  // scene/tex_gabor.h
   AmbientOcclusion,  // traced by the scene (trace_ambient_occlusion)
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
-  Translucent,
+  Translucent, Metallic,
   Holdout,  // no BSDF: its weight makes the film transparent where seen directly
 };
 
