@@ -13,12 +13,15 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 N = 200_000
 CASES = [
     ("diffuse", {}),
+    ("translucent", {}),  # diffuse transmission (Translucent BSDF)
     ("conductor", {"alpha": 0.05}),
     ("conductor", {"alpha": 0.3}),
     ("conductor", {"alpha": 0.8, "f0": (0.9, 0.6, 0.3), "schlick": True}),
     # Principled's metal (F82-Tint) and dielectric specular (generalized Schlick, real Fresnel).
     ("conductor", {"alpha": 0.25, "f0": (0.9, 0.6, 0.3), "f82_tint": (0.4, 0.8, 1.0)}),
     ("conductor", {"alpha": 0.36, "f0": (0.06, 0.04, 0.02), "specular_eta": 1.5}),
+    # Metallic BSDF's physical conductor (f0: n, with extinction k; Blender's default gold-ish).
+    ("conductor", {"alpha": 0.3, "f0": (2.757, 2.513, 2.231), "conductor_k": (3.867, 3.404, 3.009)}),
     ("dielectric", {"alpha": 0.1, "eta": 1.5}),
     ("dielectric", {"alpha": 0.4, "eta": 1.33}),
     # Principled glass with a Specular Tint: coloured reflection, the rest transmitted.
@@ -149,6 +152,34 @@ def test_white_furnace_energy():
             a = albedo(kind, params, w, 50_000)
             scale = 1.5**2 if kind == "dielectric" and params.get("transmission", True) else 1.0
             assert a.max() <= 1.0 * scale + 0.01, (kind, params, w, a)
+
+
+def test_translucent_transmits_all_to_the_other_side():
+    # A white Translucent BSDF conserves energy (Cycles' bsdf_translucent: cos / pi on the far
+    # side), from either side, and never reflects.
+    u = np.random.default_rng(4).random((100_000, 3), dtype=np.float32)
+    for wo in WO:
+        wi, w, pdf, flags = pc.bsdf_sample("translucent", {}, wo, u)
+        assert abs(w[:, 0].mean() - 1.0) < 1e-3
+        assert ((flags & 2) != 0).all() and (wi[:, 2] * wo[2] < 0).all()
+        f, _ = pc.bsdf_eval("translucent", {}, wo, np.array([(0.0, 0.0, math.copysign(1.0, wo[2]))], np.float32))
+        assert f[0, 0] == 0.0
+
+
+def test_conductor_fresnel_is_exact():
+    # A smooth physical conductor reflects the exact Fresnel of its complex IOR: against the
+    # s and p amplitudes computed here with complex numbers (Snell's law with n + ik).
+    n, k = np.array([0.2, 1.1, 2.757]), np.array([3.9, 2.4, 3.867])
+    for c in (1.0, 0.7, 0.3, 1 / 7, 0.02):
+        wo = (math.sqrt(1 - c * c), 0.0, c)
+        _, w, _, _ = pc.bsdf_sample("conductor", {"alpha": 0.0, "f0": tuple(n), "conductor_k": tuple(k)}, wo,
+                                    np.full((1, 3), 0.5, np.float32))
+        eta = n + 1j * k
+        ct = np.sqrt(1 - (1 - c * c) / eta**2)
+        rs = (c - eta * ct) / (c + eta * ct)
+        rp = (eta * c - ct) / (eta * c + ct)
+        expected = 0.5 * (abs(rs) ** 2 + abs(rp) ** 2)
+        assert np.allclose(w[0], expected, rtol=2e-4, atol=1e-6), (c, w[0], expected)
 
 
 def test_fresnel_and_total_internal_reflection():

@@ -235,6 +235,8 @@ def test_non_finite_object_transform(scene, capfd):
     ("ShaderNodeBsdfGlass", {"IOR": 1e-6, "Roughness": 1e30}),
     ("ShaderNodeBsdfGlossy", {"Roughness": math.inf}),
     ("ShaderNodeHoldout", {}),
+    ("ShaderNodeBsdfTranslucent", {"Color": (math.nan, -1.0, 1e30, 1.0)}),
+    ("ShaderNodeBsdfMetallic", {"Base Color": (math.nan, 2.0, -1.0, 1.0), "Roughness": math.nan}),
     ("ShaderNodeVolumeScatter", {"Density": math.nan}),
 ])
 def test_odd_node_values(scene, capfd, node, inputs):

@@ -1275,3 +1275,26 @@ def test_bad_volume_inputs_warn_and_clamp():
     assert data.volume is None  # nothing left: no medium
     _, warnings, data = closures_of(volume_material("NaN", bad(float("nan"))))
     assert data.volume is None or all(math.isfinite(x) for x in data.volume["sigma_s"])
+
+
+def test_metallic_translucent_and_holdout_compile_without_fallbacks():
+    mat, nodes, links, out = ms.new_material("Closures")
+    metal = nodes.new("ShaderNodeBsdfMetallic")
+    metal.fresnel_type = 'PHYSICAL_CONDUCTOR'
+    mix = nodes.new("ShaderNodeMixShader")
+    add = nodes.new("ShaderNodeAddShader")
+    links.new(metal.outputs[0], mix.inputs[1])
+    links.new(nodes.new("ShaderNodeBsdfTranslucent").outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], add.inputs[0])
+    links.new(nodes.new("ShaderNodeHoldout").outputs[0], add.inputs[1])
+    links.new(add.outputs[0], out.inputs["Surface"])
+    data, warnings = compile_(mat)
+    assert not warnings
+    kinds = [op[1] for op in data.program if op[0] == "closure"]
+    assert sorted(kinds) == ["holdout", "metallic", "translucent"]
+    (params,) = [op[3] for op in data.program if op[0] == "closure" and op[1] == "metallic"]
+    assert {"ior", "extinction", "physical", "multiscatter"} <= set(params)
+    metal.inputs["Anisotropy"].default_value = 0.5
+    metal.distribution = 'BECKMANN'
+    data, warnings = compile_(mat)
+    assert len(warnings) == 1 and "anisotropy" in warnings[0] and "Beckmann" in warnings[0]

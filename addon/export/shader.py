@@ -1643,6 +1643,21 @@ class ShaderCompiler:
                          color=inp("Color", "color"), roughness=rough, ior=inp("IOR", "float"),
                          normal=self.normal(node, ctx),
                          multiscatter=self._multiscatter(node, rough) if t == 'BSDF_GLASS' else None)
+        elif t == 'BSDF_METALLIC':
+            rough = inp("Roughness", "float")
+            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
+            aniso = inp("Anisotropy", "float")
+            if not (aniso.is_const and aniso.const[0] == 0.0):
+                self.problem(f"'{node.name}': anisotropy is not supported (isotropic)")
+            physical = node.fresnel_type == 'PHYSICAL_CONDUCTOR'
+            params = dict(ior=inp("IOR", "vector"), extinction=inp("Extinction", "vector"),
+                          physical=ONE) if physical else dict(
+                base_color=inp("Base Color", "color"), edge_tint=inp("Edge Tint", "color"))
+            self.closure("metallic", weight, roughness=rough, normal=self.normal(node, ctx),
+                         multiscatter=self._multiscatter(node, rough), **params)
+        elif t == 'BSDF_TRANSLUCENT':
+            self.closure("translucent", weight, color=inp("Color", "color"),
+                         normal=self.normal(node, ctx))
         elif t == 'BSDF_TRANSPARENT':
             self.closure("transparent", weight, color=inp("Color", "color"))
         elif t == 'EMISSION':
@@ -1651,7 +1666,7 @@ class ShaderCompiler:
         elif t == 'BSDF_PRINCIPLED':
             self.principled(node, ctx, weight)
         elif t == 'HOLDOUT':
-            self.problem(f"'{node.name}': Holdout is not supported (ignored)")
+            self.closure("holdout", weight)
         else:
             self._fallback_shader(node, ctx, weight)
 

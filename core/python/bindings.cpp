@@ -597,6 +597,15 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else if (kind == "transparent") {
         o.code = OpCode::Transparent;
         o.in[1] = p("color");
+      } else if (kind == "metallic") {
+        o.code = OpCode::Metallic;
+        o.in[1] = p("base_color"); o.in[2] = p("edge_tint"); o.in[3] = p("ior"); o.in[4] = p("extinction");
+        o.in[5] = p("roughness"); o.in[6] = p("normal"); o.in[7] = p("multiscatter"); o.in[8] = p("physical");
+      } else if (kind == "translucent") {
+        o.code = OpCode::Translucent;
+        o.in[1] = p("color"); o.in[2] = p("normal");
+      } else if (kind == "holdout") {
+        o.code = OpCode::Holdout;
       } else if (kind == "emission") {
         o.code = OpCode::Emission;
         o.in[1] = p("color");
@@ -1251,6 +1260,10 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
       c.mode = ConductorFresnel::F82Tint;
       c.b = f82_tint_b(c.f0, to_color(p["f82_tint"], "f82_tint"));
     }
+    if (p.contains("conductor_k")) {  // Metallic BSDF's physical conductor (f0: n)
+      c.mode = ConductorFresnel::Conductor;
+      c.b = to_color(p["conductor_k"], "conductor_k");
+    }
     if (p.contains("specular_eta")) {  // Principled's dielectric specular (f0: its tinted F0)
       c.mode = ConductorFresnel::Dielectric;
       c.eta = f("specular_eta", 1.5f);
@@ -1269,6 +1282,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     return d;
   }
   if (kind == "transparent") return TransparentBsdf{};
+  if (kind == "translucent") return TranslucentBsdf{};
   throw std::invalid_argument("unknown bsdf '" + kind + "'");
 }
 

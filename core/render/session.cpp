@@ -124,7 +124,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   }
   {
     // The kernel: chosen here from what the scene and this render use, never per ray.
-    const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent;
+    const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent || scene_->any_holdout();
     kernel_ = select_kernel(kernel_features(scene_->features(), aovs), settings_.force_general_kernel, kernel_bits_);
     const bool filter = !(settings_.filter_type == FilterType::Box && settings_.filter_width == 1.0f);
     std::vector<std::pair<std::string, bool>> all;
@@ -248,7 +248,7 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
   // feed them: only asked of trace_path when a pass or the transparent film needs them.
   const size_t stride = size_t(film_.aux_stride());
   std::vector<float> local_aux(size_t(tw) * size_t(th) * stride);
-  const bool want_aovs = stride > 0 || settings_.film_transparent;
+  const bool want_aovs = stride > 0 || settings_.film_transparent || scene_->any_holdout();
   const bool bvh_view = settings_.debug_view == DebugView::Bvh;
   PathCounters counters;
   uint64_t nonfinite = 0, paths = 0;

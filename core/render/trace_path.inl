@@ -138,7 +138,8 @@ inline Vec3 beer(Vec3 sigma, float t) {
 inline Vec3 closure_albedo(const Closure& c, Vec3 wo) {
   if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) {
     // Principled's lobes: their Fresnel at the view (a colour, not just F0, for the specular).
-    if (m->mode == ConductorFresnel::F82Tint || m->mode == ConductorFresnel::Dielectric)
+    if (m->mode == ConductorFresnel::F82Tint || m->mode == ConductorFresnel::Dielectric ||
+        m->mode == ConductorFresnel::Conductor)
       return c.weight * m->fresnel(std::fabs(dot(wo, c.frame.n)));
     return c.weight * m->f0;
   }
@@ -153,7 +154,7 @@ inline Vec3 closure_albedo(const Closure& c, Vec3 wo) {
 
 // Cycles' threshold between specular-like and rough closures (on alpha, Blender's roughness^2).
 inline bool closure_is_rough(const Closure& c) {
-  if (std::holds_alternative<DiffuseBsdf>(c.bsdf)) return true;
+  if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<TranslucentBsdf>(c.bsdf)) return true;
   if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) return m->alpha > 0.075f;
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) return d->alpha > 0.075f;
   return false;  // transparent
@@ -307,7 +308,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if constexpr (kAovs) {
         if (direct && aov) {
           aov->environment = beta * bg;
-          if (s.transparent_background) aov->alpha = clampf(1.0f - average(beta), 0.0f, 1.0f);
+          // Alpha is 1 less what reaches the film transparently (the world and holdouts).
+          if (s.transparent_background) aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         }
         if (!(direct && s.transparent_background)) L += beta * bg * w;
       } else {
@@ -334,6 +336,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if constexpr (kAovs)
         if (direct && aov) aov->emission += beta * cl.emission;
     }
+    // Holdout seen directly (also through Transparent BSDFs), as Cycles' film_write_holdout:
+    // its weight times the throughput leaves the film transparent; other closures go on.
+    if constexpr (kAovs)
+      if (direct && aov && !is_black(cl.holdout)) aov->alpha = clampf(aov->alpha - average(beta * cl.holdout), 0.0f, 1.0f);
     if (kAovs && aov && (want_data || want_features)) {
       const bool flip = dot(sp.ng, wo) < 0.0f;  // normals face the viewer, as Cycles' sd->N
       if (want_data && direct) {
@@ -469,10 +475,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     } else {
       direct = false;
       want_data = false;
-      int& count = (bs.flags & kDiffuseLobe) ? diffuse : (bs.flags & kTransmit) ? transmission : glossy;
-      const int limit = (bs.flags & kDiffuseLobe) ? s.diffuse_bounces
-                        : (bs.flags & kTransmit)  ? s.transmission_bounces
-                                                  : s.glossy_bounces;
+      // Cycles' path_state_next: any transmission (Translucent's too) is a transmission bounce.
+      int& count = (bs.flags & kTransmit) ? transmission : (bs.flags & kDiffuseLobe) ? diffuse : glossy;
+      const int limit = (bs.flags & kTransmit)      ? s.transmission_bounces
+                        : (bs.flags & kDiffuseLobe) ? s.diffuse_bounces
+                                                    : s.glossy_bounces;
       if (count >= limit) emission_only = true;
       ++count;
       ++bounce;

@@ -74,11 +74,37 @@ struct DiffuseBsdf {
   }
 };
 
+// Diffuse transmission (Blender's Translucent BSDF, Cycles' bsdf_translucent): Lambertian on
+// the side opposite wo, cosine-sampled there.
+struct TranslucentBsdf {
+  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+    if (same_side(wo, wi) || wo.z == 0.0f) {
+      pdf = 0.0f;
+      return Vec3(0.0f);
+    }
+    pdf = abs_cos(wi) * kInvPi;
+    return Vec3(pdf);
+  }
+  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
+    Vec3 l = sample_cosine_hemisphere(u);
+    if (l.z <= 0.0f || wo.z == 0.0f) return false;
+    if (wo.z > 0.0f) l.z = -l.z;
+    s.wi = l;
+    s.pdf = std::fabs(l.z) * kInvPi;
+    s.weight = Vec3(1.0f);
+    s.flags = kTransmit | kDiffuseLobe;
+    s.eta = 1.0f;
+    return true;
+  }
+};
+
 // How a GGX reflection lobe's Fresnel term follows the angle to its microfacet.
 enum class ConductorFresnel : uint8_t {
   Constant,    // f0 (Blender's Glossy BSDF)
   Schlick,     // Schlick's curve from f0
   F82Tint,     // Cycles' F82-Tint: Schlick from f0 less b cos (1 - cos)^6 (Principled metal)
+  Conductor,   // a physical conductor's exact Fresnel for complex IOR n + ik (Metallic BSDF):
+               // f0 holds n and b holds k per channel
   Dielectric,  // Cycles' generalized Schlick in its physical mode: mix(f0, 1, s), s the real
                // Fresnel of eta remapped from [F0(eta), 1] to [0, 1] (Principled specular)
 };
@@ -96,6 +122,7 @@ struct ConductorBsdf {
       case ConductorFresnel::Constant: return f0;
       case ConductorFresnel::Schlick: return fresnel_schlick(f0, c);
       case ConductorFresnel::F82Tint: return fresnel_f82(c, f0, b);
+      case ConductorFresnel::Conductor: return fresnel_conductor(c, f0, b);
       case ConductorFresnel::Dielectric: {
         const float F = exact ? fresnel_dielectric(c, eta) : fresnel_schlick_dielectric(c, eta);
         const float F0 = f0_from_ior(eta);
@@ -285,7 +312,7 @@ struct TransparentBsdf {
   }
 };
 
-using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf>;
+using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf>;
 
 inline Vec3 bsdf_eval(const Bsdf& b, Vec3 wo, Vec3 wi, float& pdf) {
   return std::visit([&](const auto& x) { return x.eval(wo, wi, pdf); }, b);

@@ -63,6 +63,32 @@ inline Vec3 fresnel_f82(float c, Vec3 f0, Vec3 b) {
 // Its hemispherical average (closed form of 2 int cos F).
 inline Vec3 f82_fss(Vec3 f0, Vec3 b) { return f0 + (Vec3(1.0f) - f0) * (1.0f / 21.0f) - b * (1.0f / 126.0f); }
 
+// Exact unpolarized Fresnel reflectance from air onto a conductor of complex IOR n + ik (the
+// s and p reflectances averaged; e.g. Born & Wolf), per channel.
+inline float fresnel_conductor1(float c, float n, float k) {
+  c = clampf(c, 0.0f, 1.0f);
+  const float c2 = c * c, s2 = 1.0f - c2;
+  const float t0 = n * n - k * k - s2;
+  const float a2b2 = std::sqrt(std::max(t0 * t0 + 4.0f * n * n * k * k, 0.0f));
+  const float a = std::sqrt(std::max(0.5f * (a2b2 + t0), 0.0f));
+  const float t1 = a2b2 + c2, t2 = 2.0f * a * c;
+  const float rs = (t1 - t2) / std::max(t1 + t2, 1e-20f);
+  const float t3 = c2 * a2b2 + s2 * s2, t4 = t2 * s2;
+  const float rp = rs * (t3 - t4) / std::max(t3 + t4, 1e-20f);
+  return clampf(0.5f * (rs + rp), 0.0f, 1.0f);
+}
+inline Vec3 fresnel_conductor(float c, Vec3 n, Vec3 k) {
+  return {fresnel_conductor1(c, n.x, k.x), fresnel_conductor1(c, n.y, k.y), fresnel_conductor1(c, n.z, k.z)};
+}
+// Its average for Multiscatter GGX as Cycles estimates it (fresnel_conductor_Fss): the F82 curve
+// through the values at 0 and ~82 degrees (cos 1/7), then that curve's closed-form average.
+inline Vec3 conductor_fss(Vec3 n, Vec3 k) {
+  const Vec3 F0 = fresnel_conductor(1.0f, n, k), F82 = fresnel_conductor(1.0f / 7.0f, n, k);
+  const float f = 6.0f / 7.0f, f5 = (f * f) * (f * f) * f;
+  const Vec3 b = (F0 + (Vec3(1.0f) - F0) * f5 - F82) * (7.0f / (f5 * f));
+  return vmin(vmax(f82_fss(F0, b), Vec3(0.0f)), Vec3(1.0f));
+}
+
 // What Multiscatter GGX does to a lobe seen from the view at cos `mu`: `scale` multiplies the
 // single-scatter lobe (the missing energy 1/E - 1 returned with the multiple-bounce Fresnel
 // Fms), and `darkening` is the part of it that Cycles folds into the closure weight (what its

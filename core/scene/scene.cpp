@@ -89,7 +89,11 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
     if (!(luminance(m.emission_estimate) > 0.0f)) m.emission_estimate = Vec3(1.0f);
   }
   m.transparent = false;
-  for (const ShaderOp& op : m.program.ops) m.transparent = m.transparent || op.code == OpCode::Transparent;
+  m.holdout = false;
+  for (const ShaderOp& op : m.program.ops) {
+    m.transparent = m.transparent || op.code == OpCode::Transparent;
+    m.holdout = m.holdout || op.code == OpCode::Holdout;
+  }
   m.constant = !m.program.varying;
   if (m.constant) {
     ctx.uv = nullptr;
@@ -508,7 +512,11 @@ void Scene::detect_rect(EmitterGroup& g, const InstanceData& in) const {
 
 void Scene::build_lights() {
   any_transparent_ = false;
-  for (const Material& m : materials_) any_transparent_ = any_transparent_ || m.transparent;
+  any_holdout_ = false;
+  for (const Material& m : materials_) {
+    any_transparent_ = any_transparent_ || m.transparent;
+    any_holdout_ = any_holdout_ || m.holdout;
+  }
   stats_.materials = materials_.size();
 
   // Every light in one distribution, chosen in proportion to an estimate of its power.
@@ -834,6 +842,7 @@ void Scene::detect_features() {
       for (int i = 0; i < m.cached.n; ++i) {
         const Bsdf& b = m.cached.c[size_t(i)].bsdf;
         if (std::holds_alternative<DiffuseBsdf>(b)) f.diffuse = true;
+        else if (std::holds_alternative<TranslucentBsdf>(b)) f.diffuse = f.transmission = true;
         else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
         else if (std::get<DielectricBsdf>(b).transmission) f.transmission = true;
@@ -847,7 +856,8 @@ void Scene::detect_features() {
       if (m.constant) continue;
       switch (op.code) {  // every kind the op can add
         case OpCode::Diffuse: f.diffuse = true; break;
-        case OpCode::Glossy: f.glossy = true; break;
+        case OpCode::Translucent: f.diffuse = f.transmission = true; break;
+        case OpCode::Glossy: case OpCode::Metallic: f.glossy = true; break;
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
         case OpCode::Transparent: f.transparent = true; break;
         case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
@@ -1132,6 +1142,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   if (mat.constant) {
     out.n = mat.cached.n;
     out.emission = mat.cached.emission;
+    out.holdout = mat.cached.holdout;
     out.has_nondelta = mat.cached.has_nondelta;
     const Frame f = Frame::from_normal(sp.ns);
     for (int i = 0; i < out.n; ++i) {

@@ -47,6 +47,7 @@ struct Material {
   ShaderProgram program;
   Vec3 emission_estimate{0.0f};  // for choosing among lights; the true value is evaluated
   bool transparent = false;      // has a Transparent closure: shadow rays may pass
+  bool holdout = false;          // has a Holdout closure: the film's alpha needs the aov kernel
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
@@ -252,6 +253,7 @@ class Scene {
   // progress: commit() clears the request when it starts.
   void cancel_commit() { cancel_.store(true); }
   bool committed() const { return committed_; }
+  bool any_holdout() const { return any_holdout_; }  // Holdout closures: alpha below 1 without transparent film
 
   // Closest hit: h.prim is the triangle in its BLAS, h.inst the scene instance (surface_point
   // and global_prim read them).
@@ -375,6 +377,7 @@ class Scene {
   std::vector<Image> images_;
   size_t uv_sets_ = 0;  // most uv sets of any mesh
   bool any_transparent_ = false;
+  bool any_holdout_ = false;
   // transmittance() through Transparent surfaces (closest hits shaded one by one).
   Vec3 transmittance_through(Ray ray) const;
   std::vector<MeshData> meshes_;

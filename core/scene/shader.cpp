@@ -385,6 +385,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
   Float4 r[kMaxRegs];
   out.n = 0;
   out.emission = Vec3(0.0f);
+  out.holdout = Vec3(0.0f);
   auto reg = [&](int16_t i) -> const Float4& {
     static const Float4 zero{};
     return i == kNoReg ? zero : r[i];
@@ -891,6 +892,39 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         out.add(d, clean_color(col(op.in[0]) * col(op.in[1])), f);
         break;
       }
+      case OpCode::Metallic: {
+        // Blender 4.x's Metallic BSDF (Cycles' CLOSURE_BSDF_F82_CONDUCTOR / PHYSICAL_CONDUCTOR):
+        // GGX whose Fresnel is F82-Tint from Base Color and Edge Tint, or a conductor's exact
+        // Fresnel from IOR and Extinction; the node's colour is all in the Fresnel.
+        ConductorBsdf m;
+        m.alpha = roughness_to_alpha(val(op.in[5], 0.5f));
+        const Frame f = glossy_frame(op.in[6]);
+        const bool physical = op.in[8] != kNoReg && r[op.in[8]].x > 0.5f;
+        Vec3 fss;
+        if (physical) {
+          m.mode = ConductorFresnel::Conductor;
+          m.f0 = vmax(clean_color(col(op.in[3])), Vec3(0.0f));
+          m.b = vmax(clean_color(col(op.in[4])), Vec3(0.0f));
+          if (multiscatter(op.in[7])) fss = conductor_fss(m.f0, m.b);
+        } else {
+          m.mode = ConductorFresnel::F82Tint;
+          m.f0 = vmin(clean_color(col(op.in[1])), Vec3(1.0f));
+          const Vec3 tint = vmin(clean_color(col(op.in[2])), Vec3(1.0f));
+          if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) m.b = f82_tint_b(m.f0, tint);
+          if (multiscatter(op.in[7])) fss = f82_fss(m.f0, m.b);
+        }
+        const float mu = std::fabs(dot(f.n, ctx.wo));
+        Vec3 w = clean_color(col(op.in[0]));
+        if (multiscatter(op.in[7])) w *= ggx_reflection_compensation(std::sqrt(m.alpha), mu, fss).scale;
+        out.add(m, w, f, average(m.fresnel(mu)));
+        break;
+      }
+      case OpCode::Translucent: {
+        Frame f;
+        diffuse_lobe(op.in[2], f);  // its frame only: Cycles applies no bump shadowing here
+        out.add(TranslucentBsdf{}, clean_color(col(op.in[0]) * col(op.in[1])), f);
+        break;
+      }
       case OpCode::Glossy: {
         ConductorBsdf g;
         g.alpha = roughness_to_alpha(val(op.in[2], 0.5f));
@@ -921,6 +955,9 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       }
       case OpCode::Transparent:
         out.add(TransparentBsdf{}, clean_color(col(op.in[0]) * col(op.in[1])), Frame::from_normal(ctx.ns));
+        break;
+      case OpCode::Holdout:
+        out.holdout += clean_color(col(op.in[0]));
         break;
       case OpCode::Emission:
         out.emission += clean_color(col(op.in[0]) * col(op.in[1]));

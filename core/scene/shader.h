@@ -47,6 +47,8 @@ enum class OpCode : uint8_t {
   TexGabor,  // scene/tex_gabor.h
   AmbientOcclusion,  // traced by the scene (trace_ambient_occlusion)
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
+  Translucent, Metallic,
+  Holdout,  // no BSDF: its weight makes the film transparent where seen directly
 };
 
 enum class MathOp : uint8_t {
@@ -113,6 +115,7 @@ struct ClosureList {
   ClosureSlots c;
   int n = 0;
   Vec3 emission{0.0f};
+  Vec3 holdout{0.0f};  // Holdout closures' summed weight (Cycles' surface_shader_apply_holdout)
   bool has_nondelta = false;
   // `albedo`: an estimate of how much the BSDF reflects from this view (Cycles' sample weight
   // factor), for choosing among closures; negative: bsdf_albedo_hint's guess.
