@@ -160,8 +160,9 @@ class Warnings(list):
         self.append(msg)
 
 
-def node_material(name, node_type, **inputs):
-    """A material whose output is fed by one node of node_type with constant inputs."""
+def node_material(name, node_type, socket="Surface", **inputs):
+    """A material whose output's `socket` (Surface or Volume) is fed by one node of node_type
+    with constant inputs."""
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nodes = mat.node_tree.nodes
@@ -169,6 +170,6 @@ def node_material(name, node_type, **inputs):
     node = nodes.new(node_type)
     for key, value in inputs.items():
         node.inputs[key.replace("_", " ")].default_value = value
-    mat.node_tree.links.new(node.outputs[0], nodes["Material Output"].inputs["Surface"])
+    mat.node_tree.links.new(node.outputs[0], nodes["Material Output"].inputs[socket])
     return mat
 

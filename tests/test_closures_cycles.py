@@ -10,6 +10,7 @@ import pytest
 
 from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
 import material_scenes as ms
+from test_principled_cycles import assert_agree
 
 load_addon()
 
@@ -21,15 +22,6 @@ def render_pair(build, samples, bounces=8, **settings):
     cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER,
                              **settings)
     return ours, cycles
-
-
-def assert_agree(name, ours, cycles, region=0.03, whole=0.01):
-    ratio, worst, rel = ms.compare(ours, cycles)
-    print(f"\n{name}: mean ratio {ratio:.4f}, worst region {worst:.4f} "
-          f"(means {ours[..., :3].mean():.4f} / {cycles[..., :3].mean():.4f})")
-    assert np.isfinite(ours).all()
-    assert abs(ratio - 1.0) < whole, f"{name}: image mean ratio {ratio:.4f}"
-    assert worst < region, f"{name}: worst region {worst:.3f}\n{np.round(rel, 3)}"
 
 
 def alpha_regions(img, grid=8):

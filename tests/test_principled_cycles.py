@@ -7,6 +7,7 @@ region within 3 % (regions darker than 0.02 compare absolutely); the glass tests
 test_materials' rough-glass tolerances (1.5 %, 5 %), which is how well single-scatter GGX glass
 agrees between the engines too. Measured agreement numbers are printed (pytest -s)."""
 
+import functools
 import math
 
 import bpy
@@ -73,13 +74,16 @@ def test_rough_ground_under_an_environment(view):
     assert_agree(f"rough ground {view}", ours, cycles)
 
 
+def principled_material(name, distribution, **inputs):
+    mat, node = ms.bsdf_material(name, "ShaderNodeBsdfPrincipled", **inputs)
+    node.distribution = distribution
+    return mat
+
+
 def spheres(distribution):
     """Three spheres: a metal with a Specular Tint (its F82 edge tint), a dielectric with a high
     Specular IOR Level and a coloured Specular Tint, one with a low level and rough."""
-    def principled(name, **inputs):
-        mat, node = ms.bsdf_material(name, "ShaderNodeBsdfPrincipled", **inputs)
-        node.distribution = distribution
-        return mat
+    principled = functools.partial(principled_material, distribution=distribution)
 
     def build():
         scene = ms.studio(size=64, camera=((0.0, -5.0, 2.2), (0.0, 0.0, 0.5)))
@@ -105,10 +109,7 @@ def test_metal_tint_and_specular_level_spheres(distribution):
 
 def coated(distribution):
     """A tinted glossy coat over a rough diffuse base, a clear rough coat over a metal."""
-    def principled(name, **inputs):
-        mat, node = ms.bsdf_material(name, "ShaderNodeBsdfPrincipled", **inputs)
-        node.distribution = distribution
-        return mat
+    principled = functools.partial(principled_material, distribution=distribution)
 
     def build():
         scene = ms.studio(size=64, camera=((0.0, -5.0, 2.2), (0.0, 0.0, 0.5)))

@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, render_to_array, BOX_FILTER
+from blender_util import core_available, load_addon, node_material, render_to_array, BOX_FILTER
 from light_scenes import add_light, box, camera, diffuse_material, empty_scene, plane
 
 load_addon()
@@ -30,14 +30,7 @@ def region_means(img, grid=8):
 
 
 def volume_cube(kind, **inputs):
-    mat = bpy.data.materials.new(kind)
-    mat.use_nodes = True
-    nodes = mat.node_tree.nodes
-    nodes.remove(nodes["Principled BSDF"])
-    node = nodes.new(kind)
-    for k, v in inputs.items():
-        node.inputs[k.replace("_", " ")].default_value = v
-    mat.node_tree.links.new(node.outputs[0], nodes["Material Output"].inputs["Volume"])
+    mat = node_material(kind, kind, socket="Volume", **inputs)
     if hasattr(mat.cycles, "homogeneous_volume"):
         mat.cycles.homogeneous_volume = True  # Cycles' analytic homogeneous path
     return mat
