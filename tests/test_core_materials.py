@@ -211,7 +211,9 @@ def test_bad_programs_raise():
     s = pc.Scene()
     for prog in ([("nonsense", 0)], [("const", 99, (1,))], [("image", 0, 0, 5, "LINEAR", "REPEAT")],
                  [("closure", "velvet", None, {})], [("math", 0, 0, 0, "HYPOTENUSE", False)],
-                 [("mapping", 0, 0, np.zeros((2, 2)))], [("uv", 0, 9)]):
+                 [("mapping", 0, 0, np.zeros((2, 2)))], [("uv", 0, 9)],
+                 [("closure", "principled", None, {"sheen_weight": 99})],  # a PrincipledExtra operand
+                 [("closure", "principled", None, {"subsurface_radius": -5})]):
         with pytest.raises((ValueError, RuntimeError)):
             s.add_shader("bad", prog)
     with pytest.raises(ValueError):

@@ -1685,20 +1685,7 @@ class ShaderCompiler:
 
     def principled(self, node, ctx, weight):
         inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
-        ignored = []
-        for name, label in (("Sheen Weight", "sheen"),
-                            ("Subsurface Weight", "subsurface (as diffuse)"),
-                            ("Anisotropic", "anisotropy"),
-                            ("Thin Film Thickness", "thin film"),
-                            ("Diffuse Roughness", "diffuse roughness")):
-            socket = node.inputs.get(name)
-            if socket is None:
-                continue
-            v = self.value(socket, ctx, "float")
-            if not (v.is_const and v.const[0] == 0.0):
-                ignored.append(label)
-        if ignored:
-            self.problem(f"'{node.name}': {', '.join(ignored)} not supported (ignored)")
+        extra = self._principled_extra(node, ctx)
         alpha = self.math("ADD", inp("Alpha", "float"), ZERO, clamp=True)
         opaque = self.scale(weight, alpha)
         if not (alpha.is_const and alpha.const[0] == 1.0):
@@ -1721,13 +1708,71 @@ class ShaderCompiler:
                      specular_tint=inp("Specular Tint", "color"),
                      normal=self.normal(node, ctx),
                      multiscatter=self._multiscatter(node, rough),
-                     **coat)
+                     **coat, **extra)
         strength = inp("Emission Strength", "float")
         if not (strength.is_const and strength.const[0] == 0.0):
             if coat:
                 self.problem(f"'{node.name}': emission under a coat is not dimmed by the coat")
             emission = self.scale(inp("Emission Color", "color"), strength)
             self.closure("emission", opaque, color=self.as_color(emission))
+
+    # The Principled BSDF's feature groups beyond the base, coat and emission: (the group,
+    # its switch input (left out where it is a constant zero), and its operands (the closure's
+    # key, the socket, its kind)). The core reads them from a PrincipledExtra op.
+    _PRINCIPLED_GROUPS = (
+        ("anisotropy", "Anisotropic", (("anisotropic", "Anisotropic", "float"),
+                                       ("anisotropic_rotation", "Anisotropic Rotation", "float"),
+                                       ("tangent", "Tangent", "tangent"))),
+        ("thin film", "Thin Film Thickness", (("thin_film_thickness", "Thin Film Thickness", "float"),
+                                              ("thin_film_ior", "Thin Film IOR", "float"))),
+        ("sheen", "Sheen Weight", (("sheen_weight", "Sheen Weight", "float"),
+                                   ("sheen_roughness", "Sheen Roughness", "float"),
+                                   ("sheen_tint", "Sheen Tint", "color"))),
+        ("diffuse roughness", "Diffuse Roughness", (("diffuse_roughness", "Diffuse Roughness", "float"),)),
+        ("subsurface", "Subsurface Weight", (("subsurface_weight", "Subsurface Weight", "float"),
+                                             ("subsurface_radius", "Subsurface Radius", "vector"),
+                                             ("subsurface_scale", "Subsurface Scale", "float"),
+                                             ("subsurface_ior", "Subsurface IOR", "float"),
+                                             ("subsurface_anisotropy", "Subsurface Anisotropy", "float"))),
+    )
+    # Groups that the core does not render yet: warned about and left out.
+    _PRINCIPLED_UNSUPPORTED = {
+        "anisotropy",
+        "thin film",
+        "sheen",
+        "diffuse roughness",
+        "subsurface",
+    }
+
+    def _principled_extra(self, node, ctx):
+        """The closure keys of the Principled feature groups in use (switch input not a
+        constant zero); an unsupported one in use is warned about instead."""
+        extra, ignored = {}, []
+        for group, switch, operands in self._PRINCIPLED_GROUPS:
+            socket = node.inputs.get(switch)
+            if socket is None:
+                continue
+            v = self.value(socket, ctx, "float")
+            if v.is_const and v.const[0] == 0.0:
+                continue
+            if group in self._PRINCIPLED_UNSUPPORTED:
+                ignored.append(group)
+                continue
+            for key, name, kind in operands:
+                if kind == "tangent":
+                    extra[key] = self.principled_tangent(node, ctx, name)
+                elif node.inputs.get(name) is not None:
+                    extra[key] = self.input(node, name, ctx, kind)
+        if ignored:
+            self.problem(f"'{node.name}': {', '.join(ignored)} not supported (ignored)")
+        return extra
+
+    def principled_tangent(self, node, ctx, name):
+        """The Tangent input (None: unlinked, the core's default tangent)."""
+        socket = node.inputs.get(name)
+        if socket is None or not socket.is_linked:
+            return None
+        return self.input(node, name, ctx, "vector")
 
     # -------------------------------------------------- volume
 

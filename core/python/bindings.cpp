@@ -616,6 +616,23 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         o.in[8] = p("normal"); o.in[9] = p("multiscatter");
         o.in[10] = p("coat_weight"); o.in[11] = p("coat_roughness"); o.in[12] = p("coat_ior");
         o.in[13] = p("coat_tint"); o.in[14] = p("coat_normal");
+        // The inputs beyond sixteen operands travel in a PrincipledExtra op just before it.
+        static const std::pair<const char*, PrincipledExtraSlot> extra_keys[] = {
+            {"anisotropic", kPxAnisotropic}, {"anisotropic_rotation", kPxAnisotropicRotation},
+            {"tangent", kPxTangent}, {"thin_film_thickness", kPxThinFilmThickness},
+            {"thin_film_ior", kPxThinFilmIor}, {"sheen_weight", kPxSheenWeight},
+            {"sheen_roughness", kPxSheenRoughness}, {"sheen_tint", kPxSheenTint},
+            {"diffuse_roughness", kPxDiffuseRoughness}, {"subsurface_weight", kPxSubsurfaceWeight},
+            {"subsurface_radius", kPxSubsurfaceRadius}, {"subsurface_scale", kPxSubsurfaceScale},
+            {"subsurface_ior", kPxSubsurfaceIor}, {"subsurface_anisotropy", kPxSubsurfaceAnisotropy}};
+        ShaderOp x;
+        x.code = OpCode::PrincipledExtra;
+        bool any = false;
+        for (const auto& [key, slot] : extra_keys) {
+          x.in[slot] = p(key);
+          any = any || x.in[slot] != kNoReg;
+        }
+        if (any) prog.ops.push_back(x);
       } else {
         throw std::invalid_argument("unknown closure '" + kind + "'");
       }

@@ -158,6 +158,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     dp[kOffsetX] = e1 * db[kOffsetX][0];
     dp[kOffsetY] = e2 * db[kOffsetY][1];
   };
+  const ShaderOp* extra = nullptr;  // the PrincipledExtra op before a Principled op, if any
   for (const ShaderOp& op : prog.ops) {
     Float4& d = r[op.dst];
     switch (op.code) {
@@ -680,6 +681,9 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::Transparent:
         out.add(TransparentBsdf{}, clean_color(col(op.in[0]) * col(op.in[1])), Frame::from_normal(ctx.ns));
         break;
+      case OpCode::PrincipledExtra:
+        extra = &op;
+        break;
       case OpCode::Holdout:
         out.holdout += clean_color(col(op.in[0]));
         break;
@@ -691,6 +695,10 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         // then glass, then a dielectric specular layer over diffuse, each taking its share of
         // the weight and the coat and specular layers attenuating what lies below by their
         // estimated albedo.
+        // The further inputs (PrincipledExtraSlot); kNoReg where there is no extra op.
+        auto px = [&](PrincipledExtraSlot s) { return extra ? extra->in[s] : int16_t(kNoReg); };
+        extra = nullptr;
+        (void)px;
         const Vec3 w = clean_color(col(op.in[0]));
         const Vec3 base = op.in[1] == kNoReg ? Vec3(0.8f) : clean_color(r[op.in[1]].xyz());
         const Vec3 base_c = vmin(base, Vec3(1.0f));

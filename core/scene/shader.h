@@ -48,6 +48,7 @@ enum class OpCode : uint8_t {
   AmbientOcclusion,  // traced by the scene (trace_ambient_occlusion)
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
   Translucent, Metallic,
+  PrincipledExtra,  // the Principled BSDF's further inputs: the op just before its Principled op
   Holdout,  // no BSDF: its weight makes the film transparent where seen directly
 };
 
@@ -70,6 +71,17 @@ enum class VectorMathOp : uint8_t {
 // Where value ops that read the shading point read it: the point itself, or the small surface
 // offsets that a Bump node differentiates its height with.
 enum BumpOffset : uint8_t { kAtPoint = 0, kOffsetX = 1, kOffsetY = 2 };
+
+// PrincipledExtra's operand slots (in[]), by feature; the Principled op right after it reads
+// them. A slot left kNoReg takes the input's Blender default.
+enum PrincipledExtraSlot : uint8_t {
+  kPxAnisotropic = 0, kPxAnisotropicRotation = 1, kPxTangent = 2,
+  kPxThinFilmThickness = 3, kPxThinFilmIor = 4,
+  kPxSheenWeight = 5, kPxSheenRoughness = 6, kPxSheenTint = 7,
+  kPxDiffuseRoughness = 8,
+  kPxSubsurfaceWeight = 9, kPxSubsurfaceRadius = 10, kPxSubsurfaceScale = 11, kPxSubsurfaceIor = 12,
+  kPxSubsurfaceAnisotropy = 13,
+};
 
 constexpr int kNoReg = -1;
 constexpr int kMaxRegs = 64;
