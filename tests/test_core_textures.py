@@ -62,6 +62,10 @@ TEXTURES = [
 ] + [
     ("brick", 10, [0.5, 2, 1.0, 1, out]) for out in ("COLOR", "FAC")
 ] + [
+    ("wireframe", 1, [pixels]) for pixels in (False, True)
+] + [
+    ("bevel", 2, [samples]) for samples in (0, 1, 8)
+] + [
     ("voronoi", 9, [dims, feature, metric, norm, out])
     for dims in ("1D", "2D", "3D", "4D")
     for feature in ("F1", "F2", "SMOOTH_F1", "DISTANCE_TO_EDGE", "N_SPHERE_RADIUS")
@@ -114,6 +118,8 @@ def test_texture_ops_vary_over_the_surface():
     ("geometry", 1, "POINTINESS"),
     ("object_info", 1, "NAME"),
     ("attribute", 1, 8, "COLOR"),
+    ("bevel", 1, 0, None, 500),
+    ("wireframe", 1, 0, False, 3),
 ])
 def test_bad_op_settings_are_refused(op):
     s = pc.Scene()

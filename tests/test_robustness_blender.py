@@ -266,8 +266,9 @@ def test_unsupported_nodes_in_the_tree(scene, capfd):
     mat.use_nodes = True
     nt = mat.node_tree
     bsdf = nt.nodes["Principled BSDF"]
-    # Still unsupported (Noise, Voronoi and Attribute, here before, are supported now).
-    for i, kind in enumerate(("ShaderNodeWireframe", "ShaderNodeTexIES", "ShaderNodeBevel", "ShaderNodeParticleInfo")):
+    # Still unsupported (Noise, Voronoi, Attribute, Wireframe and Bevel, here before, are
+    # supported now).
+    for i, kind in enumerate(("ShaderNodeFloatCurve", "ShaderNodeTexIES", "ShaderNodeNormal", "ShaderNodeParticleInfo")):
         n = nt.nodes.new(kind)
         nt.links.new(n.outputs[0], bsdf.inputs[("Base Color", "Roughness", "Normal", "Alpha")[i]])
     script = nt.nodes.new("ShaderNodeScript")  # OSL: no outputs at all

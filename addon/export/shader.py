@@ -1387,6 +1387,20 @@ class ShaderCompiler:
                          None if normal is None else self.reg(normal), int(node.samples),
                          bool(node.inside), bool(node.only_local), which)
 
+    def bevel(self, node, out, ctx):
+        """Bevel: the instance's smooth normals within Radius, found by traced rays as Cycles'
+        (Samples); a linked Normal keeps its own bend."""
+        (radius,) = self._texture_floats(node, ("Radius",), ctx)
+        normal = self.normal(node, ctx)
+        return self.emit("vector", "bevel", radius, None if normal is None else self.reg(normal),
+                         int(node.samples))
+
+    def wireframe(self, node, out, ctx):
+        """Wireframe: 1 near the triangles' edges (Size in world units, or in pixels)."""
+        (size,) = self._texture_floats(node, ("Size",), ctx)
+        extra = (self.bump_state,) if self.bump_state else ()
+        return self.emit("float", "wireframe", size, bool(node.use_pixel_size), *extra)
+
     def camera_coords(self, which):
         """Texture Coordinate's Camera or Window (at the current bump offset)."""
         key = ("camera_coords", which, self.bump_state)
@@ -1410,6 +1424,7 @@ class ShaderCompiler:
         'VECTOR_ROTATE': vector_rotate, 'VECT_TRANSFORM': vector_transform,
         'BLACKBODY': blackbody, 'WAVELENGTH': wavelength, 'TANGENT': tangent_node,
         'TEX_GABOR': gabor_texture, 'AMBIENT_OCCLUSION': ambient_occlusion,
+        'BEVEL': bevel, 'WIREFRAME': wireframe,
     }
 
     def tex_coord(self, node, oid):
@@ -1935,7 +1950,7 @@ _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "gene
              "tex_noise": 9, "tex_wave": 7, "tex_magic": 3, "tex_white_noise": 2,
              "vector_rotate": 5, "vector_transform": 1, "blackbody": 1, "wavelength": 1,
              "camera_coords": 0, "tangent": 0, "tex_gabor": 6,
-             "ambient_occlusion": 3,
+             "ambient_occlusion": 3, "bevel": 2, "wireframe": 1,
              **tex_patterns.OPERANDS}
 
 

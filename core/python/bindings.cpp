@@ -531,6 +531,27 @@ bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o
     o.sub = uint8_t((t[6].cast<bool>() ? 1 : 0) | (t[7].cast<bool>() ? 2 : 0));
     o.ext = index_in({"COLOR", "AO"}, t[8], "ambient occlusion output");
     prog.varying = true;
+  } else if (op == "bevel") {  // radius, normal, samples
+    need(5);
+    o.code = OpCode::Bevel;
+    o.in[0] = regno(t[2]);
+    o.in[1] = regno(t[3]);
+    const int64_t samples = t[4].cast<int64_t>();
+    if (samples < 0 || samples > 128) throw std::invalid_argument("bevel samples must be 0 to 128");
+    o.index = int32_t(samples);
+    prog.varying = true;
+  } else if (op == "wireframe") {  // size, use pixel size [, bump offset]
+    if (t.size() != 4 && t.size() != 5) throw std::invalid_argument("shader op 'wireframe' takes 3 or 4 arguments");
+    o.code = OpCode::Wireframe;
+    o.in[0] = regno(t[2]);
+    o.ext = t[3].cast<bool>() ? 1 : 0;
+    o.sub = uint8_t(kAtPoint);
+    if (t.size() == 5) {
+      const int64_t v = t[4].cast<int64_t>();
+      if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
+      o.sub = uint8_t(v);
+    }
+    prog.varying = true;
   } else if (op == "tex_gabor") {  // vector, scale, frequency, anisotropy, orientation 2D, 3D
     need(10);
     o.code = OpCode::TexGabor;

@@ -17,17 +17,20 @@ template <bool kDiffuseOnly = false>
     const Closure& c = cl.c[size_t(i)];
     if (!kDiffuseOnly && c.delta) continue;
     const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
-    if (same_side(lo, li) != reflection) continue;
     float p;
     Vec3 v;
+    // Diffuse lobes reflect only, from the side their eval picks (a bent one's may face away
+    // from the view); the others' side must agree with the geometric one.
     if constexpr (kDiffuseOnly) {
       // Only diffuse-only scenes get here; anything else (unreachable) would add nothing.
       const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf);
-      if (!d) continue;
+      if (!d || !reflection) continue;
       v = d->eval(lo, li, p);
     } else if (const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf)) {
+      if (!reflection) continue;
       v = d->eval(lo, li, p);  // the common lobe without the variant's out-of-line visit
     } else {
+      if (same_side(lo, li) != reflection) continue;
       v = bsdf_eval(c.bsdf, lo, li, p);
     }
     f += c.weight * v;
@@ -187,6 +190,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0, volume_count = 0;
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
+  if (s.camera) s.camera->differentials(ray.dir, ray_state.dp, ray_state.dd);  // the pixel's cone
   const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
@@ -272,6 +276,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             if (volume_count >= s.volume_bounces) emission_only = true;
             ++volume_count;
             ++bounce;
+            ray_state.dp += (length_before + t) * ray_state.dd;  // the footprint at the scattering
+            ray_state.min_pdf = std::min(ray_state.min_pdf, ph_pdf);
             length_before = 0.0f;
             ray_state.flags = kRayVolume;
             ray_state.depth = uint16_t(std::min(bounce, 65535));
@@ -461,6 +467,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
       prev_pdf = pdf;
+      ray_state.min_pdf = std::min(ray_state.min_pdf, pdf);
       prev_delta = false;
       mis_org = sp.p;
       if constexpr (kTree) mis_n = sp.ns;
@@ -483,6 +490,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (count >= limit) emission_only = true;
       ++count;
       ++bounce;
+      ray_state.dp = ray_state.footprint();  // the next ray starts from the footprint it hit
       length_before = 0.0f;
       // Cycles' path_state_next: reflection or transmission, diffuse, glossy or singular.
       ray_state.flags = uint8_t(((bs.flags & kReflect) ? kRayReflect : kRayTransmit) |

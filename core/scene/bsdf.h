@@ -54,8 +54,13 @@ inline float bump_shadowing(Vec3 ns, Vec3 wi) {
 struct DiffuseBsdf {
   Vec3 ns{0.0f, 0.0f, 1.0f};  // the smooth (unbent) normal in the local frame
   bool bent = false;          // the lobe's normal differs from ns: apply bump_shadowing
+  // A bent lobe's side: Cycles flips a backfacing hit's normals, then lights the lobe from its
+  // own side whatever the view (a bevelled or bumped normal may face away from the viewer).
+  // Unbent lobes simply take wo's side.
+  bool back = false;
+  bool lit_side(Vec3 wo, Vec3 wi) const { return bent ? (wi.z < 0.0f) == back : same_side(wo, wi); }
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
-    if (!same_side(wo, wi)) {
+    if (!lit_side(wo, wi)) {
       pdf = 0.0f;
       return Vec3(0.0f);
     }
@@ -65,7 +70,7 @@ struct DiffuseBsdf {
   bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     Vec3 l = sample_cosine_hemisphere(u);
     if (l.z <= 0.0f) return false;
-    if (wo.z < 0.0f) l.z = -l.z;
+    if (bent ? back : wo.z < 0.0f) l.z = -l.z;
     s.wi = l;
     s.pdf = std::fabs(l.z) * kInvPi;
     s.weight = Vec3(bent ? bump_shadowing(ns, l) : 1.0f);

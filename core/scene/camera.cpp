@@ -79,6 +79,22 @@ Vec3 Camera::to_ndc(Vec3 p) const {
   return is_finite(ndc) ? ndc : Vec3(0.0f);
 }
 
+void Camera::differentials(Vec3 dir, float& dp, float& dd) const {
+  dp = dd = 0.0f;
+  if (type_ == CameraType::Orthographic) {
+    dp = 0.5f * (dx_ + dy_);  // parallel rays: the footprint is the pixel itself
+    return;
+  }
+  const Vec3 c = dir_to_camera(dir);
+  if (!(c.z > 1e-6f)) return;
+  // Cycles' camera_sample_perspective: the unit direction's change from one pixel to the next
+  // (view plane at depth 1), averaged over x and y; the ray starts at the near clip.
+  const Vec3 dc = c / c.z, d0 = normalize(dc);
+  dd = 0.5f * (length(normalize(dc + Vec3{dx_, 0.0f, 0.0f}) - d0) + length(normalize(dc + Vec3{0.0f, dy_, 0.0f}) - d0));
+  dp = clip_start_ / d0.z * dd;
+  if (!std::isfinite(dd) || !std::isfinite(dp)) dp = dd = 0.0f;
+}
+
 Ray Camera::generate_pinhole(float x, float y) const {
   const float px = x0_ + x * dx_, py = y0_ + y * dy_;
   Ray r;

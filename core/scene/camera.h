@@ -59,6 +59,10 @@ class Camera {
   Vec3 to_camera(Vec3 p) const { return dir_to_camera(p - origin_); }
   Vec3 dir_from_camera(Vec3 v) const { return right_ * v.x + up_ * v.y - back_ * v.z; }
   Vec3 from_camera(Vec3 p) const { return origin_ + dir_from_camera(p); }
+  // Cycles' compact ray differentials of a camera ray along `dir` (a cone: the footprint's
+  // radius at the ray's start and its growth per unit of distance), for the Wireframe node's
+  // pixel size and what else measures a pixel at the shading point.
+  void differentials(Vec3 dir, float& dp, float& dd) const;
   // Where a world point projects in the frame, 0..1 from the bottom-left corner (Cycles'
   // NDC, the Texture Coordinate node's Window; z is 0).
   Vec3 to_ndc(Vec3 p) const;

@@ -1350,3 +1350,112 @@ float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance,
 }
 
 }  // namespace pl
+
+namespace pl {
+
+// Cycles' bevel radius distribution (a planar cubic falloff, (R - r)^3): the radius in [0, 1)
+// whose CDF 10x^2 - 20x^3 + 15x^4 - 4x^5 is xi, by Newton's method.
+static float bevel_cubic_radius(float xi) {
+  float x = 0.25f;
+  for (int i = 0; i < 10; ++i) {
+    const float x2 = x * x, x3 = x2 * x, nx = 1.0f - x;
+    const float f = 10.0f * x2 - 20.0f * x3 + 15.0f * x2 * x2 - 4.0f * x2 * x3 - xi;
+    const float df = 20.0f * (x * nx) * (nx * nx);
+    if (std::fabs(f) < 1e-6f || df == 0.0f) break;
+    x = clampf(x - f / df, 0.0f, 1.0f);
+  }
+  return x;
+}
+
+Vec3 trace_bevel(const ShadingContext& ctx, float radius, int samples) {
+  // Cycles' svm_bevel: points on a disk about the point, on one of three axes (the normal's
+  // half of the time), each projected onto the instance's own surface by a ray of twice the
+  // disk's height; the smooth normals found are summed with the axes' MIS weights and the
+  // falloff's ratio at the real distance, and normalised. Blurry indirect rays skip it.
+  if (ctx.ray.min_pdf < 8.0f) return ctx.ns;
+  const Scene& scene = *ctx.scene;
+  uint32_t pb[3];
+  std::memcpy(pb, &ctx.p, sizeof pb);
+  Pcg32 rng(hash3(ctx.ray.rng, pb[0] ^ (uint64_t(pb[1]) << 32), pb[2]), 0xBEu);
+  // The disk's frame as Cycles' make_orthonormals makes it from the view-facing normal: the
+  // estimate's mean does not depend on the tangents, but its normalised small-sample bias does
+  // (tangents along a cube's edges instead bent the bevel 2 % more).
+  const Vec3 ng = dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ng : ctx.ng;
+  Vec3 t0 = (ng.x != ng.y || ng.x != ng.z) ? Vec3{ng.z - ng.y, ng.x - ng.z, ng.y - ng.x}
+                                           : Vec3{ng.z - ng.y, ng.x + ng.z, -ng.y - ng.x};
+  t0 = normalize(t0);
+  const Vec3 b0 = cross(ng, t0);
+  Vec3 sum(0.0f);
+  // The samples as one randomly shifted (0,2)-sequence net (van der Corput and Sobol's second
+  // dimension, XOR-shifted): stratified in every elementary interval, as Cycles' branched
+  // samples are. The normalised sum's small-sample bias depends on it: with only 1D strata the
+  // bevelled edges came out 2 % off Cycles'.
+  const uint32_t shift_x = rng.next_u32(), shift_y = rng.next_u32();
+  auto sobol2 = [](uint32_t i) {
+    uint32_t r = 0;
+    for (uint32_t v = 1u << 31; i; i >>= 1, v ^= v >> 1)
+      if (i & 1u) r ^= v;
+    return r;
+  };
+  auto bit_reverse = [](uint32_t v) {
+    v = ((v >> 1) & 0x55555555u) | ((v & 0x55555555u) << 1);
+    v = ((v >> 2) & 0x33333333u) | ((v & 0x33333333u) << 2);
+    v = ((v >> 4) & 0x0F0F0F0Fu) | ((v & 0x0F0F0F0Fu) << 4);
+    v = ((v >> 8) & 0x00FF00FFu) | ((v & 0x00FF00FFu) << 8);
+    return (v >> 16) | (v << 16);
+  };
+  auto unit = [](uint32_t v) { return std::min(float(v >> 8) * 0x1p-24f, 0x1.fffffep-1f); };
+  for (int k = 0; k < samples; ++k) {
+    float ux = unit(bit_reverse(uint32_t(k)) ^ shift_x);
+    const float uy = unit(sobol2(uint32_t(k)) ^ shift_y);
+    Vec3 n = ng, t = t0, b = b0;
+    float pn, pt, pb_;
+    if (ux < 0.5f) {
+      pn = 0.5f, pt = 0.25f, pb_ = 0.25f;
+      ux *= 2.0f;
+    } else if (ux < 0.75f) {
+      std::swap(n, t);
+      pn = 0.25f, pt = 0.5f, pb_ = 0.25f;
+      ux = (ux - 0.5f) * 4.0f;
+    } else {
+      std::swap(n, b);
+      pn = 0.25f, pt = 0.25f, pb_ = 0.5f;
+      ux = (ux - 0.75f) * 4.0f;
+    }
+    const float phi = 2.0f * kPi * ux;
+    const float disk_r = bevel_cubic_radius(uy) * radius;
+    const float height = std::sqrt(std::max(0.0f, radius * radius - disk_r * disk_r));
+    Ray ray;
+    ray.org = ctx.p + n * height + t * (disk_r * std::cos(phi)) + b * (disk_r * std::sin(phi));
+    ray.dir = -n;
+    ray.tmax = 2.0f * height;
+    if (!(ray.tmax > 0.0f) || !is_finite(ray.org)) continue;
+    const float falloff_disk = radius - disk_r;  // the cubic falloff's ratio, as ((R - r) / (R - r_disk))^3
+    // Every hit on the instance along the ray (other objects are walked past), bounded.
+    for (int i = 0; i < 16; ++i) {
+      Hit h;
+      h.t = ray.tmax;
+      if (!scene.intersect(ray, h) || !h.valid()) break;
+      const Vec3 q = ray.org + ray.dir * h.t;
+      if (h.inst == ctx.instance) {
+        SurfacePoint sp;
+        scene.surface_point(h, sp);
+        const float an = pn * std::fabs(dot(n, sp.ng)), at = pt * std::fabs(dot(t, sp.ng)),
+                    ab = pb_ * std::fabs(dot(b, sp.ng));
+        const float mis = an / (an * an + at * at + ab * ab);
+        const float r = length(sp.p - ctx.p);
+        const float q3 = r < radius ? (radius - r) / falloff_disk : 0.0f;
+        const float w = mis * q3 * q3 * q3;
+        if (falloff_disk > 0.0f && std::isfinite(w)) sum += sp.ns * w;
+      }
+      const float step = h.t + 1e-4f * (1.0f + max_component(vabs(q)));
+      ray.org = ray.org + ray.dir * step;
+      ray.tmax -= step;
+      if (!(ray.tmax > 0.0f)) break;
+    }
+  }
+  const float l = length_sq(sum);
+  return l > 0.0f && std::isfinite(l) ? sum / std::sqrt(l) : ctx.ns;
+}
+
+}  // namespace pl

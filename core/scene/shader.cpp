@@ -133,6 +133,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z) {
       d.bent = true;
       d.ns = f.to_local(ctx.ns);
+      d.back = dot(ctx.ng, ctx.wo) < 0.0f;
     }
     return d;
   };
@@ -609,6 +610,56 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         if (dist > 0.0f && op.index >= 1 && ctx.scene && length_sq(n) > 0.0f && is_finite(n))
           ao = trace_ambient_occlusion(ctx, normalize(n), std::isfinite(dist) ? dist : kInf, op.index, op.sub & 2);
         d = op.ext == 1 ? Float4{ao, ao, ao, 1.0f} : f4(reg(op.in[0]).xyz() * ao);
+        break;
+      }
+      case OpCode::Bevel: {
+        // Cycles' svm_node_bevel: in radius and (optional) normal; index the samples. A given
+        // normal keeps its own bend: normalize(N_in + (bevel - N)).
+        const float radius = reg(op.in[0]).x;
+        Vec3 n = ctx.ns;
+        if (ctx.scene && radius > 0.0f && std::isfinite(radius) && op.index >= 1) n = trace_bevel(ctx, radius, op.index);
+        if (op.in[1] != kNoReg) {
+          const Vec3 m = r[op.in[1]].xyz() + (n - ctx.ns);
+          n = length_sq(m) > 0.0f && is_finite(m) ? normalize(m) : ctx.ns;
+        }
+        d = f4(n, 0.0f);
+        break;
+      }
+      case OpCode::Wireframe: {
+        // Cycles' svm_wireframe: 1 within Size / 2 of one of the triangle's edges, Size in
+        // world units or (ext) in pixels at the point: the footprint's two tangent axes
+        // (Cycles' make_orthonormals of the view-facing normal) projected across the view.
+        float f = 0.0f;
+        if (ctx.tri) {
+          Vec3 p = ctx.p;
+          if (op.sub != kAtPoint && op.sub < 3) {
+            make_offsets();
+            p += dp[op.sub];
+          }
+          float width = 1.0f;
+          if (op.ext) {
+            const Vec3 ng = dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ng : ctx.ng;
+            Vec3 a = (ng.x != ng.y || ng.x != ng.z) ? Vec3{ng.z - ng.y, ng.x - ng.z, ng.y - ng.x}
+                                                    : Vec3{ng.z - ng.y, ng.x + ng.z, -ng.y - ng.x};
+            a = normalize(a);
+            const Vec3 b = cross(ng, a);
+            const float fp = ctx.ray.footprint();
+            const float wa = length(a - ctx.wo * dot(a, ctx.wo)), wb = length(b - ctx.wo * dot(b, ctx.wo));
+            width = fp * 0.5f * (wa + wb);
+          }
+          const float size = reg(op.in[0]).x;
+          float w2 = 0.5f * size * width;
+          w2 *= w2;
+          for (int i = 0; i < 3; ++i) {
+            const Vec3 edge = ctx.tri[i] - ctx.tri[i ? i - 1 : 2];
+            const Vec3 c = cross(edge, p - ctx.tri[i]);
+            if (dot(c, c) < dot(edge, edge) * w2) {  // squared distance to the edge's line
+              f = 1.0f;
+              break;
+            }
+          }
+        }
+        d = {f, f, f, 1.0f};
         break;
       }
       case OpCode::Diffuse: {

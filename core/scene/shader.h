@@ -46,6 +46,8 @@ enum class OpCode : uint8_t {
   VectorRotate, VectorTransform, Blackbody, Wavelength, CameraCoords, Tangent,  // scene/vector_nodes.h
   TexGabor,  // scene/tex_gabor.h
   AmbientOcclusion,  // traced by the scene (trace_ambient_occlusion)
+  Bevel,             // traced by the scene (trace_bevel)
+  Wireframe,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
   Translucent, Metallic,
   PrincipledExtra,  // the Principled BSDF's further inputs: the op just before its Principled op
@@ -199,6 +201,14 @@ struct RayState {
   // space); nullptr where none is known (camera space is then world space).
   const Camera* camera = nullptr;
   uint32_t rng = 0;  // a random number of this path and bounce (the Ambient Occlusion node's rays)
+  // Cycles' compact ray differentials: the footprint radius where the ray started and its
+  // growth per unit length (a camera ray's pixel cone; bounces keep the growth and restart
+  // from the footprint they hit). The footprint at the hit is dp + length * dd.
+  float dp = 0.0f, dd = 0.0f;
+  // The smallest BSDF pdf along the path so far (Cycles' min_ray_pdf; delta lobes leave it):
+  // Bevel does nothing below 8 (blurry indirect rays).
+  float min_pdf = kInf;
+  float footprint() const { return dp + length * dd; }
 };
 
 // What a program can read at a shading point.
@@ -229,6 +239,10 @@ struct ShadingContext {
 // distributed, as Cycles) that travel `distance` without a hit (only_local: ignoring other
 // objects). Implemented by the scene (scene.cpp).
 float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance, int samples, bool only_local);
+
+// The Bevel node's normal: Cycles' svm_bevel, the smooth normals of the instance's surface
+// within `radius` of the point, found by `samples` short rays (mesh orientation, as ctx.ns).
+Vec3 trace_bevel(const ShadingContext& ctx, float radius, int samples);
 
 struct ShaderProgram {
   std::vector<ShaderOp> ops;
