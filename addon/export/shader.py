@@ -1039,8 +1039,8 @@ class ShaderCompiler:
                          None if normal is None else self.reg(normal), which)
 
     def bump(self, node, out, ctx):
-        """Cycles' Bump: the height at the point and at two small offsets along the surface
-        (finite differences along the triangle's edges, not Cycles' ray differentials)."""
+        """Cycles' Bump: the height at the point and at two offsets Filter Width pixel
+        footprints away (Cycles' ray differentials; one filter width per material)."""
         normal = self.normal(node, ctx)
         strength = self.input(node, "Strength", ctx, "float")
         distance = self.input(node, "Distance", ctx, "float")
@@ -1057,9 +1057,15 @@ class ShaderCompiler:
             self.bump_state = saved
         if all(h.is_const for h in heights):
             return normal  # a constant height has no slope
+        width_socket = node.inputs.get("Filter Width")
+        width = 0.1 if width_socket is None else self.const_input(node, "Filter Width", ctx, "float").const[0]
+        first = self.cache.setdefault("bump_filter_width", width)
+        if first != width:
+            self.problem(f"'{node.name}': Filter Width {width:g} differs from another Bump's "
+                         f"{first:g} in the material (that one is used)")
         return self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(strength),
                          self.reg(distance), None if normal is None else self.reg(normal),
-                         bool(node.invert))
+                         bool(node.invert), max(0.0, float(width)))
 
     _GEOMETRY = {"True Normal": "TRUE_NORMAL", "Incoming": "INCOMING",
                  "Parametric": "PARAMETRIC", "Backfacing": "BACKFACING"}

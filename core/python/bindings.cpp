@@ -736,11 +736,16 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.in[1] = regno(t[3]);
       o.sub = index_in({"FRESNEL", "FACING"}, name_of(t[4]), "layer weight output");
       prog.varying = true;
-    } else if (op == "bump") {
-      need(9);
+    } else if (op == "bump") {  // heights (3), strength, distance, normal, invert [, filter width]
+      if (t.size() != 9 && t.size() != 10) throw std::invalid_argument("shader op 'bump' takes 8 or 9 arguments");
       o.code = OpCode::Bump;
       for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
       o.clamp = t[8].cast<bool>();  // invert
+      if (t.size() == 10) {
+        const float fw = t[9].cast<float>();
+        if (!(fw >= 0.0f) || !std::isfinite(fw)) throw std::invalid_argument("bump filter width must be >= 0");
+        if (prog.bump_filter_width <= 0.0f) prog.bump_filter_width = fw;  // the program's first
+      }
       prog.varying = true;
     } else if (op == "ramp") {
       need(9);

@@ -151,6 +151,28 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     offsets_made = true;
     if (!ctx.tri) return;
     const Vec3 e1 = ctx.tri[1] - ctx.tri[0], e2 = ctx.tri[2] - ctx.tri[0];
+    // Cycles' bump offsets: Filter Width times the ray's footprint at the point, along the
+    // make_orthonormals axes of the view-facing normal (differential_from_compact), with the
+    // barycentric steps that move the same way in the triangle's plane.
+    const float fp = ctx.ray.footprint() * prog.bump_filter_width;
+    if (fp > 0.0f && std::isfinite(fp)) {
+      const Vec3 ng = dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ng : ctx.ng;
+      Vec3 a = (ng.x != ng.y || ng.x != ng.z) ? Vec3{ng.z - ng.y, ng.x - ng.z, ng.y - ng.x}
+                                              : Vec3{ng.z - ng.y, ng.x + ng.z, -ng.y - ng.x};
+      a = normalize(a);
+      const Vec3 axes[2] = {a * fp, cross(ng, a) * fp};
+      const float g11 = dot(e1, e1), g12 = dot(e1, e2), g22 = dot(e2, e2);
+      const float det = g11 * g22 - g12 * g12;
+      if (det > 0.0f && std::isfinite(det) && is_finite(axes[0]) && is_finite(axes[1])) {
+        for (int k = 0; k < 2; ++k) {
+          const float r1 = dot(e1, axes[k]), r2 = dot(e2, axes[k]);
+          db[1 + k][0] = (g22 * r1 - g12 * r2) / det;
+          db[1 + k][1] = (g11 * r2 - g12 * r1) / det;
+          dp[1 + k] = axes[k];
+        }
+        return;
+      }
+    }
     const float step = 1e-4f * (1.0f + max_component(vabs(ctx.p)));
     const float l1 = length(e1), l2 = length(e2);
     if (!(l1 > 0.0f) || !(l2 > 0.0f) || !std::isfinite(l1 * l2) || !std::isfinite(step)) return;

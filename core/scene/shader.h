@@ -258,6 +258,9 @@ struct ShaderProgram {
   Vec3 volume_emission{0.0f};
   bool has_medium() const { return !is_black(sigma_a) || !is_black(sigma_s) || !is_black(volume_emission); }
   std::vector<Float4> tables;  // Ramp lookup tables (Color Ramp, RGB Curves), as Cycles bakes them
+  // The Bump node's Filter Width: its heights are read this many pixel footprints away (<= 0:
+  // a tiny fixed step, where the ray's footprint is unknown too).
+  float bump_filter_width = 0.0f;
 };
 
 // Runs `prog` at `ctx`, filling `out` (closures plus emission), with closure frames built from
