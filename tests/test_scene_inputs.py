@@ -316,3 +316,34 @@ def test_geometry_outputs_match_cycles(output):
     ours, cycles = render_both(build)
     diff = np.abs(ours[..., :3] - cycles[..., :3])
     assert diff.mean() < 1e-3, f"mean abs difference {diff.mean():.2e}"
+
+
+def test_random_per_island_matches_cycles():
+    """Geometry ▸ Random Per Island as emission on one mesh of nine separate islands (cubes and
+    a grid, joined in an order that makes the disjoint set's roots non-trivial), per pixel: the
+    same random number per island as Cycles (its union-by-rank roots, hashed)."""
+    import bmesh  # after bpy
+
+    def build():
+        scene = top_view(48)
+        mat, nodes, links, out = ms.new_material("Island")
+        geo = nodes.new("ShaderNodeNewGeometry")
+        emit = nodes.new("ShaderNodeEmission")
+        links.new(geo.outputs["Random Per Island"], emit.inputs["Color"])
+        links.new(emit.outputs[0], out.inputs["Surface"])
+
+        def islands(bm):
+            for i in range(8):
+                x, y = -1.5 + (i % 4), -0.6 + 1.2 * (i // 4)
+                m = bmesh.ops.create_cube(bm, size=0.7)
+                bmesh.ops.translate(bm, vec=(x, y, 0.0), verts=m["verts"])
+            g = bmesh.ops.create_grid(bm, x_segments=3, y_segments=2, size=0.3)
+            bmesh.ops.translate(bm, vec=(0.0, 0.0, 0.6), verts=g["verts"])
+        ms.add_mesh_object("Islands", islands, (mat,))
+        return scene
+    ours, cycles = render_both(build)
+    diff = np.abs(ours[..., :3] - cycles[..., :3])
+    assert diff.mean() < 1e-4, f"mean abs difference {diff.mean():.2e}"
+    assert diff.max() < 1e-3, f"max abs difference {diff.max():.2e}"
+    values = {round(float(v), 5) for v in ours[..., 0].ravel() if v > 0.0}
+    assert len(values) >= 8, values  # the islands differ

@@ -312,6 +312,17 @@ def mesh_attributes(mesh, names, loops):
             out[k] = np.ascontiguousarray(np.repeat(p[:, None], 4, 1)[corner_verts[loops]]
                                           .reshape(-1, 3, 4))
             continue
+        if kind == "island":  # Geometry ▸ Random Per Island: per triangle, from its first vertex
+            if corner_verts is None:
+                corner_verts = _corner_verts(mesh)
+            edges = np.empty(len(mesh.edges) * 2, np.int32)
+            mesh.edges.foreach_get("vertices", edges)
+            from ..core import get_core
+            per_vertex = get_core().island_random(len(mesh.vertices), edges.reshape(-1, 2))
+            tri = per_vertex[corner_verts[loops].reshape(-1, 3)[:, 0]]
+            out[k] = np.ascontiguousarray(np.broadcast_to(tri[:, None, None], (len(tri), 3, 4)),
+                                          dtype=np.float32)
+            continue
         if kind == "color" and not name:
             name = mesh.color_attributes.default_color_name or \
                 (mesh.color_attributes[0].name if len(mesh.color_attributes) else "")

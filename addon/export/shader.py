@@ -994,6 +994,8 @@ class ShaderCompiler:
                 return self.emit("vector", "tangent", "Z", 0)
             if oid == "Pointiness":  # per vertex, computed at export as Cycles does
                 return self.attribute_value("pointiness", "", "ALPHA", f"'{node.name}'")
+            if oid == "Random Per Island":  # per triangle, computed at export as Cycles does
+                return self.attribute_value("island", "", "ALPHA", f"'{node.name}'")
             which = self._GEOMETRY.get(oid)
             if which is not None:
                 return self.emit("float" if oid == "Backfacing" else "vector", "geometry", which)

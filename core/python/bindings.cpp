@@ -1514,6 +1514,47 @@ PYBIND11_MODULE(pathlight_core, m) {
       "XXH64 of a C-contiguous buffer's bytes (a numpy array, bytes): a fast non-cryptographic 64-bit hash, "
       "for change detection.");
   m.def(
+      "island_random",
+      [](int64_t vertices, const I32Array& edges) {
+        if (vertices < 0) throw std::invalid_argument("vertices must be >= 0");
+        if (edges.ndim() != 2 || edges.shape(1) != 2) throw std::invalid_argument("edges must have shape (E, 2)");
+        const size_t n = size_t(vertices), ne = size_t(edges.shape(0));
+        const int32_t* e = edges.data();
+        for (size_t i = 0; i < 2 * ne; ++i)
+          if (e[i] < 0 || size_t(e[i]) >= n) throw std::invalid_argument("edge vertex index out of range");
+        py::array_t<float> out{py::ssize_t(vertices)};
+        float* o = out.mutable_data();
+        {
+          py::gil_scoped_release release;
+          // Cycles' attr_create_random_per_island: a disjoint set of the vertices joined along
+          // the edges in their stored order (union by rank, path compression, as its
+          // util/disjoint_set.h), each vertex valued by the hash of its set's root.
+          std::vector<uint32_t> parent(n), rank(n, 0);
+          for (size_t i = 0; i < n; ++i) parent[i] = uint32_t(i);
+          auto find = [&](uint32_t x) {
+            uint32_t root = x;
+            while (parent[root] != root) root = parent[root];
+            while (parent[x] != root) {
+              const uint32_t up = parent[x];
+              parent[x] = root;
+              x = up;
+            }
+            return root;
+          };
+          for (size_t i = 0; i < ne; ++i) {
+            uint32_t a = find(uint32_t(e[2 * i])), b = find(uint32_t(e[2 * i + 1]));
+            if (a == b) continue;
+            if (rank[a] < rank[b]) std::swap(a, b);
+            parent[b] = a;
+            if (rank[a] == rank[b]) ++rank[a];
+          }
+          for (size_t i = 0; i < n; ++i) o[i] = lookup3::to_unit(lookup3::hash(find(uint32_t(i))));
+        }
+        return out;
+      },
+      py::arg("vertices"), py::arg("edges"),
+      "Per vertex: Cycles' Random Per Island of its mesh island (islands joined along `edges`).");
+  m.def(
       "polygon_face_offsets",
       [](const I32Array& tri_faces, int64_t faces, int64_t corners) -> py::object {
         if (tri_faces.ndim() != 1) throw std::invalid_argument("triangle_faces must have shape (T,)");
