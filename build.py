@@ -1027,7 +1027,11 @@ README_BENCH_HEADLINES = {
     "export": ("Cold render of a mesh (export, scene, BVH, 1 sample): Cycles' time over Pathlight's",
                lambda r: f"{r['Triangles']} triangles {r['Cycles time / Pathlight time']}"),
     "export_rerender": ("Re-renders: Cycles' time over Pathlight's",
-                        lambda r: f"{r['Triangles']} triangles, {r['Render']} {r['Cycles time / Pathlight time']}"),
+                        lambda r: f"{r['Triangles']} triangles, {r['Render']} {r['Cycles time / Pathlight time']}"
+                        if "animation" in r["Render"] or "first" in r["Render"] else None),
+    "realistic": ("Cycles' error over Pathlight's at equal time, pooled (converged mean ratio)",
+                  lambda r: f"{r['Scene'].split(' (')[0]} {r['pooled'].split(' ')[0]} "
+                            f"({r['converged mean / worst region'].split(' /')[0]})"),
     "kernels": ("The specialised kernel's samples/s over the general kernel's",
                 lambda r: f"{r['Scene']} {r['Speed-up']}"),
     "rays": ("Embree's rays/s over Pathlight's, one thread each (above 1: Embree ahead)",
