@@ -590,6 +590,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else if (kind == "glossy") {
         o.code = OpCode::Glossy;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal"); o.in[4] = p("multiscatter");
+        o.in[5] = p("anisotropy"); o.in[6] = p("rotation"); o.in[7] = p("tangent");
       } else if (kind == "glass" || kind == "refraction") {
         o.code = kind == "glass" ? OpCode::Glass : OpCode::Refraction;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("ior"); o.in[4] = p("normal");
@@ -601,6 +602,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         o.code = OpCode::Metallic;
         o.in[1] = p("base_color"); o.in[2] = p("edge_tint"); o.in[3] = p("ior"); o.in[4] = p("extinction");
         o.in[5] = p("roughness"); o.in[6] = p("normal"); o.in[7] = p("multiscatter"); o.in[8] = p("physical");
+        o.in[9] = p("anisotropy"); o.in[10] = p("rotation"); o.in[11] = p("tangent");
       } else if (kind == "translucent") {
         o.code = OpCode::Translucent;
         o.in[1] = p("color"); o.in[2] = p("normal");
@@ -637,7 +639,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         throw std::invalid_argument("unknown closure '" + kind + "'");
       }
       for (const auto& kv : params) regno(kv.second);  // validates every register, also of unknown keys
-      if (p("normal") != kNoReg || p("coat_normal") != kNoReg) prog.varying = true;
+      if (p("normal") != kNoReg || p("coat_normal") != kNoReg || p("tangent") != kNoReg) prog.varying = true;
       if (p("multiscatter") != kNoReg) prog.varying = true;  // its compensation depends on the view
       if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
       prog.ops.push_back(o);
@@ -1271,6 +1273,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   if (kind == "conductor") {
     ConductorBsdf c;
     c.alpha = f("alpha", 0.3f);
+    c.alpha_y = f("alpha_y", -1.0f);  // anisotropic GGX (negative: isotropic)
     c.f0 = p.contains("f0") ? to_color(p["f0"], "f0") : Vec3(1.0f);
     if (b("schlick", false)) c.mode = ConductorFresnel::Schlick;
     if (p.contains("f82_tint")) {  // Principled's metal
@@ -1290,6 +1293,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   if (kind == "dielectric") {
     DielectricBsdf d;
     d.alpha = f("alpha", 0.3f);
+    d.alpha_y = f("alpha_y", -1.0f);
     d.eta = f("eta", 1.5f);
     d.reflection = b("reflection", true);
     d.transmission = b("transmission", true);

@@ -111,12 +111,16 @@ enum class ConductorFresnel : uint8_t {
 
 // GGX reflection, tinted by one of the Fresnel models above.
 struct ConductorBsdf {
-  float alpha = 0.0f;
+  float alpha = 0.0f;     // along the frame's tangent (t)
+  float alpha_y = -1.0f;  // along its bitangent (b); negative: isotropic (alpha)
   Vec3 f0{1.0f};
   ConductorFresnel mode = ConductorFresnel::Constant;
   bool exact = true;  // Dielectric: the real Fresnel equations (false: Schlick's approximation)
   float eta = 1.5f;   // Dielectric
   Vec3 b{0.0f};       // F82Tint
+  Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
+  // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
+  bool is_delta() const { return alpha_y < 0.0f ? alpha < kDeltaAlpha : alpha * alpha_y < kDeltaAlpha * kDeltaAlpha; }
   Vec3 fresnel(float c) const {
     switch (mode) {
       case ConductorFresnel::Constant: return f0;
@@ -134,13 +138,13 @@ struct ConductorBsdf {
   }
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
-    if (alpha < kDeltaAlpha || !same_side(wo, wi)) return Vec3(0.0f);
+    if (is_delta() || !same_side(wo, wi)) return Vec3(0.0f);
     if (wo.z < 0.0f) {
       wo.z = -wo.z;
       wi.z = -wi.z;
     }
     const Vec3 m = normalize(wo + wi);
-    const Ggx g{alpha};
+    const Ggx g = ggx();
     const float wom = dot(wo, m);
     if (!(wom > 0.0f)) return Vec3(0.0f);
     pdf = g.pdf_visible(wo, m) / (4.0f * wom);
@@ -149,13 +153,13 @@ struct ConductorBsdf {
   bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     const bool flip = wo.z < 0.0f;
     if (flip) wo.z = -wo.z;
-    if (alpha < kDeltaAlpha) {
+    if (is_delta()) {
       s.wi = {-wo.x, -wo.y, wo.z};
       s.weight = fresnel(wo.z);
       s.pdf = 1.0f;
       s.flags = kReflect | kDelta | kGlossyLobe;
     } else {
-      const Ggx g{alpha};
+      const Ggx g = ggx();
       const Vec3 m = g.sample_visible(wo, u);
       s.wi = reflect(wo, m);
       const float wom = dot(wo, m);
@@ -172,7 +176,8 @@ struct ConductorBsdf {
 // Dielectric interface (Walter et al. 2007 for rough): glass (both lobes), refraction only, or
 // a reflection-only coating layer. eta = n_inside / n_outside, the normal pointing outside.
 struct DielectricBsdf {
-  float alpha = 0.0f;
+  float alpha = 0.0f;     // along the frame's tangent (t)
+  float alpha_y = -1.0f;  // along its bitangent (b); negative: isotropic (alpha)
   float eta = 1.5f;
   bool reflection = true, transmission = true;
   bool fresnel_on_transmission = true;  // false: Blender's Refraction BSDF (all light refracts)
@@ -182,6 +187,9 @@ struct DielectricBsdf {
   // reflection mix(F0 tint, 1, s) with s the real Fresnel remapped from [F0, 1], transmission
   // the rest (1 white: the plain Fresnel equations).
   Vec3 f0_tint{1.0f};
+  Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
+  // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
+  bool is_delta() const { return alpha_y < 0.0f ? alpha < kDeltaAlpha : alpha * alpha_y < kDeltaAlpha * kDeltaAlpha; }
 
   // A reflection-only layer (a coat) has no inside: seen from behind it behaves as from the front.
   bool one_sided_coat() const { return !transmission; }
@@ -206,7 +214,7 @@ struct DielectricBsdf {
 
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
-    if (alpha < kDeltaAlpha || wo.z == 0.0f || wi.z == 0.0f) return Vec3(0.0f);
+    if (is_delta() || wo.z == 0.0f || wi.z == 0.0f) return Vec3(0.0f);
     if (one_sided_coat() && wo.z < 0.0f) {
       wo.z = -wo.z;
       wi.z = -wi.z;
@@ -219,7 +227,7 @@ struct DielectricBsdf {
     m = normalize(m);
     if (m.z < 0.0f) m = -m;
     if (dot(m, wi) * wi.z < 0.0f || dot(m, wo) * wo.z < 0.0f) return Vec3(0.0f);  // backfacing microfacet
-    const Ggx g{alpha};
+    const Ggx g = ggx();
     Vec3 cr, ct;
     float pr, pt;
     lobes(fresnel(dot(wo, m)), cr, ct, pr, pt);
@@ -248,7 +256,7 @@ struct DielectricBsdf {
       s.wi.z = -s.wi.z;
       return ok;
     }
-    if (alpha < kDeltaAlpha) {
+    if (is_delta()) {
       Vec3 cr, ct;
       float pr, pt;
       lobes(fresnel(wo.z), cr, ct, pr, pt);
@@ -269,7 +277,7 @@ struct DielectricBsdf {
       s.eta = etap;
       return true;
     }
-    const Ggx g{alpha};
+    const Ggx g = ggx();
     const Vec3 wo_up = wo.z > 0.0f ? wo : -wo;
     // The microfacet normal facing outside (+Z side): its sign tells Fresnel and refract
     // whether wo is inside or outside.
@@ -322,8 +330,8 @@ inline bool bsdf_sample(const Bsdf& b, Vec3 wo, Vec2 u, float uc, BsdfSample& s)
 }
 inline bool bsdf_is_delta(const Bsdf& b) {
   if (std::holds_alternative<TransparentBsdf>(b)) return true;
-  if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->alpha < kDeltaAlpha;
-  if (const auto* d = std::get_if<DielectricBsdf>(&b)) return d->alpha < kDeltaAlpha;
+  if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->is_delta();
+  if (const auto* d = std::get_if<DielectricBsdf>(&b)) return d->is_delta();
   return false;
 }
 // A rough guess of how much a closure reflects, to choose among closures when sampling.
@@ -371,6 +379,18 @@ struct Frame {
     Frame f;
     f.n = n;
     make_basis(n, f.t, f.b);
+    return f;
+  }
+  // An anisotropic lobe's frame (Cycles' make_orthonormals_tangent): b = n x t normalized, t
+  // then the tangent made perpendicular to n; a tangent along n (or none) gives any basis.
+  static Frame from_normal_tangent(Vec3 n, Vec3 tangent) {
+    const Vec3 b = cross(n, tangent);
+    const float l2 = length_sq(b);
+    if (!(l2 > 1e-20f) || !std::isfinite(l2)) return from_normal(n);
+    Frame f;
+    f.n = n;
+    f.b = b / std::sqrt(l2);
+    f.t = cross(f.b, n);
     return f;
   }
   Vec3 to_local(Vec3 v) const { return {dot(v, t), dot(v, b), dot(v, n)}; }
