@@ -86,7 +86,7 @@ def sphere_scene(material, light):
             env = ls.synthetic_hdr(64, 32, sun_sigma=0.3, sun_peak=6.0)
             ls.world_image(ls.load_image(env, "sky"))
         else:
-            ls.add_light('POINT', location=(2.5, -2.5, 3.0), energy=400.0, shadow_soft_size=0.1)
+            ls.add_light('POINT', location=(2.5, -2.5, 3.0), energy=3000.0, shadow_soft_size=0.1)
         uv_sphere(MATERIALS[material]())
         ms.add_camera((0.0, -4.5, 0.6), (0.0, 0.0, 0.0), lens=50.0)
         return scene
@@ -96,7 +96,7 @@ def sphere_scene(material, light):
 @pytest.mark.parametrize("light", ["environment", "point"])
 @pytest.mark.parametrize("material", sorted(MATERIALS))
 def test_anisotropic_sphere(material, light):
-    ours, cycles = render_pair(sphere_scene(material, light), 256, bounces=8)
+    ours, cycles = render_pair(sphere_scene(material, light), 512 if light == "point" else 256, bounces=8)
     assert_agree(f"anisotropic {material} ({light})", ours, cycles)
 
 

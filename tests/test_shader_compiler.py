@@ -1332,3 +1332,18 @@ def test_anisotropy_compiles_with_its_tangent():
     data, warnings = compile_(mat)
     closures = {op[1]: op[3] for op in data.program if op[0] == "closure"}
     assert not warnings and "tangent" not in closures["principled"] and "tangent" not in closures["glossy"]
+
+
+def test_thin_film_compiles_without_a_warning():
+    mat, p = ms.bsdf_material("Bubble", "ShaderNodeBsdfPrincipled", Thin_Film_Thickness=500.0,
+                              Thin_Film_IOR=1.4)
+    data, warnings = compile_(mat)
+    assert not warnings
+    (params,) = [op[3] for op in data.program if op[0] == "closure"]
+    assert {"thin_film_thickness", "thin_film_ior"} <= set(params)
+    consts = {op[1]: op[2] for op in data.program if op[0] == "const"}
+    assert consts[params["thin_film_thickness"]][0] == 500.0
+    p.inputs["Thin Film Thickness"].default_value = 0.0
+    data, warnings = compile_(mat)
+    (params,) = [op[3] for op in data.program if op[0] == "closure"]
+    assert not warnings and "thin_film_thickness" not in params

@@ -1742,7 +1742,6 @@ class ShaderCompiler:
     )
     # Groups that the core does not render yet: warned about and left out.
     _PRINCIPLED_UNSUPPORTED = {
-        "thin film",
         "sheen",
         "diffuse roughness",
         "subsurface",

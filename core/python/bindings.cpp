@@ -1287,6 +1287,8 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     if (p.contains("specular_eta")) {  // Principled's dielectric specular (f0: its tinted F0)
       c.mode = ConductorFresnel::Dielectric;
       c.eta = f("specular_eta", 1.5f);
+      c.film_thickness = f("film_thickness", 0.0f);  // Thin Film (nm) and its IOR
+      c.film_ior = f("film_ior", 1.33f);
     }
     return c;
   }
@@ -1300,6 +1302,8 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     d.fresnel_on_transmission = b("fresnel_on_transmission", true);
     d.schlick = b("schlick", false);
     if (p.contains("f0_tint")) d.f0_tint = to_color(p["f0_tint"], "f0_tint");
+    d.film_thickness = f("film_thickness", 0.0f);
+    d.film_ior = f("film_ior", 1.33f);
     return d;
   }
   if (kind == "transparent") return TransparentBsdf{};

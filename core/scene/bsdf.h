@@ -9,6 +9,7 @@
 #include <variant>
 
 #include "scene/microfacet_energy.h"
+#include "scene/thin_film.h"
 
 namespace pl {
 
@@ -118,6 +119,8 @@ struct ConductorBsdf {
   bool exact = true;  // Dielectric: the real Fresnel equations (false: Schlick's approximation)
   float eta = 1.5f;   // Dielectric
   Vec3 b{0.0f};       // F82Tint
+  // Dielectric: a thin film on top (Principled's Thin Film), thickness in nm (0: none).
+  float film_thickness = 0.0f, film_ior = 1.33f;
   Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
   // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
   bool is_delta() const { return alpha_y < 0.0f ? alpha < kDeltaAlpha : alpha * alpha_y < kDeltaAlpha * kDeltaAlpha; }
@@ -128,6 +131,7 @@ struct ConductorBsdf {
       case ConductorFresnel::F82Tint: return fresnel_f82(c, f0, b);
       case ConductorFresnel::Conductor: return fresnel_conductor(c, f0, b);
       case ConductorFresnel::Dielectric: {
+        if (film_thickness > kThinFilmCutoff) return thin_film_dielectric(c, film_ior, eta, film_thickness, f0);
         const float F = exact ? fresnel_dielectric(c, eta) : fresnel_schlick_dielectric(c, eta);
         const float F0 = f0_from_ior(eta);
         const float s = F0 < 1.0f ? clampf((F - F0) / (1.0f - F0), 0.0f, 1.0f) : 1.0f;
@@ -187,6 +191,9 @@ struct DielectricBsdf {
   // reflection mix(F0 tint, 1, s) with s the real Fresnel remapped from [F0, 1], transmission
   // the rest (1 white: the plain Fresnel equations).
   Vec3 f0_tint{1.0f};
+  // A thin film on the interface (Principled's Thin Film), thickness in nm (0: none); its IOR
+  // is relative to the outside, as eta.
+  float film_thickness = 0.0f, film_ior = 1.33f;
   Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
   // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
   bool is_delta() const { return alpha_y < 0.0f ? alpha < kDeltaAlpha : alpha * alpha_y < kDeltaAlpha * kDeltaAlpha; }
@@ -196,6 +203,17 @@ struct DielectricBsdf {
 
   float fresnel(float cos_i) const {
     return schlick ? fresnel_schlick_dielectric(cos_i, eta) : fresnel_dielectric(cos_i, eta);
+  }
+  // The lobes at cos_i = dot(wo, m) (its sign: the side), with the film if there is one.
+  void lobes_at(float cos_i, Vec3& cr, Vec3& ct, float& pr, float& pt) const {
+    if (!(film_thickness > kThinFilmCutoff)) return lobes(fresnel(cos_i), cr, ct, pr, pt);
+    // Seen from inside, Cycles puts everything relative to the inside medium.
+    const bool inside = cos_i < 0.0f;
+    const float base = inside ? 1.0f / eta : eta, film = inside ? film_ior / eta : film_ior;
+    cr = thin_film_dielectric(std::fabs(cos_i), film, base, film_thickness, vmin(f0_tint * f0_from_ior(base), Vec3(1.0f)));
+    ct = fresnel_on_transmission ? Vec3(1.0f) - cr : Vec3(1.0f);
+    pr = reflection ? average(cr) : 0.0f;
+    pt = transmission ? average(ct) : 0.0f;
   }
   // Given the real Fresnel term F: the colours of reflection (cr) and transmission (ct, before
   // transmission_tint) and the probabilities of choosing them.
@@ -230,7 +248,7 @@ struct DielectricBsdf {
     const Ggx g = ggx();
     Vec3 cr, ct;
     float pr, pt;
-    lobes(fresnel(dot(wo, m)), cr, ct, pr, pt);
+    lobes_at(dot(wo, m), cr, ct, pr, pt);
     if (!(pr + pt > 0.0f)) return Vec3(0.0f);
     // Visible-normal density seen from wo mirrored to the outside; m (facing +Z) is then the
     // facet facing it, whichever side wo is on.
@@ -259,7 +277,7 @@ struct DielectricBsdf {
     if (is_delta()) {
       Vec3 cr, ct;
       float pr, pt;
-      lobes(fresnel(wo.z), cr, ct, pr, pt);
+      lobes_at(wo.z, cr, ct, pr, pt);
       if (!(pr + pt > 0.0f)) return false;
       if (uc * (pr + pt) < pr) {
         s.wi = {-wo.x, -wo.y, wo.z};
@@ -284,7 +302,7 @@ struct DielectricBsdf {
     const Vec3 m = g.sample_visible(wo_up, u);
     Vec3 cr, ct;
     float pr, pt;
-    lobes(fresnel(dot(wo, m)), cr, ct, pr, pt);
+    lobes_at(dot(wo, m), cr, ct, pr, pt);
     if (!(pr + pt > 0.0f)) return false;
     if (uc * (pr + pt) < pr) {
       s.wi = reflect(wo, m);

@@ -757,6 +757,14 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           }
         }
         const float rough_a = ay < 0.0f ? rough : table_rough(ax, ay);
+        // Thin Film (nm, its IOR): interference on the specular and transmission lobes (Cycles
+        // 4.5: not on the metal, not on the coat).
+        float film = 0.0f, film_ior = 1.33f;
+        if (px(kPxThinFilmThickness) != kNoReg) {
+          const float t = r[px(kPxThinFilmThickness)].x, fi = val(px(kPxThinFilmIor), 1.33f);
+          film = std::isfinite(t) ? std::min(std::max(t, 0.0f), 1e5f) : 0.0f;
+          film_ior = std::isfinite(fi) ? std::max(fi, 1e-5f) : 1.33f;
+        }
         Vec3 weight = w;
         // Cycles' closure_layering_weight: what lies below a layer keeps 1 - max(albedo / weight)
         // of the weight (albedo: the layer's, relative to the weight it was given).
@@ -819,6 +827,8 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           g.schlick = prog.schlick;
           g.transmission_tint = {std::sqrt(base_c.x), std::sqrt(base_c.y), std::sqrt(base_c.z)};
           g.f0_tint = spec_tint;
+          g.film_thickness = film;
+          g.film_ior = film_ior;
           Vec3 gw = weight * transmission;
           if (multi) gw *= glass_compensation(g, fr, g.transmission_tint);
           out.add(g, gw, fr);
@@ -831,7 +841,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           eta = ior_from_f0(f0);
           if (ior < 1.0f) eta = 1.0f / eta;
         }
-        if (eta != 1.0f) {
+        if (eta != 1.0f || film > kThinFilmCutoff) {
           ConductorBsdf s;
           s.alpha = ax;
           s.alpha_y = ay;
@@ -839,6 +849,8 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           s.exact = !prog.schlick;
           s.eta = eta;
           s.f0 = vmin(spec_tint * f0, Vec3(1.0f));  // Specular Tint tints F0 only (f90 = 1)
+          s.film_thickness = film;
+          s.film_ior = film_ior;
           Vec3 sw = weight, darkening(1.0f);
           if (multi) {
             // The mean single-scatter Fresnel: the real curve's average remapped as the lobe's.
@@ -849,7 +861,8 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
             sw *= c.scale;
             darkening = c.darkening;
           }
-          const Vec3 albedo = darkening * dielectric_specular_albedo(rough_a, mu, eta, s.f0);
+          // With a film Cycles has no table: the film's reflectance seen from the view.
+          const Vec3 albedo = darkening * (film > kThinFilmCutoff ? s.fresnel(mu) : dielectric_specular_albedo(rough_a, mu, eta, s.f0));
           out.add(s, sw, fa, average(albedo));
           weight = layer_below(weight, albedo);
         }
