@@ -862,7 +862,8 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
             darkening = c.darkening;
           }
           // With a film Cycles has no table: the film's reflectance seen from the view.
-          const Vec3 albedo = darkening * (film > kThinFilmCutoff ? s.fresnel(mu) : dielectric_specular_albedo(rough_a, mu, eta, s.f0));
+          const Vec3 albedo = darkening * (film > kThinFilmCutoff ? thin_film_dielectric(mu, film_ior, eta, film, s.f0)
+                                                                  : dielectric_specular_albedo(rough_a, mu, eta, s.f0));
           out.add(s, sw, fa, average(albedo));
           weight = layer_below(weight, albedo);
         }

@@ -95,7 +95,9 @@ inline Vec3 fresnel_thin_film(float eta1, float eta2, float eta3, float cos_1, f
 // The Principled BSDF's dielectric Fresnel with a film, as Cycles: the film's reflectance from
 // air (eta_film, eta_base relative to the outside), then F0 tinting per channel: scaled by
 // f0 / F0(eta_base), fully where the reflectance is at F0 and not at all where it reaches 1.
-inline Vec3 thin_film_dielectric(float cos_i, float eta_film, float eta_base, float thickness, Vec3 f0) {
+// Out of line: kept off the hot path of the lobes without a film.
+[[gnu::noinline]] inline Vec3 thin_film_dielectric(float cos_i, float eta_film, float eta_base, float thickness,
+                                                   Vec3 f0) {
   Vec3 F = fresnel_thin_film(1.0f, eta_film, eta_base, cos_i, thickness);
   const float r = (eta_base - 1.0f) / (eta_base + 1.0f), F0 = r * r;
   if (F0 > 1e-5f && !(F.x == 1.0f && F.y == 1.0f && F.z == 1.0f)) {
