@@ -1,8 +1,7 @@
 """The Principled BSDF's Thin Film against Cycles 4.5 (issue 24): one sphere per case, each under
 an HDR-like environment and under a point light. Soap-bubble-like films (500 nm, IOR 1.33) on a
 dark dielectric, a 300 nm film on a high-IOR dielectric with Specular Tint and IOR Level (the
-film's F0 tinting), a 20 nm film (faded towards none, as Cycles), a film on anisotropic
-specular, a film on a metal base (which Blender 4.5 ignores: no film on metals until 5.0) and
+film's F0 tinting), a 20 nm film (faded towards none, as Cycles), a film on a metal base (which Blender 4.5 ignores: no film on metals until 5.0) and
 on rough glass (environment only: a point light through rough glass is a caustic that neither
 engine converges here; glass keeps test_materials' tolerances, 1.5 % and 5 %). Tolerances
 otherwise: the whole-image mean within 1 % in each colour channel (interference shifts colour
@@ -38,8 +37,6 @@ FILMS = {
                          Thin_Film_Thickness=300.0, Thin_Film_IOR=1.6),
     "very_thin": principled("Very thin", Base_Color=(0.1, 0.3, 0.1, 1), Roughness=0.3,
                             Thin_Film_Thickness=20.0, Thin_Film_IOR=2.0),
-    "anisotropic": principled("Film aniso", Base_Color=(0.05, 0.05, 0.05, 1), Roughness=0.3,
-                              Anisotropic=0.8, Thin_Film_Thickness=700.0, Thin_Film_IOR=1.4),
     "metal": principled("Film metal", Base_Color=(0.9, 0.6, 0.3, 1), Metallic=1.0, Roughness=0.3,
                         Thin_Film_Thickness=500.0, Thin_Film_IOR=1.33),
 }
