@@ -119,3 +119,21 @@ def test_strong_anisotropy_loses_energy_as_cycles_does():
     single, _ = furnace_of("glossy", samples=32, **params)
     iso, _ = furnace_of("glossy", multiscatter=1.0, roughness=0.8)
     assert single + 0.05 < multi < iso - 0.1 and abs(iso - 1.0) < 0.01, (single, multi, iso)
+
+
+@pytest.mark.parametrize("params", [
+    dict(anisotropic=float("nan"), anisotropic_rotation=float("inf"), thin_film_thickness=float("nan")),
+    dict(anisotropic=5.0, anisotropic_rotation=-3.0, thin_film_thickness=1e9, thin_film_ior=-2.0),
+    dict(anisotropic=1.0, roughness=0.0, thin_film_thickness=500.0, thin_film_ior=0.0),
+    dict(anisotropic=0.7, roughness=1.0, transmission=1.0, thin_film_thickness=250.0, thin_film_ior=3.0),
+])
+@pytest.mark.parametrize("tangent", [(0.0, 0.0, 0.0), (float("nan"), 1.0, 0.0), (0.0, 0.0, 1.0)])
+def test_odd_anisotropy_and_film_inputs_render_finite(params, tangent):
+    # Degenerate tangents (zero, NaN, along the normal at the poles) fall back to any frame;
+    # out-of-range amounts clamp as Cycles' do. furnace() asserts every sample is finite.
+    prog = closure("principled", base_color=(0.8, 0.8, 0.8), tangent=tangent, **params)
+    img = furnace(prog, samples=4, size=16)
+    assert np.isfinite(img).all() and img.max() < 2.0
+    glossy = closure("glossy", roughness=0.5, anisotropy=params["anisotropic"],
+                     rotation=params.get("anisotropic_rotation", 0.0), tangent=tangent)
+    assert np.isfinite(furnace(glossy, samples=4, size=16)).all()
