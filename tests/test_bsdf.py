@@ -28,6 +28,13 @@ CASES = [
     ("dielectric", {"alpha": 0.3, "eta": 1.5, "f0_tint": (1.0, 0.5, 0.2)}),
     ("dielectric", {"alpha": 0.4, "eta": 1.5, "transmission": False}),
     ("dielectric", {"alpha": 0.3, "eta": 1.5, "reflection": False, "fresnel_on_transmission": False}),
+    # Anisotropic GGX (alpha along the tangent, alpha_y across): reflection and glass.
+    ("conductor", {"alpha": 0.08, "alpha_y": 0.5}),
+    ("conductor", {"alpha": 0.6, "alpha_y": 0.15, "f0": (0.9, 0.6, 0.3), "f82_tint": (0.4, 0.8, 1.0)}),
+    ("dielectric", {"alpha": 0.1, "alpha_y": 0.45, "eta": 1.5}),
+    # Principled's Thin Film on its specular and on its glass (coloured Fresnel, from inside too).
+    ("conductor", {"alpha": 0.3, "f0": (0.04, 0.04, 0.04), "specular_eta": 1.5, "film_thickness": 500.0}),
+    ("dielectric", {"alpha": 0.25, "eta": 1.5, "film_thickness": 400.0, "film_ior": 1.33}),
 ]
 WO = [(0.3, 0.2, 0.93), (0.8, 0.0, 0.2), (0.2, -0.3, -0.9)]  # incl. grazing and from inside
 

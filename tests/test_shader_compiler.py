@@ -1297,4 +1297,53 @@ def test_metallic_translucent_and_holdout_compile_without_fallbacks():
     metal.inputs["Anisotropy"].default_value = 0.5
     metal.distribution = 'BECKMANN'
     data, warnings = compile_(mat)
-    assert len(warnings) == 1 and "anisotropy" in warnings[0] and "Beckmann" in warnings[0]
+    # Anisotropy is rendered now (its tangent: Cycles' default, radial about Z); Beckmann is not.
+    assert len(warnings) == 1 and "anisotropy" not in warnings[0] and "Beckmann" in warnings[0]
+    (params,) = [op[3] for op in data.program if op[0] == "closure" and op[1] == "metallic"]
+    assert {"anisotropy", "rotation", "tangent"} <= set(params)
+    (tangent,) = [op for op in data.program if op[0] == "tangent"]
+    assert tangent[1] == params["tangent"] and tangent[2] == "Z"
+
+
+def test_anisotropy_compiles_with_its_tangent():
+    # Principled: the anisotropy group's keys, the linked Tangent node's tangent; Glossy: its own
+    # keys and, unlinked, Cycles' default tangent. Neither warns; zero anisotropy adds nothing.
+    mat, nodes, links, out = ms.new_material("Brushed")
+    p = ms.set_inputs(nodes.new("ShaderNodeBsdfPrincipled"), Anisotropic=0.7, Anisotropic_Rotation=0.1)
+    t = nodes.new("ShaderNodeTangent")
+    t.direction_type = 'RADIAL'
+    t.axis = 'X'
+    links.new(t.outputs["Tangent"], p.inputs["Tangent"])
+    g = ms.set_inputs(nodes.new("ShaderNodeBsdfGlossy"), Anisotropy=-0.4)
+    mix = nodes.new("ShaderNodeMixShader")
+    links.new(p.outputs[0], mix.inputs[1])
+    links.new(g.outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], out.inputs["Surface"])
+    data, warnings = compile_(mat)
+    assert not warnings
+    closures = {op[1]: op[3] for op in data.program if op[0] == "closure"}
+    tangents = {op[1]: op[2] for op in data.program if op[0] == "tangent"}
+    assert {"anisotropic", "anisotropic_rotation", "tangent"} <= set(closures["principled"])
+    assert tangents[closures["principled"]["tangent"]] == "X"
+    assert {"anisotropy", "rotation", "tangent"} <= set(closures["glossy"])
+    assert tangents[closures["glossy"]["tangent"]] == "Z"
+    p.inputs["Anisotropic"].default_value = 0.0
+    g.inputs["Anisotropy"].default_value = 0.0
+    data, warnings = compile_(mat)
+    closures = {op[1]: op[3] for op in data.program if op[0] == "closure"}
+    assert not warnings and "tangent" not in closures["principled"] and "tangent" not in closures["glossy"]
+
+
+def test_thin_film_compiles_without_a_warning():
+    mat, p = ms.bsdf_material("Bubble", "ShaderNodeBsdfPrincipled", Thin_Film_Thickness=500.0,
+                              Thin_Film_IOR=1.4)
+    data, warnings = compile_(mat)
+    assert not warnings
+    (params,) = [op[3] for op in data.program if op[0] == "closure"]
+    assert {"thin_film_thickness", "thin_film_ior"} <= set(params)
+    consts = {op[1]: op[2] for op in data.program if op[0] == "const"}
+    assert consts[params["thin_film_thickness"]][0] == 500.0
+    p.inputs["Thin Film Thickness"].default_value = 0.0
+    data, warnings = compile_(mat)
+    (params,) = [op[3] for op in data.program if op[0] == "closure"]
+    assert not warnings and "thin_film_thickness" not in params

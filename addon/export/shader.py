@@ -1653,12 +1653,10 @@ class ShaderCompiler:
         elif t == 'BSDF_GLOSSY':
             rough = inp("Roughness", "float")
             self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
-            aniso = inp("Anisotropy", "float")
-            if not (aniso.is_const and aniso.const[0] == 0.0):
-                self.problem(f"'{node.name}': anisotropy is not supported (isotropic)")
             self.closure("glossy", weight, color=inp("Color", "color"), roughness=rough,
                          normal=self.normal(node, ctx),
-                         multiscatter=self._multiscatter(node, rough))
+                         multiscatter=self._multiscatter(node, rough),
+                         **self._anisotropy(node, ctx, "Anisotropy", "Rotation"))
         elif t in ('BSDF_GLASS', 'BSDF_REFRACTION'):
             rough = inp("Roughness", "float")
             self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
@@ -1669,15 +1667,13 @@ class ShaderCompiler:
         elif t == 'BSDF_METALLIC':
             rough = inp("Roughness", "float")
             self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
-            aniso = inp("Anisotropy", "float")
-            if not (aniso.is_const and aniso.const[0] == 0.0):
-                self.problem(f"'{node.name}': anisotropy is not supported (isotropic)")
             physical = node.fresnel_type == 'PHYSICAL_CONDUCTOR'
             params = dict(ior=inp("IOR", "vector"), extinction=inp("Extinction", "vector"),
                           physical=ONE) if physical else dict(
                 base_color=inp("Base Color", "color"), edge_tint=inp("Edge Tint", "color"))
             self.closure("metallic", weight, roughness=rough, normal=self.normal(node, ctx),
-                         multiscatter=self._multiscatter(node, rough), **params)
+                         multiscatter=self._multiscatter(node, rough), **params,
+                         **self._anisotropy(node, ctx, "Anisotropy", "Rotation"))
         elif t == 'BSDF_TRANSLUCENT':
             self.closure("translucent", weight, color=inp("Color", "color"),
                          normal=self.normal(node, ctx))
@@ -1692,6 +1688,15 @@ class ShaderCompiler:
             self.closure("holdout", weight)
         else:
             self._fallback_shader(node, ctx, weight)
+
+    def _anisotropy(self, node, ctx, amount, rotation):
+        """The closure keys of a Glossy/Metallic node's anisotropy (none where it is a constant
+        zero): the amount, the rotation and the tangent (unlinked: Cycles' default)."""
+        aniso = self.input(node, amount, ctx, "float")
+        if aniso.is_const and aniso.const[0] == 0.0:
+            return {}
+        return dict(anisotropy=aniso, rotation=self.input(node, rotation, ctx, "float"),
+                    tangent=self.principled_tangent(node, ctx, "Tangent"))
 
     def _fallback_shader(self, node, ctx, weight):
         """An unsupported shader node: a diffuse closure of its Color input if it has one,
@@ -1760,8 +1765,6 @@ class ShaderCompiler:
     )
     # Groups that the core does not render yet: warned about and left out.
     _PRINCIPLED_UNSUPPORTED = {
-        "anisotropy",
-        "thin film",
         "sheen",
         "diffuse roughness",
         "subsurface",
@@ -1791,10 +1794,11 @@ class ShaderCompiler:
         return extra
 
     def principled_tangent(self, node, ctx, name):
-        """The Tangent input (None: unlinked, the core's default tangent)."""
+        """The Tangent input; unlinked, Cycles' default for a mesh: the Geometry node's
+        Tangent, radial around the object's Z axis from the generated coordinates."""
         socket = node.inputs.get(name)
         if socket is None or not socket.is_linked:
-            return None
+            return self.emit("vector", "tangent", "Z", 0)
         return self.input(node, name, ctx, "vector")
 
     # -------------------------------------------------- volume

@@ -611,6 +611,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else if (kind == "glossy") {
         o.code = OpCode::Glossy;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal"); o.in[4] = p("multiscatter");
+        o.in[5] = p("anisotropy"); o.in[6] = p("rotation"); o.in[7] = p("tangent");
       } else if (kind == "glass" || kind == "refraction") {
         o.code = kind == "glass" ? OpCode::Glass : OpCode::Refraction;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("ior"); o.in[4] = p("normal");
@@ -622,6 +623,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         o.code = OpCode::Metallic;
         o.in[1] = p("base_color"); o.in[2] = p("edge_tint"); o.in[3] = p("ior"); o.in[4] = p("extinction");
         o.in[5] = p("roughness"); o.in[6] = p("normal"); o.in[7] = p("multiscatter"); o.in[8] = p("physical");
+        o.in[9] = p("anisotropy"); o.in[10] = p("rotation"); o.in[11] = p("tangent");
       } else if (kind == "translucent") {
         o.code = OpCode::Translucent;
         o.in[1] = p("color"); o.in[2] = p("normal");
@@ -658,7 +660,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         throw std::invalid_argument("unknown closure '" + kind + "'");
       }
       for (const auto& kv : params) regno(kv.second);  // validates every register, also of unknown keys
-      if (p("normal") != kNoReg || p("coat_normal") != kNoReg) prog.varying = true;
+      if (p("normal") != kNoReg || p("coat_normal") != kNoReg || p("tangent") != kNoReg) prog.varying = true;
       if (p("multiscatter") != kNoReg) prog.varying = true;  // its compensation depends on the view
       if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
       prog.ops.push_back(o);
@@ -1297,6 +1299,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   if (kind == "conductor") {
     ConductorBsdf c;
     c.alpha = f("alpha", 0.3f);
+    c.alpha_y = f("alpha_y", -1.0f);  // anisotropic GGX (negative: isotropic)
     c.f0 = p.contains("f0") ? to_color(p["f0"], "f0") : Vec3(1.0f);
     if (b("schlick", false)) c.mode = ConductorFresnel::Schlick;
     if (p.contains("f82_tint")) {  // Principled's metal
@@ -1310,18 +1313,23 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     if (p.contains("specular_eta")) {  // Principled's dielectric specular (f0: its tinted F0)
       c.mode = ConductorFresnel::Dielectric;
       c.eta = f("specular_eta", 1.5f);
+      c.film_thickness = f("film_thickness", 0.0f);  // Thin Film (nm) and its IOR
+      c.film_ior = f("film_ior", 1.33f);
     }
     return c;
   }
   if (kind == "dielectric") {
     DielectricBsdf d;
     d.alpha = f("alpha", 0.3f);
+    d.alpha_y = f("alpha_y", -1.0f);
     d.eta = f("eta", 1.5f);
     d.reflection = b("reflection", true);
     d.transmission = b("transmission", true);
     d.fresnel_on_transmission = b("fresnel_on_transmission", true);
     d.schlick = b("schlick", false);
     if (p.contains("f0_tint")) d.f0_tint = to_color(p["f0_tint"], "f0_tint");
+    d.film_thickness = f("film_thickness", 0.0f);
+    d.film_ior = f("film_ior", 1.33f);
     return d;
   }
   if (kind == "transparent") return TransparentBsdf{};

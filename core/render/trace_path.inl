@@ -149,7 +149,7 @@ inline Vec3 closure_albedo(const Closure& c, Vec3 wo) {
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
     Vec3 cr, ct;
     float pr, pt;
-    d->lobes(d->fresnel(std::fabs(dot(wo, c.frame.n))), cr, ct, pr, pt);
+    d->lobes_at(std::fabs(dot(wo, c.frame.n)), cr, ct, pr, pt);
     return c.weight * ((d->reflection ? cr : Vec3(0.0f)) + (d->transmission ? d->transmission_tint * ct : Vec3(0.0f)));
   }
   return c.weight;  // diffuse, transparent

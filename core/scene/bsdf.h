@@ -9,6 +9,7 @@
 #include <variant>
 
 #include "scene/microfacet_energy.h"
+#include "scene/thin_film.h"
 
 namespace pl {
 
@@ -116,12 +117,18 @@ enum class ConductorFresnel : uint8_t {
 
 // GGX reflection, tinted by one of the Fresnel models above.
 struct ConductorBsdf {
-  float alpha = 0.0f;
+  float alpha = 0.0f;     // along the frame's tangent (t)
+  float alpha_y = -1.0f;  // along its bitangent (b); negative: isotropic (alpha)
   Vec3 f0{1.0f};
   ConductorFresnel mode = ConductorFresnel::Constant;
   bool exact = true;  // Dielectric: the real Fresnel equations (false: Schlick's approximation)
   float eta = 1.5f;   // Dielectric
   Vec3 b{0.0f};       // F82Tint
+  // Dielectric: a thin film on top (Principled's Thin Film), thickness in nm (0: none).
+  float film_thickness = 0.0f, film_ior = 1.33f;
+  Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
+  // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
+  bool is_delta() const { return alpha_y < 0.0f ? alpha < kDeltaAlpha : alpha * alpha_y < kDeltaAlpha * kDeltaAlpha; }
   Vec3 fresnel(float c) const {
     switch (mode) {
       case ConductorFresnel::Constant: return f0;
@@ -129,6 +136,7 @@ struct ConductorBsdf {
       case ConductorFresnel::F82Tint: return fresnel_f82(c, f0, b);
       case ConductorFresnel::Conductor: return fresnel_conductor(c, f0, b);
       case ConductorFresnel::Dielectric: {
+        if (film_thickness > kThinFilmCutoff) return thin_film_dielectric(c, film_ior, eta, film_thickness, f0);
         const float F = exact ? fresnel_dielectric(c, eta) : fresnel_schlick_dielectric(c, eta);
         const float F0 = f0_from_ior(eta);
         const float s = F0 < 1.0f ? clampf((F - F0) / (1.0f - F0), 0.0f, 1.0f) : 1.0f;
@@ -139,13 +147,13 @@ struct ConductorBsdf {
   }
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
-    if (alpha < kDeltaAlpha || !same_side(wo, wi)) return Vec3(0.0f);
+    if (is_delta() || !same_side(wo, wi)) return Vec3(0.0f);
     if (wo.z < 0.0f) {
       wo.z = -wo.z;
       wi.z = -wi.z;
     }
     const Vec3 m = normalize(wo + wi);
-    const Ggx g{alpha};
+    const Ggx g = ggx();
     const float wom = dot(wo, m);
     if (!(wom > 0.0f)) return Vec3(0.0f);
     pdf = g.pdf_visible(wo, m) / (4.0f * wom);
@@ -154,13 +162,13 @@ struct ConductorBsdf {
   bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     const bool flip = wo.z < 0.0f;
     if (flip) wo.z = -wo.z;
-    if (alpha < kDeltaAlpha) {
+    if (is_delta()) {
       s.wi = {-wo.x, -wo.y, wo.z};
       s.weight = fresnel(wo.z);
       s.pdf = 1.0f;
       s.flags = kReflect | kDelta | kGlossyLobe;
     } else {
-      const Ggx g{alpha};
+      const Ggx g = ggx();
       const Vec3 m = g.sample_visible(wo, u);
       s.wi = reflect(wo, m);
       const float wom = dot(wo, m);
@@ -177,7 +185,8 @@ struct ConductorBsdf {
 // Dielectric interface (Walter et al. 2007 for rough): glass (both lobes), refraction only, or
 // a reflection-only coating layer. eta = n_inside / n_outside, the normal pointing outside.
 struct DielectricBsdf {
-  float alpha = 0.0f;
+  float alpha = 0.0f;     // along the frame's tangent (t)
+  float alpha_y = -1.0f;  // along its bitangent (b); negative: isotropic (alpha)
   float eta = 1.5f;
   bool reflection = true, transmission = true;
   bool fresnel_on_transmission = true;  // false: Blender's Refraction BSDF (all light refracts)
@@ -187,12 +196,29 @@ struct DielectricBsdf {
   // reflection mix(F0 tint, 1, s) with s the real Fresnel remapped from [F0, 1], transmission
   // the rest (1 white: the plain Fresnel equations).
   Vec3 f0_tint{1.0f};
+  // A thin film on the interface (Principled's Thin Film), thickness in nm (0: none); its IOR
+  // is relative to the outside, as eta.
+  float film_thickness = 0.0f, film_ior = 1.33f;
+  Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
+  // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
+  bool is_delta() const { return alpha_y < 0.0f ? alpha < kDeltaAlpha : alpha * alpha_y < kDeltaAlpha * kDeltaAlpha; }
 
   // A reflection-only layer (a coat) has no inside: seen from behind it behaves as from the front.
   bool one_sided_coat() const { return !transmission; }
 
   float fresnel(float cos_i) const {
     return schlick ? fresnel_schlick_dielectric(cos_i, eta) : fresnel_dielectric(cos_i, eta);
+  }
+  // The lobes at cos_i = dot(wo, m) (its sign: the side), with the film if there is one.
+  void lobes_at(float cos_i, Vec3& cr, Vec3& ct, float& pr, float& pt) const {
+    if (!(film_thickness > kThinFilmCutoff)) return lobes(fresnel(cos_i), cr, ct, pr, pt);
+    // Seen from inside, Cycles puts everything relative to the inside medium.
+    const bool inside = cos_i < 0.0f;
+    const float base = inside ? 1.0f / eta : eta, film = inside ? film_ior / eta : film_ior;
+    cr = thin_film_dielectric(std::fabs(cos_i), film, base, film_thickness, vmin(f0_tint * f0_from_ior(base), Vec3(1.0f)));
+    ct = fresnel_on_transmission ? Vec3(1.0f) - cr : Vec3(1.0f);
+    pr = reflection ? average(cr) : 0.0f;
+    pt = transmission ? average(ct) : 0.0f;
   }
   // Given the real Fresnel term F: the colours of reflection (cr) and transmission (ct, before
   // transmission_tint) and the probabilities of choosing them.
@@ -211,7 +237,7 @@ struct DielectricBsdf {
 
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
-    if (alpha < kDeltaAlpha || wo.z == 0.0f || wi.z == 0.0f) return Vec3(0.0f);
+    if (is_delta() || wo.z == 0.0f || wi.z == 0.0f) return Vec3(0.0f);
     if (one_sided_coat() && wo.z < 0.0f) {
       wo.z = -wo.z;
       wi.z = -wi.z;
@@ -224,10 +250,10 @@ struct DielectricBsdf {
     m = normalize(m);
     if (m.z < 0.0f) m = -m;
     if (dot(m, wi) * wi.z < 0.0f || dot(m, wo) * wo.z < 0.0f) return Vec3(0.0f);  // backfacing microfacet
-    const Ggx g{alpha};
+    const Ggx g = ggx();
     Vec3 cr, ct;
     float pr, pt;
-    lobes(fresnel(dot(wo, m)), cr, ct, pr, pt);
+    lobes_at(dot(wo, m), cr, ct, pr, pt);
     if (!(pr + pt > 0.0f)) return Vec3(0.0f);
     // Visible-normal density seen from wo mirrored to the outside; m (facing +Z) is then the
     // facet facing it, whichever side wo is on.
@@ -253,10 +279,10 @@ struct DielectricBsdf {
       s.wi.z = -s.wi.z;
       return ok;
     }
-    if (alpha < kDeltaAlpha) {
+    if (is_delta()) {
       Vec3 cr, ct;
       float pr, pt;
-      lobes(fresnel(wo.z), cr, ct, pr, pt);
+      lobes_at(wo.z, cr, ct, pr, pt);
       if (!(pr + pt > 0.0f)) return false;
       if (uc * (pr + pt) < pr) {
         s.wi = {-wo.x, -wo.y, wo.z};
@@ -274,14 +300,14 @@ struct DielectricBsdf {
       s.eta = etap;
       return true;
     }
-    const Ggx g{alpha};
+    const Ggx g = ggx();
     const Vec3 wo_up = wo.z > 0.0f ? wo : -wo;
     // The microfacet normal facing outside (+Z side): its sign tells Fresnel and refract
     // whether wo is inside or outside.
     const Vec3 m = g.sample_visible(wo_up, u);
     Vec3 cr, ct;
     float pr, pt;
-    lobes(fresnel(dot(wo, m)), cr, ct, pr, pt);
+    lobes_at(dot(wo, m), cr, ct, pr, pt);
     if (!(pr + pt > 0.0f)) return false;
     if (uc * (pr + pt) < pr) {
       s.wi = reflect(wo, m);
@@ -327,8 +353,8 @@ inline bool bsdf_sample(const Bsdf& b, Vec3 wo, Vec2 u, float uc, BsdfSample& s)
 }
 inline bool bsdf_is_delta(const Bsdf& b) {
   if (std::holds_alternative<TransparentBsdf>(b)) return true;
-  if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->alpha < kDeltaAlpha;
-  if (const auto* d = std::get_if<DielectricBsdf>(&b)) return d->alpha < kDeltaAlpha;
+  if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->is_delta();
+  if (const auto* d = std::get_if<DielectricBsdf>(&b)) return d->is_delta();
   return false;
 }
 // A rough guess of how much a closure reflects, to choose among closures when sampling.
@@ -376,6 +402,18 @@ struct Frame {
     Frame f;
     f.n = n;
     make_basis(n, f.t, f.b);
+    return f;
+  }
+  // An anisotropic lobe's frame (Cycles' make_orthonormals_tangent): b = n x t normalized, t
+  // then the tangent made perpendicular to n; a tangent along n (or none) gives any basis.
+  static Frame from_normal_tangent(Vec3 n, Vec3 tangent) {
+    const Vec3 b = cross(n, tangent);
+    const float l2 = length_sq(b);
+    if (!(l2 > 1e-20f) || !std::isfinite(l2)) return from_normal(n);
+    Frame f;
+    f.n = n;
+    f.b = b / std::sqrt(l2);
+    f.t = cross(f.b, n);
     return f;
   }
   Vec3 to_local(Vec3 v) const { return {dot(v, t), dot(v, b), dot(v, n)}; }

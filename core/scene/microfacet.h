@@ -45,19 +45,32 @@ inline Vec3 fresnel_schlick(Vec3 f0, float cos_i) {
   return f0 + (Vec3(1.0f) - f0) * m5;
 }
 
+// alpha is the roughness along the frame's first axis (x, the tangent), alpha_y along its
+// second: anisotropic GGX (Heitz 2014) where they differ; the isotropic formulas otherwise.
 struct Ggx {
   float alpha;
+  float alpha_y = alpha;
+  bool isotropic() const { return alpha_y == alpha; }
   float D(Vec3 m) const {
-    const float a2 = alpha * alpha;
-    const float c2 = m.z * m.z;
-    const float d = c2 * (a2 - 1.0f) + 1.0f;
-    return a2 / (kPi * d * d);
+    if (isotropic()) {
+      const float a2 = alpha * alpha;
+      const float c2 = m.z * m.z;
+      const float d = c2 * (a2 - 1.0f) + 1.0f;
+      return a2 / (kPi * d * d);
+    }
+    const float x = m.x / alpha, y = m.y / alpha_y;
+    const float l2 = x * x + y * y + m.z * m.z;
+    return 1.0f / (kPi * alpha * alpha_y * l2 * l2);
   }
   float lambda(Vec3 v) const {
     const float c2 = v.z * v.z;
     if (c2 <= 0.0f) return 0.0f;
-    const float t2 = std::max(0.0f, 1.0f - c2) / c2;
-    return 0.5f * (-1.0f + std::sqrt(1.0f + alpha * alpha * t2));
+    if (isotropic()) {
+      const float t2 = std::max(0.0f, 1.0f - c2) / c2;
+      return 0.5f * (-1.0f + std::sqrt(1.0f + alpha * alpha * t2));
+    }
+    const float ax = alpha * v.x, ay = alpha_y * v.y;
+    return 0.5f * (-1.0f + std::sqrt(1.0f + (ax * ax + ay * ay) / c2));
   }
   float G1(Vec3 v) const { return 1.0f / (1.0f + lambda(v)); }
   float G(Vec3 wo, Vec3 wi) const { return 1.0f / (1.0f + lambda(wo) + lambda(wi)); }
@@ -65,9 +78,10 @@ struct Ggx {
   float pdf_visible(Vec3 wo, Vec3 m) const {
     return G1(wo) * std::max(0.0f, dot(wo, m)) * D(m) / std::fabs(wo.z);
   }
-  // Samples a visible normal for wo (wo.z > 0).
+  // Samples a visible normal for wo (wo.z > 0): the view stretched to the unit-roughness
+  // configuration, a visible hemisphere normal there, then unstretched (one code for both).
   Vec3 sample_visible(Vec3 wo, Vec2 u) const {
-    const Vec3 vh = normalize(Vec3{alpha * wo.x, alpha * wo.y, wo.z});
+    const Vec3 vh = normalize(Vec3{alpha * wo.x, alpha_y * wo.y, wo.z});
     const float len2 = vh.x * vh.x + vh.y * vh.y;
     const Vec3 t1 = len2 > 0.0f ? Vec3{-vh.y, vh.x, 0.0f} / std::sqrt(len2) : Vec3{1.0f, 0.0f, 0.0f};
     const Vec3 t2 = cross(vh, t1);
@@ -77,7 +91,7 @@ struct Ggx {
     const float s = 0.5f * (1.0f + vh.z);
     p2 = (1.0f - s) * std::sqrt(std::max(0.0f, 1.0f - p1 * p1)) + s * p2;
     const Vec3 nh = t1 * p1 + t2 * p2 + vh * std::sqrt(std::max(0.0f, 1.0f - p1 * p1 - p2 * p2));
-    return normalize(Vec3{alpha * nh.x, alpha * nh.y, std::max(1e-6f, nh.z)});
+    return normalize(Vec3{alpha * nh.x, alpha_y * nh.y, std::max(1e-6f, nh.z)});
   }
 };
 

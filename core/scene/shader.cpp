@@ -140,6 +140,16 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
   // Closure inputs: an omitted register means the input's default.
   auto col = [&](int16_t i) { return i == kNoReg ? Vec3(1.0f) : r[i].xyz(); };
   auto val = [&](int16_t i, float def) { return i == kNoReg ? def : r[i].x; };
+  // An anisotropic lobe's frame: its (valid-reflection) normal n and the tangent register
+  // turned `rotation` turns about `axis` (Cycles' rotate_around_axis by rotation * 2 pi).
+  // The tables' roughness of a lobe: Cycles' sqrt(sqrt(alpha_x alpha_y)) (isotropic: sqrt(alpha)).
+  auto table_rough = [](float ax, float ay) { return ay < 0.0f ? std::sqrt(ax) : std::sqrt(std::sqrt(ax * ay)); };
+  auto aniso_frame = [&](Vec3 n, int16_t tangent_reg, float rotation, Vec3 axis) {
+    if (tangent_reg == kNoReg) return Frame::from_normal(n);
+    Vec3 t = r[tangent_reg].xyz();
+    if (rotation != 0.0f && std::isfinite(rotation)) t = rotate_about_axis(t, axis, rotation * 2.0f * kPi);
+    return Frame::from_normal_tangent(n, t);
+  };
   // The Bump node's offsets (made on first use): small steps along the triangle's two edges
   // from the shading point, as barycentric steps (for uvs) and world vectors. Their length is
   // tiny against the scene but far above float rounding at the point's magnitude.
@@ -696,7 +706,16 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         // Fresnel from IOR and Extinction; the node's colour is all in the Fresnel.
         ConductorBsdf m;
         m.alpha = roughness_to_alpha(val(op.in[5], 0.5f));
-        const Frame f = glossy_frame(op.in[6]);
+        Frame f = glossy_frame(op.in[6]);
+        {  // Anisotropy as the Principled's: aspect sqrt(1 - 0.9 a), the tangent turned about N
+          const float an = sat(std::isfinite(val(op.in[9], 0.0f)) ? val(op.in[9], 0.0f) : 0.0f);
+          if (an > 0.0f && op.in[11] != kNoReg) {
+            const float aspect = std::sqrt(1.0f - an * 0.9f), a = m.alpha;
+            m.alpha = std::min(a / aspect, 1.0f);
+            m.alpha_y = a * aspect;
+            f = aniso_frame(f.n, op.in[11], val(op.in[10], 0.0f), normal_or(r, op.in[6], ctx.ns));
+          }
+        }
         const bool physical = op.in[8] != kNoReg && r[op.in[8]].x > 0.5f;
         Vec3 fss;
         if (physical) {
@@ -713,7 +732,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         }
         const float mu = std::fabs(dot(f.n, ctx.wo));
         Vec3 w = clean_color(col(op.in[0]));
-        if (multiscatter(op.in[7])) w *= ggx_reflection_compensation(std::sqrt(m.alpha), mu, fss).scale;
+        if (multiscatter(op.in[7])) w *= ggx_reflection_compensation(table_rough(m.alpha, m.alpha_y), mu, fss).scale;
         out.add(m, w, f, average(m.fresnel(mu)));
         break;
       }
@@ -726,10 +745,20 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::Glossy: {
         ConductorBsdf g;
         g.alpha = roughness_to_alpha(val(op.in[2], 0.5f));
-        const Frame f = glossy_frame(op.in[3]);
+        Frame f = glossy_frame(op.in[3]);
+        {  // Cycles' Glossy anisotropy in [-0.99, 0.99]: positive narrows the lobe along the
+           // tangent and widens it across, negative the other way; rotated about the normal.
+          const float an = clampf(std::isfinite(val(op.in[5], 0.0f)) ? val(op.in[5], 0.0f) : 0.0f, -0.99f, 0.99f);
+          if (op.in[7] != kNoReg && std::fabs(an) > 1e-4f) {
+            const float a = g.alpha;
+            g.alpha = std::min(an < 0.0f ? a / (1.0f + an) : a * (1.0f - an), 1.0f);
+            g.alpha_y = std::min(an < 0.0f ? a * (1.0f + an) : a / (1.0f - an), 1.0f);
+            f = aniso_frame(f.n, op.in[7], val(op.in[6], 0.0f), f.n);
+          }
+        }
         Vec3 w = clean_color(col(op.in[0]) * col(op.in[1]));
         if (multiscatter(op.in[4]))  // Cycles: the colour is the lobe's Fresnel (Fss)
-          w *= ggx_reflection_compensation(std::sqrt(g.alpha), std::fabs(dot(f.n, ctx.wo)),
+          w *= ggx_reflection_compensation(table_rough(g.alpha, g.alpha_y), std::fabs(dot(f.n, ctx.wo)),
                                            clean_color(col(op.in[1]))).scale;
         out.add(g, w, f);
         break;
@@ -769,9 +798,9 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         // the weight and the coat and specular layers attenuating what lies below by their
         // estimated albedo.
         // The further inputs (PrincipledExtraSlot); kNoReg where there is no extra op.
-        auto px = [&](PrincipledExtraSlot s) { return extra ? extra->in[s] : int16_t(kNoReg); };
+        // (The lambda keeps its own copy of the pointer: `extra` is cleared for the next op.)
+        auto px = [ex = extra](PrincipledExtraSlot s) { return ex ? ex->in[s] : int16_t(kNoReg); };
         extra = nullptr;
-        (void)px;
         const Vec3 w = clean_color(col(op.in[0]));
         const Vec3 base = op.in[1] == kNoReg ? Vec3(0.8f) : clean_color(r[op.in[1]].xyz());
         const Vec3 base_c = vmin(base, Vec3(1.0f));
@@ -787,6 +816,28 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         const float mu = std::fabs(dot(fr.n, ctx.wo));
         Frame fd;
         const DiffuseBsdf diffuse = diffuse_lobe(op.in[8], fd);
+        // Anisotropic (metal and specular lobes; Cycles keeps the transmission isotropic): the
+        // aspect sqrt(1 - 0.9 a) stretches alpha along the tangent, turned about the normal.
+        float ax = alpha, ay = -1.0f;
+        Frame fa = fr;
+        if (px(kPxAnisotropic) != kNoReg) {
+          const float an = sat(std::isfinite(r[px(kPxAnisotropic)].x) ? r[px(kPxAnisotropic)].x : 0.0f);
+          if (an > 0.0f) {
+            const float aspect = std::sqrt(1.0f - an * 0.9f);
+            ax = std::min(alpha / aspect, 1.0f);
+            ay = alpha * aspect;
+            fa = aniso_frame(fr.n, px(kPxTangent), val(px(kPxAnisotropicRotation), 0.0f), normal_or(r, op.in[8], ctx.ns));
+          }
+        }
+        const float rough_a = ay < 0.0f ? rough : table_rough(ax, ay);
+        // Thin Film (nm, its IOR): interference on the specular and transmission lobes (Cycles
+        // 4.5: not on the metal, not on the coat).
+        float film = 0.0f, film_ior = 1.33f;
+        if (px(kPxThinFilmThickness) != kNoReg) {
+          const float t = r[px(kPxThinFilmThickness)].x, fi = val(px(kPxThinFilmIor), 1.33f);
+          film = std::isfinite(t) ? std::min(std::max(t, 0.0f), 1e5f) : 0.0f;
+          film_ior = std::isfinite(fi) ? std::max(fi, 1e-5f) : 1.33f;
+        }
         Vec3 weight = w;
         // Cycles' closure_layering_weight: what lies below a layer keeps 1 - max(albedo / weight)
         // of the weight (albedo: the layer's, relative to the weight it was given).
@@ -829,14 +880,15 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         }
         if (metallic > 0.0f) {
           ConductorBsdf m;
-          m.alpha = alpha;
+          m.alpha = ax;
+          m.alpha_y = ay;
           m.f0 = base_c;
           m.mode = ConductorFresnel::F82Tint;
           const Vec3 tint = vmin(spec_tint, Vec3(1.0f));
           if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) m.b = f82_tint_b(m.f0, tint);
           Vec3 mw = weight * metallic;
-          if (multi) mw *= ggx_reflection_compensation(rough, mu, f82_fss(m.f0, m.b)).scale;
-          out.add(m, mw, fr, average(fresnel_f82(mu, m.f0, m.b)));
+          if (multi) mw *= ggx_reflection_compensation(rough_a, mu, f82_fss(m.f0, m.b)).scale;
+          out.add(m, mw, fa, average(fresnel_f82(mu, m.f0, m.b)));
           weight *= 1.0f - metallic;
         }
         if (transmission > 0.0f) {
@@ -848,6 +900,8 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           g.schlick = prog.schlick;
           g.transmission_tint = {std::sqrt(base_c.x), std::sqrt(base_c.y), std::sqrt(base_c.z)};
           g.f0_tint = spec_tint;
+          g.film_thickness = film;
+          g.film_ior = film_ior;
           Vec3 gw = weight * transmission;
           if (multi) gw *= glass_compensation(g, fr, g.transmission_tint);
           out.add(g, gw, fr);
@@ -860,25 +914,30 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           eta = ior_from_f0(f0);
           if (ior < 1.0f) eta = 1.0f / eta;
         }
-        if (eta != 1.0f) {
+        if (eta != 1.0f || film > kThinFilmCutoff) {
           ConductorBsdf s;
-          s.alpha = alpha;
+          s.alpha = ax;
+          s.alpha_y = ay;
           s.mode = ConductorFresnel::Dielectric;
           s.exact = !prog.schlick;
           s.eta = eta;
           s.f0 = vmin(spec_tint * f0, Vec3(1.0f));  // Specular Tint tints F0 only (f90 = 1)
+          s.film_thickness = film;
+          s.film_ior = film_ior;
           Vec3 sw = weight, darkening(1.0f);
           if (multi) {
             // The mean single-scatter Fresnel: the real curve's average remapped as the lobe's.
             const float F0 = f0_from_ior(eta);
             const float s_avg = F0 < 1.0f ? sat((fresnel_dielectric_fss(eta) - F0) / (1.0f - F0)) : 1.0f;
             const EnergyCompensation c =
-                ggx_reflection_compensation(rough, mu, s.f0 + (Vec3(1.0f) - s.f0) * s_avg);
+                ggx_reflection_compensation(rough_a, mu, s.f0 + (Vec3(1.0f) - s.f0) * s_avg);
             sw *= c.scale;
             darkening = c.darkening;
           }
-          const Vec3 albedo = darkening * dielectric_specular_albedo(rough, mu, eta, s.f0);
-          out.add(s, sw, fr, average(albedo));
+          // With a film Cycles has no table: the film's reflectance seen from the view.
+          const Vec3 albedo = darkening * (film > kThinFilmCutoff ? thin_film_dielectric(mu, film_ior, eta, film, s.f0)
+                                                                  : dielectric_specular_albedo(rough_a, mu, eta, s.f0));
+          out.add(s, sw, fa, average(albedo));
           weight = layer_below(weight, albedo);
         }
         out.add(diffuse, weight * base, fd);

@@ -115,6 +115,12 @@ inline float roughness_to_alpha(float r) {
   return r * r;
 }
 
+// Rodrigues' rotation of p by `angle` (counter-clockwise) about the unit `axis`.
+inline Vec3 rotate_about_axis(Vec3 p, Vec3 axis, float angle) {
+  const float c = std::cos(angle), s = std::sin(angle);
+  return p * c + cross(axis, p) * s + axis * (dot(axis, p) * (1.0f - c));
+}
+
 inline float clean_ior(float ior) { return std::isfinite(ior) && ior > 1e-3f ? ior : 1.0f; }
 
 inline Vec3 clean_color(Vec3 c) {
