@@ -143,6 +143,10 @@ void Scene::set_instance_transform(uint32_t index, const Mat4& m) {
 bool Scene::commit(int threads, BvhLayout layout) {
   cancel_.store(false);
   committed_ = false;
+  if (curves_dirty_) {
+    build_curves();
+    top_dirty_ = true;  // the world bounds (and the lights' scene radius) include them
+  }
   if (geometry_dirty_ || layout != built_layout_ || spatial_splits_ != built_spatial_splits_ ||
       compact_bvh_ != built_compact_bvh_) {
     if (!build_geometry(threads, layout)) return false;
@@ -434,11 +438,12 @@ void Scene::build_top_level() {
     tlas_.clear();
     world_bounds_ = direct_ ? blases_[0].bvh.bounds() : Aabb();
   }
+  if (curves_on_) world_bounds_.grow(curve_bvh_.bounds());
   stats_.tlas_instances = use_tlas_ ? tlas_.stats().instances : 0;
 }
 
 void Scene::update_memory_stats() {
-  size_t bvh = tlas_.memory_bytes(), geo = 0;
+  size_t bvh = tlas_.memory_bytes() + curve_bvh_.memory_bytes(), geo = 0;
   for (const Blas& b : blases_) {
     bvh += b.bvh.memory_bytes();
     geo += b.tris.capacity() * sizeof(TriangleVerts) + b.src_tri.capacity() * 4 + (b.run_first.capacity() + b.run_inst.capacity()) * 4 +
@@ -832,6 +837,8 @@ void Scene::detect_features() {
       for (size_t t = begin; t < end; ++t) used[material_of(mesh, b.src_tri[t], materials_.size())] = 1;
     }
   }
+  if (curves_on_)
+    for (const CurveSetData& cs : curve_sets_) used[cs.material < materials_.size() ? cs.material : 0] = 1;
   for (size_t id = 0; id < materials_.size(); ++id) {
     if (!used[id]) continue;
     const Material& m = materials_[id];
@@ -889,7 +896,52 @@ void Scene::detect_features() {
   }
 }
 
+void Scene::build_curves() {
+  std::vector<CurvePiece> pieces;
+  curve_first_.clear();
+  uint32_t strands = 0;
+  size_t skipped = 0;
+  for (const CurveSetData& cs : curve_sets_) {
+    curve_first_.push_back(strands);
+    CurveInput in;
+    in.points = cs.points.data();
+    in.radii = cs.radii.empty() ? nullptr : cs.radii.data();
+    in.n_points = cs.points.size();
+    in.offsets = cs.offsets.data();
+    in.n_curves = cs.offsets.empty() ? 0 : cs.offsets.size() - 1;
+    in.type = cs.type;
+    in.subdivisions = cs.subdivisions;
+    const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces);
+    strands += uint32_t(st.curves);
+    skipped += st.skipped;
+  }
+  stats_.curves = strands;
+  stats_.skipped_curves = skipped;
+  stats_.curve_pieces = pieces.size();
+  curve_bvh_.build(std::move(pieces));
+  curves_on_ = !curve_bvh_.empty();
+  curves_dirty_ = false;
+}
+
+void Scene::curve_point(const Hit& h, SurfacePoint& sp) const {
+  const CurvePiece& c = curve_bvh_.piece(h.prim);
+  // The hit from the ray is only good to its t's error; the point on the surface is better.
+  Vec3 n, tangent, p, err;
+  float u;
+  piece_surface(c, h.b1, h.b2, n, tangent, p, err, u);
+  sp.p = p;
+  sp.p_error = err;
+  sp.ng = sp.ns = n;
+  sp.tangent = tangent;
+  const uint32_t set = curve_set_of(c.curve);
+  sp.material = curve_sets_[set].material < materials_.size() ? curve_sets_[set].material : 0;
+  sp.prim = uint32_t(stats_.triangles) + c.curve;
+  sp.instance = kCurveInstance;
+  sp.tri = h.prim;
+}
+
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
+  if (h.inst == kCurveInstance) return curve_point(h, sp);
   const InstanceData& in = inst_[h.inst];
   const Blas& b = blases_[in.blas];
   const TriangleVerts& tv = b.tris[h.prim];
@@ -1164,6 +1216,10 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.scene = this;  // the Ambient Occlusion node traces
   ctx.instance = sp.instance;
   ctx.p_error = sp.p_error;
+  if (sp.curve()) {  // no triangle, uvs or attributes; world coordinates for Object
+    eval_shader(mat.program, images_, ctx, out);
+    return;
+  }
   const InstanceData& in = inst_[sp.instance];
   const Blas& blas = blases_[in.blas];
   const TriangleVerts tv = world_triangle(in, blas.tris[sp.tri]);
@@ -1270,6 +1326,7 @@ Vec3 Scene::transmittance_through(Ray ray) const {
 }
 
 float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n) const {
+  if (sp.curve()) return 0.0f;  // curves are not light-sampled: their emission is found by BSDF rays alone
   const InstanceData& in = inst_[sp.instance];
   const int32_t e = emitter_of(in, sp.tri);
   if (e < 0 || !(cos_l > 0.0f)) return 0.0f;
