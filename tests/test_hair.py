@@ -1,0 +1,103 @@
+"""Hair (Curves objects) against Cycles in the same bpy (issue 23): a patch of thick, gently
+sagging strands above a floor under an area light, rendered by both engines with Cycles'
+3D curves (shape THICK), compared by the whole-image mean and 8x8 region means."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import BOX_FILTER, Warnings, core_available, load_addon, render_to_array
+import material_scenes as ms
+
+load_addon()
+
+pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+
+
+def add_hair(name, material, strands=7, keys=5, radius=0.05, length=3.0, sag=0.15,
+             spacing=0.16, curve_type=None, radii=None):
+    """A Curves object: `strands` strands along x (ends outside the frame), side by side in y,
+    each sagging by `sag` in the middle, keys Catmull-Rom keys each."""
+    curves = bpy.data.hair_curves.new(name)
+    curves.add_curves([keys] * strands)
+    x = np.linspace(-length / 2, length / 2, keys)
+    pts = []
+    for s in range(strands):
+        y = (s - (strands - 1) / 2) * spacing
+        z = 0.5 - sag * (1.0 - (2.0 * x / length) ** 2) + 0.03 * math.sin(s)
+        pts.append(np.stack([x, np.full(keys, y), z], 1))
+    pts = np.concatenate(pts).astype(np.float32)
+    curves.attributes["position"].data.foreach_set("vector", pts.ravel())
+    r = curves.attributes.new("radius", 'FLOAT', 'POINT')
+    r.data.foreach_set("value", np.full(len(pts), radius, np.float32) if radii is None else radii)
+    if curve_type is not None:
+        curves.set_types(type=curve_type)
+    curves.materials.append(material)
+    obj = bpy.data.objects.new(name, curves)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def hair_scene(material_fn, size=48, **hair):
+    def build():
+        scene = ms.studio(size=size, world=(0.05, 0.05, 0.05), light_strength=8.0, light_size=2.0,
+                          camera=((0.0, -2.2, 1.6), (0.0, 0.0, 0.45)), lens=50.0)
+        scene.cycles_curves.shape = 'THICK'
+        add_hair("Hair", material_fn(), **hair)
+        return scene
+    return build
+
+
+def render_pair(build, samples, bounces=16):
+    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces)
+    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER)
+    return ours, cycles
+
+
+def assert_agree(ours, cycles, region=0.03, whole=0.01, floor=0.05):
+    ratio, worst, rel = ms.compare(ours, cycles, floor=floor)
+    assert np.isfinite(ours).all()
+    assert abs(ratio - 1.0) < whole, f"image mean ratio {ratio:.4f}"
+    assert worst < region, f"worst region {worst:.3f}\n{np.round(rel, 3)}"
+    return ratio, worst
+
+
+def test_hair_export_arrays():
+    """The exporter reads the strands with foreach_get: points, offsets, radii, curve type."""
+    from addon.export.curves import collect_curves
+    ms.studio(size=16)
+    add_hair("Hair", ms.diffuse("H", (0.5, 0.5, 0.5)), strands=3, keys=4, curve_type='POLY',
+             radii=np.linspace(0.01, 0.05, 12).astype(np.float32))
+    warn = Warnings()
+    data = collect_curves(bpy.context.evaluated_depsgraph_get(), warn)
+    assert len(data) == 1 and not warn
+    c = data[0]
+    assert c.points.shape == (12, 3) and c.offsets.tolist() == [0, 4, 8, 12]
+    np.testing.assert_allclose(c.radii, np.linspace(0.01, 0.05, 12), rtol=1e-6)
+    assert c.curve_type == 'poly' and len(c.matrices) == 1
+
+
+def test_bad_strands_warn_and_render():
+    """NaN points and zero radii: one warning, the other strands still render."""
+    ms.studio(size=16)
+    obj = add_hair("Hair", ms.diffuse("H", (0.5, 0.5, 0.5)), strands=4, keys=3)
+    pos = np.empty(12 * 3, np.float32)
+    obj.data.attributes["position"].data.foreach_get("vector", pos)
+    pos[3 * 1] = np.nan  # strand 0
+    obj.data.attributes["position"].data.foreach_set("vector", pos)
+    rad = np.full(12, 0.05, np.float32)
+    rad[6:9] = 0.0  # strand 2
+    obj.data.attributes["radius"].data.foreach_set("value", rad)
+    from addon.export.curves import collect_curves
+    warn = Warnings()
+    collect_curves(bpy.context.evaluated_depsgraph_get(), warn)
+    assert len(warn) == 1 and "2 of 4 strands" in warn[0]
+    img = render_to_array(bpy.context.scene, "PATHLIGHT", samples=2)
+    assert np.isfinite(img).all()
+
+
+def test_diffuse_hair_matches_cycles():
+    ours, cycles = render_pair(hair_scene(lambda: ms.diffuse("Hair", (0.8, 0.5, 0.3))), 256)
+    assert_agree(ours, cycles)
