@@ -1564,6 +1564,33 @@ class ShaderCompiler:
         w = None if weight is None else self.reg(self.as_color(weight))
         self.ops.append(("closure", kind, w, regs))
 
+    def principled_hair(self, node, inp, weight):
+        """The Principled Hair BSDF as Cycles' Chiang model (core: HairChiangBsdf); Huang's
+        model falls back to it with a warning."""
+        if node.model != 'CHIANG':
+            self.problem(f"'{node.name}': the Huang hair model is not supported (rendered with "
+                         "Chiang's)")
+        mode = {'ABSORPTION': "absorption", 'MELANIN': "melanin"}.get(node.parametrization, "color")
+        params = dict(roughness=inp("Roughness", "float"),
+                      radial_roughness=inp("Radial Roughness", "float"), coat=inp("Coat", "float"),
+                      ior=inp("IOR", "float"), offset=inp("Offset", "float"),
+                      random_roughness=inp("Random Roughness", "float"))
+        if mode == "absorption":
+            params["absorption"] = inp("Absorption Coefficient", "vector")
+        elif mode == "melanin":
+            params.update(melanin=inp("Melanin", "float"), melanin_redness=inp("Melanin Redness", "float"),
+                          tint=inp("Tint", "color"), random_color=inp("Random Color", "float"))
+        else:
+            params["color"] = inp("Color", "color")
+        if node.inputs["Random"].is_linked:
+            params["random"] = inp("Random", "float")
+        else:
+            random_used = [params.get(k) for k in ("random_roughness", "random_color")]
+            if any(v is not None and not (v.is_const and v.const[0] == 0.0) for v in random_used):
+                self.problem(f"'{node.name}': per-strand randomness needs its Random input linked "
+                             "(Cycles' own per-strand random is not supported); no randomness")
+        self.closure("principled_hair_" + mode, weight, **params)
+
     def shader_input(self, socket, ctx, weight):
         """Emits the closures of what feeds shader input `socket`, scaled by weight."""
         if self.is_zero(weight):
@@ -1660,6 +1687,8 @@ class ShaderCompiler:
                          normal=self.normal(node, ctx))
         elif t == 'BSDF_TRANSPARENT':
             self.closure("transparent", weight, color=inp("Color", "color"))
+        elif t == 'BSDF_HAIR_PRINCIPLED':
+            self.principled_hair(node, inp, weight)
         elif t == 'EMISSION':
             color = self.scale(inp("Color", "color"), inp("Strength", "float"))
             self.closure("emission", weight, color=self.as_color(color))

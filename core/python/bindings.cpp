@@ -637,6 +637,14 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else if (kind == "translucent") {
         o.code = OpCode::Translucent;
         o.in[1] = p("color"); o.in[2] = p("normal");
+      } else if (kind == "principled_hair_absorption" || kind == "principled_hair_melanin" ||
+                 kind == "principled_hair_color") {
+        o.code = OpCode::PrincipledHair;
+        o.in[1] = p("color"); o.in[2] = p("melanin"); o.in[3] = p("melanin_redness"); o.in[4] = p("tint");
+        o.in[5] = p("absorption"); o.in[6] = p("roughness"); o.in[7] = p("radial_roughness"); o.in[8] = p("coat");
+        o.in[9] = p("ior"); o.in[10] = p("offset"); o.in[11] = p("random_color"); o.in[12] = p("random_roughness");
+        o.in[13] = p("random");
+        o.sub = kind == "principled_hair_absorption" ? 0 : kind == "principled_hair_melanin" ? 1 : 2;
       } else if (kind == "holdout") {
         o.code = OpCode::Holdout;
       } else if (kind == "emission") {
@@ -1362,6 +1370,13 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   }
   if (kind == "transparent") return TransparentBsdf{};
   if (kind == "translucent") return TranslucentBsdf{};
+  if (kind == "hair_chiang") {  // the node's inputs; the local frame: x along the fibre
+    HairChiangBsdf h = HairChiangBsdf::from_node(p.contains("sigma") ? to_color(p["sigma"], "sigma") : Vec3(0.0f),
+                                                 f("roughness", 0.3f), f("radial_roughness", 0.3f), f("coat", 0.0f),
+                                                 f("offset", 0.0349066f), f("ior", 1.55f));
+    h.h = f("h", 0.0f);
+    return h;
+  }
   throw std::invalid_argument("unknown bsdf '" + kind + "'");
 }
 

@@ -90,9 +90,11 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
   }
   m.transparent = false;
   m.holdout = false;
+  m.has_hair = false;
   for (const ShaderOp& op : m.program.ops) {
     m.transparent = m.transparent || op.code == OpCode::Transparent;
     m.holdout = m.holdout || op.code == OpCode::Holdout;
+    m.has_hair = m.has_hair || op.code == OpCode::PrincipledHair;
   }
   m.constant = !m.program.varying;
   if (m.constant) {
@@ -852,6 +854,7 @@ void Scene::detect_features() {
         else if (std::holds_alternative<TranslucentBsdf>(b)) f.diffuse = f.transmission = true;
         else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
+        else if (std::holds_alternative<HairChiangBsdf>(b)) f.glossy = f.transmission = true;
         else if (std::get<DielectricBsdf>(b).transmission) f.transmission = true;
         else f.glossy = true;
       }
@@ -868,6 +871,7 @@ void Scene::detect_features() {
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
         case OpCode::Transparent: f.transparent = true; break;
         case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
+        case OpCode::PrincipledHair: f.glossy = f.transmission = true; break;
         default: break;
       }
     }
@@ -1203,6 +1207,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       // Glossy lobes: the normal lifted as eval_shader does (Cycles' valid specular reflection).
       c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
     }
+    if (mat.has_hair) orient_hair(out, sp, wo);
     return;
   }
   ShadingContext ctx;
@@ -1218,6 +1223,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.p_error = sp.p_error;
   if (sp.curve()) {  // no triangle, uvs or attributes; world coordinates for Object
     eval_shader(mat.program, images_, ctx, out);
+    if (mat.has_hair) orient_hair(out, sp, wo);
     return;
   }
   const InstanceData& in = inst_[sp.instance];
@@ -1291,6 +1297,37 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.attr_sets = n;
   }
   eval_shader(mat.program, images_, ctx, out);
+  if (mat.has_hair) orient_hair(out, sp, wo);
+}
+
+void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo) {
+  // Cycles' bsdf_hair_chiang_setup: x along the fibre, y = x cross the view, z = x cross y;
+  // h the sine of the angle between the normal and z seen along x. On a mesh (no tangent) an
+  // arbitrary tangent of the shading normal stands in for the fibre.
+  Vec3 x = sp.tangent;
+  if (!(length_sq(x) > 0.0f)) {
+    Vec3 b;
+    make_basis(sp.ns, x, b);
+  }
+  Vec3 y = cross(x, wo);
+  const float l = length(y);
+  if (l > 1e-7f) {
+    y = y / l;
+  } else {  // looking along the fibre: any y across it
+    Vec3 b;
+    make_basis(x, y, b);
+  }
+  const Vec3 z = cross(x, y);
+  const float h = clampf(dot(cross(sp.ng, x), z), -1.0f, 1.0f);
+  for (int i = 0; i < out.n; ++i) {
+    Closure& c = out.c[size_t(i)];
+    if (auto* hb = std::get_if<HairChiangBsdf>(&c.bsdf)) {
+      hb->h = h;
+      c.frame.t = x;
+      c.frame.b = y;
+      c.frame.n = z;
+    }
+  }
 }
 
 Vec3 Scene::transmittance_through(Ray ray) const {

@@ -50,11 +50,17 @@ struct Material {
   Vec3 emission_estimate{0.0f};  // for choosing among lights; the true value is evaluated
   bool transparent = false;      // has a Transparent closure: shadow rays may pass
   bool holdout = false;          // has a Holdout closure: the film's alpha needs the aov kernel
+  bool has_hair = false;     // has a hair closure: its frame follows the fibre (orient_hair)
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
   ClosureList cached;
 };
+
+struct SurfacePoint;
+// Sets the frame and offset of the hair closures in `out` from the hit (tangent, normal) and
+// the view direction wo.
+void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo);
 
 // Builds the program of a Diffuse BSDF plus Emission with constant colours.
 Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emission);

@@ -49,6 +49,7 @@ enum class OpCode : uint8_t {
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
   Translucent, Metallic,
   Holdout,  // no BSDF: its weight makes the film transparent where seen directly
+  PrincipledHair,  // Chiang; sub: parametrization (0 absorption, 1 melanin, 2 direct colour)
 };
 
 enum class MathOp : uint8_t {
