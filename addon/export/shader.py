@@ -1093,6 +1093,18 @@ class ShaderCompiler:
             return ZERO
         return self.emit(kind, "object_info", which)
 
+    _CURVES_INFO = {"Is Strand": ("float", "IS_STRAND"), "Intercept": ("float", "INTERCEPT"),
+                    "Length": ("float", "LENGTH"), "Thickness": ("float", "THICKNESS"),
+                    "Tangent Normal": ("vector", "TANGENT_NORMAL"), "Random": ("float", "RANDOM")}
+
+    def curves_info(self, node, out, ctx):
+        """Curves Info: what the hit strand's geometry says (zeros off curves, as Cycles)."""
+        kind, which = self._CURVES_INFO.get(out.identifier, (None, None))
+        if kind is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit(kind, "curves_info", which)
+
     def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
              kind="color"):
         if src.is_const:
@@ -1397,7 +1409,8 @@ class ShaderCompiler:
 
     _VALUE_NODES = {
         'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
-        'LIGHT_PATH': light_path, 'OBJECT_INFO': object_info, 'VALTORGB': color_ramp,
+        'LIGHT_PATH': light_path, 'OBJECT_INFO': object_info, 'HAIR_INFO': curves_info,
+        'VALTORGB': color_ramp,
         'CURVE_RGB': rgb_curves, 'VERTEX_COLOR': color_attribute, 'ATTRIBUTE': attribute_node,
         'SEPARATE_COLOR': separate_color, 'SEPRGB': separate_color, 'SEPHSV': separate_color,
         'COMBINE_COLOR': combine_color, 'COMBRGB': combine_color, 'COMBHSV': combine_color,
@@ -1584,11 +1597,10 @@ class ShaderCompiler:
             params["color"] = inp("Color", "color")
         if node.inputs["Random"].is_linked:
             params["random"] = inp("Random", "float")
-        else:
-            random_used = [params.get(k) for k in ("random_roughness", "random_color")]
-            if any(v is not None and not (v.is_const and v.const[0] == 0.0) for v in random_used):
-                self.problem(f"'{node.name}': per-strand randomness needs its Random input linked "
-                             "(Cycles' own per-strand random is not supported); no randomness")
+        elif any(v is not None and not (v.is_const and v.const[0] == 0.0)
+                 for v in (params.get("random_roughness"), params.get("random_color"))):
+            # Unlinked: Cycles reads the strand's own random number (Curves Info's Random).
+            params["random"] = self.emit("float", "curves_info", "RANDOM")
         self.closure("principled_hair_" + mode, weight, **params)
 
     def shader_input(self, socket, ctx, weight):
@@ -1910,7 +1922,7 @@ class ShaderCompiler:
 
 # How many register operands (after the destination) each value op has; None = none given.
 _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
-             "light_path": 0, "object_info": 0, "attribute": 0, "geometry": 0,
+             "light_path": 0, "object_info": 0, "curves_info": 0, "attribute": 0, "geometry": 0,
              "object_normal": 0, "mapping": 1, "image": 1,
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,

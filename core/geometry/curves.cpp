@@ -140,7 +140,8 @@ void piece_surface(const CurvePiece& c, float b1, float b2, Vec3& n, Vec3& tange
   error = Vec3(scale * gamma_bound(64));
 }
 
-CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t curve_base, std::vector<CurvePiece>& out) {
+CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t curve_base, std::vector<CurvePiece>& out,
+                         std::vector<uint32_t>* kept) {
   CurveCutStats st;
   if (in.n_curves == 0) return st;
   if (!in.offsets || in.offsets[0] != 0 || size_t(in.offsets[in.n_curves]) != in.n_points)
@@ -178,6 +179,7 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
     }
     for (size_t i = 0; i < n; ++i) v[i] /= total;
     const uint32_t id = curve_base + uint32_t(st.curves++);
+    if (kept) kept->push_back(uint32_t(c));
     size_t last = SIZE_MAX;  // this strand's previous piece, while they join
     const auto push = [&](const CurvePiece& pc) {
       if (last != SIZE_MAX) {

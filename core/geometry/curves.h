@@ -63,7 +63,9 @@ struct CurveCutStats {
 // by the cube root of its determinant). A strand is left out when it has fewer than 2 points,
 // a non-finite point or radius, a radius <= 0 everywhere or zero length. Piece.curve counts
 // from curve_base. Throws std::invalid_argument on inconsistent offsets.
-CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t curve_base, std::vector<CurvePiece>& out);
+// kept (optional) receives the input index of every strand kept, in strand order.
+CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t curve_base, std::vector<CurvePiece>& out,
+                         std::vector<uint32_t>* kept = nullptr);
 
 // The hit of a ray on one piece: entering hits only, with 0 < t < tmax; u: the axial position
 // (0 at p0, 1 at p1) of the hit's closest point on the axis.

@@ -706,6 +706,12 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.sub = index_in({"TRUE_NORMAL", "INCOMING", "PARAMETRIC", "BACKFACING", "REFLECTION"}, name_of(t[2]),
                        "geometry output");
       prog.varying = true;
+    } else if (op == "curves_info") {
+      need(3);
+      o.code = OpCode::CurvesInfo;
+      o.sub = index_in({"IS_STRAND", "INTERCEPT", "LENGTH", "THICKNESS", "TANGENT_NORMAL", "RANDOM"}, name_of(t[2]),
+                       "curves info output");
+      prog.varying = true;  // per strand and hit
     } else if (op == "object_info") {
       need(3);
       o.code = OpCode::ObjectInfo;

@@ -1,5 +1,7 @@
 #include "scene/scene.h"
 
+#include "util/lookup3.h"
+
 #include <stdexcept>
 #include <utility>
 
@@ -903,6 +905,9 @@ void Scene::detect_features() {
 void Scene::build_curves() {
   std::vector<CurvePiece> pieces;
   curve_first_.clear();
+  curve_length_.clear();
+  curve_random_.clear();
+  std::vector<uint32_t> kept;
   uint32_t strands = 0;
   size_t skipped = 0;
   for (const CurveSetData& cs : curve_sets_) {
@@ -915,7 +920,14 @@ void Scene::build_curves() {
     in.n_curves = cs.offsets.empty() ? 0 : cs.offsets.size() - 1;
     in.type = cs.type;
     in.subdivisions = cs.subdivisions;
-    const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces);
+    kept.clear();
+    const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces, &kept);
+    for (uint32_t c : kept) {
+      double len = 0.0;  // object space, as Cycles' Length
+      for (int32_t k = cs.offsets[c] + 1; k < cs.offsets[c + 1]; ++k) len += length(cs.points[size_t(k)] - cs.points[size_t(k) - 1]);
+      curve_length_.push_back(float(len));
+      curve_random_.push_back(float(lookup3::hash(c, 0u)) * (1.0f / float(0xFFFFFFFFu)));  // Cycles' hash_uint2_to_float(i, 0)
+    }
     strands += uint32_t(st.curves);
     skipped += st.skipped;
   }
@@ -1222,6 +1234,16 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.instance = sp.instance;
   ctx.p_error = sp.p_error;
   if (sp.curve()) {  // no triangle, uvs or attributes; world coordinates for Object
+    const CurvePiece& pc = curve_bvh_.piece(sp.tri);
+    const float u = clampf(b1, 0.0f, 1.0f);  // the axial position (end spheres: beyond [0, 1])
+    CurveShading cs;
+    cs.intercept = pc.v0 + (pc.v1 - pc.v0) * u;
+    cs.length = curve_length_[pc.curve];
+    cs.thickness = 2.0f * (pc.r0 + (pc.r1 - pc.r0) * u);
+    cs.random = curve_random_[pc.curve];
+    const Vec3 across = wo - sp.tangent * dot(sp.tangent, wo);
+    cs.tangent_normal = length_sq(across) > 0.0f ? normalize(across) : Vec3(0.0f);
+    ctx.curve = &cs;
     eval_shader(mat.program, images_, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);
     return;

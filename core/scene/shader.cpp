@@ -265,6 +265,22 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = {v, v, v, 1.0f};
         break;
       }
+      case OpCode::CurvesInfo: {
+        // Cycles' svm_node_hair_info: zeros off curves.
+        const CurveShading* cs = ctx.curve;
+        if (op.sub == 4) {
+          d = f4(cs ? cs->tangent_normal : Vec3(0.0f), 0.0f);
+        } else {
+          const float v = !cs ? 0.0f
+                          : op.sub == 0 ? 1.0f
+                          : op.sub == 1 ? cs->intercept
+                          : op.sub == 2 ? cs->length
+                          : op.sub == 3 ? cs->thickness
+                                        : cs->random;
+          d = {v, v, v, 1.0f};
+        }
+        break;
+      }
       case OpCode::ObjectInfo: {
         // Cycles' svm_node_object_info: the hit instance's location, colour, alpha, pass index
         // and random number (Material Index is a constant of the material, folded by the add-on).
