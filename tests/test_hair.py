@@ -158,3 +158,16 @@ def test_curves_info_matches_cycles():
     ours, cycles = render_pair(dark, 64)
     for c in range(3):  # each channel is one output
         assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+
+
+def test_particle_hair_warns_to_convert():
+    """Particle hair cannot be read without a Python loop per key: one clear warning."""
+    from addon.export.curves import collect_curves
+    ms.studio(size=16)
+    emitter = bpy.data.objects["Floor"]
+    mod = emitter.modifiers.new("Hair", 'PARTICLE_SYSTEM')
+    mod.particle_system.settings.type = 'HAIR'
+    mod.particle_system.settings.count = 10
+    warn = Warnings()
+    assert collect_curves(bpy.context.evaluated_depsgraph_get(), warn) == []
+    assert len(warn) == 1 and "Particle hair on 'Floor'" in warn[0] and "Convert" in warn[0]
