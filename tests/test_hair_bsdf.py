@@ -86,3 +86,22 @@ def test_hair_white_furnace(roughness, h):
     # With absorption the fibre darkens: less than 1, more than the R lobe alone.
     a = sphere_integral({"roughness": roughness, "radial_roughness": 0.3, "h": h, "sigma": (0.5, 1.0, 4.0)}, WO[0])
     assert 0.03 < a[2] < a[1] < a[0] < 0.95
+
+
+def test_hair_extreme_parameters_stay_finite():
+    """Roughness and radial roughness at their clamps, IOR 1 and below 1, h at +-1, huge
+    absorption, views along the fibre: evaluation and sampling stay finite."""
+    rng = np.random.default_rng(9)
+    u = rng.random((4000, 3), dtype=np.float32)
+    wi_eval = rng.normal(size=(4000, 3)).astype(np.float32)
+    wi_eval /= np.linalg.norm(wi_eval, axis=1, keepdims=True)
+    for params in ({"roughness": 0.0, "radial_roughness": 0.0, "h": 1.0},
+                   {"roughness": 1.0, "radial_roughness": 1.0, "h": -1.0, "ior": 1.0},
+                   {"roughness": 0.01, "radial_roughness": 2.0, "h": 0.99, "ior": 0.7, "coat": 1.0},
+                   {"roughness": 0.3, "sigma": (1e6, 1e3, 0.0), "offset": 1.5}):
+        for wo in [(1.0, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.7071, 0.7071, 0.0)]:
+            wi, w, pdf, flags = pc.bsdf_sample("hair_chiang", params, wo, u)
+            ok = flags >= 0
+            assert np.isfinite(wi[ok]).all() and np.isfinite(w[ok]).all() and (pdf[ok] > 0).all()
+            f, p = pc.bsdf_eval("hair_chiang", params, wo, wi_eval)
+            assert np.isfinite(f).all() and np.isfinite(p).all() and (f >= 0).all()
