@@ -171,3 +171,33 @@ def test_particle_hair_warns_to_convert():
     warn = Warnings()
     assert collect_curves(bpy.context.evaluated_depsgraph_get(), warn) == []
     assert len(warn) == 1 and "Particle hair on 'Floor'" in warn[0] and "Convert" in warn[0]
+
+
+def test_object_info_on_curves_matches_cycles():
+    """Object Info on a Curves object: its Random, Color and Location, as on meshes."""
+    def material():
+        mat, nodes, links, out = ms.new_material("ObjInfo")
+        info = nodes.new("ShaderNodeObjectInfo")
+        sep = nodes.new("ShaderNodeSeparateXYZ")
+        comb = nodes.new("ShaderNodeCombineXYZ")
+        links.new(info.outputs["Location"], sep.inputs[0])
+        links.new(info.outputs["Random"], comb.inputs["X"])
+        links.new(info.outputs["Alpha"], comb.inputs["Y"])
+        links.new(sep.outputs["Z"], comb.inputs["Z"])
+        em = nodes.new("ShaderNodeEmission")
+        links.new(comb.outputs[0], em.inputs["Color"])
+        links.new(em.outputs[0], out.inputs["Surface"])
+        return mat
+
+    def build():
+        scene = hair_scene(material)()
+        obj = bpy.data.objects["Hair"]
+        obj.location = (0.0, 0.0, 0.3)
+        obj.color = (0.2, 0.4, 0.6, 0.7)
+        for name in ("Light", "Floor"):
+            bpy.data.objects[name].hide_render = True
+        ms.set_world((0.0, 0.0, 0.0))
+        return scene
+    ours, cycles = render_pair(build, 16)
+    for c in range(3):
+        assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)

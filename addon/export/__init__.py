@@ -147,7 +147,8 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
     curves = getattr(data, "curves", [])
     if curves:
         mats = iter(data.curve_materials)
-        add_curves(scene, curves, lambda _material: ids[next(mats)], warn)
+        add_curves(scene, curves, lambda _material: ids[next(mats)], warn,
+                   getattr(pc, "object_random_id", None))
     add_lights(scene, data.lights, warn)
     set_world(scene, data, warn)
     set_camera(pc, scene, data.camera)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .mesh import is_visible
+from .mesh import is_visible, object_info
 
 # Blender's CurveType enum (the 'curve_type' attribute on the CURVE domain).
 CATMULL_ROM, POLY, BEZIER, NURBS = 0, 1, 2, 3
@@ -23,6 +23,7 @@ class CurvesData:
     curve_type: str  # 'catmull_rom' or 'poly' (the core's names)
     material: object  # the bpy material of slot 1 (or None)
     matrices: list = field(default_factory=list)  # (4, 4) float32 per instance
+    infos: list = field(default_factory=list)  # per instance: mesh.object_info's tuple
 
 
 def _attribute(curves, name, domain, data_type):
@@ -114,6 +115,7 @@ def collect_curves(depsgraph, warn):
             entry = out[key] = CurvesData(obj.original.name, *arrays, material)
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
+            entry.infos.append(object_info(instance))
     return [c for c in out.values() if c is not None]
 
 
@@ -130,13 +132,26 @@ def _warn_particle_hair(obj, warn, warned):
             return
 
 
-def add_curves(scene, curves, material_ids, warn):
-    """Adds CurvesData `curves` to a core scene; material_ids(material) -> core material id."""
+def add_curves(scene, curves, material_ids, warn, random_id_of=None):
+    """Adds CurvesData `curves` to a core scene; material_ids(material) -> core material id;
+    random_id_of(name): the random id of a non-instanced object (Object Info's Random)."""
     if not hasattr(scene, "add_curves"):
         if curves:
             warn("Curves (hair) are not supported by this build of the Pathlight core; ignored")
         return
     for c in curves:
         mat = material_ids(c.material)
-        for m in c.matrices:
-            scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type)
+        infos = c.infos if len(c.infos) == len(c.matrices) else [None] * len(c.matrices)
+        for m, info in zip(c.matrices, infos):
+            try:
+                if info is None:
+                    scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type)
+                    continue
+                color, pass_index, random_id = info
+                if random_id is None:
+                    random_id = random_id_of(c.name) if random_id_of else 0
+                scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
+                                 color=color, pass_index=pass_index, random_id=random_id)
+            except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
+                warn(f"Curves '{c.name}' not rendered: {e}")
+                break

@@ -228,7 +228,8 @@ class IndexArray {
 // default 0.005), one material, the object's matrix. Strands with bad values are left out at
 // commit (stats()["skipped_curves"]); inconsistent shapes or offsets raise ValueError.
 uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& offsets, const py::object& radii_obj,
-                    uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions) {
+                    uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions,
+                    const py::object& color, float pass_index, uint32_t random_id) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -254,6 +255,14 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   }
   if (!matrix.is_none()) cs.matrix = to_mat4(matrix.cast<FloatArray>(), "curves matrix");
   cs.material = material < self.scene->material_count() ? material : 0;
+  if (!color.is_none()) {  // the object's, as add_instance takes them (Object Info)
+    const auto c = color.cast<std::vector<float>>();
+    if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("curves color takes 3 or 4 values");
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    cs.info.color = {clean(c[0]), clean(c[1]), clean(c[2]), c.size() == 4 ? clean(c[3]) : 1.0f};
+  }
+  cs.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
+  cs.info.random = object_random(random_id);
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -1897,10 +1906,12 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
-           py::arg("subdivisions") = 8,
+           py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
+           py::arg("random_id") = 0u,
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
-           "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are.")
+           "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
+           "color, pass_index, random_id: the object's (Object Info), as add_instance.")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),

@@ -907,6 +907,7 @@ void Scene::build_curves() {
   curve_first_.clear();
   curve_length_.clear();
   curve_random_.clear();
+  curve_coords_.clear();
   std::vector<uint32_t> kept;
   uint32_t strands = 0;
   size_t skipped = 0;
@@ -920,6 +921,10 @@ void Scene::build_curves() {
     in.n_curves = cs.offsets.empty() ? 0 : cs.offsets.size() - 1;
     in.type = cs.type;
     in.subdivisions = cs.subdivisions;
+    Vec3 loc, size;
+    auto_texspace(cs.points, loc, size);
+    curve_coords_.push_back(make_object_coords(cs.matrix, loc, size));
+    curve_coords_.back().info = cs.info;
     kept.clear();
     const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces, &kept);
     for (uint32_t c : kept) {
@@ -1244,6 +1249,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     const Vec3 across = wo - sp.tangent * dot(sp.tangent, wo);
     cs.tangent_normal = length_sq(across) > 0.0f ? normalize(across) : Vec3(0.0f);
     ctx.curve = &cs;
+    ctx.object = &curve_coords_[curve_set_of(pc.curve)];
     eval_shader(mat.program, images_, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);
     return;

@@ -439,6 +439,7 @@ class Scene {
   CurveBvh curve_bvh_;
   std::vector<uint32_t> curve_first_;
   std::vector<float> curve_length_, curve_random_;  // per strand: Curves Info's Length and Random
+  std::vector<ObjectCoords> curve_coords_;  // per curve set: its object (Object Info, object coordinates)
   bool curves_dirty_ = false;
   bool curves_on_ = false;  // curve_bvh_ is not empty: traced after the meshes
   void build_curves();
