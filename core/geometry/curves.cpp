@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
 
 #include "geometry/bvh_common.h"
 
@@ -246,10 +249,46 @@ Aabb piece_box(const CurvePiece& c) {
 }
 }  // namespace
 
+namespace {
+// The binary tree collapsed into 4-wide nodes (the top level's rule: the largest interior
+// child opened first while lanes are free).
+uint32_t collapse(const std::vector<BvhNode>& bin, uint32_t b, std::vector<WideBvhNode<4>>& out) {
+  uint32_t kids[4];
+  const int n = bvh_detail::gather_wide_children(bin.data(), b, kids, 4);
+  const uint32_t w = uint32_t(out.size());
+  out.emplace_back();
+  for (int k = 0; k < 4; ++k) {
+    for (int r = 0; r < 3; ++r) {
+      out[w].bounds[2 * r][k] = kInf;
+      out[w].bounds[2 * r + 1][k] = -kInf;
+    }
+    out[w].child[k] = 0;
+    out[w].count[k] = 0;
+  }
+  for (int k = 0; k < n; ++k) {
+    const BvhNode& c = bin[kids[k]];
+    for (int r = 0; r < 3; ++r) {
+      out[w].bounds[2 * r][k] = c.lo[r];
+      out[w].bounds[2 * r + 1][k] = c.hi[r];
+    }
+    if (c.is_leaf()) {
+      out[w].child[k] = c.left_or_first;
+      out[w].count[k] = c.count;
+    } else {
+      const uint32_t ci = collapse(bin, kids[k], out);
+      out[w].child[k] = ci;
+    }
+  }
+  return w;
+}
+}  // namespace
+
 void CurveBvh::build(std::vector<CurvePiece> pieces) {
   nodes_.clear();
   pieces_.clear();
+  bounds_ = Aabb();
   if (pieces.empty()) return;
+  std::vector<BvhNode> bin;
   const size_t n = pieces.size();
   std::vector<Aabb> boxes(n);
   std::vector<Vec3> centers(n);
@@ -263,8 +302,8 @@ void CurveBvh::build(std::vector<CurvePiece> pieces) {
     uint32_t node, begin, end;
     int depth;
   };
-  nodes_.reserve(2 * n / kLeafSize + 1);
-  nodes_.emplace_back();
+  bin.reserve(2 * n / kLeafSize + 1);
+  bin.emplace_back();
   std::vector<Task> todo{{0, 0, uint32_t(n), 0}};
   while (!todo.empty()) {
     const Task tk = todo.back();
@@ -274,8 +313,8 @@ void CurveBvh::build(std::vector<CurvePiece> pieces) {
       b.grow(boxes[refs[i]]);
       cb.grow(centers[refs[i]]);
     }
-    nodes_[tk.node].lo = b.lo;
-    nodes_[tk.node].hi = b.hi;
+    bin[tk.node].lo = b.lo;
+    bin[tk.node].hi = b.hi;
     const uint32_t cnt = tk.end - tk.begin;
     uint32_t mid = tk.begin;
     if (cnt > kLeafSize) {
@@ -325,59 +364,89 @@ void CurveBvh::build(std::vector<CurvePiece> pieces) {
       }
     }
     if (mid == tk.begin) {
-      nodes_[tk.node].first = tk.begin;
-      nodes_[tk.node].count = cnt;
+      bin[tk.node].left_or_first = tk.begin;
+      bin[tk.node].count = cnt;
       continue;
     }
-    const uint32_t left = uint32_t(nodes_.size());
-    nodes_.emplace_back();
-    nodes_.emplace_back();
-    nodes_[tk.node].first = left;
-    nodes_[tk.node].count = 0;
+    const uint32_t left = uint32_t(bin.size());
+    bin.emplace_back();
+    bin.emplace_back();
+    bin[tk.node].left_or_first = left;
+    bin[tk.node].count = 0;
     todo.push_back({left, tk.begin, mid, tk.depth + 1});
     todo.push_back({left + 1, mid, tk.end, tk.depth + 1});
   }
   pieces_.resize(n);
   for (size_t i = 0; i < n; ++i) pieces_[i] = pieces[refs[i]];
+  bounds_ = Aabb{bin[0].lo, bin[0].hi};
+  nodes_.reserve(bin.size() / 3 + 1);
+  collapse(bin, 0, nodes_);
   nodes_.shrink_to_fit();
 }
 
 namespace {
-inline bool box_hit(const Vec3& lo, const Vec3& hi, const Vec3& org, const Vec3& inv, float tmax, float& tnear) {
-  float t0 = 0.0f, t1 = tmax;
-  for (int a = 0; a < 3; ++a) {
-    float n = (lo[a] - org[a]) * inv[a], f = (hi[a] - org[a]) * inv[a];
-    if (n > f) std::swap(n, f);
-    t0 = n > t0 ? n : t0;
-    t1 = f < t1 ? f : t1;
+// The 4 lanes' entry distances and the mask of those entered before tmax: the slab test with
+// near and far planes picked by the direction's signs (as the top level's), conservative exit.
+struct LaneTest {
+  int near[3], far[3];
+  float org[3], inv[3];
+  LaneTest(const Ray& r, const Vec3& iv) {
+    for (int a = 0; a < 3; ++a) {
+      org[a] = r.org[a];
+      inv[a] = iv[a];
+      near[a] = iv[a] < 0.0f ? 2 * a + 1 : 2 * a;
+      far[a] = near[a] ^ 1;
+    }
   }
-  tnear = t0;
-  return t0 <= t1 * bvh_detail::kBoxExitScale;
-}
+  unsigned test(const WideBvhNode<4>& n, float tmax, float* dist) const {
+#if defined(__SSE2__)
+    __m128 tmin = _mm_setzero_ps(), tfar = _mm_set1_ps(tmax);
+    for (int a = 0; a < 3; ++a) {
+      const __m128 o = _mm_set1_ps(org[a]), iv = _mm_set1_ps(inv[a]);
+      tmin = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.bounds[near[a]]), o), iv), tmin);
+      tfar = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.bounds[far[a]]), o), iv), tfar);
+    }
+    tfar = _mm_mul_ps(tfar, _mm_set1_ps(bvh_detail::kBoxExitScale));
+    _mm_storeu_ps(dist, tmin);
+    return unsigned(_mm_movemask_ps(_mm_cmple_ps(tmin, tfar)));
+#else
+    unsigned mask = 0;
+    for (int k = 0; k < 4; ++k) {
+      float t0 = 0.0f, t1 = tmax;
+      for (int a = 0; a < 3; ++a) {
+        const float x0 = (n.bounds[near[a]][k] - org[a]) * inv[a], x1 = (n.bounds[far[a]][k] - org[a]) * inv[a];
+        t0 = x0 > t0 ? x0 : t0;
+        t1 = x1 < t1 ? x1 : t1;
+      }
+      dist[k] = t0;
+      if (t0 <= t1 * bvh_detail::kBoxExitScale) mask |= 1u << k;
+    }
+    return mask;
+#endif
+  }
+};
 }  // namespace
 
 template <bool AnyHit>
 bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
   if (nodes_.empty()) return false;
-  const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
+  const LaneTest lt(ray, bvh_detail::safe_inverse(ray.dir));
   float tmax = ray.tmax;
   bool found = false;
   struct Entry {
-    uint32_t node;
+    uint32_t id, count;  // count > 0: a leaf of `count` pieces from `id`
     float t;
   };
-  constexpr int kStack = 128;
+  // A node pops one entry and pushes at most 4; the tree is under 48 + log2 n binary levels.
+  constexpr int kStack = 4 * 128;
   Entry stack[kStack];
   int sp = 0;
-  float t_root;
-  if (!box_hit(nodes_[0].lo, nodes_[0].hi, ray.org, inv, tmax, t_root)) return false;
-  stack[sp++] = {0, t_root};
+  stack[sp++] = {0, 0, 0.0f};
   while (sp > 0) {
     const Entry e = stack[--sp];
     if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
-    const Node& nd = nodes_[e.node];
-    if (nd.count > 0) {
-      for (uint32_t i = nd.first; i < nd.first + nd.count; ++i) {
+    if (e.count > 0) {
+      for (uint32_t i = e.id; i < e.id + e.count; ++i) {
         float t, u;
         if (intersect_piece(pieces_[i], ray.org, ray.dir, tmax, t, u)) {
           if (AnyHit) return true;
@@ -390,23 +459,24 @@ bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
       }
       continue;
     }
-    float ta, tb;
-    const bool ha = box_hit(nodes_[nd.first].lo, nodes_[nd.first].hi, ray.org, inv, tmax, ta);
-    const bool hb = box_hit(nodes_[nd.first + 1].lo, nodes_[nd.first + 1].hi, ray.org, inv, tmax, tb);
-    if (sp + 2 > kStack) continue;  // unreachable (depth < 48 + log2 n): never overrun
-    if (ha && hb) {
-      if (ta <= tb) {
-        stack[sp++] = {nd.first + 1, tb};
-        stack[sp++] = {nd.first, ta};
-      } else {
-        stack[sp++] = {nd.first, ta};
-        stack[sp++] = {nd.first + 1, tb};
+    const Node& n = nodes_[e.id];
+    alignas(16) float dist[4];
+    unsigned mask = lt.test(n, tmax, dist);
+    Entry hits[4];
+    int nh = 0;
+    while (mask) {  // nearest first: pushed farthest first
+      const int k = __builtin_ctz(mask);
+      mask &= mask - 1;
+      const Entry x{n.child[k], n.count[k], dist[k]};
+      int j = nh++;
+      while (j > 0 && hits[j - 1].t < x.t) {
+        hits[j] = hits[j - 1];
+        --j;
       }
-    } else if (ha) {
-      stack[sp++] = {nd.first, ta};
-    } else if (hb) {
-      stack[sp++] = {nd.first + 1, tb};
+      hits[j] = x;
     }
+    if (sp + nh > kStack) continue;  // unreachable (bounded depth): never overrun
+    for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
   }
   return found;
 }

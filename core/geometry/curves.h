@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "geometry/aabb.h"
+#include "geometry/bvh.h"
 #include "geometry/ray.h"
 
 namespace pl {
@@ -89,19 +90,19 @@ class CurveBvh {
   bool empty() const { return pieces_.empty(); }
   size_t size() const { return pieces_.size(); }
   const CurvePiece& piece(uint32_t i) const { return pieces_[i]; }
-  Aabb bounds() const { return nodes_.empty() ? Aabb() : Aabb{nodes_[0].lo, nodes_[0].hi}; }
+  Aabb bounds() const { return bounds_; }
   size_t memory_bytes() const { return nodes_.capacity() * sizeof(Node) + pieces_.capacity() * sizeof(CurvePiece); }
   // Closest entering hit before ray.tmax: prim the piece, (b1, b2) as encode_piece_hit.
   bool intersect(const Ray& ray, Hit& hit) const;
   bool occluded(const Ray& ray) const;
 
  private:
-  struct Node {
-    Vec3 lo, hi;
-    uint32_t first = 0, count = 0;  // leaf: pieces [first, first + count); interior: children first, first + 1
-  };
+  // 4-wide nodes collapsed from the binary SAH tree, tested four boxes per SSE operation,
+  // nearest lane first; a lane with count > 0 is a leaf of `count` pieces from `child`.
+  using Node = WideBvhNode<4>;
   std::vector<Node> nodes_;
   std::vector<CurvePiece> pieces_;  // in leaf order
+  Aabb bounds_;
   template <bool AnyHit>
   bool traverse(const Ray& ray, Hit& hit) const;
 };
