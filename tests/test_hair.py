@@ -201,3 +201,13 @@ def test_object_info_on_curves_matches_cycles():
     ours, cycles = render_pair(build, 16)
     for c in range(3):
         assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+
+
+def test_principled_hair_on_a_mesh_renders():
+    """On a mesh (no fibre) an arbitrary tangent of the normal stands in: finite and lit."""
+    ms.studio(size=16)
+    ms.add_sphere("Ball", 0.5, principled_hair("H", 'COLOR', Color=(0.6, 0.35, 0.2, 1.0)),
+                  location=(0.0, 0.0, 0.5))
+    img = render_to_array(bpy.context.scene, "PATHLIGHT", samples=8)
+    assert np.isfinite(img).all()
+    assert img[4:12, 4:12, :3].mean() > 0.0
