@@ -83,6 +83,8 @@ def _same_geometry(old, new):
     its matrices, materials, lights, world and camera are set."""
     if old is None or len(old.meshes) != len(new.meshes) or old.material_slots != new.material_slots:
         return False
+    if getattr(old, "curves", None) or getattr(new, "curves", None):
+        return False  # curves are exported afresh each time: a new scene
     if old.material_names != new.material_names or len(old.materials) != len(new.materials):
         return False
     if getattr(old.uv_sets, "names", None) != getattr(new.uv_sets, "names", None):

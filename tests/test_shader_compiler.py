@@ -687,7 +687,7 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     mix = nodes.new("ShaderNodeMixShader")
     toon = nodes.new("ShaderNodeBsdfToon")
     toon.inputs["Color"].default_value = (0.1, 0.6, 0.2, 1)
-    hair = nodes.new("ShaderNodeBsdfHairPrincipled")  # has a Color input too
+    hair = nodes.new("ShaderNodeBsdfHair")  # has a Color input too
     d = nodes.new("ShaderNodeBsdfDiffuse")
     d.inputs["Color"].default_value = (0.3, 0.3, 0.3, 1)
     hue = nodes.new("ShaderNodeAmbientOcclusion")  # supported: traced, no fallback
@@ -704,7 +704,7 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     links.new(mix.outputs[0], out.inputs["Surface"])
     closures, warnings, _ = closures_of(mat)
     assert len(warnings) == 1
-    for name in ("Odd", "Toon BSDF", "Principled Hair BSDF", "Particle Info"):
+    for name in ("Odd", "Toon BSDF", "Hair BSDF", "Particle Info"):
         assert name in warnings[0], (name, warnings[0])
     assert "Ambient Occlusion" not in warnings[0]
     traced = [c for c in closures if isinstance(c[2]["color"], Sym)]

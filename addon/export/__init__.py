@@ -7,12 +7,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .camera import ExportError, camera_params
+from .curves import CurvesData, add_curves, collect_curves
 from .light import LightData, collect_lights
 from .material import MaterialData, MaterialTable, add_materials
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .world import WorldSky, WorldTexture, world_color, world_texture, world_volume
 
-__all__ = ("ExportCancelled", "ExportError", "add_lights", "replace_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldSky", "WorldTexture",
+__all__ = ("CurvesData", "ExportCancelled", "ExportError", "add_lights", "replace_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldSky", "WorldTexture",
            "export_scene", "to_core")
 
 
@@ -29,6 +30,8 @@ class SceneData:
     material_names: list = field(default_factory=list)  # per material: the bpy name ("" = none)
     uv_sets: object = None  # shader.UvSets: the global uv-set numbering the programs use
     world_volume: dict = None  # the world's homogeneous medium (add_shader's volume dict) or None
+    curves: list = field(default_factory=list)  # CurvesData (hair)
+    curve_materials: list = field(default_factory=list)  # per curves: its index into materials
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None):
@@ -50,6 +53,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
             warn(f"Mesh '{mesh.name}' has no attribute "
                  f"{', '.join(map(repr, mesh.missing_attributes))} that its materials read; 0 is used")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
+    curves = collect_curves(depsgraph, warn)
+    curve_materials = [table.index(c.material) for c in curves]
     lights = collect_lights(depsgraph, warn, is_visible)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
     if far > FAR_FROM_ORIGIN:
@@ -59,7 +64,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     return SceneData(meshes, material_slots, table.materials,
                      world_color(scene.world, warn), camera, lights,
                      world_texture(scene.world, warn), table.images.images,
-                     table.material_names(), table.uv_sets, world_volume(scene.world, warn))
+                     table.material_names(), table.uv_sets, world_volume(scene.world, warn),
+                     curves, curve_materials)
 
 
 # Measured by tests/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise
@@ -138,6 +144,11 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
             scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id)
+    curves = getattr(data, "curves", [])
+    if curves:
+        mats = iter(data.curve_materials)
+        add_curves(scene, curves, lambda _material: ids[next(mats)], warn,
+                   getattr(pc, "object_random_id", None))
     add_lights(scene, data.lights, warn)
     set_world(scene, data, warn)
     set_camera(pc, scene, data.camera)

@@ -1101,6 +1101,18 @@ class ShaderCompiler:
             return ZERO
         return self.emit(kind, "object_info", which)
 
+    _CURVES_INFO = {"Is Strand": ("float", "IS_STRAND"), "Intercept": ("float", "INTERCEPT"),
+                    "Length": ("float", "LENGTH"), "Thickness": ("float", "THICKNESS"),
+                    "Tangent Normal": ("vector", "TANGENT_NORMAL"), "Random": ("float", "RANDOM")}
+
+    def curves_info(self, node, out, ctx):
+        """Curves Info: what the hit strand's geometry says (zeros off curves, as Cycles)."""
+        kind, which = self._CURVES_INFO.get(out.identifier, (None, None))
+        if kind is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit(kind, "curves_info", which)
+
     def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
              kind="color"):
         if src.is_const:
@@ -1419,7 +1431,8 @@ class ShaderCompiler:
 
     _VALUE_NODES = {
         'FRESNEL': fresnel_node, 'LAYER_WEIGHT': layer_weight, 'BUMP': bump,
-        'LIGHT_PATH': light_path, 'OBJECT_INFO': object_info, 'VALTORGB': color_ramp,
+        'LIGHT_PATH': light_path, 'OBJECT_INFO': object_info, 'HAIR_INFO': curves_info,
+        'VALTORGB': color_ramp,
         'CURVE_RGB': rgb_curves, 'VERTEX_COLOR': color_attribute, 'ATTRIBUTE': attribute_node,
         'SEPARATE_COLOR': separate_color, 'SEPRGB': separate_color, 'SEPHSV': separate_color,
         'COMBINE_COLOR': combine_color, 'COMBRGB': combine_color, 'COMBHSV': combine_color,
@@ -1587,6 +1600,32 @@ class ShaderCompiler:
         w = None if weight is None else self.reg(self.as_color(weight))
         self.ops.append(("closure", kind, w, regs))
 
+    def principled_hair(self, node, inp, weight):
+        """The Principled Hair BSDF as Cycles' Chiang model (core: HairChiangBsdf); Huang's
+        model falls back to it with a warning."""
+        if node.model != 'CHIANG':
+            self.problem(f"'{node.name}': the Huang hair model is not supported (rendered with "
+                         "Chiang's)")
+        mode = {'ABSORPTION': "absorption", 'MELANIN': "melanin"}.get(node.parametrization, "color")
+        params = dict(roughness=inp("Roughness", "float"),
+                      radial_roughness=inp("Radial Roughness", "float"), coat=inp("Coat", "float"),
+                      ior=inp("IOR", "float"), offset=inp("Offset", "float"),
+                      random_roughness=inp("Random Roughness", "float"))
+        if mode == "absorption":
+            params["absorption"] = inp("Absorption Coefficient", "vector")
+        elif mode == "melanin":
+            params.update(melanin=inp("Melanin", "float"), melanin_redness=inp("Melanin Redness", "float"),
+                          tint=inp("Tint", "color"), random_color=inp("Random Color", "float"))
+        else:
+            params["color"] = inp("Color", "color")
+        if node.inputs["Random"].is_linked:
+            params["random"] = inp("Random", "float")
+        elif any(v is not None and not (v.is_const and v.const[0] == 0.0)
+                 for v in (params.get("random_roughness"), params.get("random_color"))):
+            # Unlinked: Cycles reads the strand's own random number (Curves Info's Random).
+            params["random"] = self.emit("float", "curves_info", "RANDOM")
+        self.closure("principled_hair_" + mode, weight, **params)
+
     def shader_input(self, socket, ctx, weight):
         """Emits the closures of what feeds shader input `socket`, scaled by weight."""
         if self.is_zero(weight):
@@ -1679,6 +1718,8 @@ class ShaderCompiler:
                          normal=self.normal(node, ctx))
         elif t == 'BSDF_TRANSPARENT':
             self.closure("transparent", weight, color=inp("Color", "color"))
+        elif t == 'BSDF_HAIR_PRINCIPLED':
+            self.principled_hair(node, inp, weight)
         elif t == 'EMISSION':
             color = self.scale(inp("Color", "color"), inp("Strength", "float"))
             self.closure("emission", weight, color=self.as_color(color))
@@ -1953,7 +1994,7 @@ class ShaderCompiler:
 
 # How many register operands (after the destination) each value op has; None = none given.
 _OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
-             "light_path": 0, "object_info": 0, "attribute": 0, "geometry": 0,
+             "light_path": 0, "object_info": 0, "curves_info": 0, "attribute": 0, "geometry": 0,
              "object_normal": 0, "mapping": 1, "image": 1,
              "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
              "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,

@@ -224,6 +224,48 @@ class IndexArray {
   bool is_i32_ = false;
 };
 
+// A Curves object: points (N, 3), offsets (C + 1) into them, radii (N) or None (Cycles'
+// default 0.005), one material, the object's matrix. Strands with bad values are left out at
+// commit (stats()["skipped_curves"]); inconsistent shapes or offsets raise ValueError.
+uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& offsets, const py::object& radii_obj,
+                    uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions,
+                    const py::object& color, float pass_index, uint32_t random_id) {
+  self.check_editable();
+  if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
+  if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
+  const size_t n = size_t(points.shape(0)), nc = size_t(offsets.shape(0)) - 1;
+  if (n > UINT32_MAX / 2 || nc > UINT32_MAX / 2) throw std::invalid_argument("curves are too large");
+  const int64_t* po = offsets.data();
+  if (po[0] != 0 || size_t(po[nc]) != n) throw std::invalid_argument("curve offsets must start at 0 and end at the number of points");
+  for (size_t c = 0; c < nc; ++c)
+    if (po[c + 1] < po[c]) throw std::invalid_argument("curve offsets must not decrease");
+  CurveSetData cs;
+  if (curve_type == "catmull_rom") cs.type = CurveType::CatmullRom;
+  else if (curve_type == "poly") cs.type = CurveType::Poly;
+  else throw std::invalid_argument("curve_type must be 'catmull_rom' or 'poly'");
+  cs.subdivisions = std::max(1, std::min(subdivisions, 64));
+  const Vec3* pp = reinterpret_cast<const Vec3*>(points.data());
+  cs.points.assign(pp, pp + n);
+  cs.offsets.resize(nc + 1);
+  for (size_t c = 0; c <= nc; ++c) cs.offsets[c] = int32_t(po[c]);
+  if (!radii_obj.is_none()) {
+    const FloatArray radii = radii_obj.cast<FloatArray>();
+    if (radii.ndim() != 1 || size_t(radii.shape(0)) != n) throw std::invalid_argument("curve radii must have shape (N,)");
+    cs.radii.assign(radii.data(), radii.data() + n);
+  }
+  if (!matrix.is_none()) cs.matrix = to_mat4(matrix.cast<FloatArray>(), "curves matrix");
+  cs.material = material < self.scene->material_count() ? material : 0;
+  if (!color.is_none()) {  // the object's, as add_instance takes them (Object Info)
+    const auto c = color.cast<std::vector<float>>();
+    if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("curves color takes 3 or 4 values");
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    cs.info.color = {clean(c[0]), clean(c[1]), clean(c[2]), c.size() == 4 ? clean(c[3]) : 1.0f};
+  }
+  cs.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
+  cs.info.random = object_random(random_id);
+  return self.scene->add_curves(std::move(cs));
+}
+
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
                   const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
                   const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
@@ -627,6 +669,14 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else if (kind == "translucent") {
         o.code = OpCode::Translucent;
         o.in[1] = p("color"); o.in[2] = p("normal");
+      } else if (kind == "principled_hair_absorption" || kind == "principled_hair_melanin" ||
+                 kind == "principled_hair_color") {
+        o.code = OpCode::PrincipledHair;
+        o.in[1] = p("color"); o.in[2] = p("melanin"); o.in[3] = p("melanin_redness"); o.in[4] = p("tint");
+        o.in[5] = p("absorption"); o.in[6] = p("roughness"); o.in[7] = p("radial_roughness"); o.in[8] = p("coat");
+        o.in[9] = p("ior"); o.in[10] = p("offset"); o.in[11] = p("random_color"); o.in[12] = p("random_roughness");
+        o.in[13] = p("random");
+        o.sub = kind == "principled_hair_absorption" ? 0 : kind == "principled_hair_melanin" ? 1 : 2;
       } else if (kind == "holdout") {
         o.code = OpCode::Holdout;
       } else if (kind == "emission") {
@@ -705,6 +755,12 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.sub = index_in({"TRUE_NORMAL", "INCOMING", "PARAMETRIC", "BACKFACING", "REFLECTION"}, name_of(t[2]),
                        "geometry output");
       prog.varying = true;
+    } else if (op == "curves_info") {
+      need(3);
+      o.code = OpCode::CurvesInfo;
+      o.sub = index_in({"IS_STRAND", "INTERCEPT", "LENGTH", "THICKNESS", "TANGENT_NORMAL", "RANDOM"}, name_of(t[2]),
+                       "curves info output");
+      prog.varying = true;  // per strand and hit
     } else if (op == "object_info") {
       need(3);
       o.code = OpCode::ObjectInfo;
@@ -928,6 +984,9 @@ py::dict scene_stats(const PyScene& self) {
   d["blas_references"] = s.blas_references;
   d["tlas_instances"] = s.tlas_instances;
   d["real_instances"] = s.real_instances;
+  d["curves"] = s.curves;
+  d["curve_pieces"] = s.curve_pieces;
+  d["skipped_curves"] = s.skipped_curves;
   d["dynamic"] = self.scene->dynamic();
   d["geometry_bytes"] = s.geometry_bytes;
   d["bvh_nodes"] = b.nodes;
@@ -1037,7 +1096,7 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
       pt[i] = ok ? h.t : kInf;
       pp[i] = ok ? int64_t(self.scene->global_prim(h)) : -1;
       if (instances) {
-        pi[i] = ok ? int64_t(h.inst) : -1;
+        pi[i] = ok ? (h.inst == kCurveInstance ? -2 : int64_t(h.inst)) : -1;
         pl[i] = ok ? int64_t(self.scene->mesh_triangle(h)) : -1;
       }
       pb1[i] = ok ? h.b1 : 0.0f;
@@ -1220,6 +1279,49 @@ py::tuple light_choices(const PyScene& self, const FloatArray& points, const Flo
   return py::make_tuple(idx, pmf, pmfs);
 }
 
+// The surfaces that rays hit (for tests of curves and meshes alike): t (inf on a miss), the
+// point, geometric normal, tangent (curves; else 0) and the spawn origins a path would use on
+// the normal's side and on the other side (offset_ray_origin).
+py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
+  check_rays(self, origins, dirs);
+  const py::ssize_t n = origins.shape(0);
+  py::array_t<float> t(n), p({n, py::ssize_t(3)}), ng({n, py::ssize_t(3)}), tg({n, py::ssize_t(3)}),
+      out({n, py::ssize_t(3)}), in({n, py::ssize_t(3)});
+  py::array_t<bool> curve(n);
+  const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
+  const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
+  Vec3 *pp = reinterpret_cast<Vec3*>(p.mutable_data()), *pn = reinterpret_cast<Vec3*>(ng.mutable_data()),
+       *pt = reinterpret_cast<Vec3*>(tg.mutable_data()), *po = reinterpret_cast<Vec3*>(out.mutable_data()),
+       *pi = reinterpret_cast<Vec3*>(in.mutable_data());
+  float* ptt = t.mutable_data();
+  bool* pc = curve.mutable_data();
+  {
+    py::gil_scoped_release release;
+    for (py::ssize_t i = 0; i < n; ++i) {
+      Hit h;
+      SurfacePoint sp;
+      const bool ok = self.scene->intersect(Ray{o[i], d[i], tmax}, h);
+      if (ok) self.scene->surface_point(h, sp);
+      ptt[i] = ok ? h.t : kInf;
+      pp[i] = ok ? sp.p : Vec3(0.0f);
+      pn[i] = ok ? sp.ng : Vec3(0.0f);
+      pt[i] = ok ? sp.tangent : Vec3(0.0f);
+      po[i] = ok ? offset_ray_origin(sp.p, sp.p_error, sp.ng) : Vec3(0.0f);
+      pi[i] = ok ? offset_ray_origin(sp.p, sp.p_error, -sp.ng) : Vec3(0.0f);
+      pc[i] = ok && sp.curve();
+    }
+  }
+  py::dict r;
+  r["t"] = t;
+  r["p"] = p;
+  r["ng"] = ng;
+  r["tangent"] = tg;
+  r["origin_out"] = out;
+  r["origin_in"] = in;
+  r["curve"] = curve;
+  return r;
+}
+
 py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
@@ -1334,6 +1436,13 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   }
   if (kind == "transparent") return TransparentBsdf{};
   if (kind == "translucent") return TranslucentBsdf{};
+  if (kind == "hair_chiang") {  // the node's inputs; the local frame: x along the fibre
+    HairChiangBsdf h = HairChiangBsdf::from_node(p.contains("sigma") ? to_color(p["sigma"], "sigma") : Vec3(0.0f),
+                                                 f("roughness", 0.3f), f("radial_roughness", 0.3f), f("coat", 0.0f),
+                                                 f("offset", 0.0349066f), f("ior", 1.55f));
+    h.h = f("h", 0.0f);
+    return h;
+  }
   throw std::invalid_argument("unknown bsdf '" + kind + "'");
 }
 
@@ -1887,6 +1996,14 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("name"), py::arg("base_color") = py::make_tuple(0.8f, 0.8f, 0.8f),
           py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
+      .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
+           py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
+           py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
+           py::arg("random_id") = 0u,
+           "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
+           "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
+           "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
+           "color, pass_index, random_id: the object's (Object Info), as add_instance.")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
@@ -2307,6 +2424,9 @@ PYBIND11_MODULE(pathlight_core, m) {
            "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim (the triangle's index in the "
            "flattened scene, instance by instance) is -1 and t inf on a miss. instances=True adds two "
            "int64 arrays: the hit instance (add_instance order) and the triangle's row in its mesh (-1 on a miss).")
+      .def("hit_surfaces", &hit_surfaces, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
+           "The surfaces a batch of rays hits: a dict of t, p, ng, tangent, origin_out, origin_in (the spawn "
+           "origins on the normal's side and the other) and curve (bool).")
       .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).")
       .def("traversal_counts", &traversal_counts, py::arg("origins"), py::arg("directions"),

@@ -30,7 +30,8 @@ template <bool kDiffuseOnly = false>
       if (!reflection) continue;
       v = d->eval(lo, li, p);  // the common lobe without the variant's out-of-line visit
     } else {
-      if (same_side(lo, li) != reflection) continue;
+      // Hair lobes span the whole sphere (their frame's z is no surface normal).
+      if (same_side(lo, li) != reflection && !std::holds_alternative<HairChiangBsdf>(c.bsdf)) continue;
       v = bsdf_eval(c.bsdf, lo, li, p);
     }
     f += c.weight * v;
@@ -450,7 +451,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (!d || !d->sample(ch.frame.to_local(wo), u, ul, bs)) break;  // (!d: unreachable, ends the path)
     }
     const Vec3 wi = ch.frame.to_world(bs.wi);
-    const bool reflection = (bs.flags & kReflect) != 0;
+    // On curves the side is the geometry's (hair lobes' flags name R or TT, not a side).
+    const bool reflection = sp.curve() ? dot(wi, ng_out) > 0.0f : (bs.flags & kReflect) != 0;
     // The sampled side must agree with the geometric normal, or light would leak.
     if ((dot(wi, ng_out) > 0.0f) != reflection) break;
     if (kNonDiffuse && (bs.flags & kDelta)) {

@@ -343,7 +343,11 @@ struct TransparentBsdf {
   }
 };
 
-using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf>;
+}  // namespace pl
+#include "scene/hair_bsdf.h"  // needs BsdfSample and the lobe flags above
+namespace pl {
+
+using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf>;
 
 inline Vec3 bsdf_eval(const Bsdf& b, Vec3 wo, Vec3 wi, float& pdf) {
   return std::visit([&](const auto& x) { return x.eval(wo, wi, pdf); }, b);

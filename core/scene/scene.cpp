@@ -1,5 +1,7 @@
 #include "scene/scene.h"
 
+#include "util/lookup3.h"
+
 #include <stdexcept>
 #include <utility>
 
@@ -90,9 +92,11 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
   }
   m.transparent = false;
   m.holdout = false;
+  m.has_hair = false;
   for (const ShaderOp& op : m.program.ops) {
     m.transparent = m.transparent || op.code == OpCode::Transparent;
     m.holdout = m.holdout || op.code == OpCode::Holdout;
+    m.has_hair = m.has_hair || op.code == OpCode::PrincipledHair;
   }
   m.constant = !m.program.varying;
   if (m.constant) {
@@ -143,6 +147,10 @@ void Scene::set_instance_transform(uint32_t index, const Mat4& m) {
 bool Scene::commit(int threads, BvhLayout layout) {
   cancel_.store(false);
   committed_ = false;
+  if (curves_dirty_) {
+    build_curves();
+    top_dirty_ = true;  // the world bounds (and the lights' scene radius) include them
+  }
   if (geometry_dirty_ || layout != built_layout_ || spatial_splits_ != built_spatial_splits_ ||
       compact_bvh_ != built_compact_bvh_) {
     if (!build_geometry(threads, layout)) return false;
@@ -434,11 +442,12 @@ void Scene::build_top_level() {
     tlas_.clear();
     world_bounds_ = direct_ ? blases_[0].bvh.bounds() : Aabb();
   }
+  if (curves_on_) world_bounds_.grow(curve_bvh_.bounds());
   stats_.tlas_instances = use_tlas_ ? tlas_.stats().instances : 0;
 }
 
 void Scene::update_memory_stats() {
-  size_t bvh = tlas_.memory_bytes(), geo = 0;
+  size_t bvh = tlas_.memory_bytes() + curve_bvh_.memory_bytes(), geo = 0;
   for (const Blas& b : blases_) {
     bvh += b.bvh.memory_bytes();
     geo += b.tris.capacity() * sizeof(TriangleVerts) + b.src_tri.capacity() * 4 + (b.run_first.capacity() + b.run_inst.capacity()) * 4 +
@@ -832,6 +841,8 @@ void Scene::detect_features() {
       for (size_t t = begin; t < end; ++t) used[material_of(mesh, b.src_tri[t], materials_.size())] = 1;
     }
   }
+  if (curves_on_)
+    for (const CurveSetData& cs : curve_sets_) used[cs.material < materials_.size() ? cs.material : 0] = 1;
   for (size_t id = 0; id < materials_.size(); ++id) {
     if (!used[id]) continue;
     const Material& m = materials_[id];
@@ -845,6 +856,7 @@ void Scene::detect_features() {
         else if (std::holds_alternative<TranslucentBsdf>(b)) f.diffuse = f.transmission = true;
         else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
+        else if (std::holds_alternative<HairChiangBsdf>(b)) f.glossy = f.transmission = true;
         else if (std::get<DielectricBsdf>(b).transmission) f.transmission = true;
         else f.glossy = true;
       }
@@ -861,6 +873,7 @@ void Scene::detect_features() {
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
         case OpCode::Transparent: f.transparent = true; break;
         case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
+        case OpCode::PrincipledHair: f.glossy = f.transmission = true; break;
         default: break;
       }
     }
@@ -889,7 +902,67 @@ void Scene::detect_features() {
   }
 }
 
+void Scene::build_curves() {
+  std::vector<CurvePiece> pieces;
+  curve_first_.clear();
+  curve_length_.clear();
+  curve_random_.clear();
+  curve_coords_.clear();
+  std::vector<uint32_t> kept;
+  uint32_t strands = 0;
+  size_t skipped = 0;
+  for (const CurveSetData& cs : curve_sets_) {
+    curve_first_.push_back(strands);
+    CurveInput in;
+    in.points = cs.points.data();
+    in.radii = cs.radii.empty() ? nullptr : cs.radii.data();
+    in.n_points = cs.points.size();
+    in.offsets = cs.offsets.data();
+    in.n_curves = cs.offsets.empty() ? 0 : cs.offsets.size() - 1;
+    in.type = cs.type;
+    in.subdivisions = cs.subdivisions;
+    Vec3 loc, size;
+    auto_texspace(cs.points, loc, size);
+    curve_coords_.push_back(make_object_coords(cs.matrix, loc, size));
+    curve_coords_.back().info = cs.info;
+    kept.clear();
+    const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces, &kept);
+    for (uint32_t c : kept) {
+      double len = 0.0;  // object space, as Cycles' Length
+      for (int32_t k = cs.offsets[c] + 1; k < cs.offsets[c + 1]; ++k) len += length(cs.points[size_t(k)] - cs.points[size_t(k) - 1]);
+      curve_length_.push_back(float(len));
+      curve_random_.push_back(float(lookup3::hash(c, 0u)) * (1.0f / float(0xFFFFFFFFu)));  // Cycles' hash_uint2_to_float(i, 0)
+    }
+    strands += uint32_t(st.curves);
+    skipped += st.skipped;
+  }
+  stats_.curves = strands;
+  stats_.skipped_curves = skipped;
+  stats_.curve_pieces = pieces.size();
+  curve_bvh_.build(std::move(pieces));
+  curves_on_ = !curve_bvh_.empty();
+  curves_dirty_ = false;
+}
+
+void Scene::curve_point(const Hit& h, SurfacePoint& sp) const {
+  const CurvePiece& c = curve_bvh_.piece(h.prim);
+  // The hit from the ray is only good to its t's error; the point on the surface is better.
+  Vec3 n, tangent, p, err;
+  float u;
+  piece_surface(c, h.b1, h.b2, n, tangent, p, err, u);
+  sp.p = p;
+  sp.p_error = err;
+  sp.ng = sp.ns = n;
+  sp.tangent = tangent;
+  const uint32_t set = curve_set_of(c.curve);
+  sp.material = curve_sets_[set].material < materials_.size() ? curve_sets_[set].material : 0;
+  sp.prim = uint32_t(stats_.triangles) + c.curve;
+  sp.instance = kCurveInstance;
+  sp.tri = h.prim;
+}
+
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
+  if (h.inst == kCurveInstance) return curve_point(h, sp);
   const InstanceData& in = inst_[h.inst];
   const Blas& b = blases_[in.blas];
   const TriangleVerts& tv = b.tris[h.prim];
@@ -1151,6 +1224,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       // Glossy lobes: the normal lifted as eval_shader does (Cycles' valid specular reflection).
       c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
     }
+    if (mat.has_hair) orient_hair(out, sp, wo);
     return;
   }
   ShadingContext ctx;
@@ -1164,6 +1238,22 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.scene = this;  // the Ambient Occlusion node traces
   ctx.instance = sp.instance;
   ctx.p_error = sp.p_error;
+  if (sp.curve()) {  // no triangle, uvs or attributes; world coordinates for Object
+    const CurvePiece& pc = curve_bvh_.piece(sp.tri);
+    const float u = clampf(b1, 0.0f, 1.0f);  // the axial position (end spheres: beyond [0, 1])
+    CurveShading cs;
+    cs.intercept = pc.v0 + (pc.v1 - pc.v0) * u;
+    cs.length = curve_length_[pc.curve];
+    cs.thickness = 2.0f * (pc.r0 + (pc.r1 - pc.r0) * u);
+    cs.random = curve_random_[pc.curve];
+    const Vec3 across = wo - sp.tangent * dot(sp.tangent, wo);
+    cs.tangent_normal = length_sq(across) > 0.0f ? normalize(across) : Vec3(0.0f);
+    ctx.curve = &cs;
+    ctx.object = &curve_coords_[curve_set_of(pc.curve)];
+    eval_shader(mat.program, images_, ctx, out);
+    if (mat.has_hair) orient_hair(out, sp, wo);
+    return;
+  }
   const InstanceData& in = inst_[sp.instance];
   const Blas& blas = blases_[in.blas];
   const TriangleVerts tv = world_triangle(in, blas.tris[sp.tri]);
@@ -1235,6 +1325,37 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.attr_sets = n;
   }
   eval_shader(mat.program, images_, ctx, out);
+  if (mat.has_hair) orient_hair(out, sp, wo);
+}
+
+void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo) {
+  // Cycles' bsdf_hair_chiang_setup: x along the fibre, y = x cross the view, z = x cross y;
+  // h the sine of the angle between the normal and z seen along x. On a mesh (no tangent) an
+  // arbitrary tangent of the shading normal stands in for the fibre.
+  Vec3 x = sp.tangent;
+  if (!(length_sq(x) > 0.0f)) {
+    Vec3 b;
+    make_basis(sp.ns, x, b);
+  }
+  Vec3 y = cross(x, wo);
+  const float l = length(y);
+  if (l > 1e-7f) {
+    y = y / l;
+  } else {  // looking along the fibre: any y across it
+    Vec3 b;
+    make_basis(x, y, b);
+  }
+  const Vec3 z = cross(x, y);
+  const float h = clampf(dot(cross(sp.ng, x), z), -1.0f, 1.0f);
+  for (int i = 0; i < out.n; ++i) {
+    Closure& c = out.c[size_t(i)];
+    if (auto* hb = std::get_if<HairChiangBsdf>(&c.bsdf)) {
+      hb->h = h;
+      c.frame.t = x;
+      c.frame.b = y;
+      c.frame.n = z;
+    }
+  }
 }
 
 Vec3 Scene::transmittance_through(Ray ray) const {
@@ -1270,6 +1391,7 @@ Vec3 Scene::transmittance_through(Ray ray) const {
 }
 
 float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n) const {
+  if (sp.curve()) return 0.0f;  // curves are not light-sampled: their emission is found by BSDF rays alone
   const InstanceData& in = inst_[sp.instance];
   const int32_t e = emitter_of(in, sp.tri);
   if (e < 0 || !(cos_l > 0.0f)) return 0.0f;

@@ -8,6 +8,7 @@
 // A scene with only the merged BLAS skips the top level at trace time. Dynamic mode (the
 // viewport) makes every instance a real one, so a transform edit rebuilds only the top level.
 #pragma once
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cstdint>
@@ -15,6 +16,7 @@
 #include <vector>
 
 #include "geometry/bvh.h"
+#include "geometry/curves.h"
 #include "geometry/tlas.h"
 #include "scene/shader.h"
 #include "scene/camera.h"
@@ -48,14 +50,35 @@ struct Material {
   Vec3 emission_estimate{0.0f};  // for choosing among lights; the true value is evaluated
   bool transparent = false;      // has a Transparent closure: shadow rays may pass
   bool holdout = false;          // has a Holdout closure: the film's alpha needs the aov kernel
+  bool has_hair = false;     // has a hair closure: its frame follows the fibre (orient_hair)
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
   ClosureList cached;
 };
 
+struct SurfacePoint;
+// Sets the frame and offset of the hair closures in `out` from the hit (tangent, normal) and
+// the view direction wo.
+void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo);
+
 // Builds the program of a Diffuse BSDF plus Emission with constant colours.
 Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emission);
+
+// A Curves object (hair): strands with a radius per point, one material, object -> world.
+struct CurveSetData {
+  std::vector<Vec3> points;
+  std::vector<float> radii;      // per point
+  std::vector<int32_t> offsets;  // strands + 1: strand c has points [offsets[c], offsets[c + 1])
+  CurveType type = CurveType::CatmullRom;
+  int subdivisions = 8;          // linear pieces per Catmull-Rom segment
+  uint32_t material = 0;
+  Mat4 matrix;
+  ObjectInfo info;
+};
+
+// Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
+constexpr uint32_t kCurveInstance = 0xFFFFFFF0u;
 
 struct Instance {
   uint32_t mesh;
@@ -72,7 +95,10 @@ struct SurfacePoint {
   uint32_t material = 0;
   uint32_t prim = 0;      // the triangle's index in the flattened scene (instance by instance)
   uint32_t instance = 0;  // the hit instance
-  uint32_t tri = 0;       // the triangle in its BLAS (internal)
+  uint32_t tri = 0;       // the triangle in its BLAS (internal); curves: the piece
+  // Curves (instance == kCurveInstance): the unit tangent along the strand (else zero).
+  Vec3 tangent{0.0f};
+  bool curve() const { return instance == kCurveInstance; }
 };
 
 // A next-event-estimation sample towards any light (analytic, emissive triangle, environment).
@@ -106,6 +132,7 @@ struct SceneStats {
   size_t tlas_instances = 0;              // entries of the top level (0: a single BLAS, no top level)
   size_t real_instances = 0;              // instances traced through a transform (not merged)
   size_t bvh_bytes = 0, geometry_bytes = 0;  // BLASes + top level; triangle copies, maps and mesh data
+  size_t curves = 0, curve_pieces = 0, skipped_curves = 0;  // strands kept, their linear pieces, strands left out
 };
 
 // What a committed scene uses (materials on its triangles, lights, world), so that a render
@@ -146,6 +173,21 @@ class Scene {
   size_t image_count() const { return images_.size(); }
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
   void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {});
+  // A set of curves (validated by the caller). Strands with bad data are left out at commit
+  // (counted in stats().skipped_curves).
+  uint32_t add_curves(CurveSetData curves) {
+    curve_sets_.push_back(std::move(curves));
+    curves_dirty_ = true;
+    committed_ = false;
+    return uint32_t(curve_sets_.size() - 1);
+  }
+  size_t curve_set_count() const { return curve_sets_.size(); }
+  bool has_curves() const { return !curve_bvh_.empty(); }
+  const CurveBvh& curve_bvh() const { return curve_bvh_; }
+  // The curve set of a strand of a committed scene.
+  uint32_t curve_set_of(uint32_t strand) const {
+    return uint32_t(std::upper_bound(curve_first_.begin(), curve_first_.end(), strand) - curve_first_.begin()) - 1;
+  }
   size_t instance_count() const { return instances_.size(); }
   // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
   // commit() rebuilds only the top level and the lights; else the merged geometry.
@@ -258,6 +300,10 @@ class Scene {
   // Closest hit: h.prim is the triangle in its BLAS, h.inst the scene instance (surface_point
   // and global_prim read them).
   bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const {
+    if (curves_on_) return intersect_with_curves(r, h, c);
+    return intersect_meshes(r, h, c);
+  }
+  bool intersect_meshes(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const {
     if (!use_tlas_) {
       if (!direct_ || !blases_[0].bvh.intersect(r, h, c)) return false;
       h.inst = blases_[0].instance_of(h.prim);
@@ -269,13 +315,19 @@ class Scene {
     return true;
   }
   bool occluded(const Ray& r) const {
+    if (curves_on_ && curve_bvh_.occluded(r)) return true;
     if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);
     return tlas_.occluded(r);
   }
   // The row of a hit triangle in its mesh's triangles.
-  uint32_t mesh_triangle(const Hit& h) const { return blases_[inst_[h.inst].blas].src_tri[h.prim]; }
+  // Curve hits: the strand (numbered over all curve sets).
+  uint32_t mesh_triangle(const Hit& h) const {
+    if (h.inst == kCurveInstance) return curve_bvh_.piece(h.prim).curve;
+    return blases_[inst_[h.inst].blas].src_tri[h.prim];
+  }
   // The flattened-scene index of a hit triangle (what a single world-space BVH would report).
   uint32_t global_prim(const Hit& h) const {
+    if (h.inst == kCurveInstance) return uint32_t(stats_.triangles) + curve_bvh_.piece(h.prim).curve;  // after the triangles
     const InstanceData& in = inst_[h.inst];
     return in.prim_base + (h.prim - in.tri_base);
   }
@@ -382,6 +434,28 @@ class Scene {
   Vec3 transmittance_through(Ray ray) const;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
+  // Curves: the sets as added, their pieces' BVH (world space) and per set its first strand.
+  std::vector<CurveSetData> curve_sets_;
+  CurveBvh curve_bvh_;
+  std::vector<uint32_t> curve_first_;
+  std::vector<float> curve_length_, curve_random_;  // per strand: Curves Info's Length and Random
+  std::vector<ObjectCoords> curve_coords_;  // per curve set: its object (Object Info, object coordinates)
+  bool curves_dirty_ = false;
+  bool curves_on_ = false;  // curve_bvh_ is not empty: traced after the meshes
+  void build_curves();
+  bool intersect_with_curves(const Ray& r, Hit& h, TraversalCounters* c) const {
+    bool found = intersect_meshes(r, h, c);
+    Ray rc = r;
+    if (found) rc.tmax = h.t;
+    Hit hc;
+    if (curve_bvh_.intersect(rc, hc)) {
+      h = hc;
+      h.inst = kCurveInstance;
+      found = true;
+    }
+    return found;
+  }
+  void curve_point(const Hit& h, SurfacePoint& sp) const;
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
   Vec3 world_color_{0.0f};
   ShaderProgram world_volume_;

@@ -299,6 +299,22 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = {v, v, v, 1.0f};
         break;
       }
+      case OpCode::CurvesInfo: {
+        // Cycles' svm_node_hair_info: zeros off curves.
+        const CurveShading* cs = ctx.curve;
+        if (op.sub == 4) {
+          d = f4(cs ? cs->tangent_normal : Vec3(0.0f), 0.0f);
+        } else {
+          const float v = !cs ? 0.0f
+                          : op.sub == 0 ? 1.0f
+                          : op.sub == 1 ? cs->intercept
+                          : op.sub == 2 ? cs->length
+                          : op.sub == 3 ? cs->thickness
+                                        : cs->random;
+          d = {v, v, v, 1.0f};
+        }
+        break;
+      }
       case OpCode::ObjectInfo: {
         // Cycles' svm_node_object_info: the hit instance's location, colour, alpha, pass index
         // and random number (Material Index is a constant of the material, folded by the add-on).
@@ -789,6 +805,32 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::Holdout:
         out.holdout += clean_color(col(op.in[0]));
         break;
+      case OpCode::PrincipledHair: {
+        // Cycles' svm_node_closure (CLOSURE_BSDF_HAIR_CHIANG_ID): the absorption from the
+        // parametrization, roughness randomised per strand, Coat as a share of the R lobe's
+        // roughness. Its frame and offset h are set by the scene from the hit (orient_hair).
+        const float random = val(op.in[13], 0.5f);
+        const float fr = 1.0f + 2.0f * (random - 0.5f) * val(op.in[12], 0.0f);
+        const float rough = val(op.in[6], 0.3f) * fr, radial = val(op.in[7], 0.3f) * fr;
+        Vec3 sigma;
+        if (op.sub == 0) {
+          sigma = vmax(clean_color(col(op.in[5])), Vec3(0.0f));
+        } else if (op.sub == 1) {
+          float melanin = val(op.in[2], 0.8f) * (1.0f + 2.0f * (random - 0.5f) * clampf(val(op.in[11], 0.0f), 0.0f, 1.0f));
+          melanin = -std::log(std::max(1.0f - melanin, 1e-4f));
+          const float red = val(op.in[3], 1.0f);
+          sigma = hair_sigma_from_concentration(melanin * (1.0f - red), melanin * red) +
+                  hair_sigma_from_reflectance(clean_color(col(op.in[4])), radial);
+        } else {
+          sigma = hair_sigma_from_reflectance(clean_color(col(op.in[1])), radial);
+        }
+        if (!is_finite(sigma)) sigma = Vec3(0.0f);
+        const float ior = val(op.in[9], 1.55f);
+        HairChiangBsdf h = HairChiangBsdf::from_node(sigma, rough, radial, val(op.in[8], 0.0f), val(op.in[10], 0.0349066f),
+                                                     std::isfinite(ior) && ior > 0.0f ? ior : 1.55f);
+        out.add(h, clean_color(col(op.in[0])), Frame::from_normal(ctx.ns));
+        break;
+      }
       case OpCode::Emission:
         out.emission += clean_color(col(op.in[0]) * col(op.in[1]));
         break;

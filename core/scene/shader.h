@@ -52,6 +52,8 @@ enum class OpCode : uint8_t {
   Translucent, Metallic,
   PrincipledExtra,  // the Principled BSDF's further inputs: the op just before its Principled op
   Holdout,  // no BSDF: its weight makes the film transparent where seen directly
+  PrincipledHair,  // Chiang; sub: parametrization (0 absorption, 1 melanin, 2 direct colour)
+  CurvesInfo,      // sub: Is Strand, Intercept, Length, Thickness, Tangent Normal, Random
 };
 
 enum class MathOp : uint8_t {
@@ -212,6 +214,15 @@ struct RayState {
 };
 
 // What a program can read at a shading point.
+// What the Curves Info node reads at a hit on a curve (Cycles' curve attributes).
+struct CurveShading {
+  float intercept = 0.0f;  // 0 at the root, 1 at the tip (by length along the control points)
+  float length = 0.0f;     // the strand's length (its control polygon, in object space)
+  float thickness = 0.0f;  // the diameter at the hit (world space)
+  float random = 0.0f;     // per strand, as Cycles: hash of its index in its object
+  Vec3 tangent_normal{0.0f};  // the view direction across the strand
+};
+
 struct ShadingContext {
   Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
   Vec3 wo;                   // direction towards the viewer (unit)
@@ -233,6 +244,7 @@ struct ShadingContext {
   const Scene* scene = nullptr;
   uint32_t instance = 0;
   Vec3 p_error{0.0f};
+  const CurveShading* curve = nullptr;  // hits on curves (nullptr: not a strand)
 };
 
 // The Ambient Occlusion node's fraction of `samples` rays over the hemisphere about n (cosine

@@ -1,0 +1,494 @@
+#include "geometry/curves.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
+
+#include "geometry/bvh_common.h"
+
+namespace pl {
+namespace {
+
+// Hits closer than this fraction of the piece's radius are taken for the surface the ray left
+// (a ray spawned on the outside that grazes it): a bias of 1e-4 radii at most.
+constexpr float kSelfFraction = 1e-4f;
+
+// The entering hit of a sphere (centre q, radius r): the near root, computed from the ray's
+// closest approach to q so the error does not grow with the distance (Haines et al., Ray
+// Tracing Gems ch. 7).
+inline bool sphere_entry(const Vec3& q, float r, const Vec3& org, const Vec3& dir, float dd, float& t) {
+  if (!(r > 0.0f)) return false;
+  const Vec3 w = org - q;
+  const float tc = -dot(w, dir) / dd;
+  const Vec3 l = w + dir * tc;
+  const float disc = r * r - dot(l, l);
+  if (!(disc >= 0.0f)) return false;
+  t = tc - std::sqrt(disc / dd);
+  return true;
+}
+
+float max_radius(const CurvePiece& c) { return std::max(c.r0, c.r1); }
+
+}  // namespace
+
+bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, float tmax, float& t_out, float& u_out) {
+  const float dd = dot(dir, dir);
+  if (!(dd > 0.0f)) return false;
+  const float tmin = kSelfFraction * std::min(c.r0 > 0.0f ? c.r0 : c.r1, c.r1 > 0.0f ? c.r1 : c.r0) / std::sqrt(dd);
+  bool found = false;
+  float best = tmax;
+  const Vec3 axis = c.p1 - c.p0;
+  const float len2 = dot(axis, axis);
+  if (len2 > 0.0f) {
+    // The cone frustum, solved about the ray's closest approach to the piece's centre.
+    const float len = std::sqrt(len2);
+    const Vec3 ah = axis / len;
+    const float k = (c.r1 - c.r0) / len;  // radius change per unit length along the axis
+    const float t0 = dot((c.p0 + c.p1) * 0.5f - org, dir) / dd;
+    const Vec3 w = org + dir * t0 - c.p0;
+    const float ws = dot(w, ah), ds = dot(dir, ah);
+    const Vec3 wp = w - ah * ws, dp = dir - ah * ds;
+    const float rr = c.r0 + k * ws;
+    const float A = dot(dp, dp) - k * k * ds * ds;
+    const float B = dot(wp, dp) - k * ds * rr;
+    const float C = dot(wp, wp) - rr * rr;
+    const float disc = B * B - A * C;
+    if (A > 1e-12f * dd && disc >= 0.0f) {
+      // Near root without cancellation: (-B - sqrt) / A or C / (-B + sqrt).
+      const float sq = std::sqrt(disc);
+      const float tl = B > 0.0f ? -(B + sq) / A : C / (sq - B);
+      const float s = ws + tl * ds;
+      const float t = t0 + tl;
+      if (s >= 0.0f && s <= len && c.r0 + k * s > 0.0f && t > tmin && t < best) {
+        best = t;
+        u_out = s / len;
+        found = true;
+      }
+    }
+  }
+  float t;
+  const Vec3 ah = len2 > 0.0f ? axis / std::sqrt(len2) : Vec3(0.0f);
+  if (c.root && sphere_entry(c.p0, c.r0, org, dir, dd, t) && t > tmin && t < best) {
+    const Vec3 x = org + dir * t - c.p0;
+    if (dot(x, ah) <= 0.0f) {  // the half beyond the root disc
+      best = t;
+      u_out = 0.0f;
+      found = true;
+    }
+  }
+  if (sphere_entry(c.p1, c.r1, org, dir, dd, t) && t > tmin && t < best) {
+    const Vec3 x = org + dir * t - c.p1;
+    if (dot(x, ah) >= 0.0f && dot(x, c.next) <= 0.0f) {  // the wedge no cone covers
+      best = t;
+      u_out = 1.0f;
+      found = true;
+    }
+  }
+  if (found) t_out = best;
+  return found;
+}
+
+namespace {
+Vec3 piece_tangent(const CurvePiece& c, float& len) {
+  const Vec3 axis = c.p1 - c.p0;
+  len = length(axis);
+  return len > 0.0f && std::isfinite(len) ? axis / len : Vec3(0.0f, 0.0f, 1.0f);
+}
+}  // namespace
+
+void encode_piece_hit(const CurvePiece& c, Vec3 p, float u, float& b1, float& b2) {
+  float len;
+  const Vec3 tg = piece_tangent(c, len);
+  Vec3 bx, by;
+  make_basis(tg, bx, by);
+  const bool cap = u <= 0.0f || u >= 1.0f || !(len > 0.0f);
+  const Vec3 q = cap ? (u >= 1.0f ? c.p1 : c.p0) : c.p0 + (c.p1 - c.p0) * u;
+  const Vec3 d = p - q;
+  b2 = std::atan2(dot(d, by), dot(d, bx));
+  if (!std::isfinite(b2)) b2 = 0.0f;
+  if (!cap) {
+    b1 = u;
+    return;
+  }
+  const float dl = length(d);
+  float z = dl > 0.0f ? clampf(dot(d, tg) / dl, -1.0f, 1.0f) : 0.0f;
+  if (!std::isfinite(z)) z = 0.0f;
+  b1 = u >= 1.0f ? 3.0f + z : -2.0f - z;
+}
+
+void piece_surface(const CurvePiece& c, float b1, float b2, Vec3& n, Vec3& tangent, Vec3& p, Vec3& error, float& u) {
+  float len;
+  tangent = piece_tangent(c, len);
+  Vec3 bx, by;
+  make_basis(tangent, bx, by);
+  const Vec3 rhat = bx * std::cos(b2) + by * std::sin(b2);
+  if (b1 >= 0.0f && b1 <= 1.0f) {
+    u = b1;
+    const float k = len > 0.0f ? (c.r1 - c.r0) / len : 0.0f;
+    n = normalize(rhat - tangent * k);  // the cone's slope tilts it
+    p = c.p0 + (c.p1 - c.p0) * u + rhat * (c.r0 + (c.r1 - c.r0) * u);
+  } else {
+    const bool end = b1 > 1.0f;
+    u = end ? 1.0f : 0.0f;
+    const float z = clampf(end ? b1 - 3.0f : -2.0f - b1, -1.0f, 1.0f);
+    n = normalize(rhat * std::sqrt(std::max(0.0f, 1.0f - z * z)) + tangent * z);
+    p = (end ? c.p1 : c.p0) + n * (end ? c.r1 : c.r0);
+  }
+  // The point's own rounding and the intersector's: coordinates of magnitude |p| and lengths of
+  // the piece's size enter every term. Far below the kSelfFraction guard of a radius.
+  const float scale = max_component(vabs(p)) + max_radius(c) + len;
+  error = Vec3(scale * gamma_bound(64));
+}
+
+CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t curve_base, std::vector<CurvePiece>& out,
+                         std::vector<uint32_t>* kept) {
+  CurveCutStats st;
+  if (in.n_curves == 0) return st;
+  if (!in.offsets || in.offsets[0] != 0 || size_t(in.offsets[in.n_curves]) != in.n_points)
+    throw std::invalid_argument("curve offsets must start at 0 and end at the number of points");
+  for (size_t c = 0; c < in.n_curves; ++c)
+    if (in.offsets[c + 1] < in.offsets[c]) throw std::invalid_argument("curve offsets must not decrease");
+  const Vec3 c0{to_world.m[0][0], to_world.m[1][0], to_world.m[2][0]}, c1{to_world.m[0][1], to_world.m[1][1], to_world.m[2][1]},
+      c2{to_world.m[0][2], to_world.m[1][2], to_world.m[2][2]};
+  // Radii scale with the transform's mean scale (exact for uniform scales, as Cycles applies
+  // an object's scale to curve radii).
+  const float det = dot(c0, cross(c1, c2));
+  const float rscale = std::cbrt(std::fabs(det));
+  const int sub = in.type == CurveType::CatmullRom ? std::max(1, std::min(in.subdivisions, 64)) : 1;
+  std::vector<Vec3> p;
+  std::vector<float> r, v;
+  for (size_t c = 0; c < in.n_curves; ++c) {
+    const size_t b = size_t(in.offsets[c]), e = size_t(in.offsets[c + 1]), n = e - b;
+    bool ok = n >= 2 && std::isfinite(rscale) && rscale > 0.0f;
+    float rmax = 0.0f, total = 0.0f;
+    p.resize(n);
+    r.resize(n);
+    v.resize(n);
+    for (size_t i = 0; i < n && ok; ++i) {
+      p[i] = to_world.point(in.points[b + i]);
+      r[i] = in.radii ? in.radii[b + i] * rscale : 0.005f * rscale;
+      ok = is_finite(p[i]) && std::isfinite(r[i]) && max_component(vabs(p[i])) < 1e30f;
+      r[i] = std::max(r[i], 0.0f);
+      rmax = std::max(rmax, r[i]);
+      if (i > 0) total += length(p[i] - p[i - 1]);
+      v[i] = total;
+    }
+    if (!ok || !(rmax > 0.0f) || !(total > 0.0f) || !std::isfinite(total)) {
+      ++st.skipped;
+      continue;
+    }
+    for (size_t i = 0; i < n; ++i) v[i] /= total;
+    const uint32_t id = curve_base + uint32_t(st.curves++);
+    if (kept) kept->push_back(uint32_t(c));
+    size_t last = SIZE_MAX;  // this strand's previous piece, while they join
+    const auto push = [&](const CurvePiece& pc) {
+      if (last != SIZE_MAX) {
+        float l;
+        out[last].next = piece_tangent(pc, l);
+      }
+      out.push_back(pc);
+      out.back().root = last == SIZE_MAX;
+      last = out.size() - 1;
+    };
+    for (size_t k = 0; k + 1 < n; ++k) {
+      const size_t a = k > 0 ? k - 1 : 0, d = std::min(k + 2, n - 1);
+      Vec3 prev = p[k];
+      float prev_r = r[k], prev_v = v[k];
+      for (int j = 1; j <= sub; ++j) {
+        const float t = float(j) / float(sub);
+        Vec3 q;
+        float rq;
+        if (j == sub) {  // the key itself, exactly: neighbouring segments share it
+          q = p[k + 1];
+          rq = r[k + 1];
+        } else {
+          q = catmull_rom(p[a], p[k], p[k + 1], p[d], t);
+          rq = std::max(0.0f, catmull_rom(r[a], r[k], r[k + 1], r[d], t));
+        }
+        const float vq = v[k] + (v[k + 1] - v[k]) * t;
+        if (prev_r > 0.0f || rq > 0.0f) {
+          CurvePiece pc;
+          pc.p0 = prev;
+          pc.p1 = q;
+          pc.r0 = prev_r;
+          pc.r1 = rq;
+          pc.curve = id;
+          pc.v0 = prev_v;
+          pc.v1 = vq;
+          push(pc);
+        } else {
+          last = SIZE_MAX;  // a gap of zero radius: the next piece starts a new run
+        }
+        prev = q;
+        prev_r = rq;
+        prev_v = vq;
+      }
+    }
+  }
+  return st;
+}
+
+namespace {
+constexpr int kBins = 16;
+constexpr uint32_t kLeafSize = 4;
+
+Aabb piece_box(const CurvePiece& c) {
+  Aabb b;
+  b.grow(c.p0 - Vec3(c.r0));
+  b.grow(c.p0 + Vec3(c.r0));
+  b.grow(c.p1 - Vec3(c.r1));
+  b.grow(c.p1 + Vec3(c.r1));
+  // Grown by a little more than the rounding of the hit test's coordinates.
+  const Vec3 pad = (vabs(b.lo) + vabs(b.hi)) * gamma_bound(4);
+  b.lo = b.lo - pad;
+  b.hi = b.hi + pad;
+  return b;
+}
+}  // namespace
+
+namespace {
+// The binary tree collapsed into 4-wide nodes (the top level's rule: the largest interior
+// child opened first while lanes are free).
+uint32_t collapse(const std::vector<BvhNode>& bin, uint32_t b, std::vector<WideBvhNode<4>>& out) {
+  uint32_t kids[4];
+  const int n = bvh_detail::gather_wide_children(bin.data(), b, kids, 4);
+  const uint32_t w = uint32_t(out.size());
+  out.emplace_back();
+  for (int k = 0; k < 4; ++k) {
+    for (int r = 0; r < 3; ++r) {
+      out[w].bounds[2 * r][k] = kInf;
+      out[w].bounds[2 * r + 1][k] = -kInf;
+    }
+    out[w].child[k] = 0;
+    out[w].count[k] = 0;
+  }
+  for (int k = 0; k < n; ++k) {
+    const BvhNode& c = bin[kids[k]];
+    for (int r = 0; r < 3; ++r) {
+      out[w].bounds[2 * r][k] = c.lo[r];
+      out[w].bounds[2 * r + 1][k] = c.hi[r];
+    }
+    if (c.is_leaf()) {
+      out[w].child[k] = c.left_or_first;
+      out[w].count[k] = c.count;
+    } else {
+      const uint32_t ci = collapse(bin, kids[k], out);
+      out[w].child[k] = ci;
+    }
+  }
+  return w;
+}
+}  // namespace
+
+void CurveBvh::build(std::vector<CurvePiece> pieces) {
+  nodes_.clear();
+  pieces_.clear();
+  bounds_ = Aabb();
+  if (pieces.empty()) return;
+  std::vector<BvhNode> bin;
+  const size_t n = pieces.size();
+  std::vector<Aabb> boxes(n);
+  std::vector<Vec3> centers(n);
+  std::vector<uint32_t> refs(n);
+  for (size_t i = 0; i < n; ++i) {
+    boxes[i] = piece_box(pieces[i]);
+    centers[i] = boxes[i].center();
+    refs[i] = uint32_t(i);
+  }
+  struct Task {
+    uint32_t node, begin, end;
+    int depth;
+  };
+  bin.reserve(2 * n / kLeafSize + 1);
+  bin.emplace_back();
+  std::vector<Task> todo{{0, 0, uint32_t(n), 0}};
+  while (!todo.empty()) {
+    const Task tk = todo.back();
+    todo.pop_back();
+    Aabb b, cb;
+    for (uint32_t i = tk.begin; i < tk.end; ++i) {
+      b.grow(boxes[refs[i]]);
+      cb.grow(centers[refs[i]]);
+    }
+    bin[tk.node].lo = b.lo;
+    bin[tk.node].hi = b.hi;
+    const uint32_t cnt = tk.end - tk.begin;
+    uint32_t mid = tk.begin;
+    if (cnt > kLeafSize) {
+      const int axis = max_axis(cb.extent());
+      const float lo = cb.lo[axis], ext = cb.extent()[axis];
+      // Deep down, halves by count: the depth (and the traversal stack) stays below 48 + log2 n.
+      if (ext > 0.0f && tk.depth < 48) {  // binned SAH on the centroids
+        Aabb bin_box[kBins];
+        uint32_t bin_n[kBins] = {};
+        const float kk = kBins * (1.0f - 1e-6f) / ext;
+        auto bin_of = [&](uint32_t r) { return std::min(kBins - 1, int((centers[r][axis] - lo) * kk)); };
+        for (uint32_t i = tk.begin; i < tk.end; ++i) {
+          const int bi = bin_of(refs[i]);
+          bin_box[bi].grow(boxes[refs[i]]);
+          ++bin_n[bi];
+        }
+        float right[kBins] = {};
+        Aabb acc;
+        uint32_t m = 0;
+        for (int i = kBins - 1; i > 0; --i) {
+          acc.grow(bin_box[i]);
+          m += bin_n[i];
+          right[i] = acc.half_area() * float(m);
+        }
+        acc = Aabb();
+        m = 0;
+        float best = kInf;
+        int split = -1;
+        for (int i = 0; i < kBins - 1; ++i) {
+          acc.grow(bin_box[i]);
+          m += bin_n[i];
+          const float cost = acc.half_area() * float(m) + right[i + 1];
+          if (m > 0 && m < cnt && cost < best) {
+            best = cost;
+            split = i;
+          }
+        }
+        if (split >= 0)
+          mid = uint32_t(std::partition(refs.begin() + tk.begin, refs.begin() + tk.end,
+                                        [&](uint32_t r) { return bin_of(r) <= split; }) -
+                         refs.begin());
+      }
+      if (mid == tk.begin || mid == tk.end) {
+        mid = tk.begin + cnt / 2;
+        std::nth_element(refs.begin() + tk.begin, refs.begin() + mid, refs.begin() + tk.end,
+                         [&](uint32_t a, uint32_t c) { return centers[a][axis] < centers[c][axis]; });
+      }
+    }
+    if (mid == tk.begin) {
+      bin[tk.node].left_or_first = tk.begin;
+      bin[tk.node].count = cnt;
+      continue;
+    }
+    const uint32_t left = uint32_t(bin.size());
+    bin.emplace_back();
+    bin.emplace_back();
+    bin[tk.node].left_or_first = left;
+    bin[tk.node].count = 0;
+    todo.push_back({left, tk.begin, mid, tk.depth + 1});
+    todo.push_back({left + 1, mid, tk.end, tk.depth + 1});
+  }
+  pieces_.resize(n);
+  for (size_t i = 0; i < n; ++i) pieces_[i] = pieces[refs[i]];
+  bounds_ = Aabb{bin[0].lo, bin[0].hi};
+  nodes_.reserve(bin.size() / 3 + 1);
+  collapse(bin, 0, nodes_);
+  nodes_.shrink_to_fit();
+}
+
+namespace {
+// The 4 lanes' entry distances and the mask of those entered before tmax: the slab test with
+// near and far planes picked by the direction's signs (as the top level's), conservative exit.
+struct LaneTest {
+  int near[3], far[3];
+  float org[3], inv[3];
+  LaneTest(const Ray& r, const Vec3& iv) {
+    for (int a = 0; a < 3; ++a) {
+      org[a] = r.org[a];
+      inv[a] = iv[a];
+      near[a] = iv[a] < 0.0f ? 2 * a + 1 : 2 * a;
+      far[a] = near[a] ^ 1;
+    }
+  }
+  unsigned test(const WideBvhNode<4>& n, float tmax, float* dist) const {
+#if defined(__SSE2__)
+    __m128 tmin = _mm_setzero_ps(), tfar = _mm_set1_ps(tmax);
+    for (int a = 0; a < 3; ++a) {
+      const __m128 o = _mm_set1_ps(org[a]), iv = _mm_set1_ps(inv[a]);
+      tmin = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.bounds[near[a]]), o), iv), tmin);
+      tfar = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.bounds[far[a]]), o), iv), tfar);
+    }
+    tfar = _mm_mul_ps(tfar, _mm_set1_ps(bvh_detail::kBoxExitScale));
+    _mm_storeu_ps(dist, tmin);
+    return unsigned(_mm_movemask_ps(_mm_cmple_ps(tmin, tfar)));
+#else
+    unsigned mask = 0;
+    for (int k = 0; k < 4; ++k) {
+      float t0 = 0.0f, t1 = tmax;
+      for (int a = 0; a < 3; ++a) {
+        const float x0 = (n.bounds[near[a]][k] - org[a]) * inv[a], x1 = (n.bounds[far[a]][k] - org[a]) * inv[a];
+        t0 = x0 > t0 ? x0 : t0;
+        t1 = x1 < t1 ? x1 : t1;
+      }
+      dist[k] = t0;
+      if (t0 <= t1 * bvh_detail::kBoxExitScale) mask |= 1u << k;
+    }
+    return mask;
+#endif
+  }
+};
+}  // namespace
+
+template <bool AnyHit>
+bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
+  if (nodes_.empty()) return false;
+  const LaneTest lt(ray, bvh_detail::safe_inverse(ray.dir));
+  float tmax = ray.tmax;
+  bool found = false;
+  struct Entry {
+    uint32_t id, count;  // count > 0: a leaf of `count` pieces from `id`
+    float t;
+  };
+  // A node pops one entry and pushes at most 4; the tree is under 48 + log2 n binary levels.
+  constexpr int kStack = 4 * 128;
+  Entry stack[kStack];
+  int sp = 0;
+  stack[sp++] = {0, 0, 0.0f};
+  while (sp > 0) {
+    const Entry e = stack[--sp];
+    if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
+    if (e.count > 0) {
+      for (uint32_t i = e.id; i < e.id + e.count; ++i) {
+        float t, u;
+        if (intersect_piece(pieces_[i], ray.org, ray.dir, tmax, t, u)) {
+          if (AnyHit) return true;
+          tmax = t;
+          hit.t = t;
+          hit.b1 = u;
+          hit.prim = i;
+          found = true;
+        }
+      }
+      continue;
+    }
+    const Node& n = nodes_[e.id];
+    alignas(16) float dist[4];
+    unsigned mask = lt.test(n, tmax, dist);
+    Entry hits[4];
+    int nh = 0;
+    while (mask) {  // nearest first: pushed farthest first
+      const int k = __builtin_ctz(mask);
+      mask &= mask - 1;
+      const Entry x{n.child[k], n.count[k], dist[k]};
+      int j = nh++;
+      while (j > 0 && hits[j - 1].t < x.t) {
+        hits[j] = hits[j - 1];
+        --j;
+      }
+      hits[j] = x;
+    }
+    if (sp + nh > kStack) continue;  // unreachable (bounded depth): never overrun
+    for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
+  }
+  return found;
+}
+
+bool CurveBvh::intersect(const Ray& ray, Hit& hit) const {
+  if (!traverse<false>(ray, hit)) return false;
+  encode_piece_hit(pieces_[hit.prim], ray.org + ray.dir * hit.t, hit.b1, hit.b1, hit.b2);
+  return true;
+}
+bool CurveBvh::occluded(const Ray& ray) const {
+  Hit h;
+  return traverse<true>(ray, h);
+}
+
+}  // namespace pl

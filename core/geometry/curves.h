@@ -1,0 +1,110 @@
+// Curves (hair, fur): strands of control points with a radius each, traced as Cycles' round
+// "3D curves". Each strand is cut into short linear pieces (Catmull-Rom strands: every segment
+// between two control points subdivided; poly strands: as they are), and each piece is a swept
+// sphere: a cone frustum between the spheres of its two ends, those spheres included, so pieces
+// join without gaps. Only entering hits count (the ray goes from outside to inside), so a ray
+// spawned just inside a strand passes through it: what Cycles' skip of the hit primitive does
+// for the transmitted lobes of hair BSDFs. Pieces live in world space in one binary SAH BVH of
+// their own, traced after the triangles: scenes without curves never touch it.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "geometry/aabb.h"
+#include "geometry/bvh.h"
+#include "geometry/ray.h"
+
+namespace pl {
+
+enum class CurveType : uint8_t { CatmullRom, Poly };
+
+// One linear piece: a cone frustum from (p0, r0) to (p1, r1). Joints are closed by the
+// sphere at p1, only where neither cone covers it (beyond this piece's end disc and before the
+// next piece's start disc: the outer wedge of a bend), so a ray inside a strand never "enters"
+// a joint sphere that lies inside the tube. A strand's root and tip get half spheres as caps.
+struct CurvePiece {
+  Vec3 p0, p1;
+  Vec3 next{0.0f};  // the next piece's unit axis; zero at the tip
+  float r0 = 0.0f, r1 = 0.0f;
+  bool root = false;  // the strand's first piece: capped at p0
+  uint32_t curve = 0;     // the strand (in the CurveSet's numbering)
+  float v0 = 0.0f, v1 = 0.0f;  // intercept (0 at the root, 1 at the tip) at p0 and p1
+};
+
+// Catmull-Rom (uniform, Cycles' and Blender's default curve type) through p[i] with clamped end
+// keys: the segment from key k to k + 1 uses keys k - 1 .. k + 2, indices clamped to the strand.
+inline Vec3 catmull_rom(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, float t) {
+  const float t2 = t * t, t3 = t2 * t;
+  const float wa = 0.5f * (-t3 + 2.0f * t2 - t), wb = 0.5f * (3.0f * t3 - 5.0f * t2 + 2.0f);
+  const float wc = 0.5f * (-3.0f * t3 + 4.0f * t2 + t), wd = 0.5f * (t3 - t2);
+  return a * wa + b * wb + c * wc + d * wd;
+}
+inline float catmull_rom(float a, float b, float c, float d, float t) {
+  const float t2 = t * t, t3 = t2 * t;
+  return 0.5f * ((-t3 + 2.0f * t2 - t) * a + (3.0f * t3 - 5.0f * t2 + 2.0f) * b + (-3.0f * t3 + 4.0f * t2 + t) * c +
+                 (t3 - t2) * d);
+}
+
+// Strands as the exporter gives them: curve c has points [offsets[c], offsets[c + 1]).
+struct CurveInput {
+  const Vec3* points = nullptr;
+  const float* radii = nullptr;
+  size_t n_points = 0;
+  const int32_t* offsets = nullptr;  // curves + 1 entries
+  size_t n_curves = 0;
+  CurveType type = CurveType::CatmullRom;
+  int subdivisions = 8;  // pieces per Catmull-Rom segment
+};
+
+struct CurveCutStats {
+  size_t curves = 0, skipped = 0;  // strands kept; strands left out (bad data, < 2 points)
+};
+
+// Appends the pieces of every usable strand (in world space through `to_world`; radii scaled
+// by the cube root of its determinant). A strand is left out when it has fewer than 2 points,
+// a non-finite point or radius, a radius <= 0 everywhere or zero length. Piece.curve counts
+// from curve_base. Throws std::invalid_argument on inconsistent offsets.
+// kept (optional) receives the input index of every strand kept, in strand order.
+CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t curve_base, std::vector<CurvePiece>& out,
+                         std::vector<uint32_t>* kept = nullptr);
+
+// The hit of a ray on one piece: entering hits only, with 0 < t < tmax; u: the axial position
+// (0 at p0, 1 at p1) of the hit's closest point on the axis.
+bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, float tmax, float& t, float& u);
+
+// A hit as two numbers (Hit::b1, b2) that give its surface point exactly, independent of the
+// error of the ray's t: b2 the angle about the axis; b1 the axial position u in [0, 1] on the
+// cone, or on the end spheres -2 - z (at p0) and 3 + z (at p1), z the normal's axial cosine.
+void encode_piece_hit(const CurvePiece& c, Vec3 p, float u, float& b1, float& b2);
+
+// The surface at an encoded hit: the outward unit normal (from the axis to the point, tilted
+// by the cone's slope), the unit tangent (p0 to p1), the point on the surface and a bound of
+// its error, large enough that offset_ray_origin moves spawned rays to the right side of the
+// surface for intersect_piece; u: the axial position (0 at p0, 1 at p1).
+void piece_surface(const CurvePiece& c, float b1, float b2, Vec3& n, Vec3& tangent, Vec3& p, Vec3& error, float& u);
+
+class CurveBvh {
+ public:
+  void build(std::vector<CurvePiece> pieces);
+  void clear() { *this = CurveBvh(); }
+  bool empty() const { return pieces_.empty(); }
+  size_t size() const { return pieces_.size(); }
+  const CurvePiece& piece(uint32_t i) const { return pieces_[i]; }
+  Aabb bounds() const { return bounds_; }
+  size_t memory_bytes() const { return nodes_.capacity() * sizeof(Node) + pieces_.capacity() * sizeof(CurvePiece); }
+  // Closest entering hit before ray.tmax: prim the piece, (b1, b2) as encode_piece_hit.
+  bool intersect(const Ray& ray, Hit& hit) const;
+  bool occluded(const Ray& ray) const;
+
+ private:
+  // 4-wide nodes collapsed from the binary SAH tree, tested four boxes per SSE operation,
+  // nearest lane first; a lane with count > 0 is a leaf of `count` pieces from `child`.
+  using Node = WideBvhNode<4>;
+  std::vector<Node> nodes_;
+  std::vector<CurvePiece> pieces_;  // in leaf order
+  Aabb bounds_;
+  template <bool AnyHit>
+  bool traverse(const Ray& ray, Hit& hit) const;
+};
+
+}  // namespace pl

@@ -1,0 +1,193 @@
+"""Curves (hair) in the core: round strands hit where an analytic cylinder or cone is, with
+its normal; rays spawned from hits never hit the strand they left; bad strands are left out."""
+import numpy as np
+import pytest
+
+from core_scenes import camera, core, random_rotation, render
+
+pytestmark = pytest.mark.sanitize
+
+
+def _scene(pc, points, offsets, radii, curve_type="poly", matrix=None, subdivisions=8):
+    s = pc.Scene()
+    m = s.add_material("strand", base_color=(0.8, 0.8, 0.8))
+    s.add_curves(np.asarray(points, np.float32), np.asarray(offsets), None if radii is None else
+                 np.asarray(radii, np.float32), m, matrix=matrix, curve_type=curve_type,
+                 subdivisions=subdivisions)
+    s.commit()
+    return s
+
+
+def _rays_at(rng, n, center, spread, dist=5.0):
+    """Rays from random directions aimed at random points near `center`."""
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    target = np.asarray(center) + rng.uniform(-spread, spread, size=(n, 3))
+    return (target - d * dist).astype(np.float32), d.astype(np.float32)
+
+
+def _cone_hits(o, d, p0, p1, r0, r1):
+    """Entering hits of rays on the infinite cone through (p0, r0), (p1, r1), float64, with the
+    axial position s in [0, 1]; nan where there is none."""
+    o, d = o.astype(np.float64), d.astype(np.float64)
+    axis = p1 - p0
+    L = np.linalg.norm(axis)
+    a = axis / L
+    k = (r1 - r0) / L
+    w = o - p0
+    ws, ds = w @ a, d @ a
+    wp, dp = w - np.outer(ws, a), d - np.outer(ds, a)
+    rr = r0 + k * ws
+    A = (dp * dp).sum(1) - k * k * ds * ds
+    B = (wp * dp).sum(1) - k * ds * rr
+    C = (wp * wp).sum(1) - rr * rr
+    disc = B * B - A * C
+    with np.errstate(invalid="ignore"):
+        t = (-B - np.sqrt(disc)) / A
+    s = (ws + t * ds) / L
+    return np.where((disc >= 0) & (A > 0), t, np.nan), s
+
+
+@pytest.mark.parametrize("r0, r1", [(0.1, 0.1), (0.15, 0.05)])
+def test_hits_match_analytic_cone(r0, r1):
+    pc = core()
+    rng = np.random.default_rng(1)
+    rot = random_rotation(3)
+    p0, p1 = rot @ np.array([-1.0, 0.0, 0.0]) + 0.3, rot @ np.array([1.0, 0.0, 0.0]) + 0.3
+    s = _scene(pc, [p0, p1], [0, 2], [r0, r1])
+    o, d = _rays_at(rng, 4000, (p0 + p1) / 2, 0.6)
+    hit = s.hit_surfaces(o, d)
+    t_ref, s_ref = _cone_hits(o, d, p0, p1, r0, r1)
+    # On the body, away from the end caps: same hit distance and normal.
+    body = np.isfinite(t_ref) & (s_ref > 0.02) & (s_ref < 0.98)
+    assert body.sum() > 500
+    assert np.all(np.isfinite(hit["t"][body]))
+    np.testing.assert_allclose(hit["t"][body], t_ref[body], atol=2e-5 * 5)
+    p = o[body] + d[body] * t_ref[body, None]
+    axis = (p1 - p0) / np.linalg.norm(p1 - p0)
+    q = p0 + np.outer(s_ref[body] * np.linalg.norm(p1 - p0), axis)
+    radial = p - q
+    radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+    n_ref = radial - axis * (r1 - r0) / np.linalg.norm(p1 - p0)
+    n_ref /= np.linalg.norm(n_ref, axis=1, keepdims=True)
+    assert np.abs(hit["ng"][body] - n_ref).max() < 1e-4
+    assert np.abs(hit["tangent"][body] - axis).max() < 1e-5
+    np.testing.assert_allclose(hit["p"][body], p, atol=1e-5)
+    # Rays that miss the cone's body and both end spheres find nothing.
+    def sphere_miss(c, r):
+        w = o - c
+        b = (w * d).sum(1)
+        return b * b - ((w * w).sum(1) - r * r) < 0
+    miss = ~np.isfinite(t_ref) & sphere_miss(p0, r0) & sphere_miss(p1, r1)
+    assert miss.sum() > 500
+    assert np.all(np.isinf(hit["t"][miss]))
+
+
+def test_spawned_rays_do_not_hit_their_strand():
+    """From every hit, rays on the outside (from origin_out) and into the strand (origin_in,
+    the transmitted lobes of hair) find nothing: one straight strand, far from the origin too."""
+    pc = core()
+    rng = np.random.default_rng(7)
+    for offset, r in ((0.0, 0.02), (300.0, 0.05)):
+        p0, p1 = np.array([-1.0, 0.2, 0.1]) + offset, np.array([1.0, -0.1, 0.3]) + offset
+        s = _scene(pc, [p0, p1], [0, 2], [r, r])
+        o, d = _rays_at(rng, 3000, (p0 + p1) / 2, 0.05, dist=2.0)
+        hit = s.hit_surfaces(o, d)
+        ok = np.isfinite(hit["t"])
+        assert ok.sum() > 1000
+        n = hit["ng"][ok]
+        w = rng.normal(size=n.shape)
+        w /= np.linalg.norm(w, axis=1, keepdims=True)
+        # Grazing directions too: half of them within a few degrees of the tangent plane.
+        graze = rng.uniform(size=len(w)) < 0.5
+        w[graze] -= n[graze] * ((w[graze] * n[graze]).sum(1, keepdims=True) * 0.97)
+        w /= np.linalg.norm(w, axis=1, keepdims=True)
+        out = (w * n).sum(1) > 0
+        org = np.where(out[:, None], hit["origin_out"][ok], hit["origin_in"][ok]).astype(np.float32)
+        again = s.hit_surfaces(org, w.astype(np.float32))
+        assert np.isinf(again["t"]).all(), f"{np.isfinite(again['t']).sum()} self-hits at offset {offset}"
+
+
+def test_catmull_rom_surface_follows_the_curve():
+    """Hits on a bent Catmull-Rom strand lie one radius from the curve through its keys."""
+    pc = core()
+    keys = np.array([[-1.0, 0.0, 0.0], [-0.3, 0.4, 0.0], [0.4, -0.2, 0.1], [1.0, 0.3, 0.0]])
+    r = 0.05
+    s = _scene(pc, keys, [0, 4], [r] * 4, curve_type="catmull_rom", subdivisions=16)
+    # The curve densely, with Cycles' clamped end keys.
+    pts = []
+    for k in range(3):
+        a, b, c, e = keys[max(k - 1, 0)], keys[k], keys[k + 1], keys[min(k + 2, 3)]
+        t = np.linspace(0, 1, 400)[:, None]
+        pts.append(0.5 * ((-t**3 + 2 * t**2 - t) * a + (3 * t**3 - 5 * t**2 + 2) * b +
+                          (-3 * t**3 + 4 * t**2 + t) * c + (t**3 - t**2) * e))
+    curve = np.concatenate(pts)
+    rng = np.random.default_rng(2)
+    o, d = _rays_at(rng, 3000, (0.0, 0.1, 0.0), 0.9)
+    hit = s.hit_surfaces(o, d)
+    ok = np.isfinite(hit["t"])
+    assert ok.sum() > 100
+    dist = np.linalg.norm(hit["p"][ok][:, None, :] - curve[None], axis=2).min(axis=1)
+    # 16 cones per segment: the chords' sagitta (segment length^2 / 8 bend radius, ~8e-4 here)
+    # is what separates them from the true tube.
+    assert np.abs(dist - r).max() < 0.03 * r, np.abs(dist - r).max()
+
+
+def test_instanced_transform_scales_radius():
+    pc = core()
+    m = np.diag([2.0, 2.0, 2.0, 1.0]).astype(np.float32)
+    m[:3, 3] = (0.0, 0.0, 1.0)
+    s = _scene(pc, [[-1, 0, 0], [1, 0, 0]], [0, 2], [0.1, 0.1], matrix=m)
+    hit = s.hit_surfaces(np.array([[0.0, 0.0, 5.0]], np.float32), np.array([[0.0, 0.0, -1.0]], np.float32))
+    assert hit["t"][0] == pytest.approx(5.0 - 1.0 - 0.2, abs=1e-5)
+
+
+def test_bad_strands_are_left_out():
+    """NaN or infinite points, zero and NaN radii, zero length, single points: left out (counted),
+    never a crash; the good strand still renders."""
+    pc = core()
+    nan, inf = float("nan"), float("inf")
+    strands = [
+        ([[0, 0, 0], [1, 0, 0]], [0.05, 0.05]),      # good
+        ([[0, 1, 0], [nan, 1, 0]], [0.05, 0.05]),    # NaN point
+        ([[0, 2, 0], [1, 2, inf]], [0.05, 0.05]),    # inf point
+        ([[0, 3, 0], [1, 3, 0]], [0.0, 0.0]),        # zero radius
+        ([[0, 4, 0], [1, 4, 0]], [nan, 0.05]),       # NaN radius
+        ([[0, 5, 0], [0, 5, 0]], [0.05, 0.05]),      # zero length
+        ([[0, 6, 0]], [0.05]),                        # one point
+    ]
+    pts = np.concatenate([np.asarray(p, np.float32) for p, _ in strands])
+    rad = np.concatenate([np.asarray(r, np.float32) for _, r in strands])
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p, _ in strands])])
+    for kind in ("poly", "catmull_rom"):
+        s = _scene(pc, pts, offsets, rad, curve_type=kind)
+        st = s.stats()
+        assert (st["curves"], st["skipped_curves"]) == (1, 6)
+        # Rays aimed at every strand's axis: only the good one's hit.
+        rng = np.random.default_rng(5)
+        target = np.stack([rng.uniform(0.1, 0.9, 700), rng.integers(0, 7, 700), np.zeros(700)], 1)
+        d = rng.normal(size=(700, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        hit = s.hit_surfaces((target - 3 * d).astype(np.float32), d.astype(np.float32))
+        ok = np.isfinite(hit["t"])
+        assert ok[target[:, 1] == 0].all() and (~ok).sum() > 300
+        assert np.abs(hit["p"][ok][:, 1]).max() < 0.06  # rays aimed elsewhere may cross it
+        assert np.isfinite(hit["p"][ok]).all() and np.isfinite(hit["ng"][ok]).all()
+    with pytest.raises(ValueError):
+        s = pc.Scene()
+        s.add_curves(pts, np.array([0, 3, 2]), rad)
+    with pytest.raises(ValueError):
+        pc.Scene().add_curves(pts, np.array([0, len(pts) + 1]), rad)
+    # Random garbage strands: commit and render without a crash.
+    rng = np.random.default_rng(11)
+    pts = rng.normal(size=(300, 3)).astype(np.float32)
+    pts[rng.uniform(size=300) < 0.05] = np.nan
+    rad = np.abs(rng.normal(size=300) * 0.05).astype(np.float32)
+    rad[rng.uniform(size=300) < 0.1] = 0.0
+    cuts = np.unique(np.concatenate([[0, 300], rng.integers(0, 300, 80)]))
+    s = _scene(pc, pts, cuts, rad, curve_type="catmull_rom")
+    s.set_world_color((1.0, 1.0, 1.0))
+    s.set_camera(camera(pc, (0, -6, 1), (0, 0, 0)))
+    s.commit()
+    img, _ = render(pc, s, 16, 16, 4)
+    assert np.isfinite(img).all() and img[..., :3].max() > 0.0

@@ -1,0 +1,213 @@
+"""Hair (Curves objects) against Cycles in the same bpy (issue 23): a patch of thick, gently
+sagging strands above a floor under an area light, rendered by both engines with Cycles'
+3D curves (shape THICK), compared by the whole-image mean and 8x8 region means."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+
+from blender_util import BOX_FILTER, Warnings, core_available, load_addon, render_to_array
+import material_scenes as ms
+
+load_addon()
+
+pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
+
+
+def add_hair(name, material, strands=7, keys=5, radius=0.05, length=3.0, sag=0.15,
+             spacing=0.16, curve_type=None, radii=None):
+    """A Curves object: `strands` strands along x (ends outside the frame), side by side in y,
+    each sagging by `sag` in the middle, keys Catmull-Rom keys each."""
+    curves = bpy.data.hair_curves.new(name)
+    curves.add_curves([keys] * strands)
+    x = np.linspace(-length / 2, length / 2, keys)
+    pts = []
+    for s in range(strands):
+        y = (s - (strands - 1) / 2) * spacing
+        z = 0.5 - sag * (1.0 - (2.0 * x / length) ** 2) + 0.03 * math.sin(s)
+        pts.append(np.stack([x, np.full(keys, y), z], 1))
+    pts = np.concatenate(pts).astype(np.float32)
+    curves.attributes["position"].data.foreach_set("vector", pts.ravel())
+    r = curves.attributes.new("radius", 'FLOAT', 'POINT')
+    r.data.foreach_set("value", np.full(len(pts), radius, np.float32) if radii is None else radii)
+    if curve_type is not None:
+        curves.set_types(type=curve_type)
+    curves.materials.append(material)
+    obj = bpy.data.objects.new(name, curves)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def hair_scene(material_fn, size=48, **hair):
+    def build():
+        scene = ms.studio(size=size, world=(0.05, 0.05, 0.05), light_strength=8.0, light_size=2.0,
+                          camera=((0.0, -2.2, 1.6), (0.0, 0.0, 0.45)), lens=50.0)
+        scene.cycles_curves.shape = 'THICK'
+        add_hair("Hair", material_fn(), **hair)
+        return scene
+    return build
+
+
+def render_pair(build, samples, bounces=16):
+    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces)
+    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER)
+    return ours, cycles
+
+
+def assert_agree(ours, cycles, region=0.03, whole=0.01, floor=0.05):
+    ratio, worst, rel = ms.compare(ours, cycles, floor=floor)
+    print(f"mean ratio {ratio:.4f}, worst 8x8 region {worst:.4f}")  # shown with pytest -s
+    assert np.isfinite(ours).all()
+    assert abs(ratio - 1.0) < whole, f"image mean ratio {ratio:.4f}"
+    assert worst < region, f"worst region {worst:.3f}\n{np.round(rel, 3)}"
+    return ratio, worst
+
+
+def test_hair_export_arrays():
+    """The exporter reads the strands with foreach_get: points, offsets, radii, curve type."""
+    from addon.export.curves import collect_curves
+    ms.studio(size=16)
+    add_hair("Hair", ms.diffuse("H", (0.5, 0.5, 0.5)), strands=3, keys=4, curve_type='POLY',
+             radii=np.linspace(0.01, 0.05, 12).astype(np.float32))
+    warn = Warnings()
+    data = collect_curves(bpy.context.evaluated_depsgraph_get(), warn)
+    assert len(data) == 1 and not warn
+    c = data[0]
+    assert c.points.shape == (12, 3) and c.offsets.tolist() == [0, 4, 8, 12]
+    np.testing.assert_allclose(c.radii, np.linspace(0.01, 0.05, 12), rtol=1e-6)
+    assert c.curve_type == 'poly' and len(c.matrices) == 1
+
+
+def test_bad_strands_warn_and_render():
+    """NaN points and zero radii: one warning, the other strands still render."""
+    ms.studio(size=16)
+    obj = add_hair("Hair", ms.diffuse("H", (0.5, 0.5, 0.5)), strands=4, keys=3)
+    pos = np.empty(12 * 3, np.float32)
+    obj.data.attributes["position"].data.foreach_get("vector", pos)
+    pos[3 * 1] = np.nan  # strand 0
+    obj.data.attributes["position"].data.foreach_set("vector", pos)
+    rad = np.full(12, 0.05, np.float32)
+    rad[6:9] = 0.0  # strand 2
+    obj.data.attributes["radius"].data.foreach_set("value", rad)
+    from addon.export.curves import collect_curves
+    warn = Warnings()
+    collect_curves(bpy.context.evaluated_depsgraph_get(), warn)
+    assert len(warn) == 1 and "2 of 4 strands" in warn[0]
+    img = render_to_array(bpy.context.scene, "PATHLIGHT", samples=2)
+    assert np.isfinite(img).all()
+
+
+def test_diffuse_hair_matches_cycles():
+    ours, cycles = render_pair(hair_scene(lambda: ms.diffuse("Hair", (0.8, 0.5, 0.3))), 256)
+    assert_agree(ours, cycles)
+
+
+def principled_hair(name, parametrization='COLOR', **inputs):
+    mat, nodes, links, out = ms.new_material(name)
+    node = nodes.new("ShaderNodeBsdfHairPrincipled")
+    node.parametrization = parametrization  # first: the other modes' inputs are hidden
+    ms.set_inputs(node, **inputs)
+    links.new(node.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+# Moderately rough hair: the glossy lobes' noise at 1024 samples stays below ~2 % per region.
+@pytest.mark.parametrize("case", [
+    ("COLOR", dict(Color=(0.6, 0.35, 0.2, 1.0), Roughness=0.45, Radial_Roughness=0.5, IOR=1.45,
+                   Offset=0.06)),
+    ("MELANIN", dict(Melanin=0.3, Melanin_Redness=0.6, Roughness=0.4, Coat=0.3)),
+], ids=lambda c: c[0].lower())
+def test_principled_hair_matches_cycles(case):
+    mode, inputs = case
+    ours, cycles = render_pair(hair_scene(lambda: principled_hair("Hair", mode, **inputs)), 1024)
+    assert_agree(ours, cycles)
+
+
+def curves_info_material(name):
+    """Emission coloured by Curves Info: Intercept, Random and Thickness (x 10) as R, G, B."""
+    mat, nodes, links, out = ms.new_material(name)
+    info = nodes.new("ShaderNodeHairInfo")
+    comb = nodes.new("ShaderNodeCombineXYZ")
+    scale = nodes.new("ShaderNodeMath")
+    scale.operation = 'MULTIPLY'
+    scale.inputs[1].default_value = 10.0
+    links.new(info.outputs["Thickness"], scale.inputs[0])
+    links.new(info.outputs["Intercept"], comb.inputs["X"])
+    links.new(info.outputs["Random"], comb.inputs["Y"])
+    links.new(scale.outputs[0], comb.inputs["Z"])
+    em = nodes.new("ShaderNodeEmission")
+    links.new(comb.outputs[0], em.inputs["Color"])
+    links.new(em.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def test_curves_info_matches_cycles():
+    """Intercept (root to tip), per-strand Random (Cycles' hash) and Thickness, seen directly,
+    on tapering strands."""
+    radii = np.tile(np.linspace(0.06, 0.03, 5), 7).astype(np.float32)
+    build = hair_scene(lambda: curves_info_material("Info"), radii=radii)
+
+    def dark():
+        scene = build()
+        for name in ("Light", "Floor"):
+            bpy.data.objects[name].hide_render = True
+        ms.set_world((0.0, 0.0, 0.0))
+        return scene
+    ours, cycles = render_pair(dark, 64)
+    for c in range(3):  # each channel is one output
+        assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+
+
+def test_particle_hair_warns_to_convert():
+    """Particle hair cannot be read without a Python loop per key: one clear warning."""
+    from addon.export.curves import collect_curves
+    ms.studio(size=16)
+    emitter = bpy.data.objects["Floor"]
+    mod = emitter.modifiers.new("Hair", 'PARTICLE_SYSTEM')
+    mod.particle_system.settings.type = 'HAIR'
+    mod.particle_system.settings.count = 10
+    warn = Warnings()
+    assert collect_curves(bpy.context.evaluated_depsgraph_get(), warn) == []
+    assert len(warn) == 1 and "Particle hair on 'Floor'" in warn[0] and "Convert" in warn[0]
+
+
+def test_object_info_on_curves_matches_cycles():
+    """Object Info on a Curves object: its Random, Color and Location, as on meshes."""
+    def material():
+        mat, nodes, links, out = ms.new_material("ObjInfo")
+        info = nodes.new("ShaderNodeObjectInfo")
+        sep = nodes.new("ShaderNodeSeparateXYZ")
+        comb = nodes.new("ShaderNodeCombineXYZ")
+        links.new(info.outputs["Location"], sep.inputs[0])
+        links.new(info.outputs["Random"], comb.inputs["X"])
+        links.new(info.outputs["Alpha"], comb.inputs["Y"])
+        links.new(sep.outputs["Z"], comb.inputs["Z"])
+        em = nodes.new("ShaderNodeEmission")
+        links.new(comb.outputs[0], em.inputs["Color"])
+        links.new(em.outputs[0], out.inputs["Surface"])
+        return mat
+
+    def build():
+        scene = hair_scene(material)()
+        obj = bpy.data.objects["Hair"]
+        obj.location = (0.0, 0.0, 0.3)
+        obj.color = (0.2, 0.4, 0.6, 0.7)
+        for name in ("Light", "Floor"):
+            bpy.data.objects[name].hide_render = True
+        ms.set_world((0.0, 0.0, 0.0))
+        return scene
+    ours, cycles = render_pair(build, 16)
+    for c in range(3):
+        assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+
+
+def test_principled_hair_on_a_mesh_renders():
+    """On a mesh (no fibre) an arbitrary tangent of the normal stands in: finite and lit."""
+    ms.studio(size=16)
+    ms.add_sphere("Ball", 0.5, principled_hair("H", 'COLOR', Color=(0.6, 0.35, 0.2, 1.0)),
+                  location=(0.0, 0.0, 0.5))
+    img = render_to_array(bpy.context.scene, "PATHLIGHT", samples=8)
+    assert np.isfinite(img).all()
+    assert img[4:12, 4:12, :3].mean() > 0.0
