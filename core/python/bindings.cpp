@@ -604,6 +604,10 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       } else if (kind == "translucent") {
         o.code = OpCode::Translucent;
         o.in[1] = p("color"); o.in[2] = p("normal");
+      } else if (kind == "subsurface") {  // the method: a register of SubsurfaceMethod's number
+        o.code = OpCode::Subsurface;
+        o.in[1] = p("color"); o.in[2] = p("scale"); o.in[3] = p("radius"); o.in[4] = p("ior");
+        o.in[5] = p("roughness"); o.in[6] = p("anisotropy"); o.in[7] = p("normal"); o.in[8] = p("method");
       } else if (kind == "holdout") {
         o.code = OpCode::Holdout;
       } else if (kind == "emission") {
@@ -624,7 +628,8 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
             {"sheen_roughness", kPxSheenRoughness}, {"sheen_tint", kPxSheenTint},
             {"diffuse_roughness", kPxDiffuseRoughness}, {"subsurface_weight", kPxSubsurfaceWeight},
             {"subsurface_radius", kPxSubsurfaceRadius}, {"subsurface_scale", kPxSubsurfaceScale},
-            {"subsurface_ior", kPxSubsurfaceIor}, {"subsurface_anisotropy", kPxSubsurfaceAnisotropy}};
+            {"subsurface_ior", kPxSubsurfaceIor}, {"subsurface_anisotropy", kPxSubsurfaceAnisotropy},
+            {"subsurface_method", kPxSubsurfaceMethod}};
         ShaderOp x;
         x.code = OpCode::PrincipledExtra;
         bool any = false;

@@ -50,6 +50,7 @@ enum class OpCode : uint8_t {
   Translucent, Metallic,
   PrincipledExtra,  // the Principled BSDF's further inputs: the op just before its Principled op
   Holdout,  // no BSDF: its weight makes the film transparent where seen directly
+  Subsurface,  // the Subsurface Scattering node: a BSSRDF closure
 };
 
 enum class MathOp : uint8_t {
@@ -81,7 +82,10 @@ enum PrincipledExtraSlot : uint8_t {
   kPxDiffuseRoughness = 8,
   kPxSubsurfaceWeight = 9, kPxSubsurfaceRadius = 10, kPxSubsurfaceScale = 11, kPxSubsurfaceIor = 12,
   kPxSubsurfaceAnisotropy = 13,
+  kPxSubsurfaceMethod = 14,  // a register holding the SubsurfaceMethod (Random Walk when absent)
 };
+// Blender's subsurface methods (Cycles' CLOSURE_BSSRDF_*_ID), as the add-on numbers them.
+enum class SubsurfaceMethod : uint8_t { Burley = 0, RandomWalk = 1, RandomWalkSkin = 2 };
 
 constexpr int kNoReg = -1;
 constexpr int kMaxRegs = 64;
@@ -199,6 +203,8 @@ struct RayState {
   // space); nullptr where none is known (camera space is then world space).
   const Camera* camera = nullptr;
   uint32_t rng = 0;  // a random number of this path and bounce (the Ambient Occlusion node's rays)
+  // A diffuse bounce came before (Cycles' PATH_RAY_DIFFUSE_ANCESTOR): BSSRDFs become diffuse.
+  bool diffuse_ancestor = false;
 };
 
 // What a program can read at a shading point.
