@@ -163,7 +163,7 @@ CASES = {
     # Random walks live in the general kernel only (a scene without them keeps its kernel).
     "subsurface": (with_sphere(lambda s: shader(s, "skin", "subsurface", color=(0.8, 0.5, 0.4), radius=(1.0, 0.5, 0.2),
                                                 scale=0.1)), {},
-                   {"diffuse", "subsurface", "mesh lights"}, "general"),
+                   {"diffuse", "subsurface", "varying shaders", "mesh lights"}, "general"),
     "adaptive": (lambda: cornell(pc), {"adaptive_threshold": 0.05, "adaptive_min_samples": 4},
                  {"diffuse", "mesh lights", "adaptive sampling"}, "diffuse"),
 }

@@ -645,6 +645,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       if (p("normal") != kNoReg || p("coat_normal") != kNoReg) prog.varying = true;
       if (p("multiscatter") != kNoReg) prog.varying = true;  // its compensation depends on the view
       if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
+      if (o.code == OpCode::Subsurface) prog.varying = true;  // diffuse after a diffuse bounce (the path)
       prog.ops.push_back(o);
       continue;
     }
