@@ -153,6 +153,7 @@ bool subsurface_walk(const Scene& scene, const SurfacePoint& sp, Vec3 ng_out, Ve
       if (guided) sample_st *= backward ? back_stretch : fwd_stretch;
     }
     float t = -std::log1p(-ut) / sample_st;
+    if (!(t >= 0.0f)) return false;  // 0 / 0: an infinite mean free path and ut = 0
     // The first segment looks ten mean free paths ahead for the opposite side.
     ray.tmax = step == 0 ? std::max(t, 10.0f / std::max(min_component(sigma_t), 1e-30f)) : t;
     Hit h;
