@@ -462,6 +462,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         direct = false;
         want_data = false;
         sss_exit = true;
+      } else if (last && nee) {
+        break;  // another lobe at the last vertex: its light sample above had all the weight
       }
     }
     if (kSubsurface && sss_exit) {
