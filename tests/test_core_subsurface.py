@@ -127,3 +127,22 @@ def test_open_mesh_walk_ends():
     s.set_camera(camera(pc, (0, -2, 2), (0, 0, 0)))
     img, stats = render(pc, s, 12, 12, samples=8, max_bounces=64)
     assert stats["nonfinite_samples"] == 0 and np.isfinite(img).all()
+
+
+@pytest.mark.parametrize("max_bounces", [0, 1])
+def test_bounce_limit_with_a_bssrdf_among_the_lobes(max_bounces):
+    # At the last vertex the path picks a closure only so that a walk can reach its exit; the
+    # other lobes' light samples there had all the weight, so a Principled with a negligible
+    # Subsurface Weight renders as one without (nothing counted twice).
+    def mean(ssw):
+        s = pc.Scene()
+        m = s.add_shader("m", closure("principled", base_color=(0.8, 0.8, 0.8), roughness=0.4, subsurface_weight=ssw,
+                                      subsurface_radius=(1.0, 1.0, 1.0), subsurface_scale=0.1))
+        pos, tris, nrm = uv_sphere(1.0, nu=48, nv=24)
+        add_object(s, pos, tris, m, nrm)
+        s.add_point_light((2.0, -3.0, 2.0), (30.0, 30.0, 30.0), radius=0.1)
+        s.set_world_color((0.2, 0.2, 0.2))
+        s.set_camera(camera(pc, (0, -4, 0), (0, 0, 0), lens=60.0))
+        return render(pc, s, 16, 16, samples=32, max_bounces=max_bounces)[0][..., :3].mean()
+    a, b = mean(1e-4), mean(0.0)
+    assert abs(a - b) < 0.003 * b, (a, b)
