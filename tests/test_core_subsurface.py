@@ -146,3 +146,21 @@ def test_bounce_limit_with_a_bssrdf_among_the_lobes(max_bounces):
         return render(pc, s, 16, 16, samples=32, max_bounces=max_bounces)[0][..., :3].mean()
     a, b = mean(1e-4), mean(0.0)
     assert abs(a - b) < 0.003 * b, (a, b)
+
+
+def test_burley_disk_keeps_the_colour_and_survives_bad_radii():
+    # Cycles' normalised Burley profile: a white half space under a white world returns about
+    # what a diffuse one would (the profile integrates to 1; truncation and the disk's
+    # projection lose a little); an open quad and odd radii stay finite.
+    BURLEY = 0.0
+    s = pc.Scene()
+    m = s.add_shader("m", closure("subsurface", color=(0.7, 0.7, 0.7), radius=(1.0, 0.5, 0.2), scale=0.05, method=BURLEY))
+    pos, tris = box((-3, -3, -2), (3, 3, 0))
+    add_object(s, pos, tris, m)
+    s.set_world_color((1.0, 1.0, 1.0))
+    s.set_camera(camera(pc, (0, -0.5, 3), (0, 0, 0), lens=50.0))
+    img, stats = render(pc, s, 12, 12, samples=32, max_bounces=1024)
+    assert abs(img[..., :3].mean() - 0.7) < 0.05, img[..., :3].mean()
+    for radius in ((float("nan"), 1e30, 0.0), (1e-30, 1e-30, 1e-30)):
+        img = furnace(closure("subsurface", color=(0.8, 0.8, 0.8), radius=radius, method=BURLEY), samples=4)
+        assert np.isfinite(img).all()

@@ -1780,11 +1780,7 @@ class ShaderCompiler:
     _SUBSURFACE_METHODS = {'BURLEY': 0.0, 'RANDOM_WALK': 1.0, 'RANDOM_WALK_SKIN': 2.0}
 
     def _subsurface_method(self, node, method):
-        """A constant register of the method; Christensen-Burley (Cycles' disk-sampling BSSRDF,
-        not built) is rendered as a Random Walk with the same radius, and says so."""
-        if method == 'BURLEY':
-            self.problem(f"'{node.name}': Christensen-Burley subsurface is rendered as Random Walk")
-            method = 'RANDOM_WALK'
+        """A constant register of the method (Burley: Cycles' disk sampling; Random Walk; Skin)."""
         return const_float(self._SUBSURFACE_METHODS.get(method, 1.0))
 
     def principled_tangent(self, node, ctx, name):

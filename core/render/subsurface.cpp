@@ -64,11 +64,136 @@ bool entry_direction(const SubsurfaceBsdf& b, Vec3 n, Vec3 wo, Vec2 u, Vec3& d) 
   return is_finite(d);
 }
 
+// Christensen-Burley's radial profile as Cycles normalises it (per unit r, integrating to 1 over
+// the plane), truncated at 16 d, and its inverse CDF by Newton's method (Cycles' root find).
+constexpr float kBurleyTruncate = 16.0f, kBurleyTruncateCdf = 0.9963790093708328f;
+float burley_eval(float d, float r) {
+  if (!(d > 0.0f) || r >= kBurleyTruncate * d) return 0.0f;
+  const float e3 = std::exp(-r / (3.0f * d));
+  return (e3 * e3 * e3 + e3) / (4.0f * d);
+}
+float burley_pdf(float d, float r) { return r == 0.0f ? 0.0f : burley_eval(d, r) / kBurleyTruncateCdf; }
+float burley_root(float xi) {
+  float r = xi <= 0.9f ? std::exp(xi * xi * 2.4f) - 1.0f : 15.0f;
+  for (int i = 0; i < 10; ++i) {
+    const float e3 = std::exp(-r / 3.0f), e = e3 * e3 * e3;
+    const float f = 1.0f - 0.25f * e - 0.75f * e3 - xi, df = 0.25f * e + 0.25f * e3;
+    if (std::fabs(f) < 1e-6f || df == 0.0f) break;
+    r = std::max(r - f / df, 0.0f);
+  }
+  return r;
+}
+// The mean of the used channels' pdfs (Cycles' bssrdf_pdf).
+float burley_mean_pdf(Vec3 d, float r) {
+  float sum = 0.0f, n = 0.0f;
+  for (int i = 0; i < 3; ++i)
+    if (d[i] > 0.0f) sum += burley_pdf(d[i], r), n += 1.0f;
+  return n > 0.0f ? sum / n : 0.0f;
+}
+
+// Cycles' subsurface_disk (King et al. 2013's disk importance sampling): a point on a disk about
+// one of three axes (the normal half of the time) at a Burley-distributed radius, a probe ray
+// through the object along the axis, and one of its hits chosen by its weight: the profile at
+// the true distance over the disk pdf, MIS over the axes by the power heuristic. All hits are
+// kept (Cycles keeps a random four and scales: the same expectation).
+bool subsurface_disk(const Scene& scene, const SurfacePoint& sp, Vec3 ng_out, bool front, const SubsurfaceBsdf& b,
+                     Vec2 u, uint64_t seed, Vec3& beta, Hit& exit, Vec3& exit_dir, uint64_t& rays) {
+  Vec3 n = ng_out, t, bt;
+  make_basis(n, t, bt);
+  float pn = 0.5f, pt = 0.25f, pb = 0.25f;
+  if (u.y < 0.5f) {
+    u.y *= 2.0f;
+  } else if (u.y < 0.75f) {
+    std::swap(n, t);
+    pn = 0.25f, pt = 0.5f;
+    u.y = (u.y - 0.5f) * 4.0f;
+  } else {
+    std::swap(n, bt);
+    pn = 0.25f, pb = 0.5f;
+    u.y = (u.y - 0.75f) * 4.0f;
+  }
+  // A channel among the used ones (reusing u.x), then the radius in it.
+  const Vec3 d = b.radius;
+  const float channels = float((d.x > 0.0f) + (d.y > 0.0f) + (d.z > 0.0f));
+  if (channels == 0.0f) return false;
+  float xi = u.x * channels, dc = 0.0f, acc = 0.0f;
+  for (int i = 0; i < 3 && dc == 0.0f; ++i)
+    if (d[i] > 0.0f) {
+      if (xi < acc + 1.0f || acc + 1.0f >= channels) {
+        xi = std::min(xi - acc, 1.0f);
+        dc = d[i];
+      }
+      acc += 1.0f;
+    }
+  const float disk_r = burley_root(xi * kBurleyTruncateCdf) * dc;
+  const float rm = kBurleyTruncate * dc;
+  const float h = std::sqrt(std::max(rm * rm - disk_r * disk_r, 0.0f));
+  const float phi = 2.0f * kPi * u.y;
+  Ray ray;
+  ray.org = sp.p + n * h + (t * std::cos(phi) + bt * std::sin(phi)) * disk_r;
+  ray.dir = -n;
+  const float disk_pdf = burley_mean_pdf(d, disk_r);
+  if (!(disk_pdf > 0.0f) || !is_finite(ray.org)) return false;
+  // Every hit of the probe segment on the object (stepping past each; at most 16).
+  constexpr int kMaxHits = 16;
+  Hit hits[kMaxHits];
+  Vec3 weights[kMaxHits], normals[kMaxHits];
+  int nh = 0;
+  float sum = 0.0f;
+  Ray probe = ray;
+  float travelled = 0.0f;
+  probe.tmax = 2.0f * h;
+  while (nh < kMaxHits && probe.tmax > 0.0f) {
+    Hit hh;
+    ++rays;
+    if (!scene.intersect_local(sp.instance, probe, hh)) break;
+    SurfacePoint hp;
+    scene.surface_point(hh, hp);
+    const Vec3 hng = front ? hp.ng : -hp.ng;
+    const float qn = pn * std::fabs(dot(n, hng)), qt = pt * std::fabs(dot(t, hng)), qb = pb * std::fabs(dot(bt, hng));
+    const float w = qn / (qn * qn + qt * qt + qb * qb);
+    const float r = length(hp.p - sp.p);
+    Vec3 wt(0.0f);
+    for (int i = 0; i < 3; ++i) wt[i] = burley_pdf(d[i], r) / disk_pdf * w;
+    if (is_finite(wt)) {
+      hits[nh] = hh;
+      normals[nh] = hng;
+      weights[nh] = wt;
+      sum += average(vabs(wt));
+      ++nh;
+    }
+    // On past the hit: from just beyond it, the rest of the segment.
+    const float step = hh.t + std::max(1e-5f * (1.0f + max_component(vabs(hp.p))), 4.0f * max_component(hp.p_error));
+    travelled += step;
+    probe.org = ray.org + ray.dir * travelled;
+    probe.tmax = 2.0f * h - travelled;
+  }
+  if (!(sum > 0.0f)) return false;
+  // Importance resampling: one hit in proportion to its weight.
+  Pcg32 rng(seed, 0x5354u);
+  const float pick = rng.next_float() * sum;
+  float partial = 0.0f;
+  for (int k = 0; k < nh; ++k) {
+    const float sw = average(vabs(weights[k]));
+    if (pick < partial + sw || k == nh - 1) {
+      if (!(sw > 0.0f)) return false;
+      beta = beta * weights[k] * (sum / sw);
+      exit = hits[k];
+      exit_dir = normals[k];
+      return true;
+    }
+    partial += sw;
+  }
+  return false;
+}
+
 }  // namespace
 
 bool subsurface_walk(const Scene& scene, const SurfacePoint& sp, Vec3 ng_out, Vec3 n, Vec3 wo,
                      const SubsurfaceBsdf& b, Vec2 u, uint64_t seed, Vec3& beta, Hit& exit, Vec3& exit_dir,
                      uint64_t& rays) {
+  if (b.alpha < -1.5f)
+    return subsurface_disk(scene, sp, ng_out, dot(sp.ng, ng_out) > 0.0f, b, u, seed, beta, exit, exit_dir, rays);
   Ray ray;
   if (!entry_direction(b, n, wo, u, ray.dir) || !(dot(ng_out, ray.dir) < 0.0f)) return false;
   ray.org = offset_ray_origin(sp.p, sp.p_error, -ng_out);

@@ -320,8 +320,9 @@ struct SubsurfaceBsdf {
   Vec3 albedo{0.0f};  // the multiple-scattering albedo the walk reproduces
   float g = 0.0f;     // Henyey-Greenstein anisotropy, in [0, 0.9]
   float ior = 1.4f;   // the entry refraction's IOR, in [1.01, 3.8]
-  float alpha = 1.0f; // the entry refraction's GGX roughness; < 0: Random Walk (Skin), whose
-                      // entry is half diffuse and half refraction at alpha 1
+  float alpha = 1.0f; // the entry refraction's GGX roughness; -1: Random Walk (Skin), whose
+                      // entry is half diffuse and half refraction at alpha 1; -2: Christensen-
+                      // Burley (Cycles' disk sampling; radius is its d per channel)
   Vec3 eval(Vec3, Vec3, float& pdf) const {
     pdf = 0.0f;
     return Vec3(0.0f);

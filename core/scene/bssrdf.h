@@ -12,6 +12,13 @@ namespace pl {
 
 constexpr float kBssrdfMinRadius = 1e-8f;  // Cycles' BSSRDF_MIN_RADIUS
 
+// The method a register holds (the add-on's numbers; anything else: Random Walk).
+inline SubsurfaceMethod subsurface_method(float v) {
+  return v > 1.5f && v < 2.5f ? SubsurfaceMethod::RandomWalkSkin
+         : v > -0.5f && v < 0.5f ? SubsurfaceMethod::Burley
+                                 : SubsurfaceMethod::RandomWalk;
+}
+
 // Jensen et al.'s dipole diffuse reflectance for reduced albedo a (Cycles' bssrdf_dipole_compute_Rd).
 inline float bssrdf_dipole_rd(float a, float four_thirds_A) {
   const float s = std::sqrt(3.0f * (1.0f - a));
@@ -68,8 +75,9 @@ inline void add_subsurface(ClosureList& out, Vec3 w, Vec3 albedo, Vec3 radius, f
     for (int i = 0; i < 3; ++i) radius[i] *= std::sqrt(3.0f * (1.0f - bssrdf_dipole_alpha_prime(albedo[i], a43)));
     s.alpha = -1.0f;
   } else {
-    // Random Walk (and Burley): the mean free path scaled as Cycles' older models looked.
+    // Random Walk and Burley: the mean free path scaled as Cycles' older models looked.
     radius = radius * (0.25f * kInvPi);
+    if (method == SubsurfaceMethod::Burley) s.alpha = -2.0f;  // the disk, not a walk
   }
   s.radius = radius;
   out.add(s, w, frame);

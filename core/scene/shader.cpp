@@ -821,7 +821,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
             const int16_t rr = px(kPxSubsurfaceRadius);
             const Vec3 radius = (rr == kNoReg ? Vec3{1.0f, 0.2f, 0.1f} : r[rr].xyz()) * val(px(kPxSubsurfaceScale), 0.05f);
             const float m = val(px(kPxSubsurfaceMethod), 1.0f);
-            const SubsurfaceMethod method = m > 1.5f ? SubsurfaceMethod::RandomWalkSkin : SubsurfaceMethod::RandomWalk;
+            const SubsurfaceMethod method = subsurface_method(m);
             const float sss_ior = method == SubsurfaceMethod::RandomWalkSkin ? val(px(kPxSubsurfaceIor), 1.4f) : eta;
             add_subsurface(out, weight * (base_c * ssw), base_c, radius, val(px(kPxSubsurfaceAnisotropy), 0.0f),
                            sss_ior, alpha, method, fr, ctx.ray.diffuse_ancestor);
@@ -836,7 +836,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         const Vec3 color = clean_color(col(op.in[1]));
         const Vec3 radius = (op.in[3] == kNoReg ? Vec3{1.0f, 0.2f, 0.1f} : r[op.in[3]].xyz()) * val(op.in[2], 0.05f);
         add_subsurface(out, clean_color(col(op.in[0])) * color, color, radius, val(op.in[6], 0.0f), val(op.in[4], 1.4f),
-                       val(op.in[5], 1.0f), val(op.in[8], 1.0f) > 1.5f ? SubsurfaceMethod::RandomWalkSkin : SubsurfaceMethod::RandomWalk,
+                       val(op.in[5], 1.0f), subsurface_method(val(op.in[8], 1.0f)),
                        glossy_frame(op.in[7]), ctx.ray.diffuse_ancestor);
         break;
       }
