@@ -106,3 +106,11 @@ def test_christensen_burley_sphere(light):
     # Cycles' disk-sampling BSSRDF: probe rays across a disk about one of three axes.
     ours, cycles = render_pair(sphere_scene(light, lambda: skin("Burley", method='BURLEY')), 256)
     assert_agree(f"burley sphere {light}", ours, cycles)
+
+
+def test_half_subsurface_under_a_coat_with_anisotropy():
+    # Subsurface Weight 0.5 beside the diffuse, under the specular and a coat, HG anisotropy 0.6.
+    mat = lambda: skin("Half", Subsurface_Weight=0.5, Coat_Weight=0.5, Roughness=0.3,  # noqa: E731
+                       Subsurface_Anisotropy=0.6)
+    ours, cycles = render_pair(sphere_scene("environment", mat), 256)
+    assert_agree("half subsurface, coat, anisotropy", ours, cycles)
