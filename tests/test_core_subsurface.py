@@ -164,3 +164,26 @@ def test_burley_disk_keeps_the_colour_and_survives_bad_radii():
     for radius in ((float("nan"), 1e30, 0.0), (1e-30, 1e-30, 1e-30)):
         img = furnace(closure("subsurface", color=(0.8, 0.8, 0.8), radius=radius, method=BURLEY), samples=4)
         assert np.isfinite(img).all()
+
+
+def test_material_edit_that_adds_subsurface_keeps_the_bvh_and_walks():
+    # A live edit (set_shader, no geometry rebuild) turning a merged object's material into a
+    # BSSRDF: the next commit gives it its local BVH, so walks find their exits.
+    prog = closure("subsurface", color=(0.8, 0.5, 0.3), radius=(1.0, 0.5, 0.2), scale=0.3)
+
+    def scene(program):
+        s = pc.Scene()
+        pc_id = s.add_shader("m", program)
+        pos, tris, nrm = uv_sphere(1.0, nu=48, nv=24)
+        add_object(s, pos, tris, pc_id, nrm)
+        s.set_world_color((1.0, 1.0, 1.0))
+        s.set_camera(camera(pc, (0, -4, 0), (0, 0, 0), lens=60.0))
+        return s, pc_id
+
+    s, mid = scene(closure("diffuse", color=(0.5, 0.5, 0.5)))
+    render(pc, s, 16, 16, samples=2)
+    s.set_shader(mid, "m", prog)
+    edited, stats = render(pc, s, 16, 16, samples=32, max_bounces=1024)
+    fresh = furnace(prog, samples=32)
+    assert stats["kernel"] == "general"
+    assert np.allclose(edited[4:12, 4:12, :3].mean(axis=(0, 1)), fresh[4:12, 4:12].mean(axis=(0, 1)), atol=0.03)
