@@ -114,3 +114,19 @@ def test_half_subsurface_under_a_coat_with_anisotropy():
                        Subsurface_Anisotropy=0.6)
     ours, cycles = render_pair(sphere_scene("environment", mat), 256)
     assert_agree("half subsurface, coat, anisotropy", ours, cycles)
+
+
+def test_subsurface_with_its_own_normal():
+    # A Bump (Noise heights) on the Principled: Cycles lights the walks' exits from the BSSRDF's
+    # normal there (SD_HAS_BSSRDF_BUMP), bump-shadowed. With the smooth normal there instead:
+    # mean ratio 1.043, worst region 36 %.
+    def material():
+        mat = skin("Bumped skin", Roughness=0.4)
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        noise = ms.set_inputs(nodes.new("ShaderNodeTexNoise"), Scale=3.0)
+        bump = ms.set_inputs(nodes.new("ShaderNodeBump"), Distance=0.3)
+        links.new(noise.outputs["Fac"], bump.inputs["Height"])
+        links.new(bump.outputs["Normal"], nodes["Principled BSDF"].inputs["Normal"])
+        return mat
+    ours, cycles = render_pair(sphere_scene("point", material), 512)
+    assert_agree("subsurface with its own normal", ours, cycles)

@@ -456,8 +456,26 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           break;
         scene.surface_point(exit, sp);
         wo = exit_dir;
+        // The exit's diffuse normal: the smooth one, or where the BSSRDF has a normal of its own
+        // (Cycles' SD_HAS_BSSRDF_BUMP) the BSSRDF closures' mean normal there, bump-shadowed.
+        Vec3 n_exit = sp.ns;
+        if (scene.material(sp.material).subsurface_bump) {
+          scene.shade(sp, exit.b1, exit.b2, wo, cl, ray_state);
+          Vec3 sum(0.0f);
+          for (int i = 0; i < cl.n; ++i)
+            if (std::holds_alternative<SubsurfaceBsdf>(cl.c[size_t(i)].bsdf))
+              sum += cl.c[size_t(i)].frame.n * std::fabs(average(cl.c[size_t(i)].weight));
+          if (length_sq(sum) > 0.0f && is_finite(sum)) n_exit = normalize(sum);
+        }
+        DiffuseBsdf exit_lobe;
+        const Frame exit_frame = Frame::from_normal(n_exit);
+        if (n_exit.x != sp.ns.x || n_exit.y != sp.ns.y || n_exit.z != sp.ns.z) {
+          exit_lobe.bent = true;
+          exit_lobe.ns = exit_frame.to_local(sp.ns);
+        }
         cl.n = 0;
-        cl.add(DiffuseBsdf{}, Vec3(1.0f), Frame::from_normal(sp.ns));
+        cl.emission = Vec3(0.0f);
+        cl.add(exit_lobe, Vec3(1.0f), exit_frame);
         cl.finalize();
         direct = false;
         want_data = false;

@@ -91,11 +91,20 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
   m.transparent = false;
   m.holdout = false;
   m.subsurface = false;
+  m.subsurface_bump = false;
   for (const ShaderOp& op : m.program.ops) {
     m.transparent = m.transparent || op.code == OpCode::Transparent;
     m.holdout = m.holdout || op.code == OpCode::Holdout;
     m.subsurface = m.subsurface || op.code == OpCode::Subsurface ||
                    (op.code == OpCode::PrincipledExtra && op.in[kPxSubsurfaceWeight] != kNoReg);
+  }
+  for (size_t i = 0; i < m.program.ops.size(); ++i) {  // Cycles' SD_HAS_BSSRDF_BUMP
+    const ShaderOp& op = m.program.ops[i];
+    const bool principled_sss = op.code == OpCode::Principled && i > 0 &&
+                                m.program.ops[i - 1].code == OpCode::PrincipledExtra &&
+                                m.program.ops[i - 1].in[kPxSubsurfaceWeight] != kNoReg;
+    if ((principled_sss && op.in[8] != kNoReg) || (op.code == OpCode::Subsurface && op.in[7] != kNoReg))
+      m.subsurface_bump = true;
   }
   m.constant = !m.program.varying;
   if (m.constant) {

@@ -49,6 +49,7 @@ struct Material {
   bool transparent = false;      // has a Transparent closure: shadow rays may pass
   bool holdout = false;          // has a Holdout closure: the film's alpha needs the aov kernel
   bool subsurface = false;       // may add a BSSRDF closure: its objects get local BVHs
+  bool subsurface_bump = false;  // a BSSRDF with its own normal: walk exits shade for it
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
