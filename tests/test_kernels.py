@@ -12,7 +12,7 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
     "volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
-    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree"}
+    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "subsurface"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -160,6 +160,10 @@ CASES = {
     "light tree glossy": (lambda: many_lights_scene(True), {},
                           {"diffuse", "glossy", "mesh lights", "point lights", "light tree"}, "surfaces+tree"),
     "random sampler": (lambda: cornell(pc), {"sampler": "random"}, {"diffuse", "mesh lights"}, "diffuse"),
+    # Random walks live in the general kernel only (a scene without them keeps its kernel).
+    "subsurface": (with_sphere(lambda s: shader(s, "skin", "subsurface", color=(0.8, 0.5, 0.4), radius=(1.0, 0.5, 0.2),
+                                                scale=0.1)), {},
+                   {"diffuse", "subsurface", "varying shaders", "mesh lights"}, "general"),
     "adaptive": (lambda: cornell(pc), {"adaptive_threshold": 0.05, "adaptive_min_samples": 4},
                  {"diffuse", "mesh lights", "adaptive sampling"}, "diffuse"),
 }

@@ -238,6 +238,10 @@ def test_non_finite_object_transform(scene, capfd):
     ("ShaderNodeBsdfTranslucent", {"Color": (math.nan, -1.0, 1e30, 1.0)}),
     ("ShaderNodeBsdfMetallic", {"Base Color": (math.nan, 2.0, -1.0, 1.0), "Roughness": math.nan}),
     ("ShaderNodeVolumeScatter", {"Density": math.nan}),
+    ("ShaderNodeBsdfPrincipled", {"Subsurface Weight": math.nan, "Subsurface Scale": 1e30,
+                                  "Subsurface Radius": (math.nan, -1.0, math.inf), "Subsurface Anisotropy": 5.0}),
+    ("ShaderNodeSubsurfaceScattering", {"Color": (math.nan, 2.0, -1.0, 1.0), "Scale": math.inf,
+                                        "Radius": (0.0, 1e-30, 1e30), "IOR": math.nan, "Anisotropy": -3.0}),
 ])
 def test_odd_node_values(scene, capfd, node, inputs):
     cube(material=node_material("Odd", node, **inputs))

@@ -246,15 +246,42 @@ def test_principled_sheen_subsurface_warn_once_and_coat_is_passed():
     (closure,), warnings, _ = closures_of(mat)
     assert closure[0] == "principled"
     assert len(warnings) == 1
-    assert all(word in warnings[0] for word in ("Layers", "sheen", "subsurface"))
+    assert all(word in warnings[0] for word in ("Layers", "sheen"))
     assert "coat" not in warnings[0]  # the core layers the coat (Cycles' model)
     p = closure[2]
+    assert "subsurface" not in warnings[0] and p["subsurface_weight"][0] == approx(1.0)  # the core walks it
     assert p["coat_weight"][0] == approx(0.5) and p["coat_ior"][0] == approx(1.7)
     assert p["coat_roughness"][0] == approx(0.03) and "coat_normal" not in p
     node.inputs["Coat Weight"].default_value = 0.0  # no coat: none of its inputs
     (closure,), _, _ = closures_of(mat)
     assert not any(k.startswith("coat") for k in closure[2])
 
+
+
+def test_subsurface_inputs_and_method_reach_the_core():
+    # Principled: the group's inputs and the method (Burley 0, Random Walk 1, Skin 2); the
+    # Subsurface Scattering node: a closure of its own.
+    mat, node = ms.bsdf_material("Skin", "ShaderNodeBsdfPrincipled", Subsurface_Weight=0.7, Subsurface_Scale=0.2)
+    node.subsurface_method = "RANDOM_WALK_SKIN"  # (Subsurface IOR is only found by name then)
+    node.inputs["Subsurface IOR"].default_value = 1.3
+    for method, number in (("RANDOM_WALK", 1.0), ("RANDOM_WALK_SKIN", 2.0), ("BURLEY", 0.0)):
+        node.subsurface_method = method
+        (closure,), warnings, _ = closures_of(mat)
+        p = closure[2]
+        assert p["subsurface_method"][0] == number
+        assert p["subsurface_scale"][0] == approx(0.2)
+        assert method != "RANDOM_WALK_SKIN" or p["subsurface_ior"][0] == approx(1.3)
+        assert p["subsurface_radius"][:3] == approx(tuple(node.inputs["Subsurface Radius"].default_value))
+        assert not warnings
+    mat, node = ms.bsdf_material("Wax", "ShaderNodeSubsurfaceScattering", Scale=0.3, IOR=1.5, Roughness=0.4,
+                                 Anisotropy=0.2)
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "subsurface" and not warnings
+    values = {k: closure[2][k][0] for k in ("scale", "ior", "roughness", "anisotropy", "method")}
+    assert values == approx({"scale": 0.3, "ior": 1.5, "roughness": 0.4, "anisotropy": 0.2, "method": 1.0})
+    node.falloff = "RANDOM_WALK_SKIN"  # no Roughness: the entry's is fixed
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[2]["method"][0] == 2.0 and "roughness" not in closure[2] and not warnings
 
 
 def test_principled_coat_normal_is_its_own():

@@ -1727,6 +1727,14 @@ class ShaderCompiler:
             self.principled(node, ctx, weight)
         elif t == 'HOLDOUT':
             self.closure("holdout", weight)
+        elif t == 'SUBSURFACE_SCATTERING':
+            # Inputs the method hides (Roughness but for Random Walk, IOR for Burley) are not
+            # found by name: the core's defaults stand in, unused.
+            opt = lambda name, kind: inp(name, kind) if node.inputs.get(name) is not None else None  # noqa: E731
+            self.closure("subsurface", weight, color=inp("Color", "color"), scale=inp("Scale", "float"),
+                         radius=inp("Radius", "vector"), ior=opt("IOR", "float"),
+                         roughness=opt("Roughness", "float"), anisotropy=opt("Anisotropy", "float"),
+                         normal=self.normal(node, ctx), method=self._subsurface_method(node, node.falloff))
         else:
             self._fallback_shader(node, ctx, weight)
 
@@ -1808,7 +1816,6 @@ class ShaderCompiler:
     _PRINCIPLED_UNSUPPORTED = {
         "sheen",
         "diffuse roughness",
-        "subsurface",
     }
 
     def _principled_extra(self, node, ctx):
@@ -1832,7 +1839,16 @@ class ShaderCompiler:
                     extra[key] = self.input(node, name, ctx, kind)
         if ignored:
             self.problem(f"'{node.name}': {', '.join(ignored)} not supported (ignored)")
+        if "subsurface_weight" in extra:
+            extra["subsurface_method"] = self._subsurface_method(node, node.subsurface_method)
         return extra
+
+    # The core's numbers for Blender's subsurface methods (core/scene/shader.h SubsurfaceMethod).
+    _SUBSURFACE_METHODS = {'BURLEY': 0.0, 'RANDOM_WALK': 1.0, 'RANDOM_WALK_SKIN': 2.0}
+
+    def _subsurface_method(self, node, method):
+        """A constant register of the method (Burley: Cycles' disk sampling; Random Walk; Skin)."""
+        return const_float(self._SUBSURFACE_METHODS.get(method, 1.0))
 
     def principled_tangent(self, node, ctx, name):
         """The Tangent input; unlinked, Cycles' default for a mesh: the Geometry node's

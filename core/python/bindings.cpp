@@ -677,6 +677,10 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         o.in[9] = p("ior"); o.in[10] = p("offset"); o.in[11] = p("random_color"); o.in[12] = p("random_roughness");
         o.in[13] = p("random");
         o.sub = kind == "principled_hair_absorption" ? 0 : kind == "principled_hair_melanin" ? 1 : 2;
+      } else if (kind == "subsurface") {  // the method: a register of SubsurfaceMethod's number
+        o.code = OpCode::Subsurface;
+        o.in[1] = p("color"); o.in[2] = p("scale"); o.in[3] = p("radius"); o.in[4] = p("ior");
+        o.in[5] = p("roughness"); o.in[6] = p("anisotropy"); o.in[7] = p("normal"); o.in[8] = p("method");
       } else if (kind == "holdout") {
         o.code = OpCode::Holdout;
       } else if (kind == "emission") {
@@ -697,7 +701,8 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
             {"sheen_roughness", kPxSheenRoughness}, {"sheen_tint", kPxSheenTint},
             {"diffuse_roughness", kPxDiffuseRoughness}, {"subsurface_weight", kPxSubsurfaceWeight},
             {"subsurface_radius", kPxSubsurfaceRadius}, {"subsurface_scale", kPxSubsurfaceScale},
-            {"subsurface_ior", kPxSubsurfaceIor}, {"subsurface_anisotropy", kPxSubsurfaceAnisotropy}};
+            {"subsurface_ior", kPxSubsurfaceIor}, {"subsurface_anisotropy", kPxSubsurfaceAnisotropy},
+            {"subsurface_method", kPxSubsurfaceMethod}};
         ShaderOp x;
         x.code = OpCode::PrincipledExtra;
         bool any = false;
@@ -713,6 +718,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       if (p("normal") != kNoReg || p("coat_normal") != kNoReg || p("tangent") != kNoReg) prog.varying = true;
       if (p("multiscatter") != kNoReg) prog.varying = true;  // its compensation depends on the view
       if (o.code == OpCode::Principled) prog.varying = true;  // its layering depends on the view
+      if (o.code == OpCode::Subsurface) prog.varying = true;  // diffuse after a diffuse bounce (the path)
       prog.ops.push_back(o);
       continue;
     }

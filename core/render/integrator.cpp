@@ -1,4 +1,5 @@
 #include "render/integrator.h"
+#include "render/subsurface.h"
 #include "scene/phase.h"
 
 namespace pl {
@@ -65,6 +66,7 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs) {
   if (!f.diffuse_only()) k |= kKernelNonDiffuse;
   if (f.environment) k |= kKernelEnvironment;
   if (f.light_tree) k |= kKernelLightTree;
+  if (f.subsurface) k |= kKernelSubsurface;
   return k;
 }
 
@@ -92,6 +94,7 @@ std::string kernel_name(uint32_t features) {
   if (features & kKernelLightTree) n += "+tree";
   if (features & kKernelMedia) n += "+media";
   if (features & kKernelAovs) n += "+passes";
+  if (features & kKernelSubsurface) n += "+subsurface";
   return n;
 }
 

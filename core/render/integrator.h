@@ -61,7 +61,8 @@ enum KernelFeature : uint32_t {
   kKernelNonDiffuse = 4,   // closures other than diffuse (glossy, glass, transparent, delta lobes)
   kKernelEnvironment = 8,  // MIS of escaped rays against the environment light
   kKernelLightTree = 16,   // the shading normals the light tree's choice reads, kept for MIS
-  kKernelAll = 31,         // the general kernel
+  kKernelSubsurface = 32,  // BSSRDF closures: random walks (only the general kernel has them)
+  kKernelAll = 63,         // the general kernel
 };
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).

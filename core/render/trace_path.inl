@@ -158,7 +158,9 @@ inline Vec3 closure_albedo(const Closure& c, Vec3 wo) {
 
 // Cycles' threshold between specular-like and rough closures (on alpha, Blender's roughness^2).
 inline bool closure_is_rough(const Closure& c) {
-  if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<TranslucentBsdf>(c.bsdf)) return true;
+  if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<TranslucentBsdf>(c.bsdf) ||
+      std::holds_alternative<SubsurfaceBsdf>(c.bsdf))
+    return true;
   if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) return m->alpha > 0.075f;
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) return d->alpha > 0.075f;
   return false;  // transparent
@@ -176,6 +178,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   constexpr bool kNonDiffuse = (F & kKernelNonDiffuse) != 0;
   constexpr bool kEnv = (F & kKernelEnvironment) != 0;
   constexpr bool kTree = (F & kKernelLightTree) != 0;
+  constexpr bool kSubsurface = (F & kKernelSubsurface) != 0;
   PathAovs* const aov = kAovs ? aov_in : nullptr;
   Vec3 L(0.0f), beta(1.0f);
   float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
@@ -326,7 +329,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     }
     SurfacePoint sp;
     scene.surface_point(hit, sp);
-    const Vec3 wo = -ray.dir;
+    Vec3 wo = -ray.dir;  // (a subsurface exit moves the vertex: see below)
     ray_state.length = length_before + hit.t * length(ray.dir);
     ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
@@ -373,6 +376,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     }
     if (emission_only || cl.n == 0) break;
 
+    bool sss_exit = false;  // a random walk has just left the object: scatter at its exit
+  scatter:  // a subsurface exit point scatters from here on, with a diffuse closure
     const bool front = dot(sp.ng, wo) > 0.0f;
     const Vec3 ng_out = front ? sp.ng : -sp.ng;  // geometric normal on the viewer's side
     // The last vertex that scatters: no BSDF ray follows, so light samples take all the weight.
@@ -426,7 +431,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         }
       }
     }
-    if (last && nee) break;
+    // The last vertex does light samples only; one with a BSSRDF still walks to its exit, which
+    // samples the lights there (Cycles: the walk is no bounce of its own).
+    bool sss_here = false;
+    if constexpr (kSubsurface)
+      for (int i = 0; i < cl.n; ++i) sss_here = sss_here || std::holds_alternative<SubsurfaceBsdf>(cl.c[size_t(i)].bsdf);
+    if (last && nee && !sss_here) break;
 
     // Choose a closure in proportion to its weight, then sample it.
     // Closure choice, then reflect-or-refract: neither is read for a lone diffuse closure, so
@@ -440,6 +450,51 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     float acc = cl.c[0].pick;
     while (k + 1 < cl.n && uc >= acc) acc += cl.c[size_t(++k)].pick;
     const Closure& ch = cl.c[size_t(k)];
+    if constexpr (kSubsurface) {
+      if (const SubsurfaceBsdf* ss = std::get_if<SubsurfaceBsdf>(&ch.bsdf)) {
+        // Cycles' subsurface_bounce and random walk: into the object and out elsewhere, where
+        // a diffuse closure of weight 1 takes over (no shader, no emission there).
+        beta *= ch.weight / ch.pick;
+        Hit exit;
+        Vec3 exit_dir;
+        const uint64_t seed = mix64(path_key ^ (uint64_t(bounce + 1) * 0x9E3779B97F4A7C15ULL));
+        if (!subsurface_walk(scene, sp, ng_out, front ? ch.frame.n : -ch.frame.n, wo, *ss, u, seed, beta, exit,
+                             exit_dir, c.rays))
+          break;
+        scene.surface_point(exit, sp);
+        wo = exit_dir;
+        // The exit's diffuse normal: the smooth one, or where the BSSRDF has a normal of its own
+        // (Cycles' SD_HAS_BSSRDF_BUMP) the BSSRDF closures' mean normal there, bump-shadowed.
+        Vec3 n_exit = sp.ns;
+        if (scene.material(sp.material).subsurface_bump) {
+          scene.shade(sp, exit.b1, exit.b2, wo, cl, ray_state);
+          Vec3 sum(0.0f);
+          for (int i = 0; i < cl.n; ++i)
+            if (std::holds_alternative<SubsurfaceBsdf>(cl.c[size_t(i)].bsdf))
+              sum += cl.c[size_t(i)].frame.n * std::fabs(average(cl.c[size_t(i)].weight));
+          if (length_sq(sum) > 0.0f && is_finite(sum)) n_exit = normalize(sum);
+        }
+        DiffuseBsdf exit_lobe;
+        const Frame exit_frame = Frame::from_normal(n_exit);
+        if (n_exit.x != sp.ns.x || n_exit.y != sp.ns.y || n_exit.z != sp.ns.z) {
+          exit_lobe.bent = true;
+          exit_lobe.ns = exit_frame.to_local(sp.ns);
+        }
+        cl.n = 0;
+        cl.emission = Vec3(0.0f);
+        cl.add(exit_lobe, Vec3(1.0f), exit_frame);
+        cl.finalize();
+        direct = false;
+        want_data = false;
+        sss_exit = true;
+      } else if (last && nee) {
+        break;  // another lobe at the last vertex: its light sample above had all the weight
+      }
+    }
+    if (kSubsurface && sss_exit) {
+      sss_exit = false;
+      goto scatter;
+    }
     BsdfSample bs;
     if constexpr (kNonDiffuse) {
       // Diffuse lobes directly (inlined), the rest through the variant: the same arithmetic.
@@ -486,6 +541,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       want_data = false;
       // Cycles' path_state_next: any transmission (Translucent's too) is a transmission bounce.
       int& count = (bs.flags & kTransmit) ? transmission : (bs.flags & kDiffuseLobe) ? diffuse : glossy;
+      if constexpr (kSubsurface)
+        if (bs.flags & kDiffuseLobe) ray_state.diffuse_ancestor = true;
       const int limit = (bs.flags & kTransmit)      ? s.transmission_bounces
                         : (bs.flags & kDiffuseLobe) ? s.diffuse_bounces
                                                     : s.glossy_bounces;

@@ -347,7 +347,26 @@ struct TransparentBsdf {
 #include "scene/hair_bsdf.h"  // needs BsdfSample and the lobe flags above
 namespace pl {
 
-using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf>;
+// A BSSRDF closure (Cycles' Bssrdf): no BSDF of its own. A path that picks it enters the mesh
+// and random-walks inside it (render/subsurface.h); it is "delta" for the closure list, so
+// that mixtures never evaluate it. 36 bytes: the variant stays as large as before.
+struct SubsurfaceBsdf {
+  Vec3 radius{0.0f};  // per channel mean free path (Cycles' bssrdf->radius after setup); 0: unused
+  Vec3 albedo{0.0f};  // the multiple-scattering albedo the walk reproduces
+  float g = 0.0f;     // Henyey-Greenstein anisotropy, in [0, 0.9]
+  float ior = 1.4f;   // the entry refraction's IOR, in [1.01, 3.8]
+  float alpha = 1.0f; // the entry refraction's GGX roughness; -1: Random Walk (Skin), whose
+                      // entry is half diffuse and half refraction at alpha 1; -2: Christensen-
+                      // Burley (Cycles' disk sampling; radius is its d per channel)
+  Vec3 eval(Vec3, Vec3, float& pdf) const {
+    pdf = 0.0f;
+    return Vec3(0.0f);
+  }
+  bool sample(Vec3, Vec2, float, BsdfSample&) const { return false; }
+};
+
+using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf,
+                          SubsurfaceBsdf>;
 
 inline Vec3 bsdf_eval(const Bsdf& b, Vec3 wo, Vec3 wi, float& pdf) {
   return std::visit([&](const auto& x) { return x.eval(wo, wi, pdf); }, b);
@@ -356,7 +375,7 @@ inline bool bsdf_sample(const Bsdf& b, Vec3 wo, Vec2 u, float uc, BsdfSample& s)
   return std::visit([&](const auto& x) { return x.sample(wo, u, uc, s); }, b);
 }
 inline bool bsdf_is_delta(const Bsdf& b) {
-  if (std::holds_alternative<TransparentBsdf>(b)) return true;
+  if (std::holds_alternative<TransparentBsdf>(b) || std::holds_alternative<SubsurfaceBsdf>(b)) return true;
   if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->is_delta();
   if (const auto* d = std::get_if<DielectricBsdf>(&b)) return d->is_delta();
   return false;

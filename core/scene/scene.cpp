@@ -93,10 +93,22 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
   m.transparent = false;
   m.holdout = false;
   m.has_hair = false;
+  m.subsurface = false;
+  m.subsurface_bump = false;
   for (const ShaderOp& op : m.program.ops) {
     m.transparent = m.transparent || op.code == OpCode::Transparent;
     m.holdout = m.holdout || op.code == OpCode::Holdout;
     m.has_hair = m.has_hair || op.code == OpCode::PrincipledHair;
+    m.subsurface = m.subsurface || op.code == OpCode::Subsurface ||
+                   (op.code == OpCode::PrincipledExtra && op.in[kPxSubsurfaceWeight] != kNoReg);
+  }
+  for (size_t i = 0; i < m.program.ops.size(); ++i) {  // Cycles' SD_HAS_BSSRDF_BUMP
+    const ShaderOp& op = m.program.ops[i];
+    const bool principled_sss = op.code == OpCode::Principled && i > 0 &&
+                                m.program.ops[i - 1].code == OpCode::PrincipledExtra &&
+                                m.program.ops[i - 1].in[kPxSubsurfaceWeight] != kNoReg;
+    if ((principled_sss && op.in[8] != kNoReg) || (op.code == OpCode::Subsurface && op.in[7] != kNoReg))
+      m.subsurface_bump = true;
   }
   m.constant = !m.program.varying;
   if (m.constant) {
@@ -161,6 +173,7 @@ bool Scene::commit(int threads, BvhLayout layout) {
   }
   top_dirty_ = false;
   build_lights();
+  if (features_.subsurface || !local_bvhs_.empty()) build_local_bvhs(threads);
   update_memory_stats();
   committed_ = true;
   return true;
@@ -794,7 +807,8 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"area lights", light(LightType::Rect) || light(LightType::Ellipse)},
           {"environment", f.environment},
           {"world light", f.world_light},
-          {"light tree", f.light_tree}};
+          {"light tree", f.light_tree},
+          {"subsurface", f.subsurface}};
 }
 }  // namespace
 
@@ -857,11 +871,13 @@ void Scene::detect_features() {
         else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
         else if (std::holds_alternative<HairChiangBsdf>(b)) f.glossy = f.transmission = true;
+        else if (std::holds_alternative<SubsurfaceBsdf>(b)) f.subsurface = true;
         else if (std::get<DielectricBsdf>(b).transmission) f.transmission = true;
         else f.glossy = true;
       }
     }
     f.varying = f.varying || m.program.varying;
+    f.subsurface = f.subsurface || m.subsurface;
     for (const ShaderOp& op : m.program.ops) {
       f.textures = f.textures || op.code == OpCode::ImageTex;
       f.normal_maps = f.normal_maps || op.code == OpCode::NormalMap || op.code == OpCode::Bump;
@@ -959,6 +975,51 @@ void Scene::curve_point(const Hit& h, SurfacePoint& sp) const {
   sp.prim = uint32_t(stats_.triangles) + c.curve;
   sp.instance = kCurveInstance;
   sp.tri = h.prim;
+void Scene::build_local_bvhs(int threads) {
+  if (local_built_for_ != stats_.geometry_builds) {
+    local_index_.assign(inst_.size(), UINT32_MAX);
+    local_bvhs_.clear();
+    local_built_for_ = stats_.geometry_builds;
+  }
+  if (blases_.empty() || !blases_[0].merged) return;
+  const Blas& b = blases_[0];
+  for (size_t i = 0; i < inst_.size(); ++i) {
+    const InstanceData& in = inst_[i];
+    if (in.transformed || in.blas != 0 || in.kept == 0 || local_index_[i] != UINT32_MAX) continue;
+    const MeshData& mesh = meshes_[in.mesh];
+    bool needed = false;
+    for (uint32_t t = in.tri_base; t < in.tri_base + in.kept && !needed; ++t)
+      needed = materials_[material_of(mesh, b.src_tri[t], materials_.size())].subsurface;
+    if (!needed) continue;
+    TriangleSpan span;
+    span.p = b.tris.data() + in.tri_base;
+    span.n = in.kept;
+    BvhBuildOptions opt;
+    opt.threads = threads;
+    opt.layout = built_layout_;
+    Bvh bvh;
+    bvh.build(span, opt);
+    local_index_[i] = uint32_t(local_bvhs_.size());
+    local_bvhs_.push_back(std::move(bvh));
+  }
+}
+
+bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
+  if (instance >= inst_.size()) return false;
+  const InstanceData& in = inst_[instance];
+  if (in.blas == UINT32_MAX) return false;
+  if (in.transformed) {  // its own object-space BLAS, the ray carried there (world distances)
+    float dt;
+    const Ray o = ray_to_object(in.to_object, r, dt);
+    if (!blases_[in.blas].bvh.intersect(o, h)) return false;
+    h.t += dt;
+  } else {
+    if (instance >= local_index_.size() || local_index_[instance] == UINT32_MAX) return false;
+    if (!local_bvhs_[local_index_[instance]].intersect(r, h)) return false;
+    h.prim += in.tri_base;
+  }
+  h.inst = instance;
+  return true;
 }
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {

@@ -51,6 +51,8 @@ struct Material {
   bool transparent = false;      // has a Transparent closure: shadow rays may pass
   bool holdout = false;          // has a Holdout closure: the film's alpha needs the aov kernel
   bool has_hair = false;     // has a hair closure: its frame follows the fibre (orient_hair)
+  bool subsurface = false;       // may add a BSSRDF closure: its objects get local BVHs
+  bool subsurface_bump = false;  // a BSSRDF with its own normal: walk exits shade for it
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
@@ -153,6 +155,7 @@ struct SceneFeatures {
   bool world_light = false;  // a non-black constant world colour
   uint32_t light_kinds = 0;  // bit 1 << LightType of each analytic light kind present
   bool light_tree = false;   // lights chosen by the light tree (many lights)
+  bool subsurface = false;   // BSSRDF closures: random walks inside objects
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
   // Names of the features in use, and of every feature a scene can have (for logs and tests).
@@ -314,6 +317,10 @@ class Scene {
     h.inst = e.merged ? blases_[e.blas].instance_of(h.prim) : e.instance;
     return true;
   }
+  // Closest hit on instance `instance`'s own triangles only (Cycles' scene_intersect_local, for
+  // subsurface random walks): h as intersect() fills it. False where the instance has none or
+  // no local BVH (its materials have no subsurface).
+  bool intersect_local(uint32_t instance, const Ray& r, Hit& h) const;
   bool occluded(const Ray& r) const {
     if (curves_on_ && curve_bvh_.occluded(r)) return true;
     if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);
@@ -479,6 +486,13 @@ class Scene {
   std::vector<InstanceData> inst_;
   std::vector<uint32_t> mesh_blas_;  // per mesh: its object-space BLAS, or UINT32_MAX
   std::vector<TlasEntry> tlas_entries_;
+  // Subsurface objects merged into blases_[0]: a BVH over each one's own run of triangles
+  // (index in local_bvhs_ per instance, UINT32_MAX: none), for intersect_local. Built at commit
+  // for the instances whose materials have subsurface; real instances use their own BLAS.
+  std::vector<uint32_t> local_index_;
+  std::vector<Bvh> local_bvhs_;
+  size_t local_built_for_ = SIZE_MAX;  // stats_.geometry_builds they were made for
+  void build_local_bvhs(int threads);
   Tlas tlas_;
   bool use_tlas_ = false;
   bool direct_ = false;  // no top level: the merged BLAS (blases_[0]) alone is traced

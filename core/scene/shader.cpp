@@ -1,6 +1,8 @@
 #include "scene/shader.h"
 #include "scene/shader_math.h"
 
+#include "scene/bssrdf.h"
+
 #include "scene/camera.h"
 #include "scene/tex_gabor.h"
 #include "scene/tex_noise.h"
@@ -982,7 +984,34 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           out.add(s, sw, fa, average(albedo));
           weight = layer_below(weight, albedo);
         }
-        out.add(diffuse, weight * base, fd);
+        // Subsurface (Cycles: beside the diffuse, under the specular): Subsurface Weight of the
+        // base's share becomes a BSSRDF of the clamped base colour, its IOR the specular's (Skin:
+        // Subsurface IOR), its entry roughness the specular's, its normal the glossy one.
+        float ssw = 0.0f;
+        if (px(kPxSubsurfaceWeight) != kNoReg) {
+          const float x = r[px(kPxSubsurfaceWeight)].x;
+          ssw = std::isfinite(x) && x > 1e-5f ? std::min(x, 1.0f) : 0.0f;
+          if (ssw > 0.0f) {
+            const int16_t rr = px(kPxSubsurfaceRadius);
+            const Vec3 radius = (rr == kNoReg ? Vec3{1.0f, 0.2f, 0.1f} : r[rr].xyz()) * val(px(kPxSubsurfaceScale), 0.05f);
+            const float m = val(px(kPxSubsurfaceMethod), 1.0f);
+            const SubsurfaceMethod method = subsurface_method(m);
+            const float sss_ior = method == SubsurfaceMethod::RandomWalkSkin ? val(px(kPxSubsurfaceIor), 1.4f) : eta;
+            add_subsurface(out, weight * (base_c * ssw), base_c, radius, val(px(kPxSubsurfaceAnisotropy), 0.0f),
+                           sss_ior, alpha, method, fr, ctx.ray.diffuse_ancestor);
+          }
+        }
+        out.add(diffuse, ssw > 0.0f ? weight * base * (1.0f - ssw) : weight * base, fd);
+        break;
+      }
+      case OpCode::Subsurface: {
+        // The Subsurface Scattering node (Cycles' CLOSURE_BSSRDF_*): in weight, colour, scale,
+        // radius, IOR, roughness (the entry's GGX alpha as it is), anisotropy, normal.
+        const Vec3 color = clean_color(col(op.in[1]));
+        const Vec3 radius = (op.in[3] == kNoReg ? Vec3{1.0f, 0.2f, 0.1f} : r[op.in[3]].xyz()) * val(op.in[2], 0.05f);
+        add_subsurface(out, clean_color(col(op.in[0])) * color, color, radius, val(op.in[6], 0.0f), val(op.in[4], 1.4f),
+                       val(op.in[5], 1.0f), subsurface_method(val(op.in[8], 1.0f)),
+                       glossy_frame(op.in[7]), ctx.ray.diffuse_ancestor);
         break;
       }
     }

@@ -54,6 +54,7 @@ enum class OpCode : uint8_t {
   Holdout,  // no BSDF: its weight makes the film transparent where seen directly
   PrincipledHair,  // Chiang; sub: parametrization (0 absorption, 1 melanin, 2 direct colour)
   CurvesInfo,      // sub: Is Strand, Intercept, Length, Thickness, Tangent Normal, Random
+  Subsurface,  // the Subsurface Scattering node: a BSSRDF closure
 };
 
 enum class MathOp : uint8_t {
@@ -85,7 +86,10 @@ enum PrincipledExtraSlot : uint8_t {
   kPxDiffuseRoughness = 8,
   kPxSubsurfaceWeight = 9, kPxSubsurfaceRadius = 10, kPxSubsurfaceScale = 11, kPxSubsurfaceIor = 12,
   kPxSubsurfaceAnisotropy = 13,
+  kPxSubsurfaceMethod = 14,  // a register holding the SubsurfaceMethod (Random Walk when absent)
 };
+// Blender's subsurface methods (Cycles' CLOSURE_BSSRDF_*_ID), as the add-on numbers them.
+enum class SubsurfaceMethod : uint8_t { Burley = 0, RandomWalk = 1, RandomWalkSkin = 2 };
 
 constexpr int kNoReg = -1;
 constexpr int kMaxRegs = 64;
@@ -211,6 +215,8 @@ struct RayState {
   // Bevel does nothing below 8 (blurry indirect rays).
   float min_pdf = kInf;
   float footprint() const { return dp + length * dd; }
+  // A diffuse bounce came before (Cycles' PATH_RAY_DIFFUSE_ANCESTOR): BSSRDFs become diffuse.
+  bool diffuse_ancestor = false;
 };
 
 // What a program can read at a shading point.
