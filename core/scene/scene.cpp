@@ -975,6 +975,8 @@ void Scene::curve_point(const Hit& h, SurfacePoint& sp) const {
   sp.prim = uint32_t(stats_.triangles) + c.curve;
   sp.instance = kCurveInstance;
   sp.tri = h.prim;
+}
+
 void Scene::build_local_bvhs(int threads) {
   if (local_built_for_ != stats_.geometry_builds) {
     local_index_.assign(inst_.size(), UINT32_MAX);
