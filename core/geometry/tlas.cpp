@@ -181,11 +181,15 @@ void Tlas::build(std::vector<TlasInstance> instances) {
     // Objects with applied transforms (identity) need no ray transform, moved-only ones
     // (translations) no matrix products.
     if (!in.identity && is_identity(in.to_world, true) && is_identity(in.to_object, true)) in.identity = true;
-    in.space = in.identity ? TlasSpace::World
+    if (in.motion && in.motion_steps >= 2) in.identity = false;
+    in.space = in.motion && in.motion_steps >= 2 ? TlasSpace::Motion
+               : in.identity ? TlasSpace::World
                : is_identity(in.to_world, false) && is_identity(in.to_object, false) ? TlasSpace::Translated
                                                                                     : TlasSpace::Affine;
     if (!in.blas || in.blas->empty()) continue;
-    boxes[i] = in.identity ? in.blas->bounds() : world_box(in.blas->bounds(), in.to_world);
+    boxes[i] = in.space == TlasSpace::Motion ? motion_world_box(in.blas->bounds(), in.motion, in.motion_steps)
+               : in.identity ? in.blas->bounds()
+                             : world_box(in.blas->bounds(), in.to_world);
     if (boxes[i].empty() || !is_finite(boxes[i].lo) || !is_finite(boxes[i].hi)) continue;
     b.centers[i] = boxes[i].center();
     refs.push_back(i);
@@ -286,6 +290,8 @@ inline bool enter(const TlasInstance& in, uint32_t i, const Ray& ray, float tmax
   float dt = 0.0f;
   if (in.space == TlasSpace::Affine) r = ray_to_object(in.to_object, r, dt);
   else if (in.space == TlasSpace::Translated) r = ray_to_object_translated(in.to_object, r, dt);
+  else if (in.space == TlasSpace::Motion)
+    r = ray_to_object(affine_inverse_fast(motion_transform_at(in.motion, in.motion_steps, ray.time)), r, dt);
   if (!(r.tmax > 0.0f)) return false;
   if (AnyHit) return in.blas->occluded(r);
   Hit h;

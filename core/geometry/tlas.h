@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "geometry/bvh.h"
+#include "geometry/motion.h"
 
 namespace pl {
 
@@ -18,6 +19,7 @@ enum class TlasSpace : uint8_t {
   World,      // identity (or `identity`): the ray as it is
   Translated, // the linear part is the identity: the origin only moves
   Affine,     // the full transform
+  Motion,     // motion blur: the transform at the ray's time, interpolated between steps
 };
 
 struct TlasInstance {
@@ -26,6 +28,10 @@ struct TlasInstance {
   Mat4 to_object;             // its inverse
   bool identity = false;      // the BLAS is already in world space: no ray transform
   TlasSpace space = TlasSpace::Affine;  // set by Tlas::build
+  // Motion blur: motion_steps (>= 2) decomposed transforms over the shutter, which must outlive
+  // the Tlas; to_world / to_object are then unused. nullptr: a static instance.
+  const DecomposedTransform* motion = nullptr;
+  uint32_t motion_steps = 0;
 };
 
 // Bound of the rounding error of M.point(p) where p itself carries the error p_error

@@ -1,5 +1,6 @@
 #include "scene/scene.h"
 
+#include <cstring>
 #include <stdexcept>
 #include <utility>
 
@@ -124,9 +125,9 @@ uint32_t Scene::add_mesh(MeshData mesh) {
   return static_cast<uint32_t>(meshes_.size() - 1);
 }
 
-void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info) {
+void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info, std::vector<Mat4> motion) {
   if (mesh >= meshes_.size()) throw std::invalid_argument("add_instance: unknown mesh id");
-  instances_.push_back({mesh, m, info});
+  instances_.push_back({mesh, m, info, std::move(motion)});
   committed_ = false;
   geometry_dirty_ = true;
 }
@@ -215,9 +216,24 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   std::vector<uint32_t> uses(meshes_.size(), 0);
   for (const Instance& inst : instances_) ++uses[inst.mesh];
   inst_.assign(instances_.size(), InstanceData());
+  // Motion blur: each moving instance's steps decomposed once; it is then a real instance
+  // (traced through its transform at the ray's time).
+  motion_.assign(instances_.size(), {});
+  stats_.motion_rejected = 0;
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    const std::vector<Mat4>& steps = instances_[i].motion;
+    if (steps.size() < 2) continue;
+    bool moves = false;
+    for (const Mat4& m : steps) moves = moves || std::memcmp(&m, &steps[0], sizeof(Mat4)) != 0;
+    if (!moves) continue;
+    if (!decompose_motion(steps, motion_[i])) {
+      motion_[i].clear();
+      ++stats_.motion_rejected;
+    }
+  }
   for (size_t i = 0; i < instances_.size(); ++i) {
     inst_[i].mesh = instances_[i].mesh;
-    inst_[i].transformed = dynamic_ || uses[instances_[i].mesh] > 1;
+    inst_[i].transformed = dynamic_ || uses[instances_[i].mesh] > 1 || !motion_[i].empty();
   }
   size_t dropped = 0;
 
@@ -355,7 +371,7 @@ void Scene::build_instances() {
   object_coords_.clear();
   object_coords_.reserve(instances_.size());
   uint32_t prim = 0;
-  size_t real = 0;
+  size_t real = 0, moving = 0;
   // Texture spaces once per mesh, not per instance (the automatic one reads every vertex).
   std::vector<std::pair<Vec3, Vec3>> texspace(meshes_.size());
   std::vector<char> have_texspace(meshes_.size(), 0);
@@ -372,13 +388,10 @@ void Scene::build_instances() {
     }
     object_coords_.push_back(make_object_coords(inst.matrix, texspace[inst.mesh].first, texspace[inst.mesh].second));
     object_coords_.back().info = inst.info;
-    in.to_world = inst.matrix;
     const Mat4& m = inst.matrix;
-    const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
-    in.nrow[0] = cross(c1, c2);
-    in.nrow[1] = cross(c2, c0);
-    in.nrow[2] = cross(c0, c1);
-    in.negative = dot(c0, in.nrow[0]) < 0;
+    set_instance_matrix(in, m);
+    in.motion = motion_[i].empty() ? nullptr : motion_[i].data();
+    in.motion_steps = uint32_t(motion_[i].size());
     if (in.transformed) {
       in.blas = UINT32_MAX;
       in.kept = 0;
@@ -389,10 +402,12 @@ void Scene::build_instances() {
         Aabb wb;
         for (int c = 0; c < 8; ++c)
           wb.grow(m.point({(c & 1) ? bb.hi.x : bb.lo.x, (c & 2) ? bb.hi.y : bb.lo.y, (c & 4) ? bb.hi.z : bb.lo.z}));
+        if (in.motion) wb.grow(motion_world_box(bb, in.motion, in.motion_steps));
         if (is_finite(wb.lo) && is_finite(wb.hi) && max_component(vmax(vabs(wb.lo), vabs(wb.hi))) < 1e30f) {
           in.blas = b;
           in.kept = uint32_t(blases_[b].tris.size());
           ++real;
+          moving += in.motion != nullptr;
         }
       }
       in.tri_base = 0;
@@ -402,6 +417,16 @@ void Scene::build_instances() {
   }
   stats_.triangles = prim;
   stats_.real_instances = real;
+  stats_.motion_instances = motion_instances_ = moving;
+}
+
+void Scene::set_instance_matrix(InstanceData& in, const Mat4& m) {
+  in.to_world = m;
+  const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
+  in.nrow[0] = cross(c1, c2);
+  in.nrow[1] = cross(c2, c0);
+  in.nrow[2] = cross(c0, c1);
+  in.negative = dot(c0, in.nrow[0]) < 0;
 }
 
 void Scene::build_top_level() {
@@ -422,6 +447,8 @@ void Scene::build_top_level() {
     e.blas = &blases_[in.blas].bvh;
     e.to_world = in.to_world;
     e.to_object = in.to_object;
+    e.motion = in.motion;
+    e.motion_steps = in.motion_steps;
     entries.push_back(e);
   }
   // A lone merged BLAS is traced directly: no top level, no transforms.
@@ -578,7 +605,8 @@ void Scene::build_lights() {
   }
   for (size_t i = 0; i < inst_.size(); ++i) {
     InstanceData& in = inst_[i];
-    if (!in.transformed || in.blas == UINT32_MAX) continue;
+    // Moving instances are no light samples (they would be sampled where the frame has them).
+    if (!in.transformed || in.blas == UINT32_MAX || in.motion) continue;
     const Blas& b = blases_[in.blas];
     in.emitter_base = uint32_t(emitters_.size());
     for (uint32_t t : b.emissive) {
@@ -889,8 +917,7 @@ void Scene::detect_features() {
   }
 }
 
-void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
-  const InstanceData& in = inst_[h.inst];
+[[gnu::always_inline]] inline void Scene::surface_point_in(const InstanceData& in, const Hit& h, SurfacePoint& sp) const {
   const Blas& b = blases_[in.blas];
   const TriangleVerts& tv = b.tris[h.prim];
   const uint32_t st = b.src_tri[h.prim];
@@ -925,6 +952,17 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   sp.prim = global_prim(h);
   sp.instance = h.inst;
   sp.tri = h.prim;
+}
+
+void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
+  const InstanceData& in = inst_[h.inst];
+  if (__builtin_expect(in.motion != nullptr, 0)) {  // the instance where the ray met it
+    InstanceData moved = in;
+    set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, time));
+    surface_point_in(moved, h, sp);
+    return;
+  }
+  surface_point_in(in, h, sp);
 }
 
 // Inlined into sample_direct: as a call it cost a fifth of a light sample in argument passing.
@@ -1243,7 +1281,7 @@ Vec3 Scene::transmittance_through(Ray ray) const {
     Hit h;
     if (!intersect(ray, h)) return T;
     SurfacePoint sp;
-    surface_point(h, sp);
+    surface_point(h, sp, ray.time);
     const Material& mat = materials_[sp.material];
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;

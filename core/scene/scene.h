@@ -61,6 +61,9 @@ struct Instance {
   uint32_t mesh;
   Mat4 matrix;
   ObjectInfo info;
+  // Motion blur: the object-to-world matrix at each motion step over the shutter (>= 2, evenly
+  // spaced, ray time 0 at the first); empty: static.
+  std::vector<Mat4> motion;
 };
 
 // What the integrator needs about a hit point.
@@ -106,6 +109,8 @@ struct SceneStats {
   size_t tlas_instances = 0;              // entries of the top level (0: a single BLAS, no top level)
   size_t real_instances = 0;              // instances traced through a transform (not merged)
   size_t bvh_bytes = 0, geometry_bytes = 0;  // BLASes + top level; triangle copies, maps and mesh data
+  size_t motion_instances = 0;  // instances traced with transform motion blur
+  size_t motion_rejected = 0;   // instances whose motion was dropped (non-finite or singular steps)
 };
 
 // What a committed scene uses (materials on its triangles, lights, world), so that a render
@@ -145,8 +150,13 @@ class Scene {
   size_t material_count() const { return materials_.size(); }
   size_t image_count() const { return images_.size(); }
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
-  void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {});
+  // motion: the instance's transforms over the shutter (Instance::motion). Steps that are not
+  // finite or not invertible leave the instance static (counted in stats().motion_rejected);
+  // steps that are all equal are no motion.
+  void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {}, std::vector<Mat4> motion = {});
   size_t instance_count() const { return instances_.size(); }
+  // Instances with transform motion blur in the committed scene: rays then need a time.
+  bool has_motion() const { return motion_instances_ > 0; }
   // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
   // commit() rebuilds only the top level and the lights; else the merged geometry.
   void set_instance_transform(uint32_t index, const Mat4& m);
@@ -279,7 +289,8 @@ class Scene {
     const InstanceData& in = inst_[h.inst];
     return in.prim_base + (h.prim - in.tri_base);
   }
-  void surface_point(const Hit& h, SurfacePoint& sp) const;
+  // time: the ray's (Ray::time), for instances that move.
+  void surface_point(const Hit& h, SurfacePoint& sp, float time = 0.5f) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
   // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
@@ -363,6 +374,10 @@ class Scene {
     Mat4 to_world, to_object;
     Vec3 nrow[3];                // cofactors: normal (and cross product) transform
     bool negative = false;       // negative determinant: mirrored
+    // Motion blur: decomposed steps (in Scene::motion_), nullptr when static. Such an instance
+    // is always a real one, and emits no light samples (its emission is found by BSDF rays).
+    const DecomposedTransform* motion = nullptr;
+    uint32_t motion_steps = 0;
     Vec3 normal(Vec3 n) const {  // Mat4::normal's arithmetic, cofactors precomputed
       const Vec3 out = nrow[0] * n.x + nrow[1] * n.y + nrow[2] * n.z;
       return negative ? -out : out;
@@ -383,6 +398,11 @@ class Scene {
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
+  std::vector<std::vector<DecomposedTransform>> motion_;  // per instance, made at commit (empty: static)
+  size_t motion_instances_ = 0;
+  // Sets in's world transform and its normal cofactors to m.
+  static void set_instance_matrix(InstanceData& in, const Mat4& m);
+  void surface_point_in(const InstanceData& in, const Hit& h, SurfacePoint& sp) const;
   Vec3 world_color_{0.0f};
   ShaderProgram world_volume_;
   CameraDesc camera_;
@@ -531,7 +551,7 @@ class Scene {
   void detect_rect(EmitterGroup& g, const InstanceData& in) const;
   int32_t emitter_of(const InstanceData& in, uint32_t tri) const {
     const Blas& b = blases_[in.blas];
-    if (b.emitter.empty() || b.emitter[tri] < 0) return -1;
+    if (b.emitter.empty() || b.emitter[tri] < 0 || in.motion) return -1;
     return b.merged ? b.emitter[tri] : int32_t(in.emitter_base) + b.emitter[tri];
   }
 };
