@@ -10,6 +10,7 @@ import numpy as np
 from . import render_cache
 from .core import get_core
 from .export import ExportCancelled, ExportError, export_scene, to_core
+from .export.motion import add_motion
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +150,8 @@ def render(engine, depsgraph):
             log.info("render cancelled during the export")
             _empty_result(engine, scene, view_layer)
             return
+        if scene.render.use_motion_blur and not engine.is_preview:
+            add_motion(engine, depsgraph, data, warn)
         kept = render_cache.SCENE_CACHE
         core_scene = kept.scene_for(pc, data, warn) if cache is not None else to_core(pc, data, warn)
         if cache is not None and cache.previous is not None:
