@@ -79,7 +79,8 @@ class CommittedScene:
 
 
 def _has_motion(data):
-    return any(m is not None for mesh in data.meshes for m in getattr(mesh, "motions", []))
+    return any(getattr(mesh, "motion_positions", None) is not None or
+               any(m is not None for m in getattr(mesh, "motions", [])) for mesh in data.meshes)
 
 
 def _matrices(data):

@@ -155,3 +155,59 @@ def test_object_without_motion_blur_and_singular_motion():
     assert all(m is None for d in data.meshes for m in d.motions)
     assert sum("Bar" in w and "motion" in w for w in warn) == 1, warn
     assert scene.frame_current == 1 and abs(scene.frame_subframe) < 1e-6
+
+
+def deforming_scene():
+    """An emissive slab whose shape key stretches and shears it over the shutter (deformation
+    blur: the object itself does not move), seen from above."""
+    scene = base_scene()
+    slab = cube("Slab", (0.9, 0.6, 1.0), scale=(1.0, 1.0, 0.1))
+    slab.shape_key_add(name="Basis")
+    key = slab.shape_key_add(name="Stretch")
+    co = np.array([v.co[:] for v in slab.data.vertices])
+    moved = co.copy()
+    right = co[:, 0] > 0
+    moved[right, 0] += 1.6
+    moved[right, 1] += 0.9
+    for point, p in zip(key.data, moved):
+        point.co = p
+    linear_keys(key, "value", {0.75: 0.0, 1.25: 1.0})
+    ms.add_camera((0.0, 0.0, 6.0), (0.0, 0.0, 0.0), lens=35.0)
+    scene.frame_set(1)
+    return scene
+
+
+def test_deforming_mesh_matches_cycles():
+    scene = deforming_scene()
+    ours, cycles = render_both(scene)
+    assert_agree(ours, cycles, "deforming slab")
+    scene.objects["Slab"].cycles.use_deform_motion = False
+    still = render_to_array(scene, "PATHLIGHT", samples=16, **BOX_FILTER)
+    assert ms.compare(still, cycles, floor=0.05)[1] > 0.2
+
+
+def test_topology_change_warns_and_renders_still(monkeypatch):
+    """A mesh whose vertex count differs at a sub-frame gets no deformation blur and one warning."""
+    scene = deforming_scene()
+    from addon.export import export_scene, motion
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    warn = Warnings()
+    data = export_scene(depsgraph, warn)
+    real = motion._positions
+    calls = []
+
+    def fewer(obj_eval):  # a sub-frame that loses a vertex
+        p = real(obj_eval)
+        calls.append(1)
+        return p[:-1] if len(calls) == 2 else p
+
+    monkeypatch.setattr(motion, "_positions", fewer)
+
+    class Engine:
+        def frame_set(self, frame, subframe):
+            scene.frame_set(frame, subframe=subframe)
+
+    motion.add_motion(Engine(), depsgraph, data, warn)
+    assert len(calls) == 3
+    assert all(m.motion_positions is None for m in data.meshes)
+    assert sum("topology" in w for w in warn) == 1, warn

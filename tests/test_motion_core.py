@@ -206,3 +206,69 @@ def test_rendered_exposure_follows_the_shutter_curve(camera_motion):
     # A box shutter: BAR / 2 everywhere inside (and a flat profile, not the ramp).
     box = column_profile(moving_bar_scene(None, camera_motion), 32)
     assert np.abs(box[inside] - BAR / 2).mean() < 0.03 * BAR / 2, box[inside]
+
+
+def deform_steps():
+    """The box's vertices at three steps: stretched along x, then sheared along y."""
+    pos, tris = box_mesh()
+    p = pos.astype(np.float64)
+    a = p * (0.7, 1.0, 1.0)
+    b = p.copy()
+    c = p * (1.4, 1.0, 1.0) + np.outer(p[:, 0], (0.0, 0.6, 0.0))
+    return pos, tris, np.stack([a, b, c]).astype(np.float32)
+
+
+def deformed_at(steps, time):
+    x = time * (len(steps) - 1)
+    k = min(int(x), len(steps) - 2)
+    f = x - k
+    return (steps[k] * (1 - f) + steps[k + 1] * f).astype(np.float32)
+
+
+@pytest.mark.parametrize("time", [0.0, 0.3, 0.5, 0.85, 1.0])
+@pytest.mark.parametrize("moving", [False, True])
+def test_deforming_mesh_hits_as_static_one_at_its_time(time, moving):
+    """Deformation blur (alone, and with the transform's own motion): the hit at time t is the
+    static mesh's with its vertices interpolated to t."""
+    pos, tris, steps = deform_steps()
+    s = pc.Scene()
+    m = s.add_material("m", (0.5, 0.5, 0.5))
+    mesh = s.add_mesh(pos, tris, material_slots=[m])
+    s.set_mesh_motion(mesh, steps)
+    s.add_instance(mesh, STEPS[1], motion=STEPS if moving else None)
+    s.commit()
+    assert s.stats()["deforming_instances"] == 1
+    matrix = expected_matrix(time) if moving else STEPS[1]
+    static = scene_with(matrix, mesh=(deformed_at(steps, time), tris))
+    org, d = rays(matrix=matrix)
+    t_m, prim_m, b1_m, _ = s.intersect(org, d, time=time)
+    t_s, prim_s, b1_s, _ = static.intersect(org, d)
+    hit = np.isfinite(t_s)
+    assert 0.15 < hit.mean() < 0.95
+    same = prim_m == prim_s
+    assert same.mean() > 0.998
+    both = same & hit
+    np.testing.assert_allclose(t_m[both], t_s[both], rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(b1_m[both], b1_s[both], atol=1e-3)
+    assert (s.occluded(org, d, 1.0, time=time) == static.occluded(org, d, 1.0)).mean() > 0.998
+
+
+def test_bad_deformation_is_dropped():
+    pos, tris, steps = deform_steps()
+    s = pc.Scene()
+    m = s.add_material("m", (0.5, 0.5, 0.5))
+    mesh = s.add_mesh(pos, tris, material_slots=[m])
+    bad = steps.copy()
+    bad[1, 3, 0] = np.inf
+    s.set_mesh_motion(mesh, bad)
+    s.set_mesh_motion(mesh, steps[:, :5])  # another vertex count
+    s.add_instance(mesh, np.eye(4, dtype=np.float32))
+    s.commit()
+    st = s.stats()
+    assert st["motion_rejected"] == 2 and st["deforming_instances"] == 0
+    s2 = pc.Scene()
+    mesh2 = s2.add_mesh(pos, tris, material_slots=[s2.add_material("m", (0.5, 0.5, 0.5))])
+    s2.add_instance(mesh2, np.eye(4, dtype=np.float32))
+    s2.commit()
+    org, d = rays(500)
+    np.testing.assert_array_equal(s.intersect(org, d, time=1.0)[1], s2.intersect(org, d)[1])

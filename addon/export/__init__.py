@@ -130,6 +130,9 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
                                  material_slots=[ids[i] for i in slots], **uvs)
         infos = mesh.infos if len(mesh.infos) == len(mesh.matrices) else [None] * len(mesh.matrices)
         names = [name for name, _ in mesh.owners] if len(mesh.owners) == len(mesh.matrices) else None
+        deform = getattr(mesh, "motion_positions", None)
+        if deform is not None:
+            scene.set_mesh_motion(mesh_id, deform)
         motions = getattr(mesh, "motions", None) or []
         for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
             # Motion blur steps only where the object moves (and so never for older cores).

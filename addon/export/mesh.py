@@ -32,6 +32,8 @@ class MeshData:
     # matrices at the motion steps ((S, 4, 4) float32) or None (export.motion fills them).
     motion_keys: list = field(default_factory=list)
     motions: list = field(default_factory=list)
+    # Deformation blur: float32 (S, V, 3) vertex positions at the motion steps, or None.
+    motion_positions: np.ndarray = None
     attributes: dict = field(default_factory=dict)  # attribute set k -> float32 (T, 3, 4) RGBA
     missing_attributes: list = field(default_factory=list)  # attribute names its materials read
 
@@ -394,6 +396,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
                 entry.infos = []
                 entry.motion_keys = []
                 entry.motions = []
+                entry.motion_positions = None
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.owners.append((obj.name, bool(instance.is_instance)))

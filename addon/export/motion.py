@@ -18,6 +18,25 @@ def motion_step_count(obj):
     return (2 << (steps - 1)) + 1
 
 
+def uses_deform_motion(obj):
+    cyc = getattr(obj, "cycles", None)
+    return bool(getattr(cyc, "use_deform_motion", True)) if cyc is not None else True
+
+
+def may_deform(obj, scene):
+    """Whether obj's evaluated mesh may change over the shutter (deforming modifiers, shape
+    keys, geometry nodes): only those are evaluated at every step."""
+    try:
+        if obj.is_deform_modified(scene, 'RENDER'):
+            return True
+    except (AttributeError, TypeError, RuntimeError):
+        return True
+    keys = getattr(obj.data, "shape_keys", None)
+    if keys is not None and keys.animation_data is not None:
+        return True
+    return any(m.type == 'NODES' for m in obj.modifiers)
+
+
 def uses_motion_blur(obj):
     cyc = getattr(obj, "cycles", None)
     return bool(getattr(cyc, "use_motion_blur", True)) if cyc is not None else True
@@ -60,6 +79,16 @@ def usable_steps(steps):
     return bool(np.all(np.abs(det) > 1e-12 * scale))
 
 
+def _positions(obj_eval):
+    """float32 (V, 3) vertex positions of an evaluated object's mesh, or None."""
+    from .mesh import mesh_positions
+    try:
+        mesh = obj_eval.to_mesh()
+        return None if mesh is None else mesh_positions(mesh).copy()
+    finally:
+        obj_eval.to_mesh_clear()
+
+
 def camera_matrix(obj):
     m = np.array(obj.matrix_world, np.float32)
     m[:3, :3] /= np.linalg.norm(m[:3, :3], axis=0)  # Blender ignores the camera's scale
@@ -90,6 +119,16 @@ def add_motion(engine, depsgraph, data, warn):
             wanted[key] = n
             if n:
                 counts.add(n)
+    # Deformation blur: single-user meshes of plain objects that may deform.
+    deforming = {}  # key -> MeshData
+    for mesh in data.meshes:
+        keys = getattr(mesh, "motion_keys", [])
+        if len(mesh.matrices) != 1 or len(keys) != 1 or keys[0][1] or not wanted.get(keys[0]):
+            continue
+        obj = scene.objects.get(keys[0][0])
+        if obj is not None and obj.type == 'MESH' and uses_deform_motion(obj) and may_deform(obj, scene):
+            deforming[keys[0]] = mesh
+    positions = {}  # (key, relative time) -> (V, 3) or None
     cam_obj = scene.camera
     cam_steps = motion_step_count(cam_obj) if cam_obj is not None and uses_motion_blur(cam_obj) else 0
     if cam_steps:
@@ -112,6 +151,8 @@ def add_motion(engine, depsgraph, data, warn):
                 key = instance_key(instance)
                 if wanted.get(key):
                     matrices[(key, rel)] = np.array(instance.matrix_world, np.float32)
+            for key, mesh in deforming.items():
+                positions[(key, rel)] = _positions(scene.objects[key[0]].evaluated_get(depsgraph))
     finally:
         engine.frame_set(frame, subframe)
 
@@ -137,6 +178,21 @@ def add_motion(engine, depsgraph, data, warn):
             if not (steps == steps[0]).all():
                 mesh.motions[k] = steps
                 moving += 1
+    for key, mesh in deforming.items():
+        steps = [positions.get((key, rel)) for rel in relative_times(wanted[key])]
+        n = len(mesh.positions)
+        if any(s is None or len(s) != n for s in steps):
+            warn(f"Object '{key[0]}': its mesh changes topology over the shutter; rendered "
+                 "without deformation blur")
+            continue
+        steps = np.stack(steps)
+        if not np.isfinite(steps).all():
+            warn(f"Object '{key[0]}': its deformation over the shutter has NaN or infinite "
+                 "positions; rendered without deformation blur")
+            continue
+        if not (steps == steps[0]).all():
+            mesh.motion_positions = steps
+            moving += 1
     if cam_steps:
         steps = np.stack([cam_at[rel] for rel in relative_times(cam_steps)])
         if not usable_steps(steps):

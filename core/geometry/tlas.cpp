@@ -186,10 +186,11 @@ void Tlas::build(std::vector<TlasInstance> instances) {
                : in.identity ? TlasSpace::World
                : is_identity(in.to_world, false) && is_identity(in.to_object, false) ? TlasSpace::Translated
                                                                                     : TlasSpace::Affine;
-    if (!in.blas || in.blas->empty()) continue;
-    boxes[i] = in.space == TlasSpace::Motion ? motion_world_box(in.blas->bounds(), in.motion, in.motion_steps)
-               : in.identity ? in.blas->bounds()
-                             : world_box(in.blas->bounds(), in.to_world);
+    if (in.deform ? in.deform->empty() : (!in.blas || in.blas->empty())) continue;
+    const Aabb ob = in.deform ? in.deform->bounds() : in.blas->bounds();
+    boxes[i] = in.space == TlasSpace::Motion ? motion_world_box(ob, in.motion, in.motion_steps)
+               : in.identity ? ob
+                             : world_box(ob, in.to_world);
     if (boxes[i].empty() || !is_finite(boxes[i].lo) || !is_finite(boxes[i].hi)) continue;
     b.centers[i] = boxes[i].center();
     refs.push_back(i);
@@ -293,6 +294,15 @@ inline bool enter(const TlasInstance& in, uint32_t i, const Ray& ray, float tmax
   else if (in.space == TlasSpace::Motion)
     r = ray_to_object(affine_inverse_fast(motion_transform_at(in.motion, in.motion_steps, ray.time)), r, dt);
   if (!(r.tmax > 0.0f)) return false;
+  if (__builtin_expect(in.deform != nullptr, 0)) {
+    if (AnyHit) return in.deform->occluded(r);
+    Hit h;
+    if (!in.deform->intersect(r, h)) return false;
+    hit = h;
+    hit.t = h.t + dt;
+    hit.inst = i;
+    return true;
+  }
   if (AnyHit) return in.blas->occluded(r);
   Hit h;
   if (!in.blas->intersect(r, h, counters)) return false;

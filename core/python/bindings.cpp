@@ -901,6 +901,7 @@ py::dict scene_stats(const PyScene& self) {
   d["real_instances"] = s.real_instances;
   d["motion_instances"] = s.motion_instances;
   d["motion_rejected"] = s.motion_rejected;
+  d["deforming_instances"] = s.deforming_instances;
   d["dynamic"] = self.scene->dynamic();
   d["geometry_bytes"] = s.geometry_bytes;
   d["bvh_nodes"] = b.nodes;
@@ -1942,6 +1943,24 @@ PYBIND11_MODULE(pathlight_core, m) {
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
           "blur); steps that are not finite or not invertible leave it static (stats()['motion_rejected']).")
 
+      .def(
+          "set_mesh_motion",
+          [](PyScene& self, uint32_t mesh, const FloatArray& positions) {
+            self.check_editable();
+            if (positions.ndim() != 3 || positions.shape(2) != 3 || positions.shape(0) < 2 || positions.shape(0) > 1025)
+              throw std::invalid_argument("mesh motion positions must be an (S, V, 3) array with 2 to 1025 steps");
+            const py::ssize_t steps = positions.shape(0), n = positions.shape(1);
+            std::vector<std::vector<Vec3>> out(size_t(steps), std::vector<Vec3>(static_cast<size_t>(n)));
+            const float* p = positions.data();
+            for (py::ssize_t s = 0; s < steps; ++s)
+              std::memcpy(static_cast<void*>(out[size_t(s)].data()), p + size_t(s) * size_t(n) * 3, size_t(n) * sizeof(Vec3));
+            py::gil_scoped_release release;
+            self.scene->set_mesh_motion(mesh, std::move(out));
+          },
+          py::arg("mesh"), py::arg("positions"),
+          "Deformation blur of mesh `mesh`: its vertex positions (object space) at each motion step "
+          "over the shutter, (S, V, 3) with S >= 2 and V its vertex count. Steps of another length "
+          "or with NaN/inf leave it undeformed (stats()['motion_rejected']).")
       .def(
           "set_instance_transform",
           [](PyScene& self, uint32_t index, const FloatArray& matrix) {

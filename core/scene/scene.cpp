@@ -132,6 +132,21 @@ void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info, s
   geometry_dirty_ = true;
 }
 
+void Scene::set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps) {
+  if (mesh >= meshes_.size()) throw std::invalid_argument("set_mesh_motion: unknown mesh id");
+  MeshData& m = meshes_[mesh];
+  bool ok = steps.size() >= 2, moves = false;
+  for (const std::vector<Vec3>& s : steps) {
+    ok = ok && s.size() == m.positions.size();
+    for (size_t k = 0; ok && k < s.size(); ++k) ok = is_finite(s[k]);
+    moves = moves || (ok && std::memcmp(s.data(), steps[0].data(), s.size() * sizeof(Vec3)) != 0);
+  }
+  if (!ok && !steps.empty()) ++mesh_motion_rejected_;
+  m.motion_positions = ok && moves ? std::move(steps) : std::vector<std::vector<Vec3>>{};
+  committed_ = false;
+  geometry_dirty_ = true;
+}
+
 void Scene::set_instance_transform(uint32_t index, const Mat4& m) {
   if (index >= instances_.size()) throw std::invalid_argument("set_instance_transform: unknown instance");
   instances_[index].matrix = m;
@@ -219,7 +234,7 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   // Motion blur: each moving instance's steps decomposed once; it is then a real instance
   // (traced through its transform at the ray's time).
   motion_.assign(instances_.size(), {});
-  stats_.motion_rejected = 0;
+  stats_.motion_rejected = mesh_motion_rejected_;
   for (size_t i = 0; i < instances_.size(); ++i) {
     const std::vector<Mat4>& steps = instances_[i].motion;
     if (steps.size() < 2) continue;
@@ -233,7 +248,8 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   }
   for (size_t i = 0; i < instances_.size(); ++i) {
     inst_[i].mesh = instances_[i].mesh;
-    inst_[i].transformed = dynamic_ || uses[instances_[i].mesh] > 1 || !motion_[i].empty();
+    inst_[i].transformed = dynamic_ || uses[instances_[i].mesh] > 1 || !motion_[i].empty() ||
+                           !meshes_[instances_[i].mesh].motion_positions.empty();
   }
   size_t dropped = 0;
 
@@ -324,6 +340,12 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
       dropped += b.dropped * uses[mi];
       continue;
     }
+    if (!mesh.motion_positions.empty()) {  // deformation blur: the kept triangles at every step
+      std::vector<std::array<uint32_t, 3>> prims(b.src_tri.size());
+      for (size_t k = 0; k < prims.size(); ++k) prims[k] = mesh.triangles[b.src_tri[k]];
+      b.deform = std::make_unique<DeformBvh>();
+      b.deform->build(mesh.motion_positions, prims);
+    }
     dropped += b.dropped * uses[mi];
     mesh_blas_[mi] = uint32_t(blases_.size());
     blases_.push_back(std::move(b));
@@ -371,7 +393,7 @@ void Scene::build_instances() {
   object_coords_.clear();
   object_coords_.reserve(instances_.size());
   uint32_t prim = 0;
-  size_t real = 0, moving = 0;
+  size_t real = 0, moving = 0, deforming = 0;
   // Texture spaces once per mesh, not per instance (the automatic one reads every vertex).
   std::vector<std::pair<Vec3, Vec3>> texspace(meshes_.size());
   std::vector<char> have_texspace(meshes_.size(), 0);
@@ -398,7 +420,7 @@ void Scene::build_instances() {
       const uint32_t b = mesh_blas_[inst.mesh];
       if (b < blases_.size() && affine_inverse(m, in.to_object)) {
         // Left out where its world box leaves the traceable range (as flattening drops triangles).
-        const Aabb bb = blases_[b].bvh.bounds();
+        const Aabb bb = blases_[b].deform ? blases_[b].deform->bounds() : blases_[b].bvh.bounds();
         Aabb wb;
         for (int c = 0; c < 8; ++c)
           wb.grow(m.point({(c & 1) ? bb.hi.x : bb.lo.x, (c & 2) ? bb.hi.y : bb.lo.y, (c & 4) ? bb.hi.z : bb.lo.z}));
@@ -407,7 +429,9 @@ void Scene::build_instances() {
           in.blas = b;
           in.kept = uint32_t(blases_[b].tris.size());
           ++real;
-          moving += in.motion != nullptr;
+          in.deform = blases_[b].deform.get();
+          moving += in.motion != nullptr || in.deform != nullptr;
+          deforming += in.deform != nullptr;
         }
       }
       in.tri_base = 0;
@@ -418,6 +442,7 @@ void Scene::build_instances() {
   stats_.triangles = prim;
   stats_.real_instances = real;
   stats_.motion_instances = motion_instances_ = moving;
+  stats_.deforming_instances = deforming;
 }
 
 void Scene::set_instance_matrix(InstanceData& in, const Mat4& m) {
@@ -449,6 +474,7 @@ void Scene::build_top_level() {
     e.to_object = in.to_object;
     e.motion = in.motion;
     e.motion_steps = in.motion_steps;
+    e.deform = in.deform;
     entries.push_back(e);
   }
   // A lone merged BLAS is traced directly: no top level, no transforms.
@@ -606,7 +632,7 @@ void Scene::build_lights() {
   for (size_t i = 0; i < inst_.size(); ++i) {
     InstanceData& in = inst_[i];
     // Moving instances are no light samples (they would be sampled where the frame has them).
-    if (!in.transformed || in.blas == UINT32_MAX || in.motion) continue;
+    if (!in.transformed || in.blas == UINT32_MAX || in.motion || in.deform) continue;
     const Blas& b = blases_[in.blas];
     in.emitter_base = uint32_t(emitters_.size());
     for (uint32_t t : b.emissive) {
@@ -917,9 +943,9 @@ void Scene::detect_features() {
   }
 }
 
-[[gnu::always_inline]] inline void Scene::surface_point_in(const InstanceData& in, const Hit& h, SurfacePoint& sp) const {
+[[gnu::always_inline]] inline void Scene::surface_point_in(const InstanceData& in, const TriangleVerts& tv, const Hit& h,
+                                                           SurfacePoint& sp) const {
   const Blas& b = blases_[in.blas];
-  const TriangleVerts& tv = b.tris[h.prim];
   const uint32_t st = b.src_tri[h.prim];
   const MeshData& mesh = meshes_[in.mesh];
   const float b0 = 1.0f - h.b1 - h.b2;
@@ -956,13 +982,14 @@ void Scene::detect_features() {
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
   const InstanceData& in = inst_[h.inst];
-  if (__builtin_expect(in.motion != nullptr, 0)) {  // the instance where the ray met it
+  if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {  // where the ray met it
     InstanceData moved = in;
-    set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, time));
-    surface_point_in(moved, h, sp);
+    if (in.motion) set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, time));
+    const TriangleVerts tv = in.deform ? in.deform->triangle_at(h.prim, time) : blases_[in.blas].tris[h.prim];
+    surface_point_in(moved, tv, h, sp);
     return;
   }
-  surface_point_in(in, h, sp);
+  surface_point_in(in, blases_[in.blas].tris[h.prim], h, sp);
 }
 
 // Inlined into sample_direct: as a call it cost a fifth of a light sample in argument passing.
