@@ -211,3 +211,16 @@ def test_topology_change_warns_and_renders_still(monkeypatch):
     assert len(calls) == 3
     assert all(m.motion_positions is None for m in data.meshes)
     assert sum("topology" in w for w in warn) == 1, warn
+
+
+def test_failing_motion_export_still_renders(monkeypatch):
+    """A bug in the motion export costs the blur, not the render."""
+    import addon.session as session
+
+    def broken(*args):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(session, "add_motion", broken)
+    scene = spinning_scene()
+    still = render_to_array(scene, "PATHLIGHT", samples=4, **BOX_FILTER)
+    assert still[..., :3].mean() > 0.01  # the bar and the square (black without a render)
