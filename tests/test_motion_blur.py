@@ -108,6 +108,24 @@ def test_spinning_object_matches_cycles():
     assert scene.frame_current == 1 and abs(scene.frame_subframe) < 1e-6  # the frame is restored
 
 
+def test_lit_spinning_object_and_its_shadow_match_cycles():
+    """A diffuse bar spinning over a floor under an area light: its blurred shadow needs the
+    shadow rays (and the bounces) to see the bar where the camera ray's time has it."""
+    scene = ms.studio(size=SIZE, camera=((0.0, -4.0, 3.0), (0.0, 0.0, 0.3)))
+    scene.frame_set(1)
+    scene.render.use_motion_blur = True
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    bar = bpy.context.active_object
+    bar.data.materials.append(ms.diffuse("Bar", (0.8, 0.8, 0.8)))
+    bar.scale = (1.6, 0.3, 0.3)
+    linear_keys(bar, "rotation_euler", {0: (0.0, 0.0, math.radians(-240.0)), 2: (0.0, 0.0, math.radians(240.0))})
+    linear_keys(bar, "location", {0: (-0.4, 0.0, 0.6), 2: (0.4, 0.2, 0.6)})
+    scene.frame_set(1)
+    ours = render_to_array(scene, "PATHLIGHT", samples=512, max_bounces=3, **BOX_FILTER)
+    cycles = render_to_array(scene, "CYCLES", samples=512, max_bounces=3, **BOX_FILTER)
+    assert_agree(ours, cycles, "lit spinning bar")
+
+
 def test_shutter_position_and_curve_match_cycles():
     """Shutter at the frame's start, a longer shutter and a ramp-shaped shutter curve."""
     scene = spinning_scene(shutter=0.8, position='START')
