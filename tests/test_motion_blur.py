@@ -126,6 +126,32 @@ def test_lit_spinning_object_and_its_shadow_match_cycles():
     assert_agree(ours, cycles, "lit spinning bar")
 
 
+def test_texture_stays_on_a_moving_object():
+    """A checker (Object coordinates) on a sliding, slightly turning slab moves with it: texture
+    coordinates come from the object's transform at the ray's time (with the frame's, the still
+    checker would show through the moving slab)."""
+    scene = base_scene()
+    mat = emissive("Checker", (1.0, 1.0, 1.0))
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    checker = nodes.new("ShaderNodeTexChecker")
+    checker.inputs["Scale"].default_value = 3.0
+    checker.inputs["Color1"].default_value = (1.0, 0.9, 0.2, 1.0)
+    checker.inputs["Color2"].default_value = (0.1, 0.2, 1.0, 1.0)
+    coords = nodes.new("ShaderNodeTexCoord")
+    links.new(coords.outputs["Object"], checker.inputs["Vector"])
+    links.new(checker.outputs["Color"], nodes["Emission"].inputs["Color"])
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    slab = bpy.context.active_object
+    slab.data.materials.append(mat)
+    slab.scale = (1.3, 1.3, 0.1)
+    linear_keys(slab, "rotation_euler", {0: (0.0, 0.0, math.radians(-30.0)), 2: (0.0, 0.0, math.radians(30.0))})
+    linear_keys(slab, "location", {0: (-1.6, 0.0, 0.3), 2: (1.6, 0.2, 0.3)})
+    ms.add_camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), lens=40.0)
+    scene.frame_set(1)
+    ours, cycles = render_both(scene, samples=512)
+    assert_agree(ours, cycles, "textured sliding slab")
+
+
 def test_shutter_position_and_curve_match_cycles():
     """Shutter at the frame's start, a longer shutter and a ramp-shaped shutter curve."""
     scene = spinning_scene(shutter=0.8, position='START')

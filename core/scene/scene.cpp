@@ -981,6 +981,7 @@ void Scene::detect_features() {
 }
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
+  sp.time = time;
   const InstanceData& in = inst_[h.inst];
   if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {  // where the ray met it
     InstanceData moved = in;
@@ -1231,10 +1232,28 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.p_error = sp.p_error;
   const InstanceData& in = inst_[sp.instance];
   const Blas& blas = blases_[in.blas];
-  const TriangleVerts tv = world_triangle(in, blas.tris[sp.tri]);
+  TriangleVerts tv;
+  ctx.object = &object_coords_[sp.instance];
+  ObjectCoords moved_coords;
+  if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {
+    // Motion blur: the triangle, and the object's transforms for texture coordinates, at the
+    // ray's time (so textures stay on a moving object).
+    InstanceData moved = in;
+    if (in.motion) {
+      set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, sp.time));
+      moved_coords = object_coords_[sp.instance];
+      const ObjectCoords at = make_object_coords(moved.to_world, Vec3(0.0f), Vec3(1.0f));
+      moved_coords.to_world = at.to_world;
+      moved_coords.to_object = at.to_object;
+      moved_coords.valid = at.valid;
+      ctx.object = &moved_coords;
+    }
+    tv = world_triangle(moved, in.deform ? in.deform->triangle_at(sp.tri, sp.time) : blas.tris[sp.tri]);
+  } else {
+    tv = world_triangle(in, blas.tris[sp.tri]);
+  }
   const Vec3 corners[3] = {tv.v0, tv.v1, tv.v2};
   ctx.tri = corners;  // for the Bump node's offsets
-  ctx.object = &object_coords_[sp.instance];
   constexpr int kMaxSets = 8;
   Vec2 uv[kMaxSets];
   Vec2 corner_uvs[3 * kMaxSets];

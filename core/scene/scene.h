@@ -81,6 +81,7 @@ struct SurfacePoint {
   uint32_t prim = 0;      // the triangle's index in the flattened scene (instance by instance)
   uint32_t instance = 0;  // the hit instance
   uint32_t tri = 0;       // the triangle in its BLAS (internal)
+  float time = 0.5f;      // shutter time of the ray that found it (motion blur)
 };
 
 // A next-event-estimation sample towards any light (analytic, emissive triangle, environment).
