@@ -79,6 +79,15 @@ def usable_steps(steps):
     return bool(np.all(np.abs(det) > 1e-12 * scale))
 
 
+def _object(scene, name):
+    """The original object named `name`: the scene's, or one only instanced into it."""
+    obj = scene.objects.get(name)
+    if obj is None:
+        import bpy  # objects of instanced collections need not be in the scene
+        obj = bpy.data.objects.get(name)
+    return obj
+
+
 def _positions(obj_eval):
     """float32 (V, 3) vertex positions of an evaluated object's mesh, or None."""
     from .mesh import mesh_positions
@@ -114,7 +123,7 @@ def add_motion(engine, depsgraph, data, warn):
     counts = set()
     for mesh in data.meshes:
         for key in getattr(mesh, "motion_keys", []):
-            obj = scene.objects.get(key[0])
+            obj = _object(scene, key[0])
             n = motion_step_count(obj) if obj is not None and uses_motion_blur(obj) else 0
             wanted[key] = n
             if n:
@@ -125,7 +134,7 @@ def add_motion(engine, depsgraph, data, warn):
         keys = getattr(mesh, "motion_keys", [])
         if len(mesh.matrices) != 1 or len(keys) != 1 or keys[0][1] or not wanted.get(keys[0]):
             continue
-        obj = scene.objects.get(keys[0][0])
+        obj = _object(scene, keys[0][0])
         if obj is not None and obj.type == 'MESH' and uses_deform_motion(obj) and may_deform(obj, scene):
             deforming[keys[0]] = mesh
     positions = {}  # (key, relative time) -> (V, 3) or None
@@ -152,7 +161,7 @@ def add_motion(engine, depsgraph, data, warn):
                 if wanted.get(key):
                     matrices[(key, rel)] = np.array(instance.matrix_world, np.float32)
             for key, mesh in deforming.items():
-                positions[(key, rel)] = _positions(scene.objects[key[0]].evaluated_get(depsgraph))
+                positions[(key, rel)] = _positions(_object(scene, key[0]).evaluated_get(depsgraph))
     finally:
         engine.frame_set(frame, subframe)
 
