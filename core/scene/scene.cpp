@@ -1230,6 +1230,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.scene = this;  // the Ambient Occlusion node traces
   ctx.instance = sp.instance;
   ctx.p_error = sp.p_error;
+  ctx.time = sp.time;
   const InstanceData& in = inst_[sp.instance];
   const Blas& blas = blases_[in.blas];
   TriangleVerts tv;
@@ -1406,6 +1407,7 @@ float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance,
     const float z = std::sqrt(std::max(0.0f, 1.0f - dsk.x * dsk.x - dsk.y * dsk.y));
     const Vec3 dir = t * dsk.x + b * dsk.y + n * z;
     Ray ray;
+    ray.time = ctx.time;
     ray.org = offset_ray_origin(ctx.p, ctx.p_error, dot(dir, ctx.ng) >= 0.0f ? ctx.ng : -ctx.ng);
     ray.dir = dir;
     ray.tmax = distance;

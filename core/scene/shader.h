@@ -211,6 +211,7 @@ struct ShadingContext {
   const Scene* scene = nullptr;
   uint32_t instance = 0;
   Vec3 p_error{0.0f};
+  float time = 0.5f;  // the ray's shutter time (motion blur): AO rays trace at it
 };
 
 // The Ambient Occlusion node's fraction of `samples` rays over the hemisphere about n (cosine
