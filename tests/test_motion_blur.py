@@ -300,3 +300,26 @@ def test_shared_meshes_and_collection_instances_blur_each_on_their_own():
     scene.render.use_motion_blur = False
     still = render_to_array(scene, "PATHLIGHT", samples=16, **BOX_FILTER)
     assert ms.compare(still, cycles, floor=0.05)[1] > 0.2
+
+
+def test_lit_deforming_smooth_mesh_matches_cycles():
+    """A smooth ball whose shape key shears and stretches it over the shutter, lit by an area
+    light: its shading normals must turn with the deformation (the frame's normals: 8 % off)."""
+    scene = ms.studio(size=SIZE, camera=((0.0, -4.0, 3.0), (0.0, 0.0, 0.5)))
+    scene.frame_set(1)
+    scene.render.use_motion_blur = True
+    ball = ms.add_sphere("Ball", 0.7, ms.diffuse("Ball", (0.8, 0.8, 0.8)), segments=24, rings=12,
+                         location=(0.0, 0.0, 0.8))
+    ball.shape_key_add(name="Basis")
+    key = ball.shape_key_add(name="Bend")
+    co = np.array([v.co[:] for v in ball.data.vertices])
+    moved = co.copy()
+    moved[:, 0] += 0.9 * co[:, 2]  # the top leans over
+    moved[:, 2] *= 1.4
+    for point, p in zip(key.data, moved):
+        point.co = p
+    linear_keys(key, "value", {0.75: 0.0, 1.25: 1.0})
+    scene.frame_set(1)
+    ours = render_to_array(scene, "PATHLIGHT", samples=512, max_bounces=3, **BOX_FILTER)
+    cycles = render_to_array(scene, "CYCLES", samples=512, max_bounces=3, **BOX_FILTER)
+    assert_agree(ours, cycles, "lit deforming ball")

@@ -988,6 +988,21 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
     if (in.motion) set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, time));
     const TriangleVerts tv = in.deform ? in.deform->triangle_at(h.prim, time) : blases_[in.blas].tris[h.prim];
     surface_point_in(moved, tv, h, sp);
+    if (in.deform && (sp.ns.x != sp.ng.x || sp.ns.y != sp.ng.y || sp.ns.z != sp.ng.z)) {
+      // The frame's shading normals turned with their triangle: the rotation that takes the
+      // frame's geometric normal to this time's (Rodrigues, w = a x b, c = a . b).
+      const TriangleVerts& still = blases_[in.blas].tris[h.prim];
+      const Vec3 e = cross(still.v1 - still.v0, still.v2 - still.v0);  // as surface_point_in's ng
+      const Vec3 a = normalize(moved.nrow[0] * e.x + moved.nrow[1] * e.y + moved.nrow[2] * e.z);
+      const Vec3 b = sp.ng, w = cross(a, b);
+      const float c = dot(a, b);
+      if (c > -0.99f && is_finite(a)) {
+        const Vec3 v = sp.ns, wv = cross(w, v);
+        const Vec3 r = v + wv + cross(w, wv) * (1.0f / (1.0f + c));
+        const float l2 = length_sq(r);
+        if (l2 > 0.0f && std::isfinite(l2)) sp.ns = r / std::sqrt(l2);
+      }
+    }
     return;
   }
   surface_point_in(in, blases_[in.blas].tris[h.prim], h, sp);
