@@ -44,12 +44,17 @@ class CommittedScene:
         self.image_ids = []
         self.material_ids = []
         self.reused = False  # whether the last scene_for() returned the kept scene
+        self.moving = False  # the kept scene has motion blur
 
     def scene_for(self, pc, data, warn):
         """A core scene (not committed) holding SceneData `data`: the kept one, updated, when
         its geometry is this data's, else a new one. Call keep() once it is committed."""
         self.reused = False
-        if self.scene is not None and self.pc is pc and _same_geometry(self.data, data):
+        # Motion blur: instance motion is only set by add_instance, so a scene with motion (or
+        # one after a scene with motion) is built anew.
+        moving = _has_motion(data)
+        if self.scene is not None and self.pc is pc and not moving and not self.moving and \
+                _same_geometry(self.data, data):
             scene = self.scene
             self.scene = None  # kept again only after a successful commit
             for i, (old, new) in enumerate(zip(_matrices(self.data), _matrices(data))):
@@ -64,12 +69,18 @@ class CommittedScene:
         self.clear()
         material_ids, image_ids = [], []
         scene = to_core(pc, data, warn, material_ids=material_ids, image_ids=image_ids)
+        self.moving = moving
         self.pc, self.data, self.material_ids, self.image_ids = pc, data, material_ids, image_ids
         return scene
 
     def keep(self, scene):
         """Keeps a committed scene that scene_for() returned, for the next render."""
         self.scene = scene
+
+
+def _has_motion(data):
+    return any(getattr(mesh, "motion_positions", None) is not None or
+               any(m is not None for m in getattr(mesh, "motions", [])) for mesh in data.meshes)
 
 
 def _matrices(data):

@@ -10,6 +10,7 @@ import numpy as np
 from . import render_cache
 from .core import get_core
 from .export import ExportCancelled, ExportError, export_scene, to_core
+from .export.motion import add_motion
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +150,8 @@ def render(engine, depsgraph):
             log.info("render cancelled during the export")
             _empty_result(engine, scene, view_layer)
             return
+        if scene.render.use_motion_blur and not engine.is_preview:
+            _add_motion_blur(engine, depsgraph, data, warn)
         kept = render_cache.SCENE_CACHE
         core_scene = kept.scene_for(pc, data, warn) if cache is not None else to_core(pc, data, warn)
         if cache is not None and cache.previous is not None:
@@ -198,6 +201,20 @@ def render(engine, depsgraph):
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
         log.exception("render failed")
         engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
+
+
+def _add_motion_blur(engine, depsgraph, data, warn):
+    """export.motion.add_motion, never failing the render: on an error the frame renders
+    without motion blur, with one warning."""
+    try:
+        add_motion(engine, depsgraph, data, warn)
+    except Exception as e:  # a bug or an unexpected scene: the still frame is still a render
+        log.exception("motion blur export failed")
+        warn(f"Motion blur could not be exported ({type(e).__name__}: {e}); rendering without it")
+        for mesh in data.meshes:
+            mesh.motions = [None] * len(mesh.matrices)
+            mesh.motion_positions = None
+        data.camera.pop("motion", None)
 
 
 def _stop_requested(engine, stage, elapsed, time_limit):

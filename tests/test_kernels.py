@@ -12,7 +12,7 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
     "volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
-    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "subsurface"}
+    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "subsurface", "motion blur"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -167,6 +167,20 @@ CASES = {
     "adaptive": (lambda: cornell(pc), {"adaptive_threshold": 0.05, "adaptive_min_samples": 4},
                  {"diffuse", "mesh lights", "adaptive sampling"}, "diffuse"),
 }
+
+
+def moving_cornell():
+    """The Cornell box with a sphere that moves over the shutter (motion blur)."""
+    s = cornell(pc)
+    white = s.add_material("white2", (0.73, 0.73, 0.73))
+    pos, tris, nrm = uv_sphere(0.25, nu=16, nv=8)
+    steps = np.stack([np.eye(4, dtype=np.float32)] * 3)
+    steps[:, :3, 3] = [(-0.5, 0.0, 0.4), (-0.3, 0.1, 0.5), (-0.1, 0.2, 0.6)]
+    s.add_instance(s.add_mesh(pos, tris, nrm, None, [white]), steps[1], motion=steps)
+    return s
+
+
+CASES["motion blur"] = (moving_cornell, {}, {"diffuse", "mesh lights", "motion blur"}, "diffuse")
 
 
 def session(build, fields, general, size=24, samples=8):

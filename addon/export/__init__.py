@@ -136,14 +136,20 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
                                  material_slots=[ids[i] for i in slots], **uvs)
         infos = mesh.infos if len(mesh.infos) == len(mesh.matrices) else [None] * len(mesh.matrices)
         names = [name for name, _ in mesh.owners] if len(mesh.owners) == len(mesh.matrices) else None
+        deform = getattr(mesh, "motion_positions", None)
+        if deform is not None:
+            scene.set_mesh_motion(mesh_id, deform)
+        motions = getattr(mesh, "motions", None) or []
         for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
+            # Motion blur steps only where the object moves (and so never for older cores).
+            motion = {"motion": motions[k]} if k < len(motions) and motions[k] is not None else {}
             if info is None:
-                scene.add_instance(mesh_id, matrix)
+                scene.add_instance(mesh_id, matrix, **motion)
                 continue
             color, pass_index, random_id = info
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
-            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id)
+            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id, **motion)
     curves = getattr(data, "curves", [])
     if curves:
         mats = iter(data.curve_materials)

@@ -4,6 +4,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .motion import instance_key
 
 
 @dataclass
@@ -27,6 +28,12 @@ class MeshData:
     missing_uv_maps: list = field(default_factory=list)  # UV map names its materials need
     # Blender's texture space ((location), (size)) for generated coordinates, or None.
     texspace: tuple = None
+    # Motion blur, per matrix: what names its depsgraph instance across sub-frames, and its
+    # matrices at the motion steps ((S, 4, 4) float32) or None (export.motion fills them).
+    motion_keys: list = field(default_factory=list)
+    motions: list = field(default_factory=list)
+    # Deformation blur: float32 (S, V, 3) vertex positions at the motion steps, or None.
+    motion_positions: np.ndarray = None
     attributes: dict = field(default_factory=dict)  # attribute set k -> float32 (T, 3, 4) RGBA
     missing_attributes: list = field(default_factory=list)  # attribute names its materials read
 
@@ -398,10 +405,14 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
             if entry is not None:
                 entry.owners = []  # this export's (a cached entry may carry older lists)
                 entry.infos = []
+                entry.motion_keys = []
+                entry.motions = []
+                entry.motion_positions = None
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.owners.append((obj.name, bool(instance.is_instance)))
             entry.infos.append(object_info(instance))
+            entry.motion_keys.append(instance_key(instance))
     if cache is not None:
         cache.end_export()
     return [m for m in meshes.values() if m is not None]

@@ -12,6 +12,8 @@ struct Ray {
   Vec3 org;
   Vec3 dir;
   float tmax = kInf;
+  // Time in the shutter, 0..1 (motion blur): read only by instances that move.
+  float time = 0.5f;
 };
 
 struct Hit {

@@ -181,11 +181,16 @@ void Tlas::build(std::vector<TlasInstance> instances) {
     // Objects with applied transforms (identity) need no ray transform, moved-only ones
     // (translations) no matrix products.
     if (!in.identity && is_identity(in.to_world, true) && is_identity(in.to_object, true)) in.identity = true;
-    in.space = in.identity ? TlasSpace::World
+    if (in.motion && in.motion_steps >= 2) in.identity = false;
+    in.space = in.motion && in.motion_steps >= 2 ? TlasSpace::Motion
+               : in.identity ? TlasSpace::World
                : is_identity(in.to_world, false) && is_identity(in.to_object, false) ? TlasSpace::Translated
                                                                                     : TlasSpace::Affine;
-    if (!in.blas || in.blas->empty()) continue;
-    boxes[i] = in.identity ? in.blas->bounds() : world_box(in.blas->bounds(), in.to_world);
+    if (in.deform ? in.deform->empty() : (!in.blas || in.blas->empty())) continue;
+    const Aabb ob = in.deform ? in.deform->bounds() : in.blas->bounds();
+    boxes[i] = in.space == TlasSpace::Motion ? motion_world_box(ob, in.motion, in.motion_steps)
+               : in.identity ? ob
+                             : world_box(ob, in.to_world);
     if (boxes[i].empty() || !is_finite(boxes[i].lo) || !is_finite(boxes[i].hi)) continue;
     b.centers[i] = boxes[i].center();
     refs.push_back(i);
@@ -286,7 +291,18 @@ inline bool enter(const TlasInstance& in, uint32_t i, const Ray& ray, float tmax
   float dt = 0.0f;
   if (in.space == TlasSpace::Affine) r = ray_to_object(in.to_object, r, dt);
   else if (in.space == TlasSpace::Translated) r = ray_to_object_translated(in.to_object, r, dt);
+  else if (in.space == TlasSpace::Motion)
+    r = ray_to_object(affine_inverse_fast(motion_transform_at(in.motion, in.motion_steps, ray.time)), r, dt);
   if (!(r.tmax > 0.0f)) return false;
+  if (__builtin_expect(in.deform != nullptr, 0)) {
+    if (AnyHit) return in.deform->occluded(r);
+    Hit h;
+    if (!in.deform->intersect(r, h)) return false;
+    hit = h;
+    hit.t = h.t + dt;
+    hit.inst = i;
+    return true;
+  }
   if (AnyHit) return in.blas->occluded(r);
   Hit h;
   if (!in.blas->intersect(r, h, counters)) return false;

@@ -9,6 +9,8 @@
 #include <vector>
 
 #include "geometry/bvh.h"
+#include "geometry/deform_bvh.h"
+#include "geometry/motion.h"
 
 namespace pl {
 
@@ -18,6 +20,7 @@ enum class TlasSpace : uint8_t {
   World,      // identity (or `identity`): the ray as it is
   Translated, // the linear part is the identity: the origin only moves
   Affine,     // the full transform
+  Motion,     // motion blur: the transform at the ray's time, interpolated between steps
 };
 
 struct TlasInstance {
@@ -26,6 +29,12 @@ struct TlasInstance {
   Mat4 to_object;             // its inverse
   bool identity = false;      // the BLAS is already in world space: no ray transform
   TlasSpace space = TlasSpace::Affine;  // set by Tlas::build
+  // Motion blur: motion_steps (>= 2) decomposed transforms over the shutter, which must outlive
+  // the Tlas; to_world / to_object are then unused. nullptr: a static instance.
+  const DecomposedTransform* motion = nullptr;
+  uint32_t motion_steps = 0;
+  // Deformation blur: traced instead of `blas` (same triangle numbering; must outlive the Tlas).
+  const DeformBvh* deform = nullptr;
 };
 
 // Bound of the rounding error of M.point(p) where p itself carries the error p_error
@@ -57,6 +66,7 @@ inline void offset_past_error(Ray& o, const Vec3& err, float world_tmax, float& 
 // The ray in an instance's object space, origin moved forward past its own rounding error.
 inline Ray ray_to_object(const Mat4& to_object, const Ray& r, float& dt) {
   Ray o;
+  o.time = r.time;
   o.org = to_object.point(r.org);
   o.dir = to_object.vector(r.dir);
   const Vec3 err = transform_point_error(to_object, r.org, Vec3(0.0f));
@@ -68,6 +78,7 @@ inline Ray ray_to_object(const Mat4& to_object, const Ray& r, float& dt) {
 // and move (the products by 1 and 0 are exact), without the matrix products.
 inline Ray ray_to_object_translated(const Mat4& to_object, const Ray& r, float& dt) {
   Ray o;
+  o.time = r.time;
   const Vec3 t{to_object.m[0][3], to_object.m[1][3], to_object.m[2][3]};
   o.org = r.org + t;
   o.dir = r.dir;

@@ -142,6 +142,22 @@ Mat4 to_mat4(const FloatArray& a, const char* what) {
   return m;
 }
 
+// Motion steps: None or an (S, 4, 4) array, S >= 2. Values are not checked here: steps that are
+// not finite or not invertible leave the object (or camera) static, as the core decides.
+std::vector<Mat4> to_motion(const py::object& o, const char* what) {
+  std::vector<Mat4> steps;
+  if (o.is_none()) return steps;
+  const FloatArray a = o.cast<FloatArray>();
+  if (a.ndim() != 3 || a.shape(1) != 4 || a.shape(2) != 4 || a.shape(0) < 2 || a.shape(0) > 1025)
+    throw std::invalid_argument(std::string(what) + " must be an (S, 4, 4) array of 2 to 1025 matrices");
+  auto r = a.unchecked<3>();
+  steps.resize(size_t(a.shape(0)));
+  for (py::ssize_t k = 0; k < a.shape(0); ++k)
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) steps[size_t(k)].m[i][j] = r(k, i, j);
+  return steps;
+}
+
 FloatArray from_mat4(const Mat4& m) {
   FloatArray a({4, 4});
   auto w = a.mutable_unchecked<2>();
@@ -993,6 +1009,9 @@ py::dict scene_stats(const PyScene& self) {
   d["curves"] = s.curves;
   d["curve_pieces"] = s.curve_pieces;
   d["skipped_curves"] = s.skipped_curves;
+  d["motion_instances"] = s.motion_instances;
+  d["motion_rejected"] = s.motion_rejected;
+  d["deforming_instances"] = s.deforming_instances;
   d["dynamic"] = self.scene->dynamic();
   d["geometry_bytes"] = s.geometry_bytes;
   d["bvh_nodes"] = b.nodes;
@@ -1081,7 +1100,7 @@ void check_rays(const PyScene& self, const FloatArray& o, const FloatArray& d) {
 }
 
 py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax,
-                          bool instances) {
+                          bool instances, float time) {
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
   py::array_t<float> t(n), b1(n), b2(n);
@@ -1096,7 +1115,7 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
   {
     py::gil_scoped_release release;
     for (py::ssize_t i = 0; i < n; ++i) {
-      Ray r{o[i], d[i], tmax};
+      Ray r{o[i], d[i], tmax, time};
       Hit h;
       const bool ok = self.scene->intersect(r, h);
       pt[i] = ok ? h.t : kInf;
@@ -1328,7 +1347,8 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
   return r;
 }
 
-py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
+py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax,
+                                 float time) {
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
   py::array_t<bool> out(n);
@@ -1337,7 +1357,7 @@ py::array_t<bool> occluded_batch(const PyScene& self, const FloatArray& origins,
   bool* po = out.mutable_data();
   {
     py::gil_scoped_release release;
-    for (py::ssize_t i = 0; i < n; ++i) po[i] = self.scene->occluded(Ray{o[i], d[i], tmax});
+    for (py::ssize_t i = 0; i < n; ++i) po[i] = self.scene->occluded(Ray{o[i], d[i], tmax, time});
   }
   return out;
 }
@@ -1751,6 +1771,16 @@ PYBIND11_MODULE(pathlight_core, m) {
         py::arg("ozone") = 1.0f, py::arg("xyz_to_rgb") = py::none(),
         "Radiance (N, 3) of Blender's Nishita Sky Texture along directions (N, 3), as set_world_sky "
         "evaluates it (strength 1).");
+  m.def(
+      "motion_transform",
+      [](const py::object& steps, float time) {
+        std::vector<DecomposedTransform> d;
+        if (!decompose_motion(to_motion(steps, "motion"), d)) throw std::invalid_argument("motion steps are singular or not finite");
+        return from_mat4(motion_transform_at(d.data(), uint32_t(d.size()), time));
+      },
+      py::arg("steps"), py::arg("time"),
+      "The object-to-world matrix at shutter time `time` of motion steps (S, 4, 4), interpolated as "
+      "rays see it (translation and scale linearly, rotation by slerp). For tests.");
   m.def("barycentric_error_bound", [] { return gamma_bound(7); },
         "The relative bound gamma(7): |error(b0 v0 + b1 v1 + b2 v2)| <= gamma(7) (|b0 v0| + |b1 v1| + |b2 v2|).");
   m.def(
@@ -1904,6 +1934,36 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("use_autofocus", &CameraDesc::use_autofocus)
       .def_readwrite("autofocus_x", &CameraDesc::autofocus_x)
       .def_readwrite("autofocus_y", &CameraDesc::autofocus_y)
+      .def_property(
+          "motion",
+          [](const CameraDesc& c) -> py::object {
+            if (c.motion.empty()) return py::none();
+            FloatArray a({py::ssize_t(c.motion.size()), py::ssize_t(4), py::ssize_t(4)});
+            auto w = a.mutable_unchecked<3>();
+            for (size_t k = 0; k < c.motion.size(); ++k)
+              for (int i = 0; i < 4; ++i)
+                for (int j = 0; j < 4; ++j) w(py::ssize_t(k), i, j) = c.motion[k].m[i][j];
+            return std::move(a);
+          },
+          [](CameraDesc& c, const py::object& o) { c.motion = to_motion(o, "camera motion"); },
+          "Motion blur: matrix_world at each motion step over the shutter, (S, 4, 4) with S >= 2, or "
+          "None (static). Steps that are not finite or singular leave the camera static.")
+      .def_property(
+          "shutter_curve", [](const CameraDesc& c) { return c.shutter_curve; },
+          [](CameraDesc& c, const std::vector<float>& v) {
+            if (v.size() > 65536) throw std::invalid_argument("shutter_curve takes at most 65536 values");
+            c.shutter_curve = v;
+          },
+          "Motion blur: the shutter curve's values evenly over the shutter (Cycles samples 256); "
+          "empty: a box shutter. Non-finite values count as 0; an all-zero curve is a box.")
+      .def(
+          "shutter_time",
+          [](const CameraDesc& c, float u) {
+            ShutterTable t;
+            t.set_curve(c.shutter_curve);
+            return t.sample(u);
+          },
+          py::arg("u"), "The shutter time (0..1) a camera ray gets for the uniform number u (for tests).")
       .def(
           "generate_ray",
           [](const CameraDesc& c, int width, int height, float x, float y, py::object lens) {
@@ -2078,7 +2138,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
-             uint32_t random_id) {
+             uint32_t random_id, const py::object& motion) {
             self.check_editable();
             ObjectInfo info;
             if (!color.is_none()) {
@@ -2089,13 +2149,33 @@ PYBIND11_MODULE(pathlight_core, m) {
             }
             info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
             info.random = object_random(random_id);
-            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info);
+            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info, to_motion(motion, "instance motion"));
           },
           py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
-          py::arg("random_id") = 0u,
+          py::arg("random_id") = 0u, py::arg("motion") = py::none(),
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
-          "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32).")
+          "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
+          "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
+          "blur); steps that are not finite or not invertible leave it static (stats()['motion_rejected']).")
 
+      .def(
+          "set_mesh_motion",
+          [](PyScene& self, uint32_t mesh, const FloatArray& positions) {
+            self.check_editable();
+            if (positions.ndim() != 3 || positions.shape(2) != 3 || positions.shape(0) < 2 || positions.shape(0) > 1025)
+              throw std::invalid_argument("mesh motion positions must be an (S, V, 3) array with 2 to 1025 steps");
+            const py::ssize_t steps = positions.shape(0), n = positions.shape(1);
+            std::vector<std::vector<Vec3>> out(size_t(steps), std::vector<Vec3>(static_cast<size_t>(n)));
+            const float* p = positions.data();
+            for (py::ssize_t s = 0; s < steps; ++s)
+              std::memcpy(static_cast<void*>(out[size_t(s)].data()), p + size_t(s) * size_t(n) * 3, size_t(n) * sizeof(Vec3));
+            py::gil_scoped_release release;
+            self.scene->set_mesh_motion(mesh, std::move(out));
+          },
+          py::arg("mesh"), py::arg("positions"),
+          "Deformation blur of mesh `mesh`: its vertex positions (object space) at each motion step "
+          "over the shutter, (S, V, 3) with S >= 2 and V its vertex count. Steps of another length "
+          "or with NaN/inf leave it undeformed (stats()['motion_rejected']).")
       .def(
           "set_instance_transform",
           [](PyScene& self, uint32_t index, const FloatArray& matrix) {
@@ -2426,14 +2506,15 @@ PYBIND11_MODULE(pathlight_core, m) {
                              "Whether the last commit() built a light tree that sample_direct uses.")
       .def("stats", &scene_stats)
       .def("intersect", &intersect_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
-           py::arg("instances") = false,
-           "Closest hits of a batch of rays: returns (t, prim, b1, b2); prim (the triangle's index in the "
+           py::arg("instances") = false, py::arg("time") = 0.5f,
+           "Closest hits of a batch of rays (at shutter time `time`, for motion blur): returns (t, prim, b1, b2); prim (the triangle's index in the "
            "flattened scene, instance by instance) is -1 and t inf on a miss. instances=True adds two "
            "int64 arrays: the hit instance (add_instance order) and the triangle's row in its mesh (-1 on a miss).")
       .def("hit_surfaces", &hit_surfaces, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            "The surfaces a batch of rays hits: a dict of t, p, ng, tangent, origin_out, origin_in (the spawn "
            "origins on the normal's side and the other) and curve (bool).")
       .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
+           py::arg("time") = 0.5f,
            "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).")
       .def("traversal_counts", &traversal_counts, py::arg("origins"), py::arg("directions"),
            py::arg("tmax") = py::none(),

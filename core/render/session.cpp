@@ -89,6 +89,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     }
   }
   focus_distance_ = camera_.focus_distance();
+  motion_ = scene_->has_motion() || camera_.has_motion();
   filter_ = PixelFilter(settings_.filter_type, settings_.filter_width);
   if (settings_.border_width > 0) {
     region_x_ = settings_.border_x;
@@ -136,6 +137,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     all.emplace_back("passes", film_.aux_stride() > 0);
     all.emplace_back("transparent film", settings_.film_transparent);
     all.emplace_back("adaptive sampling", settings_.adaptive_threshold > 0.0f);
+    all.emplace_back("motion blur", motion_);
     for (const auto& [n, on] : all) (on ? features_ : unused_features_).push_back(n);
   }
   tile_active_.resize(size_t(film_.tile_count()));
@@ -287,7 +289,11 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
         // Dimension 1: the lens, taken only with an aperture, so pinhole renders keep the
         // same streams for their paths.
         const Vec2 lens = camera_.has_aperture() ? sampler.get2d() : Vec2{0.5f, 0.5f};
-        const Ray ray = camera_.generate(float(fx) + filter_.jitter(j.x), float(fy) + filter_.jitter(j.y), lens);
+        const float rx = float(fx) + filter_.jitter(j.x), ry = float(fy) + filter_.jitter(j.y);
+        // Motion blur: the shutter time from the next dimension, drawn only where something
+        // moves (static scenes keep their streams and their rays).
+        const Ray ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))
+                                : camera_.generate(rx, ry, lens);
         const Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
         ++paths;
         const float alpha = std::isfinite(aovs.alpha) ? aovs.alpha : 1.0f;

@@ -110,6 +110,7 @@ class Session {
   PixelFilter filter_;
   int region_x_ = 0, region_y_ = 0;  // film pixel (0, 0) in the full frame
   float focus_distance_ = 0.0f;
+  bool motion_ = false;  // something moves: camera rays draw a shutter time
   int autofocus_ = 0;
   Vec3 view_origin_, view_right_, view_up_, view_forward_;  // camera frame, for Depth and Denoising Normal
   int total_samples_ = 0;

@@ -106,7 +106,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     }
     if (!found) return T;
     SurfacePoint sp;
-    scene.surface_point(h, sp);
+    scene.surface_point(h, sp, ray.time);
     const Material& mat = scene.material(sp.material);
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;
@@ -248,6 +248,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                 const float ph = hg_phase(g, dot(d, ds.wi));
                 if (ph > 0.0f && !is_black(ds.li)) {
                   Ray shadow;
+                  shadow.time = ray.time;
                   shadow.org = p;
                   if (std::isinf(ds.dist)) {
                     shadow.dir = ds.wi;
@@ -328,7 +329,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       break;
     }
     SurfacePoint sp;
-    scene.surface_point(hit, sp);
+    scene.surface_point(hit, sp, ray.time);
     Vec3 wo = -ray.dir;  // (a subsurface exit moves the vertex: see below)
     ray_state.length = length_before + hit.t * length(ray.dir);
     ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
@@ -398,6 +399,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         if (!is_black(f) && !is_black(ds.li)) {
           Vec3 vis(1.0f);
           Ray shadow;
+          shadow.time = ray.time;
           shadow.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
           if (std::isinf(ds.dist)) {
             shadow.dir = ds.wi;
@@ -461,7 +463,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         if (!subsurface_walk(scene, sp, ng_out, front ? ch.frame.n : -ch.frame.n, wo, *ss, u, seed, beta, exit,
                              exit_dir, c.rays))
           break;
-        scene.surface_point(exit, sp);
+        scene.surface_point(exit, sp, ray.time);
         wo = exit_dir;
         // The exit's diffuse normal: the smooth one, or where the BSSRDF has a normal of its own
         // (Cycles' SD_HAS_BSSRDF_BUMP) the BSSRDF closures' mean normal there, bump-shadowed.

@@ -1,18 +1,33 @@
 #include "scene/camera.h"
 
 #include <algorithm>
+#include <cstring>
 
 namespace pl {
 
-Camera::Camera(const CameraDesc& d, int width, int height) {
-  const Mat4& m = d.matrix_world;
-  type_ = d.type;
-  origin_ = {m.m[0][3], m.m[1][3], m.m[2][3]};
+Camera::Frame Camera::frame_of(const Mat4& m) {
+  Frame f;
+  f.origin = {m.m[0][3], m.m[1][3], m.m[2][3]};
   // Blender ignores the camera object's scale: keep only its rotation (orthonormalised).
-  right_ = normalize(Vec3{m.m[0][0], m.m[1][0], m.m[2][0]});
-  up_ = Vec3{m.m[0][1], m.m[1][1], m.m[2][1]};
-  up_ = normalize(up_ - right_ * dot(up_, right_));
-  back_ = cross(right_, up_);
+  f.right = normalize(Vec3{m.m[0][0], m.m[1][0], m.m[2][0]});
+  f.up = Vec3{m.m[0][1], m.m[1][1], m.m[2][1]};
+  f.up = normalize(f.up - f.right * dot(f.up, f.right));
+  f.back = cross(f.right, f.up);
+  return f;
+}
+
+Camera::Camera(const CameraDesc& d, int width, int height) {
+  type_ = d.type;
+  const Frame f = frame_of(d.matrix_world);
+  origin_ = f.origin;
+  right_ = f.right;
+  up_ = f.up;
+  back_ = f.back;
+  // Motion blur: steps that cannot be decomposed (not finite, singular) leave it static.
+  bool moves = false;
+  for (const Mat4& m : d.motion) moves = moves || std::memcmp(&m, &d.motion[0], sizeof(Mat4)) != 0;
+  if (d.motion.size() >= 2 && moves && !decompose_motion(d.motion, motion_)) motion_.clear();
+  shutter_.set_curve(d.shutter_curve);
 
   const float winx = static_cast<float>(width), winy = static_cast<float>(height);
   winx_ = width > 0 ? winx : 1.0f;
@@ -95,7 +110,20 @@ void Camera::differentials(Vec3 dir, float& dp, float& dd) const {
   if (!std::isfinite(dd) || !std::isfinite(dp)) dp = dd = 0.0f;
 }
 
-Ray Camera::generate_pinhole(float x, float y) const {
+Ray Camera::generate_pinhole(float x, float y) const { return generate_pinhole_in({origin_, right_, up_, back_}, x, y); }
+
+Ray Camera::generate(float x, float y, Vec2 lens) const { return generate_in({origin_, right_, up_, back_}, x, y, lens); }
+
+Ray Camera::generate(float x, float y, Vec2 lens, float time) const {
+  Ray r = motion_.empty() ? generate(x, y, lens)
+                          : generate_in(frame_of(motion_transform_at(motion_.data(), uint32_t(motion_.size()), time)), x,
+                                        y, lens);
+  r.time = time;
+  return r;
+}
+
+Ray Camera::generate_pinhole_in(const Frame& f, float x, float y) const {
+  const Vec3 &origin_ = f.origin, &right_ = f.right, &up_ = f.up, &back_ = f.back;  // the frame's, shadowing
   const float px = x0_ + x * dx_, py = y0_ + y * dy_;
   Ray r;
   if (type_ == CameraType::Orthographic) {
@@ -115,8 +143,9 @@ Ray Camera::generate_pinhole(float x, float y) const {
   return r;
 }
 
-Ray Camera::generate(float x, float y, Vec2 lens) const {
-  if (aperture_ <= 0.0f) return generate_pinhole(x, y);
+Ray Camera::generate_in(const Frame& f, float x, float y, Vec2 lens) const {
+  if (aperture_ <= 0.0f) return generate_pinhole_in(f, x, y);
+  const Vec3 &origin_ = f.origin, &right_ = f.right, &up_ = f.up, &back_ = f.back;
   const Vec2 a = sample_aperture(lens);
   const float lx = a.x * aperture_, ly = a.y * aperture_;
   const float px = x0_ + x * dx_, py = y0_ + y * dy_;

@@ -7,6 +7,9 @@
 #pragma once
 #include <string>
 
+#include <vector>
+
+#include "geometry/motion.h"
 #include "geometry/ray.h"
 #include "util/sampling.h"
 
@@ -35,6 +38,11 @@ struct CameraDesc {
   // (0..1 over the full frame, from the bottom-left).
   bool use_autofocus = false;
   float autofocus_x = 0.5f, autofocus_y = 0.5f;
+  // Motion blur: the camera's matrix_world at each motion step over the shutter (>= 2; empty:
+  // static), and the shutter curve sampled evenly over the shutter (empty: a box shutter), which
+  // also times the objects' motion.
+  std::vector<Mat4> motion;
+  std::vector<float> shutter_curve;
 };
 
 class Camera {
@@ -44,6 +52,11 @@ class Camera {
   // Ray through raster position (x, y), measured in pixels from the bottom-left corner of the
   // full frame; `lens` (unit square) picks the point on the aperture (ignored for a pinhole).
   Ray generate(float x, float y, Vec2 lens = {0.5f, 0.5f}) const;
+  // The same at shutter time `time` (0..1): where the camera moves, from its frame then; the
+  // ray carries the time.
+  Ray generate(float x, float y, Vec2 lens, float time) const;
+  bool has_motion() const { return !motion_.empty(); }
+  const ShutterTable& shutter() const { return shutter_; }
   // The same ray through the lens centre: what autofocus and the focal plane are defined by.
   Ray generate_pinhole(float x, float y) const;
   bool has_aperture() const { return aperture_ > 0.0f; }
@@ -68,6 +81,14 @@ class Camera {
   Vec3 to_ndc(Vec3 p) const;
 
  private:
+  struct Frame {
+    Vec3 origin, right, up, back;
+  };
+  static Frame frame_of(const Mat4& m);
+  Ray generate_pinhole_in(const Frame& f, float x, float y) const;
+  Ray generate_in(const Frame& f, float x, float y, Vec2 lens) const;
+  std::vector<DecomposedTransform> motion_;  // empty: static
+  ShutterTable shutter_;
   CameraType type_ = CameraType::Perspective;
   Vec3 origin_, right_, up_, back_;  // orthonormal world axes of the camera
   // View plane at distance 1 (perspective) or in world units (orthographic): left, bottom,

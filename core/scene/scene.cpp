@@ -2,6 +2,7 @@
 
 #include "util/lookup3.h"
 
+#include <cstring>
 #include <stdexcept>
 #include <utility>
 
@@ -140,9 +141,24 @@ uint32_t Scene::add_mesh(MeshData mesh) {
   return static_cast<uint32_t>(meshes_.size() - 1);
 }
 
-void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info) {
+void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info, std::vector<Mat4> motion) {
   if (mesh >= meshes_.size()) throw std::invalid_argument("add_instance: unknown mesh id");
-  instances_.push_back({mesh, m, info});
+  instances_.push_back({mesh, m, info, std::move(motion)});
+  committed_ = false;
+  geometry_dirty_ = true;
+}
+
+void Scene::set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps) {
+  if (mesh >= meshes_.size()) throw std::invalid_argument("set_mesh_motion: unknown mesh id");
+  MeshData& m = meshes_[mesh];
+  bool ok = steps.size() >= 2, moves = false;
+  for (const std::vector<Vec3>& s : steps) {
+    ok = ok && s.size() == m.positions.size();
+    for (size_t k = 0; ok && k < s.size(); ++k) ok = is_finite(s[k]);
+    moves = moves || (ok && std::memcmp(s.data(), steps[0].data(), s.size() * sizeof(Vec3)) != 0);
+  }
+  if (!ok && !steps.empty()) ++mesh_motion_rejected_;
+  m.motion_positions = ok && moves ? std::move(steps) : std::vector<std::vector<Vec3>>{};
   committed_ = false;
   geometry_dirty_ = true;
 }
@@ -236,9 +252,25 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   std::vector<uint32_t> uses(meshes_.size(), 0);
   for (const Instance& inst : instances_) ++uses[inst.mesh];
   inst_.assign(instances_.size(), InstanceData());
+  // Motion blur: each moving instance's steps decomposed once; it is then a real instance
+  // (traced through its transform at the ray's time).
+  motion_.assign(instances_.size(), {});
+  stats_.motion_rejected = mesh_motion_rejected_;
+  for (size_t i = 0; i < instances_.size(); ++i) {
+    const std::vector<Mat4>& steps = instances_[i].motion;
+    if (steps.size() < 2) continue;
+    bool moves = false;
+    for (const Mat4& m : steps) moves = moves || std::memcmp(&m, &steps[0], sizeof(Mat4)) != 0;
+    if (!moves) continue;
+    if (!decompose_motion(steps, motion_[i])) {
+      motion_[i].clear();
+      ++stats_.motion_rejected;
+    }
+  }
   for (size_t i = 0; i < instances_.size(); ++i) {
     inst_[i].mesh = instances_[i].mesh;
-    inst_[i].transformed = dynamic_ || uses[instances_[i].mesh] > 1;
+    inst_[i].transformed = dynamic_ || uses[instances_[i].mesh] > 1 || !motion_[i].empty() ||
+                           !meshes_[instances_[i].mesh].motion_positions.empty();
   }
   size_t dropped = 0;
 
@@ -329,6 +361,12 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
       dropped += b.dropped * uses[mi];
       continue;
     }
+    if (!mesh.motion_positions.empty()) {  // deformation blur: the kept triangles at every step
+      std::vector<std::array<uint32_t, 3>> prims(b.src_tri.size());
+      for (size_t k = 0; k < prims.size(); ++k) prims[k] = mesh.triangles[b.src_tri[k]];
+      b.deform = std::make_unique<DeformBvh>();
+      b.deform->build(mesh.motion_positions, prims);
+    }
     dropped += b.dropped * uses[mi];
     mesh_blas_[mi] = uint32_t(blases_.size());
     blases_.push_back(std::move(b));
@@ -376,7 +414,7 @@ void Scene::build_instances() {
   object_coords_.clear();
   object_coords_.reserve(instances_.size());
   uint32_t prim = 0;
-  size_t real = 0;
+  size_t real = 0, moving = 0, deforming = 0;
   // Texture spaces once per mesh, not per instance (the automatic one reads every vertex).
   std::vector<std::pair<Vec3, Vec3>> texspace(meshes_.size());
   std::vector<char> have_texspace(meshes_.size(), 0);
@@ -393,27 +431,28 @@ void Scene::build_instances() {
     }
     object_coords_.push_back(make_object_coords(inst.matrix, texspace[inst.mesh].first, texspace[inst.mesh].second));
     object_coords_.back().info = inst.info;
-    in.to_world = inst.matrix;
     const Mat4& m = inst.matrix;
-    const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
-    in.nrow[0] = cross(c1, c2);
-    in.nrow[1] = cross(c2, c0);
-    in.nrow[2] = cross(c0, c1);
-    in.negative = dot(c0, in.nrow[0]) < 0;
+    set_instance_matrix(in, m);
+    in.motion = motion_[i].empty() ? nullptr : motion_[i].data();
+    in.motion_steps = uint32_t(motion_[i].size());
     if (in.transformed) {
       in.blas = UINT32_MAX;
       in.kept = 0;
       const uint32_t b = mesh_blas_[inst.mesh];
       if (b < blases_.size() && affine_inverse(m, in.to_object)) {
         // Left out where its world box leaves the traceable range (as flattening drops triangles).
-        const Aabb bb = blases_[b].bvh.bounds();
+        const Aabb bb = blases_[b].deform ? blases_[b].deform->bounds() : blases_[b].bvh.bounds();
         Aabb wb;
         for (int c = 0; c < 8; ++c)
           wb.grow(m.point({(c & 1) ? bb.hi.x : bb.lo.x, (c & 2) ? bb.hi.y : bb.lo.y, (c & 4) ? bb.hi.z : bb.lo.z}));
+        if (in.motion) wb.grow(motion_world_box(bb, in.motion, in.motion_steps));
         if (is_finite(wb.lo) && is_finite(wb.hi) && max_component(vmax(vabs(wb.lo), vabs(wb.hi))) < 1e30f) {
           in.blas = b;
           in.kept = uint32_t(blases_[b].tris.size());
           ++real;
+          in.deform = blases_[b].deform.get();
+          moving += in.motion != nullptr || in.deform != nullptr;
+          deforming += in.deform != nullptr;
         }
       }
       in.tri_base = 0;
@@ -423,6 +462,17 @@ void Scene::build_instances() {
   }
   stats_.triangles = prim;
   stats_.real_instances = real;
+  stats_.motion_instances = motion_instances_ = moving;
+  stats_.deforming_instances = deforming;
+}
+
+void Scene::set_instance_matrix(InstanceData& in, const Mat4& m) {
+  in.to_world = m;
+  const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
+  in.nrow[0] = cross(c1, c2);
+  in.nrow[1] = cross(c2, c0);
+  in.nrow[2] = cross(c0, c1);
+  in.negative = dot(c0, in.nrow[0]) < 0;
 }
 
 void Scene::build_top_level() {
@@ -443,6 +493,9 @@ void Scene::build_top_level() {
     e.blas = &blases_[in.blas].bvh;
     e.to_world = in.to_world;
     e.to_object = in.to_object;
+    e.motion = in.motion;
+    e.motion_steps = in.motion_steps;
+    e.deform = in.deform;
     entries.push_back(e);
   }
   // A lone merged BLAS is traced directly: no top level, no transforms.
@@ -600,7 +653,8 @@ void Scene::build_lights() {
   }
   for (size_t i = 0; i < inst_.size(); ++i) {
     InstanceData& in = inst_[i];
-    if (!in.transformed || in.blas == UINT32_MAX) continue;
+    // Moving instances are no light samples (they would be sampled where the frame has them).
+    if (!in.transformed || in.blas == UINT32_MAX || in.motion || in.deform) continue;
     const Blas& b = blases_[in.blas];
     in.emitter_base = uint32_t(emitters_.size());
     for (uint32_t t : b.emissive) {
@@ -1024,11 +1078,9 @@ bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
   return true;
 }
 
-void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
-  if (h.inst == kCurveInstance) return curve_point(h, sp);
-  const InstanceData& in = inst_[h.inst];
+[[gnu::always_inline]] inline void Scene::surface_point_in(const InstanceData& in, const TriangleVerts& tv, const Hit& h,
+                                                           SurfacePoint& sp) const {
   const Blas& b = blases_[in.blas];
-  const TriangleVerts& tv = b.tris[h.prim];
   const uint32_t st = b.src_tri[h.prim];
   const MeshData& mesh = meshes_[in.mesh];
   const float b0 = 1.0f - h.b1 - h.b2;
@@ -1061,6 +1113,35 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp) const {
   sp.prim = global_prim(h);
   sp.instance = h.inst;
   sp.tri = h.prim;
+}
+
+void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
+  sp.time = time;
+  if (h.inst == kCurveInstance) return curve_point(h, sp);  // (curves do not move)
+  const InstanceData& in = inst_[h.inst];
+  if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {  // where the ray met it
+    InstanceData moved = in;
+    if (in.motion) set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, time));
+    const TriangleVerts tv = in.deform ? in.deform->triangle_at(h.prim, time) : blases_[in.blas].tris[h.prim];
+    surface_point_in(moved, tv, h, sp);
+    if (in.deform && (sp.ns.x != sp.ng.x || sp.ns.y != sp.ng.y || sp.ns.z != sp.ng.z)) {
+      // The frame's shading normals turned with their triangle: the rotation that takes the
+      // frame's geometric normal to this time's (Rodrigues, w = a x b, c = a . b).
+      const TriangleVerts& still = blases_[in.blas].tris[h.prim];
+      const Vec3 e = cross(still.v1 - still.v0, still.v2 - still.v0);  // as surface_point_in's ng
+      const Vec3 a = normalize(moved.nrow[0] * e.x + moved.nrow[1] * e.y + moved.nrow[2] * e.z);
+      const Vec3 b = sp.ng, w = cross(a, b);
+      const float c = dot(a, b);
+      if (c > -0.99f && is_finite(a)) {
+        const Vec3 v = sp.ns, wv = cross(w, v);
+        const Vec3 r = v + wv + cross(w, wv) * (1.0f / (1.0f + c));
+        const float l2 = length_sq(r);
+        if (l2 > 0.0f && std::isfinite(l2)) sp.ns = r / std::sqrt(l2);
+      }
+    }
+    return;
+  }
+  surface_point_in(in, blases_[in.blas].tris[h.prim], h, sp);
 }
 
 // Inlined into sample_direct: as a call it cost a fifth of a light sample in argument passing.
@@ -1301,6 +1382,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.scene = this;  // the Ambient Occlusion node traces
   ctx.instance = sp.instance;
   ctx.p_error = sp.p_error;
+  ctx.time = sp.time;
   if (sp.curve()) {  // no triangle, uvs or attributes; world coordinates for Object
     const CurvePiece& pc = curve_bvh_.piece(sp.tri);
     const float u = clampf(b1, 0.0f, 1.0f);  // the axial position (end spheres: beyond [0, 1])
@@ -1319,10 +1401,28 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   }
   const InstanceData& in = inst_[sp.instance];
   const Blas& blas = blases_[in.blas];
-  const TriangleVerts tv = world_triangle(in, blas.tris[sp.tri]);
+  TriangleVerts tv;
+  ctx.object = &object_coords_[sp.instance];
+  ObjectCoords moved_coords;
+  if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {
+    // Motion blur: the triangle, and the object's transforms for texture coordinates, at the
+    // ray's time (so textures stay on a moving object).
+    InstanceData moved = in;
+    if (in.motion) {
+      set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, sp.time));
+      moved_coords = object_coords_[sp.instance];
+      const ObjectCoords at = make_object_coords(moved.to_world, Vec3(0.0f), Vec3(1.0f));
+      moved_coords.to_world = at.to_world;
+      moved_coords.to_object = at.to_object;
+      moved_coords.valid = at.valid;
+      ctx.object = &moved_coords;
+    }
+    tv = world_triangle(moved, in.deform ? in.deform->triangle_at(sp.tri, sp.time) : blas.tris[sp.tri]);
+  } else {
+    tv = world_triangle(in, blas.tris[sp.tri]);
+  }
   const Vec3 corners[3] = {tv.v0, tv.v1, tv.v2};
   ctx.tri = corners;  // for the Bump node's offsets
-  ctx.object = &object_coords_[sp.instance];
   constexpr int kMaxSets = 8;
   Vec2 uv[kMaxSets];
   Vec2 corner_uvs[3 * kMaxSets];
@@ -1427,7 +1527,7 @@ Vec3 Scene::transmittance_through(Ray ray) const {
     Hit h;
     if (!intersect(ray, h)) return T;
     SurfacePoint sp;
-    surface_point(h, sp);
+    surface_point(h, sp, ray.time);
     const Material& mat = materials_[sp.material];
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;
@@ -1507,6 +1607,7 @@ float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance,
     const float z = std::sqrt(std::max(0.0f, 1.0f - dsk.x * dsk.x - dsk.y * dsk.y));
     const Vec3 dir = t * dsk.x + b * dsk.y + n * z;
     Ray ray;
+    ray.time = ctx.time;
     ray.org = offset_ray_origin(ctx.p, ctx.p_error, dot(dir, ctx.ng) >= 0.0f ? ctx.ng : -ctx.ng);
     ray.dir = dir;
     ray.tmax = distance;

@@ -12,6 +12,7 @@
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -42,6 +43,10 @@ struct MeshData {
   // without it, Blender's automatic one (the bounding box) is computed at commit.
   bool has_texspace = false;
   Vec3 texspace_location{0.0f}, texspace_size{1.0f};
+  // Deformation blur: the vertex positions at each motion step over the shutter (>= 2, each as
+  // long as positions; empty: no deformation). Its instances trace the triangles at the ray's
+  // time; shading normals stay the frame's.
+  std::vector<std::vector<Vec3>> motion_positions;
 };
 
 struct Material {
@@ -86,6 +91,9 @@ struct Instance {
   uint32_t mesh;
   Mat4 matrix;
   ObjectInfo info;
+  // Motion blur: the object-to-world matrix at each motion step over the shutter (>= 2, evenly
+  // spaced, ray time 0 at the first); empty: static.
+  std::vector<Mat4> motion;
 };
 
 // What the integrator needs about a hit point.
@@ -101,6 +109,7 @@ struct SurfacePoint {
   // Curves (instance == kCurveInstance): the unit tangent along the strand (else zero).
   Vec3 tangent{0.0f};
   bool curve() const { return instance == kCurveInstance; }
+  float time = 0.5f;      // shutter time of the ray that found it (motion blur)
 };
 
 // A next-event-estimation sample towards any light (analytic, emissive triangle, environment).
@@ -135,6 +144,9 @@ struct SceneStats {
   size_t real_instances = 0;              // instances traced through a transform (not merged)
   size_t bvh_bytes = 0, geometry_bytes = 0;  // BLASes + top level; triangle copies, maps and mesh data
   size_t curves = 0, curve_pieces = 0, skipped_curves = 0;  // strands kept, their linear pieces, strands left out
+  size_t motion_instances = 0;  // instances traced with transform motion blur
+  size_t motion_rejected = 0;   // instances (and meshes) whose motion was dropped (non-finite or singular steps)
+  size_t deforming_instances = 0;  // instances traced with deformation blur
 };
 
 // What a committed scene uses (materials on its triangles, lights, world), so that a render
@@ -175,7 +187,10 @@ class Scene {
   size_t material_count() const { return materials_.size(); }
   size_t image_count() const { return images_.size(); }
   uint32_t add_mesh(MeshData mesh);  // validated by the caller (bindings)
-  void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {});
+  // motion: the instance's transforms over the shutter (Instance::motion). Steps that are not
+  // finite or not invertible leave the instance static (counted in stats().motion_rejected);
+  // steps that are all equal are no motion.
+  void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {}, std::vector<Mat4> motion = {});
   // A set of curves (validated by the caller). Strands with bad data are left out at commit
   // (counted in stats().skipped_curves).
   uint32_t add_curves(CurveSetData curves) {
@@ -192,6 +207,11 @@ class Scene {
     return uint32_t(std::upper_bound(curve_first_.begin(), curve_first_.end(), strand) - curve_first_.begin()) - 1;
   }
   size_t instance_count() const { return instances_.size(); }
+  // Deformation blur of mesh `mesh` (MeshData::motion_positions). Steps of the wrong length or
+  // with non-finite positions leave it undeformed (counted in stats().motion_rejected).
+  void set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps);
+  // Instances with transform motion blur in the committed scene: rays then need a time.
+  bool has_motion() const { return motion_instances_ > 0; }
   // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
   // commit() rebuilds only the top level and the lights; else the merged geometry.
   void set_instance_transform(uint32_t index, const Mat4& m);
@@ -338,7 +358,8 @@ class Scene {
     const InstanceData& in = inst_[h.inst];
     return in.prim_base + (h.prim - in.tri_base);
   }
-  void surface_point(const Hit& h, SurfacePoint& sp) const;
+  // time: the ray's (Ray::time), for instances that move.
+  void surface_point(const Hit& h, SurfacePoint& sp, float time = 0.5f) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
   // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
@@ -406,6 +427,7 @@ class Scene {
     std::vector<int32_t> emitter;     // per triangle: merged: emitter index; else index among
                                       // this BLAS's emissive triangles; -1 none (empty: none)
     std::vector<uint32_t> emissive;   // object-space BLAS: its emissive triangles
+    std::unique_ptr<DeformBvh> deform;  // deformation blur: traced instead of bvh (same numbering)
     size_t dropped = 0;
     uint32_t mesh = 0;  // object-space BLAS: its mesh
     bool merged = false;
@@ -422,6 +444,11 @@ class Scene {
     Mat4 to_world, to_object;
     Vec3 nrow[3];                // cofactors: normal (and cross product) transform
     bool negative = false;       // negative determinant: mirrored
+    // Motion blur: decomposed steps (in Scene::motion_), nullptr when static. Such an instance
+    // is always a real one, and emits no light samples (its emission is found by BSDF rays).
+    const DecomposedTransform* motion = nullptr;
+    uint32_t motion_steps = 0;
+    const DeformBvh* deform = nullptr;  // deformation blur (its BLAS's), or nullptr
     Vec3 normal(Vec3 n) const {  // Mat4::normal's arithmetic, cofactors precomputed
       const Vec3 out = nrow[0] * n.x + nrow[1] * n.y + nrow[2] * n.z;
       return negative ? -out : out;
@@ -464,6 +491,12 @@ class Scene {
   }
   void curve_point(const Hit& h, SurfacePoint& sp) const;
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
+  std::vector<std::vector<DecomposedTransform>> motion_;  // per instance, made at commit (empty: static)
+  size_t motion_instances_ = 0;
+  size_t mesh_motion_rejected_ = 0;  // set_mesh_motion calls refused
+  // Sets in's world transform and its normal cofactors to m.
+  static void set_instance_matrix(InstanceData& in, const Mat4& m);
+  void surface_point_in(const InstanceData& in, const TriangleVerts& tv, const Hit& h, SurfacePoint& sp) const;
   Vec3 world_color_{0.0f};
   ShaderProgram world_volume_;
   CameraDesc camera_;
@@ -619,7 +652,7 @@ class Scene {
   void detect_rect(EmitterGroup& g, const InstanceData& in) const;
   int32_t emitter_of(const InstanceData& in, uint32_t tri) const {
     const Blas& b = blases_[in.blas];
-    if (b.emitter.empty() || b.emitter[tri] < 0) return -1;
+    if (b.emitter.empty() || b.emitter[tri] < 0 || in.motion || in.deform) return -1;
     return b.merged ? b.emitter[tri] : int32_t(in.emitter_base) + b.emitter[tri];
   }
 };

@@ -251,6 +251,7 @@ struct ShadingContext {
   uint32_t instance = 0;
   Vec3 p_error{0.0f};
   const CurveShading* curve = nullptr;  // hits on curves (nullptr: not a strand)
+  float time = 0.5f;  // the ray's shutter time (motion blur): AO rays trace at it
 };
 
 // The Ambient Occlusion node's fraction of `samples` rays over the hemisphere about n (cosine

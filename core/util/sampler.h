@@ -4,7 +4,8 @@
 // padded sequence, decorrelated across pixels and dimensions, deterministic per
 // (seed, pixel, sample), progressive at any sample count. "Random" is plain PCG32.
 // Layout: 2-D dimension 0 places the sample in the pixel (pixel filter); dimension 1 picks the
-// lens point, only when the camera has an aperture; each bounce then takes 4 (light choice +
+// lens point, only when the camera has an aperture; then the shutter time (its x), only when
+// something moves (motion blur); each bounce then takes 4 (light choice +
 // roulette, light point, closure + lobe choice, BSDF direction), so Sobol covers the first ~3
 // bounces.
 #pragma once

@@ -1,0 +1,215 @@
+"""Motion blur: the camera's and the objects' transforms at the shutter's motion steps, read by
+evaluating the depsgraph at sub-frames as Cycles' Blender sync does (RenderEngine.frame_set),
+and Blender's shutter curve as the values Cycles samples from it."""
+
+import math
+
+import numpy as np
+
+RAMP_TABLE_SIZE = 256  # Cycles samples the shutter curve at this many evenly spaced times
+MAX_STEPS_SETTING = 7  # Blender's motion_steps range is 1..7 (2^(steps - 1) * 2 + 1 steps)
+
+
+def motion_step_count(obj):
+    """Cycles' object_motion_steps: an odd number of steps, one at the frame, 2^(steps-1) either side."""
+    cyc = getattr(obj, "cycles", None)
+    steps = int(getattr(cyc, "motion_steps", 1)) if cyc is not None else 1
+    steps = min(max(steps, 1), MAX_STEPS_SETTING)
+    return (2 << (steps - 1)) + 1
+
+
+def uses_deform_motion(obj):
+    cyc = getattr(obj, "cycles", None)
+    return bool(getattr(cyc, "use_deform_motion", True)) if cyc is not None else True
+
+
+def may_deform(obj, scene):
+    """Whether obj's evaluated mesh may change over the shutter (deforming modifiers, shape
+    keys, geometry nodes): only those are evaluated at every step."""
+    try:
+        if obj.is_deform_modified(scene, 'RENDER'):
+            return True
+    except (AttributeError, TypeError, RuntimeError):
+        return True
+    keys = getattr(obj.data, "shape_keys", None)
+    if keys is not None and keys.animation_data is not None:
+        return True
+    return any(m.type == 'NODES' for m in obj.modifiers)
+
+
+def uses_motion_blur(obj):
+    cyc = getattr(obj, "cycles", None)
+    return bool(getattr(cyc, "use_motion_blur", True)) if cyc is not None else True
+
+
+def relative_times(count):
+    """The steps' times in -1..1 of the half shutter (Cycles' motion_time)."""
+    return [-1.0 + 2.0 * i / (count - 1) for i in range(count)]
+
+
+def shutter_curve(render):
+    """Blender's shutter curve as Cycles reads it: RAMP_TABLE_SIZE values at i / (size - 1)."""
+    mapping = getattr(render, "motion_blur_shutter_curve", None)
+    if mapping is None:
+        return []
+    try:
+        mapping.update()
+        curve = mapping.curves[0]
+        values = [float(mapping.evaluate(curve, i / (RAMP_TABLE_SIZE - 1))) for i in range(RAMP_TABLE_SIZE)]
+    except (AttributeError, IndexError, RuntimeError):
+        return []
+    return [v if math.isfinite(v) else 0.0 for v in values]
+
+
+def instance_key(instance):
+    """What names one depsgraph object instance across sub-frames."""
+    obj = instance.object
+    if instance.is_instance:
+        parent = instance.parent.original.name if instance.parent is not None else ""
+        return (obj.original.name, parent, tuple(instance.persistent_id))
+    return (obj.original.name, "", ())
+
+
+def usable_steps(steps):
+    """Whether (S, 4, 4) steps are finite and invertible (what the core can interpolate)."""
+    if not np.isfinite(steps).all():
+        return False
+    det = np.linalg.det(steps[:, :3, :3].astype(np.float64))
+    scale = np.abs(steps[:, :3, :3].astype(np.float64)).max(axis=(1, 2)) ** 3
+    return bool(np.all(np.abs(det) > 1e-12 * scale))
+
+
+def _object(scene, name):
+    """The original object named `name`: the scene's, or one only instanced into it."""
+    obj = scene.objects.get(name)
+    if obj is None:
+        import bpy  # objects of instanced collections need not be in the scene
+        obj = bpy.data.objects.get(name)
+    return obj
+
+
+def _positions(obj_eval):
+    """float32 (V, 3) vertex positions of an evaluated object's mesh, or None."""
+    from .mesh import mesh_positions
+    try:
+        mesh = obj_eval.to_mesh()
+        return None if mesh is None else mesh_positions(mesh).copy()
+    finally:
+        obj_eval.to_mesh_clear()
+
+
+def camera_matrix(obj):
+    m = np.array(obj.matrix_world, np.float32)
+    m[:3, :3] /= np.linalg.norm(m[:3, :3], axis=0)  # Blender ignores the camera's scale
+    return m
+
+
+def add_motion(engine, depsgraph, data, warn):
+    """Fills SceneData `data` (exported at the current frame) with motion blur: data.camera's
+    "motion" and "shutter_curve", and each MeshData's `motions` (per matrix: (S, 4, 4) steps or
+    None). Evaluates the depsgraph at the sub-frames (engine.frame_set) and restores the frame.
+    Returns the number of moving objects."""
+    scene = depsgraph.scene
+    render = scene.render
+    shutter = float(render.motion_blur_shutter)
+    if not (math.isfinite(shutter) and shutter > 0.0):
+        warn(f"Motion blur: shutter {shutter:g} is not positive; rendering without motion blur")
+        return 0
+    frame, subframe = scene.frame_current, float(scene.frame_subframe)
+    position = render.motion_blur_position
+    delta = shutter * 0.5 if position == 'START' else -shutter * 0.5 if position == 'END' else 0.0
+    # Per instance (a matrix of some MeshData): its step count, or 0 when it does not blur.
+    wanted = {}
+    counts = set()
+    for mesh in data.meshes:
+        for key in getattr(mesh, "motion_keys", []):
+            obj = _object(scene, key[0])
+            n = motion_step_count(obj) if obj is not None and uses_motion_blur(obj) else 0
+            wanted[key] = n
+            if n:
+                counts.add(n)
+    # Deformation blur: single-user meshes of plain objects that may deform.
+    deforming = {}  # key -> MeshData
+    for mesh in data.meshes:
+        keys = getattr(mesh, "motion_keys", [])
+        if len(mesh.matrices) != 1 or len(keys) != 1 or keys[0][1] or not wanted.get(keys[0]):
+            continue
+        obj = _object(scene, keys[0][0])
+        if obj is not None and obj.type == 'MESH' and uses_deform_motion(obj) and may_deform(obj, scene):
+            deforming[keys[0]] = mesh
+    positions = {}  # (key, relative time) -> (V, 3) or None
+    cam_obj = scene.camera
+    cam_steps = motion_step_count(cam_obj) if cam_obj is not None and uses_motion_blur(cam_obj) else 0
+    if cam_steps:
+        counts.add(cam_steps)
+    times = sorted({t for n in counts for t in relative_times(n)})
+    if not times:
+        return 0
+    matrices = {}  # (key, relative time) -> matrix
+    cam_at = {}
+    try:
+        for rel in times:
+            t = frame + subframe + delta + rel * shutter * 0.5
+            f = math.floor(t)
+            engine.frame_set(int(f), t - f)
+            if cam_steps and cam_obj is not None:
+                cam_at[rel] = camera_matrix(cam_obj.evaluated_get(depsgraph))
+            for instance in depsgraph.object_instances:
+                if instance.object.type != 'MESH':
+                    continue
+                key = instance_key(instance)
+                if wanted.get(key):
+                    matrices[(key, rel)] = np.array(instance.matrix_world, np.float32)
+            for key, mesh in deforming.items():
+                positions[(key, rel)] = _positions(_object(scene, key[0]).evaluated_get(depsgraph))
+    finally:
+        engine.frame_set(frame, subframe)
+
+    moving = 0
+    warned = set()
+    for mesh in data.meshes:
+        keys = getattr(mesh, "motion_keys", [])
+        mesh.motions = [None] * len(mesh.matrices)
+        for k, key in enumerate(keys[:len(mesh.matrices)]):
+            n = wanted.get(key, 0)
+            if not n:
+                continue
+            steps = [matrices.get((key, rel)) for rel in relative_times(n)]
+            if any(s is None for s in steps):
+                continue  # not there at every step (appears or vanishes in the shutter): no blur
+            steps = np.stack(steps)
+            if not usable_steps(steps):
+                if key[0] not in warned:
+                    warned.add(key[0])
+                    warn(f"Object '{key[0]}': its motion over the shutter has NaN, infinite or "
+                         "singular (zero-scale) transforms; rendered without motion blur")
+                continue
+            if not (steps == steps[0]).all():
+                mesh.motions[k] = steps
+                moving += 1
+    for key, mesh in deforming.items():
+        steps = [positions.get((key, rel)) for rel in relative_times(wanted[key])]
+        n = len(mesh.positions)
+        if any(s is None or len(s) != n for s in steps):
+            warn(f"Object '{key[0]}': its mesh changes topology over the shutter; rendered "
+                 "without deformation blur")
+            continue
+        steps = np.stack(steps)
+        if not np.isfinite(steps).all():
+            warn(f"Object '{key[0]}': its deformation over the shutter has NaN or infinite "
+                 "positions; rendered without deformation blur")
+            continue
+        if not (steps == steps[0]).all():
+            mesh.motion_positions = steps
+            moving += 1
+    if cam_steps:
+        steps = np.stack([cam_at[rel] for rel in relative_times(cam_steps)])
+        if not usable_steps(steps):
+            warn(f"Camera '{cam_obj.name}': its motion over the shutter has NaN, infinite or "
+                 "singular transforms; rendered without camera motion blur")
+        elif not (steps == steps[0]).all():
+            data.camera["motion"] = steps
+            moving += 1
+    if moving:
+        data.camera["shutter_curve"] = shutter_curve(render)
+    return moving
