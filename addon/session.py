@@ -95,9 +95,7 @@ def render_settings(pc, scene, warn=None):
     st.seed = render_seed(scene)
     st.use_nee = props.use_nee
     st.threads = scene.render.threads  # the detected count in AUTO mode
-    if hasattr(st, "sample_offset"):
-        st.sample_offset = getattr(props, "sample_offset", 0)
-    # Issue 4 settings; hasattr keeps older core builds working (they render without them).
+    st.sample_offset = props.sample_offset
     optional = {
         "sampler": props.sampler.lower(),
         "adaptive_threshold": props.adaptive_threshold if props.use_adaptive_sampling else 0.0,
@@ -109,19 +107,17 @@ def render_settings(pc, scene, warn=None):
         "filter_type": props.filter_type.lower(),
         "filter_width": props.filter_width,
     }
-    # Issue 5 settings.
     optional.update({
         "film_transparent": scene.render.film_transparent,
         "exposure": props.film_exposure,
         "debug_view": props.debug_view.lower(),
     })
-    optional["force_general_kernel"] = props.use_general_kernel  # issue 6
+    optional["force_general_kernel"] = props.use_general_kernel
     x, y, w, h = render_border(scene, warn)
     if (w, h) != (st.width, st.height):
         optional.update(border_x=x, border_y=y, border_width=w, border_height=h)
-    for name, value in optional.items():
-        if hasattr(st, name):
-            setattr(st, name, value)
+    for name, value in optional.items():  # (the add-on and its core ship together)
+        setattr(st, name, value)
     return st
 
 
@@ -160,19 +156,16 @@ def render(engine, depsgraph):
         settings = render_settings(pc, scene, warn)
         if engine.is_preview:  # material thumbnails: small and quick
             settings.samples = min(settings.samples, PREVIEW_SAMPLES)
-            if hasattr(settings, "sample_offset"):
-                settings.sample_offset = 0
+            settings.sample_offset = 0
         passes = enabled_passes(scene, view_layer)
-        known = pc.render_passes() if hasattr(pc, "render_passes") else {}
+        known = pc.render_passes()
         for p in [p for p in passes if p[0] not in known]:
-            warn(f"the {p[0]} pass needs a newer Pathlight core; it stays empty")
+            warn(f"the {p[0]} pass is not rendered by Pathlight; it stays empty")
             passes.remove(p)
-        if known:
-            settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
-        if hasattr(core_scene, "spatial_splits"):  # final renders only: not thumbnails, never the viewport
-            core_scene.spatial_splits = scene.pathlight.use_spatial_splits and not engine.is_preview
-        if hasattr(core_scene, "light_tree"):
-            core_scene.light_tree = scene.pathlight.light_tree.lower()
+        settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
+        # Spatial splits in final renders only: not thumbnails, never the viewport.
+        core_scene.spatial_splits = scene.pathlight.use_spatial_splits and not engine.is_preview
+        core_scene.light_tree = scene.pathlight.light_tree.lower()
         if not _commit(engine, core_scene, settings.threads, scene.pathlight.time_limit):
             _empty_result(engine, scene, view_layer)
             return
@@ -237,9 +230,6 @@ def _commit(engine, core_scene, threads, time_limit=0.0):
     """Builds the BVH and the lights on a worker thread (the core releases the GIL) while this
     thread, the one Blender called, watches for Esc: a cancel stops even a long build within
     milliseconds. Returns False when the render was cancelled."""
-    if not hasattr(core_scene, "cancel_commit"):  # an older core build
-        core_scene.commit(threads)
-        return True
     failure = []
 
     def build():

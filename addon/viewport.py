@@ -104,8 +104,7 @@ class ViewportSession:
         data = export_scene(depsgraph, self.warn, need_camera=False)
         ids = []
         scene = to_core(self.pc, data, self.warn, material_ids=ids)
-        if hasattr(scene, "dynamic"):
-            scene.dynamic = True  # every instance its own transform: moves rebuild the top level only
+        scene.dynamic = True  # every instance its own transform: moves rebuild the top level only
         scene.commit()
         self._map_instances(data)
         self.scene = scene
@@ -138,7 +137,7 @@ class ViewportSession:
     def _move_objects(self, depsgraph, names):
         """Gives the moved objects' instances their new matrices; False when one cannot be mapped
         (the caller then re-exports)."""
-        if not hasattr(self.scene, "set_instance_transform") or not getattr(self.scene, "dynamic", False):
+        if not self.scene.dynamic:
             return False
         moves = []
         for name in names:
@@ -160,8 +159,7 @@ class ViewportSession:
         self._base_settings.samples = scene.pathlight.preview_samples
         self._base_settings.time_limit = 0.0
         self._base_settings.adaptive_threshold = 0.0  # the viewport refines until its samples
-        if hasattr(self._base_settings, "sample_offset"):
-            self._base_settings.sample_offset = 0
+        self._base_settings.sample_offset = 0
         try:
             self.scene_camera = camera_params(scene, depsgraph, self.warn)
         except Exception:  # no active camera: only the free view can be shown

@@ -32,21 +32,6 @@ def region_means(img, grid=8):
     return img[..., :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
 
 
-class FakeSettings:
-    """A RenderSettings of an older core: only the original fields."""
-    FIELDS = ("width", "height", "samples", "time_limit", "max_bounces", "seed", "use_nee",
-              "threads")
-
-    def __setattr__(self, name, value):
-        if name not in self.FIELDS:
-            raise AttributeError(name)
-        object.__setattr__(self, name, value)
-
-
-class FakeCore:
-    RenderSettings = FakeSettings
-
-
 @pytest.fixture(autouse=True, scope="module")
 def factory_scene_afterwards():
     yield
@@ -66,12 +51,6 @@ def test_defaults_are_cycles_defaults():
             props.transmission_bounces) == (cycles.max_bounces, cycles.diffuse_bounces,
                                             cycles.glossy_bounces, cycles.transmission_bounces)
     assert props.sampler == 'SOBOL' and props.use_animated_seed is False
-
-
-def test_settings_skip_fields_an_older_core_lacks():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    st = session.render_settings(FakeCore, bpy.context.scene)  # must not raise
-    assert st.samples == 128 and st.max_bounces == 12
 
 
 @needs_settings

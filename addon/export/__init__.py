@@ -192,23 +192,11 @@ def set_world(scene, data, warn):
     """Sets the world (texture or colour) of SceneData `data` on a core scene."""
     tex = data.world_texture
     if isinstance(tex, WorldSky):
-        setter = getattr(scene, f"set_world_{'sky' if tex.kind == 'nishita' else tex.kind}", None)
-        if setter is not None:
-            setter(strength=tex.strength, rotation=tex.rotation, **tex.params)
-        else:
-            warn("Sky textures are not supported by this build of the Pathlight core; using "
-                 "the Background colour")
-            scene.set_world_color(data.world_color)
-    elif tex is not None and hasattr(scene, "set_world_texture"):
-        scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
+        setter = getattr(scene, f"set_world_{'sky' if tex.kind == 'nishita' else tex.kind}")
+        setter(strength=tex.strength, rotation=tex.rotation, **tex.params)
     elif tex is not None:
-        warn("Environment textures are not supported by this build of the Pathlight core; "
-             "using the image's average colour")
-        scene.set_world_color(tuple(float(c) for c in mean_radiance(tex)))
+        scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
     else:
         scene.set_world_color(data.world_color)
     volume = getattr(data, "world_volume", None)
-    if hasattr(scene, "set_world_volume"):
-        scene.set_world_volume(volume)
-    elif volume is not None:
-        warn("World volumes are not supported by this build of the Pathlight core; ignored")
+    scene.set_world_volume(volume)

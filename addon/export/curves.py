@@ -135,10 +135,6 @@ def _warn_particle_hair(obj, warn, warned):
 def add_curves(scene, curves, material_ids, warn, random_id_of=None):
     """Adds CurvesData `curves` to a core scene; material_ids(material) -> core material id;
     random_id_of(name): the random id of a non-instanced object (Object Info's Random)."""
-    if not hasattr(scene, "add_curves"):
-        if curves:
-            warn("Curves (hair) are not supported by this build of the Pathlight core; ignored")
-        return
     for c in curves:
         mat = material_ids(c.material)
         infos = c.infos if len(c.infos) == len(c.matrices) else [None] * len(c.matrices)

@@ -135,11 +135,6 @@ def add_materials(scene, materials, images, warn, image_ids=None):
     scene; returns the core material ids. image_ids: a list that receives the core id of each
     image (put_material needs them to replace a material later). Core builds without shader
     programs get the (base colour, emission) summary."""
-    if not hasattr(scene, "add_shader"):
-        if any(m.program for m in materials):
-            warn("Shader programs are not supported by this build of the Pathlight core; "
-                 "materials are reduced to their base and emission colours")
-        return [put_material(scene, m, []) for m in materials]
     ids = [scene.add_image(image.pixels, srgb=image.srgb) if image.srgb
            else scene.add_image(image.pixels) for image in images]
     if image_ids is not None:
@@ -151,7 +146,7 @@ def put_material(scene, m, image_ids, core_id=None):
     """Adds MaterialData `m` to a core scene (core_id None) or replaces material `core_id` with
     it; image_ids: the core ids of the images its program reads. Returns the material's id.
     Core builds without shader programs get the (base colour, emission) summary."""
-    if m.program is None or not hasattr(scene, "add_shader"):
+    if m.program is None:
         if core_id is None:
             return scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
         scene.set_material(core_id, m.name, base_color=m.base_color, emission=m.emission)

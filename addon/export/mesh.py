@@ -85,7 +85,7 @@ def _polygon_core():
         pc = get_core()
     except (ImportError, RuntimeError):
         return None
-    return pc if hasattr(pc, "triangulate_polygons") else None
+    return pc
 
 
 def face_offsets(tri_polys, n_faces, n_corners, pc=None):
@@ -95,7 +95,7 @@ def face_offsets(tri_polys, n_faces, n_corners, pc=None):
     has no triangle (an invalid mesh: then Blender's own collections are read). pc: the core,
     which does it in one pass over Blender's face-ordered triangles (numpy's bincount and
     cumsum take ~10 ms and ~14 MB of temporaries for 1M triangles)."""
-    if pc is not None and hasattr(pc, "polygon_face_offsets"):
+    if pc is not None:
         return pc.polygon_face_offsets(tri_polys, n_faces, n_corners)
     sizes = np.bincount(tri_polys, minlength=n_faces)
     if len(sizes) != n_faces or (n_faces and sizes.min() == 0):  # a face of under 3 corners
@@ -114,10 +114,7 @@ def triangle_corners(mesh, pc, positions, corner_verts, offsets, n_tris, corners
     and quads (as Blender does, tested against loop_triangles); meshes with n-gons are read from
     Blender's loop_triangles. corners=False: the core may skip the corner indices (None)."""
     if pc is not None and offsets is not None:
-        if corners or not hasattr(pc, "polygon_face_offsets"):  # older cores always give corners
-            loops, triangles, ngons = pc.triangulate_polygons(positions, corner_verts, offsets)
-        else:
-            loops, triangles, ngons = pc.triangulate_polygons(positions, corner_verts, offsets, corners=False)
+        loops, triangles, ngons = pc.triangulate_polygons(positions, corner_verts, offsets, corners=corners)
         if not ngons:
             return (loops.reshape(-1) if loops is not None else None), triangles
     # Meshes with n-gons (Blender's polyfill + beautify is not reproduced by the core): the
@@ -182,7 +179,7 @@ def mesh_arrays(mesh, corners=True, slots=None):
         normals = np.empty(n_faces * 3, np.float32)
         mesh.polygon_normals.foreach_get("vector", normals)
         normal_indices = np.repeat(tri_polys, 3).reshape(-1, 3)
-    elif offsets is not None and not mesh.has_custom_normals and hasattr(pc, "polygon_corner_normals"):
+    elif offsets is not None and not mesh.has_custom_normals and pc is not None:
         # Sharp edges/faces (e.g. Smooth by Angle): Blender's fans, computed by the core.
         n_edges = len(mesh.edges)
         corner_edges = _int_attribute(mesh, ".corner_edge", n_corners)
