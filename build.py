@@ -1021,20 +1021,19 @@ README_BENCH_BEGIN, README_BENCH_END = "<!-- bench-table:begin -->", "<!-- bench
 # leave the row out. A section not listed here, or whose columns were renamed, gets its first
 # column and its last one, so a new benchmark still shows up.
 README_BENCH_HEADLINES = {
-    "equal_time": ("Cycles' error over Pathlight's at equal time, all budgets pooled "
-                   "(above 1: Pathlight ahead)",
+    "equal_time": ("Cycles' error over Pathlight's at equal time, pooled (above 1: Pathlight ahead)",
                    lambda r: f"{r['Scene']} {r['all budgets pooled']}"),
-    "export": ("Cold render of a mesh (export, scene, BVH, 1 sample): Cycles' time over Pathlight's",
+    "export": ("Cold render (export, BVH, 1 sample): Cycles' time over Pathlight's",
                lambda r: f"{r['Triangles']} triangles {r['Cycles time / Pathlight time']}"),
     "export_rerender": ("Re-renders: Cycles' time over Pathlight's",
                         lambda r: f"{r['Triangles']} triangles, {r['Render']} {r['Cycles time / Pathlight time']}"
                         if "animation" in r["Render"] or "first" in r["Render"] else None),
-    "realistic": ("Cycles' error over Pathlight's at equal time, pooled (converged mean ratio)",
+    "realistic": ("As equal time (converged mean ratio)",
                   lambda r: f"{r['Scene'].split(' (')[0]} {r['pooled'].split(' ')[0]} "
                             f"({r['converged mean / worst region'].split(' /')[0]})"),
-    "kernels": ("The specialised kernel's samples/s over the general kernel's",
+    "kernels": ("Specialised kernel's samples/s over the general one's",
                 lambda r: f"{r['Scene']} {r['Speed-up']}"),
-    "rays": ("Embree's rays/s over Pathlight's, one thread each (above 1: Embree ahead)",
+    "rays": ("Embree's rays/s over Pathlight's, one thread each",
              lambda r: f"{r['Rays']} {r['Embree / Pathlight']}"),
     "sbvh": ("Ray speed-up from spatial splits, primary / diffuse",
              lambda r: f"{r['Scene']} {r['Speed-up, primary / diffuse']}"
@@ -1093,7 +1092,7 @@ def update_readme_benchmarks(sections, started, extra, readme=None):
         # A section this run did not rewrite (`bench --only`, or its script failed) keeps its
         # line, marked as older, rather than vanishing from the README.
         if path.stat().st_mtime < started:
-            heading += " (from an earlier run)"
+            heading += " (earlier run)"
         line = bench_headline(path.stem, sec)
         if line:
             body.append(f"| {heading} | {line[0]} | {line[1]} |")

@@ -79,7 +79,7 @@ def test_readme_gets_one_headline_line_per_section(tmp_path, stamped):
     assert rows[0].endswith("| Cornell box 2.58x ± 0.15; HDR-lit scene 16.45x ± 0.35 |")
     assert "not in the README" not in text and "Some prose" not in text
     # Spatial splits: only the rows with splits on; stale, so marked as from an earlier run.
-    assert rows[1].startswith("| Spatial splits (SBVH) (from an earlier run) |")
+    assert rows[1].startswith("| Spatial splits (SBVH) (earlier run) |")
     assert rows[1].endswith("| Sliver room 2.23x / 1.74x |") and "1.00x / 1.00x" not in rows[1]
     # An unknown section: its first and last columns.
     assert rows[2] == "| A benchmark build.py does not know | Ratio | small 1.5x; large 3.0x |"
