@@ -246,9 +246,11 @@ def test_principled_sheen_subsurface_warn_once_and_coat_is_passed():
     (closure,), warnings, _ = closures_of(mat)
     assert closure[0] == "principled"
     assert len(warnings) == 1
-    assert all(word in warnings[0] for word in ("Layers", "sheen", "subsurface"))
+    assert all(word in warnings[0] for word in ("Layers", "subsurface"))
     assert "coat" not in warnings[0]  # the core layers the coat (Cycles' model)
+    assert "sheen" not in warnings[0]  # ...and the sheen, whose inputs are passed
     p = closure[2]
+    assert p["sheen_weight"][0] == approx(0.2) and p["sheen_roughness"][0] == approx(0.5)
     assert p["coat_weight"][0] == approx(0.5) and p["coat_ior"][0] == approx(1.7)
     assert p["coat_roughness"][0] == approx(0.03) and "coat_normal" not in p
     node.inputs["Coat Weight"].default_value = 0.0  # no coat: none of its inputs

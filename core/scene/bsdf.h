@@ -312,7 +312,15 @@ struct TransparentBsdf {
   }
 };
 
-using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf>;
+}  // namespace pl
+
+#include "scene/bsdf_oren_nayar.h"  // OrenNayarBsdf (rough diffuse)
+#include "scene/bsdf_sheen.h"       // SheenBsdf, VelvetBsdf (Sheen BSDF, Principled sheen)
+
+namespace pl {
+
+using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf,
+                          OrenNayarBsdf, SheenBsdf, VelvetBsdf>;
 
 inline Vec3 bsdf_eval(const Bsdf& b, Vec3 wo, Vec3 wi, float& pdf) {
   return std::visit([&](const auto& x) { return x.eval(wo, wi, pdf); }, b);

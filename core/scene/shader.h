@@ -50,6 +50,7 @@ enum class OpCode : uint8_t {
   Translucent, Metallic,
   PrincipledExtra,  // the Principled BSDF's further inputs: the op just before its Principled op
   Holdout,  // no BSDF: its weight makes the film transparent where seen directly
+  Sheen,    // the Sheen BSDF node (sub 0 microfibre, 1 Ashikhmin velvet)
 };
 
 enum class MathOp : uint8_t {
