@@ -151,6 +151,36 @@ def test_each_bsdf_node_maps_to_its_closure():
         assert "normal" not in params  # unconnected: the shading normal
 
 
+def test_rough_diffuse_sheen_and_diffuse_roughness_pass_their_inputs():
+    # Diffuse BSDF's Roughness (Oren-Nayar in the core): passed when not a constant zero.
+    mat, node = ms.bsdf_material("Rough", "ShaderNodeBsdfDiffuse", Roughness=0.6)
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "diffuse" and not warnings
+    assert closure[2]["roughness"][0] == approx(0.6)
+    node.inputs["Roughness"].default_value = 0.0
+    (closure,), _, _ = closures_of(mat)
+    assert "roughness" not in closure[2]
+    # Sheen BSDF: microfibre by default, Ashikhmin velvet as a flag.
+    mat, node = ms.bsdf_material("Sheen", "ShaderNodeBsdfSheen", Color=(0.2, 0.4, 0.6, 1), Roughness=0.3)
+    assert node.distribution == 'MICROFIBER'
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "sheen" and not warnings and "velvet" not in closure[2]
+    assert closure[2]["color"][:3] == approx((0.2, 0.4, 0.6)) and closure[2]["roughness"][0] == approx(0.3)
+    node.distribution = 'ASHIKHMIN'
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[2]["velvet"][0] == 1.0 and not warnings
+    # Principled Diffuse Roughness and Sheen: passed, no warning; sheen dims no emission here.
+    mat, node = ms.bsdf_material("P", "ShaderNodeBsdfPrincipled", Diffuse_Roughness=0.7, Sheen_Weight=1.0,
+                                 Sheen_Tint=(1.0, 0.5, 0.25, 1))
+    (closure,), warnings, _ = closures_of(mat)
+    assert not warnings
+    assert closure[2]["diffuse_roughness"][0] == approx(0.7)
+    assert closure[2]["sheen_tint"][:3] == approx((1.0, 0.5, 0.25))
+    node.inputs["Emission Strength"].default_value = 1.0
+    _, warnings, _ = closures_of(mat)
+    assert len(warnings) == 1 and "sheen" in warnings[0]
+
+
 def test_multiscatter_glossy_passes_its_distribution_without_warning():
     # Blender's default distribution: the closure carries the multiscatter flag (a register of
     # 1) that turns on the core's energy compensation; single-scatter GGX carries none.
