@@ -1,6 +1,6 @@
-"""Sheen and rough diffuse lobes through the core module (issue 24): Zeltner et al.'s microfibre
-sheen (an LTC fitted per roughness and view, Cycles 4.5's table), Ashikhmin's velvet and Cycles'
-energy-preserving Oren-Nayar. Sampling follows each pdf (chi-square), sample weights are
+"""Sheen, rough diffuse and toon lobes through the core module (issue 24): Zeltner et al.'s
+microfibre sheen (an LTC fitted per roughness and view, Cycles 4.5's table), Ashikhmin's velvet,
+Cycles' energy-preserving Oren-Nayar and the Toon BSDF's cones. Sampling follows each pdf (chi-square), sample weights are
 f cos / pdf, the sheen's LTC is a normalised density for every entry of the fit, and white
 furnaces state the energy: rough diffuse of albedo 1 keeps all of it (EON's promise), sheen over
 white diffuse keeps all of it too (Cycles' layering gives the layer below 1 - the sheen albedo)."""
@@ -34,6 +34,8 @@ CASES = [
     ("velvet", {"sigma": 0.5}),
     ("oren_nayar", {"roughness": 0.5, "color": (0.8, 0.5, 0.2)}),
     ("oren_nayar", {"roughness": 1.0}),
+    ("toon", {"size": 0.8, "smooth": 0.3}),
+    ("toon", {"size": 0.5, "smooth": 0.5, "glossy": True}),
 ]
 
 

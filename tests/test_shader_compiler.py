@@ -169,6 +169,14 @@ def test_rough_diffuse_sheen_and_diffuse_roughness_pass_their_inputs():
     node.distribution = 'ASHIKHMIN'
     (closure,), warnings, _ = closures_of(mat)
     assert closure[2]["velvet"][0] == 1.0 and not warnings
+    # Toon BSDF: its Size and Smooth, Glossy as a flag.
+    mat, node = ms.bsdf_material("Toon", "ShaderNodeBsdfToon", Size=0.3, Smooth=0.1)
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "toon" and not warnings and "glossy" not in closure[2]
+    assert closure[2]["size"][0] == approx(0.3) and closure[2]["smooth"][0] == approx(0.1)
+    node.component = 'GLOSSY'
+    (closure,), _, _ = closures_of(mat)
+    assert closure[2]["glossy"][0] == 1.0
     # Principled Diffuse Roughness and Sheen: passed, no warning; sheen dims no emission here.
     mat, node = ms.bsdf_material("P", "ShaderNodeBsdfPrincipled", Diffuse_Roughness=0.7, Sheen_Weight=1.0,
                                  Sheen_Tint=(1.0, 0.5, 0.25, 1))
@@ -717,8 +725,8 @@ def test_cycle_warns_once_and_falls_back():
 def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     mat, nodes, links, out = ms.new_material("Odd")
     mix = nodes.new("ShaderNodeMixShader")
-    toon = nodes.new("ShaderNodeBsdfToon")
-    toon.inputs["Color"].default_value = (0.1, 0.6, 0.2, 1)
+    hair_bsdf = nodes.new("ShaderNodeBsdfHair")
+    hair_bsdf.inputs["Color"].default_value = (0.1, 0.6, 0.2, 1)
     hair = nodes.new("ShaderNodeBsdfHairPrincipled")  # has a Color input too
     d = nodes.new("ShaderNodeBsdfDiffuse")
     d.inputs["Color"].default_value = (0.3, 0.3, 0.3, 1)
@@ -729,14 +737,14 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     links.new(ramp.outputs["Random"], mix.inputs["Fac"])
     mix.inputs["Fac"].default_value = 0.4
     add = nodes.new("ShaderNodeAddShader")
-    links.new(toon.outputs[0], add.inputs[0])
+    links.new(hair_bsdf.outputs[0], add.inputs[0])
     links.new(d.outputs[0], add.inputs[1])
     links.new(add.outputs[0], mix.inputs[1])
     links.new(hair.outputs[0], mix.inputs[2])
     links.new(mix.outputs[0], out.inputs["Surface"])
     closures, warnings, _ = closures_of(mat)
     assert len(warnings) == 1
-    for name in ("Odd", "Toon BSDF", "Principled Hair BSDF", "Particle Info"):
+    for name in ("Odd", "Hair BSDF", "Principled Hair BSDF", "Particle Info"):
         assert name in warnings[0], (name, warnings[0])
     assert "Ambient Occlusion" not in warnings[0]
     traced = [c for c in closures if isinstance(c[2]["color"], Sym)]

@@ -97,3 +97,29 @@ def test_ashikhmin_velvet_sphere():
     print(f"\nvelvet: mean ratio {ratio:.4f}, worst region {worst:.4f}")
     assert abs(ratio - 1.0) < 0.01, ratio
     assert worst < 0.03, np.round(rel, 3)
+
+
+def test_toon_spheres():
+    # Toon BSDF, Diffuse and Glossy (Size 0.6, Smooth 0.2), each on its half of the image, under
+    # a uniform world and the point light (its highlight a hard-edged disc on the glossy one).
+    def build():
+        scene = ls.empty_scene(64, 32)
+        for name, component, color, x in (("Toon diffuse", 'DIFFUSE', (0.8, 0.4, 0.2, 1), -0.9),
+                                          ("Toon glossy", 'GLOSSY', (0.7, 0.8, 0.9, 1), 0.9)):
+            mat, node = ms.bsdf_material(name, "ShaderNodeBsdfToon", Color=color, Size=0.6, Smooth=0.2)
+            node.component = component
+            ms.add_sphere(name, 0.8, mat, segments=128, rings=64, location=(x, 0.0, 0.0))
+        ms.add_camera((0.0, -6.0, 0.0), (0.0, 0.0, 0.0), lens=60.0)
+        scene.render.film_transparent = True
+        ls.world_color((0.4, 0.5, 0.6))
+        ls.add_light('POINT', location=(3.0, -2.0, 3.0), energy=3000.0, shadow_soft_size=0.0)
+        return scene
+    ours = render_to_array(build(), "PATHLIGHT", samples=2048, max_bounces=8)
+    cycles = render_to_array(build(), "CYCLES", samples=2048, max_bounces=8, **BOX_FILTER)
+    failures = []
+    for name, a, b in (("diffuse", ours[:, :32], cycles[:, :32]), ("glossy", ours[:, 32:], cycles[:, 32:])):
+        ratio, worst, rel = ms.compare(a, b)
+        print(f"\ntoon {name}: mean ratio {ratio:.4f}, worst region {worst:.4f}")
+        if abs(ratio - 1.0) >= 0.01 or worst >= 0.03:
+            failures.append(f"{name}: mean ratio {ratio:.4f}, worst region {worst:.3f}\n{np.round(rel, 3)}")
+    assert not failures, "\n".join(failures)

@@ -1626,6 +1626,10 @@ class ShaderCompiler:
             rough = {} if r.is_const and r.const[0] == 0.0 else {"roughness": r}
             self.closure("diffuse", weight, color=inp("Color", "color"),
                          normal=self.normal(node, ctx), **rough)
+        elif t == 'BSDF_TOON':
+            glossy = {"glossy": ONE} if node.component == 'GLOSSY' else {}
+            self.closure("toon", weight, color=inp("Color", "color"), size=inp("Size", "float"),
+                         smooth=inp("Smooth", "float"), normal=self.normal(node, ctx), **glossy)
         elif t == 'BSDF_SHEEN':
             # Microfibre (Zeltner et al., Cycles' default) or Ashikhmin velvet.
             velvet = {"velvet": ONE} if getattr(node, "distribution", 'MICROFIBER') == 'ASHIKHMIN' else {}

@@ -588,6 +588,13 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
         o.code = OpCode::Diffuse;
         o.in[1] = p("color"); o.in[2] = p("normal"); o.in[3] = p("roughness");
         if (o.in[3] != kNoReg) prog.varying = true;  // Oren-Nayar's terms depend on the view
+      } else if (kind == "toon") {
+        o.code = OpCode::Toon;
+        o.in[1] = p("color"); o.in[2] = p("size"); o.in[3] = p("smooth"); o.in[4] = p("normal");
+        if (p("glossy") != kNoReg) {
+          o.sub = 1;  // about the view's mirror direction
+          prog.varying = true;
+        }
       } else if (kind == "sheen") {
         o.code = OpCode::Sheen;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal");
@@ -1312,6 +1319,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     return SheenBsdf::setup(f("roughness", 0.5f), f("cos_view", 1.0f), albedo);
   }
   if (kind == "velvet") return VelvetBsdf::setup(f("sigma", 1.0f));
+  if (kind == "toon") return ToonBsdf::setup(f("size", 0.5f), f("smooth", 0.0f), b("glossy", false));
   if (kind == "oren_nayar") {
     const Vec3 c = p.contains("color") ? to_color(p["color"], "color") : Vec3(1.0f);
     return OrenNayarBsdf::setup(f("roughness", 0.5f), c, f("cos_view", 1.0f));

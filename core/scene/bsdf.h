@@ -316,11 +316,12 @@ struct TransparentBsdf {
 
 #include "scene/bsdf_oren_nayar.h"  // OrenNayarBsdf (rough diffuse)
 #include "scene/bsdf_sheen.h"       // SheenBsdf, VelvetBsdf (Sheen BSDF, Principled sheen)
+#include "scene/bsdf_toon.h"        // ToonBsdf (Toon BSDF)
 
 namespace pl {
 
 using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf,
-                          OrenNayarBsdf, SheenBsdf, VelvetBsdf>;
+                          OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf>;
 
 inline Vec3 bsdf_eval(const Bsdf& b, Vec3 wo, Vec3 wi, float& pdf) {
   return std::visit([&](const auto& x) { return x.eval(wo, wi, pdf); }, b);

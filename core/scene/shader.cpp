@@ -627,6 +627,13 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         }
         break;
       }
+      case OpCode::Toon: {
+        // Cycles' CLOSURE_BSDF_DIFFUSE_TOON_ID / GLOSSY_TOON_ID: in color, size, smooth, normal.
+        const Frame f = Frame::from_normal(normal_or(r, op.in[4], ctx.ns));
+        out.add(ToonBsdf::setup(val(op.in[2], 0.5f), val(op.in[3], 0.0f), op.sub == 1),
+                clean_color(col(op.in[0]) * col(op.in[1])), f);
+        break;
+      }
       case OpCode::Sheen: {
         // Cycles' CLOSURE_BSDF_SHEEN_ID (sub 0) and ASHIKHMIN_VELVET_ID (sub 1): in color,
         // roughness, normal; the plain normal (no valid-reflection lift).

@@ -51,6 +51,7 @@ enum class OpCode : uint8_t {
   PrincipledExtra,  // the Principled BSDF's further inputs: the op just before its Principled op
   Holdout,  // no BSDF: its weight makes the film transparent where seen directly
   Sheen,    // the Sheen BSDF node (sub 0 microfibre, 1 Ashikhmin velvet)
+  Toon,     // the Toon BSDF node (sub 0 diffuse, 1 glossy)
 };
 
 enum class MathOp : uint8_t {
