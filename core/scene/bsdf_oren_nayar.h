@@ -43,7 +43,7 @@ struct OrenNayarBsdf {
     const float e_l = a * kPi + b * oren_nayar_G(nl);
     return (Vec3(single) + ms * (1.0f - e_l)) * nl;
   }
-  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+  [[gnu::noinline]] Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
     if (!same_side(wo, wi)) return Vec3(0.0f);
     const float side = wo.z < 0.0f ? -1.0f : 1.0f;  // two-sided: mirrored to the view's side
@@ -51,7 +51,7 @@ struct OrenNayarBsdf {
     pdf = std::fabs(wi.z) * kInvPi;
     return bent ? f * bump_shadowing(ns, wi) : f;
   }
-  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
+  [[gnu::noinline]] bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     Vec3 l = sample_cosine_hemisphere(u);
     if (l.z <= 0.0f) return false;
     const bool flip = wo.z < 0.0f;

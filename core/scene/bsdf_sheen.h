@@ -44,7 +44,7 @@ struct SheenBsdf {
     const float k = a / len2;
     return z * k * k * kInvPi;
   }
-  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+  [[gnu::noinline]] Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
     if (!same_side(wo, wi)) return Vec3(0.0f);
     if (wo.z < 0.0f) {  // two-sided: mirrored to the view's side
@@ -56,7 +56,7 @@ struct SheenBsdf {
     pdf = density(dot(wi, t), dot(wi, s), wi.z);
     return Vec3(pdf);
   }
-  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& out) const {
+  [[gnu::noinline]] bool sample(Vec3 wo, Vec2 u, float, BsdfSample& out) const {
     const bool flip = wo.z < 0.0f;
     if (flip) wo.z = -wo.z;
     // A cosine-distributed direction carried through the LTC's matrix (the inverse's inverse).
@@ -87,7 +87,7 @@ struct VelvetBsdf {
     const float s = std::max(clampf(std::isfinite(sigma) ? sigma : 1.0f, 0.0f, 1.0f), 0.01f);
     return VelvetBsdf{1.0f / (s * s)};
   }
-  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+  [[gnu::noinline]] Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
     if (!same_side(wo, wi)) return Vec3(0.0f);
     if (wo.z < 0.0f) {
@@ -107,7 +107,7 @@ struct VelvetBsdf {
     const float D = std::exp(-cot2 * inv_sigma2) * inv_sigma2 * kInvPi / (sin2 * sin2);
     return Vec3(0.25f * D * G / cos_v);
   }
-  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
+  [[gnu::noinline]] bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     const bool flip = wo.z < 0.0f;
     if (flip) wo.z = -wo.z;
     const float z = u.x, r = std::sqrt(std::max(0.0f, 1.0f - z * z)), phi = 2.0f * kPi * u.y;

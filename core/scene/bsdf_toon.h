@@ -30,7 +30,7 @@ struct ToonBsdf {
     const float one_minus_cos = std::max(2.0f * std::sin(0.5f * a) * std::sin(0.5f * a), 1e-12f);
     return 1.0f / (2.0f * kPi * one_minus_cos);
   }
-  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+  [[gnu::noinline]] Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
     if (!same_side(wo, wi)) return Vec3(0.0f);
     if (wo.z < 0.0f) {  // two-sided: mirrored to the view's side
@@ -43,7 +43,7 @@ struct ToonBsdf {
     pdf = cone_pdf();
     return Vec3(pdf * intensity(angle));
   }
-  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
+  [[gnu::noinline]] bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     const bool flip = wo.z < 0.0f;
     if (flip) wo.z = -wo.z;
     const Vec3 axis = glossy ? Vec3{-wo.x, -wo.y, wo.z} : Vec3{0.0f, 0.0f, 1.0f};
