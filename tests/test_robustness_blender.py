@@ -242,6 +242,14 @@ def test_non_finite_object_transform(scene, capfd):
                                   "Subsurface Radius": (math.nan, -1.0, math.inf), "Subsurface Anisotropy": 5.0}),
     ("ShaderNodeSubsurfaceScattering", {"Color": (math.nan, 2.0, -1.0, 1.0), "Scale": math.inf,
                                         "Radius": (0.0, 1e-30, 1e30), "IOR": math.nan, "Anisotropy": -3.0}),
+    # Sheen, rough diffuse and toon lobes (issue 24).
+    ("ShaderNodeBsdfPrincipled", {"Sheen Weight": math.nan, "Sheen Roughness": math.nan,
+                                  "Sheen Tint": (math.inf, -1.0, math.nan, 1.0), "Diffuse Roughness": math.nan}),
+    ("ShaderNodeBsdfPrincipled", {"Sheen Weight": 1e30, "Sheen Roughness": -1.0, "Diffuse Roughness": 1e30,
+                                  "Base Color": (1e30, 0.0, -1.0, 1.0)}),
+    ("ShaderNodeBsdfDiffuse", {"Roughness": math.nan, "Color": (math.nan, 2.0, -1.0, 1.0)}),
+    ("ShaderNodeBsdfSheen", {"Roughness": math.inf, "Color": (math.nan, 1e30, 0.5, 1.0)}),
+    ("ShaderNodeBsdfToon", {"Size": math.nan, "Smooth": -1.0}),
 ])
 def test_odd_node_values(scene, capfd, node, inputs):
     cube(material=node_material("Odd", node, **inputs))

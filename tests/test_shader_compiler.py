@@ -151,6 +151,44 @@ def test_each_bsdf_node_maps_to_its_closure():
         assert "normal" not in params  # unconnected: the shading normal
 
 
+def test_rough_diffuse_sheen_and_diffuse_roughness_pass_their_inputs():
+    # Diffuse BSDF's Roughness (Oren-Nayar in the core): passed when not a constant zero.
+    mat, node = ms.bsdf_material("Rough", "ShaderNodeBsdfDiffuse", Roughness=0.6)
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "diffuse" and not warnings
+    assert closure[2]["roughness"][0] == approx(0.6)
+    node.inputs["Roughness"].default_value = 0.0
+    (closure,), _, _ = closures_of(mat)
+    assert "roughness" not in closure[2]
+    # Sheen BSDF: microfibre by default, Ashikhmin velvet as a flag.
+    mat, node = ms.bsdf_material("Sheen", "ShaderNodeBsdfSheen", Color=(0.2, 0.4, 0.6, 1), Roughness=0.3)
+    assert node.distribution == 'MICROFIBER'
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "sheen" and not warnings and "velvet" not in closure[2]
+    assert closure[2]["color"][:3] == approx((0.2, 0.4, 0.6)) and closure[2]["roughness"][0] == approx(0.3)
+    node.distribution = 'ASHIKHMIN'
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[2]["velvet"][0] == 1.0 and not warnings
+    # Toon BSDF: its Size and Smooth, Glossy as a flag.
+    mat, node = ms.bsdf_material("Toon", "ShaderNodeBsdfToon", Size=0.3, Smooth=0.1)
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "toon" and not warnings and "glossy" not in closure[2]
+    assert closure[2]["size"][0] == approx(0.3) and closure[2]["smooth"][0] == approx(0.1)
+    node.component = 'GLOSSY'
+    (closure,), _, _ = closures_of(mat)
+    assert closure[2]["glossy"][0] == 1.0
+    # Principled Diffuse Roughness and Sheen: passed, no warning; sheen dims no emission here.
+    mat, node = ms.bsdf_material("P", "ShaderNodeBsdfPrincipled", Diffuse_Roughness=0.7, Sheen_Weight=1.0,
+                                 Sheen_Tint=(1.0, 0.5, 0.25, 1))
+    (closure,), warnings, _ = closures_of(mat)
+    assert not warnings
+    assert closure[2]["diffuse_roughness"][0] == approx(0.7)
+    assert closure[2]["sheen_tint"][:3] == approx((1.0, 0.5, 0.25))
+    node.inputs["Emission Strength"].default_value = 1.0
+    _, warnings, _ = closures_of(mat)
+    assert len(warnings) == 1 and "sheen" in warnings[0]
+
+
 def test_multiscatter_glossy_passes_its_distribution_without_warning():
     # Blender's default distribution: the closure carries the multiscatter flag (a register of
     # 1) that turns on the core's energy compensation; single-scatter GGX carries none.
@@ -240,16 +278,15 @@ def test_principled_inputs_alpha_and_emission():
     assert p["specular_tint"][:3] == approx((1, 0.9, 0.8))
 
 
-def test_principled_sheen_subsurface_warn_once_and_coat_is_passed():
+def test_principled_sheen_subsurface_and_coat_are_passed():
     mat, node = ms.bsdf_material("Layers", "ShaderNodeBsdfPrincipled", Coat_Weight=0.5,
                                  Sheen_Weight=0.2, Subsurface_Weight=1.0, Coat_IOR=1.7)
     (closure,), warnings, _ = closures_of(mat)
     assert closure[0] == "principled"
-    assert len(warnings) == 1
-    assert all(word in warnings[0] for word in ("Layers", "sheen"))
-    assert "coat" not in warnings[0]  # the core layers the coat (Cycles' model)
+    assert warnings == []  # the core layers the coat and the sheen and walks the subsurface
     p = closure[2]
-    assert "subsurface" not in warnings[0] and p["subsurface_weight"][0] == approx(1.0)  # the core walks it
+    assert p["subsurface_weight"][0] == approx(1.0)
+    assert p["sheen_weight"][0] == approx(0.2) and p["sheen_roughness"][0] == approx(0.5)
     assert p["coat_weight"][0] == approx(0.5) and p["coat_ior"][0] == approx(1.7)
     assert p["coat_roughness"][0] == approx(0.03) and "coat_normal" not in p
     node.inputs["Coat Weight"].default_value = 0.0  # no coat: none of its inputs
@@ -712,9 +749,9 @@ def test_cycle_warns_once_and_falls_back():
 def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     mat, nodes, links, out = ms.new_material("Odd")
     mix = nodes.new("ShaderNodeMixShader")
-    toon = nodes.new("ShaderNodeBsdfToon")
-    toon.inputs["Color"].default_value = (0.1, 0.6, 0.2, 1)
-    hair = nodes.new("ShaderNodeBsdfHair")  # has a Color input too
+    hair_bsdf = nodes.new("ShaderNodeBsdfHair")
+    hair_bsdf.inputs["Color"].default_value = (0.1, 0.6, 0.2, 1)
+    hair = nodes.new("ShaderNodeBsdfRayPortal")  # has a Color input too
     d = nodes.new("ShaderNodeBsdfDiffuse")
     d.inputs["Color"].default_value = (0.3, 0.3, 0.3, 1)
     hue = nodes.new("ShaderNodeAmbientOcclusion")  # supported: traced, no fallback
@@ -724,14 +761,14 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     links.new(ramp.outputs["Random"], mix.inputs["Fac"])
     mix.inputs["Fac"].default_value = 0.4
     add = nodes.new("ShaderNodeAddShader")
-    links.new(toon.outputs[0], add.inputs[0])
+    links.new(hair_bsdf.outputs[0], add.inputs[0])
     links.new(d.outputs[0], add.inputs[1])
     links.new(add.outputs[0], mix.inputs[1])
     links.new(hair.outputs[0], mix.inputs[2])
     links.new(mix.outputs[0], out.inputs["Surface"])
     closures, warnings, _ = closures_of(mat)
     assert len(warnings) == 1
-    for name in ("Odd", "Toon BSDF", "Hair BSDF", "Particle Info"):
+    for name in ("Odd", "Hair BSDF", "Ray Portal BSDF", "Particle Info"):
         assert name in warnings[0], (name, warnings[0])
     assert "Ambient Occlusion" not in warnings[0]
     traced = [c for c in closures if isinstance(c[2]["color"], Sym)]

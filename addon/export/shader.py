@@ -1683,12 +1683,20 @@ class ShaderCompiler:
             self.shader_input(node.inputs[0], ctx, weight)
             self.shader_input(node.inputs[1], ctx, weight)
         elif t == 'BSDF_DIFFUSE':
+            # A Roughness that is not a constant zero: Cycles' Oren-Nayar in the core.
             r = inp("Roughness", "float")
-            if not (r.is_const and r.const[0] == 0.0):
-                self.problem(f"'{node.name}': Oren-Nayar roughness is not supported "
-                             "(Lambertian)")
+            rough = {} if r.is_const and r.const[0] == 0.0 else {"roughness": r}
             self.closure("diffuse", weight, color=inp("Color", "color"),
-                         normal=self.normal(node, ctx))
+                         normal=self.normal(node, ctx), **rough)
+        elif t == 'BSDF_TOON':
+            glossy = {"glossy": ONE} if node.component == 'GLOSSY' else {}
+            self.closure("toon", weight, color=inp("Color", "color"), size=inp("Size", "float"),
+                         smooth=inp("Smooth", "float"), normal=self.normal(node, ctx), **glossy)
+        elif t == 'BSDF_SHEEN':
+            # Microfibre (Zeltner et al., Cycles' default) or Ashikhmin velvet.
+            velvet = {"velvet": ONE} if getattr(node, "distribution", 'MICROFIBER') == 'ASHIKHMIN' else {}
+            self.closure("sheen", weight, color=inp("Color", "color"),
+                         roughness=inp("Roughness", "float"), normal=self.normal(node, ctx), **velvet)
         elif t == 'BSDF_GLOSSY':
             rough = inp("Roughness", "float")
             self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
@@ -1790,6 +1798,8 @@ class ShaderCompiler:
         if not (strength.is_const and strength.const[0] == 0.0):
             if coat:
                 self.problem(f"'{node.name}': emission under a coat is not dimmed by the coat")
+            if "sheen_weight" in extra:
+                self.problem(f"'{node.name}': emission under sheen is not dimmed by the sheen")
             emission = self.scale(inp("Emission Color", "color"), strength)
             self.closure("emission", opaque, color=self.as_color(emission))
 
@@ -1814,8 +1824,6 @@ class ShaderCompiler:
     )
     # Groups that the core does not render yet: warned about and left out.
     _PRINCIPLED_UNSUPPORTED = {
-        "sheen",
-        "diffuse roughness",
     }
 
     def _principled_extra(self, node, ctx):

@@ -665,7 +665,20 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       auto p = [&](const char* key) { return params.contains(key) ? regno(params[key]) : kNoReg; };
       if (kind == "diffuse") {
         o.code = OpCode::Diffuse;
-        o.in[1] = p("color"); o.in[2] = p("normal");
+        o.in[1] = p("color"); o.in[2] = p("normal"); o.in[3] = p("roughness");
+        if (o.in[3] != kNoReg) prog.varying = true;  // Oren-Nayar's terms depend on the view
+      } else if (kind == "toon") {
+        o.code = OpCode::Toon;
+        o.in[1] = p("color"); o.in[2] = p("size"); o.in[3] = p("smooth"); o.in[4] = p("normal");
+        if (p("glossy") != kNoReg) {
+          o.sub = 1;  // about the view's mirror direction
+          prog.varying = true;
+        }
+      } else if (kind == "sheen") {
+        o.code = OpCode::Sheen;
+        o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal");
+        if (p("velvet") != kNoReg) o.sub = 1;  // Ashikhmin velvet (else microfibre)
+        prog.varying = true;  // the microfibre fit depends on the view
       } else if (kind == "glossy") {
         o.code = OpCode::Glossy;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal"); o.in[4] = p("multiscatter");
@@ -1468,6 +1481,16 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
                                                  f("offset", 0.0349066f), f("ior", 1.55f));
     h.h = f("h", 0.0f);
     return h;
+  // Sheen and rough diffuse set up for a view at cosine `cos_view` (their terms depend on it).
+  if (kind == "sheen") {
+    float albedo;
+    return SheenBsdf::setup(f("roughness", 0.5f), f("cos_view", 1.0f), albedo);
+  }
+  if (kind == "velvet") return VelvetBsdf::setup(f("sigma", 1.0f));
+  if (kind == "toon") return ToonBsdf::setup(f("size", 0.5f), f("smooth", 0.0f), b("glossy", false));
+  if (kind == "oren_nayar") {
+    const Vec3 c = p.contains("color") ? to_color(p["color"], "color") : Vec3(1.0f);
+    return OrenNayarBsdf::setup(f("roughness", 0.5f), c, f("cos_view", 1.0f));
   }
   throw std::invalid_argument("unknown bsdf '" + kind + "'");
 }
@@ -1809,6 +1832,15 @@ PYBIND11_MODULE(pathlight_core, m) {
       },
       py::arg("kind"), py::arg("params"), py::arg("wo"), py::arg("u"),
       "Samples a BSDF in its local frame (+Z normal): (wi, weight, pdf, flags); flags -1 = no sample.");
+  m.def(
+      "sheen_albedo",
+      [](float roughness, float cos_view) {
+        float albedo;
+        SheenBsdf::setup(roughness, cos_view, albedo);
+        return albedo;
+      },
+      py::arg("roughness"), py::arg("cos_view"),
+      "The microfibre sheen's fitted albedo (Zeltner et al. 2022, Cycles' table) for a view cosine.");
   m.def(
       "bsdf_eval",
       [](const std::string& kind, const py::dict& params, const py::object& wo_obj, const FloatArray& wi) {

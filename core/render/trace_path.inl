@@ -159,7 +159,9 @@ inline Vec3 closure_albedo(const Closure& c, Vec3 wo) {
 // Cycles' threshold between specular-like and rough closures (on alpha, Blender's roughness^2).
 inline bool closure_is_rough(const Closure& c) {
   if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<TranslucentBsdf>(c.bsdf) ||
-      std::holds_alternative<SubsurfaceBsdf>(c.bsdf))
+      std::holds_alternative<SubsurfaceBsdf>(c.bsdf) ||
+      std::holds_alternative<OrenNayarBsdf>(c.bsdf) || std::holds_alternative<SheenBsdf>(c.bsdf) ||
+      std::holds_alternative<VelvetBsdf>(c.bsdf) || std::holds_alternative<ToonBsdf>(c.bsdf))
     return true;
   if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) return m->alpha > 0.075f;
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) return d->alpha > 0.075f;

@@ -365,13 +365,25 @@ struct SubsurfaceBsdf {
   bool sample(Vec3, Vec2, float, BsdfSample&) const { return false; }
 };
 
-using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf,
-                          SubsurfaceBsdf>;
+}  // namespace pl
 
+#include "scene/bsdf_oren_nayar.h"  // OrenNayarBsdf (rough diffuse)
+#include "scene/bsdf_sheen.h"       // SheenBsdf, VelvetBsdf (Sheen BSDF, Principled sheen)
+#include "scene/bsdf_toon.h"        // ToonBsdf (Toon BSDF)
+
+namespace pl {
+
+using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf,
+                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf>;
+
+// The Principled BSDF's GGX lobes first, outside the visit: its dispatch over all the kinds
+// would otherwise cost the default material a little on every evaluation.
 inline Vec3 bsdf_eval(const Bsdf& b, Vec3 wo, Vec3 wi, float& pdf) {
+  if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->eval(wo, wi, pdf);
   return std::visit([&](const auto& x) { return x.eval(wo, wi, pdf); }, b);
 }
 inline bool bsdf_sample(const Bsdf& b, Vec3 wo, Vec2 u, float uc, BsdfSample& s) {
+  if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->sample(wo, u, uc, s);
   return std::visit([&](const auto& x) { return x.sample(wo, u, uc, s); }, b);
 }
 inline bool bsdf_is_delta(const Bsdf& b) {

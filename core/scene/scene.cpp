@@ -926,6 +926,10 @@ void Scene::detect_features() {
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
         else if (std::holds_alternative<HairChiangBsdf>(b)) f.glossy = f.transmission = true;
         else if (std::holds_alternative<SubsurfaceBsdf>(b)) f.subsurface = true;
+        // Rough diffuse and sheen: diffuse bounces, but not the diffuse-only kernel's lobe.
+        else if (std::holds_alternative<OrenNayarBsdf>(b) || std::holds_alternative<SheenBsdf>(b) ||
+                 std::holds_alternative<VelvetBsdf>(b) || std::holds_alternative<ToonBsdf>(b))
+          f.diffuse = f.glossy = true;
         else if (std::get<DielectricBsdf>(b).transmission) f.transmission = true;
         else f.glossy = true;
       }
@@ -937,7 +941,8 @@ void Scene::detect_features() {
       f.normal_maps = f.normal_maps || op.code == OpCode::NormalMap || op.code == OpCode::Bump;
       if (m.constant) continue;
       switch (op.code) {  // every kind the op can add
-        case OpCode::Diffuse: f.diffuse = true; break;
+        case OpCode::Diffuse: f.diffuse = true; f.glossy = f.glossy || op.in[3] != kNoReg; break;  // in[3]: Oren-Nayar
+        case OpCode::Sheen: case OpCode::Toon: f.diffuse = f.glossy = true; break;
         case OpCode::Translucent: f.diffuse = f.transmission = true; break;
         case OpCode::Glossy: case OpCode::Metallic: f.glossy = true; break;
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;

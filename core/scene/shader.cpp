@@ -715,7 +715,39 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::Diffuse: {
         Frame f;
         const DiffuseBsdf d = diffuse_lobe(op.in[2], f);
-        out.add(d, clean_color(col(op.in[0]) * col(op.in[1])), f);
+        const Vec3 w = clean_color(col(op.in[0]) * col(op.in[1]));
+        // Roughness (in[3]): Cycles' Oren-Nayar from 1e-5 on, with the colour as its albedo.
+        const float rough = val(op.in[3], 0.0f);
+        if (rough >= 1e-5f) {
+          OrenNayarBsdf o = OrenNayarBsdf::setup(rough, clean_color(col(op.in[1])), std::fabs(dot(f.n, ctx.wo)));
+          o.ns = d.ns;
+          o.bent = d.bent;
+          out.add(o, w, f);
+        } else {
+          out.add(d, w, f);
+        }
+        break;
+      }
+      case OpCode::Toon: {
+        // Cycles' CLOSURE_BSDF_DIFFUSE_TOON_ID / GLOSSY_TOON_ID: in color, size, smooth, normal.
+        const Frame f = Frame::from_normal(normal_or(r, op.in[4], ctx.ns));
+        out.add(ToonBsdf::setup(val(op.in[2], 0.5f), val(op.in[3], 0.0f), op.sub == 1),
+                clean_color(col(op.in[0]) * col(op.in[1])), f);
+        break;
+      }
+      case OpCode::Sheen: {
+        // Cycles' CLOSURE_BSDF_SHEEN_ID (sub 0) and ASHIKHMIN_VELVET_ID (sub 1): in color,
+        // roughness, normal; the plain normal (no valid-reflection lift).
+        const Frame f = Frame::from_normal(normal_or(r, op.in[3], ctx.ns));
+        const Vec3 w = clean_color(col(op.in[0]) * col(op.in[1]));
+        const float rough = val(op.in[2], 0.5f);
+        if (op.sub == 1) {
+          out.add(VelvetBsdf::setup(rough), w, f);
+        } else {
+          float albedo;
+          const SheenBsdf sh = SheenBsdf::setup(rough, std::fabs(dot(f.n, ctx.wo)), albedo);
+          out.add(sh, w * albedo, f, 1.0f);
+        }
         break;
       }
       case OpCode::Metallic: {
@@ -892,6 +924,29 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           if (wt.z > 0.0f) top = std::max(top, albedo.z);
           return wt * sat(1.0f - top);
         };
+        if (px(kPxSheenWeight) != kNoReg) {
+          // Sheen, the top layer (Cycles' "First layer"): Zeltner et al.'s microfibre lobe on the
+          // normal blended towards the coat's by the coat weight; what lies below keeps
+          // 1 - its albedo (the closure weight, which holds the fitted albedo).
+          const float sw_in = val(px(kPxSheenWeight), 0.0f);
+          const float sw = std::isfinite(sw_in) ? std::max(0.0f, sw_in) : 0.0f;
+          if (sw > 1e-5f) {
+            const Vec3 tint = vmax(clean_color(col(px(kPxSheenTint))), Vec3(0.0f));
+            const Vec3 n = normal_or(r, op.in[8], ctx.ns);
+            const Vec3 nc = normal_or(r, op.in[14] != kNoReg ? op.in[14] : op.in[8], ctx.ns);
+            const float cw_in = val(op.in[10], 0.0f);
+            const float cw = std::isfinite(cw_in) ? sat(cw_in) : 0.0f;
+            Vec3 ns = n + (nc - n) * cw;
+            ns = length_sq(ns) > 1e-12f ? normalize(ns) : n;
+            const Frame fs = Frame::from_normal(ns);
+            float albedo;
+            const SheenBsdf sh = SheenBsdf::setup(sat(val(px(kPxSheenRoughness), 0.5f)),
+                                                  std::fabs(dot(ns, ctx.wo)), albedo);
+            const Vec3 layer = tint * (sw * albedo);
+            out.add(sh, weight * layer, fs, 1.0f);
+            weight = layer_below(weight, layer);
+          }
+        }
         const float coat_in = val(op.in[10], 0.0f);
         const float coat = std::isfinite(coat_in) ? std::max(0.0f, coat_in) : 0.0f;
         if (coat > 1e-5f) {
@@ -1001,7 +1056,20 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
                            sss_ior, alpha, method, fr, ctx.ray.diffuse_ancestor);
           }
         }
-        out.add(diffuse, ssw > 0.0f ? weight * base * (1.0f - ssw) : weight * base, fd);
+        const Vec3 dw = ssw > 0.0f ? weight * base * (1.0f - ssw) : weight * base;
+        if (px(kPxDiffuseRoughness) != kNoReg) {
+          // Diffuse Roughness: Cycles' Oren-Nayar (from 1e-5 on) with the base colour as albedo.
+          const float dr_in = val(px(kPxDiffuseRoughness), 0.0f);
+          const float dr = std::isfinite(dr_in) ? sat(dr_in) : 0.0f;
+          if (dr >= 1e-5f) {
+            OrenNayarBsdf o = OrenNayarBsdf::setup(dr, base, std::fabs(dot(fd.n, ctx.wo)));
+            o.ns = diffuse.ns;
+            o.bent = diffuse.bent;
+            out.add(o, dw, fd);
+            break;
+          }
+        }
+        out.add(diffuse, dw, fd);
         break;
       }
       case OpCode::Subsurface: {

@@ -55,6 +55,8 @@ enum class OpCode : uint8_t {
   PrincipledHair,  // Chiang; sub: parametrization (0 absorption, 1 melanin, 2 direct colour)
   CurvesInfo,      // sub: Is Strand, Intercept, Length, Thickness, Tangent Normal, Random
   Subsurface,  // the Subsurface Scattering node: a BSSRDF closure
+  Sheen,    // the Sheen BSDF node (sub 0 microfibre, 1 Ashikhmin velvet)
+  Toon,     // the Toon BSDF node (sub 0 diffuse, 1 glossy)
 };
 
 enum class MathOp : uint8_t {
