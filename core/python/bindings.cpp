@@ -1481,6 +1481,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
                                                  f("offset", 0.0349066f), f("ior", 1.55f));
     h.h = f("h", 0.0f);
     return h;
+  }
   // Sheen and rough diffuse set up for a view at cosine `cos_view` (their terms depend on it).
   if (kind == "sheen") {
     float albedo;
