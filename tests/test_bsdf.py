@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from bsdf_stats import sampling_chi2
 from core_scenes import core
 
 pc = core()
@@ -44,31 +45,6 @@ def ids(case):
     return kind + "-" + "-".join(f"{k}{v}" for k, v in p.items())
 
 
-def chi2_pvalue(stat, dof):
-    # Wilson-Hilferty approximation of the chi-square upper tail (no SciPy needed).
-    z = ((stat / dof) ** (1 / 3) - (1 - 2 / (9 * dof))) / math.sqrt(2 / (9 * dof))
-    return 0.5 * math.erfc(z / math.sqrt(2))
-
-
-def sphere_bins(n_theta=16, n_phi=32):
-    """Bin edges over the whole sphere in (cos theta, phi): equal solid angle per bin."""
-    return np.linspace(-1, 1, n_theta + 1), np.linspace(-np.pi, np.pi, n_phi + 1)
-
-
-def integrate_pdf(kind, params, wo, ct_edges, ph_edges, res=24):
-    """Expected probability per bin, integrating the evaluated pdf on a res x res grid per bin."""
-    nt, nphi = len(ct_edges) - 1, len(ph_edges) - 1
-    t = (np.arange(res) + 0.5) / res
-    ct = (ct_edges[:-1, None] + np.diff(ct_edges)[:, None] * t[None, :]).ravel()
-    ph = (ph_edges[:-1, None] + np.diff(ph_edges)[:, None] * t[None, :]).ravel()
-    CT, PH = np.meshgrid(ct, ph, indexing="ij")
-    st = np.sqrt(np.maximum(0, 1 - CT**2))
-    wi = np.stack([st * np.cos(PH), st * np.sin(PH), CT], -1).reshape(-1, 3).astype(np.float32)
-    _, pdf = pc.bsdf_eval(kind, params, wo, wi)
-    cell = (2.0 / nt / res) * (2 * np.pi / nphi / res)
-    return (pdf.reshape(nt, res, nphi, res) * cell).sum(axis=(1, 3))
-
-
 @pytest.mark.parametrize("case", CASES, ids=ids)
 @pytest.mark.parametrize("wo", WO)
 def test_sampling_matches_pdf_chi2(case, wo):
@@ -78,21 +54,9 @@ def test_sampling_matches_pdf_chi2(case, wo):
     wi, weight, pdf, flags = pc.bsdf_sample(kind, params, wo, u)
     ok = flags >= 0
     wi = wi[ok]
-    ct_edges, ph_edges = sphere_bins()
-    obs, _, _ = np.histogram2d(wi[:, 2], np.arctan2(wi[:, 1], wi[:, 0]), bins=[ct_edges, ph_edges])
-    exp = integrate_pdf(kind, params, wo, ct_edges, ph_edges) * N
     # Samples that fail (e.g. below the surface) are the pdf's missing mass: compare only where
     # the pdf says samples go, pooling bins with few expected samples (Mitsuba's rule).
-    o, e = obs.ravel(), exp.ravel()
-    order = np.argsort(e)
-    o, e = o[order], e[order]
-    small = e < 5
-    o = np.append(o[~small], o[small].sum())
-    e = np.append(e[~small], e[small].sum())
-    keep = e > 0
-    stat = float((((o - e) ** 2)[keep] / e[keep]).sum())
-    dof = int(keep.sum()) - 1
-    p = chi2_pvalue(stat, dof)
+    stat, dof, p, exp = sampling_chi2(pc, kind, params, wo, wi, N)
     assert p > 1e-4, f"chi2={stat:.1f} dof={dof} p={p:.2e}"
     # Mass: the fraction of successful samples equals the pdf's integral over the sphere.
     assert abs(ok.mean() - exp.sum() / N) < 0.01 + 3 / math.sqrt(N)

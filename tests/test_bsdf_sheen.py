@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
+from bsdf_stats import sampling_chi2
 from core_scenes import core
-from test_bsdf import chi2_pvalue, integrate_pdf, sphere_bins
 from test_core_materials import closure, furnace
 
 pc = core()
@@ -52,19 +52,7 @@ def test_sampling_matches_pdf_chi2(case, wo):
     u = np.random.default_rng(7).random((N, 3), dtype=np.float32)
     wi, weight, pdf, flags = pc.bsdf_sample(kind, params, wo, u)
     ok = flags >= 0
-    ct_edges, ph_edges = sphere_bins()
-    obs, _, _ = np.histogram2d(wi[ok, 2], np.arctan2(wi[ok, 1], wi[ok, 0]), bins=[ct_edges, ph_edges])
-    exp = integrate_pdf(kind, params, wo, ct_edges, ph_edges) * N
-    o, e = obs.ravel(), exp.ravel()
-    order = np.argsort(e)
-    o, e = o[order], e[order]
-    small = e < 5
-    o = np.append(o[~small], o[small].sum())
-    e = np.append(e[~small], e[small].sum())
-    keep = e > 0
-    stat = float((((o - e) ** 2)[keep] / e[keep]).sum())
-    dof = int(keep.sum()) - 1
-    p = chi2_pvalue(stat, dof)
+    stat, dof, p, exp = sampling_chi2(pc, kind, params, wo, wi[ok], N)
     assert p > 1e-4, f"chi2={stat:.1f} dof={dof} p={p:.2e}"
     assert abs(ok.mean() - exp.sum() / N) < 0.01 + 3 / math.sqrt(N)
     # Samples stay on the view's side; weights are f cos / pdf.

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from bsdf_stats import sampling_chi2
 from core_scenes import core
-from test_bsdf import chi2_pvalue, integrate_pdf, sphere_bins
 
 pc = core()
 pytestmark = pytest.mark.sanitize
@@ -34,20 +34,7 @@ def test_hair_sampling_matches_pdf_chi2(params, wo):
     u = rng.random((N, 3), dtype=np.float32)
     wi, weight, pdf, flags = pc.bsdf_sample("hair_chiang", params, wo, u)
     ok = flags >= 0
-    wi = wi[ok]
-    ct_edges, ph_edges = sphere_bins()
-    obs, _, _ = np.histogram2d(wi[:, 2], np.arctan2(wi[:, 1], wi[:, 0]), bins=[ct_edges, ph_edges])
-    exp = integrate_pdf("hair_chiang", params, wo, ct_edges, ph_edges, res=32) * N
-    o, e = obs.ravel(), exp.ravel()
-    order = np.argsort(e)
-    o, e = o[order], e[order]
-    small = e < 5
-    o = np.append(o[~small], o[small].sum())
-    e = np.append(e[~small], e[small].sum())
-    keep = e > 0
-    stat = float((((o - e) ** 2)[keep] / e[keep]).sum())
-    dof = int(keep.sum()) - 1
-    p = chi2_pvalue(stat, dof)
+    stat, dof, p, exp = sampling_chi2(pc, "hair_chiang", params, wo, wi[ok], N, res=32)
     assert p > 1e-4, f"chi2={stat:.1f} dof={dof} p={p:.2e}"
     # Every sample succeeds, and the pdf integrates to 1 over the sphere.
     assert ok.mean() > 0.999
