@@ -11,6 +11,8 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
+from blender_util import BOX_FILTER, render_to_array
+
 
 
 # ---------------------------------------------------------------- node materials
@@ -205,6 +207,33 @@ def studio(size=64, floor=None, world=(0.05, 0.05, 0.05), light_strength=6.0,
     return scene
 
 
+def scatter_on_grid(host, source, size, vertices, scale=None, name="Scatter"):
+    """A geometry-nodes modifier on `host` that instances the object `source` on the points of
+    a vertices x vertices grid of the given size, optionally scaled at random in (min, max)
+    `scale`. Returns the node group (instances, as an artist's scatter setup makes them)."""
+    tree = bpy.data.node_groups.new(name, 'GeometryNodeTree')
+    tree.interface.new_socket("Geometry", in_out='INPUT', socket_type='NodeSocketGeometry')
+    tree.interface.new_socket("Geometry", in_out='OUTPUT', socket_type='NodeSocketGeometry')
+    n = tree.nodes
+    grid = n.new("GeometryNodeMeshGrid")
+    grid.inputs["Size X"].default_value = grid.inputs["Size Y"].default_value = size
+    grid.inputs["Vertices X"].default_value = grid.inputs["Vertices Y"].default_value = vertices
+    inst = n.new("GeometryNodeInstanceOnPoints")
+    info = n.new("GeometryNodeObjectInfo")
+    info.inputs["Object"].default_value = source
+    out = n.new("NodeGroupOutput")
+    tree.links.new(grid.outputs["Mesh"], inst.inputs["Points"])
+    tree.links.new(info.outputs["Geometry"], inst.inputs["Instance"])
+    if scale is not None:
+        rnd = n.new("FunctionNodeRandomValue")
+        rnd.data_type = 'FLOAT'
+        rnd.inputs["Min"].default_value, rnd.inputs["Max"].default_value = scale
+        tree.links.new(rnd.outputs[1], inst.inputs["Scale"])
+    tree.links.new(inst.outputs["Instances"], out.inputs[0])
+    host.modifiers.new(name, 'NODES').node_group = tree
+    return tree
+
+
 # ---------------------------------------------------------------- comparisons
 
 def region_means(img, grid=8):
@@ -220,3 +249,25 @@ def compare(ours, cycles, grid=8, floor=0.02):
     rel = np.abs(a - b) / np.maximum(b, floor)
     ratio = ours[..., :3].mean() / cycles[..., :3].mean()
     return ratio, rel.max(), rel
+
+
+def render_pair(build, samples, bounces=16, pathlight=None, **settings):
+    """(Pathlight, Cycles) renders of the scene that build() makes, built afresh for each, with
+    Cycles' box filter; `settings` go to both engines, `pathlight` (a dict) to Pathlight only."""
+    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces,
+                           **settings, **(pathlight or {}))
+    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER,
+                             **settings)
+    return ours, cycles
+
+
+def assert_agree(ours, cycles, what="", region=0.03, whole=0.01, floor=0.02):
+    """The issues' agreement bar: whole-image mean within `whole`, every 8x8 region within
+    `region` (regions darker than `floor` compared absolutely). Returns (ratio, worst)."""
+    ratio, worst, rel = compare(ours, cycles, floor=floor)
+    print(f"\n{what}: mean ratio {ratio:.4f}, worst region {worst:.4f} "
+          f"(means {ours[..., :3].mean():.4f} / {cycles[..., :3].mean():.4f})")  # pytest -s
+    assert np.isfinite(ours).all(), f"{what}: non-finite pixels"
+    assert abs(ratio - 1.0) < whole, f"{what}: image mean ratio {ratio:.4f}"
+    assert worst < region, f"{what}: worst region {worst:.3f}\n{np.round(rel, 3)}"
+    return ratio, worst

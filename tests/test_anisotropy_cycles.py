@@ -15,7 +15,7 @@ import pytest
 from blender_util import core_available, load_addon
 import light_scenes as ls
 import material_scenes as ms
-from test_principled_cycles import assert_agree, render_pair
+from material_scenes import assert_agree, render_pair
 
 load_addon()
 
@@ -97,7 +97,7 @@ def sphere_scene(material, light):
 @pytest.mark.parametrize("material", sorted(MATERIALS))
 def test_anisotropic_sphere(material, light):
     ours, cycles = render_pair(sphere_scene(material, light), 512 if light == "point" else 256, bounces=8)
-    assert_agree(f"anisotropic {material} ({light})", ours, cycles)
+    assert_agree(ours, cycles, f"anisotropic {material} ({light})")
 
 
 def furnace_scene(make):

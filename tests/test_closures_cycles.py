@@ -4,24 +4,20 @@ transparent film). Tolerances as test_principled_cycles: the whole-image mean wi
 8x8 region within 3 % (dark regions absolutely against 0.02); alpha regions within 0.02.
 Measured agreement numbers are printed (pytest -s)."""
 
+import functools
+
 import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
+from blender_util import core_available, load_addon, render_to_array
 import material_scenes as ms
-from test_principled_cycles import assert_agree
+from material_scenes import assert_agree
 
 load_addon()
+render_pair = functools.partial(ms.render_pair, bounces=8)
 
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
-
-
-def render_pair(build, samples, bounces=8, **settings):
-    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces, **settings)
-    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER,
-                             **settings)
-    return ours, cycles
 
 
 def alpha_regions(img, grid=8):
@@ -58,7 +54,7 @@ def test_holdout_alpha_and_colour(film_transparent):
           f"{cycles[..., 3].mean():.4f}, worst region {np.abs(a - b).max():.4f}")
     assert cycles[..., 3].min() < 0.05 and 0.3 < cycles[..., 3].max()  # the scene shows holdouts
     assert np.abs(a - b).max() < 0.02, np.round(a - b, 3)
-    assert_agree(f"holdout RGB (film_transparent={film_transparent})", ours, cycles)
+    assert_agree(ours, cycles, f"holdout RGB (film_transparent={film_transparent})")
 
 
 def test_translucent_sphere_and_card():
@@ -72,7 +68,7 @@ def test_translucent_sphere_and_card():
         ms.add_plane("Card", 1.0, card, location=(0.8, 0.0, 1.0), rotation_euler=(0.3, 0.0, 0.0))
         return scene
     ours, cycles = render_pair(build, 256)
-    assert_agree("translucent", ours, cycles)
+    assert_agree(ours, cycles, "translucent")
 
 
 def metallic_scene(distribution):
@@ -101,4 +97,4 @@ def metallic_scene(distribution):
 @pytest.mark.parametrize("distribution", ["MULTI_GGX", "GGX"])
 def test_metallic_bsdf(distribution):
     ours, cycles = render_pair(metallic_scene(distribution), 1024)
-    assert_agree(f"metallic {distribution}", ours, cycles)
+    assert_agree(ours, cycles, f"metallic {distribution}")

@@ -2,16 +2,19 @@
 sagging strands above a floor under an area light, rendered by both engines with Cycles'
 3D curves (shape THICK), compared by the whole-image mean and 8x8 region means."""
 
+import functools
 import math
 
 import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, Warnings, core_available, load_addon, render_to_array
+from blender_util import Warnings, core_available, load_addon, render_to_array
 import material_scenes as ms
 
 load_addon()
+render_pair = ms.render_pair
+assert_agree = functools.partial(ms.assert_agree, floor=0.05)
 
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
 
@@ -48,21 +51,6 @@ def hair_scene(material_fn, size=48, **hair):
         add_hair("Hair", material_fn(), **hair)
         return scene
     return build
-
-
-def render_pair(build, samples, bounces=16):
-    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces)
-    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER)
-    return ours, cycles
-
-
-def assert_agree(ours, cycles, region=0.03, whole=0.01, floor=0.05):
-    ratio, worst, rel = ms.compare(ours, cycles, floor=floor)
-    print(f"mean ratio {ratio:.4f}, worst 8x8 region {worst:.4f}")  # shown with pytest -s
-    assert np.isfinite(ours).all()
-    assert abs(ratio - 1.0) < whole, f"image mean ratio {ratio:.4f}"
-    assert worst < region, f"worst region {worst:.3f}\n{np.round(rel, 3)}"
-    return ratio, worst
 
 
 def test_hair_export_arrays():

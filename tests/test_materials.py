@@ -7,6 +7,7 @@ Tolerances come from the noise measured at these sample counts: region errors be
 converged engines stay under ~2.5 % here (seeds are fixed, so the renders are deterministic);
 limits are 5 % per region and 1.5 % for the whole image unless a test says otherwise."""
 
+import functools
 import math
 
 import bpy
@@ -14,32 +15,18 @@ from mathutils import Matrix
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
+from blender_util import core_available, load_addon, render_to_array
 import material_scenes as ms
 
 load_addon()
+# This file's bar: 64 bounces; glass and caustics leave more noise in 8x8 regions.
+render_pair = functools.partial(ms.render_pair, bounces=64)
+assert_agree = functools.partial(ms.assert_agree, region=0.05, whole=0.015)
 
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
 
 CAMERA = ((0.0, -3.6, 1.5), (0.0, 0.0, 0.55))  # a close look at one 0.55 m sphere
 WIDE = ((0.0, -5.0, 2.2), (0.0, 0.0, 0.5))  # three spheres side by side
-
-
-def render_pair(build, samples, bounces=64, **pathlight):
-    """(Pathlight, Cycles) renders of the scene that build() makes (built afresh for each)."""
-    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces,
-                           **pathlight)
-    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces,
-                             **BOX_FILTER)
-    return ours, cycles
-
-
-def assert_agree(ours, cycles, region=0.05, whole=0.015, floor=0.02):
-    ratio, worst, rel = ms.compare(ours, cycles, floor=floor)
-    assert np.isfinite(ours).all()
-    assert abs(ratio - 1.0) < whole, f"image mean ratio {ratio:.4f}"
-    assert worst < region, f"worst region {worst:.3f}\n{np.round(rel, 3)}"
-    return ratio, worst
 
 
 def sphere_scene(material_fn, radius=0.55, camera=CAMERA, **studio):
@@ -193,7 +180,7 @@ def veil():
 
 def test_mix_with_transparent_without_nee():
     # Without NEE (noisier: looser regions) the engines agree too.
-    ours, cycles = render_pair(sphere_scene(veil), 256, use_nee=False)
+    ours, cycles = render_pair(sphere_scene(veil), 256, pathlight=dict(use_nee=False))
     assert_agree(ours, cycles, region=0.08, whole=0.015)
 
 

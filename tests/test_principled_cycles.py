@@ -8,34 +8,18 @@ test_materials' rough-glass tolerances (1.5 %, 5 %), which is how well single-sc
 agrees between the engines too. Measured agreement numbers are printed (pytest -s)."""
 
 import functools
-import math
 
 import bpy
-import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
+from blender_util import core_available, load_addon, render_to_array
 import light_scenes as ls
 import material_scenes as ms
+from material_scenes import assert_agree, render_pair
 
 load_addon()
 
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
-
-
-def render_pair(build, samples, bounces=16):
-    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces)
-    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER)
-    return ours, cycles
-
-
-def assert_agree(name, ours, cycles, region=0.03, whole=0.01):
-    ratio, worst, rel = ms.compare(ours, cycles)
-    print(f"\n{name}: mean ratio {ratio:.4f}, worst region {worst:.4f} "
-          f"(means {ours[..., :3].mean():.4f} / {cycles[..., :3].mean():.4f})")
-    assert np.isfinite(ours).all()
-    assert abs(ratio - 1.0) < whole, f"{name}: image mean ratio {ratio:.4f}"
-    assert worst < region, f"{name}: worst region {worst:.3f}\n{np.round(rel, 3)}"
 
 
 def test_default_cube_under_the_point_light():
@@ -50,7 +34,7 @@ def test_default_cube_under_the_point_light():
         assert mat.node_tree.nodes["Principled BSDF"].distribution == 'MULTI_GGX'
         return scene
     ours, cycles = render_pair(build, 512)
-    assert_agree("default cube", ours, cycles)
+    assert_agree(ours, cycles, "default cube")
 
 
 def ground_scene(camera, distribution='MULTI_GGX'):
@@ -71,7 +55,7 @@ def test_rough_ground_under_an_environment(view):
     camera = {"face_on": ((0.0, 0.0, 6.0), (0.0, 0.01, 0.0)),
               "grazing": ((0.0, -6.0, 0.8), (0.0, 4.0, 0.0))}[view]
     ours, cycles = render_pair(ground_scene(camera), 256, bounces=4)
-    assert_agree(f"rough ground {view}", ours, cycles)
+    assert_agree(ours, cycles, f"rough ground {view}")
 
 
 def principled_material(name, distribution, **inputs):
@@ -104,7 +88,7 @@ def spheres(distribution):
 @pytest.mark.parametrize("distribution", ["GGX", "MULTI_GGX"])
 def test_metal_tint_and_specular_level_spheres(distribution):
     ours, cycles = render_pair(spheres(distribution), 256)
-    assert_agree(f"spheres {distribution}", ours, cycles)
+    assert_agree(ours, cycles, f"spheres {distribution}")
 
 
 def coated(distribution):
@@ -128,7 +112,7 @@ def coated(distribution):
 @pytest.mark.parametrize("distribution", ["GGX", "MULTI_GGX"])
 def test_coat_over_diffuse_and_metal(distribution):
     ours, cycles = render_pair(coated(distribution), 256)
-    assert_agree(f"coat {distribution}", ours, cycles)
+    assert_agree(ours, cycles, f"coat {distribution}")
 
 
 def test_multiscatter_rough_glass_and_glass_specular_tint():
@@ -151,7 +135,7 @@ def test_multiscatter_rough_glass_and_glass_specular_tint():
             ms.add_sphere(f"Ball {i}", 0.5, mat, location=(-1.15 + 1.15 * i, 0.0, 0.5))
         return scene
     ours, cycles = render_pair(build, 512, bounces=64)
-    assert_agree("glass balls", ours, cycles, region=0.05, whole=0.015)
+    assert_agree(ours, cycles, "glass balls", region=0.05, whole=0.015)
 
 
 def test_multiscatter_coloured_glossy_spheres():
@@ -165,4 +149,4 @@ def test_multiscatter_coloured_glossy_spheres():
             ms.add_sphere(name, 0.55, mat, location=(x, 0.0, 0.55))
         return scene
     ours, cycles = render_pair(build, 512)
-    assert_agree("multiscatter glossy", ours, cycles)
+    assert_agree(ours, cycles, "multiscatter glossy")

@@ -107,22 +107,7 @@ def instances_scene():
     tile = ms.add_plane("Tile", 0.9, mat)
     tile.hide_render = True
     host = ms.add_plane("Host", 0.01, None)
-    tree = bpy.data.node_groups.new("Scatter", 'GeometryNodeTree')
-    tree.interface.new_socket("Geometry", in_out='INPUT', socket_type='NodeSocketGeometry')
-    tree.interface.new_socket("Geometry", in_out='OUTPUT', socket_type='NodeSocketGeometry')
-    n = tree.nodes
-    grid = n.new("GeometryNodeMeshGrid")
-    grid.inputs["Size X"].default_value = grid.inputs["Size Y"].default_value = 3.0
-    grid.inputs["Vertices X"].default_value = grid.inputs["Vertices Y"].default_value = 4
-    inst = n.new("GeometryNodeInstanceOnPoints")
-    obj_info = n.new("GeometryNodeObjectInfo")
-    obj_info.inputs["Object"].default_value = tile
-    out = n.new("NodeGroupOutput")
-    tree.links.new(grid.outputs["Mesh"], inst.inputs["Points"])
-    tree.links.new(obj_info.outputs["Geometry"], inst.inputs["Instance"])
-    tree.links.new(inst.outputs["Instances"], out.inputs[0])
-    mod = host.modifiers.new("Scatter", 'NODES')
-    mod.node_group = tree
+    ms.scatter_on_grid(host, tile, 3.0, 4)
     return scene
 
 

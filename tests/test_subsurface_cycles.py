@@ -9,31 +9,16 @@ printed (pytest -s)."""
 import math
 
 import bpy
-import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
+from blender_util import core_available, load_addon, render_to_array
 import light_scenes as ls
 import material_scenes as ms
+from material_scenes import assert_agree, render_pair
 
 load_addon()
 
 pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
-
-
-def render_pair(build, samples, bounces=16):
-    ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces)
-    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER)
-    return ours, cycles
-
-
-def assert_agree(name, ours, cycles, region=0.03, whole=0.01):
-    ratio, worst, rel = ms.compare(ours, cycles)
-    print(f"\n{name}: mean ratio {ratio:.4f}, worst region {worst:.4f} "
-          f"(means {ours[..., :3].mean():.4f} / {cycles[..., :3].mean():.4f})")
-    assert np.isfinite(ours).all()
-    assert abs(ratio - 1.0) < whole, f"{name}: image mean ratio {ratio:.4f}"
-    assert worst < region, f"{name}: worst region {worst:.3f}\n{np.round(rel, 3)}"
 
 
 def skin(name="Skin", method='RANDOM_WALK', **inputs):
@@ -64,7 +49,7 @@ def sphere_scene(light, material):
 @pytest.mark.parametrize("light", ["environment", "point"])
 def test_principled_subsurface_sphere(light):
     ours, cycles = render_pair(sphere_scene(light, skin), 256)
-    assert_agree(f"subsurface sphere {light}", ours, cycles)
+    assert_agree(ours, cycles, f"subsurface sphere {light}")
 
 
 def test_thin_slab_lit_from_behind():
@@ -79,7 +64,7 @@ def test_thin_slab_lit_from_behind():
         ms.add_camera((0.1, -2.0, 0.1), (0.0, 0.0, 0.0), lens=80.0)  # the slab fills the view
         return scene
     ours, cycles = render_pair(build, 1024)
-    assert_agree("backlit slab", ours, cycles)
+    assert_agree(ours, cycles, "backlit slab")
 
 
 def test_skin_method_and_subsurface_node_spheres():
@@ -98,14 +83,14 @@ def test_skin_method_and_subsurface_node_spheres():
         ms.add_camera((0.0, -3.5, 0.0), (0.0, 0.0, 0.0), lens=60.0)
         return scene
     ours, cycles = render_pair(build, 256)
-    assert_agree("skin and node spheres", ours, cycles)
+    assert_agree(ours, cycles, "skin and node spheres")
 
 
 @pytest.mark.parametrize("light", ["environment", "point"])
 def test_christensen_burley_sphere(light):
     # Cycles' disk-sampling BSSRDF: probe rays across a disk about one of three axes.
     ours, cycles = render_pair(sphere_scene(light, lambda: skin("Burley", method='BURLEY')), 256)
-    assert_agree(f"burley sphere {light}", ours, cycles)
+    assert_agree(ours, cycles, f"burley sphere {light}")
 
 
 def test_half_subsurface_under_a_coat_with_anisotropy():
@@ -113,7 +98,7 @@ def test_half_subsurface_under_a_coat_with_anisotropy():
     mat = lambda: skin("Half", Subsurface_Weight=0.5, Coat_Weight=0.5, Roughness=0.3,  # noqa: E731
                        Subsurface_Anisotropy=0.6)
     ours, cycles = render_pair(sphere_scene("environment", mat), 256)
-    assert_agree("half subsurface, coat, anisotropy", ours, cycles)
+    assert_agree(ours, cycles, "half subsurface, coat, anisotropy")
 
 
 def test_subsurface_with_its_own_normal():
@@ -129,4 +114,4 @@ def test_subsurface_with_its_own_normal():
         links.new(bump.outputs["Normal"], nodes["Principled BSDF"].inputs["Normal"])
         return mat
     ours, cycles = render_pair(sphere_scene("point", material), 512)
-    assert_agree("subsurface with its own normal", ours, cycles)
+    assert_agree(ours, cycles, "subsurface with its own normal")

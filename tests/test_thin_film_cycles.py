@@ -16,7 +16,7 @@ import pytest
 from blender_util import core_available, load_addon
 import material_scenes as ms
 from test_anisotropy_cycles import sphere_scene, MATERIALS
-from test_principled_cycles import assert_agree, render_pair
+from material_scenes import assert_agree, render_pair
 
 load_addon()
 
@@ -53,7 +53,7 @@ def assert_channels_agree(name, ours, cycles, whole=0.01):
 def test_thin_film_sphere(film, light):
     MATERIALS["film"] = FILMS[film]
     ours, cycles = render_pair(sphere_scene("film", light), 512 if light == "point" else 256, bounces=8)
-    assert_agree(f"thin film {film} ({light})", ours, cycles)
+    assert_agree(ours, cycles, f"thin film {film} ({light})")
     assert_channels_agree(f"thin film {film} ({light})", ours, cycles)
 
 
@@ -62,5 +62,5 @@ def test_thin_film_on_rough_glass():
                                    Transmission_Weight=1.0, Thin_Film_Thickness=400.0,
                                    Thin_Film_IOR=1.33)
     ours, cycles = render_pair(sphere_scene("film", "environment"), 256, bounces=16)
-    assert_agree("thin film glass", ours, cycles, region=0.05, whole=0.015)
+    assert_agree(ours, cycles, "thin film glass", region=0.05, whole=0.015)
     assert_channels_agree("thin film glass", ours, cycles, whole=0.015)

@@ -198,25 +198,7 @@ def instanced_forest(width=WIDTH, height=HEIGHT):
     tree = ms.add_mesh_object("Crown", ico, (bark,), smooth=True)
     tree.hide_render = True
     host = ms.add_plane("Host", 0.01, None)
-    gn = bpy.data.node_groups.new("Forest", 'GeometryNodeTree')
-    gn.interface.new_socket("Geometry", in_out='INPUT', socket_type='NodeSocketGeometry')
-    gn.interface.new_socket("Geometry", in_out='OUTPUT', socket_type='NodeSocketGeometry')
-    n = gn.nodes
-    grid = n.new("GeometryNodeMeshGrid")
-    grid.inputs["Size X"].default_value = grid.inputs["Size Y"].default_value = 6.0
-    grid.inputs["Vertices X"].default_value = grid.inputs["Vertices Y"].default_value = 8
-    inst = n.new("GeometryNodeInstanceOnPoints")
-    info = n.new("GeometryNodeObjectInfo")
-    info.inputs["Object"].default_value = tree
-    rnd = n.new("FunctionNodeRandomValue")
-    rnd.data_type = 'FLOAT'
-    rnd.inputs["Min"].default_value, rnd.inputs["Max"].default_value = 0.6, 1.3
-    out = n.new("NodeGroupOutput")
-    gn.links.new(grid.outputs["Mesh"], inst.inputs["Points"])
-    gn.links.new(info.outputs["Geometry"], inst.inputs["Instance"])
-    gn.links.new(rnd.outputs[1], inst.inputs["Scale"])
-    gn.links.new(inst.outputs["Instances"], out.inputs[0])
-    host.modifiers.new("Forest", 'NODES').node_group = gn
+    ms.scatter_on_grid(host, tree, 6.0, 8, scale=(0.6, 1.3), name="Forest")
     ms.add_plane("Ground", 12.0, principled("Ground", (0.35, 0.3, 0.22), 0.8), location=(0.0, 0.0, -0.3))
     ms.set_world((0.35, 0.45, 0.6))
     sun = ms.add_sun(energy=3.0, tilt_deg=35.0)
