@@ -876,7 +876,7 @@ def cmd_test(args, extra):
     setup_and_build(args)
     if not (ROOT / "tests").is_dir():
         raise UserError("tests/ does not exist")
-    # Test paths among the arguments (`build.py test -- tests/test_bsdf.py`) replace the whole
+    # Test paths among the arguments (`build.py test -- tests/core/test_bsdf.py`) replace the whole
     # suite; options alone (`-k furnace`) select from all of tests/.
     paths = [a for a in extra if not a.startswith("-") and (ROOT / a.split("::")[0]).exists()]
     pytest_args = [] if paths else ["tests"]

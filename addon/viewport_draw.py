@@ -21,7 +21,7 @@ Drawing, as Blender expects it from a render engine (and as Cycles' display driv
   its total length, not its element type (gpu_py_buffer.cc, pygpu_buffer__tp_new), so the
   array must be float32; a Python list would be converted item by item instead. The texture
   copies the data when it is created, so the array can be overwritten by the next draw.
-texture_pixels() and draw_film() are tested headless (tests/test_viewport_draw.py, with a
+texture_pixels() and draw_film() are tested headless (tests/blender/test_viewport_draw.py, with a
 recording stand-in for the gpu module: bpy has no GPU context in background mode).
 """
 

@@ -5,7 +5,7 @@ Pure logic, no bpy and no core: `describe_updates` turns `depsgraph.updates` int
 decides from those records, the previous `ViewState` and the current settings what must be
 redone. The viewport session (viewport.py) carries the plan out.
 
-What Blender reports (checked with depsgraph_update_post in bpy 4.5; tests/test_viewport.py):
+What Blender reports (checked with depsgraph_update_post in bpy 4.5; tests/blender/test_viewport.py):
 - moving an object: its Object with is_updated_transform only (planned as a transform update:
   new instance matrices, the core rebuilds only the top level of its two-level BVH);
 - editing a mesh: the Object and its Mesh with is_updated_geometry;

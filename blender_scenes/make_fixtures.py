@@ -8,7 +8,7 @@ Cycles and Pathlight read the same scene. Stored with the CYCLES engine, since P
 exists only while the add-on is registered; renders select the engine themselves.
 
 hdr_scene.blend: a few diffuse objects on a floor lit only by an equirectangular HDR world
-(the synthetic sky of tests/light_scenes.py with a hard, captured-style sun disc, packed into
+(the synthetic sky of tests/blender/light_scenes.py with a hard, captured-style sun disc, packed into
 the .blend as a half-float EXR, 512 x 256), 256 x 256: the HDR-lit benchmark scene.
 """
 

@@ -8,6 +8,10 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
+# Each folder's shared helpers (core_scenes, bsdf_stats; blender_util, material_scenes,
+# light_scenes) import by name from either folder and from tests/bench.
+HELPERS = [str(REPO / "tests" / d) for d in ("core", "blender")]
+sys.path[1:1] = [h for h in HELPERS if h not in sys.path]
 
 
 def pytest_configure(config):

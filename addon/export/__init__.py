@@ -68,7 +68,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                      curves, curve_materials)
 
 
-# Measured by tests/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise
+# Measured by tests/core/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise
 # when translated 3e4 units, and is off by 3 % at 1e5 (features must exceed ~1e-6 x their
 # distance from the origin).
 FAR_FROM_ORIGIN = 3e4

@@ -25,7 +25,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 from blender_util import load_addon, open_fixture, render_to_array  # noqa: E402
 from benchutil import parse_args, section_dir, write_section  # noqa: E402
 

@@ -25,7 +25,7 @@ REPEATS = 3
 
 CHILD = textwrap.dedent("""
     import json, sys, time
-    sys.path[:0] = [{repo!r}, {tests!r}, {bench!r}]
+    sys.path[:0] = [{repo!r}, {tests!r} + "/core", {tests!r} + "/blender", {bench!r}]
     import bpy
     import numpy as np
     from benchutil import proc_status as status

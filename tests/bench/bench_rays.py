@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 from benchutil import parse_args, section_dir, write_section  # noqa: E402
 from core_scenes import core, look_at_matrix  # noqa: E402
 

@@ -13,7 +13,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
+sys.path[:0] = [str(HERE.parent / d) for d in ("core", "blender")]
 from bench_rays import best_time, camera_rays, embree_scene, make_scene, secondary_rays  # noqa: E402
 from benchutil import parse_args, section_dir, write_section  # noqa: E402
 from core_scenes import core, sliver_room  # noqa: E402

@@ -24,7 +24,7 @@ LIMIT_GIB = 24
 
 CHILD = textwrap.dedent("""
     import json, sys, time
-    sys.path[:0] = [{tests!r}, {bench!r}]
+    sys.path[:0] = [{tests!r} + "/core", {tests!r} + "/blender", {bench!r}]
     import numpy as np
     from bench_rays import make_scene, pc
     from benchutil import proc_status as status

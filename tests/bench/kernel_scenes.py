@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 import os  # noqa: E402
 from core_scenes import add_object, uv_sphere  # noqa: E402
 from core_scenes import core as _core  # noqa: E402

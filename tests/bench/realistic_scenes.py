@@ -11,7 +11,7 @@ Cornell boxes. Each builder starts from an empty factory scene and returns it.
   icosphere, on a ground under a sun and a sky colour.
 
 Nothing is loaded from outside the repository: the meshes are Blender primitives, the textures
-procedural or made with numpy, the HDR synthetic (tests/light_scenes.py)."""
+procedural or made with numpy, the HDR synthetic (tests/blender/light_scenes.py)."""
 import math
 import sys
 from pathlib import Path
@@ -19,7 +19,7 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 import light_scenes as ls  # noqa: E402
 import material_scenes as ms  # noqa: E402
 

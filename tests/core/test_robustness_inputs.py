@@ -16,7 +16,7 @@ from core_scenes import REPO, add_object, camera, core, cornell, quad, render
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
-TESTS = REPO / "tests"
+TESTS = REPO / "tests" / "core"
 CLEAN_ERRORS = (ValueError, RuntimeError, TypeError)  # TypeError: pybind11's wrong-argument-type error
 
 

@@ -9,7 +9,7 @@ import bpy
 import numpy as np
 import OpenEXR
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SCENES = REPO / "blender_scenes"
 
 

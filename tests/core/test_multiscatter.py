@@ -11,7 +11,7 @@ import pytest
 from core_scenes import core
 from test_core_materials import closure, furnace
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
 import gen_microfacet_tables as gen  # noqa: E402
 
 pc = core()

@@ -167,7 +167,7 @@ def test_sky_texture_falls_back_with_a_warning(scene):
     world = world_color((0.1, 0.2, 0.3), strength=2.0)
     nt = world.node_tree
     sky = nt.nodes.new("ShaderNodeTexSky")
-    sky.sky_type = 'HOSEK_WILKIE'  # Nishita and Preetham are supported (tests/test_sky.py)
+    sky.sky_type = 'HOSEK_WILKIE'  # Nishita and Preetham are supported (tests/blender/test_sky.py)
     nt.links.new(sky.outputs["Color"], nt.nodes["Background"].inputs["Color"])
     warnings = Warnings()
     data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)

@@ -1,7 +1,7 @@
 """Procedural texture and scene-input ops through the core module, with ordinary and hostile
 operands (NaN, infinities, huge scales, zero and negative parameters): every pixel stays finite
 and the ops' parsers refuse bad settings. Their agreement with Cycles is tested through Blender
-(tests/test_textures_*.py, tests/test_scene_inputs.py); this file runs on the sanitizer build."""
+(tests/test_textures_*.py, tests/blender/test_scene_inputs.py); this file runs on the sanitizer build."""
 import itertools
 import math
 

@@ -16,7 +16,7 @@ import pytest
 import build
 from core_scenes import core, cornell
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _has_offset():
@@ -223,8 +223,8 @@ needs_node = pytest.mark.skipif(NODE is None, reason="Node.js (node) not install
 
 
 def _compile_job(settings):
-    """Runs the job type under tests/flamenco_mock.js (Flamenco's job-compiler globals)."""
-    proc = subprocess.run([NODE, str(REPO / "tests" / "flamenco_mock.js"), str(SPLIT_JOB),
+    """Runs the job type under tests/blender/flamenco_mock.js (Flamenco's job-compiler globals)."""
+    proc = subprocess.run([NODE, str(REPO / "tests" / "blender" / "flamenco_mock.js"), str(SPLIT_JOB),
                            json.dumps({"settings": settings})],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr[-2000:]

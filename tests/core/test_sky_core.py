@@ -1,4 +1,4 @@
-"""The core's Sky Texture (tests/test_sky.py compares it with Cycles): the sampling of the sky
+"""The core's Sky Texture (tests/blender/test_sky.py compares it with Cycles): the sampling of the sky
 map and the sun disc (pdf consistent with the sampled directions), bad settings."""
 import math
 

@@ -13,7 +13,7 @@ PATHLIGHT_FUZZ_SEED=N fixes it).
 
 Crashes: before each example the program is written as JSON to PATHLIGHT_FUZZ_LAST (default
 <tmp>/pathlight_fuzz_last.json), fsynced, so a segfault leaves its input behind. Copy that file
-to tests/fuzz/ (add "xfail": "<reason>" while the bug is open): test_fuzz_regressions replays
+to tests/core/fuzz/ (add "xfail": "<reason>" while the bug is open): test_fuzz_regressions replays
 every file there in a fresh interpreter, so a crash fails one test rather than the run.
 """
 import json
@@ -84,7 +84,7 @@ def save(program, path):
 
 
 def save_regression(program, path, xfail=None, note=None):
-    """Write a regression input for tests/fuzz/ (xfail: the reason while the bug is open)."""
+    """Write a regression input for tests/core/fuzz/ (xfail: the reason while the bug is open)."""
     meta = {"program": encode(program)}
     if xfail:
         meta["xfail"] = xfail
@@ -109,7 +109,7 @@ def _event(msg):
     if hypothesis.currently_in_test_context():
         event(msg)
     else:
-        print(msg)  # replayed from tests/fuzz/: shows in the test's output
+        print(msg)  # replayed from tests/core/fuzz/: shows in the test's output
 
 CAMERA_FIELDS = ("lens", "sensor_width", "sensor_height", "sensor_fit", "shift_x", "shift_y", "clip_start",
                  "clip_end", "pixel_aspect_x", "pixel_aspect_y")
@@ -412,7 +412,7 @@ def test_fuzz_scene_api(program):
     execute(program)
 
 
-# ---------------------------------------------------------------- regressions: tests/fuzz/*.json
+# ---------------------------------------------------------------- regressions: tests/core/fuzz/*.json
 
 def regression_files():
     return sorted(FUZZ_DIR.glob("*.json"))
