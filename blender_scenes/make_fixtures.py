@@ -141,7 +141,7 @@ def save_fixture(scene, path):
 
 
 def make_hdr_scene(path):
-    sys.path.insert(0, str(HERE.parent / "tests"))
+    sys.path.insert(0, str(HERE.parent / "tests" / "blender"))
     import numpy as np
     import OpenEXR
     from light_scenes import synthetic_hdr
