@@ -106,7 +106,7 @@ def run_blender_isolated(code, timeout=120, mem_gb=None):
     prelude = textwrap.dedent(f"""
         import sys, math, time
         {limit}
-        sys.path[:0] = [{str(REPO)!r}, {str(REPO / 'tests')!r}]
+        sys.path[:0] = [{str(REPO)!r}, {str(REPO / 'tests' / 'blender')!r}]
         import bpy
         from blender_util import empty_scene_with_camera, load_addon
         load_addon()
