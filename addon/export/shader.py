@@ -1783,6 +1783,14 @@ class ShaderCompiler:
             coat = dict(coat_weight=coat_weight, coat_roughness=inp("Coat Roughness", "float"),
                         coat_ior=inp("Coat IOR", "float"), coat_tint=inp("Coat Tint", "color"),
                         coat_normal=self.normal(node, ctx, "Coat Normal"))
+        # Emission: under a sheen or coat the core dims it by them (Cycles adds it after both
+        # layers); else a plain Emission closure of the same weight.
+        strength = inp("Emission Strength", "float")
+        emission = None
+        if not (strength.is_const and strength.const[0] == 0.0):
+            emission = self.as_color(self.scale(inp("Emission Color", "color"), strength))
+            if coat or "sheen_weight" in extra:
+                extra["emission"], emission = emission, None
         self.closure("principled", opaque,
                      base_color=inp("Base Color", "color"),
                      metallic=inp("Metallic", "float"),
@@ -1794,14 +1802,8 @@ class ShaderCompiler:
                      normal=self.normal(node, ctx),
                      multiscatter=self._multiscatter(node, rough),
                      **coat, **extra)
-        strength = inp("Emission Strength", "float")
-        if not (strength.is_const and strength.const[0] == 0.0):
-            if coat:
-                self.problem(f"'{node.name}': emission under a coat is not dimmed by the coat")
-            if "sheen_weight" in extra:
-                self.problem(f"'{node.name}': emission under sheen is not dimmed by the sheen")
-            emission = self.scale(inp("Emission Color", "color"), strength)
-            self.closure("emission", opaque, color=self.as_color(emission))
+        if emission is not None:
+            self.closure("emission", opaque, color=emission)
 
     # The Principled BSDF's feature groups beyond the base, coat and emission: (the group,
     # its switch input (left out where it is a constant zero), and its operands (the closure's

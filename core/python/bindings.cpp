@@ -731,7 +731,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
             {"diffuse_roughness", kPxDiffuseRoughness}, {"subsurface_weight", kPxSubsurfaceWeight},
             {"subsurface_radius", kPxSubsurfaceRadius}, {"subsurface_scale", kPxSubsurfaceScale},
             {"subsurface_ior", kPxSubsurfaceIor}, {"subsurface_anisotropy", kPxSubsurfaceAnisotropy},
-            {"subsurface_method", kPxSubsurfaceMethod}};
+            {"subsurface_method", kPxSubsurfaceMethod}, {"emission", kPxEmission}};
         ShaderOp x;
         x.code = OpCode::PrincipledExtra;
         bool any = false;

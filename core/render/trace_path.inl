@@ -335,6 +335,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     Vec3 wo = -ray.dir;  // (a subsurface exit moves the vertex: see below)
     ray_state.length = length_before + hit.t * length(ray.dir);
     ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
+    ray_state.emission_only = emission_only;
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
 
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.

@@ -76,7 +76,8 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
   eval_shader(m.program, images, ctx, cl);
   m.emission_estimate = cl.emission;
   bool emits = false;
-  for (const ShaderOp& op : m.program.ops) emits = emits || op.code == OpCode::Emission;
+  for (const ShaderOp& op : m.program.ops)
+    emits = emits || op.code == OpCode::Emission || (op.code == OpCode::PrincipledExtra && op.in[kPxEmission] != kNoReg);
   if (emits && m.program.varying) {
     // Emission that varies (textures): probe a few uvs for the estimate, and never let it be
     // zero, so its triangles stay in the light distribution (light-only vertices need that).
@@ -1219,6 +1220,7 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
     // As Cycles evaluates a light sample's shader: no ray kind set, the path's bounce counts.
     RayState emission = s.path ? *s.path : RayState{};
     emission.flags = 0;
+    emission.emission_only = true;
     emission.length = dist;
     shade(lp, b1, b2, -s.wi, cl, emission);
     s.li = cl.emission;

@@ -944,7 +944,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
                                                   std::fabs(dot(ns, ctx.wo)), albedo);
             const Vec3 layer = tint * (sw * albedo);
             out.add(sh, weight * layer, fs, 1.0f);
-            weight = layer_below(weight, layer);
+            if (!ctx.ray.emission_only) weight = layer_below(weight, layer);
           }
         }
         const float coat_in = val(op.in[10], 0.0f);
@@ -965,7 +965,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
               ggx_reflection_compensation(rc, mu_c, Vec3(fresnel_dielectric_fss(c.eta)));
           const Vec3 albedo = comp.darkening * dielectric_specular_albedo(rc, mu_c, c.eta, c.f0);
           out.add(c, weight * (coat * comp.scale), fc, average(albedo));
-          weight = layer_below(weight, albedo * coat);
+          if (!ctx.ray.emission_only) weight = layer_below(weight, albedo * coat);
           const Vec3 tint = clean_color(col(op.in[13]));
           if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) {
             // Cycles: the tint is the coat's transmittance at normal incidence (unit thickness);
@@ -977,6 +977,10 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
             weight *= Vec3(1.0f) + (through - Vec3(1.0f)) * coat;
           }
         }
+        // Emission under a sheen or coat (Cycles: after both layers, so dimmed by them where the
+        // closures exist, by the coat's tint always); the add-on passes it here only then, as a
+        // plain Emission closure otherwise.
+        if (px(kPxEmission) != kNoReg) out.emission += clean_color(col(px(kPxEmission))) * weight;
         if (metallic > 0.0f) {
           ConductorBsdf m;
           m.alpha = ax;

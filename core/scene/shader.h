@@ -89,6 +89,7 @@ enum PrincipledExtraSlot : uint8_t {
   kPxSubsurfaceWeight = 9, kPxSubsurfaceRadius = 10, kPxSubsurfaceScale = 11, kPxSubsurfaceIor = 12,
   kPxSubsurfaceAnisotropy = 13,
   kPxSubsurfaceMethod = 14,  // a register holding the SubsurfaceMethod (Random Walk when absent)
+  kPxEmission = 15,  // emission (colour x strength) dimmed by the sheen and coat above it
 };
 // Blender's subsurface methods (Cycles' CLOSURE_BSSRDF_*_ID), as the add-on numbers them.
 enum class SubsurfaceMethod : uint8_t { Burley = 0, RandomWalk = 1, RandomWalkSkin = 2 };
@@ -219,6 +220,9 @@ struct RayState {
   float footprint() const { return dp + length * dd; }
   // A diffuse bounce came before (Cycles' PATH_RAY_DIFFUSE_ANCESTOR): BSSRDFs become diffuse.
   bool diffuse_ancestor = false;
+  // Cycles evaluates light samples and a path's last vertex without closure storage, so the
+  // layers whose albedo comes from a closure (sheen, coat) do not dim emission there.
+  bool emission_only = false;
 };
 
 // What a program can read at a shading point.

@@ -115,6 +115,30 @@ def test_coat_over_diffuse_and_metal(distribution):
     assert_agree(ours, cycles, f"coat {distribution}")
 
 
+def glowing(distribution):
+    """Emissive spheres under a strongly tinted coat and under a white sheen, in a dim studio:
+    Cycles adds Principled emission after the sheen and coat layers, so both dim it."""
+    principled = functools.partial(principled_material, distribution=distribution)
+
+    def build():
+        scene = ms.studio(size=64, camera=((0.0, -5.0, 2.2), (0.0, 0.0, 0.5)), light_strength=1.0)
+        glow = dict(Base_Color=(0.2, 0.2, 0.2, 1), Roughness=0.5, Emission_Color=(1.0, 0.9, 0.7, 1),
+                    Emission_Strength=2.0)
+        ms.add_sphere("Coated glow", 0.6, principled("Coated glow", Coat_Weight=1.0, Coat_Roughness=0.2,
+                                                     Coat_Tint=(0.3, 0.6, 1.0, 1), **glow),
+                      location=(-0.7, 0.0, 0.6))
+        ms.add_sphere("Sheen glow", 0.6, principled("Sheen glow", Sheen_Weight=1.0, Sheen_Roughness=0.3,
+                                                    Sheen_Tint=(1.0, 1.0, 1.0, 1), **glow),
+                      location=(0.7, 0.0, 0.6))
+        return scene
+    return build
+
+
+def test_emission_is_dimmed_by_the_coat_and_sheen():
+    ours, cycles = render_pair(glowing("MULTI_GGX"), 256)
+    assert_agree(ours, cycles, "emission under coat and sheen")
+
+
 def test_multiscatter_rough_glass_and_glass_specular_tint():
     # Three glass balls, Multiscatter GGX: a rough Glass BSDF and rough Principled transmission
     # (the glass tables' energy compensation; rendered as single-scatter GGX instead, one such
