@@ -22,9 +22,8 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from .export import replace_lights, set_camera, to_core
-from .export.material import put_material
 from .export.mesh_cache import MeshCache
+from .scene_writer import put_material, replace_lights, set_camera, set_instance_transforms, to_core
 
 
 class CommittedScene:
@@ -57,9 +56,9 @@ class CommittedScene:
                 _same_geometry(self.data, data):
             scene = self.scene
             self.scene = None  # kept again only after a successful commit
-            for i, (old, new) in enumerate(zip(_matrices(self.data), _matrices(data))):
-                if not np.array_equal(old, new):
-                    scene.set_instance_transform(i, new)
+            set_instance_transforms(scene, [
+                (i, new) for i, (old, new) in enumerate(zip(_matrices(self.data), _matrices(data)))
+                if not np.array_equal(old, new)])
             for core_id, material in zip(self.material_ids, data.materials):
                 put_material(scene, material, self.image_ids, core_id)
             replace_lights(scene, data.lights, data, warn)

@@ -9,8 +9,9 @@ import numpy as np
 
 from . import render_cache
 from .core import get_core
-from .export import ExportCancelled, ExportError, export_scene, to_core
+from .export import ExportCancelled, ExportError, export_scene
 from .export.motion import add_motion
+from .scene_writer import set_build_options, to_core
 
 log = logging.getLogger(__name__)
 
@@ -164,8 +165,9 @@ def render(engine, depsgraph):
             passes.remove(p)
         settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
         # Spatial splits in final renders only: not thumbnails, never the viewport.
-        core_scene.spatial_splits = scene.pathlight.use_spatial_splits and not engine.is_preview
-        core_scene.light_tree = scene.pathlight.light_tree.lower()
+        set_build_options(core_scene,
+                          spatial_splits=scene.pathlight.use_spatial_splits and not engine.is_preview,
+                          light_tree=scene.pathlight.light_tree.lower())
         if not _commit(engine, core_scene, settings.threads, scene.pathlight.time_limit):
             _empty_result(engine, scene, view_layer)
             return

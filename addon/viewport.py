@@ -16,6 +16,7 @@ What each change costs (the plan comes from viewport_update.plan_updates):
   geometry_builds). Objects that are also the source of an instancer (collection instances,
   particles, geometry-node instances) or that do not map to one instance re-export instead;
 - mesh edited, object hidden, an instancer moved: full re-export and BVH rebuild.
+Every write to the core scene goes through scene_writer.py.
 
 Threads: the core Session renders on its own C++ threads with the GIL released; every method
 here runs on Blender's main thread (the engine callbacks), and only polls the session.
@@ -25,12 +26,13 @@ import logging
 
 import numpy as np
 
-from .export import export_scene, replace_lights, to_core
+from .export import export_scene
 from .export.light import collect_lights
-from .export.material import convert_material, put_material
+from .export.material import convert_material
 from .export.mesh import is_visible
 from .export.shader import ImageTable, UvSets
 from .export.world import world_color, world_texture, world_volume
+from .scene_writer import put_material, replace_lights, set_build_options, set_instance_transforms, to_core
 from .viewport_update import ViewState, plan_updates, settings_signature
 
 log = logging.getLogger(__name__)
@@ -104,7 +106,8 @@ class ViewportSession:
         data = export_scene(depsgraph, self.warn, need_camera=False)
         ids = []
         scene = to_core(self.pc, data, self.warn, material_ids=ids)
-        scene.dynamic = True  # every instance its own transform: moves rebuild the top level only
+        # Every instance its own transform: moves rebuild the top level only.
+        set_build_options(scene, dynamic=True)
         scene.commit()
         self._map_instances(data)
         self.scene = scene
@@ -146,8 +149,7 @@ class ViewportSession:
             if idx is None or name in self.instanced_names or obj is None:
                 return False
             moves.append((idx, np.array(obj.matrix_world, np.float32)))
-        for idx, matrix in moves:
-            self.scene.set_instance_transform(idx, matrix)
+        set_instance_transforms(self.scene, moves)
         self.counters["transform_updates"] += 1
         return True
 

@@ -1,20 +1,20 @@
-"""Blender depsgraph → plain numpy/tuple data (`export_scene`), and that data → core objects
-(`to_core`). Only `to_core` touches the core module, which it is given, so the export itself
-can be tested without the core."""
+"""Blender depsgraph → plain numpy/tuple data (`export_scene` → SceneData). Nothing in this
+package writes the core scene: addon/scene_writer.py turns SceneData into a pc.Scene, so the
+export itself can be tested without the core."""
 
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .camera import ExportError, camera_params
-from .curves import CurvesData, add_curves, collect_curves
+from .curves import CurvesData, collect_curves
 from .light import LightData, collect_lights
-from .material import MaterialData, MaterialTable, add_materials
+from .material import MaterialData, MaterialTable
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .world import WorldSky, WorldTexture, world_color, world_texture, world_volume
 
-__all__ = ("CurvesData", "ExportCancelled", "ExportError", "add_lights", "replace_lights", "set_camera", "set_world", "LightData", "MaterialData", "MeshData", "SceneData", "WorldSky", "WorldTexture",
-           "export_scene", "to_core")
+__all__ = ("CurvesData", "ExportCancelled", "ExportError", "LightData", "MaterialData", "MeshData",
+           "SceneData", "WorldSky", "WorldTexture", "export_scene")
 
 
 @dataclass
@@ -113,90 +113,3 @@ def mean_radiance(tex):
     weights = np.cos((np.arange(h) + 0.5) / h * np.pi - np.pi / 2)
     rows = tex.pixels.mean(axis=1)  # (H, 3)
     return weights @ rows / weights.sum() * tex.strength
-
-
-def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
-    """A pc.Scene (not committed) holding SceneData `data`. warn(msg) hears about what this
-    build of the core cannot do. material_ids, image_ids: lists that receive the core id of
-    each of data.materials and data.images (for live edits and reuse)."""
-    warn = warn if warn is not None else (lambda msg: None)
-    scene = pc.Scene()
-    ids = add_materials(scene, data.materials, data.images, warn, image_ids)
-    if material_ids is not None:
-        material_ids.extend(ids)
-    for mesh, slots in zip(data.meshes, data.material_slots):
-        uvs = {"uvs": mesh.uvs} if mesh.uvs else {}
-        if mesh.attributes:
-            uvs["attributes"] = mesh.attributes
-        if mesh.texspace is not None:
-            uvs["texspace"] = mesh.texspace
-        mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
-                                 normals=mesh.normals, normal_indices=mesh.normal_indices,
-                                 material_indices=mesh.material_indices,
-                                 material_slots=[ids[i] for i in slots], **uvs)
-        infos = mesh.infos if len(mesh.infos) == len(mesh.matrices) else [None] * len(mesh.matrices)
-        names = [name for name, _ in mesh.owners] if len(mesh.owners) == len(mesh.matrices) else None
-        deform = getattr(mesh, "motion_positions", None)
-        if deform is not None:
-            scene.set_mesh_motion(mesh_id, deform)
-        motions = getattr(mesh, "motions", None) or []
-        for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
-            # Motion blur steps only where the object moves (and so never for older cores).
-            motion = {"motion": motions[k]} if k < len(motions) and motions[k] is not None else {}
-            if info is None:
-                scene.add_instance(mesh_id, matrix, **motion)
-                continue
-            color, pass_index, random_id = info
-            if random_id is None:
-                random_id = pc.object_random_id(names[k]) if names else 0
-            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id, **motion)
-    curves = getattr(data, "curves", [])
-    if curves:
-        mats = iter(data.curve_materials)
-        add_curves(scene, curves, lambda _material: ids[next(mats)], warn,
-                   getattr(pc, "object_random_id", None))
-    add_lights(scene, data.lights, warn)
-    set_world(scene, data, warn)
-    set_camera(pc, scene, data.camera)
-    return scene
-
-
-def set_camera(pc, scene, params):
-    """Sets the camera of a core scene from pc.Camera fields `params`."""
-    camera = pc.Camera()
-    for name, value in params.items():
-        setattr(camera, name, value)
-    scene.set_camera(camera)
-
-
-def add_lights(scene, lights, warn):
-    """Adds LightData `lights` to a core scene."""
-    for light in lights:
-        add = getattr(scene, f"add_{light.kind}_light", None)
-        if add is None:  # an older core build
-            warn(f"{light.kind.capitalize()} lights are not supported by this build of the "
-                 "Pathlight core; ignored")
-            continue
-        add(**light.args)
-
-
-def replace_lights(scene, lights, world, warn):
-    """Replaces a committed core scene's lights (LightData) and world (`world`: what set_world
-    reads of SceneData); its next commit() rebuilds only the light distribution."""
-    scene.clear_lights()
-    add_lights(scene, lights, warn)
-    set_world(scene, world, warn)
-
-
-def set_world(scene, data, warn):
-    """Sets the world (texture or colour) of SceneData `data` on a core scene."""
-    tex = data.world_texture
-    if isinstance(tex, WorldSky):
-        setter = getattr(scene, f"set_world_{'sky' if tex.kind == 'nishita' else tex.kind}")
-        setter(strength=tex.strength, rotation=tex.rotation, **tex.params)
-    elif tex is not None:
-        scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
-    else:
-        scene.set_world_color(data.world_color)
-    volume = getattr(data, "world_volume", None)
-    scene.set_world_volume(volume)

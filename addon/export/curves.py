@@ -1,7 +1,8 @@
-"""Blender Curves objects (hair) → flat numpy arrays for the core's add_curves: control points,
-radii and per-strand offsets read with foreach_get (no per-point Python), one entry per
-evaluated geometry with every instance's matrix. Particle hair has no vectorised access in
-bpy (only per-particle, per-key calls), so it is reported, not exported."""
+"""Blender Curves objects (hair) → flat numpy arrays (CurvesData, which
+scene_writer.add_curves hands to the core's add_curves): control points, radii and per-strand
+offsets read with foreach_get (no per-point Python), one entry per evaluated geometry with
+every instance's matrix. Particle hair has no vectorised access in bpy (only per-particle,
+per-key calls), so it is reported, not exported."""
 
 from dataclasses import dataclass, field
 
@@ -130,24 +131,3 @@ def _warn_particle_hair(obj, warn, warned):
             warn(f"Particle hair on '{obj.original.name}' is not rendered: convert it to a Curves "
                  "object (Object > Convert > Curves) for Pathlight")
             return
-
-
-def add_curves(scene, curves, material_ids, warn, random_id_of=None):
-    """Adds CurvesData `curves` to a core scene; material_ids(material) -> core material id;
-    random_id_of(name): the random id of a non-instanced object (Object Info's Random)."""
-    for c in curves:
-        mat = material_ids(c.material)
-        infos = c.infos if len(c.infos) == len(c.matrices) else [None] * len(c.matrices)
-        for m, info in zip(c.matrices, infos):
-            try:
-                if info is None:
-                    scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type)
-                    continue
-                color, pass_index, random_id = info
-                if random_id is None:
-                    random_id = random_id_of(c.name) if random_id_of else 0
-                scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
-                                 color=color, pass_index=pass_index, random_id=random_id)
-            except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
-                warn(f"Curves '{c.name}' not rendered: {e}")
-                break

@@ -1,5 +1,6 @@
 """Blender materials → Pathlight materials: shader programs compiled from the node tree
-(shader.py), with a (base colour, emission) summary for core builds without programs."""
+(shader.py), with a (base colour, emission) summary for core builds without programs.
+Plain data only: scene_writer.add_materials / put_material write it into the core scene."""
 
 from typing import NamedTuple
 
@@ -128,35 +129,3 @@ class MaterialTable:
         for mat in materials:
             names.update(self.materials[self.index(mat)].uv_sets)
         return names
-
-
-def add_materials(scene, materials, images, warn, image_ids=None):
-    """Adds MaterialData `materials` (and the ImageData `images` their programs use) to a core
-    scene; returns the core material ids. image_ids: a list that receives the core id of each
-    image (put_material needs them to replace a material later). Core builds without shader
-    programs get the (base colour, emission) summary."""
-    ids = [scene.add_image(image.pixels, srgb=image.srgb) if image.srgb
-           else scene.add_image(image.pixels) for image in images]
-    if image_ids is not None:
-        image_ids.extend(ids)
-    return [put_material(scene, m, ids) for m in materials]
-
-
-def put_material(scene, m, image_ids, core_id=None):
-    """Adds MaterialData `m` to a core scene (core_id None) or replaces material `core_id` with
-    it; image_ids: the core ids of the images its program reads. Returns the material's id.
-    Core builds without shader programs get the (base colour, emission) summary."""
-    if m.program is None:
-        if core_id is None:
-            return scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
-        scene.set_material(core_id, m.name, base_color=m.base_color, emission=m.emission)
-        return core_id
-    program = [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op
-               for op in m.program]
-    kw = {} if m.volume is None else {"volume": m.volume}  # older cores lack it
-    if core_id is None:
-        return scene.add_shader(m.name, program, volume_absorption=m.volume_absorption,
-                                use_schlick=m.use_schlick, **kw)
-    scene.set_shader(core_id, m.name, program, volume_absorption=m.volume_absorption,
-                     use_schlick=m.use_schlick, **kw)
-    return core_id

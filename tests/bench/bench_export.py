@@ -68,7 +68,8 @@ CHILD = textwrap.dedent("""
 
     if mode == "steps":  # the add-on's own steps, timed one by one (fresh caches, like a render)
         from addon.core import get_core
-        from addon.export import export_scene, to_core
+        from addon.export import export_scene
+        from addon.scene_writer import to_core
         pc = get_core()
         dg = bpy.context.evaluated_depsgraph_get()
         t0 = time.perf_counter()

@@ -34,7 +34,8 @@ def open_scene(fixture, setup):
 
 def pathlight_images(fixture, setup, seeds, spp, max_bounces=12, **settings):
     addon = load_addon()
-    from addon.export import export_scene, to_core
+    from addon.export import export_scene
+    from addon.scene_writer import to_core
     from addon.session import render_settings
     scene = open_scene(fixture, setup)
     scene.render.resolution_percentage = SCALE

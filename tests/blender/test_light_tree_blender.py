@@ -8,7 +8,8 @@ from blender_util import BOX_FILTER, core_has, load_addon, render_to_array
 from light_scenes import add_light, diffuse_set
 
 load_addon()
-from addon.export import export_scene, to_core  # noqa: E402
+from addon.export import export_scene  # noqa: E402
+from addon.scene_writer import to_core  # noqa: E402
 
 needs_tree = pytest.mark.skipif(not core_has("Scene", "light_tree"), reason="the core has no light tree")
 

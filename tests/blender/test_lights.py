@@ -16,7 +16,8 @@ from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
                           empty_scene, plane, uv_sphere, world_color)
 
 load_addon()
-from addon.export import export_scene, to_core  # noqa: E402
+from addon.export import export_scene  # noqa: E402
+from addon.scene_writer import to_core  # noqa: E402
 from addon.export.light import collect_lights  # noqa: E402
 from addon.export.mesh import is_visible  # noqa: E402
 

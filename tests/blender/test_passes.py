@@ -16,7 +16,8 @@ from light_scenes import world_color
 
 addon = load_addon()
 from addon import session  # noqa: E402
-from addon.export import export_scene, to_core  # noqa: E402
+from addon.export import export_scene  # noqa: E402
+from addon.scene_writer import to_core  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not core_has("Session", "film_pass"), reason="core without render passes")
 

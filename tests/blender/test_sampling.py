@@ -14,7 +14,8 @@ from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
 
 load_addon()
 from addon import session, ui  # noqa: E402
-from addon.export import export_scene, to_core  # noqa: E402
+from addon.export import export_scene  # noqa: E402
+from addon.scene_writer import to_core  # noqa: E402
 
 needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
 

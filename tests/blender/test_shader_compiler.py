@@ -14,7 +14,8 @@ from blender_util import core_available, load_addon, Warnings
 import material_scenes as ms
 
 load_addon()
-from addon.export import export_scene, to_core  # noqa: E402
+from addon.export import export_scene  # noqa: E402
+from addon.scene_writer import to_core  # noqa: E402
 from addon.export.material import MaterialTable, convert_material  # noqa: E402
 from addon.export.shader import (  # noqa: E402
     MAX_REGISTERS, ImageTable, UvSets, _math, _mix, mapping_matrix)
@@ -920,7 +921,7 @@ def test_core_accepts_every_compiled_program():
     for mat in bpy.data.materials:
         table.index(mat)
     scene = pc.Scene()
-    from addon.export.material import add_materials
+    from addon.scene_writer import add_materials
     ids = add_materials(scene, table.materials, table.images.images, Warnings())
     assert len(set(ids)) == len(ids) == len(bpy.data.materials)
     core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), Warnings()))

@@ -1,0 +1,164 @@
+"""The one module that writes the core scene: SceneData (and its parts) from addon/export/ →
+pc.Scene calls (add_mesh, add_instance, add_shader, add_<kind>_light, set_world_*, ...).
+
+addon/export/ turns the depsgraph into plain arrays, tuples and dataclasses and never touches
+the core; final renders (session.py), the kept scene of the last render (render_cache.py) and
+the viewport's live edits (viewport.py) all write through the functions here.
+tests/blender/test_scene_writer.py fails if any other add-on module calls a core scene writer."""
+
+from .export.world import WorldSky
+
+
+def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
+    """A pc.Scene (not committed) holding SceneData `data`. warn(msg) hears about what this
+    build of the core cannot do. material_ids, image_ids: lists that receive the core id of
+    each of data.materials and data.images (for live edits and reuse)."""
+    warn = warn if warn is not None else (lambda msg: None)
+    scene = pc.Scene()
+    ids = add_materials(scene, data.materials, data.images, warn, image_ids)
+    if material_ids is not None:
+        material_ids.extend(ids)
+    for mesh, slots in zip(data.meshes, data.material_slots):
+        uvs = {"uvs": mesh.uvs} if mesh.uvs else {}
+        if mesh.attributes:
+            uvs["attributes"] = mesh.attributes
+        if mesh.texspace is not None:
+            uvs["texspace"] = mesh.texspace
+        mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
+                                 normals=mesh.normals, normal_indices=mesh.normal_indices,
+                                 material_indices=mesh.material_indices,
+                                 material_slots=[ids[i] for i in slots], **uvs)
+        infos = mesh.infos if len(mesh.infos) == len(mesh.matrices) else [None] * len(mesh.matrices)
+        names = [name for name, _ in mesh.owners] if len(mesh.owners) == len(mesh.matrices) else None
+        deform = getattr(mesh, "motion_positions", None)
+        if deform is not None:
+            scene.set_mesh_motion(mesh_id, deform)
+        motions = getattr(mesh, "motions", None) or []
+        for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
+            # Motion blur steps only where the object moves (and so never for older cores).
+            motion = {"motion": motions[k]} if k < len(motions) and motions[k] is not None else {}
+            if info is None:
+                scene.add_instance(mesh_id, matrix, **motion)
+                continue
+            color, pass_index, random_id = info
+            if random_id is None:
+                random_id = pc.object_random_id(names[k]) if names else 0
+            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id, **motion)
+    curves = getattr(data, "curves", [])
+    if curves:
+        mats = iter(data.curve_materials)
+        add_curves(scene, curves, lambda _material: ids[next(mats)], warn,
+                   getattr(pc, "object_random_id", None))
+    add_lights(scene, data.lights, warn)
+    set_world(scene, data, warn)
+    set_camera(pc, scene, data.camera)
+    return scene
+
+
+def add_materials(scene, materials, images, warn, image_ids=None):
+    """Adds MaterialData `materials` (and the ImageData `images` their programs use) to a core
+    scene; returns the core material ids. image_ids: a list that receives the core id of each
+    image (put_material needs them to replace a material later). Core builds without shader
+    programs get the (base colour, emission) summary."""
+    ids = [scene.add_image(image.pixels, srgb=image.srgb) if image.srgb
+           else scene.add_image(image.pixels) for image in images]
+    if image_ids is not None:
+        image_ids.extend(ids)
+    return [put_material(scene, m, ids) for m in materials]
+
+
+def put_material(scene, m, image_ids, core_id=None):
+    """Adds MaterialData `m` to a core scene (core_id None) or replaces material `core_id` with
+    it; image_ids: the core ids of the images its program reads. Returns the material's id.
+    Core builds without shader programs get the (base colour, emission) summary."""
+    if m.program is None:
+        if core_id is None:
+            return scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
+        scene.set_material(core_id, m.name, base_color=m.base_color, emission=m.emission)
+        return core_id
+    program = [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op
+               for op in m.program]
+    kw = {} if m.volume is None else {"volume": m.volume}  # older cores lack it
+    if core_id is None:
+        return scene.add_shader(m.name, program, volume_absorption=m.volume_absorption,
+                                use_schlick=m.use_schlick, **kw)
+    scene.set_shader(core_id, m.name, program, volume_absorption=m.volume_absorption,
+                     use_schlick=m.use_schlick, **kw)
+    return core_id
+
+
+def add_curves(scene, curves, material_ids, warn, random_id_of=None):
+    """Adds CurvesData `curves` to a core scene; material_ids(material) -> core material id;
+    random_id_of(name): the random id of a non-instanced object (Object Info's Random)."""
+    for c in curves:
+        mat = material_ids(c.material)
+        infos = c.infos if len(c.infos) == len(c.matrices) else [None] * len(c.matrices)
+        for m, info in zip(c.matrices, infos):
+            try:
+                if info is None:
+                    scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type)
+                    continue
+                color, pass_index, random_id = info
+                if random_id is None:
+                    random_id = random_id_of(c.name) if random_id_of else 0
+                scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
+                                 color=color, pass_index=pass_index, random_id=random_id)
+            except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
+                warn(f"Curves '{c.name}' not rendered: {e}")
+                break
+
+
+def set_camera(pc, scene, params):
+    """Sets the camera of a core scene from pc.Camera fields `params`."""
+    camera = pc.Camera()
+    for name, value in params.items():
+        setattr(camera, name, value)
+    scene.set_camera(camera)
+
+
+def add_lights(scene, lights, warn):
+    """Adds LightData `lights` to a core scene."""
+    for light in lights:
+        add = getattr(scene, f"add_{light.kind}_light", None)
+        if add is None:  # an older core build
+            warn(f"{light.kind.capitalize()} lights are not supported by this build of the "
+                 "Pathlight core; ignored")
+            continue
+        add(**light.args)
+
+
+def replace_lights(scene, lights, world, warn):
+    """Replaces a committed core scene's lights (LightData) and world (`world`: what set_world
+    reads of SceneData); its next commit() rebuilds only the light distribution."""
+    scene.clear_lights()
+    add_lights(scene, lights, warn)
+    set_world(scene, world, warn)
+
+
+def set_world(scene, data, warn):
+    """Sets the world (texture or colour) of SceneData `data` on a core scene."""
+    tex = data.world_texture
+    if isinstance(tex, WorldSky):
+        setter = getattr(scene, f"set_world_{'sky' if tex.kind == 'nishita' else tex.kind}")
+        setter(strength=tex.strength, rotation=tex.rotation, **tex.params)
+    elif tex is not None:
+        scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
+    else:
+        scene.set_world_color(data.world_color)
+    volume = getattr(data, "world_volume", None)
+    scene.set_world_volume(volume)
+
+
+def set_instance_transforms(scene, moves):
+    """New matrices for instances of a committed core scene: `moves` is (instance index in
+    add_instance order, (4, 4) float32 matrix) pairs. Its next commit() rebuilds the top level
+    of the BVH (dynamic scenes) or the geometry of merged objects, and the lights."""
+    for index, matrix in moves:
+        scene.set_instance_transform(index, matrix)
+
+
+def set_build_options(scene, **options):
+    """Build options of a core scene (dynamic, spatial_splits, light_tree, ...) that its next
+    commit() applies."""
+    for name, value in options.items():
+        setattr(scene, name, value)
