@@ -1,5 +1,5 @@
-"""The shader node compiler (addon/export/shader.py) without the core: the programs emitted for
-node setups, evaluated here by a small interpreter of the constant part of the program
+"""The shader node compiler (the addon/export/shader/ package) without the core: the programs
+emitted for node setups, evaluated here by a small interpreter of the constant part of the program
 language (docs/core_api.md), plus images, UV sets and warnings. The last tests hand every
 program to the core (when built), which validates it."""
 

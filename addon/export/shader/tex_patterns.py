@@ -6,7 +6,7 @@ Every input socket is read as a value (constant or linked); an unlinked Vector r
 Generated coordinates, as in Cycles. The ops are always emitted, never folded here: the core
 evaluates a program that reads nothing from the shading point once."""
 
-# How many register operands (after the destination) each op has (shader.py's _OPERANDS).
+# How many register operands (after the destination) each op has (registers.py's _OPERANDS).
 OPERANDS = {"checker": 4, "gradient": 1, "brick": 10, "voronoi": 9}
 
 

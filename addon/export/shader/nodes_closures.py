@@ -1,0 +1,291 @@
+"""Shader nodes → weighted closures: Mix / Add Shader, the BSDFs, Emission, Holdout,
+Subsurface, Principled BSDF and Principled Hair (a ShaderCompiler mixin)."""
+
+from .graph import _Cycle
+from .values import GREY, ONE, ZERO, const_color, const_float
+
+
+class ClosureNodes:
+    """Translators of the shader (closure) nodes (ShaderCompiler mixin)."""
+
+    def closure(self, kind, weight, **params):
+        if self.is_zero(weight):
+            return
+        regs = {k: self.reg(v) for k, v in params.items() if v is not None}
+        if weight is not None and weight.is_const and all(x == 1.0 for x in weight.const[:3]):
+            weight = None
+        w = None if weight is None else self.reg(self.as_color(weight))
+        self.ops.append(("closure", kind, w, regs))
+
+    def shader_input(self, socket, ctx, weight):
+        """Emits the closures of what feeds shader input `socket`, scaled by weight."""
+        if self.is_zero(weight):
+            return
+        src = self.source(socket, ctx)
+        if src is None or src[0] == "default":
+            return  # nothing connected: no closure (Cycles renders black)
+        _, node, out, nctx = src
+        if out.type != 'SHADER':  # Cycles turns a value linked into a shader into emission
+            v = self.node_output(node, out, nctx, socket, "color")
+            self.closure("emission", weight, color=self.as_color(v) if v is not None else ONE)
+            return
+        key = (node.as_pointer(), out.identifier, self.ctx_key(nctx))
+        if key in self.visiting:
+            raise _Cycle(node.name)
+        self.visiting.add(key)
+        try:
+            self.shader_node(node, nctx, weight)
+        finally:
+            self.visiting.discard(key)
+
+    def normal(self, node, ctx, name="Normal"):
+        socket = node.inputs.get(name)
+        return None if socket is None else self.value(socket, ctx, "vector")
+
+    def shader_node(self, node, ctx, weight):
+        t = node.type
+        inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
+        if t == 'MIX_SHADER':
+            fac = self.math("ADD", inp("Fac", "float"), ZERO, clamp=True)
+            w2 = self.scale(weight, fac)
+            w1 = self.scale(weight, self.math("SUBTRACT", ONE, fac))
+            self.shader_input(node.inputs[1], ctx, w1)
+            self.shader_input(node.inputs[2], ctx, w2)
+        elif t == 'ADD_SHADER':
+            self.shader_input(node.inputs[0], ctx, weight)
+            self.shader_input(node.inputs[1], ctx, weight)
+        elif t == 'BSDF_DIFFUSE':
+            # A Roughness that is not a constant zero: Cycles' Oren-Nayar in the core.
+            r = inp("Roughness", "float")
+            rough = {} if r.is_const and r.const[0] == 0.0 else {"roughness": r}
+            self.closure("diffuse", weight, color=inp("Color", "color"),
+                         normal=self.normal(node, ctx), **rough)
+        elif t == 'BSDF_TOON':
+            glossy = {"glossy": ONE} if node.component == 'GLOSSY' else {}
+            self.closure("toon", weight, color=inp("Color", "color"), size=inp("Size", "float"),
+                         smooth=inp("Smooth", "float"), normal=self.normal(node, ctx), **glossy)
+        elif t == 'BSDF_SHEEN':
+            # Microfibre (Zeltner et al., Cycles' default) or Ashikhmin velvet.
+            velvet = {"velvet": ONE} if getattr(node, "distribution", 'MICROFIBER') == 'ASHIKHMIN' else {}
+            self.closure("sheen", weight, color=inp("Color", "color"),
+                         roughness=inp("Roughness", "float"), normal=self.normal(node, ctx), **velvet)
+        elif t == 'BSDF_GLOSSY':
+            rough = inp("Roughness", "float")
+            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
+            self.closure("glossy", weight, color=inp("Color", "color"), roughness=rough,
+                         normal=self.normal(node, ctx),
+                         multiscatter=self._multiscatter(node, rough),
+                         **self._anisotropy(node, ctx, "Anisotropy", "Rotation"))
+        elif t in ('BSDF_GLASS', 'BSDF_REFRACTION'):
+            rough = inp("Roughness", "float")
+            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
+            self.closure("glass" if t == 'BSDF_GLASS' else "refraction", weight,
+                         color=inp("Color", "color"), roughness=rough, ior=inp("IOR", "float"),
+                         normal=self.normal(node, ctx),
+                         multiscatter=self._multiscatter(node, rough) if t == 'BSDF_GLASS' else None)
+        elif t == 'BSDF_METALLIC':
+            rough = inp("Roughness", "float")
+            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
+            physical = node.fresnel_type == 'PHYSICAL_CONDUCTOR'
+            params = dict(ior=inp("IOR", "vector"), extinction=inp("Extinction", "vector"),
+                          physical=ONE) if physical else dict(
+                base_color=inp("Base Color", "color"), edge_tint=inp("Edge Tint", "color"))
+            self.closure("metallic", weight, roughness=rough, normal=self.normal(node, ctx),
+                         multiscatter=self._multiscatter(node, rough), **params,
+                         **self._anisotropy(node, ctx, "Anisotropy", "Rotation"))
+        elif t == 'BSDF_TRANSLUCENT':
+            self.closure("translucent", weight, color=inp("Color", "color"),
+                         normal=self.normal(node, ctx))
+        elif t == 'BSDF_TRANSPARENT':
+            self.closure("transparent", weight, color=inp("Color", "color"))
+        elif t == 'BSDF_HAIR_PRINCIPLED':
+            self.principled_hair(node, inp, weight)
+        elif t == 'EMISSION':
+            color = self.scale(inp("Color", "color"), inp("Strength", "float"))
+            self.closure("emission", weight, color=self.as_color(color))
+        elif t == 'BSDF_PRINCIPLED':
+            self.principled(node, ctx, weight)
+        elif t == 'HOLDOUT':
+            self.closure("holdout", weight)
+        elif t == 'SUBSURFACE_SCATTERING':
+            # Inputs the method hides (Roughness but for Random Walk, IOR for Burley) are not
+            # found by name: the core's defaults stand in, unused.
+            opt = lambda name, kind: inp(name, kind) if node.inputs.get(name) is not None else None  # noqa: E731
+            self.closure("subsurface", weight, color=inp("Color", "color"), scale=inp("Scale", "float"),
+                         radius=inp("Radius", "vector"), ior=opt("IOR", "float"),
+                         roughness=opt("Roughness", "float"), anisotropy=opt("Anisotropy", "float"),
+                         normal=self.normal(node, ctx), method=self._subsurface_method(node, node.falloff))
+        else:
+            self._fallback_shader(node, ctx, weight)
+
+    def _note_distribution(self, node, roughness, allowed):
+        dist = node.distribution
+        if dist in allowed:
+            return
+        if roughness.is_const and roughness.const[0] == 0.0:
+            return  # every distribution is the same perfect mirror
+        self.problem(f"'{node.name}': {dist.replace('_', ' ').title()} distribution is "
+                     "approximated by GGX")
+
+    @staticmethod
+    def _multiscatter(node, roughness):
+        """ONE (a flag register) for Multiscatter GGX, which the core's energy compensation
+        follows; None for single-scatter GGX and for a constant zero roughness (a mirror)."""
+        if node.distribution != 'MULTI_GGX':
+            return None
+        if roughness.is_const and roughness.const[0] == 0.0:
+            return None
+        return ONE
+
+    def _anisotropy(self, node, ctx, amount, rotation):
+        """The closure keys of a Glossy/Metallic node's anisotropy (none where it is a constant
+        zero): the amount, the rotation and the tangent (unlinked: Cycles' default)."""
+        aniso = self.input(node, amount, ctx, "float")
+        if aniso.is_const and aniso.const[0] == 0.0:
+            return {}
+        return dict(anisotropy=aniso, rotation=self.input(node, rotation, ctx, "float"),
+                    tangent=self.principled_tangent(node, ctx, "Tangent"))
+
+    def _fallback_shader(self, node, ctx, weight):
+        """An unsupported shader node: a diffuse closure of its Color input if it has one,
+        else grey diffuse."""
+        color = node.inputs.get("Color")
+        if color is not None and color.type == 'RGBA':
+            self.problem(f"'{node.name}' ({node.bl_idname}) is not supported (diffuse of its "
+                         "Color)")
+            c = self.value(color, ctx, "color")
+        else:
+            self.problem(f"'{node.name}' ({node.bl_idname}) is not supported (grey diffuse)")
+            c = const_color(GREY)
+        self.closure("diffuse", weight, color=c)
+
+    # -------------------------------------------------- hair
+
+    def principled_hair(self, node, inp, weight):
+        """The Principled Hair BSDF as Cycles' Chiang model (core: HairChiangBsdf); Huang's
+        model falls back to it with a warning."""
+        if node.model != 'CHIANG':
+            self.problem(f"'{node.name}': the Huang hair model is not supported (rendered with "
+                         "Chiang's)")
+        mode = {'ABSORPTION': "absorption", 'MELANIN': "melanin"}.get(node.parametrization, "color")
+        params = dict(roughness=inp("Roughness", "float"),
+                      radial_roughness=inp("Radial Roughness", "float"), coat=inp("Coat", "float"),
+                      ior=inp("IOR", "float"), offset=inp("Offset", "float"),
+                      random_roughness=inp("Random Roughness", "float"))
+        if mode == "absorption":
+            params["absorption"] = inp("Absorption Coefficient", "vector")
+        elif mode == "melanin":
+            params.update(melanin=inp("Melanin", "float"), melanin_redness=inp("Melanin Redness", "float"),
+                          tint=inp("Tint", "color"), random_color=inp("Random Color", "float"))
+        else:
+            params["color"] = inp("Color", "color")
+        if node.inputs["Random"].is_linked:
+            params["random"] = inp("Random", "float")
+        elif any(v is not None and not (v.is_const and v.const[0] == 0.0)
+                 for v in (params.get("random_roughness"), params.get("random_color"))):
+            # Unlinked: Cycles reads the strand's own random number (Curves Info's Random).
+            params["random"] = self.emit("float", "curves_info", "RANDOM")
+        self.closure("principled_hair_" + mode, weight, **params)
+
+    # -------------------------------------------------- Principled BSDF
+
+    def principled(self, node, ctx, weight):
+        inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
+        extra = self._principled_extra(node, ctx)
+        alpha = self.math("ADD", inp("Alpha", "float"), ZERO, clamp=True)
+        opaque = self.scale(weight, alpha)
+        if not (alpha.is_const and alpha.const[0] == 1.0):
+            self.closure("transparent", self.scale(weight, self.math("SUBTRACT", ONE, alpha)),
+                         color=const_color((1, 1, 1, 1)))
+        rough = inp("Roughness", "float")
+        coat = {}
+        coat_weight = inp("Coat Weight", "float")
+        if not (coat_weight.is_const and coat_weight.const[0] <= 0.0):
+            coat = dict(coat_weight=coat_weight, coat_roughness=inp("Coat Roughness", "float"),
+                        coat_ior=inp("Coat IOR", "float"), coat_tint=inp("Coat Tint", "color"),
+                        coat_normal=self.normal(node, ctx, "Coat Normal"))
+        # Emission: under a sheen or coat the core dims it by them (Cycles adds it after both
+        # layers); else a plain Emission closure of the same weight.
+        strength = inp("Emission Strength", "float")
+        emission = None
+        if not (strength.is_const and strength.const[0] == 0.0):
+            emission = self.as_color(self.scale(inp("Emission Color", "color"), strength))
+            if coat or "sheen_weight" in extra:
+                extra["emission"], emission = emission, None
+        self.closure("principled", opaque,
+                     base_color=inp("Base Color", "color"),
+                     metallic=inp("Metallic", "float"),
+                     roughness=rough,
+                     ior=inp("IOR", "float"),
+                     transmission=inp("Transmission Weight", "float"),
+                     specular_level=inp("Specular IOR Level", "float"),
+                     specular_tint=inp("Specular Tint", "color"),
+                     normal=self.normal(node, ctx),
+                     multiscatter=self._multiscatter(node, rough),
+                     **coat, **extra)
+        if emission is not None:
+            self.closure("emission", opaque, color=emission)
+
+    # The Principled BSDF's feature groups beyond the base, coat and emission: (the group,
+    # its switch input (left out where it is a constant zero), and its operands (the closure's
+    # key, the socket, its kind)). The core reads them from a PrincipledExtra op.
+    _PRINCIPLED_GROUPS = (
+        ("anisotropy", "Anisotropic", (("anisotropic", "Anisotropic", "float"),
+                                       ("anisotropic_rotation", "Anisotropic Rotation", "float"),
+                                       ("tangent", "Tangent", "tangent"))),
+        ("thin film", "Thin Film Thickness", (("thin_film_thickness", "Thin Film Thickness", "float"),
+                                              ("thin_film_ior", "Thin Film IOR", "float"))),
+        ("sheen", "Sheen Weight", (("sheen_weight", "Sheen Weight", "float"),
+                                   ("sheen_roughness", "Sheen Roughness", "float"),
+                                   ("sheen_tint", "Sheen Tint", "color"))),
+        ("diffuse roughness", "Diffuse Roughness", (("diffuse_roughness", "Diffuse Roughness", "float"),)),
+        ("subsurface", "Subsurface Weight", (("subsurface_weight", "Subsurface Weight", "float"),
+                                             ("subsurface_radius", "Subsurface Radius", "vector"),
+                                             ("subsurface_scale", "Subsurface Scale", "float"),
+                                             ("subsurface_ior", "Subsurface IOR", "float"),
+                                             ("subsurface_anisotropy", "Subsurface Anisotropy", "float"))),
+    )
+
+    # Groups that the core does not render yet: warned about and left out.
+    _PRINCIPLED_UNSUPPORTED = {
+    }
+
+    def _principled_extra(self, node, ctx):
+        """The closure keys of the Principled feature groups in use (switch input not a
+        constant zero); an unsupported one in use is warned about instead."""
+        extra, ignored = {}, []
+        for group, switch, operands in self._PRINCIPLED_GROUPS:
+            socket = node.inputs.get(switch)
+            if socket is None:
+                continue
+            v = self.value(socket, ctx, "float")
+            if v.is_const and v.const[0] == 0.0:
+                continue
+            if group in self._PRINCIPLED_UNSUPPORTED:
+                ignored.append(group)
+                continue
+            for key, name, kind in operands:
+                if kind == "tangent":
+                    extra[key] = self.principled_tangent(node, ctx, name)
+                elif node.inputs.get(name) is not None:
+                    extra[key] = self.input(node, name, ctx, kind)
+        if ignored:
+            self.problem(f"'{node.name}': {', '.join(ignored)} not supported (ignored)")
+        if "subsurface_weight" in extra:
+            extra["subsurface_method"] = self._subsurface_method(node, node.subsurface_method)
+        return extra
+
+    # The core's numbers for Blender's subsurface methods (core/scene/shader.h SubsurfaceMethod).
+    _SUBSURFACE_METHODS = {'BURLEY': 0.0, 'RANDOM_WALK': 1.0, 'RANDOM_WALK_SKIN': 2.0}
+
+    def _subsurface_method(self, node, method):
+        """A constant register of the method (Burley: Cycles' disk sampling; Random Walk; Skin)."""
+        return const_float(self._SUBSURFACE_METHODS.get(method, 1.0))
+
+    def principled_tangent(self, node, ctx, name):
+        """The Tangent input; unlinked, Cycles' default for a mesh: the Geometry node's
+        Tangent, radial around the object's Z axis from the generated coordinates."""
+        socket = node.inputs.get(name)
+        if socket is None or not socket.is_linked:
+            return self.emit("vector", "tangent", "Z", 0)
+        return self.input(node, name, ctx, "vector")

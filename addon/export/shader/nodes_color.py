@@ -1,0 +1,141 @@
+"""Colour nodes and converters: ramps and curves, hue / saturation, gamma, brightness /
+contrast, separating and combining colours, Blackbody and Wavelength (a ShaderCompiler
+mixin)."""
+
+import numpy as np
+
+from .folding import RAMP_TABLE_SIZE, _COLOR_SPACES, _gamma, _hsv_node, ramp_lookup
+from .values import Val, const_color, const_float, const_vector
+
+
+class ColorNodes:
+    """Translators of the colour nodes (ShaderCompiler mixin)."""
+
+    def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
+             kind="color"):
+        if src.is_const:
+            c = src.const
+            rel = lambda v: (v - lo) / (hi - lo) if hi != lo else 0.0  # noqa: E731
+            if channels:
+                out = tuple(ramp_lookup(table, rel(c[i]), interpolate, extrapolate)[i]
+                            for i in range(3)) + (1.0,)
+            else:
+                out = tuple(ramp_lookup(table, rel(c[0]), interpolate, extrapolate))
+            return const_float(out[0]) if kind == "float" else const_color(out)
+        return self.emit(kind, "ramp", self.reg(src), np.ascontiguousarray(table, np.float32),
+                         bool(interpolate), bool(extrapolate), float(lo), float(hi),
+                         bool(channels))
+
+    def color_ramp(self, node, out, ctx):
+        """Cycles bakes the ramp (any interpolation and colour mode) into a 256-entry table."""
+        fac = self.input(node, "Fac", ctx, "float")
+        ramp = node.color_ramp
+        table = np.array([tuple(ramp.evaluate(i / (RAMP_TABLE_SIZE - 1)))
+                          for i in range(RAMP_TABLE_SIZE)], np.float64)
+        interpolate = ramp.interpolation != 'CONSTANT'
+        if out.identifier == "Alpha":
+            return self.ramp(fac, np.repeat(table[:, 3:4], 4, axis=1), interpolate, kind="float")
+        return self.ramp(fac, table, interpolate)
+
+    def rgb_curves(self, node, out, ctx):
+        """Cycles' curvemapping_color_to_array: the combined curve then each channel's, over
+        the range of all curves' points, 256 entries."""
+        fac = self.input(node, "Fac", ctx, "float")
+        color = self.input(node, "Color", ctx, "color")
+        mapping = node.mapping
+        mapping.initialize()
+        curves = list(mapping.curves)
+        los = [c.points[0].location[0] for c in curves[:4] if len(c.points)]
+        his = [c.points[-1].location[0] for c in curves[:4] if len(c.points)]
+        lo, hi = (min(los), max(his)) if los else (0.0, 1.0)
+        table = np.ones((RAMP_TABLE_SIZE, 4))
+        for i in range(RAMP_TABLE_SIZE):
+            t = lo + i / (RAMP_TABLE_SIZE - 1) * (hi - lo)
+            combined = mapping.evaluate(curves[3], t)
+            table[i, :3] = [mapping.evaluate(curves[c], combined) for c in range(3)]
+        curved = self.ramp(color, table, True, mapping.extend == 'EXTRAPOLATED', lo, hi,
+                           channels=True)
+        if fac.is_const and 0.0 <= fac.const[0] <= 1.0:
+            return self.mix("MIX", fac, color, curved)
+        # Cycles does not clamp this factor: color + fac * (curved - color).
+        delta = self.vector_op("SUBTRACT", curved, color)
+        return self.as_color(self.vector_op("MULTIPLY_ADD", delta, fac, color))
+
+    def color_space(self, v, conversion, kind):
+        if v.is_const:
+            c = _COLOR_SPACES[conversion](v.const[:3])
+            return Val(kind, tuple(c) + (v.const[3],))
+        return self.emit(kind, "color_space", self.reg(v), conversion)
+
+    def separate(self, v, axis):
+        if v.is_const:
+            return const_float(v.const[axis])
+        return self.emit("float", "separate", self.reg(v), axis)
+
+    def combine(self, a, b, c, kind):
+        if a.is_const and b.is_const and c.is_const:
+            xyz = (a.const[0], b.const[0], c.const[0])
+            return const_color(xyz + (1.0,)) if kind == "color" else const_vector(xyz)
+        return self.emit(kind, "combine", self.reg(a), self.reg(b), self.reg(c), kind == "color")
+
+    def separate_color(self, node, out, ctx):
+        color = self.input(node, "Color" if "Color" in node.inputs else "Image", ctx, "color")
+        mode = getattr(node, "mode", 'HSV' if node.type == 'SEPHSV' else 'RGB')
+        if mode in ('HSV', 'HSL'):
+            color = self.color_space(color, f"RGB_TO_{mode}", "color")
+        axis = [o.identifier for o in node.outputs].index(out.identifier)
+        return self.separate(color, axis)
+
+    def combine_color(self, node, out, ctx):
+        ins = [self.value(s, ctx, "float") for s in list(node.inputs)[:3]]
+        mode = getattr(node, "mode", 'HSV' if node.type == 'COMBHSV' else 'RGB')
+        color = self.combine(*ins, "color")
+        if mode in ('HSV', 'HSL'):
+            color = self.color_space(color, f"{mode}_TO_RGB", "color")
+        return color
+
+    def hue_saturation(self, node, out, ctx):
+        ins = [self.input(node, "Color", ctx, "color")] + [
+            self.input(node, k, ctx, "float") for k in ("Hue", "Saturation", "Value", "Fac")]
+        if all(v.is_const for v in ins):
+            c = _hsv_node(ins[0].const[:3], *(v.const[0] for v in ins[1:]))
+            return const_color(tuple(c) + (1.0,))
+        return self.emit("color", "hsv", *(self.reg(v) for v in ins))
+
+    def gamma(self, node, out, ctx):
+        c = self.input(node, "Color", ctx, "color")
+        g = self.input(node, "Gamma", ctx, "float")
+        if c.is_const and g.is_const:
+            return const_color(tuple(_gamma(c.const[:3], g.const[0])) + (1.0,))
+        return self.emit("color", "gamma", self.reg(c), self.reg(g))
+
+    def bright_contrast(self, node, out, ctx):
+        c = self.input(node, "Color", ctx, "color")
+        bright = self.input(node, "Bright", ctx, "float")
+        contrast = self.input(node, "Contrast", ctx, "float")
+        if c.is_const and bright.is_const and contrast.is_const:
+            a, b = 1.0 + contrast.const[0], bright.const[0] - contrast.const[0] * 0.5
+            return const_color(tuple(max(a * x + b, 0.0) for x in c.const[:3]) + (1.0,))
+        return self.emit("color", "bright_contrast", self.reg(c), self.reg(bright),
+                         self.reg(contrast))
+
+    def blackbody(self, node, out, ctx):
+        (t,) = self._texture_floats(node, ("Temperature",), ctx)
+        return self.emit("color", "blackbody", t)
+
+    def wavelength(self, node, out, ctx):
+        (w,) = self._texture_floats(node, ("Wavelength",), ctx)
+        return self.emit("color", "wavelength", w)
+
+
+# Handlers of ShaderCompiler._VALUE_NODES (node type -> function of compiler, node, output
+# socket, group context).
+VALUE_NODES = {
+    'VALTORGB': ColorNodes.color_ramp, 'CURVE_RGB': ColorNodes.rgb_curves,
+    'SEPARATE_COLOR': ColorNodes.separate_color, 'SEPRGB': ColorNodes.separate_color,
+    'SEPHSV': ColorNodes.separate_color, 'COMBINE_COLOR': ColorNodes.combine_color,
+    'COMBRGB': ColorNodes.combine_color, 'COMBHSV': ColorNodes.combine_color,
+    'HUE_SAT': ColorNodes.hue_saturation, 'GAMMA': ColorNodes.gamma,
+    'BRIGHTCONTRAST': ColorNodes.bright_contrast, 'BLACKBODY': ColorNodes.blackbody,
+    'WAVELENGTH': ColorNodes.wavelength,
+}

@@ -1,0 +1,207 @@
+"""Input nodes: texture coordinates, UV maps, attributes, geometry, light path, object and
+curves info, and the nodes that trace rays from the shading point (AO, Bevel, Wireframe)
+(a ShaderCompiler mixin)."""
+
+from .uv_sets import MAX_UV_SETS
+from .values import ZERO, Val, const_color, const_float, const_vector
+
+
+class InputNodes:
+    """Translators of the Input nodes (ShaderCompiler mixin)."""
+
+    def uv(self, name, what):
+        k = self.uv_sets.index(name)
+        if k is None:
+            self.problem(f"{what}: more than {MAX_UV_SETS} UV maps in the scene (UV map "
+                         f"'{name}' reads as the first)")
+            k = 0
+        self.uv_used[k] = name or ""
+        return k
+
+    def uv_value(self, name, what):
+        """Val of the UV coordinates of a UV map (one "uv" op per set)."""
+        k = self.uv(name, what)
+        key = ("uv", k, self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", "uv", k, *extra)
+        return self.cache[key]
+
+    def attribute_value(self, kind, name, output, what):
+        """Val of a mesh attribute's output ("COLOR", "FAC" or "ALPHA"): kind "attr" (by name)
+        or "color" (a colour attribute; "" = the mesh's render colour attribute)."""
+        k = self.uv_sets.index((kind, name))
+        if k is None:
+            self.problem(f"{what}: more than {MAX_UV_SETS} UV maps and attributes in the scene "
+                         "(reads 0)")
+            return ZERO if output != "COLOR" else const_color((0, 0, 0, 0))
+        self.uv_used[k] = (kind, name)
+        key = ("attribute", k, output)
+        if key not in self.cache:
+            self.cache[key] = self.emit("float" if output != "COLOR" else "color", "attribute", k,
+                                        output)
+        return self.cache[key]
+
+    def color_attribute(self, node, out, ctx):
+        """Color Attribute: a colour attribute of the mesh (its render one when unnamed)."""
+        output = "ALPHA" if out.identifier == "Alpha" else "COLOR"
+        return self.attribute_value("color", node.layer_name, output, f"'{node.name}'")
+
+    def attribute_node(self, node, out, ctx):
+        """Attribute: a geometry attribute of the mesh by name (any domain but edges, any
+        type: floats read as grey, 2D vectors with z = 0). Object, instancer and view-layer
+        attributes are not supported (0)."""
+        if node.attribute_type != 'GEOMETRY':
+            self.problem(f"'{node.name}': {node.attribute_type.lower().replace('_', ' ')} "
+                         "attributes are not supported (0)")
+            return ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 1))
+        if not node.attribute_name:
+            return ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 1))
+        output = {"Fac": "FAC", "Alpha": "ALPHA"}.get(out.identifier, "COLOR")
+        v = self.attribute_value("attr", node.attribute_name, output, f"'{node.name}'")
+        return Val("vector", reg=v.reg) if out.identifier == "Vector" else v
+
+    def object_coords(self, which):
+        """Val of the object-space ("object") or texture-space ("generated") position."""
+        key = (which, self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", which, *extra)
+        return self.cache[key]
+
+    def position(self):
+        """Val of the world position (at the current bump offset)."""
+        key = ("position", self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", "position", *extra)
+        return self.cache[key]
+
+    def camera_coords(self, which):
+        """Texture Coordinate's Camera or Window (at the current bump offset)."""
+        key = ("camera_coords", which, self.bump_state)
+        if key not in self.cache:
+            extra = (self.bump_state,) if self.bump_state else ()
+            self.cache[key] = self.emit("vector", "camera_coords", which, *extra)
+        return self.cache[key]
+
+    def tex_coord(self, node, oid):
+        if oid == "UV":
+            if node.from_instancer:
+                self.problem(f"'{node.name}': UV from instancer is not supported")
+            return self.uv_value("", f"'{node.name}'")
+        if oid in ("Object", "Generated"):
+            if oid == "Object" and node.object is not None:
+                self.problem(f"'{node.name}': Object coordinates of another object "
+                             f"('{node.object.name}') are not supported (its own object's)")
+            return self.object_coords(oid.lower())
+        if oid == "Normal":
+            return self.emit("vector", "object_normal")
+        if oid == "Reflection":
+            return self.emit("vector", "geometry", "REFLECTION")
+        if oid in ("Camera", "Window"):
+            return self.camera_coords(oid.upper())
+        self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
+        return const_vector((0, 0, 0))
+
+    def fresnel_node(self, node, out, ctx):
+        ior = self.input(node, "IOR", ctx, "float")
+        normal = self.normal(node, ctx)
+        return self.emit("float", "fresnel", self.reg(ior),
+                         None if normal is None else self.reg(normal))
+
+    def layer_weight(self, node, out, ctx):
+        blend = self.input(node, "Blend", ctx, "float")
+        normal = self.normal(node, ctx)
+        which = "FACING" if out.identifier == "Facing" else "FRESNEL"
+        return self.emit("float", "layer_weight", self.reg(blend),
+                         None if normal is None else self.reg(normal), which)
+
+    _GEOMETRY = {"True Normal": "TRUE_NORMAL", "Incoming": "INCOMING",
+                 "Parametric": "PARAMETRIC", "Backfacing": "BACKFACING"}
+
+    def light_path(self, node, out, ctx):
+        """Light Path: every output from the core's path state, as Cycles'."""
+        which = out.identifier.upper().replace(" ", "_")
+        if which not in self._LIGHT_PATH:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit("float", "light_path", which)
+
+    _LIGHT_PATH = {"IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY",
+                   "IS_SINGULAR_RAY", "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY",
+                   "IS_VOLUME_SCATTER_RAY", "RAY_LENGTH",
+                   "RAY_DEPTH", "DIFFUSE_DEPTH", "GLOSSY_DEPTH", "TRANSPARENT_DEPTH",
+                   "TRANSMISSION_DEPTH"}
+
+    _OBJECT_INFO = {"Location": ("vector", "LOCATION"), "Color": ("color", "COLOR"),
+                    "Alpha": ("float", "ALPHA"), "Object Index": ("float", "OBJECT_INDEX"),
+                    "Random": ("float", "RANDOM")}
+
+    def object_info(self, node, out, ctx):
+        """Object Info: the hit instance's location, colour, alpha, pass index and random
+        number (per instance in the core); Material Index is this material's pass index."""
+        if out.identifier == "Material Index":
+            return const_float(float(self.material_index))
+        kind, which = self._OBJECT_INFO.get(out.identifier, (None, None))
+        if kind is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit(kind, "object_info", which)
+
+    _CURVES_INFO = {"Is Strand": ("float", "IS_STRAND"), "Intercept": ("float", "INTERCEPT"),
+                    "Length": ("float", "LENGTH"), "Thickness": ("float", "THICKNESS"),
+                    "Tangent Normal": ("vector", "TANGENT_NORMAL"), "Random": ("float", "RANDOM")}
+
+    def curves_info(self, node, out, ctx):
+        """Curves Info: what the hit strand's geometry says (zeros off curves, as Cycles)."""
+        kind, which = self._CURVES_INFO.get(out.identifier, (None, None))
+        if kind is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit(kind, "curves_info", which)
+
+    def tangent_node(self, node, out, ctx):
+        """Tangent: radial around an object axis (from the generated coordinates) or a UV
+        map's tangent (per triangle from its uvs, where Cycles interpolates MikkTSpace's)."""
+        if node.direction_type == 'UV_MAP':
+            k = self.uv(node.uv_map, f"'{node.name}'")
+            return self.emit("vector", "tangent", "UV_MAP", k)
+        return self.emit("vector", "tangent", node.axis, 0)
+
+    def ambient_occlusion(self, node, out, ctx):
+        """Ambient Occlusion: rays traced from the shading point as Cycles' (Samples,
+        Distance, Inside, Only Local); Color is AO times the Color input."""
+        color = self.reg(self.input(node, "Color", ctx, "color"))
+        (dist,) = self._texture_floats(node, ("Distance",), ctx)
+        normal = self.normal(node, ctx)
+        which = "AO" if out.identifier == "AO" else "COLOR"
+        return self.emit("float" if which == "AO" else "color", "ambient_occlusion", color, dist,
+                         None if normal is None else self.reg(normal), int(node.samples),
+                         bool(node.inside), bool(node.only_local), which)
+
+    def bevel(self, node, out, ctx):
+        """Bevel: the instance's smooth normals within Radius, found by traced rays as Cycles'
+        (Samples); a linked Normal keeps its own bend."""
+        (radius,) = self._texture_floats(node, ("Radius",), ctx)
+        normal = self.normal(node, ctx)
+        return self.emit("vector", "bevel", radius, None if normal is None else self.reg(normal),
+                         int(node.samples))
+
+    def wireframe(self, node, out, ctx):
+        """Wireframe: 1 near the triangles' edges (Size in world units, or in pixels)."""
+        (size,) = self._texture_floats(node, ("Size",), ctx)
+        extra = (self.bump_state,) if self.bump_state else ()
+        return self.emit("float", "wireframe", size, bool(node.use_pixel_size), *extra)
+
+
+# Handlers of ShaderCompiler._VALUE_NODES (node type -> function of compiler, node, output
+# socket, group context).
+VALUE_NODES = {
+    'FRESNEL': InputNodes.fresnel_node, 'LAYER_WEIGHT': InputNodes.layer_weight,
+    'LIGHT_PATH': InputNodes.light_path, 'OBJECT_INFO': InputNodes.object_info,
+    'HAIR_INFO': InputNodes.curves_info, 'VERTEX_COLOR': InputNodes.color_attribute,
+    'ATTRIBUTE': InputNodes.attribute_node, 'TANGENT': InputNodes.tangent_node,
+    'AMBIENT_OCCLUSION': InputNodes.ambient_occlusion, 'BEVEL': InputNodes.bevel,
+    'WIREFRAME': InputNodes.wireframe,
+}

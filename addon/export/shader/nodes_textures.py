@@ -1,0 +1,125 @@
+"""Texture nodes: Image, Noise, Wave, Magic, White Noise and Gabor (a ShaderCompiler mixin;
+Checker, Gradient, Brick and Voronoi are tex_patterns'.)"""
+
+from .images import MISSING_TEXTURE
+from .values import ONE, const_color, const_vector
+
+
+class TextureNodes:
+    """Translators of the texture nodes (ShaderCompiler mixin)."""
+
+    def image_texture(self, node, out, ctx):
+        what = f"'{node.name}'"
+        image = node.image
+        loaded = self.images.load(image, self.problems) if image is not None else None
+        if image is None:
+            self.problem(f"{what} has no image (magenta)")
+        if loaded is None:
+            if out.identifier == "Alpha":
+                return ONE
+            return const_color(MISSING_TEXTURE)
+        if out.identifier == "Alpha" and not loaded.has_alpha:
+            return ONE
+        vec = self.value(node.inputs["Vector"], ctx, "vector")
+        if vec is None:
+            vec = self.uv_value("", what)
+        if node.projection != 'FLAT':
+            self.problem(f"{what}: {node.projection.lower()} projection is not supported "
+                         "(flat)")
+        interp = {"Closest": "CLOSEST"}.get(node.interpolation, "LINEAR")
+        if node.interpolation in ("Cubic", "Smart"):
+            self.problem(f"{what}: {node.interpolation} interpolation is approximated by Linear")
+        ext = node.extension
+        if ext == 'MIRROR':
+            self.problem(f"{what}: Mirror extension is not supported (Repeat)")
+            ext = 'REPEAT'
+        if ext not in ('REPEAT', 'EXTEND', 'CLIP'):
+            ext = 'REPEAT'
+        if out.identifier == "Alpha":
+            index = self.images.index(image, loaded, "alpha")
+            return self.emit("float", "image", self.reg(vec), index, interp, ext)
+        # As Cycles: with the Alpha output in use, Color is divided by the filtered alpha.
+        alpha_out = node.outputs.get("Alpha")
+        unassociate = (alpha_out is not None and alpha_out.is_linked and loaded.has_alpha
+                       and loaded.unassociate)
+        index = self.images.index(image, loaded, "color")
+        if unassociate:
+            return self.emit("color", "image", self.reg(vec), index, interp, ext, True)
+        return self.emit("color", "image", self.reg(vec), index, interp, ext)
+
+    # -------------------------------------------------- procedural textures (issue 21)
+
+    def texture_vector(self, node, ctx):
+        """A texture node's Vector: the linked value, or (unlinked) Generated coordinates, as
+        Cycles links them in (its ops follow the Bump node's offsets)."""
+        tm = node.texture_mapping  # the sidebar's Texture Mapping panel, rarely changed
+        if (any(tm.translation) or any(tm.rotation) or tuple(tm.scale) != (1.0, 1.0, 1.0)
+                or tm.use_min or tm.use_max or tm.mapping != 'FLAT'
+                or (tm.mapping_x, tm.mapping_y, tm.mapping_z) != ('X', 'Y', 'Z')):
+            self.problem(f"'{node.name}': its Texture Mapping settings are not supported "
+                         "(ignored; a Mapping node works)")
+        socket = next(s for s in node.inputs if s.identifier == "Vector")
+        vec = self.value(socket, ctx, "vector")
+        return self.object_coords("generated") if vec is None else vec
+
+    def _texture_floats(self, node, names, ctx):
+        """Registers of float inputs, found by identifier: inputs[name] skips the sockets
+        that the node's mode makes unavailable (W of 3D noise), which still read as their
+        values (the core ignores what the mode does not use)."""
+        by_id = {s.identifier: s for s in node.inputs}
+        return [self.reg(self.value(by_id[name], ctx, "float")) for name in names]
+
+    def noise_texture(self, node, out, ctx):
+        """Cycles' Noise Texture (always emitted: the core evaluates a non-varying program once)."""
+        dims = int(node.noise_dimensions[0])
+        vec = None if dims == 1 else self.reg(self.texture_vector(node, ctx))  # 1D reads only W
+        floats = self._texture_floats(node, ("W", "Scale", "Detail", "Roughness", "Lacunarity",
+                                             "Offset", "Gain", "Distortion"), ctx)
+        color = out.identifier == "Color"
+        return self.emit("color" if color else "float", "tex_noise", vec, *floats, dims,
+                         node.noise_type, bool(node.normalize), color)
+
+    def wave_texture(self, node, out, ctx):
+        vec = self.reg(self.texture_vector(node, ctx))
+        floats = self._texture_floats(node, ("Scale", "Distortion", "Detail", "Detail Scale",
+                                             "Detail Roughness", "Phase Offset"), ctx)
+        direction = node.bands_direction if node.wave_type == 'BANDS' else node.rings_direction
+        kind = "color" if out.identifier == "Color" else "float"  # Color is (Fac, Fac, Fac)
+        return self.emit(kind, "tex_wave", vec, *floats, node.wave_type, direction,
+                         node.wave_profile)
+
+    def magic_texture(self, node, out, ctx):
+        vec = self.reg(self.texture_vector(node, ctx))
+        floats = self._texture_floats(node, ("Scale", "Distortion"), ctx)
+        color = out.identifier == "Color"
+        return self.emit("color" if color else "float", "tex_magic", vec, *floats,
+                         int(node.turbulence_depth), color)
+
+    def white_noise_texture(self, node, out, ctx):
+        dims = int(node.noise_dimensions[0])
+        vec = None
+        if dims != 1:
+            v = self.value(next(s for s in node.inputs if s.identifier == "Vector"), ctx,
+                           "vector")
+            # Cycles gives this node no implicit coordinates: unlinked, its Vector is (0, 0, 0).
+            vec = self.reg(v if v is not None else const_vector((0, 0, 0)))
+        (w,) = self._texture_floats(node, ("W",), ctx)
+        color = out.identifier == "Color"
+        return self.emit("color" if color else "float", "tex_white_noise", vec, w, dims, color)
+
+    def gabor_texture(self, node, out, ctx):
+        """Cycles' Gabor Texture, 2D and 3D, every output."""
+        vec = self.reg(self.texture_vector(node, ctx))
+        floats = self._texture_floats(node, ("Scale", "Frequency", "Anisotropy", "Orientation 2D"),
+                                      ctx)
+        o3 = self.reg(self._vector_or_zero(node, "Orientation 3D", ctx))
+        which = {"Phase": "PHASE", "Intensity": "INTENSITY"}.get(out.identifier, "VALUE")
+        return self.emit("float", "tex_gabor", vec, *floats, o3, node.gabor_type, which)
+
+
+# Handlers of ShaderCompiler._VALUE_NODES (Image Texture is eval_value_node's).
+VALUE_NODES = {
+    'TEX_NOISE': TextureNodes.noise_texture, 'TEX_WAVE': TextureNodes.wave_texture,
+    'TEX_MAGIC': TextureNodes.magic_texture, 'TEX_WHITE_NOISE': TextureNodes.white_noise_texture,
+    'TEX_GABOR': TextureNodes.gabor_texture,
+}

@@ -1,0 +1,135 @@
+"""Vector nodes: Vector Math, Mapping, Vector Rotate / Transform, Separate / Combine XYZ,
+Bump and Normal Map (a ShaderCompiler mixin)."""
+
+import numpy as np
+
+from .folding import VECTOR_MATH_OPS, VECTOR_MATH_VALUE_OPS, _vector_math, mapping_matrix
+from .values import ONE, ZERO, const_float, const_vector
+
+
+class VectorNodes:
+    """Translators of the vector nodes (ShaderCompiler mixin)."""
+
+    def vector_op(self, op, a, b, c=None):
+        """Vector Math on values (floats broadcast), folded when constant."""
+        a, b = self.as_vector(a), self.as_vector(b)
+        c = const_vector((0, 0, 0)) if c is None else self.as_vector(c)
+        if a.is_const and b.is_const and c.is_const:
+            return const_vector(_vector_math(op, a.const[:3], b.const[:3], c.const[:3], 1.0))
+        return self.emit("vector", "vector_math", self.reg(a), self.reg(b), self.reg(c), self.reg(ONE),
+                         op)
+
+    def vector_math(self, node, out, ctx):
+        op = node.operation
+        if op not in VECTOR_MATH_OPS:
+            return NotImplemented
+        by_id = {s.identifier: s for s in node.inputs}
+        a, b, c = (self.value(by_id[k], ctx, "vector") or self.socket_default(by_id[k], "vector")
+                   for k in ("Vector", "Vector_001", "Vector_002"))
+        scale = self.value(by_id["Scale"], ctx, "float")
+        value_op = op in VECTOR_MATH_VALUE_OPS
+        if (out.identifier == "Value") != value_op:  # the output this operation leaves at 0
+            return ZERO if out.identifier == "Value" else const_vector((0, 0, 0))
+        kind = "float" if value_op else "vector"
+        if all(v.is_const for v in (a, b, c, scale)):
+            r = _vector_math(op, a.const[:3], b.const[:3], c.const[:3], scale.const[0])
+            return const_float(r) if value_op else const_vector(r)
+        return self.emit(kind, "vector_math", self.reg(a), self.reg(b), self.reg(c),
+                         self.reg(scale), op)
+
+    def separate_xyz(self, node, out, ctx):
+        socket = node.inputs["Vector"]
+        v = self.value(socket, ctx, "vector") or self.socket_default(socket, "vector")
+        return self.separate(v, "XYZ".index(out.identifier))
+
+    def combine_xyz(self, node, out, ctx):
+        return self.combine(*(self.input(node, k, ctx, "float") for k in "XYZ"), "vector")
+
+    def mapping(self, node, ctx):
+        vec = self.input(node, "Vector", ctx, "vector")
+        vtype = node.vector_type
+        params = {}
+        for name, default in (("Location", (0, 0, 0)), ("Rotation", (0, 0, 0)),
+                              ("Scale", (1, 1, 1))):
+            socket = node.inputs.get(name)
+            if socket is None or not socket.enabled:
+                params[name] = default
+            else:
+                params[name] = self.const_input(node, name, ctx, "vector").const[:3]
+        m = mapping_matrix(vtype, params["Location"], params["Rotation"], params["Scale"])
+        if vec.is_const:
+            v = m[:, :3].astype(np.float64) @ np.array(vec.const[:3]) + m[:, 3]
+            return const_vector(v)
+        return self.emit("vector", "mapping", self.reg(vec), m)
+
+    def _vector_or_zero(self, node, identifier, ctx):
+        """A vector input found by identifier (also when the node's mode hides it); an
+        unlinked hidden-value one reads (0, 0, 0), as Cycles gives these nodes no implicit
+        coordinates."""
+        socket = next(s for s in node.inputs if s.identifier == identifier)
+        v = self.value(socket, ctx, "vector")
+        return v if v is not None else const_vector((0, 0, 0))
+
+    def vector_rotate(self, node, out, ctx):
+        """Vector Rotate, every type, Invert, every input linkable (always emitted: the core
+        evaluates a program that reads no shading point once)."""
+        regs = [self.reg(self._vector_or_zero(node, name, ctx)) for name in ("Vector", "Center", "Axis")]
+        regs += self._texture_floats(node, ("Angle",), ctx)
+        regs.append(self.reg(self._vector_or_zero(node, "Rotation", ctx)))
+        return self.emit("vector", "vector_rotate", *regs, node.rotation_type, bool(node.invert))
+
+    def vector_transform(self, node, out, ctx):
+        """Vector Transform between world, object and camera space (points, vectors, normals)."""
+        v = self.reg(self._vector_or_zero(node, "Vector", ctx))
+        return self.emit("vector", "vector_transform", v, node.vector_type, node.convert_from,
+                         node.convert_to)
+
+    def bump(self, node, out, ctx):
+        """Cycles' Bump: the height at the point and at two offsets Filter Width pixel
+        footprints away (Cycles' ray differentials; one filter width per material)."""
+        normal = self.normal(node, ctx)
+        strength = self.input(node, "Strength", ctx, "float")
+        distance = self.input(node, "Distance", ctx, "float")
+        height = node.inputs["Height"]
+        if self.source(height, ctx) is None or (strength.is_const and strength.const[0] <= 0.0):
+            return normal  # nothing to differentiate: the input normal (None: the shading one)
+        saved = self.bump_state
+        heights = []
+        try:
+            for state in (0, 1, 2):
+                self.bump_state = state
+                heights.append(self.value(height, ctx, "float"))
+        finally:
+            self.bump_state = saved
+        if all(h.is_const for h in heights):
+            return normal  # a constant height has no slope
+        width_socket = node.inputs.get("Filter Width")
+        width = 0.1 if width_socket is None else self.const_input(node, "Filter Width", ctx, "float").const[0]
+        first = self.cache.setdefault("bump_filter_width", width)
+        if first != width:
+            self.problem(f"'{node.name}': Filter Width {width:g} differs from another Bump's "
+                         f"{first:g} in the material (that one is used)")
+        return self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(strength),
+                         self.reg(distance), None if normal is None else self.reg(normal),
+                         bool(node.invert), max(0.0, float(width)))
+
+    def normal_map(self, node, ctx):
+        what = f"'{node.name}'"
+        if node.space != 'TANGENT':
+            self.problem(f"{what}: {node.space.replace('_', ' ').lower()} space normal maps "
+                         "are not supported (ignored)")
+            return None
+        color = self.input(node, "Color", ctx, "color")
+        strength = self.input(node, "Strength", ctx, "float")
+        if strength.is_const and strength.const[0] == 0.0:
+            return None
+        k = self.uv(node.uv_map, what)
+        return self.emit("vector", "normal_map", self.reg(color), self.reg(strength), k)
+
+
+# Handlers of ShaderCompiler._VALUE_NODES (Mapping and Normal Map are eval_value_node's).
+VALUE_NODES = {
+    'BUMP': VectorNodes.bump, 'SEPXYZ': VectorNodes.separate_xyz,
+    'COMBXYZ': VectorNodes.combine_xyz, 'VECT_MATH': VectorNodes.vector_math,
+    'VECTOR_ROTATE': VectorNodes.vector_rotate, 'VECT_TRANSFORM': VectorNodes.vector_transform,
+}
