@@ -178,16 +178,22 @@ def test_rough_diffuse_sheen_and_diffuse_roughness_pass_their_inputs():
     node.component = 'GLOSSY'
     (closure,), _, _ = closures_of(mat)
     assert closure[2]["glossy"][0] == 1.0
-    # Principled Diffuse Roughness and Sheen: passed, no warning; sheen dims no emission here.
+    # Principled Diffuse Roughness and Sheen: passed, no warning.
     mat, node = ms.bsdf_material("P", "ShaderNodeBsdfPrincipled", Diffuse_Roughness=0.7, Sheen_Weight=1.0,
                                  Sheen_Tint=(1.0, 0.5, 0.25, 1))
     (closure,), warnings, _ = closures_of(mat)
     assert not warnings
     assert closure[2]["diffuse_roughness"][0] == approx(0.7)
     assert closure[2]["sheen_tint"][:3] == approx((1.0, 0.5, 0.25))
-    node.inputs["Emission Strength"].default_value = 1.0
-    _, warnings, _ = closures_of(mat)
-    assert len(warnings) == 1 and "sheen" in warnings[0]
+    # Emission under the sheen travels in the Principled closure (the core dims it), not as
+    # an Emission closure of its own; without sheen or coat it stays a plain Emission closure.
+    node.inputs["Emission Strength"].default_value = 2.0
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0] == "principled" and not warnings
+    assert closure[2]["emission"][:3] == approx((2.0, 2.0, 2.0))
+    node.inputs["Sheen Weight"].default_value = 0.0
+    kinds = [c[0] for c in closures_of(mat)[0]]
+    assert kinds == ["principled", "emission"]
 
 
 def test_multiscatter_glossy_passes_its_distribution_without_warning():
