@@ -1418,3 +1418,16 @@ def test_thin_film_compiles_without_a_warning():
     data, warnings = compile_(mat)
     (params,) = [op[3] for op in data.program if op[0] == "closure"]
     assert not warnings and "thin_film_thickness" not in params
+
+
+@pytest.mark.parametrize("parametrization", ["COLOR", "MELANIN", "ABSORPTION"])
+def test_huang_hair_falls_back_to_chiang_with_one_warning(parametrization):
+    # Huang's node hides Radial Roughness and Coat, which bpy then cannot find by name: the
+    # compiler once raised KeyError here. Chiang's lobe with those inputs' defaults stands in.
+    mat, node = ms.bsdf_material("H", "ShaderNodeBsdfHairPrincipled")
+    node.model = 'HUANG'
+    node.parametrization = parametrization
+    (closure,), warnings, _ = closures_of(mat)
+    assert closure[0].startswith("principled_hair_")
+    assert closure[2]["radial_roughness"][0] == approx(0.3) and closure[2]["coat"][0] == approx(0.0)
+    assert len(warnings) == 1 and "Huang" in warnings[0]

@@ -167,9 +167,14 @@ class ClosureNodes:
         if node.model != 'CHIANG':
             self.problem(f"'{node.name}': the Huang hair model is not supported (rendered with "
                          "Chiang's)")
+        # Huang's node hides Chiang's own inputs (bpy then cannot find them by name): their
+        # Blender defaults stand in.
+        hidden = {"Radial Roughness": 0.3, "Coat": 0.0}
+        chiang = lambda name: (inp(name, "float") if node.inputs.get(name) is not None  # noqa: E731
+                               else const_float(hidden[name]))
         mode = {'ABSORPTION': "absorption", 'MELANIN': "melanin"}.get(node.parametrization, "color")
         params = dict(roughness=inp("Roughness", "float"),
-                      radial_roughness=inp("Radial Roughness", "float"), coat=inp("Coat", "float"),
+                      radial_roughness=chiang("Radial Roughness"), coat=chiang("Coat"),
                       ior=inp("IOR", "float"), offset=inp("Offset", "float"),
                       random_roughness=inp("Random Roughness", "float"))
         if mode == "absorption":
