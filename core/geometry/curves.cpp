@@ -7,6 +7,7 @@
 #include <immintrin.h>
 #endif
 
+#include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
 
 namespace pl {
@@ -322,40 +323,7 @@ void CurveBvh::build(std::vector<CurvePiece> pieces) {
       const float lo = cb.lo[axis], ext = cb.extent()[axis];
       // Deep down, halves by count: the depth (and the traversal stack) stays below 48 + log2 n.
       if (ext > 0.0f && tk.depth < 48) {  // binned SAH on the centroids
-        Aabb bin_box[kBins];
-        uint32_t bin_n[kBins] = {};
-        const float kk = kBins * (1.0f - 1e-6f) / ext;
-        auto bin_of = [&](uint32_t r) { return std::min(kBins - 1, int((centers[r][axis] - lo) * kk)); };
-        for (uint32_t i = tk.begin; i < tk.end; ++i) {
-          const int bi = bin_of(refs[i]);
-          bin_box[bi].grow(boxes[refs[i]]);
-          ++bin_n[bi];
-        }
-        float right[kBins] = {};
-        Aabb acc;
-        uint32_t m = 0;
-        for (int i = kBins - 1; i > 0; --i) {
-          acc.grow(bin_box[i]);
-          m += bin_n[i];
-          right[i] = acc.half_area() * float(m);
-        }
-        acc = Aabb();
-        m = 0;
-        float best = kInf;
-        int split = -1;
-        for (int i = 0; i < kBins - 1; ++i) {
-          acc.grow(bin_box[i]);
-          m += bin_n[i];
-          const float cost = acc.half_area() * float(m) + right[i + 1];
-          if (m > 0 && m < cnt && cost < best) {
-            best = cost;
-            split = i;
-          }
-        }
-        if (split >= 0)
-          mid = uint32_t(std::partition(refs.begin() + tk.begin, refs.begin() + tk.end,
-                                        [&](uint32_t r) { return bin_of(r) <= split; }) -
-                         refs.begin());
+        mid = binned_sah_partition<kBins>(refs, tk.begin, tk.end, boxes, centers, axis, lo, ext);
       }
       if (mid == tk.begin || mid == tk.end) {
         mid = tk.begin + cnt / 2;

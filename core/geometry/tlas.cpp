@@ -6,6 +6,7 @@
 #include <immintrin.h>
 #endif
 
+#include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
 
 namespace pl {
@@ -62,41 +63,7 @@ struct Builder {
       // Deep down, halves by count: the depth (and the traversal stack) stays below
       // kSahDepth + 32 levels however lopsided the SAH splits above were.
       if (ext > 0.0f && depth < kSahDepth) {
-        // Binned SAH (Wald 2007) on the centroids.
-        Aabb bin_box[kBins];
-        uint32_t bin_n[kBins] = {};
-        const float k = kBins * (1.0f - 1e-6f) / ext;
-        auto bin_of = [&](uint32_t r) { return std::min(kBins - 1, int((centers[r][axis] - lo) * k)); };
-        for (uint32_t i = begin; i < end; ++i) {
-          const int bi = bin_of(refs[i]);
-          bin_box[bi].grow(boxes[refs[i]]);
-          ++bin_n[bi];
-        }
-        float right_cost[kBins] = {};
-        Aabb acc;
-        uint32_t cnt = 0;
-        for (int i = kBins - 1; i > 0; --i) {
-          acc.grow(bin_box[i]);
-          cnt += bin_n[i];
-          right_cost[i] = acc.half_area() * float(cnt);
-        }
-        acc = Aabb();
-        cnt = 0;
-        float best = kInf;
-        int split = -1;
-        for (int i = 0; i < kBins - 1; ++i) {
-          acc.grow(bin_box[i]);
-          cnt += bin_n[i];
-          const float c = acc.half_area() * float(cnt) + right_cost[i + 1];
-          if (cnt > 0 && cnt < n && c < best) {
-            best = c;
-            split = i;
-          }
-        }
-        if (split >= 0)
-          mid = uint32_t(std::partition(refs.begin() + begin, refs.begin() + end,
-                                        [&](uint32_t r) { return bin_of(r) <= split; }) -
-                         refs.begin());
+        mid = binned_sah_partition<kBins>(refs, begin, end, boxes, centers, axis, lo, ext);
       }
       if (mid == begin || mid == end) {  // coincident centroids: split by count
         mid = begin + n / 2;
