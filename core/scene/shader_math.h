@@ -1,6 +1,6 @@
 // The value arithmetic of shader programs as Cycles' SVM nodes compute it (Math, Mix,
-// colour spaces, Vector Math, Map Range steps, ramps): included by shader.cpp alone, which
-// evaluates programs.
+// colour spaces, Vector Math, Map Range steps, ramps): included by the units that evaluate
+// programs alone (shader.cpp, shader_closures.cpp, shader_image.cpp).
 #pragma once
 #include <algorithm>
 #include <cmath>

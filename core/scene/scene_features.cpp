@@ -1,0 +1,130 @@
+// The scene features in use (for kernel choice and logs), found at commit.
+#include "scene/scene.h"
+#include "scene/scene_detail.h"
+
+namespace pl {
+
+using detail::material_of;
+
+namespace {
+// (name, in use) for every scene feature, in the order logs list them.
+std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) {
+  const auto light = [&](LightType t) { return (f.light_kinds >> uint32_t(t) & 1u) != 0; };
+  return {{"diffuse", f.diffuse},
+          {"glossy", f.glossy},
+          {"glass", f.transmission},
+          {"transparent", f.transparent},
+          {"varying shaders", f.varying},
+          {"textures", f.textures},
+          {"normal maps", f.normal_maps},
+          {"media", f.media},
+          {"volumes", f.volumes},
+          {"mesh lights", f.emission},
+          {"point lights", light(LightType::Point)},
+          {"spot lights", light(LightType::Spot)},
+          {"sun lights", light(LightType::Sun)},
+          {"area lights", light(LightType::Rect) || light(LightType::Ellipse)},
+          {"environment", f.environment},
+          {"world light", f.world_light},
+          {"light tree", f.light_tree},
+          {"subsurface", f.subsurface}};
+}
+}  // namespace
+
+std::vector<std::string> SceneFeatures::names() const {
+  std::vector<std::string> out;
+  for (const auto& [name, on] : feature_table(*this))
+    if (on) out.emplace_back(name);
+  return out;
+}
+
+std::vector<std::string> SceneFeatures::all_names() {
+  std::vector<std::string> out;
+  for (const auto& e : feature_table(SceneFeatures{})) out.emplace_back(e.first);
+  return out;
+}
+
+void Scene::detect_features() {
+  SceneFeatures f;
+  std::vector<uint8_t> used(materials_.size(), 0);
+  // Meshes of one material (the common case) need no per-triangle look-up: one sequential
+  // scan says so (0: not scanned, 1: one material, 2: several).
+  std::vector<uint8_t> uniform(meshes_.size(), 0);
+  const auto one_material = [&](uint32_t mi) {
+    if (uniform[mi] == 0) {
+      const std::vector<uint32_t>& ids = meshes_[mi].materials;
+      bool same = true;
+      for (size_t t = 1; t < ids.size(); ++t) same &= ids[t] == ids[0];
+      uniform[mi] = same ? 1 : 2;
+    }
+    return uniform[mi] == 1;
+  };
+  for (const Blas& b : blases_) {
+    // Merged: runs of one instance's triangles (no run search per triangle); else one run.
+    const size_t runs = b.merged ? b.run_first.size() : 1;
+    for (size_t r = 0; r < runs; ++r) {
+      const uint32_t mi = b.merged ? inst_[b.run_inst[r]].mesh : b.mesh;
+      const MeshData& mesh = meshes_[mi];
+      const size_t begin = b.merged ? b.run_first[r] : 0;
+      const size_t end = b.merged && r + 1 < runs ? b.run_first[r + 1] : b.src_tri.size();
+      if (begin < end && one_material(mi)) {
+        used[material_of(mesh, b.src_tri[begin], materials_.size())] = 1;
+        continue;
+      }
+      for (size_t t = begin; t < end; ++t) used[material_of(mesh, b.src_tri[t], materials_.size())] = 1;
+    }
+  }
+  if (curves_on_)
+    for (const CurveSetData& cs : curve_sets_) used[cs.material < materials_.size() ? cs.material : 0] = 1;
+  for (size_t id = 0; id < materials_.size(); ++id) {
+    if (!used[id]) continue;
+    const Material& m = materials_[id];
+    f.media = f.media || m.program.has_medium();
+    f.volumes = f.volumes || (m.program.has_medium() && (!is_black(m.program.sigma_s) ||
+                                                         !is_black(m.program.volume_emission) || m.transparent));
+    if (m.constant) {  // the closures it does add
+      for (int i = 0; i < m.cached.n; ++i) {
+        const Bsdf& b = m.cached.c[size_t(i)].bsdf;
+        if (std::holds_alternative<DiffuseBsdf>(b)) f.diffuse = true;
+        else if (std::holds_alternative<TranslucentBsdf>(b)) f.diffuse = f.transmission = true;
+        else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
+        else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
+        else if (std::holds_alternative<HairChiangBsdf>(b)) f.glossy = f.transmission = true;
+        else if (std::holds_alternative<SubsurfaceBsdf>(b)) f.subsurface = true;
+        // Rough diffuse and sheen: diffuse bounces, but not the diffuse-only kernel's lobe.
+        else if (std::holds_alternative<OrenNayarBsdf>(b) || std::holds_alternative<SheenBsdf>(b) ||
+                 std::holds_alternative<VelvetBsdf>(b) || std::holds_alternative<ToonBsdf>(b))
+          f.diffuse = f.glossy = true;
+        else if (std::get<DielectricBsdf>(b).transmission) f.transmission = true;
+        else f.glossy = true;
+      }
+    }
+    f.varying = f.varying || m.program.varying;
+    f.subsurface = f.subsurface || m.subsurface;
+    for (const ShaderOp& op : m.program.ops) {
+      f.textures = f.textures || op.code == OpCode::ImageTex;
+      f.normal_maps = f.normal_maps || op.code == OpCode::NormalMap || op.code == OpCode::Bump;
+      if (m.constant) continue;
+      switch (op.code) {  // every kind the op can add
+        case OpCode::Diffuse: f.diffuse = true; f.glossy = f.glossy || op.in[3] != kNoReg; break;  // in[3]: Oren-Nayar
+        case OpCode::Sheen: case OpCode::Toon: f.diffuse = f.glossy = true; break;
+        case OpCode::Translucent: f.diffuse = f.transmission = true; break;
+        case OpCode::Glossy: case OpCode::Metallic: f.glossy = true; break;
+        case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
+        case OpCode::Transparent: f.transparent = true; break;
+        case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
+        case OpCode::PrincipledHair: f.glossy = f.transmission = true; break;
+        default: break;
+      }
+    }
+  }
+  f.emission = !emitters_.empty();
+  f.environment = env_.valid();
+  if (world_volume_.has_medium()) f.media = f.volumes = true;
+  f.world_light = !env_.valid() && !is_black(world_color_);
+  for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
+  f.light_tree = use_tree_;
+  features_ = f;
+}
+
+}  // namespace pl

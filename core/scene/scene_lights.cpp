@@ -1,0 +1,590 @@
+// The scene's lights: the light distribution and tree built at commit over analytic lights,
+// emitter groups and the environment, and direct light sampling and its pdfs.
+#include "scene/scene.h"
+#include "scene/scene_detail.h"
+
+namespace pl {
+
+using detail::material_of;
+
+namespace {
+
+// Emissive triangles are sampled uniformly in the solid angle they subtend, except where that
+// angle is tiny (far away: area sampling is as good, cheaper and better conditioned) or close to
+// a hemisphere (the spherical construction loses precision there).
+inline bool use_spherical_sampling(double omega) { return omega > 2e-4 && omega < 6.2; }
+
+// One of a group's `count` triangles picked by x in [0, the weights' sum) in proportion to
+// weight(i), and x rescaled into [0, 1] within its share, so that the sample stays stratified
+// over the whole group. False where the pick has no weight.
+template <class Weight>
+inline bool pick_weighted(uint32_t count, const Weight& weight, double x, uint32_t& i, float& x_in_share) {
+  double acc = 0.0;
+  i = 0;
+  for (; i + 1 < count && !(x < acc + weight(i)); ++i) acc += weight(i);
+  const double wi = weight(i);
+  if (!(wi > 0.0)) return false;
+  x_in_share = float(std::clamp((x - acc) / wi, 0.0, 1.0));
+  return true;
+}
+
+// The probability of picking triangle `area` of a group of `group_area` by area, times the
+// group's own.
+inline float area_pmf(float pmf, float area, float group_area) {
+  return float(double(pmf) * double(area) / double(group_area));
+}
+
+}  // namespace
+
+void Scene::detect_rect(EmitterGroup& g, const InstanceData& in) const {
+  g.rect = false;
+  if (g.count != 2 || g.corners != 4) return;
+  const auto has = [&](int t, uint8_t c) { return g.tri_corner[t][0] == c || g.tri_corner[t][1] == c || g.tri_corner[t][2] == c; };
+  // The corner only triangle 0 has (the origin), the one only triangle 1 has (opposite it), and
+  // the shared diagonal's two in triangle 0's order.
+  int o = -1, far = -1, a = -1, b = -1;
+  for (int k = 0; k < 3; ++k) {
+    const uint8_t c = g.tri_corner[0][k];
+    if (!has(1, c)) o = c;
+    else (a < 0 ? a : b) = c;
+    if (!has(0, g.tri_corner[1][k])) far = g.tri_corner[1][k];
+  }
+  if (o < 0 || far < 0 || b < 0) return;
+  DVec3 w[4];
+  for (int c = 0; c < 4; ++c) w[c] = DVec3(in.transformed ? in.to_world.point(g.corner[c]) : g.corner[c]);  // as world_triangle
+  const DVec3 ex = w[a] - w[o], ey = w[b] - w[o];
+  const double lx = dlength(ex), ly = dlength(ey);
+  if (!(lx > 0.0) || !(ly > 0.0) || !std::isfinite(lx * ly)) return;
+  // A rectangle to 1e-5 of its edges: right-angled, and the fourth corner where the first three
+  // put it (planar). Float corners (a rotated quad's) are off by ~1e-7; sheared ones by far more.
+  constexpr double kTol = 1e-5;
+  const DVec3 off = w[far] - (w[o] + ex + ey);
+  if (!(std::fabs(ddot(ex, ey)) <= kTol * lx * ly) || !(dlength(off) <= kTol * std::min(lx, ly))) return;
+  g.rect_o = w[o];
+  g.rect_x = ex * (1.0 / lx);
+  DVec3 y = ey - g.rect_x * ddot(ey, g.rect_x);  // exactly orthogonal for the warp
+  if (!dnormalize(y)) return;
+  g.rect_y = y;
+  g.rect_n = dcross(g.rect_x, g.rect_y);
+  g.rect_lx = lx;
+  g.rect_ly = ddot(ey, y);
+  if (!(g.rect_ly > 0.0) || !dnormalize(g.rect_n)) return;
+  g.rect_inv_lx = 1.0 / g.rect_lx;
+  g.rect_inv_ly = 1.0 / g.rect_ly;
+  const auto rect_index = [&](int c) { return uint8_t(c == o ? 0 : c == a ? 1 : c == b ? 2 : 3); };
+  for (int t = 0; t < 2; ++t)
+    for (int k = 0; k < 3; ++k) g.rect_corner[t][k] = rect_index(g.tri_corner[t][k]);
+  for (int t = 0; t < 2; ++t) {
+    const Emitter& em = emitters_[g.first + size_t(t)];
+    const TriangleVerts tv = world_triangle(inst_[em.instance], blases_[inst_[em.instance].blas].tris[em.tri]);
+    g.rect_tri_n[t] = tv.unit_normal();
+  }
+  g.rect = true;
+}
+
+void Scene::build_lights() {
+  any_transparent_ = false;
+  any_holdout_ = false;
+  for (const Material& m : materials_) {
+    any_transparent_ = any_transparent_ || m.transparent;
+    any_holdout_ = any_holdout_ || m.holdout;
+  }
+  stats_.materials = materials_.size();
+
+  // Every light in one distribution, chosen in proportion to an estimate of its power.
+  const Aabb bounds = world_bounds_;
+  const float radius = bounds.empty() ? 1.0f : std::max(0.5f * length(bounds.extent()), 1e-6f);
+  std::vector<float> weights;
+  for (const Light& l : lights_) weights.push_back(light_power(l, radius));
+  emitters_.clear();
+  emitter_areas_.clear();
+  const auto emission_weight = [&](uint32_t material) {
+    const Vec3 le = materials_[material].emission_estimate;
+    const float lum = std::max(luminance(le), max_component(le) * 1e-3f);
+    return lum > 0.0f && std::isfinite(lum) ? lum : 0.0f;
+  };
+  std::vector<float> emitter_weights;
+  std::vector<uint32_t> emitter_materials;
+  const auto add_emitter = [&](uint32_t instance, uint32_t tri, const TriangleVerts& tv, float lum, uint32_t material) {
+    const float area = 0.5f * length(cross(tv.v1 - tv.v0, tv.v2 - tv.v0));
+    emitters_.push_back({instance, tri});
+    emitter_areas_.push_back(area);
+    emitter_weights.push_back(2.0f * kPi * area * lum);  // two-sided
+    emitter_materials.push_back(material);
+  };
+  // Per material once; a scene without emissive materials skips the per-triangle scans.
+  std::vector<float> material_lum(materials_.size());
+  bool any_emissive = false;
+  for (size_t id = 0; id < materials_.size(); ++id) {
+    material_lum[id] = emission_weight(uint32_t(id));
+    any_emissive = any_emissive || material_lum[id] > 0.0f;
+  }
+  // Emitters in flattened order for the merged triangles (as one world-space BVH had them),
+  // then (instance, triangle) pairs of the real instances.
+  for (Blas& b : blases_) {
+    b.emitter.clear();
+    b.emissive.clear();
+    if (!any_emissive) continue;
+    if (b.merged) {
+      for (size_t r = 0; r < b.run_first.size(); ++r) {  // runs of one instance's triangles
+        const uint32_t in = b.run_inst[r];
+        const MeshData& mesh = meshes_[inst_[in].mesh];
+        const uint32_t end = r + 1 < b.run_first.size() ? b.run_first[r + 1] : uint32_t(b.tris.size());
+        for (uint32_t t = b.run_first[r]; t < end; ++t) {
+          const uint32_t mat = material_of(mesh, b.src_tri[t], materials_.size());
+          const float lum = material_lum[mat];
+          if (!(lum > 0.0f)) continue;
+          if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
+          b.emitter[t] = int32_t(emitters_.size());
+          add_emitter(in, t, b.tris[t], lum, mat);
+        }
+      }
+    } else {
+      for (uint32_t t = 0; t < b.tris.size(); ++t) {
+        if (!(material_lum[material_of(meshes_[b.mesh], b.src_tri[t], materials_.size())] > 0.0f)) continue;
+        if (b.emitter.empty()) b.emitter.assign(b.tris.size(), -1);
+        b.emitter[t] = int32_t(b.emissive.size());
+        b.emissive.push_back(t);
+      }
+    }
+  }
+  for (size_t i = 0; i < inst_.size(); ++i) {
+    InstanceData& in = inst_[i];
+    // Moving instances are no light samples (they would be sampled where the frame has them).
+    if (!in.transformed || in.blas == UINT32_MAX || in.motion || in.deform) continue;
+    const Blas& b = blases_[in.blas];
+    in.emitter_base = uint32_t(emitters_.size());
+    for (uint32_t t : b.emissive) {
+      const uint32_t mat = material_of(meshes_[b.mesh], b.src_tri[t], materials_.size());
+      add_emitter(uint32_t(i), t, world_triangle(in, b.tris[t]), material_lum[mat], mat);
+    }
+  }
+  // Groups: an object's emitters of one material when there are at most kMaxEmitterGroup of
+  // them (a quad, a small polygon: sampled as one), else one group per triangle (a big mesh
+  // light would cost a solid angle per triangle of the group on every sample). An object's
+  // emitters are consecutive in emitters_.
+  groups_.clear();
+  stats_.rect_emitters = 0;
+  emitter_group_.assign(emitters_.size(), 0);
+  for (size_t e = 0; e < emitters_.size();) {
+    size_t end = e + 1;
+    while (end < emitters_.size() && emitters_[end].instance == emitters_[e].instance) ++end;
+    bool one = emitter_groups_ && end - e <= kMaxEmitterGroup && end - e > 1;
+    for (size_t k = e + 1; k < end && one; ++k) one = emitter_materials[k] == emitter_materials[e];
+    for (size_t k = e; k < end; k += one ? end - e : 1) {
+      EmitterGroup g;
+      g.first = uint32_t(k);
+      g.count = one ? uint32_t(end - e) : 1u;
+      float w = 0.0f;
+      for (size_t j = k; j < k + g.count; ++j) {
+        g.area += emitter_areas_[j];
+        w += emitter_weights[j];
+        emitter_group_[j] = uint32_t(groups_.size());
+      }
+      if (g.count > 1) {
+        const Blas& b = blases_[inst_[emitters_[k].instance].blas];
+        for (uint32_t t = 0; t < g.count; ++t) {
+          const TriangleVerts& tv = b.tris[emitters_[k + t].tri];
+          const Vec3 v[3] = {tv.v0, tv.v1, tv.v2};
+          for (int c = 0; c < 3; ++c) {
+            uint8_t j = 0;
+            while (j < g.corners && !(g.corner[j].x == v[c].x && g.corner[j].y == v[c].y && g.corner[j].z == v[c].z)) ++j;
+            if (j == g.corners) {
+              g.corner[j] = v[c];
+              ++g.corners;
+            }
+            g.tri_corner[t][c] = j;
+          }
+        }
+      }
+      if (g.count == 2 && rect_groups_) detect_rect(g, inst_[emitters_[k].instance]);
+      stats_.rect_emitters += g.rect;
+      groups_.push_back(g);
+      weights.push_back(w);
+    }
+    e = end;
+  }
+  env_index_ = SIZE_MAX;
+  if (env_.valid() && env_.average_luminance() > 0.0f) {
+    env_index_ = weights.size();
+    weights.push_back(4.0f * kPi * kPi * radius * radius * env_.average_luminance());
+  }
+  light_dist_ = Distribution1D(weights);
+  build_light_tree(weights);
+  stats_.emissive_triangles = emitters_.size();
+  stats_.lights = lights_.size();
+  ++stats_.light_builds;
+  detect_features();
+}
+
+void Scene::build_light_tree(const std::vector<float>& weights) {
+  // Bounds of every finite entry of light_dist_ (same indices; zero power: left out), and the
+  // infinite ones beside the tree.
+  std::vector<LightBounds> items(weights.size());
+  inf_items_.clear();
+  std::vector<float> inf_weights;
+  double inf_total = 0.0, total = 0.0;
+  const auto finite_weight = [](float w) { return std::isfinite(w) && w > 0.0f ? w : 0.0f; };
+  size_t finite = 0;
+  for (size_t k = 0; k < weights.size(); ++k) {
+    const float w = finite_weight(weights[k]);
+    total += w;
+    const bool infinite = k == env_index_ || (k < lights_.size() && lights_[k].type == LightType::Sun);
+    if (infinite) {
+      inf_items_.push_back(uint32_t(k));
+      inf_weights.push_back(w);
+      inf_total += w;
+      continue;
+    }
+    if (!(w > 0.0f)) continue;
+    LightBounds& b = items[k];
+    if (k < lights_.size()) {
+      const Light& l = lights_[k];
+      const float lum = std::max(luminance(l.color), 0.0f);
+      switch (l.type) {
+        case LightType::Point:
+        case LightType::Spot: {
+          b.bounds.grow(l.position - Vec3(l.radius));
+          b.bounds.grow(l.position + Vec3(l.radius));
+          b.phi = 4.0f * kPi * lum;  // a spot's cone is in its direction bounds
+          b.cos_theta_o = -1.0f;     // every direction
+          b.cos_theta_e = 0.0f;
+          if (l.type == LightType::Spot) {
+            // The axis: the world direction that to_local takes to local -Z, where to_local is a
+            // similarity (rows orthogonal, of one length); else the whole sphere stays.
+            const Vec3 r0{l.to_local.m[0][0], l.to_local.m[0][1], l.to_local.m[0][2]};
+            const Vec3 r1{l.to_local.m[1][0], l.to_local.m[1][1], l.to_local.m[1][2]};
+            const Vec3 r2{l.to_local.m[2][0], l.to_local.m[2][1], l.to_local.m[2][2]};
+            const float s0 = length_sq(r0), s1 = length_sq(r1), s2 = length_sq(r2);
+            const float tol = 1e-4f * std::max(s0, std::max(s1, s2));
+            const bool similar = std::fabs(s0 - s2) <= tol && std::fabs(s1 - s2) <= tol && std::fabs(dot(r0, r1)) <= tol &&
+                                 std::fabs(dot(r0, r2)) <= tol && std::fabs(dot(r1, r2)) <= tol && s2 > 0.0f;
+            if (similar && l.cos_half_spot > -1.0f) {
+              b.w = -r2 / std::sqrt(s2);
+              // Full strength inside theta_o (where the blend ends), falling to 0 at the cone's
+              // edge theta_o + theta_e (widened by a hair against rounding).
+              const float outer = std::acos(std::clamp(l.cos_half_spot, -1.0f, 1.0f));
+              const float cos_inner =
+                  l.spot_smooth_inv > 0.0f ? std::min(1.0f, l.cos_half_spot + 1.0f / l.spot_smooth_inv) : l.cos_half_spot;
+              const float inner = std::acos(std::clamp(cos_inner, -1.0f, 1.0f));
+              b.cos_theta_o = std::cos(inner);
+              b.cos_theta_e = std::cos(std::min(outer - inner + 1e-3f, kPi));
+            }
+          }
+          break;
+        }
+        case LightType::Rect:
+        case LightType::Ellipse:
+          for (int i = 0; i < 4; ++i)
+            b.bounds.grow(l.position + l.axis_u * ((i & 1) ? 0.5f : -0.5f) + l.axis_v * ((i & 2) ? 0.5f : -0.5f));
+          b.phi = kPi * l.area * lum;
+          b.w = l.dir;  // one-sided
+          b.cos_theta_o = 1.0f;
+          b.cos_theta_e = 0.0f;
+          break;
+        case LightType::Sun:
+          break;
+      }
+    } else {
+      // An emitter group: its world-space triangles, two-sided, normals in one cone.
+      const EmitterGroup& g = groups_[k - lights_.size()];
+      b.phi = w;
+      b.two_sided = true;
+      b.cos_theta_e = 0.0f;
+      bool any = false;
+      for (uint32_t j = g.first; j < g.first + g.count; ++j) {
+        const Emitter& em = emitters_[j];
+        const InstanceData& in = inst_[em.instance];
+        const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
+        b.bounds.grow(tv.v0);
+        b.bounds.grow(tv.v1);
+        b.bounds.grow(tv.v2);
+        const Vec3 n = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
+        if (!(length_sq(n) > 0.0f) || !is_finite(n)) continue;
+        LightBounds t;
+        t.w = normalize(n);
+        t.phi = 1.0f;
+        t.cos_theta_o = 1.0f;
+        if (!any) {
+          b.w = t.w;
+          b.cos_theta_o = 1.0f;
+          any = true;
+        } else {
+          LightBounds c = b;
+          c.phi = 1.0f;
+          c = light_bounds_union(c, t);
+          b.w = c.w;
+          b.cos_theta_o = c.cos_theta_o;
+        }
+      }
+      if (!any) b.cos_theta_o = -1.0f;
+      b.phi = b.bounds.empty() ? 0.0f : w;
+    }
+    finite += b.phi > 0.0f;
+  }
+  const bool want = light_tree_mode_ == LightTreeMode::On ||
+                    (light_tree_mode_ == LightTreeMode::Auto && finite > kLightTreeMinLights);
+  tree_ = want && finite > 0 ? LightTree(items) : LightTree();
+  use_tree_ = !tree_.empty();
+  stats_.light_tree_nodes = tree_.node_count();
+  stats_.light_tree_depth = size_t(tree_.depth());
+  // The infinite lights keep the share of the power the single distribution gives them.
+  inf_share_ = !use_tree_ ? 0.0f : inf_items_.empty() ? 0.0f : float(inf_total / total);
+  if (use_tree_ && !(inf_share_ < 1.0f)) use_tree_ = false;  // nothing finite has power
+  tree_share_ = 1.0f - inf_share_;
+  inf_dist_ = Distribution1D(inf_weights);
+  inf_pmf_.assign(weights.size(), 0.0f);
+  for (size_t j = 0; j < inf_items_.size(); ++j) inf_pmf_[inf_items_[j]] = inf_share_ * inf_dist_.pmf(j);
+  if (!(inf_share_ > 0.0f) || inf_dist_.empty()) inf_share_ = 0.0f, tree_share_ = 1.0f;
+}
+
+
+// Inlined into sample_direct: as a call it cost a fifth of a light sample in argument passing.
+[[gnu::always_inline]] inline bool Scene::group_solid_angles(const EmitterGroup& g, Vec3 p, double (*dirs)[3], double* omega, double& total) const {
+  const InstanceData& in = inst_[emitters_[g.first].instance];
+  uint32_t bad = 0;  // corners without a direction (p on them)
+  for (uint32_t c = 0; c < g.corners; ++c) {
+    Vec3 v = g.corner[c];
+    if (in.transformed) v = in.to_world.point(v);  // as world_triangle
+    DVec3 d = DVec3(v) - DVec3(p);
+    if (!dnormalize(d)) bad |= 1u << c;
+    dirs[c][0] = d.x;
+    dirs[c][1] = d.y;
+    dirs[c][2] = d.z;
+  }
+  total = 0.0;
+  bool all = solid_angle_triangles_;
+  for (uint32_t i = 0; i < g.count; ++i) {
+    const uint8_t* tc = g.tri_corner[i];
+    omega[i] = 0.0;  // as spherical_triangle gives for a corner at p
+    if (!(bad >> tc[0] & 1u) && !(bad >> tc[1] & 1u) && !(bad >> tc[2] & 1u)) {
+      const double *a = dirs[tc[0]], *b = dirs[tc[1]], *c = dirs[tc[2]];
+      omega[i] = spherical_triangle_solid_angle({a[0], a[1], a[2]}, {b[0], b[1], b[2]}, {c[0], c[1], c[2]});
+    }
+    total += omega[i];
+    // Only where every triangle would be sampled by solid angle on its own: elsewhere the
+    // group falls back to what its triangles alone would do.
+    all = all && use_spherical_sampling(omega[i]);
+  }
+  return all;
+}
+
+[[gnu::always_inline]] inline bool Scene::emitter_point_sample(size_t e, Vec3 p, float b1, float b2, Vec3 n, bool spherical,
+                                                               float pdf_solid, float pmf_e, DirectSample& s) const {
+  const Emitter& em = emitters_[e];
+  const InstanceData& in = inst_[em.instance];
+  // The light point as a hit on it: position and error bound exactly as a ray would find it
+  // (through the instance's transform where it has one); normals only for a shaded emission.
+  const Blas& blas = blases_[in.blas];
+  const uint32_t lmat = material_of(meshes_[in.mesh], blas.src_tri[em.tri], materials_.size());
+  const bool shaded = !materials_[lmat].constant;
+  SurfacePoint lp;
+  if (shaded) {
+    Hit h;
+    h.prim = em.tri;
+    h.inst = em.instance;
+    h.b1 = b1;
+    h.b2 = b2;
+    surface_point(h, lp);
+  } else {
+    triangle_point(in, blas.tris[em.tri], b1, b2, lp.p, lp.p_error);
+  }
+  const Vec3 q = lp.p;
+  const Vec3 d = q - p;
+  const float dist2 = length_sq(d);
+  const float dist = std::sqrt(dist2);
+  if (!(dist > 0.0f)) return false;
+  s.wi = d / dist;
+  const float cos_l = std::fabs(dot(n, s.wi));
+  if (!(cos_l > 0.0f)) return false;
+  s.dist = dist;
+  s.target = q;
+  s.target_normal = dot(n, s.wi) < 0.0f ? n : -n;  // the side facing p
+  s.target_error = lp.p_error;
+  if (!shaded) {
+    s.li = materials_[lmat].cached.emission;  // what shade() returns for it, without building closures
+  } else {
+    // The material's emission at the sampled point (textured emission included).
+    ClosureList cl;
+    // As Cycles evaluates a light sample's shader: no ray kind set, the path's bounce counts.
+    RayState emission = s.path ? *s.path : RayState{};
+    emission.flags = 0;
+    emission.emission_only = true;
+    emission.length = dist;
+    shade(lp, b1, b2, -s.wi, cl, emission);
+    s.li = cl.emission;
+  }
+  s.pdf = spherical ? pdf_solid : pmf_e / emitter_areas_[e] * dist2 / cos_l;
+  return std::isfinite(s.pdf) && s.pdf > 0.0f;
+}
+
+[[gnu::always_inline]] inline bool Scene::sample_emitter(size_t e, Vec3 p, const SphericalTriangle& st, bool spherical,
+                                                         float pdf_solid, float pmf_e, Vec2 u, DirectSample& s) const {
+  const Emitter& em = emitters_[e];
+  const InstanceData& in = inst_[em.instance];
+  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
+  const Vec3 n = tv.unit_normal();
+  float b1, b2;
+  DVec3 w;
+  if (spherical && sample_spherical_triangle(st, u, w)) {
+    // The point where the sampled direction meets the triangle, as barycentrics (clamped into
+    // the triangle against rounding: the direction's density stays 1 / omega either way).
+    const DVec3 d0(tv.v0), e1 = DVec3(tv.v1) - d0, e2 = DVec3(tv.v2) - d0, nd = dcross(e1, e2);
+    const double nn = ddot(nd, nd), wn = ddot(w, nd);
+    if (!(std::fabs(wn) > 0.0)) return false;
+    const DVec3 r = DVec3(p) + w * (ddot(d0 - DVec3(p), nd) / wn) - d0;
+    double db1 = std::max(0.0, ddot(dcross(r, e2), nd) / nn), db2 = std::max(0.0, ddot(dcross(e1, r), nd) / nn);
+    const double sum = db1 + db2;
+    if (sum > 1.0) {
+      db1 /= sum;
+      db2 /= sum;
+    }
+    b1 = float(db1);
+    b2 = float(db2);
+  } else if (spherical) {
+    return false;  // degenerate as seen from p: it subtends no solid angle
+  } else {
+    sample_triangle_uniform(u, b1, b2);
+  }
+  return emitter_point_sample(e, p, b1, b2, n, spherical, pdf_solid, pmf_e, s);
+}
+
+template <bool kTree>
+bool Scene::sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
+  if (light_dist_.empty()) return false;
+  size_t k;
+  float pmf;
+  if (!choose_light_t<kTree>(p, s.n, u_select, k, pmf) || !(pmf > 0.0f)) return false;
+  s.target_normal = Vec3(0.0f);
+  if (k < lights_.size()) {
+    const Light& l = lights_[k];
+    LightSample ls;
+    if (!sample_light(l, p, u, ls, solid_angle_rects_)) return false;
+    s.wi = ls.wi;
+    s.dist = ls.dist;
+    s.target = ls.target;
+    s.li = ls.li;
+    s.pdf = ls.pdf * pmf;
+    // BSDF rays never hit analytic lights (they are not geometry), so the light sample is the
+    // only estimator and keeps the full weight: MIS against the BSDF pdf lost energy here.
+    s.delta = true;
+    s.cast_shadow = l.cast_shadow;
+    return true;
+  }
+  s.delta = false;
+  s.cast_shadow = true;
+  if (k == env_index_) {
+    float pdf;
+    if (!env_.sample(u, s.wi, s.li, pdf, !bsdf_follows)) return false;
+    s.dist = kInf;
+    s.pdf = pdf * pmf;
+    return true;
+  }
+  const EmitterGroup& g = groups_[k - lights_.size()];
+  size_t e = g.first;
+  if (g.rect && solid_angle_triangles_) {
+    // Uniform in the rectangle's solid angle above the triangles' lower limit (its warp stays
+    // well conditioned up to a whole hemisphere: tests/test_emitter_groups.py), else by area.
+    const SphericalRectLocal sr = group_rect(g, p);
+    if (use_spherical_rect(sr.solid_angle)) {
+      // One spherical rectangle over both triangles: the point's rectangle coordinates (s, t)
+      // give the triangle (s + t <= 1: triangle 0, which has the origin corner) and its
+      // barycentrics (the rectangle's corners' weights at (s, t)).
+      double xu, yv;
+      if (!sample_spherical_rect_local(sr, u, xu, yv)) return false;
+      const double rs = std::clamp((xu - sr.x0) * g.rect_inv_lx, 0.0, 1.0), rt = std::clamp((yv - sr.y0) * g.rect_inv_ly, 0.0, 1.0);
+      const int i = rs + rt <= 1.0 ? 0 : 1;
+      const double w[4] = {std::max(0.0, 1.0 - rs - rt), i == 0 ? rs : 1.0 - rt, i == 0 ? rt : 1.0 - rs, std::max(0.0, rs + rt - 1.0)};
+      e += size_t(i);
+      return emitter_point_sample(e, p, float(w[g.rect_corner[i][1]]), float(w[g.rect_corner[i][2]]), g.rect_tri_n[i], true,
+                                  float(pmf / sr.solid_angle), pmf, s);
+    }
+    // A speck from p (or p in its plane): by area, as the triangles would be (each subtends
+    // less), without their solid angles.
+    const auto area = [&](uint32_t i) { return double(emitter_areas_[g.first + i]); };
+    uint32_t i;
+    if (!pick_weighted(g.count, area, double(u.x) * double(g.area), i, u.x)) return false;
+    e += i;
+    return sample_emitter(e, p, SphericalTriangle(), false, 0.0f, area_pmf(pmf, emitter_areas_[e], g.area), u, s);
+  }
+  SphericalTriangle st;
+  bool spherical;
+  float pdf_solid, pmf_e = pmf;
+  if (g.count == 1) {
+    const Emitter& em = emitters_[e];
+    const InstanceData& in = inst_[em.instance];
+    const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
+    st = spherical_triangle(p, tv.v0, tv.v1, tv.v2);
+    spherical = solid_angle_triangles_ && use_spherical_sampling(st.solid_angle);
+    pdf_solid = float(pmf / st.solid_angle);
+  } else {
+    // A group: one triangle chosen by u.x, in proportion to its solid angle (by area where the
+    // group is not sampled by solid angle from p), and u.x rescaled into its share, so that the
+    // sample stays stratified over the whole group.
+    double dirs[3 * kMaxEmitterGroup][3], omega[kMaxEmitterGroup], total;
+    const bool whole = group_solid_angles(g, p, dirs, omega, total);
+    const auto weight = [&](uint32_t i) { return whole ? omega[i] : double(emitter_areas_[g.first + i]); };
+    uint32_t i;
+    if (!pick_weighted(g.count, weight, double(u.x) * (whole ? total : double(g.area)), i, u.x)) return false;
+    e += i;
+    const auto dir = [&](int c) {
+      const double* d = dirs[g.tri_corner[i][c]];
+      return DVec3(d[0], d[1], d[2]);
+    };
+    st.a = dir(0);
+    st.b = dir(1);
+    st.c = dir(2);
+    st.solid_angle = omega[i];
+    if (whole) {
+      spherical = true;
+      pdf_solid = float(pmf / total);
+    } else {
+      spherical = solid_angle_triangles_ && use_spherical_sampling(omega[i]);
+      pmf_e = area_pmf(pmf, emitter_areas_[e], g.area);
+      pdf_solid = float(pmf_e / omega[i]);
+    }
+  }
+  return sample_emitter(e, p, st, spherical, pdf_solid, pmf_e, u, s);
+}
+
+template bool Scene::sample_direct_t<false>(Vec3, float, Vec2, DirectSample&, bool) const;
+template bool Scene::sample_direct_t<true>(Vec3, float, Vec2, DirectSample&, bool) const;
+
+float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n) const {
+  if (sp.curve()) return 0.0f;  // curves are not light-sampled: their emission is found by BSDF rays alone
+  const InstanceData& in = inst_[sp.instance];
+  const int32_t e = emitter_of(in, sp.tri);
+  if (e < 0 || !(cos_l > 0.0f)) return 0.0f;
+  const uint32_t gi = emitter_group_[size_t(e)];
+  const EmitterGroup& g = groups_[gi];
+  const float pmf = light_pmf(from, from_n, lights_.size() + gi);
+  if (!(pmf > 0.0f)) return 0.0f;
+  // The same choices sample_direct makes from this point.
+  if (g.rect && solid_angle_triangles_) {
+    const double omega = group_rect(g, from).solid_angle;
+    if (use_spherical_rect(omega)) return float(pmf / omega);
+    const float pmf_e = area_pmf(pmf, emitter_areas_[size_t(e)], g.area);  // by area
+    return pmf_e / emitter_areas_[size_t(e)] * length_sq(at - from) / cos_l;
+  }
+  double omega;
+  float pmf_e = pmf;
+  if (g.count == 1) {
+    const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[sp.tri]);
+    omega = spherical_triangle(from, tv.v0, tv.v1, tv.v2).solid_angle;
+  } else {
+    double dirs[3 * kMaxEmitterGroup][3], omegas[kMaxEmitterGroup], total;
+    if (group_solid_angles(g, from, dirs, omegas, total)) return float(pmf / total);
+    omega = omegas[size_t(e) - g.first];
+    pmf_e = area_pmf(pmf, emitter_areas_[size_t(e)], g.area);
+  }
+  if (solid_angle_triangles_ && use_spherical_sampling(omega)) return float(pmf_e / omega);
+  const float t2 = length_sq(at - from);
+  return pmf_e / emitter_areas_[size_t(e)] * t2 / cos_l;
+}
+
+float Scene::pdf_environment(Vec3 dir) const {
+  if (env_index_ == SIZE_MAX) return 0.0f;
+  return (use_tree_ ? inf_pmf_[env_index_] : light_dist_.pmf(env_index_)) * env_.pdf(dir);
+}
+
+}  // namespace pl

@@ -1,0 +1,360 @@
+// Shading at a hit: the material's closures, shadow transmittance through transparent surfaces,
+// and the Ambient Occlusion and Bevel nodes' tracing.
+#include "scene/scene.h"
+
+#include <cstring>
+
+#include "util/rng.h"
+
+namespace pl {
+
+void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
+  const Material& mat = materials_[sp.material];
+  if (mat.constant) {
+    out.n = mat.cached.n;
+    out.emission = mat.cached.emission;
+    out.holdout = mat.cached.holdout;
+    out.has_nondelta = mat.cached.has_nondelta;
+    const Frame f = Frame::from_normal(sp.ns);
+    for (int i = 0; i < out.n; ++i) {
+      Closure& c = out.c[size_t(i)];
+      c = mat.cached.c[size_t(i)];
+      // Glossy lobes: the normal lifted as eval_shader does (Cycles' valid specular reflection).
+      c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
+    }
+    if (mat.has_hair) orient_hair(out, sp, wo);
+    return;
+  }
+  ShadingContext ctx;
+  ctx.p = sp.p;
+  ctx.ng = sp.ng;
+  ctx.ns = sp.ns;
+  ctx.wo = wo;
+  ctx.ray = ray;
+  ctx.b1 = b1;
+  ctx.b2 = b2;
+  ctx.scene = this;  // the Ambient Occlusion node traces
+  ctx.instance = sp.instance;
+  ctx.p_error = sp.p_error;
+  ctx.time = sp.time;
+  if (sp.curve()) {  // no triangle, uvs or attributes; world coordinates for Object
+    const CurvePiece& pc = curve_bvh_.piece(sp.tri);
+    const float u = clampf(b1, 0.0f, 1.0f);  // the axial position (end spheres: beyond [0, 1])
+    CurveShading cs;
+    cs.intercept = pc.v0 + (pc.v1 - pc.v0) * u;
+    cs.length = curve_length_[pc.curve];
+    cs.thickness = 2.0f * (pc.r0 + (pc.r1 - pc.r0) * u);
+    cs.random = curve_random_[pc.curve];
+    const Vec3 across = wo - sp.tangent * dot(sp.tangent, wo);
+    cs.tangent_normal = length_sq(across) > 0.0f ? normalize(across) : Vec3(0.0f);
+    ctx.curve = &cs;
+    ctx.object = &curve_coords_[curve_set_of(pc.curve)];
+    eval_shader(mat.program, images_, ctx, out);
+    if (mat.has_hair) orient_hair(out, sp, wo);
+    return;
+  }
+  const InstanceData& in = inst_[sp.instance];
+  const Blas& blas = blases_[in.blas];
+  TriangleVerts tv;
+  ctx.object = &object_coords_[sp.instance];
+  ObjectCoords moved_coords;
+  if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {
+    // Motion blur: the triangle, and the object's transforms for texture coordinates, at the
+    // ray's time (so textures stay on a moving object).
+    InstanceData moved = in;
+    if (in.motion) {
+      set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, sp.time));
+      moved_coords = object_coords_[sp.instance];
+      const ObjectCoords at = make_object_coords(moved.to_world, Vec3(0.0f), Vec3(1.0f));
+      moved_coords.to_world = at.to_world;
+      moved_coords.to_object = at.to_object;
+      moved_coords.valid = at.valid;
+      ctx.object = &moved_coords;
+    }
+    tv = world_triangle(moved, in.deform ? in.deform->triangle_at(sp.tri, sp.time) : blas.tris[sp.tri]);
+  } else {
+    tv = world_triangle(in, blas.tris[sp.tri]);
+  }
+  const Vec3 corners[3] = {tv.v0, tv.v1, tv.v2};
+  ctx.tri = corners;  // for the Bump node's offsets
+  constexpr int kMaxSets = 8;
+  Vec2 uv[kMaxSets];
+  Vec2 corner_uvs[3 * kMaxSets];
+  Vec3 tangents[kMaxSets];
+  float signs[kMaxSets];
+  const int sets = static_cast<int>(std::min<size_t>(uv_sets_, kMaxSets));
+  if (mat.program.uses_uv && sets > 0) {
+    const float b0 = 1.0f - b1 - b2;
+    const MeshData& mesh = meshes_[in.mesh];
+    const size_t st = blas.src_tri[sp.tri];
+    for (int k = 0; k < sets; ++k) {
+      if (size_t(k) >= mesh.uvs.size() || mesh.uvs[size_t(k)].empty()) {  // missing: zeros
+        uv[k] = {};
+        corner_uvs[3 * k] = corner_uvs[3 * k + 1] = corner_uvs[3 * k + 2] = {};
+        tangents[k] = Vec3(0.0f);
+        signs[k] = 1.0f;
+        continue;
+      }
+      const std::vector<Vec2>& t = mesh.uvs[size_t(k)];
+      const Vec2 a = t[3 * st], b = t[3 * st + 1], c = t[3 * st + 2];
+      uv[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2};
+      corner_uvs[3 * k] = a;
+      corner_uvs[3 * k + 1] = b;
+      corner_uvs[3 * k + 2] = c;
+      // Per-triangle tangent from the uv parameterisation (dP/du), sign from the uv winding.
+      const Vec3 e1 = tv.v1 - tv.v0, e2 = tv.v2 - tv.v0;
+      const float du1 = b.x - a.x, dv1 = b.y - a.y, du2 = c.x - a.x, dv2 = c.y - a.y;
+      const float det = du1 * dv2 - du2 * dv1;
+      if (std::fabs(det) > 1e-20f) {
+        const float inv = 1.0f / det;
+        const Vec3 T = (e1 * dv2 - e2 * dv1) * inv;
+        const Vec3 B = (e2 * du1 - e1 * du2) * inv;
+        tangents[k] = T;
+        signs[k] = dot(cross(sp.ns, T), B) < 0.0f ? -1.0f : 1.0f;
+      } else {
+        tangents[k] = Vec3(0.0f);
+        signs[k] = 1.0f;
+      }
+    }
+    ctx.uv = uv;
+    ctx.uv_sets = sets;
+    ctx.tangents = tangents;
+    ctx.tangent_signs = signs;
+    ctx.tri_uv = corner_uvs;
+  }
+  Float4 attrs[kMaxSets];
+  if (mat.program.uses_attributes) {
+    const MeshData& mesh = meshes_[in.mesh];
+    const int n = static_cast<int>(std::min<size_t>(mesh.attributes.size(), kMaxSets));
+    const float b0 = 1.0f - b1 - b2;
+    const size_t st = blas.src_tri[sp.tri];
+    for (int k = 0; k < n; ++k) {
+      const std::vector<Float4>& t = mesh.attributes[size_t(k)];
+      if (t.empty()) {
+        attrs[k] = {};
+        continue;
+      }
+      const Float4 &a = t[3 * st], &b = t[3 * st + 1], &c = t[3 * st + 2];
+      attrs[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2, a.z * b0 + b.z * b1 + c.z * b2,
+                  a.w * b0 + b.w * b1 + c.w * b2};
+    }
+    ctx.attrs = attrs;
+    ctx.attr_sets = n;
+  }
+  eval_shader(mat.program, images_, ctx, out);
+  if (mat.has_hair) orient_hair(out, sp, wo);
+}
+
+void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo) {
+  // Cycles' bsdf_hair_chiang_setup: x along the fibre, y = x cross the view, z = x cross y;
+  // h the sine of the angle between the normal and z seen along x. On a mesh (no tangent) an
+  // arbitrary tangent of the shading normal stands in for the fibre.
+  Vec3 x = sp.tangent;
+  if (!(length_sq(x) > 0.0f)) {
+    Vec3 b;
+    make_basis(sp.ns, x, b);
+  }
+  Vec3 y = cross(x, wo);
+  const float l = length(y);
+  if (l > 1e-7f) {
+    y = y / l;
+  } else {  // looking along the fibre: any y across it
+    Vec3 b;
+    make_basis(x, y, b);
+  }
+  const Vec3 z = cross(x, y);
+  const float h = clampf(dot(cross(sp.ng, x), z), -1.0f, 1.0f);
+  for (int i = 0; i < out.n; ++i) {
+    Closure& c = out.c[size_t(i)];
+    if (auto* hb = std::get_if<HairChiangBsdf>(&c.bsdf)) {
+      hb->h = h;
+      c.frame.t = x;
+      c.frame.b = y;
+      c.frame.n = z;
+    }
+  }
+}
+
+Vec3 Scene::transmittance_through(Ray ray) const {
+  Vec3 T(1.0f);
+  for (int i = 0; i < 64; ++i) {  // bounded: stacked alpha cards
+    Hit h;
+    if (!intersect(ray, h)) return T;
+    SurfacePoint sp;
+    surface_point(h, sp, ray.time);
+    const Material& mat = materials_[sp.material];
+    if (!mat.transparent) return Vec3(0.0f);
+    ClosureList cl;
+    RayState shadow;
+    shadow.flags = kRayShadow;
+    shadow.length = h.t * length(ray.dir);
+    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, shadow);
+    Vec3 pass(0.0f);
+    for (int c = 0; c < cl.n; ++c)
+      if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
+    T = T * vmin(pass, Vec3(1.0f));
+    if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
+    // Continue just past the surface towards the same end point (or to infinity).
+    const Vec3 side = dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
+    const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+    if (std::isfinite(ray.tmax)) {
+      const Vec3 end = ray.org + ray.dir * ray.tmax;
+      ray.dir = end - org;
+      ray.tmax = 1.0f;
+    }
+    ray.org = org;
+  }
+  return Vec3(0.0f);
+}
+
+float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance, int samples, bool only_local) {
+  // Cycles' svm_ao: cosine-distributed directions about n (a concentric disk point lifted to
+  // the hemisphere), each an occlusion ray of length `distance` from the point; the fraction
+  // that escapes. Random numbers from the path's, stratified over the samples.
+  const Scene& scene = *ctx.scene;
+  Vec3 t, b;
+  make_basis(n, t, b);
+  uint32_t pb[3];
+  std::memcpy(pb, &ctx.p, sizeof pb);
+  Pcg32 rng(hash3(ctx.ray.rng, pb[0] ^ (uint64_t(pb[1]) << 32), pb[2]), 0xA0u);
+  int unoccluded = 0;
+  for (int k = 0; k < samples; ++k) {
+    const Vec2 u{(float(k) + rng.next_float()) / float(samples), rng.next_float()};
+    const Vec2 dsk = sample_disk_concentric({std::min(u.x, 0x1.fffffep-1f), u.y});
+    const float z = std::sqrt(std::max(0.0f, 1.0f - dsk.x * dsk.x - dsk.y * dsk.y));
+    const Vec3 dir = t * dsk.x + b * dsk.y + n * z;
+    Ray ray;
+    ray.time = ctx.time;
+    ray.org = offset_ray_origin(ctx.p, ctx.p_error, dot(dir, ctx.ng) >= 0.0f ? ctx.ng : -ctx.ng);
+    ray.dir = dir;
+    ray.tmax = distance;
+    if (!only_local) {
+      if (!scene.occluded(ray)) ++unoccluded;
+      continue;
+    }
+    // Only Local: walk past the hits on other objects (bounded, like stacked alpha cards).
+    bool hit_self = false;
+    for (int i = 0; i < 64; ++i) {
+      Hit h;
+      h.t = ray.tmax;
+      if (!scene.intersect(ray, h) || !h.valid()) break;
+      if (h.inst == ctx.instance) {
+        hit_self = true;
+        break;
+      }
+      const Vec3 q = ray.org + ray.dir * h.t;
+      ray.tmax -= h.t;
+      ray.org = q + ray.dir * (1e-4f * (1.0f + max_component(vabs(q))));
+      if (!(ray.tmax > 0.0f)) break;
+    }
+    if (!hit_self) ++unoccluded;
+  }
+  return float(unoccluded) / float(samples);
+}
+
+// Cycles' bevel radius distribution (a planar cubic falloff, (R - r)^3): the radius in [0, 1)
+// whose CDF 10x^2 - 20x^3 + 15x^4 - 4x^5 is xi, by Newton's method.
+static float bevel_cubic_radius(float xi) {
+  float x = 0.25f;
+  for (int i = 0; i < 10; ++i) {
+    const float x2 = x * x, x3 = x2 * x, nx = 1.0f - x;
+    const float f = 10.0f * x2 - 20.0f * x3 + 15.0f * x2 * x2 - 4.0f * x2 * x3 - xi;
+    const float df = 20.0f * (x * nx) * (nx * nx);
+    if (std::fabs(f) < 1e-6f || df == 0.0f) break;
+    x = clampf(x - f / df, 0.0f, 1.0f);
+  }
+  return x;
+}
+
+Vec3 trace_bevel(const ShadingContext& ctx, float radius, int samples) {
+  // Cycles' svm_bevel: points on a disk about the point, on one of three axes (the normal's
+  // half of the time), each projected onto the instance's own surface by a ray of twice the
+  // disk's height; the smooth normals found are summed with the axes' MIS weights and the
+  // falloff's ratio at the real distance, and normalised. Blurry indirect rays skip it.
+  if (ctx.ray.min_pdf < 8.0f) return ctx.ns;
+  const Scene& scene = *ctx.scene;
+  uint32_t pb[3];
+  std::memcpy(pb, &ctx.p, sizeof pb);
+  Pcg32 rng(hash3(ctx.ray.rng, pb[0] ^ (uint64_t(pb[1]) << 32), pb[2]), 0xBEu);
+  // The disk's frame as Cycles' make_orthonormals makes it from the view-facing normal: the
+  // estimate's mean does not depend on the tangents, but its normalised small-sample bias does
+  // (tangents along a cube's edges instead bent the bevel 2 % more).
+  const Vec3 ng = dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ng : ctx.ng;
+  Vec3 t0 = (ng.x != ng.y || ng.x != ng.z) ? Vec3{ng.z - ng.y, ng.x - ng.z, ng.y - ng.x}
+                                           : Vec3{ng.z - ng.y, ng.x + ng.z, -ng.y - ng.x};
+  t0 = normalize(t0);
+  const Vec3 b0 = cross(ng, t0);
+  Vec3 sum(0.0f);
+  // The samples as one randomly shifted (0,2)-sequence net (van der Corput and Sobol's second
+  // dimension, XOR-shifted): stratified in every elementary interval, as Cycles' branched
+  // samples are. The normalised sum's small-sample bias depends on it: with only 1D strata the
+  // bevelled edges came out 2 % off Cycles'.
+  const uint32_t shift_x = rng.next_u32(), shift_y = rng.next_u32();
+  auto sobol2 = [](uint32_t i) {
+    uint32_t r = 0;
+    for (uint32_t v = 1u << 31; i; i >>= 1, v ^= v >> 1)
+      if (i & 1u) r ^= v;
+    return r;
+  };
+  auto bit_reverse = [](uint32_t v) {
+    v = ((v >> 1) & 0x55555555u) | ((v & 0x55555555u) << 1);
+    v = ((v >> 2) & 0x33333333u) | ((v & 0x33333333u) << 2);
+    v = ((v >> 4) & 0x0F0F0F0Fu) | ((v & 0x0F0F0F0Fu) << 4);
+    v = ((v >> 8) & 0x00FF00FFu) | ((v & 0x00FF00FFu) << 8);
+    return (v >> 16) | (v << 16);
+  };
+  auto unit = [](uint32_t v) { return std::min(float(v >> 8) * 0x1p-24f, 0x1.fffffep-1f); };
+  for (int k = 0; k < samples; ++k) {
+    float ux = unit(bit_reverse(uint32_t(k)) ^ shift_x);
+    const float uy = unit(sobol2(uint32_t(k)) ^ shift_y);
+    Vec3 n = ng, t = t0, b = b0;
+    float pn, pt, pb_;
+    if (ux < 0.5f) {
+      pn = 0.5f, pt = 0.25f, pb_ = 0.25f;
+      ux *= 2.0f;
+    } else if (ux < 0.75f) {
+      std::swap(n, t);
+      pn = 0.25f, pt = 0.5f, pb_ = 0.25f;
+      ux = (ux - 0.5f) * 4.0f;
+    } else {
+      std::swap(n, b);
+      pn = 0.25f, pt = 0.25f, pb_ = 0.5f;
+      ux = (ux - 0.75f) * 4.0f;
+    }
+    const float phi = 2.0f * kPi * ux;
+    const float disk_r = bevel_cubic_radius(uy) * radius;
+    const float height = std::sqrt(std::max(0.0f, radius * radius - disk_r * disk_r));
+    Ray ray;
+    ray.org = ctx.p + n * height + t * (disk_r * std::cos(phi)) + b * (disk_r * std::sin(phi));
+    ray.dir = -n;
+    ray.tmax = 2.0f * height;
+    if (!(ray.tmax > 0.0f) || !is_finite(ray.org)) continue;
+    const float falloff_disk = radius - disk_r;  // the cubic falloff's ratio, as ((R - r) / (R - r_disk))^3
+    // Every hit on the instance along the ray (other objects are walked past), bounded.
+    for (int i = 0; i < 16; ++i) {
+      Hit h;
+      h.t = ray.tmax;
+      if (!scene.intersect(ray, h) || !h.valid()) break;
+      const Vec3 q = ray.org + ray.dir * h.t;
+      if (h.inst == ctx.instance) {
+        SurfacePoint sp;
+        scene.surface_point(h, sp);
+        const float an = pn * std::fabs(dot(n, sp.ng)), at = pt * std::fabs(dot(t, sp.ng)),
+                    ab = pb_ * std::fabs(dot(b, sp.ng));
+        const float mis = an / (an * an + at * at + ab * ab);
+        const float r = length(sp.p - ctx.p);
+        const float q3 = r < radius ? (radius - r) / falloff_disk : 0.0f;
+        const float w = mis * q3 * q3 * q3;
+        if (falloff_disk > 0.0f && std::isfinite(w)) sum += sp.ns * w;
+      }
+      const float step = h.t + 1e-4f * (1.0f + max_component(vabs(q)));
+      ray.org = ray.org + ray.dir * step;
+      ray.tmax -= step;
+      if (!(ray.tmax > 0.0f)) break;
+    }
+  }
+  const float l = length_sq(sum);
+  return l > 0.0f && std::isfinite(l) ? sum / std::sqrt(l) : ctx.ns;
+}
+
+}  // namespace pl

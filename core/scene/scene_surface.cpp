@@ -1,0 +1,111 @@
+// Ray hits on the scene's surfaces: the surface point at a hit (triangles and curves) and
+// intersection with one instance alone.
+#include "scene/scene.h"
+#include "scene/scene_detail.h"
+
+namespace pl {
+
+using detail::material_of;
+
+void Scene::curve_point(const Hit& h, SurfacePoint& sp) const {
+  const CurvePiece& c = curve_bvh_.piece(h.prim);
+  // The hit from the ray is only good to its t's error; the point on the surface is better.
+  Vec3 n, tangent, p, err;
+  float u;
+  piece_surface(c, h.b1, h.b2, n, tangent, p, err, u);
+  sp.p = p;
+  sp.p_error = err;
+  sp.ng = sp.ns = n;
+  sp.tangent = tangent;
+  const uint32_t set = curve_set_of(c.curve);
+  sp.material = curve_sets_[set].material < materials_.size() ? curve_sets_[set].material : 0;
+  sp.prim = uint32_t(stats_.triangles) + c.curve;
+  sp.instance = kCurveInstance;
+  sp.tri = h.prim;
+}
+
+bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
+  if (instance >= inst_.size()) return false;
+  const InstanceData& in = inst_[instance];
+  if (in.blas == UINT32_MAX) return false;
+  if (in.transformed) {  // its own object-space BLAS, the ray carried there (world distances)
+    float dt;
+    const Ray o = ray_to_object(in.to_object, r, dt);
+    if (!blases_[in.blas].bvh.intersect(o, h)) return false;
+    h.t += dt;
+  } else {
+    if (instance >= local_index_.size() || local_index_[instance] == UINT32_MAX) return false;
+    if (!local_bvhs_[local_index_[instance]].intersect(r, h)) return false;
+    h.prim += in.tri_base;
+  }
+  h.inst = instance;
+  return true;
+}
+
+[[gnu::always_inline]] inline void Scene::surface_point_in(const InstanceData& in, const TriangleVerts& tv, const Hit& h,
+                                                           SurfacePoint& sp) const {
+  const Blas& b = blases_[in.blas];
+  const uint32_t st = b.src_tri[h.prim];
+  const MeshData& mesh = meshes_[in.mesh];
+  const float b0 = 1.0f - h.b1 - h.b2;
+  triangle_point(in, tv, h.b1, h.b2, sp.p, sp.p_error);
+  if (!in.transformed) {
+    sp.ng = tv.unit_normal();
+  } else {
+    // Cofactors map the object-space edge cross product to the world one (winding included).
+    const Vec3 c = cross(tv.v1 - tv.v0, tv.v2 - tv.v0);
+    sp.ng = normalize(in.nrow[0] * c.x + in.nrow[1] * c.y + in.nrow[2] * c.z);
+  }
+  sp.ns = sp.ng;
+  if (!mesh.normals.empty()) {
+    const std::array<uint32_t, 3>& ni = mesh.normal_indices.empty() ? mesh.triangles[st] : mesh.normal_indices[st];
+    Vec3 n[3];
+    bool ok = true;
+    for (int k = 0; k < 3 && ok; ++k) {
+      n[k] = in.normal(mesh.normals[ni[k]]);
+      const float l2 = length_sq(n[k]);
+      ok = std::isfinite(l2) && l2 > 0.0f;
+      n[k] = n[k] / std::sqrt(l2);
+    }
+    if (ok) {  // bad normals: shade flat
+      const Vec3 ni = n[0] * b0 + n[1] * h.b1 + n[2] * h.b2;
+      const float l2 = length_sq(ni);
+      if (l2 > 1e-12f) sp.ns = ni / std::sqrt(l2);
+    }
+  }
+  sp.material = material_of(mesh, st, materials_.size());
+  sp.prim = global_prim(h);
+  sp.instance = h.inst;
+  sp.tri = h.prim;
+}
+
+void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
+  sp.time = time;
+  if (h.inst == kCurveInstance) return curve_point(h, sp);  // (curves do not move)
+  const InstanceData& in = inst_[h.inst];
+  if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {  // where the ray met it
+    InstanceData moved = in;
+    if (in.motion) set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, time));
+    const TriangleVerts tv = in.deform ? in.deform->triangle_at(h.prim, time) : blases_[in.blas].tris[h.prim];
+    surface_point_in(moved, tv, h, sp);
+    if (in.deform && (sp.ns.x != sp.ng.x || sp.ns.y != sp.ng.y || sp.ns.z != sp.ng.z)) {
+      // The frame's shading normals turned with their triangle: the rotation that takes the
+      // frame's geometric normal to this time's (Rodrigues, w = a x b, c = a . b).
+      const TriangleVerts& still = blases_[in.blas].tris[h.prim];
+      const Vec3 e = cross(still.v1 - still.v0, still.v2 - still.v0);  // as surface_point_in's ng
+      const Vec3 a = normalize(moved.nrow[0] * e.x + moved.nrow[1] * e.y + moved.nrow[2] * e.z);
+      const Vec3 b = sp.ng, w = cross(a, b);
+      const float c = dot(a, b);
+      if (c > -0.99f && is_finite(a)) {
+        const Vec3 v = sp.ns, wv = cross(w, v);
+        const Vec3 r = v + wv + cross(w, wv) * (1.0f / (1.0f + c));
+        const float l2 = length_sq(r);
+        if (l2 > 0.0f && std::isfinite(l2)) sp.ns = r / std::sqrt(l2);
+      }
+    }
+    return;
+  }
+  surface_point_in(in, blases_[in.blas].tris[h.prim], h, sp);
+}
+
+}  // namespace pl
