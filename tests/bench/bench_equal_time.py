@@ -28,18 +28,12 @@ import numpy as np
 sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 from blender_util import load_addon, open_fixture, render_to_array  # noqa: E402
 from benchutil import parse_args, section_dir, write_section  # noqa: E402
+from equal_time import ENGINES, measure, plot_errors, repeats_for, time_to  # noqa: E402
 
 SCALE = 50                     # % of the fixtures' 256x256
 TIMES = (1.0, 2.0, 4.0, 8.0)   # equal-time budgets, seconds of rendering (sync excluded)
 REF_SPP = 4096
-ENGINES = ("PATHLIGHT", "CYCLES")
 VAR_SEEDS, VAR_SPP = 16, 16
-MIN_REPEATS = 2                # renders per engine and budget (seeds 1, 2, ...), errors averaged
-REPEAT_SECONDS = 8.0           # ... and at least this much rendering per budget
-
-
-def repeats_for(budget):
-    return max(MIN_REPEATS, int(round(REPEAT_SECONDS / budget)))
 
 
 def glass_sphere(scene):
@@ -78,50 +72,6 @@ def render(fixture, setup, engine, **settings):
     return img[..., :3].astype(np.float64), time.perf_counter() - t
 
 
-def rel_mse(img, ref):
-    return float(np.mean((img - ref) ** 2 / (ref**2 + 1e-2)))
-
-
-def above_floor(err, floor):
-    """The error against the truth: the MSE against the reference less the reference's own."""
-    return max(err - floor, 1e-3 * err)
-
-
-def time_to(err_curve, times, target):
-    """Log-log interpolation of the time at which an error curve reaches `target`."""
-    e, t = np.log(np.asarray(err_curve)), np.log(np.asarray(times))
-    if target >= err_curve[0]:
-        return times[0]
-    if target < min(err_curve):  # extrapolate along the 1/t slope of Monte Carlo
-        return float(times[-1] * err_curve[-1] / target)
-    for i in range(len(times) - 1):
-        if err_curve[i + 1] <= target <= err_curve[i]:
-            f = (np.log(target) - e[i]) / (e[i + 1] - e[i])
-            return float(np.exp(t[i] + f * (t[i + 1] - t[i])))
-    return float("nan")
-
-
-def pooled_ratio(renders, times, floor):
-    """Cycles' error over Pathlight's at equal time from every render of every budget, and its
-    standard error. Monte Carlo error falls as 1/t, so error x time estimates one number per
-    engine (its inverse efficiency) at each budget; each budget's mean counts once (the short
-    budgets have more renders, not more weight). The standard error of the ratio comes from the
-    renders' spread (delta method: the two engines' relative standard errors in quadrature); the
-    glass box's caustics make single renders' errors heavy-tailed, so it is a guide, not a bound."""
-    est = {}
-    for e, per_budget in renders.items():
-        means, variances = [], []
-        for t, errs in zip(times, per_budget):
-            x = np.array([above_floor(err, floor) * t for err in errs])
-            means.append(x.mean())
-            variances.append(x.var(ddof=1) / len(x) if len(x) > 1 else x.mean() ** 2)
-        mean = float(np.mean(means))
-        est[e] = (mean, float(np.sqrt(np.sum(variances))) / len(means) / mean)
-    (p, rp), (c, rc) = est["PATHLIGHT"], est["CYCLES"]
-    ratio = c / p
-    return ratio, ratio * float(np.hypot(rp, rc))
-
-
 def main():
     args = parse_args("smaller references and budgets (smoke run)")
     ref_spp, times = (REF_SPP, TIMES) if not args.quick else (256, (0.5, 1.0))
@@ -136,49 +86,18 @@ def main():
             _, t1 = render(fixture, setup, e, samples=1)
             _, t65 = render(fixture, setup, e, samples=65)
             sps[e] = 64.0 / max(t65 - t1, 1e-6)
-        refs = {e: render(fixture, setup, e, samples=ref_spp, seed=12345)[0] for e in ENGINES}
-        ref = 0.5 * (refs["PATHLIGHT"] + refs["CYCLES"])
-        floor = rel_mse(refs["PATHLIGHT"], refs["CYCLES"]) / 4.0
-        raw = {e: [] for e in ENGINES}
-        renders = {e: [] for e in ENGINES}  # each budget's per-render errors
-        for budget in times:
-            per = {e: [] for e in ENGINES}
-            for k in range(repeats(budget)):
-                for e in ENGINES:
-                    img, _ = render(fixture, setup, e, samples=1_000_000, time_limit=budget, seed=1 + k)
-                    per[e].append(rel_mse(img, ref))
-            for e in ENGINES:
-                raw[e].append(float(np.mean(per[e])))
-                renders[e].append(per[e])
-        errors = {e: [above_floor(x, floor) for x in raw[e]] for e in ENGINES}
-        pooled = pooled_ratio(renders, times, floor)
+        m = measure(lambda e, **kw: render(fixture, setup, e, **kw), times, repeats, ref_spp, 12345)
+        refs, errors = m["refs"], m["errors"]
         var = per_sample_variance(fixture, setup, var_seeds, var_spp, cache=False)
         target = errors["CYCLES"][-1]  # the error Cycles reaches with the longest budget
         tt = {e: time_to(errors[e], times, target) for e in ENGINES}
-        results[name] = dict(sps=sps, errors=errors, raw=raw, floor=floor, target=target, time_to=tt, var=var, pooled=pooled,
+        results[name] = dict(sps=sps, errors=errors, raw=m["raw"], floor=m["floor"], target=target, time_to=tt,
+                             var=var, pooled=m["pooled"],
                              mean_ratio=float(refs["PATHLIGHT"].mean() / refs["CYCLES"].mean()))
         print(name, results[name], flush=True)
 
     out = section_dir(args)
-    plot = None
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.4))
-        for ax, (name, r) in zip(np.atleast_1d(axes), results.items()):
-            for e, style in zip(ENGINES, ("o-", "s--")):
-                ax.loglog(times, r["errors"][e], style, label=e.title())
-            ax.axhline(r["floor"], color="grey", ls=":", label="reference floor (subtracted)")
-            ax.set_title(name, fontsize=10)
-            ax.set_xlabel("render time (s)")
-            ax.set_ylabel("relative MSE")
-            ax.legend(fontsize=8)
-        fig.tight_layout()
-        plot = "equal_time.png"
-        fig.savefig(out / plot, dpi=110)
-    except ImportError:
-        pass
+    plot = "equal_time.png" if plot_errors(results, times, out / "equal_time.png") else None
 
     lines = [
         "## Equal-time error against Cycles (CPU)",

@@ -19,13 +19,12 @@ sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_util import load_addon, render_to_array  # noqa: E402
 from benchutil import parse_args, section_dir, write_section  # noqa: E402
-from bench_equal_time import above_floor, pooled_ratio, rel_mse, repeats_for  # noqa: E402
+from equal_time import ENGINES, measure, plot_errors, repeats_for  # noqa: E402
 import material_scenes as ms  # noqa: E402
 import realistic_scenes  # noqa: E402
 
 TIMES = (1.0, 2.0, 4.0, 8.0)
 REF_SPP = 1024
-ENGINES = ("PATHLIGHT", "CYCLES")
 MAX_BOUNCES = 12
 TREE_SEEDS, TREE_SPP = 8, 8
 
@@ -59,49 +58,18 @@ def main():
     load_addon()
     results = {}
     for name, build in realistic_scenes.SCENES.items():
-        refs = {e: render(build, e, samples=ref_spp, seed=4242)[0] for e in ENGINES}
-        ref = 0.5 * (refs["PATHLIGHT"] + refs["CYCLES"])
-        floor = rel_mse(refs["PATHLIGHT"], refs["CYCLES"]) / 4.0
+        r = measure(lambda e, **kw: render(build, e, **kw), times, repeats, ref_spp, 4242)
+        refs = r.pop("refs")
         ratio, worst, _ = ms.compare(refs["PATHLIGHT"], refs["CYCLES"])
-        raw = {e: [] for e in ENGINES}
-        renders = {e: [] for e in ENGINES}
-        for budget in times:
-            per = {e: [] for e in ENGINES}
-            for k in range(repeats(budget)):
-                for e in ENGINES:
-                    img, _ = render(build, e, samples=1_000_000, time_limit=budget, seed=1 + k)
-                    per[e].append(rel_mse(img, ref))
-            for e in ENGINES:
-                raw[e].append(float(np.mean(per[e])))
-                renders[e].append(per[e])
-        errors = {e: [above_floor(x, floor) for x in raw[e]] for e in ENGINES}
-        r = dict(errors=errors, raw=raw, floor=floor, pooled=pooled_ratio(renders, times, floor),
-                 mean_ratio=float(ratio), worst=float(worst))
+        r.update(mean_ratio=float(ratio), worst=float(worst))
         if build is realistic_scenes.lamp_room:
             r["tree"] = tree_variance(build, tree_seeds, tree_spp)
         results[name] = r
         print(name, r, flush=True)
 
     out = section_dir(args)
-    plot = None
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        fig, axes = plt.subplots(1, len(results), figsize=(4.0 * len(results), 3.4))
-        for ax, (name, r) in zip(np.atleast_1d(axes), results.items()):
-            for e, style in zip(ENGINES, ("o-", "s--")):
-                ax.loglog(times, r["errors"][e], style, label=e.title())
-            ax.axhline(r["floor"], color="grey", ls=":", label="reference floor (subtracted)")
-            ax.set_title(name, fontsize=9)
-            ax.set_xlabel("render time (s)")
-            ax.set_ylabel("relative MSE")
-            ax.legend(fontsize=7)
-        fig.tight_layout()
-        plot = "realistic.png"
-        fig.savefig(out / plot, dpi=110)
-    except ImportError:
-        pass
+    plot = "realistic.png" if plot_errors(results, times, out / "realistic.png", width=4.0, title_size=9,
+                                          legend_size=7) else None
 
     w, h = realistic_scenes.WIDTH, realistic_scenes.HEIGHT
     lines = [

@@ -7,6 +7,10 @@ Cornell boxes. Each builder starts from an empty factory scene and returns it.
   3 spot lights (the light tree's case).
 - hdri_model: Blender's Suzanne, subdivided, with procedurally textured Principled materials
   (noise colour ramp, brick bump) on an image-textured floor, under an HDR environment.
+- principled_spheres: nine spheres, one per Principled feature that artists use (the untouched
+  default, coat over red paint, sheen fabric, subsurface wax, brushed anisotropic metal, rough
+  glass, thin-film iridescence, tinted specular, gold), under an HDR environment and a point
+  light (issue 24's Principled-heavy scene).
 - instanced_forest: 1.3 M triangles as 64 geometry-nodes instances of one subdivided
   icosphere, on a ground under a sun and a sky colour.
 
@@ -190,6 +194,34 @@ def hdri_model(width=WIDTH, height=HEIGHT):
     return scene
 
 
+def principled_spheres(width=WIDTH, height=HEIGHT):
+    scene = _empty(width, height)
+    features = [
+        ("Default", principled("Default", (0.8, 0.8, 0.8))),
+        ("Car paint", principled("Car paint", (0.6, 0.02, 0.02), 0.4, Coat_Weight=1.0, Coat_Roughness=0.05)),
+        ("Velvet", principled("Velvet", (0.15, 0.1, 0.4), 0.8, Sheen_Weight=1.0, Sheen_Roughness=0.4,
+                              Sheen_Tint=(0.9, 0.8, 1.0, 1.0))),
+        ("Wax", principled("Wax", (0.9, 0.75, 0.55), 0.4, Subsurface_Weight=1.0, Subsurface_Scale=0.1)),
+        ("Brushed", principled("Brushed", (0.9, 0.9, 0.92), 0.35, metallic=1.0, Anisotropic=0.8)),
+        ("Frosted glass", principled("Frosted glass", (0.95, 0.98, 1.0), 0.2, Transmission_Weight=1.0)),
+        ("Soap film", principled("Soap film", (0.05, 0.05, 0.05), 0.1, Thin_Film_Thickness=500.0,
+                                 Thin_Film_IOR=1.33)),
+        ("Tinted specular", principled("Tinted specular", (0.1, 0.3, 0.2), 0.3, Specular_IOR_Level=0.8,
+                                       Specular_Tint=(1.0, 0.7, 0.3, 1.0))),
+        ("Gold", principled("Gold", (1.0, 0.77, 0.34), 0.25, metallic=1.0)),
+    ]
+    for i, (name, mat) in enumerate(features):
+        x, y = (i % 3 - 1) * 1.1, (i // 3 - 1) * 1.1
+        ms.add_sphere(name, 0.45, mat, location=(x, y, 0.45))
+    ms.add_plane("Floor", 10.0, principled("Floor", (0.5, 0.5, 0.5), 0.6))
+    ls.world_image(ls.load_image(ls.synthetic_hdr(256, 128, sun_peak=50.0), name="BenchHDR"))
+    bpy.ops.object.light_add(type='POINT', location=(2.0, -2.5, 3.5))
+    bpy.context.active_object.data.energy = 300.0
+    bpy.context.active_object.data.shadow_soft_size = 0.2
+    ms.add_camera((0.0, -5.2, 3.6), (0.0, 0.0, 0.3), lens=40.0)
+    return scene
+
+
 def instanced_forest(width=WIDTH, height=HEIGHT):
     scene = _empty(width, height)
     bark = principled("Bark", (0.3, 0.45, 0.2), 0.6)
@@ -211,5 +243,6 @@ SCENES = {
     "Room lit through a window (sun and sky)": window_room,
     "Room lit by 50 lamps and 3 spots": lamp_room,
     "Textured model under an HDRI": hdri_model,
+    "Principled spheres under an HDRI and a point light": principled_spheres,
     "1.3 M triangles in 64 instances": instanced_forest,
 }
