@@ -5,6 +5,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <memory>
 #include <mutex>
 #include <stdexcept>
@@ -12,6 +13,7 @@
 #include "geometry/polygon_mesh.h"
 #include "render/session.h"
 #include "scene/phase.h"
+#include "scene/shader_ops.h"
 #include "util/big_alloc.h"
 #include "util/hash.h"
 #include "util/lookup3.h"
@@ -624,33 +626,29 @@ bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o
 }
 
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
-ShaderProgram parse_program(const PyScene& self, const py::list& program) {
+// The index of `x` in one of the core's sub-operation tables (scene/shader_ops.h).
+template <size_t N>
+uint8_t sub_op_index(const SubOpName (&table)[N], const std::string& x, const char* what) {
+  for (size_t i = 0; i < N; ++i)
+    if (x == table[i].name) return uint8_t(i);
+  throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+}
+
+// `n_images`: the scene's image count, which Image Texture ops must stay below.
+ShaderProgram parse_program(const py::list& program, int64_t n_images) {
   ShaderProgram prog;
   const auto regno = op_register;
   auto name_of = [](const py::handle& h) { return h.cast<std::string>(); };
-  static const std::vector<std::string> math_ops = {
-      "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "POWER", "MINIMUM", "MAXIMUM", "LESS_THAN", "GREATER_THAN",
-      "ABSOLUTE", "LOGARITHM", "SQRT", "INVERSE_SQRT", "EXPONENT", "SIGN", "ROUND", "FLOOR", "CEIL", "TRUNC",
-      "FRACT", "MODULO", "FLOORED_MODULO", "SNAP", "PINGPONG", "SINE", "COSINE", "TANGENT", "ARCSINE",
-      "ARCCOSINE", "ARCTANGENT", "ARCTAN2", "SINH", "COSH", "TANH", "RADIANS", "DEGREES", "MULTIPLY_ADD",
-      "COMPARE", "SMOOTH_MIN", "SMOOTH_MAX", "WRAP"};
-  static const std::vector<std::string> mix_ops = {"MIX", "MULTIPLY", "ADD", "SUBTRACT", "SCREEN",
-                                                   "DIVIDE", "DIFFERENCE", "DARKEN", "LIGHTEN", "OVERLAY"};
   auto index_in = [](const std::vector<std::string>& v, const std::string& x, const char* what) {
     for (size_t i = 0; i < v.size(); ++i)
       if (v[i] == x) return uint8_t(i);
     throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
   };
-  static const std::vector<std::string> vector_math_ops = {
-      "ADD", "SUBTRACT", "MULTIPLY", "DIVIDE", "MULTIPLY_ADD", "CROSS_PRODUCT", "PROJECT", "REFLECT", "REFRACT",
-      "FACEFORWARD", "DOT_PRODUCT", "DISTANCE", "LENGTH", "SCALE", "NORMALIZE", "ABSOLUTE", "POWER", "SIGN",
-      "MINIMUM", "MAXIMUM", "FLOOR", "CEIL", "FRACTION", "MODULO", "WRAP", "SNAP", "SINE", "COSINE", "TANGENT"};
   auto bump_offset = [](const py::handle& h) {
     const int64_t v = h.cast<int64_t>();
     if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
     return uint8_t(v);
   };
-  const int64_t n_images = int64_t(self.scene->image_count());
   for (const auto& item : program) {
     const auto t = item.cast<py::tuple>();
     if (t.size() < 2) throw std::invalid_argument("shader op must be a tuple (name, ...)");
@@ -751,6 +749,9 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       prog.ops.push_back(o);
       continue;
     }
+    // The core's op table is the list of value ops (the add-on reads it for operand counts).
+    if (std::none_of(std::begin(kValueOps), std::end(kValueOps), [&](const OpSignature& v) { return op == v.name; }))
+      throw std::invalid_argument("unknown shader op '" + op + "'");
     o.dst = regno(t[1]);
     if (o.dst == kNoReg) throw std::invalid_argument("shader op '" + op + "' needs a destination register");
     if (op == "const") {
@@ -873,7 +874,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       need(4);
       o.code = OpCode::ColorSpace;
       o.in[0] = regno(t[2]);
-      o.sub = index_in({"RGB_TO_HSV", "HSV_TO_RGB", "RGB_TO_HSL", "HSL_TO_RGB"}, name_of(t[3]), "colour conversion");
+      o.sub = sub_op_index(kColorSpaceOpNames, name_of(t[3]), "colour conversion");
     } else if (op == "hsv") {
       need(7);
       o.code = OpCode::Hsv;
@@ -891,19 +892,19 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       need(6);
       o.code = OpCode::Clamp;
       for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = index_in({"MINMAX", "RANGE"}, name_of(t[5]), "clamp type");
+      o.sub = sub_op_index(kClampOpNames, name_of(t[5]), "clamp type");
     } else if (op == "map_range" || op == "map_range_vector") {
       need(10);
       o.code = OpCode::MapRange;
       o.ext = op == "map_range_vector" ? 1 : 0;  // per component (Cycles' vector map range)
       for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = index_in({"LINEAR", "STEPPED", "SMOOTHSTEP", "SMOOTHERSTEP"}, name_of(t[8]), "map range type");
+      o.sub = sub_op_index(kMapRangeOpNames, name_of(t[8]), "map range type");
       o.clamp = t[9].cast<bool>();
     } else if (op == "vector_math") {
       need(7);
       o.code = OpCode::VectorMath;
       for (int k = 0; k < 4; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = index_in(vector_math_ops, name_of(t[6]), "vector math op");
+      o.sub = sub_op_index(kVectorMathOpNames, name_of(t[6]), "vector math op");
     } else if (op == "mapping") {
       need(4);
       o.code = OpCode::Mapping;
@@ -930,13 +931,13 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.code = OpCode::Math;
       o.in[0] = regno(t[2]);
       o.in[1] = regno(t[3]);
-      o.sub = index_in(math_ops, name_of(t[4]), "math op");
+      o.sub = sub_op_index(kMathOpNames, name_of(t[4]), "math op");
       o.clamp = t[5].cast<bool>();
     } else if (op == "math3") {  // the operations with a third value
       need(7);
       o.code = OpCode::Math;
       for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = index_in(math_ops, name_of(t[5]), "math op");
+      o.sub = sub_op_index(kMathOpNames, name_of(t[5]), "math op");
       o.clamp = t[6].cast<bool>();
     } else if (op == "mix") {
       need(7);
@@ -944,7 +945,7 @@ ShaderProgram parse_program(const PyScene& self, const py::list& program) {
       o.in[0] = regno(t[2]);
       o.in[1] = regno(t[3]);
       o.in[2] = regno(t[4]);
-      o.sub = index_in(mix_ops, name_of(t[5]), "mix blend type");
+      o.sub = sub_op_index(kMixOpNames, name_of(t[5]), "mix blend type");
       o.clamp = t[6].cast<bool>();
     } else if (op == "rgb_to_bw") {
       need(3);
@@ -971,7 +972,7 @@ Material make_shader(const PyScene& self, const std::string& name, const py::lis
                      const py::object& volume_absorption, bool use_schlick, const py::object& volume = py::none()) {
   Material mat;
   mat.name = name;
-  mat.program = parse_program(self, program);
+  mat.program = parse_program(program, int64_t(self.scene->image_count()));
   mat.program.schlick = use_schlick;
   if (!volume_absorption.is_none()) {
     const auto t = volume_absorption.cast<py::tuple>();
@@ -1533,6 +1534,59 @@ FloatArray film_rect(PySession& self, int x, int y, int w, int h) {
 PYBIND11_MODULE(pathlight_core, m) {
   m.doc() = "Pathlight's compiled core: scene, BVH, path tracer and progressive render sessions.";
   m.attr("__version__") = PATHLIGHT_VERSION;
+  m.def(
+      "shader_op_table",
+      [] {
+        auto names = [](const auto& table) {
+          py::list out;
+          for (const SubOpName& n : table)
+            out.append(py::dict(py::arg("name") = n.name, py::arg("operands") = int(n.operands),
+                                py::arg("value_out") = n.value_out, py::arg("reads_scale") = n.reads_scale));
+          return out;
+        };
+        py::dict d;
+        d["math"] = names(kMathOpNames);
+        d["vector_math"] = names(kVectorMathOpNames);
+        d["mix"] = names(kMixOpNames);
+        d["color_space"] = names(kColorSpaceOpNames);
+        d["map_range"] = names(kMapRangeOpNames);
+        d["clamp"] = names(kClampOpNames);
+        py::dict ops;
+        for (const OpSignature& o : kValueOps) ops[o.name] = int(o.registers);
+        d["ops"] = ops;
+        return d;
+      },
+      "The shader language's table: 'ops' maps each value op's name to its register operand count; "
+      "the sub-operations (Math, Vector Math, Mix, colour space, Map Range and Clamp types) in the "
+      "core's order, each a dict of name, operands, value_out, reads_scale.");
+  m.def(
+      "fold_constant",
+      [](const py::list& program, int reg) {
+        // The add-on's constant folding: the core's own float evaluation of a program of
+        // constants and value ops (no scene, no images), returning one register.
+        if (reg < 0 || reg >= kMaxRegs) throw std::invalid_argument("register out of range");
+        const ShaderProgram prog = parse_program(program, 0);
+        for (const ShaderOp& op : prog.ops) {
+          switch (op.code) {  // the ops whose value depends on their operands alone
+            case OpCode::Const: case OpCode::Math: case OpCode::Mix: case OpCode::VectorMath:
+            case OpCode::Clamp: case OpCode::MapRange: case OpCode::ColorSpace: case OpCode::Hsv:
+            case OpCode::Gamma: case OpCode::BrightContrast: case OpCode::Component:
+            case OpCode::Combine: case OpCode::RgbToBw: case OpCode::Ramp:
+              break;
+            default:
+              throw std::invalid_argument("fold_constant takes constants and pure value ops only");
+          }
+        }
+        ShadingContext ctx;
+        ctx.ng = ctx.ns = ctx.wo = {0.0f, 0.0f, 1.0f};
+        ClosureList cl;
+        Float4 regs[kMaxRegs];
+        eval_shader(prog, {}, ctx, cl, regs);
+        return py::make_tuple(regs[reg].x, regs[reg].y, regs[reg].z, regs[reg].w);
+      },
+      py::arg("program"), py::arg("register"),
+      "Evaluates a program of constants and value ops as the renderer does (float arithmetic) "
+      "and returns register `register` as (x, y, z, w).");
   m.def("build_info", [] {
     py::dict d;
     d["simd"] = PATHLIGHT_SIMD_NAME;

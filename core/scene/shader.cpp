@@ -15,7 +15,7 @@ namespace pl {
 using namespace shader_math;  // this unit's helpers (shader_math.h is included by the shader units alone)
 
 void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
-                 ClosureList& out) {
+                 ClosureList& out, Float4* regs) {
   Float4 r[kMaxRegs];
   out.n = 0;
   out.emission = Vec3(0.0f);
@@ -604,6 +604,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     }
   }
   out.finalize();
+  if (regs) std::copy(r, r + kMaxRegs, regs);
 }
 
 }  // namespace pl

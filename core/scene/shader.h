@@ -289,8 +289,9 @@ struct ShaderProgram {
 };
 
 // Runs `prog` at `ctx`, filling `out` (closures plus emission), with closure frames built from
-// the given or the context's shading normal.
+// the given or the context's shading normal; `regs` (kMaxRegs entries), where given, receives
+// the registers (the add-on's constant folding).
 void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
-                 ClosureList& out);
+                 ClosureList& out, Float4* regs = nullptr);
 
 }  // namespace pl

@@ -229,7 +229,8 @@ import math  # noqa: E402
 from blender_util import load_addon  # noqa: E402
 
 load_addon()
-from addon.export import shader as sh  # noqa: E402  (the compiler's constant folding)
+from addon.export import shader as sh  # noqa: E402  (the compiler: Ramp tables, folding)
+import shader_reference as ref  # noqa: E402  (Python references of the core's ops)
 
 
 def emitted(ops, tilt=0.0, size=3, eye_dist=20.0, texspace=None, matrix=None):
@@ -259,37 +260,37 @@ def consts(*values):
 def test_colour_conversions_match_the_compilers_folding(conversion):
     for c in ((0.8, 0.3, 0.2), (0.2, 0.9, 0.4), (0.1, 0.2, 0.7), (0.5, 0.5, 0.5), (0.95, 0.0, 0.6)):
         got = emitted(consts(c + (1.0,)) + [("color_space", 1, 0, conversion)])
-        assert got == pytest.approx(sh._COLOR_SPACES[conversion](c), abs=1e-5), c
+        assert got == pytest.approx(ref._COLOR_SPACES[conversion](c), abs=1e-5), c
 
 
 def test_colour_adjustment_ops_match_the_compilers_folding():
     c = (0.8, 0.3, 0.2, 1.0)
     got = emitted(consts(c, 0.6, 0.5, 1.2, 0.75) + [("hsv", 5, 0, 1, 2, 3, 4)])
-    assert got == pytest.approx(sh._hsv_node(c[:3], 0.6, 0.5, 1.2, 0.75), abs=1e-5)
+    assert got == pytest.approx(ref._hsv_node(c[:3], 0.6, 0.5, 1.2, 0.75), abs=1e-5)
     got = emitted(consts(c, 2.2) + [("gamma", 2, 0, 1)])
-    assert got == pytest.approx(sh._gamma(c[:3], 2.2), abs=1e-5)
+    assert got == pytest.approx(ref._gamma(c[:3], 2.2), abs=1e-5)
     got = emitted(consts(c, 0.1, 0.4) + [("bright_contrast", 3, 0, 1, 2)])
     assert got == pytest.approx([max(1.4 * x - 0.1, 0.0) for x in c[:3]], abs=1e-5)
     for lo, hi, kind in ((0.2, 0.5, "MINMAX"), (0.5, 0.2, "RANGE"), (0.5, 0.2, "MINMAX")):
         got = emitted(consts(0.7, lo, hi) + [("clamp", 3, 0, 1, 2, kind)])
-        assert got[0] == pytest.approx(sh._clamp(0.7, lo, hi, kind))
+        assert got[0] == pytest.approx(ref._clamp(0.7, lo, hi, kind))
     for mode in ("LINEAR", "STEPPED", "SMOOTHSTEP", "SMOOTHERSTEP"):
         for v in (0.3, 0.62, 0.83, 1.4):  # away from float-rounded step edges
             args = (v, 0.5, 1.0, 3.0, 7.0, 4.0)
             got = emitted(consts(*args) + [("map_range", 6, 0, 1, 2, 3, 4, 5, mode, True)])
-            assert got[0] == pytest.approx(sh._map_range(*args, mode, True), abs=1e-5), (mode, v)
+            assert got[0] == pytest.approx(ref._map_range(*args, mode, True), abs=1e-5), (mode, v)
         # The vector variant: per component, its own parameters (a zero range gives to_min).
         vec = [(0.3, 0.62, 1.4), (0.5, 0.0, 1.0), (1.0, 0.0, 1.0), (3.0, 0.1, 0.2), (7.0, 0.9, 0.5),
                (4.0, 2.0, 3.0)]
         got = emitted(consts(*[x + (0.0,) for x in vec]) + [("map_range_vector", 6, 0, 1, 2, 3, 4, 5, mode, True)])
-        assert got == pytest.approx(sh._map_range_vector(*vec, mode, True), abs=1e-5), mode
+        assert got == pytest.approx(ref._map_range_vector(*vec, mode, True), abs=1e-5), mode
 
 
-@pytest.mark.parametrize("op", sorted(sh.VECTOR_MATH_OPS))
+@pytest.mark.parametrize("op", sorted(ref.VECTOR_MATH_OPS))
 def test_vector_math_matches_the_compilers_folding(op):
     a, b, c, scale = (0.7, -0.4, 2.5), (1.5, 0.3, -0.8), (0.2, 0.9, 0.1), 0.6
-    expect = sh._vector_math(op, a, b, c, scale)
-    expect = (expect,) * 3 if op in sh.VECTOR_MATH_VALUE_OPS else expect
+    expect = ref._vector_math(op, a, b, c, scale)
+    expect = (expect,) * 3 if op in ref.VECTOR_MATH_VALUE_OPS else expect
     # Emission shows only positive values: look at the result and at its negation.
     prog = consts(a + (0.0,), b + (0.0,), c + (0.0,), scale, -1.0) + [
         ("vector_math", 5, 0, 1, 2, 3, op)]
@@ -375,11 +376,11 @@ def test_object_and_generated_coordinates_per_instance():
     assert got == pytest.approx(np.abs(n / np.linalg.norm(n)), abs=1e-4)
 
 
-@pytest.mark.parametrize("op", sorted(sh.MATH_OPS))
+@pytest.mark.parametrize("op", sorted(ref.MATH_OPS))
 def test_math_ops_match_the_compilers_folding(op):
     for a, b, c in ((0.7, 2.5, 0.3), (-1.3, 0.4, 0.5), (2.0, -0.75, 1.5), (0.25, 0.25, 0.0)):
-        expect = sh._math(op, a, b, c)
-        name = "math3" if op in sh.MATH_OPS_3 else "math"
+        expect = ref._math(op, a, b, c)
+        name = "math3" if op in ref.MATH_OPS_3 else "math"
         operands = (0, 1, 2) if name == "math3" else (0, 1)
         prog = consts(a, b, c, -1.0) + [(name, 4) + operands + (op, False)]
         # Emission shows positive values only: the result and its negation.
@@ -443,3 +444,70 @@ def test_no_russian_roulette_through_a_stack_of_clear_sheets():
     img, stats = render(pc, s, 16, 16, samples=8)
     assert stats["nonfinite_samples"] == 0
     np.testing.assert_allclose(img[..., :3], e * g**8, rtol=1e-4)
+
+
+# ---------------------------------------------------------------- the core's op table (issue 22)
+
+def _blender_enum(node_type, prop):
+    import bpy
+    node = bpy.data.node_groups.new("ops", "ShaderNodeTree").nodes.new(node_type)
+    return {e.identifier for e in node.bl_rna.properties[prop].enum_items}
+
+
+# Blender operations the core does not have: the compiler warns and falls back for these.
+MISSING_MIX_BLENDS = {"BURN", "DODGE", "HUE", "SATURATION", "VALUE", "COLOR", "SOFT_LIGHT",
+                      "LINEAR_LIGHT", "EXCLUSION"}
+
+
+def test_the_core_op_table_matches_the_references_and_blender():
+    table = core().shader_op_table()
+    names = {kind: [e["name"] for e in entries] for kind, entries in table.items() if kind != "ops"}
+    assert set(names["math"]) == ref.MATH_OPS and len(names["math"]) == len(ref.MATH_OPS)
+    assert {e["name"] for e in table["math"] if e["operands"] == 3} == ref.MATH_OPS_3
+    assert set(names["vector_math"]) == ref.VECTOR_MATH_OPS
+    assert {e["name"] for e in table["vector_math"] if e["value_out"]} == ref.VECTOR_MATH_VALUE_OPS
+    assert set(names["mix"]) == ref.MIX_BLENDS
+    assert set(names["color_space"]) == set(ref._COLOR_SPACES)
+    # Every Blender Math / Vector Math operation is in the core; Mix blends as listed.
+    assert _blender_enum("ShaderNodeMath", "operation") == set(names["math"])
+    assert _blender_enum("ShaderNodeVectorMath", "operation") == set(names["vector_math"])
+    assert _blender_enum("ShaderNodeMix", "blend_type") - set(names["mix"]) == MISSING_MIX_BLENDS
+    assert set(names["map_range"]) == _blender_enum("ShaderNodeMapRange", "interpolation_type")
+    assert set(names["clamp"]) == _blender_enum("ShaderNodeClamp", "clamp_type")
+    # The add-on reads the same table.
+    assert set(sh.math_ops()) == set(names["math"]) and set(sh.mix_blends()) == set(names["mix"])
+
+
+@pytest.mark.parametrize("op", sorted(ref.MATH_OPS))
+def test_folding_is_the_cores_float_math(op):
+    # The compiler folds through the core (float), the reference is double: they agree to
+    # float precision, and the folded value is the one the renderer computes.
+    from addon.export.shader.values import const_float
+    for a, b, c in ((0.7, 2.5, 0.3), (-1.3, 0.4, 0.5), (2.0, -0.75, 1.5), (0.25, 0.25, 0.0)):
+        name = "math3" if op in ref.MATH_OPS_3 else "math"
+        vals = tuple(const_float(x) for x in ((a, b, c) if name == "math3" else (a, b)))
+        got = sh.fold("float", name, vals, op, False).const[0]
+        assert got == pytest.approx(ref._math(op, a, b, c), rel=1e-5, abs=1e-5), (op, a, b, c)
+        f32 = np.float32
+        assert got == float(f32(got))  # a float's value: no double left over
+
+
+def test_fold_constant_refuses_ops_that_read_the_shading_point():
+    with pytest.raises(ValueError):
+        core().fold_constant([("position", 0)], 0)
+    with pytest.raises(ValueError):
+        core().fold_constant([("const", 0, (1.0,))], 99)
+
+
+def test_the_parser_accepts_exactly_the_tables_value_ops():
+    pc = core()
+    ops = pc.shader_op_table()["ops"]
+    for name in ops:  # known: refused for its missing operands, not as an unknown op
+        with pytest.raises(ValueError) as e:
+            pc.fold_constant([(name, 0)], 0)
+        assert "unknown shader op" not in str(e.value), name
+    with pytest.raises(ValueError, match="unknown shader op"):
+        pc.fold_constant([("no_such_op", 0)], 0)
+    # The add-on's register allocation reads the same counts.
+    from addon.export.shader.registers import _operands
+    assert all(_operands(name) == n for name, n in ops.items())

@@ -17,8 +17,8 @@ load_addon()
 from addon.export import export_scene  # noqa: E402
 from addon.scene_writer import to_core  # noqa: E402
 from addon.export.material import MaterialTable, convert_material  # noqa: E402
-from addon.export.shader import (  # noqa: E402
-    MAX_REGISTERS, ImageTable, UvSets, _math, _mix, mapping_matrix)
+from addon.export.shader import MAX_REGISTERS, ImageTable, UvSets, mapping_matrix  # noqa: E402
+from shader_reference import _math, _mix  # noqa: E402
 
 
 @pytest.fixture(autouse=True)

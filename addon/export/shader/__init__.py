@@ -12,24 +12,20 @@ The compiler uses virtual registers (unbounded) and a linear-scan allocation at 
 them onto the core's 64 registers.
 
 The modules: compiler (ShaderCompiler: the walk, emitting ops, `compile_material`), graph
-(following links through reroutes, mutes and groups), values (Val, constants), folding (the
-core's ops in Python, for constant folding), nodes_input / nodes_math / nodes_color /
+(following links through reroutes, mutes and groups), values (Val, constants), folding (constant
+folding by the core's own evaluation, and the core's table of operation names), nodes_input / nodes_math / nodes_color /
 nodes_vector / nodes_textures / tex_patterns / nodes_closures / volume (the node translators by
 family), images (the scene's image table), uv_sets (UV map and attribute numbering) and
 registers (dead-code elimination and register allocation).
 """
 
 from .compiler import CompiledShader, ShaderCompiler, compile_material
-from .folding import (_COLOR_SPACES, MATH_OPS, MATH_OPS_3, VECTOR_MATH_OPS, VECTOR_MATH_VALUE_OPS,
-                      _clamp, _gamma, _hsv_node, _map_range, _map_range_vector, _math, _mix,
-                      _vector_math, mapping_matrix, ramp_lookup)
+from .folding import fold, mapping_matrix, math_ops, mix_blends, op_table, ramp_lookup, vector_math_ops
 from .images import ImageData, ImageTable
 from .registers import MAX_REGISTERS
 from .uv_sets import UvSets
 
-# What the add-on and the tests import from `export.shader` (the leading-underscore folding
-# helpers are the tests' references for the core's ops).
-__all__ = ("CompiledShader", "ImageData", "ImageTable", "MAX_REGISTERS", "MATH_OPS", "MATH_OPS_3",
-           "ShaderCompiler", "UvSets", "VECTOR_MATH_OPS", "VECTOR_MATH_VALUE_OPS", "_COLOR_SPACES",
-           "_clamp", "_gamma", "_hsv_node", "_map_range", "_map_range_vector", "_math", "_mix",
-           "_vector_math", "compile_material", "mapping_matrix", "ramp_lookup")
+# What the add-on and the tests import from `export.shader`.
+__all__ = ("CompiledShader", "ImageData", "ImageTable", "MAX_REGISTERS", "ShaderCompiler", "UvSets",
+           "compile_material", "fold", "mapping_matrix", "math_ops", "mix_blends", "op_table",
+           "ramp_lookup", "vector_math_ops")

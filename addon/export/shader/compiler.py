@@ -2,11 +2,10 @@
 instructions for value nodes (constant sub-graphs folded) and weighted closures for shader
 nodes; the node translators are mixins grouped by family (nodes_*.py, volume.py)."""
 
-import math
 from dataclasses import dataclass, field
 
 from . import nodes_color, nodes_input, nodes_math, nodes_textures, nodes_vector, tex_patterns
-from .folding import MATH_OPS_3, _math, _mix, _sat
+from .folding import fold, math_ops
 from .graph import GraphWalk, _Cycle
 from .nodes_closures import ClosureNodes
 from .nodes_color import ColorNodes
@@ -77,6 +76,13 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         self.ops.append((args[0], r) + tuple(args[1:]))
         return Val(kind, reg=r)
 
+    def fold_or_emit(self, kind, name, vals, *tail, alpha=None):
+        """Op `name` of operands `vals` then literals `tail`: folded by the core where every
+        operand is a constant, else emitted."""
+        if all(v.is_const for v in vals):
+            return fold(kind, name, vals, *tail, alpha=alpha)
+        return self.emit(kind, name, *(self.reg(v) for v in vals), *tail)
+
     # -------------------------------------------------- conversions
 
     def as_float(self, v, what=""):
@@ -118,26 +124,19 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
     def math(self, op, a, b, clamp=False, c=None):
         a, b = self.as_float(a), self.as_float(b)
         c = ZERO if c is None else self.as_float(c)
-        if a.is_const and b.is_const and c.is_const:
-            v = _math(op, a.const[0], b.const[0], c.const[0])
-            return const_float(_sat(v) if clamp else v)
-        if op in MATH_OPS_3:
-            return self.emit("float", "math3", self.reg(a), self.reg(b), self.reg(c), op,
-                             bool(clamp))
-        return self.emit("float", "math", self.reg(a), self.reg(b), op, bool(clamp))
+        if math_ops()[op]["operands"] == 3:
+            return self.fold_or_emit("float", "math3", (a, b, c), op, bool(clamp))
+        return self.fold_or_emit("float", "math", (a, b), op, bool(clamp))
 
     def mix(self, blend, fac, a, b, clamp=False, kind="color"):
         """The core's mix: fac (clamped to [0, 1]) in .x, per-channel blend of a and b."""
         fac = self.as_float(fac)
         a, b = self.convert(a, kind), self.convert(b, kind)
         if fac.is_const and a.is_const and b.is_const:
-            f = _sat(fac.const[0])
-            out = [_mix(blend, x, y, f) for x, y in zip(a.const[:3], b.const[:3])]
-            if clamp:
-                out = [_sat(x) for x in out]
-            return Val(kind, tuple(x if math.isfinite(x) else 0.0 for x in out) + (a.const[3],))
+            v = fold(kind, "mix", (fac, a, b), blend, bool(clamp), alpha=a.const[3])
+            return Val(kind, v.const[:3] + (a.const[3],))
         if fac.is_const and blend == "MIX" and not clamp:
-            f = _sat(fac.const[0])
+            f = min(max(fac.const[0], 0.0), 1.0)
             if f == 0.0:
                 return a
             if f == 1.0:

@@ -4,7 +4,7 @@ mixin)."""
 
 import numpy as np
 
-from .folding import RAMP_TABLE_SIZE, _COLOR_SPACES, _gamma, _hsv_node, ramp_lookup
+from .folding import RAMP_TABLE_SIZE, ramp_lookup
 from .values import Val, const_color, const_float, const_vector
 
 
@@ -63,8 +63,8 @@ class ColorNodes:
 
     def color_space(self, v, conversion, kind):
         if v.is_const:
-            c = _COLOR_SPACES[conversion](v.const[:3])
-            return Val(kind, tuple(c) + (v.const[3],))
+            c = self.fold_or_emit("color", "color_space", (v,), conversion)
+            return Val(kind, c.const[:3] + (v.const[3],))
         return self.emit(kind, "color_space", self.reg(v), conversion)
 
     def separate(self, v, axis):
@@ -97,17 +97,12 @@ class ColorNodes:
     def hue_saturation(self, node, out, ctx):
         ins = [self.input(node, "Color", ctx, "color")] + [
             self.input(node, k, ctx, "float") for k in ("Hue", "Saturation", "Value", "Fac")]
-        if all(v.is_const for v in ins):
-            c = _hsv_node(ins[0].const[:3], *(v.const[0] for v in ins[1:]))
-            return const_color(tuple(c) + (1.0,))
-        return self.emit("color", "hsv", *(self.reg(v) for v in ins))
+        return self.fold_or_emit("color", "hsv", ins, alpha=1.0)
 
     def gamma(self, node, out, ctx):
         c = self.input(node, "Color", ctx, "color")
         g = self.input(node, "Gamma", ctx, "float")
-        if c.is_const and g.is_const:
-            return const_color(tuple(_gamma(c.const[:3], g.const[0])) + (1.0,))
-        return self.emit("color", "gamma", self.reg(c), self.reg(g))
+        return self.fold_or_emit("color", "gamma", (c, g), alpha=1.0)
 
     def bright_contrast(self, node, out, ctx):
         c = self.input(node, "Color", ctx, "color")

@@ -1,7 +1,7 @@
 """Math, Map Range, Clamp and the Mix nodes (a ShaderCompiler mixin)."""
 
-from .folding import MATH_OPS, MATH_OPS_3, MIX_BLENDS, _clamp, _map_range, _map_range_vector
-from .values import ZERO, Val, const_float, const_vector
+from .folding import math_ops, mix_blends
+from .values import ZERO, Val, const_float
 
 
 class MathNodes:
@@ -12,8 +12,8 @@ class MathNodes:
         a = self.value(node.inputs[0], ctx, "float")
         b = self.value(node.inputs[1], ctx, "float")
         clamp = node.use_clamp
-        if op in MATH_OPS:
-            c = self.value(node.inputs[2], ctx, "float") if op in MATH_OPS_3 else None
+        if op in math_ops():
+            c = self.value(node.inputs[2], ctx, "float") if math_ops()[op]["operands"] == 3 else None
             return self.math(op, a, b, clamp, c)
         self.problem(f"'{node.name}': math operation {op.replace('_', ' ').title()} is not "
                      "supported (its first value is used)")
@@ -21,10 +21,7 @@ class MathNodes:
 
     def clamp_node(self, node, out, ctx):
         v, lo, hi = (self.input(node, k, ctx, "float") for k in ("Value", "Min", "Max"))
-        if v.is_const and lo.is_const and hi.is_const:
-            return const_float(_clamp(v.const[0], lo.const[0], hi.const[0], node.clamp_type))
-        return self.emit("float", "clamp", self.reg(v), self.reg(lo), self.reg(hi),
-                         node.clamp_type)
+        return self.fold_or_emit("float", "clamp", (v, lo, hi), node.clamp_type)
 
     def map_range(self, node, out, ctx):
         by_id = {s.identifier: s for s in node.inputs}
@@ -35,23 +32,16 @@ class MathNodes:
             ins = [self.value(by_id[k], ctx, "vector") or self.socket_default(by_id[k], "vector")
                    for k in ("Vector", "From_Min_FLOAT3", "From_Max_FLOAT3", "To_Min_FLOAT3",
                              "To_Max_FLOAT3", "Steps_FLOAT3")]
-            if all(v.is_const for v in ins):
-                return const_vector(_map_range_vector(*(v.const[:3] for v in ins), mode,
-                                                      node.clamp))
-            return self.emit("vector", "map_range_vector", *(self.reg(v) for v in ins), mode,
-                             bool(node.clamp))
+            return self.fold_or_emit("vector", "map_range_vector", ins, mode, bool(node.clamp))
         if node.data_type != 'FLOAT':
             return NotImplemented
         ins = [self.value(by_id[k], ctx, "float")
                for k in ("Value", "From Min", "From Max", "To Min", "To Max", "Steps")]
         mode = node.interpolation_type
-        if all(v.is_const for v in ins):
-            return const_float(_map_range(*(v.const[0] for v in ins), mode, node.clamp))
-        return self.emit("float", "map_range", *(self.reg(v) for v in ins), mode,
-                         bool(node.clamp))
+        return self.fold_or_emit("float", "map_range", ins, mode, bool(node.clamp))
 
     def mix_color(self, node, blend, fac, a, b, clamp):
-        if blend not in MIX_BLENDS:
+        if blend not in mix_blends():
             self.problem(f"'{node.name}': blend mode {blend.replace('_', ' ').title()} is not "
                          "supported (Mix)")
             blend = "MIX"

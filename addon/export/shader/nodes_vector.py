@@ -3,8 +3,8 @@ Bump and Normal Map (a ShaderCompiler mixin)."""
 
 import numpy as np
 
-from .folding import VECTOR_MATH_OPS, VECTOR_MATH_VALUE_OPS, _vector_math, mapping_matrix
-from .values import ONE, ZERO, const_float, const_vector
+from .folding import mapping_matrix, vector_math_ops
+from .values import ONE, ZERO, const_vector
 
 
 class VectorNodes:
@@ -14,28 +14,21 @@ class VectorNodes:
         """Vector Math on values (floats broadcast), folded when constant."""
         a, b = self.as_vector(a), self.as_vector(b)
         c = const_vector((0, 0, 0)) if c is None else self.as_vector(c)
-        if a.is_const and b.is_const and c.is_const:
-            return const_vector(_vector_math(op, a.const[:3], b.const[:3], c.const[:3], 1.0))
-        return self.emit("vector", "vector_math", self.reg(a), self.reg(b), self.reg(c), self.reg(ONE),
-                         op)
+        return self.fold_or_emit("vector", "vector_math", (a, b, c, ONE), op)
 
     def vector_math(self, node, out, ctx):
         op = node.operation
-        if op not in VECTOR_MATH_OPS:
+        if op not in vector_math_ops():
             return NotImplemented
         by_id = {s.identifier: s for s in node.inputs}
         a, b, c = (self.value(by_id[k], ctx, "vector") or self.socket_default(by_id[k], "vector")
                    for k in ("Vector", "Vector_001", "Vector_002"))
         scale = self.value(by_id["Scale"], ctx, "float")
-        value_op = op in VECTOR_MATH_VALUE_OPS
+        value_op = vector_math_ops()[op]["value_out"]
         if (out.identifier == "Value") != value_op:  # the output this operation leaves at 0
             return ZERO if out.identifier == "Value" else const_vector((0, 0, 0))
         kind = "float" if value_op else "vector"
-        if all(v.is_const for v in (a, b, c, scale)):
-            r = _vector_math(op, a.const[:3], b.const[:3], c.const[:3], scale.const[0])
-            return const_float(r) if value_op else const_vector(r)
-        return self.emit(kind, "vector_math", self.reg(a), self.reg(b), self.reg(c),
-                         self.reg(scale), op)
+        return self.fold_or_emit(kind, "vector_math", (a, b, c, scale), op)
 
     def separate_xyz(self, node, out, ctx):
         socket = node.inputs["Vector"]

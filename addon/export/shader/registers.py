@@ -1,24 +1,14 @@
 """The compiled program's registers: dead-code elimination and the linear-scan allocation
 of the compiler's virtual registers onto the core's MAX_REGISTERS."""
 
-from . import tex_patterns
+from .folding import op_table
 
 MAX_REGISTERS = 64
 
 
-# How many register operands (after the destination) each value op has; None = none given.
-_OPERANDS = {"const": 0, "uv": 0, "position": 0, "normal": 0, "object": 0, "generated": 0,
-             "light_path": 0, "object_info": 0, "curves_info": 0, "attribute": 0, "geometry": 0,
-             "object_normal": 0, "mapping": 1, "image": 1,
-             "rgb_to_bw": 1, "math": 2, "math3": 3, "mix": 3, "normal_map": 2, "fresnel": 2,
-             "layer_weight": 2, "bump": 6, "ramp": 1, "separate": 1, "combine": 3,
-             "color_space": 1, "hsv": 5, "gamma": 2, "bright_contrast": 3, "clamp": 3,
-             "map_range": 6, "map_range_vector": 6, "vector_math": 4,
-             "tex_noise": 9, "tex_wave": 7, "tex_magic": 3, "tex_white_noise": 2,
-             "vector_rotate": 5, "vector_transform": 1, "blackbody": 1, "wavelength": 1,
-             "camera_coords": 0, "tangent": 0, "tex_gabor": 6,
-             "ambient_occlusion": 3, "bevel": 2, "wireframe": 1,
-             **tex_patterns.OPERANDS}
+def _operands(name):
+    """How many register operands follow op `name`'s destination (the core's op table)."""
+    return op_table()["ops"][name]
 
 
 def _reads(op):
@@ -26,7 +16,7 @@ def _reads(op):
     if name == "closure":
         regs = [r for r in op[3].values()]
         return regs + ([op[2]] if op[2] is not None else [])
-    return [r for r in op[2:2 + _OPERANDS[name]] if r is not None]
+    return [r for r in op[2:2 + _operands(name)] if r is not None]
 
 
 def _rename(op, m):
@@ -34,7 +24,7 @@ def _rename(op, m):
     if name == "closure":
         return ("closure", op[1], None if op[2] is None else m[op[2]],
                 {k: m[v] for k, v in op[3].items()})
-    n_regs = _OPERANDS[name]
+    n_regs = _operands(name)
     out = [name, m[op[1]]]
     out += [None if r is None else m[r] for r in op[2:2 + n_regs]]
     out += list(op[2 + n_regs:])

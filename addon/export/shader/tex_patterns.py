@@ -6,9 +6,6 @@ Every input socket is read as a value (constant or linked); an unlinked Vector r
 Generated coordinates, as in Cycles. The ops are always emitted, never folded here: the core
 evaluates a program that reads nothing from the shading point once."""
 
-# How many register operands (after the destination) each op has (registers.py's _OPERANDS).
-OPERANDS = {"checker": 4, "gradient": 1, "brick": 10, "voronoi": 9}
-
 
 def _vector(c, node, ctx):
     """The Vector input, or the Generated coordinates when it is not linked."""
