@@ -661,6 +661,15 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
       o.in[0] = regno(t[2]);
       const auto params = t[3].cast<py::dict>();
       auto p = [&](const char* key) { return params.contains(key) ? regno(params[key]) : kNoReg; };
+      // The microfacet lobes' distribution (o.sub, a Microfacet): GGX unless a flag key says
+      // "beckmann" or, for the Glossy BSDF only, "ashikhmin_shirley".
+      auto distribution = [&](bool ashikhmin_shirley) {
+        if (p("ashikhmin_shirley") != kNoReg) {
+          if (!ashikhmin_shirley) throw std::invalid_argument("closure '" + kind + "' has no Ashikhmin-Shirley distribution");
+          return uint8_t(Microfacet::AshikhminShirley);
+        }
+        return uint8_t(p("beckmann") != kNoReg ? Microfacet::Beckmann : Microfacet::Ggx);
+      };
       if (kind == "diffuse") {
         o.code = OpCode::Diffuse;
         o.in[1] = p("color"); o.in[2] = p("normal"); o.in[3] = p("roughness");
@@ -681,10 +690,12 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
         o.code = OpCode::Glossy;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("normal"); o.in[4] = p("multiscatter");
         o.in[5] = p("anisotropy"); o.in[6] = p("rotation"); o.in[7] = p("tangent");
+        o.sub = distribution(true);
       } else if (kind == "glass" || kind == "refraction") {
         o.code = kind == "glass" ? OpCode::Glass : OpCode::Refraction;
         o.in[1] = p("color"); o.in[2] = p("roughness"); o.in[3] = p("ior"); o.in[4] = p("normal");
         o.in[5] = p("multiscatter");
+        o.sub = distribution(false);
       } else if (kind == "transparent") {
         o.code = OpCode::Transparent;
         o.in[1] = p("color");
@@ -693,6 +704,7 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
         o.in[1] = p("base_color"); o.in[2] = p("edge_tint"); o.in[3] = p("ior"); o.in[4] = p("extinction");
         o.in[5] = p("roughness"); o.in[6] = p("normal"); o.in[7] = p("multiscatter"); o.in[8] = p("physical");
         o.in[9] = p("anisotropy"); o.in[10] = p("rotation"); o.in[11] = p("tangent");
+        o.sub = distribution(false);
       } else if (kind == "translucent") {
         o.code = OpCode::Translucent;
         o.in[1] = p("color"); o.in[2] = p("normal");
@@ -1437,11 +1449,20 @@ Pass pass_by_name(const std::string& name) {
 Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   auto f = [&](const char* k, float d) { return p.contains(k) ? p[k].cast<float>() : d; };
   auto b = [&](const char* k, bool d) { return p.contains(k) ? p[k].cast<bool>() : d; };
+  // "distribution": "ggx" (the default), "beckmann" or (conductor only) "ashikhmin_shirley".
+  auto dist = [&](bool ashikhmin_shirley) {
+    const std::string d = p.contains("distribution") ? p["distribution"].cast<std::string>() : "ggx";
+    if (d == "ggx") return Microfacet::Ggx;
+    if (d == "beckmann") return Microfacet::Beckmann;
+    if (d == "ashikhmin_shirley" && ashikhmin_shirley) return Microfacet::AshikhminShirley;
+    throw std::invalid_argument("unknown " + kind + " distribution '" + d + "'");
+  };
   if (kind == "diffuse") return DiffuseBsdf{};
   if (kind == "conductor") {
     ConductorBsdf c;
     c.alpha = f("alpha", 0.3f);
-    c.alpha_y = f("alpha_y", -1.0f);  // anisotropic GGX (negative: isotropic)
+    c.alpha_y = f("alpha_y", -1.0f);  // anisotropic (negative: isotropic)
+    c.dist = dist(true);
     c.f0 = p.contains("f0") ? to_color(p["f0"], "f0") : Vec3(1.0f);
     if (b("schlick", false)) c.mode = ConductorFresnel::Schlick;
     if (p.contains("f82_tint")) {  // Principled's metal
@@ -1464,6 +1485,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     DielectricBsdf d;
     d.alpha = f("alpha", 0.3f);
     d.alpha_y = f("alpha_y", -1.0f);
+    d.dist = dist(false);
     d.eta = f("eta", 1.5f);
     d.reflection = b("reflection", true);
     d.transmission = b("transmission", true);

@@ -8,6 +8,8 @@
 #include <string>
 #include <variant>
 
+#include "scene/ashikhmin_shirley.h"
+#include "scene/microfacet_beckmann.h"
 #include "scene/microfacet_energy.h"
 #include "scene/thin_film.h"
 
@@ -115,18 +117,22 @@ enum class ConductorFresnel : uint8_t {
                // Fresnel of eta remapped from [F0(eta), 1] to [0, 1] (Principled specular)
 };
 
-// GGX reflection, tinted by one of the Fresnel models above.
+// Microfacet reflection (GGX, Beckmann or Ashikhmin-Shirley), tinted by one of the Fresnel
+// models above.
 struct ConductorBsdf {
   float alpha = 0.0f;     // along the frame's tangent (t)
   float alpha_y = -1.0f;  // along its bitangent (b); negative: isotropic (alpha)
   Vec3 f0{1.0f};
   ConductorFresnel mode = ConductorFresnel::Constant;
   bool exact = true;  // Dielectric: the real Fresnel equations (false: Schlick's approximation)
+  Microfacet dist = Microfacet::Ggx;  // in the padding: the variant stays as large
   float eta = 1.5f;   // Dielectric
   Vec3 b{0.0f};       // F82Tint
   // Dielectric: a thin film on top (Principled's Thin Film), thickness in nm (0: none).
   float film_thickness = 0.0f, film_ior = 1.33f;
   Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
+  Beckmann beckmann() const { return Beckmann{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
+  AshikhminShirley ashikhmin_shirley() const { return AshikhminShirley::from_alpha(alpha, alpha_y < 0.0f ? alpha : alpha_y); }
   // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
   bool is_delta() const { return alpha_y < 0.0f ? alpha < kDeltaAlpha : alpha * alpha_y < kDeltaAlpha * kDeltaAlpha; }
   Vec3 fresnel(float c) const {
@@ -152,12 +158,10 @@ struct ConductorBsdf {
       wo.z = -wo.z;
       wi.z = -wi.z;
     }
-    const Vec3 m = normalize(wo + wi);
-    const Ggx g = ggx();
-    const float wom = dot(wo, m);
-    if (!(wom > 0.0f)) return Vec3(0.0f);
-    pdf = g.pdf_visible(wo, m) / (4.0f * wom);
-    return fresnel(wom) * (g.D(m) * g.G(wo, wi) / (4.0f * wo.z));
+    if (dist == Microfacet::Ggx) return eval_up(ggx(), wo, wi, pdf);
+    if (dist == Microfacet::Beckmann) return eval_up(beckmann(), wo, wi, pdf);
+    const float f = ashikhmin_shirley().eval(wo, wi, pdf);
+    return pdf > 0.0f ? fresnel(dot(wo, normalize(wo + wi))) * f : Vec3(0.0f);
   }
   bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     const bool flip = wo.z < 0.0f;
@@ -168,16 +172,47 @@ struct ConductorBsdf {
       s.pdf = 1.0f;
       s.flags = kReflect | kDelta | kGlossyLobe;
     } else {
-      const Ggx g = ggx();
-      const Vec3 m = g.sample_visible(wo, u);
-      s.wi = reflect(wo, m);
-      const float wom = dot(wo, m);
-      if (s.wi.z <= 0.0f || !(wom > 0.0f)) return false;
-      s.pdf = g.pdf_visible(wo, m) / (4.0f * wom);
-      s.weight = fresnel(wom) * (g.G(wo, s.wi) / g.G1(wo));
+      const bool ok = dist == Microfacet::Ggx        ? sample_up(ggx(), wo, u, s)
+                      : dist == Microfacet::Beckmann ? sample_up(beckmann(), wo, u, s)
+                                                     : sample_ashikhmin_shirley(wo, u, s);
+      if (!ok) return false;
       s.flags = kReflect | kGlossyLobe;
     }
     if (flip) s.wi.z = -s.wi.z;
+    return true;
+  }
+
+  // A microfacet distribution's lobe (Ggx or Beckmann), wo and wi mirrored above the surface.
+  template <class Dist>
+  Vec3 eval_up(const Dist& g, Vec3 wo, Vec3 wi, float& pdf) const {
+    const Vec3 m = normalize(wo + wi);
+    const float wom = dot(wo, m);
+    if (!(wom > 0.0f)) return Vec3(0.0f);
+    pdf = g.pdf_visible(wo, m) / (4.0f * wom);
+    return fresnel(wom) * (g.D(m) * g.G(wo, wi) / (4.0f * wo.z));
+  }
+  template <class Dist>
+  bool sample_up(const Dist& g, Vec3 wo, Vec2 u, BsdfSample& s) const {
+    const Vec3 m = g.sample_visible(wo, u);
+    s.wi = reflect(wo, m);
+    const float wom = dot(wo, m);
+    if (s.wi.z <= 0.0f || !(wom > 0.0f)) return false;
+    s.pdf = g.pdf_visible(wo, m) / (4.0f * wom);
+    s.weight = fresnel(wom) * (g.G(wo, s.wi) / g.G1(wo));
+    return true;
+  }
+  // Cycles flips a half vector facing away from wo, which does not give a unit direction;
+  // such samples fail here instead, so that the pdf (of half vectors facing wo) holds.
+  bool sample_ashikhmin_shirley(Vec3 wo, Vec2 u, BsdfSample& s) const {
+    const AshikhminShirley a = ashikhmin_shirley();
+    const Vec3 h = a.sample_half(u);
+    const float woh = dot(wo, h);
+    if (!(woh > 0.0f)) return false;
+    s.wi = reflect(wo, h);
+    if (s.wi.z <= 0.0f) return false;
+    const float f = a.eval(wo, s.wi, s.pdf);
+    if (!(s.pdf > 0.0f)) return false;
+    s.weight = fresnel(woh) * (f / s.pdf);
     return true;
   }
 };
@@ -199,7 +234,9 @@ struct DielectricBsdf {
   // A thin film on the interface (Principled's Thin Film), thickness in nm (0: none); its IOR
   // is relative to the outside, as eta.
   float film_thickness = 0.0f, film_ior = 1.33f;
+  Microfacet dist = Microfacet::Ggx;  // Ggx or Beckmann
   Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
+  Beckmann beckmann() const { return Beckmann{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
   // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
   bool is_delta() const { return alpha_y < 0.0f ? alpha < kDeltaAlpha : alpha * alpha_y < kDeltaAlpha * kDeltaAlpha; }
 
@@ -236,6 +273,15 @@ struct DielectricBsdf {
   }
 
   Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+    return dist == Microfacet::Beckmann ? eval_with(beckmann(), wo, wi, pdf) : eval_with(ggx(), wo, wi, pdf);
+  }
+  bool sample(Vec3 wo, Vec2 u, float uc, BsdfSample& s) const {
+    return dist == Microfacet::Beckmann ? sample_with(beckmann(), wo, u, uc, s) : sample_with(ggx(), wo, u, uc, s);
+  }
+
+  // The lobes for one microfacet distribution (Ggx or Beckmann).
+  template <class Dist>
+  Vec3 eval_with(const Dist& g, Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
     if (is_delta() || wo.z == 0.0f || wi.z == 0.0f) return Vec3(0.0f);
     if (one_sided_coat() && wo.z < 0.0f) {
@@ -250,7 +296,6 @@ struct DielectricBsdf {
     m = normalize(m);
     if (m.z < 0.0f) m = -m;
     if (dot(m, wi) * wi.z < 0.0f || dot(m, wo) * wo.z < 0.0f) return Vec3(0.0f);  // backfacing microfacet
-    const Ggx g = ggx();
     Vec3 cr, ct;
     float pr, pt;
     lobes_at(dot(wo, m), cr, ct, pr, pt);
@@ -271,11 +316,12 @@ struct DielectricBsdf {
     return transmission_tint * ct * (ft / (etap * etap));  // radiance is compressed/expanded across the interface
   }
 
-  bool sample(Vec3 wo, Vec2 u, float uc, BsdfSample& s) const {
+  template <class Dist>
+  bool sample_with(const Dist& g, Vec3 wo, Vec2 u, float uc, BsdfSample& s) const {
     if (wo.z == 0.0f) return false;
     if (one_sided_coat() && wo.z < 0.0f) {  // mirror to the front and back
       wo.z = -wo.z;
-      const bool ok = sample(wo, u, uc, s);
+      const bool ok = sample_with(g, wo, u, uc, s);
       s.wi.z = -s.wi.z;
       return ok;
     }
@@ -300,7 +346,6 @@ struct DielectricBsdf {
       s.eta = etap;
       return true;
     }
-    const Ggx g = ggx();
     const Vec3 wo_up = wo.z > 0.0f ? wo : -wo;
     // The microfacet normal facing outside (+Z side): its sign tells Fresnel and refract
     // whether wo is inside or outside.
@@ -320,7 +365,7 @@ struct DielectricBsdf {
       s.flags = kTransmit | kGlossyLobe;
       s.eta = etap;
     }
-    const Vec3 f = eval(wo, s.wi, s.pdf);
+    const Vec3 f = eval_with(g, wo, s.wi, s.pdf);
     if (!(s.pdf > 0.0f) || is_black(f)) return false;
     s.weight = f / s.pdf;
     return true;

@@ -95,6 +95,11 @@ struct Ggx {
   }
 };
 
+// Blender's microfacet distributions (Cycles' closures): GGX (with or without the multiscatter
+// compensation, which the shader applies), Beckmann and, for the Glossy BSDF only,
+// Ashikhmin-Shirley. The GGX lobes hold one and branch on it.
+enum class Microfacet : uint8_t { Ggx, Beckmann, AshikhminShirley };
+
 inline Vec3 reflect(Vec3 wo, Vec3 m) { return m * (2.0f * dot(wo, m)) - wo; }
 
 // Refracts wo through the interface with normal m (on wo's side or not); eta = n_inside/n_outside

@@ -91,6 +91,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       // Fresnel from IOR and Extinction; the node's colour is all in the Fresnel.
       ConductorBsdf m;
       m.alpha = roughness_to_alpha(val(op.in[5], 0.5f));
+      m.dist = Microfacet(op.sub);
       Frame f = glossy_frame(op.in[6]);
       {  // Anisotropy as the Principled's: aspect sqrt(1 - 0.9 a), the tangent turned about N
         const float an = sat(std::isfinite(val(op.in[9], 0.0f)) ? val(op.in[9], 0.0f) : 0.0f);
@@ -130,6 +131,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
     case OpCode::Glossy: {
       ConductorBsdf g;
       g.alpha = roughness_to_alpha(val(op.in[2], 0.5f));
+      g.dist = Microfacet(op.sub);
       Frame f = glossy_frame(op.in[3]);
       {  // Cycles' Glossy anisotropy in [-0.99, 0.99]: positive narrows the lobe along the
          // tangent and widens it across, negative the other way; rotated about the normal.
@@ -154,6 +156,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       b.alpha = roughness_to_alpha(val(op.in[2], 0.0f));
       b.eta = clean_ior(val(op.in[3], 1.5f));
       b.schlick = prog.schlick;
+      b.dist = Microfacet(op.sub);
       if (op.code == OpCode::Refraction) {
         b.reflection = false;
         b.fresnel_on_transmission = false;

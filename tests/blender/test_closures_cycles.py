@@ -94,7 +94,7 @@ def metallic_scene(distribution):
     return build
 
 
-@pytest.mark.parametrize("distribution", ["MULTI_GGX", "GGX"])
+@pytest.mark.parametrize("distribution", ["MULTI_GGX", "GGX", "BECKMANN"])
 def test_metallic_bsdf(distribution):
     ours, cycles = render_pair(metallic_scene(distribution), 1024)
     assert_agree(ours, cycles, f"metallic {distribution}")

@@ -213,12 +213,22 @@ def test_multiscatter_glossy_passes_its_distribution_without_warning():
         closures, _, _ = closures_of(m)
         (c,) = [c for c in closures if c[0] == kind]
         assert c[2]["multiscatter"][0] == 1.0
-    node.distribution = 'BECKMANN'
-    _, warnings, _ = closures_of(mat)
-    assert len(warnings) == 1 and "Beckmann" in warnings[0]
+    # Beckmann and Ashikhmin-Shirley: the core's own lobes, each picked by a flag register of 1
+    # (no multiscatter, no warning); Glass, Refraction and Metallic take Beckmann too.
+    for dist, key in (('BECKMANN', "beckmann"), ('ASHIKHMIN_SHIRLEY', "ashikhmin_shirley")):
+        node.distribution = dist
+        (closure,), warnings, _ = closures_of(mat)
+        assert not warnings and closure[2][key][0] == 1.0 and "multiscatter" not in closure[2]
+    for node_type, kind in (("ShaderNodeBsdfGlass", "glass"), ("ShaderNodeBsdfRefraction", "refraction"),
+                            ("ShaderNodeBsdfMetallic", "metallic")):
+        m, n = ms.bsdf_material(kind, node_type, Roughness=0.3)
+        n.distribution = 'BECKMANN'
+        (c,), warnings, _ = closures_of(m)
+        assert c[0] == kind and not warnings and c[2]["beckmann"][0] == 1.0
+        assert "multiscatter" not in c[2] and "ashikhmin_shirley" not in c[2]
     node.inputs["Roughness"].default_value = 0.0  # a mirror is a mirror in any distribution
-    _, warnings, _ = closures_of(mat)
-    assert not warnings
+    (closure,), warnings, _ = closures_of(mat)
+    assert not warnings and "ashikhmin_shirley" not in closure[2]
 
 
 def test_nested_mix_and_add_multiply_weights():
@@ -1368,10 +1378,10 @@ def test_metallic_translucent_and_holdout_compile_without_fallbacks():
     metal.inputs["Anisotropy"].default_value = 0.5
     metal.distribution = 'BECKMANN'
     data, warnings = compile_(mat)
-    # Anisotropy is rendered now (its tangent: Cycles' default, radial about Z); Beckmann is not.
-    assert len(warnings) == 1 and "anisotropy" not in warnings[0] and "Beckmann" in warnings[0]
+    # Anisotropy is rendered (its tangent: Cycles' default, radial about Z), and Beckmann too.
+    assert not warnings
     (params,) = [op[3] for op in data.program if op[0] == "closure" and op[1] == "metallic"]
-    assert {"anisotropy", "rotation", "tangent"} <= set(params)
+    assert {"anisotropy", "rotation", "tangent", "beckmann"} <= set(params)
     (tangent,) = [op for op in data.program if op[0] == "tangent"]
     assert tangent[1] == params["tangent"] and tangent[2] == "Z"
 

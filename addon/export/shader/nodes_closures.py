@@ -71,27 +71,27 @@ class ClosureNodes:
                          roughness=inp("Roughness", "float"), normal=self.normal(node, ctx), **velvet)
         elif t == 'BSDF_GLOSSY':
             rough = inp("Roughness", "float")
-            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
             self.closure("glossy", weight, color=inp("Color", "color"), roughness=rough,
                          normal=self.normal(node, ctx),
                          multiscatter=self._multiscatter(node, rough),
+                         **self._distribution(node, rough),
                          **self._anisotropy(node, ctx, "Anisotropy", "Rotation"))
         elif t in ('BSDF_GLASS', 'BSDF_REFRACTION'):
             rough = inp("Roughness", "float")
-            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
             self.closure("glass" if t == 'BSDF_GLASS' else "refraction", weight,
                          color=inp("Color", "color"), roughness=rough, ior=inp("IOR", "float"),
                          normal=self.normal(node, ctx),
-                         multiscatter=self._multiscatter(node, rough) if t == 'BSDF_GLASS' else None)
+                         multiscatter=self._multiscatter(node, rough) if t == 'BSDF_GLASS' else None,
+                         **self._distribution(node, rough))
         elif t == 'BSDF_METALLIC':
             rough = inp("Roughness", "float")
-            self._note_distribution(node, rough, ('GGX', 'MULTI_GGX'))
             physical = node.fresnel_type == 'PHYSICAL_CONDUCTOR'
             params = dict(ior=inp("IOR", "vector"), extinction=inp("Extinction", "vector"),
                           physical=ONE) if physical else dict(
                 base_color=inp("Base Color", "color"), edge_tint=inp("Edge Tint", "color"))
             self.closure("metallic", weight, roughness=rough, normal=self.normal(node, ctx),
                          multiscatter=self._multiscatter(node, rough), **params,
+                         **self._distribution(node, rough),
                          **self._anisotropy(node, ctx, "Anisotropy", "Rotation"))
         elif t == 'BSDF_TRANSLUCENT':
             self.closure("translucent", weight, color=inp("Color", "color"),
@@ -118,14 +118,23 @@ class ClosureNodes:
         else:
             self._fallback_shader(node, ctx, weight)
 
-    def _note_distribution(self, node, roughness, allowed):
+    # The core's flag key for each of Blender's distributions besides GGX (Multiscatter GGX is
+    # GGX with the multiscatter key); the core refuses Ashikhmin-Shirley but on Glossy, and
+    # Blender offers it nowhere else.
+    _DISTRIBUTION_KEYS = {'BECKMANN': "beckmann", 'ASHIKHMIN_SHIRLEY': "ashikhmin_shirley"}
+
+    def _distribution(self, node, roughness):
+        """The closure's distribution flag (a register of 1): none for GGX and Multiscatter
+        GGX, and none for a constant zero roughness (every distribution is the same mirror)."""
         dist = node.distribution
-        if dist in allowed:
-            return
-        if roughness.is_const and roughness.const[0] == 0.0:
-            return  # every distribution is the same perfect mirror
-        self.problem(f"'{node.name}': {dist.replace('_', ' ').title()} distribution is "
-                     "approximated by GGX")
+        if dist in ('GGX', 'MULTI_GGX') or (roughness.is_const and roughness.const[0] == 0.0):
+            return {}
+        key = self._DISTRIBUTION_KEYS.get(dist)
+        if key is None or (key == "ashikhmin_shirley" and node.type != 'BSDF_GLOSSY'):
+            self.problem(f"'{node.name}': {dist.replace('_', ' ').title()} distribution is "
+                         "approximated by GGX")
+            return {}
+        return {key: ONE}
 
     @staticmethod
     def _multiscatter(node, roughness):
