@@ -94,3 +94,46 @@ def test_tangent_node_on_a_smooth_sphere_matches_cycles():
     # Worst region 0.3 %; the anisotropic highlight along per-triangle tangents was 75 % off.
     ours, cycles = render_pair(bumpy_sphere_scene(tangent_node=True), 256)
     assert_agree(ours, cycles, "tangent node sphere", region=0.03, whole=0.01)
+
+
+def exported_mesh(fill_type, space="TANGENT", in_group=False):
+    """The MeshData of a UV-mapped 8-vertex circle (an n-gon or a triangle fan) whose material
+    has a Normal Map of the given space (optionally inside a node group)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.mesh.primitive_circle_add(vertices=8, fill_type=fill_type, calc_uvs=True)
+    obj = bpy.context.object
+    mat, nodes, links, out = ms.new_material("NM")
+    tree = nodes
+    if in_group:
+        group = bpy.data.node_groups.new("Bent", "ShaderNodeTree")
+        group.interface.new_socket("Normal", in_out='OUTPUT', socket_type='NodeSocketVector')
+        tree = group.nodes
+        node = nodes.new("ShaderNodeGroup")
+        node.node_tree = group
+    nm = tree.new("ShaderNodeNormalMap")
+    nm.space = space
+    if not in_group:
+        d = nodes.new("ShaderNodeBsdfDiffuse")
+        links.new(nm.outputs["Normal"], d.inputs["Normal"])
+        links.new(d.outputs[0], out.inputs["Surface"])
+    obj.data.materials.append(mat)
+    from addon.export.mesh import collect_meshes
+    names = lambda materials: {0: ""}  # noqa: E731  (the active UV map, as set 0)
+    (mesh,) = collect_meshes(bpy.context.evaluated_depsgraph_get(), names)
+    return mesh
+
+
+def test_tangents_exported_for_tangent_space_normal_maps_only():
+    mesh = exported_mesh('TRIFAN')
+    assert mesh.tangent_problem is None and set(mesh.tangents) == {0}
+    t = mesh.tangents[0]
+    assert t.shape == (len(mesh.triangles), 3, 4) and t.dtype == np.float32
+    assert np.allclose(np.linalg.norm(t[..., :3], axis=-1), 1.0, atol=1e-4)
+    assert set(np.unique(t[..., 3])) <= {-1.0, 1.0}
+    assert set(exported_mesh('TRIFAN', in_group=True).tangents) == {0}  # found inside groups
+    assert exported_mesh('TRIFAN', space="OBJECT").tangents == {}
+
+
+def test_ngons_keep_per_triangle_tangents_with_a_problem():
+    mesh = exported_mesh('NGON')
+    assert mesh.tangents == {} and "per-triangle" in mesh.tangent_problem
