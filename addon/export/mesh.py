@@ -38,7 +38,7 @@ class MeshData:
     attributes: dict = field(default_factory=dict)  # attribute set k -> float32 (T, 3, 4) RGBA
     missing_attributes: list = field(default_factory=list)  # attribute names its materials read
     # uv set k -> float32 (T, 3, 4) MikkTSpace tangent and sign per corner, for the UV maps
-    # whose tangents its materials read; tangent_problem: why there are none (n-gons) or None.
+    # whose tangents its materials read; tangent_problem: why there are none, or None.
     tangents: dict = field(default_factory=dict)
     tangent_problem: str = None
 

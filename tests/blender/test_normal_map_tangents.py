@@ -137,6 +137,12 @@ def test_tangents_exported_for_tangent_space_normal_maps_only():
     assert exported_mesh('TRIFAN', space="OBJECT").tangents == {}
 
 
-def test_ngons_keep_per_triangle_tangents_with_a_problem():
-    mesh = exported_mesh('NGON')
-    assert mesh.tangents == {} and "per-triangle" in mesh.tangent_problem
+def test_ngons_get_their_triangles_tangents():
+    # calc_tangents refuses n-gons: the triangles' own, as the fan's, and no problem.
+    ngon, fan = exported_mesh('NGON'), exported_mesh('TRIFAN')
+    assert ngon.tangent_problem is None and set(ngon.tangents) == {0}
+    t = ngon.tangents[0]
+    assert t.shape == (len(ngon.triangles), 3, 4)
+    assert np.allclose(np.linalg.norm(t[..., :3], axis=-1), 1.0, atol=1e-4)
+    # A flat disc with planar uvs: one tangent everywhere, the fan's.
+    assert np.allclose(t, fan.tangents[0][0, 0], atol=1e-4), (t[0], fan.tangents[0][0])
