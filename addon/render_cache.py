@@ -112,6 +112,9 @@ def _same_geometry(old, new):
         if a.attributes.keys() != b.attributes.keys():
             return False
         arrays += [(a.attributes[k], b.attributes[k]) for k in a.attributes]
+        if a.tangents.keys() != b.tangents.keys():
+            return False
+        arrays += [(a.tangents[k], b.tangents[k]) for k in a.tangents]
         # `is`: the mesh cache hands out its own arrays, never copies.
         if not all(x is y for x, y in arrays) or a.texspace != b.texspace:
             return False

@@ -24,6 +24,8 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             uvs["attributes"] = mesh.attributes
         if mesh.texspace is not None:
             uvs["texspace"] = mesh.texspace
+        if getattr(mesh, "tangents", None):
+            uvs["tangents"] = mesh.tangents
         mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
                                  normals=mesh.normals, normal_indices=mesh.normal_indices,
                                  material_indices=mesh.material_indices,

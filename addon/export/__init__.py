@@ -52,6 +52,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         if mesh.missing_attributes:
             warn(f"Mesh '{mesh.name}' has no attribute "
                  f"{', '.join(map(repr, mesh.missing_attributes))} that its materials read; 0 is used")
+        if getattr(mesh, "tangent_problem", None):
+            warn(f"Mesh '{mesh.name}': {mesh.tangent_problem}")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
     curves = collect_curves(depsgraph, warn)
     curve_materials = [table.index(c.material) for c in curves]

@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .motion import instance_key
+from .tangents import mesh_tangents, tangent_uv_maps
 
 
 @dataclass
@@ -36,6 +37,10 @@ class MeshData:
     motion_positions: np.ndarray = None
     attributes: dict = field(default_factory=dict)  # attribute set k -> float32 (T, 3, 4) RGBA
     missing_attributes: list = field(default_factory=list)  # attribute names its materials read
+    # uv set k -> float32 (T, 3, 4) MikkTSpace tangent and sign per corner, for the UV maps
+    # whose tangents its materials read; tangent_problem: why there are none, or None.
+    tangents: dict = field(default_factory=dict)
+    tangent_problem: str = None
 
     @property
     def corner_normals(self):
@@ -443,6 +448,8 @@ def mesh_data(obj, mesh, materials, uv_names=None):
         mesh, corners=bool(names), slots=len(materials))
     uvs, missing = mesh_uvs(mesh, names, loops) if names else ({}, [])
     attributes, missing_attributes = mesh_attributes(mesh, names, loops) if names else ({}, [])
+    wanted = tangent_uv_maps(materials) if names else ()
+    tangents, tangent_problem = mesh_tangents(mesh, names, loops, wanted) if wanted else ({}, None)
     # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
     # non-finite vertices make it non-finite: then the core's own box of the finite ones.
     texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
@@ -450,4 +457,4 @@ def mesh_data(obj, mesh, materials, uv_names=None):
         texspace = None
     return MeshData(obj.original.name, positions, triangles, normals, normal_indices, material_indices, materials,
                     uvs=uvs, missing_uv_maps=missing, texspace=texspace, attributes=attributes,
-                    missing_attributes=missing_attributes)
+                    missing_attributes=missing_attributes, tangents=tangents, tangent_problem=tangent_problem)

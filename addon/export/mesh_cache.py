@@ -34,6 +34,8 @@ import logging
 
 import numpy as np
 
+from .tangents import tangent_uv_maps
+
 log = logging.getLogger(__name__)
 
 # foreach_get field of each attribute data type.
@@ -195,6 +197,8 @@ class MeshCache:
         original = obj.original
         data = original.data
         uv = tuple(sorted(uv_names(materials).items())) if uv_names else ()
+        if uv:  # the UV maps whose tangents are exported follow the materials' node trees
+            uv += (tangent_uv_maps(materials),)
         # Objects with modifiers evaluate to their own geometry even when sharing a mesh.
         owner = original.name if len(original.modifiers) else ""
         return (data.as_pointer() if data is not None else 0, data.name if data else "", owner,

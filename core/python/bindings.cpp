@@ -287,7 +287,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
                   const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
                   const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
-                  const py::dict& attributes) {
+                  const py::dict& attributes, const py::dict& tangents) {
   self.check_editable();
   const IndexArray triangles(triangles_obj, "triangles");
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
@@ -394,6 +394,21 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
       throw std::invalid_argument("attributes must have shape (T, 3, 4)");
     if (mesh.attributes.size() <= size_t(k)) mesh.attributes.resize(size_t(k) + 1);
     auto& dst = mesh.attributes[size_t(k)];
+    huge(dst, nt * 3);
+    dst.resize(nt * 3);
+    const float* src = a.data();
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    for (size_t i = 0; i < nt * 3; ++i)
+      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
+  }
+  for (const auto& item : tangents) {  // Blender's MikkTSpace tangents (xyz) and signs (w)
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("tangent set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 3 || size_t(a.shape(0)) != nt || a.shape(1) != 3 || a.shape(2) != 4)
+      throw std::invalid_argument("tangents must have shape (T, 3, 4)");
+    if (mesh.tangents.size() <= size_t(k)) mesh.tangents.resize(size_t(k) + 1);
+    auto& dst = mesh.tangents[size_t(k)];
     huge(dst, nt * 3);
     dst.resize(nt * 3);
     const float* src = a.data();
@@ -2182,7 +2197,8 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
-           py::arg("normal_indices") = py::none(), py::arg("attributes") = py::dict())
+           py::arg("normal_indices") = py::none(), py::arg("attributes") = py::dict(),
+           py::arg("tangents") = py::dict())
       .def(
           "add_image",
           [](PyScene& self, const FloatArray& pixels, bool srgb) {

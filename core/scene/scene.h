@@ -39,6 +39,9 @@ struct MeshData {
   // Per global attribute set (the Attribute and Color Attribute nodes; numbered with the uv
   // sets): RGBA of every triangle corner, 3 per triangle, or empty (missing: reads 0).
   std::vector<std::vector<Float4>> attributes;
+  // Per global uv set: Blender's MikkTSpace tangent (xyz, object space) and bitangent sign (w)
+  // of every triangle corner, 3 per triangle, or empty (per-triangle uv tangents instead).
+  std::vector<std::vector<Float4>> tangents;
   // Texture space for generated coordinates (Blender's texspace_location / texspace_size);
   // without it, Blender's automatic one (the bounding box) is computed at commit.
   bool has_texspace = false;

@@ -346,6 +346,7 @@ void Scene::update_memory_stats() {
            m.materials.capacity() * 4;
     for (const auto& uv : m.uvs) geo += uv.capacity() * sizeof(Vec2);
     for (const auto& a : m.attributes) geo += a.capacity() * sizeof(Float4);
+    for (const auto& a : m.tangents) geo += a.capacity() * sizeof(Float4);
   }
   stats_.bvh_bytes = bvh;
   stats_.geometry_bytes = geo;

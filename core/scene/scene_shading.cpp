@@ -4,6 +4,7 @@
 
 #include <cstring>
 
+#include "scene/vector_nodes.h"
 #include "util/rng.h"
 
 namespace pl {
@@ -82,6 +83,8 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   Vec2 corner_uvs[3 * kMaxSets];
   Vec3 tangents[kMaxSets];
   float signs[kMaxSets];
+  Float4 mesh_tangents[kMaxSets];
+  uint32_t mesh_tangent_sets = 0;
   const int sets = static_cast<int>(std::min<size_t>(uv_sets_, kMaxSets));
   if (mat.program.uses_uv && sets > 0) {
     const float b0 = 1.0f - b1 - b2;
@@ -101,6 +104,17 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       corner_uvs[3 * k] = a;
       corner_uvs[3 * k + 1] = b;
       corner_uvs[3 * k + 2] = c;
+      if (size_t(k) < mesh.tangents.size() && !mesh.tangents[size_t(k)].empty()) {
+        // The mesh's MikkTSpace tangents, interpolated unnormalised in object space (Cycles).
+        const std::vector<Float4>& mt = mesh.tangents[size_t(k)];
+        const Float4 &ta = mt[3 * st], &tb = mt[3 * st + 1], &tc = mt[3 * st + 2];
+        mesh_tangents[k] = {ta.x * b0 + tb.x * b1 + tc.x * b2, ta.y * b0 + tb.y * b1 + tc.y * b2,
+                            ta.z * b0 + tb.z * b1 + tc.z * b2, ta.w * b0 + tb.w * b1 + tc.w * b2};
+        mesh_tangent_sets |= 1u << k;
+        tangents[k] = Vec3(0.0f);
+        signs[k] = 1.0f;
+        continue;
+      }
       // Per-triangle tangent from the uv parameterisation (dP/du), sign from the uv winding.
       const Vec3 e1 = tv.v1 - tv.v0, e2 = tv.v2 - tv.v0;
       const float du1 = b.x - a.x, dv1 = b.y - a.y, du2 = c.x - a.x, dv2 = c.y - a.y;
@@ -121,6 +135,19 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.tangents = tangents;
     ctx.tangent_signs = signs;
     ctx.tri_uv = corner_uvs;
+    if (mesh_tangent_sets) {
+      // Cycles' normal for tangent space: the unnormalised interpolated smooth normal in
+      // object space, or the geometric one turned back to object space (flat shading).
+      Vec3 n(0.0f);
+      if (!mesh.normals.empty()) {
+        const std::array<uint32_t, 3>& ni = mesh.normal_indices.empty() ? mesh.triangles[st] : mesh.normal_indices[st];
+        n = mesh.normals[ni[0]] * b0 + mesh.normals[ni[1]] * b1 + mesh.normals[ni[2]] * b2;
+      }
+      if (!(length_sq(n) > 0.0f) || !is_finite(n)) n = world_to_object_normal(ctx.object, sp.ng);
+      ctx.normal_obj = n;
+      ctx.mesh_tangents = mesh_tangents;
+      ctx.mesh_tangent_sets = mesh_tangent_sets;
+    }
   }
   Float4 attrs[kMaxSets];
   if (mat.program.uses_attributes) {

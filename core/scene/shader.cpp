@@ -129,7 +129,19 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         const float strength = op.in[1] == kNoReg ? 1.0f : reg(op.in[1]).x;
         Vec3 n = ctx.ns;
         const bool ok = op.index >= 0 && op.index < ctx.uv_sets && ctx.tangents;
-        if (ok) {
+        if (ok && ctx.has_mesh_tangent(op.index)) {
+          // Cycles' svm_node_normal_map with the mesh's MikkTSpace tangents; Strength blends
+          // towards the shading normal only where it is not 1.
+          const Float4 t = ctx.mesh_tangents[op.index];
+          Vec3 m = tangent_space_normal(ctx.object, t.xyz(), t.w, ctx.normal_obj, c);
+          if (strength != 1.0f) {
+            const float s = std::isfinite(strength) ? std::max(strength, 0.0f) : 0.0f;
+            const Vec3 blended = ctx.ns + (m - ctx.ns) * s;
+            const float l2 = length_sq(blended);
+            m = l2 > 0.0f && std::isfinite(l2) ? blended / std::sqrt(l2) : Vec3(0.0f);
+          }
+          if (length_sq(m) > 0.0f && is_finite(m)) n = m;
+        } else if (ok) {
           Vec3 t = ctx.tangents[op.index];
           t = t - n * dot(t, n);
           const float l2 = length_sq(t);
@@ -501,6 +513,8 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           g = g - Vec3(0.5f);
           t = op.sub == 0 ? Vec3{0.0f, -g.z, g.y} : op.sub == 1 ? Vec3{-g.z, 0.0f, g.x} : Vec3{-g.y, g.x, 0.0f};
           t = object_to_world_normal(ctx.object, t);
+        } else if (ctx.has_mesh_tangent(op.index) && op.index < ctx.uv_sets) {
+          t = object_to_world_normal(ctx.object, ctx.mesh_tangents[op.index].xyz());  // as Cycles
         } else if (op.index >= 0 && op.index < ctx.uv_sets && ctx.tangents) {
           t = ctx.tangents[op.index];
         } else {

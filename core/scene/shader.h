@@ -242,6 +242,15 @@ struct ShadingContext {
   int uv_sets = 0;
   const Vec3* tangents = nullptr;  // per uv set: tangent (xyz) with the bitangent sign folded in
   const float* tangent_signs = nullptr;
+  // MikkTSpace tangents, per uv set whose bit is set in mesh_tangent_sets: the interpolated
+  // object-space tangent (xyz, unnormalised) and bitangent sign (w) that the mesh gave, as
+  // Cycles' tangent attributes; normal_obj the unnormalised interpolated object-space smooth
+  // normal (flat shading: the geometric one), mesh orientation. Sets without them use the
+  // per-triangle tangents above.
+  const Float4* mesh_tangents = nullptr;
+  uint32_t mesh_tangent_sets = 0;
+  Vec3 normal_obj{0.0f};
+  bool has_mesh_tangent(int k) const { return mesh_tangents && k >= 0 && k < 32 && ((mesh_tangent_sets >> k) & 1u); }
   // The triangle hit (world vertices) and per uv set its 3 corner uvs (uv_sets * 3 entries):
   // the Bump node's offsets move along its edges. nullptr: no offsets (heights not differentiated).
   const Vec3* tri = nullptr;

@@ -142,6 +142,18 @@ Vec3 object_to_world_normal(const ObjectCoords* object, Vec3 n) {
   return safe_normalize(transposed_vector(object->to_object, n));
 }
 
+Vec3 world_to_object_normal(const ObjectCoords* object, Vec3 n) {
+  if (!object || !object->valid) return n;
+  return transposed_vector(object->to_world, n);
+}
+
+Vec3 tangent_space_normal(const ObjectCoords* object, Vec3 tangent, float sign, Vec3 normal, Vec3 color) {
+  const Vec3 c = (color - Vec3(0.5f)) * 2.0f;
+  const Vec3 b = cross(normal, tangent) * sign;  // no orthogonalisation, as Cycles
+  const Vec3 n = safe_normalize(tangent * c.x + b * c.y + normal * c.z);
+  return object_to_world_normal(object, n);
+}
+
 Vec3 vector_transform(int type, int from, int to, Vec3 v, const ObjectCoords* object, const Camera* camera) {
   // Cycles' svm_node_vector_transform: through world space, object transforms only for an
   // object, normals by the inverse transpose and normalised.

@@ -31,5 +31,14 @@ Vec3 world_to_camera_point(const Camera* camera, Vec3 p);
 // A direction turned like a normal from object to world space (Cycles'
 // object_normal_transform: the inverse transpose, then normalised).
 Vec3 object_to_world_normal(const ObjectCoords* object, Vec3 n);
+// A world-space normal in object space (Cycles' object_inverse_normal_transform: the
+// transpose of the object's matrix, not normalised); world space without a valid object.
+Vec3 world_to_object_normal(const ObjectCoords* object, Vec3 n);
+
+// Cycles' tangent-space Normal Map (svm_node_normal_map): color in [0, 1]^3 read as 2c - 1
+// over the unnormalised interpolated object-space tangent, sign * cross(normal, tangent) and
+// normal (mesh orientation), normalised and turned to world space as a normal. Zero where
+// it degenerates (the caller keeps its normal).
+Vec3 tangent_space_normal(const ObjectCoords* object, Vec3 tangent, float sign, Vec3 normal, Vec3 color);
 
 }  // namespace pl
