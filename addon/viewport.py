@@ -28,7 +28,7 @@ import numpy as np
 
 from .export import export_scene
 from .export.light import collect_lights
-from .export.material import convert_material
+from .export.material import convert_material, view_layer_ids
 from .export.mesh import is_visible
 from .export.shader import ImageTable, UvSets
 from .export.world import world_color, world_texture, world_volume
@@ -179,7 +179,7 @@ class ViewportSession:
         uv_sets.names = list(self.uv_sets.names) if self.uv_sets is not None else []
         images = ImageTable()
         use_schlick = getattr(depsgraph.scene.pathlight, "use_schlick_fresnel", False)
-        data = convert_material(mat, self.warn, images, uv_sets, use_schlick)
+        data = convert_material(mat, self.warn, images, uv_sets, use_schlick, view_layer_ids(depsgraph))
         if images.images or len(uv_sets.names) != len(self.uv_sets.names if self.uv_sets else []):
             return False
         put_material(self.scene, data, [], core_id)  # no images: checked above

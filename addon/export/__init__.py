@@ -9,7 +9,7 @@ import numpy as np
 from .camera import ExportError, camera_params
 from .curves import CurvesData, collect_curves
 from .light import LightData, collect_lights
-from .material import MaterialData, MaterialTable
+from .material import MaterialData, MaterialTable, view_layer_ids
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .world import WorldSky, WorldTexture, world_color, world_texture, world_volume
 
@@ -43,7 +43,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     ExportCancelled."""
     scene = depsgraph.scene
     camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
-    table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False))
+    table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False),
+                          view_layer_ids(depsgraph))
     meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop)
     for mesh in meshes:
         if mesh.missing_uv_maps:

@@ -208,6 +208,43 @@ def test_missing_attribute_reads_zero_with_a_warning():
     assert any("no attribute 'nope'" in w for w in warnings), warnings
 
 
+VIEW_LAYER_PROPS = {  # where the property is set, its name and value
+    "view layer float": ("view_layer", "vl_gain", 0.35),
+    "view layer vector": ("view_layer", "vl_tint", [0.2, 0.55, 0.9]),
+    "view layer 4-vector": ("view_layer", "vl_rgba", [0.6, 0.3, 0.1, 0.4]),
+    "scene int": ("scene", "sc_count", 3),
+    "scene bool": ("scene", "sc_flag", True),
+    "world custom": ("world", "wd_level", 0.7),
+    "shadowed by the view layer": ("both", "shared", 0.25),
+}
+
+
+@pytest.mark.parametrize("output", ["Color", "Fac", "Alpha", "Vector"])
+@pytest.mark.parametrize("case", sorted(VIEW_LAYER_PROPS) + ["built-in world colour", "missing"])
+def test_view_layer_attributes_as_cycles_reads_them(case, output):
+    def build():
+        scene = top_view(16)
+        world = scene.world or bpy.data.worlds.new("World")
+        scene.world = world
+        world.color = (0.15, 0.45, 0.65)
+        name = {"built-in world colour": "color", "missing": "nope"}.get(case)
+        if name is None:
+            where, name, value = VIEW_LAYER_PROPS[case]
+            holders = {"view_layer": [scene.view_layers[0]], "scene": [scene], "world": [world],
+                       "both": [scene.view_layers[0], scene]}[where]
+            for k, h in enumerate(holders):
+                h[name] = value if k == 0 else 0.9  # the first holder's value wins
+        grid = attribute_grid()
+        grid.data.materials.append(attribute_material("ShaderNodeAttribute", output,
+                                                      attribute_type='VIEW_LAYER', attribute_name=name))
+        return scene
+    ours, cycles = render_both(build)
+    diff = np.abs(ours[..., :3] - cycles[..., :3])
+    assert diff.max() < 2e-3, f"{case} {output}: ours {ours[8, 8, :3]}, Cycles {cycles[8, 8, :3]}"
+    if case != "missing":  # Cycles found the property: the comparison is not of two zeros
+        assert cycles[..., :3].max() > 0.05
+
+
 # ---------------------------------------------------------------- light path and geometry
 
 def driven_material(name, output_of, node_type="ShaderNodeLightPath", scale=1.0):

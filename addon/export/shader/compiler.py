@@ -33,10 +33,13 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
                      ClosureNodes, VolumeShaders):
     """Compiles one material's node tree. Use `compile_material`."""
 
-    def __init__(self, images, uv_sets, material_index=0):
+    def __init__(self, images, uv_sets, material_index=0, view_layer_ids=()):
         self.images = images
         self.uv_sets = uv_sets
         self.material_index = material_index  # the material's pass index (Object Info)
+        # Where the Attribute node's View Layer attributes are looked up, in order (Blender: the
+        # view layer, its scene, the scene's world).
+        self.view_layer_ids = tuple(view_layer_ids)
         self.ops = []  # with virtual registers
         self.nreg = 0
         self.const_regs = {}  # const tuple -> virtual register
@@ -346,10 +349,12 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         self.uv_used = {}
 
 
-def compile_material(mat, images, uv_sets):
-    """CompiledShader of a bpy Material with nodes, or None when it has no Cycles output."""
+def compile_material(mat, images, uv_sets, view_layer_ids=()):
+    """CompiledShader of a bpy Material with nodes, or None when it has no Cycles output.
+    view_layer_ids: the rendered view layer, its scene and world (View Layer attributes)."""
     tree = mat.node_tree
     output = tree.get_output_node('CYCLES')
     if output is None:
         return None
-    return ShaderCompiler(images, uv_sets, material_index=mat.pass_index).compile(output, mat.name)
+    return ShaderCompiler(images, uv_sets, material_index=mat.pass_index,
+                          view_layer_ids=view_layer_ids).compile(output, mat.name)

@@ -6,6 +6,42 @@ from .uv_sets import MAX_UV_SETS
 from .values import ZERO, Val, const_color, const_float, const_vector
 
 
+def _rna_value(holder, name):
+    """A property of `holder` as Cycles reads an attribute from it (lookup_property): a number or
+    boolean as (v, v, v, 1), a float array of 1-4 as (x, y, z, w) padded with (0, 0, 0, 1);
+    None where it has none of those."""
+    try:
+        v = holder.path_resolve(name)
+    except (ValueError, TypeError, AttributeError):
+        return None
+    if isinstance(v, bool):
+        v = float(v)
+    if isinstance(v, (int, float)):
+        return (float(v),) * 3 + (1.0,)
+    try:
+        vals = list(v)
+    except TypeError:
+        return None
+    if not 1 <= len(vals) <= 4 or not all(isinstance(x, float) for x in vals):
+        return None
+    out = [0.0, 0.0, 0.0, 1.0]
+    out[:len(vals)] = vals
+    return tuple(out)
+
+
+def view_layer_attribute(holders, name):
+    """A View Layer attribute: looked up in the view layer, its scene and world, in that order;
+    in each a custom property before a built-in (RNA path) one, as Blender does."""
+    if not name:
+        return None
+    for holder in holders:
+        for path in (f'["{name}"]', name):
+            v = _rna_value(holder, path)
+            if v is not None:
+                return v
+    return None
+
+
 class InputNodes:
     """Translators of the Input nodes (ShaderCompiler mixin)."""
 
@@ -49,8 +85,17 @@ class InputNodes:
 
     def attribute_node(self, node, out, ctx):
         """Attribute: a geometry attribute of the mesh by name (any domain but edges, any
-        type: floats read as grey, 2D vectors with z = 0). Object, instancer and view-layer
-        attributes are not supported (0)."""
+        type: floats read as grey, 2D vectors with z = 0), or a View Layer attribute (a
+        constant of the render). Object and instancer attributes are not supported (0)."""
+        if node.attribute_type == 'VIEW_LAYER':
+            v = view_layer_attribute(self.view_layer_ids, node.attribute_name) or (0.0, 0.0, 0.0, 0.0)
+            if out.identifier == "Fac":
+                return const_float(sum(v[:3]) / 3.0)
+            if out.identifier == "Alpha":
+                return const_float(v[3])
+            if out.identifier == "Vector":
+                return const_vector(v[:3])
+            return const_color(v[:3] + (1.0,))
         if node.attribute_type != 'GEOMETRY':
             self.problem(f"'{node.name}': {node.attribute_type.lower().replace('_', ' ')} "
                          "attributes are not supported (0)")
