@@ -55,7 +55,7 @@ inline float next_float_down(float v) {
 // Moves a surface point off its surface, to the side of `n`, by just more than the error bound
 // of its coordinates (pbrt-v4's OffsetRayOrigin): a ray leaving from there cannot re-hit the
 // surface (with the triangle test's own conservative t bound), at any scene scale.
-inline Vec3 offset_ray_origin(Vec3 p, Vec3 p_error, Vec3 n) {
+[[gnu::always_inline]] inline Vec3 offset_ray_origin(Vec3 p, Vec3 p_error, Vec3 n) {  // hot: see Sampler::get2d
   const float len = length(n);
   if (!(len > 0.0f)) return p;
   n = n / len;

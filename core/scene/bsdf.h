@@ -62,7 +62,7 @@ struct DiffuseBsdf {
   // Unbent lobes simply take wo's side.
   bool back = false;
   bool lit_side(Vec3 wo, Vec3 wi) const { return bent ? (wi.z < 0.0f) == back : same_side(wo, wi); }
-  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+  [[gnu::always_inline]] Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     if (!lit_side(wo, wi)) {
       pdf = 0.0f;
       return Vec3(0.0f);
@@ -496,7 +496,7 @@ struct Frame {
     f.t = cross(f.b, n);
     return f;
   }
-  Vec3 to_local(Vec3 v) const { return {dot(v, t), dot(v, b), dot(v, n)}; }
+  [[gnu::always_inline]] Vec3 to_local(Vec3 v) const { return {dot(v, t), dot(v, b), dot(v, n)}; }
   Vec3 to_world(Vec3 v) const { return t * v.x + b * v.y + n * v.z; }
 };
 

@@ -370,7 +370,7 @@ class Scene {
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
   // blocked; Transparent surfaces let part of it through).
   // Inline: without Transparent BSDFs (most scenes) a shadow ray is one any-hit query.
-  Vec3 transmittance(const Ray& ray) const {
+  [[gnu::always_inline]] Vec3 transmittance(const Ray& ray) const {
     if (!any_transparent_) return occluded(ray) ? Vec3(0.0f) : Vec3(1.0f);
     return transmittance_through(ray);
   }
