@@ -24,6 +24,8 @@ struct IntegratorSettings {
   bool transparent_background = false;
   // The render's camera, for the shader nodes that read camera space (nullptr: world space).
   const Camera* camera = nullptr;
+  // Camera rays carry ray differentials (SceneFeatures::footprints: shaders that read them).
+  bool differentials = true;
 };
 
 struct PathCounters {

@@ -127,6 +127,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     // The kernel: chosen here from what the scene and this render use, never per ray.
     const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent || scene_->any_holdout();
     kernel_ = select_kernel(kernel_features(scene_->features(), aovs), settings_.force_general_kernel, kernel_bits_);
+    integrator_.differentials = scene_->features().footprints;
     const bool filter = !(settings_.filter_type == FilterType::Box && settings_.filter_width == 1.0f);
     std::vector<std::pair<std::string, bool>> all;
     const std::vector<std::string> used = scene_->features().names();

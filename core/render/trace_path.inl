@@ -196,7 +196,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0, volume_count = 0;
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
-  if (s.camera) s.camera->differentials(ray.dir, ray_state.dp, ray_state.dd);  // the pixel's cone
+  if (s.camera && s.differentials) s.camera->differentials(ray.dir, ray_state.dp, ray_state.dd);  // the pixel's cone
   const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;

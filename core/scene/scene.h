@@ -171,6 +171,9 @@ struct SceneFeatures {
   uint32_t light_kinds = 0;  // bit 1 << LightType of each analytic light kind present
   bool light_tree = false;   // lights chosen by the light tree (many lights)
   bool subsurface = false;   // BSSRDF closures: random walks inside objects
+  // Shaders read the ray's footprint (Bump's Filter Width, Wireframe in pixels): only then do
+  // camera rays carry ray differentials (not a kernel feature: one test per camera ray).
+  bool footprints = false;
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
   // Names of the features in use, and of every feature a scene can have (for logs and tests).
