@@ -386,36 +386,26 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
       dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
     }
   }
-  for (const auto& item : attributes) {
-    const int64_t k = item.first.cast<int64_t>();
-    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
-    const auto a = item.second.cast<FloatArray>();
-    if (a.ndim() != 3 || size_t(a.shape(0)) != nt || a.shape(1) != 3 || a.shape(2) != 4)
-      throw std::invalid_argument("attributes must have shape (T, 3, 4)");
-    if (mesh.attributes.size() <= size_t(k)) mesh.attributes.resize(size_t(k) + 1);
-    auto& dst = mesh.attributes[size_t(k)];
-    huge(dst, nt * 3);
-    dst.resize(nt * 3);
-    const float* src = a.data();
-    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
-    for (size_t i = 0; i < nt * 3; ++i)
-      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
-  }
-  for (const auto& item : tangents) {  // Blender's MikkTSpace tangents (xyz) and signs (w)
-    const int64_t k = item.first.cast<int64_t>();
-    if (k < 0 || k >= 8) throw std::invalid_argument("tangent set index must be in [0, 8)");
-    const auto a = item.second.cast<FloatArray>();
-    if (a.ndim() != 3 || size_t(a.shape(0)) != nt || a.shape(1) != 3 || a.shape(2) != 4)
-      throw std::invalid_argument("tangents must have shape (T, 3, 4)");
-    if (mesh.tangents.size() <= size_t(k)) mesh.tangents.resize(size_t(k) + 1);
-    auto& dst = mesh.tangents[size_t(k)];
-    huge(dst, nt * 3);
-    dst.resize(nt * 3);
-    const float* src = a.data();
-    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
-    for (size_t i = 0; i < nt * 3; ++i)
-      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
-  }
+  // Per-corner float4 sets by index (attributes; Blender's MikkTSpace tangents xyz, signs w).
+  auto corner_sets = [&](const py::dict& sets, std::vector<std::vector<Float4>>& out, const char* what) {
+    for (const auto& item : sets) {
+      const int64_t k = item.first.cast<int64_t>();
+      if (k < 0 || k >= 8) throw std::invalid_argument(std::string(what) + " set index must be in [0, 8)");
+      const auto a = item.second.cast<FloatArray>();
+      if (a.ndim() != 3 || size_t(a.shape(0)) != nt || a.shape(1) != 3 || a.shape(2) != 4)
+        throw std::invalid_argument(std::string(what) + "s must have shape (T, 3, 4)");
+      if (out.size() <= size_t(k)) out.resize(size_t(k) + 1);
+      auto& dst = out[size_t(k)];
+      huge(dst, nt * 3);
+      dst.resize(nt * 3);
+      const float* src = a.data();
+      auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+      for (size_t i = 0; i < nt * 3; ++i)
+        dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
+    }
+  };
+  corner_sets(attributes, mesh.attributes, "attribute");
+  corner_sets(tangents, mesh.tangents, "tangent");
   if (!texspace.is_none()) {  // (location, size) of Blender's texture space
     const auto ts = texspace.cast<py::tuple>();
     if (ts.size() != 2) throw std::invalid_argument("texspace must be (location, size)");
