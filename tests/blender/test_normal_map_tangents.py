@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from blender_util import core_available, load_addon
+import light_scenes as ls
 import material_scenes as ms
 from material_scenes import assert_agree, render_pair
 
@@ -43,9 +44,7 @@ def bumpy_sphere_scene(tangent_node=False, scale=(1.0, 1.0, 1.0)):
     world. tangent_node: half of it an anisotropic glossy whose tangent is the Tangent node's
     (UV Map direction)."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        scene = bpy.context.scene
-        scene.render.resolution_x = scene.render.resolution_y = 64
+        scene = ls.empty_scene(64)
         ms.set_world((0.08, 0.08, 0.08))
         mat, nodes, links, out = ms.new_material("Bumps")
         tex = nodes.new("ShaderNodeTexImage")

@@ -53,3 +53,20 @@ def sampling_chi2(pc, kind, params, wo, wi, n, res=24):
     obs, _, _ = np.histogram2d(wi[:, 2], np.arctan2(wi[:, 1], wi[:, 0]), bins=[ct_edges, ph_edges])
     exp = integrate_pdf(pc, kind, params, wo, ct_edges, ph_edges, res=res) * n
     return (*pooled_chi2(obs, exp), exp)
+
+
+def sample_then_eval(pc, kind, params, wo, n=2000, seed=3):
+    """n samples of the lobe for wo and their eval: (ok, wi, weight, pdf, f, pdf_eval), the
+    last five of the successful samples only (flags >= 0)."""
+    u = np.random.default_rng(seed).random((n, 3), dtype=np.float32)
+    wi, weight, pdf, flags = pc.bsdf_sample(kind, params, wo, u)
+    ok = flags >= 0
+    f, pdf_e = pc.bsdf_eval(kind, params, wo, wi[ok])
+    return ok, wi[ok], weight[ok], pdf[ok], f, pdf_e
+
+
+def eval_both_ways(pc, kind, params, a, b):
+    """f(a -> b) and f(b -> a) (eval includes |cos| of the second direction) for direction pairs."""
+    fab = np.array([pc.bsdf_eval(kind, params, tuple(x), y[None])[0][0] for x, y in zip(a, b)])
+    fba = np.array([pc.bsdf_eval(kind, params, tuple(y), x[None])[0][0] for x, y in zip(a, b)])
+    return fab, fba
