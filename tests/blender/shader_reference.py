@@ -357,3 +357,18 @@ def _vector_math(op, a, b, c, scale):
             v = np.where(np.isfinite(v), v, 0.0)
             return tuple(float(x) for x in v)
     return r if math.isfinite(r) else 0.0
+
+
+def ramp_lookup(table, f, interpolate, extrapolate):
+    """Cycles' rgb_ramp_lookup (the core's Ramp op)."""
+    n = len(table)
+    if extrapolate and (f < 0.0 or f > 1.0):
+        t0, t1 = (table[0], table[1]) if f < 0.0 else (table[-1], table[-2])
+        k = (-f if f < 0.0 else f - 1.0) * (n - 1)
+        return [a + (a - b) * k for a, b in zip(t0, t1)]
+    f = min(max(f, 0.0), 1.0) * (n - 1) if math.isfinite(f) else 0.0
+    i = min(max(int(f), 0), n - 1)
+    w = f - i
+    if interpolate and w > 0.0 and i + 1 < n:
+        return [a + (b - a) * w for a, b in zip(table[i], table[i + 1])]
+    return list(table[i])

@@ -20,7 +20,7 @@ registers (dead-code elimination and register allocation).
 """
 
 from .compiler import CompiledShader, ShaderCompiler, compile_material
-from .folding import fold, mapping_matrix, math_ops, mix_blends, op_table, ramp_lookup, vector_math_ops
+from .folding import fold, mapping_matrix, math_ops, mix_blends, op_table, vector_math_ops
 from .images import ImageData, ImageTable
 from .registers import MAX_REGISTERS
 from .uv_sets import UvSets
@@ -28,4 +28,4 @@ from .uv_sets import UvSets
 # What the add-on and the tests import from `export.shader`.
 __all__ = ("CompiledShader", "ImageData", "ImageTable", "MAX_REGISTERS", "ShaderCompiler", "UvSets",
            "compile_material", "fold", "mapping_matrix", "math_ops", "mix_blends", "op_table",
-           "ramp_lookup", "vector_math_ops")
+           "vector_math_ops")

@@ -1,7 +1,7 @@
 """Constant folding and the op names: the core evaluates folded ops itself (pathlight_core
 fold_constant: the renderer's float arithmetic), and its table of sub-operations
-(shader_op_table) says which Math, Vector Math and Mix operations exist; plus the Ramp lookup
-and the Mapping matrix, which build op data."""
+(shader_op_table) says which Math, Vector Math and Mix operations exist; plus the Ramp table
+size and the Mapping matrix, which build op data."""
 
 import functools
 import math
@@ -54,21 +54,6 @@ def _sat(x):
 
 
 RAMP_TABLE_SIZE = 256  # Cycles' RAMP_TABLE_SIZE
-
-
-def ramp_lookup(table, f, interpolate, extrapolate):
-    """Cycles' rgb_ramp_lookup (the core's Ramp op), for constant folding."""
-    n = len(table)
-    if extrapolate and (f < 0.0 or f > 1.0):
-        t0, t1 = (table[0], table[1]) if f < 0.0 else (table[-1], table[-2])
-        k = (-f if f < 0.0 else f - 1.0) * (n - 1)
-        return [a + (a - b) * k for a, b in zip(t0, t1)]
-    f = _sat(f) * (n - 1) if math.isfinite(f) else 0.0
-    i = min(max(int(f), 0), n - 1)
-    w = f - i
-    if interpolate and w > 0.0 and i + 1 < n:
-        return [a + (b - a) * w for a, b in zip(table[i], table[i + 1])]
-    return list(table[i])
 
 
 def euler_matrix(xyz):

@@ -4,7 +4,7 @@ mixin)."""
 
 import numpy as np
 
-from .folding import RAMP_TABLE_SIZE, ramp_lookup
+from .folding import RAMP_TABLE_SIZE, fold
 from .values import Val, const_color, const_float, const_vector
 
 
@@ -13,18 +13,11 @@ class ColorNodes:
 
     def ramp(self, src, table, interpolate, extrapolate=False, lo=0.0, hi=1.0, channels=False,
              kind="color"):
-        if src.is_const:
-            c = src.const
-            rel = lambda v: (v - lo) / (hi - lo) if hi != lo else 0.0  # noqa: E731
-            if channels:
-                out = tuple(ramp_lookup(table, rel(c[i]), interpolate, extrapolate)[i]
-                            for i in range(3)) + (1.0,)
-            else:
-                out = tuple(ramp_lookup(table, rel(c[0]), interpolate, extrapolate))
-            return const_float(out[0]) if kind == "float" else const_color(out)
-        return self.emit(kind, "ramp", self.reg(src), np.ascontiguousarray(table, np.float32),
-                         bool(interpolate), bool(extrapolate), float(lo), float(hi),
-                         bool(channels))
+        args = (np.ascontiguousarray(table, np.float32), bool(interpolate), bool(extrapolate),
+                float(lo), float(hi), bool(channels))
+        if src.is_const:  # the core's own lookup, in its float arithmetic
+            return fold(kind, "ramp", [src], *args)
+        return self.emit(kind, "ramp", self.reg(src), *args)
 
     def color_ramp(self, node, out, ctx):
         """Cycles bakes the ramp (any interpolation and colour mode) into a 256-entry table."""
