@@ -5,7 +5,8 @@ import time
 
 import pytest
 
-import build
+import build  # noqa: F401 (puts tools/ on sys.path)
+from buildsys import bench
 
 SECTION = """## Equal-time error against Cycles (CPU)
 
@@ -39,9 +40,9 @@ README = "# Title\n\nBefore the table.\n\n<!-- bench-table:begin -->\nan older t
 
 @pytest.fixture
 def stamped(monkeypatch):
-    monkeypatch.setattr(build, "machine_description", lambda: "Test CPU, 2 cores")
-    monkeypatch.setattr(build, "git_commit", lambda: "0123456789ab")
-    monkeypatch.setattr(build, "log", lambda msg: None)
+    monkeypatch.setattr(bench, "machine_description", lambda: "Test CPU, 2 cores")
+    monkeypatch.setattr(bench, "git_commit", lambda: "0123456789ab")
+    monkeypatch.setattr(bench, "log", lambda msg: None)
 
 
 def write_sections(tmp_path, started):
@@ -58,7 +59,7 @@ def write_sections(tmp_path, started):
 
 
 def table_rows(text):
-    inside = text.split(build.README_BENCH_BEGIN)[1].split(build.README_BENCH_END)[0]
+    inside = text.split(bench.README_BENCH_BEGIN)[1].split(bench.README_BENCH_END)[0]
     return [line for line in inside.splitlines() if line.startswith("| ") and not line.startswith("| Benchmark")]
 
 
@@ -67,10 +68,10 @@ def test_readme_gets_one_headline_line_per_section(tmp_path, stamped):
     sections = write_sections(tmp_path, started)
     readme = tmp_path / "README.md"
     readme.write_text(README)
-    build.update_readme_benchmarks(sections, started, [], readme=readme)
+    bench.update_readme_benchmarks(sections, started, [], readme=readme)
     text = readme.read_text()
-    head, tail = README.split(build.README_BENCH_BEGIN)[0], README.split(build.README_BENCH_END)[1]
-    assert text.startswith(head + build.README_BENCH_BEGIN + "\n") and text.endswith(build.README_BENCH_END + tail)
+    head, tail = README.split(bench.README_BENCH_BEGIN)[0], README.split(bench.README_BENCH_END)[1]
+    assert text.startswith(head + bench.README_BENCH_BEGIN + "\n") and text.endswith(bench.README_BENCH_END + tail)
     assert "an older table" not in text and "Test CPU, 2 cores" in text and "0123456789ab" in text
     rows = table_rows(text)
     assert len(rows) == 3
@@ -84,24 +85,24 @@ def test_readme_gets_one_headline_line_per_section(tmp_path, stamped):
     # An unknown section: its first and last columns.
     assert rows[2] == "| A benchmark build.py does not know | Ratio | small 1.5x; large 3.0x |"
     # Running again replaces the table, not appends to it.
-    build.update_readme_benchmarks(sections, started, [], readme=readme)
+    bench.update_readme_benchmarks(sections, started, [], readme=readme)
     assert readme.read_text() == text
 
 
 def test_readme_without_markers_is_left_alone(tmp_path, stamped, monkeypatch):
     warnings = []
-    monkeypatch.setattr(build, "warn", warnings.append)
+    monkeypatch.setattr(bench, "warn", warnings.append)
     readme = tmp_path / "README.md"
     readme.write_text("# No markers\n")
-    build.update_readme_benchmarks(write_sections(tmp_path, time.time()), time.time(), [], readme=readme)
+    bench.update_readme_benchmarks(write_sections(tmp_path, time.time()), time.time(), [], readme=readme)
     assert readme.read_text() == "# No markers\n" and len(warnings) == 1
 
 
-@pytest.mark.parametrize("stem", sorted(build.README_BENCH_HEADLINES))
+@pytest.mark.parametrize("stem", sorted(bench.README_BENCH_HEADLINES))
 def test_headline_matches_the_section_its_script_writes(stem):
     """Each README headline reads columns of the section that is in docs/bench/ now; a bench
     script that renames one would silently fall back to the generic headline."""
-    path = build.BENCH_SECTIONS / f"{stem}.md"
+    path = bench.BENCH_SECTIONS / f"{stem}.md"
     assert path.exists(), f"{path} is gone: drop or rename its README headline"
-    what, figures = build.bench_headline(stem, path.read_text().splitlines())
-    assert what == build.README_BENCH_HEADLINES[stem][0] and figures
+    what, figures = bench.bench_headline(stem, path.read_text().splitlines())
+    assert what == bench.README_BENCH_HEADLINES[stem][0] and figures

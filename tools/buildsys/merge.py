@@ -1,0 +1,113 @@
+"""`merge`: partial EXR renders of one frame (farm splitting) merged into one, weighted by
+their sample counts, under .venv's Python (`build.py _merge`)."""
+
+import json
+import os
+import re
+import sys
+from pathlib import Path
+
+from .common import ROOT, VENV_PY, Lock, UserError, run_internal
+from .setup import ensure_setup
+
+MERGE_SAMPLES = "Pathlight Samples"  # header attributes the add-on stamps into its renders
+MERGE_OFFSET = "Pathlight Sample Offset"
+COUNT_CHANNEL = re.compile(r"(^|\.)(Sample ?Count|Samples)(\.[A-Z])?$", re.IGNORECASE)
+
+
+def cmd_merge(args):
+    inputs = [Path(p) for p in args.inputs]
+    for p in inputs:
+        if not p.is_file():
+            raise UserError(f"not found: {p}")
+    out = Path(args.output)
+    if out.suffix.lower() != ".exr":
+        raise UserError("the merged output must be an .exr")
+    if out.parent != Path("") and not out.parent.resolve().is_dir():
+        raise UserError(f"output directory does not exist: {out.parent}")
+    with Lock():
+        ensure_setup()
+    argv = [str(VENV_PY), str(ROOT / "build.py"), "_merge",
+            json.dumps({"inputs": [str(p.resolve()) for p in inputs], "output": str(out.resolve())})]
+    sys.stdout.flush()
+    os.execve(str(VENV_PY), argv, dict(os.environ))  # numpy and OpenEXR only: no core, no bpy
+
+
+def internal_merge(argv):
+    """`build.py _merge OPTIONS_JSON`: the `merge` command, under .venv's Python."""
+    def merge():
+        opts = json.loads(argv[0])
+        info = merge_exr(opts["inputs"], opts["output"])
+        ranges = ", ".join(f"[{a}, {a + n})" if a is not None else f"{n}" for a, n in info["ranges"])
+        print(f"Merged {len(opts['inputs'])} renders ({info['samples']} samples: {ranges}; "
+              f"weights: {info['weights']}) -> {opts['output']}", flush=True)
+    run_internal(merge)
+
+
+def merge_exr(inputs, output):
+    """Merges EXR renders of one frame with disjoint sample ranges: every channel is the
+    sample-weighted mean of the inputs' channels, a per-pixel sample-count channel (the
+    "Sample Count" pass, when the files have one) is summed and weighs its pixels; without it
+    each file weighs by its "Pathlight Samples" header attribute. Returns a summary dict."""
+    import numpy as np
+    import OpenEXR
+    parts = []
+    for path in inputs:
+        with OpenEXR.File(str(path)) as exr:
+            header = dict(exr.header())
+            channels = {name: np.array(ch.pixels, dtype=np.float32) for name, ch in exr.channels().items()}
+        parts.append((path, header, channels))
+    names = list(parts[0][2])
+    shapes = {n: parts[0][2][n].shape for n in names}
+    for path, _, channels in parts[1:]:
+        if list(channels) != names or any(channels[n].shape != shapes[n] for n in names):
+            raise UserError(f"{Path(path).name} has other channels or another resolution than "
+                            f"{Path(parts[0][0]).name}")
+    count_names = [n for n in names if COUNT_CHANNEL.search(n)]
+    ranges, file_samples = [], []
+    for path, header, _ in parts:
+        samples = header.get(MERGE_SAMPLES)
+        offset = header.get(MERGE_OFFSET)
+        if samples is None and not count_names:
+            raise UserError(f"{Path(path).name} has neither a Sample Count pass nor a "
+                            f"'{MERGE_SAMPLES}' attribute: render it with Pathlight")
+        n = int(float(samples)) if samples is not None else None
+        ranges.append((int(float(offset)) if offset is not None else None, n))
+        file_samples.append(n)
+    known = sorted((a, n) for a, n in ranges if a is not None and n is not None)
+    for (a0, n0), (a1, _) in zip(known, known[1:]):
+        if a1 < a0 + n0:
+            raise UserError(f"sample ranges [{a0}, {a0 + n0}) and [{a1}, ...) overlap: the "
+                            "merged render would count those samples twice (use --sample-offset)")
+
+    def weight(i, shape):
+        channels = parts[i][2]
+        if count_names:
+            w = channels[count_names[0]].astype(np.float64)
+        else:
+            w = np.full(shape[:2], float(file_samples[i]))
+        return w.reshape(w.shape + (1,) * (len(shape) - w.ndim))
+
+    merged = {}
+    for name in names:
+        if name in count_names:
+            merged[name] = sum(p[2][name].astype(np.float64) for p in parts).astype(np.float32)
+            continue
+        shape = shapes[name]
+        num = np.zeros(shape, np.float64)
+        den = np.zeros(shape[:2] + (1,) * (len(shape) - 2), np.float64)
+        for i, part in enumerate(parts):
+            w = weight(i, shape)
+            num += w * part[2][name]
+            den += w
+        merged[name] = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0).astype(np.float32)
+    header = {k: v for k, v in parts[0][1].items()
+              if k in ("compression", "pixelAspectRatio") or not k[:1].islower()}
+    total = sum(n for n in file_samples if n is not None) if all(file_samples) else None
+    if total is not None:
+        header[MERGE_SAMPLES] = str(total)
+        header[MERGE_OFFSET] = str(min(a for a, _ in ranges if a is not None)) \
+            if all(a is not None for a, _ in ranges) else "0"
+    OpenEXR.File(header, merged).write(str(output))
+    return {"samples": total, "ranges": ranges,
+            "weights": "per-pixel sample counts" if count_names else "samples per file"}
