@@ -1,7 +1,8 @@
 """World → constant background radiance, or an equirectangular environment image.
 
 Supported node graph (Cycles' meaning): [Texture Coordinate (Generated/Object)] → [Mapping]
-→ Environment Texture (equirectangular) or Sky Texture (Nishita, Preetham) → Background/Emission
+→ Environment Texture (equirectangular) or Sky Texture (Nishita, Preetham, Hosek / Wilkie)
+→ Background/Emission
 Color, times Strength.
 """
 
@@ -26,13 +27,14 @@ class WorldTexture:
 @dataclass
 class WorldSky:
     """Blender's Sky Texture, computed by the core: the node's settings as
-    pc.Scene.set_world_sky (Nishita: radians, metres, densities) or set_world_preetham (sun
-    direction, turbidity) takes them."""
+    pc.Scene.set_world_sky (Nishita: radians, metres, densities), set_world_preetham (sun
+    direction, turbidity) or set_world_hosek (sun direction, turbidity, ground albedo) takes
+    them."""
     params: dict
     strength: float
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
     name: str = ""
-    kind: str = "nishita"  # or "preetham"
+    kind: str = "nishita"  # or "preetham", "hosek"
 
 
 def sky_params(node):
@@ -117,7 +119,7 @@ def world_volume(world, warn):
 
 def world_texture(world, warn):
     """WorldTexture for a world lit by an equirectangular Environment Texture, WorldSky for a
-    Nishita Sky Texture, else None
+    Sky Texture, else None
     (then world_color() is the background). Problems are warned about and fall back to the
     constant colour."""
     node, _ = _background_node(world, lambda msg: None)  # world_color() warns about these
@@ -132,16 +134,20 @@ def world_texture(world, warn):
         if tm is not None and (any(tm.rotation) or any(tm.translation)
                                or tuple(tm.scale) != (1.0, 1.0, 1.0)):
             warn(f"{what}: its texture_mapping (set from Python) is not supported; ignored")
-        if source.sky_type == 'PREETHAM':
+        if source.sky_type in {'PREETHAM', 'HOSEK_WILKIE'}:
             params = {"sun_direction": tuple(float(c) for c in source.sun_direction),
                       "turbidity": float(source.turbidity)}
+            kind = "preetham"
+            if source.sky_type == 'HOSEK_WILKIE':
+                params["ground_albedo"] = float(source.ground_albedo)
+                kind = "hosek"
             rotation = _vector_rotation(source.inputs["Vector"], what, warn)
             return WorldSky(params, float(node.inputs["Strength"].default_value), rotation,
-                            source.name, "preetham")
+                            source.name, kind)
         if source.sky_type != 'NISHITA':
-            kind = {'HOSEK_WILKIE': "Hosek / Wilkie"}.get(source.sky_type, source.sky_type)
-            warn(f"{what}: the {kind} sky type is not supported yet (Nishita and Preetham are); "
-                 "using a constant background (the Background colour)")
+            warn(f"{what}: the {source.sky_type} sky type is not supported yet (Nishita, "
+                 "Preetham and Hosek / Wilkie are); using a constant background (the "
+                 "Background colour)")
             return None
         # Blender 4.5 makes Nishita's Vector socket unavailable (get() does not find it), and
         # Cycles then looks the sky up along the view direction itself.

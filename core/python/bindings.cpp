@@ -2507,6 +2507,26 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Blender's Sky Texture (Preetham) as the world, times strength: the node's Sun Direction and "
           "Turbidity; rotation, xyz_to_rgb and width as set_world_sky.")
       .def(
+          "set_world_hosek",
+          [](PyScene& self, const py::object& sun_direction, float turbidity, float ground_albedo, float strength,
+             const py::object& rotation_obj, const py::object& xyz_to_rgb, int width) {
+            self.check_editable();
+            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
+            const Mat4 rot = rotation_or_identity(rotation_obj);
+            const Vec3 sun = to_point(sun_direction, "sun_direction");
+            float m[9];
+            xyz_matrix(xyz_to_rgb, m);
+            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+            py::gil_scoped_release release;
+            auto sky = std::make_shared<const SkyModel>(sun, turbidity, ground_albedo, m);
+            self.scene->set_environment(Environment(std::move(sky), width, width / 2, k, rot));
+          },
+          py::arg("sun_direction") = py::make_tuple(0.0f, 0.0f, 1.0f), py::arg("turbidity") = 2.2f,
+          py::arg("ground_albedo") = 0.3f, py::arg("strength") = 1.0f, py::arg("rotation") = py::none(),
+          py::arg("xyz_to_rgb") = py::none(), py::arg("width") = 1024,
+          "Blender's Sky Texture (Hosek / Wilkie) as the world, times strength: the node's Sun Direction, "
+          "Turbidity and Ground Albedo; rotation, xyz_to_rgb and width as set_world_sky.")
+      .def(
           "set_world_color",
           [](PyScene& self, const py::object& c) {
             self.check_editable();

@@ -211,7 +211,7 @@ float perez(const float lam[5], float theta, float gamma) {
 
 }  // namespace
 
-SkyModel::SkyModel(Vec3 sun_direction, float turbidity, const float xyz_to_rgb[9]) : preetham_(true) {
+SkyModel::SkyModel(Vec3 sun_direction, float turbidity, const float xyz_to_rgb[9]) : kind_(Kind::kPreetham) {
   std::copy(xyz_to_rgb, xyz_to_rgb + 9, m_);
   const float len = length(sun_direction);
   const Vec3 d = len > 0.0f && std::isfinite(len) ? sun_direction / len : Vec3(0.0f, 0.0f, 1.0f);
@@ -274,7 +274,8 @@ Vec3 SkyModel::texel(float x, float y) const {
 
 Vec3 SkyModel::eval(Vec3 t, bool with_sun) const {
   if (!is_finite(t)) return Vec3(0.0f);
-  if (preetham_) return eval_preetham(t);
+  if (kind_ == Kind::kPreetham) return eval_preetham(t);
+  if (kind_ == Kind::kHosek) return eval_hosek(t);
   const float phi = std::atan2(t.y, t.x);
   float x = (-phi - 0.5f * kPi + rotation_) / (2.0f * kPi);
   x -= std::floor(x);

@@ -2,6 +2,7 @@
 // of air (Rayleigh), dust (Mie) and ozone, precomputed into a 512 x 128 XYZ texture of the upper
 // hemisphere (rows denser towards the horizon), and a sun disc with limb darkening. Preetham:
 // the analytic daylight model (Preetham, Shirley, Smits 1999; Perez distribution in xyY), no disc.
+// Hosek / Wilkie: the fitted sky-dome model (Hosek, Wilkie 2012; its XYZ datasets), no disc.
 // Our own implementation of the published models with Blender's constants, texture layout and
 // lookup, so that the same node gives the same radiance.
 #pragma once
@@ -27,6 +28,9 @@ class SkyModel {
   SkyModel(const SkyParams& p, const float xyz_to_rgb[9], int threads = 0);
   // Preetham: the node's Sun Direction (any length) and Turbidity.
   SkyModel(Vec3 sun_direction, float turbidity, const float xyz_to_rgb[9]);
+  // Hosek / Wilkie: the node's Sun Direction (any length), Turbidity and Ground Albedo
+  // (sky_hosek.cpp).
+  SkyModel(Vec3 sun_direction, float turbidity, float ground_albedo, const float xyz_to_rgb[9]);
   // Radiance towards unit direction t (texture space), the sun disc included or not.
   Vec3 eval(Vec3 t, bool with_sun = true) const;
   // The disc, for sampling: unit direction, half angle, and whether any of it is visible.
@@ -41,10 +45,14 @@ class SkyModel {
  private:
   Vec3 to_rgb(Vec3 xyz) const;
   Vec3 eval_preetham(Vec3 t) const;
-  bool preetham_ = false;
+  Vec3 eval_hosek(Vec3 t) const;
+  enum class Kind { kNishita, kPreetham, kHosek };
+  Kind kind_ = Kind::kNishita;
   float sun_theta_ = 0.0f, sun_phi_ = 0.0f;
   Vec3 zenith_;                  // Preetham: Y, x, y at the zenith over their Perez value there
   float perez_[3][5] = {};       // Preetham: Perez coefficients of Y, x, y
+  float hosek_[3][9] = {};       // Hosek: the distribution's parameters of X, Y, Z
+  Vec3 hosek_radiance_;          // Hosek: the overall radiance of X, Y, Z
   Vec3 texel(float x, float y) const;  // bilinear, clamped at the edges (Cycles' Extend)
   std::vector<Vec3> xyz_;
   float m_[9];

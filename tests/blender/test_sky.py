@@ -1,5 +1,5 @@
-"""Blender's Sky Texture (Nishita, Preetham) as the world: the sky seen directly and the light
-it casts, against Cycles in the same bpy (the core's sampling of it: test_sky_core.py)."""
+"""Blender's Sky Texture (Nishita, Preetham, Hosek / Wilkie) as the world: the sky seen directly
+and the light it casts, against Cycles in the same bpy (the core's sampling of it: test_sky_core.py)."""
 
 import math
 
@@ -122,6 +122,25 @@ def test_preetham_seen_directly_matches_cycles(sun, turbidity, rotation):
         assert_agrees(ours, ref, what=f"looking along {look}")
 
 
+@pytest.mark.parametrize("sun, turbidity, albedo, rotation", [
+    ((0.3, 0.5, 0.8), 2.2, 0.3, None),
+    ((-0.7, 0.1, 0.12), 6.5, 0.0, (0.2, 0.0, 0.9)),
+    ((0.2, -0.9, 0.35), 9.4, 1.0, None),
+    ((0.6, 0.6, -0.1), 1.0, 0.7, None),  # a sun below the horizon: lit as on it
+])
+def test_hosek_seen_directly_matches_cycles(sun, turbidity, albedo, rotation):
+    from mathutils import Vector
+    scene = empty_scene(32)
+    sky_world(0.8, 'HOSEK_WILKIE', mapping_rotation=rotation, sun_direction=sun,
+              turbidity=turbidity, ground_albedo=albedo)
+    cam = camera((0, 0, 0), lens=10.0)
+    for look in ((0.0, 1.0, 0.15), sun, (1.0, 0.0, -0.3)):  # horizon, the sun, below it
+        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
+        ours = render_to_array(scene, samples=16)
+        ref = render_to_array(scene, "CYCLES", samples=16, **BOX_FILTER)
+        assert_agrees(ours, ref, what=f"looking along {look}")
+
+
 def test_nishita_has_no_vector_input():
     # Blender 4.5 makes the Nishita type's Vector socket unavailable (Cycles uses the view
     # direction as is): the export needs no Mapping and warns about nothing.
@@ -185,7 +204,9 @@ def test_export_and_fallbacks():
     assert data.world_texture.kind == "preetham" and not warnings
     assert data.world_texture.params["turbidity"] == 3.5
     sky.sky_type = 'HOSEK_WILKIE'
+    sky.ground_albedo = 0.6
     warnings = Warnings()
     data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
-    assert data.world_texture is None
-    assert len(warnings) == 1 and "Hosek / Wilkie sky type is not supported yet" in warnings[0]
+    assert data.world_texture.kind == "hosek" and not warnings
+    assert data.world_texture.params["turbidity"] == 3.5
+    assert data.world_texture.params["ground_albedo"] == pytest.approx(0.6)

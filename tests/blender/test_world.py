@@ -163,17 +163,21 @@ def test_no_image_and_other_projections_fall_back(scene):
     assert world_texture(world, warnings) is None and "mirror_ball projection" in warnings[1]
 
 
-def test_sky_texture_falls_back_with_a_warning(scene):
+def test_every_sky_texture_type_exports_without_a_warning(scene):
+    # Blender 4.5's three types are all computed by the core (tests/blender/test_sky.py); the
+    # constant colour stays the Background's (the fallback should a texture be unusable).
     world = world_color((0.1, 0.2, 0.3), strength=2.0)
     nt = world.node_tree
     sky = nt.nodes.new("ShaderNodeTexSky")
-    sky.sky_type = 'HOSEK_WILKIE'  # Nishita and Preetham are supported (tests/blender/test_sky.py)
     nt.links.new(sky.outputs["Color"], nt.nodes["Background"].inputs["Color"])
-    warnings = Warnings()
-    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
-    assert data.world_texture is None
-    assert data.world_color == pytest.approx((0.2, 0.4, 0.6))
-    assert len(warnings) == 1 and "Hosek / Wilkie sky type is not supported" in warnings[0]
+    for sky_type, kind in (('NISHITA', "nishita"), ('PREETHAM', "preetham"),
+                           ('HOSEK_WILKIE', "hosek")):
+        sky.sky_type = sky_type
+        warnings = Warnings()
+        data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+        assert data.world_texture.kind == kind and data.world_texture.strength == 2.0
+        assert data.world_color == pytest.approx((0.2, 0.4, 0.6))
+        assert not warnings
 
 
 def test_mean_radiance_weights_by_solid_angle():
