@@ -259,3 +259,24 @@ def test_normal_map_object_space_lit_as_cycles():
         return scene
     ours, cycles = ms.render_pair(build, 64, bounces=2)
     ms.assert_agree(ours, cycles, "object-space normal map, lit", region=0.05, whole=0.02)
+
+
+def test_persistent_data_takes_a_changed_object_attribute():
+    """A kept core scene (persistent data) holds the instances' attribute values: a changed
+    custom property renders its new value, as a fresh render does."""
+    from addon import render_cache
+    render_cache.clear()
+    scene = top_view(16)
+    obj = ms.add_plane("P", 3.0, attr_material('OBJECT', "gain", "Color"))
+    obj["gain"] = 0.25
+    scene.render.use_persistent_data = True
+    try:
+        first = render_to_array(scene, samples=1, pixel_filter_type='BOX', filter_width=0.01)
+        obj["gain"] = 0.75
+        obj.update_tag(refresh={"OBJECT"})  # as the UI tags it (not the geometry)
+        second = render_to_array(scene, samples=1, pixel_filter_type='BOX', filter_width=0.01)
+    finally:
+        scene.render.use_persistent_data = False
+        render_cache.clear()
+    assert np.allclose(first[8, 8, :3], 0.25, atol=1e-5), first[8, 8]
+    assert np.allclose(second[8, 8, :3], 0.75, atol=1e-5), second[8, 8]
