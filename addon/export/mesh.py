@@ -380,7 +380,8 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
     cache: a mesh_cache.MeshCache that keeps meshes whose evaluated geometry did not change.
     should_stop(): asked before each mesh is exported; True raises ExportCancelled.
     object_attributes: an object_attributes.InstanceAttributes whose slots the instances'
-    values are resolved for (their materials compiled first, through uv_names)."""
+    values are resolved for (uv_names compiles a mesh's materials, numbering their slots,
+    when its entry is made)."""
     meshes = {}
     generated = {}  # instancer -> how many generated geometries of it were exported so far
     for instance in depsgraph.object_instances:
@@ -421,9 +422,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
             entry.owners.append((obj.name, bool(instance.is_instance)))
             entry.infos.append(object_info(instance))
             entry.motion_keys.append(instance_key(instance))
-            if object_attributes is not None:
-                if uv_names is not None:
-                    uv_names(materials)  # compiles them: their slots are numbered before the lookup
+            if object_attributes is not None:  # (the entry's export compiled its materials)
                 entry.object_attributes.append(object_attributes.values(instance))
     if cache is not None:
         cache.end_export()
