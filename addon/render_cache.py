@@ -106,6 +106,8 @@ def _same_geometry(old, new):
     for a, b in zip(old.meshes, new.meshes):
         if len(a.matrices) != len(b.matrices) or a.uvs.keys() != b.uvs.keys() or a.infos != b.infos:
             return False
+        if not _same_values(getattr(a, "object_attributes", []), getattr(b, "object_attributes", [])):
+            return False  # add_instance sets them: an animated custom property needs a new scene
         arrays = [(a.positions, b.positions), (a.triangles, b.triangles), (a.normals, b.normals),
                   (a.normal_indices, b.normal_indices), (a.material_indices, b.material_indices)]
         arrays += [(a.uvs[k], b.uvs[k]) for k in a.uvs]
@@ -119,6 +121,12 @@ def _same_geometry(old, new):
         if not all(x is y for x, y in arrays) or a.texspace != b.texspace:
             return False
     return True
+
+
+def _same_values(a, b):
+    """Whether two per-instance lists of arrays (or None) hold the same values."""
+    return len(a) == len(b) and all(
+        (x is None) == (y is None) and (x is None or np.array_equal(x, y)) for x, y in zip(a, b))
 
 
 MESH_CACHE = MeshCache()

@@ -36,16 +36,21 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
         if deform is not None:
             scene.set_mesh_motion(mesh_id, deform)
         motions = getattr(mesh, "motions", None) or []
+        attributes = getattr(mesh, "object_attributes", None) or []
         for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
             # Motion blur steps only where the object moves (and so never for older cores).
-            motion = {"motion": motions[k]} if k < len(motions) and motions[k] is not None else {}
+            extra = {"motion": motions[k]} if k < len(motions) and motions[k] is not None else {}
+            # Object / Instancer attribute values only where materials read them (so never
+            # for older cores).
+            if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
+                extra["attributes"] = attributes[k]
             if info is None:
-                scene.add_instance(mesh_id, matrix, **motion)
+                scene.add_instance(mesh_id, matrix, **extra)
                 continue
             color, pass_index, random_id = info
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
-            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id, **motion)
+            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id, **extra)
     curves = getattr(data, "curves", [])
     if curves:
         mats = iter(data.curve_materials)

@@ -11,6 +11,7 @@ from .curves import CurvesData, collect_curves
 from .light import LightData, collect_lights
 from .material import MaterialData, MaterialTable, view_layer_ids
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
+from .object_attributes import InstanceAttributes
 from .world import WorldSky, WorldTexture, world_color, world_texture, world_volume
 
 __all__ = ("CurvesData", "ExportCancelled", "ExportError", "LightData", "MaterialData", "MeshData",
@@ -45,7 +46,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False),
                           view_layer_ids(depsgraph))
-    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop)
+    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop,
+                            InstanceAttributes(table.uv_sets.object_attributes))
     for mesh in meshes:
         if mesh.missing_uv_maps:
             warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, mesh.missing_uv_maps))} "

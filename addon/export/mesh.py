@@ -41,6 +41,9 @@ class MeshData:
     # whose tangents its materials read; tangent_problem: why there are none, or None.
     tangents: dict = field(default_factory=dict)
     tangent_problem: str = None
+    # Per matrix: float32 (K, 4) of the Attribute node's Object / Instancer slots (the first
+    # K of the scene's; export.object_attributes), or None.
+    object_attributes: list = field(default_factory=list)
 
     @property
     def corner_normals(self):
@@ -370,12 +373,15 @@ class ExportCancelled(Exception):
     """The user cancelled the render while the scene was being exported."""
 
 
-def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
+def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, object_attributes=None):
     """All visible geometry of the depsgraph. Instances of the same evaluated geometry (and
     materials) share one MeshData and add only their matrix_world. uv_names(materials) ->
     {global uv-set index: UV map name} says which UV maps to export (none if None).
     cache: a mesh_cache.MeshCache that keeps meshes whose evaluated geometry did not change.
-    should_stop(): asked before each mesh is exported; True raises ExportCancelled."""
+    should_stop(): asked before each mesh is exported; True raises ExportCancelled.
+    object_attributes: an object_attributes.InstanceAttributes whose slots the instances'
+    values are resolved for (uv_names compiles a mesh's materials, numbering their slots,
+    when its entry is made)."""
     meshes = {}
     generated = {}  # instancer -> how many generated geometries of it were exported so far
     for instance in depsgraph.object_instances:
@@ -410,11 +416,14 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None):
                 entry.motion_keys = []
                 entry.motions = []
                 entry.motion_positions = None
+                entry.object_attributes = []
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.owners.append((obj.name, bool(instance.is_instance)))
             entry.infos.append(object_info(instance))
             entry.motion_keys.append(instance_key(instance))
+            if object_attributes is not None:  # (the entry's export compiled its materials)
+                entry.object_attributes.append(object_attributes.values(instance))
     if cache is not None:
         cache.end_export()
     return [m for m in meshes.values() if m is not None]

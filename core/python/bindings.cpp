@@ -826,6 +826,14 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
       o.sub = index_in({"COLOR", "FAC", "ALPHA"}, name_of(t[3]), "attribute output");
       prog.uses_attributes = prog.varying = true;
+    } else if (op == "object_attribute") {  // slot, output
+      need(4);
+      o.code = OpCode::ObjectAttribute;
+      o.index = int32_t(t[2].cast<int64_t>());
+      if (o.index < 0 || o.index >= int32_t(kMaxObjectAttributes))
+        throw std::invalid_argument("object attribute slot must be in [0, 8)");
+      o.sub = index_in({"COLOR", "FAC", "ALPHA"}, name_of(t[3]), "attribute output");
+      prog.varying = true;  // per instance
     } else if (op == "object_normal") {
       need(2);
       o.code = OpCode::ObjectNormal;
@@ -968,14 +976,18 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
       need(3);
       o.code = OpCode::RgbToBw;
       o.in[0] = regno(t[2]);
-    } else if (op == "normal_map") {
-      need(5);
+    } else if (op == "normal_map") {  // color, strength, uv set [, space]
+      if (t.size() != 5 && t.size() != 6) throw std::invalid_argument("shader op 'normal_map' takes 4 or 5 arguments");
       o.code = OpCode::NormalMap;
       o.in[0] = regno(t[2]);
       o.in[1] = regno(t[3]);
       o.index = t[4].cast<int32_t>();
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
-      prog.uses_uv = prog.varying = true;
+      o.sub = t.size() == 6 ? index_in({"TANGENT", "OBJECT", "WORLD", "BLENDER_OBJECT", "BLENDER_WORLD"},
+                                       name_of(t[5]), "normal map space")
+                            : uint8_t(0);
+      prog.uses_uv = prog.uses_uv || o.sub == 0;
+      prog.varying = true;
     } else if (!parse_noise_texture_op(op, t, o) && !parse_pattern_op(op, t, o, regno) &&
                !parse_vector_node_op(op, t, o, prog)) {
       throw std::invalid_argument("unknown shader op '" + op + "'");
@@ -2253,7 +2265,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
-             uint32_t random_id, const py::object& motion) {
+             uint32_t random_id, const py::object& motion, const py::object& attributes) {
             self.check_editable();
             ObjectInfo info;
             if (!color.is_none()) {
@@ -2264,14 +2276,27 @@ PYBIND11_MODULE(pathlight_core, m) {
             }
             info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
             info.random = object_random(random_id);
-            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info, to_motion(motion, "instance motion"));
+            std::vector<Float4> attrs;
+            if (!attributes.is_none()) {
+              const auto a = attributes.cast<FloatArray>();
+              if (a.ndim() != 2 || a.shape(1) != 4 || a.shape(0) > py::ssize_t(kMaxObjectAttributes))
+                throw std::invalid_argument("instance attributes must be a (K, 4) array with K <= 8");
+              for (py::ssize_t k = 0; k < a.shape(0); ++k) {
+                auto clean = [&](py::ssize_t c) { const float x = a.at(k, c); return std::isfinite(x) ? x : 0.0f; };
+                attrs.push_back({clean(0), clean(1), clean(2), clean(3)});
+              }
+            }
+            self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info, to_motion(motion, "instance motion"),
+                                     attrs);
           },
           py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
-          py::arg("random_id") = 0u, py::arg("motion") = py::none(),
+          py::arg("random_id") = 0u, py::arg("motion") = py::none(), py::arg("attributes") = py::none(),
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
-          "blur); steps that are not finite or not invertible leave it static (stats()['motion_rejected']).")
+          "blur); steps that are not finite or not invertible leave it static (stats()['motion_rejected']). "
+          "attributes: its Object / Instancer attribute values, (K, 4) by slot with K <= 8 (the "
+          "object_attribute op; NaN/inf read 0).")
 
       .def(
           "set_mesh_motion",

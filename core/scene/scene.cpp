@@ -110,9 +110,15 @@ uint32_t Scene::add_mesh(MeshData mesh) {
   return static_cast<uint32_t>(meshes_.size() - 1);
 }
 
-void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info, std::vector<Mat4> motion) {
+void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info, std::vector<Mat4> motion,
+                         const std::vector<Float4>& attributes) {
   if (mesh >= meshes_.size()) throw std::invalid_argument("add_instance: unknown mesh id");
-  instances_.push_back({mesh, m, info, std::move(motion)});
+  if (attributes.size() > kMaxObjectAttributes) throw std::invalid_argument("add_instance: too many object attributes");
+  ObjectInfo with_attrs = info;
+  with_attrs.attr_first = uint32_t(object_attrs_.size());
+  with_attrs.attr_count = uint32_t(attributes.size());
+  object_attrs_.insert(object_attrs_.end(), attributes.begin(), attributes.end());
+  instances_.push_back({mesh, m, with_attrs, std::move(motion)});
   committed_ = false;
   geometry_dirty_ = true;
 }

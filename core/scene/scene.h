@@ -196,7 +196,10 @@ class Scene {
   // motion: the instance's transforms over the shutter (Instance::motion). Steps that are not
   // finite or not invertible leave the instance static (counted in stats().motion_rejected);
   // steps that are all equal are no motion.
-  void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {}, std::vector<Mat4> motion = {});
+  // attributes: its Object / Instancer attribute values by slot (at most kMaxObjectAttributes;
+  // info's attr_first / attr_count are set here).
+  void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {}, std::vector<Mat4> motion = {},
+                    const std::vector<Float4>& attributes = {});
   // A set of curves (validated by the caller). Strands with bad data are left out at commit
   // (counted in stats().skipped_curves).
   uint32_t add_curves(CurveSetData curves) {
@@ -474,6 +477,7 @@ class Scene {
   Vec3 transmittance_through(Ray ray) const;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
+  std::vector<Float4> object_attrs_;  // the instances' object attribute values (ObjectInfo::attr_first)
   // Curves: the sets as added, their pieces' BVH (world space) and per set its first strand.
   std::vector<CurveSetData> curve_sets_;
   CurveBvh curve_bvh_;

@@ -250,6 +250,7 @@ void Scene::build_instances() {
     }
     object_coords_.push_back(make_object_coords(inst.matrix, texspace[inst.mesh].first, texspace[inst.mesh].second));
     object_coords_.back().info = inst.info;
+    if (inst.info.attr_count) object_coords_.back().attrs = object_attrs_.data() + inst.info.attr_first;
     const Mat4& m = inst.matrix;
     set_instance_matrix(in, m);
     in.motion = motion_[i].empty() ? nullptr : motion_[i].data();

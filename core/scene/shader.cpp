@@ -129,7 +129,18 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         const float strength = op.in[1] == kNoReg ? 1.0f : reg(op.in[1]).x;
         Vec3 n = ctx.ns;
         const bool ok = op.index >= 0 && op.index < ctx.uv_sets && ctx.tangents;
-        if (ok && ctx.has_mesh_tangent(op.index)) {
+        if (op.sub != 0) {
+          // Object / world space; Strength blends towards the shading normal (mesh
+          // orientation here: Cycles' backface flips cancel).
+          Vec3 m = object_world_space_normal(op.sub, ctx.object, c);
+          if (strength != 1.0f) {
+            const float s = std::isfinite(strength) ? std::max(strength, 0.0f) : 0.0f;
+            const Vec3 blended = ctx.ns + (m - ctx.ns) * s;
+            const float l2 = length_sq(blended);
+            m = l2 > 0.0f && std::isfinite(l2) ? blended / std::sqrt(l2) : Vec3(0.0f);
+          }
+          if (length_sq(m) > 0.0f && is_finite(m)) n = m;
+        } else if (ok && ctx.has_mesh_tangent(op.index)) {
           // Cycles' svm_node_normal_map with the mesh's MikkTSpace tangents; Strength blends
           // towards the shading normal only where it is not 1.
           const Float4 t = ctx.mesh_tangents[op.index];
@@ -235,10 +246,13 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         }
         break;
       }
-      case OpCode::Attribute: {
-        // Cycles' svm_node_attr of a mesh attribute: Color/Vector (RGB with alpha), Fac (the
-        // mean of RGB), Alpha; a missing attribute reads 0.
-        const Float4 a = op.index >= 0 && op.index < ctx.attr_sets && ctx.attrs ? ctx.attrs[op.index] : Float4{};
+      case OpCode::Attribute:
+      case OpCode::ObjectAttribute: {
+        // Cycles' svm_node_attr of a mesh or object attribute: Color/Vector (RGB with alpha),
+        // Fac (the mean of RGB), Alpha; a missing attribute reads 0.
+        const Float4 a = op.code == OpCode::ObjectAttribute ? (ctx.object ? ctx.object->attribute(op.index) : Float4{})
+                         : op.index >= 0 && op.index < ctx.attr_sets && ctx.attrs ? ctx.attrs[op.index]
+                                                                                   : Float4{};
         if (op.sub == 0) {
           d = a;
         } else {

@@ -57,6 +57,7 @@ enum class OpCode : uint8_t {
   Subsurface,  // the Subsurface Scattering node: a BSSRDF closure
   Sheen,    // the Sheen BSDF node (sub 0 microfibre, 1 Ashikhmin velvet)
   Toon,     // the Toon BSDF node (sub 0 diffuse, 1 glossy)
+  ObjectAttribute,  // the Attribute node's Object / Instancer types: a per-instance slot (index)
 };
 
 enum class MathOp : uint8_t {
@@ -169,7 +170,11 @@ struct ObjectInfo {
   Float4 color{1.0f, 1.0f, 1.0f, 1.0f};  // Object ▸ Viewport Display ▸ Color, with alpha
   float pass_index = 0.0f;
   float random = 0.0f;  // in [0, 1]: Cycles' random_id * 2^-32
+  // The Attribute node's Object / Instancer values (constant per instance): attr_count slots
+  // from attr_first in the scene's table of them (ObjectCoords::attrs at commit).
+  uint32_t attr_first = 0, attr_count = 0;
 };
+constexpr uint32_t kMaxObjectAttributes = 8;
 // Object Info's Random from a 32-bit id as Cycles makes it: (float)id / (float)0xFFFFFFFF,
 // whose divisor rounds to 2^32 in float.
 inline float object_random(uint32_t id) { return float(id) * (1.0f / 4294967296.0f); }
@@ -182,6 +187,11 @@ struct ObjectCoords {
   Vec3 gen_scale{1.0f}, gen_offset{0.0f};  // object -> generated: p * gen_scale + gen_offset
   bool valid = false;              // false: the matrix is singular (world coordinates used)
   ObjectInfo info;
+  const Float4* attrs = nullptr;   // info.attr_count object attribute values (nullptr: none)
+  // Object attribute `slot` (Cycles: a name found nowhere reads 0, alpha too).
+  Float4 attribute(int slot) const {
+    return attrs && slot >= 0 && uint32_t(slot) < info.attr_count ? attrs[slot] : Float4{};
+  }
 };
 // Cycles' generated coordinates: the object-space position in the mesh's texture space
 // (Blender's auto texture space is its bounding box), mapped to [0, 1]:

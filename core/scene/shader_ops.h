@@ -76,7 +76,7 @@ inline constexpr OpSignature kValueOps[] = {
     {"tex_white_noise", 2}, {"checker", 4}, {"gradient", 1}, {"brick", 10}, {"voronoi", 9},
     {"vector_rotate", 5}, {"vector_transform", 1}, {"blackbody", 1}, {"wavelength", 1},
     {"camera_coords", 0}, {"tangent", 0}, {"tex_gabor", 6}, {"ambient_occlusion", 3},
-    {"bevel", 2}, {"wireframe", 1},
+    {"bevel", 2}, {"wireframe", 1}, {"object_attribute", 0},
 };
 
 }  // namespace pl

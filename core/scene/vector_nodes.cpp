@@ -154,6 +154,13 @@ Vec3 tangent_space_normal(const ObjectCoords* object, Vec3 tangent, float sign, 
   return object_to_world_normal(object, n);
 }
 
+Vec3 object_world_space_normal(int space, const ObjectCoords* object, Vec3 color) {
+  Vec3 n = (color - Vec3(0.5f)) * 2.0f;
+  if (space >= 3) n = {n.x, -n.y, -n.z};  // Blender's convention
+  const bool object_space = space == 1 || space == 3;
+  return object_space && object && object->valid ? object_to_world_normal(object, n) : safe_normalize(n);
+}
+
 Vec3 vector_transform(int type, int from, int to, Vec3 v, const ObjectCoords* object, const Camera* camera) {
   // Cycles' svm_node_vector_transform: through world space, object transforms only for an
   // object, normals by the inverse transpose and normalised.

@@ -41,4 +41,9 @@ Vec3 world_to_object_normal(const ObjectCoords* object, Vec3 n);
 // it degenerates (the caller keeps its normal).
 Vec3 tangent_space_normal(const ObjectCoords* object, Vec3 tangent, float sign, Vec3 normal, Vec3 color);
 
+// Cycles' Normal Map in space 1 Object, 2 World, 3 Blender Object, 4 Blender World: color read
+// as 2c - 1 (the Blender ones with y and z negated), turned as a normal to world space (the
+// object ones) or normalised. Zero where it degenerates.
+Vec3 object_world_space_normal(int space, const ObjectCoords* object, Vec3 color);
+
 }  // namespace pl

@@ -221,14 +221,16 @@ def test_normal_map():
     assert regs[nmap[3]][0] == approx(0.7)  # strength
     # The image reads the active UV map, the tangents come from the named one.
     assert data.uv_sets == {0: "", 1: "Tangents"}
-    # Strength 0: no normal map at all; object space: warned and ignored.
+    # Strength 0: no normal map at all; object space: its own op, without warnings.
     nm.inputs["Strength"].default_value = 0.0
     data, _ = compile_(mat)
     assert not any(op[0] == "normal_map" for op in data.program)
     nm.inputs["Strength"].default_value = 1.0
     nm.space = 'OBJECT'
-    (closure,), warnings, _ = closures_of(mat)
-    assert "normal" not in closure[2] and len(warnings) == 1 and "object" in warnings[0]
+    data, warnings = compile_(mat)
+    (nmap,) = [op for op in data.program if op[0] == "normal_map"]
+    (closure,) = [op for op in data.program if op[0] == "closure"]
+    assert closure[3]["normal"] == nmap[1] and nmap[5] == 'OBJECT' and not warnings
 
 
 # ---------------------------------------------------------------- value nodes

@@ -2,7 +2,7 @@
 curves info, and the nodes that trace rays from the shading point (AO, Bevel, Wireframe)
 (a ShaderCompiler mixin)."""
 
-from .uv_sets import MAX_UV_SETS
+from .uv_sets import MAX_OBJECT_ATTRIBUTES, MAX_UV_SETS
 from .values import ZERO, Val, const_color, const_float, const_vector
 
 
@@ -85,8 +85,9 @@ class InputNodes:
 
     def attribute_node(self, node, out, ctx):
         """Attribute: a geometry attribute of the mesh by name (any domain but edges, any
-        type: floats read as grey, 2D vectors with z = 0), or a View Layer attribute (a
-        constant of the render). Object and instancer attributes are not supported (0)."""
+        type: floats read as grey, 2D vectors with z = 0), a View Layer attribute (a
+        constant of the render), or an Object / Instancer attribute (a constant of each
+        instance: a per-instance slot that the export resolves)."""
         if node.attribute_type == 'VIEW_LAYER':
             v = view_layer_attribute(self.view_layer_ids, node.attribute_name) or (0.0, 0.0, 0.0, 0.0)
             if out.identifier == "Fac":
@@ -96,6 +97,8 @@ class InputNodes:
             if out.identifier == "Vector":
                 return const_vector(v[:3])
             return const_color(v[:3] + (1.0,))
+        if node.attribute_type in ('OBJECT', 'INSTANCER'):
+            return self.object_attribute(node, out)
         if node.attribute_type != 'GEOMETRY':
             self.problem(f"'{node.name}': {node.attribute_type.lower().replace('_', ' ')} "
                          "attributes are not supported (0)")
@@ -104,6 +107,25 @@ class InputNodes:
             return ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 1))
         output = {"Fac": "FAC", "Alpha": "ALPHA"}.get(out.identifier, "COLOR")
         v = self.attribute_value("attr", node.attribute_name, output, f"'{node.name}'")
+        return Val("vector", reg=v.reg) if out.identifier == "Vector" else v
+
+    def object_attribute(self, node, out):
+        """Val of an Object / Instancer attribute: its per-instance slot read by the core (a
+        name found nowhere reads 0, alpha too, as Cycles)."""
+        zero = ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 0))
+        if not node.attribute_name:
+            return zero
+        slot = self.uv_sets.object_attribute_slot(node.attribute_type, node.attribute_name)
+        if slot is None:
+            self.problem(f"'{node.name}': more than {MAX_OBJECT_ATTRIBUTES} object and instancer "
+                         "attributes in the scene (reads 0)")
+            return zero
+        output = {"Fac": "FAC", "Alpha": "ALPHA"}.get(out.identifier, "COLOR")
+        key = ("object_attribute", slot, output)
+        if key not in self.cache:
+            self.cache[key] = self.emit("float" if output != "COLOR" else "color",
+                                        "object_attribute", slot, output)
+        v = self.cache[key]
         return Val("vector", reg=v.reg) if out.identifier == "Vector" else v
 
     def object_coords(self, which):

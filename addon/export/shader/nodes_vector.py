@@ -107,15 +107,16 @@ class VectorNodes:
                          bool(node.invert), max(0.0, float(width)))
 
     def normal_map(self, node, ctx):
+        """Normal Map in every space of Cycles: tangent (a UV map's tangents), object (turned
+        by the hit instance's transform), world, and their Blender variants."""
         what = f"'{node.name}'"
-        if node.space != 'TANGENT':
-            self.problem(f"{what}: {node.space.replace('_', ' ').lower()} space normal maps "
-                         "are not supported (ignored)")
-            return None
         color = self.input(node, "Color", ctx, "color")
         strength = self.input(node, "Strength", ctx, "float")
         if strength.is_const and strength.const[0] == 0.0:
             return None
+        if node.space != 'TANGENT':
+            return self.emit("vector", "normal_map", self.reg(color), self.reg(strength), 0,
+                             node.space)
         k = self.uv(node.uv_map, what)
         return self.emit("vector", "normal_map", self.reg(color), self.reg(strength), k)
 

@@ -1,6 +1,8 @@
-"""The scene-wide numbering of UV maps and mesh attributes that programs read."""
+"""The scene-wide numbering of UV maps and mesh attributes that programs read, and of the
+Attribute node's Object / Instancer attributes (per-instance constants)."""
 
 MAX_UV_SETS = 8
+MAX_OBJECT_ATTRIBUTES = 8  # the core's per-instance slots (kMaxObjectAttributes)
 
 
 class UvSets:
@@ -9,6 +11,9 @@ class UvSets:
 
     def __init__(self):
         self.names = []  # index k -> name
+        # Object attribute slot -> ("OBJECT" or "INSTANCER", name): what every instance's
+        # values are resolved for (export.object_attributes).
+        self.object_attributes = []
 
     def index(self, name):
         """k for `name`, or None when all MAX_UV_SETS are taken."""
@@ -19,3 +24,14 @@ class UvSets:
             return None
         self.names.append(name)
         return len(self.names) - 1
+
+    def object_attribute_slot(self, kind, name):
+        """The per-instance slot of an Object ("OBJECT") or Instancer ("INSTANCER") attribute,
+        or None when all MAX_OBJECT_ATTRIBUTES are taken."""
+        key = (kind, name)
+        if key in self.object_attributes:
+            return self.object_attributes.index(key)
+        if len(self.object_attributes) >= MAX_OBJECT_ATTRIBUTES:
+            return None
+        self.object_attributes.append(key)
+        return len(self.object_attributes) - 1
