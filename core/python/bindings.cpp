@@ -449,8 +449,9 @@ void parse_value_op(const ValueOpSchema& s, const py::tuple& t, ShaderOp& o, Sha
   const size_t total = required + s.params.n;
   for (const OpParam& p : s.params) required += p.optional ? 0 : 1;
   if (t.size() < required || t.size() > total) {
-    const std::string counts = std::to_string(required - 1) +
-                               (total == required ? "" : (total == required + 1 ? " or " : " to ") + std::to_string(total - 1));
+    const std::string more =
+        total == required ? "" : (total == required + 1 ? " or " : " to ") + std::to_string(total - 1);
+    const std::string counts = std::to_string(required - 1) + more;
     throw std::invalid_argument("shader op '" + op + "' takes " + counts + " arguments");
   }
   auto fail = [&](const std::string& why) { throw std::invalid_argument("shader op '" + op + "': " + why); };
@@ -538,7 +539,7 @@ void parse_value_op(const ValueOpSchema& s, const py::tuple& t, ShaderOp& o, Sha
       case OpField::Index: o.index = int32_t(o.index | v); break;
       case OpField::Count: o.count = int32_t(o.count | v); break;
       case OpField::Clamp: o.clamp = o.clamp || v != 0; break;
-      default: fail("bad schema: an integer parameter fills no integer field");
+      default: break;  // no other field takes an integer (shader_ops.h checks the schema)
     }
   }
   if (flags & kVarying) prog.varying = true;
@@ -670,9 +671,8 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
     o.dst = regno(t[1]);
     if (o.dst == kNoReg) throw std::invalid_argument("shader op '" + op + "' needs a destination register");
     if (op == "normal_map") {
-      // Hand-parsed for now (its schema entry holds its registers only): its parameters are
-      // being extended in parallel; it fits the schema (a uv set Int, kVarying | kUsesUv) once
-      // they settle.
+      // Parsed by hand, not from the schema (its entry holds its registers only), while its
+      // parameters are being extended; it fits the schema (a uv set Int, kVarying | kUsesUv).
       need(5);
       o.code = OpCode::NormalMap;
       o.in[0] = regno(t[2]);

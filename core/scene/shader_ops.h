@@ -230,7 +230,8 @@ inline constexpr OpParam kImage[] = {of(K::ImageId, F::Index, "image id"),
 inline constexpr OpParam kMath[] = {sub_op(F::Sub, "math op", kMathOpNames), flag(F::Clamp, "clamp")};
 inline constexpr OpParam kMix[] = {sub_op(F::Sub, "mix blend type", kMixOpNames), flag(F::Clamp, "clamp")};
 inline constexpr OpParam kLayerWeight[] = {choice(F::Sub, "layer weight output", kLayerWeightOutputs)};
-inline constexpr OpParam kBump[] = {flag(F::Clamp, "invert"), optional(of(K::FilterWidth, F::Program, "bump filter width"))};
+inline constexpr OpParam kBump[] = {flag(F::Clamp, "invert"),
+                                    optional(of(K::FilterWidth, F::Program, "bump filter width"))};
 // Ramp: the table, clamp (bit 1), constant interpolation (bit 2), the range, extrapolate (bit 4).
 inline constexpr OpParam kRamp[] = {of(K::RampTable, F::Table, "ramp table"), flag(F::Sub, "ramp clamp", 1),
                                     flag(F::Sub, "ramp constant", 2), finite(F::M0, "ramp range start"),
@@ -369,5 +370,42 @@ constexpr bool every_value_opcode_has_an_op() {
   return true;
 }
 static_assert(every_value_opcode_has_an_op(), "every OpCode is a closure's or has a kValueOps entry");
+
+// Each parameter fills a field of its kind's type, choices have names that fit their field,
+// optional parameters come last, and hand-parsed entries list no parameters.
+constexpr bool param_fits(const OpParam& p) {
+  const bool int_field = p.field == OpField::Sub || p.field == OpField::Ext || p.field == OpField::Index ||
+                         p.field == OpField::Count || p.field == OpField::Clamp;
+  switch (p.kind) {
+    case ParamKind::Choice:
+      return int_field && p.n_names > 0 && (p.names || p.sub_ops) && p.n_names + p.offset <= 256 &&
+             (p.alt_names == nullptr || p.n_alt > 0);
+    case ParamKind::Int: {
+      const bool wide = p.field == OpField::Index || p.field == OpField::Count;  // int32 fields
+      return int_field && p.lo <= p.hi && (wide || (p.lo >= 0 && p.hi <= 255));
+    }
+    case ParamKind::Bool: return int_field && p.bit != 0;
+    case ParamKind::ImageId: return p.field == OpField::Index;
+    case ParamKind::Float: return p.field == OpField::M0 || p.field == OpField::M1;
+    case ParamKind::Values: return p.field == OpField::Value;
+    case ParamKind::Matrix3x4: return p.field == OpField::Matrix;
+    case ParamKind::RampTable: return p.field == OpField::Table;
+    case ParamKind::FilterWidth: return p.field == OpField::Program;
+  }
+  return false;
+}
+constexpr bool value_op_schemas_are_consistent() {
+  for (const ValueOpSchema& v : kValueOps) {
+    if (v.hand_parsed && v.params.n != 0) return false;
+    if (v.registers > 16) return false;
+    bool optional = false;
+    for (const OpParam& p : v.params) {
+      if (!param_fits(p) || (optional && !p.optional)) return false;
+      optional = optional || p.optional;
+    }
+  }
+  return true;
+}
+static_assert(value_op_schemas_are_consistent(), "a kValueOps parameter does not fit its field or order");
 
 }  // namespace pl
