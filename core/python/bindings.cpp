@@ -90,9 +90,6 @@ constexpr EnumNames<DebugView> kDebugViewNames = {{DebugView::None, "none"}, {De
 constexpr EnumNames<SensorFit> kSensorFitNames = {
     {SensorFit::Auto, "AUTO"}, {SensorFit::Horizontal, "HORIZONTAL"}, {SensorFit::Vertical, "VERTICAL"}};
 constexpr EnumNames<CameraType> kCameraTypeNames = {{CameraType::Perspective, "PERSP"}, {CameraType::Orthographic, "ORTHO"}};
-constexpr EnumNames<Interp> kInterpNames = {{Interp::Linear, "LINEAR"}, {Interp::Closest, "CLOSEST"}};
-constexpr EnumNames<Extension> kExtensionNames = {
-    {Extension::Repeat, "REPEAT"}, {Extension::Extend, "EXTEND"}, {Extension::Clip, "CLIP"}};
 
 Mat4 to_mat4(const FloatArray& a, const char* what);
 
@@ -427,233 +424,135 @@ int16_t op_register(const py::handle& h) {
 void op_arity(const std::string& op, const py::tuple& t, size_t n) {
   if (t.size() != n) throw std::invalid_argument("shader op '" + op + "' takes " + std::to_string(n - 1) + " arguments");
 }
-// The index of the setting named by `h` in `names`.
-uint8_t op_choice(const std::vector<std::string>& names, const py::handle& h, const char* what) {
-  const std::string x = h.cast<std::string>();
-  for (size_t i = 0; i < names.size(); ++i)
-    if (names[i] == x) return uint8_t(i);
-  throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
+
+// The value op named `op` in the core's table (scene/shader_ops.h); nullptr: none.
+const ValueOpSchema* find_value_op(const std::string& op) {
+  for (const ValueOpSchema& s : kValueOps)
+    if (op == s.name) return &s;
+  return nullptr;
 }
 
-// The Noise, Wave, Magic and White Noise texture ops (scene/tex_noise.h); false: not one of them.
-bool parse_noise_texture_op(const std::string& op, const py::tuple& t, ShaderOp& o) {
-  const auto regno = op_register;
-  auto need = [&](size_t n) { op_arity(op, t, n); };
-  const auto index_in = op_choice;
-  auto dims = [](const py::handle& h) {
-    const int64_t d = h.cast<int64_t>();
-    if (d < 1 || d > 4) throw std::invalid_argument("texture dimensions must be 1 to 4");
-    return uint8_t(d);
-  };
-  if (op == "tex_noise") {  // vector, w, scale, detail, roughness, lacunarity, offset, gain, distortion
-    need(15);
-    o.code = OpCode::TexNoise;
-    for (int k = 0; k < 9; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-    o.sub = dims(t[11]);
-    o.ext = index_in({"MULTIFRACTAL", "FBM", "HYBRID_MULTIFRACTAL", "RIDGED_MULTIFRACTAL", "HETERO_TERRAIN"}, t[12],
-                     "noise type");
-    o.clamp = t[13].cast<bool>();  // normalize
-    o.index = t[14].cast<bool>() ? 1 : 0;  // the Color output
-  } else if (op == "tex_wave") {  // vector, scale, distortion, detail, detail scale, detail roughness, phase
-    need(12);
-    o.code = OpCode::TexWave;
-    for (int k = 0; k < 7; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-    o.sub = index_in({"BANDS", "RINGS"}, t[9], "wave type");
-    o.ext = o.sub == 0 ? index_in({"X", "Y", "Z", "DIAGONAL"}, t[10], "bands direction")
-                       : index_in({"X", "Y", "Z", "SPHERICAL"}, t[10], "rings direction");
-    o.index = index_in({"SIN", "SAW", "TRI"}, t[11], "wave profile");
-  } else if (op == "tex_magic") {  // vector, scale, distortion
-    need(7);
-    o.code = OpCode::TexMagic;
-    for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-    const int64_t depth = t[5].cast<int64_t>();
-    if (depth < 0 || depth > 10) throw std::invalid_argument("magic texture depth must be 0 to 10");
-    o.sub = uint8_t(depth);
-    o.index = t[6].cast<bool>() ? 1 : 0;
-  } else if (op == "tex_white_noise") {  // vector, w
-    need(6);
-    o.code = OpCode::TexWhiteNoise;
-    o.in[0] = regno(t[2]);
-    o.in[1] = regno(t[3]);
-    o.sub = dims(t[4]);
-    o.index = t[5].cast<bool>() ? 1 : 0;
-  } else {
-    return false;
-  }
-  return true;
+// "A, B or C": the names a Choice parameter takes, for its error message.
+std::string name_list(const OpParam& p, bool alt) {
+  std::string out;
+  const size_t n = alt ? p.n_alt : p.n_names;
+  for (size_t i = 0; i < n; ++i)
+    out += std::string(i == 0 ? "" : i + 1 == n ? " or " : ", ") + (alt ? p.alt_names[i] : p.name(i));
+  return out;
 }
 
-// The procedural texture ops (Checker, Gradient, Brick, Voronoi; scene/tex_patterns.h): false
-// if `op` is none of them. `regno` validates a register operand.
-template <class RegNo>
-bool parse_pattern_op(const std::string& op, const py::tuple& t, ShaderOp& o, RegNo&& regno) {
-  auto need = [&](size_t n) { op_arity(op, t, n); };
-  auto pick = [&](const py::handle& h, std::initializer_list<const char*> names, const char* what) {
-    const std::string x = h.cast<std::string>();
-    uint8_t i = 0;
-    for (const char* n : names) {
-      if (x == n) return i;
-      ++i;
-    }
-    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
-  };
-  auto regs = [&](int n) {
-    for (int k = 0; k < n; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-  };
-  if (op == "checker") {  // (vector, color1, color2, scale, output)
-    need(7);
-    o.code = OpCode::Checker;
-    regs(4);
-    o.sub = pick(t[6], {"COLOR", "FAC"}, "checker output");
-  } else if (op == "gradient") {  // (vector, type)
-    need(4);
-    o.code = OpCode::Gradient;
-    regs(1);
-    o.sub = pick(t[3], {"LINEAR", "QUADRATIC", "EASING", "DIAGONAL", "SPHERICAL", "QUADRATIC_SPHERE", "RADIAL"},
-                 "gradient type");
-  } else if (op == "brick") {
-    // (vector, color1, color2, mortar, scale, mortar size, mortar smooth, bias, brick width,
-    //  row height, offset, offset frequency, squash, squash frequency, output)
-    need(17);
-    o.code = OpCode::Brick;
-    regs(10);
-    o.m[0] = t[12].cast<float>();
-    o.index = t[13].cast<int32_t>();
-    o.m[1] = t[14].cast<float>();
-    o.count = t[15].cast<int32_t>();
-    if (!std::isfinite(o.m[0]) || !std::isfinite(o.m[1])) throw std::invalid_argument("brick offset and squash must be finite");
-    if (o.index < 1 || o.index > 99 || o.count < 1 || o.count > 99)
-      throw std::invalid_argument("brick frequencies must be in [1, 99]");
-    o.sub = pick(t[16], {"COLOR", "FAC"}, "brick output");
-  } else if (op == "voronoi") {
-    // (vector, w, scale, detail, roughness, lacunarity, smoothness, exponent, randomness,
-    //  dimensions, feature, metric, normalize, output)
-    need(16);
-    o.code = OpCode::Voronoi;
-    regs(9);
-    o.ext = pick(t[11], {"1D", "2D", "3D", "4D"}, "voronoi dimensions") + 1;
-    o.index = pick(t[12], {"F1", "F2", "SMOOTH_F1", "DISTANCE_TO_EDGE", "N_SPHERE_RADIUS"}, "voronoi feature");
-    o.count = pick(t[13], {"EUCLIDEAN", "MANHATTAN", "CHEBYCHEV", "MINKOWSKI"}, "voronoi distance metric");
-    o.clamp = t[14].cast<bool>();
-    o.sub = pick(t[15], {"DISTANCE", "COLOR", "POSITION", "W", "RADIUS"}, "voronoi output");
-  } else {
-    return false;
+// Parses value op tuple `t` by its schema: arity, registers, then each parameter by its kind
+// into its field, and the program flags it sets. `n_images`: the scene's image count.
+void parse_value_op(const ValueOpSchema& s, const py::tuple& t, ShaderOp& o, ShaderProgram& prog, int64_t n_images) {
+  const std::string op = s.name;
+  size_t required = 2 + size_t(s.registers);
+  const size_t total = required + s.params.n;
+  for (const OpParam& p : s.params) required += p.optional ? 0 : 1;
+  if (t.size() < required || t.size() > total) {
+    const std::string more =
+        total == required ? "" : (total == required + 1 ? " or " : " to ") + std::to_string(total - 1);
+    const std::string counts = std::to_string(required - 1) + more;
+    throw std::invalid_argument("shader op '" + op + "' takes " + counts + " arguments");
   }
-  return true;
-}
-
-// The Vector Rotate, Vector Transform, Blackbody, Wavelength, Texture Coordinate Camera/Window
-// and Tangent ops (scene/vector_nodes.h) and the Gabor texture; false: not one of them.
-bool parse_vector_node_op(const std::string& op, const py::tuple& t, ShaderOp& o, ShaderProgram& prog) {
-  const auto regno = op_register;
-  auto need = [&](size_t n) { op_arity(op, t, n); };
-  const auto index_in = op_choice;
-  static const std::vector<std::string> spaces = {"WORLD", "OBJECT", "CAMERA"};
-  if (op == "vector_rotate") {  // vector, center, axis, angle, rotation, type, invert
-    need(9);
-    o.code = OpCode::VectorRotate;
-    for (int k = 0; k < 5; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-    o.sub = index_in({"AXIS_ANGLE", "X_AXIS", "Y_AXIS", "Z_AXIS", "EULER_XYZ"}, t[7], "vector rotate type");
-    o.clamp = t[8].cast<bool>();
-  } else if (op == "vector_transform") {  // vector, type, from, to
-    need(6);
-    o.code = OpCode::VectorTransform;
-    o.in[0] = regno(t[2]);
-    o.sub = index_in({"POINT", "VECTOR", "NORMAL"}, t[3], "vector transform type");
-    o.index = index_in(spaces, t[4], "vector transform space");
-    o.count = index_in(spaces, t[5], "vector transform space");
-    prog.varying = true;  // object and camera space differ per instance and render
-  } else if (op == "blackbody" || op == "wavelength") {
-    need(3);
-    o.code = op == "blackbody" ? OpCode::Blackbody : OpCode::Wavelength;
-    o.in[0] = regno(t[2]);
-  } else if (op == "camera_coords") {  // which [, bump offset]
-    if (t.size() != 3 && t.size() != 4) throw std::invalid_argument("shader op 'camera_coords' takes 2 or 3 arguments");
-    o.code = OpCode::CameraCoords;
-    o.sub = index_in({"CAMERA", "WINDOW"}, t[2], "camera coordinates");
-    o.ext = uint8_t(kAtPoint);
-    if (t.size() == 4) {
-      const int64_t v = t[3].cast<int64_t>();
-      if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
-      o.ext = uint8_t(v);
+  auto fail = [&](const std::string& why) { throw std::invalid_argument("shader op '" + op + "': " + why); };
+  o.code = s.code;
+  o.ext = s.ext;
+  for (size_t k = 0; k < s.registers; ++k) o.in[k] = op_register(t[2 + k]);
+  uint8_t flags = s.flags;
+  size_t at = 2 + size_t(s.registers);
+  for (const OpParam& p : s.params) {
+    if (at >= t.size()) break;  // optional parameters left off (the arity says which may be)
+    const py::handle h = t[at++];
+    int64_t v = 0;  // the value an integer field takes
+    switch (p.kind) {
+      case ParamKind::Choice: {
+        const bool alt = p.alt_names && o.sub != 0;  // the parameters before it are parsed
+        const size_t n = alt ? p.n_alt : p.n_names;
+        const std::string x = h.cast<std::string>();
+        size_t i = 0;
+        while (i < n && x != (alt ? p.alt_names[i] : p.name(i))) ++i;
+        if (i == n)
+          fail(std::string("unknown ") + (alt ? p.alt_what : p.what) + " '" + x + "' (" + name_list(p, alt) + ")");
+        v = int64_t(i) + p.offset;
+        break;
+      }
+      case ParamKind::Int:
+        v = h.cast<int64_t>();
+        if (v < p.lo || v > p.hi)
+          fail(std::string(p.what) + " must be in [" + std::to_string(p.lo) + ", " + std::to_string(p.hi) + "], not " +
+               std::to_string(v));
+        break;
+      case ParamKind::Bool:
+        v = h.cast<bool>() ? p.bit : 0;
+        break;
+      case ParamKind::Float: {
+        const float x = h.cast<float>();
+        if (!std::isfinite(x)) fail(std::string(p.what) + " must be finite");
+        (p.field == OpField::M1 ? o.m[1] : o.m[0]) = x;
+        continue;
+      }
+      case ParamKind::ImageId:
+        v = h.cast<int64_t>();
+        if (v < 0 || v >= n_images) fail("unknown image id " + std::to_string(v));
+        break;
+      case ParamKind::Values: {
+        const auto x = h.cast<std::vector<float>>();
+        if (x.empty() || x.size() > 4) fail("const takes 1 to 4 values");
+        float f[4] = {x[0], x.size() > 1 ? x[1] : x[0], x.size() > 2 ? x[2] : x[0], x.size() > 3 ? x[3] : 1.0f};
+        for (float& c : f) c = std::isfinite(c) ? c : 0.0f;  // NaN node values become 0
+        o.value = {f[0], f[1], f[2], f[3]};
+        continue;
+      }
+      case ParamKind::Matrix3x4: {
+        const auto m = h.cast<FloatArray>();
+        if (m.ndim() != 2 || m.shape(0) != 3 || m.shape(1) != 4) fail("mapping matrix must be 3x4");
+        for (int i = 0; i < 12; ++i) {
+          o.m[i] = m.data()[i];
+          if (!std::isfinite(o.m[i])) fail("mapping matrix contains NaN or infinite values");
+        }
+        continue;
+      }
+      case ParamKind::RampTable: {
+        const auto table = h.cast<FloatArray>();
+        if (table.ndim() != 2 || table.shape(1) != 4 || table.shape(0) < 2 || table.shape(0) > 4096)
+          fail("ramp table must have shape (N, 4) with 2 <= N <= 4096");
+        o.index = int32_t(prog.tables.size());
+        o.count = int32_t(table.shape(0));
+        const float* src = table.data();
+        auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+        for (int i = 0; i < o.count; ++i)
+          prog.tables.push_back({clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])});
+        continue;
+      }
+      case ParamKind::FilterWidth: {
+        const float fw = h.cast<float>();
+        if (!(fw >= 0.0f) || !std::isfinite(fw)) fail("bump filter width must be >= 0");
+        if (prog.bump_filter_width <= 0.0f) prog.bump_filter_width = fw;  // the program's first
+        continue;
+      }
     }
-    prog.varying = true;
-  } else if (op == "tangent") {  // direction ("X", "Y", "Z": radial; "UV_MAP"), uv set
-    need(4);
-    o.code = OpCode::Tangent;
-    o.sub = index_in({"X", "Y", "Z", "UV_MAP"}, t[2], "tangent direction");
-    o.index = int32_t(t[3].cast<int64_t>());
-    if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
-    if (o.sub == 3) prog.uses_uv = true;
-    prog.varying = true;
-  } else if (op == "ambient_occlusion") {  // color, distance, normal, samples, inside, only local, output
-    need(9);
-    o.code = OpCode::AmbientOcclusion;
-    for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-    const int64_t samples = t[5].cast<int64_t>();
-    if (samples < 0 || samples > 1024) throw std::invalid_argument("ambient occlusion samples must be 0 to 1024");
-    o.index = int32_t(samples);
-    o.sub = uint8_t((t[6].cast<bool>() ? 1 : 0) | (t[7].cast<bool>() ? 2 : 0));
-    o.ext = index_in({"COLOR", "AO"}, t[8], "ambient occlusion output");
-    prog.varying = true;
-  } else if (op == "bevel") {  // radius, normal, samples
-    need(5);
-    o.code = OpCode::Bevel;
-    o.in[0] = regno(t[2]);
-    o.in[1] = regno(t[3]);
-    const int64_t samples = t[4].cast<int64_t>();
-    if (samples < 0 || samples > 128) throw std::invalid_argument("bevel samples must be 0 to 128");
-    o.index = int32_t(samples);
-    prog.varying = true;
-  } else if (op == "wireframe") {  // size, use pixel size [, bump offset]
-    if (t.size() != 4 && t.size() != 5) throw std::invalid_argument("shader op 'wireframe' takes 3 or 4 arguments");
-    o.code = OpCode::Wireframe;
-    o.in[0] = regno(t[2]);
-    o.ext = t[3].cast<bool>() ? 1 : 0;
-    o.sub = uint8_t(kAtPoint);
-    if (t.size() == 5) {
-      const int64_t v = t[4].cast<int64_t>();
-      if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
-      o.sub = uint8_t(v);
+    if (p.when >= 0 && v == p.when) flags |= p.when_flags;
+    // Integer fields; Bool parameters OR their bit in (several may share a field).
+    switch (p.field) {
+      case OpField::Sub: o.sub = uint8_t(o.sub | v); break;
+      case OpField::Ext: o.ext = uint8_t(o.ext | v); break;
+      case OpField::Index: o.index = int32_t(o.index | v); break;
+      case OpField::Count: o.count = int32_t(o.count | v); break;
+      case OpField::Clamp: o.clamp = o.clamp || v != 0; break;
+      default: break;  // no other field takes an integer (shader_ops.h checks the schema)
     }
-    prog.varying = true;
-  } else if (op == "tex_gabor") {  // vector, scale, frequency, anisotropy, orientation 2D, 3D
-    need(10);
-    o.code = OpCode::TexGabor;
-    for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-    o.sub = index_in({"", "", "2D", "3D"}, t[8], "gabor type");
-    if (o.sub < 2) throw std::invalid_argument("gabor type must be '2D' or '3D'");
-    o.ext = index_in({"VALUE", "PHASE", "INTENSITY"}, t[9], "gabor output");
-  } else {
-    return false;
   }
-  return true;
+  if (flags & kVarying) prog.varying = true;
+  if (flags & kUsesUv) prog.uses_uv = true;
+  if (flags & kUsesAttributes) prog.uses_attributes = true;
 }
 
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
-// The index of `x` in one of the core's sub-operation tables (scene/shader_ops.h).
-template <size_t N>
-uint8_t sub_op_index(const SubOpName (&table)[N], const std::string& x, const char* what) {
-  for (size_t i = 0; i < N; ++i)
-    if (x == table[i].name) return uint8_t(i);
-  throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
-}
-
 // `n_images`: the scene's image count, which Image Texture ops must stay below.
 ShaderProgram parse_program(const py::list& program, int64_t n_images) {
   ShaderProgram prog;
   const auto regno = op_register;
   auto name_of = [](const py::handle& h) { return h.cast<std::string>(); };
-  auto index_in = [](const std::vector<std::string>& v, const std::string& x, const char* what) {
-    for (size_t i = 0; i < v.size(); ++i)
-      if (v[i] == x) return uint8_t(i);
-    throw std::invalid_argument(std::string("unknown ") + what + " '" + x + "'");
-  };
-  auto bump_offset = [](const py::handle& h) {
-    const int64_t v = h.cast<int64_t>();
-    if (v < 0 || v > 2) throw std::invalid_argument("bump offset must be 0 (the point), 1 or 2");
-    return uint8_t(v);
-  };
   for (const auto& item : program) {
     const auto t = item.cast<py::tuple>();
     if (t.size() < 2) throw std::invalid_argument("shader op must be a tuple (name, ...)");
@@ -766,231 +665,31 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
       prog.ops.push_back(o);
       continue;
     }
-    // The core's op table is the list of value ops (the add-on reads it for operand counts).
-    if (std::none_of(std::begin(kValueOps), std::end(kValueOps), [&](const OpSignature& v) { return op == v.name; }))
-      throw std::invalid_argument("unknown shader op '" + op + "'");
+    // Value ops: the core's op table (scene/shader_ops.h) says how each is parsed.
+    const ValueOpSchema* schema = find_value_op(op);
+    if (!schema) throw std::invalid_argument("unknown shader op '" + op + "'");
     o.dst = regno(t[1]);
     if (o.dst == kNoReg) throw std::invalid_argument("shader op '" + op + "' needs a destination register");
-    if (op == "const") {
-      need(3);
-      const auto v = t[2].cast<std::vector<float>>();
-      if (v.empty() || v.size() > 4) throw std::invalid_argument("const takes 1 to 4 values");
-      float f[4] = {v[0], v.size() > 1 ? v[1] : v[0], v.size() > 2 ? v[2] : v[0], v.size() > 3 ? v[3] : 1.0f};
-      for (float& x : f) x = std::isfinite(x) ? x : 0.0f;  // NaN node values become 0
-      o.code = OpCode::Const;
-      o.value = {f[0], f[1], f[2], f[3]};
-    } else if (op == "uv") {
-      if (t.size() != 3 && t.size() != 4) throw std::invalid_argument("shader op 'uv' takes 2 or 3 arguments");
-      o.code = OpCode::Uv;
-      o.index = t[2].cast<int32_t>();
-      if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
-      o.sub = t.size() == 4 ? bump_offset(t[3]) : uint8_t(kAtPoint);
-      prog.uses_uv = prog.varying = true;
-    } else if (op == "position" && (t.size() == 2 || t.size() == 3)) {
-      o.code = OpCode::Position;
-      o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
-      prog.varying = true;
-    } else if ((op == "object" || op == "generated") && (t.size() == 2 || t.size() == 3)) {
-      o.code = op == "object" ? OpCode::ObjectPos : OpCode::Generated;
-      o.sub = t.size() == 3 ? bump_offset(t[2]) : uint8_t(kAtPoint);
-      prog.varying = true;
-    } else if (op == "light_path") {
-      need(3);
-      o.code = OpCode::LightPath;
-      o.sub = index_in({"IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY", "IS_SINGULAR_RAY",
-                        "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY", "IS_VOLUME_SCATTER_RAY", "RAY_LENGTH",
-                        "RAY_DEPTH", "DIFFUSE_DEPTH", "GLOSSY_DEPTH", "TRANSPARENT_DEPTH", "TRANSMISSION_DEPTH"},
-                       name_of(t[2]), "light path output");
-      prog.varying = true;
-    } else if (op == "geometry") {
-      need(3);
-      o.code = OpCode::Geometry;
-      o.sub = index_in({"TRUE_NORMAL", "INCOMING", "PARAMETRIC", "BACKFACING", "REFLECTION"}, name_of(t[2]),
-                       "geometry output");
-      prog.varying = true;
-    } else if (op == "curves_info") {
-      need(3);
-      o.code = OpCode::CurvesInfo;
-      o.sub = index_in({"IS_STRAND", "INTERCEPT", "LENGTH", "THICKNESS", "TANGENT_NORMAL", "RANDOM"}, name_of(t[2]),
-                       "curves info output");
-      prog.varying = true;  // per strand and hit
-    } else if (op == "object_info") {
-      need(3);
-      o.code = OpCode::ObjectInfo;
-      o.sub = index_in({"LOCATION", "COLOR", "ALPHA", "OBJECT_INDEX", "RANDOM"}, name_of(t[2]), "object info output");
-      prog.varying = true;  // per instance
-    } else if (op == "attribute") {
-      need(4);
-      o.code = OpCode::Attribute;
-      o.index = int32_t(t[2].cast<int64_t>());
-      if (o.index < 0 || o.index >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
-      o.sub = index_in({"COLOR", "FAC", "ALPHA"}, name_of(t[3]), "attribute output");
-      prog.uses_attributes = prog.varying = true;
-    } else if (op == "object_attribute") {  // slot, output
-      need(4);
-      o.code = OpCode::ObjectAttribute;
-      o.index = int32_t(t[2].cast<int64_t>());
-      if (o.index < 0 || o.index >= int32_t(kMaxObjectAttributes))
-        throw std::invalid_argument("object attribute slot must be in [0, 8)");
-      o.sub = index_in({"COLOR", "FAC", "ALPHA"}, name_of(t[3]), "attribute output");
-      prog.varying = true;  // per instance
-    } else if (op == "object_normal") {
-      need(2);
-      o.code = OpCode::ObjectNormal;
-      prog.varying = true;
-    } else if (op == "position" || op == "normal") {
-      need(2);
-      o.code = op == "position" ? OpCode::Position : OpCode::Normal;
-      prog.varying = true;
-    } else if (op == "fresnel") {
-      need(4);
-      o.code = OpCode::Fresnel;
-      o.in[0] = regno(t[2]);
-      o.in[1] = regno(t[3]);
-      prog.varying = true;
-    } else if (op == "layer_weight") {
-      need(5);
-      o.code = OpCode::LayerWeight;
-      o.in[0] = regno(t[2]);
-      o.in[1] = regno(t[3]);
-      o.sub = index_in({"FRESNEL", "FACING"}, name_of(t[4]), "layer weight output");
-      prog.varying = true;
-    } else if (op == "bump") {  // heights (3), strength, distance, normal, invert [, filter width]
-      if (t.size() != 9 && t.size() != 10) throw std::invalid_argument("shader op 'bump' takes 8 or 9 arguments");
-      o.code = OpCode::Bump;
-      for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.clamp = t[8].cast<bool>();  // invert
-      if (t.size() == 10) {
-        const float fw = t[9].cast<float>();
-        if (!(fw >= 0.0f) || !std::isfinite(fw)) throw std::invalid_argument("bump filter width must be >= 0");
-        if (prog.bump_filter_width <= 0.0f) prog.bump_filter_width = fw;  // the program's first
-      }
-      prog.varying = true;
-    } else if (op == "ramp") {
-      need(9);
-      o.code = OpCode::Ramp;
-      o.in[0] = regno(t[2]);
-      const auto table = t[3].cast<FloatArray>();
-      if (table.ndim() != 2 || table.shape(1) != 4 || table.shape(0) < 2 || table.shape(0) > 4096)
-        throw std::invalid_argument("ramp table must have shape (N, 4) with 2 <= N <= 4096");
-      o.index = int32_t(prog.tables.size());
-      o.count = int32_t(table.shape(0));
-      const float* src = table.data();
-      auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
-      for (int i = 0; i < o.count; ++i)
-        prog.tables.push_back({clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])});
-      o.sub = uint8_t((t[4].cast<bool>() ? 1 : 0) | (t[5].cast<bool>() ? 2 : 0) | (t[8].cast<bool>() ? 4 : 0));
-      o.m[0] = t[6].cast<float>();
-      o.m[1] = t[7].cast<float>();
-      if (!std::isfinite(o.m[0]) || !std::isfinite(o.m[1])) throw std::invalid_argument("ramp range must be finite");
-    } else if (op == "separate") {
-      need(4);
-      o.code = OpCode::Component;
-      o.in[0] = regno(t[2]);
-      const int64_t axis = t[3].cast<int64_t>();
-      if (axis < 0 || axis > 2) throw std::invalid_argument("separate axis must be 0, 1 or 2");
-      o.sub = uint8_t(axis);
-    } else if (op == "combine") {
-      need(6);
-      o.code = OpCode::Combine;
-      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = t[5].cast<bool>() ? 1 : 0;  // a colour (alpha 1) or a vector
-    } else if (op == "color_space") {
-      need(4);
-      o.code = OpCode::ColorSpace;
-      o.in[0] = regno(t[2]);
-      o.sub = sub_op_index(kColorSpaceOpNames, name_of(t[3]), "colour conversion");
-    } else if (op == "hsv") {
-      need(7);
-      o.code = OpCode::Hsv;
-      for (int k = 0; k < 5; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-    } else if (op == "gamma") {
-      need(4);
-      o.code = OpCode::Gamma;
-      o.in[0] = regno(t[2]);
-      o.in[1] = regno(t[3]);
-    } else if (op == "bright_contrast") {
-      need(5);
-      o.code = OpCode::BrightContrast;
-      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-    } else if (op == "clamp") {
-      need(6);
-      o.code = OpCode::Clamp;
-      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = sub_op_index(kClampOpNames, name_of(t[5]), "clamp type");
-    } else if (op == "map_range" || op == "map_range_vector") {
-      need(10);
-      o.code = OpCode::MapRange;
-      o.ext = op == "map_range_vector" ? 1 : 0;  // per component (Cycles' vector map range)
-      for (int k = 0; k < 6; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = sub_op_index(kMapRangeOpNames, name_of(t[8]), "map range type");
-      o.clamp = t[9].cast<bool>();
-    } else if (op == "vector_math") {
-      need(7);
-      o.code = OpCode::VectorMath;
-      for (int k = 0; k < 4; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = sub_op_index(kVectorMathOpNames, name_of(t[6]), "vector math op");
-    } else if (op == "mapping") {
-      need(4);
-      o.code = OpCode::Mapping;
-      o.in[0] = regno(t[2]);
-      const auto m = t[3].cast<FloatArray>();
-      if (m.ndim() != 2 || m.shape(0) != 3 || m.shape(1) != 4) throw std::invalid_argument("mapping matrix must be 3x4");
-      for (int i = 0; i < 12; ++i) {
-        o.m[i] = m.data()[i];
-        if (!std::isfinite(o.m[i])) throw std::invalid_argument("mapping matrix contains NaN or infinite values");
-      }
-    } else if (op == "image") {
-      if (t.size() != 6 && t.size() != 7) throw std::invalid_argument("shader op 'image' takes 5 or 6 arguments");
-      o.code = OpCode::ImageTex;
-      o.in[0] = regno(t[2]);
-      const int64_t img = t[3].cast<int64_t>();
-      if (img < 0 || img >= n_images) throw std::invalid_argument("unknown image id " + std::to_string(img));
-      o.index = int32_t(img);
-      const std::string interp = name_of(t[4]), ext = name_of(t[5]);
-      o.sub = uint8_t(enum_from_name(interp, "interpolation", kInterpNames, false));
-      o.ext = uint8_t(enum_from_name(ext, "extension", kExtensionNames, false));
-      o.clamp = t.size() == 7 && t[6].cast<bool>();  // unassociate alpha after filtering
-    } else if (op == "math") {
-      need(6);
-      o.code = OpCode::Math;
-      o.in[0] = regno(t[2]);
-      o.in[1] = regno(t[3]);
-      o.sub = sub_op_index(kMathOpNames, name_of(t[4]), "math op");
-      o.clamp = t[5].cast<bool>();
-    } else if (op == "math3") {  // the operations with a third value
-      need(7);
-      o.code = OpCode::Math;
-      for (int k = 0; k < 3; ++k) o.in[k] = regno(t[size_t(2 + k)]);
-      o.sub = sub_op_index(kMathOpNames, name_of(t[5]), "math op");
-      o.clamp = t[6].cast<bool>();
-    } else if (op == "mix") {
-      need(7);
-      o.code = OpCode::Mix;
-      o.in[0] = regno(t[2]);
-      o.in[1] = regno(t[3]);
-      o.in[2] = regno(t[4]);
-      o.sub = sub_op_index(kMixOpNames, name_of(t[5]), "mix blend type");
-      o.clamp = t[6].cast<bool>();
-    } else if (op == "rgb_to_bw") {
-      need(3);
-      o.code = OpCode::RgbToBw;
-      o.in[0] = regno(t[2]);
-    } else if (op == "normal_map") {  // color, strength, uv set [, space]
+    if (op == "normal_map") {  // color, strength, uv set [, space]
+      // Parsed by hand, not from the schema (its entry holds its registers only): the uv set
+      // it reads only in tangent space.
       if (t.size() != 5 && t.size() != 6) throw std::invalid_argument("shader op 'normal_map' takes 4 or 5 arguments");
       o.code = OpCode::NormalMap;
       o.in[0] = regno(t[2]);
       o.in[1] = regno(t[3]);
       o.index = t[4].cast<int32_t>();
       if (o.index < 0 || o.index >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
-      o.sub = t.size() == 6 ? index_in({"TANGENT", "OBJECT", "WORLD", "BLENDER_OBJECT", "BLENDER_WORLD"},
-                                       name_of(t[5]), "normal map space")
-                            : uint8_t(0);
+      if (t.size() == 6) {
+        static const char* const spaces[] = {"TANGENT", "OBJECT", "WORLD", "BLENDER_OBJECT", "BLENDER_WORLD"};
+        const std::string x = name_of(t[5]);
+        const auto it = std::find_if(std::begin(spaces), std::end(spaces), [&](const char* n) { return x == n; });
+        if (it == std::end(spaces)) throw std::invalid_argument("shader op 'normal_map': unknown normal map space '" + x + "'");
+        o.sub = uint8_t(it - std::begin(spaces));
+      }
       prog.uses_uv = prog.uses_uv || o.sub == 0;
       prog.varying = true;
-    } else if (!parse_noise_texture_op(op, t, o) && !parse_pattern_op(op, t, o, regno) &&
-               !parse_vector_node_op(op, t, o, prog)) {
-      throw std::invalid_argument("unknown shader op '" + op + "'");
+    } else {
+      parse_value_op(*schema, t, o, prog, n_images);
     }
     prog.ops.push_back(o);
   }
@@ -1591,13 +1290,53 @@ PYBIND11_MODULE(pathlight_core, m) {
         d["map_range"] = names(kMapRangeOpNames);
         d["clamp"] = names(kClampOpNames);
         py::dict ops;
-        for (const OpSignature& o : kValueOps) ops[o.name] = int(o.registers);
+        py::list schema;
+        for (const ValueOpSchema& o : kValueOps) {
+          ops[o.name] = int(o.registers);
+          py::list params, flags;
+          for (const OpParam& p : o.params) {
+            py::dict e(py::arg("kind") = kParamKindNames[size_t(p.kind)],
+                       py::arg("field") = kOpFieldNames[size_t(p.field)], py::arg("what") = p.what,
+                       py::arg("optional") = p.optional);
+            if (p.kind == ParamKind::Choice) {
+              py::list n, alt;
+              for (size_t i = 0; i < p.n_names; ++i) n.append(p.name(i));
+              for (size_t i = 0; i < p.n_alt; ++i) alt.append(p.alt_names[i]);
+              e["names"] = n;
+              e["offset"] = int(p.offset);
+              if (p.n_alt) e["alt_names"] = alt;  // when the op's sub is nonzero
+            }
+            if (p.kind == ParamKind::Int) e["range"] = py::make_tuple(p.lo, p.hi);
+            if (p.kind == ParamKind::Bool) e["bit"] = int(p.bit);
+            if (p.when >= 0) e["when"] = int(p.when);
+            params.append(e);
+          }
+          for (const auto& [bit, name] : {std::pair{kVarying, "varying"}, std::pair{kUsesUv, "uses_uv"},
+                                          std::pair{kUsesAttributes, "uses_attributes"}})
+            if (o.flags & bit) flags.append(name);
+          schema.append(py::dict(py::arg("name") = o.name, py::arg("code") = int(o.code),
+                                 py::arg("registers") = int(o.registers), py::arg("params") = params,
+                                 py::arg("flags") = flags, py::arg("ext") = int(o.ext),
+                                 py::arg("hand_parsed") = o.hand_parsed));
+        }
+        // Every entry but "ops" is a list of dicts with a "name" (the add-on indexes them so).
         d["ops"] = ops;
+        d["schema"] = schema;
+        py::list codes;
+        for (size_t c = 0; c < kOpCodeCount; ++c) {
+          const bool closure = std::any_of(std::begin(kClosureOpCodes), std::end(kClosureOpCodes),
+                                           [&](OpCode k) { return size_t(k) == c; });
+          codes.append(py::dict(py::arg("name") = std::to_string(c), py::arg("code") = int(c),
+                                py::arg("closure") = closure));
+        }
+        d["opcodes"] = codes;
         return d;
       },
       "The shader language's table: 'ops' maps each value op's name to its register operand count; "
-      "the sub-operations (Math, Vector Math, Mix, colour space, Map Range and Clamp types) in the "
-      "core's order, each a dict of name, operands, value_out, reads_scale.");
+      "'schema' lists each value op's parse (name, code, registers, params, flags, ext, "
+      "hand_parsed); 'opcodes' each OpCode (name: its number, code, closure: made by closure "
+      "ops); the sub-operations (Math, Vector Math, Mix, colour space, Map Range and Clamp types) "
+      "in the core's order, each a dict of name, operands, value_out, reads_scale.");
   m.def(
       "fold_constant",
       [](const py::list& program, int reg) {

@@ -57,26 +57,360 @@ static_assert(std::size(kMapRangeOpNames) == size_t(MapRangeOp::SmootherStep) + 
 
 inline constexpr SubOpName kClampOpNames[] = {{"MINMAX", 3}, {"RANGE", 3}};
 
-// The value ops of the program language (op tuples `(name, dst, registers..., parameters...)`,
-// docs/core_api.md) and how many register operands follow the destination: the add-on's dead-code
-// elimination and register allocation read these; the bindings' parser accepts exactly these
-// names (tests/blender/test_core_materials.py checks both ways).
-struct OpSignature {
+// The names of the other settings that value ops choose by name, in their enums' or the
+// evaluation's order.
+inline constexpr const char* kInterpOpNames[] = {"LINEAR", "CLOSEST"};
+static_assert(std::size(kInterpOpNames) == size_t(Interp::Closest) + 1, "one name per Interp");
+inline constexpr const char* kExtensionOpNames[] = {"REPEAT", "EXTEND", "CLIP"};
+static_assert(std::size(kExtensionOpNames) == size_t(Extension::Clip) + 1, "one name per Extension");
+inline constexpr const char* kLightPathOutputs[] = {
+    "IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY", "IS_SINGULAR_RAY",
+    "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY", "IS_VOLUME_SCATTER_RAY", "RAY_LENGTH",
+    "RAY_DEPTH", "DIFFUSE_DEPTH", "GLOSSY_DEPTH", "TRANSPARENT_DEPTH", "TRANSMISSION_DEPTH"};
+inline constexpr const char* kGeometryOutputs[] = {"TRUE_NORMAL", "INCOMING", "PARAMETRIC", "BACKFACING", "REFLECTION"};
+inline constexpr const char* kCurvesInfoOutputs[] = {"IS_STRAND", "INTERCEPT", "LENGTH", "THICKNESS",
+                                                     "TANGENT_NORMAL", "RANDOM"};
+inline constexpr const char* kObjectInfoOutputs[] = {"LOCATION", "COLOR", "ALPHA", "OBJECT_INDEX", "RANDOM"};
+inline constexpr const char* kAttributeOutputs[] = {"COLOR", "FAC", "ALPHA"};
+inline constexpr const char* kLayerWeightOutputs[] = {"FRESNEL", "FACING"};
+inline constexpr const char* kNoiseTypes[] = {"MULTIFRACTAL", "FBM", "HYBRID_MULTIFRACTAL", "RIDGED_MULTIFRACTAL",
+                                              "HETERO_TERRAIN"};
+inline constexpr const char* kWaveTypes[] = {"BANDS", "RINGS"};
+inline constexpr const char* kWaveBandsDirections[] = {"X", "Y", "Z", "DIAGONAL"};
+inline constexpr const char* kWaveRingsDirections[] = {"X", "Y", "Z", "SPHERICAL"};
+inline constexpr const char* kWaveProfiles[] = {"SIN", "SAW", "TRI"};
+inline constexpr const char* kColorOrFac[] = {"COLOR", "FAC"};  // Checker and Brick outputs
+inline constexpr const char* kGradientTypes[] = {"LINEAR", "QUADRATIC", "EASING", "DIAGONAL", "SPHERICAL",
+                                                 "QUADRATIC_SPHERE", "RADIAL"};
+inline constexpr const char* kVoronoiDimensions[] = {"1D", "2D", "3D", "4D"};
+inline constexpr const char* kVoronoiFeatures[] = {"F1", "F2", "SMOOTH_F1", "DISTANCE_TO_EDGE", "N_SPHERE_RADIUS"};
+inline constexpr const char* kVoronoiMetrics[] = {"EUCLIDEAN", "MANHATTAN", "CHEBYCHEV", "MINKOWSKI"};
+inline constexpr const char* kVoronoiOutputs[] = {"DISTANCE", "COLOR", "POSITION", "W", "RADIUS"};
+inline constexpr const char* kVectorRotateTypes[] = {"AXIS_ANGLE", "X_AXIS", "Y_AXIS", "Z_AXIS", "EULER_XYZ"};
+inline constexpr const char* kVectorTransformTypes[] = {"POINT", "VECTOR", "NORMAL"};
+inline constexpr const char* kTransformSpaces[] = {"WORLD", "OBJECT", "CAMERA"};
+inline constexpr const char* kCameraCoordOutputs[] = {"CAMERA", "WINDOW"};
+inline constexpr const char* kTangentDirections[] = {"X", "Y", "Z", "UV_MAP"};  // X, Y, Z: radial
+inline constexpr const char* kGaborTypes[] = {"2D", "3D"};  // sub 2 and 3 (the dimensions)
+inline constexpr const char* kGaborOutputs[] = {"VALUE", "PHASE", "INTENSITY"};
+inline constexpr const char* kAoOutputs[] = {"COLOR", "AO"};
+
+// The schema of the value ops (issue 22). A value op's tuple is `(name, dst, registers...,
+// parameters...)` (docs/core_api.md): `registers` register operands fill in[0..], then each
+// parameter in turn is checked by its kind and fills its ShaderOp field. The bindings parse every
+// value op with one loop over this table, and expose it (pathlight_core.shader_op_table): the
+// add-on's dead-code elimination and register allocation read the register counts.
+enum class ParamKind : uint8_t {
+  Choice,       // a name from `names` (Blender's enum identifier): its index + `offset`
+  Int,          // an integer in [lo, hi]
+  Bool,         // true ORs `bit` into the field (1: a plain flag)
+  Float,        // a finite float
+  ImageId,      // an image id below the scene's image count
+  Values,       // 1 to 4 floats (Const: missing ones repeat the first, alpha 1; NaN becomes 0)
+  Matrix3x4,    // a 3x4 float array, finite (Mapping's transform, row-major)
+  RampTable,    // an (N, 4) float array, 2 <= N <= 4096, appended to the program's tables
+  FilterWidth,  // a float >= 0: the program's Bump filter width (its first Bump op's)
+};
+inline constexpr const char* kParamKindNames[] = {"choice", "int", "bool", "float", "image", "values",
+                                                  "matrix3x4", "ramp_table", "filter_width"};
+static_assert(std::size(kParamKindNames) == size_t(ParamKind::FilterWidth) + 1, "one name per ParamKind");
+
+// The ShaderOp field a parameter fills (Values: value; Matrix3x4: m[0..11]; RampTable: index
+// and count; FilterWidth: the program's bump_filter_width).
+enum class OpField : uint8_t { Sub, Ext, Index, Count, Clamp, M0, M1, Value, Matrix, Table, Program };
+inline constexpr const char* kOpFieldNames[] = {"sub", "ext", "index", "count", "clamp", "m0", "m1",
+                                                "value", "m", "table", "program"};
+static_assert(std::size(kOpFieldNames) == size_t(OpField::Program) + 1, "one name per OpField");
+
+// What a value op tells its program (ShaderProgram's flags).
+enum ProgFlag : uint8_t { kVarying = 1, kUsesUv = 2, kUsesAttributes = 4 };
+
+struct OpParam {
+  ParamKind kind;
+  OpField field;
+  const char* what;  // in errors: "unknown <what> 'X'", "<what> must be in [lo, hi]"
+  const char* const* names = nullptr;  // Choice: the names, or
+  const SubOpName* sub_ops = nullptr;  //   a sub-operation table's
+  uint8_t n_names = 0;
+  uint8_t offset = 0;  // Choice: added to the index
+  uint8_t bit = 1;     // Bool
+  int32_t lo = 0, hi = 0;  // Int
+  bool optional = false;   // may be left off the tuple's end (the field keeps its default)
+  // Choice: the names (and what) when the op's sub is nonzero (Wave: the rings' directions).
+  const char* const* alt_names = nullptr;
+  uint8_t n_alt = 0;
+  const char* alt_what = nullptr;
+  // Program flags set when the parameter's value is `when` (Tangent's UV_MAP reads uv sets).
+  int8_t when = -1;
+  uint8_t when_flags = 0;
+  constexpr const char* name(size_t i) const { return sub_ops ? sub_ops[i].name : names[i]; }
+};
+
+namespace param {  // the schema's parameter kinds, spelled short
+template <size_t N>
+constexpr OpParam choice(OpField f, const char* what, const char* const (&names)[N], uint8_t offset = 0) {
+  OpParam p{ParamKind::Choice, f, what};
+  p.names = names;
+  p.n_names = uint8_t(N);
+  p.offset = offset;
+  return p;
+}
+template <size_t N>
+constexpr OpParam sub_op(OpField f, const char* what, const SubOpName (&table)[N]) {
+  OpParam p{ParamKind::Choice, f, what};
+  p.sub_ops = table;
+  p.n_names = uint8_t(N);
+  return p;
+}
+constexpr OpParam int_in(OpField f, const char* what, int32_t lo, int32_t hi) {
+  OpParam p{ParamKind::Int, f, what};
+  p.lo = lo;
+  p.hi = hi;
+  return p;
+}
+constexpr OpParam flag(OpField f, const char* what, uint8_t bit = 1) {
+  OpParam p{ParamKind::Bool, f, what};
+  p.bit = bit;
+  return p;
+}
+constexpr OpParam finite(OpField f, const char* what) { return {ParamKind::Float, f, what}; }
+constexpr OpParam of(ParamKind k, OpField f, const char* what) { return {k, f, what}; }
+constexpr OpParam uv_set(OpField f) { return int_in(f, "uv set index", 0, 7); }
+// A trailing BumpOffset: where the op reads the shading point (the Bump node's offsets).
+constexpr OpParam bump_offset(OpField f) {
+  OpParam p = int_in(f, "bump offset", 0, 2);
+  p.optional = true;
+  return p;
+}
+constexpr OpParam optional(OpParam p) {
+  p.optional = true;
+  return p;
+}
+}  // namespace param
+
+struct OpParams {
+  const OpParam* p = nullptr;
+  uint8_t n = 0;
+  constexpr OpParams() = default;
+  template <size_t N>
+  constexpr OpParams(const OpParam (&a)[N]) : p(a), n(uint8_t(N)) {}
+  constexpr const OpParam* begin() const { return p; }
+  constexpr const OpParam* end() const { return p + n; }
+};
+
+struct ValueOpSchema {
   const char* name;
-  uint8_t registers;
+  OpCode code;
+  uint8_t registers;  // register operands after the destination (in[0..registers))
+  OpParams params;
+  uint8_t flags = 0;  // ProgFlag
+  uint8_t ext = 0;    // the ext it starts from (Map Range per component)
+  // Parsed by hand in the bindings, not from `params` (which it leaves empty): see there.
+  bool hand_parsed = false;
 };
-inline constexpr OpSignature kValueOps[] = {
-    {"const", 0}, {"uv", 0}, {"position", 0}, {"normal", 0}, {"object", 0}, {"generated", 0},
-    {"light_path", 0}, {"object_info", 0}, {"curves_info", 0}, {"attribute", 0}, {"geometry", 0},
-    {"object_normal", 0}, {"mapping", 1}, {"image", 1}, {"rgb_to_bw", 1}, {"math", 2},
-    {"math3", 3}, {"mix", 3}, {"normal_map", 2}, {"fresnel", 2}, {"layer_weight", 2}, {"bump", 6},
-    {"ramp", 1}, {"separate", 1}, {"combine", 3}, {"color_space", 1}, {"hsv", 5}, {"gamma", 2},
-    {"bright_contrast", 3}, {"clamp", 3}, {"map_range", 6}, {"map_range_vector", 6},
-    {"vector_math", 4}, {"tex_noise", 9}, {"tex_wave", 7}, {"tex_magic", 3},
-    {"tex_white_noise", 2}, {"checker", 4}, {"gradient", 1}, {"brick", 10}, {"voronoi", 9},
-    {"vector_rotate", 5}, {"vector_transform", 1}, {"blackbody", 1}, {"wavelength", 1},
-    {"camera_coords", 0}, {"tangent", 0}, {"tex_gabor", 6}, {"ambient_occlusion", 3},
-    {"bevel", 2}, {"wireframe", 1}, {"object_attribute", 0},
+
+namespace schema {  // the parameter lists of the ops below
+using namespace param;
+using F = OpField;
+using K = ParamKind;
+inline constexpr OpParam kConst[] = {of(K::Values, F::Value, "const values")};
+inline constexpr OpParam kUv[] = {uv_set(F::Index), bump_offset(F::Sub)};
+inline constexpr OpParam kAtOffset[] = {bump_offset(F::Sub)};  // Position, Object, Generated
+inline constexpr OpParam kLightPath[] = {choice(F::Sub, "light path output", kLightPathOutputs)};
+inline constexpr OpParam kObjectInfo[] = {choice(F::Sub, "object info output", kObjectInfoOutputs)};
+inline constexpr OpParam kCurvesInfo[] = {choice(F::Sub, "curves info output", kCurvesInfoOutputs)};
+inline constexpr OpParam kAttribute[] = {int_in(F::Index, "attribute set index", 0, 7),
+                                         choice(F::Sub, "attribute output", kAttributeOutputs)};
+inline constexpr OpParam kGeometry[] = {choice(F::Sub, "geometry output", kGeometryOutputs)};
+inline constexpr OpParam kMapping[] = {of(K::Matrix3x4, F::Matrix, "mapping matrix")};
+inline constexpr OpParam kImage[] = {of(K::ImageId, F::Index, "image id"),
+                                     choice(F::Sub, "interpolation", kInterpOpNames),
+                                     choice(F::Ext, "extension", kExtensionOpNames),
+                                     optional(flag(F::Clamp, "unassociate alpha"))};
+inline constexpr OpParam kMath[] = {sub_op(F::Sub, "math op", kMathOpNames), flag(F::Clamp, "clamp")};
+inline constexpr OpParam kMix[] = {sub_op(F::Sub, "mix blend type", kMixOpNames), flag(F::Clamp, "clamp")};
+inline constexpr OpParam kLayerWeight[] = {choice(F::Sub, "layer weight output", kLayerWeightOutputs)};
+inline constexpr OpParam kBump[] = {flag(F::Clamp, "invert"),
+                                    optional(of(K::FilterWidth, F::Program, "bump filter width"))};
+// Ramp: the table, clamp (bit 1), constant interpolation (bit 2), the range, extrapolate (bit 4).
+inline constexpr OpParam kRamp[] = {of(K::RampTable, F::Table, "ramp table"), flag(F::Sub, "ramp clamp", 1),
+                                    flag(F::Sub, "ramp constant", 2), finite(F::M0, "ramp range start"),
+                                    finite(F::M1, "ramp range end"), flag(F::Sub, "ramp extrapolate", 4)};
+inline constexpr OpParam kSeparate[] = {int_in(F::Sub, "separate axis", 0, 2)};
+inline constexpr OpParam kCombine[] = {flag(F::Sub, "combine colour")};  // a colour (alpha 1) or a vector
+inline constexpr OpParam kColorSpace[] = {sub_op(F::Sub, "colour conversion", kColorSpaceOpNames)};
+inline constexpr OpParam kClamp[] = {sub_op(F::Sub, "clamp type", kClampOpNames)};
+inline constexpr OpParam kMapRange[] = {sub_op(F::Sub, "map range type", kMapRangeOpNames), flag(F::Clamp, "clamp")};
+inline constexpr OpParam kVectorMath[] = {sub_op(F::Sub, "vector math op", kVectorMathOpNames)};
+inline constexpr OpParam kDimensions = int_in(F::Sub, "texture dimensions", 1, 4);
+inline constexpr OpParam kTexNoise[] = {kDimensions, choice(F::Ext, "noise type", kNoiseTypes),
+                                        flag(F::Clamp, "normalize"), flag(F::Index, "color output")};
+constexpr OpParam wave_direction() {
+  OpParam p = choice(F::Ext, "bands direction", kWaveBandsDirections);
+  p.alt_names = kWaveRingsDirections;
+  p.n_alt = uint8_t(std::size(kWaveRingsDirections));
+  p.alt_what = "rings direction";
+  return p;
+}
+inline constexpr OpParam kTexWave[] = {choice(F::Sub, "wave type", kWaveTypes), wave_direction(),
+                                       choice(F::Index, "wave profile", kWaveProfiles)};
+inline constexpr OpParam kTexMagic[] = {int_in(F::Sub, "magic texture depth", 0, 10), flag(F::Index, "color output")};
+inline constexpr OpParam kTexWhiteNoise[] = {kDimensions, flag(F::Index, "color output")};
+inline constexpr OpParam kChecker[] = {choice(F::Sub, "checker output", kColorOrFac)};
+inline constexpr OpParam kGradient[] = {choice(F::Sub, "gradient type", kGradientTypes)};
+inline constexpr OpParam kBrick[] = {finite(F::M0, "brick offset"), int_in(F::Index, "brick offset frequency", 1, 99),
+                                     finite(F::M1, "brick squash"), int_in(F::Count, "brick squash frequency", 1, 99),
+                                     choice(F::Sub, "brick output", kColorOrFac)};
+inline constexpr OpParam kVoronoi[] = {choice(F::Ext, "voronoi dimensions", kVoronoiDimensions, 1),
+                                       choice(F::Index, "voronoi feature", kVoronoiFeatures),
+                                       choice(F::Count, "voronoi distance metric", kVoronoiMetrics),
+                                       flag(F::Clamp, "normalize"), choice(F::Sub, "voronoi output", kVoronoiOutputs)};
+inline constexpr OpParam kVectorRotate[] = {choice(F::Sub, "vector rotate type", kVectorRotateTypes),
+                                            flag(F::Clamp, "invert")};
+inline constexpr OpParam kVectorTransform[] = {choice(F::Sub, "vector transform type", kVectorTransformTypes),
+                                               choice(F::Index, "vector transform space", kTransformSpaces),
+                                               choice(F::Count, "vector transform space", kTransformSpaces)};
+inline constexpr OpParam kCameraCoords[] = {choice(F::Sub, "camera coordinates", kCameraCoordOutputs),
+                                            bump_offset(F::Ext)};
+constexpr OpParam tangent_direction() {
+  OpParam p = choice(F::Sub, "tangent direction", kTangentDirections);
+  p.when = 3;  // UV_MAP
+  p.when_flags = kUsesUv;
+  return p;
+}
+inline constexpr OpParam kTangent[] = {tangent_direction(), uv_set(F::Index)};
+inline constexpr OpParam kTexGabor[] = {choice(F::Sub, "gabor type", kGaborTypes, 2),
+                                        choice(F::Ext, "gabor output", kGaborOutputs)};
+// Ambient Occlusion: samples, inside (bit 1), only local (bit 2), the output.
+inline constexpr OpParam kAmbientOcclusion[] = {int_in(F::Index, "ambient occlusion samples", 0, 1024),
+                                                flag(F::Sub, "inside", 1), flag(F::Sub, "only local", 2),
+                                                choice(F::Ext, "ambient occlusion output", kAoOutputs)};
+inline constexpr OpParam kBevel[] = {int_in(F::Index, "bevel samples", 0, 128)};
+inline constexpr OpParam kWireframe[] = {flag(F::Ext, "use pixel size"), bump_offset(F::Sub)};
+// Object / Instancer attributes: the instance's slot, the output.
+inline constexpr OpParam kObjectAttribute[] = {
+    int_in(F::Index, "object attribute slot", 0, int32_t(kMaxObjectAttributes) - 1),
+    choice(F::Sub, "attribute output", kAttributeOutputs)};
+}  // namespace schema
+
+// Every value op: its name, OpCode, registers, parameters and program flags. Adding a value op
+// means an entry here, its evaluation (shader.cpp) and its test; the parser and the add-on's
+// register counts follow (tests/blender/test_core_materials.py checks the table both ways).
+inline constexpr ValueOpSchema kValueOps[] = {
+    {"const", OpCode::Const, 0, schema::kConst},
+    {"uv", OpCode::Uv, 0, schema::kUv, kVarying | kUsesUv},
+    {"position", OpCode::Position, 0, schema::kAtOffset, kVarying},
+    {"normal", OpCode::Normal, 0, {}, kVarying},
+    {"object", OpCode::ObjectPos, 0, schema::kAtOffset, kVarying},
+    {"generated", OpCode::Generated, 0, schema::kAtOffset, kVarying},
+    {"light_path", OpCode::LightPath, 0, schema::kLightPath, kVarying},
+    {"object_info", OpCode::ObjectInfo, 0, schema::kObjectInfo, kVarying},  // per instance
+    {"curves_info", OpCode::CurvesInfo, 0, schema::kCurvesInfo, kVarying},  // per strand and hit
+    {"attribute", OpCode::Attribute, 0, schema::kAttribute, kVarying | kUsesAttributes},
+    {"geometry", OpCode::Geometry, 0, schema::kGeometry, kVarying},
+    {"object_normal", OpCode::ObjectNormal, 0, {}, kVarying},
+    {"mapping", OpCode::Mapping, 1, schema::kMapping},
+    {"image", OpCode::ImageTex, 1, schema::kImage},
+    {"rgb_to_bw", OpCode::RgbToBw, 1, {}},
+    {"math", OpCode::Math, 2, schema::kMath},
+    {"math3", OpCode::Math, 3, schema::kMath},  // the operations with a third value
+    {"mix", OpCode::Mix, 3, schema::kMix},
+    {"normal_map", OpCode::NormalMap, 2, {}, kVarying, 0, true},  // uses_uv: its tangent space only
+    {"fresnel", OpCode::Fresnel, 2, {}, kVarying},
+    {"layer_weight", OpCode::LayerWeight, 2, schema::kLayerWeight, kVarying},
+    {"bump", OpCode::Bump, 6, schema::kBump, kVarying},  // heights (3), strength, distance, normal
+    {"ramp", OpCode::Ramp, 1, schema::kRamp},
+    {"separate", OpCode::Component, 1, schema::kSeparate},
+    {"combine", OpCode::Combine, 3, schema::kCombine},
+    {"color_space", OpCode::ColorSpace, 1, schema::kColorSpace},
+    {"hsv", OpCode::Hsv, 5, {}},
+    {"gamma", OpCode::Gamma, 2, {}},
+    {"bright_contrast", OpCode::BrightContrast, 3, {}},
+    {"clamp", OpCode::Clamp, 3, schema::kClamp},
+    {"map_range", OpCode::MapRange, 6, schema::kMapRange},
+    {"map_range_vector", OpCode::MapRange, 6, schema::kMapRange, 0, 1},  // ext 1: per component
+    {"vector_math", OpCode::VectorMath, 4, schema::kVectorMath},
+    // vector, w, scale, detail, roughness, lacunarity, offset, gain, distortion
+    {"tex_noise", OpCode::TexNoise, 9, schema::kTexNoise},
+    // vector, scale, distortion, detail, detail scale, detail roughness, phase
+    {"tex_wave", OpCode::TexWave, 7, schema::kTexWave},
+    {"tex_magic", OpCode::TexMagic, 3, schema::kTexMagic},  // vector, scale, distortion
+    {"tex_white_noise", OpCode::TexWhiteNoise, 2, schema::kTexWhiteNoise},  // vector, w
+    {"checker", OpCode::Checker, 4, schema::kChecker},  // vector, color1, color2, scale
+    {"gradient", OpCode::Gradient, 1, schema::kGradient},
+    // vector, color1, color2, mortar, scale, mortar size, mortar smooth, bias, brick width, row height
+    {"brick", OpCode::Brick, 10, schema::kBrick},
+    // vector, w, scale, detail, roughness, lacunarity, smoothness, exponent, randomness
+    {"voronoi", OpCode::Voronoi, 9, schema::kVoronoi},
+    {"vector_rotate", OpCode::VectorRotate, 5, schema::kVectorRotate},  // vector, center, axis, angle, rotation
+    // object and camera space differ per instance and render
+    {"vector_transform", OpCode::VectorTransform, 1, schema::kVectorTransform, kVarying},
+    {"blackbody", OpCode::Blackbody, 1, {}},
+    {"wavelength", OpCode::Wavelength, 1, {}},
+    {"camera_coords", OpCode::CameraCoords, 0, schema::kCameraCoords, kVarying},
+    {"tangent", OpCode::Tangent, 0, schema::kTangent, kVarying},
+    // vector, scale, frequency, anisotropy, orientation 2D, 3D
+    {"tex_gabor", OpCode::TexGabor, 6, schema::kTexGabor},
+    {"ambient_occlusion", OpCode::AmbientOcclusion, 3, schema::kAmbientOcclusion, kVarying},  // color, distance, normal
+    {"bevel", OpCode::Bevel, 2, schema::kBevel, kVarying},  // radius, normal
+    {"wireframe", OpCode::Wireframe, 1, schema::kWireframe, kVarying},  // size
+    {"object_attribute", OpCode::ObjectAttribute, 0, schema::kObjectAttribute, kVarying},  // per instance
 };
+
+// The OpCodes that closure ops (or their companions) produce; every other OpCode is a value op's.
+inline constexpr OpCode kClosureOpCodes[] = {
+    OpCode::Diffuse, OpCode::Glossy, OpCode::Glass, OpCode::Refraction, OpCode::Transparent,
+    OpCode::Emission, OpCode::Principled, OpCode::Translucent, OpCode::Metallic, OpCode::PrincipledExtra,
+    OpCode::Holdout, OpCode::PrincipledHair, OpCode::Subsurface, OpCode::Sheen, OpCode::Toon,
+};
+inline constexpr size_t kOpCodeCount = size_t(OpCode::ObjectAttribute) + 1;
+
+constexpr bool every_value_opcode_has_an_op() {
+  for (size_t c = 0; c < kOpCodeCount; ++c) {
+    bool found = false;
+    for (const OpCode k : kClosureOpCodes) found = found || size_t(k) == c;
+    for (const ValueOpSchema& v : kValueOps) found = found || size_t(v.code) == c;
+    if (!found) return false;
+  }
+  return true;
+}
+static_assert(every_value_opcode_has_an_op(), "every OpCode is a closure's or has a kValueOps entry");
+
+// Each parameter fills a field of its kind's type, choices have names that fit their field,
+// optional parameters come last, and hand-parsed entries list no parameters.
+constexpr bool param_fits(const OpParam& p) {
+  const bool int_field = p.field == OpField::Sub || p.field == OpField::Ext || p.field == OpField::Index ||
+                         p.field == OpField::Count || p.field == OpField::Clamp;
+  switch (p.kind) {
+    case ParamKind::Choice:
+      return int_field && p.n_names > 0 && (p.names || p.sub_ops) && p.n_names + p.offset <= 256 &&
+             (p.alt_names == nullptr || p.n_alt > 0);
+    case ParamKind::Int: {
+      const bool wide = p.field == OpField::Index || p.field == OpField::Count;  // int32 fields
+      return int_field && p.lo <= p.hi && (wide || (p.lo >= 0 && p.hi <= 255));
+    }
+    case ParamKind::Bool: return int_field && p.bit != 0;
+    case ParamKind::ImageId: return p.field == OpField::Index;
+    case ParamKind::Float: return p.field == OpField::M0 || p.field == OpField::M1;
+    case ParamKind::Values: return p.field == OpField::Value;
+    case ParamKind::Matrix3x4: return p.field == OpField::Matrix;
+    case ParamKind::RampTable: return p.field == OpField::Table;
+    case ParamKind::FilterWidth: return p.field == OpField::Program;
+  }
+  return false;
+}
+constexpr bool value_op_schemas_are_consistent() {
+  for (const ValueOpSchema& v : kValueOps) {
+    if (v.hand_parsed && v.params.n != 0) return false;
+    if (v.registers > 16) return false;
+    bool optional = false;
+    for (const OpParam& p : v.params) {
+      if (!param_fits(p) || (optional && !p.optional)) return false;
+      optional = optional || p.optional;
+    }
+  }
+  return true;
+}
+static_assert(value_op_schemas_are_consistent(), "a kValueOps parameter does not fit its field or order");
 
 }  // namespace pl
