@@ -93,6 +93,13 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "(0 = automatic, from the noise threshold)",
         default=0, min=0, max=1 << 24,
     )
+    use_guiding: BoolProperty(
+        name="Path Guiding",
+        description="Learn where light comes from during the first samples (up to half of them, "
+                    "at most 255) and aim rough bounces there as well: less noise where light "
+                    "arrives indirectly, e.g. a room lit through a window; costs time per sample",
+        default=False,
+    )
     use_schlick_fresnel: BoolProperty(
         name="Schlick Fresnel",
         description="Use Schlick's approximation of the dielectric Fresnel reflectance (glass, "

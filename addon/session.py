@@ -114,6 +114,7 @@ def render_settings(pc, scene, warn=None):
         "debug_view": props.debug_view.lower(),
     })
     optional["force_general_kernel"] = props.use_general_kernel
+    optional["guiding"] = props.use_guiding
     x, y, w, h = render_border(scene, warn)
     if (w, h) != (st.width, st.height):
         optional.update(border_x=x, border_y=y, border_width=w, border_height=h)

@@ -48,6 +48,7 @@ class PATHLIGHT_RENDER_PT_sampling(PathlightPanel, bpy.types.Panel):
         row.prop(settings, "use_animated_seed", text="", icon='TIME')
         col.prop(settings, "sample_offset")
         layout.prop(settings, "use_nee")
+        layout.prop(settings, "use_guiding")
 
 
 class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):

@@ -153,7 +153,7 @@ def settings_signature(scene):
     props = scene.pathlight
     names = ("samples", "preview_samples", "max_bounces", "diffuse_bounces", "glossy_bounces",
              "transmission_bounces", "volume_bounces", "seed", "sampler", "use_nee", "use_schlick_fresnel",
-             "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples")
+             "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "use_guiding")
     r = scene.render
     return (tuple(getattr(props, n, None) for n in names)
             + (scene.camera.name if scene.camera else "", scene.world.name if scene.world else "",

@@ -11,6 +11,7 @@
 #include <stdexcept>
 
 #include "geometry/polygon_mesh.h"
+#include "render/guiding.h"
 #include "render/session.h"
 #include "scene/phase.h"
 #include "scene/shader_ops.h"
@@ -1851,6 +1852,45 @@ PYBIND11_MODULE(pathlight_core, m) {
           "The camera ray through raster (x, y) of a width x height frame: (origin, direction, tmax). "
           "lens: a point of the unit square on the aperture, or None for the lens centre.");
 
+  // Path guiding's learnt field on its own, for tests of its sampling against its pdf.
+  py::class_<GuidingField>(m, "GuidingField")
+      .def(py::init<>())
+      .def(
+          "reset",
+          [](GuidingField& g, const py::handle& lo, const py::handle& hi, float threshold) {
+            Aabb b;
+            b.grow(to_point(lo, "lo"));
+            b.grow(to_point(hi, "hi"));
+            g.reset(b, threshold);
+          },
+          py::arg("lo"), py::arg("hi"), py::arg("split_threshold"))
+      .def(
+          "record",
+          [](GuidingField& g, const py::handle& p, const py::handle& w, float value, const py::handle& n) {
+            g.record(to_point(p, "p"), to_point(n, "n"), to_point(w, "w"), value);
+          },
+          py::arg("p"), py::arg("w"), py::arg("value"), py::arg("n") = py::make_tuple(0.0f, 0.0f, 1.0f))
+      .def("end_iteration", &GuidingField::end_iteration, py::arg("samples"))
+      .def(
+          "sample",
+          [](const GuidingField& g, const py::handle& p, float u1, float u2, const py::handle& n) {
+            if (!(u1 >= 0.0f && u1 < 1.0f && u2 >= 0.0f && u2 < 1.0f))
+              throw std::invalid_argument("u must lie in [0, 1)");
+            float pdf = 0.0f;
+            const Vec3 w = g.sample(to_point(p, "p"), to_point(n, "n"), {u1, u2}, pdf);
+            return py::make_tuple(py::make_tuple(w.x, w.y, w.z), pdf);
+          },
+          py::arg("p"), py::arg("u1"), py::arg("u2"), py::arg("n") = py::make_tuple(0.0f, 0.0f, 1.0f))
+      .def(
+          "pdf",
+          [](const GuidingField& g, const py::handle& p, const py::handle& w, const py::handle& n) {
+            return g.pdf(to_point(p, "p"), to_point(n, "n"), normalize(to_point(w, "w")));
+          },
+          py::arg("p"), py::arg("w"), py::arg("n") = py::make_tuple(0.0f, 0.0f, 1.0f))
+      .def_property_readonly("ready", &GuidingField::ready)
+      .def_property_readonly("iterations", &GuidingField::iterations)
+      .def_property_readonly("cells", &GuidingField::cells);
+
   py::class_<RenderSettings>(m, "RenderSettings")
       .def(py::init<>())
       .def_readwrite("width", &RenderSettings::width)
@@ -1899,7 +1939,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](RenderSettings& s, const std::string& v) { s.debug_view = enum_from_name(v, "debug_view", kDebugViewNames); })
       .def_readwrite("sample_offset", &RenderSettings::sample_offset)
       .def_readwrite("force_general_kernel", &RenderSettings::force_general_kernel,
-                     "Run the general integrator kernel, not the scene-specialised one (same image).");
+                     "Run the general integrator kernel, not the scene-specialised one (same image).")
+      .def_readwrite("guiding", &RenderSettings::guiding,
+                     "Path guiding: learn the incident light during the first samples and sample it.")
+      .def_readwrite("guiding_probability", &RenderSettings::guiding_probability);
 
   m.def(
       "render_passes",
@@ -2495,6 +2538,8 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["kernel"] = s.kernel;
              d["features"] = s.features;
              d["unused_features"] = s.unused_features;
+             d["guiding_iterations"] = s.guiding_iterations;
+             d["guiding_cells"] = s.guiding_cells;
              return d;
            })
       .def("sample_counts",
@@ -2514,6 +2559,15 @@ PYBIND11_MODULE(pathlight_core, m) {
              return film_rect(self, 0, 0, f.width(), f.height());
            })
       .def("film_rect", &film_rect, py::arg("x"), py::arg("y"), py::arg("w"), py::arg("h"))
+      .def(
+          "guiding_pdf",
+          [](PySession& self, const py::handle& p, const py::handle& w, const py::handle& n) {
+            const GuidingField* g = self.session->guiding_field();
+            if (!g || !self.session->finished()) throw std::invalid_argument("no finished guided render");
+            return g->ready() ? g->pdf(to_point(p, "p"), to_point(n, "n"), normalize(to_point(w, "w"))) : 0.0f;
+          },
+          py::arg("p"), py::arg("w"), py::arg("n"),
+          "The learnt guiding field's pdf towards w at p on a surface facing n (a finished guided render).")
       .def("film_pass", &film_pass, py::arg("name"),
            "One render pass as float32 (H, W, channels), row 0 = bottom (see render_passes()).");
 }

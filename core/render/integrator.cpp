@@ -1,4 +1,5 @@
 #include "render/integrator.h"
+#include "render/guiding.h"
 #include "render/subsurface.h"
 #include "scene/phase.h"
 
@@ -53,14 +54,18 @@ constexpr uint32_t kTreeKernels[] = {kKernelLightTree, kKernelLightTree | kKerne
 
 // The light tree kernel with exactly the features f (one of kTreeKernels).
 TraceFn light_tree_kernel(uint32_t f);
+// The guided kernels (integrator_guided.cpp), fastest first.
+extern const uint32_t kGuidedKernels[2];
+TraceFn guided_kernel(uint32_t f);
 
 Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,
                 PathAovs* aov) {
   return trace_path_t<kKernelAll>(scene, ray, sampler, s, c, aov);
 }
 
-uint32_t kernel_features(const SceneFeatures& f, bool aovs) {
+uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding) {
   uint32_t k = 0;
+  if (guiding) k |= kKernelGuiding;
   if (f.media) k |= kKernelMedia;
   if (aovs) k |= kKernelAovs;
   if (!f.diffuse_only()) k |= kKernelNonDiffuse;
@@ -82,6 +87,11 @@ TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
         chosen = f;
         return light_tree_kernel(f);
       }
+    for (const uint32_t f : kGuidedKernels)
+      if ((needed & ~f) == 0) {
+        chosen = f;
+        return guided_kernel(f);
+      }
   }
   chosen = kKernelAll;
   return &trace_path_t<kKernelAll>;
@@ -95,6 +105,7 @@ std::string kernel_name(uint32_t features) {
   if (features & kKernelMedia) n += "+media";
   if (features & kKernelAovs) n += "+passes";
   if (features & kKernelSubsurface) n += "+subsurface";
+  if (features & kKernelGuiding) n += "+guiding";
   return n;
 }
 

@@ -11,6 +11,8 @@
 
 namespace pl {
 
+class GuidingField;
+
 struct IntegratorSettings {
   int max_bounces = 12;
   int diffuse_bounces = 1024;
@@ -26,6 +28,12 @@ struct IntegratorSettings {
   const Camera* camera = nullptr;
   // Camera rays carry ray differentials (SceneFeatures::footprints: shaders that read them).
   bool differentials = true;
+  // Path guiding (render/guiding.h; only kernels with kKernelGuiding read these): sample
+  // directions at rough vertices from `guide` once it has learnt something, with this
+  // probability (one-sample MIS with the BSDF), and record what paths find while training.
+  GuidingField* guide = nullptr;
+  bool guide_training = false;
+  float guide_probability = 0.5f;
 };
 
 struct PathCounters {
@@ -64,15 +72,17 @@ enum KernelFeature : uint32_t {
   kKernelEnvironment = 8,  // MIS of escaped rays against the environment light
   kKernelLightTree = 16,   // the shading normals the light tree's choice reads, kept for MIS
   kKernelSubsurface = 32,  // BSSRDF closures: random walks (only the general kernel has them)
-  kKernelAll = 63,         // the general kernel
+  kKernelGuiding = 64,     // path guiding (IntegratorSettings::guide)
+  kKernelAll = 127,        // the general kernel
 };
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
-uint32_t kernel_features(const SceneFeatures& f, bool aovs);
+// guiding: the render guides its paths.
+uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding = false);
 // The fastest instantiated kernel that has every feature in `needed` (or the general one when
 // force_general); `chosen` gets its feature bits. Every kernel gives the general one's result.
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen);
-// "general", or "diffuse" / "surfaces" plus "+env", "+tree", "+media", "+passes".
+// "general", or "diffuse" / "surfaces" plus "+env", "+tree", "+media", "+passes", "+guiding".
 std::string kernel_name(uint32_t features);
 
 // The denoising features of one shaded point, split as Cycles does: `diffuse_albedo` of the

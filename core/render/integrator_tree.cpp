@@ -2,6 +2,7 @@
 // their own, so that adding them left the other kernels' code as it was (in one unit, GCC's
 // unit-growth limits stopped inlining helpers into every kernel: +3 % instructions).
 #include "render/integrator.h"
+#include "render/guiding.h"
 #include "render/subsurface.h"
 #include "scene/phase.h"
 

@@ -1,4 +1,5 @@
 #include "render/session.h"
+#include "render/guiding.h"
 
 #include <algorithm>
 #include <chrono>
@@ -126,7 +127,20 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   {
     // The kernel: chosen here from what the scene and this render use, never per ray.
     const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent || scene_->any_holdout();
-    kernel_ = select_kernel(kernel_features(scene_->features(), aovs), settings_.force_general_kernel, kernel_bits_);
+    const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
+    kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding), settings_.force_general_kernel,
+                            kernel_bits_);
+    if (guiding) {
+      // Müller et al.'s split threshold: cells keep about 12000 records (times the square root
+      // of an iteration's samples), enough for a quadtree that follows light, not noise.
+      const float threshold = 12000.0f;
+      guide_ = std::make_unique<GuidingField>();
+      guide_->reset(scene_->world_bounds(), threshold);
+      integrator_.guide = guide_.get();
+      integrator_.guide_training = true;
+      integrator_.guide_probability = std::clamp(settings_.guiding_probability, 0.0f, 1.0f);
+      guide_end_ = 1;
+    }
     integrator_.differentials = scene_->features().footprints;
     const bool filter = !(settings_.filter_type == FilterType::Box && settings_.filter_width == 1.0f);
     std::vector<std::pair<std::string, bool>> all;
@@ -139,6 +153,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     all.emplace_back("transparent film", settings_.film_transparent);
     all.emplace_back("adaptive sampling", settings_.adaptive_threshold > 0.0f);
     all.emplace_back("motion blur", motion_);
+    all.emplace_back("guiding", guiding);
     for (const auto& [n, on] : all) (on ? features_ : unused_features_).push_back(n);
   }
   tile_active_.resize(size_t(film_.tile_count()));
@@ -208,6 +223,8 @@ SessionStats Session::stats() const {
   s.passes = passes_.load();
   s.active_pixels = active_.load();
   s.threads = pool_ ? pool_->size() : 0;
+  s.guiding_iterations = guide_iterations_.load();
+  s.guiding_cells = guide_cells_.load();
   s.elapsed_s = elapsed();
   s.focus_distance = focus_distance_;
   s.autofocus = autofocus_;
@@ -326,6 +343,18 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
   nonfinite_.fetch_add(nonfinite, std::memory_order_relaxed);
 }
 
+// Training iterations of 1, 2, 4 ... samples (Müller et al.), each learning from its own
+// samples, while the training stays within half the render's samples and at most 255.
+void Session::end_guiding_iteration() {
+  guide_->end_iteration(guide_size_);
+  guide_iterations_.store(guide_->iterations());
+  guide_cells_.store(int(guide_->cells()));
+  guide_size_ *= 2;
+  const int limit = std::min(total_samples_ / 2, 255);
+  if (guide_end_ + guide_size_ <= limit) guide_end_ += guide_size_;
+  else integrator_.guide_training = false;
+}
+
 void Session::run() {
   try {
     pool_ = std::make_unique<ThreadPool>(settings_.threads);
@@ -346,12 +375,14 @@ void Session::run() {
       }
       const int s0 = samples_done_.load();
       k = std::min(k, total - s0);
+      if (integrator_.guide_training) k = std::min(k, guide_end_ - s0);  // iterations end on time
       const double pass_start = elapsed();
       pool_->parallel_for(size_t(film_.tile_count()),
                           [&](size_t tile, int thread) { render_tile(int(tile), s0, s0 + k, thread); });
       if (cancel_.load()) break;
       sec_per_sample = std::max(1e-6, (elapsed() - pass_start) / k);
       samples_done_.store(s0 + k);
+      if (integrator_.guide_training && s0 + k == guide_end_) end_guiding_iteration();
       {
         std::lock_guard<std::mutex> lk(m_);
         passes_.fetch_add(1);

@@ -50,6 +50,11 @@ struct RenderSettings {
   // Run the general integrator kernel even where a specialised one covers the scene (tests and
   // benchmarks compare the two).
   bool force_general_kernel = false;
+  // Path guiding (render/guiding.h): learn the incident light during the first samples and
+  // sample it at rough vertices (Cycles' Path Guiding; off by default, as there). Training
+  // ends at fixed sample counts, so a render stays deterministic for its seed.
+  bool guiding = false;
+  float guiding_probability = 0.5f;  // of a guided direction at a rough vertex
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs.
@@ -68,6 +73,7 @@ struct SessionStats {
   uint64_t rays = 0, paths = 0, nonfinite_samples = 0;
   int64_t active_pixels = 0;  // pixels adaptive sampling has not stopped yet
   int passes = 0, threads = 0;
+  int guiding_iterations = 0, guiding_cells = 0;  // training done so far and the field's cells
   double elapsed_s = 0.0;
   float focus_distance = 0.0f;  // of the thin lens, after autofocus
   int autofocus = 0;            // 0 off, 1 focused on a surface, 2 missed (kept the camera's)
@@ -76,6 +82,8 @@ struct SessionStats {
   // "pixel filter", "passes", "transparent film", "adaptive sampling").
   std::vector<std::string> features, unused_features;
 };
+
+class GuidingField;
 
 class Session {
  public:
@@ -95,6 +103,8 @@ class Session {
   SessionStats stats() const;
   std::string error() const;
   Film& film() { return film_; }
+  // The learnt guiding field (null without guiding); read it only once the render finished.
+  const GuidingField* guiding_field() const { return guide_.get(); }
   const RenderSettings& settings() const { return settings_; }
 
  private:
@@ -116,6 +126,10 @@ class Session {
   int total_samples_ = 0;
   IntegratorSettings integrator_;
   TraceFn kernel_ = nullptr;  // chosen once per session: no per-ray feature dispatch
+  std::unique_ptr<GuidingField> guide_;  // path guiding's learnt field (null: no guiding)
+  int guide_end_ = 0, guide_size_ = 1;  // the training iteration ends at this sample; its samples
+  std::atomic<int> guide_iterations_{0}, guide_cells_{0};
+  void end_guiding_iteration();
   uint32_t kernel_bits_ = kKernelAll;
   std::vector<std::string> features_, unused_features_;
   Film film_;

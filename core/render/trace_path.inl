@@ -170,6 +170,34 @@ inline bool closure_is_rough(const Closure& c) {
 
 
 
+// Path guiding (render/guiding.h) steers only vertices whose closures are all rough and
+// reflect or transmit without refraction (diffuse, sheen, translucent, rough glossy): the
+// learnt distribution knows incident light, not the refraction's eta or a hair's lobes.
+inline bool guidable(const ClosureList& cl) {
+  if (cl.n == 0) return false;
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<OrenNayarBsdf>(c.bsdf) ||
+        std::holds_alternative<TranslucentBsdf>(c.bsdf) || std::holds_alternative<SheenBsdf>(c.bsdf) ||
+        std::holds_alternative<VelvetBsdf>(c.bsdf))
+      continue;
+    const auto* m = std::get_if<ConductorBsdf>(&c.bsdf);
+    if (!m || !(m->alpha > 0.075f) || c.delta) return false;
+  }
+  return true;
+}
+
+// What a guided path remembers of a vertex it may train the guide with: the radiance that
+// arrives there along wi is what the path gathers afterwards (L now less L then) over the
+// throughput then. As gathered, i.e. MIS-weighted: the guide learns what the BSDF's side has to
+// find, not the light that the vertex's own light samples already find (learning the sun's full
+// radiance too sent guided rays at the sun and made the window-lit room noisier).
+struct GuideRecord {
+  Vec3 wi, beta, L;
+  float pdf;
+  uint32_t cell;
+};
+
 // The path tracer, compiled for the kernel features F (KernelFeature bits): what a scene does
 // not use is left out with if constexpr; kKernelAll is the general kernel.
 template <uint32_t F>
@@ -181,7 +209,18 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   constexpr bool kEnv = (F & kKernelEnvironment) != 0;
   constexpr bool kTree = (F & kKernelLightTree) != 0;
   constexpr bool kSubsurface = (F & kKernelSubsurface) != 0;
+  constexpr bool kGuide = (F & kKernelGuiding) != 0;
   PathAovs* const aov = kAovs ? aov_in : nullptr;
+  GuidingField* const guide = kGuide ? s.guide : nullptr;
+  bool guide_sampling = false, guide_training = false;
+  if constexpr (kGuide) {
+    guide_sampling = guide && guide->ready();
+    guide_training = guide && s.guide_training;
+  }
+  const float guide_prob = s.guide_probability;
+  constexpr int kMaxGuideRecords = kGuide ? 16 : 0;
+  std::array<GuideRecord, kMaxGuideRecords> rec;  // (none in the other kernels)
+  int n_rec = 0;
   Vec3 L(0.0f), beta(1.0f);
   float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
@@ -387,6 +426,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     // The last vertex that scatters: no BSDF ray follows, so light samples take all the weight.
     const bool last = bounce >= s.max_bounces;
     float u_rr = -1.0f;
+    bool guided = false;  // this vertex samples the guide too (one-sample MIS with the BSDF)
+    uint32_t guide_cell = 0;
+    if constexpr (kGuide) {
+      guided = guide && (guide_sampling || guide_training) && !sp.curve() && guidable(cl);
+      if (guided) guide_cell = guide->cell_of(sp.p, ng_out);
+    }
 
     if (nee && (!kNonDiffuse || cl.has_nondelta)) {
       DirectSample ds;
@@ -430,6 +475,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             if (!is_black(msig) && std::isfinite(ds.dist)) vis = vis * beer(msig, ds.dist);
           }
           if (!is_black(vis)) {
+            if constexpr (kGuide)
+              if (guided && guide_sampling && !last)
+                bsdf_pdf = (1.0f - guide_prob) * bsdf_pdf + guide_prob * guide->pdf(guide_cell, ds.wi);
             const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
             L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
           }
@@ -501,7 +549,21 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       goto scatter;
     }
     BsdfSample bs;
-    if constexpr (kNonDiffuse) {
+    bool from_guide = false;
+    if constexpr (kGuide) {
+      if (guided && guide_sampling && sampler.get1d() < guide_prob) {
+        // A direction from the guide; its side and the chosen closure's kind name the bounce.
+        from_guide = true;
+        float guide_pdf;
+        bs.wi = ch.frame.to_local(guide->sample(guide_cell, u, guide_pdf));
+        const bool up = dot(ch.frame.to_world(bs.wi), ng_out) > 0.0f;
+        bs.flags = uint8_t((up ? kReflect : kTransmit) |
+                           (std::holds_alternative<ConductorBsdf>(ch.bsdf) ? kGlossyLobe : kDiffuseLobe));
+      }
+    }
+    if (from_guide) {
+      // (sampled above)
+    } else if constexpr (kNonDiffuse) {
       // Diffuse lobes directly (inlined), the rest through the variant: the same arithmetic.
       const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&ch.bsdf);
       if (!(d ? d->sample(ch.frame.to_local(wo), u, ul, bs) : bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, ul, bs)))
@@ -526,8 +588,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     } else {
       float pdf;
       const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf);
+      if constexpr (kGuide)
+        if (guided && guide_sampling) pdf = (1.0f - guide_prob) * pdf + guide_prob * guide->pdf(guide_cell, wi);
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
+      if constexpr (kGuide)
+        if (guided && guide_training && n_rec < kMaxGuideRecords) rec[n_rec++] = {wi, beta, L, pdf, guide_cell};
       prev_pdf = pdf;
       ray_state.min_pdf = std::min(ray_state.min_pdf, pdf);
       prev_delta = false;
@@ -597,6 +663,18 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
     ray.dir = wi;
     ray.tmax = kInf;
+  }
+  if constexpr (kGuide) {
+    for (int i = 0; i < n_rec; ++i) {  // (only a training path has records)
+      const GuideRecord& r = rec[i];
+      const Vec3 in = L - r.L;
+      float sum = 0.0f;
+      int n = 0;
+      if (r.beta.x > 0.0f) sum += in.x / r.beta.x, ++n;
+      if (r.beta.y > 0.0f) sum += in.y / r.beta.y, ++n;
+      if (r.beta.z > 0.0f) sum += in.z / r.beta.z, ++n;
+      guide->record(r.cell, r.wi, n ? sum / (float(n) * r.pdf) : 0.0f);
+    }
   }
   return L;
 }

@@ -326,6 +326,8 @@ class Scene {
   // Stops a commit running on another thread within milliseconds. It only affects a commit in
   // progress: commit() clears the request when it starts.
   void cancel_commit() { cancel_.store(true); }
+  // The bounds of everything a ray can hit (after commit).
+  const Aabb& world_bounds() const { return world_bounds_; }
   bool committed() const { return committed_; }
   bool any_holdout() const { return any_holdout_; }  // Holdout closures: alpha below 1 without transparent film
 

@@ -7,8 +7,9 @@ The method is bench_equal_time.py's: a reference from both engines' high-sample 
 mutual error / 4, the floor, subtracted), renders at each budget with different seeds, the
 engines alternating, Cycles with its defaults (light tree, no denoising, no clamping, no adaptive
 sampling), equal bounce limits, 1-pixel box filters. Beside it, the converged agreement (the
-references' mean ratio and worst 8x8 region) and, on the lamp room, Pathlight's per-sample
-variance with its light tree against its power-proportional light choice."""
+references' mean ratio and worst 8x8 region), on the lamp room Pathlight's per-sample variance
+with its light tree against its power-proportional light choice, and on the window-lit room
+Pathlight's equal-time error with path guiding against without (issue 25's guiding figure)."""
 import sys
 import time
 from pathlib import Path
@@ -19,7 +20,7 @@ sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_util import load_addon, render_to_array  # noqa: E402
 from benchutil import parse_args, section_dir, write_section  # noqa: E402
-from equal_time import ENGINES, measure, plot_errors, repeats_for  # noqa: E402
+from equal_time import ENGINES, measure, plot_errors, pooled_ratio, rel_mse, repeats_for  # noqa: E402
 import material_scenes as ms  # noqa: E402
 import realistic_scenes  # noqa: E402
 
@@ -50,6 +51,25 @@ def tree_variance(build, seeds, spp):
     return out
 
 
+def guiding_gain(build, times, repeats, ref, floor):
+    """Pathlight's equal-time error without path guiding over with it, per budget and pooled
+    (the equal-time method, the unguided renders in Cycles' place), against the scene's
+    reference."""
+    renders = {"PATHLIGHT": [], "CYCLES": []}  # guided, plain
+    for budget in times:
+        per = {"PATHLIGHT": [], "CYCLES": []}
+        for k in range(repeats(budget)):
+            for key, guided in (("PATHLIGHT", True), ("CYCLES", False)):
+                img, _ = render(build, "PATHLIGHT", samples=1_000_000, time_limit=budget, seed=1 + k,
+                                use_guiding=guided)
+                per[key].append(rel_mse(img, ref))
+        for key in per:
+            renders[key].append(per[key])
+    ratios = [max(np.mean(c) - floor, 1e-3 * np.mean(c)) / max(np.mean(g) - floor, 1e-3 * np.mean(g))
+              for g, c in zip(renders["PATHLIGHT"], renders["CYCLES"])]
+    return dict(ratios=[float(r) for r in ratios], pooled=pooled_ratio(renders, times, floor))
+
+
 def main():
     args = parse_args("smaller references and budgets (smoke run)")
     ref_spp, times = (REF_SPP, TIMES) if not args.quick else (32, (0.25, 0.5))
@@ -64,6 +84,9 @@ def main():
         r.update(mean_ratio=float(ratio), worst=float(worst))
         if build is realistic_scenes.lamp_room:
             r["tree"] = tree_variance(build, tree_seeds, tree_spp)
+        if build is realistic_scenes.window_room:
+            ref = 0.5 * (refs["PATHLIGHT"] + refs["CYCLES"])
+            r["guiding"] = guiding_gain(build, times, repeats, ref, r["floor"])
         results[name] = r
         print(name, r, flush=True)
 
@@ -96,6 +119,12 @@ def main():
             lines += ["", f"Light tree on '{name}': Pathlight's relative variance of one sample "
                       f"({tree_seeds} seeds x {tree_spp} spp) {t['AUTO']:.3g} with the tree, {t['OFF']:.3g} with "
                       f"lights chosen by power alone: {t['OFF'] / t['AUTO']:.2f}x lower with the tree."]
+        if "guiding" in r:
+            gg = r["guiding"]
+            lines += ["", f"Path guiding on '{name}': Pathlight's error at equal time without guiding over "
+                      "with it, " + " / ".join(f"{x:.2f}x" for x in gg["ratios"]) + f" at "
+                      + " / ".join(f"{t:g} s" for t in times) + f", pooled {gg['pooled'][0]:.2f}x ± "
+                      f"{gg['pooled'][1]:.2f} (issue 25 asks for 1.5x)."]
     lines += ["", "Relative MSE per budget (Pathlight / Cycles, before the floor is subtracted) and the floor:", ""]
     for name, r in results.items():
         vals = ", ".join(f"{t:g} s: {p:.2e} / {c:.2e}" for t, p, c in

@@ -72,6 +72,9 @@ def test_settings_reach_the_core():
     props.sampler = 'SOBOL'
     st = session.render_settings(get_core(), scene)
     assert st.adaptive_threshold == 0.0 and st.sampler == "sobol"
+    assert not st.guiding  # off by default, as Cycles' Path Guiding
+    props.use_guiding = True
+    assert session.render_settings(get_core(), scene).guiding
 
 
 def test_animated_seed_adds_the_frame():

@@ -12,7 +12,8 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
     "volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
-    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "subsurface", "motion blur"}
+    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "subsurface", "motion blur",
+    "guiding"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -181,6 +182,9 @@ def moving_cornell():
 
 
 CASES["motion blur"] = (moving_cornell, {}, {"diffuse", "mesh lights", "motion blur"}, "diffuse")
+# Guided renders run the guided kernels (integrator_guided.cpp), which cover every surface.
+CASES["guiding"] = (lambda: cornell(pc), {"guiding": True}, {"diffuse", "mesh lights", "guiding"},
+                    "surfaces+env+guiding")
 
 
 def session(build, fields, general, size=24, samples=8):

@@ -1,0 +1,304 @@
+#include "render/guiding.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace pl {
+
+namespace {
+
+// One quadtree node: quadrant q = x + 2 y (x, y in {0, 1}) holds an energy and, unless it is
+// a leaf (0), the index of the node that subdivides it. Children come after their parents.
+struct QuadNode {
+  float sum[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+  uint32_t child[4] = {0, 0, 0, 0};
+  float total() const { return sum[0] + sum[1] + sum[2] + sum[3]; }
+};
+
+// The learnt distribution as sampling reads it: the share of the left half, of the lower
+// quadrant in each half, and each quadrant's pdf factor (4 x its share), no divisions left.
+struct SampleNode {
+  float left = 0.5f;
+  float lower[2] = {0.5f, 0.5f};
+  float factor[4] = {1.0f, 1.0f, 1.0f, 1.0f};
+  uint32_t child[4] = {0, 0, 0, 0};
+};
+
+constexpr float kOneMinus = 0x1.fffffep-1f;
+
+// The quadrant of unit-square point s in a node, s rescaled into it.
+inline int quadrant(Vec2& s) {
+  const int qx = s.x >= 0.5f, qy = s.y >= 0.5f;
+  s.x = std::min(s.x * 2.0f - float(qx), kOneMinus);
+  s.y = std::min(s.y * 2.0f - float(qy), kOneMinus);
+  return qx + 2 * qy;
+}
+
+std::vector<SampleNode> sampling_tree(const std::vector<QuadNode>& learnt) {
+  std::vector<SampleNode> out(learnt.size());
+  for (size_t i = 0; i < learnt.size(); ++i) {
+    const QuadNode& n = learnt[i];
+    SampleNode& o = out[i];
+    const float total = n.total();
+    if (!(total > 0.0f)) continue;  // uniform below here (a leaf)
+    o.left = (n.sum[0] + n.sum[2]) / total;
+    for (int x = 0; x < 2; ++x) {
+      const float column = n.sum[x] + n.sum[x + 2];
+      o.lower[x] = column > 0.0f ? n.sum[x] / column : 0.5f;
+    }
+    for (int q = 0; q < 4; ++q) {
+      o.factor[q] = 4.0f * n.sum[q] / total;
+      o.child[q] = n.sum[q] > 0.0f ? n.child[q] : 0;
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+struct GuidingField::Cell {
+  std::vector<QuadNode> learnt;      // the last iteration's energies (empty: none yet)
+  std::vector<SampleNode> sampling;  // the same, for sampling (empty: uniform)
+  std::vector<QuadNode> building;  // the topology this iteration records into
+  std::unique_ptr<std::atomic<uint64_t>[]> sums;  // 4 per building node, fixed point
+  std::atomic<uint64_t> records{0};
+
+  void allocate_sums() {
+    if (building.empty()) building.emplace_back();
+    sums = std::make_unique<std::atomic<uint64_t>[]>(building.size() * 4);
+    for (size_t i = 0; i < building.size() * 4; ++i) sums[i].store(0, std::memory_order_relaxed);
+    records.store(0, std::memory_order_relaxed);
+  }
+  std::unique_ptr<Cell> copy() const {
+    auto c = std::make_unique<Cell>();
+    c->learnt = learnt;
+    c->sampling = sampling;
+    c->building = building;
+    c->allocate_sums();
+    return c;
+  }
+};
+
+GuidingField::GuidingField() = default;
+GuidingField::~GuidingField() = default;
+
+Vec2 GuidingField::to_square(Vec3 w) {
+  const float z = clampf(w.z, -1.0f, 1.0f);
+  float phi = std::atan2(w.y, w.x) * (0.5f / kPi);
+  if (phi < 0.0f) phi += 1.0f;
+  return {std::min((z + 1.0f) * 0.5f, kOneMinus), std::min(std::max(phi, 0.0f), kOneMinus)};
+}
+
+Vec3 GuidingField::from_square(Vec2 s) {
+  const float z = 2.0f * s.x - 1.0f;
+  const float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
+  const float phi = 2.0f * kPi * s.y;
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+
+void GuidingField::reset(const Aabb& bounds, float split_threshold) {
+  bounds_ = bounds;
+  if (bounds_.empty()) bounds_ = {Vec3(-1.0f), Vec3(1.0f)};
+  // A little margin, so that points on the bounds fall inside.
+  const Vec3 e = vmax(bounds_.extent(), Vec3(1e-4f));
+  bounds_.lo = bounds_.lo - e * 1e-3f;
+  bounds_.hi = bounds_.hi + e * 1e-3f;
+  const Vec3 ext = bounds_.extent();
+  inv_extent_ = {1.0f / ext.x, 1.0f / ext.y, 1.0f / ext.z};
+  split_threshold_ = split_threshold;
+  scale_ = 65536.0;
+  iterations_ = 0;
+  nodes_.assign(1, SpatialNode{});
+  cells_.clear();
+  for (uint32_t k = 0; k < kNormalClasses; ++k) {
+    cells_.push_back(std::make_unique<Cell>());
+    cells_.back()->allocate_sums();
+  }
+}
+
+uint32_t GuidingField::cell_of(Vec3 p, Vec3 nrm) const {
+  const Vec3 a{std::fabs(nrm.x), std::fabs(nrm.y), std::fabs(nrm.z)};
+  const int axis = a.x >= a.y && a.x >= a.z ? 0 : a.y >= a.z ? 1 : 2;
+  const float along = axis == 0 ? nrm.x : axis == 1 ? nrm.y : nrm.z;
+  const uint32_t cls = uint32_t(2 * axis + (along < 0.0f ? 1 : 0));
+  const Vec3 x = (p - bounds_.lo) * inv_extent_;
+  float c[3] = {clampf(x.x, 0.0f, kOneMinus), clampf(x.y, 0.0f, kOneMinus), clampf(x.z, 0.0f, kOneMinus)};
+  if (!(c[0] == c[0]) || !(c[1] == c[1]) || !(c[2] == c[2])) c[0] = c[1] = c[2] = 0.0f;  // NaN
+  const SpatialNode* n = &nodes_[0];
+  while (n->child != 0) {
+    float& v = c[n->axis];
+    const bool side = v >= 0.5f;
+    v = std::min(v * 2.0f - float(side), kOneMinus);
+    n = &nodes_[n->child + uint32_t(side)];
+  }
+  return n->cell + cls;
+}
+
+Vec3 GuidingField::sample(uint32_t cell, Vec2 u, float& pdf) const {
+  const std::vector<SampleNode>& t = cells_[cell]->sampling;
+  float square_pdf = 1.0f;
+  Vec2 origin{0.0f, 0.0f};
+  float size = 1.0f;
+  uint32_t n = 0;
+  for (int depth = 0; !t.empty() && depth < kMaxQuadDepth; ++depth) {
+    const SampleNode& nd = t[n];
+    // Left or right half by u.x, then the quadrant in it by u.y, each rescaled for the next.
+    int qx = 0;
+    if (u.x < nd.left) {
+      u.x /= nd.left;
+    } else {
+      qx = 1;
+      u.x = (u.x - nd.left) / (1.0f - nd.left);
+    }
+    const float lower = nd.lower[qx];
+    int qy = 0;
+    if (u.y < lower) {
+      u.y /= lower;
+    } else {
+      qy = 1;
+      u.y = (u.y - lower) / (1.0f - lower);
+    }
+    u = {std::min(std::max(u.x, 0.0f), kOneMinus), std::min(std::max(u.y, 0.0f), kOneMinus)};
+    const int q = qx + 2 * qy;
+    square_pdf *= nd.factor[q];
+    size *= 0.5f;
+    origin = {origin.x + float(qx) * size, origin.y + float(qy) * size};
+    if (nd.child[q] == 0) break;
+    n = nd.child[q];
+  }
+  pdf = square_pdf * (0.25f / kPi);
+  return from_square({origin.x + u.x * size, origin.y + u.y * size});
+}
+
+float GuidingField::pdf(uint32_t cell, Vec3 w) const {
+  const std::vector<SampleNode>& t = cells_[cell]->sampling;
+  Vec2 s = to_square(w);
+  float square_pdf = 1.0f;
+  uint32_t n = 0;
+  for (int depth = 0; !t.empty() && depth < kMaxQuadDepth; ++depth) {
+    const SampleNode& nd = t[n];
+    const int q = quadrant(s);
+    square_pdf *= nd.factor[q];
+    if (nd.child[q] == 0) break;
+    n = nd.child[q];
+  }
+  return square_pdf * (0.25f / kPi);
+}
+
+void GuidingField::record(uint32_t cell, Vec3 w, float value) {
+  Cell& c = *cells_[cell];
+  c.records.fetch_add(1, std::memory_order_relaxed);  // paths that found nothing count too
+  if (!(value > 0.0f) || !std::isfinite(value) || !is_finite(w)) return;
+  // Fixed point, at most 2^36 per record: 2^28 records of that size before a sum overflows.
+  const double v = std::min(double(value) * scale_, 68719476736.0);
+  const uint64_t q = uint64_t(v + 0.5);
+  if (q == 0) return;
+  Vec2 s = to_square(w);
+  uint32_t n = 0;
+  for (;;) {
+    const int k = quadrant(s);
+    const uint32_t next = c.building[n].child[k];
+    if (next == 0) {
+      c.sums[4 * size_t(n) + size_t(k)].fetch_add(q, std::memory_order_relaxed);
+      return;
+    }
+    n = next;
+  }
+}
+
+namespace {
+
+// The refined topology for the next iteration (Müller et al.): a quadrant splits where it holds
+// more than kSubdivide of the whole energy, nodes below that merge into leaves. Energies are
+// carried down (evenly where the learnt tree had no finer nodes); the new sums start at zero.
+void refine(const std::vector<QuadNode>& learnt, std::vector<QuadNode>& out) {
+  out.clear();
+  out.emplace_back();
+  const float total = learnt.empty() ? 0.0f : learnt[0].total();
+  if (!(total > 0.0f)) return;
+  struct Item {
+    uint32_t dst;
+    int32_t src;  // the learnt node (-1: none; uniform energy)
+    float energy;  // the uniform energy of a src -1 node
+    int depth;
+  };
+  std::vector<Item> stack{{0u, 0, 0.0f, 1}};
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    for (int q = 0; q < 4; ++q) {
+      const float e = it.src >= 0 ? learnt[size_t(it.src)].sum[q] : it.energy * 0.25f;
+      if (!(e > GuidingField::kSubdivide * total) || it.depth >= GuidingField::kMaxQuadDepth) continue;
+      const uint32_t child = uint32_t(out.size());
+      out[it.dst].child[q] = child;
+      out.emplace_back();
+      const int32_t src_child = it.src >= 0 && learnt[size_t(it.src)].child[q] != 0
+                                    ? int32_t(learnt[size_t(it.src)].child[q]) : -1;
+      stack.push_back({child, src_child, e, it.depth + 1});
+    }
+  }
+}
+
+}  // namespace
+
+void GuidingField::end_iteration(int samples) {
+  double all = 0.0;
+  uint64_t all_records = 0;
+  // 1. What each cell recorded becomes its distribution (inner quadrants: their subtree's sum).
+  for (auto& cp : cells_) {
+    Cell& c = *cp;
+    std::vector<QuadNode> learnt = c.building;
+    for (size_t i = 0; i < learnt.size(); ++i)
+      for (int q = 0; q < 4; ++q) learnt[i].sum[q] = float(double(c.sums[4 * i + size_t(q)].load()) / scale_);
+    for (size_t i = learnt.size(); i-- > 0;)
+      for (int q = 0; q < 4; ++q)
+        if (learnt[i].child[q] != 0) learnt[i].sum[q] = learnt[learnt[i].child[q]].total();
+    const float total = learnt[0].total();
+    all += double(total);
+    all_records += c.records.load();
+    if (total > 0.0f && std::isfinite(total)) {
+      c.learnt = std::move(learnt);
+      c.sampling = sampling_tree(c.learnt);
+      refine(c.learnt, c.building);
+    }
+    // (no records: the cell keeps what it had learnt before, and its topology)
+  }
+  // 2. Crowded cells split in two along x, y, z in turn, both halves starting from their
+  // parent's tree; the record count halves per level (Müller et al.'s c sqrt(2^k) rule).
+  const double threshold = double(split_threshold_) * std::sqrt(double(std::max(samples, 1)));
+  const size_t n_nodes = nodes_.size();
+  for (size_t i = 0; i < n_nodes; ++i) {
+    if (nodes_[i].child != 0) continue;
+    double count = 0.0;  // the records of all its orientations
+    for (uint32_t k = 0; k < kNormalClasses; ++k) count += double(cells_[nodes_[i].cell + k]->records.load());
+    std::vector<uint32_t> leaves{uint32_t(i)};
+    while (count > threshold && nodes_[leaves[0]].depth < kMaxSpatialDepth) {
+      std::vector<uint32_t> next;
+      for (const uint32_t leaf : leaves) {
+        const uint32_t a = uint32_t(nodes_.size());
+        SpatialNode left, right;
+        left.depth = right.depth = uint8_t(nodes_[leaf].depth + 1);
+        left.axis = right.axis = uint8_t(left.depth % 3);
+        left.cell = nodes_[leaf].cell;
+        right.cell = uint32_t(cells_.size());
+        for (uint32_t k = 0; k < kNormalClasses; ++k) cells_.push_back(cells_[left.cell + k]->copy());
+        nodes_.push_back(left);
+        nodes_.push_back(right);
+        nodes_[leaf].child = a;
+        next.push_back(a);
+        next.push_back(a + 1);
+      }
+      leaves = std::move(next);
+      count *= 0.5;
+    }
+  }
+  for (auto& c : cells_) c->allocate_sums();
+  // 3. The next iteration's fixed point: its mean record near 2^20 units.
+  if (all_records > 0 && all > 0.0 && std::isfinite(all)) {
+    const double mean = all / double(all_records);
+    scale_ = std::min(std::max(1048576.0 / mean, 1e-12), 1e24);
+  }
+  ++iterations_;
+}
+
+}  // namespace pl

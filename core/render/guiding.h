@@ -1,0 +1,87 @@
+// Path guiding: a spatio-directional tree of incident radiance learnt during the render
+// (Müller, Gross and Novák 2017, "Practical Path Guiding": a binary tree over the scene's
+// bounds whose cells each hold a quadtree over the sphere's equal-area square), sampled in
+// one-sample MIS with the BSDF. Our own implementation; Open PGL, which Cycles uses, is no
+// package here.
+//
+// Deterministic and independent of the thread count: training iterations end at fixed sample
+// counts, and records go into integer (fixed-point) sums, whose atomic additions give the same
+// totals in any order.
+#pragma once
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "geometry/aabb.h"
+#include "util/math.h"
+#include "util/sampling.h"
+
+namespace pl {
+
+class GuidingField {
+ public:
+  static constexpr int kMaxQuadDepth = 20;
+  static constexpr int kMaxSpatialDepth = 24;
+  static constexpr float kSubdivide = 0.01f;  // a quadrant with more than this share of the energy splits
+
+  GuidingField();
+  ~GuidingField();
+  GuidingField(const GuidingField&) = delete;
+  GuidingField& operator=(const GuidingField&) = delete;
+
+  // Starts over for a scene inside `bounds`; `split_threshold`: records per cell (times the
+  // square root of an iteration's samples) above which a cell splits.
+  void reset(const Aabb& bounds, float split_threshold);
+  // A distribution has been learnt (after the first iteration): sample() and pdf() are valid.
+  bool ready() const { return iterations_ > 0; }
+  int iterations() const { return iterations_; }
+  size_t cells() const { return cells_.size() / kNormalClasses; }  // spatial cells
+
+  // Each spatial cell keeps one quadtree per class of surface orientation (the axis and sign
+  // of the normal's largest component), so that a coarse cell over a floor and a wall does not
+  // blend the light the floor sees with the wall's, and send floor samples into the floor.
+  static constexpr uint32_t kNormalClasses = 6;
+  // The quadtree for point p on a surface facing n (what the calls below take, found once per
+  // vertex).
+  uint32_t cell_of(Vec3 p, Vec3 n) const;
+  // A direction from the cell's learnt distribution, and its solid-angle pdf. u in [0, 1)^2.
+  Vec3 sample(uint32_t cell, Vec2 u, float& pdf) const;
+  float pdf(uint32_t cell, Vec3 w) const;
+  Vec3 sample(Vec3 p, Vec3 n, Vec2 u, float& pdf) const { return sample(cell_of(p, n), u, pdf); }
+  float pdf(Vec3 p, Vec3 n, Vec3 w) const { return pdf(cell_of(p, n), w); }
+
+  // Training (any thread, during a pass): radiance `value` (a scalar estimate of the radiance
+  // arriving in the cell from unit direction w, divided by the pdf that sampled w).
+  void record(uint32_t cell, Vec3 w, float value);
+  void record(Vec3 p, Vec3 n, Vec3 w, float value) {
+    if (is_finite(p)) record(cell_of(p, n), w, value);
+  }
+  // Ends a training iteration of `samples` samples per pixel: the recorded sums become the
+  // sampling distribution, the quadtrees refine, crowded cells split. Not thread-safe: call
+  // between passes.
+  void end_iteration(int samples);
+
+  // The unit square's equal-area map of the sphere (z = cos theta, phi around z).
+  static Vec2 to_square(Vec3 w);
+  static Vec3 from_square(Vec2 s);
+
+  struct Cell;
+
+ private:
+  struct SpatialNode {
+    uint32_t child = 0;  // the first of two children (the second follows); 0: a leaf
+    uint32_t cell = 0;  // a leaf's first quadtree (kNormalClasses follow)
+    uint8_t axis = 0;  // the split's axis (x, y, z in turn by depth)
+    uint8_t depth = 0;
+  };
+  Aabb bounds_;
+  Vec3 inv_extent_{1.0f};
+  float split_threshold_ = 0.0f;
+  double scale_ = 65536.0;  // fixed-point units per unit of recorded value
+  int iterations_ = 0;
+  std::vector<SpatialNode> nodes_;
+  std::vector<std::unique_ptr<Cell>> cells_;
+};
+
+}  // namespace pl

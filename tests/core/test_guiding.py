@@ -1,0 +1,202 @@
+"""Path guiding (core/render/guiding.h): the learnt field's sampling against its pdf, what it
+learns, and guided renders: unbiased (analytic scenes keep their closed-form values, the image
+agrees with the unguided one), deterministic for a seed whatever the threads and tiles, and off
+unless asked for."""
+import math
+
+import numpy as np
+import pytest
+
+from core_scenes import add_object, camera, core, cornell, region_means, render, run_session, uv_sphere
+
+pc = core()
+pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
+
+CONE = np.array([0.6, 0.0, 0.8])  # the bright directions of the synthetic field: cos > 0.9
+
+
+def uniform_dirs(rng, n):
+    z = rng.uniform(-1.0, 1.0, n)
+    phi = rng.uniform(0.0, 2.0 * math.pi, n)
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def trained_field(iterations=3, records=20000, seed=1, order=None):
+    """A one-cell field trained on uniformly sampled directions whose radiance is 1 in CONE and
+    0.01 elsewhere (records of L / pdf, pdf = 1 / 4 pi)."""
+    g = pc.GuidingField()
+    g.reset((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1e12)
+    rng = np.random.default_rng(seed)
+    for _ in range(iterations):
+        dirs = uniform_dirs(rng, records)
+        values = np.where(dirs @ CONE > 0.9, 1.0, 0.01) * 4.0 * math.pi
+        idx = np.arange(records) if order is None else order(records)
+        for i in idx:
+            g.record((0.5, 0.5, 0.5), tuple(dirs[i]), float(values[i]))
+        g.end_iteration(1)
+    return g
+
+
+def square_grid(n):
+    """Directions at the centres of an n x n grid over the sphere's equal-area square."""
+    x, y = np.meshgrid((np.arange(n) + 0.5) / n, (np.arange(n) + 0.5) / n, indexing="ij")
+    z = 2.0 * x.ravel() - 1.0
+    r = np.sqrt(1.0 - z * z)
+    phi = 2.0 * math.pi * y.ravel()
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def test_untrained_field_is_uniform():
+    g = pc.GuidingField()
+    g.reset((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1000.0)
+    assert not g.ready
+    w, pdf = g.sample((0.5, 0.5, 0.5), 0.3, 0.7)
+    assert pdf == pytest.approx(1.0 / (4.0 * math.pi))
+    assert np.linalg.norm(w) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_learnt_field_integrates_to_one_and_samples_its_pdf():
+    g = trained_field()
+    assert g.ready and g.iterations == 3
+    # The quadtree's leaves after three iterations are no finer than 1/256 of the square's
+    # side here, so the grid's midpoint sum is exact.
+    grid = square_grid(256)
+    pdfs = np.array([g.pdf((0.5, 0.5, 0.5), tuple(w)) for w in grid])
+    assert pdfs.mean() * 4.0 * math.pi == pytest.approx(1.0, abs=1e-5)
+    rng = np.random.default_rng(2)
+    hits = 0
+    for u1, u2 in rng.uniform(0.0, 1.0, (4000, 2)):
+        w, pdf = g.sample((0.5, 0.5, 0.5), float(u1), float(u2))
+        assert np.linalg.norm(w) == pytest.approx(1.0, abs=1e-5)
+        assert g.pdf((0.5, 0.5, 0.5), w) == pytest.approx(pdf, rel=1e-4)  # the density it sampled
+        hits += np.dot(w, CONE) > 0.9
+    # Sampled directions fall in the cone as often as the pdf says (binomial noise: 4000 draws).
+    cone_mass = pdfs[grid @ CONE > 0.9].sum() / pdfs.sum()
+    assert hits / 4000 == pytest.approx(cone_mass, abs=0.03)
+    # ... and the field has learnt the light: 84 % of the radiance is in 5 % of the sphere.
+    assert cone_mass > 0.65
+
+
+def test_learning_is_independent_of_the_record_order():
+    a = trained_field(iterations=2, records=5000)
+    b = trained_field(iterations=2, records=5000,
+                      order=lambda n: np.random.default_rng(9).permutation(n))
+    for w in square_grid(24):
+        assert a.pdf((0.5, 0.5, 0.5), tuple(w)) == b.pdf((0.5, 0.5, 0.5), tuple(w))
+
+
+def test_crowded_cells_split_and_keep_their_own_light():
+    # Records from two corners of the bounds, each with light from its own side: the field
+    # splits and each half learns its own direction.
+    g = pc.GuidingField()
+    g.reset((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 500.0)
+    rng = np.random.default_rng(3)
+    for it in range(4):
+        for corner, light in (((0.1, 0.5, 0.5), (-1.0, 0.0, 0.0)), ((0.9, 0.5, 0.5), (1.0, 0.0, 0.0))):
+            dirs = uniform_dirs(rng, 4000)
+            for w in dirs:
+                g.record(corner, tuple(w), (1.0 if w @ light > 0.8 else 0.0) * 4.0 * math.pi)
+        g.end_iteration(2 ** it)
+    assert g.cells > 1
+    assert g.pdf((0.1, 0.5, 0.5), (-1.0, 0.0, 0.0)) > 10.0 * g.pdf((0.1, 0.5, 0.5), (1.0, 0.0, 0.0))
+    assert g.pdf((0.9, 0.5, 0.5), (1.0, 0.0, 0.0)) > 10.0 * g.pdf((0.9, 0.5, 0.5), (-1.0, 0.0, 0.0))
+
+
+def test_each_surface_orientation_learns_apart():
+    # The same point, records on a floor (normal +z) lit from above and on a ceiling (-z) lit
+    # from below: each orientation keeps its own light.
+    g = pc.GuidingField()
+    g.reset((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1e12)
+    rng = np.random.default_rng(4)
+    for it in range(3):
+        for n in ((0.0, 0.0, 1.0), (0.0, 0.0, -1.0)):
+            for w in uniform_dirs(rng, 4000):
+                g.record((0.5, 0.5, 0.5), tuple(w), (1.0 if w @ np.array(n) > 0.8 else 0.0) * 4.0 * math.pi, n=n)
+        g.end_iteration(1)
+    up, down = (0.0, 0.0, 1.0), (0.0, 0.0, -1.0)
+    assert g.pdf((0.5, 0.5, 0.5), up, n=up) > 10.0 * g.pdf((0.5, 0.5, 0.5), down, n=up)
+    assert g.pdf((0.5, 0.5, 0.5), down, n=down) > 10.0 * g.pdf((0.5, 0.5, 0.5), up, n=down)
+
+
+def test_bad_records_are_ignored():
+    g = pc.GuidingField()
+    g.reset((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1000.0)
+    for v in (float("nan"), float("inf"), -1.0, 0.0):
+        g.record((0.5, 0.5, 0.5), (0.0, 0.0, 1.0), v)
+    g.record((0.5, 0.5, 0.5), (0.0, 0.0, 1.0), 1e30)  # clamped, not overflowing
+    g.record((5.0, -3.0, 0.5), (1.0, 0.0, 0.0), 1.0)  # outside the bounds: the nearest cell
+    g.end_iteration(1)
+    for w in square_grid(16):
+        p = g.pdf((0.5, 0.5, 0.5), tuple(w))
+        assert math.isfinite(p) and p >= 0.0
+    with pytest.raises(ValueError):
+        g.sample((0.5, 0.5, 0.5), 1.0, 0.5)
+
+
+def furnace(albedo):
+    s = pc.Scene()
+    m = s.add_material("sphere", (albedo, albedo, albedo))
+    pos, tris, nrm = uv_sphere(1.0, nu=64, nv=32)
+    add_object(s, pos, tris, m)
+    s.set_world_color((1.0, 1.0, 1.0))
+    s.set_camera(camera(pc, (0.0, -5.0, 0.0), (0.0, 0.0, 0.0), lens=50.0))
+    return s
+
+
+def test_guided_white_furnace_keeps_its_closed_form_values():
+    img, stats = render(pc, furnace(1.0), 48, 48, samples=64, guiding=True)
+    assert "guiding" in stats["kernel"] and stats["guiding_iterations"] == 5  # 1 + 2 + 4 + 8 + 16 samples
+    assert abs(img[..., :3].mean() - 1.0) < 0.01
+    img, _ = render(pc, furnace(0.8), 48, 48, samples=64, guiding=True)
+    assert abs(img[18:30, 18:30, :3].mean() - 0.8) < 0.01
+
+
+@pytest.mark.converged  # (slow under the sanitizer; the cheaper tests run the same code)
+def test_guided_emitting_enclosure_reaches_le_over_one_minus_albedo():
+    for use_nee in (True, False):
+        s = pc.Scene()
+        m = s.add_material("shell", (0.5, 0.5, 0.5), (0.5, 0.5, 0.5))
+        pos, tris, nrm = uv_sphere(1.0, nu=32, nv=16, inward=True)
+        add_object(s, pos, tris, m, nrm)
+        s.set_camera(camera(pc, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), lens=20.0))
+        img, stats = render(pc, s, 32, 32, samples=256, max_bounces=64, use_nee=use_nee, guiding=True)
+        assert abs(img[..., :3].mean() - 1.0) < 0.01, (use_nee, img[..., :3].mean())
+        assert stats["nonfinite_samples"] == 0
+
+
+@pytest.mark.converged  # (slow under the sanitizer; the cheaper tests run the same code)
+def test_guided_render_agrees_with_the_unguided_one():
+    guided, _ = render(pc, cornell(pc, 3.0, 1.0), 48, 48, samples=256, guiding=True)
+    plain, _ = render(pc, cornell(pc, 3.0, 1.0), 48, 48, samples=256)
+    assert abs(guided[..., :3].mean() / plain[..., :3].mean() - 1.0) < 0.01
+    a, b = region_means(guided, 4), region_means(plain, 4)
+    assert np.all(np.abs(a - b) <= 0.04 * np.maximum(b, 0.05)), np.abs(a - b) / np.maximum(b, 0.05)
+
+
+def test_guided_renders_are_deterministic_whatever_the_threads_and_tiles():
+    a, _ = render(pc, cornell(pc), 40, 24, samples=16, seed=7, threads=1, tile_size=8, guiding=True)
+    b, _ = render(pc, cornell(pc), 40, 24, samples=16, seed=7, threads=2, tile_size=16, guiding=True)
+    c, _ = render(pc, cornell(pc), 40, 24, samples=16, seed=7, threads=2, tile_size=8, guiding=True)
+    assert np.array_equal(a, b) and np.array_equal(a, c)
+    plain, _ = render(pc, cornell(pc), 40, 24, samples=16, seed=7)
+    assert not np.array_equal(a, plain)  # (it did guide)
+
+
+@pytest.mark.converged  # (slow under the sanitizer; the cheaper tests run the same code)
+def test_the_field_learns_where_the_light_is():
+    # Without light samples, every path finds the Cornell box's small light by its own
+    # bounces; the field on the floor learns to look up at it.
+    s = cornell(pc, light_strength=40.0, light_size=0.3)
+    sess = run_session(pc, s, 64, 64, 512, guiding=True, use_nee=False)
+    floor, up = (0.0, -0.3, 0.001), (0.0, 0.0, 1.0)
+    to_light = np.array([0.0, 0.3, 1.98]) / np.linalg.norm([0.0, 0.3, 1.98])
+    uniform = 1.0 / (4.0 * math.pi)
+    assert sess.guiding_pdf(floor, tuple(to_light), up) > 4.0 * uniform
+    assert sess.guiding_pdf(floor, (0.0, 0.0, -1.0), up) < uniform  # nothing comes from below
+
+
+def test_guiding_is_off_by_default():
+    _, stats = render(pc, cornell(pc), 16, 16, samples=4)
+    assert "guiding" not in stats["kernel"] and stats["guiding_iterations"] == 0
+    assert "guiding" in stats["unused_features"]
