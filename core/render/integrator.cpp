@@ -55,7 +55,7 @@ constexpr uint32_t kTreeKernels[] = {kKernelLightTree, kKernelLightTree | kKerne
 // The light tree kernel with exactly the features f (one of kTreeKernels).
 TraceFn light_tree_kernel(uint32_t f);
 // The guided kernels (integrator_guided.cpp), fastest first.
-extern const uint32_t kGuidedKernels[2];
+extern const uint32_t kGuidedKernels[4];
 TraceFn guided_kernel(uint32_t f);
 
 Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorSettings& s, PathCounters& c,

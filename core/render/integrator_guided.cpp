@@ -11,10 +11,13 @@ namespace {
 }  // namespace
 
 constexpr uint32_t kG = kKernelGuiding, kE = kKernelEnvironment, kN = kKernelNonDiffuse, kT = kKernelLightTree;
-extern const uint32_t kGuidedKernels[2] = {kG | kN | kE, kG | kN | kE | kT};
+// Diffuse-only scenes keep the diffuse kernels' direct lobe calls, guided too.
+extern const uint32_t kGuidedKernels[4] = {kG | kE, kG | kE | kT, kG | kN | kE, kG | kN | kE | kT};
 
 TraceFn guided_kernel(uint32_t f) {
   switch (f) {
+    case kG | kE: return &trace_path_t<kG | kE>;
+    case kG | kE | kT: return &trace_path_t<kG | kE | kT>;
     case kG | kN | kE: return &trace_path_t<kG | kN | kE>;
     case kG | kN | kE | kT: return &trace_path_t<kG | kN | kE | kT>;
     default: return &trace_path_t<kKernelAll>;

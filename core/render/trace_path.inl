@@ -550,11 +550,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     }
     BsdfSample bs;
     bool from_guide = false;
+    float guide_pdf = 0.0f;  // the guide's pdf of a direction it sampled
     if constexpr (kGuide) {
       if (guided && guide_sampling && sampler.get1d() < guide_prob) {
         // A direction from the guide; its side and the chosen closure's kind name the bounce.
         from_guide = true;
-        float guide_pdf;
         bs.wi = ch.frame.to_local(guide->sample(guide_cell, u, guide_pdf));
         const bool up = dot(ch.frame.to_world(bs.wi), ng_out) > 0.0f;
         bs.flags = uint8_t((up ? kReflect : kTransmit) |
@@ -589,7 +589,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       float pdf;
       const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf);
       if constexpr (kGuide)
-        if (guided && guide_sampling) pdf = (1.0f - guide_prob) * pdf + guide_prob * guide->pdf(guide_cell, wi);
+        if (guided && guide_sampling)
+          pdf = (1.0f - guide_prob) * pdf + guide_prob * (from_guide ? guide_pdf : guide->pdf(guide_cell, wi));
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
       if constexpr (kGuide)

@@ -184,7 +184,7 @@ def moving_cornell():
 CASES["motion blur"] = (moving_cornell, {}, {"diffuse", "mesh lights", "motion blur"}, "diffuse")
 # Guided renders run the guided kernels (integrator_guided.cpp), which cover every surface.
 CASES["guiding"] = (lambda: cornell(pc), {"guiding": True}, {"diffuse", "mesh lights", "guiding"},
-                    "surfaces+env+guiding")
+                    "diffuse+env+guiding")
 
 
 def session(build, fields, general, size=24, samples=8):
