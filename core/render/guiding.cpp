@@ -272,7 +272,8 @@ void GuidingField::end_iteration(int samples) {
     double count = 0.0;  // the records of all its orientations
     for (uint32_t k = 0; k < kNormalClasses; ++k) count += double(cells_[nodes_[i].cell + k]->records.load());
     std::vector<uint32_t> leaves{uint32_t(i)};
-    while (count > threshold && nodes_[leaves[0]].depth < kMaxSpatialDepth) {
+    while (count > threshold && nodes_[leaves[0]].depth < kMaxSpatialDepth &&
+           cells_.size() + leaves.size() * kNormalClasses <= kMaxCells * kNormalClasses) {
       std::vector<uint32_t> next;
       for (const uint32_t leaf : leaves) {
         const uint32_t a = uint32_t(nodes_.size());

@@ -23,6 +23,7 @@ class GuidingField {
  public:
   static constexpr int kMaxQuadDepth = 20;
   static constexpr int kMaxSpatialDepth = 24;
+  static constexpr size_t kMaxCells = 1 << 15;  // spatial cells: bounds the field's memory
   static constexpr float kSubdivide = 0.01f;  // a quadrant with more than this share of the energy splits
 
   GuidingField();

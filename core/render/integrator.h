@@ -28,6 +28,9 @@ struct IntegratorSettings {
   const Camera* camera = nullptr;
   // Camera rays carry ray differentials (SceneFeatures::footprints: shaders that read them).
   bool differentials = true;
+  // Shaders read RayState's kind, counts, length and seed (SceneFeatures::path_state): else
+  // the kernels leave them unset.
+  bool path_state = true;
   // Path guiding (render/guiding.h; only kernels with kKernelGuiding read these): sample
   // directions at rough vertices from `guide` once it has learnt something, with this
   // probability (one-sample MIS with the BSDF), and record what paths find while training.

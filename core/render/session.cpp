@@ -142,6 +142,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
       guide_end_ = 1;
     }
     integrator_.differentials = scene_->features().footprints;
+    integrator_.path_state = scene_->features().path_state;
     const bool filter = !(settings_.filter_type == FilterType::Box && settings_.filter_width == 1.0f);
     std::vector<std::pair<std::string, bool>> all;
     const std::vector<std::string> used = scene_->features().names();

@@ -323,10 +323,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             ++volume_count;
             ++bounce;
             ray_state.dp += (length_before + t) * ray_state.dd;  // the footprint at the scattering
-            ray_state.min_pdf = std::min(ray_state.min_pdf, ph_pdf);
             length_before = 0.0f;
-            ray_state.flags = kRayVolume;
-            ray_state.depth = uint16_t(std::min(bounce, 65535));
+            if (s.path_state) {
+              ray_state.min_pdf = std::min(ray_state.min_pdf, ph_pdf);
+              ray_state.flags = kRayVolume;
+              ray_state.depth = uint16_t(std::min(bounce, 65535));
+            }
             if (last) emission_only = true;
             if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
               const float survive = std::min(1.0f, std::sqrt(max_component(beta) * eta_scale));
@@ -372,8 +374,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     SurfacePoint sp;
     scene.surface_point(hit, sp, ray.time);
     Vec3 wo = -ray.dir;  // (a subsurface exit moves the vertex: see below)
-    ray_state.length = length_before + hit.t * length(ray.dir);
-    ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
+    // (the footprint grows with the length too)
+    if (s.path_state || s.differentials) ray_state.length = length_before + hit.t * length(ray.dir);
+    if (s.path_state) ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
     ray_state.emission_only = emission_only;
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
 
@@ -596,7 +599,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if constexpr (kGuide)
         if (guided && guide_training && n_rec < kMaxGuideRecords) rec[n_rec++] = {wi, beta, L, pdf, guide_cell};
       prev_pdf = pdf;
-      ray_state.min_pdf = std::min(ray_state.min_pdf, pdf);
+      if (s.path_state) ray_state.min_pdf = std::min(ray_state.min_pdf, pdf);
       prev_delta = false;
       mis_org = sp.p;
       if constexpr (kTree) mis_n = sp.ns;
@@ -623,15 +626,17 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       ++bounce;
       ray_state.dp = ray_state.footprint();  // the next ray starts from the footprint it hit
       length_before = 0.0f;
-      // Cycles' path_state_next: reflection or transmission, diffuse, glossy or singular.
-      ray_state.flags = uint8_t(((bs.flags & kReflect) ? kRayReflect : kRayTransmit) |
-                                ((bs.flags & kDiffuseLobe) ? kRayDiffuse
-                                 : (bs.flags & kDelta)     ? (kRayGlossy | kRaySingular)
-                                                           : kRayGlossy));
-      ray_state.depth = uint16_t(std::min(bounce, 65535));
-      ray_state.diffuse = uint16_t(std::min(diffuse, 65535));
-      ray_state.glossy = uint16_t(std::min(glossy, 65535));
-      ray_state.transmission = uint16_t(std::min(transmission, 65535));
+      if (s.path_state) {
+        // Cycles' path_state_next: reflection or transmission, diffuse, glossy or singular.
+        ray_state.flags = uint8_t(((bs.flags & kReflect) ? kRayReflect : kRayTransmit) |
+                                  ((bs.flags & kDiffuseLobe) ? kRayDiffuse
+                                   : (bs.flags & kDelta)     ? (kRayGlossy | kRaySingular)
+                                                             : kRayGlossy));
+        ray_state.depth = uint16_t(std::min(bounce, 65535));
+        ray_state.diffuse = uint16_t(std::min(diffuse, 65535));
+        ray_state.glossy = uint16_t(std::min(glossy, 65535));
+        ray_state.transmission = uint16_t(std::min(transmission, 65535));
+      }
       if (last) emission_only = true;  // no light sampling: the limit still ends the path
     }
     if constexpr (kNonDiffuse) {

@@ -174,6 +174,9 @@ struct SceneFeatures {
   // Shaders read the ray's footprint (Bump's Filter Width, Wireframe in pixels): only then do
   // camera rays carry ray differentials (not a kernel feature: one test per camera ray).
   bool footprints = false;
+  // Shaders read the path's state (Light Path, and the rays Ambient Occlusion and Bevel
+  // trace): only then does the integrator keep RayState's kind, counts, length and seed.
+  bool path_state = false;
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
   // Names of the features in use, and of every feature a scene can have (for logs and tests).

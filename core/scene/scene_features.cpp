@@ -106,6 +106,8 @@ void Scene::detect_features() {
       f.normal_maps = f.normal_maps || op.code == OpCode::NormalMap || op.code == OpCode::Bump;
       f.footprints = f.footprints || (op.code == OpCode::Bump && m.program.bump_filter_width > 0.0f) ||
                      (op.code == OpCode::Wireframe && op.ext != 0);
+      f.path_state = f.path_state || op.code == OpCode::LightPath || op.code == OpCode::AmbientOcclusion ||
+                     op.code == OpCode::Bevel;
       if (m.constant) continue;
       switch (op.code) {  // every kind the op can add
         case OpCode::Diffuse: f.diffuse = true; f.glossy = f.glossy || op.in[3] != kNoReg; break;  // in[3]: Oren-Nayar
