@@ -55,8 +55,8 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
     if curves:
         mats = iter(data.curve_materials)
         add_curves(scene, curves, lambda _material: ids[next(mats)], warn,
-                   getattr(pc, "object_random_id", None))
-    add_lights(scene, data.lights, warn)
+                   pc.object_random_id)
+    add_lights(scene, data.lights)
     set_world(scene, data, warn)
     set_camera(pc, scene, data.camera)
     return scene
@@ -123,22 +123,17 @@ def set_camera(pc, scene, params):
     scene.set_camera(camera)
 
 
-def add_lights(scene, lights, warn):
+def add_lights(scene, lights):
     """Adds LightData `lights` to a core scene."""
     for light in lights:
-        add = getattr(scene, f"add_{light.kind}_light", None)
-        if add is None:  # an older core build
-            warn(f"{light.kind.capitalize()} lights are not supported by this build of the "
-                 "Pathlight core; ignored")
-            continue
-        add(**light.args)
+        getattr(scene, f"add_{light.kind}_light")(**light.args)  # (add-on and core ship together)
 
 
 def replace_lights(scene, lights, world, warn):
     """Replaces a committed core scene's lights (LightData) and world (`world`: what set_world
     reads of SceneData); its next commit() rebuilds only the light distribution."""
     scene.clear_lights()
-    add_lights(scene, lights, warn)
+    add_lights(scene, lights)
     set_world(scene, world, warn)
 
 

@@ -191,7 +191,7 @@ def render(engine, depsgraph):
         done = _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit,
                     passes=[p[0] for p in passes], bvh_view=scene.pathlight.debug_view == 'BVH',
                     layer=view_layer.name)
-        _stamp(engine, getattr(settings, "sample_offset", 0), done)
+        _stamp(engine, settings.sample_offset, done)
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face

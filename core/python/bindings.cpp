@@ -1345,16 +1345,17 @@ PYBIND11_MODULE(pathlight_core, m) {
         // constants and value ops (no scene, no images), returning one register.
         if (reg < 0 || reg >= kMaxRegs) throw std::invalid_argument("register out of range");
         const ShaderProgram prog = parse_program(program, 0);
+        // Only the ops whose value depends on their operands alone: the op table's entries
+        // that read nothing of the shading point (no kVarying) and no image.
         for (const ShaderOp& op : prog.ops) {
-          switch (op.code) {  // the ops whose value depends on their operands alone
-            case OpCode::Const: case OpCode::Math: case OpCode::Mix: case OpCode::VectorMath:
-            case OpCode::Clamp: case OpCode::MapRange: case OpCode::ColorSpace: case OpCode::Hsv:
-            case OpCode::Gamma: case OpCode::BrightContrast: case OpCode::Component:
-            case OpCode::Combine: case OpCode::RgbToBw: case OpCode::Ramp:
+          bool pure = false;
+          for (const ValueOpSchema& v : kValueOps)
+            if (v.code == op.code) {
+              pure = !(v.flags & kVarying) &&
+                     std::none_of(v.params.begin(), v.params.end(), [](const OpParam& p) { return p.kind == ParamKind::ImageId; });
               break;
-            default:
-              throw std::invalid_argument("fold_constant takes constants and pure value ops only");
-          }
+            }
+          if (!pure) throw std::invalid_argument("fold_constant takes constants and pure value ops only");
         }
         ShadingContext ctx;
         ctx.ng = ctx.ns = ctx.wo = {0.0f, 0.0f, 1.0f};

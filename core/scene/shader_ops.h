@@ -294,8 +294,10 @@ inline constexpr OpParam kObjectAttribute[] = {
 }  // namespace schema
 
 // Every value op: its name, OpCode, registers, parameters and program flags. Adding a value op
-// means an entry here, its evaluation (shader.cpp) and its test; the parser and the add-on's
-// register counts follow (tests/blender/test_core_materials.py checks the table both ways).
+// means an entry here, its evaluation (shader.cpp) and its test; the parser, the add-on's
+// register counts and constant folding follow (an op without kVarying or an image is a pure
+// function of its operands, which pathlight_core.fold_constant evaluates; the add-on folds with
+// it). tests/blender/test_core_materials.py checks the table both ways.
 inline constexpr ValueOpSchema kValueOps[] = {
     {"const", OpCode::Const, 0, schema::kConst},
     {"uv", OpCode::Uv, 0, schema::kUv, kVarying | kUsesUv},

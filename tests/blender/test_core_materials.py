@@ -497,6 +497,20 @@ def test_fold_constant_refuses_ops_that_read_the_shading_point():
         core().fold_constant([("position", 0)], 0)
     with pytest.raises(ValueError):
         core().fold_constant([("const", 0, (1.0,))], 99)
+    with pytest.raises(ValueError, match="pure value ops"):  # Fresnel reads the view
+        core().fold_constant([("const", 0, (1.5,)), ("fresnel", 1, 0, None)], 1)
+
+
+def test_fold_constant_folds_every_pure_op_of_the_table():
+    # Which ops fold follows from the op table (no kVarying, no image): a texture of constants
+    # folds too, to what the renderer computes.
+    pc = core()
+    prog = [("const", 0, (0.3, 0.7, 0.2)), ("const", 1, (1.0, 0.0, 0.0)), ("const", 2, (0.0, 0.0, 1.0)),
+            ("const", 3, (2.0,)), ("checker", 4, 0, 1, 2, 3, "COLOR")]
+    got = pc.fold_constant(prog, 4)
+    # Cycles' checker at (0.3, 0.7, 0.2) x 2: floor parts (0, 1, 0), odd sum: colour 1.
+    assert got[:3] == pytest.approx((1.0, 0.0, 0.0))
+    assert pc.fold_constant([("const", 0, (1500.0,)), ("blackbody", 1, 0)], 1)[0] > 0.0
 
 
 def test_the_parser_accepts_exactly_the_tables_value_ops():

@@ -279,9 +279,6 @@ def test_to_core_calls_the_light_functions(scene):
     to_core(rec, data)
     names = [name for name, _ in rec.calls]
     assert names.count("add_point_light") == 1 and names.count("add_sun_light") == 1
-    old, warnings = Recorder(with_lights=False), Warnings()
-    to_core(old, data, warnings)  # an older core: the lights are dropped with a warning
-    assert len(warnings) == 2 and "not supported by this build" in warnings[0]
 
 
 # ---------------------------------------------------------------- closed forms (need the core)
