@@ -179,7 +179,8 @@ class ViewportSession:
         uv_sets.names = list(self.uv_sets.names) if self.uv_sets is not None else []
         images = ImageTable()
         use_schlick = getattr(depsgraph.scene.pathlight, "use_schlick_fresnel", False)
-        data = convert_material(mat, self.warn, images, uv_sets, use_schlick, view_layer_ids(depsgraph))
+        data = convert_material(mat, self.warn, images, uv_sets, use_schlick, view_layer_ids(depsgraph),
+                                depsgraph)
         if images.images or len(uv_sets.names) != len(self.uv_sets.names if self.uv_sets else []):
             return False
         put_material(self.scene, data, [], core_id)  # no images: checked above

@@ -45,7 +45,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     scene = depsgraph.scene
     camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False),
-                          view_layer_ids(depsgraph))
+                          view_layer_ids(depsgraph), depsgraph)
     meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop,
                             InstanceAttributes(table.uv_sets.object_attributes))
     for mesh in meshes:

@@ -76,7 +76,8 @@ def view_layer_ids(depsgraph):
     return tuple(x for x in (depsgraph.view_layer, scene, scene.world) if x is not None)
 
 
-def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, view_layer_ids=()):
+def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, view_layer_ids=(),
+                     depsgraph=None):
     """MaterialData for a bpy Material (or None = empty slot). Calls warn(msg) at most once:
     one message naming everything of the material that is approximated or unsupported.
     images/uv_sets: the scene's ImageTable and UvSets (fresh ones if None)."""
@@ -88,7 +89,7 @@ def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, vi
     uv_sets = uv_sets if uv_sets is not None else UvSets()
     base, emission = flat_summary(mat.node_tree)
     try:
-        compiled = compile_material(mat, images, uv_sets, view_layer_ids)
+        compiled = compile_material(mat, images, uv_sets, view_layer_ids, depsgraph)
     except Exception as e:  # a compiler bug must not stop the render
         warn(f"Material '{mat.name}': could not be compiled ({type(e).__name__}: {e}); "
              "using its base colour")
@@ -105,8 +106,9 @@ class MaterialTable:
     """Converts each material once per export and numbers the results; holds the scene's
     images and uv sets that the materials' programs refer to."""
 
-    def __init__(self, warn, use_schlick=False, view_layer_ids=()):
+    def __init__(self, warn, use_schlick=False, view_layer_ids=(), depsgraph=None):
         self.warn = warn
+        self.depsgraph = depsgraph  # (other objects' transforms in node trees)
         self.use_schlick = use_schlick
         self.view_layer_ids = view_layer_ids  # (view layer, scene, world): View Layer attributes
         self.images = ImageTable()
@@ -121,7 +123,7 @@ class MaterialTable:
             self._index[key] = len(self.materials)
             self._names[key] = mat.name if mat is not None else ""
             self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
-                                                   self.use_schlick, self.view_layer_ids))
+                                                   self.use_schlick, self.view_layer_ids, self.depsgraph))
         return self._index[key]
 
     def material_names(self):

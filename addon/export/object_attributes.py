@@ -3,7 +3,9 @@ of each scene-wide slot (shader.UvSets.object_attributes), looked up as Cycles 4
 (BKE_object_dupli_find_rgba_attribute): for Instancer, on an instance, the particle settings,
 the geometry-nodes instance attribute, then the instancing object; then the object and its
 data. In each holder a custom property of that name before an RNA path ("color",
-"location", "data.foo", '["prop"]'). A name found nowhere reads (0, 0, 0, 0)."""
+"location", "data.foo", '["prop"]'). A name found nowhere reads (0, 0, 0, 0). Also the
+Texture Coordinate node's From Instancer coordinates (kind "DUPLI"): an instance's uv and orco
+on its instancer, as Cycles' dupli_uv and dupli_generated (0.5 orco - 0.5), 0 elsewhere."""
 
 import numpy as np
 
@@ -80,7 +82,22 @@ class InstanceAttributes:
             out = np.array([self._value(kind, name, obj, parent, psys, gn_index)
                             for kind, name in self.slots], np.float32)
             self._cache[key] = out
+        dupli = [(i, name) for i, (kind, name) in enumerate(self.slots) if kind == "DUPLI"]
+        if dupli:  # per instance, not shared: each particle sits elsewhere on its emitter
+            out = out.copy()
+            for i, name in dupli:
+                out[i] = self._dupli(instance, name, is_instance)
         return out
+
+    @staticmethod
+    def _dupli(instance, name, is_instance):
+        if not is_instance:
+            return (0.0, 0.0, 0.0, 1.0)
+        if name == "uv":
+            u, v = instance.uv
+            return (u, v, 0.0, 1.0)
+        x, y, z = instance.orco
+        return (0.5 * x - 0.5, 0.5 * y - 0.5, 0.5 * z - 0.5, 1.0)
 
     @staticmethod
     def _gn_index(instance):
@@ -112,6 +129,8 @@ class InstanceAttributes:
         return tuple(float(x) for x in values[index])
 
     def _value(self, kind, name, obj, parent, psys, gn_index):
+        if kind == "DUPLI":
+            return (0.0, 0.0, 0.0, 1.0)  # (per instance: see values())
         if kind == "INSTANCER":
             if psys is not None:
                 v = property_rgba(psys.settings, name)

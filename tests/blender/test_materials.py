@@ -484,10 +484,11 @@ def test_bump_from_a_texture():
 
 # ---------------------------------------------------------------- texture coordinates
 
-def texture_coordinate_scene(output):
+def texture_coordinate_scene(output, other=False):
     """Two instances (differently moved, rotated and scaled) of one off-centre sphere mesh,
     emitting their Texture Coordinate `output` (Object and Normal through Absolute, as
-    emission shows positive values only): a noise-free picture of the coordinates."""
+    emission shows positive values only): a noise-free picture of the coordinates. other:
+    the node's Object is another object (an empty, moved, turned and scaled unevenly)."""
     def build():
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = bpy.context.scene
@@ -495,6 +496,11 @@ def texture_coordinate_scene(output):
         ms.set_world((0.0, 0.0, 0.0))
         mat, nodes, links, out = ms.new_material("Coords")
         coord = nodes.new("ShaderNodeTexCoord")
+        if other:
+            empty = bpy.data.objects.new("Reference", None)
+            empty.location, empty.rotation_euler, empty.scale = (0.3, -0.4, 0.2), (0.5, -0.3, 1.2), (0.6, 1.3, 0.9)
+            scene.collection.objects.link(empty)
+            coord.object = empty
         e = nodes.new("ShaderNodeEmission")
         sock = coord.outputs[output]
         if output != "Generated":
@@ -515,9 +521,10 @@ def texture_coordinate_scene(output):
     return build
 
 
-@pytest.mark.parametrize("output", ["Generated", "Object", "Normal"])
+@pytest.mark.parametrize("output", ["Generated", "Object", "Normal", "Object of another"])
 def test_object_generated_and_normal_coordinates(output):
-    ours, cycles = render_pair(texture_coordinate_scene(output), 128, bounces=1)
+    other = output == "Object of another"
+    ours, cycles = render_pair(texture_coordinate_scene("Object" if other else output, other), 128, bounces=1)
     # Silhouette regions carry the anti-aliasing noise (up to ~3 %); inside, regions agree
     # within 1 %, and world positions in place of object space would be far off.
     assert_agree(ours, cycles, region=0.05, whole=0.01)

@@ -131,6 +131,46 @@ def test_particle_instance_attributes():
     assert np.abs(ours[..., :3] - (0.8, 0.5, 0.1)).max(axis=-1).min() < 1e-4  # the settings' tint
 
 
+def _particle_coords_scene(output):
+    """Hair particles rendered as small spheres emitting their Texture Coordinate `output`
+    From Instancer (through Absolute: Generated is negative), beside a plain sphere with the
+    same material (no instance: 0)."""
+    scene = top_view(32)
+    mat, nodes, links, out = ms.new_material(f"FromInstancer{output}")
+    coord = nodes.new("ShaderNodeTexCoord")
+    coord.from_instancer = True
+    absolute = nodes.new("ShaderNodeVectorMath")
+    absolute.operation = 'ABSOLUTE'
+    emit = nodes.new("ShaderNodeEmission")
+    links.new(coord.outputs[output], absolute.inputs[0])
+    links.new(absolute.outputs["Vector"], emit.inputs["Color"])
+    links.new(emit.outputs[0], out.inputs["Surface"])
+    tile = ms.add_sphere("Tile", 0.25, mat, segments=12, rings=6, location=(0.0, 0.0, -5.0))
+    tile.hide_render = True
+    ms.add_sphere("Plain", 0.3, mat, segments=12, rings=6, location=(1.2, 1.2, 0.3))
+    emitter = ms.add_plane("Emitter", 3.0, None)
+    emitter.modifiers.new("P", 'PARTICLE_SYSTEM')
+    settings = emitter.particle_systems[0].settings
+    settings.type = 'HAIR'
+    settings.count = 12
+    settings.hair_length = 0.2
+    settings.render_type = 'OBJECT'
+    settings.instance_object = tile
+    settings.particle_size = 1.0
+    settings.use_rotation_instance = False
+    emitter.show_instancer_for_render = False
+    return scene
+
+
+@pytest.mark.parametrize("output", ["UV", "Generated"])
+def test_texture_coordinates_from_instancer(output):
+    ours, cycles = render_both(lambda: _particle_coords_scene(output))
+    assert_same(ours, cycles, f"{output} from instancer")
+    # Each particle reads its own place on the emitter: many different values.
+    values = {tuple(v) for v in np.round(ours[..., :3].reshape(-1, 3), 3) if v.max() > 0.0}
+    assert len(values) >= 6, values
+
+
 def _gn_scene():
     """Geometry-nodes instances of a plane on a 4x4 grid, each with an instance attribute
     "tint" made from its index (Store Named Attribute on the Instance domain)."""

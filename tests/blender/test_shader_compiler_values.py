@@ -145,7 +145,7 @@ def test_uv_map_node_and_texture_coordinates():
     assert [op for op in data.program if op[0] == "uv"][0][2] == 1
     assert data.uv_sets == {1: "Second"} and uv_sets.names == ["", "Second"]
     # Texture Coordinate: UV is the active map; Object, Generated and Normal are the object's
-    # (per instance in the core); Object coordinates of another object are warned.
+    # (per instance in the core); Object coordinates of another object are that object's.
     coord = tree.nodes.new("ShaderNodeTexCoord")
     link(tree, coord.outputs["UV"], tex.inputs["Vector"])
     data, warnings = compile_(mat, uv_sets=uv_sets)
@@ -156,10 +156,11 @@ def test_uv_map_node_and_texture_coordinates():
         data, warnings = compile_(mat, uv_sets=uv_sets)
         assert [op[0] for op in data.program][:2] == [op, "image"] and not warnings
     link(tree, coord.outputs["Object"], tex.inputs["Vector"])
-    coord.object = bpy.data.objects.new("Elsewhere", None)
+    coord.object = bpy.data.objects.new("Elsewhere", None)  # another object: its inverse matrix
+    coord.object.matrix_world = Matrix.Translation((1.0, 2.0, 3.0))
     data, warnings = compile_(mat, uv_sets=uv_sets)
-    assert [op[0] for op in data.program][:2] == ["object", "image"]
-    assert len(warnings) == 1 and "Elsewhere" in warnings[0]
+    assert [op[0] for op in data.program][:3] == ["position", "mapping", "image"] and not warnings
+    assert data.program[1][3][:, 3] == approx((-1.0, -2.0, -3.0))
     geometry = tree.nodes.new("ShaderNodeNewGeometry")
     link(tree, geometry.outputs["Position"], tex.inputs["Vector"])
     data, warnings = compile_(mat, uv_sets=uv_sets)

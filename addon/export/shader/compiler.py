@@ -33,13 +33,14 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
                      ClosureNodes, VolumeShaders):
     """Compiles one material's node tree. Use `compile_material`."""
 
-    def __init__(self, images, uv_sets, material_index=0, view_layer_ids=()):
+    def __init__(self, images, uv_sets, material_index=0, view_layer_ids=(), depsgraph=None):
         self.images = images
         self.uv_sets = uv_sets
         self.material_index = material_index  # the material's pass index (Object Info)
         # Where the Attribute node's View Layer attributes are looked up, in order (Blender: the
         # view layer, its scene, the scene's world).
         self.view_layer_ids = tuple(view_layer_ids)
+        self.depsgraph = depsgraph  # where other objects' evaluated transforms are read
         self.ops = []  # with virtual registers
         self.nreg = 0
         self.const_regs = {}  # const tuple -> virtual register
@@ -349,12 +350,13 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         self.uv_used = {}
 
 
-def compile_material(mat, images, uv_sets, view_layer_ids=()):
+def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None):
     """CompiledShader of a bpy Material with nodes, or None when it has no Cycles output.
-    view_layer_ids: the rendered view layer, its scene and world (View Layer attributes)."""
+    view_layer_ids: the rendered view layer, its scene and world (View Layer attributes);
+    depsgraph: the render's, for other objects' transforms (Texture Coordinate's Object)."""
     tree = mat.node_tree
     output = tree.get_output_node('CYCLES')
     if output is None:
         return None
     return ShaderCompiler(images, uv_sets, material_index=mat.pass_index,
-                          view_layer_ids=view_layer_ids).compile(output, mat.name)
+                          view_layer_ids=view_layer_ids, depsgraph=depsgraph).compile(output, mat.name)

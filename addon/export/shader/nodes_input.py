@@ -2,6 +2,8 @@
 curves info, and the nodes that trace rays from the shading point (AO, Bevel, Wireframe)
 (a ShaderCompiler mixin)."""
 
+import numpy as np
+
 from .uv_sets import MAX_OBJECT_ATTRIBUTES, MAX_UV_SETS
 from .values import ZERO, Val, const_color, const_float, const_vector
 
@@ -152,15 +154,46 @@ class InputNodes:
             self.cache[key] = self.emit("vector", "camera_coords", which, *extra)
         return self.cache[key]
 
+    def other_object_coords(self, ob):
+        """Texture Coordinate's Object output with its Object set: the point in that object's
+        space, as Cycles (its evaluated world matrix, inverted, applied to the position)."""
+        if self.depsgraph is not None:
+            try:
+                ob = ob.evaluated_get(self.depsgraph)
+            except (RuntimeError, ReferenceError):
+                pass  # not in the depsgraph: the original's matrix
+        m = np.array(ob.matrix_world, dtype=np.float64)
+        try:
+            inv = np.linalg.inv(m)
+        except np.linalg.LinAlgError:
+            inv = np.zeros((4, 4))  # a scaled-flat object: 0 (Cycles nudges the diagonal)
+        if not np.all(np.isfinite(inv)):
+            inv = np.zeros((4, 4))
+        return self.emit("vector", "mapping", self.reg(self.position()),
+                         np.ascontiguousarray(inv[:3, :4], np.float32))
+
+    def instancer_coords(self, node, oid):
+        """Texture Coordinate's UV or Generated From Instancer: the instance's coordinates on
+        its instancer (Blender's dupli uv and orco), constant per instance, 0 for objects that
+        are no instance, as Cycles."""
+        slot = self.uv_sets.object_attribute_slot("DUPLI", oid.lower())
+        if slot is None:
+            self.problem(f"'{node.name}': more than {MAX_OBJECT_ATTRIBUTES} object and instancer "
+                         f"attributes in the scene ({oid} from instancer reads 0)")
+            return const_vector((0, 0, 0))
+        key = ("object_attribute", slot, "COLOR")
+        if key not in self.cache:
+            self.cache[key] = self.emit("color", "object_attribute", slot, "COLOR")
+        return Val("vector", reg=self.cache[key].reg)
+
     def tex_coord(self, node, oid):
+        if node.from_instancer and oid in ("UV", "Generated"):
+            return self.instancer_coords(node, oid)
         if oid == "UV":
-            if node.from_instancer:
-                self.problem(f"'{node.name}': UV from instancer is not supported")
             return self.uv_value("", f"'{node.name}'")
+        if oid == "Object" and node.object is not None:
+            return self.other_object_coords(node.object)
         if oid in ("Object", "Generated"):
-            if oid == "Object" and node.object is not None:
-                self.problem(f"'{node.name}': Object coordinates of another object "
-                             f"('{node.object.name}') are not supported (its own object's)")
             return self.object_coords(oid.lower())
         if oid == "Normal":
             return self.emit("vector", "object_normal")

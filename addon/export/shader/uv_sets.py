@@ -27,7 +27,8 @@ class UvSets:
 
     def object_attribute_slot(self, kind, name):
         """The per-instance slot of an Object ("OBJECT") or Instancer ("INSTANCER") attribute,
-        or None when all MAX_OBJECT_ATTRIBUTES are taken."""
+        or of an instance's coordinates on its instancer ("DUPLI", "uv" or "generated"), or
+        None when all MAX_OBJECT_ATTRIBUTES are taken."""
         key = (kind, name)
         if key in self.object_attributes:
             return self.object_attributes.index(key)
