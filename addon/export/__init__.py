@@ -60,6 +60,11 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
     curves = collect_curves(depsgraph, warn)
     curve_materials = [table.index(c.material) for c in curves]
+    for c, k in zip(curves, curve_materials):
+        program = table.materials[k].program or []
+        if any(op[0] == "object_attribute" for op in program):  # (per-instance slots: meshes only)
+            warn(f"Curves '{c.name}': Object / Instancer attributes and From Instancer "
+                 "coordinates are not supported on Curves objects (0 is used)")
     lights = collect_lights(depsgraph, warn, is_visible)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
     if far > FAR_FROM_ORIGIN:

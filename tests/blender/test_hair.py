@@ -87,6 +87,23 @@ def test_bad_strands_warn_and_render():
     assert np.isfinite(img).all()
 
 
+def test_object_attributes_on_curves_warn():
+    """Object attributes are per-instance slots of meshes: on a Curves object they read 0, and
+    the export says so (no silent 0)."""
+    from addon.export import export_scene
+    ms.studio(size=16)
+    mat, nodes, links, out = ms.new_material("CurvesAttr")
+    attr = nodes.new("ShaderNodeAttribute")
+    attr.attribute_type, attr.attribute_name = 'OBJECT', "tint"
+    em = nodes.new("ShaderNodeEmission")
+    links.new(attr.outputs["Color"], em.inputs["Color"])
+    links.new(em.outputs[0], out.inputs["Surface"])
+    add_hair("Hair", mat, strands=3, keys=4)
+    warn = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warn)
+    assert any("Curves 'Hair'" in w and "Object / Instancer attributes" in w for w in warn), list(warn)
+
+
 def test_diffuse_hair_matches_cycles():
     ours, cycles = render_pair(hair_scene(lambda: ms.diffuse("Hair", (0.8, 0.5, 0.3))), 256)
     assert_agree(ours, cycles)
