@@ -944,6 +944,25 @@ std::shared_ptr<const SkyModel> nishita_sky(const SkyParams& p, const float m[9]
   return sky;
 }
 
+// What the Sky Texture setters share once their own inputs are read: the rotation, the colour
+// matrix and the strength, then the sky that `make(xyz_to_rgb)` builds (without the GIL) as the
+// environment. check_sky(self, width) first validates what every setter validated first.
+void check_sky(PyScene& self, int width) {
+  self.check_editable();
+  if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
+}
+template <class Make>
+void set_sky(PyScene& self, float strength, const py::object& rotation_obj, const py::object& xyz_to_rgb, int width,
+             Make&& make) {
+  const Mat4 rot = rotation_or_identity(rotation_obj);
+  float m[9];
+  xyz_matrix(xyz_to_rgb, m);
+  const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
+  py::gil_scoped_release release;
+  self.scene->set_environment(Environment(make(m), width, width / 2, k, rot));
+}
+
+
 // The sky's radiance (strength 1) along unit directions (N, 3), for tests and tools.
 py::array_t<float> sky_radiance(const FloatArray& dirs, float sun_elevation, float sun_rotation, float sun_size,
                                 float sun_intensity, bool sun_disc, float altitude, float air, float dust, float ozone,
@@ -2275,16 +2294,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, float sun_elevation, float sun_rotation, float sun_size, float sun_intensity,
              bool sun_disc, float altitude, float air, float dust, float ozone, float strength,
              const py::object& rotation_obj, const py::object& xyz_to_rgb, int width) {
-            self.check_editable();
-            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
-            const Mat4 rot = rotation_or_identity(rotation_obj);
+            check_sky(self, width);
             const SkyParams p = sky_params(sun_elevation, sun_rotation, sun_size, sun_intensity, sun_disc, altitude,
                                            air, dust, ozone);
-            float m[9];
-            xyz_matrix(xyz_to_rgb, m);
-            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
-            py::gil_scoped_release release;
-            self.scene->set_environment(Environment(nishita_sky(p, m), width, width / 2, k, rot));
+            set_sky(self, strength, rotation_obj, xyz_to_rgb, width, [&](const float* m) { return nishita_sky(p, m); });
           },
           py::arg("sun_elevation") = 0.2617994f, py::arg("sun_rotation") = 0.0f, py::arg("sun_size") = 0.009512f,
           py::arg("sun_intensity") = 1.0f, py::arg("sun_disc") = true, py::arg("altitude") = 0.0f,
@@ -2298,16 +2311,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           "set_world_preetham",
           [](PyScene& self, const py::object& sun_direction, float turbidity, float strength,
              const py::object& rotation_obj, const py::object& xyz_to_rgb, int width) {
-            self.check_editable();
-            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
-            const Mat4 rot = rotation_or_identity(rotation_obj);
+            check_sky(self, width);
             const Vec3 sun = to_point(sun_direction, "sun_direction");
-            float m[9];
-            xyz_matrix(xyz_to_rgb, m);
-            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
-            py::gil_scoped_release release;
-            auto sky = std::make_shared<const SkyModel>(sun, turbidity, m);
-            self.scene->set_environment(Environment(std::move(sky), width, width / 2, k, rot));
+            set_sky(self, strength, rotation_obj, xyz_to_rgb, width,
+                    [&](const float* m) { return std::make_shared<const SkyModel>(sun, turbidity, m); });
           },
           py::arg("sun_direction") = py::make_tuple(0.0f, 0.0f, 1.0f), py::arg("turbidity") = 2.2f,
           py::arg("strength") = 1.0f, py::arg("rotation") = py::none(), py::arg("xyz_to_rgb") = py::none(),
@@ -2318,16 +2325,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           "set_world_hosek",
           [](PyScene& self, const py::object& sun_direction, float turbidity, float ground_albedo, float strength,
              const py::object& rotation_obj, const py::object& xyz_to_rgb, int width) {
-            self.check_editable();
-            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
-            const Mat4 rot = rotation_or_identity(rotation_obj);
+            check_sky(self, width);
             const Vec3 sun = to_point(sun_direction, "sun_direction");
-            float m[9];
-            xyz_matrix(xyz_to_rgb, m);
-            const float k = std::isfinite(strength) && strength > 0.0f ? strength : 0.0f;
-            py::gil_scoped_release release;
-            auto sky = std::make_shared<const SkyModel>(sun, turbidity, ground_albedo, m);
-            self.scene->set_environment(Environment(std::move(sky), width, width / 2, k, rot));
+            set_sky(self, strength, rotation_obj, xyz_to_rgb, width, [&](const float* m) {
+              return std::make_shared<const SkyModel>(sun, turbidity, ground_albedo, m);
+            });
           },
           py::arg("sun_direction") = py::make_tuple(0.0f, 0.0f, 1.0f), py::arg("turbidity") = 2.2f,
           py::arg("ground_albedo") = 0.3f, py::arg("strength") = 1.0f, py::arg("rotation") = py::none(),

@@ -129,28 +129,24 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         const float strength = op.in[1] == kNoReg ? 1.0f : reg(op.in[1]).x;
         Vec3 n = ctx.ns;
         const bool ok = op.index >= 0 && op.index < ctx.uv_sets && ctx.tangents;
+        // Strength blends the mapped normal towards the shading normal where it is not 1.
+        auto blend_strength = [&](Vec3 m) {
+          if (strength == 1.0f) return m;
+          const float s = std::isfinite(strength) ? std::max(strength, 0.0f) : 0.0f;
+          const Vec3 blended = ctx.ns + (m - ctx.ns) * s;
+          const float l2 = length_sq(blended);
+          return l2 > 0.0f && std::isfinite(l2) ? blended / std::sqrt(l2) : Vec3(0.0f);
+        };
         if (op.sub != 0) {
           // Object / world space; Strength blends towards the shading normal (mesh
           // orientation here: Cycles' backface flips cancel).
-          Vec3 m = object_world_space_normal(op.sub, ctx.object, c);
-          if (strength != 1.0f) {
-            const float s = std::isfinite(strength) ? std::max(strength, 0.0f) : 0.0f;
-            const Vec3 blended = ctx.ns + (m - ctx.ns) * s;
-            const float l2 = length_sq(blended);
-            m = l2 > 0.0f && std::isfinite(l2) ? blended / std::sqrt(l2) : Vec3(0.0f);
-          }
+          const Vec3 m = blend_strength(object_world_space_normal(op.sub, ctx.object, c));
           if (length_sq(m) > 0.0f && is_finite(m)) n = m;
         } else if (ok && ctx.has_mesh_tangent(op.index)) {
           // Cycles' svm_node_normal_map with the mesh's MikkTSpace tangents; Strength blends
           // towards the shading normal only where it is not 1.
           const Float4 t = ctx.mesh_tangents[op.index];
-          Vec3 m = tangent_space_normal(ctx.object, t.xyz(), t.w, ctx.normal_obj, c);
-          if (strength != 1.0f) {
-            const float s = std::isfinite(strength) ? std::max(strength, 0.0f) : 0.0f;
-            const Vec3 blended = ctx.ns + (m - ctx.ns) * s;
-            const float l2 = length_sq(blended);
-            m = l2 > 0.0f && std::isfinite(l2) ? blended / std::sqrt(l2) : Vec3(0.0f);
-          }
+          const Vec3 m = blend_strength(tangent_space_normal(ctx.object, t.xyz(), t.w, ctx.normal_obj, c));
           if (length_sq(m) > 0.0f && is_finite(m)) n = m;
         } else if (ok) {
           Vec3 t = ctx.tangents[op.index];

@@ -241,12 +241,17 @@ SkyModel::SkyModel(Vec3 sun_direction, float turbidity, const float xyz_to_rgb[9
   zenith_ = {zY, zx, zy};
 }
 
-Vec3 SkyModel::eval_preetham(Vec3 t) const {
-  float theta = std::acos(clampf(t.z, -1.0f, 1.0f));
+void SkyModel::sun_angles(Vec3 t, float& theta, float& gamma) const {
+  theta = std::acos(clampf(t.z, -1.0f, 1.0f));
   const float phi = 0.5f * kPi - std::atan2(t.y, t.x);
   const float cos_psi = std::sin(theta) * std::sin(sun_theta_) * std::cos(sun_phi_ - phi) + std::cos(theta) * std::cos(sun_theta_);
-  const float gamma = std::acos(clampf(cos_psi, -1.0f, 1.0f));
+  gamma = std::acos(clampf(cos_psi, -1.0f, 1.0f));
   theta = std::min(theta, 0.5f * kPi - 0.001f);  // below the horizon: the horizon's colour
+}
+
+Vec3 SkyModel::eval_preetham(Vec3 t) const {
+  float theta, gamma;
+  sun_angles(t, theta, gamma);
   const float Y = zenith_.x * perez(perez_[0], theta, gamma);
   const float x = zenith_.y * perez(perez_[1], theta, gamma), y = zenith_.z * perez(perez_[2], theta, gamma);
   const float X = y != 0.0f ? x / y * Y : 0.0f, Z = y != 0.0f && Y != 0.0f ? (1.0f - x - y) / y * Y : 0.0f;

@@ -45,6 +45,8 @@ class SkyModel {
  private:
   Vec3 to_rgb(Vec3 xyz) const;
   Vec3 eval_preetham(Vec3 t) const;
+  // The analytic models' view angle from the zenith (clamped to the horizon) and from the sun.
+  void sun_angles(Vec3 t, float& theta, float& gamma) const;
   Vec3 eval_hosek(Vec3 t) const;
   enum class Kind { kNishita, kPreetham, kHosek };
   Kind kind_ = Kind::kNishita;

@@ -77,11 +77,8 @@ SkyModel::SkyModel(Vec3 sun_direction, float turbidity, float ground_albedo, con
 }
 
 Vec3 SkyModel::eval_hosek(Vec3 t) const {
-  float theta = std::acos(clampf(t.z, -1.0f, 1.0f));
-  const float phi = 0.5f * kPi - std::atan2(t.y, t.x);
-  const float cos_psi = std::sin(theta) * std::sin(sun_theta_) * std::cos(sun_phi_ - phi) + std::cos(theta) * std::cos(sun_theta_);
-  const float gamma = std::acos(clampf(cos_psi, -1.0f, 1.0f));
-  theta = std::min(theta, 0.5f * kPi - 0.001f);  // below the horizon: the horizon's colour
+  float theta, gamma;
+  sun_angles(t, theta, gamma);
   const Vec3 xyz(hosek_distribution(hosek_[0], theta, gamma) * hosek_radiance_.x,
                  hosek_distribution(hosek_[1], theta, gamma) * hosek_radiance_.y,
                  hosek_distribution(hosek_[2], theta, gamma) * hosek_radiance_.z);
