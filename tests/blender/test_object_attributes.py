@@ -101,27 +101,33 @@ def test_collection_instance_attributes(kind):
     assert len(set(quad_values(ours))) == expect, quad_values(ours)
 
 
-def _particle_scene():
-    """Hair particles rendered as a small sphere; the particle settings hold "tint", the
-    emitter another (the settings win), the instanced sphere a third."""
-    scene = top_view(32)
-    mat = attr_material('INSTANCER', "tint", "Color")
-    tile = ms.add_sphere("Tile", 0.3, mat, segments=12, rings=6, location=(0.0, 0.0, -5.0))
-    tile["tint"] = (0.3, 0.3, 0.3)
+def _hair_particles(mat, count, radius):
+    """A plane emitting `count` hair particles rendered as a hidden sphere of `radius` with
+    material `mat`: returns (sphere, emitter, particle settings)."""
+    tile = ms.add_sphere("Tile", radius, mat, segments=12, rings=6, location=(0.0, 0.0, -5.0))
     tile.hide_render = True
     emitter = ms.add_plane("Emitter", 3.0, None)
-    emitter["tint"] = (0.1, 0.1, 0.8)
     emitter.modifiers.new("P", 'PARTICLE_SYSTEM')
     settings = emitter.particle_systems[0].settings
     settings.type = 'HAIR'
-    settings.count = 6
+    settings.count = count
     settings.hair_length = 0.2
     settings.render_type = 'OBJECT'
     settings.instance_object = tile
     settings.particle_size = 1.0
     settings.use_rotation_instance = False
-    settings["tint"] = (0.8, 0.5, 0.1)
     emitter.show_instancer_for_render = False
+    return tile, emitter, settings
+
+
+def _particle_scene():
+    """Hair particles rendered as a small sphere; the particle settings hold "tint", the
+    emitter another (the settings win), the instanced sphere a third."""
+    scene = top_view(32)
+    tile, emitter, settings = _hair_particles(attr_material('INSTANCER', "tint", "Color"), 6, 0.3)
+    tile["tint"] = (0.3, 0.3, 0.3)
+    emitter["tint"] = (0.1, 0.1, 0.8)
+    settings["tint"] = (0.8, 0.5, 0.1)
     return scene
 
 
@@ -145,20 +151,8 @@ def _particle_coords_scene(output):
     links.new(coord.outputs[output], absolute.inputs[0])
     links.new(absolute.outputs["Vector"], emit.inputs["Color"])
     links.new(emit.outputs[0], out.inputs["Surface"])
-    tile = ms.add_sphere("Tile", 0.25, mat, segments=12, rings=6, location=(0.0, 0.0, -5.0))
-    tile.hide_render = True
+    _hair_particles(mat, 12, 0.25)
     ms.add_sphere("Plain", 0.3, mat, segments=12, rings=6, location=(1.2, 1.2, 0.3))
-    emitter = ms.add_plane("Emitter", 3.0, None)
-    emitter.modifiers.new("P", 'PARTICLE_SYSTEM')
-    settings = emitter.particle_systems[0].settings
-    settings.type = 'HAIR'
-    settings.count = 12
-    settings.hair_length = 0.2
-    settings.render_type = 'OBJECT'
-    settings.instance_object = tile
-    settings.particle_size = 1.0
-    settings.use_rotation_instance = False
-    emitter.show_instancer_for_render = False
     return scene
 
 

@@ -169,3 +169,24 @@ def sliver_room(seed=0, spheres=200, beams=60, sphere_res=(24, 12)):
     v = pos[tris]
     keep = np.any(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]) != 0, axis=1)  # not the spheres' pole slivers
     return pos, tris[keep]
+
+
+def furnace_scene(pc, albedo, smooth=True):
+    """A unit sphere of grey diffuse `albedo` under a constant white world: the white furnace."""
+    s = pc.Scene()
+    m = s.add_material("sphere", (albedo, albedo, albedo))
+    pos, tris, nrm = uv_sphere(1.0, nu=64, nv=32)
+    add_object(s, pos, tris, m, nrm if smooth else None)
+    s.set_world_color((1.0, 1.0, 1.0))
+    s.set_camera(camera(pc, (0.0, -5.0, 0.0), (0.0, 0.0, 0.0), lens=50.0))
+    return s
+
+
+def emitting_enclosure(pc):
+    """Inside a closed sphere of emission 0.5 and albedo 0.5: radiance Le / (1 - a) = 1 everywhere."""
+    s = pc.Scene()
+    m = s.add_material("shell", (0.5, 0.5, 0.5), (0.5, 0.5, 0.5))
+    pos, tris, nrm = uv_sphere(1.0, nu=32, nv=16, inward=True)
+    add_object(s, pos, tris, m, nrm)
+    s.set_camera(camera(pc, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), lens=20.0))
+    return s

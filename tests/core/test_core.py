@@ -5,25 +5,16 @@ import time
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, cornell, quad, region_means, render, uv_sphere
+from core_scenes import (add_object, camera, core, cornell, emitting_enclosure, furnace_scene, quad,
+                         region_means, render, uv_sphere)
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 
-def furnace_scene(albedo, smooth=True):
-    s = pc.Scene()
-    m = s.add_material("sphere", (albedo, albedo, albedo))
-    pos, tris, nrm = uv_sphere(1.0, nu=64, nv=32)
-    add_object(s, pos, tris, m, nrm if smooth else None)
-    s.set_world_color((1.0, 1.0, 1.0))
-    s.set_camera(camera(pc, (0.0, -5.0, 0.0), (0.0, 0.0, 0.0), lens=50.0))
-    return s
-
-
 @pytest.mark.parametrize("smooth", [False, True])
 def test_white_furnace_albedo_08(smooth):
-    img, stats = render(pc, furnace_scene(0.8, smooth), 64, 64, samples=16)
+    img, stats = render(pc, furnace_scene(pc, 0.8, smooth), 64, 64, samples=16)
     center = img[24:40, 24:40, :3]
     assert abs(center.mean() - 0.8) < 0.008
     assert abs(img[:4, :4, :3].mean() - 1.0) < 1e-6  # the world seen directly
@@ -31,11 +22,11 @@ def test_white_furnace_albedo_08(smooth):
 
 
 def test_white_furnace_albedo_1_disappears():
-    img, _ = render(pc, furnace_scene(1.0, smooth=False), 48, 48, samples=16)
+    img, _ = render(pc, furnace_scene(pc, 1.0, smooth=False), 48, 48, samples=16)
     assert np.abs(img[..., :3] - 1.0).max() < 1e-3
     # Smooth shading normals lose a little energy where a cosine sample around the shading
     # normal falls below the geometric surface; Cycles' diffuse BSDF rejects those samples too.
-    img, _ = render(pc, furnace_scene(1.0, smooth=True), 48, 48, samples=64)
+    img, _ = render(pc, furnace_scene(pc, 1.0, smooth=True), 48, 48, samples=64)
     assert abs(img[..., :3].mean() - 1.0) < 0.01
 
 
@@ -43,12 +34,7 @@ def test_emitting_enclosure_reaches_le_over_one_minus_albedo():
     # Inside a closed sphere with emission Le and albedo a, radiance is Le / (1 - a) everywhere
     # (pbrt-v4's analytic integrator test): exercises emission, NEE/MIS, bounces and roulette.
     for use_nee in (True, False):
-        s = pc.Scene()
-        m = s.add_material("shell", (0.5, 0.5, 0.5), (0.5, 0.5, 0.5))
-        pos, tris, nrm = uv_sphere(1.0, nu=32, nv=16, inward=True)
-        add_object(s, pos, tris, m, nrm)
-        s.set_camera(camera(pc, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), lens=20.0))
-        img, stats = render(pc, s, 32, 32, samples=256, max_bounces=64, use_nee=use_nee)
+        img, stats = render(pc, emitting_enclosure(pc), 32, 32, samples=256, max_bounces=64, use_nee=use_nee)
         assert abs(img[..., :3].mean() - 1.0) < 0.01, (use_nee, img[..., :3].mean())
         assert stats["nonfinite_samples"] == 0
 

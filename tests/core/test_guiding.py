@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, cornell, region_means, render, run_session, uv_sphere
+from core_scenes import core, cornell, emitting_enclosure, furnace_scene, region_means, render, run_session
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
@@ -134,33 +134,19 @@ def test_bad_records_are_ignored():
         g.sample((0.5, 0.5, 0.5), 1.0, 0.5)
 
 
-def furnace(albedo):
-    s = pc.Scene()
-    m = s.add_material("sphere", (albedo, albedo, albedo))
-    pos, tris, nrm = uv_sphere(1.0, nu=64, nv=32)
-    add_object(s, pos, tris, m)
-    s.set_world_color((1.0, 1.0, 1.0))
-    s.set_camera(camera(pc, (0.0, -5.0, 0.0), (0.0, 0.0, 0.0), lens=50.0))
-    return s
-
-
 def test_guided_white_furnace_keeps_its_closed_form_values():
-    img, stats = render(pc, furnace(1.0), 48, 48, samples=64, guiding=True)
+    img, stats = render(pc, furnace_scene(pc, 1.0, smooth=False), 48, 48, samples=64, guiding=True)
     assert "guiding" in stats["kernel"] and stats["guiding_iterations"] == 5  # 1 + 2 + 4 + 8 + 16 samples
     assert abs(img[..., :3].mean() - 1.0) < 0.01
-    img, _ = render(pc, furnace(0.8), 48, 48, samples=64, guiding=True)
+    img, _ = render(pc, furnace_scene(pc, 0.8, smooth=False), 48, 48, samples=64, guiding=True)
     assert abs(img[18:30, 18:30, :3].mean() - 0.8) < 0.01
 
 
 @pytest.mark.converged  # (slow under the sanitizer; the cheaper tests run the same code)
 def test_guided_emitting_enclosure_reaches_le_over_one_minus_albedo():
     for use_nee in (True, False):
-        s = pc.Scene()
-        m = s.add_material("shell", (0.5, 0.5, 0.5), (0.5, 0.5, 0.5))
-        pos, tris, nrm = uv_sphere(1.0, nu=32, nv=16, inward=True)
-        add_object(s, pos, tris, m, nrm)
-        s.set_camera(camera(pc, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), lens=20.0))
-        img, stats = render(pc, s, 32, 32, samples=256, max_bounces=64, use_nee=use_nee, guiding=True)
+        img, stats = render(pc, emitting_enclosure(pc), 32, 32, samples=256, max_bounces=64, use_nee=use_nee,
+                            guiding=True)
         assert abs(img[..., :3].mean() - 1.0) < 0.01, (use_nee, img[..., :3].mean())
         assert stats["nonfinite_samples"] == 0
 
