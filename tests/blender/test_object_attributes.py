@@ -497,3 +497,73 @@ def test_curves_texture_coordinates_from_instancer(output):
     assert diff.max() < 1e-3, diff.max()
     assert len(band_values(ours)) >= 6, band_values(ours)  # each particle its own place
 
+
+# ---------------------------------------------------------------- nested geometry-nodes instances
+
+def _nested_gn_scene(material_name, ids=False):
+    """Geometry-nodes instances of instances: a plane instanced on a 2x2 grid (inner attribute
+    "tint" from the inner index, and "inner"), that group instanced on a 2x2 grid (an outer
+    "tint" that the inner one hides, and "outer"): 16 planes. ids: the outer points carry an
+    "id" attribute (as scattered points do), which Blender's persistent ids then hold instead
+    of the index."""
+    scene = top_view(32)
+    tile = ms.add_plane("Tile", 0.45, attr_material('INSTANCER', material_name, "Color"))
+    tile.hide_render = True
+    host = ms.add_plane("Host", 0.01, None)
+    host["tint"] = (0.0, 0.0, 1.0)  # instance attributes come first
+    tree = bpy.data.node_groups.new("Nested", 'GeometryNodeTree')
+    tree.interface.new_socket("Geometry", in_out='INPUT', socket_type='NodeSocketGeometry')
+    tree.interface.new_socket("Geometry", in_out='OUTPUT', socket_type='NodeSocketGeometry')
+    n, link = tree.nodes, tree.links.new
+
+    def grid(size):
+        g = n.new("GeometryNodeMeshGrid")
+        g.inputs["Size X"].default_value = g.inputs["Size Y"].default_value = size
+        g.inputs["Vertices X"].default_value = g.inputs["Vertices Y"].default_value = 2
+        return g
+    inner_grid, outer_grid = grid(1.0), grid(2.0)
+    inner = n.new("GeometryNodeInstanceOnPoints")
+    info = n.new("GeometryNodeObjectInfo")
+    info.inputs["Object"].default_value = tile
+    link(inner_grid.outputs["Mesh"], inner.inputs["Points"])
+    link(info.outputs["Geometry"], inner.inputs["Instance"])
+    s1 = store_index_colour(tree, inner.outputs["Instances"], "tint", 0.25, 0.1)
+    s2 = store_index_colour(tree, s1.outputs[0], "inner", 0.25, 0.2)
+    outer = n.new("GeometryNodeInstanceOnPoints")
+    points = outer_grid.outputs["Mesh"]
+    if ids:
+        store_id = n.new("GeometryNodeStoreNamedAttribute")
+        store_id.data_type = 'INT'
+        store_id.domain = 'POINT'
+        store_id.inputs["Name"].default_value = "id"
+        index = n.new("GeometryNodeInputIndex")
+        scramble = n.new("ShaderNodeMath")  # 40 - 9 index: ids unlike any index
+        scramble.operation = 'MULTIPLY_ADD'
+        scramble.inputs[1].default_value = -9.0
+        scramble.inputs[2].default_value = 40.0
+        link(index.outputs[0], scramble.inputs[0])
+        link(scramble.outputs[0], store_id.inputs["Value"])
+        link(points, store_id.inputs[0])
+        points = store_id.outputs[0]
+    link(points, outer.inputs["Points"])
+    link(s2.outputs[0], outer.inputs["Instance"])
+    s3 = store_index_colour(tree, outer.outputs["Instances"], "tint", 0.1, 0.9)
+    s4 = store_index_colour(tree, s3.outputs[0], "outer", 0.2, 0.9)
+    out = n.new("NodeGroupOutput")
+    link(s4.outputs[0], out.inputs[0])
+    host.modifiers.new("Nested", 'NODES').node_group = tree
+    return scene
+
+
+@pytest.mark.parametrize("name, expect, ids", [
+    ("tint", {(0.25 * i, 0.1, 0.0) for i in range(4)}, False),  # the inner level's hides the outer's
+    ("inner", {(0.25 * i, 0.2, 0.0) for i in range(4)}, False),
+    ("outer", {(0.2 * j, 0.9, 0.0) for j in range(4)}, False),  # only the outer level has it
+    ("tint", {(0.25 * i, 0.1, 0.0) for i in range(4)}, True),
+    ("outer", {(0.2 * j, 0.9, 0.0) for j in range(4)}, True),
+])
+def test_nested_geometry_nodes_instance_attributes(name, expect, ids):
+    ours, cycles = render_both(lambda: _nested_gn_scene(name, ids))
+    assert_same(ours, cycles, f"nested {name}")
+    got = band_values(ours)
+    assert got == {tuple(round(x, 4) for x in v) for v in expect}, got
