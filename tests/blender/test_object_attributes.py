@@ -140,10 +140,14 @@ def test_particle_instance_attributes():
 def _particle_coords_scene(output):
     """Hair particles rendered as small spheres emitting their Texture Coordinate `output`
     From Instancer (through Absolute: Generated is negative), beside a plain sphere with the
-    same material (no instance: 0)."""
+    same material (no instance: 0). output "UV Map": the UV Map node's From Instancer."""
     scene = top_view(32)
     mat, nodes, links, out = ms.new_material(f"FromInstancer{output}")
-    coord = nodes.new("ShaderNodeTexCoord")
+    if output == "UV Map":
+        coord = nodes.new("ShaderNodeUVMap")
+        output = "UV"
+    else:
+        coord = nodes.new("ShaderNodeTexCoord")
     coord.from_instancer = True
     absolute = nodes.new("ShaderNodeVectorMath")
     absolute.operation = 'ABSOLUTE'
@@ -156,7 +160,7 @@ def _particle_coords_scene(output):
     return scene
 
 
-@pytest.mark.parametrize("output", ["UV", "Generated"])
+@pytest.mark.parametrize("output", ["UV", "Generated", "UV Map"])
 def test_texture_coordinates_from_instancer(output):
     ours, cycles = render_both(lambda: _particle_coords_scene(output))
     assert_same(ours, cycles, f"{output} from instancer")
