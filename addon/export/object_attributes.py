@@ -155,7 +155,9 @@ class InstanceAttributes:
         is_instance = bool(instance.is_instance)
         parent = instance.parent if is_instance else None
         psys = instance.particle_system if is_instance else None
-        gn = self._gn_levels(instance, parent) if parent is not None and psys is None else ()
+        gn = ()  # (only Instancer attributes read them: Object ones share one entry)
+        if parent is not None and psys is None and any(kind == "INSTANCER" for kind, _ in self.slots):
+            gn = self._gn_levels(instance, parent)
         key = (obj.as_pointer(), parent.as_pointer() if parent is not None else 0,
                psys.as_pointer() if psys is not None else 0,
                tuple((id(level), i) for level, i in gn), len(self.slots))
