@@ -187,7 +187,10 @@ class InstanceAttributes:
         key = parent.as_pointer()
         if key not in self._trees:
             level = None
-            if parent.type != 'EMPTY':  # (bpy lists a collection instance as an instance too)
+            # Only geometry nodes make instances with attributes: bpy's evaluated geometry also
+            # lists an object's vertex / face / collection instancing (legacy instances, which
+            # Cycles gives none), so an instancer without a Geometry Nodes modifier has none.
+            if any(m.type == 'NODES' for m in parent.modifiers):
                 try:
                     level = _Level(parent.evaluated_geometry(), parent.type)
                 except (AttributeError, RuntimeError):

@@ -571,3 +571,31 @@ def test_nested_geometry_nodes_instance_attributes(name, expect, ids):
     assert_same(ours, cycles, f"nested {name}")
     got = band_values(ours)
     assert got == {tuple(round(x, 4) for x in v) for v in expect}, got
+
+
+def _face_instances_scene():
+    """A plane instanced on the faces of a 2x2 grid (legacy face instancing, no geometry
+    nodes) whose "id" property the material reads as an Instancer attribute: bpy's evaluated
+    geometry lists these instances with an "id" attribute of their own, which Cycles does not
+    read (only geometry-nodes instances have instance attributes)."""
+    import bmesh
+    scene = top_view(32)
+    me = bpy.data.meshes.new("Grid")
+    bm = bmesh.new()
+    bmesh.ops.create_grid(bm, x_segments=2, y_segments=2, size=1.5)
+    bm.to_mesh(me)
+    bm.free()
+    parent = bpy.data.objects.new("Faces", me)
+    scene.collection.objects.link(parent)
+    parent.instance_type = 'FACES'
+    parent.show_instancer_for_render = False
+    parent["id"] = 0.7
+    child = ms.add_plane("Child", 1.2, attr_material('INSTANCER', "id", "Color"))
+    child.parent = parent
+    return scene
+
+
+def test_face_instances_read_the_instancer_not_legacy_ids():
+    ours, cycles = render_both(_face_instances_scene)
+    assert_same(ours, cycles, "face instances")
+    assert band_values(ours) == {(0.7, 0.7, 0.7)}, band_values(ours)
