@@ -140,7 +140,7 @@ def world_texture(world, warn):
             if source.sky_type == 'HOSEK_WILKIE':
                 params["ground_albedo"] = float(source.ground_albedo)
                 kind = "hosek"
-            rotation = mapped @ _vector_rotation(source.inputs["Vector"], what, warn)
+            rotation = mapped @ _vector_rotation(source.inputs["Vector"], what, warn, unit=True)
             return WorldSky(params, float(node.inputs["Strength"].default_value), rotation,
                             source.name, kind)
         if source.sky_type != 'NISHITA':
@@ -152,7 +152,7 @@ def world_texture(world, warn):
         # Cycles then looks the sky up along the view direction itself.
         vector = source.inputs.get("Vector")
         rotation = mapped @ (np.eye(3, dtype=np.float32) if vector is None
-                             else _vector_rotation(vector, what, warn))
+                             else _vector_rotation(vector, what, warn, unit=True))
         return WorldSky(sky_params(source), float(node.inputs["Strength"].default_value),
                         rotation, source.name)
     if source.type != 'TEX_ENVIRONMENT':
@@ -217,10 +217,12 @@ def _texture_mapping_rotation(tm, what, warn):
     return (m @ project).astype(np.float32)
 
 
-def _vector_rotation(vector_socket, what, warn):
+def _vector_rotation(vector_socket, what, warn, unit=False):
     """The 3x3 matrix taking a world direction to the texture lookup direction, for what
     feeds the Environment Texture's Vector: nothing / Texture Coordinate (the direction
-    itself) or a Mapping node (its rotation; uniform scale does not change a direction)."""
+    itself) or a Mapping node (its rotation; uniform scale does not change a direction the
+    Environment Texture normalises). unit: the texture reads the vector as it is (the Sky
+    Texture: Cycles does not normalise it), so only scales of +-1 keep it; others are warned."""
     node, out_socket = linked_node(vector_socket)
     rotation = np.eye(3)
     if node is not None and node.type == 'MAPPING':
@@ -234,6 +236,10 @@ def _vector_rotation(vector_socket, what, warn):
         if not (np.abs(s) > 0).all() or not np.allclose(np.abs(s), np.abs(s[0]), rtol=1e-5):
             warn(f"{what}: non-uniform Mapping scale is not supported; ignoring the scale")
             s = np.ones(3)
+        elif unit and not np.allclose(np.abs(s), 1.0, rtol=0.0, atol=1e-6):
+            warn(f"{what}: a Mapping scale other than 1 is not supported (Cycles does not "
+                 "renormalise the sky's lookup vector); ignoring the scale")
+            s = np.sign(s)
         if loc is not None and vtype in {'POINT', 'TEXTURE'} and np.any(
                 np.asarray(loc.default_value) != 0):
             warn(f"{what}: Mapping location is not supported for a world (it does not move "

@@ -246,3 +246,22 @@ def test_export_and_fallbacks():
     assert data.world_texture.kind == "hosek" and not warnings
     assert data.world_texture.params["turbidity"] == 3.5
     assert data.world_texture.params["ground_albedo"] == pytest.approx(0.6)
+
+
+def test_sky_mapping_scale_warns():
+    """A Mapping node's uniform scale of 2 changes Cycles' sky (the lookup vector is read
+    unnormalised; 50 % in a Preetham sky): warned, not silently dropped as for the
+    Environment Texture, which normalises; a scale of -1 is a mirror, no warning."""
+    empty_scene(8)
+    camera((0, 0, 0))
+    sky_world(0.8, 'PREETHAM', mapping_rotation=(0.0, 0.0, 0.3), sun_direction=(0.3, 0.5, 0.8))
+    mapping = next(n for n in bpy.context.scene.world.node_tree.nodes if n.type == 'MAPPING')
+    mapping.inputs["Scale"].default_value = (2.0, 2.0, 2.0)
+    warnings = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert len(warnings) == 1 and "Mapping scale" in warnings[0], list(warnings)
+    mapping.inputs["Scale"].default_value = (-1.0, -1.0, -1.0)
+    warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert not warnings, list(warnings)
+    np.testing.assert_allclose(np.linalg.det(data.world_texture.rotation), -1.0, atol=1e-5)
