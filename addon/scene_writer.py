@@ -100,16 +100,22 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
     for c in curves:
         mat = material_ids(c.material)
         infos = c.infos if len(c.infos) == len(c.matrices) else [None] * len(c.matrices)
-        for m, info in zip(c.matrices, infos):
+        attributes = getattr(c, "object_attributes", None) or []
+        for k, (m, info) in enumerate(zip(c.matrices, infos)):
+            # Object / Instancer attribute values only where materials read them.
+            extra = {}
+            if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
+                extra["attributes"] = attributes[k]
             try:
                 if info is None:
-                    scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type)
+                    scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
+                                     **extra)
                     continue
                 color, pass_index, random_id = info
                 if random_id is None:
                     random_id = random_id_of(c.name) if random_id_of else 0
                 scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
-                                 color=color, pass_index=pass_index, random_id=random_id)
+                                 color=color, pass_index=pass_index, random_id=random_id, **extra)
             except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
                 warn(f"Curves '{c.name}' not rendered: {e}")
                 break

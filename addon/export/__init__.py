@@ -46,8 +46,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False),
                           view_layer_ids(depsgraph), depsgraph)
-    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop,
-                            InstanceAttributes(table.uv_sets.object_attributes))
+    attributes = InstanceAttributes(table.uv_sets.object_attributes)
+    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop, attributes)
     for mesh in meshes:
         if mesh.missing_uv_maps:
             warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, mesh.missing_uv_maps))} "
@@ -58,13 +58,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         if getattr(mesh, "tangent_problem", None):
             warn(f"Mesh '{mesh.name}': {mesh.tangent_problem}")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
-    curves = collect_curves(depsgraph, warn)
+    curves = collect_curves(depsgraph, warn, table.index, attributes)
     curve_materials = [table.index(c.material) for c in curves]
-    for c, k in zip(curves, curve_materials):
-        program = table.materials[k].program or []
-        if any(op[0] == "object_attribute" for op in program):  # (per-instance slots: meshes only)
-            warn(f"Curves '{c.name}': Object / Instancer attributes and From Instancer "
-                 "coordinates are not supported on Curves objects (0 is used)")
     lights = collect_lights(depsgraph, warn, is_visible)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
     if far > FAR_FROM_ORIGIN:

@@ -25,6 +25,9 @@ class CurvesData:
     material: object  # the bpy material of slot 1 (or None)
     matrices: list = field(default_factory=list)  # (4, 4) float32 per instance
     infos: list = field(default_factory=list)  # per instance: mesh.object_info's tuple
+    # Per instance: float32 (K, 4) Object / Instancer attribute values of the first K slots
+    # of the scene's (export.object_attributes), or None.
+    object_attributes: list = field(default_factory=list)
 
 
 def _attribute(curves, name, domain, data_type):
@@ -91,9 +94,12 @@ def _warn_bad_strands(points, offsets, radii, warn, name):
              "no positive radius, fewer than 2 points or zero length; they are not rendered")
 
 
-def collect_curves(depsgraph, warn):
+def collect_curves(depsgraph, warn, material_index=None, object_attributes=None):
     """Every visible Curves object of the depsgraph (instances share one CurvesData), and one
-    warning per object with particle hair (not exported)."""
+    warning per object with particle hair (not exported). material_index(material): compiles
+    a material (numbering the Object / Instancer attribute slots it reads) before its
+    instances' values are resolved by `object_attributes` (an
+    object_attributes.InstanceAttributes), as collect_meshes does."""
     out = {}
     warned = set()
     for instance in depsgraph.object_instances:
@@ -114,9 +120,13 @@ def collect_curves(depsgraph, warn):
                 out[key] = None
                 continue
             entry = out[key] = CurvesData(obj.original.name, *arrays, material)
+            if material_index is not None:
+                material_index(material)
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.infos.append(object_info(instance))
+            if object_attributes is not None:
+                entry.object_attributes.append(object_attributes.values(instance))
     return [c for c in out.values() if c is not None]
 
 

@@ -1,11 +1,19 @@
 """The Attribute node's Object and Instancer attributes: per depsgraph instance, the RGBA value
 of each scene-wide slot (shader.UvSets.object_attributes), looked up as Cycles 4.5 does
 (BKE_object_dupli_find_rgba_attribute): for Instancer, on an instance, the particle settings,
-the geometry-nodes instance attribute, then the instancing object; then the object and its
-data. In each holder a custom property of that name before an RNA path ("color",
+the geometry-nodes instance attribute (of nested instances, the innermost level that has
+the name: Cycles' find_geonode_attribute_rgba), then the instancing object; then the object
+and its data. In each holder a custom property of that name before an RNA path ("color",
 "location", "data.foo", '["prop"]'). A name found nowhere reads (0, 0, 0, 0). Also the
 Texture Coordinate node's From Instancer coordinates (kind "DUPLI"): an instance's uv and orco
-on its instancer, as Cycles' dupli_uv and dupli_generated (0.5 orco - 0.5), 0 elsewhere."""
+on its instancer, as Cycles' dupli_uv and dupli_generated (0.5 orco - 0.5), 0 elsewhere.
+
+bpy gives a depsgraph instance no instance attributes: they are read from the instancer's
+evaluated geometry (Object.evaluated_geometry(), each level's instances as a point cloud),
+followed down by the instance's persistent_id, which Blender builds per nesting level from the
+instances' unique ids (BKE duplilist make_dupli). An instance of a collection-instance empty
+that instances a geometry-nodes object has the empty as parent: its geometry-nodes levels are
+not followed (the empty's and the object's own properties still are)."""
 
 import numpy as np
 
@@ -57,6 +65,79 @@ def property_rgba(holder, name):
     return _rgba(v)
 
 
+# Geometry components that make an instance of their own inside an instanced geometry set, in
+# the order Blender numbers them (make_duplis_geometry_set_impl); on the instancing object
+# itself, the component of the object's own type is the object, not an instance.
+_COMPONENTS = (("mesh", ("MESH",)), ("volume", ("VOLUME",)), ("curves", ("CURVES", "CURVE", "FONT")),
+               ("pointcloud", ("POINTCLOUD",)), ("grease_pencil", ("GREASEPENCIL",)))
+
+
+class _Level:
+    """One geometry set of an instancer's geometry-nodes instance tree (read lazily, kept for
+    one export): its instances (as bpy's point cloud of them), their ids and references, and
+    the instance attributes read so far."""
+
+    def __init__(self, geometry, own_type=None):
+        self.geometry = geometry  # keeps the point cloud alive
+        self.components = sum(1 for name, types in _COMPONENTS
+                              if own_type not in types and getattr(geometry, name, None) is not None)
+        try:
+            self.points = geometry.instances_pointcloud()
+        except (AttributeError, RuntimeError):
+            self.points = None
+        self._ids = self._refs = self._handles = None
+        self._children = {}
+        self._attrs = {}
+
+    def index_of(self, unique_id):
+        """The instance whose persistent id is `unique_id` (Blender's Instances::unique_ids: the
+        "id" attribute where there is one, else the index), or None."""
+        n = len(self.points.points)
+        if self._ids is None:
+            self._ids = {}
+            attr = self.points.attributes.get("id")
+            if attr is not None and attr.data_type == 'INT' and attr.domain == 'POINT':
+                ids = np.empty(n, np.int32)
+                attr.data.foreach_get("value", ids)
+                # The first of equal ids keeps it (Blender renumbers the others at random: they
+                # are not found, and only the outer levels' attributes are read).
+                self._ids = dict(zip(ids[::-1].tolist(), range(n - 1, -1, -1)))
+            else:
+                self._ids = False
+        if self._ids is False:
+            return unique_id if 0 <= unique_id < n else None
+        return self._ids.get(unique_id)
+
+    def child(self, index):
+        """The _Level of instance `index`'s reference where it is a geometry set, else None
+        (an object or collection: its own instances are not this tree's)."""
+        if self._handles is None:
+            n = len(self.points.points)
+            attr = self.points.attributes.get(".reference_index")
+            self._handles = np.zeros(n, np.int32)
+            if attr is not None and len(attr.data) == n:
+                attr.data.foreach_get("value", self._handles)
+            try:
+                self._refs = list(self.geometry.instance_references())
+            except (AttributeError, RuntimeError):
+                self._refs = []
+        handle = int(self._handles[index])
+        if handle not in self._children:
+            ref = self._refs[handle] if 0 <= handle < len(self._refs) else None
+            self._children[handle] = _Level(ref) if type(ref).__name__ == "GeometrySet" else None
+        return self._children[handle]
+
+    def attribute(self, name, index):
+        """Instance `index`'s RGBA value of the instance attribute `name`, or None."""
+        if name not in self._attrs:
+            attr = self.points.attributes.get(name)
+            self._attrs[name] = attribute_rgba(attr) if attr is not None and not name.startswith(".") else None
+        values = self._attrs[name]
+        if values is None or not 0 <= index < len(values):
+            return None
+        return tuple(float(x) for x in values[index])
+
+
 class InstanceAttributes:
     """Resolves the slots for depsgraph instances of one export; values shared by every
     instance of the same holders (and geometry-nodes instance attributes) are read once."""
@@ -64,7 +145,7 @@ class InstanceAttributes:
     def __init__(self, slots):
         self.slots = slots  # the live list of (kind, name): it grows as materials compile
         self._cache = {}
-        self._gn = {}  # instancer pointer -> {name: float32 (N, 4) or None}
+        self._trees = {}  # instancer pointer -> its top _Level (or None: no instances)
 
     def values(self, instance):
         """float32 (K, 4) for the first K slots (those numbered so far), or None with none."""
@@ -74,12 +155,15 @@ class InstanceAttributes:
         is_instance = bool(instance.is_instance)
         parent = instance.parent if is_instance else None
         psys = instance.particle_system if is_instance else None
-        gn_index = self._gn_index(instance) if is_instance and psys is None else None
+        gn = ()  # (only Instancer attributes read them: Object ones share one entry)
+        if parent is not None and psys is None and any(kind == "INSTANCER" for kind, _ in self.slots):
+            gn = self._gn_levels(instance, parent)
         key = (obj.as_pointer(), parent.as_pointer() if parent is not None else 0,
-               psys.as_pointer() if psys is not None else 0, gn_index, len(self.slots))
+               psys.as_pointer() if psys is not None else 0,
+               tuple((id(level), i) for level, i in gn), len(self.slots))
         out = self._cache.get(key)
         if out is None:
-            out = np.array([self._value(kind, name, obj, parent, psys, gn_index)
+            out = np.array([self._value(kind, name, obj, parent, psys, gn)
                             for kind, name in self.slots], np.float32)
             self._cache[key] = out
         dupli = [(i, name) for i, (kind, name) in enumerate(self.slots) if kind == "DUPLI"]
@@ -99,36 +183,49 @@ class InstanceAttributes:
         x, y, z = instance.orco
         return (0.5 * x - 0.5, 0.5 * y - 0.5, 0.5 * z - 0.5, 1.0)
 
-    @staticmethod
-    def _gn_index(instance):
-        """The instance's index among its instancer's geometry-nodes instances (a top-level
-        one: persistent id (0, index)), else None."""
-        ids = list(instance.persistent_id)
-        if len(ids) >= 3 and ids[0] == 0 and ids[2] == _UNUSED_ID and ids[1] != _UNUSED_ID:
-            return ids[1]
-        return None
+    def _top(self, parent):
+        key = parent.as_pointer()
+        if key not in self._trees:
+            level = None
+            # Only geometry nodes make instances with attributes: bpy's evaluated geometry also
+            # lists an object's vertex / face / collection instancing (legacy instances, which
+            # Cycles gives none), so an instancer without a Geometry Nodes modifier has none.
+            if any(m.type == 'NODES' for m in parent.modifiers):
+                try:
+                    level = _Level(parent.evaluated_geometry(), parent.type)
+                except (AttributeError, RuntimeError):
+                    level = None
+            self._trees[key] = level if level is not None and level.points is not None else None
+        return self._trees[key]
 
-    def _gn_attribute(self, parent, name, index):
-        per_name = self._gn.setdefault(parent.as_pointer(), {})
-        if name not in per_name:
-            values = None
-            try:
-                geometry = parent.evaluated_geometry()  # keeps the point cloud alive
-                points = geometry.instances_pointcloud()
-            except (AttributeError, RuntimeError):
-                geometry = points = None
-            if points is not None:
-                attr = points.attributes.get(name)
-                if attr is not None and not name.startswith("."):
-                    values = attribute_rgba(attr)
-            del geometry
-            per_name[name] = values
-        values = per_name[name]
-        if values is None or not 0 <= index < len(values):
-            return None
-        return tuple(float(x) for x in values[index])
+    def _gn_levels(self, instance, parent):
+        """[(_Level, instance index)] of a geometry-nodes instance, innermost first (the order
+        Cycles looks attributes up in), followed down the instancer's geometry from the
+        persistent id (outermost last; per geometry set, the components that make instances
+        of their own take the first numbers and its instances then sit one level deeper);
+        () for anything else."""
+        level = self._top(parent)
+        if level is None:
+            return ()
+        path = [p for p in instance.persistent_id if p != _UNUSED_ID][::-1]  # outermost first
+        out = []
+        pos = 0
+        while level is not None and level.points is not None and pos < len(path):
+            if level.components:
+                if path[pos] != level.components:
+                    break  # one of this geometry set's own components: the instance itself
+                pos += 1
+                if pos >= len(path):
+                    break
+            index = level.index_of(path[pos])
+            if index is None:
+                break
+            out.append((level, index))
+            pos += 1
+            level = level.child(index)
+        return tuple(reversed(out))
 
-    def _value(self, kind, name, obj, parent, psys, gn_index):
+    def _value(self, kind, name, obj, parent, psys, gn):
         if kind == "DUPLI":
             return (0.0, 0.0, 0.0, 1.0)  # (per instance: see values())
         if kind == "INSTANCER":
@@ -136,8 +233,8 @@ class InstanceAttributes:
                 v = property_rgba(psys.settings, name)
                 if v is not None:
                     return v
-            if parent is not None and gn_index is not None:
-                v = self._gn_attribute(parent, name, gn_index)
+            for level, index in gn:  # the innermost instance attribute of that name
+                v = level.attribute(name, index)
                 if v is not None:
                     return v
             if parent is not None:

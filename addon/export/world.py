@@ -130,10 +130,9 @@ def world_texture(world, warn):
         return None
     if source.type == 'TEX_SKY':
         what = f"World '{world.name}': Sky Texture '{source.name}'"
-        tm = getattr(source, "texture_mapping", None)  # Python-only; Cycles applies it
-        if tm is not None and (any(tm.rotation) or any(tm.translation)
-                               or tuple(tm.scale) != (1.0, 1.0, 1.0)):
-            warn(f"{what}: its texture_mapping (set from Python) is not supported; ignored")
+        # Cycles applies the node's texture mapping (Python-only since 2.8) after the Vector
+        # input, also to Nishita's unavailable one (the view direction).
+        mapped = _texture_mapping_rotation(getattr(source, "texture_mapping", None), what, warn)
         if source.sky_type in {'PREETHAM', 'HOSEK_WILKIE'}:
             params = {"sun_direction": tuple(float(c) for c in source.sun_direction),
                       "turbidity": float(source.turbidity)}
@@ -141,7 +140,7 @@ def world_texture(world, warn):
             if source.sky_type == 'HOSEK_WILKIE':
                 params["ground_albedo"] = float(source.ground_albedo)
                 kind = "hosek"
-            rotation = _vector_rotation(source.inputs["Vector"], what, warn)
+            rotation = mapped @ _vector_rotation(source.inputs["Vector"], what, warn, unit=True)
             return WorldSky(params, float(node.inputs["Strength"].default_value), rotation,
                             source.name, kind)
         if source.sky_type != 'NISHITA':
@@ -152,8 +151,8 @@ def world_texture(world, warn):
         # Blender 4.5 makes Nishita's Vector socket unavailable (get() does not find it), and
         # Cycles then looks the sky up along the view direction itself.
         vector = source.inputs.get("Vector")
-        rotation = (np.eye(3, dtype=np.float32) if vector is None
-                    else _vector_rotation(vector, what, warn))
+        rotation = mapped @ (np.eye(3, dtype=np.float32) if vector is None
+                             else _vector_rotation(vector, what, warn, unit=True))
         return WorldSky(sky_params(source), float(node.inputs["Strength"].default_value),
                         rotation, source.name)
     if source.type != 'TEX_ENVIRONMENT':
@@ -181,10 +180,49 @@ def _euler_matrix(xyz):
     return np.array(Euler(tuple(float(a) for a in xyz), 'XYZ').to_matrix(), np.float64)
 
 
-def _vector_rotation(vector_socket, what, warn):
+def _texture_mapping_rotation(tm, what, warn):
+    """float32 3x3 matrix of a texture node's texture_mapping (bpy TexMapping) as Cycles
+    applies it to a direction (TextureMapping::compute_transform: the axis projection first,
+    then translation-rotation-scale, inverted for TEXTURE, transposed inverse for NORMAL), where
+    it keeps directions unit: rotations, axis permutations and scales of +-1. Cycles does not
+    normalise the vector a sky reads, so other scales, a translation of a POINT or TEXTURE
+    mapping and the min/max clamps change the sky in ways a rotation cannot: warned, ignored."""
+    if tm is None:
+        return np.eye(3, dtype=np.float32)
+    vtype = tm.vector_type
+    axes = (tm.mapping_x, tm.mapping_y, tm.mapping_z)
+    project = np.eye(3)
+    if axes != ('X', 'Y', 'Z'):
+        if sorted(axes) == ['X', 'Y', 'Z']:
+            project = np.zeros((3, 3))
+            for row, axis in enumerate(axes):
+                project[row, "XYZ".index(axis)] = 1.0
+        else:
+            warn(f"{what}: texture mapping axes {'/'.join(axes)} (not a permutation of X, Y, "
+                 "Z) are not supported; ignored")
+    s = np.asarray(tm.scale, np.float64)
+    if not np.allclose(np.abs(s), 1.0, rtol=0.0, atol=1e-6):
+        warn(f"{what}: texture mapping scale {tuple(round(float(x), 4) for x in s)} is not "
+             "supported (only rotations keep the sky's lookup direction unit); ignored")
+        s = np.ones(3)
+    flip = np.diag(np.sign(s))
+    if any(tm.translation) and vtype in {'POINT', 'TEXTURE'}:
+        warn(f"{what}: texture mapping location is not supported for a sky; ignored")
+    if tm.use_min or tm.use_max:
+        warn(f"{what}: texture mapping min / max clamping is not supported; ignored")
+    r = _euler_matrix(tm.rotation) if any(tm.rotation) else np.eye(3)
+    # t = M P d: M = R S (POINT, VECTOR), (R S)^-1 = S R^T (TEXTURE), (R S)^-T = R S (NORMAL,
+    # then normalised: the same direction), with S = S^-1 = flip.
+    m = flip @ r.T if vtype == 'TEXTURE' else r @ flip
+    return (m @ project).astype(np.float32)
+
+
+def _vector_rotation(vector_socket, what, warn, unit=False):
     """The 3x3 matrix taking a world direction to the texture lookup direction, for what
     feeds the Environment Texture's Vector: nothing / Texture Coordinate (the direction
-    itself) or a Mapping node (its rotation; uniform scale does not change a direction)."""
+    itself) or a Mapping node (its rotation; uniform scale does not change a direction the
+    Environment Texture normalises). unit: the texture reads the vector as it is (the Sky
+    Texture: Cycles does not normalise it), so only scales of +-1 keep it; others are warned."""
     node, out_socket = linked_node(vector_socket)
     rotation = np.eye(3)
     if node is not None and node.type == 'MAPPING':
@@ -198,6 +236,10 @@ def _vector_rotation(vector_socket, what, warn):
         if not (np.abs(s) > 0).all() or not np.allclose(np.abs(s), np.abs(s[0]), rtol=1e-5):
             warn(f"{what}: non-uniform Mapping scale is not supported; ignoring the scale")
             s = np.ones(3)
+        elif unit and not np.allclose(np.abs(s), 1.0, rtol=0.0, atol=1e-6):
+            warn(f"{what}: a Mapping scale other than 1 is not supported (Cycles does not "
+                 "renormalise the sky's lookup vector); ignoring the scale")
+            s = np.sign(s)
         if loc is not None and vtype in {'POINT', 'TEXTURE'} and np.any(
                 np.asarray(loc.default_value) != 0):
             warn(f"{what}: Mapping location is not supported for a world (it does not move "

@@ -240,12 +240,27 @@ class IndexArray {
   bool is_i32_ = false;
 };
 
+// Object / Instancer attribute values of an instance or Curves object: None, or a (K, 4) float
+// array with K <= kMaxObjectAttributes; NaN and inf become 0. `what` names the caller.
+std::vector<Float4> to_object_attributes(const py::object& attributes, const char* what) {
+  std::vector<Float4> attrs;
+  if (attributes.is_none()) return attrs;
+  const auto a = attributes.cast<FloatArray>();
+  if (a.ndim() != 2 || a.shape(1) != 4 || a.shape(0) > py::ssize_t(kMaxObjectAttributes))
+    throw std::invalid_argument(std::string(what) + " attributes must be a (K, 4) array with K <= 8");
+  for (py::ssize_t k = 0; k < a.shape(0); ++k) {
+    auto clean = [&](py::ssize_t c) { const float x = a.at(k, c); return std::isfinite(x) ? x : 0.0f; };
+    attrs.push_back({clean(0), clean(1), clean(2), clean(3)});
+  }
+  return attrs;
+}
+
 // A Curves object: points (N, 3), offsets (C + 1) into them, radii (N) or None (Cycles'
 // default 0.005), one material, the object's matrix. Strands with bad values are left out at
 // commit (stats()["skipped_curves"]); inconsistent shapes or offsets raise ValueError.
 uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& offsets, const py::object& radii_obj,
                     uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions,
-                    const py::object& color, float pass_index, uint32_t random_id) {
+                    const py::object& color, float pass_index, uint32_t random_id, const py::object& attributes) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -279,6 +294,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   }
   cs.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   cs.info.random = object_random(random_id);
+  cs.attrs = to_object_attributes(attributes, "curves");
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -1993,11 +2009,12 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
-           py::arg("random_id") = 0u,
+           py::arg("random_id") = 0u, py::arg("attributes") = py::none(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
-           "color, pass_index, random_id: the object's (Object Info), as add_instance.")
+           "color, pass_index, random_id: the object's (Object Info), as add_instance. attributes: its "
+           "Object / Instancer attribute values, (K, 4) by slot with K <= 8, as add_instance.")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
@@ -2078,18 +2095,8 @@ PYBIND11_MODULE(pathlight_core, m) {
             }
             info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
             info.random = object_random(random_id);
-            std::vector<Float4> attrs;
-            if (!attributes.is_none()) {
-              const auto a = attributes.cast<FloatArray>();
-              if (a.ndim() != 2 || a.shape(1) != 4 || a.shape(0) > py::ssize_t(kMaxObjectAttributes))
-                throw std::invalid_argument("instance attributes must be a (K, 4) array with K <= 8");
-              for (py::ssize_t k = 0; k < a.shape(0); ++k) {
-                auto clean = [&](py::ssize_t c) { const float x = a.at(k, c); return std::isfinite(x) ? x : 0.0f; };
-                attrs.push_back({clean(0), clean(1), clean(2), clean(3)});
-              }
-            }
             self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info, to_motion(motion, "instance motion"),
-                                     attrs);
+                                     to_object_attributes(attributes, "instance"));
           },
           py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
           py::arg("random_id") = 0u, py::arg("motion") = py::none(), py::arg("attributes") = py::none(),

@@ -84,7 +84,8 @@ struct CurveSetData {
   int subdivisions = 8;          // linear pieces per Catmull-Rom segment
   uint32_t material = 0;
   Mat4 matrix;
-  ObjectInfo info;
+  ObjectInfo info;              // (attr_first / attr_count unused: attrs holds them)
+  std::vector<Float4> attrs;    // Object / Instancer attribute values by slot (<= kMaxObjectAttributes)
 };
 
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).

@@ -376,6 +376,10 @@ void Scene::build_curves() {
     auto_texspace(cs.points, loc, size);
     curve_coords_.push_back(make_object_coords(cs.matrix, loc, size));
     curve_coords_.back().info = cs.info;
+    // The object attributes live in the set itself (curve_sets_ changes only with a rebuild).
+    curve_coords_.back().info.attr_first = 0;
+    curve_coords_.back().info.attr_count = uint32_t(std::min<size_t>(cs.attrs.size(), kMaxObjectAttributes));
+    curve_coords_.back().attrs = cs.attrs.empty() ? nullptr : cs.attrs.data();
     kept.clear();
     const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces, &kept);
     for (uint32_t c : kept) {

@@ -87,9 +87,10 @@ def test_bad_strands_warn_and_render():
     assert np.isfinite(img).all()
 
 
-def test_object_attributes_on_curves_warn():
-    """Object attributes are per-instance slots of meshes: on a Curves object they read 0, and
-    the export says so (no silent 0)."""
+def test_object_attributes_on_curves_export_without_warning():
+    """Object attributes on a Curves object are per-object slots of the curves (as of meshes'
+    instances): the export resolves them and warns about nothing (it used to warn that they
+    read 0; their values against Cycles: test_object_attributes.py)."""
     from addon.export import export_scene
     ms.studio(size=16)
     mat, nodes, links, out = ms.new_material("CurvesAttr")
@@ -98,10 +99,15 @@ def test_object_attributes_on_curves_warn():
     em = nodes.new("ShaderNodeEmission")
     links.new(attr.outputs["Color"], em.inputs["Color"])
     links.new(em.outputs[0], out.inputs["Surface"])
-    add_hair("Hair", mat, strands=3, keys=4)
+    obj = add_hair("Hair", mat, strands=3, keys=4)
+    obj["tint"] = (0.25, 0.5, 0.75)
     warn = Warnings()
-    export_scene(bpy.context.evaluated_depsgraph_get(), warn)
-    assert any("Curves 'Hair'" in w and "Object / Instancer attributes" in w for w in warn), list(warn)
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warn)
+    assert not warn, list(warn)
+    (c,) = data.curves
+    assert data.uv_sets.object_attributes == [('OBJECT', "tint")]
+    assert len(c.object_attributes) == 1
+    np.testing.assert_allclose(c.object_attributes[0], [[0.25, 0.5, 0.75, 1.0]])
 
 
 def test_diffuse_hair_matches_cycles():

@@ -140,10 +140,14 @@ def test_particle_instance_attributes():
 def _particle_coords_scene(output):
     """Hair particles rendered as small spheres emitting their Texture Coordinate `output`
     From Instancer (through Absolute: Generated is negative), beside a plain sphere with the
-    same material (no instance: 0)."""
+    same material (no instance: 0). output "UV Map": the UV Map node's From Instancer."""
     scene = top_view(32)
     mat, nodes, links, out = ms.new_material(f"FromInstancer{output}")
-    coord = nodes.new("ShaderNodeTexCoord")
+    if output == "UV Map":
+        coord = nodes.new("ShaderNodeUVMap")
+        output = "UV"
+    else:
+        coord = nodes.new("ShaderNodeTexCoord")
     coord.from_instancer = True
     absolute = nodes.new("ShaderNodeVectorMath")
     absolute.operation = 'ABSOLUTE'
@@ -156,7 +160,7 @@ def _particle_coords_scene(output):
     return scene
 
 
-@pytest.mark.parametrize("output", ["UV", "Generated"])
+@pytest.mark.parametrize("output", ["UV", "Generated", "UV Map"])
 def test_texture_coordinates_from_instancer(output):
     ours, cycles = render_both(lambda: _particle_coords_scene(output))
     assert_same(ours, cycles, f"{output} from instancer")
@@ -317,3 +321,281 @@ def test_persistent_data_takes_a_changed_object_attribute():
         render_cache.clear()
     assert np.allclose(first[8, 8, :3], 0.25, atol=1e-5), first[8, 8]
     assert np.allclose(second[8, 8, :3], 0.75, atol=1e-5), second[8, 8]
+
+
+# ---------------------------------------------------------------- Curves objects (hair)
+
+BANDS = [-1.5 + k + 0.0625 for k in range(4)]  # on pixel centres: strand edges 0.025 from the next
+
+
+def add_strands(name, mat, ys=(-0.25, 0.0, 0.25), length=6.0, radius=0.1, link=True, **transform):
+    """A Curves object of straight poly strands along x through each local y of `ys`, longer
+    than the frame (no strand ends in view), their edges between pixel centres."""
+    curves = bpy.data.hair_curves.new(name)
+    curves.add_curves([2] * len(ys))
+    pts = np.array([[(-length / 2, y, 0.0), (length / 2, y, 0.0)] for y in ys], np.float32)
+    curves.attributes["position"].data.foreach_set("vector", pts.ravel())
+    r = curves.attributes.new("radius", 'FLOAT', 'POINT')
+    r.data.foreach_set("value", np.full(2 * len(ys), radius, np.float32))
+    curves.set_types(type='POLY')
+    curves.materials.append(mat)
+    obj = bpy.data.objects.new(name, curves)
+    for k, v in transform.items():
+        setattr(obj, k, v)
+    if link:
+        bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def curves_view(resolution=32):
+    scene = top_view(resolution)
+    scene.cycles_curves.shape = 'THICK'  # Cycles' 3D curves, as Pathlight traces them
+    return scene
+
+
+def band_values(img):
+    """The distinct non-black colours of an image (rounded)."""
+    px = np.round(img[..., :3].reshape(-1, 3).astype(np.float64), 4)
+    return {tuple(float(x) for x in v) for v in px if v.max() > 0.0}
+
+
+@pytest.mark.parametrize("case", ["custom vector", "custom float", "object colour", "data property", "missing"])
+def test_curves_object_attributes_as_cycles(case):
+    """Four Curves objects (bands of strands), each with its own value: Object attributes on
+    strands read their object's, as Cycles' do."""
+    name, setup = OBJECT_CASES[case]
+
+    def build():
+        scene = curves_view()
+        mat = attr_material('OBJECT', name, "Color")
+        for k, y in enumerate(BANDS):
+            setup(add_strands(f"H{k}", mat, location=(0.0, y, 0.0)), k)
+        return scene
+    ours, cycles = render_both(build)
+    assert_same(ours, cycles, f"curves {case}")
+    if case == "missing":
+        assert np.abs(ours[..., :3]).max() == 0.0
+    else:
+        assert len(band_values(ours)) == 4, band_values(ours)
+
+
+def _curves_collection_scene(kind):
+    """Four collection instances of a Curves object by empties with their own "tint" (the
+    Curves object has one too)."""
+    scene = curves_view()
+    coll = bpy.data.collections.new("Tuft")
+    tile = add_strands("Tuft", attr_material(kind, "tint", "Color"), link=False)
+    tile["tint"] = (0.3, 0.3, 0.3)
+    coll.objects.link(tile)
+    for k, y in enumerate(BANDS):
+        empty = bpy.data.objects.new(f"E{k}", None)
+        empty.instance_type = 'COLLECTION'
+        empty.instance_collection = coll
+        empty.location = (0.0, y, 0.0)
+        empty["tint"] = TINTS[k]
+        scene.collection.objects.link(empty)
+    return scene
+
+
+@pytest.mark.parametrize("kind", ["INSTANCER", "OBJECT"])
+def test_curves_collection_instance_attributes(kind):
+    ours, cycles = render_both(lambda: _curves_collection_scene(kind))
+    assert_same(ours, cycles, f"curves {kind}")
+    values = band_values(ours)
+    if kind == "INSTANCER":
+        assert values == set(TINTS), values
+    else:
+        assert values == {(0.3, 0.3, 0.3)}, values
+
+
+def store_index_colour(tree, geometry, name, scale, green):
+    """Store Named Attribute `name` on the Instance domain of `geometry` (a socket): the colour
+    (index * scale, green, 0). Returns the node."""
+    n, link = tree.nodes, tree.links.new
+    store = n.new("GeometryNodeStoreNamedAttribute")
+    store.data_type = 'FLOAT_COLOR'
+    store.domain = 'INSTANCE'
+    store.inputs["Name"].default_value = name
+    index = n.new("GeometryNodeInputIndex")
+    mul = n.new("ShaderNodeMath")
+    mul.operation = 'MULTIPLY'
+    mul.inputs[1].default_value = scale
+    comb = n.new("FunctionNodeCombineColor")
+    comb.inputs["Green"].default_value = green
+    link(index.outputs[0], mul.inputs[0])
+    link(mul.outputs[0], comb.inputs["Red"])
+    link(comb.outputs[0], store.inputs["Value"])
+    link(geometry, store.inputs[0])
+    return store
+
+
+def _curves_gn_scene():
+    """A Curves object instanced by geometry nodes on a column of four points (the bands), as
+    an object (Object Info's As Instance: instanced as geometry, Blender 4.5 makes legacy
+    curves of them, which neither engine renders as hair), each instance with an instance
+    attribute "tint" from its index."""
+    scene = curves_view()
+    tile = add_strands("Tuft", attr_material('INSTANCER', "tint", "Color"))
+    tile.hide_render = True
+    host = ms.add_plane("Host", 0.01, None, location=(0.0, 0.0625, 0.0))
+    tree = ms.scatter_on_grid(host, tile, 3.0, 4)
+    inst = next(x for x in tree.nodes if x.bl_idname == "GeometryNodeInstanceOnPoints")
+    line = tree.nodes.new("GeometryNodeMeshLine")  # the points: a column, not the grid
+    line.inputs["Count"].default_value = 4
+    line.inputs["Start Location"].default_value = (0.0, -1.5, 0.0)
+    line.inputs["Offset"].default_value = (0.0, 1.0, 0.0)
+    tree.links.new(line.outputs[0], inst.inputs["Points"])
+    info = next(x for x in tree.nodes if x.bl_idname == "GeometryNodeObjectInfo")
+    info.inputs["As Instance"].default_value = True
+    out = next(x for x in tree.nodes if x.bl_idname == "NodeGroupOutput")
+    store = store_index_colour(tree, inst.outputs["Instances"], "tint", 0.25, 0.3)
+    tree.links.new(store.outputs[0], out.inputs[0])
+    return scene
+
+
+def test_curves_geometry_nodes_instance_attributes():
+    ours, cycles = render_both(_curves_gn_scene)
+    assert_same(ours, cycles, "curves geometry nodes instances")
+    assert band_values(ours) == {(round(0.25 * k, 4), 0.3, 0.0) for k in range(4)}, band_values(ours)
+
+
+def _curves_particle_coords_scene(output):
+    """Hair particles rendered as a short Curves tuft emitting their Texture Coordinate
+    `output` From Instancer (through Absolute)."""
+    scene = curves_view()
+    mat, nodes, links, out = ms.new_material(f"CurvesFromInstancer{output}")
+    coord = nodes.new("ShaderNodeTexCoord")
+    coord.from_instancer = True
+    absolute = nodes.new("ShaderNodeVectorMath")
+    absolute.operation = 'ABSOLUTE'
+    emit = nodes.new("ShaderNodeEmission")
+    links.new(coord.outputs[output], absolute.inputs[0])
+    links.new(absolute.outputs["Vector"], emit.inputs["Color"])
+    links.new(emit.outputs[0], out.inputs["Surface"])
+    tuft = add_strands("Tuft", mat, ys=(0.0,), length=0.5, radius=0.06, location=(0.0, 0.0, -5.0))
+    tuft.hide_render = True
+    emitter = ms.add_plane("Emitter", 3.0, None)
+    emitter.modifiers.new("P", 'PARTICLE_SYSTEM')
+    settings = emitter.particle_systems[0].settings
+    settings.type = 'HAIR'
+    settings.count = 12
+    settings.hair_length = 1.0  # (the instances' scale: the tuft lies flat along world y)
+    settings.render_type = 'OBJECT'
+    settings.instance_object = tuft
+    settings.particle_size = 1.0
+    settings.use_rotation_instance = False
+    emitter.show_instancer_for_render = False
+    return scene
+
+
+@pytest.mark.parametrize("output", ["UV", "Generated"])
+def test_curves_texture_coordinates_from_instancer(output):
+    """Where both engines hit a strand they read the same From Instancer value; the strands'
+    round ends may differ by a pixel (at most 2 % of the image)."""
+    ours, cycles = render_both(lambda: _curves_particle_coords_scene(output))
+    hit_ours, hit_cycles = ours[..., :3].max(-1) > 0.0, cycles[..., :3].max(-1) > 0.0
+    assert (hit_ours != hit_cycles).mean() <= 0.02, (hit_ours != hit_cycles).mean()
+    both = hit_ours & hit_cycles
+    assert both.sum() >= 40, both.sum()
+    diff = np.abs(ours[both][:, :3] - cycles[both][:, :3])
+    assert diff.max() < 1e-3, diff.max()
+    assert len(band_values(ours)) >= 6, band_values(ours)  # each particle its own place
+
+
+# ---------------------------------------------------------------- nested geometry-nodes instances
+
+def _nested_gn_scene(material_name, ids=False):
+    """Geometry-nodes instances of instances: a plane instanced on a 2x2 grid (inner attribute
+    "tint" from the inner index, and "inner"), that group instanced on a 2x2 grid (an outer
+    "tint" that the inner one hides, and "outer"): 16 planes. ids: the outer points carry an
+    "id" attribute (as scattered points do), which Blender's persistent ids then hold instead
+    of the index."""
+    scene = top_view(32)
+    tile = ms.add_plane("Tile", 0.45, attr_material('INSTANCER', material_name, "Color"))
+    tile.hide_render = True
+    host = ms.add_plane("Host", 0.01, None)
+    host["tint"] = (0.0, 0.0, 1.0)  # instance attributes come first
+    tree = bpy.data.node_groups.new("Nested", 'GeometryNodeTree')
+    tree.interface.new_socket("Geometry", in_out='INPUT', socket_type='NodeSocketGeometry')
+    tree.interface.new_socket("Geometry", in_out='OUTPUT', socket_type='NodeSocketGeometry')
+    n, link = tree.nodes, tree.links.new
+
+    def grid(size):
+        g = n.new("GeometryNodeMeshGrid")
+        g.inputs["Size X"].default_value = g.inputs["Size Y"].default_value = size
+        g.inputs["Vertices X"].default_value = g.inputs["Vertices Y"].default_value = 2
+        return g
+    inner_grid, outer_grid = grid(1.0), grid(2.0)
+    inner = n.new("GeometryNodeInstanceOnPoints")
+    info = n.new("GeometryNodeObjectInfo")
+    info.inputs["Object"].default_value = tile
+    link(inner_grid.outputs["Mesh"], inner.inputs["Points"])
+    link(info.outputs["Geometry"], inner.inputs["Instance"])
+    s1 = store_index_colour(tree, inner.outputs["Instances"], "tint", 0.25, 0.1)
+    s2 = store_index_colour(tree, s1.outputs[0], "inner", 0.25, 0.2)
+    outer = n.new("GeometryNodeInstanceOnPoints")
+    points = outer_grid.outputs["Mesh"]
+    if ids:
+        store_id = n.new("GeometryNodeStoreNamedAttribute")
+        store_id.data_type = 'INT'
+        store_id.domain = 'POINT'
+        store_id.inputs["Name"].default_value = "id"
+        index = n.new("GeometryNodeInputIndex")
+        scramble = n.new("ShaderNodeMath")  # 40 - 9 index: ids unlike any index
+        scramble.operation = 'MULTIPLY_ADD'
+        scramble.inputs[1].default_value = -9.0
+        scramble.inputs[2].default_value = 40.0
+        link(index.outputs[0], scramble.inputs[0])
+        link(scramble.outputs[0], store_id.inputs["Value"])
+        link(points, store_id.inputs[0])
+        points = store_id.outputs[0]
+    link(points, outer.inputs["Points"])
+    link(s2.outputs[0], outer.inputs["Instance"])
+    s3 = store_index_colour(tree, outer.outputs["Instances"], "tint", 0.1, 0.9)
+    s4 = store_index_colour(tree, s3.outputs[0], "outer", 0.2, 0.9)
+    out = n.new("NodeGroupOutput")
+    link(s4.outputs[0], out.inputs[0])
+    host.modifiers.new("Nested", 'NODES').node_group = tree
+    return scene
+
+
+@pytest.mark.parametrize("name, expect, ids", [
+    ("tint", {(0.25 * i, 0.1, 0.0) for i in range(4)}, False),  # the inner level's hides the outer's
+    ("inner", {(0.25 * i, 0.2, 0.0) for i in range(4)}, False),
+    ("outer", {(0.2 * j, 0.9, 0.0) for j in range(4)}, False),  # only the outer level has it
+    ("tint", {(0.25 * i, 0.1, 0.0) for i in range(4)}, True),
+    ("outer", {(0.2 * j, 0.9, 0.0) for j in range(4)}, True),
+])
+def test_nested_geometry_nodes_instance_attributes(name, expect, ids):
+    ours, cycles = render_both(lambda: _nested_gn_scene(name, ids))
+    assert_same(ours, cycles, f"nested {name}")
+    got = band_values(ours)
+    assert got == {tuple(round(x, 4) for x in v) for v in expect}, got
+
+
+def _face_instances_scene():
+    """A plane instanced on the faces of a 2x2 grid (legacy face instancing, no geometry
+    nodes) whose "id" property the material reads as an Instancer attribute: bpy's evaluated
+    geometry lists these instances with an "id" attribute of their own, which Cycles does not
+    read (only geometry-nodes instances have instance attributes)."""
+    import bmesh
+    scene = top_view(32)
+    me = bpy.data.meshes.new("Grid")
+    bm = bmesh.new()
+    bmesh.ops.create_grid(bm, x_segments=2, y_segments=2, size=1.5)
+    bm.to_mesh(me)
+    bm.free()
+    parent = bpy.data.objects.new("Faces", me)
+    scene.collection.objects.link(parent)
+    parent.instance_type = 'FACES'
+    parent.show_instancer_for_render = False
+    parent["id"] = 0.7
+    child = ms.add_plane("Child", 1.2, attr_material('INSTANCER', "id", "Color"))
+    child.parent = parent
+    return scene
+
+
+def test_face_instances_read_the_instancer_not_legacy_ids():
+    ours, cycles = render_both(_face_instances_scene)
+    assert_same(ours, cycles, "face instances")
+    assert band_values(ours) == {(0.7, 0.7, 0.7)}, band_values(ours)

@@ -141,6 +141,33 @@ def test_hosek_seen_directly_matches_cycles(sun, turbidity, albedo, rotation):
         assert_agrees(ours, ref, what=f"looking along {look}")
 
 
+@pytest.mark.parametrize("sky_type, mapping", [
+    ('PREETHAM', dict(rotation=(0.2, 0.0, 0.9))),
+    ('PREETHAM', dict(rotation=(0.2, 0.0, 0.9), vector_type='TEXTURE', scale=(-1.0, -1.0, -1.0))),
+    ('NISHITA', dict(rotation=(0.0, 0.3, 0.9), mapping_x='Y', mapping_y='X')),
+])
+def test_sky_texture_mapping_matches_cycles(sky_type, mapping):
+    """The Sky Texture node's texture_mapping (Python-only), which Cycles applies to the lookup
+    direction, also Nishita's (no Vector socket): rotations, axis permutations, scales of +-1."""
+    from mathutils import Vector
+    scene = empty_scene(32)
+    if sky_type == 'PREETHAM':
+        sky = sky_world(0.8, 'PREETHAM', sun_direction=(0.3, 0.5, 0.8), turbidity=3.0)
+    else:
+        sky = sky_world(1.0, 'NISHITA', sun_elevation=25 * DEG, sun_disc=False)
+    for name, value in mapping.items():
+        setattr(sky.texture_mapping, name, value)
+    cam = camera((0, 0, 0), lens=10.0)
+    warnings = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert not warnings, list(warnings)
+    for look in ((0.0, 1.0, 0.35), (0.3, -0.5, 0.8)):  # (the horizon mostly out of view)
+        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
+        ours = render_to_array(scene, samples=16)
+        ref = render_to_array(scene, "CYCLES", samples=16, **BOX_FILTER)
+        assert_agrees(ours, ref, what=f"{sky_type} {mapping} looking along {look}")
+
+
 def test_nishita_has_no_vector_input():
     # Blender 4.5 makes the Nishita type's Vector socket unavailable (Cycles uses the view
     # direction as is): the export needs no Mapping and warns about nothing.
@@ -192,11 +219,20 @@ def test_export_and_fallbacks():
     assert data.world_texture.params["sun_elevation"] == pytest.approx(20 * DEG)
     assert data.world_texture.params["altitude"] == 500.0
     assert not warnings
+    # The texture mapping's rotation is applied as Cycles applies it (test_sky_texture_mapping_
+    # matches_cycles); a scale other than +-1 is not (Cycles does not renormalise the vector).
     sky.texture_mapping.rotation = (0.0, 0.0, 0.5)
     warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert not warnings, list(warnings)
+    c, s = math.cos(0.5), math.sin(0.5)
+    np.testing.assert_allclose(data.world_texture.rotation, [[c, -s, 0], [s, c, 0], [0, 0, 1]], atol=1e-6)
+    sky.texture_mapping.scale = (2.0, 2.0, 2.0)
+    warnings = Warnings()
     export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
-    assert len(warnings) == 1 and "texture_mapping" in warnings[0]
+    assert len(warnings) == 1 and "texture mapping scale" in warnings[0], list(warnings)
     sky.texture_mapping.rotation = (0.0, 0.0, 0.0)
+    sky.texture_mapping.scale = (1.0, 1.0, 1.0)
     sky.sky_type = 'PREETHAM'
     sky.turbidity = 3.5
     warnings = Warnings()
@@ -210,3 +246,22 @@ def test_export_and_fallbacks():
     assert data.world_texture.kind == "hosek" and not warnings
     assert data.world_texture.params["turbidity"] == 3.5
     assert data.world_texture.params["ground_albedo"] == pytest.approx(0.6)
+
+
+def test_sky_mapping_scale_warns():
+    """A Mapping node's uniform scale of 2 changes Cycles' sky (the lookup vector is read
+    unnormalised; 50 % in a Preetham sky): warned, not silently dropped as for the
+    Environment Texture, which normalises; a scale of -1 is a mirror, no warning."""
+    empty_scene(8)
+    camera((0, 0, 0))
+    sky_world(0.8, 'PREETHAM', mapping_rotation=(0.0, 0.0, 0.3), sun_direction=(0.3, 0.5, 0.8))
+    mapping = next(n for n in bpy.context.scene.world.node_tree.nodes if n.type == 'MAPPING')
+    mapping.inputs["Scale"].default_value = (2.0, 2.0, 2.0)
+    warnings = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert len(warnings) == 1 and "Mapping scale" in warnings[0], list(warnings)
+    mapping.inputs["Scale"].default_value = (-1.0, -1.0, -1.0)
+    warnings = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert not warnings, list(warnings)
+    np.testing.assert_allclose(np.linalg.det(data.world_texture.rotation), -1.0, atol=1e-5)

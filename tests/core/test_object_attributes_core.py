@@ -89,3 +89,44 @@ def test_normal_map_spaces(space, expect):
     n = img[3:5, 3:5, :3].mean(axis=(0, 1)) * 2.0 - 1.0
     # Emission is clamped at 0: compare where n / 2 + 1/2 is positive (all of it here).
     assert np.allclose(n, expect, atol=1e-4), (space, n)
+
+
+def two_strand_sets(program, attributes):
+    """Two Curves objects of one thick vertical strand each, left and right, one per attributes
+    entry (None: no attributes): the program's colour at each."""
+    s = pc.Scene()
+    m = s.add_shader("t", program)
+    pts = np.array([[0.0, -2.0, 0.0], [0.0, 2.0, 0.0]], np.float32)
+    for x, attrs in zip((-0.6, 0.6), attributes):
+        mat = np.eye(4, dtype=np.float32)
+        mat[0, 3] = x
+        kw = {} if attrs is None else {"attributes": np.asarray(attrs, np.float32)}
+        s.add_curves(pts, np.array([0, 2]), np.full(2, 0.5, np.float32), m, matrix=mat,
+                     curve_type="poly", **kw)
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(camera(pc, (0.0, 0.0, 6.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)))
+    img, stats = render(pc, s, 16, 8, samples=1, max_bounces=1)
+    assert stats["nonfinite_samples"] == 0
+    return img[3:5, 5:7, :3].mean(axis=(0, 1)), img[3:5, 9:11, :3].mean(axis=(0, 1))
+
+
+def test_curves_read_their_own_slots():
+    """add_curves' attributes: each Curves object reads its own slots (as add_instance's), a
+    set without them or a slot past its count reads 0, non-finite values read 0."""
+    a = [[0.1, 0.2, 0.3, 0.4], [0.9, 0.5, 0.25, 0.75]]
+    b = [[0.6, 0.7, 0.8, 0.2], [0.05, np.nan, 0.15, 0.5]]
+    prog = [("object_attribute", 0, 1, "COLOR"), ("closure", "emission", None, {"color": 0})]
+    left, right = two_strand_sets(prog, [a, b])
+    assert np.allclose(left, a[1][:3], atol=1e-5), left
+    assert np.allclose(right, (0.05, 0.0, 0.15), atol=1e-5), right
+    left, right = two_strand_sets(prog, [None, a[:1]])
+    assert np.allclose(left, 0.0) and np.allclose(right, 0.0), (left, right)
+
+
+@pytest.mark.parametrize("attrs", [np.zeros((9, 4)), np.zeros((2, 3)), np.zeros(4)])
+def test_bad_curves_attributes_are_refused(attrs):
+    s = pc.Scene()
+    m = s.add_material("m")
+    with pytest.raises((ValueError, TypeError)):
+        s.add_curves(np.zeros((2, 3), np.float32) + [[0, 0, 0], [0, 1, 0]], np.array([0, 2]), None, m,
+                     attributes=attrs.astype(np.float32))

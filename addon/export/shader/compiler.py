@@ -261,8 +261,8 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         if t == 'TEX_COORD':
             return self.tex_coord(node, oid)
         if t == 'UVMAP':
-            if node.from_instancer:
-                self.problem(f"'{node.name}': UV from instancer is not supported")
+            if node.from_instancer:  # Cycles: the instance's dupli uv, whatever the map
+                return self.instancer_coords(node, "UV")
             return self.uv_value(node.uv_map, f"'{node.name}'")
         if t == 'NEW_GEOMETRY':
             if oid == "Position":
