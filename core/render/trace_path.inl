@@ -8,9 +8,11 @@
 // (reflection or transmission) that the geometric normal allows, so that shading normals never
 // let light through a surface or reflect it from behind. kDiffuseOnly (diffuse-only kernels):
 // every closure is a DiffuseBsdf, whose eval is called directly rather than through the
-// variant's dispatch (the same arithmetic, so the same result).
+// variant's dispatch (the same arithmetic, so the same result). `sampled`: the closure that
+// drew wi (BSDF sampling; nullptr for light samples), which the Hair BSDF evaluates apart.
 template <bool kDiffuseOnly = false>
-[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
+[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf,
+                                                const Closure* sampled = nullptr) {
   Vec3 f(0.0f);
   pdf = 0.0f;
   for (int i = 0; i < cl.n; ++i) {
@@ -29,6 +31,10 @@ template <bool kDiffuseOnly = false>
     } else if (const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf)) {
       if (!reflection) continue;
       v = d->eval(lo, li, p);  // the common lobe without the variant's out-of-line visit
+    } else if (const HairBsdf* hb = std::get_if<HairBsdf>(&c.bsdf)) {
+      // Cycles' Hair BSDF tests N's side itself, and along the direction it sampled carries
+      // its sample's value (hair_bsdf.h).
+      v = &c == sampled ? hb->eval_sampled(lo, li, p) : hb->eval(lo, li, p);
     } else {
       // Hair lobes span the whole sphere (their frame's z is no surface normal).
       if (same_side(lo, li) != reflection && !std::holds_alternative<HairChiangBsdf>(c.bsdf)) continue;
@@ -576,8 +582,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (!d || !d->sample(ch.frame.to_local(wo), u, ul, bs)) break;  // (!d: unreachable, ends the path)
     }
     const Vec3 wi = ch.frame.to_world(bs.wi);
-    // On curves the side is the geometry's (hair lobes' flags name R or TT, not a side).
-    const bool reflection = sp.curve() ? dot(wi, ng_out) > 0.0f : (bs.flags & kReflect) != 0;
+    // On curves the side is the geometry's (hair lobes' flags name R or TT, not a side), and
+    // so it is for the Hair BSDF, whose samples Cycles never tests against a side.
+    const bool reflection = sp.curve() || (kNonDiffuse && std::holds_alternative<HairBsdf>(ch.bsdf))
+                                ? dot(wi, ng_out) > 0.0f
+                                : (bs.flags & kReflect) != 0;
     // The sampled side must agree with the geometric normal, or light would leak.
     if ((dot(wi, ng_out) > 0.0f) != reflection) break;
     if (kNonDiffuse && (bs.flags & kDelta)) {
@@ -590,7 +599,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     } else {
       float pdf;
-      const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf);
+      const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf, &ch);
       if constexpr (kGuide)
         if (guided && guide_sampling)
           pdf = (1.0f - guide_prob) * pdf + guide_prob * (from_guide ? guide_pdf : guide->pdf(guide_cell, wi));

@@ -419,7 +419,7 @@ struct SubsurfaceBsdf {
 namespace pl {
 
 using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf,
-                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf>;
+                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf, HairBsdf>;
 
 // The Principled BSDF's GGX lobes first, outside the visit: its dispatch over all the kinds
 // would otherwise cost the default material a little on every evaluation.

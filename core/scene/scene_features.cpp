@@ -89,7 +89,8 @@ void Scene::detect_features() {
         else if (std::holds_alternative<TranslucentBsdf>(b)) f.diffuse = f.transmission = true;
         else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
-        else if (std::holds_alternative<HairChiangBsdf>(b)) f.glossy = f.transmission = true;
+        else if (std::holds_alternative<HairChiangBsdf>(b) || std::holds_alternative<HairBsdf>(b))
+          f.glossy = f.transmission = true;
         else if (std::holds_alternative<SubsurfaceBsdf>(b)) f.subsurface = true;
         // Rough diffuse and sheen: diffuse bounces, but not the diffuse-only kernel's lobe.
         else if (std::holds_alternative<OrenNayarBsdf>(b) || std::holds_alternative<SheenBsdf>(b) ||
@@ -117,7 +118,7 @@ void Scene::detect_features() {
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
         case OpCode::Transparent: f.transparent = true; break;
         case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
-        case OpCode::PrincipledHair: f.glossy = f.transmission = true; break;
+        case OpCode::PrincipledHair: case OpCode::Hair: f.glossy = f.transmission = true; break;
         default: break;
       }
     }

@@ -48,6 +48,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     cs.random = curve_random_[pc.curve];
     const Vec3 across = wo - sp.tangent * dot(sp.tangent, wo);
     cs.tangent_normal = length_sq(across) > 0.0f ? normalize(across) : Vec3(0.0f);
+    cs.tangent = sp.tangent;
     ctx.curve = &cs;
     ctx.object = &curve_coords_[curve_set_of(pc.curve)];
     eval_shader(mat.program, images_, ctx, out);

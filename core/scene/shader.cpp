@@ -620,6 +620,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::PrincipledExtra:
       case OpCode::Holdout:
       case OpCode::PrincipledHair:
+      case OpCode::Hair:
       case OpCode::Emission:
       case OpCode::Principled:
       case OpCode::Subsurface:

@@ -58,6 +58,7 @@ enum class OpCode : uint8_t {
   Sheen,    // the Sheen BSDF node (sub 0 microfibre, 1 Ashikhmin velvet)
   Toon,     // the Toon BSDF node (sub 0 diffuse, 1 glossy)
   ObjectAttribute,  // the Attribute node's Object / Instancer types: a per-instance slot (index)
+  Hair,  // the Hair BSDF node (sub 0 reflection, 1 transmission): scene/hair_bsdf.h HairBsdf
 };
 
 enum class MathOp : uint8_t {
@@ -243,6 +244,7 @@ struct CurveShading {
   float thickness = 0.0f;  // the diameter at the hit (world space)
   float random = 0.0f;     // per strand, as Cycles: hash of its index in its object
   Vec3 tangent_normal{0.0f};  // the view direction across the strand
+  Vec3 tangent{0.0f};         // the unit direction along the strand (Cycles' dPdu)
 };
 
 struct ShadingContext {
