@@ -546,6 +546,7 @@ void parse_value_op(const ValueOpSchema& s, const py::tuple& t, ShaderOp& o, Sha
   if (flags & kVarying) prog.varying = true;
   if (flags & kUsesUv) prog.uses_uv = true;
   if (flags & kUsesAttributes) prog.uses_attributes = true;
+  if (flags & kSetsNormal) prog.sets_normal = true;
 }
 
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
@@ -1344,7 +1345,7 @@ PYBIND11_MODULE(pathlight_core, m) {
             params.append(e);
           }
           for (const auto& [bit, name] : {std::pair{kVarying, "varying"}, std::pair{kUsesUv, "uses_uv"},
-                                          std::pair{kUsesAttributes, "uses_attributes"}})
+                                          std::pair{kUsesAttributes, "uses_attributes"}, std::pair{kSetsNormal, "sets_normal"}})
             if (o.flags & bit) flags.append(name);
           schema.append(py::dict(py::arg("name") = o.name, py::arg("code") = int(o.code),
                                  py::arg("registers") = int(o.registers), py::arg("params") = params,

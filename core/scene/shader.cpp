@@ -14,8 +14,13 @@ namespace pl {
 
 using namespace shader_math;  // this unit's helpers (shader_math.h is included by the shader units alone)
 
-void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
+void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx_in,
                  ClosureList& out, Float4* regs) {
+  // A program with a SetNormal op works on a copy of the context whose shading normal that op
+  // replaces (Cycles' bump from displacement sets sd->N for the rest of the shader).
+  ShadingContext local;
+  if (prog.sets_normal) local = ctx_in;
+  const ShadingContext& ctx = prog.sets_normal ? local : ctx_in;
   Float4 r[kMaxRegs];
   out.n = 0;
   out.emission = Vec3(0.0f);
@@ -569,6 +574,12 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
           n = length_sq(m) > 0.0f && is_finite(m) ? normalize(m) : ctx.ns;
         }
         d = f4(n, 0.0f);
+        break;
+      }
+      case OpCode::SetNormal: {
+        const Vec3 n = reg(op.in[0]).xyz();
+        if (prog.sets_normal && length_sq(n) > 1e-12f && is_finite(n)) local.ns = normalize(n);
+        d = f4(ctx.ns, 0.0f);
         break;
       }
       case OpCode::Wireframe: {

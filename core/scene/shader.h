@@ -59,6 +59,7 @@ enum class OpCode : uint8_t {
   Toon,     // the Toon BSDF node (sub 0 diffuse, 1 glossy)
   ObjectAttribute,  // the Attribute node's Object / Instancer types: a per-instance slot (index)
   Hair,  // the Hair BSDF node (sub 0 reflection, 1 transmission): scene/hair_bsdf.h HairBsdf
+  SetNormal,  // the material's displacement as bump: replaces the shading normal for the ops after it
 };
 
 enum class MathOp : uint8_t {
@@ -295,6 +296,7 @@ struct ShaderProgram {
   bool varying = false;  // reads the shading point (else evaluated once)
   bool uses_uv = false;
   bool uses_attributes = false;
+  bool sets_normal = false;  // has a SetNormal op (Cycles' bump from displacement)
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
   // The homogeneous medium inside (the material's Volume): scattering (per unit length), its

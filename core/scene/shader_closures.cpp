@@ -26,7 +26,10 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
     const Vec3 n = normal_or(r, normal_reg, ctx.ns);
     f = Frame::from_normal(n);
     DiffuseBsdf d;
-    if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z) {
+    // A program that set the shading normal (bump from displacement) lights its lobes from
+    // their own side too, as Cycles' sd->N: "bent" against that normal, so no shadowing term
+    // unless the lobe's own normal differs from it.
+    if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z || prog.sets_normal) {
       d.bent = true;
       d.ns = f.to_local(ctx.ns);
       d.back = dot(ctx.ng, ctx.wo) < 0.0f;
