@@ -2084,7 +2084,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
-             uint32_t random_id, const py::object& motion, const py::object& attributes) {
+             uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator) {
             self.check_editable();
             ObjectInfo info;
             if (!color.is_none()) {
@@ -2095,6 +2095,7 @@ PYBIND11_MODULE(pathlight_core, m) {
             }
             info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
             info.random = object_random(random_id);
+            info.terminator = std::isfinite(shadow_terminator) ? clampf(shadow_terminator, 0.0f, 1.0f) : 0.0f;
             std::vector<Float4> attrs;
             if (!attributes.is_none()) {
               const auto a = attributes.cast<FloatArray>();
@@ -2110,6 +2111,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
           py::arg("random_id") = 0u, py::arg("motion") = py::none(), py::arg("attributes") = py::none(),
+          py::arg("shadow_terminator") = 0.0f,
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "

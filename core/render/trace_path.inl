@@ -450,14 +450,30 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       u_rr = u_sel.y;
       const Vec2 u_pt = sampler.get2d();
       if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) {
-        const bool reflection = dot(ds.wi, ng_out) > 0.0f;
+        const bool above = dot(ds.wi, ng_out) > 0.0f;
+        bool reflection = above;
+        Vec3 org = sp.p;
+        if (scene.features().terminator) {
+          // Cycles' shadow terminator geometry offset: near the terminator of a smooth
+          // triangle the sample starts on the smooth surface its vertex normals describe, and
+          // Cycles evaluates the closures whatever the triangle's side, so light just below
+          // the triangle's plane but above the shading normal reaches the reflection lobes.
+          Vec3 n_sh = !is_black(cl.ns) ? cl.ns : sp.ns;
+          if (!front) n_sh = -n_sh;
+          Vec3 ng_l = ng_out;
+          const float amount = scene.terminator_amount(sp, n_sh, ng_l, ds.wi);
+          if (amount > 0.0f) {
+            org = scene.terminator_lift(sp, ng_l, amount);
+            if (!above && dot(n_sh, ds.wi) > 0.0f) reflection = true;
+          }
+        }
         float bsdf_pdf;
         const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
         if (!is_black(f) && !is_black(ds.li)) {
           Vec3 vis(1.0f);
           Ray shadow;
           shadow.time = ray.time;
-          shadow.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
+          shadow.org = offset_ray_origin(org, sp.p_error, reflection ? ng_out : -ng_out);
           if (std::isinf(ds.dist)) {
             shadow.dir = ds.wi;
             shadow.tmax = kInf;
@@ -537,6 +553,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           if (length_sq(sum) > 0.0f && is_finite(sum)) n_exit = normalize(sum);
         }
         DiffuseBsdf exit_lobe;
+        exit_lobe.back = scene.backfacing(sp, wo);
         const Frame exit_frame = Frame::from_normal(n_exit);
         if (n_exit.x != sp.ns.x || n_exit.y != sp.ns.y || n_exit.z != sp.ns.z) {
           exit_lobe.bent = true;

@@ -27,7 +27,8 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"environment", f.environment},
           {"world light", f.world_light},
           {"light tree", f.light_tree},
-          {"subsurface", f.subsurface}};
+          {"subsurface", f.subsurface},
+          {"shadow terminator", f.terminator}};
 }
 }  // namespace
 
@@ -129,6 +130,9 @@ void Scene::detect_features() {
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
   f.light_tree = use_tree_;
+  for (const InstanceData& in : inst_)
+    f.terminator = f.terminator || (in.blas != UINT32_MAX && object_coords_[size_t(&in - inst_.data())].info.terminator > 0.0f &&
+                                    !meshes_[in.mesh].normals.empty());
   features_ = f;
 }
 

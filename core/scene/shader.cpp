@@ -25,6 +25,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
   out.n = 0;
   out.emission = Vec3(0.0f);
   out.holdout = Vec3(0.0f);
+  out.ns = Vec3(0.0f);
   auto reg = [&](int16_t i) -> const Float4& {
     static const Float4 zero{};
     return i == kNoReg ? zero : r[i];
@@ -640,6 +641,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     }
   }
   out.finalize();
+  if (prog.sets_normal) out.ns = local.ns;
   if (regs) std::copy(r, r + kMaxRegs, regs);
 }
 

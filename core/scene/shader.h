@@ -142,6 +142,7 @@ struct ClosureList {
   int n = 0;
   Vec3 emission{0.0f};
   Vec3 holdout{0.0f};  // Holdout closures' summed weight (Cycles' surface_shader_apply_holdout)
+  Vec3 ns{0.0f};       // the shading normal a SetNormal op made (zero: the hit's own)
   bool has_nondelta = false;
   // `albedo`: an estimate of how much the BSDF reflects from this view (Cycles' sample weight
   // factor), for choosing among closures; negative: bsdf_albedo_hint's guess.
@@ -175,6 +176,9 @@ struct ObjectInfo {
   // The Attribute node's Object / Instancer values (constant per instance): attr_count slots
   // from attr_first in the scene's table of them (ObjectCoords::attrs at commit).
   uint32_t attr_first = 0, attr_count = 0;
+  // Cycles' Shadow Terminator Geometry Offset of the object (0: off; Blender's default 0.1):
+  // light samples of smooth triangles near the terminator start on the smooth surface.
+  float terminator = 0.0f;
 };
 constexpr uint32_t kMaxObjectAttributes = 8;
 // Object Info's Random from a 32-bit id as Cycles makes it: (float)id / (float)0xFFFFFFFF,

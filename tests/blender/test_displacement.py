@@ -55,7 +55,6 @@ def scene(material_fn, shape="plane", scale=(1.0, 1.0, 1.0)):
         else:
             obj = ms.add_sphere("Ball", 0.4, material_fn(), location=(0.0, 0.0, 0.0))
         obj.scale = scale
-        obj.shadow_terminator_geometry_offset = 0.0  # (not yet in Pathlight: see docs/materials.md)
         ms.add_sun(3.0, 55.0)
         ms.add_camera((0.0, 0.0, 1.6), (0.0, 0.0, 0.0))
         return sc
