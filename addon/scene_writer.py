@@ -47,10 +47,11 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             if info is None:
                 scene.add_instance(mesh_id, matrix, **extra)
                 continue
-            color, pass_index, random_id = info
+            color, pass_index, random_id, terminator = info
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
-            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id, **extra)
+            scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id,
+                               shadow_terminator=terminator, **extra)
     curves = getattr(data, "curves", [])
     if curves:
         mats = iter(data.curve_materials)
@@ -111,7 +112,7 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
                     scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
                                      **extra)
                     continue
-                color, pass_index, random_id = info
+                color, pass_index, random_id, _ = info
                 if random_id is None:
                     random_id = random_id_of(c.name) if random_id_of else 0
                 scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,

@@ -430,10 +430,12 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
 
 
 def object_info(instance):
-    """(RGBA colour, pass index, random id or None) of a depsgraph object instance."""
+    """(RGBA colour, pass index, random id or None, shadow terminator geometry offset) of a
+    depsgraph object instance."""
     obj = instance.object
     random_id = (instance.random_id & 0xFFFFFFFF) if instance.is_instance else None
-    return tuple(obj.color), int(obj.pass_index), random_id
+    terminator = float(getattr(obj, "shadow_terminator_geometry_offset", 0.0))
+    return tuple(obj.color), int(obj.pass_index), random_id, terminator
 
 
 def _export_object(obj, materials, uv_names=None):

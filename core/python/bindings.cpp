@@ -562,6 +562,7 @@ void parse_value_op(const ValueOpSchema& s, const py::tuple& t, ShaderOp& o, Sha
   if (flags & kVarying) prog.varying = true;
   if (flags & kUsesUv) prog.uses_uv = true;
   if (flags & kUsesAttributes) prog.uses_attributes = true;
+  if (flags & kSetsNormal) prog.sets_normal = true;
 }
 
 // Parses a shader program (see docs/core_api.md) into core ops, validating every register.
@@ -637,6 +638,12 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
         o.in[9] = p("ior"); o.in[10] = p("offset"); o.in[11] = p("random_color"); o.in[12] = p("random_roughness");
         o.in[13] = p("random");
         o.sub = kind == "principled_hair_absorption" ? 0 : kind == "principled_hair_melanin" ? 1 : 2;
+      } else if (kind == "hair_reflection" || kind == "hair_transmission") {
+        o.code = OpCode::Hair;
+        o.in[1] = p("color"); o.in[2] = p("offset"); o.in[3] = p("roughness_u"); o.in[4] = p("roughness_v");
+        o.in[5] = p("tangent");
+        o.sub = kind == "hair_transmission" ? 1 : 0;
+        prog.varying = true;  // its frame follows the fibre and the view
       } else if (kind == "subsurface") {  // the method: a register of SubsurfaceMethod's number
         o.code = OpCode::Subsurface;
         o.in[1] = p("color"); o.in[2] = p("scale"); o.in[3] = p("radius"); o.in[4] = p("ior");
@@ -1257,6 +1264,12 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     h.h = f("h", 0.0f);
     return h;
   }
+  if (kind == "hair_reflection" || kind == "hair_transmission") {  // T in the local frame
+    Vec3 t(1.0f, 0.0f, 0.0f);
+    if (p.contains("tangent")) t = normalize(to_point(p["tangent"], "tangent"));
+    return HairBsdf::setup(t, f("roughness_u", 0.1f), f("roughness_v", 1.0f), f("offset", 0.0f),
+                           kind == "hair_transmission");
+  }
   // Sheen and rough diffuse set up for a view at cosine `cos_view` (their terms depend on it).
   if (kind == "sheen") {
     float albedo;
@@ -1348,7 +1361,7 @@ PYBIND11_MODULE(pathlight_core, m) {
             params.append(e);
           }
           for (const auto& [bit, name] : {std::pair{kVarying, "varying"}, std::pair{kUsesUv, "uses_uv"},
-                                          std::pair{kUsesAttributes, "uses_attributes"}})
+                                          std::pair{kUsesAttributes, "uses_attributes"}, std::pair{kSetsNormal, "sets_normal"}})
             if (o.flags & bit) flags.append(name);
           schema.append(py::dict(py::arg("name") = o.name, py::arg("code") = int(o.code),
                                  py::arg("registers") = int(o.registers), py::arg("params") = params,
@@ -1713,8 +1726,11 @@ PYBIND11_MODULE(pathlight_core, m) {
       "The microfibre sheen's fitted albedo (Zeltner et al. 2022, Cycles' table) for a view cosine.");
   m.def(
       "bsdf_eval",
-      [](const std::string& kind, const py::dict& params, const py::object& wo_obj, const FloatArray& wi) {
+      [](const std::string& kind, const py::dict& params, const py::object& wo_obj, const FloatArray& wi,
+         bool sampled) {
         const Bsdf bsdf = make_test_bsdf(kind, params);
+        const auto* hair = std::get_if<HairBsdf>(&bsdf);
+        if (sampled && !hair) throw std::invalid_argument("sampled=True: only the Hair BSDF evaluates a sample apart");
         const Vec3 wo = normalize(to_point(wo_obj, "wo"));
         if (wi.ndim() != 2 || wi.shape(1) != 3) throw std::invalid_argument("wi must have shape (N, 3)");
         const py::ssize_t n = wi.shape(0);
@@ -1723,14 +1739,15 @@ PYBIND11_MODULE(pathlight_core, m) {
         const Vec3* w = reinterpret_cast<const Vec3*>(wi.data());
         for (py::ssize_t i = 0; i < n; ++i) {
           float p;
-          const Vec3 v = bsdf_eval(bsdf, wo, w[i], p);
+          const Vec3 v = sampled ? hair->eval_sampled(wo, w[i], p) : bsdf_eval(bsdf, wo, w[i], p);
           for (int k = 0; k < 3; ++k) f.mutable_data()[3 * i + k] = v[k];
           pdf.mutable_data()[i] = p;
         }
         return py::make_tuple(f, pdf);
       },
-      py::arg("kind"), py::arg("params"), py::arg("wo"), py::arg("wi"),
-      "Evaluates f * |cos(wi)| and the sampling pdf of a BSDF in its local frame.");
+      py::arg("kind"), py::arg("params"), py::arg("wo"), py::arg("wi"), py::arg("sampled") = false,
+      "Evaluates f * |cos(wi)| and the sampling pdf of a BSDF in its local frame (sampled: the Hair "
+      "BSDF's value along a direction it sampled itself, which Cycles' evaluation differs from).");
 
   m.def(
       "spherical_triangle_sample",
@@ -2084,7 +2101,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
-             uint32_t random_id, const py::object& motion, const py::object& attributes) {
+             uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator) {
             self.check_editable();
             ObjectInfo info;
             if (!color.is_none()) {
@@ -2095,11 +2112,13 @@ PYBIND11_MODULE(pathlight_core, m) {
             }
             info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
             info.random = object_random(random_id);
+            info.terminator = std::isfinite(shadow_terminator) ? clampf(shadow_terminator, 0.0f, 1.0f) : 0.0f;
             self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info, to_motion(motion, "instance motion"),
                                      to_object_attributes(attributes, "instance"));
           },
           py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
           py::arg("random_id") = 0u, py::arg("motion") = py::none(), py::arg("attributes") = py::none(),
+          py::arg("shadow_terminator") = 0.0f,
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "

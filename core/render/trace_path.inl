@@ -8,9 +8,11 @@
 // (reflection or transmission) that the geometric normal allows, so that shading normals never
 // let light through a surface or reflect it from behind. kDiffuseOnly (diffuse-only kernels):
 // every closure is a DiffuseBsdf, whose eval is called directly rather than through the
-// variant's dispatch (the same arithmetic, so the same result).
+// variant's dispatch (the same arithmetic, so the same result). `sampled`: the closure that
+// drew wi (BSDF sampling; nullptr for light samples), which the Hair BSDF evaluates apart.
 template <bool kDiffuseOnly = false>
-[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
+[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf,
+                                                const Closure* sampled = nullptr) {
   Vec3 f(0.0f);
   pdf = 0.0f;
   for (int i = 0; i < cl.n; ++i) {
@@ -29,6 +31,10 @@ template <bool kDiffuseOnly = false>
     } else if (const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf)) {
       if (!reflection) continue;
       v = d->eval(lo, li, p);  // the common lobe without the variant's out-of-line visit
+    } else if (const HairBsdf* hb = std::get_if<HairBsdf>(&c.bsdf)) {
+      // Cycles' Hair BSDF tests N's side itself, and along the direction it sampled carries
+      // its sample's value (hair_bsdf.h).
+      v = &c == sampled ? hb->eval_sampled(lo, li, p) : hb->eval(lo, li, p);
     } else {
       // Hair lobes span the whole sphere (their frame's z is no surface normal).
       if (same_side(lo, li) != reflection && !std::holds_alternative<HairChiangBsdf>(c.bsdf)) continue;
@@ -444,14 +450,30 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       u_rr = u_sel.y;
       const Vec2 u_pt = sampler.get2d();
       if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) {
-        const bool reflection = dot(ds.wi, ng_out) > 0.0f;
+        const bool above = dot(ds.wi, ng_out) > 0.0f;
+        bool reflection = above;
+        Vec3 org = sp.p;
+        if (scene.features().terminator) {
+          // Cycles' shadow terminator geometry offset: near the terminator of a smooth
+          // triangle the sample starts on the smooth surface its vertex normals describe, and
+          // Cycles evaluates the closures whatever the triangle's side, so light just below
+          // the triangle's plane but above the shading normal reaches the reflection lobes.
+          Vec3 n_sh = !is_black(cl.ns) ? cl.ns : sp.ns;
+          if (!front) n_sh = -n_sh;
+          Vec3 ng_l = ng_out;
+          const float amount = scene.terminator_amount(sp, n_sh, ng_l, ds.wi);
+          if (amount > 0.0f) {
+            org = scene.terminator_lift(sp, ng_l, amount);
+            if (!above && dot(n_sh, ds.wi) > 0.0f) reflection = true;
+          }
+        }
         float bsdf_pdf;
         const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
         if (!is_black(f) && !is_black(ds.li)) {
           Vec3 vis(1.0f);
           Ray shadow;
           shadow.time = ray.time;
-          shadow.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
+          shadow.org = offset_ray_origin(org, sp.p_error, reflection ? ng_out : -ng_out);
           if (std::isinf(ds.dist)) {
             shadow.dir = ds.wi;
             shadow.tmax = kInf;
@@ -531,6 +553,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           if (length_sq(sum) > 0.0f && is_finite(sum)) n_exit = normalize(sum);
         }
         DiffuseBsdf exit_lobe;
+        exit_lobe.back = scene.backfacing(sp, wo);
         const Frame exit_frame = Frame::from_normal(n_exit);
         if (n_exit.x != sp.ns.x || n_exit.y != sp.ns.y || n_exit.z != sp.ns.z) {
           exit_lobe.bent = true;
@@ -576,8 +599,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (!d || !d->sample(ch.frame.to_local(wo), u, ul, bs)) break;  // (!d: unreachable, ends the path)
     }
     const Vec3 wi = ch.frame.to_world(bs.wi);
-    // On curves the side is the geometry's (hair lobes' flags name R or TT, not a side).
-    const bool reflection = sp.curve() ? dot(wi, ng_out) > 0.0f : (bs.flags & kReflect) != 0;
+    // On curves the side is the geometry's (hair lobes' flags name R or TT, not a side), and
+    // so it is for the Hair BSDF, whose samples Cycles never tests against a side.
+    const bool reflection = sp.curve() || (kNonDiffuse && std::holds_alternative<HairBsdf>(ch.bsdf))
+                                ? dot(wi, ng_out) > 0.0f
+                                : (bs.flags & kReflect) != 0;
     // The sampled side must agree with the geometric normal, or light would leak.
     if ((dot(wi, ng_out) > 0.0f) != reflection) break;
     if (kNonDiffuse && (bs.flags & kDelta)) {
@@ -590,7 +616,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     } else {
       float pdf;
-      const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf);
+      const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf, &ch);
       if constexpr (kGuide)
         if (guided && guide_sampling)
           pdf = (1.0f - guide_prob) * pdf + guide_prob * (from_guide ? guide_pdf : guide->pdf(guide_cell, wi));

@@ -57,11 +57,11 @@ inline float bump_shadowing(Vec3 ns, Vec3 wi) {
 struct DiffuseBsdf {
   Vec3 ns{0.0f, 0.0f, 1.0f};  // the smooth (unbent) normal in the local frame
   bool bent = false;          // the lobe's normal differs from ns: apply bump_shadowing
-  // A bent lobe's side: Cycles flips a backfacing hit's normals, then lights the lobe from its
-  // own side whatever the view (a bevelled or bumped normal may face away from the viewer).
-  // Unbent lobes simply take wo's side.
+  // The lobe's side: Cycles flips a backfacing hit's normals, then lights the lobe from its
+  // own side whatever the view (a bevelled, bumped or smooth-shaded normal may face away from
+  // the viewer at a silhouette). back: the hit is backfacing (Scene::shade sets it).
   bool back = false;
-  bool lit_side(Vec3 wo, Vec3 wi) const { return bent ? (wi.z < 0.0f) == back : same_side(wo, wi); }
+  bool lit_side(Vec3, Vec3 wi) const { return (wi.z < 0.0f) == back; }
   [[gnu::always_inline]] Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     if (!lit_side(wo, wi)) {
       pdf = 0.0f;
@@ -73,7 +73,7 @@ struct DiffuseBsdf {
   bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     Vec3 l = sample_cosine_hemisphere(u);
     if (l.z <= 0.0f) return false;
-    if (bent ? back : wo.z < 0.0f) l.z = -l.z;
+    if (back) l.z = -l.z;
     s.wi = l;
     s.pdf = std::fabs(l.z) * kInvPi;
     s.weight = Vec3(bent ? bump_shadowing(ns, l) : 1.0f);
@@ -419,7 +419,7 @@ struct SubsurfaceBsdf {
 namespace pl {
 
 using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf,
-                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf>;
+                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf, HairBsdf>;
 
 // The Principled BSDF's GGX lobes first, outside the visit: its dispatch over all the kinds
 // would otherwise cost the default material a little on every evaluation.

@@ -241,4 +241,137 @@ struct HairChiangBsdf {
   }
 };
 
+// Cycles' Hair BSDF node (kernel/closure/bsdf_hair.h, after Open Shading Language's hair
+// closures): one component, reflection or transmission, with Cauchy (Lorentzian) longitudinal
+// terms about the cuticle-tilted half angle and an azimuthal term of width roughness2. Local
+// frame: +Z is the closure's normal N, `tangent` the fibre direction T in that frame. As in
+// Cycles, f * |cos| equals the pdf (a sample's weight is the closure's colour), and Cycles'
+// sampling and evaluation disagree in two places: a sample is never tested against N's side,
+// and a reflection sample may land at an azimuth beyond 90 degrees (roughness2 > 0.5) where the
+// evaluation gives 0. Cycles' image follows that pairing (a BSDF-sampled direction carries the
+// sample's value, light samples the evaluation), so Pathlight evaluates both: eval (light
+// samples, other closures) and eval_sampled (the direction this closure itself sampled).
+struct HairBsdf {
+  Vec3 tangent{1.0f, 0.0f, 0.0f};  // T in the local frame (unit)
+  float roughness1 = 0.1f;         // longitudinal, in [0.001, 1]
+  float roughness2 = 1.0f;         // azimuthal, in [0.001, 1]
+  float offset = 0.0f;             // radians, Cycles' sign (the node's Offset negated)
+  bool transmission = false;
+
+  static HairBsdf setup(Vec3 tangent_local, float r1, float r2, float offset, bool transmission) {
+    HairBsdf b;
+    b.tangent = tangent_local;
+    b.roughness1 = clampf(std::isfinite(r1) ? r1 : 0.1f, 0.001f, 1.0f);
+    b.roughness2 = clampf(std::isfinite(r2) ? r2 : 1.0f, 0.001f, 1.0f);
+    b.offset = std::isfinite(offset) ? offset : 0.0f;
+    b.transmission = transmission;
+    return b;
+  }
+
+  // The view's longitudinal angle, its azimuthal axis (locy) and the Cauchy range [b, a] that
+  // keeps the sampled theta_i within [-pi/2, pi/2].
+  struct View {
+    float theta_r, a, b;
+    Vec3 locy, locx;
+    bool ok;
+  };
+  View view(Vec3 wo) const {
+    View v;
+    const float iz = clampf(dot(tangent, wo), -1.0f, 1.0f);
+    const Vec3 y = wo - tangent * iz;
+    const float ly = length(y);
+    v.ok = ly > 1e-7f;
+    v.locy = v.ok ? y / ly : Vec3(0.0f);
+    v.locx = cross(v.locy, tangent);
+    v.theta_r = 0.5f * kPi - std::acos(iz);
+    const float inv = 1.0f / roughness1;
+    v.a = std::atan(((0.5f * kPi + v.theta_r) * 0.5f - offset) * inv);
+    v.b = std::atan(((-0.5f * kPi + v.theta_r) * 0.5f - offset) * inv);
+    return v;
+  }
+  float theta_pdf(const View& v, float theta_i) const {
+    const float t = 0.5f * (theta_i + v.theta_r) - offset;
+    return roughness1 / (2.0f * (t * t + roughness1 * roughness1) * (v.a - v.b) * std::cos(theta_i));
+  }
+  // The azimuth of wi about the fibre, as the angle from the view's axis (0..pi), and theta_i.
+  static bool angles(const View& v, Vec3 tangent, Vec3 wi, float& theta_i, float& cos_phi) {
+    const float wz = clampf(dot(tangent, wi), -1.0f, 1.0f);
+    const Vec3 y = wi - tangent * wz;
+    const float ly = length(y);
+    if (!(ly > 1e-7f)) return false;
+    theta_i = 0.5f * kPi - std::acos(wz);
+    cos_phi = clampf(dot(y / ly, v.locy), -1.0f, 1.0f);
+    return 0.5f * kPi - std::fabs(theta_i) >= 0.001f;
+  }
+  // The azimuthal density of the component's own sampling at azimuth phi (0..pi).
+  float phi_pdf_sampled(float phi) const {
+    if (!transmission) {
+      if (phi > kPi * roughness2) return 0.0f;
+      return std::cos(0.5f * phi / roughness2) * 0.25f / roughness2;
+    }
+    const float p = kPi - phi;  // the sampled p lies within [-pi/2, pi/2]
+    if (p > 0.5f * kPi) return 0.0f;
+    const float c = 2.0f * std::atan(0.5f * kPi / roughness2);
+    return roughness2 / (c * (p * p + roughness2 * roughness2));
+  }
+
+  // Cycles' bsdf_hair_*_eval: f * |cos| (= the pdf, per channel) for view wo and light wi.
+  Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
+    pdf = 0.0f;
+    if (transmission ? wi.z >= 0.0f : wi.z < 0.0f) return Vec3(0.0f);
+    const View v = view(wo);
+    float theta_i, cos_phi;
+    if (!v.ok || !angles(v, tangent, wi, theta_i, cos_phi)) return Vec3(0.0f);
+    float phi_pdf;
+    if (!transmission) {
+      if (cos_phi < 0.0f) return Vec3(0.0f);
+      const float phi = std::min(std::acos(cos_phi) / roughness2, kPi);
+      phi_pdf = std::cos(0.5f * phi) * 0.25f / roughness2;
+    } else {
+      const float p = kPi - std::acos(cos_phi);
+      const float c = 2.0f * std::atan(0.5f * kPi / roughness2);
+      phi_pdf = roughness2 / (c * (p * p + roughness2 * roughness2));
+    }
+    pdf = phi_pdf * theta_pdf(v, theta_i);
+    if (!(pdf > 0.0f) || !std::isfinite(pdf)) pdf = 0.0f;
+    return Vec3(pdf);
+  }
+
+  // What a sample of this closure carries along the direction it drew (Cycles' sample: eval =
+  // pdf, on either side of N): the density of its own sampling.
+  Vec3 eval_sampled(Vec3 wo, Vec3 wi, float& pdf) const {
+    pdf = 0.0f;
+    const View v = view(wo);
+    float theta_i, cos_phi;
+    if (!v.ok || !angles(v, tangent, wi, theta_i, cos_phi)) return Vec3(0.0f);
+    pdf = phi_pdf_sampled(std::acos(cos_phi)) * theta_pdf(v, theta_i);
+    if (!(pdf > 0.0f) || !std::isfinite(pdf)) pdf = 0.0f;
+    return Vec3(pdf);
+  }
+
+  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& out) const {
+    const View v = view(wo);
+    if (!v.ok) return false;
+    const float t = roughness1 * std::tan(u.x * (v.a - v.b) + v.b);
+    const float theta_i = 2.0f * (t + offset) - v.theta_r;
+    float phi;
+    if (!transmission) {
+      phi = 2.0f * std::asin(clampf(1.0f - 2.0f * u.y, -1.0f, 1.0f)) * roughness2;
+    } else {
+      const float c = 2.0f * std::atan(0.5f * kPi / roughness2);
+      phi = roughness2 * std::tan(c * (u.y - 0.5f)) + kPi;
+    }
+    const float ct = std::cos(theta_i), st = std::sin(theta_i);
+    out.wi = v.locy * (std::cos(phi) * ct) - v.locx * (std::sin(phi) * ct) + tangent * st;
+    float pdf;
+    eval_sampled(wo, out.wi, pdf);
+    if (!(pdf > 0.0f)) return false;
+    out.pdf = pdf;
+    out.weight = Vec3(1.0f);
+    out.flags = uint8_t((out.wi.z >= 0.0f ? kReflect : kTransmit) | kGlossyLobe);
+    out.eta = 1.0f;
+    return true;
+  }
+};
+
 }  // namespace pl

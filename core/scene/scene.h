@@ -112,6 +112,7 @@ struct SurfacePoint {
   uint32_t tri = 0;       // the triangle in its BLAS (internal); curves: the piece
   // Curves (instance == kCurveInstance): the unit tangent along the strand (else zero).
   Vec3 tangent{0.0f};
+  float b1 = 0.0f, b2 = 0.0f;  // barycentrics of v1 and v2 in the hit triangle
   bool curve() const { return instance == kCurveInstance; }
   float time = 0.5f;      // shutter time of the ray that found it (motion blur)
 };
@@ -178,6 +179,9 @@ struct SceneFeatures {
   // Shaders read the path's state (Light Path, and the rays Ambient Occlusion and Bevel
   // trace): only then does the integrator keep RayState's kind, counts, length and seed.
   bool path_state = false;
+  // Some smooth-shaded instance has Cycles' shadow terminator geometry offset (light samples
+  // near the terminator start on the smooth surface: Scene::terminator_origin).
+  bool terminator = false;
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
   // Names of the features in use, and of every feature a scene can have (for logs and tests).
@@ -356,6 +360,29 @@ class Scene {
   // subsurface random walks): h as intersect() fills it. False where the instance has none or
   // no local BVH (its materials have no subsurface).
   bool intersect_local(uint32_t instance, const Ray& r, Hit& h) const;
+  // Whether the viewer along wo sees the hit's back: its winding's side, turned round for a
+  // mirrored instance (Cycles flips Ng for negative scales), so it is the normals' side.
+  bool backfacing(const SurfacePoint& sp, Vec3 wo) const {
+    return (dot(sp.ng, wo) < 0.0f) != (sp.instance < inst_.size() && inst_[sp.instance].negative);
+  }
+  // Cycles' shadow_ray_offset: how far (0..1) a light sample towards L from a triangle hit
+  // is lifted, by its object's shadow terminator geometry offset, onto the parabolic
+  // approximation of the smooth surface its vertex normals describe (terminator_lift). n, ng:
+  // the shading (after the shader) and geometric normals, both facing the viewer; ng is
+  // turned to the light's side where the light is behind n.
+  [[gnu::always_inline]] float terminator_amount(const SurfacePoint& sp, Vec3 n, Vec3& ng, Vec3 L) const {
+    if (sp.instance >= object_coords_.size()) return 0.0f;  // (curves too)
+    const float cutoff = object_coords_[sp.instance].info.terminator;
+    if (!(cutoff > 0.0f)) return 0.0f;
+    float nl = dot(n, L);
+    if (nl < 0.0f) {
+      nl = -nl;
+      ng = -ng;
+    }
+    const float ngl = dot(ng, L);
+    return nl < cutoff ? clampf(2.0f - (ngl + nl) / cutoff, 0.0f, 1.0f) : clampf(1.0f - ngl / cutoff, 0.0f, 1.0f);
+  }
+  Vec3 terminator_lift(const SurfacePoint& sp, Vec3 ng, float amount) const;
   bool occluded(const Ray& r) const {
     if (curves_on_ && curve_bvh_.occluded(r)) return true;
     if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);

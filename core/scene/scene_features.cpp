@@ -27,7 +27,8 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"environment", f.environment},
           {"world light", f.world_light},
           {"light tree", f.light_tree},
-          {"subsurface", f.subsurface}};
+          {"subsurface", f.subsurface},
+          {"shadow terminator", f.terminator}};
 }
 }  // namespace
 
@@ -89,7 +90,8 @@ void Scene::detect_features() {
         else if (std::holds_alternative<TranslucentBsdf>(b)) f.diffuse = f.transmission = true;
         else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
-        else if (std::holds_alternative<HairChiangBsdf>(b)) f.glossy = f.transmission = true;
+        else if (std::holds_alternative<HairChiangBsdf>(b) || std::holds_alternative<HairBsdf>(b))
+          f.glossy = f.transmission = true;
         else if (std::holds_alternative<SubsurfaceBsdf>(b)) f.subsurface = true;
         // Rough diffuse and sheen: diffuse bounces, but not the diffuse-only kernel's lobe.
         else if (std::holds_alternative<OrenNayarBsdf>(b) || std::holds_alternative<SheenBsdf>(b) ||
@@ -117,7 +119,7 @@ void Scene::detect_features() {
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
         case OpCode::Transparent: f.transparent = true; break;
         case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
-        case OpCode::PrincipledHair: f.glossy = f.transmission = true; break;
+        case OpCode::PrincipledHair: case OpCode::Hair: f.glossy = f.transmission = true; break;
         default: break;
       }
     }
@@ -128,6 +130,9 @@ void Scene::detect_features() {
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
   f.light_tree = use_tree_;
+  for (const InstanceData& in : inst_)
+    f.terminator = f.terminator || (in.blas != UINT32_MAX && object_coords_[size_t(&in - inst_.data())].info.terminator > 0.0f &&
+                                    !meshes_[in.mesh].normals.empty());
   features_ = f;
 }
 

@@ -73,6 +73,8 @@ bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
       if (l2 > 1e-12f) sp.ns = ni / std::sqrt(l2);
     }
   }
+  sp.b1 = h.b1;
+  sp.b2 = h.b2;
   sp.material = material_of(mesh, st, materials_.size());
   sp.prim = global_prim(h);
   sp.instance = h.inst;
@@ -106,6 +108,59 @@ void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
     return;
   }
   surface_point_in(in, blases_[in.blas].tris[h.prim], h, sp);
+}
+
+}  // namespace pl
+
+namespace pl {
+
+Vec3 Scene::terminator_lift(const SurfacePoint& sp, Vec3 ng, float amount) const {
+  // Cycles' shadow_ray_smooth_surface_offset (kernel/light/sample.h), in world space.
+  if (sp.curve() || sp.instance >= inst_.size()) return sp.p;
+  const InstanceData& in = inst_[sp.instance];
+  if (in.blas == UINT32_MAX || in.motion != nullptr || in.deform != nullptr) return sp.p;
+  const MeshData& mesh = meshes_[in.mesh];
+  if (mesh.normals.empty()) return sp.p;
+  const Blas& b = blases_[in.blas];
+  const TriangleVerts tv = world_triangle(in, b.tris[sp.tri]);
+  const uint32_t st = b.src_tri[sp.tri];
+  const std::array<uint32_t, 3>& ni = mesh.normal_indices.empty() ? mesh.triangles[st] : mesh.normal_indices[st];
+  const Vec3 V[3] = {tv.v0, tv.v1, tv.v2};
+  Vec3 N[3];
+  for (int k = 0; k < 3; ++k) {
+    N[k] = in.normal(mesh.normals[ni[k]]);
+    const float l2 = length_sq(N[k]);
+    if (!(l2 > 0.0f) || !std::isfinite(l2)) return sp.p;
+    N[k] = N[k] / std::sqrt(l2);
+  }
+  // Barycentrics of V0, V1 (Cycles' u, v) and V2.
+  const float u = 1.0f - sp.b1 - sp.b2, v = sp.b1, w = sp.b2;
+  const Vec3 P = V[0] * u + V[1] * v + V[2] * w;
+  const Vec3 n = N[0] * u + N[1] * v + N[2] * w;  // unnormalised, as Cycles
+  // The parabolic approximation of the smooth surface, bounded by its linear envelopes.
+  const float a = dot(N[2] - N[0], V[0] - V[2]);
+  const float bb = dot(N[2] - N[1], V[1] - V[2]);
+  const float c = dot(N[1] - N[0], V[1] - V[0]);
+  float h = a * u * (u - 1.0f) + (a + bb + c) * u * v + bb * v * (v - 1.0f);
+  if (dot(n, ng) > 0.0f) {
+    float h0 = std::max(std::max(dot(V[1] - V[0], N[0]), dot(V[2] - V[0], N[0])), 0.0f);
+    float h1 = std::max(std::max(dot(V[0] - V[1], N[1]), dot(V[2] - V[1], N[1])), 0.0f);
+    float h2 = std::max(std::max(dot(V[0] - V[2], N[2]), dot(V[1] - V[2], N[2])), 0.0f);
+    h0 = std::max(dot(V[0] - P, N[0]) + h0, 0.0f);
+    h1 = std::max(dot(V[1] - P, N[1]) + h1, 0.0f);
+    h2 = std::max(dot(V[2] - P, N[2]) + h2, 0.0f);
+    h = std::max(std::min(std::min(h0, h1), h2), h * 0.5f);
+  } else {
+    float h0 = std::max(std::max(dot(V[0] - V[1], N[0]), dot(V[0] - V[2], N[0])), 0.0f);
+    float h1 = std::max(std::max(dot(V[1] - V[0], N[1]), dot(V[1] - V[2], N[1])), 0.0f);
+    float h2 = std::max(std::max(dot(V[2] - V[0], N[2]), dot(V[2] - V[1], N[2])), 0.0f);
+    h0 = std::max(dot(P - V[0], N[0]) + h0, 0.0f);
+    h1 = std::max(dot(P - V[1], N[1]) + h1, 0.0f);
+    h2 = std::max(dot(P - V[2], N[2]) + h2, 0.0f);
+    h = std::min(-std::min(std::min(h0, h1), h2), h * 0.5f);
+  }
+  const Vec3 lifted = sp.p + n * (h * amount);
+  return is_finite(lifted) ? lifted : sp.p;
 }
 
 }  // namespace pl

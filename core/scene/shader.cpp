@@ -14,12 +14,18 @@ namespace pl {
 
 using namespace shader_math;  // this unit's helpers (shader_math.h is included by the shader units alone)
 
-void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
+void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx_in,
                  ClosureList& out, Float4* regs) {
+  // A program with a SetNormal op works on a copy of the context whose shading normal that op
+  // replaces (Cycles' bump from displacement sets sd->N for the rest of the shader).
+  ShadingContext local;
+  if (prog.sets_normal) local = ctx_in;
+  const ShadingContext& ctx = prog.sets_normal ? local : ctx_in;
   Float4 r[kMaxRegs];
   out.n = 0;
   out.emission = Vec3(0.0f);
   out.holdout = Vec3(0.0f);
+  out.ns = Vec3(0.0f);
   auto reg = [&](int16_t i) -> const Float4& {
     static const Float4 zero{};
     return i == kNoReg ? zero : r[i];
@@ -571,6 +577,12 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
         d = f4(n, 0.0f);
         break;
       }
+      case OpCode::SetNormal: {
+        const Vec3 n = reg(op.in[0]).xyz();
+        if (prog.sets_normal && length_sq(n) > 1e-12f && is_finite(n)) local.ns = normalize(n);
+        d = f4(ctx.ns, 0.0f);
+        break;
+      }
       case OpCode::Wireframe: {
         // Cycles' svm_wireframe: 1 within Size / 2 of one of the triangle's edges, Size in
         // world units or (ext) in pixels at the point: the footprint's two tangent axes
@@ -620,6 +632,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       case OpCode::PrincipledExtra:
       case OpCode::Holdout:
       case OpCode::PrincipledHair:
+      case OpCode::Hair:
       case OpCode::Emission:
       case OpCode::Principled:
       case OpCode::Subsurface:
@@ -628,6 +641,7 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     }
   }
   out.finalize();
+  if (prog.sets_normal) out.ns = local.ns;
   if (regs) std::copy(r, r + kMaxRegs, regs);
 }
 

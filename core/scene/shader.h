@@ -58,6 +58,8 @@ enum class OpCode : uint8_t {
   Sheen,    // the Sheen BSDF node (sub 0 microfibre, 1 Ashikhmin velvet)
   Toon,     // the Toon BSDF node (sub 0 diffuse, 1 glossy)
   ObjectAttribute,  // the Attribute node's Object / Instancer types: a per-instance slot (index)
+  Hair,  // the Hair BSDF node (sub 0 reflection, 1 transmission): scene/hair_bsdf.h HairBsdf
+  SetNormal,  // the material's displacement as bump: replaces the shading normal for the ops after it
 };
 
 enum class MathOp : uint8_t {
@@ -140,6 +142,7 @@ struct ClosureList {
   int n = 0;
   Vec3 emission{0.0f};
   Vec3 holdout{0.0f};  // Holdout closures' summed weight (Cycles' surface_shader_apply_holdout)
+  Vec3 ns{0.0f};       // the shading normal a SetNormal op made (zero: the hit's own)
   bool has_nondelta = false;
   // `albedo`: an estimate of how much the BSDF reflects from this view (Cycles' sample weight
   // factor), for choosing among closures; negative: bsdf_albedo_hint's guess.
@@ -173,6 +176,9 @@ struct ObjectInfo {
   // The Attribute node's Object / Instancer values (constant per instance): attr_count slots
   // from attr_first in the scene's table of them (ObjectCoords::attrs at commit).
   uint32_t attr_first = 0, attr_count = 0;
+  // Cycles' Shadow Terminator Geometry Offset of the object (0: off; Blender's default 0.1):
+  // light samples of smooth triangles near the terminator start on the smooth surface.
+  float terminator = 0.0f;
 };
 constexpr uint32_t kMaxObjectAttributes = 8;
 // Object Info's Random from a 32-bit id as Cycles makes it: (float)id / (float)0xFFFFFFFF,
@@ -243,6 +249,7 @@ struct CurveShading {
   float thickness = 0.0f;  // the diameter at the hit (world space)
   float random = 0.0f;     // per strand, as Cycles: hash of its index in its object
   Vec3 tangent_normal{0.0f};  // the view direction across the strand
+  Vec3 tangent{0.0f};         // the unit direction along the strand (Cycles' dPdu)
 };
 
 struct ShadingContext {
@@ -293,6 +300,7 @@ struct ShaderProgram {
   bool varying = false;  // reads the shading point (else evaluated once)
   bool uses_uv = false;
   bool uses_attributes = false;
+  bool sets_normal = false;  // has a SetNormal op (Cycles' bump from displacement)
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
   // The homogeneous medium inside (the material's Volume): scattering (per unit length), its

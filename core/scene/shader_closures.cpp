@@ -26,7 +26,10 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
     const Vec3 n = normal_or(r, normal_reg, ctx.ns);
     f = Frame::from_normal(n);
     DiffuseBsdf d;
-    if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z) {
+    // A program that set the shading normal (bump from displacement) lights its lobes from
+    // their own side too, as Cycles' sd->N: "bent" against that normal, so no shadowing term
+    // unless the lobe's own normal differs from it.
+    if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z || prog.sets_normal) {
       d.bent = true;
       d.ns = f.to_local(ctx.ns);
       d.back = dot(ctx.ng, ctx.wo) < 0.0f;
@@ -201,6 +204,31 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       HairChiangBsdf h = HairChiangBsdf::from_node(sigma, rough, radial, val(op.in[8], 0.0f), val(op.in[10], 0.0349066f),
                                                    std::isfinite(ior) && ior > 0.0f ? ior : 1.55f);
       out.add(h, clean_color(col(op.in[0])), Frame::from_normal(ctx.ns));
+      break;
+    }
+    case OpCode::Hair: {
+      // Cycles' svm_node_closure (CLOSURE_BSDF_HAIR_*): N the valid-reflection shading normal;
+      // T the Tangent input, else the strand's direction (dPdu) on curves, else the triangle's
+      // dPdv (corners 2 - 0, as Cycles 4.x' triangle_dPdudv) with the Offset dropped.
+      // (N facing the view, as Cycles flips a backfacing hit's normals: the components'
+      // sides are N's.)
+      const Vec3 n = valid_specular_normal(ctx.ng, ctx.wo, ctx.ns);
+      const Frame f = Frame::from_normal(dot(ctx.ng, ctx.wo) < 0.0f ? -n : n);
+      float offset = -val(op.in[2], 0.0f);
+      Vec3 t(0.0f);
+      if (op.in[5] != kNoReg) {
+        t = r[op.in[5]].xyz();
+      } else if (ctx.curve) {
+        t = ctx.curve->tangent;
+      } else {
+        if (ctx.tri) t = ctx.tri[2] - ctx.tri[0];
+        offset = 0.0f;
+      }
+      const float l2 = length_sq(t);
+      if (!(l2 > 1e-30f) || !std::isfinite(l2)) break;  // no fibre direction: nothing scatters
+      out.add(HairBsdf::setup(f.to_local(t / std::sqrt(l2)), val(op.in[3], 0.1f), val(op.in[4], 1.0f), offset,
+                              op.sub == 1),
+              clean_color(col(op.in[0]) * col(op.in[1])), f);
       break;
     }
     case OpCode::Emission:

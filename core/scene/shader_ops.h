@@ -123,7 +123,7 @@ inline constexpr const char* kOpFieldNames[] = {"sub", "ext", "index", "count", 
 static_assert(std::size(kOpFieldNames) == size_t(OpField::Program) + 1, "one name per OpField");
 
 // What a value op tells its program (ShaderProgram's flags).
-enum ProgFlag : uint8_t { kVarying = 1, kUsesUv = 2, kUsesAttributes = 4 };
+enum ProgFlag : uint8_t { kVarying = 1, kUsesUv = 2, kUsesAttributes = 4, kSetsNormal = 8 };
 
 struct OpParam {
   ParamKind kind;
@@ -357,6 +357,7 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"bevel", OpCode::Bevel, 2, schema::kBevel, kVarying},  // radius, normal
     {"wireframe", OpCode::Wireframe, 1, schema::kWireframe, kVarying},  // size
     {"object_attribute", OpCode::ObjectAttribute, 0, schema::kObjectAttribute, kVarying},  // per instance
+    {"set_normal", OpCode::SetNormal, 1, {}, kVarying | kSetsNormal},  // the new shading normal
 };
 
 // The OpCodes that closure ops (or their companions) produce; every other OpCode is a value op's.
@@ -364,8 +365,9 @@ inline constexpr OpCode kClosureOpCodes[] = {
     OpCode::Diffuse, OpCode::Glossy, OpCode::Glass, OpCode::Refraction, OpCode::Transparent,
     OpCode::Emission, OpCode::Principled, OpCode::Translucent, OpCode::Metallic, OpCode::PrincipledExtra,
     OpCode::Holdout, OpCode::PrincipledHair, OpCode::Subsurface, OpCode::Sheen, OpCode::Toon,
+    OpCode::Hair,
 };
-inline constexpr size_t kOpCodeCount = size_t(OpCode::ObjectAttribute) + 1;
+inline constexpr size_t kOpCodeCount = size_t(OpCode::SetNormal) + 1;
 
 constexpr bool every_value_opcode_has_an_op() {
   for (size_t c = 0; c < kOpCodeCount; ++c) {

@@ -268,13 +268,13 @@ def test_materials_map_to_colours():
 
 
 def test_unsupported_node_warns_once_and_falls_back_to_diffuse(scene):
-    toon = node_material("Toony", "ShaderNodeBsdfHair", Color=(0.2, 0.4, 0.6, 1))
+    toon = node_material("Toony", "ShaderNodeBsdfRayPortal", Color=(0.2, 0.4, 0.6, 1))
     cube("A", materials=(toon,))
     cube("B", materials=(toon, toon), location=(4, 0, 0))
     warnings = Warnings()
     data = export_scene(depsgraph(), warnings)
     assert len(warnings) == 1
-    assert "Toony" in warnings[0] and "ShaderNodeBsdfHair" in warnings[0]
+    assert "Toony" in warnings[0] and "ShaderNodeBsdfRayPortal" in warnings[0]
     (toony,) = [m for m in data.materials if m.name == "Toony"]
     # A diffuse closure of the node's own Color input.
     consts = {op[1]: op[2] for op in toony.program if op[0] == "const"}

@@ -222,3 +222,64 @@ def test_principled_hair_on_a_mesh_renders():
     img = render_to_array(bpy.context.scene, "PATHLIGHT", samples=8)
     assert np.isfinite(img).all()
     assert img[4:12, 4:12, :3].mean() > 0.0
+
+
+def hair_bsdf_material(name, transmission_fac=0.5, tangent=False, **inputs):
+    """Cycles' Hair BSDF as artists use it: its Reflection and Transmission components mixed."""
+    mat, nodes, links, out = ms.new_material(name)
+    refl, trans = nodes.new("ShaderNodeBsdfHair"), nodes.new("ShaderNodeBsdfHair")
+    trans.component = 'Transmission'
+    for node in (refl, trans):
+        ms.set_inputs(node, **inputs)
+    if tangent:  # the Tangent input linked: a fixed direction across the strands
+        tan = nodes.new("ShaderNodeCombineXYZ")
+        tan.inputs["X"].default_value, tan.inputs["Y"].default_value = 0.3, 1.0
+        links.new(tan.outputs[0], refl.inputs["Tangent"])
+        links.new(tan.outputs[0], trans.inputs["Tangent"])
+    mix = nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = transmission_fac
+    links.new(refl.outputs[0], mix.inputs[1])
+    links.new(trans.outputs[0], mix.inputs[2])
+    links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+@pytest.mark.parametrize("case", [
+    ("defaults", dict(Color=(0.7, 0.45, 0.25, 1.0))),
+    ("rough-offset", dict(Color=(0.5, 0.6, 0.8, 1.0), RoughnessU=0.35, RoughnessV=0.4, Offset=0.12)),
+    ("tangent", dict(Color=(0.8, 0.8, 0.7, 1.0), RoughnessU=0.25, RoughnessV=0.6, tangent=True)),
+], ids=lambda c: c[0])
+def test_hair_bsdf_matches_cycles(case):
+    """The Hair BSDF node (issue 23): Cycles' sample-versus-evaluation pairing included (its
+    reflection samples beyond 90 degrees of azimuth and behind N carry their sample's value)."""
+    _, inputs = case
+    ours, cycles = render_pair(hair_scene(lambda: hair_bsdf_material("Hair", **inputs)), 1024)
+    assert_agree(ours, cycles)
+
+
+def test_hair_bsdf_exports_without_a_warning():
+    from addon.export import export_scene
+    ms.studio(size=16)
+    add_hair("Hair", hair_bsdf_material("HairNode"), strands=3, keys=4)
+    warn = Warnings()
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warn)
+    assert not warn, list(warn)
+    (mat,) = [m for m in data.materials if m.name == "HairNode"]
+    kinds = sorted(op[1] for op in mat.program if op[0] == "closure")
+    assert kinds == ["hair_reflection", "hair_transmission"]
+
+
+def test_hair_bsdf_on_meshes_matches_cycles():
+    """On meshes Cycles' fibre is the triangle's dPdv (corner 2 - corner 0 of Blender's
+    triangulation, which the core reproduces) with the Offset dropped, and N faces the view on
+    back faces (the tilted plane is seen from behind; the sphere's inside from its refractions)."""
+    def build():
+        scene = ms.studio(size=48)
+        ms.add_sphere("Ball", 0.5, hair_bsdf_material("H", Color=(0.7, 0.45, 0.25, 1.0), RoughnessU=0.3,
+                                                      RoughnessV=0.6, Offset=0.2), location=(0.0, 0.0, 0.5))
+        ms.add_plane("Slab", 0.8, hair_bsdf_material("H2", Color=(0.4, 0.6, 0.8, 1.0), RoughnessU=0.3,
+                                                     RoughnessV=0.6), location=(0.9, 0.2, 0.3),
+                     rotation_euler=(0.5, 0.2, 0.3))
+        return scene
+    ours, cycles = render_pair(build, 1024)
+    assert_agree(ours, cycles)

@@ -373,8 +373,8 @@ def test_cycle_warns_once_and_falls_back():
 def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     mat, nodes, links, out = ms.new_material("Odd")
     mix = nodes.new("ShaderNodeMixShader")
-    hair_bsdf = nodes.new("ShaderNodeBsdfHair")
-    hair_bsdf.inputs["Color"].default_value = (0.1, 0.6, 0.2, 1)
+    spec = nodes.new("ShaderNodeEeveeSpecular")  # no Color input: grey diffuse
+    spec.inputs["Base Color"].default_value = (0.1, 0.6, 0.2, 1)
     hair = nodes.new("ShaderNodeBsdfRayPortal")  # has a Color input too
     d = nodes.new("ShaderNodeBsdfDiffuse")
     d.inputs["Color"].default_value = (0.3, 0.3, 0.3, 1)
@@ -385,14 +385,14 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     links.new(ramp.outputs["Random"], mix.inputs["Fac"])
     mix.inputs["Fac"].default_value = 0.4
     add = nodes.new("ShaderNodeAddShader")
-    links.new(hair_bsdf.outputs[0], add.inputs[0])
+    links.new(spec.outputs[0], add.inputs[0])
     links.new(d.outputs[0], add.inputs[1])
     links.new(add.outputs[0], mix.inputs[1])
     links.new(hair.outputs[0], mix.inputs[2])
     links.new(mix.outputs[0], out.inputs["Surface"])
     closures, warnings, _ = closures_of(mat)
     assert len(warnings) == 1
-    for name in ("Odd", "Hair BSDF", "Ray Portal BSDF", "Particle Info"):
+    for name in ("Odd", "Specular BSDF", "Ray Portal BSDF", "Particle Info"):
         assert name in warnings[0], (name, warnings[0])
     assert "Ambient Occlusion" not in warnings[0]
     traced = [c for c in closures if isinstance(c[2]["color"], Sym)]
@@ -400,7 +400,7 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     colors = sorted((tuple(round(x, 4) for x in c[2]["color"][:3]), round(weight_of(c)[0], 4))
                     for c in closures if c not in traced)
     assert all(c[0] == "diffuse" for c in closures)
-    assert colors == sorted([((0.1, 0.6, 0.2), 0.6),
+    assert colors == sorted([((0.8, 0.8, 0.8), 0.6),
                              (tuple(round(x, 4) for x in hair.inputs["Color"].default_value[:3]),
                               0.4)])
 

@@ -16,8 +16,9 @@ def sphere_bins(n_theta=16, n_phi=32):
     return np.linspace(-1, 1, n_theta + 1), np.linspace(-np.pi, np.pi, n_phi + 1)
 
 
-def integrate_pdf(pc, kind, params, wo, ct_edges, ph_edges, res=24):
-    """The evaluated pdf integrated over each bin (res x res midpoint rule per bin)."""
+def integrate_pdf(pc, kind, params, wo, ct_edges, ph_edges, res=24, **eval_kw):
+    """The evaluated pdf integrated over each bin (res x res midpoint rule per bin); eval_kw go
+    to bsdf_eval (sampled=True: the Hair BSDF's own sampling density)."""
     nt, nphi = len(ct_edges) - 1, len(ph_edges) - 1
     t = (np.arange(res) + 0.5) / res
     ct = (ct_edges[:-1, None] + np.diff(ct_edges)[:, None] * t[None, :]).ravel()
@@ -25,7 +26,7 @@ def integrate_pdf(pc, kind, params, wo, ct_edges, ph_edges, res=24):
     CT, PH = np.meshgrid(ct, ph, indexing="ij")
     st = np.sqrt(np.maximum(0, 1 - CT**2))
     wi = np.stack([st * np.cos(PH), st * np.sin(PH), CT], -1).reshape(-1, 3).astype(np.float32)
-    _, pdf = pc.bsdf_eval(kind, params, wo, wi)
+    _, pdf = pc.bsdf_eval(kind, params, wo, wi, **eval_kw)
     cell = (2.0 / nt / res) * (2 * np.pi / nphi / res)
     return (pdf.reshape(nt, res, nphi, res) * cell).sum(axis=(1, 3))
 
@@ -46,12 +47,12 @@ def pooled_chi2(obs, exp):
     return stat, dof, chi2_pvalue(stat, dof)
 
 
-def sampling_chi2(pc, kind, params, wo, wi, n, res=24):
+def sampling_chi2(pc, kind, params, wo, wi, n, res=24, **eval_kw):
     """Histogram the sampled directions `wi` (successful samples of `n` drawn) over the sphere
     against the pdf's integral per bin. Returns (statistic, dof, p-value, expected counts)."""
     ct_edges, ph_edges = sphere_bins()
     obs, _, _ = np.histogram2d(wi[:, 2], np.arctan2(wi[:, 1], wi[:, 0]), bins=[ct_edges, ph_edges])
-    exp = integrate_pdf(pc, kind, params, wo, ct_edges, ph_edges, res=res) * n
+    exp = integrate_pdf(pc, kind, params, wo, ct_edges, ph_edges, res=res, **eval_kw) * n
     return (*pooled_chi2(obs, exp), exp)
 
 

@@ -13,7 +13,7 @@ ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
     "volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
     "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "subsurface", "motion blur",
-    "guiding"}
+    "guiding", "shadow terminator"}
 
 
 def shader(s, name, kind, sigma=None, **params):

@@ -311,9 +311,15 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
 
     # -------------------------------------------------- entry
 
-    def compile(self, output, name):
-        """CompiledShader for a material output node."""
+    def compile(self, output, name, displacement_method='BUMP'):
+        """CompiledShader for a material output node (displacement_method: the material's)."""
         volume = None
+        disp = output.inputs.get("Displacement")
+        if disp is not None and self.link_into(disp) is not None:
+            try:
+                self.bump_from_displacement(disp, displacement_method)
+            except _Cycle as e:
+                self.problem(f"node cycle through '{e}' in the displacement (ignored)")
         try:
             self.shader_input(output.inputs["Surface"], (), None)
         except _Cycle as e:
@@ -328,9 +334,6 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         if volume is not None and (surface is None or surface[0] == "default"):
             # A Volume without a Surface: the boundary lets everything through (as Cycles').
             self.closure("transparent", None, color=const_color((1.0, 1.0, 1.0)))
-        disp = output.inputs.get("Displacement")
-        if disp is not None and self.link_into(disp) is not None:
-            self.problem("displacement is not supported (ignored)")
         program = allocate_registers(eliminate_dead_code(self.ops))
         if program is None:
             self.problem(f"the material needs more than {MAX_REGISTERS} registers (grey "
@@ -359,4 +362,5 @@ def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None):
     if output is None:
         return None
     return ShaderCompiler(images, uv_sets, material_index=mat.pass_index,
-                          view_layer_ids=view_layer_ids, depsgraph=depsgraph).compile(output, mat.name)
+                          view_layer_ids=view_layer_ids, depsgraph=depsgraph).compile(
+        output, mat.name, getattr(mat, "displacement_method", 'BUMP'))

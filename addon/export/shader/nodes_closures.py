@@ -1,5 +1,5 @@
 """Shader nodes → weighted closures: Mix / Add Shader, the BSDFs, Emission, Holdout,
-Subsurface, Principled BSDF and Principled Hair (a ShaderCompiler mixin)."""
+Subsurface, Principled BSDF, Principled Hair and the Hair BSDF (a ShaderCompiler mixin)."""
 
 from .graph import _Cycle
 from .values import GREY, ONE, ZERO, const_color, const_float
@@ -100,6 +100,14 @@ class ClosureNodes:
             self.closure("transparent", weight, color=inp("Color", "color"))
         elif t == 'BSDF_HAIR_PRINCIPLED':
             self.principled_hair(node, inp, weight)
+        elif t == 'BSDF_HAIR':
+            # Cycles' Hair BSDF, one component; its Tangent only where linked (else the strand's
+            # direction, or on a mesh the triangle's dPdv).
+            tangent = node.inputs["Tangent"]
+            kind = "hair_transmission" if node.component == 'Transmission' else "hair_reflection"
+            self.closure(kind, weight, color=inp("Color", "color"), offset=inp("Offset", "float"),
+                         roughness_u=inp("RoughnessU", "float"), roughness_v=inp("RoughnessV", "float"),
+                         tangent=inp("Tangent", "vector") if tangent.is_linked else None)
         elif t == 'EMISSION':
             color = self.scale(inp("Color", "color"), inp("Strength", "float"))
             self.closure("emission", weight, color=self.as_color(color))

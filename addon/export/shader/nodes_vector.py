@@ -106,6 +106,75 @@ class VectorNodes:
                          self.reg(distance), None if normal is None else self.reg(normal),
                          bool(node.invert), max(0.0, float(width)))
 
+    def displacement(self, node, out, ctx):
+        """Cycles' svm_node_displacement: the Normal (unlinked: the shading normal) times
+        (Height - Midlevel) * Scale; in object space through the instance's transform (the
+        normal to object space as a normal, the offset back as a vector: scaled objects
+        displace by their scale, as in Cycles)."""
+        amount = self.math("MULTIPLY", self.math("SUBTRACT", self.input(node, "Height", ctx, "float"),
+                                                 self.input(node, "Midlevel", ctx, "float")),
+                           self.input(node, "Scale", ctx, "float"))
+        normal = self.normal(node, ctx)
+        if normal is None:
+            normal = self.emit("vector", "normal")
+        return self._displace(normal, amount, node.space == 'OBJECT', "NORMAL")
+
+    def vector_displacement(self, node, out, ctx):
+        """Cycles' svm_node_vector_displacement in object or world space: (Vector - Midlevel)
+        * Scale, object space through the instance's transform."""
+        mid = self.as_vector(self.input(node, "Midlevel", ctx, "float"))
+        v = self.vector_op("SUBTRACT", self.input(node, "Vector", ctx, "vector"), mid)
+        if node.space == 'TANGENT':
+            self.problem(f"'{node.name}': tangent space is not supported (object space used)")
+        return self._displace(v, self.input(node, "Scale", ctx, "float"), node.space != 'WORLD', "VECTOR")
+
+    def _displace(self, v, amount, object_space, kind):
+        zero = const_vector((0, 0, 0))
+        if object_space:
+            v = self.emit("vector", "vector_transform", self.reg(v), kind, 'WORLD', 'OBJECT') \
+                if kind == "NORMAL" else v
+        d = self.fold_or_emit("vector", "vector_math", (self.as_vector(v), zero, zero, amount), "SCALE")
+        if object_space:
+            d = self.emit("vector", "vector_transform", self.reg(d), 'VECTOR', 'OBJECT', 'WORLD')
+        return d
+
+    def bump_from_displacement(self, socket, method):
+        """Cycles' bump_from_displacement for the material output's Displacement: the offset's
+        component along the normal at the point and at the Bump node's two offsets, a Bump of
+        Strength 1 and Distance 1 (Filter Width 0.1) whose normal then replaces the shading
+        normal for everything after it (Cycles' Set Normal). Cycles duplicates the subgraph,
+        so its reads of the normal are the unbumped one: compiled first, with a cache of its
+        own."""
+        if method != 'BUMP':
+            self.problem("true displacement (Displacement method other than 'Bump Only') is not "
+                         "supported: rendered as bump")
+        saved, self.cache = self.cache, {}
+        heights = []
+        try:
+            normal = self.emit("vector", "normal")
+            for state in (0, 1, 2):
+                self.bump_state = state
+                v = self.value(socket, (), "vector")
+                if v is None:
+                    return
+                heights.append(self.fold_or_emit("float", "vector_math",
+                                                 (self.as_vector(v), normal, const_vector((0, 0, 0)), ONE),
+                                                 "DOT_PRODUCT"))
+        finally:
+            self.bump_state = 0
+            width = self.cache.get("bump_filter_width")
+            self.cache = saved
+            if width is not None:
+                self.cache["bump_filter_width"] = width
+        if all(h.is_const for h in heights):
+            return
+        first = self.cache.setdefault("bump_filter_width", 0.1)
+        if first != 0.1:
+            self.problem(f"the displacement's bump uses Filter Width 0.1, not another Bump's {first:g}")
+        bump = self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(ONE), self.reg(ONE),
+                         None, False, 0.1)
+        self.ops.append(("set_normal", self.new_reg(), self.reg(bump)))
+
     def normal_map(self, node, ctx):
         """Normal Map in every space of Cycles: tangent (a UV map's tangents), object (turned
         by the hit instance's transform), world, and their Blender variants."""
@@ -126,4 +195,5 @@ VALUE_NODES = {
     'BUMP': VectorNodes.bump, 'SEPXYZ': VectorNodes.separate_xyz,
     'COMBXYZ': VectorNodes.combine_xyz, 'VECT_MATH': VectorNodes.vector_math,
     'VECTOR_ROTATE': VectorNodes.vector_rotate, 'VECT_TRANSFORM': VectorNodes.vector_transform,
+    'DISPLACEMENT': VectorNodes.displacement, 'VECTOR_DISPLACEMENT': VectorNodes.vector_displacement,
 }
