@@ -38,9 +38,8 @@ class ColorNodes:
         mapping = node.mapping
         mapping.initialize()
         curves = list(mapping.curves)
-        los = [c.points[0].location[0] for c in curves[:4] if len(c.points)]
-        his = [c.points[-1].location[0] for c in curves[:4] if len(c.points)]
-        lo, hi = (min(los), max(his)) if los else (0.0, 1.0)
+        # The range is over all four curves (Cycles' curvemapping_minmax(mapping, 4, ...)).
+        _, lo, hi = self._curve_table(mapping, curves[:4])
         table = np.ones((RAMP_TABLE_SIZE, 4))
         for i in range(RAMP_TABLE_SIZE):
             t = lo + i / (RAMP_TABLE_SIZE - 1) * (hi - lo)
@@ -48,11 +47,58 @@ class ColorNodes:
             table[i, :3] = [mapping.evaluate(curves[c], combined) for c in range(3)]
         curved = self.ramp(color, table, True, mapping.extend == 'EXTRAPOLATED', lo, hi,
                            channels=True)
+        return self._curve_mix(fac, color, curved, "color")
+
+    def _curve_table(self, mapping, curves, combined=None):
+        """Cycles' curvemapping_*_to_array: `curves` evaluated (after the combined curve, if
+        any) at RAMP_TABLE_SIZE points over curvemapping_minmax's range, and that range."""
+        los = [c.points[0].location[0] for c in curves if len(c.points)]
+        his = [c.points[-1].location[0] for c in curves if len(c.points)]
+        lo, hi = (min(los), max(his)) if los else (0.0, 1.0)
+        table = np.ones((RAMP_TABLE_SIZE, 4))
+        for i in range(RAMP_TABLE_SIZE):
+            t = lo + i / (RAMP_TABLE_SIZE - 1) * (hi - lo)
+            if combined is not None:
+                t = mapping.evaluate(combined, t)
+            table[i, :len(curves[:3])] = [mapping.evaluate(c, t) for c in curves[:3]]
+        return table, lo, hi
+
+    def _curve_mix(self, fac, v, curved, kind):
+        """Cycles' svm_node_curves blend, v + fac (curved - v), fac not clamped."""
         if fac.is_const and 0.0 <= fac.const[0] <= 1.0:
-            return self.mix("MIX", fac, color, curved)
-        # Cycles does not clamp this factor: color + fac * (curved - color).
-        delta = self.vector_op("SUBTRACT", curved, color)
-        return self.as_color(self.vector_op("MULTIPLY_ADD", delta, fac, color))
+            return self.mix("MIX", fac, v, curved, kind=kind)
+        delta = self.vector_op("SUBTRACT", curved, v)
+        out = self.vector_op("MULTIPLY_ADD", delta, fac, v)
+        return self.convert(out, kind)
+
+    def vector_curves(self, node, out, ctx):
+        """Vector Curves: Cycles' VectorCurvesNode, the X, Y and Z curves baked over their
+        common range, each component through its own curve, blended by Fac."""
+        fac = self.input(node, "Fac", ctx, "float")
+        v = self.input(node, "Vector", ctx, "vector")
+        mapping = node.mapping
+        mapping.initialize()
+        curves = list(mapping.curves)[:3]
+        table, lo, hi = self._curve_table(mapping, curves)
+        curved = self.ramp(v, table, True, mapping.extend == 'EXTRAPOLATED', lo, hi, channels=True,
+                           kind="vector")
+        return self._curve_mix(fac, v, curved, "vector")
+
+    def float_curve(self, node, out, ctx):
+        """Float Curve: Cycles' FloatCurveNode (svm_node_float_curve), the curve baked over its
+        range, blended with the value by Factor."""
+        fac = self.input(node, "Factor", ctx, "float")
+        v = self.input(node, "Value", ctx, "float")
+        mapping = node.mapping
+        mapping.initialize()
+        curve = mapping.curves[0]
+        table, lo, hi = self._curve_table(mapping, [curve])
+        table[:, 1:3] = table[:, :1]
+        curved = self.ramp(v, table, True, mapping.extend == 'EXTRAPOLATED', lo, hi, kind="float")
+        if fac.is_const and fac.const[0] == 1.0:
+            return curved
+        # (1 - fac) v + fac curved, fac not clamped
+        return self.math("MULTIPLY_ADD", self.math("SUBTRACT", curved, v), fac, c=v)
 
     def color_space(self, v, conversion, kind):
         if v.is_const:
@@ -120,6 +166,7 @@ class ColorNodes:
 # socket, group context).
 VALUE_NODES = {
     'VALTORGB': ColorNodes.color_ramp, 'CURVE_RGB': ColorNodes.rgb_curves,
+    'CURVE_VEC': ColorNodes.vector_curves, 'CURVE_FLOAT': ColorNodes.float_curve,
     'SEPARATE_COLOR': ColorNodes.separate_color, 'SEPRGB': ColorNodes.separate_color,
     'SEPHSV': ColorNodes.separate_color, 'COMBINE_COLOR': ColorNodes.combine_color,
     'COMBRGB': ColorNodes.combine_color, 'COMBHSV': ColorNodes.combine_color,

@@ -175,6 +175,19 @@ class VectorNodes:
                          None, False, 0.1)
         self.ops.append(("set_normal", self.new_reg(), self.reg(bump)))
 
+    def normal_node(self, node, out, ctx):
+        """The Normal node (Cycles' svm_node_normal): its direction, normalised, and the dot
+        product of that with its normalised Normal input."""
+        d = np.asarray(node.outputs["Normal"].default_value[:3], np.float64)
+        length = float(np.linalg.norm(d))
+        direction = const_vector(tuple(d / length) if length > 0.0 else (0.0, 0.0, 0.0))
+        if out.identifier == "Normal":
+            return direction
+        n = self.vector_op("NORMALIZE", self.input(node, "Normal", ctx, "vector"), ZERO)
+        by = self.fold_or_emit("float", "vector_math", (direction, n, const_vector((0, 0, 0)), ONE),
+                               "DOT_PRODUCT")
+        return by
+
     def normal_map(self, node, ctx):
         """Normal Map in every space of Cycles: tangent (a UV map's tangents), object (turned
         by the hit instance's transform), world, and their Blender variants."""
@@ -196,4 +209,5 @@ VALUE_NODES = {
     'COMBXYZ': VectorNodes.combine_xyz, 'VECT_MATH': VectorNodes.vector_math,
     'VECTOR_ROTATE': VectorNodes.vector_rotate, 'VECT_TRANSFORM': VectorNodes.vector_transform,
     'DISPLACEMENT': VectorNodes.displacement, 'VECTOR_DISPLACEMENT': VectorNodes.vector_displacement,
+    'NORMAL': VectorNodes.normal_node,
 }
