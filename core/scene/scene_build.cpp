@@ -229,6 +229,20 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   return true;
 }
 
+namespace {
+// Whether some triangle of the mesh has corner normals that differ (smooth shading): only those
+// get Cycles' shadow terminator offset (its SHADER_SMOOTH_NORMAL faces).
+bool has_smooth_triangles(const MeshData& m) {
+  if (m.normals.empty()) return false;
+  for (size_t t = 0; t < m.triangles.size(); ++t) {
+    const std::array<uint32_t, 3>& ni = m.normal_indices.empty() ? m.triangles[t] : m.normal_indices[t];
+    const Vec3 a = m.normals[ni[0]], b = m.normals[ni[1]], c = m.normals[ni[2]];
+    if (a.x != b.x || a.y != b.y || a.z != b.z || a.x != c.x || a.y != c.y || a.z != c.z) return true;
+  }
+  return false;
+}
+}  // namespace
+
 void Scene::build_instances() {
   object_coords_.clear();
   object_coords_.reserve(instances_.size());
@@ -237,6 +251,7 @@ void Scene::build_instances() {
   // Texture spaces once per mesh, not per instance (the automatic one reads every vertex).
   std::vector<std::pair<Vec3, Vec3>> texspace(meshes_.size());
   std::vector<char> have_texspace(meshes_.size(), 0);
+  std::vector<char> smooth(meshes_.size(), -1);  // has_smooth_triangles, where some instance asks
   for (size_t i = 0; i < instances_.size(); ++i) {
     const Instance& inst = instances_[i];
     const MeshData& mesh = meshes_[inst.mesh];
@@ -250,6 +265,10 @@ void Scene::build_instances() {
     }
     object_coords_.push_back(make_object_coords(inst.matrix, texspace[inst.mesh].first, texspace[inst.mesh].second));
     object_coords_.back().info = inst.info;
+    if (inst.info.terminator > 0.0f) {
+      if (smooth[inst.mesh] < 0) smooth[inst.mesh] = has_smooth_triangles(mesh) ? 1 : 0;
+      if (!smooth[inst.mesh]) object_coords_.back().info.terminator = 0.0f;  // flat: nothing to lift
+    }
     if (inst.info.attr_count) object_coords_.back().attrs = object_attrs_.data() + inst.info.attr_first;
     const Mat4& m = inst.matrix;
     set_instance_matrix(in, m);

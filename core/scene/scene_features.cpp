@@ -130,9 +130,8 @@ void Scene::detect_features() {
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
   f.light_tree = use_tree_;
-  for (const InstanceData& in : inst_)
-    f.terminator = f.terminator || (in.blas != UINT32_MAX && object_coords_[size_t(&in - inst_.data())].info.terminator > 0.0f &&
-                                    !meshes_[in.mesh].normals.empty());
+  for (size_t i = 0; i < inst_.size() && i < object_coords_.size(); ++i)  // smooth meshes only
+    f.terminator = f.terminator || (inst_[i].blas != UINT32_MAX && object_coords_[i].info.terminator > 0.0f);
   features_ = f;
 }
 

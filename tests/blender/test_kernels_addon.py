@@ -25,7 +25,8 @@ def test_render_log_names_the_kernel_and_features(caplog):
     line = lines[0]
     used, unused = line.split("(uses ")[1].rstrip(")").split("; without ")
     assert line.startswith("Pathlight: kernel diffuse (")
-    assert set(used.split(", ")) == {"diffuse", "mesh lights"}
+    # (the box's sphere is smooth-shaded: Cycles' shadow terminator offset applies to it)
+    assert set(used.split(", ")) == {"diffuse", "mesh lights", "shadow terminator"}
     for absent in ("glass", "textures", "environment", "dof", "passes", "transparent film"):
         assert absent in unused.split(", ")
 
