@@ -8,11 +8,9 @@
 // (reflection or transmission) that the geometric normal allows, so that shading normals never
 // let light through a surface or reflect it from behind. kDiffuseOnly (diffuse-only kernels):
 // every closure is a DiffuseBsdf, whose eval is called directly rather than through the
-// variant's dispatch (the same arithmetic, so the same result). `sampled`: the closure that
-// drew wi (BSDF sampling; nullptr for light samples), which the Hair BSDF evaluates apart.
+// variant's dispatch (the same arithmetic, so the same result).
 template <bool kDiffuseOnly = false>
-[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf,
-                                                const Closure* sampled = nullptr) {
+[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
   Vec3 f(0.0f);
   pdf = 0.0f;
   for (int i = 0; i < cl.n; ++i) {
@@ -31,13 +29,12 @@ template <bool kDiffuseOnly = false>
     } else if (const DiffuseBsdf* d = std::get_if<DiffuseBsdf>(&c.bsdf)) {
       if (!reflection) continue;
       v = d->eval(lo, li, p);  // the common lobe without the variant's out-of-line visit
-    } else if (const HairBsdf* hb = std::get_if<HairBsdf>(&c.bsdf)) {
-      // Cycles' Hair BSDF tests N's side itself, and along the direction it sampled carries
-      // its sample's value (hair_bsdf.h).
-      v = &c == sampled ? hb->eval_sampled(lo, li, p) : hb->eval(lo, li, p);
     } else {
-      // Hair lobes span the whole sphere (their frame's z is no surface normal).
-      if (same_side(lo, li) != reflection && !std::holds_alternative<HairChiangBsdf>(c.bsdf)) continue;
+      // Hair lobes span the whole sphere (their frame's z is no surface normal); Cycles' Hair
+      // BSDF tests its normal's side itself.
+      if (same_side(lo, li) != reflection && !std::holds_alternative<HairChiangBsdf>(c.bsdf) &&
+          !std::holds_alternative<HairBsdf>(c.bsdf))
+        continue;
       v = bsdf_eval(c.bsdf, lo, li, p);
     }
     f += c.weight * v;
@@ -238,6 +235,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // Media that scatter or emit, or volume-only boundaries: distance sampling and shadow rays
   // through media (else the media kernel keeps plain Beer's law, as before volumes).
   const bool volumes = kMedia && scene.features().volumes;
+  const bool terminator = scene.features().terminator;  // Cycles' shadow terminator offset
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0, volume_count = 0;
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
@@ -453,7 +451,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         const bool above = dot(ds.wi, ng_out) > 0.0f;
         bool reflection = above;
         Vec3 org = sp.p;
-        if (scene.features().terminator) {
+        if (terminator) {
           // Cycles' shadow terminator geometry offset: near the terminator of a smooth
           // triangle the sample starts on the smooth surface its vertex normals describe, and
           // Cycles evaluates the closures whatever the triangle's side, so light just below
@@ -616,7 +614,17 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     } else {
       float pdf;
-      const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf, &ch);
+      Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf);
+      if constexpr (kNonDiffuse)
+        if (const HairBsdf* hb = std::get_if<HairBsdf>(&ch.bsdf)) {
+          // Cycles' Hair BSDF carries its sample's value along the direction it drew itself
+          // (hair_bsdf.h): that in place of its evaluation, the other closures' unchanged.
+          const Vec3 lo = ch.frame.to_local(wo), li = ch.frame.to_local(wi);
+          float pe, ps;
+          const Vec3 fe = hb->eval(lo, li, pe), fs = hb->eval_sampled(lo, li, ps);
+          f += ch.weight * (fs - fe);
+          pdf += ch.pick * (ps - pe);
+        }
       if constexpr (kGuide)
         if (guided && guide_sampling)
           pdf = (1.0f - guide_prob) * pdf + guide_prob * (from_guide ? guide_pdf : guide->pdf(guide_cell, wi));

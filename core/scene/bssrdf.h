@@ -42,7 +42,7 @@ inline float bssrdf_dipole_alpha_prime(float rd, float four_thirds_A) {
 // kBssrdfMinRadius (or NaN), and the whole closure after a diffuse bounce, become a diffuse
 // closure of the same normal. `frame` is the closure's (Cycles' valid specular normal).
 inline void add_subsurface(ClosureList& out, Vec3 w, Vec3 albedo, Vec3 radius, float g, float ior, float alpha,
-                           SubsurfaceMethod method, const Frame& frame, bool diffuse_ancestor) {
+                           SubsurfaceMethod method, const Frame& frame, bool diffuse_ancestor, bool back = false) {
   if (!is_finite(w)) return;
   g = std::isfinite(g) ? std::clamp(g, 0.0f, 0.9f) : 0.0f;
   ior = std::isfinite(ior) ? std::clamp(ior, 1.01f, 3.8f) : 1.4f;
@@ -59,7 +59,11 @@ inline void add_subsurface(ClosureList& out, Vec3 w, Vec3 albedo, Vec3 radius, f
       ++channels;
     }
   }
-  if (!is_black(diffuse)) out.add(DiffuseBsdf{}, diffuse, frame);
+  if (!is_black(diffuse)) {
+    DiffuseBsdf d;
+    d.back = back;  // (the side the viewer sees, as every diffuse lobe)
+    out.add(d, diffuse, frame);
+  }
   if (channels == 0) return;
   SubsurfaceBsdf s;
   s.albedo = albedo;

@@ -9,16 +9,6 @@
 
 namespace pl {
 
-namespace {
-// Diffuse lobes are lit from the side the geometry shows the viewer (DiffuseBsdf::back), as
-// Cycles flips a backfacing hit's normals, even where the shading normal faces away (smooth
-// silhouettes). The winding of a mirrored instance is turned round (Cycles' negative scale
-// flips Ng) so that the side is the normals' side.
-inline void face_diffuse(ClosureList& out, bool back) {
-  for (int i = 0; i < out.n; ++i)
-    if (auto* d = std::get_if<DiffuseBsdf>(&out.c[size_t(i)].bsdf)) d->back = back;
-}
-}  // namespace
 
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
@@ -29,14 +19,16 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     out.ns = Vec3(0.0f);
     out.has_nondelta = mat.cached.has_nondelta;
     const Frame f = Frame::from_normal(sp.ns);
+    const bool back = backfacing(sp, wo);
     for (int i = 0; i < out.n; ++i) {
       Closure& c = out.c[size_t(i)];
       c = mat.cached.c[size_t(i)];
+      // Diffuse lobes are lit from the side the geometry shows the viewer (DiffuseBsdf::back).
+      if (auto* d = std::get_if<DiffuseBsdf>(&c.bsdf)) d->back = back;
       // Glossy lobes: the normal lifted as eval_shader does (Cycles' valid specular reflection).
       c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
     }
     if (mat.has_hair) orient_hair(out, sp, wo);
-    face_diffuse(out, backfacing(sp, wo));
     return;
   }
   ShadingContext ctx;
@@ -63,13 +55,14 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     cs.tangent_normal = length_sq(across) > 0.0f ? normalize(across) : Vec3(0.0f);
     cs.tangent = sp.tangent;
     ctx.curve = &cs;
+    ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &curve_coords_[curve_set_of(pc.curve)];
     eval_shader(mat.program, images_, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);
-    face_diffuse(out, backfacing(sp, wo));
     return;
   }
   const InstanceData& in = inst_[sp.instance];
+  ctx.backfacing = (dot(sp.ng, wo) < 0.0f) != in.negative;  // (Scene::backfacing)
   const Blas& blas = blases_[in.blas];
   TriangleVerts tv;
   ctx.object = &object_coords_[sp.instance];
@@ -185,7 +178,6 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   }
   eval_shader(mat.program, images_, ctx, out);
   if (mat.has_hair) orient_hair(out, sp, wo);
-  face_diffuse(out, backfacing(sp, wo));
 }
 
 void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo) {

@@ -1,6 +1,7 @@
 // Shader program evaluation: the value ops (coordinates, textures, maths, colour) in registers,
 // and the closure ops' closures from them (shader_closures.cpp).
 #include "scene/shader.h"
+
 #include "scene/shader_math.h"
 #include "scene/shader_closures.h"
 
@@ -14,13 +15,15 @@ namespace pl {
 
 using namespace shader_math;  // this unit's helpers (shader_math.h is included by the shader units alone)
 
-void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx_in,
-                 ClosureList& out, Float4* regs) {
-  // A program with a SetNormal op works on a copy of the context whose shading normal that op
-  // replaces (Cycles' bump from displacement sets sd->N for the rest of the shader).
-  ShadingContext local;
-  if (prog.sets_normal) local = ctx_in;
-  const ShadingContext& ctx = prog.sets_normal ? local : ctx_in;
+namespace {
+
+// The program's evaluation. kSetsNormal: the program has a SetNormal op, which replaces the
+// shading normal of `ctx` (then the caller's copy, `local`) for the ops after it, as Cycles'
+// bump from displacement sets sd->N for the rest of the shader.
+template <bool kSetsNormal>
+[[gnu::always_inline]] inline void eval_program(const ShaderProgram& prog, const std::vector<Image>& images,
+                                                const ShadingContext& ctx, ShadingContext* local, ClosureList& out,
+                                                Float4* regs) {
   Float4 r[kMaxRegs];
   out.n = 0;
   out.emission = Vec3(0.0f);
@@ -579,7 +582,8 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
       }
       case OpCode::SetNormal: {
         const Vec3 n = reg(op.in[0]).xyz();
-        if (prog.sets_normal && length_sq(n) > 1e-12f && is_finite(n)) local.ns = normalize(n);
+        if constexpr (kSetsNormal)
+          if (length_sq(n) > 1e-12f && is_finite(n)) local->ns = normalize(n);
         d = f4(ctx.ns, 0.0f);
         break;
       }
@@ -641,8 +645,20 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
     }
   }
   out.finalize();
-  if (prog.sets_normal) out.ns = local.ns;
+  if constexpr (kSetsNormal) out.ns = local->ns;
   if (regs) std::copy(r, r + kMaxRegs, regs);
+}
+
+}  // namespace
+
+void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
+                 ClosureList& out, Float4* regs) {
+  if (__builtin_expect(prog.sets_normal, 0)) {
+    ShadingContext local = ctx;
+    eval_program<true>(prog, images, local, &local, out, regs);
+  } else {
+    eval_program<false>(prog, images, ctx, nullptr, out, regs);
+  }
 }
 
 }  // namespace pl

@@ -255,6 +255,7 @@ struct CurveShading {
 struct ShadingContext {
   Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
   Vec3 wo;                   // direction towards the viewer (unit)
+  bool backfacing = false;   // the viewer sees the hit's back (Scene::backfacing): diffuse lobes' side
   const Vec2* uv = nullptr;  // per uv set: the interpolated uv (nullptr entries: missing)
   int uv_sets = 0;
   const Vec3* tangents = nullptr;  // per uv set: tangent (xyz) with the bitangent sign folded in

@@ -26,13 +26,13 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
     const Vec3 n = normal_or(r, normal_reg, ctx.ns);
     f = Frame::from_normal(n);
     DiffuseBsdf d;
+    d.back = ctx.backfacing;
     // A program that set the shading normal (bump from displacement) lights its lobes from
     // their own side too, as Cycles' sd->N: "bent" against that normal, so no shadowing term
     // unless the lobe's own normal differs from it.
     if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z || prog.sets_normal) {
       d.bent = true;
       d.ns = f.to_local(ctx.ns);
-      d.back = dot(ctx.ng, ctx.wo) < 0.0f;
     }
     return d;
   };
@@ -423,7 +423,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
           const SubsurfaceMethod method = subsurface_method(m);
           const float sss_ior = method == SubsurfaceMethod::RandomWalkSkin ? val(px(kPxSubsurfaceIor), 1.4f) : eta;
           add_subsurface(out, weight * (base_c * ssw), base_c, radius, val(px(kPxSubsurfaceAnisotropy), 0.0f),
-                         sss_ior, alpha, method, fr, ctx.ray.diffuse_ancestor);
+                         sss_ior, alpha, method, fr, ctx.ray.diffuse_ancestor, ctx.backfacing);
         }
       }
       const Vec3 dw = ssw > 0.0f ? weight * base * (1.0f - ssw) : weight * base;
@@ -449,7 +449,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       const Vec3 radius = (op.in[3] == kNoReg ? Vec3{1.0f, 0.2f, 0.1f} : r[op.in[3]].xyz()) * val(op.in[2], 0.05f);
       add_subsurface(out, clean_color(col(op.in[0])) * color, color, radius, val(op.in[6], 0.0f), val(op.in[4], 1.4f),
                      val(op.in[5], 1.0f), subsurface_method(val(op.in[8], 1.0f)),
-                     glossy_frame(op.in[7]), ctx.ray.diffuse_ancestor);
+                     glossy_frame(op.in[7]), ctx.ray.diffuse_ancestor, ctx.backfacing);
       break;
     }
     default: break;  // the value ops: eval_shader's own
