@@ -1279,7 +1279,9 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   if (kind == "toon") return ToonBsdf::setup(f("size", 0.5f), f("smooth", 0.0f), b("glossy", false));
   if (kind == "oren_nayar") {
     const Vec3 c = p.contains("color") ? to_color(p["color"], "color") : Vec3(1.0f);
-    return OrenNayarBsdf::setup(f("roughness", 0.5f), c, f("cos_view", 1.0f));
+    OrenNayarBsdf o = OrenNayarBsdf::setup(f("roughness", 0.5f), c, f("cos_view", 1.0f));
+    o.back = b("back", false);  // a backfacing hit's lobe: lit from -Z
+    return o;
   }
   throw std::invalid_argument("unknown bsdf '" + kind + "'");
 }

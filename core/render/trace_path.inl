@@ -31,9 +31,10 @@ template <bool kDiffuseOnly = false>
       v = d->eval(lo, li, p);  // the common lobe without the variant's out-of-line visit
     } else {
       // Hair lobes span the whole sphere (their frame's z is no surface normal); Cycles' Hair
-      // BSDF tests its normal's side itself.
+      // BSDF tests its normal's side itself; rough diffuse reflects from its own side, as plain
+      // diffuse (the view may be below its normal at a smooth silhouette).
       if (same_side(lo, li) != reflection && !std::holds_alternative<HairChiangBsdf>(c.bsdf) &&
-          !std::holds_alternative<HairBsdf>(c.bsdf))
+          !std::holds_alternative<HairBsdf>(c.bsdf) && !(reflection && std::holds_alternative<OrenNayarBsdf>(c.bsdf)))
         continue;
       v = bsdf_eval(c.bsdf, lo, li, p);
     }

@@ -17,6 +17,7 @@ inline float oren_nayar_G(float c) {
 struct OrenNayarBsdf {
   Vec3 ns{0.0f, 0.0f, 1.0f};  // as DiffuseBsdf: the smooth normal, for the bump shadowing
   bool bent = false;
+  bool back = false;  // the hit is backfacing: lit from -Z (as DiffuseBsdf::back)
   float a = kInvPi, b = 0.0f;
   Vec3 ms{0.0f};  // the multiple-scattering term's colour times (1 - E(view))
 
@@ -45,8 +46,10 @@ struct OrenNayarBsdf {
   }
   [[gnu::noinline]] Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
-    if (!same_side(wo, wi)) return Vec3(0.0f);
-    const float side = wo.z < 0.0f ? -1.0f : 1.0f;  // two-sided: mirrored to the view's side
+    // Lit from the side the geometry shows the viewer (Cycles flips a backfacing hit's normal);
+    // a view below the lobe (a smooth silhouette) counts as grazing, Cycles' max(N.V, 0).
+    if ((wi.z < 0.0f) != back) return Vec3(0.0f);
+    const float side = back ? -1.0f : 1.0f;
     const Vec3 f = value({wo.x, wo.y, wo.z * side}, {wi.x, wi.y, wi.z * side});
     pdf = std::fabs(wi.z) * kInvPi;
     return bent ? f * bump_shadowing(ns, wi) : f;
@@ -54,7 +57,7 @@ struct OrenNayarBsdf {
   [[gnu::noinline]] bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
     Vec3 l = sample_cosine_hemisphere(u);
     if (l.z <= 0.0f) return false;
-    const bool flip = wo.z < 0.0f;
+    const bool flip = back;
     if (flip) wo.z = -wo.z;
     const Vec3 f = value(wo, l);
     s.pdf = l.z * kInvPi;

@@ -57,9 +57,11 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       // Roughness (in[3]): Cycles' Oren-Nayar from 1e-5 on, with the colour as its albedo.
       const float rough = val(op.in[3], 0.0f);
       if (rough >= 1e-5f) {
-        OrenNayarBsdf o = OrenNayarBsdf::setup(rough, clean_color(col(op.in[1])), std::fabs(dot(f.n, ctx.wo)));
+        OrenNayarBsdf o = OrenNayarBsdf::setup(rough, clean_color(col(op.in[1])),
+                                               std::max(dot(f.n, ctx.wo) * (d.back ? -1.0f : 1.0f), 0.0f));
         o.ns = d.ns;
         o.bent = d.bent;
+        o.back = d.back;
         out.add(o, w, f);
       } else {
         out.add(d, w, f);
@@ -432,9 +434,10 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
         const float dr_in = val(px(kPxDiffuseRoughness), 0.0f);
         const float dr = std::isfinite(dr_in) ? sat(dr_in) : 0.0f;
         if (dr >= 1e-5f) {
-          OrenNayarBsdf o = OrenNayarBsdf::setup(dr, base, std::fabs(dot(fd.n, ctx.wo)));
+          OrenNayarBsdf o = OrenNayarBsdf::setup(dr, base, std::max(dot(fd.n, ctx.wo) * (diffuse.back ? -1.0f : 1.0f), 0.0f));
           o.ns = diffuse.ns;
           o.bent = diffuse.bent;
+          o.back = diffuse.back;
           out.add(o, dw, fd);
           break;
         }

@@ -24,6 +24,8 @@ def lobe(kind, params, wo):
     p = dict(params)
     if kind in ("sheen", "oren_nayar"):
         p["cos_view"] = abs(wo[2])
+    if kind == "oren_nayar":  # a view from behind is a backfacing hit: its lobe is lit from behind
+        p["back"] = wo[2] < 0.0
     return p
 
 
