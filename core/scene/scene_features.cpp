@@ -27,6 +27,7 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"environment", f.environment},
           {"world light", f.world_light},
           {"light tree", f.light_tree},
+          {"light hits", f.light_hits},
           {"subsurface", f.subsurface}};
 }
 }  // namespace
@@ -128,6 +129,7 @@ void Scene::detect_features() {
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
   f.light_tree = use_tree_;
+  f.light_hits = !hit_lights_.empty() || !hit_suns_.empty();
   features_ = f;
 }
 
