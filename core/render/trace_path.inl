@@ -447,7 +447,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
       }
     }
-    if (hits) L += light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+    if (hits) {
+      const Vec3 lh = light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+      L += lh;
+      if constexpr (kAovs)
+        if (direct && aov) aov->emission += lh;  // lights seen by the camera: the Emit pass, as emitters
+    }
     if (!found) {
       // Escaped: the world, weighted against the environment light sample that could find it
       // (without an environment that pdf is 0 and the weight 1).
