@@ -224,16 +224,7 @@ template <class Through>
     const Vec3 c = through(t) * le * w;
     if (is_finite(c)) sum += c;
   };
-  for (const Scene::HitLight& h : scene.hit_lights()) {
-    // The bounding sphere first: most lights are nowhere near the ray.
-    const Vec3 oc = h.center - ray.org;
-    const float tc = dot(oc, d);
-    const float r = std::sqrt(h.radius2);
-    if (!(tc + r > 0.0f) || !(tc - r < tmax)) continue;
-    const float oc2 = length_sq(oc);
-    if (oc2 - tc * tc > h.radius2 + 1e-6f * oc2) continue;
-    add(h);
-  }
+  scene.for_hit_lights(ray.org, d, tmax, add);  // (bounding spheres or boxes first)
   if (std::isinf(tmax))
     for (const Scene::HitLight& h : scene.hit_suns()) add(h);
   return sum;

@@ -406,12 +406,56 @@ class Scene {
   // a quick rejection, and what rays see it.
   struct HitLight {
     Vec3 center;
-    float radius2 = 0.0f;  // squared radius of the bounding sphere
+    float radius = 0.0f, radius2 = 0.0f;  // the bounding sphere's radius (padded) and its square
+    Vec3 lo, hi;  // bounding box
     uint32_t index = 0;    // into the lights
     uint8_t visibility = 0;
     bool mis = true;
   };
   const std::vector<HitLight>& hit_lights() const { return hit_lights_; }  // finite lights
+  // Calls f(h) for every finite hit light whose bounds the segment org + d t, 0 <= t < tmax, may
+  // cross (d unit): all of them by their bounding spheres below kHitLightBvhMin, else through a
+  // small BVH over their boxes (the light tree's rooms: 50 lamps a segment cost 1.4-1.8x time).
+  static constexpr size_t kHitLightBvhMin = 8;
+  template <class F>
+  void for_hit_lights(Vec3 org, Vec3 d, float tmax, const F& f) const {
+    if (hit_nodes_.empty()) {
+      for (const HitLight& h : hit_lights_) {
+        const Vec3 oc = h.center - org;
+        const float tc = dot(oc, d);
+        const float r = h.radius;
+        if (!(tc + r > 0.0f) || !(tc - r < tmax)) continue;
+        const float oc2 = length_sq(oc);
+        if (oc2 - tc * tc > h.radius2 + 1e-6f * oc2) continue;
+        f(h);
+      }
+      return;
+    }
+    const auto inv1 = [](float x) { return std::fabs(x) > 1e-30f ? 1.0f / x : std::copysign(1e30f, x); };
+    const Vec3 inv{inv1(d.x), inv1(d.y), inv1(d.z)};
+    uint32_t stack[64];
+    int sp = 0;
+    uint32_t n = 0;
+    for (;;) {
+      const HitLightNode& node = hit_nodes_[n];
+      const float x0 = (node.lo.x - org.x) * inv.x, x1 = (node.hi.x - org.x) * inv.x;
+      const float y0 = (node.lo.y - org.y) * inv.y, y1 = (node.hi.y - org.y) * inv.y;
+      const float z0 = (node.lo.z - org.z) * inv.z, z1 = (node.hi.z - org.z) * inv.z;
+      const float t0 = std::max(std::max(std::min(x0, x1), std::min(y0, y1)), std::max(std::min(z0, z1), 0.0f));
+      const float t1 = std::min(std::min(std::max(x0, x1), std::max(y0, y1)), std::min(std::max(z0, z1), tmax));
+      if (t0 <= t1 * 1.00001f + 1e-6f) {
+        if (node.count) {
+          for (uint32_t i = node.first; i < node.first + node.count; ++i) f(hit_lights_[i]);
+        } else {
+          if (sp < 64) stack[sp++] = node.first;  // the right child; the left one follows n
+          n = n + 1;
+          continue;
+        }
+      }
+      if (sp == 0) break;
+      n = stack[--sp];
+    }
+  }
   const std::vector<HitLight>& hit_suns() const { return hit_suns_; }      // suns with an angle
   const Light& light(size_t k) const { return lights_[k]; }
   // The nearest analytic light with Multiple Importance on that the ray from `from` along the
@@ -557,6 +601,14 @@ class Scene {
   bool solid_angle_rects_ = true;
   bool light_hits_on_ = true;
   std::vector<HitLight> hit_lights_, hit_suns_;
+  // The BVH over hit_lights_ (empty below kHitLightBvhMin lights): depth first, the left child
+  // next to its parent; first: a leaf's first light or an interior node's right child.
+  struct HitLightNode {
+    Vec3 lo, hi;
+    uint32_t first = 0, count = 0;  // count 0: interior
+  };
+  std::vector<HitLightNode> hit_nodes_;
+  uint32_t build_hit_nodes(size_t begin, size_t end);
   bool emitter_groups_ = true;
   bool rect_groups_ = true;
 

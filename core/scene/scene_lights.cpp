@@ -229,12 +229,25 @@ void Scene::build_lights() {
       hit_suns_.push_back(h);
       continue;
     }
-    const float r = l.type == LightType::Rect || l.type == LightType::Ellipse
-                        ? 0.5f * (length(l.axis_u) + length(l.axis_v))
-                        : l.radius;
-    h.radius2 = r * r * 1.0001f + 1e-12f;
+    const bool area = l.type == LightType::Rect || l.type == LightType::Ellipse;
+    const float r = area ? 0.5f * (length(l.axis_u) + length(l.axis_v)) : l.radius;
+    h.radius = r * 1.0001f + 1e-6f;
+    h.radius2 = h.radius * h.radius;
+    Aabb b;
+    if (area) {
+      for (int i = 0; i < 4; ++i)
+        b.grow(l.position + l.axis_u * ((i & 1) ? 0.5f : -0.5f) + l.axis_v * ((i & 2) ? 0.5f : -0.5f));
+    } else {
+      b.grow(l.position - Vec3(r));
+      b.grow(l.position + Vec3(r));
+    }
+    const Vec3 pad = vmax(b.extent() * 1e-4f, Vec3(1e-6f)) + vmax(vmax(b.lo, -b.lo), vmax(b.hi, -b.hi)) * 1e-6f;
+    h.lo = b.lo - pad;
+    h.hi = b.hi + pad;
     hit_lights_.push_back(h);
   }
+  hit_nodes_.clear();
+  if (hit_lights_.size() >= kHitLightBvhMin) build_hit_nodes(0, hit_lights_.size());
   stats_.emissive_triangles = emitters_.size();
   stats_.lights = lights_.size();
   ++stats_.light_builds;
@@ -609,6 +622,39 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
   return pmf_e / emitter_areas_[size_t(e)] * t2 / cos_l;
 }
 
+uint32_t Scene::build_hit_nodes(size_t begin, size_t end) {
+  const uint32_t id = uint32_t(hit_nodes_.size());
+  hit_nodes_.emplace_back();
+  Aabb box, centres;
+  for (size_t i = begin; i < end; ++i) {
+    box.grow(hit_lights_[i].lo);
+    box.grow(hit_lights_[i].hi);
+    centres.grow((hit_lights_[i].lo + hit_lights_[i].hi) * 0.5f);
+  }
+  hit_nodes_[id].lo = box.lo;
+  hit_nodes_[id].hi = box.hi;
+  if (end - begin <= 2) {
+    hit_nodes_[id].first = uint32_t(begin);
+    hit_nodes_[id].count = uint32_t(end - begin);
+    return id;
+  }
+  // Median split along the centres' longest axis.
+  const Vec3 e = centres.extent();
+  const int axis = e.x >= e.y && e.x >= e.z ? 0 : e.y >= e.z ? 1 : 2;
+  const auto key = [axis](const HitLight& h) {
+    const Vec3 c = (h.lo + h.hi) * 0.5f;
+    return axis == 0 ? c.x : axis == 1 ? c.y : c.z;
+  };
+  const size_t mid = begin + (end - begin) / 2;
+  std::nth_element(hit_lights_.begin() + long(begin), hit_lights_.begin() + long(mid), hit_lights_.begin() + long(end),
+                   [&](const HitLight& a, const HitLight& b) { return key(a) < key(b); });
+  build_hit_nodes(begin, mid);
+  const uint32_t right = build_hit_nodes(mid, end);
+  hit_nodes_[id].first = right;
+  hit_nodes_[id].count = 0;
+  return id;
+}
+
 bool Scene::nearest_light_hit(Vec3 from, Vec3 n, Vec3 dir, float tmax, float& t, Vec3& le, float& pdf) const {
   bool any = false;
   t = tmax;
@@ -623,7 +669,7 @@ bool Scene::nearest_light_hit(Vec3 from, Vec3 n, Vec3 dir, float tmax, float& t,
     le = l;
     pdf = light_choice_pmf(from, n, h.index) * p;
   };
-  for (const HitLight& h : hit_lights_) one(h);
+  for_hit_lights(from, dir, tmax, one);
   if (!any && std::isinf(tmax))
     for (const HitLight& h : hit_suns_) one(h);
   return any;
