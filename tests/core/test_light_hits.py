@@ -213,3 +213,12 @@ def test_ray_visibility_off_removes_the_light_from_those_closures(flag):
             means[mat, on] = np.asarray(run_session(pc, s, 16, 16, 64, max_bounces=1).film())[..., :3].mean()
     assert means[kind, True] > 0.01 and means[kind, False] == 0.0
     assert np.isclose(means[other, True], means[other, False], rtol=1e-6)
+
+
+def test_camera_sees_lights_through_transparent_surfaces():
+    s = view_scene("rect", visible_camera=True)
+    # A half-transparent sheet between the camera (0, -0.2, -1) and the light (z = 1.4).
+    pos, tris = quad((-5, -5, 0.2), (10, 0, 0), (0, 10, 0))
+    add_object(s, pos, tris, shader(s, "veil", "transparent", color=(0.5, 0.5, 0.5)))
+    img = np.asarray(run_session(pc, s, 24, 24, 16).film())[..., 0]
+    assert np.isclose(img.max(), 0.5 * 3.0, rtol=1e-4), img.max()
