@@ -68,14 +68,6 @@ def light_power(light, name, warn):
 
 
 def _unsupported(light, obj, name, warn):
-    if getattr(obj, "visible_camera", False) and (
-            light.type == 'AREA' or light.type == 'SUN' and light.angle > 0
-            or light.type in {'POINT', 'SPOT'} and light.shadow_soft_size > 0):
-        warn(f"Light '{name}': lights visible to the camera are not supported; "
-             "the light is rendered invisible to camera rays")
-    for flag in ("visible_diffuse", "visible_glossy", "visible_transmission"):
-        if not getattr(obj, flag, True):
-            warn(f"Light '{name}': ray visibility '{flag[8:]}' off is not supported; ignored")
     if light.type in {'POINT', 'SPOT'} and not getattr(light, "use_soft_falloff", True):
         warn(f"Light '{name}': sphere lights (Soft Falloff off) are not supported; "
              "rendering with soft falloff")
@@ -104,6 +96,18 @@ def convert_light(obj, matrix, warn):
     # visibility (measured: same image with visible_shadow off), and so do we.
     cast_shadow = bool(light.use_shadow)
     normalize = getattr(light, "normalize", True)
+    # Cycles' Multiple Importance (rays find the light and MIS weighs them against light
+    # samples; off: light samples only) and the light object's Ray Visibility, as Cycles
+    # applies them (core/scene/light.h): camera rays see lights visible to the camera, other rays
+    # the Multiple Importance lights visible to their kind; light samples leave out the closures
+    # of the kinds a light is invisible to. (Shadow visibility: see cast_shadow above.)
+    flags = dict(
+        use_mis=bool(getattr(cycles, "use_multiple_importance_sampling", True)) if cycles is not None else True,
+        visible_camera=bool(getattr(obj, "visible_camera", True)),
+        visible_diffuse=bool(getattr(obj, "visible_diffuse", True)),
+        visible_glossy=bool(getattr(obj, "visible_glossy", True)),
+        visible_transmission=bool(getattr(obj, "visible_transmission", True)),
+        visible_volume=bool(getattr(obj, "visible_volume_scatter", True)))
 
     if light.type in {'POINT', 'SPOT'}:
         radius = float(_finite_nonneg(light.shadow_soft_size, "radius", name, warn))
@@ -113,12 +117,12 @@ def convert_light(obj, matrix, warn):
         if light.type == 'POINT':
             return LightData("point", name, dict(
                 position=tuple(m[:3, 3].tolist()), intensity=intensity, radius=radius,
-                cast_shadow=cast_shadow))
+                cast_shadow=cast_shadow, **flags))
         spot_size = float(np.clip(np.nan_to_num(light.spot_size, nan=math.pi), 1e-4, math.pi))
         spot_blend = float(np.clip(np.nan_to_num(light.spot_blend), 0.0, 1.0))
         return LightData("spot", name, dict(
             matrix=m.astype(np.float32), intensity=intensity, radius=radius,
-            spot_size=spot_size, spot_blend=spot_blend, cast_shadow=cast_shadow))
+            spot_size=spot_size, spot_blend=spot_blend, cast_shadow=cast_shadow, **flags))
 
     if light.type == 'SUN':
         z = m[:3, 2]
@@ -130,7 +134,7 @@ def convert_light(obj, matrix, warn):
             power = power * (math.pi * math.sin(angle / 2) ** 2)
         return LightData("sun", name, dict(
             direction=tuple((z / norm).tolist()), irradiance=tuple(power.tolist()),
-            angle=angle, cast_shadow=cast_shadow))
+            angle=angle, cast_shadow=cast_shadow, **flags))
 
     if light.type == 'AREA':
         size_x = float(_finite_nonneg(light.size, "size", name, warn))
@@ -146,7 +150,7 @@ def convert_light(obj, matrix, warn):
         radiance = power / (math.pi * area) if normalize else power / math.pi
         return LightData("area", name, dict(
             matrix=m.astype(np.float32), size_x=size_x, size_y=size_y,
-            radiance=tuple(radiance.tolist()), ellipse=ellipse, cast_shadow=cast_shadow))
+            radiance=tuple(radiance.tolist()), ellipse=ellipse, cast_shadow=cast_shadow, **flags))
 
     warn(f"Light '{name}': light type {light.type} is not supported; skipped")
     return None

@@ -34,6 +34,12 @@ namespace {
 using FloatArray = py::array_t<float, py::array::c_style | py::array::forcecast>;
 using IntArray = py::array_t<int64_t, py::array::c_style | py::array::forcecast>;
 
+// Light::visibility from Blender's Ray Visibility flags of a light object.
+uint8_t light_visibility(bool camera, bool diffuse, bool glossy, bool transmission, bool volume) {
+  return uint8_t((camera ? kLightVisCamera : 0) | (diffuse ? kLightVisDiffuse : 0) | (glossy ? kLightVisGlossy : 0) |
+                 (transmission ? kLightVisTransmission : 0) | (volume ? kLightVisVolume : 0));
+}
+
 Vec3 to_color(const py::handle& h, const char* what) {
   const auto v = py::cast<std::vector<float>>(h);
   if (v.size() != 3) throw std::invalid_argument(std::string(what) + " must have 3 components");
@@ -1051,6 +1057,12 @@ py::tuple light_samples(const PyScene& self, const FloatArray& points, const Flo
         SurfacePoint sp;
         self.scene->surface_point(h, sp);
         ph[i] = self.scene->pdf_emitter(sp, p[i], sp.p, std::fabs(dot(sp.ng, ds.wi)), ds.n);
+      }
+      float tl, pl;
+      Vec3 le;
+      if (good && self.scene->nearest_light_hit(p[i], ds.n, ds.wi, pt[i], tl, le, pl)) {  // an analytic light first
+        pt[i] = tl;
+        ph[i] = pl;
       }
     }
   }
@@ -2204,7 +2216,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           "the top level); False (default): meshes used once are merged in world space (faster tracing).")
       .def(
           "add_point_light",
-          [](PyScene& self, const py::object& position, const py::object& intensity, float radius, bool cast_shadow) {
+          [](PyScene& self, const py::object& position, const py::object& intensity, float radius, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
+             bool visible_transmission, bool visible_volume) {
             self.check_editable();
             Light l;
             l.type = LightType::Point;
@@ -2212,13 +2225,18 @@ PYBIND11_MODULE(pathlight_core, m) {
             l.color = to_color(intensity, "intensity");
             l.radius = finite_nonneg(radius, "radius");
             l.cast_shadow = cast_shadow;
+            l.mis = use_mis;
+            l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
             self.scene->add_light(l);
           },
-          py::arg("position"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("cast_shadow") = true)
+          py::arg("position"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
+          py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
       .def(
           "add_spot_light",
           [](PyScene& self, const FloatArray& matrix, const py::object& intensity, float radius, float spot_size,
-             float spot_blend, bool cast_shadow) {
+             float spot_blend, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
+             bool visible_transmission, bool visible_volume) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "spot light matrix");
             Light l;
@@ -2232,13 +2250,18 @@ PYBIND11_MODULE(pathlight_core, m) {
             const float blend = clampf(finite_nonneg(spot_blend, "spot_blend"), 0.0f, 1.0f);
             l.spot_smooth_inv = blend > 0.0f && l.cos_half_spot < 1.0f ? 1.0f / ((1.0f - l.cos_half_spot) * blend) : 0.0f;
             l.cast_shadow = cast_shadow;
+            l.mis = use_mis;
+            l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
             self.scene->add_light(l);
           },
           py::arg("matrix"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("spot_size") = kPi / 4.0f,
-          py::arg("spot_blend") = 0.15f, py::arg("cast_shadow") = true)
+          py::arg("spot_blend") = 0.15f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
+          py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
       .def(
           "add_sun_light",
-          [](PyScene& self, const py::object& direction, const py::object& irradiance, float angle, bool cast_shadow) {
+          [](PyScene& self, const py::object& direction, const py::object& irradiance, float angle, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
+             bool visible_transmission, bool visible_volume) {
             self.check_editable();
             Light l;
             l.type = LightType::Sun;
@@ -2252,13 +2275,18 @@ PYBIND11_MODULE(pathlight_core, m) {
             // so a surface facing the sun receives exactly E.
             l.sun_radiance_scale = half > 0.0f ? 1.0f / (kPi * std::sin(half) * std::sin(half)) : 0.0f;
             l.cast_shadow = cast_shadow;
+            l.mis = use_mis;
+            l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
             self.scene->add_light(l);
           },
-          py::arg("direction"), py::arg("irradiance"), py::arg("angle") = 0.0f, py::arg("cast_shadow") = true)
+          py::arg("direction"), py::arg("irradiance"), py::arg("angle") = 0.0f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
+          py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
       .def(
           "add_area_light",
           [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, const py::object& radiance,
-             bool ellipse, bool cast_shadow) {
+             bool ellipse, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
+             bool visible_transmission, bool visible_volume) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "area light matrix");
             Light l;
@@ -2272,10 +2300,14 @@ PYBIND11_MODULE(pathlight_core, m) {
             l.dir = -normalize(m.vector({0.0f, 0.0f, 1.0f}));  // emits along local -Z
             l.color = to_color(radiance, "radiance");
             l.cast_shadow = cast_shadow;
+            l.mis = use_mis;
+            l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
             self.scene->add_light(l);
           },
           py::arg("matrix"), py::arg("size_x"), py::arg("size_y"), py::arg("radiance"), py::arg("ellipse") = false,
-          py::arg("cast_shadow") = true)
+          py::arg("cast_shadow") = true, py::arg("use_mis") = true,
+          py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
       .def(
           "set_world_texture",
           [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj) {
@@ -2429,6 +2461,17 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Light-sample rectangle lights uniformly in solid angle where it is not tiny (True, the "
           "default) or always by area.")
       .def_property(
+          "light_hits",
+          [](const PyScene& self) { return self.scene->light_hits_enabled(); },
+          [](PyScene& self, bool on) {
+            self.check_editable();
+            self.scene->set_light_hits(on);
+          },
+          "Rays find analytic lights with extent (point and spot disks, area lights, suns with an "
+          "angle) and weigh them against light samples by MIS (True, the default); False: those "
+          "lights are reached by light samples alone, each with the full weight. Takes effect at the "
+          "next commit().")
+      .def_property(
           "emitter_groups",
           [](const PyScene& self) { return self.scene->emitter_groups(); },
           [](PyScene& self, bool on) {
@@ -2452,7 +2495,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("bsdf_follows") = true,
            "Light samples (next-event estimation) from points (N, 3) with uniforms u (N, 3: the light "
            "choice and the 2-D sample): (ok, wi (N, 3), dist, pdf, pdf_hit, t_hit), pdf_hit the pdf the "
-           "renderer's MIS gives the emitter the ray p + t wi hits first at t_hit (0 and inf for none). "
+           "renderer's MIS gives the emitter (or analytic light with extent) the ray p + t wi hits first "
+           "at t_hit (0 and inf for none). "
            "normals (N, 3): the shading normals the light tree's choice reads (None: none). "
            "bsdf_follows=False: the distribution used where no BSDF sample follows. Exposed for tests.")
       .def("light_choices", &light_choices, py::arg("points"), py::arg("normals"), py::arg("u"),

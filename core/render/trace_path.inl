@@ -174,6 +174,66 @@ inline bool closure_is_rough(const Closure& c) {
 
 
 
+// The LightVisibility bit a closure's light needs (Cycles' _shader_bsdf_exclude: diffuse,
+// glossy and transmission closures; glass lobes that both reflect and refract, hair and
+// transparency are never excluded).
+inline uint8_t closure_light_kind(const Closure& c) {
+  if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<OrenNayarBsdf>(c.bsdf) ||
+      std::holds_alternative<SheenBsdf>(c.bsdf) || std::holds_alternative<TranslucentBsdf>(c.bsdf))
+    return kLightVisDiffuse;
+  if (const auto* t = std::get_if<ToonBsdf>(&c.bsdf)) return t->glossy ? kLightVisGlossy : kLightVisDiffuse;
+  if (std::holds_alternative<ConductorBsdf>(c.bsdf) || std::holds_alternative<VelvetBsdf>(c.bsdf)) return kLightVisGlossy;
+  if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
+    if (d->reflection && !d->transmission) return kLightVisGlossy;
+    if (d->transmission && !d->reflection) return kLightVisTransmission;
+  }
+  return 0;
+}
+
+// eval_mixture without the closures of the kinds in `exclude` (a light invisible to them):
+// their value and their pdf, as Cycles' _shader_bsdf_multi_eval.
+[[gnu::noinline]] inline Vec3 eval_mixture_excluding(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection,
+                                                     uint8_t exclude, float& pdf) {
+  ClosureList kept;
+  kept.n = 0;
+  for (int i = 0; i < cl.n; ++i)
+    if (!(closure_light_kind(cl.c[size_t(i)]) & exclude)) kept.c[size_t(kept.n++)] = cl.c[size_t(i)];
+  return eval_mixture<false>(kept, wo, wi, reflection, pdf);
+}
+
+// Emission of the analytic lights that a ray crosses before distance t_end (in units of
+// ray.dir; infinite: the ray escaped, and suns with an angle count too), of the lights visible
+// to its kind `vis` (LightVisibility; the camera's: those visible to the camera, else those
+// with Multiple Importance on). `through(t)`: the path's throughput to distance t (world
+// units). weigh: MIS against the light sample at `from` (normal from_n) that could have found
+// the same point, as pdf_emitter does for mesh lights; else (camera rays, delta lobes, no
+// light sampling) the full weight.
+template <class Through>
+[[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
+                                  Vec3 from, Vec3 from_n, const Through& through) {
+  Vec3 sum(0.0f);
+  const float len = length(ray.dir);
+  if (!(len > 0.0f)) return sum;
+  const Vec3 d = ray.dir / len;
+  const float tmax = t_end * len;
+  const bool camera = vis == kLightVisCamera;
+  const bool rects = scene.solid_angle_rect_sampling();
+  const auto add = [&](const Scene::HitLight& h) {
+    if (camera ? !(h.visibility & kLightVisCamera) : (!h.mis || (h.visibility & vis) != vis)) return;
+    float t, pdf;
+    Vec3 le;
+    if (!intersect_light(scene.light(h.index), from, ray.org, d, tmax, t, le, pdf, rects)) return;
+    float w = 1.0f;
+    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index) * pdf);
+    const Vec3 c = through(t) * le * w;
+    if (is_finite(c)) sum += c;
+  };
+  scene.for_hit_lights(ray.org, d, tmax, add);  // (bounding spheres or boxes first)
+  if (std::isinf(tmax))
+    for (const Scene::HitLight& h : scene.hit_suns()) add(h);
+  return sum;
+}
+
 // Path guiding (render/guiding.h) steers only vertices whose closures are all rough and
 // reflect or transmit without refraction (diffuse, sheen, translucent, rough glossy): the
 // learnt distribution knows incident light, not the refraction's eta or a hair's lobes.
@@ -233,6 +293,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   Vec3 mis_n(0.0f);         // its shading normal (the light tree's choice depends on it)
                             // (without the tree: stays zero, unused)
   const bool nee = s.use_nee && scene.has_lights();
+  // Analytic lights with extent that rays may cross (lights never occlude: a ray finds every one
+  // before its hit), and the kind of the ray for their visibility (the camera's runs on through
+  // Transparent BSDFs).
+  const bool hits = scene.features().light_hits;
+  uint8_t ray_vis = kLightVisCamera;
   // Media that scatter or emit, or volume-only boundaries: distance sampling and shadow rays
   // through media (else the media kernel keeps plain Beer's law, as before volumes).
   const bool volumes = kMedia && scene.features().volumes;
@@ -258,9 +323,28 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     ++c.rays;
     const bool found = scene.intersect(ray, hit);
     Vec3 sigma(0.0f);
+    const Vec3 beta_in = beta;           // (light hits: the throughput at the ray's origin)
+    const MediumLayer* seg_medium = nullptr;
+    Vec3 seg_sigma(0.0f);
+    // The throughput to distance tl along this ray (world units) where the ray gets there.
+    const auto through = [&](float tl) -> Vec3 {
+      if constexpr (kMedia) {
+        if (seg_medium) {
+          const Vec3 st = seg_medium->sigma_a + seg_medium->sigma_s;
+          if (is_black(seg_medium->sigma_s)) return beta_in * medium_transmittance(st, tl);
+          const float pass = free_flight_survival(st, tl);
+          return pass > 0.0f ? beta_in * medium_transmittance(st, tl) / pass : Vec3(0.0f);
+        }
+        if (!is_black(seg_sigma)) return beta_in * beer(seg_sigma, tl);
+      }
+      (void)tl;
+      return beta_in;
+    };
     if constexpr (kMedia) {
       sigma = medium.current();
+      seg_sigma = sigma;
       const MediumLayer* m = medium.top();
+      if (m && volumes) seg_medium = m;
       if (m && volumes) {
         // A homogeneous medium: its emission along the segment (analytic), then a free-flight
         // distance that either scatters before the surface or reaches it.
@@ -273,6 +357,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           const Vec2 ud = sampler.get2d();
           const float t = sample_free_flight(st, ud.x, ud.y);
           if (t < seg) {
+            if (hits) L += light_hits(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
             const float pdf = free_flight_pdf(st, t);
             if (!(pdf > 0.0f)) break;
             beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
@@ -290,7 +375,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               const Vec2 u_sel = sampler.get2d();
               u_rr = u_sel.y;
               const Vec2 u_pt = sampler.get2d();
-              if (scene.sample_direct(p, u_sel.x, u_pt, ds, !last)) {
+              if (scene.sample_direct(p, u_sel.x, u_pt, ds, !last) && !(ds.exclude & kLightVisVolume)) {
                 const float ph = hg_phase(g, dot(d, ds.wi));
                 if (ph > 0.0f && !is_black(ds.li)) {
                   Ray shadow;
@@ -321,6 +406,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             if (!(ph_pdf > 0.0f)) break;
             prev_pdf = ph_pdf;
             prev_delta = false;
+            ray_vis = kLightVisVolume;
             mis_org = p;
             mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
             // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
@@ -356,6 +442,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       } else if (!is_black(sigma)) {
         beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
       }
+    }
+    if (hits) {
+      const Vec3 lh = light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+      L += lh;
+      if constexpr (kAovs)
+        if (direct && aov) aov->emission += lh;  // lights seen by the camera: the Emit pass, as emitters
     }
     if (!found) {
       // Escaped: the world, weighted against the environment light sample that could find it
@@ -467,7 +559,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           }
         }
         float bsdf_pdf;
-        const Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
+        const Vec3 f = ds.exclude ? eval_mixture_excluding(cl, wo, ds.wi, reflection, ds.exclude, bsdf_pdf)
+                                  : eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
         if (!is_black(f) && !is_black(ds.li)) {
           Vec3 vis(1.0f);
           Ray shadow;
@@ -649,6 +742,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     } else {
       direct = false;
       want_data = false;
+      // Cycles' light visibility: diffuse (any diffuse lobe), glossy reflection, transmission.
+      ray_vis = uint8_t(((bs.flags & kTransmit) ? kLightVisTransmission : 0) |
+                        ((bs.flags & kDiffuseLobe) ? kLightVisDiffuse : (bs.flags & kTransmit) ? 0 : kLightVisGlossy));
       // Cycles' path_state_next: any transmission (Translucent's too) is a transmission bounce.
       int& count = (bs.flags & kTransmit) ? transmission : (bs.flags & kDiffuseLobe) ? diffuse : glossy;
       if constexpr (kSubsurface)

@@ -1,6 +1,7 @@
 // Analytic lights (point, spot, sun, rectangle/ellipse area) with Cycles' conventions, and the
 // equirectangular environment. Each light knows how to sample a direction towards itself from a
-// shading point; the scene picks lights. Lights are sampled by next-event estimation only.
+// shading point; the scene picks lights. Lights with extent are also found by the rays that
+// cross them (intersect_light), each estimator weighted against the other by MIS.
 #pragma once
 #include <cstdint>
 #include <memory>
@@ -14,6 +15,17 @@ namespace pl {
 
 enum class LightType : uint8_t { Point, Spot, Sun, Rect, Ellipse };
 
+// The rays a light is visible to (Cycles' light object Ray Visibility), as bits of
+// Light::visibility and of the kind of a ray that may find it.
+enum LightVisibility : uint8_t {
+  kLightVisCamera = 1,        // camera rays (also through Transparent BSDFs)
+  kLightVisDiffuse = 2,       // after a diffuse bounce
+  kLightVisGlossy = 4,        // after a glossy or singular reflection
+  kLightVisTransmission = 8,  // after any transmission
+  kLightVisVolume = 16,       // after a volume scattering
+  kLightVisAll = 31,
+};
+
 struct Light {
   LightType type = LightType::Point;
   Vec3 color;            // point/spot: intensity W/sr; sun: irradiance; area: radiance
@@ -26,6 +38,10 @@ struct Light {
   Vec3 axis_u, axis_v;   // area: full extent vectors
   float area = 0.0f;
   bool cast_shadow = true;
+  // Cycles' Multiple Importance: rays other than the camera's may find the light (lights with
+  // extent only) and both estimators are MIS-weighted; off: next-event estimation alone.
+  bool mis = true;
+  uint8_t visibility = kLightVisAll & ~kLightVisCamera;  // LightVisibility bits
 };
 
 // Direction towards a light sample, as seen from a shading point.
@@ -172,6 +188,94 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
       s.pdf = dist2 / (cos_l * l.area);
       s.delta = false;
       return true;
+    }
+  }
+  return false;
+}
+
+// Whether a ray can hit light l at all: it has extent as sample_light sees it (a point or spot
+// of zero radius and a sun of zero angle are delta lights).
+inline bool light_has_extent(const Light& l) {
+  switch (l.type) {
+    case LightType::Point:
+    case LightType::Spot: return l.radius > 0.0f && kPi * l.radius * l.radius > 1e-30f;
+    case LightType::Sun: return l.cos_half_angle < 1.0f;
+    case LightType::Rect:
+    case LightType::Ellipse: return l.area > 0.0f;
+  }
+  return false;
+}
+
+// A ray from org along the unit direction dir, up to distance tmax, against the surface of light
+// l as a light sample taken at `from` sees it (point and spot disks face `from`; the ray's line
+// passes through it). On a hit: the distance t from org, the emitted radiance le towards the
+// ray, and the solid-angle pdf with which sample_light(l, from, ..., solid_angle) gives that
+// point (the light's choice not included). Suns: only rays that escape (tmax infinite).
+inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float tmax, float& t, Vec3& le, float& pdf,
+                            bool solid_angle = true) {
+  switch (l.type) {
+    case LightType::Point:
+    case LightType::Spot: {
+      const Vec3 to_c = l.position - from;
+      const float d2c = length_sq(to_c);
+      if (!(d2c > 0.0f)) return false;
+      const float disk_area = kPi * l.radius * l.radius;
+      if (!(l.radius > 1e-6f * std::sqrt(d2c)) || !(disk_area > 1e-30f)) return false;  // a point: delta
+      const Vec3 n = -to_c / std::sqrt(d2c);  // the disk's normal, towards `from`
+      const float dn = dot(dir, n);
+      if (!(dn < 0.0f)) return false;
+      const float th = dot(l.position - org, n) / dn;
+      if (!(th > 0.0f) || !(th < tmax)) return false;
+      const Vec3 q = org + dir * th;
+      if (!(length_sq(q - l.position) <= l.radius * l.radius)) return false;
+      Vec3 scale = l.color;
+      if (l.type == LightType::Spot) {
+        const float att = spot_attenuation(l, -dir);
+        if (att <= 0.0f) return false;
+        scale = scale * att;
+      }
+      const float dist2 = length_sq(q - from);
+      t = th;
+      le = scale / disk_area;
+      pdf = dist2 / (-dn * disk_area);
+      return std::isfinite(pdf) && pdf > 0.0f;
+    }
+    case LightType::Sun: {
+      if (std::isfinite(tmax) || !(l.cos_half_angle < 1.0f)) return false;
+      if (!(dot(dir, l.dir) >= l.cos_half_angle)) return false;
+      t = kInf;
+      le = l.color * l.sun_radiance_scale;
+      pdf = 1.0f / (2.0f * kPi * (1.0f - l.cos_half_angle));
+      return true;
+    }
+    case LightType::Rect:
+    case LightType::Ellipse: {
+      const float dn = dot(dir, l.dir);
+      if (!(dn < 0.0f)) return false;  // one-sided: only rays against the emission normal
+      const float th = dot(l.position - org, l.dir) / dn;
+      if (!(th > 0.0f) || !(th < tmax)) return false;
+      const Vec3 q = org + dir * th;
+      const Vec3 r = q - l.position;
+      // Coordinates along the (possibly sheared) axes, in units of their full lengths.
+      const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
+      const float ru = dot(r, l.axis_u), rv = dot(r, l.axis_v);
+      const float det = uu * vv - uv * uv;
+      if (!(det > 0.0f)) return false;
+      const float x = (ru * vv - rv * uv) / det, y = (rv * uu - ru * uv) / det;
+      if (l.type == LightType::Rect ? !(std::fabs(x) <= 0.5f && std::fabs(y) <= 0.5f) : !(x * x + y * y <= 0.25f))
+        return false;
+      t = th;
+      le = l.color;
+      if (l.type == LightType::Rect && solid_angle) {
+        if (!(dot(from - l.position, l.dir) > 0.0f)) return false;
+        const SphericalRect sr = spherical_rect(from, l.position - (l.axis_u + l.axis_v) * 0.5f, l.axis_u, l.axis_v);
+        if (uv * uv <= 1e-8f * uu * vv && use_spherical_rect(sr.solid_angle)) {
+          pdf = float(1.0 / sr.solid_angle);
+          return std::isfinite(pdf) && pdf > 0.0f;
+        }
+      }
+      pdf = length_sq(q - from) / (-dn * l.area);
+      return std::isfinite(pdf) && pdf > 0.0f;
     }
   }
   return false;

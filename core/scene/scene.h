@@ -126,8 +126,11 @@ struct DirectSample {
   Vec3 target_error;      // bound of the target's rounding error (emissive triangles)
   Vec3 li;                // incident radiance (or intensity/r^2, irradiance for delta lights)
   float pdf = 0.0f;       // solid-angle pdf including the light choice
-  bool delta = false;      // no BSDF ray can find this light (delta or analytic): full weight
+  bool delta = false;      // no BSDF ray can find this light (delta, or Multiple Importance off): full weight
   bool cast_shadow = true;
+  // LightVisibility bits of the ray kinds the chosen light is invisible to: closures of those
+  // kinds (and volume scattering) get nothing from this sample, as Cycles' light_shader_flags.
+  uint8_t exclude = 0;
   // In: the path at the shading point, for textured emitters' Light Path nodes (null: none).
   const RayState* path = nullptr;
   // In: the unit shading normal at the shading point, for the light tree's importance (zero:
@@ -172,6 +175,7 @@ struct SceneFeatures {
   bool world_light = false;  // a non-black constant world colour
   uint32_t light_kinds = 0;  // bit 1 << LightType of each analytic light kind present
   bool light_tree = false;   // lights chosen by the light tree (many lights)
+  bool light_hits = false;   // analytic lights with extent that rays may find (Scene::hit_lights)
   bool subsurface = false;   // BSSRDF closures: random walks inside objects
   // Shaders read the ray's footprint (Bump's Filter Width, Wireframe in pixels): only then do
   // camera rays carry ray differentials (not a kernel feature: one test per camera ray).
@@ -283,6 +287,11 @@ class Scene {
   const ShaderProgram& world_volume() const { return world_volume_; }
   void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
+  // Rays find analytic lights with extent and weigh them against light samples by MIS (default);
+  // off: those lights are reached by light samples alone, with the full weight (for tests, and
+  // to measure what the hits gain).
+  void set_light_hits(bool on) { light_hits_on_ = on; committed_ = false; }
+  bool light_hits_enabled() const { return light_hits_on_; }
   void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
   // Emissive triangles are light-sampled uniformly in solid angle (default) or, with false,
   // uniformly by area everywhere (the old technique; kept to compare the two in tests).
@@ -421,6 +430,69 @@ class Scene {
   bool has_camera() const { return has_camera_; }
 
   bool has_lights() const { return !light_dist_.empty(); }
+  // An analytic light that rays may hit (a compact list built at commit): a bounding sphere for
+  // a quick rejection, and what rays see it.
+  struct HitLight {
+    Vec3 center;
+    float radius = 0.0f, radius2 = 0.0f;  // the bounding sphere's radius (padded) and its square
+    Vec3 lo, hi;  // bounding box
+    uint32_t index = 0;    // into the lights
+    uint8_t visibility = 0;
+    bool mis = true;
+  };
+  const std::vector<HitLight>& hit_lights() const { return hit_lights_; }  // finite lights
+  // Calls f(h) for every finite hit light whose bounds the segment org + d t, 0 <= t < tmax, may
+  // cross (d unit): all of them by their bounding spheres below kHitLightBvhMin, else through a
+  // small BVH over their boxes (the light tree's rooms: 50 lamps a segment cost 1.4-1.8x time).
+  static constexpr size_t kHitLightBvhMin = 8;
+  template <class F>
+  void for_hit_lights(Vec3 org, Vec3 d, float tmax, const F& f) const {
+    if (hit_nodes_.empty()) {
+      for (const HitLight& h : hit_lights_) {
+        const Vec3 oc = h.center - org;
+        const float tc = dot(oc, d);
+        const float r = h.radius;
+        if (!(tc + r > 0.0f) || !(tc - r < tmax)) continue;
+        const float oc2 = length_sq(oc);
+        if (oc2 - tc * tc > h.radius2 + 1e-6f * oc2) continue;
+        f(h);
+      }
+      return;
+    }
+    const auto inv1 = [](float x) { return std::fabs(x) > 1e-30f ? 1.0f / x : std::copysign(1e30f, x); };
+    const Vec3 inv{inv1(d.x), inv1(d.y), inv1(d.z)};
+    uint32_t stack[64];
+    int sp = 0;
+    uint32_t n = 0;
+    for (;;) {
+      const HitLightNode& node = hit_nodes_[n];
+      const float x0 = (node.lo.x - org.x) * inv.x, x1 = (node.hi.x - org.x) * inv.x;
+      const float y0 = (node.lo.y - org.y) * inv.y, y1 = (node.hi.y - org.y) * inv.y;
+      const float z0 = (node.lo.z - org.z) * inv.z, z1 = (node.hi.z - org.z) * inv.z;
+      const float t0 = std::max(std::max(std::min(x0, x1), std::min(y0, y1)), std::max(std::min(z0, z1), 0.0f));
+      const float t1 = std::min(std::min(std::max(x0, x1), std::max(y0, y1)), std::min(std::max(z0, z1), tmax));
+      if (t0 <= t1 * 1.00001f + 1e-6f) {
+        if (node.count) {
+          for (uint32_t i = node.first; i < node.first + node.count; ++i) f(hit_lights_[i]);
+        } else {
+          if (sp < 64) stack[sp++] = node.first;  // the right child; the left one follows n
+          n = n + 1;
+          continue;
+        }
+      }
+      if (sp == 0) break;
+      n = stack[--sp];
+    }
+  }
+  const std::vector<HitLight>& hit_suns() const { return hit_suns_; }      // suns with an angle
+  const Light& light(size_t k) const { return lights_[k]; }
+  // The nearest analytic light with Multiple Importance on that the ray from `from` along the
+  // unit dir crosses before tmax: its distance, radiance and the MIS pdf (the light's choice at
+  // `from` with normal n times sample_light's solid-angle pdf); false for none. For tests (the
+  // integrator adds every light a ray crosses).
+  bool nearest_light_hit(Vec3 from, Vec3 n, Vec3 dir, float tmax, float& t, Vec3& le, float& pdf) const;
+  // The probability that a light sample at p (shading normal n, zero: none) picks light k.
+  float light_choice_pmf(Vec3 p, Vec3 n, size_t k) const { return light_dist_.empty() ? 0.0f : light_pmf(p, n, k); }
   // Radiance arriving from the world along a ray that escapes the scene.
   Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
   // Picks a light with u_select and samples it from point p.
@@ -555,6 +627,16 @@ class Scene {
   BuildQuality build_quality_ = BuildQuality::Auto;
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
+  bool light_hits_on_ = true;
+  std::vector<HitLight> hit_lights_, hit_suns_;
+  // The BVH over hit_lights_ (empty below kHitLightBvhMin lights): depth first, the left child
+  // next to its parent; first: a leaf's first light or an interior node's right child.
+  struct HitLightNode {
+    Vec3 lo, hi;
+    uint32_t first = 0, count = 0;  // count 0: interior
+  };
+  std::vector<HitLightNode> hit_nodes_;
+  uint32_t build_hit_nodes(size_t begin, size_t end);
   bool emitter_groups_ = true;
   bool rect_groups_ = true;
 

@@ -27,6 +27,7 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"environment", f.environment},
           {"world light", f.world_light},
           {"light tree", f.light_tree},
+          {"light hits", f.light_hits},
           {"subsurface", f.subsurface},
           {"shadow terminator", f.terminator}};
 }
@@ -132,6 +133,7 @@ void Scene::detect_features() {
   f.light_tree = use_tree_;
   for (size_t i = 0; i < inst_.size() && i < object_coords_.size(); ++i)  // smooth meshes only
     f.terminator = f.terminator || (inst_[i].blas != UINT32_MAX && object_coords_[i].info.terminator > 0.0f);
+  f.light_hits = !hit_lights_.empty() || !hit_suns_.empty();
   features_ = f;
 }
 

@@ -211,6 +211,43 @@ void Scene::build_lights() {
   }
   light_dist_ = Distribution1D(weights);
   build_light_tree(weights);
+  // The lights rays may find: with extent, seen by the camera or (Multiple Importance on) by
+  // other rays; each with a bounding sphere (a point or spot disk faces the ray's origin, so
+  // its sphere; an area light's corners).
+  hit_lights_.clear();
+  hit_suns_.clear();
+  for (size_t k = 0; k < lights_.size() && light_hits_on_; ++k) {
+    const Light& l = lights_[k];
+    if (!light_has_extent(l) || !(l.mis || (l.visibility & kLightVisCamera))) continue;
+    if (!(max_component(l.color) > 0.0f)) continue;
+    HitLight h;
+    h.index = uint32_t(k);
+    h.visibility = l.visibility;
+    h.mis = l.mis;
+    h.center = l.position;
+    if (l.type == LightType::Sun) {
+      hit_suns_.push_back(h);
+      continue;
+    }
+    const bool area = l.type == LightType::Rect || l.type == LightType::Ellipse;
+    const float r = area ? 0.5f * (length(l.axis_u) + length(l.axis_v)) : l.radius;
+    h.radius = r * 1.0001f + 1e-6f;
+    h.radius2 = h.radius * h.radius;
+    Aabb b;
+    if (area) {
+      for (int i = 0; i < 4; ++i)
+        b.grow(l.position + l.axis_u * ((i & 1) ? 0.5f : -0.5f) + l.axis_v * ((i & 2) ? 0.5f : -0.5f));
+    } else {
+      b.grow(l.position - Vec3(r));
+      b.grow(l.position + Vec3(r));
+    }
+    const Vec3 pad = vmax(b.extent() * 1e-4f, Vec3(1e-6f)) + vmax(vmax(b.lo, -b.lo), vmax(b.hi, -b.hi)) * 1e-6f;
+    h.lo = b.lo - pad;
+    h.hi = b.hi + pad;
+    hit_lights_.push_back(h);
+  }
+  hit_nodes_.clear();
+  if (hit_lights_.size() >= kHitLightBvhMin) build_hit_nodes(0, hit_lights_.size());
   stats_.emissive_triangles = emitters_.size();
   stats_.lights = lights_.size();
   ++stats_.light_builds;
@@ -465,13 +502,16 @@ bool Scene::sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, boo
     s.target = ls.target;
     s.li = ls.li;
     s.pdf = ls.pdf * pmf;
-    // BSDF rays never hit analytic lights (they are not geometry), so the light sample is the
-    // only estimator and keeps the full weight: MIS against the BSDF pdf lost energy here.
-    s.delta = true;
+    // Rays find lights with extent whose Multiple Importance is on (Scene::hit_lights), so the
+    // light sample is weighted against the BSDF's; delta lights and the others keep the full
+    // weight (no ray can find them: MIS against the BSDF pdf would lose energy there).
+    s.delta = ls.delta || !l.mis || !light_hits_on_;
+    s.exclude = uint8_t(~l.visibility & (kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission | kLightVisVolume));
     s.cast_shadow = l.cast_shadow;
     return true;
   }
   s.delta = false;
+  s.exclude = 0;
   s.cast_shadow = true;
   if (k == env_index_) {
     float pdf;
@@ -580,6 +620,59 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
   if (solid_angle_triangles_ && use_spherical_sampling(omega)) return float(pmf_e / omega);
   const float t2 = length_sq(at - from);
   return pmf_e / emitter_areas_[size_t(e)] * t2 / cos_l;
+}
+
+uint32_t Scene::build_hit_nodes(size_t begin, size_t end) {
+  const uint32_t id = uint32_t(hit_nodes_.size());
+  hit_nodes_.emplace_back();
+  Aabb box, centres;
+  for (size_t i = begin; i < end; ++i) {
+    box.grow(hit_lights_[i].lo);
+    box.grow(hit_lights_[i].hi);
+    centres.grow((hit_lights_[i].lo + hit_lights_[i].hi) * 0.5f);
+  }
+  hit_nodes_[id].lo = box.lo;
+  hit_nodes_[id].hi = box.hi;
+  if (end - begin <= 2) {
+    hit_nodes_[id].first = uint32_t(begin);
+    hit_nodes_[id].count = uint32_t(end - begin);
+    return id;
+  }
+  // Median split along the centres' longest axis.
+  const Vec3 e = centres.extent();
+  const int axis = e.x >= e.y && e.x >= e.z ? 0 : e.y >= e.z ? 1 : 2;
+  const auto key = [axis](const HitLight& h) {
+    const Vec3 c = (h.lo + h.hi) * 0.5f;
+    return axis == 0 ? c.x : axis == 1 ? c.y : c.z;
+  };
+  const size_t mid = begin + (end - begin) / 2;
+  std::nth_element(hit_lights_.begin() + long(begin), hit_lights_.begin() + long(mid), hit_lights_.begin() + long(end),
+                   [&](const HitLight& a, const HitLight& b) { return key(a) < key(b); });
+  build_hit_nodes(begin, mid);
+  const uint32_t right = build_hit_nodes(mid, end);
+  hit_nodes_[id].first = right;
+  hit_nodes_[id].count = 0;
+  return id;
+}
+
+bool Scene::nearest_light_hit(Vec3 from, Vec3 n, Vec3 dir, float tmax, float& t, Vec3& le, float& pdf) const {
+  bool any = false;
+  t = tmax;
+  const auto one = [&](const HitLight& h) {
+    if (!h.mis) return;
+    float th, p;
+    Vec3 l;
+    if (!intersect_light(lights_[h.index], from, from, dir, t, th, l, p, solid_angle_rects_)) return;
+    if (any && !(th < t)) return;
+    any = true;
+    t = th;
+    le = l;
+    pdf = light_choice_pmf(from, n, h.index) * p;
+  };
+  for_hit_lights(from, dir, tmax, one);
+  if (!any && std::isinf(tmax))
+    for (const HitLight& h : hit_suns_) one(h);
+  return any;
 }
 
 float Scene::pdf_environment(Vec3 dir) const {

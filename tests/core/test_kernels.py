@@ -12,8 +12,8 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
     "volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
-    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "subsurface", "motion blur",
-    "guiding", "shadow terminator"}
+    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "light hits", "subsurface",
+    "motion blur", "guiding", "shadow terminator"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -144,12 +144,13 @@ CASES = {
                                                     volume={"sigma_s": (2.0, 2.0, 2.0), "g": 0.3})), {},
                 {"diffuse", "transparent", "media", "volumes", "mesh lights"}, "general"),
     "transparent": (transparent_scene, {}, {"diffuse", "transparent", "mesh lights"}, "surfaces"),
-    "textures": (textured_scene, {}, {"diffuse", "varying shaders", "textures", "sun lights"}, "diffuse"),
-    "normal maps": (normal_map_scene, {}, {"diffuse", "varying shaders", "normal maps", "point lights"},
+    "textures": (textured_scene, {}, {"diffuse", "varying shaders", "textures", "sun lights", "light hits"}, "diffuse"),
+    "normal maps": (normal_map_scene, {}, {"diffuse", "varying shaders", "normal maps", "point lights",
+                                                    "light hits"},
                     "diffuse"),
     "environment": (environment_scene, {}, {"diffuse", "environment"}, "diffuse+env"),
     "lights": (lights_scene, {}, {"diffuse", "point lights", "spot lights", "sun lights", "area lights",
-                                  "world light"}, "diffuse"),
+                                  "world light", "light hits"}, "diffuse"),
     "dof": (dof_scene, {}, {"diffuse", "mesh lights", "dof"}, "diffuse"),
     "filter": (lambda: cornell(pc), {"filter_type": "blackman_harris", "filter_width": 1.5},
                {"diffuse", "mesh lights", "pixel filter"}, "diffuse"),
@@ -157,9 +158,11 @@ CASES = {
                {"diffuse", "mesh lights", "passes"}, "general"),
     "transparent film": (environment_scene, {"film_transparent": True},
                          {"diffuse", "environment", "transparent film"}, "general"),
-    "light tree": (many_lights_scene, {}, {"diffuse", "mesh lights", "point lights", "light tree"}, "diffuse+tree"),
+    "light tree": (many_lights_scene, {}, {"diffuse", "mesh lights", "point lights", "light tree", "light hits"},
+                   "diffuse+tree"),
     "light tree glossy": (lambda: many_lights_scene(True), {},
-                          {"diffuse", "glossy", "mesh lights", "point lights", "light tree"}, "surfaces+tree"),
+                          {"diffuse", "glossy", "mesh lights", "point lights", "light tree", "light hits"},
+                          "surfaces+tree"),
     "random sampler": (lambda: cornell(pc), {"sampler": "random"}, {"diffuse", "mesh lights"}, "diffuse"),
     # Random walks live in the general kernel only (a scene without them keeps its kernel).
     "subsurface": (with_sphere(lambda s: shader(s, "skin", "subsurface", color=(0.8, 0.5, 0.4), radius=(1.0, 0.5, 0.2),
