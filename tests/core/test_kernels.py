@@ -11,7 +11,7 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
-    "volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
+    "volumes", "heterogeneous volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
     "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "subsurface", "motion blur",
     "guiding"}
 
