@@ -297,95 +297,95 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           if (is_black(beta)) break;
           g = ms.g;
         } else {
-        if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
-        const Vec3 st = m->sigma_a + m->sigma_s;
-        if (!is_black(m->sigma_s)) {
-          const Vec2 ud = sampler.get2d();
-          t = sample_free_flight(st, ud.x, ud.y);
-          if (t < seg) {
-            const float pdf = free_flight_pdf(st, t);
-            if (!(pdf > 0.0f)) break;
-            beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
-            scatter = true;
-          } else {
-            const float pass = free_flight_survival(st, seg);
-            if (!(pass > 0.0f)) break;
-            beta *= medium_transmittance(st, seg) / pass;
+          if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
+          const Vec3 st = m->sigma_a + m->sigma_s;
+          if (!is_black(m->sigma_s)) {
+            const Vec2 ud = sampler.get2d();
+            t = sample_free_flight(st, ud.x, ud.y);
+            if (t < seg) {
+              const float pdf = free_flight_pdf(st, t);
+              if (!(pdf > 0.0f)) break;
+              beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
+              scatter = true;
+            } else {
+              const float pass = free_flight_survival(st, seg);
+              if (!(pass > 0.0f)) break;
+              beta *= medium_transmittance(st, seg) / pass;
+            }
+          } else if (!is_black(st)) {
+            beta *= medium_transmittance(st, seg);
           }
-        } else if (!is_black(st)) {
-          beta *= medium_transmittance(st, seg);
-        }
         }
         if (scatter) {
-            if (emission_only) break;
-            const Vec3 d = ray.dir / len;
-            const Vec3 p = ray.org + d * t;
-            direct = false;
-            want_data = false;
-            const bool last = bounce >= s.max_bounces;
-            float u_rr = -1.0f;
-            if (nee) {  // a light sample, weighted against the phase function's sample
-              DirectSample ds;
-              ds.path = &ray_state;
-              const Vec2 u_sel = sampler.get2d();
-              u_rr = u_sel.y;
-              const Vec2 u_pt = sampler.get2d();
-              if (scene.sample_direct(p, u_sel.x, u_pt, ds, !last)) {
-                const float ph = hg_phase(g, dot(d, ds.wi));
-                if (ph > 0.0f && !is_black(ds.li)) {
-                  Ray shadow;
-                  shadow.time = ray.time;
-                  shadow.org = p;
-                  if (std::isinf(ds.dist)) {
-                    shadow.dir = ds.wi;
-                    shadow.tmax = kInf;
-                  } else {
-                    const bool tri = !is_black(ds.target_normal);
-                    const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
-                    shadow.dir = target - shadow.org;
-                    shadow.tmax = 1.0f - 1e-4f;
-                  }
-                  ++c.rays;
-                  const Vec3 vis = shadow_transmittance(scene, shadow, medium, ds.cast_shadow, &vrng);
-                  if (!is_black(vis)) {
-                    const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
-                    L += beta * ds.li * vis * (ph * w / ds.pdf);
-                  }
+          if (emission_only) break;
+          const Vec3 d = ray.dir / len;
+          const Vec3 p = ray.org + d * t;
+          direct = false;
+          want_data = false;
+          const bool last = bounce >= s.max_bounces;
+          float u_rr = -1.0f;
+          if (nee) {  // a light sample, weighted against the phase function's sample
+            DirectSample ds;
+            ds.path = &ray_state;
+            const Vec2 u_sel = sampler.get2d();
+            u_rr = u_sel.y;
+            const Vec2 u_pt = sampler.get2d();
+            if (scene.sample_direct(p, u_sel.x, u_pt, ds, !last)) {
+              const float ph = hg_phase(g, dot(d, ds.wi));
+              if (ph > 0.0f && !is_black(ds.li)) {
+                Ray shadow;
+                shadow.time = ray.time;
+                shadow.org = p;
+                if (std::isinf(ds.dist)) {
+                  shadow.dir = ds.wi;
+                  shadow.tmax = kInf;
+                } else {
+                  const bool tri = !is_black(ds.target_normal);
+                  const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
+                  shadow.dir = target - shadow.org;
+                  shadow.tmax = 1.0f - 1e-4f;
+                }
+                ++c.rays;
+                const Vec3 vis = shadow_transmittance(scene, shadow, medium, ds.cast_shadow, &vrng);
+                if (!is_black(vis)) {
+                  const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
+                  L += beta * ds.li * vis * (ph * w / ds.pdf);
                 }
               }
             }
-            if (last && nee) break;
-            const Vec2 u = sampler.get2d();
-            float ph_pdf;
-            const Vec3 wi = hg_sample(g, d, u.x, u.y, ph_pdf);  // exact: the weight is 1
-            if (!(ph_pdf > 0.0f)) break;
-            prev_pdf = ph_pdf;
-            prev_delta = false;
-            mis_org = p;
-            mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
-            // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
-            if (volume_count >= s.volume_bounces) emission_only = true;
-            ++volume_count;
-            ++bounce;
-            ray_state.dp += (length_before + t) * ray_state.dd;  // the footprint at the scattering
-            length_before = 0.0f;
-            if (s.path_state) {
-              ray_state.min_pdf = std::min(ray_state.min_pdf, ph_pdf);
-              ray_state.flags = kRayVolume;
-              ray_state.depth = uint16_t(std::min(bounce, 65535));
-            }
-            if (last) emission_only = true;
-            if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
-              const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
-              if (u_rr < 0.0f) u_rr = sampler.get2d().x;
-              if (!(survive > 0.0f) || u_rr >= survive) break;
-              beta = beta / survive;
-            }
-            if (!is_finite(beta)) break;
-            ray.org = p;
-            ray.dir = wi;
-            ray.tmax = kInf;
-            continue;
+          }
+          if (last && nee) break;
+          const Vec2 u = sampler.get2d();
+          float ph_pdf;
+          const Vec3 wi = hg_sample(g, d, u.x, u.y, ph_pdf);  // exact: the weight is 1
+          if (!(ph_pdf > 0.0f)) break;
+          prev_pdf = ph_pdf;
+          prev_delta = false;
+          mis_org = p;
+          mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
+          // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
+          if (volume_count >= s.volume_bounces) emission_only = true;
+          ++volume_count;
+          ++bounce;
+          ray_state.dp += (length_before + t) * ray_state.dd;  // the footprint at the scattering
+          length_before = 0.0f;
+          if (s.path_state) {
+            ray_state.min_pdf = std::min(ray_state.min_pdf, ph_pdf);
+            ray_state.flags = kRayVolume;
+            ray_state.depth = uint16_t(std::min(bounce, 65535));
+          }
+          if (last) emission_only = true;
+          if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
+            const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
+            if (u_rr < 0.0f) u_rr = sampler.get2d().x;
+            if (!(survive > 0.0f) || u_rr >= survive) break;
+            beta = beta / survive;
+          }
+          if (!is_finite(beta)) break;
+          ray.org = p;
+          ray.dir = wi;
+          ray.tmax = kInf;
+          continue;
         }
       } else if (!is_black(sigma)) {
         beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
