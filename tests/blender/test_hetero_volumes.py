@@ -172,3 +172,42 @@ def test_compiler_makes_programs_only_for_varying_volumes():
     e = vol["emission"]
     # sigma T^4 (Cycles' 5.670373e-14 / pi) times a colour of luminance about 1.
     assert e[0] > e[1] > e[2] >= 0.0 and 0.3 * 5.670373e-14 / np.pi * 1e12 < e[0] < 10 * 5.670373e-14 / np.pi * 1e12
+
+
+@needs_het
+def test_mix_shader_with_a_linked_factor_compiles_and_the_core_accepts_it():
+    """Mix Shader of Volume Scatter and Emission with its Fac from a Gradient: a program whose
+    coefficients at points follow the mix (sigma_s = (1 - f) c d, emission = f e)."""
+    from addon.export.material import convert_material
+    from blender_util import Warnings
+
+    def mixed(nodes, link):
+        coords = nodes.new("ShaderNodeTexCoord")
+        grad = nodes.new("ShaderNodeTexGradient")
+        link(coords.outputs["Object"], grad.inputs["Vector"])
+        sc = nodes.new("ShaderNodeVolumeScatter")
+        sc.inputs["Density"].default_value = 2.0
+        sc.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1.0)
+        em = nodes.new("ShaderNodeEmission")
+        em.inputs["Strength"].default_value = 3.0
+        mix = nodes.new("ShaderNodeMixShader")
+        link(grad.outputs["Fac"], mix.inputs["Fac"])
+        link(sc.outputs[0], mix.inputs[1])
+        link(em.outputs[0], mix.inputs[2])
+        return mix.outputs[0]
+    w = Warnings()
+    data = convert_material(volume_material("Mixed", mixed), w, None, None, False)
+    assert len(w) == 0 and isinstance(data.volume, list)
+    pc = load_addon().core.get_core()
+    s = pc.Scene()
+    m = s.add_shader("Mixed", data.program, volume=data.volume)
+    pos = np.array([[x, y, z] for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)], np.float32)
+    tris = np.array([(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4), (2, 6, 7), (2, 7, 3),
+                     (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5)], np.int32)
+    s.add_instance(s.add_mesh(pos, tris, None, None, [m]), np.eye(4, dtype=np.float32))
+    s.commit()
+    for x in (-0.5, 0.0, 0.5):  # Blender's linear gradient: f = clamp(x, 0, 1) in object space
+        f = min(max(x, 0.0), 1.0)
+        d = s.medium_at(0, m, (x, 0.1, 0.2))
+        assert d["sigma_s"] == pytest.approx(((1 - f) * 2.0, (1 - f) * 1.0, (1 - f) * 0.5), abs=1e-5)
+        assert d["emission"] == pytest.approx((3.0 * f,) * 3, abs=1e-5)
