@@ -110,6 +110,10 @@ def world_volume(world, warn):
         return None
     if compiler.problems:
         warn(f"World '{world.name}' volume: " + "; ".join(compiler.problems))
+    if isinstance(vol, list):  # a program: the world's medium has no bounds to track it in
+        warn(f"World '{world.name}': a Volume whose inputs vary in space is not supported in the "
+             "world (homogeneous only; ignored)")
+        return None
     if isinstance(vol, tuple):  # a lone Volume Absorption
         (color, density) = vol
         d = max(float(density), 0.0) if math.isfinite(density) else 0.0

@@ -654,6 +654,9 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
         o.code = OpCode::Subsurface;
         o.in[1] = p("color"); o.in[2] = p("scale"); o.in[3] = p("radius"); o.in[4] = p("ior");
         o.in[5] = p("roughness"); o.in[6] = p("anisotropy"); o.in[7] = p("normal"); o.in[8] = p("method");
+      } else if (kind == "volume") {  // a volume program's output (its last op)
+        o.code = OpCode::VolumeOut;
+        o.in[0] = p("sigma_a"); o.in[1] = p("sigma_s"); o.in[2] = p("emission"); o.in[3] = p("g");
       } else if (kind == "holdout") {
         o.code = OpCode::Holdout;
       } else if (kind == "emission") {
@@ -740,7 +743,19 @@ Material make_shader(const PyScene& self, const std::string& name, const py::lis
     density = std::isfinite(density) && density > 0.0f ? density : 0.0f;
     mat.program.sigma_a = (Vec3(1.0f) - color) * density;
   }
-  if (!volume.is_none()) {
+  if (py::isinstance<py::list>(volume)) {
+    // A heterogeneous medium: a program of value ops ending in a "volume" closure (its
+    // coefficients at a point, docs/core_api.md).
+    auto vol = std::make_shared<ShaderProgram>(parse_program(volume.cast<py::list>(), int64_t(self.scene->image_count())));
+    if (vol->ops.empty() || vol->ops.back().code != OpCode::VolumeOut)
+      throw std::invalid_argument("a volume program must end with a ('closure', 'volume', None, {...}) op");
+    for (size_t i = 0; i + 1 < vol->ops.size(); ++i)
+      if (vol->ops[i].code == OpCode::VolumeOut ||
+          std::any_of(std::begin(kClosureOpCodes), std::end(kClosureOpCodes),
+                      [&](OpCode c) { return c == vol->ops[i].code; }))
+        throw std::invalid_argument("a volume program has value ops and one closure 'volume', last");
+    mat.program.volume = std::move(vol);
+  } else if (!volume.is_none()) {
     // The homogeneous medium inside: coefficients per unit length (NaN or negative: 0, as the
     // colours of to_color), anisotropy clamped into (-1, 1).
     const auto d = volume.cast<py::dict>();
@@ -2084,7 +2099,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
           py::arg("use_schlick") = false, py::arg("volume") = py::none(),
           "volume: the homogeneous medium inside, a dict of sigma_a, sigma_s, emission (RGB per unit "
-          "length) and g (Henyey-Greenstein anisotropy); it replaces volume_absorption's sigma_a.")
+          "length) and g (Henyey-Greenstein anisotropy); it replaces volume_absorption's sigma_a. Or a "
+          "heterogeneous medium: a program (a list of value ops) ending in ('closure', 'volume', None, "
+          "{sigma_a, sigma_s, emission, g: registers}), evaluated at points inside.")
       .def(
           "set_material",
           [](PyScene& self, uint32_t id, const std::string& name, const py::object& base_color,
@@ -2409,12 +2426,91 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, const py::object& volume) {
             self.check_editable();
             ShaderProgram v;
+            if (py::isinstance<py::list>(volume))
+              throw std::invalid_argument("the world's Volume is homogeneous only (a dict, not a program)");
             if (!volume.is_none()) v = make_shader(self, "world volume", py::list(), py::none(), false, volume).program;
             self.scene->set_world_volume(v);
           },
           py::arg("volume"),
           "The world's Volume (add_shader's volume dict, or None): a homogeneous medium filling the "
           "scene outside objects' media.")
+      .def(
+          "set_majorant_scale",
+          [](PyScene& self, float scale) {
+            self.check_editable();
+            self.scene->set_majorant_scale(finite_nonneg(scale, "scale"));
+          },
+          py::arg("scale"),
+          "Scales the heterogeneous media's majorants at the next commit (tests: below 1 they are too "
+          "small, where the estimators must stay unbiased).")
+      .def(
+          "medium_majorants",
+          [](PyScene& self, uint32_t instance, uint32_t material) {
+            const HeteroMedium* h = self.scene->committed() ? self.scene->hetero_medium(instance, material) : nullptr;
+            if (!h) throw std::invalid_argument("no heterogeneous medium of that instance and material (commit first)");
+            constexpr int N = MajorantGrid::kRes;
+            FloatArray g({N, N, N});
+            std::copy(h->grid.cells.begin(), h->grid.cells.end(), g.mutable_data());
+            const Aabb& b = h->grid.bounds;
+            return py::make_tuple(g, py::make_tuple(b.lo.x, b.lo.y, b.lo.z), py::make_tuple(b.hi.x, b.hi.y, b.hi.z));
+          },
+          py::arg("instance"), py::arg("material"),
+          "(majorants (z, y, x) of the 16^3 grid, bounds lo, hi) of a committed heterogeneous medium.")
+      .def(
+          "medium_at",
+          [](PyScene& self, uint32_t instance, uint32_t material, const py::object& p, const py::object& dir) {
+            const HeteroMedium* h = self.scene->committed() ? self.scene->hetero_medium(instance, material) : nullptr;
+            if (!h) throw std::invalid_argument("no heterogeneous medium of that instance and material (commit first)");
+            const MediumSample m = self.scene->medium_at(*h, to_point(p, "p"), normalize(to_point(dir, "dir")));
+            py::dict d;
+            d["sigma_a"] = py::make_tuple(m.sigma_a.x, m.sigma_a.y, m.sigma_a.z);
+            d["sigma_s"] = py::make_tuple(m.sigma_s.x, m.sigma_s.y, m.sigma_s.z);
+            d["emission"] = py::make_tuple(m.emission.x, m.emission.y, m.emission.z);
+            d["g"] = m.g;
+            return d;
+          },
+          py::arg("instance"), py::arg("material"), py::arg("p"), py::arg("dir") = py::make_tuple(0.0f, 0.0f, 1.0f),
+          "A heterogeneous medium's coefficients at world point p (its volume program's outputs).")
+      .def(
+          "medium_track",
+          [](PyScene& self, uint32_t instance, uint32_t material, const py::object& org, const py::object& dir,
+             float tmax, int64_t n, const std::string& mode, uint64_t seed) {
+            const HeteroMedium* h = self.scene->committed() ? self.scene->hetero_medium(instance, material) : nullptr;
+            if (!h) throw std::invalid_argument("no heterogeneous medium of that instance and material (commit first)");
+            if (mode != "ratio" && mode != "delta") throw std::invalid_argument("mode must be 'ratio' or 'delta'");
+            if (n < 0) throw std::invalid_argument("n must be >= 0");
+            const Vec3 o = to_point(org, "org"), d = normalize(to_point(dir, "dir"));
+            FloatArray w({py::ssize_t(n), py::ssize_t(3)}), t({py::ssize_t(n)});
+            float* wp = w.mutable_data();
+            float* tp = t.mutable_data();
+            const Scene& scene = *self.scene;
+            {
+              py::gil_scoped_release release;
+              const auto eval = [&](float tt) { return scene.medium_at(*h, o + d * tt, d); };
+              for (int64_t i = 0; i < n; ++i) {
+                Pcg32 rng(mix64(seed * 0x9E3779B97F4A7C15ULL + uint64_t(i)), seed);
+                Vec3 v(1.0f);
+                float tt = kInf;
+                if (mode == "ratio") {
+                  v = ratio_track(h->grid, o, d, tmax, rng, eval);
+                } else {
+                  MediumSample ms;
+                  int steps = 0;
+                  float ts = 0.0f;
+                  if (delta_track(h->grid, o, d, tmax, rng, eval, v, nullptr, ts, ms, steps)) tt = ts;
+                }
+                wp[3 * i] = v.x, wp[3 * i + 1] = v.y, wp[3 * i + 2] = v.z;
+                tp[i] = tt;
+              }
+            }
+            return py::make_tuple(t, w);
+          },
+          py::arg("instance"), py::arg("material"), py::arg("org"), py::arg("dir"), py::arg("tmax"), py::arg("n"),
+          py::arg("mode") = "ratio", py::arg("seed") = 0,
+          "n independent estimates along org + t dir, t in [0, tmax], in a committed heterogeneous medium: "
+          "(distances (n,), weights (n, 3)). 'ratio': ratio tracking's transmittance estimates (distances "
+          "inf); 'delta': delta tracking's scattering distances (inf: passed tmax) and path weights "
+          "(the integrator's estimators, scene/medium_grid.h).")
       .def(
           "set_camera",
           [](PyScene& self, const CameraDesc& c) {

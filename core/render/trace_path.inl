@@ -45,11 +45,12 @@ template <bool kDiffuseOnly = false>
 }
 
 // The media a path is inside, innermost last (nested glass, volumes in volumes): each layer is
-// a material's homogeneous medium.
+// a material's homogeneous medium, or (het) a heterogeneous one tracked through its majorants.
 struct MediumLayer {
   Vec3 sigma_a, sigma_s, emission;
   float g;
   uint32_t material;
+  const HeteroMedium* het;
 };
 constexpr uint32_t kWorldMedium = 0xFFFFFFFFu;  // the world's Volume: never left
 
@@ -58,8 +59,8 @@ struct Medium {
   int n = 0;
   const MediumLayer* top() const { return n ? &layer[n - 1] : nullptr; }
   Vec3 current() const { return n ? layer[n - 1].sigma_a : Vec3(0.0f); }  // Beer's law only
-  void enter(uint32_t m, const ShaderProgram& p) {
-    if (n < 4) layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase_g, m};
+  void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr) {
+    if (n < 4) layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase_g, m, het};
   }
   void leave(uint32_t m) {
     for (int i = n - 1; i >= 0; --i)
@@ -70,10 +71,15 @@ struct Medium {
       }
   }
   // Crossing a surface of material m (front: from outside, along its normal's opposite).
-  void cross(uint32_t m, const ShaderProgram& p, bool front) {
+  void cross(uint32_t m, const ShaderProgram& p, bool front, const HeteroMedium* het = nullptr) {
     if (!p.has_medium()) return;
-    if (front) enter(m, p);
+    if (front) enter(m, p, het);
     else leave(m);
+  }
+  // Crossing the surface at sp: a Volume program's medium is the one built for its instance.
+  void cross(const Scene& scene, const SurfacePoint& sp, bool front) {
+    const ShaderProgram& p = scene.material(sp.material).program;
+    cross(sp.material, p, front, p.volume && front ? scene.hetero_medium(sp.instance, sp.material) : nullptr);
   }
 };
 
@@ -93,11 +99,21 @@ inline Vec3 medium_emission(const MediumLayer& m, float t) {
 // Scene::transmittance_through), and the media between them attenuate by Beer's law; crossing
 // a surface with a medium enters or leaves it. occlude false: the ray sees no surfaces, only
 // the medium it starts in.
-Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude) {
+// Heterogeneous layers: ratio tracking with `rng` (transmittance estimates, unbiased).
+Vec3 layer_transmittance(const Scene& scene, const MediumLayer& m, Vec3 org, Vec3 dir, float seg, Pcg32* rng) {
+  if (!m.het) return medium_transmittance(m.sigma_a + m.sigma_s, seg);
+  if (!rng) return Vec3(1.0f);
+  const float len = length(dir);
+  const Vec3 d = dir / len;
+  return ratio_track(m.het->grid, org, d, seg, *rng,
+                     [&](float t) { return scene.medium_at(*m.het, org + d * t, d); });
+}
+
+Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr) {
   Vec3 T(1.0f);
   if (!occlude) {
     if (const MediumLayer* m = medium.top())
-      T = medium_transmittance(m->sigma_a + m->sigma_s, ray.tmax * length(ray.dir));
+      T = layer_transmittance(scene, *m, ray.org, ray.dir, ray.tmax * length(ray.dir), rng);
     return T;
   }
   for (int i = 0; i < 64; ++i) {
@@ -106,7 +122,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     const bool found = scene.intersect(ray, h);
     if (const MediumLayer* m = medium.top()) {
       const float seg = found ? h.t * len : ray.tmax * len;
-      T = T * medium_transmittance(m->sigma_a + m->sigma_s, seg);
+      T = T * layer_transmittance(scene, *m, ray.org, ray.dir, seg, rng);
     }
     if (!found) return T;
     SurfacePoint sp;
@@ -122,9 +138,9 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     for (int c = 0; c < cl.n; ++c)
       if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
     T = T * vmin(pass, Vec3(1.0f));
-    if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
+    if (is_black(T)) return Vec3(0.0f);  // (ratio tracking's estimates may be negative)
     const bool front = dot(ray.dir, sp.ng) < 0.0f;
-    medium.cross(sp.material, mat.program, front);
+    medium.cross(scene, sp, front);
     const Vec3 side = front ? -sp.ng : sp.ng;
     const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
     if (std::isfinite(ray.tmax)) {
@@ -310,6 +326,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
   Medium medium;
+  // Heterogeneous media's own random numbers (delta and ratio tracking take as many as their
+  // collisions need), one stream per path: the sampler's dimensions stay as they were.
+  Pcg32 vrng;
+  if constexpr (kMedia)
+    if (volumes && scene.features().heterogeneous_volumes) vrng.set(path_key, 0x9E3779B97F4A7C15ULL);
   if constexpr (kMedia)
     if (volumes && scene.world_volume().has_medium()) medium.enter(kWorldMedium, scene.world_volume());
   ClosureList cl;
@@ -327,6 +348,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     const MediumLayer* seg_medium = nullptr;
     Vec3 seg_sigma(0.0f);
     // The throughput to distance tl along this ray (world units) where the ray gets there.
+    bool lights_counted = false;  // (a heterogeneous segment counts its lights itself)
     const auto through = [&](float tl) -> Vec3 {
       if constexpr (kMedia) {
         if (seg_medium) {
@@ -351,99 +373,125 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         sigma = Vec3(0.0f);  // this surface's light samples go through shadow_transmittance
         const float len = length(ray.dir);
         const float seg = found ? hit.t * len : kInf;
-        if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
-        const Vec3 st = m->sigma_a + m->sigma_s;
-        if (!is_black(m->sigma_s)) {
-          const Vec2 ud = sampler.get2d();
-          const float t = sample_free_flight(st, ud.x, ud.y);
-          if (t < seg) {
-            if (hits) L += light_hits(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
-            const float pdf = free_flight_pdf(st, t);
-            if (!(pdf > 0.0f)) break;
-            beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
-            if (emission_only) break;
-            const Vec3 d = ray.dir / len;
-            const Vec3 p = ray.org + d * t;
-            const float g = m->g;
-            direct = false;
-            want_data = false;
-            const bool last = bounce >= s.max_bounces;
-            float u_rr = -1.0f;
-            if (nee) {  // a light sample, weighted against the phase function's sample
-              DirectSample ds;
-              ds.path = &ray_state;
-              const Vec2 u_sel = sampler.get2d();
-              u_rr = u_sel.y;
-              const Vec2 u_pt = sampler.get2d();
-              if (scene.sample_direct(p, u_sel.x, u_pt, ds, !last) && !(ds.exclude & kLightVisVolume)) {
-                const float ph = hg_phase(g, dot(d, ds.wi));
-                if (ph > 0.0f && !is_black(ds.li)) {
-                  Ray shadow;
-                  shadow.time = ray.time;
-                  shadow.org = p;
-                  if (std::isinf(ds.dist)) {
-                    shadow.dir = ds.wi;
-                    shadow.tmax = kInf;
-                  } else {
-                    const bool tri = !is_black(ds.target_normal);
-                    const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
-                    shadow.dir = target - shadow.org;
-                    shadow.tmax = 1.0f - 1e-4f;
-                  }
-                  ++c.rays;
-                  const Vec3 vis = shadow_transmittance(scene, shadow, medium, ds.cast_shadow);
-                  if (!is_black(vis)) {
-                    const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
-                    L += beta * ds.li * vis * (ph * w / ds.pdf);
-                  }
+        bool scatter = false;
+        float t = 0.0f, g = m->g;
+        if (m->het) {
+          // A heterogeneous medium: delta tracking through its majorants, emission by the
+          // collision estimator (scene/medium_grid.h).
+          const Vec3 d = ray.dir / len;
+          MediumSample ms;
+          int steps = 0;
+          const auto density = [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d); };
+          if (hits) {
+            // Lights with extent along the whole segment, whatever the tracking below does, each
+            // through a ratio-tracking estimate of the transmittance to it (unbiased; the
+            // passes after the segment and after a collision then add none).
+            const auto through_het = [&](float tl) { return beta * ratio_track(m->het->grid, ray.org, d, tl, vrng, density); };
+            L += light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n,
+                            through_het);
+            lights_counted = true;
+          }
+          scatter = delta_track(m->het->grid, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
+          if (is_black(beta)) break;
+          g = ms.g;
+        } else {
+          if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
+          const Vec3 st = m->sigma_a + m->sigma_s;
+          if (!is_black(m->sigma_s)) {
+            const Vec2 ud = sampler.get2d();
+            t = sample_free_flight(st, ud.x, ud.y);
+            if (t < seg) {
+              if (hits) L += light_hits(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+              const float pdf = free_flight_pdf(st, t);
+              if (!(pdf > 0.0f)) break;
+              beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
+              scatter = true;
+            } else {
+              const float pass = free_flight_survival(st, seg);
+              if (!(pass > 0.0f)) break;
+              beta *= medium_transmittance(st, seg) / pass;
+            }
+          } else if (!is_black(st)) {
+            beta *= medium_transmittance(st, seg);
+          }
+        }
+        if (scatter) {
+          if (emission_only) break;
+          const Vec3 d = ray.dir / len;
+          const Vec3 p = ray.org + d * t;
+          direct = false;
+          want_data = false;
+          const bool last = bounce >= s.max_bounces;
+          float u_rr = -1.0f;
+          if (nee) {  // a light sample, weighted against the phase function's sample
+            DirectSample ds;
+            ds.path = &ray_state;
+            const Vec2 u_sel = sampler.get2d();
+            u_rr = u_sel.y;
+            const Vec2 u_pt = sampler.get2d();
+            if (scene.sample_direct(p, u_sel.x, u_pt, ds, !last) && !(ds.exclude & kLightVisVolume)) {
+              const float ph = hg_phase(g, dot(d, ds.wi));
+              if (ph > 0.0f && !is_black(ds.li)) {
+                Ray shadow;
+                shadow.time = ray.time;
+                shadow.org = p;
+                if (std::isinf(ds.dist)) {
+                  shadow.dir = ds.wi;
+                  shadow.tmax = kInf;
+                } else {
+                  const bool tri = !is_black(ds.target_normal);
+                  const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
+                  shadow.dir = target - shadow.org;
+                  shadow.tmax = 1.0f - 1e-4f;
+                }
+                ++c.rays;
+                const Vec3 vis = shadow_transmittance(scene, shadow, medium, ds.cast_shadow, &vrng);
+                if (!is_black(vis)) {
+                  const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
+                  L += beta * ds.li * vis * (ph * w / ds.pdf);
                 }
               }
             }
-            if (last && nee) break;
-            const Vec2 u = sampler.get2d();
-            float ph_pdf;
-            const Vec3 wi = hg_sample(g, d, u.x, u.y, ph_pdf);  // exact: the weight is 1
-            if (!(ph_pdf > 0.0f)) break;
-            prev_pdf = ph_pdf;
-            prev_delta = false;
-            ray_vis = kLightVisVolume;
-            mis_org = p;
-            mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
-            // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
-            if (volume_count >= s.volume_bounces) emission_only = true;
-            ++volume_count;
-            ++bounce;
-            ray_state.dp += (length_before + t) * ray_state.dd;  // the footprint at the scattering
-            length_before = 0.0f;
-            if (s.path_state) {
-              ray_state.min_pdf = std::min(ray_state.min_pdf, ph_pdf);
-              ray_state.flags = kRayVolume;
-              ray_state.depth = uint16_t(std::min(bounce, 65535));
-            }
-            if (last) emission_only = true;
-            if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
-              const float survive = std::min(1.0f, std::sqrt(max_component(beta) * eta_scale));
-              if (u_rr < 0.0f) u_rr = sampler.get2d().x;
-              if (!(survive > 0.0f) || u_rr >= survive) break;
-              beta = beta / survive;
-            }
-            if (!is_finite(beta)) break;
-            ray.org = p;
-            ray.dir = wi;
-            ray.tmax = kInf;
-            continue;
           }
-          const float pass = free_flight_survival(st, seg);
-          if (!(pass > 0.0f)) break;
-          beta *= medium_transmittance(st, seg) / pass;
-        } else if (!is_black(st)) {
-          beta *= medium_transmittance(st, seg);
+          if (last && nee) break;
+          const Vec2 u = sampler.get2d();
+          float ph_pdf;
+          const Vec3 wi = hg_sample(g, d, u.x, u.y, ph_pdf);  // exact: the weight is 1
+          if (!(ph_pdf > 0.0f)) break;
+          prev_pdf = ph_pdf;
+          prev_delta = false;
+          ray_vis = kLightVisVolume;
+          mis_org = p;
+          mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
+          // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
+          if (volume_count >= s.volume_bounces) emission_only = true;
+          ++volume_count;
+          ++bounce;
+          ray_state.dp += (length_before + t) * ray_state.dd;  // the footprint at the scattering
+          length_before = 0.0f;
+          if (s.path_state) {
+            ray_state.min_pdf = std::min(ray_state.min_pdf, ph_pdf);
+            ray_state.flags = kRayVolume;
+            ray_state.depth = uint16_t(std::min(bounce, 65535));
+          }
+          if (last) emission_only = true;
+          if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
+            const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
+            if (u_rr < 0.0f) u_rr = sampler.get2d().x;
+            if (!(survive > 0.0f) || u_rr >= survive) break;
+            beta = beta / survive;
+          }
+          if (!is_finite(beta)) break;
+          ray.org = p;
+          ray.dir = wi;
+          ray.tmax = kInf;
+          continue;
         }
       } else if (!is_black(sigma)) {
         beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
       }
     }
-    if (hits) {
+    if (hits && !lights_counted) {
       const Vec3 lh = light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
       L += lh;
       if constexpr (kAovs)
@@ -579,9 +627,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           if (kMedia && volumes) {
             // Through the media on the sample's side of the surface and the volumes beyond.
             Medium side = medium;
-            if (!reflection) side.cross(sp.material, scene.material(sp.material).program, front);
+            if (!reflection) side.cross(scene, sp, front);
             ++c.rays;
-            vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow);
+            vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng);
           } else if (ds.cast_shadow) {
             ++c.rays;
             vis = scene.transmittance(shadow);
@@ -774,7 +822,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe)) eta_scale *= bs.eta * bs.eta;
       if constexpr (kMedia) {
         if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
-          medium.cross(sp.material, scene.material(sp.material).program, front);
+          medium.cross(scene, sp, front);
         }
       }
     }
@@ -791,7 +839,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       // a large share of the light. Per-sample variance x rays per path, the equal-time error, is
       // 11 % lower on the Cornell box (measured with tests/bench/variance_per_sample.py); later
       // bounces converge to the same survival (the albedo) either way.
-      const float survive = std::min(1.0f, std::sqrt(max_component(beta) * eta_scale));
+      // (|beta|: heterogeneous media with majorants too small give signed weights, which the
+      // roulette must not cut; the same value elsewhere)
+      const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
       if (u_rr < 0.0f) u_rr = sampler.get2d().x;
       if (!(survive > 0.0f) || u_rr >= survive) break;
       beta = beta / survive;

@@ -164,6 +164,7 @@ bool Scene::commit(int threads, BvhLayout layout) {
   }
   top_dirty_ = false;
   build_lights();
+  build_media();
   if (features_.subsurface || !local_bvhs_.empty()) build_local_bvhs(threads);
   update_memory_stats();
   committed_ = true;

@@ -23,6 +23,7 @@
 #include "scene/camera.h"
 #include "scene/light.h"
 #include "scene/light_tree.h"
+#include "scene/medium_grid.h"
 
 namespace pl {
 
@@ -65,6 +66,14 @@ struct Material {
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
   ClosureList cached;
+};
+
+// A heterogeneous medium in the committed scene: one per instance and material whose Volume is
+// a program (ShaderProgram::volume), with the majorant grid over the instance's world bounds.
+struct HeteroMedium {
+  const ShaderProgram* program = nullptr;  // the volume program (the material's)
+  uint32_t material = 0, instance = 0;
+  MajorantGrid grid;
 };
 
 struct SurfacePoint;
@@ -188,6 +197,9 @@ struct SceneFeatures {
   bool terminator = false;
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
+  // Heterogeneous media (Volume programs): delta and ratio tracking through majorant grids
+  // (not a kernel feature: the media kernels test each medium layer).
+  bool heterogeneous_volumes = false;
   // Names of the features in use, and of every feature a scene can have (for logs and tests).
   std::vector<std::string> names() const;
   static std::vector<std::string> all_names();
@@ -423,6 +435,21 @@ class Scene {
     return transmittance_through(ray);
   }
   const std::vector<Image>& images() const { return images_; }
+  // The heterogeneous medium inside `material` on `instance` (after commit), or nullptr.
+  const HeteroMedium* hetero_medium(uint32_t instance, uint32_t material) const {
+    for (const HeteroMedium& h : hetero_)
+      if (h.instance == instance && h.material == material) return &h;
+    return nullptr;
+  }
+  const std::vector<HeteroMedium>& hetero_media() const { return hetero_; }
+  // The medium's coefficients at world point p for a ray along dir (unit).
+  MediumSample medium_at(const HeteroMedium& h, Vec3 p, Vec3 dir) const;
+  // Scales every majorant built at the next commit (tests: below 1 the majorants are too
+  // small, and the estimators must stay unbiased).
+  void set_majorant_scale(float s) {
+    majorant_scale_ = s;
+    committed_ = false;
+  }
 
   const Material& material(uint32_t id) const { return materials_[id]; }
   Vec3 world_color() const { return world_color_; }
@@ -649,6 +676,8 @@ class Scene {
   // for the instances whose materials have subsurface; real instances use their own BLAS.
   std::vector<uint32_t> local_index_;
   std::vector<Bvh> local_bvhs_;
+  std::vector<HeteroMedium> hetero_;  // made at commit (build_media)
+  float majorant_scale_ = 1.0f;
   size_t local_built_for_ = SIZE_MAX;  // stats_.geometry_builds they were made for
   void build_local_bvhs(int threads);
   Tlas tlas_;
@@ -744,6 +773,7 @@ class Scene {
   void build_instances();  // transforms, object coordinates, flattened offsets
   void build_top_level();
   void build_lights();
+  void build_media();  // scene_media.cpp
   void detect_features();
   void update_memory_stats();
   // World-space corners of a BLAS triangle of an instance.

@@ -19,6 +19,7 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"normal maps", f.normal_maps},
           {"media", f.media},
           {"volumes", f.volumes},
+          {"heterogeneous volumes", f.heterogeneous_volumes},
           {"mesh lights", f.emission},
           {"point lights", light(LightType::Point)},
           {"spot lights", light(LightType::Spot)},
@@ -83,7 +84,9 @@ void Scene::detect_features() {
     const Material& m = materials_[id];
     f.media = f.media || m.program.has_medium();
     f.volumes = f.volumes || (m.program.has_medium() && (!is_black(m.program.sigma_s) ||
-                                                         !is_black(m.program.volume_emission) || m.transparent));
+                                                         !is_black(m.program.volume_emission) || m.transparent)) ||
+                m.program.volume != nullptr;
+    f.heterogeneous_volumes = f.heterogeneous_volumes || m.program.volume != nullptr;
     if (m.constant) {  // the closures it does add
       for (int i = 0; i < m.cached.n; ++i) {
         const Bsdf& b = m.cached.c[size_t(i)].bsdf;

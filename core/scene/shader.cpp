@@ -1,7 +1,7 @@
 // Shader program evaluation: the value ops (coordinates, textures, maths, colour) in registers,
 // and the closure ops' closures from them (shader_closures.cpp).
 #include "scene/shader.h"
-
+#include "scene/phase.h"
 #include "scene/shader_math.h"
 #include "scene/shader_closures.h"
 
@@ -642,6 +642,7 @@ template <bool kSetsNormal>
       case OpCode::Subsurface:
         detail::eval_closure_op(op, prog, r, ctx, extra, out);
         break;
+      case OpCode::VolumeOut: break;  // read by eval_volume
     }
   }
   out.finalize();
@@ -659,6 +660,26 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
   } else {
     eval_program<false>(prog, images, ctx, nullptr, out, regs);
   }
+}
+
+MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& images, const ShadingContext& ctx) {
+  MediumSample m;
+  if (vol.ops.empty() || vol.ops.back().code != OpCode::VolumeOut) return m;
+  Float4 r[kMaxRegs];
+  ClosureList unused;
+  eval_shader(vol, images, ctx, unused, r);
+  const ShaderOp& o = vol.ops.back();
+  const auto rgb = [&](int16_t i) {
+    if (i == kNoReg) return Vec3(0.0f);
+    const Vec3 v = r[i].xyz();
+    const auto c = [](float x) { return std::isfinite(x) && x > 0.0f ? x : 0.0f; };
+    return Vec3{c(v.x), c(v.y), c(v.z)};
+  };
+  m.sigma_a = rgb(o.in[0]);
+  m.sigma_s = rgb(o.in[1]);
+  m.emission = rgb(o.in[2]);
+  m.g = o.in[3] == kNoReg ? 0.0f : clamp_phase_g(r[o.in[3]].x);
+  return m;
 }
 
 }  // namespace pl

@@ -4,6 +4,7 @@
 #pragma once
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <type_traits>
 #include <vector>
@@ -60,6 +61,9 @@ enum class OpCode : uint8_t {
   ObjectAttribute,  // the Attribute node's Object / Instancer types: a per-instance slot (index)
   Hair,  // the Hair BSDF node (sub 0 reflection, 1 transmission): scene/hair_bsdf.h HairBsdf
   SetNormal,  // the material's displacement as bump: replaces the shading normal for the ops after it
+  // A volume program's output (its last op): in[0] sigma_a, in[1] sigma_s, in[2] emission (RGB
+  // per unit length), in[3] the Henyey-Greenstein anisotropy (.x); eval_volume reads them.
+  VolumeOut,
 };
 
 enum class MathOp : uint8_t {
@@ -309,7 +313,13 @@ struct ShaderProgram {
   Vec3 sigma_s{0.0f};
   float phase_g = 0.0f;
   Vec3 volume_emission{0.0f};
-  bool has_medium() const { return !is_black(sigma_a) || !is_black(sigma_s) || !is_black(volume_emission); }
+  // A heterogeneous medium inside (a Volume whose inputs vary in space): the program that gives
+  // its coefficients at a point (value ops, then a VolumeOut op; eval_volume). The constant
+  // fields above are then zero. nullptr: the medium (if any) is the homogeneous one above.
+  std::shared_ptr<const ShaderProgram> volume;
+  bool has_medium() const {
+    return !is_black(sigma_a) || !is_black(sigma_s) || !is_black(volume_emission) || volume != nullptr;
+  }
   std::vector<Float4> tables;  // Ramp lookup tables (Color Ramp, RGB Curves), as Cycles bakes them
   // The Bump node's Filter Width: its heights are read this many pixel footprints away (<= 0:
   // a tiny fixed step, where the ray's footprint is unknown too).
@@ -321,5 +331,16 @@ struct ShaderProgram {
 // the registers (the add-on's constant folding).
 void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
                  ClosureList& out, Float4* regs = nullptr);
+
+// A medium's coefficients at a point: absorption and scattering (per unit length), emitted
+// radiance per unit length and the Henyey-Greenstein anisotropy.
+struct MediumSample {
+  Vec3 sigma_a{0.0f}, sigma_s{0.0f}, emission{0.0f};
+  float g = 0.0f;
+};
+// Runs a volume program (ShaderProgram::volume) at ctx (p the point, wo the reverse of the ray's
+// direction, normals 0, as Cycles' volume shader data): negative or non-finite coefficients
+// read 0, the anisotropy is clamped into (-1, 1).
+MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& images, const ShadingContext& ctx);
 
 }  // namespace pl

@@ -11,9 +11,9 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
-    "volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights", "environment", "world light",
-    "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree", "light hits", "subsurface",
-    "motion blur", "guiding", "shadow terminator"}
+    "volumes", "heterogeneous volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights",
+    "environment", "world light", "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree",
+    "light hits", "subsurface", "motion blur", "guiding", "shadow terminator"}
 
 
 def shader(s, name, kind, sigma=None, **params):

@@ -341,7 +341,7 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
             program = [("const", 0, GREY + (1.0,)),
                        ("closure", "diffuse", None, {"color": 0})]
         absorption = volume if isinstance(volume, tuple) else None
-        medium = volume if isinstance(volume, dict) else None
+        medium = volume if isinstance(volume, (dict, list)) else None  # list: a volume program
         return CompiledShader(program, absorption, medium, dict(self.uv_used), list(self.problems))
 
     def _reset(self):

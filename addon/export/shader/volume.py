@@ -1,9 +1,22 @@
-"""A material's Volume socket → the core's homogeneous medium (constant inputs; Cycles'
-meanings, docs/design/volumes.md) (a ShaderCompiler mixin)."""
+"""A material's Volume socket → the core's medium (Cycles' meanings, docs/design/volumes.md)
+(a ShaderCompiler mixin): constant inputs give the homogeneous medium as before; inputs that
+vary in space (textures, coordinates, maths) give a volume program, value ops evaluated at
+points inside the medium ending in a ("closure", "volume", ...) op of its coefficients."""
 
 import numpy as np
 
 from .graph import _Cycle
+from .registers import MAX_REGISTERS, allocate_registers, eliminate_dead_code
+from .values import ONE, ZERO, const_color, const_float
+
+
+class _Varying(Exception):
+    """A volume input is not constant: the medium needs a program."""
+
+
+# Cycles' svm_node_principled_volume: Stefan-Boltzmann's constant scaled as its blackbody
+# emission is (5.670373e-8 * 1e-6 / pi).
+BLACKBODY_SIGMA = 5.670373e-8 * 1e-6 / np.pi
 
 
 class VolumeShaders:
@@ -17,13 +30,18 @@ class VolumeShaders:
         if src is None or src[0] == "default":
             return None
         _, node, out, ctx = src
-        if node.type == 'VOLUME_ABSORPTION':
-            color = self.const_input(node, "Color", ctx, "color").const[:3]
-            density = self.const_input(node, "Density", ctx, "float").const[0]
-            return (tuple(color), density)
-        acc = {"sigma_a": np.zeros(3), "sigma_s": np.zeros(3), "emission": np.zeros(3), "gs": np.zeros(3),
-               "g": set()}
-        self._volume_node(node, ctx, 1.0, acc, set())
+        n_problems = len(self.problems)
+        try:
+            if node.type == 'VOLUME_ABSORPTION':
+                color = self._const_or_raise(node, "Color", ctx, "color")
+                density = self._const_or_raise(node, "Density", ctx, "float")
+                return (tuple(color), density)
+            acc = {"sigma_a": np.zeros(3), "sigma_s": np.zeros(3), "emission": np.zeros(3), "gs": np.zeros(3),
+                   "g": set()}
+            self._volume_node(node, ctx, 1.0, acc, set())
+        except _Varying:
+            del self.problems[n_problems:]  # the program reports its own
+            return self.volume_program(socket, name)
         ss = acc["sigma_s"]
         if len(acc["g"]) > 1:
             self.problem(f"volume of '{name}': scatterings of different anisotropies are combined "
@@ -34,6 +52,151 @@ class VolumeShaders:
         if not any(any(v) for v in (vol["sigma_a"], vol["sigma_s"], vol["emission"])):
             return None
         return vol
+
+    def _const_or_raise(self, node, name, ctx, kind):
+        """A constant input's value (colour: rgb, float: the value); _Varying where it is linked
+        to something that varies."""
+        v = self.value(node.inputs[name], ctx, kind)
+        if v is None or not v.is_const:
+            raise _Varying()
+        return v.const[:3] if kind == "color" else v.const[0]
+
+    # -------------------------------------------------- heterogeneous: a volume program
+
+    def volume_program(self, socket, name):
+        """The Volume as a program of the core (a list of ops ending in the "volume" closure), or
+        the homogeneous dict where every coefficient folded to a constant after all (e.g. a
+        constant Blackbody), or None (nothing)."""
+        saved = (self.ops, self.const_regs, self.cache)
+        self.ops, self.const_regs, self.cache = [], {}, {}
+        try:
+            acc = {"sigma_a": None, "sigma_s": None, "emission": None, "scatter": []}
+            src = self.source(socket, ())
+            _, node, out, ctx = src
+            self._volume_prog_node(node, ctx, ONE, acc, set())
+            scatter = acc["scatter"]
+            if not scatter:
+                g = ZERO
+            elif len(scatter) == 1:
+                g = scatter[0][1]
+            else:
+                gs = [self.math("MULTIPLY", self.as_float(ss), gi) for ss, gi in scatter]
+                num, den = gs[0], self.as_float(scatter[0][0])
+                for (ss, _), x in zip(scatter[1:], gs[1:]):
+                    num = self.math("ADD", num, x)
+                    den = self.math("ADD", den, self.as_float(ss))
+                g = self.math("DIVIDE", num, den)
+                if not all(gi.is_const and gi.const[0] == scatter[0][1].const[0] for _, gi in scatter):
+                    self.problem(f"volume of '{name}': scatterings of different anisotropies are combined "
+                                 "into one (their scattering-weighted mean)")
+            outs = {k: acc[k] for k in ("sigma_a", "sigma_s", "emission") if acc[k] is not None}
+            outs["g"] = g
+            if all(v.is_const for v in outs.values()):  # homogeneous after all
+                vol = {k: tuple(max(float(x), 0.0) if np.isfinite(x) else 0.0 for x in v.const[:3])
+                       for k, v in outs.items() if k != "g"}
+                vol["g"] = float(g.const[0]) if np.isfinite(g.const[0]) else 0.0
+                if not any(any(v) for k, v in vol.items() if k != "g"):
+                    return None
+                return vol
+            ops = self.ops + [("closure", "volume", None, {k: self.reg(v) for k, v in outs.items()})]
+            program = allocate_registers(eliminate_dead_code(ops))
+            if program is None:
+                self.problem(f"the volume of '{name}' needs more than {MAX_REGISTERS} registers (ignored)")
+                return None
+            return program
+        finally:
+            self.ops, self.const_regs, self.cache = saved
+
+    def _acc_add(self, acc, key, v):
+        acc[key] = v if acc[key] is None else self.mix("ADD", ONE, acc[key], v)
+
+    def _times(self, color, f):
+        """colour (Val) * float (Val)."""
+        return self.mix("MULTIPLY", ONE, self.as_color(color), self.as_color(f))
+
+    def _volume_prog_node(self, node, ctx, w, acc, visiting):
+        """Adds what volume shader `node` (weight w, a float Val) puts into the medium, as ops."""
+        key = (node.as_pointer(), self.ctx_key(ctx))
+        if key in visiting:
+            raise _Cycle(node.name)
+        visiting = visiting | {key}
+
+        def inp(name, kind):
+            v = self.input(node, name, ctx, kind)
+            return v if v is not None else (ZERO if kind == "float" else const_color((0, 0, 0, 1)))
+
+        def sub(socket, weight):
+            src = self.source(socket, ctx)
+            if src is None or src[0] == "default" or (weight.is_const and weight.const[0] == 0.0):
+                return
+            _, n, out, nctx = src
+            if out.type != 'SHADER':
+                self.problem(f"a value linked into the volume shader input of '{node.name}' (ignored)")
+                return
+            self._volume_prog_node(n, nctx, weight, acc, visiting)
+
+        def density():  # Cycles: mix weight * max(density, 0)
+            return self.math("MULTIPLY", self.math("MAXIMUM", inp("Density", "float"), ZERO), w)
+
+        def one_minus(c):  # max(1 - c, 0) for c >= 0 (the mix clamps to [0, 1])
+            return self.mix("SUBTRACT", ONE, const_color((1, 1, 1, 1)), c, clamp=True)
+
+        t = node.type
+        if t == 'ADD_SHADER':
+            sub(node.inputs[0], w)
+            sub(node.inputs[1], w)
+        elif t == 'MIX_SHADER':
+            f = self.math("ADD", inp("Fac", "float"), ZERO, clamp=True)
+            sub(node.inputs[1], self.math("MULTIPLY", w, self.math("SUBTRACT", ONE, f)))
+            sub(node.inputs[2], self.math("MULTIPLY", w, f))
+        elif t == 'VOLUME_ABSORPTION':
+            self._acc_add(acc, "sigma_a", self._times(one_minus(inp("Color", "color")), density()))
+        elif t == 'VOLUME_SCATTER':
+            phase = getattr(node, "phase", 'HENYEY_GREENSTEIN')
+            if phase != 'HENYEY_GREENSTEIN':
+                self.problem(f"'{node.name}': the {phase} phase function is not supported "
+                             "(Henyey-Greenstein)")
+            ss = self._times(inp("Color", "color"), density())
+            self._acc_add(acc, "sigma_s", ss)
+            acc["scatter"].append((ss, inp("Anisotropy", "float") if "Anisotropy" in node.inputs else ZERO))
+        elif t == 'PRINCIPLED_VOLUME':
+            # Cycles' svm_node_principled_volume: scattering colour * density; extinction adds
+            # max(1 - colour, 0) max(1 - sqrt(absorption colour), 0) * density; emission
+            # strength * colour; blackbody tint * sigma * mix(1, T^4, intensity) * the blackbody
+            # colour of T (neither emission scaled by the density).
+            c = inp("Color", "color")
+            d = density()
+            ss = self._times(c, d)
+            self._acc_add(acc, "sigma_s", ss)
+            acc["scatter"].append((ss, inp("Anisotropy", "float")))
+            ac = self.value(node.inputs["Absorption Color"], ctx, "color")
+            if not ac.is_const:
+                self.problem(f"linked input Absorption Color of '{node.name}' is not supported (its value is used)")
+                ac = self.socket_default(node.inputs["Absorption Color"], "color")
+            sq = np.sqrt(np.maximum(np.asarray(ac.const[:3], np.float64), 0.0))
+            absorb = self.mix("MULTIPLY", ONE, one_minus(c), const_color(tuple(np.maximum(1.0 - sq, 0.0)) + (1.0,)))
+            self._acc_add(acc, "sigma_a", self._times(absorb, d))
+            strength = self.math("MAXIMUM", inp("Emission Strength", "float"), ZERO)
+            em = self._times(inp("Emission Color", "color"), self.math("MULTIPLY", strength, w))
+            if not self.is_zero(em):
+                self._acc_add(acc, "emission", em)
+            b = inp("Blackbody Intensity", "float")
+            if not (b.is_const and b.const[0] <= 1e-5):
+                temp = self.math("MAXIMUM", inp("Temperature", "float"), ZERO)
+                t2 = self.math("MULTIPLY", temp, temp)
+                t4 = self.math("MULTIPLY", t2, t2)
+                # sigma * (1 - b + b T^4)
+                mixed = self.math("ADD", self.math("SUBTRACT", ONE, b), self.math("MULTIPLY", b, t4))
+                intensity = self.math("MULTIPLY", self.math("MULTIPLY", mixed, const_float(BLACKBODY_SIGMA)), w)
+                bb_color = self.fold_or_emit("color", "blackbody", (temp,))
+                tint = inp("Blackbody Tint", "color")
+                bb = self._times(self.mix("MULTIPLY", ONE, tint, bb_color), intensity)
+                self._acc_add(acc, "emission", bb)
+        elif t == 'EMISSION':  # an Emission shader in a Volume emits from the whole volume
+            em = self._times(inp("Color", "color"), self.math("MULTIPLY", inp("Strength", "float"), w))
+            self._acc_add(acc, "emission", em)
+        else:
+            self.problem(f"volume '{node.name}' ({node.bl_idname}) is not supported (ignored)")
 
     def _clean(self, node, what, values):
         """Volume coefficients: NaN, infinite or negative values mean nothing: 0, with a warning."""
@@ -52,8 +215,7 @@ class VolumeShaders:
         visiting = visiting | {key}
 
         def const(name, kind):
-            v = self.const_input(node, name, ctx, kind).const
-            return v[:3] if kind == "color" else v[0]
+            return self._const_or_raise(node, name, ctx, kind)
 
         def sub(socket, weight):
             src = self.source(socket, ctx)
@@ -100,7 +262,7 @@ class VolumeShaders:
             if np.isfinite(strength) and strength > 0.0:
                 acc["emission"] += w * strength * ec
             if float(const("Blackbody Intensity", "float")) != 0.0:
-                self.problem(f"'{node.name}': blackbody emission is not supported (ignored)")
+                raise _Varying()  # blackbody emission: the program's ops compute it
         elif t == 'EMISSION':  # an Emission shader in a Volume emits from the whole volume
             c = self._clean(node, "Color", const("Color", "color"))
             strength = self._clean(node, "Strength", [const("Strength", "float")])[0]

@@ -1,0 +1,157 @@
+// Heterogeneous media: a coarse grid of majorants (upper bounds of the extinction) over a
+// medium's bounds, walked along a ray with a DDA (pbrt-v4's DDAMajorantIterator), and the
+// null-scattering estimators that use it (docs/design/volumes.md): delta tracking for free
+// flights, ratio tracking for transmittance. Both stay unbiased where the true extinction
+// exceeds the majorant: the null coefficient sigma_n = majorant - sigma_t then goes negative
+// and the weights keep its sign.
+#pragma once
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "geometry/aabb.h"
+#include "scene/shader.h"
+#include "util/rng.h"
+
+namespace pl {
+
+struct MajorantGrid {
+  static constexpr int kRes = 16;
+  Aabb bounds;               // world space (the medium's object bounds, slightly padded)
+  std::vector<float> cells;  // kRes^3, x fastest: the largest extinction component in each
+  float at(int x, int y, int z) const { return cells[size_t((z * kRes + y) * kRes + x)]; }
+  bool empty() const { return cells.empty() || bounds.empty(); }
+};
+
+// Calls f(t0, t1, majorant) for the cells that the ray org + t dir (dir unit) crosses within
+// [0, tmax], in order; stops where f returns false. Returns false if f stopped it.
+template <class F>
+bool walk_majorants(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, F&& f) {
+  if (g.empty()) return true;
+  float t0 = 0.0f, t1 = tmax;
+  const float o[3] = {org.x, org.y, org.z}, d[3] = {dir.x, dir.y, dir.z};
+  const float lo[3] = {g.bounds.lo.x, g.bounds.lo.y, g.bounds.lo.z};
+  const float hi[3] = {g.bounds.hi.x, g.bounds.hi.y, g.bounds.hi.z};
+  for (int a = 0; a < 3; ++a) {
+    if (d[a] == 0.0f) {
+      if (o[a] < lo[a] || o[a] > hi[a]) return true;
+      continue;
+    }
+    float ta = (lo[a] - o[a]) / d[a], tb = (hi[a] - o[a]) / d[a];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+  }
+  if (!(t0 < t1)) return true;
+  constexpr int N = MajorantGrid::kRes;
+  int c[3], step[3];
+  float next[3], delta[3];
+  for (int a = 0; a < 3; ++a) {
+    const float size = (hi[a] - lo[a]) / float(N);
+    const float p = o[a] + d[a] * t0;
+    c[a] = size > 0.0f ? std::clamp(int((p - lo[a]) / size), 0, N - 1) : 0;
+    if (d[a] > 0.0f && size > 0.0f) {
+      step[a] = 1;
+      next[a] = t0 + (lo[a] + float(c[a] + 1) * size - p) / d[a];
+      delta[a] = size / d[a];
+    } else if (d[a] < 0.0f && size > 0.0f) {
+      step[a] = -1;
+      next[a] = t0 + (lo[a] + float(c[a]) * size - p) / d[a];
+      delta[a] = -size / d[a];
+    } else {
+      step[a] = 0;
+      next[a] = kInf;
+      delta[a] = kInf;
+    }
+  }
+  float t = t0;
+  for (int guard = 0; guard < 3 * N + 3; ++guard) {
+    const int a = next[0] < next[1] ? (next[0] < next[2] ? 0 : 2) : (next[1] < next[2] ? 1 : 2);
+    const float tn = std::min(std::max(next[a], t), t1);
+    if (!f(t, tn, g.at(c[0], c[1], c[2]))) return false;
+    if (tn >= t1) return true;
+    t = tn;
+    c[a] += step[a];
+    if (c[a] < 0 || c[a] >= N) return true;
+    next[a] += delta[a];
+  }
+  return true;
+}
+
+// -log(1 - u) / mu: an exponential step of rate mu.
+inline float exp_step(Pcg32& rng, float mu) { return -std::log1p(-rng.next_float()) / mu; }
+
+// Delta tracking (Miller et al. 2019's null-scattering formulation, spectral in RGB): walks
+// tentative collisions of rate majorant along [0, tmax]; at each, with the coefficients there
+// (eval(t)), adds beta * emission / majorant to L (the collision estimator of the emission),
+// then scatters with probability mean(sigma_s) / q or goes on (a null collision) with
+// probability mean(|sigma_n|) / q, q their sum, weighting beta by sigma_x / (majorant p_x).
+// Absorption stays in those weights (no absorption events). Returns true at a scattering, with
+// its distance t and coefficients ms; false when the ray passes tmax (or beta dies).
+template <class Eval>
+bool delta_track(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, Eval&& eval, Vec3& beta,
+                 Vec3* L, float& t_out, MediumSample& ms_out, int& steps) {
+  bool scattered = false, dead = false;
+  walk_majorants(g, org, dir, tmax, [&](float t0, float t1, float mu) {
+    if (!(mu > 0.0f)) return true;
+    float t = t0;
+    for (;;) {
+      t += exp_step(rng, mu);
+      if (!(t < t1)) return true;
+      if (++steps > 1 << 16) {  // runaway (a majorant far too small): give up the path
+        dead = true;
+        return false;
+      }
+      const MediumSample ms = eval(t);
+      if (L) *L += beta * ms.emission * (1.0f / mu);
+      const Vec3 sn = Vec3(mu) - ms.sigma_a - ms.sigma_s;
+      const float ps = average(ms.sigma_s), pn = average(vabs(sn));
+      const float q = ps + pn;
+      if (!(q > 0.0f)) {  // no scattering, the majorant exactly absorbed: nothing goes on
+        dead = true;
+        return false;
+      }
+      if (rng.next_float() * q < ps) {
+        beta *= ms.sigma_s * (q / (mu * ps));
+        t_out = t;
+        ms_out = ms;
+        scattered = true;
+        return false;
+      }
+      beta *= sn * (q / (mu * pn));
+      if (is_black(beta)) {
+        dead = true;
+        return false;
+      }
+    }
+  });
+  if (dead) beta = Vec3(0.0f);
+  return scattered;
+}
+
+// Ratio tracking: the transmittance over [0, tmax] as the product of sigma_n / majorant over
+// tentative collisions (unbiased, signed where the majorant is too small).
+template <class Eval>
+Vec3 ratio_track(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, Eval&& eval) {
+  Vec3 T(1.0f);
+  int steps = 0;
+  walk_majorants(g, org, dir, tmax, [&](float t0, float t1, float mu) {
+    if (!(mu > 0.0f)) return true;
+    float t = t0;
+    for (;;) {
+      t += exp_step(rng, mu);
+      if (!(t < t1)) return true;
+      if (++steps > 1 << 16) {
+        T = Vec3(0.0f);
+        return false;
+      }
+      const MediumSample ms = eval(t);
+      T *= (Vec3(mu) - ms.sigma_a - ms.sigma_s) * (1.0f / mu);
+      if (is_black(T)) return false;
+    }
+  });
+  return T;
+}
+
+}  // namespace pl
