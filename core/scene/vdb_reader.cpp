@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <map>
 
 #ifdef PATHLIGHT_HAVE_ZLIB
@@ -67,7 +68,7 @@ void vdb_lz4_decompress(const uint8_t* src, size_t src_size, uint8_t* dst, size_
     const uint8_t token = src[ip++];
     const size_t lit = length(token >> 4);
     if (lit > src_size - ip || lit > dst_size - op) fail("LZ4: literals beyond the buffers");
-    std::memcpy(dst + op, src + ip, lit);
+    if (lit) std::memcpy(dst + op, src + ip, lit);
     ip += lit;
     op += lit;
     if (ip == src_size) break;  // the last sequence has literals only
@@ -279,7 +280,8 @@ void read_data(Reader& r, const GridContext& g, size_t count, size_t elem, std::
     const int64_t n = r.get<int64_t>("compressed size");
     if (n <= 0) {  // stored uncompressed
       if (n == std::numeric_limits<int64_t>::min() || uint64_t(-n) != bytes) fail("uncompressed block of the wrong size");
-      std::memcpy(out.data(), r.take(bytes, "uncompressed block"), bytes);
+      const uint8_t* src = r.take(bytes, "uncompressed block");
+      if (bytes) std::memcpy(out.data(), src, bytes);
       return;
     }
     if (uint64_t(n) > r.left()) fail("truncated (compressed block)");

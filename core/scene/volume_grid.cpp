@@ -108,23 +108,28 @@ void VolumeGrid::build(int channels, const std::array<float, 3>& background, std
   table_dims_ = {0, 0, 0};
   table_origin_ = {0, 0, 0};
   if (lo[0] <= hi[0]) {
-    int64_t entries = 1;
+    int64_t entries = 1, dims[3];
     for (int a = 0; a < 3; ++a) {
-      table_origin_[a] = lo[a];
-      table_dims_[a] = hi[a] - lo[a] + 1;
-      if (table_dims_[a] > limits.max_table_entries) throw std::runtime_error("volume grid: extent too large");
-      entries *= table_dims_[a];
-      if (entries > limits.max_table_entries)
-        throw std::runtime_error("volume grid: extent of " + std::to_string(table_dims_[0]) + " x ... bricks exceeds the limit");
+      dims[a] = hi[a] - lo[a] + 1;
+      entries = dims[a] > limits.max_table_entries ? limits.max_table_entries + 1 : entries * dims[a];
+      if (entries > limits.max_table_entries) entries = limits.max_table_entries + 1;
     }
+    if (entries > limits.max_table_entries)
+      throw std::runtime_error("volume grid: extent of " + std::to_string(dims[0]) + " x " + std::to_string(dims[1]) +
+                               " x " + std::to_string(dims[2]) + " bricks exceeds the limit");
     if (int64_t(leaves.size()) > limits.max_bricks)
       throw std::runtime_error("volume grid: " + std::to_string(leaves.size()) + " leaves exceed the limit");
+    for (int a = 0; a < 3; ++a) table_origin_[a] = lo[a], table_dims_[a] = dims[a];
     table_.assign(size_t(entries), -1);
     // Tiles first (largest first), then leaves, so a leaf wins where a hostile file overlaps them.
     std::vector<const Tile*> order;
     for (const Tile& t : tiles)
       if (differs(t.value)) order.push_back(&t);
     std::stable_sort(order.begin(), order.end(), [](const Tile* a, const Tile* b) { return a->size > b->size; });
+    // Overlapping tiles (only in a hostile file) could make the fill far longer than the table.
+    int64_t fill = 0;
+    for (const Tile* t : order) fill += int64_t(t->size / kBrick) * (t->size / kBrick) * (t->size / kBrick);
+    if (fill > 4 * limits.max_table_entries) throw std::runtime_error("volume grid: tiles overlap beyond the limit");
     for (const Tile* t : order) {
       const int32_t id = int32_t(constants_.size() / channels);
       for (int c = 0; c < channels; ++c) constants_.push_back(clean(t->value[c]));

@@ -42,7 +42,8 @@ class VolumeGrid {
   };
 
   VolumeGrid() = default;
-  // Builds the brick table, the active bounding box and the majorant grid. Throws
+  // Builds the brick table, the active bounding box and the majorant grid. Throws (leaving the
+  // grid unusable: discard it)
   // std::runtime_error when the extent or the storage exceeds `limits`. Non-finite values
   // become 0 (counted in nonfinite_replaced()).
   void build(int channels, const std::array<float, 3>& background, std::vector<Leaf>& leaves,

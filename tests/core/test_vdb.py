@@ -385,3 +385,34 @@ def test_leaf_limit_and_missing_files(tmp_path):
         pc.read_vdb(str(tmp_path / "empty.vdb"))
     (tmp_path / "ok.vdb").write_bytes(data)
     assert pc.read_vdb(str(tmp_path / "ok.vdb"))[0]["leaf_count"] == len(ORIGINS)
+
+
+def test_hypothesis_mutations_raise_or_read():
+    """Hypothesis (derandomized, as test_fuzz_core.py): a valid two-grid file with byte patches
+    (anywhere, or inside the tree and buffers), optionally truncated: the reader raises or
+    returns grids whose voxels are finite."""
+    hypothesis = pytest.importorskip("hypothesis")
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    data = sample_file()
+    patches = st.lists(st.tuples(st.integers(0, len(data) - 1), st.integers(0, 255)), min_size=1, max_size=6)
+
+    @settings(max_examples=300, derandomize=True, deadline=None, database=None,
+              suppress_health_check=list(HealthCheck))
+    @given(patches, st.one_of(st.none(), st.integers(0, len(data))), st.sampled_from(["x", "y"]))
+    def check(patch_list, cut, _):
+        b = bytearray(data)
+        for pos, val in patch_list:
+            b[pos] = val
+        if cut is not None:
+            b = b[:cut]
+        try:
+            infos = pc.read_vdb_bytes(bytes(b))
+        except ERRORS:
+            return
+        for info in infos:
+            if info["grid"] is not None:
+                g = info["grid"]
+                assert np.all(np.isfinite(g.voxels((0, 0, 0), (15, 15, 15))))
+                assert np.isfinite(g.sample_index(np.zeros((1, 3), np.float32))).all()
+    check()
