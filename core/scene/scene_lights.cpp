@@ -506,11 +506,13 @@ bool Scene::sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, boo
     // light sample is weighted against the BSDF's; delta lights and the others keep the full
     // weight (no ray can find them: MIS against the BSDF pdf would lose energy there).
     s.delta = ls.delta || !l.mis || !light_hits_on_;
+    s.analytic = true;
     s.exclude = uint8_t(~l.visibility & (kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission | kLightVisVolume));
     s.cast_shadow = l.cast_shadow;
     return true;
   }
   s.delta = false;
+  s.analytic = false;
   s.exclude = 0;
   s.cast_shadow = true;
   if (k == env_index_) {
