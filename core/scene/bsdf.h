@@ -70,7 +70,7 @@ struct DiffuseBsdf {
     pdf = abs_cos(wi) * kInvPi;
     return Vec3(bent ? pdf * bump_shadowing(ns, wi) : pdf);
   }
-  bool sample(Vec3 wo, Vec2 u, float, BsdfSample& s) const {
+  bool sample(Vec3, Vec2 u, float, BsdfSample& s) const {  // (the side: back, not the view)
     Vec3 l = sample_cosine_hemisphere(u);
     if (l.z <= 0.0f) return false;
     if (back) l.z = -l.z;

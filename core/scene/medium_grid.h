@@ -82,6 +82,27 @@ bool walk_majorants(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, F&& f
 // -log(1 - u) / mu: an exponential step of rate mu.
 inline float exp_step(Pcg32& rng, float mu) { return -std::log1p(-rng.next_float()) / mu; }
 
+// The tentative collisions of rate majorant along [0, tmax], in order: f(t, mu) at each, which
+// returns false to stop. Returns false when f stopped, or after kMaxCollisions collisions over
+// the whole walk (counted in `steps`: a majorant far too small, a runaway); else true.
+constexpr int kMaxCollisions = 1 << 16;
+template <class F>
+bool walk_collisions(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, int& steps, bool& runaway,
+                     F&& f) {
+  runaway = false;
+  return walk_majorants(g, org, dir, tmax, [&](float t0, float t1, float mu) {
+    if (!(mu > 0.0f)) return true;
+    for (float t = t0 + exp_step(rng, mu); t < t1; t += exp_step(rng, mu)) {
+      if (++steps > kMaxCollisions) {
+        runaway = true;
+        return false;
+      }
+      if (!f(t, mu)) return false;
+    }
+    return true;
+  });
+}
+
 // Delta tracking (Miller et al. 2019's null-scattering formulation, spectral in RGB): walks
 // tentative collisions of rate majorant along [0, tmax]; at each, with the coefficients there
 // (eval(t)), adds beta * emission / majorant to L (the collision estimator of the emission),
@@ -92,40 +113,32 @@ inline float exp_step(Pcg32& rng, float mu) { return -std::log1p(-rng.next_float
 template <class Eval>
 bool delta_track(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, Eval&& eval, Vec3& beta,
                  Vec3* L, float& t_out, MediumSample& ms_out, int& steps) {
-  bool scattered = false, dead = false;
-  walk_majorants(g, org, dir, tmax, [&](float t0, float t1, float mu) {
-    if (!(mu > 0.0f)) return true;
-    float t = t0;
-    for (;;) {
-      t += exp_step(rng, mu);
-      if (!(t < t1)) return true;
-      if (++steps > 1 << 16) {  // runaway (a majorant far too small): give up the path
-        dead = true;
-        return false;
-      }
-      const MediumSample ms = eval(t);
-      if (L) *L += beta * ms.emission * (1.0f / mu);
-      const Vec3 sn = Vec3(mu) - ms.sigma_a - ms.sigma_s;
-      const float ps = average(ms.sigma_s), pn = average(vabs(sn));
-      const float q = ps + pn;
-      if (!(q > 0.0f)) {  // no scattering, the majorant exactly absorbed: nothing goes on
-        dead = true;
-        return false;
-      }
-      if (rng.next_float() * q < ps) {
-        beta *= ms.sigma_s * (q / (mu * ps));
-        t_out = t;
-        ms_out = ms;
-        scattered = true;
-        return false;
-      }
-      beta *= sn * (q / (mu * pn));
-      if (is_black(beta)) {
-        dead = true;
-        return false;
-      }
+  bool scattered = false, dead = false, runaway;
+  walk_collisions(g, org, dir, tmax, rng, steps, runaway, [&](float t, float mu) {
+    const MediumSample ms = eval(t);
+    if (L) *L += beta * ms.emission * (1.0f / mu);
+    const Vec3 sn = Vec3(mu) - ms.sigma_a - ms.sigma_s;
+    const float ps = average(ms.sigma_s), pn = average(vabs(sn));
+    const float q = ps + pn;
+    if (!(q > 0.0f)) {  // no scattering, the majorant exactly absorbed: nothing goes on
+      dead = true;
+      return false;
     }
+    if (rng.next_float() * q < ps) {
+      beta *= ms.sigma_s * (q / (mu * ps));
+      t_out = t;
+      ms_out = ms;
+      scattered = true;
+      return false;
+    }
+    beta *= sn * (q / (mu * pn));
+    if (is_black(beta)) {
+      dead = true;
+      return false;
+    }
+    return true;
   });
+  if (runaway) dead = true;  // (a majorant far too small): give up the path
   if (dead) beta = Vec3(0.0f);
   return scattered;
 }
@@ -136,21 +149,13 @@ template <class Eval>
 Vec3 ratio_track(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, Eval&& eval) {
   Vec3 T(1.0f);
   int steps = 0;
-  walk_majorants(g, org, dir, tmax, [&](float t0, float t1, float mu) {
-    if (!(mu > 0.0f)) return true;
-    float t = t0;
-    for (;;) {
-      t += exp_step(rng, mu);
-      if (!(t < t1)) return true;
-      if (++steps > 1 << 16) {
-        T = Vec3(0.0f);
-        return false;
-      }
-      const MediumSample ms = eval(t);
-      T *= (Vec3(mu) - ms.sigma_a - ms.sigma_s) * (1.0f / mu);
-      if (is_black(T)) return false;
-    }
+  bool runaway;
+  walk_collisions(g, org, dir, tmax, rng, steps, runaway, [&](float t, float mu) {
+    const MediumSample ms = eval(t);
+    T *= (Vec3(mu) - ms.sigma_a - ms.sigma_s) * (1.0f / mu);
+    return !is_black(T);
   });
+  if (runaway) T = Vec3(0.0f);
   return T;
 }
 
