@@ -77,7 +77,7 @@ def view_layer_ids(depsgraph):
 
 
 def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, view_layer_ids=(),
-                     depsgraph=None):
+                     depsgraph=None, volume_grids=None):
     """MaterialData for a bpy Material (or None = empty slot). Calls warn(msg) at most once:
     one message naming everything of the material that is approximated or unsupported.
     images/uv_sets: the scene's ImageTable and UvSets (fresh ones if None)."""
@@ -89,7 +89,7 @@ def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, vi
     uv_sets = uv_sets if uv_sets is not None else UvSets()
     base, emission = flat_summary(mat.node_tree)
     try:
-        compiled = compile_material(mat, images, uv_sets, view_layer_ids, depsgraph)
+        compiled = compile_material(mat, images, uv_sets, view_layer_ids, depsgraph, volume_grids)
     except Exception as e:  # a compiler bug must not stop the render
         warn(f"Material '{mat.name}': could not be compiled ({type(e).__name__}: {e}); "
              "using its base colour")
@@ -124,6 +124,40 @@ class MaterialTable:
             self._names[key] = mat.name if mat is not None else ""
             self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
                                                    self.use_schlick, self.view_layer_ids, self.depsgraph))
+        return self._index[key]
+
+    def volume_index(self, mat, grids):
+        """The index of `mat` compiled for a volume object whose grids are `grids` ({name:
+        (core grid id, channels)}): its Volume reads them, its surface lets light through."""
+        key = ("volume", mat.as_pointer(), tuple(sorted(grids.items())))
+        if key not in self._index:
+            self._index[key] = len(self.materials)
+            self._names[key] = mat.name
+            self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
+                                                   self.use_schlick, self.view_layer_ids, self.depsgraph,
+                                                   volume_grids=dict(grids)))
+        return self._index[key]
+
+    def default_volume(self, grids):
+        """The index of Cycles' default volume shader (a volume object without a material):
+        a Principled Volume of its defaults (colour 0.5, density 1 times the "density" grid)."""
+        key = ("default volume", tuple(sorted(grids.items())))
+        if key not in self._index:
+            self._index[key] = len(self.materials)
+            self._names[key] = ""
+            half = (0.5, 0.5, 0.5)
+            surface = [("const", 0, (1.0, 1.0, 1.0, 1.0)), ("closure", "transparent", None, {"color": 0})]
+            if "density" in grids:
+                grid_id, channels = grids["density"]
+                # sigma_s = sigma_a = 0.5 * density (Principled Volume: absorption colour black)
+                volume = [("const", 0, (1.0, 1.0, 1.0, 1.0)), ("const", 1, half + (1.0,)),
+                          ("volume_grid", 2, grid_id, "FAC", "LINEAR"),
+                          ("mix", 3, 0, 1, 2, "MULTIPLY", False), ("const", 4, (0.0, 0.0, 0.0, 1.0)),
+                          ("closure", "volume", None, {"sigma_a": 3, "sigma_s": 3, "g": 4})]
+            else:
+                volume = {"sigma_a": half, "sigma_s": half, "emission": (0.0, 0.0, 0.0), "g": 0.0}
+            self.materials.append(MaterialData("Pathlight Default Volume", BLACK, BLACK, surface,
+                                               None, False, {}, volume))
         return self._index[key]
 
     def material_names(self):
