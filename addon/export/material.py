@@ -77,7 +77,7 @@ def view_layer_ids(depsgraph):
 
 
 def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, view_layer_ids=(),
-                     depsgraph=None, volume_grids=None):
+                     depsgraph=None, volume_grids=None, density_scale=1.0):
     """MaterialData for a bpy Material (or None = empty slot). Calls warn(msg) at most once:
     one message naming everything of the material that is approximated or unsupported.
     images/uv_sets: the scene's ImageTable and UvSets (fresh ones if None)."""
@@ -89,7 +89,8 @@ def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, vi
     uv_sets = uv_sets if uv_sets is not None else UvSets()
     base, emission = flat_summary(mat.node_tree)
     try:
-        compiled = compile_material(mat, images, uv_sets, view_layer_ids, depsgraph, volume_grids)
+        compiled = compile_material(mat, images, uv_sets, view_layer_ids, depsgraph, volume_grids,
+                                    density_scale)
     except Exception as e:  # a compiler bug must not stop the render
         warn(f"Material '{mat.name}': could not be compiled ({type(e).__name__}: {e}); "
              "using its base colour")
@@ -126,26 +127,26 @@ class MaterialTable:
                                                    self.use_schlick, self.view_layer_ids, self.depsgraph))
         return self._index[key]
 
-    def volume_index(self, mat, grids):
+    def volume_index(self, mat, grids, density_scale=1.0):
         """The index of `mat` compiled for a volume object whose grids are `grids` ({name:
         (core grid id, channels)}): its Volume reads them, its surface lets light through."""
-        key = ("volume", mat.as_pointer(), tuple(sorted(grids.items())))
+        key = ("volume", mat.as_pointer(), tuple(sorted(grids.items())), round(density_scale, 6))
         if key not in self._index:
             self._index[key] = len(self.materials)
             self._names[key] = mat.name
             self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
                                                    self.use_schlick, self.view_layer_ids, self.depsgraph,
-                                                   volume_grids=dict(grids)))
+                                                   volume_grids=dict(grids), density_scale=density_scale))
         return self._index[key]
 
-    def default_volume(self, grids):
+    def default_volume(self, grids, density_scale=1.0):
         """The index of Cycles' default volume shader (a volume object without a material):
         a Principled Volume of its defaults (colour 0.5, density 1 times the "density" grid)."""
-        key = ("default volume", tuple(sorted(grids.items())))
+        key = ("default volume", tuple(sorted(grids.items())), round(density_scale, 6))
         if key not in self._index:
             self._index[key] = len(self.materials)
             self._names[key] = ""
-            half = (0.5, 0.5, 0.5)
+            half = (0.5 * density_scale,) * 3
             surface = [("const", 0, (1.0, 1.0, 1.0, 1.0)), ("closure", "transparent", None, {"color": 0})]
             if "density" in grids:
                 grid_id, channels = grids["density"]

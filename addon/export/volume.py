@@ -128,9 +128,10 @@ def collect_volumes(depsgraph, warn, table, grid_list):
         if obj.type != 'VOLUME' or not is_visible(instance):
             continue
         mat = volume_material(obj)
-        key = (obj.data.as_pointer(), mat.as_pointer() if mat else 0)
+        scale = density_scale(obj.data, instance.matrix_world)
+        key = (obj.data.as_pointer(), mat.as_pointer() if mat else 0, round(scale, 6))
         if key not in entries:
-            entries[key] = _volume_entry(obj, mat, warn, table, grid_list)
+            entries[key] = _volume_entry(obj, mat, warn, table, grid_list, scale)
         entry = entries[key]
         if entry is None:
             continue
@@ -151,7 +152,17 @@ def volume_material(obj):
     return None  # Cycles' default volume shader (default_volume_material)
 
 
-def _volume_entry(obj, mat, warn, table, grid_list):
+def density_scale(vol, matrix_world):
+    """Cycles' object_volume_density: with the volume's Space 'OBJECT' (the default), densities
+    are per object-space length: scaled by 1 / |M (1, 1, 1) / sqrt(3)| (M the object's 3x3)."""
+    if getattr(vol.render, "space", 'OBJECT') != 'OBJECT':
+        return 1.0
+    m = np.asarray(matrix_world, np.float64)[:3, :3]
+    n = float(np.linalg.norm(m @ np.full(3, 1.0 / np.sqrt(3.0))))
+    return 1.0 / n if np.isfinite(n) and n > 0.0 else 1.0
+
+
+def _volume_entry(obj, mat, warn, table, grid_list, scale=1.0):
     what = f"Volume '{obj.original.name}'"
     if mat is not None and (not mat.use_nodes or mat.node_tree is None):
         return None  # no volume shader: Cycles renders nothing
@@ -176,7 +187,7 @@ def _volume_entry(obj, mat, warn, table, grid_list):
     if not boxes:
         warn(f"{what}: its grids have no active voxels; not rendered")
         return None
-    index = table.volume_index(mat, grids) if mat is not None else table.default_volume(grids)
+    index = table.volume_index(mat, grids, scale) if mat is not None else table.default_volume(grids, scale)
     if table.materials[index].volume is None:
         return None  # the material has no Volume
     lo = np.min([b[0] for b in boxes], axis=0)

@@ -157,3 +157,23 @@ def test_smoke_cube_principled_volume_agrees_with_cycles():
     assert ours.mean() > 0.01
     np.testing.assert_allclose(ratio, 1.0, atol=0.01)
     assert rel.max() < 0.03
+
+
+@needs_grids
+def test_file_backed_volume_rotated_and_scaled_agrees_with_cycles(tmp_path):
+    """The grid of the smoke cube saved to a .vdb and loaded as a file-backed volume whose object
+    is rotated and scaled unevenly; an Attribute node reads the grid (placement: object and grid
+    transforms both apply, as Cycles)."""
+    scene = lit_scene()
+    src = smoke_cube("Source")
+    path = saved_file(src, tmp_path / "smoke.vdb")
+    bpy.data.objects.remove(src)
+    file_volume("FromFile", path, attribute_volume("ByAttribute"), location=(0.1, 0.2, 0.0),
+                rotation_euler=(0.3, 0.0, 0.7), scale=(1.1, 0.7, 0.9))
+    ours, ref = render_both(scene, 512, "file volume")
+    ratio, rel = compare(ours, ref, "file volume")
+    assert ours.mean() > 0.01
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
+    # Measured 3.2 % at 640 samples, 4.5 % at 256, at the volume's dim top edge (noise of both
+    # engines there); a half-voxel shift or a missing object-space density scale gives 9-10 %.
+    assert rel.max() < 0.04

@@ -40,6 +40,9 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         # attributes then read grids (nodes_input.grid_value) and the surface is a pass-through.
         self.volume_grids = volume_grids
         self.volume_interpolation = 'LINEAR'
+        # Cycles' object_volume_density of a volume object (1 / its scale, Space 'OBJECT'):
+        # multiplies the volume shaders' densities, not their emission.
+        self.volume_density_scale = 1.0
         self.uv_sets = uv_sets
         self.material_index = material_index  # the material's pass index (Object Info)
         # Where the Attribute node's View Layer attributes are looked up, in order (Blender: the
@@ -372,7 +375,8 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         self.uv_used = {}
 
 
-def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, volume_grids=None):
+def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, volume_grids=None,
+                     density_scale=1.0):
     """CompiledShader of a bpy Material with nodes, or None when it has no Cycles output.
     view_layer_ids: the rendered view layer, its scene and world (View Layer attributes);
     depsgraph: the render's, for other objects' transforms (Texture Coordinate's Object)."""
@@ -382,6 +386,7 @@ def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, vo
         return None
     compiler = ShaderCompiler(images, uv_sets, material_index=mat.pass_index,
                               view_layer_ids=view_layer_ids, depsgraph=depsgraph, volume_grids=volume_grids)
+    compiler.volume_density_scale = float(density_scale)
     compiler.volume_interpolation = getattr(getattr(mat, "cycles", None), "volume_interpolation", 'LINEAR')
     return compiler.compile(
         output, mat.name, getattr(mat, "displacement_method", 'BUMP'))

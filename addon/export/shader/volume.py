@@ -143,8 +143,11 @@ class VolumeShaders:
                 return
             self._volume_prog_node(n, nctx, weight, acc, visiting)
 
-        def density():  # Cycles: mix weight * max(density, 0)
-            return self.math("MULTIPLY", self.math("MAXIMUM", inp("Density", "float"), ZERO), w)
+        def density():  # Cycles: mix weight * max(density, 0) * object_volume_density
+            d = self.math("MULTIPLY", self.math("MAXIMUM", inp("Density", "float"), ZERO), w)
+            if self.volume_density_scale != 1.0:
+                d = self.math("MULTIPLY", d, const_float(self.volume_density_scale))
+            return d
 
         def one_minus(c):  # max(1 - c, 0) for c >= 0 (the mix clamps to [0, 1])
             return self.mix("SUBTRACT", ONE, const_color((1, 1, 1, 1)), c, clamp=True)
