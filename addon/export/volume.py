@@ -179,8 +179,12 @@ def _volume_entry(obj, mat, warn, table, grid_list, scale=1.0):
             warn(f"{what}: grid '{name}' is not read ({info.get('skipped') or 'unsupported'}); "
                  "it reads 0")
             continue
-        grids[name] = (len(grid_list), int(g.channels))
-        grid_list.append(g)
+        # One core grid per grid read (volumes sharing a file share its grids).
+        k = next((i for i, x in enumerate(grid_list) if x is g), None)
+        if k is None:
+            k = len(grid_list)
+            grid_list.append(g)
+        grids[name] = (k, int(g.channels))
         box = grid_box(g)
         if box is not None:
             boxes.append(box)

@@ -10,7 +10,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
+from blender_util import BOX_FILTER, Warnings, core_available, load_addon, render_to_array
 from light_scenes import add_light, camera, diffuse_material, empty_scene, plane
 
 load_addon()
@@ -177,3 +177,120 @@ def test_file_backed_volume_rotated_and_scaled_agrees_with_cycles(tmp_path):
     # Measured 3.2 % at 640 samples, 4.5 % at 256, at the volume's dim top edge (noise of both
     # engines there); a half-voxel shift or a missing object-space density scale gives 9-10 %.
     assert rel.max() < 0.04
+
+
+# ---------------------------------------------------------------- export, bad input, cost
+
+def export(warnings):
+    from addon.export import export_scene
+    return export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+
+
+def vdb_file(path, grids):
+    """Writes grids (vdb_writer.Grid) to `path`."""
+    import vdb_writer as vw
+    path.write_bytes(vw.write_vdb(grids))
+    return path
+
+
+def ball_leaf(channels=1):
+    """One 8^3 leaf at the origin: a ball of density 2 (vector grids: (2, 1, 0) per voxel)."""
+    idx = np.indices((8, 8, 8)).transpose(1, 2, 3, 0)
+    inside = np.linalg.norm(idx - 3.5, axis=-1) < 3.5
+    values = np.where(inside, 2.0, 0.0).astype(np.float32)
+    if channels == 3:
+        values = np.stack([values, values * 0.5, values * 0.0], axis=-1)
+    return {(0, 0, 0): (values, inside)}
+
+
+def small_scene():
+    scene = empty_scene(16)
+    add_light('POINT', location=(1.0, -1.0, 3.0), energy=300.0)
+    camera((0.0, -5.0, 1.0), lens=40.0, look_at=(0.0, 0.0, 1.0))
+    return scene
+
+
+@needs_grids
+def test_bad_volume_input_warns_and_renders(tmp_path):
+    """A missing file, a hostile (truncated) file, an empty grid: each object is left out with
+    a warning; a vector grid read as a density renders with its mean, with a warning; the
+    render goes on (no exception, no crash)."""
+    import vdb_writer as vw
+    small_scene()
+    mat = principled_volume("PV")
+    vector = vw.Grid(name="density", value_type="vec3s", background=(0.0, 0.0, 0.0),
+                     transform=("UniformScaleMap", 0.25))
+    good = vdb_file(tmp_path / "vector.vdb", [grid_with(vector, ball_leaf(3))])
+    data = good.read_bytes()
+    (tmp_path / "hostile.vdb").write_bytes(data[: len(data) // 2] + bytes(64))
+    vdb_file(tmp_path / "empty.vdb", [vw.Grid(name="density")])
+    file_volume("Missing", tmp_path / "nowhere.vdb", mat)
+    file_volume("Hostile", tmp_path / "hostile.vdb", mat)
+    file_volume("Empty", tmp_path / "empty.vdb", mat)
+    file_volume("Vector", good, mat, location=(0.0, 0.0, 0.5))
+    warnings = Warnings()
+    data = export(warnings)
+    text = "\n".join(warnings)
+    print(text)
+    names = [m.name for m in data.meshes]
+    assert names == ["Vector"]
+    assert "Volume 'Missing'" in text and "Volume 'Hostile'" in text and "Volume 'Empty'" in text
+    assert "vector grid 'density' is read as a float" in text
+    img = render_to_array(samples=4)
+    assert np.isfinite(img).all()
+    assert img[..., :3].max() > 0.0  # the vector grid's ball is lit
+
+
+def grid_with(grid, leaves):
+    grid.leaves = leaves
+    return grid
+
+
+@needs_grids
+def test_volume_info_and_default_volume_read_grids(tmp_path):
+    """Volume Info's Density reads the grid (as the Attribute node); a volume object without a
+    material gets Cycles' default volume (Principled Volume: colour 0.5, the "density" grid);
+    a grid name the volume lacks reads 0 (the material is then empty: nothing rendered)."""
+    import vdb_writer as vw
+    small_scene()
+    path = vdb_file(tmp_path / "ball.vdb", [grid_with(vw.Grid(name="density"), ball_leaf())])
+    file_volume("Info", path, attribute_volume("Info", node="ShaderNodeVolumeInfo"))
+    vol = bpy.data.volumes.new("NoMaterial")
+    vol.filepath = str(path)
+    bpy.context.scene.collection.objects.link(bpy.data.objects.new("NoMaterial", vol))
+    file_volume("Missing grid", path, attribute_volume("Missing", attribute="smoke"))
+    warnings = Warnings()
+    data = export(warnings)
+    assert not warnings, warnings
+    by_name = {m.name: slots for m, slots in zip(data.meshes, data.material_slots)}
+    assert set(by_name) == {"Info", "NoMaterial"}  # the missing grid's medium is empty
+    info = data.materials[by_name["Info"][0]].volume
+    assert any(op[0] == "volume_grid" for op in info)
+    default = data.materials[by_name["NoMaterial"][0]].volume
+    assert [op for op in default if op[0] == "volume_grid"] == [("volume_grid", 2, 0, "FAC", "LINEAR")]
+    # Object-space box: active voxels 1..6, their trilinear footprint with values at i + 0.5
+    # is [0.5, 7.5], padded half a voxel: index [0, 8], times the voxel size 0.5.
+    box = data.meshes[0].positions
+    np.testing.assert_allclose(box.min(axis=0), 0.0, atol=1e-6)
+    np.testing.assert_allclose(box.max(axis=0), 4.0, atol=1e-6)
+
+
+@needs_grids
+def test_no_volume_objects_cost_nothing():
+    """Without volume objects the export has no grids and no program reads one; a textured mesh
+    volume's program is unchanged (no grid ops), and the core scene holds no grid."""
+    scene = small_scene()
+    from light_scenes import box
+    box("Fog", 1.0, principled_volume("Fog"))
+    warnings = Warnings()
+    data = export(warnings)
+    assert data.volume_grids == []
+    for m in data.materials:
+        for prog in (m.program, m.volume if isinstance(m.volume, list) else []):
+            assert not any(op[0] == "volume_grid" for op in prog or [])
+    # The mesh volume keeps its homogeneous medium (the density attribute applies to volume
+    # objects only, as Cycles finds no "density" on a mesh).
+    assert isinstance(data.materials[data.material_slots[0][0]].volume, dict)
+    from addon import scene_writer
+    core_scene = scene_writer.to_core(load_addon().core.get_core(), data)
+    assert core_scene.volume_grid_count == 0
