@@ -94,12 +94,24 @@ def volume_file_grids(obj, warn):
             pass
 
 
-def grid_box(grid):
+def grid_box(grid, clipping=0.0):
     """Object-space (lo, hi) of a VolumeGrid's active voxels and their trilinear footprint, or
-    None when it has no active voxel."""
+    None when it has no active voxel. clipping: the volume's render.clipping; bricks whose
+    majorant (which bounds their voxels and their neighbours') is at most that are left out
+    of the box, as Cycles leaves voxels below it out of its mesh (ours: to within a brick)."""
     lo, hi = np.array(grid.bbox_min, np.float64), np.array(grid.bbox_max, np.float64)
     if grid.active_voxels == 0 or np.any(lo > hi):
         return None
+    if clipping > 0.0:
+        origin, block, cells = grid.majorant_grid()
+        above = np.argwhere(cells > clipping)  # [z, y, x]
+        if not len(above):
+            return None
+        c_lo, c_hi = above.min(axis=0)[::-1], above.max(axis=0)[::-1]
+        lo = np.maximum(lo, np.asarray(origin, np.float64) + c_lo * block)
+        hi = np.minimum(hi, np.asarray(origin, np.float64) + (c_hi + 1) * block - 1)
+        if np.any(lo > hi):
+            return None
     # Voxel i's value sits at index i + 0.5 in Cycles' lookups (the core's too): the trilinear
     # footprint is [min - 0.5, max + 1.5], and half a voxel more for rounding.
     lo, hi = lo - 1.0, hi + 2.0
@@ -185,11 +197,11 @@ def _volume_entry(obj, mat, warn, table, grid_list, scale=1.0):
             k = len(grid_list)
             grid_list.append(g)
         grids[name] = (k, int(g.channels))
-        box = grid_box(g)
+        box = grid_box(g, max(float(getattr(obj.data.render, "clipping", 0.0)), 0.0))
         if box is not None:
             boxes.append(box)
     if not boxes:
-        warn(f"{what}: its grids have no active voxels; not rendered")
+        warn(f"{what}: its grids have no active voxels (above its Clipping); not rendered")
         return None
     index = table.volume_index(mat, grids, scale) if mat is not None else table.default_volume(grids, scale)
     if table.materials[index].volume is None:

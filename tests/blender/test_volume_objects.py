@@ -294,3 +294,23 @@ def test_no_volume_objects_cost_nothing():
     from addon import scene_writer
     core_scene = scene_writer.to_core(load_addon().core.get_core(), data)
     assert core_scene.volume_grid_count == 0
+
+
+@needs_grids
+def test_box_respects_clipping(tmp_path):
+    """A faint leaf (0.0005 per voxel) far from the ball: below the volume's Clipping (0.001 by
+    default) it is left out of the box, as Cycles leaves it out of its mesh; Clipping 0 keeps it."""
+    import vdb_writer as vw
+    small_scene()
+    grid = grid_with(vw.Grid(name="density"), ball_leaf())
+    grid.leaves[(64, 0, 0)] = (np.full((8, 8, 8), 0.0005, np.float32), np.ones((8, 8, 8), bool))
+    path = vdb_file(tmp_path / "faint.vdb", [grid])
+    ob = file_volume("Faint", path, principled_volume("PV"))
+    assert ob.data.render.clipping == pytest.approx(0.001)
+    box = export(Warnings()).meshes[0].positions
+    # The ball's bricks and their neighbours (majorant cells bound a brick's neighbours too):
+    # index x up to 15 (+ 2 for the footprint), not the faint leaf's 71.
+    assert box.max(axis=0)[0] == pytest.approx((15 + 2) * 0.5)
+    ob.data.render.clipping = 0.0
+    box = export(Warnings()).meshes[0].positions
+    assert box.max(axis=0)[0] == pytest.approx((71 + 2) * 0.5)
