@@ -363,3 +363,35 @@ def test_temperature_grid_blackbody_agrees_with_cycles(tmp_path):
     assert ours.mean() > 0.01
     np.testing.assert_allclose(ratio, 1.0, atol=0.01)
     assert rel.max() < 0.03
+
+
+@needs_grids
+def test_instances_share_one_box(tmp_path):
+    """A volume in a collection instanced twice (and shown itself): one box with three matrices;
+    an instance scaled by 2 gets its own material (Cycles' object-space density: 1 / 2)."""
+    small_scene()
+    path = vdb_file(tmp_path / "ball.vdb", [ball_grid("density", lambda r: np.clip(1.0 - r, 0.0, 1.0))])
+    coll = bpy.data.collections.new("Smoke")
+    bpy.context.scene.collection.children.link(coll)
+    ob = file_volume("Ball", path, principled_volume("PV"))
+    bpy.context.scene.collection.objects.unlink(ob)
+    coll.objects.link(ob)
+    for k, scale in enumerate((1.0, 1.0, 2.0)):
+        inst = bpy.data.objects.new(f"Inst{k}", None)
+        inst.instance_type = 'COLLECTION'
+        inst.instance_collection = coll
+        inst.location = (3.0 * k, 0.0, 0.0)
+        inst.scale = (scale,) * 3
+        bpy.context.scene.collection.objects.link(inst)
+    warnings = Warnings()
+    data = export(warnings)
+    assert not warnings, warnings
+    counts = sorted(len(m.matrices) for m in data.meshes)
+    assert counts == [1, 3]  # scale 1: the object and two instances; scale 2: one
+    assert len(data.volume_grids) == 1
+    (big,) = [s for m, s in zip(data.meshes, data.material_slots) if len(m.matrices) == 1]
+    (small,) = [s for m, s in zip(data.meshes, data.material_slots) if len(m.matrices) == 3]
+
+    def has_half(slots):
+        return any(op[0] == "const" and op[2][0] == pytest.approx(0.5) for op in data.materials[slots[0]].volume)
+    assert has_half(big) and not has_half(small)
