@@ -37,6 +37,7 @@ class SceneData:
     # Volume objects' grids (pathlight_core.VolumeGrid): grid id k is entry k; their boxes are
     # among `meshes` (export.volume).
     volume_grids: list = field(default_factory=list)
+    volume_material_names: frozenset = frozenset()  # materials compiled for volume objects too
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None):
@@ -78,7 +79,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                      world_color(scene.world, warn), camera, lights,
                      world_texture(scene.world, warn), table.images.images,
                      table.material_names(), table.uv_sets, world_volume(scene.world, warn),
-                     curves, curve_materials, volume_grids)
+                     curves, curve_materials, volume_grids, frozenset(table.volume_material_names))
 
 
 # Measured by tests/core/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise

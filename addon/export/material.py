@@ -117,6 +117,7 @@ class MaterialTable:
         self.materials = []  # MaterialData, indexed by the numbers returned by index()
         self._index = {}
         self._names = {}  # key -> bpy material name
+        self.volume_material_names = set()  # materials also compiled for volume objects
 
     def index(self, mat):
         key = mat.as_pointer() if mat is not None else 0
@@ -133,7 +134,10 @@ class MaterialTable:
         key = ("volume", mat.as_pointer(), tuple(sorted(grids.items())), round(density_scale, 6))
         if key not in self._index:
             self._index[key] = len(self.materials)
-            self._names[key] = mat.name
+            # No name: live edits (viewport) replace materials by name with a mesh's compile;
+            # edits of these re-export instead (volume_material_names).
+            self._names[key] = ""
+            self.volume_material_names.add(mat.name)
             self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
                                                    self.use_schlick, self.view_layer_ids, self.depsgraph,
                                                    volume_grids=dict(grids), density_scale=density_scale))

@@ -395,3 +395,6 @@ def test_instances_share_one_box(tmp_path):
     def has_half(slots):
         return any(op[0] == "const" and op[2][0] == pytest.approx(0.5) for op in data.materials[slots[0]].volume)
     assert has_half(big) and not has_half(small)
+    # Live edits replace materials by name: the volume compiles have none, and a viewport
+    # edit of "PV" re-exports (volume_material_names).
+    assert data.material_names[big[0]] == "" and data.volume_material_names == {"PV"}
