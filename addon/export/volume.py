@@ -42,15 +42,21 @@ def read_grids(path, warn, what):
     key = (os.path.abspath(path), st.st_mtime_ns, st.st_size)
     grids = _FILE_CACHE.get(key)
     if grids is None:
-        try:
-            grids = {g["name"]: g for g in _core().read_vdb(path)}
-        except (RuntimeError, ValueError, MemoryError) as e:
-            warn(f"{what}: the volume file '{path}' could not be read ({e}); not rendered")
+        grids = _parse(path, warn, what)
+        if grids is None:
             return None
         if len(_FILE_CACHE) >= _FILE_CACHE_SIZE:
             _FILE_CACHE.pop(next(iter(_FILE_CACHE)))
         _FILE_CACHE[key] = grids
     return grids
+
+
+def _parse(path, warn, what):
+    try:
+        return {g["name"]: g for g in _core().read_vdb(path)}
+    except Exception as e:  # the reader's RuntimeError on a bad file, or anything: never raise
+        warn(f"{what}: the volume file '{path}' could not be read ({e}); not rendered")
+        return None
 
 
 def volume_file_grids(obj, warn):
@@ -79,14 +85,15 @@ def volume_file_grids(obj, warn):
     fd, tmp = tempfile.mkstemp(suffix=".vdb", prefix="pathlight_")
     os.close(fd)
     try:
-        if not grids.save(tmp):
+        try:
+            saved = grids.save(tmp)
+        except Exception:  # (bpy raises on some failures, returns False on others)
+            saved = False
+        if not saved:
             warn(f"{what}: its grids could not be saved for rendering ({grids.error_message}); "
                  "not rendered")
             return None
-        _FILE_CACHE.pop(next((k for k in _FILE_CACHE if k[0] == os.path.abspath(tmp)), None), None)
-        parsed = read_grids(tmp, warn, what)
-        _FILE_CACHE.pop(next((k for k in _FILE_CACHE if k[0] == os.path.abspath(tmp)), None), None)
-        return parsed
+        return _parse(tmp, warn, what)  # (not cached: the evaluated grids change freely)
     finally:
         try:
             os.remove(tmp)
