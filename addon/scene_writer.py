@@ -15,6 +15,9 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
     each of data.materials and data.images (for live edits and reuse)."""
     warn = warn if warn is not None else (lambda msg: None)
     scene = pc.Scene()
+    for k, grid in enumerate(getattr(data, "volume_grids", [])):
+        if scene.add_volume_grid(grid) != k:  # (programs name grids by their index here)
+            raise RuntimeError("volume grid ids out of order")
     ids = add_materials(scene, data.materials, data.images, warn, image_ids)
     if material_ids is not None:
         material_ids.extend(ids)

@@ -112,9 +112,10 @@ class ViewportSession:
         self._map_instances(data)
         self.scene = scene
         self.material_ids = {name: i for name, i in zip(data.material_names, ids) if name}
+        self.volume_materials = data.volume_material_names
         self.uv_sets = data.uv_sets
         self.scene_camera = data.camera or None
-        self.state.materials = frozenset(self.material_ids)
+        self.state.materials = frozenset(self.material_ids) | self.volume_materials
         self.state.camera_name = depsgraph.scene.camera.name if depsgraph.scene.camera else ""
         self._read_scene(depsgraph)
         self.counters["exports"] += 1
@@ -173,8 +174,8 @@ class ViewportSession:
         import bpy
         mat = bpy.data.materials.get(name)
         core_id = self.material_ids.get(name)
-        if mat is None or core_id is None:
-            return False
+        if mat is None or core_id is None or name in getattr(self, "volume_materials", ()):
+            return False  # (a volume object's compile of it reads its grids: re-export)
         uv_sets = UvSets()
         uv_sets.names = list(self.uv_sets.names) if self.uv_sets is not None else []
         images = ImageTable()

@@ -12,6 +12,7 @@ from .light import LightData, collect_lights
 from .material import MaterialData, MaterialTable, view_layer_ids
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .object_attributes import InstanceAttributes
+from .volume import collect_volumes
 from .world import WorldSky, WorldTexture, world_color, world_texture, world_volume
 
 __all__ = ("CurvesData", "ExportCancelled", "ExportError", "LightData", "MaterialData", "MeshData",
@@ -33,6 +34,10 @@ class SceneData:
     world_volume: dict = None  # the world's homogeneous medium (add_shader's volume dict) or None
     curves: list = field(default_factory=list)  # CurvesData (hair)
     curve_materials: list = field(default_factory=list)  # per curves: its index into materials
+    # Volume objects' grids (pathlight_core.VolumeGrid): grid id k is entry k; their boxes are
+    # among `meshes` (export.volume).
+    volume_grids: list = field(default_factory=list)
+    volume_material_names: frozenset = frozenset()  # materials compiled for volume objects too
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None):
@@ -58,6 +63,10 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         if getattr(mesh, "tangent_problem", None):
             warn(f"Mesh '{mesh.name}': {mesh.tangent_problem}")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
+    volume_grids = []
+    volume_meshes, volume_slots = collect_volumes(depsgraph, warn, table, volume_grids)
+    meshes += volume_meshes
+    material_slots += volume_slots
     curves = collect_curves(depsgraph, warn, table.index, attributes)
     curve_materials = [table.index(c.material) for c in curves]
     lights = collect_lights(depsgraph, warn, is_visible)
@@ -70,7 +79,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                      world_color(scene.world, warn), camera, lights,
                      world_texture(scene.world, warn), table.images.images,
                      table.material_names(), table.uv_sets, world_volume(scene.world, warn),
-                     curves, curve_materials)
+                     curves, curve_materials, volume_grids, frozenset(table.volume_material_names))
 
 
 # Measured by tests/core/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise

@@ -77,7 +77,7 @@ def view_layer_ids(depsgraph):
 
 
 def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, view_layer_ids=(),
-                     depsgraph=None):
+                     depsgraph=None, volume_grids=None, density_scale=1.0):
     """MaterialData for a bpy Material (or None = empty slot). Calls warn(msg) at most once:
     one message naming everything of the material that is approximated or unsupported.
     images/uv_sets: the scene's ImageTable and UvSets (fresh ones if None)."""
@@ -89,7 +89,8 @@ def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, vi
     uv_sets = uv_sets if uv_sets is not None else UvSets()
     base, emission = flat_summary(mat.node_tree)
     try:
-        compiled = compile_material(mat, images, uv_sets, view_layer_ids, depsgraph)
+        compiled = compile_material(mat, images, uv_sets, view_layer_ids, depsgraph, volume_grids,
+                                    density_scale)
     except Exception as e:  # a compiler bug must not stop the render
         warn(f"Material '{mat.name}': could not be compiled ({type(e).__name__}: {e}); "
              "using its base colour")
@@ -116,6 +117,7 @@ class MaterialTable:
         self.materials = []  # MaterialData, indexed by the numbers returned by index()
         self._index = {}
         self._names = {}  # key -> bpy material name
+        self.volume_material_names = set()  # materials also compiled for volume objects
 
     def index(self, mat):
         key = mat.as_pointer() if mat is not None else 0
@@ -124,6 +126,43 @@ class MaterialTable:
             self._names[key] = mat.name if mat is not None else ""
             self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
                                                    self.use_schlick, self.view_layer_ids, self.depsgraph))
+        return self._index[key]
+
+    def volume_index(self, mat, grids, density_scale=1.0):
+        """The index of `mat` compiled for a volume object whose grids are `grids` ({name:
+        (core grid id, channels)}): its Volume reads them, its surface lets light through."""
+        key = ("volume", mat.as_pointer(), tuple(sorted(grids.items())), round(density_scale, 6))
+        if key not in self._index:
+            self._index[key] = len(self.materials)
+            # No name: live edits (viewport) replace materials by name with a mesh's compile;
+            # edits of these re-export instead (volume_material_names).
+            self._names[key] = ""
+            self.volume_material_names.add(mat.name)
+            self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
+                                                   self.use_schlick, self.view_layer_ids, self.depsgraph,
+                                                   volume_grids=dict(grids), density_scale=density_scale))
+        return self._index[key]
+
+    def default_volume(self, grids, density_scale=1.0):
+        """The index of Cycles' default volume shader (a volume object without a material):
+        a Principled Volume of its defaults (colour 0.5, density 1 times the "density" grid)."""
+        key = ("default volume", tuple(sorted(grids.items())), round(density_scale, 6))
+        if key not in self._index:
+            self._index[key] = len(self.materials)
+            self._names[key] = ""
+            half = (0.5 * density_scale,) * 3
+            surface = [("const", 0, (1.0, 1.0, 1.0, 1.0)), ("closure", "transparent", None, {"color": 0})]
+            if "density" in grids:
+                grid_id, channels = grids["density"]
+                # sigma_s = sigma_a = 0.5 * density (Principled Volume: absorption colour black)
+                volume = [("const", 0, (1.0, 1.0, 1.0, 1.0)), ("const", 1, half + (1.0,)),
+                          ("volume_grid", 2, grid_id, "FAC", "LINEAR"),
+                          ("mix", 3, 0, 1, 2, "MULTIPLY", False), ("const", 4, (0.0, 0.0, 0.0, 1.0)),
+                          ("closure", "volume", None, {"sigma_a": 3, "sigma_s": 3, "g": 4})]
+            else:
+                volume = {"sigma_a": half, "sigma_s": half, "emission": (0.0, 0.0, 0.0), "g": 0.0}
+            self.materials.append(MaterialData("Pathlight Default Volume", BLACK, BLACK, surface,
+                                               None, False, {}, volume))
         return self._index[key]
 
     def material_names(self):

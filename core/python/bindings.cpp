@@ -2622,6 +2622,17 @@ PYBIND11_MODULE(pathlight_core, m) {
           "The world's Volume (add_shader's volume dict, or None): a homogeneous medium filling the "
           "scene outside objects' media.")
       .def(
+          "add_volume_grid",
+          [](PyScene& self, const std::shared_ptr<VolumeGrid>& grid) {
+            self.check_editable();
+            if (!grid) throw std::invalid_argument("add_volume_grid: no grid");
+            return self.scene->add_volume_grid(grid);
+          },
+          py::arg("grid"),
+          "Adds a VolumeGrid (read_vdb's) that volume programs read by the returned id "
+          "(op \"volume_grid\"); a program naming an id not added reads 0.")
+      .def_property_readonly("volume_grid_count", [](PyScene& self) { return self.scene->volume_grid_count(); })
+      .def(
           "set_majorant_scale",
           [](PyScene& self, float scale) {
             self.check_editable();

@@ -24,6 +24,7 @@
 #include "scene/light.h"
 #include "scene/light_tree.h"
 #include "scene/medium_grid.h"
+#include "scene/volume_grid.h"
 
 namespace pl {
 
@@ -443,6 +444,17 @@ class Scene {
     return nullptr;
   }
   const std::vector<HeteroMedium>& hetero_media() const { return hetero_; }
+  // Voxel grids of volume objects (read_vdb's), shared with Python; programs read them by id
+  // (OpCode::VolumeGrid). Returns the grid's id.
+  uint32_t add_volume_grid(std::shared_ptr<const VolumeGrid> grid) {
+    grids_.push_back(std::move(grid));
+    committed_ = false;
+    return uint32_t(grids_.size() - 1);
+  }
+  size_t volume_grid_count() const { return grids_.size(); }
+  const VolumeGrid* volume_grid(int id) const {
+    return id >= 0 && size_t(id) < grids_.size() ? grids_[size_t(id)].get() : nullptr;
+  }
   // The medium's coefficients at world point p for a ray along dir (unit).
   MediumSample medium_at(const HeteroMedium& h, Vec3 p, Vec3 dir) const;
   // Scales every majorant built at the next commit (tests: below 1 the majorants are too
@@ -678,6 +690,7 @@ class Scene {
   std::vector<uint32_t> local_index_;
   std::vector<Bvh> local_bvhs_;
   std::vector<HeteroMedium> hetero_;  // made at commit (build_media)
+  std::vector<std::shared_ptr<const VolumeGrid>> grids_;  // add_volume_grid
   float majorant_scale_ = 1.0f;
   size_t local_built_for_ = SIZE_MAX;  // stats_.geometry_builds they were made for
   void build_local_bvhs(int threads);

@@ -19,6 +19,58 @@ MediumSample Scene::medium_at(const HeteroMedium& h, Vec3 p, Vec3 dir) const {
   return eval_volume(*h.program, images_, ctx);
 }
 
+// Cycles samples a grid with voxel i's value at index i + 0.5 (its NanoVDB and dense lookups:
+// floor(x) for closest, x - 0.5 for linear), half a voxel above OpenVDB's convention; so does
+// the render (docs/design/volumes.md "Volume objects"). Blender's Volume Cube writes its field
+// half a voxel low, and this puts it back where its node tree evaluated it.
+constexpr double kCyclesVoxelShift = 0.5;
+
+Float4 read_volume_grid(const ShadingContext& ctx, int id, Interp interp) {
+  const VolumeGrid* g = ctx.scene ? ctx.scene->volume_grid(id) : nullptr;
+  if (!g) return Float4{};  // Cycles: a grid found nowhere reads 0
+  const bool obj = ctx.object && ctx.object->valid;
+  if (ctx.grid_bound) {
+    // The box's 8 corners into index space; their bounding box, grown by the rounding of the
+    // transforms, bounds every sample taken inside.
+    double lo[3] = {1e300, 1e300, 1e300}, hi[3] = {-1e300, -1e300, -1e300};
+    const std::array<double, 16>& m = g->object_to_index();
+    for (int c = 0; c < 8; ++c) {
+      Vec3 w{(c & 1) ? ctx.grid_bound[1].x : ctx.grid_bound[0].x, (c & 2) ? ctx.grid_bound[1].y : ctx.grid_bound[0].y,
+             (c & 4) ? ctx.grid_bound[1].z : ctx.grid_bound[0].z};
+      const Vec3 o = obj ? ctx.object->to_object.point(w) : w;
+      for (int a = 0; a < 3; ++a) {
+        const double v = m[size_t(a * 4)] * o.x + m[size_t(a * 4 + 1)] * o.y + m[size_t(a * 4 + 2)] * o.z + m[size_t(a * 4 + 3)];
+        lo[a] = std::min(lo[a], v);
+        hi[a] = std::max(hi[a], v);
+      }
+    }
+    for (int a = 0; a < 3; ++a) {
+      const double pad = 1e-3 + 1e-6 * std::max(std::fabs(lo[a]), std::fabs(hi[a]));
+      lo[a] -= pad + kCyclesVoxelShift;
+      hi[a] += pad - kCyclesVoxelShift;
+    }
+    const float v = g->max_in_index_box(lo, hi);
+    return {v, v, v, 1.0f};
+  }
+  const Vec3 o = obj ? ctx.object->to_object.point(ctx.p) : ctx.p;
+  const std::array<double, 16>& m = g->object_to_index();
+  double ijk[3];
+  for (int a = 0; a < 3; ++a)
+    ijk[a] = m[size_t(a * 4)] * o.x + m[size_t(a * 4 + 1)] * o.y + m[size_t(a * 4 + 2)] * o.z + m[size_t(a * 4 + 3)] -
+             kCyclesVoxelShift;
+  float v[3] = {0.0f, 0.0f, 0.0f};
+  g->sample_index(ijk, interp == Interp::Closest ? VolumeSampling::Closest : VolumeSampling::Trilinear, v);
+  return g->channels() == 1 ? Float4{v[0], v[0], v[0], 1.0f} : Float4{v[0], v[1], v[2], 1.0f};
+}
+
+namespace {
+bool reads_grids(const ShaderProgram& p) {
+  for (const ShaderOp& op : p.ops)
+    if (op.code == OpCode::VolumeGrid) return true;
+  return false;
+}
+}  // namespace
+
 void Scene::build_media() {
   hetero_.clear();
   bool any = false;
@@ -55,6 +107,10 @@ void Scene::build_media() {
       h.material = id;
       h.instance = i;
       h.grid.bounds = b;
+      // Voxel grids: each cell also evaluates the program once with every grid read replaced
+      // by the grid's own majorant over the cell (exact bounds for programs that grow with the
+      // grid values: a density multiplied in, Map Range up; docs/design/volumes.md).
+      const bool grids = reads_grids(*h.program);
       std::vector<float> lat(size_t(L) * L * L);
       std::vector<uint8_t> emit(size_t(L) * L * L);
       const Vec3 step = b.extent() * (1.0f / float(L - 1));
@@ -80,7 +136,23 @@ void Scene::build_media() {
                   mu = std::max(mu, lat[k]);
                   e = e || emit[k];
                 }
-            mu = std::max(mu * kSafety, e ? emit_mu : floor_mu) * majorant_scale_;
+            mu *= kSafety;
+            if (grids) {
+              const Vec3 box[2] = {b.lo + Vec3{cell.x * float(cx), cell.y * float(cy), cell.z * float(cz)},
+                                   b.lo + Vec3{cell.x * float(cx + 1), cell.y * float(cy + 1), cell.z * float(cz + 1)}};
+              ShadingContext ctx;
+              ctx.p = (box[0] + box[1]) * 0.5f;
+              ctx.ng = ctx.ns = Vec3(0.0f);
+              ctx.wo = Vec3{0.0f, 0.0f, -1.0f};
+              ctx.object = i < object_coords_.size() ? &object_coords_[i] : nullptr;
+              ctx.scene = this;
+              ctx.instance = i;
+              ctx.grid_bound = box;
+              const MediumSample ms = eval_volume(*h.program, images_, ctx);
+              mu = std::max(mu, max_component(ms.sigma_a + ms.sigma_s) * 1.001f);
+              e = e || !is_black(ms.emission);
+            }
+            mu = std::max(mu, e ? emit_mu : floor_mu) * majorant_scale_;
             h.grid.cells[size_t((cz * N + cy) * N + cx)] = std::isfinite(mu) ? mu : 0.0f;
           }
       hetero_.push_back(std::move(h));

@@ -266,6 +266,16 @@ template <bool kSetsNormal>
         }
         break;
       }
+      case OpCode::VolumeGrid: {
+        const Float4 a = read_volume_grid(ctx, op.index, op.ext == 1 ? Interp::Closest : Interp::Linear);
+        if (op.sub == 0) {
+          d = a;
+        } else {
+          const float v = op.sub == 1 ? (a.x + a.y + a.z) * (1.0f / 3.0f) : a.w;
+          d = {v, v, v, 1.0f};
+        }
+        break;
+      }
       case OpCode::ObjectNormal: {
         Vec3 n = ctx.ns;
         if (ctx.object && ctx.object->valid) {

@@ -61,6 +61,9 @@ enum class OpCode : uint8_t {
   ObjectAttribute,  // the Attribute node's Object / Instancer types: a per-instance slot (index)
   Hair,  // the Hair BSDF node (sub 0 reflection, 1 transmission): scene/hair_bsdf.h HairBsdf
   SetNormal,  // the material's displacement as bump: replaces the shading normal for the ops after it
+  // A voxel grid of the scene read at the point (volume objects: docs/design/volumes.md):
+  // index the scene's grid id, sub the output (as Attribute), ext the interpolation (Interp).
+  VolumeGrid,
   // A volume program's output (its last op): in[0] sigma_a, in[1] sigma_s, in[2] emission (RGB
   // per unit length), in[3] the Henyey-Greenstein anisotropy (.x); eval_volume reads them.
   VolumeOut,
@@ -289,12 +292,20 @@ struct ShadingContext {
   Vec3 p_error{0.0f};
   const CurveShading* curve = nullptr;  // hits on curves (nullptr: not a strand)
   float time = 0.5f;  // the ray's shutter time (motion blur): AO rays trace at it
+  // Majorant building: where set, VolumeGrid ops read the grid's largest value (over its
+  // channels) in this world box instead of a sample at p.
+  const Vec3* grid_bound = nullptr;  // {lo, hi}
 };
 
 // The Ambient Occlusion node's fraction of `samples` rays over the hemisphere about n (cosine
 // distributed, as Cycles) that travel `distance` without a hit (only_local: ignoring other
 // objects). Implemented by the scene (scene.cpp).
 float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance, int samples, bool only_local);
+
+// Scene voxel grid `grid` at the context's point in its instance's object space (RGBA: a float
+// grid reads (v, v, v, 1), a vector grid (x, y, z, 1); a missing grid 0), or with
+// ctx.grid_bound its maximum over that box. Implemented by the scene (scene_media.cpp).
+Float4 read_volume_grid(const ShadingContext& ctx, int grid, Interp interp);
 
 // The Bevel node's normal: Cycles' svm_bevel, the smooth normals of the instance's surface
 // within `radius` of the point, found by `samples` short rays (mesh orientation, as ctx.ns).

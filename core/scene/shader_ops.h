@@ -291,6 +291,10 @@ inline constexpr OpParam kWireframe[] = {flag(F::Ext, "use pixel size"), bump_of
 inline constexpr OpParam kObjectAttribute[] = {
     int_in(F::Index, "object attribute slot", 0, int32_t(kMaxObjectAttributes) - 1),
     choice(F::Sub, "attribute output", kAttributeOutputs)};
+// A scene voxel grid: its id (Scene::add_volume_grid), the output, the interpolation.
+inline constexpr OpParam kVolumeGrid[] = {int_in(F::Index, "volume grid id", 0, (1 << 30)),
+                                          choice(F::Sub, "attribute output", kAttributeOutputs),
+                                          choice(F::Ext, "interpolation", kInterpOpNames)};
 }  // namespace schema
 
 // Every value op: its name, OpCode, registers, parameters and program flags. Adding a value op
@@ -358,6 +362,7 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"wireframe", OpCode::Wireframe, 1, schema::kWireframe, kVarying},  // size
     {"object_attribute", OpCode::ObjectAttribute, 0, schema::kObjectAttribute, kVarying},  // per instance
     {"set_normal", OpCode::SetNormal, 1, {}, kVarying | kSetsNormal},  // the new shading normal
+    {"volume_grid", OpCode::VolumeGrid, 0, schema::kVolumeGrid, kVarying},  // volume objects' grids
 };
 
 // The OpCodes that closure ops (or their companions) produce; every other OpCode is a value op's.

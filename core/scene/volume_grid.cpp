@@ -297,4 +297,25 @@ float VolumeGrid::majorant(const double p[3]) const {
   return majorant_at_index(ijk);
 }
 
+float VolumeGrid::max_in_index_box(const double lo[3], const double hi[3]) const {
+  if (majorant_.empty()) return background_max_;
+  int64_t c0[3], c1[3];
+  bool beyond = false;  // the box reaches past the majorant cells: the background there too
+  for (int a = 0; a < 3; ++a) {
+    if (!(lo[a] <= hi[a]) || !(std::fabs(lo[a]) < 2.0e9) || !(std::fabs(hi[a]) < 2.0e9)) return max_value_;
+    c0[a] = floor_div(int64_t(std::floor(lo[a])) - maj_origin_[a], kMajorantBlock);
+    c1[a] = floor_div(int64_t(std::floor(hi[a])) - maj_origin_[a], kMajorantBlock);
+    beyond = beyond || c0[a] < 0 || c1[a] >= maj_dims_[a];
+    c0[a] = std::max<int64_t>(c0[a], 0);
+    c1[a] = std::min<int64_t>(c1[a], maj_dims_[a] - 1);
+    if (c0[a] > c1[a]) return background_max_;
+  }
+  float m = beyond ? background_max_ : -std::numeric_limits<float>::infinity();
+  for (int64_t z = c0[2]; z <= c1[2]; ++z)
+    for (int64_t y = c0[1]; y <= c1[1]; ++y)
+      for (int64_t x = c0[0]; x <= c1[0]; ++x)
+        m = std::max(m, majorant_[size_t((z * maj_dims_[1] + y) * maj_dims_[0] + x)]);
+  return m;
+}
+
 }  // namespace pl

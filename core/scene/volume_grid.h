@@ -88,6 +88,9 @@ class VolumeGrid {
   const std::vector<float>& majorant_cells() const { return majorant_; }         // x fastest
   float majorant_at_index(const double ijk[3]) const;
   float majorant(const double p[3]) const;  // object space
+  // The largest value any sample (closest or trilinear, any channel) can take at an index-space
+  // point in the box [lo, hi] (the majorant cells it overlaps; the background beyond them).
+  float max_in_index_box(const double lo[3], const double hi[3]) const;
   float max_value() const { return max_value_; }
 
  private:

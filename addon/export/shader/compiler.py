@@ -33,8 +33,16 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
                      ClosureNodes, VolumeShaders):
     """Compiles one material's node tree. Use `compile_material`."""
 
-    def __init__(self, images, uv_sets, material_index=0, view_layer_ids=(), depsgraph=None):
+    def __init__(self, images, uv_sets, material_index=0, view_layer_ids=(), depsgraph=None,
+                 volume_grids=None):
         self.images = images
+        # A volume object's grids, {name: (core grid id, channels)}, or None (any other object):
+        # attributes then read grids (nodes_input.grid_value) and the surface is a pass-through.
+        self.volume_grids = volume_grids
+        self.volume_interpolation = 'LINEAR'
+        # Cycles' object_volume_density of a volume object (1 / its scale, Space 'OBJECT'):
+        # multiplies the volume shaders' densities, not their emission.
+        self.volume_density_scale = 1.0
         self.uv_sets = uv_sets
         self.material_index = material_index  # the material's pass index (Object Info)
         # Where the Attribute node's View Layer attributes are looked up, in order (Blender: the
@@ -314,6 +322,20 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
     def compile(self, output, name, displacement_method='BUMP'):
         """CompiledShader for a material output node (displacement_method: the material's)."""
         volume = None
+        if self.volume_grids is not None:  # a volume object: its Volume only
+            try:
+                volume = self.volume(output.inputs["Volume"], name)
+            except _Cycle as e:
+                self.problem(f"node cycle through '{e}' in the volume (ignored)")
+            self._reset()
+            self.closure("transparent", None, color=const_color((1.0, 1.0, 1.0)))
+            program = allocate_registers(eliminate_dead_code(self.ops))
+            medium = volume if isinstance(volume, (dict, list)) else None
+            if isinstance(volume, tuple):  # a lone constant Volume Absorption: as a medium
+                (c, d) = volume
+                medium = {"sigma_a": tuple(max(1.0 - min(float(x), 1.0), 0.0) * max(float(d), 0.0) for x in c),
+                          "sigma_s": (0.0, 0.0, 0.0), "emission": (0.0, 0.0, 0.0), "g": 0.0}
+            return CompiledShader(program, None, medium, dict(self.uv_used), list(self.problems))
         disp = output.inputs.get("Displacement")
         if disp is not None and self.link_into(disp) is not None:
             try:
@@ -353,7 +375,8 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         self.uv_used = {}
 
 
-def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None):
+def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, volume_grids=None,
+                     density_scale=1.0):
     """CompiledShader of a bpy Material with nodes, or None when it has no Cycles output.
     view_layer_ids: the rendered view layer, its scene and world (View Layer attributes);
     depsgraph: the render's, for other objects' transforms (Texture Coordinate's Object)."""
@@ -361,6 +384,9 @@ def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None):
     output = tree.get_output_node('CYCLES')
     if output is None:
         return None
-    return ShaderCompiler(images, uv_sets, material_index=mat.pass_index,
-                          view_layer_ids=view_layer_ids, depsgraph=depsgraph).compile(
+    compiler = ShaderCompiler(images, uv_sets, material_index=mat.pass_index,
+                              view_layer_ids=view_layer_ids, depsgraph=depsgraph, volume_grids=volume_grids)
+    compiler.volume_density_scale = float(density_scale)
+    compiler.volume_interpolation = getattr(getattr(mat, "cycles", None), "volume_interpolation", 'LINEAR')
+    return compiler.compile(
         output, mat.name, getattr(mat, "displacement_method", 'BUMP'))

@@ -108,8 +108,42 @@ class InputNodes:
         if not node.attribute_name:
             return ZERO if out.identifier in ("Fac", "Alpha") else const_color((0, 0, 0, 1))
         output = {"Fac": "FAC", "Alpha": "ALPHA"}.get(out.identifier, "COLOR")
+        if self.volume_grids is not None:  # a volume object: the grid of that name, else 0
+            v = self.grid_value(node.attribute_name, output, node)
+            if v is None:
+                return ZERO if output != "COLOR" else const_color((0, 0, 0, 0))
+            return Val("vector", reg=v.reg) if out.identifier == "Vector" else v
         v = self.attribute_value("attr", node.attribute_name, output, f"'{node.name}'")
         return Val("vector", reg=v.reg) if out.identifier == "Vector" else v
+
+    def grid_value(self, name, output, node):
+        """Val of a volume object's grid `name` ("COLOR", "FAC" or "ALPHA" as the Attribute
+        node's outputs), or None where this is no volume object or it has no such grid."""
+        if self.volume_grids is None or not name or name not in self.volume_grids:
+            return None
+        grid_id, channels = self.volume_grids[name]
+        if output == "FAC" and channels == 3:
+            self.problem(f"'{node.name}': the vector grid '{name}' is read as a float (the mean of "
+                         "its components, as Cycles)")
+        interp = 'CLOSEST' if self.volume_interpolation == 'CLOSEST' else 'LINEAR'
+        if self.volume_interpolation == 'CUBIC':
+            self.problem("Volume Interpolation Cubic is not supported (linear)")
+        key = ("volume_grid", grid_id, output, interp)
+        if key not in self.cache:
+            self.cache[key] = self.emit("float" if output != "COLOR" else "color", "volume_grid",
+                                        grid_id, output, interp)
+        return self.cache[key]
+
+    def volume_info(self, node, out, ctx):
+        """Volume Info: a volume object's grids color, density, flame, temperature (0 where
+        missing, and on other objects, as Cycles)."""
+        name = {"Color": "color", "Density": "density", "Flame": "flame",
+                "Temperature": "temperature"}.get(out.identifier)
+        output = "COLOR" if name == "color" else "FAC"
+        v = self.grid_value(name, output, node)
+        if v is None:
+            return const_color((0, 0, 0, 1)) if output == "COLOR" else ZERO
+        return v
 
     def object_attribute(self, node, out):
         """Val of an Object / Instancer attribute: its per-instance slot read by the core (a
@@ -301,7 +335,7 @@ VALUE_NODES = {
     'FRESNEL': InputNodes.fresnel_node, 'LAYER_WEIGHT': InputNodes.layer_weight,
     'LIGHT_PATH': InputNodes.light_path, 'OBJECT_INFO': InputNodes.object_info,
     'HAIR_INFO': InputNodes.curves_info, 'VERTEX_COLOR': InputNodes.color_attribute,
-    'ATTRIBUTE': InputNodes.attribute_node, 'TANGENT': InputNodes.tangent_node,
+    'ATTRIBUTE': InputNodes.attribute_node, 'VOLUME_INFO': InputNodes.volume_info, 'TANGENT': InputNodes.tangent_node,
     'AMBIENT_OCCLUSION': InputNodes.ambient_occlusion, 'BEVEL': InputNodes.bevel,
     'WIREFRAME': InputNodes.wireframe,
 }

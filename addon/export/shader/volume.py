@@ -10,6 +10,12 @@ from .registers import MAX_REGISTERS, allocate_registers, eliminate_dead_code
 from .values import ONE, ZERO, const_color, const_float
 
 
+def _attr_name(node, socket):
+    """Principled Volume's grid name inputs (string sockets in 4.5: "Density Attribute", ...)."""
+    s = node.inputs.get(socket)
+    return str(getattr(s, "default_value", "") or "") if s is not None else ""
+
+
 class _Varying(Exception):
     """A volume input is not constant: the medium needs a program."""
 
@@ -30,6 +36,8 @@ class VolumeShaders:
         if src is None or src[0] == "default":
             return None
         _, node, out, ctx = src
+        if self.volume_grids is not None:  # a volume object's grids vary: always a program
+            return self.volume_program(socket, name)
         n_problems = len(self.problems)
         try:
             if node.type == 'VOLUME_ABSORPTION':
@@ -135,8 +143,11 @@ class VolumeShaders:
                 return
             self._volume_prog_node(n, nctx, weight, acc, visiting)
 
-        def density():  # Cycles: mix weight * max(density, 0)
-            return self.math("MULTIPLY", self.math("MAXIMUM", inp("Density", "float"), ZERO), w)
+        def density():  # Cycles: mix weight * max(density, 0) * object_volume_density
+            d = self.math("MULTIPLY", self.math("MAXIMUM", inp("Density", "float"), ZERO), w)
+            if self.volume_density_scale != 1.0:
+                d = self.math("MULTIPLY", d, const_float(self.volume_density_scale))
+            return d
 
         def one_minus(c):  # max(1 - c, 0) for c >= 0 (the mix clamps to [0, 1])
             return self.mix("SUBTRACT", ONE, const_color((1, 1, 1, 1)), c, clamp=True)
@@ -166,6 +177,14 @@ class VolumeShaders:
             # colour of T (neither emission scaled by the density).
             c = inp("Color", "color")
             d = density()
+            # A volume object's grids named by the node (Cycles: a name it lacks leaves the
+            # input as it is; a vector grid read as a float is its components' mean).
+            g = self.grid_value(_attr_name(node, "Density Attribute"), "FAC", node)
+            if g is not None:
+                d = self.math("MAXIMUM", self.math("MULTIPLY", d, g), ZERO)
+            g = self.grid_value(_attr_name(node, "Color Attribute"), "COLOR", node)
+            if g is not None:
+                c = self.mix("MULTIPLY", ONE, c, g)
             ss = self._times(c, d)
             self._acc_add(acc, "sigma_s", ss)
             acc["scatter"].append((ss, inp("Anisotropy", "float")))
@@ -182,7 +201,11 @@ class VolumeShaders:
                 self._acc_add(acc, "emission", em)
             b = inp("Blackbody Intensity", "float")
             if not (b.is_const and b.const[0] <= 1e-5):
-                temp = self.math("MAXIMUM", inp("Temperature", "float"), ZERO)
+                temp = inp("Temperature", "float")
+                g = self.grid_value(_attr_name(node, "Temperature Attribute"), "FAC", node)
+                if g is not None:
+                    temp = self.math("MULTIPLY", temp, g)
+                temp = self.math("MAXIMUM", temp, ZERO)
                 t2 = self.math("MULTIPLY", temp, temp)
                 t4 = self.math("MULTIPLY", t2, t2)
                 # sigma * (1 - b + b T^4)

@@ -1,0 +1,96 @@
+"""Voxel grids in volume programs (volume objects, issue 23; docs/design/volumes.md "Volume
+objects"): the "volume_grid" op reads a scene grid at the point in the instance's object space
+with voxel i's value at index i + 0.5 (Cycles' lookups), a missing grid reads 0, and the
+majorant grid built from the voxel grid's own majorants bounds the extinction everywhere, also
+at a single bright voxel between the lattice points that the sampled majorants would miss."""
+import numpy as np
+import pytest
+
+import vdb_writer as vw
+from core_scenes import add_object, core
+from test_core_hetero_volumes import cube
+
+pc = core()
+pytestmark = pytest.mark.sanitize
+
+VOXEL = 0.125
+SCALE = 3.0  # the program's density multiplier
+
+
+def random_grid(seed=1, spike=True):
+    """16^3 voxels (2x2x2 leaves) of values in [0, 1], one voxel 40; voxel size VOXEL."""
+    rng = np.random.default_rng(seed)
+    g = vw.Grid(name="density", codec="blosc", transform=("UniformScaleMap", VOXEL))
+    for o in [(x, y, z) for x in (0, 8) for y in (0, 8) for z in (0, 8)]:
+        vals = rng.random((8, 8, 8)).astype(np.float32)
+        if spike and o == (8, 0, 8):
+            vals[3, 5, 2] = 40.0
+        g.leaves[o] = (vals, np.ones((8, 8, 8), bool))
+    (info,) = pc.read_vdb_bytes(vw.write_vdb([g]))
+    return info["grid"]
+
+
+def grid_program(grid_id, scale=SCALE):
+    return [("volume_grid", 0, grid_id, "FAC", "LINEAR"), ("const", 1, (scale,)),
+            ("math", 2, 0, 1, "MULTIPLY", False), ("const", 3, (0.0,)),
+            ("closure", "volume", None, {"sigma_s": 2, "sigma_a": 3})]
+
+
+def grid_scene(grid, program_grid=0, box=1.1):
+    s = pc.Scene()
+    gid = s.add_volume_grid(grid)
+    assert gid == 0 and s.volume_grid_count == 1
+    m = s.add_shader("vol", [("const", 0, (1.0, 1.0, 1.0)), ("closure", "transparent", None, {"color": 0})],
+                     volume=grid_program(program_grid))
+    pos, tris = cube(1.0)
+    matrix = np.eye(4, dtype=np.float32)
+    matrix[:3, 3] = (0.5, -0.25, 2.0)  # object [0, 2]^3 (the grid) from a box around it
+    pos = pos * box + 1.0
+    add_object(s, pos.astype(np.float32), tris, m, matrix=matrix)
+    s.commit()
+    return s, m, matrix
+
+
+def test_grid_read_at_cycles_voxel_placement():
+    grid = random_grid(spike=False)
+    s, m, matrix = grid_scene(grid)
+    rng = np.random.default_rng(5)
+    obj = rng.uniform(0.05, 1.95, (200, 3)).astype(np.float32)
+    # Cycles: voxel i's value at index i + 0.5, i.e. OpenVDB's trilinear sample half a voxel down.
+    expect = grid.sample_index(obj / VOXEL - 0.5, "linear") * SCALE
+    for p, e in zip(obj, expect):
+        d = s.medium_at(0, m, tuple(p + matrix[:3, 3]))
+        assert d["sigma_s"][0] == pytest.approx(e, rel=1e-4, abs=1e-5)
+    # Outside the grid: the background (0).
+    d = s.medium_at(0, m, tuple(np.array([2.15, 1.0, 1.0]) + matrix[:3, 3]))
+    assert d["sigma_s"][0] == 0.0
+
+
+def test_missing_grid_reads_zero():
+    s, m, matrix = grid_scene(random_grid(spike=False), program_grid=7)
+    d = s.medium_at(0, m, tuple(np.array([1.0, 1.0, 1.0]) + matrix[:3, 3]))
+    assert d["sigma_s"] == (0.0, 0.0, 0.0)
+
+
+def test_majorants_bound_the_grid_including_a_single_voxel():
+    grid = random_grid()
+    # A box far larger than the grid: majorant cells of 2.75 (22 voxels), lattice points 7.3
+    # voxels apart, so the spike's 2-voxel footprint falls between them.
+    s, m, matrix = grid_scene(grid, box=22.0)
+    maj, lo, hi = s.medium_majorants(0, m)
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    n = maj.shape[0]
+    # Dense points (every 1/4 voxel) and the spike's neighbourhood: each point's extinction
+    # is within its majorant cell's value.
+    axis = np.arange(0.0, 2.0, VOXEL / 4) + VOXEL / 8
+    obj = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    sigma = grid.sample_index(obj / VOXEL - 0.5, "linear") * SCALE
+    world = obj + matrix[:3, 3]
+    cell = np.clip(((world - lo) / (hi - lo) * n).astype(int), 0, n - 1)
+    bound = maj[cell[:, 2], cell[:, 1], cell[:, 0]]
+    assert sigma.max() > 20.0 * SCALE  # the spike is among the points
+    assert np.all(sigma <= bound * (1.0 + 1e-5))
+    # The lattice alone (4 points per cell and axis, 16 voxels per cell) would miss the spike:
+    # its cell's bound must come from the grid's majorants, above the spike's own value.
+    k = np.argmax(sigma)
+    assert bound[k] >= 40.0 * SCALE * (1.0 - 1e-5)
