@@ -76,22 +76,27 @@ def curves_arrays(curves, warn, name):
 
 
 def curve_normals(curves):
-    """Blender's evaluated curve normals, (N, 3) float32, or None. foreach_get on this computed
-    collection returns garbage for some entries (seen: the first) in bpy 4.5, so entries that
-    are not unit vectors are read one by one (a few)."""
+    """Blender's evaluated curve normals, (N, 3) float32, or None. bpy 4.5 returns garbage for
+    some entries of this computed collection (seen: the first, by foreach_get and by item
+    alike): an entry that is no unit vector takes its neighbour's along the array (normals
+    vary smoothly along a strand), else zero (the core then uses Cycles' fallback axis)."""
     n = len(curves.points)
     if n == 0 or len(curves.normals) != n:
         return None
     normals = np.zeros(n * 3, np.float32)
     curves.normals.foreach_get("vector", normals)
-    normals = normals.reshape(-1, 3)
+    normals = normals.reshape(-1, 3).astype(np.float64)
     with np.errstate(all="ignore"):
-        bad = np.flatnonzero(~(np.abs(np.linalg.norm(normals, axis=1) - 1.0) < 1e-3))
-    if len(bad) > 1000:
+        good = np.abs(np.linalg.norm(normals, axis=1) - 1.0) < 1e-3
+    if not good.any():
         return None
-    for i in bad.tolist():
-        normals[i] = curves.normals[i].vector
-    return normals
+    normals[~good] = 0.0
+    for i in np.flatnonzero(~good).tolist()[:10000]:
+        for j in (i + 1, i - 1):
+            if 0 <= j < n and good[j]:
+                normals[i] = normals[j]
+                break
+    return normals.astype(np.float32)
 
 
 def uses_huang_hair(material, _seen=None):
