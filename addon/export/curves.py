@@ -28,6 +28,9 @@ class CurvesData:
     # Per instance: float32 (K, 4) Object / Instancer attribute values of the first K slots
     # of the scene's (export.object_attributes), or None.
     object_attributes: list = field(default_factory=list)
+    # (N, 3) float32: Blender's curve normals, read only for materials with Huang hair (the
+    # major axis of its elliptical fibres, as Cycles reads it); else None.
+    normals: object = None
 
 
 def _attribute(curves, name, domain, data_type):
@@ -70,6 +73,47 @@ def curves_arrays(curves, warn, name):
         return None
     _warn_bad_strands(points, offsets, radii, warn, name)
     return points, offsets, radii, kind
+
+
+def curve_normals(curves):
+    """Blender's evaluated curve normals, (N, 3) float32, or None. bpy 4.5 returns garbage for
+    some entries of this computed collection (seen: the first, by foreach_get and by item
+    alike): an entry that is no unit vector takes its neighbour's along the array (normals
+    vary smoothly along a strand), else zero (the core then uses Cycles' fallback axis)."""
+    n = len(curves.points)
+    if n == 0 or len(curves.normals) != n:
+        return None
+    normals = np.zeros(n * 3, np.float32)
+    curves.normals.foreach_get("vector", normals)
+    normals = normals.reshape(-1, 3).astype(np.float64)
+    with np.errstate(all="ignore"):
+        good = np.abs(np.linalg.norm(normals, axis=1) - 1.0) < 1e-3
+    if not good.any():
+        return None
+    normals[~good] = 0.0
+    for i in np.flatnonzero(~good).tolist()[:10000]:
+        for j in (i + 1, i - 1):
+            if 0 <= j < n and good[j]:
+                normals[i] = normals[j]
+                break
+    return normals.astype(np.float32)
+
+
+def uses_huang_hair(material, _seen=None):
+    """Whether a material's node tree (or a group in it) has a Principled Hair BSDF in Huang's
+    model (only then are the curve normals exported)."""
+    tree = getattr(material, "node_tree", None) if material is not None else None
+    seen = _seen if _seen is not None else set()
+    if tree is None or tree.as_pointer() in seen:
+        return False
+    seen.add(tree.as_pointer())
+    for node in tree.nodes:
+        if node.type == 'BSDF_HAIR_PRINCIPLED' and node.model == 'HUANG':
+            return True
+        if node.type == 'GROUP' and node.node_tree is not None:
+            if uses_huang_hair(node, seen):
+                return True
+    return False
 
 
 def _warn_bad_strands(points, offsets, radii, warn, name):
@@ -120,6 +164,8 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None)
                 out[key] = None
                 continue
             entry = out[key] = CurvesData(obj.original.name, *arrays, material)
+            if uses_huang_hair(material):
+                entry.normals = curve_normals(obj.data)
             if material_index is not None:
                 material_index(material)
         if entry is not None:

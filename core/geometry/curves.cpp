@@ -161,6 +161,7 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
   const int sub = in.type == CurveType::CatmullRom ? std::max(1, std::min(in.subdivisions, 64)) : 1;
   std::vector<Vec3> p;
   std::vector<float> r, v;
+  std::vector<Vec3> nrm;
   for (size_t c = 0; c < in.n_curves; ++c) {
     const size_t b = size_t(in.offsets[c]), e = size_t(in.offsets[c + 1]), n = e - b;
     bool ok = n >= 2 && std::isfinite(rscale) && rscale > 0.0f;
@@ -168,9 +169,11 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
     p.resize(n);
     r.resize(n);
     v.resize(n);
+    nrm.assign(n, Vec3(0.0f));
     for (size_t i = 0; i < n && ok; ++i) {
       p[i] = to_world.point(in.points[b + i]);
       r[i] = in.radii ? in.radii[b + i] * rscale : 0.005f * rscale;
+      if (in.normals) nrm[i] = to_world.vector(in.normals[b + i]);  // (bad ones: no normal, not a bad strand)
       ok = is_finite(p[i]) && std::isfinite(r[i]) && max_component(vabs(p[i])) < 1e30f;
       r[i] = std::max(r[i], 0.0f);
       rmax = std::max(rmax, r[i]);
@@ -219,6 +222,11 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
           pc.curve = id;
           pc.v0 = prev_v;
           pc.v1 = vq;
+          if (in.normals) {  // linear between the segment's keys (Cycles' curve_attribute_float3)
+            const float t0 = float(j - 1) / float(sub);
+            pc.n0 = encode_unit(nrm[k] + (nrm[k + 1] - nrm[k]) * t0);
+            pc.n1 = encode_unit(nrm[k] + (nrm[k + 1] - nrm[k]) * t);
+          }
           push(pc);
         } else {
           last = SIZE_MAX;  // a gap of zero radius: the next piece starts a new run

@@ -29,7 +29,37 @@ struct CurvePiece {
   bool root = false;  // the strand's first piece: capped at p0
   uint32_t curve = 0;     // the strand (in the CurveSet's numbering)
   float v0 = 0.0f, v1 = 0.0f;  // intercept (0 at the root, 1 at the tip) at p0 and p1
+  // The curve's normal attribute at p0 and p1 (octahedral, 16 bits a component; kNoCurveNormal:
+  // none): the major axis of Huang's elliptical hair, as Cycles reads it.
+  uint32_t n0 = 0xFFFFFFFFu, n1 = 0xFFFFFFFFu;
 };
+
+constexpr uint32_t kNoCurveNormal = 0xFFFFFFFFu;
+
+// Unit vectors in 32 bits (octahedral map), to keep pieces small.
+inline uint32_t encode_unit(Vec3 n) {
+  const float l1 = std::fabs(n.x) + std::fabs(n.y) + std::fabs(n.z);
+  if (!(l1 > 0.0f) || !std::isfinite(l1)) return kNoCurveNormal;
+  float u = n.x / l1, v = n.y / l1;
+  if (n.z < 0.0f) {
+    const float pu = (1.0f - std::fabs(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+    const float pv = (1.0f - std::fabs(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+    u = pu;
+    v = pv;
+  }
+  auto q = [](float x) { return uint32_t(std::lround((std::min(std::max(x, -1.0f), 1.0f) * 0.5f + 0.5f) * 65534.0f)); };
+  return q(u) | (q(v) << 16);
+}
+inline Vec3 decode_unit(uint32_t e) {
+  const float u = float(e & 0xFFFFu) / 65534.0f * 2.0f - 1.0f, v = float(e >> 16) / 65534.0f * 2.0f - 1.0f;
+  Vec3 n{u, v, 1.0f - std::fabs(u) - std::fabs(v)};
+  if (n.z < 0.0f) {
+    const float x = (1.0f - std::fabs(v)) * (u >= 0.0f ? 1.0f : -1.0f), y = (1.0f - std::fabs(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+    n.x = x;
+    n.y = y;
+  }
+  return normalize(n);
+}
 
 // Catmull-Rom (uniform, Cycles' and Blender's default curve type) through p[i] with clamped end
 // keys: the segment from key k to k + 1 uses keys k - 1 .. k + 2, indices clamped to the strand.
@@ -49,6 +79,7 @@ inline float catmull_rom(float a, float b, float c, float d, float t) {
 struct CurveInput {
   const Vec3* points = nullptr;
   const float* radii = nullptr;
+  const Vec3* normals = nullptr;  // optional, per point (Blender's curve normals)
   size_t n_points = 0;
   const int32_t* offsets = nullptr;  // curves + 1 entries
   size_t n_curves = 0;

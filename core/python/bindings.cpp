@@ -267,7 +267,8 @@ std::vector<Float4> to_object_attributes(const py::object& attributes, const cha
 // commit (stats()["skipped_curves"]); inconsistent shapes or offsets raise ValueError.
 uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& offsets, const py::object& radii_obj,
                     uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions,
-                    const py::object& color, float pass_index, uint32_t random_id, const py::object& attributes) {
+                    const py::object& color, float pass_index, uint32_t random_id, const py::object& attributes,
+                    const py::object& normals_obj) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -290,6 +291,13 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
     const FloatArray radii = radii_obj.cast<FloatArray>();
     if (radii.ndim() != 1 || size_t(radii.shape(0)) != n) throw std::invalid_argument("curve radii must have shape (N,)");
     cs.radii.assign(radii.data(), radii.data() + n);
+  }
+  if (!normals_obj.is_none()) {
+    const FloatArray nr = normals_obj.cast<FloatArray>();
+    if (nr.ndim() != 2 || size_t(nr.shape(0)) != n || nr.shape(1) != 3)
+      throw std::invalid_argument("curve normals must have shape (N, 3)");
+    const Vec3* np_ = reinterpret_cast<const Vec3*>(nr.data());
+    cs.normals.assign(np_, np_ + n);
   }
   if (!matrix.is_none()) cs.matrix = to_mat4(matrix.cast<FloatArray>(), "curves matrix");
   cs.material = material < self.scene->material_count() ? material : 0;
@@ -638,13 +646,23 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
         o.code = OpCode::Translucent;
         o.in[1] = p("color"); o.in[2] = p("normal");
       } else if (kind == "principled_hair_absorption" || kind == "principled_hair_melanin" ||
-                 kind == "principled_hair_color") {
+                 kind == "principled_hair_color" || kind == "principled_hair_huang_absorption" ||
+                 kind == "principled_hair_huang_melanin" || kind == "principled_hair_huang_color") {
+        const bool huang = kind.rfind("principled_hair_huang_", 0) == 0;
+        const std::string mode = kind.substr(huang ? 22 : 16);
         o.code = OpCode::PrincipledHair;
+        o.ext = huang ? 1 : 0;
         o.in[1] = p("color"); o.in[2] = p("melanin"); o.in[3] = p("melanin_redness"); o.in[4] = p("tint");
-        o.in[5] = p("absorption"); o.in[6] = p("roughness"); o.in[7] = p("radial_roughness"); o.in[8] = p("coat");
+        o.in[5] = p("absorption"); o.in[6] = p("roughness");
+        o.in[7] = huang ? p("trt") : p("radial_roughness");
+        o.in[8] = huang ? p("aspect_ratio") : p("coat");
         o.in[9] = p("ior"); o.in[10] = p("offset"); o.in[11] = p("random_color"); o.in[12] = p("random_roughness");
         o.in[13] = p("random");
-        o.sub = kind == "principled_hair_absorption" ? 0 : kind == "principled_hair_melanin" ? 1 : 2;
+        if (huang) {
+          o.in[14] = p("r");
+          o.in[15] = p("tt");
+        }
+        o.sub = mode == "absorption" ? 0 : mode == "melanin" ? 1 : 2;
       } else if (kind == "hair_reflection" || kind == "hair_transmission") {
         o.code = OpCode::Hair;
         o.in[1] = p("color"); o.in[2] = p("offset"); o.in[3] = p("roughness_u"); o.in[4] = p("roughness_v");
@@ -1290,6 +1308,16 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
                                                  f("roughness", 0.3f), f("radial_roughness", 0.3f), f("coat", 0.0f),
                                                  f("offset", 0.0349066f), f("ior", 1.55f));
     h.h = f("h", 0.0f);
+    return h;
+  }
+  if (kind == "hair_huang") {  // Cycles' local frame: x across the view (major axis), y along the fibre
+    HairHuangBsdf h = HairHuangBsdf::from_node(p.contains("sigma") ? to_color(p["sigma"], "sigma") : Vec3(0.0f),
+                                               f("roughness", 0.3f), f("offset", 0.0349066f), f("ior", 1.55f),
+                                               f("aspect_ratio", 1.0f), f("r", 1.0f), f("tt", 1.0f), f("trt", 1.0f));
+    if (h.b > 1.0f) h.b = 1.0f / h.b;
+    h.h = f("h", 0.0f);
+    h.pixel_coverage = f("pixel_coverage", 1.0f);
+    h.seed = uint32_t(f("seed", 0.0f));
     return h;
   }
   if (kind == "hair_reflection" || kind == "hair_transmission") {  // T in the local frame
@@ -2242,12 +2270,13 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
-           py::arg("random_id") = 0u, py::arg("attributes") = py::none(),
+           py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("normals") = py::none(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
            "color, pass_index, random_id: the object's (Object Info), as add_instance. attributes: its "
-           "Object / Instancer attribute values, (K, 4) by slot with K <= 8, as add_instance.")
+           "Object / Instancer attribute values, (K, 4) by slot with K <= 8, as add_instance. normals: "
+           "Blender's curve normals (N, 3) or None (the major axis of Huang's elliptical hair).")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),

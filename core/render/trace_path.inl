@@ -9,13 +9,15 @@
 // let light through a surface or reflect it from behind. kDiffuseOnly (diffuse-only kernels):
 // every closure is a DiffuseBsdf, whose eval is called directly rather than through the
 // variant's dispatch (the same arithmetic, so the same result).
+// `skip`: a closure left out (one whose sample carries its own value, Huang's hair).
 template <bool kDiffuseOnly = false>
-[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf) {
+[[gnu::always_inline]] inline Vec3 eval_mixture(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, float& pdf,
+                                                const Closure* skip = nullptr) {
   Vec3 f(0.0f);
   pdf = 0.0f;
   for (int i = 0; i < cl.n; ++i) {
     const Closure& c = cl.c[size_t(i)];
-    if (!kDiffuseOnly && c.delta) continue;
+    if (!kDiffuseOnly && (c.delta || &c == skip)) continue;
     const Vec3 lo = c.frame.to_local(wo), li = c.frame.to_local(wi);
     float p;
     Vec3 v;
@@ -34,7 +36,7 @@ template <bool kDiffuseOnly = false>
       // BSDF tests its normal's side itself; rough diffuse reflects from its own side, as plain
       // diffuse (the view may be below its normal at a smooth silhouette).
       if (same_side(lo, li) != reflection && !std::holds_alternative<HairChiangBsdf>(c.bsdf) &&
-          !std::holds_alternative<HairBsdf>(c.bsdf) && !(reflection && std::holds_alternative<OrenNayarBsdf>(c.bsdf)))
+          !std::holds_alternative<HairHuangBsdf>(c.bsdf) && !std::holds_alternative<HairBsdf>(c.bsdf) && !(reflection && std::holds_alternative<OrenNayarBsdf>(c.bsdf)))
         continue;
       v = bsdf_eval(c.bsdf, lo, li, p);
     }
@@ -773,7 +775,14 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     } else {
       float pdf;
-      Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf);
+      // Cycles' Huang hair returns its sample's value with pdf 1 (its eval could not tell the
+      // density): that value stands for the chosen closure, the others are evaluated.
+      const bool huang = kNonDiffuse && !from_guide && std::holds_alternative<HairHuangBsdf>(ch.bsdf);
+      Vec3 f = eval_mixture<!kNonDiffuse>(cl, wo, wi, reflection, pdf, huang ? &ch : nullptr);
+      if (huang) {
+        f += ch.weight * bs.weight * bs.pdf;
+        pdf += ch.pick * bs.pdf;
+      }
       if constexpr (kNonDiffuse)
         if (const HairBsdf* hb = std::get_if<HairBsdf>(&ch.bsdf)) {
           // Cycles' Hair BSDF carries its sample's value along the direction it drew itself

@@ -390,6 +390,7 @@ struct TransparentBsdf {
 
 }  // namespace pl
 #include "scene/hair_bsdf.h"  // needs BsdfSample and the lobe flags above
+#include "scene/hair_huang.h"  // (the same, and hair_bsdf.h's longitudinal term)
 namespace pl {
 
 // A BSSRDF closure (Cycles' Bssrdf): no BSDF of its own. A path that picks it enters the mesh
@@ -419,7 +420,7 @@ struct SubsurfaceBsdf {
 namespace pl {
 
 using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf,
-                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf, HairBsdf>;
+                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf, HairBsdf, HairHuangBsdf>;
 
 // The Principled BSDF's GGX lobes first, outside the visit: its dispatch over all the kinds
 // would otherwise cost the default material a little on every evaluation.

@@ -79,8 +79,11 @@ struct HeteroMedium {
 
 struct SurfacePoint;
 // Sets the frame and offset of the hair closures in `out` from the hit (tangent, normal) and
-// the view direction wo.
-void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo);
+// the view direction wo; pixel_coverage: half the pixel's footprint over the strand's radius
+// for camera rays on curves, else 1 (Huang's near field).
+// curve_normal: the curve's normal attribute at the hit (zero: none; Huang's major axis).
+void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_coverage = 1.0f,
+                 Vec3 curve_normal = Vec3(0.0f));
 
 // Builds the program of a Diffuse BSDF plus Emission with constant colours.
 Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emission);
@@ -89,6 +92,7 @@ Material make_simple_material(const std::string& name, Vec3 base_color, Vec3 emi
 struct CurveSetData {
   std::vector<Vec3> points;
   std::vector<float> radii;      // per point
+  std::vector<Vec3> normals;     // per point, or none (Blender's curve normals: Huang's major axis)
   std::vector<int32_t> offsets;  // strands + 1: strand c has points [offsets[c], offsets[c + 1])
   CurveType type = CurveType::CatmullRom;
   int subdivisions = 8;          // linear pieces per Catmull-Rom segment
@@ -429,6 +433,8 @@ class Scene {
   // and emission. wo points towards the viewer.
   // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
   void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray = {}) const;
+  float hair_pixel_coverage(const SurfacePoint& sp, float b1, const RayState& ray) const;
+  Vec3 hair_curve_normal(const SurfacePoint& sp, float b1) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
   // blocked; Transparent surfaces let part of it through).
   // Inline: without Transparent BSDFs (most scenes) a shadow ray is one any-hit query.

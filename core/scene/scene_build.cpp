@@ -386,6 +386,7 @@ void Scene::build_curves() {
     CurveInput in;
     in.points = cs.points.data();
     in.radii = cs.radii.empty() ? nullptr : cs.radii.data();
+    in.normals = cs.normals.empty() ? nullptr : cs.normals.data();
     in.n_points = cs.points.size();
     in.offsets = cs.offsets.data();
     in.n_curves = cs.offsets.empty() ? 0 : cs.offsets.size() - 1;

@@ -94,7 +94,8 @@ void Scene::detect_features() {
         else if (std::holds_alternative<TranslucentBsdf>(b)) f.diffuse = f.transmission = true;
         else if (std::holds_alternative<ConductorBsdf>(b)) f.glossy = true;
         else if (std::holds_alternative<TransparentBsdf>(b)) f.transparent = true;
-        else if (std::holds_alternative<HairChiangBsdf>(b) || std::holds_alternative<HairBsdf>(b))
+        else if (std::holds_alternative<HairChiangBsdf>(b) || std::holds_alternative<HairBsdf>(b) ||
+                 std::holds_alternative<HairHuangBsdf>(b))
           f.glossy = f.transmission = true;
         else if (std::holds_alternative<SubsurfaceBsdf>(b)) f.subsurface = true;
         // Rough diffuse and sheen: diffuse bounces, but not the diffuse-only kernel's lobe.
@@ -111,7 +112,8 @@ void Scene::detect_features() {
       f.textures = f.textures || op.code == OpCode::ImageTex;
       f.normal_maps = f.normal_maps || op.code == OpCode::NormalMap || op.code == OpCode::Bump;
       f.footprints = f.footprints || (op.code == OpCode::Bump && m.program.bump_filter_width > 0.0f) ||
-                     (op.code == OpCode::Wireframe && op.ext != 0);
+                     (op.code == OpCode::Wireframe && op.ext != 0) ||
+                     (op.code == OpCode::PrincipledHair && op.ext != 0);  // Huang's near field
       f.path_state = f.path_state || op.code == OpCode::LightPath || op.code == OpCode::AmbientOcclusion ||
                      op.code == OpCode::Bevel;
       if (m.constant) continue;
@@ -123,7 +125,10 @@ void Scene::detect_features() {
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
         case OpCode::Transparent: f.transparent = true; break;
         case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
-        case OpCode::PrincipledHair: case OpCode::Hair: f.glossy = f.transmission = true; break;
+        case OpCode::PrincipledHair: case OpCode::Hair:
+          f.glossy = f.transmission = true;
+          f.transparent = f.transparent || (op.code == OpCode::PrincipledHair && op.ext != 0);  // Huang's off-ellipse hits
+          break;
         default: break;
       }
     }

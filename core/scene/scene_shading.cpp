@@ -10,6 +10,29 @@
 namespace pl {
 
 
+// Cycles' pixel_coverage of the Huang hair closure: half the camera ray's footprint over the
+// strand's radius at the hit (only camera rays on curves; 1 otherwise: the far field).
+float Scene::hair_pixel_coverage(const SurfacePoint& sp, float b1, const RayState& ray) const {
+  // (No footprint, as where the integrator carries no differentials: the far field.)
+  if (!sp.curve() || !(ray.flags & kRayCamera) || !(ray.footprint() > 0.0f)) return 1.0f;
+  const CurvePiece& pc = curve_bvh_.piece(sp.tri);
+  const float u = clampf(b1, 0.0f, 1.0f);
+  const float radius = pc.r0 + (pc.r1 - pc.r0) * u;
+  const float c = radius > 0.0f ? 0.5f * ray.footprint() / radius : 1.0f;
+  return std::isfinite(c) ? c : 1.0f;
+}
+
+// The curve's normal attribute at a hit (linear along the piece, as Cycles interpolates it
+// between keys); zero off curves or where the strands have none.
+Vec3 Scene::hair_curve_normal(const SurfacePoint& sp, float b1) const {
+  if (!sp.curve()) return Vec3(0.0f);
+  const CurvePiece& pc = curve_bvh_.piece(sp.tri);
+  if (pc.n0 == kNoCurveNormal || pc.n1 == kNoCurveNormal) return Vec3(0.0f);
+  const float u = clampf(b1, 0.0f, 1.0f);
+  const Vec3 a = decode_unit(pc.n0), b = decode_unit(pc.n1);
+  return a + (b - a) * u;
+}
+
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
@@ -28,7 +51,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       // Glossy lobes: the normal lifted as eval_shader does (Cycles' valid specular reflection).
       c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
     }
-    if (mat.has_hair) orient_hair(out, sp, wo);
+    if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
     return;
   }
   ShadingContext ctx;
@@ -58,7 +81,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &curve_coords_[curve_set_of(pc.curve)];
     eval_shader(mat.program, images_, ctx, out);
-    if (mat.has_hair) orient_hair(out, sp, wo);
+    if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
     return;
   }
   const InstanceData& in = inst_[sp.instance];
@@ -180,7 +203,70 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   if (mat.has_hair) orient_hair(out, sp, wo);
 }
 
-void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo) {
+namespace {
+
+// Cycles' make_orthonormals: a fixed basis across n (Huang's frame where no major axis is known).
+void cycles_orthonormals(Vec3 n, Vec3& a, Vec3& b) {
+  a = (n.x != n.y || n.x != n.z) ? Vec3{n.z - n.y, n.x - n.z, n.y - n.x} : Vec3{n.z - n.y, n.x + n.z, -n.y - n.x};
+  a = normalize(a);
+  b = cross(n, a);
+}
+
+uint32_t mix_bits(uint32_t h, float v) {
+  uint32_t x;
+  std::memcpy(&x, &v, 4);
+  h ^= x + 0x9E3779B9u + (h << 6) + (h >> 2);
+  h *= 0x85EBCA6Bu;
+  return h ^ (h >> 13);
+}
+
+// Cycles' bsdf_hair_huang_setup: y along the fibre; x across the view (circular) or the major
+// axis (elliptical: the curve's normal made perpendicular to the fibre; without one, Cycles'
+// fixed basis of the tangent), z = x cross y; h = -dot(across the view, N). Hits beyond the
+// projected radius of an elliptical fibre become transparent, as in Cycles.
+void orient_huang(Closure& c, HairHuangBsdf hb, const SurfacePoint& sp, Vec3 tangent, Vec3 wo, float coverage,
+                  Vec3 curve_normal, bool& changed) {
+  const Vec3 y = tangent;
+  Vec3 x = cross(y, wo);
+  const float lx = length(x);
+  x = lx > 1e-7f ? x / lx : Vec3(0.0f);
+  hb.h = clampf(-dot(x, sp.ng), -1.0f, 1.0f);
+  if (hb.b != 1.0f && sp.curve()) {
+    auto safe_normalize = [](Vec3 v) {
+      const float l = length(v);
+      return l > 0.0f && std::isfinite(l) ? v / l : Vec3(0.0f);
+    };
+    x = safe_normalize(cross(y, safe_normalize(cross(curve_normal, y))));
+    if (hb.b > 1.0f) {  // the normal names the minor axis: swap
+      hb.b = 1.0f / hb.b;
+      const Vec3 minor = safe_normalize(cross(y, x));
+      x = safe_normalize(cross(minor, y));
+    }
+  }
+  Vec3 z;
+  if (!(length_sq(x) > 0.0f)) {
+    cycles_orthonormals(y, z, x);
+  } else {
+    z = normalize(cross(x, y));
+  }
+  hb.pixel_coverage = coverage;
+  const uint32_t seed = mix_bits(mix_bits(mix_bits(0x2545F491u, sp.p.x), sp.p.y), sp.p.z);
+  hb.seed = mix_bits(mix_bits(seed, wo.x), wo.y);
+  c.frame.t = x;
+  c.frame.b = y;
+  c.frame.n = z;
+  if (std::fabs(hb.h) >= hb.projected_radius(c.frame.to_local(wo))) {
+    c.bsdf = TransparentBsdf{};
+    c.delta = true;
+    changed = true;
+    return;
+  }
+  c.bsdf = hb;
+}
+
+}  // namespace
+
+void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_coverage, Vec3 curve_normal) {
   // Cycles' bsdf_hair_chiang_setup: x along the fibre, y = x cross the view, z = x cross y;
   // h the sine of the angle between the normal and z seen along x. On a mesh (no tangent) an
   // arbitrary tangent of the shading normal stands in for the fibre.
@@ -199,6 +285,7 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo) {
   }
   const Vec3 z = cross(x, y);
   const float h = clampf(dot(cross(sp.ng, x), z), -1.0f, 1.0f);
+  bool changed = false;
   for (int i = 0; i < out.n; ++i) {
     Closure& c = out.c[size_t(i)];
     if (auto* hb = std::get_if<HairChiangBsdf>(&c.bsdf)) {
@@ -206,7 +293,13 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo) {
       c.frame.t = x;
       c.frame.b = y;
       c.frame.n = z;
+    } else if (auto* hh = std::get_if<HairHuangBsdf>(&c.bsdf)) {
+      orient_huang(c, *hh, sp, x, wo, pixel_coverage, curve_normal, changed);
     }
+  }
+  if (changed) {
+    out.has_nondelta = false;
+    for (int i = 0; i < out.n; ++i) out.has_nondelta = out.has_nondelta || !out.c[size_t(i)].delta;
   }
 }
 

@@ -188,7 +188,8 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       // roughness. Its frame and offset h are set by the scene from the hit (orient_hair).
       const float random = val(op.in[13], 0.5f);
       const float fr = 1.0f + 2.0f * (random - 0.5f) * val(op.in[12], 0.0f);
-      const float rough = val(op.in[6], 0.3f) * fr, radial = val(op.in[7], 0.3f) * fr;
+      const float rough = val(op.in[6], 0.3f) * fr;
+      const float radial = op.ext != 0 ? rough : val(op.in[7], 0.3f) * fr;  // Huang: Roughness
       Vec3 sigma;
       if (op.sub == 0) {
         sigma = vmax(clean_color(col(op.in[5])), Vec3(0.0f));
@@ -203,6 +204,17 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       }
       if (!is_finite(sigma)) sigma = Vec3(0.0f);
       const float ior = val(op.in[9], 1.55f);
+      if (op.ext != 0) {
+        // Huang (CLOSURE_BSDF_HAIR_HUANG_ID): Coat's slot holds Aspect Ratio, Radial Roughness'
+        // the TRT weight (the colour fit above used Roughness for it, as Cycles); no closure
+        // when every lobe weight is <= 0. Its frame, h and near field: orient_hair.
+        const float wr = val(op.in[14], 1.0f), wtt = val(op.in[15], 1.0f), wtrt = val(op.in[7], 1.0f);
+        if (!(wr > 0.0f) && !(wtt > 0.0f) && !(wtrt > 0.0f)) break;
+        out.add(HairHuangBsdf::from_node(sigma, rough, val(op.in[10], 0.0349066f), ior, val(op.in[8], 0.85f), wr, wtt,
+                                         wtrt),
+                clean_color(col(op.in[0])), Frame::from_normal(ctx.ns));
+        break;
+      }
       HairChiangBsdf h = HairChiangBsdf::from_node(sigma, rough, radial, val(op.in[8], 0.0f), val(op.in[10], 0.0349066f),
                                                    std::isfinite(ior) && ior > 0.0f ? ior : 1.55f);
       out.add(h, clean_color(col(op.in[0])), Frame::from_normal(ctx.ns));

@@ -586,13 +586,19 @@ def test_thin_film_compiles_without_a_warning():
 
 
 @pytest.mark.parametrize("parametrization", ["COLOR", "MELANIN", "ABSORPTION"])
-def test_huang_hair_falls_back_to_chiang_with_one_warning(parametrization):
-    # Huang's node hides Radial Roughness and Coat, which bpy then cannot find by name: the
-    # compiler once raised KeyError here. Chiang's lobe with those inputs' defaults stands in.
+def test_huang_hair_compiles_its_own_inputs(parametrization):
+    # Huang's node hides Radial Roughness and Coat (bpy then cannot find them by name: the
+    # compiler once raised KeyError here); it compiles to the core's Huang closure with Aspect
+    # Ratio and the three lobe weights, without a warning (it used to fall back to Chiang's).
     mat, node = ms.bsdf_material("H", "ShaderNodeBsdfHairPrincipled")
     node.model = 'HUANG'
     node.parametrization = parametrization
+    ms.set_inputs(node, Aspect_Ratio=0.7, Reflection=0.5, Transmission=0.25, Secondary_Reflection=2.0)
     (closure,), warnings, _ = closures_of(mat)
-    assert closure[0].startswith("principled_hair_")
-    assert closure[2]["radial_roughness"][0] == approx(0.3) and closure[2]["coat"][0] == approx(0.0)
-    assert len(warnings) == 1 and "Huang" in warnings[0]
+    mode = {"COLOR": "color", "MELANIN": "melanin", "ABSORPTION": "absorption"}[parametrization]
+    assert closure[0] == "principled_hair_huang_" + mode
+    params = closure[2]
+    assert "radial_roughness" not in params and "coat" not in params
+    assert params["aspect_ratio"][0] == approx(0.7) and params["r"][0] == approx(0.5)
+    assert params["tt"][0] == approx(0.25) and params["trt"][0] == approx(2.0)
+    assert not warnings

@@ -179,21 +179,24 @@ class ClosureNodes:
     # -------------------------------------------------- hair
 
     def principled_hair(self, node, inp, weight):
-        """The Principled Hair BSDF as Cycles' Chiang model (core: HairChiangBsdf); Huang's
-        model falls back to it with a warning."""
-        if node.model != 'CHIANG':
-            self.problem(f"'{node.name}': the Huang hair model is not supported (rendered with "
-                         "Chiang's)")
-        # Huang's node hides Chiang's own inputs (bpy then cannot find them by name): their
+        """The Principled Hair BSDF: Cycles' Chiang model (core: HairChiangBsdf) or Huang's
+        (HairHuangBsdf: Aspect Ratio and the lobe weights instead of Radial Roughness and
+        Coat)."""
+        huang = node.model == 'HUANG'
+        # Each model hides the other's own inputs (bpy then cannot find them by name): their
         # Blender defaults stand in.
-        hidden = {"Radial Roughness": 0.3, "Coat": 0.0}
-        chiang = lambda name: (inp(name, "float") if node.inputs.get(name) is not None  # noqa: E731
-                               else const_float(hidden[name]))
+        hidden = {"Radial Roughness": 0.3, "Coat": 0.0, "Aspect Ratio": 0.85, "Reflection": 1.0,
+                  "Transmission": 1.0, "Secondary Reflection": 1.0}
+        own = lambda name: (inp(name, "float") if node.inputs.get(name) is not None  # noqa: E731
+                            else const_float(hidden[name]))
         mode = {'ABSORPTION': "absorption", 'MELANIN': "melanin"}.get(node.parametrization, "color")
-        params = dict(roughness=inp("Roughness", "float"),
-                      radial_roughness=chiang("Radial Roughness"), coat=chiang("Coat"),
-                      ior=inp("IOR", "float"), offset=inp("Offset", "float"),
-                      random_roughness=inp("Random Roughness", "float"))
+        params = dict(roughness=inp("Roughness", "float"), ior=inp("IOR", "float"),
+                      offset=inp("Offset", "float"), random_roughness=inp("Random Roughness", "float"))
+        if huang:
+            params.update(aspect_ratio=own("Aspect Ratio"), r=own("Reflection"), tt=own("Transmission"),
+                          trt=own("Secondary Reflection"))
+        else:
+            params.update(radial_roughness=own("Radial Roughness"), coat=own("Coat"))
         if mode == "absorption":
             params["absorption"] = inp("Absorption Coefficient", "vector")
         elif mode == "melanin":
@@ -207,7 +210,7 @@ class ClosureNodes:
                  for v in (params.get("random_roughness"), params.get("random_color"))):
             # Unlinked: Cycles reads the strand's own random number (Curves Info's Random).
             params["random"] = self.emit("float", "curves_info", "RANDOM")
-        self.closure("principled_hair_" + mode, weight, **params)
+        self.closure(("principled_hair_huang_" if huang else "principled_hair_") + mode, weight, **params)
 
     # -------------------------------------------------- Principled BSDF
 
