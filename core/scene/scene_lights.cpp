@@ -1,6 +1,9 @@
 // The scene's lights: the light distribution and tree built at commit over analytic lights,
 // emitter groups and the environment, and direct light sampling and its pdfs.
 #include "scene/scene.h"
+
+#include <optional>
+
 #include "scene/scene_detail.h"
 
 namespace pl {
@@ -415,18 +418,20 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
   const Blas& blas = blases_[in.blas];
   const uint32_t lmat = material_of(meshes_[in.mesh], blas.src_tri[em.tri], materials_.size());
   const bool shaded = !materials_[lmat].constant;
-  SurfacePoint lp;
+  std::optional<SurfacePoint> lp;  // (a whole hit only for a shaded emission)
+  Vec3 q, q_error;
   if (shaded) {
     Hit h;
     h.prim = em.tri;
     h.inst = em.instance;
     h.b1 = b1;
     h.b2 = b2;
-    surface_point(h, lp);
+    surface_point(h, lp.emplace());
+    q = lp->p;
+    q_error = lp->p_error;
   } else {
-    triangle_point(in, blas.tris[em.tri], b1, b2, lp.p, lp.p_error);
+    triangle_point(in, blas.tris[em.tri], b1, b2, q, q_error);
   }
-  const Vec3 q = lp.p;
   const Vec3 d = q - p;
   const float dist2 = length_sq(d);
   const float dist = std::sqrt(dist2);
@@ -437,7 +442,7 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
   s.dist = dist;
   s.target = q;
   s.target_normal = dot(n, s.wi) < 0.0f ? n : -n;  // the side facing p
-  s.target_error = lp.p_error;
+  s.target_error = q_error;
   if (!shaded) {
     s.li = materials_[lmat].cached.emission;  // what shade() returns for it, without building closures
   } else {
@@ -448,7 +453,7 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
     emission.flags = 0;
     emission.emission_only = true;
     emission.length = dist;
-    shade(lp, b1, b2, -s.wi, cl, emission);
+    shade(*lp, b1, b2, -s.wi, cl, emission);
     s.li = cl.emission;
   }
   s.pdf = spherical ? pdf_solid : pmf_e / emitter_areas_[e] * dist2 / cos_l;

@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include "scene/vector_nodes.h"
+#include "util/uninit.h"
 #include "util/rng.h"
 
 namespace pl {
@@ -89,19 +90,19 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   const Blas& blas = blases_[in.blas];
   TriangleVerts tv;
   ctx.object = &object_coords_[sp.instance];
-  ObjectCoords moved_coords;
+  UninitArray<ObjectCoords, 1> moved_coords;  // (constructed only for moving objects)
   if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {
     // Motion blur: the triangle, and the object's transforms for texture coordinates, at the
     // ray's time (so textures stay on a moving object).
     InstanceData moved = in;
     if (in.motion) {
       set_instance_matrix(moved, motion_transform_at(in.motion, in.motion_steps, sp.time));
-      moved_coords = object_coords_[sp.instance];
+      ObjectCoords* mc = new (moved_coords.bytes) ObjectCoords(object_coords_[sp.instance]);
       const ObjectCoords at = make_object_coords(moved.to_world, Vec3(0.0f), Vec3(1.0f));
-      moved_coords.to_world = at.to_world;
-      moved_coords.to_object = at.to_object;
-      moved_coords.valid = at.valid;
-      ctx.object = &moved_coords;
+      mc->to_world = at.to_world;
+      mc->to_object = at.to_object;
+      mc->valid = at.valid;
+      ctx.object = mc;
     }
     tv = world_triangle(moved, in.deform ? in.deform->triangle_at(sp.tri, sp.time) : blas.tris[sp.tri]);
   } else {
@@ -110,11 +111,12 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   const Vec3 corners[3] = {tv.v0, tv.v1, tv.v2};
   ctx.tri = corners;  // for the Bump node's offsets
   constexpr int kMaxSets = 8;
-  Vec2 uv[kMaxSets];
-  Vec2 corner_uvs[3 * kMaxSets];
-  Vec3 tangents[kMaxSets];
+  // (filled below for the sets a program reads; ctx's counts bound every read)
+  UninitArray<Vec2, kMaxSets> uv;
+  UninitArray<Vec2, 3 * kMaxSets> corner_uvs;
+  UninitArray<Vec3, kMaxSets> tangents;
   float signs[kMaxSets];
-  Float4 mesh_tangents[kMaxSets];
+  UninitArray<Float4, kMaxSets> mesh_tangents;
   uint32_t mesh_tangent_sets = 0;
   const int sets = static_cast<int>(std::min<size_t>(uv_sets_, kMaxSets));
   if (mat.program.uses_uv && sets > 0) {
@@ -161,11 +163,11 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
         signs[k] = 1.0f;
       }
     }
-    ctx.uv = uv;
+    ctx.uv = uv.data();
     ctx.uv_sets = sets;
-    ctx.tangents = tangents;
+    ctx.tangents = tangents.data();
     ctx.tangent_signs = signs;
-    ctx.tri_uv = corner_uvs;
+    ctx.tri_uv = corner_uvs.data();
     if (mesh_tangent_sets) {
       // Cycles' normal for tangent space: the unnormalised interpolated smooth normal in
       // object space, or the geometric one turned back to object space (flat shading).
@@ -176,11 +178,11 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       }
       if (!(length_sq(n) > 0.0f) || !is_finite(n)) n = world_to_object_normal(ctx.object, sp.ng);
       ctx.normal_obj = n;
-      ctx.mesh_tangents = mesh_tangents;
+      ctx.mesh_tangents = mesh_tangents.data();
       ctx.mesh_tangent_sets = mesh_tangent_sets;
     }
   }
-  Float4 attrs[kMaxSets];
+  UninitArray<Float4, kMaxSets> attrs;
   if (mat.program.uses_attributes) {
     const MeshData& mesh = meshes_[in.mesh];
     const int n = static_cast<int>(std::min<size_t>(mesh.attributes.size(), kMaxSets));
@@ -196,7 +198,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       attrs[k] = {a.x * b0 + b.x * b1 + c.x * b2, a.y * b0 + b.y * b1 + c.y * b2, a.z * b0 + b.z * b1 + c.z * b2,
                   a.w * b0 + b.w * b1 + c.w * b2};
     }
-    ctx.attrs = attrs;
+    ctx.attrs = attrs.data();
     ctx.attr_sets = n;
   }
   eval_shader(mat.program, images_, ctx, out);

@@ -10,6 +10,7 @@
 #include "scene/tex_noise.h"
 #include "scene/tex_patterns.h"
 #include "scene/vector_nodes.h"
+#include "util/uninit.h"
 
 namespace pl {
 
@@ -24,7 +25,11 @@ template <bool kSetsNormal>
 [[gnu::always_inline]] inline void eval_program(const ShaderProgram& prog, const std::vector<Image>& images,
                                                 const ShadingContext& ctx, ShadingContext* local, ClosureList& out,
                                                 Float4* regs) {
-  Float4 r[kMaxRegs];
+  // Registers are written before they are read (the compiler's allocation); zeroed only where
+  // the caller reads the file back.
+  UninitArray<Float4, kMaxRegs> file;
+  Float4* const r = file.data();
+  if (regs) std::fill(r, r + kMaxRegs, Float4{});
   out.n = 0;
   out.emission = Vec3(0.0f);
   out.holdout = Vec3(0.0f);

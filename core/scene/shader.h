@@ -153,9 +153,17 @@ struct ClosureList {
   bool has_nondelta = false;
   // `albedo`: an estimate of how much the BSDF reflects from this view (Cycles' sample weight
   // factor), for choosing among closures; negative: bsdf_albedo_hint's guess.
-  void add(const Bsdf& b, Vec3 weight, const Frame& f, float albedo = -1.0f) {
+  // (B: one BSDF type or the Bsdf variant; assigned in place, so a lobe costs the copy of its
+  // own bytes, not two copies of the whole variant through a temporary Closure.)
+  template <class B>
+  void add(const B& b, Vec3 weight, const Frame& f, float albedo = -1.0f) {
     if (n >= kMaxClosures || !(max_component(weight) > 0.0f) || !is_finite(weight)) return;
-    c[size_t(n++)] = {b, weight, f, albedo, bsdf_is_delta(b)};
+    Closure& d = c[size_t(n++)];
+    d.bsdf = b;
+    d.weight = weight;
+    d.frame = f;
+    d.pick = albedo;
+    d.delta = bsdf_is_delta(d.bsdf);
   }
   // Sampling probabilities in proportion to each closure's expected contribution.
   void finalize() {
