@@ -34,7 +34,7 @@ def open_box(name, size, mats):
     return ms.add_mesh_object(name, build, mats)
 
 
-def fog_box(width=WIDTH, height=HEIGHT):
+def fog_box(width=WIDTH, height=HEIGHT, density=0.35):
     scene = rs._empty(width, height)
     white = ms.diffuse("FogWhite", (0.75, 0.75, 0.75))
     open_box("FogRoom", 2.0, (white, ms.diffuse("FogRed", (0.65, 0.06, 0.05)),
@@ -43,7 +43,7 @@ def fog_box(width=WIDTH, height=HEIGHT):
     rs.box("FogShort", (0.55, 0.55, 0.55), white, (0.4, -0.3, 0.275), rotation=-0.3)
     fog, nodes, links, out = ms.new_material("Fog")
     vol = nodes.new("ShaderNodeVolumePrincipled")
-    vol.inputs["Density"].default_value = 0.35
+    vol.inputs["Density"].default_value = density
     vol.inputs["Color"].default_value = (0.9, 0.9, 0.9, 1.0)
     vol.inputs["Anisotropy"].default_value = 0.2
     links.new(vol.outputs[0], out.inputs["Volume"])
