@@ -59,16 +59,45 @@ constexpr uint32_t kWorldMedium = 0xFFFFFFFFu;  // the world's Volume: never lef
 struct Medium {
   MediumLayer layer[4];
   int n = 0;
-  const MediumLayer* top() const { return n ? &layer[n - 1] : nullptr; }
-  Vec3 current() const { return n ? layer[n - 1].sigma_a : Vec3(0.0f); }  // Beer's law only
+  // What a point inside all the layers sees. Cycles' volume stack sums every volume the path is
+  // in (overlapping objects, a volume inside the world's fog, absorbing glass in fog), so
+  // homogeneous layers add up: coefficients and emission summed, the phase's g their mean
+  // weighted by scattering (as a material's several phase closures are combined). A stack
+  // holding a heterogeneous layer uses its innermost layer alone.
+  MediumLayer sum{};
+  const MediumLayer* top() const { return n ? (n == 1 ? &layer[0] : &sum) : nullptr; }
+  Vec3 current() const { return n ? top()->sigma_a : Vec3(0.0f); }  // Beer's law only
+  void combine() {
+    if (n < 2) return;
+    bool het = false;
+    for (int i = 0; i < n; ++i) het = het || layer[i].het;
+    if (het) {
+      sum = layer[n - 1];
+      return;
+    }
+    sum = layer[n - 1];
+    sum.sigma_a = sum.sigma_s = sum.emission = Vec3(0.0f);
+    float g = 0.0f, w = 0.0f;
+    for (int i = 0; i < n; ++i) {
+      sum.sigma_a += layer[i].sigma_a;
+      sum.sigma_s += layer[i].sigma_s;
+      sum.emission += layer[i].emission;
+      const float wi = average(layer[i].sigma_s);
+      g += wi * layer[i].g;
+      w += wi;
+    }
+    sum.g = w > 0.0f ? g / w : 0.0f;
+  }
   void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr) {
     if (n < 4) layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase_g, m, het};
+    combine();
   }
   void leave(uint32_t m) {
     for (int i = n - 1; i >= 0; --i)
       if (layer[i].material == m) {
         for (int j = i; j + 1 < n; ++j) layer[j] = layer[j + 1];
         --n;
+        combine();
         return;
       }
   }

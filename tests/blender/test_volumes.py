@@ -155,3 +155,42 @@ def test_volume_bounce_limit_agrees_with_cycles():
     assert full[12:28, 12:28].mean() > 1.05 * ours[12:28, 12:28].mean()  # the limit is applied
     np.testing.assert_allclose(ratio, 1.0, atol=0.01)
     assert rel.max() < 0.03, np.unravel_index(np.argmax(rel), rel.shape)
+
+
+@needs_volumes
+def test_overlapping_and_nested_volumes_add_as_in_cycles():
+    """Cycles' volume stack sums every volume a point is inside: two overlapping scattering
+    cubes (one also absorbing), the overlap denser than either, and a cube of coloured fog
+    inside a thin world fog (the world's medium still counts inside the cube)."""
+    scene = empty_scene(40)
+    plane("Floor", 8.0, diffuse_material("Floor", 0.6))
+    a = volume_cube("ShaderNodeVolumeScatter", Color=(0.9, 0.7, 0.5, 1.0), Density=1.2, Anisotropy=0.3)
+    b = volume_cube("ShaderNodeVolumePrincipled", Color=(0.5, 0.7, 0.9, 1.0), Density=0.9, Anisotropy=0.3,
+                    Absorption_Color=(0.8, 0.5, 0.3, 1.0))
+    box("FogA", 1.2, a, location=(-0.35, 0.0, 0.7), rotation_euler=(0.0, 0.0, 0.3))
+    box("FogB", 1.2, b, location=(0.45, 0.2, 0.8), rotation_euler=(0.0, 0.0, -0.2))
+    add_light('POINT', location=(1.6, -1.4, 2.6), energy=400.0, shadow_soft_size=0.3)
+    camera((0.0, -4.5, 2.2), lens=40.0, look_at=(0.0, 0.0, 0.7))
+    world = bpy.data.worlds.new("ThinFog")
+    world.use_nodes = True
+    nodes = world.node_tree.nodes
+    nodes["Background"].inputs["Strength"].default_value = 0.05
+    sc = nodes.new("ShaderNodeVolumeScatter")
+    sc.inputs["Density"].default_value = 0.08
+    sc.inputs["Anisotropy"].default_value = 0.3
+    world.node_tree.links.new(sc.outputs[0], nodes["World Output"].inputs["Volume"])
+    if hasattr(world.cycles, "homogeneous_volume"):
+        world.cycles.homogeneous_volume = True
+    scene.world = world
+    ours = render_to_array(scene, samples=1024, max_bounces=8)[..., :3]
+    ref = render_to_array(scene, "CYCLES", samples=1024, max_bounces=8, **BOX_FILTER)[..., :3]
+    ra, rb = region_means(ours), region_means(ref)
+    rel = np.abs(ra - rb) / np.maximum(rb, 0.5 * rb.mean())
+    ratio = ours.mean(axis=(0, 1)) / ref.mean(axis=(0, 1))
+    worst = np.unravel_index(np.argmax(rel), rel.shape)
+    print("overlapping volumes mean ratio", ratio, "median region", np.median(rel), "worst", rel.max(), worst)
+    # At 1024 samples a region of lit fog carries a few % of noise in both engines (at 4096
+    # samples: median 0.4 %, worst 1.2 %); with only the innermost volume counted the overlap
+    # was 18 % darker than Cycles.
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
+    assert np.median(rel) < 0.015 and np.percentile(rel, 90) < 0.03 and rel.max() < 0.07, (worst, ra[worst], rb[worst])

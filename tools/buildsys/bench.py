@@ -121,6 +121,9 @@ README_BENCH_HEADLINES = {
     "realistic": ("As equal time (converged mean ratio)",
                   lambda r: f"{r['Scene'].split(' (')[0]} {r['pooled'].split(' ')[0]} "
                             f"({r['converged mean / worst region'].split(' /')[0]})"),
+    "volumes": ("As equal time (converged mean ratio)",
+                lambda r: f"{r['Scene']} {r['pooled'].split(' ')[0]} "
+                          f"({r['converged mean / worst region'].split(' /')[0]})"),
     "kernels": ("Specialised kernel's samples/s over the general one's",
                 lambda r: f"{r['Scene']} {r['Speed-up']}"),
     "rays": ("Embree's rays/s over Pathlight's, one thread each",
