@@ -191,3 +191,20 @@ def test_bad_strands_are_left_out():
     s.commit()
     img, _ = render(pc, s, 16, 16, 4)
     assert np.isfinite(img).all() and img[..., :3].max() > 0.0
+
+
+def test_curve_uvs_take_one_uv_per_strand():
+    """add_curves(uvs=): per uv set one uv per strand (particle hair's emitter UV at the root);
+    other shapes and set indices are refused with a ValueError."""
+    pc = core()
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
+    offsets = np.array([0, 2, 4])
+    s = pc.Scene()
+    s.add_curves(pts, offsets, np.full(4, 0.05, np.float32), uvs={1: np.array([[0.25, 0.5], [np.nan, 1.0]],
+                                                                           np.float32)})
+    s.commit()
+    assert s.stats()["curves"] == 2
+    for bad in ({0: np.zeros((3, 2), np.float32)}, {0: np.zeros((2, 3), np.float32)},
+                {9: np.zeros((2, 2), np.float32)}):
+        with pytest.raises(ValueError):
+            pc.Scene().add_curves(pts, offsets, None, uvs=bad)
