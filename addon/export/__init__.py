@@ -58,7 +58,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         if getattr(mesh, "tangent_problem", None):
             warn(f"Mesh '{mesh.name}': {mesh.tangent_problem}")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
-    curves = collect_curves(depsgraph, warn, table.index, attributes)
+    curves = collect_curves(depsgraph, warn, table.index, attributes, table.uv_names)
     curve_materials = [table.index(c.material) for c in curves]
     lights = collect_lights(depsgraph, warn, is_visible)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
