@@ -177,8 +177,8 @@ def test_principled_hair_particle_patch_mean_matches_cycles():
 
 
 @pytest.mark.xfail(strict=False, reason="dense particle hair renders 2-6 % brighter than Cycles in "
-                   "8x8 regions inside the patch (the mean agrees to 0.6 %); cause not found yet "
-                   "(docs/design/curves.md)")
+                   "8x8 regions inside the patch (the mean agrees to 0.6 %): rays starting inside "
+                   "interpenetrating strands pass through them (docs/design/curves.md)")
 def test_principled_hair_particle_patch_regions_match_cycles():
     """The issue's bar: every 8x8 region within 3 %."""
     ours, cycles = principled_patch_pair()
