@@ -67,7 +67,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     volume_meshes, volume_slots = collect_volumes(depsgraph, warn, table, volume_grids)
     meshes += volume_meshes
     material_slots += volume_slots
-    curves = collect_curves(depsgraph, warn, table.index, attributes)
+    curves = collect_curves(depsgraph, warn, table.index, attributes, table.uv_names)
     curve_materials = [table.index(c.material) for c in curves]
     lights = collect_lights(depsgraph, warn, is_visible)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))

@@ -1,10 +1,12 @@
 """Blender Curves objects (hair) → flat numpy arrays (CurvesData, which
 scene_writer.add_curves hands to the core's add_curves): control points, radii and per-strand
 offsets read with foreach_get (no per-point Python), one entry per evaluated geometry with
-every instance's matrix. Particle hair has no vectorised access in bpy (only per-particle,
-per-key calls), so it is reported, not exported."""
+every instance's matrix. Particle hair (hair particle systems rendered as paths) has no
+vectorised access in bpy: its keys are read with one ParticleSystem.co_hair call per key, as
+Cycles' ObtainCacheParticleData reads them, and become the same CurvesData."""
 
 from dataclasses import dataclass, field
+from itertools import chain
 
 import numpy as np
 
@@ -31,6 +33,8 @@ class CurvesData:
     # (N, 3) float32: Blender's curve normals, read only for materials with Huang hair (the
     # major axis of its elliptical fibres, as Cycles reads it); else None.
     normals: object = None
+    # uv set k -> float32 (C, 2): one uv per strand (particle hair: the emitter's UV at the root)
+    uvs: dict = field(default_factory=dict)
 
 
 def _attribute(curves, name, domain, data_type):
@@ -71,7 +75,7 @@ def curves_arrays(curves, warn, name):
     if offsets[0] != 0 or offsets[-1] != n_points or np.any(np.diff(offsets) < 0):
         warn(f"Curves '{name}' has inconsistent curve offsets; not rendered")
         return None
-    _warn_bad_strands(points, offsets, radii, warn, name)
+    _warn_bad_strands(points, offsets, radii, warn, f"Curves '{name}'")
     return points, offsets, radii, kind
 
 
@@ -116,7 +120,7 @@ def uses_huang_hair(material, _seen=None):
     return False
 
 
-def _warn_bad_strands(points, offsets, radii, warn, name):
+def _warn_bad_strands(points, offsets, radii, warn, label):
     """One warning for the strands the core leaves out (non-finite points or radii, fewer than
     two points, no positive radius, zero length), counted with numpy per strand."""
     counts = np.diff(offsets)
@@ -134,26 +138,32 @@ def _warn_bad_strands(points, offsets, radii, warn, name):
         rmax = np.maximum.reduceat(np.nan_to_num(radii, nan=0.0), idx)
     bad[nonempty] = any_bad | (rmax <= 0.0) | ~(length > 0.0) | (counts[nonempty] < 2)
     if bad.any():
-        warn(f"Curves '{name}': {int(bad.sum())} of {len(counts)} strands have non-finite points or radii, "
+        warn(f"{label}: {int(bad.sum())} of {len(counts)} strands have non-finite points or radii, "
              "no positive radius, fewer than 2 points or zero length; they are not rendered")
 
 
-def collect_curves(depsgraph, warn, material_index=None, object_attributes=None):
-    """Every visible Curves object of the depsgraph (instances share one CurvesData), and one
-    warning per object with particle hair (not exported). material_index(material): compiles
-    a material (numbering the Object / Instancer attribute slots it reads) before its
-    instances' values are resolved by `object_attributes` (an
-    object_attributes.InstanceAttributes), as collect_meshes does."""
+def collect_curves(depsgraph, warn, material_index=None, object_attributes=None, uv_names=None):
+    """Every visible Curves object and particle hair system of the depsgraph (instances
+    share one CurvesData; an emitter's hair systems one per material).
+    material_index(material): compiles a material (numbering the Object / Instancer
+    attribute slots it reads) before its instances' values are resolved by
+    `object_attributes` (an object_attributes.InstanceAttributes), as collect_meshes does.
+    uv_names(materials) -> {uv set: UV map name or attribute key} (MaterialTable.uv_names):
+    the emitter UV maps particle hair materials read."""
     out = {}
-    warned = set()
+    render = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
     for instance in depsgraph.object_instances:
         obj = instance.object
-        if not is_visible(instance):
+        if obj.type == 'MESH' and getattr(obj, "particle_systems", None) and _shows_particles(instance):
+            for key, material, arrays, uvs in _particle_hair(obj, render, warn, uv_names):
+                entry = out.get(key)
+                if entry is None:
+                    entry = out[key] = CurvesData(obj.original.name, *arrays, material, uvs=uvs)
+                    if material_index is not None:
+                        material_index(material)
+                _add_instance(entry, instance, object_attributes)
             continue
-        if obj.type == 'MESH':
-            _warn_particle_hair(obj, warn, warned)
-            continue
-        if obj.type != 'CURVES':
+        if not is_visible(instance) or obj.type != 'CURVES':
             continue
         material = obj.material_slots[0].material if len(obj.material_slots) else None
         key = (obj.data.as_pointer(), material.as_pointer() if material is not None else 0)
@@ -169,21 +179,173 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None)
             if material_index is not None:
                 material_index(material)
         if entry is not None:
-            entry.matrices.append(np.array(instance.matrix_world, np.float32))
-            entry.infos.append(object_info(instance))
-            if object_attributes is not None:
-                entry.object_attributes.append(object_attributes.values(instance))
+            _add_instance(entry, instance, object_attributes)
     return [c for c in out.values() if c is not None]
 
 
-def _warn_particle_hair(obj, warn, warned):
-    systems = getattr(obj, "particle_systems", None)
-    if not systems or obj.original.name in warned:
-        return
-    for ps in systems:
-        settings = ps.settings
-        if settings is not None and settings.type == 'HAIR' and settings.render_type == 'PATH':
-            warned.add(obj.original.name)
-            warn(f"Particle hair on '{obj.original.name}' is not rendered: convert it to a Curves "
-                 "object (Object > Convert > Curves) for Pathlight")
-            return
+def _add_instance(entry, instance, object_attributes):
+    entry.matrices.append(np.array(instance.matrix_world, np.float32))
+    entry.infos.append(object_info(instance))
+    if object_attributes is not None:
+        entry.object_attributes.append(object_attributes.values(instance))
+
+
+def _shows_particles(instance):
+    """Whether an instance's particle hair renders: the depsgraph's show_particles (False for
+    an instance made by another system), and the object not hidden for render (a viewport
+    depsgraph still holds those). show_instancer_for_render hides the emitter only."""
+    if not getattr(instance, "show_particles", True):
+        return False
+    return instance.is_instance or not instance.object.original.hide_render
+
+
+# Above this many strands x keys an export spends seconds in co_hair calls (~3 us a key).
+SLOW_PARTICLE_KEYS = 2_000_000
+
+
+def shape_radius(shape, root, tip, time):
+    """Cycles' radius along particle hair (blender/curves.cpp shaperadius): from `root` at
+    time 0 to `tip` at 1, `shape` in [-1, 1] bending the profile (0: linear). time: the key's
+    fraction of the strand's control-polygon length."""
+    r = 1.0 - time
+    if shape < 0.0:
+        r = r ** (1.0 + shape)
+    elif shape > 0.0:
+        r = r ** (1.0 / (1.0 - shape))
+    return r * (root - tip) + tip
+
+
+def _particle_hair(obj, render, warn, uv_names=None):
+    """[(key, material, (points, offsets, radii, 'catmull_rom'), uvs)] for the hair particle
+    systems of the evaluated mesh object `obj` rendered as paths, as Cycles 4.5 exports them:
+    the modifier shown for render (or the viewport), only the children when there are any
+    (else the parents), (2^render_step) + 1 keys per strand read with co_hair (world space,
+    carried to object space), the radius from the hair shape, the material of
+    settings.material (its slot, clamped), and per strand the emitter's UV at its root for
+    the UV maps the material reads (uv_names, as collect_curves). Systems sharing a material
+    share one entry, in modifier order, so Curves Info's Random numbers their strands on as
+    Cycles does."""
+    name = obj.original.name
+    systems = []
+    for mod in obj.modifiers:
+        if mod.type != 'PARTICLE_SYSTEM' or not (mod.show_render if render else mod.show_viewport):
+            continue
+        psys = mod.particle_system
+        settings = psys.settings if psys is not None else None
+        if settings is None or settings.type != 'HAIR' or settings.render_type != 'PATH':
+            continue
+        systems.append((mod, psys, settings))
+    if not systems:
+        return []
+    slots = obj.material_slots
+    matrix = np.array(obj.matrix_world, np.float64)
+    det = np.linalg.det(matrix[:3, :3]) if np.isfinite(matrix).all() else 0.0
+    if not abs(det) > 1e-30:  # co_hair gives world space: no way back to the object's
+        warn(f"Particle hair on '{name}' not rendered: its emitter's matrix is singular (scale 0?)")
+        return []
+    to_object = np.linalg.inv(matrix)
+    groups = {}  # material pointer -> [material, [arrays]]
+    for mod, psys, settings in systems:
+        arrays = _particle_system_arrays(obj, psys, settings, render, to_object, warn, name)
+        if arrays is None:
+            continue
+        slot = min(max(int(settings.material) - 1, 0), len(slots) - 1) if len(slots) else -1
+        material = slots[slot].material if slot >= 0 else None
+        key = material.as_pointer() if material is not None else 0
+        names = _emitter_uv_names(obj, material, uv_names, warn, name)
+        first, arrays = arrays[0], arrays[1:]
+        uvs = {k: _root_uvs(psys, mod, first, len(arrays[1]) - 1, uv_no) for k, uv_no in names.items()}
+        groups.setdefault(key, [material, []])[1].append(arrays + (uvs,))
+    out = []
+    for key, (material, parts) in groups.items():
+        uvs = {k: np.concatenate([p[3].get(k, np.zeros((len(p[1]) - 1, 2), np.float32)) for p in parts])
+               for k in set().union(*(p[3] for p in parts))}
+        points = np.concatenate([p[0] for p in parts])
+        radii = np.concatenate([p[2] for p in parts])
+        offsets, base = [np.zeros(1, np.int32)], 0
+        for p in parts:
+            offsets.append(p[1][1:] + base)
+            base += int(p[1][-1])
+        offsets = np.concatenate(offsets).astype(np.int32)
+        _warn_bad_strands(points, offsets, radii, warn, f"Particle hair on '{name}'")
+        out.append((("psys", obj.original.as_pointer(), key), material,
+                    (points, offsets, radii, 'catmull_rom'), uvs))
+    return out
+
+
+def _emitter_uv_names(obj, material, uv_names, warn, name):
+    """{uv set k: the emitter's UV layer index} for the UV maps `material` reads on particle
+    hair; one warning for what is not read (colour and other attributes, missing maps)."""
+    if uv_names is None:
+        return {}
+    layers = obj.data.uv_layers if obj.data is not None else []
+    active = next((i for i, layer in enumerate(layers) if layer.active_render), None)
+    out, skipped = {}, []
+    for k, uv_name in uv_names([material]).items():
+        if isinstance(uv_name, tuple):  # Color Attribute / Attribute node sets
+            skipped.append(f"attribute '{uv_name[1]}'" if uv_name[1] else "the colour attribute")
+            continue
+        index = layers.find(uv_name) if uv_name else active
+        if index is None or index < 0:
+            skipped.append(f"UV map '{uv_name}'" if uv_name else "the active UV map")
+            continue
+        out[k] = index
+    if skipped:
+        warn(f"Particle hair on '{name}': {', '.join(skipped)} of the emitter not read for its strands "
+             "(Pathlight reads only emitter UV maps on particle hair); 0 is used")
+    return out
+
+
+def _root_uvs(psys, mod, first, count, uv_no):
+    """float32 (C, 2): the emitter's UV at each strand's root, as Cycles' ObtainCacheParticleUV
+    (one uv_on_emitter call per strand; children pass the first parent's data, as Cycles)."""
+    particles = psys.particles
+    if len(particles) == 0:
+        return np.zeros((count, 2), np.float32)
+    uv = psys.uv_on_emitter
+    flat = np.fromiter(chain.from_iterable(
+        uv(mod, particle=particles[p] if p < len(particles) else particles[0], particle_no=p, uv_no=uv_no)
+        for p in range(first, first + count)), np.float64, count * 2)
+    return flat.reshape(count, 2).astype(np.float32)
+
+
+def _particle_system_arrays(obj, psys, settings, render, to_object, warn, name):
+    """(first particle number, points (N, 3) float32 object space, offsets, radii) of one
+    hair system, or None."""
+    parents = len(psys.particles)
+    children = len(psys.child_particles)
+    if not render:  # Cycles' viewport count: the display percentage of the children
+        children = int(children * settings.display_percentage / 100.0)
+    first = parents if settings.child_type != 'NONE' and children else 0
+    count = parents + children - first
+    if count <= 0:
+        warn(f"Particle hair '{psys.name}' on '{name}' has no strands; nothing to render")
+        return None
+    step = settings.render_step if render else settings.display_step
+    keys = (1 << int(step)) + 1
+    if settings.kink == 'SPIRAL':
+        keys += int(settings.kink_extra_steps)
+    if count * keys > SLOW_PARTICLE_KEYS:
+        warn(f"Particle hair '{psys.name}' on '{name}': {count} strands x {keys} keys are read one "
+             "key per call (bpy has no array access to particle keys), which takes seconds; "
+             "fewer children or a lower render step (or a Curves object) exports faster")
+    co = psys.co_hair
+    # One call per key (no vectorised access); fromiter flattens the Vectors without lists.
+    flat = np.fromiter(chain.from_iterable(co(obj, particle_no=p, step=k)
+                                           for p in range(first, first + count) for k in range(keys)),
+                       np.float64, count * keys * 3)
+    world = flat.reshape(-1, 3)
+    points = world @ to_object[:3, :3].T + to_object[:3, 3]
+    strands = points.reshape(count, keys, 3)
+    seg = np.linalg.norm(np.diff(strands, axis=1), axis=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        time = np.concatenate([np.zeros((count, 1)), np.cumsum(seg, axis=1)], axis=1)
+        total = time[:, -1:]
+        time = np.where(total > 0.0, time / np.where(total > 0.0, total, 1.0), 0.0)
+    half = 0.5 * float(settings.radius_scale)  # Cycles: radius_scale x 0.5 x root / tip
+    root, tip = half * float(settings.root_radius), half * float(settings.tip_radius)
+    radii = shape_radius(float(settings.shape), root, tip, np.clip(np.nan_to_num(time), 0.0, 1.0))
+    if settings.use_close_tip:
+        radii[:, -1] = 0.0
+    offsets = (np.arange(count + 1, dtype=np.int64) * keys).astype(np.int32)
+    return first, points.astype(np.float32), offsets, radii.astype(np.float32).ravel()

@@ -72,15 +72,24 @@ bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, floa
   }
   float t;
   const Vec3 ah = len2 > 0.0f ? axis / std::sqrt(len2) : Vec3(0.0f);
-  if (c.root && sphere_entry(c.p0, c.r0, org, dir, dd, t) && t > tmin && t < best) {
-    const Vec3 x = org + dir * t - c.p0;
-    if (dot(x, ah) <= 0.0f) {  // the half beyond the root disc
+  // A strand's root and tip are cut off flat, as Cycles' thick curves end: a disc across the
+  // axis, entered from outside only (u -1: the root disc, 2: the tip's).
+  const bool tip = !(length_sq(c.next) > 0.0f);
+  if ((c.root || tip) && len2 > 0.0f) {
+    const float dn = dot(dir, ah);
+    const auto disc = [&](const Vec3& q, float r, float u) {
+      t = dot(q - org, ah) / dn;
+      if (!(t > tmin && t < best)) return;
+      const Vec3 x = org + dir * t - q;
+      if (!(dot(x, x) <= r * r)) return;
       best = t;
-      u_out = 0.0f;
+      u_out = u;
       found = true;
-    }
+    };
+    if (c.root && dn > 0.0f) disc(c.p0, c.r0, -1.0f);
+    if (tip && dn < 0.0f) disc(c.p1, c.r1, 2.0f);
   }
-  if (sphere_entry(c.p1, c.r1, org, dir, dd, t) && t > tmin && t < best) {
+  if (!tip && sphere_entry(c.p1, c.r1, org, dir, dd, t) && t > tmin && t < best) {
     const Vec3 x = org + dir * t - c.p1;
     if (dot(x, ah) >= 0.0f && dot(x, c.next) <= 0.0f) {  // the wedge no cone covers
       best = t;
@@ -114,6 +123,13 @@ void encode_piece_hit(const CurvePiece& c, Vec3 p, float u, float& b1, float& b2
     b1 = u;
     return;
   }
+  if (u < 0.0f || u > 1.0f) {  // an end disc: -5 - rho / r0 at the root, 5 + rho / r1 at the tip
+    const float r = u > 1.0f ? c.r1 : c.r0;
+    float rho = r > 0.0f ? clampf(length(d - tg * dot(d, tg)) / r, 0.0f, 1.0f) : 0.0f;
+    if (!std::isfinite(rho)) rho = 0.0f;
+    b1 = u > 1.0f ? 5.0f + rho : -5.0f - rho;
+    return;
+  }
   const float dl = length(d);
   float z = dl > 0.0f ? clampf(dot(d, tg) / dl, -1.0f, 1.0f) : 0.0f;
   if (!std::isfinite(z)) z = 0.0f;
@@ -131,6 +147,12 @@ void piece_surface(const CurvePiece& c, float b1, float b2, Vec3& n, Vec3& tange
     const float k = len > 0.0f ? (c.r1 - c.r0) / len : 0.0f;
     n = normalize(rhat - tangent * k);  // the cone's slope tilts it
     p = c.p0 + (c.p1 - c.p0) * u + rhat * (c.r0 + (c.r1 - c.r0) * u);
+  } else if (b1 <= -5.0f || b1 >= 5.0f) {  // an end disc
+    const bool end = b1 > 0.0f;
+    u = end ? 1.0f : 0.0f;
+    const float rho = clampf(end ? b1 - 5.0f : -5.0f - b1, 0.0f, 1.0f);
+    n = end ? tangent : -tangent;
+    p = (end ? c.p1 : c.p0) + rhat * (rho * (end ? c.r1 : c.r0));
   } else {
     const bool end = b1 > 1.0f;
     u = end ? 1.0f : 0.0f;

@@ -21,12 +21,13 @@ enum class CurveType : uint8_t { CatmullRom, Poly };
 // One linear piece: a cone frustum from (p0, r0) to (p1, r1). Joints are closed by the
 // sphere at p1, only where neither cone covers it (beyond this piece's end disc and before the
 // next piece's start disc: the outer wedge of a bend), so a ray inside a strand never "enters"
-// a joint sphere that lies inside the tube. A strand's root and tip get half spheres as caps.
+// a joint sphere that lies inside the tube. A strand's root and tip are cut off flat by discs
+// across the axis, as Cycles' thick curves end.
 struct CurvePiece {
   Vec3 p0, p1;
   Vec3 next{0.0f};  // the next piece's unit axis; zero at the tip
   float r0 = 0.0f, r1 = 0.0f;
-  bool root = false;  // the strand's first piece: capped at p0
+  bool root = false;  // the strand's first piece: closed by a disc at p0
   uint32_t curve = 0;     // the strand (in the CurveSet's numbering)
   float v0 = 0.0f, v1 = 0.0f;  // intercept (0 at the root, 1 at the tip) at p0 and p1
   // The curve's normal attribute at p0 and p1 (octahedral, 16 bits a component; kNoCurveNormal:
@@ -100,12 +101,13 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
                          std::vector<uint32_t>* kept = nullptr);
 
 // The hit of a ray on one piece: entering hits only, with 0 < t < tmax; u: the axial position
-// (0 at p0, 1 at p1) of the hit's closest point on the axis.
+// (0 at p0, 1 at p1) of the hit's closest point on the axis; -1 / 2 on the root / tip disc.
 bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, float tmax, float& t, float& u);
 
 // A hit as two numbers (Hit::b1, b2) that give its surface point exactly, independent of the
 // error of the ray's t: b2 the angle about the axis; b1 the axial position u in [0, 1] on the
-// cone, or on the end spheres -2 - z (at p0) and 3 + z (at p1), z the normal's axial cosine.
+// cone, or on the joint spheres -2 - z (at p0) and 3 + z (at p1), z the normal's axial cosine,
+// or on the end discs -5 - rho (root) and 5 + rho (tip), rho the radial distance in radii.
 void encode_piece_hit(const CurvePiece& c, Vec3 p, float u, float& b1, float& b2);
 
 // The surface at an encoded hit: the outward unit normal (from the axis to the point, tilted

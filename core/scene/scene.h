@@ -100,6 +100,9 @@ struct CurveSetData {
   Mat4 matrix;
   ObjectInfo info;              // (attr_first / attr_count unused: attrs holds them)
   std::vector<Float4> attrs;    // Object / Instancer attribute values by slot (<= kMaxObjectAttributes)
+  // Per uv set k: one uv per strand (particle hair: the emitter's UV at the root, as Cycles'
+  // per-curve UV attribute); empty sets read (0, 0).
+  std::vector<std::vector<Vec2>> uvs;
 };
 
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
@@ -634,6 +637,8 @@ class Scene {
   CurveBvh curve_bvh_;
   std::vector<uint32_t> curve_first_;
   std::vector<float> curve_length_, curve_random_;  // per strand: Curves Info's Length and Random
+  std::vector<Vec2> curve_uv_;  // per strand: curve_uv_sets_ uvs (the sets' per-strand uvs)
+  uint32_t curve_uv_sets_ = 0;
   std::vector<ObjectCoords> curve_coords_;  // per curve set: its object (Object Info, object coordinates)
   bool curves_dirty_ = false;
   bool curves_on_ = false;  // curve_bvh_ is not empty: traced after the meshes

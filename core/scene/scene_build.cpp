@@ -377,7 +377,10 @@ void Scene::build_curves() {
   curve_first_.clear();
   curve_length_.clear();
   curve_random_.clear();
+  curve_uv_.clear();
   curve_coords_.clear();
+  curve_uv_sets_ = 0;
+  for (const CurveSetData& cs : curve_sets_) curve_uv_sets_ = std::max(curve_uv_sets_, uint32_t(cs.uvs.size()));
   std::vector<uint32_t> kept;
   uint32_t strands = 0;
   size_t skipped = 0;
@@ -407,6 +410,8 @@ void Scene::build_curves() {
       for (int32_t k = cs.offsets[c] + 1; k < cs.offsets[c + 1]; ++k) len += length(cs.points[size_t(k)] - cs.points[size_t(k) - 1]);
       curve_length_.push_back(float(len));
       curve_random_.push_back(float(lookup3::hash(c, 0u)) * (1.0f / float(0xFFFFFFFFu)));  // Cycles' hash_uint2_to_float(i, 0)
+      for (uint32_t k = 0; k < curve_uv_sets_; ++k)
+        curve_uv_.push_back(k < cs.uvs.size() && c < cs.uvs[k].size() ? cs.uvs[k][c] : Vec2{});
     }
     strands += uint32_t(st.curves);
     skipped += st.skipped;

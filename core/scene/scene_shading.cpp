@@ -79,6 +79,10 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     cs.tangent_normal = length_sq(across) > 0.0f ? normalize(across) : Vec3(0.0f);
     cs.tangent = sp.tangent;
     ctx.curve = &cs;
+    if (curve_uv_sets_) {  // per-strand uvs (particle hair's emitter UV at the root)
+      ctx.uv = &curve_uv_[size_t(pc.curve) * curve_uv_sets_];
+      ctx.uv_sets = int(curve_uv_sets_);
+    }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &curve_coords_[curve_set_of(pc.curve)];
     eval_shader(mat.program, images_, ctx, out);

@@ -240,8 +240,9 @@ def test_curves_info_matches_cycles():
         assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
 
 
-def test_particle_hair_warns_to_convert():
-    """Particle hair cannot be read without a Python loop per key: one clear warning."""
+def test_particle_hair_is_exported_without_a_warning():
+    """Particle hair used to be only warned about (convert it); now it becomes curves (its
+    tests: test_particle_hair.py)."""
     from addon.export.curves import collect_curves
     ms.studio(size=16)
     emitter = bpy.data.objects["Floor"]
@@ -249,8 +250,9 @@ def test_particle_hair_warns_to_convert():
     mod.particle_system.settings.type = 'HAIR'
     mod.particle_system.settings.count = 10
     warn = Warnings()
-    assert collect_curves(bpy.context.evaluated_depsgraph_get(), warn) == []
-    assert len(warn) == 1 and "Particle hair on 'Floor'" in warn[0] and "Convert" in warn[0]
+    (c,) = collect_curves(bpy.context.evaluated_depsgraph_get(), warn)
+    assert not warn, list(warn)
+    assert c.name == "Floor" and len(c.offsets) == 11
 
 
 def test_object_info_on_curves_matches_cycles():

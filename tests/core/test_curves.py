@@ -126,6 +126,10 @@ def test_catmull_rom_surface_follows_the_curve():
     o, d = _rays_at(rng, 3000, (0.0, 0.1, 0.0), 0.9)
     hit = s.hit_surfaces(o, d)
     ok = np.isfinite(hit["t"])
+    # The flat end discs (test_strand_ends_are_flat_discs) lie within a radius of the end keys.
+    end = np.minimum(*(np.linalg.norm(hit["p"] - keys[i], axis=1) for i in (0, -1)))
+    disc = ok & (np.abs((hit["ng"] * hit["tangent"]).sum(1)) > 0.999) & (end < 1.01 * r)
+    ok &= ~disc
     assert ok.sum() > 100
     dist = np.linalg.norm(hit["p"][ok][:, None, :] - curve[None], axis=2).min(axis=1)
     # 16 cones per segment: the chords' sagitta (segment length^2 / 8 bend radius, ~8e-4 here)
@@ -191,3 +195,47 @@ def test_bad_strands_are_left_out():
     s.commit()
     img, _ = render(pc, s, 16, 16, 4)
     assert np.isfinite(img).all() and img[..., :3].max() > 0.0
+
+
+def test_curve_uvs_take_one_uv_per_strand():
+    """add_curves(uvs=): per uv set one uv per strand (particle hair's emitter UV at the root);
+    other shapes and set indices are refused with a ValueError."""
+    pc = core()
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
+    offsets = np.array([0, 2, 4])
+    s = pc.Scene()
+    s.add_curves(pts, offsets, np.full(4, 0.05, np.float32), uvs={1: np.array([[0.25, 0.5], [np.nan, 1.0]],
+                                                                           np.float32)})
+    s.commit()
+    assert s.stats()["curves"] == 2
+    for bad in ({0: np.zeros((3, 2), np.float32)}, {0: np.zeros((2, 3), np.float32)},
+                {9: np.zeros((2, 2), np.float32)}):
+        with pytest.raises(ValueError):
+            pc.Scene().add_curves(pts, offsets, None, uvs=bad)
+
+
+@pytest.mark.parametrize("kind", ["poly", "catmull_rom"])
+def test_strand_ends_are_flat_discs(kind):
+    """A strand's root and tip are cut off flat (Cycles' thick curves): rays along the axis hit
+    the end disc with the axis as normal; rays beyond an end, where a half-sphere cap would be,
+    miss; rays leaving through an end from inside find nothing."""
+    pc = core()
+    s = _scene(pc, [[0, 0, 0], [0.5, 0, 0], [1, 0, 0]], [0, 3], [0.1, 0.1, 0.05], curve_type=kind)
+    rng = np.random.default_rng(3)
+    yz = rng.uniform(-1, 1, (400, 2))
+    yz = yz[(yz ** 2).sum(1) < 0.9 ** 2]
+    n = len(yz)
+    for x0, x_end, r, sign in ((-2.0, 0.0, 0.1, 1.0), (3.0, 1.0, 0.05, -1.0)):
+        o = np.column_stack([np.full(n, x0), yz * r]).astype(np.float32)
+        d = np.tile(np.float32([sign, 0, 0]), (n, 1))
+        hit = s.hit_surfaces(o, d)
+        assert np.all(np.isfinite(hit["t"]))
+        np.testing.assert_allclose(hit["p"][:, 0], x_end, atol=1e-5)
+        np.testing.assert_allclose(hit["ng"], np.tile([-sign, 0, 0], (n, 1)), atol=1e-5)
+        # Beyond the end, inside the old cap's sphere: nothing to hit.
+        o2 = np.column_stack([np.full(n, x_end - sign * 0.5 * r), np.full(n, -1.0), yz[:, 0] * r * 0.5])
+        d2 = np.tile(np.float32([0, 1, 0]), (n, 1))
+        assert np.all(np.isinf(s.hit_surfaces(o2.astype(np.float32), d2)["t"]))
+    # From inside out through the root: no hit (only entering hits count).
+    o3 = np.column_stack([np.full(n, 0.3), yz * 0.05]).astype(np.float32)
+    assert np.all(np.isinf(s.hit_surfaces(o3, np.tile(np.float32([-1, 0, 0]), (n, 1)))["t"]))
