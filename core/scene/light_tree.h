@@ -2,9 +2,10 @@
 // bounds on their emitted power, position and emission directions, traversed stochastically by an
 // importance that bounds each node's contribution at the shading point (Conty Estevez and Kulla
 // 2018, "Importance Sampling of Many Lights with Adaptive Tree Splitting"; the variant pbrt-v4's
-// BVHLightSampler and Cycles' light tree follow). One emitter per leaf, so the probability of an
-// emitter at a point is the product of the child choices on its path from the root, which pmf()
-// recomputes exactly (the same importance function on the same inputs) for MIS.
+// BVHLightSampler and Cycles' light tree follow). Up to kLeafMax emitters per leaf (as Cycles),
+// so the probability of an emitter at a point is the product of the child choices on its path
+// from the root times its share of its leaf's importance, which pmf() recomputes exactly (the
+// same importance function on the same inputs) for MIS.
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -19,6 +20,7 @@ struct LightBounds {
   Aabb bounds;
   Vec3 w{0.0f, 0.0f, 1.0f};
   float phi = 0.0f;
+  Vec3 moment{0.0f};  // sum of power times position (the tree sets it): the power's centroid
   float cos_theta_o = 1.0f, cos_theta_e = 0.0f;
   bool two_sided = false;
 };
@@ -46,15 +48,22 @@ class LightTree {
     Vec3 center, w;
     float radius;  // of the bounding sphere; pbrt-v4's distance-squared floor too
     float phi, cos_theta_o, sin_theta_o, cos_theta_e;
-    uint32_t index;  // interior: the second child (the first follows the node); leaf: the item
-    uint8_t leaf, two_sided;
+    uint32_t index;  // interior: the second child (the first follows the node); leaf: first slot in items_
+    uint8_t leaf, two_sided;  // leaf: how many emitters (items_[index, index + leaf)); 0: interior
   };
+  // A leaf's emitters are chosen among by their own importance: exact for each one, where a
+  // split below would have bounded pairs of them (up to kLeafMax per leaf).
+  static constexpr int kLeafMax = 8;
+  double pick_in_leaf(const Node& leaf, Vec3 p, Vec3 n, float u, uint32_t& item) const;
+  double pmf_in_leaf(const Node& leaf, Vec3 p, Vec3 n, uint32_t item) const;
   // Not inlined on purpose: sample() and pmf() must round it identically.
   // In double: far nodes' importances underflow float, and both children at 0 ends the walk.
   double importance(const Node& node, Vec3 p, Vec3 n) const;
   uint32_t build(std::vector<std::pair<LightBounds, uint32_t>>& items, size_t begin, size_t end, uint64_t trail,
                  int depth);
   std::vector<Node> nodes_;
+  static Node make_node(const LightBounds& b, uint32_t idx, int leaf);
+  std::vector<Node> items_;  // one per emitter in the tree, by leaf; index: the emitter
   std::vector<uint64_t> trail_;  // per item: the child choices from the root (bit d at depth d)
   std::vector<uint8_t> in_tree_;
   int depth_ = 0;
