@@ -1344,7 +1344,9 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
   // Sheen and rough diffuse set up for a view at cosine `cos_view` (their terms depend on it).
   if (kind == "sheen") {
     float albedo;
-    return SheenBsdf::setup(f("roughness", 0.5f), f("cos_view", 1.0f), albedo);
+    SheenBsdf s = SheenBsdf::setup(f("roughness", 0.5f), f("cos_view", 1.0f), albedo);
+    s.back = b("back", false);  // a backfacing hit's lobe: lit from -Z
+    return s;
   }
   if (kind == "velvet") return VelvetBsdf::setup(f("sigma", 1.0f));
   if (kind == "toon") return ToonBsdf::setup(f("size", 0.5f), f("smooth", 0.0f), b("glossy", false));

@@ -36,7 +36,7 @@ template <bool kDiffuseOnly = false>
       // BSDF tests its normal's side itself; rough diffuse reflects from its own side, as plain
       // diffuse (the view may be below its normal at a smooth silhouette).
       if (same_side(lo, li) != reflection && !std::holds_alternative<HairChiangBsdf>(c.bsdf) &&
-          !std::holds_alternative<HairHuangBsdf>(c.bsdf) && !std::holds_alternative<HairBsdf>(c.bsdf) && !(reflection && std::holds_alternative<OrenNayarBsdf>(c.bsdf)))
+          !std::holds_alternative<HairHuangBsdf>(c.bsdf) && !std::holds_alternative<HairBsdf>(c.bsdf) && !(reflection && (std::holds_alternative<OrenNayarBsdf>(c.bsdf) || std::holds_alternative<SheenBsdf>(c.bsdf))))
         continue;
       v = bsdf_eval(c.bsdf, lo, li, p);
     }

@@ -14,6 +14,10 @@ namespace pl {
 // closure weight, as Cycles' bsdf_sheen_setup puts it there.
 struct SheenBsdf {
   float a = 1.0f, b = 0.0f;
+  // The hit is backfacing: lit from -Z. As Cycles (which flips a backfacing hit's normal), the
+  // lobe stays on the side the geometry shows the viewer, also where a smooth normal turns
+  // away from the view at a silhouette (Cycles' view then reads as grazing).
+  bool back = false;
 
   // The fit for Cycles' clamped roughness and the view's cosine; `albedo` the layer's.
   static SheenBsdf setup(float roughness, float cos_view, float& albedo) {
@@ -46,8 +50,8 @@ struct SheenBsdf {
   }
   [[gnu::noinline]] Vec3 eval(Vec3 wo, Vec3 wi, float& pdf) const {
     pdf = 0.0f;
-    if (!same_side(wo, wi)) return Vec3(0.0f);
-    if (wo.z < 0.0f) {  // two-sided: mirrored to the view's side
+    if ((wi.z < 0.0f) != back || wi.z == 0.0f) return Vec3(0.0f);
+    if (back) {
       wo.z = -wo.z;
       wi.z = -wi.z;
     }
@@ -57,7 +61,7 @@ struct SheenBsdf {
     return Vec3(pdf);
   }
   [[gnu::noinline]] bool sample(Vec3 wo, Vec2 u, float, BsdfSample& out) const {
-    const bool flip = wo.z < 0.0f;
+    const bool flip = back;
     if (flip) wo.z = -wo.z;
     // A cosine-distributed direction carried through the LTC's matrix (the inverse's inverse).
     const Vec2 d = sample_disk_concentric(u);

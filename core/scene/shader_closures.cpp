@@ -85,7 +85,8 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
         out.add(VelvetBsdf::setup(rough), w, f);
       } else {
         float albedo;
-        const SheenBsdf sh = SheenBsdf::setup(rough, std::fabs(dot(f.n, ctx.wo)), albedo);
+        SheenBsdf sh = SheenBsdf::setup(rough, std::max(dot(f.n, ctx.wo) * (ctx.backfacing ? -1.0f : 1.0f), 0.0f), albedo);
+        sh.back = ctx.backfacing;
         out.add(sh, w * albedo, f, 1.0f);
       }
       break;
@@ -320,8 +321,9 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
           ns = length_sq(ns) > 1e-12f ? normalize(ns) : n;
           const Frame fs = Frame::from_normal(ns);
           float albedo;
-          const SheenBsdf sh = SheenBsdf::setup(sat(val(px(kPxSheenRoughness), 0.5f)),
-                                                std::fabs(dot(ns, ctx.wo)), albedo);
+          SheenBsdf sh = SheenBsdf::setup(sat(val(px(kPxSheenRoughness), 0.5f)),
+                                          std::max(dot(ns, ctx.wo) * (ctx.backfacing ? -1.0f : 1.0f), 0.0f), albedo);
+          sh.back = ctx.backfacing;
           const Vec3 layer = tint * (sw * albedo);
           out.add(sh, weight * layer, fs, 1.0f);
           if (!ctx.ray.emission_only) weight = layer_below(weight, layer);

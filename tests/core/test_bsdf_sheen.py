@@ -24,7 +24,7 @@ def lobe(kind, params, wo):
     p = dict(params)
     if kind in ("sheen", "oren_nayar"):
         p["cos_view"] = abs(wo[2])
-    if kind == "oren_nayar":  # a view from behind is a backfacing hit: its lobe is lit from behind
+    if kind in ("sheen", "oren_nayar"):  # a view from behind is a backfacing hit: lit from behind
         p["back"] = wo[2] < 0.0
     return p
 
@@ -151,3 +151,22 @@ def test_furnace_rough_diffuse_and_sheen_over_white_diffuse():
     centre = dark[15:17, 15:17, 0].mean()
     assert abs(centre - sheen_albedo(0.5, 1.0)) < 0.02, centre
     assert dark[16, 3:6, 0].mean() > centre  # towards the rim: grazing views
+
+
+def test_sheen_lobe_stays_on_the_geometry_side_at_a_smooth_silhouette():
+    """Where a smooth normal turns away from the view (a silhouette of a coarse mesh: the view
+    just below the shading normal, the hit still front-facing), Cycles' sheen stays on its
+    normal's side: light from above the normal reflects, light from below does not. A
+    backfacing hit (back) is the mirror image. (Before: the lobe mirrored to the view's side.)"""
+    wo = (0.6, 0.0, -0.05)
+    up = np.array([[0.3, 0.2, 0.9], [-0.5, 0.1, 0.6]], np.float32)
+    down = up * np.float32([1, 1, -1])
+    for back, lit, dark in ((False, up, down), (True, down, up)):
+        p = {"roughness": 0.5, "cos_view": 0.0, "back": back}
+        f_lit, pdf_lit = pc.bsdf_eval("sheen", p, wo, lit)
+        f_dark, pdf_dark = pc.bsdf_eval("sheen", p, wo, dark)
+        assert (f_lit > 0).all() and (pdf_lit > 0).all()
+        assert (f_dark == 0).all() and (pdf_dark == 0).all()
+        u = np.random.default_rng(3).random((1000, 3), dtype=np.float32)
+        wi, _, _, flags = pc.bsdf_sample("sheen", p, wo, u)
+        assert (np.sign(wi[flags >= 0, 2]) == (-1 if back else 1)).all()
