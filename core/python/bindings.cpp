@@ -1801,6 +1801,23 @@ PYBIND11_MODULE(pathlight_core, m) {
       "The integrator's free-flight distances in a homogeneous medium of RGB extinction sigma_t for "
       "uniform numbers u (N, 2); for sampling tests (their density: the channels' average).");
   m.def(
+      "sample_equiangular",
+      [](const py::object& origin, const py::object& direction, float t_max, const py::object& light,
+         const FloatArray& u) {
+        if (u.ndim() != 1) throw std::invalid_argument("u must have shape (N,)");
+        const Vec3 o = to_point(origin, "origin"), d = normalize(to_point(direction, "direction"));
+        const EquiangularSegment e = equiangular_segment(o, d, t_max, to_point(light, "light"));
+        FloatArray t({u.shape(0)}), pdf({u.shape(0)});
+        for (py::ssize_t i = 0; i < u.shape(0); ++i) {
+          t.mutable_data()[i] = e.valid ? sample_equiangular(e, u.data()[i]) : NAN;
+          pdf.mutable_data()[i] = equiangular_pdf(e, t.data()[i]);
+        }
+        return py::make_tuple(t, pdf);
+      },
+      py::arg("origin"), py::arg("direction"), py::arg("t_max"), py::arg("light"), py::arg("u"),
+      "The integrator's equiangular distances along a ray towards a point on a light (Kulla and "
+      "Fajardo), for uniform numbers u (N,): (t, pdf); NaN where the light lies on the ray's line.");
+  m.def(
       "object_random_id",
       [](const std::string& name) {
         // Cycles' id of an object that is not an instance: hash_string (i * 37 + c over the

@@ -184,6 +184,36 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
   return Vec3(0.0f);
 }
 
+// Direct light at a scattering point p in a medium (the path arrived along unit d): one light
+// sample through the media and pass-through surfaces, times the Henyey-Greenstein phase, weighted
+// against the phase function's own sample by the power heuristic (weight 1 at the last bounce,
+// where no phase sample follows). Not yet multiplied by the path's throughput.
+Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, float g, bool last, const Medium& medium, float u_sel,
+                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng) {
+  DirectSample ds;
+  ds.path = &ray_state;
+  if (!scene.sample_direct(p, u_sel, u_pt, ds, !last) || (ds.exclude & kLightVisVolume)) return Vec3(0.0f);
+  const float ph = hg_phase(g, dot(d, ds.wi));
+  if (!(ph > 0.0f) || is_black(ds.li)) return Vec3(0.0f);
+  Ray shadow;
+  shadow.time = time;
+  shadow.org = p;
+  if (std::isinf(ds.dist)) {
+    shadow.dir = ds.wi;
+    shadow.tmax = kInf;
+  } else {
+    const bool tri = !is_black(ds.target_normal);
+    const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
+    shadow.dir = target - shadow.org;
+    shadow.tmax = 1.0f - 1e-4f;
+  }
+  ++c.rays;
+  const Vec3 vis = shadow_transmittance(scene, shadow, medium, ds.cast_shadow, rng);
+  if (is_black(vis)) return Vec3(0.0f);
+  const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
+  return ds.li * vis * (ph * w / ds.pdf);
+}
+
 inline Vec3 beer(Vec3 sigma, float t) {
   return {std::exp(-sigma.x * t), std::exp(-sigma.y * t), std::exp(-sigma.z * t)};
 }
@@ -376,7 +406,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // collisions need), one stream per path: the sampler's dimensions stay as they were.
   Pcg32 vrng;
   if constexpr (kMedia)
-    if (volumes && scene.features().heterogeneous_volumes) vrng.set(path_key, 0x9E3779B97F4A7C15ULL);
+    if (volumes) vrng.set(path_key, 0x9E3779B97F4A7C15ULL);
   if constexpr (kMedia)
     if (volumes && scene.world_volume().has_medium()) medium.enter(kWorldMedium, scene.world_volume());
   ClosureList cl;
@@ -420,6 +450,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         const float len = length(ray.dir);
         const float seg = found ? hit.t * len : kInf;
         bool scatter = false;
+        float nee_weight = 1.0f;  // the distance sample's share of the direct light (equiangular MIS)
         float t = 0.0f, g = m->g;
         if (m->het) {
           // A heterogeneous medium: delta tracking through its majorants, emission by the
@@ -444,9 +475,38 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
           const Vec3 st = m->sigma_a + m->sigma_s;
           if (!is_black(m->sigma_s)) {
+            // Direct light by equiangular distances too (Cycles' default volume sampling, Multiple
+            // Importance): a point c on a light, sampled from the segment's start, draws a second
+            // scattering point crowded near it, whose light sample is weighted against the distance
+            // sample's by the power heuristic over the two distance densities (the light-sample
+            // and phase MIS at each point is the same for both, so the two share its direct-light
+            // share exactly). Random numbers from the path's own stream: the sampler's dimensions
+            // stay as they were.
+            EquiangularSegment eq;
+            if (nee && !emission_only) {
+              const Vec3 d = ray.dir / len;
+              const float uc = vrng.next_float();
+              const Vec2 uc2{vrng.next_float(), vrng.next_float()};
+              Vec3 cref;
+              if (scene.light_reference_point(ray.org, uc, uc2, cref)) eq = equiangular_segment(ray.org, d, seg, cref);
+              if (eq.valid) {
+                const float te = sample_equiangular(eq, vrng.next_float());
+                const float pe = equiangular_pdf(eq, te), pd = free_flight_pdf(st, te);
+                if (te >= 0.0f && te < seg && pe > 0.0f && std::isfinite(pe)) {
+                  const Vec2 ue{vrng.next_float(), vrng.next_float()};
+                  const Vec3 li = medium_direct(scene, ray.org + d * te, d, m->g, bounce >= s.max_bounces, medium,
+                                                vrng.next_float(), ue, ray_state, ray.time, c, &vrng);
+                  L += beta * m->sigma_s * medium_transmittance(st, te) * li * (pe / (pe * pe + pd * pd));
+                }
+              }
+            }
             const Vec2 ud = sampler.get2d();
             t = sample_free_flight(st, ud.x, ud.y);
             if (t < seg) {
+              if (eq.valid) {
+                const float pd = free_flight_pdf(st, t), pe = equiangular_pdf(eq, t);
+                nee_weight = pd * pd / (pd * pd + pe * pe);
+              }
               if (hits && !(nee && !prev_delta && prev_samples_only)) L += light_hits(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
               const float pdf = free_flight_pdf(st, t);
               if (!(pdf > 0.0f)) break;
@@ -470,34 +530,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           const bool last = bounce >= s.max_bounces;
           float u_rr = -1.0f;
           if (nee) {  // a light sample, weighted against the phase function's sample
-            DirectSample ds;
-            ds.path = &ray_state;
             const Vec2 u_sel = sampler.get2d();
             u_rr = u_sel.y;
             const Vec2 u_pt = sampler.get2d();
-            if (scene.sample_direct(p, u_sel.x, u_pt, ds, !last) && !(ds.exclude & kLightVisVolume)) {
-              const float ph = hg_phase(g, dot(d, ds.wi));
-              if (ph > 0.0f && !is_black(ds.li)) {
-                Ray shadow;
-                shadow.time = ray.time;
-                shadow.org = p;
-                if (std::isinf(ds.dist)) {
-                  shadow.dir = ds.wi;
-                  shadow.tmax = kInf;
-                } else {
-                  const bool tri = !is_black(ds.target_normal);
-                  const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
-                  shadow.dir = target - shadow.org;
-                  shadow.tmax = 1.0f - 1e-4f;
-                }
-                ++c.rays;
-                const Vec3 vis = shadow_transmittance(scene, shadow, medium, ds.cast_shadow, &vrng);
-                if (!is_black(vis)) {
-                  const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
-                  L += beta * ds.li * vis * (ph * w / ds.pdf);
-                }
-              }
-            }
+            L += beta * medium_direct(scene, p, d, g, last, medium, u_sel.x, u_pt, ray_state, ray.time, c, &vrng) *
+                 nee_weight;
           }
           if (last && nee) break;
           const Vec2 u = sampler.get2d();

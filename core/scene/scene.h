@@ -552,6 +552,11 @@ class Scene {
     return use_tree_ ? sample_direct_t<true>(p, u_select, u, s, bsdf_follows)
                      : sample_direct_t<false>(p, u_select, u, s, bsdf_follows);
   }
+  // A point on a light chosen as sample_direct chooses from p, without its visibility tests (a
+  // spot's cone, a one-sided area light's back): equiangular sampling in media crowds distances
+  // towards it. False for distant lights (sun, environment). Any point is a valid choice; this
+  // one only makes the sampling efficient.
+  bool light_reference_point(Vec3 p, float u_select, Vec2 u, Vec3& c) const;
   // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).

@@ -682,6 +682,32 @@ bool Scene::nearest_light_hit(Vec3 from, Vec3 n, Vec3 dir, float tmax, float& t,
   return any;
 }
 
+bool Scene::light_reference_point(Vec3 p, float u_select, Vec2 u, Vec3& c) const {
+  size_t k;
+  float pmf;
+  if (light_dist_.empty() || !choose_light(p, Vec3(0.0f), u_select, k, pmf) || !(pmf > 0.0f)) return false;
+  if (k == env_index_) return false;
+  if (k < lights_.size()) {
+    const Light& l = lights_[k];
+    switch (l.type) {
+      case LightType::Point:
+      case LightType::Spot: c = l.position; return true;
+      case LightType::Rect:
+      case LightType::Ellipse: c = l.position + l.axis_u * (u.x - 0.5f) + l.axis_v * (u.y - 0.5f); return true;
+      case LightType::Sun: return false;
+    }
+    return false;
+  }
+  // An emitter group: the centre of one of its triangles.
+  const EmitterGroup& g = groups_[k - lights_.size()];
+  const size_t e = g.first + std::min<size_t>(size_t(u.x * float(g.count)), size_t(g.count) - 1);
+  const Emitter& em = emitters_[e];
+  const InstanceData& in = inst_[em.instance];
+  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[em.tri]);
+  c = (tv.v0 + tv.v1 + tv.v2) * (1.0f / 3.0f);
+  return is_finite(c);
+}
+
 float Scene::pdf_environment(Vec3 dir) const {
   if (env_index_ == SIZE_MAX) return 0.0f;
   return (use_tree_ ? inf_pmf_[env_index_] : light_dist_.pmf(env_index_)) * env_.pdf(dir);

@@ -176,3 +176,30 @@ def test_world_volume_closed_forms():
     s.set_world_volume(None)  # removed again: no medium, no feature
     img, stats = render(pc, s, 5, 5, samples=4)
     assert "volumes" not in stats["features"] and np.allclose(img[2, 2, :3], 2.0, rtol=1e-4)
+
+
+@pytest.mark.parametrize("t_max", [3.0, float("inf")])
+def test_equiangular_distances_follow_their_pdf(t_max):
+    """Equiangular distances towards a point on a light (direct light in media, Cycles' default
+    volume sampling): a chi-square of their histogram against the closed-form cdf, and the pdf
+    they report is that density (it integrates to 1 over [0, t_max])."""
+    n = 200_000
+    origin, direction, light = (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.2, 0.4, 0.0)
+    u = np.random.default_rng(5).random(n, dtype=np.float32)
+    t, pdf = pc.sample_equiangular(origin, direction, t_max, light, u)
+    assert np.all(np.isfinite(t)) and np.all(t >= -1e-5) and np.all(t <= t_max * (1 + 1e-5))
+    delta, dist = 1.2, 0.4
+    th_a = math.atan2(-delta, dist)
+    th_b = math.atan2(t_max - delta, dist) if math.isfinite(t_max) else math.pi / 2
+    cdf = lambda x: (np.arctan2(x - delta, dist) - th_a) / (th_b - th_a)  # noqa: E731
+    top = t_max if math.isfinite(t_max) else 60.0
+    edges = np.concatenate([np.linspace(0.0, top, 121), [np.inf]])
+    expected = np.diff(np.where(np.isinf(edges), 1.0, cdf(np.minimum(edges, 1e30)))) * n
+    obs, _ = np.histogram(t, bins=edges)
+    chi2, bound = chi_square_ok(obs.astype(float), expected)
+    assert chi2 < bound, (chi2, bound)
+    exact = dist / ((th_b - th_a) * (dist ** 2 + (t - delta) ** 2))
+    np.testing.assert_allclose(pdf, exact, rtol=1e-3)
+    # The light on the ray's line has no equiangular density: the integrator skips it.
+    t_on, _ = pc.sample_equiangular(origin, direction, t_max, (2.0, 0.0, 0.0), u[:4])
+    assert np.all(np.isnan(t_on))
