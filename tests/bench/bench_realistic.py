@@ -40,6 +40,39 @@ def render(build, engine, **settings):
     return img[..., :3].astype(np.float64), time.perf_counter() - t
 
 
+def measure_scene(build, times, repeats, ref_spp):
+    """The equal-time measure of one scene and the converged agreement of its two references
+    (mean_ratio, worst 8x8 region); returns (results, the references)."""
+    r = measure(lambda e, **kw: render(build, e, **kw), times, repeats, ref_spp, 4242)
+    refs = r.pop("refs")
+    ratio, worst, _ = ms.compare(refs["PATHLIGHT"], refs["CYCLES"])
+    r.update(mean_ratio=float(ratio), worst=float(worst))
+    return r, refs
+
+
+def table_header(times):
+    return ["| Scene | lower error at " + " / ".join(f"{t:g} s" for t in times) +
+            " | pooled | converged mean / worst region |", "|---|---|---|---|"]
+
+
+def table_rows(results):
+    rows = []
+    for name, r in results.items():
+        ratios = " / ".join(f"{c / p:.2f}x" for p, c in zip(r["errors"]["PATHLIGHT"], r["errors"]["CYCLES"]))
+        rows.append(f"| {name} | {ratios} | {r['pooled'][0]:.2f}x ± {r['pooled'][1]:.2f} | "
+                    f"{r['mean_ratio']:.4f} / {100 * r['worst']:.1f} % |")
+    return rows
+
+
+def raw_lines(results, times):
+    lines = ["", "Relative MSE per budget (Pathlight / Cycles, before the floor is subtracted) and the floor:", ""]
+    for name, r in results.items():
+        vals = ", ".join(f"{t:g} s: {p:.2e} / {c:.2e}" for t, p, c in
+                         zip(times, r["raw"]["PATHLIGHT"], r["raw"]["CYCLES"]))
+        lines.append(f"- {name}: {vals}; floor {r['floor']:.1e}")
+    return lines + [""]
+
+
 def tree_variance(build, seeds, spp):
     """Pathlight's relative variance of one sample with the light tree (Auto) and without (Off)."""
     out = {}
@@ -78,10 +111,7 @@ def main():
     load_addon()
     results = {}
     for name, build in realistic_scenes.SCENES.items():
-        r = measure(lambda e, **kw: render(build, e, **kw), times, repeats, ref_spp, 4242)
-        refs = r.pop("refs")
-        ratio, worst, _ = ms.compare(refs["PATHLIGHT"], refs["CYCLES"])
-        r.update(mean_ratio=float(ratio), worst=float(worst))
+        r, refs = measure_scene(build, times, repeats, ref_spp)
         if build is realistic_scenes.lamp_room:
             r["tree"] = tree_variance(build, tree_seeds, tree_spp)
         if build is realistic_scenes.window_room:
@@ -106,13 +136,9 @@ def main():
         f"'Converged' compares the two {ref_spp}-spp references: Pathlight's mean over Cycles', and the worst",
         "8x8 region's relative difference (issue 25 asks for 1 % and 3 %).",
         "",
-        "| Scene | lower error at " + " / ".join(f"{t:g} s" for t in times) + " | pooled | converged mean / worst region |",
-        "|---|---|---|---|",
+        *table_header(times),
+        *table_rows(results),
     ]
-    for name, r in results.items():
-        ratios = " / ".join(f"{c / p:.2f}x" for p, c in zip(r["errors"]["PATHLIGHT"], r["errors"]["CYCLES"]))
-        lines.append(f"| {name} | {ratios} | {r['pooled'][0]:.2f}x ± {r['pooled'][1]:.2f} | "
-                     f"{r['mean_ratio']:.4f} / {100 * r['worst']:.1f} % |")
     for name, r in results.items():
         if "tree" in r:
             t = r["tree"]
@@ -125,12 +151,7 @@ def main():
                       "with it, " + " / ".join(f"{x:.2f}x" for x in gg["ratios"]) + f" at "
                       + " / ".join(f"{t:g} s" for t in times) + f", pooled {gg['pooled'][0]:.2f}x ± "
                       f"{gg['pooled'][1]:.2f} (issue 25 asks for 1.5x)."]
-    lines += ["", "Relative MSE per budget (Pathlight / Cycles, before the floor is subtracted) and the floor:", ""]
-    for name, r in results.items():
-        vals = ", ".join(f"{t:g} s: {p:.2e} / {c:.2e}" for t, p, c in
-                         zip(times, r["raw"]["PATHLIGHT"], r["raw"]["CYCLES"]))
-        lines.append(f"- {name}: {vals}; floor {r['floor']:.1e}")
-    lines.append("")
+    lines += raw_lines(results, times)
     if plot:
         lines += [f"![relative MSE against render time on the realistic scenes]({plot})", ""]
     write_section(out, "realistic", lines)
