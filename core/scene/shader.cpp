@@ -18,6 +18,14 @@ using namespace shader_math;  // this unit's helpers (shader_math.h is included 
 
 namespace {
 
+// An Attribute node's output (Cycles' svm_node_attr): sub 0 Color / Vector (RGB with alpha),
+// 1 Fac (the mean of RGB), 2 Alpha.
+inline Float4 attribute_output(const Float4& a, uint8_t sub) {
+  if (sub == 0) return a;
+  const float v = sub == 1 ? (a.x + a.y + a.z) * (1.0f / 3.0f) : a.w;
+  return {v, v, v, 1.0f};
+}
+
 // The program's evaluation. kSetsNormal: the program has a SetNormal op, which replaces the
 // shading normal of `ctx` (then the caller's copy, `local`) for the ops after it, as Cycles'
 // bump from displacement sets sd->N for the rest of the shader.
@@ -263,24 +271,12 @@ template <bool kSetsNormal>
         const Float4 a = op.code == OpCode::ObjectAttribute ? (ctx.object ? ctx.object->attribute(op.index) : Float4{})
                          : op.index >= 0 && op.index < ctx.attr_sets && ctx.attrs ? ctx.attrs[op.index]
                                                                                    : Float4{};
-        if (op.sub == 0) {
-          d = a;
-        } else {
-          const float v = op.sub == 1 ? (a.x + a.y + a.z) * (1.0f / 3.0f) : a.w;
-          d = {v, v, v, 1.0f};
-        }
+        d = attribute_output(a, op.sub);
         break;
       }
-      case OpCode::VolumeGrid: {
-        const Float4 a = read_volume_grid(ctx, op.index, op.ext == 1 ? Interp::Closest : Interp::Linear);
-        if (op.sub == 0) {
-          d = a;
-        } else {
-          const float v = op.sub == 1 ? (a.x + a.y + a.z) * (1.0f / 3.0f) : a.w;
-          d = {v, v, v, 1.0f};
-        }
+      case OpCode::VolumeGrid:
+        d = attribute_output(read_volume_grid(ctx, op.index, op.ext == 1 ? Interp::Closest : Interp::Linear), op.sub);
         break;
-      }
       case OpCode::ObjectNormal: {
         Vec3 n = ctx.ns;
         if (ctx.object && ctx.object->valid) {
