@@ -1397,7 +1397,8 @@ FloatArray film_rect(PySession& self, int x, int y, int w, int h) {
 VolumeSampling parse_sampling(const std::string& mode) {
   if (mode == "linear" || mode == "trilinear") return VolumeSampling::Trilinear;
   if (mode == "closest") return VolumeSampling::Closest;
-  throw std::invalid_argument("sampling mode must be 'linear' or 'closest', not '" + mode + "'");
+  if (mode == "cubic" || mode == "tricubic") return VolumeSampling::Tricubic;
+  throw std::invalid_argument("sampling mode must be 'linear', 'closest' or 'cubic', not '" + mode + "'");
 }
 
 py::array_t<double> matrix_array(const std::array<double, 16>& m) {

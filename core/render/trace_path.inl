@@ -63,22 +63,23 @@ struct Medium {
   // in (overlapping objects, a volume inside the world's fog, absorbing glass in fog), so
   // homogeneous layers add up: coefficients and emission summed, the phase's g their mean
   // weighted by scattering (as a material's several phase closures are combined). A stack
-  // holding a heterogeneous layer uses its innermost layer alone.
+  // holding a heterogeneous layer is `mixed`: sum then holds its homogeneous layers' sum, its
+  // het the innermost heterogeneous layer, and the tracking sums every layer per point
+  // (MediumStack below).
   MediumLayer sum{};
+  bool mixed = false;
   const MediumLayer* top() const { return n ? (n == 1 ? &layer[0] : &sum) : nullptr; }
   Vec3 current() const { return n ? top()->sigma_a : Vec3(0.0f); }  // Beer's law only
   void combine() {
+    mixed = false;
     if (n < 2) return;
-    bool het = false;
-    for (int i = 0; i < n; ++i) het = het || layer[i].het;
-    if (het) {
-      sum = layer[n - 1];
-      return;
-    }
+    const HeteroMedium* het = nullptr;
+    for (int i = 0; i < n; ++i) het = layer[i].het ? layer[i].het : het;
     sum = layer[n - 1];
     sum.sigma_a = sum.sigma_s = sum.emission = Vec3(0.0f);
     float g = 0.0f, w = 0.0f;
     for (int i = 0; i < n; ++i) {
+      if (layer[i].het) continue;
       sum.sigma_a += layer[i].sigma_a;
       sum.sigma_s += layer[i].sigma_s;
       sum.emission += layer[i].emission;
@@ -87,6 +88,8 @@ struct Medium {
       w += wi;
     }
     sum.g = w > 0.0f ? g / w : 0.0f;
+    sum.het = het;
+    mixed = het != nullptr;
   }
   void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr) {
     if (n < 4) layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase_g, m, het};
@@ -114,6 +117,69 @@ struct Medium {
   }
 };
 
+// A mixed stack (Medium::mixed) along the ray org + t d: every layer's coefficients summed at a
+// point, majorants summed along the ray (scene/medium_grid.h's StackMajorants), and at a
+// scattering the layer whose phase function continues, chosen by its share of the scattering.
+struct MediumStack {
+  const Scene& scene;
+  const Medium& medium;
+  Vec3 org, d;
+  StackMajorants majorants;
+  Vec3 ss[4];  // each layer's sigma_s and g at the last point evaluated
+  float g[4];
+
+  MediumStack(const Scene& sc, const Medium& m, Vec3 o, Vec3 dir) : scene(sc), medium(m), org(o), d(dir) {
+    for (int i = 0; i < m.n; ++i)
+      if (m.layer[i].het) majorants.grids[majorants.n++] = &m.layer[i].het->grid;
+    majorants.constant = max_component(m.sum.sigma_a + m.sum.sigma_s);
+  }
+  MediumSample at(float t) {
+    const Vec3 p = org + d * t;
+    MediumSample sum{medium.sum.sigma_a, medium.sum.sigma_s, medium.sum.emission, 0.0f};
+    for (int i = 0; i < medium.n; ++i) {
+      const MediumLayer& l = medium.layer[i];
+      if (!l.het) {
+        ss[i] = l.sigma_s;
+        g[i] = l.g;
+        continue;
+      }
+      const MediumSample ms = scene.medium_at(*l.het, p, d);
+      sum.sigma_a += ms.sigma_a;
+      sum.sigma_s += ms.sigma_s;
+      sum.emission += ms.emission;
+      ss[i] = ms.sigma_s;
+      g[i] = ms.g;
+    }
+    return sum;
+  }
+  // After a scattering at the last point evaluated (beta already weighted by the summed
+  // sigma_s): picks layer i with probability P_i = mean(sigma_s,i) / mean(sigma_s), weights
+  // beta by sigma_s,i / (sigma_s P_i) per channel, and returns its anisotropy. The expectation
+  // is the scattering-weighted mixture of the layers' phase functions, as Cycles' several phase
+  // closures.
+  float choose_phase(float u, Vec3& beta) const {
+    float w[4], total = 0.0f;
+    for (int i = 0; i < medium.n; ++i) total += (w[i] = average(ss[i]));
+    if (!(total > 0.0f)) return 0.0f;
+    int k = medium.n - 1;
+    float acc = 0.0f;
+    for (int i = 0; i < medium.n; ++i) {
+      acc += w[i];
+      if (u * total < acc && w[i] > 0.0f) {
+        k = i;
+        break;
+      }
+    }
+    while (k > 0 && !(w[k] > 0.0f)) --k;  // (u rounding past the last non-empty layer)
+    Vec3 all(0.0f);
+    for (int i = 0; i < medium.n; ++i) all += ss[i];
+    const float inv_p = total / w[k];
+    const auto share = [&](float a, float b) { return b > 0.0f ? a / b * inv_p : 0.0f; };
+    beta *= Vec3(share(ss[k].x, all.x), share(ss[k].y, all.y), share(ss[k].z, all.z));
+    return g[k];
+  }
+};
+
 // Radiance a homogeneous medium emits along a segment of length t, seen through its own
 // extinction: the integral of exp(-sigma_t s) Le ds from 0 to t.
 inline Vec3 medium_emission(const MediumLayer& m, float t) {
@@ -131,11 +197,16 @@ inline Vec3 medium_emission(const MediumLayer& m, float t) {
 // a surface with a medium enters or leaves it. occlude false: the ray sees no surfaces, only
 // the medium it starts in.
 // Heterogeneous layers: ratio tracking with `rng` (transmittance estimates, unbiased).
-Vec3 layer_transmittance(const Scene& scene, const MediumLayer& m, Vec3 org, Vec3 dir, float seg, Pcg32* rng) {
+Vec3 layer_transmittance(const Scene& scene, const Medium& medium, Vec3 org, Vec3 dir, float seg, Pcg32* rng) {
+  const MediumLayer& m = *medium.top();
   if (!m.het) return medium_transmittance(m.sigma_a + m.sigma_s, seg);
   if (!rng) return Vec3(1.0f);
   const float len = length(dir);
   const Vec3 d = dir / len;
+  if (medium.mixed) {
+    MediumStack st(scene, medium, org, d);
+    return ratio_track(st.majorants, org, d, seg, *rng, [&](float t) { return st.at(t); });
+  }
   return ratio_track(m.het->grid, org, d, seg, *rng,
                      [&](float t) { return scene.medium_at(*m.het, org + d * t, d); });
 }
@@ -143,17 +214,17 @@ Vec3 layer_transmittance(const Scene& scene, const MediumLayer& m, Vec3 org, Vec
 Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr) {
   Vec3 T(1.0f);
   if (!occlude) {
-    if (const MediumLayer* m = medium.top())
-      T = layer_transmittance(scene, *m, ray.org, ray.dir, ray.tmax * length(ray.dir), rng);
+    if (medium.top())
+      T = layer_transmittance(scene, medium, ray.org, ray.dir, ray.tmax * length(ray.dir), rng);
     return T;
   }
   for (int i = 0; i < 64; ++i) {
     const float len = length(ray.dir);  // each crossing shortens it (the end point stays)
     Hit h;
     const bool found = scene.intersect(ray, h);
-    if (const MediumLayer* m = medium.top()) {
+    if (medium.top()) {
       const float seg = found ? h.t * len : ray.tmax * len;
-      T = T * layer_transmittance(scene, *m, ray.org, ray.dir, seg, rng);
+      T = T * layer_transmittance(scene, medium, ray.org, ray.dir, seg, rng);
     }
     if (!found) return T;
     SurfacePoint sp;
@@ -458,19 +529,31 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           const Vec3 d = ray.dir / len;
           MediumSample ms;
           int steps = 0;
-          const auto density = [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d); };
-          if (hits && !(nee && !prev_delta && prev_samples_only)) {
-            // Lights with extent along the whole segment, whatever the tracking below does, each
-            // through a ratio-tracking estimate of the transmittance to it (unbiased; the
-            // passes after the segment and after a collision then add none).
-            const auto through_het = [&](float tl) { return beta * ratio_track(m->het->grid, ray.org, d, tl, vrng, density); };
-            L += light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n,
-                            through_het);
-            lights_counted = true;
+          // Lights with extent along the whole segment, whatever the tracking does, each through
+          // a ratio-tracking estimate of the transmittance to it (unbiased; the passes after the
+          // segment and after a collision then add none). Then delta tracking.
+          const auto track = [&](const auto& majorants, const auto& density) {
+            if (hits && !(nee && !prev_delta && prev_samples_only)) {
+              const auto through_het = [&](float tl) {
+                return beta * ratio_track(majorants, ray.org, d, tl, vrng, density);
+              };
+              L += light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
+                              mis_n, through_het);
+              lights_counted = true;
+            }
+            return delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
+          };
+          if (!medium.mixed) {
+            scatter = track(m->het->grid, [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d); });
+            if (is_black(beta)) break;
+            g = ms.g;
+          } else {
+            // Overlapping layers, one of them heterogeneous: all of them summed per point.
+            MediumStack stack(scene, medium, ray.org, d);
+            scatter = track(stack.majorants, [&](float tt) { return stack.at(tt); });
+            if (is_black(beta)) break;
+            if (scatter) g = stack.choose_phase(vrng.next_float(), beta);
           }
-          scatter = delta_track(m->het->grid, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
-          if (is_black(beta)) break;
-          g = ms.g;
         } else {
           if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
           const Vec3 st = m->sigma_a + m->sigma_s;

@@ -24,57 +24,128 @@ struct MajorantGrid {
   bool empty() const { return cells.empty() || bounds.empty(); }
 };
 
+// The cells that the ray org + t dir (dir unit) crosses within [0, tmax], in order, one piece
+// [a, b) with its majorant per call (pbrt-v4's DDAMajorantIterator).
+struct MajorantCursor {
+  const MajorantGrid* g = nullptr;
+  int c[3], step[3], guard = 0;
+  float next[3], delta[3], t = 0.0f, t1 = 0.0f;
+  bool done = true;
+
+  void start(const MajorantGrid& grid, Vec3 org, Vec3 dir, float tmax) {
+    g = &grid;
+    done = true;
+    guard = 0;
+    if (grid.empty()) return;
+    float t0 = 0.0f;
+    t1 = tmax;
+    const float o[3] = {org.x, org.y, org.z}, d[3] = {dir.x, dir.y, dir.z};
+    const float lo[3] = {grid.bounds.lo.x, grid.bounds.lo.y, grid.bounds.lo.z};
+    const float hi[3] = {grid.bounds.hi.x, grid.bounds.hi.y, grid.bounds.hi.z};
+    for (int a = 0; a < 3; ++a) {
+      if (d[a] == 0.0f) {
+        if (o[a] < lo[a] || o[a] > hi[a]) return;
+        continue;
+      }
+      float ta = (lo[a] - o[a]) / d[a], tb = (hi[a] - o[a]) / d[a];
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+    }
+    if (!(t0 < t1)) return;
+    constexpr int N = MajorantGrid::kRes;
+    for (int a = 0; a < 3; ++a) {
+      const float size = (hi[a] - lo[a]) / float(N);
+      const float p = o[a] + d[a] * t0;
+      c[a] = size > 0.0f ? std::clamp(int((p - lo[a]) / size), 0, N - 1) : 0;
+      if (d[a] > 0.0f && size > 0.0f) {
+        step[a] = 1;
+        next[a] = t0 + (lo[a] + float(c[a] + 1) * size - p) / d[a];
+        delta[a] = size / d[a];
+      } else if (d[a] < 0.0f && size > 0.0f) {
+        step[a] = -1;
+        next[a] = t0 + (lo[a] + float(c[a]) * size - p) / d[a];
+        delta[a] = -size / d[a];
+      } else {
+        step[a] = 0;
+        next[a] = kInf;
+        delta[a] = kInf;
+      }
+    }
+    t = t0;
+    done = false;
+  }
+
+  // The next piece; false once the ray has left the grid (or tmax).
+  bool piece(float& a0, float& b0, float& mu) {
+    constexpr int N = MajorantGrid::kRes;
+    if (done || ++guard > 3 * N + 3) return false;
+    const int a = next[0] < next[1] ? (next[0] < next[2] ? 0 : 2) : (next[1] < next[2] ? 1 : 2);
+    const float tn = std::min(std::max(next[a], t), t1);
+    a0 = t;
+    b0 = tn;
+    mu = g->at(c[0], c[1], c[2]);
+    if (tn >= t1) {
+      done = true;
+      return true;
+    }
+    t = tn;
+    c[a] += step[a];
+    if (c[a] < 0 || c[a] >= N) done = true;
+    next[a] += delta[a];
+    return true;
+  }
+};
+
 // Calls f(t0, t1, majorant) for the cells that the ray org + t dir (dir unit) crosses within
 // [0, tmax], in order; stops where f returns false. Returns false if f stopped it.
 template <class F>
 bool walk_majorants(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, F&& f) {
-  if (g.empty()) return true;
-  float t0 = 0.0f, t1 = tmax;
-  const float o[3] = {org.x, org.y, org.z}, d[3] = {dir.x, dir.y, dir.z};
-  const float lo[3] = {g.bounds.lo.x, g.bounds.lo.y, g.bounds.lo.z};
-  const float hi[3] = {g.bounds.hi.x, g.bounds.hi.y, g.bounds.hi.z};
-  for (int a = 0; a < 3; ++a) {
-    if (d[a] == 0.0f) {
-      if (o[a] < lo[a] || o[a] > hi[a]) return true;
-      continue;
-    }
-    float ta = (lo[a] - o[a]) / d[a], tb = (hi[a] - o[a]) / d[a];
-    if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta);
-    t1 = std::min(t1, tb);
+  MajorantCursor cur;
+  cur.start(g, org, dir, tmax);
+  float t0, t1, mu;
+  while (cur.piece(t0, t1, mu))
+    if (!f(t0, t1, mu)) return false;
+  return true;
+}
+
+// The majorant of a stack of overlapping media (Cycles sums every volume a path is in): the
+// heterogeneous layers' majorant grids plus a constant for the homogeneous ones. The sum of
+// the layers' Poisson processes of tentative collisions is the one of the summed rate.
+struct StackMajorants {
+  static constexpr int kMax = 4;
+  const MajorantGrid* grids[kMax] = {};
+  int n = 0;
+  float constant = 0.0f;  // the homogeneous layers' summed extinction, its largest channel
+};
+
+// As walk_majorants: pieces where none of the summed majorants changes, the sum as majorant.
+template <class F>
+bool walk_majorants(const StackMajorants& s, Vec3 org, Vec3 dir, float tmax, F&& f) {
+  MajorantCursor cur[StackMajorants::kMax];
+  float a[StackMajorants::kMax], b[StackMajorants::kMax], mu[StackMajorants::kMax];
+  bool live[StackMajorants::kMax];
+  for (int i = 0; i < s.n; ++i) {
+    cur[i].start(*s.grids[i], org, dir, tmax);
+    live[i] = cur[i].piece(a[i], b[i], mu[i]);
   }
-  if (!(t0 < t1)) return true;
-  constexpr int N = MajorantGrid::kRes;
-  int c[3], step[3];
-  float next[3], delta[3];
-  for (int a = 0; a < 3; ++a) {
-    const float size = (hi[a] - lo[a]) / float(N);
-    const float p = o[a] + d[a] * t0;
-    c[a] = size > 0.0f ? std::clamp(int((p - lo[a]) / size), 0, N - 1) : 0;
-    if (d[a] > 0.0f && size > 0.0f) {
-      step[a] = 1;
-      next[a] = t0 + (lo[a] + float(c[a] + 1) * size - p) / d[a];
-      delta[a] = size / d[a];
-    } else if (d[a] < 0.0f && size > 0.0f) {
-      step[a] = -1;
-      next[a] = t0 + (lo[a] + float(c[a]) * size - p) / d[a];
-      delta[a] = -size / d[a];
-    } else {
-      step[a] = 0;
-      next[a] = kInf;
-      delta[a] = kInf;
+  float t = 0.0f;
+  while (t < tmax) {
+    for (int i = 0; i < s.n; ++i)  // (pieces already behind t, empty ones included)
+      while (live[i] && b[i] <= t) live[i] = cur[i].piece(a[i], b[i], mu[i]);
+    float tn = tmax, m = s.constant;
+    for (int i = 0; i < s.n; ++i) {
+      if (!live[i]) continue;
+      if (a[i] <= t) {
+        m += mu[i];
+        tn = std::min(tn, b[i]);
+      } else {
+        tn = std::min(tn, a[i]);  // (the ray enters this grid later)
+      }
     }
-  }
-  float t = t0;
-  for (int guard = 0; guard < 3 * N + 3; ++guard) {
-    const int a = next[0] < next[1] ? (next[0] < next[2] ? 0 : 2) : (next[1] < next[2] ? 1 : 2);
-    const float tn = std::min(std::max(next[a], t), t1);
-    if (!f(t, tn, g.at(c[0], c[1], c[2]))) return false;
-    if (tn >= t1) return true;
+    if (!(tn > t)) break;
+    if (!f(t, tn, m)) return false;
     t = tn;
-    c[a] += step[a];
-    if (c[a] < 0 || c[a] >= N) return true;
-    next[a] += delta[a];
   }
   return true;
 }
@@ -86,8 +157,8 @@ inline float exp_step(Pcg32& rng, float mu) { return -std::log1p(-rng.next_float
 // returns false to stop. Returns false when f stopped, or after kMaxCollisions collisions over
 // the whole walk (counted in `steps`: a majorant far too small, a runaway); else true.
 constexpr int kMaxCollisions = 1 << 16;
-template <class F>
-bool walk_collisions(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, int& steps, bool& runaway,
+template <class Majorants, class F>
+bool walk_collisions(const Majorants& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, int& steps, bool& runaway,
                      F&& f) {
   runaway = false;
   return walk_majorants(g, org, dir, tmax, [&](float t0, float t1, float mu) {
@@ -110,8 +181,8 @@ bool walk_collisions(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg3
 // probability mean(|sigma_n|) / q, q their sum, weighting beta by sigma_x / (majorant p_x).
 // Absorption stays in those weights (no absorption events). Returns true at a scattering, with
 // its distance t and coefficients ms; false when the ray passes tmax (or beta dies).
-template <class Eval>
-bool delta_track(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, Eval&& eval, Vec3& beta,
+template <class Majorants, class Eval>
+bool delta_track(const Majorants& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, Eval&& eval, Vec3& beta,
                  Vec3* L, float& t_out, MediumSample& ms_out, int& steps) {
   bool scattered = false, dead = false, runaway;
   walk_collisions(g, org, dir, tmax, rng, steps, runaway, [&](float t, float mu) {
@@ -145,8 +216,8 @@ bool delta_track(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& r
 
 // Ratio tracking: the transmittance over [0, tmax] as the product of sigma_n / majorant over
 // tentative collisions (unbiased, signed where the majorant is too small).
-template <class Eval>
-Vec3 ratio_track(const MajorantGrid& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, Eval&& eval) {
+template <class Majorants, class Eval>
+Vec3 ratio_track(const Majorants& g, Vec3 org, Vec3 dir, float tmax, Pcg32& rng, Eval&& eval) {
   Vec3 T(1.0f);
   int steps = 0;
   bool runaway;

@@ -25,7 +25,7 @@ MediumSample Scene::medium_at(const HeteroMedium& h, Vec3 p, Vec3 dir) const {
 // half a voxel low, and this puts it back where its node tree evaluated it.
 constexpr double kCyclesVoxelShift = 0.5;
 
-Float4 read_volume_grid(const ShadingContext& ctx, int id, Interp interp) {
+Float4 read_volume_grid(const ShadingContext& ctx, int id, VolumeSampling interp) {
   const VolumeGrid* g = ctx.scene ? ctx.scene->volume_grid(id) : nullptr;
   if (!g) return Float4{};  // Cycles: a grid found nowhere reads 0
   const bool obj = ctx.object && ctx.object->valid;
@@ -59,7 +59,7 @@ Float4 read_volume_grid(const ShadingContext& ctx, int id, Interp interp) {
     ijk[a] = m[size_t(a * 4)] * o.x + m[size_t(a * 4 + 1)] * o.y + m[size_t(a * 4 + 2)] * o.z + m[size_t(a * 4 + 3)] -
              kCyclesVoxelShift;
   float v[3] = {0.0f, 0.0f, 0.0f};
-  g->sample_index(ijk, interp == Interp::Closest ? VolumeSampling::Closest : VolumeSampling::Trilinear, v);
+  g->sample_index(ijk, interp, v);
   return g->channels() == 1 ? Float4{v[0], v[0], v[0], 1.0f} : Float4{v[0], v[1], v[2], 1.0f};
 }
 

@@ -275,7 +275,7 @@ template <bool kSetsNormal>
         break;
       }
       case OpCode::VolumeGrid:
-        d = attribute_output(read_volume_grid(ctx, op.index, op.ext == 1 ? Interp::Closest : Interp::Linear), op.sub);
+        d = attribute_output(read_volume_grid(ctx, op.index, VolumeSampling(op.ext)), op.sub);
         break;
       case OpCode::ObjectNormal: {
         Vec3 n = ctx.ns;

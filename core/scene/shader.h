@@ -310,10 +310,11 @@ struct ShadingContext {
 // objects). Implemented by the scene (scene.cpp).
 float trace_ambient_occlusion(const ShadingContext& ctx, Vec3 n, float distance, int samples, bool only_local);
 
+enum class VolumeSampling;  // scene/volume_grid.h
 // Scene voxel grid `grid` at the context's point in its instance's object space (RGBA: a float
 // grid reads (v, v, v, 1), a vector grid (x, y, z, 1); a missing grid 0), or with
 // ctx.grid_bound its maximum over that box. Implemented by the scene (scene_media.cpp).
-Float4 read_volume_grid(const ShadingContext& ctx, int grid, Interp interp);
+Float4 read_volume_grid(const ShadingContext& ctx, int grid, VolumeSampling interp);
 
 // The Bevel node's normal: Cycles' svm_bevel, the smooth normals of the instance's surface
 // within `radius` of the point, found by `samples` short rays (mesh orientation, as ctx.ns).

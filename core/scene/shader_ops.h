@@ -61,6 +61,8 @@ inline constexpr SubOpName kClampOpNames[] = {{"MINMAX", 3}, {"RANGE", 3}};
 // evaluation's order.
 inline constexpr const char* kInterpOpNames[] = {"LINEAR", "CLOSEST"};
 static_assert(std::size(kInterpOpNames) == size_t(Interp::Closest) + 1, "one name per Interp");
+// A grid read's interpolation: its index is the VolumeSampling (volume_grid.h).
+inline constexpr const char* kVolumeInterpOpNames[] = {"CLOSEST", "LINEAR", "CUBIC"};
 inline constexpr const char* kExtensionOpNames[] = {"REPEAT", "EXTEND", "CLIP"};
 static_assert(std::size(kExtensionOpNames) == size_t(Extension::Clip) + 1, "one name per Extension");
 inline constexpr const char* kLightPathOutputs[] = {
@@ -294,7 +296,7 @@ inline constexpr OpParam kObjectAttribute[] = {
 // A scene voxel grid: its id (Scene::add_volume_grid), the output, the interpolation.
 inline constexpr OpParam kVolumeGrid[] = {int_in(F::Index, "volume grid id", 0, (1 << 30)),
                                           choice(F::Sub, "attribute output", kAttributeOutputs),
-                                          choice(F::Ext, "interpolation", kInterpOpNames)};
+                                          choice(F::Ext, "interpolation", kVolumeInterpOpNames)};
 }  // namespace schema
 
 // Every value op: its name, OpCode, registers, parameters and program flags. Adding a value op

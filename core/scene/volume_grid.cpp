@@ -201,6 +201,30 @@ void VolumeGrid::sample_index(const double ijk[3], VolumeSampling mode, float* o
   const int64_t x = int64_t(fx), y = int64_t(fy), z = int64_t(fz);
   const float tx = float(ijk[0] - fx), ty = float(ijk[1] - fy), tz = float(ijk[2] - fz);
   float acc[3] = {0, 0, 0}, v[3];
+  if (mode == VolumeSampling::Tricubic) {
+    // Uniform cubic B-spline weights of voxels floor - 1 .. floor + 2 (Cycles' tricubic lookup).
+    const auto weights = [](float t, float w[4]) {
+      const float s = 1.0f - t;
+      w[0] = s * s * s / 6.0f;
+      w[1] = (3.0f * t * t * t - 6.0f * t * t + 4.0f) / 6.0f;
+      w[2] = (-3.0f * t * t * t + 3.0f * t * t + 3.0f * t + 1.0f) / 6.0f;
+      w[3] = t * t * t / 6.0f;
+    };
+    float wx[4], wy[4], wz[4];
+    weights(tx, wx);
+    weights(ty, wy);
+    weights(tz, wz);
+    for (int k = 0; k < 4; ++k)
+      for (int j = 0; j < 4; ++j) {
+        const float wjk = wy[j] * wz[k];
+        for (int i = 0; i < 4; ++i) {
+          voxel(x + i - 1, y + j - 1, z + k - 1, v);
+          for (int c = 0; c < channels_; ++c) acc[c] += wx[i] * wjk * v[c];
+        }
+      }
+    for (int c = 0; c < channels_; ++c) out[c] = acc[c];
+    return;
+  }
   if ((x & 7) < 7 && (y & 7) < 7 && (z & 7) < 7) {
     // The 2x2x2 stencil inside one brick (343 of 512 cells): one table look-up.
     const int32_t e = entry(x >> kBrickLog2, y >> kBrickLog2, z >> kBrickLog2);

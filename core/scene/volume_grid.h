@@ -14,7 +14,9 @@
 
 namespace pl {
 
-enum class VolumeSampling { Closest = 0, Trilinear = 1 };
+// Tricubic: the uniform cubic B-spline over the 4^3 voxels around the point (Cycles' Cubic
+// volume interpolation); its weights are non-negative and sum to 1, so the majorants bound it.
+enum class VolumeSampling { Closest = 0, Trilinear = 1, Tricubic = 2 };
 
 class VolumeGrid {
  public:

@@ -256,7 +256,7 @@ def test_trilinear_and_closest_sampling():
     assert edge == pytest.approx(0.5 * lin(15, 3, 3), rel=1e-5)
     assert grid.sample_index(np.array([[1e30, 0, 0], [np.nan, 0, 0]], np.float32)).tolist() == [0.0, 0.0]
     with pytest.raises(ValueError, match="mode"):
-        grid.sample_index(p, "cubic")
+        grid.sample_index(p, "quadratic")  # ("cubic" is a mode since Cubic interpolation)
 
 
 def test_trilinear_matches_a_dense_reference_across_bricks_and_tiles():

@@ -125,9 +125,7 @@ class InputNodes:
         if output == "FAC" and channels == 3:
             self.problem(f"'{node.name}': the vector grid '{name}' is read as a float (the mean of "
                          "its components, as Cycles)")
-        interp = 'CLOSEST' if self.volume_interpolation == 'CLOSEST' else 'LINEAR'
-        if self.volume_interpolation == 'CUBIC':
-            self.problem("Volume Interpolation Cubic is not supported (linear)")
+        interp = self.volume_interpolation if self.volume_interpolation in ('CLOSEST', 'CUBIC') else 'LINEAR'
         key = ("volume_grid", grid_id, output, interp)
         if key not in self.cache:
             self.cache[key] = self.emit("float" if output != "COLOR" else "color", "volume_grid",
