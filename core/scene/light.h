@@ -30,9 +30,17 @@ struct Light {
   LightType type = LightType::Point;
   Vec3 color;            // point/spot: intensity W/sr; sun: irradiance; area: radiance
   Vec3 position;         // point/spot/area centre
-  float radius = 0.0f;   // point/spot: radius of the disk facing the shaded point
+  float radius = 0.0f;   // point/spot: radius of the disk facing the shaded point, or of the sphere
+  // point/spot with Soft Falloff off (Cycles' is_sphere): an emitting sphere of radiance
+  // I / (pi r^2), sampled in the cone it subtends (sample_sphere_light); else the soft disk.
+  bool sphere = false;
   Mat4 to_local;         // spot: world direction -> light-local (inverse 3x3 of the matrix)
   float cos_half_spot = -1.0f, spot_smooth_inv = 0.0f;  // spot cone and blend
+  // Sphere spots: the world emission axis and 1 - cos of the widest half angle of the cone about
+  // it (Cycles' cos_half_larger_spread; 2: every direction). Sampled where smaller than the
+  // sphere's cone.
+  Vec3 spot_axis;
+  float spread_one_minus_cos = 2.0f;
   Vec3 dir;              // sun: unit direction towards the sun; area: unit emission normal (-Z)
   float cos_half_angle = 1.0f, sun_radiance_scale = 0.0f;  // sun: cone and 1 / (pi sin^2 h)
   Vec3 axis_u, axis_v;   // area: full extent vectors
@@ -73,6 +81,91 @@ inline float spot_attenuation(const Light& l, Vec3 from_light) {
 // uniformly by area. Below, the light is a speck and area sampling is as good and cheaper.
 inline bool use_spherical_rect(double omega) { return omega > 2e-4; }
 
+// 1 - cos of the half angle whose sine squared is s2, without cancellation for small angles.
+inline float one_minus_cos_from_sin2(float s2) {
+  return s2 / (1.0f + std::sqrt(std::max(0.0f, 1.0f - s2)));
+}
+
+// A sphere light's solid-angle pdf from a point at squared distance d2c from its centre (as
+// Cycles' sphere_light_pdf / spot_light_pdf): uniform over the smaller of the cone the sphere
+// subtends and a spot's spread cone outside, uniform over all directions inside (Cycles samples
+// a cosine hemisphere there; uniform needs no normal and keeps the MIS pdf exact).
+inline float sphere_light_pdf(const Light& l, float d2c) {
+  const float r2 = l.radius * l.radius;
+  if (!(d2c > r2)) return 1.0f / (4.0f * kPi);
+  const float omc = std::min(one_minus_cos_from_sin2(r2 / d2c), l.spread_one_minus_cos);
+  return 1.0f / (2.0f * kPi * omc);
+}
+
+// The distance along the unit direction dir from org to sphere light l's surface (the near side
+// from outside, the far side from inside), or a negative value where the line misses it.
+inline float sphere_light_distance(const Light& l, Vec3 org, Vec3 dir) {
+  const Vec3 oc = org - l.position;
+  const float b = dot(oc, dir);
+  const float r2 = l.radius * l.radius;
+  const float h2 = r2 - length_sq(oc - dir * b);  // r^2 - the line's squared distance to the centre
+  // A little slack for float rounding, so that the rays of samples at the cone's edge still find
+  // the sphere (the MIS pdf of their hits).
+  const float oc2 = length_sq(oc);
+  if (!(h2 >= -1e-6f * (r2 + 4.0f * std::sqrt(oc2) * l.radius))) return -1.0f;
+  const float h = std::sqrt(std::max(h2, 0.0f));
+  const float c = oc2 - r2;  // roots of t^2 + 2 b t + c, in their stable forms
+  if (c > 0.0f) return b < 0.0f ? c / (h - b) : -1.0f;
+  return b > 0.0f ? -c / (b + h) : h - b;
+}
+
+// Soft Falloff off: the emitting sphere of Cycles' point.h / spot.h. Outside it, uniform in the
+// cone it subtends (or in a spot's spread cone where that is smaller, the directions that miss
+// the sphere giving no sample), the spot's cone and blend along the sample's direction; inside,
+// uniform over all directions, without the spot's attenuation (as Cycles).
+inline bool sample_sphere_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
+  const Vec3 to_c = l.position - p;
+  const float d2c = length_sq(to_c);
+  const float r2 = l.radius * l.radius;
+  Vec3 scale = l.color * (1.0f / (kPi * r2));  // radiance = I / (pi r^2), as the disk's
+  float t;
+  if (d2c > r2) {
+    const float d = std::sqrt(d2c);
+    const float omc_sphere = one_minus_cos_from_sin2(r2 / d2c);
+    const bool in_spread = l.spread_one_minus_cos <= omc_sphere;
+    const float omc = in_spread ? l.spread_one_minus_cos : omc_sphere;
+    const Vec3 axis = in_spread ? -l.spot_axis : to_c / d;
+    const float omc_t = u.x * omc;  // 1 - cos of the sample's angle to the axis
+    const float cos_t = 1.0f - omc_t;
+    const float sin2_t = omc_t * (2.0f - omc_t);
+    const float sin_t = std::sqrt(std::max(0.0f, sin2_t));
+    const float phi = 2.0f * kPi * u.y;
+    Vec3 tt, bb;
+    make_basis(axis, tt, bb);
+    s.wi = normalize(tt * (sin_t * std::cos(phi)) + bb * (sin_t * std::sin(phi)) + axis * cos_t);
+    if (in_spread) {
+      t = sphere_light_distance(l, p, s.wi);
+      if (!(t > 0.0f)) return false;
+    } else {  // law of cosines, the near side
+      t = std::max(0.0f, d * cos_t - std::sqrt(std::max(0.0f, r2 - d2c * sin2_t)));
+    }
+    if (l.type == LightType::Spot) {
+      const float att = spot_attenuation(l, -s.wi);
+      if (att <= 0.0f) return false;
+      scale = scale * att;
+    }
+    s.pdf = 1.0f / (2.0f * kPi * omc);
+  } else {
+    const float z = 1.0f - 2.0f * u.x, rr = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    const float phi = 2.0f * kPi * u.y;
+    s.wi = Vec3(rr * std::cos(phi), rr * std::sin(phi), z);
+    t = sphere_light_distance(l, p, s.wi);
+    if (!(t >= 0.0f)) return false;
+    s.pdf = 1.0f / (4.0f * kPi);
+  }
+  if (!(t > 0.0f) || !std::isfinite(s.pdf)) return false;
+  s.dist = t;
+  s.target = p + s.wi * t;
+  s.li = scale;
+  s.delta = false;
+  return true;
+}
+
 // Samples light `l` from point p; returns false if it cannot contribute there. `solid_angle`:
 // rectangles by their solid angle where it is large enough (else uniformly by area).
 inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool solid_angle = true) {
@@ -86,6 +179,7 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
       const float disk_area = kPi * l.radius * l.radius;
       // A radius too small to matter (or to represent) is a point light.
       const bool point = !(l.radius > 1e-6f * std::sqrt(d2c)) || !(disk_area > 1e-30f);
+      if (!point && l.sphere) return sample_sphere_light(l, p, u, s);
       if (point) {
         if (l.type == LightType::Spot) {
           const float att = spot_attenuation(l, -to_c);
@@ -221,6 +315,20 @@ inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float
       if (!(d2c > 0.0f)) return false;
       const float disk_area = kPi * l.radius * l.radius;
       if (!(l.radius > 1e-6f * std::sqrt(d2c)) || !(disk_area > 1e-30f)) return false;  // a point: delta
+      if (l.sphere) {
+        const float th = sphere_light_distance(l, org, dir);
+        if (!(th > 0.0f) || !(th < tmax)) return false;
+        Vec3 scale = l.color * (1.0f / disk_area);
+        if (l.type == LightType::Spot && d2c > l.radius * l.radius) {  // inside: unattenuated
+          const float att = spot_attenuation(l, -dir);
+          if (att <= 0.0f) return false;
+          scale = scale * att;
+        }
+        t = th;
+        le = scale;
+        pdf = sphere_light_pdf(l, d2c);
+        return std::isfinite(pdf) && pdf > 0.0f;
+      }
       const Vec3 n = -to_c / std::sqrt(d2c);  // the disk's normal, towards `from`
       const float dn = dot(dir, n);
       if (!(dn < 0.0f)) return false;

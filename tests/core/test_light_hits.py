@@ -39,6 +39,11 @@ LIGHTS = {
     "point": ("add_point_light", dict(position=(0.3, 0.2, 1.5), intensity=(8.0, 8.0, 8.0), radius=0.4)),
     "spot": ("add_spot_light", dict(matrix=spot_matrix((0.2, -0.3, 1.6), 0.3), intensity=(8.0, 8.0, 8.0), radius=0.4,
                                     spot_size=1.8, spot_blend=0.4)),
+    # Soft Falloff off: emitting spheres (the spot's sphere cone partly cut by its cone)
+    "sphere": ("add_point_light", dict(position=(0.3, 0.2, 1.0), intensity=(8.0, 8.0, 8.0), radius=0.6,
+                                       soft_falloff=False)),
+    "sphere spot": ("add_spot_light", dict(matrix=spot_matrix((0.2, -0.3, 1.2), 0.3), intensity=(8.0, 8.0, 8.0),
+                                           radius=0.5, spot_size=1.8, spot_blend=0.4, soft_falloff=False)),
     "rect": ("add_area_light", dict(matrix=area_matrix((0.0, 0.2, 1.4), 0.4), size_x=1.0, size_y=0.6,
                                     radiance=(3.0, 3.0, 3.0))),
     "rect sheared": ("add_area_light", dict(matrix=area_matrix((0.0, 0.2, 1.4), 0.2, shear=0.3), size_x=0.8,
@@ -117,7 +122,7 @@ def renders(s, seeds=4, spp=64, size=16, **kw):
     return np.stack(out).astype(np.float64)
 
 
-@pytest.mark.parametrize("name", ["point", "spot", "rect", "ellipse", "sun"])
+@pytest.mark.parametrize("name", ["point", "spot", "sphere", "sphere spot", "rect", "ellipse", "sun"])
 def test_light_samples_ray_hits_and_mis_render_alike(name):
     """Light samples alone (light_hits off), BSDF rays alone (no light sampling) and both with
     MIS: the same image within noise, on a rough glossy floor. A wrong MIS pdf on either side
@@ -163,12 +168,12 @@ def view_scene(name, **extra):
     return s
 
 
-@pytest.mark.parametrize("name", ["point", "rect", "ellipse", "sun"])
+@pytest.mark.parametrize("name", ["point", "sphere", "rect", "ellipse", "sun"])
 def test_lights_visible_to_the_camera(name):
     s = view_scene(name, visible_camera=True)
     img = np.asarray(run_session(pc, s, 24, 24, 16).film())[..., 0]
-    if name == "point":
-        le = 8.0 / (np.pi * 0.4**2)
+    if name in ("point", "sphere"):  # the disk's radiance and the sphere's are both I / (pi r^2)
+        le = 8.0 / (np.pi * LIGHTS[name][1]["radius"] ** 2)
     elif name == "sun":
         le = 2.0 / (np.pi * np.sin(0.125) ** 2)
     else:
