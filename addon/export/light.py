@@ -68,9 +68,6 @@ def light_power(light, name, warn):
 
 
 def _unsupported(light, obj, name, warn):
-    if light.type in {'POINT', 'SPOT'} and not getattr(light, "use_soft_falloff", True):
-        warn(f"Light '{name}': sphere lights (Soft Falloff off) are not supported; "
-             "rendering with soft falloff")
     if light.type == 'AREA' and light.spread < math.pi - 1e-6:
         warn(f"Light '{name}': area light spread below 180° is not supported; using 180°")
 
@@ -114,6 +111,8 @@ def convert_light(obj, matrix, warn):
         if not normalize:  # Cycles' sphere area, 4 for a point: intensity = P * area / (4π)
             power = power * (4.0 * math.pi * radius * radius if radius > 0 else 4.0)
         intensity = tuple((power / (4.0 * math.pi)).tolist())
+        # Soft Falloff off: Cycles' emitting sphere (of the same radiance as the soft disk).
+        flags["soft_falloff"] = bool(getattr(light, "use_soft_falloff", True))
         if light.type == 'POINT':
             return LightData("point", name, dict(
                 position=tuple(m[:3, 3].tolist()), intensity=intensity, radius=radius,
