@@ -2572,7 +2572,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           "add_area_light",
           [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, const py::object& radiance,
              bool ellipse, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume) {
+             bool visible_transmission, bool visible_volume, float spread) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "area light matrix");
             Light l;
@@ -2585,6 +2585,14 @@ PYBIND11_MODULE(pathlight_core, m) {
             if (!(l.area > 0.0f) || !std::isfinite(l.area)) return;  // nothing to emit from
             l.dir = -normalize(m.vector({0.0f, 0.0f, 1.0f}));  // emits along local -Z
             l.color = to_color(radiance, "radiance");
+            // Cycles' spread (scene/light.cpp): normalized so that the light keeps its power. Below
+            // 0.1 degrees clamped there (Cycles 4.5 makes 0 a collimated beam; we do not).
+            const double spread_c = std::clamp(double(finite_nonneg(spread, "spread")), 0.1 * kPi / 180.0, double(kPi));
+            if (spread_c < double(kPi) * (1.0 - 1e-6)) {
+              const double half = 0.5 * spread_c, tan_half = std::tan(half);
+              l.tan_half_spread = float(tan_half);
+              l.normalize_spread = float(half > 0.05 ? 1.0 / (tan_half - half) : 3.0 / (half * half * half));
+            }
             l.cast_shadow = cast_shadow;
             l.mis = use_mis;
             l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
@@ -2593,7 +2601,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("matrix"), py::arg("size_x"), py::arg("size_y"), py::arg("radiance"), py::arg("ellipse") = false,
           py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
-          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("spread") = kPi,
+          "spread: Blender's Spread (radians, 0.1 degrees to pi): below pi the emission is limited to a cone about "
+          "the normal, as Cycles' soft-box grid.")
       .def(
           "set_world_texture",
           [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj) {

@@ -45,6 +45,10 @@ struct Light {
   float cos_half_angle = 1.0f, sun_radiance_scale = 0.0f;  // sun: cone and 1 / (pi sin^2 h)
   Vec3 axis_u, axis_v;   // area: full extent vectors
   float area = 0.0f;
+  // Area lights' Spread below 180 degrees (Cycles' soft-box grid): radiance along a direction at
+  // angle a to the normal times max(0, (tan_half_spread - tan a) * normalize_spread), which keeps
+  // the power; inf: 180 degrees, no attenuation.
+  float tan_half_spread = kInf, normalize_spread = 0.0f;
   bool cast_shadow = true;
   // Cycles' Multiple Importance: rays other than the camera's may find the light (lights with
   // extent only) and both estimators are MIS-weighted; off: next-event estimation alone.
@@ -80,6 +84,62 @@ inline float spot_attenuation(const Light& l, Vec3 from_light) {
 // Solid angles a rectangle light is sampled over uniformly (spherical rectangles); outside it,
 // uniformly by area. Below, the light is a speck and area sampling is as good and cheaper.
 inline bool use_spherical_rect(double omega) { return omega > 2e-4; }
+
+inline bool has_spread(const Light& l) { return l.tan_half_spread < kInf; }
+
+// An area light's spread attenuation towards the unit direction wi from a point to the light
+// (cos_l: cosine of the emission direction -wi to the normal, > 0). tan a from the cross
+// product: accurate at the small angles of narrow spreads.
+inline float spread_attenuation(const Light& l, Vec3 wi, float cos_l) {
+  const float tan_a = length(cross(wi, l.dir)) / cos_l;
+  return std::max((l.tan_half_spread - tan_a) * l.normalize_spread, 0.0f);
+}
+
+// Whether an area light's axes are orthogonal (a rectangle, not a sheared parallelogram).
+inline bool area_light_rectangular(const Light& l) {
+  const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
+  return uv * uv <= 1e-8f * uu * vv;
+}
+
+// The part of area light l that can reach p (its centre and full extent vectors): with a spread
+// below 180 degrees only the disk of radius height * tan(half spread) about p's foot on the
+// light's plane emits towards p, so the light's rectangle is clipped to that disk's bounding
+// square (Cycles' area_light_spread_clamp_light for rectangles; ellipses use the same rectangle
+// and keep the samples inside them). False where nothing is left. `clipped`: whether it was.
+inline bool area_light_region(const Light& l, Vec3 p, Vec3& c, Vec3& au, Vec3& av, bool& clipped) {
+  c = l.position;
+  au = l.axis_u;
+  av = l.axis_v;
+  clipped = false;
+  if (!has_spread(l) || !area_light_rectangular(l)) return true;
+  const Vec3 rel = p - l.position;
+  const float t = dot(rel, l.dir);  // height above the light's plane
+  if (!(t > 0.0f)) return false;
+  const float lu = length(l.axis_u), lv = length(l.axis_v);
+  const Vec3 eu = l.axis_u / lu, ev = l.axis_v / lv;
+  const float r = t * l.tan_half_spread;
+  const float su = dot(eu, rel), sv = dot(ev, rel);
+  const float u0 = std::max(su - r, -0.5f * lu), u1 = std::min(su + r, 0.5f * lu);
+  const float v0 = std::max(sv - r, -0.5f * lv), v1 = std::min(sv + r, 0.5f * lv);
+  if (!(u0 < u1) || !(v0 < v1)) return false;
+  c = l.position + eu * (0.5f * (u0 + u1)) + ev * (0.5f * (v0 + v1));
+  au = eu * (u1 - u0);
+  av = ev * (v1 - v0);
+  clipped = true;
+  return true;
+}
+
+// Whether point q of area light l's plane lies on the light (its rectangle or ellipse).
+inline bool on_area_light(const Light& l, Vec3 q) {
+  const Vec3 r = q - l.position;
+  const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
+  const float ru = dot(r, l.axis_u), rv = dot(r, l.axis_v);
+  const float det = uu * vv - uv * uv;
+  if (!(det > 0.0f)) return false;
+  // Coordinates along the (possibly sheared) axes, in units of their full lengths.
+  const float x = (ru * vv - rv * uv) / det, y = (rv * uu - ru * uv) / det;
+  return l.type == LightType::Rect ? std::fabs(x) <= 0.5f && std::fabs(y) <= 0.5f : x * x + y * y <= 0.25f;
+}
 
 // 1 - cos of the half angle whose sine squared is s2, without cancellation for small angles.
 inline float one_minus_cos_from_sin2(float s2) {
@@ -242,46 +302,63 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
     }
     case LightType::Rect:
     case LightType::Ellipse: {
-      if (l.type == LightType::Rect && solid_angle) {
-        if (!(dot(p - l.position, l.dir) > 0.0f)) return false;  // behind: one-sided
-        // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
-        const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
-        const SphericalRect sr = spherical_rect(p, l.position - (l.axis_u + l.axis_v) * 0.5f, l.axis_u, l.axis_v);
-        if (uv * uv <= 1e-8f * uu * vv && use_spherical_rect(sr.solid_angle)) {
+      if (!(dot(p - l.position, l.dir) > 0.0f)) return false;  // behind: one-sided
+      Vec3 c, au, av;
+      bool clipped;
+      if (!area_light_region(l, p, c, au, av, clipped)) return false;
+      // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
+      if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
+        const SphericalRect sr = spherical_rect(p, c - (au + av) * 0.5f, au, av);
+        if (use_spherical_rect(sr.solid_angle)) {
           DVec3 q;
           if (!sample_spherical_rect(sr, u, q)) return false;
           DVec3 d = q - DVec3(p);
           const double dist = dlength(d);
           if (!dnormalize(d)) return false;
           s.wi = d.to_float();
-          if (!(-dot(l.dir, s.wi) > 0.0f)) return false;
+          const float cos_l = -dot(l.dir, s.wi);
+          if (!(cos_l > 0.0f)) return false;
+          s.li = l.color;
+          if (has_spread(l)) {
+            const float att = spread_attenuation(l, s.wi, cos_l);
+            if (!(att > 0.0f)) return false;
+            s.li = s.li * att;
+          }
           s.dist = float(dist);
           s.target = q.to_float();
-          s.li = l.color;
           s.pdf = float(1.0 / sr.solid_angle);
           s.delta = false;
           return true;
         }
       }
+      // By area: the (clipped) rectangle, or the whole ellipse; a clipped ellipse by its
+      // rectangle, the samples outside the ellipse giving none.
       Vec2 o{u.x - 0.5f, u.y - 0.5f};
-      if (l.type == LightType::Ellipse) {
+      float area = clipped ? length(cross(au, av)) : l.area;
+      if (l.type == LightType::Ellipse && !clipped) {
         const Vec2 dsk = sample_disk_concentric(u);
         o = {0.5f * dsk.x, 0.5f * dsk.y};
       }
-      const Vec3 q = l.position + l.axis_u * o.x + l.axis_v * o.y;
+      const Vec3 q = c + au * o.x + av * o.y;
+      if (l.type == LightType::Ellipse && clipped && !on_area_light(l, q)) return false;
       const Vec3 d = q - p;
       const float dist2 = length_sq(d);
-      if (!(dist2 > 0.0f)) return false;
+      if (!(dist2 > 0.0f) || !(area > 0.0f)) return false;
       const float dist = std::sqrt(dist2);
       s.wi = d / dist;
       const float cos_l = -dot(l.dir, s.wi);  // one-sided: emits along dir
       if (!(cos_l > 0.0f)) return false;
+      s.li = l.color;
+      if (has_spread(l)) {
+        const float att = spread_attenuation(l, s.wi, cos_l);
+        if (!(att > 0.0f)) return false;
+        s.li = s.li * att;
+      }
       s.dist = dist;
       s.target = q;
-      s.li = l.color;
-      s.pdf = dist2 / (cos_l * l.area);
+      s.pdf = dist2 / (cos_l * area);
       s.delta = false;
-      return true;
+      return std::isfinite(s.pdf);
     }
   }
   return false;
@@ -363,26 +440,28 @@ inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float
       const float th = dot(l.position - org, l.dir) / dn;
       if (!(th > 0.0f) || !(th < tmax)) return false;
       const Vec3 q = org + dir * th;
-      const Vec3 r = q - l.position;
-      // Coordinates along the (possibly sheared) axes, in units of their full lengths.
-      const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
-      const float ru = dot(r, l.axis_u), rv = dot(r, l.axis_v);
-      const float det = uu * vv - uv * uv;
-      if (!(det > 0.0f)) return false;
-      const float x = (ru * vv - rv * uv) / det, y = (rv * uu - ru * uv) / det;
-      if (l.type == LightType::Rect ? !(std::fabs(x) <= 0.5f && std::fabs(y) <= 0.5f) : !(x * x + y * y <= 0.25f))
-        return false;
+      if (!on_area_light(l, q)) return false;
       t = th;
       le = l.color;
-      if (l.type == LightType::Rect && solid_angle) {
-        if (!(dot(from - l.position, l.dir) > 0.0f)) return false;
-        const SphericalRect sr = spherical_rect(from, l.position - (l.axis_u + l.axis_v) * 0.5f, l.axis_u, l.axis_v);
-        if (uv * uv <= 1e-8f * uu * vv && use_spherical_rect(sr.solid_angle)) {
+      if (has_spread(l)) {
+        const float att = spread_attenuation(l, dir, -dn);
+        if (!(att > 0.0f)) return false;
+        le = le * att;
+      }
+      // The pdf of the sample from `from`: over the same (clipped) region as sample_light.
+      if (!(dot(from - l.position, l.dir) > 0.0f)) return false;
+      Vec3 c, au, av;
+      bool clipped;
+      if (!area_light_region(l, from, c, au, av, clipped)) return false;
+      if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
+        const SphericalRect sr = spherical_rect(from, c - (au + av) * 0.5f, au, av);
+        if (use_spherical_rect(sr.solid_angle)) {
           pdf = float(1.0 / sr.solid_angle);
           return std::isfinite(pdf) && pdf > 0.0f;
         }
       }
-      pdf = length_sq(q - from) / (-dn * l.area);
+      const float area = clipped ? length(cross(au, av)) : l.area;
+      pdf = length_sq(q - from) / (-dn * area);
       return std::isfinite(pdf) && pdf > 0.0f;
     }
   }

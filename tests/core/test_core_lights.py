@@ -842,3 +842,66 @@ def test_sphere_spot_light_cone_near_a_plane():
     assert lit.sum() > 8 and (~lit).sum() > 0  # the cone's edge is in view
     np.testing.assert_allclose(got[lit], want[lit], rtol=0.015)
     assert np.abs(got - want).max() < 0.01 * want.max()
+
+
+# ---------------------------------------------------------------- area light spread
+
+def spread_attenuation(tan_a, spread):
+    half = spread / 2
+    norm = 1 / (np.tan(half) - half) if half > 0.05 else 3 / half**3
+    return np.maximum((np.tan(half) - tan_a) * norm, 0.0)
+
+
+@pytest.mark.parametrize("ellipse", [False, True], ids=["rect", "ellipse"])
+def test_area_light_spread_matches_numerical_integration(ellipse):
+    """Spread 40 degrees (Cycles' soft-box grid): each point of the plane is lit by the part of
+    the light within 20 degrees of its normal, the emission falling off with tan of the angle;
+    sampled over the light's rectangle clipped to that part."""
+    center, sx, sy, radiance, spread = np.array([0.3, 0.0, 1.0]), 1.6, 1.0, 4.0, np.radians(40.0)
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 3] = center
+    s = plane_scene()
+    s.add_area_light(m, sx, sy, (radiance,) * 3, ellipse=ellipse, spread=spread)
+    img, stats = render(pc, s, W, W, samples=256)
+    assert stats["nonfinite_samples"] == 0
+    n = 160
+    g = (np.arange(n) + 0.5) / n - 0.5
+    U, V = np.meshgrid(g * sx, g * sy, indexing="ij")
+    inside = np.ones_like(U, bool) if not ellipse else (U / sx) ** 2 + (V / sy) ** 2 <= 0.25
+    lp = np.stack([U[inside] + center[0], V[inside] + center[1], np.full(inside.sum(), center[2])], -1)
+    dA = (sx / n) * (sy / n)
+
+    def rad(p):
+        d = lp[None, None, None] - p[..., None, :]
+        r2 = (d**2).sum(-1)
+        tan_a = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2) / d[..., 2]
+        cos2 = d[..., 2] ** 2 / r2
+        return ALBEDO / np.pi * radiance * (spread_attenuation(tan_a, spread) * cos2 / r2).sum(-1) * dA
+
+    pts = plane_points(sub=2)
+    exp = np.stack([rad(pts[i : i + 2]) for i in range(0, W, 2)]).reshape(W, W, -1).mean(-1)
+    # The pool of light has an edge: without the spread, it would fill the view.
+    assert exp.min() < 0.02 * exp.max()
+    got = region_means(img[..., :3], 8)[..., 0]
+    want = region_means(np.repeat(exp[..., None], 3, -1), 8)[..., 0]
+    lit = want > 0.1 * want.max()
+    np.testing.assert_allclose(got[lit], want[lit], rtol=0.02)
+    assert np.abs(got - want).max() < 0.01 * want.max()
+    assert abs(img[..., 0].mean() / exp.mean() - 1) < 0.01
+
+
+def test_area_light_spread_keeps_the_power():
+    """Cycles normalises the spread so that the light's power does not change: a wide plane under
+    a small light gets the same total light at any spread."""
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 3] = (0.0, 0.0, 0.5)
+    means = []
+    for spread in (np.pi, np.radians(90.0), np.radians(30.0)):
+        s = plane_scene()
+        s.add_area_light(m, 0.2, 0.2, (5.0,) * 3, spread=spread)
+        img, _ = render(pc, s, W, W, samples=64)  # the camera sees x, y in +-1.44 (4 m up, 50 mm)
+        means.append(img[..., 0].mean())
+    assert means[2] > means[1] > means[0]  # more of it lands in view as the spread narrows
+    # 30 degrees: within 0.5 tan 15 = 0.13 of the centre, all of the power is in view
+    expected = ALBEDO / np.pi * 5.0 * np.pi * 0.04 / (2.88**2)  # albedo/pi * power / view area
+    assert abs(means[2] / expected - 1) < 0.02
