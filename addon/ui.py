@@ -145,6 +145,7 @@ class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
             else:
                 sub.prop(light, "size", text="Size X")
                 sub.prop(light, "size_y", text="Y")
+            col.prop(light, "spread")
         col.prop(light, "use_shadow", text="Cast Shadow")
 
 
