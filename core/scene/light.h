@@ -122,6 +122,8 @@ inline bool area_light_region(const Light& l, Vec3 p, Vec3& c, Vec3& au, Vec3& a
   const float u0 = std::max(su - r, -0.5f * lu), u1 = std::min(su + r, 0.5f * lu);
   const float v0 = std::max(sv - r, -0.5f * lv), v1 = std::min(sv + r, 0.5f * lv);
   if (!(u0 < u1) || !(v0 < v1)) return false;
+  // An ellipse whole is sampled better than a square larger than it (no samples lost outside).
+  if (l.type == LightType::Ellipse && (u1 - u0) * (v1 - v0) >= l.area) return true;
   c = l.position + eu * (0.5f * (u0 + u1)) + ev * (0.5f * (v0 + v1));
   au = eu * (u1 - u0);
   av = ev * (v1 - v0);
