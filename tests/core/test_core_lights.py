@@ -643,6 +643,10 @@ def test_bad_light_parameters_raise():
     with pytest.raises(ValueError):
         s.add_spot_light(np.zeros((4, 4), np.float32), (1, 1, 1))
     with pytest.raises(ValueError):
+        s.add_area_light(np.eye(4, dtype=np.float32), 1.0, 1.0, (1, 1, 1), spread=np.nan)
+    with pytest.raises(ValueError):
+        s.add_point_light((0, 0, 1), (1, 1, 1), radius=-0.5, soft_falloff=False)
+    with pytest.raises(ValueError):
         s.set_world_texture(np.zeros((4, 4), np.float32))
     # NaN or negative colours are treated as black rather than poisoning the image.
     s.add_point_light((0, 0, 1), (np.nan, -1.0, 1.0))
