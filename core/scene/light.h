@@ -101,16 +101,23 @@ inline bool area_light_rectangular(const Light& l) {
   return uv * uv <= 1e-8f * uu * vv;
 }
 
-// The part of area light l that can reach p (its centre and full extent vectors): with a spread
-// below 180 degrees only the disk of radius height * tan(half spread) about p's foot on the
-// light's plane emits towards p, so the light's rectangle is clipped to that disk's bounding
-// square (Cycles' area_light_spread_clamp_light for rectangles; ellipses use the same rectangle
-// and keep the samples inside them). False where nothing is left. `clipped`: whether it was.
-inline bool area_light_region(const Light& l, Vec3 p, Vec3& c, Vec3& au, Vec3& av, bool& clipped) {
+// What an area light's samples from a point cover (area_light_region).
+enum class AreaRegion : uint8_t {
+  Whole,  // the whole light
+  Rect,   // the rectangle c, au, av (an ellipse: the samples outside it give none)
+  Disk,   // the disk inscribed in the square c, au, av (the samples off the light give none)
+};
+
+// The part of area light l that can reach p: with a spread below 180 degrees only the disk of
+// radius height * tan(half spread) about p's foot on the light's plane emits towards p. As
+// Cycles' area_light_spread_clamp_light: rectangles are clipped to that disk's bounding square;
+// ellipses take the smallest of that square, the whole ellipse and the spread's disk, round
+// ones the rectangle bounding the lens where the two disks overlap. False where nothing is left.
+inline bool area_light_region(const Light& l, Vec3 p, Vec3& c, Vec3& au, Vec3& av, AreaRegion& mode) {
   c = l.position;
   au = l.axis_u;
   av = l.axis_v;
-  clipped = false;
+  mode = AreaRegion::Whole;
   if (!has_spread(l) || !area_light_rectangular(l)) return true;
   const Vec3 rel = p - l.position;
   const float t = dot(rel, l.dir);  // height above the light's plane
@@ -119,16 +126,57 @@ inline bool area_light_region(const Light& l, Vec3 p, Vec3& c, Vec3& au, Vec3& a
   const Vec3 eu = l.axis_u / lu, ev = l.axis_v / lv;
   const float r = t * l.tan_half_spread;
   const float su = dot(eu, rel), sv = dot(ev, rel);
+  const Vec3 foot = l.position + eu * su + ev * sv;
+  const float spread_area = kPi * r * r;
+  const auto spread_disk = [&] {
+    mode = AreaRegion::Disk;
+    c = foot;
+    au = eu * (2.0f * r);
+    av = ev * (2.0f * r);
+  };
+  const bool ellipse = l.type == LightType::Ellipse;
+  if (ellipse && std::fabs(lu - lv) <= 1e-6f * lu) {  // a round light: two disks
+    const float big_r = 0.5f * lu, dist = std::sqrt(su * su + sv * sv);
+    if (dist >= big_r + r) return false;
+    if (dist <= std::fabs(big_r - r)) {  // one inside the other: the smaller
+      if (r < big_r) spread_disk();
+      return true;
+    }
+    const float len_u = big_r + r - dist;  // the lens, along the foot-to-centre axis
+    const float lens_w = dist + (r * r - big_r * big_r) / dist;  // twice the foot-to-chord distance
+    const float len_v = std::fabs(big_r * big_r - r * r) >= dist * dist
+                            ? 2.0f * std::min(big_r, r)
+                            : std::sqrt(std::max(0.0f, 4.0f * r * r - lens_w * lens_w));
+    if (len_u * len_v < std::min(l.area, spread_area)) {
+      const Vec3 axis = (l.position - foot) / dist;
+      mode = AreaRegion::Rect;
+      c = (l.position + foot + axis * (r - big_r)) * 0.5f;
+      au = axis * len_u;
+      av = normalize(cross(l.dir, axis)) * len_v;
+    } else if (spread_area < l.area) {
+      spread_disk();
+    }
+    return true;
+  }
   const float u0 = std::max(su - r, -0.5f * lu), u1 = std::min(su + r, 0.5f * lu);
   const float v0 = std::max(sv - r, -0.5f * lv), v1 = std::min(sv + r, 0.5f * lv);
   if (!(u0 < u1) || !(v0 < v1)) return false;
-  // An ellipse whole is sampled better than a square larger than it (no samples lost outside).
-  if (l.type == LightType::Ellipse && (u1 - u0) * (v1 - v0) >= l.area) return true;
+  const float rect_area = (u1 - u0) * (v1 - v0);
+  if (ellipse && !(rect_area < std::min(l.area, spread_area))) {
+    if (spread_area < l.area) spread_disk();
+    return true;
+  }
+  mode = AreaRegion::Rect;
   c = l.position + eu * (0.5f * (u0 + u1)) + ev * (0.5f * (v0 + v1));
   au = eu * (u1 - u0);
   av = ev * (v1 - v0);
-  clipped = true;
   return true;
+}
+
+// The area of what samples cover in region `mode` (c, au, av).
+inline float area_light_region_area(const Light& l, AreaRegion mode, Vec3 au, Vec3 av) {
+  if (mode == AreaRegion::Whole) return l.area;
+  return length(cross(au, av)) * (mode == AreaRegion::Disk ? kPi / 4.0f : 1.0f);
 }
 
 // Whether point q of area light l's plane lies on the light (its rectangle or ellipse).
@@ -306,8 +354,8 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
     case LightType::Ellipse: {
       if (!(dot(p - l.position, l.dir) > 0.0f)) return false;  // behind: one-sided
       Vec3 c, au, av;
-      bool clipped;
-      if (!area_light_region(l, p, c, au, av, clipped)) return false;
+      AreaRegion mode;
+      if (!area_light_region(l, p, c, au, av, mode)) return false;
       // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
       if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
         const SphericalRect sr = spherical_rect(p, c - (au + av) * 0.5f, au, av);
@@ -333,16 +381,15 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
           return true;
         }
       }
-      // By area: the (clipped) rectangle, or the whole ellipse; a clipped ellipse by its
-      // rectangle, the samples outside the ellipse giving none.
+      // By area over the region (area_light_region), the samples off the light giving none.
       Vec2 o{u.x - 0.5f, u.y - 0.5f};
-      float area = clipped ? length(cross(au, av)) : l.area;
-      if (l.type == LightType::Ellipse && !clipped) {
+      const float area = area_light_region_area(l, mode, au, av);
+      if (mode == AreaRegion::Disk || (mode == AreaRegion::Whole && l.type == LightType::Ellipse)) {
         const Vec2 dsk = sample_disk_concentric(u);
         o = {0.5f * dsk.x, 0.5f * dsk.y};
       }
       const Vec3 q = c + au * o.x + av * o.y;
-      if (l.type == LightType::Ellipse && clipped && !on_area_light(l, q)) return false;
+      if (mode != AreaRegion::Whole && !on_area_light(l, q)) return false;
       const Vec3 d = q - p;
       const float dist2 = length_sq(d);
       if (!(dist2 > 0.0f) || !(area > 0.0f)) return false;
@@ -453,8 +500,8 @@ inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float
       // The pdf of the sample from `from`: over the same (clipped) region as sample_light.
       if (!(dot(from - l.position, l.dir) > 0.0f)) return false;
       Vec3 c, au, av;
-      bool clipped;
-      if (!area_light_region(l, from, c, au, av, clipped)) return false;
+      AreaRegion mode;
+      if (!area_light_region(l, from, c, au, av, mode)) return false;
       if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
         const SphericalRect sr = spherical_rect(from, c - (au + av) * 0.5f, au, av);
         if (use_spherical_rect(sr.solid_angle)) {
@@ -462,8 +509,7 @@ inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float
           return std::isfinite(pdf) && pdf > 0.0f;
         }
       }
-      const float area = clipped ? length(cross(au, av)) : l.area;
-      pdf = length_sq(q - from) / (-dn * area);
+      pdf = length_sq(q - from) / (-dn * area_light_region_area(l, mode, au, av));
       return std::isfinite(pdf) && pdf > 0.0f;
     }
   }

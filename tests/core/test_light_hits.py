@@ -55,6 +55,9 @@ LIGHTS = {
                                            radiance=(3.0, 3.0, 3.0), spread=1.6)),
     "ellipse spread": ("add_area_light", dict(matrix=area_matrix((0.1, 0.0, 1.3), -0.3), size_x=1.4, size_y=1.0,
                                               radiance=(3.0, 3.0, 3.0), ellipse=True, spread=1.8)),
+    # a round one: the lens where the light's disk and the spread's overlap, or the smaller disk
+    "disk spread": ("add_area_light", dict(matrix=area_matrix((0.2, 0.1, 0.9), 0.2), size_x=1.2, size_y=1.2,
+                                           radiance=(3.0, 3.0, 3.0), ellipse=True, spread=2.0)),
     "sun": ("add_sun_light", dict(direction=(0.2, -0.3, 1.0), irradiance=(2.0, 2.0, 2.0), angle=0.25)),
 }
 
@@ -128,7 +131,7 @@ def renders(s, seeds=4, spp=64, size=16, **kw):
 
 
 @pytest.mark.parametrize("name", ["point", "spot", "sphere", "sphere spot", "rect", "ellipse", "rect spread",
-                                  "ellipse spread", "sun"])
+                                  "ellipse spread", "disk spread", "sun"])
 def test_light_samples_ray_hits_and_mis_render_alike(name):
     """Light samples alone (light_hits off), BSDF rays alone (no light sampling) and both with
     MIS: the same image within noise, on a rough glossy floor. A wrong MIS pdf on either side
