@@ -134,6 +134,7 @@ class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
         col = layout.column()
         if light.type in {'POINT', 'SPOT'}:
             col.prop(light, "shadow_soft_size", text="Radius")
+            col.prop(light, "use_soft_falloff")
         elif light.type == 'SUN':
             col.prop(light, "angle")
         elif light.type == 'AREA':
@@ -144,6 +145,7 @@ class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
             else:
                 sub.prop(light, "size", text="Size X")
                 sub.prop(light, "size_y", text="Y")
+            col.prop(light, "spread")
         col.prop(light, "use_shadow", text="Cast Shadow")
 
 

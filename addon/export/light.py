@@ -67,14 +67,6 @@ def light_power(light, name, warn):
         _finite_nonneg(energy, "power", name, warn))
 
 
-def _unsupported(light, obj, name, warn):
-    if light.type in {'POINT', 'SPOT'} and not getattr(light, "use_soft_falloff", True):
-        warn(f"Light '{name}': sphere lights (Soft Falloff off) are not supported; "
-             "rendering with soft falloff")
-    if light.type == 'AREA' and light.spread < math.pi - 1e-6:
-        warn(f"Light '{name}': area light spread below 180° is not supported; using 180°")
-
-
 def convert_light(obj, matrix, warn):
     """LightData for one light instance (obj: evaluated light object, matrix: (4, 4)
     world matrix of this instance), or None when it emits nothing."""
@@ -87,7 +79,6 @@ def convert_light(obj, matrix, warn):
     power = light_power(light, name, warn)
     if not power.any():
         return None
-    _unsupported(light, obj, name, warn)
     m = np.array(matrix, np.float64)
     if not np.isfinite(m).all():
         warn(f"Light '{name}': non-finite transform; skipped")
@@ -114,6 +105,8 @@ def convert_light(obj, matrix, warn):
         if not normalize:  # Cycles' sphere area, 4 for a point: intensity = P * area / (4π)
             power = power * (4.0 * math.pi * radius * radius if radius > 0 else 4.0)
         intensity = tuple((power / (4.0 * math.pi)).tolist())
+        # Soft Falloff off: Cycles' emitting sphere (of the same radiance as the soft disk).
+        flags["soft_falloff"] = bool(getattr(light, "use_soft_falloff", True))
         if light.type == 'POINT':
             return LightData("point", name, dict(
                 position=tuple(m[:3, 3].tolist()), intensity=intensity, radius=radius,
@@ -148,9 +141,12 @@ def convert_light(obj, matrix, warn):
         if not area > 0:
             return None  # Cycles: an area light of zero size does not contribute
         radiance = power / (math.pi * area) if normalize else power / math.pi
+        # Spread below 180°: Cycles' soft-box grid (the core limits the emission to its cone).
+        spread = float(np.clip(np.nan_to_num(light.spread, nan=math.pi), 0.0, math.pi))
         return LightData("area", name, dict(
             matrix=m.astype(np.float32), size_x=size_x, size_y=size_y,
-            radiance=tuple(radiance.tolist()), ellipse=ellipse, cast_shadow=cast_shadow, **flags))
+            radiance=tuple(radiance.tolist()), ellipse=ellipse, cast_shadow=cast_shadow,
+            spread=spread, **flags))
 
     warn(f"Light '{name}': light type {light.type} is not supported; skipped")
     return None

@@ -2487,13 +2487,14 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "add_point_light",
           [](PyScene& self, const py::object& position, const py::object& intensity, float radius, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume) {
+             bool visible_transmission, bool visible_volume, bool soft_falloff) {
             self.check_editable();
             Light l;
             l.type = LightType::Point;
             l.position = to_point(position, "position");
             l.color = to_color(intensity, "intensity");
             l.radius = finite_nonneg(radius, "radius");
+            l.sphere = !soft_falloff;
             l.cast_shadow = cast_shadow;
             l.mis = use_mis;
             l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
@@ -2501,16 +2502,19 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("position"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
-          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("soft_falloff") = true,
+          "soft_falloff=False: Blender's Soft Falloff off, a true emitting sphere of the radius (Cycles' sphere "
+          "light); True: the disk facing the shaded point.")
       .def(
           "add_spot_light",
           [](PyScene& self, const FloatArray& matrix, const py::object& intensity, float radius, float spot_size,
              float spot_blend, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume) {
+             bool visible_transmission, bool visible_volume, bool soft_falloff) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "spot light matrix");
             Light l;
             l.type = LightType::Spot;
+            l.sphere = !soft_falloff;
             l.position = {m.m[0][3], m.m[1][3], m.m[2][3]};
             l.color = to_color(intensity, "intensity");
             l.radius = finite_nonneg(radius, "radius");
@@ -2519,6 +2523,18 @@ PYBIND11_MODULE(pathlight_core, m) {
             l.cos_half_spot = std::cos(half);
             const float blend = clampf(finite_nonneg(spot_blend, "spot_blend"), 0.0f, 1.0f);
             l.spot_smooth_inv = blend > 0.0f && l.cos_half_spot < 1.0f ? 1.0f / ((1.0f - l.cos_half_spot) * blend) : 0.0f;
+            // The sphere's spread cone as Cycles' cos_half_larger_spread: about the -Z column, its
+            // tangent stretched by the longer of the X and Y columns over the Z one.
+            const auto col2 = [&](int c) {
+              return double(m.m[0][c]) * m.m[0][c] + double(m.m[1][c]) * m.m[1][c] + double(m.m[2][c]) * m.m[2][c];
+            };
+            const Vec3 axis{-m.m[0][2], -m.m[1][2], -m.m[2][2]};
+            if (length_sq(axis) > 0.0f) l.spot_axis = normalize(axis);
+            const double tan_half = std::tan(0.5 * double(clampf(finite_nonneg(spot_size, "spot_size"), 0.0f, kPi)));
+            const double k = tan_half * tan_half * std::max(col2(0), col2(1)) / col2(2);
+            l.spread_one_minus_cos = std::isfinite(k) && length_sq(axis) > 0.0f
+                                         ? float(k / (std::sqrt(1.0 + k) * (std::sqrt(1.0 + k) + 1.0)))
+                                         : 2.0f;
             l.cast_shadow = cast_shadow;
             l.mis = use_mis;
             l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
@@ -2527,7 +2543,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("matrix"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("spot_size") = kPi / 4.0f,
           py::arg("spot_blend") = 0.15f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
-          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("soft_falloff") = true,
+          "soft_falloff=False: an emitting sphere of the radius (Cycles' sphere spot light).")
       .def(
           "add_sun_light",
           [](PyScene& self, const py::object& direction, const py::object& irradiance, float angle, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
@@ -2556,7 +2573,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           "add_area_light",
           [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, const py::object& radiance,
              bool ellipse, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume) {
+             bool visible_transmission, bool visible_volume, float spread) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "area light matrix");
             Light l;
@@ -2569,6 +2586,14 @@ PYBIND11_MODULE(pathlight_core, m) {
             if (!(l.area > 0.0f) || !std::isfinite(l.area)) return;  // nothing to emit from
             l.dir = -normalize(m.vector({0.0f, 0.0f, 1.0f}));  // emits along local -Z
             l.color = to_color(radiance, "radiance");
+            // Cycles' spread (scene/light.cpp): normalized so that the light keeps its power. Below
+            // 0.1 degrees clamped there (Cycles 4.5 makes 0 a collimated beam; we do not).
+            const double spread_c = std::clamp(double(finite_nonneg(spread, "spread")), 0.1 * kPi / 180.0, double(kPi));
+            if (spread_c < double(kPi) * (1.0 - 1e-6)) {
+              const double half = 0.5 * spread_c, tan_half = std::tan(half);
+              l.tan_half_spread = float(tan_half);
+              l.normalize_spread = float(half > 0.05 ? 1.0 / (tan_half - half) : 3.0 / (half * half * half));
+            }
             l.cast_shadow = cast_shadow;
             l.mis = use_mis;
             l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
@@ -2577,7 +2602,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("matrix"), py::arg("size_x"), py::arg("size_y"), py::arg("radiance"), py::arg("ellipse") = false,
           py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
-          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("spread") = kPi,
+          "spread: Blender's Spread (radians, 0.1 degrees to pi): below pi the emission is limited to a cone about "
+          "the normal, as Cycles' soft-box grid.")
       .def(
           "set_world_texture",
           [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj) {

@@ -30,13 +30,25 @@ struct Light {
   LightType type = LightType::Point;
   Vec3 color;            // point/spot: intensity W/sr; sun: irradiance; area: radiance
   Vec3 position;         // point/spot/area centre
-  float radius = 0.0f;   // point/spot: radius of the disk facing the shaded point
+  float radius = 0.0f;   // point/spot: radius of the disk facing the shaded point, or of the sphere
+  // point/spot with Soft Falloff off (Cycles' is_sphere): an emitting sphere of radiance
+  // I / (pi r^2), sampled in the cone it subtends (sample_sphere_light); else the soft disk.
+  bool sphere = false;
   Mat4 to_local;         // spot: world direction -> light-local (inverse 3x3 of the matrix)
   float cos_half_spot = -1.0f, spot_smooth_inv = 0.0f;  // spot cone and blend
+  // Sphere spots: the world emission axis and 1 - cos of the widest half angle of the cone about
+  // it (Cycles' cos_half_larger_spread; 2: every direction). Sampled where smaller than the
+  // sphere's cone.
+  Vec3 spot_axis;
+  float spread_one_minus_cos = 2.0f;
   Vec3 dir;              // sun: unit direction towards the sun; area: unit emission normal (-Z)
   float cos_half_angle = 1.0f, sun_radiance_scale = 0.0f;  // sun: cone and 1 / (pi sin^2 h)
   Vec3 axis_u, axis_v;   // area: full extent vectors
   float area = 0.0f;
+  // Area lights' Spread below 180 degrees (Cycles' soft-box grid): radiance along a direction at
+  // angle a to the normal times max(0, (tan_half_spread - tan a) * normalize_spread), which keeps
+  // the power; inf: 180 degrees, no attenuation.
+  float tan_half_spread = kInf, normalize_spread = 0.0f;
   bool cast_shadow = true;
   // Cycles' Multiple Importance: rays other than the camera's may find the light (lights with
   // extent only) and both estimators are MIS-weighted; off: next-event estimation alone.
@@ -73,6 +85,197 @@ inline float spot_attenuation(const Light& l, Vec3 from_light) {
 // uniformly by area. Below, the light is a speck and area sampling is as good and cheaper.
 inline bool use_spherical_rect(double omega) { return omega > 2e-4; }
 
+inline bool has_spread(const Light& l) { return l.tan_half_spread < kInf; }
+
+// An area light's spread attenuation towards the unit direction wi from a point to the light
+// (cos_l: cosine of the emission direction -wi to the normal, > 0). tan a from the cross
+// product: accurate at the small angles of narrow spreads.
+inline float spread_attenuation(const Light& l, Vec3 wi, float cos_l) {
+  const float tan_a = length(cross(wi, l.dir)) / cos_l;
+  return std::max((l.tan_half_spread - tan_a) * l.normalize_spread, 0.0f);
+}
+
+// Whether an area light's axes are orthogonal (a rectangle, not a sheared parallelogram).
+inline bool area_light_rectangular(const Light& l) {
+  const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
+  return uv * uv <= 1e-8f * uu * vv;
+}
+
+// What an area light's samples from a point cover (area_light_region).
+enum class AreaRegion : uint8_t {
+  Whole,  // the whole light
+  Rect,   // the rectangle c, au, av (an ellipse: the samples outside it give none)
+  Disk,   // the disk inscribed in the square c, au, av (the samples off the light give none)
+};
+
+// The part of area light l that can reach p: with a spread below 180 degrees only the disk of
+// radius height * tan(half spread) about p's foot on the light's plane emits towards p. As
+// Cycles' area_light_spread_clamp_light: rectangles are clipped to that disk's bounding square;
+// ellipses take the smallest of that square, the whole ellipse and the spread's disk, round
+// ones the rectangle bounding the lens where the two disks overlap. False where nothing is left.
+inline bool area_light_region(const Light& l, Vec3 p, Vec3& c, Vec3& au, Vec3& av, AreaRegion& mode) {
+  c = l.position;
+  au = l.axis_u;
+  av = l.axis_v;
+  mode = AreaRegion::Whole;
+  if (!has_spread(l) || !area_light_rectangular(l)) return true;
+  const Vec3 rel = p - l.position;
+  const float t = dot(rel, l.dir);  // height above the light's plane
+  if (!(t > 0.0f)) return false;
+  const float lu = length(l.axis_u), lv = length(l.axis_v);
+  const Vec3 eu = l.axis_u / lu, ev = l.axis_v / lv;
+  const float r = t * l.tan_half_spread;
+  const float su = dot(eu, rel), sv = dot(ev, rel);
+  const Vec3 foot = l.position + eu * su + ev * sv;
+  const float spread_area = kPi * r * r;
+  const auto spread_disk = [&] {
+    mode = AreaRegion::Disk;
+    c = foot;
+    au = eu * (2.0f * r);
+    av = ev * (2.0f * r);
+  };
+  const bool ellipse = l.type == LightType::Ellipse;
+  if (ellipse && std::fabs(lu - lv) <= 1e-6f * lu) {  // a round light: two disks
+    const float big_r = 0.5f * lu, dist = std::sqrt(su * su + sv * sv);
+    if (dist >= big_r + r) return false;
+    if (dist <= std::fabs(big_r - r)) {  // one inside the other: the smaller
+      if (r < big_r) spread_disk();
+      return true;
+    }
+    const float len_u = big_r + r - dist;  // the lens, along the foot-to-centre axis
+    const float lens_w = dist + (r * r - big_r * big_r) / dist;  // twice the foot-to-chord distance
+    const float len_v = std::fabs(big_r * big_r - r * r) >= dist * dist
+                            ? 2.0f * std::min(big_r, r)
+                            : std::sqrt(std::max(0.0f, 4.0f * r * r - lens_w * lens_w));
+    if (len_u * len_v < std::min(l.area, spread_area)) {
+      const Vec3 axis = (l.position - foot) / dist;
+      mode = AreaRegion::Rect;
+      c = (l.position + foot + axis * (r - big_r)) * 0.5f;
+      au = axis * len_u;
+      av = normalize(cross(l.dir, axis)) * len_v;
+    } else if (spread_area < l.area) {
+      spread_disk();
+    }
+    return true;
+  }
+  const float u0 = std::max(su - r, -0.5f * lu), u1 = std::min(su + r, 0.5f * lu);
+  const float v0 = std::max(sv - r, -0.5f * lv), v1 = std::min(sv + r, 0.5f * lv);
+  if (!(u0 < u1) || !(v0 < v1)) return false;
+  const float rect_area = (u1 - u0) * (v1 - v0);
+  if (ellipse && !(rect_area < std::min(l.area, spread_area))) {
+    if (spread_area < l.area) spread_disk();
+    return true;
+  }
+  mode = AreaRegion::Rect;
+  c = l.position + eu * (0.5f * (u0 + u1)) + ev * (0.5f * (v0 + v1));
+  au = eu * (u1 - u0);
+  av = ev * (v1 - v0);
+  return true;
+}
+
+// The area of what samples cover in region `mode` (c, au, av).
+inline float area_light_region_area(const Light& l, AreaRegion mode, Vec3 au, Vec3 av) {
+  if (mode == AreaRegion::Whole) return l.area;
+  return length(cross(au, av)) * (mode == AreaRegion::Disk ? kPi / 4.0f : 1.0f);
+}
+
+// Whether point q of area light l's plane lies on the light (its rectangle or ellipse).
+inline bool on_area_light(const Light& l, Vec3 q) {
+  const Vec3 r = q - l.position;
+  const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
+  const float ru = dot(r, l.axis_u), rv = dot(r, l.axis_v);
+  const float det = uu * vv - uv * uv;
+  if (!(det > 0.0f)) return false;
+  // Coordinates along the (possibly sheared) axes, in units of their full lengths.
+  const float x = (ru * vv - rv * uv) / det, y = (rv * uu - ru * uv) / det;
+  return l.type == LightType::Rect ? std::fabs(x) <= 0.5f && std::fabs(y) <= 0.5f : x * x + y * y <= 0.25f;
+}
+
+// 1 - cos of the half angle whose sine squared is s2, without cancellation for small angles.
+inline float one_minus_cos_from_sin2(float s2) {
+  return s2 / (1.0f + std::sqrt(std::max(0.0f, 1.0f - s2)));
+}
+
+// A sphere light's solid-angle pdf from a point at squared distance d2c from its centre (as
+// Cycles' sphere_light_pdf / spot_light_pdf): uniform over the smaller of the cone the sphere
+// subtends and a spot's spread cone outside, uniform over all directions inside (Cycles samples
+// a cosine hemisphere there; uniform needs no normal and keeps the MIS pdf exact).
+inline float sphere_light_pdf(const Light& l, float d2c) {
+  const float r2 = l.radius * l.radius;
+  if (!(d2c > r2)) return 1.0f / (4.0f * kPi);
+  const float omc = std::min(one_minus_cos_from_sin2(r2 / d2c), l.spread_one_minus_cos);
+  return 1.0f / (2.0f * kPi * omc);
+}
+
+// The distance along the unit direction dir from org to sphere light l's surface (the near side
+// from outside, the far side from inside), or a negative value where the line misses it.
+inline float sphere_light_distance(const Light& l, Vec3 org, Vec3 dir) {
+  const Vec3 oc = org - l.position;
+  const float b = dot(oc, dir);
+  const float r2 = l.radius * l.radius;
+  const float h2 = r2 - length_sq(oc - dir * b);  // r^2 - the line's squared distance to the centre
+  // A little slack for float rounding, so that the rays of samples at the cone's edge still find
+  // the sphere (the MIS pdf of their hits).
+  const float oc2 = length_sq(oc);
+  if (!(h2 >= -1e-6f * (r2 + 4.0f * std::sqrt(oc2) * l.radius))) return -1.0f;
+  const float h = std::sqrt(std::max(h2, 0.0f));
+  const float c = oc2 - r2;  // roots of t^2 + 2 b t + c, in their stable forms
+  if (c > 0.0f) return b < 0.0f ? c / (h - b) : -1.0f;
+  return b > 0.0f ? -c / (b + h) : h - b;
+}
+
+// Soft Falloff off: the emitting sphere of Cycles' point.h / spot.h. Outside it, uniform in the
+// cone it subtends (or in a spot's spread cone where that is smaller, the directions that miss
+// the sphere giving no sample), the spot's cone and blend along the sample's direction; inside,
+// uniform over all directions, without the spot's attenuation (as Cycles).
+inline bool sample_sphere_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) {
+  const Vec3 to_c = l.position - p;
+  const float d2c = length_sq(to_c);
+  const float r2 = l.radius * l.radius;
+  Vec3 scale = l.color * (1.0f / (kPi * r2));  // radiance = I / (pi r^2), as the disk's
+  float t;
+  if (d2c > r2) {
+    const float d = std::sqrt(d2c);
+    const float omc_sphere = one_minus_cos_from_sin2(r2 / d2c);
+    const bool in_spread = l.spread_one_minus_cos <= omc_sphere;
+    const float omc = in_spread ? l.spread_one_minus_cos : omc_sphere;
+    const Vec3 axis = in_spread ? -l.spot_axis : to_c / d;
+    const float omc_t = u.x * omc;  // 1 - cos of the sample's angle to the axis
+    const float cos_t = 1.0f - omc_t;
+    const float sin2_t = omc_t * (2.0f - omc_t);
+    const float sin_t = std::sqrt(std::max(0.0f, sin2_t));
+    const float phi = 2.0f * kPi * u.y;
+    Vec3 tt, bb;
+    make_basis(axis, tt, bb);
+    s.wi = normalize(tt * (sin_t * std::cos(phi)) + bb * (sin_t * std::sin(phi)) + axis * cos_t);
+    if (in_spread) {
+      t = sphere_light_distance(l, p, s.wi);
+      if (!(t > 0.0f)) return false;
+    } else {  // law of cosines, the near side
+      t = std::max(0.0f, d * cos_t - std::sqrt(std::max(0.0f, r2 - d2c * sin2_t)));
+    }
+    if (l.type == LightType::Spot) {
+      const float att = spot_attenuation(l, -s.wi);
+      if (att <= 0.0f) return false;
+      scale = scale * att;
+    }
+    s.pdf = 1.0f / (2.0f * kPi * omc);
+  } else {
+    const float z = 1.0f - 2.0f * u.x, rr = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    const float phi = 2.0f * kPi * u.y;
+    s.wi = Vec3(rr * std::cos(phi), rr * std::sin(phi), z);
+    t = sphere_light_distance(l, p, s.wi);
+    if (!(t >= 0.0f)) return false;
+    s.pdf = 1.0f / (4.0f * kPi);
+  }
+  if (!(t > 0.0f) || !std::isfinite(s.pdf)) return false;
+  s.dist = t;
+  s.target = p + s.wi * t;
+  s.li = scale;
+  s.delta = false;
+  return true;
+}
+
 // Samples light `l` from point p; returns false if it cannot contribute there. `solid_angle`:
 // rectangles by their solid angle where it is large enough (else uniformly by area).
 inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool solid_angle = true) {
@@ -86,6 +289,7 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
       const float disk_area = kPi * l.radius * l.radius;
       // A radius too small to matter (or to represent) is a point light.
       const bool point = !(l.radius > 1e-6f * std::sqrt(d2c)) || !(disk_area > 1e-30f);
+      if (!point && l.sphere) return sample_sphere_light(l, p, u, s);
       if (point) {
         if (l.type == LightType::Spot) {
           const float att = spot_attenuation(l, -to_c);
@@ -148,46 +352,62 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
     }
     case LightType::Rect:
     case LightType::Ellipse: {
-      if (l.type == LightType::Rect && solid_angle) {
-        if (!(dot(p - l.position, l.dir) > 0.0f)) return false;  // behind: one-sided
-        // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
-        const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
-        const SphericalRect sr = spherical_rect(p, l.position - (l.axis_u + l.axis_v) * 0.5f, l.axis_u, l.axis_v);
-        if (uv * uv <= 1e-8f * uu * vv && use_spherical_rect(sr.solid_angle)) {
+      if (!(dot(p - l.position, l.dir) > 0.0f)) return false;  // behind: one-sided
+      Vec3 c, au, av;
+      AreaRegion mode;
+      if (!area_light_region(l, p, c, au, av, mode)) return false;
+      // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
+      if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
+        const SphericalRect sr = spherical_rect(p, c - (au + av) * 0.5f, au, av);
+        if (use_spherical_rect(sr.solid_angle)) {
           DVec3 q;
           if (!sample_spherical_rect(sr, u, q)) return false;
           DVec3 d = q - DVec3(p);
           const double dist = dlength(d);
           if (!dnormalize(d)) return false;
           s.wi = d.to_float();
-          if (!(-dot(l.dir, s.wi) > 0.0f)) return false;
+          const float cos_l = -dot(l.dir, s.wi);
+          if (!(cos_l > 0.0f)) return false;
+          s.li = l.color;
+          if (has_spread(l)) {
+            const float att = spread_attenuation(l, s.wi, cos_l);
+            if (!(att > 0.0f)) return false;
+            s.li = s.li * att;
+          }
           s.dist = float(dist);
           s.target = q.to_float();
-          s.li = l.color;
           s.pdf = float(1.0 / sr.solid_angle);
           s.delta = false;
           return true;
         }
       }
+      // By area over the region (area_light_region), the samples off the light giving none.
       Vec2 o{u.x - 0.5f, u.y - 0.5f};
-      if (l.type == LightType::Ellipse) {
+      const float area = area_light_region_area(l, mode, au, av);
+      if (mode == AreaRegion::Disk || (mode == AreaRegion::Whole && l.type == LightType::Ellipse)) {
         const Vec2 dsk = sample_disk_concentric(u);
         o = {0.5f * dsk.x, 0.5f * dsk.y};
       }
-      const Vec3 q = l.position + l.axis_u * o.x + l.axis_v * o.y;
+      const Vec3 q = c + au * o.x + av * o.y;
+      if (mode != AreaRegion::Whole && !on_area_light(l, q)) return false;
       const Vec3 d = q - p;
       const float dist2 = length_sq(d);
-      if (!(dist2 > 0.0f)) return false;
+      if (!(dist2 > 0.0f) || !(area > 0.0f)) return false;
       const float dist = std::sqrt(dist2);
       s.wi = d / dist;
       const float cos_l = -dot(l.dir, s.wi);  // one-sided: emits along dir
       if (!(cos_l > 0.0f)) return false;
+      s.li = l.color;
+      if (has_spread(l)) {
+        const float att = spread_attenuation(l, s.wi, cos_l);
+        if (!(att > 0.0f)) return false;
+        s.li = s.li * att;
+      }
       s.dist = dist;
       s.target = q;
-      s.li = l.color;
-      s.pdf = dist2 / (cos_l * l.area);
+      s.pdf = dist2 / (cos_l * area);
       s.delta = false;
-      return true;
+      return std::isfinite(s.pdf);
     }
   }
   return false;
@@ -221,6 +441,20 @@ inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float
       if (!(d2c > 0.0f)) return false;
       const float disk_area = kPi * l.radius * l.radius;
       if (!(l.radius > 1e-6f * std::sqrt(d2c)) || !(disk_area > 1e-30f)) return false;  // a point: delta
+      if (l.sphere) {
+        const float th = sphere_light_distance(l, org, dir);
+        if (!(th > 0.0f) || !(th < tmax)) return false;
+        Vec3 scale = l.color * (1.0f / disk_area);
+        if (l.type == LightType::Spot && d2c > l.radius * l.radius) {  // inside: unattenuated
+          const float att = spot_attenuation(l, -dir);
+          if (att <= 0.0f) return false;
+          scale = scale * att;
+        }
+        t = th;
+        le = scale;
+        pdf = sphere_light_pdf(l, d2c);
+        return std::isfinite(pdf) && pdf > 0.0f;
+      }
       const Vec3 n = -to_c / std::sqrt(d2c);  // the disk's normal, towards `from`
       const float dn = dot(dir, n);
       if (!(dn < 0.0f)) return false;
@@ -255,26 +489,27 @@ inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float
       const float th = dot(l.position - org, l.dir) / dn;
       if (!(th > 0.0f) || !(th < tmax)) return false;
       const Vec3 q = org + dir * th;
-      const Vec3 r = q - l.position;
-      // Coordinates along the (possibly sheared) axes, in units of their full lengths.
-      const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v), uv = dot(l.axis_u, l.axis_v);
-      const float ru = dot(r, l.axis_u), rv = dot(r, l.axis_v);
-      const float det = uu * vv - uv * uv;
-      if (!(det > 0.0f)) return false;
-      const float x = (ru * vv - rv * uv) / det, y = (rv * uu - ru * uv) / det;
-      if (l.type == LightType::Rect ? !(std::fabs(x) <= 0.5f && std::fabs(y) <= 0.5f) : !(x * x + y * y <= 0.25f))
-        return false;
+      if (!on_area_light(l, q)) return false;
       t = th;
       le = l.color;
-      if (l.type == LightType::Rect && solid_angle) {
-        if (!(dot(from - l.position, l.dir) > 0.0f)) return false;
-        const SphericalRect sr = spherical_rect(from, l.position - (l.axis_u + l.axis_v) * 0.5f, l.axis_u, l.axis_v);
-        if (uv * uv <= 1e-8f * uu * vv && use_spherical_rect(sr.solid_angle)) {
+      if (has_spread(l)) {
+        const float att = spread_attenuation(l, dir, -dn);
+        if (!(att > 0.0f)) return false;
+        le = le * att;
+      }
+      // The pdf of the sample from `from`: over the same (clipped) region as sample_light.
+      if (!(dot(from - l.position, l.dir) > 0.0f)) return false;
+      Vec3 c, au, av;
+      AreaRegion mode;
+      if (!area_light_region(l, from, c, au, av, mode)) return false;
+      if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
+        const SphericalRect sr = spherical_rect(from, c - (au + av) * 0.5f, au, av);
+        if (use_spherical_rect(sr.solid_angle)) {
           pdf = float(1.0 / sr.solid_angle);
           return std::isfinite(pdf) && pdf > 0.0f;
         }
       }
-      pdf = length_sq(q - from) / (-dn * l.area);
+      pdf = length_sq(q - from) / (-dn * area_light_region_area(l, mode, au, av));
       return std::isfinite(pdf) && pdf > 0.0f;
     }
   }

@@ -320,7 +320,8 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
           b.phi = kPi * l.area * lum;
           b.w = l.dir;  // one-sided
           b.cos_theta_o = 1.0f;
-          b.cos_theta_e = 0.0f;
+          // A spread below 180 degrees emits within its half angle of the normal only.
+          b.cos_theta_e = has_spread(l) ? 1.0f / std::sqrt(1.0f + l.tan_half_spread * l.tan_half_spread) : 0.0f;
           break;
         case LightType::Sun:
           break;

@@ -3,7 +3,7 @@ core module against closed forms evaluated in numpy over the same pixels."""
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, cornell, quad, render, uv_sphere
+from core_scenes import add_object, camera, core, cornell, quad, region_means, render, uv_sphere
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
@@ -643,6 +643,269 @@ def test_bad_light_parameters_raise():
     with pytest.raises(ValueError):
         s.add_spot_light(np.zeros((4, 4), np.float32), (1, 1, 1))
     with pytest.raises(ValueError):
+        s.add_area_light(np.eye(4, dtype=np.float32), 1.0, 1.0, (1, 1, 1), spread=np.nan)
+    with pytest.raises(ValueError):
+        s.add_point_light((0, 0, 1), (1, 1, 1), radius=-0.5, soft_falloff=False)
+    with pytest.raises(ValueError):
         s.set_world_texture(np.zeros((4, 4), np.float32))
     # NaN or negative colours are treated as black rather than poisoning the image.
     s.add_point_light((0, 0, 1), (np.nan, -1.0, 1.0))
+
+
+# ---------------------------------------------------------------- sphere lights (Soft Falloff off)
+
+def _frame(axis):
+    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    t = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    t /= np.linalg.norm(t)
+    return a, t, np.cross(a, t)
+
+
+def _hits_sphere(p, dirs, c, r):
+    oc = np.asarray(c, np.float64) - p
+    b = dirs @ oc
+    if oc @ oc <= r * r:
+        return np.ones(len(dirs), bool)
+    return (b > 0) & (oc @ oc - b * b <= r * r)
+
+
+def _spot_matrix_down(pos):
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 3] = pos  # emits along -Z
+    return m
+
+
+# (point p, sphere centre, radius, spot size or None); the spot points down -Z.
+SPHERE_CASES = {
+    "far": ((0.3, -0.2, 0.0), (0.0, 0.0, 6.0), 0.2, None),
+    "near": ((0.5, 0.0, 0.0), (0.0, 0.0, 0.8), 0.7, None),
+    "inside": ((0.1, 0.2, 0.3), (0.0, 0.0, 0.5), 0.7, None),
+    # the spot's 15 degree spread cone is smaller than the sphere's 30 degrees: it is sampled
+    "spot spread": ((0.3, 0.0, 0.0), (0.0, 0.0, 2.0), 1.0, np.radians(30.0)),
+    # the sphere's cone is sampled, and the spot's cone cuts through it
+    "spot cut": ((1.2, 0.0, 0.0), (0.0, 0.0, 2.0), 0.5, np.radians(60.0)),
+}
+
+
+@pytest.mark.parametrize("case", list(SPHERE_CASES))
+def test_sphere_light_samples_follow_their_pdf(case):
+    """Chi-square of the sampled directions against the density sample_light reports, over bins
+    of equal solid angle about the sampled cone, the expected count of each bin integrated over
+    the directions that reach the sphere (and the spot's cone) on a fine grid."""
+    p, c, r, spot = SPHERE_CASES[case]
+    p, c = np.asarray(p, np.float64), np.asarray(c, np.float64)
+    s = pc.Scene()
+    if spot is None:
+        s.add_point_light(position=tuple(c), intensity=(5.0,) * 3, radius=r, soft_falloff=False)
+    else:
+        s.add_spot_light(_spot_matrix_down(c), (5.0,) * 3, radius=r, spot_size=spot, spot_blend=0.2,
+                         soft_falloff=False)
+    pos, tris = quad((20, 20, -5), (1, 0, 0), (0, 1, 0))  # out of the way
+    add_object(s, pos, tris, s.add_material("m", (0.5,) * 3))
+    s.commit()
+    d2 = (c - p) @ (c - p)
+    inside = d2 <= r * r
+    omc_sphere = 2.0 if inside else 1.0 - np.sqrt(1.0 - r * r / d2)
+    omc_spot = 1.0 - np.cos(spot / 2) if spot is not None else 2.0
+    spread = omc_spot <= omc_sphere
+    omc = min(omc_sphere, omc_spot)
+    axis = (0.0, 0.0, 1.0) if spread or inside else c - p
+    a, t, b = _frame(axis)
+
+    n = 200_000
+    rng = np.random.default_rng(11)
+    u = rng.random((n, 3), dtype=np.float32)
+    pts = np.tile(p.astype(np.float32), (n, 1))
+    ok, wi, dist, pdf, pdf_hit, t_hit = s.light_samples(pts, u)
+    wi = wi.astype(np.float64)
+    pdf_exp = 1.0 / (4 * np.pi) if inside else 1.0 / (2 * np.pi * omc)
+    np.testing.assert_allclose(pdf[ok], pdf_exp, rtol=1e-4)
+    # The sample lies on the sphere, and its ray finds the light there with the same pdf.
+    on = p + wi[ok] * dist[ok, None]
+    np.testing.assert_allclose(np.linalg.norm(on - c, axis=1), r, rtol=1e-3)
+    np.testing.assert_allclose(t_hit[ok], dist[ok], rtol=2e-3, atol=1e-5)
+    np.testing.assert_allclose(pdf_hit[ok], pdf[ok], rtol=1e-4)
+
+    nb = 8
+    def bins(d):
+        x = np.clip((1.0 - d @ a) / omc, 0, 1 - 1e-9)
+        phi = np.mod(np.arctan2(d @ b, d @ t), 2 * np.pi)
+        return (x * nb).astype(int) * nb + np.minimum((phi / (2 * np.pi) * nb).astype(int), nb - 1)
+
+    observed = np.bincount(bins(wi[ok]), minlength=nb * nb).astype(np.float64)
+    # The fraction of each bin's solid angle that can be sampled (reaches the sphere; inside the
+    # spot's cone), on a stratified 32 x 32 grid per bin.
+    m = 32
+    g = (np.arange(m) + 0.5) / m
+    gx, gp = np.meshgrid(g, g, indexing="ij")
+    frac = np.zeros(nb * nb)
+    for i in range(nb):
+        for j in range(nb):
+            omc_d = (i + gx.ravel()) / nb * omc
+            phi = (j + gp.ravel()) / nb * 2 * np.pi
+            cos_d = 1.0 - omc_d
+            sin_d = np.sqrt(np.maximum(0.0, omc_d * (2 - omc_d)))
+            d = (a[None] * cos_d[:, None] + t[None] * (sin_d * np.cos(phi))[:, None]
+                 + b[None] * (sin_d * np.sin(phi))[:, None])
+            keep = _hits_sphere(p, d, c, r)
+            if spot is not None and not inside:
+                keep &= d[:, 2] > np.cos(spot / 2)  # -d inside the cone about -Z
+            frac[i * nb + j] = keep.mean()
+    expected = n * frac / (nb * nb)  # pdf x the bin's solid angle omc 2 pi / nb^2
+    assert observed[expected == 0].sum() <= 1e-4 * n
+    big = expected >= 20
+    chi2 = ((observed[big] - expected[big]) ** 2 / expected[big]).sum()
+    rest_o, rest_e = observed[~big].sum(), expected[~big].sum()
+    if rest_e > 0:
+        chi2 += (rest_o - rest_e) ** 2 / max(rest_e, 1.0)
+    k = big.sum() + (rest_e > 0)
+    # Wilson-Hilferty: z of chi2 with k degrees of freedom, about N(0, 1) under the null.
+    z = ((chi2 / k) ** (1 / 3) - (1 - 2 / (9 * k))) / np.sqrt(2 / (9 * k))
+    assert z < 4.0, (chi2, k)
+    assert big.sum() >= 16  # the test sees the distribution's shape, not one bin
+
+
+def sphere_irradiance(p, c, r, intensity, m=48):
+    """Irradiance of the plane z = 0 (normal +Z) at points p (..., 3) from a sphere of radiance
+    I / (pi r^2): its cone (uniform in 1 - cos) cut by the horizon, by an m x m midpoint rule."""
+    pts = p.reshape(-1, 3)
+    out = np.empty(len(pts))
+    g = (np.arange(m) + 0.5) / m
+    gx, gp = (x.ravel() for x in np.meshgrid(g, g, indexing="ij"))
+    for k0 in range(0, len(pts), 256):
+        q = pts[k0:k0 + 256]
+        to_c = c - q
+        d = np.linalg.norm(to_c, axis=1)
+        omc = 1.0 - np.sqrt(1.0 - (r / d) ** 2)
+        a = to_c / d[:, None]
+        t = np.cross(a, [1.0, 0.0, 0.0])
+        t /= np.linalg.norm(t, axis=1)[:, None]
+        b = np.cross(a, t)
+        omc_d = gx[None] * omc[:, None]
+        cos_d, sin_d = 1 - omc_d, np.sqrt(omc_d * (2 - omc_d))
+        phi = gp * 2 * np.pi
+        z = (a[:, 2:3] * cos_d + t[:, 2:3] * sin_d * np.cos(phi) + b[:, 2:3] * sin_d * np.sin(phi))
+        out[k0:k0 + 256] = np.maximum(z, 0).mean(axis=1) * 2 * np.pi * omc
+    return (out * intensity / (np.pi * r * r)).reshape(p.shape[:-1])
+
+
+def test_sphere_light_near_a_plane_matches_its_form_factor():
+    """A sphere light of radius 0.5 with its centre 0.6 above the plane: its cone is cut by the
+    horizon next to it; where it is whole, the irradiance is I cos / d^2 (a point light's)."""
+    c, r, inten = np.array([0.3, -0.2, 0.6]), 0.5, 4.0
+    s = plane_scene()
+    s.add_point_light(tuple(c), (inten,) * 3, radius=r, soft_falloff=False)
+    img, stats = render(pc, s, W, W, samples=256)
+    assert stats["nonfinite_samples"] == 0
+    p = plane_points(sub=2)
+    exp = (ALBEDO / np.pi * sphere_irradiance(p, c, r, inten)).mean(axis=2)
+    # The soft disk's irradiance I cos / (d^2 + r^2) is far off here: the test can tell them apart.
+    d = c - p
+    d2 = (d**2).sum(-1)
+    soft = (ALBEDO / np.pi * inten * np.maximum(d[..., 2], 0) / np.sqrt(d2) / (d2 + r * r)).mean(axis=2)
+    assert (soft / exp).min() < 0.7
+    got = region_means(img[..., :3], 8)[..., 0]
+    want = region_means(np.repeat(exp[..., None], 3, -1), 8)[..., 0]
+    np.testing.assert_allclose(got, want, rtol=0.01)
+
+
+def test_sphere_spot_light_cone_near_a_plane():
+    """A sphere spot: its cone and blend along each sample's direction, uniform over the sphere's
+    visible cone; checked against the same integral with the attenuation inside."""
+    c, r, inten = np.array([0.0, 0.0, 0.9]), 0.4, 6.0
+    size, blend = np.radians(70.0), 0.3
+    s = plane_scene()
+    s.add_spot_light(_spot_matrix_down(c), (inten,) * 3, radius=r, spot_size=size, spot_blend=blend,
+                     soft_falloff=False)
+    img, _ = render(pc, s, W, W, samples=256)
+    cos_h = np.cos(size / 2)
+    pts = plane_points(sub=2).reshape(-1, 3)
+    m = 48
+    g = (np.arange(m) + 0.5) / m
+    gx, gp = (x.ravel() for x in np.meshgrid(g, g, indexing="ij"))
+    e = np.empty(len(pts))
+    for k0 in range(0, len(pts), 256):
+        q = pts[k0:k0 + 256]
+        to_c = c - q
+        dd = np.linalg.norm(to_c, axis=1)
+        omc = 1.0 - np.sqrt(1.0 - (r / dd) ** 2)
+        a = to_c / dd[:, None]
+        t = np.cross(a, [1.0, 0.0, 0.0])
+        t /= np.linalg.norm(t, axis=1)[:, None]
+        b = np.cross(a, t)
+        omc_d = gx[None] * omc[:, None]
+        cos_d, sin_d = 1 - omc_d, np.sqrt(omc_d * (2 - omc_d))
+        phi = gp * 2 * np.pi
+        z = a[:, 2:3] * cos_d + t[:, 2:3] * sin_d * np.cos(phi) + b[:, 2:3] * sin_d * np.sin(phi)
+        x = np.clip((z - cos_h) / ((1 - cos_h) * blend), 0, 1)  # -dir's cosine to -Z is z
+        e[k0:k0 + 256] = (np.maximum(z, 0) * x * x * (3 - 2 * x)).mean(axis=1) * 2 * np.pi * omc
+    exp = (ALBEDO / np.pi * e * inten / (np.pi * r * r)).reshape(W, W, -1).mean(axis=2)
+    got = region_means(img[..., :3], 8)[..., 0]
+    want = region_means(np.repeat(exp[..., None], 3, -1), 8)[..., 0]
+    lit = want > 0.05 * want.max()
+    assert lit.sum() > 8 and (~lit).sum() > 0  # the cone's edge is in view
+    np.testing.assert_allclose(got[lit], want[lit], rtol=0.015)
+    assert np.abs(got - want).max() < 0.01 * want.max()
+
+
+# ---------------------------------------------------------------- area light spread
+
+def spread_attenuation(tan_a, spread):
+    half = spread / 2
+    norm = 1 / (np.tan(half) - half) if half > 0.05 else 3 / half**3
+    return np.maximum((np.tan(half) - tan_a) * norm, 0.0)
+
+
+@pytest.mark.parametrize("ellipse", [False, True], ids=["rect", "ellipse"])
+def test_area_light_spread_matches_numerical_integration(ellipse):
+    """Spread 40 degrees (Cycles' soft-box grid): each point of the plane is lit by the part of
+    the light within 20 degrees of its normal, the emission falling off with tan of the angle;
+    sampled over the light's rectangle clipped to that part."""
+    center, sx, sy, radiance, spread = np.array([0.3, 0.0, 1.0]), 1.6, 1.0, 4.0, np.radians(40.0)
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 3] = center
+    s = plane_scene()
+    s.add_area_light(m, sx, sy, (radiance,) * 3, ellipse=ellipse, spread=spread)
+    img, stats = render(pc, s, W, W, samples=1024 if ellipse else 256)  # ellipses: by area, noisier
+    assert stats["nonfinite_samples"] == 0
+    n = 160
+    g = (np.arange(n) + 0.5) / n - 0.5
+    U, V = np.meshgrid(g * sx, g * sy, indexing="ij")
+    inside = np.ones_like(U, bool) if not ellipse else (U / sx) ** 2 + (V / sy) ** 2 <= 0.25
+    lp = np.stack([U[inside] + center[0], V[inside] + center[1], np.full(inside.sum(), center[2])], -1)
+    dA = (sx / n) * (sy / n)
+
+    def rad(p):
+        d = lp[None, None, None] - p[..., None, :]
+        r2 = (d**2).sum(-1)
+        tan_a = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2) / d[..., 2]
+        cos2 = d[..., 2] ** 2 / r2
+        return ALBEDO / np.pi * radiance * (spread_attenuation(tan_a, spread) * cos2 / r2).sum(-1) * dA
+
+    pts = plane_points(sub=2)
+    exp = np.stack([rad(pts[i : i + 2]) for i in range(0, W, 2)]).reshape(W, W, -1).mean(-1)
+    # The pool of light has an edge: without the spread, it would fill the view.
+    assert exp.min() < 0.02 * exp.max()
+    got = region_means(img[..., :3], 8)[..., 0]
+    want = region_means(np.repeat(exp[..., None], 3, -1), 8)[..., 0]
+    lit = want > 0.1 * want.max()
+    np.testing.assert_allclose(got[lit], want[lit], rtol=0.02)
+    assert np.abs(got - want).max() < 0.01 * want.max()
+    assert abs(img[..., 0].mean() / exp.mean() - 1) < 0.01
+
+
+def test_area_light_spread_keeps_the_power():
+    """Cycles normalises the spread so that the light's power does not change: a wide plane under
+    a small light gets the same total light at any spread."""
+    m = np.eye(4, dtype=np.float32)
+    m[:3, 3] = (0.0, 0.0, 0.5)
+    means = []
+    for spread in (np.pi, np.radians(90.0), np.radians(30.0)):
+        s = plane_scene()
+        s.add_area_light(m, 0.2, 0.2, (5.0,) * 3, spread=spread)
+        img, _ = render(pc, s, W, W, samples=64)  # the camera sees x, y in +-1.44 (4 m up, 50 mm)
+        means.append(img[..., 0].mean())
+    assert means[2] > means[1] > means[0]  # more of it lands in view as the spread narrows
+    # 30 degrees: within 0.5 tan 15 = 0.13 of the centre, all of the power is in view
+    expected = ALBEDO / np.pi * 5.0 * np.pi * 0.04 / (2.88**2)  # albedo/pi * power / view area
+    assert abs(means[2] / expected - 1) < 0.02

@@ -39,12 +39,25 @@ LIGHTS = {
     "point": ("add_point_light", dict(position=(0.3, 0.2, 1.5), intensity=(8.0, 8.0, 8.0), radius=0.4)),
     "spot": ("add_spot_light", dict(matrix=spot_matrix((0.2, -0.3, 1.6), 0.3), intensity=(8.0, 8.0, 8.0), radius=0.4,
                                     spot_size=1.8, spot_blend=0.4)),
+    # Soft Falloff off: emitting spheres (the spot's sphere cone partly cut by its cone)
+    "sphere": ("add_point_light", dict(position=(0.3, 0.2, 1.0), intensity=(8.0, 8.0, 8.0), radius=0.6,
+                                       soft_falloff=False)),
+    "sphere spot": ("add_spot_light", dict(matrix=spot_matrix((0.2, -0.3, 1.2), 0.3), intensity=(8.0, 8.0, 8.0),
+                                           radius=0.5, spot_size=1.8, spot_blend=0.4, soft_falloff=False)),
     "rect": ("add_area_light", dict(matrix=area_matrix((0.0, 0.2, 1.4), 0.4), size_x=1.0, size_y=0.6,
                                     radiance=(3.0, 3.0, 3.0))),
     "rect sheared": ("add_area_light", dict(matrix=area_matrix((0.0, 0.2, 1.4), 0.2, shear=0.3), size_x=0.8,
                                             size_y=0.6, radiance=(3.0, 3.0, 3.0))),
     "ellipse": ("add_area_light", dict(matrix=area_matrix((0.1, 0.0, 1.3), -0.3), size_x=1.0, size_y=0.7,
                                        radiance=(3.0, 3.0, 3.0), ellipse=True)),
+    # Spread below 180 degrees: sampled over the light clipped to the part that can reach the point
+    "rect spread": ("add_area_light", dict(matrix=area_matrix((0.0, 0.2, 1.4), 0.3), size_x=1.6, size_y=1.0,
+                                           radiance=(3.0, 3.0, 3.0), spread=1.6)),
+    "ellipse spread": ("add_area_light", dict(matrix=area_matrix((0.1, 0.0, 1.3), -0.3), size_x=1.4, size_y=1.0,
+                                              radiance=(3.0, 3.0, 3.0), ellipse=True, spread=1.8)),
+    # a round one: the lens where the light's disk and the spread's overlap, or the smaller disk
+    "disk spread": ("add_area_light", dict(matrix=area_matrix((0.2, 0.1, 0.9), 0.2), size_x=1.2, size_y=1.2,
+                                           radiance=(3.0, 3.0, 3.0), ellipse=True, spread=2.0)),
     "sun": ("add_sun_light", dict(direction=(0.2, -0.3, 1.0), irradiance=(2.0, 2.0, 2.0), angle=0.25)),
 }
 
@@ -117,7 +130,8 @@ def renders(s, seeds=4, spp=64, size=16, **kw):
     return np.stack(out).astype(np.float64)
 
 
-@pytest.mark.parametrize("name", ["point", "spot", "rect", "ellipse", "sun"])
+@pytest.mark.parametrize("name", ["point", "spot", "sphere", "sphere spot", "rect", "ellipse", "rect spread",
+                                  "ellipse spread", "disk spread", "sun"])
 def test_light_samples_ray_hits_and_mis_render_alike(name):
     """Light samples alone (light_hits off), BSDF rays alone (no light sampling) and both with
     MIS: the same image within noise, on a rough glossy floor. A wrong MIS pdf on either side
@@ -127,7 +141,8 @@ def test_light_samples_ray_hits_and_mis_render_alike(name):
     s.light_hits = False
     imgs["nee"] = renders(s)
     s = plane_scene(name)
-    imgs["bsdf"] = renders(s, spp=2048 if name == "sun" else 256, use_nee=False)
+    # (the sun's cone and the spread lights' narrow emission are spiky for rays alone)
+    imgs["bsdf"] = renders(s, spp=2048 if name == "sun" or "spread" in name else 256, use_nee=False)
     imgs["mis"] = renders(s)
     reg = lambda im: im.reshape(im.shape[0], 4, 4, 4, 4, 3).mean(axis=(2, 4, 5))
     r = {k: reg(v) for k, v in imgs.items()}
@@ -163,12 +178,12 @@ def view_scene(name, **extra):
     return s
 
 
-@pytest.mark.parametrize("name", ["point", "rect", "ellipse", "sun"])
+@pytest.mark.parametrize("name", ["point", "sphere", "rect", "ellipse", "sun"])
 def test_lights_visible_to_the_camera(name):
     s = view_scene(name, visible_camera=True)
     img = np.asarray(run_session(pc, s, 24, 24, 16).film())[..., 0]
-    if name == "point":
-        le = 8.0 / (np.pi * 0.4**2)
+    if name in ("point", "sphere"):  # the disk's radiance and the sphere's are both I / (pi r^2)
+        le = 8.0 / (np.pi * LIGHTS[name][1]["radius"] ** 2)
     elif name == "sun":
         le = 2.0 / (np.pi * np.sin(0.125) ** 2)
     else:
