@@ -589,7 +589,7 @@ void parse_value_op(const ValueOpSchema& s, const py::tuple& t, ShaderOp& o, Sha
       default: break;  // no other field takes an integer (shader_ops.h checks the schema)
     }
   }
-  if (flags & kVarying) prog.varying = true;
+  if (flags & kVarying) prog.varying = prog.reads_point = true;
   if (flags & kUsesUv) prog.uses_uv = true;
   if (flags & kUsesAttributes) prog.uses_attributes = true;
   if (flags & kSetsNormal) prog.sets_normal = true;
@@ -754,7 +754,7 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
         o.sub = uint8_t(it - std::begin(spaces));
       }
       prog.uses_uv = prog.uses_uv || o.sub == 0;
-      prog.varying = true;
+      prog.varying = prog.reads_point = true;
     } else {
       parse_value_op(*schema, t, o, prog, n_images);
     }

@@ -116,7 +116,7 @@ inline EnergyCompensation compensate(float E, float E_avg, Vec3 fss) {
 }
 
 // GGX reflection; `rough` is Blender's roughness (sqrt(alpha)).
-inline EnergyCompensation ggx_reflection_compensation(float rough, float mu, Vec3 fss) {
+[[gnu::always_inline]] inline EnergyCompensation ggx_reflection_compensation(float rough, float mu, Vec3 fss) {
   const float E = table_2d(tables::ggx_E, rough, mu, 32, 32);
   const float E_avg = table_1d(tables::ggx_Eavg, rough, 32);
   return compensate(E, E_avg, fss);

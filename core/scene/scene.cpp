@@ -86,6 +86,19 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
     ctx.uv_sets = 0;
     eval_shader(m.program, images, ctx, m.cached);
   }
+  m.closures_only = !m.constant && !m.program.reads_point && !m.program.sets_normal;
+  m.closure_regs.clear();
+  m.closure_ops.clear();
+  m.principled.clear();
+  if (m.closures_only) {
+    ctx.uv = nullptr;
+    ctx.uv_sets = 0;
+    m.closure_regs.resize(kMaxRegs);
+    eval_shader(m.program, images, ctx, cl, m.closure_regs.data());
+    for (const ShaderOp& op : m.program.ops)
+      if (is_closure_op(op.code)) m.closure_ops.push_back(op);
+    m.principled = principled_inputs_of(m.closure_ops.data(), m.closure_ops.size(), m.closure_regs.data());
+  }
 }
 }  // namespace
 

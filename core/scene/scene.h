@@ -67,6 +67,12 @@ struct Material {
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
   ClosureList cached;
+  // Programs varying only through their closures (the view: Principled layering, Oren-Nayar,
+  // multiscatter): the registers evaluated once, and the closure ops that run per hit on them.
+  bool closures_only = false;
+  std::vector<Float4> closure_regs;
+  std::vector<ShaderOp> closure_ops;
+  std::vector<PrincipledInputs> principled;  // of its Principled ops, in order
 };
 
 // A heterogeneous medium in the committed scene: one per instance and material whose Volume is
@@ -570,6 +576,8 @@ class Scene {
   const Tlas& tlas() const { return tlas_; }
 
  private:
+  // shade()'s per-hit program for materials that are not constant.
+  void shade_program(const Material& mat, const ShadingContext& ctx, ClosureList& out) const;
   // A bottom-level BVH and what maps its triangles back to the meshes.
   struct Blas {
     Bvh bvh;

@@ -34,6 +34,16 @@ Vec3 Scene::hair_curve_normal(const SurfacePoint& sp, float b1) const {
   return a + (b - a) * u;
 }
 
+// A varying material's closures at ctx: its whole program, or only its closure ops on the
+// registers evaluated once where no value op reads the point.
+void Scene::shade_program(const Material& mat, const ShadingContext& ctx, ClosureList& out) const {
+  if (mat.closures_only)
+    eval_closures(mat.program, mat.closure_ops.data(), mat.closure_ops.size(), mat.closure_regs.data(),
+                  mat.principled.empty() ? nullptr : mat.principled.data(), ctx, out);
+  else
+    eval_shader(mat.program, images_, ctx, out);
+}
+
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
@@ -85,7 +95,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &curve_coords_[curve_set_of(pc.curve)];
-    eval_shader(mat.program, images_, ctx, out);
+    shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
     return;
   }
@@ -114,6 +124,11 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   }
   const Vec3 corners[3] = {tv.v0, tv.v1, tv.v2};
   ctx.tri = corners;  // for the Bump node's offsets
+  if (mat.closures_only) {  // (no uvs or attributes: no value op reads them)
+    shade_program(mat, ctx, out);
+    if (mat.has_hair) orient_hair(out, sp, wo);
+    return;
+  }
   constexpr int kMaxSets = 8;
   // (filled below for the sets a program reads; ctx's counts bound every read)
   UninitArray<Vec2, kMaxSets> uv;

@@ -673,6 +673,38 @@ void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, co
   }
 }
 
+std::vector<PrincipledInputs> principled_inputs_of(const ShaderOp* ops, size_t n, const Float4* regs) {
+  std::vector<PrincipledInputs> v;
+  const ShaderOp* extra = nullptr;
+  for (size_t i = 0; i < n; ++i) {
+    if (ops[i].code == OpCode::PrincipledExtra) {
+      extra = &ops[i];
+    } else if (ops[i].code == OpCode::Principled) {
+      v.push_back(detail::principled_inputs(ops[i], extra, regs));
+      extra = nullptr;
+    }
+  }
+  return v;
+}
+
+void eval_closures(const ShaderProgram& prog, const ShaderOp* ops, size_t n, const Float4* regs,
+                   const PrincipledInputs* principled, const ShadingContext& ctx, ClosureList& out) {
+  out.n = 0;
+  out.emission = Vec3(0.0f);
+  out.holdout = Vec3(0.0f);
+  out.ns = Vec3(0.0f);
+  const ShaderOp* extra = nullptr;
+  for (size_t i = 0; i < n; ++i) {
+    if (principled && ops[i].code == OpCode::Principled) {
+      detail::principled_closures(*principled++, ops[i], extra, prog, regs, ctx, out);
+      extra = nullptr;
+    } else {
+      detail::eval_closure_op(ops[i], prog, regs, ctx, extra, out);
+    }
+  }
+  out.finalize();
+}
+
 MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& images, const ShadingContext& ctx) {
   MediumSample m;
   if (vol.ops.empty() || vol.ops.back().code != OpCode::VolumeOut) return m;

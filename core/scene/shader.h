@@ -156,7 +156,7 @@ struct ClosureList {
   // (B: one BSDF type or the Bsdf variant; assigned in place, so a lobe costs the copy of its
   // own bytes, not two copies of the whole variant through a temporary Closure.)
   template <class B>
-  void add(const B& b, Vec3 weight, const Frame& f, float albedo = -1.0f) {
+  [[gnu::always_inline]] void add(const B& b, Vec3 weight, const Frame& f, float albedo = -1.0f) {
     if (n >= kMaxClosures || !(max_component(weight) > 0.0f) || !is_finite(weight)) return;
     Closure& d = c[size_t(n++)];
     d.bsdf = b;
@@ -323,6 +323,10 @@ Vec3 trace_bevel(const ShadingContext& ctx, float radius, int samples);
 struct ShaderProgram {
   std::vector<ShaderOp> ops;
   bool varying = false;  // reads the shading point (else evaluated once)
+  // A value op reads the shading point (textures, geometry, the path): without it a varying
+  // program varies only through its closures' view dependence, and its registers are the same
+  // at every hit (Material::closure_regs).
+  bool reads_point = false;
   bool uses_uv = false;
   bool uses_attributes = false;
   bool sets_normal = false;  // has a SetNormal op (Cycles' bump from displacement)
@@ -351,6 +355,55 @@ struct ShaderProgram {
 // the registers (the add-on's constant folding).
 void eval_shader(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx,
                  ClosureList& out, Float4* regs = nullptr);
+
+// The Principled BSDF's inputs read from its registers, as its closures use them: the part of
+// its setup that does not depend on the hit (Material caches it where the registers are
+// constant); shader_closures.cpp's principled_inputs makes it.
+struct PrincipledInputs {
+  Vec3 w, base, base_c, spec_tint;
+  float metallic, alpha, ior, transmission;
+  bool multi;
+  bool aniso;  // anisotropic lobes (ax, ay; the tangent turned by `rotation` turns)
+  float ax, ay, rotation, rough_a;  // rough_a: the tables' roughness of the metal / specular lobes
+  float film, film_ior;  // Thin Film
+  bool sheen;
+  float sheen_weight, sheen_rough, sheen_coat;
+  Vec3 sheen_tint;
+  float coat, coat_alpha, coat_eta, coat_rough, coat_fss;
+  Vec3 coat_tint;
+  bool emits;
+  Vec3 emission;
+  Vec3 metal_b, metal_fss;  // F82-Tint's b; the metal's mean Fresnel (Multiscatter)
+  Vec3 transmission_tint;
+  bool spec;  // a dielectric specular layer
+  float eta, f0;
+  Vec3 spec_f0, spec_fss;
+  float sss_weight, sss_method, sss_ior, sss_aniso;
+  Vec3 sss_radius;
+  float diffuse_rough;  // Oren-Nayar's from 1e-5 on (else Lambert)
+};
+
+// The closure ops of a program (BSDFs, BSSRDFs, emission, holdout).
+constexpr bool is_closure_op(OpCode c) {
+  switch (c) {
+    case OpCode::Diffuse: case OpCode::Toon: case OpCode::Sheen: case OpCode::Metallic:
+    case OpCode::Translucent: case OpCode::Glossy: case OpCode::Glass: case OpCode::Refraction:
+    case OpCode::Transparent: case OpCode::PrincipledExtra: case OpCode::Holdout:
+    case OpCode::PrincipledHair: case OpCode::Hair: case OpCode::Emission: case OpCode::Principled:
+    case OpCode::Subsurface:
+      return true;
+    default:
+      return false;
+  }
+}
+
+// Runs only the closure ops `ops` (n of them, in program order) of `prog` on registers `regs`
+// that hold its values already: eval_shader for a program that does not read the point.
+// Each Principled op's inputs among the closure ops `ops` (n, in program order) on registers regs.
+std::vector<PrincipledInputs> principled_inputs_of(const ShaderOp* ops, size_t n, const Float4* regs);
+// `principled`: each Principled op's inputs, in order, made from `regs` beforehand (or nullptr).
+void eval_closures(const ShaderProgram& prog, const ShaderOp* ops, size_t n, const Float4* regs,
+                   const PrincipledInputs* principled, const ShadingContext& ctx, ClosureList& out);
 
 // A medium's coefficients at a point: absorption and scattering (per unit length), emitted
 // radiance per unit length and the Henyey-Greenstein anisotropy.

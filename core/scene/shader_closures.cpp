@@ -7,47 +7,342 @@
 
 namespace pl::detail {
 
+namespace {
+using namespace shader_math;
+
+// Closure inputs: an omitted register means the input's default.
+inline Vec3 col_of(const Float4* r, int16_t i) { return i == kNoReg ? Vec3(1.0f) : r[i].xyz(); }
+inline float val_of(const Float4* r, int16_t i, float def) { return i == kNoReg ? def : r[i].x; }
+
+// Closure frames as Cycles sets them up: glossy lobes get a normal whose mirror reflection of
+// the view stays above the surface; diffuse lobes with a bent normal get the bump shadowing.
+Frame glossy_frame_at(const Float4* r, const ShadingContext& ctx, int16_t normal_reg) {
+  return Frame::from_normal(valid_specular_normal(ctx.ng, ctx.wo, normal_or(r, normal_reg, ctx.ns)));
+}
+
+inline DiffuseBsdf diffuse_lobe_at(const Float4* r, const ShadingContext& ctx, const ShaderProgram& prog,
+                                   int16_t normal_reg, Frame& f) {
+  const Vec3 n = normal_or(r, normal_reg, ctx.ns);
+  f = Frame::from_normal(n);
+  DiffuseBsdf d;
+  d.back = ctx.backfacing;
+  // A program that set the shading normal (bump from displacement) lights its lobes from
+  // their own side too, as Cycles' sd->N: "bent" against that normal, so no shadowing term
+  // unless the lobe's own normal differs from it.
+  if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z || prog.sets_normal) {
+    d.bent = true;
+    d.ns = f.to_local(ctx.ns);
+  }
+  return d;
+}
+
+// Multiscatter GGX glass: the view's side decides the relative IOR (Cycles' ior or 1 / ior).
+inline Vec3 glass_compensation_at(const ShadingContext& ctx, const DielectricBsdf& b, const Frame& f, Vec3 fss) {
+  const float c = dot(f.n, ctx.wo);
+  return ggx_glass_compensation(std::sqrt(b.alpha), std::fabs(c), c >= 0.0f ? b.eta : 1.0f / b.eta, fss).scale;
+}
+
+// An anisotropic lobe's frame: its (valid-reflection) normal n and the tangent register
+// turned `rotation` turns about `axis` (Cycles' rotate_around_axis by rotation * 2 pi).
+inline Frame aniso_frame_at(const Float4* r, Vec3 n, int16_t tangent_reg, float rotation, Vec3 axis) {
+  if (tangent_reg == kNoReg) return Frame::from_normal(n);
+  Vec3 t = r[tangent_reg].xyz();
+  if (rotation != 0.0f && std::isfinite(rotation)) t = rotate_about_axis(t, axis, rotation * 2.0f * kPi);
+  return Frame::from_normal_tangent(n, t);
+}
+
+// The tables' roughness of a lobe: Cycles' sqrt(sqrt(alpha_x alpha_y)) (isotropic: sqrt(alpha)).
+inline float table_rough(float ax, float ay) { return ay < 0.0f ? std::sqrt(ax) : std::sqrt(std::sqrt(ax * ay)); }
+
+// Cycles' closure_layering_weight: what lies below a layer keeps 1 - max(albedo / weight)
+// of the weight (albedo: the layer's, relative to the weight it was given).
+[[gnu::always_inline]] inline Vec3 layer_below(Vec3 wt, Vec3 albedo) {
+  float top = 0.0f;
+  if (wt.x > 0.0f) top = std::max(top, albedo.x);
+  if (wt.y > 0.0f) top = std::max(top, albedo.y);
+  if (wt.z > 0.0f) top = std::max(top, albedo.z);
+  return wt * sat(1.0f - top);
+}
+}  // namespace
+
+namespace {
+[[gnu::always_inline]] inline PrincipledInputs principled_inputs_impl(const ShaderOp& op, const ShaderOp* extra,
+                                                                    const Float4* r) {
+  // The further inputs (PrincipledExtraSlot); kNoReg where there is no extra op.
+  auto px = [extra](PrincipledExtraSlot s) { return extra ? extra->in[s] : int16_t(kNoReg); };
+  auto col = [&](int16_t i) { return col_of(r, i); };
+  auto val = [&](int16_t i, float def) { return val_of(r, i, def); };
+  PrincipledInputs in;
+  in.w = clean_color(col(op.in[0]));
+  in.base = op.in[1] == kNoReg ? Vec3(0.8f) : clean_color(r[op.in[1]].xyz());
+  in.base_c = vmin(in.base, Vec3(1.0f));
+  in.metallic = sat(val(op.in[2], 0.0f));
+  in.alpha = roughness_to_alpha(val(op.in[3], 0.5f));
+  const float rough = std::sqrt(in.alpha);
+  in.ior = clean_ior(val(op.in[4], 1.5f));
+  in.transmission = sat(val(op.in[5], 0.0f));
+  const float spec_level = std::isfinite(val(op.in[6], 0.5f)) ? std::max(0.0f, val(op.in[6], 0.5f)) : 0.5f;
+  in.spec_tint = clean_color(col(op.in[7]));
+  in.multi = op.in[9] != kNoReg && r[op.in[9]].x > 0.5f;  // Blender's Multiscatter GGX
+  // Anisotropic (metal and specular lobes; Cycles keeps the transmission isotropic): the
+  // aspect sqrt(1 - 0.9 a) stretches alpha along the tangent, turned about the normal.
+  in.ax = in.alpha;
+  in.ay = -1.0f;
+  in.aniso = false;
+  in.rotation = 0.0f;
+  if (px(kPxAnisotropic) != kNoReg) {
+    const float an = sat(std::isfinite(r[px(kPxAnisotropic)].x) ? r[px(kPxAnisotropic)].x : 0.0f);
+    if (an > 0.0f) {
+      const float aspect = std::sqrt(1.0f - an * 0.9f);
+      in.ax = std::min(in.alpha / aspect, 1.0f);
+      in.ay = in.alpha * aspect;
+      in.aniso = true;
+      in.rotation = val(px(kPxAnisotropicRotation), 0.0f);
+    }
+  }
+  in.rough_a = in.ay < 0.0f ? rough : table_rough(in.ax, in.ay);
+  // Thin Film (nm, its IOR): interference on the specular and transmission lobes (Cycles
+  // 4.5: not on the metal, not on the coat).
+  in.film = 0.0f;
+  in.film_ior = 1.33f;
+  if (px(kPxThinFilmThickness) != kNoReg) {
+    const float t = r[px(kPxThinFilmThickness)].x, fi = val(px(kPxThinFilmIor), 1.33f);
+    in.film = std::isfinite(t) ? std::min(std::max(t, 0.0f), 1e5f) : 0.0f;
+    in.film_ior = std::isfinite(fi) ? std::max(fi, 1e-5f) : 1.33f;
+  }
+  const float cw_in = val(op.in[10], 0.0f);
+  in.sheen = false;
+  in.sheen_weight = in.sheen_rough = in.sheen_coat = 0.0f;
+  in.sheen_tint = Vec3(0.0f);
+  if (px(kPxSheenWeight) != kNoReg) {
+    const float sw_in = val(px(kPxSheenWeight), 0.0f);
+    const float sw = std::isfinite(sw_in) ? std::max(0.0f, sw_in) : 0.0f;
+    if (sw > 1e-5f) {
+      in.sheen = true;
+      in.sheen_weight = sw;
+      in.sheen_tint = vmax(clean_color(col(px(kPxSheenTint))), Vec3(0.0f));
+      in.sheen_coat = std::isfinite(cw_in) ? sat(cw_in) : 0.0f;
+      in.sheen_rough = sat(val(px(kPxSheenRoughness), 0.5f));
+    }
+  }
+  in.coat = std::isfinite(cw_in) ? std::max(0.0f, cw_in) : 0.0f;
+  if (in.coat > 1e-5f) {
+    in.coat_alpha = roughness_to_alpha(val(op.in[11], 0.03f));
+    in.coat_eta = std::max(1.0f, clean_ior(val(op.in[12], 1.5f)));
+    in.coat_rough = std::sqrt(in.coat_alpha);
+    in.coat_fss = fresnel_dielectric_fss(in.coat_eta);
+    in.coat_tint = clean_color(col(op.in[13]));
+  }
+  in.emits = px(kPxEmission) != kNoReg;
+  in.emission = in.emits ? clean_color(col(px(kPxEmission))) : Vec3(0.0f);
+  in.metal_b = Vec3(0.0f);
+  in.metal_fss = Vec3(0.0f);
+  if (in.metallic > 0.0f) {
+    const Vec3 tint = vmin(in.spec_tint, Vec3(1.0f));
+    if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) in.metal_b = f82_tint_b(in.base_c, tint);
+    if (in.multi) in.metal_fss = f82_fss(in.base_c, in.metal_b);
+  }
+  if (in.transmission > 0.0f)
+    in.transmission_tint = {std::sqrt(in.base_c.x), std::sqrt(in.base_c.y), std::sqrt(in.base_c.z)};
+  // Specular IOR Level scales F0 (0.5 keeps the IOR's own), as an IOR of its own.
+  in.eta = in.ior;
+  in.f0 = f0_from_ior(in.ior);
+  if (spec_level != 0.5f) {
+    in.f0 *= 2.0f * spec_level;
+    in.eta = ior_from_f0(in.f0);
+    if (in.ior < 1.0f) in.eta = 1.0f / in.eta;
+  }
+  in.spec = in.eta != 1.0f || in.film > kThinFilmCutoff;
+  in.spec_f0 = vmin(in.spec_tint * in.f0, Vec3(1.0f));  // Specular Tint tints F0 only (f90 = 1)
+  in.spec_fss = Vec3(0.0f);
+  if (in.spec && in.multi) {
+    // The mean single-scatter Fresnel: the real curve's average remapped as the lobe's.
+    const float F0 = f0_from_ior(in.eta);
+    const float s_avg = F0 < 1.0f ? sat((fresnel_dielectric_fss(in.eta) - F0) / (1.0f - F0)) : 1.0f;
+    in.spec_fss = in.spec_f0 + (Vec3(1.0f) - in.spec_f0) * s_avg;
+  }
+  // Subsurface (Cycles: beside the diffuse, under the specular): Subsurface Weight of the
+  // base's share becomes a BSSRDF of the clamped base colour, its IOR the specular's (Skin:
+  // Subsurface IOR), its entry roughness the specular's.
+  in.sss_weight = 0.0f;
+  in.sss_method = 1.0f;
+  in.sss_ior = in.eta;
+  in.sss_aniso = 0.0f;
+  in.sss_radius = Vec3(0.0f);
+  if (px(kPxSubsurfaceWeight) != kNoReg) {
+    const float x = r[px(kPxSubsurfaceWeight)].x;
+    in.sss_weight = std::isfinite(x) && x > 1e-5f ? std::min(x, 1.0f) : 0.0f;
+    if (in.sss_weight > 0.0f) {
+      const int16_t rr = px(kPxSubsurfaceRadius);
+      in.sss_radius = (rr == kNoReg ? Vec3{1.0f, 0.2f, 0.1f} : r[rr].xyz()) * val(px(kPxSubsurfaceScale), 0.05f);
+      in.sss_method = val(px(kPxSubsurfaceMethod), 1.0f);
+      if (subsurface_method(in.sss_method) == SubsurfaceMethod::RandomWalkSkin)
+        in.sss_ior = val(px(kPxSubsurfaceIor), 1.4f);
+      in.sss_aniso = val(px(kPxSubsurfaceAnisotropy), 0.0f);
+    }
+  }
+  in.diffuse_rough = 0.0f;
+  if (px(kPxDiffuseRoughness) != kNoReg) {
+    // Diffuse Roughness: Cycles' Oren-Nayar (from 1e-5 on) with the base colour as albedo.
+    const float dr_in = val(px(kPxDiffuseRoughness), 0.0f);
+    in.diffuse_rough = std::isfinite(dr_in) ? sat(dr_in) : 0.0f;
+  }
+  return in;
+}
+
+// Cycles 4.5's layering (svm_closure.h, CLOSURE_BSDF_PRINCIPLED_ID): a coat over metal, then
+// glass, then a dielectric specular layer over diffuse, each taking its share of the weight and
+// the coat and specular layers attenuating what lies below by their estimated albedo.
+[[gnu::always_inline]] inline void principled_closures_impl(const PrincipledInputs& in, const ShaderOp& op,
+                                                          const ShaderOp* extra, const ShaderProgram& prog,
+                                                          const Float4* r, const ShadingContext& ctx, ClosureList& out) {
+  auto px = [extra](PrincipledExtraSlot s) { return extra ? extra->in[s] : int16_t(kNoReg); };
+  const Frame fr = glossy_frame_at(r, ctx, op.in[8]);  // Cycles' valid_reflection_N
+  const float mu = std::fabs(dot(fr.n, ctx.wo));
+  Frame fd;
+  const DiffuseBsdf diffuse = diffuse_lobe_at(r, ctx, prog, op.in[8], fd);
+  Frame fa = fr;
+  if (in.aniso) fa = aniso_frame_at(r, fr.n, px(kPxTangent), in.rotation, normal_or(r, op.in[8], ctx.ns));
+  Vec3 weight = in.w;
+  if (in.sheen) {
+    // Sheen, the top layer (Cycles' "First layer"): Zeltner et al.'s microfibre lobe on the
+    // normal blended towards the coat's by the coat weight; what lies below keeps
+    // 1 - its albedo (the closure weight, which holds the fitted albedo).
+    const Vec3 n = normal_or(r, op.in[8], ctx.ns);
+    const Vec3 nc = normal_or(r, op.in[14] != kNoReg ? op.in[14] : op.in[8], ctx.ns);
+    Vec3 ns = n + (nc - n) * in.sheen_coat;
+    ns = length_sq(ns) > 1e-12f ? normalize(ns) : n;
+    const Frame fs = Frame::from_normal(ns);
+    float albedo;
+    SheenBsdf sh = SheenBsdf::setup(in.sheen_rough, std::max(dot(ns, ctx.wo) * (ctx.backfacing ? -1.0f : 1.0f), 0.0f),
+                                    albedo);
+    sh.back = ctx.backfacing;
+    const Vec3 layer = in.sheen_tint * (in.sheen_weight * albedo);
+    out.add(sh, weight * layer, fs, 1.0f);
+    if (!ctx.ray.emission_only) weight = layer_below(weight, layer);
+  }
+  if (in.coat > 1e-5f) {
+    // The coat: a dielectric GGX reflection with its own roughness, IOR and normal, always
+    // energy-preserving (Cycles' bsdf_microfacet_setup_fresnel_dielectric), over the rest.
+    ConductorBsdf c;
+    c.alpha = in.coat_alpha;
+    c.mode = ConductorFresnel::Dielectric;
+    c.exact = !prog.schlick;
+    c.eta = in.coat_eta;
+    c.f0 = Vec3(f0_from_ior(c.eta));
+    const Frame fc = glossy_frame_at(r, ctx, op.in[14] != kNoReg ? op.in[14] : op.in[8]);
+    const float mu_c = std::fabs(dot(fc.n, ctx.wo));
+    const EnergyCompensation comp = ggx_reflection_compensation(in.coat_rough, mu_c, Vec3(in.coat_fss));
+    const Vec3 albedo = comp.darkening * dielectric_specular_albedo(in.coat_rough, mu_c, c.eta, c.f0);
+    out.add(c, weight * (in.coat * comp.scale), fc, average(albedo));
+    if (!ctx.ray.emission_only) weight = layer_below(weight, albedo * in.coat);
+    const Vec3 tint = in.coat_tint;
+    if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) {
+      // Cycles: the tint is the coat's transmittance at normal incidence (unit thickness);
+      // the view's path through it, refracted, is 1 / cos(theta_t) long (Beer's law).
+      const float inv = 1.0f / c.eta;
+      const float cos_t = std::sqrt(std::max(1e-8f, 1.0f - inv * inv * (1.0f - mu_c * mu_c)));
+      const float depth = 1.0f / cos_t;
+      const Vec3 through = {std::pow(tint.x, depth), std::pow(tint.y, depth), std::pow(tint.z, depth)};
+      weight *= Vec3(1.0f) + (through - Vec3(1.0f)) * in.coat;
+    }
+  }
+  // Emission under a sheen or coat (Cycles: after both layers, so dimmed by them where the
+  // closures exist, by the coat's tint always); the add-on passes it here only then, as a
+  // plain Emission closure otherwise.
+  if (in.emits) out.emission += in.emission * weight;
+  if (in.metallic > 0.0f) {
+    ConductorBsdf m;
+    m.alpha = in.ax;
+    m.alpha_y = in.ay;
+    m.f0 = in.base_c;
+    m.mode = ConductorFresnel::F82Tint;
+    m.b = in.metal_b;
+    Vec3 mw = weight * in.metallic;
+    if (in.multi) mw *= ggx_reflection_compensation(in.rough_a, mu, in.metal_fss).scale;
+    out.add(m, mw, fa, average(fresnel_f82(mu, m.f0, m.b)));
+    weight *= 1.0f - in.metallic;
+  }
+  if (in.transmission > 0.0f) {
+    // As Cycles: the reflection stays untinted, refracted light takes sqrt(base) at each
+    // crossing (base colour once through a closed object).
+    DielectricBsdf g;
+    g.alpha = in.alpha;
+    g.eta = in.ior;
+    g.schlick = prog.schlick;
+    g.transmission_tint = in.transmission_tint;
+    g.f0_tint = in.spec_tint;
+    g.film_thickness = in.film;
+    g.film_ior = in.film_ior;
+    Vec3 gw = weight * in.transmission;
+    if (in.multi) gw *= glass_compensation_at(ctx, g, fr, g.transmission_tint);
+    out.add(g, gw, fr);
+    weight *= 1.0f - in.transmission;
+  }
+  if (in.spec) {
+    ConductorBsdf s;
+    s.alpha = in.ax;
+    s.alpha_y = in.ay;
+    s.mode = ConductorFresnel::Dielectric;
+    s.exact = !prog.schlick;
+    s.eta = in.eta;
+    s.f0 = in.spec_f0;
+    s.film_thickness = in.film;
+    s.film_ior = in.film_ior;
+    Vec3 sw = weight, darkening(1.0f);
+    if (in.multi) {
+      const EnergyCompensation c = ggx_reflection_compensation(in.rough_a, mu, in.spec_fss);
+      sw *= c.scale;
+      darkening = c.darkening;
+    }
+    // With a film Cycles has no table: the film's reflectance seen from the view.
+    const Vec3 albedo = darkening * (in.film > kThinFilmCutoff ? thin_film_dielectric(mu, in.film_ior, in.eta, in.film, s.f0)
+                                                               : dielectric_specular_albedo(in.rough_a, mu, in.eta, s.f0));
+    out.add(s, sw, fa, average(albedo));
+    weight = layer_below(weight, albedo);
+  }
+  // Subsurface: its normal the glossy one.
+  const float ssw = in.sss_weight;
+  if (ssw > 0.0f)
+    add_subsurface(out, weight * (in.base_c * ssw), in.base_c, in.sss_radius, in.sss_aniso, in.sss_ior, in.alpha,
+                   subsurface_method(in.sss_method), fr, ctx.ray.diffuse_ancestor, ctx.backfacing);
+  const Vec3 dw = ssw > 0.0f ? weight * in.base * (1.0f - ssw) : weight * in.base;
+  if (in.diffuse_rough >= 1e-5f) {
+    OrenNayarBsdf o = OrenNayarBsdf::setup(in.diffuse_rough, in.base,
+                                           std::max(dot(fd.n, ctx.wo) * (diffuse.back ? -1.0f : 1.0f), 0.0f));
+    o.ns = diffuse.ns;
+    o.bent = diffuse.bent;
+    o.back = diffuse.back;
+    out.add(o, dw, fd);
+    return;
+  }
+  out.add(diffuse, dw, fd);
+}
+}  // namespace
+
+PrincipledInputs principled_inputs(const ShaderOp& op, const ShaderOp* extra, const Float4* r) {
+  return principled_inputs_impl(op, extra, r);
+}
+
+void principled_closures(const PrincipledInputs& in, const ShaderOp& op, const ShaderOp* extra, const ShaderProgram& prog,
+                         const Float4* r, const ShadingContext& ctx, ClosureList& out) {
+  principled_closures_impl(in, op, extra, prog, r, ctx, out);
+}
+
 void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4* r, const ShadingContext& ctx,
                      const ShaderOp*& extra, ClosureList& out) {
   using namespace shader_math;
-  // Closure frames as Cycles sets them up: glossy lobes get a normal whose mirror reflection of
-  // the view stays above the surface; diffuse lobes with a bent normal get the bump shadowing.
-  auto glossy_frame = [&](int16_t normal_reg) {
-    return Frame::from_normal(valid_specular_normal(ctx.ng, ctx.wo, normal_or(r, normal_reg, ctx.ns)));
-  };
+  auto glossy_frame = [&](int16_t normal_reg) { return glossy_frame_at(r, ctx, normal_reg); };
   // Blender's Multiscatter GGX: the add-on passes a register holding 1 for it.
   auto multiscatter = [&](int16_t i) { return i != kNoReg && r[i].x > 0.5f; };
-  // Multiscatter GGX glass: the view's side decides the relative IOR (Cycles' ior or 1 / ior).
   auto glass_compensation = [&](const DielectricBsdf& b, const Frame& f, Vec3 fss) {
-    const float c = dot(f.n, ctx.wo);
-    return ggx_glass_compensation(std::sqrt(b.alpha), std::fabs(c), c >= 0.0f ? b.eta : 1.0f / b.eta, fss).scale;
+    return glass_compensation_at(ctx, b, f, fss);
   };
-  auto diffuse_lobe = [&](int16_t normal_reg, Frame& f) {
-    const Vec3 n = normal_or(r, normal_reg, ctx.ns);
-    f = Frame::from_normal(n);
-    DiffuseBsdf d;
-    d.back = ctx.backfacing;
-    // A program that set the shading normal (bump from displacement) lights its lobes from
-    // their own side too, as Cycles' sd->N: "bent" against that normal, so no shadowing term
-    // unless the lobe's own normal differs from it.
-    if (n.x != ctx.ns.x || n.y != ctx.ns.y || n.z != ctx.ns.z || prog.sets_normal) {
-      d.bent = true;
-      d.ns = f.to_local(ctx.ns);
-    }
-    return d;
-  };
-  // Closure inputs: an omitted register means the input's default.
-  auto col = [&](int16_t i) { return i == kNoReg ? Vec3(1.0f) : r[i].xyz(); };
-  auto val = [&](int16_t i, float def) { return i == kNoReg ? def : r[i].x; };
-  // An anisotropic lobe's frame: its (valid-reflection) normal n and the tangent register
-  // turned `rotation` turns about `axis` (Cycles' rotate_around_axis by rotation * 2 pi).
-  // The tables' roughness of a lobe: Cycles' sqrt(sqrt(alpha_x alpha_y)) (isotropic: sqrt(alpha)).
-  auto table_rough = [](float ax, float ay) { return ay < 0.0f ? std::sqrt(ax) : std::sqrt(std::sqrt(ax * ay)); };
+  auto diffuse_lobe = [&](int16_t normal_reg, Frame& f) { return diffuse_lobe_at(r, ctx, prog, normal_reg, f); };
+  auto col = [&](int16_t i) { return col_of(r, i); };
+  auto val = [&](int16_t i, float def) { return val_of(r, i, def); };
   auto aniso_frame = [&](Vec3 n, int16_t tangent_reg, float rotation, Vec3 axis) {
-    if (tangent_reg == kNoReg) return Frame::from_normal(n);
-    Vec3 t = r[tangent_reg].xyz();
-    if (rotation != 0.0f && std::isfinite(rotation)) t = rotate_about_axis(t, axis, rotation * 2.0f * kPi);
-    return Frame::from_normal_tangent(n, t);
+    return aniso_frame_at(r, n, tangent_reg, rotation, axis);
   };
   switch (op.code) {
     case OpCode::Diffuse: {
@@ -250,213 +545,10 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       out.emission += clean_color(col(op.in[0]) * col(op.in[1]));
       break;
     case OpCode::Principled: {
-      // Cycles 4.5's layering (svm_closure.h, CLOSURE_BSDF_PRINCIPLED_ID): a coat over metal,
-      // then glass, then a dielectric specular layer over diffuse, each taking its share of
-      // the weight and the coat and specular layers attenuating what lies below by their
-      // estimated albedo.
-      // The further inputs (PrincipledExtraSlot); kNoReg where there is no extra op.
-      // (The lambda keeps its own copy of the pointer: `extra` is cleared for the next op.)
-      auto px = [ex = extra](PrincipledExtraSlot s) { return ex ? ex->in[s] : int16_t(kNoReg); };
+      // (`extra` is cleared for the next op; the closures keep their own copy.)
+      const ShaderOp* ex = extra;
       extra = nullptr;
-      const Vec3 w = clean_color(col(op.in[0]));
-      const Vec3 base = op.in[1] == kNoReg ? Vec3(0.8f) : clean_color(r[op.in[1]].xyz());
-      const Vec3 base_c = vmin(base, Vec3(1.0f));
-      const float metallic = sat(val(op.in[2], 0.0f));
-      const float alpha = roughness_to_alpha(val(op.in[3], 0.5f));
-      const float rough = std::sqrt(alpha);
-      const float ior = clean_ior(val(op.in[4], 1.5f));
-      const float transmission = sat(val(op.in[5], 0.0f));
-      const float spec_level = std::isfinite(val(op.in[6], 0.5f)) ? std::max(0.0f, val(op.in[6], 0.5f)) : 0.5f;
-      const Vec3 spec_tint = clean_color(col(op.in[7]));
-      const bool multi = multiscatter(op.in[9]);
-      const Frame fr = glossy_frame(op.in[8]);  // Cycles' valid_reflection_N
-      const float mu = std::fabs(dot(fr.n, ctx.wo));
-      Frame fd;
-      const DiffuseBsdf diffuse = diffuse_lobe(op.in[8], fd);
-      // Anisotropic (metal and specular lobes; Cycles keeps the transmission isotropic): the
-      // aspect sqrt(1 - 0.9 a) stretches alpha along the tangent, turned about the normal.
-      float ax = alpha, ay = -1.0f;
-      Frame fa = fr;
-      if (px(kPxAnisotropic) != kNoReg) {
-        const float an = sat(std::isfinite(r[px(kPxAnisotropic)].x) ? r[px(kPxAnisotropic)].x : 0.0f);
-        if (an > 0.0f) {
-          const float aspect = std::sqrt(1.0f - an * 0.9f);
-          ax = std::min(alpha / aspect, 1.0f);
-          ay = alpha * aspect;
-          fa = aniso_frame(fr.n, px(kPxTangent), val(px(kPxAnisotropicRotation), 0.0f), normal_or(r, op.in[8], ctx.ns));
-        }
-      }
-      const float rough_a = ay < 0.0f ? rough : table_rough(ax, ay);
-      // Thin Film (nm, its IOR): interference on the specular and transmission lobes (Cycles
-      // 4.5: not on the metal, not on the coat).
-      float film = 0.0f, film_ior = 1.33f;
-      if (px(kPxThinFilmThickness) != kNoReg) {
-        const float t = r[px(kPxThinFilmThickness)].x, fi = val(px(kPxThinFilmIor), 1.33f);
-        film = std::isfinite(t) ? std::min(std::max(t, 0.0f), 1e5f) : 0.0f;
-        film_ior = std::isfinite(fi) ? std::max(fi, 1e-5f) : 1.33f;
-      }
-      Vec3 weight = w;
-      // Cycles' closure_layering_weight: what lies below a layer keeps 1 - max(albedo / weight)
-      // of the weight (albedo: the layer's, relative to the weight it was given).
-      auto layer_below = [](Vec3 wt, Vec3 albedo) {
-        float top = 0.0f;
-        if (wt.x > 0.0f) top = std::max(top, albedo.x);
-        if (wt.y > 0.0f) top = std::max(top, albedo.y);
-        if (wt.z > 0.0f) top = std::max(top, albedo.z);
-        return wt * sat(1.0f - top);
-      };
-      if (px(kPxSheenWeight) != kNoReg) {
-        // Sheen, the top layer (Cycles' "First layer"): Zeltner et al.'s microfibre lobe on the
-        // normal blended towards the coat's by the coat weight; what lies below keeps
-        // 1 - its albedo (the closure weight, which holds the fitted albedo).
-        const float sw_in = val(px(kPxSheenWeight), 0.0f);
-        const float sw = std::isfinite(sw_in) ? std::max(0.0f, sw_in) : 0.0f;
-        if (sw > 1e-5f) {
-          const Vec3 tint = vmax(clean_color(col(px(kPxSheenTint))), Vec3(0.0f));
-          const Vec3 n = normal_or(r, op.in[8], ctx.ns);
-          const Vec3 nc = normal_or(r, op.in[14] != kNoReg ? op.in[14] : op.in[8], ctx.ns);
-          const float cw_in = val(op.in[10], 0.0f);
-          const float cw = std::isfinite(cw_in) ? sat(cw_in) : 0.0f;
-          Vec3 ns = n + (nc - n) * cw;
-          ns = length_sq(ns) > 1e-12f ? normalize(ns) : n;
-          const Frame fs = Frame::from_normal(ns);
-          float albedo;
-          SheenBsdf sh = SheenBsdf::setup(sat(val(px(kPxSheenRoughness), 0.5f)),
-                                          std::max(dot(ns, ctx.wo) * (ctx.backfacing ? -1.0f : 1.0f), 0.0f), albedo);
-          sh.back = ctx.backfacing;
-          const Vec3 layer = tint * (sw * albedo);
-          out.add(sh, weight * layer, fs, 1.0f);
-          if (!ctx.ray.emission_only) weight = layer_below(weight, layer);
-        }
-      }
-      const float coat_in = val(op.in[10], 0.0f);
-      const float coat = std::isfinite(coat_in) ? std::max(0.0f, coat_in) : 0.0f;
-      if (coat > 1e-5f) {
-        // The coat: a dielectric GGX reflection with its own roughness, IOR and normal, always
-        // energy-preserving (Cycles' bsdf_microfacet_setup_fresnel_dielectric), over the rest.
-        ConductorBsdf c;
-        c.alpha = roughness_to_alpha(val(op.in[11], 0.03f));
-        c.mode = ConductorFresnel::Dielectric;
-        c.exact = !prog.schlick;
-        c.eta = std::max(1.0f, clean_ior(val(op.in[12], 1.5f)));
-        c.f0 = Vec3(f0_from_ior(c.eta));
-        const Frame fc = glossy_frame(op.in[14] != kNoReg ? op.in[14] : op.in[8]);
-        const float mu_c = std::fabs(dot(fc.n, ctx.wo));
-        const float rc = std::sqrt(c.alpha);
-        const EnergyCompensation comp =
-            ggx_reflection_compensation(rc, mu_c, Vec3(fresnel_dielectric_fss(c.eta)));
-        const Vec3 albedo = comp.darkening * dielectric_specular_albedo(rc, mu_c, c.eta, c.f0);
-        out.add(c, weight * (coat * comp.scale), fc, average(albedo));
-        if (!ctx.ray.emission_only) weight = layer_below(weight, albedo * coat);
-        const Vec3 tint = clean_color(col(op.in[13]));
-        if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) {
-          // Cycles: the tint is the coat's transmittance at normal incidence (unit thickness);
-          // the view's path through it, refracted, is 1 / cos(theta_t) long (Beer's law).
-          const float inv = 1.0f / c.eta;
-          const float cos_t = std::sqrt(std::max(1e-8f, 1.0f - inv * inv * (1.0f - mu_c * mu_c)));
-          const float depth = 1.0f / cos_t;
-          const Vec3 through = {std::pow(tint.x, depth), std::pow(tint.y, depth), std::pow(tint.z, depth)};
-          weight *= Vec3(1.0f) + (through - Vec3(1.0f)) * coat;
-        }
-      }
-      // Emission under a sheen or coat (Cycles: after both layers, so dimmed by them where the
-      // closures exist, by the coat's tint always); the add-on passes it here only then, as a
-      // plain Emission closure otherwise.
-      if (px(kPxEmission) != kNoReg) out.emission += clean_color(col(px(kPxEmission))) * weight;
-      if (metallic > 0.0f) {
-        ConductorBsdf m;
-        m.alpha = ax;
-        m.alpha_y = ay;
-        m.f0 = base_c;
-        m.mode = ConductorFresnel::F82Tint;
-        const Vec3 tint = vmin(spec_tint, Vec3(1.0f));
-        if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) m.b = f82_tint_b(m.f0, tint);
-        Vec3 mw = weight * metallic;
-        if (multi) mw *= ggx_reflection_compensation(rough_a, mu, f82_fss(m.f0, m.b)).scale;
-        out.add(m, mw, fa, average(fresnel_f82(mu, m.f0, m.b)));
-        weight *= 1.0f - metallic;
-      }
-      if (transmission > 0.0f) {
-        // As Cycles: the reflection stays untinted, refracted light takes sqrt(base) at each
-        // crossing (base colour once through a closed object).
-        DielectricBsdf g;
-        g.alpha = alpha;
-        g.eta = ior;
-        g.schlick = prog.schlick;
-        g.transmission_tint = {std::sqrt(base_c.x), std::sqrt(base_c.y), std::sqrt(base_c.z)};
-        g.f0_tint = spec_tint;
-        g.film_thickness = film;
-        g.film_ior = film_ior;
-        Vec3 gw = weight * transmission;
-        if (multi) gw *= glass_compensation(g, fr, g.transmission_tint);
-        out.add(g, gw, fr);
-        weight *= 1.0f - transmission;
-      }
-      // Specular IOR Level scales F0 (0.5 keeps the IOR's own), as an IOR of its own.
-      float eta = ior, f0 = f0_from_ior(ior);
-      if (spec_level != 0.5f) {
-        f0 *= 2.0f * spec_level;
-        eta = ior_from_f0(f0);
-        if (ior < 1.0f) eta = 1.0f / eta;
-      }
-      if (eta != 1.0f || film > kThinFilmCutoff) {
-        ConductorBsdf s;
-        s.alpha = ax;
-        s.alpha_y = ay;
-        s.mode = ConductorFresnel::Dielectric;
-        s.exact = !prog.schlick;
-        s.eta = eta;
-        s.f0 = vmin(spec_tint * f0, Vec3(1.0f));  // Specular Tint tints F0 only (f90 = 1)
-        s.film_thickness = film;
-        s.film_ior = film_ior;
-        Vec3 sw = weight, darkening(1.0f);
-        if (multi) {
-          // The mean single-scatter Fresnel: the real curve's average remapped as the lobe's.
-          const float F0 = f0_from_ior(eta);
-          const float s_avg = F0 < 1.0f ? sat((fresnel_dielectric_fss(eta) - F0) / (1.0f - F0)) : 1.0f;
-          const EnergyCompensation c =
-              ggx_reflection_compensation(rough_a, mu, s.f0 + (Vec3(1.0f) - s.f0) * s_avg);
-          sw *= c.scale;
-          darkening = c.darkening;
-        }
-        // With a film Cycles has no table: the film's reflectance seen from the view.
-        const Vec3 albedo = darkening * (film > kThinFilmCutoff ? thin_film_dielectric(mu, film_ior, eta, film, s.f0)
-                                                                : dielectric_specular_albedo(rough_a, mu, eta, s.f0));
-        out.add(s, sw, fa, average(albedo));
-        weight = layer_below(weight, albedo);
-      }
-      // Subsurface (Cycles: beside the diffuse, under the specular): Subsurface Weight of the
-      // base's share becomes a BSSRDF of the clamped base colour, its IOR the specular's (Skin:
-      // Subsurface IOR), its entry roughness the specular's, its normal the glossy one.
-      float ssw = 0.0f;
-      if (px(kPxSubsurfaceWeight) != kNoReg) {
-        const float x = r[px(kPxSubsurfaceWeight)].x;
-        ssw = std::isfinite(x) && x > 1e-5f ? std::min(x, 1.0f) : 0.0f;
-        if (ssw > 0.0f) {
-          const int16_t rr = px(kPxSubsurfaceRadius);
-          const Vec3 radius = (rr == kNoReg ? Vec3{1.0f, 0.2f, 0.1f} : r[rr].xyz()) * val(px(kPxSubsurfaceScale), 0.05f);
-          const float m = val(px(kPxSubsurfaceMethod), 1.0f);
-          const SubsurfaceMethod method = subsurface_method(m);
-          const float sss_ior = method == SubsurfaceMethod::RandomWalkSkin ? val(px(kPxSubsurfaceIor), 1.4f) : eta;
-          add_subsurface(out, weight * (base_c * ssw), base_c, radius, val(px(kPxSubsurfaceAnisotropy), 0.0f),
-                         sss_ior, alpha, method, fr, ctx.ray.diffuse_ancestor, ctx.backfacing);
-        }
-      }
-      const Vec3 dw = ssw > 0.0f ? weight * base * (1.0f - ssw) : weight * base;
-      if (px(kPxDiffuseRoughness) != kNoReg) {
-        // Diffuse Roughness: Cycles' Oren-Nayar (from 1e-5 on) with the base colour as albedo.
-        const float dr_in = val(px(kPxDiffuseRoughness), 0.0f);
-        const float dr = std::isfinite(dr_in) ? sat(dr_in) : 0.0f;
-        if (dr >= 1e-5f) {
-          OrenNayarBsdf o = OrenNayarBsdf::setup(dr, base, std::max(dot(fd.n, ctx.wo) * (diffuse.back ? -1.0f : 1.0f), 0.0f));
-          o.ns = diffuse.ns;
-          o.bent = diffuse.bent;
-          o.back = diffuse.back;
-          out.add(o, dw, fd);
-          break;
-        }
-      }
-      out.add(diffuse, dw, fd);
+      principled_closures_impl(principled_inputs_impl(op, ex, r), op, ex, prog, r, ctx, out);
       break;
     }
     case OpCode::Subsurface: {

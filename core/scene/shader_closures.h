@@ -13,4 +13,10 @@ namespace pl::detail {
 void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4* r, const ShadingContext& ctx,
                      const ShaderOp*& extra, ClosureList& out);
 
+// The Principled op's inputs (PrincipledExtra `extra` or nullptr) and its closures at ctx: the two
+// halves of its eval_closure_op, apart so that constant registers' inputs are made once.
+PrincipledInputs principled_inputs(const ShaderOp& op, const ShaderOp* extra, const Float4* r);
+void principled_closures(const PrincipledInputs& in, const ShaderOp& op, const ShaderOp* extra, const ShaderProgram& prog,
+                         const Float4* r, const ShadingContext& ctx, ClosureList& out);
+
 }  // namespace pl::detail

@@ -123,7 +123,7 @@ inline Vec3 rotate_about_axis(Vec3 p, Vec3 axis, float angle) {
 
 inline float clean_ior(float ior) { return std::isfinite(ior) && ior > 1e-3f ? ior : 1.0f; }
 
-inline Vec3 clean_color(Vec3 c) {
+[[gnu::always_inline]] inline Vec3 clean_color(Vec3 c) {
   auto f = [](float x) { return std::isfinite(x) && x > 0.0f ? x : 0.0f; };
   return {f(c.x), f(c.y), f(c.z)};
 }
