@@ -1153,9 +1153,19 @@ py::tuple light_choices(const PyScene& self, const FloatArray& points, const Flo
 // The surfaces that rays hit (for tests of curves and meshes alike): t (inf on a miss), the
 // point, geometric normal, tangent (curves; else 0) and the spawn origins a path would use on
 // the normal's side and on the other side (offset_ray_origin).
-py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
+py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax,
+                      const py::object& self_obj) {
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
+  // Per ray, the strand it leaves (Ray::self_curve; < 0: none), as hit_surfaces' "strand".
+  py::array_t<int64_t, py::array::c_style | py::array::forcecast> self_in;
+  if (!self_obj.is_none()) {
+    self_in = self_obj.cast<py::array_t<int64_t, py::array::c_style | py::array::forcecast>>();
+    if (self_in.ndim() != 1 || self_in.shape(0) != n) throw std::invalid_argument("self_strand must have shape (N,)");
+  }
+  const int64_t* ps = self_obj.is_none() ? nullptr : self_in.data();
+  py::array_t<int64_t> strand(n);
+  int64_t* pst = strand.mutable_data();
   py::array_t<float> t(n), p({n, py::ssize_t(3)}), ng({n, py::ssize_t(3)}), tg({n, py::ssize_t(3)}),
       out({n, py::ssize_t(3)}), in({n, py::ssize_t(3)});
   py::array_t<bool> curve(n);
@@ -1171,8 +1181,11 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
     for (py::ssize_t i = 0; i < n; ++i) {
       Hit h;
       SurfacePoint sp;
-      const bool ok = self.scene->intersect(Ray{o[i], d[i], tmax}, h);
+      Ray ray{o[i], d[i], tmax};
+      if (ps && ps[i] >= 0 && ps[i] < int64_t(UINT32_MAX)) ray.self_curve = uint32_t(ps[i]);
+      const bool ok = self.scene->intersect(ray, h);
       if (ok) self.scene->surface_point(h, sp);
+      pst[i] = ok && sp.curve() ? int64_t(self.scene->self_curve(sp)) : -1;
       ptt[i] = ok ? h.t : kInf;
       pp[i] = ok ? sp.p : Vec3(0.0f);
       pn[i] = ok ? sp.ng : Vec3(0.0f);
@@ -1190,6 +1203,7 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
   r["origin_out"] = out;
   r["origin_in"] = in;
   r["curve"] = curve;
+  r["strand"] = strand;
   return r;
 }
 
@@ -2887,8 +2901,10 @@ PYBIND11_MODULE(pathlight_core, m) {
            "flattened scene, instance by instance) is -1 and t inf on a miss. instances=True adds two "
            "int64 arrays: the hit instance (add_instance order) and the triangle's row in its mesh (-1 on a miss).")
       .def("hit_surfaces", &hit_surfaces, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
+           py::arg("self_strand") = py::none(),
            "The surfaces a batch of rays hits: a dict of t, p, ng, tangent, origin_out, origin_in (the spawn "
-           "origins on the normal's side and the other) and curve (bool).")
+           "origins on the normal's side and the other), curve (bool) and strand (int64, the strand hit, -1: "
+           "none). self_strand: int (N,), the strand each ray leaves (skipped, as a path's spawned rays; -1: none).")
       .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            py::arg("time") = 0.5f,
            "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).")

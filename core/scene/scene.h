@@ -418,6 +418,10 @@ class Scene {
     if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);
     return tlas_.occluded(r);
   }
+  // The strand a ray spawned at sp leaves (Ray::self_curve): none off curves.
+  uint32_t self_curve(const SurfacePoint& sp) const {
+    return sp.curve() ? curve_bvh_.piece(sp.tri).curve : UINT32_MAX;
+  }
   // The row of a hit triangle in its mesh's triangles.
   // Curve hits: the strand (numbered over all curve sets).
   uint32_t mesh_triangle(const Hit& h) const {

@@ -277,6 +277,8 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_
   // h the sine of the angle between the normal and z seen along x. On a mesh (no tangent) an
   // arbitrary tangent of the shading normal stands in for the fibre.
   Vec3 x = sp.tangent;
+  // The inside of a strand (a ray that started in it): Cycles turns dPdu round with Ng.
+  if (sp.curve() && dot(sp.ng, wo) < 0.0f) x = -x;
   if (!(length_sq(x) > 0.0f)) {
     Vec3 b;
     make_basis(sp.ns, x, b);
@@ -331,6 +333,7 @@ Vec3 Scene::transmittance_through(Ray ray) const {
     // Continue just past the surface towards the same end point (or to infinity).
     const Vec3 side = dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
     const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+    ray.self_curve = self_curve(sp);
     if (std::isfinite(ray.tmax)) {
       const Vec3 end = ray.org + ray.dir * ray.tmax;
       ray.dir = end - org;
