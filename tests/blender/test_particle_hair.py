@@ -171,16 +171,15 @@ def principled_patch_pair():
 
 def test_principled_hair_particle_patch_mean_matches_cycles():
     """The image mean within the issue's 1 %, and 8x8 regions within 8 % (measured: mean
-    +0.6 %, regions up to +6.4 % inside the dense hair: see the next test)."""
+    +0.08 %; before rays starting inside interpenetrating strands met their inside, +0.6 %
+    with regions up to +6.4 % inside the dense hair)."""
     ours, cycles = principled_patch_pair()
     assert_agree(ours, cycles, region=0.08)
 
 
-@pytest.mark.xfail(strict=False, reason="dense particle hair renders 2-6 % brighter than Cycles in "
-                   "8x8 regions inside the patch (the mean agrees to 0.6 %): rays starting inside "
-                   "interpenetrating strands pass through them (docs/design/curves.md)")
 def test_principled_hair_particle_patch_regions_match_cycles():
-    """The issue's bar: every 8x8 region within 3 %."""
+    """The issue's bar: every 8x8 region within 3 % (measured: worst 2.6 %, of either sign,
+    noise at 1024 samples; it was +6.4 % while rays starting inside a strand passed through it)."""
     ours, cycles = principled_patch_pair()
     assert_agree(ours, cycles)
 
