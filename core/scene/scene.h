@@ -103,6 +103,9 @@ struct CurveSetData {
   // Per uv set k: one uv per strand (particle hair: the emitter's UV at the root, as Cycles'
   // per-curve UV attribute); empty sets read (0, 0).
   std::vector<std::vector<Vec2>> uvs;
+  // Per attribute set k (numbered with the uv sets): one RGBA per strand (particle hair: the
+  // emitter's byte colour attribute at the root, Cycles' per-curve vertex colour); empty: 0.
+  std::vector<std::vector<Float4>> strand_attrs;
 };
 
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
@@ -648,6 +651,8 @@ class Scene {
   std::vector<float> curve_length_, curve_random_;  // per strand: Curves Info's Length and Random
   std::vector<Vec2> curve_uv_;  // per strand: curve_uv_sets_ uvs (the sets' per-strand uvs)
   uint32_t curve_uv_sets_ = 0;
+  std::vector<Float4> curve_attr_;  // per strand: curve_attr_sets_ values (the sets' per-strand RGBA)
+  uint32_t curve_attr_sets_ = 0;
   std::vector<ObjectCoords> curve_coords_;  // per curve set: its object (Object Info, object coordinates)
   bool curves_dirty_ = false;
   bool curves_on_ = false;  // curve_bvh_ is not empty: traced after the meshes

@@ -83,6 +83,10 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       ctx.uv = &curve_uv_[size_t(pc.curve) * curve_uv_sets_];
       ctx.uv_sets = int(curve_uv_sets_);
     }
+    if (curve_attr_sets_) {  // per-strand attributes (particle hair's emitter colours at the root)
+      ctx.attrs = &curve_attr_[size_t(pc.curve) * curve_attr_sets_];
+      ctx.attr_sets = int(curve_attr_sets_);
+    }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &curve_coords_[curve_set_of(pc.curve)];
     eval_shader(mat.program, images_, ctx, out);
