@@ -47,17 +47,20 @@ bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, floa
   const bool tip = !(length_sq(c.next) > 0.0f);
   // On the inner side of a bend a piece's cone runs on inside its neighbour (within the
   // neighbour's slab and radius): not the strand's surface. Rays from outside never reached
-  // it first; rays from inside would (the neighbour's radius taken as at the joint).
+  // it first; rays from inside would (the neighbour's radius taken as at the joint). Only
+  // points clearly inside (5e-5 radii) are dropped, so rounding never drops both cones at
+  // the seam where they cross.
+  constexpr float kInsideMargin = 1.0f - 1e-4f;
   const auto inside_neighbour = [&](const Vec3& x) {
     if (!tip) {
       const Vec3 w = x - c.p1;
       const float s = dot(w, c.next);
-      if (s > 0.0f && dot(w, w) - s * s < c.r1 * c.r1) return true;
+      if (s > 0.0f && dot(w, w) - s * s < c.r1 * c.r1 * kInsideMargin) return true;
     }
     if (length_sq(c.prev) > 0.0f) {
       const Vec3 w = x - c.p0;
       const float s = dot(w, c.prev);
-      if (s < 0.0f && dot(w, w) - s * s < c.r0 * c.r0) return true;
+      if (s < 0.0f && dot(w, w) - s * s < c.r0 * c.r0 * kInsideMargin) return true;
     }
     return false;
   };
