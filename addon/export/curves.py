@@ -35,6 +35,9 @@ class CurvesData:
     normals: object = None
     # uv set k -> float32 (C, 2): one uv per strand (particle hair: the emitter's UV at the root)
     uvs: dict = field(default_factory=dict)
+    # attribute set k -> float32 (C, 4): one RGBA per strand (particle hair: the emitter's byte
+    # colour attribute at the root, linear, as Cycles' per-curve vertex colour)
+    colours: dict = field(default_factory=dict)
 
 
 def _attribute(curves, name, domain, data_type):
@@ -158,7 +161,10 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
             for key, material, arrays, uvs in _particle_hair(obj, render, warn, uv_names):
                 entry = out.get(key)
                 if entry is None:
-                    entry = out[key] = CurvesData(obj.original.name, *arrays, material, uvs=uvs)
+                    colours = {k: v for k, v in uvs.items() if v.shape[1] == 4}
+                    uvs = {k: v for k, v in uvs.items() if v.shape[1] == 2}
+                    entry = out[key] = CurvesData(obj.original.name, *arrays, material, uvs=uvs,
+                                                  colours=colours)
                     if material_index is not None:
                         material_index(material)
                 _add_instance(entry, instance, object_attributes)
@@ -222,7 +228,8 @@ def _particle_hair(obj, render, warn, uv_names=None):
     (else the parents), (2^render_step) + 1 keys per strand read with co_hair (world space,
     carried to object space), the radius from the hair shape, the material of
     settings.material (its slot, clamped), and per strand the emitter's UV at its root for
-    the UV maps the material reads (uv_names, as collect_curves). Systems sharing a material
+    the UV maps the material reads (uv_names, as collect_curves), (C, 2) per uv set, and its
+    byte colour attributes there, (C, 4) per attribute set. Systems sharing a material
     share one entry, in modifier order, so Curves Info's Random numbers their strands on as
     Cycles does."""
     name = obj.original.name
@@ -254,12 +261,15 @@ def _particle_hair(obj, render, warn, uv_names=None):
         key = material.as_pointer() if material is not None else 0
         names = _emitter_uv_names(obj, material, uv_names, warn, name)
         first, arrays = arrays[0], arrays[1:]
-        uvs = {k: _root_uvs(psys, mod, first, len(arrays[1]) - 1, uv_no) for k, uv_no in names.items()}
+        count = len(arrays[1]) - 1
+        uvs = {k: _root_uvs(psys, mod, first, count, no) if kind == "uv" else
+               _root_colours(psys, mod, first, count, no) for k, (kind, no) in names.items()}
         groups.setdefault(key, [material, []])[1].append(arrays + (uvs,))
     out = []
     for key, (material, parts) in groups.items():
-        uvs = {k: np.concatenate([p[3].get(k, np.zeros((len(p[1]) - 1, 2), np.float32)) for p in parts])
-               for k in set().union(*(p[3] for p in parts))}
+        width = {k: v.shape[1] for p in parts for k, v in p[3].items()}
+        uvs = {k: np.concatenate([p[3].get(k, np.zeros((len(p[1]) - 1, w), np.float32)) for p in parts])
+               for k, w in width.items()}
         points = np.concatenate([p[0] for p in parts])
         radii = np.concatenate([p[2] for p in parts])
         offsets, base = [np.zeros(1, np.int32)], 0
@@ -274,25 +284,36 @@ def _particle_hair(obj, render, warn, uv_names=None):
 
 
 def _emitter_uv_names(obj, material, uv_names, warn, name):
-    """{uv set k: the emitter's UV layer index} for the UV maps `material` reads on particle
-    hair; one warning for what is not read (colour and other attributes, missing maps)."""
+    """{set k: ("uv", the emitter's UV layer index) or ("colour", its byte colour layer index)}
+    for the UV maps and attributes `material` reads on particle hair. Cycles gives particle
+    hair the emitter's byte colour attributes on face corners by name (the index is among
+    those, as BKE_particle_mcol_on_emitter's); one warning for what is not read (other
+    attributes, an unnamed Color Attribute node, missing maps): 0, as in Cycles."""
     if uv_names is None:
         return {}
-    layers = obj.data.uv_layers if obj.data is not None else []
+    mesh = obj.data
+    layers = mesh.uv_layers if mesh is not None else []
     active = next((i for i, layer in enumerate(layers) if layer.active_render), None)
+    byte_colours = [a.name for a in mesh.attributes if a.data_type == 'BYTE_COLOR' and a.domain == 'CORNER'] \
+        if mesh is not None else []
     out, skipped = {}, []
     for k, uv_name in uv_names([material]).items():
         if isinstance(uv_name, tuple):  # Color Attribute / Attribute node sets
-            skipped.append(f"attribute '{uv_name[1]}'" if uv_name[1] else "the colour attribute")
+            kind, attr_name = uv_name
+            if kind in ("color", "attr") and attr_name in byte_colours:
+                out[k] = ("colour", byte_colours.index(attr_name))
+            else:
+                skipped.append(f"attribute '{attr_name}'" if attr_name else "the colour attribute")
             continue
         index = layers.find(uv_name) if uv_name else active
         if index is None or index < 0:
             skipped.append(f"UV map '{uv_name}'" if uv_name else "the active UV map")
             continue
-        out[k] = index
+        out[k] = ("uv", index)
     if skipped:
         warn(f"Particle hair on '{name}': {', '.join(skipped)} of the emitter not read for its strands "
-             "(Pathlight reads only emitter UV maps on particle hair); 0 is used")
+             "(as Cycles, particle hair reads only the emitter's UV maps and its byte colour attributes "
+             "on face corners, by name); 0 is used")
     return out
 
 
@@ -307,6 +328,24 @@ def _root_uvs(psys, mod, first, count, uv_no):
         uv(mod, particle=particles[p] if p < len(particles) else particles[0], particle_no=p, uv_no=uv_no)
         for p in range(first, first + count)), np.float64, count * 2)
     return flat.reshape(count, 2).astype(np.float32)
+
+
+def _root_colours(psys, mod, first, count, vcol_no):
+    """float32 (C, 4): the emitter's byte colour attribute `vcol_no` at each strand's root,
+    linear RGB and alpha 1, as Cycles' ObtainCacheParticleVcol (one mcol_on_emitter call per
+    strand, sRGB-decoded)."""
+    particles = psys.particles
+    out = np.zeros((count, 4), np.float32)
+    out[:, 3] = 1.0
+    if len(particles) == 0:
+        return out
+    mcol = psys.mcol_on_emitter
+    flat = np.fromiter(chain.from_iterable(
+        mcol(mod, particle=particles[p] if p < len(particles) else particles[0], particle_no=p, vcol_no=vcol_no)
+        for p in range(first, first + count)), np.float64, count * 3).reshape(count, 3)
+    flat = np.where(np.isfinite(flat), flat, 0.0)
+    out[:, :3] = np.where(flat < 0.04045, np.maximum(flat, 0.0) / 12.92, ((flat + 0.055) / 1.055) ** 2.4)
+    return out
 
 
 def _particle_system_arrays(obj, psys, settings, render, to_object, warn, name):

@@ -17,17 +17,18 @@ namespace {
 // (a ray spawned on the outside that grazes it): a bias of 1e-4 radii at most.
 constexpr float kSelfFraction = 1e-4f;
 
-// The entering hit of a sphere (centre q, radius r): the near root, computed from the ray's
-// closest approach to q so the error does not grow with the distance (Haines et al., Ray
-// Tracing Gems ch. 7).
-inline bool sphere_entry(const Vec3& q, float r, const Vec3& org, const Vec3& dir, float dd, float& t) {
+// Both hits of a sphere (centre q, radius r), computed from the ray's closest approach to q so
+// the error does not grow with the distance (Haines et al., Ray Tracing Gems ch. 7).
+inline bool sphere_hits(const Vec3& q, float r, const Vec3& org, const Vec3& dir, float dd, float& t0, float& t1) {
   if (!(r > 0.0f)) return false;
   const Vec3 w = org - q;
   const float tc = -dot(w, dir) / dd;
   const Vec3 l = w + dir * tc;
   const float disc = r * r - dot(l, l);
   if (!(disc >= 0.0f)) return false;
-  t = tc - std::sqrt(disc / dd);
+  const float h = std::sqrt(disc / dd);
+  t0 = tc - h;
+  t1 = tc + h;
   return true;
 }
 
@@ -43,6 +44,26 @@ bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, floa
   float best = tmax;
   const Vec3 axis = c.p1 - c.p0;
   const float len2 = dot(axis, axis);
+  const bool tip = !(length_sq(c.next) > 0.0f);
+  // On the inner side of a bend a piece's cone runs on inside its neighbour (within the
+  // neighbour's slab and radius): not the strand's surface. Rays from outside never reached
+  // it first; rays from inside would (the neighbour's radius taken as at the joint). Only
+  // points clearly inside (5e-5 radii) are dropped, so rounding never drops both cones at
+  // the seam where they cross.
+  constexpr float kInsideMargin = 1.0f - 1e-4f;
+  const auto inside_neighbour = [&](const Vec3& x) {
+    if (!tip) {
+      const Vec3 w = x - c.p1;
+      const float s = dot(w, c.next);
+      if (s > 0.0f && dot(w, w) - s * s < c.r1 * c.r1 * kInsideMargin) return true;
+    }
+    if (length_sq(c.prev) > 0.0f) {
+      const Vec3 w = x - c.p0;
+      const float s = dot(w, c.prev);
+      if (s < 0.0f && dot(w, w) - s * s < c.r0 * c.r0 * kInsideMargin) return true;
+    }
+    return false;
+  };
   if (len2 > 0.0f) {
     // The cone frustum, solved about the ray's closest approach to the piece's centre.
     const float len = std::sqrt(len2);
@@ -58,23 +79,28 @@ bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, floa
     const float C = dot(wp, wp) - rr * rr;
     const float disc = B * B - A * C;
     if (A > 1e-12f * dd && disc >= 0.0f) {
-      // Near root without cancellation: (-B - sqrt) / A or C / (-B + sqrt).
+      // Both roots without cancellation: (-B -+ sqrt) / A or C / (-B +- sqrt). The far one is
+      // where a ray inside the strand leaves it: Cycles (Embree's round curves) reports it.
       const float sq = std::sqrt(disc);
-      const float tl = B > 0.0f ? -(B + sq) / A : C / (sq - B);
-      const float s = ws + tl * ds;
-      const float t = t0 + tl;
-      if (s >= 0.0f && s <= len && c.r0 + k * s > 0.0f && t > tmin && t < best) {
-        best = t;
-        u_out = s / len;
-        found = true;
+      const float q = B > 0.0f ? -(B + sq) : sq - B;
+      const float near = B > 0.0f ? q / A : C / q, far = B > 0.0f ? C / q : q / A;
+      for (const float tl : {near, far}) {
+        const float s = ws + tl * ds;
+        const float t = t0 + tl;
+        if (s >= 0.0f && s <= len && c.r0 + k * s > 0.0f && t > tmin && t < best && !inside_neighbour(org + dir * t)) {
+          best = t;
+          u_out = s / len;
+          found = true;
+          break;  // (the near root first: the far one is farther)
+        }
       }
     }
   }
   float t;
   const Vec3 ah = len2 > 0.0f ? axis / std::sqrt(len2) : Vec3(0.0f);
   // A strand's root and tip are cut off flat, as Cycles' thick curves end: a disc across the
-  // axis, entered from outside only (u -1: the root disc, 2: the tip's).
-  const bool tip = !(length_sq(c.next) > 0.0f);
+  // axis, entered from outside only (u -1: the root disc, 2: the tip's). A ray leaving through
+  // an end finds nothing, as through Cycles' open ends.
   if ((c.root || tip) && len2 > 0.0f) {
     const float dn = dot(dir, ah);
     const auto disc = [&](const Vec3& q, float r, float u) {
@@ -89,12 +115,17 @@ bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, floa
     if (c.root && dn > 0.0f) disc(c.p0, c.r0, -1.0f);
     if (tip && dn < 0.0f) disc(c.p1, c.r1, 2.0f);
   }
-  if (!tip && sphere_entry(c.p1, c.r1, org, dir, dd, t) && t > tmin && t < best) {
-    const Vec3 x = org + dir * t - c.p1;
-    if (dot(x, ah) >= 0.0f && dot(x, c.next) <= 0.0f) {  // the wedge no cone covers
-      best = t;
-      u_out = 1.0f;
-      found = true;
+  float te0, te1;
+  if (!tip && sphere_hits(c.p1, c.r1, org, dir, dd, te0, te1)) {
+    for (const float te : {te0, te1}) {
+      if (!(te > tmin && te < best)) continue;
+      const Vec3 x = org + dir * te - c.p1;
+      if (dot(x, ah) >= 0.0f && dot(x, c.next) <= 0.0f) {  // the wedge no cone covers
+        best = te;
+        u_out = 1.0f;
+        found = true;
+        break;
+      }
     }
   }
   if (found) t_out = best;
@@ -210,10 +241,11 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
     const uint32_t id = curve_base + uint32_t(st.curves++);
     if (kept) kept->push_back(uint32_t(c));
     size_t last = SIZE_MAX;  // this strand's previous piece, while they join
-    const auto push = [&](const CurvePiece& pc) {
+    const auto push = [&](CurvePiece pc) {
       if (last != SIZE_MAX) {
         float l;
         out[last].next = piece_tangent(pc, l);
+        pc.prev = piece_tangent(out[last], l);
       }
       out.push_back(pc);
       out.back().root = last == SIZE_MAX;
@@ -446,6 +478,7 @@ bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
     if (e.count > 0) {
       for (uint32_t i = e.id; i < e.id + e.count; ++i) {
         float t, u;
+        if (pieces_[i].curve == ray.self_curve) continue;  // the strand the ray leaves
         if (intersect_piece(pieces_[i], ray.org, ray.dir, tmax, t, u)) {
           if (AnyHit) return true;
           tmax = t;

@@ -2,9 +2,10 @@
 // "3D curves". Each strand is cut into short linear pieces (Catmull-Rom strands: every segment
 // between two control points subdivided; poly strands: as they are), and each piece is a swept
 // sphere: a cone frustum between the spheres of its two ends, those spheres included, so pieces
-// join without gaps. Only entering hits count (the ray goes from outside to inside), so a ray
-// spawned just inside a strand passes through it: what Cycles' skip of the hit primitive does
-// for the transmitted lobes of hair BSDFs. Pieces live in world space in one binary SAH BVH of
+// join without gaps. Hits from inside count too (a ray that starts inside a strand meets its
+// inside where it leaves), as Cycles' thick curves (Embree's round curves, no back-face culling
+// in Blender 4.5); a ray skips the strand it leaves (Ray::self_curve), as Cycles skips the
+// primitive it leaves. Pieces live in world space in one binary SAH BVH of
 // their own, traced after the triangles: scenes without curves never touch it.
 #pragma once
 #include <cstdint>
@@ -26,6 +27,7 @@ enum class CurveType : uint8_t { CatmullRom, Poly };
 struct CurvePiece {
   Vec3 p0, p1;
   Vec3 next{0.0f};  // the next piece's unit axis; zero at the tip
+  Vec3 prev{0.0f};  // the previous piece's unit axis; zero at the root
   float r0 = 0.0f, r1 = 0.0f;
   bool root = false;  // the strand's first piece: closed by a disc at p0
   uint32_t curve = 0;     // the strand (in the CurveSet's numbering)
@@ -100,7 +102,8 @@ struct CurveCutStats {
 CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t curve_base, std::vector<CurvePiece>& out,
                          std::vector<uint32_t>* kept = nullptr);
 
-// The hit of a ray on one piece: entering hits only, with 0 < t < tmax; u: the axial position
+// The nearest hit of a ray on one piece, entering or (cone and joint sphere) leaving, with
+// 0 < t < tmax; the end discs are entered only; u: the axial position
 // (0 at p0, 1 at p1) of the hit's closest point on the axis; -1 / 2 on the root / tip disc.
 bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, float tmax, float& t, float& u);
 
@@ -125,7 +128,7 @@ class CurveBvh {
   const CurvePiece& piece(uint32_t i) const { return pieces_[i]; }
   Aabb bounds() const { return bounds_; }
   size_t memory_bytes() const { return nodes_.capacity() * sizeof(Node) + pieces_.capacity() * sizeof(CurvePiece); }
-  // Closest entering hit before ray.tmax: prim the piece, (b1, b2) as encode_piece_hit.
+  // Closest hit before ray.tmax, on strands other than ray.self_curve: prim the piece, (b1, b2) as encode_piece_hit.
   bool intersect(const Ray& ray, Hit& hit) const;
   bool occluded(const Ray& ray) const;
 

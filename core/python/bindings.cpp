@@ -268,7 +268,7 @@ std::vector<Float4> to_object_attributes(const py::object& attributes, const cha
 uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& offsets, const py::object& radii_obj,
                     uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions,
                     const py::object& color, float pass_index, uint32_t random_id, const py::object& attributes,
-                    const py::object& normals_obj, const py::dict& uvs) {
+                    const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -324,6 +324,20 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
       const float u = src[2 * i], v = src[2 * i + 1];
       dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
     }
+  }
+  for (const auto& item : strand_attributes) {  // per attribute set: one RGBA per strand
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 2 || size_t(a.shape(0)) != nc || a.shape(1) != 4)
+      throw std::invalid_argument("curve strand attributes must have shape (C, 4)");
+    if (cs.strand_attrs.size() <= size_t(k)) cs.strand_attrs.resize(size_t(k) + 1);
+    auto& dst = cs.strand_attrs[size_t(k)];
+    dst.resize(nc);
+    const float* src = a.data();
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    for (size_t i = 0; i < nc; ++i)
+      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
   }
   return self.scene->add_curves(std::move(cs));
 }
@@ -1153,9 +1167,19 @@ py::tuple light_choices(const PyScene& self, const FloatArray& points, const Flo
 // The surfaces that rays hit (for tests of curves and meshes alike): t (inf on a miss), the
 // point, geometric normal, tangent (curves; else 0) and the spawn origins a path would use on
 // the normal's side and on the other side (offset_ray_origin).
-py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax) {
+py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax,
+                      const py::object& self_obj) {
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
+  // Per ray, the strand it leaves (Ray::self_curve; < 0: none), as hit_surfaces' "strand".
+  py::array_t<int64_t, py::array::c_style | py::array::forcecast> self_in;
+  if (!self_obj.is_none()) {
+    self_in = self_obj.cast<py::array_t<int64_t, py::array::c_style | py::array::forcecast>>();
+    if (self_in.ndim() != 1 || self_in.shape(0) != n) throw std::invalid_argument("self_strand must have shape (N,)");
+  }
+  const int64_t* ps = self_obj.is_none() ? nullptr : self_in.data();
+  py::array_t<int64_t> strand(n);
+  int64_t* pst = strand.mutable_data();
   py::array_t<float> t(n), p({n, py::ssize_t(3)}), ng({n, py::ssize_t(3)}), tg({n, py::ssize_t(3)}),
       out({n, py::ssize_t(3)}), in({n, py::ssize_t(3)});
   py::array_t<bool> curve(n);
@@ -1171,8 +1195,11 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
     for (py::ssize_t i = 0; i < n; ++i) {
       Hit h;
       SurfacePoint sp;
-      const bool ok = self.scene->intersect(Ray{o[i], d[i], tmax}, h);
+      Ray ray{o[i], d[i], tmax};
+      if (ps && ps[i] >= 0 && ps[i] < int64_t(UINT32_MAX)) ray.self_curve = uint32_t(ps[i]);
+      const bool ok = self.scene->intersect(ray, h);
       if (ok) self.scene->surface_point(h, sp);
+      pst[i] = ok && sp.curve() ? int64_t(self.scene->self_curve(sp)) : -1;
       ptt[i] = ok ? h.t : kInf;
       pp[i] = ok ? sp.p : Vec3(0.0f);
       pn[i] = ok ? sp.ng : Vec3(0.0f);
@@ -1190,6 +1217,7 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
   r["origin_out"] = out;
   r["origin_in"] = in;
   r["curve"] = curve;
+  r["strand"] = strand;
   return r;
 }
 
@@ -2306,14 +2334,15 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("normals") = py::none(),
-           py::arg("uvs") = py::dict(),
+           py::arg("uvs") = py::dict(), py::arg("strand_attributes") = py::dict(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
            "color, pass_index, random_id: the object's (Object Info), as add_instance. attributes: its "
            "Object / Instancer attribute values, (K, 4) by slot with K <= 8, as add_instance. normals: "
            "Blender's curve normals (N, 3) or None (the major axis of Huang's elliptical hair). uvs: {uv "
-           "set: (C, 2) one uv per strand} (particle hair: the emitter's UV at the root).")
+           "set: (C, 2) one uv per strand} (particle hair: the emitter's UV at the root). strand_attributes: "
+           "{attribute set: (C, 4) one RGBA per strand} (particle hair: the emitter's colour at the root).")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
@@ -2915,8 +2944,10 @@ PYBIND11_MODULE(pathlight_core, m) {
            "flattened scene, instance by instance) is -1 and t inf on a miss. instances=True adds two "
            "int64 arrays: the hit instance (add_instance order) and the triangle's row in its mesh (-1 on a miss).")
       .def("hit_surfaces", &hit_surfaces, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
+           py::arg("self_strand") = py::none(),
            "The surfaces a batch of rays hits: a dict of t, p, ng, tangent, origin_out, origin_in (the spawn "
-           "origins on the normal's side and the other) and curve (bool).")
+           "origins on the normal's side and the other), curve (bool) and strand (int64, the strand hit, -1: "
+           "none). self_strand: int (N,), the strand each ray leaves (skipped, as a path's spawned rays; -1: none).")
       .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            py::arg("time") = 0.5f,
            "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).")

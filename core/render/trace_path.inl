@@ -245,6 +245,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     medium.cross(scene, sp, front);
     const Vec3 side = front ? -sp.ng : sp.ng;
     const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+    ray.self_curve = scene.self_curve(sp);
     if (std::isfinite(ray.tmax)) {
       const Vec3 end = ray.org + ray.dir * ray.tmax;
       ray.dir = end - org;
@@ -652,6 +653,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           ray.org = p;
           ray.dir = wi;
           ray.tmax = kInf;
+          ray.self_curve = UINT32_MAX;  // scattered in the medium: it leaves no strand
           continue;
         }
       } else if (!is_black(sigma)) {
@@ -782,6 +784,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           Ray shadow;
           shadow.time = ray.time;
           shadow.org = offset_ray_origin(org, sp.p_error, reflection ? ng_out : -ng_out);
+          shadow.self_curve = scene.self_curve(sp);
           if (std::isinf(ds.dist)) {
             shadow.dir = ds.wi;
             shadow.tmax = kInf;
@@ -1024,6 +1027,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     }
     if (!is_finite(beta)) break;
     ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
+    ray.self_curve = scene.self_curve(sp);
     ray.dir = wi;
     ray.tmax = kInf;
   }

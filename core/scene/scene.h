@@ -109,6 +109,9 @@ struct CurveSetData {
   // Per uv set k: one uv per strand (particle hair: the emitter's UV at the root, as Cycles'
   // per-curve UV attribute); empty sets read (0, 0).
   std::vector<std::vector<Vec2>> uvs;
+  // Per attribute set k (numbered with the uv sets): one RGBA per strand (particle hair: the
+  // emitter's byte colour attribute at the root, Cycles' per-curve vertex colour); empty: 0.
+  std::vector<std::vector<Float4>> strand_attrs;
 };
 
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
@@ -424,6 +427,10 @@ class Scene {
     if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);
     return tlas_.occluded(r);
   }
+  // The strand a ray spawned at sp leaves (Ray::self_curve): none off curves.
+  uint32_t self_curve(const SurfacePoint& sp) const {
+    return sp.curve() ? curve_bvh_.piece(sp.tri).curve : UINT32_MAX;
+  }
   // The row of a hit triangle in its mesh's triangles.
   // Curve hits: the strand (numbered over all curve sets).
   uint32_t mesh_triangle(const Hit& h) const {
@@ -652,6 +659,8 @@ class Scene {
   std::vector<float> curve_length_, curve_random_;  // per strand: Curves Info's Length and Random
   std::vector<Vec2> curve_uv_;  // per strand: curve_uv_sets_ uvs (the sets' per-strand uvs)
   uint32_t curve_uv_sets_ = 0;
+  std::vector<Float4> curve_attr_;  // per strand: curve_attr_sets_ values (the sets' per-strand RGBA)
+  uint32_t curve_attr_sets_ = 0;
   std::vector<ObjectCoords> curve_coords_;  // per curve set: its object (Object Info, object coordinates)
   bool curves_dirty_ = false;
   bool curves_on_ = false;  // curve_bvh_ is not empty: traced after the meshes

@@ -380,7 +380,12 @@ void Scene::build_curves() {
   curve_uv_.clear();
   curve_coords_.clear();
   curve_uv_sets_ = 0;
-  for (const CurveSetData& cs : curve_sets_) curve_uv_sets_ = std::max(curve_uv_sets_, uint32_t(cs.uvs.size()));
+  curve_attr_.clear();
+  curve_attr_sets_ = 0;
+  for (const CurveSetData& cs : curve_sets_) {
+    curve_uv_sets_ = std::max(curve_uv_sets_, uint32_t(cs.uvs.size()));
+    curve_attr_sets_ = std::max(curve_attr_sets_, uint32_t(cs.strand_attrs.size()));
+  }
   std::vector<uint32_t> kept;
   uint32_t strands = 0;
   size_t skipped = 0;
@@ -412,6 +417,9 @@ void Scene::build_curves() {
       curve_random_.push_back(float(lookup3::hash(c, 0u)) * (1.0f / float(0xFFFFFFFFu)));  // Cycles' hash_uint2_to_float(i, 0)
       for (uint32_t k = 0; k < curve_uv_sets_; ++k)
         curve_uv_.push_back(k < cs.uvs.size() && c < cs.uvs[k].size() ? cs.uvs[k][c] : Vec2{});
+      for (uint32_t k = 0; k < curve_attr_sets_; ++k)
+        curve_attr_.push_back(k < cs.strand_attrs.size() && c < cs.strand_attrs[k].size() ? cs.strand_attrs[k][c]
+                                                                                          : Float4{});
     }
     strands += uint32_t(st.curves);
     skipped += st.skipped;

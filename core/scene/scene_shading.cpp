@@ -93,6 +93,10 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       ctx.uv = &curve_uv_[size_t(pc.curve) * curve_uv_sets_];
       ctx.uv_sets = int(curve_uv_sets_);
     }
+    if (curve_attr_sets_) {  // per-strand attributes (particle hair's emitter colours at the root)
+      ctx.attrs = &curve_attr_[size_t(pc.curve) * curve_attr_sets_];
+      ctx.attr_sets = int(curve_attr_sets_);
+    }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &curve_coords_[curve_set_of(pc.curve)];
     shade_program(mat, ctx, out);
@@ -292,6 +296,8 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_
   // h the sine of the angle between the normal and z seen along x. On a mesh (no tangent) an
   // arbitrary tangent of the shading normal stands in for the fibre.
   Vec3 x = sp.tangent;
+  // The inside of a strand (a ray that started in it): Cycles turns dPdu round with Ng.
+  if (sp.curve() && dot(sp.ng, wo) < 0.0f) x = -x;
   if (!(length_sq(x) > 0.0f)) {
     Vec3 b;
     make_basis(sp.ns, x, b);
@@ -346,6 +352,7 @@ Vec3 Scene::transmittance_through(Ray ray) const {
     // Continue just past the surface towards the same end point (or to infinity).
     const Vec3 side = dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
     const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+    ray.self_curve = self_curve(sp);
     if (std::isfinite(ray.tmax)) {
       const Vec3 end = ray.org + ray.dir * ray.tmax;
       ray.dir = end - org;

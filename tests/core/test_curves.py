@@ -85,7 +85,9 @@ def test_hits_match_analytic_cone(r0, r1):
 
 def test_spawned_rays_do_not_hit_their_strand():
     """From every hit, rays on the outside (from origin_out) and into the strand (origin_in,
-    the transmitted lobes of hair) find nothing: one straight strand, far from the origin too."""
+    the transmitted lobes of hair) that leave the strand (self, as a path's spawned rays: Cycles
+    skips the curve a ray leaves) find nothing: one straight strand, far from the origin too.
+    Without self, the rays into the strand meet its inside, on the far wall."""
     pc = core()
     rng = np.random.default_rng(7)
     for offset, r in ((0.0, 0.02), (300.0, 0.05)):
@@ -104,8 +106,17 @@ def test_spawned_rays_do_not_hit_their_strand():
         w /= np.linalg.norm(w, axis=1, keepdims=True)
         out = (w * n).sum(1) > 0
         org = np.where(out[:, None], hit["origin_out"][ok], hit["origin_in"][ok]).astype(np.float32)
-        again = s.hit_surfaces(org, w.astype(np.float32))
+        assert np.all(hit["strand"][ok] == 0)
+        again = s.hit_surfaces(org, w.astype(np.float32), self_strand=hit["strand"][ok])
         assert np.isinf(again["t"]).all(), f"{np.isfinite(again['t']).sum()} self-hits at offset {offset}"
+        # The far wall: leaving the strand (normal along the ray), more than a radius away for
+        # steep rays (grazing ones may run along the strand and out of an end).
+        steep = ~out & ((w * n).sum(1) < -0.5)
+        assert steep.sum() > 100
+        inside = s.hit_surfaces(org[steep], w[steep].astype(np.float32))
+        assert np.all(inside["strand"] == 0)
+        assert np.all((inside["ng"] * w[steep]).sum(1) > 0)
+        assert np.all(inside["t"] > r * 0.9)
 
 
 def test_catmull_rom_surface_follows_the_curve():
@@ -239,3 +250,65 @@ def test_strand_ends_are_flat_discs(kind):
     # From inside out through the root: no hit (only entering hits count).
     o3 = np.column_stack([np.full(n, 0.3), yz * 0.05]).astype(np.float32)
     assert np.all(np.isinf(s.hit_surfaces(o3, np.tile(np.float32([-1, 0, 0]), (n, 1)))["t"]))
+
+
+def _tube_exit(o, d, p0, a, r):
+    """Where rays from inside an infinite cylinder (point p0, unit axis a, radius r) leave it,
+    float64."""
+    o, d = o.astype(np.float64), d.astype(np.float64)
+    w = o - p0
+    wp, dp = w - np.outer(w @ a, a), d - np.outer(d @ a, a)
+    A, B, C = (dp * dp).sum(1), (wp * dp).sum(1), (wp * wp).sum(1) - r * r
+    return (-B + np.sqrt(B * B - A * C)) / A
+
+
+def test_rays_inside_a_strand_hit_its_inside():
+    """Cycles' thick curves (Embree's round curves, no back-face culling in Blender 4.5) report
+    where a ray that starts inside a strand leaves it, unless the ray leaves that strand (self):
+    the case of a ray spawned on one strand inside another, interpenetrating one. Analytic
+    exit distance and outward normal on a straight strand; on a strand bent at a joint, the exit
+    points lie on the union of the two pieces' tubes (none inside the other piece)."""
+    pc = core()
+    rng = np.random.default_rng(11)
+    r = 0.05
+    p0, p1 = np.array([-1.0, 0.2, 0.1]), np.array([1.0, -0.1, 0.3])
+    a = (p1 - p0) / np.linalg.norm(p1 - p0)
+    s = _scene(pc, [p0, p1], [0, 2], [r, r])
+    n = 3000
+    q = rng.uniform(-1, 1, (n, 3))
+    q = q[(q ** 2).sum(1) < 1][:2000]
+    o = (0.5 * (p0 + p1) + rng.uniform(-0.3, 0.3, (len(q), 1)) * (p1 - p0) + 0.9 * r * q).astype(np.float32)
+    d = rng.normal(size=o.shape)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[np.abs(d @ a) < 0.9].astype(np.float32)  # leaving through the side, not an end
+    o = o[: len(d)]
+    hit = s.hit_surfaces(o, d)
+    assert np.all(np.isfinite(hit["t"])) and np.all(hit["strand"] == 0)
+    np.testing.assert_allclose(hit["t"], _tube_exit(o, d, p0, a, r), rtol=1e-4, atol=1e-5)
+    radial = hit["p"] - p0 - np.outer((hit["p"] - p0) @ a, a)
+    np.testing.assert_allclose(hit["ng"], radial / np.linalg.norm(radial, axis=1, keepdims=True), atol=1e-4)
+    assert np.all((hit["ng"] * d).sum(1) > 0)  # the inside: the normal points along the ray
+    assert np.all(np.isinf(s.hit_surfaces(o, d, self_strand=np.zeros(len(d), np.int64))["t"]))
+
+    # Bent by 40 degrees at the joint: the exits lie on the union's surface.
+    bend = np.radians(40.0)
+    pts = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [np.cos(bend), np.sin(bend), 0.0]])
+    sb = _scene(pc, pts, [0, 3], [r, r, r])
+    q = rng.uniform(-1, 1, (4000, 3))
+    q = q[(q ** 2).sum(1) < 1][:2500]
+    o = (q * 1.5 * r).astype(np.float32)  # around the joint
+    def dist_to_axes(x):
+        dd = []
+        for u, v in ((pts[0], pts[1]), (pts[1], pts[2])):
+            e = v - u
+            tt = np.clip(((x - u) @ e) / (e @ e), 0, 1)
+            dd.append(np.linalg.norm(x - u - np.outer(tt, e), axis=1))
+        return np.minimum(*dd)
+    inside = dist_to_axes(o.astype(np.float64)) < 0.98 * r
+    o = o[inside]
+    d = rng.normal(size=o.shape).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hit = sb.hit_surfaces(o, d)
+    ok = np.isfinite(hit["t"])
+    assert ok.mean() > 0.9  # (the rest leave through the strand's open ends)
+    assert np.abs(dist_to_axes(hit["p"][ok].astype(np.float64)) - r).max() < 1e-4 * r + 1e-6
