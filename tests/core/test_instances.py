@@ -607,3 +607,47 @@ def test_wide_top_level_over_many_lopsided_instances_agrees_with_merged():
         occ = res["dynamic"].occluded(o, d, 1.0)
         assert not (occ & ~(prim >= 0)).any()
         assert_clear_hits_occlude(occ, prim >= 0, t, 1.0)
+
+
+def test_forest_of_overlapping_instances_agrees_with_merged_for_camera_and_sun_rays():
+    """The realistic bench's instanced forest in small: a grid of spheres whose world boxes
+    overlap (rays enter several top-level children and instances at once, nearest first) on a
+    ground plane, traced by grazing camera rays and by shadow rays from the ground and the
+    crowns towards one sun direction. The top level finds the merged BVH's closest hits, and
+    occluded() agrees with intersect() for the shadow rays."""
+    pos, tris, nrm = clean(*uv_sphere(0.35, nu=16, nv=8))
+    rng = np.random.default_rng(11)
+    mats = [affine(rotation(i) * rng.uniform(0.6, 1.3), (0.55 * (i % 8) - 1.9, 0.55 * (i // 8) - 1.9, 0.0))
+            for i in range(64)]
+    ground = quad((-6.0, -6.0, -0.3), (12.0, 0.0, 0.0), (0.0, 12.0, 0.0))
+    res = {}
+    for mode in ("merged", "shared"):
+        s = build(mode, mats, mesh=(pos, tris, nrm, np.zeros((len(tris), 3, 2), np.float32)))
+        add_object(s, *ground, s.add_material("g", (0.3, 0.3, 0.2)))
+        s.commit()
+        res[mode] = s
+        assert s.stats()["tlas_instances"] == (65 if mode == "shared" else 0)
+    # Camera rays from low over the forest, across it.
+    n = 20_000
+    o = np.c_[rng.uniform(-3.0, 3.0, n), np.full(n, -6.0), rng.uniform(0.2, 2.0, n)].astype(np.float32)
+    target = np.c_[rng.uniform(-2.5, 2.5, n), rng.uniform(-2.5, 2.5, n), rng.uniform(-0.3, 0.4, n)]
+    d = (target - o).astype(np.float32)
+    cam = res["shared"].intersect(o, d, instances=True)
+    assert_same_hits(res["merged"].intersect(o, d, instances=True), cam, min_hits=n // 2)
+    assert len(set(cam[4][cam[1] >= 0].tolist())) > 40  # most trees seen, nearest ones first
+    # Shadow rays towards the sun from the camera rays' hits (ground and crowns), lifted off
+    # the surface along the ray a little.
+    t, prim = cam[0], cam[1]
+    hit = prim >= 0
+    p = o[hit] + d[hit] * (t[hit, None] * (1.0 - 1e-4))
+    sun = np.array([0.8, -0.5, 0.4])  # low: long shadows across the trees
+    sd = np.broadcast_to(sun / np.linalg.norm(sun) * 10.0, p.shape).astype(np.float32)
+    p = p.astype(np.float32)
+    for mode in ("merged", "shared"):
+        ts, ps = res[mode].intersect(p, sd, 1.0)[:2]
+        occ = res[mode].occluded(p, sd, 1.0)
+        assert 0.1 < occ.mean() < 0.9
+        assert not (occ & ~(ps >= 0)).any()
+        assert_clear_hits_occlude(occ, ps >= 0, ts, 1.0)
+    shadow = [res[m].occluded(p, sd, 1.0) for m in ("merged", "shared")]
+    assert (shadow[0] != shadow[1]).mean() < 1e-3
