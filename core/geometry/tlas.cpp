@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #if defined(__SSE2__)
 #include <immintrin.h>
 #endif
@@ -153,6 +154,9 @@ void Tlas::build(std::vector<TlasInstance> instances) {
                : in.identity ? TlasSpace::World
                : is_identity(in.to_world, false) && is_identity(in.to_object, false) ? TlasSpace::Translated
                                                                                     : TlasSpace::Affine;
+    in.finite = true;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) in.finite = in.finite && std::isfinite(in.to_object.m[r][c]);
     if (in.deform ? in.deform->empty() : (!in.blas || in.blas->empty())) continue;
     const Aabb ob = in.deform ? in.deform->bounds() : in.blas->bounds();
     boxes[i] = in.space == TlasSpace::Motion ? motion_world_box(ob, in.motion, in.motion_steps)
@@ -259,7 +263,8 @@ inline bool enter(const TlasInstance& in, uint32_t i, const Ray& ray, float tmax
   Ray r = ray;
   r.tmax = tmax;
   float dt = 0.0f;
-  if (in.space == TlasSpace::Affine) r = ray_to_object(in.to_object, r, dt);
+  if (in.space == TlasSpace::Affine)
+    r = in.finite ? ray_to_object_finite(in.to_object, r, dt) : ray_to_object(in.to_object, r, dt);
   else if (in.space == TlasSpace::Translated) r = ray_to_object_translated(in.to_object, r, dt);
   else if (in.space == TlasSpace::Motion)
     r = ray_to_object(affine_inverse_fast(motion_transform_at(in.motion, in.motion_steps, ray.time)), r, dt);
