@@ -651,3 +651,38 @@ def test_forest_of_overlapping_instances_agrees_with_merged_for_camera_and_sun_r
         assert_clear_hits_occlude(occ, ps >= 0, ts, 1.0)
     shadow = [res[m].occluded(p, sd, 1.0) for m in ("merged", "shared")]
     assert (shadow[0] != shadow[1]).mean() < 1e-3
+
+
+@pytest.mark.parametrize("shift", [3e3, -2e4])
+def test_rays_leaving_an_instance_far_from_the_origin_do_not_hit_it_again(shift):
+    """Rays spawned at a far-off instanced sphere's hits (world points, not lifted off the
+    surface: half lie just inside it), leaving it (mirrored about the normal). The ray carried
+    into object space is moved past its transform's rounding error (pbrt-v4), which at this
+    distance also covers the points' own rounding: the instance rarely hits itself again,
+    where the merged copy (world space, no transform to move past) does for about half."""
+    pos, tris, nrm = clean(*uv_sphere(1.0, nu=32, nv=16))
+    mats = [affine(rotation(3) * 2.5, (shift + 4.0 * i, 0.5 * shift, 0.0)) for i in range(2)]
+    rng = np.random.default_rng(12)
+    n = 20_000
+    res = {}
+    for mode in ("shared", "merged"):
+        s = build(mode, mats, mesh=(pos, tris, nrm, np.zeros((len(tris), 3, 2), np.float32)))
+        s.commit()
+        c = np.array([shift, 0.5 * shift, 0.0])
+        o = (c + rng.normal(size=(n, 3)) * [1.0, 6.0, 6.0] - [8.0, 0.0, 0.0]).astype(np.float32)
+        target = c + rng.uniform(-2.2, 2.2, (n, 3))
+        d = (target - o).astype(np.float32)
+        t, prim, _, _, inst, _ = s.intersect(o, d, instances=True)
+        hit = prim >= 0
+        assert hit.sum() > n // 3
+        p = (o[hit].astype(np.float64) + d[hit] * t[hit, None]).astype(np.float32)
+        centre = np.array([mats[k][:3, 3] for k in inst[hit]], np.float64)
+        nn = p - centre
+        nn /= np.linalg.norm(nn, axis=1)[:, None]
+        dd = d[hit] / np.linalg.norm(d[hit], axis=1)[:, None]
+        r = (dd - 2.0 * np.sum(dd * nn, 1)[:, None] * nn).astype(np.float32)  # away from the sphere
+        t2, prim2, _, _, inst2, _ = s.intersect(p, r, instances=True)
+        again = (prim2 >= 0) & (inst2 == inst[hit]) & (t2 < 1e-2)
+        res[mode] = again.mean()
+    assert res["merged"] > 0.2, res  # the rays do start inside often
+    assert res["shared"] < 0.05 and res["shared"] < 0.1 * res["merged"], res
