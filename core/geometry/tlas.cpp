@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #if defined(__SSE2__)
 #include <immintrin.h>
 #endif
@@ -153,6 +154,9 @@ void Tlas::build(std::vector<TlasInstance> instances) {
                : in.identity ? TlasSpace::World
                : is_identity(in.to_world, false) && is_identity(in.to_object, false) ? TlasSpace::Translated
                                                                                     : TlasSpace::Affine;
+    in.finite = true;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) in.finite = in.finite && std::isfinite(in.to_object.m[r][c]);
     if (in.deform ? in.deform->empty() : (!in.blas || in.blas->empty())) continue;
     const Aabb ob = in.deform ? in.deform->bounds() : in.blas->bounds();
     boxes[i] = in.space == TlasSpace::Motion ? motion_world_box(ob, in.motion, in.motion_steps)
@@ -249,6 +253,9 @@ struct StackEntry {
 // A node pops one entry and pushes at most kWidth; the wide tree has at most kMaxDepth + 1 levels.
 constexpr int kWideStack = (kMaxDepth + 1) * kWidth;
 
+// A lane's child as a traversal entry: a node, or with kLeafBit an instance.
+inline uint32_t child_id(const TlasNode& n, int k) { return n.count[k] ? (n.child[k] | kLeafBit) : n.child[k]; }
+
 // Enters instance `i` with the ray (up to tmax): closest hit into `hit` / any hit.
 template <bool AnyHit>
 inline bool enter(const TlasInstance& in, uint32_t i, const Ray& ray, float tmax, Hit& hit,
@@ -256,7 +263,8 @@ inline bool enter(const TlasInstance& in, uint32_t i, const Ray& ray, float tmax
   Ray r = ray;
   r.tmax = tmax;
   float dt = 0.0f;
-  if (in.space == TlasSpace::Affine) r = ray_to_object(in.to_object, r, dt);
+  if (in.space == TlasSpace::Affine)
+    r = in.finite ? ray_to_object_finite(in.to_object, r, dt) : ray_to_object(in.to_object, r, dt);
   else if (in.space == TlasSpace::Translated) r = ray_to_object_translated(in.to_object, r, dt);
   else if (in.space == TlasSpace::Motion)
     r = ray_to_object(affine_inverse_fast(motion_transform_at(in.motion, in.motion_steps, ray.time)), r, dt);
@@ -288,41 +296,51 @@ bool Tlas::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters) cons
   bool found = false;
   StackEntry stack[kWideStack];
   int sp = 0;
-  stack[sp++] = {0, 0.0f};
-  while (sp > 0) {
-    const StackEntry e = stack[--sp];
-    // Boxes entered at or beyond the closest hit so far hold nothing closer (the box test's
-    // own rule, applied again now that tmax has shrunk).
-    if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
-    if (e.id & kLeafBit) {
-      const uint32_t i = e.id & ~kLeafBit;
+  uint32_t id = 0;  // the root is a node
+  for (;;) {
+    if (id & kLeafBit) {
+      const uint32_t i = id & ~kLeafBit;
       if (enter<false>(insts_[i], i, ray, tmax, hit, counters)) {
         tmax = hit.t;
         found = true;
       }
-      continue;
-    }
-    const TlasNode& n = nodes_[e.id];
-    if (counters) counters->nodes++;
-    alignas(16) float dist[kWidth];
-    unsigned mask = rb.test(n, tmax, dist);
-    // Nearest first: pushed farthest first (insertion order by distance, at most 8).
-    StackEntry hits[kWidth];
-    int nh = 0;
-    while (mask) {
-      const int k = __builtin_ctz(mask);
-      mask &= mask - 1;
-      StackEntry x{n.count[k] ? (n.child[k] | kLeafBit) : n.child[k], dist[k]};
-      int j = nh++;
-      while (j > 0 && hits[j - 1].t < x.t) {
-        hits[j] = hits[j - 1];
-        --j;
+    } else {
+      const TlasNode& n = nodes_[id];
+      if (counters) counters->nodes++;
+      alignas(32) float dist[kWidth];
+      unsigned mask = rb.test(n, tmax, dist);
+      if (mask) {
+        // The nearest child next, without a trip through the stack; the others pushed farthest
+        // first, ties in lane order as before (the higher lane nearer the top), so instances
+        // are entered in the same order and the same hit wins exact ties.
+        int k = __builtin_ctz(mask);
+        mask &= mask - 1;
+        if (!mask) {  // one child (a ray down a single branch, or into one instance)
+          id = child_id(n, k);
+          continue;
+        }
+        const int base = sp;
+        stack[sp++] = {child_id(n, k), dist[k]};
+        while (mask) {
+          k = __builtin_ctz(mask);
+          mask &= mask - 1;
+          const StackEntry x{child_id(n, k), dist[k]};
+          int j = sp++;
+          for (; j > base && stack[j - 1].t < x.t; --j) stack[j] = stack[j - 1];
+          stack[j] = x;
+        }
+        id = stack[--sp].id;
+        continue;
       }
-      hits[j] = x;
     }
-    for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
+    // The next box that can still hold a closer hit: boxes entered at or beyond the closest
+    // hit so far hold nothing closer (the box test's own rule, now that tmax has shrunk).
+    do {
+      if (sp == 0) return found;
+      --sp;
+    } while (!(stack[sp].t <= tmax * bvh_detail::kBoxExitScale));
+    id = stack[sp].id;
   }
-  return found;
 }
 
 bool Tlas::occluded(const Ray& ray) const {
@@ -330,25 +348,33 @@ bool Tlas::occluded(const Ray& ray) const {
   const RayBoxes rb(ray, bvh_detail::safe_inverse(ray.dir));
   uint32_t stack[kWideStack];
   int sp = 0;
-  stack[sp++] = 0;
+  uint32_t id = 0;
   Hit unused;
-  while (sp > 0) {
-    const uint32_t id = stack[--sp];
+  for (;;) {
     if (id & kLeafBit) {
       const uint32_t i = id & ~kLeafBit;
       if (enter<true>(insts_[i], i, ray, ray.tmax, unused, nullptr)) return true;
-      continue;
+    } else {
+      const TlasNode& n = nodes_[id];
+      alignas(32) float dist[kWidth];
+      unsigned mask = rb.test(n, ray.tmax, dist);
+      if (mask) {
+        // Any order finds an occluder: the same one as before (the highest lane next, the
+        // rest pushed), without a trip through the stack.
+        const int top = 31 - __builtin_clz(mask);
+        mask &= ~(1u << top);
+        while (mask) {
+          const int k = __builtin_ctz(mask);
+          mask &= mask - 1;
+          stack[sp++] = child_id(n, k);
+        }
+        id = child_id(n, top);
+        continue;
+      }
     }
-    const TlasNode& n = nodes_[id];
-    alignas(16) float dist[kWidth];
-    unsigned mask = rb.test(n, ray.tmax, dist);
-    while (mask) {
-      const int k = __builtin_ctz(mask);
-      mask &= mask - 1;
-      stack[sp++] = n.count[k] ? (n.child[k] | kLeafBit) : n.child[k];
-    }
+    if (sp == 0) return false;
+    id = stack[--sp];
   }
-  return false;
 }
 
 }  // namespace pl

@@ -35,6 +35,9 @@ struct TlasInstance {
   uint32_t motion_steps = 0;
   // Deformation blur: traced instead of `blas` (same triangle numbering; must outlive the Tlas).
   const DeformBvh* deform = nullptr;
+  // Set by Tlas::build: to_object is finite (entering the instance skips the rounding bound's
+  // terms of the origin's own error, exact zeros then).
+  bool finite = false;
 };
 
 // Bound of the rounding error of M.point(p) where p itself carries the error p_error
@@ -70,6 +73,24 @@ inline Ray ray_to_object(const Mat4& to_object, const Ray& r, float& dt) {
   o.org = to_object.point(r.org);
   o.dir = to_object.vector(r.dir);
   const Vec3 err = transform_point_error(to_object, r.org, Vec3(0.0f));
+  offset_past_error(o, err, r.tmax, dt);
+  return o;
+}
+
+// ray_to_object for a finite to_object: the same bits. The bound's terms of the origin's own
+// error are exact zeros there, and (1 + g) * 0 + g * x is g * x.
+inline Ray ray_to_object_finite(const Mat4& to_object, const Ray& r, float& dt) {
+  Ray o;
+  o.time = r.time;
+  o.org = to_object.point(r.org);
+  o.dir = to_object.vector(r.dir);
+  const Mat4& m = to_object;
+  const Vec3 p = r.org;
+  const float g = gamma_bound(3);
+  Vec3 err;
+  for (int i = 0; i < 3; ++i)
+    err[i] = g * (std::fabs(m.m[i][0] * p.x) + std::fabs(m.m[i][1] * p.y) + std::fabs(m.m[i][2] * p.z) +
+                  std::fabs(m.m[i][3]));
   offset_past_error(o, err, r.tmax, dt);
   return o;
 }

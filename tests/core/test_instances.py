@@ -607,3 +607,82 @@ def test_wide_top_level_over_many_lopsided_instances_agrees_with_merged():
         occ = res["dynamic"].occluded(o, d, 1.0)
         assert not (occ & ~(prim >= 0)).any()
         assert_clear_hits_occlude(occ, prim >= 0, t, 1.0)
+
+
+def test_forest_of_overlapping_instances_agrees_with_merged_for_camera_and_sun_rays():
+    """The realistic bench's instanced forest in small: a grid of spheres whose world boxes
+    overlap (rays enter several top-level children and instances at once, nearest first) on a
+    ground plane, traced by grazing camera rays and by shadow rays from the ground and the
+    crowns towards one sun direction. The top level finds the merged BVH's closest hits, and
+    occluded() agrees with intersect() for the shadow rays."""
+    pos, tris, nrm = clean(*uv_sphere(0.35, nu=16, nv=8))
+    rng = np.random.default_rng(11)
+    mats = [affine(rotation(i) * rng.uniform(0.6, 1.3), (0.55 * (i % 8) - 1.9, 0.55 * (i // 8) - 1.9, 0.0))
+            for i in range(64)]
+    ground = quad((-6.0, -6.0, -0.3), (12.0, 0.0, 0.0), (0.0, 12.0, 0.0))
+    res = {}
+    for mode in ("merged", "shared"):
+        s = build(mode, mats, mesh=(pos, tris, nrm, np.zeros((len(tris), 3, 2), np.float32)))
+        add_object(s, *ground, s.add_material("g", (0.3, 0.3, 0.2)))
+        s.commit()
+        res[mode] = s
+        assert s.stats()["tlas_instances"] == (65 if mode == "shared" else 0)
+    # Camera rays from low over the forest, across it.
+    n = 20_000
+    o = np.c_[rng.uniform(-3.0, 3.0, n), np.full(n, -6.0), rng.uniform(0.2, 2.0, n)].astype(np.float32)
+    target = np.c_[rng.uniform(-2.5, 2.5, n), rng.uniform(-2.5, 2.5, n), rng.uniform(-0.3, 0.4, n)]
+    d = (target - o).astype(np.float32)
+    cam = res["shared"].intersect(o, d, instances=True)
+    assert_same_hits(res["merged"].intersect(o, d, instances=True), cam, min_hits=n // 2)
+    assert len(set(cam[4][cam[1] >= 0].tolist())) > 40  # most trees seen, nearest ones first
+    # Shadow rays towards the sun from the camera rays' hits (ground and crowns), lifted off
+    # the surface along the ray a little.
+    t, prim = cam[0], cam[1]
+    hit = prim >= 0
+    p = o[hit] + d[hit] * (t[hit, None] * (1.0 - 1e-4))
+    sun = np.array([0.8, -0.5, 0.4])  # low: long shadows across the trees
+    sd = np.broadcast_to(sun / np.linalg.norm(sun) * 10.0, p.shape).astype(np.float32)
+    p = p.astype(np.float32)
+    for mode in ("merged", "shared"):
+        ts, ps = res[mode].intersect(p, sd, 1.0)[:2]
+        occ = res[mode].occluded(p, sd, 1.0)
+        assert 0.1 < occ.mean() < 0.9
+        assert not (occ & ~(ps >= 0)).any()
+        assert_clear_hits_occlude(occ, ps >= 0, ts, 1.0)
+    shadow = [res[m].occluded(p, sd, 1.0) for m in ("merged", "shared")]
+    assert (shadow[0] != shadow[1]).mean() < 1e-3
+
+
+@pytest.mark.parametrize("shift", [3e3, -2e4])
+def test_rays_leaving_an_instance_far_from_the_origin_do_not_hit_it_again(shift):
+    """Rays spawned at a far-off instanced sphere's hits (world points, not lifted off the
+    surface: half lie just inside it), leaving it (mirrored about the normal). The ray carried
+    into object space is moved past its transform's rounding error (pbrt-v4), which at this
+    distance also covers the points' own rounding: the instance rarely hits itself again,
+    where the merged copy (world space, no transform to move past) does for about half."""
+    pos, tris, nrm = clean(*uv_sphere(1.0, nu=32, nv=16))
+    mats = [affine(rotation(3) * 2.5, (shift + 4.0 * i, 0.5 * shift, 0.0)) for i in range(2)]
+    rng = np.random.default_rng(12)
+    n = 20_000
+    res = {}
+    for mode in ("shared", "merged"):
+        s = build(mode, mats, mesh=(pos, tris, nrm, np.zeros((len(tris), 3, 2), np.float32)))
+        s.commit()
+        c = np.array([shift, 0.5 * shift, 0.0])
+        o = (c + rng.normal(size=(n, 3)) * [1.0, 6.0, 6.0] - [8.0, 0.0, 0.0]).astype(np.float32)
+        target = c + rng.uniform(-2.2, 2.2, (n, 3))
+        d = (target - o).astype(np.float32)
+        t, prim, _, _, inst, _ = s.intersect(o, d, instances=True)
+        hit = prim >= 0
+        assert hit.sum() > n // 3
+        p = (o[hit].astype(np.float64) + d[hit] * t[hit, None]).astype(np.float32)
+        centre = np.array([mats[k][:3, 3] for k in inst[hit]], np.float64)
+        nn = p - centre
+        nn /= np.linalg.norm(nn, axis=1)[:, None]
+        dd = d[hit] / np.linalg.norm(d[hit], axis=1)[:, None]
+        r = (dd - 2.0 * np.sum(dd * nn, 1)[:, None] * nn).astype(np.float32)  # away from the sphere
+        t2, prim2, _, _, inst2, _ = s.intersect(p, r, instances=True)
+        again = (prim2 >= 0) & (inst2 == inst[hit]) & (t2 < 1e-2)
+        res[mode] = again.mean()
+    assert res["merged"] > 0.2, res  # the rays do start inside often
+    assert res["shared"] < 0.05 and res["shared"] < 0.1 * res["merged"], res
