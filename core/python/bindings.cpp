@@ -2385,6 +2385,16 @@ PYBIND11_MODULE(pathlight_core, m) {
           "heterogeneous medium: a program (a list of value ops) ending in ('closure', 'volume', None, "
           "{sigma_a, sigma_s, emission, g: registers}), evaluated at points inside.")
       .def(
+          "shader_evaluation",
+          [](PyScene& self, uint32_t id) {
+            if (id >= self.scene->material_count()) throw std::invalid_argument("shader_evaluation: unknown material id");
+            const Material& m = self.scene->material(id);
+            return std::string(m.constant ? "constant" : m.closures_only ? "closures" : "program");
+          },
+          py::arg("id"),
+          "How hits evaluate material `id`: 'constant' (closures made once), 'closures' (registers made "
+          "once, the closure ops per hit) or 'program' (the whole program per hit).")
+      .def(
           "set_material",
           [](PyScene& self, uint32_t id, const std::string& name, const py::object& base_color,
              const py::object& emission) {
