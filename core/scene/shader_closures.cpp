@@ -66,13 +66,13 @@ inline float table_rough(float ax, float ay) { return ay < 0.0f ? std::sqrt(ax) 
 }  // namespace
 
 namespace {
-[[gnu::always_inline]] inline PrincipledInputs principled_inputs_impl(const ShaderOp& op, const ShaderOp* extra,
-                                                                    const Float4* r) {
+// Fills `in` (only the fields its flags say are read: the rest keep what they held).
+[[gnu::always_inline]] inline void principled_inputs_impl(PrincipledInputs& in, const ShaderOp& op,
+                                                        const ShaderOp* extra, const Float4* r) {
   // The further inputs (PrincipledExtraSlot); kNoReg where there is no extra op.
   auto px = [extra](PrincipledExtraSlot s) { return extra ? extra->in[s] : int16_t(kNoReg); };
   auto col = [&](int16_t i) { return col_of(r, i); };
   auto val = [&](int16_t i, float def) { return val_of(r, i, def); };
-  PrincipledInputs in;
   in.w = clean_color(col(op.in[0]));
   in.base = op.in[1] == kNoReg ? Vec3(0.8f) : clean_color(r[op.in[1]].xyz());
   in.base_c = vmin(in.base, Vec3(1.0f));
@@ -89,7 +89,6 @@ namespace {
   in.ax = in.alpha;
   in.ay = -1.0f;
   in.aniso = false;
-  in.rotation = 0.0f;
   if (px(kPxAnisotropic) != kNoReg) {
     const float an = sat(std::isfinite(r[px(kPxAnisotropic)].x) ? r[px(kPxAnisotropic)].x : 0.0f);
     if (an > 0.0f) {
@@ -112,8 +111,6 @@ namespace {
   }
   const float cw_in = val(op.in[10], 0.0f);
   in.sheen = false;
-  in.sheen_weight = in.sheen_rough = in.sheen_coat = 0.0f;
-  in.sheen_tint = Vec3(0.0f);
   if (px(kPxSheenWeight) != kNoReg) {
     const float sw_in = val(px(kPxSheenWeight), 0.0f);
     const float sw = std::isfinite(sw_in) ? std::max(0.0f, sw_in) : 0.0f;
@@ -134,12 +131,10 @@ namespace {
     in.coat_tint = clean_color(col(op.in[13]));
   }
   in.emits = px(kPxEmission) != kNoReg;
-  in.emission = in.emits ? clean_color(col(px(kPxEmission))) : Vec3(0.0f);
-  in.metal_b = Vec3(0.0f);
-  in.metal_fss = Vec3(0.0f);
+  if (in.emits) in.emission = clean_color(col(px(kPxEmission)));
   if (in.metallic > 0.0f) {
     const Vec3 tint = vmin(in.spec_tint, Vec3(1.0f));
-    if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) in.metal_b = f82_tint_b(in.base_c, tint);
+    in.metal_b = tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f ? Vec3(0.0f) : f82_tint_b(in.base_c, tint);
     if (in.multi) in.metal_fss = f82_fss(in.base_c, in.metal_b);
   }
   if (in.transmission > 0.0f)
@@ -154,7 +149,6 @@ namespace {
   }
   in.spec = in.eta != 1.0f || in.film > kThinFilmCutoff;
   in.spec_f0 = vmin(in.spec_tint * in.f0, Vec3(1.0f));  // Specular Tint tints F0 only (f90 = 1)
-  in.spec_fss = Vec3(0.0f);
   if (in.spec && in.multi) {
     // The mean single-scatter Fresnel: the real curve's average remapped as the lobe's.
     const float F0 = f0_from_ior(in.eta);
@@ -165,14 +159,11 @@ namespace {
   // base's share becomes a BSSRDF of the clamped base colour, its IOR the specular's (Skin:
   // Subsurface IOR), its entry roughness the specular's.
   in.sss_weight = 0.0f;
-  in.sss_method = 1.0f;
-  in.sss_ior = in.eta;
-  in.sss_aniso = 0.0f;
-  in.sss_radius = Vec3(0.0f);
   if (px(kPxSubsurfaceWeight) != kNoReg) {
     const float x = r[px(kPxSubsurfaceWeight)].x;
     in.sss_weight = std::isfinite(x) && x > 1e-5f ? std::min(x, 1.0f) : 0.0f;
     if (in.sss_weight > 0.0f) {
+      in.sss_ior = in.eta;
       const int16_t rr = px(kPxSubsurfaceRadius);
       in.sss_radius = (rr == kNoReg ? Vec3{1.0f, 0.2f, 0.1f} : r[rr].xyz()) * val(px(kPxSubsurfaceScale), 0.05f);
       in.sss_method = val(px(kPxSubsurfaceMethod), 1.0f);
@@ -187,7 +178,6 @@ namespace {
     const float dr_in = val(px(kPxDiffuseRoughness), 0.0f);
     in.diffuse_rough = std::isfinite(dr_in) ? sat(dr_in) : 0.0f;
   }
-  return in;
 }
 
 // Cycles 4.5's layering (svm_closure.h, CLOSURE_BSDF_PRINCIPLED_ID): a coat over metal, then
@@ -321,7 +311,9 @@ namespace {
 }  // namespace
 
 PrincipledInputs principled_inputs(const ShaderOp& op, const ShaderOp* extra, const Float4* r) {
-  return principled_inputs_impl(op, extra, r);
+  PrincipledInputs in{};  // (kept: every field defined)
+  principled_inputs_impl(in, op, extra, r);
+  return in;
 }
 
 void principled_closures(const PrincipledInputs& in, const ShaderOp& op, const ShaderOp* extra, const ShaderProgram& prog,
@@ -548,7 +540,9 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       // (`extra` is cleared for the next op; the closures keep their own copy.)
       const ShaderOp* ex = extra;
       extra = nullptr;
-      principled_closures_impl(principled_inputs_impl(op, ex, r), op, ex, prog, r, ctx, out);
+      PrincipledInputs in;  // (per hit: only the fields its flags say are read are filled)
+      principled_inputs_impl(in, op, ex, r);
+      principled_closures_impl(in, op, ex, prog, r, ctx, out);
       break;
     }
     case OpCode::Subsurface: {
