@@ -56,22 +56,54 @@ struct MediumLayer {
 };
 constexpr uint32_t kWorldMedium = 0xFFFFFFFFu;  // the world's Volume: never left
 
+// Overlapping layers that scatter at a point (ss: each one's sigma_s, g: its anisotropy): picks
+// layer i with probability P_i = mean(ss_i) / sum_j mean(ss_j), weights `beta` (which carries the
+// summed sigma_s) by ss_i / (sum_j ss_j P_i) per channel and returns its anisotropy. The
+// expectation is, per channel, the layers' phase functions weighted by their scattering in that
+// channel (Cycles 4.5 weights them by channel means instead: docs/design/volumes.md).
+inline float choose_layer_phase(int n, const Vec3* ss, const float* g, float u, Vec3& beta) {
+  float w[4], total = 0.0f;
+  for (int i = 0; i < n; ++i) total += (w[i] = average(ss[i]));
+  if (!(total > 0.0f)) return 0.0f;
+  int k = n - 1;
+  float acc = 0.0f;
+  for (int i = 0; i < n; ++i) {
+    acc += w[i];
+    if (u * total < acc && w[i] > 0.0f) {
+      k = i;
+      break;
+    }
+  }
+  while (k > 0 && !(w[k] > 0.0f)) --k;  // (u rounding past the last non-empty layer)
+  Vec3 all(0.0f);
+  for (int i = 0; i < n; ++i) all += ss[i];
+  const float inv_p = total / w[k];
+  const auto share = [&](float a, float b) { return b > 0.0f ? a / b * inv_p : 0.0f; };
+  beta *= Vec3(share(ss[k].x, all.x), share(ss[k].y, all.y), share(ss[k].z, all.z));
+  return g[k];
+}
+
 struct Medium {
   MediumLayer layer[4];
   int n = 0;
   // What a point inside all the layers sees. Cycles' volume stack sums every volume the path is
   // in (overlapping objects, a volume inside the world's fog, absorbing glass in fog), so
   // homogeneous layers add up: coefficients and emission summed, the phase's g their mean
-  // weighted by scattering (as a material's several phase closures are combined). A stack
+  // weighted by scattering (exact where they share one g; else a scattering picks a layer per
+  // channel, phases_differ). A stack
   // holding a heterogeneous layer is `mixed`: sum then holds its homogeneous layers' sum, its
   // het the innermost heterogeneous layer, and the tracking sums every layer per point
   // (MediumStack below).
   MediumLayer sum{};
   bool mixed = false;
+  // Homogeneous layers that scatter with different anisotropies: sum.g (their mean weighted by
+  // scattering) is then not the mixture's phase per channel; choose_phase picks a layer.
+  bool phases_differ = false;
   const MediumLayer* top() const { return n ? (n == 1 ? &layer[0] : &sum) : nullptr; }
   Vec3 current() const { return n ? top()->sigma_a : Vec3(0.0f); }  // Beer's law only
   void combine() {
     mixed = false;
+    phases_differ = false;
     if (n < 2) return;
     const HeteroMedium* het = nullptr;
     for (int i = 0; i < n; ++i) het = layer[i].het ? layer[i].het : het;
@@ -90,6 +122,20 @@ struct Medium {
     sum.g = w > 0.0f ? g / w : 0.0f;
     sum.het = het;
     mixed = het != nullptr;
+    for (int i = 0; i < n && !mixed; ++i)
+      for (int j = 0; j < i; ++j)
+        phases_differ = phases_differ || (layer[i].g != layer[j].g && !is_black(layer[i].sigma_s) &&
+                                          !is_black(layer[j].sigma_s));
+  }
+  // A homogeneous stack's scattering at a point (phases_differ): choose_layer_phase over its layers.
+  float choose_phase(float u, Vec3& beta) const {
+    Vec3 ss[4];
+    float g[4];
+    for (int i = 0; i < n; ++i) {
+      ss[i] = layer[i].sigma_s;
+      g[i] = layer[i].g;
+    }
+    return choose_layer_phase(n, ss, g, u, beta);
   }
   void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr) {
     if (n < 4) layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase_g, m, het};
@@ -157,27 +203,7 @@ struct MediumStack {
   // beta by sigma_s,i / (sigma_s P_i) per channel, and returns its anisotropy. The expectation
   // is the scattering-weighted mixture of the layers' phase functions, as Cycles' several phase
   // closures.
-  float choose_phase(float u, Vec3& beta) const {
-    float w[4], total = 0.0f;
-    for (int i = 0; i < medium.n; ++i) total += (w[i] = average(ss[i]));
-    if (!(total > 0.0f)) return 0.0f;
-    int k = medium.n - 1;
-    float acc = 0.0f;
-    for (int i = 0; i < medium.n; ++i) {
-      acc += w[i];
-      if (u * total < acc && w[i] > 0.0f) {
-        k = i;
-        break;
-      }
-    }
-    while (k > 0 && !(w[k] > 0.0f)) --k;  // (u rounding past the last non-empty layer)
-    Vec3 all(0.0f);
-    for (int i = 0; i < medium.n; ++i) all += ss[i];
-    const float inv_p = total / w[k];
-    const auto share = [&](float a, float b) { return b > 0.0f ? a / b * inv_p : 0.0f; };
-    beta *= Vec3(share(ss[k].x, all.x), share(ss[k].y, all.y), share(ss[k].z, all.z));
-    return g[k];
-  }
+  float choose_phase(float u, Vec3& beta) const { return choose_layer_phase(medium.n, ss, g, u, beta); }
 };
 
 // Radiance a homogeneous medium emits along a segment of length t, seen through its own
@@ -578,9 +604,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                 const float pe = equiangular_pdf(eq, te), pd = free_flight_pdf(st, te);
                 if (te >= 0.0f && te < seg && pe > 0.0f && std::isfinite(pe)) {
                   const Vec2 ue{vrng.next_float(), vrng.next_float()};
-                  const Vec3 li = medium_direct(scene, ray.org + d * te, d, m->g, bounce >= s.max_bounces, medium,
+                  Vec3 ss = m->sigma_s;
+                  const float ge = medium.phases_differ ? medium.choose_phase(vrng.next_float(), ss) : m->g;
+                  const Vec3 li = medium_direct(scene, ray.org + d * te, d, ge, bounce >= s.max_bounces, medium,
                                                 vrng.next_float(), ue, ray_state, ray.time, c, &vrng);
-                  L += beta * m->sigma_s * medium_transmittance(st, te) * li * (pe / (pe * pe + pd * pd));
+                  L += beta * ss * medium_transmittance(st, te) * li * (pe / (pe * pe + pd * pd));
                 }
               }
             }
@@ -596,6 +624,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               if (!(pdf > 0.0f)) break;
               beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
               scatter = true;
+              if (medium.phases_differ) g = medium.choose_phase(vrng.next_float(), beta);
             } else {
               const float pass = free_flight_survival(st, seg);
               if (!(pass > 0.0f)) break;
