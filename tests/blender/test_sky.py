@@ -9,6 +9,7 @@ import pytest
 
 from blender_util import core_has, load_addon, render_to_array, Warnings, BOX_FILTER
 from light_scenes import camera, diffuse_material, empty_scene, plane, uv_sphere
+from material_scenes import region_means
 
 load_addon()
 from addon.export import export_scene  # noqa: E402
@@ -44,11 +45,6 @@ def sky_world(strength=1.0, sky_type='NISHITA', mapping_rotation=None, **setting
         nt.links.new(mapping.outputs["Vector"], sky.inputs["Vector"])
     bpy.context.scene.world = world
     return sky
-
-
-def region_means(img, grid=8):
-    h, w = img.shape[:2]
-    return img[..., :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
 
 
 def assert_agrees(ours, ref, mean_tol=0.01, region_tol=0.03, what="", skip_edges=False):
