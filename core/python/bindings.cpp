@@ -1487,6 +1487,23 @@ VdbReadOptions vdb_options(const py::object& grid, bool topology_only, int64_t m
   return o;
 }
 
+// read_vdb and read_vdb_bytes differ only in their source: open(source) runs with the GIL
+// (it may copy Python bytes) and returns the reader, which runs without it.
+template <class Source, class Open>
+void def_read_vdb(py::module_& m, const char* name, const char* source_name, Open open, const char* doc) {
+  m.def(name, [open](const Source& source, const py::object& grid, bool topology_only, int64_t max_bricks) {
+          const VdbReadOptions o = vdb_options(grid, topology_only, max_bricks);
+          const auto read = open(source);
+          VdbFile f;
+          {
+            py::gil_scoped_release release;
+            f = read(o);
+          }
+          return vdb_grid_list(f);
+        }, py::arg(source_name), py::arg("grid") = py::none(), py::arg("topology_only") = false,
+        py::arg("max_bricks") = int64_t(1) << 19, doc);
+}
+
 FloatArray sample_points(const VolumeGrid& g, const FloatArray& points, bool index_space, const std::string& mode,
                          bool majorant) {
   // Points as float64 would be nicer for far-off grids; float32 keeps one array type here.
@@ -1565,30 +1582,20 @@ void bind_volume_grids(py::module_& m) {
            }, py::arg("min"), py::arg("max"),
            "Voxel values over the inclusive index box [min, max] as [i, j, k(, channel)].");
 
-  m.def("read_vdb", [](const std::string& path, const py::object& grid, bool topology_only, int64_t max_bricks) {
-          const VdbReadOptions o = vdb_options(grid, topology_only, max_bricks);
-          VdbFile f;
-          {
-            py::gil_scoped_release release;
-            f = read_vdb_file(path, o);
-          }
-          return vdb_grid_list(f);
-        }, py::arg("path"), py::arg("grid") = py::none(), py::arg("topology_only") = false,
-        py::arg("max_bricks") = int64_t(1) << 19,
-        "Reads an OpenVDB file: a list of dicts per grid (name, type, voxel_count, bbox_min/max, "
-        "transform 4x4, background, compression, grid: VolumeGrid or None with 'skipped' saying why). "
-        "Malformed files raise RuntimeError.");
-  m.def("read_vdb_bytes", [](const py::bytes& data, const py::object& grid, bool topology_only, int64_t max_bricks) {
-          const VdbReadOptions o = vdb_options(grid, topology_only, max_bricks);
-          const std::string s = data;
-          VdbFile f;
-          {
-            py::gil_scoped_release release;
-            f = read_vdb_memory(reinterpret_cast<const uint8_t*>(s.data()), s.size(), o);
-          }
-          return vdb_grid_list(f);
-        }, py::arg("data"), py::arg("grid") = py::none(), py::arg("topology_only") = false,
-        py::arg("max_bricks") = int64_t(1) << 19, "read_vdb on the bytes of a file.");
+  def_read_vdb<std::string>(
+      m, "read_vdb", "path",
+      [](const std::string& path) { return [&path](const VdbReadOptions& o) { return read_vdb_file(path, o); }; },
+      "Reads an OpenVDB file: a list of dicts per grid (name, type, voxel_count, bbox_min/max, "
+      "transform 4x4, background, compression, grid: VolumeGrid or None with 'skipped' saying why). "
+      "Malformed files raise RuntimeError.");
+  def_read_vdb<py::bytes>(
+      m, "read_vdb_bytes", "data",
+      [](const py::bytes& data) {
+        return [s = std::string(data)](const VdbReadOptions& o) {
+          return read_vdb_memory(reinterpret_cast<const uint8_t*>(s.data()), s.size(), o);
+        };
+      },
+      "read_vdb on the bytes of a file.");
   m.def("vdb_decompress", [](const std::string& codec, const py::bytes& data, int64_t size) {
           if (size < 0 || size > (int64_t(1) << 30)) throw std::invalid_argument("size out of range");
           const std::string s = data;

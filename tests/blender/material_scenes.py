@@ -12,6 +12,9 @@ import numpy as np
 from mathutils import Vector
 
 from blender_util import BOX_FILTER, render_to_array
+# The one region_means (grid x grid region means of RGB, edges cropped): pure numpy, shared
+# with the core tests; the Blender tests import it from here.
+from core_scenes import region_means  # noqa: F401
 
 
 
@@ -235,12 +238,6 @@ def scatter_on_grid(host, source, size, vertices, scale=None, name="Scatter"):
 
 
 # ---------------------------------------------------------------- comparisons
-
-def region_means(img, grid=8):
-    h, w = img.shape[:2]
-    img = img[: h // grid * grid, : w // grid * grid, :3]
-    return img.reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
-
 
 def compare(ours, cycles, grid=8, floor=0.02):
     """(whole-image mean ratio, max relative region error, per-region relative errors) of

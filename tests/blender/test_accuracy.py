@@ -6,13 +6,9 @@ import numpy as np
 import pytest
 
 from blender_util import load_addon, open_fixture, render_to_array
+from material_scenes import region_means
 
 load_addon()
-
-
-def region_means(img, grid=8):
-    h, w = img.shape[:2]
-    return img[: h // grid * grid, : w // grid * grid, :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
 
 
 def furnace_scene(albedo, smooth):

@@ -223,21 +223,30 @@ def curves_info_material(name):
     return mat
 
 
-def test_curves_info_matches_cycles():
-    """Intercept (root to tip), per-strand Random (Cycles' hash) and Thickness, seen directly,
-    on tapering strands."""
-    radii = np.tile(np.linspace(0.06, 0.03, 5), 7).astype(np.float32)
-    build = hair_scene(lambda: curves_info_material("Info"), radii=radii)
-
+def unlit(build):
+    """build's studio with its light and floor hidden and a black world: an emission material's
+    colour seen directly (also the particle hair tests' scenes)."""
     def dark():
         scene = build()
         for name in ("Light", "Floor"):
             bpy.data.objects[name].hide_render = True
         ms.set_world((0.0, 0.0, 0.0))
         return scene
-    ours, cycles = render_pair(dark, 64)
-    for c in range(3):  # each channel is one output
+    return dark
+
+
+def assert_channels_agree(ours, cycles, channels=3):
+    """Each colour channel (one material output each) alone, as grey, within the issue's bar."""
+    for c in range(channels):
         assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+
+
+def test_curves_info_matches_cycles():
+    """Intercept (root to tip), per-strand Random (Cycles' hash) and Thickness, seen directly,
+    on tapering strands."""
+    radii = np.tile(np.linspace(0.06, 0.03, 5), 7).astype(np.float32)
+    ours, cycles = render_pair(unlit(hair_scene(lambda: curves_info_material("Info"), radii=radii)), 64)
+    assert_channels_agree(ours, cycles)
 
 
 def test_particle_hair_is_exported_without_a_warning():
@@ -276,13 +285,9 @@ def test_object_info_on_curves_matches_cycles():
         obj = bpy.data.objects["Hair"]
         obj.location = (0.0, 0.0, 0.3)
         obj.color = (0.2, 0.4, 0.6, 0.7)
-        for name in ("Light", "Floor"):
-            bpy.data.objects[name].hide_render = True
-        ms.set_world((0.0, 0.0, 0.0))
         return scene
-    ours, cycles = render_pair(build, 16)
-    for c in range(3):
-        assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+    ours, cycles = render_pair(unlit(build), 16)
+    assert_channels_agree(ours, cycles)
 
 
 def test_principled_hair_on_a_mesh_renders():

@@ -16,6 +16,7 @@ import pytest
 
 from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
 from light_scenes import add_light, box, camera, diffuse_material, empty_scene, plane
+from material_scenes import region_means
 
 load_addon()
 
@@ -30,11 +31,6 @@ needs_het = pytest.mark.skipif(not (core_available() and hasattr(load_addon().co
 def factory_scene_afterwards():
     yield
     bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
-def region_means(img, grid=8):
-    h, w = img.shape[:2]
-    return img[: h // grid * grid, : w // grid * grid].reshape(grid, h // grid, grid, w // grid, -1).mean(axis=(1, 3))
 
 
 def volume_material(name, build):

@@ -320,6 +320,8 @@ def pixel_mean(values, n, ss=4):
 
 
 def region_means(img, grid):
+    # Unlike material_scenes.region_means this keeps every channel and takes 2-D (grey) images:
+    # the closed-form references here are scalar fields.
     h, w = img.shape[:2]
     return img[: h // grid * grid, : w // grid * grid].reshape(
         grid, h // grid, grid, w // grid, *img.shape[2:]).mean(axis=(1, 3))

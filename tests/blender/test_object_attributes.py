@@ -73,6 +73,17 @@ def test_object_attributes_as_cycles_reads_them(case, output):
         assert np.abs(ours[..., :3]).max() == 0.0
 
 
+def instance_tinted(scene, coll, locations):
+    """An empty instancing collection coll at each location, the k-th with the "tint" TINTS[k]."""
+    for k, location in enumerate(locations):
+        empty = bpy.data.objects.new(f"E{k}", None)
+        empty.instance_type = 'COLLECTION'
+        empty.instance_collection = coll
+        empty.location = location
+        empty["tint"] = TINTS[k]
+        scene.collection.objects.link(empty)
+
+
 def _instancer_scene(kind):
     """Four instances of a one-plane collection by four empties with their own "tint" (the
     instanced plane has one too: Instancer reads the empties', Object the plane's)."""
@@ -83,13 +94,7 @@ def _instancer_scene(kind):
     tile["tint"] = (0.3, 0.3, 0.3)
     scene.collection.objects.unlink(tile)
     coll.objects.link(tile)
-    for k, (x, y) in enumerate(QUADS):
-        empty = bpy.data.objects.new(f"E{k}", None)
-        empty.instance_type = 'COLLECTION'
-        empty.instance_collection = coll
-        empty.location = (x, y, 0.0)
-        empty["tint"] = TINTS[k]
-        scene.collection.objects.link(empty)
+    instance_tinted(scene, coll, [(x, y, 0.0) for x, y in QUADS])
     return scene
 
 
@@ -137,12 +142,10 @@ def test_particle_instance_attributes():
     assert np.abs(ours[..., :3] - (0.8, 0.5, 0.1)).max(axis=-1).min() < 1e-4  # the settings' tint
 
 
-def _particle_coords_scene(output):
-    """Hair particles rendered as small spheres emitting their Texture Coordinate `output`
-    From Instancer (through Absolute: Generated is negative), beside a plain sphere with the
-    same material (no instance: 0). output "UV Map": the UV Map node's From Instancer."""
-    scene = top_view(32)
-    mat, nodes, links, out = ms.new_material(f"FromInstancer{output}")
+def from_instancer_material(name, output):
+    """Emission of the absolute value of the Texture Coordinate node's `output` From Instancer
+    (output "UV Map": the UV Map node's From Instancer)."""
+    mat, nodes, links, out = ms.new_material(name)
     if output == "UV Map":
         coord = nodes.new("ShaderNodeUVMap")
         output = "UV"
@@ -155,6 +158,15 @@ def _particle_coords_scene(output):
     links.new(coord.outputs[output], absolute.inputs[0])
     links.new(absolute.outputs["Vector"], emit.inputs["Color"])
     links.new(emit.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def _particle_coords_scene(output):
+    """Hair particles rendered as small spheres emitting their Texture Coordinate `output`
+    From Instancer (through Absolute: Generated is negative), beside a plain sphere with the
+    same material (no instance: 0). output "UV Map": the UV Map node's From Instancer."""
+    scene = top_view(32)
+    mat = from_instancer_material(f"FromInstancer{output}", output)
     _hair_particles(mat, 12, 0.25)
     ms.add_sphere("Plain", 0.3, mat, segments=12, rings=6, location=(1.2, 1.2, 0.3))
     return scene
@@ -387,13 +399,7 @@ def _curves_collection_scene(kind):
     tile = add_strands("Tuft", attr_material(kind, "tint", "Color"), link=False)
     tile["tint"] = (0.3, 0.3, 0.3)
     coll.objects.link(tile)
-    for k, y in enumerate(BANDS):
-        empty = bpy.data.objects.new(f"E{k}", None)
-        empty.instance_type = 'COLLECTION'
-        empty.instance_collection = coll
-        empty.location = (0.0, y, 0.0)
-        empty["tint"] = TINTS[k]
-        scene.collection.objects.link(empty)
+    instance_tinted(scene, coll, [(0.0, y, 0.0) for y in BANDS])
     return scene
 
 
@@ -463,15 +469,7 @@ def _curves_particle_coords_scene(output):
     """Hair particles rendered as a short Curves tuft emitting their Texture Coordinate
     `output` From Instancer (through Absolute)."""
     scene = curves_view()
-    mat, nodes, links, out = ms.new_material(f"CurvesFromInstancer{output}")
-    coord = nodes.new("ShaderNodeTexCoord")
-    coord.from_instancer = True
-    absolute = nodes.new("ShaderNodeVectorMath")
-    absolute.operation = 'ABSOLUTE'
-    emit = nodes.new("ShaderNodeEmission")
-    links.new(coord.outputs[output], absolute.inputs[0])
-    links.new(absolute.outputs["Vector"], emit.inputs["Color"])
-    links.new(emit.outputs[0], out.inputs["Surface"])
+    mat = from_instancer_material(f"CurvesFromInstancer{output}", output)
     tuft = add_strands("Tuft", mat, ys=(0.0,), length=0.5, radius=0.06, location=(0.0, 0.0, -5.0))
     tuft.hide_render = True
     emitter = ms.add_plane("Emitter", 3.0, None)

@@ -11,7 +11,7 @@ import pytest
 
 from blender_util import Warnings, core_available, load_addon, render_to_array
 import material_scenes as ms
-from test_hair import curves_info_material, principled_hair
+from test_hair import assert_channels_agree, curves_info_material, principled_hair, unlit
 
 load_addon()
 render_pair = ms.render_pair
@@ -115,25 +115,21 @@ def info_scene(hide_emitter, **patch):
     """Thick, strongly tapered particle hair (240 parents x 3 interpolated children on a 2 m
     emitter, its edges out of the frame) seen directly in Curves Info colours (Intercept,
     Random, Thickness x 10), nothing lit: radius, intercept and strand numbering against Cycles."""
-    build = patch_scene(lambda: curves_info_material("Info"), size=48, count=240, children=3,
-                        scale=0.012, shape=0.4, step=3, patch_size=2.0, **patch)
+    patch_build = patch_scene(lambda: curves_info_material("Info"), size=48, count=240, children=3,
+                              scale=0.012, shape=0.4, step=3, patch_size=2.0, **patch)
 
-    def dark():
-        scene = build()
-        for name in ("Light", "Floor"):
-            bpy.data.objects[name].hide_render = True
+    def build():
+        scene = patch_build()
         bpy.data.objects["Patch"].show_instancer_for_render = not hide_emitter
-        ms.set_world((0.0, 0.0, 0.0))
         return scene
-    return dark
+    return unlit(build)
 
 
 def test_particle_hair_curves_info_matches_cycles():
     """The hair shape (root 2, tip 0.25, shape 0.4, Close Tip) seen in Thickness, with
     Intercept and Random, on interpolated children: each channel within the issue's bar."""
     ours, cycles = render_pair(info_scene(False, root=2.0, tip=0.25, close_tip=True), 256)
-    for c in range(3):  # each channel is one output
-        assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+    assert_channels_agree(ours, cycles)
 
 
 def test_particle_hair_with_the_emitter_hidden_matches_cycles():
@@ -141,8 +137,7 @@ def test_particle_hair_with_the_emitter_hidden_matches_cycles():
     tips of non-zero radius (root 4, tip 1, no Close Tip): both ends cut off flat, as Cycles'
     thick curves end (half-sphere caps were 6-9 % off at the roots)."""
     ours, cycles = render_pair(info_scene(True, root=4.0, tip=1.0, close_tip=False), 256)
-    for c in range(3):
-        assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+    assert_channels_agree(ours, cycles)
 
 
 def test_emitter_hidden_exports_hair_without_the_mesh():
@@ -198,16 +193,8 @@ def test_particle_hair_emitter_uv_matches_cycles():
     """The UV Map node on particle hair reads the emitter's UV at each strand's root (Cycles'
     per-curve UV), for interpolated children."""
     build = patch_scene(lambda: uv_root_material("UV"), size=48, count=80, children=3, scale=0.02, step=2)
-
-    def dark():
-        scene = build()
-        for name in ("Light", "Floor"):
-            bpy.data.objects[name].hide_render = True
-        ms.set_world((0.0, 0.0, 0.0))
-        return scene
-    ours, cycles = render_pair(dark, 256)
-    for c in range(2):
-        assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], region=0.03, floor=0.1)
+    ours, cycles = render_pair(unlit(build), 256)
+    assert_channels_agree(ours, cycles, channels=2)  # (u, v, 0)
 
 
 def colour_root_material(name, node="ShaderNodeAttribute"):

@@ -11,6 +11,7 @@ import pytest
 from blender_util import core_available, core_has, load_addon, render_to_array, BOX_FILTER
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
                           emission_material, empty_scene, plane)
+from material_scenes import region_means
 
 load_addon()
 from addon import session, ui  # noqa: E402
@@ -26,11 +27,6 @@ needs_adaptive = pytest.mark.skipif(not core_has("Session", "sample_counts"),
                                     reason="the core has no adaptive sampling (sample_counts)")
 needs_settings = pytest.mark.skipif(not core_has("RenderSettings", "diffuse_bounces"),
                                     reason="the core has no per-type bounce limits")
-
-
-def region_means(img, grid=8):
-    h, w = img.shape[:2]
-    return img[..., :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -9,6 +9,7 @@ import pytest
 
 from blender_util import core_has, load_addon, render_to_array, Warnings, BOX_FILTER
 from light_scenes import camera, diffuse_material, empty_scene, plane, uv_sphere
+from material_scenes import region_means
 
 load_addon()
 from addon.export import export_scene  # noqa: E402
@@ -46,11 +47,6 @@ def sky_world(strength=1.0, sky_type='NISHITA', mapping_rotation=None, **setting
     return sky
 
 
-def region_means(img, grid=8):
-    h, w = img.shape[:2]
-    return img[..., :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
-
-
 def assert_agrees(ours, ref, mean_tol=0.01, region_tol=0.03, what="", skip_edges=False):
     """Mean RGB within mean_tol and each 8 x 8 region's within region_tol (relative; regions
     darker than 5 % of the image mean are compared against that floor). skip_edges: regions
@@ -69,6 +65,16 @@ def assert_agrees(ours, ref, mean_tol=0.01, region_tol=0.03, what="", skip_edges
     print(f"sky agreement {what}: mean ratio {np.round(ratio, 4)}, worst region {rel.max():.4f}")
     assert rel.max() < region_tol, (what, float(rel.max()), np.unravel_index(np.argmax(rel), rel.shape))
     return ratio, float(rel.max())
+
+
+def assert_views_agree(scene, cam, looks, samples=16, what="", **tolerances):
+    """assert_agrees for each direction of looks, the camera cam turned to look along it."""
+    from mathutils import Vector
+    for look in looks:
+        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
+        ours = render_to_array(scene, samples=samples)
+        ref = render_to_array(scene, "CYCLES", samples=samples, **BOX_FILTER)
+        assert_agrees(ours, ref, what=f"{what}looking along {look}", **tolerances)
 
 
 DEG = math.pi / 180
@@ -91,18 +97,14 @@ DISC_LOOKS = [LOOKS[0], LOOKS[2], ((0.6634, 0.3830, 0.6428), 150.0)]
 
 @pytest.mark.parametrize("settings, strength", SKIES, ids=["default", "low-dusty", "high-disc"])
 def test_sky_seen_directly_matches_cycles(settings, strength):
-    from mathutils import Vector
     scene = empty_scene(32)
     sky_world(strength, **settings)
     cam = camera((0, 0, 0))
     for look, lens in DISC_LOOKS if settings.get("sun_disc", True) else LOOKS:
         cam.data.lens = lens
-        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
         # Pixels across the horizon or the disc's edge average a steep step: 128 samples each
         # (at 64 a horizon region of the dusty sky differs by 2.5 %, all of it pixel jitter).
-        ours = render_to_array(scene, samples=128)
-        ref = render_to_array(scene, "CYCLES", samples=128, **BOX_FILTER)
-        assert_agrees(ours, ref, what=f"looking along {look}", skip_edges=lens > 100)
+        assert_views_agree(scene, cam, [look], samples=128, skip_edges=lens > 100)
 
 
 @pytest.mark.parametrize("sun, turbidity, rotation", [
@@ -110,16 +112,11 @@ def test_sky_seen_directly_matches_cycles(settings, strength):
     ((-0.7, 0.1, 0.25), 6.0, (0.2, 0.0, 0.9)),
 ])
 def test_preetham_seen_directly_matches_cycles(sun, turbidity, rotation):
-    from mathutils import Vector
     scene = empty_scene(32)
     sky_world(0.8, 'PREETHAM', mapping_rotation=rotation, sun_direction=sun,
               turbidity=turbidity)
     cam = camera((0, 0, 0), lens=10.0)
-    for look in ((0.0, 1.0, 0.15), sun, (1.0, 0.0, -0.3)):  # horizon, the sun, below it
-        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
-        ours = render_to_array(scene, samples=16)
-        ref = render_to_array(scene, "CYCLES", samples=16, **BOX_FILTER)
-        assert_agrees(ours, ref, what=f"looking along {look}")
+    assert_views_agree(scene, cam, ((0.0, 1.0, 0.15), sun, (1.0, 0.0, -0.3)))  # horizon, the sun, below it
 
 
 @pytest.mark.parametrize("sun, turbidity, albedo, rotation", [
@@ -129,16 +126,11 @@ def test_preetham_seen_directly_matches_cycles(sun, turbidity, rotation):
     ((0.6, 0.6, -0.1), 1.0, 0.7, None),  # a sun below the horizon: lit as on it
 ])
 def test_hosek_seen_directly_matches_cycles(sun, turbidity, albedo, rotation):
-    from mathutils import Vector
     scene = empty_scene(32)
     sky_world(0.8, 'HOSEK_WILKIE', mapping_rotation=rotation, sun_direction=sun,
               turbidity=turbidity, ground_albedo=albedo)
     cam = camera((0, 0, 0), lens=10.0)
-    for look in ((0.0, 1.0, 0.15), sun, (1.0, 0.0, -0.3)):  # horizon, the sun, below it
-        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
-        ours = render_to_array(scene, samples=16)
-        ref = render_to_array(scene, "CYCLES", samples=16, **BOX_FILTER)
-        assert_agrees(ours, ref, what=f"looking along {look}")
+    assert_views_agree(scene, cam, ((0.0, 1.0, 0.15), sun, (1.0, 0.0, -0.3)))  # horizon, the sun, below it
 
 
 @pytest.mark.parametrize("sky_type, mapping", [
@@ -149,7 +141,6 @@ def test_hosek_seen_directly_matches_cycles(sun, turbidity, albedo, rotation):
 def test_sky_texture_mapping_matches_cycles(sky_type, mapping):
     """The Sky Texture node's texture_mapping (Python-only), which Cycles applies to the lookup
     direction, also Nishita's (no Vector socket): rotations, axis permutations, scales of +-1."""
-    from mathutils import Vector
     scene = empty_scene(32)
     if sky_type == 'PREETHAM':
         sky = sky_world(0.8, 'PREETHAM', sun_direction=(0.3, 0.5, 0.8), turbidity=3.0)
@@ -161,11 +152,8 @@ def test_sky_texture_mapping_matches_cycles(sky_type, mapping):
     warnings = Warnings()
     export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
     assert not warnings, list(warnings)
-    for look in ((0.0, 1.0, 0.35), (0.3, -0.5, 0.8)):  # (the horizon mostly out of view)
-        cam.rotation_euler = Vector(look).to_track_quat('-Z', 'Y').to_euler()
-        ours = render_to_array(scene, samples=16)
-        ref = render_to_array(scene, "CYCLES", samples=16, **BOX_FILTER)
-        assert_agrees(ours, ref, what=f"{sky_type} {mapping} looking along {look}")
+    assert_views_agree(scene, cam, ((0.0, 1.0, 0.35), (0.3, -0.5, 0.8)),  # (the horizon mostly out of view)
+                       what=f"{sky_type} {mapping} ")
 
 
 def test_nishita_has_no_vector_input():

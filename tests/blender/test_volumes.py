@@ -10,6 +10,7 @@ import pytest
 
 from blender_util import core_available, load_addon, node_material, render_to_array, BOX_FILTER
 from light_scenes import add_light, box, camera, diffuse_material, empty_scene, plane
+from material_scenes import region_means
 
 load_addon()
 
@@ -22,11 +23,6 @@ needs_volumes = pytest.mark.skipif(not (core_available() and hasattr(load_addon(
 def factory_scene_afterwards():
     yield
     bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
-
-
-def region_means(img, grid=8):
-    h, w = img.shape[:2]
-    return img[: h // grid * grid, : w // grid * grid].reshape(grid, h // grid, grid, w // grid, -1).mean(axis=(1, 3))
 
 
 def volume_cube(kind, **inputs):

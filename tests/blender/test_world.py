@@ -11,6 +11,7 @@ import pytest
 from blender_util import core_has, load_addon, open_fixture, render_to_array, Warnings, BOX_FILTER
 from light_scenes import (camera, diffuse_material, diffuse_set, empty_scene, load_image, plane,
                           synthetic_hdr, uv_sphere, world_color, world_image, write_hdr)
+from material_scenes import region_means
 
 load_addon()
 from addon.export import export_scene, mean_radiance  # noqa: E402
@@ -27,11 +28,6 @@ def marked_image(width=64, height=32, seed=1):
     """Blocks of 8 x 8 texels with distinct random colours (row 0 = bottom)."""
     blocks = np.random.default_rng(seed).uniform(0.05, 1.0, (height // 8, width // 8, 3))
     return np.repeat(np.repeat(blocks, 8, axis=0), 8, axis=1).astype(np.float32)
-
-
-def region_means(img, grid=8):
-    h, w = img.shape[:2]
-    return img[..., :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -765,9 +765,10 @@ def test_sphere_light_samples_follow_their_pdf(case):
     assert big.sum() >= 16  # the test sees the distribution's shape, not one bin
 
 
-def sphere_irradiance(p, c, r, intensity, m=48):
-    """Irradiance of the plane z = 0 (normal +Z) at points p (..., 3) from a sphere of radiance
-    I / (pi r^2): its cone (uniform in 1 - cos) cut by the horizon, by an m x m midpoint rule."""
+def sphere_cone_integral(p, c, r, integrand=lambda z: np.maximum(z, 0), m=48):
+    """At points p (..., 3), the integral of integrand(z) (z: the direction's Z) over the cone of
+    a sphere (centre c, radius r), uniform in 1 - cos, by an m x m midpoint rule. The default is
+    the cosine to +Z cut by the horizon: the plane z = 0's irradiance from unit radiance."""
     pts = p.reshape(-1, 3)
     out = np.empty(len(pts))
     g = (np.arange(m) + 0.5) / m
@@ -785,8 +786,21 @@ def sphere_irradiance(p, c, r, intensity, m=48):
         cos_d, sin_d = 1 - omc_d, np.sqrt(omc_d * (2 - omc_d))
         phi = gp * 2 * np.pi
         z = (a[:, 2:3] * cos_d + t[:, 2:3] * sin_d * np.cos(phi) + b[:, 2:3] * sin_d * np.sin(phi))
-        out[k0:k0 + 256] = np.maximum(z, 0).mean(axis=1) * 2 * np.pi * omc
-    return (out * intensity / (np.pi * r * r)).reshape(p.shape[:-1])
+        out[k0:k0 + 256] = integrand(z).mean(axis=1) * 2 * np.pi * omc
+    return out.reshape(p.shape[:-1])
+
+
+def sphere_irradiance(p, c, r, intensity, m=48):
+    """Irradiance of the plane z = 0 (normal +Z) at points p (..., 3) from a sphere of radiance
+    I / (pi r^2): its cone cut by the horizon."""
+    return sphere_cone_integral(p, c, r, m=m) * intensity / (np.pi * r * r)
+
+
+def grey_region_means(img, exp):
+    """8 x 8 region means of a render's red channel and of the expected grey image exp (H, W)."""
+    got = region_means(img[..., :3], 8)[..., 0]
+    want = region_means(np.repeat(exp[..., None], 3, -1), 8)[..., 0]
+    return got, want
 
 
 def test_sphere_light_near_a_plane_matches_its_form_factor():
@@ -804,8 +818,7 @@ def test_sphere_light_near_a_plane_matches_its_form_factor():
     d2 = (d**2).sum(-1)
     soft = (ALBEDO / np.pi * inten * np.maximum(d[..., 2], 0) / np.sqrt(d2) / (d2 + r * r)).mean(axis=2)
     assert (soft / exp).min() < 0.7
-    got = region_means(img[..., :3], 8)[..., 0]
-    want = region_means(np.repeat(exp[..., None], 3, -1), 8)[..., 0]
+    got, want = grey_region_means(img, exp)
     np.testing.assert_allclose(got, want, rtol=0.01)
 
 
@@ -819,29 +832,13 @@ def test_sphere_spot_light_cone_near_a_plane():
                      soft_falloff=False)
     img, _ = render(pc, s, W, W, samples=256)
     cos_h = np.cos(size / 2)
-    pts = plane_points(sub=2).reshape(-1, 3)
-    m = 48
-    g = (np.arange(m) + 0.5) / m
-    gx, gp = (x.ravel() for x in np.meshgrid(g, g, indexing="ij"))
-    e = np.empty(len(pts))
-    for k0 in range(0, len(pts), 256):
-        q = pts[k0:k0 + 256]
-        to_c = c - q
-        dd = np.linalg.norm(to_c, axis=1)
-        omc = 1.0 - np.sqrt(1.0 - (r / dd) ** 2)
-        a = to_c / dd[:, None]
-        t = np.cross(a, [1.0, 0.0, 0.0])
-        t /= np.linalg.norm(t, axis=1)[:, None]
-        b = np.cross(a, t)
-        omc_d = gx[None] * omc[:, None]
-        cos_d, sin_d = 1 - omc_d, np.sqrt(omc_d * (2 - omc_d))
-        phi = gp * 2 * np.pi
-        z = a[:, 2:3] * cos_d + t[:, 2:3] * sin_d * np.cos(phi) + b[:, 2:3] * sin_d * np.sin(phi)
+
+    def cone_cosine_and_blend(z):
         x = np.clip((z - cos_h) / ((1 - cos_h) * blend), 0, 1)  # -dir's cosine to -Z is z
-        e[k0:k0 + 256] = (np.maximum(z, 0) * x * x * (3 - 2 * x)).mean(axis=1) * 2 * np.pi * omc
+        return np.maximum(z, 0) * x * x * (3 - 2 * x)
+    e = sphere_cone_integral(plane_points(sub=2), c, r, cone_cosine_and_blend)
     exp = (ALBEDO / np.pi * e * inten / (np.pi * r * r)).reshape(W, W, -1).mean(axis=2)
-    got = region_means(img[..., :3], 8)[..., 0]
-    want = region_means(np.repeat(exp[..., None], 3, -1), 8)[..., 0]
+    got, want = grey_region_means(img, exp)
     lit = want > 0.05 * want.max()
     assert lit.sum() > 8 and (~lit).sum() > 0  # the cone's edge is in view
     np.testing.assert_allclose(got[lit], want[lit], rtol=0.015)
@@ -886,8 +883,7 @@ def test_area_light_spread_matches_numerical_integration(ellipse):
     exp = np.stack([rad(pts[i : i + 2]) for i in range(0, W, 2)]).reshape(W, W, -1).mean(-1)
     # The pool of light has an edge: without the spread, it would fill the view.
     assert exp.min() < 0.02 * exp.max()
-    got = region_means(img[..., :3], 8)[..., 0]
-    want = region_means(np.repeat(exp[..., None], 3, -1), 8)[..., 0]
+    got, want = grey_region_means(img, exp)
     lit = want > 0.1 * want.max()
     np.testing.assert_allclose(got[lit], want[lit], rtol=0.02)
     assert np.abs(got - want).max() < 0.01 * want.max()

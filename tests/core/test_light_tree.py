@@ -91,32 +91,37 @@ def test_choice_probabilities_sum_to_one_and_match_the_choice(extra):
         np.testing.assert_allclose(pmfs[:, inf[1]].sum() / len(p), base[0, inf[1]], rtol=1e-5)
 
 
+def assert_choices_follow_probabilities(s, q, nq, rng, N=40000):
+    """Chi-square of N choices' entry counts at receiver q (normal nq) against the probabilities
+    all_pmfs recomputes there; returns the choices (entries, their pmfs) and those probabilities."""
+    pp, nn = np.tile(np.float32(q), (N, 1)), np.tile(np.float32(nq), (N, 1))
+    _, _, pmfs = s.light_choices(pp[:1], nn[:1], np.zeros(1, np.float32), all_pmfs=True)
+    expected = pmfs[0].astype(np.float64) * N
+    k, pmf, _ = s.light_choices(pp, nn, rng.random(N).astype(np.float32))
+    counts = np.bincount(k, minlength=len(expected)).astype(np.float64)
+    assert counts[expected == 0].sum() == 0  # never picks what has no probability
+    big = expected >= 5
+    # Pool the rare entries into one bin (chi-square needs expected counts >= 5).
+    obs = np.append(counts[big], counts[~big & (expected > 0)].sum())
+    exp = np.append(expected[big], expected[~big & (expected > 0)].sum())
+    keep = exp > 0
+    chi2 = ((obs[keep] - exp[keep]) ** 2 / exp[keep]).sum()
+    dof = keep.sum() - 1
+    # Far above the 99.9th percentile (about dof + 4.4 sqrt(dof)) only if they disagree.
+    assert chi2 < dof + 5.0 * np.sqrt(2.0 * dof) + 10.0, (q, chi2, dof)
+    return k, pmf, pmfs[0]
+
+
 @pytest.mark.parametrize("with_normal", [False, True])
 def test_choice_frequencies_follow_the_probabilities(with_normal):
     """Chi-square of the chosen entries' counts at a few points against their probabilities."""
     s = lamp_room("on", sun=True, env=True)
     s.commit()
     rng = np.random.default_rng(5)
-    N = 40000
     for q in [(1.0, 1.0, 0.05), (4.0, 3.0, 2.0), (7.5, 5.5, 2.9)]:
         n = rng.normal(size=3) if with_normal else np.zeros(3)
         n = n / (np.linalg.norm(n) or 1.0)
-        p = np.tile(np.float32(q), (N, 1))
-        nn = np.tile(np.float32(n), (N, 1))
-        k, _, pmfs = s.light_choices(p[:1], nn[:1], np.zeros(1, np.float32), all_pmfs=True)
-        expected = pmfs[0].astype(np.float64) * N
-        k, _, _ = s.light_choices(p, nn, rng.random(N).astype(np.float32))
-        counts = np.bincount(k, minlength=len(expected)).astype(np.float64)
-        assert counts[expected == 0].sum() == 0  # never picks what has no probability
-        big = expected >= 5
-        # Pool the rare entries into one bin (chi-square needs expected counts >= 5).
-        obs = np.append(counts[big], counts[~big & (expected > 0)].sum())
-        exp = np.append(expected[big], expected[~big & (expected > 0)].sum())
-        keep = exp > 0
-        chi2 = ((obs[keep] - exp[keep]) ** 2 / exp[keep]).sum()
-        dof = keep.sum() - 1
-        # Far above the 99.9th percentile (about dof + 4.4 sqrt(dof)) only if they disagree.
-        assert chi2 < dof + 5.0 * np.sqrt(2.0 * dof) + 10.0, (q, chi2, dof)
+        assert_choices_follow_probabilities(s, q, n, rng)
 
 
 def test_light_samples_have_the_mis_pdf():
@@ -257,24 +262,11 @@ def test_choice_frequencies_on_surfaces(lamps):
     s.commit()
     assert s.light_tree_active
     rng = np.random.default_rng(11)
-    N = 40000
     p, n = surface_points(4, 12)
     for q, nq in zip(p, n):
-        pp, nn = np.tile(q, (N, 1)), np.tile(nq, (N, 1))
-        _, _, pmfs = s.light_choices(pp[:1], nn[:1], np.zeros(1, np.float32), all_pmfs=True)
-        expected = pmfs[0].astype(np.float64) * N
-        k, pmf, _ = s.light_choices(pp, nn, rng.random(N).astype(np.float32))
+        k, pmf, probabilities = assert_choices_follow_probabilities(s, q, nq, rng)
         assert (k >= 0).all()
-        assert np.array_equal(pmf, pmfs[0][k])  # the choice's probability is the recomputed one
-        counts = np.bincount(k, minlength=len(expected)).astype(np.float64)
-        assert counts[expected == 0].sum() == 0
-        big = expected >= 5
-        obs = np.append(counts[big], counts[~big & (expected > 0)].sum())
-        exp = np.append(expected[big], expected[~big & (expected > 0)].sum())
-        keep = exp > 0
-        chi2 = ((obs[keep] - exp[keep]) ** 2 / exp[keep]).sum()
-        dof = keep.sum() - 1
-        assert chi2 < dof + 5.0 * np.sqrt(2.0 * dof) + 10.0, (q, chi2, dof)
+        assert np.array_equal(pmf, probabilities[k])  # the choice's probability is the recomputed one
 
 
 def test_tree_choice_follows_the_lamps_irradiance():

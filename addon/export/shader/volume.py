@@ -52,14 +52,18 @@ class VolumeShaders:
             return self.volume_program(socket, name)
         ss = acc["sigma_s"]
         if len(acc["g"]) > 1:
-            self.problem(f"volume of '{name}': scatterings of different anisotropies are combined "
-                         "into one (their scattering-weighted mean)")
+            self._mixed_anisotropies(name)
         g = float(acc["gs"].sum() / ss.sum()) if ss.sum() > 0.0 else 0.0
         vol = {k: tuple(float(x) for x in acc[k]) for k in ("sigma_a", "sigma_s", "emission")}
         vol["g"] = g
         if not any(any(v) for v in (vol["sigma_a"], vol["sigma_s"], vol["emission"])):
             return None
         return vol
+
+    def _mixed_anisotropies(self, name):
+        """The core's medium has one g: several scatterings' are averaged, with a warning."""
+        self.problem(f"volume of '{name}': scatterings of different anisotropies are combined "
+                     "into one (their scattering-weighted mean)")
 
     def _const_or_raise(self, node, name, ctx, kind):
         """A constant input's value (colour: rgb, float: the value); _Varying where it is linked
@@ -95,8 +99,7 @@ class VolumeShaders:
                     den = self.math("ADD", den, self.as_float(ss))
                 g = self.math("DIVIDE", num, den)
                 if not all(gi.is_const and gi.const[0] == scatter[0][1].const[0] for _, gi in scatter):
-                    self.problem(f"volume of '{name}': scatterings of different anisotropies are combined "
-                                 "into one (their scattering-weighted mean)")
+                    self._mixed_anisotropies(name)
             outs = {k: acc[k] for k in ("sigma_a", "sigma_s", "emission") if acc[k] is not None}
             outs["g"] = g
             if all(v.is_const for v in outs.values()):  # homogeneous after all
@@ -115,6 +118,33 @@ class VolumeShaders:
         finally:
             self.ops, self.const_regs, self.cache = saved
 
+    def _volume_walk(self, node, ctx, acc, visiting, add_node, is_zero):
+        """The guard against node cycles and the shader-input walk of both paths (constant and
+        program): returns sub(socket, weight), which adds the shader linked into socket
+        (weighted; skipped where is_zero(weight)) through add_node."""
+        key = (node.as_pointer(), self.ctx_key(ctx))
+        if key in visiting:
+            raise _Cycle(node.name)
+        visiting = visiting | {key}
+
+        def sub(socket, weight):
+            src = self.source(socket, ctx)
+            if src is None or src[0] == "default" or is_zero(weight):
+                return
+            _, n, out, nctx = src
+            if out.type != 'SHADER':
+                self.problem(f"a value linked into the volume shader input of '{node.name}' (ignored)")
+                return
+            add_node(n, nctx, weight, acc, visiting)
+        return sub
+
+    def _henyey_greenstein_only(self, node):
+        """Volume Scatter's other phase functions render as Henyey-Greenstein, with a warning."""
+        phase = getattr(node, "phase", 'HENYEY_GREENSTEIN')
+        if phase != 'HENYEY_GREENSTEIN':
+            self.problem(f"'{node.name}': the {phase} phase function is not supported "
+                         "(Henyey-Greenstein)")
+
     def _acc_add(self, acc, key, v):
         acc[key] = v if acc[key] is None else self.mix("ADD", ONE, acc[key], v)
 
@@ -124,24 +154,12 @@ class VolumeShaders:
 
     def _volume_prog_node(self, node, ctx, w, acc, visiting):
         """Adds what volume shader `node` (weight w, a float Val) puts into the medium, as ops."""
-        key = (node.as_pointer(), self.ctx_key(ctx))
-        if key in visiting:
-            raise _Cycle(node.name)
-        visiting = visiting | {key}
+        sub = self._volume_walk(node, ctx, acc, visiting, self._volume_prog_node,
+                                lambda weight: weight.is_const and weight.const[0] == 0.0)
 
         def inp(name, kind):
             v = self.input(node, name, ctx, kind)
             return v if v is not None else (ZERO if kind == "float" else const_color((0, 0, 0, 1)))
-
-        def sub(socket, weight):
-            src = self.source(socket, ctx)
-            if src is None or src[0] == "default" or (weight.is_const and weight.const[0] == 0.0):
-                return
-            _, n, out, nctx = src
-            if out.type != 'SHADER':
-                self.problem(f"a value linked into the volume shader input of '{node.name}' (ignored)")
-                return
-            self._volume_prog_node(n, nctx, weight, acc, visiting)
 
         def density():  # Cycles: mix weight * max(density, 0) * object_volume_density
             d = self.math("MULTIPLY", self.math("MAXIMUM", inp("Density", "float"), ZERO), w)
@@ -163,10 +181,7 @@ class VolumeShaders:
         elif t == 'VOLUME_ABSORPTION':
             self._acc_add(acc, "sigma_a", self._times(one_minus(inp("Color", "color")), density()))
         elif t == 'VOLUME_SCATTER':
-            phase = getattr(node, "phase", 'HENYEY_GREENSTEIN')
-            if phase != 'HENYEY_GREENSTEIN':
-                self.problem(f"'{node.name}': the {phase} phase function is not supported "
-                             "(Henyey-Greenstein)")
+            self._henyey_greenstein_only(node)
             ss = self._times(inp("Color", "color"), density())
             self._acc_add(acc, "sigma_s", ss)
             acc["scatter"].append((ss, inp("Anisotropy", "float") if "Anisotropy" in node.inputs else ZERO))
@@ -232,23 +247,10 @@ class VolumeShaders:
 
     def _volume_node(self, node, ctx, w, acc, visiting):
         """Adds what volume shader `node` (weight w, a constant) puts into the medium."""
-        key = (node.as_pointer(), self.ctx_key(ctx))
-        if key in visiting:
-            raise _Cycle(node.name)
-        visiting = visiting | {key}
+        sub = self._volume_walk(node, ctx, acc, visiting, self._volume_node, lambda weight: weight == 0.0)
 
         def const(name, kind):
             return self._const_or_raise(node, name, ctx, kind)
-
-        def sub(socket, weight):
-            src = self.source(socket, ctx)
-            if src is None or src[0] == "default" or weight == 0.0:
-                return
-            _, n, out, nctx = src
-            if out.type != 'SHADER':
-                self.problem(f"a value linked into the volume shader input of '{node.name}' (ignored)")
-                return
-            self._volume_node(n, nctx, weight, acc, visiting)
 
         t = node.type
         if t == 'ADD_SHADER':
@@ -263,10 +265,7 @@ class VolumeShaders:
             d = self._clean(node, "Density", [const("Density", "float")])[0]
             acc["sigma_a"] += w * (1.0 - c) * d
         elif t == 'VOLUME_SCATTER':
-            phase = getattr(node, "phase", 'HENYEY_GREENSTEIN')
-            if phase != 'HENYEY_GREENSTEIN':
-                self.problem(f"'{node.name}': the {phase} phase function is not supported "
-                             "(Henyey-Greenstein)")
+            self._henyey_greenstein_only(node)
             c = self._clean(node, "Color", const("Color", "color"))
             d = self._clean(node, "Density", [const("Density", "float")])[0]
             g = float(const("Anisotropy", "float")) if "Anisotropy" in node.inputs else 0.0
