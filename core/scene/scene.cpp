@@ -86,7 +86,19 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
     ctx.uv_sets = 0;
     eval_shader(m.program, images, ctx, m.cached);
   }
-  m.closures_only = !m.constant && !m.program.reads_point && !m.program.sets_normal;
+  // The registers at the program's end are each closure op's inputs only where no value op
+  // overwrites a register after a closure op read it (the add-on's allocator reuses them).
+  bool stable = true;
+  bool read[kMaxRegs] = {};
+  for (const ShaderOp& op : m.program.ops) {
+    if (is_closure_op(op.code)) {
+      for (int16_t i : op.in)
+        if (i >= 0 && i < kMaxRegs) read[i] = true;
+    } else if (op.code != OpCode::VolumeOut && op.dst >= 0 && op.dst < kMaxRegs && read[op.dst]) {
+      stable = false;
+    }
+  }
+  m.closures_only = !m.constant && !m.program.reads_point && !m.program.sets_normal && stable;
   m.closure_regs.clear();
   m.closure_ops.clear();
   m.principled.clear();

@@ -67,6 +67,34 @@ def test_registers_made_once_render_as_the_whole_program(inputs):
     np.testing.assert_array_equal(images[False], images[True])
 
 
+def test_a_register_reused_after_a_closure_read_it_keeps_the_whole_program():
+    """The add-on's allocator reuses registers: a Transparent closure reads r3 (0.6), a later
+    Const writes r3 (0.4) for the Principled. The registers at the program's end are not the
+    Transparent's inputs, so the program runs per hit; it renders as the same closures with
+    registers of their own (which do run from the registers made once)."""
+    def prog(reuse):
+        w2 = 3 if reuse else 4
+        return [("const", 3, (0.6,)), ("closure", "transparent", 3, {"color": 5}),
+                ("const", w2, (0.4,)), ("const", 6, (0.2, 0.6, 0.3)), ("const", 7, (1.0,)),
+                ("closure", "principled", w2, {"base_color": 6, "multiscatter": 7})]
+    images = {}
+    for reuse in (True, False):
+        s = pc.Scene()
+        m = s.add_shader("ghost", [("const", 5, (1.0, 1.0, 1.0))] + prog(reuse))
+        floor = s.add_material("floor", base_color=(0.5, 0.5, 0.5))
+        pos, tris, nrm = uv_sphere(1.0, nu=32, nv=16)
+        add_object(s, pos, tris, m, nrm)
+        p, t = quad((-4, -4, -1), (8, 0, 0), (0, 8, 0))
+        add_object(s, p, t, floor)
+        s.set_world_color((0.6, 0.7, 0.8))
+        s.add_point_light((2.0, -3.0, 3.0), (40.0, 40.0, 40.0))
+        s.set_camera(camera(pc, (0, -5, 1), (0, 0, 0), lens=50.0))
+        s.commit()
+        assert s.shader_evaluation(m) == ("program" if reuse else "closures")
+        images[reuse], _ = render(pc, s, 24, 24, samples=8, max_bounces=8, seed=3)
+    np.testing.assert_array_equal(images[True], images[False])
+
+
 def test_plain_diffuse_stays_constant_and_unknown_ids_raise():
     s = pc.Scene()
     m = s.add_material("grey", base_color=(0.5, 0.5, 0.5))
