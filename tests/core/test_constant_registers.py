@@ -34,9 +34,10 @@ def program(reads_point, **inputs):
     return prog
 
 
-def scene(reads_point, inputs):
+def scene(prog):
+    """A sphere of shader program `prog` on a grey floor, under a sky colour and a point light."""
     s = pc.Scene()
-    m = s.add_shader("m", program(reads_point, **inputs))
+    m = s.add_shader("m", prog)
     floor = s.add_material("floor", base_color=(0.5, 0.5, 0.5))
     pos, tris, nrm = uv_sphere(1.0, nu=32, nv=16)
     add_object(s, pos, tris, m, nrm)
@@ -57,7 +58,7 @@ def scene(reads_point, inputs):
 def test_registers_made_once_render_as_the_whole_program(inputs):
     images = {}
     for reads_point in (False, True):
-        s, m = scene(reads_point, inputs)
+        s, m = scene(program(reads_point, **inputs))
         s.commit()
         assert s.shader_evaluation(m) == ("program" if reads_point else "closures")
         img, stats = render(pc, s, 24, 24, samples=8, max_bounces=8, seed=3)
@@ -79,16 +80,7 @@ def test_a_register_reused_after_a_closure_read_it_keeps_the_whole_program():
                 ("closure", "principled", w2, {"base_color": 6, "multiscatter": 7})]
     images = {}
     for reuse in (True, False):
-        s = pc.Scene()
-        m = s.add_shader("ghost", [("const", 5, (1.0, 1.0, 1.0))] + prog(reuse))
-        floor = s.add_material("floor", base_color=(0.5, 0.5, 0.5))
-        pos, tris, nrm = uv_sphere(1.0, nu=32, nv=16)
-        add_object(s, pos, tris, m, nrm)
-        p, t = quad((-4, -4, -1), (8, 0, 0), (0, 8, 0))
-        add_object(s, p, t, floor)
-        s.set_world_color((0.6, 0.7, 0.8))
-        s.add_point_light((2.0, -3.0, 3.0), (40.0, 40.0, 40.0))
-        s.set_camera(camera(pc, (0, -5, 1), (0, 0, 0), lens=50.0))
+        s, m = scene([("const", 5, (1.0, 1.0, 1.0))] + prog(reuse))
         s.commit()
         assert s.shader_evaluation(m) == ("program" if reuse else "closures")
         images[reuse], _ = render(pc, s, 24, 24, samples=8, max_bounces=8, seed=3)
