@@ -179,6 +179,36 @@ inline float area_light_region_area(const Light& l, AreaRegion mode, Vec3 au, Ve
   return length(cross(au, av)) * (mode == AreaRegion::Disk ? kPi / 4.0f : 1.0f);
 }
 
+// What light samples from p cover on area light l (one-sided: nothing from behind): the region
+// of area_light_region and, for a true rectangle seen under a large enough solid angle, the
+// spherical rectangle sampled uniformly. Sampling and the hit pdf share it, so they agree.
+struct AreaLightView {
+  Vec3 c, au, av;
+  AreaRegion mode;
+  bool spherical = false;  // sr holds the sampled spherical rectangle
+  SphericalRect sr;
+};
+inline bool area_light_view(const Light& l, Vec3 p, bool solid_angle, AreaLightView& v) {
+  if (!(dot(p - l.position, l.dir) > 0.0f)) return false;
+  if (!area_light_region(l, p, v.c, v.au, v.av, v.mode)) return false;
+  // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
+  if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
+    v.sr = spherical_rect(p, v.c - (v.au + v.av) * 0.5f, v.au, v.av);
+    v.spherical = use_spherical_rect(v.sr.solid_angle);
+  }
+  return true;
+}
+
+// Scales le by an area light's spread attenuation towards wi (cos_l: the cosine at the light);
+// false where the spread gives nothing.
+inline bool apply_spread(const Light& l, Vec3 wi, float cos_l, Vec3& le) {
+  if (!has_spread(l)) return true;
+  const float att = spread_attenuation(l, wi, cos_l);
+  if (!(att > 0.0f)) return false;
+  le = le * att;
+  return true;
+}
+
 // Whether point q of area light l's plane lies on the light (its rectangle or ellipse).
 inline bool on_area_light(const Light& l, Vec3 q) {
   const Vec3 r = q - l.position;
@@ -352,44 +382,34 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
     }
     case LightType::Rect:
     case LightType::Ellipse: {
-      if (!(dot(p - l.position, l.dir) > 0.0f)) return false;  // behind: one-sided
-      Vec3 c, au, av;
-      AreaRegion mode;
-      if (!area_light_region(l, p, c, au, av, mode)) return false;
-      // Needs a true rectangle: a sheared matrix makes a parallelogram (area sampling then).
-      if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
-        const SphericalRect sr = spherical_rect(p, c - (au + av) * 0.5f, au, av);
-        if (use_spherical_rect(sr.solid_angle)) {
-          DVec3 q;
-          if (!sample_spherical_rect(sr, u, q)) return false;
-          DVec3 d = q - DVec3(p);
-          const double dist = dlength(d);
-          if (!dnormalize(d)) return false;
-          s.wi = d.to_float();
-          const float cos_l = -dot(l.dir, s.wi);
-          if (!(cos_l > 0.0f)) return false;
-          s.li = l.color;
-          if (has_spread(l)) {
-            const float att = spread_attenuation(l, s.wi, cos_l);
-            if (!(att > 0.0f)) return false;
-            s.li = s.li * att;
-          }
-          s.dist = float(dist);
-          s.target = q.to_float();
-          s.pdf = float(1.0 / sr.solid_angle);
-          s.delta = false;
-          return true;
-        }
+      AreaLightView v;
+      if (!area_light_view(l, p, solid_angle, v)) return false;
+      if (v.spherical) {
+        DVec3 q;
+        if (!sample_spherical_rect(v.sr, u, q)) return false;
+        DVec3 d = q - DVec3(p);
+        const double dist = dlength(d);
+        if (!dnormalize(d)) return false;
+        s.wi = d.to_float();
+        const float cos_l = -dot(l.dir, s.wi);
+        if (!(cos_l > 0.0f)) return false;
+        s.li = l.color;
+        if (!apply_spread(l, s.wi, cos_l, s.li)) return false;
+        s.dist = float(dist);
+        s.target = q.to_float();
+        s.pdf = float(1.0 / v.sr.solid_angle);
+        s.delta = false;
+        return true;
       }
       // By area over the region (area_light_region), the samples off the light giving none.
       Vec2 o{u.x - 0.5f, u.y - 0.5f};
-      const float area = area_light_region_area(l, mode, au, av);
-      if (mode == AreaRegion::Disk || (mode == AreaRegion::Whole && l.type == LightType::Ellipse)) {
+      const float area = area_light_region_area(l, v.mode, v.au, v.av);
+      if (v.mode == AreaRegion::Disk || (v.mode == AreaRegion::Whole && l.type == LightType::Ellipse)) {
         const Vec2 dsk = sample_disk_concentric(u);
         o = {0.5f * dsk.x, 0.5f * dsk.y};
       }
-      const Vec3 q = c + au * o.x + av * o.y;
-      if (mode != AreaRegion::Whole && !on_area_light(l, q)) return false;
+      const Vec3 q = v.c + v.au * o.x + v.av * o.y;
+      if (v.mode != AreaRegion::Whole && !on_area_light(l, q)) return false;
       const Vec3 d = q - p;
       const float dist2 = length_sq(d);
       if (!(dist2 > 0.0f) || !(area > 0.0f)) return false;
@@ -398,11 +418,7 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
       const float cos_l = -dot(l.dir, s.wi);  // one-sided: emits along dir
       if (!(cos_l > 0.0f)) return false;
       s.li = l.color;
-      if (has_spread(l)) {
-        const float att = spread_attenuation(l, s.wi, cos_l);
-        if (!(att > 0.0f)) return false;
-        s.li = s.li * att;
-      }
+      if (!apply_spread(l, s.wi, cos_l, s.li)) return false;
       s.dist = dist;
       s.target = q;
       s.pdf = dist2 / (cos_l * area);
@@ -492,24 +508,15 @@ inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float
       if (!on_area_light(l, q)) return false;
       t = th;
       le = l.color;
-      if (has_spread(l)) {
-        const float att = spread_attenuation(l, dir, -dn);
-        if (!(att > 0.0f)) return false;
-        le = le * att;
-      }
+      if (!apply_spread(l, dir, -dn, le)) return false;
       // The pdf of the sample from `from`: over the same (clipped) region as sample_light.
-      if (!(dot(from - l.position, l.dir) > 0.0f)) return false;
-      Vec3 c, au, av;
-      AreaRegion mode;
-      if (!area_light_region(l, from, c, au, av, mode)) return false;
-      if (l.type == LightType::Rect && solid_angle && area_light_rectangular(l)) {
-        const SphericalRect sr = spherical_rect(from, c - (au + av) * 0.5f, au, av);
-        if (use_spherical_rect(sr.solid_angle)) {
-          pdf = float(1.0 / sr.solid_angle);
-          return std::isfinite(pdf) && pdf > 0.0f;
-        }
+      AreaLightView v;
+      if (!area_light_view(l, from, solid_angle, v)) return false;
+      if (v.spherical) {
+        pdf = float(1.0 / v.sr.solid_angle);
+        return std::isfinite(pdf) && pdf > 0.0f;
       }
-      pdf = length_sq(q - from) / (-dn * area_light_region_area(l, mode, au, av));
+      pdf = length_sq(q - from) / (-dn * area_light_region_area(l, v.mode, v.au, v.av));
       return std::isfinite(pdf) && pdf > 0.0f;
     }
   }
