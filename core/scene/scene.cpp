@@ -2,6 +2,7 @@
 // (scene_build.cpp, scene_lights.cpp, scene_features.cpp).
 #include "scene/scene.h"
 
+#include <algorithm>
 #include <cstring>
 #include <stdexcept>
 #include <utility>
@@ -35,6 +36,38 @@ Scene::Scene() {
 }
 
 namespace {
+// Gives a value op that would overwrite a register some closure op has already read a fresh
+// register (its later readers follow), so that every register a closure op reads keeps that
+// value to the program's end. False where the kMaxRegs registers run out.
+bool rename_closure_inputs(std::vector<ShaderOp>& ops) {
+  int16_t cur[kMaxRegs];
+  bool read[kMaxRegs] = {};
+  int next = 0;
+  for (int i = 0; i < kMaxRegs; ++i) cur[i] = int16_t(i);
+  const auto valid = [](int16_t r) { return r >= 0 && r < kMaxRegs; };
+  for (const ShaderOp& op : ops) {
+    for (int16_t r : op.in)
+      if (valid(r)) next = std::max(next, r + 1);
+    if (valid(op.dst)) next = std::max(next, op.dst + 1);
+  }
+  for (ShaderOp& op : ops) {
+    for (int16_t& r : op.in)
+      if (valid(r)) r = cur[r];
+    if (is_closure_op(op.code)) {
+      for (int16_t r : op.in)
+        if (valid(r)) read[r] = true;
+      continue;
+    }
+    if (op.code == OpCode::VolumeOut || !valid(op.dst)) continue;
+    if (read[cur[op.dst]]) {
+      if (next >= kMaxRegs) return false;
+      cur[op.dst] = int16_t(next++);
+    }
+    op.dst = cur[op.dst];
+  }
+  return true;
+}
+
 // Derived fields of a material: emission estimate, transparency, cached constant closures.
 void prepare_material(Material& m, const std::vector<Image>& images) {
   // The emission at a neutral shading point, to weigh this material's triangles as lights.
@@ -86,31 +119,25 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
     ctx.uv_sets = 0;
     eval_shader(m.program, images, ctx, m.cached);
   }
-  // The registers at the program's end are each closure op's inputs only where no value op
-  // overwrites a register after a closure op read it (the add-on's allocator reuses them).
-  bool stable = true;
-  bool read[kMaxRegs] = {};
-  for (const ShaderOp& op : m.program.ops) {
-    if (is_closure_op(op.code)) {
-      for (int16_t i : op.in)
-        if (i >= 0 && i < kMaxRegs) read[i] = true;
-    } else if (op.code != OpCode::VolumeOut && op.dst >= 0 && op.dst < kMaxRegs && read[op.dst]) {
-      stable = false;
-    }
-  }
-  m.closures_only = !m.constant && !m.program.reads_point && !m.program.sets_normal && stable;
+  m.closures_only = !m.constant && !m.program.reads_point && !m.program.sets_normal;
   m.closure_regs.clear();
   m.closure_ops.clear();
   m.principled.clear();
-  if (m.closures_only) {
-    ctx.uv = nullptr;
-    ctx.uv_sets = 0;
-    m.closure_regs.resize(kMaxRegs);
-    eval_shader(m.program, images, ctx, cl, m.closure_regs.data());
-    for (const ShaderOp& op : m.program.ops)
-      if (is_closure_op(op.code)) m.closure_ops.push_back(op);
-    m.principled = principled_inputs_of(m.closure_ops.data(), m.closure_ops.size(), m.closure_regs.data());
+  if (!m.closures_only) return;
+  // The add-on's allocator reuses registers a closure op has read: renamed apart, every closure
+  // op finds its inputs in the registers as they are at the program's end.
+  ShaderProgram renamed = m.program;
+  if (!rename_closure_inputs(renamed.ops)) {
+    m.closures_only = false;
+    return;
   }
+  ctx.uv = nullptr;
+  ctx.uv_sets = 0;
+  m.closure_regs.resize(kMaxRegs);
+  eval_shader(renamed, images, ctx, cl, m.closure_regs.data());
+  for (const ShaderOp& op : renamed.ops)
+    if (is_closure_op(op.code)) m.closure_ops.push_back(op);
+  m.principled = principled_inputs_of(m.closure_ops.data(), m.closure_ops.size(), m.closure_regs.data());
 }
 }  // namespace
 

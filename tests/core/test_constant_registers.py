@@ -68,23 +68,36 @@ def test_registers_made_once_render_as_the_whole_program(inputs):
     np.testing.assert_array_equal(images[False], images[True])
 
 
-def test_a_register_reused_after_a_closure_read_it_keeps_the_whole_program():
-    """The add-on's allocator reuses registers: a Transparent closure reads r3 (0.6), a later
-    Const writes r3 (0.4) for the Principled. The registers at the program's end are not the
-    Transparent's inputs, so the program runs per hit; it renders as the same closures with
-    registers of their own (which do run from the registers made once)."""
-    def prog(reuse):
-        w2 = 3 if reuse else 4
-        return [("const", 3, (0.6,)), ("closure", "transparent", 3, {"color": 5}),
-                ("const", w2, (0.4,)), ("const", 6, (0.2, 0.6, 0.3)), ("const", 7, (1.0,)),
-                ("closure", "principled", w2, {"base_color": 6, "multiscatter": 7})]
+def reused_program(reuse, last_reg=None, reads_point=False):
+    """The add-on's allocator reuses registers: a Transparent closure reads r3 (0.6), then a
+    Const writes r3 (0.4) for the Principled (with reuse; else r4). last_reg: a constant in that
+    register too (63: no register left to rename into)."""
+    w2 = 3 if reuse else 4
+    prog = [("const", 5, (1.0, 1.0, 1.0)), ("const", 3, (0.6,)), ("closure", "transparent", 3, {"color": 5}),
+            ("const", w2, (0.4,)), ("const", 6, (0.2, 0.6, 0.3)), ("const", 7, (1.0,)),
+            ("closure", "principled", w2, {"base_color": 6, "multiscatter": 7})]
+    if last_reg is not None:
+        prog.insert(0, ("const", last_reg, (0.0,)))
+    if reads_point:
+        prog.append(("position", 60))
+    return prog
+
+
+@pytest.mark.parametrize("last_reg", [None, 63], ids=["renamed", "no register left"])
+def test_a_register_reused_after_a_closure_read_it(last_reg):
+    """Commit renames the later write apart, so each closure keeps its own inputs from commit
+    and the image is the whole program's per hit; where no register is left to rename into, the
+    program runs per hit."""
     images = {}
-    for reuse in (True, False):
-        s, m = scene([("const", 5, (1.0, 1.0, 1.0))] + prog(reuse))
+    for reuse, reads_point in ((True, False), (True, True), (False, False)):
+        s, m = scene(reused_program(reuse, last_reg, reads_point))
         s.commit()
-        assert s.shader_evaluation(m) == ("program" if reuse else "closures")
-        images[reuse], _ = render(pc, s, 24, 24, samples=8, max_bounces=8, seed=3)
-    np.testing.assert_array_equal(images[True], images[False])
+        cached = not reads_point and (last_reg is None or not reuse)
+        assert s.shader_evaluation(m) == ("closures" if cached else "program")
+        images[reuse, reads_point], _ = render(pc, s, 24, 24, samples=8, max_bounces=8, seed=3)
+    assert images[True, False][..., :3].mean() > 0.01
+    np.testing.assert_array_equal(images[True, False], images[True, True])
+    np.testing.assert_array_equal(images[True, False], images[False, False])
 
 
 def test_plain_diffuse_stays_constant_and_unknown_ids_raise():
