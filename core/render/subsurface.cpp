@@ -190,8 +190,8 @@ bool subsurface_disk(const Scene& scene, const SurfacePoint& sp, Vec3 ng_out, bo
 }  // namespace
 
 bool subsurface_walk(const Scene& scene, const SurfacePoint& sp, Vec3 ng_out, Vec3 n, Vec3 wo,
-                     const SubsurfaceBsdf& b, Vec2 u, uint64_t seed, Vec3& beta, Hit& exit, Vec3& exit_dir,
-                     uint64_t& rays) {
+                     const SubsurfaceBsdf& b, Vec2 u, Vec2 u_first, uint64_t seed, Vec3& beta, Hit& exit,
+                     Vec3& exit_dir, uint64_t& rays) {
   if (b.alpha < -1.5f)
     return subsurface_disk(scene, sp, ng_out, dot(sp.ng, ng_out) > 0.0f, b, u, seed, beta, exit, exit_dir, rays);
   Ray ray;
@@ -243,10 +243,10 @@ bool subsurface_walk(const Scene& scene, const SurfacePoint& sp, Vec3 ng_out, Ve
     Vec3 cw = vabs(T * alpha);
     const float sum = cw.x + cw.y + cw.z;
     cw = sum > 0.0f ? cw / sum : Vec3(1.0f / 3.0f);
-    const float uc = rng.next_float();
+    const float uc = step == 0 && u_first.x >= 0.0f ? u_first.x : rng.next_float();
     const int c = uc < cw.x ? 0 : uc < cw.x + cw.y ? 1 : 2;
     float sample_st = st[c];
-    const float ut = rng.next_float();
+    const float ut = step == 0 && u_first.y >= 0.0f ? u_first.y : rng.next_float();
     float back_fraction = 0.0f, fwd_factor = 0.0f, back_factor = 0.0f, fwd_stretch = 1.0f, back_stretch = 1.0f;
     if (step > 0) {  // the first segment goes along the entry direction
       const bool guided = rng.next_float() < guided_fraction;

@@ -22,12 +22,13 @@ void subsurface_coefficients(float albedo, float d, float g, float& sigma_t, flo
 
 // The walk from shading point sp (the viewer towards wo; n: the closure's normal and ng_out
 // the geometric normal, both on the viewer's side) into instance sp.instance. u: the entry's
-// 2D sample; seed: the walk's own random stream (decorrelated from the path's, as Cycles').
+// 2D sample; u_first: the first segment's channel and distance (stratified numbers the path
+// has left over; negative: drawn from the walk's stream); seed: the walk's own random stream (decorrelated from the path's, as Cycles').
 // beta: the path throughput with the closure's weight / pick applied; on success it holds the
 // throughput at the exit, `exit` the hit there and exit_dir the walk's last direction
 // (pointing out of the surface: the exit vertex's wo). False: no exit found (the path ends).
 bool subsurface_walk(const Scene& scene, const SurfacePoint& sp, Vec3 ng_out, Vec3 n, Vec3 wo,
-                     const SubsurfaceBsdf& b, Vec2 u, uint64_t seed, Vec3& beta, Hit& exit, Vec3& exit_dir,
-                     uint64_t& rays);
+                     const SubsurfaceBsdf& b, Vec2 u, Vec2 u_first, uint64_t seed, Vec3& beta, Hit& exit,
+                     Vec3& exit_dir, uint64_t& rays);
 
 }  // namespace pl

@@ -860,7 +860,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     // Closure choice, then reflect-or-refract: neither is read for a lone diffuse closure, so
     // its draw is skipped (every kernel alike: they keep the same sample streams).
     Vec2 u_lobe{0.0f, 0.0f};
-    if (cl.n > 1 || (kNonDiffuse && !std::holds_alternative<DiffuseBsdf>(cl.c[0].bsdf))) u_lobe = sampler.get2d();
+    const bool lobe_drawn = cl.n > 1 || (kNonDiffuse && !std::holds_alternative<DiffuseBsdf>(cl.c[0].bsdf));
+    if (lobe_drawn) u_lobe = sampler.get2d();
     else sampler.skip2d();
     const Vec2 u = sampler.get2d();
     const float uc = u_lobe.x, ul = u_lobe.y;
@@ -876,8 +877,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         Hit exit;
         Vec3 exit_dir;
         const uint64_t seed = mix64(path_key ^ (uint64_t(bounce + 1) * 0x9E3779B97F4A7C15ULL));
-        if (!subsurface_walk(scene, sp, ng_out, front ? ch.frame.n : -ch.frame.n, wo, *ss, u, seed, beta, exit,
-                             exit_dir, c.rays))
+        // The closure choice's number rescaled within this closure's share, and the unused
+        // reflect-or-refract one: stratified numbers for the walk's first segment.
+        const float u_share = std::min((uc - (acc - ch.pick)) / ch.pick, 0x1.fffffep-1f);
+        const Vec2 u_first = lobe_drawn && std::isfinite(u_share) ? Vec2{std::max(u_share, 0.0f), ul} : Vec2{-1.0f, -1.0f};
+        if (!subsurface_walk(scene, sp, ng_out, front ? ch.frame.n : -ch.frame.n, wo, *ss, u, u_first, seed, beta,
+                             exit, exit_dir, c.rays))
           break;
         scene.surface_point(exit, sp, ray.time);
         wo = exit_dir;
