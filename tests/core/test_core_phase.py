@@ -216,3 +216,18 @@ def test_one_medium_mixes_its_phases_per_channel():
             assert float(grey.mean()) > 0.01
             assert abs(float(a.mean() / grey.mean()) - 1.0) < 0.01
             assert rel.max() < 0.03, rel.max()
+
+
+def test_white_furnace_of_overlapping_media_with_phase_lobes():
+    """A volume program of two coloured lobes (Draine, HG; white in sum) overlapping a homogeneous
+    box of two others (Fournier-Forand, Rayleigh; white in sum): a mixed stack whose layers each
+    have several phases. Albedo 1 under a white world: radiance 1 within 1 %."""
+    from test_core_volume_stack import overlap_scene
+    prog = lobe_program([("draine", (0.4, 0.6, 0.8), (0.5, 1.0)), ("hg", (0.6, 0.4, 0.2), (-0.3,))])
+    box_vol = {"sigma_s": (1.0, 1.0, 1.0),
+               "phases": [("ff", (0.3, 0.5, 0.7), (0.3, 1.2)), ("rayleigh", (0.7, 0.5, 0.3), ())]}
+    s = overlap_scene(prog, box_vol, 1.0, (-0.2, -0.6, -0.6), (1.8, 0.6, 0.6), (0.0, -5.0, 0.0), (0.0, 0.0, 0.0))
+    img, stats = render(pc, s, 24, 24, samples=96, max_bounces=1024)
+    assert stats["nonfinite_samples"] == 0
+    assert np.all(np.abs(img[8:16, 8:16, :3].mean(axis=(0, 1)) - 1.0) < 0.01), img[8:16, 8:16, :3].mean(axis=(0, 1))
+    assert abs(float(img[..., :3].mean()) - 1.0) < 0.01
