@@ -175,3 +175,48 @@ def test_phase_agrees_with_cycles(case):
     assert ours[14:26, 14:26].mean() > 0.05  # lit fog
     np.testing.assert_allclose(ratio, 1.0, atol=0.01)
     assert rel.max() < 0.03, (worst, a[worst], b[worst])
+
+
+def varying_mixture(nodes, link):
+    """A Gradient Texture on Generated coordinates times 3 as the density of Draine (grey 0.9,
+    g 0.5, alpha 1) and Fournier-Forand (grey 0.6, B 0.3) closures added: a volume program of
+    two lobes."""
+    coords = nodes.new("ShaderNodeTexCoord")
+    grad = nodes.new("ShaderNodeTexGradient")
+    link(coords.outputs["Generated"], grad.inputs["Vector"])
+    scale = nodes.new("ShaderNodeMath")
+    scale.operation = 'MULTIPLY'
+    scale.inputs[1].default_value = 3.0
+    link(grad.outputs["Fac"], scale.inputs[0])
+    feed = scale.outputs[0]
+    a = scatter(nodes, 'DRAINE', (0.9, 0.9, 0.9, 1.0), 1.0, Anisotropy=0.5, Alpha=1.0)
+    b = scatter(nodes, 'FOURNIER_FORAND', (0.6, 0.6, 0.6, 1.0), 1.0, Backscatter=0.3)
+    link(feed, a.inputs["Density"])
+    link(feed, b.inputs["Density"])
+    add = nodes.new("ShaderNodeAddShader")
+    link(a.outputs[0], add.inputs[0])
+    link(b.outputs[0], add.inputs[1])
+    return add.outputs[0]
+
+
+@needs_phases
+def test_varying_mixture_of_phases_agrees_with_cycles():
+    """The program path (delta tracking, lobes per point) against Cycles' ray marching (as
+    test_hetero_volumes.py: Volume Step Rate 0.3)."""
+    from test_hetero_volumes import het_scene
+    scene = het_scene(varying_mixture, size=40)
+    prog, w = compiled(varying_mixture)
+    assert isinstance(prog, list) and len(w) == 0
+    t0 = time.time()
+    ours = render_to_array(scene, samples=1024, max_bounces=8)[..., :3]
+    t1 = time.time()
+    ref = render_to_array(scene, "CYCLES", samples=1024, max_bounces=8, **BOX_FILTER)[..., :3]
+    print(f"pathlight {t1 - t0:.1f} s, cycles {time.time() - t1:.1f} s")
+    a, b = region_means(ours), region_means(ref)
+    rel = np.abs(a - b) / np.maximum(b, 0.25 * b.mean())
+    worst = np.unravel_index(np.argmax(rel), rel.shape)
+    ratio = ours.mean(axis=(0, 1)) / ref.mean(axis=(0, 1))
+    print("varying mixture: mean ratio", ratio, "worst region", rel.max())
+    assert ours.mean() > 0.01
+    np.testing.assert_allclose(ratio, 1.0, atol=0.01)
+    assert rel.max() < 0.03, (worst, a[worst], b[worst])
