@@ -128,6 +128,7 @@ inline MieFit mie_fit(float diameter) {
 }
 
 namespace phase_detail {
+constexpr double kPiD = 3.14159265358979323846;
 // Draine's CDF over cos theta (double: its closed form cancels as 1 / g^3) and its density.
 inline double draine_cdf(double g, double alpha, double mu, double& dens) {
   const double norm = 1.0 + alpha * (1.0 + 2.0 * g * g) / 3.0;
@@ -156,15 +157,15 @@ inline double ff_eval(const Phase& p, double s, double* cdf) {
   const double m_delta = 1.0 - delta;
   double pf, F;
   if (std::fabs(m_delta) < 1e-4) {  // the closed form's 0 / 0 at delta = 1: its Taylor expansion
-    pf = v * ((v - 1.0) - (v + 1.0) / s) / (8.0 * M_PI) +
-         v * (v + 1.0) * m_delta * (2.0 * (v - 1.0) - (2.0 * v + 1.0) / s) / (24.0 * M_PI);
+    pf = v * ((v - 1.0) - (v + 1.0) / s) / (8.0 * kPiD) +
+         v * (v + 1.0) * m_delta * (2.0 * (v - 1.0) - (2.0 * v + 1.0) / s) / (24.0 * kPiD);
     F = 1.0 + v * (1.0 - s) * (1.0 - 0.5 * (v + 1.0) * m_delta);
   } else {
     const double dv = std::pow(delta, v), m_dv = 1.0 - dv;
-    pf = (v * m_delta - m_dv + (delta * m_dv - v * m_delta) / s) / (4.0 * M_PI * m_delta * m_delta * dv);
+    pf = (v * m_delta - m_dv + (delta * m_dv - v * m_delta) / s) / (4.0 * kPiD * m_delta * m_delta * dv);
     F = (1.0 - dv * delta - m_dv * s) / (m_delta * dv);
   }
-  pf += c3 / (16.0 * M_PI) * (3.0 * mu * mu - 1.0);
+  pf += c3 / (16.0 * kPiD) * (3.0 * mu * mu - 1.0);
   if (cdf) *cdf = F + c3 / 8.0 * mu * (1.0 - mu * mu);
   return pf;
 }
@@ -226,7 +227,7 @@ inline Vec3 phase_sample(const Phase& p, Vec3 dir, float u1, float u2, float& pd
     const double s = phase_detail::invert_cdf(
         [&](double x, double& d) {
           double F;
-          d = 4.0 * M_PI * phase_detail::ff_eval(p, std::max(x, 1e-300), &F);
+          d = 4.0 * phase_detail::kPiD * phase_detail::ff_eval(p, std::max(x, 1e-300), &F);
           return F;
         },
         double(u1), 0.0, 1.0, 0.5 * double(u1) * double(u1));

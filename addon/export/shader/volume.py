@@ -238,11 +238,13 @@ class VolumeShaders:
             self._acc_add(acc, "sigma_s", ss)
             acc["scatter"].append((ss, "hg", [inp("Anisotropy", "float")]))
             ac = self.value(node.inputs["Absorption Color"], ctx, "color")
-            if not ac.is_const:
-                self.problem(f"linked input Absorption Color of '{node.name}' is not supported (its value is used)")
-                ac = self.socket_default(node.inputs["Absorption Color"], "color")
-            sq = np.sqrt(np.maximum(np.asarray(ac.const[:3], np.float64), 0.0))
-            absorb = self.mix("MULTIPLY", ONE, one_minus(c), const_color(tuple(np.maximum(1.0 - sq, 0.0)) + (1.0,)))
+            if ac.is_const:
+                sq = np.sqrt(np.maximum(np.asarray(ac.const[:3], np.float64), 0.0))
+                keep = const_color(tuple(np.maximum(1.0 - sq, 0.0)) + (1.0,))
+            else:  # linked (a texture): max(1 - sqrt(max(ac, 0)), 0) per channel, as ops
+                roots = [self.math("SQRT", self.math("MAXIMUM", self.separate(ac, i), ZERO), ZERO) for i in range(3)]
+                keep = one_minus(self.combine(*roots, "color"))
+            absorb = self.mix("MULTIPLY", ONE, one_minus(c), keep)
             self._acc_add(acc, "sigma_a", self._times(absorb, d))
             strength = self.math("MAXIMUM", inp("Emission Strength", "float"), ZERO)
             em = self._times(inp("Emission Color", "color"), self.math("MULTIPLY", strength, w))
