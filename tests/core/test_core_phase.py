@@ -231,3 +231,18 @@ def test_white_furnace_of_overlapping_media_with_phase_lobes():
     assert stats["nonfinite_samples"] == 0
     assert np.all(np.abs(img[8:16, 8:16, :3].mean(axis=(0, 1)) - 1.0) < 0.01), img[8:16, 8:16, :3].mean(axis=(0, 1))
     assert abs(float(img[..., :3].mean()) - 1.0) < 0.01
+
+
+def test_bad_phase_input_raises_or_renders_finite():
+    """Malformed phases raise ValueError (the add-on never makes them); absurd parameters are
+    clamped as Cycles' setups do, and render finite."""
+    s = pc.Scene()
+    for bad in ({"phases": [("cardioid", (1.0, 1.0, 1.0), ())]}, {"phases": [("hg", (1.0, 1.0, 1.0))]},
+                [("const", 0, (1.0, 1.0, 1.0)), ("closure", "volume", None, {"ss0": 0})]):
+        with pytest.raises(ValueError):
+            s.add_shader("bad", PASS, volume=bad)
+    nan = float("nan")
+    volume = {"phases": [("draine", (1.0, 1.0, 1.0), (nan, -4.0)), ("ff", (1.0, nan, 1.0), (nan, 0.2)),
+                         ("mie", (0.5, 0.5, 0.5), (1e30,)), ("hg", (-1.0, 1.0, 1.0), (7.0,))]}
+    img, stats = render(pc, volume_sphere(volume), 12, 12, samples=8, max_bounces=64)
+    assert stats["nonfinite_samples"] == 0 and np.all(np.isfinite(img))
