@@ -108,6 +108,21 @@ def test_compiler_keeps_each_closure_of_a_mixture():
     vol, w = compiled(two_hg(0.5))
     assert len(w) == 0 and vol["g"] == pytest.approx(0.5) and "phases" not in vol
 
+    # A program that folds to constants (a constant Blackbody) keeps its lobes in the dict.
+    def hot_and_ff(nodes, link):
+        pv = nodes.new("ShaderNodeVolumePrincipled")
+        pv.inputs["Blackbody Intensity"].default_value = 1.0
+        pv.inputs["Anisotropy"].default_value = 0.2
+        add = nodes.new("ShaderNodeAddShader")
+        link(pv.outputs[0], add.inputs[0])
+        link(scatter(nodes, 'FOURNIER_FORAND', density=2.0).outputs[0], add.inputs[1])
+        return add.outputs[0]
+    vol, w = compiled(hot_and_ff)
+    assert len(w) == 0 and isinstance(vol, dict), (w, vol)
+    assert sorted((k, p) for k, _, p in vol["phases"]) == [("ff", pytest.approx((0.1, 1.33))),
+                                                           ("hg", pytest.approx((0.2,)))]
+    assert vol["sigma_s"] == pytest.approx(np.add((0.5,) * 3, (1.8, 1.4, 1.0)))
+
 
 @needs_phases
 def test_varying_volume_compiles_lobes_the_core_renders():
