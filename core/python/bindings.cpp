@@ -715,7 +715,8 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
           int type = -1;
           for (int t = 0; t < int(std::size(kVolumeLobeNames)); ++t)
             if (params.contains(kVolumeLobeNames[t] + ks)) type = t;
-          if (type < 0) throw std::invalid_argument("volume lobe " + ks + " has no phase (hg, draine, ff, rayleigh, mie)");
+          if (type < 0)
+            throw std::invalid_argument("volume lobe " + ks + " has no phase (hg, draine, ff, rayleigh, mie)");
           o.in[4 + 2 * k] = p(("ss" + ks).c_str());
           o.in[5 + 2 * k] = p((kVolumeLobeNames[type] + ks).c_str());
           o.index |= int32_t(type) << (4 * k);
@@ -1933,7 +1934,8 @@ PYBIND11_MODULE(pathlight_core, m) {
         const MieFit f = mie_fit(d);
         return py::make_tuple(f.g_hg, f.g_d, f.alpha, f.w);
       },
-      py::arg("diameter"), "(g_hg, g_draine, alpha, draine weight): Cycles' Mie fit for droplets of this diameter (um).");
+      py::arg("diameter"),
+      "(g_hg, g_draine, alpha, draine weight): Cycles' Mie fit for droplets of this diameter (um).");
   m.def(
       "sample_free_flight",
       [](const py::object& sigma_t, const FloatArray& u) {
