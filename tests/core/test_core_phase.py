@@ -180,6 +180,7 @@ def test_white_furnace_with_other_phases(case, program):
     assert abs(float(img[..., :3].mean()) - 1.0) < 0.01
 
 
+@pytest.mark.converged
 def test_one_medium_mixes_its_phases_per_channel():
     """One material with two coloured lobes (HG g 0.8 of sigma_s (0.5, 1, 2) and Rayleigh of
     (2, 1, 0.5)), as a homogeneous medium and as a volume program: each channel's phase is the
