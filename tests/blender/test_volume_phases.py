@@ -219,7 +219,7 @@ def test_varying_mixture_of_phases_agrees_with_cycles():
     """The program path (delta tracking, lobes per point) against Cycles' ray marching (as
     test_hetero_volumes.py: Volume Step Rate 0.3)."""
     from test_hetero_volumes import het_scene
-    scene = het_scene(varying_mixture, size=40)
+    scene = het_scene(varying_mixture)
     prog, w = compiled(varying_mixture)
     assert isinstance(prog, list) and len(w) == 0
     t0 = time.time()
