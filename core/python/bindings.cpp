@@ -475,6 +475,9 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
 }
 
 // What the op parsers share: a register operand (None: no register), validated.
+// The volume closure's phase lobe keys, in VolumeLobeType's order.
+const std::string kVolumeLobeNames[] = {"hg", "draine", "ff", "rayleigh", "mie"};
+
 int16_t op_register(const py::handle& h) {
   if (h.is_none()) return kNoReg;
   const int64_t r = h.cast<int64_t>();
@@ -705,6 +708,20 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
       } else if (kind == "volume") {  // a volume program's output (its last op)
         o.code = OpCode::VolumeOut;
         o.in[0] = p("sigma_a"); o.in[1] = p("sigma_s"); o.in[2] = p("emission"); o.in[3] = p("g");
+        // Phase lobes: "ss<k>" the lobe's scattering, "<type><k>" its parameters' register.
+        for (int k = 0; k < kMaxVolumeLobeInputs; ++k) {
+          const std::string ks = std::to_string(k);
+          if (!params.contains("ss" + ks)) break;
+          int type = -1;
+          for (int t = 0; t < int(std::size(kVolumeLobeNames)); ++t)
+            if (params.contains(kVolumeLobeNames[t] + ks)) type = t;
+          if (type < 0)
+            throw std::invalid_argument("volume lobe " + ks + " has no phase (hg, draine, ff, rayleigh, mie)");
+          o.in[4 + 2 * k] = p(("ss" + ks).c_str());
+          o.in[5 + 2 * k] = p((kVolumeLobeNames[type] + ks).c_str());
+          o.index |= int32_t(type) << (4 * k);
+          o.count = k + 1;
+        }
       } else if (kind == "holdout") {
         o.code = OpCode::Holdout;
       } else if (kind == "emission") {
@@ -812,8 +829,31 @@ Material make_shader(const PyScene& self, const std::string& name, const py::lis
       if (k == "sigma_a") mat.program.sigma_a = to_color(kv.second, "volume sigma_a");
       else if (k == "sigma_s") mat.program.sigma_s = to_color(kv.second, "volume sigma_s");
       else if (k == "emission") mat.program.volume_emission = to_color(kv.second, "volume emission");
-      else if (k == "g") mat.program.phase_g = clamp_phase_g(kv.second.cast<float>());
-      else throw std::invalid_argument("unknown volume key '" + k + "' (sigma_a, sigma_s, g, emission)");
+      else if (k == "g") mat.program.phase = make_hg_phase(kv.second.cast<float>());
+      else if (k == "phases") {
+        // [(type, sigma_s rgb, params), ...]: the medium's phase functions and the scattering
+        // of each; they replace sigma_s and g.
+        PhaseLobe lobes[kMaxPhaseLobes];
+        int n = 0;
+        for (const auto& item : kv.second.cast<py::list>()) {
+          const auto t = item.cast<py::tuple>();
+          if (t.size() != 3) throw std::invalid_argument("a volume phase is (type, sigma_s, params)");
+          const std::string type = t[0].cast<std::string>();
+          const auto* at = std::find(std::begin(kVolumeLobeNames), std::end(kVolumeLobeNames), type);
+          if (at == std::end(kVolumeLobeNames))
+            throw std::invalid_argument("unknown volume phase '" + type + "' (hg, draine, ff, rayleigh, mie)");
+          const auto prm = t[2].cast<std::vector<float>>();
+          Float4 f;
+          if (prm.size() > 0) f.x = prm[0];
+          if (prm.size() > 1) f.y = prm[1];
+          add_phase_lobes(VolumeLobeType(at - std::begin(kVolumeLobeNames)), f, to_color(t[1], "volume phase sigma_s"),
+                          lobes, n);
+        }
+        mat.program.sigma_s = Vec3(0.0f);
+        for (int i = 0; i < n; ++i) mat.program.sigma_s += lobes[i].sigma_s;
+        mat.program.phase = n ? lobes[0].phase : Phase{};
+        mat.program.phase_lobes.assign(lobes, lobes + (n >= 2 ? n : 0));
+      } else throw std::invalid_argument("unknown volume key '" + k + "' (sigma_a, sigma_s, g, phases, emission)");
     }
   }
   return mat;
@@ -1823,6 +1863,79 @@ PYBIND11_MODULE(pathlight_core, m) {
         return out;
       },
       py::arg("g"), py::arg("cos_theta"), "The phase function's density at the given cosines.");
+  // The Volume Scatter node's phases by name and parameters, as the integrator builds them: one
+  // lobe, or Mie's two (weights: their sigma_s for a white 1).
+  struct Lobes {
+    PhaseLobe l[kMaxPhaseLobes];
+    int n = 0;
+  };
+  const auto make_lobes = [](const std::string& type, const std::vector<float>& prm) {
+    Float4 f;
+    if (prm.size() > 0) f.x = prm[0];
+    if (prm.size() > 1) f.y = prm[1];
+    const auto* at = std::find(std::begin(kVolumeLobeNames), std::end(kVolumeLobeNames), type);
+    if (at == std::end(kVolumeLobeNames))
+      throw std::invalid_argument("unknown phase '" + type + "' (hg, draine, ff, rayleigh, mie)");
+    Lobes lobes;
+    add_phase_lobes(VolumeLobeType(at - std::begin(kVolumeLobeNames)), f, Vec3(1.0f), lobes.l, lobes.n);
+    return lobes;
+  };
+  m.def(
+      "sample_phase",
+      [make_lobes](const std::string& type, const std::vector<float>& params, const FloatArray& u) {
+        if (u.ndim() != 2 || u.shape(1) != 2) throw std::invalid_argument("u must have shape (N, 2)");
+        const Lobes lobes = make_lobes(type, params);
+        FloatArray dirs({u.shape(0), py::ssize_t(3)}), pdfs({u.shape(0)});
+        const float* up = u.data();
+        float* d = dirs.mutable_data();
+        float* p = pdfs.mutable_data();
+        for (py::ssize_t i = 0; i < u.shape(0); ++i) {
+          // A lobe by its weight (u1 reused), then its sample; the pdf is the mixture's.
+          float u1 = up[2 * i], acc = 0.0f;
+          int k = lobes.n - 1;
+          for (int j = 0; j < lobes.n; ++j) {
+            const float w = lobes.l[j].sigma_s.x;
+            if (u1 < acc + w) {
+              k = j;
+              u1 = std::min((u1 - acc) / w, 1.0f - 1e-7f);
+              break;
+            }
+            acc += w;
+          }
+          float pk;
+          const Vec3 w = phase_sample(lobes.l[k].phase, Vec3(0.0f, 0.0f, 1.0f), u1, up[2 * i + 1], pk);
+          p[i] = 0.0f;
+          for (int j = 0; j < lobes.n; ++j)
+            p[i] += lobes.l[j].sigma_s.x * (j == k ? pk : phase_eval(lobes.l[j].phase, w.z));
+          d[3 * i] = w.x, d[3 * i + 1] = w.y, d[3 * i + 2] = w.z;
+        }
+        return py::make_tuple(dirs, pdfs);
+      },
+      py::arg("type"), py::arg("params"), py::arg("u"),
+      "(directions (N, 3), pdfs (N,)): the integrator's samples of a phase function about +z: type 'hg' (g), "
+      "'draine' (g, alpha), 'ff' (backscatter, IOR), 'rayleigh' (), 'mie' (diameter: its two lobes by weight); "
+      "for sampling tests.");
+  m.def(
+      "phase_pdf",
+      [make_lobes](const std::string& type, const std::vector<float>& params, const FloatArray& cos_t) {
+        const Lobes lobes = make_lobes(type, params);
+        FloatArray out({cos_t.size()});
+        for (py::ssize_t i = 0; i < cos_t.size(); ++i) {
+          float v = 0.0f;
+          for (int j = 0; j < lobes.n; ++j) v += lobes.l[j].sigma_s.x * phase_eval(lobes.l[j].phase, cos_t.data()[i]);
+          out.mutable_data()[i] = v;
+        }
+        return out;
+      },
+      py::arg("type"), py::arg("params"), py::arg("cos_theta"), "A phase function's density at the given cosines.");
+  m.def(
+      "mie_fit",
+      [](float d) {
+        const MieFit f = mie_fit(d);
+        return py::make_tuple(f.g_hg, f.g_d, f.alpha, f.w);
+      },
+      py::arg("diameter"),
+      "(g_hg, g_draine, alpha, draine weight): Cycles' Mie fit for droplets of this diameter (um).");
   m.def(
       "sample_free_flight",
       [](const py::object& sigma_t, const FloatArray& u) {
@@ -2803,7 +2916,7 @@ PYBIND11_MODULE(pathlight_core, m) {
             d["sigma_a"] = py::make_tuple(m.sigma_a.x, m.sigma_a.y, m.sigma_a.z);
             d["sigma_s"] = py::make_tuple(m.sigma_s.x, m.sigma_s.y, m.sigma_s.z);
             d["emission"] = py::make_tuple(m.emission.x, m.emission.y, m.emission.z);
-            d["g"] = m.g;
+            d["g"] = m.phase.g;
             return d;
           },
           py::arg("instance"), py::arg("material"), py::arg("p"), py::arg("dir") = py::make_tuple(0.0f, 0.0f, 1.0f),

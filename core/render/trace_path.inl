@@ -48,23 +48,26 @@ template <bool kDiffuseOnly = false>
 
 // The media a path is inside, innermost last (nested glass, volumes in volumes): each layer is
 // a material's homogeneous medium, or (het) a heterogeneous one tracked through its majorants.
+// lobes: a homogeneous medium's several phase functions (n_lobes >= 2), else phase alone.
 struct MediumLayer {
   Vec3 sigma_a, sigma_s, emission;
-  float g;
+  Phase phase;
   uint32_t material;
   const HeteroMedium* het;
+  const PhaseLobe* lobes;
+  int n_lobes;
 };
 constexpr uint32_t kWorldMedium = 0xFFFFFFFFu;  // the world's Volume: never left
 
-// Overlapping layers that scatter at a point (ss: each one's sigma_s, g: its anisotropy): picks
-// layer i with probability P_i = mean(ss_i) / sum_j mean(ss_j), weights `beta` (which carries the
-// summed sigma_s) by ss_i / (sum_j ss_j P_i) per channel and returns its anisotropy. The
-// expectation is, per channel, the layers' phase functions weighted by their scattering in that
-// channel (Cycles 4.5 weights them by channel means instead: docs/design/volumes.md).
-inline float choose_layer_phase(int n, const Vec3* ss, const float* g, float u, Vec3& beta) {
-  float w[4], total = 0.0f;
+// One of n scatterers at a point (ss: each one's sigma_s; beta carries their sum): picks k with
+// probability P_k = mean(ss_k) / sum_j mean(ss_j), weights `beta` by ss_k / (sum_j ss_j P_k) per
+// channel, and rescales u for a further choice. The expectation is, per channel, their phase
+// functions weighted by their scattering in that channel (Cycles 4.5 weights them by channel
+// means instead: docs/design/volumes.md). -1: nothing scatters.
+inline int choose_scatterer(int n, const Vec3* ss, float& u, Vec3& beta) {
+  float w[kMaxPhaseLobes > 4 ? kMaxPhaseLobes : 4], total = 0.0f;
   for (int i = 0; i < n; ++i) total += (w[i] = average(ss[i]));
-  if (!(total > 0.0f)) return 0.0f;
+  if (!(total > 0.0f)) return -1;
   int k = n - 1;
   float acc = 0.0f;
   for (int i = 0; i < n; ++i) {
@@ -74,13 +77,32 @@ inline float choose_layer_phase(int n, const Vec3* ss, const float* g, float u, 
       break;
     }
   }
-  while (k > 0 && !(w[k] > 0.0f)) --k;  // (u rounding past the last non-empty layer)
+  while (k > 0 && !(w[k] > 0.0f)) --k;  // (u rounding past the last non-empty one)
+  float before = 0.0f;
+  for (int i = 0; i < k; ++i) before += w[i];
+  u = std::clamp((u * total - before) / w[k], 0.0f, 1.0f - 1e-7f);
   Vec3 all(0.0f);
   for (int i = 0; i < n; ++i) all += ss[i];
   const float inv_p = total / w[k];
   const auto share = [&](float a, float b) { return b > 0.0f ? a / b * inv_p : 0.0f; };
   beta *= Vec3(share(ss[k].x, all.x), share(ss[k].y, all.y), share(ss[k].z, all.z));
-  return g[k];
+  return k;
+}
+// A phase among lobes (their sigma_s sum to the scattering that beta carries), as above.
+inline Phase choose_lobe(int n, const PhaseLobe* lobes, float u, Vec3& beta) {
+  Vec3 ss[kMaxPhaseLobes];
+  for (int i = 0; i < n; ++i) ss[i] = lobes[i].sigma_s;
+  const int k = choose_scatterer(n, ss, u, beta);
+  return k < 0 ? lobes[0].phase : lobes[k].phase;
+}
+// Overlapping layers that scatter at a point (ss: each one's sigma_s, phase: its phase or, with
+// n_lobes[i] >= 2, lobes[i] its several): a layer as choose_scatterer, then one of its lobes.
+inline Phase choose_layer_phase(int n, const Vec3* ss, const Phase* phase, const PhaseLobe* const* lobes,
+                                const int* n_lobes, float u, Vec3& beta) {
+  const int k = choose_scatterer(n, ss, u, beta);
+  if (k < 0) return Phase{};
+  if (n_lobes[k] >= 2) return choose_lobe(n_lobes[k], lobes[k], u, beta);
+  return phase[k];
 }
 
 struct Medium {
@@ -88,57 +110,63 @@ struct Medium {
   int n = 0;
   // What a point inside all the layers sees. Cycles' volume stack sums every volume the path is
   // in (overlapping objects, a volume inside the world's fog, absorbing glass in fog), so
-  // homogeneous layers add up: coefficients and emission summed, the phase's g their mean
-  // weighted by scattering (exact where they share one g; else a scattering picks a layer per
-  // channel, phases_differ). A stack
+  // homogeneous layers add up: coefficients and emission summed, the phase their common one
+  // (else a scattering picks a layer per channel, phases_differ). A stack
   // holding a heterogeneous layer is `mixed`: sum then holds its homogeneous layers' sum, its
   // het the innermost heterogeneous layer, and the tracking sums every layer per point
   // (MediumStack below).
   MediumLayer sum{};
   bool mixed = false;
-  // Homogeneous layers that scatter with different anisotropies: sum.g (their mean weighted by
-  // scattering) is then not the mixture's phase per channel; choose_phase picks a layer.
+  // Homogeneous layers that scatter with different phase functions, or one with several
+  // (lobes): sum.phase is then not the mixture's phase per channel; choose_phase picks one.
   bool phases_differ = false;
   const MediumLayer* top() const { return n ? (n == 1 ? &layer[0] : &sum) : nullptr; }
   Vec3 current() const { return n ? top()->sigma_a : Vec3(0.0f); }  // Beer's law only
   void combine() {
     mixed = false;
-    phases_differ = false;
+    phases_differ = n == 1 && !layer[0].het && layer[0].n_lobes >= 2;
     if (n < 2) return;
     const HeteroMedium* het = nullptr;
     for (int i = 0; i < n; ++i) het = layer[i].het ? layer[i].het : het;
     sum = layer[n - 1];
     sum.sigma_a = sum.sigma_s = sum.emission = Vec3(0.0f);
-    float g = 0.0f, w = 0.0f;
+    sum.lobes = nullptr;
+    sum.n_lobes = 0;
     for (int i = 0; i < n; ++i) {
       if (layer[i].het) continue;
       sum.sigma_a += layer[i].sigma_a;
       sum.sigma_s += layer[i].sigma_s;
       sum.emission += layer[i].emission;
-      const float wi = average(layer[i].sigma_s);
-      g += wi * layer[i].g;
-      w += wi;
+      if (!is_black(layer[i].sigma_s)) sum.phase = layer[i].phase;
     }
-    sum.g = w > 0.0f ? g / w : 0.0f;
     sum.het = het;
     mixed = het != nullptr;
-    for (int i = 0; i < n && !mixed; ++i)
+    for (int i = 0; i < n && !mixed; ++i) {
+      const bool si = !is_black(layer[i].sigma_s);
+      phases_differ = phases_differ || (si && layer[i].n_lobes >= 2);
       for (int j = 0; j < i; ++j)
-        phases_differ = phases_differ || (layer[i].g != layer[j].g && !is_black(layer[i].sigma_s) &&
-                                          !is_black(layer[j].sigma_s));
+        phases_differ = phases_differ || (layer[i].phase != layer[j].phase && si && !is_black(layer[j].sigma_s));
+    }
   }
   // A homogeneous stack's scattering at a point (phases_differ): choose_layer_phase over its layers.
-  float choose_phase(float u, Vec3& beta) const {
+  Phase choose_phase(float u, Vec3& beta) const {
     Vec3 ss[4];
-    float g[4];
+    Phase ph[4];
+    const PhaseLobe* lobes[4];
+    int nl[4];
     for (int i = 0; i < n; ++i) {
       ss[i] = layer[i].sigma_s;
-      g[i] = layer[i].g;
+      ph[i] = layer[i].phase;
+      lobes[i] = layer[i].lobes;
+      nl[i] = layer[i].n_lobes;
     }
-    return choose_layer_phase(n, ss, g, u, beta);
+    return choose_layer_phase(n, ss, ph, lobes, nl, u, beta);
   }
   void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr) {
-    if (n < 4) layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase_g, m, het};
+    if (n < 4) {
+      const int nl = het ? 0 : int(p.phase_lobes.size());
+      layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase, m, het, nl ? p.phase_lobes.data() : nullptr, nl};
+    }
     combine();
   }
   void leave(uint32_t m) {
@@ -171,8 +199,11 @@ struct MediumStack {
   const Medium& medium;
   Vec3 org, d;
   StackMajorants majorants;
-  Vec3 ss[4];  // each layer's sigma_s and g at the last point evaluated
-  float g[4];
+  Vec3 ss[4];  // each layer's sigma_s and phase(s) at the last point evaluated
+  Phase phase[4];
+  const PhaseLobe* lobes[4];
+  int n_lobes[4];
+  PhaseLobe het_lobes[4][kMaxPhaseLobes];  // a heterogeneous layer's several phases there
 
   MediumStack(const Scene& sc, const Medium& m, Vec3 o, Vec3 dir) : scene(sc), medium(m), org(o), d(dir) {
     for (int i = 0; i < m.n; ++i)
@@ -181,12 +212,17 @@ struct MediumStack {
   }
   MediumSample at(float t) {
     const Vec3 p = org + d * t;
-    MediumSample sum{medium.sum.sigma_a, medium.sum.sigma_s, medium.sum.emission, 0.0f};
+    MediumSample sum;
+    sum.sigma_a = medium.sum.sigma_a;
+    sum.sigma_s = medium.sum.sigma_s;
+    sum.emission = medium.sum.emission;
     for (int i = 0; i < medium.n; ++i) {
       const MediumLayer& l = medium.layer[i];
       if (!l.het) {
         ss[i] = l.sigma_s;
-        g[i] = l.g;
+        phase[i] = l.phase;
+        lobes[i] = l.lobes;
+        n_lobes[i] = l.n_lobes;
         continue;
       }
       const MediumSample ms = scene.medium_at(*l.het, p, d);
@@ -194,16 +230,21 @@ struct MediumStack {
       sum.sigma_s += ms.sigma_s;
       sum.emission += ms.emission;
       ss[i] = ms.sigma_s;
-      g[i] = ms.g;
+      phase[i] = ms.phase;
+      n_lobes[i] = ms.n_lobes;
+      lobes[i] = het_lobes[i];
+      for (int j = 0; j < ms.n_lobes; ++j) het_lobes[i][j] = ms.lobes[j];
     }
     return sum;
   }
   // After a scattering at the last point evaluated (beta already weighted by the summed
   // sigma_s): picks layer i with probability P_i = mean(sigma_s,i) / mean(sigma_s), weights
-  // beta by sigma_s,i / (sigma_s P_i) per channel, and returns its anisotropy. The expectation
-  // is the scattering-weighted mixture of the layers' phase functions, as Cycles' several phase
-  // closures.
-  float choose_phase(float u, Vec3& beta) const { return choose_layer_phase(medium.n, ss, g, u, beta); }
+  // beta by sigma_s,i / (sigma_s P_i) per channel, and returns its phase (or one of its lobes,
+  // likewise). The expectation is, per channel, the scattering-weighted mixture of the layers'
+  // phase functions.
+  Phase choose_phase(float u, Vec3& beta) const {
+    return choose_layer_phase(medium.n, ss, phase, lobes, n_lobes, u, beta);
+  }
 };
 
 // Radiance a homogeneous medium emits along a segment of length t, seen through its own
@@ -283,15 +324,15 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
 }
 
 // Direct light at a scattering point p in a medium (the path arrived along unit d): one light
-// sample through the media and pass-through surfaces, times the Henyey-Greenstein phase, weighted
+// sample through the media and pass-through surfaces, times the phase function, weighted
 // against the phase function's own sample by the power heuristic (weight 1 at the last bounce,
 // where no phase sample follows). Not yet multiplied by the path's throughput.
-Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, float g, bool last, const Medium& medium, float u_sel,
+Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
                    Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng) {
   DirectSample ds;
   ds.path = &ray_state;
   if (!scene.sample_direct(p, u_sel, u_pt, ds, !last) || (ds.exclude & kLightVisVolume)) return Vec3(0.0f);
-  const float ph = hg_phase(g, dot(d, ds.wi));
+  const float ph = phase_eval(phase, dot(d, ds.wi));
   if (!(ph > 0.0f) || is_black(ds.li)) return Vec3(0.0f);
   Ray shadow;
   shadow.time = time;
@@ -549,7 +590,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         const float seg = found ? hit.t * len : kInf;
         bool scatter = false;
         float nee_weight = 1.0f;  // the distance sample's share of the direct light (equiangular MIS)
-        float t = 0.0f, g = m->g;
+        float t = 0.0f;
+        Phase phase = m->phase;
         if (m->het) {
           // A heterogeneous medium: delta tracking through its majorants, emission by the
           // collision estimator (scene/medium_grid.h).
@@ -573,13 +615,14 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           if (!medium.mixed) {
             scatter = track(m->het->grid, [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d); });
             if (is_black(beta)) break;
-            g = ms.g;
+            phase = ms.phase;
+            if (scatter && ms.n_lobes >= 2) phase = choose_lobe(ms.n_lobes, ms.lobes, vrng.next_float(), beta);
           } else {
             // Overlapping layers, one of them heterogeneous: all of them summed per point.
             MediumStack stack(scene, medium, ray.org, d);
             scatter = track(stack.majorants, [&](float tt) { return stack.at(tt); });
             if (is_black(beta)) break;
-            if (scatter) g = stack.choose_phase(vrng.next_float(), beta);
+            if (scatter) phase = stack.choose_phase(vrng.next_float(), beta);
           }
         } else {
           if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
@@ -605,8 +648,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                 if (te >= 0.0f && te < seg && pe > 0.0f && std::isfinite(pe)) {
                   const Vec2 ue{vrng.next_float(), vrng.next_float()};
                   Vec3 ss = m->sigma_s;
-                  const float ge = medium.phases_differ ? medium.choose_phase(vrng.next_float(), ss) : m->g;
-                  const Vec3 li = medium_direct(scene, ray.org + d * te, d, ge, bounce >= s.max_bounces, medium,
+                  const Phase pe_phase = medium.phases_differ ? medium.choose_phase(vrng.next_float(), ss) : m->phase;
+                  const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces, medium,
                                                 vrng.next_float(), ue, ray_state, ray.time, c, &vrng);
                   L += beta * ss * medium_transmittance(st, te) * li * (pe / (pe * pe + pd * pd));
                 }
@@ -624,7 +667,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               if (!(pdf > 0.0f)) break;
               beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
               scatter = true;
-              if (medium.phases_differ) g = medium.choose_phase(vrng.next_float(), beta);
+              if (medium.phases_differ) phase = medium.choose_phase(vrng.next_float(), beta);
             } else {
               const float pass = free_flight_survival(st, seg);
               if (!(pass > 0.0f)) break;
@@ -646,13 +689,13 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             const Vec2 u_sel = sampler.get2d();
             u_rr = u_sel.y;
             const Vec2 u_pt = sampler.get2d();
-            L += beta * medium_direct(scene, p, d, g, last, medium, u_sel.x, u_pt, ray_state, ray.time, c, &vrng) *
+            L += beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time, c, &vrng) *
                  nee_weight;
           }
           if (last && nee) break;
           const Vec2 u = sampler.get2d();
           float ph_pdf;
-          const Vec3 wi = hg_sample(g, d, u.x, u.y, ph_pdf);  // exact: the weight is 1
+          const Vec3 wi = phase_sample(phase, d, u.x, u.y, ph_pdf);  // exact: the weight is 1
           if (!(ph_pdf > 0.0f)) break;
           prev_pdf = ph_pdf;
           prev_delta = false;

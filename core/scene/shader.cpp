@@ -705,6 +705,31 @@ void eval_closures(const ShaderProgram& prog, const ShaderOp* ops, size_t n, con
   out.finalize();
 }
 
+void add_phase_lobes(VolumeLobeType type, Float4 params, Vec3 ss, PhaseLobe* lobes, int& n) {
+  const auto add = [&](const Phase& ph, Vec3 s) {
+    if (is_black(s)) return;
+    for (int i = 0; i < n; ++i)
+      if (lobes[i].phase == ph) {
+        lobes[i].sigma_s += s;
+        return;
+      }
+    if (n < kMaxPhaseLobes) lobes[n++] = {s, ph};
+    else lobes[n - 1].sigma_s += s;  // (the compiler keeps within the limit)
+  };
+  switch (type) {
+    case VolumeLobeType::HenyeyGreenstein: add(make_hg_phase(params.x), ss); break;
+    case VolumeLobeType::Draine: add(make_draine_phase(params.x, params.y), ss); break;
+    case VolumeLobeType::FournierForand: add(make_fournier_forand_phase(params.x, params.y), ss); break;
+    case VolumeLobeType::Rayleigh: add(make_rayleigh_phase(), ss); break;
+    case VolumeLobeType::Mie: {
+      const MieFit m = mie_fit(params.x);
+      add(make_hg_phase(m.g_hg), ss * (1.0f - m.w));
+      add(make_draine_phase(m.g_d, m.alpha), ss * m.w);
+      break;
+    }
+  }
+}
+
 MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& images, const ShadingContext& ctx) {
   MediumSample m;
   if (vol.ops.empty() || vol.ops.back().code != OpCode::VolumeOut) return m;
@@ -719,9 +744,22 @@ MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& ima
     return Vec3{c(v.x), c(v.y), c(v.z)};
   };
   m.sigma_a = rgb(o.in[0]);
-  m.sigma_s = rgb(o.in[1]);
   m.emission = rgb(o.in[2]);
-  m.g = o.in[3] == kNoReg ? 0.0f : clamp_phase_g(r[o.in[3]].x);
+  if (o.count <= 0) {
+    m.sigma_s = rgb(o.in[1]);
+    m.phase = make_hg_phase(o.in[3] == kNoReg ? 0.0f : r[o.in[3]].x);
+    return m;
+  }
+  const int k_max = std::min<int>(o.count, kMaxVolumeLobeInputs);
+  for (int k = 0; k < k_max; ++k) {
+    const int16_t pr = o.in[5 + 2 * k];
+    const Float4 params = pr == kNoReg ? Float4{} : r[pr];
+    add_phase_lobes(VolumeLobeType((uint32_t(o.index) >> (4 * k)) & 15u), params, rgb(o.in[4 + 2 * k]), m.lobes,
+                    m.n_lobes);
+  }
+  for (int i = 0; i < m.n_lobes; ++i) m.sigma_s += m.lobes[i].sigma_s;
+  if (m.n_lobes) m.phase = m.lobes[0].phase;
+  if (m.n_lobes < 2) m.n_lobes = 0;  // one phase: no mixture
   return m;
 }
 

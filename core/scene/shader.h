@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "scene/bsdf.h"
+#include "scene/phase.h"
 
 namespace pl {
 
@@ -66,6 +67,9 @@ enum class OpCode : uint8_t {
   VolumeGrid,
   // A volume program's output (its last op): in[0] sigma_a, in[1] sigma_s, in[2] emission (RGB
   // per unit length), in[3] the Henyey-Greenstein anisotropy (.x); eval_volume reads them.
+  // Several phase functions (count of them, at most kMaxVolumeLobeInputs): lobe k's scattering
+  // in in[4 + 2k] (replacing in[1]), its parameters in in[5 + 2k] (VolumeLobeType: HG g; Draine
+  // g, alpha; Fournier-Forand backscatter, IOR; Mie diameter), its type in bits 4k.. of index.
   VolumeOut,
 };
 
@@ -320,6 +324,22 @@ Float4 read_volume_grid(const ShadingContext& ctx, int grid, VolumeSampling inte
 // within `radius` of the point, found by `samples` short rays (mesh orientation, as ctx.ns).
 Vec3 trace_bevel(const ShadingContext& ctx, float radius, int samples);
 
+// Phase function types of VolumeOut's lobes (Mie becomes two lobes: HG and Draine).
+enum class VolumeLobeType : uint8_t { HenyeyGreenstein, Draine, FournierForand, Rayleigh, Mie };
+constexpr int kMaxVolumeLobeInputs = 6;
+
+// One phase function of a medium and the scattering that follows it: a material's Volume
+// Scatter nodes of different phases (or anisotropies), Mie's two lobes. The medium's phase is,
+// per channel, the lobes' phases weighted by their sigma_s in that channel.
+struct PhaseLobe {
+  Vec3 sigma_s{0.0f};
+  Phase phase;
+};
+constexpr int kMaxPhaseLobes = 4;
+// Appends the lobes of a phase of `type` with parameters `params` and scattering ss to
+// lobes[0..n) (merging equal phases; at most kMaxPhaseLobes: further ones join the last).
+void add_phase_lobes(VolumeLobeType type, Float4 params, Vec3 ss, PhaseLobe* lobes, int& n);
+
 struct ShaderProgram {
   std::vector<ShaderOp> ops;
   bool varying = false;  // reads the shading point (else evaluated once)
@@ -333,9 +353,11 @@ struct ShaderProgram {
   bool schlick = false;
   Vec3 sigma_a{0.0f};    // Beer's law absorption inside (per unit length)
   // The homogeneous medium inside (the material's Volume): scattering (per unit length), its
-  // Henyey-Greenstein anisotropy and the emitted radiance per unit length.
+  // phase function and the emitted radiance per unit length. Several phase functions: phase_lobes
+  // (two or more, their sigma_s summing to sigma_s); phase is then the first's.
   Vec3 sigma_s{0.0f};
-  float phase_g = 0.0f;
+  Phase phase;
+  std::vector<PhaseLobe> phase_lobes;
   Vec3 volume_emission{0.0f};
   // A heterogeneous medium inside (a Volume whose inputs vary in space): the program that gives
   // its coefficients at a point (value ops, then a VolumeOut op; eval_volume). The constant
@@ -406,14 +428,17 @@ void eval_closures(const ShaderProgram& prog, const ShaderOp* ops, size_t n, con
                    const PrincipledInputs* principled, const ShadingContext& ctx, ClosureList& out);
 
 // A medium's coefficients at a point: absorption and scattering (per unit length), emitted
-// radiance per unit length and the Henyey-Greenstein anisotropy.
+// radiance per unit length and the phase function; several (n_lobes >= 2): lobes, whose sigma_s
+// sum to sigma_s.
 struct MediumSample {
   Vec3 sigma_a{0.0f}, sigma_s{0.0f}, emission{0.0f};
-  float g = 0.0f;
+  Phase phase;
+  int n_lobes = 0;
+  PhaseLobe lobes[kMaxPhaseLobes];
 };
 // Runs a volume program (ShaderProgram::volume) at ctx (p the point, wo the reverse of the ray's
 // direction, normals 0, as Cycles' volume shader data): negative or non-finite coefficients
-// read 0, the anisotropy is clamped into (-1, 1).
+// read 0, the phases' parameters are clamped as Cycles' setups do.
 MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& images, const ShadingContext& ctx);
 
 }  // namespace pl

@@ -100,6 +100,17 @@ def blackbody_flame(nodes, link):
     return vol.outputs[0]
 
 
+def absorption_texture(nodes, link):
+    """Principled Volume whose Absorption Color is the Generated coordinates (a colour varying
+    along each axis): absorption max(1 - colour, 0) max(1 - sqrt(that), 0) per point."""
+    vol = nodes.new("ShaderNodeVolumePrincipled")
+    vol.inputs["Color"].default_value = (0.6, 0.6, 0.6, 1.0)
+    vol.inputs["Density"].default_value = 1.5
+    coords = nodes.new("ShaderNodeTexCoord")
+    link(coords.outputs["Generated"], vol.inputs["Absorption Color"])
+    return vol.outputs[0]
+
+
 def het_scene(build, lit=True, size=48):
     scene = empty_scene(size)
     scene.cycles.volume_step_rate = STEP_RATE
@@ -113,7 +124,7 @@ def het_scene(build, lit=True, size=48):
 
 
 CASES = {"noise": (noise_density, True, 1024), "gradient": (gradient_density, True, 1024),
-         "blackbody": (blackbody_flame, False, 2048)}
+         "blackbody": (blackbody_flame, False, 2048), "absorption_texture": (absorption_texture, True, 1024)}
 
 
 @needs_het

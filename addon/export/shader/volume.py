@@ -16,6 +16,28 @@ def _attr_name(node, socket):
     return str(getattr(s, "default_value", "") or "") if s is not None else ""
 
 
+# The core's limits on one medium's phase functions (scene/shader.h kMaxPhaseLobes, kMaxVolumeLobeInputs).
+MAX_PHASE_LOBES = 4
+MAX_LOBE_INPUTS = 6
+# Volume Scatter's phase → the core's lobe type and the inputs that are its parameters (Cycles'
+# svm_alloc_closure_volume_scatter: Fournier-Forand (Backscatter, IOR), Draine (Anisotropy,
+# Alpha), Mie (Diameter)).
+PHASES = {
+    'HENYEY_GREENSTEIN': ("hg", ("Anisotropy",)),
+    'FOURNIER_FORAND': ("ff", ("Backscatter", "IOR")),
+    'DRAINE': ("draine", ("Anisotropy", "Alpha")),
+    'RAYLEIGH': ("rayleigh", ()),
+    'MIE': ("mie", ("Diameter",)),
+}
+
+
+def _phase_of(node):
+    """(core type, input names) of a Volume Scatter node's phase; Principled Volume's is HG."""
+    if node.type != 'VOLUME_SCATTER':
+        return PHASES['HENYEY_GREENSTEIN']
+    return PHASES.get(getattr(node, "phase", 'HENYEY_GREENSTEIN'), PHASES['HENYEY_GREENSTEIN'])
+
+
 class _Varying(Exception):
     """A volume input is not constant: the medium needs a program."""
 
@@ -44,26 +66,31 @@ class VolumeShaders:
                 color = self._const_or_raise(node, "Color", ctx, "color")
                 density = self._const_or_raise(node, "Density", ctx, "float")
                 return (tuple(color), density)
-            acc = {"sigma_a": np.zeros(3), "sigma_s": np.zeros(3), "emission": np.zeros(3), "gs": np.zeros(3),
-                   "g": set()}
+            acc = {"sigma_a": np.zeros(3), "sigma_s": np.zeros(3), "emission": np.zeros(3), "phases": {}}
             self._volume_node(node, ctx, 1.0, acc, set())
         except _Varying:
             del self.problems[n_problems:]  # the program reports its own
             return self.volume_program(socket, name)
-        ss = acc["sigma_s"]
-        if len(acc["g"]) > 1:
-            self._mixed_anisotropies(name)
-        g = float(acc["gs"].sum() / ss.sum()) if ss.sum() > 0.0 else 0.0
         vol = {k: tuple(float(x) for x in acc[k]) for k in ("sigma_a", "sigma_s", "emission")}
-        vol["g"] = g
+        phases = acc["phases"]
+        if len(phases) <= 1 and all(t == "hg" for t, _ in phases):
+            vol["g"] = next(iter(phases))[1][0] if phases else 0.0  # one HG: the medium as before
+        else:
+            # Several phase functions (or one other than HG): each with its scattering, mixed
+            # per channel by the core (docs/design/volumes.md "Several phase closures").
+            self._check_lobes(name, [t for t, _ in phases])
+            vol["phases"] = [(t, tuple(float(x) for x in ss), tuple(params))
+                             for (t, params), ss in phases.items()]
         if not any(any(v) for v in (vol["sigma_a"], vol["sigma_s"], vol["emission"])):
             return None
         return vol
 
-    def _mixed_anisotropies(self, name):
-        """The core's medium has one g: several scatterings' are averaged, with a warning."""
-        self.problem(f"volume of '{name}': scatterings of different anisotropies are combined "
-                     "into one (their scattering-weighted mean)")
+    def _check_lobes(self, name, types):
+        """The core mixes at most MAX_PHASE_LOBES phase functions per medium (Mie is two)."""
+        n = sum(2 if t == "mie" else 1 for t in types)
+        if n > MAX_PHASE_LOBES or len(types) > MAX_LOBE_INPUTS:
+            self.problem(f"volume of '{name}': more than {MAX_PHASE_LOBES} different phase functions "
+                         "(the further ones scatter as the last that fits)")
 
     def _const_or_raise(self, node, name, ctx, kind):
         """A constant input's value (colour: rgb, float: the value); _Varying where it is linked
@@ -87,26 +114,40 @@ class VolumeShaders:
             _, node, out, ctx = src
             self._volume_prog_node(node, ctx, ONE, acc, set())
             scatter = acc["scatter"]
-            if not scatter:
-                g = ZERO
-            elif len(scatter) == 1:
-                g = scatter[0][1]
-            else:
-                gs = [self.math("MULTIPLY", self.as_float(ss), gi) for ss, gi in scatter]
-                num, den = gs[0], self.as_float(scatter[0][0])
-                for (ss, _), x in zip(scatter[1:], gs[1:]):
-                    num = self.math("ADD", num, x)
-                    den = self.math("ADD", den, self.as_float(ss))
-                g = self.math("DIVIDE", num, den)
-                if not all(gi.is_const and gi.const[0] == scatter[0][1].const[0] for _, gi in scatter):
-                    self._mixed_anisotropies(name)
             outs = {k: acc[k] for k in ("sigma_a", "sigma_s", "emission") if acc[k] is not None}
-            outs["g"] = g
+            lobes = {}  # the phase (type, constant parameters or an id) -> [ss, type, params]
+            for i, (ss, t, params) in enumerate(scatter):
+                key = (t, tuple(v.const[0] for v in params)) if all(v.is_const for v in params) else i
+                if key in lobes:
+                    lobes[key][0] = self.mix("ADD", ONE, lobes[key][0], ss)
+                else:
+                    lobes[key] = [ss, t, params]
+            if len(lobes) <= 1 and all(t == "hg" for _, t, _ in lobes.values()):
+                outs["g"] = next(iter(lobes.values()))[2][0] if lobes else ZERO  # one HG, as before
+                lobes = []
+            else:
+                # Several phase functions (or one other than HG): each lobe's scattering and its
+                # parameters (g; g, alpha; backscatter, IOR; diameter) as a vector.
+                lobes = list(lobes.values())
+                self._check_lobes(name, [t for _, t, _ in lobes])
+                lobes = lobes[:MAX_LOBE_INPUTS]
+                outs.pop("sigma_s", None)
+                for k, (ss, t, params) in enumerate(lobes):
+                    p = list(params) + [ZERO] * (3 - len(params))
+                    outs[f"ss{k}"] = self.as_color(ss)
+                    outs[f"{t}{k}"] = self.combine(self.as_float(p[0]), self.as_float(p[1]), self.as_float(p[2]),
+                                                   "vector")
             if all(v.is_const for v in outs.values()):  # homogeneous after all
-                vol = {k: tuple(max(float(x), 0.0) if np.isfinite(x) else 0.0 for x in v.const[:3])
-                       for k, v in outs.items() if k != "g"}
-                vol["g"] = float(g.const[0]) if np.isfinite(g.const[0]) else 0.0
-                if not any(any(v) for k, v in vol.items() if k != "g"):
+                clean = lambda v: tuple(max(float(x), 0.0) if np.isfinite(x) else 0.0 for x in v.const[:3])
+                vol = {k: clean(outs.get(k, ZERO)) for k in ("sigma_a", "sigma_s", "emission")}
+                if lobes:
+                    vol["phases"] = [(t, clean(outs[f"ss{k}"]), tuple(float(v.const[0]) for v in params))
+                                     for k, (_, t, params) in enumerate(lobes)]
+                    vol["sigma_s"] = tuple(map(float, np.sum([ss for _, ss, _ in vol["phases"]], axis=0)))
+                else:
+                    g = outs["g"]
+                    vol["g"] = float(g.const[0]) if np.isfinite(g.const[0]) else 0.0
+                if not any(any(vol[k]) for k in ("sigma_a", "sigma_s", "emission")):
                     return None
                 return vol
             ops = self.ops + [("closure", "volume", None, {k: self.reg(v) for k, v in outs.items()})]
@@ -137,13 +178,6 @@ class VolumeShaders:
                 return
             add_node(n, nctx, weight, acc, visiting)
         return sub
-
-    def _henyey_greenstein_only(self, node):
-        """Volume Scatter's other phase functions render as Henyey-Greenstein, with a warning."""
-        phase = getattr(node, "phase", 'HENYEY_GREENSTEIN')
-        if phase != 'HENYEY_GREENSTEIN':
-            self.problem(f"'{node.name}': the {phase} phase function is not supported "
-                         "(Henyey-Greenstein)")
 
     def _acc_add(self, acc, key, v):
         acc[key] = v if acc[key] is None else self.mix("ADD", ONE, acc[key], v)
@@ -181,10 +215,10 @@ class VolumeShaders:
         elif t == 'VOLUME_ABSORPTION':
             self._acc_add(acc, "sigma_a", self._times(one_minus(inp("Color", "color")), density()))
         elif t == 'VOLUME_SCATTER':
-            self._henyey_greenstein_only(node)
             ss = self._times(inp("Color", "color"), density())
             self._acc_add(acc, "sigma_s", ss)
-            acc["scatter"].append((ss, inp("Anisotropy", "float") if "Anisotropy" in node.inputs else ZERO))
+            kind, names = _phase_of(node)
+            acc["scatter"].append((ss, kind, [inp(n, "float") if n in node.inputs else ZERO for n in names]))
         elif t == 'PRINCIPLED_VOLUME':
             # Cycles' svm_node_principled_volume: scattering colour * density; extinction adds
             # max(1 - colour, 0) max(1 - sqrt(absorption colour), 0) * density; emission
@@ -202,13 +236,15 @@ class VolumeShaders:
                 c = self.mix("MULTIPLY", ONE, c, g)
             ss = self._times(c, d)
             self._acc_add(acc, "sigma_s", ss)
-            acc["scatter"].append((ss, inp("Anisotropy", "float")))
+            acc["scatter"].append((ss, "hg", [inp("Anisotropy", "float")]))
             ac = self.value(node.inputs["Absorption Color"], ctx, "color")
-            if not ac.is_const:
-                self.problem(f"linked input Absorption Color of '{node.name}' is not supported (its value is used)")
-                ac = self.socket_default(node.inputs["Absorption Color"], "color")
-            sq = np.sqrt(np.maximum(np.asarray(ac.const[:3], np.float64), 0.0))
-            absorb = self.mix("MULTIPLY", ONE, one_minus(c), const_color(tuple(np.maximum(1.0 - sq, 0.0)) + (1.0,)))
+            if ac.is_const:
+                sq = np.sqrt(np.maximum(np.asarray(ac.const[:3], np.float64), 0.0))
+                keep = const_color(tuple(np.maximum(1.0 - sq, 0.0)) + (1.0,))
+            else:  # linked (a texture): max(1 - sqrt(max(ac, 0)), 0) per channel, as ops
+                roots = [self.math("SQRT", self.math("MAXIMUM", self.separate(ac, i), ZERO), ZERO) for i in range(3)]
+                keep = one_minus(self.combine(*roots, "color"))
+            absorb = self.mix("MULTIPLY", ONE, one_minus(c), keep)
             self._acc_add(acc, "sigma_a", self._times(absorb, d))
             strength = self.math("MAXIMUM", inp("Emission Strength", "float"), ZERO)
             em = self._times(inp("Emission Color", "color"), self.math("MULTIPLY", strength, w))
@@ -265,11 +301,11 @@ class VolumeShaders:
             d = self._clean(node, "Density", [const("Density", "float")])[0]
             acc["sigma_a"] += w * (1.0 - c) * d
         elif t == 'VOLUME_SCATTER':
-            self._henyey_greenstein_only(node)
             c = self._clean(node, "Color", const("Color", "color"))
             d = self._clean(node, "Density", [const("Density", "float")])[0]
-            g = float(const("Anisotropy", "float")) if "Anisotropy" in node.inputs else 0.0
-            self._add_scatter(acc, w * c * d, g)
+            kind, names = _phase_of(node)
+            params = tuple(float(const(n, "float")) if n in node.inputs else 0.0 for n in names)
+            self._add_scatter(acc, w * c * d, kind, params)
         elif t == 'PRINCIPLED_VOLUME':
             # Cycles' svm_node_principled_volume: scattering colour * density; extinction adds
             # (1 - colour)(1 - sqrt(absorption colour)) * density.
@@ -277,7 +313,7 @@ class VolumeShaders:
             d = self._clean(node, "Density", [const("Density", "float")])[0] * w
             g = float(const("Anisotropy", "float"))
             ac = np.sqrt(self._clean(node, "Absorption Color", const("Absorption Color", "color")))
-            self._add_scatter(acc, c * d, g)
+            self._add_scatter(acc, c * d, "hg", (g,))
             acc["sigma_a"] += np.maximum(1.0 - c, 0.0) * np.maximum(1.0 - ac, 0.0) * d
             strength = float(const("Emission Strength", "float"))
             ec = self._clean(node, "Emission Color", const("Emission Color", "color"))
@@ -292,10 +328,11 @@ class VolumeShaders:
         else:
             self.problem(f"volume '{node.name}' ({node.bl_idname}) is not supported (ignored)")
 
-    def _add_scatter(self, acc, sigma_s, g):
-        g = float(g) if np.isfinite(g) else 0.0
+    def _add_scatter(self, acc, sigma_s, kind, params):
+        """Scattering sigma_s of phase `kind` (parameters: floats; NaN ones 0): summed per phase."""
+        params = tuple(float(p) if np.isfinite(p) else 0.0 for p in params)
         if not np.any(sigma_s > 0.0):
             return
         acc["sigma_s"] += sigma_s
-        acc["gs"] += sigma_s * g
-        acc["g"].add(round(g, 6))
+        key = (kind, tuple(round(p, 6) for p in params))
+        acc["phases"][key] = acc["phases"].get(key, np.zeros(3)) + sigma_s
