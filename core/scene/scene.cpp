@@ -2,6 +2,7 @@
 // (scene_build.cpp, scene_lights.cpp, scene_features.cpp).
 #include "scene/scene.h"
 
+#include <cmath>
 #include <cstring>
 #include <stdexcept>
 #include <utility>
@@ -161,6 +162,19 @@ void Scene::set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps)
   m.motion_positions = ok && moves ? std::move(steps) : std::vector<std::vector<Vec3>>{};
   committed_ = false;
   geometry_dirty_ = true;
+}
+
+void Scene::set_mesh_velocity(uint32_t mesh, int32_t grid, float scale, float offset, VolumeSampling sampling) {
+  if (mesh >= meshes_.size()) throw std::invalid_argument("set_mesh_velocity: unknown mesh id");
+  if (!std::isfinite(scale) || !std::isfinite(offset))
+    throw std::invalid_argument("set_mesh_velocity: scale and offset must be finite");
+  MeshData& m = meshes_[mesh];
+  const bool on = grid >= 0 && scale > 0.0f;
+  m.velocity_grid = on ? grid : -1;
+  m.velocity_scale = on ? scale : 0.0f;
+  m.velocity_offset = on ? offset : 0.0f;
+  m.velocity_sampling = sampling;
+  committed_ = false;  // (media are rebuilt at every commit)
 }
 
 void Scene::set_instance_transform(uint32_t index, const Mat4& m) {
