@@ -2460,21 +2460,23 @@ PYBIND11_MODULE(pathlight_core, m) {
 
       .def(
           "set_mesh_velocity",
-          [](PyScene& self, uint32_t mesh, int32_t grid, float scale, float offset, const std::string& interpolation) {
+          [](PyScene& self, uint32_t mesh, int32_t grid, float scale, float offset, const std::string& interpolation,
+             int32_t grid_y, int32_t grid_z) {
             self.check_editable();
             VolumeSampling vs = VolumeSampling::Trilinear;
             if (interpolation == "CUBIC") vs = VolumeSampling::Tricubic;
             else if (interpolation == "CLOSEST") vs = VolumeSampling::Closest;
             else if (interpolation != "LINEAR")
               throw std::invalid_argument("interpolation must be 'LINEAR', 'CUBIC' or 'CLOSEST'");
-            self.scene->set_mesh_velocity(mesh, grid, scale, offset, vs);
+            self.scene->set_mesh_velocity(mesh, grid, scale, offset, vs, grid_y, grid_z);
           },
           py::arg("mesh"), py::arg("grid"), py::arg("scale"), py::arg("offset") = -0.5f,
-          py::arg("interpolation") = "LINEAR",
+          py::arg("interpolation") = "LINEAR", py::arg("grid_y") = -1, py::arg("grid_z") = -1,
           "Velocity blur of a volume object's mesh (Cycles' volume motion): its media look up the point "
           "moved back twice by velocity x scale x (time + offset) (time: the ray's shutter time in [0, 1]; "
           "offset -0.5 for a centred shutter, 0 at the start), velocity the vector grid `grid` (an "
-          "add_volume_grid id, object space). grid < 0 or scale <= 0: none. Non-finite values raise.")
+          "add_volume_grid id, object space), or with grid_y and grid_z the float grids of its x, y and z "
+          "components. grid < 0 or scale <= 0: none. Non-finite values raise.")
       .def(
           "set_mesh_motion",
           [](PyScene& self, uint32_t mesh, const FloatArray& positions) {

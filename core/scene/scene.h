@@ -54,8 +54,10 @@ struct MeshData {
   std::vector<std::vector<Vec3>> motion_positions;
   // Velocity blur of a volume object (Cycles' volume motion): the lookup point moves back by
   // velocity x scale x (time + offset), velocity the vector grid `velocity_grid` (object
-  // space; -1: none) read with `velocity_sampling` (docs/design/motion-blur.md).
+  // space; -1: none), or where velocity_yz are set, three float grids x, y, z (Cycles merges
+  // them), read with `velocity_sampling` (docs/design/motion-blur.md).
   int32_t velocity_grid = -1;
+  int32_t velocity_yz[2] = {-1, -1};
   float velocity_scale = 0.0f, velocity_offset = 0.0f;
   VolumeSampling velocity_sampling = VolumeSampling::Trilinear;
 };
@@ -91,6 +93,7 @@ struct HeteroMedium {
   // velocity blur (MeshData::velocity_grid; -1: none).
   bool moving = false;
   int32_t velocity_grid = -1;
+  int32_t velocity_yz[2] = {-1, -1};
   float velocity_scale = 0.0f, velocity_offset = 0.0f;
   VolumeSampling velocity_sampling = VolumeSampling::Trilinear;
 };
@@ -278,7 +281,9 @@ class Scene {
   bool has_motion() const { return motion_instances_ > 0 || velocity_media_ > 0; }
   // Velocity blur of a volume object's mesh (MeshData::velocity_grid): scale <= 0 or a grid
   // id < 0 turns it off. Throws std::invalid_argument on non-finite values.
-  void set_mesh_velocity(uint32_t mesh, int32_t grid, float scale, float offset, VolumeSampling sampling);
+  // grid_y, grid_z >= 0: `grid` is the x component's float grid, they the y and z ones.
+  void set_mesh_velocity(uint32_t mesh, int32_t grid, float scale, float offset, VolumeSampling sampling,
+                         int32_t grid_y = -1, int32_t grid_z = -1);
   // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
   // commit() rebuilds only the top level and the lights; else the merged geometry.
   void set_instance_transform(uint32_t index, const Mat4& m);

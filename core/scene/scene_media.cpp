@@ -91,8 +91,12 @@ MediumSample Scene::medium_at_moving(const HeteroMedium& h, Vec3 p, Vec3 dir, fl
     // velocity turned into world space by the transform at the ray's time).
     const float k = h.velocity_scale * (time + h.velocity_offset);
     const auto back = [&]() {
-      const Float4 v = read_volume_grid(ctx, h.velocity_grid, h.velocity_sampling);
-      return p - ctx.object->to_world.vector(Vec3{v.x, v.y, v.z}) * k;
+      Vec3 v = read_volume_grid(ctx, h.velocity_grid, h.velocity_sampling).xyz();
+      if (h.velocity_yz[0] >= 0) {
+        v.y = read_volume_grid(ctx, h.velocity_yz[0], h.velocity_sampling).x;
+        v.z = read_volume_grid(ctx, h.velocity_yz[1], h.velocity_sampling).x;
+      }
+      return p - ctx.object->to_world.vector(v) * k;
     };
     ctx.p = back();
     ctx.p = back();
@@ -127,7 +131,10 @@ void Scene::sweep_majorants(HeteroMedium& h, const Aabb& ob) {
     const VolumeGrid* vg = volume_grid(h.velocity_grid);
     const std::array<float, 3> v = vg->max_abs();
     const float k = h.velocity_scale * std::max(std::fabs(h.velocity_offset), std::fabs(1.0f + h.velocity_offset));
-    disp = (vg->channels() >= 3 ? Vec3{v[0], v[1], v[2]} : Vec3(v[0])) * (k * 1.001f);
+    Vec3 vmax = vg->channels() >= 3 ? Vec3{v[0], v[1], v[2]} : Vec3(v[0]);
+    if (h.velocity_yz[0] >= 0)
+      vmax = {v[0], volume_grid(h.velocity_yz[0])->max_abs()[0], volume_grid(h.velocity_yz[1])->max_abs()[0]};
+    disp = vmax * (k * 1.001f);
     if (!is_finite(disp)) return;  // (the frame's majorants: unbiased, noisier)
   }
   Aabb B = g0.bounds;
@@ -259,8 +266,12 @@ void Scene::build_media() {
       h.instance = i;
       h.grid.bounds = b;
       h.moving = i < inst_.size() && inst_[i].motion != nullptr;
-      if (mesh.velocity_grid >= 0 && volume_grid(mesh.velocity_grid)) {
+      const bool xyz = mesh.velocity_yz[0] >= 0;
+      if (mesh.velocity_grid >= 0 && volume_grid(mesh.velocity_grid) &&
+          (!xyz || (volume_grid(mesh.velocity_yz[0]) && volume_grid(mesh.velocity_yz[1])))) {
         h.velocity_grid = mesh.velocity_grid;
+        h.velocity_yz[0] = mesh.velocity_yz[0];
+        h.velocity_yz[1] = mesh.velocity_yz[1];
         h.velocity_scale = mesh.velocity_scale;
         h.velocity_offset = mesh.velocity_offset;
         h.velocity_sampling = mesh.velocity_sampling;

@@ -185,3 +185,29 @@ def test_velocity_bad_input():
         s2.set_mesh_velocity(mesh, 0, float("nan"), -0.5)
     with pytest.raises(ValueError):
         pc.Scene().set_mesh_velocity(0, 0, 1.0, -0.5)  # unknown mesh
+
+
+def test_three_float_velocity_grids_act_as_one_vector_grid():
+    dens, vel = velocity_grids()
+    comps = []
+    for name, value in (("vx", 2.0), ("vy", 0.0), ("vz", 0.0)):
+        g = vw.Grid(name=name, background=value, codec="blosc", transform=("UniformScaleMap", VOXEL))
+        g.leaves[(0, 0, 0)] = (np.full((8, 8, 8), value, np.float32), np.ones((8, 8, 8), bool))
+        comps.append(pc.read_vdb_bytes(vw.write_vdb([g]))[0]["grid"])
+    s = pc.Scene()
+    for g in [dens, vel] + comps:
+        s.add_volume_grid(g)
+    prog = [("volume_grid", 0, 0, "FAC", "LINEAR"), ("const", 1, (0.0,)),
+            ("closure", "volume", None, {"sigma_s": 0, "sigma_a": 1})]
+    m = s.add_shader("vol", [("const", 0, (1.0, 1.0, 1.0)), ("closure", "transparent", None, {"color": 0})],
+                     volume=prog)
+    pos, tris = cube(1.0)
+    mesh = s.add_mesh((pos * 1.1 + 1.0).astype(np.float32), tris, None, None, [m])
+    s.set_mesh_velocity(mesh, 2, 0.5, -0.5, grid_y=3, grid_z=4)
+    s.add_instance(mesh, np.eye(4, dtype=np.float32))
+    s.commit()
+    # At time 1: moved back by (2, 0, 0) x 0.5 x (1 - 0.5), from the slab's edge to its centre.
+    want = float(dens.sample_index(np.float32([[1.5 - 0.5, 1.0, 1.0]]) / VOXEL - 0.5)[0])
+    assert want > 0.9
+    assert s.medium_at(0, m, (1.5, 1.0, 1.0), time=1.0)["sigma_s"][0] == pytest.approx(want, rel=1e-4)
+    assert s.medium_at(0, m, (1.5, 1.0, 1.0), time=0.5)["sigma_s"][0] < 0.5
