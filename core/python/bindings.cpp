@@ -2476,7 +2476,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           "moved back twice by velocity x scale x (time + offset) (time: the ray's shutter time in [0, 1]; "
           "offset -0.5 for a centred shutter, 0 at the start), velocity the vector grid `grid` (an "
           "add_volume_grid id, object space), or with grid_y and grid_z the float grids of its x, y and z "
-          "components. grid < 0 or scale <= 0: none. Non-finite values raise.")
+          "components. grid < 0 or scale 0: none. Non-finite values raise.")
       .def(
           "set_mesh_motion",
           [](PyScene& self, uint32_t mesh, const FloatArray& positions) {

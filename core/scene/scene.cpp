@@ -170,7 +170,7 @@ void Scene::set_mesh_velocity(uint32_t mesh, int32_t grid, float scale, float of
   if (!std::isfinite(scale) || !std::isfinite(offset))
     throw std::invalid_argument("set_mesh_velocity: scale and offset must be finite");
   MeshData& m = meshes_[mesh];
-  const bool on = grid >= 0 && scale > 0.0f;
+  const bool on = grid >= 0 && scale != 0.0f;
   m.velocity_grid = on ? grid : -1;
   m.velocity_scale = on ? scale : 0.0f;
   m.velocity_offset = on ? offset : 0.0f;

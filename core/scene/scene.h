@@ -279,7 +279,7 @@ class Scene {
   // Instances with transform motion blur in the committed scene: rays then need a time.
   // (Volumes with velocity blur count: their lookups need the ray's time too.)
   bool has_motion() const { return motion_instances_ > 0 || velocity_media_ > 0; }
-  // Velocity blur of a volume object's mesh (MeshData::velocity_grid): scale <= 0 or a grid
+  // Velocity blur of a volume object's mesh (MeshData::velocity_grid): scale 0 or a grid
   // id < 0 turns it off. Throws std::invalid_argument on non-finite values.
   // grid_y, grid_z >= 0: `grid` is the x component's float grid, they the y and z ones.
   void set_mesh_velocity(uint32_t mesh, int32_t grid, float scale, float offset, VolumeSampling sampling,

@@ -130,7 +130,7 @@ void Scene::sweep_majorants(HeteroMedium& h, const Aabb& ob) {
   if (h.velocity_grid >= 0) {
     const VolumeGrid* vg = volume_grid(h.velocity_grid);
     const std::array<float, 3> v = vg->max_abs();
-    const float k = h.velocity_scale * std::max(std::fabs(h.velocity_offset), std::fabs(1.0f + h.velocity_offset));
+    const float k = std::fabs(h.velocity_scale) * std::max(std::fabs(h.velocity_offset), std::fabs(1.0f + h.velocity_offset));
     Vec3 vmax = vg->channels() >= 3 ? Vec3{v[0], v[1], v[2]} : Vec3(v[0]);
     if (h.velocity_yz[0] >= 0)
       vmax = {v[0], volume_grid(h.velocity_yz[0])->max_abs()[0], volume_grid(h.velocity_yz[1])->max_abs()[0]};
