@@ -38,6 +38,11 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
         deform = getattr(mesh, "motion_positions", None)
         if deform is not None:
             scene.set_mesh_motion(mesh_id, deform)
+        velocity = getattr(mesh, "velocity", None)
+        if velocity is not None:  # a volume object's velocity blur
+            ids, scale, offset, interpolation = velocity
+            yz = {"grid_y": ids[1], "grid_z": ids[2]} if len(ids) == 3 else {}
+            scene.set_mesh_velocity(mesh_id, ids[0], scale, offset, interpolation, **yz)
         motions = getattr(mesh, "motions", None) or []
         attributes = getattr(mesh, "object_attributes", None) or []
         for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):

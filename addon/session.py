@@ -210,6 +210,7 @@ def _add_motion_blur(engine, depsgraph, data, warn):
         for mesh in data.meshes:
             mesh.motions = [None] * len(mesh.matrices)
             mesh.motion_positions = None
+            mesh.velocity = None
         data.camera.pop("motion", None)
 
 

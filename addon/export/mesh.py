@@ -44,6 +44,10 @@ class MeshData:
     # Per matrix: float32 (K, 4) of the Attribute node's Object / Instancer slots (the first
     # K of the scene's; export.object_attributes), or None.
     object_attributes: list = field(default_factory=list)
+    # Volume objects' velocity blur: what export.volume found (velocity_source), and what
+    # export.motion makes of it under the shutter ((grid ids, scale, offset, interpolation)).
+    volume_velocity: dict = None
+    velocity: tuple = None
 
     @property
     def corner_normals(self):

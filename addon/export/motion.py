@@ -117,6 +117,11 @@ def add_motion(engine, depsgraph, data, warn):
         return 0
     frame, subframe = scene.frame_current, float(scene.frame_subframe)
     position = render.motion_blur_position
+    fps = float(render.fps) / float(render.fps_base) if render.fps_base else 0.0
+    for mesh in data.meshes:  # volume objects' velocity grids
+        if getattr(mesh, "volume_velocity", None):
+            from .volume import apply_velocity
+            apply_velocity(mesh, shutter, fps, position, warn)
     delta = shutter * 0.5 if position == 'START' else -shutter * 0.5 if position == 'END' else 0.0
     # Per instance (a matrix of some MeshData): its step count, or 0 when it does not blur.
     wanted = {}
@@ -155,7 +160,7 @@ def add_motion(engine, depsgraph, data, warn):
             if cam_steps and cam_obj is not None:
                 cam_at[rel] = camera_matrix(cam_obj.evaluated_get(depsgraph))
             for instance in depsgraph.object_instances:
-                if instance.object.type != 'MESH':
+                if instance.object.type not in ('MESH', 'VOLUME'):
                     continue
                 key = instance_key(instance)
                 if wanted.get(key):

@@ -7,13 +7,14 @@ the volume is file-backed and unmodified, else the evaluated grids saved to a te
 is the core's grid id); the object becomes a MeshData box around its grids' active voxels (plus
 the trilinear footprint) whose one material is the object's material compiled for these grids."""
 
+import math
 import os
 import tempfile
 
 import numpy as np
 
 from .mesh import MeshData, is_visible, object_info
-from .motion import instance_key
+from .motion import instance_key, uses_motion_blur
 
 # Parsed files by (path, mtime, size): re-renders and animations whose frame keeps the file
 # read it once. A few entries: grids can be large.
@@ -218,4 +219,84 @@ def _volume_entry(obj, mat, warn, table, grid_list, scale=1.0):
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
         warn(f"{what}: its grid transforms are not finite; not rendered")
         return None
-    return box_mesh(obj.original.name, lo, hi, mat), [index]
+    mesh = box_mesh(obj.original.name, lo, hi, mat)
+    mesh.volume_velocity = velocity_source(obj, mat, parsed, grids, what)
+    return mesh, [index]
+
+
+def velocity_source(obj, mat, parsed, grids, what):
+    """The velocity grids of volume object `obj` for motion blur, as Cycles' sync finds them:
+    the vector grid named by the volume's Velocity Grid (or "velocity"), else three float grids
+    (velocity_x/y/z, or the volume's velocity_x/y/z_grid names) that Cycles merges. A dict
+    (grid ids, largest |component|, voxel size, the volume's velocity settings, or `problem`:
+    why it cannot be used), or None when the volume has no velocity."""
+    vol = obj.data
+    info = {"what": what, "scale": float(getattr(vol, "velocity_scale", 1.0)),
+            "unit": getattr(vol, "velocity_unit", 'FRAME'), "use_motion_blur": uses_motion_blur(obj),
+            "interpolation": getattr(getattr(mat, "cycles", None), "volume_interpolation", 'LINEAR')
+            if mat is not None else 'LINEAR', "problem": None}
+    named = getattr(vol, "velocity_grid", "") or ""
+    chosen = None
+    for name in dict.fromkeys(n for n in (named, "velocity") if n):
+        if name not in parsed:
+            continue
+        g = parsed[name].get("grid")
+        if g is None or name not in grids or g.channels != 3:
+            info["problem"] = f"its velocity grid '{name}' is not a vector grid"
+            return info
+        chosen = [name]
+        break
+    if chosen is None:
+        axes = []
+        for a in "xyz":
+            cands = [getattr(vol, f"velocity_{a}_grid", "") or "", f"velocity_{a}"]
+            name = next((n for n in cands if n and n in grids and grids[n][1] == 1), None)
+            axes.append(name)
+        if all(axes):
+            chosen = axes
+    if chosen is None:
+        if named and named != "velocity":
+            info["problem"] = f"it has no velocity grid '{named}'"
+            return info
+        return None
+    gs = [parsed[n]["grid"] for n in chosen]
+    if any(g.nonfinite_replaced for g in gs):
+        info["problem"] = "its velocity grid has NaN or infinite values"
+        return info
+    m = np.abs(np.asarray(gs[0].transform, np.float64)[:3, :3])
+    info["ids"] = [grids[n][0] for n in chosen]
+    info["max"] = max(max(float(v) for v in g.max_abs[:g.channels]) for g in gs)
+    info["voxel"] = float(np.linalg.norm(m, axis=0).max())
+    info["step"] = m.sum(axis=1)  # object-space extent of one index step along each axis
+    return info
+
+
+def apply_velocity(mesh, shutter, fps, position, warn):
+    """Velocity blur of a volume box `mesh` under the shutter (Cycles 4.5: the lookup moves
+    back by velocity x scale x (time - offset), scale per frame; a 'SECOND' unit is scaled by
+    shutter / fps, and only for objects with motion blur); pads the box by the largest
+    displacement in whole voxels as Cycles pads its volume mesh. Sets mesh.velocity."""
+    info = mesh.volume_velocity
+    mesh.velocity = None
+    if not info:
+        return
+    if info["problem"]:
+        warn(f"{info['what']}: {info['problem']}; rendered without velocity blur")
+        return
+    scale = info["scale"]
+    if info["unit"] == 'SECOND':
+        scale *= shutter / fps if info["use_motion_blur"] and fps > 0 else 0.0
+    if not (np.isfinite(scale) and scale != 0.0 and np.isfinite(info["max"])):
+        return
+    # Cycles' time: the ray's in [0, 1] over the shutter; a centred shutter subtracts 0.5, one
+    # ending on the frame adds 1 - shutter (its kernel's formula).
+    offset = -0.5 if position == 'CENTER' else (1.0 - shutter) if position == 'END' else 0.0
+    if info["voxel"] > 0.0:
+        pad = math.ceil(info["max"] * abs(scale) / info["voxel"])
+        grow = pad * np.asarray(info["step"], np.float64)
+        lo = mesh.positions.min(axis=0) - grow
+        hi = mesh.positions.max(axis=0) + grow
+        if np.isfinite(lo).all() and np.isfinite(hi).all():
+            mesh.positions = (lo + _CORNERS * (hi - lo)).astype(np.float32)
+    interp = info["interpolation"] if info["interpolation"] in ('LINEAR', 'CUBIC', 'CLOSEST') else 'LINEAR'
+    mesh.velocity = (tuple(info["ids"]), float(scale), float(offset), interp)

@@ -1584,6 +1584,8 @@ void bind_volume_grids(py::module_& m) {
       .def_property_readonly("nonfinite_replaced", &VolumeGrid::nonfinite_replaced)
       .def_property_readonly("memory_bytes", &VolumeGrid::memory_bytes)
       .def_property_readonly("max_value", &VolumeGrid::max_value)
+      .def_property_readonly("max_abs", [](const VolumeGrid& g) { return g.max_abs(); },
+                             "Per channel (3), the largest |value| of any voxel, tile or the background.")
       .def_property_readonly("background", [](const VolumeGrid& g) { return g.background(); })
       .def("sample", [](const VolumeGrid& g, const FloatArray& p, const std::string& mode) {
              return sample_points(g, p, false, mode, false); },
@@ -2570,6 +2572,25 @@ PYBIND11_MODULE(pathlight_core, m) {
           "object_attribute op; NaN/inf read 0).")
 
       .def(
+          "set_mesh_velocity",
+          [](PyScene& self, uint32_t mesh, int32_t grid, float scale, float offset, const std::string& interpolation,
+             int32_t grid_y, int32_t grid_z) {
+            self.check_editable();
+            VolumeSampling vs = VolumeSampling::Trilinear;
+            if (interpolation == "CUBIC") vs = VolumeSampling::Tricubic;
+            else if (interpolation == "CLOSEST") vs = VolumeSampling::Closest;
+            else if (interpolation != "LINEAR")
+              throw std::invalid_argument("interpolation must be 'LINEAR', 'CUBIC' or 'CLOSEST'");
+            self.scene->set_mesh_velocity(mesh, grid, scale, offset, vs, grid_y, grid_z);
+          },
+          py::arg("mesh"), py::arg("grid"), py::arg("scale"), py::arg("offset") = -0.5f,
+          py::arg("interpolation") = "LINEAR", py::arg("grid_y") = -1, py::arg("grid_z") = -1,
+          "Velocity blur of a volume object's mesh (Cycles' volume motion): its media look up the point "
+          "moved back twice by velocity x scale x (time + offset) (time: the ray's shutter time in [0, 1]; "
+          "offset -0.5 for a centred shutter, 0 at the start), velocity the vector grid `grid` (an "
+          "add_volume_grid id, object space), or with grid_y and grid_z the float grids of its x, y and z "
+          "components. grid < 0 or scale 0: none. Non-finite values raise.")
+      .def(
           "set_mesh_motion",
           [](PyScene& self, uint32_t mesh, const FloatArray& positions) {
             self.check_editable();
@@ -2908,10 +2929,12 @@ PYBIND11_MODULE(pathlight_core, m) {
           "(majorants (z, y, x) of the 16^3 grid, bounds lo, hi) of a committed heterogeneous medium.")
       .def(
           "medium_at",
-          [](PyScene& self, uint32_t instance, uint32_t material, const py::object& p, const py::object& dir) {
+          [](PyScene& self, uint32_t instance, uint32_t material, const py::object& p, const py::object& dir,
+             float time) {
             const HeteroMedium* h = self.scene->committed() ? self.scene->hetero_medium(instance, material) : nullptr;
             if (!h) throw std::invalid_argument("no heterogeneous medium of that instance and material (commit first)");
-            const MediumSample m = self.scene->medium_at(*h, to_point(p, "p"), normalize(to_point(dir, "dir")));
+            if (!(time >= 0.0f && time <= 1.0f)) throw std::invalid_argument("time must be in [0, 1]");
+            const MediumSample m = self.scene->medium_at(*h, to_point(p, "p"), normalize(to_point(dir, "dir")), time);
             py::dict d;
             d["sigma_a"] = py::make_tuple(m.sigma_a.x, m.sigma_a.y, m.sigma_a.z);
             d["sigma_s"] = py::make_tuple(m.sigma_s.x, m.sigma_s.y, m.sigma_s.z);
@@ -2920,13 +2943,20 @@ PYBIND11_MODULE(pathlight_core, m) {
             return d;
           },
           py::arg("instance"), py::arg("material"), py::arg("p"), py::arg("dir") = py::make_tuple(0.0f, 0.0f, 1.0f),
-          "A heterogeneous medium's coefficients at world point p (its volume program's outputs).")
+          py::arg("time") = 0.5f,
+          "A heterogeneous medium's coefficients at world point p (its volume program's outputs) at "
+          "shutter time `time` in [0, 1] (motion blur: the instance's transform, the velocity).")
       .def(
           "medium_track",
           [](PyScene& self, uint32_t instance, uint32_t material, const py::object& org, const py::object& dir,
-             float tmax, int64_t n, const std::string& mode, uint64_t seed) {
+             float tmax, int64_t n, const std::string& mode, uint64_t seed, const py::object& time_obj) {
             const HeteroMedium* h = self.scene->committed() ? self.scene->hetero_medium(instance, material) : nullptr;
             if (!h) throw std::invalid_argument("no heterogeneous medium of that instance and material (commit first)");
+            // time: a shutter time in [0, 1], or None: each estimate draws its own (a box shutter).
+            const bool fixed_time = !time_obj.is_none();
+            const float time_value = fixed_time ? time_obj.cast<float>() : 0.5f;
+            if (fixed_time && !(time_value >= 0.0f && time_value <= 1.0f))
+              throw std::invalid_argument("time must be in [0, 1] or None");
             if (mode != "ratio" && mode != "delta") throw std::invalid_argument("mode must be 'ratio' or 'delta'");
             if (n < 0) throw std::invalid_argument("n must be >= 0");
             const Vec3 o = to_point(org, "org"), d = normalize(to_point(dir, "dir"));
@@ -2936,9 +2966,10 @@ PYBIND11_MODULE(pathlight_core, m) {
             const Scene& scene = *self.scene;
             {
               py::gil_scoped_release release;
-              const auto eval = [&](float tt) { return scene.medium_at(*h, o + d * tt, d); };
               for (int64_t i = 0; i < n; ++i) {
                 Pcg32 rng(mix64(seed * 0x9E3779B97F4A7C15ULL + uint64_t(i)), seed);
+                const float time = fixed_time ? time_value : rng.next_float();
+                const auto eval = [&](float tt) { return scene.medium_at(*h, o + d * tt, d, time); };
                 Vec3 v(1.0f);
                 float tt = kInf;
                 if (mode == "ratio") {
@@ -2956,11 +2987,12 @@ PYBIND11_MODULE(pathlight_core, m) {
             return py::make_tuple(t, w);
           },
           py::arg("instance"), py::arg("material"), py::arg("org"), py::arg("dir"), py::arg("tmax"), py::arg("n"),
-          py::arg("mode") = "ratio", py::arg("seed") = 0,
+          py::arg("mode") = "ratio", py::arg("seed") = 0, py::arg("time") = py::float_(0.5),
           "n independent estimates along org + t dir, t in [0, tmax], in a committed heterogeneous medium: "
           "(distances (n,), weights (n, 3)). 'ratio': ratio tracking's transmittance estimates (distances "
           "inf); 'delta': delta tracking's scattering distances (inf: passed tmax) and path weights "
-          "(the integrator's estimators, scene/medium_grid.h).")
+          "(the integrator's estimators, scene/medium_grid.h). time: the shutter time in [0, 1] of every "
+          "estimate, or None: a uniform time each (motion blur).")
       .def(
           "set_camera",
           [](PyScene& self, const CameraDesc& c) {

@@ -198,6 +198,7 @@ struct MediumStack {
   const Scene& scene;
   const Medium& medium;
   Vec3 org, d;
+  float time;  // the ray's shutter time (moving media)
   StackMajorants majorants;
   Vec3 ss[4];  // each layer's sigma_s and phase(s) at the last point evaluated
   Phase phase[4];
@@ -205,7 +206,8 @@ struct MediumStack {
   int n_lobes[4];
   PhaseLobe het_lobes[4][kMaxPhaseLobes];  // a heterogeneous layer's several phases there
 
-  MediumStack(const Scene& sc, const Medium& m, Vec3 o, Vec3 dir) : scene(sc), medium(m), org(o), d(dir) {
+  MediumStack(const Scene& sc, const Medium& m, Vec3 o, Vec3 dir, float tm)
+      : scene(sc), medium(m), org(o), d(dir), time(tm) {
     for (int i = 0; i < m.n; ++i)
       if (m.layer[i].het) majorants.grids[majorants.n++] = &m.layer[i].het->grid;
     majorants.constant = max_component(m.sum.sigma_a + m.sum.sigma_s);
@@ -225,7 +227,7 @@ struct MediumStack {
         n_lobes[i] = l.n_lobes;
         continue;
       }
-      const MediumSample ms = scene.medium_at(*l.het, p, d);
+      const MediumSample ms = scene.medium_at(*l.het, p, d, time);
       sum.sigma_a += ms.sigma_a;
       sum.sigma_s += ms.sigma_s;
       sum.emission += ms.emission;
@@ -264,25 +266,26 @@ inline Vec3 medium_emission(const MediumLayer& m, float t) {
 // a surface with a medium enters or leaves it. occlude false: the ray sees no surfaces, only
 // the medium it starts in.
 // Heterogeneous layers: ratio tracking with `rng` (transmittance estimates, unbiased).
-Vec3 layer_transmittance(const Scene& scene, const Medium& medium, Vec3 org, Vec3 dir, float seg, Pcg32* rng) {
+Vec3 layer_transmittance(const Scene& scene, const Medium& medium, Vec3 org, Vec3 dir, float seg, Pcg32* rng,
+                         float time) {
   const MediumLayer& m = *medium.top();
   if (!m.het) return medium_transmittance(m.sigma_a + m.sigma_s, seg);
   if (!rng) return Vec3(1.0f);
   const float len = length(dir);
   const Vec3 d = dir / len;
   if (medium.mixed) {
-    MediumStack st(scene, medium, org, d);
+    MediumStack st(scene, medium, org, d, time);
     return ratio_track(st.majorants, org, d, seg, *rng, [&](float t) { return st.at(t); });
   }
   return ratio_track(m.het->grid, org, d, seg, *rng,
-                     [&](float t) { return scene.medium_at(*m.het, org + d * t, d); });
+                     [&](float t) { return scene.medium_at(*m.het, org + d * t, d, time); });
 }
 
 Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr) {
   Vec3 T(1.0f);
   if (!occlude) {
     if (medium.top())
-      T = layer_transmittance(scene, medium, ray.org, ray.dir, ray.tmax * length(ray.dir), rng);
+      T = layer_transmittance(scene, medium, ray.org, ray.dir, ray.tmax * length(ray.dir), rng, ray.time);
     return T;
   }
   for (int i = 0; i < 64; ++i) {
@@ -291,7 +294,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     const bool found = scene.intersect(ray, h);
     if (medium.top()) {
       const float seg = found ? h.t * len : ray.tmax * len;
-      T = T * layer_transmittance(scene, medium, ray.org, ray.dir, seg, rng);
+      T = T * layer_transmittance(scene, medium, ray.org, ray.dir, seg, rng, ray.time);
     }
     if (!found) return T;
     SurfacePoint sp;
@@ -613,13 +616,14 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             return delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
           };
           if (!medium.mixed) {
-            scatter = track(m->het->grid, [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d); });
+            scatter = track(m->het->grid,
+                            [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d, ray.time); });
             if (is_black(beta)) break;
             phase = ms.phase;
             if (scatter && ms.n_lobes >= 2) phase = choose_lobe(ms.n_lobes, ms.lobes, vrng.next_float(), beta);
           } else {
             // Overlapping layers, one of them heterogeneous: all of them summed per point.
-            MediumStack stack(scene, medium, ray.org, d);
+            MediumStack stack(scene, medium, ray.org, d, ray.time);
             scatter = track(stack.majorants, [&](float tt) { return stack.at(tt); });
             if (is_black(beta)) break;
             if (scatter) phase = stack.choose_phase(vrng.next_float(), beta);

@@ -3,6 +3,7 @@
 #include "scene/scene.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <stdexcept>
 #include <utility>
@@ -188,6 +189,23 @@ void Scene::set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps)
   m.motion_positions = ok && moves ? std::move(steps) : std::vector<std::vector<Vec3>>{};
   committed_ = false;
   geometry_dirty_ = true;
+}
+
+void Scene::set_mesh_velocity(uint32_t mesh, int32_t grid, float scale, float offset, VolumeSampling sampling,
+                              int32_t grid_y, int32_t grid_z) {
+  if (mesh >= meshes_.size()) throw std::invalid_argument("set_mesh_velocity: unknown mesh id");
+  if (!std::isfinite(scale) || !std::isfinite(offset))
+    throw std::invalid_argument("set_mesh_velocity: scale and offset must be finite");
+  MeshData& m = meshes_[mesh];
+  const bool on = grid >= 0 && scale != 0.0f;
+  m.velocity_grid = on ? grid : -1;
+  m.velocity_scale = on ? scale : 0.0f;
+  m.velocity_offset = on ? offset : 0.0f;
+  m.velocity_sampling = sampling;
+  const bool xyz = on && grid_y >= 0 && grid_z >= 0;
+  m.velocity_yz[0] = xyz ? grid_y : -1;
+  m.velocity_yz[1] = xyz ? grid_z : -1;
+  committed_ = false;  // (media are rebuilt at every commit)
 }
 
 void Scene::set_instance_transform(uint32_t index, const Mat4& m) {

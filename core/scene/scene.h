@@ -52,6 +52,14 @@ struct MeshData {
   // long as positions; empty: no deformation). Its instances trace the triangles at the ray's
   // time; shading normals stay the frame's.
   std::vector<std::vector<Vec3>> motion_positions;
+  // Velocity blur of a volume object (Cycles' volume motion): the lookup point moves back by
+  // velocity x scale x (time + offset), velocity the vector grid `velocity_grid` (object
+  // space; -1: none), or where velocity_yz are set, three float grids x, y, z (Cycles merges
+  // them), read with `velocity_sampling` (docs/design/motion-blur.md).
+  int32_t velocity_grid = -1;
+  int32_t velocity_yz[2] = {-1, -1};
+  float velocity_scale = 0.0f, velocity_offset = 0.0f;
+  VolumeSampling velocity_sampling = VolumeSampling::Trilinear;
 };
 
 struct Material {
@@ -80,7 +88,14 @@ struct Material {
 struct HeteroMedium {
   const ShaderProgram* program = nullptr;  // the volume program (the material's)
   uint32_t material = 0, instance = 0;
-  MajorantGrid grid;
+  MajorantGrid grid;  // over the space it covers at any shutter time (world)
+  // Motion blur: the instance moves (its transform at the ray's time places the medium), and
+  // velocity blur (MeshData::velocity_grid; -1: none).
+  bool moving = false;
+  int32_t velocity_grid = -1;
+  int32_t velocity_yz[2] = {-1, -1};
+  float velocity_scale = 0.0f, velocity_offset = 0.0f;
+  VolumeSampling velocity_sampling = VolumeSampling::Trilinear;
 };
 
 struct SurfacePoint;
@@ -262,7 +277,13 @@ class Scene {
   // with non-finite positions leave it undeformed (counted in stats().motion_rejected).
   void set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps);
   // Instances with transform motion blur in the committed scene: rays then need a time.
-  bool has_motion() const { return motion_instances_ > 0; }
+  // (Volumes with velocity blur count: their lookups need the ray's time too.)
+  bool has_motion() const { return motion_instances_ > 0 || velocity_media_ > 0; }
+  // Velocity blur of a volume object's mesh (MeshData::velocity_grid): scale 0 or a grid
+  // id < 0 turns it off. Throws std::invalid_argument on non-finite values.
+  // grid_y, grid_z >= 0: `grid` is the x component's float grid, they the y and z ones.
+  void set_mesh_velocity(uint32_t mesh, int32_t grid, float scale, float offset, VolumeSampling sampling,
+                         int32_t grid_y = -1, int32_t grid_z = -1);
   // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
   // commit() rebuilds only the top level and the lights; else the merged geometry.
   void set_instance_transform(uint32_t index, const Mat4& m);
@@ -477,8 +498,14 @@ class Scene {
   const VolumeGrid* volume_grid(int id) const {
     return id >= 0 && size_t(id) < grids_.size() ? grids_[size_t(id)].get() : nullptr;
   }
-  // The medium's coefficients at world point p for a ray along dir (unit).
-  MediumSample medium_at(const HeteroMedium& h, Vec3 p, Vec3 dir) const;
+  // The medium's coefficients at world point p for a ray along dir (unit) at shutter time
+  // `time` (motion blur: the instance's transform then, the velocity's displacement).
+  MediumSample medium_at(const HeteroMedium& h, Vec3 p, Vec3 dir, float time) const {
+    if (__builtin_expect(h.moving || h.velocity_grid >= 0, 0)) return medium_at_moving(h, p, dir, time);
+    return medium_at_frame(h, p, dir);
+  }
+  // At the frame: the commit's transform, no velocity (what the majorants are first built from).
+  MediumSample medium_at_frame(const HeteroMedium& h, Vec3 p, Vec3 dir) const;
   // Scales every majorant built at the next commit (tests: below 1 the majorants are too
   // small, and the estimators must stay unbiased).
   void set_majorant_scale(float s) {
@@ -723,6 +750,9 @@ class Scene {
   std::vector<uint32_t> local_index_;
   std::vector<Bvh> local_bvhs_;
   std::vector<HeteroMedium> hetero_;  // made at commit (build_media)
+  size_t velocity_media_ = 0;         // of them with velocity blur
+  MediumSample medium_at_moving(const HeteroMedium& h, Vec3 p, Vec3 dir, float time) const;
+  void sweep_majorants(HeteroMedium& h, const Aabb& object_box);
   std::vector<std::shared_ptr<const VolumeGrid>> grids_;  // add_volume_grid
   float majorant_scale_ = 1.0f;
   size_t local_built_for_ = SIZE_MAX;  // stats_.geometry_builds they were made for

@@ -4,11 +4,12 @@
 #include <cmath>
 
 #include "scene/scene.h"
+#include "geometry/motion.h"
 #include "scene/scene_detail.h"
 
 namespace pl {
 
-MediumSample Scene::medium_at(const HeteroMedium& h, Vec3 p, Vec3 dir) const {
+MediumSample Scene::medium_at_frame(const HeteroMedium& h, Vec3 p, Vec3 dir) const {
   ShadingContext ctx;
   ctx.p = p;
   ctx.ng = ctx.ns = Vec3(0.0f);  // a point in a volume has no normal (Cycles' volume shader data)
@@ -63,6 +64,46 @@ Float4 read_volume_grid(const ShadingContext& ctx, int id, VolumeSampling interp
   return g->channels() == 1 ? Float4{v[0], v[0], v[0], 1.0f} : Float4{v[0], v[1], v[2], 1.0f};
 }
 
+MediumSample Scene::medium_at_moving(const HeteroMedium& h, Vec3 p, Vec3 dir, float time) const {
+  ShadingContext ctx;
+  ctx.ng = ctx.ns = Vec3(0.0f);
+  ctx.wo = -dir;
+  ctx.scene = this;
+  ctx.instance = h.instance;
+  ctx.time = time;
+  const ObjectCoords* frame = h.instance < object_coords_.size() ? &object_coords_[h.instance] : nullptr;
+  ctx.object = frame;
+  // The object's transforms at the ray's time (as a moving surface's texture coordinates).
+  ObjectCoords moved;
+  const InstanceData* in = h.instance < inst_.size() ? &inst_[h.instance] : nullptr;
+  if (h.moving && frame && in && in->motion) {
+    moved = *frame;
+    const ObjectCoords at = make_object_coords(motion_transform_at(in->motion, in->motion_steps, time), Vec3(0.0f), Vec3(1.0f));
+    moved.to_world = at.to_world;
+    moved.to_object = at.to_object;
+    moved.valid = at.valid;
+    ctx.object = &moved;
+  }
+  ctx.p = p;
+  if (h.velocity_grid >= 0 && ctx.object && ctx.object->valid) {
+    // Cycles' volume_shader_motion_blur: first-order semi-Lagrangian advection, the point
+    // moved back along the velocity there, then along the velocity at that point (object-space
+    // velocity turned into world space by the transform at the ray's time).
+    const float k = h.velocity_scale * (time + h.velocity_offset);
+    const auto back = [&]() {
+      Vec3 v = read_volume_grid(ctx, h.velocity_grid, h.velocity_sampling).xyz();
+      if (h.velocity_yz[0] >= 0) {
+        v.y = read_volume_grid(ctx, h.velocity_yz[0], h.velocity_sampling).x;
+        v.z = read_volume_grid(ctx, h.velocity_yz[1], h.velocity_sampling).x;
+      }
+      return p - ctx.object->to_world.vector(v) * k;
+    };
+    ctx.p = back();
+    ctx.p = back();
+  }
+  return eval_volume(*h.program, images_, ctx);
+}
+
 namespace {
 bool reads_grids(const ShaderProgram& p) {
   for (const ShaderOp& op : p.ops)
@@ -71,8 +112,125 @@ bool reads_grids(const ShaderProgram& p) {
 }
 }  // namespace
 
+// Motion blur: the frame's majorants (h.grid, built with the commit's transform and no
+// velocity) carried to a grid over all the space the medium covers during the shutter. A cell's
+// majorant is the largest frame majorant over the object-space points any of its points can
+// show at any time: for each time sample t_j (sub-steps short against a cell), the cell grown
+// by delta_j (how far any point of the object moves between t_j and the next sample) taken to
+// object space by the inverse transform at t_j, clipped to the object's box, grown by the
+// largest velocity displacement, and back to the frame's world space.
+void Scene::sweep_majorants(HeteroMedium& h, const Aabb& ob) {
+  constexpr int N = MajorantGrid::kRes;
+  if (ob.empty() || h.grid.empty()) return;
+  const MajorantGrid g0 = h.grid;
+  const Mat4& m0 = instances_[h.instance].matrix;
+  const InstanceData& in = inst_[h.instance];
+  const bool moving = h.moving && in.motion && in.motion_steps >= 2;
+  Vec3 disp(0.0f);
+  if (h.velocity_grid >= 0) {
+    const VolumeGrid* vg = volume_grid(h.velocity_grid);
+    const std::array<float, 3> v = vg->max_abs();
+    const float k = std::fabs(h.velocity_scale) * std::max(std::fabs(h.velocity_offset), std::fabs(1.0f + h.velocity_offset));
+    Vec3 vmax = vg->channels() >= 3 ? Vec3{v[0], v[1], v[2]} : Vec3(v[0]);
+    if (h.velocity_yz[0] >= 0)
+      vmax = {v[0], volume_grid(h.velocity_yz[0])->max_abs()[0], volume_grid(h.velocity_yz[1])->max_abs()[0]};
+    disp = vmax * (k * 1.001f);
+    if (!is_finite(disp)) return;  // (the frame's majorants: unbiased, noisier)
+  }
+  Aabb B = g0.bounds;
+  if (moving) {
+    B = motion_world_box(ob, in.motion, in.motion_steps);
+    if (B.empty() || !is_finite(B.lo) || !is_finite(B.hi)) return;
+    const Vec3 pad = B.extent() * 1e-3f + Vec3(1e-5f);
+    B.lo = B.lo - pad;
+    B.hi = B.hi + pad;
+  }
+  const Vec3 cell = B.extent() * (1.0f / float(N));
+  struct TimeSample {
+    Mat4 to_object;
+    float delta;
+  };
+  std::vector<TimeSample> samples;
+  if (!moving) {
+    samples.push_back({affine_inverse_fast(m0), 0.0f});
+  } else {
+    Vec3 corner[8];
+    for (int c = 0; c < 8; ++c)
+      corner[c] = {(c & 1) ? ob.hi.x : ob.lo.x, (c & 2) ? ob.hi.y : ob.lo.y, (c & 4) ? ob.hi.z : ob.lo.z};
+    const float cmin = std::max(std::min(cell.x, std::min(cell.y, cell.z)), 1e-12f);
+    const uint32_t n = in.motion_steps;
+    for (uint32_t k = 0; k + 1 < n; ++k) {
+      const DecomposedTransform& a = in.motion[k];
+      const DecomposedTransform& b = in.motion[k + 1];
+      // Between t_j and t in the step: |M(t) q - M(t_j) q| <= |dT| + |dS q| + 2 sin(dtheta / 2) |S q|
+      // (translation and scale linear in t, |dS q| and |S q| largest at a corner).
+      float ds = 0.0f, r = 0.0f;
+      for (const Vec3& q : corner) {
+        Vec3 d, sa, sb;
+        for (int i = 0; i < 3; ++i) {
+          sa[i] = a.s[i][0] * q.x + a.s[i][1] * q.y + a.s[i][2] * q.z;
+          sb[i] = b.s[i][0] * q.x + b.s[i][1] * q.y + b.s[i][2] * q.z;
+          d[i] = sb[i] - sa[i];
+        }
+        ds = std::max(ds, length(d));
+        r = std::max(r, std::max(length(sa), length(sb)));
+      }
+      const float dt = length(b.t - a.t);
+      const float c = std::fabs(a.q[0] * b.q[0] + a.q[1] * b.q[1] + a.q[2] * b.q[2] + a.q[3] * b.q[3]);
+      const float theta = 2.0f * std::acos(std::min(c, 1.0f));
+      const float total = dt + ds + theta * r;
+      const int sub = std::clamp(int(std::ceil(total / (0.5f * cmin))), 1, 32);
+      const float dtheta = std::min(1.1f * theta / float(sub), kPi);
+      const float delta = ((dt + ds) / float(sub) + 2.0f * std::sin(0.5f * dtheta) * r) * 1.01f;
+      for (int j = 0; j < sub; ++j) {
+        const float time = (float(k) + float(j) / float(sub)) / float(n - 1);
+        samples.push_back({affine_inverse_fast(motion_transform_at(in.motion, n, time)), delta});
+      }
+    }
+  }
+  const Vec3 cell0 = vmax(g0.bounds.extent() * (1.0f / float(N)), Vec3(1e-30f));
+  const Vec3 slop = ob.extent() * 1e-4f + Vec3(1e-6f);
+  const auto box_of = [](const Mat4& m, const Aabb& x) {
+    Aabb o;
+    for (int c = 0; c < 8; ++c)
+      o.grow(m.point({(c & 1) ? x.hi.x : x.lo.x, (c & 2) ? x.hi.y : x.lo.y, (c & 4) ? x.hi.z : x.lo.z}));
+    return o;
+  };
+  MajorantGrid g;
+  g.bounds = B;
+  g.cells.assign(size_t(N) * N * N, 0.0f);
+  for (int cz = 0; cz < N; ++cz)
+    for (int cy = 0; cy < N; ++cy)
+      for (int cx = 0; cx < N; ++cx) {
+        const Aabb c{B.lo + Vec3{cell.x * float(cx), cell.y * float(cy), cell.z * float(cz)},
+                     B.lo + Vec3{cell.x * float(cx + 1), cell.y * float(cy + 1), cell.z * float(cz + 1)}};
+        float mu = 0.0f;
+        for (const TimeSample& s : samples) {
+          const Aabb grown{c.lo - Vec3(s.delta), c.hi + Vec3(s.delta)};
+          Aabb o = box_of(s.to_object, grown);
+          o.lo = vmax(o.lo - slop, ob.lo);
+          o.hi = vmin(o.hi + slop, ob.hi);
+          if (!(o.lo.x <= o.hi.x && o.lo.y <= o.hi.y && o.lo.z <= o.hi.z)) continue;
+          o.lo = o.lo - disp;
+          o.hi = o.hi + disp;
+          const Aabb f = box_of(m0, o);
+          int lo[3], hi[3];
+          for (int a = 0; a < 3; ++a) {
+            lo[a] = std::clamp(int(std::floor((f.lo[a] - g0.bounds.lo[a]) / cell0[a])), 0, N - 1);
+            hi[a] = std::clamp(int(std::floor((f.hi[a] - g0.bounds.lo[a]) / cell0[a])), 0, N - 1);
+          }
+          for (int z = lo[2]; z <= hi[2]; ++z)
+            for (int y = lo[1]; y <= hi[1]; ++y)
+              for (int x = lo[0]; x <= hi[0]; ++x) mu = std::max(mu, g0.at(x, y, z));
+        }
+        g.cells[size_t((cz * N + cy) * N + cx)] = mu;
+      }
+  h.grid = std::move(g);
+}
+
 void Scene::build_media() {
   hetero_.clear();
+  velocity_media_ = 0;
   bool any = false;
   for (const Material& m : materials_) any = any || m.program.volume != nullptr;
   if (!any) return;
@@ -107,6 +265,17 @@ void Scene::build_media() {
       h.material = id;
       h.instance = i;
       h.grid.bounds = b;
+      h.moving = i < inst_.size() && inst_[i].motion != nullptr;
+      const bool xyz = mesh.velocity_yz[0] >= 0;
+      if (mesh.velocity_grid >= 0 && volume_grid(mesh.velocity_grid) &&
+          (!xyz || (volume_grid(mesh.velocity_yz[0]) && volume_grid(mesh.velocity_yz[1])))) {
+        h.velocity_grid = mesh.velocity_grid;
+        h.velocity_yz[0] = mesh.velocity_yz[0];
+        h.velocity_yz[1] = mesh.velocity_yz[1];
+        h.velocity_scale = mesh.velocity_scale;
+        h.velocity_offset = mesh.velocity_offset;
+        h.velocity_sampling = mesh.velocity_sampling;
+      }
       // Voxel grids: each cell also evaluates the program once with every grid read replaced
       // by the grid's own majorant over the cell (exact bounds for programs that grow with the
       // grid values: a density multiplied in, Map Range up; docs/design/volumes.md).
@@ -118,7 +287,7 @@ void Scene::build_media() {
         for (int y = 0; y < L; ++y)
           for (int x = 0; x < L; ++x) {
             const Vec3 p = b.lo + Vec3{step.x * float(x), step.y * float(y), step.z * float(z)};
-            const MediumSample ms = medium_at(h, p, Vec3{0.0f, 0.0f, 1.0f});
+            const MediumSample ms = medium_at_frame(h, p, Vec3{0.0f, 0.0f, 1.0f});
             const size_t k = (size_t(z) * L + y) * L + x;
             lat[k] = max_component(ms.sigma_a + ms.sigma_s);
             emit[k] = !is_black(ms.emission);
@@ -155,6 +324,12 @@ void Scene::build_media() {
             mu = std::max(mu, e ? emit_mu : floor_mu) * majorant_scale_;
             h.grid.cells[size_t((cz * N + cy) * N + cx)] = std::isfinite(mu) ? mu : 0.0f;
           }
+      if (h.moving || h.velocity_grid >= 0) {
+        Aabb ob;
+        for (const Vec3& p : mesh.positions) ob.grow(p);
+        sweep_majorants(h, ob);
+        velocity_media_ += h.velocity_grid >= 0;
+      }
       hetero_.push_back(std::move(h));
     }
   }

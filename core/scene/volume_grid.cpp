@@ -258,6 +258,17 @@ void VolumeGrid::sample(const double p[3], VolumeSampling mode, float* out) cons
   sample_index(ijk, mode, out);
 }
 
+std::array<float, 3> VolumeGrid::max_abs() const {
+  std::array<float, 3> m{0.0f, 0.0f, 0.0f};
+  const auto take = [&](const float* v) {
+    for (int c = 0; c < channels_; ++c) m[size_t(c)] = std::max(m[size_t(c)], std::fabs(v[c]));
+  };
+  take(background_.data());
+  for (size_t i = 0; i < constants_.size(); i += size_t(channels_)) take(&constants_[i]);
+  for (size_t i = 0; i < bricks_.size(); i += size_t(channels_)) take(&bricks_[i]);
+  return m;
+}
+
 void VolumeGrid::build_majorant() {
   majorant_.clear();
   float bg = background_[0];

@@ -94,6 +94,9 @@ class VolumeGrid {
   // point in the box [lo, hi] (the majorant cells it overlaps; the background beyond them).
   float max_in_index_box(const double lo[3], const double hi[3]) const;
   float max_value() const { return max_value_; }
+  // Per channel, the largest |value| of any voxel, tile or the background (a velocity grid's
+  // largest displacement per axis; samples are convex combinations of voxels).
+  std::array<float, 3> max_abs() const;
 
  private:
   int32_t entry(int64_t bx, int64_t by, int64_t bz) const;
