@@ -574,7 +574,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           };
           if (!medium.mixed) {
             const auto density = [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d); };
-            if (nee && !emission_only && s.volume_segment_nee) {
+            if (nee && !emission_only && s.volume_segment_nee && m->het->tight) {
               // The segment's light sample, at a distance drawn from the majorants' collision
               // density within it (every segment gets one, as in Cycles; delta tracking alone
               // lit only the paths that scattered, few where the smoke is thin), through a

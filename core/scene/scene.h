@@ -81,6 +81,10 @@ struct HeteroMedium {
   const ShaderProgram* program = nullptr;  // the volume program (the material's)
   uint32_t material = 0, instance = 0;
   MajorantGrid grid;
+  // Every cell's majorant is the grid bound (scene_media.cpp): tight enough for the light
+  // sample's distances drawn from them (trace_path.inl); the sampled bounds with their floor
+  // and safety factor spread those distances into empty space, worse than none.
+  bool tight = false;
 };
 
 struct SurfacePoint;

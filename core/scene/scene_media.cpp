@@ -127,6 +127,7 @@ void Scene::build_media() {
             scatters = scatters || !is_black(ms.sigma_s);
           }
       h.grid.cells.assign(size_t(N) * N * N, 0.0f);
+      h.tight = grids;
       for (int cz = 0; cz < N; ++cz)
         for (int cy = 0; cy < N; ++cy)
           for (int cx = 0; cx < N; ++cx) {
@@ -167,6 +168,7 @@ void Scene::build_media() {
               }
               mu = std::max(mu, bound);
             }
+            h.tight = false;
             mu = std::max(mu, e ? emit_mu : floor_mu) * majorant_scale_;
             h.grid.cells[size_t((cz * N + cy) * N + cx)] = std::isfinite(mu) ? mu : 0.0f;
           }
