@@ -2384,6 +2384,9 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("threads", &RenderSettings::threads)
       .def_readwrite("tile_size", &RenderSettings::tile_size)
       .def_readwrite("use_nee", &RenderSettings::use_nee)
+      .def_readwrite("volume_segment_nee", &RenderSettings::volume_segment_nee,
+                     "Heterogeneous media: a light sample in every segment crossed, at a distance drawn from the "
+                     "majorants (on), or only where delta tracking scatters (off)")
       .def_property(
           "sampler", [](const RenderSettings& s) { return enum_name(s.sampler, kSamplerNames); },
           [](RenderSettings& s, const std::string& v) { s.sampler = enum_from_name(v, "sampler", kSamplerNames); })
@@ -2973,7 +2976,7 @@ PYBIND11_MODULE(pathlight_core, m) {
                 Vec3 v(1.0f);
                 float tt = kInf;
                 if (mode == "ratio") {
-                  v = ratio_track(h->grid, o, d, tmax, rng, eval);
+                  v = ratio_track(h->grid, o, d, tmax, rng, eval, 1.0f);  // (the grid's majorants as they are)
                 } else {
                   MediumSample ms;
                   int steps = 0;

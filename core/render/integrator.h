@@ -20,6 +20,10 @@ struct IntegratorSettings {
   int transmission_bounces = 1024;
   int volume_bounces = 1024;  // scatterings in volumes (Blender's Volume bounces)
   bool use_nee = true;
+  // Heterogeneous media: a light sample at a point drawn in every segment a path crosses (by
+  // the majorants' collision density), not only where delta tracking scatters (docs/design/
+  // volumes.md). Off: the light sample at the scattering, as before (tests compare the two).
+  bool volume_segment_nee = true;
   int rr_start_bounce = 3;  // Russian roulette from this bounce on
   // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not
   // in the returned radiance; it becomes alpha instead. It still lights the scene.

@@ -31,6 +31,7 @@ struct RenderSettings {
   int threads = 0;
   int tile_size = 32;
   bool use_nee = true;
+  bool volume_segment_nee = true;  // IntegratorSettings::volume_segment_nee
   SamplerType sampler = SamplerType::Sobol;
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic

@@ -595,6 +595,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         float nee_weight = 1.0f;  // the distance sample's share of the direct light (equiangular MIS)
         float t = 0.0f;
         Phase phase = m->phase;
+        bool direct_done = false;  // the segment's light sample already taken (heterogeneous)
+        float u_rr_seg = -1.0f;
         if (m->het) {
           // A heterogeneous medium: delta tracking through its majorants, emission by the
           // collision estimator (scene/medium_grid.h).
@@ -616,8 +618,33 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             return delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
           };
           if (!medium.mixed) {
-            scatter = track(m->het->grid,
-                            [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d, ray.time); });
+            const auto density = [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d, ray.time); };
+            if (nee && !emission_only && s.volume_segment_nee && m->het->tight) {
+              // The segment's light sample, at a distance drawn from the majorants' collision
+              // density within it (every segment gets one, as in Cycles; delta tracking alone
+              // lit only the paths that scattered, few where the smoke is thin), through a
+              // ratio-tracked transmittance to it. The phase sample's share of the same light
+              // stays with the path's own scattering below (the power heuristic's weights are
+              // per point and direction, so the two parts still sum to the direct light).
+              const Vec2 u_sel = sampler.get2d(), u_pt = sampler.get2d();
+              u_rr_seg = u_sel.y;
+              direct_done = true;
+              float te, pe;
+              if (sample_majorant_distance(m->het->grid, ray.org, d, seg, vrng.next_float(), te, pe)) {
+                const MediumSample me = density(te);
+                if (!is_black(me.sigma_s)) {
+                  const Vec3 tr = ratio_track(m->het->grid, ray.org, d, te, vrng, density);
+                  Vec3 ss = me.sigma_s;
+                  const Phase pe_phase = me.n_lobes >= 2 ? choose_lobe(me.n_lobes, me.lobes, vrng.next_float(), ss) : me.phase;
+                  if (!is_black(tr))
+                    L += beta * tr * ss *
+                         medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces, medium, u_sel.x,
+                                       u_pt, ray_state, ray.time, c, &vrng) *
+                         (1.0f / pe);
+                }
+              }
+            }
+            scatter = track(m->het->grid, density);
             if (is_black(beta)) break;
             phase = ms.phase;
             if (scatter && ms.n_lobes >= 2) phase = choose_lobe(ms.n_lobes, ms.lobes, vrng.next_float(), beta);
@@ -688,8 +715,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           direct = false;
           want_data = false;
           const bool last = bounce >= s.max_bounces;
-          float u_rr = -1.0f;
-          if (nee) {  // a light sample, weighted against the phase function's sample
+          float u_rr = u_rr_seg;
+          if (nee && !direct_done) {  // a light sample, weighted against the phase function's sample
             const Vec2 u_sel = sampler.get2d();
             u_rr = u_sel.y;
             const Vec2 u_pt = sampler.get2d();

@@ -96,6 +96,10 @@ struct HeteroMedium {
   int32_t velocity_yz[2] = {-1, -1};
   float velocity_scale = 0.0f, velocity_offset = 0.0f;
   VolumeSampling velocity_sampling = VolumeSampling::Trilinear;
+  // Every cell's majorant is the grid bound (scene_media.cpp): tight enough for the light
+  // sample's distances drawn from them (trace_path.inl); the sampled bounds with their floor
+  // and safety factor spread those distances into empty space, worse than none.
+  bool tight = false;
 };
 
 struct SurfacePoint;

@@ -5,6 +5,7 @@
 
 #include "scene/scene.h"
 #include "geometry/motion.h"
+#include "scene/medium_grid.h"
 #include "scene/scene_detail.h"
 
 namespace pl {
@@ -50,7 +51,7 @@ Float4 read_volume_grid(const ShadingContext& ctx, int id, VolumeSampling interp
       lo[a] -= pad + kCyclesVoxelShift;
       hi[a] += pad - kCyclesVoxelShift;
     }
-    const float v = g->max_in_index_box(lo, hi);
+    const float v = g->max_voxels_in_index_box(lo, hi, interp == VolumeSampling::Tricubic ? 1 : 0);
     return {v, v, v, 1.0f};
   }
   const Vec3 o = obj ? ctx.object->to_object.point(ctx.p) : ctx.p;
@@ -282,6 +283,7 @@ void Scene::build_media() {
       const bool grids = reads_grids(*h.program);
       std::vector<float> lat(size_t(L) * L * L);
       std::vector<uint8_t> emit(size_t(L) * L * L);
+      bool scatters = false;
       const Vec3 step = b.extent() * (1.0f / float(L - 1));
       for (int z = 0; z < L; ++z)
         for (int y = 0; y < L; ++y)
@@ -291,8 +293,10 @@ void Scene::build_media() {
             const size_t k = (size_t(z) * L + y) * L + x;
             lat[k] = max_component(ms.sigma_a + ms.sigma_s);
             emit[k] = !is_black(ms.emission);
+            scatters = scatters || !is_black(ms.sigma_s);
           }
       h.grid.cells.assign(size_t(N) * N * N, 0.0f);
+      h.tight = grids;
       for (int cz = 0; cz < N; ++cz)
         for (int cy = 0; cy < N; ++cy)
           for (int cx = 0; cx < N; ++cx) {
@@ -305,6 +309,7 @@ void Scene::build_media() {
                   mu = std::max(mu, lat[k]);
                   e = e || emit[k];
                 }
+            const float sampled = mu;
             mu *= kSafety;
             if (grids) {
               const Vec3 box[2] = {b.lo + Vec3{cell.x * float(cx), cell.y * float(cy), cell.z * float(cz)},
@@ -318,13 +323,31 @@ void Scene::build_media() {
               ctx.instance = i;
               ctx.grid_bound = box;
               const MediumSample ms = eval_volume(*h.program, images_, ctx);
-              mu = std::max(mu, max_component(ms.sigma_a + ms.sigma_s) * 1.001f);
+              const float bound = max_component(ms.sigma_a + ms.sigma_s) * 1.001f;
               e = e || !is_black(ms.emission);
+              if (sampled <= bound && !e) {
+                // The program grows with the grid values here (no lattice point above the
+                // bound): the bound alone, without the sampled maximum's safety factor or
+                // the floor, which in sparse smoke made the majorants 12x the mean density
+                // (docs/design/volumes.md "Equal time against Cycles"). A floor 10x lower
+                // still finds what a program adds between the lattice points.
+                h.grid.cells[size_t((cz * N + cy) * N + cx)] =
+                    std::isfinite(bound) ? std::max(bound, 0.1f * floor_mu) * majorant_scale_ : 0.0f;
+                continue;
+              }
+              mu = std::max(mu, bound);
             }
+            h.tight = false;
             mu = std::max(mu, e ? emit_mu : floor_mu) * majorant_scale_;
             h.grid.cells[size_t((cz * N + cy) * N + cx)] = std::isfinite(mu) ? mu : 0.0f;
           }
+      // Without scattering, delta tracking is ratio tracking (every collision null): its
+      // majorants as loose as ratio tracking's (medium_grid.h kRatioTrackingScale), or the
+      // transmittance through a tight bound is nearly a coin flip.
+      if (!scatters)
+        for (float& c : h.grid.cells) c *= kRatioTrackingScale;
       if (h.moving || h.velocity_grid >= 0) {
+        h.tight = false;  // swept over the shutter: no longer the grid bound
         Aabb ob;
         for (const Vec3& p : mesh.positions) ob.grow(p);
         sweep_majorants(h, ob);

@@ -353,4 +353,24 @@ float VolumeGrid::max_in_index_box(const double lo[3], const double hi[3]) const
   return m;
 }
 
+float VolumeGrid::max_voxels_in_index_box(const double lo[3], const double hi[3], int pad) const {
+  int64_t v0[3], v1[3], count = 1;
+  for (int a = 0; a < 3; ++a) {
+    if (!(lo[a] <= hi[a]) || !(std::fabs(lo[a]) < 2.0e9) || !(std::fabs(hi[a]) < 2.0e9))
+      return max_in_index_box(lo, hi);
+    v0[a] = int64_t(std::floor(lo[a])) - pad;
+    v1[a] = int64_t(std::floor(hi[a])) + 1 + pad;
+    count *= v1[a] - v0[a] + 1;
+  }
+  if (count > (int64_t(1) << 18)) return max_in_index_box(lo, hi);
+  float m = -std::numeric_limits<float>::infinity(), v[3];
+  for (int64_t z = v0[2]; z <= v1[2]; ++z)
+    for (int64_t y = v0[1]; y <= v1[1]; ++y)
+      for (int64_t x = v0[0]; x <= v1[0]; ++x) {
+        voxel(x, y, z, v);
+        for (int c = 0; c < channels_; ++c) m = std::max(m, v[c]);
+      }
+  return m;
+}
+
 }  // namespace pl

@@ -93,6 +93,11 @@ class VolumeGrid {
   // The largest value any sample (closest or trilinear, any channel) can take at an index-space
   // point in the box [lo, hi] (the majorant cells it overlaps; the background beyond them).
   float max_in_index_box(const double lo[3], const double hi[3]) const;
+  // The same bound from the voxels themselves: the largest voxel (any channel) of the stencils
+  // of samples in [lo, hi] (voxels floor(lo) - pad .. floor(hi) + 1 + pad; pad 1 for tricubic
+  // reads). Much tighter than the brick majorants for boxes of a few voxels (they bound a
+  // brick and its 26 neighbours); boxes of more than 2^18 voxels use max_in_index_box.
+  float max_voxels_in_index_box(const double lo[3], const double hi[3], int pad) const;
   float max_value() const { return max_value_; }
   // Per channel, the largest |value| of any voxel, tile or the background (a velocity grid's
   // largest displacement per axis; samples are convex combinations of voxels).

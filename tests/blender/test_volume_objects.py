@@ -339,7 +339,8 @@ def ball_grid(name, fn, voxel=0.125):
 def test_temperature_grid_blackbody_agrees_with_cycles(tmp_path):
     """Principled Volume's Temperature times its "temperature" grid drives Blackbody emission
     (a flame: 2400 K at the rim to 3400 K at the centre), density from the "density" grid, no
-    lights: the emission alone against Cycles."""
+    lights: the emission alone against Cycles. 512 samples: worst region 2.4 % (at 256, 2.6 %
+    before the grid-bound majorants, 3.4 % after: the same estimator, other random numbers)."""
     scene = empty_scene(40)
     scene.cycles.volume_step_rate = 0.25
     scene.cycles.volume_max_steps = 4096
@@ -352,7 +353,7 @@ def test_temperature_grid_blackbody_agrees_with_cycles(tmp_path):
     vol.inputs["Blackbody Intensity"].default_value = 1.0
     vol.inputs["Temperature"].default_value = 3400.0
     file_volume("Flame", path, mat, location=(-1.0, -1.0, 0.0))
-    assert_agrees(scene, 256, "flame")
+    assert_agrees(scene, 512, "flame")
 
 
 @needs_grids
@@ -409,9 +410,12 @@ def overlap_scene(smoke_colour, cube_colour, anisotropy):
 def test_volume_object_overlapping_a_volume_cube_agrees_with_cycles():
     """Cycles' volume stack sums every volume a point is in, also a grid's: a homogeneous
     Volume Scatter cube overlapping the smoke cube. Before, the innermost layer alone counted
-    there. Both anisotropies 0 (different ones: the test below)."""
+    there. Both anisotropies 0 (different ones: the test below). 1024 samples: worst region
+    2.2 % (at 512, 2.2 % before the grid-bound majorants, 2.9-3.9 % over three seeds after, in
+    the same region; against the former renderer at 2048 samples that region is within 1.4 %,
+    seed to seed 0.8 %)."""
     scene = overlap_scene(SMOKE_COLOUR, CUBE_COLOUR, 0.0)
-    assert_agrees(scene, 512, "smoke overlapping a cube")
+    assert_agrees(scene, 1024, "smoke overlapping a cube")
 
 
 @needs_grids
@@ -443,8 +447,8 @@ def test_overlap_with_different_anisotropies_agrees_with_cycles_per_channel():
 def test_cubic_interpolation_agrees_with_cycles():
     """Volume Interpolation Cubic (Cycles' tricubic B-spline) on a coarse 6^3 smoke cube, where
     it visibly differs from the linear read (regions up to 40 %). At 1024 samples: mean ratio
-    1.0001, worst region 2.3 % (the dim top edge), median 0.1 %; at 512 the top edge reaches
-    3.1 %, so 3.5 % is held there."""
+    0.9986-0.9990, worst region 2.1 % (the dim top edge), median 0.15 %; at 512 the top edge
+    reached 3.1 % before the grid-bound majorants and 3.8 % after, so 1024 and 3.5 %."""
     scene = lit_scene()
     scene.cycles.volume_step_rate = 0.5  # (Cycles' tricubic ray marching is slow; the field is smooth)
     mat = principled_volume("Cubic", density=1.5)
@@ -453,7 +457,7 @@ def test_cubic_interpolation_agrees_with_cycles():
     w = Warnings()
     export(w)
     assert not [m for m in w if "Cubic" in m], w
-    cubic = assert_agrees(scene, 512, "cubic interpolation", region=0.035)
+    cubic = assert_agrees(scene, 1024, "cubic interpolation", region=0.035)
     mat.cycles.volume_interpolation = 'LINEAR'
     linear = render_to_array(scene, samples=128, max_bounces=8)[..., :3]
     a, b = region_means(cubic), region_means(linear)
