@@ -202,7 +202,7 @@ def test_one_medium_mixes_its_phases_per_channel():
         s.add_point_light((1.5, -2.5, 2.0), (20.0, 20.0, 20.0))
         s.set_camera(camera(pc, (0.0, -5.0, 0.5), (0.0, 0.0, 0.0), lens=50.0))
         s.commit()
-        img, stats = render(pc, s, 16, 16, samples=8192, max_bounces=2)
+        img, stats = render(pc, s, 16, 16, samples=16384, max_bounces=2)
         assert stats["nonfinite_samples"] == 0
         return img[..., :3].reshape(2, 8, 2, 8, 3).mean(axis=(1, 3))
 
