@@ -348,11 +348,12 @@ void Scene::build_top_level() {
     world_bounds_ = direct_ ? blases_[0].bvh.bounds() : Aabb();
   }
   if (curves_on_) world_bounds_.grow(curve_bvh_.bounds());
+  if (points_on_) world_bounds_.grow(point_bvh_.bounds());
   stats_.tlas_instances = use_tlas_ ? tlas_.stats().instances : 0;
 }
 
 void Scene::update_memory_stats() {
-  size_t bvh = tlas_.memory_bytes() + curve_bvh_.memory_bytes(), geo = 0;
+  size_t bvh = tlas_.memory_bytes() + curve_bvh_.memory_bytes() + point_bvh_.memory_bytes(), geo = 0;
   for (const Blas& b : blases_) {
     bvh += b.bvh.memory_bytes();
     geo += b.tris.capacity() * sizeof(TriangleVerts) + b.src_tri.capacity() * 4 + (b.run_first.capacity() + b.run_inst.capacity()) * 4 +
@@ -370,6 +371,42 @@ void Scene::update_memory_stats() {
   }
   stats_.bvh_bytes = bvh;
   stats_.geometry_bytes = geo;
+}
+
+void Scene::build_points() {
+  std::vector<PointSphere> spheres;
+  point_first_.clear();
+  point_attr_.clear();
+  point_coords_.clear();
+  point_attr_sets_ = 0;
+  for (const PointSetData& ps : point_sets_) point_attr_sets_ = std::max(point_attr_sets_, uint32_t(ps.point_attrs.size()));
+  uint32_t base = 0;
+  size_t skipped = 0;
+  std::vector<uint32_t> kept;
+  for (const PointSetData& ps : point_sets_) {
+    point_first_.push_back(base);
+    point_coords_.push_back(make_object_coords(ps.matrix, ps.texspace_loc, ps.texspace_size));
+    point_coords_.back().info = ps.info;
+    // The object attributes live in the set itself (point_sets_ changes only with a rebuild).
+    point_coords_.back().info.attr_first = 0;
+    point_coords_.back().info.attr_count = uint32_t(std::min<size_t>(ps.attrs.size(), kMaxObjectAttributes));
+    point_coords_.back().attrs = ps.attrs.empty() ? nullptr : ps.attrs.data();
+    kept.clear();
+    const size_t n = std::min(ps.points.size(), ps.radii.size());
+    const size_t first = spheres.size();
+    skipped += transform_points(ps.points.data(), ps.radii.data(), n, ps.matrix, base, spheres, &kept);
+    // Kept points are numbered densely: sphere k of this set is point base + k.
+    for (size_t k = first; k < spheres.size(); ++k) spheres[k].point = base + uint32_t(k - first);
+    for (uint32_t i : kept)
+      for (uint32_t a = 0; a < point_attr_sets_; ++a)
+        point_attr_.push_back(a < ps.point_attrs.size() && i < ps.point_attrs[a].size() ? ps.point_attrs[a][i] : Float4{});
+    base += uint32_t(kept.size());
+  }
+  stats_.points = base;
+  stats_.skipped_points = skipped;
+  point_bvh_.build(std::move(spheres));
+  points_on_ = !point_bvh_.empty();
+  points_dirty_ = false;
 }
 
 void Scene::build_curves() {

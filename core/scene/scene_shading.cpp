@@ -103,6 +103,18 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
     return;
   }
+  if (sp.point()) {  // Cycles' points: u = v = 0, per-point attributes, the cloud's object space
+    const uint32_t point = point_bvh_.sphere(sp.tri).point;
+    if (point_attr_sets_) {
+      ctx.attrs = &point_attr_[size_t(point) * point_attr_sets_];
+      ctx.attr_sets = int(point_attr_sets_);
+    }
+    ctx.backfacing = dot(sp.ng, wo) < 0.0f;
+    ctx.object = &point_coords_[point_set_of(point)];
+    shade_program(mat, ctx, out);
+    if (mat.has_hair) orient_hair(out, sp, wo);
+    return;
+  }
   const InstanceData& in = inst_[sp.instance];
   ctx.backfacing = (dot(sp.ng, wo) < 0.0f) != in.negative;  // (Scene::backfacing)
   const Blas& blas = blases_[in.blas];

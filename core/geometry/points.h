@@ -1,0 +1,70 @@
+// Point clouds: spheres of a centre and a radius each, as Cycles renders Blender's POINTCLOUD
+// objects. Spheres live in world space in a 4-wide BVH of their own (as the curve pieces,
+// beside them), traced after the triangles and the curves: scenes without points never touch it.
+// Hits from inside count (the exit of a sphere the ray starts in), as Embree's sphere points
+// on Cycles' CPU; a ray skips the sphere it leaves (Ray::self_curve with kSelfPointBit), as
+// Cycles skips the primitive a ray leaves.
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "geometry/aabb.h"
+#include "geometry/bvh.h"
+#include "geometry/ray.h"
+
+namespace pl {
+
+// Ray::self_curve of a ray leaving point k: k | kSelfPointBit (strands are numbered below it).
+constexpr uint32_t kSelfPointBit = 0x80000000u;
+
+struct PointSphere {
+  Vec3 c;
+  float r = 0.0f;
+  uint32_t point = 0;  // in the scene's numbering of points (all point sets)
+};
+
+// The nearest hit of a ray on a sphere with 0 < t < tmax: where it enters, or where it leaves
+// when it starts inside. Solved in double about the ray's closest approach to the centre, so
+// tiny spheres far from the origin and far from the ray's origin keep their accuracy. The unit
+// outward normal at the hit is returned too (from the double-precision point).
+bool intersect_sphere(const Vec3& c, float r, const Vec3& org, const Vec3& dir, float tmax, float& t, Vec3& n);
+
+// A unit normal as two floats (Hit::b1, b2), continuous octahedral map (no quantisation).
+void encode_sphere_normal(Vec3 n, float& b1, float& b2);
+Vec3 decode_sphere_normal(float b1, float b2);
+
+// The surface at an encoded hit: the outward unit normal, the point c + r n and a bound of its
+// rounding error (for offset_ray_origin).
+void sphere_surface(const PointSphere& s, float b1, float b2, Vec3& n, Vec3& p, Vec3& error);
+
+// Spheres of the usable points (finite centre, finite radius > 0) in world space through
+// `to_world` (radii scaled by the cube root of its determinant's magnitude: exact for uniform
+// scales), numbered from point_base in input order; kept (optional) gets the input index of each.
+// Returns how many were left out.
+size_t transform_points(const Vec3* points, const float* radii, size_t n, const Mat4& to_world, uint32_t point_base,
+                        std::vector<PointSphere>& out, std::vector<uint32_t>* kept = nullptr);
+
+class PointBvh {
+ public:
+  void build(std::vector<PointSphere> spheres);
+  void clear() { *this = PointBvh(); }
+  bool empty() const { return spheres_.empty(); }
+  size_t size() const { return spheres_.size(); }
+  const PointSphere& sphere(uint32_t i) const { return spheres_[i]; }
+  Aabb bounds() const { return bounds_; }
+  size_t memory_bytes() const { return nodes_.capacity() * sizeof(Node) + spheres_.capacity() * sizeof(PointSphere); }
+  // Closest hit before ray.tmax on spheres other than the one the ray leaves: prim the sphere
+  // (leaf order), (b1, b2) its normal (encode_sphere_normal).
+  bool intersect(const Ray& ray, Hit& hit) const;
+  bool occluded(const Ray& ray) const;
+
+ private:
+  using Node = WideBvhNode<4>;
+  std::vector<Node> nodes_;
+  std::vector<PointSphere> spheres_;  // in leaf order
+  Aabb bounds_;
+  template <bool AnyHit>
+  bool traverse(const Ray& ray, Hit& hit) const;
+};
+
+}  // namespace pl
