@@ -11,31 +11,62 @@
 
 namespace pl {
 
-bool intersect_sphere(const Vec3& c, float r, const Vec3& org, const Vec3& dir, float tmax, float& t_out, Vec3& n) {
-  // Double precision: a few more cycles per sphere (the box tests dominate), and neither the
-  // distance to the origin nor the ray's length eats the radius' digits.
-  const double dx = dir.x, dy = dir.y, dz = dir.z;
-  const double dd = dx * dx + dy * dy + dz * dz;
-  if (!(dd > 0.0) || !(r > 0.0f)) return false;
-  const double fx = double(c.x) - org.x, fy = double(c.y) - org.y, fz = double(c.z) - org.z;
-  const double tc = (fx * dx + fy * dy + fz * dz) / dd;  // the closest approach
-  const double px = fx - tc * dx, py = fy - tc * dy, pz = fz - tc * dz;  // centre from there
-  const double rr = double(r) * r;
+namespace {
+// The nearest t in (0, tmax) where |t d - f| = r (f: the centre from the ray's origin): the
+// entry, or the exit from inside. Solved about the closest approach tc, so the error does not
+// grow with the distance (Haines et al., Ray Tracing Gems ch. 7), in double: a few more
+// cycles per sphere (the box tests dominate), and neither the distance to the origin nor the
+// ray's length eats a tiny radius' digits.
+inline bool solve_sphere(const double f[3], const double d[3], double rr, float tmax, double& t) {
+  const double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+  if (!(dd > 0.0)) return false;
+  const double tc = (f[0] * d[0] + f[1] * d[1] + f[2] * d[2]) / dd;
+  const double px = f[0] - tc * d[0], py = f[1] - tc * d[1], pz = f[2] - tc * d[2];
   const double disc = rr - (px * px + py * py + pz * pz);
   if (!(disc >= 0.0)) return false;  // (NaN too)
   const double h = std::sqrt(disc / dd);
-  double t = tc - h;
+  t = tc - h;
   if (!(t > 0.0)) t = tc + h;  // inside: where it leaves
   if (!(t > 0.0) || !(t < double(tmax))) return false;
   const float tf = float(t);
-  if (!(tf > 0.0f) || !(tf < tmax)) return false;
-  // Outward normal: from the centre to the hit, (t - tc) d - p.
-  const double s = t - tc;
-  const double nx = s * dx - px, ny = s * dy - py, nz = s * dz - pz;
+  return tf > 0.0f && tf < tmax;
+}
+
+// The unit direction from the centre to the hit: t d - f.
+inline bool hit_direction(const double f[3], const double d[3], double t, Vec3& n) {
+  const double nx = t * d[0] - f[0], ny = t * d[1] - f[1], nz = t * d[2] - f[2];
   const double nl = std::sqrt(nx * nx + ny * ny + nz * nz);
-  if (!(nl > 0.0)) return false;
+  if (!(nl > 0.0) || !std::isfinite(nl)) return false;
   n = Vec3(float(nx / nl), float(ny / nl), float(nz / nl));
-  t_out = tf;
+  return true;
+}
+}  // namespace
+
+bool intersect_sphere(const Vec3& c, float r, const Vec3& org, const Vec3& dir, float tmax, float& t_out, Vec3& n) {
+  if (!(r > 0.0f)) return false;
+  const double f[3] = {double(c.x) - org.x, double(c.y) - org.y, double(c.z) - org.z};
+  const double d[3] = {dir.x, dir.y, dir.z};
+  double t;
+  if (!solve_sphere(f, d, double(r) * r, tmax, t) || !hit_direction(f, d, t, n)) return false;
+  t_out = float(t);
+  return true;
+}
+
+bool intersect_ellipsoid(const Vec3& c, float r, const PointFrame& fr, const Vec3& org, const Vec3& dir, float tmax,
+                         float& t_out, Vec3& n) {
+  if (!(r > 0.0f)) return false;
+  // In the cloud's object space (t is the same parameter there), from the world centre.
+  const double f[3] = {double(c.x) - org.x, double(c.y) - org.y, double(c.z) - org.z};
+  const double d[3] = {dir.x, dir.y, dir.z};
+  double fo[3], dob[3];
+  for (int i = 0; i < 3; ++i) {
+    const Vec3& a = fr.row[i];
+    fo[i] = a.x * f[0] + a.y * f[1] + a.z * f[2];
+    dob[i] = a.x * d[0] + a.y * d[1] + a.z * d[2];
+  }
+  double t;
+  if (!solve_sphere(fo, dob, double(r) * r, tmax, t) || !hit_direction(f, d, t, n)) return false;
+  t_out = float(t);
   return true;
 }
 
@@ -66,30 +97,47 @@ Vec3 decode_sphere_normal(float u, float v) {
   return l2 > 0.0f && std::isfinite(l2) ? n / std::sqrt(l2) : Vec3(0.0f, 0.0f, 1.0f);
 }
 
-void sphere_surface(const PointSphere& s, float b1, float b2, Vec3& n, Vec3& p, Vec3& error) {
+void sphere_surface(const PointSphere& s, const PointFrame* f, float b1, float b2, Vec3& n, Vec3& p, Vec3& error) {
   n = decode_sphere_normal(b1, b2);
-  p = s.c + n * s.r;
-  // The centre's rounding in the sum, and the normal's (a few ulps) times the radius.
-  error = (vabs(s.c) + Vec3(s.r)) * gamma_bound(8);
+  // On an ellipsoid the point along n lies where its object-space image has length r.
+  float dist = s.r;
+  if (f) {
+    const float l = length(f->apply(n));
+    dist = l > 0.0f && std::isfinite(s.r / l) ? s.r / l : 0.0f;
+  }
+  p = s.c + n * dist;
+  // The centre's rounding in the sum, and the normal's (a few ulps) times the distance.
+  error = (vabs(s.c) + Vec3(dist)) * gamma_bound(8);
 }
 
 size_t transform_points(const Vec3* points, const float* radii, size_t n, const Mat4& to_world, uint32_t point_base,
-                        std::vector<PointSphere>& out, std::vector<uint32_t>* kept) {
+                        std::vector<PointSphere>& out, std::vector<PointFrame>& frames, std::vector<uint32_t>* kept) {
   const float(&m)[4][4] = to_world.m;
   const Vec3 c0{m[0][0], m[1][0], m[2][0]}, c1{m[0][1], m[1][1], m[2][1]}, c2{m[0][2], m[1][2], m[2][2]};
-  const float det = dot(c0, cross(c1, c2));
+  const Vec3 x0 = cross(c1, c2), x1 = cross(c2, c0), x2 = cross(c0, c1);
+  const float det = dot(c0, x0);
   const float rscale = std::cbrt(std::fabs(det));
   if (!(rscale > 0.0f) || !std::isfinite(rscale) || !to_world.is_finite()) return n;  // all left out
+  // Even scales (columns orthogonal and of one length): round spheres in world space.
+  const float s2 = rscale * rscale, tol = 1e-5f * s2;
+  const bool round = std::fabs(length_sq(c0) - s2) < tol && std::fabs(length_sq(c1) - s2) < tol &&
+                     std::fabs(length_sq(c2) - s2) < tol && std::fabs(dot(c0, c1)) < tol &&
+                     std::fabs(dot(c1, c2)) < tol && std::fabs(dot(c0, c2)) < tol;
+  uint32_t frame = PointSphere::kRoundPoint;
+  if (!round) {  // the inverse's rows: the cofactor columns over the determinant
+    frames.push_back({{x0 / det, x1 / det, x2 / det}});
+    frame = uint32_t(frames.size() - 1);
+  }
   size_t skipped = 0;
   out.reserve(out.size() + n);
   for (size_t i = 0; i < n; ++i) {
-    const float r = radii[i] * rscale;
+    const float r = round ? radii[i] * rscale : radii[i];
     const Vec3 c = to_world.point(points[i]);
     if (!is_finite(points[i]) || !is_finite(c) || !(r > 0.0f) || !std::isfinite(r)) {
       ++skipped;
       continue;
     }
-    out.push_back({c, r, point_base + uint32_t(i)});
+    out.push_back({c, r, point_base + uint32_t(i), frame});
     if (kept) kept->push_back(uint32_t(i));
   }
   return skipped;
@@ -99,10 +147,22 @@ namespace {
 constexpr int kBins = 16;
 constexpr uint32_t kLeafSize = 4;
 
-Aabb sphere_box(const PointSphere& s) {
+Aabb sphere_box(const PointSphere& s, const std::vector<PointFrame>& frames) {
+  Vec3 e(s.r);
+  if (s.frame != PointSphere::kRoundPoint) {
+    // The ellipsoid's extent along world axis i: r times the length of row i of the forward
+    // matrix, the inverse of the frame (its cofactors over the determinant).
+    const PointFrame& f = frames[s.frame];
+    const Vec3 a = f.row[0], b = f.row[1], c = f.row[2];
+    const Vec3 y0 = cross(b, c), y1 = cross(c, a), y2 = cross(a, b);
+    const float det = dot(a, y0);
+    // The forward matrix's columns are y_k / det: its row i is (y0[i], y1[i], y2[i]) / det.
+    for (int i = 0; i < 3; ++i)
+      e[i] = s.r * std::sqrt(y0[i] * y0[i] + y1[i] * y1[i] + y2[i] * y2[i]) / std::fabs(det);
+  }
   Aabb b;
-  b.grow(s.c - Vec3(s.r));
-  b.grow(s.c + Vec3(s.r));
+  b.grow(s.c - e);
+  b.grow(s.c + e);
   // Grown by a little more than the rounding of the box's own coordinates.
   const Vec3 pad = (vabs(b.lo) + vabs(b.hi)) * gamma_bound(4);
   b.lo = b.lo - pad;
@@ -181,9 +241,10 @@ struct LaneTest {
 };
 }  // namespace
 
-void PointBvh::build(std::vector<PointSphere> spheres) {
+void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames) {
   nodes_.clear();
   spheres_.clear();
+  frames_ = std::move(frames);
   bounds_ = Aabb();
   if (spheres.empty()) return;
   std::vector<BvhNode> bin;
@@ -192,7 +253,7 @@ void PointBvh::build(std::vector<PointSphere> spheres) {
   std::vector<Vec3> centers(n);
   std::vector<uint32_t> refs(n);
   for (size_t i = 0; i < n; ++i) {
-    boxes[i] = sphere_box(spheres[i]);
+    boxes[i] = sphere_box(spheres[i], frames_);
     centers[i] = boxes[i].center();
     refs[i] = uint32_t(i);
   }
@@ -270,7 +331,10 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
         if ((s.point | kSelfPointBit) == ray.self_curve) continue;  // the sphere the ray leaves
         float t;
         Vec3 n;
-        if (intersect_sphere(s.c, s.r, ray.org, ray.dir, tmax, t, n)) {
+        const bool h = s.frame == PointSphere::kRoundPoint
+                           ? intersect_sphere(s.c, s.r, ray.org, ray.dir, tmax, t, n)
+                           : intersect_ellipsoid(s.c, s.r, frames_[s.frame], ray.org, ray.dir, tmax, t, n);
+        if (h) {
           if (AnyHit) return true;
           tmax = t;
           hit.t = t;

@@ -17,10 +17,22 @@ namespace pl {
 // Ray::self_curve of a ray leaving point k: k | kSelfPointBit (strands are numbered below it).
 constexpr uint32_t kSelfPointBit = 0x80000000u;
 
+// A point's sphere: round (world centre and radius), or, for clouds whose matrix scales
+// unevenly, the object-space sphere seen through it (an ellipsoid about the world centre, r
+// the object-space radius), as Cycles intersects such clouds in object space.
 struct PointSphere {
   Vec3 c;
   float r = 0.0f;
   uint32_t point = 0;  // in the scene's numbering of points (all point sets)
+  uint32_t frame = kRoundPoint;  // kRoundPoint, or the PointFrame of its cloud
+  static constexpr uint32_t kRoundPoint = UINT32_MAX;
+};
+
+// World -> object directions of a cloud whose matrix does not scale evenly (rows of the
+// inverse of its 3x3 part).
+struct PointFrame {
+  Vec3 row[3];
+  Vec3 apply(Vec3 v) const { return {dot(row[0], v), dot(row[1], v), dot(row[2], v)}; }
 };
 
 // The nearest hit of a ray on a sphere with 0 < t < tmax: where it enters, or where it leaves
@@ -29,30 +41,45 @@ struct PointSphere {
 // outward normal at the hit is returned too (from the double-precision point).
 bool intersect_sphere(const Vec3& c, float r, const Vec3& org, const Vec3& dir, float tmax, float& t, Vec3& n);
 
+// The hit of a ray on the ellipsoid of object-space sphere (centre c in world space, radius r)
+// through the frame f, as intersect_sphere's; n: the unit direction from the centre to the
+// hit (Cycles' point normal, normalize(P - centre), also on ellipsoids).
+bool intersect_ellipsoid(const Vec3& c, float r, const PointFrame& f, const Vec3& org, const Vec3& dir, float tmax,
+                         float& t, Vec3& n);
+
 // A unit normal as two floats (Hit::b1, b2), continuous octahedral map (no quantisation).
 void encode_sphere_normal(Vec3 n, float& b1, float& b2);
 Vec3 decode_sphere_normal(float b1, float b2);
 
 // The surface at an encoded hit: the outward unit normal, the point c + r n and a bound of its
 // rounding error (for offset_ray_origin).
-void sphere_surface(const PointSphere& s, float b1, float b2, Vec3& n, Vec3& p, Vec3& error);
+// f: the sphere's frame (ellipsoids; nullptr for round spheres).
+void sphere_surface(const PointSphere& s, const PointFrame* f, float b1, float b2, Vec3& n, Vec3& p, Vec3& error);
 
 // Spheres of the usable points (finite centre, finite radius > 0) in world space through
-// `to_world` (radii scaled by the cube root of its determinant's magnitude: exact for uniform
-// scales), numbered from point_base in input order; kept (optional) gets the input index of each.
-// Returns how many were left out.
+// `to_world`, numbered from point_base in input order; kept (optional) gets the input index of
+// each. A matrix that scales evenly (rotation, mirror and one scale) gives round spheres,
+// radii scaled by it; else the spheres are ellipsoids of the object-space radii through a new
+// frame appended to `frames`. Returns how many were left out (all for a singular matrix).
 size_t transform_points(const Vec3* points, const float* radii, size_t n, const Mat4& to_world, uint32_t point_base,
-                        std::vector<PointSphere>& out, std::vector<uint32_t>* kept = nullptr);
+                        std::vector<PointSphere>& out, std::vector<PointFrame>& frames,
+                        std::vector<uint32_t>* kept = nullptr);
 
 class PointBvh {
  public:
-  void build(std::vector<PointSphere> spheres);
+  void build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames = {});
   void clear() { *this = PointBvh(); }
   bool empty() const { return spheres_.empty(); }
   size_t size() const { return spheres_.size(); }
   const PointSphere& sphere(uint32_t i) const { return spheres_[i]; }
+  const PointFrame* frame(const PointSphere& s) const {
+    return s.frame == PointSphere::kRoundPoint ? nullptr : &frames_[s.frame];
+  }
   Aabb bounds() const { return bounds_; }
-  size_t memory_bytes() const { return nodes_.capacity() * sizeof(Node) + spheres_.capacity() * sizeof(PointSphere); }
+  size_t memory_bytes() const {
+    return nodes_.capacity() * sizeof(Node) + spheres_.capacity() * sizeof(PointSphere) +
+           frames_.capacity() * sizeof(PointFrame);
+  }
   // Closest hit before ray.tmax on spheres other than the one the ray leaves: prim the sphere
   // (leaf order), (b1, b2) its normal (encode_sphere_normal).
   bool intersect(const Ray& ray, Hit& hit) const;
@@ -62,6 +89,7 @@ class PointBvh {
   using Node = WideBvhNode<4>;
   std::vector<Node> nodes_;
   std::vector<PointSphere> spheres_;  // in leaf order
+  std::vector<PointFrame> frames_;
   Aabb bounds_;
   template <bool AnyHit>
   bool traverse(const Ray& ray, Hit& hit) const;

@@ -392,8 +392,6 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
     if (ts.size() != 2) throw std::invalid_argument("texspace must be (location, size)");
     ps.texspace_loc = to_point(ts[0], "texspace location");
     ps.texspace_size = to_point(ts[1], "texspace size");
-  } else {
-    auto_texspace(ps.points, ps.texspace_loc, ps.texspace_size);
   }
   return self.scene->add_points(std::move(ps));
 }
@@ -2406,8 +2404,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
-           "RGBA per point}. texspace: (location, size) of Generated coordinates (None: the points' "
-           "bounding box). Points with a non-finite position or radius, or a radius <= 0, are left "
+           "RGBA per point}. texspace: (location, size) of Generated coordinates (None: Generated is "
+           "the object-space position, as Cycles gives point clouds). Points with a non-finite position or radius, or a radius <= 0, are left "
            "out at commit (stats()['skipped_points']).")
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",

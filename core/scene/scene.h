@@ -130,7 +130,9 @@ struct PointSetData {
   // Per attribute set k: one RGBA per point (the Attribute node's value on that point, as
   // Cycles' ATTR_ELEMENT_VERTEX attributes of point clouds); empty sets read 0.
   std::vector<std::vector<Float4>> point_attrs;
-  Vec3 texspace_loc{0.0f}, texspace_size{1.0f};  // Generated coordinates' box (object space)
+  // Generated coordinates' box (object space); by default the identity: Cycles has no
+  // generated attribute on points and gives the object-space position.
+  Vec3 texspace_loc{0.5f}, texspace_size{0.5f};
 };
 
 // Hit::inst of a hit on a point (Hit::prim: the sphere, Hit::b1, b2: its normal, octahedral).
@@ -733,6 +735,10 @@ class Scene {
   std::vector<uint32_t> point_first_;
   std::vector<Float4> point_attr_;
   uint32_t point_attr_sets_ = 0;
+  std::vector<float> point_random_;  // per point: Point Info's Random
+  // Per point set: Point Info's Radius over the sphere's (Cycles' point_radius, the object
+  // radius along (1, 1, 1) / sqrt 3 through the matrix, over the cube root of its determinant).
+  std::vector<float> point_radius_scale_;
   std::vector<ObjectCoords> point_coords_;  // per point set: its object (Object Info, object coordinates)
   bool points_dirty_ = false;
   bool points_on_ = false;  // point_bvh_ is not empty: traced after the meshes and curves

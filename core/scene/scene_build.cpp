@@ -375,9 +375,12 @@ void Scene::update_memory_stats() {
 
 void Scene::build_points() {
   std::vector<PointSphere> spheres;
+  std::vector<PointFrame> frames;
   point_first_.clear();
   point_attr_.clear();
   point_coords_.clear();
+  point_random_.clear();
+  point_radius_scale_.clear();
   point_attr_sets_ = 0;
   for (const PointSetData& ps : point_sets_) point_attr_sets_ = std::max(point_attr_sets_, uint32_t(ps.point_attrs.size()));
   uint32_t base = 0;
@@ -394,9 +397,20 @@ void Scene::build_points() {
     kept.clear();
     const size_t n = std::min(ps.points.size(), ps.radii.size());
     const size_t first = spheres.size();
-    skipped += transform_points(ps.points.data(), ps.radii.data(), n, ps.matrix, base, spheres, &kept);
+    const size_t n_frames = frames.size();
+    skipped += transform_points(ps.points.data(), ps.radii.data(), n, ps.matrix, base, spheres, frames, &kept);
     // Kept points are numbered densely: sphere k of this set is point base + k.
     for (size_t k = first; k < spheres.size(); ++k) spheres[k].point = base + uint32_t(k - first);
+    {
+      const Mat4& m = ps.matrix;
+      const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
+      const float det = std::cbrt(std::fabs(dot(c0, cross(c1, c2))));
+      const float s = length(m.vector(Vec3(1.0f / std::sqrt(3.0f))));
+      // (Ellipsoids keep the object radius.)
+      const float over = frames.size() > n_frames ? 1.0f : det;
+      point_radius_scale_.push_back(over > 0.0f && std::isfinite(s / over) ? s / over : 1.0f);
+    }
+    for (uint32_t i : kept) point_random_.push_back(float(lookup3::hash(i, 0u)) * (1.0f / float(0xFFFFFFFFu)));
     for (uint32_t i : kept)
       for (uint32_t a = 0; a < point_attr_sets_; ++a)
         point_attr_.push_back(a < ps.point_attrs.size() && i < ps.point_attrs[a].size() ? ps.point_attrs[a][i] : Float4{});
@@ -404,7 +418,7 @@ void Scene::build_points() {
   }
   stats_.points = base;
   stats_.skipped_points = skipped;
-  point_bvh_.build(std::move(spheres));
+  point_bvh_.build(std::move(spheres), std::move(frames));
   points_on_ = !point_bvh_.empty();
   points_dirty_ = false;
 }

@@ -104,13 +104,19 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     return;
   }
   if (sp.point()) {  // Cycles' points: u = v = 0, per-point attributes, the cloud's object space
-    const uint32_t point = point_bvh_.sphere(sp.tri).point;
+    const PointSphere& s = point_bvh_.sphere(sp.tri);
+    const uint32_t point = s.point, set = point_set_of(point);
+    PointShading ps;
+    ps.position = s.c;
+    ps.radius = s.r * point_radius_scale_[set];
+    ps.random = point_random_[point];
+    ctx.point = &ps;
     if (point_attr_sets_) {
       ctx.attrs = &point_attr_[size_t(point) * point_attr_sets_];
       ctx.attr_sets = int(point_attr_sets_);
     }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
-    ctx.object = &point_coords_[point_set_of(point)];
+    ctx.object = &point_coords_[set];
     shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);
     return;

@@ -28,7 +28,7 @@ void Scene::sphere_point(const Hit& h, SurfacePoint& sp) const {
   const PointSphere& s = point_bvh_.sphere(h.prim);
   // From the hit's normal: the point lies on the sphere, whatever the error of t.
   Vec3 n, p, err;
-  sphere_surface(s, h.b1, h.b2, n, p, err);
+  sphere_surface(s, point_bvh_.frame(s), h.b1, h.b2, n, p, err);
   sp.p = p;
   sp.p_error = err;
   sp.ng = sp.ns = n;

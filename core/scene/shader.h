@@ -67,6 +67,7 @@ enum class OpCode : uint8_t {
   // A volume program's output (its last op): in[0] sigma_a, in[1] sigma_s, in[2] emission (RGB
   // per unit length), in[3] the Henyey-Greenstein anisotropy (.x); eval_volume reads them.
   VolumeOut,
+  PointInfo,  // sub: Position, Radius, Random (Cycles' Point Info; zeros off points)
 };
 
 enum class MathOp : uint8_t {
@@ -267,6 +268,13 @@ struct CurveShading {
   Vec3 tangent{0.0f};         // the unit direction along the strand (Cycles' dPdu)
 };
 
+// What the Point Info node reads at a hit on a point cloud's sphere.
+struct PointShading {
+  Vec3 position{0.0f};  // the sphere's centre (world space)
+  float radius = 0.0f;  // its radius, world space, as Cycles' point_radius
+  float random = 0.0f;  // per point, as Cycles: hash of its index in its cloud
+};
+
 struct ShadingContext {
   Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
   Vec3 wo;                   // direction towards the viewer (unit)
@@ -299,6 +307,7 @@ struct ShadingContext {
   uint32_t instance = 0;
   Vec3 p_error{0.0f};
   const CurveShading* curve = nullptr;  // hits on curves (nullptr: not a strand)
+  const PointShading* point = nullptr;  // hits on points (nullptr: not a point)
   float time = 0.5f;  // the ray's shutter time (motion blur): AO rays trace at it
   // Majorant building: where set, VolumeGrid ops read the grid's largest value (over its
   // channels) in this world box instead of a sample at p.

@@ -206,3 +206,96 @@ def test_point_attributes_read_per_point():
     left, mid, right = row[:16].max(0), row[16:32].max(0), row[32:].max(0)
     assert left.argmax() == 0 and mid.argmax() == 1 and right.argmax() == 2
     assert left[0] == pytest.approx(1.0, abs=0.05)
+
+
+def test_uneven_scale_makes_ellipsoids():
+    """A cloud whose matrix scales unevenly is intersected in its object space, as Cycles does:
+    each point is the ellipsoid M (sphere), hit where the analytic quadric is (float64), with
+    Cycles' point normal, the direction from the centre to the hit; its bounds hold it."""
+    pc = core()
+    rng = np.random.default_rng(12)
+    a, b = np.radians(30.0), np.radians(-20.0)
+    rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+    lin = rz @ rx @ np.diag([2.0, 0.5, 1.3])
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = lin, (0.3, -0.2, 0.5)
+    m = m.astype(np.float32)
+    s = _scene(pc, [(0.1, 0.2, -0.1)], [0.4], matrix=m)
+    c = m[:3, :3].astype(np.float64) @ np.array([0.1, 0.2, -0.1]) + m[:3, 3]
+    o, d = _rays_at(rng, 4000, c, 0.5, dist=6.0)
+    hit = s.hit_surfaces(o, d)
+    inv = np.linalg.inv(m[:3, :3].astype(np.float64))
+    fo = (inv @ (o.astype(np.float64) - c).T).T
+    do = (inv @ d.astype(np.float64).T).T
+    A = (do * do).sum(1)
+    B = (fo * do).sum(1)
+    C = (fo * fo).sum(1) - 0.4 ** 2
+    disc = B * B - A * C
+    with np.errstate(invalid="ignore"):
+        t_ref = (-B - np.sqrt(disc)) / A
+    ok = disc > 0
+    assert 1000 < ok.sum() < 4000
+    assert np.array_equal(np.isfinite(hit["t"]), ok)
+    np.testing.assert_allclose(hit["t"][ok], t_ref[ok], rtol=1e-6)
+    p = o[ok].astype(np.float64) + d[ok].astype(np.float64) * t_ref[ok, None]
+    radial = (p - c) / np.linalg.norm(p - c, axis=1, keepdims=True)
+    assert np.abs(hit["ng"][ok] - radial).max() < 1e-5
+    np.testing.assert_allclose(hit["p"][ok], p, atol=2e-6)
+    # Spawned rays skip their ellipsoid; the inward ones meet its inside without.
+    inward = -hit["ng"][ok]
+    again = s.hit_surfaces(hit["origin_in"][ok], inward, self_strand=hit["strand"][ok])
+    assert np.isinf(again["t"]).all()
+    far = s.hit_surfaces(hit["origin_in"][ok], inward)
+    assert np.all(np.isfinite(far["t"])) and np.all((far["ng"] * inward).sum(1) > 0)
+
+
+def test_point_info_reads_centre_radius_and_random():
+    """Point Info: the centre (world), the radius (Cycles' point_radius: the object radius along
+    (1, 1, 1) / sqrt 3 through the matrix) and Cycles' random number of the point's index in
+    its cloud (hash_uint2_to_float(i, 0), as Curves Info's Random), seen through Emission."""
+    pc = core()
+    out = {}
+    pts = np.array([[-1.0, 0.0, 0.0], [np.nan, 0, 0], [1.0, 0.0, 0.0]], np.float32)
+    m = np.diag([0.75, 0.75, 0.75, 1.0]).astype(np.float32)
+    m[0, 3] = 1.0  # centres at x = 0.25 and 1.75 (Emission clamps negative colours)
+    for which in ("POSITION", "RADIUS", "RANDOM"):
+        s = pc.Scene()
+        mat = s.add_shader("pi", [("point_info", 0, which), ("closure", "emission", None, {"color": 0})])
+        s.add_points(pts, np.array([0.6, 0.3, 0.4], np.float32), mat, matrix=m)
+        s.set_camera(camera(pc, (1, -8, 0), (1, 0, 0), lens=50.0))
+        s.commit()
+        img, _ = render(pc, s, 48, 16, 4)
+        out[which] = img[8, :, :3]
+    # The pixels at the two centres' images (x = 0.25 and 1.75 seen from x = 1, 8 away, a
+    # 36 mm sensor at 50 mm: columns 17 and 30), well inside the spheres (radii 3.7 and 2.5
+    # pixels), and a background pixel: zeros off points.
+    (l, r, bg) = (17, 30, 2)
+    assert out["POSITION"][l, 0] == pytest.approx(0.25, abs=1e-5)
+    assert out["POSITION"][r, 0] == pytest.approx(1.75, abs=1e-5)
+    assert out["RADIUS"][l, 0] == pytest.approx(0.45, rel=1e-5)
+    assert out["RADIUS"][r, 0] == pytest.approx(0.3, rel=1e-5)
+    assert all(out[k][bg].max() == 0.0 for k in out)
+    # Of the input index (the NaN point keeps its number, as Cycles drops no points).
+    assert out["RANDOM"][l, 0] == pytest.approx(_hash_uint2_to_float(0, 0), abs=1e-6)
+    assert out["RANDOM"][r, 0] == pytest.approx(_hash_uint2_to_float(2, 0), abs=1e-6)
+    assert _hash_uint2_to_float(0, 0) != _hash_uint2_to_float(2, 0)
+
+
+def _hash_uint2_to_float(kx, ky):
+    """Cycles' hash_uint2_to_float (Bob Jenkins' lookup3 final mix), in Python."""
+    mask = 0xFFFFFFFF
+
+    def rot(x, k):
+        return ((x << k) | (x >> (32 - k))) & mask
+
+    a = b = c = (0xDEADBEEF + (2 << 2) + 13) & mask
+    a, b = (a + kx) & mask, (b + ky) & mask
+    c ^= b; c = (c - rot(b, 14)) & mask  # noqa: E702
+    a ^= c; a = (a - rot(c, 11)) & mask  # noqa: E702
+    b ^= a; b = (b - rot(a, 25)) & mask  # noqa: E702
+    c ^= b; c = (c - rot(b, 16)) & mask  # noqa: E702
+    a ^= c; a = (a - rot(c, 4)) & mask  # noqa: E702
+    b ^= a; b = (b - rot(a, 14)) & mask  # noqa: E702
+    c ^= b; c = (c - rot(b, 24)) & mask  # noqa: E702
+    return c / float(mask)
