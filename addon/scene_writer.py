@@ -142,6 +142,9 @@ def add_points(scene, points, material_ids, warn, random_id_of=None):
         attributes = getattr(p, "object_attributes", None) or []
         for k, (m, info) in enumerate(zip(p.matrices, infos)):
             extra = {"point_attributes": p.attributes} if p.attributes else {}
+            motions = getattr(p, "motions", None) or []
+            if k < len(motions) and motions[k] is not None:
+                extra["motion"] = motions[k]
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
                 extra["attributes"] = attributes[k]
             if info is not None:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .mesh import _attribute_rgba, is_visible, object_info
+from .motion import instance_key
 
 DEFAULT_RADIUS = 0.01  # Cycles' radius where a point cloud has no 'radius' attribute
 
@@ -27,6 +28,11 @@ class PointsData:
     object_attributes: list = field(default_factory=list)
     # attribute set k -> float32 (N, 4): one RGBA per point (the Attribute node's value there)
     attributes: dict = field(default_factory=dict)
+    # Transform motion blur, as MeshData's: per instance its key across sub-frames, and its
+    # matrices at the motion steps ((S, 4, 4) float32) or None (export.motion fills them).
+    motion_keys: list = field(default_factory=list)
+    motions: list = field(default_factory=list)
+    has_velocity: bool = False  # a 'velocity' attribute (Cycles' deformation blur of points)
 
 
 def points_arrays(cloud, warn, name):
@@ -102,6 +108,7 @@ def collect_points(depsgraph, warn, material_index=None, object_attributes=None,
                 out[key] = None
                 continue
             entry = out[key] = PointsData(name, *arrays, material)
+            entry.has_velocity = obj.data.attributes.get("velocity") is not None
             if material_index is not None:
                 material_index(material)
             if uv_names is not None:
@@ -112,6 +119,7 @@ def collect_points(depsgraph, warn, material_index=None, object_attributes=None,
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.infos.append(object_info(instance))
+            entry.motion_keys.append(instance_key(instance))
             if object_attributes is not None:
                 entry.object_attributes.append(object_attributes.values(instance))
     return [p for p in out.values() if p is not None]

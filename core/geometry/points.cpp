@@ -242,10 +242,8 @@ struct LaneTest {
 }  // namespace
 
 void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames) {
-  nodes_.clear();
-  spheres_.clear();
+  *this = PointBvh();
   frames_ = std::move(frames);
-  bounds_ = Aabb();
   if (spheres.empty()) return;
   std::vector<BvhNode> bin;
   const size_t n = spheres.size();
@@ -367,11 +365,95 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
   return found;
 }
 
-bool PointBvh::intersect(const Ray& ray, Hit& hit) const { return traverse<false>(ray, hit); }
+void PointBvh::add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps) {
+  if (spheres.empty() || steps.size() < 2) return;
+  auto bvh = std::make_unique<PointBvh>();
+  const uint32_t n = uint32_t(spheres.size());
+  bvh->build(std::move(spheres));
+  const Aabb box = motion_world_box(bvh->bounds(), steps.data(), uint32_t(steps.size()));
+  bounds_.grow(box);
+  moving_boxes_.push_back(box);
+  moving_first_.push_back(moving_end_);
+  moving_end_ += n;
+  moving_steps_.push_back(std::move(steps));
+  moving_.push_back(std::move(bvh));
+}
+
+Mat4 PointBvh::moving_transform(uint32_t prim, float time) const {
+  if (!(prim & kMovingPrim)) return Mat4();
+  const std::vector<DecomposedTransform>& st = moving_steps_[moving_of(prim & ~kMovingPrim)];
+  return motion_transform_at(st.data(), uint32_t(st.size()), time);
+}
+
+PointSphere PointBvh::world_sphere(uint32_t prim, float time, PointFrame& storage, const PointFrame*& frame) const {
+  if (!(prim & kMovingPrim)) {
+    const PointSphere& s = spheres_[prim];
+    frame = this->frame(s);
+    return s;
+  }
+  const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
+  PointSphere s = moving_[m]->spheres_[i - moving_first_[m]];
+  const std::vector<DecomposedTransform>& st = moving_steps_[m];
+  const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), time);
+  const Mat4 to_object = affine_inverse_fast(to_world);
+  for (int r = 0; r < 3; ++r) storage.row[r] = Vec3(to_object.m[r][0], to_object.m[r][1], to_object.m[r][2]);
+  s.c = to_world.point(s.c);
+  frame = &storage;
+  return s;
+}
+
+// Moving clouds: the ray carried into each one's object space at its time (t is the same
+// parameter there), the hit's direction from the centre carried back to world space.
+template <bool AnyHit>
+bool PointBvh::traverse_moving(const Ray& ray, Hit& hit) const {
+  bool found = false;
+  float tmax = ray.tmax;
+  const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
+  for (size_t m = 0; m < moving_.size(); ++m) {
+    const Aabb& b = moving_boxes_[m];
+    float t0 = 0.0f, t1 = tmax;
+    for (int a = 0; a < 3; ++a) {
+      const float x0 = (b.lo[a] - ray.org[a]) * inv[a], x1 = (b.hi[a] - ray.org[a]) * inv[a];
+      t0 = std::max(t0, std::min(x0, x1));
+      t1 = std::min(t1, std::max(x0, x1));
+    }
+    if (!(t0 <= t1 * bvh_detail::kBoxExitScale)) continue;
+    const std::vector<DecomposedTransform>& st = moving_steps_[m];
+    const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), ray.time);
+    const Mat4 to_object = affine_inverse_fast(to_world);
+    Ray ro = ray;
+    ro.org = to_object.point(ray.org);
+    ro.dir = to_object.vector(ray.dir);
+    ro.tmax = tmax;
+    Hit h;
+    if (!moving_[m]->traverse<AnyHit>(ro, h)) continue;
+    if (AnyHit) return true;
+    // The object-space direction from the centre, through the matrix: world P - centre's.
+    const Vec3 n = to_world.vector(decode_sphere_normal(h.b1, h.b2));
+    const float l2 = length_sq(n);
+    if (!(l2 > 0.0f) || !std::isfinite(l2)) continue;
+    tmax = h.t;
+    hit.t = h.t;
+    encode_sphere_normal(n / std::sqrt(l2), hit.b1, hit.b2);
+    hit.prim = kMovingPrim | (moving_first_[m] + h.prim);
+    found = true;
+  }
+  return found;
+}
+
+bool PointBvh::intersect(const Ray& ray, Hit& hit) const {
+  bool found = traverse<false>(ray, hit);
+  if (!moving_.empty()) {
+    Ray r = ray;
+    if (found) r.tmax = hit.t;
+    found = traverse_moving<false>(r, hit) || found;
+  }
+  return found;
+}
 
 bool PointBvh::occluded(const Ray& ray) const {
   Hit h;
-  return traverse<true>(ray, h);
+  return traverse<true>(ray, h) || (!moving_.empty() && traverse_moving<true>(ray, h));
 }
 
 }  // namespace pl

@@ -6,10 +6,12 @@
 // Cycles skips the primitive a ray leaves.
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "geometry/aabb.h"
 #include "geometry/bvh.h"
+#include "geometry/motion.h"
 #include "geometry/ray.h"
 
 namespace pl {
@@ -67,18 +69,40 @@ size_t transform_points(const Vec3* points, const float* radii, size_t n, const 
 
 class PointBvh {
  public:
+  // Hit::prim of a sphere of a moving cloud (add_moving): this bit and the sphere's number
+  // over all moving clouds.
+  static constexpr uint32_t kMovingPrim = 0x80000000u;
   void build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames = {});
+  // A cloud with transform motion blur (after build): its spheres in object space (round
+  // there, r the object radius), entered through its transform at the ray's time, interpolated
+  // from the decomposed steps as moving instances are (geometry/motion.h); so under uneven
+  // scales they are ellipsoids, as Cycles' object-space spheres.
+  void add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps);
+  bool has_moving() const { return !moving_.empty(); }
   void clear() { *this = PointBvh(); }
-  bool empty() const { return spheres_.empty(); }
-  size_t size() const { return spheres_.size(); }
-  const PointSphere& sphere(uint32_t i) const { return spheres_[i]; }
+  bool empty() const { return spheres_.empty() && moving_.empty(); }
+  size_t size() const { return spheres_.size() + (moving_first_.empty() ? 0 : moving_end_); }
+  // The sphere of Hit::prim (a moving one: in its object space).
+  const PointSphere& sphere(uint32_t prim) const {
+    if (!(prim & kMovingPrim)) return spheres_[prim];
+    const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
+    return moving_[m]->spheres_[i - moving_first_[m]];
+  }
   const PointFrame* frame(const PointSphere& s) const {
     return s.frame == PointSphere::kRoundPoint ? nullptr : &frames_[s.frame];
   }
+  // The sphere of Hit::prim in world space at shutter time `time` (moving clouds: its centre
+  // and its object frame at that time, r the object radius; else sphere(prim)), and its frame
+  // (nullptr: round) in `frame`'s storage.
+  PointSphere world_sphere(uint32_t prim, float time, PointFrame& frame_storage, const PointFrame*& frame) const;
+  // A moving cloud's object-to-world matrix at `time` (prim: one of its spheres).
+  Mat4 moving_transform(uint32_t prim, float time) const;
   Aabb bounds() const { return bounds_; }
   size_t memory_bytes() const {
-    return nodes_.capacity() * sizeof(Node) + spheres_.capacity() * sizeof(PointSphere) +
-           frames_.capacity() * sizeof(PointFrame);
+    size_t b = nodes_.capacity() * sizeof(Node) + spheres_.capacity() * sizeof(PointSphere) +
+               frames_.capacity() * sizeof(PointFrame);
+    for (const auto& m : moving_) b += m->memory_bytes();
+    return b;
   }
   // Closest hit before ray.tmax on spheres other than the one the ray leaves: prim the sphere
   // (leaf order), (b1, b2) its normal (encode_sphere_normal).
@@ -91,8 +115,20 @@ class PointBvh {
   std::vector<PointSphere> spheres_;  // in leaf order
   std::vector<PointFrame> frames_;
   Aabb bounds_;
+  // Moving clouds: each one's object-space BVH, decomposed steps, world box over the shutter
+  // and the number of its first sphere among the moving ones.
+  std::vector<std::unique_ptr<PointBvh>> moving_;
+  std::vector<std::vector<DecomposedTransform>> moving_steps_;
+  std::vector<Aabb> moving_boxes_;
+  std::vector<uint32_t> moving_first_;
+  uint32_t moving_end_ = 0;
+  uint32_t moving_of(uint32_t i) const {
+    return uint32_t(std::upper_bound(moving_first_.begin(), moving_first_.end(), i) - moving_first_.begin()) - 1;
+  }
   template <bool AnyHit>
   bool traverse(const Ray& ray, Hit& hit) const;
+  template <bool AnyHit>
+  bool traverse_moving(const Ray& ray, Hit& hit) const;
 };
 
 }  // namespace pl

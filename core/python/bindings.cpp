@@ -347,7 +347,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
 // inconsistent shapes raise ValueError.
 uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& radii_obj, uint32_t material,
                     const py::object& matrix, const py::object& color, float pass_index, uint32_t random_id,
-                    const py::object& attributes, const py::dict& point_attributes, const py::object& texspace) {
+                    const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
+                    const py::object& motion) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const size_t n = size_t(points.shape(0));
@@ -393,6 +394,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
     ps.texspace_loc = to_point(ts[0], "texspace location");
     ps.texspace_size = to_point(ts[1], "texspace size");
   }
+  ps.motion = to_motion(motion, "points motion");
   return self.scene->add_points(std::move(ps));
 }
 
@@ -2400,13 +2402,15 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def("add_points", &add_points, py::arg("points"), py::arg("radii") = py::none(), py::arg("material") = 0u,
            py::arg("matrix") = py::none(), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("point_attributes") = py::dict(),
-           py::arg("texspace") = py::none(),
+           py::arg("texspace") = py::none(), py::arg("motion") = py::none(),
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
            "RGBA per point}. texspace: (location, size) of Generated coordinates (None: Generated is "
-           "the object-space position, as Cycles gives point clouds). Points with a non-finite position or radius, or a radius <= 0, are left "
-           "out at commit (stats()['skipped_points']).")
+           "the object-space position, as Cycles gives point clouds). motion: (S, 4, 4) object-to-world "
+           "matrices over the shutter (transform motion blur; singular or non-finite steps: static). "
+           "Points with a non-finite position or radius, or a radius <= 0, are left out at commit "
+           "(stats()['skipped_points']).")
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,

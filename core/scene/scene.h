@@ -133,6 +133,9 @@ struct PointSetData {
   // Generated coordinates' box (object space); by default the identity: Cycles has no
   // generated attribute on points and gives the object-space position.
   Vec3 texspace_loc{0.5f}, texspace_size{0.5f};
+  // Transform motion blur: the object-to-world matrix at each motion step (>= 2, evenly over
+  // the shutter); empty: static. Steps not finite or singular leave it static.
+  std::vector<Mat4> motion;
 };
 
 // Hit::inst of a hit on a point (Hit::prim: the sphere, Hit::b1, b2: its normal, octahedral).
@@ -300,7 +303,7 @@ class Scene {
   // with non-finite positions leave it undeformed (counted in stats().motion_rejected).
   void set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps);
   // Instances with transform motion blur in the committed scene: rays then need a time.
-  bool has_motion() const { return motion_instances_ > 0; }
+  bool has_motion() const { return motion_instances_ > 0 || point_bvh_.has_moving(); }
   // Live transform edit. In dynamic mode (or for a mesh that is instanced anyway) the next
   // commit() rebuilds only the top level and the lights; else the merged geometry.
   void set_instance_transform(uint32_t index, const Mat4& m);
@@ -743,7 +746,8 @@ class Scene {
   bool points_dirty_ = false;
   bool points_on_ = false;  // point_bvh_ is not empty: traced after the meshes and curves
   void build_points();
-  void sphere_point(const Hit& h, SurfacePoint& sp) const;
+  void sphere_point(const Hit& h, SurfacePoint& sp, float time) const;
+  std::vector<uint8_t> point_moving_;  // per point set: it has transform motion blur
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
   std::vector<std::vector<DecomposedTransform>> motion_;  // per instance, made at commit (empty: static)
   size_t motion_instances_ = 0;

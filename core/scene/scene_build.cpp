@@ -381,6 +381,12 @@ void Scene::build_points() {
   point_coords_.clear();
   point_random_.clear();
   point_radius_scale_.clear();
+  point_moving_.clear();
+  struct Moving {
+    std::vector<PointSphere> spheres;
+    std::vector<DecomposedTransform> steps;
+  };
+  std::vector<Moving> moving;
   point_attr_sets_ = 0;
   for (const PointSetData& ps : point_sets_) point_attr_sets_ = std::max(point_attr_sets_, uint32_t(ps.point_attrs.size()));
   uint32_t base = 0;
@@ -398,7 +404,24 @@ void Scene::build_points() {
     const size_t n = std::min(ps.points.size(), ps.radii.size());
     const size_t first = spheres.size();
     const size_t n_frames = frames.size();
-    skipped += transform_points(ps.points.data(), ps.radii.data(), n, ps.matrix, base, spheres, frames, &kept);
+    // Transform motion blur: steps that decompose and differ (else the cloud stays static).
+    std::vector<DecomposedTransform> steps;
+    bool moves = ps.motion.size() >= 2 && decompose_motion(ps.motion, steps);
+    if (moves) {
+      moves = false;
+      for (const Mat4& m : ps.motion)
+        for (int i = 0; i < 4 && !moves; ++i)
+          for (int j = 0; j < 4 && !moves; ++j) moves = m.m[i][j] != ps.motion[0].m[i][j];
+    }
+    point_moving_.push_back(moves ? 1 : 0);
+    if (moves) {  // its spheres in object space, in a BVH of their own (PointBvh::add_moving)
+      moving.push_back({{}, std::move(steps)});
+      std::vector<PointFrame> none;
+      skipped += transform_points(ps.points.data(), ps.radii.data(), n, Mat4(), base, moving.back().spheres, none, &kept);
+      for (size_t k = 0; k < moving.back().spheres.size(); ++k) moving.back().spheres[k].point = base + uint32_t(k);
+    } else {
+      skipped += transform_points(ps.points.data(), ps.radii.data(), n, ps.matrix, base, spheres, frames, &kept);
+    }
     // Kept points are numbered densely: sphere k of this set is point base + k.
     for (size_t k = first; k < spheres.size(); ++k) spheres[k].point = base + uint32_t(k - first);
     {
@@ -407,7 +430,7 @@ void Scene::build_points() {
       const float det = std::cbrt(std::fabs(dot(c0, cross(c1, c2))));
       const float s = length(m.vector(Vec3(1.0f / std::sqrt(3.0f))));
       // (Ellipsoids keep the object radius.)
-      const float over = frames.size() > n_frames ? 1.0f : det;
+      const float over = frames.size() > n_frames || moves ? 1.0f : det;
       point_radius_scale_.push_back(over > 0.0f && std::isfinite(s / over) ? s / over : 1.0f);
     }
     for (uint32_t i : kept) point_random_.push_back(float(lookup3::hash(i, 0u)) * (1.0f / float(0xFFFFFFFFu)));
@@ -419,6 +442,7 @@ void Scene::build_points() {
   stats_.points = base;
   stats_.skipped_points = skipped;
   point_bvh_.build(std::move(spheres), std::move(frames));
+  for (Moving& m : moving) point_bvh_.add_moving(std::move(m.spheres), std::move(m.steps));
   points_on_ = !point_bvh_.empty();
   points_dirty_ = false;
 }

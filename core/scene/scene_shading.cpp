@@ -104,7 +104,9 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     return;
   }
   if (sp.point()) {  // Cycles' points: u = v = 0, per-point attributes, the cloud's object space
-    const PointSphere& s = point_bvh_.sphere(sp.tri);
+    PointFrame moved;
+    const PointFrame* frame = nullptr;
+    const PointSphere s = point_bvh_.world_sphere(sp.tri, sp.time, moved, frame);
     const uint32_t point = s.point, set = point_set_of(point);
     PointShading ps;
     ps.position = s.c;
@@ -117,6 +119,15 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &point_coords_[set];
+    UninitArray<ObjectCoords, 1> moved_coords;  // (a moving cloud's object at the ray's time)
+    if (point_moving_[set]) {
+      ObjectCoords* mc = new (moved_coords.bytes) ObjectCoords(point_coords_[set]);
+      const ObjectCoords at = make_object_coords(point_bvh_.moving_transform(sp.tri, sp.time), Vec3(0.0f), Vec3(1.0f));
+      mc->to_world = at.to_world;
+      mc->to_object = at.to_object;
+      mc->valid = at.valid;
+      ctx.object = mc;
+    }
     shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);
     return;

@@ -24,11 +24,13 @@ void Scene::curve_point(const Hit& h, SurfacePoint& sp) const {
   sp.tri = h.prim;
 }
 
-void Scene::sphere_point(const Hit& h, SurfacePoint& sp) const {
-  const PointSphere& s = point_bvh_.sphere(h.prim);
+void Scene::sphere_point(const Hit& h, SurfacePoint& sp, float time) const {
+  PointFrame moved;
+  const PointFrame* frame = nullptr;
+  const PointSphere s = point_bvh_.world_sphere(h.prim, time, moved, frame);
   // From the hit's normal: the point lies on the sphere, whatever the error of t.
   Vec3 n, p, err;
-  sphere_surface(s, point_bvh_.frame(s), h.b1, h.b2, n, p, err);
+  sphere_surface(s, frame, h.b1, h.b2, n, p, err);
   sp.p = p;
   sp.p_error = err;
   sp.ng = sp.ns = n;
@@ -101,7 +103,7 @@ bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
 void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
   sp.time = time;
   if (h.inst == kCurveInstance) return curve_point(h, sp);  // (curves do not move)
-  if (h.inst == kPointInstance) return sphere_point(h, sp);  // (nor do points)
+  if (h.inst == kPointInstance) return sphere_point(h, sp, time);  // (moving clouds: at the ray's time)
   const InstanceData& in = inst_[h.inst];
   if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {  // where the ray met it
     InstanceData moved = in;

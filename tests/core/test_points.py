@@ -299,3 +299,43 @@ def _hash_uint2_to_float(kx, ky):
     b ^= a; b = (b - rot(a, 14)) & mask  # noqa: E702
     c ^= b; c = (c - rot(b, 24)) & mask  # noqa: E702
     return c / float(mask)
+
+
+def test_moving_cloud_is_hit_where_it_is_at_the_ray_time():
+    """Transform motion blur: a cloud moving 2 units along x and turning over the shutter is
+    hit where its transform at the ray's time puts each sphere (interpolated as moving
+    instances are); rays spawned on it skip their sphere; its bounds hold it all the shutter."""
+    pc = core()
+    steps = []
+    for k, a in enumerate(np.linspace(0.0, 0.6, 3)):
+        m = np.eye(4)
+        m[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
+        m[:3, 3] = (-1.0 + k, 0.0, 0.0)
+        steps.append(m)
+    steps = np.array(steps, np.float32)
+    pts = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]], np.float32)
+    s = _scene(pc, pts, [0.1, 0.1], matrix=steps[1], motion=steps)
+    assert s.stats()["points"] == 2
+    for time, k in ((0.0, 0), (0.5, 1), (1.0, 2)):
+        for p in pts:
+            c = steps[k, :3, :3] @ p + steps[k, :3, 3]
+            o = np.array([[c[0], c[1], 5.0]], np.float32)
+            d = np.array([[0.0, 0.0, -1.0]], np.float32)
+            t = s.intersect(o, d, time=time)[0][0]
+            assert t == pytest.approx(4.9, abs=1e-4), (time, p)
+            hit = s.hit_surfaces(o, d)  # (time 0.5)
+            if k == 1:
+                assert hit["point"][0] and np.allclose(hit["ng"][0], (0, 0, 1), atol=1e-4)
+                again = s.hit_surfaces(hit["origin_in"], d, self_strand=hit["strand"])
+                assert np.isinf(again["t"][0])
+    # Halfway between steps 0 and 1 (time 0.25) the first sphere is at x = -0.5.
+    o = np.array([[-0.5, 0.0, 5.0], [-1.0, 0.0, 5.0]], np.float32)
+    t = s.intersect(o, np.tile(np.array([[0.0, 0.0, -1.0]], np.float32), (2, 1)), time=0.25)[0]
+    assert t[0] == pytest.approx(4.9, abs=1e-4) and np.isinf(t[1])
+    # Singular steps: the cloud stays static at its matrix.
+    bad = steps.copy()
+    bad[0, :3, :3] = 0.0
+    st = _scene(pc, pts, [0.1, 0.1], matrix=steps[1], motion=bad)
+    c = steps[1, :3, 3]
+    assert st.intersect(np.array([[c[0], 0, 5]], np.float32), np.array([[0, 0, -1.0]], np.float32), time=0.0)[0][0] \
+        == pytest.approx(4.9, abs=1e-4)
