@@ -250,3 +250,16 @@ def test_moving_point_cloud_blurs_as_cycles():
     for c, name in enumerate("RGB"):
         assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], f"moving points {name}")
     assert np.abs(still[..., :3] - ours[..., :3]).max() > 0.2
+
+
+def test_glass_points_refract_through_both_sides():
+    """Glass points: a ray refracted into a sphere meets its exit, as in Cycles 4.5 (skipping
+    the sphere it entered, as Cycles' rule for triangles and strands would suggest, left the
+    image 13 % darker than Cycles', worst region 42 %). Not yet at the issue's bar: mean 0.975,
+    worst region 10.8 % at 1024 spp (docs/design/points.md); this checks the mean only."""
+    from blender_util import node_material
+    glass = lambda: node_material("G", "ShaderNodeBsdfGlass", Color=(1, 1, 1, 1), Roughness=0.0, IOR=1.45)  # noqa: E731
+    ours, cycles = render_pair(cloud_scene(glass, n=60), 256)
+    ratio, worst, _ = ms.compare(ours, cycles, floor=0.05)
+    print(f"\nglass points: mean ratio {ratio:.4f}, worst region {worst:.4f}")
+    assert np.isfinite(ours).all() and abs(ratio - 1.0) < 0.04
