@@ -95,6 +95,8 @@ def _same_geometry(old, new):
         return False
     if getattr(old, "curves", None) or getattr(new, "curves", None):
         return False  # curves are exported afresh each time: a new scene
+    if getattr(old, "points", None) or getattr(new, "points", None):
+        return False  # point clouds too
     if getattr(old, "volume_grids", None) or getattr(new, "volume_grids", None):
         return False  # volume grids are read afresh (a frame may change them): a new scene
     if old.material_names != new.material_names or len(old.materials) != len(new.materials):

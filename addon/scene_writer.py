@@ -65,6 +65,10 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
         mats = iter(data.curve_materials)
         add_curves(scene, curves, lambda _material: ids[next(mats)], warn,
                    pc.object_random_id)
+    points = getattr(data, "points", [])
+    if points:
+        mats = iter(data.point_materials)
+        add_points(scene, points, lambda _material: ids[next(mats)], warn, pc.object_random_id)
     add_lights(scene, data.lights)
     set_world(scene, data, warn)
     set_camera(pc, scene, data.camera)
@@ -131,6 +135,32 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
                                  color=color, pass_index=pass_index, random_id=random_id, **extra)
             except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
                 warn(f"Curves '{c.name}' not rendered: {e}")
+                break
+
+
+def add_points(scene, points, material_ids, warn, random_id_of=None):
+    """Adds PointsData `points` to a core scene, one point set per instance; material_ids and
+    random_id_of as add_curves'."""
+    for p in points:
+        mat = material_ids(p.material)
+        infos = p.infos if len(p.infos) == len(p.matrices) else [None] * len(p.matrices)
+        attributes = getattr(p, "object_attributes", None) or []
+        for k, (m, info) in enumerate(zip(p.matrices, infos)):
+            extra = {"point_attributes": p.attributes} if p.attributes else {}
+            motions = getattr(p, "motions", None) or []
+            if k < len(motions) and motions[k] is not None:
+                extra["motion"] = motions[k]
+            if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
+                extra["attributes"] = attributes[k]
+            if info is not None:
+                color, pass_index, random_id, _ = info
+                if random_id is None:
+                    random_id = random_id_of(p.name) if random_id_of else 0
+                extra.update(color=color, pass_index=pass_index, random_id=random_id)
+            try:
+                scene.add_points(p.points, p.radii, mat, matrix=m, **extra)
+            except ValueError as e:  # inconsistent arrays: the cloud is left out, Blender goes on
+                warn(f"Point cloud '{p.name}' not rendered: {e}")
                 break
 
 

@@ -12,11 +12,12 @@ from .light import LightData, collect_lights
 from .material import MaterialData, MaterialTable, view_layer_ids
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .object_attributes import InstanceAttributes
+from .points import PointsData, collect_points
 from .volume import collect_volumes
 from .world import WorldSky, WorldTexture, world_color, world_texture, world_volume
 
 __all__ = ("CurvesData", "ExportCancelled", "ExportError", "LightData", "MaterialData", "MeshData",
-           "SceneData", "WorldSky", "WorldTexture", "export_scene")
+           "PointsData", "SceneData", "WorldSky", "WorldTexture", "export_scene")
 
 
 @dataclass
@@ -38,6 +39,8 @@ class SceneData:
     # among `meshes` (export.volume).
     volume_grids: list = field(default_factory=list)
     volume_material_names: frozenset = frozenset()  # materials compiled for volume objects too
+    points: list = field(default_factory=list)  # PointsData (point clouds)
+    point_materials: list = field(default_factory=list)  # per point cloud: its index into materials
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None):
@@ -69,6 +72,11 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     material_slots += volume_slots
     curves = collect_curves(depsgraph, warn, table.index, attributes, table.uv_names)
     curve_materials = [table.index(c.material) for c in curves]
+    points = collect_points(depsgraph, warn, table.index, attributes, table.uv_names)
+    point_materials = [table.index(p.material) for p in points]
+    if scene.render.use_motion_blur and any(p.has_velocity for p in points):
+        warn("Point clouds' velocity attributes are not read: their points are not motion "
+             "blurred (their objects' transforms are)")
     lights = collect_lights(depsgraph, warn, is_visible)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
     if far > FAR_FROM_ORIGIN:
@@ -79,7 +87,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                      world_color(scene.world, warn), camera, lights,
                      world_texture(scene.world, warn), table.images.images,
                      table.material_names(), table.uv_sets, world_volume(scene.world, warn),
-                     curves, curve_materials, volume_grids, frozenset(table.volume_material_names))
+                     curves, curve_materials, volume_grids, frozenset(table.volume_material_names),
+                     points, point_materials)
 
 
 # Measured by tests/core/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise

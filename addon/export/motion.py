@@ -126,7 +126,8 @@ def add_motion(engine, depsgraph, data, warn):
     # Per instance (a matrix of some MeshData): its step count, or 0 when it does not blur.
     wanted = {}
     counts = set()
-    for mesh in data.meshes:
+    movable = list(data.meshes) + list(getattr(data, "points", []))  # (point clouds: transforms only)
+    for mesh in movable:
         for key in getattr(mesh, "motion_keys", []):
             obj = _object(scene, key[0])
             n = motion_step_count(obj) if obj is not None and uses_motion_blur(obj) else 0
@@ -160,7 +161,7 @@ def add_motion(engine, depsgraph, data, warn):
             if cam_steps and cam_obj is not None:
                 cam_at[rel] = camera_matrix(cam_obj.evaluated_get(depsgraph))
             for instance in depsgraph.object_instances:
-                if instance.object.type not in ('MESH', 'VOLUME'):
+                if instance.object.type not in ('MESH', 'VOLUME', 'POINTCLOUD'):
                     continue
                 key = instance_key(instance)
                 if wanted.get(key):
@@ -172,7 +173,7 @@ def add_motion(engine, depsgraph, data, warn):
 
     moving = 0
     warned = set()
-    for mesh in data.meshes:
+    for mesh in movable:
         keys = getattr(mesh, "motion_keys", [])
         mesh.motions = [None] * len(mesh.matrices)
         for k, key in enumerate(keys[:len(mesh.matrices)]):

@@ -342,6 +342,62 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   return self.scene->add_curves(std::move(cs));
 }
 
+// A point cloud: points (N, 3), radii (N) or None (Cycles' default 0.01), one material, the
+// object's matrix. Points with bad values are left out at commit (stats()["skipped_points"]);
+// inconsistent shapes raise ValueError.
+uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& radii_obj, uint32_t material,
+                    const py::object& matrix, const py::object& color, float pass_index, uint32_t random_id,
+                    const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
+                    const py::object& motion) {
+  self.check_editable();
+  if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
+  const size_t n = size_t(points.shape(0));
+  if (n > UINT32_MAX / 4) throw std::invalid_argument("the point cloud is too large");
+  PointSetData ps;
+  const Vec3* pp = reinterpret_cast<const Vec3*>(points.data());
+  ps.points.assign(pp, pp + n);
+  if (!radii_obj.is_none()) {
+    const FloatArray radii = radii_obj.cast<FloatArray>();
+    if (radii.ndim() != 1 || size_t(radii.shape(0)) != n) throw std::invalid_argument("point radii must have shape (N,)");
+    ps.radii.assign(radii.data(), radii.data() + n);
+  } else {
+    ps.radii.assign(n, 0.01f);
+  }
+  if (!matrix.is_none()) ps.matrix = to_mat4(matrix.cast<FloatArray>(), "points matrix");
+  ps.material = material < self.scene->material_count() ? material : 0;
+  if (!color.is_none()) {  // the object's (Object Info)
+    const auto c = color.cast<std::vector<float>>();
+    if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("points color takes 3 or 4 values");
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    ps.info.color = {clean(c[0]), clean(c[1]), clean(c[2]), c.size() == 4 ? clean(c[3]) : 1.0f};
+  }
+  ps.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
+  ps.info.random = object_random(random_id);
+  ps.attrs = to_object_attributes(attributes, "points");
+  for (const auto& item : point_attributes) {  // per attribute set: one RGBA per point
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 2 || size_t(a.shape(0)) != n || a.shape(1) != 4)
+      throw std::invalid_argument("point attributes must have shape (N, 4)");
+    if (ps.point_attrs.size() <= size_t(k)) ps.point_attrs.resize(size_t(k) + 1);
+    auto& dst = ps.point_attrs[size_t(k)];
+    dst.resize(n);
+    const float* src = a.data();
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    for (size_t i = 0; i < n; ++i)
+      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
+  }
+  if (!texspace.is_none()) {  // (location, size) of the Generated coordinates' box
+    const auto ts = texspace.cast<py::tuple>();
+    if (ts.size() != 2) throw std::invalid_argument("texspace must be (location, size)");
+    ps.texspace_loc = to_point(ts[0], "texspace location");
+    ps.texspace_size = to_point(ts[1], "texspace size");
+  }
+  ps.motion = to_motion(motion, "points motion");
+  return self.scene->add_points(std::move(ps));
+}
+
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
                   const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
                   const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
@@ -884,6 +940,8 @@ py::dict scene_stats(const PyScene& self) {
   d["curves"] = s.curves;
   d["curve_pieces"] = s.curve_pieces;
   d["skipped_curves"] = s.skipped_curves;
+  d["points"] = s.points;
+  d["skipped_points"] = s.skipped_points;
   d["motion_instances"] = s.motion_instances;
   d["motion_rejected"] = s.motion_rejected;
   d["deforming_instances"] = s.deforming_instances;
@@ -996,7 +1054,7 @@ py::tuple intersect_batch(const PyScene& self, const FloatArray& origins, const 
       pt[i] = ok ? h.t : kInf;
       pp[i] = ok ? int64_t(self.scene->global_prim(h)) : -1;
       if (instances) {
-        pi[i] = ok ? (h.inst == kCurveInstance ? -2 : int64_t(h.inst)) : -1;
+        pi[i] = ok ? (h.inst == kCurveInstance ? -2 : h.inst == kPointInstance ? -3 : int64_t(h.inst)) : -1;
         pl[i] = ok ? int64_t(self.scene->mesh_triangle(h)) : -1;
       }
       pb1[i] = ok ? h.b1 : 0.0f;
@@ -1230,6 +1288,8 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
        *pi = reinterpret_cast<Vec3*>(in.mutable_data());
   float* ptt = t.mutable_data();
   bool* pc = curve.mutable_data();
+  py::array_t<bool> point(n);
+  bool* ppt = point.mutable_data();
   {
     py::gil_scoped_release release;
     for (py::ssize_t i = 0; i < n; ++i) {
@@ -1247,6 +1307,7 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
       po[i] = ok ? offset_ray_origin(sp.p, sp.p_error, sp.ng) : Vec3(0.0f);
       pi[i] = ok ? offset_ray_origin(sp.p, sp.p_error, -sp.ng) : Vec3(0.0f);
       pc[i] = ok && sp.curve();
+      ppt[i] = ok && sp.point();
     }
   }
   py::dict r;
@@ -1257,6 +1318,7 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
   r["origin_out"] = out;
   r["origin_in"] = in;
   r["curve"] = curve;
+  r["point"] = point;
   r["strand"] = strand;
   return r;
 }
@@ -2455,6 +2517,18 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("name"), py::arg("base_color") = py::make_tuple(0.8f, 0.8f, 0.8f),
           py::arg("emission") = py::make_tuple(0.0f, 0.0f, 0.0f))
+      .def("add_points", &add_points, py::arg("points"), py::arg("radii") = py::none(), py::arg("material") = 0u,
+           py::arg("matrix") = py::none(), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
+           py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("point_attributes") = py::dict(),
+           py::arg("texspace") = py::none(), py::arg("motion") = py::none(),
+           "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
+           "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
+           "random_id, attributes: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
+           "RGBA per point}. texspace: (location, size) of Generated coordinates (None: Generated is "
+           "the object-space position, as Cycles gives point clouds). motion: (S, 4, 4) object-to-world "
+           "matrices over the shutter (transform motion blur; singular or non-finite steps: static). "
+           "Points with a non-finite position or radius, or a radius <= 0, are left out at commit "
+           "(stats()['skipped_points']).")
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,

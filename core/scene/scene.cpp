@@ -224,6 +224,10 @@ bool Scene::commit(int threads, BvhLayout layout) {
     build_curves();
     top_dirty_ = true;  // the world bounds (and the lights' scene radius) include them
   }
+  if (points_dirty_) {
+    build_points();
+    top_dirty_ = true;  // (as curves)
+  }
   if (geometry_dirty_ || layout != built_layout_ || spatial_splits_ != built_spatial_splits_ ||
       compact_bvh_ != built_compact_bvh_) {
     if (!build_geometry(threads, layout)) return false;

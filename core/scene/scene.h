@@ -18,6 +18,7 @@
 
 #include "geometry/bvh.h"
 #include "geometry/curves.h"
+#include "geometry/points.h"
 #include "geometry/tlas.h"
 #include "scene/shader.h"
 #include "scene/camera.h"
@@ -136,6 +137,29 @@ struct CurveSetData {
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
 constexpr uint32_t kCurveInstance = 0xFFFFFFF0u;
 
+// A point cloud (Blender's POINTCLOUD): spheres of a centre and a radius each, one material,
+// object -> world.
+struct PointSetData {
+  std::vector<Vec3> points;
+  std::vector<float> radii;  // per point
+  uint32_t material = 0;
+  Mat4 matrix;
+  ObjectInfo info;            // (attr_first / attr_count unused: attrs holds them)
+  std::vector<Float4> attrs;  // Object / Instancer attribute values by slot (<= kMaxObjectAttributes)
+  // Per attribute set k: one RGBA per point (the Attribute node's value on that point, as
+  // Cycles' ATTR_ELEMENT_VERTEX attributes of point clouds); empty sets read 0.
+  std::vector<std::vector<Float4>> point_attrs;
+  // Generated coordinates' box (object space); by default the identity: Cycles has no
+  // generated attribute on points and gives the object-space position.
+  Vec3 texspace_loc{0.5f}, texspace_size{0.5f};
+  // Transform motion blur: the object-to-world matrix at each motion step (>= 2, evenly over
+  // the shutter); empty: static. Steps not finite or singular leave it static.
+  std::vector<Mat4> motion;
+};
+
+// Hit::inst of a hit on a point (Hit::prim: the sphere, Hit::b1, b2: its normal, octahedral).
+constexpr uint32_t kPointInstance = 0xFFFFFFF1u;
+
 struct Instance {
   uint32_t mesh;
   Mat4 matrix;
@@ -159,6 +183,7 @@ struct SurfacePoint {
   Vec3 tangent{0.0f};
   float b1 = 0.0f, b2 = 0.0f;  // barycentrics of v1 and v2 in the hit triangle
   bool curve() const { return instance == kCurveInstance; }
+  bool point() const { return instance == kPointInstance; }
   float time = 0.5f;      // shutter time of the ray that found it (motion blur)
 };
 
@@ -198,6 +223,7 @@ struct SceneStats {
   size_t real_instances = 0;              // instances traced through a transform (not merged)
   size_t bvh_bytes = 0, geometry_bytes = 0;  // BLASes + top level; triangle copies, maps and mesh data
   size_t curves = 0, curve_pieces = 0, skipped_curves = 0;  // strands kept, their linear pieces, strands left out
+  size_t points = 0, skipped_points = 0;  // point-cloud spheres kept, points left out (bad position or radius)
   size_t motion_instances = 0;  // instances traced with transform motion blur
   size_t motion_rejected = 0;   // instances (and meshes) whose motion was dropped (non-finite or singular steps)
   size_t deforming_instances = 0;  // instances traced with deformation blur
@@ -276,13 +302,28 @@ class Scene {
   uint32_t curve_set_of(uint32_t strand) const {
     return uint32_t(std::upper_bound(curve_first_.begin(), curve_first_.end(), strand) - curve_first_.begin()) - 1;
   }
+  // A point cloud (validated by the caller). Points with a non-finite position or a radius
+  // that is not finite and > 0 are left out at commit (counted in stats().skipped_points).
+  uint32_t add_points(PointSetData points) {
+    point_sets_.push_back(std::move(points));
+    points_dirty_ = true;
+    committed_ = false;
+    return uint32_t(point_sets_.size() - 1);
+  }
+  size_t point_set_count() const { return point_sets_.size(); }
+  bool has_points() const { return !point_bvh_.empty(); }
+  const PointBvh& point_bvh() const { return point_bvh_; }
+  // The point set of a point of a committed scene.
+  uint32_t point_set_of(uint32_t point) const {
+    return uint32_t(std::upper_bound(point_first_.begin(), point_first_.end(), point) - point_first_.begin()) - 1;
+  }
   size_t instance_count() const { return instances_.size(); }
   // Deformation blur of mesh `mesh` (MeshData::motion_positions). Steps of the wrong length or
   // with non-finite positions leave it undeformed (counted in stats().motion_rejected).
   void set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps);
   // Instances with transform motion blur in the committed scene: rays then need a time.
   // (Volumes with velocity blur count: their lookups need the ray's time too.)
-  bool has_motion() const { return motion_instances_ > 0 || velocity_media_ > 0; }
+  bool has_motion() const { return motion_instances_ > 0 || velocity_media_ > 0 || point_bvh_.has_moving(); }
   // Velocity blur of a volume object's mesh (MeshData::velocity_grid): scale 0 or a grid
   // id < 0 turns it off. Throws std::invalid_argument on non-finite values.
   // grid_y, grid_z >= 0: `grid` is the x component's float grid, they the y and z ones.
@@ -406,7 +447,7 @@ class Scene {
   // Closest hit: h.prim is the triangle in its BLAS, h.inst the scene instance (surface_point
   // and global_prim read them).
   bool intersect(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const {
-    if (curves_on_) return intersect_with_curves(r, h, c);
+    if (curves_on_ || points_on_) return intersect_with_curves(r, h, c);
     return intersect_meshes(r, h, c);
   }
   bool intersect_meshes(const Ray& r, Hit& h, TraversalCounters* c = nullptr) const {
@@ -449,10 +490,12 @@ class Scene {
   Vec3 terminator_lift(const SurfacePoint& sp, Vec3 ng, float amount) const;
   bool occluded(const Ray& r) const {
     if (curves_on_ && curve_bvh_.occluded(r)) return true;
+    if (points_on_ && point_bvh_.occluded(r)) return true;
     if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);
     return tlas_.occluded(r);
   }
-  // The strand a ray spawned at sp leaves (Ray::self_curve): none off curves.
+  // The strand a ray spawned at sp leaves (Ray::self_curve): none off curves. Not on points:
+  // a ray refracted into a sphere meets its exit, as in Cycles 4.5 (docs/design/points.md).
   uint32_t self_curve(const SurfacePoint& sp) const {
     return sp.curve() ? curve_bvh_.piece(sp.tri).curve : UINT32_MAX;
   }
@@ -460,11 +503,14 @@ class Scene {
   // Curve hits: the strand (numbered over all curve sets).
   uint32_t mesh_triangle(const Hit& h) const {
     if (h.inst == kCurveInstance) return curve_bvh_.piece(h.prim).curve;
+    if (h.inst == kPointInstance) return point_bvh_.sphere(h.prim).point;
     return blases_[inst_[h.inst].blas].src_tri[h.prim];
   }
   // The flattened-scene index of a hit triangle (what a single world-space BVH would report).
   uint32_t global_prim(const Hit& h) const {
     if (h.inst == kCurveInstance) return uint32_t(stats_.triangles) + curve_bvh_.piece(h.prim).curve;  // after the triangles
+    if (h.inst == kPointInstance)  // after the strands
+      return uint32_t(stats_.triangles + stats_.curves) + point_bvh_.sphere(h.prim).point;
     const InstanceData& in = inst_[h.inst];
     return in.prim_base + (h.prim - in.tri_base);
   }
@@ -701,14 +747,38 @@ class Scene {
     Ray rc = r;
     if (found) rc.tmax = h.t;
     Hit hc;
-    if (curve_bvh_.intersect(rc, hc)) {
+    if (curves_on_ && curve_bvh_.intersect(rc, hc)) {
       h = hc;
       h.inst = kCurveInstance;
+      rc.tmax = h.t;
+      found = true;
+    }
+    Hit hp;
+    if (points_on_ && point_bvh_.intersect(rc, hp)) {
+      h = hp;
+      h.inst = kPointInstance;
       found = true;
     }
     return found;
   }
   void curve_point(const Hit& h, SurfacePoint& sp) const;
+  // Point clouds: the sets as added, their spheres' BVH (world space), per set its first point,
+  // and per point its attribute values (point_attr_sets_ each).
+  std::vector<PointSetData> point_sets_;
+  PointBvh point_bvh_;
+  std::vector<uint32_t> point_first_;
+  std::vector<Float4> point_attr_;
+  uint32_t point_attr_sets_ = 0;
+  std::vector<float> point_random_;  // per point: Point Info's Random
+  // Per point set: Point Info's Radius over the sphere's (Cycles' point_radius, the object
+  // radius along (1, 1, 1) / sqrt 3 through the matrix, over the cube root of its determinant).
+  std::vector<float> point_radius_scale_;
+  std::vector<ObjectCoords> point_coords_;  // per point set: its object (Object Info, object coordinates)
+  bool points_dirty_ = false;
+  bool points_on_ = false;  // point_bvh_ is not empty: traced after the meshes and curves
+  void build_points();
+  void sphere_point(const Hit& h, SurfacePoint& sp, float time) const;
+  std::vector<uint8_t> point_moving_;  // per point set: it has transform motion blur
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
   std::vector<std::vector<DecomposedTransform>> motion_;  // per instance, made at commit (empty: static)
   size_t motion_instances_ = 0;

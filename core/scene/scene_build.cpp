@@ -348,11 +348,12 @@ void Scene::build_top_level() {
     world_bounds_ = direct_ ? blases_[0].bvh.bounds() : Aabb();
   }
   if (curves_on_) world_bounds_.grow(curve_bvh_.bounds());
+  if (points_on_) world_bounds_.grow(point_bvh_.bounds());
   stats_.tlas_instances = use_tlas_ ? tlas_.stats().instances : 0;
 }
 
 void Scene::update_memory_stats() {
-  size_t bvh = tlas_.memory_bytes() + curve_bvh_.memory_bytes(), geo = 0;
+  size_t bvh = tlas_.memory_bytes() + curve_bvh_.memory_bytes() + point_bvh_.memory_bytes(), geo = 0;
   for (const Blas& b : blases_) {
     bvh += b.bvh.memory_bytes();
     geo += b.tris.capacity() * sizeof(TriangleVerts) + b.src_tri.capacity() * 4 + (b.run_first.capacity() + b.run_inst.capacity()) * 4 +
@@ -370,6 +371,80 @@ void Scene::update_memory_stats() {
   }
   stats_.bvh_bytes = bvh;
   stats_.geometry_bytes = geo;
+}
+
+void Scene::build_points() {
+  std::vector<PointSphere> spheres;
+  std::vector<PointFrame> frames;
+  point_first_.clear();
+  point_attr_.clear();
+  point_coords_.clear();
+  point_random_.clear();
+  point_radius_scale_.clear();
+  point_moving_.clear();
+  struct Moving {
+    std::vector<PointSphere> spheres;
+    std::vector<DecomposedTransform> steps;
+  };
+  std::vector<Moving> moving;
+  point_attr_sets_ = 0;
+  for (const PointSetData& ps : point_sets_) point_attr_sets_ = std::max(point_attr_sets_, uint32_t(ps.point_attrs.size()));
+  uint32_t base = 0;
+  size_t skipped = 0;
+  std::vector<uint32_t> kept;
+  for (const PointSetData& ps : point_sets_) {
+    point_first_.push_back(base);
+    point_coords_.push_back(make_object_coords(ps.matrix, ps.texspace_loc, ps.texspace_size));
+    point_coords_.back().info = ps.info;
+    // The object attributes live in the set itself (point_sets_ changes only with a rebuild).
+    point_coords_.back().info.attr_first = 0;
+    point_coords_.back().info.attr_count = uint32_t(std::min<size_t>(ps.attrs.size(), kMaxObjectAttributes));
+    point_coords_.back().attrs = ps.attrs.empty() ? nullptr : ps.attrs.data();
+    kept.clear();
+    const size_t n = std::min(ps.points.size(), ps.radii.size());
+    const size_t first = spheres.size();
+    const size_t n_frames = frames.size();
+    // Transform motion blur: steps that decompose and differ (else the cloud stays static).
+    std::vector<DecomposedTransform> steps;
+    bool moves = ps.motion.size() >= 2 && decompose_motion(ps.motion, steps);
+    if (moves) {
+      moves = false;
+      for (const Mat4& m : ps.motion)
+        for (int i = 0; i < 4 && !moves; ++i)
+          for (int j = 0; j < 4 && !moves; ++j) moves = m.m[i][j] != ps.motion[0].m[i][j];
+    }
+    point_moving_.push_back(moves ? 1 : 0);
+    if (moves) {  // its spheres in object space, in a BVH of their own (PointBvh::add_moving)
+      moving.push_back({{}, std::move(steps)});
+      std::vector<PointFrame> none;
+      skipped += transform_points(ps.points.data(), ps.radii.data(), n, Mat4(), base, moving.back().spheres, none, &kept);
+      for (size_t k = 0; k < moving.back().spheres.size(); ++k) moving.back().spheres[k].point = base + uint32_t(k);
+    } else {
+      skipped += transform_points(ps.points.data(), ps.radii.data(), n, ps.matrix, base, spheres, frames, &kept);
+    }
+    // Kept points are numbered densely: sphere k of this set is point base + k.
+    for (size_t k = first; k < spheres.size(); ++k) spheres[k].point = base + uint32_t(k - first);
+    {
+      const Mat4& m = ps.matrix;
+      const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
+      const float det = std::cbrt(std::fabs(dot(c0, cross(c1, c2))));
+      const float s = length(m.vector(Vec3(1.0f / std::sqrt(3.0f))));
+      // (Ellipsoids keep the object radius.)
+      const float over = frames.size() > n_frames || moves ? 1.0f : det;
+      point_radius_scale_.push_back(over > 0.0f && std::isfinite(s / over) ? s / over : 1.0f);
+    }
+    for (uint32_t i : kept) point_random_.push_back(float(lookup3::hash(i, 0u)) * (1.0f / float(0xFFFFFFFFu)));
+    for (uint32_t i : kept)
+      for (uint32_t a = 0; a < point_attr_sets_; ++a)
+        point_attr_.push_back(a < ps.point_attrs.size() && i < ps.point_attrs[a].size() ? ps.point_attrs[a][i] : Float4{});
+    base += uint32_t(kept.size());
+  }
+  stats_.points = base;
+  stats_.skipped_points = skipped;
+  point_bvh_.build(std::move(spheres), std::move(frames));
+  for (Moving& m : moving) point_bvh_.add_moving(std::move(m.spheres), std::move(m.steps));
+  points_on_ = !point_bvh_.empty();
+  points_dirty_ = false;
 }
 
 void Scene::build_curves() {

@@ -599,7 +599,8 @@ template bool Scene::sample_direct_t<false>(Vec3, float, Vec2, DirectSample&, bo
 template bool Scene::sample_direct_t<true>(Vec3, float, Vec2, DirectSample&, bool) const;
 
 float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n) const {
-  if (sp.curve()) return 0.0f;  // curves are not light-sampled: their emission is found by BSDF rays alone
+  // Curves and points are not light-sampled: their emission is found by BSDF rays alone.
+  if (sp.curve() || sp.point()) return 0.0f;
   const InstanceData& in = inst_[sp.instance];
   const int32_t e = emitter_of(in, sp.tri);
   if (e < 0 || !(cos_l > 0.0f)) return 0.0f;

@@ -103,6 +103,35 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
     return;
   }
+  if (sp.point()) {  // Cycles' points: u = v = 0, per-point attributes, the cloud's object space
+    PointFrame moved;
+    const PointFrame* frame = nullptr;
+    const PointSphere s = point_bvh_.world_sphere(sp.tri, sp.time, moved, frame);
+    const uint32_t point = s.point, set = point_set_of(point);
+    PointShading ps;
+    ps.position = s.c;
+    ps.radius = s.r * point_radius_scale_[set];
+    ps.random = point_random_[point];
+    ctx.point = &ps;
+    if (point_attr_sets_) {
+      ctx.attrs = &point_attr_[size_t(point) * point_attr_sets_];
+      ctx.attr_sets = int(point_attr_sets_);
+    }
+    ctx.backfacing = dot(sp.ng, wo) < 0.0f;
+    ctx.object = &point_coords_[set];
+    UninitArray<ObjectCoords, 1> moved_coords;  // (a moving cloud's object at the ray's time)
+    if (point_moving_[set]) {
+      ObjectCoords* mc = new (moved_coords.bytes) ObjectCoords(point_coords_[set]);
+      const ObjectCoords at = make_object_coords(point_bvh_.moving_transform(sp.tri, sp.time), Vec3(0.0f), Vec3(1.0f));
+      mc->to_world = at.to_world;
+      mc->to_object = at.to_object;
+      mc->valid = at.valid;
+      ctx.object = mc;
+    }
+    shade_program(mat, ctx, out);
+    if (mat.has_hair) orient_hair(out, sp, wo);
+    return;
+  }
   const InstanceData& in = inst_[sp.instance];
   ctx.backfacing = (dot(sp.ng, wo) < 0.0f) != in.negative;  // (Scene::backfacing)
   const Blas& blas = blases_[in.blas];

@@ -24,6 +24,25 @@ void Scene::curve_point(const Hit& h, SurfacePoint& sp) const {
   sp.tri = h.prim;
 }
 
+void Scene::sphere_point(const Hit& h, SurfacePoint& sp, float time) const {
+  PointFrame moved;
+  const PointFrame* frame = nullptr;
+  const PointSphere s = point_bvh_.world_sphere(h.prim, time, moved, frame);
+  // From the hit's normal: the point lies on the sphere, whatever the error of t.
+  Vec3 n, p, err;
+  sphere_surface(s, frame, h.b1, h.b2, n, p, err);
+  sp.p = p;
+  sp.p_error = err;
+  sp.ng = sp.ns = n;
+  sp.tangent = Vec3(0.0f);
+  const uint32_t set = point_set_of(s.point);
+  sp.material = point_sets_[set].material < materials_.size() ? point_sets_[set].material : 0;
+  sp.prim = uint32_t(stats_.triangles + stats_.curves) + s.point;
+  sp.instance = kPointInstance;
+  sp.tri = h.prim;
+  sp.b1 = sp.b2 = 0.0f;  // Cycles' u, v on points
+}
+
 bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
   if (instance >= inst_.size()) return false;
   const InstanceData& in = inst_[instance];
@@ -84,6 +103,7 @@ bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
 void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
   sp.time = time;
   if (h.inst == kCurveInstance) return curve_point(h, sp);  // (curves do not move)
+  if (h.inst == kPointInstance) return sphere_point(h, sp, time);  // (moving clouds: at the ray's time)
   const InstanceData& in = inst_[h.inst];
   if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {  // where the ray met it
     InstanceData moved = in;
@@ -116,7 +136,7 @@ namespace pl {
 
 Vec3 Scene::terminator_lift(const SurfacePoint& sp, Vec3 ng, float amount) const {
   // Cycles' shadow_ray_smooth_surface_offset (kernel/light/sample.h), in world space.
-  if (sp.curve() || sp.instance >= inst_.size()) return sp.p;
+  if (sp.curve() || sp.point() || sp.instance >= inst_.size()) return sp.p;
   const InstanceData& in = inst_[sp.instance];
   if (in.blas == UINT32_MAX || in.motion != nullptr || in.deform != nullptr) return sp.p;
   const MeshData& mesh = meshes_[in.mesh];

@@ -230,6 +230,17 @@ template <bool kSetsNormal>
         }
         break;
       }
+      case OpCode::PointInfo: {
+        // Cycles' svm_node_point_info: zeros off points.
+        const PointShading* ps = ctx.point;
+        if (op.sub == 0) {
+          d = f4(ps ? ps->position : Vec3(0.0f), 0.0f);
+        } else {
+          const float v = !ps ? 0.0f : op.sub == 1 ? ps->radius : ps->random;
+          d = {v, v, v, 1.0f};
+        }
+        break;
+      }
       case OpCode::ObjectInfo: {
         // Cycles' svm_node_object_info: the hit instance's location, colour, alpha, pass index
         // and random number (Material Index is a constant of the material, folded by the add-on).

@@ -71,6 +71,7 @@ enum class OpCode : uint8_t {
   // in in[4 + 2k] (replacing in[1]), its parameters in in[5 + 2k] (VolumeLobeType: HG g; Draine
   // g, alpha; Fournier-Forand backscatter, IOR; Mie diameter), its type in bits 4k.. of index.
   VolumeOut,
+  PointInfo,  // sub: Position, Radius, Random (Cycles' Point Info; zeros off points)
 };
 
 enum class MathOp : uint8_t {
@@ -271,6 +272,13 @@ struct CurveShading {
   Vec3 tangent{0.0f};         // the unit direction along the strand (Cycles' dPdu)
 };
 
+// What the Point Info node reads at a hit on a point cloud's sphere.
+struct PointShading {
+  Vec3 position{0.0f};  // the sphere's centre (world space)
+  float radius = 0.0f;  // its radius, world space, as Cycles' point_radius
+  float random = 0.0f;  // per point, as Cycles: hash of its index in its cloud
+};
+
 struct ShadingContext {
   Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
   Vec3 wo;                   // direction towards the viewer (unit)
@@ -303,6 +311,7 @@ struct ShadingContext {
   uint32_t instance = 0;
   Vec3 p_error{0.0f};
   const CurveShading* curve = nullptr;  // hits on curves (nullptr: not a strand)
+  const PointShading* point = nullptr;  // hits on points (nullptr: not a point)
   float time = 0.5f;  // the ray's shutter time (motion blur): AO rays trace at it
   // Majorant building: where set, VolumeGrid ops read the grid's largest value (over its
   // channels) in this world box instead of a sample at p.

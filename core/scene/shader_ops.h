@@ -72,6 +72,7 @@ inline constexpr const char* kLightPathOutputs[] = {
 inline constexpr const char* kGeometryOutputs[] = {"TRUE_NORMAL", "INCOMING", "PARAMETRIC", "BACKFACING", "REFLECTION"};
 inline constexpr const char* kCurvesInfoOutputs[] = {"IS_STRAND", "INTERCEPT", "LENGTH", "THICKNESS",
                                                      "TANGENT_NORMAL", "RANDOM"};
+inline constexpr const char* kPointInfoOutputs[] = {"POSITION", "RADIUS", "RANDOM"};
 inline constexpr const char* kObjectInfoOutputs[] = {"LOCATION", "COLOR", "ALPHA", "OBJECT_INDEX", "RANDOM"};
 inline constexpr const char* kAttributeOutputs[] = {"COLOR", "FAC", "ALPHA"};
 inline constexpr const char* kLayerWeightOutputs[] = {"FRESNEL", "FACING"};
@@ -221,6 +222,7 @@ inline constexpr OpParam kAtOffset[] = {bump_offset(F::Sub)};  // Position, Obje
 inline constexpr OpParam kLightPath[] = {choice(F::Sub, "light path output", kLightPathOutputs)};
 inline constexpr OpParam kObjectInfo[] = {choice(F::Sub, "object info output", kObjectInfoOutputs)};
 inline constexpr OpParam kCurvesInfo[] = {choice(F::Sub, "curves info output", kCurvesInfoOutputs)};
+inline constexpr OpParam kPointInfo[] = {choice(F::Sub, "point info output", kPointInfoOutputs)};
 inline constexpr OpParam kAttribute[] = {int_in(F::Index, "attribute set index", 0, 7),
                                          choice(F::Sub, "attribute output", kAttributeOutputs)};
 inline constexpr OpParam kGeometry[] = {choice(F::Sub, "geometry output", kGeometryOutputs)};
@@ -314,6 +316,7 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"light_path", OpCode::LightPath, 0, schema::kLightPath, kVarying},
     {"object_info", OpCode::ObjectInfo, 0, schema::kObjectInfo, kVarying},  // per instance
     {"curves_info", OpCode::CurvesInfo, 0, schema::kCurvesInfo, kVarying},  // per strand and hit
+    {"point_info", OpCode::PointInfo, 0, schema::kPointInfo, kVarying},  // per point
     {"attribute", OpCode::Attribute, 0, schema::kAttribute, kVarying | kUsesAttributes},
     {"geometry", OpCode::Geometry, 0, schema::kGeometry, kVarying},
     {"object_normal", OpCode::ObjectNormal, 0, {}, kVarying},

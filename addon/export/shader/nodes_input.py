@@ -293,6 +293,18 @@ class InputNodes:
             return ZERO
         return self.emit(kind, "curves_info", which)
 
+    _POINT_INFO = {"Position": ("vector", "POSITION"), "Radius": ("float", "RADIUS"),
+                   "Random": ("float", "RANDOM")}
+
+    def point_info(self, node, out, ctx):
+        """Point Info: the hit point's centre, radius and random number (zeros off points, as
+        Cycles)."""
+        kind, which = self._POINT_INFO.get(out.identifier, (None, None))
+        if kind is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        return self.emit(kind, "point_info", which)
+
     def tangent_node(self, node, out, ctx):
         """Tangent: radial around an object axis (from the generated coordinates) or a UV
         map's tangent (per triangle from its uvs, where Cycles interpolates MikkTSpace's)."""
@@ -332,7 +344,7 @@ class InputNodes:
 VALUE_NODES = {
     'FRESNEL': InputNodes.fresnel_node, 'LAYER_WEIGHT': InputNodes.layer_weight,
     'LIGHT_PATH': InputNodes.light_path, 'OBJECT_INFO': InputNodes.object_info,
-    'HAIR_INFO': InputNodes.curves_info, 'VERTEX_COLOR': InputNodes.color_attribute,
+    'HAIR_INFO': InputNodes.curves_info, 'POINT_INFO': InputNodes.point_info, 'VERTEX_COLOR': InputNodes.color_attribute,
     'ATTRIBUTE': InputNodes.attribute_node, 'VOLUME_INFO': InputNodes.volume_info, 'TANGENT': InputNodes.tangent_node,
     'AMBIENT_OCCLUSION': InputNodes.ambient_occlusion, 'BEVEL': InputNodes.bevel,
     'WIREFRAME': InputNodes.wireframe,

@@ -1,0 +1,458 @@
+#include "geometry/points.h"
+
+#include <algorithm>
+#include <cmath>
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
+
+#include "geometry/binned_sah.h"
+#include "geometry/bvh_common.h"
+
+namespace pl {
+
+namespace {
+// The nearest t in (0, tmax) where |t d - f| = r (f: the centre from the ray's origin): the
+// entry, or the exit from inside. Solved about the closest approach tc, so the error does not
+// grow with the distance (Haines et al., Ray Tracing Gems ch. 7), in double: a few more
+// cycles per sphere (the box tests dominate), and neither the distance to the origin nor the
+// ray's length eats a tiny radius' digits.
+inline bool solve_sphere(const double f[3], const double d[3], double rr, float tmax, double& t) {
+  const double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+  if (!(dd > 0.0)) return false;
+  const double tc = (f[0] * d[0] + f[1] * d[1] + f[2] * d[2]) / dd;
+  const double px = f[0] - tc * d[0], py = f[1] - tc * d[1], pz = f[2] - tc * d[2];
+  const double disc = rr - (px * px + py * py + pz * pz);
+  if (!(disc >= 0.0)) return false;  // (NaN too)
+  const double h = std::sqrt(disc / dd);
+  t = tc - h;
+  if (!(t > 0.0)) t = tc + h;  // inside: where it leaves
+  if (!(t > 0.0) || !(t < double(tmax))) return false;
+  const float tf = float(t);
+  return tf > 0.0f && tf < tmax;
+}
+
+// The unit direction from the centre to the hit: t d - f.
+inline bool hit_direction(const double f[3], const double d[3], double t, Vec3& n) {
+  const double nx = t * d[0] - f[0], ny = t * d[1] - f[1], nz = t * d[2] - f[2];
+  const double nl = std::sqrt(nx * nx + ny * ny + nz * nz);
+  if (!(nl > 0.0) || !std::isfinite(nl)) return false;
+  n = Vec3(float(nx / nl), float(ny / nl), float(nz / nl));
+  return true;
+}
+}  // namespace
+
+bool intersect_sphere(const Vec3& c, float r, const Vec3& org, const Vec3& dir, float tmax, float& t_out, Vec3& n) {
+  if (!(r > 0.0f)) return false;
+  const double f[3] = {double(c.x) - org.x, double(c.y) - org.y, double(c.z) - org.z};
+  const double d[3] = {dir.x, dir.y, dir.z};
+  double t;
+  if (!solve_sphere(f, d, double(r) * r, tmax, t) || !hit_direction(f, d, t, n)) return false;
+  t_out = float(t);
+  return true;
+}
+
+bool intersect_ellipsoid(const Vec3& c, float r, const PointFrame& fr, const Vec3& org, const Vec3& dir, float tmax,
+                         float& t_out, Vec3& n) {
+  if (!(r > 0.0f)) return false;
+  // In the cloud's object space (t is the same parameter there), from the world centre.
+  const double f[3] = {double(c.x) - org.x, double(c.y) - org.y, double(c.z) - org.z};
+  const double d[3] = {dir.x, dir.y, dir.z};
+  double fo[3], dob[3];
+  for (int i = 0; i < 3; ++i) {
+    const Vec3& a = fr.row[i];
+    fo[i] = a.x * f[0] + a.y * f[1] + a.z * f[2];
+    dob[i] = a.x * d[0] + a.y * d[1] + a.z * d[2];
+  }
+  double t;
+  if (!solve_sphere(fo, dob, double(r) * r, tmax, t) || !hit_direction(f, d, t, n)) return false;
+  t_out = float(t);
+  return true;
+}
+
+void encode_sphere_normal(Vec3 n, float& b1, float& b2) {
+  const float l1 = std::fabs(n.x) + std::fabs(n.y) + std::fabs(n.z);
+  if (!(l1 > 0.0f) || !std::isfinite(l1)) {
+    b1 = b2 = 0.0f;
+    return;
+  }
+  float u = n.x / l1, v = n.y / l1;
+  if (n.z < 0.0f) {
+    const float pu = (1.0f - std::fabs(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+    const float pv = (1.0f - std::fabs(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+    u = pu;
+    v = pv;
+  }
+  b1 = u;
+  b2 = v;
+}
+
+Vec3 decode_sphere_normal(float u, float v) {
+  Vec3 n{u, v, 1.0f - std::fabs(u) - std::fabs(v)};
+  if (n.z < 0.0f) {
+    n.x = (1.0f - std::fabs(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+    n.y = (1.0f - std::fabs(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+  }
+  const float l2 = length_sq(n);
+  return l2 > 0.0f && std::isfinite(l2) ? n / std::sqrt(l2) : Vec3(0.0f, 0.0f, 1.0f);
+}
+
+void sphere_surface(const PointSphere& s, const PointFrame* f, float b1, float b2, Vec3& n, Vec3& p, Vec3& error) {
+  n = decode_sphere_normal(b1, b2);
+  // On an ellipsoid the point along n lies where its object-space image has length r.
+  float dist = s.r;
+  if (f) {
+    const float l = length(f->apply(n));
+    dist = l > 0.0f && std::isfinite(s.r / l) ? s.r / l : 0.0f;
+  }
+  p = s.c + n * dist;
+  // The centre's rounding in the sum, and the normal's (a few ulps) times the distance.
+  error = (vabs(s.c) + Vec3(dist)) * gamma_bound(8);
+}
+
+size_t transform_points(const Vec3* points, const float* radii, size_t n, const Mat4& to_world, uint32_t point_base,
+                        std::vector<PointSphere>& out, std::vector<PointFrame>& frames, std::vector<uint32_t>* kept) {
+  const float(&m)[4][4] = to_world.m;
+  const Vec3 c0{m[0][0], m[1][0], m[2][0]}, c1{m[0][1], m[1][1], m[2][1]}, c2{m[0][2], m[1][2], m[2][2]};
+  const Vec3 x0 = cross(c1, c2), x1 = cross(c2, c0), x2 = cross(c0, c1);
+  const float det = dot(c0, x0);
+  const float rscale = std::cbrt(std::fabs(det));
+  if (!(rscale > 0.0f) || !std::isfinite(rscale) || !to_world.is_finite()) return n;  // all left out
+  // Even scales (columns orthogonal and of one length): round spheres in world space.
+  const float s2 = rscale * rscale, tol = 1e-5f * s2;
+  const bool round = std::fabs(length_sq(c0) - s2) < tol && std::fabs(length_sq(c1) - s2) < tol &&
+                     std::fabs(length_sq(c2) - s2) < tol && std::fabs(dot(c0, c1)) < tol &&
+                     std::fabs(dot(c1, c2)) < tol && std::fabs(dot(c0, c2)) < tol;
+  uint32_t frame = PointSphere::kRoundPoint;
+  if (!round) {  // the inverse's rows: the cofactor columns over the determinant
+    frames.push_back({{x0 / det, x1 / det, x2 / det}});
+    frame = uint32_t(frames.size() - 1);
+  }
+  size_t skipped = 0;
+  out.reserve(out.size() + n);
+  for (size_t i = 0; i < n; ++i) {
+    const float r = round ? radii[i] * rscale : radii[i];
+    const Vec3 c = to_world.point(points[i]);
+    if (!is_finite(points[i]) || !is_finite(c) || !(r > 0.0f) || !std::isfinite(r)) {
+      ++skipped;
+      continue;
+    }
+    out.push_back({c, r, point_base + uint32_t(i), frame});
+    if (kept) kept->push_back(uint32_t(i));
+  }
+  return skipped;
+}
+
+namespace {
+constexpr int kBins = 16;
+constexpr uint32_t kLeafSize = 4;
+
+Aabb sphere_box(const PointSphere& s, const std::vector<PointFrame>& frames) {
+  Vec3 e(s.r);
+  if (s.frame != PointSphere::kRoundPoint) {
+    // The ellipsoid's extent along world axis i: r times the length of row i of the forward
+    // matrix, the inverse of the frame (its cofactors over the determinant).
+    const PointFrame& f = frames[s.frame];
+    const Vec3 a = f.row[0], b = f.row[1], c = f.row[2];
+    const Vec3 y0 = cross(b, c), y1 = cross(c, a), y2 = cross(a, b);
+    const float det = dot(a, y0);
+    // The forward matrix's columns are y_k / det: its row i is (y0[i], y1[i], y2[i]) / det.
+    for (int i = 0; i < 3; ++i)
+      e[i] = s.r * std::sqrt(y0[i] * y0[i] + y1[i] * y1[i] + y2[i] * y2[i]) / std::fabs(det);
+  }
+  Aabb b;
+  b.grow(s.c - e);
+  b.grow(s.c + e);
+  // Grown by a little more than the rounding of the box's own coordinates.
+  const Vec3 pad = (vabs(b.lo) + vabs(b.hi)) * gamma_bound(4);
+  b.lo = b.lo - pad;
+  b.hi = b.hi + pad;
+  return b;
+}
+
+// The binary tree collapsed into 4-wide nodes (the curves' and the top level's rule).
+uint32_t collapse(const std::vector<BvhNode>& bin, uint32_t b, std::vector<WideBvhNode<4>>& out) {
+  uint32_t kids[4];
+  const int n = bvh_detail::gather_wide_children(bin.data(), b, kids, 4);
+  const uint32_t w = uint32_t(out.size());
+  out.emplace_back();
+  for (int k = 0; k < 4; ++k) {
+    for (int r = 0; r < 3; ++r) {
+      out[w].bounds[2 * r][k] = kInf;
+      out[w].bounds[2 * r + 1][k] = -kInf;
+    }
+    out[w].child[k] = 0;
+    out[w].count[k] = 0;
+  }
+  for (int k = 0; k < n; ++k) {
+    const BvhNode& c = bin[kids[k]];
+    for (int r = 0; r < 3; ++r) {
+      out[w].bounds[2 * r][k] = c.lo[r];
+      out[w].bounds[2 * r + 1][k] = c.hi[r];
+    }
+    if (c.is_leaf()) {
+      out[w].child[k] = c.left_or_first;
+      out[w].count[k] = c.count;
+    } else {
+      out[w].child[k] = collapse(bin, kids[k], out);
+    }
+  }
+  return w;
+}
+
+// The 4 lanes' entry distances and the mask of those entered before tmax.
+struct LaneTest {
+  int near[3], far[3];
+  float org[3], inv[3];
+  LaneTest(const Ray& r, const Vec3& iv) {
+    for (int a = 0; a < 3; ++a) {
+      org[a] = r.org[a];
+      inv[a] = iv[a];
+      near[a] = iv[a] < 0.0f ? 2 * a + 1 : 2 * a;
+      far[a] = near[a] ^ 1;
+    }
+  }
+  unsigned test(const WideBvhNode<4>& n, float tmax, float* dist) const {
+#if defined(__SSE2__)
+    __m128 tmin = _mm_setzero_ps(), tfar = _mm_set1_ps(tmax);
+    for (int a = 0; a < 3; ++a) {
+      const __m128 o = _mm_set1_ps(org[a]), iv = _mm_set1_ps(inv[a]);
+      tmin = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.bounds[near[a]]), o), iv), tmin);
+      tfar = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.bounds[far[a]]), o), iv), tfar);
+    }
+    tfar = _mm_mul_ps(tfar, _mm_set1_ps(bvh_detail::kBoxExitScale));
+    _mm_storeu_ps(dist, tmin);
+    return unsigned(_mm_movemask_ps(_mm_cmple_ps(tmin, tfar)));
+#else
+    unsigned mask = 0;
+    for (int k = 0; k < 4; ++k) {
+      float t0 = 0.0f, t1 = tmax;
+      for (int a = 0; a < 3; ++a) {
+        const float x0 = (n.bounds[near[a]][k] - org[a]) * inv[a], x1 = (n.bounds[far[a]][k] - org[a]) * inv[a];
+        t0 = x0 > t0 ? x0 : t0;
+        t1 = x1 < t1 ? x1 : t1;
+      }
+      dist[k] = t0;
+      if (t0 <= t1 * bvh_detail::kBoxExitScale) mask |= 1u << k;
+    }
+    return mask;
+#endif
+  }
+};
+}  // namespace
+
+void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames) {
+  *this = PointBvh();
+  frames_ = std::move(frames);
+  if (spheres.empty()) return;
+  std::vector<BvhNode> bin;
+  const size_t n = spheres.size();
+  std::vector<Aabb> boxes(n);
+  std::vector<Vec3> centers(n);
+  std::vector<uint32_t> refs(n);
+  for (size_t i = 0; i < n; ++i) {
+    boxes[i] = sphere_box(spheres[i], frames_);
+    centers[i] = boxes[i].center();
+    refs[i] = uint32_t(i);
+  }
+  struct Task {
+    uint32_t node, begin, end;
+    int depth;
+  };
+  bin.reserve(2 * n / kLeafSize + 1);
+  bin.emplace_back();
+  std::vector<Task> todo{{0, 0, uint32_t(n), 0}};
+  while (!todo.empty()) {
+    const Task tk = todo.back();
+    todo.pop_back();
+    Aabb b, cb;
+    for (uint32_t i = tk.begin; i < tk.end; ++i) {
+      b.grow(boxes[refs[i]]);
+      cb.grow(centers[refs[i]]);
+    }
+    bin[tk.node].lo = b.lo;
+    bin[tk.node].hi = b.hi;
+    const uint32_t cnt = tk.end - tk.begin;
+    uint32_t mid = tk.begin;
+    if (cnt > kLeafSize) {
+      const int axis = max_axis(cb.extent());
+      const float lo = cb.lo[axis], ext = cb.extent()[axis];
+      // Deep down, halves by count: the depth (and the traversal stack) stays below 48 + log2 n.
+      if (ext > 0.0f && tk.depth < 48) mid = binned_sah_partition<kBins>(refs, tk.begin, tk.end, boxes, centers, axis, lo, ext);
+      if (mid == tk.begin || mid == tk.end) {
+        mid = tk.begin + cnt / 2;
+        std::nth_element(refs.begin() + tk.begin, refs.begin() + mid, refs.begin() + tk.end,
+                         [&](uint32_t a, uint32_t c) { return centers[a][axis] < centers[c][axis]; });
+      }
+    }
+    if (mid == tk.begin) {
+      bin[tk.node].left_or_first = tk.begin;
+      bin[tk.node].count = cnt;
+      continue;
+    }
+    const uint32_t left = uint32_t(bin.size());
+    bin.emplace_back();
+    bin.emplace_back();
+    bin[tk.node].left_or_first = left;
+    bin[tk.node].count = 0;
+    todo.push_back({left, tk.begin, mid, tk.depth + 1});
+    todo.push_back({left + 1, mid, tk.end, tk.depth + 1});
+  }
+  spheres_.resize(n);
+  for (size_t i = 0; i < n; ++i) spheres_[i] = spheres[refs[i]];
+  bounds_ = Aabb{bin[0].lo, bin[0].hi};
+  nodes_.reserve(bin.size() / 3 + 1);
+  collapse(bin, 0, nodes_);
+  nodes_.shrink_to_fit();
+}
+
+template <bool AnyHit>
+bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
+  if (nodes_.empty()) return false;
+  const LaneTest lt(ray, bvh_detail::safe_inverse(ray.dir));
+  float tmax = ray.tmax;
+  bool found = false;
+  struct Entry {
+    uint32_t id, count;  // count > 0: a leaf of `count` spheres from `id`
+    float t;
+  };
+  constexpr int kStack = 4 * 128;
+  Entry stack[kStack];
+  int sp = 0;
+  stack[sp++] = {0, 0, 0.0f};
+  while (sp > 0) {
+    const Entry e = stack[--sp];
+    if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
+    if (e.count > 0) {
+      for (uint32_t i = e.id; i < e.id + e.count; ++i) {
+        const PointSphere& s = spheres_[i];
+        float t;
+        Vec3 n;
+        const bool h = s.frame == PointSphere::kRoundPoint
+                           ? intersect_sphere(s.c, s.r, ray.org, ray.dir, tmax, t, n)
+                           : intersect_ellipsoid(s.c, s.r, frames_[s.frame], ray.org, ray.dir, tmax, t, n);
+        if (h) {
+          if (AnyHit) return true;
+          tmax = t;
+          hit.t = t;
+          encode_sphere_normal(n, hit.b1, hit.b2);
+          hit.prim = i;
+          found = true;
+        }
+      }
+      continue;
+    }
+    const Node& n = nodes_[e.id];
+    alignas(16) float dist[4];
+    unsigned mask = lt.test(n, tmax, dist);
+    Entry hits[4];
+    int nh = 0;
+    while (mask) {  // nearest first: pushed farthest first
+      const int k = __builtin_ctz(mask);
+      mask &= mask - 1;
+      const Entry x{n.child[k], n.count[k], dist[k]};
+      int j = nh++;
+      while (j > 0 && hits[j - 1].t < x.t) {
+        hits[j] = hits[j - 1];
+        --j;
+      }
+      hits[j] = x;
+    }
+    if (sp + nh > kStack) continue;  // unreachable (bounded depth): never overrun
+    for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
+  }
+  return found;
+}
+
+void PointBvh::add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps) {
+  if (spheres.empty() || steps.size() < 2) return;
+  auto bvh = std::make_unique<PointBvh>();
+  const uint32_t n = uint32_t(spheres.size());
+  bvh->build(std::move(spheres));
+  const Aabb box = motion_world_box(bvh->bounds(), steps.data(), uint32_t(steps.size()));
+  bounds_.grow(box);
+  moving_boxes_.push_back(box);
+  moving_first_.push_back(moving_end_);
+  moving_end_ += n;
+  moving_steps_.push_back(std::move(steps));
+  moving_.push_back(std::move(bvh));
+}
+
+Mat4 PointBvh::moving_transform(uint32_t prim, float time) const {
+  if (!(prim & kMovingPrim)) return Mat4();
+  const std::vector<DecomposedTransform>& st = moving_steps_[moving_of(prim & ~kMovingPrim)];
+  return motion_transform_at(st.data(), uint32_t(st.size()), time);
+}
+
+PointSphere PointBvh::world_sphere(uint32_t prim, float time, PointFrame& storage, const PointFrame*& frame) const {
+  if (!(prim & kMovingPrim)) {
+    const PointSphere& s = spheres_[prim];
+    frame = this->frame(s);
+    return s;
+  }
+  const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
+  PointSphere s = moving_[m]->spheres_[i - moving_first_[m]];
+  const std::vector<DecomposedTransform>& st = moving_steps_[m];
+  const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), time);
+  const Mat4 to_object = affine_inverse_fast(to_world);
+  for (int r = 0; r < 3; ++r) storage.row[r] = Vec3(to_object.m[r][0], to_object.m[r][1], to_object.m[r][2]);
+  s.c = to_world.point(s.c);
+  frame = &storage;
+  return s;
+}
+
+// Moving clouds: the ray carried into each one's object space at its time (t is the same
+// parameter there), the hit's direction from the centre carried back to world space.
+template <bool AnyHit>
+bool PointBvh::traverse_moving(const Ray& ray, Hit& hit) const {
+  bool found = false;
+  float tmax = ray.tmax;
+  const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
+  for (size_t m = 0; m < moving_.size(); ++m) {
+    const Aabb& b = moving_boxes_[m];
+    float t0 = 0.0f, t1 = tmax;
+    for (int a = 0; a < 3; ++a) {
+      const float x0 = (b.lo[a] - ray.org[a]) * inv[a], x1 = (b.hi[a] - ray.org[a]) * inv[a];
+      t0 = std::max(t0, std::min(x0, x1));
+      t1 = std::min(t1, std::max(x0, x1));
+    }
+    if (!(t0 <= t1 * bvh_detail::kBoxExitScale)) continue;
+    const std::vector<DecomposedTransform>& st = moving_steps_[m];
+    const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), ray.time);
+    const Mat4 to_object = affine_inverse_fast(to_world);
+    Ray ro = ray;
+    ro.org = to_object.point(ray.org);
+    ro.dir = to_object.vector(ray.dir);
+    ro.tmax = tmax;
+    Hit h;
+    if (!moving_[m]->traverse<AnyHit>(ro, h)) continue;
+    if (AnyHit) return true;
+    // The object-space direction from the centre, through the matrix: world P - centre's.
+    const Vec3 n = to_world.vector(decode_sphere_normal(h.b1, h.b2));
+    const float l2 = length_sq(n);
+    if (!(l2 > 0.0f) || !std::isfinite(l2)) continue;
+    tmax = h.t;
+    hit.t = h.t;
+    encode_sphere_normal(n / std::sqrt(l2), hit.b1, hit.b2);
+    hit.prim = kMovingPrim | (moving_first_[m] + h.prim);
+    found = true;
+  }
+  return found;
+}
+
+bool PointBvh::intersect(const Ray& ray, Hit& hit) const {
+  bool found = traverse<false>(ray, hit);
+  if (!moving_.empty()) {
+    Ray r = ray;
+    if (found) r.tmax = hit.t;
+    found = traverse_moving<false>(r, hit) || found;
+  }
+  return found;
+}
+
+bool PointBvh::occluded(const Ray& ray) const {
+  Hit h;
+  return traverse<true>(ray, h) || (!moving_.empty() && traverse_moving<true>(ray, h));
+}
+
+}  // namespace pl
