@@ -101,7 +101,8 @@ struct CurveSetData {
   std::vector<Vec3> normals;     // per point, or none (Blender's curve normals: Huang's major axis)
   std::vector<int32_t> offsets;  // strands + 1: strand c has points [offsets[c], offsets[c + 1])
   CurveType type = CurveType::CatmullRom;
-  int subdivisions = 8;          // linear pieces per Catmull-Rom segment
+  int subdivisions = 8;          // linear pieces per Catmull-Rom segment (ribbons: quads)
+  bool ribbon = false;           // Catmull-Rom strands as ribbons (Cycles' shape 'RIBBONS')
   uint32_t material = 0;
   Mat4 matrix;
   ObjectInfo info;              // (attr_first / attr_count unused: attrs holds them)
@@ -444,7 +445,9 @@ class Scene {
     return in.prim_base + (h.prim - in.tri_base);
   }
   // time: the ray's (Ray::time), for instances that move.
-  void surface_point(const Hit& h, SurfacePoint& sp, float time = 0.5f) const;
+  // ray: the ray that found h (ribbons face it: their point and normal need it; without it
+  // a ribbon hit is shaded as seen from across the strand).
+  void surface_point(const Hit& h, SurfacePoint& sp, float time = 0.5f, const Ray* ray = nullptr) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
   // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
@@ -677,7 +680,7 @@ class Scene {
     }
     return found;
   }
-  void curve_point(const Hit& h, SurfacePoint& sp) const;
+  void curve_point(const Hit& h, SurfacePoint& sp, const Ray* ray) const;
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
   std::vector<std::vector<DecomposedTransform>> motion_;  // per instance, made at commit (empty: static)
   size_t motion_instances_ = 0;

@@ -400,6 +400,7 @@ void Scene::build_curves() {
     in.n_curves = cs.offsets.empty() ? 0 : cs.offsets.size() - 1;
     in.type = cs.type;
     in.subdivisions = cs.subdivisions;
+    in.ribbon = cs.ribbon;
     Vec3 loc, size;
     auto_texspace(cs.points, loc, size);
     curve_coords_.push_back(make_object_coords(cs.matrix, loc, size));
