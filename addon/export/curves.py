@@ -38,6 +38,25 @@ class CurvesData:
     # attribute set k -> float32 (C, 4): one RGBA per strand (particle hair: the emitter's byte
     # colour attribute at the root, linear, as Cycles' per-curve vertex colour)
     colours: dict = field(default_factory=dict)
+    # Cycles' scene-wide curve shape (scene.cycles_curves.shape): 'thick' or 'ribbon'; ribbons
+    # come with Embree's tessellation rate (quads per segment) in `subdivisions`.
+    shape: str = 'thick'
+    subdivisions: int = 0
+
+
+def curve_shape(scene):
+    """('ribbon', quads per segment) where the scene's Cycles curve shape is 'RIBBONS', else
+    ('thick', 0). Cycles 4.5 on the CPU hands ribbons to Embree's flat Catmull-Rom curves with
+    the tessellation rate 2^subdivisions (1 .. 16) + 1, which Embree clamps to 16."""
+    settings = getattr(scene, "cycles_curves", None)
+    if settings is None or getattr(settings, "shape", 'THICK') != 'RIBBONS':
+        return 'thick', 0
+    try:
+        level = int(settings.subdivisions)
+    except (TypeError, ValueError, AttributeError):
+        level = 2
+    level = max(0, min(level, 24))
+    return 'ribbon', min(16, min(1 << level, 16) + 1)
 
 
 def _attribute(curves, name, domain, data_type):
@@ -155,6 +174,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
     the emitter UV maps particle hair materials read."""
     out = {}
     render = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
+    shape, quads = curve_shape(getattr(depsgraph, "scene", None))
     for instance in depsgraph.object_instances:
         obj = instance.object
         if obj.type == 'MESH' and getattr(obj, "particle_systems", None) and _shows_particles(instance):
@@ -164,7 +184,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
                     colours = {k: v for k, v in uvs.items() if v.shape[1] == 4}
                     uvs = {k: v for k, v in uvs.items() if v.shape[1] == 2}
                     entry = out[key] = CurvesData(obj.original.name, *arrays, material, uvs=uvs,
-                                                  colours=colours)
+                                                  colours=colours, shape=shape, subdivisions=quads)
                     if material_index is not None:
                         material_index(material)
                 _add_instance(entry, instance, object_attributes)
@@ -179,7 +199,8 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
             if arrays is None:
                 out[key] = None
                 continue
-            entry = out[key] = CurvesData(obj.original.name, *arrays, material)
+            entry = out[key] = CurvesData(obj.original.name, *arrays, material, shape=shape,
+                                          subdivisions=quads)
             if uses_huang_hair(material):
                 entry.normals = curve_normals(obj.data)
             if material_index is not None:
