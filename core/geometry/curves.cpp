@@ -354,8 +354,9 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
   // an object's scale to curve radii).
   const float det = dot(c0, cross(c1, c2));
   const float rscale = std::cbrt(std::fabs(det));
-  const int sub = in.type == CurveType::CatmullRom ? std::max(1, std::min(in.subdivisions, 64)) : 1;
-  const bool ribbon = in.ribbon && in.type == CurveType::CatmullRom;
+  // Ribbons are Catmull-Rom through the points whatever the type, as Cycles 4.5's (checked).
+  const bool ribbon = in.ribbon;
+  const int sub = in.type == CurveType::CatmullRom || ribbon ? std::max(1, std::min(in.subdivisions, 64)) : 1;
   std::vector<Vec3> p;
   std::vector<float> r, v;
   std::vector<Vec3> nrm;

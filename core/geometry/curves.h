@@ -100,8 +100,9 @@ struct CurveInput {
   size_t n_curves = 0;
   CurveType type = CurveType::CatmullRom;
   int subdivisions = 8;  // pieces per Catmull-Rom segment
-  // Catmull-Rom strands as ribbons (Cycles' 'RIBBONS'); subdivisions is then Embree's
-  // tessellation rate (quads per segment). Poly strands stay round, as Cycles' linear curves.
+  // Strands as ribbons (Cycles' 'RIBBONS'): Catmull-Rom through the points whatever the type
+  // (Cycles 4.5 traces poly strands so too), subdivisions then Embree's tessellation rate
+  // (quads per segment).
   bool ribbon = false;
 };
 

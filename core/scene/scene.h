@@ -102,7 +102,7 @@ struct CurveSetData {
   std::vector<int32_t> offsets;  // strands + 1: strand c has points [offsets[c], offsets[c + 1])
   CurveType type = CurveType::CatmullRom;
   int subdivisions = 8;          // linear pieces per Catmull-Rom segment (ribbons: quads)
-  bool ribbon = false;           // Catmull-Rom strands as ribbons (Cycles' shape 'RIBBONS')
+  bool ribbon = false;           // ribbons (Cycles' shape 'RIBBONS'), Catmull-Rom whatever the type
   uint32_t material = 0;
   Mat4 matrix;
   ObjectInfo info;              // (attr_first / attr_count unused: attrs holds them)

@@ -167,20 +167,24 @@ def test_ribbon_ignores_hits_nearer_than_two_radii():
     assert not np.isfinite(t[0]) and np.isfinite(t[1])
 
 
-def test_ribbon_shape_validation_and_poly_strands_stay_round():
-    """shape takes 'thick' or 'ribbon' (else ValueError); poly strands stay round (Cycles traces
-    poly Curves as thick linear curves whatever the shape): the same hits as shape='thick'."""
+def test_ribbon_shape_validation_and_poly_strands_are_catmull_rom_ribbons():
+    """shape takes 'thick' or 'ribbon' (else ValueError); poly strands become Catmull-Rom
+    ribbons through their points (as Cycles 4.5 renders poly Curves with 'RIBBONS'): the same
+    hits as Catmull-Rom ones, unlike their round poly lines."""
     pc = core()
     with pytest.raises(ValueError):
         _scene(pc, [[0, 0, 0], [1, 0, 0]], [0, 2], [0.1, 0.1], shape="flat")
     pts = [[-1, 0, 0], [0, 0.3, 0], [1, 0, 0]]
     a = _scene(pc, pts, [0, 3], [0.1] * 3, curve_type="poly", shape="ribbon")
-    b = _scene(pc, pts, [0, 3], [0.1] * 3, curve_type="poly", shape="thick")
+    b = _scene(pc, pts, [0, 3], [0.1] * 3, curve_type="catmull_rom", shape="ribbon")
+    c = _scene(pc, pts, [0, 3], [0.1] * 3, curve_type="poly", shape="thick")
     rng = np.random.default_rng(5)
     d = rng.normal(size=(500, 3))
     d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
     o = (rng.uniform(-0.5, 0.5, (500, 3)) - d * 3).astype(np.float32)
-    np.testing.assert_array_equal(a.hit_surfaces(o, d)["t"], b.hit_surfaces(o, d)["t"])
+    ta = a.hit_surfaces(o, d)["t"]
+    np.testing.assert_array_equal(ta, b.hit_surfaces(o, d)["t"])
+    assert (np.isfinite(ta) != np.isfinite(c.hit_surfaces(o, d)["t"])).any()
 
 
 def test_ribbon_shading_is_finite_and_spawned_rays_leave_the_strand():
