@@ -44,6 +44,23 @@ class CurvesData:
     subdivisions: int = 0
 
 
+def curve_material_indices(curves, n_slots):
+    """(C,) int32 slot indices from a Curves' 'material_index' attribute (CURVE, INT), clamped
+    to [0, n_slots - 1]; None without the attribute or with fewer than 2 slots. Cycles 4.5
+    renders every strand of a Curves object with its first slot whatever they say (checked:
+    all strands at index 1 render as with slot 1 alone), and so does Pathlight: they are read
+    only to warn."""
+    n_curves = len(curves.curves)
+    if n_slots < 2 or n_curves == 0:
+        return None
+    attr = _attribute(curves, "material_index", 'CURVE', 'INT')
+    if attr is None:
+        return None
+    idx = np.empty(n_curves, np.int32)
+    attr.data.foreach_get("value", idx)
+    return np.clip(idx, 0, n_slots - 1).astype(np.int32)
+
+
 def curve_shape(scene):
     """('ribbon', quads per segment) where the scene's Cycles curve shape is 'RIBBONS', else
     ('thick', 0). Cycles 4.5 on the CPU hands ribbons to Embree's flat Catmull-Rom curves with
@@ -201,6 +218,10 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
                 continue
             entry = out[key] = CurvesData(obj.original.name, *arrays, material, shape=shape,
                                           subdivisions=quads)
+            indices = curve_material_indices(obj.data, len(obj.material_slots))
+            if indices is not None and indices.any():
+                warn(f"Curves '{obj.original.name}': its strands' material indices are not used; every "
+                     "strand renders with the first material slot, as in Cycles")
             if uses_huang_hair(material):
                 entry.normals = curve_normals(obj.data)
             if material_index is not None:

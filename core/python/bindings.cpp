@@ -269,7 +269,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions,
                     const py::object& color, float pass_index, uint32_t random_id, const py::object& attributes,
                     const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes,
-                    const std::string& shape) {
+                    const std::string& shape, const py::object& materials_obj) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -304,6 +304,14 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   }
   if (!matrix.is_none()) cs.matrix = to_mat4(matrix.cast<FloatArray>(), "curves matrix");
   cs.material = material < self.scene->material_count() ? material : 0;
+  if (!materials_obj.is_none()) {  // per strand (Cycles' per-curve material index)
+    const IntArray mats = materials_obj.cast<IntArray>();
+    if (mats.ndim() != 1 || size_t(mats.shape(0)) != nc) throw std::invalid_argument("curve materials must have shape (C,)");
+    cs.strand_materials.resize(nc);
+    const int64_t* pm = mats.data();
+    for (size_t c = 0; c < nc; ++c)  // unknown ids: the set's material (as a bad mesh slot)
+      cs.strand_materials[c] = pm[c] >= 0 && uint64_t(pm[c]) < self.scene->material_count() ? uint32_t(pm[c]) : cs.material;
+  }
   if (!color.is_none()) {  // the object's, as add_instance takes them (Object Info)
     const auto c = color.cast<std::vector<float>>();
     if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("curves color takes 3 or 4 values");
@@ -2349,6 +2357,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("normals") = py::none(),
            py::arg("uvs") = py::dict(), py::arg("strand_attributes") = py::dict(), py::arg("shape") = "thick",
+           py::arg("materials") = py::none(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -2359,7 +2368,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "Object / Instancer attribute values, (K, 4) by slot with K <= 8, as add_instance. normals: "
            "Blender's curve normals (N, 3) or None (the major axis of Huang's elliptical hair). uvs: {uv "
            "set: (C, 2) one uv per strand} (particle hair: the emitter's UV at the root). strand_attributes: "
-           "{attribute set: (C, 4) one RGBA per strand} (particle hair: the emitter's colour at the root).")
+           "{attribute set: (C, 4) one RGBA per strand} (particle hair: the emitter's colour at the root). "
+           "materials: (C,) a material id per strand (ids not in the scene: `material`), or None.")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),

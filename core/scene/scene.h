@@ -104,6 +104,9 @@ struct CurveSetData {
   int subdivisions = 8;          // linear pieces per Catmull-Rom segment (ribbons: quads)
   bool ribbon = false;           // ribbons (Cycles' shape 'RIBBONS'), Catmull-Rom whatever the type
   uint32_t material = 0;
+  // Per strand, its material (Cycles' per-curve shader from the material_index attribute);
+  // empty: `material` for all.
+  std::vector<uint32_t> strand_materials;
   Mat4 matrix;
   ObjectInfo info;              // (attr_first / attr_count unused: attrs holds them)
   std::vector<Float4> attrs;    // Object / Instancer attribute values by slot (<= kMaxObjectAttributes)
@@ -660,6 +663,7 @@ class Scene {
   CurveBvh curve_bvh_;
   std::vector<uint32_t> curve_first_;
   std::vector<float> curve_length_, curve_random_;  // per strand: Curves Info's Length and Random
+  std::vector<uint32_t> curve_material_;  // per strand: its material
   std::vector<Vec2> curve_uv_;  // per strand: curve_uv_sets_ uvs (the sets' per-strand uvs)
   uint32_t curve_uv_sets_ = 0;
   std::vector<Float4> curve_attr_;  // per strand: curve_attr_sets_ values (the sets' per-strand RGBA)

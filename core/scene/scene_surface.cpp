@@ -42,8 +42,7 @@ void Scene::curve_point(const Hit& h, SurfacePoint& sp, const Ray* ray) const {
     sp.ng = sp.ns = n;
     sp.tangent = tangent;
   }
-  const uint32_t set = curve_set_of(c.curve);
-  sp.material = curve_sets_[set].material < materials_.size() ? curve_sets_[set].material : 0;
+  sp.material = c.curve < curve_material_.size() ? curve_material_[c.curve] : 0;
   sp.prim = uint32_t(stats_.triangles) + c.curve;
   sp.instance = kCurveInstance;
   sp.tri = h.prim;
