@@ -106,3 +106,12 @@ def test_poly_ribbons_match_cycles():
                                sag=0.6, spacing=0.3, radius=0.06))
     ours, cycles = render_pair(build, 64)
     assert_channels_agree(ours, cycles)
+
+
+def test_hair_bsdf_ribbons_match_cycles():
+    """The Hair BSDF node (Reflection and Transmission mixed, rough, with Offset) on ribbons:
+    its N is the rounded normal, its T the strand's dP/du, as on round curves."""
+    from test_hair import hair_bsdf_material
+    inputs = dict(Color=(0.5, 0.6, 0.8, 1.0), RoughnessU=0.35, RoughnessV=0.4, Offset=0.12)
+    ours, cycles = render_pair(ribbon_scene(lambda: hair_bsdf_material("Hair", **inputs)), 1024)
+    assert_agree(ours, cycles, what="Hair BSDF ribbons")
