@@ -123,6 +123,9 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
                 extra["normals"] = c.normals
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
                 extra["attributes"] = attributes[k]
+            if getattr(c, "shape", 'thick') == 'ribbon':  # (so never for older cores)
+                extra["shape"] = 'ribbon'
+                extra["subdivisions"] = int(c.subdivisions)
             try:
                 if info is None:
                     scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,

@@ -33,7 +33,7 @@ from .export.mesh import is_visible
 from .export.shader import ImageTable, UvSets
 from .export.world import world_color, world_texture, world_volume
 from .scene_writer import put_material, replace_lights, set_build_options, set_instance_transforms, to_core
-from .viewport_update import ViewState, plan_updates, settings_signature
+from .viewport_update import ViewState, curves_signature, plan_updates, settings_signature
 
 log = logging.getLogger(__name__)
 
@@ -208,6 +208,8 @@ class ViewportSession:
         if signature == self.state.settings:
             return False
         self.stop()
+        if curves_signature(signature) != curves_signature(self.state.settings):
+            self._full_export(depsgraph)  # ribbons or round curves: new geometry
         self._read_scene(depsgraph)
         self.state.settings = signature
         self.restart()

@@ -137,6 +137,8 @@ def plan_updates(updates, state, settings=None):
                 plan.settings = True
                 plan.camera = True  # resolution, active camera, pixel aspect live here too
                 plan.lights = True  # the world is assigned here
+                # Cycles' curve shape (ribbons or round) changes the curves' geometry.
+                plan.rebuild_geometry |= curves_signature(settings) != curves_signature(state.settings)
     if plan.rebuild_geometry:
         plan.lights = True  # a full re-export reads everything again
         materials = []  # ... materials included
@@ -148,13 +150,22 @@ def plan_updates(updates, state, settings=None):
     return plan
 
 
+def curves_signature(settings):
+    """The curve shape part of a settings_signature() (its last entry), or None."""
+    last = settings[-1] if settings else None
+    return last if isinstance(last, tuple) and last[:1] == ("curves",) else None
+
+
 def settings_signature(scene):
-    """The scene values whose change must restart the viewport render (bpy Scene in, tuple out)."""
+    """The scene values whose change must restart the viewport render (bpy Scene in, tuple out);
+    the last entry, ("curves", shape, subdivisions), needs the curves exported again."""
     props = scene.pathlight
     names = ("samples", "preview_samples", "max_bounces", "diffuse_bounces", "glossy_bounces",
              "transmission_bounces", "volume_bounces", "seed", "sampler", "use_nee", "use_schlick_fresnel",
              "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "use_guiding")
     r = scene.render
+    curves = getattr(scene, "cycles_curves", None)
     return (tuple(getattr(props, n, None) for n in names)
             + (scene.camera.name if scene.camera else "", scene.world.name if scene.world else "",
-               r.pixel_aspect_x, r.pixel_aspect_y, r.threads))
+               r.pixel_aspect_x, r.pixel_aspect_y, r.threads,
+               ("curves", getattr(curves, "shape", None), getattr(curves, "subdivisions", None))))

@@ -38,6 +38,42 @@ class CurvesData:
     # attribute set k -> float32 (C, 4): one RGBA per strand (particle hair: the emitter's byte
     # colour attribute at the root, linear, as Cycles' per-curve vertex colour)
     colours: dict = field(default_factory=dict)
+    # Cycles' scene-wide curve shape (scene.cycles_curves.shape): 'thick' or 'ribbon'; ribbons
+    # come with Embree's tessellation rate (quads per segment) in `subdivisions`.
+    shape: str = 'thick'
+    subdivisions: int = 0
+
+
+def curve_material_indices(curves, n_slots):
+    """(C,) int32 slot indices from a Curves' 'material_index' attribute (CURVE, INT), clamped
+    to [0, n_slots - 1]; None without the attribute or with fewer than 2 slots. Cycles 4.5
+    renders every strand of a Curves object with its first slot whatever they say (checked:
+    all strands at index 1 render as with slot 1 alone), and so does Pathlight: they are read
+    only to warn."""
+    n_curves = len(curves.curves)
+    if n_slots < 2 or n_curves == 0:
+        return None
+    attr = _attribute(curves, "material_index", 'CURVE', 'INT')
+    if attr is None:
+        return None
+    idx = np.empty(n_curves, np.int32)
+    attr.data.foreach_get("value", idx)
+    return np.clip(idx, 0, n_slots - 1).astype(np.int32)
+
+
+def curve_shape(scene):
+    """('ribbon', quads per segment) where the scene's Cycles curve shape is 'RIBBONS', else
+    ('thick', 0). Cycles 4.5 on the CPU hands ribbons to Embree's flat Catmull-Rom curves with
+    the tessellation rate 2^subdivisions (1 .. 16) + 1, which Embree clamps to 16."""
+    settings = getattr(scene, "cycles_curves", None)
+    if settings is None or getattr(settings, "shape", 'THICK') != 'RIBBONS':
+        return 'thick', 0
+    try:
+        level = int(settings.subdivisions)
+    except (TypeError, ValueError, AttributeError):
+        level = 2
+    level = max(0, min(level, 24))
+    return 'ribbon', min(16, min(1 << level, 16) + 1)
 
 
 def _attribute(curves, name, domain, data_type):
@@ -155,6 +191,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
     the emitter UV maps particle hair materials read."""
     out = {}
     render = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
+    shape, quads = curve_shape(getattr(depsgraph, "scene", None))
     for instance in depsgraph.object_instances:
         obj = instance.object
         if obj.type == 'MESH' and getattr(obj, "particle_systems", None) and _shows_particles(instance):
@@ -164,7 +201,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
                     colours = {k: v for k, v in uvs.items() if v.shape[1] == 4}
                     uvs = {k: v for k, v in uvs.items() if v.shape[1] == 2}
                     entry = out[key] = CurvesData(obj.original.name, *arrays, material, uvs=uvs,
-                                                  colours=colours)
+                                                  colours=colours, shape=shape, subdivisions=quads)
                     if material_index is not None:
                         material_index(material)
                 _add_instance(entry, instance, object_attributes)
@@ -179,7 +216,12 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
             if arrays is None:
                 out[key] = None
                 continue
-            entry = out[key] = CurvesData(obj.original.name, *arrays, material)
+            entry = out[key] = CurvesData(obj.original.name, *arrays, material, shape=shape,
+                                          subdivisions=quads)
+            indices = curve_material_indices(obj.data, len(obj.material_slots))
+            if indices is not None and indices.any():
+                warn(f"Curves '{obj.original.name}': its strands' material indices are not used; every "
+                     "strand renders with the first material slot, as in Cycles")
             if uses_huang_hair(material):
                 entry.normals = curve_normals(obj.data)
             if material_index is not None:

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #if defined(__SSE2__)
 #include <immintrin.h>
@@ -133,6 +134,104 @@ bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, floa
 }
 
 namespace {
+// Embree's self-intersection avoidance for flat curves (EMBREE_CURVE_SELF_INTERSECTION_AVOIDANCE_FACTOR,
+// 2 by default; Cycles' GPU ribbon_intersect copies it): hits nearer than this many radii are
+// ignored.
+constexpr float kRibbonAvoidance = 2.0f;
+
+struct V2 {
+  float x, y;
+};
+}  // namespace
+
+bool intersect_ribbon(const CurvePiece& c, const Vec3& org, const Vec3& dir, float tmax, float& t_out, float& u_out,
+                      float& v_out) {
+  const float dd = dot(dir, dir);
+  if (!(dd > 0.0f)) return false;
+  const float inv_len = 1.0f / std::sqrt(dd);
+  const Vec3 d = dir * inv_len;
+  // The ray's frame (Embree's frame(), Cycles' ribbon_ray_space): x, y across the ray, z along.
+  const Vec3 dx0{0.0f, d.z, -d.y}, dx1{-d.z, 0.0f, d.x};
+  const Vec3 sx = normalize(dot(dx0, dx0) > dot(dx1, dx1) ? dx0 : dx1);
+  const Vec3 sy = normalize(cross(d, sx));
+  const Vec3 a = c.p0 - org, b = c.p1 - org;
+  const Vec3 q0{dot(sx, a), dot(sy, a), dot(d, a)}, q1{dot(sx, b), dot(sy, b), dot(d, b)};
+  // Culling by the cylinder about the chord (as Embree: also drops quad corners beyond it).
+  const float rmax = std::max(c.r0, c.r1);
+  const V2 dp{q1.x - q0.x, q1.y - q0.y};
+  const float num = dp.x * q0.y - dp.y * q0.x;
+  if (!(num * num <= rmax * rmax * (dp.x * dp.x + dp.y * dp.y))) return false;
+  const float eps = 4.0f * std::numeric_limits<float>::epsilon() *
+                    std::max(std::max(max_component(vabs(q0)), max_component(vabs(q1))), rmax);
+  // The ends' half-widths: the radius along the projected derivative's normal (the chord where
+  // the derivative vanishes).
+  const auto half_width = [&](const Vec3& deriv, float r, V2& w) {
+    Vec3 e{dot(sx, deriv), dot(sy, deriv), dot(d, deriv)};
+    if (max_component(vabs(e)) < eps) e = q1 - q0;
+    const float l = std::sqrt(e.y * e.y + e.x * e.x);
+    if (!(l > 0.0f) || !std::isfinite(l)) return false;
+    w = {e.y / l * r, -e.x / l * r};
+    return true;
+  };
+  V2 w0, w1;
+  if (!half_width(c.prev, c.r0, w0) || !half_width(c.next, c.r1, w1)) return false;
+  // The quad lp0, lp1, up1, up0 as two triangles, the diagonal lp1-up0 choosing which one the
+  // ray meets (Embree's intersect_quad_backface_culling with the ray along z from the origin).
+  const Vec3 va{q0.x + w0.x, q0.y + w0.y, q0.z}, vb{q1.x + w1.x, q1.y + w1.y, q1.z};
+  const Vec3 vc{q1.x - w1.x, q1.y - w1.y, q1.z}, vd{q0.x - w0.x, q0.y - w0.y, q0.z};
+  const Vec3 edb = vb - vd;
+  const float ww = cross(vd, edb).z;
+  const bool first = ww <= 0.0f;
+  const Vec3 v0 = first ? va : vc, v1 = first ? vb : vd, v2 = first ? vd : vb;
+  const Vec3 e0 = v2 - v0, e1 = v0 - v1;
+  const float uu = cross(v0, e0).z, vv = cross(v1, e1).z;
+  if (!(std::max(uu, vv) <= 0.0f)) return false;
+  const Vec3 ng = cross(e1, e0);
+  const float den = ng.z;
+  if (!(den != 0.0f)) return false;
+  const float t = dot(v0, ng) / den;  // distance along the unit direction
+  if (!(t >= 0.0f && t <= tmax / inv_len)) return false;
+  float u = uu / den, v = vv / den;
+  if (!first) {
+    u = 1.0f - u;
+    v = 1.0f - v;
+  }
+  if (!(t > kRibbonAvoidance * (c.r0 + (c.r1 - c.r0) * u))) return false;
+  const float tp = t * inv_len;
+  if (!(tp < tmax)) return false;
+  t_out = tp;
+  u_out = u;
+  v_out = 2.0f * v - 1.0f;
+  return true;
+}
+
+void ribbon_surface(const CurvePiece& c, float u, float v, const Vec3& dir, Vec3& n, Vec3& tangent) {
+  u = clampf(u, 0.0f, 1.0f);
+  v = clampf(v, -1.0f, 1.0f);
+  Vec3 dpdu = c.prev + (c.next - c.prev) * u;
+  float l = length(dpdu);
+  if (!(l > 0.0f) || !std::isfinite(l)) {
+    dpdu = c.p1 - c.p0;
+    l = length(dpdu);
+  }
+  tangent = l > 0.0f && std::isfinite(l) ? dpdu / l : Vec3(0.0f, 0.0f, 1.0f);
+  const float dl = length(dir);
+  const Vec3 wi = dl > 0.0f && std::isfinite(dl) ? -dir / dl : Vec3(0.0f);
+  Vec3 bt = cross(tangent, wi);
+  float bl = length(bt);
+  if (!(bl > 1e-7f)) {  // looking along the strand: any direction across it
+    Vec3 x, y;
+    make_basis(tangent, x, y);
+    bt = x;
+    bl = 1.0f;
+  }
+  bt = bt / bl;
+  const Vec3 across = normalize(cross(tangent, bt));  // the view's part across the strand, reversed
+  // Cycles: N = sin b - cos (t x b) with sin = v.
+  n = normalize(bt * v - across * std::sqrt(std::max(0.0f, 1.0f - v * v)));
+}
+
+namespace {
 Vec3 piece_tangent(const CurvePiece& c, float& len) {
   const Vec3 axis = c.p1 - c.p0;
   len = length(axis);
@@ -197,6 +296,50 @@ void piece_surface(const CurvePiece& c, float b1, float b2, Vec3& n, Vec3& tange
   error = Vec3(scale * gamma_bound(64));
 }
 
+namespace {
+// A strand's ribbon pieces: each Catmull-Rom segment cut into `sub` quads at equal parameter
+// steps (Embree's tessellation of flat curves), with the derivative at both ends.
+void cut_ribbon(const std::vector<Vec3>& p, const std::vector<float>& r, const std::vector<float>& v,
+                const std::vector<Vec3>& nrm, bool normals, int sub, uint32_t id, std::vector<CurvePiece>& out) {
+  const size_t n = p.size();
+  for (size_t k = 0; k + 1 < n; ++k) {
+    const size_t a = k > 0 ? k - 1 : 0, d = std::min(k + 2, n - 1);
+    Vec3 prev = p[k], prev_d = catmull_rom_derivative(p[a], p[k], p[k + 1], p[d], 0.0f);
+    float prev_r = r[k], prev_v = v[k];
+    for (int j = 1; j <= sub; ++j) {
+      const float t = float(j) / float(sub);
+      const Vec3 q = j == sub ? p[k + 1] : catmull_rom(p[a], p[k], p[k + 1], p[d], t);
+      const float rq = j == sub ? r[k + 1] : std::max(0.0f, catmull_rom(r[a], r[k], r[k + 1], r[d], t));
+      const Vec3 dq = catmull_rom_derivative(p[a], p[k], p[k + 1], p[d], t);
+      const float vq = v[k] + (v[k + 1] - v[k]) * t;
+      if (prev_r > 0.0f || rq > 0.0f) {
+        CurvePiece pc;
+        pc.p0 = prev;
+        pc.p1 = q;
+        pc.r0 = prev_r;
+        pc.r1 = rq;
+        pc.prev = prev_d;
+        pc.next = dq;
+        pc.ribbon = true;
+        pc.curve = id;
+        pc.v0 = prev_v;
+        pc.v1 = vq;
+        if (normals) {
+          const float t0 = float(j - 1) / float(sub);
+          pc.n0 = encode_unit(nrm[k] + (nrm[k + 1] - nrm[k]) * t0);
+          pc.n1 = encode_unit(nrm[k] + (nrm[k + 1] - nrm[k]) * t);
+        }
+        out.push_back(pc);
+      }
+      prev = q;
+      prev_d = dq;
+      prev_r = rq;
+      prev_v = vq;
+    }
+  }
+}
+}  // namespace
+
 CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t curve_base, std::vector<CurvePiece>& out,
                          std::vector<uint32_t>* kept) {
   CurveCutStats st;
@@ -211,7 +354,9 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
   // an object's scale to curve radii).
   const float det = dot(c0, cross(c1, c2));
   const float rscale = std::cbrt(std::fabs(det));
-  const int sub = in.type == CurveType::CatmullRom ? std::max(1, std::min(in.subdivisions, 64)) : 1;
+  // Ribbons are Catmull-Rom through the points whatever the type, as Cycles 4.5's (checked).
+  const bool ribbon = in.ribbon;
+  const int sub = in.type == CurveType::CatmullRom || ribbon ? std::max(1, std::min(in.subdivisions, 64)) : 1;
   std::vector<Vec3> p;
   std::vector<float> r, v;
   std::vector<Vec3> nrm;
@@ -251,6 +396,10 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
       out.back().root = last == SIZE_MAX;
       last = out.size() - 1;
     };
+    if (ribbon) {
+      cut_ribbon(p, r, v, nrm, in.normals != nullptr, sub, id, out);
+      continue;
+    }
     for (size_t k = 0; k + 1 < n; ++k) {
       const size_t a = k > 0 ? k - 1 : 0, d = std::min(k + 2, n - 1);
       Vec3 prev = p[k];
@@ -479,7 +628,18 @@ bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
       for (uint32_t i = e.id; i < e.id + e.count; ++i) {
         float t, u;
         if (pieces_[i].curve == ray.self_curve) continue;  // the strand the ray leaves
-        if (intersect_piece(pieces_[i], ray.org, ray.dir, tmax, t, u)) {
+        if (pieces_[i].ribbon) {
+          float v;
+          if (intersect_ribbon(pieces_[i], ray.org, ray.dir, tmax, t, u, v)) {
+            if (AnyHit) return true;
+            tmax = t;
+            hit.t = t;
+            hit.b1 = u;
+            hit.b2 = v;
+            hit.prim = i;
+            found = true;
+          }
+        } else if (intersect_piece(pieces_[i], ray.org, ray.dir, tmax, t, u)) {
           if (AnyHit) return true;
           tmax = t;
           hit.t = t;
@@ -514,6 +674,7 @@ bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
 
 bool CurveBvh::intersect(const Ray& ray, Hit& hit) const {
   if (!traverse<false>(ray, hit)) return false;
+  if (pieces_[hit.prim].ribbon) return true;  // (b1, b2): u and v, the point is the ray's
   encode_piece_hit(pieces_[hit.prim], ray.org + ray.dir * hit.t, hit.b1, hit.b1, hit.b2);
   return true;
 }

@@ -7,6 +7,8 @@
 // in Blender 4.5); a ray skips the strand it leaves (Ray::self_curve), as Cycles skips the
 // primitive it leaves. Pieces live in world space in one binary SAH BVH of
 // their own, traced after the triangles: scenes without curves never touch it.
+// Ribbons (Cycles' shape 'RIBBONS'): Catmull-Rom pieces that are flat quads facing each ray,
+// as Embree's flat Catmull-Rom curves (what CPU Cycles traces them with).
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -30,6 +32,9 @@ struct CurvePiece {
   Vec3 prev{0.0f};  // the previous piece's unit axis; zero at the root
   float r0 = 0.0f, r1 = 0.0f;
   bool root = false;  // the strand's first piece: closed by a disc at p0
+  // A ribbon piece (flat, facing the ray): `prev` and `next` then hold the curve's derivative
+  // dP/du at p0 and p1 (u the Catmull-Rom segment's parameter), which orients the quad.
+  bool ribbon = false;
   uint32_t curve = 0;     // the strand (in the CurveSet's numbering)
   float v0 = 0.0f, v1 = 0.0f;  // intercept (0 at the root, 1 at the tip) at p0 and p1
   // The curve's normal attribute at p0 and p1 (octahedral, 16 bits a component; kNoCurveNormal:
@@ -72,6 +77,13 @@ inline Vec3 catmull_rom(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3&
   const float wc = 0.5f * (-3.0f * t3 + 4.0f * t2 + t), wd = 0.5f * (t3 - t2);
   return a * wa + b * wb + c * wc + d * wd;
 }
+// dP/dt of the same basis.
+inline Vec3 catmull_rom_derivative(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, float t) {
+  const float t2 = t * t;
+  const float wa = 0.5f * (-3.0f * t2 + 4.0f * t - 1.0f), wb = 0.5f * (9.0f * t2 - 10.0f * t);
+  const float wc = 0.5f * (-9.0f * t2 + 8.0f * t + 1.0f), wd = 0.5f * (3.0f * t2 - 2.0f * t);
+  return a * wa + b * wb + c * wc + d * wd;
+}
 inline float catmull_rom(float a, float b, float c, float d, float t) {
   const float t2 = t * t, t3 = t2 * t;
   return 0.5f * ((-t3 + 2.0f * t2 - t) * a + (3.0f * t3 - 5.0f * t2 + 2.0f) * b + (-3.0f * t3 + 4.0f * t2 + t) * c +
@@ -88,6 +100,10 @@ struct CurveInput {
   size_t n_curves = 0;
   CurveType type = CurveType::CatmullRom;
   int subdivisions = 8;  // pieces per Catmull-Rom segment
+  // Strands as ribbons (Cycles' 'RIBBONS'): Catmull-Rom through the points whatever the type
+  // (Cycles 4.5 traces poly strands so too), subdivisions then Embree's tessellation rate
+  // (quads per segment).
+  bool ribbon = false;
 };
 
 struct CurveCutStats {
@@ -106,6 +122,18 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
 // 0 < t < tmax; the end discs are entered only; u: the axial position
 // (0 at p0, 1 at p1) of the hit's closest point on the axis; -1 / 2 on the root / tip disc.
 bool intersect_piece(const CurvePiece& c, const Vec3& org, const Vec3& dir, float tmax, float& t, float& u);
+
+// The nearest hit of a ray on a ribbon piece, as Embree's flat curves (and Cycles' GPU
+// ribbon_intersect): in the ray's frame the piece is the quad p -+ r n at both ends, n the unit
+// normal of the derivative's projection, split into two triangles along a diagonal; hits
+// nearer than twice the radius are ignored (Embree's self-intersection avoidance factor 2).
+// u: along the piece (0 at p0, 1 at p1), v: across it, -1 .. 1 (Cycles' isect->v).
+bool intersect_ribbon(const CurvePiece& c, const Vec3& org, const Vec3& dir, float tmax, float& t, float& u, float& v);
+
+// A ribbon hit's shading frame, as Cycles' curve_shader_setup: the unit tangent (dP/du
+// interpolated along the piece) and the "rounded" normal sin(v) b - cos(v) (t x b), b the unit
+// tangent x view (facing the viewer, as a round fibre's would); dir: the ray's direction.
+void ribbon_surface(const CurvePiece& c, float u, float v, const Vec3& dir, Vec3& n, Vec3& tangent);
 
 // A hit as two numbers (Hit::b1, b2) that give its surface point exactly, independent of the
 // error of the ray's t: b2 the angle about the axis; b1 the axial position u in [0, 1] on the
@@ -128,7 +156,8 @@ class CurveBvh {
   const CurvePiece& piece(uint32_t i) const { return pieces_[i]; }
   Aabb bounds() const { return bounds_; }
   size_t memory_bytes() const { return nodes_.capacity() * sizeof(Node) + pieces_.capacity() * sizeof(CurvePiece); }
-  // Closest hit before ray.tmax, on strands other than ray.self_curve: prim the piece, (b1, b2) as encode_piece_hit.
+  // Closest hit before ray.tmax, on strands other than ray.self_curve: prim the piece, (b1, b2) as
+  // encode_piece_hit (ribbons: u and v as intersect_ribbon).
   bool intersect(const Ray& ray, Hit& hit) const;
   bool occluded(const Ray& ray) const;
 

@@ -268,7 +268,8 @@ std::vector<Float4> to_object_attributes(const py::object& attributes, const cha
 uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& offsets, const py::object& radii_obj,
                     uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions,
                     const py::object& color, float pass_index, uint32_t random_id, const py::object& attributes,
-                    const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes) {
+                    const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes,
+                    const std::string& shape, const py::object& materials_obj) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -283,6 +284,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   else if (curve_type == "poly") cs.type = CurveType::Poly;
   else throw std::invalid_argument("curve_type must be 'catmull_rom' or 'poly'");
   cs.subdivisions = std::max(1, std::min(subdivisions, 64));
+  if (shape == "ribbon") cs.ribbon = true;
+  else if (shape != "thick") throw std::invalid_argument("curve shape must be 'thick' or 'ribbon'");
   const Vec3* pp = reinterpret_cast<const Vec3*>(points.data());
   cs.points.assign(pp, pp + n);
   cs.offsets.resize(nc + 1);
@@ -301,6 +304,14 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   }
   if (!matrix.is_none()) cs.matrix = to_mat4(matrix.cast<FloatArray>(), "curves matrix");
   cs.material = material < self.scene->material_count() ? material : 0;
+  if (!materials_obj.is_none()) {  // per strand (Cycles' per-curve material index)
+    const IntArray mats = materials_obj.cast<IntArray>();
+    if (mats.ndim() != 1 || size_t(mats.shape(0)) != nc) throw std::invalid_argument("curve materials must have shape (C,)");
+    cs.strand_materials.resize(nc);
+    const int64_t* pm = mats.data();
+    for (size_t c = 0; c < nc; ++c)  // unknown ids: the set's material (as a bad mesh slot)
+      cs.strand_materials[c] = pm[c] >= 0 && uint64_t(pm[c]) < self.scene->material_count() ? uint32_t(pm[c]) : cs.material;
+  }
   if (!color.is_none()) {  // the object's, as add_instance takes them (Object Info)
     const auto c = color.cast<std::vector<float>>();
     if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("curves color takes 3 or 4 values");
@@ -1279,8 +1290,9 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
   py::array_t<int64_t> strand(n);
   int64_t* pst = strand.mutable_data();
   py::array_t<float> t(n), p({n, py::ssize_t(3)}), ng({n, py::ssize_t(3)}), tg({n, py::ssize_t(3)}),
-      out({n, py::ssize_t(3)}), in({n, py::ssize_t(3)});
+      out({n, py::ssize_t(3)}), in({n, py::ssize_t(3)}), hb({n, py::ssize_t(2)});
   py::array_t<bool> curve(n);
+  float* phb = hb.mutable_data();
   const Vec3* o = reinterpret_cast<const Vec3*>(origins.data());
   const Vec3* d = reinterpret_cast<const Vec3*>(dirs.data());
   Vec3 *pp = reinterpret_cast<Vec3*>(p.mutable_data()), *pn = reinterpret_cast<Vec3*>(ng.mutable_data()),
@@ -1298,7 +1310,7 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
       Ray ray{o[i], d[i], tmax};
       if (ps && ps[i] >= 0 && ps[i] < int64_t(UINT32_MAX)) ray.self_curve = uint32_t(ps[i]);
       const bool ok = self.scene->intersect(ray, h);
-      if (ok) self.scene->surface_point(h, sp);
+      if (ok) self.scene->surface_point(h, sp, 0.5f, &ray);
       pst[i] = ok && sp.curve() ? int64_t(self.scene->self_curve(sp)) : -1;
       ptt[i] = ok ? h.t : kInf;
       pp[i] = ok ? sp.p : Vec3(0.0f);
@@ -1308,10 +1320,13 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
       pi[i] = ok ? offset_ray_origin(sp.p, sp.p_error, -sp.ng) : Vec3(0.0f);
       pc[i] = ok && sp.curve();
       ppt[i] = ok && sp.point();
+      phb[2 * i] = ok ? h.b1 : 0.0f;
+      phb[2 * i + 1] = ok ? h.b2 : 0.0f;
     }
   }
   py::dict r;
   r["t"] = t;
+  r["hit"] = hb;
   r["p"] = p;
   r["ng"] = ng;
   r["tangent"] = tg;
@@ -2533,15 +2548,20 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("normals") = py::none(),
-           py::arg("uvs") = py::dict(), py::arg("strand_attributes") = py::dict(),
+           py::arg("uvs") = py::dict(), py::arg("strand_attributes") = py::dict(), py::arg("shape") = "thick",
+           py::arg("materials") = py::none(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
+           "shape='ribbon': flat ribbons facing each ray (Cycles' 'RIBBONS'), Catmull-Rom through the "
+           "points whatever curve_type (as Cycles 4.5), `subdivisions` quads per segment (Embree's "
+           "tessellation rate). "
            "color, pass_index, random_id: the object's (Object Info), as add_instance. attributes: its "
            "Object / Instancer attribute values, (K, 4) by slot with K <= 8, as add_instance. normals: "
            "Blender's curve normals (N, 3) or None (the major axis of Huang's elliptical hair). uvs: {uv "
            "set: (C, 2) one uv per strand} (particle hair: the emitter's UV at the root). strand_attributes: "
-           "{attribute set: (C, 4) one RGBA per strand} (particle hair: the emitter's colour at the root).")
+           "{attribute set: (C, 4) one RGBA per strand} (particle hair: the emitter's colour at the root). "
+           "materials: (C,) a material id per strand (ids not in the scene: `material`), or None.")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
@@ -3186,7 +3206,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("self_strand") = py::none(),
            "The surfaces a batch of rays hits: a dict of t, p, ng, tangent, origin_out, origin_in (the spawn "
            "origins on the normal's side and the other), curve (bool) and strand (int64, the strand hit, -1: "
-           "none). self_strand: int (N,), the strand each ray leaves (skipped, as a path's spawned rays; -1: none).")
+           "none), hit (N, 2: the hit's b1, b2; ribbons: u along the piece and v across, -1 .. 1). self_strand: "
+           "int (N,), the strand each ray leaves (skipped, as a path's spawned rays; -1: none).")
       .def("occluded", &occluded_batch, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
            py::arg("time") = 0.5f,
            "Any-hit test of a batch of rays with 0 < t < tmax (directions need not be unit length).")

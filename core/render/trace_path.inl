@@ -298,7 +298,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     }
     if (!found) return T;
     SurfacePoint sp;
-    scene.surface_point(h, sp, ray.time);
+    scene.surface_point(h, sp, ray.time, &ray);
     const Material& mat = scene.material(sp.material);
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;
@@ -789,7 +789,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       break;
     }
     SurfacePoint sp;
-    scene.surface_point(hit, sp, ray.time);
+    scene.surface_point(hit, sp, ray.time, &ray);
     Vec3 wo = -ray.dir;  // (a subsurface exit moves the vertex: see below)
     // (the footprint grows with the length too)
     if (s.path_state || s.differentials) ray_state.length = length_before + hit.t * length(ray.dir);

@@ -121,8 +121,12 @@ struct CurveSetData {
   std::vector<Vec3> normals;     // per point, or none (Blender's curve normals: Huang's major axis)
   std::vector<int32_t> offsets;  // strands + 1: strand c has points [offsets[c], offsets[c + 1])
   CurveType type = CurveType::CatmullRom;
-  int subdivisions = 8;          // linear pieces per Catmull-Rom segment
+  int subdivisions = 8;          // linear pieces per Catmull-Rom segment (ribbons: quads)
+  bool ribbon = false;           // ribbons (Cycles' shape 'RIBBONS'), Catmull-Rom whatever the type
   uint32_t material = 0;
+  // Per strand, its material (Cycles' per-curve shader from the material_index attribute);
+  // empty: `material` for all.
+  std::vector<uint32_t> strand_materials;
   Mat4 matrix;
   ObjectInfo info;              // (attr_first / attr_count unused: attrs holds them)
   std::vector<Float4> attrs;    // Object / Instancer attribute values by slot (<= kMaxObjectAttributes)
@@ -515,7 +519,9 @@ class Scene {
     return in.prim_base + (h.prim - in.tri_base);
   }
   // time: the ray's (Ray::time), for instances that move.
-  void surface_point(const Hit& h, SurfacePoint& sp, float time = 0.5f) const;
+  // ray: the ray that found h (ribbons face it: their point and normal need it; without it
+  // a ribbon hit is shaded as seen from across the strand).
+  void surface_point(const Hit& h, SurfacePoint& sp, float time = 0.5f, const Ray* ray = nullptr) const;
   // Evaluates the material at a hit: closures (frames from the mesh-oriented shading normal)
   // and emission. wo points towards the viewer.
   // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
@@ -734,6 +740,7 @@ class Scene {
   CurveBvh curve_bvh_;
   std::vector<uint32_t> curve_first_;
   std::vector<float> curve_length_, curve_random_;  // per strand: Curves Info's Length and Random
+  std::vector<uint32_t> curve_material_;  // per strand: its material
   std::vector<Vec2> curve_uv_;  // per strand: curve_uv_sets_ uvs (the sets' per-strand uvs)
   uint32_t curve_uv_sets_ = 0;
   std::vector<Float4> curve_attr_;  // per strand: curve_attr_sets_ values (the sets' per-strand RGBA)
@@ -761,7 +768,7 @@ class Scene {
     }
     return found;
   }
-  void curve_point(const Hit& h, SurfacePoint& sp) const;
+  void curve_point(const Hit& h, SurfacePoint& sp, const Ray* ray) const;
   // Point clouds: the sets as added, their spheres' BVH (world space), per set its first point,
   // and per point its attribute values (point_attr_sets_ each).
   std::vector<PointSetData> point_sets_;

@@ -452,6 +452,7 @@ void Scene::build_curves() {
   curve_first_.clear();
   curve_length_.clear();
   curve_random_.clear();
+  curve_material_.clear();
   curve_uv_.clear();
   curve_coords_.clear();
   curve_uv_sets_ = 0;
@@ -475,6 +476,7 @@ void Scene::build_curves() {
     in.n_curves = cs.offsets.empty() ? 0 : cs.offsets.size() - 1;
     in.type = cs.type;
     in.subdivisions = cs.subdivisions;
+    in.ribbon = cs.ribbon;
     Vec3 loc, size;
     auto_texspace(cs.points, loc, size);
     curve_coords_.push_back(make_object_coords(cs.matrix, loc, size));
@@ -490,6 +492,8 @@ void Scene::build_curves() {
       for (int32_t k = cs.offsets[c] + 1; k < cs.offsets[c + 1]; ++k) len += length(cs.points[size_t(k)] - cs.points[size_t(k) - 1]);
       curve_length_.push_back(float(len));
       curve_random_.push_back(float(lookup3::hash(c, 0u)) * (1.0f / float(0xFFFFFFFFu)));  // Cycles' hash_uint2_to_float(i, 0)
+      const uint32_t m = c < cs.strand_materials.size() ? cs.strand_materials[c] : cs.material;
+      curve_material_.push_back(m < materials_.size() ? m : 0);
       for (uint32_t k = 0; k < curve_uv_sets_; ++k)
         curve_uv_.push_back(k < cs.uvs.size() && c < cs.uvs[k].size() ? cs.uvs[k][c] : Vec2{});
       for (uint32_t k = 0; k < curve_attr_sets_; ++k)

@@ -78,7 +78,7 @@ void Scene::detect_features() {
     }
   }
   if (curves_on_)
-    for (const CurveSetData& cs : curve_sets_) used[cs.material < materials_.size() ? cs.material : 0] = 1;
+    for (const uint32_t m : curve_material_) used[m < materials_.size() ? m : 0] = 1;
   if (points_on_)
     for (const PointSetData& ps : point_sets_) used[ps.material < materials_.size() ? ps.material : 0] = 1;
   for (size_t id = 0; id < materials_.size(); ++id) {

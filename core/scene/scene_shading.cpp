@@ -365,7 +365,7 @@ Vec3 Scene::transmittance_through(Ray ray) const {
     Hit h;
     if (!intersect(ray, h)) return T;
     SurfacePoint sp;
-    surface_point(h, sp, ray.time);
+    surface_point(h, sp, ray.time, &ray);
     const Material& mat = materials_[sp.material];
     if (!mat.transparent) return Vec3(0.0f);
     ClosureList cl;

@@ -7,18 +7,42 @@ namespace pl {
 
 using detail::material_of;
 
-void Scene::curve_point(const Hit& h, SurfacePoint& sp) const {
+void Scene::curve_point(const Hit& h, SurfacePoint& sp, const Ray* ray) const {
   const CurvePiece& c = curve_bvh_.piece(h.prim);
-  // The hit from the ray is only good to its t's error; the point on the surface is better.
-  Vec3 n, tangent, p, err;
-  float u;
-  piece_surface(c, h.b1, h.b2, n, tangent, p, err, u);
-  sp.p = p;
-  sp.p_error = err;
-  sp.ng = sp.ns = n;
-  sp.tangent = tangent;
-  const uint32_t set = curve_set_of(c.curve);
-  sp.material = curve_sets_[set].material < materials_.size() ? curve_sets_[set].material : 0;
+  if (c.ribbon) {
+    // The point on the ray (as Cycles' P + D t), the rounded normal as both normals: Cycles'
+    // closures take their side from it on curves (bsdf_sample's Ng = N), and Chiang's and
+    // Huang's h from it are Cycles' -v. (Its Ng, the view, only faces the viewer.)
+    Vec3 dir, p;
+    if (ray) {
+      dir = ray->dir;
+      p = ray->org + ray->dir * h.t;
+      sp.p_error = (vabs(ray->org) + vabs(ray->dir * h.t)) * gamma_bound(8);
+    } else {  // seen from across the strand: its point from (u, v)
+      const Vec3 axis = c.p1 - c.p0;
+      Vec3 x, y;
+      make_basis(length_sq(axis) > 0.0f ? normalize(axis) : Vec3(0.0f, 0.0f, 1.0f), x, y);
+      dir = -x;
+      const float u = clampf(h.b1, 0.0f, 1.0f);
+      p = c.p0 + axis * u + y * (clampf(h.b2, -1.0f, 1.0f) * (c.r0 + (c.r1 - c.r0) * u));
+      sp.p_error = (vabs(p) + Vec3(std::max(c.r0, c.r1))) * gamma_bound(16);
+    }
+    Vec3 n, tangent;
+    ribbon_surface(c, h.b1, h.b2, dir, n, tangent);
+    sp.p = p;
+    sp.ng = sp.ns = n;
+    sp.tangent = tangent;
+  } else {
+    // The hit from the ray is only good to its t's error; the point on the surface is better.
+    Vec3 n, tangent, p, err;
+    float u;
+    piece_surface(c, h.b1, h.b2, n, tangent, p, err, u);
+    sp.p = p;
+    sp.p_error = err;
+    sp.ng = sp.ns = n;
+    sp.tangent = tangent;
+  }
+  sp.material = c.curve < curve_material_.size() ? curve_material_[c.curve] : 0;
   sp.prim = uint32_t(stats_.triangles) + c.curve;
   sp.instance = kCurveInstance;
   sp.tri = h.prim;
@@ -100,9 +124,9 @@ bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
   sp.tri = h.prim;
 }
 
-void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time) const {
+void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time, const Ray* ray) const {
   sp.time = time;
-  if (h.inst == kCurveInstance) return curve_point(h, sp);  // (curves do not move)
+  if (h.inst == kCurveInstance) return curve_point(h, sp, ray);  // (curves do not move)
   if (h.inst == kPointInstance) return sphere_point(h, sp, time);  // (moving clouds: at the ray's time)
   const InstanceData& in = inst_[h.inst];
   if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {  // where the ray met it

@@ -106,6 +106,17 @@ def test_plan_from_real_depsgraph_updates(scene):
         p = _plan(rec, sc, state)
         assert p.settings and not p.rebuild_geometry and not p.materials
 
+        # Cycles' curve shape: the curves' geometry changes (ribbons or round curves).
+        sc.cycles_curves.shape = 'THICK' if sc.cycles_curves.shape == 'RIBBONS' else 'RIBBONS'
+        sc.update_tag()
+        p = _plan(rec, sc, state)
+        assert p.settings and p.rebuild_geometry
+        state.settings = settings_signature(sc)
+        sc.cycles_curves.subdivisions += 1
+        sc.update_tag()
+        assert _plan(rec, sc, state).rebuild_geometry
+        state.settings = settings_signature(sc)
+
         cube.location.x += 0.25  # a move: new matrices, the top level only
         p = _plan(rec, sc, state)
         assert p.transforms == ["Cube"] and not p.rebuild_geometry and not p.lights
