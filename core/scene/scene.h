@@ -924,6 +924,8 @@ class Scene {
     return tree_share_ * tree_.pmf(p, n, uint32_t(k));
   }
   void build_light_tree(const std::vector<float>& weights);
+  // The environment's choice weight from its power and the weights before it (build_lights).
+  float env_choice_weight(float env_power, const std::vector<float>& others) const;
   SceneStats stats_;
   SceneFeatures features_;
 

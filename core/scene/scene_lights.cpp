@@ -85,6 +85,27 @@ void Scene::detect_rect(EmitterGroup& g, const InstanceData& in) const {
   g.rect = true;
 }
 
+// The environment's weight beside the other lights' (`others`, by power). Cycles' light tree
+// picks between its local and distant lights by the mean of two probabilities, one from upper
+// bounds of their importance (as a power share) and one from lower bounds, in which the
+// environment has none: a local light in front of a point gets at least half of its light
+// samples. By power alone the environment's estimate, which grows with the scene's size, took
+// 80 % of them beside the bench's point light, and the rough glass that shows that light by
+// refraction (and its caustic) had 1.5x Cycles' per-sample variance (issue 25). So where local
+// lights exist, the environment keeps half its power share: others / (env + 2 others) times
+// its power. Suns count as others (their lower bound is not 0); without a local light nothing
+// changes.
+float Scene::env_choice_weight(float env_power, const std::vector<float>& others) const {
+  double all = 0.0, local = 0.0;
+  for (size_t k = 0; k < others.size(); ++k) {
+    const double w = std::isfinite(others[k]) && others[k] > 0.0f ? double(others[k]) : 0.0;
+    all += w;
+    if (!(k < lights_.size() && lights_[k].type == LightType::Sun)) local += w;
+  }
+  if (!(local > 0.0) || !(env_power > 0.0f) || !std::isfinite(env_power)) return env_power;
+  return float(double(env_power) * all / (double(env_power) + 2.0 * all));
+}
+
 void Scene::build_lights() {
   any_transparent_ = false;
   any_holdout_ = false;
@@ -210,7 +231,7 @@ void Scene::build_lights() {
   env_index_ = SIZE_MAX;
   if (env_.valid() && env_.average_luminance() > 0.0f) {
     env_index_ = weights.size();
-    weights.push_back(4.0f * kPi * kPi * radius * radius * env_.average_luminance());
+    weights.push_back(env_choice_weight(4.0f * kPi * kPi * radius * radius * env_.average_luminance(), weights));
   }
   light_dist_ = Distribution1D(weights);
   build_light_tree(weights);
