@@ -106,3 +106,20 @@ def test_headline_matches_the_section_its_script_writes(stem):
     assert path.exists(), f"{path} is gone: drop or rename its README headline"
     what, figures = bench.bench_headline(stem, path.read_text().splitlines())
     assert what == bench.README_BENCH_HEADLINES[stem][0] and figures
+
+
+@pytest.mark.parametrize("out", [["--out", "/tmp/trial"], ["--out=/tmp/trial"], []], ids=["out", "out=", "docs"])
+def test_bench_with_out_leaves_docs_and_readme_alone(monkeypatch, tmp_path, out):
+    """`build.py bench -- --quick --out DIR`: the scripts write under DIR, and docs/benchmarks.md
+    and the README are not reassembled (they were, from docs/bench/, before)."""
+    from types import SimpleNamespace
+    (tmp_path / "bench_x.py").write_text("")
+    monkeypatch.setattr(bench, "BENCH_SCRIPTS", tmp_path)
+    monkeypatch.setattr(bench, "setup_and_build", lambda args: {})
+    monkeypatch.setattr(bench, "runtime_env", lambda args, env: {})
+    calls, assembled = [], []
+    monkeypatch.setattr(bench.subprocess, "call", lambda cmd, **kw: calls.append(cmd) or 0)
+    monkeypatch.setattr(bench, "assemble_benchmarks", lambda *a: assembled.append(a))
+    assert bench.cmd_bench(SimpleNamespace(only=None), ["--quick", *out]) == 0
+    assert len(calls) == 1 and calls[0][-len(out) - 1:] == ["--quick", *out]
+    assert len(assembled) == (0 if out else 1)

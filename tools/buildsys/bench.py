@@ -195,6 +195,17 @@ def update_readme_benchmarks(sections, started, extra, readme=None):
     log(f"updated the benchmark table in {readme.name}")
 
 
+def bench_out(extra):
+    """The --out the scripts were given after --, or None (docs/, the default)."""
+    out = None
+    for i, a in enumerate(extra):
+        if a == "--out" and i + 1 < len(extra):
+            out = extra[i + 1]
+        elif a.startswith("--out="):
+            out = a.partition("=")[2]
+    return out
+
+
 def cmd_bench(args, extra):
     stamp = setup_and_build(args)
     scripts = sorted(BENCH_SCRIPTS.glob("bench_*.py")) if BENCH_SCRIPTS.is_dir() else []
@@ -218,7 +229,11 @@ def cmd_bench(args, extra):
             warn(f"{rel(script)} failed with exit code {rc}")
         else:
             log(f"{rel(script)} took {time.time() - t0:.1f} s")
-    assemble_benchmarks(stamp, started, ran, failed, extra)
+    out = bench_out(extra)
+    if out is None:
+        assemble_benchmarks(stamp, started, ran, failed, extra)
+    else:  # a trial run elsewhere (e.g. -- --quick --out /tmp/b) leaves docs/ and the README alone
+        log(f"sections written under {out}/bench; docs/benchmarks.md and the README left as they were")
     if failed:
         raise UserError(f"{len(failed)} benchmark script(s) failed: {', '.join(failed)}")
     return 0
