@@ -8,6 +8,7 @@
 
 #include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
+#include "geometry/wide4.h"
 
 namespace pl {
 
@@ -170,75 +171,6 @@ Aabb sphere_box(const PointSphere& s, const std::vector<PointFrame>& frames) {
   return b;
 }
 
-// The binary tree collapsed into 4-wide nodes (the curves' and the top level's rule).
-uint32_t collapse(const std::vector<BvhNode>& bin, uint32_t b, std::vector<WideBvhNode<4>>& out) {
-  uint32_t kids[4];
-  const int n = bvh_detail::gather_wide_children(bin.data(), b, kids, 4);
-  const uint32_t w = uint32_t(out.size());
-  out.emplace_back();
-  for (int k = 0; k < 4; ++k) {
-    for (int r = 0; r < 3; ++r) {
-      out[w].bounds[2 * r][k] = kInf;
-      out[w].bounds[2 * r + 1][k] = -kInf;
-    }
-    out[w].child[k] = 0;
-    out[w].count[k] = 0;
-  }
-  for (int k = 0; k < n; ++k) {
-    const BvhNode& c = bin[kids[k]];
-    for (int r = 0; r < 3; ++r) {
-      out[w].bounds[2 * r][k] = c.lo[r];
-      out[w].bounds[2 * r + 1][k] = c.hi[r];
-    }
-    if (c.is_leaf()) {
-      out[w].child[k] = c.left_or_first;
-      out[w].count[k] = c.count;
-    } else {
-      out[w].child[k] = collapse(bin, kids[k], out);
-    }
-  }
-  return w;
-}
-
-// The 4 lanes' entry distances and the mask of those entered before tmax.
-struct LaneTest {
-  int near[3], far[3];
-  float org[3], inv[3];
-  LaneTest(const Ray& r, const Vec3& iv) {
-    for (int a = 0; a < 3; ++a) {
-      org[a] = r.org[a];
-      inv[a] = iv[a];
-      near[a] = iv[a] < 0.0f ? 2 * a + 1 : 2 * a;
-      far[a] = near[a] ^ 1;
-    }
-  }
-  unsigned test(const WideBvhNode<4>& n, float tmax, float* dist) const {
-#if defined(__SSE2__)
-    __m128 tmin = _mm_setzero_ps(), tfar = _mm_set1_ps(tmax);
-    for (int a = 0; a < 3; ++a) {
-      const __m128 o = _mm_set1_ps(org[a]), iv = _mm_set1_ps(inv[a]);
-      tmin = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.bounds[near[a]]), o), iv), tmin);
-      tfar = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.bounds[far[a]]), o), iv), tfar);
-    }
-    tfar = _mm_mul_ps(tfar, _mm_set1_ps(bvh_detail::kBoxExitScale));
-    _mm_storeu_ps(dist, tmin);
-    return unsigned(_mm_movemask_ps(_mm_cmple_ps(tmin, tfar)));
-#else
-    unsigned mask = 0;
-    for (int k = 0; k < 4; ++k) {
-      float t0 = 0.0f, t1 = tmax;
-      for (int a = 0; a < 3; ++a) {
-        const float x0 = (n.bounds[near[a]][k] - org[a]) * inv[a], x1 = (n.bounds[far[a]][k] - org[a]) * inv[a];
-        t0 = x0 > t0 ? x0 : t0;
-        t1 = x1 < t1 ? x1 : t1;
-      }
-      dist[k] = t0;
-      if (t0 <= t1 * bvh_detail::kBoxExitScale) mask |= 1u << k;
-    }
-    return mask;
-#endif
-  }
-};
 }  // namespace
 
 void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames) {
@@ -302,14 +234,14 @@ void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> f
   for (size_t i = 0; i < n; ++i) spheres_[i] = spheres[refs[i]];
   bounds_ = Aabb{bin[0].lo, bin[0].hi};
   nodes_.reserve(bin.size() / 3 + 1);
-  collapse(bin, 0, nodes_);
+  bvh_detail::collapse_wide4(bin, 0, nodes_);
   nodes_.shrink_to_fit();
 }
 
 template <bool AnyHit>
 bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
   if (nodes_.empty()) return false;
-  const LaneTest lt(ray, bvh_detail::safe_inverse(ray.dir));
+  const bvh_detail::LaneTest4 lt(ray, bvh_detail::safe_inverse(ray.dir));
   float tmax = ray.tmax;
   bool found = false;
   struct Entry {
