@@ -20,12 +20,28 @@ def cmd_test(args, extra):
         # A sanitizer report goes to fd 2 and then the process dies: with pytest's default fd capture
         # the report would vanish with it. Capture only Python-level output (later options override).
         pytest_args.append("--capture=sys")
+    if not paths and not any(a in ("-n", "--numprocesses", "--dist") or a.startswith(("-n", "--numprocesses=", "--dist="))
+                             or a == "no:xdist" for a in extra):
+        pytest_args += xdist_args()
     pytest_args += extra
     argv = [str(VENV_PY), str(ROOT / "build.py"), "_pytest", *pytest_args]
     print("+ pytest " + " ".join(pytest_args), flush=True)
     sys.stderr.flush()
     os.chdir(ROOT)
     os.execve(str(VENV_PY), argv, runtime_env(args))  # pytest's exit code becomes ours
+
+
+def xdist_args():
+    """pytest-xdist for the whole suite: a worker per core (at most 4, each loads bpy). The core's
+    tests are mostly one thread of Python and numpy, the Blender ones render on every core, so two
+    workers on two cores take about half the core tests' time and cost the renders little. Whole
+    files go to one worker (`loadfile`): module fixtures render their references once."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    workers = min(cores, 4)
+    return ["-n", str(workers), "--dist", "loadfile"] if workers > 1 else []
 
 
 def internal_pytest(argv):
