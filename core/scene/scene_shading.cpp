@@ -44,6 +44,33 @@ void Scene::shade_program(const Material& mat, const ShadingContext& ctx, Closur
     eval_shader(mat.program, images_, ctx, out);
 }
 
+const Float4* Scene::curve_attributes(uint32_t curve, float v, Float4* buf) const {
+  const Float4* strand = &curve_attr_[size_t(curve) * curve_attr_sets_];
+  const uint32_t first = curve_key_first_.empty() ? UINT32_MAX : curve_key_first_[curve];
+  if (first == UINT32_MAX) return strand;
+  // The segment whose keys' intercepts hold v, and v's parameter on it: intercepts are linear
+  // in the segment parameter (cut_curves), which Cycles interpolates point attributes by.
+  const float* kv = &curve_key_v_[first];
+  const uint32_t n = curve_key_count_[curve];
+  const uint32_t seg = n < 2 ? 0
+                             : uint32_t(std::min<ptrdiff_t>(std::upper_bound(kv + 1, kv + n - 1, v) - (kv + 1), ptrdiff_t(n) - 2));
+  const uint32_t k1 = std::min(seg + 1, n - 1);
+  const float span = kv[k1] - kv[seg];
+  const float t = span > 0.0f ? clampf((v - kv[seg]) / span, 0.0f, 1.0f) : 0.0f;
+  const Float4* a0 = &curve_key_attr_[size_t(first + seg) * curve_attr_sets_];
+  const Float4* a1 = &curve_key_attr_[size_t(first + k1) * curve_attr_sets_];
+  const uint8_t mask = curve_point_sets_[curve_set_of(curve)];
+  for (uint32_t k = 0; k < curve_attr_sets_; ++k) {
+    if (mask >> k & 1u) {
+      const Float4 &x = a0[k], &y = a1[k];
+      buf[k] = {x.x + (y.x - x.x) * t, x.y + (y.y - x.y) * t, x.z + (y.z - x.z) * t, x.w + (y.w - x.w) * t};
+    } else {
+      buf[k] = strand[k];
+    }
+  }
+  return buf;
+}
+
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
@@ -93,8 +120,9 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       ctx.uv = &curve_uv_[size_t(pc.curve) * curve_uv_sets_];
       ctx.uv_sets = int(curve_uv_sets_);
     }
-    if (curve_attr_sets_) {  // per-strand attributes (particle hair's emitter colours at the root)
-      ctx.attrs = &curve_attr_[size_t(pc.curve) * curve_attr_sets_];
+    Float4 attr_buf[8];
+    if (curve_attr_sets_) {  // per strand (particle hair's root colours) or interpolated per point
+      ctx.attrs = curve_attributes(pc.curve, cs.intercept, attr_buf);
       ctx.attr_sets = int(curve_attr_sets_);
     }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
