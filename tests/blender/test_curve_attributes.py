@@ -101,6 +101,19 @@ def missing_material():
     return mat
 
 
+def unnamed_colour_material():
+    """An unnamed Color Attribute node + 0.3: Cycles gives Curves objects no default colour
+    attribute (checked: 0, though the hair has two colour attributes)."""
+    mat, nodes, links, out = ms.new_material("Unnamed")
+    vc = nodes.new("ShaderNodeVertexColor")
+    add = nodes.new("ShaderNodeVectorMath")
+    add.operation = 'ADD'
+    add.inputs[1].default_value = (0.3, 0.3, 0.3)
+    links.new(vc.outputs["Color"], add.inputs[0])
+    emission(nodes, links, out, add.outputs[0])
+    return mat
+
+
 def uv_material():
     """R: Texture Coordinate UV's u; G: the UV Map node named 'surface_uv_coordinate', its v;
     B: 0.3."""
@@ -152,9 +165,10 @@ def test_curve_attributes_export_arrays():
 
 
 @pytest.mark.parametrize("shape", ['THICK', 'RIBBONS'])
-@pytest.mark.parametrize("case", ["point_colour", "mixed", "missing", "uv"])
+@pytest.mark.parametrize("case", ["point_colour", "mixed", "missing", "unnamed_colour", "uv"])
 def test_curve_attributes_match_cycles(case, shape):
     material = {"point_colour": point_colour_material, "mixed": mixed_material,
-                "missing": missing_material, "uv": uv_material}[case]
+                "missing": missing_material, "unnamed_colour": unnamed_colour_material,
+                "uv": uv_material}[case]
     ours, cycles = ms.render_pair(scene(material, shape), 32)
     assert_channels_agree(ours, cycles)
