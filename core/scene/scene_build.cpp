@@ -464,12 +464,14 @@ void Scene::build_curves() {
   curve_key_v_.clear();
   curve_key_attr_.clear();
   for (const CurveSetData& cs : curve_sets_) {
-    curve_uv_sets_ = std::max(curve_uv_sets_, uint32_t(cs.uvs.size()));
+    curve_uv_sets_ = std::max(curve_uv_sets_, uint32_t(std::max(cs.uvs.size(), cs.point_uvs.size())));
     curve_attr_sets_ = std::max(curve_attr_sets_, uint32_t(std::max(cs.strand_attrs.size(), cs.point_attrs.size())));
   }
-  curve_attr_sets_ = std::min(curve_attr_sets_, 8u);  // (the bindings' limit; masks are 8 bits)
+  curve_uv_sets_ = std::min(curve_uv_sets_, 8u);  // (the bindings' limit; masks are 8 bits)
+  curve_attr_sets_ = std::min(curve_attr_sets_, 8u);
+  curve_key_sets_ = std::max(curve_uv_sets_, curve_attr_sets_);
   bool any_point_sets = false;  // (else no per-strand key ranges at all)
-  for (const CurveSetData& cs : curve_sets_) any_point_sets |= !cs.point_attrs.empty();
+  for (const CurveSetData& cs : curve_sets_) any_point_sets |= !cs.point_attrs.empty() || !cs.point_uvs.empty();
   std::vector<uint32_t> kept;
   uint32_t strands = 0;
   size_t skipped = 0;
@@ -493,9 +495,12 @@ void Scene::build_curves() {
     curve_coords_.back().info.attr_first = 0;
     curve_coords_.back().info.attr_count = uint32_t(std::min<size_t>(cs.attrs.size(), kMaxObjectAttributes));
     curve_coords_.back().attrs = cs.attrs.empty() ? nullptr : cs.attrs.data();
-    uint8_t point_sets = 0;
+    uint16_t point_sets = 0;
     for (uint32_t k = 0; k < curve_attr_sets_ && k < cs.point_attrs.size(); ++k)
-      if (cs.point_attrs[k].size() == cs.points.size() && !cs.points.empty()) point_sets |= uint8_t(1u << k);
+      if (cs.point_attrs[k].size() == cs.points.size() && !cs.points.empty()) point_sets |= uint16_t(1u << k);
+    for (uint32_t k = 0; k < curve_uv_sets_ && k < cs.point_uvs.size(); ++k)
+      if (cs.point_uvs[k].size() == cs.points.size() && !cs.points.empty() && !(point_sets >> k & 1u))
+        point_sets |= uint16_t(1u << (k + 8));
     curve_point_sets_.push_back(point_sets);
     kept.clear();
     const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces, &kept);
@@ -531,8 +536,10 @@ void Scene::build_curves() {
         if (i > b) total += length(p - prev);
         prev = p;
         curve_key_v_.push_back(total);
-        for (uint32_t k = 0; k < curve_attr_sets_; ++k)
-          curve_key_attr_.push_back(point_sets >> k & 1u ? cs.point_attrs[k][i] : Float4{});
+        for (uint32_t k = 0; k < curve_key_sets_; ++k) {
+          const Vec2 uv = point_sets >> (k + 8) & 1u ? cs.point_uvs[k][i] : Vec2{};
+          curve_key_attr_.push_back(point_sets >> k & 1u ? cs.point_attrs[k][i] : Float4{uv.x, uv.y, 0.0f, 0.0f});
+        }
       }
       for (size_t i = v_first; i < curve_key_v_.size(); ++i) curve_key_v_[i] /= total;  // (kept: total > 0)
     }

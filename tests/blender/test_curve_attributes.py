@@ -21,15 +21,17 @@ STRANDS, KEYS = 7, 5
 
 def add_attributes(obj):
     """Random values on the hair: 'col' (FLOAT_COLOR per point, alpha too), 'bcol'
-    (BYTE_COLOR per point), 'vec' (FLOAT_VECTOR per point), 'rand' (FLOAT per strand) and
-    'surface_uv_coordinate' (FLOAT2 per strand, as geometry-nodes hair has)."""
+    (BYTE_COLOR per point), 'vec' (FLOAT_VECTOR per point), 'rand' (FLOAT per strand),
+    'surface_uv_coordinate' (FLOAT2 per strand, as geometry-nodes hair has) and 'puv' (FLOAT2
+    per point)."""
     rng = np.random.default_rng(23)
     curves = obj.data
     n = STRANDS * KEYS
     for name, kind, domain, field, width, size in (
             ("col", 'FLOAT_COLOR', 'POINT', "color", 4, n), ("bcol", 'BYTE_COLOR', 'POINT', "color", 4, n),
             ("vec", 'FLOAT_VECTOR', 'POINT', "vector", 3, n), ("rand", 'FLOAT', 'CURVE', "value", 1, STRANDS),
-            ("surface_uv_coordinate", 'FLOAT2', 'CURVE', "vector", 2, STRANDS)):
+            ("surface_uv_coordinate", 'FLOAT2', 'CURVE', "vector", 2, STRANDS),
+            ("puv", 'FLOAT2', 'POINT', "vector", 2, n)):
         attr = curves.attributes.new(name, kind, domain)
         attr.data.foreach_set(field, rng.uniform(0.1, 1.0, size * width).astype(np.float32))
     return obj
@@ -116,7 +118,7 @@ def unnamed_colour_material():
 
 def uv_material():
     """R: Texture Coordinate UV's u; G: the UV Map node named 'surface_uv_coordinate', its v;
-    B: 0.3."""
+    B: a UV Map node named 'puv' (per point, interpolated), its u."""
     mat, nodes, links, out = ms.new_material("HairUV")
     tc = nodes.new("ShaderNodeTexCoord")
     uvmap = nodes.new("ShaderNodeUVMap")
@@ -128,7 +130,11 @@ def uv_material():
     comb = nodes.new("ShaderNodeCombineXYZ")
     links.new(sep_t.outputs["X"], comb.inputs["X"])
     links.new(sep_u.outputs["Y"], comb.inputs["Y"])
-    comb.inputs["Z"].default_value = 0.3
+    puv = nodes.new("ShaderNodeUVMap")
+    puv.uv_map = "puv"
+    sep_p = nodes.new("ShaderNodeSeparateXYZ")
+    links.new(puv.outputs["UV"], sep_p.inputs[0])
+    links.new(sep_p.outputs["X"], comb.inputs["Z"])
     emission(nodes, links, out, comb.outputs[0])
     return mat
 
@@ -140,7 +146,7 @@ def test_curve_attributes_export_arrays():
     ms.studio(size=16)
     obj = add_attributes(add_hair("Hair", mixed_material(), strands=STRANDS, keys=KEYS))
     names = {0: ("attr", "col"), 1: ("color", "bcol"), 2: ("attr", "rand"), 3: "", 4: ("attr", "nope"),
-             5: ("color", "rand")}
+             5: ("color", "rand"), 6: "puv"}
     warn = Warnings()
     (c,) = collect_curves(bpy.context.evaluated_depsgraph_get(), warn, uv_names=lambda materials: names)
     n = STRANDS * KEYS
@@ -157,11 +163,15 @@ def test_curve_attributes_export_arrays():
     uv = np.empty(STRANDS * 2, np.float32)
     obj.data.attributes["surface_uv_coordinate"].data.foreach_get("vector", uv)
     np.testing.assert_array_equal(c.uvs[3], uv.reshape(-1, 2))
+    puv = np.empty(n * 2, np.float32)
+    obj.data.attributes["puv"].data.foreach_get("vector", puv)
+    assert sorted(c.point_uvs) == [6]
+    np.testing.assert_array_equal(c.point_uvs[6], puv.reshape(-1, 2))
     # 'nope' does not exist and 'rand' is no colour attribute: one warning naming both.
     assert len(warn) == 1 and "'nope'" in list(warn)[0] and "'rand'" in list(warn)[0], list(warn)
     # Without a material that reads them, nothing is exported.
     (c,) = collect_curves(bpy.context.evaluated_depsgraph_get(), Warnings(), uv_names=lambda materials: {})
-    assert not c.point_attributes and not c.colours and not c.uvs
+    assert not c.point_attributes and not c.colours and not c.uvs and not c.point_uvs
 
 
 @pytest.mark.parametrize("shape", ['THICK', 'RIBBONS'])

@@ -18,9 +18,11 @@ def _strand_scene(pc, program, shape="thick"):
     pts = np.column_stack([KEYS_X, np.zeros(4), np.zeros(4)]).astype(np.float32)
     point = np.column_stack([KEY_R, np.full(4, 0.5), np.zeros(4), np.ones(4)]).astype(np.float32)
     extra = {"shape": "ribbon", "subdivisions": 5} if shape == "ribbon" else {}
+    # uv set 3 per point: (R, 1 - R) at the keys.
+    uvs = np.column_stack([KEY_R, 1.0 - KEY_R]).astype(np.float32)
     s.add_curves(pts, np.array([0, 4]), np.full(4, 0.1, np.float32), m, curve_type="poly",
                  point_attributes={0: point}, strand_attributes={1: np.float32([[0.25, 0.5, 0.75, 1.0]])},
-                 **extra)
+                 point_uvs={3: uvs}, **extra)
     s.set_camera(camera(pc, (1.5, -4.0, 0.0), (1.5, 0.0, 0.0), lens=50.0))
     s.commit()
     return s
@@ -46,7 +48,7 @@ def _segment_parameter(x, shape):
 def test_point_attributes_are_linear_between_keys(shape):
     """Seen through emission on a straight poly strand (its segment parameter linear in x):
     set 0 (per point) follows the keys' values piecewise linearly in x, set 1 (per strand) is
-    constant, set 2 (absent) reads 0. The world x of each pixel comes from a second render."""
+    constant, set 2 (absent) reads 0, uv set 3 (per point) is interpolated as set 0. The world x of each pixel comes from a second render."""
     pc = core()
     emit = lambda reg: ("closure", "emission", None, {"color": reg})  # noqa: E731
     point = _strand_scene(pc, [("attribute", 0, 0, "COLOR"), emit(0)], shape)
@@ -68,6 +70,10 @@ def test_point_attributes_are_linear_between_keys(shape):
     expected = np.interp(_segment_parameter(x[on], shape), np.arange(4.0), KEY_R)
     np.testing.assert_allclose(img[row, on, 0], expected, atol=0.02)
     np.testing.assert_allclose(img[row, on, 1], 0.5, atol=0.01)
+    uv = _strand_scene(pc, [("uv", 0, 3), emit(0)], shape)
+    uv_img, _ = render(pc, uv, *size, 16)
+    np.testing.assert_allclose(uv_img[row, on, 0], expected, atol=0.02)
+    np.testing.assert_allclose(uv_img[row, on, 1], 1.0 - expected, atol=0.02)
     s_img, _ = render(pc, strand, *size, 4)
     np.testing.assert_allclose(s_img[row, on, :3], np.tile([0.25, 0.5, 0.75], (on.sum(), 1)), atol=0.01)
     a_img, _ = render(pc, absent, *size, 4)
@@ -81,6 +87,10 @@ def test_point_attributes_of_a_bad_shape_are_refused():
                 {8: np.zeros((3, 4), np.float32)}):
         with pytest.raises(ValueError):
             pc.Scene().add_curves(pts, np.array([0, 3]), None, point_attributes=bad)
+    for bad in ({0: np.zeros((2, 2), np.float32)}, {0: np.zeros((3, 4), np.float32)},
+                {-1: np.zeros((3, 2), np.float32)}):
+        with pytest.raises(ValueError):
+            pc.Scene().add_curves(pts, np.array([0, 3]), None, point_uvs=bad)
     # Non-finite values read 0; strands left out (too short) leave the others' values alone.
     s = pc.Scene()
     m = s.add_shader("attr", [("attribute", 0, 0, "COLOR"), ("closure", "emission", None, {"color": 0})])
