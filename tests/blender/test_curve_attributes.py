@@ -139,6 +139,19 @@ def uv_material():
     return mat
 
 
+def uv_texture_material():
+    """An Image Texture (a smooth 16x16 gradient, Linear) at each strand's
+    `surface_uv_coordinate`: the emitter's texture, as geometry-nodes hair is coloured."""
+    mat, nodes, links, out = ms.new_material("HairTexture")
+    y, x = np.mgrid[0:16, 0:16] / 15.0
+    px = np.stack([x, y, 0.5 + 0.4 * np.sin(6.0 * x * y), np.ones_like(x)], -1)
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = ms.pixel_image("HairGradient", px)
+    links.new(nodes.new("ShaderNodeTexCoord").outputs["UV"], tex.inputs["Vector"])
+    emission(nodes, links, out, tex.outputs["Color"])
+    return mat
+
+
 def test_curve_attributes_export_arrays():
     """Only what the material reads: point attributes (N, 4) per point, curve ones (C, 4) per
     strand, the standard UV from the FLOAT2 curve attribute; a missing name warns once."""
@@ -175,10 +188,11 @@ def test_curve_attributes_export_arrays():
 
 
 @pytest.mark.parametrize("shape", ['THICK', 'RIBBONS'])
-@pytest.mark.parametrize("case", ["point_colour", "mixed", "missing", "unnamed_colour", "uv"])
+@pytest.mark.parametrize("case", ["point_colour", "mixed", "missing", "unnamed_colour", "uv",
+                                  "uv_texture"])
 def test_curve_attributes_match_cycles(case, shape):
     material = {"point_colour": point_colour_material, "mixed": mixed_material,
                 "missing": missing_material, "unnamed_colour": unnamed_colour_material,
-                "uv": uv_material}[case]
+                "uv": uv_material, "uv_texture": uv_texture_material}[case]
     ours, cycles = ms.render_pair(scene(material, shape), 32)
     assert_channels_agree(ours, cycles)
