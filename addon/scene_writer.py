@@ -119,6 +119,10 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
             extra = {"uvs": c.uvs} if getattr(c, "uvs", None) else {}
             if getattr(c, "colours", None):
                 extra["strand_attributes"] = c.colours
+            if getattr(c, "point_attributes", None):
+                extra["point_attributes"] = c.point_attributes
+            if getattr(c, "point_uvs", None):
+                extra["point_uvs"] = c.point_uvs
             if getattr(c, "normals", None) is not None:
                 extra["normals"] = c.normals
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):

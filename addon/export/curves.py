@@ -10,7 +10,7 @@ from itertools import chain
 
 import numpy as np
 
-from .mesh import is_visible, object_info
+from .mesh import _attribute_rgba, is_visible, object_info
 
 # Blender's CurveType enum (the 'curve_type' attribute on the CURVE domain).
 CATMULL_ROM, POLY, BEZIER, NURBS = 0, 1, 2, 3
@@ -38,6 +38,11 @@ class CurvesData:
     # attribute set k -> float32 (C, 4): one RGBA per strand (particle hair: the emitter's byte
     # colour attribute at the root, linear, as Cycles' per-curve vertex colour)
     colours: dict = field(default_factory=dict)
+    # attribute set k -> float32 (N, 4): one RGBA per point (a Curves object's point-domain
+    # attribute, linear between a segment's keys as Cycles interpolates them)
+    point_attributes: dict = field(default_factory=dict)
+    # uv set k -> float32 (N, 2): a point-domain FLOAT2 that a named UV Map node reads
+    point_uvs: dict = field(default_factory=dict)
     # Cycles' scene-wide curve shape (scene.cycles_curves.shape): 'thick' or 'ribbon'; ribbons
     # come with Embree's tessellation rate (quads per segment) in `subdivisions`.
     shape: str = 'thick'
@@ -116,6 +121,52 @@ def curves_arrays(curves, warn, name):
         return None
     _warn_bad_strands(points, offsets, radii, warn, f"Curves '{name}'")
     return points, offsets, radii, kind
+
+
+def curve_attributes(curves, names):
+    """The attributes and UV maps that materials read ({set k: UV map name, or ("attr", name)
+    / ("color", name)}) from an evaluated Curves object, as Cycles 4.5's attr_create_generic:
+    (uvs {k: (C, 2)}, point uvs {k: (N, 2)}, strand attributes {k: (C, 4)}, point attributes
+    {k: (N, 4)}, the names it lacks). Point-domain attributes stay per point (the core interpolates them along the
+    strand), curve-domain ones per strand; values as the Attribute node reads them
+    (mesh._attribute_rgba: floats as grey, vectors with alpha 1, byte colours linear). The
+    default UV map ("") is the first FLOAT2 curve attribute (Cycles' standard UV: geometry
+    nodes hair's `surface_uv_coordinate`); a named UV map the FLOAT2 attribute of that name
+    (per strand or per point). An unnamed Color Attribute node finds none (Cycles gives curves no default colour
+    attribute). A missing attribute reads 0, but the Attribute node's Alpha 1 (as Cycles'
+    svm_node_attr; the Color Attribute node's Alpha 0), so a missing "attr" set is sent per
+    strand as (0, 0, 0, 1)."""
+    n_points, n_curves = len(curves.points), len(curves.curves)
+    uvs, point_uvs, strand, point, missing = {}, {}, {}, {}, []
+    for k, name in names.items():
+        if not isinstance(name, tuple):  # a UV map
+            if name:
+                attr = curves.attributes.get(name)
+            else:
+                attr = next((a for a in curves.attributes
+                             if a.data_type == 'FLOAT2' and a.domain == 'CURVE'), None)
+            size = n_points if attr is not None and attr.domain == 'POINT' else n_curves
+            if attr is None or attr.data_type != 'FLOAT2' or attr.domain not in ('CURVE', 'POINT') or \
+                    len(attr.data) != size:
+                missing.append(f"UV map '{name}'" if name else "a FLOAT2 curve attribute (UV)")
+                continue
+            uv = np.empty(size * 2, np.float32)
+            attr.data.foreach_get("vector", uv)
+            (point_uvs if attr.domain == 'POINT' else uvs)[k] = uv.reshape(-1, 2)
+            continue
+        kind, attr_name = name
+        attr = curves.attributes.get(attr_name) if attr_name and kind in ("attr", "color") else None
+        if kind == "color" and attr is not None and attr.data_type not in ("FLOAT_COLOR", "BYTE_COLOR"):
+            attr = None
+        values = _attribute_rgba(attr) if attr is not None and attr.domain in ('POINT', 'CURVE') else None
+        size = n_points if attr is not None and attr.domain == 'POINT' else n_curves
+        if values is None or len(values) != size:
+            missing.append(f"attribute '{attr_name}'" if attr_name else "the default colour attribute")
+            if kind == "attr":  # Cycles' Attribute node reads a missing one as 0 with alpha 1
+                strand[k] = np.tile(np.float32([0.0, 0.0, 0.0, 1.0]), (n_curves, 1))
+            continue
+        (point if attr.domain == 'POINT' else strand)[k] = np.ascontiguousarray(values)
+    return uvs, point_uvs, strand, point, missing
 
 
 def curve_normals(curves):
@@ -226,6 +277,12 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
                 entry.normals = curve_normals(obj.data)
             if material_index is not None:
                 material_index(material)
+            if uv_names is not None:  # only what the material reads, as meshes
+                entry.uvs, entry.point_uvs, entry.colours, entry.point_attributes, missing = \
+                    curve_attributes(obj.data, uv_names([material]))
+                if missing:
+                    warn(f"Curves '{obj.original.name}' has no {', '.join(missing)} that its material "
+                         "reads; 0 is used, as in Cycles")
         if entry is not None:
             _add_instance(entry, instance, object_attributes)
     return [c for c in out.values() if c is not None]

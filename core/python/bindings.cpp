@@ -269,7 +269,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     uint32_t material, const py::object& matrix, const std::string& curve_type, int subdivisions,
                     const py::object& color, float pass_index, uint32_t random_id, const py::object& attributes,
                     const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes,
-                    const std::string& shape, const py::object& materials_obj) {
+                    const std::string& shape, const py::object& materials_obj, const py::dict& point_attributes,
+                    const py::dict& point_uvs) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -349,6 +350,35 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
     auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
     for (size_t i = 0; i < nc; ++i)
       dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
+  }
+  for (const auto& item : point_attributes) {  // per attribute set: one RGBA per point
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 2 || size_t(a.shape(0)) != n || a.shape(1) != 4)
+      throw std::invalid_argument("curve point attributes must have shape (N, 4)");
+    if (cs.point_attrs.size() <= size_t(k)) cs.point_attrs.resize(size_t(k) + 1);
+    auto& dst = cs.point_attrs[size_t(k)];
+    dst.resize(n);
+    const float* src = a.data();
+    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+    for (size_t i = 0; i < n; ++i)
+      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
+  }
+  for (const auto& item : point_uvs) {  // per uv set: one uv per point
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 2 || size_t(a.shape(0)) != n || a.shape(1) != 2)
+      throw std::invalid_argument("curve point uvs must have shape (N, 2)");
+    if (cs.point_uvs.size() <= size_t(k)) cs.point_uvs.resize(size_t(k) + 1);
+    auto& dst = cs.point_uvs[size_t(k)];
+    dst.resize(n);
+    const float* src = a.data();
+    for (size_t i = 0; i < n; ++i) {
+      const float u = src[2 * i], v = src[2 * i + 1];
+      dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
+    }
   }
   return self.scene->add_curves(std::move(cs));
 }
@@ -2549,7 +2579,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("normals") = py::none(),
            py::arg("uvs") = py::dict(), py::arg("strand_attributes") = py::dict(), py::arg("shape") = "thick",
-           py::arg("materials") = py::none(),
+           py::arg("materials") = py::none(), py::arg("point_attributes") = py::dict(),
+           py::arg("point_uvs") = py::dict(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -2561,7 +2592,10 @@ PYBIND11_MODULE(pathlight_core, m) {
            "Blender's curve normals (N, 3) or None (the major axis of Huang's elliptical hair). uvs: {uv "
            "set: (C, 2) one uv per strand} (particle hair: the emitter's UV at the root). strand_attributes: "
            "{attribute set: (C, 4) one RGBA per strand} (particle hair: the emitter's colour at the root). "
-           "materials: (C,) a material id per strand (ids not in the scene: `material`), or None.")
+           "materials: (C,) a material id per strand (ids not in the scene: `material`), or None. "
+           "point_attributes: {attribute set: (N, 4) one RGBA per point}, linear between a segment's keys "
+           "(a set given per point wins over the same set per strand). point_uvs: {uv set: (N, 2) one uv "
+           "per point}, interpolated so too.")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),

@@ -136,6 +136,13 @@ struct CurveSetData {
   // Per attribute set k (numbered with the uv sets): one RGBA per strand (particle hair: the
   // emitter's byte colour attribute at the root, Cycles' per-curve vertex colour); empty: 0.
   std::vector<std::vector<Float4>> strand_attrs;
+  // Per attribute set k: one RGBA per point (a Curves object's point-domain attribute),
+  // linear between a segment's keys at the hit's segment parameter (Cycles'
+  // curve_attribute_float4 on ATTR_ELEMENT_CURVE_KEY); empty: the set is per strand (or 0).
+  std::vector<std::vector<Float4>> point_attrs;
+  // Per uv set k: one uv per point (a point-domain FLOAT2 read as a UV map), interpolated as
+  // point_attrs; empty: per strand (or 0). A set index is a uv set or an attribute set.
+  std::vector<std::vector<Vec2>> point_uvs;
 };
 
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
@@ -745,6 +752,19 @@ class Scene {
   uint32_t curve_uv_sets_ = 0;
   std::vector<Float4> curve_attr_;  // per strand: curve_attr_sets_ values (the sets' per-strand RGBA)
   uint32_t curve_attr_sets_ = 0;
+  // Point-domain attributes and uvs (only of curve sets that have some): per curve set the
+  // masks of its per-point attribute sets (low byte) and uv sets (high byte); per strand its
+  // first key in curve_key_v_ (UINT32_MAX: none) and its key count; per key its intercept (to
+  // find the hit's segment and parameter) and curve_key_sets_ values (slot k: attribute or uv
+  // set k, a uv in x, y).
+  std::vector<uint16_t> curve_point_sets_;
+  std::vector<uint32_t> curve_key_first_, curve_key_count_;
+  std::vector<float> curve_key_v_;
+  std::vector<Float4> curve_key_attr_;
+  uint32_t curve_key_sets_ = 0;
+  // The per-point slots of strand `curve` interpolated at intercept v into buf
+  // (curve_key_sets_ values); its masks (0: no per-point values).
+  uint16_t curve_point_values(uint32_t curve, float v, Float4* buf) const;
   std::vector<ObjectCoords> curve_coords_;  // per curve set: its object (Object Info, object coordinates)
   bool curves_dirty_ = false;
   bool curves_on_ = false;  // curve_bvh_ is not empty: traced after the meshes

@@ -458,10 +458,20 @@ void Scene::build_curves() {
   curve_uv_sets_ = 0;
   curve_attr_.clear();
   curve_attr_sets_ = 0;
+  curve_point_sets_.clear();
+  curve_key_first_.clear();
+  curve_key_count_.clear();
+  curve_key_v_.clear();
+  curve_key_attr_.clear();
   for (const CurveSetData& cs : curve_sets_) {
-    curve_uv_sets_ = std::max(curve_uv_sets_, uint32_t(cs.uvs.size()));
-    curve_attr_sets_ = std::max(curve_attr_sets_, uint32_t(cs.strand_attrs.size()));
+    curve_uv_sets_ = std::max(curve_uv_sets_, uint32_t(std::max(cs.uvs.size(), cs.point_uvs.size())));
+    curve_attr_sets_ = std::max(curve_attr_sets_, uint32_t(std::max(cs.strand_attrs.size(), cs.point_attrs.size())));
   }
+  curve_uv_sets_ = std::min(curve_uv_sets_, 8u);  // (the bindings' limit; masks are 8 bits)
+  curve_attr_sets_ = std::min(curve_attr_sets_, 8u);
+  curve_key_sets_ = std::max(curve_uv_sets_, curve_attr_sets_);
+  bool any_point_sets = false;  // (else no per-strand key ranges at all)
+  for (const CurveSetData& cs : curve_sets_) any_point_sets |= !cs.point_attrs.empty() || !cs.point_uvs.empty();
   std::vector<uint32_t> kept;
   uint32_t strands = 0;
   size_t skipped = 0;
@@ -485,6 +495,13 @@ void Scene::build_curves() {
     curve_coords_.back().info.attr_first = 0;
     curve_coords_.back().info.attr_count = uint32_t(std::min<size_t>(cs.attrs.size(), kMaxObjectAttributes));
     curve_coords_.back().attrs = cs.attrs.empty() ? nullptr : cs.attrs.data();
+    uint16_t point_sets = 0;
+    for (uint32_t k = 0; k < curve_attr_sets_ && k < cs.point_attrs.size(); ++k)
+      if (cs.point_attrs[k].size() == cs.points.size() && !cs.points.empty()) point_sets |= uint16_t(1u << k);
+    for (uint32_t k = 0; k < curve_uv_sets_ && k < cs.point_uvs.size(); ++k)
+      if (cs.point_uvs[k].size() == cs.points.size() && !cs.points.empty() && !(point_sets >> k & 1u))
+        point_sets |= uint16_t(1u << (k + 8));
+    curve_point_sets_.push_back(point_sets);
     kept.clear();
     const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces, &kept);
     for (uint32_t c : kept) {
@@ -499,6 +516,32 @@ void Scene::build_curves() {
       for (uint32_t k = 0; k < curve_attr_sets_; ++k)
         curve_attr_.push_back(k < cs.strand_attrs.size() && c < cs.strand_attrs[k].size() ? cs.strand_attrs[k][c]
                                                                                           : Float4{});
+      if (!point_sets) {
+        if (any_point_sets) {
+          curve_key_first_.push_back(UINT32_MAX);
+          curve_key_count_.push_back(0);
+        }
+        continue;
+      }
+      // The keys' intercepts as cut_curves computes them (world-space polygon length), so
+      // a piece's intercept gives back its segment and the segment's parameter (Cycles' u).
+      const size_t b = size_t(cs.offsets[c]), e = size_t(cs.offsets[c + 1]);
+      curve_key_first_.push_back(uint32_t(curve_key_v_.size()));
+      curve_key_count_.push_back(uint32_t(e - b));
+      const size_t v_first = curve_key_v_.size();
+      float total = 0.0f;
+      Vec3 prev = cs.matrix.point(cs.points[b]);
+      for (size_t i = b; i < e; ++i) {
+        const Vec3 p = cs.matrix.point(cs.points[i]);
+        if (i > b) total += length(p - prev);
+        prev = p;
+        curve_key_v_.push_back(total);
+        for (uint32_t k = 0; k < curve_key_sets_; ++k) {
+          const Vec2 uv = point_sets >> (k + 8) & 1u ? cs.point_uvs[k][i] : Vec2{};
+          curve_key_attr_.push_back(point_sets >> k & 1u ? cs.point_attrs[k][i] : Float4{uv.x, uv.y, 0.0f, 0.0f});
+        }
+      }
+      for (size_t i = v_first; i < curve_key_v_.size(); ++i) curve_key_v_[i] /= total;  // (kept: total > 0)
     }
     strands += uint32_t(st.curves);
     skipped += st.skipped;

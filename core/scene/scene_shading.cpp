@@ -44,6 +44,27 @@ void Scene::shade_program(const Material& mat, const ShadingContext& ctx, Closur
     eval_shader(mat.program, images_, ctx, out);
 }
 
+uint16_t Scene::curve_point_values(uint32_t curve, float v, Float4* buf) const {
+  const uint32_t first = curve_key_first_.empty() ? UINT32_MAX : curve_key_first_[curve];
+  if (first == UINT32_MAX) return 0;
+  // The segment whose keys' intercepts hold v, and v's parameter on it: intercepts are linear
+  // in the segment parameter (cut_curves), which Cycles interpolates point attributes by.
+  const float* kv = &curve_key_v_[first];
+  const uint32_t n = curve_key_count_[curve];
+  const uint32_t seg = n < 2 ? 0
+                             : uint32_t(std::min<ptrdiff_t>(std::upper_bound(kv + 1, kv + n - 1, v) - (kv + 1), ptrdiff_t(n) - 2));
+  const uint32_t k1 = std::min(seg + 1, n - 1);
+  const float span = kv[k1] - kv[seg];
+  const float t = span > 0.0f ? clampf((v - kv[seg]) / span, 0.0f, 1.0f) : 0.0f;
+  const Float4* a0 = &curve_key_attr_[size_t(first + seg) * curve_key_sets_];
+  const Float4* a1 = &curve_key_attr_[size_t(first + k1) * curve_key_sets_];
+  for (uint32_t k = 0; k < curve_key_sets_; ++k) {
+    const Float4 &x = a0[k], &y = a1[k];
+    buf[k] = {x.x + (y.x - x.x) * t, x.y + (y.y - x.y) * t, x.z + (y.z - x.z) * t, x.w + (y.w - x.w) * t};
+  }
+  return curve_point_sets_[curve_set_of(curve)];
+}
+
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
@@ -89,13 +110,27 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     cs.tangent_normal = length_sq(across) > 0.0f ? normalize(across) : Vec3(0.0f);
     cs.tangent = sp.tangent;
     ctx.curve = &cs;
-    if (curve_uv_sets_) {  // per-strand uvs (particle hair's emitter UV at the root)
+    // Per strand (particle hair's root uvs and colours, curve-domain attributes) or
+    // interpolated between the segment's keys (point-domain ones).
+    Float4 key_buf[8], attr_buf[8];
+    Vec2 uv_buf[8];
+    const uint16_t per_point = curve_point_values(pc.curve, cs.intercept, key_buf);
+    if (curve_uv_sets_) {
       ctx.uv = &curve_uv_[size_t(pc.curve) * curve_uv_sets_];
       ctx.uv_sets = int(curve_uv_sets_);
+      if (per_point >> 8) {
+        for (uint32_t k = 0; k < curve_uv_sets_; ++k)
+          uv_buf[k] = per_point >> (k + 8) & 1u ? Vec2{key_buf[k].x, key_buf[k].y} : ctx.uv[k];
+        ctx.uv = uv_buf;
+      }
     }
-    if (curve_attr_sets_) {  // per-strand attributes (particle hair's emitter colours at the root)
+    if (curve_attr_sets_) {
       ctx.attrs = &curve_attr_[size_t(pc.curve) * curve_attr_sets_];
       ctx.attr_sets = int(curve_attr_sets_);
+      if (per_point & 0xFFu) {
+        for (uint32_t k = 0; k < curve_attr_sets_; ++k) attr_buf[k] = per_point >> k & 1u ? key_buf[k] : ctx.attrs[k];
+        ctx.attrs = attr_buf;
+      }
     }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &curve_coords_[curve_set_of(pc.curve)];
