@@ -1311,7 +1311,7 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
       if (ps && ps[i] >= 0 && ps[i] < int64_t(UINT32_MAX)) ray.self_curve = uint32_t(ps[i]);
       const bool ok = self.scene->intersect(ray, h);
       if (ok) self.scene->surface_point(h, sp, 0.5f, &ray);
-      pst[i] = ok && sp.curve() ? int64_t(self.scene->self_curve(sp)) : -1;
+      pst[i] = ok && (sp.curve() || sp.point()) ? int64_t(self.scene->self_curve(sp)) : -1;
       ptt[i] = ok ? h.t : kInf;
       pp[i] = ok ? sp.p : Vec3(0.0f);
       pn[i] = ok ? sp.ng : Vec3(0.0f);
