@@ -163,13 +163,15 @@ def coordinate_material(name, node_type, output, scale, offset):
     ("ShaderNodePointInfo", "Radius", 8.0, (0.0, 0.0, 0.0)),
     ("ShaderNodePointInfo", "Position", 0.4, (0.5, 0.5, 0.0)),
     ("ShaderNodeTexCoord", "Generated", 0.4, (0.5, 0.5, 0.2)),
+    ("ShaderNodeTexCoord", "Normal", 0.5, (0.5, 0.5, 0.5)),
 ])
 def test_point_info_and_coordinates_match_cycles(node_type, output, scale, offset):
     """Point Info (the centre, Cycles' point radius, the random number of the point's index) and
     the Generated coordinates (on points: the object-space position, as Cycles has no
-    generated attribute there) on a cloud whose object is rotated and scaled unevenly: Cycles
-    intersects it in object space, so its points are ellipsoids. (Not the Normal output: see
-    docs/design/points.md.)"""
+    generated attribute there) and the object Normal (the radial normal, turned to the viewer
+    where the hit is back-facing, as near the ellipsoids' silhouettes) on a cloud whose object
+    is rotated and scaled unevenly: Cycles intersects it in object space, so its points are
+    ellipsoids."""
     def build():
         scene = cloud_scene(lambda: coordinate_material("PC", node_type, output, scale, offset),
                             world=(0.0, 0.0, 0.0), n=80)()
