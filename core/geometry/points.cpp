@@ -258,6 +258,7 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
     if (e.count > 0) {
       for (uint32_t i = e.id; i < e.id + e.count; ++i) {
         const PointSphere& s = spheres_[i];
+        if ((s.point | kSelfPointBit) == ray.self_curve) continue;  // the sphere the ray leaves
         float t;
         Vec3 n;
         const bool h = s.frame == PointSphere::kRoundPoint

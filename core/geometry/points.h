@@ -2,8 +2,9 @@
 // objects. Spheres live in world space in a 4-wide BVH of their own (as the curve pieces,
 // beside them), traced after the triangles and the curves: scenes without points never touch it.
 // Hits from inside count (the exit of a sphere the ray starts in), as Embree's sphere points
-// on Cycles' CPU. Rays spawned on a sphere do not skip it (a refracted ray meets its exit, as
-// in Cycles 4.5): offset_ray_origin and the double-precision test keep outward rays off it.
+// on Cycles' CPU. A ray skips the sphere it leaves (Ray::self_curve with kSelfPointBit), its
+// far side too: Cycles' Embree reports one root per sphere and rejects the primitive a ray
+// leaves, so a ray refracted into a point never meets its exit (docs/design/points.md).
 #pragma once
 #include <cstdint>
 #include <memory>
@@ -15,6 +16,9 @@
 #include "geometry/ray.h"
 
 namespace pl {
+
+// Ray::self_curve of a ray leaving point k: k | kSelfPointBit (strands are numbered below it).
+constexpr uint32_t kSelfPointBit = 0x80000000u;
 
 // A point's sphere: round (world centre and radius), or, for clouds whose matrix scales
 // unevenly, the object-space sphere seen through it (an ellipsoid about the world centre, r
@@ -101,8 +105,8 @@ class PointBvh {
     for (const auto& m : moving_) b += m->memory_bytes();
     return b;
   }
-  // Closest hit before ray.tmax: prim the sphere (leaf order; kMovingPrim: of a moving cloud),
-  // (b1, b2) its normal (encode_sphere_normal).
+  // Closest hit before ray.tmax on spheres other than the one the ray leaves: prim the sphere
+  // (leaf order; kMovingPrim: of a moving cloud), (b1, b2) its normal (encode_sphere_normal).
   bool intersect(const Ray& ray, Hit& hit) const;
   bool occluded(const Ray& ray) const;
 

@@ -15,7 +15,8 @@ struct Ray {
   // Time in the shutter, 0..1 (motion blur): read only by instances that move.
   float time = 0.5f;
   // The strand a ray leaves (CurvePiece::curve), none: UINT32_MAX. Curve traversal skips all of
-  // it, as Cycles skips the primitive (object and curve) a ray leaves.
+  // it, as Cycles skips the primitive (object and curve) a ray leaves. A point cloud's sphere:
+  // its point index | kSelfPointBit (geometry/points.h), skipped by the point traversal.
   uint32_t self_curve = UINT32_MAX;
 };
 

@@ -1341,7 +1341,7 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
       if (ps && ps[i] >= 0 && ps[i] < int64_t(UINT32_MAX)) ray.self_curve = uint32_t(ps[i]);
       const bool ok = self.scene->intersect(ray, h);
       if (ok) self.scene->surface_point(h, sp, 0.5f, &ray);
-      pst[i] = ok && sp.curve() ? int64_t(self.scene->self_curve(sp)) : -1;
+      pst[i] = ok && (sp.curve() || sp.point()) ? int64_t(self.scene->self_curve(sp)) : -1;
       ptt[i] = ok ? h.t : kInf;
       pp[i] = ok ? sp.p : Vec3(0.0f);
       pn[i] = ok ? sp.ng : Vec3(0.0f);
@@ -1486,6 +1486,7 @@ Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
     d.transmission = b("transmission", true);
     d.fresnel_on_transmission = b("fresnel_on_transmission", true);
     d.schlick = b("schlick", false);
+    d.unscaled = b("unscaled", false);  // Cycles' refraction, as on points
     if (p.contains("f0_tint")) d.f0_tint = to_color(p["f0_tint"], "f0_tint");
     d.film_thickness = f("film_thickness", 0.0f);
     d.film_ior = f("film_ior", 1.33f);

@@ -1106,7 +1106,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (last) emission_only = true;  // no light sampling: the limit still ends the path
     }
     if constexpr (kNonDiffuse) {
-      if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe)) eta_scale *= bs.eta * bs.eta;
+      // (Points refract unscaled, as Cycles: DielectricBsdf::unscaled.)
+      if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe) && !sp.point()) eta_scale *= bs.eta * bs.eta;
       if constexpr (kMedia) {
         if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
           medium.cross(scene, sp, front);

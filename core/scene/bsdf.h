@@ -235,6 +235,9 @@ struct DielectricBsdf {
   // is relative to the outside, as eta.
   float film_thickness = 0.0f, film_ior = 1.33f;
   Microfacet dist = Microfacet::Ggx;  // Ggx or Beckmann
+  // Refraction without the radiance's 1/eta^2, as Cycles' (set on points: a ray refracted into
+  // a point never leaves through it, so no exit undoes the scaling as on closed meshes).
+  bool unscaled = false;
   Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
   Beckmann beckmann() const { return Beckmann{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
   // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).
@@ -313,7 +316,8 @@ struct DielectricBsdf {
     const float dwm_dwi = std::fabs(dot(wi, m)) / denom;
     pdf = pdf_m * dwm_dwi * pt / (pr + pt);
     const float ft = g.D(m) * g.G(wo, wi) * std::fabs(dot(wi, m) * dot(wo, m) / (wo.z * denom));
-    return transmission_tint * ct * (ft / (etap * etap));  // radiance is compressed/expanded across the interface
+    // Radiance is compressed/expanded across the interface (not in Cycles: unscaled).
+    return transmission_tint * ct * (unscaled ? ft : ft / (etap * etap));
   }
 
   template <class Dist>
@@ -341,7 +345,7 @@ struct DielectricBsdf {
       float etap;
       if (!refract(wo, {0.0f, 0.0f, 1.0f}, eta, s.wi, etap) || s.wi.z == 0.0f) return false;
       s.pdf = pt / (pr + pt);
-      s.weight = transmission_tint * ct * ((pr + pt) / (pt * etap * etap));
+      s.weight = transmission_tint * ct * ((pr + pt) / (pt * (unscaled ? 1.0f : etap * etap)));
       s.flags = kTransmit | kDelta | kGlossyLobe;
       s.eta = etap;
       return true;

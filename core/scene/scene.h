@@ -505,9 +505,9 @@ class Scene {
     if (!use_tlas_) return direct_ && blases_[0].bvh.occluded(r);
     return tlas_.occluded(r);
   }
-  // The strand a ray spawned at sp leaves (Ray::self_curve): none off curves. Not on points:
-  // a ray refracted into a sphere meets its exit, as in Cycles 4.5 (docs/design/points.md).
+  // The strand or point a ray spawned at sp leaves (Ray::self_curve): none off curves and points.
   uint32_t self_curve(const SurfacePoint& sp) const {
+    if (sp.point()) return point_bvh_.sphere(sp.tri).point | kSelfPointBit;
     return sp.curve() ? curve_bvh_.piece(sp.tri).curve : UINT32_MAX;
   }
   // The row of a hit triangle in its mesh's triangles.

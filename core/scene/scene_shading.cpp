@@ -65,6 +65,14 @@ uint16_t Scene::curve_point_values(uint32_t curve, float v, Float4* buf) const {
   return curve_point_sets_[curve_set_of(curve)];
 }
 
+namespace {
+// Refraction at a point carries no 1/eta^2, as Cycles' (DielectricBsdf::unscaled).
+void unscale_refraction(ClosureList& out) {
+  for (int i = 0; i < out.n; ++i)
+    if (auto* d = std::get_if<DielectricBsdf>(&out.c[size_t(i)].bsdf)) d->unscaled = true;
+}
+}  // namespace
+
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
   const Material& mat = materials_[sp.material];
   if (mat.constant) {
@@ -84,6 +92,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
     }
     if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
+    if (sp.point()) unscale_refraction(out);
     return;
   }
   ShadingContext ctx;
@@ -165,6 +174,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     }
     shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);
+    unscale_refraction(out);
     return;
   }
   const InstanceData& in = inst_[sp.instance];

@@ -26,6 +26,13 @@ inline Float4 attribute_output(const Float4& a, uint8_t sub) {
   return {v, v, v, 1.0f};
 }
 
+// The Normal outputs (Geometry, Texture Coordinate). On points: Cycles' sd->N, the radial
+// normal turned to the viewer on a back-facing hit (shader_setup_from_ray), as near an
+// ellipsoid's silhouette. Elsewhere the outward normal, which closures read with their side.
+inline Vec3 viewer_normal(const ShadingContext& ctx) {
+  return ctx.point && dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ns : ctx.ns;
+}
+
 // The program's evaluation. kSetsNormal: the program has a SetNormal op, which replaces the
 // shading normal of `ctx` (then the caller's copy, `local`) for the ops after it, as Cycles'
 // bump from displacement sets sd->N for the rest of the shader.
@@ -110,7 +117,7 @@ template <bool kSetsNormal>
         d = f4(ctx.p + (op.sub < 3 ? dp[op.sub] : Vec3(0.0f)));
         break;
       }
-      case OpCode::Normal: d = f4(ctx.ns, 0.0f); break;
+      case OpCode::Normal: d = f4(viewer_normal(ctx), 0.0f); break;
       case OpCode::Mapping: {
         const Float4 s = reg(op.in[0]);
         d = {op.m[0] * s.x + op.m[1] * s.y + op.m[2] * s.z + op.m[3],
@@ -289,7 +296,7 @@ template <bool kSetsNormal>
         d = attribute_output(read_volume_grid(ctx, op.index, VolumeSampling(op.ext)), op.sub);
         break;
       case OpCode::ObjectNormal: {
-        Vec3 n = ctx.ns;
+        Vec3 n = viewer_normal(ctx);
         if (ctx.object && ctx.object->valid) {
           const float(&m)[4][4] = ctx.object->to_world.m;  // transpose: n_obj ~ M^T n_world
           const Vec3 t{m[0][0] * n.x + m[1][0] * n.y + m[2][0] * n.z, m[0][1] * n.x + m[1][1] * n.y + m[2][1] * n.z,

@@ -120,6 +120,30 @@ def test_white_furnace_energy():
             assert a.max() <= 1.0 * scale + 0.01, (kind, params, w, a)
 
 
+def test_unscaled_refraction_drops_only_the_eta_squared():
+    """DielectricBsdf::unscaled (refraction at points, as Cycles'): smooth glass from outside
+    conserves energy without the 1/eta^2, from inside too; rough glass' transmission is the
+    scaled one times etap^2 (eta outside-in, 1 / eta inside-out), its reflection and pdfs
+    unchanged."""
+    u = np.random.default_rng(5).random((100_000, 3), dtype=np.float32)
+    for wo in ((0.3, 0.2, 0.93), (0.2, 0.1, -0.97)):
+        _, w, _, flags = pc.bsdf_sample("dielectric", {"alpha": 0.0, "eta": 1.5, "unscaled": True}, wo, u)
+        assert ((flags & 2) != 0).any() and abs(w[:, 0].mean() - 1.0) < 1e-3, (wo, w[:, 0].mean())
+    rng = np.random.default_rng(6)
+    wi = rng.normal(size=(2000, 3)).astype(np.float32)
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    for wo in WO:
+        params = {"alpha": 0.3, "eta": 1.45}
+        f, pdf = pc.bsdf_eval("dielectric", params, wo, wi)
+        fu, pdfu = pc.bsdf_eval("dielectric", dict(params, unscaled=True), wo, wi)
+        trans = wi[:, 2] * wo[2] < 0
+        etap = 1.45 if wo[2] > 0 else 1 / 1.45
+        assert (f[trans, 0] > 0).sum() > 100
+        np.testing.assert_allclose(fu[trans], f[trans] * etap**2, rtol=1e-5, atol=1e-12)
+        np.testing.assert_array_equal(fu[~trans], f[~trans])
+        np.testing.assert_array_equal(pdfu, pdf)
+
+
 def test_translucent_transmits_all_to_the_other_side():
     # A white Translucent BSDF conserves energy (Cycles' bsdf_translucent: cos / pi on the far
     # side), from either side, and never reflects.

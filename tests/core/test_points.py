@@ -84,11 +84,12 @@ def test_rays_from_inside_leave_through_the_sphere(center, r):
     assert ((hit["ng"] * d).sum(1) > 0).all()
 
 
-def test_spawned_rays_leave_or_meet_the_far_side():
+def test_spawned_rays_skip_their_sphere():
     """From every hit, rays leaving outwards (origin_out) never meet their sphere again, near
-    and far from the origin, grazing ones too; rays into it (origin_in, a refraction) meet its
-    far side where the analytic sphere has it, as Cycles 4.5 (whose refracted rays meet the
-    exit of a point's sphere: a glass point against Cycles, docs/design/points.md)."""
+    and far from the origin, grazing ones too; rays into it (origin_in, a refraction) that
+    carry the sphere they leave, as a path's rays do, find nothing, as in Cycles (its Embree
+    filter rejects the point a ray leaves, far side included: docs/design/points.md); without
+    it they meet its far side where the analytic sphere has it."""
     pc = core()
     rng = np.random.default_rng(7)
     for center, r in (((0.0, 0.0, 0.0), 0.02), ((300.0, -200.0, 100.0), 0.05), ((1e4, 0.0, 0.0), 0.3)):
@@ -108,6 +109,9 @@ def test_spawned_rays_leave_or_meet_the_far_side():
         org = np.where(out[:, None], hit["origin_out"][ok], hit["origin_in"][ok]).astype(np.float32)
         away = s.hit_surfaces(org[out], w[out])
         assert np.isinf(away["t"]).all(), f"{np.isfinite(away['t']).sum()} self-hits at {center}"
+        assert np.all(hit["strand"][ok] >= 0)
+        skipped = s.hit_surfaces(org[~out], w[~out], self_strand=hit["strand"][ok][~out])
+        assert np.isinf(skipped["t"]).all(), f"{np.isfinite(skipped['t']).sum()} self-hits at {center}"
         inside = s.hit_surfaces(org[~out], w[~out])
         assert np.all(inside["point"]), f"{(~inside['point']).sum()} inward rays missed at {center}"
         _, t1 = _sphere_hits(org[~out], w[~out], center, r)
@@ -243,11 +247,14 @@ def test_uneven_scale_makes_ellipsoids():
     radial = (p - c) / np.linalg.norm(p - c, axis=1, keepdims=True)
     assert np.abs(hit["ng"][ok] - radial).max() < 1e-5
     np.testing.assert_allclose(hit["p"][ok], p, atol=2e-6)
-    # Spawned rays: outward ones leave it, inward ones meet its inside.
+    # Spawned rays: outward ones leave it, inward ones meet its inside, or nothing where they
+    # carry the ellipsoid they leave.
     inward = -hit["ng"][ok]
     assert np.isinf(s.hit_surfaces(hit["origin_out"][ok], -inward)["t"]).all()
     far = s.hit_surfaces(hit["origin_in"][ok], inward)
     assert np.all(np.isfinite(far["t"])) and np.all((far["ng"] * inward).sum(1) > 0)
+    again = s.hit_surfaces(hit["origin_in"][ok], inward, self_strand=hit["strand"][ok])
+    assert np.isinf(again["t"]).all()
 
 
 def test_point_info_reads_centre_radius_and_random():
@@ -304,7 +311,7 @@ def _hash_uint2_to_float(kx, ky):
 def test_moving_cloud_is_hit_where_it_is_at_the_ray_time():
     """Transform motion blur: a cloud moving 2 units along x and turning over the shutter is
     hit where its transform at the ray's time puts each sphere (interpolated as moving
-    instances are); its bounds hold it all the shutter."""
+    instances are); rays spawned on it skip their sphere; its bounds hold it all the shutter."""
     pc = core()
     steps = []
     for k, a in enumerate(np.linspace(0.0, 0.6, 3)):
@@ -328,6 +335,8 @@ def test_moving_cloud_is_hit_where_it_is_at_the_ray_time():
                 assert hit["point"][0] and np.allclose(hit["ng"][0], (0, 0, 1), atol=1e-4)
                 through = s.hit_surfaces(hit["origin_in"], d)  # its far side, a diameter on
                 assert through["t"][0] == pytest.approx(0.2, abs=1e-4)
+                again = s.hit_surfaces(hit["origin_in"], d, self_strand=hit["strand"])
+                assert np.isinf(again["t"][0])
     # Halfway between steps 0 and 1 (time 0.25) the first sphere is at x = -0.5.
     o = np.array([[-0.5, 0.0, 5.0], [-1.0, 0.0, 5.0]], np.float32)
     t = s.intersect(o, np.tile(np.array([[0.0, 0.0, -1.0]], np.float32), (2, 1)), time=0.25)[0]
