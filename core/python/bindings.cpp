@@ -262,6 +262,29 @@ std::vector<Float4> to_object_attributes(const py::object& attributes, const cha
   return attrs;
 }
 
+// {set index: (rows, 2 or 4) float array} into per-set rows of Vec2 or Float4 (indices in
+// [0, 8)); non-finite values read 0. The messages name the array for the ValueError.
+template <class T>
+void read_sets(const py::dict& sets, size_t rows, const char* index_error, const char* shape_error,
+               std::vector<std::vector<T>>& out) {
+  constexpr int W = std::is_same_v<T, Vec2> ? 2 : 4;
+  auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
+  for (const auto& item : sets) {
+    const int64_t k = item.first.cast<int64_t>();
+    if (k < 0 || k >= 8) throw std::invalid_argument(index_error);
+    const auto a = item.second.cast<FloatArray>();
+    if (a.ndim() != 2 || size_t(a.shape(0)) != rows || a.shape(1) != W) throw std::invalid_argument(shape_error);
+    if (out.size() <= size_t(k)) out.resize(size_t(k) + 1);
+    auto& dst = out[size_t(k)];
+    dst.resize(rows);
+    const float* src = a.data();
+    for (size_t i = 0; i < rows; ++i, src += W) {
+      if constexpr (W == 2) dst[i] = {clean(src[0]), clean(src[1])};
+      else dst[i] = {clean(src[0]), clean(src[1]), clean(src[2]), clean(src[3])};
+    }
+  }
+}
+
 // A Curves object: points (N, 3), offsets (C + 1) into them, radii (N) or None (Cycles'
 // default 0.005), one material, the object's matrix. Strands with bad values are left out at
 // commit (stats()["skipped_curves"]); inconsistent shapes or offsets raise ValueError.
@@ -322,64 +345,12 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   cs.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   cs.info.random = object_random(random_id);
   cs.attrs = to_object_attributes(attributes, "curves");
-  for (const auto& item : uvs) {  // per uv set: one uv per strand
-    const int64_t k = item.first.cast<int64_t>();
-    if (k < 0 || k >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
-    const auto a = item.second.cast<FloatArray>();
-    if (a.ndim() != 2 || size_t(a.shape(0)) != nc || a.shape(1) != 2)
-      throw std::invalid_argument("curve uvs must have shape (C, 2)");
-    if (cs.uvs.size() <= size_t(k)) cs.uvs.resize(size_t(k) + 1);
-    auto& dst = cs.uvs[size_t(k)];
-    dst.resize(nc);
-    const float* src = a.data();
-    for (size_t i = 0; i < nc; ++i) {
-      const float u = src[2 * i], v = src[2 * i + 1];
-      dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
-    }
-  }
-  for (const auto& item : strand_attributes) {  // per attribute set: one RGBA per strand
-    const int64_t k = item.first.cast<int64_t>();
-    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
-    const auto a = item.second.cast<FloatArray>();
-    if (a.ndim() != 2 || size_t(a.shape(0)) != nc || a.shape(1) != 4)
-      throw std::invalid_argument("curve strand attributes must have shape (C, 4)");
-    if (cs.strand_attrs.size() <= size_t(k)) cs.strand_attrs.resize(size_t(k) + 1);
-    auto& dst = cs.strand_attrs[size_t(k)];
-    dst.resize(nc);
-    const float* src = a.data();
-    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
-    for (size_t i = 0; i < nc; ++i)
-      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
-  }
-  for (const auto& item : point_attributes) {  // per attribute set: one RGBA per point
-    const int64_t k = item.first.cast<int64_t>();
-    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
-    const auto a = item.second.cast<FloatArray>();
-    if (a.ndim() != 2 || size_t(a.shape(0)) != n || a.shape(1) != 4)
-      throw std::invalid_argument("curve point attributes must have shape (N, 4)");
-    if (cs.point_attrs.size() <= size_t(k)) cs.point_attrs.resize(size_t(k) + 1);
-    auto& dst = cs.point_attrs[size_t(k)];
-    dst.resize(n);
-    const float* src = a.data();
-    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
-    for (size_t i = 0; i < n; ++i)
-      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
-  }
-  for (const auto& item : point_uvs) {  // per uv set: one uv per point
-    const int64_t k = item.first.cast<int64_t>();
-    if (k < 0 || k >= 8) throw std::invalid_argument("uv set index must be in [0, 8)");
-    const auto a = item.second.cast<FloatArray>();
-    if (a.ndim() != 2 || size_t(a.shape(0)) != n || a.shape(1) != 2)
-      throw std::invalid_argument("curve point uvs must have shape (N, 2)");
-    if (cs.point_uvs.size() <= size_t(k)) cs.point_uvs.resize(size_t(k) + 1);
-    auto& dst = cs.point_uvs[size_t(k)];
-    dst.resize(n);
-    const float* src = a.data();
-    for (size_t i = 0; i < n; ++i) {
-      const float u = src[2 * i], v = src[2 * i + 1];
-      dst[i] = {std::isfinite(u) ? u : 0.0f, std::isfinite(v) ? v : 0.0f};
-    }
-  }
+  read_sets(uvs, nc, "uv set index must be in [0, 8)", "curve uvs must have shape (C, 2)", cs.uvs);  // per strand
+  read_sets(strand_attributes, nc, "attribute set index must be in [0, 8)",
+            "curve strand attributes must have shape (C, 4)", cs.strand_attrs);
+  read_sets(point_attributes, n, "attribute set index must be in [0, 8)",
+            "curve point attributes must have shape (N, 4)", cs.point_attrs);  // linear along a strand
+  read_sets(point_uvs, n, "uv set index must be in [0, 8)", "curve point uvs must have shape (N, 2)", cs.point_uvs);
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -415,20 +386,8 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   ps.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   ps.info.random = object_random(random_id);
   ps.attrs = to_object_attributes(attributes, "points");
-  for (const auto& item : point_attributes) {  // per attribute set: one RGBA per point
-    const int64_t k = item.first.cast<int64_t>();
-    if (k < 0 || k >= 8) throw std::invalid_argument("attribute set index must be in [0, 8)");
-    const auto a = item.second.cast<FloatArray>();
-    if (a.ndim() != 2 || size_t(a.shape(0)) != n || a.shape(1) != 4)
-      throw std::invalid_argument("point attributes must have shape (N, 4)");
-    if (ps.point_attrs.size() <= size_t(k)) ps.point_attrs.resize(size_t(k) + 1);
-    auto& dst = ps.point_attrs[size_t(k)];
-    dst.resize(n);
-    const float* src = a.data();
-    auto clean = [](float x) { return std::isfinite(x) ? x : 0.0f; };
-    for (size_t i = 0; i < n; ++i)
-      dst[i] = {clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])};
-  }
+  read_sets(point_attributes, n, "attribute set index must be in [0, 8)", "point attributes must have shape (N, 4)",
+            ps.point_attrs);
   if (!texspace.is_none()) {  // (location, size) of the Generated coordinates' box
     const auto ts = texspace.cast<py::tuple>();
     if (ts.size() != 2) throw std::invalid_argument("texspace must be (location, size)");
