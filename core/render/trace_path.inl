@@ -698,7 +698,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               const float uc = vrng.next_float();
               const Vec2 uc2{vrng.next_float(), vrng.next_float()};
               Vec3 cref;
-              if (scene.light_reference_point(ray.org, uc, uc2, cref)) eq = equiangular_segment(ray.org, d, seg, cref);
+              float t0 = 0.0f, t1 = seg;  // where the light can reach along the segment
+              if (scene.light_reference_point(ray.org, d, uc, uc2, cref, t0, t1)) {
+                if (!s.volume_light_reach) t0 = 0.0f, t1 = seg;
+                eq = equiangular_segment(ray.org, d, t0, t1, cref);
+              }
               if (eq.valid) {
                 const float te = sample_equiangular(eq, vrng.next_float());
                 const float pe = equiangular_pdf(eq, te), pd = free_flight_pdf(st, te);

@@ -245,3 +245,10 @@ def test_shared_shadow_ray_is_unbiased_and_traces_fewer_rays():
     rays = render_both("volume_shared_shadow", spot=False)
     assert rays[True] < 0.9 * rays[False], rays
 
+
+def test_equiangular_distances_within_the_spot_cone():
+    """Equiangular distances only where a spot's cone reaches (RenderSettings.volume_light_reach):
+    the image agrees with distances along the whole segment, and more of the light samples land
+    in the cone (so more shadow rays are traced)."""
+    rays = render_both("volume_light_reach", spot=True)
+    assert rays[True] > 1.01 * rays[False], rays
