@@ -243,6 +243,7 @@ inline Vec3 phase_sample(const Phase& p, Vec3 dir, float u1, float u2, float& pd
 // exp(-sigma * t) per channel; a channel with sigma 0 transmits everything, even to infinity.
 inline Vec3 medium_transmittance(Vec3 sigma, float t) {
   const auto tr = [t](float s) { return s > 0.0f ? std::exp(-s * t) : 1.0f; };
+  if (sigma.x == sigma.y && sigma.y == sigma.z) return Vec3(tr(sigma.x));  // grey: one exp, same value
   return {tr(sigma.x), tr(sigma.y), tr(sigma.z)};
 }
 
