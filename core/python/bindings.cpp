@@ -2454,6 +2454,12 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("volume_segment_nee", &RenderSettings::volume_segment_nee,
                      "Heterogeneous media: a light sample in every segment crossed, at a distance drawn from the "
                      "majorants (on), or only where delta tracking scatters (off)")
+      .def_readwrite("volume_shared_shadow", &RenderSettings::volume_shared_shadow,
+                     "Homogeneous scattering media: the equiangular and the distance-sampled light samples of a "
+                     "segment share one shadow ray (on), or each traces its own (off)")
+      .def_readwrite("volume_light_reach", &RenderSettings::volume_light_reach,
+                     "Homogeneous scattering media: equiangular distances only where the light can shine (a "
+                     "spot's cone, an area light's front: on), or along the whole segment (off)")
       .def_property(
           "sampler", [](const RenderSettings& s) { return enum_name(s.sampler, kSamplerNames); },
           [](RenderSettings& s, const std::string& v) { s.sampler = enum_from_name(v, "sampler", kSamplerNames); })

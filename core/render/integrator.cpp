@@ -44,6 +44,9 @@ constexpr KernelEntry kKernels[] = {
     {kKernelEnvironment, &trace_path_t<kKernelEnvironment>},
     {kKernelNonDiffuse, &trace_path_t<kKernelNonDiffuse>},
     {kKernelNonDiffuse | kKernelEnvironment, &trace_path_t<kKernelNonDiffuse | kKernelEnvironment>},
+    // Media (volumes, absorbing glass) without the environment, the light tree, subsurface or
+    // passes: the fog box of build.py bench was on the general kernel.
+    {kKernelMedia | kKernelNonDiffuse, &trace_path_t<kKernelMedia | kKernelNonDiffuse>},
 };
 // The light tree's kernels, in the same order (integrator_tree.cpp).
 constexpr uint32_t kTreeKernels[] = {kKernelLightTree, kKernelLightTree | kKernelEnvironment,

@@ -24,6 +24,13 @@ struct IntegratorSettings {
   // the majorants' collision density), not only where delta tracking scatters (docs/design/
   // volumes.md). Off: the light sample at the scattering, as before (tests compare the two).
   bool volume_segment_nee = true;
+  // Homogeneous scattering media: the equiangular and the distance-sampled light samples of a
+  // segment share one shadow ray, traced for one of them picked by its unshadowed contribution
+  // (docs/design/volumes.md). Off: a shadow ray for each, as before (tests compare the two).
+  bool volume_shared_shadow = true;
+  // Equiangular distances only where the chosen light can shine (a spot's cone, an area
+  // light's front: Scene::light_reference_point). Off: along the whole segment, as before.
+  bool volume_light_reach = true;
   int rr_start_bounce = 3;  // Russian roulette from this bounce on
   // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not
   // in the returned radiance; it becomes alpha instead. It still lights the scene.

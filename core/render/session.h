@@ -32,6 +32,8 @@ struct RenderSettings {
   int tile_size = 32;
   bool use_nee = true;
   bool volume_segment_nee = true;  // IntegratorSettings::volume_segment_nee
+  bool volume_shared_shadow = true;  // IntegratorSettings::volume_shared_shadow
+  bool volume_light_reach = true;    // IntegratorSettings::volume_light_reach
   SamplerType sampler = SamplerType::Sobol;
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic

@@ -330,14 +330,22 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
 // sample through the media and pass-through surfaces, times the phase function, weighted
 // against the phase function's own sample by the power heuristic (weight 1 at the last bounce,
 // where no phase sample follows). Not yet multiplied by the path's throughput.
-Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
-                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng) {
+// In two halves: medium_light_sample prepares the sample and its shadow ray (li * factor is what
+// it adds unshadowed), medium_light_trace traces it; homogeneous segments trace one of two.
+struct MediumLightSample {
+  Vec3 li;
+  float factor = 0.0f;
+  Ray shadow;
+  bool cast_shadow = true;
+};
+inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, float u_sel,
+                                Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls) {
   DirectSample ds;
   ds.path = &ray_state;
-  if (!scene.sample_direct(p, u_sel, u_pt, ds, !last) || (ds.exclude & kLightVisVolume)) return Vec3(0.0f);
+  if (!scene.sample_direct(p, u_sel, u_pt, ds, !last) || (ds.exclude & kLightVisVolume)) return false;
   const float ph = phase_eval(phase, dot(d, ds.wi));
-  if (!(ph > 0.0f) || is_black(ds.li)) return Vec3(0.0f);
-  Ray shadow;
+  if (!(ph > 0.0f) || is_black(ds.li)) return false;
+  Ray& shadow = ls.shadow;
   shadow.time = time;
   shadow.org = p;
   if (std::isinf(ds.dist)) {
@@ -349,11 +357,24 @@ Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool 
     shadow.dir = target - shadow.org;
     shadow.tmax = 1.0f - 1e-4f;
   }
-  ++c.rays;
-  const Vec3 vis = shadow_transmittance(scene, shadow, medium, ds.cast_shadow, rng);
-  if (is_black(vis)) return Vec3(0.0f);
+  ls.cast_shadow = ds.cast_shadow;
+  ls.li = ds.li;
   const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
-  return ds.li * vis * (ph * w / ds.pdf);
+  ls.factor = ph * w / ds.pdf;
+  return true;
+}
+inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, const Medium& medium, PathCounters& c,
+                               Pcg32* rng) {
+  ++c.rays;
+  const Vec3 vis = shadow_transmittance(scene, ls.shadow, medium, ls.cast_shadow, rng);
+  if (is_black(vis)) return Vec3(0.0f);
+  return ls.li * vis * ls.factor;
+}
+Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
+                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng) {
+  MediumLightSample ls;
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls)) return Vec3(0.0f);
+  return medium_light_trace(scene, ls, medium, c, rng);
 }
 
 inline Vec3 beer(Vec3 sigma, float t) {
@@ -593,6 +614,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         const float seg = found ? hit.t * len : kInf;
         bool scatter = false;
         float nee_weight = 1.0f;  // the distance sample's share of the direct light (equiangular MIS)
+        // The equiangular light sample waiting for its shadow ray (IntegratorSettings::
+        // volume_shared_shadow): eq_w times what the ray finds, eq_value unshadowed.
+        MediumLightSample eq_ls;
+        Vec3 eq_w(0.0f), eq_value(0.0f);
+        bool eq_pending = false;
         float t = 0.0f;
         Phase phase = m->phase;
         bool direct_done = false;  // the segment's light sample already taken (heterogeneous)
@@ -672,7 +698,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               const float uc = vrng.next_float();
               const Vec2 uc2{vrng.next_float(), vrng.next_float()};
               Vec3 cref;
-              if (scene.light_reference_point(ray.org, uc, uc2, cref)) eq = equiangular_segment(ray.org, d, seg, cref);
+              float t0 = 0.0f, t1 = seg;  // where the light can reach along the segment
+              if (scene.light_reference_point(ray.org, d, uc, uc2, cref, t0, t1)) {
+                if (!s.volume_light_reach) t0 = 0.0f, t1 = seg;
+                eq = equiangular_segment(ray.org, d, t0, t1, cref);
+              }
               if (eq.valid) {
                 const float te = sample_equiangular(eq, vrng.next_float());
                 const float pe = equiangular_pdf(eq, te), pd = free_flight_pdf(st, te);
@@ -680,21 +710,37 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                   const Vec2 ue{vrng.next_float(), vrng.next_float()};
                   Vec3 ss = m->sigma_s;
                   const Phase pe_phase = medium.phases_differ ? medium.choose_phase(vrng.next_float(), ss) : m->phase;
-                  const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces, medium,
-                                                vrng.next_float(), ue, ray_state, ray.time, c, &vrng);
-                  L += beta * ss * medium_transmittance(st, te) * li * (pe / (pe * pe + pd * pd));
+                  const Vec3 w = beta * ss * medium_transmittance(st, te) * (pe / (pe * pe + pd * pd));
+                  if (s.volume_shared_shadow) {
+                    // Traced below: alone, or sharing one shadow ray with the distance sample's.
+                    if (medium_light_sample(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
+                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls)) {
+                      eq_w = w;
+                      eq_value = w * eq_ls.li * eq_ls.factor;
+                      eq_pending = !is_black(eq_value);
+                    }
+                  } else {
+                    const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
+                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng);
+                    L += w * li;
+                  }
                 }
               }
             }
             const Vec2 ud = sampler.get2d();
             t = sample_free_flight(st, ud.x, ud.y);
+            const float pdf_t = t < seg ? free_flight_pdf(st, t) : 0.0f;
+            if (eq_pending && !(pdf_t > 0.0f)) {  // no scattering here: the equiangular sample alone
+              L += eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng);
+              eq_pending = false;
+            }
             if (t < seg) {
               if (eq.valid) {
                 const float pd = free_flight_pdf(st, t), pe = equiangular_pdf(eq, t);
                 nee_weight = pd * pd / (pd * pd + pe * pe);
               }
               if (hits && !(nee && !prev_delta && prev_samples_only)) L += light_hits(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
-              const float pdf = free_flight_pdf(st, t);
+              const float pdf = pdf_t;
               if (!(pdf > 0.0f)) break;
               beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
               scatter = true;
@@ -720,8 +766,25 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             const Vec2 u_sel = sampler.get2d();
             u_rr = u_sel.y;
             const Vec2 u_pt = sampler.get2d();
-            L += beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time, c, &vrng) *
-                 nee_weight;
+            if (eq_pending) {
+              // Two light samples, one shadow ray: traced for one of them, picked with probability
+              // proportional to its unshadowed contribution and divided by that probability, so
+              // the sum of both is estimated without bias; where both see the light alike (fog
+              // without occluders) that costs almost no variance (docs/design/volumes.md).
+              MediumLightSample ls;
+              Vec3 value(0.0f);
+              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls))
+                value = beta * nee_weight * ls.li * ls.factor;
+              const float a_d = average(vabs(value)), a_e = average(vabs(eq_value));
+              const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
+              if (vrng.next_float() < p_d)
+                L += beta * nee_weight * medium_light_trace(scene, ls, medium, c, &vrng) * (1.0f / p_d);
+              else
+                L += eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d));
+            } else {
+              L += beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time, c,
+                                        &vrng) * nee_weight;
+            }
           }
           if (last && nee) break;
           const Vec2 u = sampler.get2d();

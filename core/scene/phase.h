@@ -243,6 +243,7 @@ inline Vec3 phase_sample(const Phase& p, Vec3 dir, float u1, float u2, float& pd
 // exp(-sigma * t) per channel; a channel with sigma 0 transmits everything, even to infinity.
 inline Vec3 medium_transmittance(Vec3 sigma, float t) {
   const auto tr = [t](float s) { return s > 0.0f ? std::exp(-s * t) : 1.0f; };
+  if (sigma.x == sigma.y && sigma.y == sigma.z) return Vec3(tr(sigma.x));  // grey: one exp, same value
   return {tr(sigma.x), tr(sigma.y), tr(sigma.z)};
 }
 
@@ -268,34 +269,40 @@ inline float free_flight_survival(Vec3 sigma_t, float t) {
 }
 
 // Equiangular distances (Kulla and Fajardo 2012), Cycles' volume sampling towards a light: on
-// the ray o + d t (d unit), t in [0, t_max] (t_max may be infinite), the density of t is
+// the ray o + d t (d unit), t in [t_min, t_max] (t_max may be infinite), the density of t is
 // proportional to 1 / |x(t) - c|^2 for a point c on a light, so scattering points crowd where
-// the light is close. EquiangularSegment::valid is false where c lies on the ray's line (no
-// finite density) or the interval is empty.
+// the light is close; 0 outside the interval. EquiangularSegment::valid is false where c lies
+// on the ray's line (no finite density) or the interval is empty.
 struct EquiangularSegment {
   float delta = 0.0f;  // t of the point on the line closest to c
   float dist = 0.0f;   // c's distance from the line
   float theta_a = 0.0f, theta_b = 0.0f;
+  float t_min = 0.0f, t_max = 0.0f;
   bool valid = false;
 };
-inline EquiangularSegment equiangular_segment(Vec3 o, Vec3 d, float t_max, Vec3 c) {
+inline EquiangularSegment equiangular_segment(Vec3 o, Vec3 d, float t_min, float t_max, Vec3 c) {
   EquiangularSegment e;
   e.delta = dot(c - o, d);
   const Vec3 off = c - (o + d * e.delta);
   e.dist = length(off);
   const float scale = std::max(std::fabs(e.delta), length(c - o));
-  if (!(e.dist > 1e-5f * scale) || !(t_max > 0.0f) || !std::isfinite(e.delta)) return e;
-  e.theta_a = std::atan2(-e.delta, e.dist);
+  if (!(e.dist > 1e-5f * scale) || !(t_max > t_min) || !(t_min >= 0.0f) || !std::isfinite(e.delta)) return e;
+  e.t_min = t_min;
+  e.t_max = t_max;
+  e.theta_a = std::atan2(t_min - e.delta, e.dist);
   e.theta_b = std::isfinite(t_max) ? std::atan2(t_max - e.delta, e.dist) : 0.5f * kPi;
   e.valid = e.theta_b > e.theta_a;
   return e;
+}
+inline EquiangularSegment equiangular_segment(Vec3 o, Vec3 d, float t_max, Vec3 c) {
+  return equiangular_segment(o, d, 0.0f, t_max, c);
 }
 inline float sample_equiangular(const EquiangularSegment& e, float u) {
   const float th = e.theta_a + u * (e.theta_b - e.theta_a);
   return e.delta + e.dist * std::tan(th);
 }
 inline float equiangular_pdf(const EquiangularSegment& e, float t) {
-  if (!e.valid) return 0.0f;
+  if (!e.valid || !(t >= e.t_min && t <= e.t_max)) return 0.0f;
   const float x = t - e.delta;
   return e.dist / ((e.theta_b - e.theta_a) * (e.dist * e.dist + x * x));
 }

@@ -658,8 +658,11 @@ class Scene {
   // A point on a light chosen as sample_direct chooses from p, without its visibility tests (a
   // spot's cone, a one-sided area light's back): equiangular sampling in media crowds distances
   // towards it. False for distant lights (sun, environment). Any point is a valid choice; this
-  // one only makes the sampling efficient.
-  bool light_reference_point(Vec3 p, float u_select, Vec2 u, Vec3& c) const;
+  // one only makes the sampling efficient. [t0, t1] (in: the segment of the ray p + t d, d unit)
+  // becomes the part of it the light can reach (a spot's cone widened by its radius, an area
+  // light's front), empty (t1 <= t0) where it reaches none. Sampling only there is unbiased as
+  // long as the other strategies' MIS weights see the density 0 elsewhere.
+  bool light_reference_point(Vec3 p, Vec3 d, float u_select, Vec2 u, Vec3& c, float& t0, float& t1) const;
   // Solid-angle pdfs with which sample_direct, called at `from`, finds the point `at` of emissive
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).

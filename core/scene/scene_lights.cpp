@@ -2,6 +2,7 @@
 // emitter groups and the environment, and direct light sampling and its pdfs.
 #include "scene/scene.h"
 
+#include <algorithm>
 #include <optional>
 
 #include "scene/scene_detail.h"
@@ -705,7 +706,59 @@ bool Scene::nearest_light_hit(Vec3 from, Vec3 n, Vec3 dir, float tmax, float& t,
   return any;
 }
 
-bool Scene::light_reference_point(Vec3 p, float u_select, Vec2 u, Vec3& c) const {
+namespace {
+// Narrows [t0, t1] to the part of the ray o + t d inside the cone of apex a, unit axis v and
+// half angle acos(cos_half) below 90 degrees (convex, so one interval, possibly unbounded):
+// the roots of (w.v)^2 = cos^2 |w|^2 cut the interval, and a point of each piece tells whether
+// it lies inside. False where nothing does.
+bool clip_to_cone(Vec3 o, Vec3 d, Vec3 a, Vec3 v, float cos_half, float& t0, float& t1) {
+  const double wx = double(o.x) - a.x, wy = double(o.y) - a.y, wz = double(o.z) - a.z;
+  const double dv = double(d.x) * v.x + double(d.y) * v.y + double(d.z) * v.z;
+  const double wv = wx * v.x + wy * v.y + wz * v.z, dw = wx * d.x + wy * d.y + wz * d.z;
+  const double ww = wx * wx + wy * wy + wz * wz, dd = double(d.x) * d.x + double(d.y) * d.y + double(d.z) * d.z;
+  const double c2 = double(cos_half) * cos_half;
+  const double A = dv * dv - c2 * dd, B = 2.0 * (wv * dv - c2 * dw), C = wv * wv - c2 * ww;
+  double br[4];
+  int n = 0;
+  br[n++] = t0;
+  const auto root = [&](double r) {
+    if (r > t0 && r < t1) br[n++] = r;
+  };
+  if (std::fabs(A) > 1e-12 * (std::fabs(B) + std::fabs(C) + 1e-30)) {
+    const double disc = B * B - 4.0 * A * C;
+    if (disc >= 0.0) {
+      const double q = -0.5 * (B + std::copysign(std::sqrt(disc), B));
+      root(q / A);
+      if (q != 0.0) root(C / q);
+    }
+  } else if (B != 0.0) {
+    root(-C / B);
+  }
+  br[n++] = t1;
+  std::sort(br, br + n);
+  const auto inside = [&](double t) {
+    const double px = wx + t * d.x, py = wy + t * d.y, pz = wz + t * d.z;
+    const double pv = px * v.x + py * v.y + pz * v.z;
+    return pv >= 0.0 && pv * pv >= c2 * (px * px + py * py + pz * pz);
+  };
+  double lo = INFINITY, hi = -INFINITY;
+  for (int i = 0; i + 1 < n; ++i) {
+    const double x0 = br[i], x1 = br[i + 1];
+    if (!(x1 > x0)) continue;
+    const double mid = std::isfinite(x1) ? 0.5 * (x0 + x1) : x0 + std::max(1.0, std::fabs(x0));
+    if (inside(mid)) {
+      lo = std::min(lo, x0);
+      hi = std::max(hi, x1);
+    }
+  }
+  if (!(hi > lo)) return false;
+  t0 = float(lo);
+  t1 = float(hi);
+  return t1 > t0;
+}
+}  // namespace
+
+bool Scene::light_reference_point(Vec3 p, Vec3 d, float u_select, Vec2 u, Vec3& c, float& t0, float& t1) const {
   size_t k;
   float pmf;
   if (light_dist_.empty() || !choose_light(p, Vec3(0.0f), u_select, k, pmf) || !(pmf > 0.0f)) return false;
@@ -713,10 +766,29 @@ bool Scene::light_reference_point(Vec3 p, float u_select, Vec2 u, Vec3& c) const
   if (k < lights_.size()) {
     const Light& l = lights_[k];
     switch (l.type) {
-      case LightType::Point:
-      case LightType::Spot: c = l.position; return true;
+      case LightType::Point: c = l.position; return true;
+      case LightType::Spot: {
+        c = l.position;
+        // The widest cone of the spot (its spread about the axis), its apex moved back so that
+        // it holds every cone from a point of the light's disk or sphere: the fog outside gets
+        // no light from it, and equiangular distances there were wasted.
+        const float cos_half = 1.0f - l.spread_one_minus_cos;
+        if (!(cos_half > 0.02f) || !(length_sq(l.spot_axis) > 0.5f)) return true;
+        const float sin_half = std::sqrt(std::max(0.0f, 1.0f - cos_half * cos_half));
+        const Vec3 apex = l.position - l.spot_axis * (l.radius * 1.001f / sin_half + 1e-6f);
+        if (is_finite(apex) && !clip_to_cone(p, d, apex, l.spot_axis, cos_half, t0, t1)) t1 = t0;
+        return true;
+      }
       case LightType::Rect:
-      case LightType::Ellipse: c = l.position + l.axis_u * (u.x - 0.5f) + l.axis_v * (u.y - 0.5f); return true;
+      case LightType::Ellipse: {
+        c = l.position + l.axis_u * (u.x - 0.5f) + l.axis_v * (u.y - 0.5f);
+        // Only its front is lit (one-sided).
+        const float h = dot(p - l.position, l.dir), dn = dot(d, l.dir);
+        if (dn > 0.0f) t0 = std::max(t0, -h / dn);
+        else if (dn < 0.0f) t1 = std::min(t1, -h / dn);
+        else if (!(h > 0.0f)) t1 = t0;
+        return true;
+      }
       case LightType::Sun: return false;
     }
     return false;
