@@ -11,6 +11,7 @@ from . import render_cache
 from .core import get_core
 from .export import ExportCancelled, ExportError, export_scene
 from .export.motion import add_motion
+from .export.world import warn_open_world_volume
 from .scene_writer import set_build_options, to_core
 
 log = logging.getLogger(__name__)
@@ -173,6 +174,7 @@ def render(engine, depsgraph):
             _empty_result(engine, scene, view_layer)
             return
         stats = core_scene.stats()
+        warn_open_world_volume(stats, scene.world, warn)
         if cache is not None:
             kept.keep(core_scene)
             if kept.reused:

@@ -93,8 +93,10 @@ def world_color(world, warn):
 
 
 def world_volume(world, warn):
-    """The world's Volume as the core's homogeneous-medium dict (sigma_a, sigma_s, g,
-    emission), or None: constant inputs, as materials' volumes (shader.ShaderCompiler)."""
+    """The world's Volume as the core's medium: a homogeneous-medium dict (sigma_a, sigma_s, g,
+    emission) where its inputs are constant, a volume program (a list of ops, as materials'
+    volumes: shader.ShaderCompiler) where they vary in space, or None. The core tracks a program
+    over the scene's bounds (docs/design/volumes.md "World volumes")."""
     if world is None or not world.use_nodes or world.node_tree is None:
         return None
     output = world.node_tree.get_output_node('CYCLES')
@@ -102,7 +104,8 @@ def world_volume(world, warn):
     if socket is None or not socket.is_linked:
         return None
     from .shader import ShaderCompiler
-    compiler = ShaderCompiler([], {})
+    images = []
+    compiler = ShaderCompiler(images, {})
     try:
         vol = compiler.volume(socket, world.name)
     except Exception as e:  # a compiler bug must not stop the render
@@ -110,15 +113,31 @@ def world_volume(world, warn):
         return None
     if compiler.problems:
         warn(f"World '{world.name}' volume: " + "; ".join(compiler.problems))
-    if isinstance(vol, list):  # a program: the world's medium has no bounds to track it in
-        warn(f"World '{world.name}': a Volume whose inputs vary in space is not supported in the "
-             "world (homogeneous only; ignored)")
+    if isinstance(vol, list) and images:
+        # (the world's program would index the materials' image table, which does not hold them)
+        warn(f"World '{world.name}': image textures in the world's Volume are not supported yet; "
+             "the Volume is ignored")
         return None
     if isinstance(vol, tuple):  # a lone Volume Absorption
         (color, density) = vol
         d = max(float(density), 0.0) if math.isfinite(density) else 0.0
         vol = {"sigma_a": tuple(max(1.0 - min(max(c, 0.0), 1.0), 0.0) * d for c in color)}
     return vol
+
+
+def warn_open_world_volume(stats, world, warn):
+    """After commit: a warning where a heterogeneous world Volume meets rays that leave the scene
+    (the core's probe rays from the camera and lights escaped). Beyond the scene's bounds the
+    core's world medium is empty, and Cycles 4.5 marches such rays in one step of about
+    FLT_MAX / Max Steps, reading the density ~1e35 units away for the whole ray: the two differ
+    there, and neither is fog."""
+    open_fraction = stats.get("world_volume_open", 0.0)
+    if open_fraction > 0.0:
+        name = world.name if world is not None else "World"
+        warn(f"World '{name}': its Volume varies in space and {100.0 * open_fraction:.0f} % of the "
+             "rays probed from the camera and lights leave the scene; the world's fog ends at the "
+             "scene's bounds (Cycles marches such rays in one huge step and differs): enclose the "
+             "scene (a room, a large box) for a defined result")
 
 
 def world_texture(world, warn):

@@ -915,6 +915,14 @@ Material make_shader(const PyScene& self, const std::string& name, const py::lis
   return mat;
 }
 
+// The committed heterogeneous medium of (instance, material), or the world's (instance -1).
+const HeteroMedium* committed_medium(const PyScene& self, int64_t instance, int64_t material) {
+  if (!self.scene->committed()) return nullptr;
+  if (instance < 0) return self.scene->world_hetero();
+  if (instance > int64_t(UINT32_MAX) || material < 0 || material > int64_t(UINT32_MAX)) return nullptr;
+  return self.scene->hetero_medium(uint32_t(instance), uint32_t(material));
+}
+
 py::dict scene_stats(const PyScene& self) {
   const SceneStats& s = self.scene->stats();
   const BvhStats& b = self.scene->bvh().stats();
@@ -926,6 +934,7 @@ py::dict scene_stats(const PyScene& self) {
   d["emissive_triangles"] = s.emissive_triangles;
   d["dropped_triangles"] = s.dropped_triangles;
   d["lights"] = s.lights;
+  if (self.scene->world_hetero()) d["world_volume_open"] = self.scene->world_volume_open();
   d["rect_emitters"] = s.rect_emitters;
   d["light_tree_nodes"] = s.light_tree_nodes;
   d["light_tree_depth"] = s.light_tree_depth;
@@ -2983,14 +2992,13 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, const py::object& volume) {
             self.check_editable();
             ShaderProgram v;
-            if (py::isinstance<py::list>(volume))
-              throw std::invalid_argument("the world's Volume is homogeneous only (a dict, not a program)");
             if (!volume.is_none()) v = make_shader(self, "world volume", py::list(), py::none(), false, volume).program;
             self.scene->set_world_volume(v);
           },
           py::arg("volume"),
-          "The world's Volume (add_shader's volume dict, or None): a homogeneous medium filling the "
-          "scene outside objects' media.")
+          "The world's Volume (add_shader's volume dict or program, or None): a medium filling the "
+          "scene outside objects' media. A program is tracked over the scene's bounds (geometry, lights, "
+          "camera) and is empty beyond them; stats()['world_volume_open'] says how open the scene is.")
       .def(
           "add_volume_grid",
           [](PyScene& self, const std::shared_ptr<VolumeGrid>& grid) {
@@ -3013,8 +3021,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           "small, where the estimators must stay unbiased).")
       .def(
           "medium_majorants",
-          [](PyScene& self, uint32_t instance, uint32_t material) {
-            const HeteroMedium* h = self.scene->committed() ? self.scene->hetero_medium(instance, material) : nullptr;
+          [](PyScene& self, int64_t instance, int64_t material) {
+            const HeteroMedium* h = committed_medium(self, instance, material);
             if (!h) throw std::invalid_argument("no heterogeneous medium of that instance and material (commit first)");
             constexpr int N = MajorantGrid::kRes;
             FloatArray g({N, N, N});
@@ -3023,12 +3031,13 @@ PYBIND11_MODULE(pathlight_core, m) {
             return py::make_tuple(g, py::make_tuple(b.lo.x, b.lo.y, b.lo.z), py::make_tuple(b.hi.x, b.hi.y, b.hi.z));
           },
           py::arg("instance"), py::arg("material"),
-          "(majorants (z, y, x) of the 16^3 grid, bounds lo, hi) of a committed heterogeneous medium.")
+          "(majorants (z, y, x) of the 16^3 grid, bounds lo, hi) of a committed heterogeneous medium "
+          "(instance -1: the world's Volume program, whatever the material).")
       .def(
           "medium_at",
-          [](PyScene& self, uint32_t instance, uint32_t material, const py::object& p, const py::object& dir,
+          [](PyScene& self, int64_t instance, int64_t material, const py::object& p, const py::object& dir,
              float time) {
-            const HeteroMedium* h = self.scene->committed() ? self.scene->hetero_medium(instance, material) : nullptr;
+            const HeteroMedium* h = committed_medium(self, instance, material);
             if (!h) throw std::invalid_argument("no heterogeneous medium of that instance and material (commit first)");
             if (!(time >= 0.0f && time <= 1.0f)) throw std::invalid_argument("time must be in [0, 1]");
             const MediumSample m = self.scene->medium_at(*h, to_point(p, "p"), normalize(to_point(dir, "dir")), time);
@@ -3045,9 +3054,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           "shutter time `time` in [0, 1] (motion blur: the instance's transform, the velocity).")
       .def(
           "medium_track",
-          [](PyScene& self, uint32_t instance, uint32_t material, const py::object& org, const py::object& dir,
+          [](PyScene& self, int64_t instance, int64_t material, const py::object& org, const py::object& dir,
              float tmax, int64_t n, const std::string& mode, uint64_t seed, const py::object& time_obj) {
-            const HeteroMedium* h = self.scene->committed() ? self.scene->hetero_medium(instance, material) : nullptr;
+            const HeteroMedium* h = committed_medium(self, instance, material);
             if (!h) throw std::invalid_argument("no heterogeneous medium of that instance and material (commit first)");
             // time: a shutter time in [0, 1], or None: each estimate draws its own (a box shutter).
             const bool fixed_time = !time_obj.is_none();

@@ -571,7 +571,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   if constexpr (kMedia)
     if (volumes) vrng.set(path_key, 0x9E3779B97F4A7C15ULL);
   if constexpr (kMedia)
-    if (volumes && scene.world_volume().has_medium()) medium.enter(kWorldMedium, scene.world_volume());
+    if (volumes && scene.world_volume().has_medium()) {
+      // A world Volume program is a heterogeneous layer over the scene's bounds (none: no bounds).
+      const HeteroMedium* wh = scene.world_hetero();
+      if (wh || !scene.world_volume().volume) medium.enter(kWorldMedium, scene.world_volume(), wh);
+    }
   ClosureList cl;
   // The camera ray and its continuations through Transparent BSDFs: what it finds is "seen
   // directly" (transparent film, Emit, Env and the data passes).

@@ -388,9 +388,15 @@ class Scene {
   void set_material(uint32_t id, Material m);
   void clear_lights() { lights_.clear(); committed_ = false; }
   void set_world_color(Vec3 c) { world_color_ = c; }
-  // The world's Volume: a homogeneous medium filling all space outside objects' media (only
-  // its medium fields are read); the camera starts in it.
-  void set_world_volume(const ShaderProgram& v) { world_volume_ = v; committed_ = false; }
+  // The world's Volume: a medium filling all space outside objects' media, the camera starts in
+  // it. Homogeneous (its medium fields), or a Volume program (ShaderProgram::volume): then a
+  // heterogeneous medium over the scene's bounds (world_hetero(); docs/design/volumes.md
+  // "World volumes").
+  void set_world_volume(const ShaderProgram& v) {
+    world_volume_ = v;
+    world_het_ = HeteroMedium{};  // (its program was the old one's; the next commit rebuilds it)
+    committed_ = false;
+  }
   const ShaderProgram& world_volume() const { return world_volume_; }
   void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
@@ -550,6 +556,13 @@ class Scene {
     return nullptr;
   }
   const std::vector<HeteroMedium>& hetero_media() const { return hetero_; }
+  // The world's heterogeneous medium (after commit; a Volume program in the world), or nullptr.
+  // Its majorants cover the scene's bounds (geometry, lights, camera): beyond them it is empty.
+  const HeteroMedium* world_hetero() const { return world_het_.program ? &world_het_ : nullptr; }
+  // Of the probe rays cast at commit from the camera and the lights, the fraction that leaves
+  // the scene (no hit): where the world's heterogeneous medium depends on what lies beyond its
+  // bounds (Cycles then takes one step of the ray's whole length; 0: a closed scene).
+  float world_volume_open() const { return world_open_; }
   // Voxel grids of volume objects (read_vdb's), shared with Python; programs read them by id
   // (OpCode::VolumeGrid). Returns the grid's id.
   uint32_t add_volume_grid(std::shared_ptr<const VolumeGrid> grid) {
@@ -854,6 +867,10 @@ class Scene {
   std::vector<uint32_t> local_index_;
   std::vector<Bvh> local_bvhs_;
   std::vector<HeteroMedium> hetero_;  // made at commit (build_media)
+  HeteroMedium world_het_;            // the world's Volume program (program null: none)
+  float world_open_ = 0.0f;
+  void build_world_medium();
+  void build_program_majorants(HeteroMedium& h, const Aabb& bounds, uint32_t instance);
   size_t velocity_media_ = 0;         // of them with velocity blur
   MediumSample medium_at_moving(const HeteroMedium& h, Vec3 p, Vec3 dir, float time) const;
   void sweep_majorants(HeteroMedium& h, const Aabb& object_box);

@@ -138,6 +138,7 @@ void Scene::detect_features() {
   f.emission = !emitters_.empty();
   f.environment = env_.valid();
   if (world_volume_.has_medium()) f.media = f.volumes = true;
+  f.heterogeneous_volumes = f.heterogeneous_volumes || world_volume_.volume != nullptr;
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
   f.light_tree = use_tree_;

@@ -229,16 +229,96 @@ void Scene::sweep_majorants(HeteroMedium& h, const Aabb& ob) {
   h.grid = std::move(g);
 }
 
-void Scene::build_media() {
-  hetero_.clear();
-  velocity_media_ = 0;
-  bool any = false;
-  for (const Material& m : materials_) any = any || m.program.volume != nullptr;
-  if (!any) return;
+void Scene::build_program_majorants(HeteroMedium& h, const Aabb& b, uint32_t instance) {
   constexpr int N = MajorantGrid::kRes;
   constexpr int kSub = 3;           // lattice points per cell and axis (shared with neighbours)
   constexpr int L = N * kSub + 1;   // lattice points per axis
   constexpr float kSafety = 1.5f;   // the sampled maximum times this
+  h.grid.bounds = b;
+  const Vec3 cell = b.extent() * (1.0f / float(N));
+  const float diag = length(cell);
+  // Inside the bounds no cell's majorant is 0: a cell whose samples all read 0 still gets a
+  // tentative collision about every other cell length, so densities between the samples
+  // are found (unbiased, with null weights of either sign).
+  const float floor_mu = 0.5f / diag, emit_mu = 2.0f / diag;
+  // Voxel grids: each cell also evaluates the program once with every grid read replaced
+  // by the grid's own majorant over the cell (exact bounds for programs that grow with the
+  // grid values: a density multiplied in, Map Range up; docs/design/volumes.md).
+  const bool grids = reads_grids(*h.program);
+  std::vector<float> lat(size_t(L) * L * L);
+  std::vector<uint8_t> emit(size_t(L) * L * L);
+  bool scatters = false;
+  const Vec3 step = b.extent() * (1.0f / float(L - 1));
+  for (int z = 0; z < L; ++z)
+    for (int y = 0; y < L; ++y)
+      for (int x = 0; x < L; ++x) {
+        const Vec3 p = b.lo + Vec3{step.x * float(x), step.y * float(y), step.z * float(z)};
+        const MediumSample ms = medium_at_frame(h, p, Vec3{0.0f, 0.0f, 1.0f});
+        const size_t k = (size_t(z) * L + y) * L + x;
+        lat[k] = max_component(ms.sigma_a + ms.sigma_s);
+        emit[k] = !is_black(ms.emission);
+        scatters = scatters || !is_black(ms.sigma_s);
+      }
+  h.grid.cells.assign(size_t(N) * N * N, 0.0f);
+  h.tight = grids;
+  for (int cz = 0; cz < N; ++cz)
+    for (int cy = 0; cy < N; ++cy)
+      for (int cx = 0; cx < N; ++cx) {
+        float mu = 0.0f;
+        bool e = false;
+        for (int z = cz * kSub; z <= (cz + 1) * kSub; ++z)
+          for (int y = cy * kSub; y <= (cy + 1) * kSub; ++y)
+            for (int x = cx * kSub; x <= (cx + 1) * kSub; ++x) {
+              const size_t k = (size_t(z) * L + y) * L + x;
+              mu = std::max(mu, lat[k]);
+              e = e || emit[k];
+            }
+        const float sampled = mu;
+        mu *= kSafety;
+        if (grids) {
+          const Vec3 box[2] = {b.lo + Vec3{cell.x * float(cx), cell.y * float(cy), cell.z * float(cz)},
+                               b.lo + Vec3{cell.x * float(cx + 1), cell.y * float(cy + 1), cell.z * float(cz + 1)}};
+          ShadingContext ctx;
+          ctx.p = (box[0] + box[1]) * 0.5f;
+          ctx.ng = ctx.ns = Vec3(0.0f);
+          ctx.wo = Vec3{0.0f, 0.0f, -1.0f};
+          ctx.object = instance < object_coords_.size() ? &object_coords_[instance] : nullptr;
+          ctx.scene = this;
+          ctx.instance = instance;
+          ctx.grid_bound = box;
+          const MediumSample ms = eval_volume(*h.program, images_, ctx);
+          const float bound = max_component(ms.sigma_a + ms.sigma_s) * 1.001f;
+          e = e || !is_black(ms.emission);
+          if (sampled <= bound && !e) {
+            // The program grows with the grid values here (no lattice point above the
+            // bound): the bound alone, without the sampled maximum's safety factor or
+            // the floor, which in sparse smoke made the majorants 12x the mean density
+            // (docs/design/volumes.md "Equal time against Cycles"). A floor 10x lower
+            // still finds what a program adds between the lattice points.
+            h.grid.cells[size_t((cz * N + cy) * N + cx)] =
+                std::isfinite(bound) ? std::max(bound, 0.1f * floor_mu) * majorant_scale_ : 0.0f;
+            continue;
+          }
+          mu = std::max(mu, bound);
+        }
+        h.tight = false;
+        mu = std::max(mu, e ? emit_mu : floor_mu) * majorant_scale_;
+        h.grid.cells[size_t((cz * N + cy) * N + cx)] = std::isfinite(mu) ? mu : 0.0f;
+      }
+  // Without scattering, delta tracking is ratio tracking (every collision null): its
+  // majorants as loose as ratio tracking's (medium_grid.h kRatioTrackingScale), or the
+  // transmittance through a tight bound is nearly a coin flip.
+  if (!scatters)
+    for (float& c : h.grid.cells) c *= kRatioTrackingScale;
+}
+
+void Scene::build_media() {
+  hetero_.clear();
+  velocity_media_ = 0;
+  build_world_medium();
+  bool any = false;
+  for (const Material& m : materials_) any = any || m.program.volume != nullptr;
+  if (!any) return;
   for (uint32_t i = 0; i < instances_.size(); ++i) {
     const Instance& inst = instances_[i];
     const MeshData& mesh = meshes_[inst.mesh];
@@ -254,18 +334,11 @@ void Scene::build_media() {
     const Vec3 pad = b.extent() * 1e-3f + Vec3(1e-5f);
     b.lo = b.lo - pad;
     b.hi = b.hi + pad;
-    const Vec3 cell = b.extent() * (1.0f / float(N));
-    const float diag = length(cell);
-    // Inside the bounds no cell's majorant is 0: a cell whose samples all read 0 still gets a
-    // tentative collision about every other cell length, so densities between the samples
-    // are found (unbiased, with null weights of either sign).
-    const float floor_mu = 0.5f / diag, emit_mu = 2.0f / diag;
     for (const uint32_t id : mats) {
       HeteroMedium h;
       h.program = materials_[id].program.volume.get();
       h.material = id;
       h.instance = i;
-      h.grid.bounds = b;
       h.moving = i < inst_.size() && inst_[i].motion != nullptr;
       const bool xyz = mesh.velocity_yz[0] >= 0;
       if (mesh.velocity_grid >= 0 && volume_grid(mesh.velocity_grid) &&
@@ -277,75 +350,7 @@ void Scene::build_media() {
         h.velocity_offset = mesh.velocity_offset;
         h.velocity_sampling = mesh.velocity_sampling;
       }
-      // Voxel grids: each cell also evaluates the program once with every grid read replaced
-      // by the grid's own majorant over the cell (exact bounds for programs that grow with the
-      // grid values: a density multiplied in, Map Range up; docs/design/volumes.md).
-      const bool grids = reads_grids(*h.program);
-      std::vector<float> lat(size_t(L) * L * L);
-      std::vector<uint8_t> emit(size_t(L) * L * L);
-      bool scatters = false;
-      const Vec3 step = b.extent() * (1.0f / float(L - 1));
-      for (int z = 0; z < L; ++z)
-        for (int y = 0; y < L; ++y)
-          for (int x = 0; x < L; ++x) {
-            const Vec3 p = b.lo + Vec3{step.x * float(x), step.y * float(y), step.z * float(z)};
-            const MediumSample ms = medium_at_frame(h, p, Vec3{0.0f, 0.0f, 1.0f});
-            const size_t k = (size_t(z) * L + y) * L + x;
-            lat[k] = max_component(ms.sigma_a + ms.sigma_s);
-            emit[k] = !is_black(ms.emission);
-            scatters = scatters || !is_black(ms.sigma_s);
-          }
-      h.grid.cells.assign(size_t(N) * N * N, 0.0f);
-      h.tight = grids;
-      for (int cz = 0; cz < N; ++cz)
-        for (int cy = 0; cy < N; ++cy)
-          for (int cx = 0; cx < N; ++cx) {
-            float mu = 0.0f;
-            bool e = false;
-            for (int z = cz * kSub; z <= (cz + 1) * kSub; ++z)
-              for (int y = cy * kSub; y <= (cy + 1) * kSub; ++y)
-                for (int x = cx * kSub; x <= (cx + 1) * kSub; ++x) {
-                  const size_t k = (size_t(z) * L + y) * L + x;
-                  mu = std::max(mu, lat[k]);
-                  e = e || emit[k];
-                }
-            const float sampled = mu;
-            mu *= kSafety;
-            if (grids) {
-              const Vec3 box[2] = {b.lo + Vec3{cell.x * float(cx), cell.y * float(cy), cell.z * float(cz)},
-                                   b.lo + Vec3{cell.x * float(cx + 1), cell.y * float(cy + 1), cell.z * float(cz + 1)}};
-              ShadingContext ctx;
-              ctx.p = (box[0] + box[1]) * 0.5f;
-              ctx.ng = ctx.ns = Vec3(0.0f);
-              ctx.wo = Vec3{0.0f, 0.0f, -1.0f};
-              ctx.object = i < object_coords_.size() ? &object_coords_[i] : nullptr;
-              ctx.scene = this;
-              ctx.instance = i;
-              ctx.grid_bound = box;
-              const MediumSample ms = eval_volume(*h.program, images_, ctx);
-              const float bound = max_component(ms.sigma_a + ms.sigma_s) * 1.001f;
-              e = e || !is_black(ms.emission);
-              if (sampled <= bound && !e) {
-                // The program grows with the grid values here (no lattice point above the
-                // bound): the bound alone, without the sampled maximum's safety factor or
-                // the floor, which in sparse smoke made the majorants 12x the mean density
-                // (docs/design/volumes.md "Equal time against Cycles"). A floor 10x lower
-                // still finds what a program adds between the lattice points.
-                h.grid.cells[size_t((cz * N + cy) * N + cx)] =
-                    std::isfinite(bound) ? std::max(bound, 0.1f * floor_mu) * majorant_scale_ : 0.0f;
-                continue;
-              }
-              mu = std::max(mu, bound);
-            }
-            h.tight = false;
-            mu = std::max(mu, e ? emit_mu : floor_mu) * majorant_scale_;
-            h.grid.cells[size_t((cz * N + cy) * N + cx)] = std::isfinite(mu) ? mu : 0.0f;
-          }
-      // Without scattering, delta tracking is ratio tracking (every collision null): its
-      // majorants as loose as ratio tracking's (medium_grid.h kRatioTrackingScale), or the
-      // transmittance through a tight bound is nearly a coin flip.
-      if (!scatters)
-        for (float& c : h.grid.cells) c *= kRatioTrackingScale;
+      build_program_majorants(h, b, i);
       if (h.moving || h.velocity_grid >= 0) {
         h.tight = false;  // swept over the shutter: no longer the grid bound
         Aabb ob;
@@ -356,6 +361,58 @@ void Scene::build_media() {
       hetero_.push_back(std::move(h));
     }
   }
+}
+
+// The world's Volume program (docs/design/volumes.md "World volumes"): a medium with no bounded
+// domain, tracked through majorants over the scene's bounds (geometry, lights, the camera),
+// padded; beyond them it is empty. In a closed scene no ray gets there. Cycles 4.5 marches a
+// ray that leaves the scene (tmax FLT_MAX) in steps of FLT_MAX / volume_max_steps, reading the
+// density about 1e35 units away for the whole ray; nothing sensible matches that, so the
+// fraction of probe rays that escape is reported (world_volume_open) for the add-on to warn.
+void Scene::build_world_medium() {
+  world_het_ = HeteroMedium{};
+  world_open_ = 0.0f;
+  if (!world_volume_.volume) return;
+  Aabb b = world_bounds_;
+  std::vector<Vec3> probes;
+  if (has_camera_) probes.push_back(camera_.matrix_world.point(Vec3(0.0f)));
+  for (const Light& l : lights_) {
+    if (l.type == LightType::Sun) continue;
+    probes.push_back(l.position);
+    if (l.type == LightType::Rect || l.type == LightType::Ellipse) {
+      for (int c = 0; c < 4; ++c)
+        b.grow(l.position + l.axis_u * ((c & 1) ? 0.5f : -0.5f) + l.axis_v * ((c & 2) ? 0.5f : -0.5f));
+    }
+    b.grow(l.position - Vec3(l.radius));
+    b.grow(l.position + Vec3(l.radius));
+  }
+  for (const Vec3& p : probes) b.grow(p);
+  if (b.empty() || !is_finite(b.lo) || !is_finite(b.hi)) return;  // nothing to bound it: no medium
+  const Vec3 pad = b.extent() * 0.01f + Vec3(1e-3f);
+  b.lo = b.lo - pad;
+  b.hi = b.hi + pad;
+  world_het_.program = world_volume_.volume.get();
+  world_het_.material = 0xFFFFFFFFu;  // (no material: trace_path's kWorldMedium)
+  world_het_.instance = 0xFFFFFFFFu;  // no object: Object coordinates are world positions
+  build_program_majorants(world_het_, b, world_het_.instance);
+  // Probe rays (a Fibonacci sphere from each probe point): how open the scene is.
+  constexpr int kDirs = 128;
+  int escaped = 0, cast = 0;
+  for (const Vec3& o : probes) {
+    for (int k = 0; k < kDirs; ++k) {
+      const float z = 1.0f - (2.0f * float(k) + 1.0f) / float(kDirs);
+      const float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
+      const float phi = 2.39996323f * float(k);
+      Ray ray;
+      ray.org = o;
+      ray.dir = Vec3{r * std::cos(phi), r * std::sin(phi), z};
+      ray.tmax = kInf;
+      Hit h;
+      ++cast;
+      escaped += !intersect(ray, h);
+    }
+  }
+  world_open_ = cast ? float(escaped) / float(cast) : 1.0f;
 }
 
 }  // namespace pl
