@@ -66,7 +66,26 @@ GuidePhotonSources guide_photon_sources(const Scene& scene) {
   double total = 0.0;
   for (float x : w) total += std::isfinite(x) && x > 0.0f ? double(x) : 0.0;
   src.power = float(total);
+  const size_t cells = size_t(GuidePhotonSources::kGrid) * size_t(GuidePhotonSources::kGrid);
+  src.disk.resize(src.items.size());
+  src.hits = std::make_unique<std::atomic<uint64_t>[]>(src.items.size() * cells);
+  for (size_t i = 0; i < src.items.size() * cells; ++i) src.hits[i].store(0);
   return src;
+}
+
+void GuidePhotonSources::end_iteration() {
+  const size_t cells = size_t(kGrid) * size_t(kGrid);
+  for (size_t i = 0; i < items.size(); ++i) {
+    double all = 0.0;
+    for (size_t c = 0; c < cells; ++c) all += double(hits[i * cells + c].load());
+    if (all > 0.0) {
+      std::vector<float> w(cells);
+      for (size_t c = 0; c < cells; ++c)
+        w[c] = float((1.0 - kUniform) * double(hits[i * cells + c].load()) / all + kUniform / double(cells));
+      disk[i] = Distribution1D(w);
+    }  // (no records: the disk keeps what it had)
+    for (size_t c = 0; c < cells; ++c) hits[i * cells + c].store(0);
+  }
 }
 
 namespace {
@@ -79,9 +98,11 @@ Vec3 sample_uniform_sphere(Vec2 u) {
 }
 
 // An emitted photon: where it starts, where it goes, and its flux over the sources' power.
-bool emit_photon(const Scene& scene, const GuidePhotonSources& src, Pcg32& rng, Ray& ray, Vec3& flux) {
+bool emit_photon(const Scene& scene, const GuidePhotonSources& src, Pcg32& rng, Ray& ray, Vec3& flux, size_t& i,
+                 int& cell) {
+  cell = -1;
   const float u0 = rng.next_float();
-  const size_t i = src.choice.sample(u0);
+  i = src.choice.sample(u0);
   const float pmf = src.choice.pmf(i);
   if (!(pmf > 0.0f)) return false;
   const Vec2 ua{rng.next_float(), rng.next_float()}, ub{rng.next_float(), rng.next_float()};
@@ -90,10 +111,19 @@ bool emit_photon(const Scene& scene, const GuidePhotonSources& src, Pcg32& rng, 
   const auto distant = [&](Vec3 towards, Vec3 power) {
     Vec3 t, b;
     make_basis(towards, t, b);
-    const Vec2 d = sample_disk_concentric(ub);
+    constexpr int g = GuidePhotonSources::kGrid;
+    float density = 1.0f;  // over the uniform one
+    Vec2 sq = ub;
+    if (!src.disk[i].empty()) {
+      const size_t c = src.disk[i].sample(rng.next_float());
+      density = src.disk[i].pmf(c) * float(g * g);
+      sq = {std::min((float(c % g) + ub.x) / float(g), 0x1.fffffep-1f), std::min((float(c / g) + ub.y) / float(g), 0x1.fffffep-1f)};
+    }
+    cell = std::min(int(sq.x * g), g - 1) + g * std::min(int(sq.y * g), g - 1);
+    const Vec2 d = sample_disk_concentric(sq);
     ray.org = src.center + (towards + t * d.x + b * d.y) * (src.radius * 1.001f);
     ray.dir = -towards;
-    flux = power * (kPi * src.radius * src.radius * norm);
+    flux = power * (kPi * src.radius * src.radius * norm / density);
   };
   const uint32_t item = src.items[i];
   if (item == GuidePhotonSources::kWorld) {
@@ -155,7 +185,7 @@ bool emit_photon(const Scene& scene, const GuidePhotonSources& src, Pcg32& rng, 
 
 }  // namespace
 
-uint64_t trace_guide_photons(const Scene& scene, const GuidePhotonSources& src, GuidingField& guide, uint64_t seed,
+uint64_t trace_guide_photons(const Scene& scene, GuidePhotonSources& src, GuidingField& guide, uint64_t seed,
                              uint64_t first, uint64_t last, int max_bounces) {
   if (src.empty()) return 0;
   uint64_t rays = 0;
@@ -166,8 +196,11 @@ uint64_t trace_guide_photons(const Scene& scene, const GuidePhotonSources& src, 
     Pcg32 rng(mix64(seed), p);
     Ray ray;
     Vec3 flux;
-    if (!emit_photon(scene, src, rng, ray, flux)) continue;
+    size_t item;
+    int cell;
+    if (!emit_photon(scene, src, rng, ray, flux, item, cell)) continue;
     ray.tmax = kInf;
+    uint64_t made = 0;  // records, credited to the photon's disk cell
     for (int bounce = 0; bounce <= max_bounces; ++bounce) {
       Hit hit;
       ++rays;
@@ -181,7 +214,10 @@ uint64_t trace_guide_photons(const Scene& scene, const GuidePhotonSources& src, 
       const bool front = dot(sp.ng, wo) > 0.0f;
       const Vec3 ng_out = front ? sp.ng : -sp.ng;
       // After a bounce: light that the vertex's own light samples do not find.
-      if (bounce > 0 && guidable(cl)) guide.record_photon(guide.cell_of(sp.p, ng_out), wo, average(flux));
+      if (bounce > 0 && guidable(cl)) {
+        guide.record_photon(guide.cell_of(sp.p, ng_out), wo, average(flux));
+        ++made;
+      }
       if (bounce == max_bounces) break;
       // On, as the BSDF samples it: one closure by its pick, its sample's weight.
       float uc = rng.next_float(), acc = cl.c[0].pick;
@@ -208,6 +244,9 @@ uint64_t trace_guide_photons(const Scene& scene, const GuidePhotonSources& src, 
       ray.dir = wi;
       ray.tmax = kInf;
     }
+    if (cell >= 0 && made > 0)
+      src.hits[item * size_t(GuidePhotonSources::kGrid * GuidePhotonSources::kGrid) + size_t(cell)].fetch_add(
+          made, std::memory_order_relaxed);
   }
   return rays;
 }

@@ -370,6 +370,7 @@ void Session::end_guiding_iteration() {
       rays_.fetch_add(trace_guide_photons(*scene_, *photon_sources_, *guide_, seed, first, last, settings_.max_bounces),
                       std::memory_order_relaxed);
     });
+    photon_sources_->end_iteration();
   }
   guide_->end_iteration(guide_size_);
   guide_iterations_.store(guide_->iterations());
