@@ -2517,7 +2517,9 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("guiding_photons", &RenderSettings::guiding_photons,
                      "Photon training of the guide: light paths per pixel and training sample (0: none).")
       .def_readwrite("guiding_photon_share", &RenderSettings::guiding_photon_share,
-                     "The photons' share of a guide cell's distribution where it has camera records too.");
+                     "The photons' share of a guide cell's distribution where it has camera records too.")
+      .def_readwrite("guiding_photon_split", &RenderSettings::guiding_photon_split,
+                     "What a photon record counts for towards splitting a guide cell (a camera record: 1).");
 
   m.def(
       "render_passes",

@@ -308,7 +308,8 @@ void GuidingField::end_iteration(int samples) {
     if (nodes_[i].child != 0) continue;
     double count = 0.0;  // the records of all its orientations, camera and photon alike
     for (uint32_t k = 0; k < kNormalClasses; ++k)
-      count += double(cells_[nodes_[i].cell + k]->records.load() + cells_[nodes_[i].cell + k]->photon_records.load());
+      count += double(cells_[nodes_[i].cell + k]->records.load()) +
+               double(photon_split_weight_) * double(cells_[nodes_[i].cell + k]->photon_records.load());
     std::vector<uint32_t> leaves{uint32_t(i)};
     while (count > threshold && nodes_[leaves[0]].depth < kMaxSpatialDepth &&
            cells_.size() + leaves.size() * kNormalClasses <= kMaxCells * kNormalClasses) {

@@ -69,6 +69,8 @@ class GuidingField {
   // the photons' (where a cell has both), so their scales never meet.
   void record_photon(uint32_t cell, Vec3 w, float value);
   void set_photon_share(float share) { photon_share_ = share; }
+  // What a photon record counts for towards a cell's split, against a camera record's 1.
+  void set_photon_split_weight(float w) { photon_split_weight_ = w; }
   float photon_share() const { return photon_share_; }
   uint64_t photon_records() const { return photon_records_; }  // all iterations so far
 
@@ -90,6 +92,7 @@ class GuidingField {
   float split_threshold_ = 0.0f;
   double scale_ = 65536.0;  // fixed-point units per unit of recorded value
   float photon_share_ = 0.5f;
+  float photon_split_weight_ = 1.0f;
   uint64_t photon_records_ = 0;
   int iterations_ = 0;
   std::vector<SpatialNode> nodes_;

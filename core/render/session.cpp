@@ -149,6 +149,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
         photons_per_sample_ = double(std::min(photons, 4096.0f)) * double(film_.width()) * double(film_.height());
         const float share = settings_.guiding_photon_share;
         guide_->set_photon_share(std::isfinite(share) ? std::clamp(share, 0.0f, 1.0f) : 0.5f);
+        const float split = settings_.guiding_photon_split;
+        guide_->set_photon_split_weight(std::isfinite(split) ? std::clamp(split, 0.0f, 1e4f) : 1.0f);
       }
     }
     integrator_.differentials = scene_->features().footprints;

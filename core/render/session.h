@@ -61,6 +61,7 @@ struct RenderSettings {
   // share of the guide's distributions they make where a cell has camera records too.
   float guiding_photons = 0.0f;
   float guiding_photon_share = 0.5f;
+  float guiding_photon_split = 1.0f;  // a photon record's weight in a cell's split count
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs.

@@ -5,8 +5,8 @@ the equal-time ratio (error x time). Not named bench_*: build.py runs those.
     .venv/bin/python tests/bench/guiding_photons_window.py [--seeds N] [--spp S] [--ref PATH]
 
 The reference (plain renders, --ref-renders x --ref-spp, seeds 1000...) is rendered once and
-cached at --ref. Variants: name=photons:share (photons per pixel and training sample, their
-share of a cell's distribution). Relative MSE as the bench's (equal_time.rel_mse); beside the
+cached at --ref. Variants: name=photons:share[:split] (photons per pixel and training sample,
+their share of a cell's distribution, a photon record's weight in the split count). Relative MSE as the bench's (equal_time.rel_mse); beside the
 mean, the pixels' median and the image without its worst 1 %."""
 import argparse
 import sys
@@ -21,11 +21,11 @@ from blender_util import load_addon, render_to_array  # noqa: E402
 import realistic_scenes as rs  # noqa: E402
 
 MAX_BOUNCES = 12
-PHOTONS = {"photons": 0.0, "share": 0.5}
+PHOTONS = {"photons": 0.0, "share": 0.5, "split": 1.0}
 
 
-def render(guiding, spp, seed, photons=0.0, share=0.5):
-    PHOTONS.update(photons=photons, share=share)
+def render(guiding, spp, seed, photons=0.0, share=0.5, split=1.0):
+    PHOTONS.update(photons=photons, share=share, split=split)
     scene = rs.window_room()
     t = time.perf_counter()
     img = render_to_array(scene, "PATHLIGHT", max_bounces=MAX_BOUNCES, samples=spp, seed=seed, use_guiding=guiding)
@@ -55,6 +55,7 @@ def main():
         st = inner(pc, scene, warn)
         st.guiding_photons = PHOTONS["photons"]
         st.guiding_photon_share = PHOTONS["share"]
+        st.guiding_photon_split = PHOTONS["split"]
         return st
     addon.session.render_settings = patched
 
@@ -67,8 +68,7 @@ def main():
     variants = [("plain", None)]
     for v in args.variants:
         name, spec = v.split("=")
-        p, s = spec.split(":")
-        variants.append((name, (float(p), float(s))))
+        variants.append((name, tuple(float(x) for x in spec.split(":"))))
     res = {name: [] for name, _ in variants}
     for k in range(args.seeds):  # interleaved, so that the machine's load falls on all alike
         for name, spec in variants:
