@@ -250,3 +250,15 @@ def test_photon_trained_guided_render_agrees_with_the_unguided_one():
     assert abs(guided[..., :3].mean() / plain[..., :3].mean() - 1.0) < 0.01
     a, b = region_means(guided, 4), region_means(plain, 4)
     assert np.all(np.abs(a - b) <= 0.04 * np.maximum(b, 0.05)), np.abs(a - b) / np.maximum(b, 0.05)
+
+
+def test_bad_photon_settings_fall_back():
+    # Non-finite or negative photon settings: no photons (or the defaults), never a crash.
+    plain, _ = render(pc, lamp_box(pc), 16, 16, samples=8, seed=3, guiding=True)
+    for photons, share, split in ((float("nan"), 0.5, 1.0), (-3.0, 0.5, 1.0)):
+        img, stats = render(pc, lamp_box(pc), 16, 16, samples=8, seed=3, guiding=True, guiding_photons=photons,
+                            guiding_photon_share=share, guiding_photon_split=split)
+        assert np.array_equal(img, plain)
+    img, stats = render(pc, lamp_box(pc), 16, 16, samples=8, seed=3, guiding=True, guiding_photons=1.0,
+                        guiding_photon_share=float("nan"), guiding_photon_split=float("inf"))
+    assert np.all(np.isfinite(img)) and stats["nonfinite_samples"] == 0
