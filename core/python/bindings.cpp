@@ -2428,6 +2428,15 @@ PYBIND11_MODULE(pathlight_core, m) {
             g.record(to_point(p, "p"), to_point(n, "n"), to_point(w, "w"), value);
           },
           py::arg("p"), py::arg("w"), py::arg("value"), py::arg("n") = py::make_tuple(0.0f, 0.0f, 1.0f))
+      .def(
+          "record_photon",
+          [](GuidingField& g, const py::handle& p, const py::handle& w, float value, const py::handle& n) {
+            const Vec3 pp = to_point(p, "p");
+            if (is_finite(pp)) g.record_photon(g.cell_of(pp, to_point(n, "n")), to_point(w, "w"), value);
+          },
+          py::arg("p"), py::arg("w"), py::arg("value"), py::arg("n") = py::make_tuple(0.0f, 0.0f, 1.0f))
+      .def_property("photon_share", &GuidingField::photon_share, &GuidingField::set_photon_share)
+      .def_property_readonly("photon_records", &GuidingField::photon_records)
       .def("end_iteration", &GuidingField::end_iteration, py::arg("samples"))
       .def(
           "sample",
@@ -2509,7 +2518,13 @@ PYBIND11_MODULE(pathlight_core, m) {
                      "Run the general integrator kernel, not the scene-specialised one (same image).")
       .def_readwrite("guiding", &RenderSettings::guiding,
                      "Path guiding: learn the incident light during the first samples and sample it.")
-      .def_readwrite("guiding_probability", &RenderSettings::guiding_probability);
+      .def_readwrite("guiding_probability", &RenderSettings::guiding_probability)
+      .def_readwrite("guiding_photons", &RenderSettings::guiding_photons,
+                     "Photon training of the guide: light paths per pixel and training sample (0: none).")
+      .def_readwrite("guiding_photon_share", &RenderSettings::guiding_photon_share,
+                     "The photons' share of a guide cell's distribution where it has camera records too.")
+      .def_readwrite("guiding_photon_split", &RenderSettings::guiding_photon_split,
+                     "What a photon record counts for towards splitting a guide cell (a camera record: 1).");
 
   m.def(
       "render_passes",

@@ -61,14 +61,22 @@ struct GuidingField::Cell {
   std::vector<SampleNode> sampling;  // the same, for sampling (empty: uniform)
   std::vector<QuadNode> building;  // the topology this iteration records into
   std::unique_ptr<std::atomic<uint64_t>[]> sums;  // 4 per building node, fixed point
-  std::atomic<uint64_t> records{0};
+  std::unique_ptr<std::atomic<uint64_t>[]> photon_sums;  // the same for photon records
+  std::atomic<uint64_t> records{0}, photon_records{0};
 
   void allocate_sums() {
     if (building.empty()) building.emplace_back();
     sums = std::make_unique<std::atomic<uint64_t>[]>(building.size() * 4);
-    for (size_t i = 0; i < building.size() * 4; ++i) sums[i].store(0, std::memory_order_relaxed);
+    photon_sums = std::make_unique<std::atomic<uint64_t>[]>(building.size() * 4);
+    for (size_t i = 0; i < building.size() * 4; ++i) {
+      sums[i].store(0, std::memory_order_relaxed);
+      photon_sums[i].store(0, std::memory_order_relaxed);
+    }
     records.store(0, std::memory_order_relaxed);
+    photon_records.store(0, std::memory_order_relaxed);
   }
+  // Adds fixed-point value q at unit-square point s of the building tree.
+  void add(std::atomic<uint64_t>* to, Vec2 s, uint64_t q);
   std::unique_ptr<Cell> copy() const {
     auto c = std::make_unique<Cell>();
     c->learnt = learnt;
@@ -108,6 +116,7 @@ void GuidingField::reset(const Aabb& bounds, float split_threshold) {
   split_threshold_ = split_threshold;
   scale_ = 65536.0;
   iterations_ = 0;
+  photon_records_ = 0;
   nodes_.assign(1, SpatialNode{});
   cells_.clear();
   for (uint32_t k = 0; k < kNormalClasses; ++k) {
@@ -185,6 +194,19 @@ float GuidingField::pdf(uint32_t cell, Vec3 w) const {
   return square_pdf * (0.25f / kPi);
 }
 
+void GuidingField::Cell::add(std::atomic<uint64_t>* to, Vec2 s, uint64_t q) {
+  uint32_t n = 0;
+  for (;;) {
+    const int k = quadrant(s);
+    const uint32_t next = building[n].child[k];
+    if (next == 0) {
+      to[4 * size_t(n) + size_t(k)].fetch_add(q, std::memory_order_relaxed);
+      return;
+    }
+    n = next;
+  }
+}
+
 void GuidingField::record(uint32_t cell, Vec3 w, float value) {
   Cell& c = *cells_[cell];
   c.records.fetch_add(1, std::memory_order_relaxed);  // paths that found nothing count too
@@ -193,17 +215,18 @@ void GuidingField::record(uint32_t cell, Vec3 w, float value) {
   const double v = std::min(double(value) * scale_, 68719476736.0);
   const uint64_t q = uint64_t(v + 0.5);
   if (q == 0) return;
-  Vec2 s = to_square(w);
-  uint32_t n = 0;
-  for (;;) {
-    const int k = quadrant(s);
-    const uint32_t next = c.building[n].child[k];
-    if (next == 0) {
-      c.sums[4 * size_t(n) + size_t(k)].fetch_add(q, std::memory_order_relaxed);
-      return;
-    }
-    n = next;
-  }
+  c.add(c.sums.get(), to_square(w), q);
+}
+
+void GuidingField::record_photon(uint32_t cell, Vec3 w, float value) {
+  if (cell >= cells_.size() || !(value > 0.0f) || !std::isfinite(value) || !is_finite(w)) return;
+  Cell& c = *cells_[cell];
+  c.photon_records.fetch_add(1, std::memory_order_relaxed);
+  // Photons carry about 1 each (the mean emitted photon): a fixed scale of 2^20 per unit.
+  const double v = std::min(double(value) * 1048576.0, 68719476736.0);
+  const uint64_t q = uint64_t(v + 0.5);
+  if (q == 0) return;
+  c.add(c.photon_sums.get(), to_square(w), q);
 }
 
 namespace {
@@ -248,13 +271,27 @@ void GuidingField::end_iteration(int samples) {
   for (auto& cp : cells_) {
     Cell& c = *cp;
     std::vector<QuadNode> learnt = c.building;
+    // The leaves' fixed-point sums of camera and photon records, each as a share of its total.
+    double cam_total = 0.0, photon_total = 0.0;
+    for (size_t i = 0; i < learnt.size() * 4; ++i) {
+      cam_total += double(c.sums[i].load());
+      photon_total += double(c.photon_sums[i].load());
+    }
+    photon_records_ += c.photon_records.load();
+    const double wp = photon_total > 0.0 ? (cam_total > 0.0 ? double(photon_share_) : 1.0) : 0.0;
+    // (without photons: the camera sums as they were, in units of the recorded values)
+    const double cam_w = wp == 0.0 ? 1.0 / scale_ : cam_total > 0.0 ? (1.0 - wp) / cam_total : 0.0;
+    const double photon_w = photon_total > 0.0 ? wp / photon_total : 0.0;
     for (size_t i = 0; i < learnt.size(); ++i)
-      for (int q = 0; q < 4; ++q) learnt[i].sum[q] = float(double(c.sums[4 * i + size_t(q)].load()) / scale_);
+      for (int q = 0; q < 4; ++q) {
+        const size_t k = 4 * i + size_t(q);
+        learnt[i].sum[q] = float(double(c.sums[k].load()) * cam_w + double(c.photon_sums[k].load()) * photon_w);
+      }
     for (size_t i = learnt.size(); i-- > 0;)
       for (int q = 0; q < 4; ++q)
         if (learnt[i].child[q] != 0) learnt[i].sum[q] = learnt[learnt[i].child[q]].total();
     const float total = learnt[0].total();
-    all += double(total);
+    all += wp == 0.0 ? double(total) : cam_total / scale_;  // (the camera records' mean sets the fixed point)
     all_records += c.records.load();
     if (total > 0.0f && std::isfinite(total)) {
       c.learnt = std::move(learnt);
@@ -269,8 +306,10 @@ void GuidingField::end_iteration(int samples) {
   const size_t n_nodes = nodes_.size();
   for (size_t i = 0; i < n_nodes; ++i) {
     if (nodes_[i].child != 0) continue;
-    double count = 0.0;  // the records of all its orientations
-    for (uint32_t k = 0; k < kNormalClasses; ++k) count += double(cells_[nodes_[i].cell + k]->records.load());
+    double count = 0.0;  // the records of all its orientations, camera and photon alike
+    for (uint32_t k = 0; k < kNormalClasses; ++k)
+      count += double(cells_[nodes_[i].cell + k]->records.load()) +
+               double(photon_split_weight_) * double(cells_[nodes_[i].cell + k]->photon_records.load());
     std::vector<uint32_t> leaves{uint32_t(i)};
     while (count > threshold && nodes_[leaves[0]].depth < kMaxSpatialDepth &&
            cells_.size() + leaves.size() * kNormalClasses <= kMaxCells * kNormalClasses) {

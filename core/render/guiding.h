@@ -63,6 +63,17 @@ class GuidingField {
   // between passes.
   void end_iteration(int samples);
 
+  // Photon training (Jensen 1995; Vorba et al. 2014): flux that light paths bring to a cell
+  // from direction w, in units of the mean emitted photon (about 1). Summed apart from the
+  // camera records; end_iteration normalises each per cell and mixes them, `photon_share` of
+  // the photons' (where a cell has both), so their scales never meet.
+  void record_photon(uint32_t cell, Vec3 w, float value);
+  void set_photon_share(float share) { photon_share_ = share; }
+  // What a photon record counts for towards a cell's split, against a camera record's 1.
+  void set_photon_split_weight(float w) { photon_split_weight_ = w; }
+  float photon_share() const { return photon_share_; }
+  uint64_t photon_records() const { return photon_records_; }  // all iterations so far
+
   // The unit square's equal-area map of the sphere (z = cos theta, phi around z).
   static Vec2 to_square(Vec3 w);
   static Vec3 from_square(Vec2 s);
@@ -80,6 +91,9 @@ class GuidingField {
   Vec3 inv_extent_{1.0f};
   float split_threshold_ = 0.0f;
   double scale_ = 65536.0;  // fixed-point units per unit of recorded value
+  float photon_share_ = 0.5f;
+  float photon_split_weight_ = 1.0f;
+  uint64_t photon_records_ = 0;
   int iterations_ = 0;
   std::vector<SpatialNode> nodes_;
   std::vector<std::unique_ptr<Cell>> cells_;

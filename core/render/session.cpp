@@ -1,4 +1,5 @@
 #include "render/session.h"
+#include "render/guide_photons.h"
 #include "render/guiding.h"
 
 #include <algorithm>
@@ -143,6 +144,16 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
       integrator_.guide_training = true;
       integrator_.guide_probability = std::clamp(settings_.guiding_probability, 0.0f, 1.0f);
       guide_end_ = 1;
+      const float photons = settings_.guiding_photons;
+      if (std::isfinite(photons) && photons > 0.0f) {
+        photon_sources_ = std::make_unique<GuidePhotonSources>(guide_photon_sources(*scene_));
+        if (photon_sources_->empty()) photon_sources_.reset();  // (no light to start from)
+        photons_per_sample_ = double(std::min(photons, 4096.0f)) * double(film_.width()) * double(film_.height());
+        const float share = settings_.guiding_photon_share;
+        guide_->set_photon_share(std::isfinite(share) ? std::clamp(share, 0.0f, 1.0f) : 0.5f);
+        const float split = settings_.guiding_photon_split;
+        guide_->set_photon_split_weight(std::isfinite(split) ? std::clamp(split, 0.0f, 1e4f) : 1.0f);
+      }
     }
     integrator_.differentials = scene_->features().footprints;
     integrator_.path_state = scene_->features().path_state;
@@ -350,6 +361,21 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
 // Training iterations of 1, 2, 4 ... samples (Müller et al.), each learning from its own
 // samples, while the training stays within half the render's samples and at most 255.
 void Session::end_guiding_iteration() {
+  if (photon_sources_) {
+    // The iteration's photons, in chunks; photon i's stream depends on the seed, the iteration
+    // and i alone, and records add up in fixed point: the same field for any thread count.
+    const uint64_t n = uint64_t(std::llround(photons_per_sample_ * double(guide_size_)));
+    const uint64_t chunk = 4096, chunks = (n + chunk - 1) / chunk;
+    const uint64_t seed = mix64(uint64_t(uint32_t(settings_.seed)) * 0x9E3779B97F4A7C15ULL + uint64_t(guide_->iterations()) +
+                                (uint64_t(uint32_t(settings_.sample_offset)) << 32));
+    pool_->parallel_for(size_t(chunks), [&](size_t c, int) {
+      const uint64_t first = uint64_t(c) * chunk, last = std::min(n, first + chunk);
+      if (cancel_.load(std::memory_order_relaxed)) return;
+      rays_.fetch_add(trace_guide_photons(*scene_, *photon_sources_, *guide_, seed, first, last, settings_.max_bounces),
+                      std::memory_order_relaxed);
+    });
+    photon_sources_->end_iteration();
+  }
   guide_->end_iteration(guide_size_);
   guide_iterations_.store(guide_->iterations());
   guide_cells_.store(int(guide_->cells()));

@@ -58,6 +58,12 @@ struct RenderSettings {
   // ends at fixed sample counts, so a render stays deterministic for its seed.
   bool guiding = false;
   float guiding_probability = 0.5f;  // of a guided direction at a rough vertex
+  // Photon training (render/guide_photons.h): light paths traced at the end of each training
+  // iteration, this many per pixel and iteration sample (0: camera records only), and the
+  // share of the guide's distributions they make where a cell has camera records too.
+  float guiding_photons = 0.0f;
+  float guiding_photon_share = 0.5f;
+  float guiding_photon_split = 1.0f;  // a photon record's weight in a cell's split count
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs.
@@ -87,6 +93,7 @@ struct SessionStats {
 };
 
 class GuidingField;
+struct GuidePhotonSources;
 
 class Session {
  public:
@@ -132,6 +139,8 @@ class Session {
   std::unique_ptr<GuidingField> guide_;  // path guiding's learnt field (null: no guiding)
   int guide_end_ = 0, guide_size_ = 1;  // the training iteration ends at this sample; its samples
   std::atomic<int> guide_iterations_{0}, guide_cells_{0};
+  std::unique_ptr<GuidePhotonSources> photon_sources_;  // (null: no photon training)
+  double photons_per_sample_ = 0.0;  // photons per training sample of the whole film
   void end_guiding_iteration();
   uint32_t kernel_bits_ = kKernelAll;
   std::vector<std::string> features_, unused_features_;

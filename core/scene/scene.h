@@ -651,6 +651,8 @@ class Scene {
   }
   const std::vector<HitLight>& hit_suns() const { return hit_suns_; }      // suns with an angle
   const Light& light(size_t k) const { return lights_[k]; }
+  size_t light_count() const { return lights_.size(); }
+  const Environment& environment() const { return env_; }  // (invalid: none)
   // The nearest analytic light with Multiple Importance on that the ray from `from` along the
   // unit dir crosses before tmax: its distance, radiance and the MIS pdf (the light's choice at
   // `from` with normal n times sample_light's solid-angle pdf); false for none. For tests (the

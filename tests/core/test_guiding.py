@@ -186,3 +186,79 @@ def test_guiding_is_off_by_default():
     _, stats = render(pc, cornell(pc), 16, 16, samples=4)
     assert "guiding" not in stats["kernel"] and stats["guiding_iterations"] == 0
     assert "guiding" in stats["unused_features"]
+
+
+def test_photon_records_make_a_cells_distribution_by_their_share():
+    # Camera records spread evenly, photon records all from CONE: photons alone (a cell without
+    # camera records, or share 1) aim at the cone, share 0 leaves the camera's distribution, and
+    # the two scales never meet (each is normalised per cell).
+    def field(share, camera=True, photons=True):
+        g = pc.GuidingField()
+        g.reset((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1e12)
+        g.photon_share = share
+        rng = np.random.default_rng(5)
+        for _ in range(2):
+            for w in uniform_dirs(rng, 3000):
+                if camera:
+                    g.record((0.5, 0.5, 0.5), tuple(w), 1e6)  # far larger than the photons' values
+                if photons and w @ CONE > 0.9:
+                    g.record_photon((0.5, 0.5, 0.5), tuple(w), 0.5)
+            g.end_iteration(1)
+        return g
+
+    p, cone = (0.5, 0.5, 0.5), tuple(CONE)
+    uniform = 1.0 / (4.0 * math.pi)
+    assert field(0.5, camera=False).photon_records > 0
+    assert field(0.5, camera=False).pdf(p, cone) > 8.0 * uniform
+    assert field(1.0).pdf(p, cone) > 8.0 * uniform
+    assert field(0.0).pdf(p, cone) < 2.0 * uniform
+    half = field(0.5).pdf(p, cone)
+    assert 3.0 * uniform < half < field(1.0).pdf(p, cone)
+    assert field(0.5, photons=False).photon_records == 0
+
+
+def lamp_box(pc):
+    """The Cornell box lit by a small point light under its ceiling (photons start at lights)."""
+    s = cornell(pc, light_strength=0.0)
+    s.add_point_light((0.0, 0.0, 1.8), (2.0, 1.8, 1.5), radius=0.05)
+    return s
+
+
+def test_photon_trained_guiding_is_deterministic_whatever_the_threads_and_tiles():
+    kw = dict(samples=16, seed=7, guiding=True, guiding_photons=2.0)
+    a, _ = render(pc, lamp_box(pc), 40, 24, threads=1, tile_size=8, **kw)
+    b, _ = render(pc, lamp_box(pc), 40, 24, threads=2, tile_size=16, **kw)
+    c, _ = render(pc, lamp_box(pc), 40, 24, threads=2, tile_size=8, **kw)
+    assert np.array_equal(a, b) and np.array_equal(a, c)
+    camera_only, _ = render(pc, lamp_box(pc), 40, 24, samples=16, seed=7, guiding=True)
+    assert not np.array_equal(a, camera_only)  # (the photons changed the guide)
+
+
+def test_photon_trained_guided_white_furnace_keeps_its_closed_form_value():
+    img, stats = render(pc, furnace_scene(pc, 1.0, smooth=False), 48, 48, samples=64, guiding=True,
+                        guiding_photons=1.0)
+    assert abs(img[..., :3].mean() - 1.0) < 0.01
+    assert stats["nonfinite_samples"] == 0
+
+
+@pytest.mark.converged  # (slow under the sanitizer; the cheaper tests run the same code)
+def test_photon_trained_guided_render_agrees_with_the_unguided_one():
+    guided, stats = render(pc, lamp_box(pc), 48, 48, samples=256, guiding=True, guiding_photons=2.0,
+                           guiding_photon_share=1.0)
+    plain, _ = render(pc, lamp_box(pc), 48, 48, samples=256)
+    assert stats["nonfinite_samples"] == 0
+    assert abs(guided[..., :3].mean() / plain[..., :3].mean() - 1.0) < 0.01
+    a, b = region_means(guided, 4), region_means(plain, 4)
+    assert np.all(np.abs(a - b) <= 0.04 * np.maximum(b, 0.05)), np.abs(a - b) / np.maximum(b, 0.05)
+
+
+def test_bad_photon_settings_fall_back():
+    # Non-finite or negative photon settings: no photons (or the defaults), never a crash.
+    plain, _ = render(pc, lamp_box(pc), 16, 16, samples=8, seed=3, guiding=True)
+    for photons, share, split in ((float("nan"), 0.5, 1.0), (-3.0, 0.5, 1.0)):
+        img, stats = render(pc, lamp_box(pc), 16, 16, samples=8, seed=3, guiding=True, guiding_photons=photons,
+                            guiding_photon_share=share, guiding_photon_split=split)
+        assert np.array_equal(img, plain)
+    img, stats = render(pc, lamp_box(pc), 16, 16, samples=8, seed=3, guiding=True, guiding_photons=1.0,
+                        guiding_photon_share=float("nan"), guiding_photon_split=float("inf"))
+    assert np.all(np.isfinite(img)) and stats["nonfinite_samples"] == 0
