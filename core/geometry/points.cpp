@@ -173,17 +173,22 @@ Aabb sphere_box(const PointSphere& s, const std::vector<PointFrame>& frames) {
 
 }  // namespace
 
-void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames) {
+void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames, std::vector<PointSphere> steps,
+                     uint32_t n_steps) {
   *this = PointBvh();
   frames_ = std::move(frames);
   if (spheres.empty()) return;
   std::vector<BvhNode> bin;
   const size_t n = spheres.size();
+  const bool deform = n_steps >= 2 && steps.size() == size_t(n_steps) * n;
   std::vector<Aabb> boxes(n);
   std::vector<Vec3> centers(n);
   std::vector<uint32_t> refs(n);
   for (size_t i = 0; i < n; ++i) {
     boxes[i] = sphere_box(spheres[i], frames_);
+    // Centre and radius interpolate linearly: the sphere stays in the hull of its steps' boxes.
+    if (deform)
+      for (uint32_t s = 0; s < n_steps; ++s) boxes[i].grow(sphere_box(steps[size_t(s) * n + i], frames_));
     centers[i] = boxes[i].center();
     refs[i] = uint32_t(i);
   }
@@ -232,13 +237,19 @@ void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> f
   }
   spheres_.resize(n);
   for (size_t i = 0; i < n; ++i) spheres_[i] = spheres[refs[i]];
+  if (deform) {
+    n_steps_ = n_steps;
+    steps_.resize(steps.size());
+    for (uint32_t s = 0; s < n_steps; ++s)
+      for (size_t i = 0; i < n; ++i) steps_[size_t(s) * n + i] = steps[size_t(s) * n + refs[i]];
+  }
   bounds_ = Aabb{bin[0].lo, bin[0].hi};
   nodes_.reserve(bin.size() / 3 + 1);
   bvh_detail::collapse_wide4(bin, 0, nodes_);
   nodes_.shrink_to_fit();
 }
 
-template <bool AnyHit>
+template <bool AnyHit, bool Deform>
 bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
   if (nodes_.empty()) return false;
   const bvh_detail::LaneTest4 lt(ray, bvh_detail::safe_inverse(ray.dir));
@@ -257,7 +268,9 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
     if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
     if (e.count > 0) {
       for (uint32_t i = e.id; i < e.id + e.count; ++i) {
-        const PointSphere& s = spheres_[i];
+        PointSphere moved_sphere;  // (deforming clouds: the sphere at the ray's time)
+        if constexpr (Deform) moved_sphere = deformed(i, ray.time);
+        const PointSphere& s = Deform ? moved_sphere : spheres_[i];
         float t;
         Vec3 n;
         const bool h = s.frame == PointSphere::kRoundPoint
@@ -296,11 +309,12 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
   return found;
 }
 
-void PointBvh::add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps) {
+void PointBvh::add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps,
+                          std::vector<PointSphere> deform, uint32_t n_deform) {
   if (spheres.empty() || steps.size() < 2) return;
   auto bvh = std::make_unique<PointBvh>();
   const uint32_t n = uint32_t(spheres.size());
-  bvh->build(std::move(spheres));
+  bvh->build(std::move(spheres), {}, std::move(deform), n_deform);
   const Aabb box = motion_world_box(bvh->bounds(), steps.data(), uint32_t(steps.size()));
   bounds_.grow(box);
   moving_boxes_.push_back(box);
@@ -323,7 +337,8 @@ PointSphere PointBvh::world_sphere(uint32_t prim, float time, PointFrame& storag
     return s;
   }
   const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
-  PointSphere s = moving_[m]->spheres_[i - moving_first_[m]];
+  const PointBvh& cloud = *moving_[m];
+  PointSphere s = cloud.steps_.empty() ? cloud.spheres_[i - moving_first_[m]] : cloud.deformed(i - moving_first_[m], time);
   const std::vector<DecomposedTransform>& st = moving_steps_[m];
   const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), time);
   const Mat4 to_object = affine_inverse_fast(to_world);
@@ -357,7 +372,8 @@ bool PointBvh::traverse_moving(const Ray& ray, Hit& hit) const {
     ro.dir = to_object.vector(ray.dir);
     ro.tmax = tmax;
     Hit h;
-    if (!moving_[m]->traverse<AnyHit>(ro, h)) continue;
+    const PointBvh& cloud = *moving_[m];
+    if (!(cloud.steps_.empty() ? cloud.traverse<AnyHit, false>(ro, h) : cloud.traverse<AnyHit, true>(ro, h))) continue;
     if (AnyHit) return true;
     // The object-space direction from the centre, through the matrix: world P - centre's.
     const Vec3 n = to_world.vector(decode_sphere_normal(h.b1, h.b2));
@@ -373,7 +389,7 @@ bool PointBvh::traverse_moving(const Ray& ray, Hit& hit) const {
 }
 
 bool PointBvh::intersect(const Ray& ray, Hit& hit) const {
-  bool found = traverse<false>(ray, hit);
+  bool found = traverse<false, false>(ray, hit);
   if (!moving_.empty()) {
     Ray r = ray;
     if (found) r.tmax = hit.t;
@@ -384,7 +400,7 @@ bool PointBvh::intersect(const Ray& ray, Hit& hit) const {
 
 bool PointBvh::occluded(const Ray& ray) const {
   Hit h;
-  return traverse<true>(ray, h) || (!moving_.empty() && traverse_moving<true>(ray, h));
+  return traverse<true, false>(ray, h) || (!moving_.empty() && traverse_moving<true>(ray, h));
 }
 
 }  // namespace pl
