@@ -54,7 +54,8 @@ def _compare(build, what, samples=2048):
 
 
 def test_moving_strands_blur_as_cycles():
-    """Transform blur: the patch turning 60 degrees and drifting 0.5 over the shutter."""
+    """Transform blur: the patch turning 60 degrees and drifting 0.5 over the shutter (keys
+    2 frames apart, a shutter of 1 frame)."""
     def build(blur):
         scene = _dark_scene()
         obj = _patch(scene)
@@ -222,3 +223,43 @@ def test_curves_motion_export_and_bad_motion():
     assert len(warn) == 1 and "number of points" in warn[0] and data.curves[0].motion_points is None
     img = render_to_array(scene, "PATHLIGHT", samples=2)
     assert np.isfinite(img).all()
+
+
+def test_particle_hair_moves_with_its_emitter_as_cycles():
+    """Transform blur of particle hair: a hidden emitter standing upright (its hair horizontal,
+    seen from above) turning 25 degrees and drifting 0.15 over the shutter; its keys, the same
+    in the emitter's space at every step, give no deformation."""
+    from test_particle_hair import add_hair_patch
+
+    def build(blur):
+        scene = _dark_scene()
+        emitter = add_hair_patch(ms.emission("Glow", (1.0, 0.6, 0.3), 1.0), patch_size=0.8, count=60,
+                                 length=0.5, step=2, root=2.0, tip=1.0, scale=0.02)
+        emitter.show_instancer_for_render = False
+        prefs, old = _linear_keys()
+        try:
+            for frame, angle, x in ((0, -25.0, -0.15), (2, 25.0, 0.15)):
+                emitter.rotation_euler = (math.radians(90.0), 0.0, math.radians(angle))
+                emitter.location = (x, 0.3, 0.0)
+                emitter.keyframe_insert("rotation_euler", frame=frame)
+                emitter.keyframe_insert("location", frame=frame)
+        finally:
+            prefs.keyframe_new_interpolation_type = old
+        scene.frame_set(1)
+        scene.render.use_motion_blur = blur
+        return scene
+    from addon.export import export_scene
+    from addon.export.motion import add_motion
+
+    class Engine:
+        def frame_set(self, frame, subframe):
+            bpy.context.scene.frame_set(frame, subframe=subframe)
+
+    build(True)
+    warn = Warnings()
+    dg = bpy.context.evaluated_depsgraph_get()
+    data = export_scene(dg, warn)
+    add_motion(Engine(), dg, data, warn)
+    (c,) = data.curves
+    assert c.motions[0] is not None and c.motions[0].shape == (3, 4, 4) and c.motion_points is None and not warn
+    _compare(build, "moving particle hair")
