@@ -6,7 +6,8 @@
 // inside where it leaves), as Cycles' thick curves (Embree's round curves, no back-face culling
 // in Blender 4.5); a ray skips the strand it leaves (Ray::self_curve), as Cycles skips the
 // primitive it leaves. Pieces live in world space in one binary SAH BVH of
-// their own, traced after the triangles: scenes without curves never touch it.
+// their own, traced after the triangles: scenes without curves never touch it. Sets with
+// motion blur (transform, deformation) get trees of their own, traced at the ray's time.
 // Ribbons (Cycles' shape 'RIBBONS'): Catmull-Rom pieces that are flat quads facing each ray,
 // as Embree's flat Catmull-Rom curves (what CPU Cycles traces them with).
 #pragma once

@@ -1,6 +1,7 @@
 // Point clouds: spheres of a centre and a radius each, as Cycles renders Blender's POINTCLOUD
 // objects. Spheres live in world space in a 4-wide BVH of their own (as the curve pieces,
 // beside them), traced after the triangles and the curves: scenes without points never touch it.
+// Clouds with motion blur (transform, deformation) get trees of their own, traced at the ray's time.
 // Hits from inside count (the exit of a sphere the ray starts in), as Embree's sphere points
 // on Cycles' CPU. Rays spawned on a sphere do not skip it (a refracted ray meets its exit, as
 // in Cycles 4.5): offset_ray_origin and the double-precision test keep outward rays off it.
