@@ -53,11 +53,13 @@ def _compare(build, what, samples=2048):
     return ours, cycles
 
 
-def test_moving_strands_blur_as_cycles():
+@pytest.mark.parametrize("shape", ['THICK', 'RIBBONS'])
+def test_moving_strands_blur_as_cycles(shape):
     """Transform blur: the patch turning 60 degrees and drifting 0.5 over the shutter (keys
-    2 frames apart, a shutter of 1 frame)."""
+    2 frames apart, a shutter of 1 frame), as round curves and as ribbons."""
     def build(blur):
         scene = _dark_scene()
+        scene.cycles_curves.shape = shape
         obj = _patch(scene)
         prefs, old = _linear_keys()
         try:
@@ -71,7 +73,7 @@ def test_moving_strands_blur_as_cycles():
         scene.frame_set(1)
         scene.render.use_motion_blur = blur
         return scene
-    _compare(build, "moving strands")
+    _compare(build, f"moving strands ({shape.lower()})")
 
 
 def _offset_modifier(obj, name="Bend"):
