@@ -194,6 +194,7 @@ class CurveBvh {
   Aabb bounds() const { return bounds_; }
   size_t memory_bytes() const {
     size_t b = nodes_.capacity() * sizeof(Node) + (pieces_.capacity() + steps_.capacity()) * sizeof(CurvePiece);
+    for (int j = 0; j < kSlices; ++j) b += slice_nodes_[j].capacity() * sizeof(Node) + slice_refs_[j].capacity() * 4;
     for (const auto& m : moving_) b += m->memory_bytes();
     return b;
   }
@@ -207,12 +208,16 @@ class CurveBvh {
   // nearest lane first; a lane with count > 0 is a leaf of `count` pieces from `child`.
   using Node = WideBvhNode<4>;
   std::vector<Node> nodes_;
-  std::vector<CurvePiece> pieces_;  // in leaf order
+  std::vector<CurvePiece> pieces_;  // in leaf order (deforming trees: in input order)
   Aabb bounds_;
-  // Deformation (inner trees of moving sets only): the pieces at each step, step-major in leaf
-  // order.
+  // Deformation (inner trees of moving sets only): the pieces at each step, step-major, in
+  // input order (as pieces_), and a tree per slice of the shutter (build) whose leaves index
+  // them through slice_refs_.
+  static constexpr int kSlices = 8;
   std::vector<CurvePiece> steps_;
   uint32_t n_steps_ = 0;
+  std::vector<Node> slice_nodes_[kSlices];
+  std::vector<uint32_t> slice_refs_[kSlices];
   CurvePiece deformed(uint32_t i, float time) const;
   template <bool Deform>
   const CurvePiece& leaf_piece(uint32_t i, float time, CurvePiece& scratch) const {

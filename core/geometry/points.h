@@ -105,6 +105,7 @@ class PointBvh {
   size_t memory_bytes() const {
     size_t b = nodes_.capacity() * sizeof(Node) + (spheres_.capacity() + steps_.capacity()) * sizeof(PointSphere) +
                frames_.capacity() * sizeof(PointFrame);
+    for (int j = 0; j < kSlices; ++j) b += slice_nodes_[j].capacity() * sizeof(Node) + slice_refs_[j].capacity() * 4;
     for (const auto& m : moving_) b += m->memory_bytes();
     return b;
   }
@@ -116,13 +117,17 @@ class PointBvh {
  private:
   using Node = WideBvhNode<4>;
   std::vector<Node> nodes_;
-  std::vector<PointSphere> spheres_;  // in leaf order
+  std::vector<PointSphere> spheres_;  // in leaf order (deforming trees: in input order)
   std::vector<PointFrame> frames_;
   Aabb bounds_;
-  // Deformation (inner trees of moving clouds only): the spheres at each step, step-major in
-  // leaf order.
+  // Deformation (inner trees of moving clouds only): the spheres at each step, step-major, in
+  // input order (as spheres_), and a tree per slice of the shutter (build) whose leaves index
+  // them through slice_refs_.
+  static constexpr int kSlices = 8;
   std::vector<PointSphere> steps_;
   uint32_t n_steps_ = 0;
+  std::vector<Node> slice_nodes_[kSlices];
+  std::vector<uint32_t> slice_refs_[kSlices];
   PointSphere deformed(uint32_t i, float time) const {
     const size_t n = spheres_.size();
     const float f = clampf(time, 0.0f, 1.0f) * float(n_steps_ - 1);
