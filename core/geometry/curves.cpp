@@ -468,9 +468,9 @@ void CurveBvh::build(std::vector<CurvePiece> pieces, std::vector<CurvePiece> ste
   if (pieces.empty()) return;
   const size_t n = pieces.size();
   const bool deform = n_steps >= 2 && steps.size() == size_t(n_steps) * n;
-  std::vector<Aabb> boxes(n);
-  std::vector<uint32_t> refs;
   if (!deform) {
+    std::vector<Aabb> boxes(n);
+    std::vector<uint32_t> refs;
     for (size_t i = 0; i < n; ++i) boxes[i] = piece_box(pieces[i]);
     bounds_ = bvh_detail::build_wide4(boxes, nodes_, refs);
     pieces_.resize(n);

@@ -179,8 +179,8 @@ void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> f
   if (spheres.empty()) return;
   const size_t n = spheres.size();
   const bool deform = n_steps >= 2 && steps.size() == size_t(n_steps) * n;
-  std::vector<uint32_t> refs;
   if (!deform) {
+    std::vector<uint32_t> refs;
     std::vector<Aabb> boxes(n);
     for (size_t i = 0; i < n; ++i) boxes[i] = sphere_box(spheres[i], frames_);
     bounds_ = bvh_detail::build_wide4(boxes, nodes_, refs);
