@@ -113,13 +113,13 @@ def read_velocity(data, n):
     return v.reshape(-1, 3)
 
 
-def _deform_arrays(instance, entry):
+def _deform_arrays(instance, entry, render):
     """(points, radii) of a curves or point cloud entry's geometry at the current sub-frame,
-    read from its depsgraph instance, or None."""
+    read from its depsgraph instance, or None. render: a final render's depsgraph (particle
+    hair's render or viewport counts, as its export read them)."""
     obj = instance.object
     if getattr(entry, "psys_key", None) is not None:  # particle hair: its keys again (co_hair)
         from .curves import _particle_hair
-        render = True
         for key, _material, arrays, _uvs in _particle_hair(obj, render, lambda msg: None):
             if key == entry.psys_key:
                 return arrays[0], arrays[2]
@@ -211,6 +211,7 @@ def add_motion(engine, depsgraph, data, warn):
         if may_deform(obj, scene):  # (particle hair: its emitter; as Cycles' is_deform_modified)
             shaped_deform[id(entry)] = (entry, keys[0], wanted[keys[0]])
     shaped_at = {}  # (id(entry), relative time) -> (points, radii) or None
+    final = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
     positions = {}  # (key, relative time) -> (V, 3) or None
     cam_obj = scene.camera
     cam_steps = motion_step_count(cam_obj) if cam_obj is not None and uses_motion_blur(cam_obj) else 0
@@ -228,16 +229,17 @@ def add_motion(engine, depsgraph, data, warn):
             engine.frame_set(int(f), t - f)
             if cam_steps and cam_obj is not None:
                 cam_at[rel] = camera_matrix(cam_obj.evaluated_get(depsgraph))
-            deform_keys = {key: e for e, key, _n in shaped_deform.values()}
+            deform_keys = {}  # (an emitter's hair systems with several materials share its key)
+            for e, key, _n in shaped_deform.values():
+                deform_keys.setdefault(key, []).append(e)
             for instance in depsgraph.object_instances:
                 if instance.object.type not in ('MESH', 'VOLUME', 'POINTCLOUD', 'CURVES'):
                     continue
                 key = instance_key(instance)
                 if wanted.get(key):
                     matrices[(key, rel)] = np.array(instance.matrix_world, np.float32)
-                entry = deform_keys.pop(key, None)
-                if entry is not None:
-                    shaped_at[(id(entry), rel)] = _deform_arrays(instance, entry)
+                for entry in deform_keys.pop(key, ()):
+                    shaped_at[(id(entry), rel)] = _deform_arrays(instance, entry, final)
             for key, mesh in deforming.items():
                 positions[(key, rel)] = _positions(_object(scene, key[0]).evaluated_get(depsgraph))
     finally:

@@ -265,3 +265,39 @@ def test_particle_hair_moves_with_its_emitter_as_cycles():
     (c,) = data.curves
     assert c.motions[0] is not None and c.motions[0].shape == (3, 4, 4) and c.motion_points is None and not warn
     _compare(build, "moving particle hair")
+
+
+def test_hair_systems_of_one_emitter_each_get_their_motion():
+    """Two hair systems with their own materials on one moving emitter (two curve sets with
+    the emitter's key): both get its steps, and reading their keys at the steps warns of
+    nothing."""
+    from addon.export import export_scene
+    from addon.export.motion import add_motion
+    from test_particle_hair import add_hair_patch
+
+    class Engine:
+        def frame_set(self, frame, subframe):
+            bpy.context.scene.frame_set(frame, subframe=subframe)
+
+    scene = _dark_scene(16)
+    emitter = add_hair_patch(ms.emission("A", (1.0, 0.6, 0.3), 1.0), count=20)
+    emitter.data.materials.append(ms.emission("B", (0.3, 0.6, 1.0), 1.0))  # slot 3
+    mod = emitter.modifiers.new("Hair2", 'PARTICLE_SYSTEM')
+    second = mod.particle_system.settings
+    second.type, second.count, second.hair_length, second.material = 'HAIR', 20, 0.3, 3
+    prefs, old = _linear_keys()
+    try:
+        for frame, x in ((0, -0.2), (2, 0.2)):
+            emitter.location = (x, 0.0, 0.0)
+            emitter.keyframe_insert("location", frame=frame)
+    finally:
+        prefs.keyframe_new_interpolation_type = old
+    scene.frame_set(1)
+    scene.render.use_motion_blur = True
+    warn = Warnings()
+    dg = bpy.context.evaluated_depsgraph_get()
+    data = export_scene(dg, warn)
+    add_motion(Engine(), dg, data, warn)
+    assert len(data.curves) == 2 and not warn, warn
+    for c in data.curves:
+        assert c.motions[0] is not None and c.motion_points is None
