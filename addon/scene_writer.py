@@ -107,6 +107,22 @@ def put_material(scene, m, image_ids, core_id=None):
     return core_id
 
 
+def _motion_args(entry, k):
+    """add_curves / add_points keywords for motion blur of instance k of a CurvesData or
+    PointsData: its transform steps and the geometry's deformation steps (export.motion)."""
+    out = {}
+    motions = getattr(entry, "motions", None) or []
+    if k < len(motions) and motions[k] is not None:
+        out["motion"] = motions[k]
+    points = getattr(entry, "motion_points", None)
+    if points is not None:
+        out["motion_points"] = points
+        radii = getattr(entry, "motion_radii", None)
+        if radii is not None:
+            out["motion_radii"] = radii
+    return out
+
+
 def add_curves(scene, curves, material_ids, warn, random_id_of=None):
     """Adds CurvesData `curves` to a core scene; material_ids(material) -> core material id;
     random_id_of(name): the random id of a non-instanced object (Object Info's Random)."""
@@ -130,6 +146,7 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
             if getattr(c, "shape", 'thick') == 'ribbon':  # (so never for older cores)
                 extra["shape"] = 'ribbon'
                 extra["subdivisions"] = int(c.subdivisions)
+            extra.update(_motion_args(c, k))
             try:
                 if info is None:
                     scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
@@ -154,9 +171,7 @@ def add_points(scene, points, material_ids, warn, random_id_of=None):
         attributes = getattr(p, "object_attributes", None) or []
         for k, (m, info) in enumerate(zip(p.matrices, infos)):
             extra = {"point_attributes": p.attributes} if p.attributes else {}
-            motions = getattr(p, "motions", None) or []
-            if k < len(motions) and motions[k] is not None:
-                extra["motion"] = motions[k]
+            extra.update(_motion_args(p, k))
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
                 extra["attributes"] = attributes[k]
             if info is not None:

@@ -74,9 +74,6 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     curve_materials = [table.index(c.material) for c in curves]
     points = collect_points(depsgraph, warn, table.index, attributes, table.uv_names)
     point_materials = [table.index(p.material) for p in points]
-    if scene.render.use_motion_blur and any(p.has_velocity for p in points):
-        warn("Point clouds' velocity attributes are not read: their points are not motion "
-             "blurred (their objects' transforms are)")
     lights = collect_lights(depsgraph, warn, is_visible)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
     if far > FAR_FROM_ORIGIN:

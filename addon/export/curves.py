@@ -11,6 +11,7 @@ from itertools import chain
 import numpy as np
 
 from .mesh import _attribute_rgba, is_visible, object_info
+from .motion import instance_key, read_velocity
 
 # Blender's CurveType enum (the 'curve_type' attribute on the CURVE domain).
 CATMULL_ROM, POLY, BEZIER, NURBS = 0, 1, 2, 3
@@ -47,6 +48,15 @@ class CurvesData:
     # come with Embree's tessellation rate (quads per segment) in `subdivisions`.
     shape: str = 'thick'
     subdivisions: int = 0
+    # Motion blur (export.motion fills them): per instance its key across sub-frames and its
+    # matrices at the motion steps ((S, 4, 4) float32) or None, as MeshData's; deformation
+    # blur of the geometry: the points (S, N, 3) and radii (S, N) at the steps, or None.
+    motion_keys: list = field(default_factory=list)
+    motions: list = field(default_factory=list)
+    motion_points: object = None
+    motion_radii: object = None
+    velocity: object = None  # (N, 3) float32: a Curves object's 'velocity' attribute, or None
+    psys_key: object = None  # particle hair: its key in _particle_hair's output (sub-frames)
 
 
 def curve_material_indices(curves, n_slots):
@@ -167,6 +177,20 @@ def curve_attributes(curves, names):
             continue
         (point if attr.domain == 'POINT' else strand)[k] = np.ascontiguousarray(values)
     return uvs, point_uvs, strand, point, missing
+def curve_points_radii(curves):
+    """(points (N, 3), radii (N,)) float32 of an evaluated bpy.types.Curves, without checks
+    (deformation blur's sub-frames: compared with the frame's arrays by the caller)."""
+    n = len(curves.points)
+    points = np.empty(n * 3, np.float32)
+    if n:
+        curves.attributes["position"].data.foreach_get("vector", points)
+    attr = _attribute(curves, "radius", 'POINT', 'FLOAT')
+    if attr is not None:
+        radii = np.empty(n, np.float32)
+        attr.data.foreach_get("value", radii)
+    else:
+        radii = np.full(n, DEFAULT_RADIUS, np.float32)
+    return points.reshape(-1, 3), radii
 
 
 def curve_normals(curves):
@@ -252,7 +276,8 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
                     colours = {k: v for k, v in uvs.items() if v.shape[1] == 4}
                     uvs = {k: v for k, v in uvs.items() if v.shape[1] == 2}
                     entry = out[key] = CurvesData(obj.original.name, *arrays, material, uvs=uvs,
-                                                  colours=colours, shape=shape, subdivisions=quads)
+                                                  colours=colours, shape=shape, subdivisions=quads,
+                                                  psys_key=key)
                     if material_index is not None:
                         material_index(material)
                 _add_instance(entry, instance, object_attributes)
@@ -275,6 +300,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
                      "strand renders with the first material slot, as in Cycles")
             if uses_huang_hair(material):
                 entry.normals = curve_normals(obj.data)
+            entry.velocity = read_velocity(obj.data, len(entry.points))
             if material_index is not None:
                 material_index(material)
             if uv_names is not None:  # only what the material reads, as meshes
@@ -291,6 +317,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
 def _add_instance(entry, instance, object_attributes):
     entry.matrices.append(np.array(instance.matrix_world, np.float32))
     entry.infos.append(object_info(instance))
+    entry.motion_keys.append(instance_key(instance))
     if object_attributes is not None:
         entry.object_attributes.append(object_attributes.values(instance))
 

@@ -98,6 +98,45 @@ def _positions(obj_eval):
         obj_eval.to_mesh_clear()
 
 
+def read_velocity(data, n):
+    """A curves' or point cloud's 'velocity' attribute (POINT, FLOAT_VECTOR; units per second)
+    as float32 (N, 3), or None: Cycles' deformation blur from velocity (it then exports no
+    sub-frames for that geometry)."""
+    attr = data.attributes.get("velocity") if getattr(data, "attributes", None) is not None else None
+    if attr is None or attr.domain != 'POINT' or attr.data_type != 'FLOAT_VECTOR' or n == 0:
+        return None
+    v = np.empty(n * 3, np.float32)
+    try:
+        attr.data.foreach_get("vector", v)
+    except (RuntimeError, TypeError):
+        return None
+    return v.reshape(-1, 3)
+
+
+def _deform_arrays(instance, entry, render):
+    """(points, radii) of a curves or point cloud entry's geometry at the current sub-frame,
+    read from its depsgraph instance, or None. render: a final render's depsgraph (particle
+    hair's render or viewport counts, as its export read them)."""
+    obj = instance.object
+    if getattr(entry, "psys_key", None) is not None:  # particle hair: its keys again (co_hair)
+        from .curves import _particle_hair
+        for key, _material, arrays, _uvs in _particle_hair(obj, render, lambda msg: None):
+            if key == entry.psys_key:
+                return arrays[0], arrays[2]
+        return None
+    if obj.type == 'CURVES':
+        from .curves import curve_points_radii
+        return curve_points_radii(obj.data)
+    if obj.type == 'POINTCLOUD':
+        from .points import cloud_points_radii
+        return cloud_points_radii(obj.data)
+    return None
+
+
+def _kind(entry):
+    return "strands" if hasattr(entry, "offsets") else "points"
+
+
 def camera_matrix(obj):
     m = np.array(obj.matrix_world, np.float32)
     m[:3, :3] /= np.linalg.norm(m[:3, :3], axis=0)  # Blender ignores the camera's scale
@@ -126,7 +165,8 @@ def add_motion(engine, depsgraph, data, warn):
     # Per instance (a matrix of some MeshData): its step count, or 0 when it does not blur.
     wanted = {}
     counts = set()
-    movable = list(data.meshes) + list(getattr(data, "points", []))  # (point clouds: transforms only)
+    shaped = list(getattr(data, "curves", [])) + list(getattr(data, "points", []))
+    movable = list(data.meshes) + shaped
     for mesh in movable:
         for key in getattr(mesh, "motion_keys", []):
             obj = _object(scene, key[0])
@@ -143,6 +183,35 @@ def add_motion(engine, depsgraph, data, warn):
         obj = _object(scene, keys[0][0])
         if obj is not None and obj.type == 'MESH' and uses_deform_motion(obj) and may_deform(obj, scene):
             deforming[keys[0]] = mesh
+    # Deformation blur of curves and point clouds (Cycles' motion keys / points): from their
+    # 'velocity' attribute (3 steps, no sub-frames) or read at every step of objects that may
+    # deform.
+    shaped_deform = {}  # id(entry) -> (entry, key, steps)
+    hdt = shutter * 0.5 / fps if fps > 0.0 else 0.0
+    for entry in shaped:
+        keys = getattr(entry, "motion_keys", [])
+        if not keys or not wanted.get(keys[0]):
+            continue
+        obj = _object(scene, keys[0][0])
+        if obj is None or not uses_deform_motion(obj):
+            continue
+        velocity = getattr(entry, "velocity", None)
+        if velocity is not None:
+            if not np.isfinite(velocity).all():
+                warn(f"Object '{keys[0][0]}': its velocity attribute has NaN or infinite values; "
+                     "rendered without deformation blur")
+                continue
+            if not velocity.any() or hdt == 0.0:
+                continue
+            # Cycles: the frame's points -+ velocity x half the shutter in seconds, radii as they are.
+            p = entry.points.astype(np.float32)
+            entry.motion_points = np.stack([p - velocity * hdt, p, p + velocity * hdt]).astype(np.float32)
+            entry.motion_radii = None
+            continue
+        if may_deform(obj, scene):  # (particle hair: its emitter; as Cycles' is_deform_modified)
+            shaped_deform[id(entry)] = (entry, keys[0], wanted[keys[0]])
+    shaped_at = {}  # (id(entry), relative time) -> (points, radii) or None
+    final = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
     positions = {}  # (key, relative time) -> (V, 3) or None
     cam_obj = scene.camera
     cam_steps = motion_step_count(cam_obj) if cam_obj is not None and uses_motion_blur(cam_obj) else 0
@@ -160,12 +229,17 @@ def add_motion(engine, depsgraph, data, warn):
             engine.frame_set(int(f), t - f)
             if cam_steps and cam_obj is not None:
                 cam_at[rel] = camera_matrix(cam_obj.evaluated_get(depsgraph))
+            deform_keys = {}  # (an emitter's hair systems with several materials share its key)
+            for e, key, _n in shaped_deform.values():
+                deform_keys.setdefault(key, []).append(e)
             for instance in depsgraph.object_instances:
-                if instance.object.type not in ('MESH', 'VOLUME', 'POINTCLOUD'):
+                if instance.object.type not in ('MESH', 'VOLUME', 'POINTCLOUD', 'CURVES'):
                     continue
                 key = instance_key(instance)
                 if wanted.get(key):
                     matrices[(key, rel)] = np.array(instance.matrix_world, np.float32)
+                for entry in deform_keys.pop(key, ()):
+                    shaped_at[(id(entry), rel)] = _deform_arrays(instance, entry, final)
             for key, mesh in deforming.items():
                 positions[(key, rel)] = _positions(_object(scene, key[0]).evaluated_get(depsgraph))
     finally:
@@ -208,6 +282,28 @@ def add_motion(engine, depsgraph, data, warn):
         if not (steps == steps[0]).all():
             mesh.motion_positions = steps
             moving += 1
+    for entry, key, n in shaped_deform.values():
+        steps = [shaped_at.get((id(entry), rel)) for rel in relative_times(n)]
+        count = len(entry.points)
+        if any(s is None or len(s[0]) != count or len(s[1]) != count for s in steps):
+            warn(f"Object '{key[0]}': its {_kind(entry)} change their number of points over the "
+                 "shutter; rendered without deformation blur")
+            continue
+        points = np.stack([s[0] for s in steps]).astype(np.float32)
+        radii = np.stack([s[1] for s in steps]).astype(np.float32)
+        if not (np.isfinite(points).all() and np.isfinite(radii).all()):
+            warn(f"Object '{key[0]}': the deformation of its {_kind(entry)} over the shutter has NaN "
+                 "or infinite values; rendered without deformation blur")
+            continue
+        # Cycles keeps motion only where a step differs from the frame (particle hair: by more
+        # than 1e-5, its keys being carried through the emitter's matrices).
+        eps = 1e-5 if getattr(entry, "psys_key", None) is not None else 0.0
+        if np.abs(points - entry.points).max(initial=0.0) > eps or np.abs(radii - entry.radii).max(initial=0.0) > eps:
+            entry.motion_points, entry.motion_radii = points, radii
+            moving += 1
+    for entry in shaped:
+        if getattr(entry, "motion_points", None) is not None and id(entry) not in shaped_deform:
+            moving += 1  # (from velocity)
     if cam_steps:
         steps = np.stack([cam_at[rel] for rel in relative_times(cam_steps)])
         if not usable_steps(steps):

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .mesh import _attribute_rgba, is_visible, object_info
-from .motion import instance_key
+from .motion import instance_key, read_velocity
 
 DEFAULT_RADIUS = 0.01  # Cycles' radius where a point cloud has no 'radius' attribute
 
@@ -32,7 +32,10 @@ class PointsData:
     # matrices at the motion steps ((S, 4, 4) float32) or None (export.motion fills them).
     motion_keys: list = field(default_factory=list)
     motions: list = field(default_factory=list)
-    has_velocity: bool = False  # a 'velocity' attribute (Cycles' deformation blur of points)
+    velocity: object = None  # (N, 3) float32: the 'velocity' attribute (Cycles' point motion), or None
+    # Deformation blur (export.motion): centres (S, N, 3) and radii (S, N) at the motion steps.
+    motion_points: object = None
+    motion_radii: object = None
 
 
 def points_arrays(cloud, warn, name):
@@ -58,6 +61,22 @@ def points_arrays(cloud, warn, name):
         warn(f"Point cloud '{name}': {int(bad.sum())} of {n} points have a non-finite position or "
              "radius, or a radius <= 0; they are not rendered")
     return points, radii
+
+
+def cloud_points_radii(cloud):
+    """(points (N, 3), radii (N,)) float32 of an evaluated point cloud, without checks
+    (deformation blur's sub-frames)."""
+    n = len(cloud.points)
+    points = np.empty(n * 3, np.float32)
+    if n:
+        cloud.attributes["position"].data.foreach_get("vector", points)
+    attr = cloud.attributes.get("radius")
+    if attr is not None and attr.domain == 'POINT' and attr.data_type == 'FLOAT':
+        radii = np.empty(n, np.float32)
+        attr.data.foreach_get("value", radii)
+    else:
+        radii = np.full(n, DEFAULT_RADIUS, np.float32)
+    return points.reshape(-1, 3), radii
 
 
 def point_attributes(cloud, names):
@@ -108,7 +127,7 @@ def collect_points(depsgraph, warn, material_index=None, object_attributes=None,
                 out[key] = None
                 continue
             entry = out[key] = PointsData(name, *arrays, material)
-            entry.has_velocity = obj.data.attributes.get("velocity") is not None
+            entry.velocity = read_velocity(obj.data, len(entry.points))
             if material_index is not None:
                 material_index(material)
             if uv_names is not None:

@@ -11,6 +11,7 @@
 #include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
 #include "geometry/wide4.h"
+#include "util/parallel.h"
 
 namespace pl {
 namespace {
@@ -445,8 +446,6 @@ CurveCutStats cut_curves(const CurveInput& in, const Mat4& to_world, uint32_t cu
 }
 
 namespace {
-constexpr int kBins = 16;
-constexpr uint32_t kLeafSize = 4;
 
 Aabb piece_box(const CurvePiece& c) {
   Aabb b;
@@ -463,81 +462,59 @@ Aabb piece_box(const CurvePiece& c) {
 }  // namespace
 
 
-void CurveBvh::build(std::vector<CurvePiece> pieces) {
-  nodes_.clear();
-  pieces_.clear();
-  bounds_ = Aabb();
+
+void CurveBvh::build(std::vector<CurvePiece> pieces, std::vector<CurvePiece> steps, uint32_t n_steps) {
+  *this = CurveBvh();
   if (pieces.empty()) return;
-  std::vector<BvhNode> bin;
   const size_t n = pieces.size();
-  std::vector<Aabb> boxes(n);
-  std::vector<Vec3> centers(n);
-  std::vector<uint32_t> refs(n);
-  for (size_t i = 0; i < n; ++i) {
-    boxes[i] = piece_box(pieces[i]);
-    centers[i] = boxes[i].center();
-    refs[i] = uint32_t(i);
+  const bool deform = n_steps >= 2 && steps.size() == size_t(n_steps) * n;
+  if (!deform) {
+    std::vector<Aabb> boxes(n);
+    std::vector<uint32_t> refs;
+    for (size_t i = 0; i < n; ++i) boxes[i] = piece_box(pieces[i]);
+    bounds_ = bvh_detail::build_wide4(boxes, nodes_, refs);
+    pieces_.resize(n);
+    for (size_t i = 0; i < n; ++i) pieces_[i] = pieces[refs[i]];
+    return;
   }
-  struct Task {
-    uint32_t node, begin, end;
-    int depth;
-  };
-  bin.reserve(2 * n / kLeafSize + 1);
-  bin.emplace_back();
-  std::vector<Task> todo{{0, 0, uint32_t(n), 0}};
-  while (!todo.empty()) {
-    const Task tk = todo.back();
-    todo.pop_back();
-    Aabb b, cb;
-    for (uint32_t i = tk.begin; i < tk.end; ++i) {
-      b.grow(boxes[refs[i]]);
-      cb.grow(centers[refs[i]]);
-    }
-    bin[tk.node].lo = b.lo;
-    bin[tk.node].hi = b.hi;
-    const uint32_t cnt = tk.end - tk.begin;
-    uint32_t mid = tk.begin;
-    if (cnt > kLeafSize) {
-      const int axis = max_axis(cb.extent());
-      const float lo = cb.lo[axis], ext = cb.extent()[axis];
-      // Deep down, halves by count: the depth (and the traversal stack) stays below 48 + log2 n.
-      if (ext > 0.0f && tk.depth < 48) {  // binned SAH on the centroids
-        mid = binned_sah_partition<kBins>(refs, tk.begin, tk.end, boxes, centers, axis, lo, ext);
+  // Deforming: the pieces stay in input order; the shutter is cut into kSlices equal
+  // intervals, each with a tree whose boxes hold the pieces over that interval only (between
+  // steps a piece's ends and radii interpolate linearly, so it stays in the hull of its boxes
+  // at the interval's ends and at the steps inside it). A box over the whole sweep of a thin,
+  // fast piece would be many times its size.
+  pieces_ = std::move(pieces);
+  steps_ = std::move(steps);
+  n_steps_ = n_steps;
+  Aabb slice_bounds[kSlices];
+  parallel_ranges(size_t(kSlices), 0, [&](size_t begin, size_t end) {  // (independent trees)
+    std::vector<Aabb> b(n);
+    for (size_t j = begin; j < end; ++j) {
+      const float ta = float(j) / float(kSlices), tb = float(j + 1) / float(kSlices);
+      for (size_t i = 0; i < n; ++i) {
+        b[i] = piece_box(deformed(uint32_t(i), ta));
+        b[i].grow(piece_box(deformed(uint32_t(i), tb)));
+        for (uint32_t k = 1; k + 1 < n_steps; ++k) {
+          const float tk = float(k) / float(n_steps - 1);
+          if (tk > ta && tk < tb) b[i].grow(piece_box(steps_[size_t(k) * n + i]));
+        }
       }
-      if (mid == tk.begin || mid == tk.end) {
-        mid = tk.begin + cnt / 2;
-        std::nth_element(refs.begin() + tk.begin, refs.begin() + mid, refs.begin() + tk.end,
-                         [&](uint32_t a, uint32_t c) { return centers[a][axis] < centers[c][axis]; });
-      }
+      slice_bounds[j] = bvh_detail::build_wide4(b, slice_nodes_[j], slice_refs_[j]);
     }
-    if (mid == tk.begin) {
-      bin[tk.node].left_or_first = tk.begin;
-      bin[tk.node].count = cnt;
-      continue;
-    }
-    const uint32_t left = uint32_t(bin.size());
-    bin.emplace_back();
-    bin.emplace_back();
-    bin[tk.node].left_or_first = left;
-    bin[tk.node].count = 0;
-    todo.push_back({left, tk.begin, mid, tk.depth + 1});
-    todo.push_back({left + 1, mid, tk.end, tk.depth + 1});
-  }
-  pieces_.resize(n);
-  for (size_t i = 0; i < n; ++i) pieces_[i] = pieces[refs[i]];
-  bounds_ = Aabb{bin[0].lo, bin[0].hi};
-  nodes_.reserve(bin.size() / 3 + 1);
-  bvh_detail::collapse_wide4(bin, 0, nodes_);
-  nodes_.shrink_to_fit();
+  }, 1);
+  for (const Aabb& b : slice_bounds) bounds_.grow(b);
 }
 
-
-template <bool AnyHit>
+template <bool AnyHit, bool Deform>
 bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
-  if (nodes_.empty()) return false;
+  // (Deforming trees: the slice of the shutter the ray's time falls in; its leaves index pieces.)
+  const int slice = Deform ? std::min(int(clampf(ray.time, 0.0f, 1.0f) * float(kSlices)), kSlices - 1) : 0;
+  const std::vector<Node>& tree = Deform ? slice_nodes_[slice] : nodes_;
+  const uint32_t* refs = Deform ? slice_refs_[slice].data() : nullptr;
+  if (tree.empty()) return false;
   const bvh_detail::LaneTest4 lt(ray, bvh_detail::safe_inverse(ray.dir));
   float tmax = ray.tmax;
   bool found = false;
+  CurvePiece scratch;
   struct Entry {
     uint32_t id, count;  // count > 0: a leaf of `count` pieces from `id`
     float t;
@@ -551,12 +528,15 @@ bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
     const Entry e = stack[--sp];
     if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
     if (e.count > 0) {
-      for (uint32_t i = e.id; i < e.id + e.count; ++i) {
+      for (uint32_t leaf = e.id; leaf < e.id + e.count; ++leaf) {
+        const uint32_t i = Deform ? refs[leaf] : leaf;
         float t, u;
         if (pieces_[i].curve == ray.self_curve) continue;  // the strand the ray leaves
-        if (pieces_[i].ribbon) {
+        // (Deforming sets: the piece at the ray's time; a copy only there.)
+        const CurvePiece& pc = leaf_piece<Deform>(i, ray.time, scratch);
+        if (pc.ribbon) {
           float v;
-          if (intersect_ribbon(pieces_[i], ray.org, ray.dir, tmax, t, u, v)) {
+          if (intersect_ribbon(pc, ray.org, ray.dir, tmax, t, u, v)) {
             if (AnyHit) return true;
             tmax = t;
             hit.t = t;
@@ -565,7 +545,7 @@ bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
             hit.prim = i;
             found = true;
           }
-        } else if (intersect_piece(pieces_[i], ray.org, ray.dir, tmax, t, u)) {
+        } else if (intersect_piece(pc, ray.org, ray.dir, tmax, t, u)) {
           if (AnyHit) return true;
           tmax = t;
           hit.t = t;
@@ -576,7 +556,7 @@ bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
       }
       continue;
     }
-    const Node& n = nodes_[e.id];
+    const Node& n = tree[e.id];
     alignas(16) float dist[4];
     unsigned mask = lt.test(n, tmax, dist);
     Entry hits[4];
@@ -598,15 +578,171 @@ bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
   return found;
 }
 
+namespace {
+Vec3 lerp3(const Vec3& a, const Vec3& b, float w) { return a + (b - a) * w; }
+// A unit vector along v, or `fallback` where it has no length (as piece_tangent).
+Vec3 unit_or(const Vec3& v, const Vec3& fallback) {
+  const float l2 = length_sq(v);
+  return l2 > 0.0f && std::isfinite(l2) ? v / std::sqrt(l2) : fallback;
+}
+}  // namespace
+
+bool prepare_deform_steps(const std::vector<CurvePiece>& frame, std::vector<CurvePiece>& steps, uint32_t n_steps) {
+  const size_t n = frame.size();
+  if (n_steps < 2 || steps.size() != size_t(n_steps) * n) return false;
+  for (uint32_t s = 0; s < n_steps; ++s) {
+    CurvePiece* st = steps.data() + size_t(s) * n;
+    for (size_t i = 0; i < n; ++i) {
+      const CurvePiece &f = frame[i], &c = st[i];
+      const bool joins_next = length_sq(f.next) > 0.0f, joins_prev = length_sq(f.prev) > 0.0f;
+      if (c.curve != f.curve || c.root != f.root || c.ribbon != f.ribbon ||
+          (!f.ribbon && (joins_next != (length_sq(c.next) > 0.0f) || joins_prev != (length_sq(c.prev) > 0.0f))))
+        return false;
+      // Joined round pieces follow each other in cut order (cut_curves' push).
+      if (!f.ribbon && ((joins_next && i + 1 >= n) || (joins_prev && i == 0))) return false;
+    }
+    for (size_t i = 0; i < n; ++i) {  // (raw axes from the step's own neighbours)
+      CurvePiece& c = st[i];
+      if (c.ribbon) continue;
+      if (length_sq(frame[i].next) > 0.0f) c.next = st[i + 1].p1 - st[i + 1].p0;
+      if (length_sq(frame[i].prev) > 0.0f) c.prev = st[i - 1].p1 - st[i - 1].p0;
+    }
+  }
+  return true;
+}
+
+CurvePiece CurveBvh::deformed(uint32_t i, float time) const {
+  const size_t n = pieces_.size();
+  const float f = clampf(time, 0.0f, 1.0f) * float(n_steps_ - 1);
+  const uint32_t k = std::min(uint32_t(f), n_steps_ - 2);
+  const float w = f - float(k);
+  const CurvePiece &a = steps_[size_t(k) * n + i], &b = steps_[size_t(k + 1) * n + i];
+  CurvePiece c = pieces_[i];  // (strand, intercepts, normals: the frame's)
+  c.p0 = lerp3(a.p0, b.p0, w);
+  c.p1 = lerp3(a.p1, b.p1, w);
+  c.r0 = std::max(0.0f, a.r0 + (b.r0 - a.r0) * w);
+  c.r1 = std::max(0.0f, a.r1 + (b.r1 - a.r1) * w);
+  if (c.ribbon) {  // derivatives are linear in the keys
+    c.prev = lerp3(a.prev, b.prev, w);
+    c.next = lerp3(a.next, b.next, w);
+  } else {  // the interpolated neighbours' axes (prepare_deform_steps), made unit again
+    if (length_sq(c.prev) > 0.0f) c.prev = unit_or(lerp3(a.prev, b.prev, w), Vec3(0.0f, 0.0f, 1.0f));
+    if (length_sq(c.next) > 0.0f) c.next = unit_or(lerp3(a.next, b.next, w), Vec3(0.0f, 0.0f, 1.0f));
+  }
+  return c;
+}
+
+CurvePiece transform_piece(const CurvePiece& c, const Mat4& m) {
+  CurvePiece w = c;
+  w.p0 = m.point(c.p0);
+  w.p1 = m.point(c.p1);
+  const Vec3 c0{m.m[0][0], m.m[1][0], m.m[2][0]}, c1{m.m[0][1], m.m[1][1], m.m[2][1]}, c2{m.m[0][2], m.m[1][2], m.m[2][2]};
+  float s = std::cbrt(std::fabs(dot(c0, cross(c1, c2))));
+  if (!std::isfinite(s)) s = 0.0f;
+  w.r0 = c.r0 * s;
+  w.r1 = c.r1 * s;
+  if (c.ribbon) {
+    w.prev = m.vector(c.prev);
+    w.next = m.vector(c.next);
+  } else {
+    if (length_sq(c.prev) > 0.0f) w.prev = unit_or(m.vector(c.prev), Vec3(0.0f, 0.0f, 1.0f));
+    if (length_sq(c.next) > 0.0f) w.next = unit_or(m.vector(c.next), Vec3(0.0f, 0.0f, 1.0f));
+  }
+  if (c.n0 != kNoCurveNormal) w.n0 = encode_unit(m.vector(decode_unit(c.n0)));
+  if (c.n1 != kNoCurveNormal) w.n1 = encode_unit(m.vector(decode_unit(c.n1)));
+  return w;
+}
+
+void CurveBvh::add_moving(std::vector<CurvePiece> pieces, std::vector<CurvePiece> steps, uint32_t n_steps,
+                          std::vector<DecomposedTransform> xf) {
+  if (pieces.empty()) return;
+  if (xf.size() < 2) xf.clear();
+  auto bvh = std::make_unique<CurveBvh>();
+  const uint32_t n = uint32_t(pieces.size());
+  bvh->build(std::move(pieces), std::move(steps), n_steps);
+  const Aabb box = xf.empty() ? bvh->bounds() : motion_world_box(bvh->bounds(), xf.data(), uint32_t(xf.size()));
+  bounds_.grow(box);
+  moving_boxes_.push_back(box);
+  moving_first_.push_back(moving_end_);
+  moving_end_ += n;
+  moving_xf_.push_back(std::move(xf));
+  moving_.push_back(std::move(bvh));
+}
+
+Mat4 CurveBvh::moving_transform(uint32_t prim, float time) const {
+  if (!(prim & kMovingPrim)) return Mat4();
+  const std::vector<DecomposedTransform>& xf = moving_xf_[moving_of(prim & ~kMovingPrim)];
+  return xf.empty() ? Mat4() : motion_transform_at(xf.data(), uint32_t(xf.size()), time);
+}
+
+CurvePiece CurveBvh::piece_at(uint32_t prim, float time) const {
+  if (!(prim & kMovingPrim)) return pieces_[prim];
+  const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
+  const CurveBvh& b = *moving_[m];
+  const uint32_t local = i - moving_first_[m];
+  const CurvePiece c = b.steps_.empty() ? b.pieces_[local] : b.deformed(local, time);
+  const std::vector<DecomposedTransform>& xf = moving_xf_[m];
+  return xf.empty() ? c : transform_piece(c, motion_transform_at(xf.data(), uint32_t(xf.size()), time));
+}
+
+// Moving sets: the ray carried into each one's space at its time (t is the same parameter
+// there), as moving point clouds.
+template <bool AnyHit>
+bool CurveBvh::traverse_moving(const Ray& ray, Hit& hit) const {
+  bool found = false;
+  float tmax = ray.tmax;
+  const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
+  for (size_t m = 0; m < moving_.size(); ++m) {
+    const Aabb& b = moving_boxes_[m];
+    float t0 = 0.0f, t1 = tmax;
+    for (int a = 0; a < 3; ++a) {
+      const float x0 = (b.lo[a] - ray.org[a]) * inv[a], x1 = (b.hi[a] - ray.org[a]) * inv[a];
+      t0 = std::max(t0, std::min(x0, x1));
+      t1 = std::min(t1, std::max(x0, x1));
+    }
+    if (!(t0 <= t1 * bvh_detail::kBoxExitScale)) continue;
+    Ray ro = ray;
+    ro.tmax = tmax;
+    const std::vector<DecomposedTransform>& xf = moving_xf_[m];
+    if (!xf.empty()) {
+      const Mat4 to_object = affine_inverse_fast(motion_transform_at(xf.data(), uint32_t(xf.size()), ray.time));
+      ro.org = to_object.point(ray.org);
+      ro.dir = to_object.vector(ray.dir);
+    }
+    const CurveBvh& inner = *moving_[m];
+    Hit h;
+    const bool got = inner.steps_.empty() ? inner.traverse<AnyHit, false>(ro, h) : inner.traverse<AnyHit, true>(ro, h);
+    if (!got) continue;
+    if (AnyHit) return true;
+    tmax = h.t;
+    hit = h;
+    hit.prim = kMovingPrim | (moving_first_[m] + h.prim);
+    found = true;
+  }
+  return found;
+}
+
 bool CurveBvh::intersect(const Ray& ray, Hit& hit) const {
-  if (!traverse<false>(ray, hit)) return false;
-  if (pieces_[hit.prim].ribbon) return true;  // (b1, b2): u and v, the point is the ray's
-  encode_piece_hit(pieces_[hit.prim], ray.org + ray.dir * hit.t, hit.b1, hit.b1, hit.b2);
+  bool found = traverse<false, false>(ray, hit);
+  if (__builtin_expect(!moving_.empty(), 0)) {
+    Ray r = ray;
+    if (found) r.tmax = hit.t;
+    found = traverse_moving<false>(r, hit) || found;
+  }
+  if (!found) return false;
+  if (!(hit.prim & kMovingPrim)) {
+    if (pieces_[hit.prim].ribbon) return true;  // (b1, b2): u and v, the point is the ray's
+    encode_piece_hit(pieces_[hit.prim], ray.org + ray.dir * hit.t, hit.b1, hit.b1, hit.b2);
+    return true;
+  }
+  // A moving piece's hit, encoded on the piece in world space at the ray's time.
+  const CurvePiece c = piece_at(hit.prim, ray.time);
+  if (!c.ribbon) encode_piece_hit(c, ray.org + ray.dir * hit.t, hit.b1, hit.b1, hit.b2);
   return true;
 }
 bool CurveBvh::occluded(const Ray& ray) const {
   Hit h;
-  return traverse<true>(ray, h);
+  return traverse<true, false>(ray, h) || (!moving_.empty() && traverse_moving<true>(ray, h));
 }
 
 }  // namespace pl

@@ -6,15 +6,19 @@
 // inside where it leaves), as Cycles' thick curves (Embree's round curves, no back-face culling
 // in Blender 4.5); a ray skips the strand it leaves (Ray::self_curve), as Cycles skips the
 // primitive it leaves. Pieces live in world space in one binary SAH BVH of
-// their own, traced after the triangles: scenes without curves never touch it.
+// their own, traced after the triangles: scenes without curves never touch it. Sets with
+// motion blur (transform, deformation) get trees of their own, traced at the ray's time.
 // Ribbons (Cycles' shape 'RIBBONS'): Catmull-Rom pieces that are flat quads facing each ray,
 // as Embree's flat Catmull-Rom curves (what CPU Cycles traces them with).
 #pragma once
+#include <algorithm>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "geometry/aabb.h"
 #include "geometry/bvh.h"
+#include "geometry/motion.h"
 #include "geometry/ray.h"
 
 namespace pl {
@@ -147,15 +151,53 @@ void encode_piece_hit(const CurvePiece& c, Vec3 p, float u, float& b1, float& b2
 // surface for intersect_piece; u: the axial position (0 at p0, 1 at p1).
 void piece_surface(const CurvePiece& c, float b1, float b2, Vec3& n, Vec3& tangent, Vec3& p, Vec3& error, float& u);
 
+// The same pieces at deformation steps (cut from the keys at each step): the structure (how
+// many pieces, their strands and joins) must agree with the frame's pieces, else they cannot be
+// interpolated (false). On success each round piece's prev / next of every step hold its
+// neighbours' raw axes (p1 - p0, not unit), so that interpolating them gives the interpolated
+// neighbours' axes exactly.
+bool prepare_deform_steps(const std::vector<CurvePiece>& frame, std::vector<CurvePiece>& steps, uint32_t n_steps);
+
+// A piece carried to world space by an affine matrix: its points, its radii by the cube root of
+// the determinant (as cut_curves), its neighbours' axes or derivatives and its normals.
+CurvePiece transform_piece(const CurvePiece& c, const Mat4& to_world);
+
 class CurveBvh {
  public:
-  void build(std::vector<CurvePiece> pieces);
+  // Hit::prim of a piece of a moving set (add_moving): this bit and the piece's number over all
+  // moving sets.
+  static constexpr uint32_t kMovingPrim = 0x80000000u;
+  // steps (optional): the pieces at n_steps >= 2 deformation steps, step-major (prepared by
+  // prepare_deform_steps); the boxes then hold each piece over the whole shutter.
+  void build(std::vector<CurvePiece> pieces, std::vector<CurvePiece> steps = {}, uint32_t n_steps = 0);
+  // A set with motion blur (after build): its pieces (object space when `xf` has steps, else
+  // world space), optionally deformed (steps as build's), entered through its transform at the
+  // ray's time (xf: decomposed steps, or none), as moving point clouds are.
+  void add_moving(std::vector<CurvePiece> pieces, std::vector<CurvePiece> steps, uint32_t n_steps,
+                  std::vector<DecomposedTransform> xf);
+  bool has_moving() const { return !moving_.empty(); }
   void clear() { *this = CurveBvh(); }
-  bool empty() const { return pieces_.empty(); }
-  size_t size() const { return pieces_.size(); }
-  const CurvePiece& piece(uint32_t i) const { return pieces_[i]; }
+  bool empty() const { return pieces_.empty() && moving_.empty(); }
+  size_t size() const { return pieces_.size() + (moving_first_.empty() ? 0 : moving_end_); }
+  // The piece of Hit::prim as stored (a moving set's: its frame's, in its own space); what does
+  // not move with it (strand, intercepts) is read here.
+  const CurvePiece& piece(uint32_t prim) const {
+    if (!(prim & kMovingPrim)) return pieces_[prim];
+    const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
+    return moving_[m]->pieces_[i - moving_first_[m]];
+  }
+  // The piece of Hit::prim in world space at shutter time `time` (static pieces as they are).
+  CurvePiece piece_at(uint32_t prim, float time) const;
+  // A moving set's object-to-world matrix at `time` (identity for static pieces and sets that
+  // only deform).
+  Mat4 moving_transform(uint32_t prim, float time) const;
   Aabb bounds() const { return bounds_; }
-  size_t memory_bytes() const { return nodes_.capacity() * sizeof(Node) + pieces_.capacity() * sizeof(CurvePiece); }
+  size_t memory_bytes() const {
+    size_t b = nodes_.capacity() * sizeof(Node) + (pieces_.capacity() + steps_.capacity()) * sizeof(CurvePiece);
+    for (int j = 0; j < kSlices; ++j) b += slice_nodes_[j].capacity() * sizeof(Node) + slice_refs_[j].capacity() * 4;
+    for (const auto& m : moving_) b += m->memory_bytes();
+    return b;
+  }
   // Closest hit before ray.tmax, on strands other than ray.self_curve: prim the piece, (b1, b2) as
   // encode_piece_hit (ribbons: u and v as intersect_ribbon).
   bool intersect(const Ray& ray, Hit& hit) const;
@@ -166,10 +208,40 @@ class CurveBvh {
   // nearest lane first; a lane with count > 0 is a leaf of `count` pieces from `child`.
   using Node = WideBvhNode<4>;
   std::vector<Node> nodes_;
-  std::vector<CurvePiece> pieces_;  // in leaf order
+  std::vector<CurvePiece> pieces_;  // in leaf order (deforming trees: in input order)
   Aabb bounds_;
-  template <bool AnyHit>
+  // Deformation (inner trees of moving sets only): the pieces at each step, step-major, in
+  // input order (as pieces_), and a tree per slice of the shutter (build) whose leaves index
+  // them through slice_refs_.
+  static constexpr int kSlices = 8;
+  std::vector<CurvePiece> steps_;
+  uint32_t n_steps_ = 0;
+  std::vector<Node> slice_nodes_[kSlices];
+  std::vector<uint32_t> slice_refs_[kSlices];
+  CurvePiece deformed(uint32_t i, float time) const;
+  template <bool Deform>
+  const CurvePiece& leaf_piece(uint32_t i, float time, CurvePiece& scratch) const {
+    if constexpr (Deform) {
+      scratch = deformed(i, time);
+      return scratch;
+    } else {
+      return pieces_[i];
+    }
+  }
+  // Moving sets: each one's tree, decomposed steps (none: it only deforms), world box over the
+  // shutter and the number of its first piece among the moving ones.
+  std::vector<std::unique_ptr<CurveBvh>> moving_;
+  std::vector<std::vector<DecomposedTransform>> moving_xf_;
+  std::vector<Aabb> moving_boxes_;
+  std::vector<uint32_t> moving_first_;
+  uint32_t moving_end_ = 0;
+  uint32_t moving_of(uint32_t i) const {
+    return uint32_t(std::upper_bound(moving_first_.begin(), moving_first_.end(), i) - moving_first_.begin()) - 1;
+  }
+  template <bool AnyHit, bool Deform>
   bool traverse(const Ray& ray, Hit& hit) const;
+  template <bool AnyHit>
+  bool traverse_moving(const Ray& ray, Hit& hit) const;
 };
 
 }  // namespace pl

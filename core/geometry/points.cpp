@@ -9,6 +9,7 @@
 #include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
 #include "geometry/wide4.h"
+#include "util/parallel.h"
 
 namespace pl {
 
@@ -145,8 +146,6 @@ size_t transform_points(const Vec3* points, const float* radii, size_t n, const 
 }
 
 namespace {
-constexpr int kBins = 16;
-constexpr uint32_t kLeafSize = 4;
 
 Aabb sphere_box(const PointSphere& s, const std::vector<PointFrame>& frames) {
   Vec3 e(s.r);
@@ -173,74 +172,54 @@ Aabb sphere_box(const PointSphere& s, const std::vector<PointFrame>& frames) {
 
 }  // namespace
 
-void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames) {
+void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames, std::vector<PointSphere> steps,
+                     uint32_t n_steps) {
   *this = PointBvh();
   frames_ = std::move(frames);
   if (spheres.empty()) return;
-  std::vector<BvhNode> bin;
   const size_t n = spheres.size();
-  std::vector<Aabb> boxes(n);
-  std::vector<Vec3> centers(n);
-  std::vector<uint32_t> refs(n);
-  for (size_t i = 0; i < n; ++i) {
-    boxes[i] = sphere_box(spheres[i], frames_);
-    centers[i] = boxes[i].center();
-    refs[i] = uint32_t(i);
+  const bool deform = n_steps >= 2 && steps.size() == size_t(n_steps) * n;
+  if (!deform) {
+    std::vector<uint32_t> refs;
+    std::vector<Aabb> boxes(n);
+    for (size_t i = 0; i < n; ++i) boxes[i] = sphere_box(spheres[i], frames_);
+    bounds_ = bvh_detail::build_wide4(boxes, nodes_, refs);
+    spheres_.resize(n);
+    for (size_t i = 0; i < n; ++i) spheres_[i] = spheres[refs[i]];
+    return;
   }
-  struct Task {
-    uint32_t node, begin, end;
-    int depth;
-  };
-  bin.reserve(2 * n / kLeafSize + 1);
-  bin.emplace_back();
-  std::vector<Task> todo{{0, 0, uint32_t(n), 0}};
-  while (!todo.empty()) {
-    const Task tk = todo.back();
-    todo.pop_back();
-    Aabb b, cb;
-    for (uint32_t i = tk.begin; i < tk.end; ++i) {
-      b.grow(boxes[refs[i]]);
-      cb.grow(centers[refs[i]]);
-    }
-    bin[tk.node].lo = b.lo;
-    bin[tk.node].hi = b.hi;
-    const uint32_t cnt = tk.end - tk.begin;
-    uint32_t mid = tk.begin;
-    if (cnt > kLeafSize) {
-      const int axis = max_axis(cb.extent());
-      const float lo = cb.lo[axis], ext = cb.extent()[axis];
-      // Deep down, halves by count: the depth (and the traversal stack) stays below 48 + log2 n.
-      if (ext > 0.0f && tk.depth < 48) mid = binned_sah_partition<kBins>(refs, tk.begin, tk.end, boxes, centers, axis, lo, ext);
-      if (mid == tk.begin || mid == tk.end) {
-        mid = tk.begin + cnt / 2;
-        std::nth_element(refs.begin() + tk.begin, refs.begin() + mid, refs.begin() + tk.end,
-                         [&](uint32_t a, uint32_t c) { return centers[a][axis] < centers[c][axis]; });
+  // Deforming: the spheres stay in input order, and each slice of the shutter gets a tree
+  // whose boxes hold them over that slice only (centre and radius interpolate linearly: the
+  // hull of the slice's ends and the steps inside it), as deforming curves.
+  spheres_ = std::move(spheres);
+  steps_ = std::move(steps);
+  n_steps_ = n_steps;
+  Aabb slice_bounds[kSlices];
+  parallel_ranges(size_t(kSlices), 0, [&](size_t begin, size_t end) {  // (independent trees)
+    std::vector<Aabb> b(n);
+    for (size_t j = begin; j < end; ++j) {
+      const float ta = float(j) / float(kSlices), tb = float(j + 1) / float(kSlices);
+      for (size_t i = 0; i < n; ++i) {
+        b[i] = sphere_box(deformed(uint32_t(i), ta), frames_);
+        b[i].grow(sphere_box(deformed(uint32_t(i), tb), frames_));
+        for (uint32_t k = 1; k + 1 < n_steps; ++k) {
+          const float tk = float(k) / float(n_steps - 1);
+          if (tk > ta && tk < tb) b[i].grow(sphere_box(steps_[size_t(k) * n + i], frames_));
+        }
       }
+      slice_bounds[j] = bvh_detail::build_wide4(b, slice_nodes_[j], slice_refs_[j]);
     }
-    if (mid == tk.begin) {
-      bin[tk.node].left_or_first = tk.begin;
-      bin[tk.node].count = cnt;
-      continue;
-    }
-    const uint32_t left = uint32_t(bin.size());
-    bin.emplace_back();
-    bin.emplace_back();
-    bin[tk.node].left_or_first = left;
-    bin[tk.node].count = 0;
-    todo.push_back({left, tk.begin, mid, tk.depth + 1});
-    todo.push_back({left + 1, mid, tk.end, tk.depth + 1});
-  }
-  spheres_.resize(n);
-  for (size_t i = 0; i < n; ++i) spheres_[i] = spheres[refs[i]];
-  bounds_ = Aabb{bin[0].lo, bin[0].hi};
-  nodes_.reserve(bin.size() / 3 + 1);
-  bvh_detail::collapse_wide4(bin, 0, nodes_);
-  nodes_.shrink_to_fit();
+  }, 1);
+  for (const Aabb& b : slice_bounds) bounds_.grow(b);
 }
 
-template <bool AnyHit>
+template <bool AnyHit, bool Deform>
 bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
-  if (nodes_.empty()) return false;
+  // (Deforming trees: the slice of the shutter the ray's time falls in; its leaves index spheres.)
+  const int slice = Deform ? std::min(int(clampf(ray.time, 0.0f, 1.0f) * float(kSlices)), kSlices - 1) : 0;
+  const std::vector<Node>& tree = Deform ? slice_nodes_[slice] : nodes_;
+  const uint32_t* refs = Deform ? slice_refs_[slice].data() : nullptr;
+  if (tree.empty()) return false;
   const bvh_detail::LaneTest4 lt(ray, bvh_detail::safe_inverse(ray.dir));
   float tmax = ray.tmax;
   bool found = false;
@@ -256,8 +235,11 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
     const Entry e = stack[--sp];
     if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
     if (e.count > 0) {
-      for (uint32_t i = e.id; i < e.id + e.count; ++i) {
-        const PointSphere& s = spheres_[i];
+      for (uint32_t leaf = e.id; leaf < e.id + e.count; ++leaf) {
+        const uint32_t i = Deform ? refs[leaf] : leaf;
+        PointSphere moved_sphere;  // (deforming clouds: the sphere at the ray's time)
+        if constexpr (Deform) moved_sphere = deformed(i, ray.time);
+        const PointSphere& s = Deform ? moved_sphere : spheres_[i];
         if ((s.point | kSelfPointBit) == ray.self_curve) continue;  // the sphere the ray leaves
         float t;
         Vec3 n;
@@ -275,7 +257,7 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
       }
       continue;
     }
-    const Node& n = nodes_[e.id];
+    const Node& n = tree[e.id];
     alignas(16) float dist[4];
     unsigned mask = lt.test(n, tmax, dist);
     Entry hits[4];
@@ -297,11 +279,12 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
   return found;
 }
 
-void PointBvh::add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps) {
+void PointBvh::add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps,
+                          std::vector<PointSphere> deform, uint32_t n_deform) {
   if (spheres.empty() || steps.size() < 2) return;
   auto bvh = std::make_unique<PointBvh>();
   const uint32_t n = uint32_t(spheres.size());
-  bvh->build(std::move(spheres));
+  bvh->build(std::move(spheres), {}, std::move(deform), n_deform);
   const Aabb box = motion_world_box(bvh->bounds(), steps.data(), uint32_t(steps.size()));
   bounds_.grow(box);
   moving_boxes_.push_back(box);
@@ -324,7 +307,8 @@ PointSphere PointBvh::world_sphere(uint32_t prim, float time, PointFrame& storag
     return s;
   }
   const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
-  PointSphere s = moving_[m]->spheres_[i - moving_first_[m]];
+  const PointBvh& cloud = *moving_[m];
+  PointSphere s = cloud.steps_.empty() ? cloud.spheres_[i - moving_first_[m]] : cloud.deformed(i - moving_first_[m], time);
   const std::vector<DecomposedTransform>& st = moving_steps_[m];
   const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), time);
   const Mat4 to_object = affine_inverse_fast(to_world);
@@ -358,7 +342,8 @@ bool PointBvh::traverse_moving(const Ray& ray, Hit& hit) const {
     ro.dir = to_object.vector(ray.dir);
     ro.tmax = tmax;
     Hit h;
-    if (!moving_[m]->traverse<AnyHit>(ro, h)) continue;
+    const PointBvh& cloud = *moving_[m];
+    if (!(cloud.steps_.empty() ? cloud.traverse<AnyHit, false>(ro, h) : cloud.traverse<AnyHit, true>(ro, h))) continue;
     if (AnyHit) return true;
     // The object-space direction from the centre, through the matrix: world P - centre's.
     const Vec3 n = to_world.vector(decode_sphere_normal(h.b1, h.b2));
@@ -374,7 +359,7 @@ bool PointBvh::traverse_moving(const Ray& ray, Hit& hit) const {
 }
 
 bool PointBvh::intersect(const Ray& ray, Hit& hit) const {
-  bool found = traverse<false>(ray, hit);
+  bool found = traverse<false, false>(ray, hit);
   if (!moving_.empty()) {
     Ray r = ray;
     if (found) r.tmax = hit.t;
@@ -385,7 +370,7 @@ bool PointBvh::intersect(const Ray& ray, Hit& hit) const {
 
 bool PointBvh::occluded(const Ray& ray) const {
   Hit h;
-  return traverse<true>(ray, h) || (!moving_.empty() && traverse_moving<true>(ray, h));
+  return traverse<true, false>(ray, h) || (!moving_.empty() && traverse_moving<true>(ray, h));
 }
 
 }  // namespace pl

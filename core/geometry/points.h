@@ -1,6 +1,7 @@
 // Point clouds: spheres of a centre and a radius each, as Cycles renders Blender's POINTCLOUD
 // objects. Spheres live in world space in a 4-wide BVH of their own (as the curve pieces,
 // beside them), traced after the triangles and the curves: scenes without points never touch it.
+// Clouds with motion blur (transform, deformation) get trees of their own, traced at the ray's time.
 // Hits from inside count (the exit of a sphere the ray starts in), as Embree's sphere points
 // on Cycles' CPU. A ray skips the sphere it leaves (Ray::self_curve with kSelfPointBit), its
 // far side too: Cycles' Embree reports one root per sphere and rejects the primitive a ray
@@ -73,12 +74,18 @@ class PointBvh {
   // Hit::prim of a sphere of a moving cloud (add_moving): this bit and the sphere's number
   // over all moving clouds.
   static constexpr uint32_t kMovingPrim = 0x80000000u;
-  void build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames = {});
+  // steps (optional, moving clouds' trees): the spheres at n_steps >= 2 deformation steps,
+  // step-major in `spheres`' order; the boxes then hold each sphere over the whole shutter.
+  void build(std::vector<PointSphere> spheres, std::vector<PointFrame> frames = {}, std::vector<PointSphere> steps = {},
+             uint32_t n_steps = 0);
   // A cloud with transform motion blur (after build): its spheres in object space (round
   // there, r the object radius), entered through its transform at the ray's time, interpolated
   // from the decomposed steps as moving instances are (geometry/motion.h); so under uneven
   // scales they are ellipsoids, as Cycles' object-space spheres.
-  void add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps);
+  // deform (optional): the spheres (object space) at n_deform deformation steps, as build's
+  // (Cycles' motion points: centre and radius interpolated linearly between steps).
+  void add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps,
+                  std::vector<PointSphere> deform = {}, uint32_t n_deform = 0);
   bool has_moving() const { return !moving_.empty(); }
   void clear() { *this = PointBvh(); }
   bool empty() const { return spheres_.empty() && moving_.empty(); }
@@ -100,8 +107,9 @@ class PointBvh {
   Mat4 moving_transform(uint32_t prim, float time) const;
   Aabb bounds() const { return bounds_; }
   size_t memory_bytes() const {
-    size_t b = nodes_.capacity() * sizeof(Node) + spheres_.capacity() * sizeof(PointSphere) +
+    size_t b = nodes_.capacity() * sizeof(Node) + (spheres_.capacity() + steps_.capacity()) * sizeof(PointSphere) +
                frames_.capacity() * sizeof(PointFrame);
+    for (int j = 0; j < kSlices; ++j) b += slice_nodes_[j].capacity() * sizeof(Node) + slice_refs_[j].capacity() * 4;
     for (const auto& m : moving_) b += m->memory_bytes();
     return b;
   }
@@ -113,9 +121,28 @@ class PointBvh {
  private:
   using Node = WideBvhNode<4>;
   std::vector<Node> nodes_;
-  std::vector<PointSphere> spheres_;  // in leaf order
+  std::vector<PointSphere> spheres_;  // in leaf order (deforming trees: in input order)
   std::vector<PointFrame> frames_;
   Aabb bounds_;
+  // Deformation (inner trees of moving clouds only): the spheres at each step, step-major, in
+  // input order (as spheres_), and a tree per slice of the shutter (build) whose leaves index
+  // them through slice_refs_.
+  static constexpr int kSlices = 8;
+  std::vector<PointSphere> steps_;
+  uint32_t n_steps_ = 0;
+  std::vector<Node> slice_nodes_[kSlices];
+  std::vector<uint32_t> slice_refs_[kSlices];
+  PointSphere deformed(uint32_t i, float time) const {
+    const size_t n = spheres_.size();
+    const float f = clampf(time, 0.0f, 1.0f) * float(n_steps_ - 1);
+    const uint32_t k = std::min(uint32_t(f), n_steps_ - 2);
+    const float w = f - float(k);
+    const PointSphere &a = steps_[size_t(k) * n + i], &b = steps_[size_t(k + 1) * n + i];
+    PointSphere s = spheres_[i];
+    s.c = a.c + (b.c - a.c) * w;
+    s.r = std::max(0.0f, a.r + (b.r - a.r) * w);
+    return s;
+  }
   // Moving clouds: each one's object-space BVH, decomposed steps, world box over the shutter
   // and the number of its first sphere among the moving ones.
   std::vector<std::unique_ptr<PointBvh>> moving_;
@@ -126,7 +153,7 @@ class PointBvh {
   uint32_t moving_of(uint32_t i) const {
     return uint32_t(std::upper_bound(moving_first_.begin(), moving_first_.end(), i) - moving_first_.begin()) - 1;
   }
-  template <bool AnyHit>
+  template <bool AnyHit, bool Deform>
   bool traverse(const Ray& ray, Hit& hit) const;
   template <bool AnyHit>
   bool traverse_moving(const Ray& ray, Hit& hit) const;

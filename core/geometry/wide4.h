@@ -10,6 +10,7 @@
 #include <immintrin.h>
 #endif
 
+#include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
 
 namespace pl {
@@ -45,6 +46,72 @@ inline uint32_t collapse_wide4(const std::vector<BvhNode>& bin, uint32_t b, std:
     }
   }
   return w;
+}
+
+// The curves' and points' trees: a 4-wide tree over `boxes` (binned SAH, leaves of up to 4,
+// halving by count below depth 48); refs: the boxes' indices in leaf order. Returns the
+// root's bounds.
+inline Aabb build_wide4(const std::vector<Aabb>& boxes, std::vector<WideBvhNode<4>>& nodes, std::vector<uint32_t>& refs) {
+  constexpr int kBins = 16;
+  constexpr uint32_t kLeafSize = 4;
+  const size_t n = boxes.size();
+  std::vector<BvhNode> bin;
+  std::vector<Vec3> centers(n);
+  refs.resize(n);
+  for (size_t i = 0; i < n; ++i) {
+    centers[i] = boxes[i].center();
+    refs[i] = uint32_t(i);
+  }
+  struct Task {
+    uint32_t node, begin, end;
+    int depth;
+  };
+  bin.reserve(2 * n / kLeafSize + 1);
+  bin.emplace_back();
+  std::vector<Task> todo{{0, 0, uint32_t(n), 0}};
+  while (!todo.empty()) {
+    const Task tk = todo.back();
+    todo.pop_back();
+    Aabb b, cb;
+    for (uint32_t i = tk.begin; i < tk.end; ++i) {
+      b.grow(boxes[refs[i]]);
+      cb.grow(centers[refs[i]]);
+    }
+    bin[tk.node].lo = b.lo;
+    bin[tk.node].hi = b.hi;
+    const uint32_t cnt = tk.end - tk.begin;
+    uint32_t mid = tk.begin;
+    if (cnt > kLeafSize) {
+      const int axis = max_axis(cb.extent());
+      const float lo = cb.lo[axis], ext = cb.extent()[axis];
+      // Deep down, halves by count: the depth (and the traversal stack) stays below 48 + log2 n.
+      if (ext > 0.0f && tk.depth < 48) {  // binned SAH on the centroids
+        mid = binned_sah_partition<kBins>(refs, tk.begin, tk.end, boxes, centers, axis, lo, ext);
+      }
+      if (mid == tk.begin || mid == tk.end) {
+        mid = tk.begin + cnt / 2;
+        std::nth_element(refs.begin() + tk.begin, refs.begin() + mid, refs.begin() + tk.end,
+                         [&](uint32_t a, uint32_t c) { return centers[a][axis] < centers[c][axis]; });
+      }
+    }
+    if (mid == tk.begin) {
+      bin[tk.node].left_or_first = tk.begin;
+      bin[tk.node].count = cnt;
+      continue;
+    }
+    const uint32_t left = uint32_t(bin.size());
+    bin.emplace_back();
+    bin.emplace_back();
+    bin[tk.node].left_or_first = left;
+    bin[tk.node].count = 0;
+    todo.push_back({left, tk.begin, mid, tk.depth + 1});
+    todo.push_back({left + 1, mid, tk.end, tk.depth + 1});
+  }
+  nodes.clear();
+  nodes.reserve(bin.size() / 3 + 1);
+  collapse_wide4(bin, 0, nodes);
+  nodes.shrink_to_fit();
+  return Aabb{bin[0].lo, bin[0].hi};
 }
 
 // The 4 lanes' entry distances and the mask of those entered before tmax: the slab test with

@@ -165,6 +165,30 @@ std::vector<Mat4> to_motion(const py::object& o, const char* what) {
   return steps;
 }
 
+// Deformation steps of a curve or point set: None, or (S, N, 3) positions with S in 2..1025 and N
+// the set's point count, and (S, N) radii or None. Values are checked by the core at commit
+// (non-finite steps leave the set undeformed).
+void to_deform(const py::object& points, const py::object& radii, size_t n, const char* what,
+               std::vector<std::vector<Vec3>>& out_points, std::vector<std::vector<float>>& out_radii) {
+  if (points.is_none()) {
+    if (!radii.is_none()) throw std::invalid_argument(std::string(what) + " radii need motion points");
+    return;
+  }
+  const FloatArray a = points.cast<FloatArray>();
+  if (a.ndim() != 3 || a.shape(2) != 3 || size_t(a.shape(1)) != n || a.shape(0) < 2 || a.shape(0) > 1025)
+    throw std::invalid_argument(std::string(what) + " motion points must be an (S, N, 3) array with 2 to 1025 steps");
+  const size_t steps = size_t(a.shape(0));
+  out_points.assign(steps, std::vector<Vec3>(n));
+  for (size_t s = 0; s < steps; ++s)
+    std::memcpy(static_cast<void*>(out_points[s].data()), a.data() + s * n * 3, n * sizeof(Vec3));
+  if (radii.is_none()) return;
+  const FloatArray r = radii.cast<FloatArray>();
+  if (r.ndim() != 2 || size_t(r.shape(0)) != steps || size_t(r.shape(1)) != n)
+    throw std::invalid_argument(std::string(what) + " motion radii must be an (S, N) array");
+  out_radii.assign(steps, std::vector<float>(n));
+  for (size_t s = 0; s < steps; ++s) std::memcpy(out_radii[s].data(), r.data() + s * n, n * sizeof(float));
+}
+
 FloatArray from_mat4(const Mat4& m) {
   FloatArray a({4, 4});
   auto w = a.mutable_unchecked<2>();
@@ -293,7 +317,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::object& color, float pass_index, uint32_t random_id, const py::object& attributes,
                     const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes,
                     const std::string& shape, const py::object& materials_obj, const py::dict& point_attributes,
-                    const py::dict& point_uvs) {
+                    const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
+                    const py::object& motion_radii) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -351,6 +376,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   read_sets(point_attributes, n, "attribute set index must be in [0, 8)",
             "curve point attributes must have shape (N, 4)", cs.point_attrs);  // linear along a strand
   read_sets(point_uvs, n, "uv set index must be in [0, 8)", "curve point uvs must have shape (N, 2)", cs.point_uvs);
+  cs.motion = to_motion(motion, "curves motion");
+  to_deform(motion_points, motion_radii, n, "curves", cs.deform_points, cs.deform_radii);
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -360,7 +387,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
 uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& radii_obj, uint32_t material,
                     const py::object& matrix, const py::object& color, float pass_index, uint32_t random_id,
                     const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
-                    const py::object& motion) {
+                    const py::object& motion, const py::object& motion_points, const py::object& motion_radii) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const size_t n = size_t(points.shape(0));
@@ -395,6 +422,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
     ps.texspace_size = to_point(ts[1], "texspace size");
   }
   ps.motion = to_motion(motion, "points motion");
+  to_deform(motion_points, motion_radii, n, "points", ps.deform_points, ps.deform_radii);
   return self.scene->add_points(std::move(ps));
 }
 
@@ -1275,7 +1303,7 @@ py::tuple light_choices(const PyScene& self, const FloatArray& points, const Flo
 // point, geometric normal, tangent (curves; else 0) and the spawn origins a path would use on
 // the normal's side and on the other side (offset_ray_origin).
 py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const FloatArray& dirs, float tmax,
-                      const py::object& self_obj) {
+                      const py::object& self_obj, float time) {
   check_rays(self, origins, dirs);
   const py::ssize_t n = origins.shape(0);
   // Per ray, the strand it leaves (Ray::self_curve; < 0: none), as hit_surfaces' "strand".
@@ -1305,10 +1333,10 @@ py::dict hit_surfaces(const PyScene& self, const FloatArray& origins, const Floa
     for (py::ssize_t i = 0; i < n; ++i) {
       Hit h;
       SurfacePoint sp;
-      Ray ray{o[i], d[i], tmax};
+      Ray ray{o[i], d[i], tmax, time};
       if (ps && ps[i] >= 0 && ps[i] < int64_t(UINT32_MAX)) ray.self_curve = uint32_t(ps[i]);
       const bool ok = self.scene->intersect(ray, h);
-      if (ok) self.scene->surface_point(h, sp, 0.5f, &ray);
+      if (ok) self.scene->surface_point(h, sp, time, &ray);
       pst[i] = ok && (sp.curve() || sp.point()) ? int64_t(self.scene->self_curve(sp)) : -1;
       ptt[i] = ok ? h.t : kInf;
       pp[i] = ok ? sp.p : Vec3(0.0f);
@@ -2555,13 +2583,17 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def("add_points", &add_points, py::arg("points"), py::arg("radii") = py::none(), py::arg("material") = 0u,
            py::arg("matrix") = py::none(), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("point_attributes") = py::dict(),
-           py::arg("texspace") = py::none(), py::arg("motion") = py::none(),
+           py::arg("texspace") = py::none(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
+           py::arg("motion_radii") = py::none(),
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
            "RGBA per point}. texspace: (location, size) of Generated coordinates (None: Generated is "
            "the object-space position, as Cycles gives point clouds). motion: (S, 4, 4) object-to-world "
            "matrices over the shutter (transform motion blur; singular or non-finite steps: static). "
+           "motion_points, motion_radii: deformation blur, (S, N, 3) object-space centres and (S, N) radii "
+           "(None: the frame's) at S >= 2 steps evenly over the shutter (Cycles' motion points); steps "
+           "with non-finite values or that leave out other points: undeformed (stats()['motion_rejected']). "
            "Points with a non-finite position or radius, or a radius <= 0, are left out at commit "
            "(stats()['skipped_points']).")
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
@@ -2570,7 +2602,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("normals") = py::none(),
            py::arg("uvs") = py::dict(), py::arg("strand_attributes") = py::dict(), py::arg("shape") = "thick",
            py::arg("materials") = py::none(), py::arg("point_attributes") = py::dict(),
-           py::arg("point_uvs") = py::dict(),
+           py::arg("point_uvs") = py::dict(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
+           py::arg("motion_radii") = py::none(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -2585,7 +2618,12 @@ PYBIND11_MODULE(pathlight_core, m) {
            "materials: (C,) a material id per strand (ids not in the scene: `material`), or None. "
            "point_attributes: {attribute set: (N, 4) one RGBA per point}, linear between a segment's keys "
            "(a set given per point wins over the same set per strand). point_uvs: {uv set: (N, 2) one uv "
-           "per point}, interpolated so too.")
+           "per point}, interpolated so too. "
+           "motion: (S, 4, 4) object-to-world matrices over the shutter (transform motion blur; singular "
+           "or non-finite steps: static). motion_points, motion_radii: deformation blur, (S, N, 3) "
+           "object-space points and (S, N) radii (None: the frame's) at S >= 2 steps evenly over the "
+           "shutter (Cycles' curve motion keys); steps with non-finite values, or that cut into other "
+           "pieces than the frame's, leave it undeformed (stats()['motion_rejected']).")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
@@ -3227,8 +3265,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "flattened scene, instance by instance) is -1 and t inf on a miss. instances=True adds two "
            "int64 arrays: the hit instance (add_instance order) and the triangle's row in its mesh (-1 on a miss).")
       .def("hit_surfaces", &hit_surfaces, py::arg("origins"), py::arg("directions"), py::arg("tmax") = kInf,
-           py::arg("self_strand") = py::none(),
-           "The surfaces a batch of rays hits: a dict of t, p, ng, tangent, origin_out, origin_in (the spawn "
+           py::arg("self_strand") = py::none(), py::arg("time") = 0.5f,
+           "The surfaces a batch of rays hits (at shutter time `time`): a dict of t, p, ng, tangent, origin_out, origin_in (the spawn "
            "origins on the normal's side and the other), curve (bool) and strand (int64, the strand hit, -1: "
            "none), hit (N, 2: the hit's b1, b2; ribbons: u along the piece and v across, -1 .. 1). self_strand: "
            "int (N,), the strand each ray leaves (skipped, as a path's spawned rays; -1: none).")

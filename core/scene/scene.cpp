@@ -237,6 +237,7 @@ bool Scene::commit(int threads, BvhLayout layout) {
     ++stats_.top_level_builds;
   }
   top_dirty_ = false;
+  stats_.motion_rejected = mesh_motion_rejected_ + instance_motion_rejected_ + curve_motion_rejected_ + point_motion_rejected_;
   build_lights();
   build_media();
   if (features_.subsurface || !local_bvhs_.empty()) build_local_bvhs(threads);

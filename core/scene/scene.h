@@ -143,6 +143,14 @@ struct CurveSetData {
   // Per uv set k: one uv per point (a point-domain FLOAT2 read as a UV map), interpolated as
   // point_attrs; empty: per strand (or 0). A set index is a uv set or an attribute set.
   std::vector<std::vector<Vec2>> point_uvs;
+  // Transform motion blur: the object-to-world matrix at each motion step (>= 2, evenly over
+  // the shutter); empty: static. Steps not finite or singular leave it static.
+  std::vector<Mat4> motion;
+  // Deformation blur (Cycles' motion keys): the points (object space) at each deformation step
+  // (>= 2, evenly over the shutter), and their radii (empty: `radii` at every step). Steps of
+  // the wrong size, non-finite ones, or ones that cut into other pieces leave it undeformed.
+  std::vector<std::vector<Vec3>> deform_points;
+  std::vector<std::vector<float>> deform_radii;
 };
 
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
@@ -166,6 +174,11 @@ struct PointSetData {
   // Transform motion blur: the object-to-world matrix at each motion step (>= 2, evenly over
   // the shutter); empty: static. Steps not finite or singular leave it static.
   std::vector<Mat4> motion;
+  // Deformation blur (Cycles' motion points): the centres (object space) at each deformation
+  // step (>= 2, evenly over the shutter) and their radii (empty: `radii` at every step). Steps
+  // of the wrong size, with non-finite values or other points left out leave it undeformed.
+  std::vector<std::vector<Vec3>> deform_points;
+  std::vector<std::vector<float>> deform_radii;
 };
 
 // Hit::inst of a hit on a point (Hit::prim: the sphere, Hit::b1, b2: its normal, octahedral).
@@ -334,7 +347,9 @@ class Scene {
   void set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps);
   // Instances with transform motion blur in the committed scene: rays then need a time.
   // (Volumes with velocity blur count: their lookups need the ray's time too.)
-  bool has_motion() const { return motion_instances_ > 0 || velocity_media_ > 0 || point_bvh_.has_moving(); }
+  bool has_motion() const {
+    return motion_instances_ > 0 || velocity_media_ > 0 || point_bvh_.has_moving() || curve_bvh_.has_moving();
+  }
   // Velocity blur of a volume object's mesh (MeshData::velocity_grid): scale 0 or a grid
   // id < 0 turns it off. Throws std::invalid_argument on non-finite values.
   // grid_y, grid_z >= 0: `grid` is the x component's float grid, they the y and z ones.
@@ -806,7 +821,7 @@ class Scene {
     }
     return found;
   }
-  void curve_point(const Hit& h, SurfacePoint& sp, const Ray* ray) const;
+  void curve_point(const Hit& h, SurfacePoint& sp, float time, const Ray* ray) const;
   // Point clouds: the sets as added, their spheres' BVH (world space), per set its first point,
   // and per point its attribute values (point_attr_sets_ each).
   std::vector<PointSetData> point_sets_;
@@ -824,6 +839,9 @@ class Scene {
   void build_points();
   void sphere_point(const Hit& h, SurfacePoint& sp, float time) const;
   std::vector<uint8_t> point_moving_;  // per point set: it has transform motion blur
+  std::vector<uint8_t> curve_moving_;  // per curve set: it has transform motion blur
+  // Motion of curve and point sets dropped at their last build (added to stats().motion_rejected).
+  size_t curve_motion_rejected_ = 0, point_motion_rejected_ = 0, instance_motion_rejected_ = 0;
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
   std::vector<std::vector<DecomposedTransform>> motion_;  // per instance, made at commit (empty: static)
   size_t motion_instances_ = 0;

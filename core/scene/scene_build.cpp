@@ -15,6 +15,33 @@ namespace pl {
 using detail::material_of;
 
 namespace {
+// Transform motion of a curve or point set: 1 when its steps differ and decompose (steps set),
+// 0 when it has none or they are all equal, -1 when they are singular or not finite.
+int set_motion(const std::vector<Mat4>& motion, std::vector<DecomposedTransform>& steps) {
+  steps.clear();
+  if (motion.size() < 2) return 0;
+  bool moves = false;
+  for (const Mat4& m : motion) moves = moves || std::memcmp(&m, &motion[0], sizeof(Mat4)) != 0;
+  if (!moves) return 0;
+  if (decompose_motion(motion, steps)) return 1;
+  steps.clear();
+  return -1;
+}
+
+// Whether deformation steps change anything (else the set is still, as Cycles drops motion
+// keys equal to the frame's): any step's point or radius unlike the frame's, or bad steps
+// (which the caller rejects). Radii may be empty (the frame's, or a default).
+bool deforms(const std::vector<Vec3>& points, const std::vector<float>& radii, const std::vector<std::vector<Vec3>>& steps,
+             const std::vector<std::vector<float>>& step_radii) {
+  for (const std::vector<Vec3>& s : steps) {
+    if (s.size() != points.size() || std::memcmp(s.data(), points.data(), s.size() * sizeof(Vec3)) != 0) return true;
+  }
+  for (const std::vector<float>& r : step_radii) {
+    if (r.size() != radii.size() || std::memcmp(r.data(), radii.data(), r.size() * sizeof(float)) != 0) return true;
+  }
+  return false;
+}
+
 // Zero-area or non-finite triangles can never be hit reliably and have no normal. Coordinates
 // beyond 1e30 cannot be traced meaningfully in float (their products overflow).
 bool usable_triangle(const TriangleVerts& tv) {
@@ -75,6 +102,7 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
   // (traced through its transform at the ray's time).
   motion_.assign(instances_.size(), {});
   stats_.motion_rejected = mesh_motion_rejected_;
+  instance_motion_rejected_ = 0;
   for (size_t i = 0; i < instances_.size(); ++i) {
     const std::vector<Mat4>& steps = instances_[i].motion;
     if (steps.size() < 2) continue;
@@ -84,6 +112,7 @@ bool Scene::build_geometry(int threads, BvhLayout layout) {
     if (!decompose_motion(steps, motion_[i])) {
       motion_[i].clear();
       ++stats_.motion_rejected;
+      ++instance_motion_rejected_;
     }
   }
   for (size_t i = 0; i < instances_.size(); ++i) {
@@ -385,8 +414,11 @@ void Scene::build_points() {
   struct Moving {
     std::vector<PointSphere> spheres;
     std::vector<DecomposedTransform> steps;
+    std::vector<PointSphere> deform;
+    uint32_t n_deform;
   };
   std::vector<Moving> moving;
+  point_motion_rejected_ = 0;
   point_attr_sets_ = 0;
   for (const PointSetData& ps : point_sets_) point_attr_sets_ = std::max(point_attr_sets_, uint32_t(ps.point_attrs.size()));
   uint32_t base = 0;
@@ -406,16 +438,42 @@ void Scene::build_points() {
     const size_t n_frames = frames.size();
     // Transform motion blur: steps that decompose and differ (else the cloud stays static).
     std::vector<DecomposedTransform> steps;
-    bool moves = ps.motion.size() >= 2 && decompose_motion(ps.motion, steps);
-    if (moves) {
-      moves = false;
-      for (const Mat4& m : ps.motion)
-        for (int i = 0; i < 4 && !moves; ++i)
-          for (int j = 0; j < 4 && !moves; ++j) moves = m.m[i][j] != ps.motion[0].m[i][j];
+    const int state = set_motion(ps.motion, steps);
+    bool moves = state > 0;
+    if (state < 0) ++point_motion_rejected_;
+    // Deformation blur: centres (and radii) at the steps, every step keeping the same points.
+    std::vector<PointSphere> deform;
+    uint32_t n_deform = 0;
+    if (!ps.deform_points.empty() && deforms(ps.points, ps.radii, ps.deform_points, ps.deform_radii)) {
+      n_deform = uint32_t(ps.deform_points.size());
+      bool ok = n_deform >= 2 && (ps.deform_radii.empty() || ps.deform_radii.size() == n_deform);
+      std::vector<uint32_t> kept_frame, kept_step;
+      std::vector<PointFrame> none;
+      std::vector<PointSphere> frame_spheres;
+      if (ok) transform_points(ps.points.data(), ps.radii.data(), n, Mat4(), 0, frame_spheres, none, &kept_frame);
+      for (uint32_t k = 0; k < n_deform && ok; ++k) {
+        const std::vector<float>& r = ps.deform_radii.empty() ? ps.radii : ps.deform_radii[k];
+        ok = ps.deform_points[k].size() == ps.points.size() && r.size() == ps.radii.size();
+        if (!ok) break;
+        for (size_t i = 0; i < n && ok; ++i) ok = is_finite(ps.deform_points[k][i]) && std::isfinite(r[i]);
+        if (!ok) break;
+        kept_step.clear();
+        transform_points(ps.deform_points[k].data(), r.data(), n, Mat4(), 0, deform, none, &kept_step);
+        ok = kept_step == kept_frame;
+      }
+      if (!ok) {
+        deform.clear();
+        n_deform = 0;
+        ++point_motion_rejected_;
+      }
+    }
+    if (n_deform && !moves) {  // deformed only: its constant transform as the steps
+      moves = decompose_motion({ps.matrix, ps.matrix}, steps);
+      if (!moves) deform.clear(), n_deform = 0;
     }
     point_moving_.push_back(moves ? 1 : 0);
     if (moves) {  // its spheres in object space, in a BVH of their own (PointBvh::add_moving)
-      moving.push_back({{}, std::move(steps)});
+      moving.push_back({{}, std::move(steps), std::move(deform), n_deform});
       std::vector<PointFrame> none;
       skipped += transform_points(ps.points.data(), ps.radii.data(), n, Mat4(), base, moving.back().spheres, none, &kept);
       for (size_t k = 0; k < moving.back().spheres.size(); ++k) moving.back().spheres[k].point = base + uint32_t(k);
@@ -442,13 +500,21 @@ void Scene::build_points() {
   stats_.points = base;
   stats_.skipped_points = skipped;
   point_bvh_.build(std::move(spheres), std::move(frames));
-  for (Moving& m : moving) point_bvh_.add_moving(std::move(m.spheres), std::move(m.steps));
+  for (Moving& m : moving) point_bvh_.add_moving(std::move(m.spheres), std::move(m.steps), std::move(m.deform), m.n_deform);
   points_on_ = !point_bvh_.empty();
   points_dirty_ = false;
 }
 
 void Scene::build_curves() {
   std::vector<CurvePiece> pieces;
+  struct Moving {
+    std::vector<CurvePiece> pieces, steps;
+    uint32_t n_steps;
+    std::vector<DecomposedTransform> xf;
+  };
+  std::vector<Moving> moving;
+  curve_motion_rejected_ = 0;
+  curve_moving_.clear();
   curve_first_.clear();
   curve_length_.clear();
   curve_random_.clear();
@@ -503,7 +569,44 @@ void Scene::build_curves() {
         point_sets |= uint16_t(1u << (k + 8));
     curve_point_sets_.push_back(point_sets);
     kept.clear();
-    const CurveCutStats st = cut_curves(in, cs.matrix, strands, pieces, &kept);
+    // Motion blur: the transform's steps (the strands then stay in object space) and the
+    // pieces cut at each deformation step, which must match the frame's one for one.
+    std::vector<DecomposedTransform> xf;
+    const int state = set_motion(cs.motion, xf);
+    if (state < 0) ++curve_motion_rejected_;
+    const bool moves = state > 0;
+    std::vector<CurvePiece> frame, steps;
+    uint32_t n_steps = deforms(cs.points, cs.radii, cs.deform_points, cs.deform_radii) ? uint32_t(cs.deform_points.size()) : 0;
+    const Mat4 space = moves ? Mat4() : cs.matrix;
+    CurveCutStats st = cut_curves(in, space, strands, frame, &kept);
+    if (n_steps) {
+      bool ok = n_steps >= 2 && (cs.deform_radii.empty() || cs.deform_radii.size() == n_steps);
+      std::vector<uint32_t> kept_step;
+      for (uint32_t k = 0; k < n_steps && ok; ++k) {
+        CurveInput sin = in;
+        ok = cs.deform_points[k].size() == cs.points.size() &&
+             (cs.deform_radii.empty() || cs.deform_radii[k].size() == cs.points.size());
+        if (!ok) break;
+        sin.points = cs.deform_points[k].data();
+        if (!cs.deform_radii.empty()) sin.radii = cs.deform_radii[k].data();
+        kept_step.clear();
+        const size_t before = steps.size();
+        cut_curves(sin, space, strands, steps, &kept_step);
+        ok = kept_step == kept && steps.size() - before == frame.size();
+      }
+      ok = ok && prepare_deform_steps(frame, steps, n_steps);
+      if (!ok) {
+        steps.clear();
+        ++curve_motion_rejected_;
+      }
+      if (steps.empty()) n_steps = 0;
+    }
+    curve_moving_.push_back(moves ? 1 : 0);
+    if (moves || n_steps) {
+      moving.push_back({std::move(frame), std::move(steps), n_steps, std::move(xf)});
+    } else {
+      pieces.insert(pieces.end(), frame.begin(), frame.end());
+    }
     for (uint32_t c : kept) {
       double len = 0.0;  // object space, as Cycles' Length
       for (int32_t k = cs.offsets[c] + 1; k < cs.offsets[c + 1]; ++k) len += length(cs.points[size_t(k)] - cs.points[size_t(k) - 1]);
@@ -549,7 +652,9 @@ void Scene::build_curves() {
   stats_.curves = strands;
   stats_.skipped_curves = skipped;
   stats_.curve_pieces = pieces.size();
+  for (const Moving& m : moving) stats_.curve_pieces += m.pieces.size();
   curve_bvh_.build(std::move(pieces));
+  for (Moving& m : moving) curve_bvh_.add_moving(std::move(m.pieces), std::move(m.steps), m.n_steps, std::move(m.xf));
   curves_on_ = !curve_bvh_.empty();
   curves_dirty_ = false;
 }

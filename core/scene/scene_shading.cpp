@@ -16,7 +16,7 @@ namespace pl {
 float Scene::hair_pixel_coverage(const SurfacePoint& sp, float b1, const RayState& ray) const {
   // (No footprint, as where the integrator carries no differentials: the far field.)
   if (!sp.curve() || !(ray.flags & kRayCamera) || !(ray.footprint() > 0.0f)) return 1.0f;
-  const CurvePiece& pc = curve_bvh_.piece(sp.tri);
+  const CurvePiece pc = curve_bvh_.piece_at(sp.tri, sp.time);
   const float u = clampf(b1, 0.0f, 1.0f);
   const float radius = pc.r0 + (pc.r1 - pc.r0) * u;
   const float c = radius > 0.0f ? 0.5f * ray.footprint() / radius : 1.0f;
@@ -27,7 +27,7 @@ float Scene::hair_pixel_coverage(const SurfacePoint& sp, float b1, const RayStat
 // between keys); zero off curves or where the strands have none.
 Vec3 Scene::hair_curve_normal(const SurfacePoint& sp, float b1) const {
   if (!sp.curve()) return Vec3(0.0f);
-  const CurvePiece& pc = curve_bvh_.piece(sp.tri);
+  const CurvePiece pc = curve_bvh_.piece_at(sp.tri, sp.time);
   if (pc.n0 == kNoCurveNormal || pc.n1 == kNoCurveNormal) return Vec3(0.0f);
   const float u = clampf(b1, 0.0f, 1.0f);
   const Vec3 a = decode_unit(pc.n0), b = decode_unit(pc.n1);
@@ -108,7 +108,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   ctx.p_error = sp.p_error;
   ctx.time = sp.time;
   if (sp.curve()) {  // no triangle, uvs or attributes; world coordinates for Object
-    const CurvePiece& pc = curve_bvh_.piece(sp.tri);
+    const CurvePiece pc = curve_bvh_.piece_at(sp.tri, sp.time);
     const float u = clampf(b1, 0.0f, 1.0f);  // the axial position (end spheres: beyond [0, 1])
     CurveShading cs;
     cs.intercept = pc.v0 + (pc.v1 - pc.v0) * u;
@@ -142,7 +142,17 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       }
     }
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
-    ctx.object = &curve_coords_[curve_set_of(pc.curve)];
+    const uint32_t set = curve_set_of(pc.curve);
+    ctx.object = &curve_coords_[set];
+    UninitArray<ObjectCoords, 1> moved_coords;  // (a moving set's object at the ray's time)
+    if (curve_moving_[set]) {
+      ObjectCoords* mc = new (moved_coords.bytes) ObjectCoords(curve_coords_[set]);
+      const ObjectCoords at = make_object_coords(curve_bvh_.moving_transform(sp.tri, sp.time), Vec3(0.0f), Vec3(1.0f));
+      mc->to_world = at.to_world;
+      mc->to_object = at.to_object;
+      mc->valid = at.valid;
+      ctx.object = mc;
+    }
     shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
     return;

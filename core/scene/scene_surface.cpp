@@ -7,8 +7,8 @@ namespace pl {
 
 using detail::material_of;
 
-void Scene::curve_point(const Hit& h, SurfacePoint& sp, const Ray* ray) const {
-  const CurvePiece& c = curve_bvh_.piece(h.prim);
+void Scene::curve_point(const Hit& h, SurfacePoint& sp, float time, const Ray* ray) const {
+  const CurvePiece c = curve_bvh_.piece_at(h.prim, time);  // (moving sets: where the ray met it)
   if (c.ribbon) {
     // The point on the ray (as Cycles' P + D t), the rounded normal as both normals: Cycles'
     // closures take their side from it on curves (bsdf_sample's Ng = N), and Chiang's and
@@ -126,7 +126,7 @@ bool Scene::intersect_local(uint32_t instance, const Ray& r, Hit& h) const {
 
 void Scene::surface_point(const Hit& h, SurfacePoint& sp, float time, const Ray* ray) const {
   sp.time = time;
-  if (h.inst == kCurveInstance) return curve_point(h, sp, ray);  // (curves do not move)
+  if (h.inst == kCurveInstance) return curve_point(h, sp, time, ray);  // (moving sets: at the ray's time)
   if (h.inst == kPointInstance) return sphere_point(h, sp, time);  // (moving clouds: at the ray's time)
   const InstanceData& in = inst_[h.inst];
   if (__builtin_expect(in.motion != nullptr || in.deform != nullptr, 0)) {  // where the ray met it
