@@ -26,12 +26,10 @@ inline Float4 attribute_output(const Float4& a, uint8_t sub) {
   return {v, v, v, 1.0f};
 }
 
-// The Normal outputs (Geometry, Texture Coordinate). On points: Cycles' sd->N, the radial
-// normal turned to the viewer on a back-facing hit (shader_setup_from_ray), as near an
-// ellipsoid's silhouette. Elsewhere the outward normal, which closures read with their side.
-inline Vec3 viewer_normal(const ShadingContext& ctx) {
-  return ctx.point && dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ns : ctx.ns;
-}
+// The Normal outputs (Geometry, Texture Coordinate): Cycles' sd->N, the shading normal turned
+// to the viewer on a back-facing hit (shader_setup_from_ray), as every normal value of a
+// program; the closures turn their Normal inputs back (normal_or).
+inline Vec3 viewer_normal(const ShadingContext& ctx) { return ctx.ns * ctx.view_side(); }
 
 // The program's evaluation. kSetsNormal: the program has a SetNormal op, which replaces the
 // shading normal of `ctx` (then the caller's copy, `local`) for the ops after it, as Cycles'
@@ -190,7 +188,7 @@ template <bool kSetsNormal>
             if (length_sq(blended) > 1e-12f) n = normalize(blended);
           }
         }
-        d = f4(n, 0.0f);
+        d = f4(n * ctx.view_side(), 0.0f);  // Cycles: "invert normal for backfacing polygons"
         break;
       }
       case OpCode::ObjectPos:
@@ -337,9 +335,8 @@ template <bool kSetsNormal>
       case OpCode::Bump: {
         // Cycles' svm_node_set_bump with the height at the point and at the two offsets.
         make_offsets();
-        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
-        const float side = backfacing ? -1.0f : 1.0f;  // Cycles flips N towards the viewer
-        const Vec3 n_in = normal_or(r, op.in[5], ctx.ns) * side;
+        const float side = ctx.view_side();  // Cycles works with N towards the viewer
+        const Vec3 n_in = normal_or(r, op.in[5], ctx) * side;
         const Vec3 rx = cross(dp[kOffsetY], n_in), ry = cross(n_in, dp[kOffsetX]);
         const float hc = reg(op.in[0]).x, hx = reg(op.in[1]).x, hy = reg(op.in[2]).x;
         const float det = dot(dp[kOffsetX], rx);
@@ -355,7 +352,7 @@ template <bool kSetsNormal>
           const Vec3 blended = raw / std::sqrt(l2) * strength + n_in * (1.0f - strength);
           if (length_sq(blended) > 1e-20f && is_finite(blended)) out_n = normalize(blended);
         }
-        d = f4(out_n * side, 0.0f);
+        d = f4(out_n, 0.0f);
         break;
       }
       case OpCode::Ramp: {
@@ -602,15 +599,15 @@ template <bool kSetsNormal>
         const float radius = reg(op.in[0]).x;
         Vec3 n = ctx.ns;
         if (ctx.scene && radius > 0.0f && std::isfinite(radius) && op.index >= 1) n = trace_bevel(ctx, radius, op.index);
-        if (op.in[1] != kNoReg) {
-          const Vec3 m = r[op.in[1]].xyz() + (n - ctx.ns);
+        if (op.in[1] != kNoReg) {  // (the given normal faces the viewer: compared on the outward side)
+          const Vec3 m = r[op.in[1]].xyz() * ctx.view_side() + (n - ctx.ns);
           n = length_sq(m) > 0.0f && is_finite(m) ? normalize(m) : ctx.ns;
         }
-        d = f4(n, 0.0f);
+        d = f4(n * ctx.view_side(), 0.0f);
         break;
       }
       case OpCode::SetNormal: {
-        const Vec3 n = reg(op.in[0]).xyz();
+        const Vec3 n = reg(op.in[0]).xyz() * ctx.view_side();  // (the Bump's, towards the viewer)
         if constexpr (kSetsNormal)
           if (length_sq(n) > 1e-12f && is_finite(n)) local->ns = normalize(n);
         d = f4(ctx.ns, 0.0f);
