@@ -262,10 +262,11 @@ template <bool kSetsNormal>
         break;
       }
       case OpCode::Geometry: {
-        // Cycles' svm_node_geometry: its normals face the viewer (back faces flipped).
-        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        // Cycles' svm_node_geometry: its normals face the viewer (back faces flipped); the
+        // side of the mesh (a mirrored instance's turned round), not of its world winding.
+        const bool backfacing = ctx.backfacing;
         switch (op.sub) {
-          case 0: d = f4(backfacing ? -ctx.ng : ctx.ng, 0.0f); break;  // True Normal
+          case 0: d = f4(dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ng : ctx.ng, 0.0f); break;  // True Normal
           case 1: d = f4(ctx.wo, 0.0f); break;                           // Incoming
           case 2: d = {1.0f - ctx.b1 - ctx.b2, ctx.b1, 0.0f, 0.0f}; break;  // Parametric
           case 3: {                                                       // Backfacing
@@ -308,7 +309,7 @@ template <bool kSetsNormal>
       case OpCode::LayerWeight: {
         // Cycles' nodes: the view against the (unnormalised, as Cycles) input or shading normal.
         const Vec3 n = op.in[1] == kNoReg ? ctx.ns : r[op.in[1]].xyz();
-        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        const bool backfacing = ctx.backfacing;
         const float c = dot(ctx.wo, n);
         const float x = reg(op.in[0]).x;
         float f;
@@ -583,8 +584,7 @@ template <bool kSetsNormal>
       case OpCode::AmbientOcclusion: {
         // Cycles' svm_node_ao: in color, distance, normal; sub bit 0 Inside, bit 1 Only Local;
         // index the samples; ext the output (0 Color = AO * Color, 1 AO).
-        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
-        Vec3 n = op.in[2] == kNoReg ? (backfacing ? -ctx.ns : ctx.ns) : r[op.in[2]].xyz();
+        Vec3 n = op.in[2] == kNoReg ? viewer_normal(ctx) : r[op.in[2]].xyz();
         if (op.sub & 1) n = -n;
         const float dist = reg(op.in[1]).x;
         float ao = 1.0f;

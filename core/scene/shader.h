@@ -284,8 +284,9 @@ struct ShadingContext {
   Vec3 wo;                   // direction towards the viewer (unit)
   bool backfacing = false;   // the viewer sees the hit's back (Scene::backfacing): diffuse lobes' side
   // The programs' normal values face the viewer, as Cycles' sd->N (flipped on a back-facing
-  // hit); ns, and the closures' frames, keep the outward side: values times this convert.
-  float view_side() const { return dot(ng, wo) < 0.0f ? -1.0f : 1.0f; }
+  // hit, a mirrored instance's winding turned round first); ns, and the closures' frames, keep
+  // the outward side: values times this convert.
+  float view_side() const { return backfacing ? -1.0f : 1.0f; }
   const Vec2* uv = nullptr;  // per uv set: the interpolated uv (nullptr entries: missing)
   int uv_sets = 0;
   const Vec3* tangents = nullptr;  // per uv set: tangent (xyz) with the bitangent sign folded in

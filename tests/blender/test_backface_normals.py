@@ -26,9 +26,10 @@ def open_sphere(name, material, **transform):
     return ms.add_mesh_object(name, build, (material,), smooth=True, **transform)
 
 
-def normal_scene(source, output, size=48):
+def normal_scene(source, output, mirrored=False, size=48):
     """Emission = `output` of a `source` node mapped by 0.5 v + 0.5, on an open sphere (seen
-    inside and out, rotated so object space differs from world space) and a plane from behind."""
+    inside and out, rotated so object space differs from world space) and a plane from behind;
+    mirrored: both scaled by -1 along x (Cycles flips Ng for a negative scale first)."""
     def build():
         bpy.ops.wm.read_factory_settings(use_empty=True)
         scene = bpy.context.scene
@@ -47,19 +48,24 @@ def normal_scene(source, output, size=48):
         links.new(emit.outputs[0], out.inputs["Surface"])
         open_sphere("Bowl", mat, location=(-0.6, 0.0, 0.5), rotation_euler=(0.5, 0.2, 0.7))
         ms.add_plane("Back", 1.2, mat, location=(0.85, 0.2, 0.6), rotation_euler=(-1.2, 0.0, 0.3))
+        if mirrored:
+            for obj in (bpy.data.objects["Bowl"], bpy.data.objects["Back"]):
+                obj.scale = (-1.0, 1.0, 1.0)
         ms.add_camera((0.0, -3.5, 2.6), (0.0, 0.0, 0.5))
         return scene
     return build
 
 
+@pytest.mark.parametrize("mirrored", [False, True])
 @pytest.mark.parametrize("source, output", [
     ("ShaderNodeNewGeometry", "Normal"),
     ("ShaderNodeNewGeometry", "True Normal"),
+    ("ShaderNodeNewGeometry", "Backfacing"),
     ("ShaderNodeTexCoord", "Normal"),
     ("ShaderNodeTexCoord", "Reflection"),
 ])
-def test_normal_outputs_face_the_viewer_as_cycles(source, output):
-    build = normal_scene(source, output)
+def test_normal_outputs_face_the_viewer_as_cycles(source, output, mirrored):
+    build = normal_scene(source, output, mirrored)
     ours = render_to_array(build(), "PATHLIGHT", samples=1, max_bounces=1, **CENTRES)
     cycles = render_to_array(build(), "CYCLES", samples=1, max_bounces=1, **CENTRES)
     # A grazing silhouette pixel may be hit by one engine alone (a unit normal mapped so is
@@ -67,11 +73,11 @@ def test_normal_outputs_face_the_viewer_as_cycles(source, output):
     same = (ours[..., :3].max(-1) > 0.0) == (cycles[..., :3].max(-1) > 0.0)
     assert same.mean() > 0.995, f"{(~same).sum()} pixels hit by one engine only"
     ours, cycles = ours * same[..., None], cycles * same[..., None]
-    ms.assert_agree(ours, cycles, f"{source} {output}")
+    ms.assert_agree(ours, cycles, f"{source} {output}{' mirrored' if mirrored else ''}")
     diff = np.abs(ours[..., :3] - cycles[..., :3])
     assert diff.mean() < 2e-3, f"mean abs difference {diff.mean():.2e}"
     # The scene shows back faces: the bowl's inside and the plane's back cover many pixels.
-    backfacing = normal_scene("ShaderNodeNewGeometry", "Backfacing")
+    backfacing = normal_scene("ShaderNodeNewGeometry", "Backfacing", mirrored)
     back = render_to_array(backfacing(), "PATHLIGHT", samples=1, max_bounces=1, **CENTRES)
     assert (back[..., 0] > 0.99).mean() > 0.05
 
