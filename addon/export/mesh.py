@@ -311,10 +311,16 @@ def vertex_pointiness(mesh):
     return np.where(np.isfinite(out), out, 0.0).astype(np.float32)
 
 
+# A missing attribute as the Attribute node reads it (Cycles' svm_node_attr: 0, Alpha 1); the
+# Color Attribute node's missing one reads 0 with Alpha 0 (no set sent).
+_MISSING_ATTRIBUTE = np.float32([0.0, 0.0, 0.0, 1.0])
+
+
 def mesh_attributes(mesh, names, loops):
     """{k: float32 (T, 3, 4) per-corner RGBA} for the attribute sets among {k: name}
     (("attr", name) or ("color", name), "" = the render colour attribute), and the names the
-    mesh lacks. Point, corner and face attributes; loops: the triangles' corner indices."""
+    mesh lacks (an Attribute node's as (0, 0, 0, 1), Cycles' Alpha 1). Point, corner and face
+    attributes; loops: the triangles' corner indices."""
     out, missing = {}, []
     wanted = {k: n for k, n in names.items() if isinstance(n, tuple)}
     if not wanted:
@@ -348,6 +354,8 @@ def mesh_attributes(mesh, names, loops):
         values = _attribute_rgba(attr) if attr is not None and attr.domain != 'EDGE' else None
         if values is None:
             missing.append(name or "(render colour attribute)")
+            if kind == "attr":  # Cycles' Attribute node reads a missing one as 0 with alpha 1
+                out[k] = np.tile(_MISSING_ATTRIBUTE, (len(loops) // 3, 3, 1))
             continue
         if attr.domain == 'CORNER':
             index = loops

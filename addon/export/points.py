@@ -82,7 +82,7 @@ def cloud_points_radii(cloud):
 def point_attributes(cloud, names):
     """{k: float32 (N, 4) per-point RGBA} for the attribute sets among {k: name}
     (("attr", name) or ("color", name), "" = the default colour attribute), and the names the
-    cloud lacks (Cycles reads 0 for them)."""
+    cloud lacks (Cycles reads 0 for them, an Attribute node's Alpha 1: sent as (0, 0, 0, 1))."""
     out, missing = {}, []
     for k, name in names.items():
         if not isinstance(name, tuple):
@@ -101,6 +101,8 @@ def point_attributes(cloud, names):
         values = _attribute_rgba(attr) if attr is not None and attr.domain == 'POINT' else None
         if values is None or len(values) != len(cloud.points):
             missing.append(attr_name or "(default colour attribute)")
+            if kind == "attr":  # Cycles' Attribute node reads a missing one as 0 with alpha 1
+                out[k] = np.tile(np.float32([0.0, 0.0, 0.0, 1.0]), (len(cloud.points), 1))
             continue
         out[k] = np.ascontiguousarray(values)
     return out, missing

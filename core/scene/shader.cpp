@@ -26,12 +26,10 @@ inline Float4 attribute_output(const Float4& a, uint8_t sub) {
   return {v, v, v, 1.0f};
 }
 
-// The Normal outputs (Geometry, Texture Coordinate). On points: Cycles' sd->N, the radial
-// normal turned to the viewer on a back-facing hit (shader_setup_from_ray), as near an
-// ellipsoid's silhouette. Elsewhere the outward normal, which closures read with their side.
-inline Vec3 viewer_normal(const ShadingContext& ctx) {
-  return ctx.point && dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ns : ctx.ns;
-}
+// The Normal outputs (Geometry, Texture Coordinate): Cycles' sd->N, the shading normal turned
+// to the viewer on a back-facing hit (shader_setup_from_ray), as every normal value of a
+// program; the closures turn their Normal inputs back (normal_or).
+inline Vec3 viewer_normal(const ShadingContext& ctx) { return ctx.ns * ctx.view_side(); }
 
 // The program's evaluation. kSetsNormal: the program has a SetNormal op, which replaces the
 // shading normal of `ctx` (then the caller's copy, `local`) for the ops after it, as Cycles'
@@ -190,7 +188,7 @@ template <bool kSetsNormal>
             if (length_sq(blended) > 1e-12f) n = normalize(blended);
           }
         }
-        d = f4(n, 0.0f);
+        d = f4(n * ctx.view_side(), 0.0f);  // Cycles: "invert normal for backfacing polygons"
         break;
       }
       case OpCode::ObjectPos:
@@ -264,10 +262,11 @@ template <bool kSetsNormal>
         break;
       }
       case OpCode::Geometry: {
-        // Cycles' svm_node_geometry: its normals face the viewer (back faces flipped).
-        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        // Cycles' svm_node_geometry: its normals face the viewer (back faces flipped); the
+        // side of the mesh (a mirrored instance's turned round), not of its world winding.
+        const bool backfacing = ctx.backfacing;
         switch (op.sub) {
-          case 0: d = f4(backfacing ? -ctx.ng : ctx.ng, 0.0f); break;  // True Normal
+          case 0: d = f4(dot(ctx.ng, ctx.wo) < 0.0f ? -ctx.ng : ctx.ng, 0.0f); break;  // True Normal
           case 1: d = f4(ctx.wo, 0.0f); break;                           // Incoming
           case 2: d = {1.0f - ctx.b1 - ctx.b2, ctx.b1, 0.0f, 0.0f}; break;  // Parametric
           case 3: {                                                       // Backfacing
@@ -310,7 +309,7 @@ template <bool kSetsNormal>
       case OpCode::LayerWeight: {
         // Cycles' nodes: the view against the (unnormalised, as Cycles) input or shading normal.
         const Vec3 n = op.in[1] == kNoReg ? ctx.ns : r[op.in[1]].xyz();
-        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
+        const bool backfacing = ctx.backfacing;
         const float c = dot(ctx.wo, n);
         const float x = reg(op.in[0]).x;
         float f;
@@ -337,9 +336,8 @@ template <bool kSetsNormal>
       case OpCode::Bump: {
         // Cycles' svm_node_set_bump with the height at the point and at the two offsets.
         make_offsets();
-        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
-        const float side = backfacing ? -1.0f : 1.0f;  // Cycles flips N towards the viewer
-        const Vec3 n_in = normal_or(r, op.in[5], ctx.ns) * side;
+        const float side = ctx.view_side();  // Cycles works with N towards the viewer
+        const Vec3 n_in = normal_or(r, op.in[5], ctx) * side;
         const Vec3 rx = cross(dp[kOffsetY], n_in), ry = cross(n_in, dp[kOffsetX]);
         const float hc = reg(op.in[0]).x, hx = reg(op.in[1]).x, hy = reg(op.in[2]).x;
         const float det = dot(dp[kOffsetX], rx);
@@ -355,7 +353,7 @@ template <bool kSetsNormal>
           const Vec3 blended = raw / std::sqrt(l2) * strength + n_in * (1.0f - strength);
           if (length_sq(blended) > 1e-20f && is_finite(blended)) out_n = normalize(blended);
         }
-        d = f4(out_n * side, 0.0f);
+        d = f4(out_n, 0.0f);
         break;
       }
       case OpCode::Ramp: {
@@ -586,8 +584,7 @@ template <bool kSetsNormal>
       case OpCode::AmbientOcclusion: {
         // Cycles' svm_node_ao: in color, distance, normal; sub bit 0 Inside, bit 1 Only Local;
         // index the samples; ext the output (0 Color = AO * Color, 1 AO).
-        const bool backfacing = dot(ctx.ng, ctx.wo) < 0.0f;
-        Vec3 n = op.in[2] == kNoReg ? (backfacing ? -ctx.ns : ctx.ns) : r[op.in[2]].xyz();
+        Vec3 n = op.in[2] == kNoReg ? viewer_normal(ctx) : r[op.in[2]].xyz();
         if (op.sub & 1) n = -n;
         const float dist = reg(op.in[1]).x;
         float ao = 1.0f;
@@ -602,15 +599,15 @@ template <bool kSetsNormal>
         const float radius = reg(op.in[0]).x;
         Vec3 n = ctx.ns;
         if (ctx.scene && radius > 0.0f && std::isfinite(radius) && op.index >= 1) n = trace_bevel(ctx, radius, op.index);
-        if (op.in[1] != kNoReg) {
-          const Vec3 m = r[op.in[1]].xyz() + (n - ctx.ns);
+        if (op.in[1] != kNoReg) {  // (the given normal faces the viewer: compared on the outward side)
+          const Vec3 m = r[op.in[1]].xyz() * ctx.view_side() + (n - ctx.ns);
           n = length_sq(m) > 0.0f && is_finite(m) ? normalize(m) : ctx.ns;
         }
-        d = f4(n, 0.0f);
+        d = f4(n * ctx.view_side(), 0.0f);
         break;
       }
       case OpCode::SetNormal: {
-        const Vec3 n = reg(op.in[0]).xyz();
+        const Vec3 n = reg(op.in[0]).xyz() * ctx.view_side();  // (the Bump's, towards the viewer)
         if constexpr (kSetsNormal)
           if (length_sq(n) > 1e-12f && is_finite(n)) local->ns = normalize(n);
         d = f4(ctx.ns, 0.0f);

@@ -283,6 +283,10 @@ struct ShadingContext {
   Vec3 p, ng, ns;            // world position, geometric and shading normal (mesh orientation)
   Vec3 wo;                   // direction towards the viewer (unit)
   bool backfacing = false;   // the viewer sees the hit's back (Scene::backfacing): diffuse lobes' side
+  // The programs' normal values face the viewer, as Cycles' sd->N (flipped on a back-facing
+  // hit, a mirrored instance's winding turned round first); ns, and the closures' frames, keep
+  // the outward side: values times this convert.
+  float view_side() const { return backfacing ? -1.0f : 1.0f; }
   const Vec2* uv = nullptr;  // per uv set: the interpolated uv (nullptr entries: missing)
   int uv_sets = 0;
   const Vec3* tangents = nullptr;  // per uv set: tangent (xyz) with the bitangent sign folded in

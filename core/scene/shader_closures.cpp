@@ -17,12 +17,12 @@ inline float val_of(const Float4* r, int16_t i, float def) { return i == kNoReg 
 // Closure frames as Cycles sets them up: glossy lobes get a normal whose mirror reflection of
 // the view stays above the surface; diffuse lobes with a bent normal get the bump shadowing.
 Frame glossy_frame_at(const Float4* r, const ShadingContext& ctx, int16_t normal_reg) {
-  return Frame::from_normal(valid_specular_normal(ctx.ng, ctx.wo, normal_or(r, normal_reg, ctx.ns)));
+  return Frame::from_normal(valid_specular_normal(ctx.ng, ctx.wo, normal_or(r, normal_reg, ctx)));
 }
 
 inline DiffuseBsdf diffuse_lobe_at(const Float4* r, const ShadingContext& ctx, const ShaderProgram& prog,
                                    int16_t normal_reg, Frame& f) {
-  const Vec3 n = normal_or(r, normal_reg, ctx.ns);
+  const Vec3 n = normal_or(r, normal_reg, ctx);
   f = Frame::from_normal(n);
   DiffuseBsdf d;
   d.back = ctx.backfacing;
@@ -192,14 +192,14 @@ namespace {
   Frame fd;
   const DiffuseBsdf diffuse = diffuse_lobe_at(r, ctx, prog, op.in[8], fd);
   Frame fa = fr;
-  if (in.aniso) fa = aniso_frame_at(r, fr.n, px(kPxTangent), in.rotation, normal_or(r, op.in[8], ctx.ns));
+  if (in.aniso) fa = aniso_frame_at(r, fr.n, px(kPxTangent), in.rotation, normal_or(r, op.in[8], ctx));
   Vec3 weight = in.w;
   if (in.sheen) {
     // Sheen, the top layer (Cycles' "First layer"): Zeltner et al.'s microfibre lobe on the
     // normal blended towards the coat's by the coat weight; what lies below keeps
     // 1 - its albedo (the closure weight, which holds the fitted albedo).
-    const Vec3 n = normal_or(r, op.in[8], ctx.ns);
-    const Vec3 nc = normal_or(r, op.in[14] != kNoReg ? op.in[14] : op.in[8], ctx.ns);
+    const Vec3 n = normal_or(r, op.in[8], ctx);
+    const Vec3 nc = normal_or(r, op.in[14] != kNoReg ? op.in[14] : op.in[8], ctx);
     Vec3 ns = n + (nc - n) * in.sheen_coat;
     ns = length_sq(ns) > 1e-12f ? normalize(ns) : n;
     const Frame fs = Frame::from_normal(ns);
@@ -357,7 +357,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
     }
     case OpCode::Toon: {
       // Cycles' CLOSURE_BSDF_DIFFUSE_TOON_ID / GLOSSY_TOON_ID: in color, size, smooth, normal.
-      const Frame f = Frame::from_normal(normal_or(r, op.in[4], ctx.ns));
+      const Frame f = Frame::from_normal(normal_or(r, op.in[4], ctx));
       out.add(ToonBsdf::setup(val(op.in[2], 0.5f), val(op.in[3], 0.0f), op.sub == 1),
               clean_color(col(op.in[0]) * col(op.in[1])), f);
       break;
@@ -365,7 +365,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
     case OpCode::Sheen: {
       // Cycles' CLOSURE_BSDF_SHEEN_ID (sub 0) and ASHIKHMIN_VELVET_ID (sub 1): in color,
       // roughness, normal; the plain normal (no valid-reflection lift).
-      const Frame f = Frame::from_normal(normal_or(r, op.in[3], ctx.ns));
+      const Frame f = Frame::from_normal(normal_or(r, op.in[3], ctx));
       const Vec3 w = clean_color(col(op.in[0]) * col(op.in[1]));
       const float rough = val(op.in[2], 0.5f);
       if (op.sub == 1) {
@@ -392,7 +392,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
           const float aspect = std::sqrt(1.0f - an * 0.9f), a = m.alpha;
           m.alpha = std::min(a / aspect, 1.0f);
           m.alpha_y = a * aspect;
-          f = aniso_frame(f.n, op.in[11], val(op.in[10], 0.0f), normal_or(r, op.in[6], ctx.ns));
+          f = aniso_frame(f.n, op.in[11], val(op.in[10], 0.0f), normal_or(r, op.in[6], ctx));
         }
       }
       const bool physical = op.in[8] != kNoReg && r[op.in[8]].x > 0.5f;

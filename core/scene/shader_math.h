@@ -103,11 +103,14 @@ inline float mix_channel(MixOp op, float a, float b, float f) {
 
 inline float sat(float x) { return clampf(x, 0.0f, 1.0f); }
 
-inline Vec3 normal_or(const Float4* r, int16_t reg, Vec3 fallback) {
-  if (reg == kNoReg) return fallback;
+// A normal input in the outward orientation of ctx.ns: a linked value faces the viewer (the
+// programs' convention, Cycles' sd->N), so it turns back on a back-facing hit; unlinked (or
+// degenerate) the shading normal.
+inline Vec3 normal_or(const Float4* r, int16_t reg, const ShadingContext& ctx) {
+  if (reg == kNoReg) return ctx.ns;
   const Vec3 n = r[reg].xyz();
   const float l2 = length_sq(n);
-  return l2 > 1e-12f && std::isfinite(l2) ? n / std::sqrt(l2) : fallback;
+  return l2 > 1e-12f && std::isfinite(l2) ? n * (ctx.view_side() / std::sqrt(l2)) : ctx.ns;
 }
 
 inline float roughness_to_alpha(float r) {

@@ -143,6 +143,42 @@ def test_point_colour_attribute_matches_cycles():
         assert_agree(ours[..., [c, c, c, 3]], cycles[..., [c, c, c, 3]], f"point colour {name}")
 
 
+
+@pytest.mark.parametrize("node_type, output, expect", [
+    ("ShaderNodeAttribute", "Alpha", 1.0),
+    ("ShaderNodeAttribute", "Color", 0.0),
+    ("ShaderNodeVertexColor", "Alpha", 0.0),
+])
+def test_missing_point_attribute_outputs_as_cycles(node_type, output, expect):
+    """A missing attribute reads 0 on points too, but the Attribute node's Alpha 1 (Cycles'
+    svm_node_attr); the Color Attribute node's Alpha 0. Per pixel at the pixel centres."""
+    def material():
+        mat, nodes, links, out = ms.new_material("PC")
+        node = nodes.new(node_type)
+        if node_type == "ShaderNodeAttribute":
+            node.attribute_name = "nope"
+        else:
+            node.layer_name = "nope"
+        em = nodes.new("ShaderNodeEmission")
+        links.new(node.outputs[output], em.inputs["Color"])
+        links.new(em.outputs[0], out.inputs["Surface"])
+        return mat
+    def build():  # no floor or lamp: only the points, per pixel
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 32
+        scene.render.resolution_percentage = 100
+        ms.set_world((0.0, 0.0, 0.0))
+        add_cloud("Cloud", material(), n=60)
+        ms.add_camera((0.0, -2.6, 1.9), (0.0, 0.0, 0.3))
+        return scene
+    centres = dict(pixel_filter_type='BOX', filter_width=0.01)
+    ours = render_to_array(build(), "PATHLIGHT", samples=1, max_bounces=1, **centres)
+    cycles = render_to_array(build(), "CYCLES", samples=1, max_bounces=1, **centres)
+    diff = np.abs(ours[..., :3] - cycles[..., :3])
+    assert diff.mean() < 2e-3, f"mean abs difference {diff.mean():.2e}"
+    assert np.isclose(ours[..., :3].max(), expect, atol=1e-4), ours[..., :3].max()
+
 def coordinate_material(name, node_type, output, scale, offset):
     """Emission of a node's output through scale * v + offset (Emission clamps negatives)."""
     mat, nodes, links, out = ms.new_material(name)

@@ -208,6 +208,26 @@ def test_missing_attribute_reads_zero_with_a_warning():
     assert any("no attribute 'nope'" in w for w in warnings), warnings
 
 
+
+@pytest.mark.parametrize("node_type, output, props", [
+    ("ShaderNodeAttribute", "Alpha", {"attribute_name": "nope"}),
+    ("ShaderNodeAttribute", "Fac", {"attribute_name": "nope"}),
+    ("ShaderNodeAttribute", "Color", {"attribute_name": "nope"}),
+    ("ShaderNodeVertexColor", "Alpha", {"layer_name": "nope"}),
+])
+def test_missing_mesh_attribute_outputs_as_cycles(node_type, output, props):
+    """Cycles' svm_node_attr reads a missing attribute as 0 but the Attribute node's Alpha as 1
+    (the Color Attribute node's as 0)."""
+    def build():
+        scene = top_view(16)
+        ms.add_sphere("Ball", 1.5, attribute_material(node_type, output, **props), segments=16, rings=8)
+        return scene
+    ours, cycles = render_both(build)
+    diff = np.abs(ours[..., :3] - cycles[..., :3])
+    assert diff.max() < 1e-3, f"max abs difference {diff.max():.2e}"
+    expect = 1.0 if (node_type, output) == ("ShaderNodeAttribute", "Alpha") else 0.0
+    assert np.isclose(ours[8, 8, :3], expect, atol=1e-4).all(), ours[8, 8]
+
 VIEW_LAYER_PROPS = {  # where the property is set, its name and value
     "view layer float": ("view_layer", "vl_gain", 0.35),
     "view layer vector": ("view_layer", "vl_tint", [0.2, 0.55, 0.9]),
