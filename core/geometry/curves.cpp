@@ -477,31 +477,14 @@ void CurveBvh::build(std::vector<CurvePiece> pieces, std::vector<CurvePiece> ste
     for (size_t i = 0; i < n; ++i) pieces_[i] = pieces[refs[i]];
     return;
   }
-  // Deforming: the pieces stay in input order; the shutter is cut into kSlices equal
-  // intervals, each with a tree whose boxes hold the pieces over that interval only (between
-  // steps a piece's ends and radii interpolate linearly, so it stays in the hull of its boxes
-  // at the interval's ends and at the steps inside it). A box over the whole sweep of a thin,
-  // fast piece would be many times its size.
+  // Deforming: the pieces stay in input order, with a tree per slice of the shutter (between
+  // steps a piece's ends and radii interpolate linearly: build_wide4_slices).
   pieces_ = std::move(pieces);
   steps_ = std::move(steps);
   n_steps_ = n_steps;
-  Aabb slice_bounds[kSlices];
-  parallel_ranges(size_t(kSlices), 0, [&](size_t begin, size_t end) {  // (independent trees)
-    std::vector<Aabb> b(n);
-    for (size_t j = begin; j < end; ++j) {
-      const float ta = float(j) / float(kSlices), tb = float(j + 1) / float(kSlices);
-      for (size_t i = 0; i < n; ++i) {
-        b[i] = piece_box(deformed(uint32_t(i), ta));
-        b[i].grow(piece_box(deformed(uint32_t(i), tb)));
-        for (uint32_t k = 1; k + 1 < n_steps; ++k) {
-          const float tk = float(k) / float(n_steps - 1);
-          if (tk > ta && tk < tb) b[i].grow(piece_box(steps_[size_t(k) * n + i]));
-        }
-      }
-      slice_bounds[j] = bvh_detail::build_wide4(b, slice_nodes_[j], slice_refs_[j]);
-    }
-  }, 1);
-  for (const Aabb& b : slice_bounds) bounds_.grow(b);
+  bounds_ = bvh_detail::build_wide4_slices(
+      n, n_steps, [&](uint32_t i, float t) { return piece_box(deformed(i, t)); },
+      [&](uint32_t k, size_t i) { return piece_box(steps_[size_t(k) * n + i]); }, slice_nodes_, slice_refs_);
 }
 
 template <bool AnyHit, bool Deform>
@@ -693,14 +676,7 @@ bool CurveBvh::traverse_moving(const Ray& ray, Hit& hit) const {
   float tmax = ray.tmax;
   const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
   for (size_t m = 0; m < moving_.size(); ++m) {
-    const Aabb& b = moving_boxes_[m];
-    float t0 = 0.0f, t1 = tmax;
-    for (int a = 0; a < 3; ++a) {
-      const float x0 = (b.lo[a] - ray.org[a]) * inv[a], x1 = (b.hi[a] - ray.org[a]) * inv[a];
-      t0 = std::max(t0, std::min(x0, x1));
-      t1 = std::min(t1, std::max(x0, x1));
-    }
-    if (!(t0 <= t1 * bvh_detail::kBoxExitScale)) continue;
+    if (!bvh_detail::ray_enters_box(moving_boxes_[m], ray, inv, tmax)) continue;
     Ray ro = ray;
     ro.tmax = tmax;
     const std::vector<DecomposedTransform>& xf = moving_xf_[m];

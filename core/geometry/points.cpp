@@ -194,23 +194,10 @@ void PointBvh::build(std::vector<PointSphere> spheres, std::vector<PointFrame> f
   spheres_ = std::move(spheres);
   steps_ = std::move(steps);
   n_steps_ = n_steps;
-  Aabb slice_bounds[kSlices];
-  parallel_ranges(size_t(kSlices), 0, [&](size_t begin, size_t end) {  // (independent trees)
-    std::vector<Aabb> b(n);
-    for (size_t j = begin; j < end; ++j) {
-      const float ta = float(j) / float(kSlices), tb = float(j + 1) / float(kSlices);
-      for (size_t i = 0; i < n; ++i) {
-        b[i] = sphere_box(deformed(uint32_t(i), ta), frames_);
-        b[i].grow(sphere_box(deformed(uint32_t(i), tb), frames_));
-        for (uint32_t k = 1; k + 1 < n_steps; ++k) {
-          const float tk = float(k) / float(n_steps - 1);
-          if (tk > ta && tk < tb) b[i].grow(sphere_box(steps_[size_t(k) * n + i], frames_));
-        }
-      }
-      slice_bounds[j] = bvh_detail::build_wide4(b, slice_nodes_[j], slice_refs_[j]);
-    }
-  }, 1);
-  for (const Aabb& b : slice_bounds) bounds_.grow(b);
+  bounds_ = bvh_detail::build_wide4_slices(
+      n, n_steps, [&](uint32_t i, float t) { return sphere_box(deformed(i, t), frames_); },
+      [&](uint32_t k, size_t i) { return sphere_box(steps_[size_t(k) * n + i], frames_); }, slice_nodes_,
+      slice_refs_);
 }
 
 template <bool AnyHit, bool Deform>
@@ -326,14 +313,7 @@ bool PointBvh::traverse_moving(const Ray& ray, Hit& hit) const {
   float tmax = ray.tmax;
   const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
   for (size_t m = 0; m < moving_.size(); ++m) {
-    const Aabb& b = moving_boxes_[m];
-    float t0 = 0.0f, t1 = tmax;
-    for (int a = 0; a < 3; ++a) {
-      const float x0 = (b.lo[a] - ray.org[a]) * inv[a], x1 = (b.hi[a] - ray.org[a]) * inv[a];
-      t0 = std::max(t0, std::min(x0, x1));
-      t1 = std::min(t1, std::max(x0, x1));
-    }
-    if (!(t0 <= t1 * bvh_detail::kBoxExitScale)) continue;
+    if (!bvh_detail::ray_enters_box(moving_boxes_[m], ray, inv, tmax)) continue;
     const std::vector<DecomposedTransform>& st = moving_steps_[m];
     const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), ray.time);
     const Mat4 to_object = affine_inverse_fast(to_world);

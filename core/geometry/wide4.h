@@ -3,6 +3,7 @@
 // have external linkage, and an AVX2 copy must never be linked into code for other CPUs
 // (bvh_common.h).
 #pragma once
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
@@ -12,6 +13,7 @@
 
 #include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
+#include "util/parallel.h"
 
 namespace pl {
 namespace bvh_detail {
@@ -112,6 +114,47 @@ inline Aabb build_wide4(const std::vector<Aabb>& boxes, std::vector<WideBvhNode<
   collapse_wide4(bin, 0, nodes);
   nodes.shrink_to_fit();
   return Aabb{bin[0].lo, bin[0].hi};
+}
+
+// Deforming curves and points: a tree per equal slice of the shutter (S of them, built in
+// parallel), whose boxes hold each primitive over that slice only: the hull of box_at(i, t) at
+// the slice's ends and of step_box(k, i) at the motion steps k inside it (primitives interpolate
+// linearly between steps; a box over a thin, fast primitive's whole sweep would be many times
+// its size). Returns the union of the slices' bounds.
+template <int S, class BoxAt, class StepBox>
+Aabb build_wide4_slices(size_t n, uint32_t n_steps, const BoxAt& box_at, const StepBox& step_box,
+                        std::vector<WideBvhNode<4>> (&nodes)[S], std::vector<uint32_t> (&refs)[S]) {
+  Aabb slice_bounds[S];
+  parallel_ranges(size_t(S), 0, [&](size_t begin, size_t end) {  // (independent trees)
+    std::vector<Aabb> b(n);
+    for (size_t j = begin; j < end; ++j) {
+      const float ta = float(j) / float(S), tb = float(j + 1) / float(S);
+      for (size_t i = 0; i < n; ++i) {
+        b[i] = box_at(uint32_t(i), ta);
+        b[i].grow(box_at(uint32_t(i), tb));
+        for (uint32_t k = 1; k + 1 < n_steps; ++k) {
+          const float tk = float(k) / float(n_steps - 1);
+          if (tk > ta && tk < tb) b[i].grow(step_box(k, i));
+        }
+      }
+      slice_bounds[j] = build_wide4(b, nodes[j], refs[j]);
+    }
+  }, 1);
+  Aabb all;
+  for (const Aabb& b : slice_bounds) all.grow(b);
+  return all;
+}
+
+// Whether a ray (inv: its safe inverse direction) enters box b before tmax: the moving sets'
+// boxes, with the trees' conservative exit.
+inline bool ray_enters_box(const Aabb& b, const Ray& ray, const Vec3& inv, float tmax) {
+  float t0 = 0.0f, t1 = tmax;
+  for (int a = 0; a < 3; ++a) {
+    const float x0 = (b.lo[a] - ray.org[a]) * inv[a], x1 = (b.hi[a] - ray.org[a]) * inv[a];
+    t0 = std::max(t0, std::min(x0, x1));
+    t1 = std::min(t1, std::max(x0, x1));
+  }
+  return t0 <= t1 * kBoxExitScale;
 }
 
 // The 4 lanes' entry distances and the mask of those entered before tmax: the slab test with
