@@ -66,6 +66,16 @@ uint16_t Scene::curve_point_values(uint32_t curve, float v, Float4* buf) const {
 }
 
 namespace {
+// A moving set's object coordinates at the ray's time: the frame's, with the transform at that
+// time (built in `storage`, which must outlive their use).
+const ObjectCoords* coords_at(const ObjectCoords& frame, const Mat4& to_world, UninitArray<ObjectCoords, 1>& storage) {
+  ObjectCoords* mc = new (storage.bytes) ObjectCoords(frame);
+  const ObjectCoords at = make_object_coords(to_world, Vec3(0.0f), Vec3(1.0f));
+  mc->to_world = at.to_world;
+  mc->to_object = at.to_object;
+  mc->valid = at.valid;
+  return mc;
+}
 // Refraction at a point carries no 1/eta^2, as Cycles' (DielectricBsdf::unscaled).
 void unscale_refraction(ClosureList& out) {
   for (int i = 0; i < out.n; ++i)
@@ -145,14 +155,8 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     const uint32_t set = curve_set_of(pc.curve);
     ctx.object = &curve_coords_[set];
     UninitArray<ObjectCoords, 1> moved_coords;  // (a moving set's object at the ray's time)
-    if (curve_moving_[set]) {
-      ObjectCoords* mc = new (moved_coords.bytes) ObjectCoords(curve_coords_[set]);
-      const ObjectCoords at = make_object_coords(curve_bvh_.moving_transform(sp.tri, sp.time), Vec3(0.0f), Vec3(1.0f));
-      mc->to_world = at.to_world;
-      mc->to_object = at.to_object;
-      mc->valid = at.valid;
-      ctx.object = mc;
-    }
+    if (curve_moving_[set])
+      ctx.object = coords_at(curve_coords_[set], curve_bvh_.moving_transform(sp.tri, sp.time), moved_coords);
     shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
     return;
@@ -174,14 +178,8 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     ctx.backfacing = dot(sp.ng, wo) < 0.0f;
     ctx.object = &point_coords_[set];
     UninitArray<ObjectCoords, 1> moved_coords;  // (a moving cloud's object at the ray's time)
-    if (point_moving_[set]) {
-      ObjectCoords* mc = new (moved_coords.bytes) ObjectCoords(point_coords_[set]);
-      const ObjectCoords at = make_object_coords(point_bvh_.moving_transform(sp.tri, sp.time), Vec3(0.0f), Vec3(1.0f));
-      mc->to_world = at.to_world;
-      mc->to_object = at.to_object;
-      mc->valid = at.valid;
-      ctx.object = mc;
-    }
+    if (point_moving_[set])
+      ctx.object = coords_at(point_coords_[set], point_bvh_.moving_transform(sp.tri, sp.time), moved_coords);
     shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);
     unscale_refraction(out);
