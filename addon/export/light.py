@@ -34,35 +34,127 @@ def _finite_nonneg(values, what, name, warn):
     return arr
 
 
+# Cycles' IES Texture where it has no profile (file missing or unreadable): kernel_ies_interp's
+# fallback value, so such a light still emits, uniformly (measured in Blender 4.5).
+IES_FALLBACK = 100.0
+
+
+def _linked_node(socket):
+    """(node, output socket) feeding `socket` through reroutes, or (None, None)."""
+    seen = set()
+    while True:
+        links = [link for link in socket.links if not link.is_muted and link.is_valid]
+        if not links:
+            return None, None
+        node = links[0].from_node
+        if node.type != 'REROUTE':
+            return node, links[0].from_socket
+        if node.as_pointer() in seen:
+            return None, None
+        seen.add(node.as_pointer())
+        socket = node.inputs[0]
+
+
+def _ies_source(node):
+    """(bytes of the IES node's profile, where it came from) or (None, why not)."""
+    if node.mode == 'INTERNAL':
+        text = node.ies
+        if text is None:
+            return None, "no Text datablock"
+        return text.as_string().encode("utf-8", "surrogateescape"), f"text '{text.name}'"
+    import bpy  # (only here: the rest of this module runs without Blender in unit tests)
+    raw = node.filepath
+    if not raw:
+        return None, "no file path"
+    path = bpy.path.abspath(raw, library=node.id_data.library)
+    try:
+        with open(path, "rb") as f:
+            return f.read(), f"file '{raw}'"
+    except OSError as e:
+        return None, f"file '{raw}' unreadable ({e.strerror or e})"
+
+
+def _ies_profile(node, name, warn):
+    """The core's IesProfile of an IES Texture node, or None where it has none (warned; Cycles
+    then uses its fallback value)."""
+    data, where = _ies_source(node)
+    if data is not None:
+        from ..core import get_core
+        try:
+            return get_core().IesProfile(data)
+        except ValueError as e:
+            where = f"{where}: {e}"
+    warn(f"Light '{name}': IES Texture without a usable profile ({where}); rendered without "
+         f"it, at Cycles' fallback of {IES_FALLBACK:g} x Strength")
+    return None
+
+
+def _ies_chain(strength, name, warn):
+    """(IES node, constant factor) where an Emission's Strength is IES Texture Fac, maybe
+    multiplied or divided by a constant through one Math node; else None."""
+    node, out = _linked_node(strength)
+    scale = 1.0
+    if node is not None and node.type == 'MATH' and not node.mute and not node.use_clamp:
+        a, b = node.inputs[0], node.inputs[1]
+        if node.operation == 'MULTIPLY' and a.is_linked != b.is_linked:
+            const = b if a.is_linked else a
+            scale = float(const.default_value)
+            node, out = _linked_node(a if a.is_linked else b)
+        elif node.operation == 'DIVIDE' and a.is_linked and not b.is_linked and b.default_value != 0.0:
+            scale = 1.0 / float(b.default_value)
+            node, out = _linked_node(a)
+        else:
+            return None
+    if node is None or node.type != 'TEX_IES' or node.mute or out.name != "Fac":
+        return None
+    if node.inputs["Vector"].is_linked or node.inputs["Strength"].is_linked:
+        warn(f"Light '{name}': IES Texture with a linked Vector or Strength is not supported; "
+             "using its defaults (the light's own direction, the Strength value)")
+    return node, scale * float(node.inputs["Strength"].default_value)
+
+
 def _node_tree_factor(light, name, warn):
-    """Colour multiplier of a light's node tree: a constant Emission node is applied exactly
-    (Cycles multiplies the light's strength by the shader's emission); anything else is not
-    supported (IES, textures, ...) and ignored with a warning."""
+    """(colour multiplier, IesProfile or None) of a light's node tree. A constant Emission node
+    is applied exactly (Cycles multiplies the light's strength by the shader's emission); an
+    Emission whose Strength is an IES Texture (maybe times a constant) adds the profile, a
+    direction-dependent factor the core applies; anything else is ignored with a warning."""
     if not light.use_nodes or light.node_tree is None:
-        return np.ones(3)
+        return np.ones(3), None
     node = surface_node(light.node_tree)
     if node is None:
-        return np.zeros(3)  # nothing connected to the Light Output: Cycles emits nothing
+        return np.zeros(3), None  # nothing connected to the Light Output: Cycles emits nothing
+    if node.type == 'EMISSION' and not node.inputs["Color"].is_linked:
+        color = np.asarray(node.inputs["Color"].default_value[:3], np.float64)
+        strength = node.inputs["Strength"]
+        if not strength.is_linked:
+            return color * float(strength.default_value), None
+        chain = _ies_chain(strength, name, warn) if light.type in {'POINT', 'SPOT', 'AREA'} else None
+        if chain is not None:
+            ies_node, scale = chain
+            profile = _ies_profile(ies_node, name, warn)
+            return color * scale * (1.0 if profile is not None else IES_FALLBACK), profile
     if any(n.type == 'TEX_IES' for n in light.node_tree.nodes):
-        warn(f"Light '{name}': IES textures are not supported; ignoring the light's nodes")
-        return np.ones(3)
-    if node.type == 'EMISSION':
-        color, strength = node.inputs["Color"], node.inputs["Strength"]
-        if not (color.is_linked or strength.is_linked):
-            return np.asarray(color.default_value[:3], np.float64) * float(strength.default_value)
+        warn(f"Light '{name}': IES textures are supported only as IES Texture (Fac) -> [Math "
+             "multiply/divide by a constant] -> Emission Strength of a point, spot or area light; "
+             "ignoring the light's nodes")
+        return np.ones(3), None
     warn(f"Light '{name}': light node trees other than a constant Emission are not supported; "
          "ignoring the light's nodes")
-    return np.ones(3)
+    return np.ones(3), None
 
 
-def light_power(light, name, warn):
+def light_power(light, name, warn, ies=None):
     """RGB power (W) as Cycles computes it: colour * energy * 2^exposure, times the
-    temperature colour and a constant Emission node, if any."""
+    temperature colour and a constant Emission node, if any. ies: a list that receives the
+    light's IesProfile (None without one)."""
     color = np.asarray(light.color[:3], np.float64)
     if getattr(light, "use_temperature", False):
         color = color * np.asarray(light.temperature_color[:3], np.float64)
     energy = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
-    color = color * _node_tree_factor(light, name, warn)
+    factor, profile = _node_tree_factor(light, name, warn)
+    if ies is not None:
+        ies.append(profile)
+    color = color * factor
     return _finite_nonneg(color, "colour", name, warn) * float(
         _finite_nonneg(energy, "power", name, warn))
 
@@ -76,9 +168,11 @@ def convert_light(obj, matrix, warn):
     if cycles is not None and getattr(cycles, "is_portal", False):
         warn(f"Light '{name}': light portals are not supported; ignored")
         return None
-    power = light_power(light, name, warn)
+    ies = []
+    power = light_power(light, name, warn, ies)
     if not power.any():
         return None
+    ies = dict(ies=ies[0]) if ies[0] is not None else {}
     m = np.array(matrix, np.float64)
     if not np.isfinite(m).all():
         warn(f"Light '{name}': non-finite transform; skipped")
@@ -110,12 +204,13 @@ def convert_light(obj, matrix, warn):
         if light.type == 'POINT':
             return LightData("point", name, dict(
                 position=tuple(m[:3, 3].tolist()), intensity=intensity, radius=radius,
-                cast_shadow=cast_shadow, **flags))
+                cast_shadow=cast_shadow, **flags, **ies,
+                **(dict(ies_matrix=m.astype(np.float32)) if ies else {})))
         spot_size = float(np.clip(np.nan_to_num(light.spot_size, nan=math.pi), 1e-4, math.pi))
         spot_blend = float(np.clip(np.nan_to_num(light.spot_blend), 0.0, 1.0))
         return LightData("spot", name, dict(
             matrix=m.astype(np.float32), intensity=intensity, radius=radius,
-            spot_size=spot_size, spot_blend=spot_blend, cast_shadow=cast_shadow, **flags))
+            spot_size=spot_size, spot_blend=spot_blend, cast_shadow=cast_shadow, **flags, **ies))
 
     if light.type == 'SUN':
         z = m[:3, 2]
@@ -146,7 +241,7 @@ def convert_light(obj, matrix, warn):
         return LightData("area", name, dict(
             matrix=m.astype(np.float32), size_x=size_x, size_y=size_y,
             radiance=tuple(radiance.tolist()), ellipse=ellipse, cast_shadow=cast_shadow,
-            spread=spread, **flags))
+            spread=spread, **flags, **ies))
 
     warn(f"Light '{name}': light type {light.type} is not supported; skipped")
     return None

@@ -13,6 +13,7 @@
 #include "geometry/polygon_mesh.h"
 #include "render/guiding.h"
 #include "render/session.h"
+#include "scene/ies.h"
 #include "scene/phase.h"
 #include "scene/shader_ops.h"
 #include "scene/vdb_reader.h"
@@ -100,6 +101,15 @@ constexpr EnumNames<SensorFit> kSensorFitNames = {
 constexpr EnumNames<CameraType> kCameraTypeNames = {{CameraType::Perspective, "PERSP"}, {CameraType::Orthographic, "ORTHO"}};
 
 Mat4 to_mat4(const FloatArray& a, const char* what);
+
+// A light's IES profile (None: none) and its frame: Cycles evaluates the light shader's normal
+// in the light's space by the transposed matrix (transform_direction_transposed).
+void set_light_ies(Light& l, const py::object& ies, const Mat4& m) {
+  if (ies.is_none()) return;
+  l.ies = ies.cast<std::shared_ptr<IesProfile>>();
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) l.ies_to_local.m[i][j] = m.m[j][i];
+}
 
 // The inverse of the upper 3x3 of m, for transforming directions into a light's frame.
 Mat4 inverse3x3(const Mat4& m, const char* what) {
@@ -1671,6 +1681,24 @@ FloatArray sample_points(const VolumeGrid& g, const FloatArray& points, bool ind
 }
 
 void bind_volume_grids(py::module_& m) {
+  py::class_<IesProfile, std::shared_ptr<IesProfile>>(m, "IesProfile",
+      "An IES light profile (IESNA LM-63 text), read and looked up as Cycles 4.5's IES Texture: values in "
+      "Cycles' lamp-strength units (candela x 4 pi / 177.83).")
+      .def(py::init([](const py::bytes& text) {
+             auto p = std::make_shared<IesProfile>();
+             std::string err;
+             if (!parse_ies(std::string(text), *p, err)) throw py::value_error("IES profile: " + err);
+             return p;
+           }),
+           py::arg("text"), "Parses the file's bytes; ValueError where it cannot be read (as Cycles rejects it).")
+      .def(
+          "eval", [](const IesProfile& p, const py::object& d) { return ies_eval(p, to_point(d, "direction")); },
+          py::arg("direction"), "The value towards a light-local direction (-Z: straight down, vertical angle 0).")
+      .def("lookup", &ies_lookup, py::arg("h_angle"), py::arg("v_angle"), "The value at Cycles' angles (radians).")
+      .def_property_readonly("h_angles", [](const IesProfile& p) { return p.h; })
+      .def_property_readonly("v_angles", [](const IesProfile& p) { return p.v; })
+      .def_readonly("mean", &IesProfile::mean);
+
   py::class_<VolumeGrid, std::shared_ptr<VolumeGrid>>(m, "VolumeGrid",
       "One grid of a .vdb file, sparse (8^3 bricks), for sampling in object or index space.")
       .def_readonly("name", &VolumeGrid::name)
@@ -2826,10 +2854,12 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "add_point_light",
           [](PyScene& self, const py::object& position, const py::object& intensity, float radius, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume, bool soft_falloff) {
+             bool visible_transmission, bool visible_volume, bool soft_falloff, const py::object& ies,
+             const py::object& ies_matrix) {
             self.check_editable();
             Light l;
             l.type = LightType::Point;
+            set_light_ies(l, ies, ies_matrix.is_none() ? Mat4() : to_mat4(ies_matrix.cast<FloatArray>(), "ies_matrix"));
             l.position = to_point(position, "position");
             l.color = to_color(intensity, "intensity");
             l.radius = finite_nonneg(radius, "radius");
@@ -2842,16 +2872,19 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("position"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
           py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("soft_falloff") = true,
+          py::arg("ies") = py::none(), py::arg("ies_matrix") = py::none(),
           "soft_falloff=False: Blender's Soft Falloff off, a true emitting sphere of the radius (Cycles' sphere "
-          "light); True: the disk facing the shaded point.")
+          "light); True: the disk facing the shaded point. ies: an IesProfile scaling the intensity by direction in "
+          "the frame of ies_matrix (the light's 4x4 world matrix; identity if None).")
       .def(
           "add_spot_light",
           [](PyScene& self, const FloatArray& matrix, const py::object& intensity, float radius, float spot_size,
              float spot_blend, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume, bool soft_falloff) {
+             bool visible_transmission, bool visible_volume, bool soft_falloff, const py::object& ies) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "spot light matrix");
             Light l;
+            set_light_ies(l, ies, m);
             l.type = LightType::Spot;
             l.sphere = !soft_falloff;
             l.position = {m.m[0][3], m.m[1][3], m.m[2][3]};
@@ -2883,7 +2916,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("spot_blend") = 0.15f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
           py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("soft_falloff") = true,
-          "soft_falloff=False: an emitting sphere of the radius (Cycles' sphere spot light).")
+          py::arg("ies") = py::none(),
+          "soft_falloff=False: an emitting sphere of the radius (Cycles' sphere spot light). ies: an IesProfile "
+          "scaling the intensity by direction in the light's frame.")
       .def(
           "add_sun_light",
           [](PyScene& self, const py::object& direction, const py::object& irradiance, float angle, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
@@ -2912,10 +2947,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           "add_area_light",
           [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, const py::object& radiance,
              bool ellipse, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume, float spread) {
+             bool visible_transmission, bool visible_volume, float spread, const py::object& ies) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "area light matrix");
             Light l;
+            set_light_ies(l, ies, m);
             l.type = ellipse ? LightType::Ellipse : LightType::Rect;
             l.position = {m.m[0][3], m.m[1][3], m.m[2][3]};
             l.axis_u = m.vector({finite_nonneg(size_x, "size_x"), 0.0f, 0.0f});
@@ -2942,8 +2978,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
           py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("spread") = kPi,
+          py::arg("ies") = py::none(),
           "spread: Blender's Spread (radians, 0.1 degrees to pi): below pi the emission is limited to a cone about "
-          "the normal, as Cycles' soft-box grid.")
+          "the normal, as Cycles' soft-box grid. ies: an IesProfile scaling the radiance by the direction of the "
+          "light leaving the light, in its frame.")
       .def(
           "set_world_texture",
           [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj) {

@@ -7,6 +7,7 @@
 #include <memory>
 #include <vector>
 
+#include "scene/ies.h"
 #include "scene/sky.h"
 
 #include "util/sampling.h"
@@ -54,7 +55,18 @@ struct Light {
   // extent only) and both estimators are MIS-weighted; off: next-event estimation alone.
   bool mis = true;
   uint8_t visibility = kLightVisAll & ~kLightVisCamera;  // LightVisibility bits
+  // The light node tree's IES Texture (point, spot, area): the emission times the profile's
+  // value towards the light-local direction of the light leaving it, in light samples and ray
+  // hits alike (so MIS stays exact). ies_to_local: world -> local as Cycles transforms the
+  // shader's normal (the matrix's transposed 3x3).
+  std::shared_ptr<const IesProfile> ies;
+  Mat4 ies_to_local;
 };
+
+// The IES factor of light l for light leaving it along from_light (world, any length).
+inline float light_ies_factor(const Light& l, Vec3 from_light) {
+  return l.ies ? ies_eval(*l.ies, l.ies_to_local.vector(from_light)) : 1.0f;
+}
 
 // Direction towards a light sample, as seen from a shading point.
 struct LightSample {
@@ -306,9 +318,8 @@ inline bool sample_sphere_light(const Light& l, Vec3 p, Vec2 u, LightSample& s) 
   return true;
 }
 
-// Samples light `l` from point p; returns false if it cannot contribute there. `solid_angle`:
-// rectangles by their solid angle where it is large enough (else uniformly by area).
-inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool solid_angle = true) {
+// sample_light without the IES profile.
+inline bool sample_light_shape(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool solid_angle) {
   switch (l.type) {
     case LightType::Point:
     case LightType::Spot: {
@@ -429,6 +440,17 @@ inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool so
   return false;
 }
 
+// Samples light `l` from point p; returns false if it cannot contribute there. `solid_angle`:
+// rectangles by their solid angle where it is large enough (else uniformly by area).
+inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool solid_angle = true) {
+  if (!sample_light_shape(l, p, u, s, solid_angle)) return false;
+  if (!l.ies) return true;
+  const float f = light_ies_factor(l, -s.wi);
+  if (!(f > 0.0f)) return false;
+  s.li = s.li * f;
+  return true;
+}
+
 // Whether a ray can hit light l at all: it has extent as sample_light sees it (a point or spot
 // of zero radius and a sun of zero angle are delta lights).
 inline bool light_has_extent(const Light& l) {
@@ -442,6 +464,9 @@ inline bool light_has_extent(const Light& l) {
   return false;
 }
 
+inline bool intersect_light_shape(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float tmax, float& t, Vec3& le,
+                                  float& pdf, bool solid_angle);
+
 // A ray from org along the unit direction dir, up to distance tmax, against the surface of light
 // l as a light sample taken at `from` sees it (point and spot disks face `from`; the ray's line
 // passes through it). On a hit: the distance t from org, the emitted radiance le towards the
@@ -449,6 +474,16 @@ inline bool light_has_extent(const Light& l) {
 // point (the light's choice not included). Suns: only rays that escape (tmax infinite).
 inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float tmax, float& t, Vec3& le, float& pdf,
                             bool solid_angle = true) {
+  if (!intersect_light_shape(l, from, org, dir, tmax, t, le, pdf, solid_angle)) return false;
+  if (!l.ies) return true;
+  const float f = light_ies_factor(l, -dir);
+  if (!(f > 0.0f)) return false;
+  le = le * f;
+  return true;
+}
+
+inline bool intersect_light_shape(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float tmax, float& t, Vec3& le,
+                                  float& pdf, bool solid_angle) {
   switch (l.type) {
     case LightType::Point:
     case LightType::Spot: {
@@ -526,7 +561,7 @@ inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float
 // Rough emitted power, for choosing among lights (only ratios matter). `scene_radius` bounds
 // the sun's footprint on the scene.
 inline float light_power(const Light& l, float scene_radius) {
-  const float lum = std::max(luminance(l.color), 0.0f);
+  const float lum = std::max(luminance(l.color), 0.0f) * (l.ies ? l.ies->mean : 1.0f);
   float p = 0.0f;
   switch (l.type) {
     case LightType::Point: p = 4.0f * kPi * lum; break;

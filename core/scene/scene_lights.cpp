@@ -302,7 +302,7 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
     LightBounds& b = items[k];
     if (k < lights_.size()) {
       const Light& l = lights_[k];
-      const float lum = std::max(luminance(l.color), 0.0f);
+      const float lum = std::max(luminance(l.color), 0.0f) * (l.ies ? l.ies->mean : 1.0f);
       switch (l.type) {
         case LightType::Point:
         case LightType::Spot: {

@@ -191,7 +191,9 @@ def test_unsupported_features_warn(scene):
     add_light('AREA', name="Portal", energy=5.0).data.cycles.is_portal = True
     ies = add_light('SPOT', name="IES", energy=5.0).data
     ies.use_nodes = True
-    ies.node_tree.nodes.new("ShaderNodeTexIES")
+    # IES Texture -> Emission Strength is supported (test_ies_lights.py); into the colour it is not.
+    ies_node = ies.node_tree.nodes.new("ShaderNodeTexIES")
+    ies.node_tree.links.new(ies_node.outputs["Fac"], ies.node_tree.nodes["Emission"].inputs["Color"])
     tex = add_light('POINT', name="Textured", energy=5.0).data
     tex.use_nodes = True
     noise = tex.node_tree.nodes.new("ShaderNodeTexNoise")
