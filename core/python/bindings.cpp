@@ -3294,6 +3294,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           "Many-light sampling by a light tree: 'auto' (the default: where the scene has more than "
           "8 finite lights), 'on' or 'off' (one distribution by power). Takes effect at the next commit().")
+      .def_property(
+          "world_light_samples", [](const PyScene& self) { return self.scene->world_samples(); },
+          [](PyScene& self, bool on) { self.scene->set_world_samples(on); },
+          "Light samples of a constant world colour that is the only light, at every surface vertex "
+          "besides the BSDF ray (MIS-weighted; the default). False: the BSDF ray alone finds it.")
       .def_property_readonly("light_tree_active", [](const PyScene& self) { return self.scene->light_tree_active(); },
                              "Whether the last commit() built a light tree that sample_direct uses.")
       .def("stats", &scene_stats)

@@ -548,6 +548,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   Vec3 mis_n(0.0f);         // its shading normal (the light tree's choice depends on it)
                             // (without the tree: stays zero, unused)
   const bool nee = s.use_nee && scene.has_lights();
+  // A constant world colour that is the only light is light-sampled (Scene::samples_world), by
+  // the cosine about sky_n, the geometric normal of the last vertex that scattered (zero: it drew
+  // no such sample). Besides lights it does not pay: docs/design/sampling.md "Sky samples".
+  const bool sky = s.use_nee && !nee && scene.samples_world();
+  Vec3 sky_n(0.0f);
   // Analytic lights with extent that rays may cross (lights never occlude: a ray finds every one
   // before its hit), and the kind of the ray for their visibility (the camera's runs on through
   // Transparent BSDFs).
@@ -801,6 +806,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           ray_vis = kLightVisVolume;
           mis_org = p;
           mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
+          sky_n = Vec3(0.0f);  // nor did it sample the sky
           // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
           if (volume_count >= s.volume_bounces) emission_only = true;
           ++volume_count;
@@ -842,6 +848,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       float w = 1.0f;
       if constexpr (kEnv)
         if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
+      if (sky && !prev_delta) {
+        const float cos_sky = dot(ray.dir, sky_n);  // (a scattered ray's direction is a unit vector)
+        if (cos_sky > 0.0f) w = power_heuristic(prev_pdf, cos_sky * kInvPi);
+      }
       const Vec3 bg = scene.background(ray.dir);
       if constexpr (kAovs) {
         if (direct && aov) {
@@ -921,14 +931,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (guided) guide_cell = guide->cell_of(sp.p, ng_out);
     }
 
-    if (nee && (!kNonDiffuse || cl.has_nondelta)) {
-      DirectSample ds;
-      ds.path = &ray_state;
-      if constexpr (kTree) ds.n = sp.ns;
-      const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
-      u_rr = u_sel.y;
-      const Vec2 u_pt = sampler.get2d();
-      if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) {
+    bool sky_here = false;  // this vertex sampled the sky: the BSDF ray's escape is weighed against it
+    if ((nee || sky) && (!kNonDiffuse || cl.has_nondelta)) {
+      // A light sample: its shadow ray and its weight against the BSDF's sample.
+      const auto add_sample = [&](const DirectSample& ds) {
         const bool above = dot(ds.wi, ng_out) > 0.0f;
         bool reflection = above;
         Vec3 org = sp.p;
@@ -949,45 +955,64 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         float bsdf_pdf;
         const Vec3 f = ds.exclude ? eval_mixture_excluding(cl, wo, ds.wi, reflection, ds.exclude, bsdf_pdf)
                                   : eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
-        if (!is_black(f) && !is_black(ds.li)) {
-          Vec3 vis(1.0f);
-          Ray shadow;
-          shadow.time = ray.time;
-          shadow.org = offset_ray_origin(org, sp.p_error, reflection ? ng_out : -ng_out);
-          shadow.self_curve = scene.self_curve(sp);
-          if (std::isinf(ds.dist)) {
-            shadow.dir = ds.wi;
-            shadow.tmax = kInf;
-          } else {
-            // Offset the light end too, so an emissive triangle never blocks its own sample.
-            const bool tri = !is_black(ds.target_normal);
-            const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
-            shadow.dir = target - shadow.org;
-            shadow.tmax = 1.0f - 1e-4f;  // pbrt's ShadowEpsilon, on top of both offsets
-          }
-          if (kMedia && volumes) {
-            // Through the media on the sample's side of the surface and the volumes beyond.
-            Medium side = medium;
-            if (!reflection) side.cross(scene, sp, front);
-            ++c.rays;
-            vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng);
-          } else if (ds.cast_shadow) {
-            ++c.rays;
-            vis = scene.transmittance(shadow);
-          }
-          // Light inside an absorbing medium (only reachable when the segment stays inside it).
-          if constexpr (kMedia) {
-            const Vec3 msig = reflection ? sigma : Vec3(0.0f);
-            if (!is_black(msig) && std::isfinite(ds.dist)) vis = vis * beer(msig, ds.dist);
-          }
-          if (!is_black(vis)) {
-            if constexpr (kGuide)
-              if (guided && guide_sampling && !last)
-                bsdf_pdf = (1.0f - guide_prob) * bsdf_pdf + guide_prob * guide->pdf(guide_cell, ds.wi);
-            const float w = (ds.delta || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
-            L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
-          }
+        if (is_black(f) || is_black(ds.li)) return;
+        Vec3 vis(1.0f);
+        Ray shadow;
+        shadow.time = ray.time;
+        shadow.org = offset_ray_origin(org, sp.p_error, reflection ? ng_out : -ng_out);
+        shadow.self_curve = scene.self_curve(sp);
+        if (std::isinf(ds.dist)) {
+          shadow.dir = ds.wi;
+          shadow.tmax = kInf;
+        } else {
+          // Offset the light end too, so an emissive triangle never blocks its own sample.
+          const bool tri = !is_black(ds.target_normal);
+          const Vec3 target = tri ? offset_ray_origin(ds.target, ds.target_error, ds.target_normal) : ds.target;
+          shadow.dir = target - shadow.org;
+          shadow.tmax = 1.0f - 1e-4f;  // pbrt's ShadowEpsilon, on top of both offsets
         }
+        if (kMedia && volumes) {
+          // Through the media on the sample's side of the surface and the volumes beyond.
+          Medium side = medium;
+          if (!reflection) side.cross(scene, sp, front);
+          ++c.rays;
+          vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng);
+        } else if (ds.cast_shadow) {
+          ++c.rays;
+          vis = scene.transmittance(shadow);
+        }
+        // Light inside an absorbing medium (only reachable when the segment stays inside it).
+        if constexpr (kMedia) {
+          const Vec3 msig = reflection ? sigma : Vec3(0.0f);
+          if (!is_black(msig) && std::isfinite(ds.dist)) vis = vis * beer(msig, ds.dist);
+        }
+        if (!is_black(vis)) {
+          if constexpr (kGuide)
+            if (guided && guide_sampling && !last)
+              bsdf_pdf = (1.0f - guide_prob) * bsdf_pdf + guide_prob * guide->pdf(guide_cell, ds.wi);
+          const float w = (ds.delta || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
+          L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
+        }
+      };
+      if (nee) {
+        DirectSample ds;
+        ds.path = &ray_state;
+        if constexpr (kTree) ds.n = sp.ns;
+        const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
+        u_rr = u_sel.y;
+        const Vec2 u_pt = sampler.get2d();
+        if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) add_sample(ds);
+      } else if (sky) {
+        const Vec2 u_sky = sampler.get2d();
+        const Vec3 l = sample_cosine_hemisphere(u_sky);
+        DirectSample ds;
+        ds.pdf = l.z * kInvPi;
+        if (ds.pdf > 0.0f) {
+          ds.wi = Frame::from_normal(ng_out).to_world(l);
+          ds.li = scene.world_color();
+          add_sample(ds);
+        }
+        sky_here = true;
       }
     }
     // The last vertex does light samples only; one with a BSSRDF still walks to its exit, which
@@ -995,7 +1020,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     bool sss_here = false;
     if constexpr (kSubsurface)
       for (int i = 0; i < cl.n; ++i) sss_here = sss_here || std::holds_alternative<SubsurfaceBsdf>(cl.c[size_t(i)].bsdf);
-    if (last && nee && !sss_here) break;
+    if (last && (nee || sky) && !sss_here) break;
 
     // Choose a closure in proportion to its weight, then sample it.
     // Closure choice, then reflect-or-refract: neither is read for a lone diffuse closure, so
@@ -1052,7 +1077,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         direct = false;
         want_data = false;
         sss_exit = true;
-      } else if (last && nee) {
+      } else if (last && (nee || sky)) {
         break;  // another lobe at the last vertex: its light sample above had all the weight
       }
     }
@@ -1133,6 +1158,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       prev_samples_only = samples_only;
       mis_org = sp.p;
       if constexpr (kTree) mis_n = sp.ns;
+      sky_n = sky_here ? ng_out : Vec3(0.0f);
     }
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its

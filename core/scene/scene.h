@@ -403,6 +403,14 @@ class Scene {
   void set_material(uint32_t id, Material m);
   void clear_lights() { lights_.clear(); committed_ = false; }
   void set_world_color(Vec3 c) { world_color_ = c; }
+  // A constant world colour that is the scene's only light, sampled as a light at every surface
+  // vertex by the cosine about the geometric normal, besides the BSDF ray that also finds it
+  // (both MIS-weighted; off: the BSDF ray alone, as before). Only a constant world: a map is a
+  // light of light_dist_; with other lights the BSDF ray alone finds it (sampling it too did
+  // not pay: docs/design/sampling.md "Sky samples").
+  void set_world_samples(bool on) { world_samples_ = on; }
+  bool world_samples() const { return world_samples_; }
+  bool samples_world() const { return world_samples_ && features_.world_light; }
   // The world's Volume: a medium filling all space outside objects' media, the camera starts in
   // it. Homogeneous (its medium fields), or a Volume program (ShaderProgram::volume): then a
   // heterogeneous medium over the scene's bounds (world_hetero(); docs/design/volumes.md
@@ -850,6 +858,7 @@ class Scene {
   static void set_instance_matrix(InstanceData& in, const Mat4& m);
   void surface_point_in(const InstanceData& in, const TriangleVerts& tv, const Hit& h, SurfacePoint& sp) const;
   Vec3 world_color_{0.0f};
+  bool world_samples_ = true;
   ShaderProgram world_volume_;
   CameraDesc camera_;
   bool has_camera_ = false;
