@@ -203,3 +203,62 @@ def test_polynomial_that_sees_nothing_warns_and_renders_black(tmp_path):
     np.testing.assert_array_equal(img[..., :3], 0.0)
     ref = render_to_array(scene, "CYCLES", samples=2, **BOX_FILTER)
     np.testing.assert_array_equal(ref[..., :3], 0.0)
+
+
+@pytest.mark.parametrize("region, zoom", [((64, 32), 1.0), ((160, 64), 1.0), ((128, 64), 0.5)])
+def test_viewport_camera_view_renders_the_panorama_inside_the_border(region, zoom):
+    # Looking through a panoramic camera, the viewport maps the panorama to the camera border
+    # (Cycles' viewport does the same): a region pixel's ray is the final render's ray through
+    # the same place of the frame, with the fisheye sensor fitted to the render, not the region.
+    import types
+
+    from addon import viewport_draw
+    from addon.core import get_core
+    scene = empty_scene(W, H)
+    cam = pano_camera('FISHEYE_EQUISOLID', location=(0.5, -2.0, 1.0), fisheye_fov=3.0, fisheye_lens=9.0)
+    dg = bpy.context.evaluated_depsgraph_get()
+    width, height = region
+    window = np.array(cam.calc_matrix_camera(dg, x=width, y=height))
+    window[:2] *= zoom  # zoomed out: the border covers part of the region
+    context = types.SimpleNamespace(
+        region=types.SimpleNamespace(width=width, height=height), scene=scene,
+        evaluated_depsgraph_get=lambda: dg,
+        region_data=types.SimpleNamespace(view_matrix=np.array(cam.matrix_world.inverted()),
+                                          window_matrix=window, is_perspective=True,
+                                          view_perspective='CAMERA'))
+    reports = []
+    engine = types.SimpleNamespace(report=lambda kind, msg: reports.append(msg))
+    fields, w, h = viewport_draw.view_camera(engine, context)
+    assert reports == [] and (w, h) == region and fields["type"] == 'PANO'
+    left, right, bottom, top = fields["pano_viewplane"]
+    if region == (W, H) and zoom == 1.0:
+        np.testing.assert_allclose(fields["pano_viewplane"], (0, 1, 0, 1), atol=1e-5)
+    pc = get_core()
+
+    def core_camera(f):
+        c = pc.Camera()
+        for key, value in f.items():
+            setattr(c, key, value)
+        return c
+
+    view_cam = core_camera(fields)
+    final_cam = core_camera(panorama_free_export(scene))
+    rng = np.random.default_rng(4)
+    checked = 0
+    for x, y in rng.random((60, 2)) * (width, height):
+        u = left + x / width * (right - left)
+        v = bottom + y / height * (top - bottom)
+        o1, d1, t1 = view_cam.generate_ray(width, height, x, y)
+        o2, d2, t2 = final_cam.generate_ray(W, H, u * W, v * H)
+        assert (t1 > 0) == (t2 > 0)
+        if t1 > 0:
+            np.testing.assert_allclose(d1, d2, atol=2e-5)
+            checked += 1
+    assert checked > 10
+
+
+def panorama_free_export(scene):
+    warnings = Warnings()
+    fields = export_scene(bpy.context.evaluated_depsgraph_get(), warnings).camera
+    assert warnings == []
+    return fields
