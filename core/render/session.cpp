@@ -298,7 +298,8 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
           // The pixel centre's camera ray, counted by the same traversal that renders.
           TraversalCounters tc;
           Hit hit;
-          scene_->intersect(camera_.generate_pinhole(float(fx) + 0.5f, float(fy) + 0.5f), hit, &tc);
+          const Ray r = camera_.generate_pinhole(float(fx) + 0.5f, float(fy) + 0.5f);
+          if (r.tmax > 0.0f) scene_->intersect(r, hit, &tc);  // a panorama's no-ray pixel: nothing
           std::fill(aux, aux + stride, 0.0f);
           aux[film_.pass_offset(Pass::BvhNodes)] = float(tc.nodes);
           aux[film_.pass_offset(Pass::BvhTriangles)] = float(tc.triangles);

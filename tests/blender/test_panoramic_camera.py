@@ -47,8 +47,9 @@ def pano_camera(ptype, location=(0.0, 0.0, 0.0), rotation=(1.3, 0.2, 0.7), **fie
     return cam
 
 
-def environment_scene(tmp_path, ptype, **fields):
+def environment_scene(tmp_path, ptype, pixel_aspect=(1.0, 1.0), **fields):
     scene = empty_scene(W, H)
+    scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = pixel_aspect
     world = world_image(load_image(smooth_environment(), directory=tmp_path))
     world.cycles.sampling_method = 'NONE'  # only seen directly: Cycles needs no importance map
     pano_camera(ptype, **fields)
@@ -65,6 +66,9 @@ MAPPINGS = {
     "fisheye-equisolid": ('FISHEYE_EQUISOLID', dict(fisheye_fov=3.2, fisheye_lens=8.0)),
     "fisheye-equisolid-vertical": ('FISHEYE_EQUISOLID', dict(fisheye_fov=2.6, fisheye_lens=8.0,
                                                              sensor_fit='VERTICAL', sensor_height=20.0)),
+    # Non-square pixels: the fisheye sensor is fitted to the aspect they give the frame.
+    "fisheye-equisolid-pixel-aspect": ('FISHEYE_EQUISOLID', dict(fisheye_fov=3.2, fisheye_lens=8.0,
+                                                                 pixel_aspect=(1.0, 1.7))),
     "fisheye-polynomial": ('FISHEYE_LENS_POLYNOMIAL', dict(fisheye_fov=2.4, fisheye_polynomial_k1=-0.06)),
     "central-cylindrical": ('CENTRAL_CYLINDRICAL', dict(
         central_cylindrical_range_u_min=-2.0, central_cylindrical_range_u_max=2.5,

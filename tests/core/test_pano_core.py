@@ -244,3 +244,13 @@ def test_unknown_panorama_type_and_wrong_polynomial_length():
         cam.panorama_type = "FISHEYE"
     with pytest.raises(ValueError, match="5 values"):
         cam.fisheye_polynomial = (1.0, 2.0)
+
+
+def test_bvh_view_counts_nothing_outside_the_circle():
+    cam = pano("FISHEYE_EQUIDISTANT", fisheye_fov=math.pi)
+    sess = run_session(pc, enclosing_sphere_scene(cam), W, H, 1, threads=2, debug_view="bvh")
+    nodes = sess.film_pass("BVH Nodes")[..., 0]
+    yy, xx = np.mgrid[0:H, 0:W]
+    r = np.hypot((xx + 0.5) / W - 0.5, (yy + 0.5) / H - 0.5) * 2
+    assert np.all(nodes[r < 0.9] > 0)
+    np.testing.assert_array_equal(nodes[r > 1.1], 0.0)
