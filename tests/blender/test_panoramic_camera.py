@@ -289,3 +289,36 @@ def test_camera_motion_blur_matches_cycles(tmp_path):
     assert_agree(ours, ref, "turning equirectangular camera")
     still = render_to_array(build(blur=False), samples=16)
     assert compare(ours, still)[1] > 0.02  # the blur is visible (4 %): the test can fail
+
+
+def texture_coordinate_material(output):
+    """Emission = the Texture Coordinate node's `output` (Camera scaled into 0..1)."""
+    mat = bpy.data.materials.new(output)
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out, em = nt.nodes.new("ShaderNodeOutputMaterial"), nt.nodes.new("ShaderNodeEmission")
+    coords, mapping = nt.nodes.new("ShaderNodeTexCoord"), nt.nodes.new("ShaderNodeMapping")
+    if output == "Camera":
+        mapping.inputs["Scale"].default_value = (0.1, 0.1, 0.1)
+        mapping.inputs["Location"].default_value = (0.5, 0.5, 0.5)
+    nt.links.new(coords.outputs[output], mapping.inputs[0])
+    nt.links.new(mapping.outputs[0], em.inputs["Color"])
+    nt.links.new(em.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+@pytest.mark.parametrize("output", ["Window", "Camera"])
+def test_window_and_camera_coordinates_match_cycles(output):
+    # Cycles' panorama camera space (x forward, y left, z up) and its Window (the direction's
+    # (u, v)), on an emitting sphere around the camera: per pixel.
+    def build():
+        scene = empty_scene(W, H)
+        uv_sphere("s", 4.0, texture_coordinate_material(output), segments=64, location=(0.3, 0.2, -0.1))
+        pano_camera('EQUIRECTANGULAR')
+        return scene
+    ours = render_to_array(build(), samples=16)
+    ref = render_to_array(build(), "CYCLES", samples=16, **BOX_FILTER)
+    diff = np.abs(ours - ref)[..., :3].max(-1)
+    assert diff.max() < 0.01, diff.max()
+    assert ref[..., :3].std() > 0.05  # the coordinates vary over the image
