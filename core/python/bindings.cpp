@@ -2500,7 +2500,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("width"), py::arg("height"), py::arg("x"), py::arg("y"), py::arg("lens") = py::none(),
           "The camera ray through raster (x, y) of a width x height frame: (origin, direction, tmax). "
-          "lens: a point of the unit square on the aperture, or None for the lens centre.");
+          "lens: a point of the unit square on the aperture, or None for the lens centre. tmax 0: no "
+          "ray (outside a panorama's lens).");
 
   // Path guiding's learnt field on its own, for tests of its sampling against its pdf.
   py::class_<GuidingField>(m, "GuidingField")
