@@ -254,3 +254,20 @@ def test_bvh_view_counts_nothing_outside_the_circle():
     r = np.hypot((xx + 0.5) / W - 0.5, (yy + 0.5) / H - 0.5) * 2
     assert np.all(nodes[r < 0.9] > 0)
     np.testing.assert_array_equal(nodes[r > 1.1], 0.0)
+
+
+def test_autofocus_of_a_panorama_takes_the_distance():
+    # A panorama focuses on a sphere: autofocus sets its radius, the distance to the surface.
+    cam = pano("EQUIRECTANGULAR", aperture_size=0.05, focus_distance=1.0)
+    cam.use_autofocus = True
+    cam.autofocus_x, cam.autofocus_y = 0.3, 0.7
+    s = enclosing_sphere_scene(cam)
+    s.commit()
+    o, d, _ = ray(cam, 0.3 * W, 0.7 * H)
+    (t,), _, _, _ = s.intersect(np.array([o], np.float32), np.array([d], np.float32))
+    st = pc.RenderSettings()
+    st.width, st.height, st.samples = W, H, 1
+    stats = pc.Session(s, st).stats()
+    assert stats["autofocus"] == "hit"
+    assert stats["focus_distance"] == pytest.approx(float(np.linalg.norm(np.array(o) + np.array(d) * t - EYE)), rel=1e-5)
+    assert stats["focus_distance"] == pytest.approx(5.0, abs=0.05)
