@@ -91,9 +91,9 @@ def pano_view_params(camera_fields, frame_world, view_matrix, window_matrix, wid
     maps it (its viewplane is the region relative to the border, [0, 1]^2 being the frame).
     frame_world: the camera frame's 4 corners in world space (Camera.view_frame through
     matrix_world); render_aspect: the render's width over height, pixel aspect included (what
-    the fisheye sensor is fitted to). The shift adds as in a final render (Cycles scales it by
-    the ratio of the view's aspect to the render's: not done here). Raises ViewCameraError
-    for a degenerate view."""
+    the fisheye sensor is fitted to). The shift adds as in a final render (Cycles' viewport
+    scales it by two aspect ratios of the region that are equal). Raises ViewCameraError for
+    a degenerate view."""
     view = np.asarray(view_matrix, np.float64)
     proj = np.asarray(window_matrix, np.float64)
     corners = np.asarray(frame_world, np.float64).reshape(-1, 3)
