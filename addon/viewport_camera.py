@@ -82,3 +82,31 @@ def view_camera_params(view_matrix, window_matrix, width, height, is_perspective
     fields.update(matrix_world=cam_to_world.astype(np.float32), clip_start=float(near),
                   clip_end=float(far))
     return fields
+
+
+def pano_view_params(camera_fields, frame_world, view_matrix, window_matrix, width, height,
+                     render_aspect):
+    """A panoramic scene camera seen in the viewport's camera view: the camera's own fields
+    (from export.camera.camera_params), with the panorama mapped to the camera border as Cycles
+    maps it (its viewplane is the region relative to the border, [0, 1]^2 being the frame).
+    frame_world: the camera frame's 4 corners in world space (Camera.view_frame through
+    matrix_world); render_aspect: the render's width over height, pixel aspect included (what
+    the fisheye sensor is fitted to). The shift adds as in a final render (Cycles' viewport
+    scales it by two aspect ratios of the region that are equal). Raises ViewCameraError for
+    a degenerate view."""
+    view = np.asarray(view_matrix, np.float64)
+    proj = np.asarray(window_matrix, np.float64)
+    corners = np.asarray(frame_world, np.float64).reshape(-1, 3)
+    clip = (proj @ view @ np.c_[corners, np.ones(len(corners))].T).T
+    if width < 1 or height < 1 or not np.all(np.isfinite(clip)) or not np.all(clip[:, 3] > 0):
+        raise ViewCameraError("the camera border is not in view")
+    px = (clip[:, 0] / clip[:, 3] + 1.0) * 0.5 * width
+    py = (clip[:, 1] / clip[:, 3] + 1.0) * 0.5 * height
+    x0, x1, y0, y1 = px.min(), px.max(), py.min(), py.max()
+    if not (x1 - x0 > 1e-6 and y1 - y0 > 1e-6 and np.isfinite(render_aspect) and render_aspect > 0):
+        raise ViewCameraError("the camera border is degenerate")
+    fields = dict(camera_fields)
+    fields.update(pano_viewplane=(float(-x0 / (x1 - x0)), float((width - x0) / (x1 - x0)),
+                                  float(-y0 / (y1 - y0)), float((height - y0) / (y1 - y0))),
+                  pano_fit_aspect=float(render_aspect))
+    return fields

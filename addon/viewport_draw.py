@@ -31,7 +31,7 @@ import numpy as np
 
 from .core import get_core
 from .viewport import ViewportSession
-from .viewport_camera import ViewCameraError, view_camera_params
+from .viewport_camera import ViewCameraError, pano_view_params, view_camera_params
 from .viewport_update import describe_updates
 
 log = logging.getLogger(__name__)
@@ -58,6 +58,9 @@ def view_camera(engine, context):
     """(pc.Camera fields, width, height) of the region's view (perspective or orthographic,
     free navigation or camera view)."""
     region, rv3d = context.region, context.region_data
+    pano = _pano_camera_view(engine, context)
+    if pano is not None:
+        return pano, region.width, region.height
     try:
         camera = view_camera_params(np.array(rv3d.view_matrix), np.array(rv3d.window_matrix),
                                     region.width, region.height, rv3d.is_perspective)
@@ -65,6 +68,32 @@ def view_camera(engine, context):
         _report_once(engine, f"{e}; showing the scene camera's view instead")
         camera = None  # the scene camera
     return camera, region.width, region.height
+
+
+def _pano_camera_view(engine, context):
+    """The scene camera's panorama mapped to the camera border when the region looks through a
+    panoramic camera (as Cycles' viewport renders it), else None."""
+    rv3d, scene = context.region_data, getattr(context, "scene", None)
+    cam_obj = scene.camera if scene is not None else None
+    if getattr(rv3d, "view_perspective", None) != 'CAMERA' or cam_obj is None or cam_obj.type != 'CAMERA':
+        return None
+    if cam_obj.data.type != 'PANO':
+        return None
+    from .export.camera import camera_params
+    try:
+        depsgraph = context.evaluated_depsgraph_get()
+        fields = camera_params(scene, depsgraph, lambda msg: _report_once(engine, msg))
+        cam_eval = cam_obj.evaluated_get(depsgraph)
+        m = np.array(cam_eval.matrix_world, np.float64)
+        m[:3, :3] /= np.linalg.norm(m[:3, :3], axis=0)
+        frame = [(m @ np.array([*c, 1.0]))[:3] for c in cam_eval.data.view_frame(scene=scene)]
+        r = scene.render
+        aspect = (r.resolution_x * r.pixel_aspect_x) / (r.resolution_y * r.pixel_aspect_y)
+        return pano_view_params(fields, frame, np.array(rv3d.view_matrix), np.array(rv3d.window_matrix),
+                                context.region.width, context.region.height, aspect)
+    except Exception as e:  # a perspective view of it is the fallback
+        _report_once(engine, f"panoramic camera view: {e}; showing a perspective view instead")
+        return None
 
 
 def view_update(engine, context, depsgraph):

@@ -27,7 +27,7 @@ def camera_params(scene, depsgraph, warn):
     if cam_obj.type != 'CAMERA':
         return params  # any object can be the camera; Blender then uses the default lens
     cam_type = cam.type
-    if cam_type not in ('PERSP', 'ORTHO'):
+    if cam_type not in ('PERSP', 'ORTHO', 'PANO'):
         warn(f"Camera '{cam_obj.name}': {cam_type.lower()} projection is not supported yet; "
              "rendering with a perspective projection")
         cam_type = 'PERSP'
@@ -44,12 +44,79 @@ def camera_params(scene, depsgraph, warn):
     )
     if cam_type == 'ORTHO':
         params["ortho_scale"] = cam.ortho_scale
+    if cam_type == 'PANO':
+        params.update(panorama_params(cam, cam_obj.name, render, warn))
     params.update(_dof_params(cam_obj, cam, cam_type, matrix, depsgraph, warn))
     _autofocus_params(scene, params)
     if params.get("use_autofocus") and "aperture_size" not in params:
         warn(f"Camera '{cam_obj.name}': autofocus needs the camera's depth of field; ignored")
         params["use_autofocus"] = False
     return params
+
+
+# Blender's defaults (RNA), the fallback for a value that is not finite or out of range.
+_PANO_DEFAULTS = dict(fisheye_fov=math.pi, fisheye_lens=10.5, latitude_min=-math.pi / 2,
+                      latitude_max=math.pi / 2, longitude_min=-math.pi, longitude_max=math.pi,
+                      central_cylindrical_range_u_min=-math.pi, central_cylindrical_range_u_max=math.pi,
+                      central_cylindrical_range_v_min=-1.0, central_cylindrical_range_v_max=1.0,
+                      central_cylindrical_radius=1.0)
+_POLY_DEFAULTS = (-1.1735143743862864e-05, -0.019988736137747765, -3.3525323033245513e-06,
+                  3.0992753181635635e-06, -2.60646473293491e-08)
+_POSITIVE = ("fisheye_fov", "fisheye_lens", "central_cylindrical_radius")
+
+
+def panorama_params(cam, name, render, warn):
+    """pc.Camera fields of a panoramic camera (Blender's names and units, as Cycles reads them).
+    Values that are not finite (or not positive where they must be) fall back to Blender's
+    defaults with a warning; ranges that are reversed render as Cycles renders them (mirrored)."""
+    ptype = str(cam.panorama_type)
+    out = dict(panorama_type=ptype)
+    for key, default in _PANO_DEFAULTS.items():
+        v = float(getattr(cam, key, default))
+        if not math.isfinite(v) or (key in _POSITIVE and not v > 0.0):
+            warn(f"Camera '{name}': {key} {v:g} is not usable; using {default:g}")
+            v = default
+        out[key] = v
+    k = [float(getattr(cam, f"fisheye_polynomial_k{i}", d)) for i, d in enumerate(_POLY_DEFAULTS)]
+    if not all(math.isfinite(v) for v in k):
+        warn(f"Camera '{name}': the fisheye polynomial has a value that is not finite; using "
+             "Blender's default coefficients")
+        k = list(_POLY_DEFAULTS)
+    out["fisheye_polynomial"] = k
+    if ptype == 'EQUIRECTANGULAR':
+        for a, b in (("latitude_min", "latitude_max"), ("longitude_min", "longitude_max")):
+            if out[a] > out[b]:
+                warn(f"Camera '{name}': {a} is above {b}; the panorama is mirrored, as in Cycles")
+            elif out[a] == out[b]:
+                warn(f"Camera '{name}': {a} equals {b}; the panorama has no extent on that axis")
+    elif ptype == 'CENTRAL_CYLINDRICAL':
+        for a, b in (("central_cylindrical_range_u_min", "central_cylindrical_range_u_max"),
+                     ("central_cylindrical_range_v_min", "central_cylindrical_range_v_max")):
+            if out[a] == out[b]:
+                warn(f"Camera '{name}': {a} equals {b}; the panorama has no extent on that axis")
+    elif ptype == 'FISHEYE_LENS_POLYNOMIAL' and not _polynomial_sees(out, cam, render):
+        warn(f"Camera '{name}': the lens polynomial maps no pixel inside the field of view; the "
+             "image is black, as in Cycles")
+    return out
+
+
+def _polynomial_sees(params, cam, render):
+    """Whether some pixel of the frame gets a ray from the lens polynomial (Cycles' test:
+    |theta| <= fov / 2), checked on a grid of the fitted sensor."""
+    xr = float(render.resolution_x) * float(render.pixel_aspect_x)
+    yr = float(render.resolution_y) * float(render.pixel_aspect_y)
+    if not (xr > 0 and yr > 0):
+        return True
+    fit = cam.sensor_fit
+    size = float(cam.sensor_height if fit == 'VERTICAL' else cam.sensor_width)
+    horizontal = fit == 'HORIZONTAL' or (fit == 'AUTO' and xr > yr)
+    w, h = (size, size * yr / xr) if horizontal else (size * xr / yr, size)
+    u, v = np.meshgrid(np.linspace(-0.5, 0.5, 65) * w, np.linspace(-0.5, 0.5, 65) * h)
+    r = np.hypot(u, v)
+    k = params["fisheye_polynomial"]
+    with np.errstate(all="ignore"):
+        theta = -(k[0] + k[1] * r + k[2] * r**2 + k[3] * r**3 + k[4] * r**4)
+        return bool(np.any(np.abs(theta) <= 0.5 * params["fisheye_fov"]))
 
 
 def _autofocus_params(scene, params):

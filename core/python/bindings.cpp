@@ -98,7 +98,15 @@ constexpr EnumNames<FilterType> kFilterNames = {
 constexpr EnumNames<DebugView> kDebugViewNames = {{DebugView::None, "none"}, {DebugView::Bvh, "bvh"}};
 constexpr EnumNames<SensorFit> kSensorFitNames = {
     {SensorFit::Auto, "AUTO"}, {SensorFit::Horizontal, "HORIZONTAL"}, {SensorFit::Vertical, "VERTICAL"}};
-constexpr EnumNames<CameraType> kCameraTypeNames = {{CameraType::Perspective, "PERSP"}, {CameraType::Orthographic, "ORTHO"}};
+constexpr EnumNames<CameraType> kCameraTypeNames = {
+    {CameraType::Perspective, "PERSP"}, {CameraType::Orthographic, "ORTHO"}, {CameraType::Panoramic, "PANO"}};
+constexpr EnumNames<PanoramaType> kPanoramaTypeNames = {{PanoramaType::Equirectangular, "EQUIRECTANGULAR"},
+                                                        {PanoramaType::EquiangularCubemapFace, "EQUIANGULAR_CUBEMAP_FACE"},
+                                                        {PanoramaType::Mirrorball, "MIRRORBALL"},
+                                                        {PanoramaType::FisheyeEquidistant, "FISHEYE_EQUIDISTANT"},
+                                                        {PanoramaType::FisheyeEquisolid, "FISHEYE_EQUISOLID"},
+                                                        {PanoramaType::FisheyeLensPolynomial, "FISHEYE_LENS_POLYNOMIAL"},
+                                                        {PanoramaType::CentralCylindrical, "CENTRAL_CYLINDRICAL"}};
 
 Mat4 to_mat4(const FloatArray& a, const char* what);
 
@@ -220,6 +228,20 @@ void validate_camera(const CameraDesc& c) {
     if (!std::isfinite(v)) throw std::invalid_argument("camera parameters must be finite");
   if (c.type == CameraType::Orthographic && !(c.ortho_scale > 0.0f))
     throw std::invalid_argument("camera ortho_scale must be positive");
+  if (c.type == CameraType::Panoramic) {
+    for (float v : {c.fisheye_fov, c.fisheye_lens, c.latitude_min, c.latitude_max, c.longitude_min, c.longitude_max,
+                    c.fisheye_polynomial[0], c.fisheye_polynomial[1], c.fisheye_polynomial[2], c.fisheye_polynomial[3],
+                    c.fisheye_polynomial[4], c.cylinder_u_min, c.cylinder_u_max, c.cylinder_v_min, c.cylinder_v_max,
+                    c.cylinder_radius, c.pano_viewplane[0], c.pano_viewplane[1], c.pano_viewplane[2],
+                    c.pano_viewplane[3], c.pano_fit_aspect})
+      if (!std::isfinite(v)) throw std::invalid_argument("panoramic camera parameters must be finite");
+    if (!(c.fisheye_fov > 0.0f)) throw std::invalid_argument("camera fisheye_fov must be positive");
+    if (!(c.fisheye_lens > 0.0f)) throw std::invalid_argument("camera fisheye_lens must be positive");
+    if (!(c.cylinder_radius > 0.0f)) throw std::invalid_argument("camera central_cylindrical_radius must be positive");
+    if (!(c.pano_fit_aspect >= 0.0f)) throw std::invalid_argument("camera pano_fit_aspect must be >= 0");
+    if (!(c.pano_viewplane[1] != c.pano_viewplane[0]) || !(c.pano_viewplane[3] != c.pano_viewplane[2]))
+      throw std::invalid_argument("camera pano_viewplane must not be empty");
+  }
   if (!(c.aperture_size >= 0.0f)) throw std::invalid_argument("camera aperture_size must be >= 0");
   if (!(c.focus_distance > 0.0f)) throw std::invalid_argument("camera focus_distance must be positive");
   if (!(c.aperture_ratio > 0.0f)) throw std::invalid_argument("camera aperture_ratio must be positive");
@@ -2406,6 +2428,48 @@ PYBIND11_MODULE(pathlight_core, m) {
           "type", [](const CameraDesc& c) { return enum_name(c.type, kCameraTypeNames); },
           [](CameraDesc& c, const std::string& s) { c.type = enum_from_name(s, "camera type", kCameraTypeNames, false); })
       .def_readwrite("ortho_scale", &CameraDesc::ortho_scale)
+      .def_property(
+          "panorama_type", [](const CameraDesc& c) { return enum_name(c.panorama_type, kPanoramaTypeNames); },
+          [](CameraDesc& c, const std::string& s) {
+            c.panorama_type = enum_from_name(s, "panorama_type", kPanoramaTypeNames, false);
+          },
+          "Blender's Camera.panorama_type, for type 'PANO'.")
+      .def_readwrite("fisheye_fov", &CameraDesc::fisheye_fov)
+      .def_readwrite("fisheye_lens", &CameraDesc::fisheye_lens)
+      .def_readwrite("latitude_min", &CameraDesc::latitude_min)
+      .def_readwrite("latitude_max", &CameraDesc::latitude_max)
+      .def_readwrite("longitude_min", &CameraDesc::longitude_min)
+      .def_readwrite("longitude_max", &CameraDesc::longitude_max)
+      .def_property(
+          "fisheye_polynomial",
+          [](const CameraDesc& c) {
+            const float* k = c.fisheye_polynomial;
+            return py::make_tuple(k[0], k[1], k[2], k[3], k[4]);
+          },
+          [](CameraDesc& c, const std::vector<float>& v) {
+            if (v.size() != 5) throw std::invalid_argument("fisheye_polynomial takes 5 values (k0..k4)");
+            for (int i = 0; i < 5; ++i) c.fisheye_polynomial[i] = v[size_t(i)];
+          },
+          "k0..k4 of Blender's lens polynomial (theta = -(k0 + k1 r + ... + k4 r^4), r in mm).")
+      .def_readwrite("central_cylindrical_range_u_min", &CameraDesc::cylinder_u_min)
+      .def_readwrite("central_cylindrical_range_u_max", &CameraDesc::cylinder_u_max)
+      .def_readwrite("central_cylindrical_range_v_min", &CameraDesc::cylinder_v_min)
+      .def_readwrite("central_cylindrical_range_v_max", &CameraDesc::cylinder_v_max)
+      .def_readwrite("central_cylindrical_radius", &CameraDesc::cylinder_radius)
+      .def_property(
+          "pano_viewplane",
+          [](const CameraDesc& c) {
+            const float* v = c.pano_viewplane;
+            return py::make_tuple(v[0], v[1], v[2], v[3]);
+          },
+          [](CameraDesc& c, const std::vector<float>& v) {
+            if (v.size() != 4) throw std::invalid_argument("pano_viewplane takes 4 values (left, right, bottom, top)");
+            for (int i = 0; i < 4; ++i) c.pano_viewplane[i] = v[size_t(i)];
+          },
+          "The part of the panorama the frame spans, (left, right, bottom, top) in units where the "
+          "camera frame is [0, 1]^2 (the viewport's region around the camera border).")
+      .def_readwrite("pano_fit_aspect", &CameraDesc::pano_fit_aspect,
+                     "Width over height the fisheye sensor is fitted to; 0: the frame's.")
       .def_readwrite("aperture_size", &CameraDesc::aperture_size)
       .def_readwrite("focus_distance", &CameraDesc::focus_distance)
       .def_readwrite("aperture_blades", &CameraDesc::aperture_blades)
@@ -2464,7 +2528,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("width"), py::arg("height"), py::arg("x"), py::arg("y"), py::arg("lens") = py::none(),
           "The camera ray through raster (x, y) of a width x height frame: (origin, direction, tmax). "
-          "lens: a point of the unit square on the aperture, or None for the lens centre.");
+          "lens: a point of the unit square on the aperture, or None for the lens centre. tmax 0: no "
+          "ray (outside a panorama's lens).");
 
   // Path guiding's learnt field on its own, for tests of its sampling against its pdf.
   py::class_<GuidingField>(m, "GuidingField")

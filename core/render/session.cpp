@@ -84,7 +84,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     Hit h;
     h.t = r.tmax;
     if (scene_->intersect(r, h) && h.valid()) {
-      camera_.set_focus_distance(camera_.view_depth(r.org + r.dir * h.t));
+      const Vec3 p = r.org + r.dir * h.t;  // a panorama focuses on a sphere: the distance
+      camera_.set_focus_distance(camera_.is_panoramic() ? camera_.z_depth(p) : camera_.view_depth(p));
       autofocus_ = 1;
     } else {
       autofocus_ = 2;
@@ -96,14 +97,6 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   if (settings_.border_width > 0) {
     region_x_ = settings_.border_x;
     region_y_ = settings_.border_y;
-  }
-  {  // the same orthonormal frame as Camera's (Blender ignores the camera's scale)
-    const Mat4& m = view.matrix_world;
-    view_origin_ = {m.m[0][3], m.m[1][3], m.m[2][3]};
-    view_right_ = normalize(Vec3{m.m[0][0], m.m[1][0], m.m[2][0]});
-    view_up_ = Vec3{m.m[0][1], m.m[1][1], m.m[2][1]};
-    view_up_ = normalize(view_up_ - view_right_ * dot(view_up_, view_right_));
-    view_forward_ = -cross(view_right_, view_up_);  // the camera looks down its local -Z
   }
   // The debug view is a deterministic picture of the BVH: one ray per pixel is all it takes.
   total_samples_ = settings_.debug_view == DebugView::Bvh ? 1 : settings_.samples;
@@ -262,15 +255,15 @@ void Session::write_aux(const PathAovs& a, float* out) const {
     for (int c = 0; c < ch; ++c) out[off + c] = std::isfinite(v[c]) ? v[c] : 0.0f;
   };
   // Misses add 0, as in Cycles: Depth reads 1e10 only where no sample hit anything.
-  const float depth = a.hit ? dot(a.position - view_origin_, view_forward_) : 0.0f;
+  const float depth = a.hit ? camera_.z_depth(a.position) : 0.0f;
   put(Pass::Depth, Vec3(depth));
   put(Pass::Normal, a.normal);
   put(Pass::Position, a.position);
   put(Pass::Emit, a.emission);
   put(Pass::Env, a.environment);
-  // Camera space as Cycles writes it: x right, y up, z away from the camera (facing: z < 0).
-  const Vec3 n = a.denoising_normal;
-  put(Pass::DenoisingNormal, {dot(n, view_right_), dot(n, view_up_), dot(n, view_forward_)});
+  // Camera space as Cycles writes it: x right, y up, z away from the camera (facing: z < 0);
+  // a panorama's own camera space.
+  put(Pass::DenoisingNormal, camera_.dir_to_camera(a.denoising_normal));
   put(Pass::DenoisingAlbedo, a.denoising_albedo);
 }
 
@@ -305,7 +298,8 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
           // The pixel centre's camera ray, counted by the same traversal that renders.
           TraversalCounters tc;
           Hit hit;
-          scene_->intersect(camera_.generate_pinhole(float(fx) + 0.5f, float(fy) + 0.5f), hit, &tc);
+          const Ray r = camera_.generate_pinhole(float(fx) + 0.5f, float(fy) + 0.5f);
+          if (r.tmax > 0.0f) scene_->intersect(r, hit, &tc);  // a panorama's no-ray pixel: nothing
           std::fill(aux, aux + stride, 0.0f);
           aux[film_.pass_offset(Pass::BvhNodes)] = float(tc.nodes);
           aux[film_.pass_offset(Pass::BvhTriangles)] = float(tc.triangles);
@@ -327,6 +321,12 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
         // moves (static scenes keep their streams and their rays).
         const Ray ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))
                                 : camera_.generate(rx, ry, lens);
+        if (!(ray.tmax > 0.0f)) {  // outside a panorama's lens: black, as Cycles
+          out = {0.0f, 0.0f, 0.0f, 1.0f};
+          if (aux) write_aux(PathAovs{}, aux);
+          ++paths;
+          continue;
+        }
         const Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
         ++paths;
         const float alpha = std::isfinite(aovs.alpha) ? aovs.alpha : 1.0f;

@@ -132,7 +132,6 @@ class Session {
   float focus_distance_ = 0.0f;
   bool motion_ = false;  // something moves: camera rays draw a shutter time
   int autofocus_ = 0;
-  Vec3 view_origin_, view_right_, view_up_, view_forward_;  // camera frame, for Depth and Denoising Normal
   int total_samples_ = 0;
   IntegratorSettings integrator_;
   TraceFn kernel_ = nullptr;  // chosen once per session: no per-ray feature dispatch

@@ -54,6 +54,212 @@ Camera::Camera(const CameraDesc& d, int width, int height) {
   blade_rotation_ = std::isfinite(d.aperture_rotation) ? d.aperture_rotation : 0.0f;
   inv_aperture_ratio_ = d.aperture_ratio > 0.0f && std::isfinite(d.aperture_ratio) ? 1.0f / d.aperture_ratio : 1.0f;
   set_focus_distance(d.focus_distance);
+
+  cam_x_ = right_;
+  cam_y_ = up_;
+  cam_z_ = -back_;
+  if (type_ == CameraType::Panoramic) {
+    pano_ = d.panorama_type;
+    if (pano_ == PanoramaType::Mirrorball) {  // Cycles' mirror ball looks down its -y
+      cam_x_ = right_;
+      cam_y_ = back_;
+      cam_z_ = up_;
+    } else {  // looks down its +x, as the centre of an environment texture
+      cam_x_ = -back_;
+      cam_y_ = -right_;
+      cam_z_ = up_;
+    }
+    // Cycles' panorama viewplane: the frame spans [0, 1]^2 of (u, v), shifted by the shift.
+    const float* vp = d.pano_viewplane;
+    u0_ = vp[0] + d.shift_x;
+    du_ = (vp[1] - vp[0]) / winx_;
+    v0_ = vp[2] + d.shift_y;
+    dv_ = (vp[3] - vp[2]) / winy_;
+    if (pano_ == PanoramaType::CentralCylindrical) {
+      const float r = d.cylinder_radius;
+      range_[0] = -d.cylinder_u_min;
+      range_[1] = -d.cylinder_u_max;
+      range_[2] = d.cylinder_v_min / r;
+      range_[3] = d.cylinder_v_max / r;
+    } else {
+      range_[0] = d.longitude_min - d.longitude_max;
+      range_[1] = -d.longitude_min;
+      range_[2] = d.latitude_min - d.latitude_max;
+      range_[3] = -d.latitude_min + 0.5f * kPi;
+    }
+    fov_ = d.fisheye_fov;
+    fisheye_lens_ = d.fisheye_lens;
+    for (int i = 0; i < 5; ++i) poly_[i] = d.fisheye_polynomial[i];
+    // The fisheye sensor, fitted as Cycles' Blender sync does (AUTO: the wider side takes the
+    // sensor width).
+    const float aspect = d.pano_fit_aspect > 0.0f ? d.pano_fit_aspect
+                                                  : (winx_ * d.pixel_aspect_x) / (winy_ * d.pixel_aspect_y);
+    const bool horizontal = d.sensor_fit == SensorFit::Horizontal || (d.sensor_fit == SensorFit::Auto && aspect > 1.0f);
+    const float size = d.sensor_fit == SensorFit::Vertical ? d.sensor_height : d.sensor_width;
+    sensor_w_ = horizontal ? size : size * aspect;
+    sensor_h_ = horizontal ? size / aspect : size;
+  }
+}
+
+namespace {
+float safe_acos(float x) { return std::acos(std::clamp(x, -1.0f, 1.0f)); }
+
+// Cycles' fisheye_to_direction: polar angle theta from the axis at the image point (u, v),
+// r = |(u, v)|.
+Vec3 fisheye_dir(float theta, float u, float v, float r) {
+  float phi = safe_acos(r != 0.0f ? u / r : 0.0f);
+  if (v < 0.0f) phi = -phi;
+  const float st = std::sin(theta);
+  return {std::cos(theta), -std::cos(phi) * st, std::sin(phi) * st};
+}
+
+// (y, z) of a direction, unit (zero stays zero): where a fisheye puts it around the centre.
+Vec2 fisheye_radial(Vec3 d) {
+  const float l = std::sqrt(d.y * d.y + d.z * d.z);
+  return l > 0.0f ? Vec2{d.y / l, d.z / l} : Vec2{0.0f, 0.0f};
+}
+}  // namespace
+
+Vec3 Camera::pano_direction(float x, float y) const {
+  float u = u0_ + x * du_, v = v0_ + y * dv_;
+  Vec3 d(0.0f);
+  switch (pano_) {
+    case PanoramaType::Equirectangular: {
+      const float phi = range_[0] * u + range_[1], theta = range_[2] * v + range_[3];
+      const float st = std::sin(theta);
+      d = {st * std::cos(phi), st * std::sin(phi), std::cos(theta)};
+      break;
+    }
+    case PanoramaType::EquiangularCubemapFace:
+      d = normalize(Vec3{1.0f, std::tan((0.5f - u) * 0.5f * kPi), std::tan((v - 0.5f) * 0.5f * kPi)});
+      break;
+    case PanoramaType::Mirrorball: {
+      // The point of the unit ball seen at (u, v), and the incident direction -y reflected
+      // there.
+      const Vec3 n{2.0f * u - 1.0f, 0.0f, 2.0f * v - 1.0f};
+      const float rr = n.x * n.x + n.z * n.z;
+      if (rr > 1.0f) break;
+      const Vec3 b{n.x, -std::sqrt(std::max(1.0f - rr, 0.0f)), n.z};
+      const Vec3 I{0.0f, -1.0f, 0.0f};
+      d = b * (2.0f * dot(b, I)) - I;
+      break;
+    }
+    case PanoramaType::FisheyeEquidistant: {
+      u = (u - 0.5f) * 2.0f;
+      v = (v - 0.5f) * 2.0f;
+      const float r = std::sqrt(u * u + v * v);
+      if (r > 1.0f) break;
+      d = fisheye_dir(r * fov_ * 0.5f, u, v, r);
+      break;
+    }
+    case PanoramaType::FisheyeEquisolid: {
+      u = (u - 0.5f) * sensor_w_;
+      v = (v - 0.5f) * sensor_h_;
+      const float rmax = 2.0f * fisheye_lens_ * std::sin(fov_ * 0.25f);
+      const float r = std::sqrt(u * u + v * v);
+      if (r > rmax) break;
+      d = fisheye_dir(2.0f * std::asin(std::min(r / (2.0f * fisheye_lens_), 1.0f)), u, v, r);
+      break;
+    }
+    case PanoramaType::FisheyeLensPolynomial: {
+      u = (u - 0.5f) * sensor_w_;
+      v = (v - 0.5f) * sensor_h_;
+      const float r = std::sqrt(u * u + v * v), r2 = r * r;
+      const float theta = -(poly_[0] + poly_[1] * r + poly_[2] * r2 + poly_[3] * r2 * r + poly_[4] * r2 * r2);
+      if (!(std::fabs(theta) <= 0.5f * fov_)) break;
+      d = fisheye_dir(theta, u, v, r);
+      break;
+    }
+    case PanoramaType::CentralCylindrical: {
+      const float theta = range_[0] + (range_[1] - range_[0]) * u;
+      d = {std::cos(theta), std::sin(theta), range_[2] + (range_[3] - range_[2]) * v};
+      break;
+    }
+  }
+  return is_finite(d) ? d : Vec3(0.0f);
+}
+
+Vec2 Camera::pano_uv(Vec3 d) const {
+  const float len = length(d);
+  if (!(len > 0.0f)) return {0.0f, 0.0f};
+  d = d / len;
+  switch (pano_) {
+    case PanoramaType::Equirectangular:
+      return {(std::atan2(d.y, d.x) - range_[1]) / range_[0], (safe_acos(d.z) - range_[3]) / range_[2]};
+    case PanoramaType::EquiangularCubemapFace:
+      return {0.5f - std::atan2(d.y, d.x) * 2.0f / kPi, std::atan2(d.z, d.x) * 2.0f / kPi + 0.5f};
+    case PanoramaType::Mirrorball: {
+      d.y -= 1.0f;
+      const float div = 2.0f * std::sqrt(std::max(-0.5f * d.y, 0.0f));
+      if (div > 0.0f) d = d / div;
+      return {0.5f * (d.x + 1.0f), 0.5f * (d.z + 1.0f)};
+    }
+    case PanoramaType::FisheyeEquidistant: {
+      const float r = std::atan2(std::sqrt(d.y * d.y + d.z * d.z), d.x) / fov_;
+      const Vec2 a = fisheye_radial(d);
+      return {0.5f - r * a.x, r * a.y + 0.5f};
+    }
+    case PanoramaType::FisheyeEquisolid: {
+      const float r = 2.0f * fisheye_lens_ * std::sin(safe_acos(d.x) * 0.5f);
+      const Vec2 a = fisheye_radial(d);
+      return {0.5f - r * a.x / sensor_w_, r * a.y / sensor_h_ + 0.5f};
+    }
+    case PanoramaType::FisheyeLensPolynomial: {
+      // Newton's method on theta = -(k0 + k1 r + ... + k4 r^4), from the linear solution.
+      const float theta = -safe_acos(d.x);
+      float r = (theta - poly_[0]) / poly_[1];
+      for (int i = 0; i < 20; ++i) {
+        const float r2 = r * r;
+        const float f = theta - (poly_[0] + poly_[1] * r + poly_[2] * r2 + poly_[3] * r2 * r + poly_[4] * r2 * r2);
+        const float df = poly_[1] + 2.0f * poly_[2] * r + 3.0f * poly_[3] * r2 + 4.0f * poly_[4] * r2 * r;
+        const float step = f / df;
+        r += step;
+        if (!(std::fabs(step) >= 1e-6f)) break;
+      }
+      const Vec2 a = fisheye_radial(d);
+      return {0.5f - r * a.x / sensor_w_, r * a.y / sensor_h_ + 0.5f};
+    }
+    case PanoramaType::CentralCylindrical: {
+      const float z = d.z / std::sqrt(d.x * d.x + d.y * d.y);
+      const float theta = std::atan2(d.y, d.x);
+      return {(theta - range_[0]) / (range_[1] - range_[0]), (z - range_[2]) / (range_[3] - range_[2])};
+    }
+  }
+  return {0.0f, 0.0f};
+}
+
+Vec3 Camera::pano_to_world(const Frame& f, Vec3 d) const {
+  if (pano_ == PanoramaType::Mirrorball) return f.right * d.x + f.back * d.y + f.up * d.z;
+  return -f.back * d.x - f.right * d.y + f.up * d.z;
+}
+
+Ray Camera::generate_pano_in(const Frame& f, float x, float y, Vec2 lens, bool use_lens) const {
+  Ray r;
+  Vec3 d = pano_direction(x, y);
+  if (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f) {
+    // Outside the lens: no ray (Cycles' tmax 0), the pixel stays black.
+    r.org = f.origin;
+    r.dir = -f.back;
+    r.tmax = 0.0f;
+    return r;
+  }
+  d = normalize(d);
+  Vec3 p(0.0f);
+  if (use_lens && aperture_ > 0.0f) {
+    // Cycles' panorama depth of field: the focal surface is the sphere of radius focus_, the
+    // lens a disk perpendicular to the ray (its x axis as close to the panorama's x as can be).
+    const Vec2 a = sample_aperture(lens);
+    Vec3 U = Vec3{1.0f, 0.0f, 0.0f} - d * d.x;
+    U = length_sq(U) > 1e-12f ? normalize(U) : Vec3{0.0f, 1.0f, 0.0f};
+    const Vec3 V = normalize(cross(d, U));
+    p = U * (a.x * aperture_) + V * (a.y * aperture_);
+    d = normalize(d * focus_ - p);
+  }
+  r.dir = normalize(pano_to_world(f, d));
+  // Clipping along the ray, as Cycles does for panoramas.
+  r.org = f.origin + pano_to_world(f, p) + r.dir * clip_start_;
+  r.tmax = clip_len_;
+  return r;
 }
 
 void Camera::set_focus_distance(float d) {
@@ -84,6 +290,11 @@ Vec2 Camera::sample_aperture(Vec2 u) const {
 
 Vec3 Camera::to_ndc(Vec3 p) const {
   const Vec3 c = to_camera(p);
+  if (type_ == CameraType::Panoramic) {
+    const Vec2 uv = pano_uv(c);
+    const Vec3 ndc{uv.x, uv.y, 0.0f};
+    return is_finite(ndc) ? ndc : Vec3(0.0f);
+  }
   float sx = c.x, sy = c.y;
   if (type_ == CameraType::Perspective) {
     if (c.z == 0.0f) return Vec3(0.0f);  // Cycles' perspective divide gives 0 there
@@ -98,6 +309,26 @@ void Camera::differentials(Vec3 dir, float& dp, float& dd) const {
   dp = dd = 0.0f;
   if (type_ == CameraType::Orthographic) {
     dp = 0.5f * (dx_ + dy_);  // parallel rays: the footprint is the pixel itself
+    return;
+  }
+  if (type_ == CameraType::Panoramic) {
+    // Cycles' panorama differentials: the direction's change to the next pixel in x and in y,
+    // found from the raster position the direction came through.
+    const Vec3 c = dir_to_camera(dir);
+    const Vec2 uv = pano_uv(c);
+    const float x = (uv.x - u0_) / du_, y = (uv.y - v0_) / dv_;
+    if (!std::isfinite(x) || !std::isfinite(y)) return;
+    const Vec3 d0 = normalize(c);
+    float sum = 0.0f;
+    int n = 0;
+    for (const Vec3 dn : {pano_direction(x + 1.0f, y), pano_direction(x, y + 1.0f)}) {
+      if (dn.x == 0.0f && dn.y == 0.0f && dn.z == 0.0f) continue;  // past the image circle
+      sum += length(normalize(dn) - d0);
+      ++n;
+    }
+    dd = n ? sum / float(n) : 0.0f;
+    dp = clip_start_ * dd;
+    if (!std::isfinite(dd) || !std::isfinite(dp)) dp = dd = 0.0f;
     return;
   }
   const Vec3 c = dir_to_camera(dir);
@@ -123,6 +354,7 @@ Ray Camera::generate(float x, float y, Vec2 lens, float time) const {
 }
 
 Ray Camera::generate_pinhole_in(const Frame& f, float x, float y) const {
+  if (type_ == CameraType::Panoramic) return generate_pano_in(f, x, y, {0.5f, 0.5f}, false);
   const Vec3 &origin_ = f.origin, &right_ = f.right, &up_ = f.up, &back_ = f.back;  // the frame's, shadowing
   const float px = x0_ + x * dx_, py = y0_ + y * dy_;
   Ray r;
@@ -144,6 +376,7 @@ Ray Camera::generate_pinhole_in(const Frame& f, float x, float y) const {
 }
 
 Ray Camera::generate_in(const Frame& f, float x, float y, Vec2 lens) const {
+  if (type_ == CameraType::Panoramic) return generate_pano_in(f, x, y, lens, true);
   if (aperture_ <= 0.0f) return generate_pinhole_in(f, x, y);
   const Vec3 &origin_ = f.origin, &right_ = f.right, &up_ = f.up, &back_ = f.back;
   const Vec2 a = sample_aperture(lens);

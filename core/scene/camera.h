@@ -3,7 +3,9 @@
 // Blender computes it (BKE_camera_params_compute_viewplane), near/far clipping measured along
 // the view axis. Optional thin lens (Cycles' model): a disk or polygonal aperture of a given
 // radius, every ray through a pixel meets the pinhole ray at the focal plane, which lies at
-// focus_distance along the view axis.
+// focus_distance along the view axis. Panoramic cameras map the raster to a direction as
+// Cycles' camera_sample_panorama does (kernel/camera/projection.h), in Cycles' panorama space
+// (x forward, y left, z up; a mirror ball's: x right, y back, z up).
 #pragma once
 #include <string>
 
@@ -16,7 +18,17 @@
 namespace pl {
 
 enum class SensorFit { Auto, Horizontal, Vertical };
-enum class CameraType { Perspective, Orthographic };
+enum class CameraType { Perspective, Orthographic, Panoramic };
+// Blender's Camera.panorama_type, in its order.
+enum class PanoramaType {
+  Equirectangular,
+  EquiangularCubemapFace,
+  Mirrorball,
+  FisheyeEquidistant,
+  FisheyeEquisolid,
+  FisheyeLensPolynomial,
+  CentralCylindrical
+};
 
 struct CameraDesc {
   Mat4 matrix_world;
@@ -43,6 +55,19 @@ struct CameraDesc {
   // also times the objects' motion.
   std::vector<Mat4> motion;
   std::vector<float> shutter_curve;
+  // Panoramic cameras (type Panoramic), Blender's fields and units (radians, mm).
+  PanoramaType panorama_type = PanoramaType::FisheyeEquisolid;
+  float fisheye_fov = kPi, fisheye_lens = 10.5f;
+  float latitude_min = -0.5f * kPi, latitude_max = 0.5f * kPi;
+  float longitude_min = -kPi, longitude_max = kPi;
+  float fisheye_polynomial[5] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f};  // k0..k4
+  float cylinder_u_min = -kPi, cylinder_u_max = kPi, cylinder_v_min = -1.0f, cylinder_v_max = 1.0f,
+        cylinder_radius = 1.0f;
+  // The part of the panorama the frame spans, in units where the camera's frame is [0, 1]^2
+  // (left, right, bottom, top): the viewport's region around the camera border; shift adds.
+  float pano_viewplane[4] = {0.0f, 1.0f, 0.0f, 1.0f};
+  // Width over height (pixel aspect included) the fisheye sensor is fitted to; 0: the frame's.
+  float pano_fit_aspect = 0.0f;
 };
 
 class Camera {
@@ -64,21 +89,31 @@ class Camera {
   void set_focus_distance(float d);
   // Distance of a world point from the camera along the view axis.
   float view_depth(Vec3 p) const { return -dot(p - origin_, back_); }
+  // The Depth pass (Cycles' camera_z_depth): the view depth, or a panorama's distance.
+  float z_depth(Vec3 p) const { return type_ == CameraType::Panoramic ? length(p - origin_) : view_depth(p); }
+  bool is_panoramic() const { return type_ == CameraType::Panoramic; }
   // Point on the aperture (camera-plane offsets along right/up, before scaling by the radius).
   Vec2 sample_aperture(Vec2 u) const;
-  // Cycles' camera space (x right, y up, z forward: Blender's -Z), without the object's scale:
-  // what the Texture Coordinate and Vector Transform nodes call Camera.
-  Vec3 dir_to_camera(Vec3 v) const { return {dot(v, right_), dot(v, up_), -dot(v, back_)}; }
+  // Cycles' camera space (x right, y up, z forward: Blender's -Z; a panorama's own space),
+  // without the object's scale: what the Texture Coordinate and Vector Transform nodes call
+  // Camera.
+  Vec3 dir_to_camera(Vec3 v) const { return {dot(v, cam_x_), dot(v, cam_y_), dot(v, cam_z_)}; }
   Vec3 to_camera(Vec3 p) const { return dir_to_camera(p - origin_); }
-  Vec3 dir_from_camera(Vec3 v) const { return right_ * v.x + up_ * v.y - back_ * v.z; }
+  Vec3 dir_from_camera(Vec3 v) const { return cam_x_ * v.x + cam_y_ * v.y + cam_z_ * v.z; }
   Vec3 from_camera(Vec3 p) const { return origin_ + dir_from_camera(p); }
   // Cycles' compact ray differentials of a camera ray along `dir` (a cone: the footprint's
   // radius at the ray's start and its growth per unit of distance), for the Wireframe node's
   // pixel size and what else measures a pixel at the shading point.
   void differentials(Vec3 dir, float& dp, float& dd) const;
   // Where a world point projects in the frame, 0..1 from the bottom-left corner (Cycles'
-  // NDC, the Texture Coordinate node's Window; z is 0).
+  // NDC, the Texture Coordinate node's Window; z is 0). A panorama's: its (u, v) of the
+  // direction, as Cycles (no viewplane, no shift).
   Vec3 to_ndc(Vec3 p) const;
+  // A panorama's direction (its own space, not unit) at raster (x, y); zero outside the image
+  // circle or the lens's field of view.
+  Vec3 pano_direction(float x, float y) const;
+  // The inverse: (u, v) of a direction in panorama space.
+  Vec2 pano_uv(Vec3 d) const;
 
  private:
   struct Frame {
@@ -87,6 +122,9 @@ class Camera {
   static Frame frame_of(const Mat4& m);
   Ray generate_pinhole_in(const Frame& f, float x, float y) const;
   Ray generate_in(const Frame& f, float x, float y, Vec2 lens) const;
+  Ray generate_pano_in(const Frame& f, float x, float y, Vec2 lens, bool use_lens) const;
+  // Panorama space -> the frame's world axes.
+  Vec3 pano_to_world(const Frame& f, Vec3 d) const;
   std::vector<DecomposedTransform> motion_;  // empty: static
   ShutterTable shutter_;
   CameraType type_ = CameraType::Perspective;
@@ -98,6 +136,13 @@ class Camera {
   float aperture_ = 0.0f, focus_ = 10.0f, blade_rotation_ = 0.0f, inv_aperture_ratio_ = 1.0f;
   int blades_ = 0;
   float winx_ = 1.0f, winy_ = 1.0f;  // the full frame in pixels
+  Vec3 cam_x_, cam_y_, cam_z_;       // Cycles' camera space axes in the world
+  // Panorama: raster -> (u, v) = (u0 + x du, v0 + y dv), and Cycles' kernel parameters.
+  PanoramaType pano_ = PanoramaType::Equirectangular;
+  float u0_ = 0, du_ = 1, v0_ = 0, dv_ = 1;
+  float range_[4] = {0, 0, 0, 0};  // equirectangular or central cylindrical range
+  float fov_ = kPi, fisheye_lens_ = 10.5f, sensor_w_ = 36.0f, sensor_h_ = 24.0f;
+  float poly_[5] = {0, 0, 0, 0, 0};
 };
 
 }  // namespace pl

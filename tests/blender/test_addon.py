@@ -341,9 +341,12 @@ def test_camera_export(scene):
     cam.data.type = 'ORTHO'  # supported since issue 5: no warning
     params = export_scene(depsgraph(), warnings).camera
     assert warnings == [] and params["type"] == 'ORTHO'
-    cam.data.type = 'PANO'  # still unsupported: a warning, and a perspective render
+    cam.data.type = 'PANO'  # supported since the panoramic cameras: no warning
     params = export_scene(depsgraph(), warnings).camera
-    assert len(warnings) == 1 and "pano" in warnings[0] and params["type"] == 'PERSP'
+    assert warnings == [] and params["type"] == 'PANO'
+    cam.data.type = 'CUSTOM'  # (an OSL camera) still unsupported: a warning, and a perspective render
+    params = export_scene(depsgraph(), warnings).camera
+    assert len(warnings) == 1 and "custom" in warnings[0] and params["type"] == 'PERSP'
 
 
 def test_no_camera_is_an_export_error(scene):

@@ -260,7 +260,7 @@ def test_bad_camera_settings_warn_and_render():
     cam.dof.focus_object = target
     params, warn = export_camera(sc)
     assert params["focus_distance"] == pytest.approx(5.0) and any("plane" in m for m in warn)
-    cam.type = 'PANO'
+    cam.type = 'CUSTOM'  # (PANO is supported since the panoramic cameras)
     params, warn = export_camera(sc)
     assert params["type"] == "PERSP" and any("projection" in m for m in warn)
     cam.dof.aperture_fstop = 0.0

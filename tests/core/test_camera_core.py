@@ -241,7 +241,7 @@ def test_camera_and_settings_validation():
     with pytest.raises(ValueError):
         s.set_camera(c)
     with pytest.raises(ValueError):
-        cam.type = "PANO"
+        cam.type = "CUSTOM"  # (PANO is supported since the panoramic cameras)
     st = pc.RenderSettings()
     with pytest.raises(ValueError):
         st.filter_type = "mitchell"

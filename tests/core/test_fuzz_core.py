@@ -113,6 +113,12 @@ def _event(msg):
 
 CAMERA_FIELDS = ("lens", "sensor_width", "sensor_height", "sensor_fit", "shift_x", "shift_y", "clip_start",
                  "clip_end", "pixel_aspect_x", "pixel_aspect_y")
+# Panoramic cameras: drawn after the fields above, with their own enum and tuple values.
+PANO_FIELDS = ("type", "panorama_type", "fisheye_fov", "fisheye_lens", "latitude_min", "longitude_max",
+               "fisheye_polynomial", "central_cylindrical_radius", "central_cylindrical_range_v_max",
+               "aperture_size")
+PANORAMA_TYPES = ["EQUIRECTANGULAR", "EQUIANGULAR_CUBEMAP_FACE", "MIRRORBALL", "FISHEYE_EQUIDISTANT",
+                  "FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL", "FISHEYE"]
 SETTINGS_FIELDS = ("width", "height", "samples", "max_bounces", "seed", "threads", "tile_size", "use_nee",
                    "sampler", "adaptive_threshold", "adaptive_min_samples", "time_limit",
                    "diffuse_bounces", "glossy_bounces", "transmission_bounces")
@@ -349,6 +355,16 @@ def op(draw):
             if draw(st.integers(0, 3)) == 0:
                 fields[name] = (draw(st.sampled_from(["AUTO", "HORIZONTAL", "VERTICAL", "DIAGONAL"]))
                                 if name == "sensor_fit" else draw(st.floats(0.01, 100.0) | any_float))
+        for name in PANO_FIELDS:
+            if draw(st.integers(0, 3)) == 0:
+                if name == "type":
+                    fields[name] = draw(st.sampled_from(["PERSP", "ORTHO", "PANO", "PANO"]))
+                elif name == "panorama_type":
+                    fields[name] = draw(st.sampled_from(PANORAMA_TYPES))
+                elif name == "fisheye_polynomial":
+                    fields[name] = tuple(draw(st.floats(-1.0, 1.0) | any_float) for _ in range(5))
+                else:
+                    fields[name] = draw(st.floats(-10.0, 100.0) | any_float)
         return kind, (eye, target, fields)
     if kind == "commit":
         return kind, (draw(st.integers(-2, 4)),)
