@@ -281,7 +281,9 @@ Vec3 layer_transmittance(const Scene& scene, const Medium& medium, Vec3 org, Vec
                      [&](float t) { return scene.medium_at(*m.het, org + d * t, d, time); });
 }
 
-Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr) {
+// shadow_mask: the light's shadow sets (shadow linking): blockers of other sets let it pass.
+Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr,
+                          uint64_t shadow_mask = kAllLightSets) {
   Vec3 T(1.0f);
   if (!occlude) {
     if (medium.top())
@@ -300,17 +302,20 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     SurfacePoint sp;
     scene.surface_point(h, sp, ray.time, &ray);
     const Material& mat = scene.material(sp.material);
-    if (!mat.transparent) return Vec3(0.0f);
-    ClosureList cl;
-    RayState shadow;
-    shadow.flags = kRayShadow;
-    shadow.length = h.t * len;
-    scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
-    Vec3 pass(0.0f);
-    for (int c = 0; c < cl.n; ++c)
-      if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
-    T = T * vmin(pass, Vec3(1.0f));
-    if (is_black(T)) return Vec3(0.0f);  // (ratio tracking's estimates may be negative)
+    const bool passed = shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h.inst)) & 1u);
+    if (!mat.transparent && !passed) return Vec3(0.0f);
+    if (!passed) {
+      ClosureList cl;
+      RayState shadow;
+      shadow.flags = kRayShadow;
+      shadow.length = h.t * len;
+      scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
+      Vec3 pass(0.0f);
+      for (int c = 0; c < cl.n; ++c)
+        if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
+      T = T * vmin(pass, Vec3(1.0f));
+      if (is_black(T)) return Vec3(0.0f);  // (ratio tracking's estimates may be negative)
+    }
     const bool front = dot(ray.dir, sp.ng) < 0.0f;
     medium.cross(scene, sp, front);
     const Vec3 side = front ? -sp.ng : sp.ng;
@@ -337,6 +342,7 @@ struct MediumLightSample {
   float factor = 0.0f;
   Ray shadow;
   bool cast_shadow = true;
+  uint64_t shadow_mask = kAllLightSets;  // shadow linking
 };
 inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, float u_sel,
                                 Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls) {
@@ -358,6 +364,7 @@ inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase&
     shadow.tmax = 1.0f - 1e-4f;
   }
   ls.cast_shadow = ds.cast_shadow;
+  ls.shadow_mask = ds.shadow_mask;
   ls.li = ds.li;
   const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
   ls.factor = ph * w / ds.pdf;
@@ -366,7 +373,7 @@ inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase&
 inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, const Medium& medium, PathCounters& c,
                                Pcg32* rng) {
   ++c.rays;
-  const Vec3 vis = shadow_transmittance(scene, ls.shadow, medium, ls.cast_shadow, rng);
+  const Vec3 vis = shadow_transmittance(scene, ls.shadow, medium, ls.cast_shadow, rng, ls.shadow_mask);
   if (is_black(vis)) return Vec3(0.0f);
   return ls.li * vis * ls.factor;
 }
@@ -447,10 +454,11 @@ inline uint8_t closure_light_kind(const Closure& c) {
 // with Multiple Importance on). `through(t)`: the path's throughput to distance t (world
 // units). weigh: MIS against the light sample at `from` (normal from_n) that could have found
 // the same point, as pdf_emitter does for mesh lights; else (camera rays, delta lobes, no
-// light sampling) the full weight.
-template <class Through>
+// light sampling) the full weight. kLinks: light linking, `set` the light set of the point at
+// `from` (lights not linked to it add nothing but to camera rays; its set's pdfs).
+template <bool kLinks = false, class Through>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
-                                  Vec3 from, Vec3 from_n, const Through& through) {
+                                  Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0) {
   Vec3 sum(0.0f);
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
@@ -460,11 +468,13 @@ template <class Through>
   const bool rects = scene.solid_angle_rect_sampling();
   const auto add = [&](const Scene::HitLight& h) {
     if (camera ? !(h.visibility & kLightVisCamera) : (!h.mis || (h.visibility & vis) != vis)) return;
+    if constexpr (kLinks)
+      if (!camera && !((scene.light(h.index).light_mask >> set) & 1u)) return;
     float t, pdf;
     Vec3 le;
     if (!intersect_light(scene.light(h.index), from, ray.org, d, tmax, t, le, pdf, rects)) return;
     float w = 1.0f;
-    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index) * pdf);
+    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, set) * pdf);
     const Vec3 c = through(t) * le * w;
     if (is_finite(c)) sum += c;
   };
@@ -528,6 +538,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   constexpr bool kTree = (F & kKernelLightTree) != 0;
   constexpr bool kSubsurface = (F & kKernelSubsurface) != 0;
   constexpr bool kGuide = (F & kKernelGuiding) != 0;
+  constexpr bool kLinks = (F & kKernelLightLinks) != 0;
   PathAovs* const aov = kAovs ? aov_in : nullptr;
   GuidingField* const guide = kGuide ? s.guide : nullptr;
   bool guide_sampling = false, guide_training = false;
@@ -547,6 +558,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   Vec3 mis_org = ray.org;   // the last vertex that scattered (light samples start there)
   Vec3 mis_n(0.0f);         // its shading normal (the light tree's choice depends on it)
                             // (without the tree: stays zero, unused)
+  // Light linking: the light set of that vertex (media and the camera: the default 0).
+  const bool links = kLinks && scene.features().light_links;
+  uint8_t mis_set = 0;
   const bool nee = s.use_nee && scene.has_lights();
   // Analytic lights with extent that rays may cross (lights never occlude: a ray finds every one
   // before its hit), and the kind of the ray for their visibility (the camera's runs on through
@@ -641,8 +655,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               const auto through_het = [&](float tl) {
                 return beta * ratio_track(majorants, ray.org, d, tl, vrng, density);
               };
-              L += light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
-                              mis_n, through_het);
+              L += links ? light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
+                                              mis_org, mis_n, through_het, mis_set)
+                         : light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
+                                      mis_n, through_het);
               lights_counted = true;
             }
             return delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
@@ -801,6 +817,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           ray_vis = kLightVisVolume;
           mis_org = p;
           mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
+          mis_set = 0;
           // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
           if (volume_count >= s.volume_bounces) emission_only = true;
           ++volume_count;
@@ -831,7 +848,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     }
     if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only)) {
-      const Vec3 lh = light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+      const Vec3 lh = links ? light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
+                                                 mis_org, mis_n, through, mis_set)
+                            : light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
+                                         mis_n, through);
       L += lh;
       if constexpr (kAovs)
         if (direct && aov) aov->emission += lh;  // lights seen by the camera: the Emit pass, as emitters
@@ -841,7 +861,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       // (without an environment that pdf is 0 and the weight 1).
       float w = 1.0f;
       if constexpr (kEnv)
-        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
+        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir, kLinks ? mis_set : 0));
       const Vec3 bg = scene.background(ray.dir);
       if constexpr (kAovs) {
         if (direct && aov) {
@@ -864,13 +884,20 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     ray_state.emission_only = emission_only;
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
 
+    // Light linking, as Cycles: rays other than the camera's get no emission from a mesh light not
+    // linked to the vertex they left, nor from a shadow-linked one (its light samples have the
+    // full weight: Cycles reaches it by dedicated rays instead).
+    if constexpr (kLinks)
+      if (links && !direct && !is_black(cl.emission) &&
+          (!((scene.emitter_light_mask(sp.instance) >> mis_set) & 1u) || scene.emitter_shadow_mask(sp.instance) != kAllLightSets))
+        cl.emission = Vec3(0.0f);
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.
     if (!is_black(cl.emission)) {
       float w = 1.0f;
       if (nee && !prev_delta) {
         // Seen from the last real scattering: transparent crossings in between are part of the
         // same light-sample segment (which saw them through its transmittance).
-        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n));
+        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n, kLinks ? mis_set : 0));
       }
       L += beta * cl.emission * w;
       if constexpr (kAovs)
@@ -925,6 +952,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       DirectSample ds;
       ds.path = &ray_state;
       if constexpr (kTree) ds.n = sp.ns;
+      if constexpr (kLinks) ds.receiver = scene.light_set_of(sp.instance);
       const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
       u_rr = u_sel.y;
       const Vec2 u_pt = sampler.get2d();
@@ -970,10 +998,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             Medium side = medium;
             if (!reflection) side.cross(scene, sp, front);
             ++c.rays;
-            vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng);
+            vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng, kLinks ? ds.shadow_mask : kAllLightSets);
           } else if (ds.cast_shadow) {
             ++c.rays;
-            vis = scene.transmittance(shadow);
+            if (kLinks && ds.shadow_mask != kAllLightSets) vis = scene.transmittance_linked(shadow, ds.shadow_mask);
+            else vis = scene.transmittance(shadow);
           }
           // Light inside an absorbing medium (only reachable when the segment stays inside it).
           if constexpr (kMedia) {
@@ -1099,6 +1128,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         prev_delta = true;
         mis_org = sp.p;
         if constexpr (kTree) mis_n = sp.ns;
+        if constexpr (kLinks) mis_set = scene.light_set_of(sp.instance);
       }
     } else {
       float pdf;
@@ -1133,6 +1163,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       prev_samples_only = samples_only;
       mis_org = sp.p;
       if constexpr (kTree) mis_n = sp.ns;
+      if constexpr (kLinks) mis_set = scene.light_set_of(sp.instance);
     }
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its

@@ -54,6 +54,9 @@ struct Light {
   // extent only) and both estimators are MIS-weighted; off: next-event estimation alone.
   bool mis = true;
   uint8_t visibility = kLightVisAll & ~kLightVisCamera;  // LightVisibility bits
+  // Light and shadow linking (Cycles' light_set_membership / shadow_set_membership): bit s
+  // set: the light reaches receivers of light set s / is blocked by objects of shadow set s.
+  uint64_t light_mask = ~uint64_t(0), shadow_mask = ~uint64_t(0);
 };
 
 // Direction towards a light sample, as seen from a shading point.
