@@ -1,0 +1,158 @@
+"""Light and shadow linking in the core: light sets per object, set masks per light.
+
+A closed form: a diffuse sphere of albedo a inside a black shell that emits Le everywhere sees
+radiance Le from every direction, so it shows a * Le (it is convex: nothing else reaches it).
+Lights in the shell that are not linked to the sphere's light set must add nothing, by light
+samples or by rays, and the MIS weights of the shell's light samples and of the rays that hit
+it must use the sphere's set's pdfs, or the image is not a * Le."""
+import numpy as np
+import pytest
+
+from core_scenes import add_object, camera, core, quad, run_session, uv_sphere
+
+pc = core()
+pytestmark = pytest.mark.sanitize
+
+ALBEDO, LE = 0.8, 0.5
+SET0, SET1 = 0b01, 0b10
+ALL = (1 << 64) - 1
+
+
+def linked_furnace(light_tree="off", blocker=False):
+    """The sphere (light set 1) in the shell (lighting set 1 only), bright lights of set 0 beside
+    it. blocker: a black plate (shadow set 1) between the sphere and part of the shell, which the
+    shell's light passes (its shadow mask has set 0 only)."""
+    s = pc.Scene()
+    s.light_tree = light_tree
+    shell = s.add_material("shell", (0.0, 0.0, 0.0), (LE, LE, LE))
+    grey = s.add_material("grey", (ALBEDO, ALBEDO, ALBEDO))
+    black = s.add_material("black", (0.0, 0.0, 0.0))
+    lamp = s.add_material("lamp", (0.0, 0.0, 0.0), (40.0, 40.0, 40.0))
+    eye = np.eye(4, dtype=np.float32)
+    pos, tris, nrm = uv_sphere(3.0, nu=32, nv=16, inward=True)
+    s.add_instance(s.add_mesh(pos, tris, nrm, None, [shell]), eye, light_mask=SET1,
+                   shadow_mask=SET0 if blocker else ALL)
+    pos, tris, nrm = uv_sphere(0.5, nu=48, nv=24)
+    s.add_instance(s.add_mesh(pos, tris, nrm, None, [grey]), eye, light_set=1)
+    # Set 0's lights, close to the sphere and far brighter than the shell: an emissive quad, an
+    # area light and a point light with a radius (rays cross them: lights never occlude).
+    pos, tris = quad((-0.4, 0.8, -0.4), (0.8, 0, 0), (0, 0, 0.8))
+    s.add_instance(s.add_mesh(pos, tris, None, None, [lamp]), eye, light_mask=SET0)
+    area = np.eye(4, dtype=np.float32)
+    area[:3, 3] = (0.0, 0.0, 1.2)
+    area[:3, :3] = np.diag((1.0, -1.0, -1.0))  # facing down at the sphere
+    s.add_area_light(area, 1.0, 1.0, (50.0, 50.0, 50.0))
+    s.set_light_links(0, light_mask=SET0)
+    s.add_point_light((1.0, 0.0, 0.0), (30.0, 30.0, 30.0), radius=0.2)
+    s.set_light_links(1, light_mask=SET0)
+    for k in range(8):  # more set-0 lamps: the tree has several levels
+        s.add_point_light((1.5 * np.cos(k), 1.5 * np.sin(k), 1.5), (5.0, 5.0, 5.0), radius=0.05)
+        s.set_light_links(2 + k, light_mask=SET0)
+    if blocker:
+        pos, tris = quad((-1.0, 1.0, -1.0), (2.0, 0, 0), (0, 0, 2.0))
+        s.add_instance(s.add_mesh(pos, tris, None, None, [black]), eye, shadow_set=1)
+    s.set_camera(camera(pc, (0.0, -1.6, 0.0), (0.0, 0.0, 0.0), lens=50.0))
+    return s
+
+
+def sphere_mean(scene, samples=64, size=32):
+    film = run_session(pc, scene, size, size, samples, max_bounces=4, threads=2).film()
+    c = film[size // 4: 3 * size // 4, size // 4: 3 * size // 4, :3]  # on the sphere
+    return c
+
+
+@pytest.mark.parametrize("tree", ["off", "on"])
+def test_unlinked_lights_add_nothing_and_mis_uses_the_sets_pdfs(tree):
+    s = linked_furnace(tree)
+    s.commit()
+    assert "light linking" in s.stats()["features"]
+    img = sphere_mean(s)
+    expected = ALBEDO * LE  # a / pi times the irradiance pi Le
+    assert abs(img.mean() / expected - 1.0) < 0.01, img.mean()
+    # Noise-free: every light sample and every ray from the sphere finds the shell alone.
+    assert img.std() / img.mean() < 0.05
+
+
+def test_shadow_linked_blockers_let_the_light_pass():
+    img = sphere_mean(linked_furnace(blocker=True))
+    assert abs(img.mean() / (ALBEDO * LE) - 1.0) < 0.01, img.mean()
+
+
+def test_light_choice_per_set():
+    """Set 1 picks only the shell's triangles, with pmfs that sum to 1; set 0 never the shell."""
+    s = linked_furnace("on")
+    s.commit()
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-0.4, 0.4, (64, 3)).astype(np.float32)
+    n = np.zeros_like(p)
+    u = rng.uniform(0, 1, 64).astype(np.float32)
+    k1, pmf1, all1 = s.light_choices(p, n, u, all_pmfs=True, light_set=1)
+    k0, _, all0 = s.light_choices(p, n, u, all_pmfs=True, light_set=0)
+    # Entries: the 10 analytic lights, the shell's triangles (one group each), the lamp quad.
+    lights, kk = 10, all1.shape[1]
+    assert ((k1 >= lights) & (k1 < kk - 1)).all()
+    np.testing.assert_allclose(all1.sum(axis=1), 1.0, rtol=1e-4)
+    np.testing.assert_allclose(all1[np.arange(64), k1], pmf1, rtol=1e-6)
+    assert ((k0 < lights) | (k0 == kk - 1)).all()
+    assert (all0[:, lights:kk - 1] == 0).all() and (all1[:, :lights] == 0).all()
+    np.testing.assert_allclose(all0.sum(axis=1), 1.0, rtol=1e-4)
+
+
+def test_trivial_linking_renders_the_unlinked_image_bit_for_bit():
+    """Linking that changes nothing (every object in set 1, every light lighting every set)
+    runs the linking code (general kernel) and renders the unlinked general kernel's image."""
+    from core_scenes import cornell
+
+    def build(linked):
+        s = cornell(pc)
+        if linked:  # a sphere in set 1; the masks stay all-sets
+            pos, tris, nrm = uv_sphere(0.2, center=(-0.4, -0.2, 0.2))
+            s.add_instance(s.add_mesh(pos, tris, nrm, None, [0]), np.eye(4, dtype=np.float32), light_set=1,
+                           shadow_set=1)
+        else:
+            pos, tris, nrm = uv_sphere(0.2, center=(-0.4, -0.2, 0.2))
+            s.add_instance(s.add_mesh(pos, tris, nrm, None, [0]), np.eye(4, dtype=np.float32))
+        s.add_point_light((0.5, -0.5, 1.5), (2.0, 2.0, 2.0), radius=0.1)
+        return s
+
+    a = run_session(pc, build(False), 24, 24, 8, threads=2, force_general_kernel=True)
+    b = run_session(pc, build(True), 24, 24, 8, threads=2)
+    assert b.stats()["kernel"] == "general"
+    assert "light linking" in b.stats()["features"]
+    assert a.film()[..., :3].max() > 0.0
+    assert np.array_equal(a.film(), b.film())
+
+
+def test_unlinked_scene_keeps_its_kernel_and_image():
+    """Passing the default sets and masks explicitly changes nothing: same features, same
+    specialised kernel, the same image bit for bit."""
+    from core_scenes import cornell
+
+    def build(explicit):
+        s = cornell(pc)
+        pos, tris, nrm = uv_sphere(0.2, center=(-0.4, -0.2, 0.2))
+        kw = dict(light_set=0, shadow_set=0, light_mask=(1 << 64) - 1, shadow_mask=(1 << 64) - 1) if explicit else {}
+        s.add_instance(s.add_mesh(pos, tris, nrm, None, [0]), np.eye(4, dtype=np.float32), **kw)
+        s.add_point_light((0.5, -0.5, 1.5), (2.0, 2.0, 2.0), radius=0.1)
+        if explicit:
+            s.set_light_links(0)
+        return s
+
+    a = run_session(pc, build(False), 24, 24, 8, threads=2)
+    b = run_session(pc, build(True), 24, 24, 8, threads=2)
+    assert "light linking" not in b.stats()["features"]
+    assert a.stats()["kernel"] == b.stats()["kernel"] != "general"
+    assert np.array_equal(a.film(), b.film())
+
+
+def test_bad_sets_raise():
+    s = pc.Scene()
+    m = s.add_material("grey", (0.5, 0.5, 0.5))
+    pos, tris = quad((0, 0, 0), (1, 0, 0), (0, 1, 0))
+    mesh = s.add_mesh(pos, tris, None, None, [m])
+    with pytest.raises(ValueError):
+        s.add_instance(mesh, np.eye(4, dtype=np.float32), light_set=64)
+    with pytest.raises(ValueError):
+        s.add_instance(mesh, np.eye(4, dtype=np.float32), shadow_set=-1)
+    with pytest.raises(IndexError):
+        s.set_light_links(3, light_mask=1)
