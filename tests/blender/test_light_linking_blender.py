@@ -117,3 +117,23 @@ def test_many_linked_lights_under_the_light_tree_agree_with_cycles():
     assert "light linking" in core_scene.stats()["features"]
     ours, ref = render_pair(lambda: scene, 256, bounces=3)
     assert_agree(ours, ref, "many linked lights, light tree")
+
+
+def test_too_many_collections_warn_and_fall_back():
+    """Past 64 receiver collections (Blender's limit) an emitter is left unlinked, warned."""
+    diffuse_set(16)
+    sphere = bpy.data.objects["Sphere"]
+    for i in range(66):
+        lamp = add_light('POINT', name=f"L{i}", location=(0.0, -2.0, 2.0), energy=1.0)
+        link(lamp, "receiver", [(sphere, 'INCLUDE' if i % 2 else 'EXCLUDE')])
+    warnings = []
+    links = light_links(bpy.context.evaluated_depsgraph_get(), warnings.append)
+    assert any("more than 64 receiver collections" in w for w in warnings), warnings
+    unlinked = [n for n in (f"L{i}" for i in range(66)) if n not in links]
+    assert len(unlinked) == 2
+    assert 0 < links["Sphere"][0] < 64
+    pc = load_addon().core.get_core()
+    from addon.scene_writer import to_core
+    core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
+    core_scene.commit()  # and the core takes it
+    assert "light linking" in core_scene.stats()["features"]
