@@ -484,6 +484,43 @@ template <bool kLinks = false, class Through>
   return sum;
 }
 
+// Shadow-linked lights along a ray leaving surface point sp (side: the normal on its side, d
+// unit): each one the ray's line crosses, seen through a shadow ray that passes the blockers it
+// ignores (`transmit(ray, mask)`), its emission times `beta`, weighted as light_hits weighs
+// (against the light sample at `from` of light set `set`).
+template <class Transmit>
+[[gnu::noinline]] Vec3 dedicated_light_hits(const Scene& scene, const SurfacePoint& sp, Vec3 side, Vec3 d, float time,
+                                            uint8_t vis, bool weigh, float prev_pdf, Vec3 from, Vec3 from_n,
+                                            uint8_t set, Vec3 beta, const Transmit& transmit) {
+  Vec3 sum(0.0f);
+  if (scene.dedicated_lights().empty()) return sum;
+  const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+  for (const Scene::HitLight& h : scene.dedicated_lights()) {
+    const Light& l = scene.light(h.index);
+    if ((h.visibility & vis) != vis || !((l.light_mask >> set) & 1u)) continue;
+    float t, pdf;
+    Vec3 le;
+    if (!intersect_light(l, from, org, d, kInf, t, le, pdf, scene.solid_angle_rect_sampling())) continue;
+    Ray shadow;
+    shadow.time = time;
+    shadow.org = org;
+    shadow.self_curve = scene.self_curve(sp);
+    if (std::isinf(t)) {
+      shadow.dir = d;
+      shadow.tmax = kInf;
+    } else {
+      shadow.dir = d * t;
+      shadow.tmax = 1.0f - 1e-4f;
+    }
+    const Vec3 vis_t = l.cast_shadow ? transmit(shadow, l.shadow_mask) : Vec3(1.0f);
+    if (is_black(vis_t)) continue;
+    const float w = weigh ? power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, set) * pdf) : 1.0f;
+    const Vec3 c = beta * le * vis_t * w;
+    if (is_finite(c)) sum += c;
+  }
+  return sum;
+}
+
 // Diffuse-like vertices (diffuse, rough diffuse, translucent lobes only) find analytic lights by
 // their light samples alone: their rays would find a small light rarely, and splitting the weight
 // with them cost the Sobol-stratified light samples of a soft shadow 30 % more error. Their light
@@ -1013,7 +1050,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             if constexpr (kGuide)
               if (guided && guide_sampling && !last)
                 bsdf_pdf = (1.0f - guide_prob) * bsdf_pdf + guide_prob * guide->pdf(guide_cell, ds.wi);
-            const float w = (ds.delta || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
+            const bool full = ds.delta && !(kLinks && ds.dedicated);  // (dedicated rays find those)
+            const float w = (full || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
             L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
           }
         }
@@ -1213,6 +1251,18 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     }
 
+    // Shadow linking: the new ray finds shadow-linked lights by a dedicated shadow ray each,
+    // past the blockers they ignore (Cycles' intersect_dedicated_light), weighed against their
+    // light samples here. Transparent crossings were covered by the vertex before.
+    if constexpr (kLinks)
+      if (links && !direct && !(kNonDiffuse && (bs.flags & kTransparentLobe)) && !(nee && !prev_delta && prev_samples_only))
+        L += dedicated_light_hits(scene, sp, reflection ? ng_out : -ng_out, wi, ray.time, ray_vis,
+                                  nee && !prev_delta, prev_pdf, mis_org, mis_n, mis_set, beta,
+                                  [&](const Ray& r, uint64_t mask) {
+                                    if constexpr (kMedia)
+                                      if (volumes) return shadow_transmittance(scene, r, medium, true, &vrng, mask);
+                                    return scene.transmittance_linked(r, mask);
+                                  });
     // No roulette after delta lobes (glass, mirrors, transparency): they barely change the
     // throughput, so a roll there (the square root's survival below 1 again) only re-kills
     // what the last rough vertex already rolled for, and amplifies what survives: in glass it

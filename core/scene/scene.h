@@ -235,6 +235,10 @@ struct DirectSample {
   uint8_t receiver = 0;
   // Out (light linking only): the chosen light's shadow sets; blockers of other sets let it pass.
   uint64_t shadow_mask = kAllLightSets;
+  // Out (light linking only): a shadow-linked light with extent, `delta` only because rays do not
+  // find it past blockers: surfaces find it by dedicated rays (Scene::dedicated_lights) and
+  // weigh this sample by MIS; media keep the full weight.
+  bool dedicated = false;
 };
 
 struct SceneStats {
@@ -688,6 +692,9 @@ class Scene {
     }
   }
   const std::vector<HitLight>& hit_suns() const { return hit_suns_; }      // suns with an angle
+  // Shadow-linked lights with extent and Multiple Importance (suns too): rays from surfaces find
+  // them by a dedicated shadow ray past the blockers they ignore, as Cycles' shadow linking.
+  const std::vector<HitLight>& dedicated_lights() const { return dedicated_lights_; }
   const Light& light(size_t k) const { return lights_[k]; }
   size_t light_count() const { return lights_.size(); }
   const Environment& environment() const { return env_; }  // (invalid: none)
@@ -910,7 +917,7 @@ class Scene {
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
   bool light_hits_on_ = true;
-  std::vector<HitLight> hit_lights_, hit_suns_;
+  std::vector<HitLight> hit_lights_, hit_suns_, dedicated_lights_;
   // The BVH over hit_lights_ (empty below kHitLightBvhMin lights): depth first, the left child
   // next to its parent; first: a leaf's first light or an interior node's right child.
   struct HitLightNode {

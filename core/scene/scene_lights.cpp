@@ -272,11 +272,18 @@ void Scene::build_lights() {
   // its sphere; an area light's corners).
   hit_lights_.clear();
   hit_suns_.clear();
+  dedicated_lights_.clear();
   for (size_t k = 0; k < lights_.size() && light_hits_on_; ++k) {
     const Light& l = lights_[k];
-    // Shadow-linked lights: found by light samples alone (full weight) but by the camera, as in
-    // Cycles, whose other rays reach them only through its dedicated shadow-linking rays.
+    // Shadow-linked lights: other rays than the camera's find them by dedicated rays instead.
     const bool mis = l.mis && l.shadow_mask == kAllLightSets;
+    if (l.mis && !mis && light_has_extent(l) && max_component(l.color) > 0.0f) {
+      HitLight d;
+      d.index = uint32_t(k);
+      d.visibility = l.visibility;
+      d.mis = true;
+      dedicated_lights_.push_back(d);
+    }
     if (!light_has_extent(l) || !(mis || (l.visibility & kLightVisCamera))) continue;
     if (!(max_component(l.color) > 0.0f)) continue;
     HitLight h;
@@ -582,8 +589,9 @@ bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u
     s.exclude = uint8_t(~l.visibility & (kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission | kLightVisVolume));
     s.cast_shadow = l.cast_shadow;
     if (links_) {
-      // Shadow linking: found by light samples alone (hit_lights_ leaves it to the camera).
+      // Shadow linking: rays find it only by dedicated rays (dedicated_lights_, surfaces only).
       s.shadow_mask = l.shadow_mask;
+      s.dedicated = !s.delta && l.shadow_mask != kAllLightSets;
       s.delta = s.delta || l.shadow_mask != kAllLightSets;
     }
     return true;

@@ -156,3 +156,43 @@ def test_bad_sets_raise():
         s.add_instance(mesh, np.eye(4, dtype=np.float32), shadow_set=-1)
     with pytest.raises(IndexError):
         s.set_light_links(3, light_mask=1)
+
+
+def glossy(s, name, roughness):
+    return s.add_shader(name, [("const", 0, (0.9, 0.9, 0.9)), ("const", 1, (roughness,)),
+                               ("closure", "glossy", None, {"color": 0, "roughness": 1})])
+
+
+def mirror_room(shadow_mask):
+    """An area light and a sun seen in a mirror sphere and a glossy floor (roughness 0.1),
+    with the given shadow mask on both (the sphere and floor are in shadow set 0)."""
+    s = pc.Scene()
+    floor = glossy(s, "floor", 0.1)
+    mirror = glossy(s, "mirror", 0.0)
+    pos, tris = quad((-3, -3, 0), (6, 0, 0), (0, 6, 0))
+    add_object(s, pos, tris, floor)
+    pos, tris, nrm = uv_sphere(0.6, center=(0.0, 0.5, 0.6))
+    add_object(s, pos, tris, mirror, nrm)
+    area = np.eye(4, dtype=np.float32)
+    area[:3, 3] = (0.8, -0.2, 2.0)
+    area[:3, :3] = np.diag((1.0, -1.0, -1.0))
+    s.add_area_light(area, 0.6, 0.4, (20.0, 20.0, 20.0))
+    s.add_sun_light((-0.3, 0.6, 0.4), (2.0, 2.0, 2.0), angle=0.2)
+    for k in range(2):
+        s.set_light_links(k, shadow_mask=shadow_mask)
+    s.set_camera(camera(pc, (0.0, -3.0, 1.2), (0.0, 0.5, 0.4), lens=35.0))
+    return s
+
+
+def test_shadow_linked_lights_are_seen_by_mirrors_and_weighted_by_mis():
+    """Shadow linking that excludes no blocker in the scene (set 5 is empty) changes the
+    estimator (dedicated rays for the lights, MIS against their light samples) but not the
+    image: the mirror shows the lights, the glossy floor their highlights."""
+    unlinked = run_session(pc, mirror_room(ALL), 32, 32, 256, max_bounces=3, threads=2).film()[..., :3]
+    linked_s = run_session(pc, mirror_room(ALL & ~(1 << 5)), 32, 32, 256, max_bounces=3, threads=2)
+    assert "light linking" in linked_s.stats()["features"]
+    linked = linked_s.film()[..., :3]
+    assert abs(linked.mean() / unlinked.mean() - 1.0) < 0.01
+    reg = lambda im: im.reshape(4, 8, 4, 8, 3).mean(axis=(1, 3))  # noqa: E731
+    a, b = reg(linked), reg(unlinked)
+    assert (np.abs(a - b) <= 0.03 * np.maximum(b, 0.1 * b.mean())).all(), np.round(np.abs(a - b) / b, 3)
