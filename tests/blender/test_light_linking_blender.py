@@ -82,6 +82,35 @@ def test_light_and_shadow_linking_agree_with_cycles():
     assert_agree(ours, ref, "light and shadow linking")
 
 
+def mirror_linked():
+    """A mirror sphere in the diffuse set under a large area light that the box does not
+    shadow: rays off the mirror find the light by dedicated rays past the box (Cycles' own
+    dedicated rays do the same)."""
+    scene = diffuse_set(64)
+    scene.render.resolution_y = 48
+    mat = bpy.data.materials.new("Mirror")
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    glossy = nodes.new("ShaderNodeBsdfGlossy")
+    glossy.inputs["Roughness"].default_value = 0.0
+    glossy.inputs["Color"].default_value = (0.9, 0.9, 0.9, 1.0)
+    mat.node_tree.links.new(glossy.outputs[0], nodes["Material Output"].inputs["Surface"])
+    sphere = bpy.data.objects["Sphere"]
+    sphere.data.materials.clear()
+    sphere.data.materials.append(mat)
+    soft = add_light('AREA', name="Soft", location=(-2.0, -1.0, 3.0), rotation=(0.3, -0.5, 0.0), energy=500.0,
+                     size=2.0)
+    link(soft, "blocker", [(bpy.data.objects["Box"], 'EXCLUDE')])
+    return scene
+
+
+@needs_links
+def test_shadow_linked_light_in_a_mirror_agrees_with_cycles():
+    ours, ref = render_pair(mirror_linked, 512, bounces=3)
+    assert_agree(ours, ref, "shadow-linked light in a mirror")
+
+
 def many_linked_lamps():
     """30 small lamps over the set, every third lighting the sphere only, every third all but
     the box, the rest unlinked; one blocker set: the light tree's per-set trees."""
