@@ -474,7 +474,7 @@ template <bool kLinks = false, class Through>
     Vec3 le;
     if (!intersect_light(scene.light(h.index), from, ray.org, d, tmax, t, le, pdf, rects)) return;
     float w = 1.0f;
-    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, set) * pdf);
+    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, kLinks ? set : 0) * pdf);
     const Vec3 c = through(t) * le * w;
     if (is_finite(c)) sum += c;
   };
