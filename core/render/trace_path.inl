@@ -108,6 +108,10 @@ inline Phase choose_layer_phase(int n, const Vec3* ss, const Phase* phase, const
 struct Medium {
   MediumLayer layer[4];
   int n = 0;
+  // Each layer's instance (light linking: scattering in it uses the innermost one's light set,
+  // as Cycles' volume shading object); UINT32_MAX: the world's.
+  uint32_t instance[4] = {UINT32_MAX, UINT32_MAX, UINT32_MAX, UINT32_MAX};
+  uint32_t inner_instance() const { return n ? instance[n - 1] : UINT32_MAX; }
   // What a point inside all the layers sees. Cycles' volume stack sums every volume the path is
   // in (overlapping objects, a volume inside the world's fog, absorbing glass in fog), so
   // homogeneous layers add up: coefficients and emission summed, the phase their common one
@@ -162,8 +166,9 @@ struct Medium {
     }
     return choose_layer_phase(n, ss, ph, lobes, nl, u, beta);
   }
-  void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr) {
+  void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr, uint32_t inst = UINT32_MAX) {
     if (n < 4) {
+      instance[n] = inst;
       const int nl = het ? 0 : int(p.phase_lobes.size());
       layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase, m, het, nl ? p.phase_lobes.data() : nullptr, nl};
     }
@@ -172,22 +177,24 @@ struct Medium {
   void leave(uint32_t m) {
     for (int i = n - 1; i >= 0; --i)
       if (layer[i].material == m) {
-        for (int j = i; j + 1 < n; ++j) layer[j] = layer[j + 1];
+        for (int j = i; j + 1 < n; ++j) layer[j] = layer[j + 1], instance[j] = instance[j + 1];
         --n;
         combine();
         return;
       }
   }
   // Crossing a surface of material m (front: from outside, along its normal's opposite).
-  void cross(uint32_t m, const ShaderProgram& p, bool front, const HeteroMedium* het = nullptr) {
+  void cross(uint32_t m, const ShaderProgram& p, bool front, const HeteroMedium* het = nullptr,
+             uint32_t inst = UINT32_MAX) {
     if (!p.has_medium()) return;
-    if (front) enter(m, p, het);
+    if (front) enter(m, p, het, inst);
     else leave(m);
   }
   // Crossing the surface at sp: a Volume program's medium is the one built for its instance.
   void cross(const Scene& scene, const SurfacePoint& sp, bool front) {
     const ShaderProgram& p = scene.material(sp.material).program;
-    cross(sp.material, p, front, p.volume && front ? scene.hetero_medium(sp.instance, sp.material) : nullptr);
+    cross(sp.material, p, front, p.volume && front ? scene.hetero_medium(sp.instance, sp.material) : nullptr,
+          sp.instance);
   }
 };
 
@@ -344,10 +351,13 @@ struct MediumLightSample {
   bool cast_shadow = true;
   uint64_t shadow_mask = kAllLightSets;  // shadow linking
 };
+// receiver: the medium's light set (light linking).
 inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, float u_sel,
-                                Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls) {
+                                Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls,
+                                uint8_t receiver = 0) {
   DirectSample ds;
   ds.path = &ray_state;
+  ds.receiver = receiver;
   if (!scene.sample_direct(p, u_sel, u_pt, ds, !last) || (ds.exclude & kLightVisVolume)) return false;
   const float ph = phase_eval(phase, dot(d, ds.wi));
   if (!(ph > 0.0f) || is_black(ds.li)) return false;
@@ -378,9 +388,9 @@ inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, 
   return ls.li * vis * ls.factor;
 }
 Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
-                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng) {
+                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng, uint8_t receiver = 0) {
   MediumLightSample ls;
-  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls)) return Vec3(0.0f);
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver)) return Vec3(0.0f);
   return medium_light_trace(scene, ls, medium, c, rng);
 }
 
@@ -661,6 +671,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       seg_sigma = sigma;
       const MediumLayer* m = medium.top();
       if (m && volumes) seg_medium = m;
+      // Light linking: the light set of the innermost volume's object (the world's: 0).
+      const uint8_t vset = kLinks && links ? scene.light_set_of(medium.inner_instance()) : 0;
       if (m && volumes) {
         // A homogeneous medium: its emission along the segment (analytic), then a free-flight
         // distance that either scatters before the surface or reaches it.
@@ -722,7 +734,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                   if (!is_black(tr))
                     L += beta * tr * ss *
                          medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces, medium, u_sel.x,
-                                       u_pt, ray_state, ray.time, c, &vrng) *
+                                       u_pt, ray_state, ray.time, c, &vrng, vset) *
                          (1.0f / pe);
                 }
               }
@@ -771,14 +783,14 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                   if (s.volume_shared_shadow) {
                     // Traced below: alone, or sharing one shadow ray with the distance sample's.
                     if (medium_light_sample(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls)) {
+                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls, vset)) {
                       eq_w = w;
                       eq_value = w * eq_ls.li * eq_ls.factor;
                       eq_pending = !is_black(eq_value);
                     }
                   } else {
                     const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng);
+                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset);
                     L += w * li;
                   }
                 }
@@ -830,7 +842,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               // without occluders) that costs almost no variance (docs/design/volumes.md).
               MediumLightSample ls;
               Vec3 value(0.0f);
-              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls))
+              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls, vset))
                 value = beta * nee_weight * ls.li * ls.factor;
               const float a_d = average(vabs(value)), a_e = average(vabs(eq_value));
               const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
@@ -840,7 +852,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                 L += eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d));
             } else {
               L += beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time, c,
-                                        &vrng) * nee_weight;
+                                        &vrng, vset) * nee_weight;
             }
           }
           if (last && nee) break;
@@ -854,7 +866,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           ray_vis = kLightVisVolume;
           mis_org = p;
           mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
-          mis_set = 0;
+          mis_set = vset;
           // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
           if (volume_count >= s.volume_bounces) emission_only = true;
           ++volume_count;

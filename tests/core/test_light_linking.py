@@ -196,3 +196,32 @@ def test_shadow_linked_lights_are_seen_by_mirrors_and_weighted_by_mis():
     reg = lambda im: im.reshape(4, 8, 4, 8, 3).mean(axis=(1, 3))  # noqa: E731
     a, b = reg(linked), reg(unlinked)
     assert (np.abs(a - b) <= 0.03 * np.maximum(b, 0.1 * b.mean())).all(), np.round(np.abs(a - b) / b, 3)
+
+
+def fog_box(linked):
+    """A scattering fog cube seen against black, lit by lamp A; linked: the cube in light set 1,
+    A lighting set 1 only and a brighter lamp B set 0 only (which must add nothing)."""
+    s = pc.Scene()
+    fog = s.add_shader("fog", [("const", 0, (1.0, 1.0, 1.0)), ("closure", "transparent", None, {"color": 0})],
+                       volume={"sigma_s": (1.5, 1.5, 1.5), "g": 0.3})
+    pos, tris, nrm = uv_sphere(0.8, nu=24, nv=12)
+    s.add_instance(s.add_mesh(pos, tris, nrm, None, [fog]), np.eye(4, dtype=np.float32), light_set=1 if linked else 0)
+    s.add_point_light((1.2, -0.5, 1.0), (6.0, 6.0, 6.0), radius=0.1)
+    if linked:
+        s.set_light_links(0, light_mask=SET1)
+        s.add_point_light((-1.2, -0.5, 0.5), (30.0, 30.0, 30.0), radius=0.1)
+        s.set_light_links(1, light_mask=SET0)
+    s.set_camera(camera(pc, (0.0, -3.0, 0.0), (0.0, 0.0, 0.0), lens=40.0))
+    return s
+
+
+def test_volume_objects_take_their_light_set():
+    """Scattering in a volume object uses that object's light set (Cycles' volume shading
+    object): the linked fog renders the fog lit by A alone."""
+    ref = run_session(pc, fog_box(False), 24, 24, 256, max_bounces=4, threads=2).film()[..., :3]
+    img = run_session(pc, fog_box(True), 24, 24, 256, max_bounces=4, threads=2).film()[..., :3]
+    assert ref.mean() > 0.01
+    assert abs(img.mean() / ref.mean() - 1.0) < 0.02, (img.mean(), ref.mean())
+    reg = lambda im: im.reshape(3, 8, 3, 8, 3).mean(axis=(1, 3))  # noqa: E731
+    a, b = reg(img), reg(ref)
+    assert (np.abs(a - b) <= 0.05 * np.maximum(b, 0.2 * b.mean())).all(), np.round(np.abs(a - b) / b, 3)
