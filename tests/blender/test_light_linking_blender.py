@@ -111,6 +111,34 @@ def test_shadow_linked_light_in_a_mirror_agrees_with_cycles():
     assert_agree(ours, ref, "shadow-linked light in a mirror")
 
 
+def linked_fog():
+    """A fog cube (Principled Volume, density 0.6) lit by a spot that lights only the fog and a
+    point light that lights everything but the fog."""
+    scene = diffuse_set(64)
+    scene.render.resolution_y = 48
+    mat = bpy.data.materials.new("Fog")
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.remove(nodes["Principled BSDF"])
+    vol = nodes.new("ShaderNodeVolumePrincipled")
+    vol.inputs["Density"].default_value = 0.6
+    mat.node_tree.links.new(vol.outputs[0], nodes["Material Output"].inputs["Volume"])
+    from light_scenes import box
+    fog = box("FogBox", 1.6, mat, location=(0.0, 0.0, 1.0))
+    spot = add_light('SPOT', name="Beam", location=(0.0, -1.0, 3.5), rotation=(0.3, 0.0, 0.0), energy=800.0,
+                     spot_size=0.8, shadow_soft_size=0.1)
+    link(spot, "receiver", [(fog, 'INCLUDE')])
+    lamp = add_light('POINT', name="Lamp", location=(2.0, -2.0, 2.5), energy=500.0, shadow_soft_size=0.2)
+    link(lamp, "receiver", [(fog, 'EXCLUDE')])
+    return scene
+
+
+@needs_links
+def test_linked_volume_agrees_with_cycles():
+    ours, ref = render_pair(linked_fog, 256, bounces=3)
+    assert_agree(ours, ref, "linked volume object")
+
+
 def many_linked_lamps():
     """30 small lamps over the set, every third lighting the sphere only, every third all but
     the box, the rest unlinked; one blocker set: the light tree's per-set trees."""
