@@ -79,7 +79,11 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     points = collect_points(depsgraph, warn, table.index, attributes, table.uv_names)
     point_materials = [table.index(p.material) for p in points]
     lights = collect_lights(depsgraph, warn, is_visible)
-    links = light_links(depsgraph, warn)
+    try:
+        links = light_links(depsgraph, warn)
+    except (AttributeError, TypeError) as e:  # an older or odd Blender: render without linking
+        warn(f"Light linking could not be read ({e}); lights reach every object")
+        links = {}
     attach_to_lights(lights, links)
     unlinked = sorted({c.name for c in curves if c.name in links} | {p.name for p in points if p.name in links})
     if unlinked:
