@@ -101,6 +101,8 @@ def _same_geometry(old, new):
         return False  # volume grids are read afresh (a frame may change them): a new scene
     if old.material_names != new.material_names or len(old.materials) != len(new.materials):
         return False
+    if getattr(old, "light_links", {}) != getattr(new, "light_links", {}):
+        return False  # add_instance sets the objects' light sets
     if getattr(old.uv_sets, "names", None) != getattr(new.uv_sets, "names", None):
         return False
     if len(old.images) != len(new.images) or any(

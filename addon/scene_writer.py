@@ -44,6 +44,7 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             yz = {"grid_y": ids[1], "grid_z": ids[2]} if len(ids) == 3 else {}
             scene.set_mesh_velocity(mesh_id, ids[0], scale, offset, interpolation, **yz)
         motions = getattr(mesh, "motions", None) or []
+        links = getattr(data, "light_links", None)
         attributes = getattr(mesh, "object_attributes", None) or []
         for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
             # Motion blur steps only where the object moves (and so never for older cores).
@@ -52,6 +53,9 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             # for older cores).
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
                 extra["attributes"] = attributes[k]
+            link = links.get(names[k]) if links and names else None
+            if link is not None:  # light linking (so never for older cores)
+                extra.update(light_set=link[0], light_mask=link[1], shadow_set=link[2], shadow_mask=link[3])
             if info is None:
                 scene.add_instance(mesh_id, matrix, **extra)
                 continue
@@ -196,8 +200,10 @@ def set_camera(pc, scene, params):
 
 def add_lights(scene, lights):
     """Adds LightData `lights` to a core scene."""
-    for light in lights:
+    for k, light in enumerate(lights):
         getattr(scene, f"add_{light.kind}_light")(**light.args)  # (add-on and core ship together)
+        if getattr(light, "links", None) is not None:
+            scene.set_light_links(k, *light.links)
 
 
 def replace_lights(scene, lights, world, warn):

@@ -28,6 +28,7 @@ import numpy as np
 
 from .export import export_scene
 from .export.light import collect_lights
+from .export.light_linking import attach_to_lights, light_links
 from .export.material import convert_material, view_layer_ids
 from .export.mesh import is_visible
 from .export.shader import ImageTable, UvSets
@@ -196,7 +197,8 @@ class ViewportSession:
             world_texture = world_texture(scene.world, self.warn)
             world_color = world_color(scene.world, self.warn)
             world_volume = world_volume(scene.world, self.warn)
-        replace_lights(self.scene, collect_lights(depsgraph, self.warn, is_visible), _World, self.warn)
+        lights = attach_to_lights(collect_lights(depsgraph, self.warn, is_visible), light_links(depsgraph, self.warn))
+        replace_lights(self.scene, lights, _World, self.warn)
         self.counters["light_updates"] += 1
 
     def check_settings(self, depsgraph):

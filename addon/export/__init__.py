@@ -9,6 +9,7 @@ import numpy as np
 from .camera import ExportError, camera_params
 from .curves import CurvesData, collect_curves
 from .light import LightData, collect_lights
+from .light_linking import attach_to_lights, light_links
 from .material import MaterialData, MaterialTable, view_layer_ids
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .object_attributes import InstanceAttributes
@@ -41,6 +42,9 @@ class SceneData:
     volume_material_names: frozenset = frozenset()  # materials compiled for volume objects too
     points: list = field(default_factory=list)  # PointsData (point clouds)
     point_materials: list = field(default_factory=list)  # per point cloud: its index into materials
+    # Light linking: object name -> (light_set, light_mask, shadow_set, shadow_mask)
+    # (export.light_linking); lights carry theirs in LightData.links.
+    light_links: dict = field(default_factory=dict)
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None):
@@ -75,6 +79,16 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     points = collect_points(depsgraph, warn, table.index, attributes, table.uv_names)
     point_materials = [table.index(p.material) for p in points]
     lights = collect_lights(depsgraph, warn, is_visible)
+    try:
+        links = light_links(depsgraph, warn)
+    except (AttributeError, TypeError) as e:  # an older or odd Blender: render without linking
+        warn(f"Light linking could not be read ({e}); lights reach every object")
+        links = {}
+    attach_to_lights(lights, links)
+    unlinked = sorted({c.name for c in curves if c.name in links} | {p.name for p in points if p.name in links})
+    if unlinked:
+        warn(f"Light linking is not supported on curves and point clouds ({', '.join(unlinked)}): "
+             "they take every light and block every shadow")
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
     if far > FAR_FROM_ORIGIN:
         warn(f"The scene lies {far:.3g} units from the world origin: beyond {FAR_FROM_ORIGIN:.0e} "
@@ -85,7 +99,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                      world_texture(scene.world, warn), table.images.images,
                      table.material_names(), table.uv_sets, world_volume(scene.world, warn),
                      curves, curve_materials, volume_grids, frozenset(table.volume_material_names),
-                     points, point_materials)
+                     points, point_materials, links)
 
 
 # Measured by tests/core/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise

@@ -21,6 +21,8 @@ class LightData:
     kind: str  # "point" | "spot" | "sun" | "area": the core's scene.add_<kind>_light
     name: str
     args: dict  # keyword arguments of that call
+    # Light linking: (light_mask, shadow_mask) for the core's set_light_links, or None.
+    links: tuple = None
 
 
 def _finite_nonneg(values, what, name, warn):

@@ -1303,7 +1303,9 @@ py::tuple light_samples(const PyScene& self, const FloatArray& points, const Flo
 // chosen entry (-1: none) and its probability; and, with all_pmfs, the probability of every
 // entry (N, K) at each point.
 py::tuple light_choices(const PyScene& self, const FloatArray& points, const FloatArray& normals, const FloatArray& u,
-                        bool all_pmfs) {
+                        bool all_pmfs, int light_set) {
+  if (light_set < 0 || light_set > 63) throw std::invalid_argument("light_set takes 0..63");
+  const uint8_t set = uint8_t(light_set);
   check_rays(self, points, normals);
   const py::ssize_t n = points.shape(0);
   if (u.ndim() != 1 || u.shape(0) != n) throw std::invalid_argument("u must have shape (N,)");
@@ -1321,11 +1323,11 @@ py::tuple light_choices(const PyScene& self, const FloatArray& points, const Flo
     for (py::ssize_t i = 0; i < n; ++i) {
       size_t k;
       float q;
-      const bool ok = self.scene->pick_light(p[i], nn[i], pu[i], k, q);
+      const bool ok = self.scene->pick_light(p[i], nn[i], pu[i], k, q, set);
       pi[i] = ok ? int64_t(k) : -1;
       pp[i] = ok ? q : 0.0f;
       if (all_pmfs)
-        for (py::ssize_t j = 0; j < kk; ++j) pa[i * kk + j] = self.scene->pick_light_pmf(p[i], nn[i], size_t(j));
+        for (py::ssize_t j = 0; j < kk; ++j) pa[i * kk + j] = self.scene->pick_light_pmf(p[i], nn[i], size_t(j), set);
     }
   }
   return py::make_tuple(idx, pmf, pmfs);
@@ -2796,9 +2798,20 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           "Removes every analytic light; the next commit() rebuilds only the light distribution.")
       .def(
+          "set_light_links",
+          [](PyScene& self, size_t index, uint64_t light_mask, uint64_t shadow_mask) {
+            self.check_editable();
+            if (!self.scene->set_light_links(index, light_mask, shadow_mask)) throw std::out_of_range("no such light");
+          },
+          py::arg("index"), py::arg("light_mask") = kAllLightSets, py::arg("shadow_mask") = kAllLightSets,
+          "Light and shadow linking of analytic light `index` (add order), as Cycles: bit s of "
+          "light_mask: it lights objects of light set s (add_instance's light_set); bit s of "
+          "shadow_mask: objects of shadow set s block it (others let its light pass).")
+      .def(
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
-             uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator) {
+             uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator,
+             int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask) {
             self.check_editable();
             ObjectInfo info;
             if (!color.is_none()) {
@@ -2810,18 +2823,27 @@ PYBIND11_MODULE(pathlight_core, m) {
             info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
             info.random = object_random(random_id);
             info.terminator = std::isfinite(shadow_terminator) ? clampf(shadow_terminator, 0.0f, 1.0f) : 0.0f;
+            if (light_set < 0 || light_set > 63 || shadow_set < 0 || shadow_set > 63)
+              throw std::invalid_argument("instance light_set and shadow_set take 0..63");
+            info.light_set = uint8_t(light_set);
+            info.shadow_set = uint8_t(shadow_set);
+            info.light_mask = light_mask;
+            info.shadow_mask = shadow_mask;
             self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info, to_motion(motion, "instance motion"),
                                      to_object_attributes(attributes, "instance"));
           },
           py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
           py::arg("random_id") = 0u, py::arg("motion") = py::none(), py::arg("attributes") = py::none(),
-          py::arg("shadow_terminator") = 0.0f,
+          py::arg("shadow_terminator") = 0.0f, py::arg("light_set") = 0, py::arg("light_mask") = kAllLightSets,
+          py::arg("shadow_set") = 0, py::arg("shadow_mask") = kAllLightSets,
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
           "blur); steps that are not finite or not invertible leave it static (stats()['motion_rejected']). "
           "attributes: its Object / Instancer attribute values, (K, 4) by slot with K <= 8 (the "
-          "object_attribute op; NaN/inf read 0).")
+          "object_attribute op; NaN/inf read 0). light_set, shadow_set (0..63): its light linking "
+          "sets as a receiver and a blocker; light_mask, shadow_mask: as an emitter (its emissive "
+          "triangles), as set_light_links.")
 
       .def(
           "set_mesh_velocity",
@@ -3340,10 +3362,11 @@ PYBIND11_MODULE(pathlight_core, m) {
            "normals (N, 3): the shading normals the light tree's choice reads (None: none). "
            "bsdf_follows=False: the distribution used where no BSDF sample follows. Exposed for tests.")
       .def("light_choices", &light_choices, py::arg("points"), py::arg("normals"), py::arg("u"),
-           py::arg("all_pmfs") = false,
+           py::arg("all_pmfs") = false, py::arg("light_set") = 0,
            "The light chosen from points (N, 3) with normals (N, 3; zero rows: none) by uniforms u (N,), "
            "over the entries [analytic lights | emitter groups | environment]: (index (-1: none), pmf, "
-           "pmfs (N, K) of every entry when all_pmfs). Exposed for tests.")
+           "pmfs (N, K) of every entry when all_pmfs), for points of light set light_set (light "
+           "linking). Exposed for tests.")
       .def_property(
           "light_tree",
           [](const PyScene& self) {

@@ -75,6 +75,7 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding) {
   if (f.environment) k |= kKernelEnvironment;
   if (f.light_tree) k |= kKernelLightTree;
   if (f.subsurface) k |= kKernelSubsurface;
+  if (f.light_links) k |= kKernelLightLinks;
   return k;
 }
 
@@ -109,6 +110,7 @@ std::string kernel_name(uint32_t features) {
   if (features & kKernelAovs) n += "+passes";
   if (features & kKernelSubsurface) n += "+subsurface";
   if (features & kKernelGuiding) n += "+guiding";
+  if (features & kKernelLightLinks) n += "+links";
   return n;
 }
 

@@ -87,7 +87,8 @@ enum KernelFeature : uint32_t {
   kKernelLightTree = 16,   // the shading normals the light tree's choice reads, kept for MIS
   kKernelSubsurface = 32,  // BSSRDF closures: random walks (only the general kernel has them)
   kKernelGuiding = 64,     // path guiding (IntegratorSettings::guide)
-  kKernelAll = 127,        // the general kernel
+  kKernelLightLinks = 128, // light and shadow linking (only the general kernel has them)
+  kKernelAll = 255,        // the general kernel
 };
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).

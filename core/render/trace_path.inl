@@ -108,6 +108,10 @@ inline Phase choose_layer_phase(int n, const Vec3* ss, const Phase* phase, const
 struct Medium {
   MediumLayer layer[4];
   int n = 0;
+  // Each layer's instance (light linking: scattering in it uses the innermost one's light set,
+  // as Cycles' volume shading object); UINT32_MAX: the world's.
+  uint32_t instance[4] = {UINT32_MAX, UINT32_MAX, UINT32_MAX, UINT32_MAX};
+  uint32_t inner_instance() const { return n ? instance[n - 1] : UINT32_MAX; }
   // What a point inside all the layers sees. Cycles' volume stack sums every volume the path is
   // in (overlapping objects, a volume inside the world's fog, absorbing glass in fog), so
   // homogeneous layers add up: coefficients and emission summed, the phase their common one
@@ -162,8 +166,9 @@ struct Medium {
     }
     return choose_layer_phase(n, ss, ph, lobes, nl, u, beta);
   }
-  void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr) {
+  void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr, uint32_t inst = UINT32_MAX) {
     if (n < 4) {
+      instance[n] = inst;
       const int nl = het ? 0 : int(p.phase_lobes.size());
       layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase, m, het, nl ? p.phase_lobes.data() : nullptr, nl};
     }
@@ -172,22 +177,24 @@ struct Medium {
   void leave(uint32_t m) {
     for (int i = n - 1; i >= 0; --i)
       if (layer[i].material == m) {
-        for (int j = i; j + 1 < n; ++j) layer[j] = layer[j + 1];
+        for (int j = i; j + 1 < n; ++j) layer[j] = layer[j + 1], instance[j] = instance[j + 1];
         --n;
         combine();
         return;
       }
   }
   // Crossing a surface of material m (front: from outside, along its normal's opposite).
-  void cross(uint32_t m, const ShaderProgram& p, bool front, const HeteroMedium* het = nullptr) {
+  void cross(uint32_t m, const ShaderProgram& p, bool front, const HeteroMedium* het = nullptr,
+             uint32_t inst = UINT32_MAX) {
     if (!p.has_medium()) return;
-    if (front) enter(m, p, het);
+    if (front) enter(m, p, het, inst);
     else leave(m);
   }
   // Crossing the surface at sp: a Volume program's medium is the one built for its instance.
   void cross(const Scene& scene, const SurfacePoint& sp, bool front) {
     const ShaderProgram& p = scene.material(sp.material).program;
-    cross(sp.material, p, front, p.volume && front ? scene.hetero_medium(sp.instance, sp.material) : nullptr);
+    cross(sp.material, p, front, p.volume && front ? scene.hetero_medium(sp.instance, sp.material) : nullptr,
+          sp.instance);
   }
 };
 
@@ -281,7 +288,9 @@ Vec3 layer_transmittance(const Scene& scene, const Medium& medium, Vec3 org, Vec
                      [&](float t) { return scene.medium_at(*m.het, org + d * t, d, time); });
 }
 
-Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr) {
+// shadow_mask: the light's shadow sets (shadow linking): blockers of other sets let it pass.
+Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr,
+                          uint64_t shadow_mask = kAllLightSets) {
   Vec3 T(1.0f);
   if (!occlude) {
     if (medium.top())
@@ -300,17 +309,20 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     SurfacePoint sp;
     scene.surface_point(h, sp, ray.time, &ray);
     const Material& mat = scene.material(sp.material);
-    if (!mat.transparent) return Vec3(0.0f);
-    ClosureList cl;
-    RayState shadow;
-    shadow.flags = kRayShadow;
-    shadow.length = h.t * len;
-    scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
-    Vec3 pass(0.0f);
-    for (int c = 0; c < cl.n; ++c)
-      if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
-    T = T * vmin(pass, Vec3(1.0f));
-    if (is_black(T)) return Vec3(0.0f);  // (ratio tracking's estimates may be negative)
+    const bool passed = shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h.inst)) & 1u);
+    if (!mat.transparent && !passed) return Vec3(0.0f);
+    if (!passed) {
+      ClosureList cl;
+      RayState shadow;
+      shadow.flags = kRayShadow;
+      shadow.length = h.t * len;
+      scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
+      Vec3 pass(0.0f);
+      for (int c = 0; c < cl.n; ++c)
+        if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
+      T = T * vmin(pass, Vec3(1.0f));
+      if (is_black(T)) return Vec3(0.0f);  // (ratio tracking's estimates may be negative)
+    }
     const bool front = dot(ray.dir, sp.ng) < 0.0f;
     medium.cross(scene, sp, front);
     const Vec3 side = front ? -sp.ng : sp.ng;
@@ -337,11 +349,15 @@ struct MediumLightSample {
   float factor = 0.0f;
   Ray shadow;
   bool cast_shadow = true;
+  uint64_t shadow_mask = kAllLightSets;  // shadow linking
 };
+// receiver: the medium's light set (light linking).
 inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, float u_sel,
-                                Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls) {
+                                Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls,
+                                uint8_t receiver = 0) {
   DirectSample ds;
   ds.path = &ray_state;
+  ds.receiver = receiver;
   if (!scene.sample_direct(p, u_sel, u_pt, ds, !last) || (ds.exclude & kLightVisVolume)) return false;
   const float ph = phase_eval(phase, dot(d, ds.wi));
   if (!(ph > 0.0f) || is_black(ds.li)) return false;
@@ -358,6 +374,7 @@ inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase&
     shadow.tmax = 1.0f - 1e-4f;
   }
   ls.cast_shadow = ds.cast_shadow;
+  ls.shadow_mask = ds.shadow_mask;
   ls.li = ds.li;
   const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
   ls.factor = ph * w / ds.pdf;
@@ -366,14 +383,14 @@ inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase&
 inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, const Medium& medium, PathCounters& c,
                                Pcg32* rng) {
   ++c.rays;
-  const Vec3 vis = shadow_transmittance(scene, ls.shadow, medium, ls.cast_shadow, rng);
+  const Vec3 vis = shadow_transmittance(scene, ls.shadow, medium, ls.cast_shadow, rng, ls.shadow_mask);
   if (is_black(vis)) return Vec3(0.0f);
   return ls.li * vis * ls.factor;
 }
 Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
-                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng) {
+                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng, uint8_t receiver = 0) {
   MediumLightSample ls;
-  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls)) return Vec3(0.0f);
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver)) return Vec3(0.0f);
   return medium_light_trace(scene, ls, medium, c, rng);
 }
 
@@ -447,10 +464,11 @@ inline uint8_t closure_light_kind(const Closure& c) {
 // with Multiple Importance on). `through(t)`: the path's throughput to distance t (world
 // units). weigh: MIS against the light sample at `from` (normal from_n) that could have found
 // the same point, as pdf_emitter does for mesh lights; else (camera rays, delta lobes, no
-// light sampling) the full weight.
-template <class Through>
+// light sampling) the full weight. kLinks: light linking, `set` the light set of the point at
+// `from` (lights not linked to it add nothing but to camera rays; its set's pdfs).
+template <bool kLinks = false, class Through>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
-                                  Vec3 from, Vec3 from_n, const Through& through) {
+                                  Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0) {
   Vec3 sum(0.0f);
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
@@ -460,17 +478,56 @@ template <class Through>
   const bool rects = scene.solid_angle_rect_sampling();
   const auto add = [&](const Scene::HitLight& h) {
     if (camera ? !(h.visibility & kLightVisCamera) : (!h.mis || (h.visibility & vis) != vis)) return;
+    if constexpr (kLinks)
+      if (!camera && !((scene.light(h.index).light_mask >> set) & 1u)) return;
     float t, pdf;
     Vec3 le;
     if (!intersect_light(scene.light(h.index), from, ray.org, d, tmax, t, le, pdf, rects)) return;
     float w = 1.0f;
-    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index) * pdf);
+    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, kLinks ? set : 0) * pdf);
     const Vec3 c = through(t) * le * w;
     if (is_finite(c)) sum += c;
   };
   scene.for_hit_lights(ray.org, d, tmax, add);  // (bounding spheres or boxes first)
   if (std::isinf(tmax))
     for (const Scene::HitLight& h : scene.hit_suns()) add(h);
+  return sum;
+}
+
+// Shadow-linked lights along a ray leaving surface point sp (side: the normal on its side, d
+// unit): each one the ray's line crosses, seen through a shadow ray that passes the blockers it
+// ignores (`transmit(ray, mask)`), its emission times `beta`, weighted as light_hits weighs
+// (against the light sample at `from` of light set `set`).
+template <class Transmit>
+[[gnu::noinline]] Vec3 dedicated_light_hits(const Scene& scene, const SurfacePoint& sp, Vec3 side, Vec3 d, float time,
+                                            uint8_t vis, bool weigh, float prev_pdf, Vec3 from, Vec3 from_n,
+                                            uint8_t set, Vec3 beta, const Transmit& transmit) {
+  Vec3 sum(0.0f);
+  if (scene.dedicated_lights().empty()) return sum;
+  const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+  for (const Scene::HitLight& h : scene.dedicated_lights()) {
+    const Light& l = scene.light(h.index);
+    if ((h.visibility & vis) != vis || !((l.light_mask >> set) & 1u)) continue;
+    float t, pdf;
+    Vec3 le;
+    if (!intersect_light(l, from, org, d, kInf, t, le, pdf, scene.solid_angle_rect_sampling())) continue;
+    Ray shadow;
+    shadow.time = time;
+    shadow.org = org;
+    shadow.self_curve = scene.self_curve(sp);
+    if (std::isinf(t)) {
+      shadow.dir = d;
+      shadow.tmax = kInf;
+    } else {
+      shadow.dir = d * t;
+      shadow.tmax = 1.0f - 1e-4f;
+    }
+    const Vec3 vis_t = l.cast_shadow ? transmit(shadow, l.shadow_mask) : Vec3(1.0f);
+    if (is_black(vis_t)) continue;
+    const float w = weigh ? power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, set) * pdf) : 1.0f;
+    const Vec3 c = beta * le * vis_t * w;
+    if (is_finite(c)) sum += c;
+  }
   return sum;
 }
 
@@ -528,6 +585,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   constexpr bool kTree = (F & kKernelLightTree) != 0;
   constexpr bool kSubsurface = (F & kKernelSubsurface) != 0;
   constexpr bool kGuide = (F & kKernelGuiding) != 0;
+  constexpr bool kLinks = (F & kKernelLightLinks) != 0;
   PathAovs* const aov = kAovs ? aov_in : nullptr;
   GuidingField* const guide = kGuide ? s.guide : nullptr;
   bool guide_sampling = false, guide_training = false;
@@ -547,6 +605,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   Vec3 mis_org = ray.org;   // the last vertex that scattered (light samples start there)
   Vec3 mis_n(0.0f);         // its shading normal (the light tree's choice depends on it)
                             // (without the tree: stays zero, unused)
+  // Light linking: the light set of that vertex (media and the camera: the default 0).
+  const bool links = kLinks && scene.features().light_links;
+  uint8_t mis_set = 0;
   const bool nee = s.use_nee && scene.has_lights();
   // A constant world colour that is the only light is light-sampled (Scene::samples_world), by
   // the cosine about sky_n, the geometric normal of the last vertex that scattered (zero: it drew
@@ -615,6 +676,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       seg_sigma = sigma;
       const MediumLayer* m = medium.top();
       if (m && volumes) seg_medium = m;
+      // Light linking: the light set of the innermost volume's object (the world's: 0).
+      const uint8_t vset = kLinks && links ? scene.light_set_of(medium.inner_instance()) : 0;
       if (m && volumes) {
         // A homogeneous medium: its emission along the segment (analytic), then a free-flight
         // distance that either scatters before the surface or reaches it.
@@ -646,8 +709,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               const auto through_het = [&](float tl) {
                 return beta * ratio_track(majorants, ray.org, d, tl, vrng, density);
               };
-              L += light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
-                              mis_n, through_het);
+              L += links ? light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
+                                              mis_org, mis_n, through_het, mis_set)
+                         : light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
+                                      mis_n, through_het);
               lights_counted = true;
             }
             return delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
@@ -674,7 +739,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                   if (!is_black(tr))
                     L += beta * tr * ss *
                          medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces, medium, u_sel.x,
-                                       u_pt, ray_state, ray.time, c, &vrng) *
+                                       u_pt, ray_state, ray.time, c, &vrng, vset) *
                          (1.0f / pe);
                 }
               }
@@ -723,14 +788,14 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                   if (s.volume_shared_shadow) {
                     // Traced below: alone, or sharing one shadow ray with the distance sample's.
                     if (medium_light_sample(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls)) {
+                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls, vset)) {
                       eq_w = w;
                       eq_value = w * eq_ls.li * eq_ls.factor;
                       eq_pending = !is_black(eq_value);
                     }
                   } else {
                     const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng);
+                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset);
                     L += w * li;
                   }
                 }
@@ -782,7 +847,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               // without occluders) that costs almost no variance (docs/design/volumes.md).
               MediumLightSample ls;
               Vec3 value(0.0f);
-              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls))
+              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls, vset))
                 value = beta * nee_weight * ls.li * ls.factor;
               const float a_d = average(vabs(value)), a_e = average(vabs(eq_value));
               const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
@@ -792,7 +857,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                 L += eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d));
             } else {
               L += beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time, c,
-                                        &vrng) * nee_weight;
+                                        &vrng, vset) * nee_weight;
             }
           }
           if (last && nee) break;
@@ -807,6 +872,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           mis_org = p;
           mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
           sky_n = Vec3(0.0f);  // nor did it sample the sky
+          mis_set = vset;
           // Past Volume bounces the phase ray still collects emission, then stops (as lobes).
           if (volume_count >= s.volume_bounces) emission_only = true;
           ++volume_count;
@@ -837,7 +903,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     }
     if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only)) {
-      const Vec3 lh = light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+      const Vec3 lh = links ? light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
+                                                 mis_org, mis_n, through, mis_set)
+                            : light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
+                                         mis_n, through);
       L += lh;
       if constexpr (kAovs)
         if (direct && aov) aov->emission += lh;  // lights seen by the camera: the Emit pass, as emitters
@@ -847,7 +916,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       // (without an environment that pdf is 0 and the weight 1).
       float w = 1.0f;
       if constexpr (kEnv)
-        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir));
+        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir, kLinks ? mis_set : 0));
       if (sky && !prev_delta) {
         const float cos_sky = dot(ray.dir, sky_n);  // (a scattered ray's direction is a unit vector)
         if (cos_sky > 0.0f) w = power_heuristic(prev_pdf, cos_sky * kInvPi);
@@ -874,13 +943,20 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     ray_state.emission_only = emission_only;
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
 
+    // Light linking, as Cycles: rays other than the camera's get no emission from a mesh light not
+    // linked to the vertex they left, nor from a shadow-linked one (its light samples have the
+    // full weight: Cycles reaches it by dedicated rays instead).
+    if constexpr (kLinks)
+      if (links && !direct && !is_black(cl.emission) &&
+          (!((scene.emitter_light_mask(sp.instance) >> mis_set) & 1u) || scene.emitter_shadow_mask(sp.instance) != kAllLightSets))
+        cl.emission = Vec3(0.0f);
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.
     if (!is_black(cl.emission)) {
       float w = 1.0f;
       if (nee && !prev_delta) {
         // Seen from the last real scattering: transparent crossings in between are part of the
         // same light-sample segment (which saw them through its transmittance).
-        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n));
+        w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n, kLinks ? mis_set : 0));
       }
       L += beta * cl.emission * w;
       if constexpr (kAovs)
@@ -976,10 +1052,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           Medium side = medium;
           if (!reflection) side.cross(scene, sp, front);
           ++c.rays;
-          vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng);
+          vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng, kLinks ? ds.shadow_mask : kAllLightSets);
         } else if (ds.cast_shadow) {
           ++c.rays;
-          vis = scene.transmittance(shadow);
+          if (kLinks && ds.shadow_mask != kAllLightSets) vis = scene.transmittance_linked(shadow, ds.shadow_mask);
+          else vis = scene.transmittance(shadow);
         }
         // Light inside an absorbing medium (only reachable when the segment stays inside it).
         if constexpr (kMedia) {
@@ -990,7 +1067,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           if constexpr (kGuide)
             if (guided && guide_sampling && !last)
               bsdf_pdf = (1.0f - guide_prob) * bsdf_pdf + guide_prob * guide->pdf(guide_cell, ds.wi);
-          const float w = (ds.delta || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
+          const bool full = ds.delta && !(kLinks && ds.dedicated);  // (dedicated rays find those)
+          const float w = (full || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
           L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
         }
       };
@@ -998,6 +1076,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         DirectSample ds;
         ds.path = &ray_state;
         if constexpr (kTree) ds.n = sp.ns;
+        if constexpr (kLinks) ds.receiver = scene.light_set_of(sp.instance);
         const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
         u_rr = u_sel.y;
         const Vec2 u_pt = sampler.get2d();
@@ -1124,6 +1203,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         prev_delta = true;
         mis_org = sp.p;
         if constexpr (kTree) mis_n = sp.ns;
+        if constexpr (kLinks) mis_set = scene.light_set_of(sp.instance);
       }
     } else {
       float pdf;
@@ -1159,6 +1239,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       mis_org = sp.p;
       if constexpr (kTree) mis_n = sp.ns;
       sky_n = sky_here ? ng_out : Vec3(0.0f);
+      if constexpr (kLinks) mis_set = scene.light_set_of(sp.instance);
     }
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its
@@ -1208,6 +1289,18 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     }
 
+    // Shadow linking: the new ray finds shadow-linked lights by a dedicated shadow ray each,
+    // past the blockers they ignore (Cycles' intersect_dedicated_light), weighed against their
+    // light samples here. Transparent crossings were covered by the vertex before.
+    if constexpr (kLinks)
+      if (links && !direct && !(kNonDiffuse && (bs.flags & kTransparentLobe)) && !(nee && !prev_delta && prev_samples_only))
+        L += dedicated_light_hits(scene, sp, reflection ? ng_out : -ng_out, wi, ray.time, ray_vis,
+                                  nee && !prev_delta, prev_pdf, mis_org, mis_n, mis_set, beta,
+                                  [&](const Ray& r, uint64_t mask) {
+                                    if constexpr (kMedia)
+                                      if (volumes) return shadow_transmittance(scene, r, medium, true, &vrng, mask);
+                                    return scene.transmittance_linked(r, mask);
+                                  });
     // No roulette after delta lobes (glass, mirrors, transparency): they barely change the
     // throughput, so a roll there (the square root's survival below 1 again) only re-kills
     // what the last rough vertex already rolled for, and amplifies what survives: in glass it

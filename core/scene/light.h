@@ -61,6 +61,9 @@ struct Light {
   // shader's normal (the matrix's transposed 3x3).
   std::shared_ptr<const IesProfile> ies;
   Mat4 ies_to_local;
+  // Light and shadow linking (Cycles' light_set_membership / shadow_set_membership): bit s
+  // set: the light reaches receivers of light set s / is blocked by objects of shadow set s.
+  uint64_t light_mask = ~uint64_t(0), shadow_mask = ~uint64_t(0);
 };
 
 // The IES factor of light l for light leaving it along from_light (world, any length).

@@ -231,6 +231,14 @@ struct DirectSample {
   // In: the unit shading normal at the shading point, for the light tree's importance (zero:
   // none); pdf_emitter must be given the same one.
   Vec3 n{0.0f};
+  // In: the shading point's light set (light linking; 0: the default), given to pdf_emitter too.
+  uint8_t receiver = 0;
+  // Out (light linking only): the chosen light's shadow sets; blockers of other sets let it pass.
+  uint64_t shadow_mask = kAllLightSets;
+  // Out (light linking only): a shadow-linked light with extent, `delta` only because rays do not
+  // find it past blockers: surfaces find it by dedicated rays (Scene::dedicated_lights) and
+  // weigh this sample by MIS; media keep the full weight.
+  bool dedicated = false;
 };
 
 struct SceneStats {
@@ -273,6 +281,9 @@ struct SceneFeatures {
   bool light_tree = false;   // lights chosen by the light tree (many lights)
   bool light_hits = false;   // analytic lights with extent that rays may find (Scene::hit_lights)
   bool subsurface = false;   // BSSRDF closures: random walks inside objects
+  // Light or shadow linking in use (objects in light sets, lights with set masks): only the
+  // general kernel follows them (kKernelLightLinks).
+  bool light_links = false;
   // Shaders read the ray's footprint (Bump's Filter Width, Wireframe in pixels): only then do
   // camera rays carry ray differentials (not a kernel feature: one test per camera ray).
   bool footprints = false;
@@ -423,6 +434,14 @@ class Scene {
   const ShaderProgram& world_volume() const { return world_volume_; }
   void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
+  // Light linking of analytic light k (Light::light_mask / shadow_mask); false: no such light.
+  bool set_light_links(size_t k, uint64_t light_mask, uint64_t shadow_mask) {
+    if (k >= lights_.size()) return false;
+    lights_[k].light_mask = light_mask;
+    lights_[k].shadow_mask = shadow_mask;
+    committed_ = false;
+    return true;
+  }
   // Rays find analytic lights with extent and weigh them against light samples by MIS (default);
   // off: those lights are reached by light samples alone, with the full weight (for tests, and
   // to measure what the hits gain).
@@ -460,14 +479,19 @@ class Scene {
     light_tree_mode_ = m;
   }
   LightTreeMode light_tree() const { return light_tree_mode_; }
-  bool light_tree_active() const { return use_tree_; }
+  bool light_tree_active() const { return lc_.use_tree; }
   // The light choice sample_direct makes at p (normal n, zero: none) from u, over the entries
   // [analytic lights | emitter groups | environment], and the probability of each (for tests).
-  size_t light_choices() const { return light_dist_.size(); }
-  bool pick_light(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
-    return !light_dist_.empty() && choose_light(p, n, u, k, pmf);
+  // set: a light set (light linking; 0: the default).
+  size_t light_choices() const { return lc_.dist.size(); }
+  bool pick_light(Vec3 p, Vec3 n, float u, size_t& k, float& pmf, uint8_t set = 0) const {
+    const LightChoice& c = choice(set);
+    return !c.dist.empty() && choose_light(c, p, n, u, k, pmf);
   }
-  float pick_light_pmf(Vec3 p, Vec3 n, size_t k) const { return k < light_dist_.size() ? light_pmf(p, n, k) : 0.0f; }
+  float pick_light_pmf(Vec3 p, Vec3 n, size_t k, uint8_t set = 0) const {
+    const LightChoice& c = choice(set);
+    return k < c.dist.size() && !c.dist.empty() ? light_pmf(c, p, n, k) : 0.0f;
+  }
 
   // Flattens instances, drops degenerate triangles, builds the BVH and the light distribution.
   // Returns false when cancel_commit() stopped it: the scene is then uncommitted (as if commit
@@ -571,6 +595,9 @@ class Scene {
     if (!any_transparent_) return occluded(ray) ? Vec3(0.0f) : Vec3(1.0f);
     return transmittance_through(ray);
   }
+  // The same towards a light with shadow linking: objects whose shadow set is not in
+  // shadow_mask let the light pass (Cycles' blocker collections).
+  Vec3 transmittance_linked(const Ray& ray, uint64_t shadow_mask) const { return transmittance_through(ray, shadow_mask); }
   const std::vector<Image>& images() const { return images_; }
   // The heterogeneous medium inside `material` on `instance` (after commit), or nullptr.
   const HeteroMedium* hetero_medium(uint32_t instance, uint32_t material) const {
@@ -617,7 +644,7 @@ class Scene {
   const CameraDesc& camera_desc() const { return camera_; }
   bool has_camera() const { return has_camera_; }
 
-  bool has_lights() const { return !light_dist_.empty(); }
+  bool has_lights() const { return any_lights_; }
   // An analytic light that rays may hit (a compact list built at commit): a bounding sphere for
   // a quick rejection, and what rays see it.
   struct HitLight {
@@ -673,6 +700,9 @@ class Scene {
     }
   }
   const std::vector<HitLight>& hit_suns() const { return hit_suns_; }      // suns with an angle
+  // Shadow-linked lights with extent and Multiple Importance (suns too): rays from surfaces find
+  // them by a dedicated shadow ray past the blockers they ignore, as Cycles' shadow linking.
+  const std::vector<HitLight>& dedicated_lights() const { return dedicated_lights_; }
   const Light& light(size_t k) const { return lights_[k]; }
   size_t light_count() const { return lights_.size(); }
   const Environment& environment() const { return env_; }  // (invalid: none)
@@ -682,7 +712,11 @@ class Scene {
   // integrator adds every light a ray crosses).
   bool nearest_light_hit(Vec3 from, Vec3 n, Vec3 dir, float tmax, float& t, Vec3& le, float& pdf) const;
   // The probability that a light sample at p (shading normal n, zero: none) picks light k.
-  float light_choice_pmf(Vec3 p, Vec3 n, size_t k) const { return light_dist_.empty() ? 0.0f : light_pmf(p, n, k); }
+  // set: the point's light set (light linking).
+  float light_choice_pmf(Vec3 p, Vec3 n, size_t k, uint8_t set = 0) const {
+    const LightChoice& c = choice(set);
+    return c.dist.empty() ? 0.0f : light_pmf(c, p, n, k);
+  }
   // Radiance arriving from the world along a ray that escapes the scene.
   Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
   // Picks a light with u_select and samples it from point p.
@@ -690,8 +724,10 @@ class Scene {
   // every direction the light can come from must have density here.
   bool sample_direct(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows = true) const {
     // Two instances: the power sampler's compiles as it did before there was a tree.
-    return use_tree_ ? sample_direct_t<true>(p, u_select, u, s, bsdf_follows)
-                     : sample_direct_t<false>(p, u_select, u, s, bsdf_follows);
+    // With light linking, the lights of the point's light set (s.receiver).
+    const LightChoice& c = choice(s.receiver);
+    return c.use_tree ? sample_direct_t<true>(c, p, u_select, u, s, bsdf_follows)
+                      : sample_direct_t<false>(c, p, u_select, u, s, bsdf_follows);
   }
   // A point on a light chosen as sample_direct chooses from p, without its visibility tests (a
   // spot's cone, a one-sided area light's back): equiangular sampling in media crowds distances
@@ -705,8 +741,24 @@ class Scene {
   // triangle `prim` (cos_l: the cosine there), or the environment in direction dir (for MIS of
   // BSDF samples).
   // from_n: the shading normal at `from` that sample_direct was given (DirectSample::n).
-  float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n = Vec3(0.0f)) const;
-  float pdf_environment(Vec3 dir) const;
+  // set: the light set of the point at `from` (DirectSample::receiver).
+  float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n = Vec3(0.0f), uint8_t set = 0) const;
+  float pdf_environment(Vec3 dir, uint8_t set = 0) const;
+  // Light linking (after commit): whether any light or object uses it, and an instance's light
+  // and shadow sets and, as an emitter, the sets it lights and is blocked by (curves, points: none).
+  bool light_links() const { return links_; }
+  uint8_t light_set_of(uint32_t instance) const {
+    return instance < object_coords_.size() ? object_coords_[instance].info.light_set : 0;
+  }
+  uint8_t shadow_set_of(uint32_t instance) const {
+    return instance < object_coords_.size() ? object_coords_[instance].info.shadow_set : 0;
+  }
+  uint64_t emitter_light_mask(uint32_t instance) const {
+    return instance < object_coords_.size() ? object_coords_[instance].info.light_mask : kAllLightSets;
+  }
+  uint64_t emitter_shadow_mask(uint32_t instance) const {
+    return instance < object_coords_.size() ? object_coords_[instance].info.shadow_mask : kAllLightSets;
+  }
   const SceneStats& stats() const { return stats_; }
   const SceneFeatures& features() const { return features_; }
   // The largest BLAS (its build statistics stand for the scene's); an empty Bvh when there is none.
@@ -779,7 +831,7 @@ class Scene {
   bool any_transparent_ = false;
   bool any_holdout_ = false;
   // transmittance() through Transparent surfaces (closest hits shaded one by one).
-  Vec3 transmittance_through(Ray ray) const;
+  Vec3 transmittance_through(Ray ray, uint64_t shadow_mask = kAllLightSets) const;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
   std::vector<Float4> object_attrs_;  // the instances' object attribute values (ObjectInfo::attr_first)
@@ -874,7 +926,7 @@ class Scene {
   bool solid_angle_triangles_ = true;
   bool solid_angle_rects_ = true;
   bool light_hits_on_ = true;
-  std::vector<HitLight> hit_lights_, hit_suns_;
+  std::vector<HitLight> hit_lights_, hit_suns_, dedicated_lights_;
   // The BVH over hit_lights_ (empty below kHitLightBvhMin lights): depth first, the left child
   // next to its parent; first: a leaf's first light or an interior node's right child.
   struct HitLightNode {
@@ -949,50 +1001,66 @@ class Scene {
   };
   std::vector<EmitterGroup> groups_;
   std::vector<uint32_t> emitter_group_;  // per emitter
-  Distribution1D light_dist_;
   size_t env_index_ = SIZE_MAX;
-  // The light tree over the finite entries of light_dist_ (same indices), and the infinite ones
-  // (suns, the environment) beside it: chosen with probability inf_share_ (their share of the
-  // power, as the single distribution gives them), then by inf_dist_ over inf_items_.
+  // How sample_direct chooses a light: one distribution over [analytic lights | emitter groups |
+  // environment] by power, or the light tree over its finite entries (same indices) with the
+  // infinite ones (suns, the environment) beside it: chosen with probability inf_share (their
+  // share of the power, as the single distribution gives them), then by inf_dist over inf_items.
+  struct LightChoice {
+    Distribution1D dist;
+    bool use_tree = false;
+    LightTree tree;
+    float inf_share = 0.0f, tree_share = 1.0f;
+    Distribution1D inf_dist;
+    std::vector<uint32_t> inf_items;
+    std::vector<float> inf_pmf;  // per dist entry: its pmf when infinite (tree in use)
+  };
   LightTreeMode light_tree_mode_ = LightTreeMode::Auto;
-  bool use_tree_ = false;
-  LightTree tree_;
-  float inf_share_ = 0.0f, tree_share_ = 1.0f;
-  Distribution1D inf_dist_;
-  std::vector<uint32_t> inf_items_;
-  std::vector<float> inf_pmf_;  // per light_dist_ entry: its pmf when infinite (tree in use)
+  // Every light; with light linking, those of the default light set 0.
+  LightChoice lc_;
+  // Light linking: the lights of light sets 1.. (set_lc_[s - 1]), each its own distribution or
+  // tree over the lights that reach that set (Cycles specialises its tree per set the same way),
+  // so a point picks only lights linked to it and the MIS pdfs are its set's.
+  std::vector<LightChoice> set_lc_;
+  bool links_ = false;       // some light or object uses light or shadow linking
+  bool any_lights_ = false;  // some light set has a light
+  const LightChoice& choice(uint8_t set) const { return set == 0 || set > set_lc_.size() ? lc_ : set_lc_[set - 1u]; }
   // The light's index and the probability of that choice, at p with normal n.
   template <bool kTree>
-  bool choose_light_t(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
+  static bool choose_light_t(const LightChoice& c, Vec3 p, Vec3 n, float u, size_t& k, float& pmf) {
     if constexpr (!kTree) {
-      k = light_dist_.sample(u);
-      pmf = light_dist_.pmf(k);
+      k = c.dist.sample(u);
+      pmf = c.dist.pmf(k);
       return true;
     } else {
-      if (u < inf_share_) {
-        k = inf_items_[inf_dist_.sample(u / inf_share_)];
-        pmf = inf_pmf_[k];
+      if (u < c.inf_share) {
+        k = c.inf_items[c.inf_dist.sample(u / c.inf_share)];
+        pmf = c.inf_pmf[k];
         return true;
       }
       uint32_t item;
       float tp;
-      if (!tree_.sample(p, n, std::min((u - inf_share_) / tree_share_, 0x1.fffffep-1f), item, tp)) return false;
+      if (!c.tree.sample(p, n, std::min((u - c.inf_share) / c.tree_share, 0x1.fffffep-1f), item, tp)) return false;
       k = item;
-      pmf = tree_share_ * tp;
+      pmf = c.tree_share * tp;
       return true;
     }
   }
-  bool choose_light(Vec3 p, Vec3 n, float u, size_t& k, float& pmf) const {
-    return use_tree_ ? choose_light_t<true>(p, n, u, k, pmf) : choose_light_t<false>(p, n, u, k, pmf);
+  static bool choose_light(const LightChoice& c, Vec3 p, Vec3 n, float u, size_t& k, float& pmf) {
+    return c.use_tree ? choose_light_t<true>(c, p, n, u, k, pmf) : choose_light_t<false>(c, p, n, u, k, pmf);
   }
   template <bool kTree>
-  bool sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const;
-  float light_pmf(Vec3 p, Vec3 n, size_t k) const {
-    if (!use_tree_) return light_dist_.pmf(k);
-    if (inf_pmf_[k] > 0.0f) return inf_pmf_[k];
-    return tree_share_ * tree_.pmf(p, n, uint32_t(k));
+  bool sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const;
+  static float light_pmf(const LightChoice& c, Vec3 p, Vec3 n, size_t k) {
+    if (!c.use_tree) return c.dist.pmf(k);
+    if (c.inf_pmf[k] > 0.0f) return c.inf_pmf[k];
+    return c.tree_share * c.tree.pmf(p, n, uint32_t(k));
   }
-  void build_light_tree(const std::vector<float>& weights);
+  // Fills c's tree and infinite lights from the choice weights (zero: left out).
+  void build_light_tree(const std::vector<float>& weights, LightChoice& c) const;
+  // The light sets an entry of the choice weights reaches and is blocked by (light linking).
+  uint64_t entry_light_mask(size_t k) const;
+  uint64_t entry_shadow_mask(size_t k) const;
   // The environment's choice weight from its power and the weights before it (build_lights).
   float env_choice_weight(float env_power, const std::vector<float>& others) const;
   SceneStats stats_;

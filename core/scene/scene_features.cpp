@@ -29,6 +29,7 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"world light", f.world_light},
           {"light tree", f.light_tree},
           {"light hits", f.light_hits},
+          {"light linking", f.light_links},
           {"subsurface", f.subsurface},
           {"shadow terminator", f.terminator}};
 }
@@ -141,7 +142,9 @@ void Scene::detect_features() {
   f.heterogeneous_volumes = f.heterogeneous_volumes || world_volume_.volume != nullptr;
   f.world_light = !env_.valid() && !is_black(world_color_);
   for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
-  f.light_tree = use_tree_;
+  f.light_tree = lc_.use_tree;
+  for (const LightChoice& c : set_lc_) f.light_tree = f.light_tree || c.use_tree;
+  f.light_links = links_;
   for (size_t i = 0; i < inst_.size() && i < object_coords_.size(); ++i)  // smooth meshes only
     f.terminator = f.terminator || (inst_[i].blas != UINT32_MAX && object_coords_[i].info.terminator > 0.0f);
   f.light_hits = !hit_lights_.empty() || !hit_suns_.empty();

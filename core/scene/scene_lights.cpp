@@ -229,26 +229,67 @@ void Scene::build_lights() {
     }
     e = end;
   }
-  env_index_ = SIZE_MAX;
-  if (env_.valid() && env_.average_luminance() > 0.0f) {
-    env_index_ = weights.size();
-    weights.push_back(env_choice_weight(4.0f * kPi * kPi * radius * radius * env_.average_luminance(), weights));
+  links_ = false;
+  uint8_t max_set = 0;
+  for (const Light& l : lights_) links_ = links_ || l.light_mask != kAllLightSets || l.shadow_mask != kAllLightSets;
+  for (const ObjectCoords& oc : object_coords_) {
+    const ObjectInfo& in = oc.info;
+    links_ = links_ || in.light_set || in.shadow_set || in.light_mask != kAllLightSets || in.shadow_mask != kAllLightSets;
+    max_set = std::max(max_set, in.light_set);
   }
-  light_dist_ = Distribution1D(weights);
-  build_light_tree(weights);
+  env_index_ = SIZE_MAX;
+  const float env_power = env_.valid() ? 4.0f * kPi * kPi * radius * radius * env_.average_luminance() : 0.0f;
+  const bool env = env_.valid() && env_.average_luminance() > 0.0f;
+  set_lc_.clear();
+  if (!links_) {
+    if (env) {
+      env_index_ = weights.size();
+      weights.push_back(env_choice_weight(env_power, weights));
+    }
+    lc_.dist = Distribution1D(weights);
+    build_light_tree(weights, lc_);
+    any_lights_ = !lc_.dist.empty();
+  } else {
+    // Light linking: one choice per light set in use, over the lights that reach it (the
+    // environment reaches every set; its share is weighed against that set's lights).
+    if (env) env_index_ = weights.size();
+    any_lights_ = false;
+    set_lc_.resize(max_set);
+    for (uint32_t set = 0; set <= max_set; ++set) {
+      std::vector<float> w(weights.size());
+      for (size_t k = 0; k < weights.size(); ++k) w[k] = (entry_light_mask(k) >> set) & 1u ? weights[k] : 0.0f;
+      if (env) w.push_back(env_choice_weight(env_power, w));
+      LightChoice& c = set == 0 ? lc_ : set_lc_[set - 1];
+      c.dist = Distribution1D(w);
+      build_light_tree(w, c);
+      any_lights_ = any_lights_ || !c.dist.empty();
+    }
+  }
+  stats_.light_tree_nodes = lc_.tree.node_count();
+  stats_.light_tree_depth = size_t(lc_.tree.depth());
   // The lights rays may find: with extent, seen by the camera or (Multiple Importance on) by
   // other rays; each with a bounding sphere (a point or spot disk faces the ray's origin, so
   // its sphere; an area light's corners).
   hit_lights_.clear();
   hit_suns_.clear();
+  dedicated_lights_.clear();
   for (size_t k = 0; k < lights_.size() && light_hits_on_; ++k) {
     const Light& l = lights_[k];
-    if (!light_has_extent(l) || !(l.mis || (l.visibility & kLightVisCamera))) continue;
+    // Shadow-linked lights: other rays than the camera's find them by dedicated rays instead.
+    const bool mis = l.mis && l.shadow_mask == kAllLightSets;
+    if (l.mis && !mis && light_has_extent(l) && max_component(l.color) > 0.0f) {
+      HitLight d;
+      d.index = uint32_t(k);
+      d.visibility = l.visibility;
+      d.mis = true;
+      dedicated_lights_.push_back(d);
+    }
+    if (!light_has_extent(l) || !(mis || (l.visibility & kLightVisCamera))) continue;
     if (!(max_component(l.color) > 0.0f)) continue;
     HitLight h;
     h.index = uint32_t(k);
     h.visibility = l.visibility;
-    h.mis = l.mis;
+    h.mis = mis;
     h.center = l.position;
     if (l.type == LightType::Sun) {
       hit_suns_.push_back(h);
@@ -279,11 +320,23 @@ void Scene::build_lights() {
   detect_features();
 }
 
-void Scene::build_light_tree(const std::vector<float>& weights) {
-  // Bounds of every finite entry of light_dist_ (same indices; zero power: left out), and the
+uint64_t Scene::entry_light_mask(size_t k) const {
+  if (k < lights_.size()) return lights_[k].light_mask;
+  if (k - lights_.size() < groups_.size()) return emitter_light_mask(emitters_[groups_[k - lights_.size()].first].instance);
+  return kAllLightSets;  // the environment
+}
+
+uint64_t Scene::entry_shadow_mask(size_t k) const {
+  if (k < lights_.size()) return lights_[k].shadow_mask;
+  if (k - lights_.size() < groups_.size()) return emitter_shadow_mask(emitters_[groups_[k - lights_.size()].first].instance);
+  return kAllLightSets;
+}
+
+void Scene::build_light_tree(const std::vector<float>& weights, LightChoice& out) const {
+  // Bounds of every finite entry of the distribution (same indices; zero power: left out), and the
   // infinite ones beside the tree.
   std::vector<LightBounds> items(weights.size());
-  inf_items_.clear();
+  out.inf_items.clear();
   std::vector<float> inf_weights;
   double inf_total = 0.0, total = 0.0;
   const auto finite_weight = [](float w) { return std::isfinite(w) && w > 0.0f ? w : 0.0f; };
@@ -293,7 +346,7 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
     total += w;
     const bool infinite = k == env_index_ || (k < lights_.size() && lights_[k].type == LightType::Sun);
     if (infinite) {
-      inf_items_.push_back(uint32_t(k));
+      out.inf_items.push_back(uint32_t(k));
       inf_weights.push_back(w);
       inf_total += w;
       continue;
@@ -387,18 +440,16 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
   }
   const bool want = light_tree_mode_ == LightTreeMode::On ||
                     (light_tree_mode_ == LightTreeMode::Auto && finite > kLightTreeMinLights);
-  tree_ = want && finite > 0 ? LightTree(items) : LightTree();
-  use_tree_ = !tree_.empty();
-  stats_.light_tree_nodes = tree_.node_count();
-  stats_.light_tree_depth = size_t(tree_.depth());
+  out.tree = want && finite > 0 ? LightTree(items) : LightTree();
+  out.use_tree = !out.tree.empty();
   // The infinite lights keep the share of the power the single distribution gives them.
-  inf_share_ = !use_tree_ ? 0.0f : inf_items_.empty() ? 0.0f : float(inf_total / total);
-  if (use_tree_ && !(inf_share_ < 1.0f)) use_tree_ = false;  // nothing finite has power
-  tree_share_ = 1.0f - inf_share_;
-  inf_dist_ = Distribution1D(inf_weights);
-  inf_pmf_.assign(weights.size(), 0.0f);
-  for (size_t j = 0; j < inf_items_.size(); ++j) inf_pmf_[inf_items_[j]] = inf_share_ * inf_dist_.pmf(j);
-  if (!(inf_share_ > 0.0f) || inf_dist_.empty()) inf_share_ = 0.0f, tree_share_ = 1.0f;
+  out.inf_share = !out.use_tree ? 0.0f : out.inf_items.empty() ? 0.0f : float(inf_total / total);
+  if (out.use_tree && !(out.inf_share < 1.0f)) out.use_tree = false;  // nothing finite has power
+  out.tree_share = 1.0f - out.inf_share;
+  out.inf_dist = Distribution1D(inf_weights);
+  out.inf_pmf.assign(weights.size(), 0.0f);
+  for (size_t j = 0; j < out.inf_items.size(); ++j) out.inf_pmf[out.inf_items[j]] = out.inf_share * out.inf_dist.pmf(j);
+  if (!(out.inf_share > 0.0f) || out.inf_dist.empty()) out.inf_share = 0.0f, out.tree_share = 1.0f;
 }
 
 
@@ -515,11 +566,11 @@ void Scene::build_light_tree(const std::vector<float>& weights) {
 }
 
 template <bool kTree>
-bool Scene::sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
-  if (light_dist_.empty()) return false;
+bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
+  if (c.dist.empty()) return false;
   size_t k;
   float pmf;
-  if (!choose_light_t<kTree>(p, s.n, u_select, k, pmf) || !(pmf > 0.0f)) return false;
+  if (!choose_light_t<kTree>(c, p, s.n, u_select, k, pmf) || !(pmf > 0.0f)) return false;
   s.target_normal = Vec3(0.0f);
   if (k < lights_.size()) {
     const Light& l = lights_[k];
@@ -537,12 +588,23 @@ bool Scene::sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, boo
     s.analytic = true;
     s.exclude = uint8_t(~l.visibility & (kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission | kLightVisVolume));
     s.cast_shadow = l.cast_shadow;
+    if (links_) {
+      // Shadow linking: rays find it only by dedicated rays (dedicated_lights_, surfaces only).
+      s.shadow_mask = l.shadow_mask;
+      s.dedicated = !s.delta && l.shadow_mask != kAllLightSets;
+      s.delta = s.delta || l.shadow_mask != kAllLightSets;
+    }
     return true;
   }
   s.delta = false;
   s.analytic = false;
   s.exclude = 0;
   s.cast_shadow = true;
+  if (links_) {
+    // A shadow-linked mesh light: light samples alone too (the integrator adds no BSDF hits).
+    s.shadow_mask = entry_shadow_mask(k);
+    s.delta = s.shadow_mask != kAllLightSets;
+  }
   if (k == env_index_) {
     float pdf;
     if (!env_.sample(u, s.wi, s.li, pdf, !bsdf_follows)) return false;
@@ -617,10 +679,10 @@ bool Scene::sample_direct_t(Vec3 p, float u_select, Vec2 u, DirectSample& s, boo
   return sample_emitter(e, p, st, spherical, pdf_solid, pmf_e, u, s);
 }
 
-template bool Scene::sample_direct_t<false>(Vec3, float, Vec2, DirectSample&, bool) const;
-template bool Scene::sample_direct_t<true>(Vec3, float, Vec2, DirectSample&, bool) const;
+template bool Scene::sample_direct_t<false>(const LightChoice&, Vec3, float, Vec2, DirectSample&, bool) const;
+template bool Scene::sample_direct_t<true>(const LightChoice&, Vec3, float, Vec2, DirectSample&, bool) const;
 
-float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n) const {
+float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n, uint8_t set) const {
   // Curves and points are not light-sampled: their emission is found by BSDF rays alone.
   if (sp.curve() || sp.point()) return 0.0f;
   const InstanceData& in = inst_[sp.instance];
@@ -628,7 +690,9 @@ float Scene::pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l
   if (e < 0 || !(cos_l > 0.0f)) return 0.0f;
   const uint32_t gi = emitter_group_[size_t(e)];
   const EmitterGroup& g = groups_[gi];
-  const float pmf = light_pmf(from, from_n, lights_.size() + gi);
+  const LightChoice& c = choice(set);
+  if (c.dist.empty()) return 0.0f;
+  const float pmf = light_pmf(c, from, from_n, lights_.size() + gi);
   if (!(pmf > 0.0f)) return 0.0f;
   // The same choices sample_direct makes from this point.
   if (g.rect && solid_angle_triangles_) {
@@ -761,7 +825,7 @@ bool clip_to_cone(Vec3 o, Vec3 d, Vec3 a, Vec3 v, float cos_half, float& t0, flo
 bool Scene::light_reference_point(Vec3 p, Vec3 d, float u_select, Vec2 u, Vec3& c, float& t0, float& t1) const {
   size_t k;
   float pmf;
-  if (light_dist_.empty() || !choose_light(p, Vec3(0.0f), u_select, k, pmf) || !(pmf > 0.0f)) return false;
+  if (lc_.dist.empty() || !choose_light(lc_, p, Vec3(0.0f), u_select, k, pmf) || !(pmf > 0.0f)) return false;
   if (k == env_index_) return false;
   if (k < lights_.size()) {
     const Light& l = lights_[k];
@@ -803,9 +867,11 @@ bool Scene::light_reference_point(Vec3 p, Vec3 d, float u_select, Vec2 u, Vec3& 
   return is_finite(c);
 }
 
-float Scene::pdf_environment(Vec3 dir) const {
+float Scene::pdf_environment(Vec3 dir, uint8_t set) const {
   if (env_index_ == SIZE_MAX) return 0.0f;
-  return (use_tree_ ? inf_pmf_[env_index_] : light_dist_.pmf(env_index_)) * env_.pdf(dir);
+  const LightChoice& c = choice(set);
+  if (c.dist.empty()) return 0.0f;
+  return (c.use_tree ? c.inf_pmf[env_index_] : c.dist.pmf(env_index_)) * env_.pdf(dir);
 }
 
 }  // namespace pl

@@ -412,7 +412,7 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_
   }
 }
 
-Vec3 Scene::transmittance_through(Ray ray) const {
+Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask) const {
   Vec3 T(1.0f);
   for (int i = 0; i < 64; ++i) {  // bounded: stacked alpha cards
     Hit h;
@@ -420,17 +420,21 @@ Vec3 Scene::transmittance_through(Ray ray) const {
     SurfacePoint sp;
     surface_point(h, sp, ray.time, &ray);
     const Material& mat = materials_[sp.material];
-    if (!mat.transparent) return Vec3(0.0f);
-    ClosureList cl;
-    RayState shadow;
-    shadow.flags = kRayShadow;
-    shadow.length = h.t * length(ray.dir);
-    shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, shadow);
-    Vec3 pass(0.0f);
-    for (int c = 0; c < cl.n; ++c)
-      if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
-    T = T * vmin(pass, Vec3(1.0f));
-    if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
+    // Shadow linking: a blocker outside the light's shadow sets is passed as if not there.
+    const bool passed = shadow_mask != kAllLightSets && !((shadow_mask >> shadow_set_of(h.inst)) & 1u);
+    if (!mat.transparent && !passed) return Vec3(0.0f);
+    if (!passed) {
+      ClosureList cl;
+      RayState shadow;
+      shadow.flags = kRayShadow;
+      shadow.length = h.t * length(ray.dir);
+      shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, shadow);
+      Vec3 pass(0.0f);
+      for (int c = 0; c < cl.n; ++c)
+        if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
+      T = T * vmin(pass, Vec3(1.0f));
+      if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
+    }
     // Continue just past the surface towards the same end point (or to infinity).
     const Vec3 side = dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
     const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);

@@ -199,7 +199,13 @@ struct ObjectInfo {
   // Cycles' Shadow Terminator Geometry Offset of the object (0: off; Blender's default 0.1):
   // light samples of smooth triangles near the terminator start on the smooth surface.
   float terminator = 0.0f;
+  // Light linking (Cycles' receiver_light_set / blocker_shadow_set): the object's light set as a
+  // receiver and shadow set as a blocker (0..63); as an emitter (its emissive triangles) the
+  // sets it lights and is blocked by (bit s: set s).
+  uint8_t light_set = 0, shadow_set = 0;
+  uint64_t light_mask = ~uint64_t(0), shadow_mask = ~uint64_t(0);
 };
+constexpr uint64_t kAllLightSets = ~uint64_t(0);
 constexpr uint32_t kMaxObjectAttributes = 8;
 // Object Info's Random from a 32-bit id as Cycles makes it: (float)id / (float)0xFFFFFFFF,
 // whose divisor rounds to 2^32 in float.

@@ -13,7 +13,7 @@ ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
     "volumes", "heterogeneous volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights",
     "environment", "world light", "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree",
-    "light hits", "subsurface", "motion blur", "guiding", "shadow terminator"}
+    "light hits", "subsurface", "motion blur", "guiding", "shadow terminator", "light linking"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -171,6 +171,18 @@ CASES = {
     "adaptive": (lambda: cornell(pc), {"adaptive_threshold": 0.05, "adaptive_min_samples": 4},
                  {"diffuse", "mesh lights", "adaptive sampling"}, "diffuse"),
 }
+
+
+def linked_scene():
+    """The lights scene with one light linked to set 1 only and shadow-linked (light linking
+    lives in the general kernel only)."""
+    s = lights_scene()
+    s.set_light_links(0, light_mask=0b10, shadow_mask=0b10)
+    return s
+
+
+CASES["light linking"] = (linked_scene, {}, {"diffuse", "point lights", "spot lights", "sun lights", "area lights",
+                                             "world light", "light hits", "light linking"}, "general")
 
 
 def moving_cornell():
