@@ -2538,6 +2538,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           })
       .def_readwrite("film_transparent", &RenderSettings::film_transparent)
       .def_readwrite("exposure", &RenderSettings::exposure)
+      .def_readwrite("mist_start", &RenderSettings::mist_start)
+      .def_readwrite("mist_depth", &RenderSettings::mist_depth)
+      .def_readwrite("mist_falloff", &RenderSettings::mist_falloff, "Mist falloff exponent: 1 Linear, 2 Quadratic, 0.5 Inverse Quadratic")
+      .def_readwrite("ao_distance", &RenderSettings::ao_distance)
       .def_property(
           "debug_view", [](const RenderSettings& s) { return enum_name(s.debug_view, kDebugViewNames); },
           [](RenderSettings& s, const std::string& v) { s.debug_view = enum_from_name(v, "debug_view", kDebugViewNames); })

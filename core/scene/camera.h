@@ -60,6 +60,7 @@ class Camera {
   // The same ray through the lens centre: what autofocus and the focal plane are defined by.
   Ray generate_pinhole(float x, float y) const;
   bool has_aperture() const { return aperture_ > 0.0f; }
+  bool orthographic() const { return type_ == CameraType::Orthographic; }
   float focus_distance() const { return focus_; }
   void set_focus_distance(float d);
   // Distance of a world point from the camera along the view axis.
