@@ -643,7 +643,9 @@ struct GuideRecord {
       ray.tmax = 1.0f;
       ray.time = time;
       ray.self_curve = scene.self_curve(sp);
-      aov.ao += beta * alpha * scene.transmittance(ray);
+      // Through transparent surfaces and the volumes it enters (Cycles traces it as a shadow ray);
+      // a camera path inside a volume is rare enough to ignore the one it starts in.
+      aov.ao += beta * alpha * shadow_transmittance(scene, ray, Medium{}, true, &rng);
     }
   }
 }
