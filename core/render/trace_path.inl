@@ -500,7 +500,13 @@ inline Vec3 safe_ratio(Vec3 a, Vec3 b) {
       continue;
     }
     const int k = closure_pass_kind(c, true);
-    const Vec3 a = closure_albedo(c, wo);
+    Vec3 a = closure_albedo(c, wo);
+    if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf); m && m->compensated) {
+      // Cycles' albedo leaves out the 1 / E of the energy compensation (E: the single-scatter
+      // lobe's directional albedo), which Pathlight's closure weight carries.
+      const float rough = m->alpha_y < 0.0f ? std::sqrt(m->alpha) : std::sqrt(std::sqrt(m->alpha * m->alpha_y));
+      a *= table_2d(tables::ggx_E, rough, std::fabs(dot(wo, c.frame.n)), 32, 32);
+    }
     (k == 0 ? diffuse : k == 1 ? glossy : transmission) += a;
   }
 }
