@@ -63,6 +63,8 @@ PASSES = (
     ("VolumeInd", 3, "RGB", 'COLOR', lambda sc, vl: _volume_pass(vl, "use_pass_volume_indirect")),
     ("Mist", 1, "Z", 'VALUE', lambda sc, vl: vl.use_pass_mist),
     ("AO", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_ambient_occlusion),
+    ("IndexOB", 1, "X", 'VALUE', lambda sc, vl: vl.use_pass_object_index),
+    ("IndexMA", 1, "X", 'VALUE', lambda sc, vl: vl.use_pass_material_index),
     ("BVH Nodes", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
     ("BVH Triangles", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
 )

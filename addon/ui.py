@@ -103,6 +103,8 @@ class PATHLIGHT_VIEWLAYER_PT_passes(PathlightPanel, bpy.types.Panel):
         col.prop(view_layer.pathlight, "use_pass_denoising_data")
         col.prop(view_layer.pathlight, "use_pass_sample_count")
         col.prop(view_layer, "use_pass_mist")
+        col.prop(view_layer, "use_pass_object_index")
+        col.prop(view_layer, "use_pass_material_index")
         col = layout.column(heading="Light", align=True)
         for kind in ("diffuse", "glossy", "transmission"):
             row = col.row(align=True)

@@ -2656,6 +2656,13 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("pixels"), py::arg("srgb") = false)
       .def(
+          "set_material_pass_index",
+          [](PyScene& self, uint32_t material, float pass_index) {
+            self.check_editable();
+            self.scene->set_material_pass_index(material, pass_index);
+          },
+          py::arg("material"), py::arg("pass_index"), "Blender's material pass index (the IndexMA pass).")
+      .def(
           "add_shader",
           [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,
              bool use_schlick, const py::object& volume) {

@@ -45,6 +45,8 @@ enum class Pass : int {
   VolumeIndirect,
   Mist,  // 1: kept as the mean of (1 - mist) * alpha, read as 1 minus it (Cycles' order)
   AO,    // 3: unoccluded fraction of the AO rays at the camera path's surfaces
+  ObjectIndex,    // 1: pass index of the object first seen (Cycles: of the first sample only)
+  MaterialIndex,  // 1: pass index of its material, likewise
   Count
 };
 constexpr int kPassCount = int(Pass::Count);
@@ -54,6 +56,7 @@ struct PassDesc {
   int channels;
   bool exposure;  // light passes scale with the film exposure, data passes do not
   int divide = -1;  // a Pass whose value divides this one's on reading (light components)
+  bool first = false;  // keeps the pixel's first sample (ids do not average), as Cycles
 };
 
 inline const PassDesc& pass_desc(Pass p) {
@@ -70,6 +73,7 @@ inline const PassDesc& pass_desc(Pass p) {
       {"TransCol", 3, false},
       {"VolumeDir", 3, true},                          {"VolumeInd", 3, true},
       {"Mist", 1, false},                              {"AO", 3, false},
+      {"IndexOB", 1, false, -1, true},                 {"IndexMA", 1, false, -1, true},
   };
   return table[int(p)];
 }
@@ -86,6 +90,7 @@ class Film {
       if ((passes & pass_bit(Pass(p))) && Pass(p) != Pass::SampleCount) {
         offset_[p] = stride_;
         stride_ += pass_desc(Pass(p)).channels;
+        for (int c = 0; c < pass_desc(Pass(p)).channels; ++c) first_.push_back(pass_desc(Pass(p)).first);
       }
     }
     aux_.assign(size_t(w_) * size_t(h_) * size_t(stride_), 0.0f);  // empty without passes
@@ -123,7 +128,8 @@ class Film {
     const float k = 1.0f / static_cast<float>(n);
     if (stride_ > 0 && aux) {
       float* a = &aux_[i * size_t(stride_)];
-      for (int c = 0; c < stride_; ++c) a[c] += (aux[c] - a[c]) * k;
+      for (int c = 0; c < stride_; ++c)
+        if (n == 1 || !first_[size_t(c)]) a[c] += (aux[c] - a[c]) * k;
     }
     Rgba& m = mean_[i];
     // Welford's update of the luminance variance (luminance is linear in the RGB mean).
@@ -249,6 +255,7 @@ class Film {
   int offset_[kPassCount];
   int stride_ = 0;
   std::vector<float> aux_;  // stride_ floats per pixel: the running means of the pass planes
+  std::vector<uint8_t> first_;  // per channel of a pixel's planes: PassDesc::first
   std::vector<Rgba> mean_;
   std::vector<uint32_t> count_;
   std::vector<float> m2_;

@@ -58,6 +58,7 @@ struct IntegratorSettings {
   float mist_start = 5.0f, mist_depth = 25.0f, mist_falloff = 2.0f;
   bool ao = false;
   float ao_distance = 10.0f;
+  bool indices = false;  // Object and Material Index
 };
 
 // Cycles' light components, as the film keeps them (before the division by their colour).
@@ -105,6 +106,7 @@ struct PathAovs {
   Vec3 diffuse_color{0.0f}, glossy_color{0.0f}, transmission_color{0.0f};
   float mist = 0.0f;  // (1 - mist) times the alpha of the camera path's surfaces; the pass is 1 - this
   Vec3 ao{0.0f};      // the camera path's surfaces' unoccluded AO rays (times their alpha)
+  float object_index = 0.0f, material_index = 0.0f;  // of the surface `hit` (0: none)
 };
 
 // The general kernel: every feature compiled in.

@@ -130,6 +130,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
       integrator_.light_passes = integrator_.light_passes || (kept & pass_bit(Pass(p)));
     integrator_.mist = (kept & pass_bit(Pass::Mist)) != 0;
     integrator_.ao = (kept & pass_bit(Pass::AO)) != 0;
+    integrator_.indices = (kept & (pass_bit(Pass::ObjectIndex) | pass_bit(Pass::MaterialIndex))) != 0;
     integrator_.mist_start = settings_.mist_start;
     integrator_.mist_depth = settings_.mist_depth;
     integrator_.mist_falloff = settings_.mist_falloff;
@@ -300,6 +301,8 @@ void Session::write_aux(const PathAovs& a, float* out) const {
   put(Pass::TransmissionColor, a.transmission_color);
   put(Pass::Mist, Vec3(a.mist));
   put(Pass::AO, a.ao);
+  put(Pass::ObjectIndex, Vec3(a.object_index));
+  put(Pass::MaterialIndex, Vec3(a.material_index));
 }
 
 void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {

@@ -1077,6 +1077,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           aov->hit = true;
           aov->position = sp.p;
           aov->normal = flip ? -sp.ns : sp.ns;
+          if (s.indices) {
+            aov->object_index = scene.object_pass_index(sp);
+            aov->material_index = scene.material(sp.material).pass_index;
+          }
         }
       }
       if (want_features) {

@@ -122,3 +122,27 @@ def test_ao_is_one_in_the_open_and_zero_in_a_closed_box():
     ao = run_session(pc, plane, 16, 16, 4, passes=["AO"], threads=2, ao_distance=100.0).film_pass("AO")
     hit = ao[..., 0] > 0
     assert hit.mean() > 0.3 and np.all(ao[hit] == 1.0)
+
+
+def test_object_and_material_index_of_the_first_sample():
+    # Two quads side by side (pass indices 3 and 7, materials 2 and 5) on a black world: each
+    # pixel keeps the indices of its first sample, not a mean over its samples (Cycles' ids).
+    s = pc.Scene()
+    ids = []
+    for x0, obj_index, mat_index in [(-1.0, 3, 2), (0.0, 7, 5)]:
+        m = s.add_material(f"m{mat_index}", (0.5, 0.5, 0.5))
+        s.set_material_pass_index(m, mat_index)
+        pos, tris = quad((x0, 0, -1), (0, 0, 2), (1, 0, 0))
+        mesh = s.add_mesh(pos, tris, None, None, [m])
+        s.add_instance(mesh, np.eye(4, dtype=np.float32), pass_index=obj_index)
+        ids.append((obj_index, mat_index))
+    s.set_camera(camera(pc, (0.0, -5.0, 0.0), (0, 0, 0)))
+    sess = run_session(pc, s, 32, 16, 8, passes=["IndexOB", "IndexMA"], threads=2)
+    ob, ma = sess.film_pass("IndexOB")[..., 0], sess.film_pass("IndexMA")[..., 0]
+    x = np.broadcast_to((np.arange(32) + 0.5 - 16) * (5.0 * 36.0 / 50.0 / 32), (16, 32))  # pixel centres
+    assert set(np.unique(ob)) == {0.0, 3.0, 7.0}  # no averages at the shared edge
+    left, right = ob == 3.0, ob == 7.0
+    assert left.sum() > 50 and right.sum() > 50
+    assert np.all(ma[left] == 2.0) and np.all(ma[right] == 5.0) and np.all(ma[ob == 0.0] == 0.0)
+    inner = (np.abs(x) > 0.15) & (np.abs(x) < 0.85)  # away from edges, where the first sample may miss
+    assert np.all(ob[inner & (x < 0)] == 3.0) and np.all(ob[inner & (x > 0)] == 7.0)
