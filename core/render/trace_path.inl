@@ -645,8 +645,8 @@ struct GuideRecord {
     if (dot(dir, ng) > 0.0f && s.ao_distance > 0.0f) {
       Ray ray;
       ray.org = offset_ray_origin(sp.p, sp.p_error, ng);
-      ray.dir = dir * s.ao_distance;
-      ray.tmax = 1.0f;
+      ray.dir = dir;
+      ray.tmax = s.ao_distance;  // (infinite: unbounded)
       ray.time = time;
       ray.self_curve = scene.self_curve(sp);
       // Through transparent surfaces and the volumes it enters (Cycles traces it as a shadow ray);

@@ -146,3 +146,21 @@ def test_object_and_material_index_of_the_first_sample():
     assert np.all(ma[left] == 2.0) and np.all(ma[right] == 5.0) and np.all(ma[ob == 0.0] == 0.0)
     inner = (np.abs(x) > 0.15) & (np.abs(x) < 0.85)  # away from edges, where the first sample may miss
     assert np.all(ob[inner & (x < 0)] == 3.0) and np.all(ob[inner & (x > 0)] == 7.0)
+
+
+def test_bad_mist_and_ao_settings_raise_and_infinite_ao_is_unbounded():
+    for name, value in [("mist_depth", -1.0), ("mist_falloff", 0.0), ("mist_start", float("nan")),
+                        ("ao_distance", float("nan")), ("ao_distance", -2.0)]:
+        bad = pc.RenderSettings()
+        bad.width = bad.height = 8
+        setattr(bad, name, value)
+        with pytest.raises(ValueError):
+            pc.Session(committed_cornell(), bad)
+    ao = run_session(pc, cornell(pc), 8, 8, 2, passes=["AO"], threads=2, ao_distance=float("inf")).film_pass("AO")
+    assert np.all(ao == 0.0)  # the closed box occludes every ray
+
+
+def committed_cornell():
+    s = cornell(pc)
+    s.commit()
+    return s
