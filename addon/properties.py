@@ -192,6 +192,16 @@ class PathlightViewLayerSettings(bpy.types.PropertyGroup):
         description="Samples taken in each pixel (differs per pixel with adaptive sampling)",
         default=False, update=_requery_passes,
     )
+    use_pass_volume_direct: BoolProperty(
+        name="Volume Direct",
+        description="Light samples and emission that reach a path's first scattering in a volume (Cycles' VolumeDir)",
+        default=False, update=_requery_passes,
+    )
+    use_pass_volume_indirect: BoolProperty(
+        name="Volume Indirect",
+        description="The rest of the light of paths that first scatter in a volume (Cycles' VolumeInd)",
+        default=False, update=_requery_passes,
+    )
 
 
 classes = (PathlightSceneSettings, PathlightViewLayerSettings)

@@ -97,17 +97,23 @@ def put_material(scene, m, image_ids, core_id=None):
     Core builds without shader programs get the (base colour, emission) summary."""
     if m.program is None:
         if core_id is None:
-            return scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
-        scene.set_material(core_id, m.name, base_color=m.base_color, emission=m.emission)
+            core_id = scene.add_material(m.name, base_color=m.base_color, emission=m.emission)
+        else:
+            scene.set_material(core_id, m.name, base_color=m.base_color, emission=m.emission)
+        if m.pass_index:
+            scene.set_material_pass_index(core_id, m.pass_index)
         return core_id
     program = [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op
                for op in m.program]
     kw = {} if m.volume is None else {"volume": m.volume}  # older cores lack it
     if core_id is None:
-        return scene.add_shader(m.name, program, volume_absorption=m.volume_absorption,
-                                use_schlick=m.use_schlick, **kw)
-    scene.set_shader(core_id, m.name, program, volume_absorption=m.volume_absorption,
-                     use_schlick=m.use_schlick, **kw)
+        core_id = scene.add_shader(m.name, program, volume_absorption=m.volume_absorption,
+                                   use_schlick=m.use_schlick, **kw)
+    else:
+        scene.set_shader(core_id, m.name, program, volume_absorption=m.volume_absorption,
+                         use_schlick=m.use_schlick, **kw)
+    if m.pass_index:
+        scene.set_material_pass_index(core_id, m.pass_index)
     return core_id
 
 

@@ -49,9 +49,36 @@ PASSES = (
     ("Denoising Normal", 3, "XYZ", 'VECTOR', lambda sc, vl: vl.pathlight.use_pass_denoising_data),
     ("Denoising Albedo", 3, "RGB", 'COLOR', lambda sc, vl: vl.pathlight.use_pass_denoising_data),
     ("Sample Count", 1, "X", 'VALUE', lambda sc, vl: vl.pathlight.use_pass_sample_count),
+    # Cycles' light components (divided by their colour, as Cycles does), Mist and AO.
+    ("DiffDir", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_diffuse_direct),
+    ("DiffInd", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_diffuse_indirect),
+    ("DiffCol", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_diffuse_color),
+    ("GlossDir", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_glossy_direct),
+    ("GlossInd", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_glossy_indirect),
+    ("GlossCol", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_glossy_color),
+    ("TransDir", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_transmission_direct),
+    ("TransInd", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_transmission_indirect),
+    ("TransCol", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_transmission_color),
+    ("VolumeDir", 3, "RGB", 'COLOR', lambda sc, vl: _volume_pass(vl, "use_pass_volume_direct")),
+    ("VolumeInd", 3, "RGB", 'COLOR', lambda sc, vl: _volume_pass(vl, "use_pass_volume_indirect")),
+    ("Mist", 1, "Z", 'VALUE', lambda sc, vl: vl.use_pass_mist),
+    ("AO", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_ambient_occlusion),
+    ("IndexOB", 1, "X", 'VALUE', lambda sc, vl: vl.use_pass_object_index),
+    ("IndexMA", 1, "X", 'VALUE', lambda sc, vl: vl.use_pass_material_index),
     ("BVH Nodes", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
     ("BVH Triangles", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
 )
+
+
+def _volume_pass(view_layer, prop):
+    """Volume Direct / Indirect: Blender's view layer has no switch for them, Cycles' settings
+    (view_layer.cycles) and Pathlight's own do."""
+    cycles = getattr(view_layer, "cycles", None)
+    return bool(getattr(view_layer.pathlight, prop) or (cycles is not None and getattr(cycles, prop, False)))
+
+
+# world.mist_settings.falloff as Cycles' exponent
+MIST_FALLOFF = {'LINEAR': 1.0, 'QUADRATIC': 2.0, 'INVERSE_QUADRATIC': 0.5}
 
 
 def enabled_passes(scene, view_layer):
@@ -114,6 +141,12 @@ def render_settings(pc, scene, warn=None):
         "exposure": props.film_exposure,
         "debug_view": props.debug_view.lower(),
     })
+    world = scene.world
+    if world is not None:  # (no world: Cycles' defaults, which the core's are)
+        mist = world.mist_settings
+        optional.update(mist_start=mist.start, mist_depth=mist.depth,
+                        mist_falloff=MIST_FALLOFF.get(mist.falloff, 2.0),
+                        ao_distance=world.light_settings.distance)
     optional["force_general_kernel"] = props.use_general_kernel
     optional["guiding"] = props.use_guiding
     x, y, w, h = render_border(scene, warn)

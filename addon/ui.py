@@ -102,9 +102,23 @@ class PATHLIGHT_VIEWLAYER_PT_passes(PathlightPanel, bpy.types.Panel):
         col.prop(view_layer, "use_pass_normal")
         col.prop(view_layer.pathlight, "use_pass_denoising_data")
         col.prop(view_layer.pathlight, "use_pass_sample_count")
+        col.prop(view_layer, "use_pass_mist")
+        col.prop(view_layer, "use_pass_object_index")
+        col.prop(view_layer, "use_pass_material_index")
         col = layout.column(heading="Light", align=True)
+        for kind in ("diffuse", "glossy", "transmission"):
+            row = col.row(align=True)
+            row.label(text=kind.capitalize())
+            for part, text in (("direct", "Direct"), ("indirect", "Indirect"), ("color", "Color")):
+                row.prop(view_layer, f"use_pass_{kind}_{part}", text=text, toggle=True)
+        row = col.row(align=True)
+        row.label(text="Volume")
+        row.prop(view_layer.pathlight, "use_pass_volume_direct", text="Direct", toggle=True)
+        row.prop(view_layer.pathlight, "use_pass_volume_indirect", text="Indirect", toggle=True)
+        col = layout.column(heading="Other", align=True)
         col.prop(view_layer, "use_pass_emit", text="Emission")
         col.prop(view_layer, "use_pass_environment")
+        col.prop(view_layer, "use_pass_ambient_occlusion", text="Ambient Occlusion")
 
 
 class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):

@@ -19,6 +19,7 @@ class MaterialData(NamedTuple):
     use_schlick: bool = False
     uv_sets: dict = {}  # global uv-set index -> UV map name ("" = active render) it reads
     volume: dict = None  # the homogeneous medium inside (sigma_a, sigma_s, g, emission) or None
+    pass_index: int = 0  # Blender's material pass index (the Material Index pass)
 
 
 DEFAULT_MATERIAL = MaterialData("Pathlight Default", GREY, BLACK)
@@ -76,8 +77,14 @@ def view_layer_ids(depsgraph):
     return tuple(x for x in (depsgraph.view_layer, scene, scene.world) if x is not None)
 
 
-def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, view_layer_ids=(),
-                     depsgraph=None, volume_grids=None, density_scale=1.0):
+def convert_material(mat, warn, *args, **kw):
+    """convert_material_data with the material's pass index."""
+    data = convert_material_data(mat, warn, *args, **kw)
+    return data if mat is None else data._replace(pass_index=int(getattr(mat, "pass_index", 0)))
+
+
+def convert_material_data(mat, warn, images=None, uv_sets=None, use_schlick=False, view_layer_ids=(),
+                          depsgraph=None, volume_grids=None, density_scale=1.0):
     """MaterialData for a bpy Material (or None = empty slot). Calls warn(msg) at most once:
     one message naming everything of the material that is approximated or unsupported.
     images/uv_sets: the scene's ImageTable and UvSets (fresh ones if None)."""

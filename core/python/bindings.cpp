@@ -2633,6 +2633,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           })
       .def_readwrite("film_transparent", &RenderSettings::film_transparent)
       .def_readwrite("exposure", &RenderSettings::exposure)
+      .def_readwrite("mist_start", &RenderSettings::mist_start)
+      .def_readwrite("mist_depth", &RenderSettings::mist_depth)
+      .def_readwrite("mist_falloff", &RenderSettings::mist_falloff, "Mist falloff exponent: 1 Linear, 2 Quadratic, 0.5 Inverse Quadratic")
+      .def_readwrite("ao_distance", &RenderSettings::ao_distance)
       .def_property(
           "debug_view", [](const RenderSettings& s) { return enum_name(s.debug_view, kDebugViewNames); },
           [](RenderSettings& s, const std::string& v) { s.debug_view = enum_from_name(v, "debug_view", kDebugViewNames); })
@@ -2746,6 +2750,13 @@ PYBIND11_MODULE(pathlight_core, m) {
             return self.scene->add_image(std::move(img));
           },
           py::arg("pixels"), py::arg("srgb") = false)
+      .def(
+          "set_material_pass_index",
+          [](PyScene& self, uint32_t material, float pass_index) {
+            self.check_editable();
+            self.scene->set_material_pass_index(material, pass_index);
+          },
+          py::arg("material"), py::arg("pass_index"), "Blender's material pass index (the IndexMA pass).")
       .def(
           "add_shader",
           [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,

@@ -30,6 +30,23 @@ enum class Pass : int {
   BvhNodes,         // 1: BVH nodes visited by the camera ray (debug view)
   BvhTriangles,     // 1: triangles tested by the camera ray (debug view)
   SampleCount,      // 1: samples taken in the pixel (not averaged)
+  // Cycles' light components (integrator.h LightComponent), read divided by their Color pass
+  // (0 where it is 0), and the colours: DiffDir, DiffInd, DiffCol, GlossDir, ...
+  DiffuseDirect,
+  DiffuseIndirect,
+  DiffuseColor,
+  GlossyDirect,
+  GlossyIndirect,
+  GlossyColor,
+  TransmissionDirect,
+  TransmissionIndirect,
+  TransmissionColor,
+  VolumeDirect,
+  VolumeIndirect,
+  Mist,  // 1: kept as the mean of (1 - mist) * alpha, read as 1 minus it (Cycles' order)
+  AO,    // 3: unoccluded fraction of the AO rays at the camera path's surfaces
+  ObjectIndex,    // 1: pass index of the object first seen (Cycles: of the first sample only)
+  MaterialIndex,  // 1: pass index of its material, likewise
   Count
 };
 constexpr int kPassCount = int(Pass::Count);
@@ -38,6 +55,8 @@ struct PassDesc {
   const char* name;
   int channels;
   bool exposure;  // light passes scale with the film exposure, data passes do not
+  int divide = -1;  // a Pass whose value divides this one's on reading (light components)
+  bool first = false;  // keeps the pixel's first sample (ids do not average), as Cycles
 };
 
 inline const PassDesc& pass_desc(Pass p) {
@@ -46,6 +65,15 @@ inline const PassDesc& pass_desc(Pass p) {
       {"Emit", 3, true},             {"Env", 3, true},               {"Denoising Normal", 3, false},
       {"Denoising Albedo", 3, false}, {"BVH Nodes", 1, false},       {"BVH Triangles", 1, false},
       {"Sample Count", 1, false},
+      {"DiffDir", 3, true, int(Pass::DiffuseColor)},   {"DiffInd", 3, true, int(Pass::DiffuseColor)},
+      {"DiffCol", 3, false},
+      {"GlossDir", 3, true, int(Pass::GlossyColor)},   {"GlossInd", 3, true, int(Pass::GlossyColor)},
+      {"GlossCol", 3, false},
+      {"TransDir", 3, true, int(Pass::TransmissionColor)}, {"TransInd", 3, true, int(Pass::TransmissionColor)},
+      {"TransCol", 3, false},
+      {"VolumeDir", 3, true},                          {"VolumeInd", 3, true},
+      {"Mist", 1, false},                              {"AO", 3, false},
+      {"IndexOB", 1, false, -1, true},                 {"IndexMA", 1, false, -1, true},
   };
   return table[int(p)];
 }
@@ -62,6 +90,7 @@ class Film {
       if ((passes & pass_bit(Pass(p))) && Pass(p) != Pass::SampleCount) {
         offset_[p] = stride_;
         stride_ += pass_desc(Pass(p)).channels;
+        for (int c = 0; c < pass_desc(Pass(p)).channels; ++c) first_.push_back(pass_desc(Pass(p)).first);
       }
     }
     aux_.assign(size_t(w_) * size_t(h_) * size_t(stride_), 0.0f);  // empty without passes
@@ -99,7 +128,8 @@ class Film {
     const float k = 1.0f / static_cast<float>(n);
     if (stride_ > 0 && aux) {
       float* a = &aux_[i * size_t(stride_)];
-      for (int c = 0; c < stride_; ++c) a[c] += (aux[c] - a[c]) * k;
+      for (int c = 0; c < stride_; ++c)
+        if (n == 1 || !first_[size_t(c)]) a[c] += (aux[c] - a[c]) * k;
     }
     Rgba& m = mean_[i];
     // Welford's update of the luminance variance (luminance is linear in the RGB mean).
@@ -192,6 +222,7 @@ class Film {
     const int off = offset_[int(p)];
     if (p != Pass::SampleCount && off < 0) return false;
     const float scale = pass_desc(p).exposure ? exposure_ : 1.0f;
+    const int div = pass_desc(p).divide >= 0 ? offset_[pass_desc(p).divide] : -1;
     for (int t = 0; t < tile_count(); ++t) {
       int x0, y0, x1, y1;
       tile_rect(t, x0, y0, x1, y1);
@@ -207,6 +238,11 @@ class Film {
           const float* src = &aux_[i * size_t(stride_) + size_t(off)];
           for (int c = 0; c < ch; ++c) dst[c] = src[c] * scale;
           if (p == Pass::Depth && dst[0] == 0.0f) dst[0] = 1e10f;  // Cycles' "nothing here"
+          if (p == Pass::Mist) dst[0] = 1.0f - dst[0];
+          if (div >= 0) {  // (the session keeps the colour whenever a component is asked for)
+            const float* col = &aux_[i * size_t(stride_) + size_t(div)];
+            for (int c = 0; c < ch; ++c) dst[c] = col[c] != 0.0f ? dst[c] / col[c] : 0.0f;
+          }
         }
     }
     return true;
@@ -219,6 +255,7 @@ class Film {
   int offset_[kPassCount];
   int stride_ = 0;
   std::vector<float> aux_;  // stride_ floats per pixel: the running means of the pass planes
+  std::vector<uint8_t> first_;  // per channel of a pixel's planes: PassDesc::first
   std::vector<Rgba> mean_;
   std::vector<uint32_t> count_;
   std::vector<float> m2_;

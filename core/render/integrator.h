@@ -48,6 +48,30 @@ struct IntegratorSettings {
   GuidingField* guide = nullptr;
   bool guide_training = false;
   float guide_probability = 0.5f;
+  // Render passes beyond the data passes, filled only by the aov kernel (PathAovs): Cycles'
+  // light components and colours, Mist (distance from `mist_origin`, 0..1 from mist_start over
+  // mist_depth, raised to mist_falloff), AO (a cosine ray of ao_distance at camera hits).
+  bool light_passes = false;
+  bool mist = false;
+  Vec3 mist_origin{0.0f};
+  Vec3 mist_axis{0.0f};  // orthographic cameras: distance along this axis (zero: from the origin)
+  float mist_start = 5.0f, mist_depth = 25.0f, mist_falloff = 2.0f;
+  bool ao = false;
+  float ao_distance = 10.0f;
+  bool indices = false;  // Object and Material Index
+};
+
+// Cycles' light components, as the film keeps them (before the division by their colour).
+enum LightComponent : int {
+  kDiffuseDirect,
+  kDiffuseIndirect,
+  kGlossyDirect,
+  kGlossyIndirect,
+  kTransmissionDirect,
+  kTransmissionIndirect,
+  kVolumeDirect,
+  kVolumeIndirect,
+  kLightComponents
 };
 
 struct PathCounters {
@@ -71,6 +95,18 @@ struct PathAovs {
   Vec3 emission{0.0f};     // emission seen directly (through Transparent BSDFs only), Cycles' Emit
   Vec3 environment{0.0f};  // the world seen directly (through Transparent BSDFs only), Cycles' Env
   float alpha = 1.0f;      // 1 - transmittance to the world through Transparent BSDFs (transparent film)
+  // IntegratorSettings::light_passes. The first scattering (not a transparent crossing) picks
+  // the component: a surface's closures (diffuse, glossy, transmission: the shares of its BSDF
+  // value along the sampled or light direction, as Cycles' pass weights) or a volume. Direct:
+  // the light samples there and the emission the next ray finds; indirect: the rest. Emit and
+  // Env keep what the camera path sees itself, so everything sums to Combined.
+  Vec3 light[kLightComponents] = {};
+  // Albedo of the closures of each kind at the camera path's surfaces (through Transparent
+  // BSDFs, times the throughput): the film divides the components by these, as Cycles.
+  Vec3 diffuse_color{0.0f}, glossy_color{0.0f}, transmission_color{0.0f};
+  float mist = 0.0f;  // (1 - mist) times the alpha of the camera path's surfaces; the pass is 1 - this
+  Vec3 ao{0.0f};      // the camera path's surfaces' unoccluded AO rays (times their alpha)
+  float object_index = 0.0f, material_index = 0.0f;  // of the surface `hit` (0: none)
 };
 
 // The general kernel: every feature compiled in.

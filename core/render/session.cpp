@@ -52,12 +52,18 @@ void validate(const RenderSettings& s) {
       throw std::invalid_argument("the render border must be a non-empty rectangle inside the frame");
   }
   if (!(s.exposure >= 0.0f) || !std::isfinite(s.exposure)) throw std::invalid_argument("exposure must be finite and >= 0");
+  if (!std::isfinite(s.mist_start) || !(s.mist_depth >= 0.0f) || !std::isfinite(s.mist_depth) ||
+      !(s.mist_falloff > 0.0f) || !std::isfinite(s.mist_falloff))
+    throw std::invalid_argument("mist settings must be finite (depth >= 0, falloff > 0)");
+  if (!(s.ao_distance >= 0.0f)) throw std::invalid_argument("ao_distance must be >= 0");
   if (s.passes >= (1u << kPassCount)) throw std::invalid_argument("unknown render pass");
 }
 
 uint32_t effective_passes(const RenderSettings& s) {
   uint32_t p = s.passes;
   if (s.debug_view == DebugView::Bvh) p |= pass_bit(Pass::BvhNodes) | pass_bit(Pass::BvhTriangles);
+  for (int i = 0; i < kPassCount; ++i)
+    if ((p & pass_bit(Pass(i))) && pass_desc(Pass(i)).divide >= 0) p |= pass_bit(Pass(pass_desc(Pass(i)).divide));
   return p;
 }
 
@@ -111,6 +117,20 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   integrator_.glossy_bounces = settings_.glossy_bounces;
   integrator_.transmission_bounces = settings_.transmission_bounces;
   integrator_.volume_bounces = settings_.volume_bounces;
+  {
+    const uint32_t kept = effective_passes(settings_);
+    for (int p = int(Pass::DiffuseDirect); p <= int(Pass::VolumeIndirect); ++p)
+      integrator_.light_passes = integrator_.light_passes || (kept & pass_bit(Pass(p)));
+    integrator_.mist = (kept & pass_bit(Pass::Mist)) != 0;
+    integrator_.ao = (kept & pass_bit(Pass::AO)) != 0;
+    integrator_.indices = (kept & (pass_bit(Pass::ObjectIndex) | pass_bit(Pass::MaterialIndex))) != 0;
+    integrator_.mist_start = settings_.mist_start;
+    integrator_.mist_depth = settings_.mist_depth;
+    integrator_.mist_falloff = settings_.mist_falloff;
+    integrator_.ao_distance = settings_.ao_distance;
+    integrator_.mist_origin = camera_.origin();
+    integrator_.mist_axis = camera_.orthographic() ? camera_.forward() : Vec3(0.0f);
+  }
   if (settings_.adaptive_threshold > 0.0f) {
     // Enough samples to see noisy features before any pixel may stop (Cycles' idea).
     min_samples_ = settings_.adaptive_min_samples > 0
@@ -265,6 +285,17 @@ void Session::write_aux(const PathAovs& a, float* out) const {
   // a panorama's own camera space.
   put(Pass::DenoisingNormal, camera_.dir_to_camera(a.denoising_normal));
   put(Pass::DenoisingAlbedo, a.denoising_albedo);
+  static constexpr Pass kComponent[kLightComponents] = {
+      Pass::DiffuseDirect,      Pass::DiffuseIndirect,      Pass::GlossyDirect, Pass::GlossyIndirect,
+      Pass::TransmissionDirect, Pass::TransmissionIndirect, Pass::VolumeDirect, Pass::VolumeIndirect};
+  for (int k = 0; k < kLightComponents; ++k) put(kComponent[k], a.light[k]);
+  put(Pass::DiffuseColor, a.diffuse_color);
+  put(Pass::GlossyColor, a.glossy_color);
+  put(Pass::TransmissionColor, a.transmission_color);
+  put(Pass::Mist, Vec3(a.mist));
+  put(Pass::AO, a.ao);
+  put(Pass::ObjectIndex, Vec3(a.object_index));
+  put(Pass::MaterialIndex, Vec3(a.material_index));
 }
 
 void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {

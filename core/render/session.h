@@ -49,6 +49,10 @@ struct RenderSettings {
   uint32_t passes = 0;            // render passes to keep: pass_bit()s (film.h)
   bool film_transparent = false;  // the world seen directly becomes alpha 0 (Cycles' Transparent film)
   float exposure = 1.0f;          // linear multiplier of Combined and the light passes (Cycles' film_exposure)
+  // The Mist pass (world.mist_settings): start, depth and falloff exponent (Cycles' 1, 2, 0.5
+  // for Linear, Quadratic, Inverse Quadratic); the AO pass: its rays' length (world.light_settings.distance).
+  float mist_start = 5.0f, mist_depth = 25.0f, mist_falloff = 2.0f;
+  float ao_distance = 10.0f;
   DebugView debug_view = DebugView::None;
   // Run the general integrator kernel even where a specialised one covers the scene (tests and
   // benchmarks compare the two).
@@ -66,7 +70,8 @@ struct RenderSettings {
   float guiding_photon_split = 1.0f;  // a photon record's weight in a cell's split count
 };
 
-// The passes a render keeps: the requested ones plus those a debug view needs.
+// The passes a render keeps: the requested ones plus those a debug view needs, and the colour
+// a light component is divided by.
 uint32_t effective_passes(const RenderSettings& s);
 
 // Throws std::invalid_argument with a readable message for settings that cannot be rendered.

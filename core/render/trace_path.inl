@@ -429,8 +429,6 @@ inline bool closure_is_rough(const Closure& c) {
   return false;  // transparent
 }
 
-
-
 // The LightVisibility bit a closure's light needs (Cycles' _shader_bsdf_exclude: diffuse,
 // glossy and transmission closures; glass lobes that both reflect and refract, hair and
 // transparency are never excluded).
@@ -456,6 +454,92 @@ inline uint8_t closure_light_kind(const Closure& c) {
   for (int i = 0; i < cl.n; ++i)
     if (!(closure_light_kind(cl.c[size_t(i)]) & exclude)) kept.c[size_t(kept.n++)] = cl.c[size_t(i)];
   return eval_mixture<false>(kept, wo, wi, reflection, pdf);
+}
+
+// Cycles' render-pass kind of a closure: 0 diffuse (CLOSURE_IS_BSDF_DIFFUSE, translucent and
+// subsurface included), 1 glossy, 2 transmission (refraction, hair transmission, transparency).
+// Glass counts as glossy where it reflects, as transmission where it refracts (bsdf_eval_init).
+inline int closure_pass_kind(const Closure& c, bool reflection) {
+  const Bsdf& b = c.bsdf;
+  if (std::holds_alternative<DiffuseBsdf>(b) || std::holds_alternative<OrenNayarBsdf>(b) ||
+      std::holds_alternative<SheenBsdf>(b) || std::holds_alternative<TranslucentBsdf>(b) ||
+      std::holds_alternative<SubsurfaceBsdf>(b))
+    return 0;
+  if (const auto* t = std::get_if<ToonBsdf>(&b)) return t->glossy ? 1 : 0;
+  if (const auto* h = std::get_if<HairBsdf>(&b)) return h->transmission ? 2 : 1;
+  if (const auto* d = std::get_if<DielectricBsdf>(&b)) {
+    if (!d->transmission) return 1;
+    if (!d->reflection) return 2;
+    return reflection ? 1 : 2;
+  }
+  if (std::holds_alternative<TransparentBsdf>(b)) return 2;
+  return 1;  // conductors (Glossy, Metallic, Principled's specular), velvet, Chiang and Huang hair
+}
+
+inline Vec3 safe_ratio(Vec3 a, Vec3 b) {
+  return {b.x != 0.0f ? a.x / b.x : 0.0f, b.y != 0.0f ? a.y / b.y : 0.0f, b.z != 0.0f ? a.z / b.z : 0.0f};
+}
+
+// Cycles' pass weights of a mixture's value along wi: the diffuse and glossy closures' shares of
+// it per channel (the rest is transmission). Only render passes call this (one eval per closure).
+[[gnu::noinline]] inline void pass_weights(const ClosureList& cl, Vec3 wo, Vec3 wi, bool reflection, uint8_t exclude,
+                                           Vec3& dw, Vec3& gw) {
+  Vec3 fd(0.0f), fg(0.0f), sum(0.0f);
+  ClosureList one;
+  one.n = 1;
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    if (c.delta || (exclude && (closure_light_kind(c) & exclude))) continue;
+    one.c[0] = c;
+    float p;
+    const Vec3 f = eval_mixture<false>(one, wo, wi, reflection, p);
+    sum += f;
+    const int k = closure_pass_kind(c, reflection);
+    if (k == 0) fd += f;
+    if (k == 1) fg += f;
+  }
+  dw = safe_ratio(fd, sum);
+  gw = safe_ratio(fg, sum);
+}
+
+// Cycles' Diffuse, Glossy and Transmission Color of a surface: its closures' albedos by kind,
+// glass split into its reflected and refracted parts (transparency belongs to none).
+[[gnu::noinline]] inline void pass_colors(const ClosureList& cl, Vec3 wo, Vec3& diffuse, Vec3& glossy, Vec3& transmission) {
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    if (std::holds_alternative<TransparentBsdf>(c.bsdf)) continue;
+    if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
+      Vec3 cr, ct;
+      float pr, pt;
+      d->lobes_at(std::fabs(dot(wo, c.frame.n)), cr, ct, pr, pt);
+      if (d->reflection) glossy += c.weight * cr;
+      if (d->transmission) transmission += c.weight * d->transmission_tint * ct;
+      continue;
+    }
+    const int k = closure_pass_kind(c, true);
+    Vec3 a = closure_albedo(c, wo);
+    if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf); m && m->compensated) {
+      // Cycles' albedo leaves out the 1 / E of the energy compensation (E: the single-scatter
+      // lobe's directional albedo), which Pathlight's closure weight carries.
+      const float rough = m->alpha_y < 0.0f ? std::sqrt(m->alpha) : std::sqrt(std::sqrt(m->alpha * m->alpha_y));
+      a *= table_2d(tables::ggx_E, rough, std::fabs(dot(wo, c.frame.n)), 32, 32);
+    }
+    (k == 0 ? diffuse : k == 1 ? glossy : transmission) += a;
+  }
+}
+
+// Adds v to the light component of a path whose first scattering had pass weights dw, gw (or
+// was in a volume): direct or indirect.
+inline void add_light_component(PathAovs& a, Vec3 v, bool direct, Vec3 dw, Vec3 gw, bool volume) {
+  if (!is_finite(v)) return;
+  const int k = direct ? 0 : 1;
+  if (volume) {
+    a.light[kVolumeDirect + k] += v;
+    return;
+  }
+  a.light[kDiffuseDirect + k] += dw * v;
+  a.light[kGlossyDirect + k] += gw * v;
+  a.light[kTransmissionDirect + k] += (Vec3(1.0f) - dw - gw) * v;
 }
 
 // Emission of the analytic lights that a ray crosses before distance t_end (in units of
@@ -573,6 +657,62 @@ struct GuideRecord {
   uint32_t cell;
 };
 
+// The passes written at each surface the camera path meets (through Transparent BSDFs), as
+// Cycles' film_write_data_passes and AO pass: the colours, Mist, AO (beta: the throughput there).
+[[gnu::noinline]] inline void camera_hit_passes(const Scene& scene, const IntegratorSettings& s, const SurfacePoint& sp,
+                                               const ClosureList& cl, Vec3 wo, Vec3 beta, uint64_t path_key,
+                                               int layer, float time, bool colors, PathAovs& aov) {
+  if (colors) {
+    Vec3 d(0.0f), g(0.0f), t(0.0f);
+    pass_colors(cl, wo, d, g, t);
+    aov.diffuse_color += beta * d;
+    aov.glossy_color += beta * g;
+    aov.transmission_color += beta * t;
+  }
+  if (!s.mist && !s.ao) return;
+  Vec3 transparency(0.0f);
+  for (int i = 0; i < cl.n; ++i)
+    if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(i)].bsdf)) transparency += cl.c[size_t(i)].weight;
+  const Vec3 alpha = vmax(Vec3(0.0f), vmin(Vec3(1.0f), Vec3(1.0f) - transparency));
+  const float weight = average(beta * alpha);
+  if (s.mist) {
+    // Cycles' camera distance: from the camera (orthographic: along its axis).
+    const Vec3 rel = sp.p - s.mist_origin;
+    const float dist = is_black(s.mist_axis) ? length(rel) : dot(rel, s.mist_axis);
+    float m = s.mist_depth > 0.0f ? clampf((dist - s.mist_start) / s.mist_depth, 0.0f, 1.0f)
+                                  : (dist >= s.mist_start ? 1.0f : 0.0f);
+    if (s.mist_falloff == 2.0f) m = m * m;
+    else if (s.mist_falloff == 0.5f) m = std::sqrt(m);
+    else if (s.mist_falloff != 1.0f) m = std::pow(m, s.mist_falloff);
+    aov.mist += (1.0f - m) * weight;
+  }
+  if (s.ao && weight > 0.0f) {
+    // A cosine-distributed ray about the normal (facing the view) of at most ao_distance; its
+    // own random numbers, so the path's sample streams stay as without the pass.
+    const bool front = dot(sp.ng, wo) > 0.0f;
+    const Vec3 ng = front ? sp.ng : -sp.ng;
+    Vec3 n = !is_black(cl.ns) ? cl.ns : sp.ns;
+    if (dot(n, wo) < 0.0f) n = -n;
+    Pcg32 rng;
+    rng.set(path_key ^ 0xA0A0A0A0A0A0A0A0ULL, 0x5851F42D4C957F2DULL + 2u * uint64_t(layer));
+    const float u1 = rng.next_float(), u2 = rng.next_float();
+    const float r = std::sqrt(u1), phi = 2.0f * kPi * u2;
+    const Frame f = Frame::from_normal(n);
+    const Vec3 dir = f.to_world(Vec3(r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(0.0f, 1.0f - u1))));
+    if (dot(dir, ng) > 0.0f && s.ao_distance > 0.0f) {
+      Ray ray;
+      ray.org = offset_ray_origin(sp.p, sp.p_error, ng);
+      ray.dir = dir;
+      ray.tmax = s.ao_distance;  // (infinite: unbounded)
+      ray.time = time;
+      ray.self_curve = scene.self_curve(sp);
+      // Through transparent surfaces and the volumes it enters (Cycles traces it as a shadow ray);
+      // a camera path inside a volume is rare enough to ignore the one it starts in.
+      aov.ao += beta * alpha * shadow_transmittance(scene, ray, Medium{}, true, &rng);
+    }
+  }
+}
+
 // The path tracer, compiled for the kernel features F (KernelFeature bits): what a scene does
 // not use is left out with if constexpr; kKernelAll is the general kernel.
 template <uint32_t F>
@@ -648,7 +788,27 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   bool direct = true;
   bool want_data = aov != nullptr, want_features = aov != nullptr;
   Vec3 feature_throughput(1.0f);
+  // Light passes (PathAovs::light): the path's pass weights from its first scattering.
+  const bool lp = kAovs && aov && s.light_passes;
+  Vec3 lp_dw(0.0f), lp_gw(0.0f);
+  bool lp_volume = false;
   for (int bounce = 0;;) {
+    // Light a ray finds (emission, the world, lights it crosses): the camera's own goes to Emit
+    // and Env, the ray after the first scattering's is direct. A light sample at a volume point
+    // of this segment: the first scattering's, direct, or the path's component's, indirect.
+    const auto lp_found = [&](Vec3 v) {
+      if (bounce > 0) add_light_component(*aov, v, bounce == 1, lp_dw, lp_gw, lp_volume);
+      else if (direct) aov->emission += v;
+    };
+    // Emission along a medium segment: Emit when the camera sees it, else as lp_found.
+    const auto emit_found = [&](Vec3 v) {
+      if (lp) lp_found(v);
+      else if (direct) aov->emission += v;
+    };
+    const auto lp_volume_sample = [&](Vec3 v) {
+      if (bounce == 0) add_light_component(*aov, v, true, Vec3(0.0f), Vec3(0.0f), true);
+      else add_light_component(*aov, v, false, lp_dw, lp_gw, lp_volume);
+    };
     Hit hit;
     ++c.rays;
     const bool found = scene.intersect(ray, hit);
@@ -705,6 +865,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           // a ratio-tracking estimate of the transmittance to it (unbiased; the passes after the
           // segment and after a collision then add none). Then delta tracking.
           const auto track = [&](const auto& majorants, const auto& density) {
+            const Vec3 L0 = L;
             if (hits && !(nee && !prev_delta && prev_samples_only)) {
               const auto through_het = [&](float tl) {
                 return beta * ratio_track(majorants, ray.org, d, tl, vrng, density);
@@ -715,7 +876,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                                       mis_n, through_het);
               lights_counted = true;
             }
-            return delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
+            const bool r = delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
+            if (kAovs && aov) emit_found(L - L0);  // (the lights and the medium's emission)
+            return r;
           };
           if (!medium.mixed) {
             const auto density = [&](float tt) { return scene.medium_at(*m->het, ray.org + d * tt, d, ray.time); };
@@ -736,11 +899,14 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                   const Vec3 tr = ratio_track(m->het->grid, ray.org, d, te, vrng, density);
                   Vec3 ss = me.sigma_s;
                   const Phase pe_phase = me.n_lobes >= 2 ? choose_lobe(me.n_lobes, me.lobes, vrng.next_float(), ss) : me.phase;
-                  if (!is_black(tr))
-                    L += beta * tr * ss *
-                         medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces, medium, u_sel.x,
-                                       u_pt, ray_state, ray.time, c, &vrng, vset) *
-                         (1.0f / pe);
+                  if (!is_black(tr)) {
+                    const Vec3 v = beta * tr * ss *
+                                   medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces, medium,
+                                                 u_sel.x, u_pt, ray_state, ray.time, c, &vrng, vset) *
+                                   (1.0f / pe);
+                    L += v;
+                    if (kAovs && lp) lp_volume_sample(v);
+                  }
                 }
               }
             }
@@ -756,7 +922,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             if (scatter) phase = stack.choose_phase(vrng.next_float(), beta);
           }
         } else {
-          if (!is_black(m->emission)) L += beta * medium_emission(*m, seg);
+          if (!is_black(m->emission)) {
+            const Vec3 v = beta * medium_emission(*m, seg);
+            L += v;
+            if constexpr (kAovs)
+              if (aov) emit_found(v);
+          }
           const Vec3 st = m->sigma_a + m->sigma_s;
           if (!is_black(m->sigma_s)) {
             // Direct light by equiangular distances too (Cycles' default volume sampling, Multiple
@@ -797,6 +968,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                     const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
                                                   medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset);
                     L += w * li;
+                    if (kAovs && lp) lp_volume_sample(w * li);
                   }
                 }
               }
@@ -805,7 +977,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             t = sample_free_flight(st, ud.x, ud.y);
             const float pdf_t = t < seg ? free_flight_pdf(st, t) : 0.0f;
             if (eq_pending && !(pdf_t > 0.0f)) {  // no scattering here: the equiangular sample alone
-              L += eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng);
+              const Vec3 v = eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng);
+              L += v;
+              if (kAovs && lp) lp_volume_sample(v);
               eq_pending = false;
             }
             if (t < seg) {
@@ -813,7 +987,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                 const float pd = free_flight_pdf(st, t), pe = equiangular_pdf(eq, t);
                 nee_weight = pd * pd / (pd * pd + pe * pe);
               }
-              if (hits && !(nee && !prev_delta && prev_samples_only)) L += light_hits(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+              if (hits && !(nee && !prev_delta && prev_samples_only)) {
+                const Vec3 v = light_hits(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+                L += v;
+                if (kAovs && lp) lp_found(v);
+              }
               const float pdf = pdf_t;
               if (!(pdf > 0.0f)) break;
               beta *= m->sigma_s * medium_transmittance(st, t) / pdf;
@@ -836,6 +1014,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           want_data = false;
           const bool last = bounce >= s.max_bounces;
           float u_rr = u_rr_seg;
+          const Vec3 L_scatter = L;
           if (nee && !direct_done) {  // a light sample, weighted against the phase function's sample
             const Vec2 u_sel = sampler.get2d();
             u_rr = u_sel.y;
@@ -860,6 +1039,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                                         &vrng, vset) * nee_weight;
             }
           }
+          if (kAovs && lp) lp_volume_sample(L - L_scatter);
           if (last && nee) break;
           const Vec2 u = sampler.get2d();
           float ph_pdf;
@@ -869,6 +1049,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           prev_delta = false;
           prev_samples_only = false;
           ray_vis = kLightVisVolume;
+          if (kAovs && lp && bounce == 0) lp_volume = true;
           mis_org = p;
           mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
           sky_n = Vec3(0.0f);  // nor did it sample the sky
@@ -908,8 +1089,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                             : light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
                                          mis_n, through);
       L += lh;
-      if constexpr (kAovs)
-        if (direct && aov) aov->emission += lh;  // lights seen by the camera: the Emit pass, as emitters
+      if constexpr (kAovs) {
+        if (lp) lp_found(lh);
+        else if (direct && aov) aov->emission += lh;  // lights seen by the camera: the Emit pass, as emitters
+      }
     }
     if (!found) {
       // Escaped: the world, weighted against the environment light sample that could find it
@@ -929,6 +1112,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           if (s.transparent_background) aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         }
         if (!(direct && s.transparent_background)) L += beta * bg * w;
+        if (lp && bounce > 0) lp_found(beta * bg * w);
       } else {
         L += beta * bg * w;  // transparent film always comes with the aov kernel
       }
@@ -959,8 +1143,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n, kLinks ? mis_set : 0));
       }
       L += beta * cl.emission * w;
-      if constexpr (kAovs)
+      if constexpr (kAovs) {
         if (direct && aov) aov->emission += beta * cl.emission;
+        else if (lp) lp_found(beta * cl.emission * w);
+      }
     }
     // Holdout seen directly (also through Transparent BSDFs), as Cycles' film_write_holdout:
     // its weight times the throughput leaves the film transparent; other closures go on.
@@ -977,6 +1163,10 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           aov->hit = true;
           aov->position = sp.p;
           aov->normal = flip ? -sp.ns : sp.ns;
+          if (s.indices) {
+            aov->object_index = scene.object_pass_index(sp);
+            aov->material_index = scene.material(sp.material).pass_index;
+          }
         }
       }
       if (want_features) {
@@ -990,6 +1180,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         }
       }
     }
+    if constexpr (kAovs)
+      if (aov && direct && (lp || s.mist || s.ao)) camera_hit_passes(scene, s, sp, cl, wo, beta, path_key, transparent, ray.time, lp, *aov);
     if (emission_only || cl.n == 0) break;
 
     bool sss_exit = false;  // a random walk has just left the object: scatter at its exit
@@ -1069,7 +1261,17 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               bsdf_pdf = (1.0f - guide_prob) * bsdf_pdf + guide_prob * guide->pdf(guide_cell, ds.wi);
           const bool full = ds.delta && !(kLinks && ds.dedicated);  // (dedicated rays find those)
           const float w = (full || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
-          L += beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
+          const Vec3 v = beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
+          L += v;
+          if constexpr (kAovs) {
+            if (lp && bounce == 0) {  // the first scattering's: shares of this light direction's value
+              Vec3 dw, gw;
+              pass_weights(cl, wo, ds.wi, reflection, ds.exclude, dw, gw);
+              add_light_component(*aov, v, true, dw, gw, false);
+            } else if (lp) {
+              add_light_component(*aov, v, false, lp_dw, lp_gw, lp_volume);
+            }
+          }
         }
       };
       if (nee) {
@@ -1198,6 +1400,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     if ((dot(wi, ng_out) > 0.0f) != reflection) break;
     if (kNonDiffuse && (bs.flags & kDelta)) {
       beta *= ch.weight * bs.weight / ch.pick;
+      if constexpr (kAovs)
+        if (lp && bounce == 0 && !(bs.flags & kTransparentLobe)) {
+          const int k = closure_pass_kind(ch, reflection);
+          lp_dw = Vec3(k == 0 ? 1.0f : 0.0f);
+          lp_gw = Vec3(k == 1 ? 1.0f : 0.0f);
+        }
       // A transparent crossing is not a scattering event: MIS keeps the last real vertex.
       if (!(bs.flags & kTransparentLobe)) {
         prev_delta = true;
@@ -1230,6 +1438,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           pdf = (1.0f - guide_prob) * pdf + guide_prob * (from_guide ? guide_pdf : guide->pdf(guide_cell, wi));
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
+      if constexpr (kAovs)
+        if (lp && bounce == 0) pass_weights(cl, wo, wi, reflection, 0, lp_dw, lp_gw);
       if constexpr (kGuide)
         if (guided && guide_training && n_rec < kMaxGuideRecords) rec[n_rec++] = {wi, beta, L, pdf, guide_cell};
       prev_pdf = pdf;

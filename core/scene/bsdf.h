@@ -126,6 +126,9 @@ struct ConductorBsdf {
   ConductorFresnel mode = ConductorFresnel::Constant;
   bool exact = true;  // Dielectric: the real Fresnel equations (false: Schlick's approximation)
   Microfacet dist = Microfacet::Ggx;  // in the padding: the variant stays as large
+  // Its weight carries Cycles' multiscatter energy compensation (1 / E more than Cycles'
+  // closure weight, which the render passes' colours read). In the padding too.
+  bool compensated = false;
   float eta = 1.5f;   // Dielectric
   Vec3 b{0.0f};       // F82Tint
   // Dielectric: a thin film on top (Principled's Thin Film), thickness in nm (0: none).

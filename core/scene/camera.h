@@ -85,6 +85,7 @@ class Camera {
   // The same ray through the lens centre: what autofocus and the focal plane are defined by.
   Ray generate_pinhole(float x, float y) const;
   bool has_aperture() const { return aperture_ > 0.0f; }
+  bool orthographic() const { return type_ == CameraType::Orthographic; }
   float focus_distance() const { return focus_; }
   void set_focus_distance(float d);
   // Distance of a world point from the camera along the view axis.
@@ -92,6 +93,9 @@ class Camera {
   // The Depth pass (Cycles' camera_z_depth): the view depth, or a panorama's distance.
   float z_depth(Vec3 p) const { return type_ == CameraType::Panoramic ? length(p - origin_) : view_depth(p); }
   bool is_panoramic() const { return type_ == CameraType::Panoramic; }
+  // The camera's position and unit view axis (at shutter open; the Mist pass measures from them).
+  Vec3 origin() const { return origin_; }
+  Vec3 forward() const { return -back_; }
   // Point on the aperture (camera-plane offsets along right/up, before scaling by the radius).
   Vec2 sample_aperture(Vec2 u) const;
   // Cycles' camera space (x right, y up, z forward: Blender's -Z; a panorama's own space),

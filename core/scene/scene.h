@@ -8,6 +8,7 @@
 // A scene with only the merged BLAS skips the top level at trace time. Dynamic mode (the
 // viewport) makes every instance a real one, so a transform edit rebuilds only the top level.
 #pragma once
+#include <stdexcept>
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -72,6 +73,7 @@ struct Material {
   bool has_hair = false;     // has a hair closure: its frame follows the fibre (orient_hair)
   bool subsurface = false;       // may add a BSSRDF closure: its objects get local BVHs
   bool subsurface_bump = false;  // a BSSRDF with its own normal: walk exits shade for it
+  float pass_index = 0.0f;       // Blender's material pass index (the Material Index pass)
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
@@ -586,6 +588,8 @@ class Scene {
   // and emission. wo points towards the viewer.
   // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
   void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray = {}) const;
+  // The pass index of the object hit at sp (Cycles' Object Index pass).
+  float object_pass_index(const SurfacePoint& sp) const;
   float hair_pixel_coverage(const SurfacePoint& sp, float b1, const RayState& ray) const;
   Vec3 hair_curve_normal(const SurfacePoint& sp, float b1) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
@@ -640,6 +644,10 @@ class Scene {
   }
 
   const Material& material(uint32_t id) const { return materials_[id]; }
+  void set_material_pass_index(uint32_t id, float v) {
+    if (id >= materials_.size()) throw std::invalid_argument("set_material_pass_index: unknown material id");
+    materials_[id].pass_index = std::isfinite(v) ? v : 0.0f;
+  }
   Vec3 world_color() const { return world_color_; }
   const CameraDesc& camera_desc() const { return camera_; }
   bool has_camera() const { return has_camera_; }

@@ -250,6 +250,7 @@ namespace {
     m.b = in.metal_b;
     Vec3 mw = weight * in.metallic;
     if (in.multi) mw *= ggx_reflection_compensation(in.rough_a, mu, in.metal_fss).scale;
+    m.compensated = in.multi;
     out.add(m, mw, fa, average(fresnel_f82(mu, m.f0, m.b)));
     weight *= 1.0f - in.metallic;
   }
@@ -412,6 +413,7 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       const float mu = std::fabs(dot(f.n, ctx.wo));
       Vec3 w = clean_color(col(op.in[0]));
       if (multiscatter(op.in[7])) w *= ggx_reflection_compensation(table_rough(m.alpha, m.alpha_y), mu, fss).scale;
+      m.compensated = multiscatter(op.in[7]);
       out.add(m, w, f, average(m.fresnel(mu)));
       break;
     }
@@ -437,9 +439,11 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
         }
       }
       Vec3 w = clean_color(col(op.in[0]) * col(op.in[1]));
-      if (multiscatter(op.in[4]))  // Cycles: the colour is the lobe's Fresnel (Fss)
+      if (multiscatter(op.in[4])) {  // Cycles: the colour is the lobe's Fresnel (Fss)
         w *= ggx_reflection_compensation(table_rough(g.alpha, g.alpha_y), std::fabs(dot(f.n, ctx.wo)),
                                          clean_color(col(op.in[1]))).scale;
+        g.compensated = true;
+      }
       out.add(g, w, f);
       break;
     }
