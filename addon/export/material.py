@@ -19,6 +19,10 @@ class MaterialData(NamedTuple):
     use_schlick: bool = False
     uv_sets: dict = {}  # global uv-set index -> UV map name ("" = active render) it reads
     volume: dict = None  # the homogeneous medium inside (sigma_a, sigma_s, g, emission) or None
+    # True displacement: the program of the offset at a vertex (CompiledShader.displacement)
+    # and the method, 'DISPLACEMENT' or 'BOTH'; None / 'BUMP': none.
+    displacement: list = None
+    displacement_method: str = 'BUMP'
 
 
 DEFAULT_MATERIAL = MaterialData("Pathlight Default", GREY, BLACK)
@@ -100,7 +104,8 @@ def convert_material(mat, warn, images=None, uv_sets=None, use_schlick=False, vi
     if compiled.problems:
         warn(f"Material '{mat.name}': " + "; ".join(compiled.problems))
     return MaterialData(mat.name, base, emission, compiled.program, compiled.volume_absorption,
-                        use_schlick, compiled.uv_sets, compiled.volume)
+                        use_schlick, compiled.uv_sets, compiled.volume, compiled.displacement,
+                        compiled.displacement_method)
 
 
 class MaterialTable:

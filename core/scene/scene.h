@@ -82,6 +82,12 @@ struct Material {
   std::vector<Float4> closure_regs;
   std::vector<ShaderOp> closure_ops;
   std::vector<PrincipledInputs> principled;  // of its Principled ops, in order
+  // True displacement (Cycles' 'DISPLACEMENT' and 'BOTH' methods): the program of the offset at
+  // a vertex (value ops, then DisplaceOut), run by displace_mesh before the mesh is added;
+  // nullptr: none. displacement_normals: the displaced vertices' normals are recomputed
+  // ('DISPLACEMENT'; 'BOTH' keeps them, its program's bump does the rest).
+  std::shared_ptr<const ShaderProgram> displacement;
+  bool displacement_normals = true;
 };
 
 // A heterogeneous medium in the committed scene: one per instance and material whose Volume is

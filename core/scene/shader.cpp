@@ -669,6 +669,7 @@ template <bool kSetsNormal>
         detail::eval_closure_op(op, prog, r, ctx, extra, out);
         break;
       case OpCode::VolumeOut: break;  // read by eval_volume
+      case OpCode::DisplaceOut: break;  // read by eval_displacement
     }
   }
   out.finalize();
@@ -776,6 +777,15 @@ MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& ima
   if (m.n_lobes) m.phase = m.lobes[0].phase;
   if (m.n_lobes < 2) m.n_lobes = 0;  // one phase: no mixture
   return m;
+}
+
+Vec3 eval_displacement(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx) {
+  if (prog.ops.empty() || prog.ops.back().code != OpCode::DisplaceOut) return Vec3(0.0f);
+  Float4 r[kMaxRegs];
+  ClosureList unused;
+  eval_shader(prog, images, ctx, unused, r);
+  const int16_t i = prog.ops.back().in[0];
+  return i == kNoReg ? Vec3(0.0f) : r[i].xyz();
 }
 
 }  // namespace pl

@@ -72,6 +72,9 @@ enum class OpCode : uint8_t {
   // g, alpha; Fournier-Forand backscatter, IOR; Mie diameter), its type in bits 4k.. of index.
   VolumeOut,
   PointInfo,  // sub: Position, Radius, Random (Cycles' Point Info; zeros off points)
+  // A displacement program's output (its last op): in[0] the world-space offset of the vertex
+  // (true displacement, scene/displace.h).
+  DisplaceOut,
 };
 
 enum class MathOp : uint8_t {
@@ -453,5 +456,9 @@ struct MediumSample {
 // direction, normals 0, as Cycles' volume shader data): negative or non-finite coefficients
 // read 0, the phases' parameters are clamped as Cycles' setups do.
 MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& images, const ShadingContext& ctx);
+
+// Runs a displacement program (value ops, then a DisplaceOut op) at ctx: the world-space offset
+// it gives (zero for a program without that output).
+Vec3 eval_displacement(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx);
 
 }  // namespace pl

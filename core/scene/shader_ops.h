@@ -376,9 +376,9 @@ inline constexpr OpCode kClosureOpCodes[] = {
     OpCode::Emission, OpCode::Principled, OpCode::Translucent, OpCode::Metallic, OpCode::PrincipledExtra,
     OpCode::Holdout, OpCode::PrincipledHair, OpCode::Subsurface, OpCode::Sheen, OpCode::Toon,
     OpCode::Hair,
-    OpCode::VolumeOut,
+    OpCode::VolumeOut, OpCode::DisplaceOut,
 };
-inline constexpr size_t kOpCodeCount = size_t(OpCode::VolumeOut) + 1;
+inline constexpr size_t kOpCodeCount = size_t(OpCode::DisplaceOut) + 1;  // (the last OpCode)
 
 constexpr bool every_value_opcode_has_an_op() {
   for (size_t c = 0; c < kOpCodeCount; ++c) {

@@ -138,6 +138,26 @@ class VectorNodes:
             d = self.emit("vector", "vector_transform", self.reg(d), 'VECTOR', 'OBJECT', 'WORLD')
         return d
 
+    def true_displacement(self, socket):
+        """The program of the material output's Displacement for true displacement (Cycles'
+        'DISPLACEMENT' and 'BOTH' methods): its value ops with their own registers and cache,
+        ending in a 'displacement' op whose offset (world space) the core adds to each vertex
+        before the BVH is built. None where the displacement is constant zero."""
+        from .registers import allocate_registers, eliminate_dead_code
+        saved = self.ops, self.const_regs, self.cache, self.bump_state
+        self.ops, self.const_regs, self.cache, self.bump_state = [], {}, {}, 0
+        try:
+            v = self.value(socket, (), "vector")
+            if v is None or self.is_zero(v):
+                return None
+            self.ops.append(("closure", "displacement", None, {"offset": self.reg(self.as_vector(v))}))
+            program = allocate_registers(eliminate_dead_code(self.ops))
+        finally:
+            self.ops, self.const_regs, self.cache, self.bump_state = saved
+        if program is None:
+            self.problem("the displacement needs too many registers (not displaced)")
+        return program
+
     def bump_from_displacement(self, socket, method):
         """Cycles' bump_from_displacement for the material output's Displacement: the offset's
         component along the normal at the point and at the Bump node's two offsets, a Bump of
@@ -145,9 +165,6 @@ class VectorNodes:
         normal for everything after it (Cycles' Set Normal). Cycles duplicates the subgraph,
         so its reads of the normal are the unbumped one: compiled first, with a cache of its
         own."""
-        if method != 'BUMP':
-            self.problem("true displacement (Displacement method other than 'Bump Only') is not "
-                         "supported: rendered as bump")
         saved, self.cache = self.cache, {}
         heights = []
         try:
