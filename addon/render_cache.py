@@ -101,6 +101,8 @@ def _same_geometry(old, new):
         return False  # volume grids are read afresh (a frame may change them): a new scene
     if old.material_names != new.material_names or len(old.materials) != len(new.materials):
         return False
+    if any(getattr(m, "displacement", None) for m in old.materials + new.materials):
+        return False  # displaced vertices follow the materials and the transforms: a new scene
     if getattr(old.uv_sets, "names", None) != getattr(new.uv_sets, "names", None):
         return False
     if len(old.images) != len(new.images) or any(

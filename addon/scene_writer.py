@@ -30,6 +30,7 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
         if getattr(mesh, "tangents", None):
             uvs["tangents"] = mesh.tangents
         positions, normals, normal_indices = mesh.positions, mesh.normals, mesh.normal_indices
+        moved = {}
         deform = getattr(mesh, "motion_positions", None)
         displaced = displace(scene, mesh, [ids[i] for i in slots], uvs, deform, warn) \
             if any(getattr(data.materials[i], "displacement", None) for i in slots) else None
@@ -38,10 +39,11 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             normals = displaced.get("normals", normals)
             normal_indices = displaced.get("normal_indices", normal_indices)
             deform = displaced.get("motion_positions", deform)
+            moved = {"undisplaced": mesh.positions}  # (Generated coordinates, the bump of 'BOTH')
         mesh_id = scene.add_mesh(positions, mesh.triangles,
                                  normals=normals, normal_indices=normal_indices,
                                  material_indices=mesh.material_indices,
-                                 material_slots=[ids[i] for i in slots], **uvs)
+                                 material_slots=[ids[i] for i in slots], **uvs, **moved)
         infos = mesh.infos if len(mesh.infos) == len(mesh.matrices) else [None] * len(mesh.matrices)
         names = [name for name, _ in mesh.owners] if len(mesh.owners) == len(mesh.matrices) else None
         if deform is not None:

@@ -428,7 +428,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
 }
 
 // add_mesh's arrays as the core's MeshData (checked; bad shapes or indices raise ValueError).
-MeshData read_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
+MeshData read_mesh(const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
                    const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
                    const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
                    const py::dict& attributes, const py::dict& tangents) {
@@ -562,10 +562,20 @@ MeshData read_mesh(PyScene& self, const FloatArray& positions, const py::object&
 uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
                   const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
                   const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
-                  const py::dict& attributes, const py::dict& tangents) {
+                  const py::dict& attributes, const py::dict& tangents, const py::object& undisplaced) {
   self.check_editable();
-  return self.scene->add_mesh(read_mesh(self, positions, triangles_obj, normals, material_indices, slots, uvs, texspace,
-                                        shared_normals, normal_indices, attributes, tangents));
+  MeshData mesh = read_mesh(positions, triangles_obj, normals, material_indices, slots, uvs, texspace,
+                            shared_normals, normal_indices, attributes, tangents);
+  if (!undisplaced.is_none()) {  // the positions before true displacement (displace_mesh)
+    const auto u = undisplaced.cast<FloatArray>();
+    if (u.ndim() != 2 || size_t(u.shape(0)) != mesh.positions.size() || u.shape(1) != 3)
+      throw std::invalid_argument("undisplaced must have shape (V, 3)");
+    const Vec3* p = reinterpret_cast<const Vec3*>(u.data());
+    mesh.undisplaced.assign(p, p + mesh.positions.size());
+    for (Vec3& v : mesh.undisplaced)
+      if (!is_finite(v)) v = Vec3(0.0f);
+  }
+  return self.scene->add_mesh(std::move(mesh));
 }
 
 // True displacement of add_mesh's arrays by their materials' displacement programs, shaded as
@@ -578,7 +588,7 @@ py::object displace_mesh_arrays(PyScene& self, const FloatArray& positions, cons
                                 const py::object& normal_indices, const py::object& flat_obj, const py::dict& uvs,
                                 const py::dict& attributes, const py::dict& tangents, const py::object& texspace,
                                 const py::object& motion_positions) {
-  MeshData mesh = read_mesh(self, positions, triangles_obj, py::none(), material_indices, slots, uvs, texspace,
+  MeshData mesh = read_mesh(positions, triangles_obj, py::none(), material_indices, slots, uvs, texspace,
                             shared_normals, normal_indices, attributes, tangents);
   const size_t nv = mesh.positions.size(), nt = mesh.triangles.size();
   // (read_mesh leaves per-vertex indices out: displace_mesh reads the triangles then)
@@ -2734,7 +2744,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
            py::arg("normal_indices") = py::none(), py::arg("attributes") = py::dict(),
-           py::arg("tangents") = py::dict())
+           py::arg("tangents") = py::dict(), py::arg("undisplaced") = py::none())
       .def(
           "add_image",
           [](PyScene& self, const FloatArray& pixels, bool srgb) {

@@ -53,6 +53,9 @@ struct MeshData {
   // long as positions; empty: no deformation). Its instances trace the triangles at the ray's
   // time; shading normals stay the frame's.
   std::vector<std::vector<Vec3>> motion_positions;
+  // True displacement: the vertex positions before it (as long as positions; empty: not
+  // displaced), for Generated coordinates and the bump of 'BOTH' (ShadingContext::undisplaced).
+  std::vector<Vec3> undisplaced;
   // Velocity blur of a volume object (Cycles' volume motion): the lookup point moves back by
   // velocity x scale x (time + offset), velocity the vector grid `velocity_grid` (object
   // space; -1: none), or where velocity_yz are set, three float grids x, y, z (Cycles merges

@@ -96,6 +96,9 @@ enum class VectorMathOp : uint8_t {
 // Where value ops that read the shading point read it: the point itself, or the small surface
 // offsets that a Bump node differentiates its height with.
 enum BumpOffset : uint8_t { kAtPoint = 0, kOffsetX = 1, kOffsetY = 2 };
+// Position and Object ops: with this bit added to their BumpOffset they read the undisplaced
+// surface of a truly displaced mesh (Cycles' bump of 'BOTH', svm_node_enter_bump_eval).
+constexpr uint8_t kUndisplaced = 4;
 
 // PrincipledExtra's operand slots (in[]), by feature; the Principled op right after it reads
 // them. A slot left kNoReg takes the input's Blender default.
@@ -307,6 +310,10 @@ struct ShadingContext {
   // the Bump node's offsets move along its edges. nullptr: no offsets (heights not differentiated).
   const Vec3* tri = nullptr;
   const Vec2* tri_uv = nullptr;
+  // A truly displaced mesh's undisplaced surface (world): the point, then the triangle's three
+  // vertices (Cycles' ATTR_STD_POSITION_UNDISPLACED); nullptr: not displaced. Generated
+  // coordinates always read it, Position and Object ops where flagged kUndisplaced.
+  const Vec3* undisplaced = nullptr;
   const ObjectCoords* object = nullptr;  // the hit instance's (nullptr: world coordinates)
   const Float4* attrs = nullptr;  // per attribute set: the interpolated value (nullptr: none)
   int attr_sets = 0;

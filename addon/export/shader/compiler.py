@@ -346,6 +346,9 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
             try:
                 if displacement_method in ('DISPLACEMENT', 'BOTH'):
                     displacement = self.true_displacement(disp)
+                    # (its Bump nodes then read the undisplaced surface, as Cycles')
+                    self.displacement_method = displacement_method if displacement else 'BUMP'
+
                 if displacement_method != 'DISPLACEMENT':  # 'BOTH': the bump as well (Cycles)
                     self.bump_from_displacement(disp, displacement_method)
             except _Cycle as e:

@@ -86,14 +86,17 @@ class VectorNodes:
         height = node.inputs["Height"]
         if self.source(height, ctx) is None or (strength.is_const and strength.const[0] <= 0.0):
             return normal  # nothing to differentiate: the input normal (None: the shading one)
-        saved = self.bump_state
+        saved = self.bump_state, getattr(self, "undisplaced", False)
+        # A truly displaced material's Bump ('BOTH'): its heights on the undisplaced surface.
+        both = getattr(self, "displacement_method", 'BUMP') == 'BOTH'
         heights = []
         try:
+            self.undisplaced = both
             for state in (0, 1, 2):
                 self.bump_state = state
                 heights.append(self.value(height, ctx, "float"))
         finally:
-            self.bump_state = saved
+            self.bump_state, self.undisplaced = saved
         if all(h.is_const for h in heights):
             return normal  # a constant height has no slope
         width_socket = node.inputs.get("Filter Width")
@@ -104,7 +107,7 @@ class VectorNodes:
                          f"{first:g} in the material (that one is used)")
         return self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(strength),
                          self.reg(distance), None if normal is None else self.reg(normal),
-                         bool(node.invert), max(0.0, float(width)))
+                         bool(node.invert), max(0.0, float(width)), *((True,) if both else ()))
 
     def displacement(self, node, out, ctx):
         """Cycles' svm_node_displacement: the Normal (unlinked: the shading normal) times
@@ -166,6 +169,7 @@ class VectorNodes:
         so its reads of the normal are the unbumped one: compiled first, with a cache of its
         own."""
         saved, self.cache = self.cache, {}
+        self.undisplaced = method == 'BOTH'  # (its vertices moved: the bump reads the surface before)
         heights = []
         try:
             normal = self.emit("vector", "normal")
@@ -179,6 +183,7 @@ class VectorNodes:
                                                  "DOT_PRODUCT"))
         finally:
             self.bump_state = 0
+            self.undisplaced = False
             width = self.cache.get("bump_filter_width")
             self.cache = saved
             if width is not None:
@@ -189,7 +194,7 @@ class VectorNodes:
         if first != 0.1:
             self.problem(f"the displacement's bump uses Filter Width 0.1, not another Bump's {first:g}")
         bump = self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(ONE), self.reg(ONE),
-                         None, False, 0.1)
+                         None, False, 0.1, *((True,) if method == 'BOTH' else ()))
         self.ops.append(("set_normal", self.new_reg(), self.reg(bump)))
 
     def normal_node(self, node, out, ctx):
