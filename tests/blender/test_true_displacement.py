@@ -25,7 +25,11 @@ def disp_material(name, method, source="wave", scale=0.08, image=None, space='OB
     bsdf = ms.set_inputs(nodes.new("ShaderNodeBsdfPrincipled"), Base_Color=(0.7, 0.7, 0.7, 1.0),
                          Roughness=0.5)
     links.new(bsdf.outputs[0], out.inputs["Surface"])
-    if source == "image":
+    if source == "color":  # the mesh's colour attribute (per vertex, interpolated by the modifier)
+        attr = nodes.new("ShaderNodeVertexColor")
+        attr.layer_name = "Height"
+        height = attr.outputs["Color"]
+    elif source == "image":
         tex = nodes.new("ShaderNodeTexImage")
         tex.image = image
         uv = nodes.new("ShaderNodeUVMap")
@@ -54,6 +58,23 @@ def ring_image():
     return ms.pixel_image("Rings", px, colorspace="Non-Color")
 
 
+def colored_grid(name, mat):
+    """A 16x16 grid whose point colour attribute "Height" holds crossed sine ridges."""
+    import bmesh
+    def build(bm):
+        bm.loops.layers.uv.new("UVMap")
+        bmesh.ops.create_grid(bm, x_segments=16, y_segments=16, size=0.8, calc_uvs=True)
+    obj = ms.add_mesh_object(name, build, (mat,), rotation_euler=(0.0, 0.0, 0.4))
+    mesh = obj.data
+    co = np.empty(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", co)
+    x, y = co[0::3], co[1::3]
+    h = 0.5 + 0.25 * (np.sin(x * 9.0) + np.cos(y * 7.0))
+    col = mesh.color_attributes.new("Height", 'FLOAT_COLOR', 'POINT')
+    col.data.foreach_set("color", np.stack([h, h, h, np.ones_like(h)], -1).astype(np.float32).ravel())
+    return obj
+
+
 def subdivide(obj, levels, simple):
     mod = obj.modifiers.new("Subdivision", 'SUBSURF')
     mod.subdivision_type = 'SIMPLE' if simple else 'CATMULL_CLARK'
@@ -69,7 +90,10 @@ def scene(method, shape="plane", source="wave", scale=0.08):
         ms.set_world((0.05, 0.05, 0.05))
         image = ring_image() if source == "image" else None
         mat = disp_material(f"{source}-{method}", method, source, scale, image)
-        if shape == "plane":
+        if source == "color":
+            subdivide(colored_grid("Grid", mat), 2, False)
+            ms.add_camera((0.0, -1.7, 1.2), (0.0, 0.0, 0.0))
+        elif shape == "plane":
             subdivide(ms.add_plane("Plane", 1.6, mat, rotation_euler=(0.0, 0.0, 0.4)), 6, True)
             ms.add_camera((0.0, -1.7, 1.2), (0.0, 0.0, 0.0))
         else:
@@ -84,6 +108,7 @@ CASES = {  # method, shape, height, scale, samples (the fewest that converge to 
     "plane-wave-displacement": ("DISPLACEMENT", "plane", "wave", 0.08, 512),
     "plane-wave-both": ("BOTH", "plane", "wave", 0.08, 1536),
     "plane-image-displacement": ("DISPLACEMENT", "plane", "image", 0.06, 256),
+    "plane-color-attribute-displacement": ("DISPLACEMENT", "plane", "color", 0.1, 256),
     "sphere-noise-displacement": ("DISPLACEMENT", "sphere", "noise", 0.1, 128),
     "sphere-noise-both": ("BOTH", "sphere", "noise", 0.1, 128),
 }
