@@ -64,6 +64,10 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         # Where reads of the shading point happen: 0 the point, 1 / 2 the Bump node's offsets
         # (its Height sub-graph is compiled once per offset, as Cycles duplicates it).
         self.bump_state = 0
+        # True displacement: the material's method once its vertex program exists ('BOTH':
+        # bump heights read the undisplaced surface, `undisplaced` while they compile).
+        self.displacement_method = 'BUMP'
+        self.undisplaced = False
 
     # -------------------------------------------------- problems
 

@@ -182,7 +182,7 @@ class InputNodes:
         """Position and Object ops' operand: the bump offset, plus 4 (the core's kUndisplaced)
         inside the bump of a truly displaced material ('BOTH'), which Cycles evaluates on the
         undisplaced surface."""
-        sub = self.bump_state | (4 if getattr(self, "undisplaced", False) else 0)
+        sub = self.bump_state | (4 if self.undisplaced else 0)
         return (sub,) if sub else ()
 
     def camera_coords(self, which):

@@ -86,9 +86,9 @@ class VectorNodes:
         height = node.inputs["Height"]
         if self.source(height, ctx) is None or (strength.is_const and strength.const[0] <= 0.0):
             return normal  # nothing to differentiate: the input normal (None: the shading one)
-        saved = self.bump_state, getattr(self, "undisplaced", False)
+        saved = self.bump_state, self.undisplaced
         # A truly displaced material's Bump ('BOTH'): its heights on the undisplaced surface.
-        both = getattr(self, "displacement_method", 'BUMP') == 'BOTH'
+        both = self.displacement_method == 'BOTH'
         heights = []
         try:
             self.undisplaced = both
