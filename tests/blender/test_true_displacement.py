@@ -198,3 +198,37 @@ def test_a_kept_scene_is_not_reused_for_displaced_meshes():
     for method, reused in (("DISPLACEMENT", False), ("BUMP", True)):
         data, _, _ = export(method)
         assert render_cache._same_geometry(data, data) == reused, method
+
+
+def test_deformation_steps_move_with_the_displaced_vertices():
+    """Deformation blur: the scene writer hands the core the motion steps moved by the same
+    offsets as the frame's vertices (Cycles adds the offset to every motion step)."""
+    from addon import scene_writer
+    from addon.core import get_core
+    data, _, warn = export("DISPLACEMENT")
+    (mesh,) = data.meshes
+    steps = np.stack([mesh.positions, mesh.positions + np.float32([0.0, 0.05, 0.0])])
+    mesh.motion_positions = steps
+    pc = get_core()
+    seen = {}
+
+    class Spy:
+        def __init__(self):
+            self.scene = pc.Scene()
+
+        def __getattr__(self, name):
+            real = getattr(self.scene, name)
+            if name in ("add_mesh", "set_mesh_motion"):
+                def record(*a, **k):
+                    seen[name] = (a, k)
+                    return real(*a, **k)
+                return record
+            return real
+
+    spy_pc = type("PC", (), {"Scene": Spy, "object_random_id": pc.object_random_id, "Camera": pc.Camera})
+    scene_writer.to_core(spy_pc, data, warn)
+    positions = seen["add_mesh"][0][0]
+    offsets = positions - mesh.positions
+    assert np.abs(offsets).max() > 0.01
+    np.testing.assert_allclose(seen["add_mesh"][1]["undisplaced"], mesh.positions)
+    np.testing.assert_allclose(seen["set_mesh_motion"][0][1], steps + offsets[None], atol=1e-6)
