@@ -97,7 +97,11 @@ def scene(method, shape="plane", source="wave", scale=0.08):
             subdivide(ms.add_plane("Plane", 1.6, mat, rotation_euler=(0.0, 0.0, 0.4)), 6, True)
             ms.add_camera((0.0, -1.7, 1.2), (0.0, 0.0, 0.0))
         else:
-            subdivide(ms.add_sphere("Ball", 0.5, mat, segments=32, rings=16), 2, False)
+            ball = ms.add_sphere("Ball", 0.5, mat, segments=32, rings=16)
+            if shape == "flat-sphere":  # flat shading: the displaced faces' own normals
+                for poly in ball.data.polygons:
+                    poly.use_smooth = False
+            subdivide(ball, 2, False)
             ms.add_camera((0.0, -2.2, 0.3), (0.0, 0.0, 0.0))
         ms.add_sun(4.0, 72.0)  # 18 degrees above the horizon
         return sc
@@ -110,6 +114,7 @@ CASES = {  # method, shape, height, scale, samples (the fewest that converge to 
     "plane-image-displacement": ("DISPLACEMENT", "plane", "image", 0.06, 256),
     "plane-color-attribute-displacement": ("DISPLACEMENT", "plane", "color", 0.1, 256),
     "sphere-noise-displacement": ("DISPLACEMENT", "sphere", "noise", 0.1, 128),
+    "flat-sphere-noise-displacement": ("DISPLACEMENT", "flat-sphere", "noise", 0.1, 128),
     "sphere-noise-both": ("BOTH", "sphere", "noise", 0.1, 128),
 }
 
