@@ -598,6 +598,31 @@ template <bool kSetsNormal>
         d = f4(is_finite(t) ? t : Vec3(0.0f), 0.0f);
         break;
       }
+      case OpCode::TangentDisplace: {
+        // Cycles: x along the uv set's (unnormalised, interpolated) object-space tangent, y along
+        // the object-space normal, z along their normalised cross product times the tangent's
+        // sign; then to world space as a direction. Without mesh tangents: the triangle's uv
+        // tangent, no sign (Cycles' dPdu).
+        const Vec3 v = reg(op.in[0]).xyz();
+        const ObjectCoords* obj = ctx.object && ctx.object->valid ? ctx.object : nullptr;
+        Vec3 n = world_to_object_normal(obj, viewer_normal(ctx));
+        n = length_sq(n) > 0.0f ? normalize(n) : n;
+        Vec3 t(0.0f);
+        float sign = 1.0f;
+        if (ctx.has_mesh_tangent(op.index) && op.index < ctx.uv_sets) {
+          t = ctx.mesh_tangents[op.index].xyz();
+          sign = ctx.mesh_tangents[op.index].w;
+        } else if (op.index >= 0 && op.index < ctx.uv_sets && ctx.tangents) {
+          t = obj ? obj->to_object.vector(ctx.tangents[op.index]) : ctx.tangents[op.index];
+          t = length_sq(t) > 0.0f ? normalize(t) : t;
+        }
+        const Vec3 c = cross(n, t);
+        const Vec3 b = length_sq(c) > 0.0f ? normalize(c) * sign : Vec3(0.0f);
+        Vec3 o = t * v.x + n * v.y + b * v.z;
+        if (obj) o = obj->to_world.vector(o);
+        d = f4(is_finite(o) ? o : Vec3(0.0f), 0.0f);
+        break;
+      }
       case OpCode::TexGabor: {
         // in: vector, scale, frequency, anisotropy, orientation 2D, 3D; ext: the output.
         const GaborOutput g = gabor_texture(op.sub, reg(op.in[0]).xyz(), reg(op.in[1]).x, reg(op.in[2]).x,

@@ -72,6 +72,10 @@ enum class OpCode : uint8_t {
   // g, alpha; Fournier-Forand backscatter, IOR; Mie diameter), its type in bits 4k.. of index.
   VolumeOut,
   PointInfo,  // sub: Position, Radius, Random (Cycles' Point Info; zeros off points)
+  // The Vector Displacement node in tangent space (Cycles' svm_node_vector_displacement): in[0]
+  // the scaled vector over uv set `index`'s tangent, the normal and the bitangent (object
+  // space), turned to world space.
+  TangentDisplace,
   // A displacement program's output (its last op): in[0] the world-space offset of the vertex
   // (true displacement, scene/displace.h).
   DisplaceOut,

@@ -287,6 +287,7 @@ constexpr OpParam tangent_direction() {
   return p;
 }
 inline constexpr OpParam kTangent[] = {tangent_direction(), uv_set(F::Index)};
+inline constexpr OpParam kTangentDisplace[] = {uv_set(F::Index)};
 inline constexpr OpParam kTexGabor[] = {choice(F::Sub, "gabor type", kGaborTypes, 2),
                                         choice(F::Ext, "gabor output", kGaborOutputs)};
 // Ambient Occlusion: samples, inside (bit 1), only local (bit 2), the output.
@@ -364,6 +365,8 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"wavelength", OpCode::Wavelength, 1, {}},
     {"camera_coords", OpCode::CameraCoords, 0, schema::kCameraCoords, kVarying},
     {"tangent", OpCode::Tangent, 0, schema::kTangent, kVarying},
+    // vector (already less Midlevel, times Scale)
+    {"tangent_displacement", OpCode::TangentDisplace, 1, schema::kTangentDisplace, kVarying | kUsesUv},
     // vector, scale, frequency, anisotropy, orientation 2D, 3D
     {"tex_gabor", OpCode::TexGabor, 6, schema::kTexGabor},
     {"ambient_occlusion", OpCode::AmbientOcclusion, 3, schema::kAmbientOcclusion, kVarying},  // color, distance, normal

@@ -39,10 +39,19 @@ def disp_material(name, method, source="wave", scale=0.08, image=None, space='OB
         coord = nodes.new("ShaderNodeTexCoord")
         if source == "wave":
             tex = ms.set_inputs(nodes.new("ShaderNodeTexWave"), Scale=2.5, Distortion=2.0, Detail=1.0)
+        elif source == "vector":
+            tex = ms.set_inputs(nodes.new("ShaderNodeTexNoise"), Scale=2.0, Detail=1.0)
         else:
             tex = ms.set_inputs(nodes.new("ShaderNodeTexNoise"), Scale=3.0, Detail=1.0)
         links.new(coord.outputs["Object"], tex.inputs["Vector"])
         height = tex.outputs["Fac"]
+    if source == "vector":  # Vector Displacement of the Noise's colour in tangent space
+        links.new(coord.outputs["Object"], tex.inputs["Vector"])
+        disp = ms.set_inputs(nodes.new("ShaderNodeVectorDisplacement"), Scale=scale, Midlevel=0.5)
+        disp.space = 'TANGENT'
+        links.new(tex.outputs["Color"], disp.inputs["Vector"])
+        links.new(disp.outputs[0], out.inputs["Displacement"])
+        return mat
     disp = ms.set_inputs(nodes.new("ShaderNodeDisplacement"), Scale=scale, Midlevel=0.5)
     disp.space = space
     links.new(height, disp.inputs["Height"])
@@ -112,6 +121,7 @@ CASES = {  # method, shape, height, scale, samples (the fewest that converge to 
     "plane-wave-displacement": ("DISPLACEMENT", "plane", "wave", 0.08, 512),
     "plane-wave-both": ("BOTH", "plane", "wave", 0.08, 1536),
     "plane-image-displacement": ("DISPLACEMENT", "plane", "image", 0.06, 256),
+    "plane-vector-tangent-displacement": ("DISPLACEMENT", "plane", "vector", 0.1, 256),
     "plane-color-attribute-displacement": ("DISPLACEMENT", "plane", "color", 0.1, 256),
     "sphere-noise-displacement": ("DISPLACEMENT", "sphere", "noise", 0.1, 128),
     "flat-sphere-noise-displacement": ("DISPLACEMENT", "flat-sphere", "noise", 0.1, 128),

@@ -123,13 +123,18 @@ class VectorNodes:
         return self._displace(normal, amount, node.space == 'OBJECT', "NORMAL")
 
     def vector_displacement(self, node, out, ctx):
-        """Cycles' svm_node_vector_displacement in object or world space: (Vector - Midlevel)
-        * Scale, object space through the instance's transform."""
+        """Cycles' svm_node_vector_displacement: (Vector - Midlevel) * Scale in world space, object
+        space (through the instance's transform) or tangent space (the active render UV map's
+        MikkTSpace tangent, the normal and the bitangent as x, y, z)."""
         mid = self.as_vector(self.input(node, "Midlevel", ctx, "float"))
         v = self.vector_op("SUBTRACT", self.input(node, "Vector", ctx, "vector"), mid)
-        if node.space == 'TANGENT':
-            self.problem(f"'{node.name}': tangent space is not supported (object space used)")
-        return self._displace(v, self.input(node, "Scale", ctx, "float"), node.space != 'WORLD', "VECTOR")
+        scale = self.input(node, "Scale", ctx, "float")
+        if node.space == 'TANGENT':  # the active render UV map's tangents (Cycles' default)
+            k = self.uv("", f"'{node.name}'")
+            zero = const_vector((0, 0, 0))
+            scaled = self.fold_or_emit("vector", "vector_math", (self.as_vector(v), zero, zero, scale), "SCALE")
+            return self.emit("vector", "tangent_displacement", self.reg(scaled), k)
+        return self._displace(v, scale, node.space != 'WORLD', "VECTOR")
 
     def _displace(self, v, amount, object_space, kind):
         zero = const_vector((0, 0, 0))
