@@ -103,6 +103,8 @@ def _same_geometry(old, new):
         return False
     if getattr(old, "light_links", {}) != getattr(new, "light_links", {}):
         return False  # add_instance sets the objects' light sets
+    if any(getattr(m, "displacement", None) for m in old.materials + new.materials):
+        return False  # displaced vertices follow the materials and the transforms: a new scene
     if getattr(old.uv_sets, "names", None) != getattr(new.uv_sets, "names", None):
         return False
     if len(old.images) != len(new.images) or any(

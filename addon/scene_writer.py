@@ -29,13 +29,23 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             uvs["texspace"] = mesh.texspace
         if getattr(mesh, "tangents", None):
             uvs["tangents"] = mesh.tangents
-        mesh_id = scene.add_mesh(mesh.positions, mesh.triangles,
-                                 normals=mesh.normals, normal_indices=mesh.normal_indices,
+        positions, normals, normal_indices = mesh.positions, mesh.normals, mesh.normal_indices
+        moved = {}
+        deform = getattr(mesh, "motion_positions", None)
+        displaced = displace(scene, mesh, [ids[i] for i in slots], uvs, deform, warn) \
+            if any(getattr(data.materials[i], "displacement", None) for i in slots) else None
+        if displaced is not None:
+            positions = displaced["positions"]
+            normals = displaced.get("normals", normals)
+            normal_indices = displaced.get("normal_indices", normal_indices)
+            deform = displaced.get("motion_positions", deform)
+            moved = {"undisplaced": mesh.positions}  # (Generated coordinates, the bump of 'BOTH')
+        mesh_id = scene.add_mesh(positions, mesh.triangles,
+                                 normals=normals, normal_indices=normal_indices,
                                  material_indices=mesh.material_indices,
-                                 material_slots=[ids[i] for i in slots], **uvs)
+                                 material_slots=[ids[i] for i in slots], **uvs, **moved)
         infos = mesh.infos if len(mesh.infos) == len(mesh.matrices) else [None] * len(mesh.matrices)
         names = [name for name, _ in mesh.owners] if len(mesh.owners) == len(mesh.matrices) else None
-        deform = getattr(mesh, "motion_positions", None)
         if deform is not None:
             scene.set_mesh_motion(mesh_id, deform)
         velocity = getattr(mesh, "velocity", None)
@@ -79,6 +89,27 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
     return scene
 
 
+def displace(scene, mesh, slot_ids, uvs, deform, warn):
+    """The core's true displacement of a MeshData whose materials displace (Cycles: before the
+    BVH, shaded as its first instance places it; deformation steps move by the same offsets):
+    displace_mesh's dict, or None (nothing displaced, or a core without it)."""
+    if not hasattr(scene, "displace_mesh") or not mesh.matrices:
+        return None
+    extra = {k: v for k, v in uvs.items() if k in ("uvs", "attributes", "tangents", "texspace")}
+    flat = getattr(mesh, "flat", None)
+    if flat is not None:
+        extra["flat"] = flat
+    if deform is not None:
+        extra["motion_positions"] = deform
+    out = scene.displace_mesh(mesh.positions, mesh.triangles, material_indices=mesh.material_indices,
+                              material_slots=slot_ids, matrix=mesh.matrices[0], normals=mesh.normals,
+                              normal_indices=mesh.normal_indices, **extra)
+    if out is not None and out["clamped"]:
+        warn(f"Mesh '{mesh.name}': {out['clamped']} non-finite or huge displacement offsets "
+             "were dropped or shortened")
+    return out
+
+
 def add_materials(scene, materials, images, warn, image_ids=None):
     """Adds MaterialData `materials` (and the ImageData `images` their programs use) to a core
     scene; returns the core material ids. image_ids: a list that receives the core id of each
@@ -103,9 +134,13 @@ def put_material(scene, m, image_ids, core_id=None):
         if m.pass_index:
             scene.set_material_pass_index(core_id, m.pass_index)
         return core_id
-    program = [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op
-               for op in m.program]
+    def remap(ops):
+        return [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op for op in ops]
+    program = remap(m.program)
     kw = {} if m.volume is None else {"volume": m.volume}  # older cores lack it
+    if getattr(m, "displacement", None):
+        kw["displacement"] = remap(m.displacement)
+        kw["displacement_method"] = m.displacement_method
     if core_id is None:
         core_id = scene.add_shader(m.name, program, volume_absorption=m.volume_absorption,
                                    use_schlick=m.use_schlick, **kw)

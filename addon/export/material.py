@@ -20,6 +20,10 @@ class MaterialData(NamedTuple):
     uv_sets: dict = {}  # global uv-set index -> UV map name ("" = active render) it reads
     volume: dict = None  # the homogeneous medium inside (sigma_a, sigma_s, g, emission) or None
     pass_index: int = 0  # Blender's material pass index (the Material Index pass)
+    # True displacement: the program of the offset at a vertex (CompiledShader.displacement)
+    # and the method, 'DISPLACEMENT' or 'BOTH'; None / 'BUMP': none.
+    displacement: list = None
+    displacement_method: str = 'BUMP'
 
 
 DEFAULT_MATERIAL = MaterialData("Pathlight Default", GREY, BLACK)
@@ -107,7 +111,8 @@ def convert_material_data(mat, warn, images=None, uv_sets=None, use_schlick=Fals
     if compiled.problems:
         warn(f"Material '{mat.name}': " + "; ".join(compiled.problems))
     return MaterialData(mat.name, base, emission, compiled.program, compiled.volume_absorption,
-                        use_schlick, compiled.uv_sets, compiled.volume)
+                        use_schlick, compiled.uv_sets, compiled.volume, compiled.displacement,
+                        compiled.displacement_method)
 
 
 class MaterialTable:

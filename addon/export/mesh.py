@@ -48,6 +48,9 @@ class MeshData:
     # export.motion makes of it under the shutter ((grid ids, scale, offset, interpolation)).
     volume_velocity: dict = None
     velocity: tuple = None
+    # True displacement: bool (T,) flat-shaded triangles (their displaced face's normal), or
+    # None (all smooth, or no material displaces).
+    flat: np.ndarray = None
 
     @property
     def corner_normals(self):
@@ -480,4 +483,23 @@ def mesh_data(obj, mesh, materials, uv_names=None):
         texspace = None
     return MeshData(obj.original.name, positions, triangles, normals, normal_indices, material_indices, materials,
                     uvs=uvs, missing_uv_maps=missing, texspace=texspace, attributes=attributes,
-                    missing_attributes=missing_attributes, tangents=tangents, tangent_problem=tangent_problem)
+                    missing_attributes=missing_attributes, tangents=tangents, tangent_problem=tangent_problem,
+                    flat=flat_triangles(mesh, materials, len(triangles)))
+
+
+def flat_triangles(mesh, materials, n_tris):
+    """bool (T,): the flat-shaded triangles of a mesh whose materials use true displacement
+    (their normals become the displaced faces'), or None (all smooth, or nothing displaces)."""
+    if not any(getattr(m, "displacement_method", 'BUMP') != 'BUMP' for m in materials if m is not None):
+        return None
+    domain = mesh.normals_domain
+    if domain == 'POINT':
+        return None
+    if domain == 'FACE':
+        return np.ones(n_tris, bool)
+    sharp = _bool_attribute(mesh, "sharp_face", 'FACE', len(mesh.polygons))
+    if sharp is None:
+        return None
+    tri_polys = np.empty(n_tris, np.int32)
+    mesh.loop_triangle_polygons.foreach_get("value", tri_polys)
+    return np.asarray(sharp, bool)[tri_polys]

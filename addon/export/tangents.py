@@ -11,6 +11,8 @@ def _tangent_uv_maps(tree, found, seen):
             found.add(node.uv_map)
         elif kind == "ShaderNodeTangent" and node.direction_type == "UV_MAP":
             found.add(node.uv_map)
+        elif kind == "ShaderNodeVectorDisplacement" and node.space == "TANGENT":
+            found.add("")  # (the active render UV map's, as Cycles)
         elif getattr(node, "node_tree", None) is not None and node.node_tree.as_pointer() not in seen:
             seen.add(node.node_tree.as_pointer())  # node groups, each once
             _tangent_uv_maps(node.node_tree, found, seen)

@@ -14,6 +14,7 @@
 #include "render/guiding.h"
 #include "render/session.h"
 #include "scene/ies.h"
+#include "scene/displace.h"
 #include "scene/phase.h"
 #include "scene/shader_ops.h"
 #include "scene/vdb_reader.h"
@@ -458,11 +459,11 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   return self.scene->add_points(std::move(ps));
 }
 
-uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
-                  const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
-                  const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
-                  const py::dict& attributes, const py::dict& tangents) {
-  self.check_editable();
+// add_mesh's arrays as the core's MeshData (checked; bad shapes or indices raise ValueError).
+MeshData read_mesh(const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
+                   const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
+                   const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
+                   const py::dict& attributes, const py::dict& tangents) {
   const IndexArray triangles(triangles_obj, "triangles");
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw std::invalid_argument("positions must have shape (V, 3)");
   if (triangles.ndim() != 2 || triangles.shape(1) != 3) throw std::invalid_argument("triangles must have shape (T, 3)");
@@ -587,7 +588,90 @@ uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& 
     mesh.texspace_size = to_point(ts[1], "texspace size");
     mesh.has_texspace = true;
   }
+  return mesh;
+}
+
+uint32_t add_mesh(PyScene& self, const FloatArray& positions, const py::object& triangles_obj, const py::object& normals,
+                  const py::object& material_indices, const std::vector<int64_t>& slots, const py::dict& uvs,
+                  const py::object& texspace, const py::object& shared_normals, const py::object& normal_indices,
+                  const py::dict& attributes, const py::dict& tangents, const py::object& undisplaced) {
+  self.check_editable();
+  MeshData mesh = read_mesh(positions, triangles_obj, normals, material_indices, slots, uvs, texspace,
+                            shared_normals, normal_indices, attributes, tangents);
+  if (!undisplaced.is_none()) {  // the positions before true displacement (displace_mesh)
+    const auto u = undisplaced.cast<FloatArray>();
+    if (u.ndim() != 2 || size_t(u.shape(0)) != mesh.positions.size() || u.shape(1) != 3)
+      throw std::invalid_argument("undisplaced must have shape (V, 3)");
+    const Vec3* p = reinterpret_cast<const Vec3*>(u.data());
+    mesh.undisplaced.assign(p, p + mesh.positions.size());
+    for (Vec3& v : mesh.undisplaced)
+      if (!is_finite(v)) v = Vec3(0.0f);
+  }
   return self.scene->add_mesh(std::move(mesh));
+}
+
+// True displacement of add_mesh's arrays by their materials' displacement programs, shaded as
+// `matrix` places the mesh (scene/displace.h): a dict of the displaced positions, the shading
+// normals with their indices, motion_positions (given deformation steps, each moved as the
+// frame's vertex), and the counts displaced / clamped; None where no material displaces.
+py::object displace_mesh_arrays(PyScene& self, const FloatArray& positions, const py::object& triangles_obj,
+                                const py::object& material_indices, const std::vector<int64_t>& slots,
+                                const py::object& matrix, const py::object& shared_normals,
+                                const py::object& normal_indices, const py::object& flat_obj, const py::dict& uvs,
+                                const py::dict& attributes, const py::dict& tangents, const py::object& texspace,
+                                const py::object& motion_positions) {
+  MeshData mesh = read_mesh(positions, triangles_obj, py::none(), material_indices, slots, uvs, texspace,
+                            shared_normals, normal_indices, attributes, tangents);
+  const size_t nv = mesh.positions.size(), nt = mesh.triangles.size();
+  // (read_mesh leaves per-vertex indices out: displace_mesh reads the triangles then)
+  const Mat4 m = matrix.is_none() ? Mat4{} : to_mat4(matrix.cast<FloatArray>(), "displace_mesh matrix");
+  std::vector<uint8_t> flat;
+  if (!flat_obj.is_none()) {
+    const auto f = flat_obj.cast<py::array_t<bool, py::array::c_style | py::array::forcecast>>();
+    if (f.ndim() != 1 || size_t(f.shape(0)) != nt) throw std::invalid_argument("flat must have shape (T,)");
+    flat.assign(f.data(), f.data() + nt);
+  }
+  if (!motion_positions.is_none()) {
+    const auto mp = motion_positions.cast<FloatArray>();
+    if (mp.ndim() != 3 || size_t(mp.shape(1)) != nv || mp.shape(2) != 3)
+      throw std::invalid_argument("motion_positions must have shape (S, V, 3)");
+    for (py::ssize_t s = 0; s < mp.shape(0); ++s) {
+      const Vec3* p = reinterpret_cast<const Vec3*>(mp.data() + size_t(s) * nv * 3);
+      mesh.motion_positions.emplace_back(p, p + nv);
+    }
+  }
+  DisplaceStats st;
+  {
+    py::gil_scoped_release release;
+    st = displace_mesh(mesh, *self.scene, m, flat);
+  }
+  if (!st.displaced) return py::none();
+  py::array_t<float> pos({py::ssize_t(nv), py::ssize_t(3)});
+  if (nv) std::memcpy(pos.mutable_data(), mesh.positions.data(), nv * sizeof(Vec3));
+  py::dict d;
+  d["positions"] = pos;
+  if (!mesh.normals.empty()) {
+    const size_t nn = mesh.normals.size();
+    py::array_t<float> nr({py::ssize_t(nn), py::ssize_t(3)});
+    std::memcpy(nr.mutable_data(), mesh.normals.data(), nn * sizeof(Vec3));
+    py::array_t<int32_t> ni({py::ssize_t(nt), py::ssize_t(3)});
+    int32_t* q = ni.mutable_data();
+    for (size_t t = 0; t < nt; ++t)
+      for (int k = 0; k < 3; ++k)
+        q[3 * t + size_t(k)] = int32_t(mesh.normal_indices.empty() ? mesh.triangles[t][size_t(k)] : mesh.normal_indices[t][size_t(k)]);
+    d["normals"] = nr;
+    d["normal_indices"] = ni;
+  }
+  if (!mesh.motion_positions.empty()) {
+    const size_t ns = mesh.motion_positions.size();
+    py::array_t<float> mp({py::ssize_t(ns), py::ssize_t(nv), py::ssize_t(3)});
+    for (size_t s = 0; s < ns; ++s)
+      if (nv) std::memcpy(mp.mutable_data() + s * nv * 3, mesh.motion_positions[s].data(), nv * sizeof(Vec3));
+    d["motion_positions"] = mp;
+  }
+  d["displaced"] = st.displaced;
+  d["clamped"] = st.clamped;
+  return d;
 }
 
 // What the op parsers share: a register operand (None: no register), validated.
@@ -838,6 +922,9 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
           o.index |= int32_t(type) << (4 * k);
           o.count = k + 1;
         }
+      } else if (kind == "displacement") {  // a displacement program's output (its last op)
+        o.code = OpCode::DisplaceOut;
+        o.in[0] = p("offset");
       } else if (kind == "holdout") {
         o.code = OpCode::Holdout;
       } else if (kind == "emission") {
@@ -911,11 +998,26 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
 }
 
 Material make_shader(const PyScene& self, const std::string& name, const py::list& program,
-                     const py::object& volume_absorption, bool use_schlick, const py::object& volume = py::none()) {
+                     const py::object& volume_absorption, bool use_schlick, const py::object& volume = py::none(),
+                     const py::object& displacement = py::none(), const std::string& displacement_method = "DISPLACEMENT") {
   Material mat;
   mat.name = name;
   mat.program = parse_program(program, int64_t(self.scene->image_count()));
   mat.program.schlick = use_schlick;
+  if (!displacement.is_none()) {
+    // True displacement: value ops, then ('closure', 'displacement', None, {'offset': r}).
+    auto disp = std::make_shared<ShaderProgram>(parse_program(displacement.cast<py::list>(), int64_t(self.scene->image_count())));
+    if (disp->ops.empty() || disp->ops.back().code != OpCode::DisplaceOut)
+      throw std::invalid_argument("a displacement program must end with a ('closure', 'displacement', None, {'offset': r}) op");
+    for (size_t i = 0; i + 1 < disp->ops.size(); ++i)
+      if (disp->ops[i].code == OpCode::DisplaceOut || is_closure_op(disp->ops[i].code) ||
+          disp->ops[i].code == OpCode::VolumeOut || disp->ops[i].code == OpCode::SetNormal)
+        throw std::invalid_argument("a displacement program has value ops and one closure 'displacement', last");
+    if (displacement_method != "DISPLACEMENT" && displacement_method != "BOTH")
+      throw std::invalid_argument("displacement_method must be 'DISPLACEMENT' or 'BOTH'");
+    mat.displacement_normals = displacement_method == "DISPLACEMENT";
+    mat.displacement = std::move(disp);
+  }
   if (!volume_absorption.is_none()) {
     const auto t = volume_absorption.cast<py::tuple>();
     if (t.size() != 2) throw std::invalid_argument("volume_absorption must be (color, density)");
@@ -2723,11 +2825,25 @@ PYBIND11_MODULE(pathlight_core, m) {
            "object-space points and (S, N) radii (None: the frame's) at S >= 2 steps evenly over the "
            "shutter (Cycles' curve motion keys); steps with non-finite values, or that cut into other "
            "pieces than the frame's, leave it undeformed (stats()['motion_rejected']).")
+      .def("displace_mesh", &displace_mesh_arrays, py::arg("positions"), py::arg("triangles"),
+           py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
+           py::arg("matrix") = py::none(), py::arg("normals") = py::none(), py::arg("normal_indices") = py::none(),
+           py::arg("flat") = py::none(), py::arg("uvs") = py::dict(), py::arg("attributes") = py::dict(),
+           py::arg("tangents") = py::dict(), py::arg("texspace") = py::none(),
+           py::arg("motion_positions") = py::none(),
+           "True displacement (Cycles' 'DISPLACEMENT' / 'BOTH' methods) of add_mesh's arrays before add_mesh: "
+           "each vertex of a triangle whose material (add_shader's displacement) displaces moves by its "
+           "program's offset at the vertex (the first such triangle's corner: its uvs, attributes, normal), "
+           "shaded as the instance `matrix` places it. flat: (T,) bool, flat-shaded triangles (None: smooth). "
+           "Returns None where nothing displaces, else a dict: positions (V, 3); normals and normal_indices "
+           "(flat triangles their displaced face's, the vertices of 'DISPLACEMENT' triangles recomputed as "
+           "Cycles, the rest the given ones); motion_positions (S, V, 3) moved by the same offsets where given; "
+           "displaced (vertices) and clamped (non-finite offsets dropped, longer ones shortened to 1e4).")
       .def("add_mesh", &add_mesh, py::arg("positions"), py::arg("triangles"), py::arg("corner_normals") = py::none(),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("uvs") = py::dict(), py::arg("texspace") = py::none(), py::arg("normals") = py::none(),
            py::arg("normal_indices") = py::none(), py::arg("attributes") = py::dict(),
-           py::arg("tangents") = py::dict())
+           py::arg("tangents") = py::dict(), py::arg("undisplaced") = py::none())
       .def(
           "add_image",
           [](PyScene& self, const FloatArray& pixels, bool srgb) {
@@ -2760,17 +2876,23 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "add_shader",
           [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,
-             bool use_schlick, const py::object& volume) {
+             bool use_schlick, const py::object& volume, const py::object& displacement,
+             const std::string& displacement_method) {
             self.check_editable();
-            Material mat = make_shader(self, name, program, volume_absorption, use_schlick, volume);
+            Material mat = make_shader(self, name, program, volume_absorption, use_schlick, volume, displacement,
+                                       displacement_method);
             return self.scene->add_material(std::move(mat));
           },
           py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
-          py::arg("use_schlick") = false, py::arg("volume") = py::none(),
+          py::arg("use_schlick") = false, py::arg("volume") = py::none(), py::arg("displacement") = py::none(),
+          py::arg("displacement_method") = "DISPLACEMENT",
           "volume: the homogeneous medium inside, a dict of sigma_a, sigma_s, emission (RGB per unit "
           "length) and g (Henyey-Greenstein anisotropy); it replaces volume_absorption's sigma_a. Or a "
           "heterogeneous medium: a program (a list of value ops) ending in ('closure', 'volume', None, "
-          "{sigma_a, sigma_s, emission, g: registers}), evaluated at points inside.")
+          "{sigma_a, sigma_s, emission, g: registers}), evaluated at points inside. displacement: true "
+          "displacement, a program of value ops ending in ('closure', 'displacement', None, {'offset': r}) "
+          "(r: the world-space offset at a vertex) that displace_mesh runs; displacement_method "
+          "'DISPLACEMENT' (displaced vertices' normals recomputed) or 'BOTH' (kept).")
       .def(
           "shader_evaluation",
           [](PyScene& self, uint32_t id) {
@@ -2795,12 +2917,15 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def(
           "set_shader",
           [](PyScene& self, uint32_t id, const std::string& name, const py::list& program,
-             const py::object& volume_absorption, bool use_schlick, const py::object& volume) {
+             const py::object& volume_absorption, bool use_schlick, const py::object& volume,
+             const py::object& displacement, const std::string& displacement_method) {
             self.check_editable();
-            self.scene->set_material(id, make_shader(self, name, program, volume_absorption, use_schlick, volume));
+            self.scene->set_material(id, make_shader(self, name, program, volume_absorption, use_schlick, volume,
+                                                     displacement, displacement_method));
           },
           py::arg("id"), py::arg("name"), py::arg("program"), py::arg("volume_absorption") = py::none(),
-          py::arg("use_schlick") = false, py::arg("volume") = py::none(), "Replaces material `id` (as add_shader); the next commit() keeps the BVH.")
+          py::arg("use_schlick") = false, py::arg("volume") = py::none(), py::arg("displacement") = py::none(),
+          py::arg("displacement_method") = "DISPLACEMENT", "Replaces material `id` (as add_shader); the next commit() keeps the BVH.")
       .def(
           "clear_lights",
           [](PyScene& self) {

@@ -54,6 +54,9 @@ struct MeshData {
   // long as positions; empty: no deformation). Its instances trace the triangles at the ray's
   // time; shading normals stay the frame's.
   std::vector<std::vector<Vec3>> motion_positions;
+  // True displacement: the vertex positions before it (as long as positions; empty: not
+  // displaced), for Generated coordinates and the bump of 'BOTH' (ShadingContext::undisplaced).
+  std::vector<Vec3> undisplaced;
   // Velocity blur of a volume object (Cycles' volume motion): the lookup point moves back by
   // velocity x scale x (time + offset), velocity the vector grid `velocity_grid` (object
   // space; -1: none), or where velocity_yz are set, three float grids x, y, z (Cycles merges
@@ -84,6 +87,12 @@ struct Material {
   std::vector<Float4> closure_regs;
   std::vector<ShaderOp> closure_ops;
   std::vector<PrincipledInputs> principled;  // of its Principled ops, in order
+  // True displacement (Cycles' 'DISPLACEMENT' and 'BOTH' methods): the program of the offset at
+  // a vertex (value ops, then DisplaceOut), run by displace_mesh before the mesh is added;
+  // nullptr: none. displacement_normals: the displaced vertices' normals are recomputed
+  // ('DISPLACEMENT'; 'BOTH' keeps them, its program's bump does the rest).
+  std::shared_ptr<const ShaderProgram> displacement;
+  bool displacement_normals = true;
 };
 
 // A heterogeneous medium in the committed scene: one per instance and material whose Volume is

@@ -210,6 +210,13 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
   }
   const Vec3 corners[3] = {tv.v0, tv.v1, tv.v2};
   ctx.tri = corners;  // for the Bump node's offsets
+  Vec3 undisplaced[4];  // a truly displaced mesh's surface before it: the point, the triangle
+  if (const MeshData& mesh = meshes_[in.mesh]; __builtin_expect(!mesh.undisplaced.empty(), 0) && ctx.object->valid) {
+    const std::array<uint32_t, 3>& t = mesh.triangles[blas.src_tri[sp.tri]];
+    for (int k = 0; k < 3; ++k) undisplaced[1 + k] = ctx.object->to_world.point(mesh.undisplaced[t[size_t(k)]]);
+    undisplaced[0] = undisplaced[1] * (1.0f - b1 - b2) + undisplaced[2] * b1 + undisplaced[3] * b2;
+    ctx.undisplaced = undisplaced;
+  }
   if (mat.closures_only) {  // (no uvs or attributes: no value op reads them)
     shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);

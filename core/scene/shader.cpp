@@ -92,6 +92,22 @@ template <bool kSetsNormal>
     dp[kOffsetX] = e1 * db[kOffsetX][0];
     dp[kOffsetY] = e2 * db[kOffsetY][1];
   };
+  // The undisplaced surface's point at offset s (made already): the same barycentric step along
+  // the undisplaced triangle, as Cycles' differentials of the undisplaced position attribute.
+  auto undisplaced_at = [&](uint8_t s) {
+    const Vec3* u = ctx.undisplaced;
+    return s == kAtPoint || s >= 3 ? u[0] : u[0] + (u[2] - u[1]) * db[s][0] + (u[3] - u[1]) * db[s][1];
+  };
+  // Where Position and Object read it at a bump offset: Cycles' svm_node_tex_coord_bump_dx on
+  // the undisplaced point steps along the displaced footprint's axes by the compact (mean)
+  // length of the undisplaced differentials (the Bump op's gradient uses the full ones).
+  auto undisplaced_bump_at = [&](uint8_t s) {
+    const Vec3* u = ctx.undisplaced;
+    if (s == kAtPoint || s >= 3) return u[0];
+    const float len = 0.5f * (length(undisplaced_at(kOffsetX) - u[0]) + length(undisplaced_at(kOffsetY) - u[0]));
+    const float l = length(dp[s]);
+    return l > 0.0f ? u[0] + dp[s] * (len / l) : u[0];
+  };
   const ShaderOp* extra = nullptr;  // the PrincipledExtra op before a Principled op, if any
   for (const ShaderOp& op : prog.ops) {
     Float4& d = r[op.dst];
@@ -111,8 +127,9 @@ template <bool kSetsNormal>
         break;
       }
       case OpCode::Position: {
-        if (op.sub != kAtPoint && op.sub < 3) make_offsets();
-        d = f4(ctx.p + (op.sub < 3 ? dp[op.sub] : Vec3(0.0f)));
+        const uint8_t s = op.sub & 3;
+        if (s != kAtPoint && s < 3) make_offsets();
+        d = f4((op.sub & kUndisplaced) && ctx.undisplaced ? undisplaced_bump_at(s) : ctx.p + (s < 3 ? dp[s] : Vec3(0.0f)));
         break;
       }
       case OpCode::Normal: d = f4(viewer_normal(ctx), 0.0f); break;
@@ -193,8 +210,12 @@ template <bool kSetsNormal>
       }
       case OpCode::ObjectPos:
       case OpCode::Generated: {
-        if (op.sub != kAtPoint && op.sub < 3) make_offsets();
-        const Vec3 p = ctx.p + (op.sub < 3 ? dp[op.sub] : Vec3(0.0f));
+        const uint8_t s = op.sub & 3;
+        if (s != kAtPoint && s < 3) make_offsets();
+        // Generated coordinates are the undisplaced mesh's (Cycles' generated attribute).
+        const Vec3 p = !ctx.undisplaced ? ctx.p + (s < 3 ? dp[s] : Vec3(0.0f))
+                       : op.code == OpCode::Generated ? undisplaced_at(s)
+                       : (op.sub & kUndisplaced) ? undisplaced_bump_at(s) : ctx.p + (s < 3 ? dp[s] : Vec3(0.0f));
         if (!ctx.object || !ctx.object->valid) {
           d = f4(p);  // no object space known: world coordinates
           break;
@@ -338,9 +359,14 @@ template <bool kSetsNormal>
         make_offsets();
         const float side = ctx.view_side();  // Cycles works with N towards the viewer
         const Vec3 n_in = normal_or(r, op.in[5], ctx) * side;
-        const Vec3 rx = cross(dp[kOffsetY], n_in), ry = cross(n_in, dp[kOffsetX]);
+        // Heights read on the undisplaced surface ('BOTH'): its differentials (Cycles' saved
+        // bump state of svm_node_enter_bump_eval).
+        const bool undisplaced = op.ext && ctx.undisplaced;
+        const Vec3 ox = undisplaced ? undisplaced_at(kOffsetX) - ctx.undisplaced[0] : dp[kOffsetX];
+        const Vec3 oy = undisplaced ? undisplaced_at(kOffsetY) - ctx.undisplaced[0] : dp[kOffsetY];
+        const Vec3 rx = cross(oy, n_in), ry = cross(n_in, ox);
         const float hc = reg(op.in[0]).x, hx = reg(op.in[1]).x, hy = reg(op.in[2]).x;
-        const float det = dot(dp[kOffsetX], rx);
+        const float det = dot(ox, rx);
         const Vec3 surfgrad = rx * (hx - hc) + ry * (hy - hc);
         float strength = op.in[3] == kNoReg ? 1.0f : reg(op.in[3]).x;
         float distance = op.in[4] == kNoReg ? 1.0f : reg(op.in[4]).x;
@@ -572,6 +598,31 @@ template <bool kSetsNormal>
         d = f4(is_finite(t) ? t : Vec3(0.0f), 0.0f);
         break;
       }
+      case OpCode::TangentDisplace: {
+        // Cycles: x along the uv set's (unnormalised, interpolated) object-space tangent, y along
+        // the object-space normal, z along their normalised cross product times the tangent's
+        // sign; then to world space as a direction. Without mesh tangents: the triangle's uv
+        // tangent, no sign (Cycles' dPdu).
+        const Vec3 v = reg(op.in[0]).xyz();
+        const ObjectCoords* obj = ctx.object && ctx.object->valid ? ctx.object : nullptr;
+        Vec3 n = world_to_object_normal(obj, viewer_normal(ctx));
+        n = length_sq(n) > 0.0f ? normalize(n) : n;
+        Vec3 t(0.0f);
+        float sign = 1.0f;
+        if (ctx.has_mesh_tangent(op.index) && op.index < ctx.uv_sets) {
+          t = ctx.mesh_tangents[op.index].xyz();
+          sign = ctx.mesh_tangents[op.index].w;
+        } else if (op.index >= 0 && op.index < ctx.uv_sets && ctx.tangents) {
+          t = obj ? obj->to_object.vector(ctx.tangents[op.index]) : ctx.tangents[op.index];
+          t = length_sq(t) > 0.0f ? normalize(t) : t;
+        }
+        const Vec3 c = cross(n, t);
+        const Vec3 b = length_sq(c) > 0.0f ? normalize(c) * sign : Vec3(0.0f);
+        Vec3 o = t * v.x + n * v.y + b * v.z;
+        if (obj) o = obj->to_world.vector(o);
+        d = f4(is_finite(o) ? o : Vec3(0.0f), 0.0f);
+        break;
+      }
       case OpCode::TexGabor: {
         // in: vector, scale, frequency, anisotropy, orientation 2D, 3D; ext: the output.
         const GaborOutput g = gabor_texture(op.sub, reg(op.in[0]).xyz(), reg(op.in[1]).x, reg(op.in[2]).x,
@@ -669,6 +720,7 @@ template <bool kSetsNormal>
         detail::eval_closure_op(op, prog, r, ctx, extra, out);
         break;
       case OpCode::VolumeOut: break;  // read by eval_volume
+      case OpCode::DisplaceOut: break;  // read by eval_displacement
     }
   }
   out.finalize();
@@ -776,6 +828,15 @@ MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& ima
   if (m.n_lobes) m.phase = m.lobes[0].phase;
   if (m.n_lobes < 2) m.n_lobes = 0;  // one phase: no mixture
   return m;
+}
+
+Vec3 eval_displacement(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx) {
+  if (prog.ops.empty() || prog.ops.back().code != OpCode::DisplaceOut) return Vec3(0.0f);
+  Float4 r[kMaxRegs];
+  ClosureList unused;
+  eval_shader(prog, images, ctx, unused, r);
+  const int16_t i = prog.ops.back().in[0];
+  return i == kNoReg ? Vec3(0.0f) : r[i].xyz();
 }
 
 }  // namespace pl

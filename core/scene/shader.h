@@ -72,6 +72,13 @@ enum class OpCode : uint8_t {
   // g, alpha; Fournier-Forand backscatter, IOR; Mie diameter), its type in bits 4k.. of index.
   VolumeOut,
   PointInfo,  // sub: Position, Radius, Random (Cycles' Point Info; zeros off points)
+  // The Vector Displacement node in tangent space (Cycles' svm_node_vector_displacement): in[0]
+  // the scaled vector over uv set `index`'s tangent, the normal and the bitangent (object
+  // space), turned to world space.
+  TangentDisplace,
+  // A displacement program's output (its last op): in[0] the world-space offset of the vertex
+  // (true displacement, scene/displace.h).
+  DisplaceOut,
 };
 
 enum class MathOp : uint8_t {
@@ -93,6 +100,9 @@ enum class VectorMathOp : uint8_t {
 // Where value ops that read the shading point read it: the point itself, or the small surface
 // offsets that a Bump node differentiates its height with.
 enum BumpOffset : uint8_t { kAtPoint = 0, kOffsetX = 1, kOffsetY = 2 };
+// Position and Object ops: with this bit added to their BumpOffset they read the undisplaced
+// surface of a truly displaced mesh (Cycles' bump of 'BOTH', svm_node_enter_bump_eval).
+constexpr uint8_t kUndisplaced = 4;
 
 // PrincipledExtra's operand slots (in[]), by feature; the Principled op right after it reads
 // them. A slot left kNoReg takes the input's Blender default.
@@ -310,6 +320,10 @@ struct ShadingContext {
   // the Bump node's offsets move along its edges. nullptr: no offsets (heights not differentiated).
   const Vec3* tri = nullptr;
   const Vec2* tri_uv = nullptr;
+  // A truly displaced mesh's undisplaced surface (world): the point, then the triangle's three
+  // vertices (Cycles' ATTR_STD_POSITION_UNDISPLACED); nullptr: not displaced. Generated
+  // coordinates always read it, Position and Object ops where flagged kUndisplaced.
+  const Vec3* undisplaced = nullptr;
   const ObjectCoords* object = nullptr;  // the hit instance's (nullptr: world coordinates)
   const Float4* attrs = nullptr;  // per attribute set: the interpolated value (nullptr: none)
   int attr_sets = 0;
@@ -459,5 +473,9 @@ struct MediumSample {
 // direction, normals 0, as Cycles' volume shader data): negative or non-finite coefficients
 // read 0, the phases' parameters are clamped as Cycles' setups do.
 MediumSample eval_volume(const ShaderProgram& vol, const std::vector<Image>& images, const ShadingContext& ctx);
+
+// Runs a displacement program (value ops, then a DisplaceOut op) at ctx: the world-space offset
+// it gives (zero for a program without that output).
+Vec3 eval_displacement(const ShaderProgram& prog, const std::vector<Image>& images, const ShadingContext& ctx);
 
 }  // namespace pl

@@ -218,7 +218,9 @@ using F = OpField;
 using K = ParamKind;
 inline constexpr OpParam kConst[] = {of(K::Values, F::Value, "const values")};
 inline constexpr OpParam kUv[] = {uv_set(F::Index), bump_offset(F::Sub)};
-inline constexpr OpParam kAtOffset[] = {bump_offset(F::Sub)};  // Position, Object, Generated
+inline constexpr OpParam kAtOffset[] = {bump_offset(F::Sub)};  // Generated
+// Position, Object: a bump offset, plus kUndisplaced for the undisplaced surface.
+inline constexpr OpParam kAtOffsetUndisplaced[] = {optional(int_in(F::Sub, "bump offset", 0, 6))};
 inline constexpr OpParam kLightPath[] = {choice(F::Sub, "light path output", kLightPathOutputs)};
 inline constexpr OpParam kObjectInfo[] = {choice(F::Sub, "object info output", kObjectInfoOutputs)};
 inline constexpr OpParam kCurvesInfo[] = {choice(F::Sub, "curves info output", kCurvesInfoOutputs)};
@@ -234,8 +236,10 @@ inline constexpr OpParam kImage[] = {of(K::ImageId, F::Index, "image id"),
 inline constexpr OpParam kMath[] = {sub_op(F::Sub, "math op", kMathOpNames), flag(F::Clamp, "clamp")};
 inline constexpr OpParam kMix[] = {sub_op(F::Sub, "mix blend type", kMixOpNames), flag(F::Clamp, "clamp")};
 inline constexpr OpParam kLayerWeight[] = {choice(F::Sub, "layer weight output", kLayerWeightOutputs)};
+// ext: the heights were read on the undisplaced surface (kUndisplaced ops): its offsets then.
 inline constexpr OpParam kBump[] = {flag(F::Clamp, "invert"),
-                                    optional(of(K::FilterWidth, F::Program, "bump filter width"))};
+                                    optional(of(K::FilterWidth, F::Program, "bump filter width")),
+                                    optional(flag(F::Ext, "bump undisplaced"))};
 // Ramp: the table, clamp (bit 1), constant interpolation (bit 2), the range, extrapolate (bit 4).
 inline constexpr OpParam kRamp[] = {of(K::RampTable, F::Table, "ramp table"), flag(F::Sub, "ramp clamp", 1),
                                     flag(F::Sub, "ramp constant", 2), finite(F::M0, "ramp range start"),
@@ -283,6 +287,7 @@ constexpr OpParam tangent_direction() {
   return p;
 }
 inline constexpr OpParam kTangent[] = {tangent_direction(), uv_set(F::Index)};
+inline constexpr OpParam kTangentDisplace[] = {uv_set(F::Index)};
 inline constexpr OpParam kTexGabor[] = {choice(F::Sub, "gabor type", kGaborTypes, 2),
                                         choice(F::Ext, "gabor output", kGaborOutputs)};
 // Ambient Occlusion: samples, inside (bit 1), only local (bit 2), the output.
@@ -309,9 +314,9 @@ inline constexpr OpParam kVolumeGrid[] = {int_in(F::Index, "volume grid id", 0, 
 inline constexpr ValueOpSchema kValueOps[] = {
     {"const", OpCode::Const, 0, schema::kConst},
     {"uv", OpCode::Uv, 0, schema::kUv, kVarying | kUsesUv},
-    {"position", OpCode::Position, 0, schema::kAtOffset, kVarying},
+    {"position", OpCode::Position, 0, schema::kAtOffsetUndisplaced, kVarying},
     {"normal", OpCode::Normal, 0, {}, kVarying},
-    {"object", OpCode::ObjectPos, 0, schema::kAtOffset, kVarying},
+    {"object", OpCode::ObjectPos, 0, schema::kAtOffsetUndisplaced, kVarying},
     {"generated", OpCode::Generated, 0, schema::kAtOffset, kVarying},
     {"light_path", OpCode::LightPath, 0, schema::kLightPath, kVarying},
     {"object_info", OpCode::ObjectInfo, 0, schema::kObjectInfo, kVarying},  // per instance
@@ -360,6 +365,8 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"wavelength", OpCode::Wavelength, 1, {}},
     {"camera_coords", OpCode::CameraCoords, 0, schema::kCameraCoords, kVarying},
     {"tangent", OpCode::Tangent, 0, schema::kTangent, kVarying},
+    // vector (already less Midlevel, times Scale)
+    {"tangent_displacement", OpCode::TangentDisplace, 1, schema::kTangentDisplace, kVarying | kUsesUv},
     // vector, scale, frequency, anisotropy, orientation 2D, 3D
     {"tex_gabor", OpCode::TexGabor, 6, schema::kTexGabor},
     {"ambient_occlusion", OpCode::AmbientOcclusion, 3, schema::kAmbientOcclusion, kVarying},  // color, distance, normal
@@ -376,9 +383,9 @@ inline constexpr OpCode kClosureOpCodes[] = {
     OpCode::Emission, OpCode::Principled, OpCode::Translucent, OpCode::Metallic, OpCode::PrincipledExtra,
     OpCode::Holdout, OpCode::PrincipledHair, OpCode::Subsurface, OpCode::Sheen, OpCode::Toon,
     OpCode::Hair,
-    OpCode::VolumeOut,
+    OpCode::VolumeOut, OpCode::DisplaceOut,
 };
-inline constexpr size_t kOpCodeCount = size_t(OpCode::VolumeOut) + 1;
+inline constexpr size_t kOpCodeCount = size_t(OpCode::DisplaceOut) + 1;  // (the last OpCode)
 
 constexpr bool every_value_opcode_has_an_op() {
   for (size_t c = 0; c < kOpCodeCount; ++c) {

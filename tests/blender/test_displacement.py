@@ -95,11 +95,13 @@ def test_displacement_compiles_to_a_bump_and_set_normal_without_a_warning():
     assert names.index("set_normal") < names.index("closure")
 
 
-def test_true_displacement_warns_and_renders_as_bump():
+def test_true_displacement_is_no_longer_rendered_as_bump():
+    """'DISPLACEMENT' moves the vertices (test_true_displacement.py): no bump, no warning."""
     from addon.export import export_scene
     scene(lambda: displaced_material("True", method='DISPLACEMENT'))()
     warn = Warnings()
     data = export_scene(bpy.context.evaluated_depsgraph_get(), warn)
-    assert any("true displacement" in w for w in warn), list(warn)
+    assert not any("true displacement" in w for w in warn), list(warn)
     (mat,) = [m for m in data.materials if m.name == "True"]
-    assert "set_normal" in [op[0] for op in mat.program]
+    assert "set_normal" not in [op[0] for op in mat.program]
+    assert mat.displacement is not None

@@ -27,6 +27,10 @@ class CompiledShader:
     # ("attr", name) (the Attribute node) / ("color", name) (Color Attribute; "" = the render one).
     uv_sets: dict = field(default_factory=dict)
     problems: list = field(default_factory=list)  # what was approximated/unsupported
+    # True displacement ('DISPLACEMENT' / 'BOTH'): value ops ending in ('closure',
+    # 'displacement', None, {'offset': r}), the world offset at a vertex; None: none.
+    displacement: list = None
+    displacement_method: str = 'BUMP'
 
 
 class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, TextureNodes,
@@ -60,6 +64,10 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         # Where reads of the shading point happen: 0 the point, 1 / 2 the Bump node's offsets
         # (its Height sub-graph is compiled once per offset, as Cycles duplicates it).
         self.bump_state = 0
+        # True displacement: the material's method once its vertex program exists ('BOTH':
+        # bump heights read the undisplaced surface, `undisplaced` while they compile).
+        self.displacement_method = 'BUMP'
+        self.undisplaced = False
 
     # -------------------------------------------------- problems
 
@@ -337,9 +345,16 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
                           "sigma_s": (0.0, 0.0, 0.0), "emission": (0.0, 0.0, 0.0), "g": 0.0}
             return CompiledShader(program, None, medium, dict(self.uv_used), list(self.problems))
         disp = output.inputs.get("Displacement")
+        displacement = None
         if disp is not None and self.link_into(disp) is not None:
             try:
-                self.bump_from_displacement(disp, displacement_method)
+                if displacement_method in ('DISPLACEMENT', 'BOTH'):
+                    displacement = self.true_displacement(disp)
+                    # (its Bump nodes then read the undisplaced surface, as Cycles')
+                    self.displacement_method = displacement_method if displacement else 'BUMP'
+
+                if displacement_method != 'DISPLACEMENT':  # 'BOTH': the bump as well (Cycles)
+                    self.bump_from_displacement(disp, displacement_method)
             except _Cycle as e:
                 self.problem(f"node cycle through '{e}' in the displacement (ignored)")
         try:
@@ -364,7 +379,8 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
                        ("closure", "diffuse", None, {"color": 0})]
         absorption = volume if isinstance(volume, tuple) else None
         medium = volume if isinstance(volume, (dict, list)) else None  # list: a volume program
-        return CompiledShader(program, absorption, medium, dict(self.uv_used), list(self.problems))
+        return CompiledShader(program, absorption, medium, dict(self.uv_used), list(self.problems),
+                              displacement, displacement_method if displacement else 'BUMP')
 
     def _reset(self):
         self.ops = []

@@ -166,7 +166,8 @@ class InputNodes:
         """Val of the object-space ("object") or texture-space ("generated") position."""
         key = (which, self.bump_state)
         if key not in self.cache:
-            extra = (self.bump_state,) if self.bump_state else ()
+            extra = self._at_offset() if which == "object" else \
+                ((self.bump_state,) if self.bump_state else ())
             self.cache[key] = self.emit("vector", which, *extra)
         return self.cache[key]
 
@@ -174,9 +175,15 @@ class InputNodes:
         """Val of the world position (at the current bump offset)."""
         key = ("position", self.bump_state)
         if key not in self.cache:
-            extra = (self.bump_state,) if self.bump_state else ()
-            self.cache[key] = self.emit("vector", "position", *extra)
+            self.cache[key] = self.emit("vector", "position", *self._at_offset())
         return self.cache[key]
+
+    def _at_offset(self):
+        """Position and Object ops' operand: the bump offset, plus 4 (the core's kUndisplaced)
+        inside the bump of a truly displaced material ('BOTH'), which Cycles evaluates on the
+        undisplaced surface."""
+        sub = self.bump_state | (4 if self.undisplaced else 0)
+        return (sub,) if sub else ()
 
     def camera_coords(self, which):
         """Texture Coordinate's Camera or Window (at the current bump offset)."""

@@ -86,14 +86,17 @@ class VectorNodes:
         height = node.inputs["Height"]
         if self.source(height, ctx) is None or (strength.is_const and strength.const[0] <= 0.0):
             return normal  # nothing to differentiate: the input normal (None: the shading one)
-        saved = self.bump_state
+        saved = self.bump_state, self.undisplaced
+        # A truly displaced material's Bump ('BOTH'): its heights on the undisplaced surface.
+        both = self.displacement_method == 'BOTH'
         heights = []
         try:
+            self.undisplaced = both
             for state in (0, 1, 2):
                 self.bump_state = state
                 heights.append(self.value(height, ctx, "float"))
         finally:
-            self.bump_state = saved
+            self.bump_state, self.undisplaced = saved
         if all(h.is_const for h in heights):
             return normal  # a constant height has no slope
         width_socket = node.inputs.get("Filter Width")
@@ -104,7 +107,7 @@ class VectorNodes:
                          f"{first:g} in the material (that one is used)")
         return self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(strength),
                          self.reg(distance), None if normal is None else self.reg(normal),
-                         bool(node.invert), max(0.0, float(width)))
+                         bool(node.invert), max(0.0, float(width)), *((True,) if both else ()))
 
     def displacement(self, node, out, ctx):
         """Cycles' svm_node_displacement: the Normal (unlinked: the shading normal) times
@@ -120,13 +123,18 @@ class VectorNodes:
         return self._displace(normal, amount, node.space == 'OBJECT', "NORMAL")
 
     def vector_displacement(self, node, out, ctx):
-        """Cycles' svm_node_vector_displacement in object or world space: (Vector - Midlevel)
-        * Scale, object space through the instance's transform."""
+        """Cycles' svm_node_vector_displacement: (Vector - Midlevel) * Scale in world space, object
+        space (through the instance's transform) or tangent space (the active render UV map's
+        MikkTSpace tangent, the normal and the bitangent as x, y, z)."""
         mid = self.as_vector(self.input(node, "Midlevel", ctx, "float"))
         v = self.vector_op("SUBTRACT", self.input(node, "Vector", ctx, "vector"), mid)
-        if node.space == 'TANGENT':
-            self.problem(f"'{node.name}': tangent space is not supported (object space used)")
-        return self._displace(v, self.input(node, "Scale", ctx, "float"), node.space != 'WORLD', "VECTOR")
+        scale = self.input(node, "Scale", ctx, "float")
+        if node.space == 'TANGENT':  # the active render UV map's tangents (Cycles' default)
+            k = self.uv("", f"'{node.name}'")
+            zero = const_vector((0, 0, 0))
+            scaled = self.fold_or_emit("vector", "vector_math", (self.as_vector(v), zero, zero, scale), "SCALE")
+            return self.emit("vector", "tangent_displacement", self.reg(scaled), k)
+        return self._displace(v, scale, node.space != 'WORLD', "VECTOR")
 
     def _displace(self, v, amount, object_space, kind):
         zero = const_vector((0, 0, 0))
@@ -138,6 +146,26 @@ class VectorNodes:
             d = self.emit("vector", "vector_transform", self.reg(d), 'VECTOR', 'OBJECT', 'WORLD')
         return d
 
+    def true_displacement(self, socket):
+        """The program of the material output's Displacement for true displacement (Cycles'
+        'DISPLACEMENT' and 'BOTH' methods): its value ops with their own registers and cache,
+        ending in a 'displacement' op whose offset (world space) the core adds to each vertex
+        before the BVH is built. None where the displacement is constant zero."""
+        from .registers import allocate_registers, eliminate_dead_code
+        saved = self.ops, self.const_regs, self.cache, self.bump_state
+        self.ops, self.const_regs, self.cache, self.bump_state = [], {}, {}, 0
+        try:
+            v = self.value(socket, (), "vector")
+            if v is None or self.is_zero(v):
+                return None
+            self.ops.append(("closure", "displacement", None, {"offset": self.reg(self.as_vector(v))}))
+            program = allocate_registers(eliminate_dead_code(self.ops))
+        finally:
+            self.ops, self.const_regs, self.cache, self.bump_state = saved
+        if program is None:
+            self.problem("the displacement needs too many registers (not displaced)")
+        return program
+
     def bump_from_displacement(self, socket, method):
         """Cycles' bump_from_displacement for the material output's Displacement: the offset's
         component along the normal at the point and at the Bump node's two offsets, a Bump of
@@ -145,10 +173,8 @@ class VectorNodes:
         normal for everything after it (Cycles' Set Normal). Cycles duplicates the subgraph,
         so its reads of the normal are the unbumped one: compiled first, with a cache of its
         own."""
-        if method != 'BUMP':
-            self.problem("true displacement (Displacement method other than 'Bump Only') is not "
-                         "supported: rendered as bump")
         saved, self.cache = self.cache, {}
+        self.undisplaced = method == 'BOTH'  # (its vertices moved: the bump reads the surface before)
         heights = []
         try:
             normal = self.emit("vector", "normal")
@@ -162,6 +188,7 @@ class VectorNodes:
                                                  "DOT_PRODUCT"))
         finally:
             self.bump_state = 0
+            self.undisplaced = False
             width = self.cache.get("bump_filter_width")
             self.cache = saved
             if width is not None:
@@ -172,7 +199,7 @@ class VectorNodes:
         if first != 0.1:
             self.problem(f"the displacement's bump uses Filter Width 0.1, not another Bump's {first:g}")
         bump = self.emit("vector", "bump", *(self.reg(h) for h in heights), self.reg(ONE), self.reg(ONE),
-                         None, False, 0.1)
+                         None, False, 0.1, *((True,) if method == 'BOTH' else ()))
         self.ops.append(("set_normal", self.new_reg(), self.reg(bump)))
 
     def normal_node(self, node, out, ctx):
