@@ -183,8 +183,6 @@ bool emit_photon(const Scene& scene, const GuidePhotonSources& src, Pcg32& rng, 
   return is_finite(ray.org) && is_finite(ray.dir) && is_finite(flux) && !is_black(flux);
 }
 
-}  // namespace
-
 // A lobe a guided vertex would sample (guidable()'s test for one closure).
 bool rough_closure(const Closure& c) {
   if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<OrenNayarBsdf>(c.bsdf) ||
@@ -194,6 +192,8 @@ bool rough_closure(const Closure& c) {
   const auto* m = std::get_if<ConductorBsdf>(&c.bsdf);
   return m && m->alpha > 0.075f && !c.delta;
 }
+
+}  // namespace
 
 uint64_t trace_guide_photons(const Scene& scene, GuidePhotonSources& src, GuidingField& guide, uint64_t seed,
                              uint64_t first, uint64_t last, int max_bounces, bool caustics) {
