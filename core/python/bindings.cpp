@@ -2753,7 +2753,10 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("guiding_photon_share", &RenderSettings::guiding_photon_share,
                      "The photons' share of a guide cell's distribution where it has camera records too.")
       .def_readwrite("guiding_photon_split", &RenderSettings::guiding_photon_split,
-                     "What a photon record counts for towards splitting a guide cell (a camera record: 1).");
+                     "What a photon record counts for towards splitting a guide cell (a camera record: 1).")
+      .def_readwrite("guiding_caustics", &RenderSettings::guiding_caustics,
+                     "Photon training with caustic (light, smooth bounces, rough surface) photons only, kept "
+                     "over the iterations.");
 
   m.def(
       "render_passes",

@@ -40,7 +40,11 @@ GuidePhotonSources guide_photon_sources(const Scene& scene);
 // Traces photons [first, last) of one training iteration into `guide` (record_photon). Photon
 // i draws from its own stream (seed, i): the records, summed in fixed point, do not depend on
 // the threads. Returns the rays traced.
+// caustics: only L S+ D photons, the light that camera paths find worst (sun -> metal bowl ->
+// wall): a photon goes on only through smooth lobes (those guiding leaves alone), records at
+// the first guidable surface after at least one of them and stops there; the records are kept
+// over the iterations (GuidingField::keep_photons) and the adaptive disks aim at what records.
 uint64_t trace_guide_photons(const Scene& scene, GuidePhotonSources& src, GuidingField& guide, uint64_t seed,
-                             uint64_t first, uint64_t last, int max_bounces);
+                             uint64_t first, uint64_t last, int max_bounces, bool caustics = false);
 
 }  // namespace pl

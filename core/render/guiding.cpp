@@ -117,6 +117,8 @@ void GuidingField::reset(const Aabb& bounds, float split_threshold) {
   scale_ = 65536.0;
   iterations_ = 0;
   photon_records_ = 0;
+  photon_map_.clear();
+  photon_map_new_ = 0;
   nodes_.assign(1, SpatialNode{});
   cells_.clear();
   for (uint32_t k = 0; k < kNormalClasses; ++k) {
@@ -125,11 +127,14 @@ void GuidingField::reset(const Aabb& bounds, float split_threshold) {
   }
 }
 
-uint32_t GuidingField::cell_of(Vec3 p, Vec3 nrm) const {
+uint8_t GuidingField::normal_class(Vec3 nrm) {
   const Vec3 a{std::fabs(nrm.x), std::fabs(nrm.y), std::fabs(nrm.z)};
   const int axis = a.x >= a.y && a.x >= a.z ? 0 : a.y >= a.z ? 1 : 2;
   const float along = axis == 0 ? nrm.x : axis == 1 ? nrm.y : nrm.z;
-  const uint32_t cls = uint32_t(2 * axis + (along < 0.0f ? 1 : 0));
+  return uint8_t(2 * axis + (along < 0.0f ? 1 : 0));
+}
+
+uint32_t GuidingField::leaf_of(Vec3 p) const {
   const Vec3 x = (p - bounds_.lo) * inv_extent_;
   float c[3] = {clampf(x.x, 0.0f, kOneMinus), clampf(x.y, 0.0f, kOneMinus), clampf(x.z, 0.0f, kOneMinus)};
   if (!(c[0] == c[0]) || !(c[1] == c[1]) || !(c[2] == c[2])) c[0] = c[1] = c[2] = 0.0f;  // NaN
@@ -140,7 +145,16 @@ uint32_t GuidingField::cell_of(Vec3 p, Vec3 nrm) const {
     v = std::min(v * 2.0f - float(side), kOneMinus);
     n = &nodes_[n->child + uint32_t(side)];
   }
-  return n->cell + cls;
+  return n->cell;
+}
+
+uint32_t GuidingField::cell_of(Vec3 p, Vec3 nrm) const { return leaf_of(p) + normal_class(nrm); }
+
+void GuidingField::keep_photons(std::vector<PhotonRecord>& records) {
+  if (records.empty()) return;
+  std::lock_guard<std::mutex> lk(photon_mutex_);
+  photon_map_.insert(photon_map_.end(), records.begin(), records.end());
+  records.clear();
 }
 
 Vec3 GuidingField::sample(uint32_t cell, Vec2 u, float& pdf) const {
@@ -265,6 +279,18 @@ void refine(const std::vector<QuadNode>& learnt, std::vector<QuadNode>& out) {
 }  // namespace
 
 void GuidingField::end_iteration(int samples) {
+  // 0. All kept photons, this iteration's and earlier ones', into the cells as they are now.
+  for (const PhotonRecord& r : photon_map_) {
+    if (!(r.value > 0.0f) || !std::isfinite(r.value) || !is_finite(r.p) || r.normal_class >= kNormalClasses) continue;
+    Cell& c = *cells_[leaf_of(r.p) + r.normal_class];
+    c.photon_records.fetch_add(1, std::memory_order_relaxed);
+    const uint64_t q = uint64_t(std::min(double(r.value) * 1048576.0, 68719476736.0) + 0.5);
+    if (q != 0) c.add(c.photon_sums.get(), r.s, q);
+  }
+  // Past the cap an iteration's photons count for it alone (all of them: the same set whatever
+  // order the threads added them in).
+  if (photon_map_.size() > kMaxKeptPhotons) photon_map_.resize(photon_map_new_);
+  photon_map_new_ = photon_map_.size();
   double all = 0.0;
   uint64_t all_records = 0;
   // 1. What each cell recorded becomes its distribution (inner quadrants: their subtree's sum).

@@ -11,6 +11,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <vector>
 
 #include "geometry/aabb.h"
@@ -74,6 +75,22 @@ class GuidingField {
   float photon_share() const { return photon_share_; }
   uint64_t photon_records() const { return photon_records_; }  // all iterations so far
 
+  // Kept photon records (caustic photons, guide_photons.h): where and from where flux arrived.
+  // Unlike record_photon's, they are kept over the iterations: every end_iteration sums all of
+  // them into the cells of the field as it is then (a photon is an estimate of the same
+  // incident light whichever iteration traced it), so late guides learn from all photons.
+  struct PhotonRecord {
+    Vec3 p;
+    Vec2 s;  // the arrival direction on the unit square (to_square)
+    float value;
+    uint8_t normal_class;
+  };
+  static constexpr size_t kMaxKeptPhotons = size_t(1) << 22;  // ~100 MB: later ones only count once
+  // Any thread, during photon tracing; the records' order does not matter (fixed-point sums).
+  void keep_photons(std::vector<PhotonRecord>& records);
+  static uint8_t normal_class(Vec3 n);
+  size_t kept_photons() const { return photon_map_.size(); }
+
   // The unit square's equal-area map of the sphere (z = cos theta, phi around z).
   static Vec2 to_square(Vec3 w);
   static Vec3 from_square(Vec2 s);
@@ -97,6 +114,10 @@ class GuidingField {
   int iterations_ = 0;
   std::vector<SpatialNode> nodes_;
   std::vector<std::unique_ptr<Cell>> cells_;
+  std::mutex photon_mutex_;
+  std::vector<PhotonRecord> photon_map_;  // all kept photons (the first kMaxKeptPhotons)
+  size_t photon_map_new_ = 0;  // where this iteration's kept photons start
+  uint32_t leaf_of(Vec3 p) const;  // the spatial leaf's first quadtree
 };
 
 }  // namespace pl

@@ -183,12 +183,23 @@ bool emit_photon(const Scene& scene, const GuidePhotonSources& src, Pcg32& rng, 
   return is_finite(ray.org) && is_finite(ray.dir) && is_finite(flux) && !is_black(flux);
 }
 
+// A lobe a guided vertex would sample (guidable()'s test for one closure).
+bool rough_closure(const Closure& c) {
+  if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<OrenNayarBsdf>(c.bsdf) ||
+      std::holds_alternative<TranslucentBsdf>(c.bsdf) || std::holds_alternative<SheenBsdf>(c.bsdf) ||
+      std::holds_alternative<VelvetBsdf>(c.bsdf))
+    return true;
+  const auto* m = std::get_if<ConductorBsdf>(&c.bsdf);
+  return m && m->alpha > 0.075f && !c.delta;
+}
+
 }  // namespace
 
 uint64_t trace_guide_photons(const Scene& scene, GuidePhotonSources& src, GuidingField& guide, uint64_t seed,
-                             uint64_t first, uint64_t last, int max_bounces) {
+                             uint64_t first, uint64_t last, int max_bounces, bool caustics) {
   if (src.empty()) return 0;
   uint64_t rays = 0;
+  std::vector<GuidingField::PhotonRecord> kept;
   ClosureList cl;
   RayState rs;
   rs.flags = uint8_t(kRayReflect | kRayDiffuse);  // not a camera ray
@@ -213,8 +224,19 @@ uint64_t trace_guide_photons(const Scene& scene, GuidePhotonSources& src, Guidin
       if (cl.n == 0) break;
       const bool front = dot(sp.ng, wo) > 0.0f;
       const Vec3 ng_out = front ? sp.ng : -sp.ng;
-      // After a bounce: light that the vertex's own light samples do not find.
-      if (bounce > 0 && guidable(cl)) {
+      if (caustics) {
+        // Every bounce so far was smooth: at a guidable surface this is L S+ D light (or, at
+        // the first hit, direct light, which light samples find), and the photon ends.
+        if (guidable(cl)) {
+          const float v = average(flux);
+          if (bounce > 0 && v > 0.0f && std::isfinite(v) && is_finite(sp.p)) {
+            kept.push_back({sp.p, GuidingField::to_square(wo), v, GuidingField::normal_class(ng_out)});
+            ++made;
+          }
+          break;
+        }
+      } else if (bounce > 0 && guidable(cl)) {
+        // After a bounce: light that the vertex's own light samples do not find.
         guide.record_photon(guide.cell_of(sp.p, ng_out), wo, average(flux));
         ++made;
       }
@@ -225,6 +247,7 @@ uint64_t trace_guide_photons(const Scene& scene, GuidePhotonSources& src, Guidin
       while (k + 1 < cl.n && uc >= acc) acc += cl.c[size_t(++k)].pick;
       const Closure& ch = cl.c[size_t(k)];
       if (std::holds_alternative<SubsurfaceBsdf>(ch.bsdf) || !(ch.pick > 0.0f)) break;
+      if (caustics && rough_closure(ch)) break;  // (L S* D ... light: the camera's records learn it)
       BsdfSample bs;
       const Vec2 u{rng.next_float(), rng.next_float()};
       if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo), u, rng.next_float(), bs)) break;
@@ -248,6 +271,7 @@ uint64_t trace_guide_photons(const Scene& scene, GuidePhotonSources& src, Guidin
       src.hits[item * size_t(GuidePhotonSources::kGrid * GuidePhotonSources::kGrid) + size_t(cell)].fetch_add(
           made, std::memory_order_relaxed);
   }
+  guide.keep_photons(kept);
   return rays;
 }
 

@@ -402,7 +402,8 @@ void Session::end_guiding_iteration() {
     pool_->parallel_for(size_t(chunks), [&](size_t c, int) {
       const uint64_t first = uint64_t(c) * chunk, last = std::min(n, first + chunk);
       if (cancel_.load(std::memory_order_relaxed)) return;
-      rays_.fetch_add(trace_guide_photons(*scene_, *photon_sources_, *guide_, seed, first, last, settings_.max_bounces),
+      rays_.fetch_add(trace_guide_photons(*scene_, *photon_sources_, *guide_, seed, first, last, settings_.max_bounces,
+                                          settings_.guiding_caustics),
                       std::memory_order_relaxed);
     });
     photon_sources_->end_iteration();

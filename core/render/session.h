@@ -68,6 +68,8 @@ struct RenderSettings {
   float guiding_photons = 0.0f;
   float guiding_photon_share = 0.5f;
   float guiding_photon_split = 1.0f;  // a photon record's weight in a cell's split count
+  // Caustic photons only (L S+ D, trace_guide_photons), kept over the iterations.
+  bool guiding_caustics = false;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs, and the colour

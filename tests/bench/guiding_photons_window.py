@@ -5,8 +5,9 @@ the equal-time ratio (error x time). Not named bench_*: build.py runs those.
     .venv/bin/python tests/bench/guiding_photons_window.py [--seeds N] [--spp S] [--ref PATH]
 
 The reference (plain renders, --ref-renders x --ref-spp, seeds 1000...) is rendered once and
-cached at --ref. Variants: name=photons:share[:split] (photons per pixel and training sample,
-their share of a cell's distribution, a photon record's weight in the split count). Relative MSE as the bench's (equal_time.rel_mse); beside the
+cached at --ref. Variants: name=photons:share[:split[:caustics[:probability]]] (photons per
+pixel and training sample, their share of a cell's distribution, a photon record's weight in
+the split count, 1: caustic photons only, kept over the iterations; the guide's probability). Relative MSE as the bench's (equal_time.rel_mse); beside the
 mean, the pixels' median and the image without its worst 1 %."""
 import argparse
 import sys
@@ -21,15 +22,15 @@ from blender_util import load_addon, render_to_array  # noqa: E402
 import realistic_scenes as rs  # noqa: E402
 
 MAX_BOUNCES = 12
-PHOTONS = {"photons": 0.0, "share": 0.5, "split": 1.0}
+PHOTONS = {"photons": 0.0, "share": 0.5, "split": 1.0, "caustics": 0.0, "probability": 0.5}
 
 
-def render(guiding, spp, seed, photons=0.0, share=0.5, split=1.0):
-    PHOTONS.update(photons=photons, share=share, split=split)
+def render(guiding, spp, seed, photons=0.0, share=0.5, split=1.0, caustics=0.0, probability=0.5):
+    PHOTONS.update(photons=photons, share=share, split=split, caustics=caustics, probability=probability)
     scene = rs.window_room()
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     img = render_to_array(scene, "PATHLIGHT", max_bounces=MAX_BOUNCES, samples=spp, seed=seed, use_guiding=guiding)
-    return img[..., :3].astype(np.float64), time.perf_counter() - t
+    return img[..., :3].astype(np.float64), time.perf_counter() - t, time.process_time() - cpu
 
 
 def errors(img, ref):
@@ -56,6 +57,8 @@ def main():
         st.guiding_photons = PHOTONS["photons"]
         st.guiding_photon_share = PHOTONS["share"]
         st.guiding_photon_split = PHOTONS["split"]
+        st.guiding_caustics = bool(PHOTONS["caustics"])
+        st.guiding_probability = PHOTONS["probability"]
         return st
     addon.session.render_settings = patched
 
@@ -73,10 +76,10 @@ def main():
     for k in range(args.seeds):  # interleaved, so that the machine's load falls on all alike
         for name, spec in variants:
             if spec is None:
-                img, t = render(False, args.spp, 1 + k)
+                img, t, cpu = render(False, args.spp, 1 + k)
             else:
-                img, t = render(True, args.spp, 1 + k, *spec)
-            res[name].append(errors(img, ref) + (t,))
+                img, t, cpu = render(True, args.spp, 1 + k, *spec)
+            res[name].append(errors(img, ref) + (t, cpu))
             print(name, k, res[name][-1], flush=True)
     base = np.array(res["plain"])
     print(f"\n{args.seeds} seeds x {args.spp} spp, 96x72; error ratios plain / variant "
@@ -85,8 +88,11 @@ def main():
         a = np.array(res[name])
         r = base[:, :3].mean(0) / a[:, :3].mean(0)
         tr = a[:, 3].mean() / base[:, 3].mean()
+        # CPU time too (the process's, all threads): less at the mercy of a shared machine's load
+        cr = a[:, 4].mean() / base[:, 4].mean()
         print(f"{name}: MSE {a[:, 0].mean():.4f}, {r[0]:.2f}x / {r[1]:.2f}x / {r[2]:.2f}x, "
-              f"time {tr:.2f}x, equal time {r[0] / tr:.2f}x; per seed MSE "
+              f"time {tr:.2f}x, equal time {r[0] / tr:.2f}x; CPU time {cr:.2f}x, equal CPU time "
+              f"{r[0] / cr:.2f}x; per seed MSE "
               + " ".join(f"{x:.3f}" for x in a[:, 0]))
 
 

@@ -69,8 +69,12 @@ def test_settings_reach_the_core():
     st = session.render_settings(get_core(), scene)
     assert st.adaptive_threshold == 0.0 and st.sampler == "sobol"
     assert not st.guiding  # off by default, as Cycles' Path Guiding
+    assert st.guiding_photons == 0.0 and not st.guiding_caustics
     props.use_guiding = True
-    assert session.render_settings(get_core(), scene).guiding
+    st = session.render_settings(get_core(), scene)
+    assert st.guiding
+    # The guided path trains with caustic photons (docs/design/sampling.md)
+    assert st.guiding_photons > 0.0 and st.guiding_caustics and st.guiding_photon_share == pytest.approx(0.15)
 
 
 def test_animated_seed_adds_the_frame():
