@@ -111,8 +111,9 @@ def convert_material_data(mat, warn, images=None, uv_sets=None, use_schlick=Fals
     if compiled.problems:
         warn(f"Material '{mat.name}': " + "; ".join(compiled.problems))
     return MaterialData(mat.name, base, emission, compiled.program, compiled.volume_absorption,
-                        use_schlick, compiled.uv_sets, compiled.volume, compiled.displacement,
-                        compiled.displacement_method)
+                        use_schlick, compiled.uv_sets, compiled.volume,
+                        displacement=compiled.displacement,
+                        displacement_method=compiled.displacement_method)
 
 
 class MaterialTable:

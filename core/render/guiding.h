@@ -89,7 +89,6 @@ class GuidingField {
   // Any thread, during photon tracing; the records' order does not matter (fixed-point sums).
   void keep_photons(std::vector<PhotonRecord>& records);
   static uint8_t normal_class(Vec3 n);
-  size_t kept_photons() const { return photon_map_.size(); }
 
   // The unit square's equal-area map of the sphere (z = cos theta, phi around z).
   static Vec2 to_square(Vec3 w);
