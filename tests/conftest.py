@@ -17,7 +17,8 @@ sys.path[1:1] = [h for h in HELPERS if h not in sys.path]
 def pytest_configure(config):
     config.addinivalue_line(
         "markers",
-        "converged: renders millions of samples to compare two estimators at low noise; the "
+        "converged: a long convergence render (millions of samples: two estimators at low noise, or an "
+        "estimator against a closed form); the "
         "sanitizer step of .ci/run deselects it (5x slower there), and cheaper tests run the same "
         "code paths under the sanitizer")
     config.addinivalue_line(

@@ -927,7 +927,7 @@ class Scene {
   static void set_instance_matrix(InstanceData& in, const Mat4& m);
   void surface_point_in(const InstanceData& in, const TriangleVerts& tv, const Hit& h, SurfacePoint& sp) const;
   Vec3 world_color_{0.0f};
-  bool world_samples_ = true;
+  bool world_samples_ = false;  // opt-in: a furnace loses its zero variance (sampling.md)
   ShaderProgram world_volume_;
   CameraDesc camera_;
   bool has_camera_ = false;

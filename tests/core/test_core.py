@@ -30,6 +30,7 @@ def test_white_furnace_albedo_1_disappears():
     assert abs(img[..., :3].mean() - 1.0) < 0.01
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_emitting_enclosure_reaches_le_over_one_minus_albedo():
     # Inside a closed sphere with emission Le and albedo a, radiance is Le / (1 - a) everywhere
     # (pbrt-v4's analytic integrator test): exercises emission, NEE/MIS, bounces and roulette.

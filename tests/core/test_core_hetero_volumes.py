@@ -138,6 +138,7 @@ def test_delta_tracking_stays_unbiased_with_too_small_majorants():
     assert abs(passed.mean() - math.exp(-tau(2.0))) < 5.0 * passed.std() / math.sqrt(n) + 1e-3
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_white_furnace_of_a_heterogeneous_medium():
     """Albedo 1 under a white world: radiance 1 within 1 % (mean and centre). With majorants
     too small (0.6 of the sampled maxima times the 1.5 safety factor: 0.9, below the density
@@ -155,6 +156,7 @@ def test_white_furnace_of_a_heterogeneous_medium():
     assert abs(float(img[..., :3].mean()) - 1.0) < 0.02
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_absorbing_and_emitting_program_closed_forms():
     """Along the central ray through x (chord 2, sigma_a = sigma(x)): the world seen through
     it, exp(-tau(2)); an emission e in a black world: e * integral of exp(-tau) over the chord."""

@@ -87,6 +87,7 @@ def test_sun_irradiance_and_angle():
         assert abs(img[..., 0].mean() / exp - 1.0) < 0.005, (angle, img[..., 0].mean(), exp)
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_area_light_matches_numerical_integration():
     center, sx, sy = np.array([0.3, 0.0, 1.5]), 1.2, 0.6
     radiance = 4.0
@@ -916,6 +917,7 @@ def spread_attenuation(tan_a, spread):
     return np.maximum((np.tan(half) - tan_a) * norm, 0.0)
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 @pytest.mark.parametrize("ellipse", [False, True], ids=["rect", "ellipse"])
 def test_area_light_spread_matches_numerical_integration(ellipse):
     """Spread 40 degrees (Cycles' soft-box grid): each point of the plane is lit by the part of

@@ -44,6 +44,7 @@ def centre(img):
     return img[6:11, 6:11, :3].mean(axis=(0, 1))
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_program_overlapping_a_homogeneous_box_sums_their_extinction_and_emission():
     """Chord along x through the cube [-1, 1]^3 (sigma = A + B (x + 1)) and a box over
     x in [0, 3] (sigma C): transmittance exp(-tau(2) - 3 C); the innermost layer alone would
@@ -156,6 +157,7 @@ def indicator_program(lo, hi, c, albedo, g):
     return prog
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_nested_homogeneous_box_renders_as_one_program_with_its_sum():
     """A homogeneous box nested in the linear cube (a mixed stack: summed majorants, layers
     evaluated per collision, the phase chosen per layer) against one program holding the same
@@ -192,6 +194,7 @@ def test_nested_homogeneous_box_renders_as_one_program_with_its_sum():
     assert rel.max() < 0.03, rel.max()
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 @pytest.mark.parametrize("inner", ["program", "homogeneous"])
 def test_overlap_of_coloured_layers_mixes_their_phases_per_channel(inner):
     """A program (grey, g 0), or a homogeneous cube, overlapped by a homogeneous box whose

@@ -171,6 +171,7 @@ def converged_renders():
     return {tree: renders(lamp_room(tree), seeds=8, spp=64) for tree in ("off", "on")}
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_tree_renders_the_power_samplers_image(converged_renders):
     off, on = converged_renders["off"], converged_renders["on"]
     assert abs(on.mean() / off.mean() - 1.0) < 0.01
@@ -226,6 +227,7 @@ def test_unbalanced_trees_keep_exact_probabilities():
     assert np.array_equal(pmf, pmfs[np.arange(len(p)), k])
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_tree_in_fog_is_unbiased():
     """The lamp room filled with scattering fog: light samples from medium points (no normal)
     and the MIS pdfs of emitters that phase-sampled rays find must agree, tree on or off
