@@ -113,6 +113,22 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
         return read_exr(render.filepath)
 
 
+def render_multilayer_file(scene, path):
+    """Renders `scene` with its engine's current settings through Blender's own file output, as a
+    32-bit multilayer EXR at `path` (no compositor or sequencer), and reads the first view layer's
+    channels back: {"<pass>.<channel>": float32 (H, W)}, row 0 = top."""
+    scene.render.use_compositing = scene.render.use_sequencer = False
+    image = scene.render.image_settings
+    image.file_format, image.color_depth, image.exr_codec = 'OPEN_EXR_MULTILAYER', '32', 'ZIP'
+    scene.render.filepath = str(path)
+    scene.render.use_file_extension = False
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    with OpenEXR.File(str(path), separate_channels=True) as exr:
+        layer = scene.view_layers[0].name + "."
+        return {k[len(layer):]: np.array(v.pixels, np.float32) for k, v in exr.channels().items()
+                if k.startswith(layer)}
+
+
 def read_exr(path):
     """RGBA float32 (H, W, 4) of an EXR file, row 0 = top (the file's own order)."""
     with OpenEXR.File(str(path)) as exr:  # closing it empties channels(): copy first

@@ -4,7 +4,7 @@ validation."""
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, quad, render, uv_sphere
+from core_scenes import add_object, camera, closure, core, quad, render, uv_sphere
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
@@ -21,15 +21,6 @@ def furnace(program, samples=64, size=32, world=1.0, **kw):
     img, stats = render(pc, s, size, size, samples=samples, max_bounces=1024)
     assert stats["nonfinite_samples"] == 0
     return img[..., :3]
-
-
-def closure(kind, **params):
-    regs, prog = {}, []
-    for i, (k, v) in enumerate(params.items()):
-        prog.append(("const", i, v if isinstance(v, tuple) else (v,)))
-        regs[k] = i
-    prog.append(("closure", kind, None, regs))
-    return prog
 
 
 def test_smooth_glass_and_mirror_vanish_in_a_white_furnace():

@@ -14,7 +14,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
+from blender_util import BOX_FILTER, core_has, load_addon, render_to_array
 from light_scenes import add_light, box, camera, diffuse_material, empty_scene, plane
 from material_scenes import region_means
 
@@ -22,9 +22,7 @@ load_addon()
 
 STEP_RATE = 0.3  # Cycles' scene and material Volume Step Rate for the references
 
-needs_het = pytest.mark.skipif(not (core_available() and hasattr(load_addon().core.get_core().Scene,
-                                                                 "medium_majorants")),
-                               reason="the core has no heterogeneous volumes")
+needs_het = pytest.mark.skipif(not core_has("Scene", "medium_majorants"), reason="the core has no heterogeneous volumes")
 
 
 @pytest.fixture(autouse=True, scope="module")

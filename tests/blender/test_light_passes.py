@@ -12,10 +12,10 @@ import math
 
 import bpy
 import numpy as np
-import OpenEXR
 import pytest
 
-from blender_util import core_available, core_has, empty_scene_with_camera, load_addon, node_material
+from blender_util import (core_available, core_has, empty_scene_with_camera, load_addon, node_material,
+                          render_multilayer_file)
 from light_scenes import world_color
 
 addon = load_addon()
@@ -113,16 +113,7 @@ def render_passes(sc, engine, path, samples, seed=1):
         p.samples, p.use_adaptive_sampling, p.max_bounces = samples, False, 12
         p.diffuse_bounces = p.glossy_bounces = p.transmission_bounces = p.volume_bounces = 12
         p.filter_type, p.filter_width = 'BOX', 1.0
-    sc.render.use_compositing = sc.render.use_sequencer = False
-    image = sc.render.image_settings
-    image.file_format, image.color_depth, image.exr_codec = 'OPEN_EXR_MULTILAYER', '32', 'ZIP'
-    sc.render.filepath = str(path)
-    sc.render.use_file_extension = False
-    bpy.ops.render.render(write_still=True)
-    with OpenEXR.File(str(path), separate_channels=True) as exr:
-        layer = sc.view_layers[0].name + "."
-        return {k[len(layer):]: np.array(v.pixels, np.float32) for k, v in exr.channels().items()
-                if k.startswith(layer)}
+    return render_multilayer_file(sc, path)
 
 
 def rgb(ch, name):

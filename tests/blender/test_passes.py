@@ -11,7 +11,7 @@ import OpenEXR
 import pytest
 
 from blender_util import core_available, core_has, empty_scene_with_camera, load_addon, node_material, read_exr, \
-    render_to_array, Warnings
+    render_multilayer_file, render_to_array, Warnings
 from light_scenes import world_color
 
 addon = load_addon()
@@ -63,19 +63,7 @@ def render_multilayer(sc, path, samples=4, **props):
     props = {"filter_type": 'BOX', "filter_width": 1.0, **props}
     for key, value in props.items():
         setattr(sc.pathlight, key, value)
-    sc.render.use_compositing = False
-    sc.render.use_sequencer = False
-    image = sc.render.image_settings
-    image.file_format = 'OPEN_EXR_MULTILAYER'
-    image.color_depth = '32'
-    image.exr_codec = 'ZIP'
-    sc.render.filepath = str(path)
-    sc.render.use_file_extension = False
-    bpy.ops.render.render(write_still=True)
-    with OpenEXR.File(str(path), separate_channels=True) as exr:
-        layer = sc.view_layers[0].name + "."
-        return {k[len(layer):]: np.array(v.pixels, np.float32) for k, v in exr.channels().items()
-                if k.startswith(layer)}
+    return render_multilayer_file(sc, path)
 
 
 def enable_all_passes(view_layer):

@@ -16,7 +16,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, Warnings, core_available, load_addon, render_to_array
+from blender_util import BOX_FILTER, core_has, load_addon, render_to_array, Warnings
 from light_scenes import add_light, box, camera, diffuse_material, empty_scene
 from material_scenes import region_means
 
@@ -25,9 +25,7 @@ load_addon()
 ROOM = 3.0  # the room's edge (metres)
 STEP = 0.075  # Cycles' world Volume Step Size for the references
 
-needs_het = pytest.mark.skipif(not (core_available() and hasattr(load_addon().core.get_core().Scene,
-                                                                 "medium_majorants")),
-                               reason="the core has no heterogeneous volumes")
+needs_het = pytest.mark.skipif(not core_has("Scene", "medium_majorants"), reason="the core has no heterogeneous volumes")
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -134,6 +134,16 @@ def render_lit_mesh(pc, pos, tris, size=24, samples=4, **mesh_kw):
     return render(pc, s, size, size, samples)[0]
 
 
+def closure(kind, **params):
+    """A shader program of one closure whose named inputs are constants (numbers or tuples)."""
+    regs, prog = {}, []
+    for i, (k, v) in enumerate(params.items()):
+        prog.append(("const", i, v if isinstance(v, tuple) else (v,)))
+        regs[k] = i
+    prog.append(("closure", kind, None, regs))
+    return prog
+
+
 def region_means(img, grid=8):
     h, w = img.shape[:2]
     return img[: h // grid * grid, : w // grid * grid, :3].reshape(grid, h // grid, grid, w // grid, 3).mean(axis=(1, 3))

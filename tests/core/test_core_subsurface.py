@@ -4,21 +4,12 @@ walk inside instanced meshes, and bad input (open meshes, zero, huge and NaN rad
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, quad, render, uv_sphere
+from core_scenes import add_object, camera, closure, core, quad, render, uv_sphere
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 RW, SKIN = 1.0, 2.0  # the add-on's numbers for Random Walk and Random Walk (Skin)
-
-
-def closure(kind, **params):
-    regs, prog = {}, []
-    for i, (k, v) in enumerate(params.items()):
-        prog.append(("const", i, v if isinstance(v, tuple) else (v,)))
-        regs[k] = i
-    prog.append(("closure", kind, None, regs))
-    return prog
 
 
 def box(lo, hi):

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from core_scenes import (add_object, core, cornell, emitting_enclosure, furnace_scene, region_means, render,
-                         run_session, uv_sphere)
+from core_scenes import (add_object, closure, core, cornell, emitting_enclosure, furnace_scene, region_means,
+                         render, run_session, uv_sphere)
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
@@ -263,15 +263,6 @@ def test_bad_photon_settings_fall_back():
     img, stats = render(pc, lamp_box(pc), 16, 16, samples=8, seed=3, guiding=True, guiding_photons=1.0,
                         guiding_photon_share=float("nan"), guiding_photon_split=float("inf"))
     assert np.all(np.isfinite(img)) and stats["nonfinite_samples"] == 0
-
-
-def closure(kind, **params):
-    regs, prog = {}, []
-    for i, (k, v) in enumerate(params.items()):
-        prog.append(("const", i, v if isinstance(v, tuple) else (v,)))
-        regs[k] = i
-    prog.append(("closure", kind, None, regs))
-    return prog
 
 
 MIRROR = (-0.4, -0.1, 1.2)  # the smooth metal ball's centre in mirror_box
