@@ -56,6 +56,9 @@ struct MediumLayer {
   const HeteroMedium* het;
   const PhaseLobe* lobes;
   int n_lobes;
+  // The layer's instance (light linking: scattering uses the innermost one's light set, as
+  // Cycles' volume shading object); UINT32_MAX: the world's.
+  uint32_t instance;
 };
 constexpr uint32_t kWorldMedium = 0xFFFFFFFFu;  // the world's Volume: never left
 
@@ -108,10 +111,7 @@ inline Phase choose_layer_phase(int n, const Vec3* ss, const Phase* phase, const
 struct Medium {
   MediumLayer layer[4];
   int n = 0;
-  // Each layer's instance (light linking: scattering in it uses the innermost one's light set,
-  // as Cycles' volume shading object); UINT32_MAX: the world's.
-  uint32_t instance[4] = {UINT32_MAX, UINT32_MAX, UINT32_MAX, UINT32_MAX};
-  uint32_t inner_instance() const { return n ? instance[n - 1] : UINT32_MAX; }
+  uint32_t inner_instance() const { return n ? layer[n - 1].instance : UINT32_MAX; }
   // What a point inside all the layers sees. Cycles' volume stack sums every volume the path is
   // in (overlapping objects, a volume inside the world's fog, absorbing glass in fog), so
   // homogeneous layers add up: coefficients and emission summed, the phase their common one
@@ -168,16 +168,16 @@ struct Medium {
   }
   void enter(uint32_t m, const ShaderProgram& p, const HeteroMedium* het = nullptr, uint32_t inst = UINT32_MAX) {
     if (n < 4) {
-      instance[n] = inst;
       const int nl = het ? 0 : int(p.phase_lobes.size());
-      layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase, m, het, nl ? p.phase_lobes.data() : nullptr, nl};
+      layer[n++] = {p.sigma_a, p.sigma_s, p.volume_emission, p.phase, m, het, nl ? p.phase_lobes.data() : nullptr, nl,
+                    inst};
     }
     combine();
   }
   void leave(uint32_t m) {
     for (int i = n - 1; i >= 0; --i)
       if (layer[i].material == m) {
-        for (int j = i; j + 1 < n; ++j) layer[j] = layer[j + 1], instance[j] = instance[j + 1];
+        for (int j = i; j + 1 < n; ++j) layer[j] = layer[j + 1];
         --n;
         combine();
         return;
