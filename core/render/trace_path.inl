@@ -870,10 +870,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
               const auto through_het = [&](float tl) {
                 return beta * ratio_track(majorants, ray.org, d, tl, vrng, density);
               };
-              L += links ? light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
-                                              mis_org, mis_n, through_het, mis_set)
-                         : light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
-                                      mis_n, through_het);
+              L += light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
+                                      mis_n, through_het, mis_set);
               lights_counted = true;
             }
             const bool r = delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
@@ -988,7 +986,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
                 nee_weight = pd * pd / (pd * pd + pe * pe);
               }
               if (hits && !(nee && !prev_delta && prev_samples_only)) {
-                const Vec3 v = light_hits(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n, through);
+                const Vec3 v = light_hits<kLinks>(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n,
+                                                  through, mis_set);
                 L += v;
                 if (kAovs && lp) lp_found(v);
               }
@@ -1084,10 +1083,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     }
     if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only)) {
-      const Vec3 lh = links ? light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
-                                                 mis_org, mis_n, through, mis_set)
-                            : light_hits(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
-                                         mis_n, through);
+      const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
+                                         mis_org, mis_n, through, mis_set);
       L += lh;
       if constexpr (kAovs) {
         if (lp) lp_found(lh);
