@@ -247,21 +247,7 @@ bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
     const Node& n = tree[e.id];
     alignas(16) float dist[4];
     unsigned mask = lt.test(n, tmax, dist);
-    Entry hits[4];
-    int nh = 0;
-    while (mask) {  // nearest first: pushed farthest first
-      const int k = __builtin_ctz(mask);
-      mask &= mask - 1;
-      const Entry x{n.child[k], n.count[k], dist[k]};
-      int j = nh++;
-      while (j > 0 && hits[j - 1].t < x.t) {
-        hits[j] = hits[j - 1];
-        --j;
-      }
-      hits[j] = x;
-    }
-    if (sp + nh > kStack) continue;  // unreachable (bounded depth): never overrun
-    for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
+    bvh_detail::push_hit_lanes(n, mask, dist, stack, sp, kStack);
   }
   return found;
 }

@@ -9,6 +9,7 @@
 
 #include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
+#include "geometry/wide4.h"
 
 namespace pl {
 namespace {
@@ -87,44 +88,9 @@ struct Builder {
   }
 };
 
-// Collapses the binary tree into 8-wide nodes (each interior child replaced by its two children,
-// the largest first, while there is room): a room's few objects sit in one or two nodes, and a
-// ray tests all of them at once (one AVX or two SSE box tests) instead of one binary node per level.
-struct Collapser {
-  const std::vector<BvhNode>& bin;
-  const std::vector<uint32_t>& refs;
-  std::vector<TlasNode>& out;
-
-  uint32_t collapse(uint32_t b) {
-    uint32_t kids[kWidth];
-    const int n = bvh_detail::gather_wide_children(bin.data(), b, kids, kWidth);
-    const uint32_t w = uint32_t(out.size());
-    out.emplace_back();
-    for (int k = 0; k < kWidth; ++k) {
-      for (int r = 0; r < 3; ++r) {
-        out[w].bounds[2 * r][k] = kInf;
-        out[w].bounds[2 * r + 1][k] = -kInf;
-      }
-      out[w].child[k] = 0;
-      out[w].count[k] = 0;
-    }
-    for (int k = 0; k < n; ++k) {
-      const BvhNode& c = bin[kids[k]];
-      for (int r = 0; r < 3; ++r) {
-        out[w].bounds[2 * r][k] = c.lo[r];
-        out[w].bounds[2 * r + 1][k] = c.hi[r];
-      }
-      if (c.is_leaf()) {
-        out[w].child[k] = refs[c.left_or_first];  // kMaxLeaf == 1: one instance
-        out[w].count[k] = 1;
-      } else {
-        const uint32_t ci = collapse(kids[k]);
-        out[w].child[k] = ci;
-      }
-    }
-    return w;
-  }
-};
+// The binary tree collapsed into 8-wide nodes (bvh_detail::collapse_wide): a room's few objects
+// sit in one or two nodes, and a ray tests all of them at once (one AVX or two SSE box tests)
+// instead of one binary node per level.
 
 }  // namespace
 
@@ -172,7 +138,10 @@ void Tlas::build(std::vector<TlasInstance> instances) {
     bin.emplace_back();
     b.build(0, 0, uint32_t(refs.size()), 0);
     nodes_.reserve(refs.size() / (kWidth - 1) + 1);  // full nodes; fewer when lanes stay empty
-    Collapser{bin, refs, nodes_}.collapse(0);
+    bvh_detail::collapse_wide(bin, 0, nodes_, [&](const BvhNode& c, uint32_t& child, uint32_t& count) {
+      child = refs[c.left_or_first];  // kMaxLeaf == 1: one instance
+      count = 1;
+    });
     nodes_.shrink_to_fit();
   }
   stats_.instances = refs.size();

@@ -1,5 +1,6 @@
 // The 4-wide trees of curves and points (curves.cpp, points.cpp): a binary tree collapsed into
-// WideBvhNode<4> and the per-ray slab test of a node's 4 lanes. Not for bvh8_avx2.cpp: these
+// WideBvhNode<4> (the collapse also builds the TLAS's 8-wide nodes) and the per-ray slab test of
+// a node's 4 lanes. Not for bvh8_avx2.cpp: these
 // have external linkage, and an AVX2 copy must never be linked into code for other CPUs
 // (bvh_common.h).
 #pragma once
@@ -18,14 +19,16 @@
 namespace pl {
 namespace bvh_detail {
 
-// The binary tree collapsed into 4-wide nodes (the top level's rule: the largest interior
-// child opened first while lanes are free).
-inline uint32_t collapse_wide4(const std::vector<BvhNode>& bin, uint32_t b, std::vector<WideBvhNode<4>>& out) {
-  uint32_t kids[4];
-  const int n = bvh_detail::gather_wide_children(bin.data(), b, kids, 4);
+// The binary tree below node b collapsed into W-wide nodes appended to `out` (the largest
+// interior child opened first while lanes are free); leaf(c, child, count) fills the lane of a
+// binary leaf c. The curves' and points' trees (W = 4) and the TLAS (W = 8).
+template <int W, class Leaf>
+uint32_t collapse_wide(const std::vector<BvhNode>& bin, uint32_t b, std::vector<WideBvhNode<W>>& out, const Leaf& leaf) {
+  uint32_t kids[W];
+  const int n = bvh_detail::gather_wide_children(bin.data(), b, kids, W);
   const uint32_t w = uint32_t(out.size());
   out.emplace_back();
-  for (int k = 0; k < 4; ++k) {
+  for (int k = 0; k < W; ++k) {
     for (int r = 0; r < 3; ++r) {
       out[w].bounds[2 * r][k] = kInf;
       out[w].bounds[2 * r + 1][k] = -kInf;
@@ -40,14 +43,34 @@ inline uint32_t collapse_wide4(const std::vector<BvhNode>& bin, uint32_t b, std:
       out[w].bounds[2 * r + 1][k] = c.hi[r];
     }
     if (c.is_leaf()) {
-      out[w].child[k] = c.left_or_first;
-      out[w].count[k] = c.count;
+      leaf(c, out[w].child[k], out[w].count[k]);
     } else {
-      const uint32_t ci = collapse_wide4(bin, kids[k], out);
+      const uint32_t ci = collapse_wide(bin, kids[k], out, leaf);
       out[w].child[k] = ci;
     }
   }
   return w;
+}
+
+// A 4-wide node's hit lanes (mask, their entry distances dist) pushed onto a traversal stack,
+// farthest first so the nearest pops first. Entry: {id, count, t}.
+template <class Entry>
+inline void push_hit_lanes(const WideBvhNode<4>& n, unsigned mask, const float* dist, Entry* stack, int& sp, int capacity) {
+  Entry hits[4];
+  int nh = 0;
+  while (mask) {
+    const int k = __builtin_ctz(mask);
+    mask &= mask - 1;
+    const Entry x{n.child[k], n.count[k], dist[k]};
+    int j = nh++;
+    while (j > 0 && hits[j - 1].t < x.t) {
+      hits[j] = hits[j - 1];
+      --j;
+    }
+    hits[j] = x;
+  }
+  if (sp + nh > capacity) return;  // unreachable (bounded depth): never overrun
+  for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
 }
 
 // The curves' and points' trees: a 4-wide tree over `boxes` (binned SAH, leaves of up to 4,
@@ -111,7 +134,10 @@ inline Aabb build_wide4(const std::vector<Aabb>& boxes, std::vector<WideBvhNode<
   }
   nodes.clear();
   nodes.reserve(bin.size() / 3 + 1);
-  collapse_wide4(bin, 0, nodes);
+  collapse_wide(bin, 0, nodes, [](const BvhNode& c, uint32_t& child, uint32_t& count) {
+    child = c.left_or_first;
+    count = c.count;
+  });
   nodes.shrink_to_fit();
   return Aabb{bin[0].lo, bin[0].hi};
 }
