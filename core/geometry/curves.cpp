@@ -491,60 +491,25 @@ template <bool AnyHit, bool Deform>
 bool CurveBvh::traverse(const Ray& ray, Hit& hit) const {
   // (Deforming trees: the slice of the shutter the ray's time falls in; its leaves index pieces.)
   const int slice = Deform ? std::min(int(clampf(ray.time, 0.0f, 1.0f) * float(kSlices)), kSlices - 1) : 0;
-  const std::vector<Node>& tree = Deform ? slice_nodes_[slice] : nodes_;
-  const uint32_t* refs = Deform ? slice_refs_[slice].data() : nullptr;
-  if (tree.empty()) return false;
-  const bvh_detail::LaneTest4 lt(ray, bvh_detail::safe_inverse(ray.dir));
-  float tmax = ray.tmax;
-  bool found = false;
   CurvePiece scratch;
-  struct Entry {
-    uint32_t id, count;  // count > 0: a leaf of `count` pieces from `id`
-    float t;
-  };
-  // A node pops one entry and pushes at most 4; the tree is under 48 + log2 n binary levels.
-  constexpr int kStack = 4 * 128;
-  Entry stack[kStack];
-  int sp = 0;
-  stack[sp++] = {0, 0, 0.0f};
-  while (sp > 0) {
-    const Entry e = stack[--sp];
-    if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
-    if (e.count > 0) {
-      for (uint32_t leaf = e.id; leaf < e.id + e.count; ++leaf) {
-        const uint32_t i = Deform ? refs[leaf] : leaf;
-        float t, u;
-        if (pieces_[i].curve == ray.self_curve) continue;  // the strand the ray leaves
+  return bvh_detail::traverse_wide4<AnyHit>(
+      Deform ? slice_nodes_[slice] : nodes_, Deform ? slice_refs_[slice].data() : nullptr, ray,
+      [&](uint32_t i, float& tmax) {
+        if (pieces_[i].curve == ray.self_curve) return false;  // the strand the ray leaves
         // (Deforming sets: the piece at the ray's time; a copy only there.)
         const CurvePiece& pc = leaf_piece<Deform>(i, ray.time, scratch);
-        if (pc.ribbon) {
-          float v;
-          if (intersect_ribbon(pc, ray.org, ray.dir, tmax, t, u, v)) {
-            if (AnyHit) return true;
-            tmax = t;
-            hit.t = t;
-            hit.b1 = u;
-            hit.b2 = v;
-            hit.prim = i;
-            found = true;
-          }
-        } else if (intersect_piece(pc, ray.org, ray.dir, tmax, t, u)) {
-          if (AnyHit) return true;
-          tmax = t;
-          hit.t = t;
-          hit.b1 = u;
-          hit.prim = i;
-          found = true;
-        }
-      }
-      continue;
-    }
-    const Node& n = tree[e.id];
-    alignas(16) float dist[4];
-    unsigned mask = lt.test(n, tmax, dist);
-    bvh_detail::push_hit_lanes(n, mask, dist, stack, sp, kStack);
-  }
-  return found;
+        float t, u, v = 0.0f;
+        if (!(pc.ribbon ? intersect_ribbon(pc, ray.org, ray.dir, tmax, t, u, v)
+                        : intersect_piece(pc, ray.org, ray.dir, tmax, t, u)))
+          return false;
+        if (AnyHit) return true;
+        tmax = t;
+        hit.t = t;
+        hit.b1 = u;
+        if (pc.ribbon) hit.b2 = v;
+        hit.prim = i;
+        return true;
+      });
 }
 
 namespace {

@@ -204,52 +204,26 @@ template <bool AnyHit, bool Deform>
 bool PointBvh::traverse(const Ray& ray, Hit& hit) const {
   // (Deforming trees: the slice of the shutter the ray's time falls in; its leaves index spheres.)
   const int slice = Deform ? std::min(int(clampf(ray.time, 0.0f, 1.0f) * float(kSlices)), kSlices - 1) : 0;
-  const std::vector<Node>& tree = Deform ? slice_nodes_[slice] : nodes_;
-  const uint32_t* refs = Deform ? slice_refs_[slice].data() : nullptr;
-  if (tree.empty()) return false;
-  const bvh_detail::LaneTest4 lt(ray, bvh_detail::safe_inverse(ray.dir));
-  float tmax = ray.tmax;
-  bool found = false;
-  struct Entry {
-    uint32_t id, count;  // count > 0: a leaf of `count` spheres from `id`
-    float t;
-  };
-  constexpr int kStack = 4 * 128;
-  Entry stack[kStack];
-  int sp = 0;
-  stack[sp++] = {0, 0, 0.0f};
-  while (sp > 0) {
-    const Entry e = stack[--sp];
-    if (!(e.t <= tmax * bvh_detail::kBoxExitScale)) continue;
-    if (e.count > 0) {
-      for (uint32_t leaf = e.id; leaf < e.id + e.count; ++leaf) {
-        const uint32_t i = Deform ? refs[leaf] : leaf;
+  return bvh_detail::traverse_wide4<AnyHit>(
+      Deform ? slice_nodes_[slice] : nodes_, Deform ? slice_refs_[slice].data() : nullptr, ray,
+      [&](uint32_t i, float& tmax) {
         PointSphere moved_sphere;  // (deforming clouds: the sphere at the ray's time)
         if constexpr (Deform) moved_sphere = deformed(i, ray.time);
         const PointSphere& s = Deform ? moved_sphere : spheres_[i];
-        if ((s.point | kSelfPointBit) == ray.self_curve) continue;  // the sphere the ray leaves
+        if ((s.point | kSelfPointBit) == ray.self_curve) return false;  // the sphere the ray leaves
         float t;
         Vec3 n;
         const bool h = s.frame == PointSphere::kRoundPoint
                            ? intersect_sphere(s.c, s.r, ray.org, ray.dir, tmax, t, n)
                            : intersect_ellipsoid(s.c, s.r, frames_[s.frame], ray.org, ray.dir, tmax, t, n);
-        if (h) {
-          if (AnyHit) return true;
-          tmax = t;
-          hit.t = t;
-          encode_sphere_normal(n, hit.b1, hit.b2);
-          hit.prim = i;
-          found = true;
-        }
-      }
-      continue;
-    }
-    const Node& n = tree[e.id];
-    alignas(16) float dist[4];
-    unsigned mask = lt.test(n, tmax, dist);
-    bvh_detail::push_hit_lanes(n, mask, dist, stack, sp, kStack);
-  }
-  return found;
+        if (!h) return false;
+        if (AnyHit) return true;
+        tmax = t;
+        hit.t = t;
+        encode_sphere_normal(n, hit.b1, hit.b2);
+        hit.prim = i;
+        return true;
+      });
 }
 
 void PointBvh::add_moving(std::vector<PointSphere> spheres, std::vector<DecomposedTransform> steps,

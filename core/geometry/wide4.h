@@ -1,7 +1,7 @@
 // The 4-wide trees of curves and points (curves.cpp, points.cpp): a binary tree collapsed into
-// WideBvhNode<4> (the collapse also builds the TLAS's 8-wide nodes) and the per-ray slab test of
-// a node's 4 lanes. Not for bvh8_avx2.cpp: these
-// have external linkage, and an AVX2 copy must never be linked into code for other CPUs
+// WideBvhNode<4> (the collapse also builds the TLAS's 8-wide nodes), the per-ray slab test of a
+// node's 4 lanes and the nearest-first traversal. Not for bvh8_avx2.cpp: these have external
+// linkage, and an AVX2 copy must never be linked into code for other CPUs
 // (bvh_common.h).
 #pragma once
 #include <algorithm>
@@ -50,27 +50,6 @@ uint32_t collapse_wide(const std::vector<BvhNode>& bin, uint32_t b, std::vector<
     }
   }
   return w;
-}
-
-// A 4-wide node's hit lanes (mask, their entry distances dist) pushed onto a traversal stack,
-// farthest first so the nearest pops first. Entry: {id, count, t}.
-template <class Entry>
-inline void push_hit_lanes(const WideBvhNode<4>& n, unsigned mask, const float* dist, Entry* stack, int& sp, int capacity) {
-  Entry hits[4];
-  int nh = 0;
-  while (mask) {
-    const int k = __builtin_ctz(mask);
-    mask &= mask - 1;
-    const Entry x{n.child[k], n.count[k], dist[k]};
-    int j = nh++;
-    while (j > 0 && hits[j - 1].t < x.t) {
-      hits[j] = hits[j - 1];
-      --j;
-    }
-    hits[j] = x;
-  }
-  if (sp + nh > capacity) return;  // unreachable (bounded depth): never overrun
-  for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
 }
 
 // The curves' and points' trees: a 4-wide tree over `boxes` (binned SAH, leaves of up to 4,
@@ -223,6 +202,58 @@ struct LaneTest4 {
 #endif
   }
 };
+
+// Nearest-first traversal of a 4-wide tree (a deforming tree's leaves index primitives through
+// refs): leaf(i, tmax) tests primitive i before tmax and returns true on a hit, having
+// shortened tmax; AnyHit stops at the first. True if anything was hit.
+template <bool AnyHit, class Leaf>
+bool traverse_wide4(const std::vector<WideBvhNode<4>>& tree, const uint32_t* refs, const Ray& ray, Leaf&& leaf) {
+  if (tree.empty()) return false;
+  const LaneTest4 lt(ray, safe_inverse(ray.dir));
+  float tmax = ray.tmax;
+  bool found = false;
+  struct Entry {
+    uint32_t id, count;  // count > 0: a leaf of `count` primitives from `id`
+    float t;
+  };
+  // A node pops one entry and pushes at most 4; the tree is under 48 + log2 n binary levels.
+  constexpr int kStack = 4 * 128;
+  Entry stack[kStack];
+  int sp = 0;
+  stack[sp++] = {0, 0, 0.0f};
+  while (sp > 0) {
+    const Entry e = stack[--sp];
+    if (!(e.t <= tmax * kBoxExitScale)) continue;
+    if (e.count > 0) {
+      for (uint32_t k = e.id; k < e.id + e.count; ++k) {
+        if (leaf(refs ? refs[k] : k, tmax)) {
+          if (AnyHit) return true;
+          found = true;
+        }
+      }
+      continue;
+    }
+    const WideBvhNode<4>& n = tree[e.id];
+    alignas(16) float dist[4];
+    unsigned mask = lt.test(n, tmax, dist);
+    Entry hits[4];
+    int nh = 0;
+    while (mask) {  // nearest first: pushed farthest first
+      const int k = __builtin_ctz(mask);
+      mask &= mask - 1;
+      const Entry x{n.child[k], n.count[k], dist[k]};
+      int j = nh++;
+      while (j > 0 && hits[j - 1].t < x.t) {
+        hits[j] = hits[j - 1];
+        --j;
+      }
+      hits[j] = x;
+    }
+    if (sp + nh > kStack) continue;  // unreachable (bounded depth): never overrun
+    for (int j = 0; j < nh; ++j) stack[sp++] = hits[j];
+  }
+  return found;
+}
 
 }  // namespace bvh_detail
 }  // namespace pl
