@@ -590,63 +590,36 @@ CurvePiece transform_piece(const CurvePiece& c, const Mat4& m) {
 void CurveBvh::add_moving(std::vector<CurvePiece> pieces, std::vector<CurvePiece> steps, uint32_t n_steps,
                           std::vector<DecomposedTransform> xf) {
   if (pieces.empty()) return;
-  if (xf.size() < 2) xf.clear();
   auto bvh = std::make_unique<CurveBvh>();
   const uint32_t n = uint32_t(pieces.size());
   bvh->build(std::move(pieces), std::move(steps), n_steps);
-  const Aabb box = xf.empty() ? bvh->bounds() : motion_world_box(bvh->bounds(), xf.data(), uint32_t(xf.size()));
-  bounds_.grow(box);
-  moving_boxes_.push_back(box);
-  moving_first_.push_back(moving_end_);
-  moving_end_ += n;
-  moving_xf_.push_back(std::move(xf));
-  moving_.push_back(std::move(bvh));
+  bounds_.grow(moving_.add(std::move(bvh), n, std::move(xf)));
 }
 
 Mat4 CurveBvh::moving_transform(uint32_t prim, float time) const {
-  if (!(prim & kMovingPrim)) return Mat4();
-  const std::vector<DecomposedTransform>& xf = moving_xf_[moving_of(prim & ~kMovingPrim)];
-  return xf.empty() ? Mat4() : motion_transform_at(xf.data(), uint32_t(xf.size()), time);
+  return prim & kMovingPrim ? moving_.transform_at(moving_.set_of(prim & ~kMovingPrim), time) : Mat4();
 }
 
 CurvePiece CurveBvh::piece_at(uint32_t prim, float time) const {
   if (!(prim & kMovingPrim)) return pieces_[prim];
-  const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
-  const CurveBvh& b = *moving_[m];
-  const uint32_t local = i - moving_first_[m];
+  const uint32_t i = prim & ~kMovingPrim, m = moving_.set_of(i);
+  const CurveBvh& b = *moving_.trees[m];
+  const uint32_t local = i - moving_.first[m];
   const CurvePiece c = b.steps_.empty() ? b.pieces_[local] : b.deformed(local, time);
-  const std::vector<DecomposedTransform>& xf = moving_xf_[m];
-  return xf.empty() ? c : transform_piece(c, motion_transform_at(xf.data(), uint32_t(xf.size()), time));
+  return moving_.xf[m].empty() ? c : transform_piece(c, moving_.transform_at(m, time));
 }
 
-// Moving sets: the ray carried into each one's space at its time (t is the same parameter
-// there), as moving point clouds.
 template <bool AnyHit>
 bool CurveBvh::traverse_moving(const Ray& ray, Hit& hit) const {
-  bool found = false;
-  float tmax = ray.tmax;
-  const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
-  for (size_t m = 0; m < moving_.size(); ++m) {
-    if (!bvh_detail::ray_enters_box(moving_boxes_[m], ray, inv, tmax)) continue;
-    Ray ro = ray;
-    ro.tmax = tmax;
-    const std::vector<DecomposedTransform>& xf = moving_xf_[m];
-    if (!xf.empty()) {
-      const Mat4 to_object = affine_inverse_fast(motion_transform_at(xf.data(), uint32_t(xf.size()), ray.time));
-      ro.org = to_object.point(ray.org);
-      ro.dir = to_object.vector(ray.dir);
-    }
-    const CurveBvh& inner = *moving_[m];
+  return moving_.traverse<AnyHit>(ray, [&](uint32_t m, const CurveBvh& inner, const Ray& ro, const Mat4&, float& tmax) {
     Hit h;
-    const bool got = inner.steps_.empty() ? inner.traverse<AnyHit, false>(ro, h) : inner.traverse<AnyHit, true>(ro, h);
-    if (!got) continue;
-    if (AnyHit) return true;
+    if (!(inner.steps_.empty() ? inner.traverse<AnyHit, false>(ro, h) : inner.traverse<AnyHit, true>(ro, h)))
+      return false;
     tmax = h.t;
     hit = h;
-    hit.prim = kMovingPrim | (moving_first_[m] + h.prim);
-    found = true;
-  }
-  return found;
+    hit.prim = kMovingPrim | (moving_.first[m] + h.prim);
+    return true;
+  });
 }
 
 bool CurveBvh::intersect(const Ray& ray, Hit& hit) const {

@@ -19,6 +19,7 @@
 #include "geometry/aabb.h"
 #include "geometry/bvh.h"
 #include "geometry/motion.h"
+#include "geometry/moving_sets.h"
 #include "geometry/ray.h"
 
 namespace pl {
@@ -178,13 +179,13 @@ class CurveBvh {
   bool has_moving() const { return !moving_.empty(); }
   void clear() { *this = CurveBvh(); }
   bool empty() const { return pieces_.empty() && moving_.empty(); }
-  size_t size() const { return pieces_.size() + (moving_first_.empty() ? 0 : moving_end_); }
+  size_t size() const { return pieces_.size() + moving_.end; }
   // The piece of Hit::prim as stored (a moving set's: its frame's, in its own space); what does
   // not move with it (strand, intercepts) is read here.
   const CurvePiece& piece(uint32_t prim) const {
     if (!(prim & kMovingPrim)) return pieces_[prim];
-    const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
-    return moving_[m]->pieces_[i - moving_first_[m]];
+    const uint32_t i = prim & ~kMovingPrim, m = moving_.set_of(i);
+    return moving_.trees[m]->pieces_[i - moving_.first[m]];
   }
   // The piece of Hit::prim in world space at shutter time `time` (static pieces as they are).
   CurvePiece piece_at(uint32_t prim, float time) const;
@@ -195,8 +196,7 @@ class CurveBvh {
   size_t memory_bytes() const {
     size_t b = nodes_.capacity() * sizeof(Node) + (pieces_.capacity() + steps_.capacity()) * sizeof(CurvePiece);
     for (int j = 0; j < kSlices; ++j) b += slice_nodes_[j].capacity() * sizeof(Node) + slice_refs_[j].capacity() * 4;
-    for (const auto& m : moving_) b += m->memory_bytes();
-    return b;
+    return b + moving_.memory_bytes();
   }
   // Closest hit before ray.tmax, on strands other than ray.self_curve: prim the piece, (b1, b2) as
   // encode_piece_hit (ribbons: u and v as intersect_ribbon).
@@ -228,16 +228,7 @@ class CurveBvh {
       return pieces_[i];
     }
   }
-  // Moving sets: each one's tree, decomposed steps (none: it only deforms), world box over the
-  // shutter and the number of its first piece among the moving ones.
-  std::vector<std::unique_ptr<CurveBvh>> moving_;
-  std::vector<std::vector<DecomposedTransform>> moving_xf_;
-  std::vector<Aabb> moving_boxes_;
-  std::vector<uint32_t> moving_first_;
-  uint32_t moving_end_ = 0;
-  uint32_t moving_of(uint32_t i) const {
-    return uint32_t(std::upper_bound(moving_first_.begin(), moving_first_.end(), i) - moving_first_.begin()) - 1;
-  }
+  MovingSets<CurveBvh> moving_;
   template <bool AnyHit, bool Deform>
   bool traverse(const Ray& ray, Hit& hit) const;
   template <bool AnyHit>

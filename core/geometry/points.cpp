@@ -232,19 +232,11 @@ void PointBvh::add_moving(std::vector<PointSphere> spheres, std::vector<Decompos
   auto bvh = std::make_unique<PointBvh>();
   const uint32_t n = uint32_t(spheres.size());
   bvh->build(std::move(spheres), {}, std::move(deform), n_deform);
-  const Aabb box = motion_world_box(bvh->bounds(), steps.data(), uint32_t(steps.size()));
-  bounds_.grow(box);
-  moving_boxes_.push_back(box);
-  moving_first_.push_back(moving_end_);
-  moving_end_ += n;
-  moving_steps_.push_back(std::move(steps));
-  moving_.push_back(std::move(bvh));
+  bounds_.grow(moving_.add(std::move(bvh), n, std::move(steps)));
 }
 
 Mat4 PointBvh::moving_transform(uint32_t prim, float time) const {
-  if (!(prim & kMovingPrim)) return Mat4();
-  const std::vector<DecomposedTransform>& st = moving_steps_[moving_of(prim & ~kMovingPrim)];
-  return motion_transform_at(st.data(), uint32_t(st.size()), time);
+  return prim & kMovingPrim ? moving_.transform_at(moving_.set_of(prim & ~kMovingPrim), time) : Mat4();
 }
 
 PointSphere PointBvh::world_sphere(uint32_t prim, float time, PointFrame& storage, const PointFrame*& frame) const {
@@ -253,11 +245,10 @@ PointSphere PointBvh::world_sphere(uint32_t prim, float time, PointFrame& storag
     frame = this->frame(s);
     return s;
   }
-  const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
-  const PointBvh& cloud = *moving_[m];
-  PointSphere s = cloud.steps_.empty() ? cloud.spheres_[i - moving_first_[m]] : cloud.deformed(i - moving_first_[m], time);
-  const std::vector<DecomposedTransform>& st = moving_steps_[m];
-  const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), time);
+  const uint32_t i = prim & ~kMovingPrim, m = moving_.set_of(i);
+  const PointBvh& cloud = *moving_.trees[m];
+  PointSphere s = cloud.steps_.empty() ? cloud.spheres_[i - moving_.first[m]] : cloud.deformed(i - moving_.first[m], time);
+  const Mat4 to_world = moving_.transform_at(m, time);
   const Mat4 to_object = affine_inverse_fast(to_world);
   for (int r = 0; r < 3; ++r) storage.row[r] = Vec3(to_object.m[r][0], to_object.m[r][1], to_object.m[r][2]);
   s.c = to_world.point(s.c);
@@ -265,37 +256,23 @@ PointSphere PointBvh::world_sphere(uint32_t prim, float time, PointFrame& storag
   return s;
 }
 
-// Moving clouds: the ray carried into each one's object space at its time (t is the same
-// parameter there), the hit's direction from the centre carried back to world space.
+// Moving clouds: the hit's direction from the centre carried back to world space.
 template <bool AnyHit>
 bool PointBvh::traverse_moving(const Ray& ray, Hit& hit) const {
-  bool found = false;
-  float tmax = ray.tmax;
-  const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
-  for (size_t m = 0; m < moving_.size(); ++m) {
-    if (!bvh_detail::ray_enters_box(moving_boxes_[m], ray, inv, tmax)) continue;
-    const std::vector<DecomposedTransform>& st = moving_steps_[m];
-    const Mat4 to_world = motion_transform_at(st.data(), uint32_t(st.size()), ray.time);
-    const Mat4 to_object = affine_inverse_fast(to_world);
-    Ray ro = ray;
-    ro.org = to_object.point(ray.org);
-    ro.dir = to_object.vector(ray.dir);
-    ro.tmax = tmax;
+  return moving_.traverse<AnyHit>(ray, [&](uint32_t m, const PointBvh& cloud, const Ray& ro, const Mat4& to_world, float& tmax) {
     Hit h;
-    const PointBvh& cloud = *moving_[m];
-    if (!(cloud.steps_.empty() ? cloud.traverse<AnyHit, false>(ro, h) : cloud.traverse<AnyHit, true>(ro, h))) continue;
+    if (!(cloud.steps_.empty() ? cloud.traverse<AnyHit, false>(ro, h) : cloud.traverse<AnyHit, true>(ro, h))) return false;
     if (AnyHit) return true;
     // The object-space direction from the centre, through the matrix: world P - centre's.
     const Vec3 n = to_world.vector(decode_sphere_normal(h.b1, h.b2));
     const float l2 = length_sq(n);
-    if (!(l2 > 0.0f) || !std::isfinite(l2)) continue;
+    if (!(l2 > 0.0f) || !std::isfinite(l2)) return false;
     tmax = h.t;
     hit.t = h.t;
     encode_sphere_normal(n / std::sqrt(l2), hit.b1, hit.b2);
-    hit.prim = kMovingPrim | (moving_first_[m] + h.prim);
-    found = true;
-  }
-  return found;
+    hit.prim = kMovingPrim | (moving_.first[m] + h.prim);
+    return true;
+  });
 }
 
 bool PointBvh::intersect(const Ray& ray, Hit& hit) const {

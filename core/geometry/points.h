@@ -14,6 +14,7 @@
 #include "geometry/aabb.h"
 #include "geometry/bvh.h"
 #include "geometry/motion.h"
+#include "geometry/moving_sets.h"
 #include "geometry/ray.h"
 
 namespace pl {
@@ -89,12 +90,12 @@ class PointBvh {
   bool has_moving() const { return !moving_.empty(); }
   void clear() { *this = PointBvh(); }
   bool empty() const { return spheres_.empty() && moving_.empty(); }
-  size_t size() const { return spheres_.size() + (moving_first_.empty() ? 0 : moving_end_); }
+  size_t size() const { return spheres_.size() + moving_.end; }
   // The sphere of Hit::prim (a moving one: in its object space).
   const PointSphere& sphere(uint32_t prim) const {
     if (!(prim & kMovingPrim)) return spheres_[prim];
-    const uint32_t i = prim & ~kMovingPrim, m = moving_of(i);
-    return moving_[m]->spheres_[i - moving_first_[m]];
+    const uint32_t i = prim & ~kMovingPrim, m = moving_.set_of(i);
+    return moving_.trees[m]->spheres_[i - moving_.first[m]];
   }
   const PointFrame* frame(const PointSphere& s) const {
     return s.frame == PointSphere::kRoundPoint ? nullptr : &frames_[s.frame];
@@ -110,8 +111,7 @@ class PointBvh {
     size_t b = nodes_.capacity() * sizeof(Node) + (spheres_.capacity() + steps_.capacity()) * sizeof(PointSphere) +
                frames_.capacity() * sizeof(PointFrame);
     for (int j = 0; j < kSlices; ++j) b += slice_nodes_[j].capacity() * sizeof(Node) + slice_refs_[j].capacity() * 4;
-    for (const auto& m : moving_) b += m->memory_bytes();
-    return b;
+    return b + moving_.memory_bytes();
   }
   // Closest hit before ray.tmax on spheres other than the one the ray leaves: prim the sphere
   // (leaf order; kMovingPrim: of a moving cloud), (b1, b2) its normal (encode_sphere_normal).
@@ -143,16 +143,7 @@ class PointBvh {
     s.r = std::max(0.0f, a.r + (b.r - a.r) * w);
     return s;
   }
-  // Moving clouds: each one's object-space BVH, decomposed steps, world box over the shutter
-  // and the number of its first sphere among the moving ones.
-  std::vector<std::unique_ptr<PointBvh>> moving_;
-  std::vector<std::vector<DecomposedTransform>> moving_steps_;
-  std::vector<Aabb> moving_boxes_;
-  std::vector<uint32_t> moving_first_;
-  uint32_t moving_end_ = 0;
-  uint32_t moving_of(uint32_t i) const {
-    return uint32_t(std::upper_bound(moving_first_.begin(), moving_first_.end(), i) - moving_first_.begin()) - 1;
-  }
+  MovingSets<PointBvh> moving_;
   template <bool AnyHit, bool Deform>
   bool traverse(const Ray& ray, Hit& hit) const;
   template <bool AnyHit>

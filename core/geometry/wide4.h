@@ -14,6 +14,7 @@
 
 #include "geometry/binned_sah.h"
 #include "geometry/bvh_common.h"
+#include "geometry/moving_sets.h"
 #include "util/parallel.h"
 
 namespace pl {
@@ -256,4 +257,29 @@ bool traverse_wide4(const std::vector<WideBvhNode<4>>& tree, const uint32_t* ref
 }
 
 }  // namespace bvh_detail
+
+template <class Tree>
+template <bool AnyHit, class Visit>
+bool MovingSets<Tree>::traverse(const Ray& ray, Visit&& visit) const {
+  bool found = false;
+  float tmax = ray.tmax;
+  const Vec3 inv = bvh_detail::safe_inverse(ray.dir);
+  for (uint32_t m = 0; m < trees.size(); ++m) {
+    if (!bvh_detail::ray_enters_box(boxes[m], ray, inv, tmax)) continue;
+    Ray ro = ray;
+    ro.tmax = tmax;
+    Mat4 to_world;
+    if (!xf[m].empty()) {
+      to_world = motion_transform_at(xf[m].data(), uint32_t(xf[m].size()), ray.time);
+      const Mat4 to_object = affine_inverse_fast(to_world);
+      ro.org = to_object.point(ray.org);
+      ro.dir = to_object.vector(ray.dir);
+    }
+    if (!visit(m, *trees[m], ro, to_world, tmax)) continue;
+    if (AnyHit) return true;
+    found = true;
+  }
+  return found;
+}
+
 }  // namespace pl
