@@ -123,6 +123,9 @@ class ClosureNodes:
                          radius=inp("Radius", "vector"), ior=opt("IOR", "float"),
                          roughness=opt("Roughness", "float"), anisotropy=opt("Anisotropy", "float"),
                          normal=self.normal(node, ctx), method=self._subsurface_method(node, node.falloff))
+        elif node.bl_idname == 'ShaderNodeEeveeSpecular':
+            # EEVEE only: Cycles renders it black (no closure), and so does Pathlight.
+            self.problem(f"'{node.name}' ({node.bl_idname}) is EEVEE only (black, as in Cycles)")
         else:
             self._fallback_shader(node, ctx, weight)
 
