@@ -58,7 +58,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False),
                           view_layer_ids(depsgraph), depsgraph)
-    attributes = InstanceAttributes(table.uv_sets.object_attributes)
+    attributes = InstanceAttributes(table.uv_sets.object_attributes, scene.frame_current_final)
     meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop, attributes)
     for mesh in meshes:
         if mesh.missing_uv_maps:

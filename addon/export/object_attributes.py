@@ -22,6 +22,11 @@ from .mesh import _attribute_rgba as attribute_rgba  # Cycles' conversions to RG
 _UNUSED_ID = 2147483647  # persistent_id entries past the instance's nesting depth
 
 
+def _hash_uint2_to_float(a, b):
+    from ..core import get_core
+    return get_core().hash_uint2_to_float(a, b)
+
+
 def _rgba(v):
     """A property value as Cycles converts it (find_property_rgba): a number or boolean as
     (v, v, v, 1), a float or int array of 1-4 as (x, y, z, w) padded with (0, 0, 0, 1); None
@@ -142,10 +147,13 @@ class InstanceAttributes:
     """Resolves the slots for depsgraph instances of one export; values shared by every
     instance of the same holders (and geometry-nodes instance attributes) are read once."""
 
-    def __init__(self, slots):
+    def __init__(self, slots, frame=0.0):
         self.slots = slots  # the live list of (kind, name): it grows as materials compile
         self._cache = {}
         self._trees = {}  # instancer pointer -> its top _Level (or None: no instances)
+        # Particle Info: the scene's frame (ages count from it).
+        self.frame = float(frame)
+        self._particles = {}  # particle system pointer -> its particles' arrays
 
     def values(self, instance):
         """float32 (K, 4) for the first K slots (those numbered so far), or None with none."""
@@ -167,11 +175,52 @@ class InstanceAttributes:
                             for kind, name in self.slots], np.float32)
             self._cache[key] = out
         dupli = [(i, name) for i, (kind, name) in enumerate(self.slots) if kind == "DUPLI"]
-        if dupli:  # per instance, not shared: each particle sits elsewhere on its emitter
+        particle = [(i, name) for i, (kind, name) in enumerate(self.slots) if kind == "PARTICLE"]
+        if dupli or particle:  # per instance, not shared: each particle sits elsewhere on its emitter
             out = out.copy()
             for i, name in dupli:
                 out[i] = self._dupli(instance, name, is_instance)
+            if particle:
+                data = self._particle(psys, instance.persistent_id[0] if psys is not None else -1)
+                for i, name in particle:
+                    out[i] = data[name]
         return out
+
+    _PARTICLE_ARRAYS = (("birth_time", 1), ("lifetime", 1), ("location", 3), ("size", 1),
+                        ("velocity", 3), ("angular_velocity", 3))
+
+    def _particle(self, psys, index):
+        """Particle Info's values (RGBA each; scalars in all four) for particle `index` of psys,
+        as Cycles' sync_dupli_particle: age = frame - birth time. Off particles (no system,
+        an index past its particles: children) Cycles reads its dummy particle 0: zeros, and the
+        random number of index 0."""
+        arrays = None
+        if psys is not None and index >= 0:
+            key = psys.as_pointer()
+            if key not in self._particles:
+                n = len(psys.particles)
+                arrays = {}
+                for name, width in self._PARTICLE_ARRAYS:
+                    a = np.zeros(n * width, np.float32)
+                    if n:
+                        psys.particles.foreach_get(name, a)
+                    arrays[name] = a.reshape(n, width)
+                self._particles[key] = arrays
+            arrays = self._particles[key]
+            if index >= len(arrays["size"]):
+                arrays = None
+        scalar = lambda v: (float(v),) * 4  # noqa: E731
+        vector = lambda v: (float(v[0]), float(v[1]), float(v[2]), 1.0)  # noqa: E731
+        if arrays is None:
+            zero = vector((0.0, 0.0, 0.0))
+            return dict(index=scalar(0.0), random=scalar(_hash_uint2_to_float(0, 0)), age=scalar(0.0),
+                        lifetime=scalar(0.0), location=zero, size=scalar(0.0), velocity=zero,
+                        angular_velocity=zero)
+        return dict(index=scalar(index), random=scalar(_hash_uint2_to_float(index, 0)),
+                    age=scalar(self.frame - arrays["birth_time"][index, 0]),
+                    lifetime=scalar(arrays["lifetime"][index, 0]), location=vector(arrays["location"][index]),
+                    size=scalar(arrays["size"][index, 0]), velocity=vector(arrays["velocity"][index]),
+                    angular_velocity=vector(arrays["angular_velocity"][index]))
 
     @staticmethod
     def _dupli(instance, name, is_instance):
@@ -226,7 +275,7 @@ class InstanceAttributes:
         return tuple(reversed(out))
 
     def _value(self, kind, name, obj, parent, psys, gn):
-        if kind == "DUPLI":
+        if kind in ("DUPLI", "PARTICLE"):
             return (0.0, 0.0, 0.0, 1.0)  # (per instance: see values())
         if kind == "INSTANCER":
             if psys is not None:

@@ -2238,6 +2238,11 @@ PYBIND11_MODULE(pathlight_core, m) {
       },
       py::arg("name"), "Cycles' random id of a (non-instanced) object named `name`.");
   m.def(
+      "hash_uint2_to_float", [](uint32_t a, uint32_t b) { return lookup3::to_unit(lookup3::hash(a, b)); },
+      py::arg("a"), py::arg("b"),
+      "Cycles' hash_uint2_to_float: lookup3 of (a, b) over 0xFFFFFFFF, in float (Particle Info's Random "
+      "is that of (particle index, 0)).");
+  m.def(
       "hash_buffer",
       [](const py::object& data, uint64_t seed) {
         Py_buffer view;  // any C-contiguous buffer (numpy arrays, bytes); others raise BufferError

@@ -381,8 +381,8 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     hue = nodes.new("ShaderNodeAmbientOcclusion")  # supported: traced, no fallback
     hue.inputs["Color"].default_value = (0.9, 0.1, 0.1, 1)
     links.new(hue.outputs["Color"], d.inputs["Color"])
-    ramp = nodes.new("ShaderNodeParticleInfo")  # no Color input: the consumer's value is used
-    links.new(ramp.outputs["Random"], mix.inputs["Fac"])
+    ramp = nodes.new("ShaderNodeShaderToRGB")  # no Color input: the consumer's value is used
+    links.new(ramp.outputs["Alpha"], mix.inputs["Fac"])
     mix.inputs["Fac"].default_value = 0.4
     add = nodes.new("ShaderNodeAddShader")
     links.new(spec.outputs[0], add.inputs[0])
@@ -392,7 +392,7 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     links.new(mix.outputs[0], out.inputs["Surface"])
     closures, warnings, _ = closures_of(mat)
     assert len(warnings) == 1
-    for name in ("Odd", "Specular BSDF", "Ray Portal BSDF", "Particle Info"):
+    for name in ("Odd", "Specular BSDF", "Ray Portal BSDF", "Shader to RGB"):
         assert name in warnings[0], (name, warnings[0])
     assert "Ambient Occlusion" not in warnings[0]
     traced = [c for c in closures if isinstance(c[2]["color"], Sym)]

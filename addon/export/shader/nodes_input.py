@@ -288,6 +288,31 @@ class InputNodes:
             return ZERO
         return self.emit(kind, "object_info", which)
 
+    # Particle Info outputs: (the per-instance slot's name, a vector).
+    _PARTICLE_INFO = {"Index": ("index", False), "Random": ("random", False), "Age": ("age", False),
+                      "Lifetime": ("lifetime", False), "Location": ("location", True), "Size": ("size", False),
+                      "Velocity": ("velocity", True), "Angular Velocity": ("angular_velocity", True)}
+
+    def particle_info(self, node, out, ctx):
+        """Particle Info: the hit instance's particle, as Cycles' svm_node_particle_info, in a
+        per-instance slot (export.object_attributes: zeros and the random number of index 0
+        off particle instances, as Cycles' dummy particle). Scalars read the slot's alpha."""
+        name, vector = self._PARTICLE_INFO.get(out.identifier, (None, False))
+        if name is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        slot = self.uv_sets.object_attribute_slot("PARTICLE", name)
+        if slot is None:
+            self.problem(f"'{node.name}': more than {MAX_OBJECT_ATTRIBUTES} object, instancer and "
+                         "particle attributes in the scene (reads 0)")
+            return ZERO
+        output = "COLOR" if vector else "ALPHA"
+        key = ("object_attribute", slot, output)
+        if key not in self.cache:
+            self.cache[key] = self.emit("color" if vector else "float", "object_attribute", slot, output)
+        v = self.cache[key]
+        return Val("vector", reg=v.reg) if vector else v
+
     _CURVES_INFO = {"Is Strand": ("float", "IS_STRAND"), "Intercept": ("float", "INTERCEPT"),
                     "Length": ("float", "LENGTH"), "Thickness": ("float", "THICKNESS"),
                     "Tangent Normal": ("vector", "TANGENT_NORMAL"), "Random": ("float", "RANDOM")}
@@ -354,5 +379,5 @@ VALUE_NODES = {
     'HAIR_INFO': InputNodes.curves_info, 'POINT_INFO': InputNodes.point_info, 'VERTEX_COLOR': InputNodes.color_attribute,
     'ATTRIBUTE': InputNodes.attribute_node, 'VOLUME_INFO': InputNodes.volume_info, 'TANGENT': InputNodes.tangent_node,
     'AMBIENT_OCCLUSION': InputNodes.ambient_occlusion, 'BEVEL': InputNodes.bevel,
-    'WIREFRAME': InputNodes.wireframe,
+    'WIREFRAME': InputNodes.wireframe, 'PARTICLE_INFO': InputNodes.particle_info,
 }

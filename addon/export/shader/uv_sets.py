@@ -27,8 +27,9 @@ class UvSets:
 
     def object_attribute_slot(self, kind, name):
         """The per-instance slot of an Object ("OBJECT") or Instancer ("INSTANCER") attribute,
-        or of an instance's coordinates on its instancer ("DUPLI", "uv" or "generated"), or
-        None when all MAX_OBJECT_ATTRIBUTES are taken."""
+        of an instance's coordinates on its instancer ("DUPLI", "uv" or "generated") or of its
+        particle's data ("PARTICLE", a Particle Info output), or None when all
+        MAX_OBJECT_ATTRIBUTES are taken."""
         key = (kind, name)
         if key in self.object_attributes:
             return self.object_attributes.index(key)
