@@ -1,6 +1,6 @@
 """The UV, Vector and shader AOV passes against Cycles 4.5 in the same bpy, read back from
 Blender's multilayer EXR: a UV-mapped, checker-textured plane sliding sideways, a turning
-sphere seen partly through a transparent one, and a rising camera; one render per engine (64x48,
+sphere seen partly through a transparent one, a card rising by a shape key, and a rising camera; one render per engine (64x48,
 16 samples, 1-pixel box filter)."""
 import math
 
@@ -82,6 +82,20 @@ def moving_scene():
     links.new(nodes.new("ShaderNodeBsdfTransparent").outputs[0], mix.inputs[2])
     links.new(mix.outputs[0], nodes["Material Output"].inputs["Surface"])
     glass.data.materials.append(veil)
+    # A card that rises by 0.3 a frame through an animated shape key (deformation).
+    bpy.ops.mesh.primitive_plane_add(size=0.6, location=(1.4, -0.5, -1.1), rotation=(math.pi / 2, 0.0, 0.0))
+    card = bpy.context.active_object
+    card.data.materials.append(aov_material("Card", lambda nodes, links: 0.0))
+    card.shape_key_add(name="Basis")
+    up = card.shape_key_add(name="Up")
+    for v in up.data:
+        v.co.y += 0.6  # (local y is world z)
+    for f, value in ((0, 0.0), (2, 1.0)):
+        up.value = value
+        up.keyframe_insert("value", frame=f)
+    for fc in card.data.shape_keys.animation_data.action.fcurves:
+        for k in fc.keyframe_points:
+            k.interpolation = 'LINEAR'
     for f, a in ((0, -10.0), (2, 10.0)):
         sphere.rotation_euler.z = math.radians(a)
         sphere.keyframe_insert("rotation_euler", frame=f)
@@ -150,7 +164,10 @@ def test_vector_pass_matches_cycles_per_pixel(renders):
     full = (cycles["UV.A"] == 1.0) & (pathlight["UV.A"] == 1.0)
     assert np.abs(vc[full]).max() > 2.0  # it moves by pixels, in every component
     for c in range(4):
-        assert np.abs(vc[full][:, c]).max() > 0.5 or c == 1, c
+        assert np.abs(vc[full][:, c]).max() > 0.5, c
+    # The card's deformation: it rose by 0.3 units (about 3.6 pixels) since the last frame.
+    rising = full & (vc[..., 1] < -2.0)
+    assert rising.sum() > 10 and (vp[..., 1][rising] < -2.0).all()
     d = np.abs(vc - vp)[full]
     assert np.median(d) < 0.01, np.median(d)
     assert np.quantile(d, 0.99) < 0.05, np.quantile(d, 0.99)
@@ -177,3 +194,18 @@ def test_shader_aovs_match_cycles_per_pixel(renders):
         assert np.median(d) < 1e-3, np.median(d)
         assert np.quantile(d, 0.95) < 0.2, np.quantile(d, 0.95)
         assert abs(a.mean() - b.mean()) < 0.01 * max(a.mean(), 1e-3) + 2e-3, (a.mean(), b.mean())
+
+
+def test_compositor_sockets_for_uv_vector_and_aovs():
+    sc = moving_scene()
+    sc.render.engine = 'PATHLIGHT'
+    sc.use_nodes = True
+    rl = sc.node_tree.nodes.new("CompositorNodeRLayers")
+    rl.update()
+    names = {s.name for s in rl.outputs if s.enabled}
+    assert {"UV", "Vector", "col", "val"} <= names
+    sc.view_layers[0].use_pass_uv = False
+    sc.view_layers[0].aovs.remove(sc.view_layers[0].aovs[0])
+    rl.update()
+    names = {s.name for s in rl.outputs if s.enabled}
+    assert "UV" not in names and "col" not in names and "val" in names
