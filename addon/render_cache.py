@@ -78,8 +78,11 @@ class CommittedScene:
 
 
 def _has_motion(data):
+    """Motion blur, or the Vector pass's motion (also only set by add_instance)."""
     return any(getattr(mesh, "motion_positions", None) is not None or
-               any(m is not None for m in getattr(mesh, "motions", [])) for mesh in data.meshes)
+               getattr(mesh, "pass_positions", None) is not None or
+               any(m is not None for m in getattr(mesh, "motions", [])) or
+               any(m is not None for m in getattr(mesh, "pass_motions", None) or []) for mesh in data.meshes)
 
 
 def _matrices(data):

@@ -53,12 +53,19 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             ids, scale, offset, interpolation = velocity
             yz = {"grid_y": ids[1], "grid_z": ids[2]} if len(ids) == 3 else {}
             scene.set_mesh_velocity(mesh_id, ids[0], scale, offset, interpolation, **yz)
+        pass_positions = getattr(mesh, "pass_positions", None)
+        if pass_positions is not None and not scene.set_mesh_pass_motion(mesh_id, pass_positions):
+            warn(f"Mesh '{mesh.name}': its positions at the frames around this one do not fit "
+                 "the mesh; the Vector pass leaves out its deformation")
         motions = getattr(mesh, "motions", None) or []
+        pass_motions = getattr(mesh, "pass_motions", None) or []
         links = getattr(data, "light_links", None)
         attributes = getattr(mesh, "object_attributes", None) or []
         for k, (matrix, info) in enumerate(zip(mesh.matrices, infos)):
             # Motion blur steps only where the object moves (and so never for older cores).
             extra = {"motion": motions[k]} if k < len(motions) and motions[k] is not None else {}
+            if k < len(pass_motions) and pass_motions[k] is not None:  # the Vector pass
+                extra["pass_motion"] = pass_motions[k]
             # Object / Instancer attribute values only where materials read them (so never
             # for older cores).
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):

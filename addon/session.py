@@ -10,7 +10,7 @@ import numpy as np
 from . import render_cache
 from .core import get_core
 from .export import ExportCancelled, ExportError, export_scene
-from .export.motion import add_motion
+from .export.motion import add_motion, add_pass_motion
 from .export.world import warn_open_world_volume
 from .scene_writer import set_build_options, to_core
 
@@ -65,6 +65,10 @@ PASSES = (
     ("AO", 3, "RGB", 'COLOR', lambda sc, vl: vl.use_pass_ambient_occlusion),
     ("IndexOB", 1, "X", 'VALUE', lambda sc, vl: vl.use_pass_object_index),
     ("IndexMA", 1, "X", 'VALUE', lambda sc, vl: vl.use_pass_material_index),
+    # The first surface's active render UV map (U, V, and 1 where there is one), and Cycles'
+    # motion vectors to the previous and next frames in pixels (only without motion blur).
+    ("UV", 3, "UVA", 'VECTOR', lambda sc, vl: vl.use_pass_uv),
+    ("Vector", 4, "XYZW", 'VECTOR', lambda sc, vl: vl.use_pass_vector),
     ("BVH Nodes", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
     ("BVH Triangles", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
 )
@@ -86,12 +90,30 @@ def enabled_passes(scene, view_layer):
     return [p for p in PASSES if p[4](scene, view_layer)]
 
 
+def shader_aovs(view_layer):
+    """The view layer's shader AOVs as (name, channels, channel ids, socket type), in their
+    order (the core's slots): COLOR as RGBA, VALUE as X, as Cycles. Blender marks AOVs whose
+    name another pass or AOV has as not valid; those are left out, as Cycles does. At most
+    MAX_SHADER_AOVS."""
+    out = []
+    for aov in getattr(view_layer, "aovs", ()):
+        if not aov.is_valid or not aov.name:
+            continue
+        out.append((aov.name, 4, "RGBA", 'COLOR') if aov.type == 'COLOR' else (aov.name, 1, "X", 'VALUE'))
+    return out[:MAX_SHADER_AOVS]
+
+
+MAX_SHADER_AOVS = 16  # the core's kMaxShaderAovs
+
+
 def update_render_passes(engine, scene, view_layer):
     """RenderEngine.update_render_passes: declares the passes, so the compositor shows sockets."""
     if scene is None or view_layer is None:
         return
     engine.register_pass(scene, view_layer, "Combined", 4, "RGBA", 'COLOR')
     for name, channels, chan_id, socket, _ in enabled_passes(scene, view_layer):
+        engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
+    for name, channels, chan_id, socket in shader_aovs(view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
 
 
@@ -179,15 +201,26 @@ def render(engine, depsgraph):
         scene = depsgraph.scene
         view_layer = depsgraph.view_layer
         t0 = time.monotonic()
+        passes = enabled_passes(scene, view_layer)
+        names = {p[0] for p in passes}
+        aovs = [] if engine.is_preview else shader_aovs(view_layer)
+        if len(getattr(view_layer, "aovs", ())) > len(aovs) and not engine.is_preview:
+            dropped = [a.name for a in view_layer.aovs if a.name not in {x[0] for x in aovs}]
+            warn(f"Shader AOV(s) {', '.join(map(repr, dropped))} left out (a name another pass has, "
+                 f"or more than {MAX_SHADER_AOVS}); they stay empty")
         try:
             data = export_scene(depsgraph, warn, cache, should_stop=lambda: _stop_requested(
-                engine, "export", time.monotonic() - t0, scene.pathlight.time_limit))
+                engine, "export", time.monotonic() - t0, scene.pathlight.time_limit),
+                uv_pass="UV" in names and not engine.is_preview,
+                aovs=[(a[0], 'COLOR' if a[1] == 4 else 'VALUE') for a in aovs])
         except ExportCancelled:
             log.info("render cancelled during the export")
             _empty_result(engine, scene, view_layer)
             return
         if scene.render.use_motion_blur and not engine.is_preview:
             _add_motion_blur(engine, depsgraph, data, warn)
+        elif "Vector" in names and not engine.is_preview:
+            _add_pass_motion(engine, depsgraph, data, warn)
         kept = render_cache.SCENE_CACHE
         core_scene = kept.scene_for(pc, data, warn) if cache is not None else to_core(pc, data, warn)
         if cache is not None and cache.previous is not None:
@@ -197,12 +230,19 @@ def render(engine, depsgraph):
         if engine.is_preview:  # material thumbnails: small and quick
             settings.samples = min(settings.samples, PREVIEW_SAMPLES)
             settings.sample_offset = 0
-        passes = enabled_passes(scene, view_layer)
         known = pc.render_passes()
         for p in [p for p in passes if p[0] not in known]:
             warn(f"the {p[0]} pass is not rendered by Pathlight; it stays empty")
             passes.remove(p)
-        settings.passes = [p[0] for p in passes if p[0] != "Sample Count"]
+        # Cycles writes no motion vectors with motion blur on: the pass stays 0.
+        empty = {"Vector"} if scene.render.use_motion_blur or engine.is_preview else set()
+        if "Vector" in names and "Vector" in empty and not engine.is_preview:
+            warn("The Vector pass is written only without motion blur (as Cycles); it stays 0")
+        settings.passes = [p[0] for p in passes if p[0] != "Sample Count" and p[0] not in empty]
+        if aovs:
+            settings.shader_aovs = [a[1] for a in aovs]
+        if "UV" in names and "" in data.uv_sets.names:
+            settings.uv_pass_set = data.uv_sets.names.index("")
         # Spatial splits in final renders only: not thumbnails, never the viewport.
         set_build_options(core_scene,
                           spatial_splits=scene.pathlight.use_spatial_splits and not engine.is_preview,
@@ -226,9 +266,11 @@ def render(engine, depsgraph):
         _report_kernel(sess)
         for name, channels, chan_id, _, _ in passes:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
+        for name, channels, chan_id, _ in aovs:
+            engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _, _, width, height = render_border(scene)
         done = _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit,
-                    passes=[p[0] for p in passes], bvh_view=scene.pathlight.debug_view == 'BVH',
+                    passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs], bvh_view=scene.pathlight.debug_view == 'BVH',
                     layer=view_layer.name)
         _stamp(engine, settings.sample_offset, done)
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
@@ -251,6 +293,20 @@ def _add_motion_blur(engine, depsgraph, data, warn):
             mesh.motion_positions = None
             mesh.velocity = None
         data.camera.pop("motion", None)
+
+
+def _add_pass_motion(engine, depsgraph, data, warn):
+    """export.motion.add_pass_motion, never failing the render: on an error the Vector pass
+    shows the camera's motion at most, with one warning."""
+    try:
+        add_pass_motion(engine, depsgraph, data, warn)
+    except Exception as e:  # a bug or an unexpected scene
+        log.exception("Vector pass motion export failed")
+        warn(f"The Vector pass's motion could not be exported ({type(e).__name__}: {e}); it stays 0")
+        for mesh in data.meshes:
+            mesh.pass_motions = [None] * len(mesh.matrices)
+            mesh.pass_positions = None
+        data.camera.pop("pass_motion", None)
 
 
 def _stop_requested(engine, stage, elapsed, time_limit):
@@ -346,7 +402,7 @@ def _warner(engine):
     return warn
 
 
-def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer=""):
+def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=()):
     """Streams the session's film (and passes) into the render result; returns the samples
     done."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
@@ -358,6 +414,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
         render_layer = result.layers[0]
         combined = render_layer.passes["Combined"]
         targets = [(name, render_layer.passes.get(name)) for name in passes]
+        aov_targets = [(i, render_layer.passes.get(name)) for i, name in enumerate(aovs)]
         sess.start()
         shown = -1
         stats_at = -1.0
@@ -371,6 +428,9 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
                 for name, target in targets:  # film_pass(): (H, W, channels), same order
                     if target is not None:
                         target.rect.foreach_set(sess.film_pass(name).ravel())
+                for i, target in aov_targets:  # film_aov(i): shader AOV slot i
+                    if target is not None:
+                        target.rect.foreach_set(sess.film_aov(i).ravel())
                 engine.update_result(result)
                 shown = info["samples_done"]
             engine.update_progress(info["samples_done"] / max(info["samples_total"], 1))

@@ -47,22 +47,33 @@ class SceneData:
     light_links: dict = field(default_factory=dict)
 
 
-def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None):
+def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None, uv_pass=False,
+                 aovs=()):
     """Everything Pathlight renders, read from the evaluated depsgraph. warn(msg) reports
     unsupported features (each call is one message for the user). mesh_cache: a
     mesh_cache.MeshCache that keeps unchanged meshes' arrays between exports (animation).
     need_camera=False: a scene without a camera exports with a default one (the viewport
     renders through its own view). should_stop(): polled between meshes; True raises
-    ExportCancelled."""
+    ExportCancelled. uv_pass: every mesh exports its active render UV map for the UV pass
+    (data.uv_sets.names.index("") is its uv set). aovs: the view layer's shader AOVs, (name,
+    'COLOR' or 'VALUE') in slot order, that AOV Output nodes write."""
     scene = depsgraph.scene
     camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False),
                           view_layer_ids(depsgraph), depsgraph)
     attributes = InstanceAttributes(table.uv_sets.object_attributes, scene.frame_current_final)
+    table.uv_sets.aovs = {name: (slot, kind) for slot, (name, kind) in enumerate(aovs)}
+    if uv_pass:
+        table.pass_uv_set = table.uv_sets.index("")
+        if table.pass_uv_set is None:
+            warn("The UV pass found no free UV map slot (materials read 8); it stays empty")
     meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop, attributes)
+    # (a mesh without UV map reads 0 in the UV pass, as Cycles, without a warning)
+    pass_only = uv_pass and not any("" in m.uv_sets.values() for m in table.materials)
     for mesh in meshes:
-        if mesh.missing_uv_maps:
-            warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, mesh.missing_uv_maps))} "
+        missing = [m for m in mesh.missing_uv_maps if not (pass_only and m == "(active render UV map)")]
+        if missing:
+            warn(f"Mesh '{mesh.name}' has no UV map {', '.join(map(repr, missing))} "
                  "that its materials use; UV (0, 0) is used")
         if mesh.missing_attributes:
             warn(f"Mesh '{mesh.name}' has no attribute "

@@ -127,6 +127,7 @@ class MaterialTable:
         self.view_layer_ids = view_layer_ids  # (view layer, scene, world): View Layer attributes
         self.images = ImageTable()
         self.uv_sets = UvSets()
+        self.pass_uv_set = None  # the UV pass's uv set (every mesh's active render UV map), or None
         self.materials = []  # MaterialData, indexed by the numbers returned by index()
         self._index = {}
         self._names = {}  # key -> bpy material name
@@ -190,4 +191,6 @@ class MaterialTable:
         names = {}
         for mat in materials:
             names.update(self.materials[self.index(mat)].uv_sets)
+        if self.pass_uv_set is not None:
+            names.setdefault(self.pass_uv_set, "")
         return names

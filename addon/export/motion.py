@@ -315,3 +315,71 @@ def add_motion(engine, depsgraph, data, warn):
     if moving:
         data.camera["shutter_curve"] = shutter_curve(render)
     return moving
+
+
+def add_pass_motion(engine, depsgraph, data, warn):
+    """The Vector pass's motion, as Cycles' without motion blur (its MOTION_PASS: the depsgraph
+    at the frames before and after, frame -+ 1): data.camera["pass_motion"] (2, 4, 4), each
+    MeshData's `pass_motions` (per matrix: (2, 4, 4) or None) and, for single-user meshes that
+    may deform, `pass_positions` ((2, V, 3) or None). Curves and point clouds stay still.
+    Evaluates the depsgraph at those frames and restores the frame. Returns the number of
+    moving objects and cameras."""
+    scene = depsgraph.scene
+    frame, subframe = scene.frame_current, float(scene.frame_subframe)
+    where = {}  # instance key -> [(MeshData, matrix index)]
+    deforming = {}  # key -> MeshData
+    for mesh in data.meshes:
+        keys = getattr(mesh, "motion_keys", [])
+        mesh.pass_motions = [None] * len(mesh.matrices)
+        mesh.pass_positions = None
+        for k, key in enumerate(keys[:len(mesh.matrices)]):
+            where.setdefault(key, []).append((mesh, k))
+        if len(mesh.matrices) == 1 and len(keys) == 1 and not keys[0][1]:
+            obj = _object(scene, keys[0][0])
+            if obj is not None and obj.type == 'MESH' and may_deform(obj, scene):
+                deforming[keys[0]] = mesh
+    cam_obj = scene.camera
+    matrices, positions, cam_at = {}, {}, {}
+    try:
+        for rel in (-1, 1):
+            t = frame + subframe + rel
+            f = math.floor(t)
+            engine.frame_set(int(f), t - f)
+            if cam_obj is not None:
+                cam_at[rel] = camera_matrix(cam_obj.evaluated_get(depsgraph))
+            for instance in depsgraph.object_instances:
+                key = instance_key(instance)
+                if key in where:
+                    matrices[(key, rel)] = np.array(instance.matrix_world, np.float32)
+            for key, mesh in deforming.items():
+                positions[(key, rel)] = _positions(_object(scene, key[0]).evaluated_get(depsgraph))
+    finally:
+        engine.frame_set(frame, subframe)
+    moving = 0
+    for key, entries in where.items():
+        steps = [matrices.get((key, rel)) for rel in (-1, 1)]
+        for mesh, k in entries:
+            # (not there at one of the frames: still, as Cycles keeps an object it cannot match)
+            if any(s is None for s in steps) or not usable_steps(np.stack(steps)):
+                continue
+            steps_k = np.stack(steps)
+            if not (steps_k == np.asarray(mesh.matrices[k], np.float32)).all():
+                mesh.pass_motions[k] = steps_k
+                moving += 1
+    for key, mesh in deforming.items():
+        steps = [positions.get((key, rel)) for rel in (-1, 1)]
+        n = len(mesh.positions)
+        if any(s is None or len(s) != n for s in steps):
+            warn(f"Object '{key[0]}': its mesh changes topology between frames; the Vector pass "
+                 "leaves out its deformation")
+            continue
+        steps = np.stack(steps).astype(np.float32)
+        if np.isfinite(steps).all() and not (steps == mesh.positions).all():
+            mesh.pass_positions = steps
+            moving += 1
+    if cam_obj is not None:
+        steps = np.stack([cam_at[-1], cam_at[1]])
+        if np.isfinite(steps).all() and not (steps == data.camera.get("matrix_world", steps[0])).all():
+            data.camera["pass_motion"] = steps
+            moving += 1
+    return moving

@@ -2602,6 +2602,25 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Motion blur: matrix_world at each motion step over the shutter, (S, 4, 4) with S >= 2, or "
           "None (static). Steps that are not finite or singular leave the camera static.")
       .def_property(
+          "pass_motion",
+          [](const CameraDesc& c) -> py::object {
+            if (c.pass_motion.empty()) return py::none();
+            FloatArray a({py::ssize_t(2), py::ssize_t(4), py::ssize_t(4)});
+            auto w = a.mutable_unchecked<3>();
+            for (size_t k = 0; k < 2; ++k)
+              for (int i = 0; i < 4; ++i)
+                for (int j = 0; j < 4; ++j) w(py::ssize_t(k), i, j) = c.pass_motion[k].m[i][j];
+            return std::move(a);
+          },
+          [](CameraDesc& c, const py::object& o) {
+            std::vector<Mat4> m = to_motion(o, "camera pass_motion");
+            if (!m.empty() && m.size() != 2) throw std::invalid_argument("camera pass_motion must be a (2, 4, 4) array");
+            for (const Mat4& x : m)
+              if (!x.is_finite()) m.clear();  // (not finite: still, as the shutter's motion)
+            c.pass_motion = std::move(m);
+          },
+          "Vector pass: matrix_world at the previous and next frames, (2, 4, 4), or None (still).")
+      .def_property(
           "shutter_curve", [](const CameraDesc& c) { return c.shutter_curve; },
           [](CameraDesc& c, const std::vector<float>& v) {
             if (v.size() > 65536) throw std::invalid_argument("shutter_curve takes at most 65536 values");
@@ -2744,6 +2763,11 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("mist_depth", &RenderSettings::mist_depth)
       .def_readwrite("mist_falloff", &RenderSettings::mist_falloff, "Mist falloff exponent: 1 Linear, 2 Quadratic, 0.5 Inverse Quadratic")
       .def_readwrite("ao_distance", &RenderSettings::ao_distance)
+      .def_readwrite("shader_aovs", &RenderSettings::shader_aovs,
+                     "Shader AOVs (the view layer's, in order): the channels of each, 4 (COLOR) or 1 (VALUE); "
+                     "the aov_output op writes slot i. Read with Session.film_aov(i).")
+      .def_readwrite("uv_pass_set", &RenderSettings::uv_pass_set,
+                     "The UV pass's uv set (the active render UV map's global index; -1: none, the pass reads 0).")
       .def_property(
           "debug_view", [](const RenderSettings& s) { return enum_name(s.debug_view, kDebugViewNames); },
           [](RenderSettings& s, const std::string& v) { s.debug_view = enum_from_name(v, "debug_view", kDebugViewNames); })
@@ -2955,7 +2979,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
              uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator,
-             int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask) {
+             int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask, const py::object& pass_motion) {
             self.check_editable();
             ObjectInfo info;
             if (!color.is_none()) {
@@ -2973,13 +2997,15 @@ PYBIND11_MODULE(pathlight_core, m) {
             info.shadow_set = uint8_t(shadow_set);
             info.light_mask = light_mask;
             info.shadow_mask = shadow_mask;
+            std::vector<Mat4> pm = to_motion(pass_motion, "instance pass_motion");
+            if (!pm.empty() && pm.size() != 2) throw std::invalid_argument("instance pass_motion must be a (2, 4, 4) array");
             self.scene->add_instance(mesh, to_mat4(matrix, "instance matrix"), info, to_motion(motion, "instance motion"),
-                                     to_object_attributes(attributes, "instance"));
+                                     to_object_attributes(attributes, "instance"), std::move(pm));
           },
           py::arg("mesh"), py::arg("matrix"), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
           py::arg("random_id") = 0u, py::arg("motion") = py::none(), py::arg("attributes") = py::none(),
           py::arg("shadow_terminator") = 0.0f, py::arg("light_set") = 0, py::arg("light_mask") = kAllLightSets,
-          py::arg("shadow_set") = 0, py::arg("shadow_mask") = kAllLightSets,
+          py::arg("shadow_set") = 0, py::arg("shadow_mask") = kAllLightSets, py::arg("pass_motion") = py::none(),
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
@@ -2987,7 +3013,25 @@ PYBIND11_MODULE(pathlight_core, m) {
           "attributes: its Object / Instancer attribute values, (K, 4) by slot with K <= 8 (the "
           "object_attribute op; NaN/inf read 0). light_set, shadow_set (0..63): its light linking "
           "sets as a receiver and a blocker; light_mask, shadow_mask: as an emitter (its emissive "
-          "triangles), as set_light_links.")
+          "triangles), as set_light_links. pass_motion: its matrices at the previous and next frames, "
+          "(2, 4, 4), for the Vector pass only (non-finite ones: still there).")
+      .def(
+          "set_mesh_pass_motion",
+          [](PyScene& self, uint32_t mesh, const FloatArray& positions) {
+            self.check_editable();
+            if (positions.ndim() != 3 || positions.shape(2) != 3 || positions.shape(0) != 2)
+              throw std::invalid_argument("mesh pass motion positions must be a (2, V, 3) array");
+            const py::ssize_t n = positions.shape(1);
+            std::vector<std::vector<Vec3>> out(2, std::vector<Vec3>(static_cast<size_t>(n)));
+            const float* p = positions.data();
+            for (size_t k = 0; k < 2; ++k)
+              std::memcpy(static_cast<void*>(out[k].data()), p + k * size_t(n) * 3, size_t(n) * sizeof(Vec3));
+            py::gil_scoped_release release;
+            return self.scene->set_mesh_pass_motion(mesh, std::move(out));
+          },
+          py::arg("mesh"), py::arg("positions"),
+          "Vector pass: mesh `mesh`'s vertex positions (object space) at the previous and next frames, "
+          "(2, V, 3). Returns False (and keeps none) where V is not its vertex count or a value is NaN/inf.")
 
       .def(
           "set_mesh_velocity",
@@ -3658,6 +3702,23 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("p"), py::arg("w"), py::arg("n"),
           "The learnt guiding field's pdf towards w at p on a surface facing n (a finished guided render).")
+      .def(
+          "film_aov",
+          [](PySession& self, int i) {
+            Film& f = self.session->film();
+            if (i < 0 || i >= f.aov_count()) throw std::invalid_argument("no shader AOV " + std::to_string(i));
+            FloatArray out({f.height(), f.width(), f.aov_channels(i)});
+            float* dst = out.mutable_data();
+            {
+              py::gil_scoped_release release;
+              f.read_aov(i, dst);
+            }
+            return out;
+          },
+          py::arg("i"),
+          "Shader AOV i (RenderSettings.shader_aovs) as float32 (H, W, channels), row 0 = bottom: the "
+          "mean over samples of what the AOV Output ops of the camera path's first surfaces wrote "
+          "(COLOR: (r, g, b, 1); VALUE: the value; 0 where nothing was written).")
       .def("film_pass", &film_pass, py::arg("name"),
            "One render pass as float32 (H, W, channels), row 0 = bottom (see render_passes()).");
 }

@@ -47,6 +47,11 @@ enum class Pass : int {
   AO,    // 3: unoccluded fraction of the AO rays at the camera path's surfaces
   ObjectIndex,    // 1: pass index of the object first seen (Cycles: of the first sample only)
   MaterialIndex,  // 1: pass index of its material, likewise
+  UV,             // 3: (u, v, 1) of the active render UV map at the first surface (0 without one), Cycles' UVA
+  // 4: Cycles' motion vectors in raster pixels: (previous - here).xy, (here - next).xy, the
+  // frames before and after; read divided by VectorWeight (the samples that hit something).
+  Vector,
+  VectorWeight,   // 1: kept for Vector (its divisor), not a Blender pass
   Count
 };
 constexpr int kPassCount = int(Pass::Count);
@@ -74,6 +79,8 @@ inline const PassDesc& pass_desc(Pass p) {
       {"VolumeDir", 3, true},                          {"VolumeInd", 3, true},
       {"Mist", 1, false},                              {"AO", 3, false},
       {"IndexOB", 1, false, -1, true},                 {"IndexMA", 1, false, -1, true},
+      {"UV", 3, false},                                {"Vector", 4, false, int(Pass::VectorWeight)},
+      {"Vector Weight", 1, false},
   };
   return table[int(p)];
 }
@@ -83,7 +90,9 @@ inline uint32_t pass_bit(Pass p) { return 1u << uint32_t(p); }
 class Film {
  public:
   // passes: a set of pass_bit()s; exposure scales Combined's RGB and the light passes on reading.
-  Film(int width, int height, int tile_size, uint32_t passes = 0, float exposure = 1.0f)
+  // aovs: the channels (1 or 4) of each shader AOV plane, kept after the passes' planes.
+  Film(int width, int height, int tile_size, uint32_t passes = 0, float exposure = 1.0f,
+       const std::vector<int>& aovs = {})
       : w_(width), h_(height), tile_(tile_size), passes_(passes), exposure_(exposure) {
     for (int p = 0; p < kPassCount; ++p) {
       offset_[p] = -1;
@@ -92,6 +101,12 @@ class Film {
         stride_ += pass_desc(Pass(p)).channels;
         for (int c = 0; c < pass_desc(Pass(p)).channels; ++c) first_.push_back(pass_desc(Pass(p)).first);
       }
+    }
+    for (int ch : aovs) {
+      aov_offset_.push_back(stride_);
+      aov_channels_.push_back(ch);
+      stride_ += ch;
+      for (int c = 0; c < ch; ++c) first_.push_back(false);
     }
     aux_.assign(size_t(w_) * size_t(h_) * size_t(stride_), 0.0f);  // empty without passes
     mean_.resize(size_t(w_) * size_t(h_));
@@ -120,6 +135,25 @@ class Film {
   // Floats per pixel of all pass planes together, and where pass p starts (-1: not kept).
   int aux_stride() const { return stride_; }
   int pass_offset(Pass p) const { return offset_[int(p)]; }
+  int aov_count() const { return int(aov_offset_.size()); }
+  int aov_offset(int i) const { return aov_offset_[size_t(i)]; }
+  int aov_channels(int i) const { return aov_channels_[size_t(i)]; }
+
+  // Copies shader AOV plane i (H rows of W * aov_channels(i) floats, bottom-up): the mean of
+  // what the samples added (0 where a sample wrote nothing), as Cycles' AOV passes.
+  void read_aov(int i, float* out) {
+    const int ch = aov_channels_[size_t(i)], off = aov_offset_[size_t(i)];
+    for (int t = 0; t < tile_count(); ++t) {
+      int x0, y0, x1, y1;
+      tile_rect(t, x0, y0, x1, y1);
+      std::lock_guard<std::mutex> lk(locks_[size_t(t)]);
+      for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x) {
+          const size_t px = size_t(y) * size_t(w_) + size_t(x);
+          for (int c = 0; c < ch; ++c) out[px * size_t(ch) + size_t(c)] = aux_[px * size_t(stride_) + size_t(off + c)];
+        }
+    }
+  }
 
   // aux: aux_stride() floats of the pass planes' values for this sample (ignored without passes).
   void add_sample(int x, int y, const Rgba& v, const float* aux = nullptr) {
@@ -241,7 +275,11 @@ class Film {
           if (p == Pass::Mist) dst[0] = 1.0f - dst[0];
           if (div >= 0) {  // (the session keeps the colour whenever a component is asked for)
             const float* col = &aux_[i * size_t(stride_) + size_t(div)];
-            for (int c = 0; c < ch; ++c) dst[c] = col[c] != 0.0f ? dst[c] / col[c] : 0.0f;
+            const bool one = pass_desc(Pass(pass_desc(p).divide)).channels == 1;  // (Vector's weight)
+            for (int c = 0; c < ch; ++c) {
+              const float d = col[one ? 0 : c];
+              dst[c] = d != 0.0f ? dst[c] / d : 0.0f;
+            }
           }
         }
     }
@@ -253,6 +291,7 @@ class Film {
   uint32_t passes_;
   float exposure_;
   int offset_[kPassCount];
+  std::vector<int> aov_offset_, aov_channels_;  // shader AOV planes
   int stride_ = 0;
   std::vector<float> aux_;  // stride_ floats per pixel: the running means of the pass planes
   std::vector<uint8_t> first_;  // per channel of a pixel's planes: PassDesc::first

@@ -59,6 +59,11 @@ struct IntegratorSettings {
   bool ao = false;
   float ao_distance = 10.0f;
   bool indices = false;  // Object and Material Index
+  // UV pass: uv set `uv_set` (the active render UV map; -1: none) at the data passes' surface.
+  bool uv_pass = false;
+  int uv_set = -1;
+  // Vector pass: where that surface was at the frames before and after (Scene::pass_motion).
+  bool vector_pass = false;
 };
 
 // Cycles' light components, as the film keeps them (before the division by their colour).
@@ -107,6 +112,13 @@ struct PathAovs {
   float mist = 0.0f;  // (1 - mist) times the alpha of the camera path's surfaces; the pass is 1 - this
   Vec3 ao{0.0f};      // the camera path's surfaces' unoccluded AO rays (times their alpha)
   float object_index = 0.0f, material_index = 0.0f;  // of the surface `hit` (0: none)
+  Vec3 uv{0.0f};  // IntegratorSettings::uv_pass: (u, v, 1) of the surface `hit`, (0, 0, 0) without a UV map
+  // IntegratorSettings::vector_pass: the world position of the surface `hit` at the previous
+  // and next frames (the session projects them with those frames' cameras).
+  Vec3 motion_pre{0.0f}, motion_post{0.0f};
+  // Shader AOV slots (kMaxShaderAovs, zeroed by the caller) that the AOV Output ops of the
+  // camera path's surfaces add to, up to the surface `hit`; nullptr: no shader AOVs.
+  Float4* shader_aovs = nullptr;
 };
 
 // The general kernel: every feature compiled in.

@@ -3,6 +3,7 @@
 #include "render/guiding.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <sys/resource.h>
@@ -27,6 +28,7 @@ void validate(const RenderSettings& s) {
   int pass_channels = 0;
   for (int p = 0; p < kPassCount; ++p)
     if (effective_passes(s) & pass_bit(Pass(p))) pass_channels += pass_desc(Pass(p)).channels;
+  for (int ch : s.shader_aovs) pass_channels += std::max(ch, 0);
   if (memory > 0.0) max_pixels = std::min(max_pixels, 0.5 * memory / (52.0 + 12.0 * pass_channels));
   if (s.width > 65536 || s.height > 65536 || double(s.width) * double(s.height) > max_pixels)
     throw std::invalid_argument("resolution " + std::to_string(s.width) + "x" + std::to_string(s.height) +
@@ -57,6 +59,10 @@ void validate(const RenderSettings& s) {
     throw std::invalid_argument("mist settings must be finite (depth >= 0, falloff > 0)");
   if (!(s.ao_distance >= 0.0f)) throw std::invalid_argument("ao_distance must be >= 0");
   if (s.passes >= (1u << kPassCount)) throw std::invalid_argument("unknown render pass");
+  if (s.shader_aovs.size() > size_t(kMaxShaderAovs))
+    throw std::invalid_argument("at most " + std::to_string(kMaxShaderAovs) + " shader AOVs");
+  for (int ch : s.shader_aovs)
+    if (ch != 1 && ch != 4) throw std::invalid_argument("a shader AOV has 1 (VALUE) or 4 (COLOR) channels");
 }
 
 uint32_t effective_passes(const RenderSettings& s) {
@@ -76,7 +82,8 @@ int film_height(const RenderSettings& s) { return s.border_height > 0 ? s.border
 Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera)
     : scene_(std::move(scene)),
       settings_((validate(settings), settings)),
-      film_(film_width(settings), film_height(settings), settings.tile_size, effective_passes(settings), settings.exposure) {
+      film_(film_width(settings), film_height(settings), settings.tile_size, effective_passes(settings), settings.exposure,
+            settings.shader_aovs) {
   if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
   // The viewport's camera overrides the scene's (same committed scene, nothing rebuilt).
   const CameraDesc& view = camera ? *camera : scene_->camera_desc();
@@ -124,6 +131,22 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     integrator_.mist = (kept & pass_bit(Pass::Mist)) != 0;
     integrator_.ao = (kept & pass_bit(Pass::AO)) != 0;
     integrator_.indices = (kept & (pass_bit(Pass::ObjectIndex) | pass_bit(Pass::MaterialIndex))) != 0;
+    integrator_.uv_pass = (kept & pass_bit(Pass::UV)) != 0;
+    integrator_.uv_set = settings_.uv_pass_set;
+    integrator_.vector_pass = (kept & pass_bit(Pass::Vector)) != 0;
+    if (integrator_.vector_pass) {
+      // The cameras of the frames before and after (Cycles' perspective_pre / _post), still.
+      CameraDesc d = view;
+      d.motion.clear();
+      d.shutter_curve.clear();
+      d.use_autofocus = false;
+      d.focus_distance = focus_distance_;
+      const bool moves = camera == nullptr && view.pass_motion.size() == 2;
+      d.matrix_world = moves ? view.pass_motion[0] : view.matrix_world;
+      camera_pre_ = Camera(d, settings_.width, settings_.height);
+      d.matrix_world = moves ? view.pass_motion[1] : view.matrix_world;
+      camera_post_ = Camera(d, settings_.width, settings_.height);
+    }
     integrator_.mist_start = settings_.mist_start;
     integrator_.mist_depth = settings_.mist_depth;
     integrator_.mist_falloff = settings_.mist_falloff;
@@ -296,6 +319,29 @@ void Session::write_aux(const PathAovs& a, float* out) const {
   put(Pass::AO, a.ao);
   put(Pass::ObjectIndex, Vec3(a.object_index));
   put(Pass::MaterialIndex, Vec3(a.material_index));
+  put(Pass::UV, a.uv);
+  if (const int off = film_.pass_offset(Pass::Vector); off >= 0) {
+    // Cycles' primitive_motion_vector: raster pixels (from the bottom-left) of the point at the
+    // previous and next frames through those frames' cameras, less (or from) where it is now.
+    float v[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+    if (a.hit) {
+      const float w = float(settings_.width), h = float(settings_.height);
+      const Vec3 c = camera_.to_ndc(a.position), pre = camera_pre_.to_ndc(a.motion_pre),
+                 post = camera_post_.to_ndc(a.motion_post);
+      v[0] = (pre.x - c.x) * w;
+      v[1] = (pre.y - c.y) * h;
+      v[2] = (c.x - post.x) * w;
+      v[3] = (c.y - post.y) * h;
+    }
+    for (int k = 0; k < 4; ++k) out[off + k] = std::isfinite(v[k]) ? v[k] : 0.0f;
+    out[film_.pass_offset(Pass::VectorWeight)] = a.hit ? 1.0f : 0.0f;
+  }
+  for (int i = 0; i < film_.aov_count(); ++i) {
+    const Float4 v = a.shader_aovs ? a.shader_aovs[i] : Float4{};
+    const float vals[4] = {v.x, v.y, v.z, v.w};
+    float* o = out + film_.aov_offset(i);
+    for (int c = 0; c < film_.aov_channels(i); ++c) o[c] = std::isfinite(vals[c]) ? vals[c] : 0.0f;
+  }
 }
 
 void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
@@ -309,6 +355,7 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
   std::vector<float> local_aux(size_t(tw) * size_t(th) * stride);
   const bool want_aovs = stride > 0 || settings_.film_transparent || scene_->any_holdout();
   const bool bvh_view = settings_.debug_view == DebugView::Bvh;
+  std::array<Float4, kMaxShaderAovs> shader_aovs;
   PathCounters counters;
   uint64_t nonfinite = 0, paths = 0;
   const bool adaptive = min_samples_ > 0;
@@ -339,6 +386,10 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
           continue;
         }
         PathAovs aovs;
+        if (film_.aov_count()) {  // (only renders with shader AOVs clear these)
+          shader_aovs.fill(Float4{});
+          aovs.shader_aovs = shader_aovs.data();
+        }
         // One independent stream per (seed, pixel, sample): thread- and pass-independent, and
         // keyed by the full-frame pixel, so a border renders exactly its part of the frame.
         const uint64_t pixel = uint64_t(fy) * uint64_t(settings_.width) + uint64_t(fx);

@@ -53,6 +53,12 @@ struct RenderSettings {
   // for Linear, Quadratic, Inverse Quadratic); the AO pass: its rays' length (world.light_settings.distance).
   float mist_start = 5.0f, mist_depth = 25.0f, mist_falloff = 2.0f;
   float ao_distance = 10.0f;
+  // The UV pass's uv set (the scene's global index of the active render UV map; -1: none, the
+  // pass reads 0).
+  int uv_pass_set = -1;
+  // Shader AOVs (the view layer's, in its order): the channels of each, 4 (COLOR) or 1 (VALUE);
+  // AOV Output ops write slot i (at most kMaxShaderAovs).
+  std::vector<int> shader_aovs;
   DebugView debug_view = DebugView::None;
   // Run the general integrator kernel even where a specialised one covers the scene (tests and
   // benchmarks compare the two).
@@ -134,6 +140,7 @@ class Session {
   std::shared_ptr<const Scene> scene_;
   RenderSettings settings_;
   Camera camera_;
+  Camera camera_pre_, camera_post_;  // the Vector pass's cameras at the previous and next frames
   PixelFilter filter_;
   int region_x_ = 0, region_y_ = 0;  // film pixel (0, 0) in the full frame
   float focus_distance_ = 0.0f;

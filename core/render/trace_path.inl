@@ -1122,7 +1122,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     if (s.path_state || s.differentials) ray_state.length = length_before + hit.t * length(ray.dir);
     if (s.path_state) ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
     ray_state.emission_only = emission_only;
+    if constexpr (kAovs) ray_state.aovs = aov && direct && want_data ? aov->shader_aovs : nullptr;
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
+    if constexpr (kAovs) ray_state.aovs = nullptr;
 
     // Light linking, as Cycles: rays other than the camera's get no emission from a mesh light not
     // linked to the vertex they left, nor from a shadow-linked one (its light samples have the
@@ -1164,6 +1166,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
             aov->object_index = scene.object_pass_index(sp);
             aov->material_index = scene.material(sp.material).pass_index;
           }
+          if (s.uv_pass) aov->uv = scene.pass_uv(sp, s.uv_set);
+          if (s.vector_pass) scene.pass_motion(sp, aov->motion_pre, aov->motion_post);
         }
       }
       if (want_features) {

@@ -55,6 +55,8 @@ struct CameraDesc {
   // also times the objects' motion.
   std::vector<Mat4> motion;
   std::vector<float> shutter_curve;
+  // Vector pass: matrix_world at the previous and next frames (2; empty: still).
+  std::vector<Mat4> pass_motion;
   // Panoramic cameras (type Panoramic), Blender's fields and units (radians, mm).
   PanoramaType panorama_type = PanoramaType::FisheyeEquisolid;
   float fisheye_fov = kPi, fisheye_lens = 10.5f;

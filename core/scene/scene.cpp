@@ -164,14 +164,15 @@ uint32_t Scene::add_mesh(MeshData mesh) {
 }
 
 void Scene::add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info, std::vector<Mat4> motion,
-                         const std::vector<Float4>& attributes) {
+                         const std::vector<Float4>& attributes, std::vector<Mat4> pass_motion) {
   if (mesh >= meshes_.size()) throw std::invalid_argument("add_instance: unknown mesh id");
   if (attributes.size() > kMaxObjectAttributes) throw std::invalid_argument("add_instance: too many object attributes");
   ObjectInfo with_attrs = info;
   with_attrs.attr_first = uint32_t(object_attrs_.size());
   with_attrs.attr_count = uint32_t(attributes.size());
   object_attrs_.insert(object_attrs_.end(), attributes.begin(), attributes.end());
-  instances_.push_back({mesh, m, with_attrs, std::move(motion)});
+  if (!pass_motion.empty() && pass_motion.size() != 2) throw std::invalid_argument("add_instance: pass_motion takes 2 matrices");
+  instances_.push_back({mesh, m, with_attrs, std::move(motion), std::move(pass_motion)});
   committed_ = false;
   geometry_dirty_ = true;
 }
@@ -189,6 +190,20 @@ void Scene::set_mesh_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps)
   m.motion_positions = ok && moves ? std::move(steps) : std::vector<std::vector<Vec3>>{};
   committed_ = false;
   geometry_dirty_ = true;
+}
+
+bool Scene::set_mesh_pass_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps) {
+  if (mesh >= meshes_.size()) throw std::invalid_argument("set_mesh_pass_motion: unknown mesh id");
+  MeshData& m = meshes_[mesh];
+  bool ok = steps.empty() || steps.size() == 2;
+  for (const std::vector<Vec3>& st : steps) {
+    ok = ok && st.size() == m.positions.size();
+    for (size_t k = 0; ok && k < st.size(); ++k) ok = is_finite(st[k]);
+  }
+  m.pass_positions = ok ? std::move(steps) : std::vector<std::vector<Vec3>>{};
+  committed_ = false;
+  geometry_dirty_ = true;
+  return ok;
 }
 
 void Scene::set_mesh_velocity(uint32_t mesh, int32_t grid, float scale, float offset, VolumeSampling sampling,

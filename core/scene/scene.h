@@ -54,6 +54,9 @@ struct MeshData {
   // long as positions; empty: no deformation). Its instances trace the triangles at the ray's
   // time; shading normals stay the frame's.
   std::vector<std::vector<Vec3>> motion_positions;
+  // Vector pass: the vertex positions at the previous and next frames (2, each as long as
+  // positions; empty: it does not deform). Only the pass reads them, never a ray.
+  std::vector<std::vector<Vec3>> pass_positions;
   // True displacement: the vertex positions before it (as long as positions; empty: not
   // displaced), for Generated coordinates and the bump of 'BOTH' (ShadingContext::undisplaced).
   std::vector<Vec3> undisplaced;
@@ -202,6 +205,8 @@ struct Instance {
   // Motion blur: the object-to-world matrix at each motion step over the shutter (>= 2, evenly
   // spaced, ray time 0 at the first); empty: static.
   std::vector<Mat4> motion;
+  // Vector pass: the object-to-world matrix at the previous and next frames (2; empty: still).
+  std::vector<Mat4> pass_motion;
 };
 
 // What the integrator needs about a hit point.
@@ -331,8 +336,13 @@ class Scene {
   // steps that are all equal are no motion.
   // attributes: its Object / Instancer attribute values by slot (at most kMaxObjectAttributes;
   // info's attr_first / attr_count are set here).
+  // pass_motion: Instance::pass_motion (the Vector pass), 2 matrices or none.
   void add_instance(uint32_t mesh, const Mat4& m, const ObjectInfo& info = {}, std::vector<Mat4> motion = {},
-                    const std::vector<Float4>& attributes = {});
+                    const std::vector<Float4>& attributes = {}, std::vector<Mat4> pass_motion = {});
+  // The Vector pass's deformation of mesh `mesh` (MeshData::pass_positions): 2 steps as long as
+  // its positions, or none. Returns false (and keeps none) for steps of the wrong length or
+  // with non-finite positions.
+  bool set_mesh_pass_motion(uint32_t mesh, std::vector<std::vector<Vec3>> steps);
   // A set of curves (validated by the caller). Strands with bad data are left out at commit
   // (counted in stats().skipped_curves).
   uint32_t add_curves(CurveSetData curves) {
@@ -599,6 +609,12 @@ class Scene {
   void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray = {}) const;
   // The pass index of the object hit at sp (Cycles' Object Index pass).
   float object_pass_index(const SurfacePoint& sp) const;
+  // Cycles' UV pass at sp: (u, v, 1) of uv set k, or zero where there is none (curves and
+  // points too).
+  Vec3 pass_uv(const SurfacePoint& sp, int k) const;
+  // Cycles' Vector pass: where sp's point was at the previous frame and will be at the next one
+  // (Instance::pass_motion, MeshData::pass_positions); curves, points and still objects: sp.p.
+  void pass_motion(const SurfacePoint& sp, Vec3& pre, Vec3& post) const;
   float hair_pixel_coverage(const SurfacePoint& sp, float b1, const RayState& ray) const;
   Vec3 hair_curve_normal(const SurfacePoint& sp, float b1) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
@@ -920,6 +936,13 @@ class Scene {
   // Motion of curve and point sets dropped at their last build (added to stats().motion_rejected).
   size_t curve_motion_rejected_ = 0, point_motion_rejected_ = 0, instance_motion_rejected_ = 0;
   std::vector<ObjectCoords> object_coords_;  // per instance, made at commit
+  // Per instance (empty when nothing has any): the Vector pass's world -> world maps to the
+  // previous and next frames, or object -> world at them where its mesh deforms.
+  struct PassMotion {
+    Mat4 pre, post;
+    bool moves = false, deform = false;
+  };
+  std::vector<PassMotion> pass_motion_;
   std::vector<std::vector<DecomposedTransform>> motion_;  // per instance, made at commit (empty: static)
   size_t motion_instances_ = 0;
   size_t mesh_motion_rejected_ = 0;  // set_mesh_motion calls refused

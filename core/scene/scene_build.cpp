@@ -328,6 +328,30 @@ void Scene::build_instances() {
     in.prim_base = prim;
     prim += in.kept;
   }
+  // The Vector pass's maps, only where some instance or mesh moves between frames.
+  pass_motion_.clear();
+  bool any_pass_motion = false;
+  for (const Instance& inst : instances_)
+    any_pass_motion = any_pass_motion || !inst.pass_motion.empty() || !meshes_[inst.mesh].pass_positions.empty();
+  if (any_pass_motion) {
+    pass_motion_.resize(instances_.size());
+    for (size_t i = 0; i < instances_.size(); ++i) {
+      const Instance& inst = instances_[i];
+      PassMotion& pm = pass_motion_[i];
+      const Mat4 pre = inst.pass_motion.empty() ? inst.matrix : inst.pass_motion[0];
+      const Mat4 post = inst.pass_motion.empty() ? inst.matrix : inst.pass_motion[1];
+      pm.deform = !meshes_[inst.mesh].pass_positions.empty();
+      if (pm.deform) {  // object space positions at those frames, to world by those frames' matrices
+        pm.pre = pre;
+        pm.post = post;
+        pm.moves = pre.is_finite() && post.is_finite();
+      } else if (!inst.pass_motion.empty() && object_coords_[i].valid) {
+        pm.pre = mat_mul(pre, object_coords_[i].to_object);
+        pm.post = mat_mul(post, object_coords_[i].to_object);
+        pm.moves = pm.pre.is_finite() && pm.post.is_finite();
+      }
+    }
+  }
   stats_.triangles = prim;
   stats_.real_instances = real;
   stats_.motion_instances = motion_instances_ = moving;

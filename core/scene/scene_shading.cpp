@@ -606,6 +606,39 @@ Vec3 trace_bevel(const ShadingContext& ctx, float radius, int samples) {
   return l > 0.0f && std::isfinite(l) ? sum / std::sqrt(l) : ctx.ns;
 }
 
+Vec3 Scene::pass_uv(const SurfacePoint& sp, int k) const {
+  if (sp.curve() || sp.point() || k < 0 || sp.instance >= inst_.size()) return Vec3(0.0f);
+  const InstanceData& in = inst_[sp.instance];
+  const MeshData& mesh = meshes_[in.mesh];
+  if (size_t(k) >= mesh.uvs.size() || mesh.uvs[size_t(k)].empty() || in.blas >= blases_.size()) return Vec3(0.0f);
+  const size_t st = blases_[in.blas].src_tri[sp.tri];
+  const Vec2* t = &mesh.uvs[size_t(k)][3 * st];
+  const float b0 = 1.0f - sp.b1 - sp.b2;
+  return {t[0].x * b0 + t[1].x * sp.b1 + t[2].x * sp.b2, t[0].y * b0 + t[1].y * sp.b1 + t[2].y * sp.b2, 1.0f};
+}
+
+void Scene::pass_motion(const SurfacePoint& sp, Vec3& pre, Vec3& post) const {
+  pre = post = sp.p;
+  if (pass_motion_.empty() || sp.curve() || sp.point() || sp.instance >= pass_motion_.size()) return;
+  const PassMotion& pm = pass_motion_[sp.instance];
+  if (!pm.moves) return;
+  if (!pm.deform) {
+    pre = pm.pre.point(sp.p);
+    post = pm.post.point(sp.p);
+    return;
+  }
+  // A deforming mesh: its triangle at those frames, at the hit's barycentrics (as Cycles reads
+  // the motion vertex positions).
+  const InstanceData& in = inst_[sp.instance];
+  if (in.blas >= blases_.size()) return;
+  const MeshData& mesh = meshes_[in.mesh];
+  const std::array<uint32_t, 3>& t = mesh.triangles[blases_[in.blas].src_tri[sp.tri]];
+  const float b0 = 1.0f - sp.b1 - sp.b2;
+  const auto at = [&](const std::vector<Vec3>& v) { return v[t[0]] * b0 + v[t[1]] * sp.b1 + v[t[2]] * sp.b2; };
+  pre = pm.pre.point(at(mesh.pass_positions[0]));
+  post = pm.post.point(at(mesh.pass_positions[1]));
+}
+
 float Scene::object_pass_index(const SurfacePoint& sp) const {
   if (sp.curve()) return curve_coords_[curve_set_of(curve_bvh_.piece_at(sp.tri, sp.time).curve)].info.pass_index;
   if (sp.point()) {

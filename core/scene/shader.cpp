@@ -657,6 +657,19 @@ template <bool kSetsNormal>
         d = f4(n * ctx.view_side(), 0.0f);
         break;
       }
+      case OpCode::AovOutput: {
+        d = reg(op.in[0]);
+        if (Float4* a = ctx.ray.aovs; a && op.index >= 0 && op.index < kMaxShaderAovs) {
+          Float4& slot = a[op.index];
+          slot.x += d.x;
+          if (op.sub) {  // a colour: (r, g, b, 1), as film_write_aov_pass_color
+            slot.y += d.y;
+            slot.z += d.z;
+            slot.w += 1.0f;
+          }
+        }
+        break;
+      }
       case OpCode::SetNormal: {
         const Vec3 n = reg(op.in[0]).xyz() * ctx.view_side();  // (the Bump's, towards the viewer)
         if constexpr (kSetsNormal)

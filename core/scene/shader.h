@@ -76,10 +76,16 @@ enum class OpCode : uint8_t {
   // the scaled vector over uv set `index`'s tangent, the normal and the bitangent (object
   // space), turned to world space.
   TangentDisplace,
+  // The AOV Output node (Cycles' svm_node_aov_color / _value): adds in[0] to shader AOV slot
+  // `index` (sub 1: a colour, (r, g, b, 1); 0: a value, in x) where the integrator asks for it
+  // (RayState::aovs); its result is in[0] unchanged.
+  AovOutput,
   // A displacement program's output (its last op): in[0] the world-space offset of the vertex
   // (true displacement, scene/displace.h).
   DisplaceOut,
 };
+// Shader AOV slots (view-layer AOVs) a render can keep.
+constexpr int kMaxShaderAovs = 16;
 
 enum class MathOp : uint8_t {
   Add, Subtract, Multiply, Divide, Power, Minimum, Maximum, LessThan, GreaterThan, Absolute,
@@ -275,6 +281,9 @@ struct RayState {
   // Cycles evaluates light samples and a path's last vertex without closure storage, so the
   // layers whose albedo comes from a closure (sheen, coat) do not dim emission there.
   bool emission_only = false;
+  // The camera path's surfaces up to the data passes' one (Cycles' svm_node_aov_check): the
+  // shader AOV slots (kMaxShaderAovs) that AOV Output ops add to; nullptr elsewhere.
+  Float4* aovs = nullptr;
 };
 
 // What a program can read at a shading point.

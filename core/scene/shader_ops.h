@@ -97,6 +97,7 @@ inline constexpr const char* kTangentDirections[] = {"X", "Y", "Z", "UV_MAP"};  
 inline constexpr const char* kGaborTypes[] = {"2D", "3D"};  // sub 2 and 3 (the dimensions)
 inline constexpr const char* kGaborOutputs[] = {"VALUE", "PHASE", "INTENSITY"};
 inline constexpr const char* kAoOutputs[] = {"COLOR", "AO"};
+inline constexpr const char* kAovTypes[] = {"VALUE", "COLOR"};
 
 // The schema of the value ops (issue 22). A value op's tuple is `(name, dst, registers...,
 // parameters...)` (docs/core_api.md): `registers` register operands fill in[0..], then each
@@ -304,6 +305,9 @@ inline constexpr OpParam kObjectAttribute[] = {
 inline constexpr OpParam kVolumeGrid[] = {int_in(F::Index, "volume grid id", 0, (1 << 30)),
                                           choice(F::Sub, "attribute output", kAttributeOutputs),
                                           choice(F::Ext, "interpolation", kVolumeInterpOpNames)};
+// AOV Output: the view layer's AOV slot, its type.
+inline constexpr OpParam kAovOutput[] = {int_in(F::Index, "aov slot", 0, kMaxShaderAovs - 1),
+                                         choice(F::Sub, "aov type", kAovTypes)};
 }  // namespace schema
 
 // Every value op: its name, OpCode, registers, parameters and program flags. Adding a value op
@@ -375,6 +379,8 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"object_attribute", OpCode::ObjectAttribute, 0, schema::kObjectAttribute, kVarying},  // per instance
     {"set_normal", OpCode::SetNormal, 1, {}, kVarying | kSetsNormal},  // the new shading normal
     {"volume_grid", OpCode::VolumeGrid, 0, schema::kVolumeGrid, kVarying},  // volume objects' grids
+    // (kVarying: evaluated at every hit, never folded or cached, so each camera hit adds once)
+    {"aov_output", OpCode::AovOutput, 1, schema::kAovOutput, kVarying},
 };
 
 // The OpCodes that closure ops (or their companions) produce; every other OpCode is a value op's.

@@ -367,6 +367,7 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
             volume = self.volume(output.inputs["Volume"], name)
         except _Cycle as e:
             self.problem(f"node cycle through '{e}' in the volume (ignored)")
+        self.aov_outputs(output.id_data)
         surface = self.source(output.inputs["Surface"], ())
         if volume is not None and (surface is None or surface[0] == "default"):
             # A Volume without a Surface: the boundary lets everything through (as Cycles').
@@ -382,6 +383,32 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         return CompiledShader(program, absorption, medium, dict(self.uv_used), list(self.problems),
                               displacement, displacement_method if displacement else 'BUMP')
 
+    def aov_outputs(self, tree):
+        """AOV Output nodes of the material's tree whose name is one of the view layer's AOVs
+        (Cycles: the Color input for a COLOR AOV, Value for a VALUE one; other names write
+        nothing): an aov_output op each, run at the camera path's first surfaces."""
+        aovs = getattr(self.uv_sets, "aovs", None)
+        if not aovs:
+            return
+        for node in tree.nodes:
+            if node.bl_idname == "ShaderNodeGroup" and _has_aov_output(node.node_tree):
+                self.problem(f"AOV Output inside node group '{node.name}' is not supported (left out)")
+            if node.bl_idname != "ShaderNodeOutputAOV" or getattr(node, "mute", False):
+                continue
+            entry = aovs.get(node.aov_name)
+            if entry is None:
+                continue
+            slot, kind = entry
+            try:
+                if kind == 'COLOR':
+                    value = self.input(node, "Color", (), "color")
+                else:
+                    value = self.input(node, "Value", (), "float")
+            except _Cycle as e:
+                self.problem(f"node cycle through '{e}' into AOV Output '{node.name}' (ignored)")
+                continue
+            self.emit("color" if kind == 'COLOR' else "float", "aov_output", self.reg(value), slot, kind)
+
     def _reset(self):
         self.ops = []
         self.nreg = 0
@@ -389,6 +416,14 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         self.cache = {}
         self.visiting = set()
         self.uv_used = {}
+
+
+def _has_aov_output(tree, depth=0):
+    """Whether a node group (or one nested in it) has an AOV Output node."""
+    if tree is None or depth > 16:
+        return False
+    return any(n.bl_idname == "ShaderNodeOutputAOV" or
+               (n.bl_idname == "ShaderNodeGroup" and _has_aov_output(n.node_tree, depth + 1)) for n in tree.nodes)
 
 
 def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, volume_grids=None,

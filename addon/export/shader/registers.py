@@ -36,7 +36,7 @@ def eliminate_dead_code(ops):
     live = set()
     kept = []
     for op in reversed(ops):
-        if op[0] not in ("closure", "set_normal") and op[1] not in live:  # set_normal: its effect
+        if op[0] not in ("closure", "set_normal", "aov_output") and op[1] not in live:  # these: their effect
             continue
         live.update(_reads(op))
         kept.append(op)

@@ -14,6 +14,9 @@ class UvSets:
         # Object attribute slot -> ("OBJECT" or "INSTANCER", name): what every instance's
         # values are resolved for (export.object_attributes).
         self.object_attributes = []
+        # The rendered view layer's shader AOVs: name -> (slot, 'COLOR' or 'VALUE'), what AOV
+        # Output nodes write (export_scene fills it; empty: the nodes are left out).
+        self.aovs = {}
 
     def index(self, name):
         """k for `name`, or None when all MAX_UV_SETS are taken."""
