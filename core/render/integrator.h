@@ -59,6 +59,17 @@ struct IntegratorSettings {
   bool ao = false;
   float ao_distance = 10.0f;
   bool indices = false;  // Object and Material Index
+  uint32_t cryptomatte = 0;  // Cryptomatte layers to record (kCrypto* bits): PathAovs::crypto
+};
+
+// Cryptomatte layers (Cycles' CRYPT_OBJECT, CRYPT_MATERIAL, CRYPT_ASSET).
+enum CryptoLayer : uint32_t { kCryptoObject = 1, kCryptoMaterial = 2, kCryptoAsset = 4 };
+// The camera path's surfaces a sample records for Cryptomatte: the first one and those seen
+// through Transparent BSDFs; deeper ones are dropped (their weight is what the film misses).
+constexpr int kMaxCryptoHits = 8;
+struct CryptoHit {
+  float object, material, asset;  // the ids (ObjectInfo::crypto_*, Material::crypto)
+  float weight;  // Cycles' matte weight: average throughput times (1 - average transparency)
 };
 
 // Cycles' light components, as the film keeps them (before the division by their colour).
@@ -107,6 +118,8 @@ struct PathAovs {
   float mist = 0.0f;  // (1 - mist) times the alpha of the camera path's surfaces; the pass is 1 - this
   Vec3 ao{0.0f};      // the camera path's surfaces' unoccluded AO rays (times their alpha)
   float object_index = 0.0f, material_index = 0.0f;  // of the surface `hit` (0: none)
+  int crypto_count = 0;  // IntegratorSettings::cryptomatte: the first crypto_count of crypto
+  CryptoHit crypto[kMaxCryptoHits];  // (left uninitialised: only crypto_count are read)
 };
 
 // The general kernel: every feature compiled in.

@@ -53,6 +53,10 @@ struct RenderSettings {
   // for Linear, Quadratic, Inverse Quadratic); the AO pass: its rays' length (world.light_settings.distance).
   float mist_start = 5.0f, mist_depth = 25.0f, mist_falloff = 2.0f;
   float ao_distance = 10.0f;
+  // Cryptomatte layers (kCryptoObject / kCryptoMaterial / kCryptoAsset bits) and their levels
+  // (Blender's pass_cryptomatte_depth, 1..16: id / coverage pairs, two per RGBA pass).
+  uint32_t cryptomatte = 0;
+  int cryptomatte_depth = 6;
   DebugView debug_view = DebugView::None;
   // Run the general integrator kernel even where a specialised one covers the scene (tests and
   // benchmarks compare the two).
@@ -129,6 +133,13 @@ class Session {
   void render_tile(int tile, int s0, int s1, int thread);
   // Lays out one sample's pass values as the film's planes expect them.
   void write_aux(const PathAovs& a, float* out) const;
+ public:
+  // The film's Cryptomatte layer of a kCrypto* bit (-1: not rendered) and the RGBA passes each
+  // layer has (Cycles' divide_up(min(16, depth), 2)).
+  int crypto_layer(uint32_t bit) const;
+  int crypto_passes() const { return film_.crypto_slots() / 2; }
+
+ private:
   double elapsed() const;
 
   std::shared_ptr<const Scene> scene_;

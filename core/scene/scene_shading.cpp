@@ -606,14 +606,14 @@ Vec3 trace_bevel(const ShadingContext& ctx, float radius, int samples) {
   return l > 0.0f && std::isfinite(l) ? sum / std::sqrt(l) : ctx.ns;
 }
 
-float Scene::object_pass_index(const SurfacePoint& sp) const {
-  if (sp.curve()) return curve_coords_[curve_set_of(curve_bvh_.piece_at(sp.tri, sp.time).curve)].info.pass_index;
+const ObjectInfo& Scene::object_info(const SurfacePoint& sp) const {
+  if (sp.curve()) return curve_coords_[curve_set_of(curve_bvh_.piece_at(sp.tri, sp.time).curve)].info;
   if (sp.point()) {
     PointFrame moved;
     const PointFrame* frame = nullptr;
-    return point_coords_[point_set_of(point_bvh_.world_sphere(sp.tri, sp.time, moved, frame).point)].info.pass_index;
+    return point_coords_[point_set_of(point_bvh_.world_sphere(sp.tri, sp.time, moved, frame).point)].info;
   }
-  return object_coords_[sp.instance].info.pass_index;
+  return object_coords_[sp.instance].info;
 }
 
 }  // namespace pl
