@@ -105,7 +105,7 @@ def crypto_passes(view_layer):
     out as Cycles': CryptoObject00, 01, ... RGBA, two (id, coverage) pairs each, as many as
     its levels (pass_cryptomatte_depth, at most 16) need."""
     count = (min(16, int(view_layer.pass_cryptomatte_depth)) + 1) // 2
-    return [(f"{stem}{i:02d}", 4, "RGBA", 'COLOR', None)
+    return [(f"{stem}{i:02d}", 4, "rgba", 'COLOR', None)
             for _, stem, _ in crypto_layers(view_layer) for i in range(count)]
 
 
