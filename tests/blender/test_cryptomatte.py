@@ -78,16 +78,16 @@ def crypto_scene():
     return sc
 
 
-def render(sc, engine, path, seed=0):
+def render(sc, engine, path, seed=0, samples=SPP):
     """Multilayer EXR render with `engine` (Blackman-Harris 1.5 px, both engines' default):
     (channels, header)."""
     sc.render.engine = engine
     if engine == 'CYCLES':
-        sc.cycles.device, sc.cycles.samples, sc.cycles.seed = 'CPU', SPP, seed
+        sc.cycles.device, sc.cycles.samples, sc.cycles.seed = 'CPU', samples, seed
         sc.cycles.use_denoising = sc.cycles.use_adaptive_sampling = False
         sc.cycles.pixel_filter_type, sc.cycles.filter_width = 'BLACKMAN_HARRIS', 1.5
     else:
-        sc.pathlight.samples, sc.pathlight.seed = SPP, seed
+        sc.pathlight.samples, sc.pathlight.seed = samples, seed
         sc.pathlight.use_adaptive_sampling = False
         sc.pathlight.filter_type, sc.pathlight.filter_width = 'BLACKMAN_HARRIS', 1.5
     channels = render_multilayer_file(sc, path)
@@ -187,6 +187,34 @@ def test_coverages_match_cycles_within_its_noise(renders):
         # of full coverage (or twice Cycles' seed noise there).
         assert mean_diff < max(0.01 * b.mean(), 2.0 * seed_mean), (layer, name, mean_diff, seed_mean)
         assert worst < max(0.01, 2.0 * seed_worst), (layer, name, worst, seed_worst)
+
+
+def test_farm_merge_ranks_the_ids_again(renders, tmp_path):
+    """Two halves of the sample range, merged by build.py merge, give the full render's
+    Cryptomatte (ids merged, not averaged) and keep its manifests."""
+    import build
+    pc = addon.core.get_core()
+    sc, out = renders
+    halves = []
+    for k in range(2):
+        sc.pathlight.sample_offset = k * SPP // 2
+        path = tmp_path / f"half{k}.exr"
+        render(sc, 'PATHLIGHT', path, samples=SPP // 2)
+        halves.append(str(path))
+    sc.pathlight.sample_offset = 0
+    sc.pathlight.samples = SPP
+    build.merge_exr(halves, str(tmp_path / "merged.exr"))
+    with OpenEXR.File(str(tmp_path / "merged.exr"), separate_channels=True) as exr:
+        header = {k: v for k, v in exr.header().items() if k.startswith("cryptomatte/")}
+        merged = {k.split(".", 1)[1]: np.array(v.pixels, np.float32) for k, v in exr.channels().items()}
+    full, full_header = out["pathlight"]
+    assert header == full_header
+    for layer, name in (("CryptoObject", "Back"), ("CryptoObject", "Veil"), ("CryptoObject", "Ball"),
+                        ("CryptoMaterial", "Shared"), ("CryptoAsset", "Rig")):
+        (id_,) = ids_of(pc, name)
+        np.testing.assert_allclose(coverage(merged, layer, id_), coverage(full, layer, id_), atol=1e-5)
+    w = np.stack([merged[f"CryptoObject{p:02d}.{c}"] for p in range(2) for c in "ga"])
+    assert np.all(np.diff(w, axis=0) <= 0)  # ranked again
 
 
 def test_compositor_cryptomatte_node_picks_an_object(renders, tmp_path):
