@@ -6,6 +6,7 @@ the core; final renders (session.py), the kept scene of the last render (render_
 the viewport's live edits (viewport.py) all write through the functions here.
 tests/blender/test_scene_writer.py fails if any other add-on module calls a core scene writer."""
 
+from .export.material import cryptomatte_name
 from .export.world import WorldSky
 
 
@@ -76,11 +77,11 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             if info is None:
                 scene.add_instance(mesh_id, matrix, **extra)
                 continue
-            color, pass_index, random_id, terminator = info
+            color, pass_index, random_id, terminator = info[:4]
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
             scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id,
-                               shadow_terminator=terminator, **extra)
+                               shadow_terminator=terminator, **_crypto(info), **extra)
     curves = getattr(data, "curves", [])
     if curves:
         mats = iter(data.curve_materials)
@@ -140,6 +141,7 @@ def put_material(scene, m, image_ids, core_id=None):
             scene.set_material(core_id, m.name, base_color=m.base_color, emission=m.emission)
         if m.pass_index:
             scene.set_material_pass_index(core_id, m.pass_index)
+        scene.set_material_cryptomatte(core_id, cryptomatte_name(m))
         return core_id
     def remap(ops):
         return [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op for op in ops]
@@ -156,7 +158,14 @@ def put_material(scene, m, image_ids, core_id=None):
                          use_schlick=m.use_schlick, **kw)
     if m.pass_index:
         scene.set_material_pass_index(core_id, m.pass_index)
+    scene.set_material_cryptomatte(core_id, cryptomatte_name(m))
     return core_id
+
+
+def _crypto(info):
+    """add_instance / add_curves / add_points keywords of an object's Cryptomatte names (the
+    fifth entry of mesh.object_info's tuple; none in older tuples)."""
+    return {"cryptomatte": info[4]} if len(info) > 4 and info[4] is not None else {}
 
 
 def _motion_args(entry, k):
@@ -204,11 +213,12 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
                     scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
                                      **extra)
                     continue
-                color, pass_index, random_id, _ = info
+                color, pass_index, random_id, _ = info[:4]
                 if random_id is None:
                     random_id = random_id_of(c.name) if random_id_of else 0
                 scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
-                                 color=color, pass_index=pass_index, random_id=random_id, **extra)
+                                 color=color, pass_index=pass_index, random_id=random_id, **_crypto(info),
+                                 **extra)
             except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
                 warn(f"Curves '{c.name}' not rendered: {e}")
                 break
@@ -227,10 +237,10 @@ def add_points(scene, points, material_ids, warn, random_id_of=None):
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
                 extra["attributes"] = attributes[k]
             if info is not None:
-                color, pass_index, random_id, _ = info
+                color, pass_index, random_id, _ = info[:4]
                 if random_id is None:
                     random_id = random_id_of(p.name) if random_id_of else 0
-                extra.update(color=color, pass_index=pass_index, random_id=random_id)
+                extra.update(color=color, pass_index=pass_index, random_id=random_id, **_crypto(info))
             try:
                 scene.add_points(p.points, p.radii, mat, matrix=m, **extra)
             except ValueError as e:  # inconsistent arrays: the cloud is left out, Blender goes on

@@ -1,5 +1,6 @@
 """Final-render driver: export the scene, run a core Session, stream its film into the result."""
 
+import json
 import logging
 import threading
 import time
@@ -106,15 +107,62 @@ def shader_aovs(view_layer):
 MAX_SHADER_AOVS = 16  # the core's kMaxShaderAovs
 
 
+# Cryptomatte layers: (view-layer switch, Cycles' pass-name stem, the core's layer name).
+CRYPTO_LAYERS = (
+    ("use_pass_cryptomatte_object", "CryptoObject", "object"),
+    ("use_pass_cryptomatte_material", "CryptoMaterial", "material"),
+    ("use_pass_cryptomatte_asset", "CryptoAsset", "asset"),
+)
+
+
+def crypto_layers(view_layer):
+    """The CRYPTO_LAYERS entries this view layer asks for."""
+    return [c for c in CRYPTO_LAYERS if getattr(view_layer, c[0], False)]
+
+
+def crypto_passes(view_layer):
+    """PASSES-like entries of the Cryptomatte passes this view layer asks for, named and laid
+    out as Cycles': CryptoObject00, 01, ... RGBA, two (id, coverage) pairs each, as many as
+    its levels (pass_cryptomatte_depth, at most 16) need."""
+    count = (min(16, int(view_layer.pass_cryptomatte_depth)) + 1) // 2
+    return [(f"{stem}{i:02d}", 4, "rgba", 'COLOR', None)
+            for _, stem, _ in crypto_layers(view_layer) for i in range(count)]
+
+
 def update_render_passes(engine, scene, view_layer):
     """RenderEngine.update_render_passes: declares the passes, so the compositor shows sockets."""
     if scene is None or view_layer is None:
         return
     engine.register_pass(scene, view_layer, "Combined", 4, "RGBA", 'COLOR')
-    for name, channels, chan_id, socket, _ in enabled_passes(scene, view_layer):
+    for name, channels, chan_id, socket, _ in enabled_passes(scene, view_layer) + crypto_passes(view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
     for name, channels, chan_id, socket in shader_aovs(view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
+
+
+def cryptomatte_metadata(pc, data, view_layer):
+    """{field: value} of the render result's Cryptomatte metadata, as Cycles writes it: per layer
+    "cryptomatte/<first 7 hex digits of the hash of '<view layer>.CryptoObject'>/" name, hash,
+    conversion and manifest (JSON {name: "%08x" hash}) of the names in SceneData `data`."""
+    from .export.material import cryptomatte_name
+    objects, assets = set(), set()
+    for entry in list(data.meshes) + list(getattr(data, "curves", [])) + list(getattr(data, "points", [])):
+        for info in getattr(entry, "infos", []):
+            if info is not None and len(info) > 4 and info[4] is not None:
+                objects.add(info[4][0])
+                assets.add(info[4][1])
+    names = {"object": objects, "asset": assets,
+             "material": {cryptomatte_name(m) for m in data.materials}}
+    out = {}
+    for _, stem, layer in crypto_layers(view_layer):
+        layer_name = f"{view_layer.name}.{stem}"
+        prefix = f"cryptomatte/{pc.cryptomatte_hash(layer_name):08x}"[:len("cryptomatte/") + 7] + "/"
+        manifest = {n: f"{pc.cryptomatte_hash(n):08x}" for n in sorted(names[layer])}
+        out[prefix + "name"] = layer_name
+        out[prefix + "hash"] = "MurmurHash3_32"
+        out[prefix + "conversion"] = "uint32_to_float32"
+        out[prefix + "manifest"] = json.dumps(manifest, separators=(",", ":"), ensure_ascii=False)
+    return out
 
 
 def render_border(scene, warn=None):
@@ -243,6 +291,10 @@ def render(engine, depsgraph):
             settings.shader_aovs = [a[1] for a in aovs]
         if "UV" in names and "" in data.uv_sets.names:
             settings.uv_pass_set = data.uv_sets.names.index("")
+        crypto = crypto_passes(view_layer) if hasattr(pc, "cryptomatte_hash") else []
+        if crypto:
+            settings.cryptomatte = [c[2] for c in crypto_layers(view_layer)]
+            settings.cryptomatte_depth = max(1, min(16, int(view_layer.pass_cryptomatte_depth)))
         # Spatial splits in final renders only: not thumbnails, never the viewport.
         set_build_options(core_scene,
                           spatial_splits=scene.pathlight.use_spatial_splits and not engine.is_preview,
@@ -264,15 +316,16 @@ def render(engine, depsgraph):
             warn(f"{dropped} degenerate triangle(s) skipped")
         _report_focus(sess, warn)
         _report_kernel(sess)
-        for name, channels, chan_id, _, _ in passes:
+        for name, channels, chan_id, _, _ in passes + crypto:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         for name, channels, chan_id, _ in aovs:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _, _, width, height = render_border(scene)
         done = _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit,
                     passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs], bvh_view=scene.pathlight.debug_view == 'BVH',
-                    layer=view_layer.name)
-        _stamp(engine, settings.sample_offset, done)
+                    layer=view_layer.name, final_passes=[c[0] for c in crypto])
+        _stamp(engine, settings.sample_offset, done,
+               cryptomatte_metadata(pc, data, view_layer) if crypto else {})
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
@@ -402,9 +455,9 @@ def _warner(engine):
     return warn
 
 
-def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=()):
+def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=(), final_passes=()):
     """Streams the session's film (and passes) into the render result; returns the samples
-    done."""
+    done. final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at the end."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     # With a render border, Blender's result is the border's size (it crops, or pastes the
     # border into the frame, itself): the film covers exactly that.
@@ -415,6 +468,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
         combined = render_layer.passes["Combined"]
         targets = [(name, render_layer.passes.get(name)) for name in passes]
         aov_targets = [(i, render_layer.passes.get(name)) for i, name in enumerate(aovs)]
+        final_targets = [(name, render_layer.passes.get(name)) for name in final_passes]
         sess.start()
         shown = -1
         stats_at = -1.0
@@ -425,8 +479,8 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
                 # film(): float32 (H, W, 4), row 0 = bottom, which is also Blender's order.
                 image = _bvh_heat_map(engine, sess, finished) if bvh_view else sess.film()
                 combined.rect.foreach_set(image.ravel())  # ~400x faster than `rect = `
-                for name, target in targets:  # film_pass(): (H, W, channels), same order
-                    if target is not None:
+                for name, target in targets + (final_targets if finished else []):
+                    if target is not None:  # film_pass(): (H, W, channels), same order
                         target.rect.foreach_set(sess.film_pass(name).ravel())
                 for i, target in aov_targets:  # film_aov(i): shader AOV slot i
                     if target is not None:
@@ -455,13 +509,16 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
     return info["samples_done"]
 
 
-def _stamp(engine, sample_offset, samples):
+def _stamp(engine, sample_offset, samples, extra=None):
     """Sample range of the render as image metadata (EXR header attributes, PNG text):
-    `python3 build.py merge` weighs partial renders of one frame by it (docs/farm.md)."""
+    `python3 build.py merge` weighs partial renders of one frame by it (docs/farm.md).
+    extra: more {field: value} (the Cryptomatte manifests, which the compositor reads)."""
     try:
         result = engine.get_result()  # the whole frame's result (a tile's stamp is not saved)
         result.stamp_data_add_field("Pathlight Sample Offset", str(sample_offset))
         result.stamp_data_add_field("Pathlight Samples", str(samples))
+        for field, value in (extra or {}).items():
+            result.stamp_data_add_field(field, value)
     except (AttributeError, RuntimeError, TypeError, ReferenceError) as e:  # no metadata then
         log.warning("could not stamp the sample range: %s", e)
 

@@ -29,6 +29,12 @@ class MaterialData(NamedTuple):
 DEFAULT_MATERIAL = MaterialData("Pathlight Default", GREY, BLACK)
 
 
+def cryptomatte_name(m):
+    """The name MaterialData `m` has in Cryptomatte Material passes and manifests: its bpy
+    material's, or for the empty slot Cycles' default surface shader's."""
+    return "default_surface" if m is DEFAULT_MATERIAL else m.name
+
+
 def socket_rgb(socket):
     return tuple(float(c) for c in socket.default_value[:3])
 

@@ -445,12 +445,16 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
 
 
 def object_info(instance):
-    """(RGBA colour, pass index, random id or None, shadow terminator geometry offset) of a
-    depsgraph object instance."""
+    """(RGBA colour, pass index, random id or None, shadow terminator geometry offset,
+    Cryptomatte names) of a depsgraph object instance; the names are (object, asset) as Cycles
+    gives them: the object's name and its top parent's (its own without a parent)."""
     obj = instance.object
     random_id = (instance.random_id & 0xFFFFFFFF) if instance.is_instance else None
     terminator = float(getattr(obj, "shadow_terminator_geometry_offset", 0.0))
-    return tuple(obj.color), int(obj.pass_index), random_id, terminator
+    top = obj
+    while top.parent is not None:
+        top = top.parent
+    return tuple(obj.color), int(obj.pass_index), random_id, terminator, (obj.name, top.name)
 
 
 def _export_object(obj, materials, uv_names=None):

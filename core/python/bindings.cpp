@@ -21,6 +21,7 @@
 #include "util/big_alloc.h"
 #include "util/hash.h"
 #include "util/lookup3.h"
+#include "util/murmur3.h"
 
 namespace py = pybind11;
 using namespace pl;
@@ -342,6 +343,18 @@ void read_sets(const py::dict& sets, size_t rows, const char* index_error, const
   }
 }
 
+// Cryptomatte's float id of a name (its UTF-8 bytes' MurmurHash3, as Cycles).
+float cryptomatte_id_of(const std::string& name) { return cryptomatte_float(murmur3_32(name.data(), name.size(), 0)); }
+
+// An object's Cryptomatte names, (object, asset), or None (no ids).
+void set_cryptomatte(ObjectInfo& info, const py::object& names, const char* what) {
+  if (names.is_none()) return;
+  const auto n = names.cast<std::vector<std::string>>();
+  if (n.size() != 2) throw std::invalid_argument(std::string(what) + " cryptomatte takes (object name, asset name)");
+  info.crypto_object = cryptomatte_id_of(n[0]);
+  info.crypto_asset = cryptomatte_id_of(n[1]);
+}
+
 // A Curves object: points (N, 3), offsets (C + 1) into them, radii (N) or None (Cycles'
 // default 0.005), one material, the object's matrix. Strands with bad values are left out at
 // commit (stats()["skipped_curves"]); inconsistent shapes or offsets raise ValueError.
@@ -351,7 +364,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes,
                     const std::string& shape, const py::object& materials_obj, const py::dict& point_attributes,
                     const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
-                    const py::object& motion_radii) {
+                    const py::object& motion_radii, const py::object& cryptomatte) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -402,6 +415,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   }
   cs.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   cs.info.random = object_random(random_id);
+  set_cryptomatte(cs.info, cryptomatte, "curves");
   cs.attrs = to_object_attributes(attributes, "curves");
   read_sets(uvs, nc, "uv set index must be in [0, 8)", "curve uvs must have shape (C, 2)", cs.uvs);  // per strand
   read_sets(strand_attributes, nc, "attribute set index must be in [0, 8)",
@@ -420,7 +434,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
 uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& radii_obj, uint32_t material,
                     const py::object& matrix, const py::object& color, float pass_index, uint32_t random_id,
                     const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
-                    const py::object& motion, const py::object& motion_points, const py::object& motion_radii) {
+                    const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
+                    const py::object& cryptomatte) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const size_t n = size_t(points.shape(0));
@@ -445,6 +460,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   }
   ps.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   ps.info.random = object_random(random_id);
+  set_cryptomatte(ps.info, cryptomatte, "points");
   ps.attrs = to_object_attributes(attributes, "points");
   read_sets(point_attributes, n, "attribute set index must be in [0, 8)", "point attributes must have shape (N, 4)",
             ps.point_attrs);
@@ -1672,7 +1688,35 @@ struct PySession {
   std::unique_ptr<Session> session;
 };
 
-FloatArray film_pass(PySession& self, const std::string& name) {
+// Cryptomatte layers by Cycles' pass-name stems, in kCrypto* bit order.
+constexpr const char* kCryptoNames[3] = {"object", "material", "asset"};
+constexpr const char* kCryptoPassStems[3] = {"CryptoObject", "CryptoMaterial", "CryptoAsset"};
+
+// A Cryptomatte pass ("CryptoObject00", ...): its (H, W, 4) floats, or None for another name.
+py::object crypto_pass(PySession& self, const std::string& name) {
+  for (int k = 0; k < 3; ++k) {
+    const std::string stem = kCryptoPassStems[k];
+    if (name.size() != stem.size() + 2 || name.compare(0, stem.size(), stem) != 0) continue;
+    const char d0 = name[stem.size()], d1 = name[stem.size() + 1];
+    if (d0 < '0' || d0 > '9' || d1 < '0' || d1 > '9') continue;
+    const int layer = self.session->crypto_layer(1u << k), pass = (d0 - '0') * 10 + (d1 - '0');
+    if (layer < 0 || pass >= self.session->crypto_passes())
+      throw std::invalid_argument("render pass '" + name + "' was not requested (RenderSettings.cryptomatte, cryptomatte_depth)");
+    Film& f = self.session->film();
+    FloatArray out({f.height(), f.width(), 4});
+    float* dst = out.mutable_data();
+    {
+      py::gil_scoped_release release;
+      f.read_crypto(layer, pass, dst);
+    }
+    return std::move(out);
+  }
+  return py::none();
+}
+
+py::object film_pass(PySession& self, const std::string& name) {
+  py::object crypto = crypto_pass(self, name);
+  if (!crypto.is_none()) return crypto;
   const Pass p = pass_by_name(name);
   Film& f = self.session->film();
   if (p != Pass::SampleCount && f.pass_offset(p) < 0)
@@ -1683,7 +1727,7 @@ FloatArray film_pass(PySession& self, const std::string& name) {
     py::gil_scoped_release release;
     f.read_pass(p, dst);
   }
-  return out;
+  return std::move(out);
 }
 
 FloatArray film_rect(PySession& self, int x, int y, int w, int h) {
@@ -2227,6 +2271,15 @@ PYBIND11_MODULE(pathlight_core, m) {
       "The integrator's equiangular distances along a ray towards a point on a light (Kulla and "
       "Fajardo), for uniform numbers u (N,): (t, pdf); NaN where the light lies on the ray's line.");
   m.def(
+      "cryptomatte_hash",
+      [](const std::string& name) { return murmur3_32(name.data(), name.size(), 0); },
+      py::arg("name"),
+      "MurmurHash3_32 (seed 0) of a name's UTF-8 bytes: its Cryptomatte hash, as Cycles and "
+      "Blender's manifests write it (\"%08x\").");
+  m.def(
+      "cryptomatte_id", [](uint32_t hash) { return cryptomatte_float(hash); }, py::arg("hash"),
+      "The float id a Cryptomatte pass stores for a hash (the specification's uint32_to_float32).");
+  m.def(
       "object_random_id",
       [](const std::string& name) {
         // Cycles' id of an object that is not an instance: hash_string (i * 37 + c over the
@@ -2769,6 +2822,27 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("uv_pass_set", &RenderSettings::uv_pass_set,
                      "The UV pass's uv set (the active render UV map's global index; -1: none, the pass reads 0).")
       .def_property(
+          "cryptomatte",
+          [](const RenderSettings& s) {
+            std::vector<std::string> names;
+            for (int k = 0; k < 3; ++k)
+              if (s.cryptomatte & (1u << k)) names.push_back(kCryptoNames[k]);
+            return names;
+          },
+          [](RenderSettings& s, const std::vector<std::string>& names) {
+            uint32_t bits = 0;
+            for (const auto& n : names) {
+              int k = 0;
+              while (k < 3 && n != kCryptoNames[k]) ++k;
+              if (k == 3) throw std::invalid_argument("unknown Cryptomatte layer '" + n + "' (object, material, asset)");
+              bits |= 1u << k;
+            }
+            s.cryptomatte = bits;
+          },
+          "Cryptomatte layers to render: 'object', 'material', 'asset' (film_pass('CryptoObject00'), ...).")
+      .def_readwrite("cryptomatte_depth", &RenderSettings::cryptomatte_depth,
+                     "Cryptomatte levels (1..16): id / coverage pairs per pixel, two per RGBA pass.")
+      .def_property(
           "debug_view", [](const RenderSettings& s) { return enum_name(s.debug_view, kDebugViewNames); },
           [](RenderSettings& s, const std::string& v) { s.debug_view = enum_from_name(v, "debug_view", kDebugViewNames); })
       .def_readwrite("sample_offset", &RenderSettings::sample_offset)
@@ -2817,7 +2891,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("matrix") = py::none(), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("point_attributes") = py::dict(),
            py::arg("texspace") = py::none(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
-           py::arg("motion_radii") = py::none(),
+           py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(),
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
@@ -2836,7 +2910,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("uvs") = py::dict(), py::arg("strand_attributes") = py::dict(), py::arg("shape") = "thick",
            py::arg("materials") = py::none(), py::arg("point_attributes") = py::dict(),
            py::arg("point_uvs") = py::dict(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
-           py::arg("motion_radii") = py::none(),
+           py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -2905,6 +2979,14 @@ PYBIND11_MODULE(pathlight_core, m) {
             self.scene->set_material_pass_index(material, pass_index);
           },
           py::arg("material"), py::arg("pass_index"), "Blender's material pass index (the IndexMA pass).")
+      .def(
+          "set_material_cryptomatte",
+          [](PyScene& self, uint32_t material, const std::string& name) {
+            self.check_editable();
+            self.scene->set_material_cryptomatte(material, cryptomatte_id_of(name));
+          },
+          py::arg("material"), py::arg("name"),
+          "The name a material has in CryptoMaterial passes (its id: cryptomatte_id(cryptomatte_hash(name))).")
       .def(
           "add_shader",
           [](PyScene& self, const std::string& name, const py::list& program, const py::object& volume_absorption,
@@ -2979,9 +3061,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
              uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator,
-             int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask, const py::object& pass_motion) {
+             int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask, const py::object& pass_motion,
+             const py::object& cryptomatte) {
             self.check_editable();
             ObjectInfo info;
+            set_cryptomatte(info, cryptomatte, "instance");
             if (!color.is_none()) {
               const auto c = color.cast<std::vector<float>>();
               if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("instance color takes 3 or 4 values");
@@ -3006,6 +3090,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("random_id") = 0u, py::arg("motion") = py::none(), py::arg("attributes") = py::none(),
           py::arg("shadow_terminator") = 0.0f, py::arg("light_set") = 0, py::arg("light_mask") = kAllLightSets,
           py::arg("shadow_set") = 0, py::arg("shadow_mask") = kAllLightSets, py::arg("pass_motion") = py::none(),
+          py::arg("cryptomatte") = py::none(),
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
@@ -3014,7 +3099,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           "object_attribute op; NaN/inf read 0). light_set, shadow_set (0..63): its light linking "
           "sets as a receiver and a blocker; light_mask, shadow_mask: as an emitter (its emissive "
           "triangles), as set_light_links. pass_motion: its matrices at the previous and next frames, "
-          "(2, 4, 4), for the Vector pass only (non-finite ones: still there).")
+          "(2, 4, 4), for the Vector pass only (non-finite ones: still there). cryptomatte: (object name, "
+          "asset name), the names its Cryptomatte ids hash (Blender: the object's and its top parent's; "
+          "None: no id).")
       .def(
           "set_mesh_pass_motion",
           [](PyScene& self, uint32_t mesh, const FloatArray& positions) {
@@ -3720,5 +3807,6 @@ PYBIND11_MODULE(pathlight_core, m) {
           "mean over samples of what the AOV Output ops of the camera path's first surfaces wrote "
           "(COLOR: (r, g, b, 1); VALUE: the value; 0 where nothing was written).")
       .def("film_pass", &film_pass, py::arg("name"),
-           "One render pass as float32 (H, W, channels), row 0 = bottom (see render_passes()).");
+           "One render pass as float32 (H, W, channels), row 0 = bottom (see render_passes()); "
+           "also Cryptomatte's 'CryptoObject00', 'CryptoMaterial01', ... (H, W, 4).");
 }

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstring>
 #include <mutex>
+#include <utility>
 #include <vector>
 
 #include "util/math.h"
@@ -177,6 +178,62 @@ class Film {
     m2_[i] += (l - l_old) * (l - l_new);
   }
 
+  // Cryptomatte (Cycles' film_write_cryptomatte_slots): per pixel, `layers` lists of `slots`
+  // (id, summed weight) pairs, filled in sample order; an id takes the first free slot and adds
+  // to its own after that; with every slot taken a new id is dropped, as in Cycles.
+  void set_cryptomatte(int layers, int slots) {
+    crypto_layers_ = layers;
+    crypto_slots_ = slots;
+    crypto_.assign(size_t(w_) * size_t(h_) * size_t(layers) * size_t(slots) * 2, 0.0f);
+  }
+  int crypto_layers() const { return crypto_layers_; }
+  int crypto_slots() const { return crypto_slots_; }
+  // Under the tile's lock, as add_sample. id 0 is "no id" (Cryptomatte's) and is not kept.
+  void add_crypto(int x, int y, int layer, float id, float weight) {
+    if (id == 0.0f || !(weight > 0.0f)) return;
+    float* slot = &crypto_[((size_t(y) * size_t(w_) + size_t(x)) * size_t(crypto_layers_) + size_t(layer)) *
+                           size_t(crypto_slots_) * 2];
+    for (int k = 0; k < crypto_slots_; ++k, slot += 2) {
+      if (slot[0] == id) {
+        slot[1] += weight;
+        return;
+      }
+      if (slot[0] == 0.0f) {
+        slot[0] = id;
+        slot[1] = weight;
+        return;
+      }
+    }
+  }
+  // Pass `pass` of Cryptomatte layer `layer` (H rows of W RGBA floats, bottom-up), as Cycles
+  // writes CryptoObject00, 01, ...: the pixel's slots sorted by weight, heaviest first, two per
+  // pass (id, coverage), the coverage the weight over the pixel's samples. False if not kept.
+  bool read_crypto(int layer, int pass, float* out) {
+    if (layer < 0 || layer >= crypto_layers_ || pass < 0 || 2 * pass >= crypto_slots_) return false;
+    std::vector<std::pair<float, float>> pairs(static_cast<size_t>(crypto_slots_));
+    for (int t = 0; t < tile_count(); ++t) {
+      int x0, y0, x1, y1;
+      tile_rect(t, x0, y0, x1, y1);
+      std::lock_guard<std::mutex> lk(locks_[size_t(t)]);
+      for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x) {
+          const size_t i = size_t(y) * size_t(w_) + size_t(x);
+          const float* slot = &crypto_[(i * size_t(crypto_layers_) + size_t(layer)) * size_t(crypto_slots_) * 2];
+          for (int k = 0; k < crypto_slots_; ++k) pairs[size_t(k)] = {slot[2 * k], slot[2 * k + 1]};
+          // Stable: equal weights keep the order their ids were first seen in.
+          std::stable_sort(pairs.begin(), pairs.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+          const float inv = count_[i] ? 1.0f / float(count_[i]) : 0.0f;
+          float* dst = out + i * 4;
+          for (int k = 0; k < 2; ++k) {
+            const auto& pr = pairs[size_t(2 * pass + k)];
+            dst[2 * k] = pr.first;
+            dst[2 * k + 1] = pr.second * inv;
+          }
+        }
+    }
+    return true;
+  }
+
   bool converged(int x, int y) const { return done_[size_t(y) * size_t(w_) + size_t(x)] != 0; }
   uint32_t count(int x, int y) const { return count_[size_t(y) * size_t(w_) + size_t(x)]; }
 
@@ -293,6 +350,8 @@ class Film {
   int offset_[kPassCount];
   std::vector<int> aov_offset_, aov_channels_;  // shader AOV planes
   int stride_ = 0;
+  int crypto_layers_ = 0, crypto_slots_ = 0;
+  std::vector<float> crypto_;  // per pixel, layer and slot: (id, weight sum); empty without Cryptomatte
   std::vector<float> aux_;  // stride_ floats per pixel: the running means of the pass planes
   std::vector<uint8_t> first_;  // per channel of a pixel's planes: PassDesc::first
   std::vector<Rgba> mean_;

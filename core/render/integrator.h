@@ -64,6 +64,17 @@ struct IntegratorSettings {
   int uv_set = -1;
   // Vector pass: where that surface was at the frames before and after (Scene::pass_motion).
   bool vector_pass = false;
+  uint32_t cryptomatte = 0;  // Cryptomatte layers to record (kCrypto* bits): PathAovs::crypto
+};
+
+// Cryptomatte layers (Cycles' CRYPT_OBJECT, CRYPT_MATERIAL, CRYPT_ASSET).
+enum CryptoLayer : uint32_t { kCryptoObject = 1, kCryptoMaterial = 2, kCryptoAsset = 4 };
+// The camera path's surfaces a sample records for Cryptomatte: the first one and those seen
+// through Transparent BSDFs; deeper ones are dropped (their weight is what the film misses).
+constexpr int kMaxCryptoHits = 8;
+struct CryptoHit {
+  float object, material, asset;  // the ids (ObjectInfo::crypto_*, Material::crypto)
+  float weight;  // Cycles' matte weight: average throughput times (1 - average transparency)
 };
 
 // Cycles' light components, as the film keeps them (before the division by their colour).
@@ -119,6 +130,8 @@ struct PathAovs {
   // Shader AOV slots (kMaxShaderAovs, zeroed by the caller) that the AOV Output ops of the
   // camera path's surfaces add to, up to the surface `hit`; nullptr: no shader AOVs.
   Float4* shader_aovs = nullptr;
+  int crypto_count = 0;  // IntegratorSettings::cryptomatte: the first crypto_count of crypto
+  CryptoHit crypto[kMaxCryptoHits];  // (left uninitialised: only crypto_count are read)
 };
 
 // The general kernel: every feature compiled in.

@@ -63,6 +63,9 @@ void validate(const RenderSettings& s) {
     throw std::invalid_argument("at most " + std::to_string(kMaxShaderAovs) + " shader AOVs");
   for (int ch : s.shader_aovs)
     if (ch != 1 && ch != 4) throw std::invalid_argument("a shader AOV has 1 (VALUE) or 4 (COLOR) channels");
+  if (s.cryptomatte >= 8u) throw std::invalid_argument("unknown Cryptomatte layer");
+  if (s.cryptomatte && !(s.cryptomatte_depth >= 1 && s.cryptomatte_depth <= 16))
+    throw std::invalid_argument("cryptomatte_depth must be in [1, 16]");
 }
 
 uint32_t effective_passes(const RenderSettings& s) {
@@ -147,6 +150,11 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
       d.matrix_world = moves ? view.pass_motion[1] : view.matrix_world;
       camera_post_ = Camera(d, settings_.width, settings_.height);
     }
+    if (settings_.cryptomatte && settings_.debug_view == DebugView::None) {
+      integrator_.cryptomatte = settings_.cryptomatte;
+      const int layers = __builtin_popcount(settings_.cryptomatte);
+      film_.set_cryptomatte(layers, 2 * ((std::min(16, settings_.cryptomatte_depth) + 1) / 2));
+    }
     integrator_.mist_start = settings_.mist_start;
     integrator_.mist_depth = settings_.mist_depth;
     integrator_.mist_falloff = settings_.mist_falloff;
@@ -166,7 +174,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   }
   {
     // The kernel: chosen here from what the scene and this render use, never per ray.
-    const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent || scene_->any_holdout();
+    const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent || scene_->any_holdout() ||
+                      integrator_.cryptomatte != 0;
     const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
     kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding), settings_.force_general_kernel,
                             kernel_bits_);
@@ -344,6 +353,12 @@ void Session::write_aux(const PathAovs& a, float* out) const {
   }
 }
 
+int Session::crypto_layer(uint32_t bit) const {
+  const uint32_t on = integrator_.cryptomatte;
+  if (!(on & bit) || (bit & (bit - 1))) return -1;
+  return __builtin_popcount(on & (bit - 1));  // Object, Material, Asset: Cycles' buffer order
+}
+
 void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
   int x0, y0, x1, y1;
   film_.tile_rect(tile, x0, y0, x1, y1);
@@ -353,7 +368,13 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
   // feed them: only asked of trace_path when a pass or the transparent film needs them.
   const size_t stride = size_t(film_.aux_stride());
   std::vector<float> local_aux(size_t(tw) * size_t(th) * stride);
-  const bool want_aovs = stride > 0 || settings_.film_transparent || scene_->any_holdout();
+  // Cryptomatte: each pixel's surfaces of this sample (crypto_n of them), added under the lock.
+  const bool crypto = integrator_.cryptomatte != 0;
+  std::vector<CryptoHit> local_crypto(crypto ? size_t(tw) * size_t(th) * kMaxCryptoHits : 0);
+  std::vector<uint8_t> crypto_n(crypto ? size_t(tw) * size_t(th) : 0);
+  const int layer_object = crypto_layer(kCryptoObject), layer_material = crypto_layer(kCryptoMaterial),
+            layer_asset = crypto_layer(kCryptoAsset);
+  const bool want_aovs = stride > 0 || settings_.film_transparent || scene_->any_holdout() || crypto;
   const bool bvh_view = settings_.debug_view == DebugView::Bvh;
   std::array<Float4, kMaxShaderAovs> shader_aovs;
   PathCounters counters;
@@ -390,6 +411,7 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
           shader_aovs.fill(Float4{});
           aovs.shader_aovs = shader_aovs.data();
         }
+        if (crypto) crypto_n[size_t(y - y0) * size_t(tw) + size_t(x - x0)] = 0;
         // One independent stream per (seed, pixel, sample): thread- and pass-independent, and
         // keyed by the full-frame pixel, so a border renders exactly its part of the frame.
         const uint64_t pixel = uint64_t(fy) * uint64_t(settings_.width) + uint64_t(fx);
@@ -419,13 +441,27 @@ void Session::render_tile(int tile, int s0, int s1, int /*thread*/) {
           ++nonfinite;
         }
         if (aux) write_aux(aovs, aux);
+        if (crypto) {
+          const size_t px = size_t(y - y0) * size_t(tw) + size_t(x - x0);
+          crypto_n[px] = uint8_t(aovs.crypto_count);
+          std::copy(aovs.crypto, aovs.crypto + aovs.crypto_count, &local_crypto[px * kMaxCryptoHits]);
+        }
       }
     std::lock_guard<std::mutex> lk(film_.tile_lock(tile));
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
         const Rgba& v = local[size_t(y - y0) * size_t(tw) + size_t(x - x0)];
-        if (v.a >= 0.0f)
-          film_.add_sample(x, y, v, stride ? &local_aux[(size_t(y - y0) * size_t(tw) + size_t(x - x0)) * stride] : nullptr);
+        if (v.a < 0.0f) continue;
+        film_.add_sample(x, y, v, stride ? &local_aux[(size_t(y - y0) * size_t(tw) + size_t(x - x0)) * stride] : nullptr);
+        if (crypto) {
+          const size_t px = size_t(y - y0) * size_t(tw) + size_t(x - x0);
+          for (int k = 0; k < crypto_n[px]; ++k) {
+            const CryptoHit& h = local_crypto[px * kMaxCryptoHits + size_t(k)];
+            if (layer_object >= 0) film_.add_crypto(x, y, layer_object, h.object, h.weight);
+            if (layer_material >= 0) film_.add_crypto(x, y, layer_material, h.material, h.weight);
+            if (layer_asset >= 0) film_.add_crypto(x, y, layer_asset, h.asset, h.weight);
+          }
+        }
       }
     // Convergence is judged at fixed sample counts, so the result stays deterministic.
     const int n = s + 1;

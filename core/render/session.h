@@ -59,6 +59,10 @@ struct RenderSettings {
   // Shader AOVs (the view layer's, in its order): the channels of each, 4 (COLOR) or 1 (VALUE);
   // AOV Output ops write slot i (at most kMaxShaderAovs).
   std::vector<int> shader_aovs;
+  // Cryptomatte layers (kCryptoObject / kCryptoMaterial / kCryptoAsset bits) and their levels
+  // (Blender's pass_cryptomatte_depth, 1..16: id / coverage pairs, two per RGBA pass).
+  uint32_t cryptomatte = 0;
+  int cryptomatte_depth = 6;
   DebugView debug_view = DebugView::None;
   // Run the general integrator kernel even where a specialised one covers the scene (tests and
   // benchmarks compare the two).
@@ -135,6 +139,13 @@ class Session {
   void render_tile(int tile, int s0, int s1, int thread);
   // Lays out one sample's pass values as the film's planes expect them.
   void write_aux(const PathAovs& a, float* out) const;
+ public:
+  // The film's Cryptomatte layer of a kCrypto* bit (-1: not rendered) and the RGBA passes each
+  // layer has (Cycles' divide_up(min(16, depth), 2)).
+  int crypto_layer(uint32_t bit) const;
+  int crypto_passes() const { return film_.crypto_slots() / 2; }
+
+ private:
   double elapsed() const;
 
   std::shared_ptr<const Scene> scene_;

@@ -1182,6 +1182,20 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
     }
     if constexpr (kAovs)
+      if (aov && direct && s.cryptomatte && aov->crypto_count < kMaxCryptoHits) {
+        // Every surface the camera ray meets, as Cycles' film_write_data_passes: weighted by
+        // the throughput to it and by its own opacity (its Transparent closures let the rest on).
+        Vec3 transparency(0.0f);
+        for (int i = 0; i < cl.n; ++i)
+          if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(i)].bsdf)) transparency += cl.c[size_t(i)].weight;
+        const float weight = average(beta) * (1.0f - average(transparency));
+        if (weight > 0.0f) {
+          const ObjectInfo& info = scene.object_info(sp);
+          aov->crypto[aov->crypto_count++] = {info.crypto_object, scene.material(sp.material).crypto, info.crypto_asset,
+                                              weight};
+        }
+      }
+    if constexpr (kAovs)
       if (aov && direct && (lp || s.mist || s.ao)) camera_hit_passes(scene, s, sp, cl, wo, beta, path_key, transparent, ray.time, lp, *aov);
     if (emission_only || cl.n == 0) break;
 

@@ -80,6 +80,7 @@ struct Material {
   bool subsurface = false;       // may add a BSSRDF closure: its objects get local BVHs
   bool subsurface_bump = false;  // a BSSRDF with its own normal: walk exits shade for it
   float pass_index = 0.0f;       // Blender's material pass index (the Material Index pass)
+  float crypto = 0.0f;           // Cryptomatte id of its name (the CryptoMaterial pass; 0: none)
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
@@ -608,13 +609,15 @@ class Scene {
   // ray: the ray that reached the point, for the Light Path node (a camera ray by default).
   void shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray = {}) const;
   // The pass index of the object hit at sp (Cycles' Object Index pass).
-  float object_pass_index(const SurfacePoint& sp) const;
   // Cycles' UV pass at sp: (u, v, 1) of uv set k, or zero where there is none (curves and
   // points too).
   Vec3 pass_uv(const SurfacePoint& sp, int k) const;
   // Cycles' Vector pass: where sp's point was at the previous frame and will be at the next one
   // (Instance::pass_motion, MeshData::pass_positions); curves, points and still objects: sp.p.
   void pass_motion(const SurfacePoint& sp, Vec3& pre, Vec3& post) const;
+  float object_pass_index(const SurfacePoint& sp) const { return object_info(sp).pass_index; }
+  // The Object Info of what was hit at sp (its instance, curve set or point set).
+  const ObjectInfo& object_info(const SurfacePoint& sp) const;
   float hair_pixel_coverage(const SurfacePoint& sp, float b1, const RayState& ray) const;
   Vec3 hair_curve_normal(const SurfacePoint& sp, float b1) const;
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
@@ -669,6 +672,10 @@ class Scene {
   }
 
   const Material& material(uint32_t id) const { return materials_[id]; }
+  void set_material_cryptomatte(uint32_t id, float v) {
+    if (id >= materials_.size()) throw std::invalid_argument("set_material_cryptomatte: unknown material id");
+    materials_[id].crypto = std::isfinite(v) ? v : 0.0f;
+  }
   void set_material_pass_index(uint32_t id, float v) {
     if (id >= materials_.size()) throw std::invalid_argument("set_material_pass_index: unknown material id");
     materials_[id].pass_index = std::isfinite(v) ? v : 0.0f;

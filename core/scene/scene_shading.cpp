@@ -639,14 +639,14 @@ void Scene::pass_motion(const SurfacePoint& sp, Vec3& pre, Vec3& post) const {
   post = pm.post.point(at(mesh.pass_positions[1]));
 }
 
-float Scene::object_pass_index(const SurfacePoint& sp) const {
-  if (sp.curve()) return curve_coords_[curve_set_of(curve_bvh_.piece_at(sp.tri, sp.time).curve)].info.pass_index;
+const ObjectInfo& Scene::object_info(const SurfacePoint& sp) const {
+  if (sp.curve()) return curve_coords_[curve_set_of(curve_bvh_.piece_at(sp.tri, sp.time).curve)].info;
   if (sp.point()) {
     PointFrame moved;
     const PointFrame* frame = nullptr;
-    return point_coords_[point_set_of(point_bvh_.world_sphere(sp.tri, sp.time, moved, frame).point)].info.pass_index;
+    return point_coords_[point_set_of(point_bvh_.world_sphere(sp.tri, sp.time, moved, frame).point)].info;
   }
-  return object_coords_[sp.instance].info.pass_index;
+  return object_coords_[sp.instance].info;
 }
 
 }  // namespace pl

@@ -209,6 +209,9 @@ struct ObjectInfo {
   Float4 color{1.0f, 1.0f, 1.0f, 1.0f};  // Object ▸ Viewport Display ▸ Color, with alpha
   float pass_index = 0.0f;
   float random = 0.0f;  // in [0, 1]: Cycles' random_id * 2^-32
+  // Cryptomatte ids (cryptomatte_float of the MurmurHash3 of the object's and its top parent's
+  // names; 0: none): the CryptoObject and CryptoAsset passes.
+  float crypto_object = 0.0f, crypto_asset = 0.0f;
   // The Attribute node's Object / Instancer values (constant per instance): attr_count slots
   // from attr_first in the scene's table of them (ObjectCoords::attrs at commit).
   uint32_t attr_first = 0, attr_count = 0;

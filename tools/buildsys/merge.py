@@ -13,6 +13,8 @@ from .setup import ensure_setup
 MERGE_SAMPLES = "Pathlight Samples"  # header attributes the add-on stamps into its renders
 MERGE_OFFSET = "Pathlight Sample Offset"
 COUNT_CHANNEL = re.compile(r"(^|\.)(Sample ?Count|Samples)(\.[A-Z])?$", re.IGNORECASE)
+# Cryptomatte ranked (id, coverage) pairs: merged by id, not averaged (docs/design/passes.md).
+CRYPTO_CHANNEL = re.compile(r"^(?P<layer>(.*\.)?Crypto(Object|Material|Asset))(?P<pass>\d\d)\.(?P<c>[rgba])$")
 
 
 def cmd_merge(args):
@@ -88,8 +90,10 @@ def merge_exr(inputs, output):
             w = np.full(shape[:2], float(file_samples[i]))
         return w.reshape(w.shape + (1,) * (len(shape) - w.ndim))
 
-    merged = {}
+    merged = _merge_cryptomatte(parts, names, weight)
     for name in names:
+        if name in merged:
+            continue
         if name in count_names:
             merged[name] = sum(p[2][name].astype(np.float64) for p in parts).astype(np.float32)
             continue
@@ -102,7 +106,7 @@ def merge_exr(inputs, output):
             den += w
         merged[name] = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0).astype(np.float32)
     header = {k: v for k, v in parts[0][1].items()
-              if k in ("compression", "pixelAspectRatio") or not k[:1].islower()}
+              if k in ("compression", "pixelAspectRatio") or not k[:1].islower() or k.startswith("cryptomatte/")}
     total = sum(n for n in file_samples if n is not None) if all(file_samples) else None
     if total is not None:
         header[MERGE_SAMPLES] = str(total)
@@ -111,3 +115,46 @@ def merge_exr(inputs, output):
     OpenEXR.File(header, merged).write(str(output))
     return {"samples": total, "ranges": ranges,
             "weights": "per-pixel sample counts" if count_names else "samples per file"}
+
+
+def _merge_cryptomatte(parts, names, weight):
+    """{channel: merged pixels} of the Cryptomatte passes (CryptoObject00.r, ...): per pixel,
+    each id's coverage is the sample-weighted mean of its coverage in the inputs (0 where an
+    input did not rank it); the ids are ranked again by it, heaviest first, and as many kept
+    as the passes have slots (as the renderer itself keeps them)."""
+    import numpy as np
+    layers = {}
+    for name in names:
+        m = CRYPTO_CHANNEL.match(name)
+        if m:
+            layers.setdefault(m["layer"], set()).add(int(m["pass"]))
+    out = {}
+    for layer, passes in layers.items():
+        passes = sorted(passes)
+        slots = [(f"{layer}{p:02d}.{i}", f"{layer}{p:02d}.{c}") for p in passes for i, c in (("r", "g"), ("b", "a"))]
+        if any(n not in names for pair in slots for n in pair):
+            continue  # not Cycles' layout: averaged like any other channel
+        shape = parts[0][2][slots[0][0]].shape
+        ids, covs, den = [], [], np.zeros(shape, np.float64)
+        for i, part in enumerate(parts):
+            w = weight(i, shape)
+            den += w
+            for id_name, cov_name in slots:
+                ids.append(part[2][id_name])
+                covs.append(part[2][cov_name].astype(np.float64) * w)
+        ids, covs = np.stack(ids), np.stack(covs)
+        total = np.zeros(covs.shape, np.float64)
+        for k in range(len(ids)):
+            same = ids == ids[k]
+            total[k] = np.where(same, covs, 0.0).sum(axis=0)
+            if k:  # an id counts once: at its first entry
+                total[k] = np.where(same[:k].any(axis=0), 0.0, total[k])
+        total = np.where(ids != 0, total, 0.0)  # 0: no id
+        order = np.argsort(-total, axis=0, kind="stable")[:len(slots)]
+        ranked_ids = np.take_along_axis(ids, order, axis=0)
+        ranked = np.take_along_axis(total, order, axis=0) / np.maximum(den, 1e-300)
+        for s, (id_name, cov_name) in enumerate(slots):
+            keep = ranked[s] > 0
+            out[id_name] = np.where(keep, ranked_ids[s], 0.0).astype(np.float32)
+            out[cov_name] = np.where(keep, ranked[s], 0.0).astype(np.float32)
+    return out
