@@ -3270,7 +3270,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
           py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("shader") = py::none(),
           py::arg("shader_matrix") = py::none(), py::arg("shader_power") = 1.0f,
-          "shader, shader_matrix, shader_power: as add_point_light's (the sun's uv is not Cycles').")
+          "shader, shader_matrix, shader_power: as add_point_light's.")
       .def(
           "add_area_light",
           [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, const py::object& radiance,

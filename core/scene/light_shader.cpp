@@ -57,7 +57,16 @@ Vec2 light_parametric(const Light& l, const LightShader& sh, Vec3 q, Vec3 wi, Ve
       const float uu = length_sq(l.axis_u), vv = length_sq(l.axis_v);
       return {uu > 0.0f ? dot(rel, l.axis_u) / uu + 0.5f : 0.5f, vv > 0.0f ? dot(rel, l.axis_v) / vv + 0.5f : 0.5f};
     }
-    case LightType::Sun: break;  // (Cycles' distant light uv: not reproduced; the centre)
+    case LightType::Sun: {
+      // distant_light_uv: the direction towards the sun on a disk of [-0.5, 0.5]^2 over the
+      // cone of half angle a (the light's x and y axes): 0.5 / sin(a / 2) / |wi + axis|.
+      const float a = std::acos(clampf(l.cos_half_angle, -1.0f, 1.0f));
+      const float s = std::sin(0.5f * a), len = length(wi + l.dir);
+      if (!(s > 0.0f) || !(len > 0.0f)) return {0.5f, 0.5f};
+      const Vec3 loc = sh.to_local.vector(wi);
+      const float fac = 0.5f / s / len;
+      return {loc.x * fac + 0.5f, loc.y * fac + 0.5f};
+    }
   }
   return {0.5f, 0.5f};
 }
@@ -66,7 +75,7 @@ Vec3 light_shader_emission(const Light& l, Vec3 q, Vec3 wi, float dist) {
   const LightShader& sh = *l.shader;
   ShadingContext ctx;
   const Vec3 n = light_normal(l, q, wi);
-  ctx.p = l.type == LightType::Sun ? wi : q;
+  ctx.p = l.type == LightType::Sun ? -wi : q;  // (Cycles' distant light: P = Ng, a direction)
   ctx.ng = ctx.ns = n;
   ctx.wo = -wi;  // Cycles' sd->wi: from the light towards the shaded point (Incoming)
   const Vec2 uv = light_parametric(l, sh, q, wi, n);
