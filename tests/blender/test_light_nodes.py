@@ -9,7 +9,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, Warnings, core_has, load_addon, render_to_array
+from blender_util import BOX_FILTER, core_has, load_addon, render_to_array
 from light_scenes import add_light, camera, diffuse_material, empty_scene, plane, uv_sphere
 from test_ies_lights import DOWNWARD
 from test_lights import assert_agrees_with_cycles, one_light
