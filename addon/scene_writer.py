@@ -130,6 +130,11 @@ def add_materials(scene, materials, images, warn, image_ids=None):
     return [put_material(scene, m, ids) for m in materials]
 
 
+def remap_images(ops, image_ids):
+    """A program's image ops with their image operands replaced by the core ids image_ids."""
+    return [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op for op in ops]
+
+
 def put_material(scene, m, image_ids, core_id=None):
     """Adds MaterialData `m` to a core scene (core_id None) or replaces material `core_id` with
     it; image_ids: the core ids of the images its program reads. Returns the material's id.
@@ -144,7 +149,7 @@ def put_material(scene, m, image_ids, core_id=None):
         scene.set_material_cryptomatte(core_id, cryptomatte_name(m))
         return core_id
     def remap(ops):
-        return [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op for op in ops]
+        return remap_images(ops, image_ids)
     program = remap(m.program)
     kw = {} if m.volume is None else {"volume": m.volume}  # older cores lack it
     if getattr(m, "displacement", None):
@@ -259,7 +264,12 @@ def set_camera(pc, scene, params):
 def add_lights(scene, lights):
     """Adds LightData `lights` to a core scene."""
     for k, light in enumerate(lights):
-        getattr(scene, f"add_{light.kind}_light")(**light.args)  # (add-on and core ship together)
+        args = light.args
+        images = getattr(light, "images", None)
+        if images and args.get("shader") is not None:  # its node tree's images, then the program
+            ids = [scene.add_image(image.pixels, srgb=image.srgb) for image in images]
+            args = dict(args, shader=remap_images(args["shader"], ids))
+        getattr(scene, f"add_{light.kind}_light")(**args)  # (add-on and core ship together)
         if getattr(light, "links", None) is not None:
             scene.set_light_links(k, *light.links)
 

@@ -23,6 +23,16 @@ class LightData:
     args: dict  # keyword arguments of that call
     # Light linking: (light_mask, shadow_mask) for the core's set_light_links, or None.
     links: tuple = None
+    # The images (shader.ImageData) that args["shader"]'s image ops index (scene_writer adds
+    # them and renumbers the ops).
+    images: list = None
+
+
+@dataclass
+class LightShaderData:
+    program: list  # a shader program ending in emission closures (docs/core_api.md)
+    images: list  # shader.ImageData its image ops index
+    power: float  # Cycles' estimate of the tree's emission (luminance), for the light's power
 
 
 def _finite_nonneg(values, what, name, warn):
@@ -76,9 +86,9 @@ def _ies_source(node):
         return None, f"file '{raw}' unreadable ({e.strerror or e})"
 
 
-def _ies_profile(node, name, warn):
-    """The core's IesProfile of an IES Texture node, or None where it has none (warned; Cycles
-    then uses its fallback value)."""
+def ies_profile(node, report, who=""):
+    """The core's IesProfile of an IES Texture node, or None where it has none (reported;
+    Cycles then uses its fallback value). who: what to name in the report ("Light 'x': ")."""
     data, where = _ies_source(node)
     if data is not None:
         from ..core import get_core
@@ -86,9 +96,13 @@ def _ies_profile(node, name, warn):
             return get_core().IesProfile(data)
         except ValueError as e:
             where = f"{where}: {e}"
-    warn(f"Light '{name}': IES Texture without a usable profile ({where}); rendered without "
-         f"it, at Cycles' fallback of {IES_FALLBACK:g} x Strength")
+    report(f"{who}IES Texture without a usable profile ({where}); rendered without "
+           f"it, at Cycles' fallback of {IES_FALLBACK:g} x Strength")
     return None
+
+
+def _ies_profile(node, name, warn):
+    return ies_profile(node, warn, f"Light '{name}': ")
 
 
 def _ies_chain(strength, name, warn):
@@ -115,47 +129,102 @@ def _ies_chain(strength, name, warn):
     return node, scale * float(node.inputs["Strength"].default_value)
 
 
+_LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _emission_estimate(socket):
+    """Cycles' estimate of the emission a shader socket gives (scene/shader.cpp
+    output_estimate_emission): Emission (or Principled) nodes' unlinked Color and Strength, a
+    linked Color as 1, a linked Strength through Light Falloff and IES Texture as their
+    Strength, sums over Add Shader, a Mix Shader's mean; other nodes 1. RGB."""
+    node, _ = _linked_node(socket)
+    if node is None:
+        return np.zeros(3)
+    t = node.type
+    if t in {'EMISSION', 'BACKGROUND', 'BSDF_PRINCIPLED'}:
+        principled = t == 'BSDF_PRINCIPLED'
+        color = node.inputs["Emission Color" if principled else "Color"]
+        strength = node.inputs["Emission Strength" if principled else "Strength"]
+        est = np.ones(3)
+        if not color.is_linked:
+            est = est * np.asarray(color.default_value[:3], np.float64)
+        return est * (_emission_estimate(strength) if strength.is_linked
+                      else float(strength.default_value))
+    if t in {'LIGHT_FALLOFF', 'TEX_IES'}:
+        strength = node.inputs["Strength"]
+        return (_emission_estimate(strength) if strength.is_linked
+                else np.full(3, float(strength.default_value)))
+    if t == 'ADD_SHADER':
+        return _emission_estimate(node.inputs[0]) + _emission_estimate(node.inputs[1])
+    if t == 'MIX_SHADER':
+        fac = node.inputs[0]
+        f = 0.5 if fac.is_linked else min(max(float(fac.default_value), 0.0), 1.0)
+        return (1.0 - f) * _emission_estimate(node.inputs[1]) + f * _emission_estimate(node.inputs[2])
+    return np.ones(3)
+
+
+def _light_shader(light, name, warn):
+    """LightShaderData of a light's node tree compiled by the shader compiler, or None where it
+    cannot be (warned)."""
+    from .shader import ImageTable, UvSets
+    from .shader.compiler import ShaderCompiler
+    tree = light.node_tree
+    output = tree.get_output_node('CYCLES')
+    if output is None or "Surface" not in output.inputs:
+        return None
+    images = ImageTable()
+    compiler = ShaderCompiler(images, UvSets())
+    compiled = compiler.compile_light(output, name)
+    for problem in compiler.problems:
+        warn(f"Light '{name}': {problem}")
+    if compiled is None:
+        return None
+    est = np.nan_to_num(_emission_estimate(output.inputs["Surface"]))
+    return LightShaderData(compiled.program, images.images, float(abs(est) @ _LUMA))
+
+
 def _node_tree_factor(light, name, warn):
-    """(colour multiplier, IesProfile or None) of a light's node tree. A constant Emission node
-    is applied exactly (Cycles multiplies the light's strength by the shader's emission); an
-    Emission whose Strength is an IES Texture (maybe times a constant) adds the profile, a
-    direction-dependent factor the core applies; anything else is ignored with a warning."""
+    """(colour multiplier, IesProfile or None, LightShaderData or None) of a light's node
+    tree. A constant Emission node is applied exactly (Cycles multiplies the light's strength
+    by the shader's emission); an Emission whose Strength is an IES Texture (maybe times a
+    constant) adds the profile, a direction-dependent factor the core applies; any other tree
+    is compiled into a program the core evaluates at each light sample (light_shader.h)."""
     if not light.use_nodes or light.node_tree is None:
-        return np.ones(3), None
+        return np.ones(3), None, None
     node = surface_node(light.node_tree)
     if node is None:
-        return np.zeros(3), None  # nothing connected to the Light Output: Cycles emits nothing
+        return np.zeros(3), None, None  # nothing connected to the Light Output: Cycles emits nothing
     if node.type == 'EMISSION' and not node.inputs["Color"].is_linked:
         color = np.asarray(node.inputs["Color"].default_value[:3], np.float64)
         strength = node.inputs["Strength"]
         if not strength.is_linked:
-            return color * float(strength.default_value), None
+            return color * float(strength.default_value), None, None
         chain = _ies_chain(strength, name, warn) if light.type in {'POINT', 'SPOT', 'AREA'} else None
         if chain is not None:
             ies_node, scale = chain
             profile = _ies_profile(ies_node, name, warn)
-            return color * scale * (1.0 if profile is not None else IES_FALLBACK), profile
-    if any(n.type == 'TEX_IES' for n in light.node_tree.nodes):
-        warn(f"Light '{name}': IES textures are supported only as IES Texture (Fac) -> [Math "
-             "multiply/divide by a constant] -> Emission Strength of a point, spot or area light; "
-             "ignoring the light's nodes")
-        return np.ones(3), None
-    warn(f"Light '{name}': light node trees other than a constant Emission are not supported; "
-         "ignoring the light's nodes")
-    return np.ones(3), None
+            return color * scale * (1.0 if profile is not None else IES_FALLBACK), profile, None
+    shader = _light_shader(light, name, warn)
+    if shader is not None:
+        return np.ones(3), None, shader
+    warn(f"Light '{name}': its node tree could not be compiled; ignoring the light's nodes")
+    return np.ones(3), None, None
 
 
-def light_power(light, name, warn, ies=None):
+def light_power(light, name, warn, ies=None, shader=None):
     """RGB power (W) as Cycles computes it: colour * energy * 2^exposure, times the
     temperature colour and a constant Emission node, if any. ies: a list that receives the
-    light's IesProfile (None without one)."""
+    light's IesProfile (None without one); shader: one that receives its LightShaderData (None
+    without one: the tree is constant, or absent)."""
     color = np.asarray(light.color[:3], np.float64)
     if getattr(light, "use_temperature", False):
         color = color * np.asarray(light.temperature_color[:3], np.float64)
     energy = float(light.energy) * 2.0 ** float(getattr(light, "exposure", 0.0))
-    factor, profile = _node_tree_factor(light, name, warn)
+    factor, profile, program = _node_tree_factor(light, name, warn)
     if ies is not None:
         ies.append(profile)
+    if shader is not None:
+        shader.append(program)
     color = color * factor
     return _finite_nonneg(color, "colour", name, warn) * float(
         _finite_nonneg(energy, "power", name, warn))
@@ -170,8 +239,8 @@ def convert_light(obj, matrix, warn):
     if cycles is not None and getattr(cycles, "is_portal", False):
         warn(f"Light '{name}': light portals are not supported; ignored")
         return None
-    ies = []
-    power = light_power(light, name, warn, ies)
+    ies, shaders = [], []
+    power = light_power(light, name, warn, ies, shaders)
     if not power.any():
         return None
     ies = dict(ies=ies[0]) if ies[0] is not None else {}
@@ -179,6 +248,10 @@ def convert_light(obj, matrix, warn):
     if not np.isfinite(m).all():
         warn(f"Light '{name}': non-finite transform; skipped")
         return None
+    shader, images = {}, None
+    if shaders[0] is not None:
+        shader = dict(shader=shaders[0].program, shader_power=shaders[0].power)
+        images = shaders[0].images
     # Cycles' "Cast Shadow" is the light's own flag; it ignores the light object's Shadow ray
     # visibility (measured: same image with visible_shadow off), and so do we.
     cast_shadow = bool(light.use_shadow)
@@ -207,12 +280,14 @@ def convert_light(obj, matrix, warn):
             return LightData("point", name, dict(
                 position=tuple(m[:3, 3].tolist()), intensity=intensity, radius=radius,
                 cast_shadow=cast_shadow, **flags, **ies,
-                **(dict(ies_matrix=m.astype(np.float32)) if ies else {})))
+                **(dict(ies_matrix=m.astype(np.float32)) if ies else {}),
+                **(dict(shader_matrix=m.astype(np.float32), **shader) if shader else {})), images=images)
         spot_size = float(np.clip(np.nan_to_num(light.spot_size, nan=math.pi), 1e-4, math.pi))
         spot_blend = float(np.clip(np.nan_to_num(light.spot_blend), 0.0, 1.0))
         return LightData("spot", name, dict(
             matrix=m.astype(np.float32), intensity=intensity, radius=radius,
-            spot_size=spot_size, spot_blend=spot_blend, cast_shadow=cast_shadow, **flags, **ies))
+            spot_size=spot_size, spot_blend=spot_blend, cast_shadow=cast_shadow, **flags, **ies,
+            **shader), images=images)
 
     if light.type == 'SUN':
         z = m[:3, 2]
@@ -224,7 +299,8 @@ def convert_light(obj, matrix, warn):
             power = power * (math.pi * math.sin(angle / 2) ** 2)
         return LightData("sun", name, dict(
             direction=tuple((z / norm).tolist()), irradiance=tuple(power.tolist()),
-            angle=angle, cast_shadow=cast_shadow, **flags))
+            angle=angle, cast_shadow=cast_shadow, **flags,
+            **(dict(shader_matrix=m.astype(np.float32), **shader) if shader else {})), images=images)
 
     if light.type == 'AREA':
         size_x = float(_finite_nonneg(light.size, "size", name, warn))
@@ -243,7 +319,7 @@ def convert_light(obj, matrix, warn):
         return LightData("area", name, dict(
             matrix=m.astype(np.float32), size_x=size_x, size_y=size_y,
             radiance=tuple(radiance.tolist()), ellipse=ellipse, cast_shadow=cast_shadow,
-            spread=spread, **flags, **ies))
+            spread=spread, **flags, **ies, **shader), images=images)
 
     warn(f"Light '{name}': light type {light.type} is not supported; skipped")
     return None

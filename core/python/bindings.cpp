@@ -14,6 +14,7 @@
 #include "render/guiding.h"
 #include "render/session.h"
 #include "scene/ies.h"
+#include "scene/light_shader.h"
 #include "scene/displace.h"
 #include "scene/phase.h"
 #include "scene/shader_ops.h"
@@ -804,6 +805,18 @@ void parse_value_op(const ValueOpSchema& s, const py::tuple& t, ShaderOp& o, Sha
           prog.tables.push_back({clean(src[4 * i]), clean(src[4 * i + 1]), clean(src[4 * i + 2]), clean(src[4 * i + 3])});
         continue;
       }
+      case ParamKind::Ies: {
+        if (!py::isinstance<IesProfile>(h)) fail("ies profile must be an IesProfile");
+        prog.ies.push_back(h.cast<std::shared_ptr<IesProfile>>());
+        o.index = int32_t(prog.ies.size() - 1);
+        continue;
+      }
+      case ParamKind::Sky: {
+        if (!py::isinstance<SkyModel>(h)) fail("sky must be a SkyTexture");
+        prog.skies.push_back(h.cast<std::shared_ptr<SkyModel>>());
+        o.index = int32_t(prog.skies.size() - 1);
+        continue;
+      }
       case ParamKind::FilterWidth: {
         const float fw = h.cast<float>();
         if (!(fw >= 0.0f) || !std::isfinite(fw)) fail("bump filter width must be >= 0");
@@ -1091,6 +1104,35 @@ Material make_shader(const PyScene& self, const std::string& name, const py::lis
     }
   }
   return mat;
+}
+
+// A light's node tree (None: none): a program of value ops and an emission closure, in the
+// light's frame m (4x4 world matrix). A constant one multiplies the colour once; else the light
+// evaluates it per sample (light_shader.h), its power estimate scaled by `power` (the add-on's
+// Cycles-style estimate of the tree's emission).
+void set_light_shader(const PyScene& self, Light& l, const py::object& shader, const Mat4& m, float power,
+                      float spot_size = 0.0f) {
+  if (shader.is_none()) return;
+  Material mat = make_shader(self, "light", shader.cast<py::list>(), py::none(), false, py::none(), py::none(),
+                             "DISPLACEMENT");
+  if (!mat.program.varying) {
+    ShadingContext ctx;
+    ctx.ng = ctx.ns = ctx.wo = {0.0f, 0.0f, 1.0f};
+    ClosureList out;
+    eval_shader(mat.program, self.scene->images(), ctx, out);
+    l.color = l.color * (is_finite(out.emission) ? out.emission : Vec3(0.0f));
+    return;
+  }
+  auto sh = std::make_shared<LightShader>();
+  sh->program = std::move(mat.program);
+  sh->object = make_object_coords(m, Vec3(0.0f), Vec3(2.0f));
+  sh->object.gen_scale = Vec3(1.0f);  // lamps have no texture space: Generated reads object coordinates
+  sh->object.gen_offset = Vec3(0.0f);
+  sh->to_local = inverse3x3(m, "light matrix");
+  const float half = 0.5f * clampf(spot_size, 1e-6f, kPi - 1e-6f);
+  sh->half_cot_half_spot = 0.5f / std::tan(half);
+  l.shader = std::move(sh);
+  l.shader_power = std::isfinite(power) && power > 0.0f ? power : 1.0f;
 }
 
 // The committed heterogeneous medium of (instance, material), or the world's (instance -1).
@@ -1869,6 +1911,18 @@ void bind_volume_grids(py::module_& m) {
       .def_property_readonly("v_angles", [](const IesProfile& p) { return p.v; })
       .def_readonly("mean", &IesProfile::mean);
 
+  // Sky Texture nodes in materials (op "tex_sky"): the world's sky models, made by sky_texture().
+  py::class_<SkyModel, std::shared_ptr<SkyModel>>(m, "SkyTexture",
+      "A Sky Texture node's model (Nishita, Preetham or Hosek / Wilkie) for material programs; see "
+      "sky_texture.")
+      .def(
+          "eval",
+          [](const SkyModel& sky, const py::object& d) {
+            const Vec3 c = sky.eval(to_point(d, "direction"));
+            return py::make_tuple(c.x, c.y, c.z);
+          },
+          py::arg("direction"), "The radiance along a vector (read as it is, as Cycles' svm_node_tex_sky).");
+
   py::class_<VolumeGrid, std::shared_ptr<VolumeGrid>>(m, "VolumeGrid",
       "One grid of a .vdb file, sparse (8^3 bricks), for sampling in object or index space.")
       .def_readonly("name", &VolumeGrid::name)
@@ -2039,7 +2093,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           for (const ValueOpSchema& v : kValueOps)
             if (v.code == op.code) {
               pure = !(v.flags & kVarying) &&
-                     std::none_of(v.params.begin(), v.params.end(), [](const OpParam& p) { return p.kind == ParamKind::ImageId; });
+                     std::none_of(v.params.begin(), v.params.end(), [](const OpParam& p) {
+                       return p.kind == ParamKind::ImageId || p.kind == ParamKind::Ies || p.kind == ParamKind::Sky;
+                     });
               break;
             }
           if (!pure) throw std::invalid_argument("fold_constant takes constants and pure value ops only");
@@ -2416,6 +2472,35 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("sharp_edges") = py::none(), py::arg("sharp_faces") = py::none(), py::arg("threads") = 0,
       "float32 (C, 3): per-corner normals of a polygon mesh with sharp edges/faces (smooth fans across manifold, "
       "consistently wound, unmarked edges; as Blender's corner normals without custom normals).");
+  m.def(
+      "sky_texture",
+      [](const std::string& sky_type, float sun_elevation, float sun_rotation, float sun_size, float sun_intensity,
+         bool sun_disc, float altitude, float air, float dust, float ozone, const py::object& sun_direction,
+         float turbidity, float ground_albedo, const py::object& xyz_to_rgb) {
+        float mat[9];
+        xyz_matrix(xyz_to_rgb, mat);
+        std::shared_ptr<const SkyModel> sky;
+        if (sky_type == "NISHITA") {
+          const SkyParams p = sky_params(sun_elevation, sun_rotation, sun_size, sun_intensity, sun_disc, altitude, air,
+                                         dust, ozone);
+          py::gil_scoped_release release;
+          sky = nishita_sky(p, mat);
+        } else if (sky_type == "PREETHAM" || sky_type == "HOSEK_WILKIE") {
+          const Vec3 sun = to_point(sun_direction, "sun_direction");
+          if (sky_type == "PREETHAM") sky = std::make_shared<const SkyModel>(sun, turbidity, mat);
+          else sky = std::make_shared<const SkyModel>(sun, turbidity, ground_albedo, mat);
+        } else {
+          throw std::invalid_argument("sky_type must be NISHITA, PREETHAM or HOSEK_WILKIE, not '" + sky_type + "'");
+        }
+        return std::const_pointer_cast<SkyModel>(sky);
+      },
+      py::arg("sky_type") = "NISHITA", py::arg("sun_elevation") = 0.2617994f, py::arg("sun_rotation") = 0.0f,
+      py::arg("sun_size") = 0.009512f, py::arg("sun_intensity") = 1.0f, py::arg("sun_disc") = true,
+      py::arg("altitude") = 0.0f, py::arg("air") = 1.0f, py::arg("dust") = 1.0f, py::arg("ozone") = 1.0f,
+      py::arg("sun_direction") = py::make_tuple(0.0f, 0.0f, 1.0f), py::arg("turbidity") = 2.2f,
+      py::arg("ground_albedo") = 0.3f, py::arg("xyz_to_rgb") = py::none(),
+      "A Sky Texture node's SkyTexture for material programs (op 'tex_sky'): the settings of set_world_sky "
+      "(NISHITA), set_world_preetham (PREETHAM) or set_world_hosek (HOSEK_WILKIE).");
   m.def("sky_radiance", &sky_radiance, py::arg("directions"), py::arg("sun_elevation") = 0.2617994f,
         py::arg("sun_rotation") = 0.0f, py::arg("sun_size") = 0.009512f, py::arg("sun_intensity") = 1.0f,
         py::arg("sun_disc") = true, py::arg("altitude") = 0.0f, py::arg("air") = 1.0f, py::arg("dust") = 1.0f,
@@ -3217,7 +3302,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           "add_point_light",
           [](PyScene& self, const py::object& position, const py::object& intensity, float radius, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
              bool visible_transmission, bool visible_volume, bool soft_falloff, const py::object& ies,
-             const py::object& ies_matrix) {
+             const py::object& ies_matrix, const py::object& shader, const py::object& shader_matrix,
+             float shader_power) {
             self.check_editable();
             Light l;
             l.type = LightType::Point;
@@ -3229,20 +3315,29 @@ PYBIND11_MODULE(pathlight_core, m) {
             l.cast_shadow = cast_shadow;
             l.mis = use_mis;
             l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
+            Mat4 sm;
+            if (!shader_matrix.is_none()) sm = to_mat4(shader_matrix.cast<FloatArray>(), "shader_matrix");
+            else for (int i = 0; i < 3; ++i) sm.m[i][3] = (&l.position.x)[i];
+            set_light_shader(self, l, shader, sm, shader_power);
             self.scene->add_light(l);
           },
           py::arg("position"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
           py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("soft_falloff") = true,
-          py::arg("ies") = py::none(), py::arg("ies_matrix") = py::none(),
+          py::arg("ies") = py::none(), py::arg("ies_matrix") = py::none(), py::arg("shader") = py::none(),
+          py::arg("shader_matrix") = py::none(), py::arg("shader_power") = 1.0f,
           "soft_falloff=False: Blender's Soft Falloff off, a true emitting sphere of the radius (Cycles' sphere "
           "light); True: the disk facing the shaded point. ies: an IesProfile scaling the intensity by direction in "
-          "the frame of ies_matrix (the light's 4x4 world matrix; identity if None).")
+          "the frame of ies_matrix (the light's 4x4 world matrix; identity if None). shader: the light's node tree "
+          "(a program ending in emission closures) multiplying the intensity, in the frame of shader_matrix (the "
+          "light's world matrix; a translation to position if None); shader_power: the tree's emission estimate "
+          "that scales the light's power for choosing among lights.")
       .def(
           "add_spot_light",
           [](PyScene& self, const FloatArray& matrix, const py::object& intensity, float radius, float spot_size,
              float spot_blend, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume, bool soft_falloff, const py::object& ies) {
+             bool visible_transmission, bool visible_volume, bool soft_falloff, const py::object& ies,
+             const py::object& shader, float shader_power) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "spot light matrix");
             Light l;
@@ -3272,19 +3367,21 @@ PYBIND11_MODULE(pathlight_core, m) {
             l.cast_shadow = cast_shadow;
             l.mis = use_mis;
             l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
+            set_light_shader(self, l, shader, m, shader_power, finite_nonneg(spot_size, "spot_size"));
             self.scene->add_light(l);
           },
           py::arg("matrix"), py::arg("intensity"), py::arg("radius") = 0.0f, py::arg("spot_size") = kPi / 4.0f,
           py::arg("spot_blend") = 0.15f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
           py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("soft_falloff") = true,
-          py::arg("ies") = py::none(),
+          py::arg("ies") = py::none(), py::arg("shader") = py::none(), py::arg("shader_power") = 1.0f,
           "soft_falloff=False: an emitting sphere of the radius (Cycles' sphere spot light). ies: an IesProfile "
-          "scaling the intensity by direction in the light's frame.")
+          "scaling the intensity by direction in the light's frame. shader, shader_power: as add_point_light's.")
       .def(
           "add_sun_light",
           [](PyScene& self, const py::object& direction, const py::object& irradiance, float angle, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume) {
+             bool visible_transmission, bool visible_volume, const py::object& shader,
+             const py::object& shader_matrix, float shader_power) {
             self.check_editable();
             Light l;
             l.type = LightType::Sun;
@@ -3300,16 +3397,22 @@ PYBIND11_MODULE(pathlight_core, m) {
             l.cast_shadow = cast_shadow;
             l.mis = use_mis;
             l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
+            set_light_shader(self, l, shader,
+                             shader_matrix.is_none() ? Mat4() : to_mat4(shader_matrix.cast<FloatArray>(), "shader_matrix"),
+                             shader_power);
             self.scene->add_light(l);
           },
           py::arg("direction"), py::arg("irradiance"), py::arg("angle") = 0.0f, py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
-          py::arg("visible_transmission") = true, py::arg("visible_volume") = true)
+          py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("shader") = py::none(),
+          py::arg("shader_matrix") = py::none(), py::arg("shader_power") = 1.0f,
+          "shader, shader_matrix, shader_power: as add_point_light's.")
       .def(
           "add_area_light",
           [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, const py::object& radiance,
              bool ellipse, bool cast_shadow, bool use_mis, bool visible_camera, bool visible_diffuse, bool visible_glossy,
-             bool visible_transmission, bool visible_volume, float spread, const py::object& ies) {
+             bool visible_transmission, bool visible_volume, float spread, const py::object& ies,
+             const py::object& shader, float shader_power) {
             self.check_editable();
             const Mat4 m = to_mat4(matrix, "area light matrix");
             Light l;
@@ -3334,14 +3437,15 @@ PYBIND11_MODULE(pathlight_core, m) {
             l.cast_shadow = cast_shadow;
             l.mis = use_mis;
             l.visibility = light_visibility(visible_camera, visible_diffuse, visible_glossy, visible_transmission, visible_volume);
+            set_light_shader(self, l, shader, m, shader_power);
             self.scene->add_light(l);
           },
           py::arg("matrix"), py::arg("size_x"), py::arg("size_y"), py::arg("radiance"), py::arg("ellipse") = false,
           py::arg("cast_shadow") = true, py::arg("use_mis") = true,
           py::arg("visible_camera") = false, py::arg("visible_diffuse") = true, py::arg("visible_glossy") = true,
           py::arg("visible_transmission") = true, py::arg("visible_volume") = true, py::arg("spread") = kPi,
-          py::arg("ies") = py::none(),
-          "spread: Blender's Spread (radians, 0.1 degrees to pi): below pi the emission is limited to a cone about "
+          py::arg("ies") = py::none(), py::arg("shader") = py::none(), py::arg("shader_power") = 1.0f,
+          "shader, shader_power: as add_point_light's. spread: Blender's Spread (radians, 0.1 degrees to pi): below pi the emission is limited to a cone about "
           "the normal, as Cycles' soft-box grid. ies: an IesProfile scaling the radiance by the direction of the "
           "light leaving the light, in its frame.")
       .def(

@@ -16,6 +16,8 @@ namespace pl {
 
 enum class LightType : uint8_t { Point, Spot, Sun, Rect, Ellipse };
 
+struct LightShader;  // scene/light_shader.h: a light's node tree as a program
+
 // The rays a light is visible to (Cycles' light object Ray Visibility), as bits of
 // Light::visibility and of the kind of a ray that may find it.
 enum LightVisibility : uint8_t {
@@ -61,6 +63,12 @@ struct Light {
   // shader's normal (the matrix's transposed 3x3).
   std::shared_ptr<const IesProfile> ies;
   Mat4 ies_to_local;
+  // The light's node tree where it varies (textures, falloff, direction): its Emission,
+  // evaluated at each light sample and ray hit with Cycles' light coordinates, multiplies
+  // color (light_shader_emission). nullptr: none (a constant tree is folded into color).
+  // shader_power: Cycles' estimate of the tree's emission, for choosing among lights.
+  std::shared_ptr<LightShader> shader;
+  float shader_power = 1.0f;
   // Light and shadow linking (Cycles' light_set_membership / shadow_set_membership): bit s
   // set: the light reaches receivers of light set s / is blocked by objects of shadow set s.
   uint64_t light_mask = ~uint64_t(0), shadow_mask = ~uint64_t(0);
@@ -70,6 +78,28 @@ struct Light {
 inline float light_ies_factor(const Light& l, Vec3 from_light) {
   return l.ies ? ies_eval(*l.ies, l.ies_to_local.vector(from_light)) : 1.0f;
 }
+
+// What the light's node tree emits towards a shading point along wi (unit, from the point to
+// the light) from its point q at distance dist (light_shader.cpp; l.shader set).
+Vec3 light_shader_emission(const Light& l, Vec3 q, Vec3 wi, float dist);
+
+// Both direction-dependent factors (IES profile, node tree) of a light that has one; false
+// where they leave nothing.
+inline bool apply_light_factors(const Light& l, Vec3 q, Vec3 wi, float dist, Vec3& li) {
+  if (l.ies) {
+    const float f = light_ies_factor(l, -wi);
+    if (!(f > 0.0f)) return false;
+    li = li * f;
+  }
+  if (l.shader) {
+    li = li * light_shader_emission(l, q, wi, dist);
+    if (!(max_component(li) > 0.0f)) return false;
+  }
+  return true;
+}
+
+// The factor the light's power estimate takes from its profile and node tree.
+inline float light_power_scale(const Light& l) { return (l.ies ? l.ies->mean : 1.0f) * l.shader_power; }
 
 // Direction towards a light sample, as seen from a shading point.
 struct LightSample {
@@ -447,11 +477,8 @@ inline bool sample_light_shape(const Light& l, Vec3 p, Vec2 u, LightSample& s, b
 // rectangles by their solid angle where it is large enough (else uniformly by area).
 inline bool sample_light(const Light& l, Vec3 p, Vec2 u, LightSample& s, bool solid_angle = true) {
   if (!sample_light_shape(l, p, u, s, solid_angle)) return false;
-  if (!l.ies) return true;
-  const float f = light_ies_factor(l, -s.wi);
-  if (!(f > 0.0f)) return false;
-  s.li = s.li * f;
-  return true;
+  if (!l.ies && !l.shader) return true;
+  return apply_light_factors(l, s.target, s.wi, s.dist, s.li);
 }
 
 // Whether a ray can hit light l at all: it has extent as sample_light sees it (a point or spot
@@ -478,11 +505,8 @@ inline bool intersect_light_shape(const Light& l, Vec3 from, Vec3 org, Vec3 dir,
 inline bool intersect_light(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float tmax, float& t, Vec3& le, float& pdf,
                             bool solid_angle = true) {
   if (!intersect_light_shape(l, from, org, dir, tmax, t, le, pdf, solid_angle)) return false;
-  if (!l.ies) return true;
-  const float f = light_ies_factor(l, -dir);
-  if (!(f > 0.0f)) return false;
-  le = le * f;
-  return true;
+  if (!l.ies && !l.shader) return true;
+  return apply_light_factors(l, org + dir * t, dir, t, le);
 }
 
 inline bool intersect_light_shape(const Light& l, Vec3 from, Vec3 org, Vec3 dir, float tmax, float& t, Vec3& le,
@@ -564,7 +588,7 @@ inline bool intersect_light_shape(const Light& l, Vec3 from, Vec3 org, Vec3 dir,
 // Rough emitted power, for choosing among lights (only ratios matter). `scene_radius` bounds
 // the sun's footprint on the scene.
 inline float light_power(const Light& l, float scene_radius) {
-  const float lum = std::max(luminance(l.color), 0.0f) * (l.ies ? l.ies->mean : 1.0f);
+  const float lum = std::max(luminance(l.color), 0.0f) * light_power_scale(l);
   float p = 0.0f;
   switch (l.type) {
     case LightType::Point: p = 4.0f * kPi * lum; break;

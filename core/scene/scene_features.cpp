@@ -118,7 +118,7 @@ void Scene::detect_features() {
                      (op.code == OpCode::Wireframe && op.ext != 0) ||
                      (op.code == OpCode::PrincipledHair && op.ext != 0);  // Huang's near field
       f.path_state = f.path_state || op.code == OpCode::LightPath || op.code == OpCode::AmbientOcclusion ||
-                     op.code == OpCode::Bevel;
+                     op.code == OpCode::Bevel || op.code == OpCode::LightFalloff;  // (the ray's length)
       if (m.constant) continue;
       switch (op.code) {  // every kind the op can add
         case OpCode::Diffuse: f.diffuse = true; f.glossy = f.glossy || op.in[3] != kNoReg; break;  // in[3]: Oren-Nayar

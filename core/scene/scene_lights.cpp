@@ -1,6 +1,7 @@
 // The scene's lights: the light distribution and tree built at commit over analytic lights,
 // emitter groups and the environment, and direct light sampling and its pdfs.
 #include "scene/scene.h"
+#include "scene/light_shader.h"
 
 #include <algorithm>
 #include <optional>
@@ -108,6 +109,8 @@ float Scene::env_choice_weight(float env_power, const std::vector<float>& others
 }
 
 void Scene::build_lights() {
+  for (Light& l : lights_)
+    if (l.shader) l.shader->scene = this;  // (images, ambient occlusion: this scene's)
   any_transparent_ = false;
   any_holdout_ = false;
   for (const Material& m : materials_) {
@@ -355,7 +358,7 @@ void Scene::build_light_tree(const std::vector<float>& weights, LightChoice& out
     LightBounds& b = items[k];
     if (k < lights_.size()) {
       const Light& l = lights_[k];
-      const float lum = std::max(luminance(l.color), 0.0f) * (l.ies ? l.ies->mean : 1.0f);
+      const float lum = std::max(luminance(l.color), 0.0f) * light_power_scale(l);
       switch (l.type) {
         case LightType::Point:
         case LightType::Spot: {

@@ -677,6 +677,37 @@ template <bool kSetsNormal>
         d = f4(ctx.ns, 0.0f);
         break;
       }
+      case OpCode::LightFalloff: {
+        // Cycles' svm_node_light_falloff: the strength divided by nothing (Quadratic: the
+        // light's own 1/r^2 stays), times r (Linear) or r^2 (Constant), and Smooth's
+        // r^2 / (smooth + r^2) where r^2 is finite (a sun's r is infinite).
+        float strength = reg(op.in[0]).x;
+        const float r = ctx.ray.length;
+        if (op.sub == 1) strength *= r;
+        else if (op.sub == 2) strength *= r * r;
+        const float smooth = reg(op.in[1]).x;
+        const float r2 = r * r;
+        if (smooth > 0.0f && std::isfinite(r2)) strength *= r2 / (smooth + r2);
+        if (!std::isfinite(strength)) strength = 0.0f;
+        d = {strength, strength, strength, 1.0f};
+        break;
+      }
+      case OpCode::TexIes: {
+        // Cycles' svm_node_ies: the profile along the normalised vector, times Strength.
+        const float v = size_t(op.index) < prog.ies.size() && prog.ies[size_t(op.index)]
+                            ? ies_eval(*prog.ies[size_t(op.index)], reg(op.in[0]).xyz()) * reg(op.in[1]).x
+                            : 0.0f;
+        d = {v, v, v, 1.0f};
+        break;
+      }
+      case OpCode::TexSky: {
+        // Cycles' svm_node_tex_sky reads its vector as it is (not normalised), as the world's.
+        const Vec3 c = size_t(op.index) < prog.skies.size() && prog.skies[size_t(op.index)]
+                           ? prog.skies[size_t(op.index)]->eval(reg(op.in[0]).xyz())
+                           : Vec3(0.0f);
+        d = f4(c, 1.0f);
+        break;
+      }
       case OpCode::Wireframe: {
         // Cycles' svm_wireframe: 1 within Size / 2 of one of the triangle's edges, Size in
         // world units or (ext) in pixels at the point: the footprint's two tangent axes

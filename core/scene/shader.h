@@ -11,6 +11,8 @@
 
 #include "scene/bsdf.h"
 #include "scene/phase.h"
+#include "scene/ies.h"
+#include "scene/sky.h"
 
 namespace pl {
 
@@ -50,6 +52,13 @@ enum class OpCode : uint8_t {
   AmbientOcclusion,  // traced by the scene (trace_ambient_occlusion)
   Bevel,             // traced by the scene (trace_bevel)
   Wireframe,
+  // Light Falloff (sub: 0 Quadratic, 1 Linear, 2 Constant): in[0] strength, in[1] smooth, by the
+  // ray's length (a light sample's distance in light programs).
+  LightFalloff,
+  // IES Texture: in[0] the vector, in[1] the strength; index: the program's ies profile.
+  TexIes,
+  // Sky Texture: in[0] the vector; index: the program's sky (the world's SkyModel).
+  TexSky,
   Diffuse, Glossy, Glass, Refraction, Transparent, Emission, Principled,
   Translucent, Metallic,
   PrincipledExtra,  // the Principled BSDF's further inputs: the op just before its Principled op
@@ -412,6 +421,9 @@ struct ShaderProgram {
     return !is_black(sigma_a) || !is_black(sigma_s) || !is_black(volume_emission) || volume != nullptr;
   }
   std::vector<Float4> tables;  // Ramp lookup tables (Color Ramp, RGB Curves), as Cycles bakes them
+  // What IES Texture and Sky Texture ops read (their index): shared with Python and other programs.
+  std::vector<std::shared_ptr<const IesProfile>> ies;
+  std::vector<std::shared_ptr<const SkyModel>> skies;
   // The Bump node's Filter Width: its heights are read this many pixel footprints away (<= 0:
   // a tiny fixed step, where the ray's footprint is unknown too).
   float bump_filter_width = 0.0f;

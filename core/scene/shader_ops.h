@@ -98,6 +98,7 @@ inline constexpr const char* kGaborTypes[] = {"2D", "3D"};  // sub 2 and 3 (the 
 inline constexpr const char* kGaborOutputs[] = {"VALUE", "PHASE", "INTENSITY"};
 inline constexpr const char* kAoOutputs[] = {"COLOR", "AO"};
 inline constexpr const char* kAovTypes[] = {"VALUE", "COLOR"};
+inline constexpr const char* kLightFalloffOutputs[] = {"QUADRATIC", "LINEAR", "CONSTANT"};
 
 // The schema of the value ops (issue 22). A value op's tuple is `(name, dst, registers...,
 // parameters...)` (docs/core_api.md): `registers` register operands fill in[0..], then each
@@ -114,10 +115,12 @@ enum class ParamKind : uint8_t {
   Matrix3x4,    // a 3x4 float array, finite (Mapping's transform, row-major)
   RampTable,    // an (N, 4) float array, 2 <= N <= 4096, appended to the program's tables
   FilterWidth,  // a float >= 0: the program's Bump filter width (its first Bump op's)
+  Ies,          // an IesProfile: appended to the program's ies (index)
+  Sky,          // a SkyTexture: appended to the program's skies (index)
 };
 inline constexpr const char* kParamKindNames[] = {"choice", "int", "bool", "float", "image", "values",
-                                                  "matrix3x4", "ramp_table", "filter_width"};
-static_assert(std::size(kParamKindNames) == size_t(ParamKind::FilterWidth) + 1, "one name per ParamKind");
+                                                  "matrix3x4", "ramp_table", "filter_width", "ies_profile", "sky"};
+static_assert(std::size(kParamKindNames) == size_t(ParamKind::Sky) + 1, "one name per ParamKind");
 
 // The ShaderOp field a parameter fills (Values: value; Matrix3x4: m[0..11]; RampTable: index
 // and count; FilterWidth: the program's bump_filter_width).
@@ -308,6 +311,9 @@ inline constexpr OpParam kVolumeGrid[] = {int_in(F::Index, "volume grid id", 0, 
 // AOV Output: the view layer's AOV slot, its type.
 inline constexpr OpParam kAovOutput[] = {int_in(F::Index, "aov slot", 0, kMaxShaderAovs - 1),
                                          choice(F::Sub, "aov type", kAovTypes)};
+inline constexpr OpParam kLightFalloff[] = {choice(F::Sub, "light falloff output", kLightFalloffOutputs)};
+inline constexpr OpParam kTexIes[] = {of(K::Ies, F::Index, "ies profile")};
+inline constexpr OpParam kTexSky[] = {of(K::Sky, F::Index, "sky")};
 }  // namespace schema
 
 // Every value op: its name, OpCode, registers, parameters and program flags. Adding a value op
@@ -381,6 +387,10 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"volume_grid", OpCode::VolumeGrid, 0, schema::kVolumeGrid, kVarying},  // volume objects' grids
     // (kVarying: evaluated at every hit, never folded or cached, so each camera hit adds once)
     {"aov_output", OpCode::AovOutput, 1, schema::kAovOutput, kVarying},
+    {"light_falloff", OpCode::LightFalloff, 2, schema::kLightFalloff, kVarying},  // strength, smooth
+    // (not folded: a constant vector still reads the profile or sky, which fold_constant lacks)
+    {"tex_ies", OpCode::TexIes, 2, schema::kTexIes, kVarying},  // vector, strength
+    {"tex_sky", OpCode::TexSky, 1, schema::kTexSky, kVarying},  // vector
 };
 
 // The OpCodes that closure ops (or their companions) produce; every other OpCode is a value op's.
@@ -418,7 +428,9 @@ constexpr bool param_fits(const OpParam& p) {
       return int_field && p.lo <= p.hi && (wide || (p.lo >= 0 && p.hi <= 255));
     }
     case ParamKind::Bool: return int_field && p.bit != 0;
-    case ParamKind::ImageId: return p.field == OpField::Index;
+    case ParamKind::ImageId:
+    case ParamKind::Ies:
+    case ParamKind::Sky: return p.field == OpField::Index;
     case ParamKind::Float: return p.field == OpField::M0 || p.field == OpField::M1;
     case ParamKind::Values: return p.field == OpField::Value;
     case ParamKind::Matrix3x4: return p.field == OpField::Matrix;

@@ -289,12 +289,12 @@ def test_unsupported_value_node_uses_the_input_value_and_warns():
     tree = mat.node_tree
     bsdf = tree.nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (0.3, 0.3, 0.3, 1)
-    ies = tree.nodes.new("ShaderNodeTexIES")  # not supported yet
-    tree.links.new(ies.outputs["Fac"], bsdf.inputs["Base Color"])
+    info = tree.nodes.new("ShaderNodeShaderToRGB")  # EEVEE only: not supported
+    tree.links.new(info.outputs["Color"], bsdf.inputs["Base Color"])
     warnings = Warnings()
     m = convert_material(mat, warnings)
     assert m.base_color == pytest.approx((0.3, 0.3, 0.3))
-    assert len(warnings) == 1 and "IES Texture" in warnings[0] and "Base Color" in warnings[0]
+    assert len(warnings) == 1 and "Shader to RGB" in warnings[0] and "Base Color" in warnings[0]
     consts = {op[1]: op[2] for op in m.program if op[0] == "const"}
     (closure,) = [op for op in m.program if op[0] == "closure"]
     assert consts[closure[3]["base_color"]][:3] == pytest.approx((0.3, 0.3, 0.3))

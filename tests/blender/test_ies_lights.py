@@ -120,14 +120,15 @@ def test_unusable_profiles_warn_and_use_cycles_fallback(case, tmp_path):
 
 
 @needs_ies
-def test_ies_on_a_sun_or_elsewhere_warns_and_is_ignored():
+def test_ies_on_a_sun_becomes_a_light_program():
+    # Beyond the IES-only pattern, the tree is compiled as any light tree (test_light_nodes.py).
     empty_scene(16)
     sun = add_light('SUN', name="Sun", energy=2.0)
     with_ies(sun, DOWNWARD)
     lights, warnings = export_lights()
-    assert len(lights) == 1 and "ies" not in lights[0].args
+    assert len(lights) == 1 and "ies" not in lights[0].args and not warnings, warnings
+    assert any(op[0] == "tex_ies" for op in lights[0].args["shader"])
     assert lights[0].args["irradiance"][0] == pytest.approx(2.0)
-    assert len(warnings) == 1 and "IES textures are supported only" in warnings[0]
 
 
 # ---------------------------------------------------------------- against Cycles

@@ -191,7 +191,8 @@ def test_unsupported_features_warn(scene):
     add_light('AREA', name="Portal", energy=5.0).data.cycles.is_portal = True
     ies = add_light('SPOT', name="IES", energy=5.0).data
     ies.use_nodes = True
-    # IES Texture -> Emission Strength is supported (test_ies_lights.py); into the colour it is not.
+    # Light node trees compile into programs (test_light_nodes.py): an IES Texture into the
+    # colour too, here without a profile (warned: Cycles' fallback value).
     ies_node = ies.node_tree.nodes.new("ShaderNodeTexIES")
     ies.node_tree.links.new(ies_node.outputs["Fac"], ies.node_tree.nodes["Emission"].inputs["Color"])
     tex = add_light('POINT', name="Textured", energy=5.0).data
@@ -202,11 +203,10 @@ def test_unsupported_features_warn(scene):
     assert sorted(light.name for light in lights) == [
         "IES", "Narrow", "Seen", "Sphere", "Textured"]  # the portal emits nothing
     text = "\n".join(warnings)
-    for expected in ("'Portal': light portals", "'IES': IES textures",
-                     "'Textured': light node trees"):
+    for expected in ("'Portal': light portals", "'IES': IES Texture without a usable profile"):
         assert expected in text, text
-    assert "'Sphere'" not in text and "'Narrow'" not in text
-    assert len(warnings) == 3
+    assert "'Sphere'" not in text and "'Narrow'" not in text and "'Textured'" not in text
+    assert len(warnings) == 2
 
 
 @pytest.mark.parametrize("kind", ['POINT', 'SPOT'])

@@ -12,6 +12,7 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 
 TABLE = pc.shader_op_table()
 SCHEMA = {e["name"]: e for e in TABLE["schema"]}
+IES = pc.IesProfile(b"IESNA:LM-63-2002\nTILT=NONE\n1 1000 1 2 1 1 2 0 0 0\n1 1 100\n0 90\n0\n100 50\n")
 # Parsed by hand in the bindings (see the comment there); their entries hold registers only.
 HAND_PARSED = {"normal_map"}
 
@@ -28,6 +29,8 @@ def sample(p):
         "matrix3x4": lambda: np.eye(3, 4, dtype=np.float32),
         "ramp_table": lambda: np.array([[0, 0, 0, 1], [1, 1, 1, 1]], np.float32),
         "filter_width": lambda: 0.5,
+        "ies_profile": lambda: IES,
+        "sky": lambda: pc.sky_texture("PREETHAM"),
     }[p["kind"]]()
 
 
@@ -116,6 +119,10 @@ def test_wrong_arguments_are_refused_naming_the_op(name):
         if p["kind"] == "float":
             args[i] = float("nan")
             with pytest.raises(ValueError, match=f"shader op '{name}': .*finite"):
+                parse(op_tuple(name, args))
+        if p["kind"] in ("ies_profile", "sky"):  # a core object of that class, nothing else
+            args[i] = 3
+            with pytest.raises(ValueError, match=f"shader op '{name}': .* must be an? "):
                 parse(op_tuple(name, args))
 
 

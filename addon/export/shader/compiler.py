@@ -409,6 +409,20 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
                 continue
             self.emit("color" if kind == 'COLOR' else "float", "aov_output", self.reg(value), slot, kind)
 
+    def compile_light(self, output, name):
+        """CompiledShader of a light's node tree (its Light Output's Surface: emission closures
+        and the values they read), or None where it cannot be compiled (problems say why)."""
+        try:
+            self.shader_input(output.inputs["Surface"], (), None)
+        except _Cycle as e:
+            self.problem(f"node cycle through '{e}'")
+            return None
+        program = allocate_registers(eliminate_dead_code(self.ops))
+        if program is None:
+            self.problem(f"the light's nodes need more than {MAX_REGISTERS} registers")
+            return None
+        return CompiledShader(program, None, None, dict(self.uv_used), list(self.problems))
+
     def _reset(self):
         self.ops = []
         self.nreg = 0

@@ -373,6 +373,16 @@ class InputNodes:
 
 # Handlers of ShaderCompiler._VALUE_NODES (node type -> function of compiler, node, output
 # socket, group context).
+    def light_falloff(self, node, out, ctx):
+        """Cycles' Light Falloff (svm_node_light_falloff): Strength times the ray's length to
+        the power 0 (Quadratic), 1 (Linear) or 2 (Constant), smoothed by Smooth; in a light's
+        tree the length is the light sample's distance."""
+        strength = self.input(node, "Strength", ctx, "float")
+        smooth = self.input(node, "Smooth", ctx, "float")
+        which = {"Linear": "LINEAR", "Constant": "CONSTANT"}.get(out.identifier, "QUADRATIC")
+        return self.emit("float", "light_falloff", self.reg(strength), self.reg(smooth), which)
+
+
 VALUE_NODES = {
     'FRESNEL': InputNodes.fresnel_node, 'LAYER_WEIGHT': InputNodes.layer_weight,
     'LIGHT_PATH': InputNodes.light_path, 'OBJECT_INFO': InputNodes.object_info,
@@ -380,4 +390,5 @@ VALUE_NODES = {
     'ATTRIBUTE': InputNodes.attribute_node, 'VOLUME_INFO': InputNodes.volume_info, 'TANGENT': InputNodes.tangent_node,
     'AMBIENT_OCCLUSION': InputNodes.ambient_occlusion, 'BEVEL': InputNodes.bevel,
     'WIREFRAME': InputNodes.wireframe, 'PARTICLE_INFO': InputNodes.particle_info,
+    'LIGHT_FALLOFF': InputNodes.light_falloff,
 }

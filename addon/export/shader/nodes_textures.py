@@ -2,7 +2,7 @@
 Checker, Gradient, Brick and Voronoi are tex_patterns'.)"""
 
 from .images import MISSING_TEXTURE
-from .values import ONE, const_color, const_vector
+from .values import ONE, Val, const_color, const_vector
 
 
 class TextureNodes:
@@ -117,9 +117,58 @@ class TextureNodes:
         return self.emit("float", "tex_gabor", vec, *floats, o3, node.gabor_type, which)
 
 
+    def ies_texture(self, node, out, ctx):
+        """Cycles' IES Texture (svm_node_ies): the profile along its normalised Vector, times
+        Strength. Unlinked, Cycles' LINK_TEXTURE_INCOMING: Geometry's Incoming turned into
+        object space as a normal (for a light: the direction from it to the lit point, in its
+        frame). Without a usable profile Cycles' kernel reads 100 (light.IES_FALLBACK)."""
+        from ..light import IES_FALLBACK, ies_profile  # (light export shares the reader)
+        strength = self.input(node, "Strength", ctx, "float")
+        profile = ies_profile(node, self.problem)
+        if profile is None:
+            return self.math("MULTIPLY", strength, Val("float", (IES_FALLBACK,) * 3 + (1.0,)))
+        vec = self.value(node.inputs["Vector"], ctx, "vector")
+        if vec is None:
+            incoming = self.emit("vector", "geometry", "INCOMING")
+            vec = self.emit("vector", "vector_transform", self.reg(incoming), "NORMAL", "WORLD", "OBJECT")
+        return self.emit("float", "tex_ies", self.reg(vec), self.reg(strength), profile)
+
+    def sky_texture(self, node, out, ctx):
+        """Cycles' Sky Texture in a material (svm_node_tex_sky): the world's sky model read
+        along the Vector as it is (unlinked, or Nishita's unavailable socket: Generated
+        coordinates, Cycles' default)."""
+        from ...core import get_core
+        from ..world import sky_params
+        what = f"'{node.name}'"
+        socket = node.inputs.get("Vector")
+        vec = None
+        if socket is not None and socket.enabled:
+            vec = self.texture_vector(node, ctx)
+        else:
+            vec = self.object_coords("generated")
+        key = ("sky", node.as_pointer())
+        sky = self.cache.get(key)
+        if sky is None:
+            try:
+                if node.sky_type == 'NISHITA':
+                    sky = get_core().sky_texture("NISHITA", **sky_params(node))
+                elif node.sky_type in ('PREETHAM', 'HOSEK_WILKIE'):
+                    sky = get_core().sky_texture(
+                        node.sky_type, sun_direction=tuple(float(c) for c in node.sun_direction),
+                        turbidity=float(node.turbidity), ground_albedo=float(node.ground_albedo))
+            except (ValueError, AttributeError) as e:
+                self.problem(f"{what}: {e} (black)")
+            if sky is None:
+                self.problem(f"{what}: sky type {node.sky_type} is not supported (black)")
+                return const_color((0.0, 0.0, 0.0, 1.0))
+            self.cache[key] = sky
+        return self.emit("color", "tex_sky", self.reg(vec), sky)
+
+
 # Handlers of ShaderCompiler._VALUE_NODES (Image Texture is eval_value_node's).
 VALUE_NODES = {
     'TEX_NOISE': TextureNodes.noise_texture, 'TEX_WAVE': TextureNodes.wave_texture,
     'TEX_MAGIC': TextureNodes.magic_texture, 'TEX_WHITE_NOISE': TextureNodes.white_noise_texture,
-    'TEX_GABOR': TextureNodes.gabor_texture,
+    'TEX_GABOR': TextureNodes.gabor_texture, 'TEX_IES': TextureNodes.ies_texture,
+    'TEX_SKY': TextureNodes.sky_texture,
 }
