@@ -17,7 +17,7 @@ pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is 
 W, H = 64, 48
 
 
-def scene(method="DISPLACEMENT", distance=2.2, feature_set='EXPERIMENTAL', before=False):
+def scene(method="DISPLACEMENT", distance=2.2, feature_set='EXPERIMENTAL', before=False, shape="cube"):
     """A unit cube (8 corners of valence 3: the limit surface's extraordinary points) with an
     adaptive Catmull-Clark modifier, Noise displacement or none, under a grazing sun."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -28,8 +28,14 @@ def scene(method="DISPLACEMENT", distance=2.2, feature_set='EXPERIMENTAL', befor
     ms.set_world((0.05, 0.05, 0.05))
     mat = disp_material(f"cube-{method}", method, "noise", 0.1) if method else None
     import bmesh  # (after bpy)
-    obj = ms.add_mesh_object("Cube", lambda bm: bmesh.ops.create_cube(bm, size=1.0), (mat,) if mat else (),
-                             smooth=True, rotation_euler=(0.3, 0.2, 0.5))
+    if shape == "cube":
+        def build(bm):
+            bmesh.ops.create_cube(bm, size=1.0)
+    else:  # a hexagonal prism: two n-gons
+        def build(bm):
+            bmesh.ops.create_cone(bm, cap_ends=True, cap_tris=False, segments=6, radius1=0.5, radius2=0.5,
+                                  depth=1.0)
+    obj = ms.add_mesh_object("Cube", build, (mat,) if mat else (), smooth=True, rotation_euler=(0.3, 0.2, 0.5))
     if before:
         obj.modifiers.new("Bevel", 'BEVEL')
     mod = obj.modifiers.new("Subdivision", 'SUBSURF')
@@ -63,13 +69,19 @@ def export(**kw):
     return mesh, warn
 
 
-def test_export_dices_the_cage_watertight_and_by_distance():
-    near, warn = export()
-    assert near.subdivision is not None and not warn, list(warn)
-    tris = near.triangles
+def assert_watertight(tris):
     e = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
     directed = {tuple(x) for x in e.tolist()}
     assert len(directed) == len(e) and all((b, a) in directed for a, b in directed), "cracks"
+
+
+def test_export_dices_the_cage_watertight_and_by_distance():
+    near, warn = export()
+    assert near.subdivision is not None and not warn, list(warn)
+    assert_watertight(near.triangles)
+    prism, _ = export(shape="prism")
+    assert prism.subdivision is not None
+    assert_watertight(prism.triangles)
     # The cage's corners sit on the limit surface, well inside the unit cube's corners.
     assert np.abs(near.positions).max() < 0.5
     far, _ = export(distance=4.4)
@@ -102,3 +114,19 @@ def test_corner_values_follow_the_patches():
     np.testing.assert_allclose(out[0], [[0, 0], [1, 0], [0.25, 0.75]], atol=1e-6)
     np.testing.assert_allclose(out[1], [[5, 5], [6, 5], [6, 6]], atol=1e-6)
     np.testing.assert_allclose(out[2], [[6, 8], [6.5, 6.5], [6, 6]], atol=1e-6)
+
+
+def test_no_ray_passes_between_displaced_patches():
+    """A camera inside the displaced, diced cube (scaled up around it): every pixel hits the
+    surface (transparent film: alpha 1), so no crack opens between patches diced with different
+    edge factors."""
+    from blender_util import render_to_array
+    sc = scene("DISPLACEMENT")
+    cube = sc.objects["Cube"]
+    cube.scale = (4.0, 4.0, 4.0)
+    cam = sc.camera
+    cam.location = (0.3, -0.2, 0.1)
+    cam.data.lens = 12.0  # wide: edges, corners and the faces' middles in view
+    sc.render.film_transparent = True
+    img = render_to_array(sc, "PATHLIGHT", samples=1, resolution_x=48, resolution_y=48)
+    assert img[..., 3].min() == 1.0, f"{int((img[..., 3] < 1).sum())} pixels see through"
