@@ -31,7 +31,7 @@ struct DicingCamera {
   float pixel_size = 1e-3f;  // world size of a pixel: per unit distance (perspective) or absolute
   float dicing_rate = 1.0f;  // target edge length in pixels
   int max_level = 12;        // edge factors up to 2^max_level
-  size_t max_quads = size_t(1) << 24;  // limit-grid quads the refinement may make
+  size_t max_quads = size_t(1) << 22;  // limit-grid quads the refinement may make (~1 GB)
 };
 
 struct DicedMesh {

@@ -2368,7 +2368,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("camera_position"), py::arg("pixel_size"), py::arg("ortho") = false, py::arg("dicing_rate") = 1.0f,
       py::arg("max_level") = 12, py::arg("crease_edges") = py::none(), py::arg("crease_sharpness") = py::none(),
       py::arg("vertex_sharpness") = py::none(), py::arg("catmull_clark") = true, py::arg("smooth_corners") = true,
-      py::arg("max_quads") = int64_t(1) << 24,
+      py::arg("max_quads") = int64_t(1) << 22,
       "Adaptive subdivision of a polygon cage (object space; matrix: object to world): its Catmull-Clark limit "
       "surface (or Simple subdivision) diced so edges project to about dicing_rate pixels (pixel_size: a pixel's "
       "world size per unit distance from camera_position, or absolute if ortho), edge factors up to 2^max_level "

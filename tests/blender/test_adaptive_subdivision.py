@@ -46,17 +46,18 @@ def scene(method="DISPLACEMENT", distance=2.2, feature_set='EXPERIMENTAL', befor
     return sc
 
 
-CASES = {  # displacement method (None: no displacement), samples
-    "cube-noise-displacement": ("DISPLACEMENT", 128),
-    "cube-limit-surface": (None, 64),
+CASES = {  # displacement method (None: no displacement), cage, samples
+    "cube-noise-displacement": ("DISPLACEMENT", "cube", 128),
+    "cube-limit-surface": (None, "cube", 64),
+    "prism-noise-displacement": ("DISPLACEMENT", "prism", 128),  # n-gon caps
 }
 
 
 @pytest.mark.converged
 @pytest.mark.parametrize("case", list(CASES))
 def test_adaptive_subdivision_matches_cycles(case):
-    method, samples = CASES[case]
-    ours, cycles = ms.render_pair(lambda: scene(method), samples)
+    method, shape, samples = CASES[case]
+    ours, cycles = ms.render_pair(lambda: scene(method, shape=shape), samples)
     ms.assert_agree(ours, cycles, case)
 
 
