@@ -80,6 +80,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                  f"{', '.join(map(repr, mesh.missing_attributes))} that its materials read; 0 is used")
         if getattr(mesh, "tangent_problem", None):
             warn(f"Mesh '{mesh.name}': {mesh.tangent_problem}")
+        if getattr(mesh, "subdivision_problem", None):
+            warn(f"Object '{mesh.name}': {mesh.subdivision_problem}")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
     volume_grids = []
     volume_meshes, volume_slots = collect_volumes(depsgraph, warn, table, volume_grids)

@@ -51,6 +51,10 @@ class MeshData:
     # True displacement: bool (T,) flat-shaded triangles (their displaced face's normal), or
     # None (all smooth, or no material displaces).
     flat: np.ndarray = None
+    # Adaptive subdivision (export.subdivision): why it was not done (a warning), or None; and
+    # what the dicing did ({"level", "max_edge_factor", "capped"}), or None.
+    subdivision_problem: str = None
+    subdivision: dict = None
 
     @property
     def corner_normals(self):
@@ -397,7 +401,9 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
     object_attributes: an object_attributes.InstanceAttributes whose slots the instances'
     values are resolved for (uv_names compiles a mesh's materials, numbering their slots,
     when its entry is made)."""
+    from .subdivision import adaptive_mesh_data, adaptive_modifier, dicing_context
     meshes = {}
+    dicing = None  # export.subdivision's camera, made at the first adaptive object
     generated = {}  # instancer -> how many generated geometries of it were exported so far
     for instance in depsgraph.object_instances:
         obj = instance.object
@@ -413,7 +419,12 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
         if entry is None:
             if should_stop is not None and should_stop():
                 raise ExportCancelled()
-            if cache is None:
+            modifier = adaptive_modifier(obj, depsgraph)
+            if modifier is not None:  # (diced for this camera: never from the cache)
+                if dicing is None:
+                    dicing = dicing_context(depsgraph)
+                entry = adaptive_mesh_data(obj, modifier, materials, uv_names, dicing)
+            elif cache is None:
                 entry = _export_object(obj, materials, uv_names)
             else:
                 # Geometry nodes' generated instances have their instancer as `original`: each

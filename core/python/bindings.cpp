@@ -16,6 +16,8 @@
 #include "scene/ies.h"
 #include "scene/light_shader.h"
 #include "scene/displace.h"
+#include "geometry/subdivide.h"
+#include <cstring>
 #include "scene/phase.h"
 #include "scene/shader_ops.h"
 #include "scene/vdb_reader.h"
@@ -2422,6 +2424,71 @@ PYBIND11_MODULE(pathlight_core, m) {
       "int32 (F + 1,) face offsets (face f: corners offsets[f] to offsets[f + 1] - 1) from the face of every "
       "triangle of a triangulation listed face by face (Blender's loop_triangle_polygons: a face of k corners has "
       "k - 2 triangles); None unless they are in that order, every face has a triangle and the corners add up.");
+  m.def(
+      "subdivide_mesh",
+      [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets,
+                     const FloatArray& matrix, const py::object& camera_position, float pixel_size, bool ortho,
+                     float dicing_rate, int max_level, const py::object& crease_edges_obj,
+                     const py::object& crease_sharpness_obj, const py::object& vertex_sharpness_obj,
+                     bool catmull_clark, bool smooth_corners, int64_t max_quads) {
+        SubdivisionCage cage;
+        cage.mesh = polygon_mesh(positions, corner_verts, offsets);
+        cage.catmull_clark = catmull_clark;
+        cage.smooth_corners = smooth_corners;
+        I32Array ce;
+        FloatArray cs, vs;
+        if (!crease_edges_obj.is_none()) {
+          ce = crease_edges_obj.cast<I32Array>();
+          cs = crease_sharpness_obj.cast<FloatArray>();
+          if (ce.ndim() != 2 || ce.shape(1) != 2 || cs.ndim() != 1 || cs.shape(0) != ce.shape(0))
+            throw std::invalid_argument("crease_edges must have shape (K, 2) and crease_sharpness (K,)");
+          cage.crease_edges = ce.data(), cage.crease_sharpness = cs.data(), cage.creases = size_t(ce.shape(0));
+        }
+        if (!vertex_sharpness_obj.is_none()) {
+          vs = vertex_sharpness_obj.cast<FloatArray>();
+          if (vs.ndim() != 1 || size_t(vs.shape(0)) != cage.mesh.vertices)
+            throw std::invalid_argument("vertex_sharpness must have shape (V,)");
+          cage.vertex_sharpness = vs.data();
+        }
+        DicingCamera cam;
+        cam.to_world = to_mat4(matrix, "subdivide_mesh matrix");
+        cam.position = to_point(camera_position, "camera_position");
+        cam.ortho = ortho;
+        if (!(pixel_size > 0.0f) || !std::isfinite(pixel_size)) throw std::invalid_argument("pixel_size must be > 0");
+        if (!(dicing_rate > 0.0f) || !std::isfinite(dicing_rate)) throw std::invalid_argument("dicing_rate must be > 0");
+        if (max_quads < 1) throw std::invalid_argument("max_quads must be >= 1");
+        cam.pixel_size = pixel_size, cam.dicing_rate = dicing_rate, cam.max_level = max_level;
+        cam.max_quads = size_t(max_quads);
+        DicedMesh d;
+        {
+          py::gil_scoped_release release;
+          d = subdivide_and_dice(cage, cam);
+        }
+        const py::ssize_t nv = py::ssize_t(d.positions.size()), nt = py::ssize_t(d.tri_face.size());
+        FloatArray pos({nv, py::ssize_t(3)}), uv({nt, py::ssize_t(3), py::ssize_t(2)});
+        std::memcpy(pos.mutable_data(), d.positions.data(), sizeof(float) * 3 * size_t(nv));
+        std::memcpy(uv.mutable_data(), d.tri_uv.data(), sizeof(float) * 6 * size_t(nt));
+        py::array_t<int32_t> tris({nt, py::ssize_t(3)}), face(nt), sub(nt);
+        std::memcpy(tris.mutable_data(), d.triangles.data(), sizeof(int32_t) * 3 * size_t(nt));
+        std::memcpy(face.mutable_data(), d.tri_face.data(), sizeof(int32_t) * size_t(nt));
+        std::memcpy(sub.mutable_data(), d.tri_sub.data(), sizeof(int32_t) * size_t(nt));
+        py::dict out;
+        out["positions"] = pos, out["triangles"] = tris, out["triangle_faces"] = face;
+        out["triangle_subpatches"] = sub, out["triangle_uvs"] = uv;
+        out["level"] = d.level, out["capped"] = d.capped, out["max_edge_factor"] = d.max_edge_factor;
+        return out;
+      },
+      py::arg("positions"), py::arg("corner_verts"), py::arg("face_offsets"), py::arg("matrix"),
+      py::arg("camera_position"), py::arg("pixel_size"), py::arg("ortho") = false, py::arg("dicing_rate") = 1.0f,
+      py::arg("max_level") = 12, py::arg("crease_edges") = py::none(), py::arg("crease_sharpness") = py::none(),
+      py::arg("vertex_sharpness") = py::none(), py::arg("catmull_clark") = true, py::arg("smooth_corners") = true,
+      py::arg("max_quads") = int64_t(1) << 22,
+      "Adaptive subdivision of a polygon cage (object space; matrix: object to world): its Catmull-Clark limit "
+      "surface (or Simple subdivision) diced so edges project to about dicing_rate pixels (pixel_size: a pixel's "
+      "world size per unit distance from camera_position, or absolute if ortho), edge factors up to 2^max_level "
+      "and shared by neighbouring patches. A dict: positions (V, 3), triangles (T, 3), triangle_faces (T,) cage "
+      "face, triangle_subpatches (T,) n-gon corner (0 for quads), triangle_uvs (T, 3, 2) patch coordinates, "
+      "level, capped (max_quads lowered the level), max_edge_factor.");
   m.def(
       "polygon_vertex_normals",
       [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads) {
