@@ -601,6 +601,10 @@ class Environment {
   bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf, bool cover_all = false) const;
   float pdf(Vec3 dir_world, bool cover_all = false) const;
   float average_luminance() const { return avg_lum_; }
+  // Whether sample() can give directions in this mode (a constant map has no compensated part).
+  bool samplable(bool cover_all) const {
+    return !(cover_all ? full_ : comp_).marginal.empty() || sun_share(cover_all) > 0.0f;
+  }
 
  private:
   struct Cells {  // a piecewise-bilinear distribution over the cells, of max(0, lum - sub)
