@@ -913,13 +913,14 @@ bool Scene::sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool c
   int facing = 0;
   for (const Light& portal : portals_) facing += portal_faces(portal, p);
   if (facing == 0) return env_.sample(u, dir, li, pdf, cover_all);
-  const bool map = env_.samplable(cover_all);
-  const float a = map ? 0.5f : 1.0f;  // the portals' share of the samples
-  double portal_pdf;
-  float map_pdf = 0.0f;
-  if (u.x < a) {
+  // A sky's sun disc keeps its share; the rest is split between the portals and the map.
+  const float sun = env_.sun_fraction(cover_all);
+  const float a = (1.0f - sun) * (env_.cells_samplable(cover_all) ? 0.5f : 1.0f);  // the portals' share
+  if (u.x < sun) {
+    dir = env_.sample_sun_disc({std::min(u.x / sun, 0x1.fffffep-1f), u.y});
+  } else if (u.x < sun + a) {
     // The portal by u.x, rescaled into its share (the sample stays stratified).
-    const float ux = std::min(u.x / a, 0x1.fffffep-1f) * float(facing);
+    const float ux = std::min((u.x - sun) / a, 0x1.fffffep-1f) * float(facing);
     const int pick = std::min(int(ux), facing - 1);
     size_t i = 0;
     for (int k = -1; i < portals_.size(); ++i)
@@ -929,18 +930,14 @@ bool Scene::sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool c
     if (!sample_light(portals_[i], p, {std::min(ux - float(pick), 0x1.fffffep-1f), u.y}, ls, solid_angle_rects_))
       return false;
     dir = ls.wi;
-    int n;
-    portal_pdf = double(ls.pdf) + portal_pdf_sum(p, dir, i, n);
-    if (map) map_pdf = env_.pdf(dir, cover_all);
-    li = env_.eval(dir);
   } else {
-    const float ux = std::min((u.x - a) / (1.0f - a), 0x1.fffffep-1f);
-    if (!env_.sample({ux, u.y}, dir, li, map_pdf, cover_all)) return false;
-    map_pdf = env_.pdf(dir, cover_all);  // (the same density world_pdf gives)
-    int n;
-    portal_pdf = portal_pdf_sum(p, dir, SIZE_MAX, n);
+    float map_pdf;
+    if (!env_.sample_map({std::min((u.x - sun - a) / (1.0f - sun - a), 0x1.fffffep-1f), u.y}, dir, map_pdf, cover_all))
+      return false;
   }
-  pdf = float(double(a) * portal_pdf / facing + double(1.0f - a) * map_pdf);
+  // The mixture's pdf, as world_pdf (every facing portal the direction crosses counts).
+  pdf = world_pdf(p, dir, cover_all);
+  li = env_.eval(dir);
   return pdf > 0.0f && std::isfinite(pdf);
 }
 
@@ -949,9 +946,13 @@ float Scene::world_pdf(Vec3 p, Vec3 dir, bool cover_all) const {
   int facing;
   const double portal_pdf = portal_pdf_sum(p, dir, SIZE_MAX, facing);
   if (facing == 0) return env_.pdf(dir, cover_all);
-  const bool map = env_.samplable(cover_all);
-  const float a = map ? 0.5f : 1.0f;
-  return float(double(a) * portal_pdf / facing + (map ? double(1.0f - a) * env_.pdf(dir, cover_all) : 0.0));
+  const float sun = env_.sun_fraction(cover_all);
+  const bool map = env_.cells_samplable(cover_all);
+  const float a = (1.0f - sun) * (map ? 0.5f : 1.0f);
+  double pdf = double(a) * portal_pdf / facing;
+  if (sun > 0.0f) pdf += double(sun) * env_.sun_disc_pdf(dir);
+  if (map) pdf += double(1.0f - sun - a) * env_.map_pdf(dir, cover_all);
+  return float(pdf);
 }
 
 }  // namespace pl

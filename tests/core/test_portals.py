@@ -35,6 +35,8 @@ def room(world="constant", portals=()):
         add_object(s, *quad(corner, u, v), black)
     if world == "constant":
         s.set_world_color((SKY,) * 3)
+    elif world == "sky":  # Nishita with its sun disc, which shines in through the window
+        s.set_world_sky(sun_elevation=np.radians(80.0), sun_rotation=np.radians(30.0), width=256)
     else:  # a map: SKY over the upper half, dim below (the window sees only the upper part)
         img = np.full((16, 32, 3), 0.2, np.float32)
         img[8:] = SKY
@@ -137,3 +139,15 @@ def test_degenerate_portals_are_refused():
     with pytest.raises(ValueError):
         s.add_portal_light(np.full((4, 4), np.nan, np.float32), 1.0, 1.0)
     assert s.portal_count == 0
+
+
+def test_sky_sun_disc_through_a_portal_renders_as_without():
+    """A sky's sun disc keeps its share of the world's samples beside the portal; the image
+    (sunlit patch and skylight) is the one without the portal."""
+    without = render(room("sky"), 128)
+    with_portal = render(room("sky", CASES["matches the window"][0]), 128)
+    assert abs(with_portal.mean() / without.mean() - 1.0) < 0.01, (with_portal.mean(), without.mean())
+    a, b = (img.reshape(4, 6, 4, 6).mean(axis=(1, 3)) for img in (with_portal, without))
+    # (regions in the sun's shadow, 1 % of the mean, see a sliver of sky: compared absolutely)
+    rel = np.abs(a - b) / np.maximum(b, 0.05 * without.mean())
+    assert rel.max() < 0.03, rel
