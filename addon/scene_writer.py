@@ -241,10 +241,14 @@ def set_camera(pc, scene, params):
 
 def add_lights(scene, lights):
     """Adds LightData `lights` to a core scene."""
-    for k, light in enumerate(lights):
+    k = 0  # the core's index of the next analytic light (portals are not lights there)
+    for light in lights:
         getattr(scene, f"add_{light.kind}_light")(**light.args)  # (add-on and core ship together)
+        if light.kind == "portal":
+            continue
         if getattr(light, "links", None) is not None:
             scene.set_light_links(k, *light.links)
+        k += 1
 
 
 def replace_lights(scene, lights, world, warn):
