@@ -885,11 +885,12 @@ float Scene::pdf_environment(Vec3 dir, Vec3 from, uint8_t set) const {
 
 // Light portals, as Cycles' background.h: a portal lets the world in towards its emission side
 // (Light::dir; Cycles' side test, 1e-4 in front of its plane). A point in front of n portals
-// samples one of them, picked uniformly, by its solid angle (the rectangle's spherical warp, as
-// the area lights; ellipses by area) or the map, each half the time (the portals alone where the
-// map has nothing to give, e.g. a constant world's compensated map), and the pdf is the
-// mixture's: every portal the direction crosses counts, so MIS with BSDF rays that escape
-// through or beside a portal stays exact. Points behind every portal use the map alone.
+// keeps a sky's sun disc share and splits the rest: half through one portal picked uniformly,
+// sampled by its solid angle (the rectangle's spherical warp, as the area lights; ellipses by
+// area), half by the map (the portals take it all where the map has nothing to give, e.g. a
+// constant world's compensated map). The pdf is the mixture's: every facing portal the direction
+// crosses counts, so MIS with BSDF rays that escape through or beside a portal stays exact.
+// Points behind every portal sample the world as without portals.
 namespace {
 inline bool portal_faces(const Light& portal, Vec3 p) { return dot(portal.dir, p - portal.position) > 1e-4f; }
 }  // namespace
