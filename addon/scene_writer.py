@@ -263,15 +263,19 @@ def set_camera(pc, scene, params):
 
 def add_lights(scene, lights):
     """Adds LightData `lights` to a core scene."""
-    for k, light in enumerate(lights):
+    k = 0  # the core's index of the next analytic light (portals are not lights there)
+    for light in lights:
         args = light.args
         images = getattr(light, "images", None)
         if images and args.get("shader") is not None:  # its node tree's images, then the program
             ids = [scene.add_image(image.pixels, srgb=image.srgb) for image in images]
             args = dict(args, shader=remap_images(args["shader"], ids))
         getattr(scene, f"add_{light.kind}_light")(**args)  # (add-on and core ship together)
+        if light.kind == "portal":
+            continue
         if getattr(light, "links", None) is not None:
             scene.set_light_links(k, *light.links)
+        k += 1
 
 
 def replace_lights(scene, lights, world, warn):

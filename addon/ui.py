@@ -152,6 +152,9 @@ class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
         elif light.type == 'SUN':
             col.prop(light, "angle")
         elif light.type == 'AREA':
+            cycles = getattr(light, "cycles", None)  # Cycles' portal flag, which Pathlight reads
+            if cycles is not None and hasattr(cycles, "is_portal"):
+                col.prop(cycles, "is_portal", text="Portal")
             col.prop(light, "shape")
             sub = col.column(align=True)
             if light.shape in {'SQUARE', 'DISK'}:

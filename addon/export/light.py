@@ -18,7 +18,7 @@ from .material import surface_node
 
 @dataclass
 class LightData:
-    kind: str  # "point" | "spot" | "sun" | "area": the core's scene.add_<kind>_light
+    kind: str  # "point" | "spot" | "sun" | "area" | "portal": the core's scene.add_<kind>_light
     name: str
     args: dict  # keyword arguments of that call
     # Light linking: (light_mask, shadow_mask) for the core's set_light_links, or None.
@@ -230,6 +230,27 @@ def light_power(light, name, warn, ies=None, shader=None):
         _finite_nonneg(energy, "power", name, warn))
 
 
+def _convert_portal(light, name, matrix, warn):
+    """A light portal (an area light with Cycles' Portal on): no emitter; the core samples the
+    world through it from its emission side (-Z), as Cycles. Cycles takes every area shape
+    (ellipses and disks sampled by area), and so do we; other light types are not portals."""
+    if light.type != 'AREA':
+        warn(f"Light '{name}': only area lights can be portals; ignored")
+        return None
+    m = np.array(matrix, np.float64)
+    if not np.isfinite(m).all():
+        warn(f"Light '{name}': non-finite transform; portal skipped")
+        return None
+    size_x = float(_finite_nonneg(light.size, "size", name, warn))
+    size_y = size_x if light.shape in {'SQUARE', 'DISK'} else float(
+        _finite_nonneg(light.size_y, "size", name, warn))
+    if not size_x * size_y > 0:
+        return None  # no opening
+    return LightData("portal", name, dict(
+        matrix=m.astype(np.float32), size_x=size_x, size_y=size_y,
+        ellipse=light.shape in {'DISK', 'ELLIPSE'}))
+
+
 def convert_light(obj, matrix, warn):
     """LightData for one light instance (obj: evaluated light object, matrix: (4, 4)
     world matrix of this instance), or None when it emits nothing."""
@@ -237,8 +258,7 @@ def convert_light(obj, matrix, warn):
     name = obj.original.name if obj.original is not None else obj.name
     cycles = getattr(light, "cycles", None)
     if cycles is not None and getattr(cycles, "is_portal", False):
-        warn(f"Light '{name}': light portals are not supported; ignored")
-        return None
+        return _convert_portal(light, name, matrix, warn)
     ies, shaders = [], []
     power = light_power(light, name, warn, ies, shaders)
     if not power.any():

@@ -3516,6 +3516,30 @@ PYBIND11_MODULE(pathlight_core, m) {
           "the normal, as Cycles' soft-box grid. ies: an IesProfile scaling the radiance by the direction of the "
           "light leaving the light, in its frame.")
       .def(
+          "add_portal_light",
+          [](PyScene& self, const FloatArray& matrix, float size_x, float size_y, bool ellipse) {
+            self.check_editable();
+            const Mat4 m = to_mat4(matrix, "portal matrix");
+            Light l;
+            l.type = ellipse ? LightType::Ellipse : LightType::Rect;
+            l.position = {m.m[0][3], m.m[1][3], m.m[2][3]};
+            l.axis_u = m.vector({finite_nonneg(size_x, "size_x"), 0.0f, 0.0f});
+            l.axis_v = m.vector({0.0f, finite_nonneg(size_y, "size_y"), 0.0f});
+            const Vec3 n = cross(l.axis_u, l.axis_v);
+            l.area = length(n) * (ellipse ? kPi / 4.0f : 1.0f);
+            if (!(l.area > 0.0f) || !std::isfinite(l.area)) return false;  // no opening
+            l.dir = -normalize(m.vector({0.0f, 0.0f, 1.0f}));  // lets the world in along local -Z
+            if (!is_finite(l.dir)) return false;
+            l.color = Vec3(1.0f);
+            self.scene->add_portal(l);
+            return true;
+          },
+          py::arg("matrix"), py::arg("size_x"), py::arg("size_y"), py::arg("ellipse") = false,
+          "A light portal (Cycles' is_portal area light): the world is sampled through this rectangle or ellipse "
+          "(the area light's matrix and sizes) from points on its emission side (local -Z); it emits nothing. "
+          "False (nothing added) for a degenerate one.")
+      .def_property_readonly("portal_count", [](const PyScene& self) { return self.scene->portal_count(); })
+      .def(
           "set_world_texture",
           [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj) {
             self.check_editable();

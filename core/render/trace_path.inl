@@ -1096,7 +1096,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       // (without an environment that pdf is 0 and the weight 1).
       float w = 1.0f;
       if constexpr (kEnv)
-        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir, mis_set));
+        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir, mis_org, mis_set));
       if (sky && !prev_delta) {
         const float cos_sky = dot(ray.dir, sky_n);  // (a scattered ray's direction is a unit vector)
         if (cos_sky > 0.0f) w = power_heuristic(prev_pdf, cos_sky * kInvPi);

@@ -198,14 +198,7 @@ bool Environment::sample(Vec2 uu, Vec3& dir, Vec3& radiance, float& pdf_out, boo
   }
   // A sky with a sun disc: one of the two strategies, the pdf of their mixture.
   if (uu.x < share) {
-    const double r = std::min(uu.x / share, 0x1.fffffep-1f);
-    const double omc = r * sun_one_minus_cos_;  // 1 - cos(theta), uniform in the cone
-    const double sin_t = std::sqrt(std::max(0.0, omc * (2.0 - omc)));
-    const double phi = 2.0 * kPi * uu.y;
-    Vec3 a, b;
-    make_basis(sun_dir_, a, b);
-    const Vec3 t = a * float(sin_t * std::cos(phi)) + b * float(sin_t * std::sin(phi)) + sun_dir_ * float(1.0 - omc);
-    dir = to_world(normalize(t));
+    dir = sample_sun_disc({std::min(uu.x / share, 0x1.fffffep-1f), uu.y});
   } else {
     float u, v, p;
     uu.x = std::min((uu.x - share) / (1.0f - share), 0x1.fffffep-1f);
@@ -214,6 +207,16 @@ bool Environment::sample(Vec2 uu, Vec3& dir, Vec3& radiance, float& pdf_out, boo
   pdf_out = pdf(dir, cover_all);
   radiance = eval(dir);
   return pdf_out > 0.0f && std::isfinite(pdf_out);
+}
+
+Vec3 Environment::sample_sun_disc(Vec2 uu) const {
+  const double omc = double(uu.x) * sun_one_minus_cos_;  // 1 - cos(theta), uniform in the cone
+  const double sin_t = std::sqrt(std::max(0.0, omc * (2.0 - omc)));
+  const double phi = 2.0 * kPi * uu.y;
+  Vec3 a, b;
+  make_basis(sun_dir_, a, b);
+  const Vec3 t = a * float(sin_t * std::cos(phi)) + b * float(sin_t * std::sin(phi)) + sun_dir_ * float(1.0 - omc);
+  return to_world(normalize(t));
 }
 
 float Environment::pdf(Vec3 dir_world, bool cover_all) const {

@@ -625,6 +625,18 @@ class Environment {
   bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf, bool cover_all = false) const;
   float pdf(Vec3 dir_world, bool cover_all = false) const;
   float average_luminance() const { return avg_lum_; }
+  // Its strategies one by one, for light portals (Scene::sample_world): a sky's sun disc (its
+  // share of sample()'s samples; 0: none) and the map without it (cells_samplable: false where
+  // it has no density in this mode, e.g. a constant map's compensated part).
+  float sun_fraction(bool cover_all) const { return sun_share(cover_all); }
+  Vec3 sample_sun_disc(Vec2 u) const;
+  float sun_disc_pdf(Vec3 dir_world) const { return sun_pdf(dir_world); }
+  bool cells_samplable(bool cover_all) const { return !(cover_all ? full_ : comp_).marginal.empty(); }
+  bool sample_map(Vec2 u, Vec3& dir, float& pdf, bool cover_all) const {
+    float uu, vv;
+    return sample_cells(cover_all ? full_ : comp_, u, dir, uu, vv, pdf);
+  }
+  float map_pdf(Vec3 dir_world, bool cover_all) const { return pdf_cells(cover_all ? full_ : comp_, dir_world); }
 
  private:
   struct Cells {  // a piecewise-bilinear distribution over the cells, of max(0, lum - sub)

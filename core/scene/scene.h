@@ -434,7 +434,19 @@ class Scene {
   // Live edits (viewport): replace material `id` (not the default 0) or drop every analytic
   // light; the next commit() then rebuilds only the light distribution, not the BVH.
   void set_material(uint32_t id, Material m);
-  void clear_lights() { lights_.clear(); committed_ = false; }
+  void clear_lights() {
+    lights_.clear();
+    portals_.clear();
+    committed_ = false;
+  }
+  // Light portals (Cycles' is_portal area lights): a rectangle or ellipse (Light::type, position,
+  // axes, dir: the side it lets the world in towards) that emits nothing; points in front of
+  // some portal sample the world through the portals half the time (docs/design/lights.md).
+  void add_portal(const Light& portal) {
+    portals_.push_back(portal);
+    committed_ = false;
+  }
+  size_t portal_count() const { return portals_.size(); }
   void set_world_color(Vec3 c) { world_color_ = c; }
   // A constant world colour that is the scene's only light, sampled as a light at every surface
   // vertex by the cosine about the geometric normal, besides the BSDF ray that also finds it
@@ -454,7 +466,11 @@ class Scene {
     committed_ = false;
   }
   const ShaderProgram& world_volume() const { return world_volume_; }
-  void set_environment(Environment env) { env_ = std::move(env); committed_ = false; }
+  void set_environment(Environment env) {
+    env_ = std::move(env);
+    env_from_color_ = false;
+    committed_ = false;
+  }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
   // Light linking of analytic light k (Light::light_mask / shadow_mask); false: no such light.
   bool set_light_links(size_t k, uint64_t light_mask, uint64_t shadow_mask) {
@@ -783,7 +799,12 @@ class Scene {
   // from_n: the shading normal at `from` that sample_direct was given (DirectSample::n).
   // set: the light set of the point at `from` (DirectSample::receiver).
   float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n = Vec3(0.0f), uint8_t set = 0) const;
-  float pdf_environment(Vec3 dir, uint8_t set = 0) const;
+  float pdf_environment(Vec3 dir, Vec3 from, uint8_t set = 0) const;
+  // The world's own sampling from p (its choice among lights not included): through the portals
+  // p is in front of and by the map, or by the map alone (no portal faces p). Radiance, solid-angle
+  // pdf; cover_all as Environment::sample. world_pdf: the same density for a direction.
+  bool sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all) const;
+  float world_pdf(Vec3 p, Vec3 dir, bool cover_all) const;
   // Light linking (after commit): whether any light or object uses it, and an instance's light
   // and shadow sets and, as an emitter, the sets it lights and is blocked by (curves, points: none).
   bool light_links() const { return links_; }
@@ -1014,6 +1035,13 @@ class Scene {
   Aabb world_bounds_;
   std::vector<Light> lights_;
   Environment env_;
+  std::vector<Light> portals_;
+  // A constant world with portals is sampled as a constant map (built at commit, dropped at the
+  // next one), so that the portals, the map's MIS and the kernels' environment code apply.
+  bool env_from_color_ = false;
+  // The summed pdf of the portals facing p that the ray p + t dir crosses (but `skip`), and
+  // how many face p.
+  double portal_pdf_sum(Vec3 p, Vec3 dir, size_t skip, int& facing) const;
   // One distribution over [analytic lights | emitter groups | environment], by power.
   struct Emitter {
     uint32_t instance, tri;  // tri: in the instance's BLAS

@@ -241,6 +241,15 @@ void Scene::build_lights() {
     max_set = std::max(max_set, in.light_set);
   }
   env_index_ = SIZE_MAX;
+  // A constant world seen through portals: a constant map, so that it is a light to sample.
+  if (env_from_color_) {
+    env_ = Environment();
+    env_from_color_ = false;
+  }
+  if (!portals_.empty() && !env_.valid() && !is_black(world_color_) && is_finite(world_color_)) {
+    env_ = Environment(std::vector<Vec3>(8, world_color_), 4, 2, 1.0f, Mat4());
+    env_from_color_ = true;
+  }
   const float env_power = env_.valid() ? 4.0f * kPi * kPi * radius * radius * env_.average_luminance() : 0.0f;
   const bool env = env_.valid() && env_.average_luminance() > 0.0f;
   set_lc_.clear();
@@ -610,7 +619,7 @@ bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u
   }
   if (k == env_index_) {
     float pdf;
-    if (!env_.sample(u, s.wi, s.li, pdf, !bsdf_follows)) return false;
+    if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows)) return false;
     s.dist = kInf;
     s.pdf = pdf * pmf;
     return true;
@@ -870,11 +879,84 @@ bool Scene::light_reference_point(Vec3 p, Vec3 d, float u_select, Vec2 u, Vec3& 
   return is_finite(c);
 }
 
-float Scene::pdf_environment(Vec3 dir, uint8_t set) const {
+float Scene::pdf_environment(Vec3 dir, Vec3 from, uint8_t set) const {
   if (env_index_ == SIZE_MAX) return 0.0f;
   const LightChoice& c = choice(set);
   if (c.dist.empty()) return 0.0f;
-  return (c.use_tree ? c.inf_pmf[env_index_] : c.dist.pmf(env_index_)) * env_.pdf(dir);
+  return (c.use_tree ? c.inf_pmf[env_index_] : c.dist.pmf(env_index_)) * world_pdf(from, dir, false);
+}
+
+// Light portals, as Cycles' background.h: a portal lets the world in towards its emission side
+// (Light::dir; Cycles' side test, 1e-4 in front of its plane). A point in front of n portals
+// keeps a sky's sun disc share and splits the rest: half through one portal picked uniformly,
+// sampled by its solid angle (the rectangle's spherical warp, as the area lights; ellipses by
+// area), half by the map (the portals take it all where the map has nothing to give, e.g. a
+// constant world's compensated map). The pdf is the mixture's: every facing portal the direction
+// crosses counts, so MIS with BSDF rays that escape through or beside a portal stays exact.
+// Points behind every portal sample the world as without portals.
+namespace {
+inline bool portal_faces(const Light& portal, Vec3 p) { return dot(portal.dir, p - portal.position) > 1e-4f; }
+}  // namespace
+
+double Scene::portal_pdf_sum(Vec3 p, Vec3 dir, size_t skip, int& facing) const {
+  double sum = 0.0;
+  facing = 0;
+  for (size_t i = 0; i < portals_.size(); ++i) {
+    const Light& portal = portals_[i];
+    if (!portal_faces(portal, p)) continue;
+    ++facing;
+    float t, pdf;
+    Vec3 le;
+    if (i != skip && intersect_light(portal, p, p, dir, kInf, t, le, pdf, solid_angle_rects_)) sum += double(pdf);
+  }
+  return sum;
+}
+
+bool Scene::sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all) const {
+  if (portals_.empty()) return env_.sample(u, dir, li, pdf, cover_all);
+  int facing = 0;
+  for (const Light& portal : portals_) facing += portal_faces(portal, p);
+  if (facing == 0) return env_.sample(u, dir, li, pdf, cover_all);
+  // A sky's sun disc keeps its share; the rest is split between the portals and the map.
+  const float sun = env_.sun_fraction(cover_all);
+  const float a = (1.0f - sun) * (env_.cells_samplable(cover_all) ? 0.5f : 1.0f);  // the portals' share
+  if (u.x < sun) {
+    dir = env_.sample_sun_disc({std::min(u.x / sun, 0x1.fffffep-1f), u.y});
+  } else if (u.x < sun + a) {
+    // The portal by u.x, rescaled into its share (the sample stays stratified).
+    const float ux = std::min((u.x - sun) / a, 0x1.fffffep-1f) * float(facing);
+    const int pick = std::min(int(ux), facing - 1);
+    size_t i = 0;
+    for (int k = -1; i < portals_.size(); ++i)
+      if (portal_faces(portals_[i], p) && ++k == pick) break;
+    if (i == portals_.size()) return false;
+    LightSample ls;
+    if (!sample_light(portals_[i], p, {std::min(ux - float(pick), 0x1.fffffep-1f), u.y}, ls, solid_angle_rects_))
+      return false;
+    dir = ls.wi;
+  } else {
+    float map_pdf;
+    if (!env_.sample_map({std::min((u.x - sun - a) / (1.0f - sun - a), 0x1.fffffep-1f), u.y}, dir, map_pdf, cover_all))
+      return false;
+  }
+  // The mixture's pdf, as world_pdf (every facing portal the direction crosses counts).
+  pdf = world_pdf(p, dir, cover_all);
+  li = env_.eval(dir);
+  return pdf > 0.0f && std::isfinite(pdf);
+}
+
+float Scene::world_pdf(Vec3 p, Vec3 dir, bool cover_all) const {
+  if (portals_.empty()) return env_.pdf(dir, cover_all);
+  int facing;
+  const double portal_pdf = portal_pdf_sum(p, dir, SIZE_MAX, facing);
+  if (facing == 0) return env_.pdf(dir, cover_all);
+  const float sun = env_.sun_fraction(cover_all);
+  const bool map = env_.cells_samplable(cover_all);
+  const float a = (1.0f - sun) * (map ? 0.5f : 1.0f);
+  double pdf = double(a) * portal_pdf / facing;
+  if (sun > 0.0f) pdf += double(sun) * env_.sun_disc_pdf(dir);
+  if (map) pdf += double(1.0f - sun - a) * env_.map_pdf(dir, cover_all);
+  return float(pdf);
 }
 
 }  // namespace pl

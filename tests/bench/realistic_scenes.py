@@ -3,6 +3,7 @@ Cornell boxes. Each builder starts from an empty factory scene and returns it.
 
 - window_room: a closed room lit only by the sun and a Nishita sky through one window, so
   nearly all the light on the walls is indirect.
+- window_room_portal: the same room with a light portal in its window.
 - lamp_room: a closed room lit by 50 small point lamps of different colours and powers and
   3 spot lights (the light tree's case).
 - hdri_model: Blender's Suzanne, subdivided, with procedurally textured Principled materials
@@ -126,6 +127,16 @@ def window_room(width=WIDTH, height=HEIGHT):
     return scene
 
 
+def window_room_portal(width=WIDTH, height=HEIGHT):
+    """window_room with a light portal filling its window (Cycles' is_portal area light)."""
+    scene = window_room(width, height)
+    x0, x1, z0, z1 = -1.0, 1.2, 0.9, 2.2
+    ls.add_light('AREA', name="Portal", location=((x0 + x1) / 2, 2.5, (z0 + z1) / 2),
+                 rotation=(-math.pi / 2, 0.0, 0.0), shape='RECTANGLE', size=x1 - x0,
+                 size_y=z1 - z0).data.cycles.is_portal = True  # lets the sky in along -y
+    return scene
+
+
 def lamp_room(width=WIDTH, height=HEIGHT):
     scene = _empty(width, height)
     room("Hall", (6.0, 5.0, 2.8))
@@ -242,6 +253,7 @@ def instanced_forest(width=WIDTH, height=HEIGHT):
 
 SCENES = {
     "Room lit through a window (sun and sky)": window_room,
+    "Room lit through a window with a portal": window_room_portal,
     "Room lit by 50 lamps and 3 spots": lamp_room,
     "Textured model under an HDRI": hdri_model,
     "Principled spheres under an HDRI and a point light": principled_spheres,

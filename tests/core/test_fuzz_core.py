@@ -161,6 +161,8 @@ def execute(program):
                 scene.add_sun_light(*args)
             elif op == "area":
                 scene.add_area_light(*args)
+            elif op == "portal":
+                scene.add_portal_light(*args)
             elif op == "world_color":
                 scene.set_world_color(*args)
             elif op == "world_texture":
@@ -319,7 +321,7 @@ size = st.one_of(st.floats(0.0, 3.0, width=32), any_float)
 @st.composite
 def op(draw):
     kind = draw(st.sampled_from(["material", "material", "mesh", "mesh", "mesh", "instance", "instance", "instance",
-                                 "point", "spot", "sun", "area", "world_color", "world_texture", "camera", "commit",
+                                 "point", "spot", "sun", "area", "portal", "world_color", "world_texture", "camera", "commit",
                                  "rays"]))
     if kind == "material":
         return kind, (draw(st.text(max_size=8)), draw(colour), draw(colour))
@@ -335,6 +337,8 @@ def op(draw):
         return kind, (draw(light_pos), draw(intensity), draw(size), draw(st.booleans()))
     if kind == "area":
         return kind, (draw(matrix()), draw(size), draw(size), draw(intensity), draw(st.booleans()), draw(st.booleans()))
+    if kind == "portal":
+        return kind, (draw(matrix()), draw(size), draw(size), draw(st.booleans()))
     if kind == "world_color":
         return kind, (draw(colour),)
     if kind == "world_texture":
