@@ -76,6 +76,7 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding) {
   if (f.light_tree) k |= kKernelLightTree;
   if (f.subsurface) k |= kKernelSubsurface;
   if (f.light_links) k |= kKernelLightLinks;
+  if (f.shadow_catcher && aovs) k |= kKernelShadowCatcher;
   return k;
 }
 
@@ -111,6 +112,7 @@ std::string kernel_name(uint32_t features) {
   if (features & kKernelSubsurface) n += "+subsurface";
   if (features & kKernelGuiding) n += "+guiding";
   if (features & kKernelLightLinks) n += "+links";
+  if (features & kKernelShadowCatcher) n += "+catcher";
   return n;
 }
 

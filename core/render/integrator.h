@@ -4,7 +4,9 @@
 // limits (total and per type; bounce 0 is direct light).
 #pragma once
 #include <cstdint>
+#include <optional>
 #include <string>
+#include <type_traits>
 
 #include "scene/scene.h"
 #include "util/sampler.h"
@@ -59,6 +61,12 @@ struct IntegratorSettings {
   bool ao = false;
   float ao_distance = 10.0f;
   bool indices = false;  // Object and Material Index
+  // Shadow catchers (only the general kernel, kKernelShadowCatcher, reads these): a camera
+  // path that meets one directly is split as Cycles splits it (PathAovs::matte, catcher).
+  // catcher_background: the world behind the catcher goes to PathAovs::environment (Cycles'
+  // background pass for the approximate composite over an opaque film).
+  bool shadow_catcher = false;
+  bool catcher_background = false;
 };
 
 // Cycles' light components, as the film keeps them (before the division by their colour).
@@ -107,6 +115,17 @@ struct PathAovs {
   float mist = 0.0f;  // (1 - mist) times the alpha of the camera path's surfaces; the pass is 1 - this
   Vec3 ao{0.0f};      // the camera path's surfaces' unoccluded AO rays (times their alpha)
   float object_index = 0.0f, material_index = 0.0f;  // of the surface `hit` (0: none)
+  // Shadow catcher (IntegratorSettings::shadow_catcher), Cycles' passes: a camera path that
+  // meets a catcher directly (through Transparent BSDFs) is split there. The path goes on with
+  // the catcher as a plain object (what trace_path returns: Combined); a copy of it goes on
+  // where no object but the catchers is there (`catcher`: Cycles' PASS_SHADOW_CATCHER). The
+  // path before the split, and paths that never split, are the matte (`matte`, with alpha
+  // `matte_alpha`: the split counts as transparent, as film_write_shadow_catcher_bounce_data);
+  // catcher_samples is 1 where the path split.
+  Vec3 matte{0.0f};
+  float matte_alpha = 1.0f;
+  Vec3 catcher{0.0f};
+  float catcher_samples = 0.0f;
 };
 
 // The general kernel: every feature compiled in.
@@ -124,7 +143,8 @@ enum KernelFeature : uint32_t {
   kKernelSubsurface = 32,  // BSSRDF closures: random walks (only the general kernel has them)
   kKernelGuiding = 64,     // path guiding (IntegratorSettings::guide)
   kKernelLightLinks = 128, // light and shadow linking (only the general kernel has them)
-  kKernelAll = 255,        // the general kernel
+  kKernelShadowCatcher = 256,  // shadow catchers: paths split at them (only the general kernel)
+  kKernelAll = 511,        // the general kernel
 };
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
