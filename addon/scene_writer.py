@@ -69,9 +69,11 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             if info is None:
                 scene.add_instance(mesh_id, matrix, **extra)
                 continue
-            color, pass_index, random_id, terminator = info
+            color, pass_index, random_id, terminator = info[:4]
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
+            if len(info) > 5 and (info[4] or info[5]):  # (so never for older cores)
+                extra.update(shadow_catcher=info[4], holdout=info[5])
             scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id,
                                shadow_terminator=terminator, **extra)
     curves = getattr(data, "curves", [])
@@ -197,7 +199,7 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
                     scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
                                      **extra)
                     continue
-                color, pass_index, random_id, _ = info
+                color, pass_index, random_id, _ = info[:4]
                 if random_id is None:
                     random_id = random_id_of(c.name) if random_id_of else 0
                 scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
@@ -220,7 +222,7 @@ def add_points(scene, points, material_ids, warn, random_id_of=None):
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
                 extra["attributes"] = attributes[k]
             if info is not None:
-                color, pass_index, random_id, _ = info
+                color, pass_index, random_id, _ = info[:4]
                 if random_id is None:
                     random_id = random_id_of(p.name) if random_id_of else 0
                 extra.update(color=color, pass_index=pass_index, random_id=random_id)

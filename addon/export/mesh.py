@@ -399,6 +399,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
     when its entry is made)."""
     meshes = {}
     generated = {}  # instancer -> how many generated geometries of it were exported so far
+    _VIEW_LAYER[0] = getattr(depsgraph, "view_layer", None)
     for instance in depsgraph.object_instances:
         obj = instance.object
         # Curves, surfaces, text and metaballs are listed too, as MESH instances of their
@@ -445,12 +446,30 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
 
 
 def object_info(instance):
-    """(RGBA colour, pass index, random id or None, shadow terminator geometry offset) of a
-    depsgraph object instance."""
+    """(RGBA colour, pass index, random id or None, shadow terminator geometry offset, shadow
+    catcher, holdout) of a depsgraph object instance. Holdout is the object's own or its
+    collection's in the view layer (Cycles' holdout_get)."""
     obj = instance.object
     random_id = (instance.random_id & 0xFFFFFFFF) if instance.is_instance else None
     terminator = float(getattr(obj, "shadow_terminator_geometry_offset", 0.0))
-    return tuple(obj.color), int(obj.pass_index), random_id, terminator
+    catcher = bool(getattr(obj, "is_shadow_catcher", False))
+    return tuple(obj.color), int(obj.pass_index), random_id, terminator, catcher, _holdout(instance)
+
+
+def _holdout(instance):
+    """Object ▸ Visibility ▸ Holdout, or a holdout collection of the view layer: the evaluated
+    object's base flag carries both (Object.holdout_get on the original needs the view layer)."""
+    obj = instance.object
+    try:
+        parent = instance.parent if instance.is_instance and instance.parent is not None else obj
+        return bool(parent.original.holdout_get(view_layer=_VIEW_LAYER[0])) if _VIEW_LAYER[0] is not None \
+            else bool(getattr(obj, "is_holdout", False))
+    except (AttributeError, TypeError, RuntimeError, ReferenceError):
+        return bool(getattr(obj, "is_holdout", False))
+
+
+# The view layer being exported (export_meshes sets it), for holdout_get.
+_VIEW_LAYER = [None]
 
 
 def _export_object(obj, materials, uv_names=None):
