@@ -164,7 +164,8 @@ def test_holdout_object_as_cycles(tmp_path):
     inside = hole & (ours[..., 3] < 0.01)
     assert np.abs(ours[..., :3][inside]).max() < 1e-6
     assert abs(ours[..., 3].mean() - cycles[..., 3].mean()) < 0.01
-    assert_close(ours[..., :3], cycles[..., :3], 0.03, 0.15, "holdout rgb")
+    # (Cycles seed to seed at 64 spp: 0.2 % in the mean, 1.2 % in a region)
+    assert_close(ours[..., :3], cycles[..., :3], 0.01, 0.03, "holdout rgb")
     # A holdout collection of the view layer holds it out as well (Cycles' holdout_get).
     ball = sc.objects["Ball"]
     ball.is_holdout = False
