@@ -81,6 +81,10 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding) {
 }
 
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
+  if (needed & kKernelShadowCatcher) {  // (the one kernel that splits paths at catchers)
+    chosen = kKernelCatcher;
+    return &trace_path_t<kKernelCatcher>;
+  }
   if (!force_general) {
     for (const KernelEntry& e : kKernels)
       if ((needed & ~e.features) == 0) {
@@ -104,6 +108,7 @@ TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
 
 std::string kernel_name(uint32_t features) {
   if (features == kKernelAll) return "general";
+  if (features == kKernelCatcher) return "general+catcher";
   std::string n = (features & kKernelNonDiffuse) ? "surfaces" : "diffuse";
   if (features & kKernelEnvironment) n += "+env";
   if (features & kKernelLightTree) n += "+tree";
@@ -112,7 +117,6 @@ std::string kernel_name(uint32_t features) {
   if (features & kKernelSubsurface) n += "+subsurface";
   if (features & kKernelGuiding) n += "+guiding";
   if (features & kKernelLightLinks) n += "+links";
-  if (features & kKernelShadowCatcher) n += "+catcher";
   return n;
 }
 

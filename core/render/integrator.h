@@ -143,8 +143,11 @@ enum KernelFeature : uint32_t {
   kKernelSubsurface = 32,  // BSSRDF closures: random walks (only the general kernel has them)
   kKernelGuiding = 64,     // path guiding (IntegratorSettings::guide)
   kKernelLightLinks = 128, // light and shadow linking (only the general kernel has them)
-  kKernelShadowCatcher = 256,  // shadow catchers: paths split at them (only the general kernel)
-  kKernelAll = 511,        // the general kernel
+  kKernelAll = 255,        // the general kernel
+  // Shadow catchers: paths split at them. Only in a general kernel of their own (every
+  // feature and this one): their code cost the general kernel 2 % of its instructions.
+  kKernelShadowCatcher = 256,
+  kKernelCatcher = kKernelAll | kKernelShadowCatcher,
 };
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
@@ -153,7 +156,8 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding = false
 // The fastest instantiated kernel that has every feature in `needed` (or the general one when
 // force_general); `chosen` gets its feature bits. Every kernel gives the general one's result.
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen);
-// "general", or "diffuse" / "surfaces" plus "+env", "+tree", "+media", "+passes", "+guiding".
+// "general", "general+catcher", or "diffuse" / "surfaces" plus "+env", "+tree", "+media", "+passes",
+// "+guiding".
 std::string kernel_name(uint32_t features);
 
 // The denoising features of one shaded point, split as Cycles does: `diffuse_albedo` of the
