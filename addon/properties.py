@@ -202,6 +202,12 @@ class PathlightViewLayerSettings(bpy.types.PropertyGroup):
         description="The rest of the light of paths that first scatter in a volume (Cycles' VolumeInd)",
         default=False, update=_requery_passes,
     )
+    use_pass_shadow_catcher: BoolProperty(
+        name="Shadow Catcher",
+        description="Cycles' Shadow Catcher pass: the light shadow catchers receive with the other objects over "
+                    "what they would without them (multiply the backdrop by it); Combined is then the matte alone",
+        default=False, update=_requery_passes,
+    )
 
 
 classes = (PathlightSceneSettings, PathlightViewLayerSettings)

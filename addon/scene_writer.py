@@ -80,6 +80,8 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             color, pass_index, random_id, terminator = info[:4]
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
+            if len(info) > 6 and (info[5] or info[6]):  # (so never for older cores)
+                extra.update(shadow_catcher=info[5], holdout=info[6])
             scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id,
                                shadow_terminator=terminator, **_crypto(info), **extra)
     curves = getattr(data, "curves", [])

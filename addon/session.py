@@ -70,14 +70,15 @@ PASSES = (
     # motion vectors to the previous and next frames in pixels (only without motion blur).
     ("UV", 3, "UVA", 'VECTOR', lambda sc, vl: vl.use_pass_uv),
     ("Vector", 4, "XYZW", 'VECTOR', lambda sc, vl: vl.use_pass_vector),
+    ("Shadow Catcher", 3, "RGB", 'COLOR', lambda sc, vl: _volume_pass(vl, "use_pass_shadow_catcher")),
     ("BVH Nodes", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
     ("BVH Triangles", 1, "X", 'VALUE', lambda sc, vl: sc.pathlight.debug_view == 'BVH'),
 )
 
 
 def _volume_pass(view_layer, prop):
-    """Volume Direct / Indirect: Blender's view layer has no switch for them, Cycles' settings
-    (view_layer.cycles) and Pathlight's own do."""
+    """Volume Direct / Indirect and Shadow Catcher: Blender's view layer has no switch for them,
+    Cycles' settings (view_layer.cycles) and Pathlight's own do."""
     cycles = getattr(view_layer, "cycles", None)
     return bool(getattr(view_layer.pathlight, prop) or (cycles is not None and getattr(cycles, prop, False)))
 

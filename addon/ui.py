@@ -119,6 +119,7 @@ class PATHLIGHT_VIEWLAYER_PT_passes(PathlightPanel, bpy.types.Panel):
         col.prop(view_layer, "use_pass_emit", text="Emission")
         col.prop(view_layer, "use_pass_environment")
         col.prop(view_layer, "use_pass_ambient_occlusion", text="Ambient Occlusion")
+        col.prop(view_layer.pathlight, "use_pass_shadow_catcher")
 
 
 class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
@@ -215,10 +216,25 @@ class PATHLIGHT_RENDER_PT_performance(PathlightPanel, bpy.types.Panel):
         col.prop(context.scene.pathlight, "light_tree")
 
 
+class PATHLIGHT_OBJECT_PT_shadow_catcher(PathlightPanel, bpy.types.Panel):
+    """Cycles' Object ▸ Visibility ▸ Mask ▸ Shadow Catcher (Blender's own Visibility panel shows
+    Holdout only)."""
+    bl_label = "Shadow Catcher"
+    bl_context = "object"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.object is not None
+
+    def draw(self, context):
+        layout = split(self.layout)
+        layout.prop(context.object, "is_shadow_catcher")
+
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_film,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
-           PATHLIGHT_VIEWLAYER_PT_passes)
+           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher)
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles
 # does: output, camera, lens, light, world context, ...) plus EEVEE's node-based material and

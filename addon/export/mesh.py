@@ -405,6 +405,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
     meshes = {}
     dicing = None  # export.subdivision's camera, made at the first adaptive object
     generated = {}  # instancer -> how many generated geometries of it were exported so far
+    view_layer = getattr(depsgraph, "view_layer", None)
     for instance in depsgraph.object_instances:
         obj = instance.object
         # Curves, surfaces, text and metaballs are listed too, as MESH instances of their
@@ -446,7 +447,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.owners.append((obj.name, bool(instance.is_instance)))
-            entry.infos.append(object_info(instance))
+            entry.infos.append(object_info(instance, view_layer))
             entry.motion_keys.append(instance_key(instance))
             if object_attributes is not None:  # (the entry's export compiled its materials)
                 entry.object_attributes.append(object_attributes.values(instance))
@@ -455,17 +456,35 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
     return [m for m in meshes.values() if m is not None]
 
 
-def object_info(instance):
+def object_info(instance, view_layer=None):
     """(RGBA colour, pass index, random id or None, shadow terminator geometry offset,
-    Cryptomatte names) of a depsgraph object instance; the names are (object, asset) as Cycles
-    gives them: the object's name and its top parent's (its own without a parent)."""
+    Cryptomatte names, shadow catcher, holdout) of a depsgraph object instance. The names are
+    (object, asset) as Cycles gives them: the object's name and its top parent's (its own
+    without a parent). Holdout is the object's own or, given the depsgraph's view layer, its
+    collection's there too (Cycles' holdout_get)."""
     obj = instance.object
     random_id = (instance.random_id & 0xFFFFFFFF) if instance.is_instance else None
     terminator = float(getattr(obj, "shadow_terminator_geometry_offset", 0.0))
     top = obj
     while top.parent is not None:
         top = top.parent
-    return tuple(obj.color), int(obj.pass_index), random_id, terminator, (obj.name, top.name)
+    catcher = bool(getattr(obj, "is_shadow_catcher", False))
+    return (tuple(obj.color), int(obj.pass_index), random_id, terminator, (obj.name, top.name), catcher,
+            _holdout(instance, view_layer))
+
+
+def _holdout(instance, view_layer):
+    """Object ▸ Visibility ▸ Holdout, or a holdout collection of the view layer. Only the
+    depsgraph being exported may give the view layer: one kept from an earlier export may be
+    freed (a reloaded file), and holdout_get on it crashed Blender."""
+    obj = instance.object
+    if view_layer is not None:
+        try:
+            parent = instance.parent if instance.is_instance and instance.parent is not None else obj
+            return bool(parent.original.holdout_get(view_layer=view_layer))
+        except (AttributeError, TypeError, RuntimeError, ReferenceError):
+            pass
+    return bool(getattr(obj, "is_holdout", False))
 
 
 def _export_object(obj, materials, uv_names=None):

@@ -3214,10 +3214,12 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
              uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator,
              int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask, const py::object& pass_motion,
-             const py::object& cryptomatte) {
+             const py::object& cryptomatte, bool shadow_catcher, bool holdout) {
             self.check_editable();
             ObjectInfo info;
             set_cryptomatte(info, cryptomatte, "instance");
+            info.shadow_catcher = shadow_catcher;
+            info.holdout = holdout;
             if (!color.is_none()) {
               const auto c = color.cast<std::vector<float>>();
               if (c.size() != 3 && c.size() != 4) throw std::invalid_argument("instance color takes 3 or 4 values");
@@ -3242,7 +3244,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("random_id") = 0u, py::arg("motion") = py::none(), py::arg("attributes") = py::none(),
           py::arg("shadow_terminator") = 0.0f, py::arg("light_set") = 0, py::arg("light_mask") = kAllLightSets,
           py::arg("shadow_set") = 0, py::arg("shadow_mask") = kAllLightSets, py::arg("pass_motion") = py::none(),
-          py::arg("cryptomatte") = py::none(),
+          py::arg("cryptomatte") = py::none(), py::arg("shadow_catcher") = false, py::arg("holdout") = false,
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
@@ -3253,7 +3255,10 @@ PYBIND11_MODULE(pathlight_core, m) {
           "triangles), as set_light_links. pass_motion: its matrices at the previous and next frames, "
           "(2, 4, 4), for the Vector pass only (non-finite ones: still there). cryptomatte: (object name, "
           "asset name), the names its Cryptomatte ids hash (Blender: the object's and its top parent's; "
-          "None: no id).")
+          "None: no id). shadow_catcher: Cycles' Shadow Catcher (the camera sees "
+          "it only through the shadows and light that other objects cast on it; passes 'Shadow "
+          "Catcher', 'Shadow Catcher Matte', 'Shadow Catcher Sample Count'); holdout: Cycles' "
+          "object Holdout (the camera sees through it to a transparent film, alpha 0).")
       .def(
           "set_mesh_pass_motion",
           [](PyScene& self, uint32_t mesh, const FloatArray& positions) {

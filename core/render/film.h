@@ -53,9 +53,17 @@ enum class Pass : int {
   // frames before and after; read divided by VectorWeight (the samples that hit something).
   Vector,
   VectorWeight,   // 1: kept for Vector (its divisor), not a Blender pass
+  // Shadow catcher (integrator.h PathAovs), kept whenever a catcher is in the scene. Shadow
+  // Catcher: the catcher path's light, read as Cycles' film_calculate_shadow_catcher (what the
+  // catcher receives with the other objects over what it would without them); the matte: RGB and
+  // alpha of the paths without the catcher; the sample count: the samples that split.
+  ShadowCatcher,
+  ShadowCatcherMatte,
+  ShadowCatcherSampleCount,
   Count
 };
 constexpr int kPassCount = int(Pass::Count);
+static_assert(kPassCount < 32, "passes are bits of a uint32_t (RenderSettings::passes, pass_bit)");
 
 struct PassDesc {
   const char* name;
@@ -82,11 +90,22 @@ inline const PassDesc& pass_desc(Pass p) {
       {"IndexOB", 1, false, -1, true},                 {"IndexMA", 1, false, -1, true},
       {"UV", 3, false},                                {"Vector", 4, false, int(Pass::VectorWeight)},
       {"Vector Weight", 1, false},
+      {"Shadow Catcher", 3, false},                    {"Shadow Catcher Matte", 4, true},
+      {"Shadow Catcher Sample Count", 1, false},
   };
   return table[int(p)];
 }
 
 inline uint32_t pass_bit(Pass p) { return 1u << uint32_t(p); }
+
+// How Combined is read when the scene has shadow catchers (Cycles' get_actual_display_pass:
+// the matte pass instead of Combined, and PassAccessor's approximate shadow catcher).
+enum class CatcherCombined : int {
+  None,         // no catcher: Combined as rendered
+  Matte,        // the Shadow Catcher pass is asked for: the matte alone, for compositing by hand
+  Approximate,  // the matte over the shadow: alpha 1 - average(shadow catcher) under the matte
+  OverBackground,  // opaque film: that alpha-overed onto the world behind (the Env plane)
+};
 
 class Film {
  public:
@@ -133,6 +152,8 @@ class Film {
   std::mutex& tile_lock(int tile) { return locks_[size_t(tile)]; }
 
   bool has_pass(Pass p) const { return (passes_ & pass_bit(p)) != 0; }
+  // Needs the Shadow Catcher planes (and the Env plane for OverBackground).
+  void set_catcher_combined(CatcherCombined m) { catcher_ = m; }
   // Floats per pixel of all pass planes together, and where pass p starts (-1: not kept).
   int aux_stride() const { return stride_; }
   int pass_offset(Pass p) const { return offset_[int(p)]; }
@@ -301,6 +322,8 @@ class Film {
         if (exposure_ != 1.0f)
           for (int px = 0; px < ix1 - ix0; ++px)
             for (int c = 0; c < 3; ++c) dst[4 * px + c] *= exposure_;
+        if (catcher_ != CatcherCombined::None)
+          for (int px = ix0; px < ix1; ++px) catcher_combined(size_t(py) * size_t(w_) + size_t(px), dst + 4 * (px - ix0));
       }
     }
   }
@@ -326,10 +349,16 @@ class Film {
             dst[0] = float(count_[i]);
             continue;
           }
+          if (p == Pass::ShadowCatcher) {
+            const Vec3 sc = shadow_catcher(i);
+            for (int c = 0; c < 3; ++c) dst[c] = sc[c];
+            continue;
+          }
           const float* src = &aux_[i * size_t(stride_) + size_t(off)];
           for (int c = 0; c < ch; ++c) dst[c] = src[c] * scale;
           if (p == Pass::Depth && dst[0] == 0.0f) dst[0] = 1e10f;  // Cycles' "nothing here"
           if (p == Pass::Mist) dst[0] = 1.0f - dst[0];
+          if (p == Pass::ShadowCatcherMatte) dst[3] = src[3];  // (alpha: no exposure)
           if (div >= 0) {  // (the session keeps the colour whenever a component is asked for)
             const float* col = &aux_[i * size_t(stride_) + size_t(div)];
             const bool one = pass_desc(Pass(pass_desc(p).divide)).channels == 1;  // (Vector's weight)
@@ -344,6 +373,40 @@ class Film {
   }
 
  private:
+  const float* plane(size_t i, Pass p) const { return &aux_[i * size_t(stride_) + size_t(offset_[int(p)])]; }
+  // Cycles' film_calculate_shadow_catcher: Combined less the matte over the catcher path's
+  // light (the film's means: all planes share the pixel's sample count, so their sums' ratio),
+  // 1 where that is 0 or no sample split, alpha-overed on white by Combined's alpha.
+  Vec3 shadow_catcher(size_t i) const {
+    if (offset_[int(Pass::ShadowCatcherSampleCount)] < 0 || !(plane(i, Pass::ShadowCatcherSampleCount)[0] > 0.0f))
+      return Vec3(1.0f);
+    const float* cat = plane(i, Pass::ShadowCatcher);
+    const float* mat = plane(i, Pass::ShadowCatcherMatte);
+    const Rgba& m = mean_[i];
+    const float comb[3] = {m.r, m.g, m.b};
+    Vec3 sc;
+    for (int c = 0; c < 3; ++c) sc[c] = cat[c] != 0.0f ? (comb[c] - mat[c]) / cat[c] : 1.0f;
+    const float alpha = clampf(m.a, 0.0f, 1.0f);
+    return Vec3(1.0f - alpha) + sc * alpha;
+  }
+  // Combined as Cycles shows it with catchers in the scene (PassAccessor, film/read.h
+  // film_calculate_shadow_catcher_matte_with_shadow). out: the RGBA read so far.
+  void catcher_combined(size_t i, float* out) const {
+    if (offset_[int(Pass::ShadowCatcherMatte)] < 0) return;
+    const float* mat = plane(i, Pass::ShadowCatcherMatte);
+    const float alpha = clampf(mat[3], 0.0f, 1.0f);
+    for (int c = 0; c < 3; ++c) out[c] = mat[c] * exposure_;
+    out[3] = alpha;
+    if (catcher_ == CatcherCombined::Matte) return;
+    const float shadow = clampf(average(shadow_catcher(i)), 0.0f, 1.0f);
+    const float alpha_matte = (1.0f - alpha) * (1.0f - shadow) + alpha;
+    out[3] = alpha_matte;
+    if (catcher_ != CatcherCombined::OverBackground || offset_[int(Pass::Env)] < 0) return;
+    const float* env = plane(i, Pass::Env);
+    for (int c = 0; c < 3; ++c) out[c] += env[c] * exposure_ * (1.0f - alpha_matte);
+    out[3] = 1.0f;
+  }
+  CatcherCombined catcher_ = CatcherCombined::None;
   int w_, h_, tile_, tiles_x_, tiles_y_;
   uint32_t passes_;
   float exposure_;

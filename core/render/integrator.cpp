@@ -76,10 +76,15 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding) {
   if (f.light_tree) k |= kKernelLightTree;
   if (f.subsurface) k |= kKernelSubsurface;
   if (f.light_links) k |= kKernelLightLinks;
+  if (f.shadow_catcher && aovs) k |= kKernelShadowCatcher;
   return k;
 }
 
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
+  if (needed & kKernelShadowCatcher) {  // (the one kernel that splits paths at catchers)
+    chosen = kKernelCatcher;
+    return &trace_path_t<kKernelCatcher>;
+  }
   if (!force_general) {
     for (const KernelEntry& e : kKernels)
       if ((needed & ~e.features) == 0) {
@@ -103,6 +108,7 @@ TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
 
 std::string kernel_name(uint32_t features) {
   if (features == kKernelAll) return "general";
+  if (features == kKernelCatcher) return "general+catcher";
   std::string n = (features & kKernelNonDiffuse) ? "surfaces" : "diffuse";
   if (features & kKernelEnvironment) n += "+env";
   if (features & kKernelLightTree) n += "+tree";

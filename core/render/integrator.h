@@ -4,7 +4,9 @@
 // limits (total and per type; bounce 0 is direct light).
 #pragma once
 #include <cstdint>
+#include <optional>
 #include <string>
+#include <type_traits>
 
 #include "scene/scene.h"
 #include "util/sampler.h"
@@ -65,6 +67,12 @@ struct IntegratorSettings {
   // Vector pass: where that surface was at the frames before and after (Scene::pass_motion).
   bool vector_pass = false;
   uint32_t cryptomatte = 0;  // Cryptomatte layers to record (kCrypto* bits): PathAovs::crypto
+  // Shadow catchers (only the general kernel, kKernelShadowCatcher, reads these): a camera
+  // path that meets one directly is split as Cycles splits it (PathAovs::matte, catcher).
+  // catcher_background: the world behind the catcher goes to PathAovs::environment (Cycles'
+  // background pass for the approximate composite over an opaque film).
+  bool shadow_catcher = false;
+  bool catcher_background = false;
 };
 
 // Cryptomatte layers (Cycles' CRYPT_OBJECT, CRYPT_MATERIAL, CRYPT_ASSET).
@@ -132,6 +140,17 @@ struct PathAovs {
   Float4* shader_aovs = nullptr;
   int crypto_count = 0;  // IntegratorSettings::cryptomatte: the first crypto_count of crypto
   CryptoHit crypto[kMaxCryptoHits];  // (left uninitialised: only crypto_count are read)
+  // Shadow catcher (IntegratorSettings::shadow_catcher), Cycles' passes: a camera path that
+  // meets a catcher directly (through Transparent BSDFs) is split there. The path goes on with
+  // the catcher as a plain object (what trace_path returns: Combined); a copy of it goes on
+  // where no object but the catchers is there (`catcher`: Cycles' PASS_SHADOW_CATCHER). The
+  // path before the split, and paths that never split, are the matte (`matte`, with alpha
+  // `matte_alpha`: the split counts as transparent, as film_write_shadow_catcher_bounce_data);
+  // catcher_samples is 1 where the path split.
+  Vec3 matte{0.0f};
+  float matte_alpha = 1.0f;
+  Vec3 catcher{0.0f};
+  float catcher_samples = 0.0f;
 };
 
 // The general kernel: every feature compiled in.
@@ -150,6 +169,10 @@ enum KernelFeature : uint32_t {
   kKernelGuiding = 64,     // path guiding (IntegratorSettings::guide)
   kKernelLightLinks = 128, // light and shadow linking (only the general kernel has them)
   kKernelAll = 255,        // the general kernel
+  // Shadow catchers: paths split at them. Only in a general kernel of their own (every
+  // feature and this one): their code cost the general kernel 2 % of its instructions.
+  kKernelShadowCatcher = 256,
+  kKernelCatcher = kKernelAll | kKernelShadowCatcher,
 };
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
@@ -158,7 +181,8 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding = false
 // The fastest instantiated kernel that has every feature in `needed` (or the general one when
 // force_general); `chosen` gets its feature bits. Every kernel gives the general one's result.
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen);
-// "general", or "diffuse" / "surfaces" plus "+env", "+tree", "+media", "+passes", "+guiding".
+// "general", "general+catcher", or "diffuse" / "surfaces" plus "+env", "+tree", "+media", "+passes",
+// "+guiding".
 std::string kernel_name(uint32_t features);
 
 // The denoising features of one shaded point, split as Cycles does: `diffuse_albedo` of the

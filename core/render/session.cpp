@@ -77,6 +77,16 @@ uint32_t effective_passes(const RenderSettings& s) {
 }
 
 namespace {
+// The film's planes: the render's passes, and with shadow catchers in the scene Cycles' three
+// catcher planes (and the world behind them for the approximate composite on an opaque film).
+uint32_t film_passes(const RenderSettings& s, const Scene* scene) {
+  uint32_t p = effective_passes(s);
+  if (scene && scene->committed() && scene->features().shadow_catcher && s.debug_view == DebugView::None) {
+    if (!(p & pass_bit(Pass::ShadowCatcher)) && !s.film_transparent) p |= pass_bit(Pass::Env);
+    p |= pass_bit(Pass::ShadowCatcher) | pass_bit(Pass::ShadowCatcherMatte) | pass_bit(Pass::ShadowCatcherSampleCount);
+  }
+  return p;
+}
 // The film's size: the border's, or the whole frame's.
 int film_width(const RenderSettings& s) { return s.border_width > 0 ? s.border_width : s.width; }
 int film_height(const RenderSettings& s) { return s.border_height > 0 ? s.border_height : s.height; }
@@ -85,9 +95,18 @@ int film_height(const RenderSettings& s) { return s.border_height > 0 ? s.border
 Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera)
     : scene_(std::move(scene)),
       settings_((validate(settings), settings)),
-      film_(film_width(settings), film_height(settings), settings.tile_size, effective_passes(settings), settings.exposure,
+      film_(film_width(settings), film_height(settings), settings.tile_size, film_passes(settings, scene_.get()), settings.exposure,
             settings.shader_aovs) {
   if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
+  if (film_.has_pass(Pass::ShadowCatcherMatte)) {
+    // Cycles' approximate shadow catcher unless the Shadow Catcher pass is asked for.
+    const bool asked = (settings_.passes & pass_bit(Pass::ShadowCatcher)) != 0;
+    film_.set_catcher_combined(asked ? CatcherCombined::Matte
+                               : settings_.film_transparent ? CatcherCombined::Approximate
+                                                            : CatcherCombined::OverBackground);
+    integrator_.shadow_catcher = true;
+    integrator_.catcher_background = film_.has_pass(Pass::Env) && !settings_.film_transparent;
+  }
   // The viewport's camera overrides the scene's (same committed scene, nothing rebuilt).
   const CameraDesc& view = camera ? *camera : scene_->camera_desc();
   camera_ = Camera(view, settings_.width, settings_.height);
@@ -303,7 +322,7 @@ void Session::write_aux(const PathAovs& a, float* out) const {
   auto put = [&](Pass p, Vec3 v) {
     const int off = film_.pass_offset(p);
     if (off < 0) return;
-    const int ch = pass_desc(p).channels;
+    const int ch = std::min(pass_desc(p).channels, 3);  // (a Vec3 at most: the matte is written below)
     for (int c = 0; c < ch; ++c) out[off + c] = std::isfinite(v[c]) ? v[c] : 0.0f;
   };
   // Misses add 0, as in Cycles: Depth reads 1e10 only where no sample hit anything.
@@ -345,6 +364,13 @@ void Session::write_aux(const PathAovs& a, float* out) const {
     for (int k = 0; k < 4; ++k) out[off + k] = std::isfinite(v[k]) ? v[k] : 0.0f;
     out[film_.pass_offset(Pass::VectorWeight)] = a.hit ? 1.0f : 0.0f;
   }
+  put(Pass::ShadowCatcher, a.catcher);
+  const int m = film_.pass_offset(Pass::ShadowCatcherMatte);
+  if (m >= 0) {  // (RGB and alpha: four channels)
+    for (int c = 0; c < 3; ++c) out[m + c] = std::isfinite(a.matte[c]) ? a.matte[c] : 0.0f;
+    out[m + 3] = std::isfinite(a.matte_alpha) ? a.matte_alpha : 1.0f;
+  }
+  put(Pass::ShadowCatcherSampleCount, Vec3(a.catcher_samples));
   for (int i = 0; i < film_.aov_count(); ++i) {
     const Float4 v = a.shader_aovs ? a.shader_aovs[i] : Float4{};
     const float vals[4] = {v.x, v.y, v.z, v.w};

@@ -289,8 +289,9 @@ Vec3 layer_transmittance(const Scene& scene, const Medium& medium, Vec3 org, Vec
 }
 
 // shadow_mask: the light's shadow sets (shadow linking): blockers of other sets let it pass.
+// catchers_only: only shadow catchers block (a shadow catcher split's catcher path).
 Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr,
-                          uint64_t shadow_mask = kAllLightSets) {
+                          uint64_t shadow_mask = kAllLightSets, bool catchers_only = false) {
   Vec3 T(1.0f);
   if (!occlude) {
     if (medium.top())
@@ -309,7 +310,8 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     SurfacePoint sp;
     scene.surface_point(h, sp, ray.time, &ray);
     const Material& mat = scene.material(sp.material);
-    const bool passed = shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h.inst)) & 1u);
+    const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h.inst)) & 1u)) ||
+                        (catchers_only && !scene.is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
       ClosureList cl;
@@ -726,7 +728,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   constexpr bool kSubsurface = (F & kKernelSubsurface) != 0;
   constexpr bool kGuide = (F & kKernelGuiding) != 0;
   constexpr bool kLinks = (F & kKernelLightLinks) != 0;
-  PathAovs* const aov = kAovs ? aov_in : nullptr;
+  constexpr bool kCatcher = (F & kKernelShadowCatcher) != 0;
+  // (the catcher path of a split writes its passes into a scratch record: see below)
+  PathAovs* aov = kAovs ? aov_in : nullptr;
   GuidingField* const guide = kGuide ? s.guide : nullptr;
   bool guide_sampling = false, guide_training = false;
   if constexpr (kGuide) {
@@ -792,7 +796,36 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   const bool lp = kAovs && aov && s.light_passes;
   Vec3 lp_dw(0.0f), lp_gw(0.0f);
   bool lp_volume = false;
-  for (int bounce = 0;;) {
+  int bounce = 0;
+  // Shadow catchers, as Cycles' integrator_split_shadow_catcher: the first catcher the camera
+  // path meets directly splits it. The path goes on as it would without catchers (Combined);
+  // then a copy of it taken at the split, in which no object but the catchers exists (its
+  // rays and shadow rays pass everything else), gives the catcher pass. The copy starts from
+  // the same state and random numbers, so the two stay correlated as in Cycles.
+  const bool catchers = kCatcher && aov && s.shadow_catcher;
+  bool split = false, catcher_only = false, resume = false;
+  struct Split {
+    Vec3 beta, mis_org, mis_n, sky_n, feature_throughput, lp_dw, lp_gw;
+    float eta_scale, prev_pdf, length_before;
+    bool prev_delta, prev_samples_only, emission_only, direct, want_data, want_features, lp_volume;
+    uint8_t mis_set, ray_vis;
+    int diffuse, glossy, transmission, transparent, volume_count, bounce;
+    RayState ray_state;
+    Medium medium;
+    Pcg32 vrng;
+    Ray ray;
+    Hit hit;
+  };
+  struct CatcherState {
+    std::optional<Split> at;
+    std::optional<Sampler> sampler;
+    Vec3 L_combined{0.0f};
+    std::optional<PathAovs> scratch;  // (made at a split only: zeroing one per path cost 2 %)
+  };
+  struct NoCatcher {};
+  std::conditional_t<kCatcher, CatcherState, NoCatcher> cs;  // (nothing in the other kernels)
+restart: __attribute__((unused));
+  for (;;) {
     // Light a ray finds (emission, the world, lights it crosses): the camera's own goes to Emit
     // and Env, the ray after the first scattering's is direct. A light sample at a volume point
     // of this segment: the first scattering's, direct, or the path's component's, indirect.
@@ -811,7 +844,14 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     };
     Hit hit;
     ++c.rays;
-    const bool found = scene.intersect(ray, hit);
+    // (the catcher path resumes at the split's hit; later rays see the catchers alone)
+    bool found;
+    if constexpr (kCatcher) {
+      if (resume) hit = cs.at->hit, found = true;
+      else found = catcher_only ? scene.intersect_catchers(ray, hit) : scene.intersect(ray, hit);
+    } else {
+      found = scene.intersect(ray, hit);
+    }
     Vec3 sigma(0.0f);
     const Vec3 beta_in = beta;           // (light hits: the throughput at the ray's origin)
     const MediumLayer* seg_medium = nullptr;
@@ -832,9 +872,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       return beta_in;
     };
     if constexpr (kMedia) {
-      sigma = medium.current();
+      sigma = kCatcher && resume ? Vec3(0.0f) : medium.current();  // (the split's segment is done)
       seg_sigma = sigma;
-      const MediumLayer* m = medium.top();
+      const MediumLayer* m = kCatcher && resume ? nullptr : medium.top();
       if (m && volumes) seg_medium = m;
       // Light linking: the light set of the innermost volume's object (the world's: 0).
       const uint8_t vset = kLinks && links ? scene.light_set_of(medium.inner_instance()) : 0;
@@ -1082,7 +1122,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
         beta *= beer(sigma, found ? hit.t * length(ray.dir) : kInf);
       }
     }
-    if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only)) {
+    if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only) && !(kCatcher && resume)) {
       const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
                                          mis_org, mis_n, through, mis_set);
       L += lh;
@@ -1115,6 +1155,31 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       }
       break;
     }
+    if constexpr (kCatcher) {
+      if (resume) {
+        resume = false;
+      } else if (catchers && direct && !split && scene.is_catcher(hit.inst)) {
+        // The split, before the catcher is shaded: what the path found so far is the matte's,
+        // and the split itself counts as transparent there (film_write_shadow_catcher_bounce_data).
+        split = true;
+        aov->catcher_samples = 1.0f;
+        aov->matte = L;
+        aov->matte_alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
+        if (s.catcher_background) aov->environment += beta * scene.background(ray.dir);
+        cs.at = Split{beta, mis_org, mis_n, sky_n, feature_throughput, lp_dw, lp_gw, eta_scale, prev_pdf,
+                         length_before, prev_delta, prev_samples_only, emission_only, direct, want_data,
+                         want_features, lp_volume, mis_set, ray_vis, diffuse, glossy, transmission, transparent,
+                         volume_count, bounce, ray_state, medium, vrng, ray, hit};
+        cs.sampler = sampler;
+      }
+    }
+    // A holdout object seen directly, as Cycles' integrate_surface_holdout with
+    // SD_OBJECT_HOLDOUT_MASK: the film is transparent where it is, and the path ends there.
+    if constexpr (kAovs)
+      if (direct && aov && scene.features().object_holdout && scene.is_object_holdout(hit.inst)) {
+        aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
+        break;
+      }
     SurfacePoint sp;
     scene.surface_point(hit, sp, ray.time, &ray);
     Vec3 wo = -ray.dir;  // (a subsurface exit moves the vertex: see below)
@@ -1259,10 +1324,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
           Medium side = medium;
           if (!reflection) side.cross(scene, sp, front);
           ++c.rays;
-          vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng, kLinks ? ds.shadow_mask : kAllLightSets);
+          vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng, kLinks ? ds.shadow_mask : kAllLightSets,
+                                     kCatcher && catcher_only);
         } else if (ds.cast_shadow) {
           ++c.rays;
-          if (kLinks && ds.shadow_mask != kAllLightSets) vis = scene.transmittance_linked(shadow, ds.shadow_mask);
+          if (kCatcher && catcher_only) vis = scene.transmittance_catchers(shadow);
+          else if (kLinks && ds.shadow_mask != kAllLightSets) vis = scene.transmittance_linked(shadow, ds.shadow_mask);
           else vis = scene.transmittance(shadow);
         }
         // Light inside an absorbing medium (only reachable when the segment stays inside it).
@@ -1552,7 +1619,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     ray.tmax = kInf;
   }
   if constexpr (kGuide) {
-    for (int i = 0; i < n_rec; ++i) {  // (only a training path has records)
+    for (int i = 0; i < n_rec && !catcher_only; ++i) {  // (only a training path has records)
       const GuideRecord& r = rec[i];
       const Vec3 in = L - r.L;
       float sum = 0.0f;
@@ -1561,6 +1628,37 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
       if (r.beta.y > 0.0f) sum += in.y / r.beta.y, ++n;
       if (r.beta.z > 0.0f) sum += in.z / r.beta.z, ++n;
       guide->record(r.cell, r.wi, n ? sum / (float(n) * r.pdf) : 0.0f);
+    }
+  }
+  if constexpr (kCatcher) {
+    if (catchers && !catcher_only) {
+      if (!split) {  // never met a catcher: all of it is the matte's
+        aov->matte = L;
+        aov->matte_alpha = aov->alpha;
+        return L;
+      }
+      // The path with the catcher is done: now its copy from the split, catchers alone.
+      cs.L_combined = L;
+      const Split& a = *cs.at;
+      L = Vec3(0.0f);  // (the copy's light is the catcher pass alone)
+      beta = a.beta, mis_org = a.mis_org, mis_n = a.mis_n, sky_n = a.sky_n;
+      feature_throughput = a.feature_throughput, lp_dw = a.lp_dw, lp_gw = a.lp_gw;
+      eta_scale = a.eta_scale, prev_pdf = a.prev_pdf, length_before = a.length_before;
+      prev_delta = a.prev_delta, prev_samples_only = a.prev_samples_only, emission_only = a.emission_only;
+      direct = a.direct, want_data = a.want_data, want_features = a.want_features, lp_volume = a.lp_volume;
+      mis_set = a.mis_set, ray_vis = a.ray_vis;
+      diffuse = a.diffuse, glossy = a.glossy, transmission = a.transmission, transparent = a.transparent;
+      volume_count = a.volume_count, bounce = a.bounce;
+      ray_state = a.ray_state, medium = a.medium, vrng = a.vrng, ray = a.ray;
+      sampler = *cs.sampler;
+      n_rec = 0;
+      catcher_only = resume = true;
+      aov = &cs.scratch.emplace();  // its passes are no pass's: Cycles writes the copy to the catcher pass only
+      goto restart;
+    }
+    if (catcher_only) {
+      aov_in->catcher = L;
+      return cs.L_combined;
     }
   }
   return L;

@@ -310,6 +310,10 @@ struct SceneFeatures {
   // Some smooth-shaded instance has Cycles' shadow terminator geometry offset (light samples
   // near the terminator start on the smooth surface: Scene::terminator_origin).
   bool terminator = false;
+  // Some object is a shadow catcher (kKernelShadowCatcher: only the general kernel splits
+  // paths), or a holdout (the film's alpha needs the aov kernel).
+  bool shadow_catcher = false;
+  bool object_holdout = false;
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
   // Heterogeneous media (Volume programs): delta and ratio tracking through majorant grids
@@ -544,7 +548,21 @@ class Scene {
   // The bounds of everything a ray can hit (after commit).
   const Aabb& world_bounds() const { return world_bounds_; }
   bool committed() const { return committed_; }
-  bool any_holdout() const { return any_holdout_; }  // Holdout closures: alpha below 1 without transparent film
+  // Holdout closures or objects: alpha below 1 without transparent film.
+  bool any_holdout() const { return any_holdout_ || features_.object_holdout; }
+  // Shadow catchers (ObjectInfo::shadow_catcher) and holdout objects, by scene instance (curves
+  // and points are neither).
+  bool is_catcher(uint32_t instance) const {
+    return instance < object_coords_.size() && object_coords_[instance].info.shadow_catcher;
+  }
+  bool is_object_holdout(uint32_t instance) const {
+    return instance < object_coords_.size() && object_coords_[instance].info.holdout;
+  }
+  // Closest hit on shadow catchers only (the catcher path of a split, which sees no other
+  // object): other hits are stepped past, and `r` starts past the last of them on return.
+  bool intersect_catchers(Ray& r, Hit& h) const;
+  // transmittance() where only shadow catchers block.
+  Vec3 transmittance_catchers(const Ray& ray) const { return transmittance_through(ray, kAllLightSets, true); }
 
   // Closest hit: h.prim is the triangle in its BLAS, h.inst the scene instance (surface_point
   // and global_prim read them).
@@ -892,7 +910,8 @@ class Scene {
   bool any_transparent_ = false;
   bool any_holdout_ = false;
   // transmittance() through Transparent surfaces (closest hits shaded one by one).
-  Vec3 transmittance_through(Ray ray, uint64_t shadow_mask = kAllLightSets) const;
+  // catchers_only: only shadow catchers block (the rest is passed as if not there).
+  Vec3 transmittance_through(Ray ray, uint64_t shadow_mask = kAllLightSets, bool catchers_only = false) const;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
   std::vector<Float4> object_attrs_;  // the instances' object attribute values (ObjectInfo::attr_first)

@@ -31,7 +31,9 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"light hits", f.light_hits},
           {"light linking", f.light_links},
           {"subsurface", f.subsurface},
-          {"shadow terminator", f.terminator}};
+          {"shadow terminator", f.terminator},
+          {"shadow catcher", f.shadow_catcher},
+          {"holdout objects", f.object_holdout}};
 }
 }  // namespace
 
@@ -148,6 +150,11 @@ void Scene::detect_features() {
   for (size_t i = 0; i < inst_.size() && i < object_coords_.size(); ++i)  // smooth meshes only
     f.terminator = f.terminator || (inst_[i].blas != UINT32_MAX && object_coords_[i].info.terminator > 0.0f);
   f.light_hits = !hit_lights_.empty() || !hit_suns_.empty();
+  for (size_t i = 0; i < inst_.size() && i < object_coords_.size(); ++i) {
+    if (inst_[i].blas == UINT32_MAX) continue;
+    f.shadow_catcher = f.shadow_catcher || object_coords_[i].info.shadow_catcher;
+    f.object_holdout = f.object_holdout || object_coords_[i].info.holdout;
+  }
   features_ = f;
 }
 

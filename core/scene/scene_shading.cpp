@@ -419,7 +419,26 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_
   }
 }
 
-Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask) const {
+bool Scene::intersect_catchers(Ray& r, Hit& h) const {
+  for (int i = 0; i < 64; ++i) {  // bounded, as transmittance_through
+    if (!intersect(r, h)) return false;
+    if (is_catcher(h.inst)) return true;
+    SurfacePoint sp;
+    surface_point(h, sp, r.time, &r);
+    const Vec3 side = dot(r.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
+    const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+    r.self_curve = self_curve(sp);
+    if (std::isfinite(r.tmax)) {
+      const Vec3 end = r.org + r.dir * r.tmax;
+      r.dir = end - org;
+      r.tmax = 1.0f;
+    }
+    r.org = org;
+  }
+  return false;
+}
+
+Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_only) const {
   Vec3 T(1.0f);
   for (int i = 0; i < 64; ++i) {  // bounded: stacked alpha cards
     Hit h;
@@ -428,7 +447,8 @@ Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask) const {
     surface_point(h, sp, ray.time, &ray);
     const Material& mat = materials_[sp.material];
     // Shadow linking: a blocker outside the light's shadow sets is passed as if not there.
-    const bool passed = shadow_mask != kAllLightSets && !((shadow_mask >> shadow_set_of(h.inst)) & 1u);
+    const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> shadow_set_of(h.inst)) & 1u)) ||
+                        (catchers_only && !is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
       ClosureList cl;

@@ -232,6 +232,10 @@ struct ObjectInfo {
   // sets it lights and is blocked by (bit s: set s).
   uint8_t light_set = 0, shadow_set = 0;
   uint64_t light_mask = ~uint64_t(0), shadow_mask = ~uint64_t(0);
+  // Cycles' object visibility: Shadow Catcher (seen by the camera only through the shadows and
+  // light other objects cast on it, render/integrator.h) and Holdout (a camera ray that meets
+  // it leaves the film transparent there and stops, as Cycles' SD_OBJECT_HOLDOUT_MASK).
+  bool shadow_catcher = false, holdout = false;
 };
 constexpr uint64_t kAllLightSets = ~uint64_t(0);
 constexpr uint32_t kMaxObjectAttributes = 8;

@@ -13,7 +13,8 @@ ALL = set(pc.Scene().stats().get("features", [])) | {
     "diffuse", "glossy", "glass", "transparent", "varying shaders", "textures", "normal maps", "media",
     "volumes", "heterogeneous volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights",
     "environment", "world light", "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree",
-    "light hits", "subsurface", "motion blur", "guiding", "shadow terminator", "light linking"}
+    "light hits", "subsurface", "motion blur", "guiding", "shadow terminator", "light linking", "shadow catcher",
+    "holdout objects"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -197,6 +198,20 @@ def moving_cornell():
 
 
 CASES["motion blur"] = (moving_cornell, {}, {"diffuse", "mesh lights", "motion blur"}, "diffuse")
+def flagged_cornell(**flags):
+    """The Cornell box with a second sphere that is a shadow catcher or a holdout object (only
+    the general kernel splits paths at catchers; holdouts need the film's alpha)."""
+    s = cornell(pc)
+    white = s.add_material("white2", (0.73, 0.73, 0.73))
+    pos, tris, nrm = uv_sphere(0.25, nu=16, nv=8, center=(-0.4, 0.3, 0.25))
+    s.add_instance(s.add_mesh(pos, tris, nrm, None, [white]), np.eye(4, dtype=np.float32), **flags)
+    return s
+
+
+CASES["shadow catcher"] = (lambda: flagged_cornell(shadow_catcher=True), {},
+                           {"diffuse", "mesh lights", "shadow catcher", "passes"}, "general+catcher")
+CASES["holdout object"] = (lambda: flagged_cornell(holdout=True), {},
+                           {"diffuse", "mesh lights", "holdout objects"}, "general")
 # Guided renders run the guided kernels (integrator_guided.cpp), which cover every surface.
 CASES["guiding"] = (lambda: cornell(pc), {"guiding": True}, {"diffuse", "mesh lights", "guiding"},
                     "diffuse+env+guiding")
@@ -213,7 +228,9 @@ def test_features_detected_and_kernel_chosen(name):
     assert set(st["features"]) == expected
     assert set(st["unused_features"]) == ALL - expected  # and nothing else is claimed
     assert st["kernel"] == kernel
-    assert session(build, fields, general=True, samples=1).stats()["kernel"] == "general"
+    # (shadow catchers: the general kernel of their own, which alone splits paths)
+    general = "general+catcher" if "shadow catcher" in expected else "general"
+    assert session(build, fields, general=True, samples=1).stats()["kernel"] == general
 
 
 @pytest.mark.parametrize("name", CASES)
