@@ -137,6 +137,7 @@ def triangle_radiance(p):
     return polygon_radiance(p, NEAR_TRI, NEAR_L)
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_emissive_triangle_near_a_plane_matches_its_form_factor():
     exp = expected(triangle_radiance)[:, NEAR_COLS]
     # max_bounces 0: the light sample alone (its pdf); 1: light sample and BSDF hits under MIS.
@@ -472,6 +473,7 @@ def test_environment_direction_convention():
     assert got[..., 1].mean() > 0.95  # straight up is the top row (v = 1)
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_environment_importance_sampling_is_unbiased():
     def scene():
         s = pc.Scene()
@@ -552,6 +554,7 @@ def sky_and_sun_image():
     return np.maximum(img, sky[:, None, None])
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_compensated_environment_sampling_is_unbiased():
     img_env = sky_and_sun_image()
     exp = ALBEDO / np.pi * sky_irradiance(img_env)
@@ -686,6 +689,7 @@ def test_adaptive_sampling_stops_converged_pixels_and_is_deterministic():
     assert np.isfinite(film).all()
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_diffuse_bounce_limit_matches_total_limit_for_diffuse_scenes():
     # Same light paths, different estimators at the last vertex (a per-type limit still traces
     # the BSDF ray to keep MIS weights; the total limit gives the light sample all the weight).

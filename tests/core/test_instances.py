@@ -315,6 +315,7 @@ def emitter_scene(mode, use_nee=True, seed=1):
     return s, img
 
 
+@pytest.mark.converged  # (long; under the sanitizer cheaper tests run its code)
 def test_instanced_emitters_light_the_scene_like_merged_ones_with_mis():
     s, merged = emitter_scene("merged")
     _, merged2 = emitter_scene("merged", seed=2)
