@@ -165,16 +165,9 @@ class Film {
   // what the samples added (0 where a sample wrote nothing), as Cycles' AOV passes.
   void read_aov(int i, float* out) {
     const int ch = aov_channels_[size_t(i)], off = aov_offset_[size_t(i)];
-    for (int t = 0; t < tile_count(); ++t) {
-      int x0, y0, x1, y1;
-      tile_rect(t, x0, y0, x1, y1);
-      std::lock_guard<std::mutex> lk(locks_[size_t(t)]);
-      for (int y = y0; y < y1; ++y)
-        for (int x = x0; x < x1; ++x) {
-          const size_t px = size_t(y) * size_t(w_) + size_t(x);
-          for (int c = 0; c < ch; ++c) out[px * size_t(ch) + size_t(c)] = aux_[px * size_t(stride_) + size_t(off + c)];
-        }
-    }
+    each_pixel_locked([&](size_t px) {
+      for (int c = 0; c < ch; ++c) out[px * size_t(ch) + size_t(c)] = aux_[px * size_t(stride_) + size_t(off + c)];
+    });
   }
 
   // aux: aux_stride() floats of the pass planes' values for this sample (ignored without passes).
@@ -232,26 +225,19 @@ class Film {
   bool read_crypto(int layer, int pass, float* out) {
     if (layer < 0 || layer >= crypto_layers_ || pass < 0 || 2 * pass >= crypto_slots_) return false;
     std::vector<std::pair<float, float>> pairs(static_cast<size_t>(crypto_slots_));
-    for (int t = 0; t < tile_count(); ++t) {
-      int x0, y0, x1, y1;
-      tile_rect(t, x0, y0, x1, y1);
-      std::lock_guard<std::mutex> lk(locks_[size_t(t)]);
-      for (int y = y0; y < y1; ++y)
-        for (int x = x0; x < x1; ++x) {
-          const size_t i = size_t(y) * size_t(w_) + size_t(x);
-          const float* slot = &crypto_[(i * size_t(crypto_layers_) + size_t(layer)) * size_t(crypto_slots_) * 2];
-          for (int k = 0; k < crypto_slots_; ++k) pairs[size_t(k)] = {slot[2 * k], slot[2 * k + 1]};
-          // Stable: equal weights keep the order their ids were first seen in.
-          std::stable_sort(pairs.begin(), pairs.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
-          const float inv = count_[i] ? 1.0f / float(count_[i]) : 0.0f;
-          float* dst = out + i * 4;
-          for (int k = 0; k < 2; ++k) {
-            const auto& pr = pairs[size_t(2 * pass + k)];
-            dst[2 * k] = pr.first;
-            dst[2 * k + 1] = pr.second * inv;
-          }
-        }
-    }
+    each_pixel_locked([&](size_t i) {
+      const float* slot = &crypto_[(i * size_t(crypto_layers_) + size_t(layer)) * size_t(crypto_slots_) * 2];
+      for (int k = 0; k < crypto_slots_; ++k) pairs[size_t(k)] = {slot[2 * k], slot[2 * k + 1]};
+      // Stable: equal weights keep the order their ids were first seen in.
+      std::stable_sort(pairs.begin(), pairs.end(), [](const auto& a, const auto& b) { return a.second > b.second; });
+      const float inv = count_[i] ? 1.0f / float(count_[i]) : 0.0f;
+      float* dst = out + i * 4;
+      for (int k = 0; k < 2; ++k) {
+        const auto& pr = pairs[size_t(2 * pass + k)];
+        dst[2 * k] = pr.first;
+        dst[2 * k + 1] = pr.second * inv;
+      }
+    });
     return true;
   }
 
@@ -337,42 +323,47 @@ class Film {
     if (p != Pass::SampleCount && off < 0) return false;
     const float scale = pass_desc(p).exposure ? exposure_ : 1.0f;
     const int div = pass_desc(p).divide >= 0 ? offset_[pass_desc(p).divide] : -1;
+    each_pixel_locked([&](size_t i) {
+      float* dst = out + i * size_t(ch);
+      if (p == Pass::SampleCount) {
+        dst[0] = float(count_[i]);
+        return;
+      }
+      if (p == Pass::ShadowCatcher) {
+        const Vec3 sc = shadow_catcher(i);
+        for (int c = 0; c < 3; ++c) dst[c] = sc[c];
+        return;
+      }
+      const float* src = &aux_[i * size_t(stride_) + size_t(off)];
+      for (int c = 0; c < ch; ++c) dst[c] = src[c] * scale;
+      if (p == Pass::Depth && dst[0] == 0.0f) dst[0] = 1e10f;  // Cycles' "nothing here"
+      if (p == Pass::Mist) dst[0] = 1.0f - dst[0];
+      if (p == Pass::ShadowCatcherMatte) dst[3] = src[3];  // (alpha: no exposure)
+      if (div >= 0) {  // (the session keeps the colour whenever a component is asked for)
+        const float* col = &aux_[i * size_t(stride_) + size_t(div)];
+        const bool one = pass_desc(Pass(pass_desc(p).divide)).channels == 1;  // (Vector's weight)
+        for (int c = 0; c < ch; ++c) {
+          const float d = col[one ? 0 : c];
+          dst[c] = d != 0.0f ? dst[c] / d : 0.0f;
+        }
+      }
+    });
+    return true;
+  }
+
+ private:
+  // f(i) for every pixel i (y * W + x), a tile at a time under its lock, as the readers need
+  // while render threads write other tiles.
+  template <class F>
+  void each_pixel_locked(F f) {
     for (int t = 0; t < tile_count(); ++t) {
       int x0, y0, x1, y1;
       tile_rect(t, x0, y0, x1, y1);
       std::lock_guard<std::mutex> lk(locks_[size_t(t)]);
       for (int y = y0; y < y1; ++y)
-        for (int x = x0; x < x1; ++x) {
-          const size_t i = size_t(y) * size_t(w_) + size_t(x);
-          float* dst = out + i * size_t(ch);
-          if (p == Pass::SampleCount) {
-            dst[0] = float(count_[i]);
-            continue;
-          }
-          if (p == Pass::ShadowCatcher) {
-            const Vec3 sc = shadow_catcher(i);
-            for (int c = 0; c < 3; ++c) dst[c] = sc[c];
-            continue;
-          }
-          const float* src = &aux_[i * size_t(stride_) + size_t(off)];
-          for (int c = 0; c < ch; ++c) dst[c] = src[c] * scale;
-          if (p == Pass::Depth && dst[0] == 0.0f) dst[0] = 1e10f;  // Cycles' "nothing here"
-          if (p == Pass::Mist) dst[0] = 1.0f - dst[0];
-          if (p == Pass::ShadowCatcherMatte) dst[3] = src[3];  // (alpha: no exposure)
-          if (div >= 0) {  // (the session keeps the colour whenever a component is asked for)
-            const float* col = &aux_[i * size_t(stride_) + size_t(div)];
-            const bool one = pass_desc(Pass(pass_desc(p).divide)).channels == 1;  // (Vector's weight)
-            for (int c = 0; c < ch; ++c) {
-              const float d = col[one ? 0 : c];
-              dst[c] = d != 0.0f ? dst[c] / d : 0.0f;
-            }
-          }
-        }
+        for (int x = x0; x < x1; ++x) f(size_t(y) * size_t(w_) + size_t(x));
     }
-    return true;
   }
-
- private:
   const float* plane(size_t i, Pass p) const { return &aux_[i * size_t(stride_) + size_t(offset_[int(p)])]; }
   // Cycles' film_calculate_shadow_catcher: Combined less the matte over the catcher path's
   // light (the film's means: all planes share the pixel's sample count, so their sums' ratio),
