@@ -80,9 +80,14 @@ def test_engine_registered():
     engine = bpy.types.RenderEngine.bl_rna_get_subclass_py("PATHLIGHT")
     assert engine.bl_label == "Pathlight"
     assert engine.bl_use_shading_nodes_custom is False
-    settings = bpy.context.scene.pathlight
-    assert (settings.samples, settings.time_limit, settings.max_bounces, settings.seed,
-            settings.use_nee) == (128, 0.0, 12, 0, True)
+    # The defaults on a new scene (the current one may carry an earlier test's settings).
+    scene = bpy.data.scenes.new("Defaults")
+    try:
+        settings = scene.pathlight
+        assert (settings.samples, settings.time_limit, settings.max_bounces, settings.seed,
+                settings.use_nee) == (128, 0.0, 12, 0, True)
+    finally:
+        bpy.data.scenes.remove(scene)
 
 
 def test_register_unregister_register():
@@ -96,7 +101,11 @@ def test_register_unregister_register():
     finally:
         addon.register()
     assert engine_in_enum()
-    assert bpy.context.scene.pathlight.samples == 128
+    scene = bpy.data.scenes.new("Registered")  # (the current scene may carry earlier settings)
+    try:
+        assert scene.pathlight.samples == 128
+    finally:
+        bpy.data.scenes.remove(scene)
 
 
 def test_panels_compatible():
