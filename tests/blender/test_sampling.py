@@ -109,13 +109,14 @@ def test_panels_draw_existing_properties():
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
+    obj = bpy.data.objects.new("O", bpy.data.meshes.new("O"))
     shown = set()
     for light_type in ('POINT', 'SPOT', 'SUN', 'AREA'):
         for shape in ('SQUARE', 'RECTANGLE'):
             light = bpy.data.lights.new("L", light_type)
             if light_type == 'AREA':
                 light.shape = shape
-            context = type("Ctx", (), {"scene": scene, "light": light, "engine": "PATHLIGHT",
+            context = type("Ctx", (), {"scene": scene, "light": light, "object": obj, "engine": "PATHLIGHT",
                                        "view_layer": scene.view_layers[0]})
             for cls in ui.classes:
                 layout = Layout()
@@ -127,7 +128,7 @@ def test_panels_draw_existing_properties():
                  "transmission_bounces", "energy", "exposure", "color", "shadow_soft_size",
                  "angle", "shape", "size", "size_y", "use_shadow", "film_exposure",
                  "film_transparent", "debug_view", "use_pass_z", "use_pass_denoising_data",
-                 "use_pass_sample_count"):
+                 "use_pass_sample_count", "is_shadow_catcher"):
         assert name in shown, name
 
 
