@@ -6,6 +6,10 @@ the core; final renders (session.py), the kept scene of the last render (render_
 the viewport's live edits (viewport.py) all write through the functions here.
 tests/blender/test_scene_writer.py fails if any other add-on module calls a core scene writer."""
 
+import weakref
+
+import numpy as np
+
 from .export.material import cryptomatte_name
 from .export.world import WorldSky
 
@@ -263,6 +267,25 @@ def set_camera(pc, scene, params):
     scene.set_camera(camera)
 
 
+# The light node trees' images each core scene holds, by content: lights sent again to a kept
+# scene (replace_lights: viewport light edits, persistent-data frames) reuse them instead of
+# adding them again (the core keeps every image it was given until the scene goes).
+_LIGHT_IMAGES = weakref.WeakKeyDictionary()
+
+
+def _light_image_ids(scene, images):
+    from .core import get_core
+    known = _LIGHT_IMAGES.setdefault(scene, {})
+    ids = []
+    for image in images:
+        px = np.ascontiguousarray(image.pixels)
+        key = (get_core().hash_buffer(px, 0), px.shape, px.dtype.str, bool(image.srgb))
+        if key not in known:
+            known[key] = scene.add_image(image.pixels, srgb=image.srgb)
+        ids.append(known[key])
+    return ids
+
+
 def add_lights(scene, lights):
     """Adds LightData `lights` to a core scene."""
     k = 0  # the core's index of the next analytic light (portals are not lights there)
@@ -270,8 +293,7 @@ def add_lights(scene, lights):
         args = light.args
         images = getattr(light, "images", None)
         if images and args.get("shader") is not None:  # its node tree's images, then the program
-            ids = [scene.add_image(image.pixels, srgb=image.srgb) for image in images]
-            args = dict(args, shader=remap_images(args["shader"], ids))
+            args = dict(args, shader=remap_images(args["shader"], _light_image_ids(scene, images)))
         getattr(scene, f"add_{light.kind}_light")(**args)  # (add-on and core ship together)
         if light.kind == "portal":
             continue

@@ -3193,6 +3193,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("use_schlick") = false, py::arg("volume") = py::none(), py::arg("displacement") = py::none(),
           py::arg("displacement_method") = "DISPLACEMENT", "Replaces material `id` (as add_shader); the next commit() keeps the BVH.")
       .def(
+          "image_count", [](const PyScene& self) { return self.scene->image_count(); },
+          "How many images (add_image) the scene holds.")
+      .def(
           "clear_lights",
           [](PyScene& self) {
             self.check_editable();

@@ -103,6 +103,32 @@ def test_textured_light_tree_becomes_a_program_with_cycles_power_estimate():
 
 
 @needs_light_shaders
+def test_lights_sent_again_reuse_their_images():
+    """replace_lights on a kept scene (viewport light edits, persistent-data frames) adds a light
+    tree's image once, not at every edit; a changed image is added."""
+    from addon import scene_writer
+
+    empty_scene(16)
+    obj = add_light('AREA', energy=10.0, shape='RECTANGLE', size=1.0, size_y=1.0)
+    image_gobo(obj)
+    light, warnings = one_light()
+    assert not warnings and light.images, warnings
+    pc = load_addon().core.get_core()
+    scene = pc.Scene()
+    scene_writer.add_lights(scene, [light])
+    count = scene.image_count()
+    assert count == len(light.images)
+    for _ in range(3):
+        scene.clear_lights()
+        scene_writer.add_lights(scene, [light])
+    assert scene.image_count() == count
+    light.images[0].pixels = light.images[0].pixels * 0.5
+    scene.clear_lights()
+    scene_writer.add_lights(scene, [light])
+    assert scene.image_count() == count + 1
+
+
+@needs_light_shaders
 def test_light_falloff_strength_is_the_power_estimate():
     empty_scene(16)
     obj = add_light('POINT', energy=10.0)
