@@ -278,11 +278,13 @@ def test_unsupported_nodes_in_the_tree(scene, capfd):
     mat.use_nodes = True
     nt = mat.node_tree
     bsdf = nt.nodes["Principled BSDF"]
-    # Still unsupported (Noise, Voronoi, Attribute, Wireframe and Bevel, here before, are
-    # supported now).
-    for i, kind in enumerate(("ShaderNodeFloatCurve", "ShaderNodeTexIES", "ShaderNodeNormal", "ShaderNodeParticleInfo")):
+    # Unsupported nodes (Shader to RGB, Ray Portal: a shader into a value input) beside nodes
+    # that were unsupported once (Float Curve, IES Texture without a profile, Particle Info off
+    # particles).
+    for i, kind in enumerate(("ShaderNodeShaderToRGB", "ShaderNodeBsdfRayPortal", "ShaderNodeFloatCurve",
+                              "ShaderNodeTexIES", "ShaderNodeParticleInfo")):
         n = nt.nodes.new(kind)
-        nt.links.new(n.outputs[0], bsdf.inputs[("Base Color", "Roughness", "Normal", "Alpha")[i]])
+        nt.links.new(n.outputs[0], bsdf.inputs[("Base Color", "Roughness", "Normal", "Metallic", "Alpha")[i]])
     script = nt.nodes.new("ShaderNodeScript")  # OSL: no outputs at all
     group = nt.nodes.new("ShaderNodeGroup")   # a group node without a tree
     assert script and group
