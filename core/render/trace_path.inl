@@ -327,15 +327,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     }
     const bool front = dot(ray.dir, sp.ng) < 0.0f;
     medium.cross(scene, sp, front);
-    const Vec3 side = front ? -sp.ng : sp.ng;
-    const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
-    ray.self_curve = scene.self_curve(sp);
-    if (std::isfinite(ray.tmax)) {
-      const Vec3 end = ray.org + ray.dir * ray.tmax;
-      ray.dir = end - org;
-      ray.tmax = 1.0f;
-    }
-    ray.org = org;
+    scene.continue_past(ray, sp, front ? -sp.ng : sp.ng);
   }
   return Vec3(0.0f);
 }

@@ -619,6 +619,18 @@ class Scene {
     if (sp.point()) return point_bvh_.sphere(sp.tri).point | kSelfPointBit;
     return sp.curve() ? curve_bvh_.piece(sp.tri).curve : UINT32_MAX;
   }
+  // A ray passing through the surface at sp: it goes on from just past it on `side` (the ray's
+  // side of the geometric normal) towards the same end point, or to infinity.
+  void continue_past(Ray& ray, const SurfacePoint& sp, Vec3 side) const {
+    const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
+    ray.self_curve = self_curve(sp);
+    if (std::isfinite(ray.tmax)) {
+      const Vec3 end = ray.org + ray.dir * ray.tmax;
+      ray.dir = end - org;
+      ray.tmax = 1.0f;
+    }
+    ray.org = org;
+  }
   // The row of a hit triangle in its mesh's triangles.
   // Curve hits: the strand (numbered over all curve sets).
   uint32_t mesh_triangle(const Hit& h) const {

@@ -425,15 +425,7 @@ bool Scene::intersect_catchers(Ray& r, Hit& h) const {
     if (is_catcher(h.inst)) return true;
     SurfacePoint sp;
     surface_point(h, sp, r.time, &r);
-    const Vec3 side = dot(r.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
-    const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
-    r.self_curve = self_curve(sp);
-    if (std::isfinite(r.tmax)) {
-      const Vec3 end = r.org + r.dir * r.tmax;
-      r.dir = end - org;
-      r.tmax = 1.0f;
-    }
-    r.org = org;
+    continue_past(r, sp, dot(r.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng);
   }
   return false;
 }
@@ -462,16 +454,7 @@ Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_o
       T = T * vmin(pass, Vec3(1.0f));
       if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
     }
-    // Continue just past the surface towards the same end point (or to infinity).
-    const Vec3 side = dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng;
-    const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
-    ray.self_curve = self_curve(sp);
-    if (std::isfinite(ray.tmax)) {
-      const Vec3 end = ray.org + ray.dir * ray.tmax;
-      ray.dir = end - org;
-      ray.tmax = 1.0f;
-    }
-    ray.org = org;
+    continue_past(ray, sp, dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng);
   }
   return Vec3(0.0f);
 }
