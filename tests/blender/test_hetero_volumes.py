@@ -25,12 +25,6 @@ STEP_RATE = 0.3  # Cycles' scene and material Volume Step Rate for the reference
 needs_het = pytest.mark.skipif(not core_has("Scene", "medium_majorants"), reason="the core has no heterogeneous volumes")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def volume_material(name, build):
     """A material with only a Volume: build(nodes, link) returns the volume shader's output."""
     mat = bpy.data.materials.new(name)

@@ -36,12 +36,6 @@ ASYMMETRIC = ies_text([0, 30, 60, 90, 120, 150, 180], [0, 90, 180, 270, 360],
                        [900, 700, 400, 200, 100, 50, 0]])
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def with_ies(obj, text=None, filepath=None, strength=1.0, math_op=None, factor=1.0):
     """obj's light node tree: IES Texture (Fac) [-> Math op factor] -> Emission Strength."""
     data = obj.data

@@ -20,12 +20,6 @@ from addon.export.mesh import is_visible  # noqa: E402
 needs_hits = pytest.mark.skipif(not core_has("Scene", "light_hits"), reason="the core finds no lights by rays")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def empty(size):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene

@@ -19,12 +19,6 @@ from addon.export.light_linking import ALL_SETS, light_links  # noqa: E402
 needs_links = pytest.mark.skipif(not core_has("Scene", "set_light_links"), reason="the core has no light linking")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def link(emitter, kind, members):
     """emitter's receiver ("receiver") or blocker ("blocker") collection holding `members`:
     (object, 'INCLUDE' | 'EXCLUDE') pairs."""

@@ -21,12 +21,6 @@ needs_light_shaders = pytest.mark.skipif(not core_has("Scene", "add_point_light"
                                          reason="the core has no light shaders")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def light_tree(obj):
     """(nodes, links, Emission node) of obj's light node tree, nodes on."""
     obj.data.use_nodes = True

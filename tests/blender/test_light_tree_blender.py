@@ -14,12 +14,6 @@ from addon.scene_writer import to_core  # noqa: E402
 needs_tree = pytest.mark.skipif(not core_has("Scene", "light_tree"), reason="the core has no light tree")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def fifty_lamps():
     scene = diffuse_set(32)
     rng = np.random.default_rng(7)

@@ -37,12 +37,6 @@ def one_light():
     return lights[0], warnings
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
-
-
 @pytest.fixture
 def scene():
     return empty_scene(16)
@@ -454,7 +448,6 @@ LIGHT_CASES = {
                                   scale=(1.0, 2.0, 1.0), energy=300.0, shape='ELLIPSE',
                                   size=1.0, size_y=0.5)),
 }
-
 
 
 @needs_lights

@@ -20,12 +20,6 @@ from addon.export.camera import panorama_params  # noqa: E402
 W, H = 64, 32
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
-
-
 def smooth_environment(width=256, height=128):
     """An equirectangular map whose colour varies smoothly with the direction (periodic in u,
     so no seam): red and green encode the longitude, blue the latitude."""

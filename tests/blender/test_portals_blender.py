@@ -18,12 +18,6 @@ from addon.export.light import collect_lights  # noqa: E402
 needs_portals = pytest.mark.skipif(not core_has("Scene", "add_portal_light"), reason="the core has no portals")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 # The window: x in [-W, W], z in [Z0, Z1] of the wall y = 2.
 W, Z0, Z1 = 0.9, 0.7, 1.8
 

@@ -29,12 +29,6 @@ needs_settings = pytest.mark.skipif(not core_has("RenderSettings", "diffuse_boun
                                     reason="the core has no per-type bounce limits")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
-
-
 # ---------------------------------------------------------------- settings (no core)
 
 def test_defaults_are_cycles_defaults():

@@ -18,12 +18,6 @@ pytestmark = pytest.mark.skipif(not core_has("Scene", "set_world_sky"),
                                 reason="the core has no set_world_sky")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
-
-
 def sky_world(strength=1.0, sky_type='NISHITA', mapping_rotation=None, **settings):
     """World = Sky Texture (`settings` as the node's properties) [through Texture Coordinate
     -> Mapping(rotation), where the type has a Vector input] -> Background x strength."""
@@ -253,7 +247,6 @@ def test_sky_mapping_scale_warns():
     data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
     assert not warnings, list(warnings)
     np.testing.assert_allclose(np.linalg.det(data.world_texture.rotation), -1.0, atol=1e-5)
-
 
 
 def test_window_room_sky_matches_cycles():

@@ -7,7 +7,6 @@ import time
 
 import bpy
 import numpy as np
-import pytest
 
 from blender_util import BOX_FILTER, Warnings, load_addon, render_to_array
 from light_scenes import camera, empty_scene
@@ -20,12 +19,6 @@ load_addon()
 VOXEL = 1.0 / 16.0  # 32^3 voxels over [-1, 1]^3
 SMOKE_SAMPLES = (1024, 512)  # (ours, Cycles': worst region 1.0 % over two seeds, 1.1 % at 2048, 1.4-1.9 % at 512)
 VELOCITY_SAMPLES = (4096, 512)  # (the smear's ends are noisy in ours: 3.7 % at 2048)
-
-
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
 
 
 def glowing_volume(name, emission=2.0):

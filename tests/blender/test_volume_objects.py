@@ -23,12 +23,6 @@ needs_grids = pytest.mark.skipif(not (core_available() and hasattr(load_addon().
 RES = 20  # voxels per axis of the Volume Cube (coarse: a half-voxel misplacement shows)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def assert_agrees(scene, samples, what, region=0.03):
     """Both engines' renders: something lit, the means within 1 %, every 8x8 region within
     `region` (regions darker than a quarter of the mean held to that)."""

@@ -21,12 +21,6 @@ needs_phases = pytest.mark.skipif(not (core_available() and hasattr(load_addon()
 SAMPLES = 2048
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def volume_material(name, build):
     """A material with only a Volume: build(nodes, link) returns the volume shader's output."""
     mat = bpy.data.materials.new(name)

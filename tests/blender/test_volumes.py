@@ -19,12 +19,6 @@ needs_volumes = pytest.mark.skipif(not (core_available() and hasattr(load_addon(
                                    reason="the core has no scattering volumes")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
-
-
 def volume_cube(kind, **inputs):
     mat = node_material(kind, kind, socket="Volume", **inputs)
     if hasattr(mat.cycles, "homogeneous_volume"):

@@ -30,12 +30,6 @@ def marked_image(width=64, height=32, seed=1):
     return np.repeat(np.repeat(blocks, 8, axis=0), 8, axis=1).astype(np.float32)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)  # renders leave their settings behind
-
-
 @pytest.fixture
 def scene():
     sc = empty_scene(16)

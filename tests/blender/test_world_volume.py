@@ -28,12 +28,6 @@ STEP = 0.075  # Cycles' world Volume Step Size for the references
 needs_het = pytest.mark.skipif(not core_has("Scene", "medium_majorants"), reason="the core has no heterogeneous volumes")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def factory_scene_afterwards():
-    yield
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
 def volume_world(name, build):
     """A world with only a Volume (black background): build(nodes, link) returns its shader."""
     world = bpy.data.worlds.new(name)
