@@ -310,7 +310,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     SurfacePoint sp;
     scene.surface_point(h, sp, ray.time, &ray);
     const Material& mat = scene.material(sp.material);
-    const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h.inst)) & 1u)) ||
+    const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h)) & 1u)) ||
                         (catchers_only && !scene.is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
@@ -1352,7 +1352,7 @@ restart: __attribute__((unused));
         DirectSample ds;
         ds.path = &ray_state;
         if constexpr (kTree) ds.n = sp.ns;
-        if constexpr (kLinks) ds.receiver = scene.light_set_of(sp.instance);
+        if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
         const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
         u_rr = u_sel.y;
         const Vec2 u_pt = sampler.get2d();
@@ -1485,7 +1485,7 @@ restart: __attribute__((unused));
         prev_delta = true;
         mis_org = sp.p;
         if constexpr (kTree) mis_n = sp.ns;
-        if constexpr (kLinks) mis_set = scene.light_set_of(sp.instance);
+        if constexpr (kLinks) mis_set = scene.light_set_at(sp);
       }
     } else {
       float pdf;
@@ -1523,7 +1523,7 @@ restart: __attribute__((unused));
       mis_org = sp.p;
       if constexpr (kTree) mis_n = sp.ns;
       sky_n = sky_here ? ng_out : Vec3(0.0f);
-      if constexpr (kLinks) mis_set = scene.light_set_of(sp.instance);
+      if constexpr (kLinks) mis_set = scene.light_set_at(sp);
     }
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its
