@@ -190,6 +190,16 @@ struct Medium {
     if (front) enter(m, p, het, inst);
     else leave(m);
   }
+  // Only the layers of shadow catchers' volumes: a shadow catcher split's catcher path, whose
+  // scene has no other object (Cycles re-initialises its volume stack there with the catchers
+  // alone and leaves out the world's volume).
+  void keep_catchers(const Scene& scene) {
+    int k = 0;
+    for (int i = 0; i < n; ++i)
+      if (scene.is_catcher(layer[i].instance)) layer[k++] = layer[i];
+    n = k;
+    combine();
+  }
   // Crossing the surface at sp: a Volume program's medium is the one built for its instance.
   void cross(const Scene& scene, const SurfacePoint& sp, bool front) {
     const ShaderProgram& p = scene.material(sp.material).program;
@@ -790,10 +800,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   bool lp_volume = false;
   int bounce = 0;
   // Shadow catchers, as Cycles' integrator_split_shadow_catcher: the first catcher the camera
-  // path meets directly splits it. The path goes on as it would without catchers (Combined);
-  // then a copy of it taken at the split, in which no object but the catchers exists (its
-  // rays and shadow rays pass everything else), gives the catcher pass. The copy starts from
-  // the same state and random numbers, so the two stay correlated as in Cycles.
+  // path meets directly splits it (after the media on the way to it, as Cycles' split after
+  // shade_volume). The path goes on as it would without catchers (Combined); then a copy of it
+  // taken at the split, in which no object but the catchers exists (its rays and shadow rays
+  // pass everything else, and it is in no volume but the catchers' own: not the world's fog),
+  // gives the catcher pass. The copy starts from the same state and random numbers, so the two
+  // stay correlated as in Cycles.
   const bool catchers = kCatcher && aov && s.shadow_catcher;
   bool split = false, catcher_only = false, resume = false;
   struct Split {
@@ -1642,6 +1654,7 @@ restart: __attribute__((unused));
       diffuse = a.diffuse, glossy = a.glossy, transmission = a.transmission, transparent = a.transparent;
       volume_count = a.volume_count, bounce = a.bounce;
       ray_state = a.ray_state, medium = a.medium, vrng = a.vrng, ray = a.ray;
+      medium.keep_catchers(scene);  // (Cycles' volume stack re-initialised for the catcher pass)
       sampler = *cs.sampler;
       n_rec = 0;
       catcher_only = resume = true;
