@@ -92,11 +92,12 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
     if curves:
         mats = iter(data.curve_materials)
         add_curves(scene, curves, lambda _material: ids[next(mats)], warn,
-                   pc.object_random_id)
+                   pc.object_random_id, getattr(data, "light_links", None))
     points = getattr(data, "points", [])
     if points:
         mats = iter(data.point_materials)
-        add_points(scene, points, lambda _material: ids[next(mats)], warn, pc.object_random_id)
+        add_points(scene, points, lambda _material: ids[next(mats)], warn, pc.object_random_id,
+                   getattr(data, "light_links", None))
     add_lights(scene, data.lights)
     set_world(scene, data, warn)
     set_camera(pc, scene, data.camera)
@@ -195,16 +196,28 @@ def _motion_args(entry, k):
     return out
 
 
-def add_curves(scene, curves, material_ids, warn, random_id_of=None):
+def _link_sets(links, owners, k):
+    """add_curves / add_points' light linking arguments of instance k: its object's light and
+    shadow sets as a receiver and a blocker (curves and points are no emitters), or none."""
+    link = links.get(owners[k]) if links and k < len(owners) else None
+    if link is None or not (link[0] or link[2]):
+        return {}
+    return {"light_set": link[0], "shadow_set": link[2]}
+
+
+def add_curves(scene, curves, material_ids, warn, random_id_of=None, links=None):
     """Adds CurvesData `curves` to a core scene; material_ids(material) -> core material id;
-    random_id_of(name): the random id of a non-instanced object (Object Info's Random)."""
+    random_id_of(name): the random id of a non-instanced object (Object Info's Random);
+    links: export.light_linking.light_links' dict (object name -> sets and masks) or None."""
     for c in curves:
         mat = material_ids(c.material)
         infos = c.infos if len(c.infos) == len(c.matrices) else [None] * len(c.matrices)
         attributes = getattr(c, "object_attributes", None) or []
+        owners = getattr(c, "owners", None) or []
         for k, (m, info) in enumerate(zip(c.matrices, infos)):
             # Object / Instancer attribute values only where materials read them.
             extra = {"uvs": c.uvs} if getattr(c, "uvs", None) else {}
+            extra.update(_link_sets(links, owners, k))  # (so never for older cores)
             if getattr(c, "colours", None):
                 extra["strand_attributes"] = c.colours
             if getattr(c, "point_attributes", None):
@@ -235,15 +248,17 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None):
                 break
 
 
-def add_points(scene, points, material_ids, warn, random_id_of=None):
-    """Adds PointsData `points` to a core scene, one point set per instance; material_ids and
-    random_id_of as add_curves'."""
+def add_points(scene, points, material_ids, warn, random_id_of=None, links=None):
+    """Adds PointsData `points` to a core scene, one point set per instance; material_ids,
+    random_id_of and links as add_curves'."""
     for p in points:
         mat = material_ids(p.material)
         infos = p.infos if len(p.infos) == len(p.matrices) else [None] * len(p.matrices)
         attributes = getattr(p, "object_attributes", None) or []
+        owners = getattr(p, "owners", None) or []
         for k, (m, info) in enumerate(zip(p.matrices, infos)):
             extra = {"point_attributes": p.attributes} if p.attributes else {}
+            extra.update(_link_sets(links, owners, k))
             extra.update(_motion_args(p, k))
             if k < len(attributes) and attributes[k] is not None and len(attributes[k]):
                 extra["attributes"] = attributes[k]

@@ -28,6 +28,7 @@ class CurvesData:
     material: object  # the bpy material of slot 1 (or None)
     matrices: list = field(default_factory=list)  # (4, 4) float32 per instance
     infos: list = field(default_factory=list)  # per instance: mesh.object_info's tuple
+    owners: list = field(default_factory=list)  # per instance: its object's name (light linking)
     # Per instance: float32 (K, 4) Object / Instancer attribute values of the first K slots
     # of the scene's (export.object_attributes), or None.
     object_attributes: list = field(default_factory=list)
@@ -317,6 +318,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
 def _add_instance(entry, instance, object_attributes):
     entry.matrices.append(np.array(instance.matrix_world, np.float32))
     entry.infos.append(object_info(instance))
+    entry.owners.append(instance.object.name)  # (particle hair: its emitter's)
     entry.motion_keys.append(instance_key(instance))
     if object_attributes is not None:
         entry.object_attributes.append(object_attributes.values(instance))

@@ -24,6 +24,7 @@ class PointsData:
     material: object  # the bpy material of slot 1 (or None)
     matrices: list = field(default_factory=list)  # (4, 4) float32 per instance
     infos: list = field(default_factory=list)  # per instance: mesh.object_info's tuple
+    owners: list = field(default_factory=list)  # per instance: its object's name (light linking)
     # Per instance: float32 (K, 4) Object / Instancer attribute values, or None.
     object_attributes: list = field(default_factory=list)
     # attribute set k -> float32 (N, 4): one RGBA per point (the Attribute node's value there)
@@ -140,6 +141,7 @@ def collect_points(depsgraph, warn, material_index=None, object_attributes=None,
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
             entry.infos.append(object_info(instance))
+            entry.owners.append(obj.name)
             entry.motion_keys.append(instance_key(instance))
             if object_attributes is not None:
                 entry.object_attributes.append(object_attributes.values(instance))

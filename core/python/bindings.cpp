@@ -358,6 +358,15 @@ void set_cryptomatte(ObjectInfo& info, const py::object& names, const char* what
   info.crypto_asset = cryptomatte_id_of(n[1]);
 }
 
+// A curve or point set's light linking sets as a receiver and a blocker (0..63; they are no
+// emitters, so no masks).
+void set_link_sets(ObjectInfo& info, int light_set, int shadow_set, const char* what) {
+  if (light_set < 0 || light_set > 63 || shadow_set < 0 || shadow_set > 63)
+    throw std::invalid_argument(std::string(what) + " light_set and shadow_set take 0..63");
+  info.light_set = uint8_t(light_set);
+  info.shadow_set = uint8_t(shadow_set);
+}
+
 // A Curves object: points (N, 3), offsets (C + 1) into them, radii (N) or None (Cycles'
 // default 0.005), one material, the object's matrix. Strands with bad values are left out at
 // commit (stats()["skipped_curves"]); inconsistent shapes or offsets raise ValueError.
@@ -367,7 +376,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes,
                     const std::string& shape, const py::object& materials_obj, const py::dict& point_attributes,
                     const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
-                    const py::object& motion_radii, const py::object& cryptomatte) {
+                    const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -419,6 +428,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   cs.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   cs.info.random = object_random(random_id);
   set_cryptomatte(cs.info, cryptomatte, "curves");
+  set_link_sets(cs.info, light_set, shadow_set, "curves");
   cs.attrs = to_object_attributes(attributes, "curves");
   read_sets(uvs, nc, "uv set index must be in [0, 8)", "curve uvs must have shape (C, 2)", cs.uvs);  // per strand
   read_sets(strand_attributes, nc, "attribute set index must be in [0, 8)",
@@ -438,7 +448,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
                     const py::object& matrix, const py::object& color, float pass_index, uint32_t random_id,
                     const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
                     const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
-                    const py::object& cryptomatte) {
+                    const py::object& cryptomatte, int light_set, int shadow_set) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const size_t n = size_t(points.shape(0));
@@ -464,6 +474,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   ps.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   ps.info.random = object_random(random_id);
   set_cryptomatte(ps.info, cryptomatte, "points");
+  set_link_sets(ps.info, light_set, shadow_set, "points");
   ps.attrs = to_object_attributes(attributes, "points");
   read_sets(point_attributes, n, "attribute set index must be in [0, 8)", "point attributes must have shape (N, 4)",
             ps.point_attrs);
@@ -3043,10 +3054,11 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("matrix") = py::none(), py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("point_attributes") = py::dict(),
            py::arg("texspace") = py::none(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
-           py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(),
+           py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
+           py::arg("shadow_set") = 0,
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
-           "random_id, attributes: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
+           "random_id, attributes, light_set, shadow_set: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
            "RGBA per point}. texspace: (location, size) of Generated coordinates (None: Generated is "
            "the object-space position, as Cycles gives point clouds). motion: (S, 4, 4) object-to-world "
            "matrices over the shutter (transform motion blur; singular or non-finite steps: static). "
@@ -3062,7 +3074,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("uvs") = py::dict(), py::arg("strand_attributes") = py::dict(), py::arg("shape") = "thick",
            py::arg("materials") = py::none(), py::arg("point_attributes") = py::dict(),
            py::arg("point_uvs") = py::dict(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
-           py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(),
+           py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
+           py::arg("shadow_set") = 0,
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -3070,7 +3083,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "points whatever curve_type (as Cycles 4.5), `subdivisions` quads per segment (Embree's "
            "tessellation rate). "
            "color, pass_index, random_id: the object's (Object Info), as add_instance. attributes: its "
-           "Object / Instancer attribute values, (K, 4) by slot with K <= 8, as add_instance. normals: "
+           "Object / Instancer attribute values, (K, 4) by slot with K <= 8, as add_instance. light_set, "
+           "shadow_set (0..63): its light linking sets as a receiver and a blocker, as add_instance's. normals: "
            "Blender's curve normals (N, 3) or None (the major axis of Huang's elliptical hair). uvs: {uv "
            "set: (C, 2) one uv per strand} (particle hair: the emitter's UV at the root). strand_attributes: "
            "{attribute set: (C, 4) one RGBA per strand} (particle hair: the emitter's colour at the root). "

@@ -190,6 +190,16 @@ struct Medium {
     if (front) enter(m, p, het, inst);
     else leave(m);
   }
+  // Only the layers of shadow catchers' volumes: a shadow catcher split's catcher path, whose
+  // scene has no other object (Cycles re-initialises its volume stack there with the catchers
+  // alone and leaves out the world's volume).
+  void keep_catchers(const Scene& scene) {
+    int k = 0;
+    for (int i = 0; i < n; ++i)
+      if (scene.is_catcher(layer[i].instance)) layer[k++] = layer[i];
+    n = k;
+    combine();
+  }
   // Crossing the surface at sp: a Volume program's medium is the one built for its instance.
   void cross(const Scene& scene, const SurfacePoint& sp, bool front) {
     const ShaderProgram& p = scene.material(sp.material).program;
@@ -310,7 +320,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     SurfacePoint sp;
     scene.surface_point(h, sp, ray.time, &ray);
     const Material& mat = scene.material(sp.material);
-    const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h.inst)) & 1u)) ||
+    const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h)) & 1u)) ||
                         (catchers_only && !scene.is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
@@ -790,10 +800,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   bool lp_volume = false;
   int bounce = 0;
   // Shadow catchers, as Cycles' integrator_split_shadow_catcher: the first catcher the camera
-  // path meets directly splits it. The path goes on as it would without catchers (Combined);
-  // then a copy of it taken at the split, in which no object but the catchers exists (its
-  // rays and shadow rays pass everything else), gives the catcher pass. The copy starts from
-  // the same state and random numbers, so the two stay correlated as in Cycles.
+  // path meets directly splits it (after the media on the way to it, as Cycles' split after
+  // shade_volume). The path goes on as it would without catchers (Combined); then a copy of it
+  // taken at the split, in which no object but the catchers exists (its rays and shadow rays
+  // pass everything else, and it is in no volume but the catchers' own: not the world's fog),
+  // gives the catcher pass. The copy starts from the same state and random numbers, so the two
+  // stay correlated as in Cycles.
   const bool catchers = kCatcher && aov && s.shadow_catcher;
   bool split = false, catcher_only = false, resume = false;
   struct Split {
@@ -1352,7 +1364,7 @@ restart: __attribute__((unused));
         DirectSample ds;
         ds.path = &ray_state;
         if constexpr (kTree) ds.n = sp.ns;
-        if constexpr (kLinks) ds.receiver = scene.light_set_of(sp.instance);
+        if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
         const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
         u_rr = u_sel.y;
         const Vec2 u_pt = sampler.get2d();
@@ -1485,7 +1497,7 @@ restart: __attribute__((unused));
         prev_delta = true;
         mis_org = sp.p;
         if constexpr (kTree) mis_n = sp.ns;
-        if constexpr (kLinks) mis_set = scene.light_set_of(sp.instance);
+        if constexpr (kLinks) mis_set = scene.light_set_at(sp);
       }
     } else {
       float pdf;
@@ -1523,7 +1535,7 @@ restart: __attribute__((unused));
       mis_org = sp.p;
       if constexpr (kTree) mis_n = sp.ns;
       sky_n = sky_here ? ng_out : Vec3(0.0f);
-      if constexpr (kLinks) mis_set = scene.light_set_of(sp.instance);
+      if constexpr (kLinks) mis_set = scene.light_set_at(sp);
     }
 
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its
@@ -1642,6 +1654,7 @@ restart: __attribute__((unused));
       diffuse = a.diffuse, glossy = a.glossy, transmission = a.transmission, transparent = a.transparent;
       volume_count = a.volume_count, bounce = a.bounce;
       ray_state = a.ray_state, medium = a.medium, vrng = a.vrng, ray = a.ray;
+      medium.keep_catchers(scene);  // (Cycles' volume stack re-initialised for the catcher pass)
       sampler = *cs.sampler;
       n_rec = 0;
       catcher_only = resume = true;

@@ -836,13 +836,25 @@ class Scene {
   bool sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all) const;
   float world_pdf(Vec3 p, Vec3 dir, bool cover_all) const;
   // Light linking (after commit): whether any light or object uses it, and an instance's light
-  // and shadow sets and, as an emitter, the sets it lights and is blocked by (curves, points: none).
+  // and shadow sets and, as an emitter, the sets it lights and is blocked by (curves, points:
+  // not emitters).
   bool light_links() const { return links_; }
   uint8_t light_set_of(uint32_t instance) const {
     return instance < object_coords_.size() ? object_coords_[instance].info.light_set : 0;
   }
   uint8_t shadow_set_of(uint32_t instance) const {
     return instance < object_coords_.size() ? object_coords_[instance].info.shadow_set : 0;
+  }
+  // The light set of what is at sp: its instance's, or its curve or point set's (a search by
+  // strand or point: only the linking kernel asks).
+  uint8_t light_set_at(const SurfacePoint& sp) const {
+    return sp.curve() || sp.point() ? object_info(sp).light_set : light_set_of(sp.instance);
+  }
+  // The shadow set of what a hit found (curves and points: their set's), for shadow linking.
+  uint8_t shadow_set_of(const Hit& h) const {
+    if (h.inst == kCurveInstance) return curve_coords_[curve_set_of(curve_bvh_.piece(h.prim).curve)].info.shadow_set;
+    if (h.inst == kPointInstance) return point_coords_[point_set_of(point_bvh_.sphere(h.prim).point)].info.shadow_set;
+    return shadow_set_of(h.inst);
   }
   uint64_t emitter_light_mask(uint32_t instance) const {
     return instance < object_coords_.size() ? object_coords_[instance].info.light_mask : kAllLightSets;

@@ -240,6 +240,11 @@ void Scene::build_lights() {
     links_ = links_ || in.light_set || in.shadow_set || in.light_mask != kAllLightSets || in.shadow_mask != kAllLightSets;
     max_set = std::max(max_set, in.light_set);
   }
+  for (const auto* sets : {&curve_coords_, &point_coords_})  // receivers and blockers only
+    for (const ObjectCoords& oc : *sets) {
+      links_ = links_ || oc.info.light_set || oc.info.shadow_set;
+      max_set = std::max(max_set, oc.info.light_set);
+    }
   env_index_ = SIZE_MAX;
   // A constant world seen through portals: a constant map, so that it is a light to sample.
   if (env_from_color_) {

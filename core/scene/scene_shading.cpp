@@ -439,7 +439,7 @@ Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_o
     surface_point(h, sp, ray.time, &ray);
     const Material& mat = materials_[sp.material];
     // Shadow linking: a blocker outside the light's shadow sets is passed as if not there.
-    const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> shadow_set_of(h.inst)) & 1u)) ||
+    const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> shadow_set_of(h)) & 1u)) ||
                         (catchers_only && !is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {

@@ -170,6 +170,43 @@ def test_many_linked_lights_under_the_light_tree_agree_with_cycles():
     assert_agree(ours, ref, "many linked lights, light tree")
 
 
+def linked_hair_and_points():
+    """A hair patch (a Curves object of thick strands) and a point cloud above a floor: a key
+    area light that lights everything but them (they still shadow the floor from it) and a
+    low side light that they do not shadow (it still lights them)."""
+    from test_hair import add_hair
+    from test_point_clouds import add_cloud
+    import material_scenes as ms
+    ms.studio(size=64, world=(0.3, 0.3, 0.3), camera=((0.0, -3.0, 2.2), (0.0, 0.0, 0.35)))
+    scene = bpy.context.scene
+    scene.render.resolution_y = 48
+    scene.cycles_curves.shape = 'THICK'
+    bpy.data.objects.remove(bpy.data.objects["Light"])  # (studio's emissive panel)
+    hair = add_hair("Hair", ms.diffuse("HairMat", (0.8, 0.5, 0.3)), strands=5, length=2.2, spacing=0.25,
+                    radius=0.07)
+    hair.location = (0.0, 0.45, 0.0)
+    cloud = add_cloud("Cloud", ms.diffuse("CloudMat", (0.3, 0.6, 0.8)), n=25, spread=1.0,
+                      radii=np.random.default_rng(2).uniform(0.07, 0.12, 25))
+    cloud.location = (0.3, -0.45, 0.0)
+    key = add_light('AREA', name="Key", location=(0.4, 0.3, 3.0), energy=250.0, size=1.0)
+    link(key, "receiver", [(hair, 'EXCLUDE'), (cloud, 'EXCLUDE')])
+    side = add_light('POINT', name="Side", location=(-2.5, -0.8, 1.2), energy=600.0, shadow_soft_size=0.1)
+    link(side, "blocker", [(hair, 'EXCLUDE'), (cloud, 'EXCLUDE')])
+    return scene
+
+
+@needs_links
+def test_linked_hair_and_point_cloud_agree_with_cycles():
+    """Curves and point clouds as receivers and blockers (they used to take every light and
+    block every shadow: Cycles' image then differs by far more than the bar)."""
+    warnings = []
+    linked_hair_and_points()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings.append)
+    assert not [w for w in warnings if "linking" in w], warnings
+    ours, ref = render_pair(linked_hair_and_points, 256, bounces=3)
+    assert_agree(ours, ref, "linked hair and point cloud", floor=0.05)
+
+
 def test_too_many_collections_warn_and_fall_back():
     """Past 64 receiver collections (Blender's limit) an emitter is left unlinked, warned."""
     diffuse_set(16)

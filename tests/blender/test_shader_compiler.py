@@ -322,6 +322,51 @@ def test_node_groups_are_flattened_and_nest():
     assert closure[2]["color"][:3] == approx(expected)
 
 
+def test_aov_outputs_inside_nested_groups():
+    """AOV Output nodes in node groups, nested and unlinked ones too, write as Cycles' expanded
+    groups do, each group's Group Input reading its own node's inputs; a muted group's do not."""
+    inner = bpy.data.node_groups.new("AovInner", "ShaderNodeTree")
+    inner.interface.new_socket("C", in_out='INPUT', socket_type='NodeSocketColor')
+    iin = inner.nodes.new("NodeGroupInput")
+    col = inner.nodes.new("ShaderNodeOutputAOV")
+    col.aov_name = "col"
+    inner.links.new(iin.outputs[0], col.inputs["Color"])
+    outer = bpy.data.node_groups.new("AovOuter", "ShaderNodeTree")
+    outer.interface.new_socket("V", in_out='INPUT', socket_type='NodeSocketFloat')
+    oin = outer.nodes.new("NodeGroupInput")
+    val = outer.nodes.new("ShaderNodeOutputAOV")
+    val.aov_name = "val"
+    outer.links.new(oin.outputs[0], val.inputs["Value"])
+    nested = outer.nodes.new("ShaderNodeGroup")
+    nested.node_tree = inner
+    nested.inputs[0].default_value = (0.1, 0.2, 0.3, 1.0)
+    mat, nodes, links, out = ms.new_material("AovGroups")
+    links.new(nodes.new("ShaderNodeBsdfDiffuse").outputs[0], out.inputs["Surface"])
+    g = nodes.new("ShaderNodeGroup")  # linked to nothing: Cycles still writes its AOVs
+    g.node_tree = outer
+    g.inputs[0].default_value = 0.75
+    uv_sets = UvSets()
+    uv_sets.aovs = {"col": (0, 'COLOR'), "val": (1, 'VALUE')}
+
+    def written(data):  # (slot, kind, the value's register just before the op)
+        return sorted((op[3], op[4], run(data.program[:i])[1][op[2]])
+                      for i, op in enumerate(data.program) if op[0] == "aov_output")
+
+    data, warnings = compile_(mat, uv_sets=uv_sets)
+    assert not warnings
+    assert written(data) == [(0, 'COLOR', approx((0.1, 0.2, 0.3, 1.0))), (1, 'VALUE', approx((0.75,) * 3 + (1.0,)))]
+    # The same group twice: each instance writes with its own inputs.
+    g2 = nodes.new("ShaderNodeGroup")
+    g2.node_tree = outer
+    g2.inputs[0].default_value = 0.25
+    data, _ = compile_(mat, uv_sets=uv_sets)
+    assert [w[2][0] for w in written(data) if w[1] == 'VALUE'] == approx(sorted([0.75, 0.25]))
+    g2.mute = True
+    nested.mute = True
+    data, _ = compile_(mat, uv_sets=uv_sets)
+    assert written(data) == [(1, 'VALUE', approx((0.75,) * 3 + (1.0,)))]
+
+
 def test_shader_group_and_reroutes_and_muting():
     group = bpy.data.node_groups.new("Shaders", "ShaderNodeTree")
     group.interface.new_socket("Fac", in_out='INPUT', socket_type='NodeSocketFloat')

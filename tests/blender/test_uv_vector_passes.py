@@ -1,7 +1,8 @@
 """The UV, Vector and shader AOV passes against Cycles 4.5 in the same bpy, read back from
 Blender's multilayer EXR: a UV-mapped, checker-textured plane sliding sideways, a turning
-sphere seen partly through a transparent one, a card rising by a shape key, and a rising camera; one render per engine (64x48,
-16 samples, 1-pixel box filter)."""
+sphere seen partly through a transparent one, a card rising by a shape key (writing an AOV from
+inside nested node groups), and a rising camera; one render per engine (64x48, 16 samples,
+1-pixel box filter)."""
 import math
 
 import bpy
@@ -48,6 +49,27 @@ def aov_material(name, value_of, color=None):
     return mat
 
 
+def group_aov(mat):
+    """Writes "col" from inside a group inside a group linked to nothing: the material's UV ->
+    Outer (Vector) -> Inner (Color) -> AOV Output, so each level's Group Input reads its own
+    group node's input."""
+    inner = bpy.data.node_groups.new("AovInner", "ShaderNodeTree")
+    inner.interface.new_socket("Color", in_out='INPUT', socket_type='NodeSocketColor')
+    col = inner.nodes.new("ShaderNodeOutputAOV")
+    col.aov_name = "col"
+    inner.links.new(inner.nodes.new("NodeGroupInput").outputs[0], col.inputs["Color"])
+    outer = bpy.data.node_groups.new("AovOuter", "ShaderNodeTree")
+    outer.interface.new_socket("Vector", in_out='INPUT', socket_type='NodeSocketVector')
+    nested = outer.nodes.new("ShaderNodeGroup")
+    nested.node_tree = inner
+    outer.links.new(outer.nodes.new("NodeGroupInput").outputs[0], nested.inputs[0])
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    group = nodes.new("ShaderNodeGroup")
+    group.node_tree = outer
+    links.new(nodes.new("ShaderNodeTexCoord").outputs["UV"], group.inputs[0])
+    return mat
+
+
 def _uv_u(nodes, links):
     sep = nodes.new("ShaderNodeSeparateXYZ")
     links.new(nodes.new("ShaderNodeTexCoord").outputs["UV"], sep.inputs["Vector"])
@@ -85,7 +107,7 @@ def moving_scene():
     # A card that rises by 0.3 a frame through an animated shape key (deformation).
     bpy.ops.mesh.primitive_plane_add(size=0.6, location=(1.4, -0.5, -1.1), rotation=(math.pi / 2, 0.0, 0.0))
     card = bpy.context.active_object
-    card.data.materials.append(aov_material("Card", lambda nodes, links: 0.0))
+    card.data.materials.append(group_aov(aov_material("Card", lambda nodes, links: 0.0)))
     card.shape_key_add(name="Basis")
     up = card.shape_key_add(name="Up")
     for v in up.data:
@@ -187,6 +209,11 @@ def test_shader_aovs_match_cycles_per_pixel(renders):
     assert cc[..., 3].max() == 1.0
     assert (np.isclose(vc, 0.25, atol=1e-3) & np.isclose(vp, 0.25, atol=1e-3)).sum() > 100
     assert ((vc > 1.0) & (vp > 1.0)).sum() > 5
+    # The card writes "col" from inside nested node groups: its UVs as (u, v, 0, 1), the only
+    # colour without blue (the plane's checker has some in both squares).
+    card = (cc[..., 3] == 1.0) & (cc[..., 2] < 1e-4) & (cc[..., :2].max(axis=-1) > 0.05)
+    assert card.sum() > 20
+    assert np.abs(cp[card] - cc[card]).max(axis=-1).mean() < 0.02
     for a, b in ((cc, cp), (vc[..., None], vp[..., None])):
         d = np.abs(a - b).max(axis=-1)
         # Pixels on edges (of objects and checker squares) mix different values by their

@@ -18,10 +18,12 @@ SET0, SET1 = 0b01, 0b10
 ALL = (1 << 64) - 1
 
 
-def linked_furnace(light_tree="off", blocker=False):
+def linked_furnace(light_tree="off", blocker=False, receiver="mesh"):
     """The sphere (light set 1) in the shell (lighting set 1 only), bright lights of set 0 beside
     it. blocker: a black plate (shadow set 1) between the sphere and part of the shell, which the
-    shell's light passes (its shadow mask has set 0 only)."""
+    shell's light passes (its shadow mask has set 0 only); "points" / "curves": a black sphere of
+    a point cloud / a black thick strand there instead. receiver "points": the sphere is a point
+    cloud's; "curves": a thick vertical strand of radius 0.5 through it (convex too)."""
     s = pc.Scene()
     s.light_tree = light_tree
     shell = s.add_material("shell", (0.0, 0.0, 0.0), (LE, LE, LE))
@@ -32,8 +34,14 @@ def linked_furnace(light_tree="off", blocker=False):
     pos, tris, nrm = uv_sphere(3.0, nu=32, nv=16, inward=True)
     s.add_instance(s.add_mesh(pos, tris, nrm, None, [shell]), eye, light_mask=SET1,
                    shadow_mask=SET0 if blocker else ALL)
-    pos, tris, nrm = uv_sphere(0.5, nu=48, nv=24)
-    s.add_instance(s.add_mesh(pos, tris, nrm, None, [grey]), eye, light_set=1)
+    if receiver == "points":
+        s.add_points(np.zeros((1, 3), np.float32), np.float32([0.5]), grey, light_set=1)
+    elif receiver == "curves":
+        s.add_curves(np.float32([[0, 0, -2.5], [0, 0, 2.5]]), np.int32([0, 2]), np.float32([0.5, 0.5]), grey,
+                     curve_type="poly", light_set=1)
+    else:
+        pos, tris, nrm = uv_sphere(0.5, nu=48, nv=24)
+        s.add_instance(s.add_mesh(pos, tris, nrm, None, [grey]), eye, light_set=1)
     # Set 0's lights, close to the sphere and far brighter than the shell: an emissive quad, an
     # area light and a point light with a radius (rays cross them: lights never occlude).
     pos, tris = quad((-0.4, 0.8, -0.4), (0.8, 0, 0), (0, 0, 0.8))
@@ -48,7 +56,12 @@ def linked_furnace(light_tree="off", blocker=False):
     for k in range(8):  # more set-0 lamps: the tree has several levels
         s.add_point_light((1.5 * np.cos(k), 1.5 * np.sin(k), 1.5), (5.0, 5.0, 5.0), radius=0.05)
         s.set_light_links(2 + k, light_mask=SET0)
-    if blocker:
+    if blocker == "points":
+        s.add_points(np.float32([[0.0, 1.4, 0.0]]), np.float32([0.8]), black, shadow_set=1)
+    elif blocker == "curves":
+        s.add_curves(np.float32([[-2, 1.2, 0], [2, 1.2, 0]]), np.int32([0, 2]), np.float32([0.4, 0.4]), black,
+                     curve_type="poly", shadow_set=1)
+    elif blocker:
         pos, tris = quad((-1.0, 1.0, -1.0), (2.0, 0, 0), (0, 0, 2.0))
         s.add_instance(s.add_mesh(pos, tris, None, None, [black]), eye, shadow_set=1)
     s.set_camera(camera(pc, (0.0, -1.6, 0.0), (0.0, 0.0, 0.0), lens=50.0))
@@ -76,6 +89,44 @@ def test_unlinked_lights_add_nothing_and_mis_uses_the_sets_pdfs(tree):
 def test_shadow_linked_blockers_let_the_light_pass():
     img = sphere_mean(linked_furnace(blocker=True))
     assert abs(img.mean() / (ALBEDO * LE) - 1.0) < 0.01, img.mean()
+
+
+@pytest.mark.parametrize("receiver, blocker", [("points", "curves"), ("curves", "points")])
+def test_curves_and_points_take_their_light_and_shadow_sets(receiver, blocker):
+    """A point cloud's sphere and a thick strand as the receiver of set 1 (lights of set 0 would
+    make them far brighter), each with the other kind as the blocker that the shell's light
+    passes (blocked, it would be darker)."""
+    s = linked_furnace(receiver=receiver)
+    s.commit()
+    assert "light linking" in s.stats()["features"]
+    img = sphere_mean(s)
+    assert abs(img.mean() / (ALBEDO * LE) - 1.0) < 0.01, img.mean()
+    assert img.std() / img.mean() < 0.05  # the shell alone: noise-free
+    # The blocker covers about a tenth of the shell as the receiver sees it.
+    img = sphere_mean(linked_furnace(receiver=receiver, blocker=blocker))
+    assert abs(img.mean() / (ALBEDO * LE) - 1.0) < 0.01, img.mean()
+
+
+def test_curve_and_point_sets_alone_turn_linking_on():
+    """Sets on curves and points alone (no object or light masks) still count as linking, and
+    the default sets do not."""
+    for kind in ("points", "curves"):
+        for sets, linked in (({}, False), ({"shadow_set": 2}, True), ({"light_set": 3}, True)):
+            s = pc.Scene()
+            m = s.add_material("grey", (0.5, 0.5, 0.5))
+            if kind == "points":
+                s.add_points(np.zeros((1, 3), np.float32), np.float32([0.5]), m, **sets)
+            else:
+                s.add_curves(np.float32([[0, 0, 0], [0, 0, 1]]), np.int32([0, 2]), None, m, **sets)
+            s.add_point_light((0.0, -2.0, 1.0), (1.0, 1.0, 1.0))
+            s.commit()
+            assert ("light linking" in s.stats()["features"]) == linked, (kind, sets)
+    s = pc.Scene()
+    m = s.add_material("grey", (0.5, 0.5, 0.5))
+    with pytest.raises(ValueError):
+        s.add_curves(np.float32([[0, 0, 0], [0, 0, 1]]), np.int32([0, 2]), None, m, light_set=64)
+    with pytest.raises(ValueError):
+        s.add_points(np.zeros((1, 3), np.float32), None, m, shadow_set=-1)
 
 
 def test_light_choice_per_set():

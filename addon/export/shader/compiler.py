@@ -383,17 +383,25 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         return CompiledShader(program, absorption, medium, dict(self.uv_used), list(self.problems),
                               displacement, displacement_method if displacement else 'BUMP')
 
-    def aov_outputs(self, tree):
-        """AOV Output nodes of the material's tree whose name is one of the view layer's AOVs
-        (Cycles: the Color input for a COLOR AOV, Value for a VALUE one; other names write
-        nothing): an aov_output op each, run at the camera path's first surfaces."""
+    def aov_outputs(self, tree, ctx=()):
+        """AOV Output nodes of the material's tree and of the node groups in it, nested too
+        (Cycles expands every unmuted group, linked or not), whose name is one of the view
+        layer's AOVs (Cycles: the Color input for a COLOR AOV, Value for a VALUE one; other
+        names write nothing): an aov_output op each, run at the camera path's first surfaces.
+        ctx: the group nodes the tree sits in (its Group Input reads the last one's inputs)."""
         aovs = getattr(self.uv_sets, "aovs", None)
-        if not aovs:
+        if not aovs or tree is None:
             return
         for node in tree.nodes:
-            if node.bl_idname == "ShaderNodeGroup" and _has_aov_output(node.node_tree):
-                self.problem(f"AOV Output inside node group '{node.name}' is not supported (left out)")
-            if node.bl_idname != "ShaderNodeOutputAOV" or getattr(node, "mute", False):
+            if getattr(node, "mute", False):
+                continue
+            if node.bl_idname == "ShaderNodeGroup":
+                if len(ctx) > 32:  # a group inside itself (Blender refuses it; a file may not)
+                    self.problem(f"node groups nested too deep at '{node.name}' (AOV Outputs left out)")
+                    continue
+                self.aov_outputs(node.node_tree, ctx + (node,))
+                continue
+            if node.bl_idname != "ShaderNodeOutputAOV":
                 continue
             entry = aovs.get(node.aov_name)
             if entry is None:
@@ -401,9 +409,9 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
             slot, kind = entry
             try:
                 if kind == 'COLOR':
-                    value = self.input(node, "Color", (), "color")
+                    value = self.input(node, "Color", ctx, "color")
                 else:
-                    value = self.input(node, "Value", (), "float")
+                    value = self.input(node, "Value", ctx, "float")
             except _Cycle as e:
                 self.problem(f"node cycle through '{e}' into AOV Output '{node.name}' (ignored)")
                 continue
@@ -430,14 +438,6 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
         self.cache = {}
         self.visiting = set()
         self.uv_used = {}
-
-
-def _has_aov_output(tree, depth=0):
-    """Whether a node group (or one nested in it) has an AOV Output node."""
-    if tree is None or depth > 16:
-        return False
-    return any(n.bl_idname == "ShaderNodeOutputAOV" or
-               (n.bl_idname == "ShaderNodeGroup" and _has_aov_output(n.node_tree, depth + 1)) for n in tree.nodes)
 
 
 def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, volume_grids=None,
