@@ -3969,6 +3969,7 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["nonfinite_samples"] = s.nonfinite_samples;
              d["passes"] = s.passes;
              d["threads"] = s.threads;
+             d["work_items"] = s.work_items;
              d["elapsed_s"] = s.elapsed_s;
              d["active_pixels"] = s.active_pixels;
              d["focus_distance"] = s.focus_distance;

@@ -99,6 +99,7 @@ struct SessionStats {
   uint64_t rays = 0, paths = 0, nonfinite_samples = 0;
   int64_t active_pixels = 0;  // pixels adaptive sampling has not stopped yet
   int passes = 0, threads = 0;
+  int work_items = 0;  // of a pass: tiles, or bands of their rows (chosen by the constructor)
   int guiding_iterations = 0, guiding_cells = 0;  // training done so far and the field's cells
   double elapsed_s = 0.0;
   float focus_distance = 0.0f;  // of the thin lens, after autofocus
@@ -136,7 +137,8 @@ class Session {
 
  private:
   void run();
-  void render_tile(int tile, int s0, int s1, int thread);
+  // Samples [s0, s1) of band `part` of `parts` of a tile's rows (parts 1: the whole tile).
+  void render_tile(int tile, int part, int parts, int s0, int s1);
   // Lays out one sample's pass values as the film's planes expect them.
   void write_aux(const PathAovs& a, float* out) const;
  public:
@@ -176,6 +178,7 @@ class Session {
   std::atomic<int> samples_done_{0}, passes_{0};
   std::atomic<uint64_t> rays_{0}, paths_{0}, nonfinite_{0};
   int min_samples_ = 0, check_every_ = 1;
+  int work_parts_ = 1;  // bands per tile in a pass (the constructor chooses)
   std::vector<int> tile_active_;       // per tile, written by the thread rendering it
   std::atomic<int64_t> active_{0};
   std::chrono::steady_clock::time_point t0_;

@@ -8,7 +8,8 @@ and the difference of the wall times over the difference of the sample counts is
 time: the export, Cycles' sync and both BVH builds cancel out. Variance: `--seeds` renders of
 `--spp` samples each, scored as variance_per_sample.py does (mean over pixels of var x spp /
 (ref^2 + 1e-2), ref the mean of both engines' renders). Efficiency (what the equal-time ratio
-estimates) is 1 / (variance x time per sample)."""
+estimates) is 1 / (variance x time per sample). PL_CORE_DIR=<dir> renders with the module in
+<dir> (an older build, for before/after runs in one session)."""
 import argparse
 import sys
 import time
@@ -19,6 +20,7 @@ import numpy as np
 sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_util import load_addon, render_to_array  # noqa: E402
+from kernel_scenes import core  # noqa: E402
 import realistic_scenes  # noqa: E402
 from equal_time import rel_mse  # noqa: E402
 from variance_per_sample import rel_var  # noqa: E402
@@ -54,6 +56,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=4)
     ap.add_argument("--ref-spp", type=int, default=256)
     a = ap.parse_args()
+    sys.modules.setdefault("addon.pathlight_core", core())  # PL_CORE_DIR's module for the add-on too
     load_addon()
     if a.budget > 0:
         equal_time(a)

@@ -65,6 +65,17 @@ def test_deterministic_for_a_seed_and_independent_of_threads():
     assert not np.array_equal(a, c)
 
 
+def test_a_pass_splits_few_tiles_into_bands_with_the_same_image():
+    # One 32-pixel tile: 2 threads get bands of its rows (session.cpp run), not one item.
+    a, sa = render(pc, cornell(pc), 32, 32, samples=6, seed=3, threads=1)
+    b, sb = render(pc, cornell(pc), 32, 32, samples=6, seed=3, threads=2)
+    assert sa["work_items"] == 1 and sb["work_items"] == 8
+    assert np.array_equal(a, b)
+    # Adaptive sampling judges whole tiles: no bands.
+    _, sc = render(pc, cornell(pc), 32, 32, samples=6, seed=3, threads=2, adaptive_threshold=0.01)
+    assert sc["work_items"] == 1
+
+
 def test_cancel_stops_quickly():
     st = pc.RenderSettings()
     st.width, st.height, st.samples = 256, 256, 1_000_000
