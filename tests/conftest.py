@@ -26,3 +26,36 @@ def pytest_configure(config):
         "sanitize: a test of the core module that .ci/run also runs against the AddressSanitizer "
         "and UBSan build (`build.py test --sanitize -- -m \"sanitize and not converged\"`); set "
         "per file with `pytestmark`: the core's own tests, not the Blender-side ones")
+
+
+# The stored Cycles references (tests/blender/cycles_refs.py): each process that renders with
+# Cycles appends "KEY hit|stored|checked TEST" lines to build/cycles_refs_used/<worker>-<pid>.txt;
+# the summary counts this run's lines, so that references missing from the repository show.
+_REFS_USED = REPO / "build" / "cycles_refs_used"
+_session_start = [None]
+
+
+def pytest_sessionstart(session):
+    import time
+    _session_start[0] = time.time() - 1.0
+
+
+def pytest_terminal_summary(terminalreporter):
+    if _session_start[0] is None or not _REFS_USED.is_dir() or hasattr(terminalreporter.config, "workerinput"):
+        return
+    counts, stored = {}, []
+    for f in _REFS_USED.glob("*.txt"):
+        if f.stat().st_mtime < _session_start[0]:
+            continue
+        for line in f.read_text().splitlines():
+            parts = line.split(" ", 2)
+            if len(parts) >= 2:
+                counts[parts[1]] = counts.get(parts[1], 0) + 1
+                if parts[1] == "stored":
+                    stored.append(parts[2] if len(parts) > 2 else "?")
+    if counts:
+        terminalreporter.write_line(
+            "Cycles references: " + ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
+            + (" (new files in tests/cycles_refs/: commit them)" if stored else ""))
+        for test in sorted(set(stored))[:20]:
+            terminalreporter.write_line(f"  stored for {test}")
