@@ -29,7 +29,7 @@ def pytest_configure(config):
 
 
 # The stored Cycles references (tests/blender/cycles_refs.py): each process that renders with
-# Cycles appends "KEY hit|stored|checked TEST" lines to build/cycles_refs_used/<worker>-<pid>.txt;
+# Cycles appends "KEY hit|stored|checked CPU_S WALL_S TEST" lines to build/cycles_refs_used/<worker>-<pid>.txt;
 # the summary counts this run's lines, so that references missing from the repository show.
 _REFS_USED = REPO / "build" / "cycles_refs_used"
 _session_start = [None]
@@ -48,14 +48,15 @@ def pytest_terminal_summary(terminalreporter):
         if f.stat().st_mtime < _session_start[0]:
             continue
         for line in f.read_text().splitlines():
-            parts = line.split(" ", 2)
-            if len(parts) >= 2:
-                counts[parts[1]] = counts.get(parts[1], 0) + 1
+            parts = line.split(" ", 4)  # KEY hit|stored|checked CPU_S WALL_S TEST
+            if len(parts) >= 4:
+                n, cpu = counts.get(parts[1], (0, 0.0))
+                counts[parts[1]] = (n + 1, cpu + float(parts[2]))
                 if parts[1] == "stored":
-                    stored.append(parts[2] if len(parts) > 2 else "?")
+                    stored.append(parts[4] if len(parts) > 4 else "?")
     if counts:
         terminalreporter.write_line(
-            "Cycles references: " + ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
+            "Cycles references: " + ", ".join(f"{n} {k} ({cpu:.1f} CPU s)" for k, (n, cpu) in sorted(counts.items()))
             + (" (new files in tests/cycles_refs/: commit them)" if stored else ""))
         for test in sorted(set(stored))[:20]:
             terminalreporter.write_line(f"  stored for {test}")

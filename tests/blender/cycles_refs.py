@@ -11,7 +11,8 @@ PATHLIGHT_CYCLES_REFS selects the mode:
   render  always render, never read or write (the full, uncached comparison);
   check   render, compare with the stored reference (fail beyond float noise), store if missing;
   refresh render and (over)write the reference.
-Every key a process uses is recorded in build/cycles_refs_used/ (`build.py test --refs prune`).
+Every key a process uses is recorded in build/cycles_refs_used/ with how and the seconds it took
+(`build.py test --refs prune`; the summary line of a run).
 """
 
 import hashlib
@@ -19,6 +20,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 import zlib
 from pathlib import Path
 
@@ -70,6 +72,7 @@ SKIP_TYPED = frozenset({
     ("Image", "size"), ("Image", "has_data"), ("Image", "depth"), ("Image", "channels"),
     ("Image", "is_float"), ("Image", "pixels"), ("Image", "bindcode"), ("Image", "frame_duration"),
     ("Image", "render_slots"), ("Image", "resolution"), ("UDIMTile", "size"), ("UDIMTile", "channels"),
+    ("PackedFile", "data"),                # hashed as bytes (struct())
     ("Volume", "grids"),                   # loaded from the .vdb file, which is hashed
     ("ViewLayer", "depsgraph"),            # the evaluated copy of everything walked here
     ("Object", "matrix_world"), ("Object", "matrix_local"),  # derived from location, parent, ...
@@ -123,6 +126,8 @@ class _Walker:
             self.put(f"{path}=<deep>")
             return
         cls = type(s).__name__
+        if isinstance(s, bpy.types.PackedFile):  # packed image, volume, font: its bytes
+            self.put_bytes(f"{path}.data", bytes(s.data))
         for prop in s.bl_rna.properties:
             name = prop.identifier
             if name in SKIP_ALWAYS or name.startswith("pathlight") or (cls, name) in SKIP_TYPED:
@@ -232,9 +237,7 @@ class _Walker:
             self.put(f"{path}={value!r}<not a file>")
 
     def special_Image(self, img):
-        packed = img.packed_files if hasattr(img, "packed_files") else []
-        for i, pf in enumerate(packed):
-            self.put_bytes(f"packed[{i}]", bytes(pf.data))
+        packed = list(img.packed_files)  # their bytes: struct() hashes every PackedFile
         # Generated, packed or edited images: their pixels (a file-backed, unedited image is its
         # file, hashed through its filepath).
         if img.source in ("GENERATED", "VIEWER") or img.is_dirty or len(packed):
@@ -427,28 +430,41 @@ def load(key):
 
 
 def store(key, arrays):
-    """Write atomically: two xdist workers may store the same key at once."""
-    REFS_DIR.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{key}.", dir=REFS_DIR)
+    _write_atomic(ref_path(key), _pack(arrays))
+
+
+def _write_atomic(path, data):
+    """A temporary file in the same folder, then a rename: two xdist workers may store the same
+    key at once, and a reader never sees half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(_pack(arrays))
-        os.replace(tmp, ref_path(key))
+            f.write(data)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
 
 
-def record(key, what):
-    """Note the key as used by this process (for `build.py test --refs prune`) and how."""
+def record(key, what, start):
+    """Note the key as used by this process (for `build.py test --refs prune`), how, and the CPU
+    and wall seconds since `start` (a _clock()): "KEY hit|stored|checked CPU WALL TEST"."""
+    cpu, wall = (a - b for a, b in zip(_clock(), start))
     try:
         USED_DIR.mkdir(parents=True, exist_ok=True)
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
         test = os.environ.get("PYTEST_CURRENT_TEST", "").rsplit(" ", 1)[0]
         with open(USED_DIR / f"{worker}-{os.getpid()}.txt", "a") as f:
-            f.write(f"{key} {what} {test}\n")
+            f.write(f"{key} {what} {cpu:.3f} {wall:.3f} {test}\n")
     except OSError:
         pass
+
+
+def _clock():
+    """(CPU seconds of this process, all its threads: Cycles renders on every core; wall seconds)."""
+    return time.process_time(), time.perf_counter()
 
 
 def cached_file(scene, kind, path, render, read, refs=None):
@@ -459,27 +475,20 @@ def cached_file(scene, kind, path, render, read, refs=None):
     m = env if (refs is None or env in ("render", "refresh")) else refs
     if m == "render":
         return render()
+    start = _clock()
     key = fingerprint(scene, kind)
     stored = ref_path(key).with_suffix(Path(path).suffix)
     if m == "use" and stored.is_file():
         shutil.copyfile(stored, path)
-        record(key, "hit")
+        record(key, "hit", start)
         return None
     render()
     if m == "check" and stored.is_file():
         compare(key, read(stored), read(path))
-        record(key, "checked")
+        record(key, "checked", start)
         return None
-    REFS_DIR.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{key}.", dir=REFS_DIR)
-    os.close(fd)
-    try:
-        shutil.copyfile(path, tmp)
-        os.replace(tmp, stored)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    record(key, "stored")
+    _write_atomic(stored, Path(path).read_bytes())
+    record(key, "stored", start)
     return None
 
 
@@ -512,19 +521,20 @@ def cached(scene, kind, render, refs=None):
     m = env if (refs is None or env in ("render", "refresh")) else refs
     if m == "render":
         return render()
+    start = _clock()
     key = fingerprint(scene, kind)
     if m == "use":
         stored = load(key)
         if stored is not None:
-            record(key, "hit")
+            record(key, "hit", start)
             return stored
     fresh = render()
     if m == "check":
         stored = load(key)
         if stored is not None:
             compare(key, stored, fresh)
-            record(key, "checked")
+            record(key, "checked", start)
             return fresh
     store(key, fresh)
-    record(key, "stored")
+    record(key, "stored", start)
     return fresh
