@@ -29,24 +29,27 @@ def pytest_configure(config):
 
 
 # The stored Cycles references (tests/blender/cycles_refs.py): each process that renders with
-# Cycles appends "KEY hit|stored|checked CPU_S WALL_S TEST" lines to build/cycles_refs_used/<worker>-<pid>.txt;
-# the summary counts this run's lines, so that references missing from the repository show.
+# Cycles appends "KEY hit|stored|checked CPU_S WALL_S TEST" lines to
+# build/cycles_refs_used/<session>-<worker>-<pid>.txt; the summary counts this run's lines (the
+# session id is set here and inherited by xdist's workers), so that references missing from the
+# repository show.
 _REFS_USED = REPO / "build" / "cycles_refs_used"
-_session_start = [None]
 
 
 def pytest_sessionstart(session):
+    import os
     import time
-    _session_start[0] = time.time() - 1.0
+    if not hasattr(session.config, "workerinput"):
+        os.environ["PATHLIGHT_REFS_SESSION"] = f"{int(time.time())}-{os.getpid()}"
 
 
 def pytest_terminal_summary(terminalreporter):
-    if _session_start[0] is None or not _REFS_USED.is_dir() or hasattr(terminalreporter.config, "workerinput"):
+    import os
+    sid = os.environ.get("PATHLIGHT_REFS_SESSION")
+    if not sid or not _REFS_USED.is_dir() or hasattr(terminalreporter.config, "workerinput"):
         return
     counts, stored = {}, []
-    for f in _REFS_USED.glob("*.txt"):
-        if f.stat().st_mtime < _session_start[0]:
-            continue
+    for f in _REFS_USED.glob(f"{sid}-*.txt"):
         for line in f.read_text().splitlines():
             parts = line.split(" ", 4)  # KEY hit|stored|checked CPU_S WALL_S TEST
             if len(parts) >= 4:

@@ -188,3 +188,20 @@ def test_modes(tmp_path, monkeypatch):
     with pytest.raises(ValueError):
         cycles_refs.cached(sc, "rgba", render)
 
+
+
+def test_prune_keeps_what_a_run_used(tmp_path):
+    """`build.py test --refs prune` deletes the references no record of the run names."""
+    sys.path.insert(0, str(HERE.parents[1]))
+    from tools.buildsys.testing import prune_unused
+    refs, used = tmp_path / "refs", tmp_path / "used"
+    refs.mkdir()
+    used.mkdir()
+    for name in ("a" * 32 + ".plref", "b" * 32 + ".exr", "c" * 32 + ".plref", ".cccc.plref.tmp1"):
+        (refs / name).write_bytes(b"x")
+    (used / "gw0-1.txt").write_text(f"{'a' * 32} hit 0.01 0.01 t::x\n")
+    (used / "gw1-2.txt").write_text(f"{'b' * 32} stored 1.0 2.0 t::y [p q]\n")
+    keys, removed = prune_unused(refs, used)
+    assert keys == {"a" * 32, "b" * 32}
+    assert sorted(p.name for p in refs.iterdir()) == ["a" * 32 + ".plref", "b" * 32 + ".exr"]
+    assert len(removed) == 2

@@ -54,15 +54,23 @@ def prune_refs(argv, paths, extra, env):
     if code != 0:
         print(f"pytest failed (exit code {code}): no reference pruned", file=sys.stderr, flush=True)
         return code
-    used = set()
-    for f in REFS_USED.glob("*.txt"):
-        used.update(line.split()[0] for line in f.read_text().splitlines() if line.strip())
-    stale = [f for f in REFS.iterdir() if f.is_file() and f.name.split(".")[0] not in used]
-    for f in stale:
-        f.unlink()
+    used, stale = prune_unused(REFS, REFS_USED)
     print(f"Cycles references: {len(used)} used, {len(stale)} unused removed from {REFS.relative_to(ROOT)}/",
           flush=True)
     return 0
+
+
+def prune_unused(refs, used_dir):
+    """Delete the files of `refs` (KEY.plref, KEY.exr, leftover temporaries) whose key no record
+    in `used_dir` names; returns (the keys used, the files removed)."""
+    used = set()
+    for f in used_dir.glob("*.txt"):
+        used.update(line.split()[0] for line in f.read_text().splitlines() if line.strip())
+    stale = [f for f in sorted(refs.iterdir()) if f.is_file() and f.name.split(".")[0] not in used] \
+        if refs.is_dir() else []
+    for f in stale:
+        f.unlink()
+    return used, stale
 
 
 def xdist_args():
