@@ -174,7 +174,10 @@ class _Walker:
         self.put(f"{path}[{n}]")
         if n == 0:
             return
-        if n <= BIG:
+        first_type = type(coll[0])
+        # Items of several types (a node's sockets, a curve's attributes) one by one: reading
+        # one type's property across all of them with foreach_get returns undefined bytes.
+        if n <= BIG or not all(type(i) is first_type for i in coll):
             for i, item in enumerate(coll):
                 if not isinstance(item, bpy.types.bpy_struct):
                     self.put(f"{path}[{i}]={_plain(item)!r}")
@@ -361,7 +364,8 @@ def fingerprint(scene, kind, lines=None):
     what is returned from the render (an RGBA image, a multilayer file's passes).
     `lines`: a list to append the walk to (to see why two keys differ)."""
     w = _Walker()
-    w.lines = lines
+    debug = os.environ.get("PATHLIGHT_CYCLES_REFS_DEBUG")  # a folder: each walk as KEY.txt
+    w.lines = lines if lines is not None or not debug else []
     w.put(f"pathlight-cycles-ref {FINGERPRINT_VERSION} {kind}")
     w.put(f"bpy {bpy.app.version_string} {bpy.app.build_hash!r} {bpy.app.build_commit_date!r}")
     w.put(f"scene {scene.name_full!r} frame {scene.frame_current} {scene.frame_subframe!r}")
@@ -374,7 +378,11 @@ def fingerprint(scene, kind, lines=None):
             if isinstance(idb, bpy.types.Image) and idb.type in ("RENDER_RESULT", "COMPOSITING"):
                 continue  # the output of earlier renders
             w.walk_id(idb)
-    return w.h.hexdigest()[:32]
+    key = w.h.hexdigest()[:32]
+    if debug and w.lines is not None:
+        Path(debug).mkdir(parents=True, exist_ok=True)
+        (Path(debug) / f"{key}.txt").write_text("\n".join(w.lines))
+    return key
 
 
 # -- storage -------------------------------------------------------------------------------------

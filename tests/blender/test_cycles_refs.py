@@ -17,7 +17,7 @@ HERE = Path(__file__).resolve().parent
 
 
 def small_scene():
-    """A sphere with a node material (a colour and an image texture), a subdivision modifier, a
+    """A sphere with a node material (a colour, an image texture, a Principled BSDF), a subdivision modifier, a
     creased cube, a point light and a world: one of each kind of data the key must see."""
     sc = empty_scene_with_camera(32)
     sc.render.engine = 'CYCLES'
@@ -31,6 +31,10 @@ def small_scene():
     tex.image = img
     mat.node_tree.links.new(tex.outputs["Color"], mat.node_tree.nodes["Diffuse BSDF"].inputs["Roughness"])
     sphere.data.materials.append(mat)
+    # A node with more than 16 sockets of several types (the walk reads those one by one).
+    principled = mat.node_tree.nodes.new("ShaderNodeBsdfPrincipled")
+    principled.inputs["Metallic"].default_value = 0.5
+    mat.node_tree.links.new(principled.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Surface"])
     bpy.ops.mesh.primitive_cube_add(location=(2, 0, 0))
     cube = bpy.context.object.data
     cube.attributes.new("crease_edge", 'FLOAT', 'EDGE').data.foreach_set("value", [0.0] * len(cube.edges))
@@ -86,6 +90,8 @@ CHANGES = {
     "link": lambda sc: bpy.data.materials["Paint"].node_tree.links.remove(
         bpy.data.materials["Paint"].node_tree.links[0]),
     "resolution": lambda sc: setattr(sc.render, "resolution_x", 33),
+    "principled input": lambda sc: setattr(
+        bpy.data.materials["Paint"].node_tree.nodes["Principled BSDF"].inputs["Metallic"], "default_value", 0.25),
 }
 
 
