@@ -9,6 +9,8 @@ import bpy
 import numpy as np
 import OpenEXR
 
+import cycles_refs
+
 REPO = Path(__file__).resolve().parents[2]
 SCENES = REPO / "blender_scenes"
 
@@ -68,7 +70,8 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
     overrides: the engine's settings (scene.pathlight.<name> / scene.cycles.<name>) or else
     scene.render.<name>, e.g. samples=16, seed=3, resolution_percentage=25. For CYCLES,
     max_bounces (default 1024) sets every bounce limit, so only the total limits paths, like
-    Pathlight's max_bounces. For PATHLIGHT, adaptive sampling is off and the per-type bounce
+    Pathlight's max_bounces. A CYCLES render comes from tests/cycles_refs/ when one of exactly
+    this scene is stored there (cycles_refs.py; refs="check" renders and compares with it). For PATHLIGHT, adaptive sampling is off and the per-type bounce
     limits are 1024 unless overridden, so that only max_bounces limits paths there too.
     Pixel filters: Pathlight renders with the 1-pixel box here unless overridden
     (filter_type='GAUSSIAN', filter_width=1.5, ...; Cycles' names pixel_filter_type and
@@ -76,6 +79,7 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
     filters; Cycles keeps its own default (Blackman-Harris 1.5 px) unless overridden.
     """
     scene = scene or bpy.context.scene
+    refs = overrides.pop("refs", None)
     render = scene.render
     if render.engine != engine:  # setting it, even unchanged, tags every ID of the depsgraph
         render.engine = engine
@@ -106,27 +110,44 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
     image.color_depth = '32'
     image.exr_codec = 'ZIP'
 
-    with tempfile.TemporaryDirectory(prefix="pathlight_test_") as tmp:
-        render.filepath = str(Path(tmp) / "render.exr")
+    def run():
+        with tempfile.TemporaryDirectory(prefix="pathlight_test_") as tmp:
+            render.filepath = str(Path(tmp) / "render.exr")
+            render.use_file_extension = False
+            bpy.ops.render.render(write_still=True, scene=scene.name)
+            return {"rgba": read_exr(render.filepath)}
+
+    if engine == "CYCLES":
         render.use_file_extension = False
-        bpy.ops.render.render(write_still=True, scene=scene.name)
-        return read_exr(render.filepath)
+        return cycles_refs.cached(scene, "rgba", run, refs)["rgba"]
+    return run()["rgba"]
 
 
-def render_multilayer_file(scene, path):
+def render_multilayer_file(scene, path, refs=None):
     """Renders `scene` with its engine's current settings through Blender's own file output, as a
     32-bit multilayer EXR at `path` (no compositor or sequencer), and reads the first view layer's
-    channels back: {"<pass>.<channel>": float32 (H, W)}, row 0 = top."""
+    channels back: {"<pass>.<channel>": float32 (H, W)}, row 0 = top. With Cycles the file may
+    come from tests/cycles_refs/ (see render_to_array; `refs` likewise)."""
     scene.render.use_compositing = scene.render.use_sequencer = False
     image = scene.render.image_settings
     image.file_format, image.color_depth, image.exr_codec = 'OPEN_EXR_MULTILAYER', '32', 'ZIP'
     scene.render.filepath = str(path)
     scene.render.use_file_extension = False
-    bpy.ops.render.render(write_still=True, scene=scene.name)
-    with OpenEXR.File(str(path), separate_channels=True) as exr:
-        layer = scene.view_layers[0].name + "."
-        return {k[len(layer):]: np.array(v.pixels, np.float32) for k, v in exr.channels().items()
-                if k.startswith(layer)}
+    layer = scene.view_layers[0].name + "."
+
+    def read(p):
+        with OpenEXR.File(str(p), separate_channels=True) as exr:
+            return {k[len(layer):]: np.array(v.pixels, np.float32) for k, v in exr.channels().items()
+                    if k.startswith(layer)}
+
+    def run():
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+
+    if scene.render.engine == "CYCLES":
+        cycles_refs.cached_file(scene, "multilayer", path, run, read, refs)
+    else:
+        run()
+    return read(path)
 
 
 def read_exr(path):

@@ -145,7 +145,7 @@ def renders(tmp_path_factory):
     _setup_cycles(sc.cycles, 8)
     sc.cycles.samples = SAMPLES
     sc.cycles.pixel_filter_type, sc.cycles.filter_width = BOX_FILTER["pixel_filter_type"], 1.0
-    cycles = render_multilayer_file(sc, tmp / "cycles.exr")
+    cycles = render_multilayer_file(sc, tmp / "cycles.exr", refs="check")  # checks the stored file
     sc.render.engine = 'PATHLIGHT'
     sc.pathlight.samples = SAMPLES
     sc.pathlight.use_adaptive_sampling = False

@@ -86,9 +86,13 @@ def parse_args(argv):
     p.add_argument("inputs", nargs="+", help="partial renders (.exr)")
     p.add_argument("-o", "--output", required=True, help="merged image to write (.exr)")
 
-    sub.add_parser("test", parents=[build_opts], help="run the test suite (pytest arguments after --)",
-                   description="Run `pytest tests` in .venv; arguments after -- go to pytest, "
-                               "e.g. python3 build.py test -- -k furnace -x")
+    p = sub.add_parser("test", parents=[build_opts], help="run the test suite (pytest arguments after --)",
+                       description="Run `pytest tests` in .venv; arguments after -- go to pytest, "
+                                   "e.g. python3 build.py test -- -k furnace -x")
+    p.add_argument("--refs", choices=("use", "render", "check", "refresh", "prune"),
+                   help="the stored Cycles references (tests/cycles_refs/): use them (the default), "
+                        "render without them, check them against fresh renders, refresh (re-render and "
+                        "overwrite) them, or prune: run the whole suite, then delete the ones it did not use")
 
     p = sub.add_parser("bench", parents=[build_opts], help="run the benchmarks into docs/benchmarks.md",
                        description="Run every tests/bench/bench_*.py and assemble docs/benchmarks.md; "

@@ -2,6 +2,8 @@
 benchmark script the same way."""
 
 import os
+import shutil
+import subprocess
 import sys
 
 from .common import ROOT, VENV_PY, UserError, hard_exit
@@ -25,10 +27,50 @@ def cmd_test(args, extra):
         pytest_args += xdist_args()
     pytest_args += extra
     argv = [str(VENV_PY), str(ROOT / "build.py"), "_pytest", *pytest_args]
+    refs = getattr(args, "refs", None)
+    env = runtime_env(args, {"PATHLIGHT_CYCLES_REFS": "use" if refs == "prune" else refs} if refs else None)
+    if refs == "prune":
+        return prune_refs(argv, paths, extra, env)
     print("+ pytest " + " ".join(pytest_args), flush=True)
     sys.stderr.flush()
     os.chdir(ROOT)
-    os.execve(str(VENV_PY), argv, runtime_env(args))  # pytest's exit code becomes ours
+    os.execve(str(VENV_PY), argv, env)  # pytest's exit code becomes ours
+
+
+REFS = ROOT / "tests" / "cycles_refs"
+REFS_USED = ROOT / "build" / "cycles_refs_used"  # tests/blender/cycles_refs.py records keys there
+
+
+def prune_refs(argv, paths, extra, env):
+    """`test --refs prune`: the whole suite, then delete the stored Cycles references no test used.
+    Only after a full, passing run: a partial one would delete references that others need."""
+    selecting = [a for a in extra if a.startswith(("-k", "-m", "--deselect", "-x", "--exitfirst", "--lf",
+                                                   "--last-failed", "--ff", "--sw", "--stepwise", "--maxfail"))]
+    if paths or selecting:
+        raise UserError("--refs prune needs the whole suite: no test paths, -k, -m, -x or the like")
+    shutil.rmtree(REFS_USED, ignore_errors=True)
+    print("+ pytest " + " ".join(argv[3:]), flush=True)
+    code = subprocess.call(argv, cwd=ROOT, env=env)
+    if code != 0:
+        print(f"pytest failed (exit code {code}): no reference pruned", file=sys.stderr, flush=True)
+        return code
+    used, stale = prune_unused(REFS, REFS_USED)
+    print(f"Cycles references: {len(used)} used, {len(stale)} unused removed from {REFS.relative_to(ROOT)}/",
+          flush=True)
+    return 0
+
+
+def prune_unused(refs, used_dir):
+    """Delete the files of `refs` (KEY.plref, KEY.exr, leftover temporaries) whose key no record
+    in `used_dir` names; returns (the keys used, the files removed)."""
+    used = set()
+    for f in used_dir.glob("*.txt"):
+        used.update(line.split()[0] for line in f.read_text().splitlines() if line.strip())
+    stale = [f for f in sorted(refs.iterdir()) if f.is_file() and f.name.split(".")[0] not in used] \
+        if refs.is_dir() else []
+    for f in stale:
+        f.unlink()
+    return used, stale
 
 
 def xdist_args():
