@@ -86,9 +86,12 @@ def parse_args(argv):
     p.add_argument("inputs", nargs="+", help="partial renders (.exr)")
     p.add_argument("-o", "--output", required=True, help="merged image to write (.exr)")
 
-    sub.add_parser("test", parents=[build_opts], help="run the test suite (pytest arguments after --)",
-                   description="Run `pytest tests` in .venv; arguments after -- go to pytest, "
-                               "e.g. python3 build.py test -- -k furnace -x")
+    p = sub.add_parser("test", parents=[build_opts], help="run the test suite (pytest arguments after --)",
+                       description="Run `pytest tests` in .venv; arguments after -- go to pytest, "
+                                   "e.g. python3 build.py test -- -k furnace -x")
+    p.add_argument("--record-durations", action="store_true",
+                   help="write each test file's time into tests/durations.json (under release or "
+                        "sanitize), which orders the files longest first under xdist")
 
     p = sub.add_parser("bench", parents=[build_opts], help="run the benchmarks into docs/benchmarks.md",
                        description="Run every tests/bench/bench_*.py and assemble docs/benchmarks.md; "

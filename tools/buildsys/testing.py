@@ -23,12 +23,16 @@ def cmd_test(args, extra):
     if not paths and not any(a in ("-n", "--numprocesses", "--dist") or a.startswith(("-n", "--numprocesses=", "--dist="))
                              or a == "no:xdist" for a in extra):
         pytest_args += xdist_args()
+    if args.record_durations:
+        pytest_args.append("--record-durations")
     pytest_args += extra
     argv = [str(VENV_PY), str(ROOT / "build.py"), "_pytest", *pytest_args]
     print("+ pytest " + " ".join(pytest_args), flush=True)
     sys.stderr.flush()
     os.chdir(ROOT)
-    os.execve(str(VENV_PY), argv, runtime_env(args))  # pytest's exit code becomes ours
+    # tests/conftest.py reads the flavour to pick its file times (tests/durations.json).
+    env = runtime_env(args, {"PATHLIGHT_BUILD": "sanitize" if args.sanitize else "release"})
+    os.execve(str(VENV_PY), argv, env)  # pytest's exit code becomes ours
 
 
 def xdist_args():
