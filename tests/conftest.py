@@ -1,7 +1,10 @@
 """Shared pytest setup: the repository root on sys.path, so tests import the add-on as `addon`
 (as build.py does). Blender-specific helpers live in blender_util.py, imported only by the
-tests that use bpy."""
+tests that use bpy. Under pytest-xdist the test files are handed out longest first, from the
+per-file times in tests/durations.json (`build.py test --record-durations` refreshes them)."""
 
+import json
+import os
 import sys
 from pathlib import Path
 
@@ -13,8 +16,23 @@ if str(REPO) not in sys.path:
 HELPERS = [str(REPO / "tests" / d) for d in ("core", "blender")]
 sys.path[1:1] = [h for h in HELPERS if h not in sys.path]
 
+DURATIONS = REPO / "tests" / "durations.json"
+_recorded = None  # file -> seconds, while --record-durations records (controller process only)
+
+
+def build_flavour():
+    """Which core build the tests run against: build.py sets PATHLIGHT_BUILD (release or sanitize)."""
+    return os.environ.get("PATHLIGHT_BUILD", "release")
+
+
+def pytest_addoption(parser):
+    parser.addoption("--record-durations", action="store_true",
+                     help="write each file's time (setup + call + teardown of its tests, one worker) "
+                          "into tests/durations.json under this build's flavour")
+
 
 def pytest_configure(config):
+    global _recorded
     config.addinivalue_line(
         "markers",
         "converged: a long convergence render (millions of samples: two estimators at low noise, or an "
@@ -26,6 +44,66 @@ def pytest_configure(config):
         "sanitize: a test of the core module that .ci/run also runs against the AddressSanitizer "
         "and UBSan build (`build.py test --sanitize -- -m \"sanitize and not converged\"`); set "
         "per file with `pytestmark`: the core's own tests, not the Blender-side ones")
+    config.addinivalue_line(
+        "markers",
+        "release_only: a long statistical test in a `sanitize` file whose lines of core/ the rest of "
+        "the sanitizer step already runs (measured with gcov, docs/building.md \"CI time\"); the "
+        "sanitizer step deselects it, the release step runs it")
+    # pytest-xdist's default (--loadscope-reorder) hands out files by their number of tests, which
+    # would undo the longest-first order of pytest_collection_modifyitems below.
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+    if config.getoption("record_durations") and not hasattr(config, "workerinput"):
+        _recorded = {}
+
+
+def read_durations():
+    try:
+        return json.loads(DURATIONS.read_text()).get(build_flavour(), {})
+    except (OSError, ValueError):
+        return {}
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Under xdist (`--dist loadfile`), order whole files longest first, so that no long file starts
+    last and leaves the other worker idle. Files without a recorded time go first (assume long),
+    most tests first. Tests keep their order inside a file; a run without xdist is not reordered."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return
+    times = read_durations()
+    files = {}
+    for item in items:
+        files.setdefault(item.nodeid.split("::")[0], []).append(item)
+
+    def key(name):
+        if name in times:
+            return (1, -float(times[name]))
+        return (0, -len(files[name]))
+
+    items[:] = [item for name in sorted(files, key=key) for item in files[name]]
+
+
+def pytest_runtest_logreport(report):
+    # Under xdist the controller receives every worker's reports, with their durations.
+    if _recorded is not None:
+        name = report.nodeid.split("::")[0]
+        _recorded[name] = _recorded.get(name, 0.0) + report.duration
+
+
+def pytest_sessionfinish(session, exitstatus):
+    times = _recorded
+    if not times:
+        return
+    try:
+        data = json.loads(DURATIONS.read_text())
+    except (OSError, ValueError):
+        data = {}
+    table = data.setdefault(build_flavour(), {})
+    table.update({name: round(t, 1) for name, t in times.items()})
+    data[build_flavour()] = dict(sorted(table.items()))
+    DURATIONS.write_text(json.dumps(data, indent=1) + "\n")
+    print(f"\nrecorded the times of {len(times)} test files in {DURATIONS.relative_to(REPO)} "
+          f"({build_flavour()})")
 
 
 # The stored Cycles references (tests/blender/cycles_refs.py): each process that renders with

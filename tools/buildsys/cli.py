@@ -93,6 +93,9 @@ def parse_args(argv):
                    help="the stored Cycles references (tests/cycles_refs/): use them (the default), "
                         "render without them, check them against fresh renders, refresh (re-render and "
                         "overwrite) them, or prune: run the whole suite, then delete the ones it did not use")
+    p.add_argument("--record-durations", action="store_true",
+                   help="write each test file's time into tests/durations.json (under release or "
+                        "sanitize), which orders the files longest first under xdist")
 
     p = sub.add_parser("bench", parents=[build_opts], help="run the benchmarks into docs/benchmarks.md",
                        description="Run every tests/bench/bench_*.py and assemble docs/benchmarks.md; "

@@ -25,10 +25,16 @@ def cmd_test(args, extra):
     if not paths and not any(a in ("-n", "--numprocesses", "--dist") or a.startswith(("-n", "--numprocesses=", "--dist="))
                              or a == "no:xdist" for a in extra):
         pytest_args += xdist_args()
+    if args.record_durations:
+        pytest_args.append("--record-durations")
     pytest_args += extra
     argv = [str(VENV_PY), str(ROOT / "build.py"), "_pytest", *pytest_args]
     refs = getattr(args, "refs", None)
-    env = runtime_env(args, {"PATHLIGHT_CYCLES_REFS": "use" if refs == "prune" else refs} if refs else None)
+    # tests/conftest.py reads the flavour to pick its file times (tests/durations.json).
+    extra_env = {"PATHLIGHT_BUILD": "sanitize" if args.sanitize else "release"}
+    if refs:
+        extra_env["PATHLIGHT_CYCLES_REFS"] = "use" if refs == "prune" else refs
+    env = runtime_env(args, extra_env)
     if refs == "prune":
         return prune_refs(argv, paths, extra, env)
     print("+ pytest " + " ".join(pytest_args), flush=True)
