@@ -56,7 +56,9 @@ def main():
     addon.session.render_settings = patched
     specs = {"plain": dict(guiding_probability=0.0, guiding_photons=0.0),
              "camera": dict(guiding_photons=0.0),
-             "guided": {}}  # the add-on's Path Guiding as it is
+             "guided": {},  # the add-on's Path Guiding as it is
+             "lobes": dict(guiding_caustic_lobes=0.3),  # with caustic lobes
+             "nolobes": dict(guiding_caustic_lobes=0.0)}  # without them
     imgs = {v: np.zeros((len(CLASSES), args.seeds, rs.HEIGHT, rs.WIDTH, 3)) for v in args.variants}
     cpu = {v: 0.0 for v in args.variants}
     for s in range(args.seeds):
