@@ -3014,6 +3014,14 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("guiding", &RenderSettings::guiding,
                      "Path guiding: learn the incident light during the first samples and sample it.")
       .def_readwrite("guiding_probability", &RenderSettings::guiding_probability)
+      .def_readwrite("guiding_caustic_lobes", &RenderSettings::guiding_caustic_lobes,
+                     "With guiding_caustics: the probability of a direction from the caustic photons' lobes.")
+      .def_readwrite("guiding_caustic_cube", &RenderSettings::guiding_caustic_cube,
+                     "The caustic lobes' cubes: their edge over the scene's diagonal.")
+      .def_readwrite("guiding_caustic_cone", &RenderSettings::guiding_caustic_cone,
+                     "The caustic lobes' cone half-angle (radians).")
+      .def_readwrite("guiding_class_mask", &RenderSettings::guiding_class_mask,
+                     "Measurement only: with guiding on, keep the light of these path classes (bits).")
       .def_readwrite("guiding_photons", &RenderSettings::guiding_photons,
                      "Photon training of the guide: light paths per pixel and training sample (0: none).")
       .def_readwrite("guiding_photon_share", &RenderSettings::guiding_photon_share,
@@ -3979,6 +3987,7 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["unused_features"] = s.unused_features;
              d["guiding_iterations"] = s.guiding_iterations;
              d["guiding_cells"] = s.guiding_cells;
+             d["guiding_caustic_cells"] = s.guiding_caustic_cells;
              return d;
            })
       .def("sample_counts",

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+#include <tuple>
 
 namespace pl {
 
@@ -119,6 +121,9 @@ void GuidingField::reset(const Aabb& bounds, float split_threshold) {
   photon_records_ = 0;
   photon_map_.clear();
   photon_map_new_ = 0;
+  caustic_index_.clear();
+  caustic_cells_.clear();
+  caustic_lobes_.clear();
   nodes_.assign(1, SpatialNode{});
   cells_.clear();
   for (uint32_t k = 0; k < kNormalClasses; ++k) {
@@ -289,6 +294,7 @@ void GuidingField::end_iteration(int samples) {
   }
   // Past the cap an iteration's photons count for it alone (all of them: the same set whatever
   // order the threads added them in).
+  if (caustic_cube_ > 0.0f) build_caustic_lobes();
   if (photon_map_.size() > kMaxKeptPhotons) photon_map_.resize(photon_map_new_);
   photon_map_new_ = photon_map_.size();
   double all = 0.0;
@@ -365,6 +371,118 @@ void GuidingField::end_iteration(int samples) {
     scale_ = std::min(std::max(1048576.0 / mean, 1e-12), 1e24);
   }
   ++iterations_;
+}
+
+void GuidingField::set_caustic_lobes(float cube, float cone) {
+  caustic_cube_ = std::isfinite(cube) ? std::clamp(cube, 0.0f, 1.0f) : 0.0f;
+  const float c = std::isfinite(cone) ? std::clamp(cone, 1e-3f, 1.5f) : 0.1f;
+  cos_cone_ = std::cos(c);
+  cone_pdf_ = 1.0f / (2.0f * kPi * (1.0f - cos_cone_));
+}
+
+uint64_t GuidingField::caustic_key(Vec3 p, uint32_t normal_class) const {
+  const Vec3 x = (p - bounds_.lo) * caustic_inv_h_;
+  const auto q = [](float v) { return uint64_t(std::clamp(v, 0.0f, 1048575.0f)); };  // 20 bits each
+  return (q(x.x) << 43) | (q(x.y) << 23) | (q(x.z) << 3) | uint64_t(normal_class);
+}
+
+int32_t GuidingField::caustic_cell(Vec3 p, Vec3 n) const {
+  if (caustic_cells_.empty() || !is_finite(p)) return -1;
+  const auto it = caustic_index_.find(caustic_key(p, normal_class(n)));
+  return it == caustic_index_.end() ? -1 : int32_t(it->second);
+}
+
+Vec3 GuidingField::caustic_sample(int32_t cell, float u_lobe, Vec2 u, float& pdf) const {
+  const CausticCube& c = caustic_cells_[size_t(cell)];
+  uint32_t k = c.first;
+  while (k + 1 < c.first + c.count && u_lobe >= caustic_lobes_[k].cdf) ++k;
+  // Uniform in the lobe's cone.
+  const float cos_t = 1.0f - u.x * (1.0f - cos_cone_);
+  const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t));
+  const float phi = 2.0f * kPi * u.y;
+  Vec3 t, b;
+  const Vec3 d = caustic_lobes_[k].dir;
+  make_basis(d, t, b);
+  const Vec3 w = normalize(t * (sin_t * std::cos(phi)) + b * (sin_t * std::sin(phi)) + d * cos_t);
+  pdf = caustic_pdf(cell, w);
+  return w;
+}
+
+float GuidingField::caustic_pdf(int32_t cell, Vec3 w) const {
+  const CausticCube& c = caustic_cells_[size_t(cell)];
+  float p = 0.0f, prev = 0.0f;
+  for (uint32_t k = c.first; k < c.first + c.count; ++k) {
+    const CausticLobe& l = caustic_lobes_[k];
+    if (dot(w, l.dir) >= cos_cone_) p += l.cdf - prev;
+    prev = l.cdf;
+  }
+  return p * cone_pdf_;
+}
+
+void GuidingField::build_caustic_lobes() {
+  caustic_index_.clear();
+  caustic_cells_.clear();
+  caustic_lobes_.clear();
+  if (photon_map_.empty()) return;
+  caustic_inv_h_ = 1.0f / std::max(caustic_cube_ * length(bounds_.extent()), 1e-6f);
+  // Per cube, the photons' flux by arrival direction (a 64 x 64 grid of the unit square), and
+  // the flux-weighted sum of their directions. Ordered maps and integer keys: the same lobes
+  // whatever order the threads kept the photons in (the sums are float, but each bin's are
+  // added in one fixed order after sorting).
+  struct Bin {
+    double flux = 0.0;
+    Vec3 dir{0.0f};
+  };
+  std::vector<std::tuple<uint64_t, uint32_t, size_t>> order;  // cube, direction bin, record
+  order.reserve(photon_map_.size());
+  for (size_t i = 0; i < photon_map_.size(); ++i) {
+    const PhotonRecord& r = photon_map_[i];
+    if (!(r.value > 0.0f) || !std::isfinite(r.value) || !is_finite(r.p) || r.normal_class >= kNormalClasses) continue;
+    const uint32_t bx = std::min(uint32_t(r.s.x * 64.0f), 63u), by = std::min(uint32_t(r.s.y * 64.0f), 63u);
+    order.emplace_back(caustic_key(r.p, r.normal_class), bx + 64 * by, i);
+  }
+  // Within a bin, records by their own content (the thread order of equal records is immaterial).
+  std::sort(order.begin(), order.end(), [&](const auto& a, const auto& b) {
+    if (std::get<0>(a) != std::get<0>(b)) return std::get<0>(a) < std::get<0>(b);
+    if (std::get<1>(a) != std::get<1>(b)) return std::get<1>(a) < std::get<1>(b);
+    const PhotonRecord &ra = photon_map_[std::get<2>(a)], &rb = photon_map_[std::get<2>(b)];
+    return std::tie(ra.value, ra.s.x, ra.s.y, ra.p.x, ra.p.y, ra.p.z) < std::tie(rb.value, rb.s.x, rb.s.y, rb.p.x, rb.p.y, rb.p.z);
+  });
+  std::vector<std::pair<double, Vec3>> lobes;
+  for (size_t i = 0; i < order.size();) {
+    const uint64_t key = std::get<0>(order[i]);
+    lobes.clear();
+    while (i < order.size() && std::get<0>(order[i]) == key) {
+      const uint32_t bin = std::get<1>(order[i]);
+      Bin b;
+      for (; i < order.size() && std::get<0>(order[i]) == key && std::get<1>(order[i]) == bin; ++i) {
+        const PhotonRecord& r = photon_map_[std::get<2>(order[i])];
+        b.flux += double(r.value);
+        b.dir += from_square(r.s) * r.value;
+      }
+      if (b.flux > 0.0 && length(b.dir) > 0.0f) lobes.emplace_back(b.flux, normalize(b.dir));
+    }
+    if (lobes.empty()) continue;
+    // The strongest kMaxLobes (ties by direction, for a fixed order).
+    std::sort(lobes.begin(), lobes.end(), [](const auto& a, const auto& b) {
+      if (a.first != b.first) return a.first > b.first;
+      return std::tie(a.second.x, a.second.y, a.second.z) < std::tie(b.second.x, b.second.y, b.second.z);
+    });
+    if (lobes.size() > size_t(kMaxLobes)) lobes.resize(size_t(kMaxLobes));
+    double total = 0.0;
+    for (const auto& l : lobes) total += l.first;
+    CausticCube c;
+    c.first = uint32_t(caustic_lobes_.size());
+    c.count = uint32_t(lobes.size());
+    double acc = 0.0;
+    for (const auto& l : lobes) {
+      acc += l.first;
+      caustic_lobes_.push_back({l.second, float(acc / total)});
+    }
+    caustic_lobes_.back().cdf = 1.0f;
+    caustic_index_.emplace(key, uint32_t(caustic_cells_.size()));
+    caustic_cells_.push_back(c);
+  }
 }
 
 }  // namespace pl

@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <unordered_map>
 #include <vector>
 
 #include "geometry/aabb.h"
@@ -90,6 +91,21 @@ class GuidingField {
   void keep_photons(std::vector<PhotonRecord>& records);
   static uint8_t normal_class(Vec3 n);
 
+  // Caustic lobes (photon-map guiding at a point, after Jensen 1995): the kept caustic photons
+  // binned into small cubes of the scene (and the 6 orientation classes), each cube's photons
+  // merged by arrival direction into at most kMaxLobes lobes, a lobe a cone of half-angle
+  // `cone` about where its photons came from. The SD-tree's cells are too coarse for a metal
+  // bowl's caustic on a wall (the bowl a few thousandths of a steradian, its highlight less);
+  // these aim at the highlight seen from about the vertex. Rebuilt by end_iteration from all
+  // kept photons; `cube`: the cubes' edge over the scene's diagonal (0: no lobes).
+  static constexpr int kMaxLobes = 32;
+  void set_caustic_lobes(float cube, float cone);
+  // The cube of p on a surface facing n, or -1 where no caustic photon arrived.
+  int32_t caustic_cell(Vec3 p, Vec3 n) const;
+  Vec3 caustic_sample(int32_t cell, float u_lobe, Vec2 u, float& pdf) const;
+  float caustic_pdf(int32_t cell, Vec3 w) const;
+  size_t caustic_cells() const { return caustic_cells_.size(); }
+
   // The unit square's equal-area map of the sphere (z = cos theta, phi around z).
   static Vec2 to_square(Vec3 w);
   static Vec3 from_square(Vec2 s);
@@ -117,6 +133,20 @@ class GuidingField {
   std::vector<PhotonRecord> photon_map_;  // all kept photons (the first kMaxKeptPhotons)
   size_t photon_map_new_ = 0;  // where this iteration's kept photons start
   uint32_t leaf_of(Vec3 p) const;  // the spatial leaf's first quadtree
+  struct CausticLobe {
+    Vec3 dir;
+    float cdf;  // the lobes' running share of the cube's flux, the last 1
+  };
+  struct CausticCube {
+    uint32_t first = 0, count = 0;
+  };
+  float caustic_cube_ = 0.0f, cos_cone_ = 1.0f, cone_pdf_ = 0.0f;
+  float caustic_inv_h_ = 0.0f;
+  std::unordered_map<uint64_t, uint32_t> caustic_index_;  // cube key -> caustic_cells_
+  std::vector<CausticCube> caustic_cells_;
+  std::vector<CausticLobe> caustic_lobes_;
+  uint64_t caustic_key(Vec3 p, uint32_t normal_class) const;
+  void build_caustic_lobes();
 };
 
 }  // namespace pl

@@ -50,6 +50,10 @@ struct IntegratorSettings {
   GuidingField* guide = nullptr;
   bool guide_training = false;
   float guide_probability = 0.5f;
+  // Of a direction from the caustic lobes, where a vertex has some (GuidingField::caustic_cell).
+  float guide_caustic_probability = 0.0f;
+  // Measurement only: the film keeps the light of these PathClass classes (bits; 0: all).
+  uint32_t path_class_mask = 0;
   // Render passes beyond the data passes, filled only by the aov kernel (PathAovs): Cycles'
   // light components and colours, Mist (distance from `mist_origin`, 0..1 from mist_start over
   // mist_depth, raised to mist_falloff), AO (a cosine ray of ao_distance at camera hits).

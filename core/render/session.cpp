@@ -221,6 +221,12 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
       integrator_.guide = guide_.get();
       integrator_.guide_training = true;
       integrator_.guide_probability = std::clamp(settings_.guiding_probability, 0.0f, 1.0f);
+      integrator_.path_class_mask = settings_.guiding_class_mask;
+      const float lobes = settings_.guiding_caustic_lobes;
+      integrator_.guide_caustic_probability =
+          settings_.guiding_caustics && std::isfinite(lobes) ? std::clamp(lobes, 0.0f, 0.9f) : 0.0f;
+      if (integrator_.guide_caustic_probability > 0.0f)
+        guide_->set_caustic_lobes(settings_.guiding_caustic_cube, settings_.guiding_caustic_cone);
       guide_end_ = 1;
       const float photons = settings_.guiding_photons;
       if (std::isfinite(photons) && photons > 0.0f) {
@@ -318,6 +324,7 @@ SessionStats Session::stats() const {
   s.threads = pool_ ? pool_->size() : 0;
   s.guiding_iterations = guide_iterations_.load();
   s.guiding_cells = guide_cells_.load();
+  s.guiding_caustic_cells = guide_caustic_cells_.load();
   s.elapsed_s = elapsed();
   s.work_items = film_.tile_count() * work_parts_;
   s.focus_distance = focus_distance_;
@@ -545,6 +552,7 @@ void Session::end_guiding_iteration() {
   guide_->end_iteration(guide_size_);
   guide_iterations_.store(guide_->iterations());
   guide_cells_.store(int(guide_->cells()));
+  guide_caustic_cells_.store(int(guide_->caustic_cells()));
   guide_size_ *= 2;
   const int limit = std::min(total_samples_ / 2, 255);
   if (guide_end_ + guide_size_ <= limit) guide_end_ += guide_size_;

@@ -80,6 +80,15 @@ struct RenderSettings {
   float guiding_photon_split = 1.0f;  // a photon record's weight in a cell's split count
   // Caustic photons only (L S+ D, trace_guide_photons), kept over the iterations.
   bool guiding_caustics = false;
+  // Caustic lobes (GuidingField::set_caustic_lobes; with guiding_caustics): the probability of
+  // a direction from them where a vertex has some (0: none), their cubes' edge over the scene's
+  // diagonal, their cones' half-angle in radians.
+  float guiding_caustic_lobes = 0.0f;
+  float guiding_caustic_cube = 0.01f;
+  float guiding_caustic_cone = 0.1f;
+  // Measurement only (docs/design/sampling.md, "Where the window room's error is"): with guiding
+  // on, the image keeps only the light of these path classes (PathClass bits; 0: all).
+  uint32_t guiding_class_mask = 0;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs, and the colour
@@ -101,6 +110,7 @@ struct SessionStats {
   int passes = 0, threads = 0;
   int work_items = 0;  // of a pass: tiles, or bands of their rows (chosen by the constructor)
   int guiding_iterations = 0, guiding_cells = 0;  // training done so far and the field's cells
+  int guiding_caustic_cells = 0;  // cubes with caustic lobes
   double elapsed_s = 0.0;
   float focus_distance = 0.0f;  // of the thin lens, after autofocus
   int autofocus = 0;            // 0 off, 1 focused on a surface, 2 missed (kept the camera's)
@@ -164,7 +174,7 @@ class Session {
   TraceFn kernel_ = nullptr;  // chosen once per session: no per-ray feature dispatch
   std::unique_ptr<GuidingField> guide_;  // path guiding's learnt field (null: no guiding)
   int guide_end_ = 0, guide_size_ = 1;  // the training iteration ends at this sample; its samples
-  std::atomic<int> guide_iterations_{0}, guide_cells_{0};
+  std::atomic<int> guide_iterations_{0}, guide_cells_{0}, guide_caustic_cells_{0};
   std::unique_ptr<GuidePhotonSources> photon_sources_;  // (null: no photon training)
   double photons_per_sample_ = 0.0;  // photons per training sample of the whole film
   void end_guiding_iteration();

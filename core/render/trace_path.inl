@@ -661,6 +661,30 @@ struct GuideRecord {
   uint32_t cell;
 };
 
+// Measurement only (IntegratorSettings::path_class_mask): the class of the light a path adds,
+// by the kinds of its scattering vertices from the camera (rough: what guiding samples; smooth:
+// the rest), so that an image's error can be split by the paths that carry it.
+struct PathClass {
+  enum : int { kDirect, kCaustic, kCausticLong, kCausticSeen, kSmoothFirst, kRough, kCount };
+  uint8_t n = 0;
+  bool first_rough = true, last_rough = true, any_rough = false, rough_before_last = false, smooth_after_rough = false;
+  void append(bool rough) {
+    if (n == 0) first_rough = rough;
+    else rough_before_last = rough_before_last || last_rough;
+    smooth_after_rough = smooth_after_rough || (!rough && any_rough);
+    any_rough = any_rough || rough;
+    last_rough = rough;
+    n = uint8_t(std::min(n + 1, 255));
+  }
+  int id() const {
+    if (n <= 1) return kDirect;  // emission seen or light at the first vertex
+    if (!last_rough && rough_before_last) return n == 2 ? kCaustic : kCausticLong;  // L S D E, L S+ D .. E
+    if (smooth_after_rough) return kCausticSeen;  // L D .. S .. D E
+    if (!first_rough) return kSmoothFirst;  // L .. S E: a smooth surface seen reflecting indirect light
+    return kRough;  // L D D+ E
+  }
+};
+
 // The passes written at each surface the camera path meets (through Transparent BSDFs), as
 // Cycles' film_write_data_passes and AO pass: the colours, Mist, AO (beta: the throughput there).
 [[gnu::noinline]] inline void camera_hit_passes(const Scene& scene, const IntegratorSettings& s, const SurfacePoint& sp,
@@ -744,6 +768,15 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   std::array<GuideRecord, kMaxGuideRecords> rec;  // (none in the other kernels)
   int n_rec = 0;
   Vec3 L(0.0f), beta(1.0f);
+  // Measurement only (guided kernels): the film keeps the light of the path classes in
+  // class_mask (PathClass bits; 0: all), the guide still trains with all of it.
+  const uint32_t class_mask = kGuide ? s.path_class_mask : 0u;
+  Vec3 L_kept(0.0f), L_flushed(0.0f);
+  PathClass path_class;
+  const auto flush_class = [&]() {
+    if ((class_mask >> path_class.id()) & 1u) L_kept += L - L_flushed;
+    L_flushed = L;
+  };
   float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
   bool prev_delta = true;   // camera rays and delta lobes: no light sample could find the hit
@@ -1278,9 +1311,25 @@ restart: __attribute__((unused));
     float u_rr = -1.0f;
     bool guided = false;  // this vertex samples the guide too (one-sample MIS with the BSDF)
     uint32_t guide_cell = 0;
+    int32_t caustic_cell = -1;  // the vertex's caustic lobes (GuidingField::caustic_cell; -1: none)
+    // The mixture's pdf towards w: BSDF and SD-tree guide, and the caustic lobes where there are
+    // some (sd_pdf: the SD-tree's pdf where known, else negative).
+    const auto guided_pdf = [&](float bsdf_pdf, Vec3 w, float sd_pdf) {
+      float p = (1.0f - guide_prob) * bsdf_pdf + guide_prob * (sd_pdf >= 0.0f ? sd_pdf : guide->pdf(guide_cell, w));
+      if (caustic_cell >= 0) {
+        const float pc = s.guide_caustic_probability;
+        p = (1.0f - pc) * p + pc * guide->caustic_pdf(caustic_cell, w);
+      }
+      return p;
+    };
     if constexpr (kGuide) {
       guided = guide && (guide_sampling || guide_training) && !sp.curve() && guidable(cl);
       if (guided) guide_cell = guide->cell_of(sp.p, ng_out);
+      if (guided && guide_sampling && s.guide_caustic_probability > 0.0f) caustic_cell = guide->caustic_cell(sp.p, ng_out);
+      if (class_mask) {  // what came before this vertex is done; its light samples on are one vertex longer
+        flush_class();
+        path_class.append(!sp.curve() && guidable(cl));
+      }
     }
 
     bool sky_here = false;  // this vertex sampled the sky: the BSDF ray's escape is weighed against it
@@ -1344,7 +1393,7 @@ restart: __attribute__((unused));
         if (!is_black(vis)) {
           if constexpr (kGuide)
             if (guided && guide_sampling && !last)
-              bsdf_pdf = (1.0f - guide_prob) * bsdf_pdf + guide_prob * guide->pdf(guide_cell, ds.wi);
+              bsdf_pdf = guided_pdf(bsdf_pdf, ds.wi, -1.0f);
           const bool full = ds.delta && !(kLinks && ds.dedicated);  // (dedicated rays find those)
           const float w = (full || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
           const Vec3 v = beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
@@ -1456,10 +1505,20 @@ restart: __attribute__((unused));
     bool from_guide = false;
     float guide_pdf = 0.0f;  // the guide's pdf of a direction it sampled
     if constexpr (kGuide) {
-      if (guided && guide_sampling && sampler.get1d() < guide_prob) {
+      const float pc = caustic_cell >= 0 ? s.guide_caustic_probability : 0.0f;
+      const float u_guide = guided && guide_sampling ? sampler.get1d() : 1.0f;
+      if (u_guide < pc) {
+        // A direction from a caustic lobe (its pdf is the mixture's, not the SD-tree's).
+        from_guide = true;
+        float mixture_share;  // (the mixture's pdf is evaluated below, with the other strategies)
+        bs.wi = ch.frame.to_local(guide->caustic_sample(caustic_cell, u_guide / pc, u, mixture_share));
+        guide_pdf = -1.0f;
+      } else if (guided && guide_sampling && (u_guide - pc) / (1.0f - pc) < guide_prob) {
         // A direction from the guide; its side and the chosen closure's kind name the bounce.
         from_guide = true;
         bs.wi = ch.frame.to_local(guide->sample(guide_cell, u, guide_pdf));
+      }
+      if (from_guide) {
         const bool up = dot(ch.frame.to_world(bs.wi), ng_out) > 0.0f;
         bs.flags = uint8_t((up ? kReflect : kTransmit) |
                            (std::holds_alternative<ConductorBsdf>(ch.bsdf) ? kGlossyLobe : kDiffuseLobe));
@@ -1521,7 +1580,7 @@ restart: __attribute__((unused));
         }
       if constexpr (kGuide)
         if (guided && guide_sampling)
-          pdf = (1.0f - guide_prob) * pdf + guide_prob * (from_guide ? guide_pdf : guide->pdf(guide_cell, wi));
+          pdf = guided_pdf(pdf, wi, from_guide ? guide_pdf : -1.0f);
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
       if constexpr (kAovs)
@@ -1632,6 +1691,10 @@ restart: __attribute__((unused));
       if (r.beta.y > 0.0f) sum += in.y / r.beta.y, ++n;
       if (r.beta.z > 0.0f) sum += in.z / r.beta.z, ++n;
       guide->record(r.cell, r.wi, n ? sum / (float(n) * r.pdf) : 0.0f);
+    }
+    if (class_mask) {
+      flush_class();
+      return L_kept;
     }
   }
   if constexpr (kCatcher) {

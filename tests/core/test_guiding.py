@@ -338,3 +338,63 @@ def test_caustic_photon_guided_render_agrees_with_the_unguided_one():
     assert abs(guided[..., :3].mean() / plain[..., :3].mean() - 1.0) < 0.01
     a, b = region_means(guided, 4), region_means(plain, 4)
     assert np.all(np.abs(a - b) <= 0.08 * np.maximum(b, 0.05)), np.abs(a - b) / np.maximum(b, 0.05)
+
+
+# Caustic lobes (GuidingField::set_caustic_lobes): directions at a rough vertex towards where
+# the kept caustic photons near it came from, in one-sample MIS with the BSDF and the SD-tree.
+LOBES = dict(CAUSTICS, guiding_caustic_lobes=0.3)
+
+
+def test_caustic_lobe_guiding_is_deterministic_whatever_the_threads_and_tiles():
+    kw = dict(samples=16, seed=7, **LOBES)
+    a, stats = render(pc, mirror_box(pc), 40, 24, threads=1, tile_size=8, **kw)
+    b, _ = render(pc, mirror_box(pc), 40, 24, threads=2, tile_size=16, **kw)
+    assert np.array_equal(a, b)
+    assert stats["guiding_caustic_cells"] > 0  # the ball's caustics found cubes to aim from
+    without, stats = render(pc, mirror_box(pc), 40, 24, samples=16, seed=7, **CAUSTICS)
+    assert stats["guiding_caustic_cells"] == 0 and not np.array_equal(a, without)
+
+
+def test_caustic_lobe_guided_white_furnace_keeps_its_closed_form_value():
+    img, stats = render(pc, mirror_furnace(pc), 48, 48, samples=64, **LOBES)
+    assert stats["guiding_caustic_cells"] > 0
+    assert abs(img[..., :3].mean() - 1.0) < 0.01, img[..., :3].mean()
+    assert stats["nonfinite_samples"] == 0
+
+
+@pytest.mark.converged  # (slow under the sanitizer; the furnace above runs the same code)
+def test_caustic_lobe_guided_render_agrees_with_the_unguided_one():
+    # The ball's caustics make one render's image mean vary by about 0.7 % (256 samples, seed
+    # to seed): the means of a few seeds, within 1.5 % (about 2 standard errors).
+    guided = [render(pc, mirror_box(pc), 32, 32, samples=128, seed=s, **LOBES) for s in (1, 2, 3)]
+    plain = [render(pc, mirror_box(pc), 32, 32, samples=256, seed=s)[0] for s in (1, 2)]
+    assert all(st["nonfinite_samples"] == 0 and st["guiding_caustic_cells"] > 0 for _, st in guided)
+    g = np.mean([img[..., :3].mean() for img, _ in guided])
+    assert abs(g / np.mean([img[..., :3].mean() for img in plain]) - 1.0) < 0.015
+
+
+def test_bad_caustic_lobe_settings_fall_back():
+    for lobes, cube, cone in ((float("nan"), 0.01, 0.1), (0.3, float("inf"), 0.1), (0.3, 0.01, -1.0),
+                              (5.0, -2.0, float("nan"))):
+        img, stats = render(pc, mirror_box(pc), 16, 16, samples=8, seed=3, guiding_caustic_lobes=lobes,
+                            guiding_caustic_cube=cube, guiding_caustic_cone=cone, **CAUSTICS)
+        assert np.all(np.isfinite(img)) and stats["nonfinite_samples"] == 0
+
+
+def test_path_classes_split_the_image():
+    # The measurement mask (RenderSettings.guiding_class_mask): with the guide's probability 0
+    # the paths are the plain ones, so the six classes' images add up to the whole image, and
+    # the ball's caustics on the walls (L S D E) are a class of their own.
+    kw = dict(samples=16, seed=4, guiding=True, guiding_probability=0.0)
+    whole, _ = render(pc, mirror_box(pc), 24, 24, **kw)
+    parts = [render(pc, mirror_box(pc), 24, 24, guiding_class_mask=1 << k, **kw)[0] for k in range(6)]
+    assert np.allclose(np.sum(parts, axis=0)[..., :3], whole[..., :3], rtol=1e-4, atol=1e-6)
+    assert all(p[..., :3].mean() > 0.0 for p in parts[:3]), [p[..., :3].mean() for p in parts]
+
+
+def test_caustic_lobes_change_nothing_without_smooth_surfaces():
+    # No smooth lobe, no caustic record, no lobes: the same paths as caustic photons alone.
+    kw = dict(samples=16, seed=7, **CAUSTICS)
+    a, _ = render(pc, lamp_box(pc), 24, 24, **kw)
+    b, stats = render(pc, lamp_box(pc), 24, 24, guiding_caustic_lobes=0.3, **kw)
+    assert stats["guiding_caustic_cells"] == 0 and np.array_equal(a, b)
