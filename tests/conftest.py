@@ -64,10 +64,28 @@ def read_durations():
         return {}
 
 
+RELEASE_ONLY = REPO / "tests" / "sanitizer_release_only.json"
+
+
+def mark_release_only(items):
+    """Marks `release_only` the tests of tests/sanitizer_release_only.json: the slow ones whose
+    lines of core/ the rest of the sanitizer step already covers (chosen with gcov,
+    docs/building.md "CI time")."""
+    try:
+        names = set(json.loads(RELEASE_ONLY.read_text()))
+    except (OSError, ValueError):
+        return
+    import pytest
+    for item in items:
+        if item.nodeid in names:
+            item.add_marker(pytest.mark.release_only)
+
+
 def pytest_collection_modifyitems(session, config, items):
     """Under xdist (`--dist loadfile`), order whole files longest first, so that no long file starts
     last and leaves the other worker idle. Files without a recorded time go first (assume long),
     most tests first. Tests keep their order inside a file; a run without xdist is not reordered."""
+    mark_release_only(items)
     if "PYTEST_XDIST_WORKER" not in os.environ:
         return
     times = read_durations()
