@@ -484,16 +484,20 @@ def _clock():
     return time.process_time(), time.perf_counter()
 
 
+def _mode_and_key(scene, kind, refs):
+    """(this call's mode, the key or None when the store is not used, the start clock). `refs`:
+    the call's own mode; PATHLIGHT_CYCLES_REFS=render or refresh overrides it."""
+    env = mode()
+    m = env if (refs is None or env in ("render", "refresh")) else refs
+    start = _clock()
+    return m, (None if m == "render" else _key_or_none(scene, kind)), start
+
+
 def cached_file(scene, kind, path, render, read, refs=None):
     """Like cached(), for a render that writes a file at `path` (a multilayer EXR, headers and
     all): render() writes it, read(path) -> {name: float32 array} compares two of them. A hit
     copies the stored file to `path`."""
-    env = mode()
-    m = env if (refs is None or env in ("render", "refresh")) else refs
-    if m == "render":
-        return render()
-    start = _clock()
-    key = _key_or_none(scene, kind)
+    m, key, start = _mode_and_key(scene, kind, refs)
     if key is None:
         return render()
     stored = ref_path(key).with_suffix(Path(path).suffix)
@@ -550,12 +554,7 @@ def cached(scene, kind, render, refs=None):
     """render() -> {name: float32 array}, through the stored references. `refs`: this call's
     mode ("check" for the tests that verify the cache every run); PATHLIGHT_CYCLES_REFS=render
     or refresh overrides it."""
-    env = mode()
-    m = env if (refs is None or env in ("render", "refresh")) else refs
-    if m == "render":
-        return render()
-    start = _clock()
-    key = _key_or_none(scene, kind)
+    m, key, start = _mode_and_key(scene, kind, refs)
     if key is None:
         return render()
     if m == "use":
