@@ -910,6 +910,10 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
       } else if (kind == "transparent") {
         o.code = OpCode::Transparent;
         o.in[1] = p("color");
+      } else if (kind == "ray_portal") {
+        o.code = OpCode::RayPortal;
+        o.in[1] = p("color"); o.in[2] = p("position"); o.in[3] = p("direction");
+        prog.varying = true;  // its defaults are the shading point and the view
       } else if (kind == "metallic") {
         o.code = OpCode::Metallic;
         o.in[1] = p("base_color"); o.in[2] = p("edge_tint"); o.in[3] = p("ior"); o.in[4] = p("extinction");

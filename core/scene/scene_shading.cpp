@@ -448,10 +448,7 @@ Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_o
       shadow.flags = kRayShadow;
       shadow.length = h.t * length(ray.dir);
       shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, shadow);
-      Vec3 pass(0.0f);
-      for (int c = 0; c < cl.n; ++c)
-        if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
-      T = T * vmin(pass, Vec3(1.0f));
+      T = T * vmin(cl.shadow_pass(), Vec3(1.0f));
       if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
     }
     continue_past(ray, sp, dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng);
