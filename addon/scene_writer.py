@@ -182,11 +182,15 @@ def _crypto(info):
 
 def _motion_args(entry, k):
     """add_curves / add_points keywords for motion blur of instance k of a CurvesData or
-    PointsData: its transform steps and the geometry's deformation steps (export.motion)."""
+    PointsData: its transform steps and the geometry's deformation steps (export.motion), and
+    its matrices at the frames around for the Vector pass."""
     out = {}
     motions = getattr(entry, "motions", None) or []
     if k < len(motions) and motions[k] is not None:
         out["motion"] = motions[k]
+    pass_motions = getattr(entry, "pass_motions", None) or []
+    if k < len(pass_motions) and pass_motions[k] is not None:
+        out["pass_motion"] = pass_motions[k]
     points = getattr(entry, "motion_points", None)
     if points is not None:
         out["motion_points"] = points

@@ -188,6 +188,13 @@ std::vector<Mat4> to_motion(const py::object& o, const char* what) {
   return steps;
 }
 
+// The Vector pass's matrices of an object (None: still): (2, 4, 4), as add_instance's pass_motion.
+std::vector<Mat4> to_pass_motion(const py::object& o, const char* what) {
+  std::vector<Mat4> m = to_motion(o, what);
+  if (!m.empty() && m.size() != 2) throw std::invalid_argument(std::string(what) + " must be a (2, 4, 4) array");
+  return m;
+}
+
 // Deformation steps of a curve or point set: None, or (S, N, 3) positions with S in 2..1025 and N
 // the set's point count, and (S, N) radii or None. Values are checked by the core at commit
 // (non-finite steps leave the set undeformed).
@@ -376,7 +383,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes,
                     const std::string& shape, const py::object& materials_obj, const py::dict& point_attributes,
                     const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
-                    const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set) {
+                    const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set,
+                    const py::object& pass_motion) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -438,6 +446,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   read_sets(point_uvs, n, "uv set index must be in [0, 8)", "curve point uvs must have shape (N, 2)", cs.point_uvs);
   cs.motion = to_motion(motion, "curves motion");
   to_deform(motion_points, motion_radii, n, "curves", cs.deform_points, cs.deform_radii);
+  cs.pass_motion = to_pass_motion(pass_motion, "curves pass_motion");
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -448,7 +457,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
                     const py::object& matrix, const py::object& color, float pass_index, uint32_t random_id,
                     const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
                     const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
-                    const py::object& cryptomatte, int light_set, int shadow_set) {
+                    const py::object& cryptomatte, int light_set, int shadow_set, const py::object& pass_motion) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const size_t n = size_t(points.shape(0));
@@ -486,6 +495,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   }
   ps.motion = to_motion(motion, "points motion");
   to_deform(motion_points, motion_radii, n, "points", ps.deform_points, ps.deform_radii);
+  ps.pass_motion = to_pass_motion(pass_motion, "points pass_motion");
   return self.scene->add_points(std::move(ps));
 }
 
@@ -3067,7 +3077,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("point_attributes") = py::dict(),
            py::arg("texspace") = py::none(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
-           py::arg("shadow_set") = 0,
+           py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(),
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes, light_set, shadow_set: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
@@ -3078,7 +3088,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "(None: the frame's) at S >= 2 steps evenly over the shutter (Cycles' motion points); steps "
            "with non-finite values or that leave out other points: undeformed (stats()['motion_rejected']). "
            "Points with a non-finite position or radius, or a radius <= 0, are left out at commit "
-           "(stats()['skipped_points']).")
+           "(stats()['skipped_points']). pass_motion: (2, 4, 4) object-to-world matrices at the previous and "
+           "next frames (the Vector pass; None: still).")
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
@@ -3087,7 +3098,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("materials") = py::none(), py::arg("point_attributes") = py::dict(),
            py::arg("point_uvs") = py::dict(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
-           py::arg("shadow_set") = 0,
+           py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(),
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -3108,7 +3119,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            "or non-finite steps: static). motion_points, motion_radii: deformation blur, (S, N, 3) "
            "object-space points and (S, N) radii (None: the frame's) at S >= 2 steps evenly over the "
            "shutter (Cycles' curve motion keys); steps with non-finite values, or that cut into other "
-           "pieces than the frame's, leave it undeformed (stats()['motion_rejected']).")
+           "pieces than the frame's, leave it undeformed (stats()['motion_rejected']). pass_motion: as add_points'.")
       .def("displace_mesh", &displace_mesh_arrays, py::arg("positions"), py::arg("triangles"),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("matrix") = py::none(), py::arg("normals") = py::none(), py::arg("normal_indices") = py::none(),
