@@ -10,6 +10,7 @@ import weakref
 
 import numpy as np
 
+from .export.light_linking import ALL_SETS
 from .export.material import cryptomatte_name
 from .export.world import WorldSky
 
@@ -202,11 +203,15 @@ def _motion_args(entry, k):
 
 def _link_sets(links, owners, k):
     """add_curves / add_points' light linking arguments of instance k: its object's light and
-    shadow sets as a receiver and a blocker (curves and points are no emitters), or none."""
+    shadow sets as a receiver and a blocker, and as an emitter its light and shadow masks (an
+    emissive material with linking of its own), or none."""
     link = links.get(owners[k]) if links and k < len(owners) else None
-    if link is None or not (link[0] or link[2]):
+    if link is None:
         return {}
-    return {"light_set": link[0], "shadow_set": link[2]}
+    out = {"light_set": link[0], "shadow_set": link[2]} if link[0] or link[2] else {}
+    if link[1] != ALL_SETS or link[3] != ALL_SETS:
+        out.update(light_mask=link[1], shadow_mask=link[3])
+    return out
 
 
 def add_curves(scene, curves, material_ids, warn, random_id_of=None, links=None):

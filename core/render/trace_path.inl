@@ -1226,10 +1226,15 @@ restart: __attribute__((unused));
     // Light linking, as Cycles: rays other than the camera's get no emission from a mesh light not
     // linked to the vertex they left, nor from a shadow-linked one (its light samples have the
     // full weight: Cycles reaches it by dedicated rays instead).
+    // Curves and point clouds as emitters too (their set's masks; Cycles' light_link_object_match
+    // of any object), though no light sample reaches them.
     if constexpr (kLinks)
-      if (links && !direct && !is_black(cl.emission) &&
-          (!((scene.emitter_light_mask(sp.instance) >> mis_set) & 1u) || scene.emitter_shadow_mask(sp.instance) != kAllLightSets))
-        cl.emission = Vec3(0.0f);
+      if (links && !direct && !is_black(cl.emission)) {
+        const bool set_of_object = sp.curve() || sp.point();
+        const uint64_t lm = set_of_object ? scene.object_info(sp).light_mask : scene.emitter_light_mask(sp.instance);
+        const uint64_t sm = set_of_object ? scene.object_info(sp).shadow_mask : scene.emitter_shadow_mask(sp.instance);
+        if (!((lm >> mis_set) & 1u) || sm != kAllLightSets) cl.emission = Vec3(0.0f);
+      }
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.
     if (!is_black(cl.emission)) {
       float w = 1.0f;
