@@ -11,6 +11,7 @@ import pytest
 from core_scenes import add_object, camera, closure, core, quad, render
 
 pc = core()
+pytestmark = pytest.mark.sanitize
 
 
 def ground_under(program):
