@@ -78,11 +78,14 @@ class CommittedScene:
 
 
 def _has_motion(data):
-    """Motion blur, or the Vector pass's motion (also only set by add_instance)."""
+    """Motion blur, or the Vector pass's motion (also only set by add_instance, add_curves and
+    add_points)."""
     return any(getattr(mesh, "motion_positions", None) is not None or
                getattr(mesh, "pass_positions", None) is not None or
                any(m is not None for m in getattr(mesh, "motions", [])) or
-               any(m is not None for m in getattr(mesh, "pass_motions", None) or []) for mesh in data.meshes)
+               any(m is not None for m in getattr(mesh, "pass_motions", None) or []) for mesh in data.meshes) or \
+        any(m is not None for entry in list(getattr(data, "curves", [])) + list(getattr(data, "points", []))
+            for m in getattr(entry, "pass_motions", None) or [])
 
 
 def _matrices(data):

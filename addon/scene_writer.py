@@ -10,6 +10,7 @@ import weakref
 
 import numpy as np
 
+from .export.light_linking import ALL_SETS
 from .export.material import cryptomatte_name
 from .export.world import WorldSky
 
@@ -182,11 +183,15 @@ def _crypto(info):
 
 def _motion_args(entry, k):
     """add_curves / add_points keywords for motion blur of instance k of a CurvesData or
-    PointsData: its transform steps and the geometry's deformation steps (export.motion)."""
+    PointsData: its transform steps and the geometry's deformation steps (export.motion), and
+    its matrices at the frames around for the Vector pass."""
     out = {}
     motions = getattr(entry, "motions", None) or []
     if k < len(motions) and motions[k] is not None:
         out["motion"] = motions[k]
+    pass_motions = getattr(entry, "pass_motions", None) or []
+    if k < len(pass_motions) and pass_motions[k] is not None:
+        out["pass_motion"] = pass_motions[k]
     points = getattr(entry, "motion_points", None)
     if points is not None:
         out["motion_points"] = points
@@ -198,11 +203,15 @@ def _motion_args(entry, k):
 
 def _link_sets(links, owners, k):
     """add_curves / add_points' light linking arguments of instance k: its object's light and
-    shadow sets as a receiver and a blocker (curves and points are no emitters), or none."""
+    shadow sets as a receiver and a blocker, and as an emitter its light and shadow masks (an
+    emissive material with linking of its own), or none."""
     link = links.get(owners[k]) if links and k < len(owners) else None
-    if link is None or not (link[0] or link[2]):
+    if link is None:
         return {}
-    return {"light_set": link[0], "shadow_set": link[2]}
+    out = {"light_set": link[0], "shadow_set": link[2]} if link[0] or link[2] else {}
+    if link[1] != ALL_SETS or link[3] != ALL_SETS:
+        out.update(light_mask=link[1], shadow_mask=link[3])
+    return out
 
 
 def add_curves(scene, curves, material_ids, warn, random_id_of=None, links=None):

@@ -360,6 +360,8 @@ def _add_pass_motion(engine, depsgraph, data, warn):
         for mesh in data.meshes:
             mesh.pass_motions = [None] * len(mesh.matrices)
             mesh.pass_positions = None
+        for entry in list(getattr(data, "curves", [])) + list(getattr(data, "points", [])):
+            entry.pass_motions = [None] * len(entry.matrices)
         data.camera.pop("pass_motion", None)
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from .camera import ExportError, camera_params
 from .curves import CurvesData, collect_curves
 from .light import LightData, collect_lights
-from .light_linking import ALL_SETS, attach_to_lights, light_links
+from .light_linking import attach_to_lights, light_links
 from .material import MaterialData, MaterialTable, view_layer_ids
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .object_attributes import InstanceAttributes
@@ -98,13 +98,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         warn(f"Light linking could not be read ({e}); lights reach every object")
         links = {}
     attach_to_lights(lights, links)
-    # Curves and point clouds are receivers and blockers (scene_writer's _link_sets); as
-    # emitters (an emissive material with linking of its own) they are not linked.
-    emitting = sorted({o for c in curves for o in c.owners if _links_as_emitter(links.get(o))} |
-                      {o for p in points for o in p.owners if _links_as_emitter(links.get(o))})
-    if emitting:
-        warn(f"Light linking of curves and point clouds as emitters is not supported ({', '.join(emitting)}): "
-             "their emission reaches every object")
+    # (Curves and point clouds: receivers, blockers and emitters, scene_writer's _link_sets.)
     far = distance_from_origin(meshes, camera.get("matrix_world", np.eye(4)))
     if far > FAR_FROM_ORIGIN:
         warn(f"The scene lies {far:.3g} units from the world origin: beyond {FAR_FROM_ORIGIN:.0e} "
@@ -122,12 +116,6 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
 # when translated 3e4 units, and is off by 3 % at 1e5 (features must exceed ~1e-6 x their
 # distance from the origin).
 FAR_FROM_ORIGIN = 3e4
-
-
-def _links_as_emitter(link):
-    """Whether a light_links entry limits its object as an emitter (receiver or blocker
-    collection of its own)."""
-    return link is not None and (link[1] != ALL_SETS or link[3] != ALL_SETS)
 
 
 def distance_from_origin(meshes, camera_matrix):

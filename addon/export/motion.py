@@ -320,8 +320,9 @@ def add_motion(engine, depsgraph, data, warn):
 def add_pass_motion(engine, depsgraph, data, warn):
     """The Vector pass's motion, as Cycles' without motion blur (its MOTION_PASS: the depsgraph
     at the frames before and after, frame -+ 1): data.camera["pass_motion"] (2, 4, 4), each
-    MeshData's `pass_motions` (per matrix: (2, 4, 4) or None) and, for single-user meshes that
-    may deform, `pass_positions` ((2, V, 3) or None). Curves and point clouds stay still.
+    MeshData's, CurvesData's and PointsData's `pass_motions` (per matrix: (2, 4, 4) or None)
+    and, for single-user meshes that may deform, `pass_positions` ((2, V, 3) or None). Curves
+    and point clouds move with their objects only (their deformation is left out).
     Evaluates the depsgraph at those frames and restores the frame. Returns the number of
     moving objects and cameras."""
     scene = depsgraph.scene
@@ -338,6 +339,10 @@ def add_pass_motion(engine, depsgraph, data, warn):
             obj = _object(scene, keys[0][0])
             if obj is not None and obj.type == 'MESH' and may_deform(obj, scene):
                 deforming[keys[0]] = mesh
+    for entry in list(getattr(data, "curves", [])) + list(getattr(data, "points", [])):
+        entry.pass_motions = [None] * len(entry.matrices)
+        for k, key in enumerate(getattr(entry, "motion_keys", [])[:len(entry.matrices)]):
+            where.setdefault(key, []).append((entry, k))
     cam_obj = scene.camera
     matrices, positions, cam_at = {}, {}, {}
     try:

@@ -188,6 +188,13 @@ std::vector<Mat4> to_motion(const py::object& o, const char* what) {
   return steps;
 }
 
+// The Vector pass's matrices of an object (None: still): (2, 4, 4), as add_instance's pass_motion.
+std::vector<Mat4> to_pass_motion(const py::object& o, const char* what) {
+  std::vector<Mat4> m = to_motion(o, what);
+  if (!m.empty() && m.size() != 2) throw std::invalid_argument(std::string(what) + " must be a (2, 4, 4) array");
+  return m;
+}
+
 // Deformation steps of a curve or point set: None, or (S, N, 3) positions with S in 2..1025 and N
 // the set's point count, and (S, N) radii or None. Values are checked by the core at commit
 // (non-finite steps leave the set undeformed).
@@ -360,11 +367,14 @@ void set_cryptomatte(ObjectInfo& info, const py::object& names, const char* what
 
 // A curve or point set's light linking sets as a receiver and a blocker (0..63; they are no
 // emitters, so no masks).
-void set_link_sets(ObjectInfo& info, int light_set, int shadow_set, const char* what) {
+void set_link_sets(ObjectInfo& info, int light_set, int shadow_set, const char* what,
+                   uint64_t light_mask = kAllLightSets, uint64_t shadow_mask = kAllLightSets) {
   if (light_set < 0 || light_set > 63 || shadow_set < 0 || shadow_set > 63)
     throw std::invalid_argument(std::string(what) + " light_set and shadow_set take 0..63");
   info.light_set = uint8_t(light_set);
   info.shadow_set = uint8_t(shadow_set);
+  info.light_mask = light_mask;  // as an emitter: the sets it lights and is blocked by
+  info.shadow_mask = shadow_mask;
 }
 
 // A Curves object: points (N, 3), offsets (C + 1) into them, radii (N) or None (Cycles'
@@ -376,7 +386,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::object& normals_obj, const py::dict& uvs, const py::dict& strand_attributes,
                     const std::string& shape, const py::object& materials_obj, const py::dict& point_attributes,
                     const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
-                    const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set) {
+                    const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set,
+                    const py::object& pass_motion, uint64_t light_mask, uint64_t shadow_mask) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -428,7 +439,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   cs.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   cs.info.random = object_random(random_id);
   set_cryptomatte(cs.info, cryptomatte, "curves");
-  set_link_sets(cs.info, light_set, shadow_set, "curves");
+  set_link_sets(cs.info, light_set, shadow_set, "curves", light_mask, shadow_mask);
   cs.attrs = to_object_attributes(attributes, "curves");
   read_sets(uvs, nc, "uv set index must be in [0, 8)", "curve uvs must have shape (C, 2)", cs.uvs);  // per strand
   read_sets(strand_attributes, nc, "attribute set index must be in [0, 8)",
@@ -438,6 +449,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   read_sets(point_uvs, n, "uv set index must be in [0, 8)", "curve point uvs must have shape (N, 2)", cs.point_uvs);
   cs.motion = to_motion(motion, "curves motion");
   to_deform(motion_points, motion_radii, n, "curves", cs.deform_points, cs.deform_radii);
+  cs.pass_motion = to_pass_motion(pass_motion, "curves pass_motion");
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -448,7 +460,8 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
                     const py::object& matrix, const py::object& color, float pass_index, uint32_t random_id,
                     const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
                     const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
-                    const py::object& cryptomatte, int light_set, int shadow_set) {
+                    const py::object& cryptomatte, int light_set, int shadow_set, const py::object& pass_motion,
+                    uint64_t light_mask, uint64_t shadow_mask) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const size_t n = size_t(points.shape(0));
@@ -474,7 +487,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   ps.info.pass_index = std::isfinite(pass_index) ? pass_index : 0.0f;
   ps.info.random = object_random(random_id);
   set_cryptomatte(ps.info, cryptomatte, "points");
-  set_link_sets(ps.info, light_set, shadow_set, "points");
+  set_link_sets(ps.info, light_set, shadow_set, "points", light_mask, shadow_mask);
   ps.attrs = to_object_attributes(attributes, "points");
   read_sets(point_attributes, n, "attribute set index must be in [0, 8)", "point attributes must have shape (N, 4)",
             ps.point_attrs);
@@ -486,6 +499,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   }
   ps.motion = to_motion(motion, "points motion");
   to_deform(motion_points, motion_radii, n, "points", ps.deform_points, ps.deform_radii);
+  ps.pass_motion = to_pass_motion(pass_motion, "points pass_motion");
   return self.scene->add_points(std::move(ps));
 }
 
@@ -910,6 +924,10 @@ ShaderProgram parse_program(const py::list& program, int64_t n_images) {
       } else if (kind == "transparent") {
         o.code = OpCode::Transparent;
         o.in[1] = p("color");
+      } else if (kind == "ray_portal") {
+        o.code = OpCode::RayPortal;
+        o.in[1] = p("color"); o.in[2] = p("position"); o.in[3] = p("direction");
+        prog.varying = true;  // its defaults are the shading point and the view
       } else if (kind == "metallic") {
         o.code = OpCode::Metallic;
         o.in[1] = p("base_color"); o.in[2] = p("edge_tint"); o.in[3] = p("ior"); o.in[4] = p("extinction");
@@ -3063,7 +3081,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("random_id") = 0u, py::arg("attributes") = py::none(), py::arg("point_attributes") = py::dict(),
            py::arg("texspace") = py::none(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
-           py::arg("shadow_set") = 0,
+           py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
+           py::arg("shadow_mask") = kAllLightSets,
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes, light_set, shadow_set: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
@@ -3074,7 +3093,10 @@ PYBIND11_MODULE(pathlight_core, m) {
            "(None: the frame's) at S >= 2 steps evenly over the shutter (Cycles' motion points); steps "
            "with non-finite values or that leave out other points: undeformed (stats()['motion_rejected']). "
            "Points with a non-finite position or radius, or a radius <= 0, are left out at commit "
-           "(stats()['skipped_points']).")
+           "(stats()['skipped_points']). pass_motion: (2, 4, 4) object-to-world matrices at the previous and "
+           "next frames (the Vector pass; None: still). light_mask, shadow_mask: as an emitter, as "
+           "add_instance's (rays other than the camera's get its emission only from vertices it lights, "
+           "none where it is shadow-linked).")
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
            py::arg("material") = 0u, py::arg("matrix") = py::none(), py::arg("curve_type") = "catmull_rom",
            py::arg("subdivisions") = 8, py::arg("color") = py::none(), py::arg("pass_index") = 0.0f,
@@ -3083,7 +3105,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("materials") = py::none(), py::arg("point_attributes") = py::dict(),
            py::arg("point_uvs") = py::dict(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
-           py::arg("shadow_set") = 0,
+           py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
+           py::arg("shadow_mask") = kAllLightSets,
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -3104,7 +3127,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            "or non-finite steps: static). motion_points, motion_radii: deformation blur, (S, N, 3) "
            "object-space points and (S, N) radii (None: the frame's) at S >= 2 steps evenly over the "
            "shutter (Cycles' curve motion keys); steps with non-finite values, or that cut into other "
-           "pieces than the frame's, leave it undeformed (stats()['motion_rejected']).")
+           "pieces than the frame's, leave it undeformed (stats()['motion_rejected']). pass_motion: as add_points'.")
       .def("displace_mesh", &displace_mesh_arrays, py::arg("positions"), py::arg("triangles"),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("matrix") = py::none(), py::arg("normals") = py::none(), py::arg("normal_indices") = py::none(),

@@ -329,10 +329,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
       shadow.flags = kRayShadow;
       shadow.length = h.t * len;
       scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
-      Vec3 pass(0.0f);
-      for (int c = 0; c < cl.n; ++c)
-        if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
-      T = T * vmin(pass, Vec3(1.0f));
+      T = T * vmin(cl.shadow_pass(), Vec3(1.0f));
       if (is_black(T)) return Vec3(0.0f);  // (ratio tracking's estimates may be negative)
     }
     const bool front = dot(ray.dir, sp.ng) < 0.0f;
@@ -511,7 +508,7 @@ inline Vec3 safe_ratio(Vec3 a, Vec3 b) {
 [[gnu::noinline]] inline void pass_colors(const ClosureList& cl, Vec3 wo, Vec3& diffuse, Vec3& glossy, Vec3& transmission) {
   for (int i = 0; i < cl.n; ++i) {
     const Closure& c = cl.c[size_t(i)];
-    if (std::holds_alternative<TransparentBsdf>(c.bsdf)) continue;
+    if (std::holds_alternative<TransparentBsdf>(c.bsdf) || std::holds_alternative<PortalBsdf>(c.bsdf)) continue;
     if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
       Vec3 cr, ct;
       float pr, pt;
@@ -698,9 +695,7 @@ struct PathClass {
     aov.transmission_color += beta * t;
   }
   if (!s.mist && !s.ao) return;
-  Vec3 transparency(0.0f);
-  for (int i = 0; i < cl.n; ++i)
-    if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(i)].bsdf)) transparency += cl.c[size_t(i)].weight;
+  const Vec3 transparency = cl.transparency();
   const Vec3 alpha = vmax(Vec3(0.0f), vmin(Vec3(1.0f), Vec3(1.0f) - transparency));
   const float weight = average(beta * alpha);
   if (s.mist) {
@@ -1231,10 +1226,15 @@ restart: __attribute__((unused));
     // Light linking, as Cycles: rays other than the camera's get no emission from a mesh light not
     // linked to the vertex they left, nor from a shadow-linked one (its light samples have the
     // full weight: Cycles reaches it by dedicated rays instead).
+    // Curves and point clouds as emitters too (their set's masks; Cycles' light_link_object_match
+    // of any object), though no light sample reaches them.
     if constexpr (kLinks)
-      if (links && !direct && !is_black(cl.emission) &&
-          (!((scene.emitter_light_mask(sp.instance) >> mis_set) & 1u) || scene.emitter_shadow_mask(sp.instance) != kAllLightSets))
-        cl.emission = Vec3(0.0f);
+      if (links && !direct && !is_black(cl.emission)) {
+        const bool set_of_object = sp.curve() || sp.point();
+        const uint64_t lm = set_of_object ? scene.object_info(sp).light_mask : scene.emitter_light_mask(sp.instance);
+        const uint64_t sm = set_of_object ? scene.object_info(sp).shadow_mask : scene.emitter_shadow_mask(sp.instance);
+        if (!((lm >> mis_set) & 1u) || sm != kAllLightSets) cl.emission = Vec3(0.0f);
+      }
     // Emission found by the BSDF ray: weighted against the light sample that could have found it.
     if (!is_black(cl.emission)) {
       float w = 1.0f;
@@ -1256,9 +1256,7 @@ restart: __attribute__((unused));
     if (kAovs && aov && (want_data || want_features)) {
       const bool flip = dot(sp.ng, wo) < 0.0f;  // normals face the viewer, as Cycles' sd->N
       if (want_data && direct) {
-        Vec3 transparency(0.0f);
-        for (int i = 0; i < cl.n; ++i)
-          if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(i)].bsdf)) transparency += cl.c[size_t(i)].weight;
+        const Vec3 transparency = cl.transparency();
         if (average(transparency) <= 0.5f) {  // Cycles' default pass alpha threshold
           want_data = false;
           aov->hit = true;
@@ -1287,10 +1285,7 @@ restart: __attribute__((unused));
       if (aov && direct && s.cryptomatte && aov->crypto_count < kMaxCryptoHits) {
         // Every surface the camera ray meets, as Cycles' film_write_data_passes: weighted by
         // the throughput to it and by its own opacity (its Transparent closures let the rest on).
-        Vec3 transparency(0.0f);
-        for (int i = 0; i < cl.n; ++i)
-          if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(i)].bsdf)) transparency += cl.c[size_t(i)].weight;
-        const float weight = average(beta) * (1.0f - average(transparency));
+        const float weight = average(beta) * (1.0f - average(cl.transparency()));
         if (weight > 0.0f) {
           const ObjectInfo& info = scene.object_info(sp);
           aov->crypto[aov->crypto_count++] = {info.crypto_object, scene.material(sp.material).crypto, info.crypto_asset,
@@ -1501,6 +1496,32 @@ restart: __attribute__((unused));
       sss_exit = false;
       goto scatter;
     }
+    if constexpr (kNonDiffuse) {
+      if (const PortalBsdf* portal = std::get_if<PortalBsdf>(&ch.bsdf)) {
+        // Cycles' integrate_surface_ray_portal: the path goes on from the portal's position
+        // along its direction, weighted by the closure over its choice. path_state_next counts
+        // it as a transparent bounce (the ray keeps its kind: a camera ray stays one) and skips
+        // MIS at what it finds next: the light samples before could not see through it.
+        beta *= ch.weight / ch.pick;
+        if (!is_finite(beta) || ++transparent > 256) break;
+        ray_state.transparent = uint16_t(transparent);
+        prev_delta = true;
+        if constexpr (kMedia) medium.cross(scene, sp, front);  // (LABEL_TRANSMIT: the volume stack)
+        // A new ray: its length restarts there, from the footprint it hit (Cycles' dP).
+        ray_state.dp = ray_state.footprint();
+        length_before = 0.0f;
+        if (length_sq(sp.p - portal->p) > 1e-9f) {
+          ray.org = portal->p;  // elsewhere: it may find the same surface again
+          ray.self_curve = UINT32_MAX;
+        } else {
+          ray.org = offset_ray_origin(sp.p, sp.p_error, dot(portal->d, ng_out) > 0.0f ? ng_out : -ng_out);
+          ray.self_curve = scene.self_curve(sp);
+        }
+        ray.dir = portal->d;
+        ray.tmax = kInf;
+        continue;
+      }
+    }
     BsdfSample bs;
     bool from_guide = false;
     float guide_pdf = 0.0f;  // the guide's pdf of a direction it sampled
@@ -1551,12 +1572,16 @@ restart: __attribute__((unused));
           lp_dw = Vec3(k == 0 ? 1.0f : 0.0f);
           lp_gw = Vec3(k == 1 ? 1.0f : 0.0f);
         }
-      // A transparent crossing is not a scattering event: MIS keeps the last real vertex.
+      // A transparent crossing is not a scattering event: MIS keeps the last real vertex
+      // (but where a Ray Portal shares the surface, Cycles skips MIS after it: shadow rays
+      // could not pass there).
       if (!(bs.flags & kTransparentLobe)) {
         prev_delta = true;
         mis_org = sp.p;
         if constexpr (kTree) mis_n = sp.ns;
         if constexpr (kLinks) mis_set = scene.light_set_at(sp);
+      } else if (cl.has_portal()) {
+        prev_delta = true;
       }
     } else {
       float pdf;

@@ -395,6 +395,19 @@ struct TransparentBsdf {
   }
 };
 
+// Cycles' Ray Portal BSDF: no scattering of its own. A path that picks it goes on from p along d
+// (world space) as through a transparent surface: the integrator moves the ray (trace_path.inl),
+// and shadow rays that meet it are blocked (Cycles disables transparent shadows there). 24 bytes.
+struct PortalBsdf {
+  Vec3 p{0.0f};  // where the path goes on
+  Vec3 d{0.0f};  // its direction (unit)
+  Vec3 eval(Vec3, Vec3, float& pdf) const {
+    pdf = 0.0f;
+    return Vec3(0.0f);
+  }
+  bool sample(Vec3, Vec2, float, BsdfSample&) const { return false; }
+};
+
 }  // namespace pl
 #include "scene/hair_bsdf.h"  // needs BsdfSample and the lobe flags above
 #include "scene/hair_huang.h"  // (the same, and hair_bsdf.h's longitudinal term)
@@ -427,7 +440,8 @@ struct SubsurfaceBsdf {
 namespace pl {
 
 using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf,
-                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf, HairBsdf, HairHuangBsdf>;
+                          SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf, HairBsdf, HairHuangBsdf,
+                          PortalBsdf>;
 
 // The Principled BSDF's GGX lobes first, outside the visit: its dispatch over all the kinds
 // would otherwise cost the default material a little on every evaluation.
@@ -440,7 +454,9 @@ inline bool bsdf_sample(const Bsdf& b, Vec3 wo, Vec2 u, float uc, BsdfSample& s)
   return std::visit([&](const auto& x) { return x.sample(wo, u, uc, s); }, b);
 }
 inline bool bsdf_is_delta(const Bsdf& b) {
-  if (std::holds_alternative<TransparentBsdf>(b) || std::holds_alternative<SubsurfaceBsdf>(b)) return true;
+  if (std::holds_alternative<TransparentBsdf>(b) || std::holds_alternative<SubsurfaceBsdf>(b) ||
+      std::holds_alternative<PortalBsdf>(b))
+    return true;
   if (const auto* c = std::get_if<ConductorBsdf>(&b)) return c->is_delta();
   if (const auto* d = std::get_if<DielectricBsdf>(&b)) return d->is_delta();
   return false;

@@ -166,6 +166,8 @@ struct CurveSetData {
   // the wrong size, non-finite ones, or ones that cut into other pieces leave it undeformed.
   std::vector<std::vector<Vec3>> deform_points;
   std::vector<std::vector<float>> deform_radii;
+  // Vector pass: the object-to-world matrix at the previous and next frames (2; empty: still).
+  std::vector<Mat4> pass_motion;
 };
 
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
@@ -194,6 +196,8 @@ struct PointSetData {
   // of the wrong size, with non-finite values or other points left out leave it undeformed.
   std::vector<std::vector<Vec3>> deform_points;
   std::vector<std::vector<float>> deform_radii;
+  // Vector pass: the object-to-world matrix at the previous and next frames (2; empty: still).
+  std::vector<Mat4> pass_motion;
 };
 
 // Hit::inst of a hit on a point (Hit::prim: the sphere, Hit::b1, b2: its normal, octahedral).

@@ -128,7 +128,7 @@ void Scene::detect_features() {
         case OpCode::Translucent: f.diffuse = f.transmission = true; break;
         case OpCode::Glossy: case OpCode::Metallic: f.glossy = true; break;
         case OpCode::Glass: case OpCode::Refraction: f.glossy = f.transmission = true; break;
-        case OpCode::Transparent: f.transparent = true; break;
+        case OpCode::Transparent: case OpCode::RayPortal: f.transparent = true; break;
         case OpCode::Principled: f.diffuse = f.glossy = f.transmission = true; break;
         case OpCode::PrincipledHair: case OpCode::Hair:
           f.glossy = f.transmission = true;

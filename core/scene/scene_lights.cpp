@@ -240,9 +240,10 @@ void Scene::build_lights() {
     links_ = links_ || in.light_set || in.shadow_set || in.light_mask != kAllLightSets || in.shadow_mask != kAllLightSets;
     max_set = std::max(max_set, in.light_set);
   }
-  for (const auto* sets : {&curve_coords_, &point_coords_})  // receivers and blockers only
+  for (const auto* sets : {&curve_coords_, &point_coords_})  // (emitters only to rays that hit them)
     for (const ObjectCoords& oc : *sets) {
-      links_ = links_ || oc.info.light_set || oc.info.shadow_set;
+      links_ = links_ || oc.info.light_set || oc.info.shadow_set || oc.info.light_mask != kAllLightSets ||
+               oc.info.shadow_mask != kAllLightSets;
       max_set = std::max(max_set, oc.info.light_set);
     }
   env_index_ = SIZE_MAX;

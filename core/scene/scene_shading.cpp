@@ -448,10 +448,7 @@ Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_o
       shadow.flags = kRayShadow;
       shadow.length = h.t * length(ray.dir);
       shade(sp, h.b1, h.b2, -normalize(ray.dir), cl, shadow);
-      Vec3 pass(0.0f);
-      for (int c = 0; c < cl.n; ++c)
-        if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
-      T = T * vmin(pass, Vec3(1.0f));
+      T = T * vmin(cl.shadow_pass(), Vec3(1.0f));
       if (!(max_component(T) > 0.0f)) return Vec3(0.0f);
     }
     continue_past(ray, sp, dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng);
@@ -622,7 +619,32 @@ Vec3 Scene::pass_uv(const SurfacePoint& sp, int k) const {
 
 void Scene::pass_motion(const SurfacePoint& sp, Vec3& pre, Vec3& post) const {
   pre = post = sp.p;
-  if (pass_motion_.empty() || sp.curve() || sp.point() || sp.instance >= pass_motion_.size()) return;
+  if (sp.curve() || sp.point()) {
+    // A curve set or point cloud: its object's transform at those frames (as Cycles' object
+    // motion of the pass); the set's own deformation between frames is not kept.
+    // (Cycles moves a point's centre, primitive_motion_vector's center, and so here; a curve's
+    // hit point stands in for its centre line's point, which only a turn tells apart.)
+    const std::vector<Mat4>* steps = nullptr;
+    const ObjectCoords* oc = nullptr;
+    Vec3 p = sp.p;
+    if (sp.curve()) {
+      const uint32_t set = curve_set_of(curve_bvh_.piece_at(sp.tri, sp.time).curve);
+      if (set < curve_sets_.size() && set < curve_coords_.size()) steps = &curve_sets_[set].pass_motion, oc = &curve_coords_[set];
+    } else {
+      PointFrame moved;
+      const PointFrame* frame = nullptr;
+      const PointSphere ps = point_bvh_.world_sphere(sp.tri, sp.time, moved, frame);
+      const uint32_t set = point_set_of(ps.point);
+      if (set < point_sets_.size() && set < point_coords_.size()) steps = &point_sets_[set].pass_motion, oc = &point_coords_[set];
+      p = ps.c;
+    }
+    if (!steps || steps->size() != 2 || !oc->valid) return;
+    const Vec3 local = oc->to_object.point(p);
+    const Vec3 a = (*steps)[0].point(local), b = (*steps)[1].point(local);
+    if (is_finite(a) && is_finite(b)) pre = a + (sp.p - p), post = b + (sp.p - p);
+    return;
+  }
+  if (pass_motion_.empty() || sp.instance >= pass_motion_.size()) return;
   const PassMotion& pm = pass_motion_[sp.instance];
   if (!pm.moves) return;
   if (!pm.deform) {

@@ -761,6 +761,7 @@ template <bool kSetsNormal>
       case OpCode::Emission:
       case OpCode::Principled:
       case OpCode::Subsurface:
+      case OpCode::RayPortal:
         detail::eval_closure_op(op, prog, r, ctx, extra, out);
         break;
       case OpCode::VolumeOut: break;  // read by eval_volume

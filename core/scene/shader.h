@@ -92,6 +92,9 @@ enum class OpCode : uint8_t {
   // A displacement program's output (its last op): in[0] the world-space offset of the vertex
   // (true displacement, scene/displace.h).
   DisplaceOut,
+  // The Ray Portal BSDF (a closure): in[0] weight, in[1] colour, in[2] position (kNoReg: the
+  // shading point), in[3] direction (kNoReg or zero: the incoming ray's), as PortalBsdf.
+  RayPortal,
 };
 // Shader AOV slots (view-layer AOVs) a render can keep.
 constexpr int kMaxShaderAovs = 16;
@@ -195,6 +198,27 @@ struct ClosureList {
     d.pick = albedo;
     d.delta = bsdf_is_delta(d.bsdf);
   }
+  bool has_portal() const {
+    for (int i = 0; i < n; ++i)
+      if (std::holds_alternative<PortalBsdf>(c[size_t(i)].bsdf)) return true;
+    return false;
+  }
+  // Cycles' surface_shader_transparency: the Transparent closures' weight, and the Ray Portals'
+  // with it where there is a Transparent closure too (their weights share one extinction, which
+  // Cycles reads only where SD_TRANSPARENT is set). What the passes see through.
+  Vec3 transparency() const {
+    Vec3 t(0.0f), portal(0.0f);
+    bool any = false;
+    for (int i = 0; i < n; ++i) {
+      const Closure& x = c[size_t(i)];
+      if (std::holds_alternative<TransparentBsdf>(x.bsdf)) t += x.weight, any = true;
+      else if (std::holds_alternative<PortalBsdf>(x.bsdf)) portal += x.weight;
+    }
+    return any ? t + portal : t;
+  }
+  // What a shadow ray lets through: the transparency, none where a Ray Portal is (Cycles blocks
+  // shadow rays at SD_RAY_PORTAL surfaces).
+  Vec3 shadow_pass() const { return has_portal() ? Vec3(0.0f) : transparency(); }
   // Sampling probabilities in proportion to each closure's expected contribution.
   void finalize() {
     float total = 0.0f;
@@ -473,7 +497,7 @@ constexpr bool is_closure_op(OpCode c) {
     case OpCode::Translucent: case OpCode::Glossy: case OpCode::Glass: case OpCode::Refraction:
     case OpCode::Transparent: case OpCode::PrincipledExtra: case OpCode::Holdout:
     case OpCode::PrincipledHair: case OpCode::Hair: case OpCode::Emission: case OpCode::Principled:
-    case OpCode::Subsurface:
+    case OpCode::Subsurface: case OpCode::RayPortal:
       return true;
     default:
       return false;

@@ -468,6 +468,17 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
     case OpCode::Transparent:
       out.add(TransparentBsdf{}, clean_color(col(op.in[0]) * col(op.in[1])), Frame::from_normal(ctx.ns));
       break;
+    case OpCode::RayPortal: {
+      // Cycles' bsdf_ray_portal_setup: the Position input (unlinked: the shading point), the
+      // Direction input normalised (zero: the incoming ray's, straight on).
+      PortalBsdf pb;
+      pb.p = op.in[2] == kNoReg ? ctx.p : r[op.in[2]].xyz();
+      const Vec3 d = op.in[3] == kNoReg ? Vec3(0.0f) : r[op.in[3]].xyz();
+      pb.d = d.x == 0.0f && d.y == 0.0f && d.z == 0.0f ? -ctx.wo : d / std::sqrt(length_sq(d));
+      if (!is_finite(pb.p) || !is_finite(pb.d) || !(length_sq(pb.d) > 0.0f)) break;
+      out.add(pb, clean_color(col(op.in[0]) * col(op.in[1])), Frame::from_normal(ctx.ns));
+      break;
+    }
     case OpCode::PrincipledExtra:
       extra = &op;
       break;

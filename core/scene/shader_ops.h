@@ -399,9 +399,9 @@ inline constexpr OpCode kClosureOpCodes[] = {
     OpCode::Emission, OpCode::Principled, OpCode::Translucent, OpCode::Metallic, OpCode::PrincipledExtra,
     OpCode::Holdout, OpCode::PrincipledHair, OpCode::Subsurface, OpCode::Sheen, OpCode::Toon,
     OpCode::Hair,
-    OpCode::VolumeOut, OpCode::DisplaceOut,
+    OpCode::VolumeOut, OpCode::DisplaceOut, OpCode::RayPortal,
 };
-inline constexpr size_t kOpCodeCount = size_t(OpCode::DisplaceOut) + 1;  // (the last OpCode)
+inline constexpr size_t kOpCodeCount = size_t(OpCode::RayPortal) + 1;  // (the last OpCode)
 
 constexpr bool every_value_opcode_has_an_op() {
   for (size_t c = 0; c < kOpCodeCount; ++c) {

@@ -277,13 +277,13 @@ def test_materials_map_to_colours():
 
 
 def test_unsupported_node_warns_once_and_falls_back_to_diffuse(scene):
-    toon = node_material("Toony", "ShaderNodeBsdfRayPortal", Color=(0.2, 0.4, 0.6, 1))
+    toon = node_material("Toony", "ShaderNodeBackground", Color=(0.2, 0.4, 0.6, 1))
     cube("A", materials=(toon,))
     cube("B", materials=(toon, toon), location=(4, 0, 0))
     warnings = Warnings()
     data = export_scene(depsgraph(), warnings)
     assert len(warnings) == 1
-    assert "Toony" in warnings[0] and "ShaderNodeBsdfRayPortal" in warnings[0]
+    assert "Toony" in warnings[0] and "ShaderNodeBackground" in warnings[0]
     (toony,) = [m for m in data.materials if m.name == "Toony"]
     # A diffuse closure of the node's own Color input.
     consts = {op[1]: op[2] for op in toony.program if op[0] == "const"}
@@ -298,7 +298,7 @@ def test_unsupported_value_node_uses_the_input_value_and_warns():
     tree = mat.node_tree
     bsdf = tree.nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (0.3, 0.3, 0.3, 1)
-    info = tree.nodes.new("ShaderNodeShaderToRGB")  # EEVEE only: not supported
+    info = tree.nodes.new("ShaderNodeShaderToRGB")  # EEVEE only: its link is dropped, as in Cycles
     tree.links.new(info.outputs["Color"], bsdf.inputs["Base Color"])
     warnings = Warnings()
     m = convert_material(mat, warnings)

@@ -278,7 +278,7 @@ def test_unsupported_nodes_in_the_tree(scene, capfd):
     mat.use_nodes = True
     nt = mat.node_tree
     bsdf = nt.nodes["Principled BSDF"]
-    # Unsupported nodes (Shader to RGB, Ray Portal: a shader into a value input) beside nodes
+    # Odd links (Shader to RGB, whose links are dropped; a Ray Portal's shader into a value input) beside nodes
     # that were unsupported once (Float Curve, IES Texture without a profile, Particle Info off
     # particles).
     for i, kind in enumerate(("ShaderNodeShaderToRGB", "ShaderNodeBsdfRayPortal", "ShaderNodeFloatCurve",

@@ -420,13 +420,13 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     mix = nodes.new("ShaderNodeMixShader")
     spec = nodes.new("ShaderNodeEeveeSpecular")  # EEVEE only: no closure (black), as Cycles
     spec.inputs["Base Color"].default_value = (0.1, 0.6, 0.2, 1)
-    hair = nodes.new("ShaderNodeBsdfRayPortal")  # has a Color input too
+    hair = nodes.new("ShaderNodeBackground")  # a world shader in a material: has a Color input too
     d = nodes.new("ShaderNodeBsdfDiffuse")
     d.inputs["Color"].default_value = (0.3, 0.3, 0.3, 1)
     hue = nodes.new("ShaderNodeAmbientOcclusion")  # supported: traced, no fallback
     hue.inputs["Color"].default_value = (0.9, 0.1, 0.1, 1)
     links.new(hue.outputs["Color"], d.inputs["Color"])
-    ramp = nodes.new("ShaderNodeShaderToRGB")  # no Color input: the consumer's value is used
+    ramp = nodes.new("ShaderNodeShaderToRGB")  # EEVEE only: dropped, as in Cycles (the Fac's own value)
     links.new(ramp.outputs["Alpha"], mix.inputs["Fac"])
     mix.inputs["Fac"].default_value = 0.4
     add = nodes.new("ShaderNodeAddShader")
@@ -437,7 +437,7 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     links.new(mix.outputs[0], out.inputs["Surface"])
     closures, warnings, _ = closures_of(mat)
     assert len(warnings) == 1
-    for name in ("Odd", "Specular BSDF", "Ray Portal BSDF", "Shader to RGB"):
+    for name in ("Odd", "Specular BSDF", "Background", "Shader to RGB"):
         assert name in warnings[0], (name, warnings[0])
     assert "Ambient Occlusion" not in warnings[0]
     traced = [c for c in closures if isinstance(c[2]["color"], Sym)]

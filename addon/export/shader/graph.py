@@ -36,12 +36,14 @@ class GraphWalk:
         if link is None:
             return None
         node, out = link.from_node, link.from_socket
+        unlinked = None  # what the last link followed would give were it not there
         for _ in range(10000):  # a reroute loop cannot hang us
             if node.type == 'REROUTE':
                 link = self.link_into(node.inputs[0])
                 if link is None:
                     return None
                 node, out = link.from_node, link.from_socket
+                unlinked = None
             elif node.mute:
                 inner = [l for l in node.internal_links if l.to_socket == out]
                 if not inner:
@@ -51,6 +53,7 @@ class GraphWalk:
                 if link is None:
                     return ("default", src)
                 node, out = link.from_node, link.from_socket
+                unlinked = ("default", src)
             elif node.type == 'GROUP':
                 tree = node.node_tree
                 if tree is None:
@@ -70,6 +73,7 @@ class GraphWalk:
                 if link is None:
                     return ("default", inner)
                 node, out = link.from_node, link.from_socket
+                unlinked = ("default", inner)
             elif node.type == 'GROUP_INPUT':
                 if not ctx:
                     self.problem(f"Group Input '{node.name}' outside a node group")
@@ -83,6 +87,13 @@ class GraphWalk:
                 if link is None:
                     return ("default", outer)
                 node, out = link.from_node, link.from_socket
+                unlinked = ("default", outer)
+            elif node.type == 'SHADERTORGB':
+                # EEVEE only: Cycles exports no node for it, so its links are dropped and what
+                # they fed takes its own value (a shader input: no closure), and so here.
+                self.problem(f"'{node.name}' (Shader to RGB) is EEVEE only: its link into "
+                             f"{socket.name} is ignored, as in Cycles")
+                return unlinked
             else:
                 return ("node", node, out, ctx)
         raise _Cycle(node.name)

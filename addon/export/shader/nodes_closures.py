@@ -1,5 +1,6 @@
 """Shader nodes → weighted closures: Mix / Add Shader, the BSDFs, Emission, Holdout,
-Subsurface, Principled BSDF, Principled Hair and the Hair BSDF (a ShaderCompiler mixin)."""
+Subsurface, Principled BSDF, Principled Hair, the Hair BSDF and the Ray Portal BSDF (a
+ShaderCompiler mixin)."""
 
 from .graph import _Cycle
 from .values import GREY, ONE, ZERO, const_color, const_float
@@ -98,6 +99,14 @@ class ClosureNodes:
                          normal=self.normal(node, ctx))
         elif t == 'BSDF_TRANSPARENT':
             self.closure("transparent", weight, color=inp("Color", "color"))
+        elif t == 'BSDF_RAY_PORTAL':
+            # Cycles' Ray Portal BSDF: the path goes on from Position along Direction; both
+            # hide their values, so unlinked they are Cycles' defaults (the shading point, the
+            # incoming direction), which the core takes where the key is absent.
+            linked = lambda name: (inp(name, "vector") if self.source(node.inputs[name], ctx) is not None  # noqa: E731
+                                   else None)
+            self.closure("ray_portal", weight, color=inp("Color", "color"),
+                         position=linked("Position"), direction=linked("Direction"))
         elif t == 'BSDF_HAIR_PRINCIPLED':
             self.principled_hair(node, inp, weight)
         elif t == 'BSDF_HAIR':
