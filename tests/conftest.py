@@ -130,6 +130,8 @@ def pytest_sessionfinish(session, exitstatus):
 # session id is set here and inherited by xdist's workers), so that references missing from the
 # repository show.
 _REFS_USED = REPO / "build" / "cycles_refs_used"
+# Tests use the store unless told otherwise; outside pytest (bench scripts) it is off.
+os.environ.setdefault("PATHLIGHT_CYCLES_REFS", "use")
 
 
 def pytest_sessionstart(session):

@@ -7,8 +7,10 @@ everything the render reads: a deterministic walk of the RNA of every render-rel
 `foreach_get`, external files by content), plus the `bpy` build and what was asked for.
 
 PATHLIGHT_CYCLES_REFS selects the mode:
-  use     (default) a stored reference if there is one, else render with Cycles and store it;
-  render  always render, never read or write (the full, uncached comparison);
+  use     (the default under pytest: tests/conftest.py sets it) a stored reference if there is
+          one, else render with Cycles and store it;
+  render  (the default elsewhere: bench scripts and one-off measurements time their renders, so a
+          hit would be a lie) always render, never read or write (the full, uncached comparison);
   check   render, compare with the stored reference (fail beyond float noise), store if missing;
   refresh render and (over)write the reference.
 Every key a process uses is recorded in build/cycles_refs_used/ with how and the seconds it took
@@ -390,7 +392,7 @@ def fingerprint(scene, kind, lines=None):
 # -- storage -------------------------------------------------------------------------------------
 
 def mode():
-    value = os.environ.get("PATHLIGHT_CYCLES_REFS", "use").strip().lower() or "use"
+    value = os.environ.get("PATHLIGHT_CYCLES_REFS", "render").strip().lower() or "render"
     if value not in MODES:
         raise ValueError(f"PATHLIGHT_CYCLES_REFS={value!r}: expected one of {', '.join(MODES)}")
     return value
@@ -489,6 +491,8 @@ def _mode_and_key(scene, kind, refs):
     the call's own mode; PATHLIGHT_CYCLES_REFS=render or refresh overrides it."""
     env = mode()
     m = env if (refs is None or env in ("render", "refresh")) else refs
+    if getattr(scene.cycles, "time_limit", 0.0) > 0.0:
+        m = "render"  # the image depends on the machine's speed: never stored
     start = _clock()
     return m, (None if m == "render" else _key_or_none(scene, kind)), start
 

@@ -196,6 +196,35 @@ def test_modes(tmp_path, monkeypatch):
 
 
 
+def test_timed_and_unset_never_touch_the_store(tmp_path, monkeypatch):
+    """A render with a time limit (the bench's equal-time renders) depends on the machine's speed:
+    it is never read from or written to the store, whatever the mode; and with the variable unset
+    (a bench script, not pytest) the store is off."""
+    monkeypatch.setattr(cycles_refs, "REFS_DIR", tmp_path)
+    monkeypatch.setattr(cycles_refs, "USED_DIR", tmp_path / "used")
+    sc = small_scene()
+    calls = []
+
+    def render():
+        calls.append(1)
+        return {"rgba": np.ones((2, 2, 4), np.float32)}
+
+    monkeypatch.setenv("PATHLIGHT_CYCLES_REFS", "use")
+    sc.cycles.time_limit = 0.5
+    cycles_refs.cached(sc, "rgba", render)
+    cycles_refs.cached(sc, "rgba", render)
+    assert len(calls) == 2 and not any(tmp_path.glob("*.plref"))
+    sc.cycles.time_limit = 0.0
+    monkeypatch.delenv("PATHLIGHT_CYCLES_REFS")
+    assert cycles_refs.mode() == "render"
+    cycles_refs.cached(sc, "rgba", render)
+    assert len(calls) == 3 and not any(tmp_path.glob("*.plref"))
+    monkeypatch.setenv("PATHLIGHT_CYCLES_REFS", "use")
+    cycles_refs.cached(sc, "rgba", render)
+    cycles_refs.cached(sc, "rgba", render)
+    assert len(calls) == 4 and len(list(tmp_path.glob("*.plref"))) == 1
+
+
 def test_prune_keeps_what_a_run_used(tmp_path):
     """`build.py test --refs prune` deletes the references no record of the run names."""
     sys.path.insert(0, str(HERE.parents[1]))
