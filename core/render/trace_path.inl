@@ -323,17 +323,19 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h)) & 1u)) ||
                         (catchers_only && !scene.is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
-    // A volume-only boundary (Material::pass_through) passes everything: T * 1, unshaded.
-    if (!passed && !mat.pass_through) {
-      ClosureList cl;
-      RayState shadow;
-      shadow.flags = kRayShadow;
-      shadow.length = h.t * len;
-      scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
-      Vec3 pass(0.0f);
-      for (int c = 0; c < cl.n; ++c)
-        if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
-      T = T * vmin(pass, Vec3(1.0f));
+    if (!passed) {
+      // A volume-only boundary (Material::pass_through) passes everything: T * 1, unshaded.
+      if (!mat.pass_through) {
+        ClosureList cl;
+        RayState shadow;
+        shadow.flags = kRayShadow;
+        shadow.length = h.t * len;
+        scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
+        Vec3 pass(0.0f);
+        for (int c = 0; c < cl.n; ++c)
+          if (std::holds_alternative<TransparentBsdf>(cl.c[size_t(c)].bsdf)) pass += cl.c[size_t(c)].weight;
+        T = T * vmin(pass, Vec3(1.0f));
+      }
       if (is_black(T)) return Vec3(0.0f);  // (ratio tracking's estimates may be negative)
     }
     const bool front = dot(ray.dir, sp.ng) < 0.0f;
