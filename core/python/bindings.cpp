@@ -2961,6 +2961,9 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("volume_light_reach", &RenderSettings::volume_light_reach,
                      "Homogeneous scattering media: equiangular distances only where the light can shine (a "
                      "spot's cone, an area light's front: on), or along the whole segment (off)")
+      .def_readwrite("volume_pass_through", &RenderSettings::volume_pass_through,
+                     "Volume-only boundaries (a material with a Volume and no Surface) crossed without shading "
+                     "them (on: the same image, faster), or shaded as any surface (off)")
       .def_property(
           "sampler", [](const RenderSettings& s) { return enum_name(s.sampler, kSamplerNames); },
           [](RenderSettings& s, const std::string& v) { s.sampler = enum_from_name(v, "sampler", kSamplerNames); })

@@ -33,6 +33,9 @@ struct IntegratorSettings {
   // Equiangular distances only where the chosen light can shine (a spot's cone, an area
   // light's front: Scene::light_reference_point). Off: along the whole segment, as before.
   bool volume_light_reach = true;
+  // Volume-only boundaries (Material::pass_through) crossed without shading them, with the
+  // same arithmetic and sample dimensions (the same image). Off: shaded as any surface.
+  bool volume_pass_through = true;
   int rr_start_bounce = 3;  // Russian roulette from this bounce on
   // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not
   // in the returned radiance; it becomes alpha instead. It still lights the scene.

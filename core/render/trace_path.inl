@@ -324,12 +324,15 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
                         (catchers_only && !scene.is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
-      ClosureList cl;
-      RayState shadow;
-      shadow.flags = kRayShadow;
-      shadow.length = h.t * len;
-      scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
-      T = T * vmin(cl.shadow_pass(), Vec3(1.0f));
+      // A volume-only boundary (Material::pass_through) passes everything: T * 1, unshaded.
+      if (!mat.pass_through) {
+        ClosureList cl;
+        RayState shadow;
+        shadow.flags = kRayShadow;
+        shadow.length = h.t * len;
+        scene.shade(sp, h.b1, h.b2, -ray.dir / len, cl, shadow);
+        T = T * vmin(cl.shadow_pass(), Vec3(1.0f));
+      }
       if (is_black(T)) return Vec3(0.0f);  // (ratio tracking's estimates may be negative)
     }
     const bool front = dot(ray.dir, sp.ng) < 0.0f;
@@ -1214,6 +1217,36 @@ restart: __attribute__((unused));
       }
     SurfacePoint sp;
     scene.surface_point(hit, sp, ray.time, &ray);
+    if constexpr (kMedia && kNonDiffuse && !kGuide && !kCatcher) {
+      // A volume-only boundary (Material::pass_through), crossed as its Transparent closure
+      // would be but without shading it, in the same arithmetic and with the same sample
+      // dimensions drawn: the same image (Cycles likewise skips SD_HAS_ONLY_VOLUME surfaces).
+      if (volumes && s.volume_pass_through && !(kAovs && aov) && scene.material(sp.material).pass_through) {
+        if (s.path_state || s.differentials) ray_state.length = length_before + hit.t * length(ray.dir);
+        if (s.path_state) ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
+        ray_state.emission_only = emission_only;
+        if (emission_only) break;
+        if (bounce >= s.max_bounces && (nee || sky)) break;  // (the last vertex: light samples only)
+        sampler.skip2d();  // the closure choice's and the lobe's numbers
+        sampler.skip2d();
+        const Vec3 wo = -ray.dir;
+        const bool front = dot(sp.ng, wo) > 0.0f;
+        const Vec3 ng_out = front ? sp.ng : -sp.ng;
+        const Frame f = Frame::from_normal(sp.ns);
+        const Vec3 wi = f.to_world(-f.to_local(wo));
+        if (dot(wi, ng_out) > 0.0f) break;
+        if (++transparent > 256) break;
+        ray_state.transparent = uint16_t(transparent);
+        length_before = ray_state.length;
+        medium.cross(scene, sp, front);
+        if (!is_finite(beta)) break;
+        ray.org = offset_ray_origin(sp.p, sp.p_error, -ng_out);
+        ray.self_curve = scene.self_curve(sp);
+        ray.dir = wi;
+        ray.tmax = kInf;
+        continue;
+      }
+    }
     Vec3 wo = -ray.dir;  // (a subsurface exit moves the vertex: see below)
     // (the footprint grows with the length too)
     if (s.path_state || s.differentials) ray_state.length = length_before + hit.t * length(ray.dir);

@@ -120,6 +120,10 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
     ctx.uv_sets = 0;
     eval_shader(m.program, images, ctx, m.cached);
   }
+  m.pass_through = m.constant && m.cached.n == 1 && is_black(m.cached.emission) && is_black(m.cached.holdout) &&
+                   std::holds_alternative<TransparentBsdf>(m.cached.c[0].bsdf) && m.cached.c[0].weight.x == 1.0f &&
+                   m.cached.c[0].weight.y == 1.0f && m.cached.c[0].weight.z == 1.0f && m.cached.c[0].pick == 1.0f &&
+                   !m.has_hair && !m.holdout;
   m.closures_only = !m.constant && !m.program.reads_point && !m.program.sets_normal;
   m.closure_regs.clear();
   m.closure_ops.clear();

@@ -85,6 +85,10 @@ struct Material {
   // closures' frames (the common case: constant colours, no textures).
   bool constant = false;
   ClosureList cached;
+  // A constant white Transparent closure alone, no emission or holdout: a volume-only
+  // boundary (a Volume with no Surface), which rays cross without shading (Cycles'
+  // SD_HAS_ONLY_VOLUME).
+  bool pass_through = false;
   // Programs varying only through their closures (the view: Principled layering, Oren-Nayar,
   // multiscatter): the registers evaluated once, and the closure ops that run per hit on them.
   bool closures_only = false;

@@ -8,7 +8,9 @@ from a .vdb under an area light, the fog-filled Cornell box), for callgrind:
 The scene is exported by the add-on as a render would; only the render is instrumented (one
 thread, a fixed seed, max bounces 12 of every kind), as in callgrind_cornell.py. Without
 valgrind it prints the stats and the wall time. --old-nee: the heterogeneous media's light
-sample only where delta tracking scatters (RenderSettings.volume_segment_nee off).
+sample only where delta tracking scatters (RenderSettings.volume_segment_nee off). --cycles:
+Cycles renders the same scene instead (CPU, one thread, the same samples, bounces and filter;
+instructions are not time, but they do not move with the machine's load either).
 PL_CORE_DIR=<dir> renders with the module in <dir>."""
 import argparse
 import sys
@@ -30,6 +32,7 @@ ap.add_argument("--spp", type=int, default=4)
 ap.add_argument("--threads", type=int, default=1)
 ap.add_argument("--old-nee", action="store_true")
 ap.add_argument("--majorant-scale", type=float, default=1.0)
+ap.add_argument("--cycles", action="store_true")
 a = ap.parse_args()
 pc = core()
 sys.modules.setdefault("addon.pathlight_core", pc)  # PL_CORE_DIR's module for the add-on too
@@ -39,6 +42,24 @@ from addon.scene_writer import to_core  # noqa: E402
 
 build = {"smoke": volume_scenes.smoke_grid, "fog": volume_scenes.fog_box}[a.scene]
 scene = build(a.size, a.size)
+if a.cycles:
+    import os
+    import subprocess
+    from blender_util import _setup_cycles  # noqa: E402
+    scene.render.engine = "CYCLES"
+    _setup_cycles(scene.cycles, 12)
+    scene.cycles.samples, scene.cycles.seed = a.spp, 1
+    scene.cycles.pixel_filter_type, scene.cycles.filter_width = "BOX", 1.0
+    scene.render.threads_mode, scene.render.threads = "FIXED", a.threads
+    scene.render.use_persistent_data = True
+    bpy.ops.render.render()  # (scene sync and kernel set-up once, outside the count)
+    scene.cycles.seed = 2
+    t = time.perf_counter()
+    subprocess.run(["callgrind_control", "-i", "on", str(os.getpid())], capture_output=True)
+    bpy.ops.render.render()
+    subprocess.run(["callgrind_control", "-i", "off", str(os.getpid())], capture_output=True)
+    print(f"Cycles render {time.perf_counter() - t:.3f} s")
+    sys.exit(0)
 scene.render.engine = "PATHLIGHT"
 data = export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None)
 core_scene = to_core(pc, data)

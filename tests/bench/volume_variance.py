@@ -9,7 +9,8 @@ is variance_per_sample.py's (mean over pixels of var * spp / (ref^2 + 1e-2), ref
 both engines). Cycles' images are cached in /tmp (they do not change with our code).
 Cost: each engine renders at spp and at 3 spp, back to back, `timing-reps` times, with one
 thread; the time per sample is the difference over 2 spp (export and setup cancel), and the
-ratio Pathlight / Cycles is taken per repetition (the machine's load drifts slowly).
+ratio Pathlight / Cycles is taken per repetition (the machine's load drifts slowly); --cpu-time
+counts the process's CPU time instead of wall time (both engines render in this process).
 Equal-time error ratio (Pathlight / Cycles) = variance ratio x cost ratio."""
 import argparse
 import hashlib
@@ -37,9 +38,14 @@ def render(name, size, engine, threads=0, **settings):
     if threads:
         scene.render.threads_mode = "FIXED"
         scene.render.threads = threads
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     img = render_to_array(scene, engine, **settings)
+    if render.cpu_time:  # the process's CPU time: what a loaded machine's waits do not inflate
+        return img[..., :3].astype(np.float64), time.process_time() - cpu
     return img[..., :3].astype(np.float64), time.perf_counter() - t
+
+
+render.cpu_time = False
 
 
 def images(name, size, engine, seeds, spp, threads, max_bounces=MAX_BOUNCES):
@@ -58,6 +64,23 @@ def rel_var(imgs, ref, spp):
     return float(np.mean(imgs.var(axis=0, ddof=1) * spp / (ref**2 + 1e-2)))
 
 
+def print_blocks(pl, cy, ref, spp, b):
+    """Where the variance is: per block of b x b pixels (image rows top first), the block's mean
+    radiance, its share of Pathlight's summed relative variance, and Pathlight / Cycles."""
+    def per_block(imgs):
+        v = (imgs.var(axis=0, ddof=1) * spp / (ref**2 + 1e-2)).mean(axis=-1)
+        h, w = v.shape[0] // b, v.shape[1] // b
+        return v[:h * b, :w * b].reshape(h, b, w, b).mean(axis=(1, 3))
+    vp, vc = per_block(pl), per_block(cy)
+    h, w = vp.shape
+    lum = ref.mean(axis=-1)[:h * b, :w * b].reshape(h, b, w, b).mean(axis=(1, 3))
+    for title, grid, fmt in (("mean radiance", lum, "{:6.3f}"), ("share of Pathlight's variance (%)",
+                             100 * vp / vp.sum(), "{:6.1f}"), ("Pathlight / Cycles", vp / vc, "{:6.2f}")):
+        print(f"  {title} per {b}x{b} block:")
+        for row in grid:  # (top row first)
+            print("   " + "".join(fmt.format(x) for x in row))
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", choices=list(BUILDS), default="smoke")
@@ -69,8 +92,14 @@ def main():
     ap.add_argument("--threads", type=int, default=2, help="threads of the variance renders")
     ap.add_argument("--max-bounces", type=int, default=MAX_BOUNCES)
     ap.add_argument("--no-timing", action="store_true")
+    ap.add_argument("--cpu-time", action="store_true",
+                    help="time per sample as the process's CPU time, not wall time (a loaded machine)")
     ap.add_argument("--no-variance", action="store_true")
+    ap.add_argument("--blocks", type=int, default=0,
+                    help="also print the variance per block of this many pixels a side, Pathlight / Cycles")
+    ap.add_argument("--save", help="save both engines' images (npz: pathlight, cycles) here")
     a = ap.parse_args()
+    render.cpu_time = a.cpu_time
     load_addon()
     var_ratio = cost_ratio = None
     if not a.no_variance:
@@ -82,6 +111,10 @@ def main():
         print(f"{a.scene} {a.size}x{a.size} @ {a.spp} spp x {a.seeds} seeds: rel. variance/sample "
               f"Pathlight {vp:.4g}, Cycles {vc:.4g}, ratio {var_ratio:.3f}; mean ratio {pl.mean() / cy.mean():.4f}",
               flush=True)
+        if a.blocks:
+            print_blocks(pl, cy, ref, a.spp, a.blocks)
+        if a.save:
+            np.savez_compressed(a.save, pathlight=pl, cycles=cy)
     if not a.no_timing:
         ratios = []
         for rep in range(a.timing_reps):

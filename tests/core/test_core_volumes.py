@@ -252,3 +252,19 @@ def test_equiangular_distances_within_the_spot_cone():
     in the cone (so more shadow rays are traced)."""
     rays = render_both("volume_light_reach", spot=True)
     assert rays[True] > 1.01 * rays[False], rays
+
+
+def test_volume_only_boundaries_cross_unshaded_to_the_same_image():
+    """Volume-only boundaries (a white Transparent closure alone: Material::pass_through) are
+    crossed without shading them (RenderSettings.volume_pass_through), drawing the same sample
+    dimensions: bit for bit the image of shading them, also where the path ends at the boundary
+    (the bounce limit, Volume bounces 0) and where the boundary is not pure (a tinted
+    Transparent closure, which must be shaded)."""
+    tinted = [("const", 0, (0.6, 0.8, 1.0)), ("closure", "transparent", None, {"color": 0})]
+    for scene, kw in ((lambda: lamp_in_fog(spot=True), dict(max_bounces=8)),
+                      (lambda: lamp_in_fog(spot=False), dict(max_bounces=1)),
+                      (lambda: lamp_in_fog(spot=False), dict(max_bounces=8, volume_bounces=0)),
+                      (lambda: volume_sphere({"sigma_s": (1.0, 1.0, 1.0)}, surface=tinted), dict(max_bounces=4))):
+        imgs = [render(pc, scene(), 16, 16, samples=16, volume_pass_through=on, **kw)[0] for on in (True, False)]
+        assert imgs[1][..., :3].mean() > 1e-3
+        assert np.array_equal(imgs[0], imgs[1]), kw
