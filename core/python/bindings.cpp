@@ -2943,6 +2943,9 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("volume_light_reach", &RenderSettings::volume_light_reach,
                      "Homogeneous scattering media: equiangular distances only where the light can shine (a "
                      "spot's cone, an area light's front: on), or along the whole segment (off)")
+      .def_readwrite("rr_start_bounce", &RenderSettings::rr_start_bounce,
+                     "Russian roulette from this bounce on (default 3; 0 rolls at every vertex, as Cycles); "
+                     "for measurements, the add-on leaves it")
       .def_property(
           "sampler", [](const RenderSettings& s) { return enum_name(s.sampler, kSamplerNames); },
           [](RenderSettings& s, const std::string& v) { s.sampler = enum_from_name(v, "sampler", kSamplerNames); })

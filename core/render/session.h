@@ -34,6 +34,7 @@ struct RenderSettings {
   bool volume_segment_nee = true;  // IntegratorSettings::volume_segment_nee
   bool volume_shared_shadow = true;  // IntegratorSettings::volume_shared_shadow
   bool volume_light_reach = true;    // IntegratorSettings::volume_light_reach
+  int rr_start_bounce = 3;           // IntegratorSettings::rr_start_bounce (measurements)
   SamplerType sampler = SamplerType::Sobol;
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic
