@@ -197,16 +197,18 @@ bool Environment::sample(Vec2 uu, Vec3& dir, Vec3& radiance, float& pdf_out, boo
     return true;
   }
   // A sky with a sun disc: one of the two strategies, the pdf of their mixture.
+  return sample_direction(uu, dir, cover_all) && finish_sample(dir, radiance, pdf_out, cover_all);
+}
+
+bool Environment::sample_direction(Vec2 uu, Vec3& dir, bool cover_all) const {
+  const float share = sun_share(cover_all);
   if (uu.x < share) {
     dir = sample_sun_disc({std::min(uu.x / share, 0x1.fffffep-1f), uu.y});
-  } else {
-    float u, v, p;
-    uu.x = std::min((uu.x - share) / (1.0f - share), 0x1.fffffep-1f);
-    if (!sample_cells(cover_all ? full_ : comp_, uu, dir, u, v, p)) return false;
+    return true;
   }
-  pdf_out = pdf(dir, cover_all);
-  radiance = eval(dir);
-  return pdf_out > 0.0f && std::isfinite(pdf_out);
+  float u, v, p;
+  uu.x = std::min((uu.x - share) / (1.0f - share), 0x1.fffffep-1f);
+  return sample_cells(cover_all ? full_ : comp_, uu, dir, u, v, p);
 }
 
 Vec3 Environment::sample_sun_disc(Vec2 uu) const {

@@ -250,6 +250,13 @@ struct DirectSample {
   Vec3 n{0.0f};
   // In: the shading point's light set (light linking; 0: the default), given to pdf_emitter too.
   uint8_t receiver = 0;
+  // In: the caller can take a world sample whose radiance and pdf wait for its shadow ray
+  // (Scene::finish_world_sample; a sky with a sun disc: most of its samples are blocked indoors).
+  // Out: world_pending where it did so (li and pdf are then unset).
+  bool defer_world = false;
+  bool world_pending = false;
+  bool world_cover_all = false;
+  float world_pmf = 0.0f;
   // Out (light linking only): the chosen light's shadow sets; blockers of other sets let it pass.
   uint64_t shadow_mask = kAllLightSets;
   // Out (light linking only): a shadow-linked light with extent, `delta` only because rays do not
@@ -834,6 +841,15 @@ class Scene {
   // p is in front of and by the map, or by the map alone (no portal faces p). Radiance, solid-angle
   // pdf; cover_all as Environment::sample. world_pdf: the same density for a direction.
   bool sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all) const;
+  // A world_pending light sample's radiance and pdf, as sample_direct would have given them;
+  // false where it has none (the sample is then dropped, as sample_direct would have).
+  bool finish_world_sample(DirectSample& s) const {
+    float pdf;
+    if (!env_.finish_sample(s.wi, s.li, pdf, s.world_cover_all)) return false;
+    s.pdf = pdf * s.world_pmf;
+    s.world_pending = false;
+    return true;
+  }
   float world_pdf(Vec3 p, Vec3 dir, bool cover_all) const;
   // Light linking (after commit): whether any light or object uses it, and an instance's light
   // and shadow sets and, as an emitter, the sets it lights and is blocked by (curves, points:

@@ -623,6 +623,14 @@ bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u
     s.delta = s.shadow_mask != kAllLightSets;
   }
   if (k == env_index_) {
+    if (s.defer_world && portals_.empty() && env_.deferrable(!bsdf_follows)) {
+      if (!env_.sample_direction(u, s.wi, !bsdf_follows)) return false;
+      s.dist = kInf;
+      s.world_pending = true;
+      s.world_cover_all = !bsdf_follows;
+      s.world_pmf = pmf;
+      return true;
+    }
     float pdf;
     if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows)) return false;
     s.dist = kInf;
