@@ -672,6 +672,7 @@ class Environment {
   std::shared_ptr<const SkyModel> sky_;
   float strength_ = 1.0f;
   Vec3 sun_dir_;            // texture space
+  Vec3 sun_a_, sun_b_;      // a basis about it, for the disc's samples
   double sun_one_minus_cos_ = 0.0;  // 1 - cos(half angle), exactly
   float sun_share_full_ = 0.0f, sun_share_comp_ = 0.0f;
   std::vector<Vec3> px_;
