@@ -3886,6 +3886,12 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Many-light sampling by a light tree: 'auto' (the default: where the scene has more than "
           "8 finite lights), 'on' or 'off' (one distribution by power). Takes effect at the next commit().")
       .def_property(
+          "defer_world_samples", [](const PyScene& self) { return self.scene->defer_world_samples(); },
+          [](PyScene& self, bool on) { self.scene->set_defer_world_samples(on); },
+          "A surface's light sample of a sky with a sun disc, or through portals, takes its radiance and "
+          "pdf only once its shadow ray is clear (the default: the same image, less work where most are "
+          "blocked). False: all at once (for measurements and tests).")
+      .def_property(
           "world_light_samples", [](const PyScene& self) { return self.scene->world_samples(); },
           [](PyScene& self, bool on) { self.scene->set_world_samples(on); },
           "Light samples of a constant world colour that is the only light, at every surface vertex "
