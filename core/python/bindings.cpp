@@ -2964,6 +2964,9 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("volume_pass_through", &RenderSettings::volume_pass_through,
                      "Volume-only boundaries (a material with a Volume and no Surface) crossed without shading "
                      "them (on: the same image, faster), or shaded as any surface (off)")
+      .def_readwrite("rr_start_bounce", &RenderSettings::rr_start_bounce,
+                     "Russian roulette from this bounce on (default 3; 0 rolls at every vertex, as Cycles); "
+                     "for measurements, the add-on leaves it")
       .def_property(
           "sampler", [](const RenderSettings& s) { return enum_name(s.sampler, kSamplerNames); },
           [](RenderSettings& s, const std::string& v) { s.sampler = enum_from_name(v, "sampler", kSamplerNames); })
@@ -3908,6 +3911,12 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           "Many-light sampling by a light tree: 'auto' (the default: where the scene has more than "
           "8 finite lights), 'on' or 'off' (one distribution by power). Takes effect at the next commit().")
+      .def_property(
+          "defer_world_samples", [](const PyScene& self) { return self.scene->defer_world_samples(); },
+          [](PyScene& self, bool on) { self.scene->set_defer_world_samples(on); },
+          "A surface's light sample of a sky with a sun disc, or through portals, takes its radiance and "
+          "pdf only once its shadow ray is clear (the default: the same image, less work where most are "
+          "blocked). False: all at once (for measurements and tests).")
       .def_property(
           "world_light_samples", [](const PyScene& self) { return self.scene->world_samples(); },
           [](PyScene& self, bool on) { self.scene->set_world_samples(on); },

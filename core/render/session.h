@@ -35,6 +35,7 @@ struct RenderSettings {
   bool volume_shared_shadow = true;  // IntegratorSettings::volume_shared_shadow
   bool volume_light_reach = true;    // IntegratorSettings::volume_light_reach
   bool volume_pass_through = true;   // IntegratorSettings::volume_pass_through
+  int rr_start_bounce = 3;           // IntegratorSettings::rr_start_bounce (measurements)
   SamplerType sampler = SamplerType::Sobol;
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic

@@ -1363,7 +1363,7 @@ restart: __attribute__((unused));
     bool sky_here = false;  // this vertex sampled the sky: the BSDF ray's escape is weighed against it
     if ((nee || sky) && (!kNonDiffuse || cl.has_nondelta)) {
       // A light sample: its shadow ray and its weight against the BSDF's sample.
-      const auto add_sample = [&](const DirectSample& ds) {
+      const auto add_sample = [&](DirectSample& ds) {
         const bool above = dot(ds.wi, ng_out) > 0.0f;
         bool reflection = above;
         Vec3 org = sp.p;
@@ -1384,7 +1384,7 @@ restart: __attribute__((unused));
         float bsdf_pdf;
         const Vec3 f = ds.exclude ? eval_mixture_excluding(cl, wo, ds.wi, reflection, ds.exclude, bsdf_pdf)
                                   : eval_mixture<!kNonDiffuse>(cl, wo, ds.wi, reflection, bsdf_pdf);
-        if (is_black(f) || is_black(ds.li)) return;
+        if (is_black(f) || (!ds.world_pending && is_black(ds.li))) return;
         Vec3 vis(1.0f);
         Ray shadow;
         shadow.time = ray.time;
@@ -1419,6 +1419,8 @@ restart: __attribute__((unused));
           if (!is_black(msig) && std::isfinite(ds.dist)) vis = vis * beer(msig, ds.dist);
         }
         if (!is_black(vis)) {
+          // A deferred world sample's radiance and pdf, now that its shadow ray is clear.
+          if (ds.world_pending && (!scene.finish_world_sample(ds) || is_black(ds.li))) return;
           if constexpr (kGuide)
             if (guided && guide_sampling && !last)
               bsdf_pdf = guided_pdf(bsdf_pdf, ds.wi, -1.0f);
@@ -1442,6 +1444,7 @@ restart: __attribute__((unused));
         ds.path = &ray_state;
         if constexpr (kTree) ds.n = sp.ns;
         if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
+        ds.defer_world = true;
         const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
         u_rr = u_sel.y;
         const Vec2 u_pt = sampler.get2d();

@@ -624,6 +624,16 @@ class Environment {
   // sample follows, so every direction with radiance needs density (else the compensated one).
   bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf, bool cover_all = false) const;
   float pdf(Vec3 dir_world, bool cover_all = false) const;
+  // sample() in two steps, for a sky with a sun disc (deferrable): the direction alone, then
+  // its radiance and pdf, which cost a light sample more than drawing it (the sky model and
+  // the map's pdf) and which a light sample needs only once its shadow ray is clear.
+  bool deferrable(bool cover_all) const { return sun_share(cover_all) > 0.0f; }
+  bool sample_direction(Vec2 u, Vec3& dir, bool cover_all) const;
+  bool finish_sample(Vec3 dir, Vec3& radiance, float& pdf, bool cover_all) const {
+    pdf = this->pdf(dir, cover_all);
+    radiance = eval(dir);
+    return pdf > 0.0f && std::isfinite(pdf);
+  }
   float average_luminance() const { return avg_lum_; }
   // Its strategies one by one, for light portals (Scene::sample_world): a sky's sun disc (its
   // share of sample()'s samples; 0: none) and the map without it (cells_samplable: false where
@@ -662,6 +672,7 @@ class Environment {
   std::shared_ptr<const SkyModel> sky_;
   float strength_ = 1.0f;
   Vec3 sun_dir_;            // texture space
+  Vec3 sun_a_, sun_b_;      // a basis about it, for the disc's samples
   double sun_one_minus_cos_ = 0.0;  // 1 - cos(half angle), exactly
   float sun_share_full_ = 0.0f, sun_share_comp_ = 0.0f;
   std::vector<Vec3> px_;

@@ -258,6 +258,14 @@ struct DirectSample {
   Vec3 n{0.0f};
   // In: the shading point's light set (light linking; 0: the default), given to pdf_emitter too.
   uint8_t receiver = 0;
+  // In: the caller can take a world sample whose radiance and pdf wait for its shadow ray
+  // (Scene::finish_world_sample; a sky with a sun disc: most of its samples are blocked indoors).
+  // Out: world_pending where it did so (li and pdf are then unset).
+  bool defer_world = false;
+  bool world_pending = false;
+  bool world_cover_all = false;
+  float world_pmf = 0.0f;
+  Vec3 world_p{0.0f};  // the shading point (portals' pdf)
   // Out (light linking only): the chosen light's shadow sets; blockers of other sets let it pass.
   uint64_t shadow_mask = kAllLightSets;
   // Out (light linking only): a shadow-linked light with extent, `delta` only because rays do not
@@ -460,6 +468,11 @@ class Scene {
   }
   size_t portal_count() const { return portals_.size(); }
   void set_world_color(Vec3 c) { world_color_ = c; }
+  // Light samples of the world drawn first and given radiance and pdf only past their shadow
+  // ray where that saves work (finish_world_sample; on by default). Off: all at once, as
+  // before (the tests' reference: the two render the same image).
+  void set_defer_world_samples(bool on) { defer_world_ = on; }
+  bool defer_world_samples() const { return defer_world_; }
   // A constant world colour that is the scene's only light, sampled as a light at every surface
   // vertex by the cosine about the geometric normal, besides the BSDF ray that also finds it
   // (both MIS-weighted; off: the BSDF ray alone, as before). Only a constant world: a map is a
@@ -842,6 +855,19 @@ class Scene {
   // p is in front of and by the map, or by the map alone (no portal faces p). Radiance, solid-angle
   // pdf; cover_all as Environment::sample. world_pdf: the same density for a direction.
   bool sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all) const;
+  // sample_world in two steps: the direction alone (portals' choice included), then its
+  // radiance and the mixture's pdf at p.
+  bool sample_world_direction(Vec3 p, Vec2 u, Vec3& dir, bool cover_all) const;
+  // A world_pending light sample's radiance and pdf, as sample_direct would have given them;
+  // false where it has none (the sample is then dropped, as sample_direct would have).
+  bool finish_world_sample(DirectSample& s) const {
+    const float pdf = world_pdf(s.world_p, s.wi, s.world_cover_all);
+    if (!(pdf > 0.0f) || !std::isfinite(pdf)) return false;
+    s.li = env_.eval(s.wi);
+    s.pdf = pdf * s.world_pmf;
+    s.world_pending = false;
+    return true;
+  }
   float world_pdf(Vec3 p, Vec3 dir, bool cover_all) const;
   // Light linking (after commit): whether any light or object uses it, and an instance's light
   // and shadow sets and, as an emitter, the sets it lights and is blocked by (curves, points:
@@ -1030,6 +1056,7 @@ class Scene {
   void surface_point_in(const InstanceData& in, const TriangleVerts& tv, const Hit& h, SurfacePoint& sp) const;
   Vec3 world_color_{0.0f};
   bool world_samples_ = false;  // opt-in: a furnace loses its zero variance (sampling.md)
+  bool defer_world_ = true;     // set_defer_world_samples
   ShaderProgram world_volume_;
   CameraDesc camera_;
   bool has_camera_ = false;

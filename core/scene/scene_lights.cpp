@@ -583,6 +583,11 @@ void Scene::build_light_tree(const std::vector<float>& weights, LightChoice& out
   return emitter_point_sample(e, p, b1, b2, n, spherical, pdf_solid, pmf_e, s);
 }
 
+namespace {
+// A portal lets the world in towards p (p in front of its plane): Scene::sample_world below.
+inline bool portal_faces(const Light& portal, Vec3 p) { return dot(portal.dir, p - portal.position) > 1e-4f; }
+}  // namespace
+
 template <bool kTree>
 bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u, DirectSample& s, bool bsdf_follows) const {
   if (c.dist.empty()) return false;
@@ -624,6 +629,21 @@ bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u
     s.delta = s.shadow_mask != kAllLightSets;
   }
   if (k == env_index_) {
+    // Deferred where the radiance and pdf cost more than the draw: a sky with a sun disc (the
+    // model and the mixture's pdf) or portals (every facing portal's intersection); a plain map's
+    // sample already has both from its cell.
+    bool defer = s.defer_world && defer_world_ && env_.deferrable(!bsdf_follows);
+    if (s.defer_world && defer_world_ && !defer)  // (behind every portal: the map's one-step sample)
+      for (const Light& portal : portals_) defer = defer || portal_faces(portal, p);
+    if (defer) {
+      if (!sample_world_direction(p, u, s.wi, !bsdf_follows)) return false;
+      s.dist = kInf;
+      s.world_pending = true;
+      s.world_cover_all = !bsdf_follows;
+      s.world_pmf = pmf;
+      s.world_p = p;
+      return true;
+    }
     float pdf;
     if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows)) return false;
     s.dist = kInf;
@@ -900,9 +920,6 @@ float Scene::pdf_environment(Vec3 dir, Vec3 from, uint8_t set) const {
 // constant world's compensated map). The pdf is the mixture's: every facing portal the direction
 // crosses counts, so MIS with BSDF rays that escape through or beside a portal stays exact.
 // Points behind every portal sample the world as without portals.
-namespace {
-inline bool portal_faces(const Light& portal, Vec3 p) { return dot(portal.dir, p - portal.position) > 1e-4f; }
-}  // namespace
 
 double Scene::portal_pdf_sum(Vec3 p, Vec3 dir, size_t skip, int& facing) const {
   double sum = 0.0;
@@ -923,6 +940,17 @@ bool Scene::sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool c
   int facing = 0;
   for (const Light& portal : portals_) facing += portal_faces(portal, p);
   if (facing == 0) return env_.sample(u, dir, li, pdf, cover_all);
+  if (!sample_world_direction(p, u, dir, cover_all)) return false;
+  // The mixture's pdf, as world_pdf (every facing portal the direction crosses counts).
+  pdf = world_pdf(p, dir, cover_all);
+  li = env_.eval(dir);
+  return pdf > 0.0f && std::isfinite(pdf);
+}
+
+bool Scene::sample_world_direction(Vec3 p, Vec2 u, Vec3& dir, bool cover_all) const {
+  int facing = 0;
+  for (const Light& portal : portals_) facing += portal_faces(portal, p);
+  if (facing == 0) return env_.sample_direction(u, dir, cover_all);
   // A sky's sun disc keeps its share; the rest is split between the portals and the map.
   const float sun = env_.sun_fraction(cover_all);
   const float a = (1.0f - sun) * (env_.cells_samplable(cover_all) ? 0.5f : 1.0f);  // the portals' share
@@ -945,10 +973,7 @@ bool Scene::sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool c
     if (!env_.sample_map({std::min((u.x - sun - a) / (1.0f - sun - a), 0x1.fffffep-1f), u.y}, dir, map_pdf, cover_all))
       return false;
   }
-  // The mixture's pdf, as world_pdf (every facing portal the direction crosses counts).
-  pdf = world_pdf(p, dir, cover_all);
-  li = env_.eval(dir);
-  return pdf > 0.0f && std::isfinite(pdf);
+  return true;
 }
 
 float Scene::world_pdf(Vec3 p, Vec3 dir, bool cover_all) const {

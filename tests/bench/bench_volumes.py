@@ -38,7 +38,8 @@ def main():
         "'Lower error' is Cycles' relative MSE over Pathlight's at the same time (the mean of "
         + " / ".join(f"{repeats(t)}" for t in times) + " renders per budget, the",
         f"references' own error subtracted); 'converged' compares the two {ref_spp}-spp references (issue 23",
-        "asks for means within 1 % and 8x8 regions within 3 %).",
+        "asks for means within 1 % and 8x8 regions within 3 %), each engine's own seed noise beside it as on",
+        "the realistic scenes.",
         "",
         *table_header(times),
         *table_rows(results),

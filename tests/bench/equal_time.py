@@ -58,12 +58,19 @@ def pooled_ratio(renders, times, floor):
     return ratio, ratio * float(np.hypot(rp, rc))
 
 
-def measure(render, times, repeats, ref_spp, ref_seed):
+def measure(render, times, repeats, ref_spp, ref_seed, halves=False):
     """One scene's equal-time figures. render(engine, **settings) returns (image, seconds).
     Returns dict(refs, errors, raw, floor, pooled): the references per engine, the mean error
     per budget with the floor subtracted (errors) and without (raw), the floor and the pooled
-    ratio with its standard error."""
-    refs = {e: render(e, samples=ref_spp, seed=ref_seed)[0] for e in ENGINES}
+    ratio with its standard error. halves: each reference is the mean of two renders of
+    ref_spp / 2 with seeds ref_seed and ref_seed + 1 (the same cost), kept as ref_halves, so
+    that each engine's own seed-to-seed noise can be shown beside the references' agreement."""
+    if halves:
+        ref_halves = {e: [render(e, samples=ref_spp // 2, seed=ref_seed + k)[0] for k in range(2)] for e in ENGINES}
+        refs = {e: 0.5 * (a + b) for e, (a, b) in ref_halves.items()}
+    else:
+        ref_halves = None
+        refs = {e: render(e, samples=ref_spp, seed=ref_seed)[0] for e in ENGINES}
     ref = 0.5 * (refs["PATHLIGHT"] + refs["CYCLES"])
     floor = rel_mse(refs["PATHLIGHT"], refs["CYCLES"]) / 4.0
     raw = {e: [] for e in ENGINES}
@@ -78,7 +85,10 @@ def measure(render, times, repeats, ref_spp, ref_seed):
             raw[e].append(float(np.mean(per[e])))
             renders[e].append(per[e])
     errors = {e: [above_floor(x, floor) for x in raw[e]] for e in ENGINES}
-    return dict(refs=refs, errors=errors, raw=raw, floor=floor, pooled=pooled_ratio(renders, times, floor))
+    out = dict(refs=refs, errors=errors, raw=raw, floor=floor, pooled=pooled_ratio(renders, times, floor))
+    if ref_halves is not None:
+        out["ref_halves"] = ref_halves
+    return out
 
 
 def plot_errors(results, times, path, width=4.2, title_size=10, legend_size=8):

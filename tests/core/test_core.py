@@ -262,3 +262,15 @@ def test_scene_is_locked_while_a_session_renders_it():
     with pytest.raises(RuntimeError, match="in use"):
         s.set_world_color((1, 1, 1))
     del sess
+
+
+def test_roulette_start_bounce_keeps_the_enclosure_exact():
+    # RenderSettings.rr_start_bounce (a measurement setting; docs/design/sampling.md): rolling
+    # from the first vertex on or never (a start past every bounce) both converge to the closed
+    # form Le / (1 - a) (24 bounces leave out 0.5^25); rolling early traces fewer rays per path.
+    out = {}
+    for start in (0, 3, 1000):
+        img, stats = render(pc, emitting_enclosure(pc), 8, 8, samples=32, max_bounces=24, rr_start_bounce=start)
+        assert abs(img[..., :3].mean() - 1.0) < 0.02, (start, img[..., :3].mean())
+        out[start] = stats["rays"] / stats["paths"]
+    assert out[0] < out[3] < out[1000], out

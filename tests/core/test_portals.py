@@ -151,3 +151,26 @@ def test_sky_sun_disc_through_a_portal_renders_as_without():
     # (regions in the sun's shadow, 1 % of the mean, see a sliver of sky: compared absolutely)
     rel = np.abs(a - b) / np.maximum(b, 0.05 * without.mean())
     assert rel.max() < 0.03, rel
+
+
+@pytest.mark.sanitize
+@pytest.mark.parametrize("world, portals", [("sky", []), ("sky", CASES["matches the window"][0]),
+                                            ("map", CASES["matches the window"][0])],
+                         ids=["sky", "sky through a portal", "map through a portal"])
+def test_deferred_world_samples_render_as_eager_ones(world, portals):
+    """A surface's light sample of a sky with a sun disc, or through portals, draws its direction
+    alone and takes its radiance and pdf only once its shadow ray is clear (Scene::
+    finish_world_sample: indoors most such samples are blocked; docs/design/sampling.md).
+    Scene.defer_world_samples = False takes them all at once, as before: the same draws and
+    values, so the same rays and the same image up to float rounding."""
+    def run(defer):
+        s = room(world, portals)
+        s.defer_world_samples = defer
+        sess = run_session(pc, s, 16, 16, 16, max_bounces=3, threads=1, seed=3, filter_type="box",
+                           filter_width=1.0)
+        return sess.film()[..., :3].astype(np.float64), sess.stats()["rays"]
+    deferred, rays_deferred = run(True)
+    eager, rays_eager = run(False)
+    assert rays_deferred == rays_eager
+    assert deferred.mean() > 0.01  # the sunlit patch and the skylight
+    assert np.abs(deferred - eager).max() <= 1e-5 * max(eager.max(), 1.0), np.abs(deferred - eager).max()
