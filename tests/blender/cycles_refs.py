@@ -90,6 +90,16 @@ BIG = 16        # collections longer than this are hashed per property through f
 NUMERIC = {"FLOAT": np.float64, "INT": np.int64, "BOOLEAN": np.bool_}
 
 
+
+def _stable_bytes(path):
+    """A file's bytes, less what changes each time the same data is written: an OpenVDB file's
+    header holds a random UUID (36 characters after the magic, versions, library version and the
+    grid-offsets flag, from file version 220 on)."""
+    data = path.read_bytes()
+    if data[:4] == b" BDV" and len(data) >= 57 and int.from_bytes(data[8:12], "little") >= 220:
+        data = data[:21] + b"0" * 36 + data[57:]
+    return data
+
 class _Walker:
     def __init__(self):
         self.h = hashlib.sha256()
@@ -245,7 +255,7 @@ class _Walker:
         except Exception:
             is_file = False
         if is_file:
-            self.put_bytes(f"{path}=<file {real.name!r}>", real.read_bytes())
+            self.put_bytes(f"{path}=<file {real.name!r}>", _stable_bytes(real))
         else:
             self.put(f"{path}={value!r}<not a file>")
 

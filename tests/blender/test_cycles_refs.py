@@ -225,6 +225,22 @@ def test_timed_and_unset_never_touch_the_store(tmp_path, monkeypatch):
     assert len(calls) == 4 and len(list(tmp_path.glob("*.plref"))) == 1
 
 
+def test_a_vdb_written_again_is_the_same_file(tmp_path):
+    """OpenVDB writes a random UUID into each file's header: the key reads past it, and past
+    nothing else (a changed grid byte still changes it)."""
+    head = b" BDV\0\0\0\0" + (224).to_bytes(4, "little") + (12).to_bytes(4, "little") + bytes(4) + b"\1"
+    files = []
+    for name, uuid, body in (("a", b"F47D43DB-3366-16C7-6BA7-BC4C63449593", b"grid"),
+                             ("b", b"20C98150-AECC-8BAF-3F9F-6E5683B7F035", b"grid"),
+                             ("c", b"20C98150-AECC-8BAF-3F9F-6E5683B7F035", b"grix")):
+        files.append(tmp_path / f"{name}.vdb")
+        files[-1].write_bytes(head + uuid + body)
+    a, b, c = (cycles_refs._stable_bytes(f) for f in files)
+    assert a == b and b != c
+    files[0].write_bytes(b"not a vdb" * 10)
+    assert cycles_refs._stable_bytes(files[0]) == b"not a vdb" * 10
+
+
 def test_prune_keeps_what_a_run_used(tmp_path):
     """`build.py test --refs prune` deletes the references no record of the run names."""
     sys.path.insert(0, str(HERE.parents[1]))
