@@ -4,9 +4,11 @@ equal CPU time against plain path tracing. Not named bench_*: build.py runs thos
     .venv/bin/python tests/bench/guiding_window_variants.py [--seeds N] [--spp S] \
         [--variants NAME=setting:value,setting:value ...]
 
-A variant is the add-on's Path Guiding (use_guiding: caustic photons, share 0.15) with core
-RenderSettings overridden, e.g. learnt=guiding_learn_probability:1 or
-camera=guiding_photons:0,guiding_caustics:0. 'plain' (no guiding) is always rendered.
+A variant is the add-on's Path Guiding (use_guiding) with core RenderSettings overridden, e.g.
+learnt=guiding_learn_probability:0 or camera=guiding_photons:0,guiding_caustics:0 ('default=':
+the add-on's as it is; docs/design/sampling.md's runs were measured before it took the learnt
+probability, cosine and filter on, so theirs was caustic photons, share 0.15, alone). 'plain'
+(no guiding) is always rendered.
 The method is guiding_photons_window.py --no-ref's: every variant renders seeds 1..N, the
 variants interleaved so that a shared machine's load falls on all alike; the error is the
 per-pixel variance over the seeds (relative as the bench's, over the plain renders' mean squared
