@@ -1319,7 +1319,9 @@ restart: __attribute__((unused));
     // some (sd_pdf: the SD-tree's pdf where known, else negative).
     float gp = guide_prob;  // this vertex's guide probability (learnt per cell, or the render's)
     const auto guided_pdf = [&](float bsdf_pdf, Vec3 w, float sd_pdf) {
-      float p = (1.0f - gp) * bsdf_pdf + gp * (sd_pdf >= 0.0f ? sd_pdf : guide->pdf(guide_cell, w));
+      // (a cell that learnt 0 never samples its guide: no quadtree descent, the same value)
+      float p = bsdf_pdf;
+      if (gp > 0.0f) p = (1.0f - gp) * bsdf_pdf + gp * (sd_pdf >= 0.0f ? sd_pdf : guide->pdf(guide_cell, w));
       if (caustic_cell >= 0) {
         const float pc = s.guide_caustic_probability;
         p = (1.0f - pc) * p + pc * guide->caustic_pdf(caustic_cell, w);
@@ -1585,7 +1587,7 @@ restart: __attribute__((unused));
         }
       float rec_pb = pdf, rec_pg = 0.0f;
       if constexpr (kGuide) {
-        if (guided && (guide_sampling || (guide_training && s.guide_learn_probability)))
+        if (guided && ((guide_sampling && gp > 0.0f) || (guide_training && s.guide_learn_probability)))
           rec_pg = from_guide && guide_pdf >= 0.0f ? guide_pdf : guide->pdf(guide_cell, wi);
         if (guided && guide_sampling) pdf = guided_pdf(pdf, wi, rec_pg);
       }
