@@ -2918,6 +2918,26 @@ PYBIND11_MODULE(pathlight_core, m) {
             if (is_finite(pp)) g.record_photon(g.cell_of(pp, to_point(n, "n")), to_point(w, "w"), value);
           },
           py::arg("p"), py::arg("w"), py::arg("value"), py::arg("n") = py::make_tuple(0.0f, 0.0f, 1.0f))
+      .def(
+          "set_learn_probability", &GuidingField::set_learn_probability, py::arg("on"), py::arg("initial") = 0.5f,
+          "Learn the guide's probability per cell (the candidate of least estimated second moment).")
+      .def(
+          "record_moment",
+          [](GuidingField& g, const py::handle& p, float est, float q, float pb, float pg, const py::handle& n) {
+            const Vec3 pp = to_point(p, "p");
+            if (is_finite(pp)) g.record_moment(g.cell_of(pp, to_point(n, "n")), est, q, pb, pg);
+          },
+          py::arg("p"), py::arg("est"), py::arg("q"), py::arg("pb"), py::arg("pg"),
+          py::arg("n") = py::make_tuple(0.0f, 0.0f, 1.0f),
+          "A vertex's estimate over the pdf q it was drawn with, and the BSDF's and the guide's pdfs of its "
+          "direction (for the learnt probability).")
+      .def(
+          "probability",
+          [](const GuidingField& g, const py::handle& p, const py::handle& n) {
+            return g.probability(g.cell_of(to_point(p, "p"), to_point(n, "n")));
+          },
+          py::arg("p"), py::arg("n") = py::make_tuple(0.0f, 0.0f, 1.0f))
+      .def("set_directional_filter", &GuidingField::set_directional_filter, py::arg("on"))
       .def_property("photon_share", &GuidingField::photon_share, &GuidingField::set_photon_share)
       .def_property_readonly("photon_records", &GuidingField::photon_records)
       .def("end_iteration", &GuidingField::end_iteration, py::arg("samples"))
@@ -3038,6 +3058,12 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("guiding", &RenderSettings::guiding,
                      "Path guiding: learn the incident light during the first samples and sample it.")
       .def_readwrite("guiding_probability", &RenderSettings::guiding_probability)
+      .def_readwrite("guiding_learn_probability", &RenderSettings::guiding_learn_probability,
+                     "Learn the guide's probability per cell (the one of least estimated second moment).")
+      .def_readwrite("guiding_cosine", &RenderSettings::guiding_cosine,
+                     "Guide by incident radiance times the cosine to the shading normal.")
+      .def_readwrite("guiding_filter", &RenderSettings::guiding_filter,
+                     "Splat each guide record over a box of its quadtree leaf's size (Müller et al.).")
       .def_readwrite("guiding_caustic_lobes", &RenderSettings::guiding_caustic_lobes,
                      "With guiding_caustics: the probability of a direction from the caustic photons' lobes.")
       .def_readwrite("guiding_caustic_cube", &RenderSettings::guiding_caustic_cube,
@@ -4023,6 +4049,7 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["guiding_iterations"] = s.guiding_iterations;
              d["guiding_cells"] = s.guiding_cells;
              d["guiding_caustic_cells"] = s.guiding_caustic_cells;
+             d["guiding_probability"] = s.guiding_probability;
              return d;
            })
       .def("sample_counts",

@@ -65,6 +65,9 @@ struct GuidingField::Cell {
   std::unique_ptr<std::atomic<uint64_t>[]> sums;  // 4 per building node, fixed point
   std::unique_ptr<std::atomic<uint64_t>[]> photon_sums;  // the same for photon records
   std::atomic<uint64_t> records{0}, photon_records{0};
+  float probability = 0.5f;  // of a guided direction (learnt: set_learn_probability)
+  std::atomic<uint64_t> moments[kProbabilities];  // per candidate probability, fixed point
+  std::atomic<uint64_t> moment_records{0};
 
   void allocate_sums() {
     if (building.empty()) building.emplace_back();
@@ -76,14 +79,19 @@ struct GuidingField::Cell {
     }
     records.store(0, std::memory_order_relaxed);
     photon_records.store(0, std::memory_order_relaxed);
+    for (auto& m : moments) m.store(0, std::memory_order_relaxed);
+    moment_records.store(0, std::memory_order_relaxed);
   }
-  // Adds fixed-point value q at unit-square point s of the building tree.
-  void add(std::atomic<uint64_t>* to, Vec2 s, uint64_t q);
+  // Adds fixed-point value q at unit-square point s of the building tree; box: spread over a
+  // square of the size of s's leaf (the directional filter).
+  void add(std::atomic<uint64_t>* to, Vec2 s, uint64_t q, bool box = false);
+  void splat(std::atomic<uint64_t>* to, uint32_t n, Vec2 o, float size, const float b[4], double density);
   std::unique_ptr<Cell> copy() const {
     auto c = std::make_unique<Cell>();
     c->learnt = learnt;
     c->sampling = sampling;
     c->building = building;
+    c->probability = probability;
     c->allocate_sums();
     return c;
   }
@@ -128,7 +136,34 @@ void GuidingField::reset(const Aabb& bounds, float split_threshold) {
   cells_.clear();
   for (uint32_t k = 0; k < kNormalClasses; ++k) {
     cells_.push_back(std::make_unique<Cell>());
+    cells_.back()->probability = initial_probability_;
     cells_.back()->allocate_sums();
+  }
+}
+
+void GuidingField::set_learn_probability(bool on, float initial) {
+  learn_probability_ = on;
+  initial_probability_ = std::isfinite(initial) ? std::clamp(initial, 0.0f, 1.0f) : 0.5f;
+  for (auto& c : cells_) c->probability = initial_probability_;
+}
+
+float GuidingField::probability(uint32_t cell) const { return cells_[cell]->probability; }
+
+void GuidingField::record_moment(uint32_t cell, float est, float q, float pb, float pg) {
+  if (!learn_probability_ || cell >= cells_.size()) return;
+  Cell& c = *cells_[cell];
+  c.moment_records.fetch_add(1, std::memory_order_relaxed);  // estimates of 0 count too
+  if (!(est > 0.0f) || !std::isfinite(est) || !(q > 0.0f) || !std::isfinite(q)) return;
+  // In the records' fixed point squared over 2^20 (a mean record's estimate squared: ~2^20),
+  // at most 2^40 per candidate and record.
+  constexpr double kCap = 1099511627776.0;
+  const double e = double(est) * scale_;
+  const double base = e * e * (1.0 / 1048576.0) * double(q);
+  for (int k = 0; k < kProbabilities; ++k) {
+    const double a = 0.1 * k;
+    const double qk = a * double(pg) + (1.0 - a) * double(pb);
+    const double v = qk > 0.0 ? std::min(base / qk, kCap) : kCap;  // (a direction this mixture never draws)
+    c.moments[k].fetch_add(uint64_t(v + 0.5), std::memory_order_relaxed);
   }
 }
 
@@ -213,7 +248,54 @@ float GuidingField::pdf(uint32_t cell, Vec3 w) const {
   return square_pdf * (0.25f / kPi);
 }
 
-void GuidingField::Cell::add(std::atomic<uint64_t>* to, Vec2 s, uint64_t q) {
+void GuidingField::Cell::splat(std::atomic<uint64_t>* to, uint32_t n, Vec2 o, float size, const float b[4],
+                               double density) {
+  const float h = 0.5f * size;
+  for (int k = 0; k < 4; ++k) {
+    const float x0 = o.x + float(k & 1) * h, y0 = o.y + float(k >> 1) * h;
+    const float w = std::min(b[1], x0 + h) - std::max(b[0], x0), d = std::min(b[3], y0 + h) - std::max(b[2], y0);
+    if (!(w > 0.0f) || !(d > 0.0f)) continue;
+    const uint32_t child = building[n].child[k];
+    if (child == 0) {
+      const uint64_t v = uint64_t(density * double(w) * double(d) + 0.5);
+      if (v != 0) to[4 * size_t(n) + size_t(k)].fetch_add(v, std::memory_order_relaxed);
+    } else {
+      splat(to, child, {x0, y0}, h, b, density);
+    }
+  }
+}
+
+void GuidingField::Cell::add(std::atomic<uint64_t>* to, Vec2 s, uint64_t q, bool box) {
+  if (box) {
+    // The leaf's size at s, then a square of that size about s: x (cos theta) clipped, y (phi)
+    // wrapping round in up to two pieces; the value spread by area over the clipped square.
+    float size = 1.0f;
+    Vec2 t = s;
+    for (uint32_t n = 0;;) {
+      const int k = quadrant(t);
+      size *= 0.5f;
+      if (building[n].child[k] == 0) break;
+      n = building[n].child[k];
+    }
+    const float x0 = std::max(0.0f, s.x - 0.5f * size), x1 = std::min(1.0f, s.x + 0.5f * size);
+    const float y0 = s.y - 0.5f * size, y1 = s.y + 0.5f * size;
+    if (x1 > x0) {
+      const double density = double(q) / (double(x1 - x0) * double(size));
+      if (y0 < 0.0f) {
+        const float a[4] = {x0, x1, y0 + 1.0f, 1.0f}, b[4] = {x0, x1, 0.0f, y1};
+        splat(to, 0, {0.0f, 0.0f}, 1.0f, a, density);
+        splat(to, 0, {0.0f, 0.0f}, 1.0f, b, density);
+      } else if (y1 > 1.0f) {
+        const float a[4] = {x0, x1, y0, 1.0f}, b[4] = {x0, x1, 0.0f, y1 - 1.0f};
+        splat(to, 0, {0.0f, 0.0f}, 1.0f, a, density);
+        splat(to, 0, {0.0f, 0.0f}, 1.0f, b, density);
+      } else {
+        const float a[4] = {x0, x1, y0, y1};
+        splat(to, 0, {0.0f, 0.0f}, 1.0f, a, density);
+      }
+      return;
+    }
+  }
   uint32_t n = 0;
   for (;;) {
     const int k = quadrant(s);
@@ -234,7 +316,7 @@ void GuidingField::record(uint32_t cell, Vec3 w, float value) {
   const double v = std::min(double(value) * scale_, 68719476736.0);
   const uint64_t q = uint64_t(v + 0.5);
   if (q == 0) return;
-  c.add(c.sums.get(), to_square(w), q);
+  c.add(c.sums.get(), to_square(w), q, filter_);
 }
 
 void GuidingField::record_photon(uint32_t cell, Vec3 w, float value) {
@@ -245,7 +327,7 @@ void GuidingField::record_photon(uint32_t cell, Vec3 w, float value) {
   const double v = std::min(double(value) * 1048576.0, 68719476736.0);
   const uint64_t q = uint64_t(v + 0.5);
   if (q == 0) return;
-  c.add(c.photon_sums.get(), to_square(w), q);
+  c.add(c.photon_sums.get(), to_square(w), q, filter_);
 }
 
 namespace {
@@ -290,14 +372,14 @@ void GuidingField::end_iteration(int samples) {
     Cell& c = *cells_[leaf_of(r.p) + r.normal_class];
     c.photon_records.fetch_add(1, std::memory_order_relaxed);
     const uint64_t q = uint64_t(std::min(double(r.value) * 1048576.0, 68719476736.0) + 0.5);
-    if (q != 0) c.add(c.photon_sums.get(), r.s, q);
+    if (q != 0) c.add(c.photon_sums.get(), r.s, q, filter_);
   }
   // Past the cap an iteration's photons count for it alone (all of them: the same set whatever
   // order the threads added them in).
   if (caustic_cube_ > 0.0f) build_caustic_lobes();
   if (photon_map_.size() > kMaxKeptPhotons) photon_map_.resize(photon_map_new_);
   photon_map_new_ = photon_map_.size();
-  double all = 0.0;
+  double all = 0.0, probability_sum = 0.0;
   uint64_t all_records = 0;
   // 1. What each cell recorded becomes its distribution (inner quadrants: their subtree's sum).
   for (auto& cp : cells_) {
@@ -322,9 +404,21 @@ void GuidingField::end_iteration(int samples) {
     for (size_t i = learnt.size(); i-- > 0;)
       for (int q = 0; q < 4; ++q)
         if (learnt[i].child[q] != 0) learnt[i].sum[q] = learnt[learnt[i].child[q]].total();
+    if (learn_probability_ && c.moment_records.load() >= kMinMomentRecords) {
+      // The candidate of least second moment (ties: the smaller probability, more to the BSDF).
+      // Never above the initial probability: measured on the window room, cells learnt to
+      // trust the guide (0.9) from records that missed the rare caustic paths, whose BSDF
+      // samples then weighed 10x (docs/design/sampling.md, "Learnt guide probability").
+      const int top = std::min(kProbabilities - 1, int(initial_probability_ * 10.0f + 1e-3f));
+      int best = 0;
+      for (int k = 1; k <= top; ++k)
+        if (c.moments[k].load() < c.moments[best].load()) best = k;
+      c.probability = 0.1f * float(best);
+    }
     const float total = learnt[0].total();
     all += wp == 0.0 ? double(total) : cam_total / scale_;  // (the camera records' mean sets the fixed point)
     all_records += c.records.load();
+    probability_sum += double(c.probability) * double(c.records.load());
     if (total > 0.0f && std::isfinite(total)) {
       c.learnt = std::move(learnt);
       c.sampling = sampling_tree(c.learnt);
@@ -364,6 +458,7 @@ void GuidingField::end_iteration(int samples) {
       count *= 0.5;
     }
   }
+  mean_probability_ = all_records > 0 ? float(probability_sum / double(all_records)) : initial_probability_;
   for (auto& c : cells_) c->allocate_sums();
   // 3. The next iteration's fixed point: its mean record near 2^20 units.
   if (all_records > 0 && all > 0.0 && std::isfinite(all)) {

@@ -65,6 +65,27 @@ class GuidingField {
   // between passes.
   void end_iteration(int samples);
 
+  // A guide probability learnt per cell, in place of one for all (Müller 2019 learns it by
+  // gradient descent on the KL divergence, in the order records arrive; here, deterministically,
+  // once per iteration): each training record also adds, for every candidate probability a_k,
+  // the second moment its vertex's estimate would have had with it (est^2 q / q_k: est, the
+  // vertex's BSDF-side estimate over the pdf q it was drawn with; q_k = a_k guide + (1 - a_k)
+  // BSDF pdf), in fixed point, and end_iteration gives each cell with enough records the
+  // candidate of least sum, at most `initial`, the cells' probability until then.
+  static constexpr int kProbabilities = 10;  // 0, 0.1, ..., 0.9
+  static constexpr uint64_t kMinMomentRecords = 256;
+  void set_learn_probability(bool on, float initial);
+  bool learns_probability() const { return learn_probability_; }
+  float probability(uint32_t cell) const;
+  // The cells' probabilities weighted by the records of the last iteration (a statistic).
+  float mean_probability() const { return mean_probability_; }
+  // est: the vertex's estimate over q (luminance); q: the pdf it was drawn with; pb, pg: the
+  // BSDF's and the guide's pdfs of its direction.
+  void record_moment(uint32_t cell, float est, float q, float pb, float pg);
+  // Müller et al.'s directional filter: a record (camera or photon) is spread over a square of
+  // the size of the quadtree leaf it falls in, centred on it, by area (phi wraps round).
+  void set_directional_filter(bool on) { filter_ = on; }
+
   // Photon training (Jensen 1995; Vorba et al. 2014): flux that light paths bring to a cell
   // from direction w, in units of the mean emitted photon (about 1). Summed apart from the
   // camera records; end_iteration normalises each per cell and mixes them, `photon_share` of
@@ -124,6 +145,8 @@ class GuidingField {
   float split_threshold_ = 0.0f;
   double scale_ = 65536.0;  // fixed-point units per unit of recorded value
   float photon_share_ = 0.5f;
+  bool learn_probability_ = false, filter_ = false;
+  float initial_probability_ = 0.5f, mean_probability_ = 0.0f;
   float photon_split_weight_ = 1.0f;
   uint64_t photon_records_ = 0;
   int iterations_ = 0;

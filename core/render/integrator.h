@@ -53,6 +53,8 @@ struct IntegratorSettings {
   GuidingField* guide = nullptr;
   bool guide_training = false;
   float guide_probability = 0.5f;
+  bool guide_learn_probability = false;  // per cell, GuidingField::probability
+  bool guide_cosine = false;  // records times the cosine to the shading normal
   // Of a direction from the caustic lobes, where a vertex has some (GuidingField::caustic_cell).
   float guide_caustic_probability = 0.0f;
   // Measurement only: the film keeps the light of these PathClass classes (bits; 0: all).

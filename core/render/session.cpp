@@ -223,6 +223,10 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
       integrator_.guide = guide_.get();
       integrator_.guide_training = true;
       integrator_.guide_probability = std::clamp(settings_.guiding_probability, 0.0f, 1.0f);
+      integrator_.guide_learn_probability = settings_.guiding_learn_probability;
+      integrator_.guide_cosine = settings_.guiding_cosine;
+      guide_->set_learn_probability(settings_.guiding_learn_probability, integrator_.guide_probability);
+      guide_->set_directional_filter(settings_.guiding_filter);
       integrator_.path_class_mask = settings_.guiding_class_mask;
       const float lobes = settings_.guiding_caustic_lobes;
       integrator_.guide_caustic_probability =
@@ -327,6 +331,7 @@ SessionStats Session::stats() const {
   s.guiding_iterations = guide_iterations_.load();
   s.guiding_cells = guide_cells_.load();
   s.guiding_caustic_cells = guide_caustic_cells_.load();
+  s.guiding_probability = guide_probability_.load();
   s.elapsed_s = elapsed();
   s.work_items = film_.tile_count() * work_parts_;
   s.focus_distance = focus_distance_;
@@ -555,6 +560,7 @@ void Session::end_guiding_iteration() {
   guide_iterations_.store(guide_->iterations());
   guide_cells_.store(int(guide_->cells()));
   guide_caustic_cells_.store(int(guide_->caustic_cells()));
+  guide_probability_.store(guide_->mean_probability());
   guide_size_ *= 2;
   const int limit = std::min(total_samples_ / 2, 255);
   if (guide_end_ + guide_size_ <= limit) guide_end_ += guide_size_;

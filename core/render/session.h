@@ -74,6 +74,15 @@ struct RenderSettings {
   // ends at fixed sample counts, so a render stays deterministic for its seed.
   bool guiding = false;
   float guiding_probability = 0.5f;  // of a guided direction at a rough vertex
+  // Learn the guide's probability per cell (GuidingField::set_learn_probability) instead of
+  // guiding_probability everywhere (it then only starts the cells off).
+  bool guiding_learn_probability = false;
+  // Record incident radiance times the cosine to the vertex's shading normal, so that a cell's
+  // distribution is the cosine product of a diffuse lobe (exact on flat, axis-aligned cells).
+  bool guiding_cosine = false;
+  // Müller et al.'s directional filter: each record splatted over a box of its quadtree
+  // leaf's size (GuidingField::set_directional_filter).
+  bool guiding_filter = false;
   // Photon training (render/guide_photons.h): light paths traced at the end of each training
   // iteration, this many per pixel and iteration sample (0: camera records only), and the
   // share of the guide's distributions they make where a cell has camera records too.
@@ -113,6 +122,7 @@ struct SessionStats {
   int work_items = 0;  // of a pass: tiles, or bands of their rows (chosen by the constructor)
   int guiding_iterations = 0, guiding_cells = 0;  // training done so far and the field's cells
   int guiding_caustic_cells = 0;  // cubes with caustic lobes
+  float guiding_probability = 0.0f;  // the cells' guide probability, weighted by their records
   double elapsed_s = 0.0;
   float focus_distance = 0.0f;  // of the thin lens, after autofocus
   int autofocus = 0;            // 0 off, 1 focused on a surface, 2 missed (kept the camera's)
@@ -177,6 +187,7 @@ class Session {
   std::unique_ptr<GuidingField> guide_;  // path guiding's learnt field (null: no guiding)
   int guide_end_ = 0, guide_size_ = 1;  // the training iteration ends at this sample; its samples
   std::atomic<int> guide_iterations_{0}, guide_cells_{0}, guide_caustic_cells_{0};
+  std::atomic<float> guide_probability_{0.0f};
   std::unique_ptr<GuidePhotonSources> photon_sources_;  // (null: no photon training)
   double photons_per_sample_ = 0.0;  // photons per training sample of the whole film
   void end_guiding_iteration();

@@ -659,6 +659,9 @@ struct GuideRecord {
   Vec3 wi, beta, L;
   float pdf;
   uint32_t cell;
+  float pb, pg;  // the BSDF's and the guide's pdfs of wi (for the learnt probability)
+  float fq;  // the vertex's BSDF value (luminance) over pdf: the estimate is this x the radiance
+  float cos_n;  // the cosine to the shading normal (guide_cosine), else 1
 };
 
 // Measurement only (IntegratorSettings::path_class_mask): the class of the light a path adds,
@@ -1342,8 +1345,11 @@ restart: __attribute__((unused));
     int32_t caustic_cell = -1;  // the vertex's caustic lobes (GuidingField::caustic_cell; -1: none)
     // The mixture's pdf towards w: BSDF and SD-tree guide, and the caustic lobes where there are
     // some (sd_pdf: the SD-tree's pdf where known, else negative).
+    float gp = guide_prob;  // this vertex's guide probability (learnt per cell, or the render's)
     const auto guided_pdf = [&](float bsdf_pdf, Vec3 w, float sd_pdf) {
-      float p = (1.0f - guide_prob) * bsdf_pdf + guide_prob * (sd_pdf >= 0.0f ? sd_pdf : guide->pdf(guide_cell, w));
+      // (a cell that learnt 0 never samples its guide: no quadtree descent, the same value)
+      float p = bsdf_pdf;
+      if (gp > 0.0f) p = (1.0f - gp) * bsdf_pdf + gp * (sd_pdf >= 0.0f ? sd_pdf : guide->pdf(guide_cell, w));
       if (caustic_cell >= 0) {
         const float pc = s.guide_caustic_probability;
         p = (1.0f - pc) * p + pc * guide->caustic_pdf(caustic_cell, w);
@@ -1353,6 +1359,7 @@ restart: __attribute__((unused));
     if constexpr (kGuide) {
       guided = guide && (guide_sampling || guide_training) && !sp.curve() && guidable(cl);
       if (guided) guide_cell = guide->cell_of(sp.p, ng_out);
+      if (guided && s.guide_learn_probability) gp = guide->probability(guide_cell);
       if (guided && guide_sampling && s.guide_caustic_probability > 0.0f) caustic_cell = guide->caustic_cell(sp.p, ng_out);
       if (class_mask) {  // what came before this vertex is done; its light samples on are one vertex longer
         flush_class();
@@ -1570,7 +1577,7 @@ restart: __attribute__((unused));
         float mixture_share;  // (the mixture's pdf is evaluated below, with the other strategies)
         bs.wi = ch.frame.to_local(guide->caustic_sample(caustic_cell, u_guide / pc, u, mixture_share));
         guide_pdf = -1.0f;
-      } else if (guided && guide_sampling && (u_guide - pc) / (1.0f - pc) < guide_prob) {
+      } else if (guided && guide_sampling && (u_guide - pc) / (1.0f - pc) < gp) {
         // A direction from the guide; its side and the chosen closure's kind name the bounce.
         from_guide = true;
         bs.wi = ch.frame.to_local(guide->sample(guide_cell, u, guide_pdf));
@@ -1639,15 +1646,22 @@ restart: __attribute__((unused));
           f += ch.weight * (fs - fe);
           pdf += ch.pick * (ps - pe);
         }
-      if constexpr (kGuide)
-        if (guided && guide_sampling)
-          pdf = guided_pdf(pdf, wi, from_guide ? guide_pdf : -1.0f);
+      float rec_pb = pdf, rec_pg = 0.0f;
+      if constexpr (kGuide) {
+        if (guided && ((guide_sampling && gp > 0.0f) || (guide_training && s.guide_learn_probability)))
+          rec_pg = from_guide && guide_pdf >= 0.0f ? guide_pdf : guide->pdf(guide_cell, wi);
+        if (guided && guide_sampling) pdf = guided_pdf(pdf, wi, rec_pg);
+      }
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
       if constexpr (kAovs)
         if (lp && bounce == 0) pass_weights(cl, wo, wi, reflection, 0, lp_dw, lp_gw);
       if constexpr (kGuide)
-        if (guided && guide_training && n_rec < kMaxGuideRecords) rec[n_rec++] = {wi, beta, L, pdf, guide_cell};
+        if (guided && guide_training && n_rec < kMaxGuideRecords) {
+          float cos_n = 1.0f;
+          if (s.guide_cosine) cos_n = std::fabs(dot(wi, !is_black(cl.ns) ? cl.ns : sp.ns));
+          rec[n_rec++] = {wi, beta, L, pdf, guide_cell, rec_pb, rec_pg, average(f) / pdf, cos_n};
+        }
       prev_pdf = pdf;
       if (s.path_state) ray_state.min_pdf = std::min(ray_state.min_pdf, pdf);
       prev_delta = false;
@@ -1751,7 +1765,9 @@ restart: __attribute__((unused));
       if (r.beta.x > 0.0f) sum += in.x / r.beta.x, ++n;
       if (r.beta.y > 0.0f) sum += in.y / r.beta.y, ++n;
       if (r.beta.z > 0.0f) sum += in.z / r.beta.z, ++n;
-      guide->record(r.cell, r.wi, n ? sum / (float(n) * r.pdf) : 0.0f);
+      const float li = n ? sum / float(n) : 0.0f;  // the radiance that arrived along wi
+      guide->record(r.cell, r.wi, n ? (s.guide_cosine ? li * r.cos_n / r.pdf : sum / (float(n) * r.pdf)) : 0.0f);
+      if (s.guide_learn_probability) guide->record_moment(r.cell, li * r.fq, r.pdf, r.pb, r.pg);
     }
     if (class_mask) {
       flush_class();

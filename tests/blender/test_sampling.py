@@ -64,11 +64,15 @@ def test_settings_reach_the_core():
     assert st.adaptive_threshold == 0.0 and st.sampler == "sobol"
     assert not st.guiding  # off by default, as Cycles' Path Guiding
     assert st.guiding_photons == 0.0 and not st.guiding_caustics
+    assert not (st.guiding_learn_probability or st.guiding_cosine or st.guiding_filter)
     props.use_guiding = True
     st = session.render_settings(get_core(), scene)
     assert st.guiding
     # The guided path trains with caustic photons (docs/design/sampling.md)
     assert st.guiding_photons > 0.0 and st.guiding_caustics and st.guiding_photon_share == pytest.approx(0.15)
+    # ... with a learnt probability per cell (from 0.5 down), the cosine product, the directional filter
+    assert st.guiding_learn_probability and st.guiding_cosine and st.guiding_filter
+    assert st.guiding_probability == pytest.approx(0.5)
 
 
 def test_animated_seed_adds_the_frame():

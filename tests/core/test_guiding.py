@@ -398,3 +398,96 @@ def test_caustic_lobes_change_nothing_without_smooth_surfaces():
     a, _ = render(pc, lamp_box(pc), 24, 24, **kw)
     b, stats = render(pc, lamp_box(pc), 24, 24, guiding_caustic_lobes=0.3, **kw)
     assert stats["guiding_caustic_cells"] == 0 and np.array_equal(a, b)
+
+
+# The learnt guide probability (GuidingField.set_learn_probability): per cell, the candidate
+# probability (0, 0.1, ..., 0.9) of least estimated second moment; the cosine product
+# (guiding_cosine) and Müller's directional filter (guiding_filter).
+def moment_field(product, seed=6, samples=2000, initial=1.0):
+    """A one-cell field fed the records of a 64-direction toy vertex drawn from the mixture of
+    two pdfs, pb (the BSDF's) and pg (the guide's), half and half, whose integrand is
+    product(pb, pg): returns the probability it learns (at most `initial`)."""
+    rng = np.random.default_rng(seed)
+    pb = rng.uniform(0.1, 1.0, 64)
+    pb /= pb.sum()
+    pg = rng.uniform(0.0, 1.0, 64) ** 4
+    pg /= pg.sum()
+    q = 0.5 * pb + 0.5 * pg
+    f = product(pb, pg)
+    g = pc.GuidingField()
+    g.reset((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1e12)
+    g.set_learn_probability(True, initial)
+    for i in rng.choice(64, size=samples, p=q):
+        g.record_moment((0.5, 0.5, 0.5), float(f[i] / q[i]), float(q[i]), float(pb[i]), float(pg[i]))
+    g.end_iteration(1)
+    return g.probability((0.5, 0.5, 0.5))
+
+
+def test_learnt_probability_follows_the_better_strategy():
+    # An integrand shaped as the guide's pdf earns the largest candidate, one shaped as the
+    # BSDF's none, their even mixture one half (its second moment is least there, exactly).
+    assert moment_field(lambda pb, pg: pg) == pytest.approx(0.9)
+    assert moment_field(lambda pb, pg: pb) == 0.0
+    assert moment_field(lambda pb, pg: 0.5 * pb + 0.5 * pg) == pytest.approx(0.5)
+    # Never above the initial probability; too few records: the cell keeps it.
+    assert moment_field(lambda pb, pg: pg, initial=0.3) == pytest.approx(0.3)
+    assert moment_field(lambda pb, pg: pb, initial=0.3) == 0.0
+    assert moment_field(lambda pb, pg: pg, samples=100, initial=0.5) == pytest.approx(0.5)
+
+
+def test_directional_filter_spreads_a_record_over_its_leaf():
+    # Records from one direction only: unfiltered, the quadtree's leaf about it holds them all;
+    # filtered, the leaves beside it share them, the pdf still integrates to one, and sampling
+    # draws the density it reports.
+    def field(box):
+        g = pc.GuidingField()
+        g.reset((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1e12)
+        g.set_directional_filter(box)
+        rng = np.random.default_rng(7)
+        for _ in range(3):
+            for w in uniform_dirs(rng, 2000):
+                g.record((0.5, 0.5, 0.5), tuple(w), 0.01)
+            for _ in range(2000):
+                g.record((0.5, 0.5, 0.5), tuple(CONE), 1.0)
+            g.end_iteration(1)
+        return g
+
+    p = (0.5, 0.5, 0.5)
+    plain, box = field(False), field(True)
+    grid = square_grid(256)
+    pdfs = np.array([box.pdf(p, tuple(w)) for w in grid])
+    assert pdfs.mean() * 4.0 * math.pi == pytest.approx(1.0, abs=1e-4)
+    assert box.pdf(p, tuple(CONE)) < plain.pdf(p, tuple(CONE))
+    near = grid[(grid @ CONE > 0.9) & (grid @ CONE < 0.98)]
+    assert np.mean([box.pdf(p, tuple(w)) for w in near]) > np.mean([plain.pdf(p, tuple(w)) for w in near])
+    rng = np.random.default_rng(8)
+    for u1, u2 in rng.uniform(0.0, 1.0, (500, 2)):
+        w, pdf = box.sample(p, float(u1), float(u2))
+        assert box.pdf(p, w) == pytest.approx(pdf, rel=1e-4)
+
+
+LEARNT = dict(guiding=True, guiding_learn_probability=True, guiding_cosine=True, guiding_filter=True)
+
+
+def test_learnt_probability_cosine_and_filter_are_deterministic_whatever_the_threads_and_tiles():
+    kw = dict(samples=16, seed=7, **LEARNT)
+    a, _ = render(pc, cornell(pc), 40, 24, threads=1, tile_size=8, **kw)
+    b, _ = render(pc, cornell(pc), 40, 24, threads=2, tile_size=16, **kw)
+    assert np.array_equal(a, b)
+    fixed, _ = render(pc, cornell(pc), 40, 24, samples=16, seed=7, guiding=True)
+    assert not np.array_equal(a, fixed)  # (they changed the guide)
+
+
+def test_learnt_probability_guided_white_furnace_keeps_its_closed_form_value():
+    img, stats = render(pc, furnace_scene(pc, 1.0, smooth=False), 48, 48, samples=64, **LEARNT)
+    assert abs(img[..., :3].mean() - 1.0) < 0.01
+    assert stats["nonfinite_samples"] == 0
+
+
+@pytest.mark.converged  # (slow under the sanitizer; the cheaper tests run the same code)
+def test_learnt_probability_guided_render_agrees_with_the_unguided_one():
+    guided, _ = render(pc, cornell(pc, 3.0, 1.0), 48, 48, samples=256, **LEARNT)
+    plain, _ = render(pc, cornell(pc, 3.0, 1.0), 48, 48, samples=256)
+    assert abs(guided[..., :3].mean() / plain[..., :3].mean() - 1.0) < 0.01
+    a, b = region_means(guided, 4), region_means(plain, 4)
+    assert np.all(np.abs(a - b) <= 0.04 * np.maximum(b, 0.05)), np.abs(a - b) / np.maximum(b, 0.05)
