@@ -9,7 +9,6 @@ time per sample as forest_factors.py (the difference of --hi and --lo spp render
 difference of the sample counts, alternating the settings)."""
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import bpy
@@ -17,7 +16,7 @@ import numpy as np
 
 sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from blender_util import load_addon  # noqa: E402
+from core_bench import export_for_core, render_cpu  # noqa: E402
 import realistic_scenes  # noqa: E402
 from variance_per_sample import rel_var  # noqa: E402
 
@@ -32,34 +31,16 @@ def main():
     ap.add_argument("--hi", type=int, default=68)
     ap.add_argument("--repeats", type=int, default=3)
     a = ap.parse_args()
-    addon = load_addon()
-    from addon.export import export_scene
-    from addon.scene_writer import to_core
-    from addon.session import render_settings
-    pc = addon.core.get_core()
     scene = realistic_scenes.instanced_forest(a.width, a.width * 3 // 4)
-    scene.render.engine = "PATHLIGHT"
     if a.no_sun:
         bpy.data.objects["Sun"].data.energy = 0.0
-    cs = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
-    st = render_settings(pc, scene)
-    st.adaptive_threshold = 0.0
-    st.max_bounces = 12
-    st.diffuse_bounces = st.glossy_bounces = st.transmission_bounces = 1024
-    st.threads = 1
-    st.filter_type, st.filter_width = "box", 1.0
+    pc, cs, st = export_for_core(scene)
 
     def run(on, spp, seed):
         cs.world_light_samples = on
         st.samples, st.seed = spp, seed
-        c = time.process_time()
-        sess = pc.Session(cs, st)
-        sess.start()
-        while not sess.wait(0.2):
-            pass
-        run.cpu = time.process_time() - c
-        stats = sess.stats()
-        return np.asarray(sess.film())[..., :3].astype(np.float64), stats["rays"] / max(stats["paths"], 1)
+        img, rays_per_path, run.cpu = render_cpu(pc, cs, st)
+        return img, rays_per_path
 
     run(True, 1, 0)  # (the first render builds what the others share)
     cpu = {True: [], False: []}

@@ -12,15 +12,13 @@ sample counts, the variants alternating, median of --repeats); rays per path fro
 counters. Equal-time error: variance x time, each variant over the default's (3)."""
 import argparse
 import sys
-import time
 from pathlib import Path
 
-import bpy
 import numpy as np
 
 sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from blender_util import load_addon  # noqa: E402
+from core_bench import export_for_core, render_cpu  # noqa: E402
 import realistic_scenes  # noqa: E402
 
 
@@ -34,32 +32,14 @@ def main():
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--width", type=int, default=96)
     a = ap.parse_args()
-    addon = load_addon()
-    from addon.export import export_scene
-    from addon.scene_writer import to_core
-    from addon.session import render_settings
-    pc = addon.core.get_core()
     scene = realistic_scenes.window_room(a.width, a.width * 3 // 4)
-    scene.render.engine = "PATHLIGHT"
-    cs = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
-    st = render_settings(pc, scene)
-    st.adaptive_threshold = 0.0
-    st.max_bounces = 12
-    st.diffuse_bounces = st.glossy_bounces = st.transmission_bounces = 1024
-    st.threads = 1
-    st.filter_type, st.filter_width = "box", 1.0
+    pc, cs, st = export_for_core(scene)
 
     def run(start, spp, seed):
         st.rr_start_bounce = start
         st.samples, st.seed = spp, seed
-        c = time.process_time()
-        sess = pc.Session(cs, st)
-        sess.start()
-        while not sess.wait(0.2):
-            pass
-        run.cpu = time.process_time() - c
-        stats = sess.stats()
-        return np.asarray(sess.film())[..., :3].astype(np.float64), stats["rays"] / max(stats["paths"], 1)
+        img, rays_per_path, run.cpu = render_cpu(pc, cs, st)
+        return img, rays_per_path
 
     run(3, 1, 0)  # (the first render builds what the others share)
     cpu = {s: [] for s in a.starts}
