@@ -69,6 +69,13 @@ def relink_section(text):
     return re.sub(r"(\]\s*)\(([^)\s]+)\)", fix, text)
 
 
+def rewritten(path, started):
+    """Whether the section file was written by the run that started at `started` (time.time()).
+    A second of slack: file times come from the kernel's coarse clock, which can lag time.time()
+    by a tick, so a file written just after `started` may read as older."""
+    return path.stat().st_mtime >= started - 1.0
+
+
 def assemble_benchmarks(stamp, started, ran, failed, extra):
     sections = sorted(BENCH_SECTIONS.glob("*.md")) if BENCH_SECTIONS.is_dir() else []
     lines = [
@@ -93,7 +100,7 @@ def assemble_benchmarks(stamp, started, ran, failed, extra):
         lines += ["No benchmark sections were written.", ""]
     for path in sections:
         lines.append("")
-        if path.stat().st_mtime < started:
+        if not rewritten(path, started):
             lines += [f"> `{rel(path)}` was not rewritten by this run (its script failed, was skipped or "
                       "is gone), so it may describe another commit or machine.", ""]
         lines.append(relink_section(path.read_text()).rstrip())
@@ -184,7 +191,7 @@ def update_readme_benchmarks(sections, started, extra, readme=None):
         heading = next((l.lstrip("#").strip() for l in sec if l.startswith("#")), path.stem)
         # A section this run did not rewrite (`bench --only`, or its script failed) keeps its
         # line, marked as older, rather than vanishing from the README.
-        if path.stat().st_mtime < started:
+        if not rewritten(path, started):
             heading += " (earlier run)"
         line = bench_headline(path.stem, sec)
         if line:
