@@ -47,6 +47,12 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         "direct light of the first scattering, as Cycles' default)",
         default=0, min=0, max=1024,
     )
+    transparent_bounces: IntProperty(
+        name="Transparent", description="Maximum number of transparent bounces (Transparent BSDF, "
+        "Ray Portal, volume boundaries), for camera and shadow rays alike, as Cycles' Transparent "
+        "Max Bounces",
+        default=8, min=0, max=1024,
+    )
     seed: IntProperty(
         name="Seed", description="Seed of the random number sequences",
         default=0, min=0,

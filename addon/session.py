@@ -204,6 +204,7 @@ def render_settings(pc, scene, warn=None):
         "glossy_bounces": props.glossy_bounces,
         "transmission_bounces": props.transmission_bounces,
         "volume_bounces": props.volume_bounces,
+        "transparent_bounces": props.transparent_bounces,
         "filter_type": props.filter_type.lower(),
         "filter_width": props.filter_width,
     }

@@ -64,6 +64,7 @@ class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
         col.prop(settings, "glossy_bounces")
         col.prop(settings, "transmission_bounces")
         col.prop(settings, "volume_bounces")
+        col.prop(settings, "transparent_bounces")
         layout.prop(settings, "use_schlick_fresnel")
 
 

@@ -2996,6 +2996,10 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("glossy_bounces", &RenderSettings::glossy_bounces)
       .def_readwrite("transmission_bounces", &RenderSettings::transmission_bounces)
       .def_readwrite("volume_bounces", &RenderSettings::volume_bounces)
+      .def_readwrite("transparent_bounces", &RenderSettings::transparent_bounces,
+                     "Transparent crossings (Transparent BSDF, Ray Portal) a path may make, Blender's Transparent "
+                     "max bounces: the one past it ends the path at the next surface, and a shadow ray is blocked "
+                     "by more transparent surfaces than this minus the path's crossings (as Cycles)")
       .def_property(
           "filter_type", [](const RenderSettings& s) { return enum_name(s.filter_type, kFilterNames); },
           [](RenderSettings& s, const std::string& v) { s.filter_type = enum_from_name(v, "filter_type", kFilterNames); })

@@ -21,6 +21,10 @@ struct IntegratorSettings {
   int glossy_bounces = 1024;
   int transmission_bounces = 1024;
   int volume_bounces = 1024;  // scatterings in volumes (Blender's Volume bounces)
+  // Transparent crossings (Transparent BSDF, Ray Portal), Blender's Transparent max bounces,
+  // as Cycles: the crossing past it ends the path at the next surface (its emission still
+  // counts), and a shadow ray passes at most this minus the path's crossings.
+  int transparent_bounces = 256;
   bool use_nee = true;
   // Heterogeneous media: a light sample at a point drawn in every segment a path crosses (by
   // the majorants' collision density), not only where delta tracking scatters (docs/design/

@@ -44,7 +44,8 @@ void validate(const RenderSettings& s) {
   if (s.adaptive_min_samples < 0) throw std::invalid_argument("adaptive_min_samples must be >= 0");
   if (s.sample_offset < 0 || int64_t(s.sample_offset) + int64_t(s.samples) > int64_t(INT32_MAX))
     throw std::invalid_argument("sample_offset must be >= 0 and sample_offset + samples < 2^31");
-  if (s.diffuse_bounces < 0 || s.glossy_bounces < 0 || s.transmission_bounces < 0 || s.volume_bounces < 0)
+  if (s.diffuse_bounces < 0 || s.glossy_bounces < 0 || s.transmission_bounces < 0 || s.volume_bounces < 0 ||
+      s.transparent_bounces < 0)
     throw std::invalid_argument("bounce limits must be >= 0");
   if (!(s.filter_width > 0.0f) || !(s.filter_width <= 100.0f))
     throw std::invalid_argument("filter_width must be in (0, 100] pixels");
@@ -148,6 +149,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   integrator_.glossy_bounces = settings_.glossy_bounces;
   integrator_.transmission_bounces = settings_.transmission_bounces;
   integrator_.volume_bounces = settings_.volume_bounces;
+  integrator_.transparent_bounces = std::min(settings_.transparent_bounces, 65535);
   {
     const uint32_t kept = effective_passes(settings_);
     for (int p = int(Pass::DiffuseDirect); p <= int(Pass::VolumeIndirect); ++p)

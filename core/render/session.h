@@ -40,6 +40,7 @@ struct RenderSettings {
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic
   int diffuse_bounces = 1024, glossy_bounces = 1024, transmission_bounces = 1024, volume_bounces = 1024;
+  int transparent_bounces = 256;  // IntegratorSettings::transparent_bounces
   // Renders sample indices [sample_offset, sample_offset + samples): partial renders of one
   // frame on several machines, merged by sample count, equal one render of all samples.
   int sample_offset = 0;

@@ -300,15 +300,19 @@ Vec3 layer_transmittance(const Scene& scene, const Medium& medium, Vec3 org, Vec
 
 // shadow_mask: the light's shadow sets (shadow linking): blockers of other sets let it pass.
 // catchers_only: only shadow catchers block (a shadow catcher split's catcher path).
+// max_hits: the transparent surfaces (volume boundaries included) it may pass, as
+// Scene::transmittance.
 Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlude, Pcg32* rng = nullptr,
-                          uint64_t shadow_mask = kAllLightSets, bool catchers_only = false) {
+                          uint64_t shadow_mask = kAllLightSets, bool catchers_only = false,
+                          int max_hits = kShadowHits) {
   Vec3 T(1.0f);
   if (!occlude) {
     if (medium.top())
       T = layer_transmittance(scene, medium, ray.org, ray.dir, ray.tmax * length(ray.dir), rng, ray.time);
     return T;
   }
-  for (int i = 0; i < 64; ++i) {
+  int hits = 0;
+  for (int i = 0; i < kMaxShadowCrossings; ++i) {
     const float len = length(ray.dir);  // each crossing shortens it (the end point stays)
     Hit h;
     const bool found = scene.intersect(ray, h);
@@ -324,6 +328,9 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
                         (catchers_only && !scene.is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
+      // Blender's Transparent max bounces; volume-only boundaries count here (Cycles' shadow
+      // rays record them as transparent hits), though not on the camera path.
+      if (++hits > max_hits) return Vec3(0.0f);
       // A volume-only boundary (Material::pass_through) passes everything: T * 1, unshaded.
       if (!mat.pass_through) {
         ClosureList cl;
@@ -354,6 +361,7 @@ struct MediumLightSample {
   Ray shadow;
   bool cast_shadow = true;
   uint64_t shadow_mask = kAllLightSets;  // shadow linking
+  int max_hits = kShadowHits;            // RayState::shadow_hits
 };
 // receiver: the medium's light set (light linking).
 inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, float u_sel,
@@ -379,6 +387,7 @@ inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase&
   }
   ls.cast_shadow = ds.cast_shadow;
   ls.shadow_mask = ds.shadow_mask;
+  ls.max_hits = ray_state.shadow_hits();
   ls.li = ds.li;
   const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
   ls.factor = ph * w / ds.pdf;
@@ -387,7 +396,7 @@ inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase&
 inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, const Medium& medium, PathCounters& c,
                                Pcg32* rng) {
   ++c.rays;
-  const Vec3 vis = shadow_transmittance(scene, ls.shadow, medium, ls.cast_shadow, rng, ls.shadow_mask);
+  const Vec3 vis = shadow_transmittance(scene, ls.shadow, medium, ls.cast_shadow, rng, ls.shadow_mask, false, ls.max_hits);
   if (is_black(vis)) return Vec3(0.0f);
   return ls.li * vis * ls.factor;
 }
@@ -804,8 +813,16 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   const bool volumes = kMedia && scene.features().volumes;
   const bool terminator = scene.features().terminator;  // Cycles' shadow terminator offset
   int diffuse = 0, glossy = 0, transmission = 0, transparent = 0, volume_count = 0;
+  // Volume-only boundaries crossed: not transparent bounces (Cycles' volume_bounds_bounce), only
+  // bounded against a ray stuck on one surface (VOLUME_BOUNDS_MAX).
+  int volume_bounds = 0;
+  const auto volume_bound = [&scene](const SurfacePoint& p) {
+    const Material& m = scene.material(p.material);
+    return m.pass_through && m.program.has_medium();
+  };
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
+  ray_state.transparent_max = uint16_t(std::min(s.transparent_bounces, 65535));
   if (s.camera && s.differentials) s.camera->differentials(ray.dir, ray_state.dp, ray_state.dd);  // the pixel's cone
   const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
@@ -1238,8 +1255,12 @@ restart: __attribute__((unused));
         const Frame f = Frame::from_normal(sp.ns);
         const Vec3 wi = f.to_world(-f.to_local(wo));
         if (dot(wi, ng_out) > 0.0f) break;
-        if (++transparent > 256) break;
-        ray_state.transparent = uint16_t(transparent);
+        if (!volume_bound(sp)) {
+          if (++transparent > s.transparent_bounces) emission_only = true;  // (Cycles' PATH_RAY_TERMINATE_ON_NEXT_SURFACE)
+          ray_state.transparent = uint16_t(std::min(transparent, 65535));
+        } else if (++volume_bounds > 1024) {
+          break;
+        }
         length_before = ray_state.length;
         medium.cross(scene, sp, front);
         if (!is_finite(beta)) break;
@@ -1413,12 +1434,13 @@ restart: __attribute__((unused));
           if (!reflection) side.cross(scene, sp, front);
           ++c.rays;
           vis = shadow_transmittance(scene, shadow, side, ds.cast_shadow, &vrng, kLinks ? ds.shadow_mask : kAllLightSets,
-                                     kCatcher && catcher_only);
+                                     kCatcher && catcher_only, ray_state.shadow_hits());
         } else if (ds.cast_shadow) {
           ++c.rays;
-          if (kCatcher && catcher_only) vis = scene.transmittance_catchers(shadow);
-          else if (kLinks && ds.shadow_mask != kAllLightSets) vis = scene.transmittance_linked(shadow, ds.shadow_mask);
-          else vis = scene.transmittance(shadow);
+          const int max_hits = ray_state.shadow_hits();
+          if (kCatcher && catcher_only) vis = scene.transmittance_catchers(shadow, max_hits);
+          else if (kLinks && ds.shadow_mask != kAllLightSets) vis = scene.transmittance_linked(shadow, ds.shadow_mask, max_hits);
+          else vis = scene.transmittance(shadow, max_hits);
         }
         // Light inside an absorbing medium (only reachable when the segment stays inside it).
         if constexpr (kMedia) {
@@ -1546,8 +1568,9 @@ restart: __attribute__((unused));
         // it as a transparent bounce (the ray keeps its kind: a camera ray stays one) and skips
         // MIS at what it finds next: the light samples before could not see through it.
         beta *= ch.weight / ch.pick;
-        if (!is_finite(beta) || ++transparent > 256) break;
-        ray_state.transparent = uint16_t(transparent);
+        if (!is_finite(beta)) break;
+        if (++transparent > s.transparent_bounces) emission_only = true;  // (as a Transparent crossing)
+        ray_state.transparent = uint16_t(std::min(transparent, 65535));
         prev_delta = true;
         if constexpr (kMedia) medium.cross(scene, sp, front);  // (LABEL_TRANSMIT: the volume stack)
         // A new ray: its length restarts there, from the footprint it hit (Cycles' dP).
@@ -1675,8 +1698,16 @@ restart: __attribute__((unused));
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its
     // ray collect emission (so the light sample above keeps its MIS weight), then stops.
     if (kNonDiffuse && (bs.flags & kTransparentLobe)) {
-      if (++transparent > 256) break;
-      ray_state.transparent = uint16_t(transparent);  // the ray keeps its kind, as Cycles'
+      // Blender's Transparent max bounces (Cycles' kernel limit is the setting + 1): the crossing
+      // past it lets the ray find one more surface, for its emission only (Cycles'
+      // PATH_RAY_TERMINATE_ON_NEXT_SURFACE).
+      // Volume-only boundaries are not counted (Cycles' path_state_volume_next).
+      if (!volume_bound(sp)) {
+        if (++transparent > s.transparent_bounces) emission_only = true;
+        ray_state.transparent = uint16_t(std::min(transparent, 65535));  // the ray keeps its kind, as Cycles'
+      } else if (++volume_bounds > 1024) {
+        break;
+      }
       length_before = ray_state.length;
     } else {
       direct = false;
@@ -1728,8 +1759,10 @@ restart: __attribute__((unused));
                                   nee && !prev_delta, prev_pdf, mis_org, mis_n, mis_set, beta,
                                   [&](const Ray& r, uint64_t mask) {
                                     if constexpr (kMedia)
-                                      if (volumes) return shadow_transmittance(scene, r, medium, true, &vrng, mask);
-                                    return scene.transmittance_linked(r, mask);
+                                      if (volumes)
+                                        return shadow_transmittance(scene, r, medium, true, &vrng, mask, false,
+                                                                    ray_state.shadow_hits());
+                                    return scene.transmittance_linked(r, mask, ray_state.shadow_hits());
                                   });
     // No roulette after delta lobes (glass, mirrors, transparency): they barely change the
     // throughput, so a roll there (the square root's survival below 1 again) only re-kills

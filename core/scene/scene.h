@@ -583,7 +583,9 @@ class Scene {
   // object): other hits are stepped past, and `r` starts past the last of them on return.
   bool intersect_catchers(Ray& r, Hit& h) const;
   // transmittance() where only shadow catchers block.
-  Vec3 transmittance_catchers(const Ray& ray) const { return transmittance_through(ray, kAllLightSets, true); }
+  Vec3 transmittance_catchers(const Ray& ray, int max_hits = kShadowHits) const {
+    return transmittance_through(ray, kAllLightSets, true, max_hits);
+  }
 
   // Closest hit: h.prim is the triangle in its BLAS, h.inst the scene instance (surface_point
   // and global_prim read them).
@@ -690,13 +692,16 @@ class Scene {
   // Fraction of light that passes from ray.org to ray.org + ray.dir * ray.tmax (0 when
   // blocked; Transparent surfaces let part of it through).
   // Inline: without Transparent BSDFs (most scenes) a shadow ray is one any-hit query.
-  [[gnu::always_inline]] Vec3 transmittance(const Ray& ray) const {
+  // max_hits: the transparent surfaces it may pass (RayState::shadow_hits); one more blocks.
+  [[gnu::always_inline]] Vec3 transmittance(const Ray& ray, int max_hits = kShadowHits) const {
     if (!any_transparent_) return occluded(ray) ? Vec3(0.0f) : Vec3(1.0f);
-    return transmittance_through(ray);
+    return transmittance_through(ray, kAllLightSets, false, max_hits);
   }
   // The same towards a light with shadow linking: objects whose shadow set is not in
   // shadow_mask let the light pass (Cycles' blocker collections).
-  Vec3 transmittance_linked(const Ray& ray, uint64_t shadow_mask) const { return transmittance_through(ray, shadow_mask); }
+  Vec3 transmittance_linked(const Ray& ray, uint64_t shadow_mask, int max_hits = kShadowHits) const {
+    return transmittance_through(ray, shadow_mask, false, max_hits);
+  }
   const std::vector<Image>& images() const { return images_; }
   // The heterogeneous medium inside `material` on `instance` (after commit), or nullptr.
   const HeteroMedium* hetero_medium(uint32_t instance, uint32_t material) const {
@@ -969,7 +974,8 @@ class Scene {
   bool any_holdout_ = false;
   // transmittance() through Transparent surfaces (closest hits shaded one by one).
   // catchers_only: only shadow catchers block (the rest is passed as if not there).
-  Vec3 transmittance_through(Ray ray, uint64_t shadow_mask = kAllLightSets, bool catchers_only = false) const;
+  Vec3 transmittance_through(Ray ray, uint64_t shadow_mask = kAllLightSets, bool catchers_only = false,
+                             int max_hits = kShadowHits) const;
   std::vector<MeshData> meshes_;
   std::vector<Instance> instances_;
   std::vector<Float4> object_attrs_;  // the instances' object attribute values (ObjectInfo::attr_first)

@@ -430,9 +430,10 @@ bool Scene::intersect_catchers(Ray& r, Hit& h) const {
   return false;
 }
 
-Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_only) const {
+Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_only, int max_hits) const {
   Vec3 T(1.0f);
-  for (int i = 0; i < 64; ++i) {  // bounded: stacked alpha cards
+  int hits = 0;
+  for (int i = 0; i < kMaxShadowCrossings; ++i) {  // bounded, passed blockers included
     Hit h;
     if (!intersect(ray, h)) return T;
     SurfacePoint sp;
@@ -443,6 +444,7 @@ Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_o
                         (catchers_only && !is_catcher(h.inst));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
+      if (++hits > max_hits) return Vec3(0.0f);  // Blender's Transparent max bounces
       ClosureList cl;
       RayState shadow;
       shadow.flags = kRayShadow;

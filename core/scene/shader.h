@@ -262,6 +262,10 @@ struct ObjectInfo {
   bool shadow_catcher = false, holdout = false;
 };
 constexpr uint64_t kAllLightSets = ~uint64_t(0);
+// Shadow rays: the transparent surfaces one passes when no path gives a limit (RayState::
+// shadow_hits), and a bound on all its crossings (shadow-linked blockers it passes included).
+constexpr int kShadowHits = 63;
+constexpr int kMaxShadowCrossings = 4096;
 constexpr uint32_t kMaxObjectAttributes = 8;
 // Object Info's Random from a 32-bit id as Cycles makes it: (float)id / (float)0xFFFFFFFF,
 // whose divisor rounds to 2^32 in float.
@@ -303,6 +307,11 @@ enum RayFlags : uint8_t {
 struct RayState {
   uint8_t flags = kRayCamera;
   uint16_t depth = 0, diffuse = 0, glossy = 0, transmission = 0, transparent = 0;
+  // Blender's Transparent max bounces: shadow rays from this vertex pass at most
+  // shadow_hits() transparent surfaces (Cycles' integrate_shadow_max_transparent_hits, whose
+  // kernel limit is the setting + 1).
+  uint16_t transparent_max = 256;
+  int shadow_hits() const { return std::max(int(transparent_max) - int(transparent), 0); }
   float length = 0.0f;  // distance from the ray's origin to the hit
   // The render's camera (Texture Coordinate's Camera and Window, Vector Transform's camera
   // space); nullptr where none is known (camera space is then world space).

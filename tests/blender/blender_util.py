@@ -166,6 +166,7 @@ def _setup_pathlight(settings):
     counterpart of _setup_cycles. (Settings the add-on does not have yet are skipped.)"""
     for name, value in (("use_adaptive_sampling", False), ("diffuse_bounces", 1024),
                         ("glossy_bounces", 1024), ("transmission_bounces", 1024), ("volume_bounces", 1024),
+                        ("transparent_bounces", 1024),
                         ("filter_type", 'BOX'), ("filter_width", 1.0)):
         if hasattr(settings, name):
             setattr(settings, name, value)

@@ -112,6 +112,7 @@ def render_passes(sc, engine, path, samples, seed=1):
         p.seed = seed
         p.samples, p.use_adaptive_sampling, p.max_bounces = samples, False, 12
         p.diffuse_bounces = p.glossy_bounces = p.transmission_bounces = p.volume_bounces = 12
+        p.transparent_bounces = 12
         p.filter_type, p.filter_width = 'BOX', 1.0
     return render_multilayer_file(sc, path)
 

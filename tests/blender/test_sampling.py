@@ -39,8 +39,9 @@ def test_defaults_are_cycles_defaults():
     assert props.adaptive_threshold == pytest.approx(cycles.adaptive_threshold)  # 0.01
     assert props.adaptive_min_samples == cycles.adaptive_min_samples == 0
     assert (props.max_bounces, props.diffuse_bounces, props.glossy_bounces,
-            props.transmission_bounces) == (cycles.max_bounces, cycles.diffuse_bounces,
-                                            cycles.glossy_bounces, cycles.transmission_bounces)
+            props.transmission_bounces, props.transparent_bounces) == (
+        cycles.max_bounces, cycles.diffuse_bounces, cycles.glossy_bounces, cycles.transmission_bounces,
+        cycles.transparent_max_bounces)
     assert props.sampler == 'SOBOL' and props.use_animated_seed is False
 
 
@@ -54,7 +55,9 @@ def test_settings_reach_the_core():
     props.adaptive_threshold = 0.05
     props.adaptive_min_samples = 24
     props.diffuse_bounces, props.glossy_bounces, props.transmission_bounces = 3, 5, 7
+    props.transparent_bounces = 11
     st = session.render_settings(get_core(), scene)
+    assert st.transparent_bounces == 11
     assert st.sampler == "random"
     assert st.adaptive_threshold == pytest.approx(0.05) and st.adaptive_min_samples == 24
     assert (st.diffuse_bounces, st.glossy_bounces, st.transmission_bounces) == (3, 5, 7)

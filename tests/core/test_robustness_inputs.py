@@ -428,6 +428,7 @@ def test_bad_sensor_fit_raises():
     ("adaptive_threshold", np.nan, "adaptive"), ("adaptive_threshold", np.inf, "adaptive"),
     ("adaptive_threshold", -0.1, "adaptive"), ("adaptive_min_samples", -1, "adaptive"),
     ("diffuse_bounces", -1, "bounce"), ("glossy_bounces", -1, "bounce"), ("transmission_bounces", -1, "bounce"),
+    ("transparent_bounces", -1, "bounce"),
 ])
 def test_bad_settings_raise_before_rendering(field, value, match):
     st = settings(8, 8, 1)
