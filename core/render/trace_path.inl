@@ -816,10 +816,6 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // Volume-only boundaries crossed: not transparent bounces (Cycles' volume_bounds_bounce), only
   // bounded against a ray stuck on one surface (VOLUME_BOUNDS_MAX).
   int volume_bounds = 0;
-  const auto volume_bound = [&scene](const SurfacePoint& p) {
-    const Material& m = scene.material(p.material);
-    return m.pass_through && m.program.has_medium();
-  };
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
   ray_state.transparent_max = uint16_t(std::min(s.transparent_bounces, 65535));
@@ -827,6 +823,18 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
+  // A transparent crossing at p (Transparent BSDF, Ray Portal, volume-only boundary), counted as
+  // Cycles' path_state_next: past Blender's Transparent max bounces (Cycles' kernel limit is the
+  // setting + 1) the ray finds one more surface, for its emission only (Cycles'
+  // PATH_RAY_TERMINATE_ON_NEXT_SURFACE); volume-only boundaries are not counted
+  // (path_state_volume_next). False: a ray stuck on volume boundaries, to stop.
+  const auto count_crossing = [&](const SurfacePoint& p) {
+    const Material& m = scene.material(p.material);
+    if (m.pass_through && m.program.has_medium()) return ++volume_bounds <= 1024;
+    if (++transparent > s.transparent_bounces) emission_only = true;
+    ray_state.transparent = uint16_t(std::min(transparent, 65535));  // the ray keeps its kind, as Cycles'
+    return true;
+  };
   Medium medium;
   // Heterogeneous media's own random numbers (delta and ratio tracking take as many as their
   // collisions need), one stream per path: the sampler's dimensions stay as they were.
@@ -1255,12 +1263,7 @@ restart: __attribute__((unused));
         const Frame f = Frame::from_normal(sp.ns);
         const Vec3 wi = f.to_world(-f.to_local(wo));
         if (dot(wi, ng_out) > 0.0f) break;
-        if (!volume_bound(sp)) {
-          if (++transparent > s.transparent_bounces) emission_only = true;  // (Cycles' PATH_RAY_TERMINATE_ON_NEXT_SURFACE)
-          ray_state.transparent = uint16_t(std::min(transparent, 65535));
-        } else if (++volume_bounds > 1024) {
-          break;
-        }
+        if (!count_crossing(sp)) break;
         length_before = ray_state.length;
         medium.cross(scene, sp, front);
         if (!is_finite(beta)) break;
@@ -1568,9 +1571,7 @@ restart: __attribute__((unused));
         // it as a transparent bounce (the ray keeps its kind: a camera ray stays one) and skips
         // MIS at what it finds next: the light samples before could not see through it.
         beta *= ch.weight / ch.pick;
-        if (!is_finite(beta)) break;
-        if (++transparent > s.transparent_bounces) emission_only = true;  // (as a Transparent crossing)
-        ray_state.transparent = uint16_t(std::min(transparent, 65535));
+        if (!is_finite(beta) || !count_crossing(sp)) break;
         prev_delta = true;
         if constexpr (kMedia) medium.cross(scene, sp, front);  // (LABEL_TRANSMIT: the volume stack)
         // A new ray: its length restarts there, from the footprint it hit (Cycles' dP).
@@ -1698,16 +1699,7 @@ restart: __attribute__((unused));
     // Bounce bookkeeping, as Blender's light paths: a lobe past its own limit still lets its
     // ray collect emission (so the light sample above keeps its MIS weight), then stops.
     if (kNonDiffuse && (bs.flags & kTransparentLobe)) {
-      // Blender's Transparent max bounces (Cycles' kernel limit is the setting + 1): the crossing
-      // past it lets the ray find one more surface, for its emission only (Cycles'
-      // PATH_RAY_TERMINATE_ON_NEXT_SURFACE).
-      // Volume-only boundaries are not counted (Cycles' path_state_volume_next).
-      if (!volume_bound(sp)) {
-        if (++transparent > s.transparent_bounces) emission_only = true;
-        ray_state.transparent = uint16_t(std::min(transparent, 65535));  // the ray keeps its kind, as Cycles'
-      } else if (++volume_bounds > 1024) {
-        break;
-      }
+      if (!count_crossing(sp)) break;
       length_before = ray_state.length;
     } else {
       direct = false;
