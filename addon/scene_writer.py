@@ -184,7 +184,7 @@ def _crypto(info):
 def _motion_args(entry, k):
     """add_curves / add_points keywords for motion blur of instance k of a CurvesData or
     PointsData: its transform steps and the geometry's deformation steps (export.motion), and
-    its matrices at the frames around for the Vector pass."""
+    its matrices and points at the frames around for the Vector pass."""
     out = {}
     motions = getattr(entry, "motions", None) or []
     if k < len(motions) and motions[k] is not None:
@@ -192,6 +192,9 @@ def _motion_args(entry, k):
     pass_motions = getattr(entry, "pass_motions", None) or []
     if k < len(pass_motions) and pass_motions[k] is not None:
         out["pass_motion"] = pass_motions[k]
+    pass_points = getattr(entry, "pass_points", None)
+    if pass_points is not None:
+        out["pass_points"] = pass_points
     points = getattr(entry, "motion_points", None)
     if points is not None:
         out["motion_points"] = points

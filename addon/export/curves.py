@@ -57,6 +57,7 @@ class CurvesData:
     motion_points: object = None
     motion_radii: object = None
     velocity: object = None  # (N, 3) float32: a Curves object's 'velocity' attribute, or None
+    pass_points: object = None  # (2, N, 3) float32: the points at frame -+ 1 (the Vector pass), or None
     psys_key: object = None  # particle hair: its key in _particle_hair's output (sub-frames)
 
 

@@ -34,6 +34,7 @@ class PointsData:
     motion_keys: list = field(default_factory=list)
     motions: list = field(default_factory=list)
     velocity: object = None  # (N, 3) float32: the 'velocity' attribute (Cycles' point motion), or None
+    pass_points: object = None  # (2, N, 3) float32: the points at frame -+ 1 (the Vector pass), or None
     # Deformation blur (export.motion): centres (S, N, 3) and radii (S, N) at the motion steps.
     motion_points: object = None
     motion_radii: object = None
