@@ -400,7 +400,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
                     const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set,
                     const py::object& pass_motion, uint64_t light_mask, uint64_t shadow_mask,
-                    const py::object& pass_points) {
+                    const py::object& pass_points, bool shadow_catcher, bool holdout) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -464,6 +464,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   to_deform(motion_points, motion_radii, n, "curves", cs.deform_points, cs.deform_radii);
   cs.pass_motion = to_pass_motion(pass_motion, "curves pass_motion");
   cs.pass_points = to_pass_points(pass_points, n, "curves pass_points");
+  cs.info.shadow_catcher = shadow_catcher;
+  cs.info.holdout = holdout;
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -475,7 +477,8 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
                     const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
                     const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
                     const py::object& cryptomatte, int light_set, int shadow_set, const py::object& pass_motion,
-                    uint64_t light_mask, uint64_t shadow_mask, const py::object& pass_points) {
+                    uint64_t light_mask, uint64_t shadow_mask, const py::object& pass_points,
+                    bool shadow_catcher, bool holdout) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const size_t n = size_t(points.shape(0));
@@ -515,6 +518,8 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   to_deform(motion_points, motion_radii, n, "points", ps.deform_points, ps.deform_radii);
   ps.pass_motion = to_pass_motion(pass_motion, "points pass_motion");
   ps.pass_points = to_pass_points(pass_points, n, "points pass_points");
+  ps.info.shadow_catcher = shadow_catcher;
+  ps.info.holdout = holdout;
   return self.scene->add_points(std::move(ps));
 }
 
@@ -3134,6 +3139,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
            py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
+           py::arg("shadow_catcher") = false, py::arg("holdout") = false,
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes, light_set, shadow_set: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
@@ -3147,7 +3153,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "(stats()['skipped_points']). pass_motion: (2, 4, 4) object-to-world matrices at the previous and "
            "next frames (the Vector pass; None: still). pass_points: (2, N, 3) object-space centres at those "
            "frames (the Vector pass's deformation, Cycles' motion points; None, non-finite or unchanged: "
-           "the points move with pass_motion alone). light_mask, shadow_mask: as an emitter, as "
+           "the points move with pass_motion alone). shadow_catcher, holdout: as add_instance's. "
+           "light_mask, shadow_mask: as an emitter, as "
            "add_instance's (rays other than the camera's get its emission only from vertices it lights, "
            "none where it is shadow-linked).")
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
@@ -3160,6 +3167,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
            py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
+           py::arg("shadow_catcher") = false, py::arg("holdout") = false,
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -3182,7 +3190,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "shutter (Cycles' curve motion keys); steps with non-finite values, or that cut into other "
            "pieces than the frame's, leave it undeformed (stats()['motion_rejected']). pass_motion: as add_points'. pass_points: "
            "(2, N, 3) object-space points at the previous and next frames (the Vector pass's deformation: "
-           "a hit moves as the point between its segment's two keys, Cycles' motion keys).")
+           "a hit moves as the point between its segment's two keys, Cycles' motion keys). shadow_catcher, "
+           "holdout: as add_instance's.")
       .def("displace_mesh", &displace_mesh_arrays, py::arg("positions"), py::arg("triangles"),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("matrix") = py::none(), py::arg("normals") = py::none(), py::arg("normal_indices") = py::none(),

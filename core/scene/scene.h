@@ -577,13 +577,15 @@ class Scene {
   bool committed() const { return committed_; }
   // Holdout closures or objects: alpha below 1 without transparent film.
   bool any_holdout() const { return any_holdout_ || features_.object_holdout; }
-  // Shadow catchers (ObjectInfo::shadow_catcher) and holdout objects, by scene instance (curves
-  // and points are neither).
-  bool is_catcher(uint32_t instance) const {
-    return instance < object_coords_.size() && object_coords_[instance].info.shadow_catcher;
+  // Shadow catchers (ObjectInfo::shadow_catcher) and holdout objects, by a hit's instance and
+  // primitive (curves and points: their set's; the instance alone is enough for meshes).
+  bool is_catcher(uint32_t instance, uint32_t prim = 0) const {
+    const ObjectInfo* info = hit_info(instance, prim);
+    return info && info->shadow_catcher;
   }
-  bool is_object_holdout(uint32_t instance) const {
-    return instance < object_coords_.size() && object_coords_[instance].info.holdout;
+  bool is_object_holdout(uint32_t instance, uint32_t prim = 0) const {
+    const ObjectInfo* info = hit_info(instance, prim);
+    return info && info->holdout;
   }
   // Closest hit on shadow catchers only (the catcher path of a split, which sees no other
   // object): other hits are stepped past, and `r` starts past the last of them on return.
@@ -896,11 +898,16 @@ class Scene {
   uint8_t light_set_at(const SurfacePoint& sp) const {
     return sp.curve() || sp.point() ? object_info(sp).light_set : light_set_of(sp.instance);
   }
+  // The object of a hit (instance and primitive; curves and points: their set's), or nullptr.
+  const ObjectInfo* hit_info(uint32_t instance, uint32_t prim) const {
+    if (instance == kCurveInstance) return &curve_coords_[curve_set_of(curve_bvh_.piece(prim).curve)].info;
+    if (instance == kPointInstance) return &point_coords_[point_set_of(point_bvh_.sphere(prim).point)].info;
+    return instance < object_coords_.size() ? &object_coords_[instance].info : nullptr;
+  }
   // The shadow set of what a hit found (curves and points: their set's), for shadow linking.
   uint8_t shadow_set_of(const Hit& h) const {
-    if (h.inst == kCurveInstance) return curve_coords_[curve_set_of(curve_bvh_.piece(h.prim).curve)].info.shadow_set;
-    if (h.inst == kPointInstance) return point_coords_[point_set_of(point_bvh_.sphere(h.prim).point)].info.shadow_set;
-    return shadow_set_of(h.inst);
+    const ObjectInfo* info = hit_info(h.inst, h.prim);
+    return info ? info->shadow_set : 0;
   }
   uint64_t emitter_light_mask(uint32_t instance) const {
     return instance < object_coords_.size() ? object_coords_[instance].info.light_mask : kAllLightSets;

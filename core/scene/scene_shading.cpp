@@ -431,7 +431,7 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_
 bool Scene::intersect_catchers(Ray& r, Hit& h) const {
   for (int i = 0; i < 64; ++i) {  // bounded, as transmittance_through
     if (!intersect(r, h)) return false;
-    if (is_catcher(h.inst)) return true;
+    if (is_catcher(h.inst, h.prim)) return true;
     SurfacePoint sp;
     surface_point(h, sp, r.time, &r);
     continue_past(r, sp, dot(r.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng);
@@ -450,7 +450,7 @@ Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_o
     const Material& mat = materials_[sp.material];
     // Shadow linking: a blocker outside the light's shadow sets is passed as if not there.
     const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> shadow_set_of(h)) & 1u)) ||
-                        (catchers_only && !is_catcher(h.inst));
+                        (catchers_only && !is_catcher(h.inst, h.prim));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
       if (++hits > max_hits) return Vec3(0.0f);  // Blender's Transparent max bounces
