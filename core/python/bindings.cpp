@@ -290,6 +290,20 @@ struct PyScene {
   }
 };
 
+// A Scene setting as def_property's getter and setter, through the core's own (writes need an
+// editable scene: not one a session is rendering).
+template <auto Get>
+auto scene_get() {
+  return [](const PyScene& self) { return (self.scene.get()->*Get)(); };
+}
+template <auto Set>
+auto scene_flag_set() {
+  return [](PyScene& self, bool on) {
+    self.check_editable();
+    (self.scene.get()->*Set)(on);
+  };
+}
+
 // An index array read in place when it is C-contiguous int32 (what the add-on exports), so a
 // million-triangle mesh is not first converted to int64; any other integer array is converted.
 class IndexArray {
@@ -3435,12 +3449,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("index"), py::arg("matrix"),
           "Moves instance `index` (add_instance order). In dynamic mode (or for a mesh with several "
           "instances) the next commit() rebuilds only the top level and the lights.")
-      .def_property(
-          "spatial_splits", [](const PyScene& self) { return self.scene->spatial_splits(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_spatial_splits(on);
-          },
+      .def_property("spatial_splits", scene_get<&Scene::spatial_splits>(),
+                    scene_flag_set<&Scene::set_spatial_splits>(),
           "Spatial splits (SBVH) in the BVH builds of the next commit(): slower builds, fewer "
           "triangle and node tests on long thin triangles (final renders). Default off.")
       .def_property(
@@ -3474,12 +3484,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           "the triangles sorted along a Morton curve into runs of up to 8, the binned SAH over the runs, "
           "then over the triangles of nodes of 24 or fewer; less build work, somewhat worse trees), "
           "'auto' (default: 'fast' for the BVHs of 100,000 triangles or more of a dynamic scene, else 'sah').")
-      .def_property(
-          "dynamic", [](const PyScene& self) { return self.scene->dynamic(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_dynamic(on);
-          },
+      .def_property("dynamic", scene_get<&Scene::dynamic>(),
+                    scene_flag_set<&Scene::set_dynamic>(),
           "Every instance its own transform over a per-mesh BLAS (viewport: transform edits rebuild only "
           "the top level); False (default): meshes used once are merged in world space (faster tracing).")
       .def(
@@ -3892,51 +3898,26 @@ PYBIND11_MODULE(pathlight_core, m) {
           "cancel_commit", [](PyScene& self) { self.scene->cancel_commit(); },
           "Stops a commit() running in another thread; that commit raises RuntimeError and leaves the "
           "scene uncommitted. Has no effect when no commit is running.")
-      .def_property(
-          "solid_angle_triangle_sampling",
-          [](const PyScene& self) { return self.scene->solid_angle_triangle_sampling(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_solid_angle_triangle_sampling(on);
-          },
+      .def_property("solid_angle_triangle_sampling", scene_get<&Scene::solid_angle_triangle_sampling>(),
+                    scene_flag_set<&Scene::set_solid_angle_triangle_sampling>(),
           "Light-sample emissive triangles uniformly in solid angle (True, the default) or by area.")
-      .def_property(
-          "solid_angle_rect_sampling",
-          [](const PyScene& self) { return self.scene->solid_angle_rect_sampling(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_solid_angle_rect_sampling(on);
-          },
+      .def_property("solid_angle_rect_sampling", scene_get<&Scene::solid_angle_rect_sampling>(),
+                    scene_flag_set<&Scene::set_solid_angle_rect_sampling>(),
           "Light-sample rectangle lights uniformly in solid angle where it is not tiny (True, the "
           "default) or always by area.")
-      .def_property(
-          "light_hits",
-          [](const PyScene& self) { return self.scene->light_hits_enabled(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_light_hits(on);
-          },
+      .def_property("light_hits", scene_get<&Scene::light_hits_enabled>(),
+                    scene_flag_set<&Scene::set_light_hits>(),
           "Rays find analytic lights with extent (point and spot disks, area lights, suns with an "
           "angle) and weigh them against light samples by MIS (True, the default); False: those "
           "lights are reached by light samples alone, each with the full weight. Takes effect at the "
           "next commit().")
-      .def_property(
-          "emitter_groups",
-          [](const PyScene& self) { return self.scene->emitter_groups(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_emitter_groups(on);
-          },
+      .def_property("emitter_groups", scene_get<&Scene::emitter_groups>(),
+                    scene_flag_set<&Scene::set_emitter_groups>(),
           "Sample a small mesh light (up to 4 triangles of one material in one object, such as a "
           "quad) as one light, each triangle chosen in proportion to its solid angle (True, the "
           "default), or each triangle as a light of its own. Takes effect at the next commit().")
-      .def_property(
-          "rect_groups",
-          [](const PyScene& self) { return self.scene->rect_groups(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_rect_groups(on);
-          },
+      .def_property("rect_groups", scene_get<&Scene::rect_groups>(),
+                    scene_flag_set<&Scene::set_rect_groups>(),
           "Sample an emitter group whose two triangles form a rectangle as one spherical rectangle "
           "(True, the default; same distribution, less work) or as two spherical triangles. Takes "
           "effect at the next commit().")
