@@ -8,8 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, _setup_cycles, core_available, empty_scene_with_camera, load_addon, \
-    render_multilayer_file
+from blender_util import core_available, empty_scene_with_camera, load_addon, render_multilayer_pair
 import material_scenes as ms
 from test_hair import add_hair
 from test_point_clouds import add_cloud
@@ -52,19 +51,9 @@ def moving_scene():
 
 
 def render_both(sc, tmp):
-    """The scene's multilayer passes from Cycles and from Pathlight, rendered alike."""
-    sc.render.engine = 'CYCLES'
-    _setup_cycles(sc.cycles, 0)
-    sc.cycles.samples = SAMPLES
-    sc.cycles.pixel_filter_type, sc.cycles.filter_width = BOX_FILTER["pixel_filter_type"], 1.0
-    cycles = render_multilayer_file(sc, tmp / "cycles.exr")
-    sc.render.engine = 'PATHLIGHT'
-    sc.pathlight.samples = SAMPLES
-    sc.pathlight.use_adaptive_sampling = False
-    sc.pathlight.max_bounces = 0
-    sc.pathlight.filter_type, sc.pathlight.filter_width = 'BOX', 1.0
-    pathlight = render_multilayer_file(sc, tmp / "pathlight.exr")
-    return cycles, pathlight
+    """The scene's multilayer passes from Cycles and from Pathlight, rendered alike (emission
+    only: no bounces)."""
+    return render_multilayer_pair(sc, tmp, SAMPLES, 0)
 
 
 def vectors_and_masks(cycles, pathlight, cloud_pixels=20):
