@@ -85,10 +85,8 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             color, pass_index, random_id, terminator = info[:4]
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
-            if len(info) > 6 and (info[5] or info[6]):  # (so never for older cores)
-                extra.update(shadow_catcher=info[5], holdout=info[6])
             scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id,
-                               shadow_terminator=terminator, **_crypto(info), **extra)
+                               shadow_terminator=terminator, **_crypto(info), **_catcher_holdout(info), **extra)
     curves = getattr(data, "curves", [])
     if curves:
         mats = iter(data.curve_materials)
@@ -181,10 +179,16 @@ def _crypto(info):
     return {"cryptomatte": info[4]} if len(info) > 4 and info[4] is not None else {}
 
 
+def _catcher_holdout(info):
+    """add_instance / add_curves / add_points keywords of an object's Shadow Catcher and Holdout
+    (mesh.object_info's sixth and seventh entries), only where set."""
+    return {"shadow_catcher": info[5], "holdout": info[6]} if len(info) > 6 and (info[5] or info[6]) else {}
+
+
 def _motion_args(entry, k):
     """add_curves / add_points keywords for motion blur of instance k of a CurvesData or
     PointsData: its transform steps and the geometry's deformation steps (export.motion), and
-    its matrices at the frames around for the Vector pass."""
+    its matrices and points at the frames around for the Vector pass."""
     out = {}
     motions = getattr(entry, "motions", None) or []
     if k < len(motions) and motions[k] is not None:
@@ -192,6 +196,9 @@ def _motion_args(entry, k):
     pass_motions = getattr(entry, "pass_motions", None) or []
     if k < len(pass_motions) and pass_motions[k] is not None:
         out["pass_motion"] = pass_motions[k]
+    pass_points = getattr(entry, "pass_points", None)
+    if pass_points is not None:
+        out["pass_points"] = pass_points
     points = getattr(entry, "motion_points", None)
     if points is not None:
         out["motion_points"] = points
@@ -251,7 +258,7 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None, links=None)
                     random_id = random_id_of(c.name) if random_id_of else 0
                 scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
                                  color=color, pass_index=pass_index, random_id=random_id, **_crypto(info),
-                                 **extra)
+                                 **_catcher_holdout(info), **extra)
             except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
                 warn(f"Curves '{c.name}' not rendered: {e}")
                 break
@@ -275,7 +282,8 @@ def add_points(scene, points, material_ids, warn, random_id_of=None, links=None)
                 color, pass_index, random_id, _ = info[:4]
                 if random_id is None:
                     random_id = random_id_of(p.name) if random_id_of else 0
-                extra.update(color=color, pass_index=pass_index, random_id=random_id, **_crypto(info))
+                extra.update(color=color, pass_index=pass_index, random_id=random_id, **_crypto(info),
+                             **_catcher_holdout(info))
             try:
                 scene.add_points(p.points, p.radii, mat, matrix=m, **extra)
             except ValueError as e:  # inconsistent arrays: the cloud is left out, Blender goes on

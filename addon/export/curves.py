@@ -57,6 +57,7 @@ class CurvesData:
     motion_points: object = None
     motion_radii: object = None
     velocity: object = None  # (N, 3) float32: a Curves object's 'velocity' attribute, or None
+    pass_points: object = None  # (2, N, 3) float32: the points at frame -+ 1 (the Vector pass), or None
     psys_key: object = None  # particle hair: its key in _particle_hair's output (sub-frames)
 
 
@@ -267,6 +268,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
     the emitter UV maps particle hair materials read."""
     out = {}
     render = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
+    view_layer = getattr(depsgraph, "view_layer", None)  # (holdout collections)
     shape, quads = curve_shape(getattr(depsgraph, "scene", None))
     for instance in depsgraph.object_instances:
         obj = instance.object
@@ -281,7 +283,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
                                                   psys_key=key)
                     if material_index is not None:
                         material_index(material)
-                _add_instance(entry, instance, object_attributes)
+                _add_instance(entry, instance, object_attributes, view_layer)
             continue
         if not is_visible(instance) or obj.type != 'CURVES':
             continue
@@ -311,13 +313,13 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
                     warn(f"Curves '{obj.original.name}' has no {', '.join(missing)} that its material "
                          "reads; 0 is used, as in Cycles")
         if entry is not None:
-            _add_instance(entry, instance, object_attributes)
+            _add_instance(entry, instance, object_attributes, view_layer)
     return [c for c in out.values() if c is not None]
 
 
-def _add_instance(entry, instance, object_attributes):
+def _add_instance(entry, instance, object_attributes, view_layer):
     entry.matrices.append(np.array(instance.matrix_world, np.float32))
-    entry.infos.append(object_info(instance))
+    entry.infos.append(object_info(instance, view_layer))
     entry.owners.append(instance.object.name)  # (particle hair: its emitter's)
     entry.motion_keys.append(instance_key(instance))
     if object_attributes is not None:

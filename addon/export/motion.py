@@ -320,11 +320,11 @@ def add_motion(engine, depsgraph, data, warn):
 def add_pass_motion(engine, depsgraph, data, warn):
     """The Vector pass's motion, as Cycles' without motion blur (its MOTION_PASS: the depsgraph
     at the frames before and after, frame -+ 1): data.camera["pass_motion"] (2, 4, 4), each
-    MeshData's, CurvesData's and PointsData's `pass_motions` (per matrix: (2, 4, 4) or None)
-    and, for single-user meshes that may deform, `pass_positions` ((2, V, 3) or None). Curves
-    and point clouds move with their objects only (their deformation is left out).
-    Evaluates the depsgraph at those frames and restores the frame. Returns the number of
-    moving objects and cameras."""
+    MeshData's, CurvesData's and PointsData's `pass_motions` (per matrix: (2, 4, 4) or None),
+    for single-user meshes that may deform `pass_positions` ((2, V, 3) or None), and for
+    curves and point clouds that may deform `pass_points` ((2, N, 3) or None; from their
+    'velocity' attribute where they have one, as Cycles). Evaluates the depsgraph at those
+    frames and restores the frame. Returns the number of moving objects and cameras."""
     scene = depsgraph.scene
     frame, subframe = scene.frame_current, float(scene.frame_subframe)
     where = {}  # instance key -> [(MeshData, matrix index)]
@@ -339,12 +339,27 @@ def add_pass_motion(engine, depsgraph, data, warn):
             obj = _object(scene, keys[0][0])
             if obj is not None and obj.type == 'MESH' and may_deform(obj, scene):
                 deforming[keys[0]] = mesh
+    shaped_deform = {}  # key -> [CurvesData / PointsData]: read again at those frames
+    fps = scene.render.fps / scene.render.fps_base if scene.render.fps_base else 0.0
     for entry in list(getattr(data, "curves", [])) + list(getattr(data, "points", [])):
         entry.pass_motions = [None] * len(entry.matrices)
-        for k, key in enumerate(getattr(entry, "motion_keys", [])[:len(entry.matrices)]):
+        entry.pass_points = None
+        keys = getattr(entry, "motion_keys", [])
+        for k, key in enumerate(keys[:len(entry.matrices)]):
             where.setdefault(key, []).append((entry, k))
+        obj = _object(scene, keys[0][0]) if keys else None
+        if obj is None:
+            continue
+        velocity = getattr(entry, "velocity", None)
+        if velocity is not None:  # Cycles: the frame's points -+ velocity x a frame in seconds
+            if np.isfinite(velocity).all() and velocity.any() and fps > 0.0:
+                p = entry.points.astype(np.float32)
+                entry.pass_points = np.stack([p - velocity / fps, p + velocity / fps]).astype(np.float32)
+        elif may_deform(obj, scene):
+            shaped_deform.setdefault(keys[0], []).append(entry)
     cam_obj = scene.camera
-    matrices, positions, cam_at = {}, {}, {}
+    matrices, positions, cam_at, shaped_at = {}, {}, {}, {}
+    final = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
     try:
         for rel in (-1, 1):
             t = frame + subframe + rel
@@ -356,6 +371,9 @@ def add_pass_motion(engine, depsgraph, data, warn):
                 key = instance_key(instance)
                 if key in where:
                     matrices[(key, rel)] = np.array(instance.matrix_world, np.float32)
+                for entry in shaped_deform.get(key, ()):
+                    if (id(entry), rel) not in shaped_at:
+                        shaped_at[(id(entry), rel)] = _deform_arrays(instance, entry, final)
             for key, mesh in deforming.items():
                 positions[(key, rel)] = _positions(_object(scene, key[0]).evaluated_get(depsgraph))
     finally:
@@ -382,6 +400,19 @@ def add_pass_motion(engine, depsgraph, data, warn):
         if np.isfinite(steps).all() and not (steps == mesh.positions).all():
             mesh.pass_positions = steps
             moving += 1
+    for key, entries in shaped_deform.items():
+        for entry in entries:
+            steps = [shaped_at.get((id(entry), rel)) for rel in (-1, 1)]
+            count = len(entry.points)
+            if any(s is None or len(s[0]) != count for s in steps):
+                warn(f"Object '{key[0]}': its {_kind(entry)} change their number of points between "
+                     "frames; the Vector pass leaves out their deformation")
+                continue
+            points = np.stack([s[0] for s in steps]).astype(np.float32)
+            if np.isfinite(points).all() and not (points == entry.points).all():
+                entry.pass_points = points
+    moving += sum(getattr(e, "pass_points", None) is not None
+                  for e in list(getattr(data, "curves", [])) + list(getattr(data, "points", [])))
     if cam_obj is not None:
         steps = np.stack([cam_at[-1], cam_at[1]])
         if np.isfinite(steps).all() and not (steps == data.camera.get("matrix_world", steps[0])).all():

@@ -34,6 +34,7 @@ class PointsData:
     motion_keys: list = field(default_factory=list)
     motions: list = field(default_factory=list)
     velocity: object = None  # (N, 3) float32: the 'velocity' attribute (Cycles' point motion), or None
+    pass_points: object = None  # (2, N, 3) float32: the points at frame -+ 1 (the Vector pass), or None
     # Deformation blur (export.motion): centres (S, N, 3) and radii (S, N) at the motion steps.
     motion_points: object = None
     motion_radii: object = None
@@ -116,6 +117,7 @@ def collect_points(depsgraph, warn, material_index=None, object_attributes=None,
     `object_attributes`, as collect_curves does; uv_names(materials) -> {set: name}: the
     attributes its materials read."""
     out = {}
+    view_layer = getattr(depsgraph, "view_layer", None)  # (holdout collections)
     for instance in depsgraph.object_instances:
         obj = instance.object
         if obj.type != 'POINTCLOUD' or not is_visible(instance):
@@ -140,7 +142,7 @@ def collect_points(depsgraph, warn, material_index=None, object_attributes=None,
                          "that its material reads; 0 is used")
         if entry is not None:
             entry.matrices.append(np.array(instance.matrix_world, np.float32))
-            entry.infos.append(object_info(instance))
+            entry.infos.append(object_info(instance, view_layer))
             entry.owners.append(obj.name)
             entry.motion_keys.append(instance_key(instance))
             if object_attributes is not None:

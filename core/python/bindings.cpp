@@ -188,6 +188,18 @@ std::vector<Mat4> to_motion(const py::object& o, const char* what) {
   return steps;
 }
 
+// The Vector pass's points of a curve set or cloud (None: none): (2, N, 3), object space.
+std::vector<std::vector<Vec3>> to_pass_points(const py::object& o, size_t n, const char* what) {
+  std::vector<std::vector<Vec3>> out;
+  if (o.is_none()) return out;
+  const FloatArray a = o.cast<FloatArray>();
+  if (a.ndim() != 3 || a.shape(0) != 2 || size_t(a.shape(1)) != n || a.shape(2) != 3)
+    throw std::invalid_argument(std::string(what) + " must be a (2, N, 3) array of the N points");
+  const Vec3* p = reinterpret_cast<const Vec3*>(a.data());
+  for (size_t k = 0; k < 2; ++k) out.emplace_back(p + k * n, p + (k + 1) * n);
+  return out;
+}
+
 // The Vector pass's matrices of an object (None: still): (2, 4, 4), as add_instance's pass_motion.
 std::vector<Mat4> to_pass_motion(const py::object& o, const char* what) {
   std::vector<Mat4> m = to_motion(o, what);
@@ -277,6 +289,20 @@ struct PyScene {
     if (scene.use_count() > 1) throw std::runtime_error("the scene is in use by a render session");
   }
 };
+
+// A Scene setting as def_property's getter and setter, through the core's own (writes need an
+// editable scene: not one a session is rendering).
+template <auto Get>
+auto scene_get() {
+  return [](const PyScene& self) { return (self.scene.get()->*Get)(); };
+}
+template <auto Set>
+auto scene_flag_set() {
+  return [](PyScene& self, bool on) {
+    self.check_editable();
+    (self.scene.get()->*Set)(on);
+  };
+}
 
 // An index array read in place when it is C-contiguous int32 (what the add-on exports), so a
 // million-triangle mesh is not first converted to int64; any other integer array is converted.
@@ -387,7 +413,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const std::string& shape, const py::object& materials_obj, const py::dict& point_attributes,
                     const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
                     const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set,
-                    const py::object& pass_motion, uint64_t light_mask, uint64_t shadow_mask) {
+                    const py::object& pass_motion, uint64_t light_mask, uint64_t shadow_mask,
+                    const py::object& pass_points, bool shadow_catcher, bool holdout) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
@@ -450,6 +477,9 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   cs.motion = to_motion(motion, "curves motion");
   to_deform(motion_points, motion_radii, n, "curves", cs.deform_points, cs.deform_radii);
   cs.pass_motion = to_pass_motion(pass_motion, "curves pass_motion");
+  cs.pass_points = to_pass_points(pass_points, n, "curves pass_points");
+  cs.info.shadow_catcher = shadow_catcher;
+  cs.info.holdout = holdout;
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -461,7 +491,8 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
                     const py::object& attributes, const py::dict& point_attributes, const py::object& texspace,
                     const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
                     const py::object& cryptomatte, int light_set, int shadow_set, const py::object& pass_motion,
-                    uint64_t light_mask, uint64_t shadow_mask) {
+                    uint64_t light_mask, uint64_t shadow_mask, const py::object& pass_points,
+                    bool shadow_catcher, bool holdout) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const size_t n = size_t(points.shape(0));
@@ -500,6 +531,9 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   ps.motion = to_motion(motion, "points motion");
   to_deform(motion_points, motion_radii, n, "points", ps.deform_points, ps.deform_radii);
   ps.pass_motion = to_pass_motion(pass_motion, "points pass_motion");
+  ps.pass_points = to_pass_points(pass_points, n, "points pass_points");
+  ps.info.shadow_catcher = shadow_catcher;
+  ps.info.holdout = holdout;
   return self.scene->add_points(std::move(ps));
 }
 
@@ -3118,7 +3152,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("texspace") = py::none(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
-           py::arg("shadow_mask") = kAllLightSets,
+           py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
+           py::arg("shadow_catcher") = false, py::arg("holdout") = false,
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes, light_set, shadow_set: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
@@ -3130,7 +3165,10 @@ PYBIND11_MODULE(pathlight_core, m) {
            "with non-finite values or that leave out other points: undeformed (stats()['motion_rejected']). "
            "Points with a non-finite position or radius, or a radius <= 0, are left out at commit "
            "(stats()['skipped_points']). pass_motion: (2, 4, 4) object-to-world matrices at the previous and "
-           "next frames (the Vector pass; None: still). light_mask, shadow_mask: as an emitter, as "
+           "next frames (the Vector pass; None: still). pass_points: (2, N, 3) object-space centres at those "
+           "frames (the Vector pass's deformation, Cycles' motion points; None, non-finite or unchanged: "
+           "the points move with pass_motion alone). shadow_catcher, holdout: as add_instance's. "
+           "light_mask, shadow_mask: as an emitter, as "
            "add_instance's (rays other than the camera's get its emission only from vertices it lights, "
            "none where it is shadow-linked).")
       .def("add_curves", &add_curves, py::arg("points"), py::arg("offsets"), py::arg("radii") = py::none(),
@@ -3142,7 +3180,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("point_uvs") = py::dict(), py::arg("motion") = py::none(), py::arg("motion_points") = py::none(),
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
-           py::arg("shadow_mask") = kAllLightSets,
+           py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
+           py::arg("shadow_catcher") = false, py::arg("holdout") = false,
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -3163,7 +3202,10 @@ PYBIND11_MODULE(pathlight_core, m) {
            "or non-finite steps: static). motion_points, motion_radii: deformation blur, (S, N, 3) "
            "object-space points and (S, N) radii (None: the frame's) at S >= 2 steps evenly over the "
            "shutter (Cycles' curve motion keys); steps with non-finite values, or that cut into other "
-           "pieces than the frame's, leave it undeformed (stats()['motion_rejected']). pass_motion: as add_points'.")
+           "pieces than the frame's, leave it undeformed (stats()['motion_rejected']). pass_motion: as add_points'. pass_points: "
+           "(2, N, 3) object-space points at the previous and next frames (the Vector pass's deformation: "
+           "a hit moves as the point between its segment's two keys, Cycles' motion keys). shadow_catcher, "
+           "holdout: as add_instance's.")
       .def("displace_mesh", &displace_mesh_arrays, py::arg("positions"), py::arg("triangles"),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("matrix") = py::none(), py::arg("normals") = py::none(), py::arg("normal_indices") = py::none(),
@@ -3407,12 +3449,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("index"), py::arg("matrix"),
           "Moves instance `index` (add_instance order). In dynamic mode (or for a mesh with several "
           "instances) the next commit() rebuilds only the top level and the lights.")
-      .def_property(
-          "spatial_splits", [](const PyScene& self) { return self.scene->spatial_splits(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_spatial_splits(on);
-          },
+      .def_property("spatial_splits", scene_get<&Scene::spatial_splits>(),
+                    scene_flag_set<&Scene::set_spatial_splits>(),
           "Spatial splits (SBVH) in the BVH builds of the next commit(): slower builds, fewer "
           "triangle and node tests on long thin triangles (final renders). Default off.")
       .def_property(
@@ -3446,12 +3484,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           "the triangles sorted along a Morton curve into runs of up to 8, the binned SAH over the runs, "
           "then over the triangles of nodes of 24 or fewer; less build work, somewhat worse trees), "
           "'auto' (default: 'fast' for the BVHs of 100,000 triangles or more of a dynamic scene, else 'sah').")
-      .def_property(
-          "dynamic", [](const PyScene& self) { return self.scene->dynamic(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_dynamic(on);
-          },
+      .def_property("dynamic", scene_get<&Scene::dynamic>(),
+                    scene_flag_set<&Scene::set_dynamic>(),
           "Every instance its own transform over a per-mesh BLAS (viewport: transform edits rebuild only "
           "the top level); False (default): meshes used once are merged in world space (faster tracing).")
       .def(
@@ -3864,51 +3898,26 @@ PYBIND11_MODULE(pathlight_core, m) {
           "cancel_commit", [](PyScene& self) { self.scene->cancel_commit(); },
           "Stops a commit() running in another thread; that commit raises RuntimeError and leaves the "
           "scene uncommitted. Has no effect when no commit is running.")
-      .def_property(
-          "solid_angle_triangle_sampling",
-          [](const PyScene& self) { return self.scene->solid_angle_triangle_sampling(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_solid_angle_triangle_sampling(on);
-          },
+      .def_property("solid_angle_triangle_sampling", scene_get<&Scene::solid_angle_triangle_sampling>(),
+                    scene_flag_set<&Scene::set_solid_angle_triangle_sampling>(),
           "Light-sample emissive triangles uniformly in solid angle (True, the default) or by area.")
-      .def_property(
-          "solid_angle_rect_sampling",
-          [](const PyScene& self) { return self.scene->solid_angle_rect_sampling(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_solid_angle_rect_sampling(on);
-          },
+      .def_property("solid_angle_rect_sampling", scene_get<&Scene::solid_angle_rect_sampling>(),
+                    scene_flag_set<&Scene::set_solid_angle_rect_sampling>(),
           "Light-sample rectangle lights uniformly in solid angle where it is not tiny (True, the "
           "default) or always by area.")
-      .def_property(
-          "light_hits",
-          [](const PyScene& self) { return self.scene->light_hits_enabled(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_light_hits(on);
-          },
+      .def_property("light_hits", scene_get<&Scene::light_hits_enabled>(),
+                    scene_flag_set<&Scene::set_light_hits>(),
           "Rays find analytic lights with extent (point and spot disks, area lights, suns with an "
           "angle) and weigh them against light samples by MIS (True, the default); False: those "
           "lights are reached by light samples alone, each with the full weight. Takes effect at the "
           "next commit().")
-      .def_property(
-          "emitter_groups",
-          [](const PyScene& self) { return self.scene->emitter_groups(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_emitter_groups(on);
-          },
+      .def_property("emitter_groups", scene_get<&Scene::emitter_groups>(),
+                    scene_flag_set<&Scene::set_emitter_groups>(),
           "Sample a small mesh light (up to 4 triangles of one material in one object, such as a "
           "quad) as one light, each triangle chosen in proportion to its solid angle (True, the "
           "default), or each triangle as a light of its own. Takes effect at the next commit().")
-      .def_property(
-          "rect_groups",
-          [](const PyScene& self) { return self.scene->rect_groups(); },
-          [](PyScene& self, bool on) {
-            self.check_editable();
-            self.scene->set_rect_groups(on);
-          },
+      .def_property("rect_groups", scene_get<&Scene::rect_groups>(),
+                    scene_flag_set<&Scene::set_rect_groups>(),
           "Sample an emitter group whose two triangles form a rectangle as one spherical rectangle "
           "(True, the default; same distribution, less work) or as two spherical triangles. Takes "
           "effect at the next commit().")

@@ -325,7 +325,7 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
     scene.surface_point(h, sp, ray.time, &ray);
     const Material& mat = scene.material(sp.material);
     const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> scene.shadow_set_of(h)) & 1u)) ||
-                        (catchers_only && !scene.is_catcher(h.inst));
+                        (catchers_only && !scene.is_catcher(h.inst, h.prim));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
       // Blender's Transparent max bounces; volume-only boundaries count here (Cycles' shadow
@@ -1221,7 +1221,7 @@ restart: __attribute__((unused));
     if constexpr (kCatcher) {
       if (resume) {
         resume = false;
-      } else if (catchers && direct && !split && scene.is_catcher(hit.inst)) {
+      } else if (catchers && direct && !split && scene.is_catcher(hit.inst, hit.prim)) {
         // The split, before the catcher is shaded: what the path found so far is the matte's,
         // and the split itself counts as transparent there (film_write_shadow_catcher_bounce_data).
         split = true;
@@ -1239,7 +1239,7 @@ restart: __attribute__((unused));
     // A holdout object seen directly, as Cycles' integrate_surface_holdout with
     // SD_OBJECT_HOLDOUT_MASK: the film is transparent where it is, and the path ends there.
     if constexpr (kAovs)
-      if (direct && aov && scene.features().object_holdout && scene.is_object_holdout(hit.inst)) {
+      if (direct && aov && scene.features().object_holdout && scene.is_object_holdout(hit.inst, hit.prim)) {
         aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         break;
       }

@@ -172,6 +172,9 @@ struct CurveSetData {
   std::vector<std::vector<float>> deform_radii;
   // Vector pass: the object-to-world matrix at the previous and next frames (2; empty: still).
   std::vector<Mat4> pass_motion;
+  // Vector pass: the points (object space) at the previous and next frames (2, as `points`;
+  // empty, the wrong size or not finite: the strands move with the object's transform alone).
+  std::vector<std::vector<Vec3>> pass_points;
 };
 
 // Hit::inst of a hit on a curve (Hit::prim: the piece, Hit::b1: its axial position).
@@ -202,6 +205,9 @@ struct PointSetData {
   std::vector<std::vector<float>> deform_radii;
   // Vector pass: the object-to-world matrix at the previous and next frames (2; empty: still).
   std::vector<Mat4> pass_motion;
+  // Vector pass: the points (object space) at the previous and next frames (2, as `points`;
+  // empty, the wrong size or not finite: the points move with the object's transform alone).
+  std::vector<std::vector<Vec3>> pass_points;
 };
 
 // Hit::inst of a hit on a point (Hit::prim: the sphere, Hit::b1, b2: its normal, octahedral).
@@ -571,13 +577,15 @@ class Scene {
   bool committed() const { return committed_; }
   // Holdout closures or objects: alpha below 1 without transparent film.
   bool any_holdout() const { return any_holdout_ || features_.object_holdout; }
-  // Shadow catchers (ObjectInfo::shadow_catcher) and holdout objects, by scene instance (curves
-  // and points are neither).
-  bool is_catcher(uint32_t instance) const {
-    return instance < object_coords_.size() && object_coords_[instance].info.shadow_catcher;
+  // Shadow catchers (ObjectInfo::shadow_catcher) and holdout objects, by a hit's instance and
+  // primitive (curves and points: their set's; the instance alone is enough for meshes).
+  bool is_catcher(uint32_t instance, uint32_t prim = 0) const {
+    const ObjectInfo* info = hit_info(instance, prim);
+    return info && info->shadow_catcher;
   }
-  bool is_object_holdout(uint32_t instance) const {
-    return instance < object_coords_.size() && object_coords_[instance].info.holdout;
+  bool is_object_holdout(uint32_t instance, uint32_t prim = 0) const {
+    const ObjectInfo* info = hit_info(instance, prim);
+    return info && info->holdout;
   }
   // Closest hit on shadow catchers only (the catcher path of a split, which sees no other
   // object): other hits are stepped past, and `r` starts past the last of them on return.
@@ -682,7 +690,8 @@ class Scene {
   // points too).
   Vec3 pass_uv(const SurfacePoint& sp, int k) const;
   // Cycles' Vector pass: where sp's point was at the previous frame and will be at the next one
-  // (Instance::pass_motion, MeshData::pass_positions); curves, points and still objects: sp.p.
+  // (Instance::pass_motion, MeshData::pass_positions; curve and point sets: their pass_motion
+  // and pass_points); still objects: sp.p.
   void pass_motion(const SurfacePoint& sp, Vec3& pre, Vec3& post) const;
   float object_pass_index(const SurfacePoint& sp) const { return object_info(sp).pass_index; }
   // The Object Info of what was hit at sp (its instance, curve set or point set).
@@ -889,11 +898,16 @@ class Scene {
   uint8_t light_set_at(const SurfacePoint& sp) const {
     return sp.curve() || sp.point() ? object_info(sp).light_set : light_set_of(sp.instance);
   }
+  // The object of a hit (instance and primitive; curves and points: their set's), or nullptr.
+  const ObjectInfo* hit_info(uint32_t instance, uint32_t prim) const {
+    if (instance == kCurveInstance) return &curve_coords_[curve_set_of(curve_bvh_.piece(prim).curve)].info;
+    if (instance == kPointInstance) return &point_coords_[point_set_of(point_bvh_.sphere(prim).point)].info;
+    return instance < object_coords_.size() ? &object_coords_[instance].info : nullptr;
+  }
   // The shadow set of what a hit found (curves and points: their set's), for shadow linking.
   uint8_t shadow_set_of(const Hit& h) const {
-    if (h.inst == kCurveInstance) return curve_coords_[curve_set_of(curve_bvh_.piece(h.prim).curve)].info.shadow_set;
-    if (h.inst == kPointInstance) return point_coords_[point_set_of(point_bvh_.sphere(h.prim).point)].info.shadow_set;
-    return shadow_set_of(h.inst);
+    const ObjectInfo* info = hit_info(h.inst, h.prim);
+    return info ? info->shadow_set : 0;
   }
   uint64_t emitter_light_mask(uint32_t instance) const {
     return instance < object_coords_.size() ? object_coords_[instance].info.light_mask : kAllLightSets;
@@ -999,6 +1013,14 @@ class Scene {
   std::vector<float> curve_key_v_;
   std::vector<Float4> curve_key_attr_;
   uint32_t curve_key_sets_ = 0;
+  // Vector pass of deforming strands (only where a set has pass_points): per curve set whether
+  // it deforms; per key (as curve_key_v_) its object-space point now, at the previous and at
+  // the next frame.
+  std::vector<uint8_t> curve_pass_deform_;
+  std::vector<Vec3> curve_key_pass_;
+  // The keys of strand `curve` around intercept v (indices into curve_key_v_) and v's
+  // parameter between them; false where the strand has no keys kept.
+  bool curve_key_span(uint32_t curve, float v, uint32_t& k0, uint32_t& k1, float& t) const;
   // The per-point slots of strand `curve` interpolated at intercept v into buf
   // (curve_key_sets_ values); its masks (0: no per-point values).
   uint16_t curve_point_values(uint32_t curve, float v, Float4* buf) const;
@@ -1034,6 +1056,10 @@ class Scene {
   std::vector<Float4> point_attr_;
   uint32_t point_attr_sets_ = 0;
   std::vector<float> point_random_;  // per point: Point Info's Random
+  // Vector pass of deforming clouds (only where a set has pass_points): per point set whether
+  // it deforms; per point its object-space centre at the previous and at the next frame.
+  std::vector<uint8_t> point_pass_deform_;
+  std::vector<Vec3> point_pass_;
   // Per point set: Point Info's Radius over the sphere's (Cycles' point_radius, the object
   // radius along (1, 1, 1) / sqrt 3 through the matrix, over the cube root of its determinant).
   std::vector<float> point_radius_scale_;

@@ -5,6 +5,7 @@
 
 #include "util/lookup3.h"
 
+#include <algorithm>
 #include <cstring>
 
 #include "util/big_alloc.h"
@@ -40,6 +41,18 @@ bool deforms(const std::vector<Vec3>& points, const std::vector<float>& radii, c
     if (r.size() != radii.size() || std::memcmp(r.data(), radii.data(), r.size() * sizeof(float)) != 0) return true;
   }
   return false;
+}
+
+// Vector pass points of a curve or point set (the set's points at the previous and next
+// frames): used where there are two steps of its size, all finite, and they differ from it.
+uint8_t pass_points_usable(const std::vector<std::vector<Vec3>>& steps, const std::vector<Vec3>& points) {
+  if (steps.size() != 2) return 0;
+  for (const std::vector<Vec3>& s : steps) {
+    if (s.size() != points.size()) return 0;
+    for (const Vec3& p : s)
+      if (!is_finite(p)) return 0;
+  }
+  return deforms(points, {}, steps, {}) ? 1 : 0;
 }
 
 // Zero-area or non-finite triangles can never be hit reliably and have no normal. Coordinates
@@ -435,6 +448,11 @@ void Scene::build_points() {
   point_random_.clear();
   point_radius_scale_.clear();
   point_moving_.clear();
+  point_pass_deform_.clear();
+  point_pass_.clear();
+  for (const PointSetData& ps : point_sets_) point_pass_deform_.push_back(pass_points_usable(ps.pass_points, ps.points));
+  const bool any_pass = std::find(point_pass_deform_.begin(), point_pass_deform_.end(), 1) != point_pass_deform_.end();
+  if (!any_pass) point_pass_deform_.clear();
   struct Moving {
     std::vector<PointSphere> spheres;
     std::vector<DecomposedTransform> steps;
@@ -516,6 +534,13 @@ void Scene::build_points() {
       point_radius_scale_.push_back(over > 0.0f && std::isfinite(s / over) ? s / over : 1.0f);
     }
     for (uint32_t i : kept) point_random_.push_back(float(lookup3::hash(i, 0u)) * (1.0f / float(0xFFFFFFFFu)));
+    if (any_pass) {
+      const bool deforms_pass = point_pass_deform_[point_first_.size() - 1];
+      for (uint32_t i : kept) {
+        point_pass_.push_back(deforms_pass ? ps.pass_points[0][i] : ps.points[i]);
+        point_pass_.push_back(deforms_pass ? ps.pass_points[1][i] : ps.points[i]);
+      }
+    }
     for (uint32_t i : kept)
       for (uint32_t a = 0; a < point_attr_sets_; ++a)
         point_attr_.push_back(a < ps.point_attrs.size() && i < ps.point_attrs[a].size() ? ps.point_attrs[a][i] : Float4{});
@@ -553,6 +578,8 @@ void Scene::build_curves() {
   curve_key_count_.clear();
   curve_key_v_.clear();
   curve_key_attr_.clear();
+  curve_pass_deform_.clear();
+  curve_key_pass_.clear();
   for (const CurveSetData& cs : curve_sets_) {
     curve_uv_sets_ = std::max(curve_uv_sets_, uint32_t(std::max(cs.uvs.size(), cs.point_uvs.size())));
     curve_attr_sets_ = std::max(curve_attr_sets_, uint32_t(std::max(cs.strand_attrs.size(), cs.point_attrs.size())));
@@ -562,10 +589,16 @@ void Scene::build_curves() {
   curve_key_sets_ = std::max(curve_uv_sets_, curve_attr_sets_);
   bool any_point_sets = false;  // (else no per-strand key ranges at all)
   for (const CurveSetData& cs : curve_sets_) any_point_sets |= !cs.point_attrs.empty() || !cs.point_uvs.empty();
+  // The Vector pass's deformation: per key, like point attributes (only where a set has it).
+  for (const CurveSetData& cs : curve_sets_) curve_pass_deform_.push_back(pass_points_usable(cs.pass_points, cs.points));
+  const bool any_pass = std::find(curve_pass_deform_.begin(), curve_pass_deform_.end(), 1) != curve_pass_deform_.end();
+  any_point_sets |= any_pass;
+  if (!any_pass) curve_pass_deform_.clear();
   std::vector<uint32_t> kept;
   uint32_t strands = 0;
   size_t skipped = 0;
   for (const CurveSetData& cs : curve_sets_) {
+    const bool pass_keys = any_pass && curve_pass_deform_[curve_first_.size()];
     curve_first_.push_back(strands);
     CurveInput in;
     in.points = cs.points.data();
@@ -643,7 +676,7 @@ void Scene::build_curves() {
       for (uint32_t k = 0; k < curve_attr_sets_; ++k)
         curve_attr_.push_back(k < cs.strand_attrs.size() && c < cs.strand_attrs[k].size() ? cs.strand_attrs[k][c]
                                                                                           : Float4{});
-      if (!point_sets) {
+      if (!point_sets && !pass_keys) {
         if (any_point_sets) {
           curve_key_first_.push_back(UINT32_MAX);
           curve_key_count_.push_back(0);
@@ -663,6 +696,11 @@ void Scene::build_curves() {
         if (i > b) total += length(p - prev);
         prev = p;
         curve_key_v_.push_back(total);
+        if (any_pass) {
+          curve_key_pass_.push_back(cs.points[i]);
+          curve_key_pass_.push_back(pass_keys ? cs.pass_points[0][i] : cs.points[i]);
+          curve_key_pass_.push_back(pass_keys ? cs.pass_points[1][i] : cs.points[i]);
+        }
         for (uint32_t k = 0; k < curve_key_sets_; ++k) {
           const Vec2 uv = point_sets >> (k + 8) & 1u ? cs.point_uvs[k][i] : Vec2{};
           curve_key_attr_.push_back(point_sets >> k & 1u ? cs.point_attrs[k][i] : Float4{uv.x, uv.y, 0.0f, 0.0f});

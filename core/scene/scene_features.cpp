@@ -155,6 +155,14 @@ void Scene::detect_features() {
     f.shadow_catcher = f.shadow_catcher || object_coords_[i].info.shadow_catcher;
     f.object_holdout = f.object_holdout || object_coords_[i].info.holdout;
   }
+  for (const CurveSetData& cs : curve_sets_) {
+    f.shadow_catcher = f.shadow_catcher || cs.info.shadow_catcher;
+    f.object_holdout = f.object_holdout || cs.info.holdout;
+  }
+  for (const PointSetData& ps : point_sets_) {
+    f.shadow_catcher = f.shadow_catcher || ps.info.shadow_catcher;
+    f.object_holdout = f.object_holdout || ps.info.holdout;
+  }
   features_ = f;
 }
 

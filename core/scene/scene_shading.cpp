@@ -44,20 +44,29 @@ void Scene::shade_program(const Material& mat, const ShadingContext& ctx, Closur
     eval_shader(mat.program, images_, ctx, out);
 }
 
-uint16_t Scene::curve_point_values(uint32_t curve, float v, Float4* buf) const {
-  const uint32_t first = curve_key_first_.empty() ? UINT32_MAX : curve_key_first_[curve];
-  if (first == UINT32_MAX) return 0;
+bool Scene::curve_key_span(uint32_t curve, float v, uint32_t& k0, uint32_t& k1, float& t) const {
+  const uint32_t first = curve < curve_key_first_.size() ? curve_key_first_[curve] : UINT32_MAX;
+  if (first == UINT32_MAX) return false;
   // The segment whose keys' intercepts hold v, and v's parameter on it: intercepts are linear
   // in the segment parameter (cut_curves), which Cycles interpolates point attributes by.
   const float* kv = &curve_key_v_[first];
   const uint32_t n = curve_key_count_[curve];
   const uint32_t seg = n < 2 ? 0
                              : uint32_t(std::min<ptrdiff_t>(std::upper_bound(kv + 1, kv + n - 1, v) - (kv + 1), ptrdiff_t(n) - 2));
-  const uint32_t k1 = std::min(seg + 1, n - 1);
-  const float span = kv[k1] - kv[seg];
-  const float t = span > 0.0f ? clampf((v - kv[seg]) / span, 0.0f, 1.0f) : 0.0f;
-  const Float4* a0 = &curve_key_attr_[size_t(first + seg) * curve_key_sets_];
-  const Float4* a1 = &curve_key_attr_[size_t(first + k1) * curve_key_sets_];
+  const uint32_t next = std::min(seg + 1, n - 1);
+  const float span = kv[next] - kv[seg];
+  t = span > 0.0f ? clampf((v - kv[seg]) / span, 0.0f, 1.0f) : 0.0f;
+  k0 = first + seg;
+  k1 = first + next;
+  return true;
+}
+
+uint16_t Scene::curve_point_values(uint32_t curve, float v, Float4* buf) const {
+  uint32_t k0, k1;
+  float t;
+  if (!curve_key_span(curve, v, k0, k1, t)) return 0;
+  const Float4* a0 = &curve_key_attr_[size_t(k0) * curve_key_sets_];
+  const Float4* a1 = &curve_key_attr_[size_t(k1) * curve_key_sets_];
   for (uint32_t k = 0; k < curve_key_sets_; ++k) {
     const Float4 &x = a0[k], &y = a1[k];
     buf[k] = {x.x + (y.x - x.x) * t, x.y + (y.y - x.y) * t, x.z + (y.z - x.z) * t, x.w + (y.w - x.w) * t};
@@ -422,7 +431,7 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_
 bool Scene::intersect_catchers(Ray& r, Hit& h) const {
   for (int i = 0; i < 64; ++i) {  // bounded, as transmittance_through
     if (!intersect(r, h)) return false;
-    if (is_catcher(h.inst)) return true;
+    if (is_catcher(h.inst, h.prim)) return true;
     SurfacePoint sp;
     surface_point(h, sp, r.time, &r);
     continue_past(r, sp, dot(r.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng);
@@ -441,7 +450,7 @@ Vec3 Scene::transmittance_through(Ray ray, uint64_t shadow_mask, bool catchers_o
     const Material& mat = materials_[sp.material];
     // Shadow linking: a blocker outside the light's shadow sets is passed as if not there.
     const bool passed = (shadow_mask != kAllLightSets && !((shadow_mask >> shadow_set_of(h)) & 1u)) ||
-                        (catchers_only && !is_catcher(h.inst));
+                        (catchers_only && !is_catcher(h.inst, h.prim));
     if (!mat.transparent && !passed) return Vec3(0.0f);
     if (!passed) {
       if (++hits > max_hits) return Vec3(0.0f);  // Blender's Transparent max bounces
@@ -623,27 +632,47 @@ void Scene::pass_motion(const SurfacePoint& sp, Vec3& pre, Vec3& post) const {
   pre = post = sp.p;
   if (sp.curve() || sp.point()) {
     // A curve set or point cloud: its object's transform at those frames (as Cycles' object
-    // motion of the pass); the set's own deformation between frames is not kept.
-    // (Cycles moves a point's centre, primitive_motion_vector's center, and so here; a curve's
-    // hit point stands in for its centre line's point, which only a turn tells apart.)
+    // motion of the pass) and, where it deforms, its keys or centres there (Cycles' motion
+    // keys: a strand's point between the segment's two keys at the hit's parameter, a point's
+    // centre; primitive_motion_vector). The hit keeps its offset from that point, which
+    // stands in for it where the set only moves (only a turn tells them apart).
     const std::vector<Mat4>* steps = nullptr;
     const ObjectCoords* oc = nullptr;
     Vec3 p = sp.p;
+    const Vec3* moved = nullptr;  // object space: at the previous and at the next frame
+    Vec3 moved_buf[2];
     if (sp.curve()) {
-      const uint32_t set = curve_set_of(curve_bvh_.piece_at(sp.tri, sp.time).curve);
+      const CurvePiece pc = curve_bvh_.piece_at(sp.tri, sp.time);
+      const uint32_t set = curve_set_of(pc.curve);
       if (set < curve_sets_.size() && set < curve_coords_.size()) steps = &curve_sets_[set].pass_motion, oc = &curve_coords_[set];
+      uint32_t k0, k1;
+      float t;
+      const Vec3 axis = pc.p1 - pc.p0;
+      const float u = length_sq(axis) > 0.0f ? clampf(dot(sp.p - pc.p0, axis) / length_sq(axis), 0.0f, 1.0f) : 0.0f;
+      if (oc && set < curve_pass_deform_.size() && curve_pass_deform_[set] &&
+          curve_key_span(pc.curve, pc.v0 + (pc.v1 - pc.v0) * u, k0, k1, t)) {
+        const Vec3* a = &curve_key_pass_[3 * size_t(k0)];
+        const Vec3* b = &curve_key_pass_[3 * size_t(k1)];
+        p = oc->to_world.point(a[0] * (1.0f - t) + b[0] * t);
+        for (int j = 0; j < 2; ++j) moved_buf[j] = a[j + 1] * (1.0f - t) + b[j + 1] * t;
+        moved = moved_buf;
+      }
     } else {
-      PointFrame moved;
+      PointFrame frame_buf;
       const PointFrame* frame = nullptr;
-      const PointSphere ps = point_bvh_.world_sphere(sp.tri, sp.time, moved, frame);
+      const PointSphere ps = point_bvh_.world_sphere(sp.tri, sp.time, frame_buf, frame);
       const uint32_t set = point_set_of(ps.point);
       if (set < point_sets_.size() && set < point_coords_.size()) steps = &point_sets_[set].pass_motion, oc = &point_coords_[set];
       p = ps.c;
+      if (oc && set < point_pass_deform_.size() && point_pass_deform_[set]) moved = &point_pass_[2 * size_t(ps.point)];
     }
-    if (!steps || steps->size() != 2 || !oc->valid) return;
+    if (!oc || !oc->valid) return;
+    const bool transformed = steps && steps->size() == 2;
+    if (!transformed && !moved) return;
     const Vec3 local = oc->to_object.point(p);
-    const Vec3 a = (*steps)[0].point(local), b = (*steps)[1].point(local);
-    if (is_finite(a) && is_finite(b)) pre = a + (sp.p - p), post = b + (sp.p - p);
+    Vec3 at[2];
+    for (int j = 0; j < 2; ++j) at[j] = (transformed ? (*steps)[size_t(j)] : oc->to_world).point(moved ? moved[j] : local);
+    if (is_finite(at[0]) && is_finite(at[1])) pre = at[0] + (sp.p - p), post = at[1] + (sp.p - p);
     return;
   }
   if (pass_motion_.empty() || sp.instance >= pass_motion_.size()) return;

@@ -150,6 +150,23 @@ def render_multilayer_file(scene, path, refs=None):
     return read(path)
 
 
+
+def render_multilayer_pair(scene, tmp, samples, bounces, refs=None):
+    """Cycles' and Pathlight's multilayer passes of `scene` (render_multilayer_file into
+    tmp / cycles.exr and tmp / pathlight.exr), rendered alike: `samples` each, `bounces` of
+    every kind, the 1-pixel box filter, no adaptive sampling or denoising. refs: for Cycles, as
+    render_multilayer_file's."""
+    scene.render.engine = 'CYCLES'
+    _setup_cycles(scene.cycles, bounces)
+    scene.cycles.samples = samples
+    scene.cycles.pixel_filter_type, scene.cycles.filter_width = BOX_FILTER["pixel_filter_type"], 1.0
+    cycles = render_multilayer_file(scene, tmp / "cycles.exr", refs=refs)
+    scene.render.engine = 'PATHLIGHT'
+    pl = scene.pathlight
+    pl.samples, pl.use_adaptive_sampling, pl.max_bounces = samples, False, bounces
+    pl.filter_type, pl.filter_width = 'BOX', 1.0
+    return cycles, render_multilayer_file(scene, tmp / "pathlight.exr")
+
 def read_exr(path):
     """RGBA float32 (H, W, 4) of an EXR file, row 0 = top (the file's own order)."""
     with OpenEXR.File(str(path)) as exr:  # closing it empties channels(): copy first

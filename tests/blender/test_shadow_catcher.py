@@ -224,3 +224,35 @@ def test_catcher_path_leaves_the_world_fog_as_cycles(fog_renders):
         cycles, _ = fog_renders['CYCLES', transparent, pass_on]
         assert_close(ours[..., :3], cycles[..., :3], 0.01, 0.06, f"fog rgb {transparent, pass_on}")
         assert_close(ours[..., 3:], cycles[..., 3:], 0.01, 0.03, f"fog alpha {transparent, pass_on}")
+
+
+def test_curves_and_points_as_holdout_and_catcher_as_cycles(tmp_path):
+    """Curves and point clouds take the Holdout and Shadow Catcher of their objects, as Cycles:
+    strands held out on the floor (alpha 0 where seen), and a cloud of large points on the
+    floor as shadow catchers of the ball (the matte, and the Shadow Catcher pass)."""
+    from test_hair import add_hair
+    from test_point_clouds import add_cloud
+    sc = catcher_scene()
+    sc.objects["Catcher"].is_shadow_catcher = False
+    sc.render.resolution_x = sc.render.resolution_y = 32
+    hair = add_hair("Strands", node_material("Hair", "ShaderNodeBsdfDiffuse", Color=(0.2, 0.5, 0.8, 1)),
+                    strands=3, keys=4, radius=0.12, length=4.0, sag=0.0, spacing=0.6)
+    hair.location = (0.0, -1.2, -1.4)
+    hair.is_holdout = True
+    cloud = add_cloud("Pebbles", node_material("Pebble", "ShaderNodeBsdfDiffuse", Color=(0.6, 0.6, 0.5, 1)),
+                      n=12, spread=2.4, radii=np.full(12, 0.3), seed=3)
+    cloud.location = (0.4, 0.9, -1.3)
+    cloud.is_shadow_catcher = True
+    out = {}
+    for engine in ('PATHLIGHT', 'CYCLES'):
+        out[engine] = render(sc, engine, tmp_path / f"{engine}.exr", True, True, samples=128)
+    (ours, ours_pass), (cycles, cycles_pass) = out['PATHLIGHT'], out['CYCLES']
+    # The floor (the lower half, opaque but for them): the strands, and the catchers
+    # (transparent in the matte), take out a fifth of it or more.
+    assert (cycles[16:, :, 3] < 0.5).mean() > 0.2
+    assert cycles_pass.min() < 0.5  # the ball shadows some catchers
+    # (Cycles seed to seed here: regions 2.5 % in colour, 0.5 % in alpha, 4.7 % in the pass;
+    # Pathlight against Cycles 2.0 %, 0.2 % and 3.8 %.)
+    assert_close(ours[..., :3], cycles[..., :3], 0.01, 0.05, "rgb")
+    assert_close(ours[..., 3:], cycles[..., 3:], 0.01, 0.03, "alpha")
+    assert_close(ours_pass, cycles_pass, 0.01, 0.08, "shadow catcher")

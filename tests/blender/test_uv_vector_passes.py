@@ -9,8 +9,8 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import BOX_FILTER, core_available, empty_scene_with_camera, load_addon, node_material, \
-    render_multilayer_file, _setup_cycles
+from blender_util import core_available, empty_scene_with_camera, load_addon, node_material, \
+    render_multilayer_pair
 
 load_addon()
 
@@ -139,20 +139,8 @@ def moving_scene():
 
 @pytest.fixture(scope="module")
 def renders(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("uv_vector")
-    sc = moving_scene()
-    sc.render.engine = 'CYCLES'
-    _setup_cycles(sc.cycles, 8)
-    sc.cycles.samples = SAMPLES
-    sc.cycles.pixel_filter_type, sc.cycles.filter_width = BOX_FILTER["pixel_filter_type"], 1.0
-    cycles = render_multilayer_file(sc, tmp / "cycles.exr", refs="check")  # checks the stored file
-    sc.render.engine = 'PATHLIGHT'
-    sc.pathlight.samples = SAMPLES
-    sc.pathlight.use_adaptive_sampling = False
-    sc.pathlight.max_bounces = 8
-    sc.pathlight.filter_type, sc.pathlight.filter_width = 'BOX', 1.0
-    pathlight = render_multilayer_file(sc, tmp / "pathlight.exr")
-    return cycles, pathlight
+    # (refs="check": the stored Cycles file is checked against a fresh render)
+    return render_multilayer_pair(moving_scene(), tmp_path_factory.mktemp("uv_vector"), SAMPLES, 8, refs="check")
 
 
 def _stack(ch, name, channels):

@@ -79,3 +79,24 @@ def test_holdout_object():
     img = session(s).film()
     assert img[8, 8, 3] == 0.0 and np.all(img[8, 8, :3] == 0.0)  # the slab: transparent, no colour
     assert img[0, 0, 3] == 1.0
+
+
+def test_curves_and_points_as_holdouts_and_catchers():
+    # A strand and a sphere held out over a plain floor: transparent where the camera sees them.
+    s = scene(caster=False, catcher=False)
+    grey = 0
+    s.add_curves(np.array([(-3.0, 1.0, 1.0), (3.0, 1.0, 1.0)], np.float32), np.array([0, 2]),
+                 np.full(2, 0.4, np.float32), grey, curve_type="poly", holdout=True)
+    s.add_points(np.array([(0.0, -1.0, 1.0)], np.float32), np.full(1, 0.5, np.float32), grey, holdout=True)
+    img = session(s).film()
+    assert img[12, 8, 3] == 0.0 and img[3, 8, 3] == 0.0  # (rows count from the bottom)
+    assert img[8, 8, 3] == 1.0 and img[8, 8, :3].min() > 0.0  # the floor between them
+    # The same sphere as a shadow catcher under the slab: the matte leaves it transparent and the
+    # pass sees the slab's shadow on it (the sun is off to -x: the shadow falls to its +x side).
+    s = scene(catcher=False)
+    s.add_points(np.array([(1.3, 0.0, 0.0)], np.float32), np.full(1, 0.6, np.float32), grey, shadow_catcher=True)
+    sess = session(s, film_transparent=True, passes=["Shadow Catcher"])
+    alpha = sess.film_pass("Shadow Catcher Matte")[..., 3]
+    on_sphere = alpha == 0.0
+    assert on_sphere.sum() >= 4 and alpha[0, 0] == 1.0  # the sphere; the plain floor
+    assert sess.film_pass("Shadow Catcher").mean(-1)[on_sphere].min() < 0.5

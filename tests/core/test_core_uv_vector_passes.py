@@ -116,6 +116,51 @@ def test_vector_pass_follows_a_deforming_mesh():
     np.testing.assert_allclose(v[..., [0, 2]], 0.0, atol=2e-3)
 
 
+def test_vector_pass_follows_deforming_strands_and_points():
+    """Strands and points whose keys move between frames (pass_points): a strand's hit moves
+    as the point between its segment's two keys at the hit's parameter (Cycles' motion keys),
+    a point's as its centre. Orthographic, so the vectors do not depend on depth."""
+    scale = 8.0
+    ppu = W / scale  # pixels per unit across
+    s = pc.Scene()
+    mat = s.add_material("grey", (0.5, 0.5, 0.5))
+    # One straight poly strand along x at z = 0.2 from x = -4 to 4 (a single segment), radius 0.5:
+    # at the previous frame its root was 0.1 lower and its tip 0.9 lower, at the next as much higher.
+    keys = np.array([(-4.0, 0.0, 0.2), (4.0, 0.0, 0.2)], np.float32)
+    lift = np.array([(0, 0, 0.1), (0, 0, 0.9)], np.float32)
+    s.add_curves(keys, np.array([0, 2]), np.full(2, 0.5, np.float32), mat, curve_type="poly",
+                 pass_points=np.stack([keys - lift, keys + lift]))
+    # A sphere of radius 1 at z = -2.5 that was 0.4 to its left and will be 0.4 to its right.
+    centre = np.array([(0.0, 0.0, -2.5)], np.float32)
+    s.add_points(centre, np.ones(1, np.float32), mat,
+                 pass_points=np.stack([centre - [0.4, 0, 0], centre + [0.4, 0, 0]]).astype(np.float32))
+    with pytest.raises(ValueError, match="pass_points"):
+        s.add_points(centre, np.ones(1, np.float32), mat, pass_points=np.zeros((2, 2, 3), np.float32))
+    cam = camera(pc, EYE, (0, 0, 0))
+    cam.type = "ORTHO"
+    cam.ortho_scale = scale
+    s.set_camera(cam)
+    v = session(s, ["Vector"], samples=4).film_pass("Vector")
+    # Film rows count from the bottom: z = 0.2 is row H / 2 + 0.2 ppu, the sphere's centre row 0.5.
+    strand_row = int(H / 2 + 0.2 * ppu)
+    cols = np.arange(2, W - 2)
+    x = (cols + 0.5 - W / 2) / ppu
+    expected = -(0.1 + 0.8 * (x + 4.0) / 8.0) * ppu  # the lift at the hit's parameter, in pixels
+    np.testing.assert_allclose(v[strand_row, cols, 1], expected, rtol=0.02, atol=2e-3)
+    np.testing.assert_allclose(v[strand_row, cols, 3], expected, rtol=0.02, atol=2e-3)
+    np.testing.assert_allclose(v[strand_row, cols][:, [0, 2]], 0.0, atol=2e-3)
+    sphere_row = int(H / 2 - 2.5 * ppu)
+    np.testing.assert_allclose(v[sphere_row, W // 2 - 1:W // 2 + 1], [[-0.4 * ppu, 0.0, -0.4 * ppu, 0.0]] * 2,
+                               atol=2e-3)
+    # Without pass_points (or with them unchanged) the same strand is still.
+    s = pc.Scene()
+    mat = s.add_material("grey", (0.5, 0.5, 0.5))
+    s.add_curves(keys, np.array([0, 2]), np.full(2, 0.5, np.float32), mat, curve_type="poly",
+                 pass_points=np.stack([keys, keys]))
+    s.set_camera(cam)
+    assert not session(s, ["Vector"], samples=1).film_pass("Vector").any()
+
+
 def test_bad_pass_motion_is_refused_or_ignored():
     s = pc.Scene()
     with pytest.raises(ValueError, match="pass_motion"):
