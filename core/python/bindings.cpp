@@ -3015,6 +3015,9 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("volume_light_reach", &RenderSettings::volume_light_reach,
                      "Homogeneous scattering media: equiangular distances only where the light can shine (a "
                      "spot's cone, an area light's front: on), or along the whole segment (off)")
+      .def_readwrite("volume_phase_mis", &RenderSettings::volume_phase_mis,
+                     "Homogeneous scattering media: the free-flight point's phase sample weighed against both "
+                     "light samples of its segment, the equiangular one's too (on), or against its own only (off)")
       .def_readwrite("volume_pass_through", &RenderSettings::volume_pass_through,
                      "Volume-only boundaries (a material with a Volume and no Surface) crossed without shading "
                      "them (on: the same image, faster), or shaded as any surface (off)")

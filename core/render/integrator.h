@@ -37,6 +37,10 @@ struct IntegratorSettings {
   // Equiangular distances only where the chosen light can shine (a spot's cone, an area
   // light's front: Scene::light_reference_point). Off: along the whole segment, as before.
   bool volume_light_reach = true;
+  // The free-flight point's phase sample in the MIS of a segment's equiangular and free-flight
+  // light samples (SegmentMis in trace_path.inl). Off: those two weighed against each other
+  // only, then each light sample against the phase sample, as before.
+  bool volume_phase_mis = true;
   // Volume-only boundaries (Material::pass_through) crossed without shading them, with the
   // same arithmetic and sample dimensions (the same image). Off: shaded as any surface.
   bool volume_pass_through = true;

@@ -143,6 +143,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   integrator_.volume_segment_nee = settings_.volume_segment_nee;
   integrator_.volume_shared_shadow = settings_.volume_shared_shadow;
   integrator_.volume_light_reach = settings_.volume_light_reach;
+  integrator_.volume_phase_mis = settings_.volume_phase_mis;
   integrator_.volume_pass_through = settings_.volume_pass_through;
   integrator_.rr_start_bounce = std::max(0, settings_.rr_start_bounce);
   integrator_.diffuse_bounces = settings_.diffuse_bounces;

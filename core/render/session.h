@@ -34,6 +34,7 @@ struct RenderSettings {
   bool volume_segment_nee = true;  // IntegratorSettings::volume_segment_nee
   bool volume_shared_shadow = true;  // IntegratorSettings::volume_shared_shadow
   bool volume_light_reach = true;    // IntegratorSettings::volume_light_reach
+  bool volume_phase_mis = true;      // IntegratorSettings::volume_phase_mis
   bool volume_pass_through = true;   // IntegratorSettings::volume_pass_through
   int rr_start_bounce = 3;           // IntegratorSettings::rr_start_bounce (measurements)
   SamplerType sampler = SamplerType::Sobol;

@@ -349,6 +349,49 @@ Vec3 shadow_transmittance(const Scene& scene, Ray ray, Medium medium, bool occlu
   return Vec3(0.0f);
 }
 
+// The direct light along a homogeneous segment has three strategies, each a distance t and a
+// direction w (power heuristic over their joint densities): a free-flight distance (density pd)
+// with a light sample (pl), an equiangular distance (pe) with a light sample, and the free-flight
+// distance's phase sample (pp) finding the light. Weighing the equiangular and free-flight
+// distances against each other alone, then the light sample against the phase sample, left the
+// phase sample's whole share to the free-flight distances: a scattering point next to a small
+// lamp (rare) found it by its phase ray at weight about 1, beta times the lamp's radiance, the
+// fog box's worst fireflies; with pe in the weights, the equiangular light samples crowded there
+// take that share. A point's light sample weight is a pl^2 / (k2 pl^2 + s2 pp^2): at the
+// free-flight point a = s2 = pd^2, k2 = pd^2 + pe^2, at the equiangular point a = pe^2; the
+// phase sample's is pp^2 s2 / (s2 pp^2 + k2 pl^2), i.e. the usual heuristic with pp scaled by
+// sqrt(s2 / k2) (`phase_pdf_scale`). Where there is no equiangular distance all three are 1.
+struct SegmentMis {
+  float a = 1.0f, k2 = 1.0f, s2 = 1.0f;
+  bool plain = true;  // one strategy for the distance: the light and phase samples' heuristic alone
+  static SegmentMis at_distance(float pd, float pe) {
+    const double d2 = double(pd) * pd, e2 = double(pe) * pe;
+    return from(d2, d2 + e2, d2);
+  }
+  static SegmentMis at_equiangular(float pd, float pe) {
+    const double d2 = double(pd) * pd, e2 = double(pe) * pe;
+    return from(e2, d2 + e2, d2);
+  }
+  // The light sample's weight (light pdf pl, phase pdf pp; pp 0 where no phase sample follows).
+  float light_weight(float pl, float pp) const {
+    if (plain) return pp > 0.0f ? power_heuristic(pl, pp) : 1.0f;
+    const double l2 = double(pl) * pl, p2 = double(pp) * pp;
+    const double den = double(k2) * l2 + double(s2) * p2;
+    return den > 0.0 ? float(double(a) * l2 / den) : 0.0f;
+  }
+  // What the phase sample's pdf is multiplied by in the heuristic against the light's pdf.
+  float phase_pdf_scale() const { return plain ? 1.0f : std::sqrt(s2 / k2); }
+
+ private:
+  static SegmentMis from(double a, double k2, double s2) {
+    // Normalised by k2 (its largest term), so that nothing overflows.
+    if (!(k2 > 0.0) || !std::isfinite(k2)) return SegmentMis{};
+    SegmentMis m;
+    m.a = float(a / k2), m.k2 = 1.0f, m.s2 = float(s2 / k2), m.plain = false;
+    return m;
+  }
+};
+
 // Direct light at a scattering point p in a medium (the path arrived along unit d): one light
 // sample through the media and pass-through surfaces, times the phase function, weighted
 // against the phase function's own sample by the power heuristic (weight 1 at the last bounce,
@@ -363,10 +406,11 @@ struct MediumLightSample {
   uint64_t shadow_mask = kAllLightSets;  // shadow linking
   int max_hits = kShadowHits;            // RayState::shadow_hits
 };
-// receiver: the medium's light set (light linking).
+// receiver: the medium's light set (light linking). mis: the point's share where its distance
+// came from one of several strategies (SegmentMis), 1 where it is the only one.
 inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, float u_sel,
                                 Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls,
-                                uint8_t receiver = 0) {
+                                uint8_t receiver = 0, const SegmentMis& mis = SegmentMis{}) {
   DirectSample ds;
   ds.path = &ray_state;
   ds.receiver = receiver;
@@ -389,7 +433,8 @@ inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase&
   ls.shadow_mask = ds.shadow_mask;
   ls.max_hits = ray_state.shadow_hits();
   ls.li = ds.li;
-  const float w = (ds.delta || last) ? 1.0f : power_heuristic(ds.pdf, ph);
+  // (no phase sample can find a delta light, nor follow the last bounce)
+  const float w = mis.light_weight(ds.pdf, (ds.delta || last) ? 0.0f : ph);
   ls.factor = ph * w / ds.pdf;
   return true;
 }
@@ -401,9 +446,11 @@ inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, 
   return ls.li * vis * ls.factor;
 }
 Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
-                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng, uint8_t receiver = 0) {
+                   Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng, uint8_t receiver = 0,
+                   const SegmentMis& mis = SegmentMis{}) {
   MediumLightSample ls;
-  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver)) return Vec3(0.0f);
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
+    return Vec3(0.0f);
   return medium_light_trace(scene, ls, medium, c, rng);
 }
 
@@ -949,6 +996,7 @@ restart: __attribute__((unused));
         const float seg = found ? hit.t * len : kInf;
         bool scatter = false;
         float nee_weight = 1.0f;  // the distance sample's share of the direct light (equiangular MIS)
+        SegmentMis dist_mis;      // (volume_phase_mis: its light sample's and phase sample's weights)
         // The equiangular light sample waiting for its shadow ray (IntegratorSettings::
         // volume_shared_shadow): eq_w times what the ray finds, eq_value unshadowed.
         MediumLightSample eq_ls;
@@ -1056,18 +1104,23 @@ restart: __attribute__((unused));
                   const Vec2 ue{vrng.next_float(), vrng.next_float()};
                   Vec3 ss = m->sigma_s;
                   const Phase pe_phase = medium.phases_differ ? medium.choose_phase(vrng.next_float(), ss) : m->phase;
-                  const Vec3 w = beta * ss * medium_transmittance(st, te) * (pe / (pe * pe + pd * pd));
+                  // (one phase function for both points, or the phase sample's pdf differs)
+                  const bool three = s.volume_phase_mis && !medium.phases_differ;
+                  const SegmentMis eq_mis = three ? SegmentMis::at_equiangular(pd, pe) : SegmentMis{};
+                  const Vec3 w = beta * ss * medium_transmittance(st, te) *
+                                 (three ? 1.0f / pe : pe / (pe * pe + pd * pd));
                   if (s.volume_shared_shadow) {
                     // Traced below: alone, or sharing one shadow ray with the distance sample's.
                     if (medium_light_sample(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls, vset)) {
+                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls, vset, eq_mis)) {
                       eq_w = w;
                       eq_value = w * eq_ls.li * eq_ls.factor;
                       eq_pending = !is_black(eq_value);
                     }
                   } else {
                     const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset);
+                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
+                                                  eq_mis);
                     L += w * li;
                     if (kAovs && lp) lp_volume_sample(w * li);
                   }
@@ -1086,7 +1139,11 @@ restart: __attribute__((unused));
             if (t < seg) {
               if (eq.valid) {
                 const float pd = free_flight_pdf(st, t), pe = equiangular_pdf(eq, t);
-                nee_weight = pd * pd / (pd * pd + pe * pe);
+                if (s.volume_phase_mis && !medium.phases_differ) {
+                  if (pe > 0.0f) dist_mis = SegmentMis::at_distance(pd, pe);
+                } else {
+                  nee_weight = pd * pd / (pd * pd + pe * pe);
+                }
               }
               if (hits && !(nee && !prev_delta && prev_samples_only)) {
                 const Vec3 v = light_hits<kLinks>(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n,
@@ -1128,7 +1185,7 @@ restart: __attribute__((unused));
               // without occluders) that costs almost no variance (docs/design/volumes.md).
               MediumLightSample ls;
               Vec3 value(0.0f);
-              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls, vset))
+              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls, vset, dist_mis))
                 value = beta * nee_weight * ls.li * ls.factor;
               const float a_d = average(vabs(value)), a_e = average(vabs(eq_value));
               const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
@@ -1138,7 +1195,7 @@ restart: __attribute__((unused));
                 L += eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d));
             } else {
               L += beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time, c,
-                                        &vrng, vset) * nee_weight;
+                                        &vrng, vset, dist_mis) * nee_weight;
             }
           }
           if (kAovs && lp) lp_volume_sample(L - L_scatter);
@@ -1147,7 +1204,7 @@ restart: __attribute__((unused));
           float ph_pdf;
           const Vec3 wi = phase_sample(phase, d, u.x, u.y, ph_pdf);  // exact: the weight is 1
           if (!(ph_pdf > 0.0f)) break;
-          prev_pdf = ph_pdf;
+          prev_pdf = ph_pdf * dist_mis.phase_pdf_scale();  // (its weight against lights it finds)
           prev_delta = false;
           prev_samples_only = false;
           ray_vis = kLightVisVolume;

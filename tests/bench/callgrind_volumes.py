@@ -3,12 +3,14 @@ from a .vdb under an area light, the fog-filled Cornell box), for callgrind:
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \\
         .venv/bin/python tests/bench/callgrind_volumes.py [--scene smoke|fog] [--size 32] [--spp 4]
-        [--old-nee] [--majorant-scale 1]
+        [--old-nee] [--no-phase-mis] [--majorant-scale 1]
 
 The scene is exported by the add-on as a render would; only the render is instrumented (one
 thread, a fixed seed, max bounces 12 of every kind), as in callgrind_cornell.py. Without
 valgrind it prints the stats and the wall time. --old-nee: the heterogeneous media's light
-sample only where delta tracking scatters (RenderSettings.volume_segment_nee off). --cycles:
+sample only where delta tracking scatters (RenderSettings.volume_segment_nee off).
+--no-phase-mis: a homogeneous segment's phase sample weighed against its own point's light
+sample only (RenderSettings.volume_phase_mis off). --cycles:
 Cycles renders the same scene instead (CPU, one thread, the same samples, bounces and filter;
 instructions are not time, but they do not move with the machine's load either).
 PL_CORE_DIR=<dir> renders with the module in <dir>."""
@@ -33,6 +35,7 @@ ap.add_argument("--threads", type=int, default=1)
 ap.add_argument("--old-nee", action="store_true")
 ap.add_argument("--majorant-scale", type=float, default=1.0)
 ap.add_argument("--cycles", action="store_true")
+ap.add_argument("--no-phase-mis", action="store_true")
 a = ap.parse_args()
 pc = core()
 sys.modules.setdefault("addon.pathlight_core", pc)  # PL_CORE_DIR's module for the add-on too
@@ -73,6 +76,8 @@ st.diffuse_bounces = st.glossy_bounces = st.transmission_bounces = st.volume_bou
 st.samples, st.threads, st.seed = a.spp, a.threads, 1
 st.adaptive_threshold = 0.0
 st.filter_type, st.filter_width = "box", 1.0
+if a.no_phase_mis:
+    st.volume_phase_mis = False
 if a.old_nee and hasattr(st, "volume_segment_nee"):
     st.volume_segment_nee = False
 t = time.perf_counter()

@@ -64,6 +64,14 @@ def rel_var(imgs, ref, spp):
     return float(np.mean(imgs.var(axis=0, ddof=1) * spp / (ref**2 + 1e-2)))
 
 
+def tail(imgs, ref, spp):
+    """How heavy the error's tail is: each image's squared deviation per pixel from the engine's
+    own mean (relative, as rel_var), its largest value and the share of the sum held by the 10
+    largest and by the largest 0.1 % (fireflies, which a few seeds' variance undercounts)."""
+    dev = np.sort(((imgs - imgs.mean(axis=0)) ** 2 * spp / (ref**2 + 1e-2)).mean(axis=-1).ravel())[::-1]
+    return dev[0], dev[:10].sum() / dev.sum(), dev[:max(1, dev.size // 1000)].sum() / dev.sum()
+
+
 def print_blocks(pl, cy, ref, spp, b):
     """Where the variance is: per block of b x b pixels (image rows top first), the block's mean
     radiance, its share of Pathlight's summed relative variance, and Pathlight / Cycles."""
@@ -111,6 +119,10 @@ def main():
         print(f"{a.scene} {a.size}x{a.size} @ {a.spp} spp x {a.seeds} seeds: rel. variance/sample "
               f"Pathlight {vp:.4g}, Cycles {vc:.4g}, ratio {var_ratio:.3f}; mean ratio {pl.mean() / cy.mean():.4f}",
               flush=True)
+        for engine, imgs in (("Pathlight", pl), ("Cycles", cy)):
+            big, top10, top_milli = tail(imgs, ref, a.spp)
+            print(f"  {engine} tail: largest pixel {big:.4g}, 10 largest {100 * top10:.1f} %, "
+                  f"largest 0.1 % {100 * top_milli:.1f} % of the summed squared deviation", flush=True)
         if a.blocks:
             print_blocks(pl, cy, ref, a.spp, a.blocks)
         if a.save:

@@ -254,6 +254,32 @@ def test_equiangular_distances_within_the_spot_cone():
     assert rays[True] > 1.01 * rays[False], rays
 
 
+def test_phase_samples_beside_a_lamp_share_the_segment_mis():
+    """A homogeneous segment's three direct-light strategies weighed together (RenderSettings.
+    volume_phase_mis): the free-flight point's phase sample against the equiangular light
+    sample too. A lamp (radius 0.3) in thin fog: the same image as the two-step weights before
+    (mean within 1 %, 6x6-pixel regions within 5 %), and the pixels beside the lamp, where a
+    scattering point next to it found it by its phase ray at weight about 1, less noisy (the
+    largest pixel variance over 12 seeds below 0.65x; 0.33-0.45x measured)."""
+    def scene():
+        s = volume_sphere({"sigma_s": (0.5, 0.5, 0.5), "sigma_a": (0.02, 0.02, 0.02), "g": 0.2}, world=0.0)
+        s.add_point_light((0.1, 0.0, 0.3), (2.0, 2.0, 2.0), radius=0.3)
+        return s
+    imgs = {}
+    for on in (True, False):
+        runs = [render(pc, scene(), 24, 24, samples=32, max_bounces=8, volume_phase_mis=on, seed=k) for k in range(12)]
+        assert all(st["nonfinite_samples"] == 0 for _, st in runs)
+        imgs[on] = np.stack([img[..., :3].astype(np.float64) for img, _ in runs])
+    a, b = imgs[True], imgs[False]
+    assert b.mean() > 0.01
+    assert abs(a.mean() / b.mean() - 1.0) < 0.01, (a.mean(), b.mean())
+    ra, rb = (x.mean(axis=0).reshape(4, 6, 4, 6, 3).mean(axis=(1, 3, 4)) for x in (a, b))
+    lit = rb > 0.1 * rb.max()
+    assert np.all(np.abs(ra[lit] / rb[lit] - 1.0) < 0.05), np.abs(ra / rb - 1.0).max()
+    va, vb = (x.var(axis=0, ddof=1).mean(axis=-1).max() for x in (a, b))
+    assert va < 0.65 * vb, (va, vb)
+
+
 def test_volume_only_boundaries_cross_unshaded_to_the_same_image():
     """Volume-only boundaries (a white Transparent closure alone: Material::pass_through) are
     crossed without shading them (RenderSettings.volume_pass_through), drawing the same sample
