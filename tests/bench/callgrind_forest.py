@@ -6,9 +6,9 @@ triangle icosphere under a sun and a sky colour), or with --scene another realis
         .venv/bin/python tests/bench/callgrind_forest.py [--scene instanced_forest] [--size 48] [--spp 4]
 
 The scene is realistic_scenes.instanced_forest (or --scene's builder), exported by the add-on as
-a render would; only the render is instrumented (one thread, a fixed seed), as in callgrind_cornell.py. Without
-valgrind it prints the stats and the wall time. PL_CORE_DIR=<dir> renders with the module in
-<dir>."""
+a render would; only the render is instrumented (one thread, a fixed seed), as in
+callgrind_cornell.py. Without valgrind it prints the stats and the wall time. PL_CORE_DIR=<dir>
+renders with the module in <dir>."""
 import argparse
 import sys
 import time

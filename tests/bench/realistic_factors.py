@@ -101,6 +101,31 @@ def rel_var(imgs, ref, spp):
     return (imgs.var(0, ddof=1) * spp / (ref ** 2 + 1e-2)).mean(-1)
 
 
+def reference_terms(pl, cy, ref, t_pl, t_cy, args):
+    """What the bench's reference adds to its error estimates, predicted from the per-pixel
+    variances (as if Gaussian: heavy tails make the real spread larger). With w = 1 / (ref^2 +
+    0.01) and e the errors against the converged image, the bench's estimate of a render x's
+    error, mean(w (x - R)^2) less the floor mean(w (P - C)^2) / 4 (R = (P + C) / 2, P and C each
+    engine's reference), is mean(w e_x^2) - 2 mean(w e_x e_R) + mean(w e_P e_C); the cross-halves
+    estimate mean(w (x - R1)(x - R2)) (R1, R2 from the engines' first and second halves) has
+    mean(w e_R1 e_R2) in the last term's place. Both last terms are 0 on average: their spread
+    across references is what a reference adds to every render's error estimate alike."""
+    w = 1.0 / (ref ** 2 + 1e-2)
+    v_pl, v_cy = pl.var(0, ddof=1) * args.spp, cy.var(0, ddof=1) * args.spp  # one sample's variance
+    n = w.size
+    threads = os.cpu_count() or 1
+    print(f"\nThe bench's references ({threads} threads: {threads / t_pl:.0f} / {threads / t_cy:.0f} spp/s "
+          "Pathlight / Cycles from the CPU times above)")
+    print(f"{'ref spp':>7s} {'floor':>9s} {'sd bench':>9s} {'sd halves':>9s}   " +
+          " ".join(f"{'err P ' + f'{t:g} s':>10s}" for t in (1, 8)))
+    for spp in (1024, 4096, 16384):
+        floor = np.mean(w * (v_pl + v_cy) / spp) / 4.0
+        sd_bench = np.sqrt(np.sum(w ** 2 * v_pl * v_cy / spp ** 2)) / n
+        sd_halves = np.sqrt(np.sum(w ** 2 * ((v_pl + v_cy) / (2.0 * spp)) ** 2)) / n
+        errs = " ".join(f"{np.mean(w * v_pl) / (t * threads / t_pl):10.3g}" for t in (1, 8))
+        print(f"{spp:7d} {floor:9.3g} {sd_bench:9.3g} {sd_halves:9.3g}   {errs}")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default="hdri_model", help="a builder of realistic_scenes.py")
@@ -169,6 +194,8 @@ def main():
         for i in np.argsort(dev.ravel())[::-1][:6]:
             s, y, x = np.unravel_index(i, dev.shape)
             print(f"  seed {s:2d} pixel ({y:2d}, {x:2d}) {label[y, x]:16s} {(lum[s, y, x] - med[y, x]) * args.spp:8.1f}")
+
+    reference_terms(pl, cy, ref, t_pl, t_cy, args)
 
     if args.classes:
         print("\nPathlight by path class (plain estimator in the guided kernel): relative variance of one sample")
