@@ -1255,13 +1255,20 @@ restart: __attribute__((unused));
       // Escaped: the world, weighted against the environment light sample that could find it
       // (without an environment that pdf is 0 and the weight 1).
       float w = 1.0f;
+      Vec3 bg;
+      bool bg_found = false;
       if constexpr (kEnv)
-        if (nee && !prev_delta) w = power_heuristic(prev_pdf, scene.pdf_environment(ray.dir, mis_org, mis_set));
+        if (nee && !prev_delta) {
+          float env_pdf;
+          bg = scene.background_with_pdf(ray.dir, mis_org, mis_set, env_pdf);
+          bg_found = true;
+          w = power_heuristic(prev_pdf, env_pdf);
+        }
       if (sky && !prev_delta) {
         const float cos_sky = dot(ray.dir, sky_n);  // (a scattered ray's direction is a unit vector)
         if (cos_sky > 0.0f) w = power_heuristic(prev_pdf, cos_sky * kInvPi);
       }
-      const Vec3 bg = scene.background(ray.dir);
+      if (!bg_found) bg = scene.background(ray.dir);
       if constexpr (kAovs) {
         if (direct && aov) {
           aov->environment = beta * bg;

@@ -230,10 +230,26 @@ float Environment::pdf(Vec3 dir_world, bool cover_all) const {
   return share * sun_pdf(dir_world) + (1.0f - share) * map;
 }
 
+Vec3 Environment::eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf_out) const {
+  if (sky_ || sun_share(cover_all) > 0.0f) {
+    pdf_out = pdf(dir_world, cover_all);
+    return eval(dir_world);
+  }
+  float u, v;
+  to_uv(rot_.vector(dir_world), u, v);
+  pdf_out = pdf_cells_uv(cover_all ? full_ : comp_, u, v);
+  return lookup(u, v);
+}
+
 float Environment::pdf_cells(const Cells& d, Vec3 dir_world) const {
   if (d.marginal.empty()) return 0.0f;
   float u, v;
   to_uv(rot_.vector(dir_world), u, v);
+  return pdf_cells_uv(d, u, v);
+}
+
+float Environment::pdf_cells_uv(const Cells& d, float u, float v) const {
+  if (d.marginal.empty()) return 0.0f;
   if (!std::isfinite(u) || !std::isfinite(v)) return 0.0f;
   const float ce = std::cos(kPi * (v - 0.5f));
   if (!(ce > 0.0f)) return 0.0f;

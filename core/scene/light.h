@@ -624,6 +624,9 @@ class Environment {
   // sample follows, so every direction with radiance needs density (else the compensated one).
   bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf, bool cover_all = false) const;
   float pdf(Vec3 dir_world, bool cover_all = false) const;
+  // eval() and pdf() of one direction at once (a BSDF ray that escaped): an image map's (u, v)
+  // found once, not twice (its atan2 and asin).
+  Vec3 eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf) const;
   // sample() in two steps, for a sky with a sun disc (deferrable): the direction alone, then
   // its radiance and pdf, which cost a light sample more than drawing it (the sky model and
   // the map's pdf) and which a light sample needs only once its shadow ray is clear.
@@ -664,6 +667,7 @@ class Environment {
   void build_cells(Cells& d, float sub);
   bool sample_cells(const Cells& d, Vec2 uu, Vec3& dir, float& u, float& v, float& pdf) const;
   float pdf_cells(const Cells& d, Vec3 dir_world) const;
+  float pdf_cells_uv(const Cells& d, float u, float v) const;
   void init_distributions();
   Vec3 to_world(Vec3 t) const;
   // The sun disc's share of the samples and its cone (texture space), for a sky with a disc.

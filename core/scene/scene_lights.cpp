@@ -912,6 +912,22 @@ float Scene::pdf_environment(Vec3 dir, Vec3 from, uint8_t set) const {
   return (c.use_tree ? c.inf_pmf[env_index_] : c.dist.pmf(env_index_)) * world_pdf(from, dir, false);
 }
 
+Vec3 Scene::background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf) const {
+  env_pdf = 0.0f;
+  if (env_index_ == SIZE_MAX) return background(dir);
+  const LightChoice& c = choice(set);
+  if (c.dist.empty()) return background(dir);
+  const float pmf = c.use_tree ? c.inf_pmf[env_index_] : c.dist.pmf(env_index_);
+  if (!portals_.empty() || !env_.valid()) {
+    env_pdf = pmf * world_pdf(from, dir, false);
+    return background(dir);
+  }
+  float p;
+  const Vec3 le = env_.eval_with_pdf(dir, false, p);
+  env_pdf = pmf * p;
+  return le;
+}
+
 // Light portals, as Cycles' background.h: a portal lets the world in towards its emission side
 // (Light::dir; Cycles' side test, 1e-4 in front of its plane). A point in front of n portals
 // keeps a sky's sun disc share and splits the rest: half through one portal picked uniformly,

@@ -82,16 +82,35 @@ float perlin(const P<2>& p) {
   return mixf(a, b, v);
 }
 
+// lookup3::hash(x, y, z) of four corners at once (GCC's vector extension: SSE2 on x86-64).
+// The eight hashes of a 3-D cell were a third of its Perlin noise's instructions one by one.
+using U4 = uint32_t __attribute__((vector_size(16)));
+inline U4 rotl4(U4 x, int k) { return (x << k) | (x >> (32 - k)); }
+inline U4 hash4(U4 x, U4 y, U4 z) {
+  const uint32_t s = lookup3::seed(3);
+  U4 a = x + s, b = y + s, c = z + s;
+  c ^= b; c -= rotl4(b, 14);
+  a ^= c; a -= rotl4(c, 11);
+  b ^= a; b -= rotl4(a, 25);
+  c ^= b; c -= rotl4(b, 16);
+  a ^= c; a -= rotl4(c, 4);
+  b ^= a; b -= rotl4(a, 14);
+  c ^= b; c -= rotl4(b, 24);
+  return c;
+}
+
 float perlin(const P<3>& p) {
   uint32_t X, Y, Z;
   const float fx = floorfrac(p[0], X), fy = floorfrac(p[1], Y), fz = floorfrac(p[2], Z);
   const float u = fade(fx), v = fade(fy), w = fade(fz);
+  // Corners (X, Y), (X + 1, Y), (X, Y + 1), (X + 1, Y + 1) of layers Z and Z + 1.
+  const U4 xs = {X, X + 1u, X, X + 1u}, ys = {Y, Y, Y + 1u, Y + 1u};
+  const U4 h[2] = {hash4(xs, ys, U4{Z, Z, Z, Z}), hash4(xs, ys, U4{Z + 1u, Z + 1u, Z + 1u, Z + 1u})};
   float layer[2];
   for (uint32_t k = 0; k < 2; ++k) {
     const float gz = fz - float(k);
-    const float a = mixf(grad3(hash(X, Y, Z + k), fx, fy, gz), grad3(hash(X + 1u, Y, Z + k), fx - 1.0f, fy, gz), u);
-    const float b = mixf(grad3(hash(X, Y + 1u, Z + k), fx, fy - 1.0f, gz),
-                         grad3(hash(X + 1u, Y + 1u, Z + k), fx - 1.0f, fy - 1.0f, gz), u);
+    const float a = mixf(grad3(h[k][0], fx, fy, gz), grad3(h[k][1], fx - 1.0f, fy, gz), u);
+    const float b = mixf(grad3(h[k][2], fx, fy - 1.0f, gz), grad3(h[k][3], fx - 1.0f, fy - 1.0f, gz), u);
     layer[k] = mixf(a, b, v);
   }
   return mixf(layer[0], layer[1], w);
@@ -124,7 +143,10 @@ constexpr float kNoiseScale[5] = {0.0f, 0.25f, 0.6616f, 0.9820f, 0.8344f};
 // Cycles repeats the noise every 100000 per axis (fmod keeps the sign) against float precision.
 template <size_t N>
 float snoise(P<N> p) {
-  for (float& x : p) x = std::fmod(x, 100000.0f);
+  // (fmod returns |x| < 100000 unchanged: the libm call only beyond it, 0.7 % of the textured
+  // model's instructions otherwise)
+  for (float& x : p)
+    if (!(std::fabs(x) < 100000.0f)) x = std::fmod(x, 100000.0f);
   return kNoiseScale[N] * perlin(p);
 }
 

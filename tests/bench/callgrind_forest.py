@@ -1,13 +1,14 @@
 """Instruction counts of the instanced forest of the realistic bench (64 instances of a 20 480-
-triangle icosphere under a sun and a sky colour), for callgrind:
+triangle icosphere under a sun and a sky colour), or with --scene another realistic scene
+(hdri_model: the textured model under an HDRI), for callgrind:
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \\
-        .venv/bin/python tests/bench/callgrind_forest.py [--size 48] [--spp 4]
+        .venv/bin/python tests/bench/callgrind_forest.py [--scene instanced_forest] [--size 48] [--spp 4]
 
-The scene is realistic_scenes.instanced_forest, exported by the add-on as a render would; only
-the render is instrumented (one thread, a fixed seed), as in callgrind_cornell.py. Without
-valgrind it prints the stats and the wall time. PL_CORE_DIR=<dir> renders with the module in
-<dir>."""
+The scene is realistic_scenes.instanced_forest (or --scene's builder), exported by the add-on as
+a render would; only the render is instrumented (one thread, a fixed seed), as in
+callgrind_cornell.py. Without valgrind it prints the stats and the wall time. PL_CORE_DIR=<dir>
+renders with the module in <dir>."""
 import argparse
 import sys
 import time
@@ -22,6 +23,7 @@ from kernel_scenes import core, instrumented_render  # noqa: E402
 import realistic_scenes  # noqa: E402
 
 ap = argparse.ArgumentParser()
+ap.add_argument("--scene", default="instanced_forest", help="a builder of realistic_scenes.py")
 ap.add_argument("--size", type=int, default=48, help="image width (height 3/4 of it)")
 ap.add_argument("--spp", type=int, default=4)
 ap.add_argument("--threads", type=int, default=1)
@@ -33,7 +35,7 @@ from addon.export import export_scene  # noqa: E402
 from addon.scene_writer import to_core  # noqa: E402
 from addon.session import render_settings  # noqa: E402
 
-scene = realistic_scenes.instanced_forest(a.size, a.size * 3 // 4)
+scene = getattr(realistic_scenes, a.scene)(a.size, a.size * 3 // 4)
 scene.render.engine = "PATHLIGHT"
 data = export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None)
 core_scene = to_core(pc, data)
