@@ -1,7 +1,9 @@
 // Traversal of the wide BVH, written once over a SIMD width S (4 lanes with SSE2, 8 with AVX2)
 // and a node type (float WideBvhNode or compressed QuantWideNode: only the box test differs)
-// and included by bvh.cpp (4 wide, every x86-64) and bvh8_avx2.cpp (8 wide, under an AVX2
-// target pragma). Everything here has internal linkage so the two compilations never merge.
+// and included by bvh_traverse.cpp (4 wide, every x86-64), bvh8_avx2.cpp (8 wide, under an
+// AVX2 target pragma) and bvh8_avx512.cpp (the same 8 wide as AVX-512 code, PL_WIDE_AVX512:
+// mask-register comparisons). Everything here has internal linkage so the compilations never
+// merge.
 //
 // Exactness: the box test is the binary tree's (same products, same conservative exit scale);
 // the block test (four triangles; under AVX2 eight, two blocks of one leaf) is triangle.h's
