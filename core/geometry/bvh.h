@@ -81,7 +81,8 @@ bool cpu_has_avx512();  // F, VL, BW and DQ, as the AVX-512 8-wide kernel uses
 // variable PL_BVH_KERNEL=avx2 (read once, at load) or set_bvh8_kernel asked for AVX2. The same
 // hits either way; for tests and timings. Set it between renders, not during one.
 enum class Bvh8Kernel : uint8_t { Auto, Avx2, Avx512 };
-// Returns the kernel now used (Avx512 asked of a CPU without it gives Avx2).
+// Returns the kernel now used (Avx512 asked of a CPU without it gives Avx2; Auto: the choice at
+// load).
 Bvh8Kernel set_bvh8_kernel(Bvh8Kernel k);
 Bvh8Kernel bvh8_kernel();
 namespace bvh_detail {

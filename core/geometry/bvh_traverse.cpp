@@ -60,7 +60,8 @@ std::atomic<bool> g_bvh8_avx512{avx512_at_load()};
 }
 
 Bvh8Kernel set_bvh8_kernel(Bvh8Kernel k) {
-  bvh_detail::g_bvh8_avx512.store(k != Bvh8Kernel::Avx2 && cpu_has_avx512());
+  // Auto: the choice at load (which PL_BVH_KERNEL may have made AVX2).
+  bvh_detail::g_bvh8_avx512.store(k == Bvh8Kernel::Auto ? avx512_at_load() : k == Bvh8Kernel::Avx512 && cpu_has_avx512());
   return bvh8_kernel();
 }
 

@@ -2152,7 +2152,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       },
       py::arg("kernel"),
       "Which code runs the 8-wide BVH, for the whole process (tests, timings; not during a render): "
-      "'auto' (AVX-512 where the CPU has it, the default unless PL_BVH_KERNEL=avx2 was set at load), "
+      "'auto' (the choice at load: AVX-512 where the CPU has it, unless PL_BVH_KERNEL=avx2 was set), "
       "'avx2', or 'avx512' (AVX2 where the CPU lacks it). The same hits either way. Returns the "
       "kernel now used: 'avx512', 'avx2' or 'sse2' (no AVX2: the 4-wide tree).");
   m.def("build_info", [] {
