@@ -75,6 +75,20 @@ struct alignas(16) TriangleBlock4 {
 // (SSE2, every x86-64). Binary is the reference the wide ones are tested against.
 enum class BvhLayout : uint8_t { Auto, Binary, Wide4, Wide8 };
 bool cpu_has_avx2();
+bool cpu_has_avx512();  // F, VL, BW and DQ, as the AVX-512 8-wide kernel uses
+
+// Which code runs the 8-wide tree: AVX-512 where the CPU has it, unless the environment
+// variable PL_BVH_KERNEL=avx2 (read once, at load) or set_bvh8_kernel asked for AVX2. The same
+// hits either way; for tests and timings. Set it between renders, not during one.
+enum class Bvh8Kernel : uint8_t { Auto, Avx2, Avx512 };
+// Returns the kernel now used (Avx512 asked of a CPU without it gives Avx2; Auto: the choice at
+// load).
+Bvh8Kernel set_bvh8_kernel(Bvh8Kernel k);
+Bvh8Kernel bvh8_kernel();
+namespace bvh_detail {
+extern std::atomic<bool> g_bvh8_avx512;
+}
+inline bool bvh8_use_avx512() { return bvh_detail::g_bvh8_avx512.load(std::memory_order_relaxed); }
 
 struct BvhBuildOptions {
   int bins = 32;
@@ -211,6 +225,11 @@ bool bvh4q_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCo
 bool bvh4q_occluded(const WideBvhView& v, const Ray& ray);
 bool bvh8q_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
 bool bvh8q_occluded(const WideBvhView& v, const Ray& ray);
+// Only called where bvh8_use_avx512(): compiled for AVX-512 in bvh8_avx512.cpp.
+bool bvh8_intersect_avx512(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
+bool bvh8_occluded_avx512(const WideBvhView& v, const Ray& ray);
+bool bvh8q_intersect_avx512(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters);
+bool bvh8q_occluded_avx512(const WideBvhView& v, const Ray& ray);
 
 // Inline: the kernel choice is part of every ray's call.
 inline bool Bvh::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters) const {
@@ -218,6 +237,11 @@ inline bool Bvh::intersect(const Ray& ray, Hit& hit, TraversalCounters* counters
   switch (layout_) {
 #if defined(__x86_64__) || defined(__i386__)
     case BvhLayout::Wide8:
+      if (bvh8_use_avx512()) {
+        if (compact_)
+          return bvh8q_intersect_avx512({nodes8q_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+        return bvh8_intersect_avx512({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
+      }
       if (compact_) return bvh8q_intersect({nodes8q_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
       return bvh8_intersect({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray, hit, counters);
     case BvhLayout::Wide4:
@@ -233,6 +257,10 @@ inline bool Bvh::occluded(const Ray& ray) const {
   switch (layout_) {
 #if defined(__x86_64__) || defined(__i386__)
     case BvhLayout::Wide8:
+      if (bvh8_use_avx512()) {
+        if (compact_) return bvh8q_occluded_avx512({nodes8q_.data(), blocks_.data(), block_prims_.data()}, ray);
+        return bvh8_occluded_avx512({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray);
+      }
       if (compact_) return bvh8q_occluded({nodes8q_.data(), blocks_.data(), block_prims_.data()}, ray);
       return bvh8_occluded({nodes8_.data(), blocks_.data(), block_prims_.data()}, ray);
     case BvhLayout::Wide4:

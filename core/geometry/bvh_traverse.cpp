@@ -1,7 +1,10 @@
 // Traversal: the binary tree's closest-hit and any-hit loops (the reference the wide kernels are
-// tested against), the 4-wide SSE kernels' instances and the CPU check that picks the 8-wide.
+// tested against), the 4-wide SSE kernels' instances and the CPU checks that pick the 8-wide
+// tree and its AVX2 or AVX-512 kernel.
 #include <algorithm>
 #include <cstdint>
+#include <cstdlib>
+#include <cstring>
 #include <utility>
 
 #include "geometry/bvh.h"
@@ -31,6 +34,38 @@ bool cpu_has_avx2() {
   return false;
 #endif
 }
+
+bool cpu_has_avx512() {
+#if defined(PL_HAVE_AVX512_KERNEL) && (defined(__x86_64__) || defined(__i386__))
+  // __builtin_cpu_supports also checks that the OS saves the AVX-512 state (XCR0).
+  static const bool has = cpu_has_avx2() && __builtin_cpu_supports("avx512f") &&
+                          __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512bw") &&
+                          __builtin_cpu_supports("avx512dq");
+  return has;
+#else
+  return false;
+#endif
+}
+
+namespace {
+bool avx512_at_load() {
+  const char* e = std::getenv("PL_BVH_KERNEL");
+  if (e && std::strcmp(e, "avx2") == 0) return false;
+  return cpu_has_avx512();
+}
+}  // namespace
+
+namespace bvh_detail {
+std::atomic<bool> g_bvh8_avx512{avx512_at_load()};
+}
+
+Bvh8Kernel set_bvh8_kernel(Bvh8Kernel k) {
+  // Auto: the choice at load (which PL_BVH_KERNEL may have made AVX2).
+  bvh_detail::g_bvh8_avx512.store(k == Bvh8Kernel::Auto ? avx512_at_load() : k == Bvh8Kernel::Avx512 && cpu_has_avx512());
+  return bvh8_kernel();
+}
+
+Bvh8Kernel bvh8_kernel() { return bvh8_use_avx512() ? Bvh8Kernel::Avx512 : Bvh8Kernel::Avx2; }
 
 #if defined(__x86_64__) || defined(__i386__)
 bool bvh4_intersect(const WideBvhView& v, const Ray& ray, Hit& hit, TraversalCounters* counters) {

@@ -1,7 +1,9 @@
 // Traversal of the wide BVH, written once over a SIMD width S (4 lanes with SSE2, 8 with AVX2)
 // and a node type (float WideBvhNode or compressed QuantWideNode: only the box test differs)
-// and included by bvh.cpp (4 wide, every x86-64) and bvh8_avx2.cpp (8 wide, under an AVX2
-// target pragma). Everything here has internal linkage so the two compilations never merge.
+// and included by bvh_traverse.cpp (4 wide, every x86-64), bvh8_avx2.cpp (8 wide, under an
+// AVX2 target pragma) and bvh8_avx512.cpp (the same 8 wide as AVX-512 code, PL_WIDE_AVX512:
+// mask-register comparisons). Everything here has internal linkage so the compilations never
+// merge.
 //
 // Exactness: the box test is the binary tree's (same products, same conservative exit scale);
 // the block test (four triangles; under AVX2 eight, two blocks of one leaf) is triangle.h's
@@ -67,9 +69,14 @@ struct Avx8 {
   static V mul(V a, V b) { return _mm256_mul_ps(a, b); }
   static V min(V a, V b) { return _mm256_min_ps(b, a); }
   static V max(V a, V b) { return _mm256_max_ps(b, a); }
+#ifdef PL_WIDE_AVX512
+  // Straight into a mask register (no movemask).
+  static unsigned le_mask(V a, V b) { return static_cast<unsigned>(_mm256_cmp_ps_mask(a, b, _CMP_LE_OQ)); }
+#else
   static unsigned le_mask(V a, V b) {
     return static_cast<unsigned>(_mm256_movemask_ps(_mm256_cmp_ps(a, b, _CMP_LE_OQ)));
   }
+#endif
   static void store(float* p, V v) { _mm256_store_ps(p, v); }
   static V bytes(const uint8_t* p) {
     return _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p))));
@@ -141,6 +148,21 @@ struct WideRay {
 
 inline int lowest_bit(unsigned m) { return __builtin_ctz(m); }
 
+#ifdef PL_WIDE_AVX512
+// AVX-512VL: the block test's comparisons go straight into mask registers (k0-k7) and are
+// combined there, instead of as vectors of all-ones lanes and a movemask at the end. The
+// predicates are the vector ones' (the signalling forms only differ in FP flags).
+#define PL_LANE_KMASKS(CMP)                                                   \
+  using M = __mmask8;                                                         \
+  static M eq(V a, V b) { return CMP(a, b, _CMP_EQ_OQ); }                     \
+  static M lt(V a, V b) { return CMP(a, b, _CMP_LT_OS); }                     \
+  static M gt(V a, V b) { return CMP(a, b, _CMP_GT_OS); }                     \
+  static M mor(M a, M b) { return M(a | b); }                                 \
+  static M mand(M a, M b) { return M(a & b); }                                \
+  static M mandnot(M a, M b) { return M(~a & b); }                            \
+  static unsigned bits(M a) { return a; }
+#endif
+
 // The watertight test's lane operations: four triangles (one block) with SSE, and under AVX2
 // eight (two consecutive blocks of one leaf), the same operations lane for lane, so both give
 // the scalar test's bits.
@@ -159,10 +181,18 @@ struct Lanes4 {
   static V and_(V a, V b) { return _mm_and_ps(a, b); }
   static V or_(V a, V b) { return _mm_or_ps(a, b); }
   static V andnot(V a, V b) { return _mm_andnot_ps(a, b); }
-  static V eq(V a, V b) { return _mm_cmpeq_ps(a, b); }
-  static V lt(V a, V b) { return _mm_cmplt_ps(a, b); }
-  static V gt(V a, V b) { return _mm_cmpgt_ps(a, b); }
-  static unsigned mask(V a) { return static_cast<unsigned>(_mm_movemask_ps(a)); }
+#ifdef PL_WIDE_AVX512
+  PL_LANE_KMASKS(_mm_cmp_ps_mask)
+#else
+  using M = V;
+  static M eq(V a, V b) { return _mm_cmpeq_ps(a, b); }
+  static M lt(V a, V b) { return _mm_cmplt_ps(a, b); }
+  static M gt(V a, V b) { return _mm_cmpgt_ps(a, b); }
+  static M mor(M a, M b) { return _mm_or_ps(a, b); }
+  static M mand(M a, M b) { return _mm_and_ps(a, b); }
+  static M mandnot(M a, M b) { return _mm_andnot_ps(a, b); }
+  static unsigned bits(M a) { return static_cast<unsigned>(_mm_movemask_ps(a)); }
+#endif
   static void store(float* p, V v) { _mm_store_ps(p, v); }
 };
 
@@ -184,10 +214,18 @@ struct Lanes8 {
   static V and_(V a, V b) { return _mm256_and_ps(a, b); }
   static V or_(V a, V b) { return _mm256_or_ps(a, b); }
   static V andnot(V a, V b) { return _mm256_andnot_ps(a, b); }
-  static V eq(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_EQ_OQ); }
-  static V lt(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_LT_OS); }
-  static V gt(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_GT_OS); }
-  static unsigned mask(V a) { return static_cast<unsigned>(_mm256_movemask_ps(a)); }
+#ifdef PL_WIDE_AVX512
+  PL_LANE_KMASKS(_mm256_cmp_ps_mask)
+#else
+  using M = V;
+  static M eq(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_EQ_OQ); }
+  static M lt(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_LT_OS); }
+  static M gt(V a, V b) { return _mm256_cmp_ps(a, b, _CMP_GT_OS); }
+  static M mor(M a, M b) { return _mm256_or_ps(a, b); }
+  static M mand(M a, M b) { return _mm256_and_ps(a, b); }
+  static M mandnot(M a, M b) { return _mm256_andnot_ps(a, b); }
+  static unsigned bits(M a) { return static_cast<unsigned>(_mm256_movemask_ps(a)); }
+#endif
   static void store(float* p, V v) { _mm256_store_ps(p, v); }
 };
 #endif
@@ -264,24 +302,25 @@ inline void block_test(const TriangleBlock4* b, const RayPrecomp& rp, const Lane
   const V v = L::sub(L::mul(ax, cy), L::mul(ay, cx));
   const V w = L::sub(L::mul(bx, ay), L::mul(by, ax));
   const V zero = L::zero();
-  const V any_zero = L::or_(L::or_(L::eq(u, zero), L::eq(v, zero)), L::eq(w, zero));
-  const V any_neg = L::or_(L::or_(L::lt(u, zero), L::lt(v, zero)), L::lt(w, zero));
-  const V any_pos = L::or_(L::or_(L::gt(u, zero), L::gt(v, zero)), L::gt(w, zero));
+  using M = typename L::M;  // comparison results: vectors of lanes, or AVX-512 mask registers
+  const M any_zero = L::mor(L::mor(L::eq(u, zero), L::eq(v, zero)), L::eq(w, zero));
+  const M any_neg = L::mor(L::mor(L::lt(u, zero), L::lt(v, zero)), L::lt(w, zero));
+  const M any_pos = L::mor(L::mor(L::gt(u, zero), L::gt(v, zero)), L::gt(w, zero));
   const V det = L::add(L::add(u, v), w);
   const V az = L::mul(r.sz, Akz), bz = L::mul(r.sz, Bkz), cz = L::mul(r.sz, Ckz);
   const V T = L::add(L::add(L::mul(u, az), L::mul(v, bz)), L::mul(w, cz));
   const V tdet = L::mul(L::set1(tmax), det);
-  const V det_pos = L::gt(det, zero);
+  const M det_pos = L::gt(det, zero);
   // det > 0: 0 < T < tmax det; otherwise (det < 0, or NaN which fails both): tmax det < T < 0.
-  const V in_pos = L::and_(det_pos, L::and_(L::gt(T, zero), L::lt(T, tdet)));
-  const V in_neg = L::andnot(det_pos, L::and_(L::lt(T, zero), L::gt(T, tdet)));
-  V ok = L::andnot(L::and_(any_neg, any_pos), L::or_(in_pos, in_neg));
-  ok = L::andnot(L::eq(det, zero), ok);
-  const unsigned zero_mask = L::mask(any_zero) & valid;
+  const M in_pos = L::mand(det_pos, L::mand(L::gt(T, zero), L::lt(T, tdet)));
+  const M in_neg = L::mandnot(det_pos, L::mand(L::lt(T, zero), L::gt(T, tdet)));
+  M ok = L::mandnot(L::mand(any_neg, any_pos), L::mor(in_pos, in_neg));
+  ok = L::mandnot(L::eq(det, zero), ok);
+  const unsigned zero_mask = L::bits(any_zero) & valid;
   out.scalar = zero_mask;
   // Most blocks a ray visits have no lane left here: skip t and its error bound (the lanes
   // they could still reject are none).
-  if (!(L::mask(ok) & valid & ~zero_mask)) {
+  if (!(L::bits(ok) & valid & ~zero_mask)) {
     out.pass = 0;
     return;
   }
@@ -304,9 +343,9 @@ inline void block_test(const TriangleBlock4* b, const RayPrecomp& rp, const Lane
       abs_lanes<L>(inv));
   const V spread = L::sub(L::max(az, L::max(bz, cz)), L::min(az, L::min(bz, cz)));
   const V delta_t = L::min(delta_pbrt, L::add(spread, L::mul(L::set1(gamma_bound(10)), max_zt)));
-  ok = L::and_(ok, L::gt(t, delta_t));
-  if (any_hit) ok = L::and_(ok, L::lt(L::add(t, delta_t), L::set1(tmax)));
-  out.pass = L::mask(ok) & valid & ~zero_mask;
+  ok = L::mand(ok, L::gt(t, delta_t));
+  if (any_hit) ok = L::mand(ok, L::lt(L::add(t, delta_t), L::set1(tmax)));
+  out.pass = L::bits(ok) & valid & ~zero_mask;
   if (out.pass) {
     L::store(out.t, t);
     L::store(out.b1, L::mul(v, inv));

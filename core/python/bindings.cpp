@@ -2176,11 +2176,27 @@ PYBIND11_MODULE(pathlight_core, m) {
       "Evaluates a program of constants and value ops as the renderer does (float arithmetic) "
       "and returns register `register` as (x, y, z, w).");
   bind_volume_grids(m);
+  m.def(
+      "set_bvh_kernel",
+      [](const std::string& k) {
+        if (k != "auto" && k != "avx2" && k != "avx512")
+          throw py::value_error("set_bvh_kernel: 'auto', 'avx2' or 'avx512', not '" + k + "'");
+        set_bvh8_kernel(k == "avx2" ? Bvh8Kernel::Avx2 : k == "avx512" ? Bvh8Kernel::Avx512 : Bvh8Kernel::Auto);
+        return std::string(!cpu_has_avx2() ? "sse2" : bvh8_use_avx512() ? "avx512" : "avx2");
+      },
+      py::arg("kernel"),
+      "Which code runs the 8-wide BVH, for the whole process (tests, timings; not during a render): "
+      "'auto' (the choice at load: AVX-512 where the CPU has it, unless PL_BVH_KERNEL=avx2 was set), "
+      "'avx2', or 'avx512' (AVX2 where the CPU lacks it). The same hits either way. Returns the "
+      "kernel now used: 'avx512', 'avx2' or 'sse2' (no AVX2: the 4-wide tree).");
   m.def("build_info", [] {
     py::dict d;
     d["simd"] = PATHLIGHT_SIMD_NAME;
     // The BVH kernel commit() picks by default on this CPU (run-time detection).
     d["bvh"] = cpu_has_avx2() ? "bvh8" : "bvh4";
+    // The code that runs the 8-wide tree now (set_bvh_kernel), and whether the CPU has AVX-512.
+    d["bvh_kernel"] = !cpu_has_avx2() ? "sse2" : bvh8_use_avx512() ? "avx512" : "avx2";
+    d["avx512"] = cpu_has_avx512();
     d["zlib"] = vdb_zlib_available();  // ZIP-compressed .vdb grids
 #if defined(__clang__)
     d["compiler"] = "clang " __clang_version__;

@@ -33,7 +33,8 @@ def parse_args(argv):
     build_opts = argparse.ArgumentParser(add_help=False)
     g = build_opts.add_argument_group("build options (every command builds what is out of date first)")
     g.add_argument("--simd", choices=SIMD_LEVELS, help="SIMD level to compile the core for "
-                   "(default: the best this CPU has, from /proc/cpuinfo)")
+                   "(default: the best this CPU has, from /proc/cpuinfo, avx2 at most: avx512 only "
+                   "when asked)")
     g.add_argument("--portable", action="store_true", help="build for any x86-64 CPU (same as --simd generic)")
     g.add_argument("--sanitize", "--debug", dest="sanitize", action="store_true",
                    help="use a RelWithDebInfo build with AddressSanitizer and UBSan, in build/sanitize")

@@ -28,7 +28,7 @@ BENCH_SCRIPTS = ROOT / "tests" / "bench"
 BENCH_SECTIONS = DOCS / "bench"
 
 PYTHON_NEEDED = (3, 11)  # the bpy 4.5 wheels are CPython 3.11 only
-SIMD_LEVELS = ("avx2", "sse4.2", "generic")
+SIMD_LEVELS = ("avx512", "avx2", "sse4.2", "generic")  # avx512: opt-in only, never detected
 COMMANDS = ("setup", "build", "render", "merge", "test", "bench", "package", "clean")
 
 
