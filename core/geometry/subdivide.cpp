@@ -458,8 +458,18 @@ DicedMesh subdivide_and_dice(const SubdivisionCage& cage, const DicingCamera& ca
   auto measure = [&]() {
     int tmax = 1;
     for (size_t e = 0; e < E0; ++e) {
-      int t = factor([&](float x) { return eval_edge(e, x); });
-      if (ngon_edge[e]) t = std::max(2, t + (t & 1));  // halves for the n-gon's sub-patches
+      int t;
+      if (ngon_edge[e]) {
+        t = factor([&](float x) { return eval_edge(e, x); });
+        t = std::max(2, t + (t & 1));  // halves for the n-gon's sub-patches
+      } else {
+        // Cycles 4.5 splits every quad in both directions first (as n-gons), so each half of
+        // a quad's edge gets its own factor: at least 2 segments, finer where halves round up.
+        // (Cycles' limit_edge_factor: a half may have half of 2^max_subdivisions.)
+        const int half_cap = std::max(1, (1 << max_level) / 2);
+        t = std::min(factor([&](float x) { return eval_edge(e, 0.5f * x); }), half_cap) +
+            std::min(factor([&](float x) { return eval_edge(e, 0.5f + 0.5f * x); }), half_cap);
+      }
       TE[e] = t, tmax = std::max(tmax, ngon_edge[e] ? t / 2 : t);
     }
     for (size_t f = 0; f < F0; ++f)

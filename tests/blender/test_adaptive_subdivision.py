@@ -199,10 +199,10 @@ def mirror_scene(offscreen=4.0):
 
 @pytest.mark.converged
 def test_offscreen_dicing_follows_cycles_in_a_mirror():
-    """Not within the bar: Cycles dices this cube like in-view geometry at about 7 px, the
-    rule read from its source (here: 4x the pixel, 8 px) coarser still
-    (docs/design/displacement.md#off-screen-dicing); but the scale about halves the difference that
-    dicing it as if in view leaves, and keeps the mean."""
+    """The scale matters here (Cycles with and without it differs by 17 %); with it the worst
+    region is under half of what dicing the cube as if in view leaves, and the mean agrees.
+    Not the 3 % bar: the worst region stays a little above it and above Cycles' noise
+    (docs/design/displacement.md#off-screen-dicing)."""
     ours, cycles = ms.render_pair(mirror_scene, 64)
     ratio, worst, _ = ms.compare(ours, cycles, floor=0.02)
     from blender_util import render_to_array
@@ -211,4 +211,4 @@ def test_offscreen_dicing_follows_cycles_in_a_mirror():
     print(f"\noffscreen-mirror: mean {ratio:.4f}, worst {worst:.4f}; "
           f"as if in view: mean {ratio_in_view:.4f}, worst {worst_in_view:.4f}")
     assert abs(ratio - 1.0) < 0.01
-    assert worst < 0.7 * worst_in_view, (worst, worst_in_view)
+    assert worst < 0.5 * worst_in_view, (worst, worst_in_view)

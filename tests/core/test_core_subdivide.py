@@ -168,12 +168,15 @@ def test_offscreen_pixel_grows_with_the_distance_to_the_view():
 
 
 def predicted_factor(a, b, px, rate=1.0, scale=4.0):
-    """Cycles' DiagSplit::T on a straight edge: two halves, lengths in pixels of their middles."""
+    """Cycles' edge factor of a quad's straight edge: each half (Cycles splits quads in both
+    directions first) measured by DiagSplit::T, two segments in pixels of their middles."""
+    def T(a, b):
+        pts = [a, (a + b) / 2, b]
+        lens = [np.linalg.norm(q - p) / pc.dicing_pixel_size(tuple((p + q) / 2), (0.0, 0.0, 0.0), px, False,
+                                                              scale, AXES, FRAME) for p, q in zip(pts, pts[1:])]
+        return max(1, int(max(np.ceil(sum(lens) / rate), np.ceil(2 * max(lens) / rate))))
     a, b = np.float64(a), np.float64(b)
-    pts = [a, (a + b) / 2, b]
-    lens = [np.linalg.norm(q - p) / pc.dicing_pixel_size(tuple((p + q) / 2), (0.0, 0.0, 0.0), px, False, scale,
-                                                          AXES, FRAME) for p, q in zip(pts, pts[1:])]
-    return int(max(np.ceil(sum(lens) / rate), np.ceil(2 * max(lens) / rate)))
+    return T(a, (a + b) / 2) + T((a + b) / 2, b)
 
 
 def test_offscreen_patches_dice_coarser_as_cycles_predicts():
