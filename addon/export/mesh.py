@@ -424,7 +424,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
             if modifier is not None:  # (diced for this camera: never from the cache)
                 if dicing is None:
                     dicing = dicing_context(depsgraph)
-                entry = adaptive_mesh_data(obj, modifier, materials, uv_names, dicing)
+                entry = adaptive_mesh_data(obj, modifier, materials, uv_names, dicing, depsgraph)
             elif cache is None:
                 entry = _export_object(obj, materials, uv_names)
             else:

@@ -3,12 +3,17 @@ use_adaptive_subdivision and whose last modifier is a Subdivision Surface is exp
 cage before that modifier, and the core dices its limit surface for the dicing camera
 (`pc.subdivide_mesh`, docs/design/displacement.md#adaptive-subdivision).
 
-Blender facts (4.5, found by experiment): for a render engine other than Cycles the depsgraph
-still applies the Subdivision Surface modifier at its Render levels (Cycles' own sync skips
-it); so the cage is read from the original mesh, which is only the mesh before the modifier
-when no other modifier is enabled and it has no shape keys. Otherwise the object is rendered
-as the depsgraph subdivides it, with a warning."""
+Blender facts (4.5, found by experiment and in MOD_subsurf.cc): when the Subdivision Surface is
+the last enabled modifier, the depsgraph leaves the evaluated mesh as a "subdivision wrapper":
+the cage (earlier modifiers and shape keys applied) plus the settings to subdivide it lazily.
+RNA's `Object.data` and `to_mesh()` subdivide it at the Render levels on access (for any
+engine); `bpy.types.GeometrySet.from_evaluated_object(obj).mesh_base` hands out the cage itself,
+as a copy owned by the GeometrySet (which must outlive every read of it), without touching the
+user's data or the evaluated object. Without GeometrySet (older Blender) the cage is the
+original mesh, right only without other modifiers and shape keys; otherwise the object is
+rendered as the depsgraph subdivides it, with a warning."""
 
+import bpy
 import numpy as np
 
 from .tangents import tangent_uv_maps
@@ -56,11 +61,24 @@ def dicing_context(depsgraph):
     height = frame[:, 1].max() - frame[:, 1].min()
     size = min(width / xr, height / yr)  # Cycles: the shorter of the pixel's two steps
     ortho = cam.data.type == 'ORTHO'
-    if not ortho:  # the frame lies at depth -z: a pixel's size per unit distance
-        size /= max(abs(float(frame[0, 2])), 1e-9)
+    depth = 1.0 if ortho else max(abs(float(frame[0, 2])), 1e-9)
+    size /= depth  # perspective: the frame lies at depth -z; a pixel's size per unit distance
     out.update(camera_position=tuple(cam.matrix_world.translation), pixel_size=float(max(size, 1e-9)),
                ortho=ortho)
+    scale = float(getattr(cycles, "offscreen_dicing_scale", 1.0))
+    # Cycles: the view's side planes (at unit depth) and the camera's axes, unscaled; panoramic
+    # cameras have no off-screen scale there.
+    if scale > 1.0 and cam.data.type in ('PERSP', 'ORTHO'):
+        rot = np.array(cam.matrix_world.to_3x3().normalized(), np.float64)
+        out.update(offscreen_scale=scale,
+                   camera_axes=(tuple(rot[:, 0]), tuple(rot[:, 1]), tuple(-rot[:, 2])),
+                   frame=(float(frame[:, 0].min() / depth), float(frame[:, 0].max() / depth),
+                          float(frame[:, 1].min() / depth), float(frame[:, 1].max() / depth)))
     return out
+
+
+def _core_has_offscreen(pc):
+    return hasattr(pc, "dicing_pixel_size")  # (the same build added offscreen_scale)
 
 
 def _corner_interpolate(values, offsets, tri_face, tri_sub, tri_uv):
@@ -86,20 +104,48 @@ def _corner_interpolate(values, offsets, tri_face, tri_sub, tri_uv):
                                 .astype(np.float32))
 
 
-def adaptive_mesh_data(obj, mod, materials, uv_names, dicing):
+def cage_mesh(obj, depsgraph):
+    """(cage, owner, problem): the mesh before obj's last Subdivision Surface modifier with the
+    other modifiers and shape keys applied, and what keeps it alive (hold it while reading);
+    or (None, None, why not)."""
+    original = obj.original
+    geometry_set = getattr(bpy.types, "GeometrySet", None)
+    if depsgraph is not None and geometry_set is not None and hasattr(geometry_set, "mesh_base"):
+        try:
+            evaluated = original.evaluated_get(depsgraph)
+            owner = geometry_set.from_evaluated_object(evaluated)
+            mesh = owner.mesh_base
+        except (TypeError, RuntimeError, ReferenceError) as exc:  # not evaluated, not a mesh...
+            return None, None, f"its evaluated cage could not be read ({exc})"
+        if mesh is None:
+            return None, None, "no evaluated mesh"
+        # The wrapper holds the cage; a subdivided mesh here would mean Blender subdivided
+        # anyway (checkable where nothing else changes the topology).
+        others = [m for m in original.modifiers[:-1] if _enabled(m, depsgraph)]
+        if not others and len(mesh.polygons) != len(original.data.polygons) and not original.data.is_editmode:
+            return None, None, "an evaluated cage that was already subdivided"
+        return mesh, owner, None
+    others = [m.name for m in original.modifiers[:-1] if _enabled(m, depsgraph)]
+    if others:
+        return None, None, f"modifiers before its Subdivision Surface ({', '.join(others)}) in this Blender"
+    if original.data.shape_keys is not None:
+        return None, None, "shape keys in this Blender"
+    return original.data, None, None
+
+
+def _enabled(mod, depsgraph):
+    viewport = depsgraph is not None and depsgraph.mode == 'VIEWPORT'
+    return mod.show_viewport if viewport else mod.show_render
+
+
+def adaptive_mesh_data(obj, mod, materials, uv_names, dicing, depsgraph=None):
     """The MeshData of obj diced by the core (or, where the cage cannot be read, the
     depsgraph's mesh with `subdivision_problem` set), or None without faces."""
     from ..core import get_core
     pc = get_core()
     original = obj.original
-    mesh = original.data
-    others = [m.name for m in original.modifiers[:-1] if m.show_render]
-    problem = None
-    if others:
-        problem = f"modifiers before its Subdivision Surface ({', '.join(others)})"
-    elif mesh.shape_keys is not None:
-        problem = "shape keys"
-    elif not hasattr(pc, "subdivide_mesh"):
+    mesh, owner, problem = cage_mesh(obj, depsgraph)
+    if problem is None and not hasattr(pc, "subdivide_mesh"):
         problem = "a core without subdivide_mesh"
     if problem is not None:
         data = _export_object(obj, materials, uv_names)
@@ -107,6 +153,12 @@ def adaptive_mesh_data(obj, mod, materials, uv_names, dicing):
             data.subdivision_problem = (f"adaptive subdivision is not done with {problem}; rendered "
                                         "with the Subdivision Surface modifier's Render levels")
         return data
+    data = _diced_mesh_data(pc, original, mesh, mod, materials, uv_names, dicing, obj)
+    del mesh, owner  # (the cage is freed with its GeometrySet: nothing reads it after this)
+    return data
+
+
+def _diced_mesh_data(pc, original, mesh, mod, materials, uv_names, dicing, obj):
     if len(mesh.polygons) == 0:
         return None
     if not materials:
@@ -139,12 +191,15 @@ def adaptive_mesh_data(obj, mod, materials, uv_names, dicing):
             if (values > 0).any():
                 crease["vertex_sharpness"] = values * CREASE_SCALE
     rate = max(0.1, float(getattr(original.cycles, "dicing_rate", 1.0)) * dicing["rate"])
+    offscreen = {k: dicing[k] for k in ("offscreen_scale", "camera_axes", "frame") if k in dicing}
+    if offscreen and not _core_has_offscreen(pc):
+        offscreen = {}
     matrix = np.array(obj.matrix_world, np.float32)
     diced = pc.subdivide_mesh(positions, corner_verts, offsets, matrix, dicing["camera_position"],
                               dicing["pixel_size"], ortho=dicing["ortho"], dicing_rate=rate,
                               max_level=dicing["max_level"],
                               catmull_clark=mod.subdivision_type == 'CATMULL_CLARK',
-                              **crease)  # (corners smooth whatever boundary_smooth says: Cycles' too)
+                              **offscreen, **crease)  # (corners smooth whatever boundary_smooth says: Cycles' too)
     tris = diced["triangles"]
     tri_face = diced["triangle_faces"]
     tri_sub = diced["triangle_subpatches"]

@@ -284,6 +284,56 @@ Vec3 side_uv(int k, float s, float r) {  // side k's (along, inward) -> patch (u
 
 }  // namespace
 
+namespace {
+
+// How far camera-space p (x right, y up, z forward) lies outside the view, as Cycles measures it:
+// perspective, the largest distance past one of the four side planes it is in front of (the
+// distance to the apex where it is behind one's back edge); orthographic, the distance to the
+// view's box (z >= 0) over the half diagonal's RMS side.
+float offscreen_distance(const DicingCamera& cam, Vec3 p) {
+  const float l = cam.frame[0], r = cam.frame[1], b = cam.frame[2], t = cam.frame[3];
+  if (cam.ortho) {
+    const Vec3 c{clampf(p.x, l, r), clampf(p.y, b, t), std::max(p.z, 0.0f)};
+    return length(p - c) / std::sqrt(0.5f * (r * r + t * t));
+  }
+  const Vec3 n[4] = {normalize(Vec3{1, 0, -r}), normalize(Vec3{-1, 0, l}), normalize(Vec3{0, 1, -t}),
+                     normalize(Vec3{0, -1, b})};  // right, left, top, bottom: outward
+  const Vec3 along[4] = {{-n[0].z, 0, n[0].x}, {n[1].z, 0, -n[1].x}, {0, -n[2].z, n[2].y}, {0, n[3].z, -n[3].y}};
+  float d[4];
+  bool inside = true, behind = true;
+  for (int i = 0; i < 4; ++i) {
+    d[i] = dot(p, n[i]);
+    inside = inside && d[i] <= 0.0f;
+    behind = behind && d[i] > 0.0f;
+  }
+  if (inside) return 0.0f;
+  if (behind) return length(p);
+  float f = 0.0f;
+  bool apex = false;
+  for (int i = 0; i < 4; ++i) {
+    if (d[i] <= 0.0f) continue;
+    if (dot(p, along[i]) >= 0.0f) f = std::max(f, d[i]);
+    else apex = true;  // past this side's back edge: the apex may be nearer
+  }
+  if (apex) f = f > 0.0f ? std::min(f, length(p)) : length(p);
+  return f;
+}
+
+}  // namespace
+
+float dicing_pixel_size(const DicingCamera& cam, Vec3 wp) {
+  const Vec3 v = wp - cam.position;
+  const float dist = length(v);
+  float w = cam.ortho ? cam.pixel_size : dist * cam.pixel_size;
+  if (cam.offscreen_scale > 1.0f) {
+    const Vec3 p{dot(v, cam.right), dot(v, cam.up), dot(v, cam.forward)};
+    const float f = offscreen_distance(cam, p);
+    // Cycles: ortho res *= 1 + f (s - 1); perspective res += (pixel per unit distance) f (s - 1).
+    if (f > 0.0f) w += (cam.ortho ? w : cam.pixel_size) * f * (cam.offscreen_scale - 1.0f);
+  }
+  return std::max(w, 1e-12f);
+}
+
 DicedMesh subdivide_and_dice(const SubdivisionCage& cage, const DicingCamera& cam) {
   DicedMesh out;
   const PolygonMesh& m = cage.mesh;
@@ -330,10 +380,7 @@ DicedMesh subdivide_and_dice(const SubdivisionCage& cage, const DicingCamera& ca
     }
   };
 
-  auto pixel = [&](Vec3 wp) {
-    const float w = cam.ortho ? cam.pixel_size : length(wp - cam.position) * cam.pixel_size;
-    return std::max(w, 1e-12f);
-  };
+  auto pixel = [&](Vec3 wp) { return dicing_pixel_size(cam, wp); };
   std::vector<Vec3> lim;
   std::vector<int32_t> grid;
   auto build_grids = [&](int L) {
@@ -411,8 +458,18 @@ DicedMesh subdivide_and_dice(const SubdivisionCage& cage, const DicingCamera& ca
   auto measure = [&]() {
     int tmax = 1;
     for (size_t e = 0; e < E0; ++e) {
-      int t = factor([&](float x) { return eval_edge(e, x); });
-      if (ngon_edge[e]) t = std::max(2, t + (t & 1));  // halves for the n-gon's sub-patches
+      int t;
+      if (ngon_edge[e]) {
+        t = factor([&](float x) { return eval_edge(e, x); });
+        t = std::max(2, t + (t & 1));  // halves for the n-gon's sub-patches
+      } else {
+        // Cycles 4.5 splits every quad in both directions first (as n-gons), so each half of
+        // a quad's edge gets its own factor: at least 2 segments, finer where halves round up.
+        // (Cycles' limit_edge_factor: a half may have half of 2^max_subdivisions.)
+        const int half_cap = std::max(1, (1 << max_level) / 2);
+        t = std::min(factor([&](float x) { return eval_edge(e, 0.5f * x); }), half_cap) +
+            std::min(factor([&](float x) { return eval_edge(e, 0.5f + 0.5f * x); }), half_cap);
+      }
       TE[e] = t, tmax = std::max(tmax, ngon_edge[e] ? t / 2 : t);
     }
     for (size_t f = 0; f < F0; ++f)

@@ -31,6 +31,12 @@ struct DicingCamera {
   float pixel_size = 1e-3f;  // world size of a pixel: per unit distance (perspective) or absolute
   float dicing_rate = 1.0f;  // target edge length in pixels
   int max_level = 12;        // edge factors up to 2^max_level
+  // Cycles' offscreen_dicing_scale (Camera::world_to_raster_size): outside the camera's view the
+  // pixel footprint grows with the distance to the view, so off-screen geometry (seen only in
+  // reflections and shadows) is diced coarser. <= 1: off.
+  float offscreen_scale = 1.0f;
+  Vec3 right{1, 0, 0}, up{0, 1, 0}, forward{0, 0, -1};  // camera axes (world, unit)
+  float frame[4] = {-1, 1, -1, 1};  // view's left, right, bottom, top: at unit depth / in units (ortho)
   size_t max_quads = size_t(1) << 22;  // limit-grid quads the refinement may make (~1 GB)
 };
 
@@ -47,5 +53,8 @@ struct DicedMesh {
 
 // Throws std::invalid_argument on bad crease input.
 DicedMesh subdivide_and_dice(const SubdivisionCage& cage, const DicingCamera& camera);
+
+// World size of a pixel at world point p: the footprint the edge factors divide by.
+float dicing_pixel_size(const DicingCamera& camera, Vec3 p);
 
 }  // namespace pl

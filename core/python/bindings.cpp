@@ -2509,7 +2509,8 @@ PYBIND11_MODULE(pathlight_core, m) {
                      const FloatArray& matrix, const py::object& camera_position, float pixel_size, bool ortho,
                      float dicing_rate, int max_level, const py::object& crease_edges_obj,
                      const py::object& crease_sharpness_obj, const py::object& vertex_sharpness_obj,
-                     bool catmull_clark, bool smooth_corners, int64_t max_quads) {
+                     bool catmull_clark, bool smooth_corners, int64_t max_quads, float offscreen_scale,
+                     const py::object& camera_axes, const py::object& frame) {
         SubdivisionCage cage;
         cage.mesh = polygon_mesh(positions, corner_verts, offsets);
         cage.catmull_clark = catmull_clark;
@@ -2538,6 +2539,22 @@ PYBIND11_MODULE(pathlight_core, m) {
         if (max_quads < 1) throw std::invalid_argument("max_quads must be >= 1");
         cam.pixel_size = pixel_size, cam.dicing_rate = dicing_rate, cam.max_level = max_level;
         cam.max_quads = size_t(max_quads);
+        if (offscreen_scale > 1.0f) {
+          if (!std::isfinite(offscreen_scale)) throw std::invalid_argument("offscreen_scale must be finite");
+          if (camera_axes.is_none() || frame.is_none())
+            throw std::invalid_argument("offscreen_scale > 1 needs camera_axes and frame");
+          const auto axes = camera_axes.cast<py::sequence>();
+          const auto fr = frame.cast<py::sequence>();
+          if (axes.size() != 3 || fr.size() != 4)
+            throw std::invalid_argument("camera_axes must be 3 vectors and frame 4 numbers");
+          cam.right = normalize(to_point(axes[0], "camera_axes"));
+          cam.up = normalize(to_point(axes[1], "camera_axes"));
+          cam.forward = normalize(to_point(axes[2], "camera_axes"));
+          for (int i = 0; i < 4; ++i) cam.frame[i] = fr[i].cast<float>();
+          if (!(cam.frame[0] < cam.frame[1] && cam.frame[2] < cam.frame[3]))
+            throw std::invalid_argument("frame must be (left, right, bottom, top) with left < right, bottom < top");
+          cam.offscreen_scale = offscreen_scale;
+        }
         DicedMesh d;
         {
           py::gil_scoped_release release;
@@ -2561,13 +2578,35 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("camera_position"), py::arg("pixel_size"), py::arg("ortho") = false, py::arg("dicing_rate") = 1.0f,
       py::arg("max_level") = 12, py::arg("crease_edges") = py::none(), py::arg("crease_sharpness") = py::none(),
       py::arg("vertex_sharpness") = py::none(), py::arg("catmull_clark") = true, py::arg("smooth_corners") = true,
-      py::arg("max_quads") = int64_t(1) << 22,
+      py::arg("max_quads") = int64_t(1) << 22, py::arg("offscreen_scale") = 1.0f,
+      py::arg("camera_axes") = py::none(), py::arg("frame") = py::none(),
       "Adaptive subdivision of a polygon cage (object space; matrix: object to world): its Catmull-Clark limit "
       "surface (or Simple subdivision) diced so edges project to about dicing_rate pixels (pixel_size: a pixel's "
       "world size per unit distance from camera_position, or absolute if ortho), edge factors up to 2^max_level "
       "and shared by neighbouring patches. A dict: positions (V, 3), triangles (T, 3), triangle_faces (T,) cage "
       "face, triangle_subpatches (T,) n-gon corner (0 for quads), triangle_uvs (T, 3, 2) patch coordinates, "
-      "level, capped (max_quads lowered the level), max_edge_factor.");
+      "level, capped (max_quads lowered the level), max_edge_factor. offscreen_scale > 1 (Cycles' "
+      "offscreen_dicing_scale) grows the pixel outside the view: camera_axes (right, up, forward; world) and "
+      "frame (left, right, bottom, top of the view at unit depth, or in units if ortho).");
+  m.def(
+      "dicing_pixel_size",
+      [](const py::object& point, const py::object& camera_position, float pixel_size, bool ortho,
+         float offscreen_scale, const py::object& camera_axes, const py::object& frame) {
+        DicingCamera cam;
+        cam.position = to_point(camera_position, "camera_position");
+        cam.pixel_size = pixel_size, cam.ortho = ortho, cam.offscreen_scale = offscreen_scale;
+        const auto axes = camera_axes.cast<py::sequence>();
+        const auto fr = frame.cast<py::sequence>();
+        if (axes.size() != 3 || fr.size() != 4) throw std::invalid_argument("camera_axes: 3 vectors, frame: 4");
+        cam.right = normalize(to_point(axes[0], "camera_axes"));
+        cam.up = normalize(to_point(axes[1], "camera_axes"));
+        cam.forward = normalize(to_point(axes[2], "camera_axes"));
+        for (int i = 0; i < 4; ++i) cam.frame[i] = fr[i].cast<float>();
+        return dicing_pixel_size(cam, to_point(point, "point"));
+      },
+      py::arg("point"), py::arg("camera_position"), py::arg("pixel_size"), py::arg("ortho"), py::arg("offscreen_scale"),
+      py::arg("camera_axes"), py::arg("frame"),
+      "The world size of a pixel at point that subdivide_mesh divides edge lengths by (for tests).");
   m.def(
       "polygon_vertex_normals",
       [polygon_mesh](const FloatArray& positions, const I32Array& corner_verts, const I32Array& offsets, int threads) {

@@ -137,6 +137,71 @@ def test_dicing_follows_the_camera_distance():
     assert capped["max_edge_factor"] <= 8
 
 
+# Cycles' offscreen_dicing_scale (Camera::world_to_raster_size): a camera at the origin looking
+# down -z whose view spans x in +-0.5, y in +-0.375 at unit depth (or in units, orthographic).
+AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, -1.0))  # right, up, forward
+FRAME = (-0.5, 0.5, -0.375, 0.375)  # left, right, bottom, top
+OFFSCREEN = dict(offscreen_scale=4.0, camera_axes=AXES, frame=FRAME)
+
+
+def test_offscreen_pixel_grows_with_the_distance_to_the_view():
+    px = 1e-3
+
+    def size(p, scale=4.0, ortho=False):
+        return pc.dicing_pixel_size(p, (0.0, 0.0, 0.0), px, ortho, scale, AXES, FRAME)
+
+    approx = pytest.approx
+    # In view: the distance times a pixel's angle, as without the scale.
+    assert size((0.2, 0.1, -2.0)) == approx(px * np.sqrt(4.05), rel=1e-5)
+    # Right of the view 2 ahead: + a pixel's angle x (scale - 1) x the distance to the right
+    # side plane (x = 0.5 z, normal (1, 0, -0.5) / |.|); above it likewise with the top one.
+    assert size((3.0, 0.0, -2.0)) == approx(px * (np.sqrt(13) + 3 * 2 / np.sqrt(1.25)), rel=1e-5)
+    assert size((0.0, 2.0, -2.0)) == approx(px * (np.sqrt(8) + 3 * 1.25 / np.sqrt(1 + 0.375 ** 2)), rel=1e-5)
+    # Behind the camera: the distance to the camera stands for the one to the view.
+    assert size((0.0, 0.0, 5.0)) == approx(px * (5 + 3 * 5), rel=1e-5)
+    assert size((3.0, 0.0, -2.0), scale=1.0) == approx(px * np.sqrt(13), rel=1e-5)
+    # Orthographic: the distance to the view's box (here 2.5 in x) over its half diagonal's
+    # RMS side, scaling the pixel itself.
+    f = 2.5 / np.sqrt((0.5 ** 2 + 0.375 ** 2) / 2)
+    assert size((3.0, 0.0, -2.0), ortho=True) == approx(px * (1 + 3 * f), rel=1e-5)
+    assert size((0.3, 0.3, -2.0), ortho=True) == approx(px, rel=1e-6)
+
+
+def predicted_factor(a, b, px, rate=1.0, scale=4.0):
+    """Cycles' edge factor of a quad's straight edge: each half (Cycles splits quads in both
+    directions first) measured by DiagSplit::T, two segments in pixels of their middles."""
+    def T(a, b):
+        pts = [a, (a + b) / 2, b]
+        lens = [np.linalg.norm(q - p) / pc.dicing_pixel_size(tuple((p + q) / 2), (0.0, 0.0, 0.0), px, False,
+                                                              scale, AXES, FRAME) for p, q in zip(pts, pts[1:])]
+        return max(1, int(max(np.ceil(sum(lens) / rate), np.ceil(2 * max(lens) / rate))))
+    a, b = np.float64(a), np.float64(b)
+    return T(a, (a + b) / 2) + T((a + b) / 2, b)
+
+
+def test_offscreen_patches_dice_coarser_as_cycles_predicts():
+    """A strip of eight unit quads at depth 4 (Simple subdivision: flat): the view spans x in
+    +-2 there, so four lie in it and four to its right. With the scale the in-view patches
+    keep their triangles and the off-screen ones get the edge factors Cycles' rule predicts."""
+    xs = np.arange(-2.0, 7.0)
+    p = np.array([(x, y, -4.0) for y in (-0.5, 0.5) for x in xs], np.float32)
+    n = len(xs)
+    faces = [(i, i + 1, n + i + 1, n + i) for i in range(n - 1)]
+    px = 1.0 / 100
+    kw = dict(camera_position=(0.0, 0.0, 0.0), pixel_size=px, ortho=False, catmull_clark=False)
+    plain = dice(p, faces, **kw)
+    off = dice(p, faces, **kw, **OFFSCREEN)
+    per_face = [np.bincount(d["triangle_faces"], minlength=len(faces)) for d in (plain, off)]
+    assert (per_face[0][:3] == per_face[1][:3]).all()  # faces 0-2: no edge off screen
+    assert (per_face[1][4:] < per_face[0][4:]).all()
+    # The last patch alone (no in-view neighbour): its largest edge factor is Cycles'.
+    last = dice(p, [faces[-1]], **kw, **OFFSCREEN)
+    i = faces[-1]
+    edges = [(p[i[k]], p[i[(k + 1) % 4]]) for k in range(4)]
+    assert last["max_edge_factor"] == max(predicted_factor(a, b, px) for a, b in edges)
+    assert dice(p, [faces[-1]], **kw)["max_edge_factor"] >= 2 * last["max_edge_factor"]
+
+
 def test_bad_input_is_refused():
     cv, off = polymesh([(0, 1, 2, 3)])
     q = np.zeros((4, 3), np.float32)
