@@ -11,8 +11,8 @@
 // Measurement variants (issue 25, docs/design/sampling.md "Random numbers"), opt-in:
 // SobolDeep is the same pairs for every bounce; Sobol4D groups consecutive 2-D draws in twos
 // as 4-D Owen-scrambled Sobol sets (Sobol dimensions 0-3 under one shuffled index, as Cycles'
-// sobol_burley_sample_4D): pixel + lens, light point + light choice + roulette, BSDF direction
-// + closure + lobe; Sobol4DDeep is both.
+// sobol_burley_sample_4D): pixel + lens, light choice + roulette + light point, closure + lobe
+// + BSDF direction; Sobol4DDeep is both.
 #pragma once
 #include <cstdint>
 #if defined(__SSSE3__)
@@ -191,16 +191,13 @@ class Sampler {
   }
 
  private:
-  // 4-D sets: two consecutive draws share the set's shuffled index, one takes the set's Sobol
-  // dimensions 0 and 1 (the (0,2) pair), the other 2 and 3, each with its own scramble. The
-  // camera's set gives the pixel 0-1; the bounces' sets give their second draw (light point,
-  // BSDF direction) 0-1 and the choices 2-3, as Cycles (rand_light.xy / .z): the first order
-  // measured worse on the textured model at 16 spp (docs/design/sampling.md).
+  // 4-D sets: two consecutive draws share the set's shuffled index; the second takes the set's
+  // Sobol dimensions 2 and 3, each with its own scramble.
   [[gnu::noinline]] Vec2 get2d_set4(uint32_t dim) const {
     const uint64_t h = mix64(base_ ^ (uint64_t(dim >> 1) * 0x9E3779B97F4A7C15ULL));
     const uint32_t index = reverse_bits(laine_karras_permutation(sample_reversed_, uint32_t(h)));
     uint32_t x, y;
-    if (((dim & 1u) != 0) == (dim < 2u)) {
+    if (dim & 1u) {
       const uint64_t h2 = mix64(h ^ 0xC2B2AE3D27D4EB4FULL);
       x = reverse_bits(laine_karras_permutation(kSobolDim2Bytes(index), uint32_t(h2 >> 32)));
       y = reverse_bits(laine_karras_permutation(kSobolDim3Bytes(index), uint32_t(h2)));

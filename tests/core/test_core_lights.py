@@ -641,15 +641,15 @@ def _sobol_joe_kuo(index, s, a, m):
 def sobol_reference(seed, pixel, sample, dims, sets4=False):
     """The sampler's Owen-scrambled Sobol draws, written out in Python integers from the
     definitions (Burley 2020), not from the core's shortcuts (byte tables, shuffle reversals).
-    sets4: the 4-D sets of the sobol4d samplers (two draws per shuffled index, one from Sobol
-    dimensions 2 and 3: the camera set's second, later sets' first)."""
+    sets4: the 4-D sets of the sobol4d samplers (two draws per shuffled index, the second from
+    Sobol dimensions 2 and 3)."""
     base = _mix64(((seed * 0x9E3779B97F4A7C15) & M64) ^ _mix64((pixel + 0x632BE59BD9B4E019) & M64)
                   ^ _mix64(0x5EED ^ 0x8CB92BA72F3D8DD7))
     out = []
     for dim in range(dims):
         h = _mix64(base ^ (((dim // 2 if sets4 else dim) * 0x9E3779B97F4A7C15) & M64))
         index = _nested_uniform_scramble(sample, h & M32)  # the shuffled sample index
-        if sets4 and (dim % 2 == 1) == (dim < 2):  # dims 2-3: the lens; in bounces' sets, the choices
+        if sets4 and dim % 2:
             h2 = _mix64(h ^ 0xC2B2AE3D27D4EB4F)
             x = _nested_uniform_scramble(_sobol_joe_kuo(index, 2, 1, (1, 3)), h2 >> 32)
             y = _nested_uniform_scramble(_sobol_joe_kuo(index, 3, 1, (1, 3, 1)), h2 & M32)
