@@ -79,6 +79,10 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         items=(
             ('SOBOL', "Sobol", "Owen-scrambled Sobol low-discrepancy sequence: less noise"),
             ('RANDOM', "Random", "Independent pseudo-random numbers"),
+            # Measurement variants (docs/design/sampling.md, "Random numbers")
+            ('SOBOL_DEEP', "Sobol (All Bounces)", "Sobol pairs for every bounce, not only the first few"),
+            ('SOBOL4D', "Sobol 4-D Sets", "4-D Owen-scrambled Sobol sets (pixel + lens, light, BSDF)"),
+            ('SOBOL4D_DEEP', "Sobol 4-D Sets (All Bounces)", "4-D Sobol sets for every bounce"),
         ),
         default='SOBOL',
     )

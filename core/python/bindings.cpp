@@ -97,7 +97,11 @@ constexpr EnumNames<Scene::BuildQuality> kBuildQualityNames = {
     {Scene::BuildQuality::Auto, "auto"}, {Scene::BuildQuality::Sah, "sah"}, {Scene::BuildQuality::Fast, "fast"}};
 constexpr EnumNames<BvhLayout> kBvhLayoutNames = {
     {BvhLayout::Auto, "auto"}, {BvhLayout::Binary, "binary"}, {BvhLayout::Wide4, "bvh4"}, {BvhLayout::Wide8, "bvh8"}};
-constexpr EnumNames<SamplerType> kSamplerNames = {{SamplerType::Sobol, "sobol"}, {SamplerType::Random, "random"}};
+constexpr EnumNames<SamplerType> kSamplerNames = {{SamplerType::Sobol, "sobol"},
+                                                   {SamplerType::Random, "random"},
+                                                   {SamplerType::SobolDeep, "sobol_deep"},
+                                                   {SamplerType::Sobol4D, "sobol4d"},
+                                                   {SamplerType::Sobol4DDeep, "sobol4d_deep"}};
 constexpr EnumNames<FilterType> kFilterNames = {
     {FilterType::Box, "box"}, {FilterType::Gaussian, "gaussian"}, {FilterType::BlackmanHarris, "blackman_harris"}};
 constexpr EnumNames<DebugView> kDebugViewNames = {{DebugView::None, "none"}, {DebugView::Bvh, "bvh"}};
@@ -2823,9 +2827,9 @@ PYBIND11_MODULE(pathlight_core, m) {
 
   m.def(
       "sampler_values",
-      [](uint32_t seed, uint64_t pixel, uint32_t sample, int dims) {
+      [](uint32_t seed, uint64_t pixel, uint32_t sample, int dims, const std::string& type) {
         if (dims < 0 || dims > 1024) throw std::invalid_argument("dims must be in [0, 1024]");
-        Sampler sampler(SamplerType::Sobol, seed, pixel, sample);
+        Sampler sampler(enum_from_name(type, "sampler", kSamplerNames), seed, pixel, sample);
         py::array_t<float> out({py::ssize_t(dims), py::ssize_t(2)});
         for (int d = 0; d < dims; ++d) {
           const Vec2 u = sampler.get2d();
@@ -2834,9 +2838,9 @@ PYBIND11_MODULE(pathlight_core, m) {
         }
         return out;
       },
-      py::arg("seed"), py::arg("pixel"), py::arg("sample"), py::arg("dims"),
-      "The first `dims` 2-D draws of the Sobol sampler for (seed, pixel, sample): (dims, 2). "
-      "Exposed for tests.");
+      py::arg("seed"), py::arg("pixel"), py::arg("sample"), py::arg("dims"), py::arg("sampler") = "sobol",
+      "The first `dims` 2-D draws of the sampler (a RenderSettings.sampler name) for (seed, pixel, "
+      "sample): (dims, 2). Exposed for tests.");
 
   py::class_<CameraDesc>(m, "Camera")
       .def(py::init<>())

@@ -489,6 +489,7 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         // moves (static scenes keep their streams and their rays).
         const Ray ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))
                                 : camera_.generate(rx, ry, lens);
+        sampler.align_set();
         if (!(ray.tmax > 0.0f)) {  // outside a panorama's lens: black, as Cycles
           out = {0.0f, 0.0f, 0.0f, 1.0f};
           if (aux) write_aux(PathAovs{}, aux);

@@ -8,6 +8,11 @@
 // something moves (motion blur); each bounce then takes 4 (light choice +
 // roulette, light point, closure + lobe choice, BSDF direction), so Sobol covers the first ~3
 // bounces.
+// Measurement variants (issue 25, docs/design/sampling.md "Random numbers"), opt-in:
+// SobolDeep is the same pairs for every bounce; Sobol4D groups consecutive 2-D draws in twos
+// as 4-D Owen-scrambled Sobol sets (Sobol dimensions 0-3 under one shuffled index, as Cycles'
+// sobol_burley_sample_4D): pixel + lens, light choice + roulette + light point, closure + lobe
+// + BSDF direction; Sobol4DDeep is both.
 #pragma once
 #include <cstdint>
 #if defined(__SSSE3__)
@@ -19,7 +24,7 @@
 
 namespace pl {
 
-enum class SamplerType : uint8_t { Sobol, Random };
+enum class SamplerType : uint8_t { Sobol, Random, SobolDeep, Sobol4D, Sobol4DDeep };
 
 inline uint32_t reverse_bits(uint32_t x) {
 #if defined(__SSSE3__)
@@ -96,13 +101,51 @@ inline uint32_t sobol_dim1_reversed(uint32_t index) {
          kSobolDim1Bytes.t[2][(index >> 16) & 0xFFu] ^ kSobolDim1Bytes.t[3][index >> 24];
 }
 
+// Sobol dimensions 2 and 3 (Joe-Kuo: x^2+x+1 with m = 1, 3; x^3+x+1 with m = 1, 3, 1; the
+// same directions as Burley's code), stored bit-reversed and by bytes as dimension 1.
+struct SobolDimBytes {
+  uint32_t t[4][256];
+  constexpr SobolDimBytes(int s, uint32_t a, uint32_t m0, uint32_t m1, uint32_t m2) : t() {
+    uint32_t v[32] = {};
+    const uint32_t m[3] = {m0, m1, m2};
+    for (int i = 0; i < 32; ++i) {
+      if (i < s) {
+        v[i] = m[i] << (31 - i);
+      } else {
+        v[i] = v[i - s] ^ (v[i - s] >> s);
+        for (int k = 1; k < s; ++k)
+          if ((a >> (s - 1 - k)) & 1u) v[i] ^= v[i - k];
+      }
+    }
+    uint32_t r[32] = {};
+    for (int i = 0; i < 32; ++i)
+      for (int b = 0; b < 32; ++b)
+        if (v[i] & (1u << b)) r[i] |= 1u << (31 - b);
+    for (int k = 0; k < 4; ++k)
+      for (int b = 0; b < 256; ++b) {
+        uint32_t x = 0;
+        for (int i = 0; i < 8; ++i)
+          if (b & (1 << i)) x ^= r[8 * k + i];
+        t[k][b] = x;
+      }
+  }
+  uint32_t operator()(uint32_t index) const {
+    return t[0][index & 0xFFu] ^ t[1][(index >> 8) & 0xFFu] ^ t[2][(index >> 16) & 0xFFu] ^ t[3][index >> 24];
+  }
+};
+inline constexpr SobolDimBytes kSobolDim2Bytes{2, 1u, 1u, 3u, 0u};
+inline constexpr SobolDimBytes kSobolDim3Bytes{3, 1u, 1u, 3u, 1u};
+
 inline float u32_to_unit(uint32_t x) { return static_cast<float>(x >> 8) * 0x1p-24f; }
 
 class Sampler {
  public:
   Sampler(SamplerType type, uint32_t seed, uint64_t pixel, uint32_t sample)
-      : type_(type),
-        sample_reversed_(reverse_bits(sample)),
+      : sample_reversed_(reverse_bits(sample)),
+        sobol_dims_(type == SamplerType::Random ? 0u
+                    : type == SamplerType::Sobol || type == SamplerType::Sobol4D ? kSobolDims
+                                                                                 : UINT32_MAX),
+        sets4_(type == SamplerType::Sobol4D || type == SamplerType::Sobol4DDeep),
         base_(hash3(seed, pixel, 0x5EEDull)),
         rng_(hash3(seed, pixel, sample), pixel) {}
 
@@ -114,10 +157,11 @@ class Sampler {
   // this per-bounce call out of line (+8 % instructions on the diffuse Cornell box).
   [[gnu::always_inline]] Vec2 get2d() {
     const uint32_t dim = dim_++;
-    if (type_ == SamplerType::Random || dim >= kSobolDims) {
+    if (dim >= sobol_dims_) {
       const float a = rng_.next_float();
       return {a, rng_.next_float()};
     }
+    if (sets4_) [[unlikely]] return get2d_set4(dim);  // (out of line: the default's code stays as small)
     const uint64_t h = mix64(base_ ^ (uint64_t(dim) * 0x9E3779B97F4A7C15ULL));
     // nested_uniform_scramble(sample, h), with the sample's reversal done once per sampler
     const uint32_t index = reverse_bits(laine_karras_permutation(sample_reversed_, uint32_t(h)));
@@ -134,16 +178,38 @@ class Sampler {
   // Moves past one 2-D dimension without computing it: the later dimensions stay the same as
   // after get2d() (kernels that know a draw is unused skip its cost, not its place).
   void skip2d() {
-    if (type_ == SamplerType::Random || dim_ >= kSobolDims) {
+    if (dim_ >= sobol_dims_) {
       rng_.next_u32();
       rng_.next_u32();
     }
     ++dim_;
   }
+  // With 4-D sets, moves to the start of the next set (after the camera's draws, so that each
+  // bounce's light and BSDF draws fill whole sets); otherwise nothing.
+  void align_set() {
+    if (sets4_ && (dim_ & 1u)) skip2d();
+  }
 
  private:
-  SamplerType type_;
+  // 4-D sets: two consecutive draws share the set's shuffled index; the second takes the set's
+  // Sobol dimensions 2 and 3, each with its own scramble.
+  [[gnu::noinline]] Vec2 get2d_set4(uint32_t dim) const {
+    const uint64_t h = mix64(base_ ^ (uint64_t(dim >> 1) * 0x9E3779B97F4A7C15ULL));
+    const uint32_t index = reverse_bits(laine_karras_permutation(sample_reversed_, uint32_t(h)));
+    uint32_t x, y;
+    if (dim & 1u) {
+      const uint64_t h2 = mix64(h ^ 0xC2B2AE3D27D4EB4FULL);
+      x = reverse_bits(laine_karras_permutation(kSobolDim2Bytes(index), uint32_t(h2 >> 32)));
+      y = reverse_bits(laine_karras_permutation(kSobolDim3Bytes(index), uint32_t(h2)));
+    } else {
+      x = reverse_bits(laine_karras_permutation(index, uint32_t(h >> 32)));
+      y = reverse_bits(laine_karras_permutation(sobol_dim1_reversed(index), uint32_t(mix64(h) >> 32)));
+    }
+    return {u32_to_unit(x), u32_to_unit(y)};
+  }
   uint32_t sample_reversed_;
+  uint32_t sobol_dims_;  // 2-D draws from Sobol; PCG32 after
+  bool sets4_;
   uint64_t base_;
   uint32_t dim_ = 0;
   Pcg32 rng_;

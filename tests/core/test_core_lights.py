@@ -622,17 +622,40 @@ def _sobol_dim1(index):
     return r
 
 
-def sobol_reference(seed, pixel, sample, dims):
+def _sobol_joe_kuo(index, s, a, m):
+    """Sobol dimension with primitive polynomial degree s, coefficients a, initial m (Joe-Kuo)."""
+    v = [m[i] << (31 - i) for i in range(s)]
+    for i in range(s, 32):
+        x = v[i - s] ^ (v[i - s] >> s)
+        for k in range(1, s):
+            if a >> (s - 1 - k) & 1:
+                x ^= v[i - k]
+        v.append(x)
+    r = 0
+    for i in range(32):
+        if index >> i & 1:
+            r ^= v[i]
+    return r
+
+
+def sobol_reference(seed, pixel, sample, dims, sets4=False):
     """The sampler's Owen-scrambled Sobol draws, written out in Python integers from the
-    definitions (Burley 2020), not from the core's shortcuts (byte tables, shuffle reversals)."""
+    definitions (Burley 2020), not from the core's shortcuts (byte tables, shuffle reversals).
+    sets4: the 4-D sets of the sobol4d samplers (two draws per shuffled index, the second from
+    Sobol dimensions 2 and 3)."""
     base = _mix64(((seed * 0x9E3779B97F4A7C15) & M64) ^ _mix64((pixel + 0x632BE59BD9B4E019) & M64)
                   ^ _mix64(0x5EED ^ 0x8CB92BA72F3D8DD7))
     out = []
     for dim in range(dims):
-        h = _mix64(base ^ ((dim * 0x9E3779B97F4A7C15) & M64))
+        h = _mix64(base ^ (((dim // 2 if sets4 else dim) * 0x9E3779B97F4A7C15) & M64))
         index = _nested_uniform_scramble(sample, h & M32)  # the shuffled sample index
-        x = _nested_uniform_scramble(_rev(index), h >> 32)  # dimension 0: van der Corput
-        y = _nested_uniform_scramble(_sobol_dim1(index), _mix64(h) >> 32)
+        if sets4 and dim % 2:
+            h2 = _mix64(h ^ 0xC2B2AE3D27D4EB4F)
+            x = _nested_uniform_scramble(_sobol_joe_kuo(index, 2, 1, (1, 3)), h2 >> 32)
+            y = _nested_uniform_scramble(_sobol_joe_kuo(index, 3, 1, (1, 3, 1)), h2 & M32)
+        else:
+            x = _nested_uniform_scramble(_rev(index), h >> 32)  # dimension 0: van der Corput
+            y = _nested_uniform_scramble(_sobol_dim1(index), _mix64(h) >> 32)
         out.append(((x >> 8) * 2.0**-24, (y >> 8) * 2.0**-24))
     return np.array(out, np.float32)
 
@@ -645,6 +668,32 @@ def test_sobol_sampler_matches_its_definition_bit_for_bit():
     for seed, pixel, sample in cases:
         got = pc.sampler_values(seed, pixel, sample, 16)  # the Sobol dimensions (PCG32 after them)
         np.testing.assert_array_equal(got, sobol_reference(seed, pixel, sample, 16), err_msg=str((seed, pixel, sample)))
+
+
+def test_sobol_variants_match_their_definitions_and_stratify_in_4d():
+    # The opt-in measurement samplers (docs/design/sampling.md, "Random numbers").
+    assert _sobol_joe_kuo(1 << 2, 2, 1, (1, 3)) == 0x60000000  # Burley's/Joe-Kuo's directions
+    assert _sobol_joe_kuo(1 << 3, 3, 1, (1, 3, 1)) == 0x50000000
+    assert _sobol_joe_kuo(1 << 5, 1, 0, (1,)) == _sobol_dim1(1 << 5)  # the generator, checked on dim 1
+    for seed, pixel, sample in [(0, 0, 0), (7, 123456, 1023), (2**32 - 1, 2**40 + 3, 2**31 + 5)]:
+        for name, sets4 in (("sobol4d", True), ("sobol_deep", False)):
+            np.testing.assert_array_equal(pc.sampler_values(seed, pixel, sample, 16, name),
+                                          sobol_reference(seed, pixel, sample, 16, sets4), err_msg=name)
+    np.testing.assert_array_equal(pc.sampler_values(5, 9, 3, 16, "sobol_deep"), pc.sampler_values(5, 9, 3, 16))
+    # 256 samples of a 4-D set (draws 2 and 3): every 1-D projection in 256 strata exactly once,
+    # every 2-D projection at most 2 per cell of 16 x 16 (the padded pairs' draw 2 x draw 3: 3+)
+    v = np.array([pc.sampler_values(3, 77, i, 40, "sobol4d_deep") for i in range(256)])
+    p = np.concatenate([v[:, 2], v[:, 3]], axis=1)
+    for a in range(4):
+        assert np.histogram(p[:, a], bins=256, range=(0, 1))[0].max() == 1
+        for b in range(a + 1, 4):
+            assert np.histogram2d(p[:, a], p[:, b], bins=16, range=[[0, 1], [0, 1]])[0].max() <= 2, (a, b)
+    # the deep variants stay Sobol past the 16th draw; the default turns to PCG32 there
+    assert np.histogram(v[:, 30, 0], bins=256, range=(0, 1))[0].max() == 1
+    w = np.array([pc.sampler_values(3, 77, i, 40) for i in range(256)])
+    assert np.histogram(w[:, 30, 0], bins=256, range=(0, 1))[0].max() > 1
+    with pytest.raises(ValueError):
+        pc.sampler_values(3, 77, 0, 4, "halton")
 
 
 @pytest.mark.converged
