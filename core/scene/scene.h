@@ -867,6 +867,8 @@ class Scene {
   float pdf_environment(Vec3 dir, Vec3 from, uint8_t set = 0) const;
   // background(dir) and pdf_environment(dir, from, set) at once (one map look-up).
   Vec3 background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf) const;
+  // The probability that light set `set`'s choice picks the environment; -1: it cannot.
+  float environment_pmf(uint8_t set) const;
   // The world's own sampling from p (its choice among lights not included): through the portals
   // p is in front of and by the map, or by the map alone (no portal faces p). Radiance, solid-angle
   // pdf; cover_all as Environment::sample. world_pdf: the same density for a direction.

@@ -905,19 +905,22 @@ bool Scene::light_reference_point(Vec3 p, Vec3 d, float u_select, Vec2 u, Vec3& 
   return is_finite(c);
 }
 
-float Scene::pdf_environment(Vec3 dir, Vec3 from, uint8_t set) const {
-  if (env_index_ == SIZE_MAX) return 0.0f;
+float Scene::environment_pmf(uint8_t set) const {
+  if (env_index_ == SIZE_MAX) return -1.0f;
   const LightChoice& c = choice(set);
-  if (c.dist.empty()) return 0.0f;
-  return (c.use_tree ? c.inf_pmf[env_index_] : c.dist.pmf(env_index_)) * world_pdf(from, dir, false);
+  if (c.dist.empty()) return -1.0f;
+  return c.use_tree ? c.inf_pmf[env_index_] : c.dist.pmf(env_index_);
+}
+
+float Scene::pdf_environment(Vec3 dir, Vec3 from, uint8_t set) const {
+  const float pmf = environment_pmf(set);
+  return pmf < 0.0f ? 0.0f : pmf * world_pdf(from, dir, false);
 }
 
 Vec3 Scene::background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf) const {
   env_pdf = 0.0f;
-  if (env_index_ == SIZE_MAX) return background(dir);
-  const LightChoice& c = choice(set);
-  if (c.dist.empty()) return background(dir);
-  const float pmf = c.use_tree ? c.inf_pmf[env_index_] : c.dist.pmf(env_index_);
+  const float pmf = environment_pmf(set);
+  if (pmf < 0.0f) return background(dir);
   if (!portals_.empty() || !env_.valid()) {
     env_pdf = pmf * world_pdf(from, dir, false);
     return background(dir);

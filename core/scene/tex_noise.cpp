@@ -85,17 +85,10 @@ float perlin(const P<2>& p) {
 // lookup3::hash(x, y, z) of four corners at once (GCC's vector extension: SSE2 on x86-64).
 // The eight hashes of a 3-D cell were a third of its Perlin noise's instructions one by one.
 using U4 = uint32_t __attribute__((vector_size(16)));
-inline U4 rotl4(U4 x, int k) { return (x << k) | (x >> (32 - k)); }
 inline U4 hash4(U4 x, U4 y, U4 z) {
   const uint32_t s = lookup3::seed(3);
   U4 a = x + s, b = y + s, c = z + s;
-  c ^= b; c -= rotl4(b, 14);
-  a ^= c; a -= rotl4(c, 11);
-  b ^= a; b -= rotl4(a, 25);
-  c ^= b; c -= rotl4(b, 16);
-  a ^= c; a -= rotl4(c, 4);
-  b ^= a; b -= rotl4(a, 14);
-  c ^= b; c -= rotl4(b, 24);
+  lookup3::final_mix(a, b, c);
   return c;
 }
 

@@ -7,7 +7,9 @@
 
 namespace pl::lookup3 {
 
-constexpr uint32_t rotl(uint32_t x, int k) { return (x << k) | (x >> (32 - k)); }
+// (Templates so that vectors of 32-bit lanes, GCC's vector extension, hash several keys at once.)
+template <class U>
+constexpr U rotl(U x, int k) { return (x << k) | (x >> (32 - k)); }
 
 // lookup3's mix() and final() rounds.
 inline void mix(uint32_t& a, uint32_t& b, uint32_t& c) {
@@ -18,7 +20,8 @@ inline void mix(uint32_t& a, uint32_t& b, uint32_t& c) {
   b -= a; b ^= rotl(a, 19); a += c;
   c -= b; c ^= rotl(b, 4);  b += a;
 }
-inline void final_mix(uint32_t& a, uint32_t& b, uint32_t& c) {
+template <class U>
+inline void final_mix(U& a, U& b, U& c) {
   c ^= b; c -= rotl(b, 14);
   a ^= c; a -= rotl(c, 11);
   b ^= a; b -= rotl(a, 25);
