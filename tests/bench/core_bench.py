@@ -37,3 +37,28 @@ def render_cpu(pc, cs, st):
     cpu = time.process_time() - c
     stats = sess.stats()
     return np.asarray(sess.film())[..., :3].astype(np.float64), stats["rays"] / max(stats["paths"], 1), cpu
+
+
+def override_render_settings(addon, overrides, cast=False):
+    """Make the add-on's renders take `overrides` (a dict the caller may change between renders)
+    on top of the RenderSettings it builds; `cast` converts each value to the setting's type."""
+    inner = addon.session.render_settings
+
+    def patched(pc, scene, warn=None):
+        st = inner(pc, scene, warn)
+        for k, v in overrides.items():
+            setattr(st, k, type(getattr(st, k))(v) if cast else v)
+        return st
+    addon.session.render_settings = patched
+
+
+def print_outliers(key, imgs, label, spp, count=6):
+    """The brightest single-render pixels of `imgs` (seeds x H x W x 3) over the seeds' median,
+    with the region `label` (H x W) each lies in: where a scene's fireflies are."""
+    lum = imgs.mean(-1)
+    med = np.median(lum, 0)
+    dev = (lum - med) / (med + 0.1)
+    print(f"{key}: largest single-render outliers (one sample's excess over the median, x spp)")
+    for i in np.argsort(dev.ravel())[::-1][:count]:
+        s, y, x = np.unravel_index(i, dev.shape)
+        print(f"  seed {s:2d} pixel ({y:2d}, {x:2d}) {label[y, x]:16s} {(lum[s, y, x] - med[y, x]) * spp:8.1f}")

@@ -21,6 +21,7 @@ import numpy as np
 sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_util import load_addon, render_to_array  # noqa: E402
+from core_bench import override_render_settings  # noqa: E402
 import realistic_scenes as rs  # noqa: E402
 
 MAX_BOUNCES = 12
@@ -46,14 +47,7 @@ def main():
     ap.add_argument("--variants", nargs="*", default=["plain", "guided"])
     args = ap.parse_args()
     addon = load_addon()
-    inner = addon.session.render_settings
-
-    def patched(pc, scene, warn=None):
-        st = inner(pc, scene, warn)
-        for k, v in SETTINGS.items():
-            setattr(st, k, v)
-        return st
-    addon.session.render_settings = patched
+    override_render_settings(addon, SETTINGS)
     specs = {"plain": dict(guiding_probability=0.0, guiding_photons=0.0),
              "camera": dict(guiding_photons=0.0),
              "guided": {},  # the add-on's Path Guiding as it is

@@ -25,6 +25,7 @@ import numpy as np
 sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_util import load_addon, render_to_array  # noqa: E402
+from core_bench import override_render_settings  # noqa: E402
 import realistic_scenes as rs  # noqa: E402
 
 MAX_BOUNCES = 12
@@ -76,14 +77,7 @@ def main():
         return
     build = getattr(rs, args.scene)
     addon = load_addon()
-    inner = addon.session.render_settings
-
-    def patched(pc, scene, warn=None):
-        st = inner(pc, scene, warn)
-        for k, v in OVERRIDES.items():
-            setattr(st, k, type(getattr(st, k))(v))
-        return st
-    addon.session.render_settings = patched
+    override_render_settings(addon, OVERRIDES, cast=True)
 
     variants = [("plain", None)] + [(v.split("=")[0], parse(v.split("=", 1)[1])) for v in args.variants]
     imgs = {n: [] for n, _ in variants}

@@ -22,6 +22,7 @@ from mathutils import Vector
 sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "blender")]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_util import load_addon, render_to_array  # noqa: E402
+from core_bench import print_outliers  # noqa: E402
 import realistic_scenes as rs  # noqa: E402
 
 
@@ -76,13 +77,7 @@ def main():
     for name, m in masks.items():
         label[m] = name
     for key, imgs in (("Pathlight", pl), ("Cycles", cy)):
-        lum = imgs.mean(-1)
-        med = np.median(lum, 0)
-        dev = (lum - med) / (med + 0.1)
-        print(f"{key}: largest single-render outliers (one sample's excess over the median, x spp)")
-        for i in np.argsort(dev.ravel())[::-1][:6]:
-            s, y, x = np.unravel_index(i, dev.shape)
-            print(f"  seed {s:2d} pixel ({y:2d}, {x:2d}) {label[y, x]:16s} {(lum[s, y, x] - med[y, x]) * args.spp:8.1f}")
+        print_outliers(key, imgs, label, args.spp)
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("core", "
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_util import load_addon, render_to_array  # noqa: E402
 from guiding_path_classes import CLASSES  # noqa: E402
+from core_bench import override_render_settings, print_outliers  # noqa: E402
 import realistic_scenes as rs  # noqa: E402
 
 MAX_BOUNCES = 12
@@ -140,14 +141,7 @@ def main():
     args = ap.parse_args()
     build = getattr(rs, args.scene)
     addon = load_addon()
-    inner = addon.session.render_settings
-
-    def patched(pc, scene, warn=None):
-        st = inner(pc, scene, warn)
-        for k, v in SETTINGS.items():
-            setattr(st, k, v)
-        return st
-    addon.session.render_settings = patched
+    override_render_settings(addon, SETTINGS)
     base = {k: ast.literal_eval(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     SETTINGS.update(base)
 
@@ -187,13 +181,7 @@ def main():
     for name, m in masks.items():
         label[m & (label == "rest")] = name
     for key, imgs in (("Pathlight", pl), ("Cycles", cy)):
-        lum = imgs.mean(-1)
-        med = np.median(lum, 0)
-        dev = (lum - med) / (med + 0.1)
-        print(f"{key}: largest single-render outliers (one sample's excess over the median, x spp)")
-        for i in np.argsort(dev.ravel())[::-1][:6]:
-            s, y, x = np.unravel_index(i, dev.shape)
-            print(f"  seed {s:2d} pixel ({y:2d}, {x:2d}) {label[y, x]:16s} {(lum[s, y, x] - med[y, x]) * args.spp:8.1f}")
+        print_outliers(key, imgs, label, args.spp)
 
     reference_terms(pl, cy, ref, t_pl, t_cy, args)
 
