@@ -53,6 +53,25 @@ def empty_scene_with_camera(resolution=32):
     return sc
 
 
+def canonical_order(bm):
+    """Sorts a BMesh's edges and faces by their vertices' indices, in place. Blender's UV sphere
+    (bmesh.ops.create_uvsphere, primitive_uv_sphere_add) comes out with the same faces, corners
+    and vertices but its faces in an order that changes from one process to the next; the
+    exported triangles follow it and smooth normals sum in face order (Blender's own
+    vertex_normals too), so a scene script would render differently in every process
+    (docs/design/robustness.md, "Determinism"). Vertex order, and corner order inside a face
+    (it decides a quad's split), are kept."""
+    bm.verts.index_update()
+    for seq in (bm.edges, bm.faces):
+        seq.index_update()
+        keys = [tuple(sorted(v.index for v in e.verts)) for e in seq]
+        rank = [0] * len(keys)
+        for r, i in enumerate(sorted(range(len(keys)), key=keys.__getitem__)):
+            rank[i] = r
+        seq.sort(key=lambda e: rank[e.index])
+        seq.index_update()
+
+
 def open_fixture(name):
     """Open blender_scenes/<name>(.blend) and return its scene."""
     path = SCENES / name

@@ -8,6 +8,8 @@ import bpy
 import numpy as np
 import OpenEXR
 
+from blender_util import canonical_order
+
 
 def empty_scene(size=32, height=None):
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -75,9 +77,10 @@ def box(name, size, material=None, **transform):
 
 def uv_sphere(name, radius, material=None, segments=48, **transform):
     import bmesh
-    return mesh_object(name, lambda bm: bmesh.ops.create_uvsphere(
-        bm, u_segments=segments, v_segments=segments // 2, radius=radius), material,
-        smooth=True, **transform)
+    def build(bm):
+        bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=segments // 2, radius=radius)
+        canonical_order(bm)  # the same face order in every process
+    return mesh_object(name, build, material, smooth=True, **transform)
 
 
 def camera(location, rotation=(0.0, 0.0, 0.0), lens=50.0, look_at=None):

@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
-from blender_util import BOX_FILTER, render_to_array
+from blender_util import BOX_FILTER, canonical_order, render_to_array
 # The one region_means (grid x grid region means of RGB, edges cropped): pure numpy, shared
 # with the core tests; the Blender tests import it from here.
 from core_scenes import region_means  # noqa: F401
@@ -155,6 +155,7 @@ def add_plane(name, size, material=None, uv=True, **transform):
 def add_sphere(name, radius, material=None, segments=48, rings=24, **transform):
     def build(bm):
         bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=rings, radius=radius)
+        canonical_order(bm)  # the same face order in every process
     return add_mesh_object(name, build, (material,) if material else (), smooth=True,
                            **transform)
 
