@@ -54,6 +54,18 @@ inline float bump_shadowing(Vec3 ns, Vec3 wi) {
   return 2.0f / (1.0f + std::sqrt(1.0f + alpha2 * tan2_i));
 }
 
+// A microfacet lobe's D(m), G1(wo) and G(wo, wi) with D and Lambda(wo) computed once (Ggx or
+// Beckmann); pdf_visible is the same expression as the distribution's.
+struct MicrofacetTerms {
+  float d, g1o, g;
+  float pdf_visible(Vec3 wo, Vec3 m) const { return g1o * std::max(0.0f, dot(wo, m)) * d / std::fabs(wo.z); }
+};
+template <class Dist>
+[[gnu::always_inline]] inline MicrofacetTerms microfacet_terms(const Dist& g, Vec3 wo, Vec3 wi, Vec3 m) {
+  const float lo = g.lambda(wo);
+  return {g.D(m), 1.0f / (1.0f + lo), 1.0f / (1.0f + lo + g.lambda(wi))};
+}
+
 struct DiffuseBsdf {
   Vec3 ns{0.0f, 0.0f, 1.0f};  // the smooth (unbent) normal in the local frame
   bool bent = false;          // the lobe's normal differs from ns: apply bump_shadowing
@@ -191,8 +203,9 @@ struct ConductorBsdf {
     const Vec3 m = normalize(wo + wi);
     const float wom = dot(wo, m);
     if (!(wom > 0.0f)) return Vec3(0.0f);
-    pdf = g.pdf_visible(wo, m) / (4.0f * wom);
-    return fresnel(wom) * (g.D(m) * g.G(wo, wi) / (4.0f * wo.z));
+    const MicrofacetTerms t = microfacet_terms(g, wo, wi, m);
+    pdf = t.pdf_visible(wo, m) / (4.0f * wom);
+    return fresnel(wom) * (t.d * t.g / (4.0f * wo.z));
   }
   template <class Dist>
   bool sample_up(const Dist& g, Vec3 wo, Vec2 u, BsdfSample& s) const {
@@ -309,16 +322,17 @@ struct DielectricBsdf {
     // Visible-normal density seen from wo mirrored to the outside; m (facing +Z) is then the
     // facet facing it, whichever side wo is on.
     const Vec3 wo_up = wo.z > 0.0f ? wo : -wo;
-    const float pdf_m = g.pdf_visible(wo_up, m);
+    const MicrofacetTerms t = microfacet_terms(g, wo, wi, m);  // (Lambda(wo) is Lambda(wo_up))
+    const float pdf_m = t.pdf_visible(wo_up, m);
     if (refl) {
       pdf = pdf_m / (4.0f * std::fabs(dot(wo, m))) * pr / (pr + pt);
-      return cr * (g.D(m) * g.G(wo, wi) / (4.0f * std::fabs(wo.z)));
+      return cr * (t.d * t.g / (4.0f * std::fabs(wo.z)));
     }
     const float denom = (dot(wi, m) + dot(wo, m) / etap) * (dot(wi, m) + dot(wo, m) / etap);
     if (!(denom > 0.0f)) return Vec3(0.0f);
     const float dwm_dwi = std::fabs(dot(wi, m)) / denom;
     pdf = pdf_m * dwm_dwi * pt / (pr + pt);
-    const float ft = g.D(m) * g.G(wo, wi) * std::fabs(dot(wi, m) * dot(wo, m) / (wo.z * denom));
+    const float ft = t.d * t.g * std::fabs(dot(wi, m) * dot(wo, m) / (wo.z * denom));
     // Radiance is compressed/expanded across the interface (not in Cycles: unscaled).
     return transmission_tint * ct * (unscaled ? ft : ft / (etap * etap));
   }

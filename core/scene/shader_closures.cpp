@@ -20,10 +20,12 @@ Frame glossy_frame_at(const Float4* r, const ShadingContext& ctx, int16_t normal
   return Frame::from_normal(valid_specular_normal(ctx.ng, ctx.wo, normal_or(r, normal_reg, ctx)));
 }
 
+// `known`: a frame already built on some normal (nullptr: none), reused where it is on n.
 inline DiffuseBsdf diffuse_lobe_at(const Float4* r, const ShadingContext& ctx, const ShaderProgram& prog,
-                                   int16_t normal_reg, Frame& f) {
+                                   int16_t normal_reg, Frame& f, const Frame* known = nullptr) {
   const Vec3 n = normal_or(r, normal_reg, ctx);
-  f = Frame::from_normal(n);
+  if (known && known->n.x == n.x && known->n.y == n.y && known->n.z == n.z) f = *known;
+  else f = Frame::from_normal(n);
   DiffuseBsdf d;
   d.back = ctx.backfacing;
   // A program that set the shading normal (bump from displacement) lights its lobes from
@@ -189,8 +191,8 @@ namespace {
   auto px = [extra](PrincipledExtraSlot s) { return extra ? extra->in[s] : int16_t(kNoReg); };
   const Frame fr = glossy_frame_at(r, ctx, op.in[8]);  // Cycles' valid_reflection_N
   const float mu = std::fabs(dot(fr.n, ctx.wo));
-  Frame fd;
-  const DiffuseBsdf diffuse = diffuse_lobe_at(r, ctx, prog, op.in[8], fd);
+  Frame fd;  // fr's basis where the valid reflection left the normal as it was (the common case)
+  const DiffuseBsdf diffuse = diffuse_lobe_at(r, ctx, prog, op.in[8], fd, &fr);
   Frame fa = fr;
   if (in.aniso) fa = aniso_frame_at(r, fr.n, px(kPxTangent), in.rotation, normal_or(r, op.in[8], ctx));
   Vec3 weight = in.w;
@@ -220,7 +222,7 @@ namespace {
     c.exact = !prog.schlick;
     c.eta = in.coat_eta;
     c.f0 = Vec3(f0_from_ior(c.eta));
-    const Frame fc = glossy_frame_at(r, ctx, op.in[14] != kNoReg ? op.in[14] : op.in[8]);
+    const Frame fc = op.in[14] != kNoReg ? glossy_frame_at(r, ctx, op.in[14]) : fr;  // (fr: the same inputs)
     const float mu_c = std::fabs(dot(fc.n, ctx.wo));
     const EnergyCompensation comp = ggx_reflection_compensation(in.coat_rough, mu_c, Vec3(in.coat_fss));
     const Vec3 albedo = comp.darkening * dielectric_specular_albedo(in.coat_rough, mu_c, c.eta, c.f0);

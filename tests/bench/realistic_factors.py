@@ -6,6 +6,7 @@ process CPU seconds (all threads of both engines run in this process). Not named
 build.py runs those.
 
     .venv/bin/python tests/bench/realistic_factors.py [--scene hdri_model] [--seeds N] [--spp S] [--classes]
+        [--threads T] [--time-only]
 
 Each engine renders the scene N times at S spp with different seeds. A region's score is the
 mean over its pixels of var * S / (ref^2 + 1e-2), ref the mean of both engines' renders (the
@@ -36,6 +37,7 @@ import realistic_scenes as rs  # noqa: E402
 
 MAX_BOUNCES = 12
 SETTINGS = {}  # extra RenderSettings for Pathlight (path classes)
+THREADS = 0  # --threads: render threads of both engines (0: all)
 
 
 def object_masks(scene):
@@ -79,6 +81,9 @@ def object_masks(scene):
 
 def render(build, engine, spp, seed):
     scene = build()
+    if THREADS:  # both engines follow the scene's thread setting
+        scene.render.threads_mode = "FIXED"
+        scene.render.threads = THREADS
     if engine == "CYCLES":
         scene.cycles.pixel_filter_type = "BOX"
         scene.cycles.filter_width = 1.0
@@ -137,6 +142,8 @@ def main():
     ap.add_argument("--pathlight-only", action="store_true", help="Cycles' figures from the cache file")
     ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
                     help="Pathlight RenderSettings for every render (e.g. guiding=1), a Python literal each")
+    ap.add_argument("--threads", type=int, default=0, help="render threads of both engines (default: all)")
+    ap.add_argument("--time-only", action="store_true", help="only the CPU seconds per sample of both engines")
     ap.add_argument("--cache", default="/tmp/realistic_factors_{scene}_{seeds}x{spp}.npz")
     args = ap.parse_args()
     build = getattr(rs, args.scene)
@@ -145,6 +152,13 @@ def main():
     base = {k: ast.literal_eval(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     SETTINGS.update(base)
 
+    global THREADS
+    THREADS = args.threads
+    if args.time_only:
+        t_pl, t_cy = (cpu_per_sample(build, e, args.time_spp) for e in ("PATHLIGHT", "CYCLES"))
+        print(f"{args.scene}, {args.threads or 'all'} threads: CPU seconds per sample Pathlight {t_pl:.4g}, "
+              f"Cycles {t_cy:.4g} (Cycles / Pathlight {t_cy / t_pl:.2f}x)")
+        return
     cache = Path(args.cache.format(scene=args.scene, seeds=args.seeds, spp=args.spp))
     pl = np.stack([render(build, "PATHLIGHT", args.spp, 1000 + s)[0] for s in range(args.seeds)])
     if args.pathlight_only and cache.exists():
