@@ -2854,7 +2854,15 @@ PYBIND11_MODULE(pathlight_core, m) {
         if (x < 0 || y < 0 || width <= x) throw std::invalid_argument("need 0 <= x < width and y >= 0");
         const PixelPatternMap map(enum_from_name(pattern, "pixel_pattern", kPixelPatternNames), seed, length);
         const uint64_t pixel = uint64_t(y) * uint64_t(width) + uint64_t(x);
-        const SobolIndex si = map.map(map.pixel_base(x, y, pixel), sample);
+        // The row's bases as the session finds them (digits reused from the left), checked
+        // against the pixel's own.
+        std::vector<PixelPatternMap::PixelBase> row(size_t(x) + 1);
+        map.row_bases(0, x + 1, y, width, row.data());
+        const PixelPatternMap::PixelBase own = map.pixel_base(x, y, pixel);
+        if (own.key != row[size_t(x)].key || own.base != row[size_t(x)].base ||
+            own.first_index != row[size_t(x)].first_index)
+          throw std::logic_error("row_bases differs from pixel_base");
+        const SobolIndex si = map.map(own, sample);
         Sampler sampler(enum_from_name(type, "sampler", kSamplerNames), seed, pixel, sample, si.key, si.index);
         py::array_t<float> out({py::ssize_t(dims), py::ssize_t(2)});
         for (int d = 0; d < dims; ++d) {

@@ -456,11 +456,8 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   std::vector<PixelPatternMap::PixelBase> pattern_bases(patterned ? size_t(tw) * size_t(th) : 0);
   if (patterned)
     for (int y = y0; y < y1; ++y)
-      for (int x = x0; x < x1; ++x) {
-        const int fx = x + region_x_, fy = y + region_y_;
-        pattern_bases[size_t(y - y0) * size_t(tw) + size_t(x - x0)] =
-            pattern_map_.pixel_base(fx, fy, uint64_t(fy) * uint64_t(settings_.width) + uint64_t(fx));
-      }
+      pattern_map_.row_bases(x0 + region_x_, x1 + region_x_, y + region_y_, settings_.width,
+                             &pattern_bases[size_t(y - y0) * size_t(tw)]);
   for (int s = s0; s < s1; ++s) {
     if (cancel_.load(std::memory_order_relaxed)) break;
     if (adaptive && tile_active_[size_t(tile)] == 0) break;

@@ -33,20 +33,25 @@ struct SobolIndex {
 // Base-4 nested uniform (Owen) scramble of the low 2 * levels bits of a Morton code: each
 // base-4 digit is permuted by one of the 24 permutations, picked by a hash of the digits above
 // it, so the curve's quadrants are shuffled at every level and nearby pixels stay nearby.
-inline uint32_t owen_scramble_base4(uint32_t code, int levels, uint64_t seed) {
+// The digits of levels top .. 0 only (the rest of the result 0).
+inline uint32_t owen_scramble_base4_levels(uint32_t code, int levels, int top, uint64_t seed) {
   static constexpr uint8_t kPerm[24][4] = {
       {0, 1, 2, 3}, {0, 1, 3, 2}, {0, 2, 1, 3}, {0, 2, 3, 1}, {0, 3, 1, 2}, {0, 3, 2, 1},
       {1, 0, 2, 3}, {1, 0, 3, 2}, {1, 2, 0, 3}, {1, 2, 3, 0}, {1, 3, 0, 2}, {1, 3, 2, 0},
       {2, 0, 1, 3}, {2, 0, 3, 1}, {2, 1, 0, 3}, {2, 1, 3, 0}, {2, 3, 0, 1}, {2, 3, 1, 0},
       {3, 0, 1, 2}, {3, 0, 2, 1}, {3, 1, 0, 2}, {3, 1, 2, 0}, {3, 2, 0, 1}, {3, 2, 1, 0}};
   uint32_t out = 0;
-  for (int i = levels - 1; i >= 0; --i) {
+  for (int i = top; i >= 0; --i) {
     // The digits above this one, with a leading 1 so that levels do not share hashes.
     const uint64_t prefix = (uint64_t(code) >> (2 * i + 2)) | (uint64_t(1) << (2 * (levels - i - 1)));
     const uint32_t p = uint32_t((mix64(seed ^ (prefix * 0x9E3779B97F4A7C15ULL)) >> 32) % 24u);
     out |= uint32_t(kPerm[p][(code >> (2 * i)) & 3u]) << (2 * i);
   }
   return out;
+}
+
+inline uint32_t owen_scramble_base4(uint32_t code, int levels, uint64_t seed) {
+  return owen_scramble_base4_levels(code, levels, levels - 1, seed);
 }
 
 inline uint32_t morton2d(uint32_t x, uint32_t y) {
@@ -111,6 +116,44 @@ class PixelPatternMap {
       b.first_index = owen_scramble_base4(code, levels_, hash3(seed_, block, 0xF125ull));
     }
     return b;
+  }
+  // pixel_base of the pixels (x0 .. x1 - 1, y), row-major index y * width + x, into out: the
+  // same values, but a pixel's scramble reuses the digits above the first that differs from
+  // its left neighbour's code (about 2 of 10 levels hashed instead of all).
+  void row_bases(int x0, int x1, int y, int width, PixelBase* out) const {
+    if (pattern_ == PixelPattern::Independent) {
+      for (int x = x0; x < x1; ++x) out[x - x0] = pixel_base(x, y, uint64_t(y) * uint64_t(width) + uint64_t(x));
+      return;
+    }
+    const uint32_t mask = (1u << levels_) - 1u;
+    const uint32_t by = uint32_t(y) >> levels_;
+    uint64_t block = ~uint64_t(0), seed = 0, seed_first = 0;
+    uint32_t last_code = 0, last_out = 0, last_first = 0;
+    for (int x = x0; x < x1; ++x) {
+      PixelBase& b = out[x - x0];
+      const uint64_t blk = (uint64_t(1) << 63) | (uint64_t(by) << 32) | uint64_t(uint32_t(x) >> levels_);
+      const uint32_t code = morton2d(uint32_t(x) & mask, uint32_t(y) & mask);
+      int top = levels_ - 1;  // the highest base-4 digit to scramble again
+      if (blk != block) {
+        block = blk;
+        seed = hash3(seed_, block, 0xB1Eull);
+        seed_first = hash3(seed_, block, 0xF125ull);
+      } else {
+        const uint32_t diff = code ^ last_code;
+        top = diff ? (31 - __builtin_clz(diff)) / 2 : -1;
+      }
+      const uint32_t keep = top + 1 >= 16 ? 0u : ~((1u << (2 * (top + 1))) - 1u);
+      last_out = (last_out & keep) | owen_scramble_base4_levels(code, levels_, top, seed);
+      if (pattern_ == PixelPattern::BlueNoiseFirst)
+        last_first = (last_first & keep) | owen_scramble_base4_levels(code, levels_, top, seed_first);
+      last_code = code;
+      b.key = block;
+      b.base = last_out * length_;
+      if (pattern_ == PixelPattern::BlueNoiseFirst) {
+        b.first_key = block ^ (uint64_t(1) << 62);
+        b.first_index = last_first;
+      }
+    }
   }
   SobolIndex map(const PixelBase& b, uint32_t sample) const {
     switch (pattern_) {
