@@ -87,6 +87,11 @@ def test_first_pattern_keeps_sample_zero_apart(pc):
     assert _is_net(firsts)
     rest = _first_draws(pc, "blue_noise_first", quad, range(1, 5), 5)
     assert _is_net(rest)
+    # The viewport's renders: its 1-2 sample low-resolution pass and the full one.
+    scene = cornell(pc)
+    for spp in (1, 2, 5):
+        img = run_session(pc, scene, 24, 24, spp, pixel_pattern="blue_noise_first").film()
+        assert np.isfinite(img).all() and img[..., :3].mean() > 0.05
 
 
 def _lit_floor(pc):
