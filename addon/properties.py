@@ -86,6 +86,31 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         ),
         default='SOBOL',
     )
+    pixel_pattern: EnumProperty(
+        name="Noise Pattern",
+        description="How the pixels share their random sequences (Cycles' sampling pattern)",
+        items=(
+            ('AUTOMATIC', "Automatic", "Blue-Noise for renders, Blue-Noise (First) in the viewport, as "
+             "Cycles' Automatic"),
+            ('BLUE_NOISE', "Blue-Noise", "Each pixel a consecutive chunk, as long as the frame's samples, of "
+             "one sequence that neighbouring pixels share: their errors cancel, so regions and denoised "
+             "images converge faster, and no pixel is noisier"),
+            ('BLUE_NOISE_ROUND', "Blue-Noise (Round)", "Blue-Noise with chunks rounded up to a power of two "
+             "samples"),
+            ('BLUE_NOISE_FIRST', "Blue-Noise (First)", "The first sample blue noise of its own, the rest as "
+             "Blue-Noise: a blue-noise first sample for the viewport"),
+            ('INDEPENDENT', "Independent Pixels", "Each pixel its own sequence: neighbours' errors are "
+             "independent (Pathlight's pattern before blue noise)"),
+        ),
+        default='INDEPENDENT',
+    )
+    frame_samples: IntProperty(
+        name="Frame Samples",
+        description="The frame's total samples when it is rendered in pieces with Sample Offset (0: "
+                    "Sample Offset + Samples): blue noise lays its chunks out for this many, so that "
+                    "the pieces merge into one render",
+        default=0, min=0, max=(1 << 31) - 1,
+    )
     use_adaptive_sampling: BoolProperty(
         name="Noise Threshold",
         description="Stop sampling pixels whose noise is below the threshold",

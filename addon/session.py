@@ -232,9 +232,26 @@ def render_settings(pc, scene, warn=None):
     x, y, w, h = render_border(scene, warn)
     if (w, h) != (st.width, st.height):
         optional.update(border_x=x, border_y=y, border_width=w, border_height=h)
+    optional.update(_pixel_pattern(props, warn))
     for name, value in optional.items():  # (the add-on and its core ship together)
         setattr(st, name, value)
     return st
+
+
+def _pixel_pattern(props, warn, viewport=False):
+    """RenderSettings.pixel_pattern and pattern_samples of the scene's Noise Pattern and Frame
+    Samples. Automatic is Cycles' choice: blue noise, its First variant in the viewport."""
+    pattern = props.pixel_pattern
+    if pattern == 'AUTOMATIC':
+        pattern = 'BLUE_NOISE_FIRST' if viewport else 'BLUE_NOISE'
+    total = 0 if viewport else props.frame_samples
+    if total and total < props.sample_offset + props.samples:
+        if warn and pattern != 'INDEPENDENT':
+            warn(f"Frame Samples ({total}) is below Sample Offset + Samples "
+                 f"({props.sample_offset + props.samples}); using the latter, so this piece's blue "
+                 f"noise will not merge with the others' exactly")
+        total = 0
+    return {"pixel_pattern": pattern.lower(), "pattern_samples": total}
 
 
 def render_seed(scene):
@@ -284,6 +301,7 @@ def render(engine, depsgraph):
         if engine.is_preview:  # material thumbnails: small and quick
             settings.samples = min(settings.samples, PREVIEW_SAMPLES)
             settings.sample_offset = 0
+            settings.pattern_samples = 0
         known = pc.render_passes()
         for p in [p for p in passes if p[0] not in known]:
             warn(f"the {p[0]} pass is not rendered by Pathlight; it stays empty")

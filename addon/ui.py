@@ -43,10 +43,14 @@ class PATHLIGHT_RENDER_PT_sampling(PathlightPanel, bpy.types.Panel):
         col.prop(settings, "preview_samples")
         col = layout.column(align=True)
         col.prop(settings, "sampler")
+        col.prop(settings, "pixel_pattern")
         row = col.row(align=True)
         row.prop(settings, "seed")
         row.prop(settings, "use_animated_seed", text="", icon='TIME')
         col.prop(settings, "sample_offset")
+        sub = col.column(align=True)
+        sub.active = settings.sample_offset > 0 or settings.frame_samples > 0
+        sub.prop(settings, "frame_samples")
         layout.prop(settings, "use_nee")
         layout.prop(settings, "use_guiding")
 

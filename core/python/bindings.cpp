@@ -102,6 +102,10 @@ constexpr EnumNames<SamplerType> kSamplerNames = {{SamplerType::Sobol, "sobol"},
                                                    {SamplerType::SobolDeep, "sobol_deep"},
                                                    {SamplerType::Sobol4D, "sobol4d"},
                                                    {SamplerType::Sobol4DDeep, "sobol4d_deep"}};
+constexpr EnumNames<PixelPattern> kPixelPatternNames = {{PixelPattern::Independent, "independent"},
+                                                         {PixelPattern::BlueNoise, "blue_noise"},
+                                                         {PixelPattern::BlueNoiseRound, "blue_noise_round"},
+                                                         {PixelPattern::BlueNoiseFirst, "blue_noise_first"}};
 constexpr EnumNames<FilterType> kFilterNames = {
     {FilterType::Box, "box"}, {FilterType::Gaussian, "gaussian"}, {FilterType::BlackmanHarris, "blackman_harris"}};
 constexpr EnumNames<DebugView> kDebugViewNames = {{DebugView::None, "none"}, {DebugView::Bvh, "bvh"}};
@@ -2842,6 +2846,38 @@ PYBIND11_MODULE(pathlight_core, m) {
       "The first `dims` 2-D draws of the sampler (a RenderSettings.sampler name) for (seed, pixel, "
       "sample): (dims, 2). Exposed for tests.");
 
+  m.def(
+      "pattern_sampler_values",
+      [](const std::string& pattern, uint32_t seed, uint32_t length, int x, int y, int width, uint32_t sample,
+         int dims, const std::string& type) {
+        if (dims < 0 || dims > 1024) throw std::invalid_argument("dims must be in [0, 1024]");
+        if (x < 0 || y < 0 || width <= x) throw std::invalid_argument("need 0 <= x < width and y >= 0");
+        const PixelPatternMap map(enum_from_name(pattern, "pixel_pattern", kPixelPatternNames), seed, length);
+        const uint64_t pixel = uint64_t(y) * uint64_t(width) + uint64_t(x);
+        // The row's bases as the session finds them (digits reused from the left), checked
+        // against the pixel's own.
+        std::vector<PixelPatternMap::PixelBase> row(size_t(x) + 1);
+        map.row_bases(0, x + 1, y, width, row.data());
+        const PixelPatternMap::PixelBase own = map.pixel_base(x, y, pixel);
+        if (own.key != row[size_t(x)].key || own.base != row[size_t(x)].base ||
+            own.first_index != row[size_t(x)].first_index)
+          throw std::logic_error("row_bases differs from pixel_base");
+        const SobolIndex si = map.map(own, sample);
+        Sampler sampler(enum_from_name(type, "sampler", kSamplerNames), seed, pixel, sample, si.key, si.index);
+        py::array_t<float> out({py::ssize_t(dims), py::ssize_t(2)});
+        for (int d = 0; d < dims; ++d) {
+          const Vec2 u = sampler.get2d();
+          out.mutable_data()[2 * d] = u.x;
+          out.mutable_data()[2 * d + 1] = u.y;
+        }
+        return py::make_tuple(out, si.key, si.index, map.block_levels());
+      },
+      py::arg("pattern"), py::arg("seed"), py::arg("length"), py::arg("x"), py::arg("y"), py::arg("width"),
+      py::arg("sample"), py::arg("dims"), py::arg("sampler") = "sobol",
+      "The first `dims` 2-D draws of pixel (x, y)'s sample under a pixel pattern (a "
+      "RenderSettings.pixel_pattern name) with chunk length `length`: (draws (dims, 2), sequence key, "
+      "index, block levels). Exposed for tests.");
+
   py::class_<CameraDesc>(m, "Camera")
       .def(py::init<>())
       .def_property(
@@ -3086,6 +3122,17 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_property(
           "sampler", [](const RenderSettings& s) { return enum_name(s.sampler, kSamplerNames); },
           [](RenderSettings& s, const std::string& v) { s.sampler = enum_from_name(v, "sampler", kSamplerNames); })
+      .def_property(
+          "pixel_pattern", [](const RenderSettings& s) { return enum_name(s.pixel_pattern, kPixelPatternNames); },
+          [](RenderSettings& s, const std::string& v) {
+            s.pixel_pattern = enum_from_name(v, "pixel_pattern", kPixelPatternNames);
+          },
+          "Which sequence each pixel's samples take: 'independent' (its own), 'blue_noise' (a chunk of "
+          "one sequence the pixels share, as Cycles' default), 'blue_noise_round' (chunks rounded up to "
+          "a power of two), 'blue_noise_first' (sample 0 blue noise of its own, as Cycles' viewport)")
+      .def_readwrite("pattern_samples", &RenderSettings::pattern_samples,
+                     "Blue noise's chunk length: the frame's total samples, which the pieces of a split frame "
+                     "must share (0: sample_offset + samples)")
       .def_readwrite("adaptive_threshold", &RenderSettings::adaptive_threshold)
       .def_readwrite("adaptive_min_samples", &RenderSettings::adaptive_min_samples)
       .def_readwrite("diffuse_bounces", &RenderSettings::diffuse_bounces)

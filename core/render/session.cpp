@@ -44,6 +44,8 @@ void validate(const RenderSettings& s) {
   if (s.adaptive_min_samples < 0) throw std::invalid_argument("adaptive_min_samples must be >= 0");
   if (s.sample_offset < 0 || int64_t(s.sample_offset) + int64_t(s.samples) > int64_t(INT32_MAX))
     throw std::invalid_argument("sample_offset must be >= 0 and sample_offset + samples < 2^31");
+  if (s.pattern_samples != 0 && int64_t(s.pattern_samples) < int64_t(s.sample_offset) + int64_t(s.samples))
+    throw std::invalid_argument("pattern_samples must be 0 or at least sample_offset + samples");
   if (s.diffuse_bounces < 0 || s.glossy_bounces < 0 || s.transmission_bounces < 0 || s.volume_bounces < 0 ||
       s.transparent_bounces < 0)
     throw std::invalid_argument("bounce limits must be >= 0");
@@ -136,6 +138,11 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   }
   // The debug view is a deterministic picture of the BVH: one ray per pixel is all it takes.
   total_samples_ = settings_.debug_view == DebugView::Bvh ? 1 : settings_.samples;
+  // Adaptive sampling and a time limit keep the chunk length of all samples (as Cycles): a
+  // pixel that stops early has used the start of its chunk.
+  pattern_map_ = PixelPatternMap(settings_.pixel_pattern, settings_.seed,
+                                 uint32_t(std::max<int64_t>(settings_.pattern_samples,
+                                                            int64_t(settings_.sample_offset) + settings_.samples)));
   integrator_.transparent_background = settings_.film_transparent;
   integrator_.camera = &camera_;  // Session is neither copied nor moved
   integrator_.max_bounces = settings_.max_bounces;
@@ -444,6 +451,13 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   PathCounters counters;
   uint64_t nonfinite = 0, paths = 0;
   const bool adaptive = min_samples_ > 0;
+  // Blue noise: each pixel's sequence and chunk start, found once per tile.
+  const bool patterned = pattern_map_.pattern() != PixelPattern::Independent;
+  std::vector<PixelPatternMap::PixelBase> pattern_bases(patterned ? size_t(tw) * size_t(th) : 0);
+  if (patterned)
+    for (int y = y0; y < y1; ++y)
+      pattern_map_.row_bases(x0 + region_x_, x1 + region_x_, y + region_y_, settings_.width,
+                             &pattern_bases[size_t(y - y0) * size_t(tw)]);
   for (int s = s0; s < s1; ++s) {
     if (cancel_.load(std::memory_order_relaxed)) break;
     if (adaptive && tile_active_[size_t(tile)] == 0) break;
@@ -479,7 +493,11 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         // One independent stream per (seed, pixel, sample): thread- and pass-independent, and
         // keyed by the full-frame pixel, so a border renders exactly its part of the frame.
         const uint64_t pixel = uint64_t(fy) * uint64_t(settings_.width) + uint64_t(fx);
-        Sampler sampler(settings_.sampler, settings_.seed, pixel, uint32_t(settings_.sample_offset + s));
+        const uint32_t sample = uint32_t(settings_.sample_offset + s);
+        const SobolIndex si = patterned
+                                  ? pattern_map_.map(pattern_bases[size_t(y - y0) * size_t(tw) + size_t(x - x0)], sample)
+                                  : SobolIndex{pixel, sample};
+        Sampler sampler(settings_.sampler, settings_.seed, pixel, sample, si.key, si.index);
         const Vec2 j = sampler.get2d();  // dimension 0: position in the pixel (filter)
         // Dimension 1: the lens, taken only with an aperture, so pinhole renders keep the
         // same streams for their paths.

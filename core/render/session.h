@@ -14,6 +14,7 @@
 #include "render/film.h"
 #include "render/integrator.h"
 #include "render/pixel_filter.h"
+#include "util/pixel_pattern.h"
 #include "util/thread_pool.h"
 
 namespace pl {
@@ -45,6 +46,12 @@ struct RenderSettings {
   // Renders sample indices [sample_offset, sample_offset + samples): partial renders of one
   // frame on several machines, merged by sample count, equal one render of all samples.
   int sample_offset = 0;
+  // Which sequence and index each pixel's samples take (util/pixel_pattern.h): its own
+  // sequence, or blue noise (chunks of one shared sequence, as Cycles' default).
+  PixelPattern pixel_pattern = PixelPattern::Independent;
+  // Blue noise's chunk length: the frame's total samples, which pieces of a split frame
+  // (sample_offset) must share to compose into one render; 0 = sample_offset + samples.
+  int pattern_samples = 0;
   FilterType filter_type = FilterType::Box;
   float filter_width = 1.0f;  // pixels
   // Render border: only this rectangle of the width x height frame (pixels from the
@@ -184,6 +191,7 @@ class Session {
   bool motion_ = false;  // something moves: camera rays draw a shutter time
   int autofocus_ = 0;
   int total_samples_ = 0;
+  PixelPatternMap pattern_map_;
   IntegratorSettings integrator_;
   TraceFn kernel_ = nullptr;  // chosen once per session: no per-ray feature dispatch
   std::unique_ptr<GuidingField> guide_;  // path guiding's learnt field (null: no guiding)

@@ -141,12 +141,17 @@ inline float u32_to_unit(uint32_t x) { return static_cast<float>(x >> 8) * 0x1p-
 class Sampler {
  public:
   Sampler(SamplerType type, uint32_t seed, uint64_t pixel, uint32_t sample)
-      : sample_reversed_(reverse_bits(sample)),
+      : Sampler(type, seed, pixel, sample, pixel, sample) {}
+  // The Sobol draws from sequence `key` at `index` (a pixel pattern's mapping, pixel_pattern.h;
+  // key = pixel and index = sample is the pixel's own sequence); the PCG tail stays keyed by
+  // (seed, pixel, sample).
+  Sampler(SamplerType type, uint32_t seed, uint64_t pixel, uint32_t sample, uint64_t key, uint32_t index)
+      : sample_reversed_(reverse_bits(index)),
         sobol_dims_(type == SamplerType::Random ? 0u
                     : type == SamplerType::Sobol || type == SamplerType::Sobol4D ? kSobolDims
                                                                                  : UINT32_MAX),
         sets4_(type == SamplerType::Sobol4D || type == SamplerType::Sobol4DDeep),
-        base_(hash3(seed, pixel, 0x5EEDull)),
+        base_(hash3(seed, key, 0x5EEDull)),
         rng_(hash3(seed, pixel, sample), pixel) {}
 
   // Low discrepancy matters most for the first bounces; deeper dimensions use the cheaper

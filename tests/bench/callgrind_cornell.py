@@ -1,7 +1,7 @@
 """Instruction counts per sample of the Cornell box fixture's replica, for callgrind:
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \
-        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--principled] [--dynamic] [--no-rect] [--compact auto|on|off] [--size 64] [--spp 16] [--sampler sobol]
+        .venv/bin/python tests/bench/callgrind_cornell.py [--general] [--glass] [--principled] [--dynamic] [--no-rect] [--compact auto|on|off] [--size 64] [--spp 16] [--sampler sobol] [--pattern blue_noise]
 
 Only the render itself is instrumented (callgrind_control switches instrumentation on and off
 around it), so the counts are of the render: one thread, a fixed seed. PL_CORE_DIR=<dir> imports
@@ -31,6 +31,7 @@ ap.add_argument("--compact", choices=("auto", "on", "off"), default="auto",
 ap.add_argument("--size", type=int, default=64)
 ap.add_argument("--spp", type=int, default=16)
 ap.add_argument("--sampler", default="sobol", help="RenderSettings.sampler (sobol4d_deep, ...)")
+ap.add_argument("--pattern", default="independent", help="RenderSettings.pixel_pattern (blue_noise, ...)")
 a = ap.parse_args()
 pc = core()
 if a.transformed:
@@ -66,7 +67,8 @@ if a.no_rect:
 if hasattr(scene, "compact_bvh"):
     scene.compact_bvh = a.compact
 scene.commit()
-st = settings(pc, a.size, a.size, a.spp, threads=1, sampler=a.sampler)
+st = settings(pc, a.size, a.size, a.spp, threads=1, sampler=a.sampler,
+              **({"pixel_pattern": a.pattern} if a.pattern != "independent" else {}))
 if a.general and hasattr(st, "force_general_kernel"):
     st.force_general_kernel = True
 print(instrumented_render(pc, scene, st))

@@ -256,6 +256,9 @@ def test_flamenco_split_frame_tasks_cover_the_samples_once(samples, pieces):
     *tasks, merge = out["tasks"]
     assert len(tasks) == min(samples, pieces)  # pieces > samples: one sample per task
     ranges = [_task_range(t) for t in tasks]
+    # Every piece knows the frame's total, which blue noise lays its chunks out for.
+    for t in tasks:
+        assert f"pathlight.frame_samples = {samples};" in t["commands"][0]["parameters"]["args"][1]
     # Consecutive, disjoint, covering [0, samples) exactly once; balanced to within one.
     covered = np.zeros(samples, int)
     for offset, count in ranges:

@@ -81,6 +81,32 @@ def test_settings_reach_the_core():
     assert st.guiding_probability == pytest.approx(0.5)
 
 
+@needs_settings
+def test_noise_pattern_reaches_the_core():
+    """Noise Pattern and Frame Samples (the blue-noise pattern, docs/design/sampling.md): Automatic
+    is Blue-Noise for renders and Blue-Noise (First) in the viewport, as Cycles'; a Frame Samples
+    below the piece's own end warns and falls back."""
+    from addon.core import get_core
+    if not core_has("RenderSettings", "pixel_pattern"):
+        pytest.skip("core without pixel_pattern")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    props = scene.pathlight
+    for value, core_name in (('AUTOMATIC', "blue_noise"), ('BLUE_NOISE', "blue_noise"),
+                             ('BLUE_NOISE_ROUND', "blue_noise_round"),
+                             ('BLUE_NOISE_FIRST', "blue_noise_first"), ('INDEPENDENT', "independent")):
+        props.pixel_pattern = value
+        assert session.render_settings(get_core(), scene).pixel_pattern == core_name
+    props.pixel_pattern = 'AUTOMATIC'
+    assert session._pixel_pattern(props, None, viewport=True)["pixel_pattern"] == "blue_noise_first"
+    props.samples, props.sample_offset, props.frame_samples = 100, 200, 1000
+    assert session.render_settings(get_core(), scene).pattern_samples == 1000
+    warnings = []
+    props.frame_samples = 250  # below 200 + 100
+    st = session.render_settings(get_core(), scene, warnings.append)
+    assert st.pattern_samples == 0 and len(warnings) == 1 and "Frame Samples" in warnings[0]
+
+
 def test_animated_seed_adds_the_frame():
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
@@ -127,7 +153,8 @@ def test_panels_draw_existing_properties():
                 cls.draw(type("Panel", (), {"layout": layout})(), context)
                 shown.update(layout.props)
     # (Spot size and blend are in Blender's DATA_PT_spot, which Pathlight is added to.)
-    for name in ("samples", "adaptive_threshold", "adaptive_min_samples", "sampler", "seed",
+    for name in ("samples", "adaptive_threshold", "adaptive_min_samples", "sampler", "pixel_pattern",
+                 "frame_samples", "seed",
                  "use_animated_seed", "max_bounces", "diffuse_bounces", "glossy_bounces",
                  "transmission_bounces", "energy", "exposure", "color", "shadow_soft_size",
                  "angle", "shape", "size", "size_y", "use_shadow", "film_exposure",

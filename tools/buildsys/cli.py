@@ -76,6 +76,9 @@ def parse_args(argv):
     p.add_argument("--sample-offset", type=int, metavar="N",
                    help="render sample indices N .. N+samples-1 (farm splitting: partial renders "
                         "with consecutive offsets merge with `build.py merge`; docs/farm.md)")
+    p.add_argument("--frame-samples", type=int, metavar="N",
+                   help="the frame's total samples when it is rendered in pieces with "
+                        "--sample-offset, so that blue-noise pieces merge into one render (docs/farm.md)")
     p.add_argument("-v", "--verbose", action="store_true",
                    help="keep Blender's own status line for every update")
 

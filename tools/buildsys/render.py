@@ -43,6 +43,9 @@ def render_options(args):
     sample_offset = getattr(args, "sample_offset", None)  # the options added later are optional
     if sample_offset is not None and sample_offset < 0:
         raise UserError("--sample-offset must be at least 0")
+    frame_samples = getattr(args, "frame_samples", None)
+    if frame_samples is not None and frame_samples < 0:
+        raise UserError("--frame-samples must be at least 0")
     frames = frame_range(args)
     if frames[0] != frames[1] and "#" not in out.name:
         # Blender's convention: '#'s become the zero-padded frame number.
@@ -51,7 +54,7 @@ def render_options(args):
         "scene": str(scene.resolve()), "output": str(out.resolve()), "format": fmt,
         "samples": args.samples, "time_limit": args.time_limit, "threads": args.threads,
         "seed": args.seed, "frame": frames[0], "frame_end": frames[1], "verbose": args.verbose,
-        "sample_offset": sample_offset,
+        "sample_offset": sample_offset, "frame_samples": frame_samples,
     }
 
 
@@ -161,8 +164,8 @@ def render_in_venv(opts):
         raise UserError(f"scene '{scene.name}' has no active camera")
 
     settings = getattr(scene, "pathlight", None)
-    for name in ("samples", "time_limit", "seed", "sample_offset"):
-        if opts[name] is not None:
+    for name in ("samples", "time_limit", "seed", "sample_offset", "frame_samples"):
+        if opts.get(name) is not None:
             if settings is None or not hasattr(settings, name):
                 raise UserError(f"the add-on has no scene.pathlight.{name} setting")
             setattr(settings, name, opts[name])

@@ -63,6 +63,7 @@ function compileJob(job) {
                     "sc = bpy.context.scene",
                     `sc.pathlight.samples = ${r.count}`,
                     `sc.pathlight.sample_offset = ${r.offset}`,
+                    `sc.pathlight.frame_samples = ${samples}`,  // the frame's total: blue noise's chunks
                     "sc.pathlight.use_adaptive_sampling = False",
                     "sc.pathlight.time_limit = 0",
                     "sc.render.use_compositing = False",
