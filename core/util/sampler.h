@@ -12,7 +12,9 @@
 // SobolDeep is the same pairs for every bounce; Sobol4D groups consecutive 2-D draws in twos
 // as 4-D Owen-scrambled Sobol sets (Sobol dimensions 0-3 under one shuffled index, as Cycles'
 // sobol_burley_sample_4D): pixel + lens, light choice + roulette + light point, closure + lobe
-// + BSDF direction; Sobol4DDeep is both.
+// + BSDF direction; Sobol4DDeep is both. Sobol4DRoulette is Sobol4D with the Russian roulette
+// on a number of its own (Cycles' PRNG_TERMINATE: a 1-D sequence per bounce, roulette()), not
+// on the light set's second dimension.
 #pragma once
 #include <cstdint>
 #if defined(__SSSE3__)
@@ -24,7 +26,7 @@
 
 namespace pl {
 
-enum class SamplerType : uint8_t { Sobol, Random, SobolDeep, Sobol4D, Sobol4DDeep };
+enum class SamplerType : uint8_t { Sobol, Random, SobolDeep, Sobol4D, Sobol4DDeep, Sobol4DRoulette };
 
 inline uint32_t reverse_bits(uint32_t x) {
 #if defined(__SSSE3__)
@@ -143,9 +145,10 @@ class Sampler {
   Sampler(SamplerType type, uint32_t seed, uint64_t pixel, uint32_t sample)
       : sample_reversed_(reverse_bits(sample)),
         sobol_dims_(type == SamplerType::Random ? 0u
-                    : type == SamplerType::Sobol || type == SamplerType::Sobol4D ? kSobolDims
-                                                                                 : UINT32_MAX),
-        sets4_(type == SamplerType::Sobol4D || type == SamplerType::Sobol4DDeep),
+                    : type == SamplerType::SobolDeep || type == SamplerType::Sobol4DDeep ? UINT32_MAX
+                                                                                         : kSobolDims),
+        sets4_(type == SamplerType::Sobol4D || type == SamplerType::Sobol4DDeep || type == SamplerType::Sobol4DRoulette),
+        own_roulette_(type == SamplerType::Sobol4DRoulette),
         base_(hash3(seed, pixel, 0x5EEDull)),
         rng_(hash3(seed, pixel, sample), pixel) {}
 
@@ -184,6 +187,16 @@ class Sampler {
     }
     ++dim_;
   }
+  // Whether the roulette takes roulette(bounce) rather than the light set's number.
+  bool own_roulette() const { return own_roulette_; }
+  // The roulette's number at `bounce`, as Cycles' PRNG_TERMINATE: a 1-D Owen-scrambled Sobol
+  // sequence of its own per bounce (own shuffle and scramble, keyed apart from the layout's
+  // draws), so it is stratified over the samples yet independent of the light and BSDF sets.
+  float roulette(int bounce) const {
+    const uint64_t h = mix64(base_ ^ ((uint64_t(uint32_t(bounce)) + kRouletteKey) * 0x9E3779B97F4A7C15ULL));
+    const uint32_t index = reverse_bits(laine_karras_permutation(sample_reversed_, uint32_t(h)));
+    return u32_to_unit(reverse_bits(laine_karras_permutation(index, uint32_t(h >> 32))));
+  }
   // With 4-D sets, moves to the start of the next set (after the camera's draws, so that each
   // bounce's light and BSDF draws fill whole sets); otherwise nothing.
   void align_set() {
@@ -207,9 +220,11 @@ class Sampler {
     }
     return {u32_to_unit(x), u32_to_unit(y)};
   }
+  static constexpr uint64_t kRouletteKey = 1ull << 32;  // above every draw's dimension
   uint32_t sample_reversed_;
   uint32_t sobol_dims_;  // 2-D draws from Sobol; PCG32 after
   bool sets4_;
+  bool own_roulette_;
   uint64_t base_;
   uint32_t dim_ = 0;
   Pcg32 rng_;

@@ -696,6 +696,34 @@ def test_sobol_variants_match_their_definitions_and_stratify_in_4d():
         pc.sampler_values(3, 77, 0, 4, "halton")
 
 
+def roulette_reference(seed, pixel, sample, bounce):
+    """sobol4d_rr's Russian roulette number (Cycles' PRNG_TERMINATE): a 1-D Owen-scrambled
+    Sobol sequence per bounce, keyed apart from the layout's draws (bounce + 2^32)."""
+    base = _mix64(((seed * 0x9E3779B97F4A7C15) & M64) ^ _mix64((pixel + 0x632BE59BD9B4E019) & M64)
+                  ^ _mix64(0x5EED ^ 0x8CB92BA72F3D8DD7))
+    h = _mix64(base ^ (((bounce + 2**32) * 0x9E3779B97F4A7C15) & M64))
+    index = _nested_uniform_scramble(sample, h & M32)
+    return (_nested_uniform_scramble(_rev(index), h >> 32) >> 8) * 2.0**-24
+
+
+def test_roulette_on_its_own_sequence():
+    # sobol4d_rr: sobol4d's draws, and the roulette's own number per bounce
+    for seed, pixel, sample in [(0, 0, 0), (7, 123456, 1023), (2**32 - 1, 2**40 + 3, 2**31 + 5)]:
+        np.testing.assert_array_equal(pc.sampler_values(seed, pixel, sample, 16, "sobol4d_rr"),
+                                      pc.sampler_values(seed, pixel, sample, 16, "sobol4d"))
+        for bounce in (0, 3, 11, 1000):
+            assert pc.sampler_roulette(seed, pixel, sample, bounce, "sobol4d_rr") == \
+                np.float32(roulette_reference(seed, pixel, sample, bounce)), (seed, pixel, sample, bounce)
+    assert pc.sampler_roulette(3, 77, 5, 3) == -1.0 == pc.sampler_roulette(3, 77, 5, 3, "sobol4d")
+    # stratified over the samples: 256 samples in 256 strata once each, at every bounce; and
+    # other bounces' (and pixels') sequences are others
+    r = np.array([[pc.sampler_roulette(3, 77, i, b, "sobol4d_rr") for b in (3, 4)] for i in range(256)]
+                 + [[pc.sampler_roulette(3, 78, i, 3, "sobol4d_rr"), 0.0] for i in range(256)])
+    for col in (r[:256, 0], r[:256, 1], r[256:, 0]):
+        assert np.histogram(col, bins=256, range=(0, 1))[0].max() == 1
+    assert not np.array_equal(r[:256, 0], r[:256, 1]) and not np.array_equal(r[:256, 0], r[256:, 0])
+
+
 @pytest.mark.converged
 def test_sobol_converges_faster_than_random():
     ref, _ = render(pc, cornell(pc), 32, 32, samples=2048)
