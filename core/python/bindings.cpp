@@ -102,7 +102,8 @@ constexpr EnumNames<SamplerType> kSamplerNames = {{SamplerType::Sobol, "sobol"},
                                                    {SamplerType::SobolDeep, "sobol_deep"},
                                                    {SamplerType::Sobol4D, "sobol4d"},
                                                    {SamplerType::Sobol4DDeep, "sobol4d_deep"},
-                                                   {SamplerType::Sobol4DRoulette, "sobol4d_rr"}};
+                                                   {SamplerType::Sobol4DRoulette, "sobol4d_rr"},
+                                                   {SamplerType::Sobol4DCycles, "sobol4d_cycles"}};
 constexpr EnumNames<FilterType> kFilterNames = {
     {FilterType::Box, "box"}, {FilterType::Gaussian, "gaussian"}, {FilterType::BlackmanHarris, "blackman_harris"}};
 constexpr EnumNames<DebugView> kDebugViewNames = {{DebugView::None, "none"}, {DebugView::Bvh, "bvh"}};

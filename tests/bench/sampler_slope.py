@@ -4,7 +4,7 @@
 
   .venv/bin/python tests/bench/sampler_slope.py instanced_forest [--ref-spp 4096] [--seeds 4]
       [--spp 16,256,1024] [--samplers SOBOL,SOBOL_DEEP,SOBOL4D,SOBOL4D_DEEP] [--cycles-ref]
-      [--robust] [--seeds-at 16:24,64:24,256:8]
+      [--robust] [--seeds-at 16:24,64:24,256:8] [--ref-cache ref.npz]
 
 The reference is the mean of two Pathlight renders (Sobol, seeds 9000-9001), plus two Cycles
 renders with --cycles-ref (as the issue's first measurement); the reference's own noise (from the
@@ -62,6 +62,7 @@ def main():
     ap.add_argument("--cycles-ref", action="store_true")
     ap.add_argument("--robust", action="store_true")
     ap.add_argument("--seeds-at", default="", help="seeds per spp, e.g. 16:24,64:24,256:8")
+    ap.add_argument("--ref-cache", help="an .npz that keeps the reference renders between runs")
     a = ap.parse_args()
 
     sc = build(a.scene)  # once: the renders differ only in settings (the export cache helps)
@@ -77,7 +78,12 @@ def main():
 
     t0 = time.time()
     engines = ("PATHLIGHT", "CYCLES") if a.cycles_ref else ("PATHLIGHT",)
-    refs = [[run(e, a.ref_spp, 9000 + k) for k in range(2)] for e in engines]
+    if a.ref_cache and os.path.exists(a.ref_cache):
+        refs = list(np.load(a.ref_cache)["refs"])
+    else:
+        refs = [[run(e, a.ref_spp, 9000 + k) for k in range(2)] for e in engines]
+        if a.ref_cache:
+            np.savez(a.ref_cache, refs=np.asarray(refs))
     ref = np.mean([r for pair in refs for r in pair], axis=0)
     # a render pair's rel. MSE is twice one render's; the mean of 2n renders has 1/(2n) of it
     floor = np.mean([rel_mse(p[0], p[1]) for p in refs]) / 2 / (2 * len(refs))
