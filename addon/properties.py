@@ -83,6 +83,10 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
             ('SOBOL_DEEP', "Sobol (All Bounces)", "Sobol pairs for every bounce, not only the first few"),
             ('SOBOL4D', "Sobol 4-D Sets", "4-D Owen-scrambled Sobol sets (pixel + lens, light, BSDF)"),
             ('SOBOL4D_DEEP', "Sobol 4-D Sets (All Bounces)", "4-D Sobol sets for every bounce"),
+            ('SOBOL4D_RR', "Sobol 4-D Sets, Own Roulette",
+             "4-D Sobol sets, Russian roulette on a sequence of its own (as Cycles)"),
+            ('SOBOL4D_CYCLES', "Sobol 4-D Sets, Cycles' Order",
+             "4-D Sobol sets, own roulette, points on the sets' first two dimensions (as Cycles)"),
         ),
         default='SOBOL',
     )

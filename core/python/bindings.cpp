@@ -101,7 +101,9 @@ constexpr EnumNames<SamplerType> kSamplerNames = {{SamplerType::Sobol, "sobol"},
                                                    {SamplerType::Random, "random"},
                                                    {SamplerType::SobolDeep, "sobol_deep"},
                                                    {SamplerType::Sobol4D, "sobol4d"},
-                                                   {SamplerType::Sobol4DDeep, "sobol4d_deep"}};
+                                                   {SamplerType::Sobol4DDeep, "sobol4d_deep"},
+                                                   {SamplerType::Sobol4DRoulette, "sobol4d_rr"},
+                                                   {SamplerType::Sobol4DCycles, "sobol4d_cycles"}};
 constexpr EnumNames<PixelPattern> kPixelPatternNames = {{PixelPattern::Independent, "independent"},
                                                          {PixelPattern::BlueNoise, "blue_noise"},
                                                          {PixelPattern::BlueNoiseRound, "blue_noise_round"},
@@ -2845,6 +2847,15 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("seed"), py::arg("pixel"), py::arg("sample"), py::arg("dims"), py::arg("sampler") = "sobol",
       "The first `dims` 2-D draws of the sampler (a RenderSettings.sampler name) for (seed, pixel, "
       "sample): (dims, 2). Exposed for tests.");
+  m.def(
+      "sampler_roulette",
+      [](uint32_t seed, uint64_t pixel, uint32_t sample, int bounce, const std::string& type) {
+        const Sampler sampler(enum_from_name(type, "sampler", kSamplerNames), seed, pixel, sample);
+        return sampler.own_roulette() ? sampler.roulette(bounce) : -1.0f;
+      },
+      py::arg("seed"), py::arg("pixel"), py::arg("sample"), py::arg("bounce"), py::arg("sampler") = "sobol",
+      "The Russian roulette's own number at `bounce` (Cycles' PRNG_TERMINATE), or -1 where the "
+      "sampler takes the light set's. Exposed for tests.");
 
   m.def(
       "pattern_sampler_values",

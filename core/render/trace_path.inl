@@ -1227,7 +1227,8 @@ restart: __attribute__((unused));
           if (last) emission_only = true;
           if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
             const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
-            if (u_rr < 0.0f) u_rr = sampler.get2d().x;
+            if (sampler.own_roulette()) u_rr = sampler.roulette(bounce);
+            else if (u_rr < 0.0f) u_rr = sampler.get2d().x;
             if (!(survive > 0.0f) || u_rr >= survive) break;
             beta = beta / survive;
           }
@@ -1865,7 +1866,8 @@ restart: __attribute__((unused));
       // (|beta|: heterogeneous media with majorants too small give signed weights, which the
       // roulette must not cut; the same value elsewhere)
       const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
-      if (u_rr < 0.0f) u_rr = sampler.get2d().x;
+      if (sampler.own_roulette()) u_rr = sampler.roulette(bounce);  // (Cycles' PRNG_TERMINATE)
+      else if (u_rr < 0.0f) u_rr = sampler.get2d().x;
       if (!(survive > 0.0f) || u_rr >= survive) break;
       beta = beta / survive;
     }

@@ -12,7 +12,11 @@
 // SobolDeep is the same pairs for every bounce; Sobol4D groups consecutive 2-D draws in twos
 // as 4-D Owen-scrambled Sobol sets (Sobol dimensions 0-3 under one shuffled index, as Cycles'
 // sobol_burley_sample_4D): pixel + lens, light choice + roulette + light point, closure + lobe
-// + BSDF direction; Sobol4DDeep is both.
+// + BSDF direction; Sobol4DDeep is both. Sobol4DRoulette is Sobol4D with the Russian roulette
+// on a number of its own (Cycles' PRNG_TERMINATE: a 1-D sequence per bounce, roulette()), not
+// on the light set's second dimension. Sobol4DCycles is Sobol4DRoulette in Cycles' order: past
+// the camera's set, the 2-D points (light point, BSDF direction) take the set's Sobol
+// dimensions 0-1, a (0,2)-sequence, and the choices 2-3 (Cycles' rand_light / rand_bsdf .xy, .z).
 #pragma once
 #include <cstdint>
 #if defined(__SSSE3__)
@@ -24,7 +28,7 @@
 
 namespace pl {
 
-enum class SamplerType : uint8_t { Sobol, Random, SobolDeep, Sobol4D, Sobol4DDeep };
+enum class SamplerType : uint8_t { Sobol, Random, SobolDeep, Sobol4D, Sobol4DDeep, Sobol4DRoulette, Sobol4DCycles };
 
 inline uint32_t reverse_bits(uint32_t x) {
 #if defined(__SSSE3__)
@@ -148,9 +152,12 @@ class Sampler {
   Sampler(SamplerType type, uint32_t seed, uint64_t pixel, uint32_t sample, uint64_t key, uint32_t index)
       : sample_reversed_(reverse_bits(index)),
         sobol_dims_(type == SamplerType::Random ? 0u
-                    : type == SamplerType::Sobol || type == SamplerType::Sobol4D ? kSobolDims
-                                                                                 : UINT32_MAX),
-        sets4_(type == SamplerType::Sobol4D || type == SamplerType::Sobol4DDeep),
+                    : type == SamplerType::SobolDeep || type == SamplerType::Sobol4DDeep ? UINT32_MAX
+                                                                                         : kSobolDims),
+        sets4_(type == SamplerType::Sobol4D || type == SamplerType::Sobol4DDeep || type == SamplerType::Sobol4DRoulette ||
+               type == SamplerType::Sobol4DCycles),
+        own_roulette_(type == SamplerType::Sobol4DRoulette || type == SamplerType::Sobol4DCycles),
+        points_low_(type == SamplerType::Sobol4DCycles),
         base_(hash3(seed, key, 0x5EEDull)),
         rng_(hash3(seed, pixel, sample), pixel) {}
 
@@ -189,6 +196,16 @@ class Sampler {
     }
     ++dim_;
   }
+  // Whether the roulette takes roulette(bounce) rather than the light set's number.
+  bool own_roulette() const { return own_roulette_; }
+  // The roulette's number at `bounce`, as Cycles' PRNG_TERMINATE: a 1-D Owen-scrambled Sobol
+  // sequence of its own per bounce (own shuffle and scramble, keyed apart from the layout's
+  // draws), so it is stratified over the samples yet independent of the light and BSDF sets.
+  float roulette(int bounce) const {
+    const uint64_t h = mix64(base_ ^ ((uint64_t(uint32_t(bounce)) + kRouletteKey) * 0x9E3779B97F4A7C15ULL));
+    const uint32_t index = reverse_bits(laine_karras_permutation(sample_reversed_, uint32_t(h)));
+    return u32_to_unit(reverse_bits(laine_karras_permutation(index, uint32_t(h >> 32))));
+  }
   // With 4-D sets, moves to the start of the next set (after the camera's draws, so that each
   // bounce's light and BSDF draws fill whole sets); otherwise nothing.
   void align_set() {
@@ -197,12 +214,13 @@ class Sampler {
 
  private:
   // 4-D sets: two consecutive draws share the set's shuffled index; the second takes the set's
-  // Sobol dimensions 2 and 3, each with its own scramble.
+  // Sobol dimensions 2 and 3 (points_low_, past the camera's set: the first), each with its own
+  // scramble.
   [[gnu::noinline]] Vec2 get2d_set4(uint32_t dim) const {
     const uint64_t h = mix64(base_ ^ (uint64_t(dim >> 1) * 0x9E3779B97F4A7C15ULL));
     const uint32_t index = reverse_bits(laine_karras_permutation(sample_reversed_, uint32_t(h)));
     uint32_t x, y;
-    if (dim & 1u) {
+    if (bool(dim & 1u) != (points_low_ && dim >= 2u)) {
       const uint64_t h2 = mix64(h ^ 0xC2B2AE3D27D4EB4FULL);
       x = reverse_bits(laine_karras_permutation(kSobolDim2Bytes(index), uint32_t(h2 >> 32)));
       y = reverse_bits(laine_karras_permutation(kSobolDim3Bytes(index), uint32_t(h2)));
@@ -212,9 +230,12 @@ class Sampler {
     }
     return {u32_to_unit(x), u32_to_unit(y)};
   }
+  static constexpr uint64_t kRouletteKey = 1ull << 32;  // above every draw's dimension
   uint32_t sample_reversed_;
   uint32_t sobol_dims_;  // 2-D draws from Sobol; PCG32 after
   bool sets4_;
+  bool own_roulette_;
+  bool points_low_;
   uint64_t base_;
   uint32_t dim_ = 0;
   Pcg32 rng_;

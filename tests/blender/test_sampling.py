@@ -61,7 +61,7 @@ def test_settings_reach_the_core():
     assert st.sampler == "random"
     assert st.adaptive_threshold == pytest.approx(0.05) and st.adaptive_min_samples == 24
     assert (st.diffuse_bounces, st.glossy_bounces, st.transmission_bounces) == (3, 5, 7)
-    for variant in ('SOBOL_DEEP', 'SOBOL4D', 'SOBOL4D_DEEP'):  # the opt-in measurement patterns
+    for variant in ('SOBOL_DEEP', 'SOBOL4D', 'SOBOL4D_DEEP', 'SOBOL4D_RR', 'SOBOL4D_CYCLES'):  # the opt-in measurement patterns
         props.sampler = variant
         assert session.render_settings(get_core(), scene).sampler == variant.lower()
     props.use_adaptive_sampling = False

@@ -638,18 +638,18 @@ def _sobol_joe_kuo(index, s, a, m):
     return r
 
 
-def sobol_reference(seed, pixel, sample, dims, sets4=False):
+def sobol_reference(seed, pixel, sample, dims, sets4=False, points_low=False):
     """The sampler's Owen-scrambled Sobol draws, written out in Python integers from the
     definitions (Burley 2020), not from the core's shortcuts (byte tables, shuffle reversals).
     sets4: the 4-D sets of the sobol4d samplers (two draws per shuffled index, the second from
-    Sobol dimensions 2 and 3)."""
+    Sobol dimensions 2 and 3; points_low: past the first set, the first from 2 and 3)."""
     base = _mix64(((seed * 0x9E3779B97F4A7C15) & M64) ^ _mix64((pixel + 0x632BE59BD9B4E019) & M64)
                   ^ _mix64(0x5EED ^ 0x8CB92BA72F3D8DD7))
     out = []
     for dim in range(dims):
         h = _mix64(base ^ (((dim // 2 if sets4 else dim) * 0x9E3779B97F4A7C15) & M64))
         index = _nested_uniform_scramble(sample, h & M32)  # the shuffled sample index
-        if sets4 and dim % 2:
+        if sets4 and (dim % 2 == 1) != (points_low and dim >= 2):
             h2 = _mix64(h ^ 0xC2B2AE3D27D4EB4F)
             x = _nested_uniform_scramble(_sobol_joe_kuo(index, 2, 1, (1, 3)), h2 >> 32)
             y = _nested_uniform_scramble(_sobol_joe_kuo(index, 3, 1, (1, 3, 1)), h2 & M32)
@@ -694,6 +694,40 @@ def test_sobol_variants_match_their_definitions_and_stratify_in_4d():
     assert np.histogram(w[:, 30, 0], bins=256, range=(0, 1))[0].max() > 1
     with pytest.raises(ValueError):
         pc.sampler_values(3, 77, 0, 4, "halton")
+
+
+def roulette_reference(seed, pixel, sample, bounce):
+    """sobol4d_rr's Russian roulette number (Cycles' PRNG_TERMINATE): a 1-D Owen-scrambled
+    Sobol sequence per bounce, keyed apart from the layout's draws (bounce + 2^32)."""
+    base = _mix64(((seed * 0x9E3779B97F4A7C15) & M64) ^ _mix64((pixel + 0x632BE59BD9B4E019) & M64)
+                  ^ _mix64(0x5EED ^ 0x8CB92BA72F3D8DD7))
+    h = _mix64(base ^ (((bounce + 2**32) * 0x9E3779B97F4A7C15) & M64))
+    index = _nested_uniform_scramble(sample, h & M32)
+    return (_nested_uniform_scramble(_rev(index), h >> 32) >> 8) * 2.0**-24
+
+
+def test_roulette_on_its_own_sequence():
+    # sobol4d_rr: sobol4d's draws, and the roulette's own number per bounce
+    for seed, pixel, sample in [(0, 0, 0), (7, 123456, 1023), (2**32 - 1, 2**40 + 3, 2**31 + 5)]:
+        np.testing.assert_array_equal(pc.sampler_values(seed, pixel, sample, 16, "sobol4d_rr"),
+                                      pc.sampler_values(seed, pixel, sample, 16, "sobol4d"))
+        for bounce in (0, 3, 11, 1000):
+            assert pc.sampler_roulette(seed, pixel, sample, bounce, "sobol4d_rr") == \
+                np.float32(roulette_reference(seed, pixel, sample, bounce)), (seed, pixel, sample, bounce)
+    assert pc.sampler_roulette(3, 77, 5, 3) == -1.0 == pc.sampler_roulette(3, 77, 5, 3, "sobol4d")
+    # sobol4d_cycles: the same roulette; past the camera's set, the sets' halves swapped
+    for seed, pixel, sample in [(0, 0, 0), (7, 123456, 1023), (2**32 - 1, 2**40 + 3, 2**31 + 5)]:
+        np.testing.assert_array_equal(pc.sampler_values(seed, pixel, sample, 16, "sobol4d_cycles"),
+                                      sobol_reference(seed, pixel, sample, 16, True, points_low=True))
+        assert pc.sampler_roulette(seed, pixel, sample, 5, "sobol4d_cycles") == \
+            pc.sampler_roulette(seed, pixel, sample, 5, "sobol4d_rr")
+    # stratified over the samples: 256 samples in 256 strata once each, at every bounce; and
+    # other bounces' (and pixels') sequences are others
+    r = np.array([[pc.sampler_roulette(3, 77, i, b, "sobol4d_rr") for b in (3, 4)] for i in range(256)]
+                 + [[pc.sampler_roulette(3, 78, i, 3, "sobol4d_rr"), 0.0] for i in range(256)])
+    for col in (r[:256, 0], r[:256, 1], r[256:, 0]):
+        assert np.histogram(col, bins=256, range=(0, 1))[0].max() == 1
+    assert not np.array_equal(r[:256, 0], r[:256, 1]) and not np.array_equal(r[:256, 0], r[256:, 0])
 
 
 @pytest.mark.converged
