@@ -19,21 +19,12 @@ here = Path(__file__).resolve().parent
 sys.path[:0] = [str(here), str(here.parent / "core"), str(here.parent / "blender")]
 os.environ.setdefault("PATHLIGHT_CYCLES_REFS", "render")  # measurements: store nothing
 import numpy as np  # noqa: E402
-from blender_util import load_addon, open_fixture, render_to_array  # noqa: E402
+from blender_util import load_addon, render_to_array  # noqa: E402
 
 load_addon()
-import realistic_scenes as rs  # noqa: E402
+from sampler_slope import build  # noqa: E402  (the realistic scenes, or 'cornell')
 
 REGION = 8
-
-
-def build(name):
-    if name == "cornell":  # the tests' Cornell box fixture, 96 x 96
-        sc = open_fixture("cornell_box")
-        sc.render.resolution_x = sc.render.resolution_y = 96
-        sc.render.resolution_percentage = 100
-        return sc
-    return getattr(rs, name)()
 
 
 def stats(imgs):
