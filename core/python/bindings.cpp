@@ -2869,7 +2869,7 @@ PYBIND11_MODULE(pathlight_core, m) {
         // against the pixel's own.
         std::vector<PixelPatternMap::PixelBase> row(size_t(x) + 1);
         map.row_bases(0, x + 1, y, width, row.data());
-        const PixelPatternMap::PixelBase own = map.pixel_base(x, y, pixel);
+        const PixelPatternMap::PixelBase own = map.pixel_base(x, y, width);
         if (own.key != row[size_t(x)].key || own.base != row[size_t(x)].base ||
             own.first_index != row[size_t(x)].first_index)
           throw std::logic_error("row_bases differs from pixel_base");

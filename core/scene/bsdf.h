@@ -55,10 +55,10 @@ inline float bump_shadowing(Vec3 ns, Vec3 wi) {
 }
 
 // A microfacet lobe's D(m), G1(wo) and G(wo, wi) with D and Lambda(wo) computed once (Ggx or
-// Beckmann); pdf_visible is the same expression as the distribution's.
+// Beckmann); pdf_visible gives the distribution's pdf_visible from them.
 struct MicrofacetTerms {
   float d, g1o, g;
-  float pdf_visible(Vec3 wo, Vec3 m) const { return g1o * std::max(0.0f, dot(wo, m)) * d / std::fabs(wo.z); }
+  float pdf_visible(Vec3 wo, Vec3 m) const { return visible_normal_pdf(g1o, d, wo, m); }
 };
 template <class Dist>
 [[gnu::always_inline]] inline MicrofacetTerms microfacet_terms(const Dist& g, Vec3 wo, Vec3 wi, Vec3 m) {

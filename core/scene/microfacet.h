@@ -47,6 +47,12 @@ inline Vec3 fresnel_schlick(Vec3 f0, float cos_i) {
 
 // alpha is the roughness along the frame's first axis (x, the tangent), alpha_y along its
 // second: anisotropic GGX (Heitz 2014) where they differ; the isotropic formulas otherwise.
+// Density of visible normals m seen from wo (wo.z > 0), from G1(wo) and D(m): Heitz's
+// D_wo(m), shared by the distributions and by callers holding G1 and D already.
+inline float visible_normal_pdf(float g1o, float d, Vec3 wo, Vec3 m) {
+  return g1o * std::max(0.0f, dot(wo, m)) * d / std::fabs(wo.z);
+}
+
 struct Ggx {
   float alpha;
   float alpha_y = alpha;
@@ -76,7 +82,7 @@ struct Ggx {
   float G(Vec3 wo, Vec3 wi) const { return 1.0f / (1.0f + lambda(wo) + lambda(wi)); }
   // Density of visible normals m as seen from wo (wo.z > 0).
   float pdf_visible(Vec3 wo, Vec3 m) const {
-    return G1(wo) * std::max(0.0f, dot(wo, m)) * D(m) / std::fabs(wo.z);
+    return visible_normal_pdf(G1(wo), D(m), wo, m);
   }
   // Samples a visible normal for wo (wo.z > 0): the view stretched to the unit-roughness
   // configuration, a visible hemisphere normal there, then unstretched (one code for both).

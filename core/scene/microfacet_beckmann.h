@@ -70,7 +70,7 @@ struct Beckmann {
   float G(Vec3 wo, Vec3 wi) const { return 1.0f / (1.0f + lambda(wo) + lambda(wi)); }
   // Density of visible normals m as seen from wo (wo.z > 0), with the fitted Lambda (as Cycles).
   float pdf_visible(Vec3 wo, Vec3 m) const {
-    return G1(wo) * std::max(0.0f, dot(wo, m)) * D(m) / std::fabs(wo.z);
+    return visible_normal_pdf(G1(wo), D(m), wo, m);
   }
   // Samples a visible normal for wo (wo.z > 0): the view stretched to unit roughness, a slope
   // drawn from its visible-slope distribution (x by inverting its CDF with a few safeguarded

@@ -50,10 +50,6 @@ inline uint32_t owen_scramble_base4_levels(uint32_t code, int levels, int top, u
   return out;
 }
 
-inline uint32_t owen_scramble_base4(uint32_t code, int levels, uint64_t seed) {
-  return owen_scramble_base4_levels(code, levels, levels - 1, seed);
-}
-
 inline uint32_t morton2d(uint32_t x, uint32_t y) {
   auto spread = [](uint32_t v) {
     v &= 0xFFFFu;
@@ -98,31 +94,23 @@ class PixelPatternMap {
     uint64_t key = 0, first_key = 0;
     uint32_t base = 0, first_index = 0;
   };
-  PixelBase pixel_base(int x, int y, uint64_t pixel) const {
+  // One pixel's (width: the frame's, for the independent key y * width + x); every level of its
+  // scramble hashed afresh.
+  PixelBase pixel_base(int x, int y, int width) const {
     PixelBase b;
-    if (pattern_ == PixelPattern::Independent) {
-      b.key = pixel;
-      return b;
-    }
-    const uint32_t bx = uint32_t(x) >> levels_, by = uint32_t(y) >> levels_;
-    const uint32_t mask = (1u << levels_) - 1u;
-    // Keys of shared sequences live above the pixel keys' range (a frame has < 2^33 pixels).
-    const uint64_t block = (uint64_t(1) << 63) | (uint64_t(by) << 32) | uint64_t(bx);
-    const uint32_t code = morton2d(uint32_t(x) & mask, uint32_t(y) & mask);
-    b.key = block;
-    b.base = owen_scramble_base4(code, levels_, hash3(seed_, block, 0xB1Eull)) * length_;
-    if (pattern_ == PixelPattern::BlueNoiseFirst) {
-      b.first_key = block ^ (uint64_t(1) << 62);
-      b.first_index = owen_scramble_base4(code, levels_, hash3(seed_, block, 0xF125ull));
-    }
+    row_bases(x, x + 1, y, width, &b);
     return b;
   }
-  // pixel_base of the pixels (x0 .. x1 - 1, y), row-major index y * width + x, into out: the
-  // same values, but a pixel's scramble reuses the digits above the first that differs from
-  // its left neighbour's code (about 2 of 10 levels hashed instead of all).
+  // The bases of the pixels (x0 .. x1 - 1, y) into out: after a block's first pixel, a pixel's
+  // scramble reuses the digits above the first that differs from its left neighbour's code
+  // (about 2 of 10 levels hashed instead of all). Keys of shared sequences live above the pixel
+  // keys' range (a frame has < 2^33 pixels).
   void row_bases(int x0, int x1, int y, int width, PixelBase* out) const {
     if (pattern_ == PixelPattern::Independent) {
-      for (int x = x0; x < x1; ++x) out[x - x0] = pixel_base(x, y, uint64_t(y) * uint64_t(width) + uint64_t(x));
+      for (int x = x0; x < x1; ++x) {
+        out[x - x0] = PixelBase{};
+        out[x - x0].key = uint64_t(y) * uint64_t(width) + uint64_t(x);
+      }
       return;
     }
     const uint32_t mask = (1u << levels_) - 1u;
