@@ -232,13 +232,13 @@ def render_settings(pc, scene, warn=None):
     x, y, w, h = render_border(scene, warn)
     if (w, h) != (st.width, st.height):
         optional.update(border_x=x, border_y=y, border_width=w, border_height=h)
-    optional.update(_pixel_pattern(props, warn))
+    optional.update(pixel_pattern_settings(props, warn))
     for name, value in optional.items():  # (the add-on and its core ship together)
         setattr(st, name, value)
     return st
 
 
-def _pixel_pattern(props, warn, viewport=False):
+def pixel_pattern_settings(props, warn, viewport=False):
     """RenderSettings.pixel_pattern and pattern_samples of the scene's Noise Pattern and Frame
     Samples. Automatic is Cycles' choice: blue noise, its First variant in the viewport."""
     pattern = props.pixel_pattern

@@ -157,14 +157,14 @@ class ViewportSession:
 
     def _read_scene(self, depsgraph):
         from .export.camera import camera_params
-        from .session import _pixel_pattern, render_settings
+        from .session import pixel_pattern_settings, render_settings
         scene = depsgraph.scene
         self._base_settings = render_settings(self.pc, scene)
         self._base_settings.samples = scene.pathlight.preview_samples
         self._base_settings.time_limit = 0.0
         self._base_settings.adaptive_threshold = 0.0  # the viewport refines until its samples
         self._base_settings.sample_offset = 0
-        for name, value in _pixel_pattern(scene.pathlight, None, viewport=True).items():
+        for name, value in pixel_pattern_settings(scene.pathlight, None, viewport=True).items():
             setattr(self._base_settings, name, value)
         try:
             self.scene_camera = camera_params(scene, depsgraph, self.warn)

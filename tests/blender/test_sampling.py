@@ -98,7 +98,7 @@ def test_noise_pattern_reaches_the_core():
         props.pixel_pattern = value
         assert session.render_settings(get_core(), scene).pixel_pattern == core_name
     props.pixel_pattern = 'AUTOMATIC'
-    assert session._pixel_pattern(props, None, viewport=True)["pixel_pattern"] == "blue_noise_first"
+    assert session.pixel_pattern_settings(props, None, viewport=True)["pixel_pattern"] == "blue_noise_first"
     props.samples, props.sample_offset, props.frame_samples = 100, 200, 1000
     assert session.render_settings(get_core(), scene).pattern_samples == 1000
     warnings = []
