@@ -150,7 +150,7 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
     )
     caustic_light_paths: FloatProperty(
         name="Light Paths", description="Light paths per pixel sample",
-        default=1.0, min=0.01, max=64.0, soft_max=4.0,
+        default=0.1, min=0.01, max=64.0, soft_max=4.0,
     )
     use_schlick_fresnel: BoolProperty(
         name="Schlick Fresnel",

@@ -24,7 +24,7 @@ TraceFn caustic_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
 bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius) {
   const Aabb& b = scene.world_bounds();
   if (b.empty()) return false;
-  Aabb found;
+  std::vector<Vec3> found;
   ClosureList cl;
   RayState rs;
   rs.flags = uint8_t(kRayReflect | kRayGlossy);  // not a camera ray
@@ -42,12 +42,17 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
     SurfacePoint sp;
     scene.surface_point(hit, sp, 0.0f, &ray);
     scene.shade(sp, hit.b1, hit.b2, -ray.dir, cl, rs);
-    if (caustic_vertex(sp, cl) && !guidable(cl) && cl.has_nondelta && is_finite(sp.p)) found.grow(sp.p);
+    if (caustic_vertex(sp, cl) && !guidable(cl) && cl.has_nondelta && is_finite(sp.p)) found.push_back(sp.p);
   }
   if (found.empty()) return false;
-  center = (found.lo + found.hi) * 0.5f;
-  // A margin of 2 % of the scene's size: the probes see a shape's surface only in part.
-  radius = 0.5f * length(found.extent()) + 0.02f * length(b.extent()) + 1e-4f;
+  Aabb box;
+  for (const Vec3& p : found) box.grow(p);
+  center = (box.lo + box.hi) * 0.5f;
+  float r2 = 0.0f;
+  for (const Vec3& p : found) r2 = std::max(r2, length_sq(p - center));
+  // A margin of 0.5 % of the scene's size: the probes see a shape's surface only in part
+  // (what they miss is the path tracer's alone: both sides test the same sphere).
+  radius = std::sqrt(r2) + 0.005f * length(b.extent()) + 1e-4f;
   return true;
 }
 
