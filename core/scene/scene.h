@@ -79,6 +79,10 @@ struct Material {
   bool has_hair = false;     // has a hair closure: its frame follows the fibre (orient_hair)
   bool subsurface = false;       // may add a BSSRDF closure: its objects get local BVHs
   bool subsurface_bump = false;  // a BSSRDF with its own normal: walk exits shade for it
+  // An op reads the uv sets' tangents (tangent-space Normal Map, Tangent by UV map, tangent
+  // displacement): only then does a hit compute them. (In the bools' padding: the other
+  // fields keep their offsets.)
+  bool uses_tangents = false;
   float pass_index = 0.0f;       // Blender's material pass index (the Material Index pass)
   float crypto = 0.0f;           // Cryptomatte id of its name (the CryptoMaterial pass; 0: none)
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
