@@ -1597,57 +1597,43 @@ restart: __attribute__((unused));
           }
         }
       };
+      // Drawing a light sample (or the sky's), shared by both call structures below. Inlined
+      // early, so that GCC sees the kernel as it was written out twice: left to its later
+      // inlining, the diffuse kernels' add_sample went out of line (+3 % on the Cornell box).
+      const auto draw_light = [&](DirectSample& ds) __attribute__((always_inline)) {
+        ds.path = &ray_state;
+        if constexpr (kTree) ds.n = sp.ns;
+        if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
+        ds.defer_world = true;
+        const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
+        u_rr = u_sel.y;
+        const Vec2 u_pt = sampler.get2d();
+        return scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last);
+      };
+      const auto draw_sky = [&](DirectSample& ds) __attribute__((always_inline)) {
+        const Vec2 u_sky = sampler.get2d();
+        const Vec3 l = sample_cosine_hemisphere(u_sky);
+        sky_here = true;
+        ds.pdf = l.z * kInvPi;
+        if (!(ds.pdf > 0.0f)) return false;
+        ds.wi = Frame::from_normal(ng_out).to_world(l);
+        ds.li = scene.world_color();
+        return true;
+      };
       if constexpr (kNonDiffuse) {
+        // Two add_sample calls: inlined here (one call) it cost these kernels 0.3-2.5 % more,
+        // and their images changed at float rounding.
+        DirectSample ds;
         if (nee) {
-          DirectSample ds;
-          ds.path = &ray_state;
-          if constexpr (kTree) ds.n = sp.ns;
-          if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
-          ds.defer_world = true;
-          const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
-          u_rr = u_sel.y;
-          const Vec2 u_pt = sampler.get2d();
-          if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) add_sample(ds);
-        } else if (sky) {
-          const Vec2 u_sky = sampler.get2d();
-          const Vec3 l = sample_cosine_hemisphere(u_sky);
-          DirectSample ds;
-          ds.pdf = l.z * kInvPi;
-          if (ds.pdf > 0.0f) {
-            ds.wi = Frame::from_normal(ng_out).to_world(l);
-            ds.li = scene.world_color();
-            add_sample(ds);
-          }
-          sky_here = true;
+          if (draw_light(ds)) add_sample(ds);
+        } else if (draw_sky(ds)) {  // (sky)
+          add_sample(ds);
         }
       } else {
         // The diffuse kernels call add_sample once, for either kind of sample: with two calls
         // (above) GCC kept it out of line, which cost the Cornell box 3 % of its instructions.
-        // (Inlined in the other kernels it cost 0.3-2.5 % more, and their images changed at
-        // float rounding: they keep the two calls.)
         DirectSample ds;
-        bool sampled;
-        if (nee) {
-          ds.path = &ray_state;
-          if constexpr (kTree) ds.n = sp.ns;
-          if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
-          ds.defer_world = true;
-          const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
-          u_rr = u_sel.y;
-          const Vec2 u_pt = sampler.get2d();
-          sampled = scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last);
-        } else {  // (sky)
-          const Vec2 u_sky = sampler.get2d();
-          const Vec3 l = sample_cosine_hemisphere(u_sky);
-          ds.pdf = l.z * kInvPi;
-          sampled = ds.pdf > 0.0f;
-          if (sampled) {
-            ds.wi = Frame::from_normal(ng_out).to_world(l);
-            ds.li = scene.world_color();
-          }
-          sky_here = true;
-        }
-        if (sampled) add_sample(ds);
+        if (nee ? draw_light(ds) : draw_sky(ds)) add_sample(ds);
       }
     }
     // The last vertex does light samples only; one with a BSSRDF still walks to its exit, which
