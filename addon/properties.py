@@ -144,7 +144,7 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         description="Trace light paths from the environment through smooth (mirror-like) "
                     "surfaces onto rough ones and combine them with the camera's paths by "
                     "multiple importance sampling: far less noise in caustics of a bright HDRI "
-                    "(e.g. the sun reflected by chrome onto a floor). Box pixel filter, still "
+                    "(e.g. the sun reflected by chrome onto a floor). Any pixel filter; still "
                     "pinhole camera, no volumes; Combined pass only",
         default=False,
     )

@@ -9,6 +9,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "render/pixel_filter.h"
 #include "scene/camera.h"
 #include "scene/scene.h"
 #include "util/sampler.h"
@@ -30,6 +31,9 @@ struct CausticLight {
   float far = 0.0f;        // light paths start this far from its centre, outside the scene
   int max_vertices = 0;    // the class's vertices (the rough one and the smooth ones) at most
   float filter_area = 1.0f;  // the box filter's area in pixels (a pixel's sample density is 1 / it)
+  // The pixel filter (any type): a splat goes to every pixel whose footprint holds the point,
+  // weighted by the filter's density there (PixelFilter::density); the box keeps filter_area.
+  const PixelFilter* filter = nullptr;
   const Camera* camera = nullptr;
   bool nee = true;         // the path tracer samples the environment at the last smooth vertex
   bool differentials = false;  // camera rays carry ray differentials (IntegratorSettings::differentials)
@@ -139,6 +143,9 @@ enum LightComponent : int {
 
 struct PathCounters {
   uint64_t rays = 0;
+  // In, not counted: 1 / the pixel filter's density at this camera sample (its offset from
+  // the pixel's centre), for the caustic MIS (CausticLight); the box's is its area.
+  float filter_area = 1.0f;
 };
 
 // What a camera path saw, for render passes (AOVs). trace_path fills it only when the caller

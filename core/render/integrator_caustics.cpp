@@ -134,6 +134,37 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           sh.tmax = 1.0f - 1e-4f;
           ++rays;
           if (scene.occluded(sh)) break;
+          if (cz.filter) {
+            // Any other filter: pixel j's camera sample lands at p with the filter's density
+            // f(p - c_j) (separable: fx fy), so j's measurement importance at p, and the path
+            // tracer's camera pdf there, are p_cam_j = f(p - c_j) ppdf (solid angle). Its MIS
+            // weight is then per pixel: the path tracer of pixel j weighs the same path with
+            // rho_j = n ps d^2 prod_r / (p_cam_j qf1 prod_f) (trace_path.inl's cz_ratio with this
+            // sample's density), so for each pixel the weights still sum to 1 (pbrt-v4's and
+            // Mitsuba's splat, with the MIS per pixel). The box below is the same with f = 1 / area.
+            const PixelFilter& pf = *cz.filter;
+            const float fr = pf.radius();
+            const Vec3 base = beta * f1 * (std::fabs(cos_c) / std::fabs(cos_l) / (dist * dist) / cz.paths);
+            const double rho_f = double(cz.paths) * ps * double(dist) * dist * prod_r / (double(ppdf) * qf1 * prod_f);
+            if (!is_finite(base) || is_black(base) || !std::isfinite(rho_f)) break;
+            const int x0 = int(std::floor(rx - 0.5f - fr)), x1 = int(std::ceil(rx - 0.5f + fr));
+            const int y0 = int(std::floor(ry - 0.5f - fr)), y1 = int(std::ceil(ry - 0.5f + fr));
+            for (int y = std::max(y0, film_y); y <= std::min(y1, film_y + film_h - 1); ++y) {
+              const float fy = pf.density(ry - (float(y) + 0.5f));
+              if (!(fy > 0.0f)) continue;
+              for (int x = std::max(x0, film_x); x <= std::min(x1, film_x + film_w - 1); ++x) {
+                const float f = pf.density(rx - (float(x) + 0.5f)) * fy;
+                if (!(f > 0.0f)) continue;
+                const double rho = rho_f / f;
+                const double rho2 = rho * rho;
+                const float w = float(rho2 / (1.0 + double(eb) * eb + rho2));
+                const Vec3 v = base * (ppdf * f * w);
+                if (is_finite(v) && !is_black(v))
+                  out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v});
+              }
+            }
+            break;
+          }
           const float p_cam = ppdf / cz.filter_area;
           const double rho = double(cz.paths) * ps * double(dist) * dist * prod_r / (double(p_cam) * qf1 * prod_f);
           const double rho2 = rho * rho;

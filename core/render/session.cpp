@@ -233,7 +233,6 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
       else if (film_.has_pass(Pass::ShadowCatcherMatte)) caustics_note_ = "off: not combined with shadow catchers";
       else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
         caustics_note_ = "off: only for a still pinhole perspective camera (no depth of field, no motion blur)";
-      else if (settings_.filter_type != FilterType::Box) caustics_note_ = "off: only with the box pixel filter";
       else if (sf.media || sf.path_state || sf.light_links)
         caustics_note_ = "off: not with volumes, Light Path node state or light linking";
       else if (!scene_->environment().valid()) caustics_note_ = "off: only the environment map sends caustic light paths";
@@ -254,6 +253,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
           caustics_->far = length((wb.lo + wb.hi) * 0.5f - c) + length(wb.extent()) + 2.0f * r;
           caustics_->max_vertices = k_max;
           caustics_->filter_area = settings_.filter_width * settings_.filter_width;
+          if (settings_.filter_type != FilterType::Box) caustics_->filter = &filter_;
           caustics_->camera = &camera_;
           caustics_->nee = settings_.use_nee && scene_->has_lights();
           caustics_->differentials = integrator_.differentials;
@@ -490,6 +490,7 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   const bool bvh_view = settings_.debug_view == DebugView::Bvh;
   std::array<Float4, kMaxShaderAovs> shader_aovs;
   PathCounters counters;
+  if (caustics_) counters.filter_area = caustics_->filter_area;  // (the box's; other filters' per sample)
   uint64_t nonfinite = 0, paths = 0;
   const bool adaptive = min_samples_ > 0;
   // Blue noise: each pixel's sequence and chunk start, found once per tile.
@@ -543,7 +544,11 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         // Dimension 1: the lens, taken only with an aperture, so pinhole renders keep the
         // same streams for their paths.
         const Vec2 lens = camera_.has_aperture() ? sampler.get2d() : Vec2{0.5f, 0.5f};
-        const float rx = float(fx) + filter_.jitter(j.x), ry = float(fy) + filter_.jitter(j.y);
+        const float jx = filter_.jitter(j.x), jy = filter_.jitter(j.y);
+        const float rx = float(fx) + jx, ry = float(fy) + jy;
+        // The caustic MIS's camera density: the filter's at this offset (the box's is flat).
+        if (caustics_ && caustics_->filter)
+          counters.filter_area = 1.0f / (filter_.density(jx - 0.5f) * filter_.density(jy - 0.5f));
         // Motion blur: the shutter time from the next dimension, drawn only where something
         // moves (static scenes keep their streams and their rays).
         const Ray ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))

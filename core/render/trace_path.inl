@@ -1462,7 +1462,10 @@ restart: __attribute__((unused));
           // The camera's first vertex, rough: the light tracer's connection vertex.
           const float d01 = length(sp.p - cz->camera->origin());
           cz_k = 1;
-          cz_ratio = cz->paths * d01 * d01 * cz->filter_area / cz->camera->pinhole_pixel_pdf(ray.dir);
+          // The camera's density is this sample's pixel filter density (the caller's
+          // c.filter_area is its inverse) over the pixel's solid angle: the light tracer weighs
+          // its splat into this pixel with the same (trace_caustic_paths).
+          cz_ratio = cz->paths * d01 * d01 * c.filter_area / cz->camera->pinhole_pixel_pdf(ray.dir);
           if (!std::isfinite(cz_ratio)) cz_k = 0;
         } else if (cz_k > 0 && cz_k < cz->max_vertices && caustic_vertex(sp, cl) && !guidable(cl)) {
           ++cz_k;  // a smooth vertex after it

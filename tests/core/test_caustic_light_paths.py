@@ -108,8 +108,7 @@ def test_off_unless_asked_for_and_possible():
     off, st_off = render(pc, s, 24, 16, samples=4, seed=2, caustic_light_paths=0.0)
     assert np.array_equal(np.asarray(base), np.asarray(off)) and st_off["caustics"] == ""
     # Where it cannot be combined exactly: off, with the reason, and the plain image.
-    for kw, why in ((dict(filter_type="gaussian", filter_width=1.5), "box pixel filter"),
-                    (dict(guiding=True), "guiding")):
+    for kw, why in ((dict(guiding=True), "guiding"),):
         a, st_a = render(pc, s, 24, 16, samples=4, seed=2, **kw)
         b, st_b = render(pc, s, 24, 16, samples=4, seed=2, caustic_light_paths=1.0, **kw)
         assert why in st_b["caustics"] and np.array_equal(np.asarray(a), np.asarray(b))
@@ -117,3 +116,50 @@ def test_off_unless_asked_for_and_possible():
     a, _ = render(pc, rough, 24, 16, samples=4, seed=2)
     b, st_b = render(pc, rough, 24, 16, samples=4, seed=2, caustic_light_paths=1.0)
     assert "no smooth surface" in st_b["caustics"] and np.array_equal(np.asarray(a), np.asarray(b))
+
+
+# Every pixel filter (issue 25): a light path's camera connection at image point p goes to each
+# pixel j whose footprint holds p with the filter's density f(p - c_j), and the path tracer's
+# MIS uses the density of its own camera sample, so per pixel the weights still sum to 1.
+FILTERS = (("gaussian", 1.5), ("blackman_harris", 1.5))
+
+
+@pytest.fixture(scope="module")
+def filtered_renders():
+    s = mirror_scene()
+    out = {}
+    for ft, fw in FILTERS:
+        plain, _ = renders(s, 192, (1, 2, 3), filter_type=ft, filter_width=fw)
+        lt, st = renders(s, 192, (1, 2, 3), filter_type=ft, filter_width=fw, caustic_light_paths=1.0)
+        out[ft] = plain, lt, st
+    return out
+
+
+@pytest.mark.parametrize("ft", [f for f, _ in FILTERS])
+def test_other_filters_converge_to_the_path_tracers_image(filtered_renders, ft):
+    plain, lt, st = filtered_renders[ft]
+    assert st["caustics"] == "on"
+    assert abs(lt.mean() / plain.mean() - 1.0) < 0.01
+    rp = np.array([region_means(i, 6) for i in plain])
+    rl = np.array([region_means(i, 6) for i in lt])
+    sd = np.sqrt(rp.var(0, ddof=1) / len(rp) + rl.var(0, ddof=1) / len(rl))
+    diff = np.abs(rl.mean(0) - rp.mean(0))
+    assert np.all(diff <= np.maximum(3.0 * sd, 0.03 * rp.mean(0)))
+    # ... with less noise per sample (measured 0.61x Gaussian, 0.35x Blackman-Harris at 128 spp).
+    # Checked to fail when the splat drops the filter's density (mean 1.12-1.18x) and when the
+    # path tracer's MIS takes a flat density over the footprint (regions off).
+    assert lt.var(0, ddof=1).mean() < 0.8 * plain.var(0, ddof=1).mean()
+
+
+def test_deterministic_with_a_wide_filter():
+    # Footprints 4 px wide reach over tiles and work items: the image stays the same.
+    s = mirror_scene()
+    kw = dict(samples=4, seed=9, caustic_light_paths=1.0, filter_type="blackman_harris", filter_width=4.0)
+    a, st = render(pc, s, 40, 24, threads=1, tile_size=8, **kw)
+    b, _ = render(pc, s, 40, 24, threads=2, tile_size=16, **kw)
+    assert st["caustics"] == "on" and np.array_equal(np.asarray(a), np.asarray(b))
+    kw.update(samples=2, pattern_samples=4)
+    c, _ = render(pc, s, 40, 24, sample_offset=0, **kw)
+    d, _ = render(pc, s, 40, 24, sample_offset=2, **kw)
+    merged = (np.asarray(c)[..., :3] + np.asarray(d)[..., :3]) / 2.0
+    assert np.allclose(merged, np.asarray(a)[..., :3], rtol=1e-4, atol=1e-5)
