@@ -89,6 +89,7 @@ def test_a_sun_lamp_beside_the_environment_keeps_the_image():
     assert np.all(np.abs(rl / rp - 1.0) < 0.04)
 
 
+@pytest.mark.sanitize  # quick: the splat loop on the sanitizer build too
 def test_deterministic_whatever_the_threads_tiles_and_passes():
     s = mirror_scene()
     kw = dict(samples=6, seed=9, caustic_light_paths=1.0)
@@ -102,6 +103,7 @@ def test_deterministic_whatever_the_threads_tiles_and_passes():
     assert np.allclose(merged, np.asarray(a)[..., :3], rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.sanitize  # quick: the splat loop on the sanitizer build too
 def test_off_unless_asked_for_and_possible():
     s = mirror_scene()
     base, st = render(pc, s, 24, 16, samples=4, seed=2)
@@ -151,6 +153,7 @@ def test_other_filters_converge_to_the_path_tracers_image(filtered_renders, ft):
     assert lt.var(0, ddof=1).mean() < 0.8 * plain.var(0, ddof=1).mean()
 
 
+@pytest.mark.sanitize  # quick: the splat loop on the sanitizer build too
 def test_deterministic_with_a_wide_filter():
     # Footprints 4 px wide reach over tiles and work items: the image stays the same.
     s = mirror_scene()
