@@ -134,6 +134,11 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           sh.tmax = 1.0f - 1e-4f;
           ++rays;
           if (scene.occluded(sh)) break;
+          // The power heuristic's weight of the light path, rho = n Pc / Pa (Pb / Pa = eb).
+          const auto light_weight = [eb](double rho) {
+            const double rho2 = rho * rho;
+            return float(rho2 / (1.0 + double(eb) * eb + rho2));
+          };
           if (cz.filter) {
             // Any other filter: pixel j's camera sample lands at p with the filter's density
             // f(p - c_j) (separable: fx fy), so j's measurement importance at p, and the path
@@ -155,9 +160,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
               for (int x = std::max(x0, film_x); x <= std::min(x1, film_x + film_w - 1); ++x) {
                 const float f = pf.density(rx - (float(x) + 0.5f)) * fy;
                 if (!(f > 0.0f)) continue;
-                const double rho = rho_f / f;
-                const double rho2 = rho * rho;
-                const float w = float(rho2 / (1.0 + double(eb) * eb + rho2));
+                const float w = light_weight(rho_f / f);
                 const Vec3 v = base * (ppdf * f * w);
                 if (is_finite(v) && !is_black(v))
                   out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v});
@@ -166,9 +169,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
             break;
           }
           const float p_cam = ppdf / cz.filter_area;
-          const double rho = double(cz.paths) * ps * double(dist) * dist * prod_r / (double(p_cam) * qf1 * prod_f);
-          const double rho2 = rho * rho;
-          const float w = float(rho2 / (1.0 + double(eb) * eb + rho2));
+          const float w = light_weight(double(cz.paths) * ps * double(dist) * dist * prod_r / (double(p_cam) * qf1 * prod_f));
           const Vec3 v = beta * f1 * (std::fabs(cos_c) / std::fabs(cos_l) * p_cam / (dist * dist) * w / cz.paths);
           if (!is_finite(v) || is_black(v)) break;
           // Every pixel whose box holds the point.
