@@ -223,45 +223,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
                       integrator_.cryptomatte != 0;
     const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
     integrator_.differentials = scene_->features().footprints;
-    const float lt = settings_.caustic_light_paths;
-    if (std::isfinite(lt) && lt > 0.0f) {
-      // Where it can be combined exactly with the path tracer; else off, with the reason.
-      const SceneFeatures& sf = scene_->features();
-      const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
-      if (settings_.debug_view != DebugView::None) caustics_note_ = "off: debug view";
-      else if (guiding) caustics_note_ = "off: not combined with path guiding";
-      else if (film_.has_pass(Pass::ShadowCatcherMatte)) caustics_note_ = "off: not combined with shadow catchers";
-      else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
-        caustics_note_ = "off: only for a still pinhole perspective camera (no depth of field, no motion blur)";
-      else if (sf.media || sf.path_state || sf.light_links)
-        caustics_note_ = "off: not with volumes, Light Path node state or light linking";
-      else if (!scene_->environment().valid()) caustics_note_ = "off: only the environment map sends caustic light paths";
-      else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
-        caustics_note_ = "off: the bounce limits leave no caustic paths";
-      else {
-        Vec3 c;
-        float r;
-        if (!caustic_casters(*scene_, 32768, c, r)) {
-          caustics_note_ = "off: no smooth surface to cast caustics";
-        } else {
-          caustics_ = std::make_unique<CausticLight>();
-          caustic_paths_ = uint64_t(std::max<double>(1.0, std::llround(double(std::min(lt, 64.0f)) * film_.width() * film_.height())));
-          caustics_->paths = float(caustic_paths_);
-          caustics_->center = c;
-          caustics_->radius = r;
-          const Aabb& wb = scene_->world_bounds();
-          caustics_->far = length((wb.lo + wb.hi) * 0.5f - c) + length(wb.extent()) + 2.0f * r;
-          caustics_->max_vertices = k_max;
-          caustics_->filter_area = settings_.filter_width * settings_.filter_width;
-          if (settings_.filter_type != FilterType::Box) caustics_->filter = &filter_;
-          caustics_->camera = &camera_;
-          caustics_->nee = settings_.use_nee && scene_->has_lights();
-          caustics_->differentials = integrator_.differentials;
-          integrator_.caustics = caustics_.get();
-          caustics_note_ = "on";
-        }
-      }
-    }
+    setup_caustics(guiding);
     kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr),
                             settings_.force_general_kernel, kernel_bits_);
     if (guiding) {
@@ -604,6 +566,50 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   paths_.fetch_add(paths, std::memory_order_relaxed);
   rays_.fetch_add(counters.rays, std::memory_order_relaxed);
   nonfinite_.fetch_add(nonfinite, std::memory_order_relaxed);
+}
+
+// Caustic light tracing (CausticLight): on where asked for and where it can be combined exactly
+// with the path tracer; else off, with the reason (SessionStats::caustics).
+void Session::setup_caustics(bool guiding) {
+  const float lt = settings_.caustic_light_paths;
+  if (std::isfinite(lt) && lt > 0.0f) {
+    // Where it can be combined exactly with the path tracer; else off, with the reason.
+    const SceneFeatures& sf = scene_->features();
+    const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
+    if (settings_.debug_view != DebugView::None) caustics_note_ = "off: debug view";
+    else if (guiding) caustics_note_ = "off: not combined with path guiding";
+    else if (film_.has_pass(Pass::ShadowCatcherMatte)) caustics_note_ = "off: not combined with shadow catchers";
+    else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
+      caustics_note_ = "off: only for a still pinhole perspective camera (no depth of field, no motion blur)";
+    else if (sf.media || sf.path_state || sf.light_links)
+      caustics_note_ = "off: not with volumes, Light Path node state or light linking";
+    else if (!scene_->environment().valid()) caustics_note_ = "off: only the environment map sends caustic light paths";
+    else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
+      caustics_note_ = "off: the bounce limits leave no caustic paths";
+    else {
+      Vec3 c;
+      float r;
+      if (!caustic_casters(*scene_, 32768, c, r)) {
+        caustics_note_ = "off: no smooth surface to cast caustics";
+      } else {
+        caustics_ = std::make_unique<CausticLight>();
+        caustic_paths_ = uint64_t(std::max<double>(1.0, std::llround(double(std::min(lt, 64.0f)) * film_.width() * film_.height())));
+        caustics_->paths = float(caustic_paths_);
+        caustics_->center = c;
+        caustics_->radius = r;
+        const Aabb& wb = scene_->world_bounds();
+        caustics_->far = length((wb.lo + wb.hi) * 0.5f - c) + length(wb.extent()) + 2.0f * r;
+        caustics_->max_vertices = k_max;
+        caustics_->filter_area = settings_.filter_width * settings_.filter_width;
+        if (settings_.filter_type != FilterType::Box) caustics_->filter = &filter_;
+        caustics_->camera = &camera_;
+        caustics_->nee = settings_.use_nee && scene_->has_lights();
+        caustics_->differentials = integrator_.differentials;
+        integrator_.caustics = caustics_.get();
+        caustics_note_ = "on";
+      }
+    }
+  }
 }
 
 // Light paths of samples [s0, s0 + k): sample s's are indexed (s, i) with their own streams,

@@ -765,6 +765,10 @@ inline float caustic_source_pdf(const Scene& scene, const CausticLight& cz, Vec3
   return scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
 }
 
+// The power heuristic over the caustic paths' three strategies, for the one whose density is 1
+// when the other two's are a and b (relative to it): 1 / (1 + a^2 + b^2).
+inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a + b * b); }
+
 // The passes written at each surface the camera path meets (through Transparent BSDFs), as
 // Cycles' film_write_data_passes and AO pass: the colours, Mist, AO (beta: the throughput there).
 [[gnu::noinline]] inline void camera_hit_passes(const Scene& scene, const IntegratorSettings& s, const SurfacePoint& sp,
@@ -1297,7 +1301,7 @@ restart: __attribute__((unused));
           const float ps = caustic_source_pdf(scene, *cz, ray.dir, mis_org);
           if (ps > 0.0f) {
             const float rho = cz_ratio * ps, eb = bg_found ? env_pdf / prev_pdf : 0.0f;  // n Pc / Pa, Pb / Pa
-            w = 1.0f / (1.0f + eb * eb + rho * rho);
+            w = caustic_mis_weight(eb, rho);
           }
         }
       if (sky && !prev_delta) {
@@ -1584,7 +1588,7 @@ restart: __attribute__((unused));
                 float pr;
                 eval_mixture<!kNonDiffuse>(cl, ds.wi, wo, reflection, pr);  // its direction here
                 const float rb = cz_ratio * pr * ps / ds.pdf, ab = bsdf_pdf / ds.pdf;  // n Pc / Pb, Pa / Pb
-                w = 1.0f / (1.0f + ab * ab + rb * rb);
+                w = caustic_mis_weight(ab, rb);
               }
             }
           const Vec3 v = beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
