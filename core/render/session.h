@@ -213,6 +213,7 @@ class Session {
   uint64_t caustic_paths_ = 0;  // light paths per pixel sample (the whole film's)
   // The current pass's splats, one film image per sample of it.
   std::vector<std::vector<Vec3>> caustic_splats_;
+  void setup_caustics(bool guiding);  // (the constructor's, once)
   void trace_caustics(int s0, int k);
   std::vector<std::string> features_, unused_features_;
   Film film_;
