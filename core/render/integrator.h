@@ -19,11 +19,13 @@ namespace pl {
 class GuidingField;
 
 // Caustic light tracing (render/integrator_caustics.cpp, docs/design/sampling.md "Caustics by
-// light tracing"): light paths from the environment through smooth vertices to a first rough
-// one, connected to a still pinhole camera and splatted, combined by the power heuristic with
-// the path tracer's two strategies for the same paths (class L S+ D E: the camera's first
-// vertex rough, every later one smooth, the last one lit by the environment). Both sides
-// compute the same heuristic pdfs from the same path, so the weights sum to 1.
+// light tracing"): light paths from the environment and delta lamps through smooth vertices to
+// a first rough one, connected to a still pinhole camera and splatted, combined by the power
+// heuristic with the path tracer's strategies for the same paths (class L S+ D E: the camera's
+// first vertex rough, every later one smooth, the last one lit by the light). Both sides compute
+// the same heuristic pdfs from the same path, so the weights sum to 1 (three strategies for the
+// environment, two for a delta lamp: the light sample at the last smooth vertex and the path).
+//
 // A lamp that sends caustic light paths: a delta lamp (sun, point or spot without extent), whose
 // caustics the path tracer makes only by its light sample at the last smooth vertex.
 struct CausticLamp {
