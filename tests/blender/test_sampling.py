@@ -79,11 +79,38 @@ def test_settings_reach_the_core():
     # ... with a learnt probability per cell (from 0.5 down), the cosine product, the directional filter
     assert st.guiding_learn_probability and st.guiding_cosine and st.guiding_filter
     assert st.guiding_probability == pytest.approx(0.5)
-    # Caustic light paths: off by default, else the paths per sample (docs/design/sampling.md)
-    assert st.caustic_light_paths == 0.0
+    # Caustic light paths: automatic by default (the core decides where they pay), else the
+    # paths per sample asked for, or off (docs/design/sampling.md)
+    assert st.caustic_light_paths == 0.0 and st.caustic_light_paths_auto
+    assert ui.caustics_in_effect(props).startswith("Automatic")
     props.use_caustic_light_paths, props.caustic_light_paths = True, 0.5
-    assert session.render_settings(get_core(), scene).caustic_light_paths == pytest.approx(0.5)
-    props.use_caustic_light_paths = False
+    st = session.render_settings(get_core(), scene)
+    assert st.caustic_light_paths == pytest.approx(0.5) and not st.caustic_light_paths_auto
+    assert ui.caustics_in_effect(props) == "On: 0.5 light paths per sample"
+    props.use_caustic_light_paths, props.caustic_light_paths_auto = False, False
+    st = session.render_settings(get_core(), scene)
+    assert st.caustic_light_paths == 0.0 and not st.caustic_light_paths_auto
+    assert ui.caustics_in_effect(props) == "Off"
+    props.caustic_light_paths_auto = True
+
+
+def test_caustics_warn_only_when_asked_for():
+    """The core's "off: ..." (asked for, not possible) warns; the automatic mode's "off
+    (automatic): ..." and "on (automatic): ..." do not."""
+    class Sess:
+        def __init__(self, state):
+            self.state = state
+
+        def stats(self):
+            return {"caustics": self.state}
+
+    for state, warns in (("off: only for a still pinhole perspective camera", 1),
+                         ("off (automatic): the environment's peak holds 20 % of its power (under 40 %)", 0),
+                         ("off (automatic): no smooth surface to cast caustics", 0),
+                         ("on (automatic): the environment's peak holds 60 % of its power", 0), ("on", 0), ("", 0)):
+        got = []
+        session._report_caustics(Sess(state), got.append)
+        assert len(got) == warns, state
 
 
 @needs_settings
