@@ -10,7 +10,7 @@ import pytest
 
 from blender_util import core_available, core_has, load_addon, render_to_array, BOX_FILTER
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
-                          emission_material, empty_scene, plane)
+                          emission_material, empty_scene, load_image, plane, synthetic_hdr, world_image)
 from material_scenes import region_means
 
 load_addon()
@@ -111,6 +111,29 @@ def test_caustics_warn_only_when_asked_for():
         got = []
         session._report_caustics(Sess(state), got.append)
         assert len(got) == warns, state
+
+
+@needs_core
+def test_automatic_caustics_follow_the_environments_sun():
+    """The add-on's default (Automatic) in a Blender scene: a chrome ball on a floor under an HDRI
+    whose sun holds most of its light gets caustic light paths; under a dimmer sun it does not,
+    and says why in the stats (docs/design/sampling.md "Automatic caustic light paths")."""
+    from addon.core import get_core
+    import material_scenes as ms
+    pc = get_core()
+    states = {}
+    for peak in (200.0, 50.0):
+        scene = empty_scene(32)
+        scene.render.engine = "PATHLIGHT"
+        ms.add_plane("Floor", 6.0, ms.diffuse("Floor", (0.6, 0.6, 0.6)))
+        ms.add_sphere("Chrome", 0.4, ms.glossy("Chrome", roughness=0.05), location=(0.8, 0.3, 0.4))
+        world_image(load_image(synthetic_hdr(64, 32, sun_peak=peak), name=f"Sun{peak:g}"))
+        ms.add_camera((0.0, -4.0, 2.0), (0.0, 0.0, 0.4))
+        core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
+        core_scene.commit()
+        states[peak] = pc.Session(core_scene, session.render_settings(pc, scene)).stats()["caustics"]
+    assert states[200.0].startswith("on (automatic)"), states
+    assert states[50.0].startswith("off (automatic): the environment's peak"), states
 
 
 @needs_settings
