@@ -272,6 +272,11 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
 // follow a lamp that some closures do not see or that shines through blockers), and a sun
 // without a node tree.
 bool caustic_lamp(const Light& l);
+// The share of the environment's power in directions brighter than `factor` times its mean
+// radiance over the sphere (a sun's), estimated from 64 x 64 stratified samples of its full
+// importance map weighted by luminance / pdf (so right whatever it samples by: texels, a sky's
+// disc). 0 without an environment map. Automatic caustic light paths (Session::setup_caustics).
+float environment_peak_share(const Environment& env, float factor);
 
 bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal, Vec3& diffuse_albedo,
                         Vec3& specular_albedo);

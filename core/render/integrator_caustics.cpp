@@ -64,6 +64,31 @@ bool caustic_lamp(const Light& l) {
   return !(l.type == LightType::Sun && l.shader);
 }
 
+float environment_peak_share(const Environment& env, float factor) {
+  if (!env.valid()) return 0.0f;
+  constexpr int kN = 64;
+  std::vector<std::pair<float, double>> s;  // (luminance, luminance / pdf)
+  s.reserve(kN * kN);
+  double all = 0.0;
+  for (int i = 0; i < kN; ++i)
+    for (int j = 0; j < kN; ++j) {
+      Vec3 dir, rad;
+      float pdf = 0.0f;
+      if (!env.sample({(float(i) + 0.5f) / kN, (float(j) + 0.5f) / kN}, dir, rad, pdf, true)) continue;
+      const float lum = luminance(rad);
+      if (!(pdf > 0.0f) || !(lum > 0.0f) || !std::isfinite(lum) || !std::isfinite(pdf)) continue;
+      s.emplace_back(lum, double(lum) / double(pdf));
+      all += s.back().second;
+    }
+  if (!(all > 0.0)) return 0.0f;
+  // The mean radiance over the sphere: (1 / 4 pi) E[L / pdf] over all kN^2 draws.
+  const double bright = double(factor) * all / (4.0 * double(kPi) * double(kN * kN));
+  double peak = 0.0;
+  for (const auto& [lum, w] : s)
+    if (double(lum) > bright) peak += w;
+  return float(peak / all);
+}
+
 uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_t seed, uint64_t first,
                              uint64_t last, int film_x, int film_y, int film_w, int film_h,
                              std::vector<CausticSplat>& out) {

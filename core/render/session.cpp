@@ -6,6 +6,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <sys/resource.h>
 #include <unistd.h>
 #include <stdexcept>
@@ -568,11 +569,24 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   nonfinite_.fetch_add(nonfinite, std::memory_order_relaxed);
 }
 
+namespace {
+// Automatic caustic light paths (docs/design/sampling.md, "Automatic caustic light paths"): this
+// many per pixel sample (the textured model's best), where the environment's directions brighter
+// than kAutoPeakFactor x its mean hold at least kAutoPeakShare of its power.
+constexpr float kAutoCausticPaths = 0.1f;
+constexpr float kAutoPeakFactor = 10.0f;
+constexpr float kAutoPeakShare = 0.4f;
+}  // namespace
+
 // Caustic light tracing (CausticLight): on where asked for and where it can be combined exactly
 // with the path tracer; else off, with the reason (SessionStats::caustics).
 void Session::setup_caustics(bool guiding) {
-  const float lt = settings_.caustic_light_paths;
+  float lt = settings_.caustic_light_paths;
+  // Automatic: on at kAutoCausticPaths only where they pay (below), else off without a warning.
+  const bool automatic = settings_.caustic_light_paths_auto && !(lt > 0.0f);
+  if (automatic) lt = kAutoCausticPaths;
   if (!std::isfinite(lt) || !(lt > 0.0f)) return;
+  const auto off = [&](const std::string& why) { caustics_note_ = (automatic ? "off (automatic): " : "off: ") + why; };
   // Where it can be combined exactly with the path tracer; else off, with the reason.
   const SceneFeatures& sf = scene_->features();
   const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
@@ -584,22 +598,35 @@ void Session::setup_caustics(bool guiding) {
   if (nee)
     for (size_t i = 0; i < scene_->light_count(); ++i)
       if (caustic_lamp(scene_->light(i))) lamps.push_back(uint32_t(i));
-  if (settings_.debug_view != DebugView::None) caustics_note_ = "off: debug view";
-  else if (guiding) caustics_note_ = "off: not combined with path guiding";
-  else if (film_.has_pass(Pass::ShadowCatcherMatte)) caustics_note_ = "off: not combined with shadow catchers";
+  if (settings_.debug_view != DebugView::None) off("debug view");
+  else if (guiding) off("not combined with path guiding");
+  else if (film_.has_pass(Pass::ShadowCatcherMatte)) off("not combined with shadow catchers");
   else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
-    caustics_note_ = "off: only for a still pinhole perspective camera (no depth of field, no motion blur)";
+    off("only for a still pinhole perspective camera (no depth of field, no motion blur)");
   else if (sf.media || sf.path_state || sf.light_links)
-    caustics_note_ = "off: not with volumes, Light Path node state or light linking";
+    off("not with volumes, Light Path node state or light linking");
   else if (!env && lamps.empty())
-    caustics_note_ = "off: only an environment map or a lamp without extent (sun, point, spot) sends caustic light paths";
+    off("only an environment map or a lamp without extent (sun, point, spot) sends caustic light paths");
   else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
-    caustics_note_ = "off: the bounce limits leave no caustic paths";
+    off("the bounce limits leave no caustic paths");
+  std::string peak_note;
+  if (automatic && caustics_note_.empty()) {
+    // Where they paid by the realistic scenes' measurements (docs/design/sampling.md, "Automatic
+    // caustic light paths"): an environment map with a sun, whose bright directions hold most of
+    // its power. Lamps alone, or a dim peak, stay off.
+    const float share = environment_peak_share(scene_->environment(), kAutoPeakFactor);
+    char why[160];
+    std::snprintf(why, sizeof why, "the environment's peak holds %.0f %% of its power (%s %.0f %%)", 100.0 * share,
+                  share >= kAutoPeakShare ? "at least" : "under", 100.0 * kAutoPeakShare);
+    if (!env) off("no environment map");
+    else if (!(share >= kAutoPeakShare)) off(why);
+    else peak_note = why;
+  }
   if (!caustics_note_.empty()) return;
   Vec3 c;
   float r;
   if (!caustic_casters(*scene_, 32768, c, r)) {
-    caustics_note_ = "off: no smooth surface to cast caustics";
+    off("no smooth surface to cast caustics");
     return;
   }
   auto cz = std::make_unique<CausticLight>();
@@ -648,7 +675,7 @@ void Session::setup_caustics(bool guiding) {
   }
   cz->sources = Distribution1D(power);
   if (cz->sources.empty()) {
-    caustics_note_ = "off: no light reaches the smooth surfaces";
+    off("no light reaches the smooth surfaces");
     return;
   }
   cz->env_pmf = cz->sources.pmf(0);
@@ -665,7 +692,7 @@ void Session::setup_caustics(bool guiding) {
   cz->differentials = integrator_.differentials;
   caustics_ = std::move(cz);
   integrator_.caustics = caustics_.get();
-  caustics_note_ = "on";
+  caustics_note_ = automatic ? "on (automatic): " + peak_note : "on";
 }
 
 // Light paths of samples [s0, s0 + k): sample s's are indexed (s, i) with their own streams,

@@ -113,6 +113,10 @@ struct RenderSettings {
   // the environment through smooth surfaces, combined with the path tracer by MIS; 0: off.
   // Only where it can be combined exactly (SessionStats::caustics says why not otherwise).
   float caustic_light_paths = 0.0f;
+  // Automatic (where caustic_light_paths is 0): kAutoCausticPaths per sample only where they pay
+  // (Session::setup_caustics: an environment map whose bright peak holds most of its power, and
+  // smooth surfaces), else off without a warning ("off (automatic): ..."). An explicit number wins.
+  bool caustic_light_paths_auto = false;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs, and the colour

@@ -3,6 +3,8 @@ paths from the environment through smooth surfaces to a rough one, splatted into
 combined with the path tracer by MIS. Unbiased (the image agrees with the plain path tracer's
 within its noise, with far less of it), deterministic whatever the threads, tiles and passes,
 and off (bit-identical) unless asked for and possible."""
+import re
+
 import numpy as np
 import pytest
 
@@ -21,9 +23,10 @@ def sun_env(w=64, h=32, peak=400.0):
     return img
 
 
-def mirror_scene(roughness=0.05, sun_light=False, smooth=True):
+def mirror_scene(roughness=0.05, sun_light=False, smooth=True, env=None):
     """A diffuse floor, a chrome ball and a tilted chrome panel (Cycles' roughness 0.05: smooth
-    vertices) under sun_env; sun_light: a sun lamp too (it sends light paths beside the environment)."""
+    vertices) under sun_env (or env); sun_light: a sun lamp too (it sends light paths beside the
+    environment)."""
     s = pc.Scene()
     floor = s.add_material("floor", (0.7, 0.7, 0.7))
     add_object(s, *quad((-3, -3, 0), (6, 0, 0), (0, 6, 0)), floor)
@@ -31,7 +34,7 @@ def mirror_scene(roughness=0.05, sun_light=False, smooth=True):
     pos, tris, nrm = uv_sphere(0.4, center=(-0.6, 0.3, 0.4))
     add_object(s, pos, tris, m, nrm)
     add_object(s, *quad((0.3, 1.2, 0.0), (1.0, 0.0, 0.0), (0.0, 0.3, 1.0)), m)
-    s.set_world_texture(sun_env())
+    s.set_world_texture(sun_env() if env is None else env)
     if sun_light:
         s.add_sun_light((0.3, -0.5, 0.8), (2.0, 2.0, 2.0))
     s.set_camera(camera(pc, (0.0, -3.0, 2.0), (0.0, 0.3, 0.2), lens=35.0))
@@ -125,6 +128,42 @@ def test_off_unless_asked_for_and_possible():
     a, _ = render(pc, rough, 24, 16, samples=4, seed=2)
     b, st_b = render(pc, rough, 24, 16, samples=4, seed=2, caustic_light_paths=1.0)
     assert "no smooth surface" in st_b["caustics"] and np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def peak_share(state):
+    """The environment's peak share (percent) that an automatic decision names."""
+    m = re.search(r"peak holds (\d+) %", state)
+    return int(m.group(1)) if m else None
+
+
+@pytest.mark.sanitize  # quick: tiny renders
+def test_automatic_only_where_a_bright_sun_meets_smooth_surfaces():
+    """caustic_light_paths_auto (the add-on's default): 0.1 light paths per sample where the
+    environment's directions brighter than 10x its mean hold at least 40 % of its power and the
+    probes find smooth surfaces; else off, silently ("off (automatic): ..."), the plain image."""
+    kw = dict(samples=3, seed=4)
+    sunny = mirror_scene(env=sun_env(peak=2000.0))  # the sun: ~80 % of the power
+    a, st = render(pc, sunny, 24, 16, caustic_light_paths_auto=True, **kw)
+    assert st["caustics"].startswith("on (automatic)") and "+caustics" in st["kernel"]
+    assert peak_share(st["caustics"]) >= 70
+    b, _ = render(pc, sunny, 24, 16, caustic_light_paths=0.1, **kw)  # automatic is 0.1 per sample
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+    # An explicit number wins over automatic, and explicit off (auto False) is the plain render.
+    c, st_c = render(pc, sunny, 24, 16, caustic_light_paths=0.5, caustic_light_paths_auto=True, **kw)
+    d, _ = render(pc, sunny, 24, 16, caustic_light_paths=0.5, **kw)
+    assert st_c["caustics"] == "on" and np.array_equal(np.asarray(c), np.asarray(d))
+    plain, st_p = render(pc, sunny, 24, 16, **kw)
+    e, st_e = render(pc, sunny, 24, 16, caustic_light_paths=0.0, caustic_light_paths_auto=False, **kw)
+    assert st_p["caustics"] == st_e["caustics"] == "" and np.array_equal(np.asarray(plain), np.asarray(e))
+    flat = np.full((32, 64, 3), 0.5, np.float32)
+    cases = ((mirror_scene(env=sun_env(peak=40.0)), "(under 40 %)"),  # a dim sun: ~8 % of the power
+             (mirror_scene(env=flat), "environment map"),  # a constant world: a colour, no map
+             (mirror_scene(env=sun_env(peak=2000.0), smooth=False), "no smooth surface"))
+    for scene, why in cases:
+        p, _ = render(pc, scene, 24, 16, **kw)
+        q, st_q = render(pc, scene, 24, 16, caustic_light_paths_auto=True, **kw)
+        assert st_q["caustics"].startswith("off (automatic): ") and why in st_q["caustics"], st_q["caustics"]
+        assert np.array_equal(np.asarray(p), np.asarray(q))
 
 
 # Every pixel filter (issue 25): a light path's camera connection at image point p goes to each
