@@ -32,7 +32,7 @@ needs_settings = pytest.mark.skipif(not core_has("RenderSettings", "diffuse_boun
 # ---------------------------------------------------------------- settings (no core)
 
 def test_defaults_are_cycles_defaults():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     props = bpy.context.scene.pathlight
     cycles = bpy.context.scene.cycles
     assert props.use_adaptive_sampling is True
@@ -48,7 +48,7 @@ def test_defaults_are_cycles_defaults():
 @needs_settings
 def test_settings_reach_the_core():
     from addon.core import get_core
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     props = scene.pathlight
     props.sampler = 'RANDOM'
@@ -144,7 +144,7 @@ def test_noise_pattern_reaches_the_core():
     from addon.core import get_core
     if not core_has("RenderSettings", "pixel_pattern"):
         pytest.skip("core without pixel_pattern")
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     props = scene.pathlight
     for value, core_name in (('AUTOMATIC', "blue_noise"), ('BLUE_NOISE', "blue_noise"),
@@ -163,7 +163,7 @@ def test_noise_pattern_reaches_the_core():
 
 
 def test_animated_seed_adds_the_frame():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.pathlight.seed = 5
     scene.frame_set(12)
@@ -192,7 +192,7 @@ def test_panels_draw_existing_properties():
         def separator(self, **kw):
             pass
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     obj = bpy.data.objects.new("O", bpy.data.meshes.new("O"))
     shown = set()
