@@ -114,6 +114,15 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
     float ps;
     Ray ray;
     ray.tmax = kInf;
+    // A light path from direction wl (the environment's, a sun's): from a point of the caster
+    // sphere's disk across wl, outside the scene.
+    const auto start_on_disk = [&](Vec2 u) {
+      Vec3 t, b;
+      make_basis(wl, t, b);
+      const Vec2 d = sample_disk_concentric(u);
+      ray.org = cz.center + (t * d.x + b * d.y) * cz.radius + wl * cz.far;
+      ray.dir = -wl;
+    };
     if (!lamp) {
       Vec3 li;
       float pdf;
@@ -121,24 +130,16 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       if (!env.sample(ue, wl, li, pdf, true) || !(pdf > 0.0f)) continue;
       li = scene.background(wl);  // (what the path tracer's escaped rays find)
       if (is_black(li) || !is_finite(li)) continue;
-      Vec3 t, b;
-      make_basis(wl, t, b);
-      const Vec2 d = sample_disk_concentric(ud);
-      ray.org = cz.center + (t * d.x + b * d.y) * cz.radius + wl * cz.far;
-      ray.dir = -wl;
+      start_on_disk(ud);
       beta = li * (disk / (pdf * cz.env_pmf));
       ps = cz.env_pmf * pdf / disk;
     } else {
       const Light& l = scene.light(lamp->light);
       const Vec2 ud{rng.next_float(), rng.next_float()};
-      Vec3 t, b;
       if (l.type == LightType::Sun) {
         // A delta direction: across the caster sphere's disk, as the environment's.
         wl = l.dir;
-        make_basis(wl, t, b);
-        const Vec2 d = sample_disk_concentric(ud);
-        ray.org = cz.center + (t * d.x + b * d.y) * cz.radius + wl * cz.far;
-        ray.dir = -wl;
+        start_on_disk(ud);
         beta = l.color * (disk / lamp->pmf);
         ps = lamp->pmf / disk;
       } else {
@@ -146,6 +147,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         // from inside it); ps is per unit solid angle until the first hit's distance is known.
         const float cos_t = 1.0f - ud.x * lamp->one_minus_cos;
         const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * kPi * ud.y;
+        Vec3 t, b;
         make_basis(lamp->axis, t, b);
         ray.dir = normalize(lamp->axis * cos_t + (t * std::cos(phi) + b * std::sin(phi)) * sin_t);
         ray.org = l.position;
