@@ -381,9 +381,22 @@ def test_guided_few_or_many_light_paths_give_the_same_image():
 @pytest.mark.sanitize  # quick: the guided light paths on the sanitizer build too
 def test_guided_light_paths_deterministic_whatever_the_threads_and_tiles():
     s = mirror_scene()
-    for extra in ({}, dict(guiding_caustic_lobes=0.3)):  # (the caustic lobes' share in the mixture too)
-        kw = dict(samples=16, seed=9, caustic_light_paths=1.0, **GUIDED, **extra)
-        a, st = render(pc, s, 40, 24, threads=1, tile_size=8, **kw)
-        b, _ = render(pc, s, 40, 24, threads=2, tile_size=16, **kw)
-        assert st["caustics"] == "on" and st["guiding_iterations"] == 3
-        assert np.array_equal(np.asarray(a), np.asarray(b))
+    kw = dict(samples=16, seed=9, caustic_light_paths=1.0, **GUIDED)
+    a, st = render(pc, s, 40, 24, threads=1, tile_size=8, **kw)
+    b, _ = render(pc, s, 40, 24, threads=2, tile_size=16, **kw)
+    assert st["caustics"] == "on" and st["guiding_iterations"] == 3
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.sanitize
+def test_caustic_photons_only_without_light_paths():
+    # With the light paths on, the caustic photons (guiding_caustics) are not traced: the light
+    # paths carry those caustics, and the photons did not pay beside them on the window room.
+    s = mirror_scene()
+    kw = dict(samples=16, seed=9, **GUIDED, guiding_caustic_lobes=0.3)  # (lobes: the photons' trace)
+    a, st = render(pc, s, 40, 24, caustic_light_paths=1.0, **kw)
+    b, _ = render(pc, s, 40, 24, caustic_light_paths=1.0, **dict(kw, guiding_photons=0.0))
+    assert st["caustics"] == "on" and st["guiding_caustic_cells"] == 0
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+    _, st = render(pc, s, 40, 24, **kw)  # light paths off: the photons train the guide
+    assert st["caustics"] == "" and st["guiding_caustic_cells"] > 0
