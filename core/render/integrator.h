@@ -54,6 +54,14 @@ struct CausticLight {
   const Camera* camera = nullptr;
   bool nee = true;         // the path tracer samples the environment at the last smooth vertex
   bool differentials = false;  // camera rays carry ray differentials (IntegratorSettings::differentials)
+  // Path guiding (a guided kernel): the camera path draws the direction at the rough vertex
+  // from the mixture of the BSDF and the guide, so the light path's weight takes that mixture's
+  // pdf there, from the field as the same pass's camera paths sample it (light paths are traced
+  // before the pass, the field changes only between passes). Null: no guiding.
+  const GuidingField* guide = nullptr;
+  float guide_probability = 0.0f;       // IntegratorSettings::guide_probability
+  bool guide_learn_probability = false;  // per cell (GuidingField::probability) instead
+  float guide_caustic_probability = 0.0f;  // the caustic lobes' share (IntegratorSettings)
 };
 
 struct IntegratorSettings {

@@ -13,9 +13,14 @@ namespace {
 
 TraceFn caustic_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
   constexpr uint32_t kFast = kKernelNonDiffuse | kKernelEnvironment | kKernelCaustics;
+  constexpr uint32_t kGuided = kFast | kKernelGuiding;  // (with path guiding)
   if (!force_general && (needed & ~kFast) == 0) {
     chosen = kFast;
     return &trace_path_t<kFast>;
+  }
+  if (!force_general && (needed & ~kGuided) == 0) {
+    chosen = kGuided;
+    return &trace_path_t<kGuided>;
   }
   chosen = kKernelAll | kKernelCaustics;
   return &trace_path_t<kKernelAll | kKernelCaustics>;
@@ -209,6 +214,20 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           float qf1;
           const Vec3 f1 = eval_mixture(cl, wc, wo_l, reflection, qf1);
           if (is_black(f1) || !(qf1 > 0.0f) || cos_c == 0.0f || cos_l == 0.0f) break;
+          if (cz.guide && cz.guide->ready()) {
+            // A guided camera path drew wo_l here from the mixture (trace_path.inl's guided_pdf,
+            // at the cell of this point facing the camera): its density is the one to compare.
+            const GuidingField& g = *cz.guide;
+            const Vec3 ng_c = cos_c > 0.0f ? sp.ng : -sp.ng;
+            const uint32_t cell = g.cell_of(sp.p, ng_c);
+            const float gp = cz.guide_learn_probability ? g.probability(cell) : cz.guide_probability;
+            if (gp > 0.0f) qf1 = (1.0f - gp) * qf1 + gp * g.pdf(cell, wo_l);
+            if (cz.guide_caustic_probability > 0.0f) {
+              const int32_t cc = g.caustic_cell(sp.p, ng_c);
+              if (cc >= 0) qf1 = (1.0f - cz.guide_caustic_probability) * qf1 + cz.guide_caustic_probability * g.caustic_pdf(cc, wo_l);
+            }
+            if (!(qf1 > 0.0f)) break;
+          }
           Ray sh;
           sh.org = offset_ray_origin(sp.p, sp.p_error, cos_c > 0.0f ? sp.ng : -sp.ng);
           const Vec3 near = cam.origin() + (sp.p - cam.origin()) * (cam.clip_start() / cam.view_depth(sp.p));

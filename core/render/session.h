@@ -98,7 +98,8 @@ struct RenderSettings {
   float guiding_photons = 0.0f;
   float guiding_photon_share = 0.5f;
   float guiding_photon_split = 1.0f;  // a photon record's weight in a cell's split count
-  // Caustic photons only (L S+ D, trace_guide_photons), kept over the iterations.
+  // Caustic photons only (L S+ D, trace_guide_photons), kept over the iterations; none where
+  // caustic light paths are on (they carry those caustics themselves).
   bool guiding_caustics = false;
   // Caustic lobes (GuidingField::set_caustic_lobes; with guiding_caustics): the probability of
   // a direction from them where a vertex has some (0: none), their cubes' edge over the scene's

@@ -132,7 +132,13 @@ def test_automatic_caustics_follow_the_environments_sun():
         core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
         core_scene.commit()
         states[peak] = pc.Session(core_scene, session.render_settings(pc, scene)).stats()["caustics"]
-    assert states[200.0].startswith("on (automatic)"), states
+        if peak == 200.0:
+            # Path Guiding keeps them ("Guiding with caustic light paths"), in its guided kernel.
+            scene.pathlight.use_guiding = True
+            st = pc.Session(core_scene, session.render_settings(pc, scene)).stats()
+            states["guided"] = st["caustics"]
+            assert "guiding+caustics" in st["kernel"], st["kernel"]
+    assert states[200.0].startswith("on (automatic)") and states["guided"] == states[200.0], states
     assert states[50.0].startswith("off (automatic): the environment's peak"), states
 
 
