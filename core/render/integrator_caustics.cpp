@@ -56,8 +56,10 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
   return true;
 }
 
-bool caustic_lamp(const Light& l) {
-  if (light_has_extent(l) || l.type == LightType::Rect || l.type == LightType::Ellipse) return false;
+bool caustic_lamp(const Light& l, bool light_hits) {
+  if (l.type == LightType::Rect || l.type == LightType::Ellipse) return false;
+  // With extent: the BSDF ray that finds it is a strategy of its own (Scene::hit_lights).
+  if (light_has_extent(l) && !(light_hits && l.mis)) return false;
   constexpr uint8_t kSurfaces = kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission;
   if (!l.cast_shadow || (l.visibility & kSurfaces) != kSurfaces) return false;
   if (l.light_mask != ~uint64_t(0) || l.shadow_mask != ~uint64_t(0)) return false;
@@ -112,6 +114,9 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
     }
     Vec3 wl, beta;
     float ps;
+    // A lamp with extent: its light sample's solid-angle density at the first hit towards the
+    // start (the BSDF ray's rival there); 0: a delta start.
+    float shape = 0.0f;
     Ray ray;
     ray.tmax = kInf;
     // A light path from direction wl (the environment's, a sun's): from a point of the caster
@@ -136,7 +141,18 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
     } else {
       const Light& l = scene.light(lamp->light);
       const Vec2 ud{rng.next_float(), rng.next_float()};
-      if (l.type == LightType::Sun) {
+      if (l.type == LightType::Sun && lamp->extent) {
+        // A direction in the sun's cone as its own light sample draws it, then across the
+        // caster sphere's disk as the environment's.
+        LightSample ls;
+        const Vec2 uc{rng.next_float(), rng.next_float()};
+        if (!sample_light(l, cz.center, uc, ls) || ls.delta || !(ls.pdf > 0.0f)) continue;
+        wl = ls.wi;
+        start_on_disk(ud);
+        beta = ls.li * (disk / (lamp->pmf * ls.pdf));
+        ps = lamp->pmf * ls.pdf / disk;
+        shape = ls.pdf;
+      } else if (l.type == LightType::Sun) {
         // A delta direction: across the caster sphere's disk, as the environment's.
         wl = l.dir;
         start_on_disk(ud);
@@ -153,7 +169,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         ray.org = l.position;
         wl = -ray.dir;
         float att = 1.0f;
-        if (l.type == LightType::Spot) att = spot_attenuation(l, ray.dir);  // as its light samples
+        // (with extent, the lamp's own sample at the first hit applies the cone, below)
+        if (l.type == LightType::Spot && !lamp->extent) att = spot_attenuation(l, ray.dir);  // as its light samples
         if (!(att > 0.0f)) continue;
         ps = lamp->pmf / (2.0f * kPi * lamp->one_minus_cos);
         beta = l.color * (att / ps);
@@ -170,11 +187,40 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       if (!scene.intersect(ray, hit)) break;
       SurfacePoint sp;
       scene.surface_point(hit, sp, 0.0f, &ray);
-      const Vec3 wo_l = -ray.dir;  // towards the light
+      Vec3 wo_l = -ray.dir;  // towards the light
       const ClosureList* cs = &cl;  // the closures this vertex samples from
       if (k == 0) {
         if (!(length_sq(sp.p - cz.center) <= cz.radius * cz.radius)) break;
-        if (lamp && scene.light(lamp->light).type != LightType::Sun) {
+        if (lamp && lamp->extent && scene.light(lamp->light).type != LightType::Sun) {
+          // A point or spot with extent: the ray from its centre found x; the start is the
+          // lamp's own light sample from x (the soft disk facing x, or the sphere's cone, with
+          // the spot's cone, IES profile and node tree along that sample), seen from x through
+          // a shadow ray as the path tracer's. The path (start, x) then has the density
+          // ps / d_c^2 (x, per unit area with its cosine to the centre left out) times the
+          // sample's solid-angle density at x, whose ratio to the path tracer's light sample
+          // is its choice alone; the path tracer tests that the centre sees x (trace_path.inl).
+          const Light& l = scene.light(lamp->light);
+          const float cos_c = std::fabs(dot(sp.ng, ray.dir)), dc2 = length_sq(sp.p - l.position);
+          LightSample ls;
+          const Vec2 ul{rng.next_float(), rng.next_float()};
+          if (!(cos_c > 0.0f) || !(dc2 > 0.0f) ||
+              !sample_light(l, sp.p, ul, ls, scene.solid_angle_rect_sampling()) || is_black(ls.li))
+            break;
+          const float cos_s = std::fabs(dot(sp.ng, ls.wi));
+          if (!(cos_s > 0.0f)) break;
+          Ray sh;
+          sh.org = offset_ray_origin(sp.p, sp.p_error, dot(sp.ng, ls.wi) > 0.0f ? sp.ng : -sp.ng);
+          sh.dir = ls.target - sh.org;
+          sh.tmax = 1.0f - 1e-4f;
+          ++rays;
+          const Vec3 vis = l.cast_shadow ? scene.transmittance(sh, rs.shadow_hits()) : Vec3(1.0f);
+          if (is_black(vis)) break;
+          shape = ls.delta ? 0.0f : ls.pdf;
+          wo_l = ls.wi;
+          beta = ls.li * vis * (dc2 / (ps * (ls.delta ? 1.0f : ls.pdf)) * cos_s / cos_c);
+          ps = ps / dc2 * (ls.delta ? 1.0f : ls.pdf);
+          if (!is_finite(beta) || !std::isfinite(ps) || !(ps > 0.0f)) break;
+        } else if (lamp && scene.light(lamp->light).type != LightType::Sun) {
           // A point or spot: its profile and node tree towards this point, as its light sample
           // from here sees them, and the density per unit area here.
           const Light& l = scene.light(lamp->light);
@@ -293,9 +339,16 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       if (k == 0 && lamp) {
         // A delta lamp: the path tracer makes this path only by its light sample here, so that
         // sample's choice stands in for the BSDF's density towards the light (and eb is 0).
+        // With extent, as the environment: the BSDF's density, and eb its light sample's (the
+        // choice times the lamp's own density towards the start) over it.
         const float sel = scene.pick_light_pmf(sp.p, tree ? sp.ns : Vec3(0.0f), lamp->light);
         if (!(sel > 0.0f)) break;
-        prod_f *= sel;
+        if (shape > 0.0f) {
+          eb = sel * shape / qf;
+          prod_f *= qf;
+        } else {
+          prod_f *= sel;
+        }
       } else {
         if (k == 0 && cz.nee) eb = scene.pdf_environment(wl, sp.p) / qf;
         prod_f *= qf;

@@ -602,6 +602,51 @@ inline void add_light_component(PathAovs& a, Vec3 v, bool direct, Vec3 dw, Vec3 
   a.light[kTransmissionDirect + k] += (Vec3(1.0f) - dw - gw) * v;
 }
 
+// The light tracer's density of a path leaving the environment along -dir (dir: towards the
+// light) and first meeting a surface at x: the environment's pdf of dir over the area of its
+// disk across the caster sphere (0 where x is outside the sphere: the light tracer never
+// reaches it).
+inline float caustic_source_pdf(const Scene& scene, const CausticLight& cz, Vec3 dir, Vec3 x) {
+  if (!(cz.env_pmf > 0.0f) || !(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
+  return cz.env_pmf * scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
+}
+// The same for a path leaving lamp `light` (CausticLamp): its choice times its direction's
+// solid-angle density over the squared distance to x (a sun: over its disk's area, as the
+// environment); 0 where the lamp sends none.
+inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 x) {
+  if (light >= cz.lamp_of.size() || cz.lamp_of[light] < 0) return 0.0f;
+  if (!(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
+  const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
+  const Light& l = scene.light(light);
+  if (l.type == LightType::Sun) return m.pmf / (kPi * cz.radius * cz.radius);
+  return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position));
+}
+
+// Whether a light path of lamp `light` could have found the point a ray from org (that point,
+// offset) reaches: a point's or spot's with extent leaves the lamp's centre (CausticLamp), so
+// the centre must see it; any other's starts where the path tracer's own sample ends.
+inline bool caustic_lamp_centre_seen(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 org) {
+  const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
+  const Light& l = scene.light(light);
+  if (!m.extent || l.type == LightType::Sun) return true;
+  Ray r;
+  r.org = org;
+  r.dir = l.position - org;
+  r.tmax = 1.0f - 1e-4f;
+  return !scene.occluded(r);
+}
+// light_hits' third strategy (kKernelCaustics): a lamp's light path, for a BSDF ray that left the
+// last smooth vertex of a caustic path (ratio: the kernel's cz_ratio there, n Pc / Pa less the
+// light path's density of the vertex and the start).
+struct CausticHitMis {
+  const CausticLight* cz = nullptr;
+  float ratio = 0.0f;
+};
+
+// The power heuristic over the caustic paths' three strategies, for the one whose density is 1
+// when the other two's are a and b (relative to it): 1 / (1 + a^2 + b^2).
+inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a + b * b); }
+
 // Emission of the analytic lights that a ray crosses before distance t_end (in units of
 // ray.dir; infinite: the ray escaped, and suns with an angle count too), of the lights visible
 // to its kind `vis` (LightVisibility; the camera's: those visible to the camera, else those
@@ -612,7 +657,8 @@ inline void add_light_component(PathAovs& a, Vec3 v, bool direct, Vec3 dw, Vec3 
 // `from` (lights not linked to it add nothing but to camera rays; its set's pdfs).
 template <bool kLinks = false, class Through>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
-                                  Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0) {
+                                  Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0,
+                                  const CausticHitMis* caus = nullptr) {
   Vec3 sum(0.0f);
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
@@ -628,7 +674,17 @@ template <bool kLinks = false, class Through>
     Vec3 le;
     if (!intersect_light(scene.light(h.index), from, ray.org, d, tmax, t, le, pdf, rects)) return;
     float w = 1.0f;
-    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, kLinks ? set : 0) * pdf);
+    if (weigh) {
+      const float pl = scene.light_choice_pmf(from, from_n, h.index, kLinks ? set : 0) * pdf;
+      w = power_heuristic(prev_pdf, pl);
+      if (caus) {
+        // A lamp with extent that sends caustic light paths: three strategies (the light
+        // path's density times its start's, the lamp's own sample density pdf here).
+        float ps = caustic_lamp_pdf(scene, *caus->cz, h.index, from);
+        if (ps > 0.0f && !caustic_lamp_centre_seen(scene, *caus->cz, h.index, ray.org)) ps = 0.0f;
+        if (ps > 0.0f) w = caustic_mis_weight(pl / prev_pdf, caus->ratio * ps * pdf);
+      }
+    }
     const Vec3 c = through(t) * le * w;
     if (is_finite(c)) sum += c;
   };
@@ -756,29 +812,6 @@ inline bool caustic_vertex(const SurfacePoint& sp, const ClosureList& cl) {
   }
   return true;
 }
-// The light tracer's density of a path leaving the environment along -dir (dir: towards the
-// light) and first meeting a surface at x: the environment's pdf of dir over the area of its
-// disk across the caster sphere (0 where x is outside the sphere: the light tracer never
-// reaches it).
-inline float caustic_source_pdf(const Scene& scene, const CausticLight& cz, Vec3 dir, Vec3 x) {
-  if (!(cz.env_pmf > 0.0f) || !(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
-  return cz.env_pmf * scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
-}
-// The same for a path leaving lamp `light` (CausticLamp): its choice times its direction's
-// solid-angle density over the squared distance to x (a sun: over its disk's area, as the
-// environment); 0 where the lamp sends none.
-inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 x) {
-  if (light >= cz.lamp_of.size() || cz.lamp_of[light] < 0) return 0.0f;
-  if (!(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
-  const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
-  const Light& l = scene.light(light);
-  if (l.type == LightType::Sun) return m.pmf / (kPi * cz.radius * cz.radius);
-  return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position));
-}
-
-// The power heuristic over the caustic paths' three strategies, for the one whose density is 1
-// when the other two's are a and b (relative to it): 1 / (1 + a^2 + b^2).
-inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a + b * b); }
 
 // The passes written at each surface the camera path meets (through Transparent BSDFs), as
 // Cycles' film_write_data_passes and AO pass: the colours, Mist, AO (beta: the throughput there).
@@ -1286,8 +1319,11 @@ restart: __attribute__((unused));
       }
     }
     if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only) && !(kCatcher && resume)) {
+      CausticHitMis chm;
+      if constexpr (kCaus)
+        if (cz_k >= 2 && !prev_delta && !cz->lamps.empty()) chm = {cz, cz_ratio};
       const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
-                                         mis_org, mis_n, through, mis_set);
+                                         mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr);
       L += lh;
       if constexpr (kAovs) {
         if (lp) lp_found(lh);
@@ -1599,8 +1635,16 @@ restart: __attribute__((unused));
               if (!full && std::isinf(ds.dist) && !ds.analytic) {
                 ps = caustic_source_pdf(scene, *cz, ds.wi, sp.p);
                 ab = bsdf_pdf / ds.pdf;  // Pa / Pb
-              } else if (full && ds.analytic && !cz->lamps.empty()) {
+              } else if (ds.analytic && !cz->lamps.empty()) {
+                // A lamp's: with extent (not full) its light path's start has the lamp's own
+                // sample density here, so Pc / Pb keeps only the choice (ds.pdf / the density).
                 ps = caustic_lamp_pdf(scene, *cz, ds.light, sp.p);
+                if (!full && ps > 0.0f) {
+                  ab = bsdf_pdf / ds.pdf;
+                  ps = ps * ds.pdf / ds.choice;
+                  ++c.rays;
+                  if (!caustic_lamp_centre_seen(scene, *cz, ds.light, shadow.org)) ps = 0.0f;
+                }
               }
               if (ps > 0.0f) {
                 float pr;
