@@ -198,7 +198,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           // a shadow ray as the path tracer's. The path (start, x) then has the density
           // ps / d_c^2 (x, per unit area with its cosine to the centre left out) times the
           // sample's solid-angle density at x, whose ratio to the path tracer's light sample
-          // is its choice alone; the path tracer tests that the centre sees x (trace_path.inl).
+          // is its choice alone; the path tracer tests that the centre sees x
+          // (trace_path.inl's caustic_lamp_centre).
           const Light& l = scene.light(lamp->light);
           const float cos_c = std::fabs(dot(sp.ng, ray.dir)), dc2 = length_sq(sp.p - l.position);
           LightSample ls;
@@ -218,7 +219,9 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           shape = ls.delta ? 0.0f : ls.pdf;
           wo_l = ls.wi;
           beta = ls.li * vis * (dc2 / (ps * (ls.delta ? 1.0f : ls.pdf)) * cos_s / cos_c);
-          ps = ps / dc2 * (ls.delta ? 1.0f : ls.pdf);
+          // (its heuristic density with the cosine towards the centre over the start's, as the
+          // path tracer's caustic_lamp_centre)
+          ps = ps / dc2 * (ls.delta ? 1.0f : ls.pdf) * (cos_c / cos_s);
           if (!is_finite(beta) || !std::isfinite(ps) || !(ps > 0.0f)) break;
         } else if (lamp && scene.light(lamp->light).type != LightType::Sun) {
           // A point or spot: its profile and node tree towards this point, as its light sample

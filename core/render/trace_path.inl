@@ -622,25 +622,33 @@ inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32
   return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position));
 }
 
-// Whether a light path of lamp `light` could have found the point a ray from org (that point,
-// offset) reaches: a point's or spot's with extent leaves the lamp's centre (CausticLamp), so
-// the centre must see it; any other's starts where the path tracer's own sample ends.
-inline bool caustic_lamp_centre_seen(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 org) {
+// A point's or spot's light path with extent (CausticLamp) leaves the lamp's centre, so it finds
+// x (normal ng) only where the centre sees it (from org, x offset towards the lamp), and its
+// density there has the cosine towards the centre, not towards its start (wi, from x): the
+// factor cos_c / cos_s that the light path's heuristic density takes over the other lamps'
+// (both sides; a light path that meets x at a grazing angle from the centre then weighs
+// little). 0 where the centre is hidden; 1 for any other lamp.
+inline float caustic_lamp_centre(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 org, Vec3 ng,
+                                 Vec3 wi) {
   const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
   const Light& l = scene.light(light);
-  if (!m.extent || l.type == LightType::Sun) return true;
+  if (!m.extent || l.type == LightType::Sun) return 1.0f;
+  const Vec3 dc = l.position - org;
+  const float cos_s = std::fabs(dot(ng, wi)), cos_c = std::fabs(dot(ng, dc)) / length(dc);
+  if (!(cos_s > 0.0f) || !(cos_c > 0.0f)) return 0.0f;
   Ray r;
   r.org = org;
-  r.dir = l.position - org;
+  r.dir = dc;
   r.tmax = 1.0f - 1e-4f;
-  return !scene.occluded(r);
+  return scene.occluded(r) ? 0.0f : cos_c / cos_s;
 }
 // light_hits' third strategy (kKernelCaustics): a lamp's light path, for a BSDF ray that left the
 // last smooth vertex of a caustic path (ratio: the kernel's cz_ratio there, n Pc / Pa less the
-// light path's density of the vertex and the start).
+// light path's density of the vertex and the start; ng: the vertex's geometric normal).
 struct CausticHitMis {
   const CausticLight* cz = nullptr;
   float ratio = 0.0f;
+  Vec3 ng;
 };
 
 // The power heuristic over the caustic paths' three strategies, for the one whose density is 1
@@ -681,7 +689,7 @@ template <bool kLinks = false, class Through>
         // A lamp with extent that sends caustic light paths: three strategies (the light
         // path's density times its start's, the lamp's own sample density pdf here).
         float ps = caustic_lamp_pdf(scene, *caus->cz, h.index, from);
-        if (ps > 0.0f && !caustic_lamp_centre_seen(scene, *caus->cz, h.index, ray.org)) ps = 0.0f;
+        if (ps > 0.0f) ps *= caustic_lamp_centre(scene, *caus->cz, h.index, ray.org, caus->ng, d);
         if (ps > 0.0f) w = caustic_mis_weight(pl / prev_pdf, caus->ratio * ps * pdf);
       }
     }
@@ -887,6 +895,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   const CausticLight* const cz = kCaus ? s.caustics : nullptr;
   int cz_k = 0;
   float cz_ratio = 0.0f;
+  Vec3 cz_ng(0.0f);  // the last vertex's geometric normal (CausticHitMis)
   // (the catcher path of a split writes its passes into a scratch record: see below)
   PathAovs* aov = kAovs ? aov_in : nullptr;
   GuidingField* const guide = kGuide ? s.guide : nullptr;
@@ -1321,7 +1330,7 @@ restart: __attribute__((unused));
     if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only) && !(kCatcher && resume)) {
       CausticHitMis chm;
       if constexpr (kCaus)
-        if (cz_k >= 2 && !prev_delta && !cz->lamps.empty()) chm = {cz, cz_ratio};
+        if (cz_k >= 2 && !prev_delta && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng};
       const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
                                          mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr);
       L += lh;
@@ -1643,7 +1652,7 @@ restart: __attribute__((unused));
                   ab = bsdf_pdf / ds.pdf;
                   ps = ps * ds.pdf / ds.choice;
                   ++c.rays;
-                  if (!caustic_lamp_centre_seen(scene, *cz, ds.light, shadow.org)) ps = 0.0f;
+                  ps *= caustic_lamp_centre(scene, *cz, ds.light, shadow.org, sp.ng, ds.wi);
                 }
               }
               if (ps > 0.0f) {
@@ -1898,6 +1907,7 @@ restart: __attribute__((unused));
           float pr = 1.0f;
           if (cz_k >= 2) eval_mixture<!kNonDiffuse>(cl, wi, wo, reflection, pr);
           cz_ratio = cz_ratio * pr / pdf;
+          cz_ng = sp.ng;  // (the BSDF ray may find a lamp with extent: light_hits)
           if (!(cz_ratio >= 0.0f) || !std::isfinite(cz_ratio)) cz_k = 0;
         }
       if constexpr (kAovs)
