@@ -57,7 +57,6 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
 }
 
 bool caustic_lamp(const Light& l, bool light_hits) {
-  if (l.type == LightType::Rect || l.type == LightType::Ellipse) return false;
   // With extent: the BSDF ray that finds it is a strategy of its own (Scene::hit_lights).
   if (light_has_extent(l) && !(light_hits && l.mis)) return false;
   constexpr uint8_t kSurfaces = kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission;
@@ -117,6 +116,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
     // A lamp with extent: its light sample's solid-angle density at the first hit towards the
     // start (the BSDF ray's rival there); 0: a delta start.
     float shape = 0.0f;
+    bool area = false;  // an area lamp's start (area_start)
+    Vec3 area_start(0.0f);
     Ray ray;
     ray.tmax = kInf;
     // A light path from direction wl (the environment's, a sun's): from a point of the caster
@@ -152,6 +153,35 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         beta = ls.li * (disk / (lamp->pmf * ls.pdf));
         ps = lamp->pmf * ls.pdf / disk;
         shape = ls.pdf;
+      } else if (is_area_light(l)) {
+        // An area lamp: a point on it by area (as its light samples by area draw it), a
+        // direction uniform in the cone the caster sphere subtends from there (one-sided:
+        // those behind it give nothing), its spread along that direction.
+        Vec2 o{ud.x - 0.5f, ud.y - 0.5f};
+        if (l.type == LightType::Ellipse) {
+          const Vec2 dsk = sample_disk_concentric(ud);
+          o = {0.5f * dsk.x, 0.5f * dsk.y};
+        }
+        area_start = l.position + l.axis_u * o.x + l.axis_v * o.y;
+        const Vec2 uc{rng.next_float(), rng.next_float()};
+        const float omc = caustic_cone_from(cz, area_start);
+        Vec3 axis = cz.center - area_start;
+        axis = length_sq(axis) > 0.0f ? normalize(axis) : l.dir;
+        const float cos_t = 1.0f - uc.x * omc;
+        const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * kPi * uc.y;
+        Vec3 t, b;
+        make_basis(axis, t, b);
+        ray.dir = normalize(axis * cos_t + (t * std::cos(phi) + b * std::sin(phi)) * sin_t);
+        ray.org = area_start;
+        wl = -ray.dir;
+        const float cos0 = dot(ray.dir, l.dir);
+        if (!(cos0 > 0.0f)) continue;
+        Vec3 le = l.color;
+        if (!apply_spread(l, wl, cos0, le)) continue;
+        const float pw = 1.0f / (2.0f * kPi * omc);
+        beta = le * (cos0 * l.area / (lamp->pmf * pw));
+        ps = lamp->pmf * pw / (l.area * cos0);
+        area = true;
       } else if (l.type == LightType::Sun) {
         // A delta direction: across the caster sphere's disk, as the environment's.
         wl = l.dir;
@@ -191,7 +221,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       const ClosureList* cs = &cl;  // the closures this vertex samples from
       if (k == 0) {
         if (!(length_sq(sp.p - cz.center) <= cz.radius * cz.radius)) break;
-        if (lamp && lamp->extent && scene.light(lamp->light).type != LightType::Sun) {
+        if (lamp && lamp->extent && !area && scene.light(lamp->light).type != LightType::Sun) {
           // A point or spot with extent: the ray from its centre found x; the start is the
           // lamp's own light sample from x (the soft disk facing x, or the sphere's cone, with
           // the spot's cone, IES profile and node tree along that sample), seen from x through
@@ -223,6 +253,20 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           // path tracer's caustic_lamp_centre)
           ps = ps / dc2 * (ls.delta ? 1.0f : ls.pdf) * (cos_c / cos_s);
           if (!is_finite(beta) || !std::isfinite(ps) || !(ps > 0.0f)) break;
+        } else if (area) {
+          // Its profile and node tree towards this point, as its light sample from here sees
+          // them; and the lamp's own sample density from here towards the start (Pb's, 0 where
+          // its sample cannot draw it: then no strategy of the path tracer's makes this path,
+          // and it is left out).
+          const Light& l = scene.light(lamp->light);
+          const float dist = length(sp.p - area_start);
+          if ((l.ies || l.shader) && !apply_light_factors(l, area_start, wo_l, dist, beta)) break;
+          float th, pdf;
+          Vec3 le;
+          if (!intersect_light(l, sp.p, sp.p, wo_l, kInf, th, le, pdf, scene.solid_angle_rect_sampling()) ||
+              !(pdf > 0.0f))
+            break;
+          shape = pdf;
         } else if (lamp && scene.light(lamp->light).type != LightType::Sun) {
           // A point or spot: its profile and node tree towards this point, as its light sample
           // from here sees them, and the density per unit area here.

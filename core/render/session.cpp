@@ -606,7 +606,7 @@ void Session::setup_caustics(bool guiding) {
   else if (sf.media || sf.path_state || sf.light_links)
     off("not with volumes, Light Path node state or light linking");
   else if (!env && lamps.empty())
-    off("only an environment map or a sun, point or spot lamp (not an area lamp) sends caustic light paths");
+    off("only an environment map or a lamp (found by rays where it has extent) sends caustic light paths");
   else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
     off("the bounce limits leave no caustic paths");
   std::string peak_note;
@@ -647,6 +647,14 @@ void Session::setup_caustics(bool guiding) {
     float p = 0.0f;
     if (l.type == LightType::Sun) {
       p = disk * lum;
+    } else if (l.type == LightType::Rect || l.type == LightType::Ellipse) {
+      // Its radiance over its area into the cone the caster sphere subtends from its centre,
+      // by the cosine towards it (a tenth where the sphere is beside or behind it).
+      const Vec3 to_c = c - l.position;
+      const float d = length(to_c);
+      const float omc = d > r ? one_minus_cos_from_sin2((r / d) * (r / d)) : 2.0f;
+      const float cos_c = d > 0.0f ? dot(to_c, l.dir) / d : 1.0f;
+      p = lum * l.area * 2.0f * kPi * omc * std::max(0.1f, cos_c);
     } else {
       const float d = length(c - l.position);
       if (d > r) {

@@ -610,16 +610,33 @@ inline float caustic_source_pdf(const Scene& scene, const CausticLight& cz, Vec3
   if (!(cz.env_pmf > 0.0f) || !(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
   return cz.env_pmf * scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
 }
+// 1 - cos of the cone that the caster sphere subtends from q (2: q inside it, every direction):
+// an area lamp's light paths leave its point q uniformly in it.
+inline float caustic_cone_from(const CausticLight& cz, Vec3 q) {
+  const float d2 = length_sq(cz.center - q), r2 = cz.radius * cz.radius;
+  return d2 > r2 ? one_minus_cos_from_sin2(r2 / d2) : 2.0f;
+}
+inline bool is_area_light(const Light& l) { return l.type == LightType::Rect || l.type == LightType::Ellipse; }
 // The same for a path leaving lamp `light` (CausticLamp): its choice times its direction's
 // solid-angle density over the squared distance to x (a sun: over its disk's area, as the
-// environment); 0 where the lamp sends none.
-inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 x) {
+// environment), times `shape` (with extent: the lamp's own sample density at x towards the start
+// x0; 1 for a delta lamp); an area lamp's: its choice, 1 / its area and its cone's density at
+// x0, over the cosine there (per unit solid angle at x, x's cosine left out); 0 where the lamp
+// sends none.
+inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 x, Vec3 x0,
+                              float shape) {
   if (light >= cz.lamp_of.size() || cz.lamp_of[light] < 0) return 0.0f;
   if (!(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
   const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
   const Light& l = scene.light(light);
-  if (l.type == LightType::Sun) return m.pmf / (kPi * cz.radius * cz.radius);
-  return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position));
+  if (l.type == LightType::Sun) return m.pmf / (kPi * cz.radius * cz.radius) * shape;
+  if (is_area_light(l)) {
+    const Vec3 w = x - x0;
+    const float len = length(w), cos0 = dot(w, l.dir) / len;
+    if (!(cos0 > 0.0f) || !(l.area > 0.0f)) return 0.0f;
+    return m.pmf / (2.0f * kPi * caustic_cone_from(cz, x0) * l.area * cos0);
+  }
+  return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position)) * shape;
 }
 
 // A point's or spot's light path with extent (CausticLamp) leaves the lamp's centre, so it finds
@@ -632,7 +649,7 @@ inline float caustic_lamp_centre(const Scene& scene, const CausticLight& cz, uin
                                  Vec3 wi) {
   const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
   const Light& l = scene.light(light);
-  if (!m.extent || l.type == LightType::Sun) return 1.0f;
+  if (!m.extent || l.type == LightType::Sun || is_area_light(l)) return 1.0f;
   const Vec3 dc = l.position - org;
   const float cos_s = std::fabs(dot(ng, wi)), cos_c = std::fabs(dot(ng, dc)) / length(dc);
   if (!(cos_s > 0.0f) || !(cos_c > 0.0f)) return 0.0f;
@@ -688,9 +705,9 @@ template <bool kLinks = false, class Through>
       if (caus) {
         // A lamp with extent that sends caustic light paths: three strategies (the light
         // path's density times its start's, the lamp's own sample density pdf here).
-        float ps = caustic_lamp_pdf(scene, *caus->cz, h.index, from);
+        float ps = caustic_lamp_pdf(scene, *caus->cz, h.index, from, ray.org + d * t, pdf);
         if (ps > 0.0f) ps *= caustic_lamp_centre(scene, *caus->cz, h.index, ray.org, caus->ng, d);
-        if (ps > 0.0f) w = caustic_mis_weight(pl / prev_pdf, caus->ratio * ps * pdf);
+        if (ps > 0.0f) w = caustic_mis_weight(pl / prev_pdf, caus->ratio * ps);
       }
     }
     const Vec3 c = through(t) * le * w;
@@ -1647,10 +1664,9 @@ restart: __attribute__((unused));
               } else if (ds.analytic && !cz->lamps.empty()) {
                 // A lamp's: with extent (not full) its light path's start has the lamp's own
                 // sample density here, so Pc / Pb keeps only the choice (ds.pdf / the density).
-                ps = caustic_lamp_pdf(scene, *cz, ds.light, sp.p);
+                ps = caustic_lamp_pdf(scene, *cz, ds.light, sp.p, ds.target, full ? 1.0f : ds.pdf / ds.choice);
                 if (!full && ps > 0.0f) {
                   ab = bsdf_pdf / ds.pdf;
-                  ps = ps * ds.pdf / ds.choice;
                   ++c.rays;
                   ps *= caustic_lamp_centre(scene, *cz, ds.light, shadow.org, sp.ng, ds.wi);
                 }
