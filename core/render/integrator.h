@@ -19,18 +19,24 @@ namespace pl {
 class GuidingField;
 
 // Caustic light tracing (render/integrator_caustics.cpp, docs/design/sampling.md "Caustics by
-// light tracing"): light paths from the environment and delta lamps through smooth vertices to
+// light tracing"): light paths from the environment and lamps through smooth vertices to
 // a first rough one, connected to a still pinhole camera and splatted, combined by the power
 // heuristic with the path tracer's strategies for the same paths (class L S+ D E: the camera's
 // first vertex rough, every later one smooth, the last one lit by the light). Both sides compute
 // the same heuristic pdfs from the same path, so the weights sum to 1 (three strategies for the
 // environment, two for a delta lamp: the light sample at the last smooth vertex and the path).
 //
-// A lamp that sends caustic light paths: a delta lamp (sun, point or spot without extent), whose
-// caustics the path tracer makes only by its light sample at the last smooth vertex.
+// A lamp that sends caustic light paths. A delta one's caustics the path tracer makes only by
+// its light sample at the last smooth vertex (two strategies); one with extent (a point or spot
+// of radius > 0, a sun of angle > 0, an area lamp) also by the BSDF ray that finds it (three).
+// A point's or spot's light path leaves its centre towards the caster sphere and, at the first
+// hit x, takes the lamp's own light sample from x for its start (the soft disk facing x, or the
+// sphere's cone), so the start's density is exact in either model; an area lamp's leaves a
+// point on it by area towards the caster sphere.
 struct CausticLamp {
   uint32_t light = 0;            // Scene::light index
   float pmf = 0.0f;              // the probability that a light path starts at it
+  bool extent = false;           // light_has_extent: rays find it (MIS with the BSDF ray)
   Vec3 axis{0.0f, 0.0f, 1.0f};   // point/spot: the unit direction to the caster sphere's centre
   float one_minus_cos = 2.0f;    // point/spot: of the cone the caster sphere subtends (2: all)
 };
@@ -275,11 +281,11 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
 // The caster sphere: bounds of the smooth surfaces that `probes` deterministic rays (from
 // points in the scene's bounds, in all directions) meet first; false where they met none.
 bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius);
-// Whether lamp l may send caustic light paths (CausticLamp): without extent (a sun of angle 0, a
-// point or spot of radius 0), casting shadows, visible to every surface ray (a light path cannot
-// follow a lamp that some closures do not see or that shines through blockers), and a sun
-// without a node tree.
-bool caustic_lamp(const Light& l);
+// Whether lamp l may send caustic light paths (CausticLamp): any kind, casting shadows, visible to every surface ray (a light path cannot follow a
+// lamp that some closures do not see or that shines through blockers), and a sun without a node
+// tree. One with extent also needs rays to find it (light_hits: Multiple Importance on and the
+// scene's light hits), so that the BSDF strategy its MIS counts exists.
+bool caustic_lamp(const Light& l, bool light_hits);
 // The share of the environment's power in directions brighter than `factor` times its mean
 // radiance over the sphere (a sun's), estimated from 64 x 64 stratified samples of its full
 // importance map weighted by luminance / pdf (so right whatever it samples by: texels, a sky's

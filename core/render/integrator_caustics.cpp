@@ -61,8 +61,9 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
   return true;
 }
 
-bool caustic_lamp(const Light& l) {
-  if (light_has_extent(l) || l.type == LightType::Rect || l.type == LightType::Ellipse) return false;
+bool caustic_lamp(const Light& l, bool light_hits) {
+  // With extent: the BSDF ray that finds it is a strategy of its own (Scene::hit_lights).
+  if (light_has_extent(l) && !(light_hits && l.mis)) return false;
   constexpr uint8_t kSurfaces = kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission;
   if (!l.cast_shadow || (l.visibility & kSurfaces) != kSurfaces) return false;
   if (l.light_mask != ~uint64_t(0) || l.shadow_mask != ~uint64_t(0)) return false;
@@ -117,6 +118,11 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
     }
     Vec3 wl, beta;
     float ps;
+    // A lamp with extent: its light sample's solid-angle density at the first hit towards the
+    // start (the BSDF ray's rival there); 0: a delta start.
+    float shape = 0.0f;
+    bool area = false;  // an area lamp's start (area_start)
+    Vec3 area_start(0.0f);
     Ray ray;
     ray.tmax = kInf;
     // A light path from direction wl (the environment's, a sun's): from a point of the caster
@@ -141,7 +147,47 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
     } else {
       const Light& l = scene.light(lamp->light);
       const Vec2 ud{rng.next_float(), rng.next_float()};
-      if (l.type == LightType::Sun) {
+      if (l.type == LightType::Sun && lamp->extent) {
+        // A direction in the sun's cone as its own light sample draws it, then across the
+        // caster sphere's disk as the environment's.
+        LightSample ls;
+        const Vec2 uc{rng.next_float(), rng.next_float()};
+        if (!sample_light(l, cz.center, uc, ls) || ls.delta || !(ls.pdf > 0.0f)) continue;
+        wl = ls.wi;
+        start_on_disk(ud);
+        beta = ls.li * (disk / (lamp->pmf * ls.pdf));
+        ps = lamp->pmf * ls.pdf / disk;
+        shape = ls.pdf;
+      } else if (is_area_light(l)) {
+        // An area lamp: a point on it by area (as its light samples by area draw it), a
+        // direction uniform in the cone the caster sphere subtends from there (one-sided:
+        // those behind it give nothing), its spread along that direction.
+        Vec2 o{ud.x - 0.5f, ud.y - 0.5f};
+        if (l.type == LightType::Ellipse) {
+          const Vec2 dsk = sample_disk_concentric(ud);
+          o = {0.5f * dsk.x, 0.5f * dsk.y};
+        }
+        area_start = l.position + l.axis_u * o.x + l.axis_v * o.y;
+        const Vec2 uc{rng.next_float(), rng.next_float()};
+        const float omc = caustic_cone_from(cz, area_start);
+        Vec3 axis = cz.center - area_start;
+        axis = length_sq(axis) > 0.0f ? normalize(axis) : l.dir;
+        const float cos_t = 1.0f - uc.x * omc;
+        const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * kPi * uc.y;
+        Vec3 t, b;
+        make_basis(axis, t, b);
+        ray.dir = normalize(axis * cos_t + (t * std::cos(phi) + b * std::sin(phi)) * sin_t);
+        ray.org = area_start;
+        wl = -ray.dir;
+        const float cos0 = dot(ray.dir, l.dir);
+        if (!(cos0 > 0.0f)) continue;
+        Vec3 le = l.color;
+        if (!apply_spread(l, wl, cos0, le)) continue;
+        const float pw = 1.0f / (2.0f * kPi * omc);
+        beta = le * (cos0 * l.area / (lamp->pmf * pw));
+        ps = lamp->pmf * pw / (l.area * cos0);
+        area = true;
+      } else if (l.type == LightType::Sun) {
         // A delta direction: across the caster sphere's disk, as the environment's.
         wl = l.dir;
         start_on_disk(ud);
@@ -158,7 +204,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         ray.org = l.position;
         wl = -ray.dir;
         float att = 1.0f;
-        if (l.type == LightType::Spot) att = spot_attenuation(l, ray.dir);  // as its light samples
+        // (with extent, the lamp's own sample at the first hit applies the cone, below)
+        if (l.type == LightType::Spot && !lamp->extent) att = spot_attenuation(l, ray.dir);  // as its light samples
         if (!(att > 0.0f)) continue;
         ps = lamp->pmf / (2.0f * kPi * lamp->one_minus_cos);
         beta = l.color * (att / ps);
@@ -175,11 +222,57 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       if (!scene.intersect(ray, hit)) break;
       SurfacePoint sp;
       scene.surface_point(hit, sp, 0.0f, &ray);
-      const Vec3 wo_l = -ray.dir;  // towards the light
+      Vec3 wo_l = -ray.dir;  // towards the light
       const ClosureList* cs = &cl;  // the closures this vertex samples from
       if (k == 0) {
         if (!(length_sq(sp.p - cz.center) <= cz.radius * cz.radius)) break;
-        if (lamp && scene.light(lamp->light).type != LightType::Sun) {
+        if (lamp && lamp->extent && !area && scene.light(lamp->light).type != LightType::Sun) {
+          // A point or spot with extent: the ray from its centre found x; the start is the
+          // lamp's own light sample from x (the soft disk facing x, or the sphere's cone, with
+          // the spot's cone, IES profile and node tree along that sample), seen from x through
+          // a shadow ray as the path tracer's. The path (start, x) then has the density
+          // ps / d_c^2 (x, per unit area with its cosine to the centre left out) times the
+          // sample's solid-angle density at x, whose ratio to the path tracer's light sample
+          // is its choice alone; the path tracer tests that the centre sees x
+          // (trace_path.inl's caustic_lamp_centre).
+          const Light& l = scene.light(lamp->light);
+          const float cos_c = std::fabs(dot(sp.ng, ray.dir)), dc2 = length_sq(sp.p - l.position);
+          LightSample ls;
+          const Vec2 ul{rng.next_float(), rng.next_float()};
+          if (!(cos_c > 0.0f) || !(dc2 > 0.0f) ||
+              !sample_light(l, sp.p, ul, ls, scene.solid_angle_rect_sampling()) || is_black(ls.li))
+            break;
+          const float cos_s = std::fabs(dot(sp.ng, ls.wi));
+          if (!(cos_s > 0.0f)) break;
+          Ray sh;
+          sh.org = offset_ray_origin(sp.p, sp.p_error, dot(sp.ng, ls.wi) > 0.0f ? sp.ng : -sp.ng);
+          sh.dir = ls.target - sh.org;
+          sh.tmax = 1.0f - 1e-4f;
+          ++rays;
+          const Vec3 vis = l.cast_shadow ? scene.transmittance(sh, rs.shadow_hits()) : Vec3(1.0f);
+          if (is_black(vis)) break;
+          shape = ls.delta ? 0.0f : ls.pdf;
+          wo_l = ls.wi;
+          beta = ls.li * vis * (dc2 / (ps * (ls.delta ? 1.0f : ls.pdf)) * cos_s / cos_c);
+          // (its heuristic density with the cosine towards the centre over the start's, as the
+          // path tracer's caustic_lamp_centre)
+          ps = ps / dc2 * (ls.delta ? 1.0f : ls.pdf) * (cos_c / cos_s);
+          if (!is_finite(beta) || !std::isfinite(ps) || !(ps > 0.0f)) break;
+        } else if (area) {
+          // Its profile and node tree towards this point, as its light sample from here sees
+          // them; and the lamp's own sample density from here towards the start (Pb's, 0 where
+          // its sample cannot draw it: then no strategy of the path tracer's makes this path,
+          // and it is left out).
+          const Light& l = scene.light(lamp->light);
+          const float dist = length(sp.p - area_start);
+          if ((l.ies || l.shader) && !apply_light_factors(l, area_start, wo_l, dist, beta)) break;
+          float th, pdf;
+          Vec3 le;
+          if (!intersect_light(l, sp.p, sp.p, wo_l, kInf, th, le, pdf, scene.solid_angle_rect_sampling()) ||
+              !(pdf > 0.0f))
+            break;
+          shape = pdf;
+        } else if (lamp && scene.light(lamp->light).type != LightType::Sun) {
           // A point or spot: its profile and node tree towards this point, as its light sample
           // from here sees them, and the density per unit area here.
           const Light& l = scene.light(lamp->light);
@@ -312,9 +405,16 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       if (k == 0 && lamp) {
         // A delta lamp: the path tracer makes this path only by its light sample here, so that
         // sample's choice stands in for the BSDF's density towards the light (and eb is 0).
+        // With extent, as the environment: the BSDF's density, and eb its light sample's (the
+        // choice times the lamp's own density towards the start) over it.
         const float sel = scene.pick_light_pmf(sp.p, tree ? sp.ns : Vec3(0.0f), lamp->light);
         if (!(sel > 0.0f)) break;
-        prod_f *= sel;
+        if (shape > 0.0f) {
+          eb = sel * shape / qf;
+          prod_f *= qf;
+        } else {
+          prod_f *= sel;
+        }
       } else {
         if (k == 0 && cz.nee) eb = scene.pdf_environment(wl, sp.p) / qf;
         prod_f *= qf;

@@ -603,12 +603,12 @@ void Session::setup_caustics(bool guiding) {
   const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
   const bool env = scene_->environment().valid();
   const bool nee = settings_.use_nee && scene_->has_lights();
-  // The lamps that may send light paths: delta ones (their caustics are the path tracer's light
-  // samples at the last smooth vertex alone), with the settings a light path can follow.
+  // The lamps that may send light paths: suns, points and spots (with extent, where rays find
+  // them), with the settings a light path can follow.
   std::vector<uint32_t> lamps;
   if (nee)
     for (size_t i = 0; i < scene_->light_count(); ++i)
-      if (caustic_lamp(scene_->light(i))) lamps.push_back(uint32_t(i));
+      if (caustic_lamp(scene_->light(i), scene_->light_hits_enabled())) lamps.push_back(uint32_t(i));
   if (settings_.debug_view != DebugView::None) off("debug view");
   else if (guiding && settings_.guiding_class_mask != 0) off("not with path classes (a measurement of guiding)");
   else if (film_.has_pass(Pass::ShadowCatcherMatte)) off("not combined with shadow catchers");
@@ -617,7 +617,7 @@ void Session::setup_caustics(bool guiding) {
   else if (sf.media || sf.path_state || sf.light_links)
     off("not with volumes, Light Path node state or light linking");
   else if (!env && lamps.empty())
-    off("only an environment map or a lamp without extent (sun, point, spot) sends caustic light paths");
+    off("only an environment map or a lamp (found by rays where it has extent) sends caustic light paths");
   else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
     off("the bounce limits leave no caustic paths");
   std::string peak_note;
@@ -653,10 +653,19 @@ void Session::setup_caustics(bool guiding) {
     const Light& l = scene_->light(i);
     CausticLamp m;
     m.light = i;
+    m.extent = light_has_extent(l);
     const float lum = std::max(luminance(l.color), 0.0f) * light_power_scale(l);
     float p = 0.0f;
     if (l.type == LightType::Sun) {
       p = disk * lum;
+    } else if (l.type == LightType::Rect || l.type == LightType::Ellipse) {
+      // Its radiance over its area into the cone the caster sphere subtends from its centre,
+      // by the cosine towards it (a tenth where the sphere is beside or behind it).
+      const Vec3 to_c = c - l.position;
+      const float d = length(to_c);
+      const float omc = d > r ? one_minus_cos_from_sin2((r / d) * (r / d)) : 2.0f;
+      const float cos_c = d > 0.0f ? dot(to_c, l.dir) / d : 1.0f;
+      p = lum * l.area * 2.0f * kPi * omc * std::max(0.1f, cos_c);
     } else {
       const float d = length(c - l.position);
       if (d > r) {

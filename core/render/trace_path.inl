@@ -602,6 +602,76 @@ inline void add_light_component(PathAovs& a, Vec3 v, bool direct, Vec3 dw, Vec3 
   a.light[kTransmissionDirect + k] += (Vec3(1.0f) - dw - gw) * v;
 }
 
+// The light tracer's density of a path leaving the environment along -dir (dir: towards the
+// light) and first meeting a surface at x: the environment's pdf of dir over the area of its
+// disk across the caster sphere (0 where x is outside the sphere: the light tracer never
+// reaches it).
+inline float caustic_source_pdf(const Scene& scene, const CausticLight& cz, Vec3 dir, Vec3 x) {
+  if (!(cz.env_pmf > 0.0f) || !(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
+  return cz.env_pmf * scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
+}
+// 1 - cos of the cone that the caster sphere subtends from q (2: q inside it, every direction):
+// an area lamp's light paths leave its point q uniformly in it.
+inline float caustic_cone_from(const CausticLight& cz, Vec3 q) {
+  const float d2 = length_sq(cz.center - q), r2 = cz.radius * cz.radius;
+  return d2 > r2 ? one_minus_cos_from_sin2(r2 / d2) : 2.0f;
+}
+inline bool is_area_light(const Light& l) { return l.type == LightType::Rect || l.type == LightType::Ellipse; }
+// The same for a path leaving lamp `light` (CausticLamp): its choice times its direction's
+// solid-angle density over the squared distance to x (a sun: over its disk's area, as the
+// environment), times `shape` (with extent: the lamp's own sample density at x towards the start
+// x0; 1 for a delta lamp); an area lamp's: its choice, 1 / its area and its cone's density at
+// x0, over the cosine there (per unit solid angle at x, x's cosine left out); 0 where the lamp
+// sends none.
+inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 x, Vec3 x0,
+                              float shape) {
+  if (light >= cz.lamp_of.size() || cz.lamp_of[light] < 0) return 0.0f;
+  if (!(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
+  const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
+  const Light& l = scene.light(light);
+  if (l.type == LightType::Sun) return m.pmf / (kPi * cz.radius * cz.radius) * shape;
+  if (is_area_light(l)) {
+    const Vec3 w = x - x0;
+    const float len = length(w), cos0 = dot(w, l.dir) / len;
+    if (!(cos0 > 0.0f) || !(l.area > 0.0f)) return 0.0f;
+    return m.pmf / (2.0f * kPi * caustic_cone_from(cz, x0) * l.area * cos0);
+  }
+  return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position)) * shape;
+}
+
+// A point's or spot's light path with extent (CausticLamp) leaves the lamp's centre, so it finds
+// x (normal ng) only where the centre sees it (from org, x offset towards the lamp), and its
+// density there has the cosine towards the centre, not towards its start (wi, from x): the
+// factor cos_c / cos_s that the light path's heuristic density takes over the other lamps'
+// (both sides; a light path that meets x at a grazing angle from the centre then weighs
+// little). 0 where the centre is hidden; 1 for any other lamp.
+inline float caustic_lamp_centre(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 org, Vec3 ng,
+                                 Vec3 wi) {
+  const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
+  const Light& l = scene.light(light);
+  if (!m.extent || l.type == LightType::Sun || is_area_light(l)) return 1.0f;
+  const Vec3 dc = l.position - org;
+  const float cos_s = std::fabs(dot(ng, wi)), cos_c = std::fabs(dot(ng, dc)) / length(dc);
+  if (!(cos_s > 0.0f) || !(cos_c > 0.0f)) return 0.0f;
+  Ray r;
+  r.org = org;
+  r.dir = dc;
+  r.tmax = 1.0f - 1e-4f;
+  return scene.occluded(r) ? 0.0f : cos_c / cos_s;
+}
+// light_hits' third strategy (kKernelCaustics): a lamp's light path, for a BSDF ray that left the
+// last smooth vertex of a caustic path (ratio: the kernel's cz_ratio there, n Pc / Pa less the
+// light path's density of the vertex and the start; ng: the vertex's geometric normal).
+struct CausticHitMis {
+  const CausticLight* cz = nullptr;
+  float ratio = 0.0f;
+  Vec3 ng;
+};
+
+// The power heuristic over the caustic paths' three strategies, for the one whose density is 1
+// when the other two's are a and b (relative to it): 1 / (1 + a^2 + b^2).
+inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a + b * b); }
+
 // Emission of the analytic lights that a ray crosses before distance t_end (in units of
 // ray.dir; infinite: the ray escaped, and suns with an angle count too), of the lights visible
 // to its kind `vis` (LightVisibility; the camera's: those visible to the camera, else those
@@ -612,7 +682,8 @@ inline void add_light_component(PathAovs& a, Vec3 v, bool direct, Vec3 dw, Vec3 
 // `from` (lights not linked to it add nothing but to camera rays; its set's pdfs).
 template <bool kLinks = false, class Through>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
-                                  Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0) {
+                                  Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0,
+                                  const CausticHitMis* caus = nullptr) {
   Vec3 sum(0.0f);
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
@@ -628,7 +699,17 @@ template <bool kLinks = false, class Through>
     Vec3 le;
     if (!intersect_light(scene.light(h.index), from, ray.org, d, tmax, t, le, pdf, rects)) return;
     float w = 1.0f;
-    if (weigh) w = power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, kLinks ? set : 0) * pdf);
+    if (weigh) {
+      const float pl = scene.light_choice_pmf(from, from_n, h.index, kLinks ? set : 0) * pdf;
+      w = power_heuristic(prev_pdf, pl);
+      if (caus) {
+        // A lamp with extent that sends caustic light paths: three strategies (the light
+        // path's density times its start's, the lamp's own sample density pdf here).
+        float ps = caustic_lamp_pdf(scene, *caus->cz, h.index, from, ray.org + d * t, pdf);
+        if (ps > 0.0f) ps *= caustic_lamp_centre(scene, *caus->cz, h.index, ray.org, caus->ng, d);
+        if (ps > 0.0f) w = caustic_mis_weight(pl / prev_pdf, caus->ratio * ps);
+      }
+    }
     const Vec3 c = through(t) * le * w;
     if (is_finite(c)) sum += c;
   };
@@ -756,29 +837,6 @@ inline bool caustic_vertex(const SurfacePoint& sp, const ClosureList& cl) {
   }
   return true;
 }
-// The light tracer's density of a path leaving the environment along -dir (dir: towards the
-// light) and first meeting a surface at x: the environment's pdf of dir over the area of its
-// disk across the caster sphere (0 where x is outside the sphere: the light tracer never
-// reaches it).
-inline float caustic_source_pdf(const Scene& scene, const CausticLight& cz, Vec3 dir, Vec3 x) {
-  if (!(cz.env_pmf > 0.0f) || !(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
-  return cz.env_pmf * scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
-}
-// The same for a path leaving lamp `light` (CausticLamp): its choice times its direction's
-// solid-angle density over the squared distance to x (a sun: over its disk's area, as the
-// environment); 0 where the lamp sends none.
-inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 x) {
-  if (light >= cz.lamp_of.size() || cz.lamp_of[light] < 0) return 0.0f;
-  if (!(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
-  const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
-  const Light& l = scene.light(light);
-  if (l.type == LightType::Sun) return m.pmf / (kPi * cz.radius * cz.radius);
-  return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position));
-}
-
-// The power heuristic over the caustic paths' three strategies, for the one whose density is 1
-// when the other two's are a and b (relative to it): 1 / (1 + a^2 + b^2).
-inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a + b * b); }
 
 // The passes written at each surface the camera path meets (through Transparent BSDFs), as
 // Cycles' film_write_data_passes and AO pass: the colours, Mist, AO (beta: the throughput there).
@@ -854,6 +912,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   const CausticLight* const cz = kCaus ? s.caustics : nullptr;
   int cz_k = 0;
   float cz_ratio = 0.0f;
+  Vec3 cz_ng(0.0f);  // the last vertex's geometric normal (CausticHitMis)
   // (the catcher path of a split writes its passes into a scratch record: see below)
   PathAovs* aov = kAovs ? aov_in : nullptr;
   GuidingField* const guide = kGuide ? s.guide : nullptr;
@@ -1286,8 +1345,11 @@ restart: __attribute__((unused));
       }
     }
     if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only) && !(kCatcher && resume)) {
+      CausticHitMis chm;
+      if constexpr (kCaus)
+        if (cz_k >= 2 && !prev_delta && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng};
       const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
-                                         mis_org, mis_n, through, mis_set);
+                                         mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr);
       L += lh;
       if constexpr (kAovs) {
         if (lp) lp_found(lh);
@@ -1599,8 +1661,15 @@ restart: __attribute__((unused));
               if (!full && std::isinf(ds.dist) && !ds.analytic) {
                 ps = caustic_source_pdf(scene, *cz, ds.wi, sp.p);
                 ab = bsdf_pdf / ds.pdf;  // Pa / Pb
-              } else if (full && ds.analytic && !cz->lamps.empty()) {
-                ps = caustic_lamp_pdf(scene, *cz, ds.light, sp.p);
+              } else if (ds.analytic && !cz->lamps.empty()) {
+                // A lamp's: with extent (not full) its light path's start has the lamp's own
+                // sample density here, so Pc / Pb keeps only the choice (ds.pdf / the density).
+                ps = caustic_lamp_pdf(scene, *cz, ds.light, sp.p, ds.target, full ? 1.0f : ds.pdf / ds.choice);
+                if (!full && ps > 0.0f) {
+                  ab = bsdf_pdf / ds.pdf;
+                  ++c.rays;
+                  ps *= caustic_lamp_centre(scene, *cz, ds.light, shadow.org, sp.ng, ds.wi);
+                }
               }
               if (ps > 0.0f) {
                 float pr;
@@ -1854,6 +1923,7 @@ restart: __attribute__((unused));
           float pr = 1.0f;
           if (cz_k >= 2) eval_mixture<!kNonDiffuse>(cl, wi, wo, reflection, pr);
           cz_ratio = cz_ratio * pr / pdf;
+          cz_ng = sp.ng;  // (the BSDF ray may find a lamp with extent: light_hits)
           if (!(cz_ratio >= 0.0f) || !std::isfinite(cz_ratio)) cz_k = 0;
         }
       if constexpr (kAovs)
