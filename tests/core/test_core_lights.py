@@ -991,7 +991,9 @@ def test_sphere_spot_light_cone_near_a_plane():
     s = plane_scene()
     s.add_spot_light(_spot_matrix_down(c), (inten,) * 3, radius=r, spot_size=size, spot_blend=blend,
                      soft_falloff=False)
-    img, _ = render(pc, s, W, W, samples=256)
+    # 1024 spp: at 256 the worst lit region's noise is 1.3-2.5 % over seeds with either sampler
+    # (it passed on the Sobol pairs' seed 0 by luck); at 1024 0.9-1.3 %
+    img, _ = render(pc, s, W, W, samples=1024)
     cos_h = np.cos(size / 2)
 
     def cone_cosine_and_blend(z):
