@@ -113,7 +113,8 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
             ('INDEPENDENT', "Independent Pixels", "Each pixel its own sequence: neighbours' errors are "
              "independent (Pathlight's pattern before blue noise)", 4),
         ),
-        default='AUTOMATIC',
+        # (Automatic, Cycles' default, fails Blender tests against Cycles: docs/design/sampling.md)
+        default='INDEPENDENT',
     )
     frame_samples: IntProperty(
         name="Frame Samples",

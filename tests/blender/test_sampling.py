@@ -43,7 +43,7 @@ def test_defaults_are_cycles_defaults():
         cycles.max_bounces, cycles.diffuse_bounces, cycles.glossy_bounces, cycles.transmission_bounces,
         cycles.transparent_max_bounces)
     assert props.sampler == 'SOBOL' and props.use_animated_seed is False
-    assert props.pixel_pattern == cycles.sampling_pattern == 'AUTOMATIC'  # blue noise, as Cycles'
+    assert props.pixel_pattern == 'INDEPENDENT'  # (not yet Cycles' Automatic: docs/design/sampling.md)
 
 
 def test_enum_items_keep_their_numbers():
