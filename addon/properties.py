@@ -147,6 +147,19 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "arrives indirectly, e.g. a room lit through a window; costs time per sample",
         default=False,
     )
+    use_caustic_light_paths: BoolProperty(
+        name="Caustic Light Paths",
+        description="Trace light paths from the environment through smooth (mirror-like) "
+                    "surfaces onto rough ones and combine them with the camera's paths by "
+                    "multiple importance sampling: far less noise in caustics of a bright HDRI "
+                    "(e.g. the sun reflected by chrome onto a floor). Any pixel filter; still "
+                    "pinhole camera, no volumes; Combined pass only",
+        default=False,
+    )
+    caustic_light_paths: FloatProperty(
+        name="Light Paths", description="Light paths per pixel sample",
+        default=0.1, min=0.01, max=64.0, soft_max=4.0,
+    )
     use_schlick_fresnel: BoolProperty(
         name="Schlick Fresnel",
         description="Use Schlick's approximation of the dielectric Fresnel reflectance (glass, "

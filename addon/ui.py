@@ -72,6 +72,20 @@ class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
         layout.prop(settings, "use_schlick_fresnel")
 
 
+class PATHLIGHT_RENDER_PT_light_paths_caustics(PathlightPanel, bpy.types.Panel):
+    bl_label = "Caustics"
+    bl_parent_id = "PATHLIGHT_RENDER_PT_light_paths"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = split(self.layout)
+        settings = context.scene.pathlight
+        layout.prop(settings, "use_caustic_light_paths")
+        sub = layout.column()
+        sub.active = settings.use_caustic_light_paths
+        sub.prop(settings, "caustic_light_paths")
+
+
 class PATHLIGHT_RENDER_PT_film(PathlightPanel, bpy.types.Panel):
     bl_label = "Film"
     bl_options = {'DEFAULT_CLOSED'}
@@ -236,7 +250,8 @@ class PATHLIGHT_OBJECT_PT_shadow_catcher(PathlightPanel, bpy.types.Panel):
         layout = split(self.layout)
         layout.prop(context.object, "is_shadow_catcher")
 
-classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_film,
+classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
+           PATHLIGHT_RENDER_PT_film,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
            PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher)

@@ -3229,6 +3229,9 @@ PYBIND11_MODULE(pathlight_core, m) {
                      "The caustic lobes' cubes: their edge over the scene's diagonal.")
       .def_readwrite("guiding_caustic_cone", &RenderSettings::guiding_caustic_cone,
                      "The caustic lobes' cone half-angle (radians).")
+      .def_readwrite("caustic_light_paths", &RenderSettings::caustic_light_paths,
+                     "Caustic light tracing: light paths per pixel sample from the environment through smooth "
+                     "surfaces, combined with path tracing by MIS (0: off; stats()['caustics'] says whether it ran)")
       .def_readwrite("guiding_class_mask", &RenderSettings::guiding_class_mask,
                      "Measurement only: with guiding on, keep the light of these path classes (bits).")
       .def_readwrite("guiding_photons", &RenderSettings::guiding_photons,
@@ -4178,6 +4181,7 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["focus_distance"] = s.focus_distance;
              d["autofocus"] = s.autofocus == 0 ? "off" : s.autofocus == 1 ? "hit" : "miss";
              d["kernel"] = s.kernel;
+             d["caustics"] = s.caustics;
              d["features"] = s.features;
              d["unused_features"] = s.unused_features;
              d["guiding_iterations"] = s.guiding_iterations;

@@ -55,6 +55,8 @@ constexpr uint32_t kTreeKernels[] = {kKernelLightTree, kKernelLightTree | kKerne
 
 }  // namespace
 
+// The caustic light tracing kernels (integrator_caustics.cpp).
+TraceFn caustic_kernel(uint32_t needed, bool force_general, uint32_t& chosen);
 // The light tree kernel with exactly the features f (one of kTreeKernels).
 TraceFn light_tree_kernel(uint32_t f);
 // The guided kernels (integrator_guided.cpp), fastest first.
@@ -66,8 +68,9 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
   return trace_path_t<kKernelAll>(scene, ray, sampler, s, c, aov);
 }
 
-uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding) {
+uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding, bool caustics) {
   uint32_t k = 0;
+  if (caustics) k |= kKernelCaustics;
   if (guiding) k |= kKernelGuiding;
   if (f.media) k |= kKernelMedia;
   if (aovs) k |= kKernelAovs;
@@ -81,6 +84,9 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding) {
 }
 
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
+  if (needed & kKernelCaustics) {  // (the session turns them off with catchers and guiding)
+    return caustic_kernel(needed, force_general, chosen);
+  }
   if (needed & kKernelShadowCatcher) {  // (the one kernel that splits paths at catchers)
     chosen = kKernelCatcher;
     return &trace_path_t<kKernelCatcher>;
@@ -108,6 +114,7 @@ TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
 
 std::string kernel_name(uint32_t features) {
   if (features == kKernelAll) return "general";
+  if (features == (kKernelAll | kKernelCaustics)) return "general+caustics";
   if (features == kKernelCatcher) return "general+catcher";
   std::string n = (features & kKernelNonDiffuse) ? "surfaces" : "diffuse";
   if (features & kKernelEnvironment) n += "+env";
@@ -117,6 +124,7 @@ std::string kernel_name(uint32_t features) {
   if (features & kKernelSubsurface) n += "+subsurface";
   if (features & kKernelGuiding) n += "+guiding";
   if (features & kKernelLightLinks) n += "+links";
+  if (features & kKernelCaustics) n += "+caustics";
   return n;
 }
 

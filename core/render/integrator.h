@@ -7,13 +7,37 @@
 #include <optional>
 #include <string>
 #include <type_traits>
+#include <vector>
 
+#include "render/pixel_filter.h"
+#include "scene/camera.h"
 #include "scene/scene.h"
 #include "util/sampler.h"
 
 namespace pl {
 
 class GuidingField;
+
+// Caustic light tracing (render/integrator_caustics.cpp, docs/design/sampling.md "Caustics by
+// light tracing"): light paths from the environment through smooth vertices to a first rough
+// one, connected to a still pinhole camera and splatted, combined by the power heuristic with
+// the path tracer's two strategies for the same paths (class L S+ D E: the camera's first
+// vertex rough, every later one smooth, the last one lit by the environment). Both sides
+// compute the same heuristic pdfs from the same path, so the weights sum to 1.
+struct CausticLight {
+  float paths = 0.0f;      // light paths per pixel sample of the film (the n of the heuristic)
+  Vec3 center{0.0f};       // the caster sphere: around every smooth surface the probes found
+  float radius = 0.0f;
+  float far = 0.0f;        // light paths start this far from its centre, outside the scene
+  int max_vertices = 0;    // the class's vertices (the rough one and the smooth ones) at most
+  float filter_area = 1.0f;  // the box filter's area in pixels (a pixel's sample density is 1 / it)
+  // The pixel filter (any type): a splat goes to every pixel whose footprint holds the point,
+  // weighted by the filter's density there (PixelFilter::density); the box keeps filter_area.
+  const PixelFilter* filter = nullptr;
+  const Camera* camera = nullptr;
+  bool nee = true;         // the path tracer samples the environment at the last smooth vertex
+  bool differentials = false;  // camera rays carry ray differentials (IntegratorSettings::differentials)
+};
 
 struct IntegratorSettings {
   int max_bounces = 12;
@@ -65,6 +89,8 @@ struct IntegratorSettings {
   bool guide_cosine = false;  // records times the cosine to the shading normal
   // Of a direction from the caustic lobes, where a vertex has some (GuidingField::caustic_cell).
   float guide_caustic_probability = 0.0f;
+  // Caustic light tracing on (only kernels with kKernelCaustics read it): MIS with it.
+  const CausticLight* caustics = nullptr;
   // Measurement only: the film keeps the light of these PathClass classes (bits; 0: all).
   uint32_t path_class_mask = 0;
   // Render passes beyond the data passes, filled only by the aov kernel (PathAovs): Cycles'
@@ -117,6 +143,9 @@ enum LightComponent : int {
 
 struct PathCounters {
   uint64_t rays = 0;
+  // In, not counted: 1 / the pixel filter's density at this camera sample (its offset from
+  // the pixel's centre), for the caustic MIS (CausticLight); the box's is its area.
+  float filter_area = 1.0f;
 };
 
 // What a camera path saw, for render passes (AOVs). trace_path fills it only when the caller
@@ -190,11 +219,13 @@ enum KernelFeature : uint32_t {
   // feature and this one): their code cost the general kernel 2 % of its instructions.
   kKernelShadowCatcher = 256,
   kKernelCatcher = kKernelAll | kKernelShadowCatcher,
+  // Caustic light tracing's MIS (IntegratorSettings::caustics): kernels of their own.
+  kKernelCaustics = 512,
 };
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
 // guiding: the render guides its paths.
-uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding = false);
+uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding = false, bool caustics = false);
 // The fastest instantiated kernel that has every feature in `needed` (or the general one when
 // force_general); `chosen` gets its feature bits. Every kernel gives the general one's result.
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen);
@@ -205,6 +236,21 @@ std::string kernel_name(uint32_t features);
 // The denoising features of one shaded point, split as Cycles does: `diffuse_albedo` of the
 // closures rougher than alpha 0.075 and `specular_albedo` of the others; returns true when the
 // point is rough enough (over 25 % of the closure weight) to end the search.
+// Caustic light paths [first, last) of one pixel sample (stream `seed`, path i its own): the
+// splats they make into the film (pixel index of a film `film_w` x `film_h` at full-frame
+// (film_x, film_y)), already weighted and divided by the paths per sample, in path order.
+// Returns the rays traced.
+struct CausticSplat {
+  uint32_t pixel;
+  Vec3 value;
+};
+uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_t seed, uint64_t first,
+                             uint64_t last, int film_x, int film_y, int film_w, int film_h,
+                             std::vector<CausticSplat>& out);
+// The caster sphere: bounds of the smooth surfaces that `probes` deterministic rays (from
+// points in the scene's bounds, in all directions) meet first; false where they met none.
+bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius);
+
 bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal, Vec3& diffuse_albedo,
                         Vec3& specular_albedo);
 

@@ -40,6 +40,19 @@ class PixelFilter {
 
   FilterType type() const { return type_; }
   float width() const { return width_; }
+  // Half the footprint: a sample lands at most this far (in x and in y) from its pixel's centre.
+  float radius() const { return type_ == FilterType::Box ? 0.5f * width_ : radius_; }
+  // The density (per pixel) of a sample's offset d from its pixel's centre along one axis, as
+  // jitter draws it: the CDF's bins are uniform within, so it is the bin's share over its
+  // width (half of it on each side). The 2-D density is density(dx) density(dy); caustic
+  // light paths splat with it, and the path tracer's MIS uses the same.
+  float density(float d) const {
+    const float a = std::fabs(d);
+    if (type_ == FilterType::Box) return a <= 0.5f * width_ ? 1.0f / width_ : 0.0f;
+    if (!(a < radius_)) return 0.0f;
+    const int i = std::min(int(a / radius_ * float(kBins)), kBins - 1);
+    return 0.5f * (cdf_[size_t(i) + 1] - cdf_[size_t(i)]) * float(kBins) / radius_;
+  }
   // Position of a sample in its pixel (0..1 is the pixel itself, 0.5 its centre) for a
   // uniform u in [0, 1). The 1-pixel box gives u itself, bit for bit.
   float jitter(float u) const {

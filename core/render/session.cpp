@@ -222,8 +222,48 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent || scene_->any_holdout() ||
                       integrator_.cryptomatte != 0;
     const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
-    kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding), settings_.force_general_kernel,
-                            kernel_bits_);
+    integrator_.differentials = scene_->features().footprints;
+    const float lt = settings_.caustic_light_paths;
+    if (std::isfinite(lt) && lt > 0.0f) {
+      // Where it can be combined exactly with the path tracer; else off, with the reason.
+      const SceneFeatures& sf = scene_->features();
+      const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
+      if (settings_.debug_view != DebugView::None) caustics_note_ = "off: debug view";
+      else if (guiding) caustics_note_ = "off: not combined with path guiding";
+      else if (film_.has_pass(Pass::ShadowCatcherMatte)) caustics_note_ = "off: not combined with shadow catchers";
+      else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
+        caustics_note_ = "off: only for a still pinhole perspective camera (no depth of field, no motion blur)";
+      else if (sf.media || sf.path_state || sf.light_links)
+        caustics_note_ = "off: not with volumes, Light Path node state or light linking";
+      else if (!scene_->environment().valid()) caustics_note_ = "off: only the environment map sends caustic light paths";
+      else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
+        caustics_note_ = "off: the bounce limits leave no caustic paths";
+      else {
+        Vec3 c;
+        float r;
+        if (!caustic_casters(*scene_, 32768, c, r)) {
+          caustics_note_ = "off: no smooth surface to cast caustics";
+        } else {
+          caustics_ = std::make_unique<CausticLight>();
+          caustic_paths_ = uint64_t(std::max<double>(1.0, std::llround(double(std::min(lt, 64.0f)) * film_.width() * film_.height())));
+          caustics_->paths = float(caustic_paths_);
+          caustics_->center = c;
+          caustics_->radius = r;
+          const Aabb& wb = scene_->world_bounds();
+          caustics_->far = length((wb.lo + wb.hi) * 0.5f - c) + length(wb.extent()) + 2.0f * r;
+          caustics_->max_vertices = k_max;
+          caustics_->filter_area = settings_.filter_width * settings_.filter_width;
+          if (settings_.filter_type != FilterType::Box) caustics_->filter = &filter_;
+          caustics_->camera = &camera_;
+          caustics_->nee = settings_.use_nee && scene_->has_lights();
+          caustics_->differentials = integrator_.differentials;
+          integrator_.caustics = caustics_.get();
+          caustics_note_ = "on";
+        }
+      }
+    }
+    kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr),
+                            settings_.force_general_kernel, kernel_bits_);
     if (guiding) {
       // Müller et al.'s split threshold: cells keep about 12000 records (times the square root
       // of an iteration's samples), enough for a quadtree that follows light, not noise.
@@ -347,6 +387,7 @@ SessionStats Session::stats() const {
   s.focus_distance = focus_distance_;
   s.autofocus = autofocus_;
   s.kernel = kernel_name(kernel_bits_);
+  s.caustics = caustics_note_;
   s.features = features_;
   s.unused_features = unused_features_;
   return s;
@@ -449,6 +490,7 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   const bool bvh_view = settings_.debug_view == DebugView::Bvh;
   std::array<Float4, kMaxShaderAovs> shader_aovs;
   PathCounters counters;
+  if (caustics_) counters.filter_area = caustics_->filter_area;  // (the box's; other filters' per sample)
   uint64_t nonfinite = 0, paths = 0;
   const bool adaptive = min_samples_ > 0;
   // Blue noise: each pixel's sequence and chunk start, found once per tile.
@@ -502,7 +544,11 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         // Dimension 1: the lens, taken only with an aperture, so pinhole renders keep the
         // same streams for their paths.
         const Vec2 lens = camera_.has_aperture() ? sampler.get2d() : Vec2{0.5f, 0.5f};
-        const float rx = float(fx) + filter_.jitter(j.x), ry = float(fy) + filter_.jitter(j.y);
+        const float jx = filter_.jitter(j.x), jy = filter_.jitter(j.y);
+        const float rx = float(fx) + jx, ry = float(fy) + jy;
+        // The caustic MIS's camera density: the filter's at this offset (the box's is flat).
+        if (caustics_ && caustics_->filter)
+          counters.filter_area = 1.0f / (filter_.density(jx - 0.5f) * filter_.density(jy - 0.5f));
         // Motion blur: the shutter time from the next dimension, drawn only where something
         // moves (static scenes keep their streams and their rays).
         const Ray ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))
@@ -514,7 +560,8 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
           ++paths;
           continue;
         }
-        const Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
+        Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
+        if (caustics_) L += caustic_splats_[size_t(s - s0)][size_t(y) * size_t(film_.width()) + size_t(x)];
         ++paths;
         const float alpha = std::isfinite(aovs.alpha) ? aovs.alpha : 1.0f;
         if (is_finite(L)) {
@@ -557,6 +604,34 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   paths_.fetch_add(paths, std::memory_order_relaxed);
   rays_.fetch_add(counters.rays, std::memory_order_relaxed);
   nonfinite_.fetch_add(nonfinite, std::memory_order_relaxed);
+}
+
+// Light paths of samples [s0, s0 + k): sample s's are indexed (s, i) with their own streams,
+// traced in chunks on the pool, and summed into its image in chunk order: the same image for
+// any thread count and any split into passes.
+void Session::trace_caustics(int s0, int k) {
+  constexpr uint64_t kChunk = 2048;
+  const uint64_t n = caustic_paths_, chunks = (n + kChunk - 1) / kChunk;
+  const size_t pixels = size_t(film_.width()) * size_t(film_.height());
+  caustic_splats_.resize(size_t(k));
+  std::vector<std::vector<CausticSplat>> parts(static_cast<size_t>(chunks));
+  for (int j = 0; j < k; ++j) {
+    const uint32_t sample = uint32_t(settings_.sample_offset + s0 + j);
+    const uint64_t seed = mix64(uint64_t(uint32_t(settings_.seed)) * 0x9E3779B97F4A7C15ULL ^
+                                (uint64_t(sample) << 20) ^ 0xCA0571CULL);
+    pool_->parallel_for(size_t(chunks), [&](size_t c, int) {
+      if (cancel_.load(std::memory_order_relaxed)) return;
+      parts[c].clear();
+      const uint64_t first = uint64_t(c) * kChunk, last = std::min(n, first + kChunk);
+      rays_.fetch_add(trace_caustic_paths(*scene_, *caustics_, seed, first, last, region_x_, region_y_, film_.width(),
+                                          film_.height(), parts[c]),
+                      std::memory_order_relaxed);
+    });
+    std::vector<Vec3>& img = caustic_splats_[size_t(j)];
+    img.assign(pixels, Vec3(0.0f));
+    for (const auto& part : parts)
+      for (const CausticSplat& sp : part) img[sp.pixel] += sp.value;
+  }
 }
 
 // Training iterations of 1, 2, 4 ... samples (Müller et al.), each learning from its own
@@ -611,6 +686,13 @@ void Session::run() {
       k = std::min(k, total - s0);
       if (integrator_.guide_training) k = std::min(k, guide_end_ - s0);  // iterations end on time
       const double pass_start = elapsed();
+      if (caustics_) {
+        // The pass's light paths first: a film image of splats per sample (at most ~64 MB).
+        const double image = 12.0 * double(film_.width()) * double(film_.height());
+        k = std::max(1, std::min(k, int(64e6 / image)));
+        trace_caustics(s0, k);
+        if (cancel_.load()) break;
+      }
       const int parts = work_parts_;
       pool_->parallel_for(size_t(film_.tile_count()) * size_t(parts), [&](size_t item, int) {
         render_tile(int(item) / parts, int(item) % parts, parts, s0, s0 + k);

@@ -109,6 +109,10 @@ struct RenderSettings {
   // Measurement only (docs/design/sampling.md, "Where the window room's error is"): with guiding
   // on, the image keeps only the light of these path classes (PathClass bits; 0: all).
   uint32_t guiding_class_mask = 0;
+  // Caustic light tracing (IntegratorSettings::caustics): light paths per pixel sample from
+  // the environment through smooth surfaces, combined with the path tracer by MIS; 0: off.
+  // Only where it can be combined exactly (SessionStats::caustics says why not otherwise).
+  float caustic_light_paths = 0.0f;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs, and the colour
@@ -136,6 +140,8 @@ struct SessionStats {
   float focus_distance = 0.0f;  // of the thin lens, after autofocus
   int autofocus = 0;            // 0 off, 1 focused on a surface, 2 missed (kept the camera's)
   std::string kernel;           // the integrator kernel it runs (kernel_name)
+  // Caustic light tracing: "" (not asked for), "on", or why it is off for this render.
+  std::string caustics;
   // The features of scene and render in use and not in use (SceneFeatures names, then "dof",
   // "pixel filter", "passes", "transparent film", "adaptive sampling").
   std::vector<std::string> features, unused_features;
@@ -202,6 +208,12 @@ class Session {
   double photons_per_sample_ = 0.0;  // photons per training sample of the whole film
   void end_guiding_iteration();
   uint32_t kernel_bits_ = kKernelAll;
+  std::unique_ptr<CausticLight> caustics_;  // (null: off)
+  std::string caustics_note_;
+  uint64_t caustic_paths_ = 0;  // light paths per pixel sample (the whole film's)
+  // The current pass's splats, one film image per sample of it.
+  std::vector<std::vector<Vec3>> caustic_splats_;
+  void trace_caustics(int s0, int k);
   std::vector<std::string> features_, unused_features_;
   Film film_;
   std::unique_ptr<ThreadPool> pool_;

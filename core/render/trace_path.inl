@@ -744,6 +744,27 @@ struct PathClass {
   }
 };
 
+// Caustic light tracing (CausticLight): a vertex that may be one of the class's (no hair
+// lobes, whose samples carry their own values), and whether it is its rough one.
+inline bool caustic_vertex(const SurfacePoint& sp, const ClosureList& cl) {
+  if (sp.curve() || sp.point() || cl.n == 0) return false;
+  for (int i = 0; i < cl.n; ++i) {
+    const Bsdf& b = cl.c[size_t(i)].bsdf;
+    if (std::holds_alternative<HairChiangBsdf>(b) || std::holds_alternative<HairHuangBsdf>(b) ||
+        std::holds_alternative<HairBsdf>(b))
+      return false;
+  }
+  return true;
+}
+// The light tracer's density of a path leaving the environment along -dir (dir: towards the
+// light) and first meeting a surface at x: the environment's pdf of dir over the area of its
+// disk across the caster sphere (0 where x is outside the sphere: the light tracer never
+// reaches it).
+inline float caustic_source_pdf(const Scene& scene, const CausticLight& cz, Vec3 dir, Vec3 x) {
+  if (!(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
+  return scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
+}
+
 // The passes written at each surface the camera path meets (through Transparent BSDFs), as
 // Cycles' film_write_data_passes and AO pass: the colours, Mist, AO (beta: the throughput there).
 [[gnu::noinline]] inline void camera_hit_passes(const Scene& scene, const IntegratorSettings& s, const SurfacePoint& sp,
@@ -812,6 +833,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   constexpr bool kGuide = (F & kKernelGuiding) != 0;
   constexpr bool kLinks = (F & kKernelLightLinks) != 0;
   constexpr bool kCatcher = (F & kKernelShadowCatcher) != 0;
+  constexpr bool kCaus = (F & kKernelCaustics) != 0;
+  // Caustic light tracing: the vertices of the path's L S+ D E prefix so far (0: it is not one),
+  // and n Pc / Pa without the light's end: n d01^2 prod q_rev / (p_camera prod q_fwd).
+  const CausticLight* const cz = kCaus ? s.caustics : nullptr;
+  int cz_k = 0;
+  float cz_ratio = 0.0f;
   // (the catcher path of a split writes its passes into a scratch record: see below)
   PathAovs* aov = kAovs ? aov_in : nullptr;
   GuidingField* const guide = kGuide ? s.guide : nullptr;
@@ -1258,12 +1285,20 @@ restart: __attribute__((unused));
       float w = 1.0f;
       Vec3 bg;
       bool bg_found = false;
+      float env_pdf = 0.0f;
       if constexpr (kEnv)
         if (nee && !prev_delta) {
-          float env_pdf;
           bg = scene.background_with_pdf(ray.dir, mis_org, mis_set, env_pdf);
           bg_found = true;
           w = power_heuristic(prev_pdf, env_pdf);
+        }
+      if constexpr (kCaus)
+        if (cz_k >= 2 && !prev_delta) {
+          const float ps = caustic_source_pdf(scene, *cz, ray.dir, mis_org);
+          if (ps > 0.0f) {
+            const float rho = cz_ratio * ps, eb = bg_found ? env_pdf / prev_pdf : 0.0f;  // n Pc / Pa, Pb / Pa
+            w = 1.0f / (1.0f + eb * eb + rho * rho);
+          }
         }
       if (sky && !prev_delta) {
         const float cos_sky = dot(ray.dir, sky_n);  // (a scattered ray's direction is a unit vector)
@@ -1421,6 +1456,24 @@ restart: __attribute__((unused));
       if (aov && direct && (lp || s.mist || s.ao)) camera_hit_passes(scene, s, sp, cl, wo, beta, path_key, transparent, ray.time, lp, *aov);
     if (emission_only || cl.n == 0) break;
 
+    if constexpr (kCaus) {
+      if (cz) {
+        if (bounce == 0 && transparent == 0 && caustic_vertex(sp, cl) && guidable(cl)) {
+          // The camera's first vertex, rough: the light tracer's connection vertex.
+          const float d01 = length(sp.p - cz->camera->origin());
+          cz_k = 1;
+          // The camera's density is this sample's pixel filter density (the caller's
+          // c.filter_area is its inverse) over the pixel's solid angle: the light tracer weighs
+          // its splat into this pixel with the same (trace_caustic_paths).
+          cz_ratio = cz->paths * d01 * d01 * c.filter_area / cz->camera->pinhole_pixel_pdf(ray.dir);
+          if (!std::isfinite(cz_ratio)) cz_k = 0;
+        } else if (cz_k > 0 && cz_k < cz->max_vertices && caustic_vertex(sp, cl) && !guidable(cl)) {
+          ++cz_k;  // a smooth vertex after it
+        } else {
+          cz_k = 0;
+        }
+      }
+    }
     bool sss_exit = false;  // a random walk has just left the object: scatter at its exit
   scatter:  // a subsurface exit point scatters from here on, with a diffuse closure
     const bool front = dot(sp.ng, wo) > 0.0f;
@@ -1522,7 +1575,18 @@ restart: __attribute__((unused));
             if (guided && guide_sampling && !last)
               bsdf_pdf = guided_pdf(bsdf_pdf, ds.wi, -1.0f);
           const bool full = ds.delta && !(kLinks && ds.dedicated);  // (dedicated rays find those)
-          const float w = (full || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
+          float w = (full || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
+          if constexpr (kCaus)
+            if (cz_k >= 2 && !(full || last) && std::isinf(ds.dist) && !ds.analytic) {
+              // The world lighting the last smooth vertex: the light tracer's path too.
+              const float ps = caustic_source_pdf(scene, *cz, ds.wi, sp.p);
+              if (ps > 0.0f) {
+                float pr;
+                eval_mixture<!kNonDiffuse>(cl, ds.wi, wo, reflection, pr);  // its direction here
+                const float rb = cz_ratio * pr * ps / ds.pdf, ab = bsdf_pdf / ds.pdf;  // n Pc / Pb, Pa / Pb
+                w = 1.0f / (1.0f + ab * ab + rb * rb);
+              }
+            }
           const Vec3 v = beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
           L += v;
           if constexpr (kAovs) {
@@ -1536,57 +1600,43 @@ restart: __attribute__((unused));
           }
         }
       };
+      // Drawing a light sample (or the sky's), shared by both call structures below. Inlined
+      // early, so that GCC sees the kernel as it was written out twice: left to its later
+      // inlining, the diffuse kernels' add_sample went out of line (+3 % on the Cornell box).
+      const auto draw_light = [&](DirectSample& ds) __attribute__((always_inline)) {
+        ds.path = &ray_state;
+        if constexpr (kTree) ds.n = sp.ns;
+        if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
+        ds.defer_world = true;
+        const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
+        u_rr = u_sel.y;
+        const Vec2 u_pt = sampler.get2d();
+        return scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last);
+      };
+      const auto draw_sky = [&](DirectSample& ds) __attribute__((always_inline)) {
+        const Vec2 u_sky = sampler.get2d();
+        const Vec3 l = sample_cosine_hemisphere(u_sky);
+        sky_here = true;
+        ds.pdf = l.z * kInvPi;
+        if (!(ds.pdf > 0.0f)) return false;
+        ds.wi = Frame::from_normal(ng_out).to_world(l);
+        ds.li = scene.world_color();
+        return true;
+      };
       if constexpr (kNonDiffuse) {
+        // Two add_sample calls: inlined here (one call) it cost these kernels 0.3-2.5 % more,
+        // and their images changed at float rounding.
+        DirectSample ds;
         if (nee) {
-          DirectSample ds;
-          ds.path = &ray_state;
-          if constexpr (kTree) ds.n = sp.ns;
-          if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
-          ds.defer_world = true;
-          const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
-          u_rr = u_sel.y;
-          const Vec2 u_pt = sampler.get2d();
-          if (scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last)) add_sample(ds);
-        } else if (sky) {
-          const Vec2 u_sky = sampler.get2d();
-          const Vec3 l = sample_cosine_hemisphere(u_sky);
-          DirectSample ds;
-          ds.pdf = l.z * kInvPi;
-          if (ds.pdf > 0.0f) {
-            ds.wi = Frame::from_normal(ng_out).to_world(l);
-            ds.li = scene.world_color();
-            add_sample(ds);
-          }
-          sky_here = true;
+          if (draw_light(ds)) add_sample(ds);
+        } else if (draw_sky(ds)) {  // (sky)
+          add_sample(ds);
         }
       } else {
         // The diffuse kernels call add_sample once, for either kind of sample: with two calls
         // (above) GCC kept it out of line, which cost the Cornell box 3 % of its instructions.
-        // (Inlined in the other kernels it cost 0.3-2.5 % more, and their images changed at
-        // float rounding: they keep the two calls.)
         DirectSample ds;
-        bool sampled;
-        if (nee) {
-          ds.path = &ray_state;
-          if constexpr (kTree) ds.n = sp.ns;
-          if constexpr (kLinks) ds.receiver = scene.light_set_at(sp);
-          ds.defer_world = true;
-          const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
-          u_rr = u_sel.y;
-          const Vec2 u_pt = sampler.get2d();
-          sampled = scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last);
-        } else {  // (sky)
-          const Vec2 u_sky = sampler.get2d();
-          const Vec3 l = sample_cosine_hemisphere(u_sky);
-          ds.pdf = l.z * kInvPi;
-          sampled = ds.pdf > 0.0f;
-          if (sampled) {
-            ds.wi = Frame::from_normal(ng_out).to_world(l);
-            ds.li = scene.world_color();
-          }
-          sky_here = true;
-        }
-        if (sampled) add_sample(ds);
+        if (nee ? draw_light(ds) : draw_sky(ds)) add_sample(ds);
       }
     }
     // The last vertex does light samples only; one with a BSSRDF still walks to its exit, which
@@ -1614,6 +1664,7 @@ restart: __attribute__((unused));
         // Cycles' subsurface_bounce and random walk: into the object and out elsewhere, where
         // a diffuse closure of weight 1 takes over (no shader, no emission there).
         beta *= ch.weight / ch.pick;
+        if constexpr (kCaus) cz_k = 0;
         Hit exit;
         Vec3 exit_dir;
         const uint64_t seed = mix64(path_key ^ (uint64_t(bounce + 1) * 0x9E3779B97F4A7C15ULL));
@@ -1666,6 +1717,7 @@ restart: __attribute__((unused));
         // it as a transparent bounce (the ray keeps its kind: a camera ray stays one) and skips
         // MIS at what it finds next: the light samples before could not see through it.
         beta *= ch.weight / ch.pick;
+        if constexpr (kCaus) cz_k = 0;
         if (!is_finite(beta) || !count_crossing(sp)) break;
         prev_delta = true;
         if constexpr (kMedia) medium.cross(scene, sp, front);  // (LABEL_TRANSMIT: the volume stack)
@@ -1728,6 +1780,7 @@ restart: __attribute__((unused));
     if ((dot(wi, ng_out) > 0.0f) != reflection) break;
     if (kNonDiffuse && (bs.flags & kDelta)) {
       beta *= ch.weight * bs.weight / ch.pick;
+      if constexpr (kCaus) cz_k = 0;
       if constexpr (kAovs)
         if (lp && bounce == 0 && !(bs.flags & kTransparentLobe)) {
           const int k = closure_pass_kind(ch, reflection);
@@ -1773,6 +1826,14 @@ restart: __attribute__((unused));
       }
       if (!(pdf > 0.0f) || is_black(f)) break;
       beta *= f / pdf;
+      if constexpr (kCaus)
+        if (cz_k > 0) {
+          // q_fwd of this vertex, and (past the rough one) the light tracer's way back.
+          float pr = 1.0f;
+          if (cz_k >= 2) eval_mixture<!kNonDiffuse>(cl, wi, wo, reflection, pr);
+          cz_ratio = cz_ratio * pr / pdf;
+          if (!(cz_ratio >= 0.0f) || !std::isfinite(cz_ratio)) cz_k = 0;
+        }
       if constexpr (kAovs)
         if (lp && bounce == 0) pass_weights(cl, wo, wi, reflection, 0, lp_dw, lp_gw);
       if constexpr (kGuide)

@@ -288,6 +288,18 @@ Vec2 Camera::sample_aperture(Vec2 u) const {
   return p;
 }
 
+bool Camera::pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const {
+  const Vec3 rel = p - origin_;
+  const float depth = -dot(rel, back_);
+  if (!(depth > clip_start_) || !(depth < clip_start_ + clip_len_)) return false;
+  dist = length(rel);
+  const Vec3 dir = rel / dist;
+  rx = (dot(rel, right_) / depth - x0_) / dx_;
+  ry = (dot(rel, up_) / depth - y0_) / dy_;
+  pixel_pdf = pinhole_pixel_pdf(dir);
+  return std::isfinite(rx) && std::isfinite(ry) && pixel_pdf > 0.0f && std::isfinite(pixel_pdf);
+}
+
 Vec3 Camera::to_ndc(Vec3 p) const {
   const Vec3 c = to_camera(p);
   if (type_ == CameraType::Panoramic) {

@@ -89,6 +89,7 @@ class Camera {
   bool has_aperture() const { return aperture_ > 0.0f; }
   bool orthographic() const { return type_ == CameraType::Orthographic; }
   float focus_distance() const { return focus_; }
+  float clip_start() const { return clip_start_; }
   void set_focus_distance(float d);
   // Distance of a world point from the camera along the view axis.
   float view_depth(Vec3 p) const { return -dot(p - origin_, back_); }
@@ -115,6 +116,17 @@ class Camera {
   // NDC, the Texture Coordinate node's Window; z is 0). A panorama's: its (u, v) of the
   // direction, as Cycles (no viewplane, no shift).
   Vec3 to_ndc(Vec3 p) const;
+  // A still pinhole perspective camera's view of world point p (light tracing): raster
+  // position (pixels from the bottom-left of the full frame), distance from the camera, and
+  // the solid-angle density of a pixel's uniform sample there (1 / (pixel area on the view plane
+  // at distance 1 x cos^3 of the angle to the view axis)). False: behind the camera or outside
+  // the clipping range.
+  bool pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  // That density for a unit direction from the camera (what a camera ray had).
+  float pinhole_pixel_pdf(Vec3 dir) const {
+    const float c = -dot(dir, back_);
+    return c > 0.0f ? 1.0f / (dx_ * dy_ * c * c * c) : 0.0f;
+  }
   // A panorama's direction (its own space, not unit) at raster (x, y); zero outside the image
   // circle or the lens's field of view.
   Vec3 pano_direction(float x, float y) const;

@@ -99,7 +99,10 @@ void prepare_material(Material& m, const std::vector<Image>& images) {
   m.has_hair = false;
   m.subsurface = false;
   m.subsurface_bump = false;
+  m.uses_tangents = false;
   for (const ShaderOp& op : m.program.ops) {
+    m.uses_tangents = m.uses_tangents || (op.code == OpCode::NormalMap && op.sub == 0) ||
+                      (op.code == OpCode::Tangent && op.sub == 3) || op.code == OpCode::TangentDisplace;
     m.transparent = m.transparent || op.code == OpCode::Transparent;
     m.holdout = m.holdout || op.code == OpCode::Holdout;
     m.has_hair = m.has_hair || op.code == OpCode::PrincipledHair;

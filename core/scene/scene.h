@@ -79,6 +79,10 @@ struct Material {
   bool has_hair = false;     // has a hair closure: its frame follows the fibre (orient_hair)
   bool subsurface = false;       // may add a BSSRDF closure: its objects get local BVHs
   bool subsurface_bump = false;  // a BSSRDF with its own normal: walk exits shade for it
+  // An op reads the uv sets' tangents (tangent-space Normal Map, Tangent by UV map, tangent
+  // displacement): only then does a hit compute them. (In the bools' padding: the other
+  // fields keep their offsets.)
+  bool uses_tangents = false;
   float pass_index = 0.0f;       // Blender's material pass index (the Material Index pass)
   float crypto = 0.0f;           // Cryptomatte id of its name (the CryptoMaterial pass; 0: none)
   // Programs that read nothing from the shading point are evaluated once; a hit only sets the
@@ -226,10 +230,13 @@ struct Instance {
 
 // What the integrator needs about a hit point.
 struct SurfacePoint {
-  Vec3 p;
-  Vec3 p_error;  // bound of p's rounding error, for spawning rays
-  Vec3 ng;  // unit geometric normal (from the winding)
-  Vec3 ns;  // unit interpolated shading normal
+  // p, p_error, ng, ns: Scene::surface_point writes them on every path (triangles, curves,
+  // points) before anyone reads them, so they are left unconstructed (zeroing them cost about
+  // 16 instructions a hit).
+  union { Vec3 p; };
+  union { Vec3 p_error; };  // bound of p's rounding error, for spawning rays
+  union { Vec3 ng; };  // unit geometric normal (from the winding)
+  union { Vec3 ns; };  // unit interpolated shading normal
   uint32_t material = 0;
   uint32_t prim = 0;      // the triangle's index in the flattened scene (instance by instance)
   uint32_t instance = 0;  // the hit instance
@@ -240,16 +247,22 @@ struct SurfacePoint {
   bool curve() const { return instance == kCurveInstance; }
   bool point() const { return instance == kPointInstance; }
   float time = 0.5f;      // shutter time of the ray that found it (motion blur)
+  SurfacePoint() {}
 };
 
 // A next-event-estimation sample towards any light (analytic, emissive triangle, environment).
+// wi, target, target_normal, target_error, li and world_p are left unconstructed (zeroing
+// them cost about 24 instructions a light sample): a successful sample_direct writes wi,
+// target_normal and li (li: unless world_pending), target where dist is finite and
+// target_error where target_normal is not zero; world_p where world_pending. A caller that
+// fills one itself (the sky samples) sets wi and li and keeps dist infinite.
 struct DirectSample {
-  Vec3 wi;
+  union { Vec3 wi; };
   float dist = kInf;      // distance to the light point; inf for the sun and the environment
-  Vec3 target;            // light point for the shadow ray (finite distances only)
-  Vec3 target_normal;     // its geometric normal (emissive triangles), for the offset; else 0
-  Vec3 target_error;      // bound of the target's rounding error (emissive triangles)
-  Vec3 li;                // incident radiance (or intensity/r^2, irradiance for delta lights)
+  union { Vec3 target; };         // light point for the shadow ray (finite distances only)
+  union { Vec3 target_normal; };  // its geometric normal (emissive triangles), for the offset; else 0
+  union { Vec3 target_error; };   // bound of the target's rounding error (emissive triangles)
+  union { Vec3 li; };             // incident radiance (or intensity/r^2, irradiance for delta lights)
   float pdf = 0.0f;       // solid-angle pdf including the light choice
   bool delta = false;      // no BSDF ray can find this light (delta, or Multiple Importance off): full weight
   bool analytic = false;   // an analytic light (not an emissive triangle or the environment)
@@ -271,13 +284,14 @@ struct DirectSample {
   bool world_pending = false;
   bool world_cover_all = false;
   float world_pmf = 0.0f;
-  Vec3 world_p{0.0f};  // the shading point (portals' pdf)
+  union { Vec3 world_p; };  // the shading point (portals' pdf)
   // Out (light linking only): the chosen light's shadow sets; blockers of other sets let it pass.
   uint64_t shadow_mask = kAllLightSets;
   // Out (light linking only): a shadow-linked light with extent, `delta` only because rays do not
   // find it past blockers: surfaces find it by dedicated rays (Scene::dedicated_lights) and
   // weigh this sample by MIS; media keep the full weight.
   bool dedicated = false;
+  DirectSample() {}
 };
 
 struct SceneStats {

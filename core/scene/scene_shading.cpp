@@ -258,6 +258,7 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       corner_uvs[3 * k] = a;
       corner_uvs[3 * k + 1] = b;
       corner_uvs[3 * k + 2] = c;
+      if (!mat.uses_tangents) continue;  // (no op reads them: ctx.tangents stays null)
       if (size_t(k) < mesh.tangents.size() && !mesh.tangents[size_t(k)].empty()) {
         // The mesh's MikkTSpace tangents, interpolated unnormalised in object space (Cycles).
         const std::vector<Float4>& mt = mesh.tangents[size_t(k)];
@@ -286,8 +287,10 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
     }
     ctx.uv = uv.data();
     ctx.uv_sets = sets;
-    ctx.tangents = tangents.data();
-    ctx.tangent_signs = signs;
+    if (mat.uses_tangents) {
+      ctx.tangents = tangents.data();
+      ctx.tangent_signs = signs;
+    }
     ctx.tri_uv = corner_uvs.data();
     if (mesh_tangent_sets) {
       // Cycles' normal for tangent space: the unnormalised interpolated smooth normal in

@@ -28,6 +28,7 @@ TIMES = (1.0, 2.0, 4.0, 8.0)
 REF_SPP = 1024
 MAX_BOUNCES = 12
 TREE_SEEDS, TREE_SPP = 8, 8
+CAUSTIC_PATHS = 0.1  # the add-on's default number when Caustic Light Paths is on
 
 
 def render(build, engine, **settings):
@@ -105,23 +106,42 @@ def tree_variance(build, seeds, spp):
     return out
 
 
-def guiding_gain(build, times, repeats, ref, floor):
-    """Pathlight's equal-time error without path guiding over with it, per budget and pooled
-    (the equal-time method, the unguided renders in Cycles' place), against the scene's
-    reference."""
-    renders = {"PATHLIGHT": [], "CYCLES": []}  # guided, plain
+def option_gain(build, times, repeats, ref, floor, cycles_renders=None, **option):
+    """Pathlight's equal-time error without a render option over with it, per budget and pooled
+    (the equal-time method, the plain renders in Cycles' place), against the scene's reference;
+    with cycles_renders (measure's per-budget errors of Cycles) also Cycles' error over
+    Pathlight's with the option ('cycles')."""
+    renders = {"PATHLIGHT": [], "CYCLES": []}  # with the option, plain
     for budget in times:
         per = {"PATHLIGHT": [], "CYCLES": []}
         for k in range(repeats(budget)):
-            for key, guided in (("PATHLIGHT", True), ("CYCLES", False)):
+            for key, on in (("PATHLIGHT", True), ("CYCLES", False)):
                 img, _ = render(build, "PATHLIGHT", samples=1_000_000, time_limit=budget, seed=1 + k,
-                                use_guiding=guided)
+                                **(option if on else {}))
                 per[key].append(rel_mse(img, ref))
         for key in per:
             renders[key].append(per[key])
-    ratios = [max(np.mean(c) - floor, 1e-3 * np.mean(c)) / max(np.mean(g) - floor, 1e-3 * np.mean(g))
-              for g, c in zip(renders["PATHLIGHT"], renders["CYCLES"])]
-    return dict(ratios=[float(r) for r in ratios], pooled=pooled_ratio(renders, times, floor))
+    out = dict(ratios=_ratios(renders, floor), pooled=pooled_ratio(renders, times, floor))
+    if cycles_renders is not None:
+        vs = {"PATHLIGHT": renders["PATHLIGHT"], "CYCLES": cycles_renders}
+        out["cycles"] = dict(ratios=_ratios(vs, floor), pooled=pooled_ratio(vs, times, floor))
+    return out
+
+
+def _ratios(renders, floor):
+    return [float(max(np.mean(c) - floor, 1e-3 * np.mean(c)) / max(np.mean(p) - floor, 1e-3 * np.mean(p)))
+            for p, c in zip(renders["PATHLIGHT"], renders["CYCLES"])]
+
+
+def _gain_line(what, name, gain, times, target):
+    line = (f"{what} on '{name}': Pathlight's error at equal time without it over with it, "
+            + " / ".join(f"{x:.2f}x" for x in gain["ratios"]) + " at " + " / ".join(f"{t:g} s" for t in times)
+            + f", pooled {gain['pooled'][0]:.2f}x ± {gain['pooled'][1]:.2f}{target}.")
+    if "cycles" in gain:
+        c = gain["cycles"]
+        line += (" With it, Cycles' error over Pathlight's: " + " / ".join(f"{x:.2f}x" for x in c["ratios"])
+                 + f", pooled {c['pooled'][0]:.2f}x ± {c['pooled'][1]:.2f}.")
+    return line
 
 
 def main():
@@ -137,7 +157,12 @@ def main():
             r["tree"] = tree_variance(build, tree_seeds, tree_spp)
         if build is realistic_scenes.window_room:
             ref = 0.5 * (refs["PATHLIGHT"] + refs["CYCLES"])
-            r["guiding"] = guiding_gain(build, times, repeats, ref, r["floor"])
+            r["guiding"] = option_gain(build, times, repeats, ref, r["floor"], use_guiding=True)
+        if build is realistic_scenes.hdri_model:
+            # Opt-in caustic light tracing (docs/design/sampling.md "Caustics by light tracing")
+            ref = 0.5 * (refs["PATHLIGHT"] + refs["CYCLES"])
+            r["caustics"] = option_gain(build, times, repeats, ref, r["floor"], r["renders"]["CYCLES"],
+                                        use_caustic_light_paths=True, caustic_light_paths=CAUSTIC_PATHS)
         results[name] = r
         print(name, r, flush=True)
 
@@ -172,11 +197,10 @@ def main():
                       f"({tree_seeds} seeds x {tree_spp} spp) {t['AUTO']:.3g} with the tree, {t['OFF']:.3g} with "
                       f"lights chosen by power alone: {t['OFF'] / t['AUTO']:.2f}x lower with the tree."]
         if "guiding" in r:
-            gg = r["guiding"]
-            lines += ["", f"Path guiding on '{name}': Pathlight's error at equal time without guiding over "
-                      "with it, " + " / ".join(f"{x:.2f}x" for x in gg["ratios"]) + f" at "
-                      + " / ".join(f"{t:g} s" for t in times) + f", pooled {gg['pooled'][0]:.2f}x ± "
-                      f"{gg['pooled'][1]:.2f} (issue 25 asks for 1.5x)."]
+            lines += ["", _gain_line("Path guiding", name, r["guiding"], times, " (issue 25 asks for 1.5x)")]
+        if "caustics" in r:
+            lines += ["", _gain_line(f"Caustic Light Paths ({CAUSTIC_PATHS:g} per sample, off by default)", name,
+                                     r["caustics"], times, "")]
     lines += raw_lines(results, times)
     if plot:
         lines += [f"![relative MSE against render time on the realistic scenes]({plot})", ""]

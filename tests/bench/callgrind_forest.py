@@ -4,12 +4,14 @@ triangle icosphere under a sun and a sky colour), or with --scene another realis
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \\
         .venv/bin/python tests/bench/callgrind_forest.py [--scene instanced_forest] [--size 48] [--spp 4]
+        [--set NAME=VALUE ...]
 
 The scene is realistic_scenes.instanced_forest (or --scene's builder), exported by the add-on as
 a render would; only the render is instrumented (one thread, a fixed seed), as in
 callgrind_cornell.py. Without valgrind it prints the stats and the wall time. PL_CORE_DIR=<dir>
 renders with the module in <dir>."""
 import argparse
+import ast
 import sys
 import time
 from pathlib import Path
@@ -27,6 +29,8 @@ ap.add_argument("--scene", default="instanced_forest", help="a builder of realis
 ap.add_argument("--size", type=int, default=48, help="image width (height 3/4 of it)")
 ap.add_argument("--spp", type=int, default=4)
 ap.add_argument("--threads", type=int, default=1)
+ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
+                help="RenderSettings for the render, a Python literal each (e.g. caustic_light_paths=1.0)")
 a = ap.parse_args()
 pc = core()
 sys.modules.setdefault("addon.pathlight_core", pc)  # PL_CORE_DIR's module for the add-on too
@@ -49,6 +53,8 @@ st2.diffuse_bounces = st2.glossy_bounces = st2.transmission_bounces = 1024
 st2.samples, st2.threads, st2.seed = a.spp, a.threads, 1
 st2.adaptive_threshold = 0.0
 st2.filter_type, st2.filter_width = "box", 1.0
+for name, value in (kv.split("=", 1) for kv in a.set):
+    setattr(st2, name, ast.literal_eval(value))
 print(core_scene.stats())
 t = time.perf_counter()
 print(instrumented_render(pc, core_scene, st2))

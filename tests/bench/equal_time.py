@@ -60,9 +60,9 @@ def pooled_ratio(renders, times, floor):
 
 def measure(render, times, repeats, ref_spp, ref_seed, halves=False):
     """One scene's equal-time figures. render(engine, **settings) returns (image, seconds).
-    Returns dict(refs, errors, raw, floor, pooled): the references per engine, the mean error
+    Returns dict(refs, errors, raw, floor, pooled, renders): the references per engine, the mean error
     per budget with the floor subtracted (errors) and without (raw), the floor and the pooled
-    ratio with its standard error. halves: each reference is the mean of two renders of
+    ratio with its standard error, and each engine's per-budget errors (renders). halves: each reference is the mean of two renders of
     ref_spp / 2 with seeds ref_seed and ref_seed + 1 (the same cost), kept as ref_halves, so
     that each engine's own seed-to-seed noise can be shown beside the references' agreement."""
     if halves:
@@ -85,7 +85,8 @@ def measure(render, times, repeats, ref_spp, ref_seed, halves=False):
             raw[e].append(float(np.mean(per[e])))
             renders[e].append(per[e])
     errors = {e: [above_floor(x, floor) for x in raw[e]] for e in ENGINES}
-    out = dict(refs=refs, errors=errors, raw=raw, floor=floor, pooled=pooled_ratio(renders, times, floor))
+    out = dict(refs=refs, errors=errors, raw=raw, floor=floor, pooled=pooled_ratio(renders, times, floor),
+               renders=renders)
     if ref_halves is not None:
         out["ref_halves"] = ref_halves
     return out

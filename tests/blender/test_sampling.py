@@ -93,6 +93,11 @@ def test_settings_reach_the_core():
     # ... with a learnt probability per cell (from 0.5 down), the cosine product, the directional filter
     assert st.guiding_learn_probability and st.guiding_cosine and st.guiding_filter
     assert st.guiding_probability == pytest.approx(0.5)
+    # Caustic light paths: off by default, else the paths per sample (docs/design/sampling.md)
+    assert st.caustic_light_paths == 0.0
+    props.use_caustic_light_paths, props.caustic_light_paths = True, 0.5
+    assert session.render_settings(get_core(), scene).caustic_light_paths == pytest.approx(0.5)
+    props.use_caustic_light_paths = False
 
 
 @needs_settings

@@ -126,3 +126,17 @@ def test_tangents_are_validated():
         s.add_mesh(pos, tris, uvs={0: UV}, tangents={0: np.zeros((2, 3, 3), np.float32)})
     with pytest.raises(ValueError, match="tangent set index"):
         s.add_mesh(pos, tris, uvs={0: UV}, tangents={8: np.zeros((2, 3, 4), np.float32)})
+
+
+@pytest.mark.parametrize("tangents", [True, False])
+def test_every_op_that_reads_uv_tangents_still_gets_them(tangents):
+    # A hit computes the uv tangents only for materials with an op that reads them
+    # (Material::uses_tangents); each reader must still find them, from the mesh's tangents or
+    # from the triangle's uvs (+x here).
+    expected = unit(tangent_field(pixel_points())) if tangents else np.array([1.0, 0.0, 0.0])
+    for ops in ([("tangent", 10, "UV_MAP", 0)], normal_map((1.0, 0.5, 0.5)),
+                [("const", 0, (0.25, 0.0, 0.0)), ("tangent_displacement", 10, 0, 0)]):
+        img = film(ops, tangents=tangents)
+        if ops[-1][0] == "tangent_displacement":  # a quarter of the object-space tangent
+            img = unit(img)  # (|T| <= 2.8 times 0.25: no component of the emission below 0)
+        assert np.allclose(img, expected, atol=2e-3), (ops[-1][0], np.abs(img - expected).max())

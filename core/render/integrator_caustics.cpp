@@ -1,0 +1,226 @@
+// Caustic light tracing (integrator.h CausticLight; docs/design/sampling.md "Caustics by light
+// tracing"): the path tracer's kernels with its MIS (kKernelCaustics), the light paths, and the
+// caster sphere. A unit of its own, as the guided kernels', so the other kernels stay as they were.
+#include "render/guiding.h"
+#include "render/integrator.h"
+#include "render/subsurface.h"
+#include "scene/phase.h"
+
+namespace pl {
+namespace {
+#include "render/trace_path.inl"
+}  // namespace
+
+TraceFn caustic_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
+  constexpr uint32_t kFast = kKernelNonDiffuse | kKernelEnvironment | kKernelCaustics;
+  if (!force_general && (needed & ~kFast) == 0) {
+    chosen = kFast;
+    return &trace_path_t<kFast>;
+  }
+  chosen = kKernelAll | kKernelCaustics;
+  return &trace_path_t<kKernelAll | kKernelCaustics>;
+}
+
+bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius) {
+  const Aabb& b = scene.world_bounds();
+  if (b.empty()) return false;
+  std::vector<Vec3> found;
+  ClosureList cl;
+  RayState rs;
+  rs.flags = uint8_t(kRayReflect | kRayGlossy);  // not a camera ray
+  Pcg32 rng(0x5EEDCA05u, 7u);
+  for (int i = 0; i < probes; ++i) {
+    const Vec3 u{rng.next_float(), rng.next_float(), rng.next_float()};
+    const float z = 1.0f - 2.0f * rng.next_float(), phi = 2.0f * kPi * rng.next_float();
+    const float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    Ray ray;
+    ray.org = b.lo + b.extent() * u;
+    ray.dir = {r * std::cos(phi), r * std::sin(phi), z};
+    ray.tmax = kInf;
+    Hit hit;
+    if (!scene.intersect(ray, hit)) continue;
+    SurfacePoint sp;
+    scene.surface_point(hit, sp, 0.0f, &ray);
+    scene.shade(sp, hit.b1, hit.b2, -ray.dir, cl, rs);
+    if (caustic_vertex(sp, cl) && !guidable(cl) && cl.has_nondelta && is_finite(sp.p)) found.push_back(sp.p);
+  }
+  if (found.empty()) return false;
+  Aabb box;
+  for (const Vec3& p : found) box.grow(p);
+  center = (box.lo + box.hi) * 0.5f;
+  float r2 = 0.0f;
+  for (const Vec3& p : found) r2 = std::max(r2, length_sq(p - center));
+  // A margin of 0.5 % of the scene's size: the probes see a shape's surface only in part
+  // (what they miss is the path tracer's alone: both sides test the same sphere).
+  radius = std::sqrt(r2) + 0.005f * length(b.extent()) + 1e-4f;
+  return true;
+}
+
+uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_t seed, uint64_t first,
+                             uint64_t last, int film_x, int film_y, int film_w, int film_h,
+                             std::vector<CausticSplat>& out) {
+  const Environment& env = scene.environment();
+  if (!env.valid() || !cz.camera) return 0;
+  const Camera& cam = *cz.camera;
+  const float disk = kPi * cz.radius * cz.radius;
+  const float half = 0.5f * std::sqrt(cz.filter_area);  // the box filter's half width
+  uint64_t rays = 0;
+  ClosureList cl, cle;
+  RayState rs;
+  rs.flags = uint8_t(kRayReflect | kRayGlossy);
+  for (uint64_t i = first; i < last; ++i) {
+    Pcg32 rng(seed, i);
+    Vec3 wl, li;
+    float pdf;
+    const Vec2 ue{rng.next_float(), rng.next_float()}, ud{rng.next_float(), rng.next_float()};
+    if (!env.sample(ue, wl, li, pdf, true) || !(pdf > 0.0f)) continue;
+    li = scene.background(wl);  // (what the path tracer's escaped rays find)
+    if (is_black(li) || !is_finite(li)) continue;
+    Vec3 t, b;
+    make_basis(wl, t, b);
+    const Vec2 d = sample_disk_concentric(ud);
+    Ray ray;
+    ray.org = cz.center + (t * d.x + b * d.y) * cz.radius + wl * cz.far;
+    ray.dir = -wl;
+    ray.tmax = kInf;
+    Vec3 beta = li * (disk / pdf);
+    const float ps = pdf / disk;
+    // The heuristic's products over the smooth vertices (q_rev and q_fwd), and Pb / Pa at the
+    // first one (the path tracer's light sample of the world there).
+    double prod_r = 1.0, prod_f = 1.0;
+    float eb = 0.0f;
+    int k = 0;  // smooth vertices so far
+    for (;;) {
+      Hit hit;
+      ++rays;
+      if (!scene.intersect(ray, hit)) break;
+      SurfacePoint sp;
+      scene.surface_point(hit, sp, 0.0f, &ray);
+      const Vec3 wo_l = -ray.dir;  // towards the light
+      const ClosureList* cs = &cl;  // the closures this vertex samples from
+      if (k == 0) {
+        if (!(length_sq(sp.p - cz.center) <= cz.radius * cz.radius)) break;
+        scene.shade(sp, hit.b1, hit.b2, wo_l, cl, rs);
+        // (a surface whose closures' kinds and roughness do not depend on the view: rough
+        // from here too, so no path of the class starts at it)
+        if (!caustic_vertex(sp, cl) || guidable(cl)) break;
+      } else {
+        float rx, ry, dist, ppdf;
+        const bool seen = cam.pinhole_view(sp.p, rx, ry, dist, ppdf);
+        const Vec3 wc = seen ? (cam.origin() - sp.p) / dist : wo_l;
+        if (seen) {
+          // Shaded as the camera ray that found it (its state and footprint).
+          RayState rc;
+          rc.camera = &cam;
+          if (cz.differentials) cam.differentials(-wc, rc.dp, rc.dd);
+          rc.length = dist * (1.0f - cam.clip_start() / cam.view_depth(sp.p));
+          scene.shade(sp, hit.b1, hit.b2, wc, cl, rc);
+        } else {
+          scene.shade(sp, hit.b1, hit.b2, wc, cl, rs);
+        }
+        if (!caustic_vertex(sp, cl)) break;
+        if (guidable(cl)) {
+          // The rough vertex: the camera's first, seen directly (nothing in between).
+          if (!seen || k + 1 > cz.max_vertices) break;
+          const float cos_c = dot(sp.ng, wc), cos_l = dot(sp.ng, wo_l);
+          const bool reflection = (cos_c > 0.0f) == (cos_l > 0.0f);
+          float qf1;
+          const Vec3 f1 = eval_mixture(cl, wc, wo_l, reflection, qf1);
+          if (is_black(f1) || !(qf1 > 0.0f) || cos_c == 0.0f || cos_l == 0.0f) break;
+          Ray sh;
+          sh.org = offset_ray_origin(sp.p, sp.p_error, cos_c > 0.0f ? sp.ng : -sp.ng);
+          const Vec3 near = cam.origin() + (sp.p - cam.origin()) * (cam.clip_start() / cam.view_depth(sp.p));
+          sh.dir = near - sh.org;
+          sh.tmax = 1.0f - 1e-4f;
+          ++rays;
+          if (scene.occluded(sh)) break;
+          // The power heuristic's weight of the light path, rho = n Pc / Pa (Pb / Pa = eb).
+          const auto light_weight = [eb](double rho) {
+            const double rho2 = rho * rho;
+            return float(rho2 / (1.0 + double(eb) * eb + rho2));
+          };
+          if (cz.filter) {
+            // Any other filter: pixel j's camera sample lands at p with the filter's density
+            // f(p - c_j) (separable: fx fy), so j's measurement importance at p, and the path
+            // tracer's camera pdf there, are p_cam_j = f(p - c_j) ppdf (solid angle). Its MIS
+            // weight is then per pixel: the path tracer of pixel j weighs the same path with
+            // rho_j = n ps d^2 prod_r / (p_cam_j qf1 prod_f) (trace_path.inl's cz_ratio with this
+            // sample's density), so for each pixel the weights still sum to 1 (pbrt-v4's and
+            // Mitsuba's splat, with the MIS per pixel). The box below is the same with f = 1 / area.
+            const PixelFilter& pf = *cz.filter;
+            const float fr = pf.radius();
+            const Vec3 base = beta * f1 * (std::fabs(cos_c) / std::fabs(cos_l) / (dist * dist) / cz.paths);
+            const double rho_f = double(cz.paths) * ps * double(dist) * dist * prod_r / (double(ppdf) * qf1 * prod_f);
+            if (!is_finite(base) || is_black(base) || !std::isfinite(rho_f)) break;
+            const int x0 = int(std::floor(rx - 0.5f - fr)), x1 = int(std::ceil(rx - 0.5f + fr));
+            const int y0 = int(std::floor(ry - 0.5f - fr)), y1 = int(std::ceil(ry - 0.5f + fr));
+            for (int y = std::max(y0, film_y); y <= std::min(y1, film_y + film_h - 1); ++y) {
+              const float fy = pf.density(ry - (float(y) + 0.5f));
+              if (!(fy > 0.0f)) continue;
+              for (int x = std::max(x0, film_x); x <= std::min(x1, film_x + film_w - 1); ++x) {
+                const float f = pf.density(rx - (float(x) + 0.5f)) * fy;
+                if (!(f > 0.0f)) continue;
+                const float w = light_weight(rho_f / f);
+                const Vec3 v = base * (ppdf * f * w);
+                if (is_finite(v) && !is_black(v))
+                  out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v});
+              }
+            }
+            break;
+          }
+          const float p_cam = ppdf / cz.filter_area;
+          const float w = light_weight(double(cz.paths) * ps * double(dist) * dist * prod_r / (double(p_cam) * qf1 * prod_f));
+          const Vec3 v = beta * f1 * (std::fabs(cos_c) / std::fabs(cos_l) * p_cam / (dist * dist) * w / cz.paths);
+          if (!is_finite(v) || is_black(v)) break;
+          // Every pixel whose box holds the point.
+          const int x0 = int(std::ceil(rx - 0.5f - half)), x1 = int(std::ceil(rx - 0.5f + half)) - 1;
+          const int y0 = int(std::ceil(ry - 0.5f - half)), y1 = int(std::ceil(ry - 0.5f + half)) - 1;
+          for (int y = std::max(y0, film_y); y <= std::min(y1, film_y + film_h - 1); ++y)
+            for (int x = std::max(x0, film_x); x <= std::min(x1, film_x + film_w - 1); ++x)
+              out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v});
+          break;
+        }
+        if (k + 2 > cz.max_vertices) break;  // (no room for this smooth vertex and a rough one)
+      }
+      // A smooth vertex: on towards the camera's side by one of its closures.
+      const bool front = dot(sp.ng, wo_l) > 0.0f;
+      const Vec3 ng_out = front ? sp.ng : -sp.ng;
+      float uc = rng.next_float(), acc = cs->c[0].pick;
+      int c = 0;
+      while (c + 1 < cs->n && uc >= acc) acc += cs->c[size_t(++c)].pick;
+      const Closure& ch = cs->c[size_t(c)];
+      if (ch.delta || std::holds_alternative<SubsurfaceBsdf>(ch.bsdf) || std::holds_alternative<PortalBsdf>(ch.bsdf))
+        break;
+      BsdfSample bs;
+      const Vec2 u{rng.next_float(), rng.next_float()};
+      if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo_l), u, rng.next_float(), bs) || (bs.flags & kDelta)) break;
+      const Vec3 wi = ch.frame.to_world(bs.wi);
+      const bool reflection = (bs.flags & kReflect) != 0;
+      if ((dot(wi, ng_out) > 0.0f) != reflection) break;
+      float p_true;
+      eval_mixture(*cs, wo_l, wi, reflection, p_true);
+      if (!(p_true > 0.0f)) break;
+      // The path tracer's closures here (shaded from the camera's side) give the value and
+      // the heuristic's pdfs, as there.
+      scene.shade(sp, hit.b1, hit.b2, wi, cle, rs);
+      if (!caustic_vertex(sp, cle) || guidable(cle)) break;
+      float qf, qr;
+      const Vec3 f = eval_mixture(cle, wi, wo_l, reflection, qf);
+      eval_mixture(cle, wo_l, wi, reflection, qr);
+      if (is_black(f) || !(qf > 0.0f) || !(qr > 0.0f)) break;
+      if (k == 0 && cz.nee) eb = scene.pdf_environment(wl, sp.p) / qf;
+      beta *= f * (std::fabs(dot(sp.ng, wi)) / std::fabs(dot(sp.ng, wo_l)) / p_true);
+      prod_f *= qf;
+      prod_r *= qr;
+      if (!is_finite(beta) || is_black(beta)) break;
+      ++k;
+      ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
+      ray.self_curve = scene.self_curve(sp);
+      ray.dir = wi;
+      ray.tmax = kInf;
+    }
+  }
+  return rays;
+}
+
+}  // namespace pl
