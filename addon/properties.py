@@ -147,9 +147,17 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "arrives indirectly, e.g. a room lit through a window; costs time per sample",
         default=False,
     )
+    caustic_light_paths_auto: BoolProperty(
+        name="Automatic",
+        description="Caustic light paths (0.1 per pixel sample) only where they pay: an environment "
+                    "whose bright peak (a sun) holds most of its light, and smooth surfaces; else "
+                    "none, silently. Caustic Light Paths, when on, overrides it",
+        default=True,
+    )
     use_caustic_light_paths: BoolProperty(
         name="Caustic Light Paths",
-        description="Trace light paths from the environment through smooth (mirror-like) "
+        description="Trace light paths from the environment and from lamps without extent "
+                    "(sun of angle 0, point or spot of radius 0) through smooth (mirror-like) "
                     "surfaces onto rough ones and combine them with the camera's paths by "
                     "multiple importance sampling: far less noise in caustics of a bright HDRI "
                     "(e.g. the sun reflected by chrome onto a floor). Any pixel filter; still "

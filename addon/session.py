@@ -223,7 +223,9 @@ def render_settings(pc, scene, warn=None):
     optional["guiding"] = props.use_guiding
     # Caustic light tracing (docs/design/sampling.md "Caustics by light tracing"); the core turns
     # it off where it cannot be combined exactly and says why (_report_caustics).
+    # Automatic (the default) where not asked for explicitly: the core decides, silently.
     optional["caustic_light_paths"] = props.caustic_light_paths if props.use_caustic_light_paths else 0.0
+    optional["caustic_light_paths_auto"] = props.caustic_light_paths_auto and not props.use_caustic_light_paths
     if props.use_guiding:
         # Caustic photons train the guide (docs/design/sampling.md, "Caustic photons"): on the
         # window room they cut the error at equal samples 1.2-1.5x, camera training alone did not.
@@ -443,8 +445,9 @@ def _commit(engine, core_scene, threads, time_limit=0.0):
 
 
 def _report_caustics(sess, warn):
+    # Only where asked for explicitly: the automatic mode's "off (automatic): ..." is silent.
     state = sess.stats().get("caustics", "")
-    if state.startswith("off"):
+    if state.startswith("off:"):
         warn(f"Caustic Light Paths {state}; rendering without them")
 
 

@@ -72,6 +72,15 @@ class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
         layout.prop(settings, "use_schlick_fresnel")
 
 
+def caustics_in_effect(settings):
+    """The Caustics panel's line: which of its settings the render follows."""
+    if settings.use_caustic_light_paths:
+        return f"On: {settings.caustic_light_paths:g} light paths per sample"
+    if settings.caustic_light_paths_auto:
+        return "Automatic: 0.1 per sample where the environment has a sun"
+    return "Off"
+
+
 class PATHLIGHT_RENDER_PT_light_paths_caustics(PathlightPanel, bpy.types.Panel):
     bl_label = "Caustics"
     bl_parent_id = "PATHLIGHT_RENDER_PT_light_paths"
@@ -84,6 +93,10 @@ class PATHLIGHT_RENDER_PT_light_paths_caustics(PathlightPanel, bpy.types.Panel):
         sub = layout.column()
         sub.active = settings.use_caustic_light_paths
         sub.prop(settings, "caustic_light_paths")
+        sub = layout.column()
+        sub.active = not settings.use_caustic_light_paths
+        sub.prop(settings, "caustic_light_paths_auto")
+        self.layout.label(text=caustics_in_effect(settings))
 
 
 class PATHLIGHT_RENDER_PT_film(PathlightPanel, bpy.types.Panel):

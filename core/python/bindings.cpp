@@ -3232,6 +3232,10 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("caustic_light_paths", &RenderSettings::caustic_light_paths,
                      "Caustic light tracing: light paths per pixel sample from the environment through smooth "
                      "surfaces, combined with path tracing by MIS (0: off; stats()['caustics'] says whether it ran)")
+      .def_readwrite("caustic_light_paths_auto", &RenderSettings::caustic_light_paths_auto,
+                     "Automatic caustic light paths (with caustic_light_paths 0): 0.1 per pixel sample where the "
+                     "environment has a bright peak and the scene smooth surfaces, else off (stats()['caustics'] "
+                     "says which and why)")
       .def_readwrite("guiding_class_mask", &RenderSettings::guiding_class_mask,
                      "Measurement only: with guiding on, keep the light of these path classes (bits).")
       .def_readwrite("guiding_photons", &RenderSettings::guiding_photons,

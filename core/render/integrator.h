@@ -19,13 +19,30 @@ namespace pl {
 class GuidingField;
 
 // Caustic light tracing (render/integrator_caustics.cpp, docs/design/sampling.md "Caustics by
-// light tracing"): light paths from the environment through smooth vertices to a first rough
-// one, connected to a still pinhole camera and splatted, combined by the power heuristic with
-// the path tracer's two strategies for the same paths (class L S+ D E: the camera's first
-// vertex rough, every later one smooth, the last one lit by the environment). Both sides
-// compute the same heuristic pdfs from the same path, so the weights sum to 1.
+// light tracing"): light paths from the environment and delta lamps through smooth vertices to
+// a first rough one, connected to a still pinhole camera and splatted, combined by the power
+// heuristic with the path tracer's strategies for the same paths (class L S+ D E: the camera's
+// first vertex rough, every later one smooth, the last one lit by the light). Both sides compute
+// the same heuristic pdfs from the same path, so the weights sum to 1 (three strategies for the
+// environment, two for a delta lamp: the light sample at the last smooth vertex and the path).
+//
+// A lamp that sends caustic light paths: a delta lamp (sun, point or spot without extent), whose
+// caustics the path tracer makes only by its light sample at the last smooth vertex.
+struct CausticLamp {
+  uint32_t light = 0;            // Scene::light index
+  float pmf = 0.0f;              // the probability that a light path starts at it
+  Vec3 axis{0.0f, 0.0f, 1.0f};   // point/spot: the unit direction to the caster sphere's centre
+  float one_minus_cos = 2.0f;    // point/spot: of the cone the caster sphere subtends (2: all)
+};
+
 struct CausticLight {
   float paths = 0.0f;      // light paths per pixel sample of the film (the n of the heuristic)
+  // The emitters: one distribution over [environment | lamps] by the power each sends towards
+  // the caster sphere (drawn from only where it has more than one entry).
+  float env_pmf = 0.0f;    // the environment's probability (0: no environment map)
+  std::vector<CausticLamp> lamps;
+  std::vector<int32_t> lamp_of;  // per Scene light: its index in lamps; -1: it sends none
+  Distribution1D sources;
   Vec3 center{0.0f};       // the caster sphere: around every smooth surface the probes found
   float radius = 0.0f;
   float far = 0.0f;        // light paths start this far from its centre, outside the scene
@@ -250,6 +267,16 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
 // The caster sphere: bounds of the smooth surfaces that `probes` deterministic rays (from
 // points in the scene's bounds, in all directions) meet first; false where they met none.
 bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius);
+// Whether lamp l may send caustic light paths (CausticLamp): without extent (a sun of angle 0, a
+// point or spot of radius 0), casting shadows, visible to every surface ray (a light path cannot
+// follow a lamp that some closures do not see or that shines through blockers), and a sun
+// without a node tree.
+bool caustic_lamp(const Light& l);
+// The share of the environment's power in directions brighter than `factor` times its mean
+// radiance over the sphere (a sun's), estimated from 64 x 64 stratified samples of its full
+// importance map weighted by luminance / pdf (so right whatever it samples by: texels, a sky's
+// disc). 0 without an environment map. Automatic caustic light paths (Session::setup_caustics).
+float environment_peak_share(const Environment& env, float factor);
 
 bool denoising_features(const ClosureList& cl, Vec3 wo, bool flip, Vec3& normal, Vec3& diffuse_albedo,
                         Vec3& specular_albedo);

@@ -56,11 +56,45 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
   return true;
 }
 
+bool caustic_lamp(const Light& l) {
+  if (light_has_extent(l) || l.type == LightType::Rect || l.type == LightType::Ellipse) return false;
+  constexpr uint8_t kSurfaces = kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission;
+  if (!l.cast_shadow || (l.visibility & kSurfaces) != kSurfaces) return false;
+  if (l.light_mask != ~uint64_t(0) || l.shadow_mask != ~uint64_t(0)) return false;
+  return !(l.type == LightType::Sun && l.shader);
+}
+
+float environment_peak_share(const Environment& env, float factor) {
+  if (!env.valid()) return 0.0f;
+  constexpr int kN = 64;
+  std::vector<std::pair<float, double>> s;  // (luminance, luminance / pdf)
+  s.reserve(kN * kN);
+  double all = 0.0;
+  for (int i = 0; i < kN; ++i)
+    for (int j = 0; j < kN; ++j) {
+      Vec3 dir, rad;
+      float pdf = 0.0f;
+      if (!env.sample({(float(i) + 0.5f) / kN, (float(j) + 0.5f) / kN}, dir, rad, pdf, true)) continue;
+      const float lum = luminance(rad);
+      if (!(pdf > 0.0f) || !(lum > 0.0f) || !std::isfinite(lum) || !std::isfinite(pdf)) continue;
+      s.emplace_back(lum, double(lum) / double(pdf));
+      all += s.back().second;
+    }
+  if (!(all > 0.0)) return 0.0f;
+  // The mean radiance over the sphere: (1 / 4 pi) E[L / pdf] over all kN^2 draws.
+  const double bright = double(factor) * all / (4.0 * double(kPi) * double(kN * kN));
+  double peak = 0.0;
+  for (const auto& [lum, w] : s)
+    if (double(lum) > bright) peak += w;
+  return float(peak / all);
+}
+
 uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_t seed, uint64_t first,
                              uint64_t last, int film_x, int film_y, int film_w, int film_h,
                              std::vector<CausticSplat>& out) {
   const Environment& env = scene.environment();
-  if (!env.valid() || !cz.camera) return 0;
+  if (!cz.camera || (cz.lamps.empty() && !(cz.env_pmf > 0.0f && env.valid()))) return 0;
+  const bool tree = scene.light_tree_active();  // (its choice reads the shading normal)
   const Camera& cam = *cz.camera;
   const float disk = kPi * cz.radius * cz.radius;
   const float half = 0.5f * std::sqrt(cz.filter_area);  // the box filter's half width
@@ -70,21 +104,61 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
   rs.flags = uint8_t(kRayReflect | kRayGlossy);
   for (uint64_t i = first; i < last; ++i) {
     Pcg32 rng(seed, i);
-    Vec3 wl, li;
-    float pdf;
-    const Vec2 ue{rng.next_float(), rng.next_float()}, ud{rng.next_float(), rng.next_float()};
-    if (!env.sample(ue, wl, li, pdf, true) || !(pdf > 0.0f)) continue;
-    li = scene.background(wl);  // (what the path tracer's escaped rays find)
-    if (is_black(li) || !is_finite(li)) continue;
-    Vec3 t, b;
-    make_basis(wl, t, b);
-    const Vec2 d = sample_disk_concentric(ud);
+    // The emitter (the environment alone draws nothing: its streams stay as they were).
+    const CausticLamp* lamp = nullptr;
+    if (cz.sources.size() > 1) {
+      const size_t j = cz.sources.sample(rng.next_float());
+      if (j > 0) lamp = &cz.lamps[j - 1];
+    }
+    Vec3 wl, beta;
+    float ps;
     Ray ray;
-    ray.org = cz.center + (t * d.x + b * d.y) * cz.radius + wl * cz.far;
-    ray.dir = -wl;
     ray.tmax = kInf;
-    Vec3 beta = li * (disk / pdf);
-    const float ps = pdf / disk;
+    // A light path from direction wl (the environment's, a sun's): from a point of the caster
+    // sphere's disk across wl, outside the scene.
+    const auto start_on_disk = [&](Vec2 u) {
+      Vec3 t, b;
+      make_basis(wl, t, b);
+      const Vec2 d = sample_disk_concentric(u);
+      ray.org = cz.center + (t * d.x + b * d.y) * cz.radius + wl * cz.far;
+      ray.dir = -wl;
+    };
+    if (!lamp) {
+      Vec3 li;
+      float pdf;
+      const Vec2 ue{rng.next_float(), rng.next_float()}, ud{rng.next_float(), rng.next_float()};
+      if (!env.sample(ue, wl, li, pdf, true) || !(pdf > 0.0f)) continue;
+      li = scene.background(wl);  // (what the path tracer's escaped rays find)
+      if (is_black(li) || !is_finite(li)) continue;
+      start_on_disk(ud);
+      beta = li * (disk / (pdf * cz.env_pmf));
+      ps = cz.env_pmf * pdf / disk;
+    } else {
+      const Light& l = scene.light(lamp->light);
+      const Vec2 ud{rng.next_float(), rng.next_float()};
+      if (l.type == LightType::Sun) {
+        // A delta direction: across the caster sphere's disk, as the environment's.
+        wl = l.dir;
+        start_on_disk(ud);
+        beta = l.color * (disk / lamp->pmf);
+        ps = lamp->pmf / disk;
+      } else {
+        // A point or spot: uniform in the cone the caster sphere subtends (or every direction
+        // from inside it); ps is per unit solid angle until the first hit's distance is known.
+        const float cos_t = 1.0f - ud.x * lamp->one_minus_cos;
+        const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * kPi * ud.y;
+        Vec3 t, b;
+        make_basis(lamp->axis, t, b);
+        ray.dir = normalize(lamp->axis * cos_t + (t * std::cos(phi) + b * std::sin(phi)) * sin_t);
+        ray.org = l.position;
+        wl = -ray.dir;
+        float att = 1.0f;
+        if (l.type == LightType::Spot) att = spot_attenuation(l, ray.dir);  // as its light samples
+        if (!(att > 0.0f)) continue;
+        ps = lamp->pmf / (2.0f * kPi * lamp->one_minus_cos);
+        beta = l.color * (att / ps);
+      }
+    }
     // The heuristic's products over the smooth vertices (q_rev and q_fwd), and Pb / Pa at the
     // first one (the path tracer's light sample of the world there).
     double prod_r = 1.0, prod_f = 1.0;
@@ -100,6 +174,14 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       const ClosureList* cs = &cl;  // the closures this vertex samples from
       if (k == 0) {
         if (!(length_sq(sp.p - cz.center) <= cz.radius * cz.radius)) break;
+        if (lamp && scene.light(lamp->light).type != LightType::Sun) {
+          // A point or spot: its profile and node tree towards this point, as its light sample
+          // from here sees them, and the density per unit area here.
+          const Light& l = scene.light(lamp->light);
+          const float d2 = length_sq(sp.p - l.position);
+          if ((l.ies || l.shader) && !apply_light_factors(l, l.position, wo_l, std::sqrt(d2), beta)) break;
+          ps /= d2;
+        }
         scene.shade(sp, hit.b1, hit.b2, wo_l, cl, rs);
         // (a surface whose closures' kinds and roughness do not depend on the view: rough
         // from here too, so no path of the class starts at it)
@@ -208,9 +290,17 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       const Vec3 f = eval_mixture(cle, wi, wo_l, reflection, qf);
       eval_mixture(cle, wo_l, wi, reflection, qr);
       if (is_black(f) || !(qf > 0.0f) || !(qr > 0.0f)) break;
-      if (k == 0 && cz.nee) eb = scene.pdf_environment(wl, sp.p) / qf;
+      if (k == 0 && lamp) {
+        // A delta lamp: the path tracer makes this path only by its light sample here, so that
+        // sample's choice stands in for the BSDF's density towards the light (and eb is 0).
+        const float sel = scene.pick_light_pmf(sp.p, tree ? sp.ns : Vec3(0.0f), lamp->light);
+        if (!(sel > 0.0f)) break;
+        prod_f *= sel;
+      } else {
+        if (k == 0 && cz.nee) eb = scene.pdf_environment(wl, sp.p) / qf;
+        prod_f *= qf;
+      }
       beta *= f * (std::fabs(dot(sp.ng, wi)) / std::fabs(dot(sp.ng, wo_l)) / p_true);
-      prod_f *= qf;
       prod_r *= qr;
       if (!is_finite(beta) || is_black(beta)) break;
       ++k;

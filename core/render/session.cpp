@@ -6,6 +6,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <sys/resource.h>
 #include <unistd.h>
 #include <stdexcept>
@@ -223,45 +224,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
                       integrator_.cryptomatte != 0;
     const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
     integrator_.differentials = scene_->features().footprints;
-    const float lt = settings_.caustic_light_paths;
-    if (std::isfinite(lt) && lt > 0.0f) {
-      // Where it can be combined exactly with the path tracer; else off, with the reason.
-      const SceneFeatures& sf = scene_->features();
-      const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
-      if (settings_.debug_view != DebugView::None) caustics_note_ = "off: debug view";
-      else if (guiding) caustics_note_ = "off: not combined with path guiding";
-      else if (film_.has_pass(Pass::ShadowCatcherMatte)) caustics_note_ = "off: not combined with shadow catchers";
-      else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
-        caustics_note_ = "off: only for a still pinhole perspective camera (no depth of field, no motion blur)";
-      else if (sf.media || sf.path_state || sf.light_links)
-        caustics_note_ = "off: not with volumes, Light Path node state or light linking";
-      else if (!scene_->environment().valid()) caustics_note_ = "off: only the environment map sends caustic light paths";
-      else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
-        caustics_note_ = "off: the bounce limits leave no caustic paths";
-      else {
-        Vec3 c;
-        float r;
-        if (!caustic_casters(*scene_, 32768, c, r)) {
-          caustics_note_ = "off: no smooth surface to cast caustics";
-        } else {
-          caustics_ = std::make_unique<CausticLight>();
-          caustic_paths_ = uint64_t(std::max<double>(1.0, std::llround(double(std::min(lt, 64.0f)) * film_.width() * film_.height())));
-          caustics_->paths = float(caustic_paths_);
-          caustics_->center = c;
-          caustics_->radius = r;
-          const Aabb& wb = scene_->world_bounds();
-          caustics_->far = length((wb.lo + wb.hi) * 0.5f - c) + length(wb.extent()) + 2.0f * r;
-          caustics_->max_vertices = k_max;
-          caustics_->filter_area = settings_.filter_width * settings_.filter_width;
-          if (settings_.filter_type != FilterType::Box) caustics_->filter = &filter_;
-          caustics_->camera = &camera_;
-          caustics_->nee = settings_.use_nee && scene_->has_lights();
-          caustics_->differentials = integrator_.differentials;
-          integrator_.caustics = caustics_.get();
-          caustics_note_ = "on";
-        }
-      }
-    }
+    setup_caustics(guiding);
     kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr),
                             settings_.force_general_kernel, kernel_bits_);
     if (guiding) {
@@ -604,6 +567,132 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   paths_.fetch_add(paths, std::memory_order_relaxed);
   rays_.fetch_add(counters.rays, std::memory_order_relaxed);
   nonfinite_.fetch_add(nonfinite, std::memory_order_relaxed);
+}
+
+namespace {
+// Automatic caustic light paths (docs/design/sampling.md, "Automatic caustic light paths"): this
+// many per pixel sample (the textured model's best), where the environment's directions brighter
+// than kAutoPeakFactor x its mean hold at least kAutoPeakShare of its power.
+constexpr float kAutoCausticPaths = 0.1f;
+constexpr float kAutoPeakFactor = 10.0f;
+constexpr float kAutoPeakShare = 0.4f;
+}  // namespace
+
+// Caustic light tracing (CausticLight): on where asked for and where it can be combined exactly
+// with the path tracer; else off, with the reason (SessionStats::caustics).
+void Session::setup_caustics(bool guiding) {
+  float lt = settings_.caustic_light_paths;
+  // Automatic: on at kAutoCausticPaths only where they pay (below), else off without a warning.
+  const bool automatic = settings_.caustic_light_paths_auto && !(lt > 0.0f);
+  if (automatic) lt = kAutoCausticPaths;
+  if (!std::isfinite(lt) || !(lt > 0.0f)) return;
+  const auto off = [&](const std::string& why) { caustics_note_ = (automatic ? "off (automatic): " : "off: ") + why; };
+  // Where it can be combined exactly with the path tracer; else off, with the reason.
+  const SceneFeatures& sf = scene_->features();
+  const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
+  const bool env = scene_->environment().valid();
+  const bool nee = settings_.use_nee && scene_->has_lights();
+  // The lamps that may send light paths: delta ones (their caustics are the path tracer's light
+  // samples at the last smooth vertex alone), with the settings a light path can follow.
+  std::vector<uint32_t> lamps;
+  if (nee)
+    for (size_t i = 0; i < scene_->light_count(); ++i)
+      if (caustic_lamp(scene_->light(i))) lamps.push_back(uint32_t(i));
+  if (settings_.debug_view != DebugView::None) off("debug view");
+  else if (guiding) off("not combined with path guiding");
+  else if (film_.has_pass(Pass::ShadowCatcherMatte)) off("not combined with shadow catchers");
+  else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
+    off("only for a still pinhole perspective camera (no depth of field, no motion blur)");
+  else if (sf.media || sf.path_state || sf.light_links)
+    off("not with volumes, Light Path node state or light linking");
+  else if (!env && lamps.empty())
+    off("only an environment map or a lamp without extent (sun, point, spot) sends caustic light paths");
+  else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
+    off("the bounce limits leave no caustic paths");
+  std::string peak_note;
+  if (automatic && caustics_note_.empty()) {
+    // Where they paid by the realistic scenes' measurements (docs/design/sampling.md, "Automatic
+    // caustic light paths"): an environment map with a sun, whose bright directions hold most of
+    // its power. Lamps alone, or a dim peak, stay off.
+    const float share = environment_peak_share(scene_->environment(), kAutoPeakFactor);
+    char why[160];
+    std::snprintf(why, sizeof why, "the environment's peak holds %.0f %% of its power (%s %.0f %%)", 100.0 * share,
+                  share >= kAutoPeakShare ? "at least" : "under", 100.0 * kAutoPeakShare);
+    if (!env) off("no environment map");
+    else if (!(share >= kAutoPeakShare)) off(why);
+    else peak_note = why;
+  }
+  if (!caustics_note_.empty()) return;
+  Vec3 c;
+  float r;
+  if (!caustic_casters(*scene_, 32768, c, r)) {
+    off("no smooth surface to cast caustics");
+    return;
+  }
+  auto cz = std::make_unique<CausticLight>();
+  cz->center = c;
+  cz->radius = r;
+  // The emitters by the power each sends through the caster sphere (a lamp far from the smooth
+  // surfaces gets few paths): the environment's and a sun's through its disk, a point's or
+  // spot's into the cone it subtends (a spot's mean attenuation there from a 16 x 16 grid).
+  const float disk = kPi * r * r;
+  std::vector<float> power{env ? disk * 4.0f * kPi * scene_->environment().average_luminance() : 0.0f};
+  cz->lamp_of.assign(scene_->light_count(), -1);
+  for (const uint32_t i : lamps) {
+    const Light& l = scene_->light(i);
+    CausticLamp m;
+    m.light = i;
+    const float lum = std::max(luminance(l.color), 0.0f) * light_power_scale(l);
+    float p = 0.0f;
+    if (l.type == LightType::Sun) {
+      p = disk * lum;
+    } else {
+      const float d = length(c - l.position);
+      if (d > r) {
+        const float s2 = (r / d) * (r / d);
+        m.axis = (c - l.position) / d;
+        m.one_minus_cos = s2 / (1.0f + std::sqrt(std::max(0.0f, 1.0f - s2)));  // (exact for small cones)
+      }
+      float att = 1.0f;
+      if (l.type == LightType::Spot) {
+        Vec3 t, b;
+        make_basis(m.axis, t, b);
+        double sum = 0.0;
+        for (int u = 0; u < 16; ++u)
+          for (int v = 0; v < 16; ++v) {
+            const float cos_t = 1.0f - (float(u) + 0.5f) / 16.0f * m.one_minus_cos;
+            const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * kPi * (float(v) + 0.5f) / 16.0f;
+            sum += spot_attenuation(l, m.axis * cos_t + (t * std::cos(phi) + b * std::sin(phi)) * sin_t);
+          }
+        att = float(sum / 256.0);
+      }
+      p = lum * att * 2.0f * kPi * m.one_minus_cos;
+    }
+    if (!(p > 0.0f) || !std::isfinite(p)) continue;
+    cz->lamp_of[i] = int32_t(cz->lamps.size());
+    cz->lamps.push_back(m);
+    power.push_back(p);
+  }
+  cz->sources = Distribution1D(power);
+  if (cz->sources.empty()) {
+    off("no light reaches the smooth surfaces");
+    return;
+  }
+  cz->env_pmf = cz->sources.pmf(0);
+  for (size_t j = 0; j < cz->lamps.size(); ++j) cz->lamps[j].pmf = cz->sources.pmf(j + 1);
+  caustic_paths_ = uint64_t(std::max<double>(1.0, std::llround(double(std::min(lt, 64.0f)) * film_.width() * film_.height())));
+  cz->paths = float(caustic_paths_);
+  const Aabb& wb = scene_->world_bounds();
+  cz->far = length((wb.lo + wb.hi) * 0.5f - c) + length(wb.extent()) + 2.0f * r;
+  cz->max_vertices = k_max;
+  cz->filter_area = settings_.filter_width * settings_.filter_width;
+  if (settings_.filter_type != FilterType::Box) cz->filter = &filter_;
+  cz->camera = &camera_;
+  cz->nee = nee;
+  cz->differentials = integrator_.differentials;
+  caustics_ = std::move(cz);
+  integrator_.caustics = caustics_.get();
+  caustics_note_ = automatic ? "on (automatic): " + peak_note : "on";
 }
 
 // Light paths of samples [s0, s0 + k): sample s's are indexed (s, i) with their own streams,

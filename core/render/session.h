@@ -113,6 +113,10 @@ struct RenderSettings {
   // the environment through smooth surfaces, combined with the path tracer by MIS; 0: off.
   // Only where it can be combined exactly (SessionStats::caustics says why not otherwise).
   float caustic_light_paths = 0.0f;
+  // Automatic (where caustic_light_paths is 0): kAutoCausticPaths per sample only where they pay
+  // (Session::setup_caustics: an environment map whose bright peak holds most of its power, and
+  // smooth surfaces), else off without a warning ("off (automatic): ..."). An explicit number wins.
+  bool caustic_light_paths_auto = false;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs, and the colour
@@ -213,6 +217,7 @@ class Session {
   uint64_t caustic_paths_ = 0;  // light paths per pixel sample (the whole film's)
   // The current pass's splats, one film image per sample of it.
   std::vector<std::vector<Vec3>> caustic_splats_;
+  void setup_caustics(bool guiding);  // (the constructor's, once)
   void trace_caustics(int s0, int k);
   std::vector<std::string> features_, unused_features_;
   Film film_;

@@ -761,9 +761,24 @@ inline bool caustic_vertex(const SurfacePoint& sp, const ClosureList& cl) {
 // disk across the caster sphere (0 where x is outside the sphere: the light tracer never
 // reaches it).
 inline float caustic_source_pdf(const Scene& scene, const CausticLight& cz, Vec3 dir, Vec3 x) {
-  if (!(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
-  return scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
+  if (!(cz.env_pmf > 0.0f) || !(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
+  return cz.env_pmf * scene.environment().pdf(dir, true) / (kPi * cz.radius * cz.radius);
 }
+// The same for a path leaving lamp `light` (CausticLamp): its choice times its direction's
+// solid-angle density over the squared distance to x (a sun: over its disk's area, as the
+// environment); 0 where the lamp sends none.
+inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 x) {
+  if (light >= cz.lamp_of.size() || cz.lamp_of[light] < 0) return 0.0f;
+  if (!(length_sq(x - cz.center) <= cz.radius * cz.radius)) return 0.0f;
+  const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
+  const Light& l = scene.light(light);
+  if (l.type == LightType::Sun) return m.pmf / (kPi * cz.radius * cz.radius);
+  return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position));
+}
+
+// The power heuristic over the caustic paths' three strategies, for the one whose density is 1
+// when the other two's are a and b (relative to it): 1 / (1 + a^2 + b^2).
+inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a + b * b); }
 
 // The passes written at each surface the camera path meets (through Transparent BSDFs), as
 // Cycles' film_write_data_passes and AO pass: the colours, Mist, AO (beta: the throughput there).
@@ -1297,7 +1312,7 @@ restart: __attribute__((unused));
           const float ps = caustic_source_pdf(scene, *cz, ray.dir, mis_org);
           if (ps > 0.0f) {
             const float rho = cz_ratio * ps, eb = bg_found ? env_pdf / prev_pdf : 0.0f;  // n Pc / Pa, Pb / Pa
-            w = 1.0f / (1.0f + eb * eb + rho * rho);
+            w = caustic_mis_weight(eb, rho);
           }
         }
       if (sky && !prev_delta) {
@@ -1577,14 +1592,21 @@ restart: __attribute__((unused));
           const bool full = ds.delta && !(kLinks && ds.dedicated);  // (dedicated rays find those)
           float w = (full || last || (samples_only && ds.analytic)) ? 1.0f : power_heuristic(ds.pdf, bsdf_pdf);
           if constexpr (kCaus)
-            if (cz_k >= 2 && !(full || last) && std::isinf(ds.dist) && !ds.analytic) {
-              // The world lighting the last smooth vertex: the light tracer's path too.
-              const float ps = caustic_source_pdf(scene, *cz, ds.wi, sp.p);
+            if (cz_k >= 2 && !last) {
+              // The world or a delta lamp lighting the last smooth vertex: the light tracer's
+              // path too. A delta lamp's has no BSDF strategy (its Pa is 0).
+              float ps = 0.0f, ab = 0.0f;
+              if (!full && std::isinf(ds.dist) && !ds.analytic) {
+                ps = caustic_source_pdf(scene, *cz, ds.wi, sp.p);
+                ab = bsdf_pdf / ds.pdf;  // Pa / Pb
+              } else if (full && ds.analytic && !cz->lamps.empty()) {
+                ps = caustic_lamp_pdf(scene, *cz, ds.light, sp.p);
+              }
               if (ps > 0.0f) {
                 float pr;
                 eval_mixture<!kNonDiffuse>(cl, ds.wi, wo, reflection, pr);  // its direction here
-                const float rb = cz_ratio * pr * ps / ds.pdf, ab = bsdf_pdf / ds.pdf;  // n Pc / Pb, Pa / Pb
-                w = 1.0f / (1.0f + ab * ab + rb * rb);
+                const float rb = cz_ratio * pr * ps / ds.pdf;  // n Pc / Pb
+                w = caustic_mis_weight(ab, rb);
               }
             }
           const Vec3 v = beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability

@@ -266,6 +266,7 @@ struct DirectSample {
   float pdf = 0.0f;       // solid-angle pdf including the light choice
   bool delta = false;      // no BSDF ray can find this light (delta, or Multiple Importance off): full weight
   bool analytic = false;   // an analytic light (not an emissive triangle or the environment)
+  uint32_t light = 0;      // analytic: its index (Scene::light), for the caustic light paths' MIS
   bool cast_shadow = true;
   // LightVisibility bits of the ray kinds the chosen light is invisible to: closures of those
   // kinds (and volume scattering) get nothing from this sample, as Cycles' light_shader_flags.

@@ -609,6 +609,7 @@ bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u
     // weight (no ray can find them: MIS against the BSDF pdf would lose energy there).
     s.delta = ls.delta || !l.mis || !light_hits_on_;
     s.analytic = true;
+    s.light = uint32_t(k);
     s.exclude = uint8_t(~l.visibility & (kLightVisDiffuse | kLightVisGlossy | kLightVisTransmission | kLightVisVolume));
     s.cast_shadow = l.cast_shadow;
     if (links_) {

@@ -34,7 +34,7 @@ WIDTH, HEIGHT = 96, 72
 
 
 def _empty(width=WIDTH, height=HEIGHT):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.resolution_x, scene.render.resolution_y = width, height
     scene.render.resolution_percentage = 100

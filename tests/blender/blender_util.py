@@ -41,7 +41,7 @@ def core_has(cls, name):
 
 def empty_scene_with_camera(resolution=32):
     """The factory-empty scene with a camera at (0, -6, 0) looking at the origin along +y."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     sc = bpy.context.scene
     cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
     cam.location = (0.0, -6.0, 0.0)

@@ -12,7 +12,7 @@ from blender_util import canonical_order
 
 
 def empty_scene(size=32, height=None):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.resolution_x = size
     scene.render.resolution_y = height or size

@@ -199,7 +199,7 @@ def studio(size=64, floor=None, world=(0.05, 0.05, 0.05), light_strength=6.0,
            light_size=2.5, camera=((0.0, -5.0, 2.2), (0.0, 0.0, 0.7)), lens=50.0):
     """Empty scene: a 10 m diffuse floor (grey 0.5 unless `floor` is a material), an emissive
     panel above it facing down, a dim constant world and a camera. Returns the scene."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.resolution_x = scene.render.resolution_y = size
     scene.render.resolution_percentage = 100

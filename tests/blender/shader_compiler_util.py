@@ -22,7 +22,7 @@ from shader_reference import _math, _mix  # noqa: E402
 
 @pytest.fixture(autouse=True)
 def empty_scene():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     yield
 
 

@@ -12,7 +12,7 @@ load_addon()
 
 
 def furnace_scene(albedo, smooth):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.resolution_x = scene.render.resolution_y = 64
     scene.render.resolution_percentage = 100

@@ -26,7 +26,7 @@ def scene(method="DISPLACEMENT", distance=2.2, feature_set='EXPERIMENTAL', befor
     adaptive Catmull-Clark modifier, Noise displacement or none, under a grazing sun. cage:
     "array" (a half-size cube and an Array modifier's copy of it before the Subdivision
     Surface) or "shape-key" (a key that lifts and widens the top, at 0.7)."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     sc = bpy.context.scene
     sc.render.resolution_x, sc.render.resolution_y = W, H
     sc.cycles.feature_set = feature_set

@@ -31,7 +31,7 @@ def normal_scene(source, output, mirrored=False, size=48):
     inside and out, rotated so object space differs from world space) and a plane from behind;
     mirrored: both scaled by -1 along x (Cycles flips Ng for a negative scale first)."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = size
         scene.render.resolution_percentage = 100

@@ -26,7 +26,7 @@ CENTRES = dict(pixel_filter_type='BOX', filter_width=0.01)
 
 def wire_scene(size, pixel, ortho=False):
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 64
         scene.render.resolution_percentage = 100
@@ -77,7 +77,7 @@ def test_wireframe_pixel_size_scales_with_resolution():
 
 def bevel_scene(emit_normal, radius=0.25):
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 48
         scene.render.resolution_percentage = 100

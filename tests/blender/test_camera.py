@@ -15,7 +15,7 @@ def emissive_material(name, color):
 
 
 def target_scene(res, fit, shift, aspect, lens=35.0, clip=(0.1, 100.0), ortho_scale=None):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.resolution_x, scene.render.resolution_y = res
     scene.render.resolution_percentage = 100

@@ -67,7 +67,7 @@ def test_vector_curves(extend):
 
 def test_normal_node_dot_and_direction():
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 32
         ms.set_world((0.0, 0.0, 0.0))

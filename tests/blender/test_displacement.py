@@ -46,7 +46,7 @@ def displaced_material(name, scale=0.05, space='OBJECT', vector=False, reads_nor
 
 def scene(material_fn, shape="plane", scale=(1.0, 1.0, 1.0)):
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         sc = bpy.context.scene
         sc.render.resolution_x = sc.render.resolution_y = 64
         ms.set_world((0.05, 0.05, 0.05))

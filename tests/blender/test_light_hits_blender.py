@@ -21,7 +21,7 @@ needs_hits = pytest.mark.skipif(not core_has("Scene", "light_hits"), reason="the
 
 
 def empty(size):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.resolution_x = scene.render.resolution_y = size
     scene.render.resolution_percentage = 100

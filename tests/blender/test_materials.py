@@ -191,7 +191,7 @@ def test_mix_with_transparent():
 
 def test_principled_back_face():
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 32
         ms.set_world((0.5, 0.5, 0.5))
@@ -221,7 +221,7 @@ def texture_scene(image_fn, interpolation, mapping=None):
     """A 1 m plane with a 4x4 texture seen from above under a white world: each pixel is the
     (interpolated) texel colour, with almost no noise."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 64
         ms.set_world((1.0, 1.0, 1.0))
@@ -286,7 +286,7 @@ def normal_map_scene(tilts, strength=1.0, sun=True, bsdf="ShaderNodeBsdfDiffuse"
     stripes tilted by `tilts` (degrees about the tangent's bitangent axis, + towards +u), lit
     by a sun from the +x side (and a dim world), or by a white world only."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 64
         ms.set_world((0.1, 0.1, 0.1) if sun else (1.0, 1.0, 1.0))
@@ -383,7 +383,7 @@ def emission_plane_scene(color_fn):
     """A 1 m plane seen from above, emitting colour_fn(nodes, links) (a colour socket) with
     its UV coordinates available; noise-free (the camera sees the emission only)."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 32
         ms.set_world((0.0, 0.0, 0.0))
@@ -451,7 +451,7 @@ def bump_scene(distance, invert=False):
     """A diffuse plane whose height is a smooth 8x8 float texture (Linear), through a Bump
     node, lit by a low sun: the slopes facing the sun are brighter."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 64
         ms.set_world((0.05, 0.05, 0.05))
@@ -490,7 +490,7 @@ def texture_coordinate_scene(output, other=False):
     emission shows positive values only): a noise-free picture of the coordinates. other:
     the node's Object is another object (an empty, moved, turned and scaled unevenly)."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 32
         ms.set_world((0.0, 0.0, 0.0))
@@ -535,7 +535,7 @@ def test_light_path_shadow_ray_card():
     """A card that is red diffuse to every ray but shadow rays, for which it is transparent
     (Mix Shader by Is Shadow Ray): the floor under it is lit as if it were not there."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 32
         ms.set_world((0.05, 0.05, 0.05))

@@ -101,7 +101,7 @@ def test_tangent_node_on_a_smooth_sphere_matches_cycles():
 def exported_mesh(fill_type, space="TANGENT", in_group=False):
     """The MeshData of a UV-mapped 8-vertex circle (an n-gon or a triangle fan) whose material
     has a Normal Map of the given space (optionally inside a node group)."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     bpy.ops.mesh.primitive_circle_add(vertices=8, fill_type=fill_type, calc_uvs=True)
     obj = bpy.context.object
     mat, nodes, links, out = ms.new_material("NM")

@@ -48,7 +48,7 @@ def particle_material(output, scale):
 
 
 def build(output, scale):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     sc = bpy.context.scene
     sc.render.resolution_x, sc.render.resolution_y = 64, 48
     sc.render.resolution_percentage = 100
@@ -95,7 +95,7 @@ def renders():
 
 
 def test_particle_info_compiles_without_warnings():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     for output, scale in OUTPUTS:
         _, warnings = compile_(particle_material(output, scale))
         assert not warnings, (output, warnings)

@@ -164,7 +164,7 @@ def test_missing_point_attribute_outputs_as_cycles(node_type, output, expect):
         links.new(em.outputs[0], out.inputs["Surface"])
         return mat
     def build():  # no floor or lamp: only the points, per pixel
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 32
         scene.render.resolution_percentage = 100

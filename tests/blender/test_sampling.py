@@ -10,7 +10,7 @@ import pytest
 
 from blender_util import core_available, core_has, load_addon, render_to_array, BOX_FILTER
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
-                          emission_material, empty_scene, plane)
+                          emission_material, empty_scene, load_image, plane, synthetic_hdr, world_image)
 from material_scenes import region_means
 
 load_addon()
@@ -32,7 +32,7 @@ needs_settings = pytest.mark.skipif(not core_has("RenderSettings", "diffuse_boun
 # ---------------------------------------------------------------- settings (no core)
 
 def test_defaults_are_cycles_defaults():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     props = bpy.context.scene.pathlight
     cycles = bpy.context.scene.cycles
     assert props.use_adaptive_sampling is True
@@ -61,7 +61,7 @@ def test_enum_items_keep_their_numbers():
 @needs_settings
 def test_settings_reach_the_core():
     from addon.core import get_core
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     props = scene.pathlight
     props.sampler = 'RANDOM'
@@ -93,11 +93,61 @@ def test_settings_reach_the_core():
     # ... with a learnt probability per cell (from 0.5 down), the cosine product, the directional filter
     assert st.guiding_learn_probability and st.guiding_cosine and st.guiding_filter
     assert st.guiding_probability == pytest.approx(0.5)
-    # Caustic light paths: off by default, else the paths per sample (docs/design/sampling.md)
-    assert st.caustic_light_paths == 0.0
+    # Caustic light paths: automatic by default (the core decides where they pay), else the
+    # paths per sample asked for, or off (docs/design/sampling.md)
+    assert st.caustic_light_paths == 0.0 and st.caustic_light_paths_auto
+    assert ui.caustics_in_effect(props).startswith("Automatic")
     props.use_caustic_light_paths, props.caustic_light_paths = True, 0.5
-    assert session.render_settings(get_core(), scene).caustic_light_paths == pytest.approx(0.5)
-    props.use_caustic_light_paths = False
+    st = session.render_settings(get_core(), scene)
+    assert st.caustic_light_paths == pytest.approx(0.5) and not st.caustic_light_paths_auto
+    assert ui.caustics_in_effect(props) == "On: 0.5 light paths per sample"
+    props.use_caustic_light_paths, props.caustic_light_paths_auto = False, False
+    st = session.render_settings(get_core(), scene)
+    assert st.caustic_light_paths == 0.0 and not st.caustic_light_paths_auto
+    assert ui.caustics_in_effect(props) == "Off"
+    props.caustic_light_paths_auto = True
+
+
+def test_caustics_warn_only_when_asked_for():
+    """The core's "off: ..." (asked for, not possible) warns; the automatic mode's "off
+    (automatic): ..." and "on (automatic): ..." do not."""
+    class Sess:
+        def __init__(self, state):
+            self.state = state
+
+        def stats(self):
+            return {"caustics": self.state}
+
+    for state, warns in (("off: only for a still pinhole perspective camera", 1),
+                         ("off (automatic): the environment's peak holds 20 % of its power (under 40 %)", 0),
+                         ("off (automatic): no smooth surface to cast caustics", 0),
+                         ("on (automatic): the environment's peak holds 60 % of its power", 0), ("on", 0), ("", 0)):
+        got = []
+        session._report_caustics(Sess(state), got.append)
+        assert len(got) == warns, state
+
+
+@needs_core
+def test_automatic_caustics_follow_the_environments_sun():
+    """The add-on's default (Automatic) in a Blender scene: a chrome ball on a floor under an HDRI
+    whose sun holds most of its light gets caustic light paths; under a dimmer sun it does not,
+    and says why in the stats (docs/design/sampling.md "Automatic caustic light paths")."""
+    from addon.core import get_core
+    import material_scenes as ms
+    pc = get_core()
+    states = {}
+    for peak in (200.0, 50.0):
+        scene = empty_scene(32)
+        scene.render.engine = "PATHLIGHT"
+        ms.add_plane("Floor", 6.0, ms.diffuse("Floor", (0.6, 0.6, 0.6)))
+        ms.add_sphere("Chrome", 0.4, ms.glossy("Chrome", roughness=0.05), location=(0.8, 0.3, 0.4))
+        world_image(load_image(synthetic_hdr(64, 32, sun_peak=peak), name=f"Sun{peak:g}"))
+        ms.add_camera((0.0, -4.0, 2.0), (0.0, 0.0, 0.4))
+        core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
+        core_scene.commit()
+        states[peak] = pc.Session(core_scene, session.render_settings(pc, scene)).stats()["caustics"]
+    assert states[200.0].startswith("on (automatic)"), states
+    assert states[50.0].startswith("off (automatic): the environment's peak"), states
 
 
 @needs_settings
@@ -108,7 +158,7 @@ def test_noise_pattern_reaches_the_core():
     from addon.core import get_core
     if not core_has("RenderSettings", "pixel_pattern"):
         pytest.skip("core without pixel_pattern")
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     props = scene.pathlight
     for value, core_name in (('AUTOMATIC', "blue_noise"), ('BLUE_NOISE', "blue_noise"),
@@ -135,7 +185,7 @@ def test_noise_pattern_reaches_the_core():
 
 
 def test_animated_seed_adds_the_frame():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.pathlight.seed = 5
     scene.frame_set(12)
@@ -164,7 +214,7 @@ def test_panels_draw_existing_properties():
         def separator(self, **kw):
             pass
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     obj = bpy.data.objects.new("O", bpy.data.meshes.new("O"))
     shown = set()

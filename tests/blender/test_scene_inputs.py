@@ -43,7 +43,7 @@ def info_material(output, scale=1.0, name=None, offset=0.0):
 
 
 def top_view(resolution):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.resolution_percentage = 100
     scene.render.resolution_x = scene.render.resolution_y = resolution
@@ -333,7 +333,7 @@ def test_geometry_outputs_match_cycles(output):
     """Emission = a Geometry output (vectors mapped by 0.5 v + 0.5) on a smooth sphere and a
     plane seen from behind, per pixel at the pixel centres."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 32
         scene.render.resolution_percentage = 100

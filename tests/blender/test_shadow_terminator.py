@@ -16,7 +16,7 @@ pytestmark = pytest.mark.skipif(not core_available(), reason="pathlight_core is 
 
 def low_poly_scene(offset, roughness=0.0):
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 64
         ms.set_world((0.02, 0.02, 0.02))

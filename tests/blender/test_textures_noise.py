@@ -73,7 +73,7 @@ def texture_material(name, node_type, output, settings=None, inputs=None, setup=
 def grid_scene(make_materials, cols=None):
     """An empty scene with one unit plane per material of make_materials() in a grid, seen
     from above."""
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     materials = make_materials()
     n = len(materials)
@@ -410,7 +410,7 @@ def _ops(program, name):
 
 
 def test_compiled_ops_read_generated_coordinates_and_warn_nothing():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     for node_type, op, output in (("ShaderNodeTexNoise", "tex_noise", "Color"),
                                   ("ShaderNodeTexWave", "tex_wave", "Fac"),
                                   ("ShaderNodeTexMagic", "tex_magic", "Color")):
@@ -439,7 +439,7 @@ def test_compiled_ops_read_generated_coordinates_and_warn_nothing():
 
 
 def test_constant_inputs_are_not_folded_and_bump_offsets_reach_the_texture():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     mat, nodes, links, out = ms.new_material("Bumpy")
     tex = nodes.new("ShaderNodeTexNoise")
     bump = nodes.new("ShaderNodeBump")
@@ -525,7 +525,7 @@ def test_bump_with_a_noise_height_matches_cycles(scale, perspective, tol):
     smooth noise.) The fine noise's finite differences over a tenth of a pixel lose a few
     float digits: 1.9e-3 of the range there."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         mat, nodes, links, out = ms.new_material("Bumped")
         tex = nodes.new("ShaderNodeTexNoise")

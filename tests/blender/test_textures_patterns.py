@@ -32,7 +32,7 @@ OUR_FILTER = dict(samples=4, pixel_filter_type='BOX', filter_width=0.01)
 def pattern_scene(make_color, size=SIZE):
     """A scene whose plane emits make_color(nodes, links) (a colour socket)."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = size
         scene.render.resolution_percentage = 100
@@ -327,7 +327,7 @@ def test_voronoi_fractal(dims):
 def compile_patterns(make_color):
     from addon.export.material import convert_material
     from blender_util import Warnings
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     mat, nodes, links, out = ms.new_material("Compiled")
     e = nodes.new("ShaderNodeEmission")
     links.new(make_color(nodes, links), e.inputs["Color"])
@@ -400,7 +400,7 @@ def textured_principled_scene():
     """A plane under a sun whose Principled BSDF takes its Base Color from a Brick texture
     (Checker-coloured bricks) and its Roughness from a Voronoi distance."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 64
         ms.set_world((0.05, 0.05, 0.05))
@@ -444,7 +444,7 @@ def test_bump_of_a_voronoi_distance():
     """The Bump node differentiates a texture through its coordinates' offsets (the Generated
     op at each Bump offset): Voronoi cells shaded by a low sun as in Cycles."""
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = bpy.context.scene
         scene.render.resolution_x = scene.render.resolution_y = 64
         ms.set_world((0.05, 0.05, 0.05))

@@ -93,7 +93,7 @@ def subdivide(obj, levels, simple):
 
 def scene(method, shape="plane", source="wave", scale=0.08):
     def build():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         sc = bpy.context.scene
         sc.render.resolution_x, sc.render.resolution_y = W, H
         ms.set_world((0.05, 0.05, 0.05))

@@ -50,7 +50,7 @@ def save_evaluated(ob, path):
 
 @pytest.fixture(scope="module")
 def cube_file(tmp_path_factory):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
 
     def build(ng, out):
         n = ng.nodes

@@ -24,7 +24,7 @@ CENTRES = dict(pixel_filter_type='BOX', filter_width=0.01)
 
 def new_scene(res_x, res_y=None, camera_type='ORTHO', location=(0.0, 0.0, 6.0),
               rotation=(0.0, 0.0, 0.0), ortho_scale=4.0, shift=(0.0, 0.0)):
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.render.resolution_percentage = 100
     scene.render.resolution_x = res_x

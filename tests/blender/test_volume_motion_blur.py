@@ -132,7 +132,7 @@ def test_bad_velocity_grids_warn_and_render(tmp_path):
              "NotVector": velocity_file(tmp_path / "float.vdb", vector=False),
              "Named": velocity_file(tmp_path / "vel.vdb", name="vel")}
     for name, path in cases.items():
-        bpy.ops.wm.read_factory_settings(use_empty=True)
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene = lit_scene(16)
         ob = file_volume(name, path, principled_volume(name))
         if name == "Named":

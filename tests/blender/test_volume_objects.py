@@ -429,7 +429,7 @@ def test_overlap_with_different_anisotropies_agrees_with_cycles_per_channel():
     grey = tuple(c[blue] for c in (SMOKE_COLOUR, CUBE_COLOUR))
     scene = overlap_scene(SMOKE_COLOUR, CUBE_COLOUR, 0.5)
     coloured = render_to_array(scene, samples=512, max_bounces=8)[..., :3]
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = overlap_scene((grey[0],) * 3 + (1.0,), (grey[1],) * 3 + (1.0,), 0.5)
     ours, ref = render_both(scene, 512, "grey overlap of anisotropies 0 and 0.5")
     check_agrees(ours, ref, "grey overlap of anisotropies 0 and 0.5", region=0.035)

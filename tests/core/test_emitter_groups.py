@@ -3,6 +3,8 @@ light and sampled over its whole solid angle, each triangle picked in proportion
 angle it subtends. Checked through the core module: the density of the light samples against the
 pdf the renderer's MIS uses for the same directions, its integral, closed-form irradiance, the
 image against per-triangle sampling, and the variance it removes."""
+import functools
+
 import numpy as np
 import pytest
 
@@ -167,15 +169,25 @@ def test_grouped_quad_lowers_variance_near_it():
     assert rel_var[True] < 0.7 * rel_var[False], rel_var
 
 
+@functools.lru_cache(maxsize=None)
+def cornell_image(emitter_groups=True, rect_groups=True):
+    """The Cornell box (its light one quad, a rectangle) at high sample counts (48 x 48, 512
+    samples, seed 5) and its rectangle emitter count. Both comparisons below need it with both
+    kinds of groups on (the defaults), the same render: made once per process (pass both
+    arguments, positionally: lru_cache keys on the call as written)."""
+    s = cornell(pc)
+    s.emitter_groups, s.rect_groups = emitter_groups, rect_groups
+    s.commit()
+    img = render(pc, s, 48, 48, samples=512, max_bounces=6, seed=5)[0][..., :3]
+    img.setflags(write=False)
+    return img, s.stats()["rect_emitters"]
+
+
 @pytest.mark.converged
 def test_grouped_lights_render_the_per_triangle_image():
     # The Cornell box (its light one quad) at high sample counts: the same image either way, to
     # within the noise of the regions; the whole-image means within 0.5 %.
-    imgs = {}
-    for groups in (True, False):
-        s = cornell(pc)
-        s.emitter_groups = groups
-        imgs[groups] = render(pc, s, 48, 48, samples=512, max_bounces=6, seed=5)[0][..., :3]
+    imgs = {groups: cornell_image(groups, True)[0] for groups in (True, False)}
     a, b = region_means(imgs[True], 6), region_means(imgs[False], 6)
     assert abs(imgs[True].mean() / imgs[False].mean() - 1) < 0.005
     np.testing.assert_allclose(a, b, rtol=0.03)
@@ -404,11 +416,8 @@ def test_rect_group_renders_the_two_triangle_image():
     # spherical triangles, within the noise of the regions; the whole-image means within 0.5 %.
     imgs = {}
     for rect in (True, False):
-        s = cornell(pc)
-        s.rect_groups = rect
-        s.commit()
-        assert s.stats()["rect_emitters"] == int(rect)
-        imgs[rect] = render(pc, s, 48, 48, samples=512, max_bounces=6, seed=5)[0][..., :3]
+        imgs[rect], rect_emitters = cornell_image(True, rect)
+        assert rect_emitters == int(rect)
     a, b = region_means(imgs[True], 6), region_means(imgs[False], 6)
     assert abs(imgs[True].mean() / imgs[False].mean() - 1) < 0.005
     np.testing.assert_allclose(a, b, rtol=0.03)

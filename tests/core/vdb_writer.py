@@ -100,6 +100,22 @@ def _string(s):
     return struct.pack("<I", len(b)) + b
 
 
+def _first_distinct(rows, limit):
+    """The first `limit` distinct rows in order of first occurrence, compared with == (as
+    np.array_equal: -0 equals 0, a NaN equals nothing, so every row with a NaN is new): what
+    a loop over the rows keeping those unlike all kept so far gives, in a few vector operations
+    per kept row instead of numpy calls per row (an internal node has 32768 values). More than
+    two distinct rows all mean the same (metadata 6), so `limit` 3 is enough."""
+    distinct = []
+    while len(rows) and len(distinct) < limit:
+        v = rows[0]
+        distinct.append(v)
+        keep = ~np.all(rows == v, axis=1)
+        keep[0] = False
+        rows = rows[keep]
+    return distinct
+
+
 class Grid:
     """A grid to write. leaves: {(x, y, z) origin (multiple of 8): (values [8,8,8(,3)], active
     bool [8,8,8])}; tiles: [(size 8|128|4096, origin, value, active)]."""
@@ -152,11 +168,7 @@ class Grid:
         if not self.active_mask:
             meta, stored = 6, vals
         else:
-            inactive = vals[~active]
-            distinct = []
-            for v in inactive:
-                if not any(np.array_equal(v, d) for d in distinct):
-                    distinct.append(v)
+            distinct = _first_distinct(vals[~active], 3)
             sel = np.zeros(len(active), bool)
             extra = []
             if len(distinct) == 0 or (len(distinct) == 1 and np.array_equal(distinct[0], bg)):
