@@ -250,8 +250,9 @@ def test_curves_and_points_as_holdout_and_catcher_as_cycles(tmp_path):
     cloud.location = (0.4, 0.9, -1.3)
     cloud.is_shadow_catcher = True
     out = {}
-    for engine in ('PATHLIGHT', 'CYCLES'):
-        out[engine] = render(sc, engine, tmp_path / f"{engine}.exr", True, True, samples=128)
+    for engine in ('PATHLIGHT', 'CYCLES'):  # (Cycles at CYCLES_FACTOR x 128)
+        out[engine] = render(sc, engine, tmp_path / f"{engine}.exr", True, True,
+                             samples=256 if engine == 'PATHLIGHT' else 128)
     (ours, ours_pass), (cycles, cycles_pass) = out['PATHLIGHT'], out['CYCLES']
     # The floor (the lower half, opaque but for them): the strands, and the catchers
     # (transparent in the matte), take out a fifth of it or more.
@@ -261,4 +262,10 @@ def test_curves_and_points_as_holdout_and_catcher_as_cycles(tmp_path):
     # Pathlight against Cycles 2.0 %, 0.2 % and 3.8 %.)
     assert_close(ours[..., :3], cycles[..., :3], 0.01, 0.05, "rgb")
     assert_close(ours[..., 3:], cycles[..., 3:], 0.01, 0.03, "alpha")
-    assert_close(ours_pass, cycles_pass, 0.01, 0.08, "shadow catcher")
+    # The pass is a per-pixel ratio (Combined less the matte over the catcher path's light): at
+    # the points' silhouettes, where few samples reach a catcher, single pixels read 4-24 in
+    # either engine at any sample count, and a region's mean followed them (over 16 seeds 13 and
+    # 16 of 16 failed 8 %, sets and pairs). Clipped at 2 (a shadow's ratio is at most about 1)
+    # in both: 0.8-4.1 % over 16 seeds; a ball 15 % larger 11 %, the cloud not a catcher 13 %,
+    # the ball hidden 17 % (docs/design/sampling.md, "The default").
+    assert_close(np.minimum(ours_pass, 2.0), np.minimum(cycles_pass, 2.0), 0.01, 0.08, "shadow catcher")
