@@ -219,9 +219,12 @@ def test_varying_mixture_of_phases_agrees_with_cycles():
     prog, w = compiled(varying_mixture)
     assert isinstance(prog, list) and len(w) == 0
     t0 = time.time()
-    ours = render_to_array(scene, samples=1024, max_bounces=8)[..., :3]
+    # Pathlight at 2048 spp, Cycles at 4096 (stored: no test time). Both at 1024: 2.0-4.0 % over
+    # seeds 0-5 with the 4-D sets, the mean of the six 1.8 % off Cycles' own noise; 2048 against
+    # 4096 (two seeds' mean): 1.6-2.2 % (docs/design/sampling.md, "The default").
+    ours = render_to_array(scene, samples=2048, max_bounces=8)[..., :3]
     t1 = time.time()
-    ref = render_to_array(scene, "CYCLES", samples=1024, max_bounces=8, **BOX_FILTER)[..., :3]
+    ref = render_to_array(scene, "CYCLES", samples=4096, max_bounces=8, **BOX_FILTER)[..., :3]
     print(f"pathlight {t1 - t0:.1f} s, cycles {time.time() - t1:.1f} s")
     a, b = region_means(ours), region_means(ref)
     rel = np.abs(a - b) / np.maximum(b, 0.25 * b.mean())
