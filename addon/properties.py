@@ -74,19 +74,26 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "to frame (as Cycles' option)",
         default=False,
     )
+    # EnumProperty saves an item's number, not its name: each keeps its number, new ones go last.
     sampler: EnumProperty(
         name="Pattern", description="Random number pattern used to sample pixels and paths",
         items=(
-            ('SOBOL', "Sobol", "Owen-scrambled Sobol low-discrepancy sequence: less noise"),
-            ('RANDOM', "Random", "Independent pseudo-random numbers"),
+            ('SOBOL', "Sobol", "Owen-scrambled Sobol low-discrepancy sequence in 4-D sets, as Cycles: less "
+             "noise", 0),
+            ('RANDOM', "Random", "Independent pseudo-random numbers", 1),
             # Measurement variants (docs/design/sampling.md, "Random numbers")
-            ('SOBOL_DEEP', "Sobol (All Bounces)", "Sobol pairs for every bounce, not only the first few"),
-            ('SOBOL4D', "Sobol 4-D Sets", "4-D Owen-scrambled Sobol sets (pixel + lens, light, BSDF)"),
-            ('SOBOL4D_DEEP', "Sobol 4-D Sets (All Bounces)", "4-D Sobol sets for every bounce"),
-            ('SOBOL4D_RR', "Sobol 4-D Sets, Own Roulette",
-             "4-D Sobol sets, Russian roulette on a sequence of its own (as Cycles)"),
-            ('SOBOL4D_CYCLES', "Sobol 4-D Sets, Cycles' Order",
-             "4-D Sobol sets, own roulette, points on the sets' first two dimensions (as Cycles)"),
+            ('SOBOL_DEEP', "Sobol Pairs (All Bounces)", "Sobol Pairs for every bounce, not only the first few",
+             2),
+            ('SOBOL4D', "Sobol 4-D Sets (Points Last)", "4-D Owen-scrambled Sobol sets with the points on "
+             "their last two dimensions", 3),
+            ('SOBOL4D_DEEP', "Sobol 4-D Sets (Points Last, All Bounces)", "Sobol 4-D Sets (Points Last) for "
+             "every bounce", 4),
+            ('SOBOL4D_RR', "Sobol 4-D Sets (Points Last), Own Roulette",
+             "Sobol 4-D Sets (Points Last), Russian roulette on a sequence of its own (as Cycles)", 5),
+            ('SOBOL4D_CYCLES', "Sobol, Own Roulette", "Sobol with the Russian roulette on a sequence of its own "
+             "(as Cycles)", 6),
+            ('SOBOL_PAIRS', "Sobol Pairs", "Owen-scrambled Sobol pairs, each 2-D draw its own sequence "
+             "(Pathlight's default before 4-D sets)", 7),
         ),
         default='SOBOL',
     )
@@ -95,17 +102,18 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         description="How the pixels share their random sequences (Cycles' sampling pattern)",
         items=(
             ('AUTOMATIC', "Automatic", "Blue-Noise for renders, Blue-Noise (First) in the viewport, as "
-             "Cycles' Automatic"),
+             "Cycles' Automatic", 0),
             ('BLUE_NOISE', "Blue-Noise", "Each pixel a consecutive chunk, as long as the frame's samples, of "
              "one sequence that neighbouring pixels share: their errors cancel, so regions and denoised "
-             "images converge faster, and no pixel is noisier"),
+             "images converge faster, and no pixel is noisier", 1),
             ('BLUE_NOISE_ROUND', "Blue-Noise (Round)", "Blue-Noise with chunks rounded up to a power of two "
-             "samples"),
+             "samples", 2),
             ('BLUE_NOISE_FIRST', "Blue-Noise (First)", "The first sample blue noise of its own, the rest as "
-             "Blue-Noise: a blue-noise first sample for the viewport"),
+             "Blue-Noise: a blue-noise first sample for the viewport", 3),
             ('INDEPENDENT', "Independent Pixels", "Each pixel its own sequence: neighbours' errors are "
-             "independent (Pathlight's pattern before blue noise)"),
+             "independent (Pathlight's pattern before blue noise)", 4),
         ),
+        # (Automatic, Cycles' default, fails Blender tests against Cycles: docs/design/sampling.md)
         default='INDEPENDENT',
     )
     frame_samples: IntProperty(

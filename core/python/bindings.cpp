@@ -103,7 +103,8 @@ constexpr EnumNames<SamplerType> kSamplerNames = {{SamplerType::Sobol, "sobol"},
                                                    {SamplerType::Sobol4D, "sobol4d"},
                                                    {SamplerType::Sobol4DDeep, "sobol4d_deep"},
                                                    {SamplerType::Sobol4DRoulette, "sobol4d_rr"},
-                                                   {SamplerType::Sobol4DCycles, "sobol4d_cycles"}};
+                                                   {SamplerType::Sobol4DCycles, "sobol4d_cycles"},
+                                                   {SamplerType::SobolPairs, "sobol_pairs"}};
 constexpr EnumNames<PixelPattern> kPixelPatternNames = {{PixelPattern::Independent, "independent"},
                                                          {PixelPattern::BlueNoise, "blue_noise"},
                                                          {PixelPattern::BlueNoiseRound, "blue_noise_round"},

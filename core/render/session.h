@@ -38,7 +38,7 @@ struct RenderSettings {
   bool volume_phase_mis = true;      // IntegratorSettings::volume_phase_mis
   bool volume_pass_through = true;   // IntegratorSettings::volume_pass_through
   int rr_start_bounce = 3;           // IntegratorSettings::rr_start_bounce (measurements)
-  SamplerType sampler = SamplerType::Sobol;
+  SamplerType sampler = SamplerType::Sobol;  // 4-D sets in Cycles' order (util/sampler.h)
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic
   int diffuse_bounces = 1024, glossy_bounces = 1024, transmission_bounces = 1024, volume_bounces = 1024;

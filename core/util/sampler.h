@@ -1,22 +1,22 @@
-// Per-pixel sample streams. The default is Owen-scrambled Sobol (Burley 2020, "Practical
-// Hash-based Owen Scrambling"): each 2-D dimension pair is a (0,2)-sequence whose sample index
-// is shuffled and whose values are scrambled with hashes of (seed, pixel, dimension) -- a
-// padded sequence, decorrelated across pixels and dimensions, deterministic per
+// Per-pixel sample streams: Owen-scrambled Sobol (Burley 2020, "Practical Hash-based Owen
+// Scrambling"), whose sample index is shuffled and whose values are scrambled with hashes of
+// (seed, pixel, dimension) -- decorrelated across pixels and dimensions, deterministic per
 // (seed, pixel, sample), progressive at any sample count. "Random" is plain PCG32.
-// Layout: 2-D dimension 0 places the sample in the pixel (pixel filter); dimension 1 picks the
-// lens point, only when the camera has an aperture; then the shutter time (its x), only when
-// something moves (motion blur); each bounce then takes 4 (light choice +
-// roulette, light point, closure + lobe choice, BSDF direction), so Sobol covers the first ~3
-// bounces.
-// Measurement variants (issue 25, docs/design/sampling.md "Random numbers"), opt-in:
-// SobolDeep is the same pairs for every bounce; Sobol4D groups consecutive 2-D draws in twos
-// as 4-D Owen-scrambled Sobol sets (Sobol dimensions 0-3 under one shuffled index, as Cycles'
-// sobol_burley_sample_4D): pixel + lens, light choice + roulette + light point, closure + lobe
-// + BSDF direction; Sobol4DDeep is both. Sobol4DRoulette is Sobol4D with the Russian roulette
-// on a number of its own (Cycles' PRNG_TERMINATE: a 1-D sequence per bounce, roulette()), not
-// on the light set's second dimension. Sobol4DCycles is Sobol4DRoulette in Cycles' order: past
-// the camera's set, the 2-D points (light point, BSDF direction) take the set's Sobol
-// dimensions 0-1, a (0,2)-sequence, and the choices 2-3 (Cycles' rand_light / rand_bsdf .xy, .z).
+// The default (Sobol) is Cycles 4.5's layout: consecutive 2-D draws in twos form 4-D
+// Owen-scrambled Sobol sets (Sobol dimensions 0-3 under one shuffled index, as Cycles'
+// sobol_burley_sample_4D): pixel + lens (2-D draw 0; draw 1 is the lens, only with an
+// aperture, or the shutter time's x with motion blur), then per bounce light choice + light
+// point, closure + lobe choice + BSDF direction; past the camera's set the 2-D points take the
+// set's Sobol dimensions 0-1, a (0,2)-sequence, and the choices 2-3 (Cycles' rand_light /
+// rand_bsdf .xy, .z). The Russian roulette takes the light set's last dimension (Cycles has a
+// sequence of its own, PRNG_TERMINATE: Sobol4DCycles; it cost the Cornell box 1-2 %, issue 25).
+// Sobol covers the first 16 draws (~3 bounces), PCG32 the rest.
+// Opt-in (issue 25, docs/design/sampling.md "Random numbers"): SobolPairs is the layout before
+// (every 2-D draw its own shuffled (0,2)-sequence, the roulette on the light choice's .y);
+// SobolDeep is those pairs for every bounce; Sobol4D is the sets with the points on dimensions
+// 2-3 and the roulette on the light set; Sobol4DDeep is Sobol4D for every bounce;
+// Sobol4DRoulette is Sobol4D with the roulette's own number; Sobol4DCycles is the default with
+// the roulette's own number.
 #pragma once
 #include <cstdint>
 #if defined(__SSSE3__)
@@ -28,7 +28,10 @@
 
 namespace pl {
 
-enum class SamplerType : uint8_t { Sobol, Random, SobolDeep, Sobol4D, Sobol4DDeep, Sobol4DRoulette, Sobol4DCycles };
+// (Sobol was the pairs until issue 25; they are SobolPairs now.)
+enum class SamplerType : uint8_t {
+  Sobol, Random, SobolDeep, Sobol4D, Sobol4DDeep, Sobol4DRoulette, Sobol4DCycles, SobolPairs
+};
 
 inline uint32_t reverse_bits(uint32_t x) {
 #if defined(__SSSE3__)
@@ -123,10 +126,11 @@ class Sampler {
         sobol_dims_(type == SamplerType::Random ? 0u
                     : type == SamplerType::SobolDeep || type == SamplerType::Sobol4DDeep ? UINT32_MAX
                                                                                          : kSobolDims),
-        sets4_(type == SamplerType::Sobol4D || type == SamplerType::Sobol4DDeep || type == SamplerType::Sobol4DRoulette ||
-               type == SamplerType::Sobol4DCycles),
-        own_roulette_(type == SamplerType::Sobol4DRoulette || type == SamplerType::Sobol4DCycles),
-        points_low_(type == SamplerType::Sobol4DCycles),
+        layout_(type == SamplerType::Sobol || type == SamplerType::Sobol4DCycles ? Layout::Cycles
+                : type == SamplerType::Sobol4D || type == SamplerType::Sobol4DDeep || type == SamplerType::Sobol4DRoulette
+                    ? Layout::Sets
+                    : Layout::Pairs),
+        own_roulette_(type == SamplerType::Sobol4DCycles || type == SamplerType::Sobol4DRoulette),
         base_(hash3(seed, key, 0x5EEDull)),
         rng_(hash3(seed, pixel, sample), pixel) {}
 
@@ -142,9 +146,26 @@ class Sampler {
       const float a = rng_.next_float();
       return {a, rng_.next_float()};
     }
-    if (sets4_) [[unlikely]] return get2d_set4(dim);  // (out of line: the default's code stays as small)
-    const uint64_t h = mix64(base_ ^ (uint64_t(dim) * 0x9E3779B97F4A7C15ULL));
-    return sobol_dims01(shuffled_index(h), h);
+    if (layout_ != Layout::Cycles) [[unlikely]] return get2d_other(dim);  // (out of line: the default stays small)
+    // The set's shuffled index; past the camera's set the first draw (a choice) takes Sobol
+    // dimensions 2-3, the second (a 2-D point) 0-1. One code path with selected tables and
+    // seeds (the values of sobol_dims01 / sobol_dims23): two inlined bodies at every call site
+    // made the kernels 9 % more instructions.
+    // A set's second draw reuses its first's hash and shuffled index (not after a skip2d).
+    if ((dim >> 1) != set_) {
+      set_ = dim >> 1;
+      set_h_ = mix64(base_ ^ (uint64_t(set_) * 0x9E3779B97F4A7C15ULL));
+      set_index_ = shuffled_index(set_h_);
+    }
+    const uint64_t h = set_h_;
+    const uint32_t index = set_index_;
+    const bool high = bool(dim & 1u) != (dim >= 2u);
+    const uint64_t m = mix64(high ? h ^ 0xC2B2AE3D27D4EB4FULL : h);
+    const SobolDimBytes& ty = high ? kSobolDim3Bytes : kSobolDim1Bytes;
+    const uint32_t vx = high ? kSobolDim2Bytes(index) : index;  // (dimension 0: the index itself)
+    const uint32_t x = reverse_bits(laine_karras_permutation(vx, uint32_t((high ? m : h) >> 32)));
+    const uint32_t y = reverse_bits(laine_karras_permutation(ty(index), high ? uint32_t(m) : uint32_t(m >> 32)));
+    return {u32_to_unit(x), u32_to_unit(y)};
   }
   float get1d() { return get2d().x; }
   // A hash of this (seed, pixel, sample) that uses up no dimension: seeds for the few draws
@@ -171,21 +192,21 @@ class Sampler {
   // With 4-D sets, moves to the start of the next set (after the camera's draws, so that each
   // bounce's light and BSDF draws fill whole sets); otherwise nothing.
   void align_set() {
-    if (sets4_ && (dim_ & 1u)) skip2d();
+    if (layout_ != Layout::Pairs && (dim_ & 1u)) skip2d();
   }
 
  private:
-  // 4-D sets: two consecutive draws share the set's shuffled index; the second takes the set's
-  // Sobol dimensions 2 and 3 (points_low_, past the camera's set: the first), each with its own
-  // scramble.
-  [[gnu::noinline]] Vec2 get2d_set4(uint32_t dim) const {
+  enum class Layout : uint8_t { Cycles, Sets, Pairs };
+  // The opt-in layouts. Pairs: each draw its own shuffled index. Sets (sobol4d): the set's
+  // first draw on Sobol dimensions 0-1, the second on 2-3.
+  [[gnu::noinline]] Vec2 get2d_other(uint32_t dim) const {
+    if (layout_ == Layout::Pairs) {
+      const uint64_t h = mix64(base_ ^ (uint64_t(dim) * 0x9E3779B97F4A7C15ULL));
+      return sobol_dims01(shuffled_index(h), h);
+    }
     const uint64_t h = mix64(base_ ^ (uint64_t(dim >> 1) * 0x9E3779B97F4A7C15ULL));
     const uint32_t index = shuffled_index(h);
-    if (bool(dim & 1u) == (points_low_ && dim >= 2u)) return sobol_dims01(index, h);
-    const uint64_t h2 = mix64(h ^ 0xC2B2AE3D27D4EB4FULL);
-    const uint32_t x = reverse_bits(laine_karras_permutation(kSobolDim2Bytes(index), uint32_t(h2 >> 32)));
-    const uint32_t y = reverse_bits(laine_karras_permutation(kSobolDim3Bytes(index), uint32_t(h2)));
-    return {u32_to_unit(x), u32_to_unit(y)};
+    return dim & 1u ? sobol_dims23(index, h) : sobol_dims01(index, h);
   }
   // nested_uniform_scramble(sample, h): the draw's shuffled sample index, with the sample's
   // reversal done once per sampler.
@@ -200,14 +221,23 @@ class Sampler {
     const uint32_t y = reverse_bits(laine_karras_permutation(sobol_dim1_reversed(index), uint32_t(mix64(h) >> 32)));
     return {u32_to_unit(x), u32_to_unit(y)};
   }
+  // Sobol dimensions 2 and 3 at `index`, each with its own scramble from h.
+  [[gnu::always_inline]] static Vec2 sobol_dims23(uint32_t index, uint64_t h) {
+    const uint64_t h2 = mix64(h ^ 0xC2B2AE3D27D4EB4FULL);
+    const uint32_t x = reverse_bits(laine_karras_permutation(kSobolDim2Bytes(index), uint32_t(h2 >> 32)));
+    const uint32_t y = reverse_bits(laine_karras_permutation(kSobolDim3Bytes(index), uint32_t(h2)));
+    return {u32_to_unit(x), u32_to_unit(y)};
+  }
   static constexpr uint64_t kRouletteKey = 1ull << 32;  // above every draw's dimension
   uint32_t sample_reversed_;
   uint32_t sobol_dims_;  // 2-D draws from Sobol; PCG32 after
-  bool sets4_;
+  Layout layout_;
   bool own_roulette_;
-  bool points_low_;
   uint64_t base_;
   uint32_t dim_ = 0;
+  uint32_t set_ = UINT32_MAX;  // the 4-D set whose hash and index are below
+  uint32_t set_index_ = 0;
+  uint64_t set_h_ = 0;
   Pcg32 rng_;
 };
 

@@ -5,6 +5,7 @@
   .venv/bin/python tests/bench/sampler_slope.py instanced_forest [--ref-spp 4096] [--seeds 4]
       [--spp 16,256,1024] [--samplers SOBOL,SOBOL_DEEP,SOBOL4D,SOBOL4D_DEEP] [--cycles-ref]
       [--robust] [--seeds-at 16:24,64:24,256:8] [--ref-cache ref.npz]
+      [--pattern INDEPENDENT]
 
 The reference is the mean of two Pathlight renders (Sobol, seeds 9000-9001), plus two Cycles
 renders with --cycles-ref (as the issue's first measurement); the reference's own noise (from the
@@ -63,6 +64,8 @@ def main():
     ap.add_argument("--robust", action="store_true")
     ap.add_argument("--seeds-at", default="", help="seeds per spp, e.g. 16:24,64:24,256:8")
     ap.add_argument("--ref-cache", help="an .npz that keeps the reference renders between runs")
+    ap.add_argument("--pattern", default="INDEPENDENT", help="Pathlight's Noise Pattern (per-pixel error: "
+                    "independent pixels by default, as before blue noise became the add-on's default)")
     a = ap.parse_args()
 
     sc = build(a.scene)  # once: the renders differ only in settings (the export cache helps)
@@ -73,6 +76,7 @@ def main():
             sc.cycles.filter_width = 1.0
         else:
             sc.pathlight.sampler = sampler
+            sc.pathlight.pixel_pattern = a.pattern
         img = render_to_array(sc, engine, max_bounces=12, samples=spp, seed=seed)
         return img[..., :3].astype(np.float64)
 

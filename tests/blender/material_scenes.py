@@ -249,13 +249,14 @@ def compare(ours, cycles, grid=8, floor=0.02):
     return ratio, rel.max(), rel
 
 
-def render_pair(build, samples, bounces=16, pathlight=None, **settings):
+def render_pair(build, samples, bounces=16, pathlight=None, cycles_samples=None, **settings):
     """(Pathlight, Cycles) renders of the scene that build() makes, built afresh for each, with
-    Cycles' box filter; `settings` go to both engines, `pathlight` (a dict) to Pathlight only."""
+    Cycles' box filter; `settings` go to both engines, `pathlight` (a dict) to Pathlight only;
+    Cycles at `cycles_samples` where given (its images are stored: more costs no test time)."""
     ours = render_to_array(build(), "PATHLIGHT", samples=samples, max_bounces=bounces,
                            **settings, **(pathlight or {}))
-    cycles = render_to_array(build(), "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER,
-                             **settings)
+    cycles = render_to_array(build(), "CYCLES", samples=cycles_samples or samples, max_bounces=bounces,
+                             **BOX_FILTER, **settings)
     return ours, cycles
 
 

@@ -78,7 +78,10 @@ CASES = {  # displacement method (None: no displacement), cage, samples
 @pytest.mark.parametrize("case", list(CASES))
 def test_adaptive_subdivision_matches_cycles(case):
     method, shape, samples, *cage = CASES[case]
-    ours, cycles = ms.render_pair(lambda: scene(method, shape=shape, cage=(cage or [None])[0]), samples)
+    # (Cycles at 4x, stored: at equal samples the array case failed at one seed of three with the
+    # 4-D sets, 3.3 % against 3 %; Cycles' own noise is half of each region's difference)
+    ours, cycles = ms.render_pair(lambda: scene(method, shape=shape, cage=(cage or [None])[0]), samples,
+                                  cycles_samples=4 * samples)
     ms.assert_agree(ours, cycles, case)
 
 

@@ -48,7 +48,9 @@ def holdout_scene():
 
 @pytest.mark.parametrize("film_transparent", [False, True])
 def test_holdout_alpha_and_colour(film_transparent):
-    ours, cycles = render_pair(holdout_scene(), 256, film_transparent=film_transparent)
+    # (1024 spp, both: at 256 the RGB's worst region was 4.1 % at one seed of three with the 4-D
+    # sets, tolerance 3 %; now 1.3-2.1 % with them, 1.4-1.6 % with the pairs, seeds 0-2)
+    ours, cycles = render_pair(holdout_scene(), 1024, film_transparent=film_transparent)
     a, b = alpha_regions(ours), alpha_regions(cycles)
     print(f"\nholdout alpha (film_transparent={film_transparent}): mean {ours[..., 3].mean():.4f} / "
           f"{cycles[..., 3].mean():.4f}, worst region {np.abs(a - b).max():.4f}")

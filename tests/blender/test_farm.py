@@ -53,8 +53,9 @@ def test_core_partial_ranges_add_up_to_the_whole():
         _session_film(pc, scene, 4, -1)
 
 
-def _blender_partial(tmp, name, samples, offset):
-    """A Cornell box render through the add-on into an EXR (with its metadata)."""
+def _blender_partial(tmp, name, samples, offset, frame_samples=0):
+    """A Cornell box render through the add-on into an EXR (with its metadata); frame_samples:
+    the frame's total, which the default blue noise lays its chunks out for (docs/farm.md)."""
     import bpy
     from blender_util import _setup_pathlight, load_addon, open_fixture
     load_addon()
@@ -62,6 +63,7 @@ def _blender_partial(tmp, name, samples, offset):
     sc.render.engine = "PATHLIGHT"
     _setup_pathlight(sc.pathlight)
     sc.pathlight.samples, sc.pathlight.sample_offset, sc.pathlight.seed = samples, offset, 3
+    sc.pathlight.frame_samples = frame_samples
     sc.render.resolution_percentage = 12  # 30 x 30
     sc.render.use_compositing = sc.render.use_sequencer = False
     image = sc.render.image_settings
@@ -75,7 +77,7 @@ def _blender_partial(tmp, name, samples, offset):
 @needs_offset
 def test_four_partial_blender_renders_merge_into_one():
     with tempfile.TemporaryDirectory(prefix="pathlight_farm_") as tmp:
-        parts = [_blender_partial(tmp, f"part{k}.exr", 4, 4 * k) for k in range(4)]
+        parts = [_blender_partial(tmp, f"part{k}.exr", 4, 4 * k, 16) for k in range(4)]
         whole = _blender_partial(tmp, "whole.exr", 16, 0)
         out = Path(tmp) / "merged.exr"
         info = build.merge_exr([str(p) for p in parts], str(out))

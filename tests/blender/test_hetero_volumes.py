@@ -115,8 +115,9 @@ def het_scene(build, lit=True, size=48):
     return scene
 
 
-CASES = {"noise": (noise_density, True, 1024), "gradient": (gradient_density, True, 1024),
+CASES = {"noise": (noise_density, True, 1024), "gradient": (gradient_density, True, 2048),
          "blackbody": (blackbody_flame, False, 2048), "absorption_texture": (absorption_texture, True, 1024)}
+CYCLES_FACTOR = {"gradient": 2}
 
 
 @needs_het
@@ -127,7 +128,10 @@ def test_heterogeneous_volume_agrees_with_cycles(case):
     t0 = time.time()
     ours = render_to_array(scene, samples=samples, max_bounces=8)[..., :3]
     t1 = time.time()
-    ref = render_to_array(scene, "CYCLES", samples=samples, max_bounces=8, **BOX_FILTER)[..., :3]
+    # (The gradient at 2048 spp, Cycles 4096, stored: at 1024 each its worst region was 1.4-4.9 %
+    # over seeds 0-5 with the 4-D sets, 1.6-3.3 % with the pairs, tolerance 3 %; issue 25)
+    ref = render_to_array(scene, "CYCLES", samples=samples * CYCLES_FACTOR.get(case, 1), max_bounces=8,
+                          **BOX_FILTER)[..., :3]
     print(f"{case}: pathlight {t1 - t0:.1f} s, cycles {time.time() - t1:.1f} s")
     a, b = region_means(ours), region_means(ref)
     floor = 0.25 * b.mean()

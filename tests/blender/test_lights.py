@@ -492,9 +492,12 @@ def test_sphere_light_on_plane_agrees_with_cycles(kind):
     add_light(kind, **props)
     # The spot's blended edge is noisy in Cycles: at 1024 spp two of its seeds differ by 1.3 %
     # per region (ours from Cycles' 1.3 %); the point light's regions agree to 0.1 % at 256.
+    # The spot's Cycles image at 4x (stored, no test time): at equal samples the worst region was
+    # 3.3 % on 2 of 3 seeds with the 4-D sets, 0 of 3 with the pairs, which for one light and no
+    # bounce draw the same law (the light point a (0,2)-sequence of its own scramble): its edge.
     spp = 1024 if kind == 'SPOT' else 256
     ours = render_to_array(scene, samples=spp, max_bounces=0)
-    ref = render_to_array(scene, "CYCLES", samples=spp, max_bounces=0, **BOX_FILTER)
+    ref = render_to_array(scene, "CYCLES", samples=spp * (4 if kind == 'SPOT' else 1), max_bounces=0, **BOX_FILTER)
     assert_agrees_with_cycles(ours, ref, region_tol=0.03, floor=0.25)
 
 

@@ -138,8 +138,10 @@ def test_lit_room_matches_cycles(ptype):
 @pytest.mark.parametrize("ptype", ['EQUIRECTANGULAR', 'FISHEYE_EQUISOLID'])
 def test_depth_of_field_matches_cycles(ptype):
     # Cycles' panorama lens: a disk across each ray, focused on a sphere around the camera.
-    ours = render_to_array(room(ptype, dof=True), samples=256, max_bounces=4)
-    ref = render_to_array(room(ptype, dof=True), "CYCLES", samples=256, max_bounces=4, **BOX_FILTER)
+    # (512 spp, Cycles 1024, stored: at 256 each the fisheye failed on 1-2 of 3 seeds with either
+    # sampler, issue 25)
+    ours = render_to_array(room(ptype, dof=True), samples=512, max_bounces=4)
+    ref = render_to_array(room(ptype, dof=True), "CYCLES", samples=1024, max_bounces=4, **BOX_FILTER)
     assert_agree(ours, ref, f"{ptype} with depth of field")
     pinhole = render_to_array(room(ptype), samples=64, max_bounces=4)
     assert compare(ours, pinhole)[1] > 0.05  # the blur is visible: the test can fail

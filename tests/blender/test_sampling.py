@@ -43,6 +43,19 @@ def test_defaults_are_cycles_defaults():
         cycles.max_bounces, cycles.diffuse_bounces, cycles.glossy_bounces, cycles.transmission_bounces,
         cycles.transparent_max_bounces)
     assert props.sampler == 'SOBOL' and props.use_animated_seed is False
+    assert props.pixel_pattern == 'INDEPENDENT'  # (not yet Cycles' Automatic: docs/design/sampling.md)
+
+
+def test_enum_items_keep_their_numbers():
+    """A saved .blend stores an EnumProperty as its item's number: the items that existed keep
+    theirs (the old Sobol pairs came last as Sobol Pairs when 4-D sets became the default)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    rna = bpy.context.scene.pathlight.bl_rna.properties
+    numbers = {p: {i.identifier: i.value for i in rna[p].enum_items} for p in ("sampler", "pixel_pattern")}
+    assert numbers["sampler"] == {'SOBOL': 0, 'RANDOM': 1, 'SOBOL_DEEP': 2, 'SOBOL4D': 3, 'SOBOL4D_DEEP': 4,
+                                  'SOBOL4D_RR': 5, 'SOBOL4D_CYCLES': 6, 'SOBOL_PAIRS': 7}
+    assert numbers["pixel_pattern"] == {'AUTOMATIC': 0, 'BLUE_NOISE': 1, 'BLUE_NOISE_ROUND': 2,
+                                        'BLUE_NOISE_FIRST': 3, 'INDEPENDENT': 4}
 
 
 @needs_settings
@@ -61,7 +74,8 @@ def test_settings_reach_the_core():
     assert st.sampler == "random"
     assert st.adaptive_threshold == pytest.approx(0.05) and st.adaptive_min_samples == 24
     assert (st.diffuse_bounces, st.glossy_bounces, st.transmission_bounces) == (3, 5, 7)
-    for variant in ('SOBOL_DEEP', 'SOBOL4D', 'SOBOL4D_DEEP', 'SOBOL4D_RR', 'SOBOL4D_CYCLES'):  # the opt-in measurement patterns
+    # the old pairs and the opt-in measurement patterns
+    for variant in ('SOBOL_PAIRS', 'SOBOL_DEEP', 'SOBOL4D', 'SOBOL4D_DEEP', 'SOBOL4D_RR', 'SOBOL4D_CYCLES'):
         props.sampler = variant
         assert session.render_settings(get_core(), scene).sampler == variant.lower()
     props.use_adaptive_sampling = False
@@ -166,6 +180,14 @@ def test_noise_pattern_reaches_the_core():
     props.frame_samples = 250  # below 200 + 100
     st = session.render_settings(get_core(), scene, warnings.append)
     assert st.pattern_samples == 0 and len(warnings) == 1 and "Frame Samples" in warnings[0]
+    # a farm piece (Sample Offset) without Frame Samples under the default blue noise: warned;
+    # independent pixels need none
+    props.frame_samples = 0
+    st = session.render_settings(get_core(), scene, warnings.append)
+    assert st.pattern_samples == 0 and len(warnings) == 2 and "Sample Offset without Frame Samples" in warnings[1]
+    props.pixel_pattern = 'INDEPENDENT'
+    session.render_settings(get_core(), scene, warnings.append)
+    assert len(warnings) == 2
 
 
 def test_animated_seed_adds_the_frame():

@@ -64,5 +64,7 @@ def test_links_from_shader_to_rgb_are_dropped():
 
 
 def test_shader_to_rgb_against_cycles():
-    ours, cycles = ms.render_pair(shader_to_rgb_scene, 128, bounces=8)
+    # (512 spp, Cycles 1024, stored: at 128 each the worst region was 2.5-5.3 % over seeds 0-3
+    # with either sampler, tolerance 3 %; Cycles' own noise alone about 3 %, issue 25)
+    ours, cycles = ms.render_pair(shader_to_rgb_scene, 512, bounces=8, cycles_samples=1024)
     assert_agree(ours, cycles, "shader to rgb")

@@ -25,6 +25,10 @@ pytestmark = [pytest.mark.skipif(not core_available(), reason="pathlight_core is
               pytest.mark.skipif(not core_has("RenderSettings", "mist_start"), reason="core without passes")]
 
 SAMPLES = 256
+# Cycles renders at 4x Pathlight's samples: its images are stored (tests/cycles_refs), so that
+# costs no test time, and at equal samples its own noise took half of the regions' tolerances
+# (docs/design/sampling.md, "The default").
+CYCLES_FACTOR = 4
 
 
 def catcher_scene(casters=True):
@@ -61,14 +65,15 @@ def catcher_scene(casters=True):
 
 
 def render(sc, engine, path, transparent, pass_on, seed=1, samples=SAMPLES):
-    """Combined (RGBA) and, with pass_on, the Shadow Catcher pass (RGB), image order."""
+    """Combined (RGBA) and, with pass_on, the Shadow Catcher pass (RGB), image order; Cycles
+    at CYCLES_FACTOR x samples."""
     sc.render.engine = engine
     sc.render.film_transparent = transparent
     vl = sc.view_layers[0]
     vl.cycles.use_pass_shadow_catcher = vl.pathlight.use_pass_shadow_catcher = pass_on
     if engine == 'CYCLES':
         c = sc.cycles
-        c.device, c.samples, c.use_denoising, c.use_adaptive_sampling = 'CPU', samples, False, False
+        c.device, c.samples, c.use_denoising, c.use_adaptive_sampling = 'CPU', CYCLES_FACTOR * samples, False, False
         c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
         c.max_bounces = c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = 8
         c.pixel_filter_type, c.filter_width = 'BOX', 1.0
@@ -158,7 +163,7 @@ def test_holdout_object_as_cycles(tmp_path):
     sc.objects["Ball"].is_holdout = True
     sc.render.resolution_x = sc.render.resolution_y = 24
     ours, _ = render(sc, 'PATHLIGHT', tmp_path / "p.exr", False, False, samples=64)
-    cycles, _ = render(sc, 'CYCLES', tmp_path / "c.exr", False, False, samples=64)
+    cycles, _ = render(sc, 'CYCLES', tmp_path / "c.exr", False, False, samples=64 // CYCLES_FACTOR)
     hole = cycles[..., 3] < 0.01
     assert hole.mean() > 0.05
     # (pixels on its silhouette: the two engines' samples fall differently)
@@ -196,7 +201,7 @@ def fog_catcher_scene():
 # (film transparent, Shadow Catcher pass) of the fog renders: the pass (and the matte), and the
 # approximate composite on an opaque film.
 FOG_CASES = [(True, True), (False, False)]
-FOG_SAMPLES = 128
+FOG_SAMPLES = 512  # Pathlight's (Cycles' 128 x CYCLES_FACTOR): at 128 its regions' colour was 5-11 % off
 
 
 @pytest.fixture(scope="module")
@@ -205,7 +210,8 @@ def fog_renders(tmp_path_factory):
     sc.render.resolution_x = sc.render.resolution_y = 32
     tmp = tmp_path_factory.mktemp("shadow_catcher_fog")
     return {(engine, transparent, pass_on): render(sc, engine, tmp / f"{engine}{transparent}{pass_on}.exr",
-                                                   transparent, pass_on, samples=FOG_SAMPLES)
+                                                   transparent, pass_on,
+                                                   samples=FOG_SAMPLES if engine == 'PATHLIGHT' else 128)
             for transparent, pass_on in FOG_CASES for engine in ('PATHLIGHT', 'CYCLES')}
 
 
@@ -244,8 +250,9 @@ def test_curves_and_points_as_holdout_and_catcher_as_cycles(tmp_path):
     cloud.location = (0.4, 0.9, -1.3)
     cloud.is_shadow_catcher = True
     out = {}
-    for engine in ('PATHLIGHT', 'CYCLES'):
-        out[engine] = render(sc, engine, tmp_path / f"{engine}.exr", True, True, samples=128)
+    for engine in ('PATHLIGHT', 'CYCLES'):  # (Cycles at CYCLES_FACTOR x 128)
+        out[engine] = render(sc, engine, tmp_path / f"{engine}.exr", True, True,
+                             samples=256 if engine == 'PATHLIGHT' else 128)
     (ours, ours_pass), (cycles, cycles_pass) = out['PATHLIGHT'], out['CYCLES']
     # The floor (the lower half, opaque but for them): the strands, and the catchers
     # (transparent in the matte), take out a fifth of it or more.
@@ -255,4 +262,10 @@ def test_curves_and_points_as_holdout_and_catcher_as_cycles(tmp_path):
     # Pathlight against Cycles 2.0 %, 0.2 % and 3.8 %.)
     assert_close(ours[..., :3], cycles[..., :3], 0.01, 0.05, "rgb")
     assert_close(ours[..., 3:], cycles[..., 3:], 0.01, 0.03, "alpha")
-    assert_close(ours_pass, cycles_pass, 0.01, 0.08, "shadow catcher")
+    # The pass is a per-pixel ratio (Combined less the matte over the catcher path's light): at
+    # the points' silhouettes, where few samples reach a catcher, single pixels read 4-24 in
+    # either engine at any sample count, and a region's mean followed them (over 16 seeds 13 and
+    # 16 of 16 failed 8 %, sets and pairs). Clipped at 2 (a shadow's ratio is at most about 1)
+    # in both: 0.8-4.1 % over 16 seeds; a ball 15 % larger 11 %, the cloud not a catcher 13 %,
+    # the ball hidden 17 % (docs/design/sampling.md, "The default").
+    assert_close(np.minimum(ours_pass, 2.0), np.minimum(cycles_pass, 2.0), 0.01, 0.08, "shadow catcher")

@@ -165,6 +165,10 @@ CASES = {
 # Draine and the mixture: 3.4 % and 3.2 % at 2048 with the shared shadow ray's random numbers
 # (one region, seed 0; Draine at seeds 5 and 9: 1.2 % and 1.7 %; means within 0.03 %).
 CASE_SAMPLES = {"mie": 3072, "draine": 3072, "mixture": 3072}
+# Cycles at 4x (stored: no test time) where its own noise was most of the error: the mixture at
+# 3072 against Cycles' 3072 read 1.6-3.2 % over seeds 0-3 (seed 0 failed) and four seeds' mean
+# 2.2 %; against 12288 1.1-1.7 %, the mean 0.9 % (docs/design/sampling.md, "The default").
+CYCLES_FACTOR = {"mixture": 4}
 
 
 @needs_phases
@@ -175,7 +179,8 @@ def test_phase_agrees_with_cycles(case):
     t0 = time.time()
     ours = render_to_array(scene, samples=samples, max_bounces=8)[..., :3]
     t1 = time.time()
-    ref = render_to_array(scene, "CYCLES", samples=samples, max_bounces=8, **BOX_FILTER)[..., :3]
+    ref = render_to_array(scene, "CYCLES", samples=samples * CYCLES_FACTOR.get(case, 1), max_bounces=8,
+                          **BOX_FILTER)[..., :3]
     print(f"pathlight {t1 - t0:.1f} s, cycles {time.time() - t1:.1f} s")
     a, b = region_means(ours), region_means(ref)
     floor = 0.25 * b.mean()  # as test_volumes.py: dim silhouette regions held to a quarter of the mean
@@ -219,9 +224,12 @@ def test_varying_mixture_of_phases_agrees_with_cycles():
     prog, w = compiled(varying_mixture)
     assert isinstance(prog, list) and len(w) == 0
     t0 = time.time()
-    ours = render_to_array(scene, samples=1024, max_bounces=8)[..., :3]
+    # Pathlight at 2048 spp, Cycles at 4096 (stored: no test time). Both at 1024: 2.0-4.0 % over
+    # seeds 0-5 with the 4-D sets, the mean of the six 1.8 % off Cycles' own noise; 2048 against
+    # 4096 (two seeds' mean): 1.6-2.2 % (docs/design/sampling.md, "The default").
+    ours = render_to_array(scene, samples=2048, max_bounces=8)[..., :3]
     t1 = time.time()
-    ref = render_to_array(scene, "CYCLES", samples=1024, max_bounces=8, **BOX_FILTER)[..., :3]
+    ref = render_to_array(scene, "CYCLES", samples=4096, max_bounces=8, **BOX_FILTER)[..., :3]
     print(f"pathlight {t1 - t0:.1f} s, cycles {time.time() - t1:.1f} s")
     a, b = region_means(ours), region_means(ref)
     rel = np.abs(a - b) / np.maximum(b, 0.25 * b.mean())

@@ -115,6 +115,9 @@ def room_scene(build, light, size=48):
 # (max bounces 8 for the emitting fog: at 4 ours is 0.8 % darker in red, the emission's channel,
 # a bounce-limit difference on the last segment's volume emission; 0.4 % at 8)
 CASES = {"gradient_area": (gradient_fog, 'AREA', 1024, 4), "noise_emission_area": (noise_emission, 'AREA', 512, 8)}
+# Cycles' image is stored (no test time): the emitting fog's at 4x, where at equal samples it
+# failed at one seed of three with the 4-D sets (3.30 %, tolerance 3 %), issue 25.
+CYCLES_FACTOR = {"noise_emission_area": 4}
 
 
 @needs_het
@@ -126,7 +129,8 @@ def test_world_volume_program_agrees_with_cycles(case):
     t0 = time.time()
     ours = render_to_array(scene, samples=samples, max_bounces=bounces)[..., :3]
     t1 = time.time()
-    ref = render_to_array(scene, "CYCLES", samples=samples, max_bounces=bounces, **BOX_FILTER)[..., :3]
+    ref = render_to_array(scene, "CYCLES", samples=samples * CYCLES_FACTOR.get(case, 1), max_bounces=bounces,
+                          **BOX_FILTER)[..., :3]
     print(f"{case}: pathlight {t1 - t0:.1f} s, cycles {time.time() - t1:.1f} s")
     a, b = region_means(ours), region_means(ref)
     rel = np.abs(a - b) / np.maximum(b, 0.25 * b.mean())

@@ -666,7 +666,12 @@ def test_sobol_sampler_matches_its_definition_bit_for_bit():
     cases += [tuple(int(v) for v in (rng.integers(0, 2**32), rng.integers(0, 2**48), rng.integers(0, 2**32)))
               for _ in range(40)]
     for seed, pixel, sample in cases:
-        got = pc.sampler_values(seed, pixel, sample, 16)  # the Sobol dimensions (PCG32 after them)
+        # the Sobol dimensions (PCG32 after them): the default's 4-D sets in Cycles' order, and
+        # the pairs (the default before issue 25)
+        got = pc.sampler_values(seed, pixel, sample, 16)
+        np.testing.assert_array_equal(got, sobol_reference(seed, pixel, sample, 16, True, points_low=True),
+                                      err_msg=str((seed, pixel, sample)))
+        got = pc.sampler_values(seed, pixel, sample, 16, "sobol_pairs")
         np.testing.assert_array_equal(got, sobol_reference(seed, pixel, sample, 16), err_msg=str((seed, pixel, sample)))
 
 
@@ -679,7 +684,7 @@ def test_sobol_variants_match_their_definitions_and_stratify_in_4d():
         for name, sets4 in (("sobol4d", True), ("sobol_deep", False)):
             np.testing.assert_array_equal(pc.sampler_values(seed, pixel, sample, 16, name),
                                           sobol_reference(seed, pixel, sample, 16, sets4), err_msg=name)
-    np.testing.assert_array_equal(pc.sampler_values(5, 9, 3, 16, "sobol_deep"), pc.sampler_values(5, 9, 3, 16))
+    np.testing.assert_array_equal(pc.sampler_values(5, 9, 3, 16, "sobol_deep"), pc.sampler_values(5, 9, 3, 16, "sobol_pairs"))
     # 256 samples of a 4-D set (draws 2 and 3): every 1-D projection in 256 strata exactly once,
     # every 2-D projection at most 2 per cell of 16 x 16 (the padded pairs' draw 2 x draw 3: 3+)
     v = np.array([pc.sampler_values(3, 77, i, 40, "sobol4d_deep") for i in range(256)])
@@ -688,10 +693,11 @@ def test_sobol_variants_match_their_definitions_and_stratify_in_4d():
         assert np.histogram(p[:, a], bins=256, range=(0, 1))[0].max() == 1
         for b in range(a + 1, 4):
             assert np.histogram2d(p[:, a], p[:, b], bins=16, range=[[0, 1], [0, 1]])[0].max() <= 2, (a, b)
-    # the deep variants stay Sobol past the 16th draw; the default turns to PCG32 there
+    # the deep variants stay Sobol past the 16th draw; the others turn to PCG32 there
     assert np.histogram(v[:, 30, 0], bins=256, range=(0, 1))[0].max() == 1
-    w = np.array([pc.sampler_values(3, 77, i, 40) for i in range(256)])
-    assert np.histogram(w[:, 30, 0], bins=256, range=(0, 1))[0].max() > 1
+    for name in ("sobol", "sobol_pairs"):
+        w = np.array([pc.sampler_values(3, 77, i, 40, name) for i in range(256)])
+        assert np.histogram(w[:, 30, 0], bins=256, range=(0, 1))[0].max() > 1, name
     with pytest.raises(ValueError):
         pc.sampler_values(3, 77, 0, 4, "halton")
 
@@ -714,11 +720,15 @@ def test_roulette_on_its_own_sequence():
         for bounce in (0, 3, 11, 1000):
             assert pc.sampler_roulette(seed, pixel, sample, bounce, "sobol4d_rr") == \
                 np.float32(roulette_reference(seed, pixel, sample, bounce)), (seed, pixel, sample, bounce)
-    assert pc.sampler_roulette(3, 77, 5, 3) == -1.0 == pc.sampler_roulette(3, 77, 5, 3, "sobol4d")
-    # sobol4d_cycles: the same roulette; past the camera's set, the sets' halves swapped
+    # the default takes the light set's number (Cycles' own roulette cost the Cornell box 1-2 %)
+    for name in ("sobol", "sobol_pairs", "sobol4d"):
+        assert pc.sampler_roulette(3, 77, 5, 3, name) == -1.0, name
+    # sobol4d_cycles: the default's draws (Cycles' order: past the camera's set, the sets' halves
+    # swapped) with sobol4d_rr's roulette
     for seed, pixel, sample in [(0, 0, 0), (7, 123456, 1023), (2**32 - 1, 2**40 + 3, 2**31 + 5)]:
-        np.testing.assert_array_equal(pc.sampler_values(seed, pixel, sample, 16, "sobol4d_cycles"),
-                                      sobol_reference(seed, pixel, sample, 16, True, points_low=True))
+        for name in ("sobol", "sobol4d_cycles"):
+            np.testing.assert_array_equal(pc.sampler_values(seed, pixel, sample, 16, name),
+                                          sobol_reference(seed, pixel, sample, 16, True, points_low=True))
         assert pc.sampler_roulette(seed, pixel, sample, 5, "sobol4d_cycles") == \
             pc.sampler_roulette(seed, pixel, sample, 5, "sobol4d_rr")
     # stratified over the samples: 256 samples in 256 strata once each, at every bounce; and
@@ -981,7 +991,9 @@ def test_sphere_spot_light_cone_near_a_plane():
     s = plane_scene()
     s.add_spot_light(_spot_matrix_down(c), (inten,) * 3, radius=r, spot_size=size, spot_blend=blend,
                      soft_falloff=False)
-    img, _ = render(pc, s, W, W, samples=256)
+    # 1024 spp: at 256 the worst lit region's noise is 1.3-2.5 % over seeds with either sampler
+    # (it passed on the Sobol pairs' seed 0 by luck); at 1024 0.9-1.3 %
+    img, _ = render(pc, s, W, W, samples=1024)
     cos_h = np.cos(size / 2)
 
     def cone_cosine_and_blend(z):

@@ -172,8 +172,9 @@ def test_white_furnace_with_other_phases(case, program):
         volume = lobe_program(lobes)
     else:
         volume = {"sigma_s": tuple(np.sum([ss for _, ss, _ in lobes], axis=0)), "phases": lobes}
+    # (seed noise at the tolerance's edge: pinned to the pairs, issue 25)
     img, stats = render(pc, volume_sphere(volume), 24, 24, samples=128 if case == "mixture" else 32,
-                        max_bounces=1024)
+                        max_bounces=1024, sampler="sobol_pairs")
     assert stats["nonfinite_samples"] == 0
     centre = img[8:16, 8:16, :3].mean(axis=(0, 1))
     assert np.all(np.abs(centre - 1.0) < 0.01), (case, centre)
@@ -228,7 +229,8 @@ def test_white_furnace_of_overlapping_media_with_phase_lobes():
     box_vol = {"sigma_s": (1.0, 1.0, 1.0),
                "phases": [("ff", (0.3, 0.5, 0.7), (0.3, 1.2)), ("rayleigh", (0.7, 0.5, 0.3), ())]}
     s = overlap_scene(prog, box_vol, 1.0, (-0.2, -0.6, -0.6), (1.8, 0.6, 0.6), (0.0, -5.0, 0.0), (0.0, 0.0, 0.0))
-    img, stats = render(pc, s, 24, 24, samples=96, max_bounces=1024)
+    # (seed noise at the tolerance's edge: pinned to the pairs, issue 25)
+    img, stats = render(pc, s, 24, 24, samples=96, max_bounces=1024, sampler="sobol_pairs")
     assert stats["nonfinite_samples"] == 0
     assert np.all(np.abs(img[8:16, 8:16, :3].mean(axis=(0, 1)) - 1.0) < 0.01), img[8:16, 8:16, :3].mean(axis=(0, 1))
     assert abs(float(img[..., :3].mean()) - 1.0) < 0.01

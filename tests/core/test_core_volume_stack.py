@@ -123,7 +123,8 @@ def test_white_furnace_of_overlapping_heterogeneous_and_homogeneous_scattering()
     het_prog = linear_program(a=0.5, b=2.0)
     s = overlap_scene(het_prog, {"sigma_s": (1.5, 1.5, 1.5), "g": 0.7}, 1.0,
                       (-0.2, -0.6, -0.6), (1.8, 0.6, 0.6), (0.0, -5.0, 0.0), (0.0, 0.0, 0.0))
-    img, stats = render(pc, s, 24, 24, samples=48, max_bounces=1024)
+    # (seed noise at the tolerance's edge: pinned to the pairs, issue 25)
+    img, stats = render(pc, s, 24, 24, samples=48, max_bounces=1024, sampler="sobol_pairs")
     assert stats["nonfinite_samples"] == 0
     assert abs(float(img[..., :3].mean()) - 1.0) < 0.01
     assert abs(float(img[8:16, 8:16, :3].mean()) - 1.0) < 0.01
