@@ -281,10 +281,11 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
 // The caster sphere: bounds of the smooth surfaces that `probes` deterministic rays (from
 // points in the scene's bounds, in all directions) meet first; false where they met none.
 bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius);
-// Whether lamp l may send caustic light paths (CausticLamp): any kind, casting shadows, visible to every surface ray (a light path cannot follow a
-// lamp that some closures do not see or that shines through blockers), and a sun without a node
-// tree. One with extent also needs rays to find it (light_hits: Multiple Importance on and the
-// scene's light hits), so that the BSDF strategy its MIS counts exists.
+// Whether lamp l may send caustic light paths (CausticLamp): any kind, casting shadows, visible
+// to every surface ray (a light path cannot follow a lamp that some closures do not see or that
+// shines through blockers), and a sun without a node tree. One with extent also needs rays to
+// find it (light_hits: Multiple Importance on and the scene's light hits), so that the BSDF
+// strategy its MIS counts exists.
 bool caustic_lamp(const Light& l, bool light_hits);
 // The share of the environment's power in directions brighter than `factor` times its mean
 // radiance over the sphere (a sun's), estimated from 64 x 64 stratified samples of its full

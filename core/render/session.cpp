@@ -603,8 +603,8 @@ void Session::setup_caustics(bool guiding) {
   const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
   const bool env = scene_->environment().valid();
   const bool nee = settings_.use_nee && scene_->has_lights();
-  // The lamps that may send light paths: suns, points and spots (with extent, where rays find
-  // them), with the settings a light path can follow.
+  // The lamps that may send light paths: suns, points, spots and area lamps (with extent, where
+  // rays find them), with the settings a light path can follow.
   std::vector<uint32_t> lamps;
   if (nee)
     for (size_t i = 0; i < scene_->light_count(); ++i)
