@@ -253,7 +253,7 @@ def pixel_pattern_settings(props, warn, viewport=False):
         pattern = 'BLUE_NOISE_FIRST' if viewport else 'BLUE_NOISE'
     total = 0 if viewport else props.frame_samples
     if not viewport and not total and props.sample_offset > 0 and pattern != 'INDEPENDENT' and warn:
-        # (blue noise is the default: farm pieces need the frame's total to compose exactly)
+        # (a blue-noise pattern lays a pixel's samples out by the frame's total: farm pieces need it)
         warn(f"Sample Offset without Frame Samples: this piece's blue noise is laid out for "
              f"{props.sample_offset + props.samples} samples, so it merges with other pieces exactly only "
              f"if that is the frame's total; set Frame Samples to it")
