@@ -61,6 +61,18 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
   return true;
 }
 
+namespace {
+// A unit direction uniform in the cone about `axis` of solid angle 2 pi one_minus_cos: a lamp's
+// light path towards the caster sphere.
+Vec3 cone_direction(Vec3 axis, float one_minus_cos, Vec2 u) {
+  const float cos_t = 1.0f - u.x * one_minus_cos;
+  const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * kPi * u.y;
+  Vec3 t, b;
+  make_basis(axis, t, b);
+  return normalize(axis * cos_t + (t * std::cos(phi) + b * std::sin(phi)) * sin_t);
+}
+}  // namespace
+
 bool caustic_lamp(const Light& l, bool light_hits) {
   // With extent: the BSDF ray that finds it is a strategy of its own (Scene::hit_lights).
   if (light_has_extent(l) && !(light_hits && l.mis)) return false;
@@ -172,11 +184,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         const float omc = caustic_cone_from(cz, area_start);
         Vec3 axis = cz.center - area_start;
         axis = length_sq(axis) > 0.0f ? normalize(axis) : l.dir;
-        const float cos_t = 1.0f - uc.x * omc;
-        const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * kPi * uc.y;
-        Vec3 t, b;
-        make_basis(axis, t, b);
-        ray.dir = normalize(axis * cos_t + (t * std::cos(phi) + b * std::sin(phi)) * sin_t);
+        ray.dir = cone_direction(axis, omc, uc);
         ray.org = area_start;
         wl = -ray.dir;
         const float cos0 = dot(ray.dir, l.dir);
@@ -196,11 +204,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       } else {
         // A point or spot: uniform in the cone the caster sphere subtends (or every direction
         // from inside it); ps is per unit solid angle until the first hit's distance is known.
-        const float cos_t = 1.0f - ud.x * lamp->one_minus_cos;
-        const float sin_t = std::sqrt(std::max(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * kPi * ud.y;
-        Vec3 t, b;
-        make_basis(lamp->axis, t, b);
-        ray.dir = normalize(lamp->axis * cos_t + (t * std::cos(phi) + b * std::sin(phi)) * sin_t);
+        ray.dir = cone_direction(lamp->axis, lamp->one_minus_cos, ud);
         ray.org = l.position;
         wl = -ray.dir;
         float att = 1.0f;

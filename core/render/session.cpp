@@ -655,23 +655,23 @@ void Session::setup_caustics(bool guiding) {
     m.light = i;
     m.extent = light_has_extent(l);
     const float lum = std::max(luminance(l.color), 0.0f) * light_power_scale(l);
+    // The cone the caster sphere subtends from a point's, spot's or area lamp's centre (every
+    // direction from inside it).
+    const Vec3 to_c = c - l.position;
+    const float d = length(to_c);
+    const float omc = d > r ? one_minus_cos_from_sin2((r / d) * (r / d)) : 2.0f;
     float p = 0.0f;
     if (l.type == LightType::Sun) {
       p = disk * lum;
     } else if (l.type == LightType::Rect || l.type == LightType::Ellipse) {
-      // Its radiance over its area into the cone the caster sphere subtends from its centre,
-      // by the cosine towards it (a tenth where the sphere is beside or behind it).
-      const Vec3 to_c = c - l.position;
-      const float d = length(to_c);
-      const float omc = d > r ? one_minus_cos_from_sin2((r / d) * (r / d)) : 2.0f;
+      // Its radiance over its area into that cone, by the cosine towards it (a tenth where the
+      // sphere is beside or behind it).
       const float cos_c = d > 0.0f ? dot(to_c, l.dir) / d : 1.0f;
       p = lum * l.area * 2.0f * kPi * omc * std::max(0.1f, cos_c);
     } else {
-      const float d = length(c - l.position);
       if (d > r) {
-        const float s2 = (r / d) * (r / d);
-        m.axis = (c - l.position) / d;
-        m.one_minus_cos = s2 / (1.0f + std::sqrt(std::max(0.0f, 1.0f - s2)));  // (exact for small cones)
+        m.axis = to_c / d;
+        m.one_minus_cos = omc;
       }
       float att = 1.0f;
       if (l.type == LightType::Spot) {
