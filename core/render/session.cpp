@@ -612,8 +612,11 @@ void Session::setup_caustics(bool guiding) {
   if (settings_.debug_view != DebugView::None) off("debug view");
   else if (guiding && settings_.guiding_class_mask != 0) off("not with path classes (a measurement of guiding)");
   else if (film_.has_pass(Pass::ShadowCatcherMatte)) off("not combined with shadow catchers");
-  else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
-    off("only for a still pinhole perspective camera (no depth of field, no motion blur)");
+  // A thin lens connects through a point on its aperture (integrator_caustics.cpp). An
+  // orthographic pinhole's rays are parallel: a light path meets one with probability 0; its
+  // thin lens, panoramas and a moving camera would need their own connections (not built).
+  else if (camera_.is_panoramic() || camera_.orthographic() || motion_)
+    off("only for a still perspective camera (not orthographic or panoramic, no motion blur)");
   else if (sf.media || sf.path_state || sf.light_links)
     off("not with volumes, Light Path node state or light linking");
   else if (!env && lamps.empty())

@@ -300,6 +300,22 @@ bool Camera::pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixe
   return std::isfinite(rx) && std::isfinite(ry) && pixel_pdf > 0.0f && std::isfinite(pixel_pdf);
 }
 
+bool Camera::lens_view(Vec3 p, Vec3 lens, float& rx, float& ry, float& dist, float& pixel_pdf) const {
+  // The lens point lies at view depth 0, so p's depth along the ray's axis is its own.
+  const Vec3 rel = p - lens;
+  const float depth = -dot(rel, back_);
+  if (!(depth > clip_start_) || !(depth < clip_start_ + clip_len_)) return false;
+  dist = length(rel);
+  // generate_in's ray leaves L = (lx, ly, 0) through F = (px, py, 1) focus_: the line from L
+  // through p crosses depth focus_ at L + rel focus_ / depth, so px = lx / focus_ + rel_x / depth.
+  const float lx = dot(lens - origin_, right_), ly = dot(lens - origin_, up_);
+  const float inv_f = 1.0f / focus_;
+  rx = (lx * inv_f + dot(rel, right_) / depth - x0_) / dx_;
+  ry = (ly * inv_f + dot(rel, up_) / depth - y0_) / dy_;
+  pixel_pdf = pinhole_pixel_pdf(rel / dist);
+  return std::isfinite(rx) && std::isfinite(ry) && pixel_pdf > 0.0f && std::isfinite(pixel_pdf);
+}
+
 Vec3 Camera::to_ndc(Vec3 p) const {
   const Vec3 c = to_camera(p);
   if (type_ == CameraType::Panoramic) {

@@ -122,6 +122,18 @@ class Camera {
   // at distance 1 x cos^3 of the angle to the view axis)). False: behind the camera or outside
   // the clipping range.
   bool pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  // A still thin-lens perspective camera's view of world point p through lens point `lens`
+  // (world, on the aperture: lens_point): the raster position of the camera ray from there
+  // through p (it meets the pinhole ray of that position at the focal plane), the distance
+  // from the lens point, and the pixel density per unit solid angle of that ray's direction
+  // (pinhole_pixel_pdf: the film-to-direction map through a lens point is the pinhole's
+  // scaled by the focus distance). False: outside the clipping range.
+  bool lens_view(Vec3 p, Vec3 lens, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  // The world point of the aperture that sample_aperture(u) picks (the camera's rays leave it).
+  Vec3 lens_point(Vec2 u) const {
+    const Vec2 a = sample_aperture(u);
+    return origin_ + right_ * (a.x * aperture_) + up_ * (a.y * aperture_);
+  }
   // That density for a unit direction from the camera (what a camera ray had).
   float pinhole_pixel_pdf(Vec3 dir) const {
     const float c = -dot(dir, back_);
