@@ -3041,15 +3041,17 @@ PYBIND11_MODULE(pathlight_core, m) {
             if (!(lens.first >= 0.0f && lens.first <= 1.0f && lens.second >= 0.0f && lens.second <= 1.0f))
               throw std::invalid_argument("lens sample must be in [0, 1]^2");
             const Camera cam(c, width, height);
-            const Vec3 eye = cam.lens_point({lens.first, lens.second});
+            Vec3 eye;
             float rx, ry, dist, pdf;
-            if (!cam.lens_view(to_point(point, "point"), eye, rx, ry, dist, pdf)) return py::none();
+            if (!cam.lens_view(to_point(point, "point"), {lens.first, lens.second}, eye, rx, ry, dist, pdf))
+              return py::none();
             return py::make_tuple(rx, ry, dist, pdf, py::make_tuple(eye.x, eye.y, eye.z));
           },
           py::arg("width"), py::arg("height"), py::arg("point"), py::arg("lens"),
           "A thin-lens camera's view of a world point through the aperture point that the unit-square "
           "sample lens picks (what caustic light paths connect to): (raster x, raster y, distance from "
-          "the lens point, pixel density per unit solid angle, the lens point), or None outside the "
+          "the lens point, pixel density (per unit solid angle; orthographic: distance^2 / (pixel area x "
+          "cos)), the lens point), or None outside the "
           "clipping range (for tests).");
 
   // Path guiding's learnt field on its own, for tests of its sampling against its pdf.

@@ -294,13 +294,14 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         // A thin lens: a point on the aperture as the camera's rays draw it (sample_aperture),
         // and the film position of the camera ray from there through this point (pbrt-v4's
         // PerspectiveCamera::SampleWi). Its density cancels in the MIS: both strategies draw the
-        // lens point alike. (A pinhole draws nothing: its streams stay as they were.)
+        // lens point alike. An orthographic camera's ppdf / dist^2 is its pixel density per
+        // unit area across its parallel rays (Camera::lens_view), so the formulas below hold
+        // for it too. (A pinhole draws nothing: its streams stay as they were.)
         Vec3 eye = cam.origin();
         bool seen;
         if (lens) {
           const Vec2 ua{rng.next_float(), rng.next_float()};
-          eye = cam.lens_point(ua);
-          seen = cam.lens_view(sp.p, eye, rx, ry, dist, ppdf);
+          seen = cam.lens_view(sp.p, ua, eye, rx, ry, dist, ppdf);
         } else {
           seen = cam.pinhole_view(sp.p, rx, ry, dist, ppdf);
         }

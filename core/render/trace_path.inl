@@ -1546,8 +1546,9 @@ restart: __attribute__((unused));
           // The camera's density is this sample's pixel filter density (the caller's
           // c.filter_area is its inverse) over the pixel's solid angle: the light tracer weighs
           // its splat into this pixel with the same (trace_caustic_paths). A thin lens's
-          // lens point has the same density on both sides: it cancels.
-          cz_ratio = cz->paths * d01 * d01 * c.filter_area / cz->camera->pinhole_pixel_pdf(ray.dir);
+          // lens point has the same density on both sides: it cancels. (An orthographic
+          // camera's lens_pixel_pdf / d01^2 is its density per unit area across the ray.)
+          cz_ratio = cz->paths * d01 * d01 * c.filter_area / cc.lens_pixel_pdf(ray.dir, d01);
           if (!std::isfinite(cz_ratio)) cz_k = 0;
         } else if (cz_k > 0 && cz_k < cz->max_vertices && caustic_vertex(sp, cl) && !guidable(cl)) {
           ++cz_k;  // a smooth vertex after it
