@@ -3032,7 +3032,27 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("width"), py::arg("height"), py::arg("x"), py::arg("y"), py::arg("lens") = py::none(),
           "The camera ray through raster (x, y) of a width x height frame: (origin, direction, tmax). "
           "lens: a point of the unit square on the aperture, or None for the lens centre. tmax 0: no "
-          "ray (outside a panorama's lens).");
+          "ray (outside a panorama's lens).")
+      .def(
+          "lens_view",
+          [](const CameraDesc& c, int width, int height, const py::handle& point, std::pair<float, float> lens) -> py::object {
+            if (width < 1 || height < 1 || width > 65536 || height > 65536)
+              throw std::invalid_argument("resolution must be in [1, 65536]");
+            if (!(lens.first >= 0.0f && lens.first <= 1.0f && lens.second >= 0.0f && lens.second <= 1.0f))
+              throw std::invalid_argument("lens sample must be in [0, 1]^2");
+            const Camera cam(c, width, height);
+            Vec3 eye;
+            float rx, ry, dist, pdf;
+            if (!cam.lens_view(to_point(point, "point"), {lens.first, lens.second}, eye, rx, ry, dist, pdf))
+              return py::none();
+            return py::make_tuple(rx, ry, dist, pdf, py::make_tuple(eye.x, eye.y, eye.z));
+          },
+          py::arg("width"), py::arg("height"), py::arg("point"), py::arg("lens"),
+          "A thin-lens camera's view of a world point through the aperture point that the unit-square "
+          "sample lens picks (what caustic light paths connect to): (raster x, raster y, distance from "
+          "the lens point, pixel density (per unit solid angle; orthographic: distance^2 / (pixel area x "
+          "cos)), the lens point), or None outside the "
+          "clipping range (for tests).");
 
   // Path guiding's learnt field on its own, for tests of its sampling against its pdf.
   py::class_<GuidingField>(m, "GuidingField")

@@ -114,6 +114,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
   if (!cz.camera || (cz.lamps.empty() && !(cz.env_pmf > 0.0f && env.valid()))) return 0;
   const bool tree = scene.light_tree_active();  // (its choice reads the shading normal)
   const Camera& cam = *cz.camera;
+  const bool lens = cam.has_aperture();
   const float disk = kPi * cz.radius * cz.radius;
   const float half = 0.5f * std::sqrt(cz.filter_area);  // the box filter's half width
   uint64_t rays = 0;
@@ -290,8 +291,21 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         if (!caustic_vertex(sp, cl) || guidable(cl)) break;
       } else {
         float rx, ry, dist, ppdf;
-        const bool seen = cam.pinhole_view(sp.p, rx, ry, dist, ppdf);
-        const Vec3 wc = seen ? (cam.origin() - sp.p) / dist : wo_l;
+        // A thin lens: a point on the aperture as the camera's rays draw it (sample_aperture),
+        // and the film position of the camera ray from there through this point (pbrt-v4's
+        // PerspectiveCamera::SampleWi). Its density cancels in the MIS: both strategies draw the
+        // lens point alike. An orthographic camera's ppdf / dist^2 is its pixel density per
+        // unit area across its parallel rays (Camera::lens_view), so the formulas below hold
+        // for it too. (A pinhole draws nothing: its streams stay as they were.)
+        Vec3 eye = cam.origin();
+        bool seen;
+        if (lens) {
+          const Vec2 ua{rng.next_float(), rng.next_float()};
+          seen = cam.lens_view(sp.p, ua, eye, rx, ry, dist, ppdf);
+        } else {
+          seen = cam.pinhole_view(sp.p, rx, ry, dist, ppdf);
+        }
+        const Vec3 wc = seen ? (eye - sp.p) / dist : wo_l;
         if (seen) {
           // Shaded as the camera ray that found it (its state and footprint).
           RayState rc;
@@ -327,7 +341,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           }
           Ray sh;
           sh.org = offset_ray_origin(sp.p, sp.p_error, cos_c > 0.0f ? sp.ng : -sp.ng);
-          const Vec3 near = cam.origin() + (sp.p - cam.origin()) * (cam.clip_start() / cam.view_depth(sp.p));
+          const Vec3 near = eye + (sp.p - eye) * (cam.clip_start() / cam.view_depth(sp.p));
           sh.dir = near - sh.org;
           sh.tmax = 1.0f - 1e-4f;
           ++rays;

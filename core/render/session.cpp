@@ -612,8 +612,13 @@ void Session::setup_caustics(bool guiding) {
   if (settings_.debug_view != DebugView::None) off("debug view");
   else if (guiding && settings_.guiding_class_mask != 0) off("not with path classes (a measurement of guiding)");
   else if (film_.has_pass(Pass::ShadowCatcherMatte)) off("not combined with shadow catchers");
-  else if (camera_.is_panoramic() || camera_.orthographic() || camera_.has_aperture() || motion_)
-    off("only for a still pinhole perspective camera (no depth of field, no motion blur)");
+  // A thin lens connects through a point on its aperture (integrator_caustics.cpp), the
+  // orthographic one's too. An orthographic pinhole's rays are parallel: a light path meets one
+  // with probability 0. Panoramas and a moving camera would need their own connections.
+  else if (camera_.is_panoramic() || motion_)
+    off("only for a still perspective or orthographic camera (not panoramic, no motion blur)");
+  else if (camera_.orthographic() && !camera_.has_aperture())
+    off("not with an orthographic camera without depth of field (light paths cannot meet its parallel rays)");
   else if (sf.media || sf.path_state || sf.light_links)
     off("not with volumes, Light Path node state or light linking");
   else if (!env && lamps.empty())

@@ -1537,12 +1537,18 @@ restart: __attribute__((unused));
       if (cz) {
         if (bounce == 0 && transparent == 0 && caustic_vertex(sp, cl) && guidable(cl)) {
           // The camera's first vertex, rough: the light tracer's connection vertex.
-          const float d01 = length(sp.p - cz->camera->origin());
+          // (a thin lens: from the lens point this camera ray left, back from the near clip)
+          const Camera& cc = *cz->camera;
+          const Vec3 eye = cc.has_aperture() ? ray.org - ray.dir * (cc.clip_start() / dot(ray.dir, cc.forward()))
+                                             : cc.origin();
+          const float d01 = length(sp.p - eye);
           cz_k = 1;
           // The camera's density is this sample's pixel filter density (the caller's
           // c.filter_area is its inverse) over the pixel's solid angle: the light tracer weighs
-          // its splat into this pixel with the same (trace_caustic_paths).
-          cz_ratio = cz->paths * d01 * d01 * c.filter_area / cz->camera->pinhole_pixel_pdf(ray.dir);
+          // its splat into this pixel with the same (trace_caustic_paths). A thin lens's
+          // lens point has the same density on both sides: it cancels. (An orthographic
+          // camera's lens_pixel_pdf / d01^2 is its density per unit area across the ray.)
+          cz_ratio = cz->paths * d01 * d01 * c.filter_area / cc.lens_pixel_pdf(ray.dir, d01);
           if (!std::isfinite(cz_ratio)) cz_k = 0;
         } else if (cz_k > 0 && cz_k < cz->max_vertices && caustic_vertex(sp, cl) && !guidable(cl)) {
           ++cz_k;  // a smooth vertex after it

@@ -300,6 +300,38 @@ bool Camera::pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixe
   return std::isfinite(rx) && std::isfinite(ry) && pixel_pdf > 0.0f && std::isfinite(pixel_pdf);
 }
 
+bool Camera::lens_view(Vec3 p, Vec2 u, Vec3& eye, float& rx, float& ry, float& dist, float& pixel_pdf) const {
+  // Camera space: the lens point L = (lx, ly, 0) (an orthographic camera's at the pixel's
+  // (px, py) plus that), p at depth z. generate_in's ray leaves L through F = (px, py, 1) focus_
+  // (orthographic: (px, py, focus_)).
+  const Vec2 a = sample_aperture(u);
+  const float lx = a.x * aperture_, ly = a.y * aperture_;
+  const Vec3 rel0 = p - origin_;
+  const float z = -dot(rel0, back_);
+  if (!(z > clip_start_) || !(z < clip_start_ + clip_len_)) return false;
+  const float x = dot(rel0, right_), y = dot(rel0, up_);
+  float px, py;
+  if (type_ == CameraType::Orthographic) {
+    // The ray's direction is (-lx, -ly, focus_) for every pixel: from p back to depth 0.
+    const float t = z / focus_;
+    eye = origin_ + right_ * (x + lx * t) + up_ * (y + ly * t);
+    px = x + lx * (t - 1.0f);
+    py = y + ly * (t - 1.0f);
+  } else {
+    // The line from L through p crosses depth focus_ at L + (p - L) focus_ / z.
+    eye = origin_ + right_ * lx + up_ * ly;
+    const float inv_f = 1.0f / focus_;
+    px = lx * inv_f + (x - lx) / z;
+    py = ly * inv_f + (y - ly) / z;
+  }
+  rx = (px - x0_) / dx_;
+  ry = (py - y0_) / dy_;
+  const Vec3 rel = p - eye;
+  dist = length(rel);
+  pixel_pdf = lens_pixel_pdf(rel / dist, dist);
+  return std::isfinite(rx) && std::isfinite(ry) && pixel_pdf > 0.0f && std::isfinite(pixel_pdf);
+}
+
 Vec3 Camera::to_ndc(Vec3 p) const {
   const Vec3 c = to_camera(p);
   if (type_ == CameraType::Panoramic) {

@@ -122,6 +122,22 @@ class Camera {
   // at distance 1 x cos^3 of the angle to the view axis)). False: behind the camera or outside
   // the clipping range.
   bool pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  // A still thin-lens camera's view of world point p through the aperture point that
+  // sample_aperture(u) picks (light tracing: pbrt-v4's PerspectiveCamera::SampleWi): the lens
+  // point `eye` that the camera ray through p leaves (a perspective camera's: the aperture
+  // offset from the origin; an orthographic one's moves with the pixel), the raster position
+  // of that ray (it meets the pinhole ray of that position at the focal plane), the distance
+  // d from eye, and pixel_pdf: a perspective camera's pixel density per unit solid angle of
+  // the ray's direction (pinhole_pixel_pdf), an orthographic one's d^2 / (pixel area x cos),
+  // so that for both pixel_pdf / d^2 is the pixel's density per unit area across the ray at p.
+  // False: outside the clipping range.
+  bool lens_view(Vec3 p, Vec2 u, Vec3& eye, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  // pixel_pdf of a camera ray with unit direction dir at distance dist from its lens point.
+  float lens_pixel_pdf(Vec3 dir, float dist) const {
+    if (type_ != CameraType::Orthographic) return pinhole_pixel_pdf(dir);
+    const float c = -dot(dir, back_);
+    return c > 0.0f ? dist * dist / (dx_ * dy_ * c) : 0.0f;
+  }
   // That density for a unit direction from the camera (what a camera ray had).
   float pinhole_pixel_pdf(Vec3 dir) const {
     const float c = -dot(dir, back_);

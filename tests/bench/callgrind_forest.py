@@ -4,7 +4,7 @@ triangle icosphere under a sun and a sky colour), or with --scene another realis
 
     valgrind --tool=callgrind --instr-atstart=no --callgrind-out-file=cg.out \\
         .venv/bin/python tests/bench/callgrind_forest.py [--scene instanced_forest] [--size 48] [--spp 4]
-        [--set NAME=VALUE ...]
+        [--dof FSTOP FOCUS] [--set NAME=VALUE ...]
 
 The scene is realistic_scenes.instanced_forest (or --scene's builder), exported by the add-on as
 a render would; only the render is instrumented (one thread, a fixed seed), as in
@@ -29,6 +29,8 @@ ap.add_argument("--scene", default="instanced_forest", help="a builder of realis
 ap.add_argument("--size", type=int, default=48, help="image width (height 3/4 of it)")
 ap.add_argument("--spp", type=int, default=4)
 ap.add_argument("--threads", type=int, default=1)
+ap.add_argument("--dof", type=float, nargs=2, default=None, metavar=("FSTOP", "FOCUS"),
+                help="depth of field on the scene's camera: F-stop and focus distance")
 ap.add_argument("--set", nargs="*", default=[], metavar="NAME=VALUE",
                 help="RenderSettings for the render, a Python literal each (e.g. caustic_light_paths=1.0)")
 a = ap.parse_args()
@@ -40,6 +42,9 @@ from addon.scene_writer import to_core  # noqa: E402
 from addon.session import render_settings  # noqa: E402
 
 scene = getattr(realistic_scenes, a.scene)(a.size, a.size * 3 // 4)
+if a.dof:
+    dof = scene.camera.data.dof
+    dof.use_dof, dof.aperture_fstop, dof.focus_distance = True, a.dof[0], a.dof[1]
 scene.render.engine = "PATHLIGHT"
 data = export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None)
 core_scene = to_core(pc, data)
