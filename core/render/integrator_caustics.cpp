@@ -404,6 +404,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         const Vec3 wi = ch.frame.to_world(bs.wi);
         const bool reflection = (bs.flags & kReflect) != 0;
         if ((dot(wi, ng_out) > 0.0f) != reflection) break;
+        // (a normal that either side's view would lift: the two sides' mirrors differ there)
+        if (!caustic_unbent(sp.ng, ch.frame.n, wo_l) || !caustic_unbent(sp.ng, ch.frame.n, wi)) break;
         // The path tracer's closures here, from the camera's side: its one delta closure's lobe
         // from wi must lead back along wo_l (the same closure), and gives the value and both
         // choices; its pick cancels in the heuristic's ratio.

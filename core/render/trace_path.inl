@@ -860,6 +860,21 @@ inline int caustic_delta_closure(const ClosureList& cl) {
   return found;
 }
 
+// Whether a delta closure's normal n (its frame's) is the one shading from direction w gives it,
+// not one that Cycles' ensure_valid_specular_reflection (valid_specular_normal) bent towards ng
+// for w: that lift depends on the view, so the light path (shading from the light's side) would
+// mirror or refract about another normal than the path tracer. A delta vertex is in the chain
+// only where neither side's direction bends it (a margin past the lift's threshold, so that a
+// normal the lift made for one side fails too): the same test on both sides.
+inline bool caustic_unbent(Vec3 ng, Vec3 n, Vec3 w) {
+  const float side = dot(ng, w) < 0.0f ? -1.0f : 1.0f;
+  const Vec3 Ng = ng * side, N = n * side;
+  if (N.x == Ng.x && N.y == Ng.y && N.z == Ng.z) return true;
+  const Vec3 R = N * (2.0f * dot(N, w)) - w;
+  const float threshold = std::min(0.9f * dot(w, Ng), 0.01f);
+  return dot(Ng, R) > threshold + 1e-3f;
+}
+
 // The lobe of a delta closure (caustic_delta_closure's) that its sample from w (local) takes:
 // reflection or, transmit, refraction; prob its probability there (the Fresnel choice, thin film
 // included), value its sample's weight times prob (f |cos| over the delta: the lobe's colour,
@@ -1941,6 +1956,7 @@ restart: __attribute__((unused));
           Vec3 v, o;
           float pr = 0.0f, e;
           const bool ok = cz_k >= 2 && !(bs.flags & kTransparentLobe) && caustic_delta_closure(cl) == int(&ch - &cl.c[0]) &&
+                          caustic_unbent(sp.ng, ch.frame.n, wo) && caustic_unbent(sp.ng, ch.frame.n, wi) &&
                           caustic_delta_lobe(ch.bsdf, bs.wi, (bs.flags & kTransmit) != 0, v, pr, e, o) && pr > 0.0f &&
                           bs.pdf > 0.0f;
           if (ok) {
