@@ -396,16 +396,26 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         // sample passes a delta vertex, no BSDF ray finds the lamp): left out, as before.
         if (k == 0 && lamp && !(shape > 0.0f)) break;
         if (caustic_delta_closure(*cs) != c) break;
+        // Past the first vertex the closures were shaded towards the camera where it sees the
+        // point (for the choice above): a delta lobe needs them shaded from wo_l, whose view
+        // lifts the normal (valid_specular_normal) as the light's arrival does.
+        Closure lc = ch;
+        if (k > 0) {
+          scene.shade(sp, hit.b1, hit.b2, wo_l, cle, rs);
+          const int dl = caustic_delta_closure(cle);
+          if (dl < 0) break;
+          lc = cle.c[size_t(dl)];
+        }
         BsdfSample bs;
         const Vec2 u{rng.next_float(), rng.next_float()};
-        if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo_l), u, rng.next_float(), bs) || !(bs.flags & kDelta) ||
+        if (!bsdf_sample(lc.bsdf, lc.frame.to_local(wo_l), u, rng.next_float(), bs) || !(bs.flags & kDelta) ||
             !(bs.pdf > 0.0f))
           break;
-        const Vec3 wi = ch.frame.to_world(bs.wi);
+        const Vec3 wi = lc.frame.to_world(bs.wi);
         const bool reflection = (bs.flags & kReflect) != 0;
         if ((dot(wi, ng_out) > 0.0f) != reflection) break;
         // (a normal that either side's view would lift: the two sides' mirrors differ there)
-        if (!caustic_unbent(sp.ng, ch.frame.n, wo_l) || !caustic_unbent(sp.ng, ch.frame.n, wi)) break;
+        if (!caustic_unbent(sp.ng, lc.frame.n, wo_l) || !caustic_unbent(sp.ng, lc.frame.n, wi)) break;
         // The path tracer's closures here, from the camera's side: its one delta closure's lobe
         // from wi must lead back along wo_l (the same closure), and gives the value and both
         // choices; its pick cancels in the heuristic's ratio.
