@@ -151,6 +151,7 @@ def test_glass_deterministic_whatever_the_threads():
         assert st["caustics"] == "on" and np.array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.sanitize  # quick: a delta lamp's light paths stopping at glass on the sanitizer build too
 @pytest.mark.parametrize("light", ["sun", "point"])
 def test_a_delta_lamp_next_to_glass_adds_no_light(light):
     # A sun of angle 0 or a point of radius 0: no BSDF ray finds it and no light sample passes the
@@ -164,6 +165,7 @@ def test_a_delta_lamp_next_to_glass_adds_no_light(light):
     assert abs(b.mean() / a.mean() - 1.0) < 1e-4 and np.abs(b - a).max() < 0.01 * a.max()
 
 
+@pytest.mark.sanitize  # quick: the probes' delta closures on the sanitizer build too
 def test_glass_alone_casts_caustics():
     # Nothing smooth but glass and a mirror: the probes count them as casters (before: "no smooth
     # surface"), and the automatic mode turns the light paths on under the environment's sun.
