@@ -47,7 +47,9 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
     SurfacePoint sp;
     scene.surface_point(hit, sp, 0.0f, &ray);
     scene.shade(sp, hit.b1, hit.b2, -ray.dir, cl, rs);
-    if (caustic_vertex(sp, cl) && !guidable(cl) && cl.has_nondelta && is_finite(sp.p)) found.push_back(sp.p);
+    // (smooth glass and mirrors too: their chains are the light paths' since issue 25's delta vertices)
+    if (caustic_vertex(sp, cl) && !guidable(cl) && (cl.has_nondelta || caustic_delta_closure(cl) >= 0) && is_finite(sp.p))
+      found.push_back(sp.p);
   }
   if (found.empty()) return false;
   Aabb box;
@@ -401,8 +403,67 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       int c = 0;
       while (c + 1 < cs->n && uc >= acc) acc += cs->c[size_t(++c)].pick;
       const Closure& ch = cs->c[size_t(c)];
-      if (ch.delta || std::holds_alternative<SubsurfaceBsdf>(ch.bsdf) || std::holds_alternative<PortalBsdf>(ch.bsdf))
-        break;
+      if (std::holds_alternative<SubsurfaceBsdf>(ch.bsdf) || std::holds_alternative<PortalBsdf>(ch.bsdf)) break;
+      if (ch.delta) {
+        // Smooth glass or a mirror (docs/design/sampling.md, "Caustic light paths through glass
+        // and mirrors"). Next to a delta lamp the path tracer cannot make the path (no light
+        // sample passes a delta vertex, no BSDF ray finds the lamp): left out, as before.
+        if (k == 0 && lamp && !(shape > 0.0f)) break;
+        if (caustic_delta_closure(*cs) != c) break;
+        // Past the first vertex the closures were shaded towards the camera where it sees the
+        // point (for the choice above): a delta lobe needs them shaded from wo_l, whose view
+        // lifts the normal (valid_specular_normal) as the light's arrival does.
+        Closure lc = ch;
+        if (k > 0) {
+          scene.shade(sp, hit.b1, hit.b2, wo_l, cle, rs);
+          const int dl = caustic_delta_closure(cle);
+          if (dl < 0) break;
+          lc = cle.c[size_t(dl)];
+        }
+        BsdfSample bs;
+        const Vec2 u{rng.next_float(), rng.next_float()};
+        if (!bsdf_sample(lc.bsdf, lc.frame.to_local(wo_l), u, rng.next_float(), bs) || !(bs.flags & kDelta) ||
+            !(bs.pdf > 0.0f))
+          break;
+        const Vec3 wi = lc.frame.to_world(bs.wi);
+        const bool reflection = (bs.flags & kReflect) != 0;
+        if ((dot(wi, ng_out) > 0.0f) != reflection) break;
+        // (a normal that either side's view would lift: the two sides' mirrors differ there)
+        if (!caustic_unbent(sp.ng, lc.frame.n, wo_l) || !caustic_unbent(sp.ng, lc.frame.n, wi)) break;
+        // The path tracer's closures here, from the camera's side: its one delta closure's lobe
+        // from wi must lead back along wo_l (the same closure), and gives the value and both
+        // choices; its pick cancels in the heuristic's ratio.
+        scene.shade(sp, hit.b1, hit.b2, wi, cle, rs);
+        if (!caustic_vertex(sp, cle) || guidable(cle)) break;
+        const int dc = caustic_delta_closure(cle);
+        if (dc < 0) break;
+        const Closure& cd = cle.c[size_t(dc)];
+        const Vec3 wi_c = cd.frame.to_local(wi), wl_c = cd.frame.to_local(wo_l);
+        Vec3 vf, vr, of, orv;
+        float pf, pr, ef, er;
+        if (!caustic_delta_lobe(cd.bsdf, wi_c, !reflection, vf, pf, ef, of) ||
+            !caustic_delta_lobe(cd.bsdf, wl_c, !reflection, vr, pr, er, orv) || !(pf > 0.0f) || !(pr > 0.0f) ||
+            !(dot(of, wl_c) > 0.9999f))
+          break;
+        // The light path's throughput: the path tracer's value (f |cos| over its delta) over
+        // this sample's choice, times the delta's Jacobian between the two sides' solid angles
+        // (etap^2 and the shading cosines) and the geometric normal's adjoint cosines.
+        const float cs_l = std::fabs(wl_c.z), cs_c = std::fabs(wi_c.z);
+        const float cg_l = std::fabs(dot(sp.ng, wo_l)), cg_c = std::fabs(dot(sp.ng, wi));
+        if (!(cs_c > 0.0f) || !(cg_l > 0.0f)) break;
+        beta *= cd.weight * vf * (ef * ef * cs_l * cg_c / (cs_c * cg_l * ch.pick * bs.pdf));
+        // The heuristic: the reverse choice over the forward one and etap^2 (trace_path.inl's
+        // cz_ratio at a delta lobe: the same numbers from the other side). No light sample here.
+        prod_r *= pr;
+        prod_f *= double(pf) * ef * ef;
+        if (!is_finite(beta) || is_black(beta)) break;
+        ++k;
+        ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
+        ray.self_curve = scene.self_curve(sp);
+        ray.dir = wi;
+        ray.tmax = kInf;
+        continue;
+      }
       BsdfSample bs;
       const Vec2 u{rng.next_float(), rng.next_float()};
       if (!bsdf_sample(ch.bsdf, ch.frame.to_local(wo_l), u, rng.next_float(), bs) || (bs.flags & kDelta)) break;

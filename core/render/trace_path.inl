@@ -666,6 +666,7 @@ struct CausticHitMis {
   const CausticLight* cz = nullptr;
   float ratio = 0.0f;
   Vec3 ng;
+  bool delta = false;  // the vertex scattered by a delta lobe: two strategies (no light sample)
 };
 
 // The power heuristic over the caustic paths' three strategies, for the one whose density is 1
@@ -699,7 +700,12 @@ template <bool kLinks = false, class Through>
     Vec3 le;
     if (!intersect_light(scene.light(h.index), from, ray.org, d, tmax, t, le, pdf, rects)) return;
     float w = 1.0f;
-    if (weigh) {
+    if (caus && caus->delta) {
+      // After glass or a mirror in a caustic chain: the BSDF ray against the light path alone.
+      float ps = caustic_lamp_pdf(scene, *caus->cz, h.index, from, ray.org + d * t, pdf);
+      if (ps > 0.0f) ps *= caustic_lamp_centre(scene, *caus->cz, h.index, ray.org, caus->ng, d);
+      if (ps > 0.0f) w = caustic_mis_weight(0.0f, caus->ratio * ps);
+    } else if (weigh) {
       const float pl = scene.light_choice_pmf(from, from_n, h.index, kLinks ? set : 0) * pdf;
       w = power_heuristic(prev_pdf, pl);
       if (caus) {
@@ -838,6 +844,74 @@ inline bool caustic_vertex(const SurfacePoint& sp, const ClosureList& cl) {
   return true;
 }
 
+// A delta vertex of a caustic chain (smooth glass, a mirror): the index of the vertex's one
+// delta closure, a perfect mirror or a smooth dielectric; -1 where there is none, or another
+// delta closure beside it (Transparent, Subsurface, a Ray Portal, a second mirror): there the
+// chain ends, on both sides alike.
+inline int caustic_delta_closure(const ClosureList& cl) {
+  int found = -1;
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    if (!c.delta) continue;
+    if (found >= 0 || !(std::holds_alternative<ConductorBsdf>(c.bsdf) || std::holds_alternative<DielectricBsdf>(c.bsdf)))
+      return -1;
+    found = i;
+  }
+  return found;
+}
+
+// Whether a delta closure's normal n (its frame's) is the one shading from direction w gives it,
+// not one that Cycles' ensure_valid_specular_reflection (valid_specular_normal) bent towards ng
+// for w: that lift depends on the view, so the light path (shading from the light's side) would
+// mirror or refract about another normal than the path tracer. A delta vertex is in the chain
+// only where neither side's direction bends it (a margin past the lift's threshold, so that a
+// normal the lift made for one side fails too): the same test on both sides.
+inline bool caustic_unbent(Vec3 ng, Vec3 n, Vec3 w) {
+  const float side = dot(ng, w) < 0.0f ? -1.0f : 1.0f;
+  const Vec3 Ng = ng * side, N = n * side;
+  if (N.x == Ng.x && N.y == Ng.y && N.z == Ng.z) return true;
+  const Vec3 R = N * (2.0f * dot(N, w)) - w;
+  const float threshold = std::min(0.9f * dot(w, Ng), 0.01f);
+  return dot(Ng, R) > threshold + 1e-3f;
+}
+
+// The lobe of a delta closure (caustic_delta_closure's) that its sample from w (local) takes:
+// reflection or, transmit, refraction; prob its probability there (the Fresnel choice, thin film
+// included), value its sample's weight times prob (f |cos| over the delta: the lobe's colour,
+// refraction's radiance scaled by 1 / etap^2), etap refraction's relative IOR from w's side
+// (1: reflection), out the direction it leaves along (local). False where the lobe cannot be taken.
+inline bool caustic_delta_lobe(const Bsdf& b, Vec3 w, bool transmit, Vec3& value, float& prob, float& etap, Vec3& out) {
+  etap = 1.0f;
+  if (w.z == 0.0f) return false;
+  if (const auto* m = std::get_if<ConductorBsdf>(&b)) {
+    if (transmit) return false;
+    value = m->fresnel(std::fabs(w.z));
+    prob = 1.0f;
+    out = {-w.x, -w.y, w.z};
+    return true;
+  }
+  const auto* d = std::get_if<DielectricBsdf>(&b);
+  if (!d) return false;
+  Vec3 wl = w;
+  if (d->one_sided_coat() && wl.z < 0.0f) wl.z = -wl.z;  // (as its sample: mirrored to the front)
+  Vec3 cr, ct;
+  float pr, pt;
+  d->lobes_at(wl.z, cr, ct, pr, pt);
+  if (!(pr + pt > 0.0f)) return false;
+  if (!transmit) {
+    if (!(pr > 0.0f)) return false;
+    value = cr;
+    prob = pr / (pr + pt);
+    out = {-wl.x, -wl.y, wl.z};
+  } else {
+    if (!(pt > 0.0f) || !refract(wl, {0.0f, 0.0f, 1.0f}, d->eta, out, etap) || out.z == 0.0f) return false;
+    value = d->transmission_tint * ct / (d->unscaled ? 1.0f : etap * etap);
+    prob = pt / (pr + pt);
+  }
+  if (wl.z != w.z) out.z = -out.z;
+  return true;
+}
+
 // The passes written at each surface the camera path meets (through Transparent BSDFs), as
 // Cycles' film_write_data_passes and AO pass: the colours, Mist, AO (beta: the throughput there).
 [[gnu::noinline]] inline void camera_hit_passes(const Scene& scene, const IntegratorSettings& s, const SurfacePoint& sp,
@@ -913,6 +987,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   int cz_k = 0;
   float cz_ratio = 0.0f;
   Vec3 cz_ng(0.0f);  // the last vertex's geometric normal (CausticHitMis)
+  bool cz_delta = false;  // the last vertex scattered by a delta lobe (glass, a mirror): no light sample there
   // (the catcher path of a split writes its passes into a scratch record: see below)
   PathAovs* aov = kAovs ? aov_in : nullptr;
   GuidingField* const guide = kGuide ? s.guide : nullptr;
@@ -1347,7 +1422,7 @@ restart: __attribute__((unused));
     if (hits && !lights_counted && !(nee && !prev_delta && prev_samples_only) && !(kCatcher && resume)) {
       CausticHitMis chm;
       if constexpr (kCaus)
-        if (cz_k >= 2 && !prev_delta && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng};
+        if (cz_k >= 2 && (!prev_delta || cz_delta) && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng, prev_delta};
       const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
                                          mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr);
       L += lh;
@@ -1370,7 +1445,8 @@ restart: __attribute__((unused));
           w = power_heuristic(prev_pdf, env_pdf);
         }
       if constexpr (kCaus)
-        if (cz_k >= 2 && !prev_delta) {
+        if (cz_k >= 2 && (!prev_delta || cz_delta)) {
+          // (after a delta vertex no light sample rivals the BSDF's ray: eb is 0)
           const float ps = caustic_source_pdf(scene, *cz, ray.dir, mis_org);
           if (ps > 0.0f) {
             const float rho = cz_ratio * ps, eb = bg_found ? env_pdf / prev_pdf : 0.0f;  // n Pc / Pa, Pb / Pa
@@ -1877,7 +1953,25 @@ restart: __attribute__((unused));
     if ((dot(wi, ng_out) > 0.0f) != reflection) break;
     if (kNonDiffuse && (bs.flags & kDelta)) {
       beta *= ch.weight * bs.weight / ch.pick;
-      if constexpr (kCaus) cz_k = 0;
+      if constexpr (kCaus)
+        if (cz_k > 0) {
+          // Smooth glass or a mirror in the chain (docs/design/sampling.md, "Caustic light paths
+          // through glass and mirrors"): the chain's Jacobian cancels between the strategies, so
+          // the light path's density over this one's gains the lobe's reverse choice over its
+          // forward one (the closure's pick cancels) and, for refraction, 1 / etap^2.
+          Vec3 v, o;
+          float pr = 0.0f, e;
+          const bool ok = cz_k >= 2 && !(bs.flags & kTransparentLobe) && caustic_delta_closure(cl) == int(&ch - &cl.c[0]) &&
+                          caustic_unbent(sp.ng, ch.frame.n, wo) && caustic_unbent(sp.ng, ch.frame.n, wi) &&
+                          caustic_delta_lobe(ch.bsdf, bs.wi, (bs.flags & kTransmit) != 0, v, pr, e, o) && pr > 0.0f &&
+                          bs.pdf > 0.0f;
+          if (ok) {
+            cz_ratio = cz_ratio * pr / (bs.pdf * bs.eta * bs.eta);
+            cz_ng = sp.ng;
+            cz_delta = true;
+          }
+          if (!ok || !(cz_ratio >= 0.0f) || !std::isfinite(cz_ratio)) cz_k = 0;
+        }
       if constexpr (kAovs)
         if (lp && bounce == 0 && !(bs.flags & kTransparentLobe)) {
           const int k = closure_pass_kind(ch, reflection);
@@ -1930,6 +2024,7 @@ restart: __attribute__((unused));
           if (cz_k >= 2) eval_mixture<!kNonDiffuse>(cl, wi, wo, reflection, pr);
           cz_ratio = cz_ratio * pr / pdf;
           cz_ng = sp.ng;  // (the BSDF ray may find a lamp with extent: light_hits)
+          cz_delta = false;
           if (!(cz_ratio >= 0.0f) || !std::isfinite(cz_ratio)) cz_k = 0;
         }
       if constexpr (kAovs)

@@ -1,10 +1,12 @@
 """The two factors of caustic light paths from lamps (issue 25) on the lamp scene of
 tests/core/test_caustic_light_paths.py (a point lamp, a spot and a sun, all without extent, over
-a floor with glossy casters out of view; --extent: with Blender's radius 0.1 and a sun of 3 degrees): the relative variance of one sample and the CPU time
-of one sample, against the plain path tracer. Not named bench_*: build.py runs those.
+a floor with glossy casters out of view; --extent: with Blender's radius 0.1 and a sun of 3 degrees;
+--glass sun|point|env: tests/core/test_caustic_glass.py's smooth glass sphere and mirror panel under a
+sun of 4 degrees, a point of radius 0.1 or the environment's sun): the relative variance of one sample
+and the CPU time of one sample, against the plain path tracer. Not named bench_*: build.py runs those.
 
     .venv/bin/python tests/bench/lamp_caustic_factors.py [--size 96] [--seeds 16] [--spp 16]
-        [--paths 0.1 0.25 0.5] [--extent]
+        [--paths 0.1 0.25 0.5] [--extent] [--glass sun]
 
 Relative variance as realistic_factors.py: the mean over pixels of var * spp / (ref^2 + 1e-2),
 ref the plain renders' mean. CPU time is this process's (one render at a time, all threads), so
@@ -19,6 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 from core_scenes import render  # noqa: E402
+import test_caustic_glass as tg  # noqa: E402
 import test_caustic_light_paths as tc  # noqa: E402
 
 ap = argparse.ArgumentParser()
@@ -28,9 +31,10 @@ ap.add_argument("--spp", type=int, default=16)
 ap.add_argument("--paths", type=float, nargs="*", default=[0.1, 0.25, 0.5])
 ap.add_argument("--callgrind", type=float, default=None, help="render once at these paths (one thread)")
 ap.add_argument("--extent", action="store_true", help="the lamps with extent (lamp_scene(extent=True))")
+ap.add_argument("--glass", choices=["sun", "point", "env"], help="test_caustic_glass.glass_scene(GLASS) instead")
 a = ap.parse_args()
 w, h = a.size, a.size * 3 // 4
-scene = tc.lamp_scene(extent=a.extent)
+scene = tg.glass_scene(a.glass) if a.glass else tc.lamp_scene(extent=a.extent)
 if a.callgrind is not None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from kernel_scenes import instrumented_render  # noqa: E402
