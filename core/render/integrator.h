@@ -41,6 +41,12 @@ struct CausticLamp {
   float one_minus_cos = 2.0f;    // point/spot: of the cone the caster sphere subtends (2: all)
 };
 
+// A lamp's light-path density per unit solid angle at its start: its choice pmf times the
+// uniform density in the caster cone of solid angle 2 pi one_minus_cos. The light tracer
+// (trace_caustic_paths) and the path tracer's MIS (caustic_lamp_pdf) both take it from here, so
+// the two sides compute the same number.
+inline float caustic_cone_pdf(float pmf, float one_minus_cos) { return pmf / (2.0f * kPi * one_minus_cos); }
+
 struct CausticLight {
   float paths = 0.0f;      // light paths per pixel sample of the film (the n of the heuristic)
   // The emitters: one distribution over [environment | lamps] by the power each sends towards

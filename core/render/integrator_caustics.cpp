@@ -194,9 +194,9 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         if (!(cos0 > 0.0f)) continue;
         Vec3 le = l.color;
         if (!apply_spread(l, wl, cos0, le)) continue;
-        const float pw = 1.0f / (2.0f * kPi * omc);
-        beta = le * (cos0 * l.area / (lamp->pmf * pw));
-        ps = lamp->pmf * pw / (l.area * cos0);
+        const float pc = caustic_cone_pdf(lamp->pmf, omc);
+        beta = le * (cos0 * l.area / pc);
+        ps = pc / (l.area * cos0);
         area = true;
       } else if (l.type == LightType::Sun) {
         // A delta direction: across the caster sphere's disk, as the environment's.
@@ -214,7 +214,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         // (with extent, the lamp's own sample at the first hit applies the cone, below)
         if (l.type == LightType::Spot && !lamp->extent) att = spot_attenuation(l, ray.dir);  // as its light samples
         if (!(att > 0.0f)) continue;
-        ps = lamp->pmf / (2.0f * kPi * lamp->one_minus_cos);
+        ps = caustic_cone_pdf(lamp->pmf, lamp->one_minus_cos);
         beta = l.color * (att / ps);
       }
     }

@@ -634,9 +634,9 @@ inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32
     const Vec3 w = x - x0;
     const float len = length(w), cos0 = dot(w, l.dir) / len;
     if (!(cos0 > 0.0f) || !(l.area > 0.0f)) return 0.0f;
-    return m.pmf / (2.0f * kPi * caustic_cone_from(cz, x0) * l.area * cos0);
+    return caustic_cone_pdf(m.pmf, caustic_cone_from(cz, x0)) / (l.area * cos0);
   }
-  return m.pmf / (2.0f * kPi * m.one_minus_cos * length_sq(x - l.position)) * shape;
+  return caustic_cone_pdf(m.pmf, m.one_minus_cos) / length_sq(x - l.position) * shape;
 }
 
 // A point's or spot's light path with extent (CausticLamp) leaves the lamp's centre, so it finds
