@@ -192,7 +192,10 @@ def test_huang_ellipse_needs_the_curve_normals():
     from addon.export import curves as curves_export
     inputs = dict(Absorption_Coefficient=(30.0, 30.0, 30.0), Roughness=0.4, Offset=0.0, Aspect_Ratio=0.6)
     build = huang_scene("ABSORPTION", inputs, size=32)
-    ours, cycles = render_pair(build, 1024)
+    # Cycles at 4x (stored: no test time): against its 1024 the mean of 44 seeds' renders was
+    # itself 3.0 % off in one region (Cycles' noise), so seeds failed 5 % there by chance
+    # (docs/design/sampling.md "Blue noise as the default").
+    ours, cycles = render_pair(build, 1024, cycles_samples=4096)
     assert_agree(ours, cycles, what="opaque ellipse", region=0.05, whole=0.02)
     saved = curves_export.curve_normals
     curves_export.curve_normals = lambda curves: None

@@ -96,7 +96,12 @@ def test_rough_glass():
 
 def test_beers_law_glass():
     absorption = ((0.9, 0.4, 0.2), 1.0)
-    ours, cycles = render_pair(sphere_scene(lambda: glass("Beer", absorption=absorption)), 256)
+    # Cycles at 4x (stored: no test time): against its 256 the worst region was 3.9 % in the
+    # median over 208 seeds and over 5 % on 23 % of them, Cycles' own noise (the seeds' mean
+    # image was still 3.8 % off); the suite's seed had passed by chance (docs/design/sampling.md
+    # "Blue-noise pattern").
+    ours, cycles = render_pair(sphere_scene(lambda: glass("Beer", absorption=absorption)), 256,
+                               cycles_samples=1024)
     assert_agree(ours, cycles)
     # Absorption is visible: the ball's blue is well below its red (clear glass is grey).
     ball = ms.region_means(ours)[2:6, 3:5].reshape(-1, 3).mean(0)

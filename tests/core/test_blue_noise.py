@@ -94,6 +94,52 @@ def test_first_pattern_keeps_sample_zero_apart(pc):
         assert np.isfinite(img).all() and img[..., :3].mean() > 0.05
 
 
+def _region_draws(pc, pattern, seed, length=4, size=8, draws=18, x0=16, y0=8):
+    """Every draw (the camera's and 7 bounce sets' Sobol draws, then the PCG tail) of each
+    sample of an aligned size x size region: (pixels, samples, 2 * draws)."""
+    v = np.empty((size * size, length, draws, 2))
+    for i in range(size * size):
+        for s in range(length):
+            v[i, s] = pc.pattern_sampler_values(pattern, seed, length, x0 + i % size, y0 + i // size, 64, s, draws)[0]
+    return v.reshape(size * size, length, 2 * draws)
+
+
+def _factors(values):
+    """values (seeds, pixels, samples): (the region's variance over its pixels' mean variance /
+    pixels, the pixels' mean variance), over the seeds."""
+    pix = values.mean(axis=2)
+    pv = pix.var(axis=0, ddof=1).mean()
+    return pix.mean(axis=1).var(ddof=1) / (pv / pix.shape[1]), pv
+
+
+def test_a_blocks_pixels_share_no_draw_but_the_stratified_ones(pc):
+    """Blue noise (issue 25, docs/design/sampling.md "Blue noise as the default"): over 48
+    seeds of an 8x8 region at 4 samples, the region's Sobol coordinates are stratified jointly
+    (factor far below 1), while what must stay as independent as between independent pixels
+    does: the PCG tail past the Sobol draws (keyed by the pixel, not the shared sequence) and
+    products of two different sets' coordinates (each set its own shuffle); and with a
+    power-of-two chunk no pixel is noisier, for smooth and for indicator integrands of one set."""
+    seeds = range(48)
+    v = {p: np.array([_region_draws(pc, p, seed) for seed in seeds]) for p in ("independent", "blue_noise")}
+    sobol, pcg = range(32), range(32, 36)  # coordinates: 16 Sobol draws, then PCG32
+    f = {p: [_factors(x[..., c] - 0.5) for c in range(36)] for p, x in v.items()}
+    assert max(f["blue_noise"][c][0] for c in sobol) < 0.2
+    for c in pcg:
+        assert 0.4 < f["blue_noise"][c][0] < 1.8, (c, f["blue_noise"][c])
+    cross = [(a, b) for a in sobol for b in sobol if a < b and a // 4 != b // 4] + \
+            [(a, b) for a in sobol for b in pcg]
+    prod = {p: [_factors((x[..., a] - 0.5) * (x[..., b] - 0.5)) for a, b in cross] for p, x in v.items()}
+    fb = np.array([q[0] for q in prod["blue_noise"]])
+    assert fb.mean() < 1.15 and np.percentile(fb, 99) < 2.0, (fb.mean(), np.percentile(fb, 99))
+    # One set's pairs: the pixel's variance as independent pixels have it (mean over the pairs).
+    same = [(a, b) for a in sobol for b in sobol if a < b and a // 4 == b // 4]
+    for g in (lambda x, a, b: (x[..., a] - 0.5) * (x[..., b] - 0.5),
+              lambda x, a, b: ((x[..., a] < 0.3) & (x[..., b] < 0.6)) - 0.18):
+        ratio = np.mean([_factors(g(v["blue_noise"], a, b))[1] / _factors(g(v["independent"], a, b))[1]
+                         for a, b in same])
+        assert 0.85 < ratio < 1.15, ratio
+
+
 def _lit_floor(pc):
     """A diffuse floor under a square area light, seen obliquely: smooth, direct light only."""
     s = pc.Scene()
