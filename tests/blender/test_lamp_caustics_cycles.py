@@ -35,16 +35,21 @@ def metal_ball_under_a_bulb():
     return scene
 
 
-@needs_core
-def test_point_lamp_with_radius_sends_light_paths():
-    scene = metal_ball_under_a_bulb()
+def light_paths_state(scene):
+    """The core session's caustics state for `scene` with LIGHT_PATHS asked for ("on", or off
+    with the reason)."""
     scene.render.engine = "PATHLIGHT"
     for key, value in LIGHT_PATHS.items():
         setattr(scene.pathlight, key, value)
     pc = get_core()
     core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
     core_scene.commit()
-    assert pc.Session(core_scene, session.render_settings(pc, scene)).stats()["caustics"] == "on"
+    return pc.Session(core_scene, session.render_settings(pc, scene)).stats()["caustics"]
+
+
+@needs_core
+def test_point_lamp_with_radius_sends_light_paths():
+    assert light_paths_state(metal_ball_under_a_bulb()) == "on"
 
 
 @needs_core

@@ -3,18 +3,13 @@ Blender's default point lamp of test_lamp_caustics_cycles.py, its camera with a 
 (F-stop 0.3, focused in front of the floor where the ball's caustic falls, so the caustic is
 blurred over ~2 pixels) and the light paths asked for explicitly (0.5 per sample). Cycles' image
 comes from tests/cycles_refs/ (docs/building.md)."""
-import bpy
 import pytest
 
 from blender_util import BOX_FILTER, core_available, load_addon, render_to_array
 from material_scenes import assert_agree
-from test_lamp_caustics_cycles import LIGHT_PATHS, metal_ball_under_a_bulb
+from test_lamp_caustics_cycles import LIGHT_PATHS, light_paths_state, metal_ball_under_a_bulb
 
 load_addon()
-from addon import session  # noqa: E402
-from addon.core import get_core  # noqa: E402
-from addon.export import export_scene  # noqa: E402
-from addon.scene_writer import to_core  # noqa: E402
 
 needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
 
@@ -32,14 +27,7 @@ def with_depth_of_field(scene):
 
 @needs_core
 def test_depth_of_field_keeps_the_light_paths():
-    scene = with_depth_of_field(metal_ball_under_a_bulb())
-    scene.render.engine = "PATHLIGHT"
-    for key, value in LIGHT_PATHS.items():
-        setattr(scene.pathlight, key, value)
-    pc = get_core()
-    core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
-    core_scene.commit()
-    assert pc.Session(core_scene, session.render_settings(pc, scene)).stats()["caustics"] == "on"
+    assert light_paths_state(with_depth_of_field(metal_ball_under_a_bulb())) == "on"
 
 
 @needs_core

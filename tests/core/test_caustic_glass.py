@@ -8,17 +8,10 @@ import numpy as np
 import pytest
 
 from core_scenes import add_object, camera, closure, core, quad, region_means, render, uv_sphere
+# (the environment with a one-texel sun and the seeds' renders at 48 x 36 of the caustic tests)
+from test_caustic_light_paths import renders, sun_env
 
 pc = core()
-W, H = 48, 36
-
-
-def sun_env(w=64, h=32, peak=400.0):
-    """A dim blue-grey sky with a one-texel sun high up (as test_caustic_light_paths.py's)."""
-    img = np.full((h, w, 3), 0.2, np.float32)
-    img[..., 2] = 0.3
-    img[int(0.8 * h), int(0.3 * w)] = peak
-    return img
 
 
 def glass_scene(light="env", delta=False, angle=4.0, radius=0.1):
@@ -69,14 +62,6 @@ def sheet_scene(angle=10.0):
 CAUSTIC = (slice(10, 19), slice(16, 28))
 PATCH = (slice(12, 22), slice(28, 38))
 SHEET = (slice(2, 26), slice(14, 22))
-
-
-def renders(scene, spp, seeds, **kw):
-    out = []
-    for seed in seeds:
-        img, st = render(pc, scene, W, H, samples=spp, seed=seed, **kw)
-        out.append(np.asarray(img)[..., :3].astype(np.float64))
-    return np.array(out), st
 
 
 # Variance bounds per sample: measured 0.18x (environment), 0.07x (sun of 4 degrees), 0.02x
