@@ -157,11 +157,11 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
     use_caustic_light_paths: BoolProperty(
         name="Caustic Light Paths",
         description="Trace light paths from the environment and from lamps through smooth "
-                    "(mirror-like) surfaces onto rough ones and combine them with the camera's "
-                    "paths by multiple importance sampling: far less noise in caustics of a "
-                    "bright HDRI (e.g. the sun reflected by chrome onto a floor). Any pixel "
-                    "filter; still perspective camera (depth of field included), no volumes; "
-                    "Combined pass only",
+                    "(mirror-like) surfaces and smooth glass onto rough ones and combine them with "
+                    "the camera's paths by multiple importance sampling: far less noise in "
+                    "caustics of a bright HDRI (e.g. the sun reflected by chrome onto a floor). "
+                    "Any pixel filter; still perspective camera (depth of field included) or "
+                    "orthographic with depth of field, no volumes; Combined pass only",
         default=False,
     )
     caustic_light_paths: FloatProperty(
