@@ -172,4 +172,18 @@ class GuidingField {
   void build_caustic_lobes();
 };
 
+// A guided vertex's one-sample MIS mixture pdf towards w: the BSDF's (bsdf_pdf), the guide's in
+// `cell` with probability gp (sd_pdf where already known, else negative: looked up), and the
+// caustic lobes of caustic_cell with probability pc (none where caustic_cell < 0). The camera
+// path (trace_path.inl) and the caustic light paths' weight at its rough vertex
+// (integrator_caustics.cpp) both take it from here, so the two sides compute the same number.
+inline float guided_mixture_pdf(const GuidingField& g, float bsdf_pdf, Vec3 w, float gp, uint32_t cell, float sd_pdf,
+                                int32_t caustic_cell, float pc) {
+  // (a cell that learnt 0 never samples its guide: no quadtree descent, the same value)
+  float p = bsdf_pdf;
+  if (gp > 0.0f) p = (1.0f - gp) * bsdf_pdf + gp * (sd_pdf >= 0.0f ? sd_pdf : g.pdf(cell, w));
+  if (caustic_cell >= 0) p = (1.0f - pc) * p + pc * g.caustic_pdf(caustic_cell, w);
+  return p;
+}
+
 }  // namespace pl

@@ -334,11 +334,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
             const Vec3 ng_c = cos_c > 0.0f ? sp.ng : -sp.ng;
             const uint32_t cell = g.cell_of(sp.p, ng_c);
             const float gp = cz.guide_learn_probability ? g.probability(cell) : cz.guide_probability;
-            if (gp > 0.0f) qf1 = (1.0f - gp) * qf1 + gp * g.pdf(cell, wo_l);
-            if (cz.guide_caustic_probability > 0.0f) {
-              const int32_t cc = g.caustic_cell(sp.p, ng_c);
-              if (cc >= 0) qf1 = (1.0f - cz.guide_caustic_probability) * qf1 + cz.guide_caustic_probability * g.caustic_pdf(cc, wo_l);
-            }
+            const int32_t cc = cz.guide_caustic_probability > 0.0f ? g.caustic_cell(sp.p, ng_c) : -1;
+            qf1 = guided_mixture_pdf(g, qf1, wo_l, gp, cell, -1.0f, cc, cz.guide_caustic_probability);
             if (!(qf1 > 0.0f)) break;
           }
           Ray sh;
@@ -399,6 +396,14 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       // A smooth vertex: on towards the camera's side by one of its closures.
       const bool front = dot(sp.ng, wo_l) > 0.0f;
       const Vec3 ng_out = front ? sp.ng : -sp.ng;
+      // On to the next vertex along wi (reflected or transmitted here).
+      const auto advance = [&](Vec3 wi, bool reflection) {
+        ++k;
+        ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
+        ray.self_curve = scene.self_curve(sp);
+        ray.dir = wi;
+        ray.tmax = kInf;
+      };
       float uc = rng.next_float(), acc = cs->c[0].pick;
       int c = 0;
       while (c + 1 < cs->n && uc >= acc) acc += cs->c[size_t(++c)].pick;
@@ -457,11 +462,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         prod_r *= pr;
         prod_f *= double(pf) * ef * ef;
         if (!is_finite(beta) || is_black(beta)) break;
-        ++k;
-        ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
-        ray.self_curve = scene.self_curve(sp);
-        ray.dir = wi;
-        ray.tmax = kInf;
+        advance(wi, reflection);
         continue;
       }
       BsdfSample bs;
@@ -501,11 +502,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       beta *= f * (std::fabs(dot(sp.ng, wi)) / std::fabs(dot(sp.ng, wo_l)) / p_true);
       prod_r *= qr;
       if (!is_finite(beta) || is_black(beta)) break;
-      ++k;
-      ray.org = offset_ray_origin(sp.p, sp.p_error, reflection ? ng_out : -ng_out);
-      ray.self_curve = scene.self_curve(sp);
-      ray.dir = wi;
-      ray.tmax = kInf;
+      advance(wi, reflection);
     }
   }
   return rays;

@@ -1648,14 +1648,7 @@ restart: __attribute__((unused));
     // some (sd_pdf: the SD-tree's pdf where known, else negative).
     float gp = guide_prob;  // this vertex's guide probability (learnt per cell, or the render's)
     const auto guided_pdf = [&](float bsdf_pdf, Vec3 w, float sd_pdf) {
-      // (a cell that learnt 0 never samples its guide: no quadtree descent, the same value)
-      float p = bsdf_pdf;
-      if (gp > 0.0f) p = (1.0f - gp) * bsdf_pdf + gp * (sd_pdf >= 0.0f ? sd_pdf : guide->pdf(guide_cell, w));
-      if (caustic_cell >= 0) {
-        const float pc = s.guide_caustic_probability;
-        p = (1.0f - pc) * p + pc * guide->caustic_pdf(caustic_cell, w);
-      }
-      return p;
+      return guided_mixture_pdf(*guide, bsdf_pdf, w, gp, guide_cell, sd_pdf, caustic_cell, s.guide_caustic_probability);
     };
     if constexpr (kGuide) {
       guided = guide && (guide_sampling || guide_training) && !sp.curve() && guidable(cl);
