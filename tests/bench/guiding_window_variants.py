@@ -2,7 +2,7 @@
 equal CPU time against plain path tracing. Not named bench_*: build.py runs those.
 
     .venv/bin/python tests/bench/guiding_window_variants.py [--seeds N] [--spp S] \
-        [--variants NAME=setting:value,setting:value ...]
+        [--size W] [--variants NAME=setting:value,setting:value ...]
 
 A variant is the add-on's Path Guiding (use_guiding) with core RenderSettings overridden, e.g.
 learnt=guiding_learn_probability:0 or camera=guiding_photons:0,guiding_caustics:0 ('default=':
@@ -59,6 +59,7 @@ def main():
     ap.add_argument("--spp", type=int, default=256)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--scene", default="window_room")
+    ap.add_argument("--size", type=int, default=0, help="image width (height 3/4 of it; 0: the bench's)")
     ap.add_argument("--variants", nargs="*", default=["default=", "learnt=guiding_learn_probability:1"])
     ap.add_argument("--save", help="an .npz the images and times go to after every seed (partial runs)")
     ap.add_argument("--load", nargs="+", help="summarise runs saved with --save instead of rendering: the "
@@ -76,6 +77,8 @@ def main():
         report(imgs, times, f"{' + '.join(args.load)}: {len(imgs['plain'])} seeds x {args.spp} spp")
         return
     build = getattr(rs, args.scene)
+    if args.size:
+        build = (lambda b, w: lambda: b(w, w * 3 // 4))(build, args.size)
     addon = load_addon()
     override_render_settings(addon, OVERRIDES, cast=True)
 
