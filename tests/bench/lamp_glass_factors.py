@@ -81,13 +81,11 @@ def run(st, instrument=False):
         pass
     if instrument:
         subprocess.run(["callgrind_control", "-i", "off", str(os.getpid())], capture_output=True)
-        out = subprocess.run(["callgrind_control", "-s", str(os.getpid())], capture_output=True, text=True).stdout
-        subprocess.run(["callgrind_control", "-d", str(os.getpid())], capture_output=True)
-        return sess, out
-    return sess, None
+        subprocess.run(["callgrind_control", "-d", str(os.getpid())], capture_output=True)  # one file per render
+    return sess
 
 
-auto_sess, _ = run(settings(1, 1, 0.0, auto=True))
+auto_sess = run(settings(1, 1, 0.0, auto=True))
 print(f"{a.scene} {w}x{h}: automatic: {auto_sess.stats()['caustics']}")
 
 if a.callgrind:
@@ -104,7 +102,7 @@ for p in [0.0] + a.paths:
     imgs, cpu = [], 0.0
     for seed in range(1, a.seeds + 1):
         t = time.process_time()
-        sess, _ = run(settings(a.spp, seed, p))
+        sess = run(settings(a.spp, seed, p))
         cpu += time.process_time() - t
         imgs.append(np.asarray(sess.film())[..., :3].astype(np.float64))
     runs[p] = (np.array(imgs), cpu / (a.seeds * a.spp), sess.stats()["caustics"])
@@ -115,7 +113,7 @@ if a.save:
 # The reference: separate seeds (so its noise is independent of every run's), with light paths
 # (the plain path tracer's mean is a few rare fireflies of the sun through the glass: its
 # typical render lacks them, and one seed's firefly moves the mean by several %).
-refs = [np.asarray(run(settings(int(a.ref[1]), 1001 + s, a.ref[0]))[0].film())[..., :3].astype(np.float64)
+refs = [np.asarray(run(settings(int(a.ref[1]), 1001 + s, a.ref[0])).film())[..., :3].astype(np.float64)
         for s in range(a.seeds)]
 ref = np.mean(refs, axis=0)
 norm = ref ** 2 + 1e-2
