@@ -149,9 +149,11 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
     )
     caustic_light_paths_auto: BoolProperty(
         name="Automatic",
-        description="Caustic light paths (0.1 per pixel sample) only where they pay: an environment "
-                    "whose bright peak (a sun) holds most of its light, and smooth surfaces; else "
-                    "none, silently. Caustic Light Paths, when on, overrides it",
+        description="Caustic light paths only where they pay: 0.1 per pixel sample under an "
+                    "environment whose bright peak (a sun) holds most of its light, with smooth "
+                    "surfaces; 0.25 where lamps with extent (a sun with an angle, a lamp with a "
+                    "radius, an area lamp) send most of the light and smooth glass or mirrors "
+                    "catch it; else none, silently. Caustic Light Paths, when on, overrides it",
         default=True,
     )
     use_caustic_light_paths: BoolProperty(

@@ -286,7 +286,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
                              std::vector<CausticSplat>& out);
 // The caster sphere: bounds of the smooth surfaces that `probes` deterministic rays (from
 // points in the scene's bounds, in all directions) meet first; false where they met none.
-bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius);
+// delta (if given): whether one of them is smooth glass or a mirror (a delta closure).
+bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius, bool* delta = nullptr);
 // Whether lamp l may send caustic light paths (CausticLamp): any kind, casting shadows, visible
 // to every surface ray (a light path cannot follow a lamp that some closures do not see or that
 // shines through blockers), and a sun without a node tree. One with extent also needs rays to

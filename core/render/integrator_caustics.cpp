@@ -26,8 +26,9 @@ TraceFn caustic_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
   return &trace_path_t<kKernelAll | kKernelCaustics>;
 }
 
-bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius) {
+bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius, bool* delta) {
   const Aabb& b = scene.world_bounds();
+  if (delta) *delta = false;
   if (b.empty()) return false;
   std::vector<Vec3> found;
   ClosureList cl;
@@ -48,8 +49,10 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
     scene.surface_point(hit, sp, 0.0f, &ray);
     scene.shade(sp, hit.b1, hit.b2, -ray.dir, cl, rs);
     // (smooth glass and mirrors too: their chains are the light paths' since issue 25's delta vertices)
-    if (caustic_vertex(sp, cl) && !guidable(cl) && (cl.has_nondelta || caustic_delta_closure(cl) >= 0) && is_finite(sp.p))
+    if (caustic_vertex(sp, cl) && !guidable(cl) && (cl.has_nondelta || caustic_delta_closure(cl) >= 0) && is_finite(sp.p)) {
       found.push_back(sp.p);
+      if (delta && caustic_delta_closure(cl) >= 0) *delta = true;
+    }
   }
   if (found.empty()) return false;
   Aabb box;

@@ -587,6 +587,13 @@ namespace {
 constexpr float kAutoCausticPaths = 0.1f;
 constexpr float kAutoPeakFactor = 10.0f;
 constexpr float kAutoPeakShare = 0.4f;
+// Where the environment's rule does not turn them on: this many per pixel sample where lamps with
+// extent (a sun with an angle, points and spots with a radius, area lamps) send at least
+// kAutoLampShare of the light paths' power and the probes find smooth glass or mirrors, whose
+// caustics the path tracer makes only by BSDF rays that pass the glass and find the lamp
+// ("Glass and mirrors under a sun lamp: the automatic rule").
+constexpr float kAutoLampPaths = 0.25f;
+constexpr float kAutoLampShare = 0.5f;
 }  // namespace
 
 // Caustic light tracing (CausticLight): on where asked for and where it can be combined exactly
@@ -625,24 +632,40 @@ void Session::setup_caustics(bool guiding) {
     off("only an environment map or a lamp (found by rays where it has extent) sends caustic light paths");
   else if (k_max < 2 || settings_.diffuse_bounces < 1 || settings_.glossy_bounces < 1)
     off("the bounce limits leave no caustic paths");
-  std::string peak_note;
+  std::string peak_note, env_off;
+  bool lamp_rule = false;  // automatic, decided by the lamps' share below
   if (automatic && caustics_note_.empty()) {
     // Where they paid by the realistic scenes' measurements (docs/design/sampling.md, "Automatic
     // caustic light paths"): an environment map with a sun, whose bright directions hold most of
-    // its power. Lamps alone, or a dim peak, stay off.
+    // its power; else lamps with extent over smooth glass or mirrors (below). A dim peak, or
+    // lamps without extent or glass, stay off.
     const float share = environment_peak_share(scene_->environment(), kAutoPeakFactor);
     char why[160];
     std::snprintf(why, sizeof why, "the environment's peak holds %.0f %% of its power (%s %.0f %%)", 100.0 * share,
                   share >= kAutoPeakShare ? "at least" : "under", 100.0 * kAutoPeakShare);
-    if (!env) off("no environment map");
-    else if (!(share >= kAutoPeakShare)) off(why);
-    else peak_note = why;
+    if (env && share >= kAutoPeakShare) {
+      peak_note = why;
+    } else {
+      env_off = env ? why : "no environment map";
+      bool extent = false;
+      for (const uint32_t i : lamps) extent = extent || light_has_extent(scene_->light(i));
+      if (extent) lamp_rule = true;
+      else if (lamps.empty()) off(env_off);  // (as before the lamps' rule: no probes)
+      // A delta lamp's light paths stop at glass and mirrors: no strategy of the path tracer
+      // makes those caustics (docs/design/sampling.md "Caustics from lamps").
+      else off(env_off + "; no lamp with extent (a sun with an angle, a radius, an area lamp)");
+    }
   }
   if (!caustics_note_.empty()) return;
   Vec3 c;
   float r;
-  if (!caustic_casters(*scene_, 32768, c, r)) {
+  bool delta = false;
+  if (!caustic_casters(*scene_, 32768, c, r, &delta)) {
     off("no smooth surface to cast caustics");
+    return;
+  }
+  if (lamp_rule && !delta) {
+    off(env_off + "; no smooth glass or mirror for the lamps' rule");
     return;
   }
   auto cz = std::make_unique<CausticLight>();
@@ -705,6 +728,23 @@ void Session::setup_caustics(bool guiding) {
   }
   cz->env_pmf = cz->sources.pmf(0);
   for (size_t j = 0; j < cz->lamps.size(); ++j) cz->lamps[j].pmf = cz->sources.pmf(j + 1);
+  if (lamp_rule) {
+    // Lamps with extent by their pmf: delta lamps' paths stop at glass and mirrors (no strategy
+    // of the path tracer makes those), and the environment's are the environment rule's.
+    float share = 0.0f;
+    for (const CausticLamp& m : cz->lamps)
+      if (m.extent) share += m.pmf;
+    char why[200];
+    std::snprintf(why, sizeof why,
+                  "lamps with extent send %.0f %% of the light paths' power (%s %.0f %%), over smooth glass or mirrors",
+                  100.0 * share, share >= kAutoLampShare ? "at least" : "under", 100.0 * kAutoLampShare);
+    if (!(share >= kAutoLampShare)) {
+      off(env_off + "; " + why);
+      return;
+    }
+    lt = kAutoLampPaths;
+    peak_note = why;
+  }
   caustic_paths_ = uint64_t(std::max<double>(1.0, std::llround(double(std::min(lt, 64.0f)) * film_.width() * film_.height())));
   cz->paths = float(caustic_paths_);
   const Aabb& wb = scene_->world_bounds();

@@ -62,3 +62,37 @@ def test_point_lamp_caustics_agree_with_cycles():
     ours = render_to_array(metal_ball_under_a_bulb(), "PATHLIGHT", samples=1024, max_bounces=8, **LIGHT_PATHS)
     cycles = render_to_array(metal_ball_under_a_bulb(), "CYCLES", samples=8192, max_bounces=8, **BOX_FILTER)
     assert_agree(ours, cycles, "metal ball under a point lamp of radius 0.1, light paths 0.5")
+
+
+def automatic_state(angle=None, glass=True):
+    """The core session's caustics state with the add-on's default (Automatic) for a glass ball
+    (Glass BSDF, roughness 0) on a floor under a Sun lamp of Blender's default angle (or
+    `angle` radians) and a dim world colour; glass=False: a rough metal ball instead."""
+    import material_scenes as ms
+    scene = metal_ball_under_a_bulb()
+    bpy.data.objects.remove(bpy.data.objects["Bulb"])
+    if glass:
+        ball = bpy.data.objects["Ball"]
+        ball.data.materials.clear()
+        ball.data.materials.append(ms.bsdf_material("Glass", "ShaderNodeBsdfGlass", Roughness=0.0, IOR=1.45)[0])
+    sun = add_light("SUN", name="Sun", rotation=(0.9, 0.0, 2.6), energy=4.0)
+    assert sun.data.angle > 0.009  # Blender's default: 0.526 degrees
+    if angle is not None:
+        sun.data.angle = angle
+    scene.render.engine = "PATHLIGHT"
+    assert scene.pathlight.caustic_light_paths_auto and not scene.pathlight.use_caustic_light_paths
+    pc = get_core()
+    core_scene = to_core(pc, export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None))
+    core_scene.commit()
+    return pc.Session(core_scene, session.render_settings(pc, scene)).stats()["caustics"]
+
+
+@needs_core
+def test_automatic_turns_light_paths_on_for_a_sun_lamp_over_glass():
+    """The add-on's default in a Blender scene: a Sun lamp as Blender makes it (angle 0.526
+    degrees) over a glass ball gets caustic light paths by the lamps' rule (docs/design/
+    sampling.md "Glass and mirrors under a sun lamp: the automatic rule"); a sun of angle 0 or a
+    rough metal ball instead of the glass does not, and the stats say why."""
+    assert automatic_state().startswith("on (automatic): lamps with extent send 100 %")
+    assert automatic_state(angle=0.0).startswith("off (automatic): no environment map; no lamp with extent")
+    assert automatic_state(glass=False).startswith("off (automatic): no environment map; no smooth glass")

@@ -4,6 +4,8 @@ vertices in the light path's smooth chain, with MIS weights that still sum to 1 
 tracer's BSDF rays through the same chain. The image agrees with the plain path tracer's within
 its noise, with far less of it; few or many light paths give the same image (the densities agree);
 deterministic; a delta lamp next to glass stays the path tracer's alone."""
+import re
+
 import numpy as np
 import pytest
 
@@ -14,22 +16,30 @@ from test_caustic_light_paths import renders, sun_env
 pc = core()
 
 
-def glass_scene(light="env", delta=False, angle=4.0, radius=0.1):
+def glass_scene(light="env", delta=False, angle=4.0, radius=0.1, world=None, glossy=False):
     """A diffuse floor, a smooth glass sphere (Glass BSDF, roughness 0, IOR 1.45) and a tilted
     perfect mirror panel (Glossy, roughness 0) beside it, under sun_env ("env"), a sun lamp of
     `angle` degrees ("sun") or a point lamp of `radius` ("point") behind them, so that the
     sphere's focused caustic and the mirror's reflected patch fall on the floor in view.
-    delta: the lamp without extent (angle or radius 0)."""
+    delta: the lamp without extent (angle or radius 0). world: an environment map beside the
+    lamp (else a dim colour). glossy: the sphere and the panel smooth Glossy (roughness 0.1)
+    instead of glass and a mirror."""
     s = pc.Scene()
     floor = s.add_material("floor", (0.7, 0.7, 0.7))
     add_object(s, *quad((-3, -3, 0), (6, 0, 0), (0, 6, 0)), floor)
-    glass = s.add_shader("glass", closure("glass", color=(0.98, 0.98, 0.98), roughness=0.0, ior=1.45))
-    mirror = s.add_shader("mirror", closure("glossy", color=(0.95, 0.95, 0.95), roughness=0.0))
+    if glossy:
+        glass = s.add_shader("glass", closure("glossy", color=(0.9, 0.9, 0.9), roughness=0.1))
+        mirror = s.add_shader("mirror", closure("glossy", color=(0.95, 0.95, 0.95), roughness=0.1))
+    else:
+        glass = s.add_shader("glass", closure("glass", color=(0.98, 0.98, 0.98), roughness=0.0, ior=1.45))
+        mirror = s.add_shader("mirror", closure("glossy", color=(0.95, 0.95, 0.95), roughness=0.0))
     pos, tris, nrm = uv_sphere(0.4, center=(0.0, 0.3, 0.45))
     add_object(s, pos, tris, glass, nrm)
     add_object(s, *quad((0.5, -0.6, 0.0), (0.6, 0.0, 0.0), (0.0, -0.15, 0.6)), mirror)
     if light == "env":
         s.set_world_texture(sun_env())
+    elif world is not None:
+        s.set_world_texture(world)
     else:
         s.set_world_color((0.03, 0.03, 0.04))
     if light == "sun":
@@ -159,3 +169,57 @@ def test_glass_alone_casts_caustics():
     assert st["caustics"] == "on"
     _, st = render(pc, s, 16, 12, samples=1, caustic_light_paths_auto=True)
     assert st["caustics"].startswith("on (automatic)")
+
+
+def lamp_share(state):
+    """The lamps' share of the light paths' power (percent) that an automatic decision names."""
+    m = re.search(r"lamps with extent send (\d+) %", state)
+    return int(m.group(1)) if m else None
+
+
+def sky_map(mean):
+    """An environment map without a peak: a gradient from 0.5 to 1.5 x `mean` down its rows (a
+    constant one is a colour, not a map)."""
+    rows = np.linspace(1.5, 0.5, 32, dtype=np.float32) * mean
+    return np.repeat(rows[:, None, None], 64, 1).repeat(3, 2).astype(np.float32)
+
+
+@pytest.mark.sanitize  # quick: tiny renders
+def test_automatic_for_lamps_with_extent_over_glass_and_mirrors():
+    """The automatic mode's lamp rule (session.cpp, kAutoLamp*; docs/design/sampling.md "Glass and
+    mirrors under a sun lamp: the automatic rule"): where the environment's rule does not turn them
+    on, 0.25 light paths per sample where lamps with extent send at least half of the light paths'
+    power and the probes find smooth glass or a mirror; else off, silently, the plain image."""
+    kw = dict(samples=3, seed=4)
+    # On: a sun lamp of 4 degrees or a point of radius 0.1 over glass and a mirror (no map); a
+    # map without a peak (its rule says off) beside the sun, which sends most of the power.
+    dim = sky_map(0.1)  # 4 pi 0.1 against the sun's 3: ~30 % of the power
+    for scene, share in ((glass_scene("sun"), 100), (glass_scene("point"), 100), (glass_scene("sun", world=dim), 60)):
+        a, st = render(pc, scene, 24, 16, caustic_light_paths_auto=True, **kw)
+        assert st["caustics"].startswith("on (automatic): lamps with extent send"), st["caustics"]
+        assert "+caustics" in st["kernel"] and lamp_share(st["caustics"]) >= share, st["caustics"]
+        b, _ = render(pc, scene, 24, 16, caustic_light_paths=0.25, **kw)  # the lamps' rule is 0.25 per sample
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+    # The environment's rule decides first: a map whose sun holds most of its power beside the
+    # sun lamp is on at its 0.1, by its own reason.
+    sunny = glass_scene("sun", world=sun_env(peak=2000.0))
+    a, st = render(pc, sunny, 24, 16, caustic_light_paths_auto=True, **kw)
+    assert st["caustics"].startswith("on (automatic): the environment's peak"), st["caustics"]
+    b, _ = render(pc, sunny, 24, 16, caustic_light_paths=0.1, **kw)
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+    # Off: a delta sun or point (its caustics through glass no strategy of the path tracer makes);
+    # glossy casters without glass or a mirror; a bright map without a peak that holds most of
+    # the light paths' power (its rule says off, and the sun lamp's share is under half).
+    bright = sky_map(0.5)  # 4 pi 0.5 against the sun's 3: ~68 %
+    cases = ((glass_scene("sun", delta=True), "no lamp with extent"),
+             (glass_scene("point", delta=True), "no lamp with extent"),
+             (glass_scene("sun", glossy=True), "no smooth glass or mirror"),
+             (glass_scene("sun", world=bright), "(under 50 %)"))
+    for scene, why in cases:
+        p, _ = render(pc, scene, 24, 16, **kw)
+        q, st_q = render(pc, scene, 24, 16, caustic_light_paths_auto=True, **kw)
+        assert st_q["caustics"].startswith("off (automatic): ") and why in st_q["caustics"], st_q["caustics"]
+        assert np.array_equal(np.asarray(p), np.asarray(q))
+    # Explicit light paths still run where the rule says off (the glossy casters).
+    _, st = render(pc, glass_scene("sun", glossy=True), 24, 16, caustic_light_paths=0.25, **kw)
+    assert st["caustics"] == "on"
