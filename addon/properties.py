@@ -162,8 +162,9 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "(mirror-like) surfaces and smooth glass onto rough ones and combine them with "
                     "the camera's paths by multiple importance sampling: far less noise in "
                     "caustics of a bright HDRI (e.g. the sun reflected by chrome onto a floor). "
-                    "Any pixel filter; still perspective camera (depth of field included) or "
-                    "orthographic with depth of field, no volumes; Combined pass only",
+                    "Any pixel filter; perspective camera (depth of field included), orthographic "
+                    "with depth of field, panoramic without it, motion blur too; no volumes; "
+                    "Combined pass only",
         default=False,
     )
     caustic_light_paths: FloatProperty(

@@ -3013,7 +3013,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("u"), "The shutter time (0..1) a camera ray gets for the uniform number u (for tests).")
       .def(
           "generate_ray",
-          [](const CameraDesc& c, int width, int height, float x, float y, py::object lens) {
+          [](const CameraDesc& c, int width, int height, float x, float y, py::object lens, py::object time) {
             if (width < 1 || height < 1 || width > 65536 || height > 65536)
               throw std::invalid_argument("resolution must be in [1, 65536]");
             Vec2 u{0.5f, 0.5f};
@@ -3025,34 +3025,52 @@ PYBIND11_MODULE(pathlight_core, m) {
                 throw std::invalid_argument("lens sample must be in [0, 1]^2");
             }
             const Camera cam(c, width, height);
-            const Ray r = pinhole ? cam.generate_pinhole(x, y) : cam.generate(x, y, u);
+            Ray r;
+            if (!time.is_none()) {
+              const float t = time.cast<float>();
+              if (!(t >= 0.0f && t <= 1.0f)) throw std::invalid_argument("time must be in [0, 1]");
+              r = cam.generate(x, y, u, t);
+            } else {
+              r = pinhole ? cam.generate_pinhole(x, y) : cam.generate(x, y, u);
+            }
             return py::make_tuple(py::make_tuple(r.org.x, r.org.y, r.org.z), py::make_tuple(r.dir.x, r.dir.y, r.dir.z),
                                   r.tmax);
           },
           py::arg("width"), py::arg("height"), py::arg("x"), py::arg("y"), py::arg("lens") = py::none(),
+          py::arg("time") = py::none(),
           "The camera ray through raster (x, y) of a width x height frame: (origin, direction, tmax). "
           "lens: a point of the unit square on the aperture, or None for the lens centre. tmax 0: no "
-          "ray (outside a panorama's lens).")
+          "ray (outside a panorama's lens). time: the shutter time (0..1) of a moving camera "
+          "(motion), or None for the still frame.")
       .def(
           "lens_view",
-          [](const CameraDesc& c, int width, int height, const py::handle& point, std::pair<float, float> lens) -> py::object {
+          [](const CameraDesc& c, int width, int height, const py::handle& point, std::pair<float, float> lens,
+             py::object time) -> py::object {
             if (width < 1 || height < 1 || width > 65536 || height > 65536)
               throw std::invalid_argument("resolution must be in [1, 65536]");
             if (!(lens.first >= 0.0f && lens.first <= 1.0f && lens.second >= 0.0f && lens.second <= 1.0f))
               throw std::invalid_argument("lens sample must be in [0, 1]^2");
             const Camera cam(c, width, height);
+            Camera::Frame f = cam.still_frame();
+            if (!time.is_none()) {
+              const float t = time.cast<float>();
+              if (!(t >= 0.0f && t <= 1.0f)) throw std::invalid_argument("time must be in [0, 1]");
+              f = cam.frame_at(t);
+            }
             Vec3 eye;
             float rx, ry, dist, pdf;
-            if (!cam.lens_view(to_point(point, "point"), {lens.first, lens.second}, eye, rx, ry, dist, pdf))
+            if (!cam.lens_view(f, to_point(point, "point"), {lens.first, lens.second}, eye, rx, ry, dist, pdf))
               return py::none();
             return py::make_tuple(rx, ry, dist, pdf, py::make_tuple(eye.x, eye.y, eye.z));
           },
-          py::arg("width"), py::arg("height"), py::arg("point"), py::arg("lens"),
-          "A thin-lens camera's view of a world point through the aperture point that the unit-square "
+          py::arg("width"), py::arg("height"), py::arg("point"), py::arg("lens") = std::make_pair(0.5f, 0.5f),
+          py::arg("time") = py::none(),
+          "A camera's view of a world point through the aperture point that the unit-square "
           "sample lens picks (what caustic light paths connect to): (raster x, raster y, distance from "
           "the lens point, pixel density (per unit solid angle; orthographic: distance^2 / (pixel area x "
           "cos)), the lens point), or None outside the "
-          "clipping range (for tests).");
+          "clipping range or a panorama's image (for tests). A pinhole panorama: its inverse map and "
+          "its pixel density per unit solid angle. time: the camera's frame at that shutter time.");
 
   // Path guiding's learnt field on its own, for tests of its sampling against its pdf.
   py::class_<GuidingField>(m, "GuidingField")

@@ -66,6 +66,9 @@ struct CausticLight {
   const Camera* camera = nullptr;
   bool nee = true;         // the path tracer samples the environment at the last smooth vertex
   bool differentials = false;  // camera rays carry ray differentials (IntegratorSettings::differentials)
+  // Motion blur: each light path draws a shutter time as the camera rays do (the camera's
+  // shutter curve), traces the scene then and connects to the camera's frame then.
+  bool motion = false;
   // Path guiding (a guided kernel): the camera path draws the direction at the rough vertex
   // from the mixture of the BSDF and the guide, so the light path's weight takes that mixture's
   // pdf there, from the field as the same pass's camera paths sample it (light paths are traced
@@ -183,6 +186,9 @@ struct PathCounters {
   // In, not counted: 1 / the pixel filter's density at this camera sample (its offset from
   // the pixel's centre), for the caustic MIS (CausticLight); the box's is its area.
   float filter_area = 1.0f;
+  // In: whether the light tracer splats at this camera sample's raster position (false: a
+  // panorama's sample that its inverse map puts elsewhere, the path tracer's alone).
+  bool caustic_raster = true;
 };
 
 // What a camera path saw, for render passes (AOVs). trace_path fills it only when the caller
@@ -286,8 +292,10 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
                              std::vector<CausticSplat>& out);
 // The caster sphere: bounds of the smooth surfaces that `probes` deterministic rays (from
 // points in the scene's bounds, in all directions) meet first; false where they met none.
-// delta (if given): whether one of them is smooth glass or a mirror (a delta closure).
-bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius, bool* delta = nullptr);
+// motion: probe times spread over the shutter (the casters wherever they move). delta (if
+// given): whether one of them is smooth glass or a mirror (a delta closure).
+bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius, bool motion = false,
+                     bool* delta = nullptr);
 // Whether lamp l may send caustic light paths (CausticLamp): any kind, casting shadows, visible
 // to every surface ray (a light path cannot follow a lamp that some closures do not see or that
 // shines through blockers), and a sun without a node tree. One with extent also needs rays to

@@ -26,7 +26,7 @@ TraceFn caustic_kernel(uint32_t needed, bool force_general, uint32_t& chosen) {
   return &trace_path_t<kKernelAll | kKernelCaustics>;
 }
 
-bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius, bool* delta) {
+bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius, bool motion, bool* delta) {
   const Aabb& b = scene.world_bounds();
   if (delta) *delta = false;
   if (b.empty()) return false;
@@ -43,10 +43,13 @@ bool caustic_casters(const Scene& scene, int probes, Vec3& center, float& radius
     ray.org = b.lo + b.extent() * u;
     ray.dir = {r * std::cos(phi), r * std::sin(phi), z};
     ray.tmax = kInf;
+    // Motion blur: times spread over the shutter, so the sphere holds the casters wherever they
+    // move (a light path finds them at its own time). Still scenes keep their probes as before.
+    if (motion) ray.time = (float(i) + 0.5f) / float(probes);
     Hit hit;
     if (!scene.intersect(ray, hit)) continue;
     SurfacePoint sp;
-    scene.surface_point(hit, sp, 0.0f, &ray);
+    scene.surface_point(hit, sp, motion ? ray.time : 0.0f, &ray);
     scene.shade(sp, hit.b1, hit.b2, -ray.dir, cl, rs);
     // (smooth glass and mirrors too: their chains are the light paths' since issue 25's delta vertices)
     if (caustic_vertex(sp, cl) && !guidable(cl) && (cl.has_nondelta || caustic_delta_closure(cl) >= 0) && is_finite(sp.p)) {
@@ -120,6 +123,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
   const bool tree = scene.light_tree_active();  // (its choice reads the shading normal)
   const Camera& cam = *cz.camera;
   const bool lens = cam.has_aperture();
+  Camera::Frame frame = cam.still_frame();
   const float disk = kPi * cz.radius * cz.radius;
   const float half = 0.5f * std::sqrt(cz.filter_area);  // the box filter's half width
   uint64_t rays = 0;
@@ -128,6 +132,14 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
   rs.flags = uint8_t(kRayReflect | kRayGlossy);
   for (uint64_t i = first; i < last; ++i) {
     Pcg32 rng(seed, i);
+    // Motion blur: a shutter time as the camera rays draw theirs (the same density on both
+    // sides, so it cancels in the MIS); the scene and the camera at that time. (Still scenes
+    // draw nothing: their streams stay as they were.)
+    float time = 0.0f;
+    if (cz.motion) {
+      time = cam.shutter().sample(rng.next_float());
+      frame = cam.frame_at(time);
+    }
     // The emitter (the environment alone draws nothing: its streams stay as they were).
     const CausticLamp* lamp = nullptr;
     if (cz.sources.size() > 1) {
@@ -143,6 +155,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
     Vec3 area_start(0.0f);
     Ray ray;
     ray.tmax = kInf;
+    if (cz.motion) ray.time = time;
     // A light path from direction wl (the environment's, a sun's): from a point of the caster
     // sphere's disk across wl, outside the scene.
     const auto start_on_disk = [&](Vec2 u) {
@@ -231,7 +244,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       ++rays;
       if (!scene.intersect(ray, hit)) break;
       SurfacePoint sp;
-      scene.surface_point(hit, sp, 0.0f, &ray);
+      scene.surface_point(hit, sp, time, &ray);
       Vec3 wo_l = -ray.dir;  // towards the light
       const ClosureList* cs = &cl;  // the closures this vertex samples from
       if (k == 0) {
@@ -258,6 +271,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           sh.org = offset_ray_origin(sp.p, sp.p_error, dot(sp.ng, ls.wi) > 0.0f ? sp.ng : -sp.ng);
           sh.dir = ls.target - sh.org;
           sh.tmax = 1.0f - 1e-4f;
+          sh.time = ray.time;
           ++rays;
           const Vec3 vis = l.cast_shadow ? scene.transmittance(sh, rs.shadow_hits()) : Vec3(1.0f);
           if (is_black(vis)) break;
@@ -302,21 +316,20 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         // lens point alike. An orthographic camera's ppdf / dist^2 is its pixel density per
         // unit area across its parallel rays (Camera::lens_view), so the formulas below hold
         // for it too. (A pinhole draws nothing: its streams stay as they were.)
-        Vec3 eye = cam.origin();
-        bool seen;
-        if (lens) {
-          const Vec2 ua{rng.next_float(), rng.next_float()};
-          seen = cam.lens_view(sp.p, ua, eye, rx, ry, dist, ppdf);
-        } else {
-          seen = cam.pinhole_view(sp.p, rx, ry, dist, ppdf);
-        }
+        // A panorama (pinhole): the raster position of the direction by its inverse map and
+        // its pixel density per unit solid angle there (Camera::pano_view). Motion blur: the
+        // camera's frame at the path's time.
+        Vec3 eye = frame.origin;
+        Vec2 ua{0.5f, 0.5f};
+        if (lens) ua = {rng.next_float(), rng.next_float()};
+        const bool seen = cam.lens_view(frame, sp.p, ua, eye, rx, ry, dist, ppdf);
         const Vec3 wc = seen ? (eye - sp.p) / dist : wo_l;
         if (seen) {
           // Shaded as the camera ray that found it (its state and footprint).
           RayState rc;
           rc.camera = &cam;
           if (cz.differentials) cam.differentials(-wc, rc.dp, rc.dd);
-          rc.length = dist * (1.0f - cam.clip_start() / cam.view_depth(sp.p));
+          rc.length = dist * (1.0f - cam.near_fraction(frame, sp.p, eye));
           scene.shade(sp, hit.b1, hit.b2, wc, cl, rc);
         } else {
           scene.shade(sp, hit.b1, hit.b2, wc, cl, rs);
@@ -343,9 +356,10 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           }
           Ray sh;
           sh.org = offset_ray_origin(sp.p, sp.p_error, cos_c > 0.0f ? sp.ng : -sp.ng);
-          const Vec3 near = eye + (sp.p - eye) * (cam.clip_start() / cam.view_depth(sp.p));
+          const Vec3 near = eye + (sp.p - eye) * cam.near_fraction(frame, sp.p, eye);
           sh.dir = near - sh.org;
           sh.tmax = 1.0f - 1e-4f;
+          sh.time = ray.time;
           ++rays;
           if (scene.occluded(sh)) break;
           // The power heuristic's weight of the light path, rho = n Pc / Pa (Pb / Pa = eb).

@@ -528,6 +528,9 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         const Ray ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))
                                 : camera_.generate(rx, ry, lens);
         sampler.align_set();
+        // A panorama's sample whose direction the light tracer maps elsewhere (a filter's tail
+        // past an equirectangular seam or pole) gets no light-path weight.
+        if (caustics_ && camera_.is_panoramic()) counters.caustic_raster = camera_.pano_raster_is_canonical(rx, ry);
         if (!(ray.tmax > 0.0f)) {  // outside a panorama's lens: black, as Cycles
           out = {0.0f, 0.0f, 0.0f, 1.0f};
           if (aux) write_aux(PathAovs{}, aux);
@@ -620,10 +623,12 @@ void Session::setup_caustics(bool guiding) {
   else if (guiding && settings_.guiding_class_mask != 0) off("not with path classes (a measurement of guiding)");
   else if (film_.has_pass(Pass::ShadowCatcherMatte)) off("not combined with shadow catchers");
   // A thin lens connects through a point on its aperture (integrator_caustics.cpp), the
-  // orthographic one's too. An orthographic pinhole's rays are parallel: a light path meets one
-  // with probability 0. Panoramas and a moving camera would need their own connections.
-  else if (camera_.is_panoramic() || motion_)
-    off("only for a still perspective or orthographic camera (not panoramic, no motion blur)");
+  // orthographic one's too; a pinhole panorama through its inverse map, a moving camera or
+  // scene at the light path's own shutter time. An orthographic pinhole's rays are parallel: a
+  // light path meets one with probability 0. A panorama's lens (a disk turned with each ray, a
+  // spherical focal surface) has no inverse here.
+  else if (camera_.is_panoramic() && camera_.has_aperture())
+    off("not with a panoramic camera's depth of field");
   else if (camera_.orthographic() && !camera_.has_aperture())
     off("not with an orthographic camera without depth of field (light paths cannot meet its parallel rays)");
   else if (sf.media || sf.path_state || sf.light_links)
@@ -660,7 +665,7 @@ void Session::setup_caustics(bool guiding) {
   Vec3 c;
   float r;
   bool delta = false;
-  if (!caustic_casters(*scene_, 32768, c, r, &delta)) {
+  if (!caustic_casters(*scene_, 32768, c, r, scene_->has_motion(), &delta)) {
     off("no smooth surface to cast caustics");
     return;
   }
@@ -755,6 +760,7 @@ void Session::setup_caustics(bool guiding) {
   cz->camera = &camera_;
   cz->nee = nee;
   cz->differentials = integrator_.differentials;
+  cz->motion = motion_;
   caustics_ = std::move(cz);
   integrator_.caustics = caustics_.get();
   caustics_note_ = automatic ? "on (automatic): " + peak_note : "on";

@@ -646,7 +646,7 @@ inline float caustic_lamp_pdf(const Scene& scene, const CausticLight& cz, uint32
 // (both sides; a light path that meets x at a grazing angle from the centre then weighs
 // little). 0 where the centre is hidden; 1 for any other lamp.
 inline float caustic_lamp_centre(const Scene& scene, const CausticLight& cz, uint32_t light, Vec3 org, Vec3 ng,
-                                 Vec3 wi) {
+                                 Vec3 wi, float time) {
   const CausticLamp& m = cz.lamps[size_t(cz.lamp_of[light])];
   const Light& l = scene.light(light);
   if (!m.extent || l.type == LightType::Sun || is_area_light(l)) return 1.0f;
@@ -657,6 +657,7 @@ inline float caustic_lamp_centre(const Scene& scene, const CausticLight& cz, uin
   r.org = org;
   r.dir = dc;
   r.tmax = 1.0f - 1e-4f;
+  r.time = time;  // (motion blur: the path's shutter time)
   return scene.occluded(r) ? 0.0f : cos_c / cos_s;
 }
 // light_hits' third strategy (kKernelCaustics): a lamp's light path, for a BSDF ray that left the
@@ -703,7 +704,7 @@ template <bool kLinks = false, class Through>
     if (caus && caus->delta) {
       // After glass or a mirror in a caustic chain: the BSDF ray against the light path alone.
       float ps = caustic_lamp_pdf(scene, *caus->cz, h.index, from, ray.org + d * t, pdf);
-      if (ps > 0.0f) ps *= caustic_lamp_centre(scene, *caus->cz, h.index, ray.org, caus->ng, d);
+      if (ps > 0.0f) ps *= caustic_lamp_centre(scene, *caus->cz, h.index, ray.org, caus->ng, d, ray.time);
       if (ps > 0.0f) w = caustic_mis_weight(0.0f, caus->ratio * ps);
     } else if (weigh) {
       const float pl = scene.light_choice_pmf(from, from_n, h.index, kLinks ? set : 0) * pdf;
@@ -712,7 +713,7 @@ template <bool kLinks = false, class Through>
         // A lamp with extent that sends caustic light paths: three strategies (the light
         // path's density times its start's, the lamp's own sample density pdf here).
         float ps = caustic_lamp_pdf(scene, *caus->cz, h.index, from, ray.org + d * t, pdf);
-        if (ps > 0.0f) ps *= caustic_lamp_centre(scene, *caus->cz, h.index, ray.org, caus->ng, d);
+        if (ps > 0.0f) ps *= caustic_lamp_centre(scene, *caus->cz, h.index, ray.org, caus->ng, d, ray.time);
         if (ps > 0.0f) w = caustic_mis_weight(pl / prev_pdf, caus->ratio * ps);
       }
     }
@@ -1613,18 +1614,21 @@ restart: __attribute__((unused));
       if (cz) {
         if (bounce == 0 && transparent == 0 && caustic_vertex(sp, cl) && guidable(cl)) {
           // The camera's first vertex, rough: the light tracer's connection vertex.
-          // (a thin lens: from the lens point this camera ray left, back from the near clip)
+          // (a thin lens: from the lens point this camera ray left, back from the near clip;
+          // motion blur: the camera's frame at the ray's shutter time, as the light path's)
           const Camera& cc = *cz->camera;
-          const Vec3 eye = cc.has_aperture() ? ray.org - ray.dir * (cc.clip_start() / dot(ray.dir, cc.forward()))
-                                             : cc.origin();
+          const Camera::Frame fr = cc.frame_at(ray.time);
+          const Vec3 eye = cc.has_aperture() ? ray.org - ray.dir * (cc.clip_start() / dot(ray.dir, -fr.back))
+                                             : fr.origin;
           const float d01 = length(sp.p - eye);
-          cz_k = 1;
+          // (a panorama's sample where no light path splats: a filter's tail past its seam)
+          cz_k = c.caustic_raster ? 1 : 0;
           // The camera's density is this sample's pixel filter density (the caller's
           // c.filter_area is its inverse) over the pixel's solid angle: the light tracer weighs
           // its splat into this pixel with the same (trace_caustic_paths). A thin lens's
           // lens point has the same density on both sides: it cancels. (An orthographic
           // camera's lens_pixel_pdf / d01^2 is its density per unit area across the ray.)
-          cz_ratio = cz->paths * d01 * d01 * c.filter_area / cc.lens_pixel_pdf(ray.dir, d01);
+          cz_ratio = cz->paths * d01 * d01 * c.filter_area / cc.lens_pixel_pdf(fr, ray.dir, d01);
           if (!std::isfinite(cz_ratio)) cz_k = 0;
         } else if (cz_k > 0 && cz_k < cz->max_vertices && caustic_vertex(sp, cl) && !guidable(cl)) {
           ++cz_k;  // a smooth vertex after it
@@ -1743,7 +1747,7 @@ restart: __attribute__((unused));
                 if (!full && ps > 0.0f) {
                   ab = bsdf_pdf / ds.pdf;
                   ++c.rays;
-                  ps *= caustic_lamp_centre(scene, *cz, ds.light, shadow.org, sp.ng, ds.wi);
+                  ps *= caustic_lamp_centre(scene, *cz, ds.light, shadow.org, sp.ng, ds.wi, shadow.time);
                 }
               }
               if (ps > 0.0f) {

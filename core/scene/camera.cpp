@@ -288,38 +288,47 @@ Vec2 Camera::sample_aperture(Vec2 u) const {
   return p;
 }
 
-bool Camera::pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const {
-  const Vec3 rel = p - origin_;
-  const float depth = -dot(rel, back_);
+bool Camera::pinhole_view(const Frame& f, Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const {
+  const Vec3 rel = p - f.origin;
+  const float depth = -dot(rel, f.back);
   if (!(depth > clip_start_) || !(depth < clip_start_ + clip_len_)) return false;
   dist = length(rel);
   const Vec3 dir = rel / dist;
-  rx = (dot(rel, right_) / depth - x0_) / dx_;
-  ry = (dot(rel, up_) / depth - y0_) / dy_;
-  pixel_pdf = pinhole_pixel_pdf(dir);
+  rx = (dot(rel, f.right) / depth - x0_) / dx_;
+  ry = (dot(rel, f.up) / depth - y0_) / dy_;
+  pixel_pdf = pinhole_pixel_pdf(f, dir);
   return std::isfinite(rx) && std::isfinite(ry) && pixel_pdf > 0.0f && std::isfinite(pixel_pdf);
 }
 
-bool Camera::lens_view(Vec3 p, Vec2 u, Vec3& eye, float& rx, float& ry, float& dist, float& pixel_pdf) const {
+bool Camera::lens_view(const Frame& f, Vec3 p, Vec2 u, Vec3& eye, float& rx, float& ry, float& dist,
+                       float& pixel_pdf) const {
+  if (type_ == CameraType::Panoramic) {
+    eye = f.origin;
+    return pano_view(f, p, rx, ry, dist, pixel_pdf);
+  }
+  if (aperture_ <= 0.0f) {
+    eye = f.origin;
+    return pinhole_view(f, p, rx, ry, dist, pixel_pdf);
+  }
   // Camera space: the lens point L = (lx, ly, 0) (an orthographic camera's at the pixel's
   // (px, py) plus that), p at depth z. generate_in's ray leaves L through F = (px, py, 1) focus_
   // (orthographic: (px, py, focus_)).
   const Vec2 a = sample_aperture(u);
   const float lx = a.x * aperture_, ly = a.y * aperture_;
-  const Vec3 rel0 = p - origin_;
-  const float z = -dot(rel0, back_);
+  const Vec3 rel0 = p - f.origin;
+  const float z = -dot(rel0, f.back);
   if (!(z > clip_start_) || !(z < clip_start_ + clip_len_)) return false;
-  const float x = dot(rel0, right_), y = dot(rel0, up_);
+  const float x = dot(rel0, f.right), y = dot(rel0, f.up);
   float px, py;
   if (type_ == CameraType::Orthographic) {
     // The ray's direction is (-lx, -ly, focus_) for every pixel: from p back to depth 0.
     const float t = z / focus_;
-    eye = origin_ + right_ * (x + lx * t) + up_ * (y + ly * t);
+    eye = f.origin + f.right * (x + lx * t) + f.up * (y + ly * t);
     px = x + lx * (t - 1.0f);
     py = y + ly * (t - 1.0f);
   } else {
     // The line from L through p crosses depth focus_ at L + (p - L) focus_ / z.
-    eye = origin_ + right_ * lx + up_ * ly;
+    eye = f.origin + f.right * lx + f.up * ly;
     const float inv_f = 1.0f / focus_;
     px = lx * inv_f + (x - lx) / z;
     py = ly * inv_f + (y - ly) / z;
@@ -328,8 +337,111 @@ bool Camera::lens_view(Vec3 p, Vec2 u, Vec3& eye, float& rx, float& ry, float& d
   ry = (py - y0_) / dy_;
   const Vec3 rel = p - eye;
   dist = length(rel);
-  pixel_pdf = lens_pixel_pdf(rel / dist, dist);
+  pixel_pdf = lens_pixel_pdf(f, rel / dist, dist);
   return std::isfinite(rx) && std::isfinite(ry) && pixel_pdf > 0.0f && std::isfinite(pixel_pdf);
+}
+
+Vec3 Camera::pano_from_world(const Frame& f, Vec3 w) const {
+  if (pano_ == PanoramaType::Mirrorball) return {dot(w, f.right), dot(w, f.back), dot(w, f.up)};
+  return {-dot(w, f.back), -dot(w, f.right), dot(w, f.up)};
+}
+
+float Camera::pano_jacobian(Vec3 d) const {
+  // d omega / d(u, v) of pano_direction's map, per type (u, v before the viewplane's scale).
+  switch (pano_) {
+    case PanoramaType::Equirectangular: {
+      // phi and theta linear in u and v: d omega = sin(theta) dtheta dphi.
+      const float st = std::sqrt(std::max(0.0f, 1.0f - d.z * d.z));
+      return std::fabs(range_[0] * range_[2]) * st;
+    }
+    case PanoramaType::EquiangularCubemapFace: {
+      // The plane x = 1 at (1, tan a, tan b), a and b linear in u and v (pi / 2 per unit):
+      // d omega = dA / r^3, dA = sec^2 a sec^2 b da db.
+      if (!(d.x > 0.0f)) return 0.0f;
+      const float ta = d.y / d.x, tb = d.z / d.x;
+      const float r2 = 1.0f + ta * ta + tb * tb;
+      return 0.25f * kPi * kPi * (1.0f + ta * ta) * (1.0f + tb * tb) / (r2 * std::sqrt(r2));
+    }
+    case PanoramaType::Mirrorball:
+      // A mirror ball seen along its axis: d omega = 4 dA of its disk, whose (x, z) are 2u - 1, 2v - 1.
+      return 16.0f;
+    case PanoramaType::FisheyeEquidistant: {
+      // theta = r fov / 2 over (u', v') = 2 (u, v) - 1: d omega = sin(theta) (fov / 2) / r dA'.
+      const float theta = safe_acos(d.x);
+      const float s = theta > 1e-4f ? std::sin(theta) / theta : 1.0f - theta * theta / 6.0f;
+      return fov_ * fov_ * s;
+    }
+    case PanoramaType::FisheyeEquisolid:
+      // r = 2 lens sin(theta / 2) is equal-area: d omega = dA' / lens^2, dA' = sensor w h du dv.
+      return sensor_w_ * sensor_h_ / (fisheye_lens_ * fisheye_lens_);
+    case PanoramaType::FisheyeLensPolynomial: {
+      // theta(r) = -(k0 + k1 r + ...): d omega = sin|theta| |theta'(r)| / r dA'.
+      const float theta = safe_acos(d.x);
+      const Vec2 uv = pano_uv(d);
+      const float u = (uv.x - 0.5f) * sensor_w_, v = (uv.y - 0.5f) * sensor_h_;
+      const float r = std::sqrt(u * u + v * v), r2 = r * r;
+      const float dt = poly_[1] + 2.0f * poly_[2] * r + 3.0f * poly_[3] * r2 + 4.0f * poly_[4] * r2 * r;
+      if (!(r > 1e-6f)) return sensor_w_ * sensor_h_ * dt * dt;  // (sin theta / r -> |theta'|)
+      return sensor_w_ * sensor_h_ * std::sin(theta) * std::fabs(dt) / r;
+    }
+    case PanoramaType::CentralCylindrical: {
+      // The cylinder's (theta, z), linear in u and v: d omega = dtheta dz / (1 + z^2)^(3/2).
+      const float h2 = d.x * d.x + d.y * d.y;
+      if (!(h2 > 0.0f)) return 0.0f;
+      const float c = std::sqrt(h2);  // 1 / sqrt(1 + z^2)
+      return std::fabs((range_[1] - range_[0]) * (range_[3] - range_[2])) * c * c * c;
+    }
+  }
+  return 0.0f;
+}
+
+float Camera::pano_pixel_pdf(const Frame& f, Vec3 dir) const {
+  const float j = pano_jacobian(normalize(pano_from_world(f, dir)));
+  const float pdf = 1.0f / (std::fabs(du_ * dv_) * j);
+  return j > 0.0f && std::isfinite(pdf) ? pdf : 0.0f;
+}
+
+bool Camera::pano_view(const Frame& f, Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const {
+  const Vec3 rel = p - f.origin;
+  dist = length(rel);
+  // Clipped along the ray, as generate_pano_in.
+  if (!(dist > clip_start_) || !(dist < clip_start_ + clip_len_)) return false;
+  const Vec3 dir = rel / dist;
+  const Vec3 d = pano_from_world(f, dir);
+  const Vec2 uv = pano_uv(d);
+  rx = (uv.x - u0_) / du_;
+  ry = (uv.y - v0_) / dv_;
+  if (!std::isfinite(rx) || !std::isfinite(ry)) return false;
+  // The camera's own test at that raster position (a fisheye's circle, its field of view);
+  // a cube face's inverse holds only in front of it.
+  const Vec3 back = pano_direction(rx, ry);
+  if (back.x == 0.0f && back.y == 0.0f && back.z == 0.0f) return false;
+  if (pano_ == PanoramaType::EquiangularCubemapFace && !(d.x > 0.0f)) return false;
+  pixel_pdf = pano_pixel_pdf(f, dir);
+  return pixel_pdf > 0.0f && std::isfinite(pixel_pdf);
+}
+
+bool Camera::pano_raster_is_canonical(float x, float y) const {
+  const float u = u0_ + x * du_, v = v0_ + y * dv_;
+  switch (pano_) {
+    case PanoramaType::Equirectangular: {
+      const float phi = range_[0] * u + range_[1], theta = range_[2] * v + range_[3];
+      return phi > -kPi && phi <= kPi && theta >= 0.0f && theta <= kPi;
+    }
+    case PanoramaType::CentralCylindrical: {
+      const float theta = range_[0] + (range_[1] - range_[0]) * u;
+      return theta > -kPi && theta <= kPi;
+    }
+    case PanoramaType::EquiangularCubemapFace:
+      return std::fabs(u - 0.5f) < 1.0f && std::fabs(v - 0.5f) < 1.0f;  // (the tangents' period)
+    case PanoramaType::FisheyeLensPolynomial: {
+      // theta(r) need not be monotonic: the inverse's Newton root must be this sample's.
+      const Vec2 uv = pano_uv(pano_direction(x, y));
+      return std::fabs(uv.x - u) < 1e-3f && std::fabs(uv.y - v) < 1e-3f;
+    }
+    default:  // one raster position per direction where the camera has a ray
+      return true;
+  }
 }
 
 Vec3 Camera::to_ndc(Vec3 p) const {

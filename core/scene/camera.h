@@ -74,6 +74,10 @@ struct CameraDesc {
 
 class Camera {
  public:
+  // The camera's position and orthonormal world axes at one shutter time (motion blur).
+  struct Frame {
+    Vec3 origin, right, up, back;
+  };
   Camera() = default;
   Camera(const CameraDesc& d, int width, int height);
   // Ray through raster position (x, y), measured in pixels from the bottom-left corner of the
@@ -121,7 +125,9 @@ class Camera {
   // the solid-angle density of a pixel's uniform sample there (1 / (pixel area on the view plane
   // at distance 1 x cos^3 of the angle to the view axis)). False: behind the camera or outside
   // the clipping range.
-  bool pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  bool pinhole_view(Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const {
+    return pinhole_view(still_frame(), p, rx, ry, dist, pixel_pdf);
+  }
   // A still thin-lens camera's view of world point p through the aperture point that
   // sample_aperture(u) picks (light tracing: pbrt-v4's PerspectiveCamera::SampleWi): the lens
   // point `eye` that the camera ray through p leaves (a perspective camera's: the aperture
@@ -131,18 +137,53 @@ class Camera {
   // the ray's direction (pinhole_pixel_pdf), an orthographic one's d^2 / (pixel area x cos),
   // so that for both pixel_pdf / d^2 is the pixel's density per unit area across the ray at p.
   // False: outside the clipping range.
-  bool lens_view(Vec3 p, Vec2 u, Vec3& eye, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  bool lens_view(Vec3 p, Vec2 u, Vec3& eye, float& rx, float& ry, float& dist, float& pixel_pdf) const {
+    return lens_view(still_frame(), p, u, eye, rx, ry, dist, pixel_pdf);
+  }
+  // The same from the camera's frame at one shutter time (frame_at), pinhole or lens, and a
+  // pinhole panorama's view (pano_view). The light tracer's one entry point.
+  bool lens_view(const Frame& f, Vec3 p, Vec2 u, Vec3& eye, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  bool pinhole_view(const Frame& f, Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const;
+  // A pinhole panorama's view of p: the raster position of the direction (pano_uv inverted
+  // through the viewplane), the distance from the camera, and the pixel density per unit solid
+  // angle there (pano_pixel_pdf). False: outside the clipping range, or a direction whose
+  // raster position the camera gives no ray (outside a fisheye's circle, its field of view, a
+  // cube face).
+  bool pano_view(const Frame& f, Vec3 p, float& rx, float& ry, float& dist, float& pixel_pdf) const;
   // pixel_pdf of a camera ray with unit direction dir at distance dist from its lens point.
-  float lens_pixel_pdf(Vec3 dir, float dist) const {
-    if (type_ != CameraType::Orthographic) return pinhole_pixel_pdf(dir);
-    const float c = -dot(dir, back_);
+  float lens_pixel_pdf(Vec3 dir, float dist) const { return lens_pixel_pdf(still_frame(), dir, dist); }
+  float lens_pixel_pdf(const Frame& f, Vec3 dir, float dist) const {
+    if (type_ == CameraType::Panoramic) return pano_pixel_pdf(f, dir);
+    if (type_ != CameraType::Orthographic) return pinhole_pixel_pdf(f, dir);
+    const float c = -dot(dir, f.back);
     return c > 0.0f ? dist * dist / (dx_ * dy_ * c) : 0.0f;
   }
   // That density for a unit direction from the camera (what a camera ray had).
-  float pinhole_pixel_pdf(Vec3 dir) const {
-    const float c = -dot(dir, back_);
+  float pinhole_pixel_pdf(Vec3 dir) const { return pinhole_pixel_pdf(still_frame(), dir); }
+  float pinhole_pixel_pdf(const Frame& f, Vec3 dir) const {
+    const float c = -dot(dir, f.back);
     return c > 0.0f ? 1.0f / (dx_ * dy_ * c * c * c) : 0.0f;
   }
+  // A panorama's pixel density per unit solid angle along world direction dir (unit) from
+  // frame f: 1 / (|du dv| |d omega / d(u, v)|), the Jacobian of its (u, v) -> direction map
+  // (docs/design/sampling.md, "Caustic light paths with motion blur and panoramic cameras").
+  float pano_pixel_pdf(const Frame& f, Vec3 dir) const;
+  // The camera's frame at shutter time t (0..1): its motion's there, else the still one.
+  Frame frame_at(float t) const {
+    return motion_.empty() ? still_frame() : frame_of(motion_transform_at(motion_.data(), uint32_t(motion_.size()), t));
+  }
+  Frame still_frame() const { return {origin_, right_, up_, back_}; }
+  // The share of the segment eye -> p (a camera ray's lens point and its hit) that lies before
+  // the near clip: the view depth's clip plane, a panorama's sphere of radius clip_start.
+  float near_fraction(const Frame& f, Vec3 p, Vec3 eye) const {
+    if (type_ == CameraType::Panoramic) return clip_start_ / length(p - eye);
+    return clip_start_ / -dot(p - f.origin, f.back);
+  }
+  // Whether a panorama's camera sample at raster (x, y) is where pano_view puts its direction:
+  // its angles within the range the inverse map returns (atan2's, acos's), not a pixel filter's
+  // tail past an equirectangular or cylindrical seam or pole, or a cube face's tangent's period
+  // (the light tracer never splats there); a lens polynomial's by a round trip.
+  bool pano_raster_is_canonical(float x, float y) const;
   // A panorama's direction (its own space, not unit) at raster (x, y); zero outside the image
   // circle or the lens's field of view.
   Vec3 pano_direction(float x, float y) const;
@@ -150,15 +191,15 @@ class Camera {
   Vec2 pano_uv(Vec3 d) const;
 
  private:
-  struct Frame {
-    Vec3 origin, right, up, back;
-  };
   static Frame frame_of(const Mat4& m);
   Ray generate_pinhole_in(const Frame& f, float x, float y) const;
   Ray generate_in(const Frame& f, float x, float y, Vec2 lens) const;
   Ray generate_pano_in(const Frame& f, float x, float y, Vec2 lens, bool use_lens) const;
-  // Panorama space -> the frame's world axes.
+  // Panorama space -> the frame's world axes, and back.
   Vec3 pano_to_world(const Frame& f, Vec3 d) const;
+  Vec3 pano_from_world(const Frame& f, Vec3 w) const;
+  // |d omega / d(u, v)| of a panorama at its own-space direction d (unit); 0 where undefined.
+  float pano_jacobian(Vec3 d) const;
   std::vector<DecomposedTransform> motion_;  // empty: static
   ShutterTable shutter_;
   CameraType type_ = CameraType::Perspective;

@@ -118,8 +118,7 @@ def test_caustics_warn_only_when_asked_for():
         def stats(self):
             return {"caustics": self.state}
 
-    for state, warns in (("off: only for a still perspective or orthographic camera (not panoramic, no "
-                          "motion blur)", 1),
+    for state, warns in (("off: not with a panoramic camera's depth of field", 1),
                          ("off (automatic): the environment's peak holds 20 % of its power (under 40 %)", 0),
                          ("off (automatic): no smooth surface to cast caustics", 0),
                          ("on (automatic): the environment's peak holds 60 % of its power", 0), ("on", 0), ("", 0)):

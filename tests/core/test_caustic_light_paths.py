@@ -616,19 +616,13 @@ def test_thin_lens_deterministic_whatever_the_threads_and_tiles():
 
 
 @pytest.mark.sanitize  # quick: tiny renders
-def test_orthographic_pinhole_and_panoramic_cameras_stay_off_with_the_reason():
-    # (motion blur too, by the same test in Session::setup_caustics: not covered here)
+def test_orthographic_pinhole_stays_off_with_the_reason():
+    # (panoramic pinholes and motion blur are on since: test_caustic_motion_pano.py; a panorama's
+    # depth of field stays off there)
     s = mirror_scene()
-    for setup, why in (("ortho", "not with an orthographic camera without depth of field (light paths cannot "
-                                 "meet its parallel rays)"),
-                       ("pano", "only for a still perspective or orthographic camera (not panoramic, no motion "
-                                "blur)")):
-        cam = lensed(MIRROR_CAM, 3.7, aperture=0.0)
-        if setup == "ortho":
-            ortho(cam, 4.0)
-        else:
-            cam.type = "PANO"
-        a, _ = lens_renders(s, cam, 2, (1,), 24, 16)
-        b, st = lens_renders(s, cam, 2, (1,), 24, 16, caustic_light_paths=1.0)
-        assert st["caustics"] == "off: " + why
-        assert np.array_equal(a, b)
+    cam = ortho(lensed(MIRROR_CAM, 3.7, aperture=0.0), 4.0)
+    a, _ = lens_renders(s, cam, 2, (1,), 24, 16)
+    b, st = lens_renders(s, cam, 2, (1,), 24, 16, caustic_light_paths=1.0)
+    assert st["caustics"] == ("off: not with an orthographic camera without depth of field (light paths cannot "
+                              "meet its parallel rays)")
+    assert np.array_equal(a, b)
