@@ -3256,6 +3256,10 @@ PYBIND11_MODULE(pathlight_core, m) {
                      "Automatic caustic light paths (with caustic_light_paths 0): 0.1 per pixel sample where the "
                      "environment has a bright peak and the scene smooth surfaces, else off (stats()['caustics'] "
                      "says which and why)")
+      .def_readwrite("caustic_connections", &RenderSettings::caustic_connections,
+                     "Light-vertex connections: where the caustic light paths run, connect each camera path's "
+                     "first this many rough vertices to a rough vertex of the light paths (caustics seen after "
+                     "further rough bounces; 0: off)")
       .def_readwrite("guiding_class_mask", &RenderSettings::guiding_class_mask,
                      "Measurement only: with guiding on, keep the light of these path classes (bits).")
       .def_readwrite("guiding_photons", &RenderSettings::guiding_photons,

@@ -534,6 +534,7 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
           ++paths;
           continue;
         }
+        if (caustics_ && caustics_->connections > 0) counters.caustic_cache = &caustic_caches_[size_t(s - s0)];
         Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
         if (caustics_) L += caustic_splats_[size_t(s - s0)][size_t(y) * size_t(film_.width()) + size_t(x)];
         ++paths;
@@ -715,6 +716,16 @@ void Session::setup_caustics(bool guiding) {
   cz->camera = &camera_;
   cz->nee = nee;
   cz->differentials = integrator_.differentials;
+  if (settings_.caustic_connections > 0) {
+    // Light-vertex connections: the heuristic's count, the light paths per cached vertex, from
+    // a probe of the light paths with a stream of its own (the same for any threads and passes).
+    cz->connections = std::min(settings_.caustic_connections, 64);
+    constexpr uint64_t kProbe = 8192;
+    std::vector<CausticSplat> none;
+    std::vector<CausticVertex> found;
+    trace_caustic_paths(*scene_, *cz, 0x1C0C0A57ULL, 0, kProbe, 0, 0, 0, 0, none, &found);
+    cz->connection_count = found.empty() ? 1.0f : float(double(kProbe) / double(found.size()));
+  }
   caustics_ = std::move(cz);
   integrator_.caustics = caustics_.get();
   caustics_note_ = automatic ? "on (automatic): " + peak_note : "on";
@@ -728,7 +739,10 @@ void Session::trace_caustics(int s0, int k) {
   const uint64_t n = caustic_paths_, chunks = (n + kChunk - 1) / kChunk;
   const size_t pixels = size_t(film_.width()) * size_t(film_.height());
   caustic_splats_.resize(size_t(k));
+  const bool lvc = caustics_->connections > 0;
+  if (lvc) caustic_caches_.resize(size_t(k));
   std::vector<std::vector<CausticSplat>> parts(static_cast<size_t>(chunks));
+  std::vector<std::vector<CausticVertex>> vparts(lvc ? static_cast<size_t>(chunks) : 0);
   for (int j = 0; j < k; ++j) {
     const uint32_t sample = uint32_t(settings_.sample_offset + s0 + j);
     const uint64_t seed = mix64(uint64_t(uint32_t(settings_.seed)) * 0x9E3779B97F4A7C15ULL ^
@@ -736,11 +750,19 @@ void Session::trace_caustics(int s0, int k) {
     pool_->parallel_for(size_t(chunks), [&](size_t c, int) {
       if (cancel_.load(std::memory_order_relaxed)) return;
       parts[c].clear();
+      if (lvc) vparts[c].clear();
       const uint64_t first = uint64_t(c) * kChunk, last = std::min(n, first + kChunk);
       rays_.fetch_add(trace_caustic_paths(*scene_, *caustics_, seed, first, last, region_x_, region_y_, film_.width(),
-                                          film_.height(), parts[c]),
+                                          film_.height(), parts[c], lvc ? &vparts[c] : nullptr),
                       std::memory_order_relaxed);
     });
+    if (lvc) {
+      // Its light vertices in path order (chunk by chunk): the same cache for any threads.
+      CausticCache& cache = caustic_caches_[size_t(j)];
+      cache.v.clear();
+      cache.paths = n;
+      for (const auto& part : vparts) cache.v.insert(cache.v.end(), part.begin(), part.end());
+    }
     std::vector<Vec3>& img = caustic_splats_[size_t(j)];
     img.assign(pixels, Vec3(0.0f));
     for (const auto& part : parts)

@@ -118,6 +118,10 @@ struct RenderSettings {
   // (Session::setup_caustics: an environment map whose bright peak holds most of its power, and
   // smooth surfaces), else off without a warning ("off (automatic): ..."). An explicit number wins.
   bool caustic_light_paths_auto = false;
+  // Light-vertex connections (docs/design/sampling.md, "Caustics seen after further rough
+  // bounces"): where the caustic light paths run, a camera path connects each of its first this
+  // many rough vertices to one rough vertex of the pass's light paths (L S+ D D+ E); 0: off.
+  int caustic_connections = 0;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs, and the colour
@@ -218,6 +222,7 @@ class Session {
   uint64_t caustic_paths_ = 0;  // light paths per pixel sample (the whole film's)
   // The current pass's splats, one film image per sample of it.
   std::vector<std::vector<Vec3>> caustic_splats_;
+  std::vector<CausticCache> caustic_caches_;  // and its light vertices (connections on)
   void setup_caustics(bool guiding);  // (the constructor's, once)
   void trace_caustics(int s0, int k);
   std::vector<std::string> features_, unused_features_;
