@@ -3259,7 +3259,8 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("caustic_connections", &RenderSettings::caustic_connections,
                      "Light-vertex connections: where the caustic light paths run, connect each camera path's "
                      "first this many rough vertices to a rough vertex of the light paths (caustics seen after "
-                     "further rough bounces; 0: off)")
+                     "further rough bounces; 0: off; negative, the default: 2 where the automatic light paths "
+                     "run, else off)")
       .def_readwrite("guiding_class_mask", &RenderSettings::guiding_class_mask,
                      "Measurement only: with guiding on, keep the light of these path classes (bits).")
       .def_readwrite("guiding_photons", &RenderSettings::guiding_photons,
@@ -4210,6 +4211,7 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["autofocus"] = s.autofocus == 0 ? "off" : s.autofocus == 1 ? "hit" : "miss";
              d["kernel"] = s.kernel;
              d["caustics"] = s.caustics;
+             d["caustic_connections"] = s.caustic_connections;
              d["features"] = s.features;
              d["unused_features"] = s.unused_features;
              d["guiding_iterations"] = s.guiding_iterations;

@@ -120,8 +120,9 @@ struct RenderSettings {
   bool caustic_light_paths_auto = false;
   // Light-vertex connections (docs/design/sampling.md, "Caustics seen after further rough
   // bounces"): where the caustic light paths run, a camera path connects each of its first this
-  // many rough vertices to one rough vertex of the pass's light paths (L S+ D D+ E); 0: off.
-  int caustic_connections = 0;
+  // many rough vertices to one rough vertex of the pass's light paths (L S+ D D+ E); 0: off;
+  // negative: automatic (kAutoConnections where the automatic light paths run, else off).
+  int caustic_connections = -1;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs, and the colour
@@ -151,6 +152,7 @@ struct SessionStats {
   std::string kernel;           // the integrator kernel it runs (kernel_name)
   // Caustic light tracing: "" (not asked for), "on", or why it is off for this render.
   std::string caustics;
+  int caustic_connections = 0;  // light-vertex connections: the rough vertices that connect (0: none)
   // The features of scene and render in use and not in use (SceneFeatures names, then "dof",
   // "pixel filter", "passes", "transparent film", "adaptive sampling").
   std::vector<std::string> features, unused_features;

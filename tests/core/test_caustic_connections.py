@@ -104,5 +104,6 @@ def test_off_leaves_the_image_as_it_was():
     plain_c, st = render(pc, s, 24, 16, caustic_connections=2, **kw)
     assert np.array_equal(np.asarray(lt), np.asarray(lt0))
     assert np.array_equal(np.asarray(plain), np.asarray(plain_c)) and st["caustics"] == ""
-    on, _ = render(pc, s, 24, 16, caustic_light_paths=0.5, caustic_connections=2, **kw)
-    assert not np.array_equal(np.asarray(lt), np.asarray(on))
+    assert st["caustic_connections"] == 0
+    on, st_on = render(pc, s, 24, 16, caustic_light_paths=0.5, caustic_connections=2, **kw)
+    assert not np.array_equal(np.asarray(lt), np.asarray(on)) and st_on["caustic_connections"] == 2
