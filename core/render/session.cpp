@@ -593,6 +593,9 @@ constexpr float kAutoPeakShare = 0.4f;
 // run (docs/design/sampling.md, "Caustics seen after further rough bounces": the window room's
 // error at equal instructions 1.55x lower, the textured model's 1.11x).
 constexpr int kAutoConnections = 2;
+// The light vertices kept per pixel sample (CausticCache), ~120 MB: beyond, whole chunks of
+// light paths are left out of the connections (not of the splats).
+constexpr size_t kMaxCachedVertices = size_t(1) << 20;
 }  // namespace
 
 // Caustic light tracing (CausticLight): on where asked for and where it can be combined exactly
@@ -765,11 +768,17 @@ void Session::trace_caustics(int s0, int k) {
                       std::memory_order_relaxed);
     });
     if (lvc) {
-      // Its light vertices in path order (chunk by chunk): the same cache for any threads.
+      // Its light vertices in path order (chunk by chunk): the same cache for any threads. At
+      // most kMaxCachedVertices: whole chunks while they fit, and `paths` the light paths of
+      // those chunks (each one's y still once in expectation: unbiased).
       CausticCache& cache = caustic_caches_[size_t(j)];
       cache.v.clear();
-      cache.paths = n;
-      for (const auto& part : vparts) cache.v.insert(cache.v.end(), part.begin(), part.end());
+      cache.paths = 0;
+      for (size_t c = 0; c < vparts.size(); ++c) {
+        if (cache.v.size() + vparts[c].size() > kMaxCachedVertices) break;
+        cache.v.insert(cache.v.end(), vparts[c].begin(), vparts[c].end());
+        cache.paths = std::min(n, uint64_t(c + 1) * kChunk);
+      }
     }
     std::vector<Vec3>& img = caustic_splats_[size_t(j)];
     img.assign(pixels, Vec3(0.0f));
@@ -834,6 +843,11 @@ void Session::run() {
         // The pass's light paths first: a film image of splats per sample (at most ~64 MB).
         const double image = 12.0 * double(film_.width()) * double(film_.height());
         k = std::max(1, std::min(k, int(64e6 / image)));
+        if (caustics_->connections > 0) {
+          // (and their light vertices: at most kMaxCachedVertices each, ~256 MB in all)
+          const double per = std::min(double(kMaxCachedVertices), double(caustic_paths_) / caustics_->connection_count);
+          k = std::max(1, std::min(k, int(256e6 / (per * sizeof(CausticVertex) + 1.0))));
+        }
         trace_caustics(s0, k);
         if (cancel_.load()) break;
       }
