@@ -593,9 +593,10 @@ constexpr float kAutoPeakShare = 0.4f;
 // run (docs/design/sampling.md, "Caustics seen after further rough bounces": the window room's
 // error at equal instructions 1.55x lower, the textured model's 1.11x).
 constexpr int kAutoConnections = 2;
-// The light vertices kept per pixel sample (CausticCache), ~120 MB: beyond, whole chunks of
-// light paths are left out of the connections (not of the splats).
+// The light vertices kept per pixel sample (CausticCache), about: ~120 MB. Beyond, whole chunks
+// of light paths, fixed per render, are left out of the connections (not of the splats).
 constexpr size_t kMaxCachedVertices = size_t(1) << 20;
+constexpr uint64_t kCausticChunk = 2048;  // light paths per work item (trace_caustics)
 }  // namespace
 
 // Caustic light tracing (CausticLight): on where asked for and where it can be combined exactly
@@ -745,12 +746,20 @@ void Session::setup_caustics(bool guiding) {
 // Light paths of samples [s0, s0 + k): sample s's are indexed (s, i) with their own streams,
 // traced in chunks on the pool, and summed into its image in chunk order: the same image for
 // any thread count and any split into passes.
+// The chunks of light paths whose rough vertices the connections may pick: as many as hold
+// about kMaxCachedVertices (by the probe's light paths per vertex), at least one.
+uint64_t Session::connection_chunks() const {
+  const double c = double(kMaxCachedVertices) * caustics_->connection_count / double(kCausticChunk);
+  return std::max<uint64_t>(1, c < 1e15 ? uint64_t(c) : uint64_t(1e15));
+}
+
 void Session::trace_caustics(int s0, int k) {
-  constexpr uint64_t kChunk = 2048;
+  constexpr uint64_t kChunk = kCausticChunk;
   const uint64_t n = caustic_paths_, chunks = (n + kChunk - 1) / kChunk;
   const size_t pixels = size_t(film_.width()) * size_t(film_.height());
   caustic_splats_.resize(size_t(k));
   const bool lvc = caustics_->connections > 0;
+  const uint64_t lvc_chunks = lvc ? std::min(chunks, connection_chunks()) : 0;
   if (lvc) caustic_caches_.resize(size_t(k));
   std::vector<std::vector<CausticSplat>> parts(static_cast<size_t>(chunks));
   std::vector<std::vector<CausticVertex>> vparts(lvc ? static_cast<size_t>(chunks) : 0);
@@ -764,21 +773,17 @@ void Session::trace_caustics(int s0, int k) {
       if (lvc) vparts[c].clear();
       const uint64_t first = uint64_t(c) * kChunk, last = std::min(n, first + kChunk);
       rays_.fetch_add(trace_caustic_paths(*scene_, *caustics_, seed, first, last, region_x_, region_y_, film_.width(),
-                                          film_.height(), parts[c], lvc ? &vparts[c] : nullptr),
+                                          film_.height(), parts[c], c < lvc_chunks ? &vparts[c] : nullptr),
                       std::memory_order_relaxed);
     });
     if (lvc) {
-      // Its light vertices in path order (chunk by chunk): the same cache for any threads. At
-      // most kMaxCachedVertices: whole chunks while they fit, and `paths` the light paths of
-      // those chunks (each one's y still once in expectation: unbiased).
+      // Its light vertices in path order (chunk by chunk): the same cache for any threads,
+      // from the first lvc_chunks chunks' light paths (a number fixed per render, never this
+      // sample's counts: each of those paths' y is picked with probability 1 / paths).
       CausticCache& cache = caustic_caches_[size_t(j)];
       cache.v.clear();
-      cache.paths = 0;
-      for (size_t c = 0; c < vparts.size(); ++c) {
-        if (cache.v.size() + vparts[c].size() > kMaxCachedVertices) break;
-        cache.v.insert(cache.v.end(), vparts[c].begin(), vparts[c].end());
-        cache.paths = std::min(n, uint64_t(c + 1) * kChunk);
-      }
+      cache.paths = std::min(n, lvc_chunks * kChunk);
+      for (uint64_t c = 0; c < lvc_chunks; ++c) cache.v.insert(cache.v.end(), vparts[c].begin(), vparts[c].end());
     }
     std::vector<Vec3>& img = caustic_splats_[size_t(j)];
     img.assign(pixels, Vec3(0.0f));
@@ -845,7 +850,8 @@ void Session::run() {
         k = std::max(1, std::min(k, int(64e6 / image)));
         if (caustics_->connections > 0) {
           // (and their light vertices: at most kMaxCachedVertices each, ~256 MB in all)
-          const double per = std::min(double(kMaxCachedVertices), double(caustic_paths_) / caustics_->connection_count);
+          const double per =
+              double(std::min(caustic_paths_, connection_chunks() * kCausticChunk)) / caustics_->connection_count;
           k = std::max(1, std::min(k, int(256e6 / (per * sizeof(CausticVertex) + 1.0))));
         }
         trace_caustics(s0, k);

@@ -227,6 +227,7 @@ class Session {
   std::vector<CausticCache> caustic_caches_;  // and its light vertices (connections on)
   void setup_caustics(bool guiding);  // (the constructor's, once)
   void trace_caustics(int s0, int k);
+  uint64_t connection_chunks() const;  // (light-vertex connections: the chunks they pick from)
   std::vector<std::string> features_, unused_features_;
   Film film_;
   std::unique_ptr<ThreadPool> pool_;
