@@ -3274,6 +3274,11 @@ PYBIND11_MODULE(pathlight_core, m) {
                      "Automatic caustic light paths (with caustic_light_paths 0): 0.1 per pixel sample where the "
                      "environment has a bright peak and the scene smooth surfaces, else off (stats()['caustics'] "
                      "says which and why)")
+      .def_readwrite("caustic_connections", &RenderSettings::caustic_connections,
+                     "Light-vertex connections: where the caustic light paths run, connect each camera path's "
+                     "first this many rough vertices to a rough vertex of the light paths (caustics seen after "
+                     "further rough bounces; 0: off; negative, the default: 2 where the automatic light paths "
+                     "run, else off)")
       .def_readwrite("guiding_class_mask", &RenderSettings::guiding_class_mask,
                      "Measurement only: with guiding on, keep the light of these path classes (bits).")
       .def_readwrite("guiding_photons", &RenderSettings::guiding_photons,
@@ -4224,6 +4229,7 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["autofocus"] = s.autofocus == 0 ? "off" : s.autofocus == 1 ? "hit" : "miss";
              d["kernel"] = s.kernel;
              d["caustics"] = s.caustics;
+             d["caustic_connections"] = s.caustic_connections;
              d["features"] = s.features;
              d["unused_features"] = s.unused_features;
              d["guiding_iterations"] = s.guiding_iterations;

@@ -77,6 +77,31 @@ struct CausticLight {
   float guide_probability = 0.0f;       // IntegratorSettings::guide_probability
   bool guide_learn_probability = false;  // per cell (GuidingField::probability) instead
   float guide_caustic_probability = 0.0f;  // the caustic lobes' share (IntegratorSettings)
+  // Light-vertex connections (docs/design/sampling.md, "Caustics seen after further rough
+  // bounces"): a camera path connects its first `connections` rough vertices x to one rough
+  // vertex y of the pass's light paths (CausticVertex), for paths L S+ y x .. E; 0: off. Its
+  // heuristic density is `connection_count` times the light path's (a constant per render: the
+  // light paths per cached vertex, from a deterministic probe in Session::setup_caustics).
+  int connections = 0;
+  float connection_count = 1.0f;
+};
+
+// A light path's rough vertex y (the first after its smooth chain), cached for the camera
+// paths of the same pixel sample to connect to (light-vertex connections): what it needs to be
+// shaded again from another direction and weighed.
+struct CausticVertex {
+  SurfacePoint sp;
+  Vec3 wl;     // towards the light (the last smooth vertex)
+  Vec3 beta;   // the light path's throughput on arriving (as the camera splat's beta)
+  float lr;    // ps prod q_rev / prod q_fwd of the chain: the heuristic's light side
+  float eb;    // Pb / Pa at the last smooth vertex (the path tracer's light sample there)
+  int k;       // the vertices of the class: y and its smooth chain
+};
+// The cached vertices of one pixel sample's light paths, in path order, and how many paths
+// there were (the pick among them is weighed by size / paths).
+struct CausticCache {
+  std::vector<CausticVertex> v;
+  uint64_t paths = 0;
 };
 
 struct IntegratorSettings {
@@ -189,6 +214,8 @@ struct PathCounters {
   // In: whether the light tracer splats at this camera sample's raster position (false: a
   // panorama's sample that its inverse map puts elsewhere, the path tracer's alone).
   bool caustic_raster = true;
+  // In: the light vertices of this pixel sample (light-vertex connections; null: none).
+  const CausticCache* caustic_cache = nullptr;
 };
 
 // What a camera path saw, for render passes (AOVs). trace_path fills it only when the caller
@@ -287,9 +314,10 @@ struct CausticSplat {
   uint32_t pixel;
   Vec3 value;
 };
+// With `cache`, each path's rough vertex y (seen by the camera or not) is appended to it too.
 uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_t seed, uint64_t first,
                              uint64_t last, int film_x, int film_y, int film_w, int film_h,
-                             std::vector<CausticSplat>& out);
+                             std::vector<CausticSplat>& out, std::vector<CausticVertex>* cache = nullptr);
 // The caster sphere: bounds of the smooth surfaces that `probes` deterministic rays (from
 // points in the scene's bounds, in all directions) meet first; false where they met none.
 // motion: probe times spread over the shutter (the casters wherever they move). delta (if

@@ -117,7 +117,7 @@ float environment_peak_share(const Environment& env, float factor) {
 
 uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_t seed, uint64_t first,
                              uint64_t last, int film_x, int film_y, int film_w, int film_h,
-                             std::vector<CausticSplat>& out) {
+                             std::vector<CausticSplat>& out, std::vector<CausticVertex>* cache) {
   const Environment& env = scene.environment();
   if (!cz.camera || (cz.lamps.empty() && !(cz.env_pmf > 0.0f && env.valid()))) return 0;
   const bool tree = scene.light_tree_active();  // (its choice reads the shading normal)
@@ -337,7 +337,14 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
         if (!caustic_vertex(sp, cl)) break;
         if (guidable(cl)) {
           // The rough vertex: the camera's first, seen directly (nothing in between).
-          if (!seen || k + 1 > cz.max_vertices) break;
+          if (k + 1 > cz.max_vertices) break;
+          // Light-vertex connections: kept whether the camera sees it or not; a camera path's
+          // rough vertex shades it again from its own side (trace_path.inl).
+          if (cache && is_finite(beta) && !is_black(beta)) {
+            const double lr = double(ps) * prod_r / prod_f;
+            if (std::isfinite(lr) && lr > 0.0) cache->push_back({sp, wo_l, beta, float(lr), eb, k + 1});
+          }
+          if (!seen) break;
           const float cos_c = dot(sp.ng, wc), cos_l = dot(sp.ng, wo_l);
           const bool reflection = (cos_c > 0.0f) == (cos_l > 0.0f);
           float qf1;

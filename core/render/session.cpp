@@ -362,6 +362,7 @@ SessionStats Session::stats() const {
   s.autofocus = autofocus_;
   s.kernel = kernel_name(kernel_bits_);
   s.caustics = caustics_note_;
+  s.caustic_connections = caustics_ ? caustics_->connections : 0;
   s.features = features_;
   s.unused_features = unused_features_;
   return s;
@@ -537,6 +538,7 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
           ++paths;
           continue;
         }
+        if (caustics_ && caustics_->connections > 0) counters.caustic_cache = &caustic_caches_[size_t(s - s0)];
         Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
         if (caustics_) L += caustic_splats_[size_t(s - s0)][size_t(y) * size_t(film_.width()) + size_t(x)];
         ++paths;
@@ -597,6 +599,14 @@ constexpr float kAutoPeakShare = 0.4f;
 // ("Glass and mirrors under a sun lamp: the automatic rule").
 constexpr float kAutoLampPaths = 0.25f;
 constexpr float kAutoLampShare = 0.5f;
+// Light-vertex connections at the first this many rough vertices where the automatic light paths
+// run (docs/design/sampling.md, "Caustics seen after further rough bounces": the window room's
+// error at equal instructions 1.55x lower, the textured model's 1.11x).
+constexpr int kAutoConnections = 2;
+// The light vertices kept per pixel sample (CausticCache), about: ~120 MB. Beyond, whole chunks
+// of light paths, fixed per render, are left out of the connections (not of the splats).
+constexpr size_t kMaxCachedVertices = size_t(1) << 20;
+constexpr uint64_t kCausticChunk = 2048;  // light paths per work item (trace_caustics)
 }  // namespace
 
 // Caustic light tracing (CausticLight): on where asked for and where it can be combined exactly
@@ -761,6 +771,21 @@ void Session::setup_caustics(bool guiding) {
   cz->nee = nee;
   cz->differentials = integrator_.differentials;
   cz->motion = motion_;
+  const int connections = settings_.caustic_connections >= 0 ? settings_.caustic_connections
+                          : automatic && !lamp_rule          ? kAutoConnections
+                                                             : 0;
+  // (not with motion blur: a cached vertex holds the scene at its light path's own shutter time,
+  // which a camera path of another time cannot connect to)
+  if (connections > 0 && !motion_) {
+    // Light-vertex connections: the heuristic's count, the light paths per cached vertex, from
+    // a probe of the light paths with a stream of its own (the same for any threads and passes).
+    cz->connections = std::min(connections, 64);
+    constexpr uint64_t kProbe = 8192;
+    std::vector<CausticSplat> none;
+    std::vector<CausticVertex> found;
+    trace_caustic_paths(*scene_, *cz, 0x1C0C0A57ULL, 0, kProbe, 0, 0, 0, 0, none, &found);
+    cz->connection_count = found.empty() ? 1.0f : float(double(kProbe) / double(found.size()));
+  }
   caustics_ = std::move(cz);
   integrator_.caustics = caustics_.get();
   caustics_note_ = automatic ? "on (automatic): " + peak_note : "on";
@@ -769,12 +794,23 @@ void Session::setup_caustics(bool guiding) {
 // Light paths of samples [s0, s0 + k): sample s's are indexed (s, i) with their own streams,
 // traced in chunks on the pool, and summed into its image in chunk order: the same image for
 // any thread count and any split into passes.
+// The chunks of light paths whose rough vertices the connections may pick: as many as hold
+// about kMaxCachedVertices (by the probe's light paths per vertex), at least one.
+uint64_t Session::connection_chunks() const {
+  const double c = double(kMaxCachedVertices) * caustics_->connection_count / double(kCausticChunk);
+  return std::max<uint64_t>(1, c < 1e15 ? uint64_t(c) : uint64_t(1e15));
+}
+
 void Session::trace_caustics(int s0, int k) {
-  constexpr uint64_t kChunk = 2048;
+  constexpr uint64_t kChunk = kCausticChunk;
   const uint64_t n = caustic_paths_, chunks = (n + kChunk - 1) / kChunk;
   const size_t pixels = size_t(film_.width()) * size_t(film_.height());
   caustic_splats_.resize(size_t(k));
+  const bool lvc = caustics_->connections > 0;
+  const uint64_t lvc_chunks = lvc ? std::min(chunks, connection_chunks()) : 0;
+  if (lvc) caustic_caches_.resize(size_t(k));
   std::vector<std::vector<CausticSplat>> parts(static_cast<size_t>(chunks));
+  std::vector<std::vector<CausticVertex>> vparts(lvc ? static_cast<size_t>(chunks) : 0);
   for (int j = 0; j < k; ++j) {
     const uint32_t sample = uint32_t(settings_.sample_offset + s0 + j);
     const uint64_t seed = mix64(uint64_t(uint32_t(settings_.seed)) * 0x9E3779B97F4A7C15ULL ^
@@ -782,11 +818,21 @@ void Session::trace_caustics(int s0, int k) {
     pool_->parallel_for(size_t(chunks), [&](size_t c, int) {
       if (cancel_.load(std::memory_order_relaxed)) return;
       parts[c].clear();
+      if (lvc) vparts[c].clear();
       const uint64_t first = uint64_t(c) * kChunk, last = std::min(n, first + kChunk);
       rays_.fetch_add(trace_caustic_paths(*scene_, *caustics_, seed, first, last, region_x_, region_y_, film_.width(),
-                                          film_.height(), parts[c]),
+                                          film_.height(), parts[c], c < lvc_chunks ? &vparts[c] : nullptr),
                       std::memory_order_relaxed);
     });
+    if (lvc) {
+      // Its light vertices in path order (chunk by chunk): the same cache for any threads,
+      // from the first lvc_chunks chunks' light paths (a number fixed per render, never this
+      // sample's counts: each of those paths' y is picked with probability 1 / paths).
+      CausticCache& cache = caustic_caches_[size_t(j)];
+      cache.v.clear();
+      cache.paths = std::min(n, lvc_chunks * kChunk);
+      for (uint64_t c = 0; c < lvc_chunks; ++c) cache.v.insert(cache.v.end(), vparts[c].begin(), vparts[c].end());
+    }
     std::vector<Vec3>& img = caustic_splats_[size_t(j)];
     img.assign(pixels, Vec3(0.0f));
     for (const auto& part : parts)
@@ -850,6 +896,12 @@ void Session::run() {
         // The pass's light paths first: a film image of splats per sample (at most ~64 MB).
         const double image = 12.0 * double(film_.width()) * double(film_.height());
         k = std::max(1, std::min(k, int(64e6 / image)));
+        if (caustics_->connections > 0) {
+          // (and their light vertices: at most kMaxCachedVertices each, ~256 MB in all)
+          const double per =
+              double(std::min(caustic_paths_, connection_chunks() * kCausticChunk)) / caustics_->connection_count;
+          k = std::max(1, std::min(k, int(256e6 / (per * sizeof(CausticVertex) + 1.0))));
+        }
         trace_caustics(s0, k);
         if (cancel_.load()) break;
       }

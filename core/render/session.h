@@ -118,6 +118,11 @@ struct RenderSettings {
   // (Session::setup_caustics: an environment map whose bright peak holds most of its power, and
   // smooth surfaces), else off without a warning ("off (automatic): ..."). An explicit number wins.
   bool caustic_light_paths_auto = false;
+  // Light-vertex connections (docs/design/sampling.md, "Caustics seen after further rough
+  // bounces"): where the caustic light paths run, a camera path connects each of its first this
+  // many rough vertices to one rough vertex of the pass's light paths (L S+ D D+ E); 0: off;
+  // negative: automatic (kAutoConnections where the automatic light paths run, else off).
+  int caustic_connections = -1;
 };
 
 // The passes a render keeps: the requested ones plus those a debug view needs, and the colour
@@ -147,6 +152,7 @@ struct SessionStats {
   std::string kernel;           // the integrator kernel it runs (kernel_name)
   // Caustic light tracing: "" (not asked for), "on", or why it is off for this render.
   std::string caustics;
+  int caustic_connections = 0;  // light-vertex connections: the rough vertices that connect (0: none)
   // The features of scene and render in use and not in use (SceneFeatures names, then "dof",
   // "pixel filter", "passes", "transparent film", "adaptive sampling").
   std::vector<std::string> features, unused_features;
@@ -218,8 +224,10 @@ class Session {
   uint64_t caustic_paths_ = 0;  // light paths per pixel sample (the whole film's)
   // The current pass's splats, one film image per sample of it.
   std::vector<std::vector<Vec3>> caustic_splats_;
+  std::vector<CausticCache> caustic_caches_;  // and its light vertices (connections on)
   void setup_caustics(bool guiding);  // (the constructor's, once)
   void trace_caustics(int s0, int k);
+  uint64_t connection_chunks() const;  // (light-vertex connections: the chunks they pick from)
   std::vector<std::string> features_, unused_features_;
   Film film_;
   std::unique_ptr<ThreadPool> pool_;

@@ -989,6 +989,12 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   float cz_ratio = 0.0f;
   Vec3 cz_ng(0.0f);  // the last vertex's geometric normal (CausticHitMis)
   bool cz_delta = false;  // the last vertex scattered by a delta lobe (glass, a mirror): no light sample there
+  int cz_max = 0;  // the chain's vertices at most (the class's; less past a connection vertex's bounces)
+  // Light-vertex connections (CausticLight::connections): the rough vertices so far, and where
+  // the last vertex x connected, the vertices its BSDF ray's rough hit y may start (0: none).
+  int lvc_rough = 0, lvc_next = 0;
+  Pcg32 lrng;  // (the picks' own stream: the sampler's dimensions stay as they were)
+  bool lrng_set = false;
   // (the catcher path of a split writes its passes into a scratch record: see below)
   PathAovs* aov = kAovs ? aov_in : nullptr;
   GuidingField* const guide = kGuide ? s.guide : nullptr;
@@ -1629,12 +1635,24 @@ restart: __attribute__((unused));
           // lens point has the same density on both sides: it cancels. (An orthographic
           // camera's lens_pixel_pdf / d01^2 is its density per unit area across the ray.)
           cz_ratio = cz->paths * d01 * d01 * c.filter_area / cc.lens_pixel_pdf(fr, ray.dir, d01);
+          cz_max = cz->max_vertices;
           if (!std::isfinite(cz_ratio)) cz_k = 0;
-        } else if (cz_k > 0 && cz_k < cz->max_vertices && caustic_vertex(sp, cl) && !guidable(cl)) {
+        } else if (cz_k > 0 && cz_k < cz_max && caustic_vertex(sp, cl) && !guidable(cl)) {
           ++cz_k;  // a smooth vertex after it
+        } else if (lvc_next > 0 && !prev_delta && caustic_vertex(sp, cl) && guidable(cl)) {
+          // A rough vertex y that the BSDF ray of a connecting rough vertex x (mis_org) found:
+          // the light-vertex connection's y (docs/design/sampling.md, "Caustics seen after
+          // further rough bounces"). Its n Pd / Pa without the light's end: the connection's
+          // count d_xy^2 / (x's pdf towards y, the guided mixture's where guided), the camera's
+          // ratio with x in the camera's place.
+          cz_k = 1;
+          cz_max = lvc_next;
+          cz_ratio = cz->connection_count * length_sq(sp.p - mis_org) / prev_pdf;
+          if (!std::isfinite(cz_ratio) || !(prev_pdf > 0.0f)) cz_k = 0;
         } else {
           cz_k = 0;
         }
+        lvc_next = 0;
       }
     }
     bool sss_exit = false;  // a random walk has just left the object: scatter at its exit
@@ -1664,6 +1682,81 @@ restart: __attribute__((unused));
         path_class.append(!sp.curve() && guidable(cl));
       }
     }
+    if constexpr (kCaus)
+      if (cz && cz->connections > 0 && !last && !sp.curve() && caustic_vertex(sp, cl) && guidable(cl) &&
+          ++lvc_rough <= cz->connections) {
+        // A light-vertex connection (docs/design/sampling.md, "Caustics seen after further rough
+        // bounces"): x here, y a rough vertex of this pixel sample's light paths, for the path
+        // L S+ y x .. E. The path tracer makes it only within the bounce limits: y, its chain
+        // and the light sample at its end must fit after x (the counts as if every later vertex
+        // took each kind), and it weighs its own such paths alike (lvc_next, above).
+        const int kmax = std::min({cz->max_vertices, s.max_bounces - bounce - 1, s.glossy_bounces - glossy,
+                                   s.transmission_bounces - transmission});
+        const CausticCache* cache = c.caustic_cache;
+        if (kmax >= 2 && diffuse + 2 <= s.diffuse_bounces) {
+          lvc_next = kmax;
+          if (cache && !cache->v.empty() && cache->paths > 0) {
+            if (!lrng_set) {
+              lrng.set(path_key, 0x3C0DE5EEDULL);
+              lrng_set = true;
+            }
+            // One of the m vertices, uniformly, weighed by m / paths: each light path's y once
+            // in expectation, so the estimate is unbiased whatever m came out; the heuristic
+            // takes the fixed connection_count, never this pass's m.
+            const uint64_t m = cache->v.size();
+            const uint64_t u64 = (uint64_t(lrng.next_u32()) << 32) | lrng.next_u32();
+            const CausticVertex& v = cache->v[size_t((unsigned __int128)u64 * m >> 64)];
+            const Vec3 dxy = v.sp.p - sp.p;
+            const float d2 = length_sq(dxy);
+            const Vec3 w = dxy / std::sqrt(d2);
+            const bool refl_x = dot(w, ng_out) > 0.0f;
+            float px;
+            const Vec3 fx = v.k <= kmax && d2 > 0.0f ? eval_mixture<!kNonDiffuse>(cl, wo, w, refl_x, px) : Vec3(0.0f);
+            if (!is_black(fx) && px > 0.0f) {
+              if constexpr (kGuide)
+                if (guided && guide_sampling) px = guided_pdf(px, w, -1.0f);
+              // y shaded from x's side, as the path tracer's BSDF ray from x would shade it.
+              ClosureList cy;
+              RayState ry;
+              ry.flags = uint8_t(kRayReflect | kRayGlossy);
+              scene.shade(v.sp, v.sp.b1, v.sp.b2, -w, cy, ry);
+              const float cyx = dot(v.sp.ng, -w), cyl = dot(v.sp.ng, v.wl);
+              float qy = 0.0f;
+              Vec3 fy(0.0f);
+              if (caustic_vertex(v.sp, cy) && guidable(cy) && cyx != 0.0f && cyl != 0.0f)
+                fy = eval_mixture<!kNonDiffuse>(cy, -w, v.wl, (cyx > 0.0f) == (cyl > 0.0f), qy);
+              if constexpr (kGuide)
+                if (guide_sampling && qy > 0.0f) {
+                  // (y's guided mixture towards the chain, at its cell facing x)
+                  const Vec3 ny = cyx > 0.0f ? v.sp.ng : -v.sp.ng;
+                  const uint32_t cell = guide->cell_of(v.sp.p, ny);
+                  const float gpy = s.guide_learn_probability ? guide->probability(cell) : guide_prob;
+                  const int32_t ccy = s.guide_caustic_probability > 0.0f ? guide->caustic_cell(v.sp.p, ny) : -1;
+                  qy = guided_mixture_pdf(*guide, qy, v.wl, gpy, cell, -1.0f, ccy, s.guide_caustic_probability);
+                }
+              if (!is_black(fy) && qy > 0.0f) {
+                Ray sh;
+                sh.time = ray.time;
+                sh.org = offset_ray_origin(sp.p, sp.p_error, refl_x ? ng_out : -ng_out);
+                sh.self_curve = scene.self_curve(sp);
+                sh.dir = offset_ray_origin(v.sp.p, v.sp.p_error, cyx > 0.0f ? v.sp.ng : -v.sp.ng) - sh.org;
+                sh.tmax = 1.0f - 1e-4f;
+                ++c.rays;
+                if (!scene.occluded(sh)) {
+                  // The power heuristic over the light sample at the chain's end (eb), the path
+                  // tracer's BSDF ray (1) and this connection (rho = count Pl / Pa).
+                  const double rho = double(cz->connection_count) * v.lr * d2 / (double(px) * qy);
+                  const double rho2 = rho * rho;
+                  const float wd = float(rho2 / (1.0 + double(v.eb) * v.eb + rho2));
+                  const Vec3 add = beta * fx * fy * v.beta *
+                                   (std::fabs(cyx) / (d2 * std::fabs(cyl)) * wd * float(double(m) / double(cache->paths)));
+                  if (is_finite(add)) L += add;
+                }
+              }
+            }
+          }
+        }
+      }
 
     bool sky_here = false;  // this vertex sampled the sky: the BSDF ray's escape is weighed against it
     if ((nee || sky) && (!kNonDiffuse || cl.has_nondelta)) {

@@ -147,8 +147,14 @@ def test_automatic_only_where_a_bright_sun_meets_smooth_surfaces():
     a, st = render(pc, sunny, 24, 16, caustic_light_paths_auto=True, **kw)
     assert st["caustics"].startswith("on (automatic)") and "+caustics" in st["kernel"]
     assert peak_share(st["caustics"]) >= 70
-    b, _ = render(pc, sunny, 24, 16, caustic_light_paths=0.1, **kw)  # automatic is 0.1 per sample
+    # Automatic is 0.1 per sample with light-vertex connections at the first 2 rough vertices
+    # (test_caustic_connections.py); an explicit number keeps them off unless asked for.
+    b, _ = render(pc, sunny, 24, 16, caustic_light_paths=0.1, caustic_connections=2, **kw)
     assert np.array_equal(np.asarray(a), np.asarray(b))
+    a0, _ = render(pc, sunny, 24, 16, caustic_light_paths_auto=True, caustic_connections=0, **kw)
+    b0, _ = render(pc, sunny, 24, 16, caustic_light_paths=0.1, **kw)
+    assert np.array_equal(np.asarray(a0), np.asarray(b0))
+    assert st["caustic_connections"] == 2  # (this floor cannot light itself: they add nothing here)
     # An explicit number wins over automatic, and explicit off (auto False) is the plain render.
     c, st_c = render(pc, sunny, 24, 16, caustic_light_paths=0.5, caustic_light_paths_auto=True, **kw)
     d, _ = render(pc, sunny, 24, 16, caustic_light_paths=0.5, **kw)

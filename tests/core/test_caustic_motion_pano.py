@@ -326,9 +326,12 @@ def test_a_panoramas_depth_of_field_stays_off_with_the_reason():
 @pytest.mark.sanitize  # quick: tiny renders
 def test_automatic_turns_on_for_moving_and_panoramic_cameras():
     # mirror_scene's sun holds 46 % of its environment's power: on, as for a still perspective
-    # camera, and the same image as the explicit 0.1 per sample.
-    for s, cam in ((moving_casters_scene(), moving(lensed(LAMP_CAM, 3.0, aperture=0.0))),
-                   (mirror_scene(), pano(LAMP_CAM, "FISHEYE_EQUISOLID"))):
+    # camera, and the same image as the explicit 0.1 per sample with the automatic light-vertex
+    # connections (2), which motion blur turns off (a cached light vertex holds the scene at its
+    # own light path's shutter time), whether automatic or asked for.
+    for s, cam, k in ((moving_casters_scene(), moving(lensed(LAMP_CAM, 3.0, aperture=0.0)), 0),
+                      (mirror_scene(), pano(LAMP_CAM, "FISHEYE_EQUISOLID"), 2)):
         a, st = lens_renders(s, cam, 4, (1,), 24, 16, caustic_light_paths_auto=True)
-        b, _ = lens_renders(s, cam, 4, (1,), 24, 16, caustic_light_paths=0.1)
+        b, sb = lens_renders(s, cam, 4, (1,), 24, 16, caustic_light_paths=0.1, caustic_connections=2)
         assert st["caustics"].startswith("on (automatic)") and np.array_equal(a, b)
+        assert st["caustic_connections"] == k and sb["caustic_connections"] == k
