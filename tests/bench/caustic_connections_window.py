@@ -23,16 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_util import load_addon, render_to_array  # noqa: E402
 from core_bench import override_render_settings  # noqa: E402
 import realistic_scenes as rs  # noqa: E402
+from guiding_window_variants import parse  # noqa: E402  (a variant's "setting:value,..." spec)
 
 OVERRIDES = {}
-
-
-def parse(spec):
-    out = {}
-    for item in filter(None, spec.split(",")):
-        k, v = item.split(":")
-        out[k] = float(v)
-    return out
 
 
 def report(imgs, times, title):
