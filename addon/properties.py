@@ -53,6 +53,28 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         "Max Bounces",
         default=8, min=0, max=1024,
     )
+    # Clamping, under Cycles' names (Light Paths > Clamping); off by default, unlike Cycles'
+    # Clamp Indirect of 10, so that renders stay unbiased unless asked.
+    sample_clamp_direct: FloatProperty(
+        name="Direct Light",
+        description="If non-zero, the most a direct-light sample (light straight from a lamp, "
+                    "emitter or the world onto the first surface the camera sees, or seen by the "
+                    "camera) may add, as Cycles' Clamp Direct: its red + green + blue at most three "
+                    "times this (grey light: this per channel); brighter samples are scaled down: "
+                    "fewer fireflies, at the cost of accuracy (biased). 0 = off, Pathlight's "
+                    "default: unbiased",
+        default=0.0, min=0.0, max=1e8, soft_max=100.0,
+    )
+    sample_clamp_indirect: FloatProperty(
+        name="Indirect Light",
+        description="If non-zero, the most an indirect-light sample (light that reached the first "
+                    "surface the camera sees by way of other surfaces or volumes, caustics "
+                    "included) may add, as Cycles' Clamp Indirect: its red + green + blue at most "
+                    "three times this; brighter samples are scaled down: fewer fireflies, at the "
+                    "cost of accuracy (biased). 0 = off, Pathlight's default (Cycles' is 10): "
+                    "unbiased",
+        default=0.0, min=0.0, max=1e8, soft_max=100.0,
+    )
     seed: IntProperty(
         name="Seed", description="Seed of the random number sequences",
         default=0, min=0,

@@ -2,6 +2,7 @@
 
 import json
 import logging
+import math
 import threading
 import time
 
@@ -205,6 +206,8 @@ def render_settings(pc, scene, warn=None):
         "transmission_bounces": props.transmission_bounces,
         "volume_bounces": props.volume_bounces,
         "transparent_bounces": props.transparent_bounces,
+        "clamp_direct": clamp_limit(props.sample_clamp_direct, "Clamp Direct", warn),
+        "clamp_indirect": clamp_limit(props.sample_clamp_indirect, "Clamp Indirect", warn),
         "filter_type": props.filter_type.lower(),
         "filter_width": props.filter_width,
     }
@@ -243,6 +246,17 @@ def render_settings(pc, scene, warn=None):
     for name, value in optional.items():  # (the add-on and its core ship together)
         setattr(st, name, value)
     return st
+
+
+def clamp_limit(value, label, warn=None):
+    """A Clamping limit for the core: 0 (off) where it is negative or not finite (a property set
+    from Python past its range), with a warning."""
+    value = float(value)
+    if math.isfinite(value) and value >= 0.0:
+        return value
+    if warn:
+        warn(f"{label} is {value}; it must be a finite number >= 0: rendering without it (0)")
+    return 0.0
 
 
 def pixel_pattern_settings(props, warn, viewport=False):

@@ -72,6 +72,19 @@ class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
         layout.prop(settings, "use_schlick_fresnel")
 
 
+class PATHLIGHT_RENDER_PT_light_paths_clamping(PathlightPanel, bpy.types.Panel):
+    bl_label = "Clamping"
+    bl_parent_id = "PATHLIGHT_RENDER_PT_light_paths"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = split(self.layout)
+        settings = context.scene.pathlight
+        col = layout.column(align=True)
+        col.prop(settings, "sample_clamp_direct")
+        col.prop(settings, "sample_clamp_indirect")
+
+
 def caustics_in_effect(settings):
     """The Caustics panel's line: which of its settings the render follows."""
     if settings.use_caustic_light_paths:
@@ -264,6 +277,7 @@ class PATHLIGHT_OBJECT_PT_shadow_catcher(PathlightPanel, bpy.types.Panel):
         layout.prop(context.object, "is_shadow_catcher")
 
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
+           PATHLIGHT_RENDER_PT_light_paths_clamping,
            PATHLIGHT_RENDER_PT_film,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,

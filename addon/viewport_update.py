@@ -161,7 +161,8 @@ def settings_signature(scene):
     the last entry, ("curves", shape, subdivisions), needs the curves exported again."""
     props = scene.pathlight
     names = ("samples", "preview_samples", "max_bounces", "diffuse_bounces", "glossy_bounces",
-             "transmission_bounces", "volume_bounces", "transparent_bounces", "seed", "sampler", "pixel_pattern", "use_nee", "use_schlick_fresnel",
+             "transmission_bounces", "volume_bounces", "transparent_bounces", "sample_clamp_direct",
+             "sample_clamp_indirect", "seed", "sampler", "pixel_pattern", "use_nee", "use_schlick_fresnel",
              "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "use_guiding")
     r = scene.render
     curves = getattr(scene, "cycles_curves", None)

@@ -68,6 +68,16 @@ float finite_nonneg(float x, const char* what) {
   return x;
 }
 
+// A Clamping limit (RenderSettings::clamp_direct, clamp_indirect): 0 is off, so a negative or
+// non-finite one is taken as 0 (unclamped), with a Python warning that says so.
+float clamp_setting(float v, const char* what) {
+  if (std::isfinite(v) && v >= 0.0f) return v;
+  const std::string msg = std::string(what) + " must be a finite number >= 0 (0: no clamping); " +
+                          std::to_string(v) + " is treated as 0";
+  py::module_::import("warnings").attr("warn")(msg);
+  return 0.0f;
+}
+
 // A setting Python names by strings: its enum's values and their names in one table, read
 // both ways; an unknown name is a ValueError that lists the names (quoted, or bare as Blender's
 // upper-case enum names have always been listed).
@@ -3166,6 +3176,18 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("volume_pass_through", &RenderSettings::volume_pass_through,
                      "Volume-only boundaries (a material with a Volume and no Surface) crossed without shading "
                      "them (on: the same image, faster), or shaded as any surface (off)")
+      .def_property(
+          "clamp_direct", [](const RenderSettings& s) { return s.clamp_direct; },
+          [](RenderSettings& s, float v) { s.clamp_direct = clamp_setting(v, "clamp_direct"); },
+          "Cycles' Clamp Direct (sample_clamp_direct, the same numbers): each contribution of light that arrives "
+          "at the camera's first scattering vertex (or that the camera sees) is scaled down to |r| + |g| + |b| "
+          "of at most 3 x this (grey light: each channel at most this); 0 = off (the default: unbiased). "
+          "Negative or non-finite: 0, with a warning")
+      .def_property(
+          "clamp_indirect", [](const RenderSettings& s) { return s.clamp_indirect; },
+          [](RenderSettings& s, float v) { s.clamp_indirect = clamp_setting(v, "clamp_indirect"); },
+          "Cycles' Clamp Indirect (sample_clamp_indirect): the same for light that arrives after more "
+          "scatterings (caustic light paths and their connections included); 0 = off (the default)")
       .def_readwrite("rr_start_bounce", &RenderSettings::rr_start_bounce,
                      "Russian roulette from this bounce on (default 3; 0 rolls at every vertex, as Cycles); "
                      "for measurements, the add-on leaves it")

@@ -84,6 +84,10 @@ struct CausticLight {
   // light paths per cached vertex, from a deterministic probe in Session::setup_caustics).
   int connections = 0;
   float connection_count = 1.0f;
+  // IntegratorSettings::clamp_indirect (0: none): a light path's light always arrives after a
+  // scattering past the camera's first vertex. Each splat into a pixel is one light path's
+  // estimate of that pixel's sample divided by `paths`, so it is clamped at clamp / paths.
+  float clamp = 0.0f;
 };
 
 // A light path's rough vertex y (the first after its smooth chain), cached for the camera
@@ -134,6 +138,14 @@ struct IntegratorSettings {
   // same arithmetic and sample dimensions (the same image). Off: shaded as any surface.
   bool volume_pass_through = true;
   int rr_start_bounce = 3;  // Russian roulette from this bounce on
+  // Cycles' Clamping (film_clamp_light): each contribution to the film whose component sum
+  // |r| + |g| + |b| exceeds the limit is scaled down to it; direct where the light arrives at
+  // the camera's first scattering vertex (its light samples, the emission and world its rays
+  // find, or the camera's own), indirect after more scatterings. 0: no clamp (the default).
+  // These are the kernel's limits on the sum: 3 x the settings (RenderSettings::clamp_direct,
+  // Cycles' sample_clamp_direct, which its Integrator multiplies by 3 alike).
+  float clamp_direct = 0.0f;
+  float clamp_indirect = 0.0f;
   // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not
   // in the returned radiance; it becomes alpha instead. It still lights the scene.
   bool transparent_background = false;

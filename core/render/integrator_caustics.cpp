@@ -126,6 +126,9 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
   Camera::Frame frame = cam.still_frame();
   const float disk = kPi * cz.radius * cz.radius;
   const float half = 0.5f * std::sqrt(cz.filter_area);  // the box filter's half width
+  // Clamping (CausticLight::clamp): a splat times the paths per sample is the light path's own
+  // estimate of the pixel's sample, clamped as a camera path's contribution would be.
+  const float splat_limit = cz.clamp > 0.0f ? cz.clamp / cz.paths : 0.0f;
   uint64_t rays = 0;
   ClosureList cl, cle;
   RayState rs;
@@ -396,7 +399,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
                 const float f = pf.density(rx - (float(x) + 0.5f)) * fy;
                 if (!(f > 0.0f)) continue;
                 const float w = light_weight(rho_f / f);
-                const Vec3 v = base * (ppdf * f * w);
+                const Vec3 v = clamp_light(base * (ppdf * f * w), splat_limit);
                 if (is_finite(v) && !is_black(v))
                   out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v});
               }
@@ -405,7 +408,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           }
           const float p_cam = ppdf / cz.filter_area;
           const float w = light_weight(double(cz.paths) * ps * double(dist) * dist * prod_r / (double(p_cam) * qf1 * prod_f));
-          const Vec3 v = beta * f1 * (std::fabs(cos_c) / std::fabs(cos_l) * p_cam / (dist * dist) * w / cz.paths);
+          const Vec3 v = clamp_light(beta * f1 * (std::fabs(cos_c) / std::fabs(cos_l) * p_cam / (dist * dist) * w / cz.paths),
+                                     splat_limit);
           if (!is_finite(v) || is_black(v)) break;
           // Every pixel whose box holds the point.
           const int x0 = int(std::ceil(rx - 0.5f - half)), x1 = int(std::ceil(rx - 0.5f + half)) - 1;

@@ -154,6 +154,11 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   integrator_.volume_phase_mis = settings_.volume_phase_mis;
   integrator_.volume_pass_through = settings_.volume_pass_through;
   integrator_.rr_start_bounce = std::max(0, settings_.rr_start_bounce);
+  // (the bindings warn where they turn a negative or non-finite limit into 0; x 3, as Cycles'
+  // Integrator: the kernel compares the sum of the three channels)
+  const auto clamp_limit = [](float v) { return std::isfinite(v) && v > 0.0f ? 3.0f * v : 0.0f; };
+  integrator_.clamp_direct = clamp_limit(settings_.clamp_direct);
+  integrator_.clamp_indirect = clamp_limit(settings_.clamp_indirect);
   integrator_.diffuse_bounces = settings_.diffuse_bounces;
   integrator_.glossy_bounces = settings_.glossy_bounces;
   integrator_.transmission_bounces = settings_.transmission_bounces;
@@ -762,6 +767,7 @@ void Session::setup_caustics(bool guiding) {
   }
   caustic_paths_ = uint64_t(std::max<double>(1.0, std::llround(double(std::min(lt, 64.0f)) * film_.width() * film_.height())));
   cz->paths = float(caustic_paths_);
+  cz->clamp = integrator_.clamp_indirect;
   const Aabb& wb = scene_->world_bounds();
   cz->far = length((wb.lo + wb.hi) * 0.5f - c) + length(wb.extent()) + 2.0f * r;
   cz->max_vertices = k_max;

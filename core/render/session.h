@@ -38,6 +38,11 @@ struct RenderSettings {
   bool volume_phase_mis = true;      // IntegratorSettings::volume_phase_mis
   bool volume_pass_through = true;   // IntegratorSettings::volume_pass_through
   int rr_start_bounce = 3;           // IntegratorSettings::rr_start_bounce (measurements)
+  // Clamping (Cycles' sample_clamp_direct and sample_clamp_indirect, the same numbers): a
+  // contribution whose |r| + |g| + |b| exceeds 3 x the limit is scaled down to it (for grey
+  // light: each channel to the limit); IntegratorSettings::clamp_direct, clamp_indirect. 0 = off,
+  // the default (unbiased). Negative or non-finite: 0.
+  float clamp_direct = 0.0f, clamp_indirect = 0.0f;
   SamplerType sampler = SamplerType::Sobol;  // 4-D sets in Cycles' order (util/sampler.h)
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic

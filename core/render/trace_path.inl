@@ -588,6 +588,17 @@ inline Vec3 safe_ratio(Vec3 a, Vec3 b) {
   }
 }
 
+// Cycles' Clamping (film_clamp_light): a contribution to the film whose components' absolute
+// sum exceeds `limit` is scaled down to it, each contribution on its own (limit 0: unchanged,
+// bit for bit). IntegratorSettings::clamp_direct, clamp_indirect.
+inline Vec3 clamp_light(Vec3 v, float limit) {
+  if (limit > 0.0f) {
+    const float sum = std::fabs(v.x) + std::fabs(v.y) + std::fabs(v.z);
+    if (sum > limit) v = v * (limit / sum);
+  }
+  return v;
+}
+
 // Adds v to the light component of a path whose first scattering had pass weights dw, gw (or
 // was in a volume): direct or indirect.
 inline void add_light_component(PathAovs& a, Vec3 v, bool direct, Vec3 dw, Vec3 gw, bool volume) {
@@ -681,11 +692,12 @@ inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a 
 // units). weigh: MIS against the light sample at `from` (normal from_n) that could have found
 // the same point, as pdf_emitter does for mesh lights; else (camera rays, delta lobes, no
 // light sampling) the full weight. kLinks: light linking, `set` the light set of the point at
-// `from` (lights not linked to it add nothing but to camera rays; its set's pdfs).
+// `from` (lights not linked to it add nothing but to camera rays; its set's pdfs). clamp: each
+// light's contribution clamped at it (clamp_light; 0: none).
 template <bool kLinks = false, class Through>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
                                   Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0,
-                                  const CausticHitMis* caus = nullptr) {
+                                  const CausticHitMis* caus = nullptr, float clamp = 0.0f) {
   Vec3 sum(0.0f);
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
@@ -717,7 +729,7 @@ template <bool kLinks = false, class Through>
         if (ps > 0.0f) w = caustic_mis_weight(pl / prev_pdf, caus->ratio * ps);
       }
     }
-    const Vec3 c = through(t) * le * w;
+    const Vec3 c = clamp_light(through(t) * le * w, clamp);
     if (is_finite(c)) sum += c;
   };
   scene.for_hit_lights(ray.org, d, tmax, add);  // (bounding spheres or boxes first)
@@ -729,11 +741,11 @@ template <bool kLinks = false, class Through>
 // Shadow-linked lights along a ray leaving surface point sp (side: the normal on its side, d
 // unit): each one the ray's line crosses, seen through a shadow ray that passes the blockers it
 // ignores (`transmit(ray, mask)`), its emission times `beta`, weighted as light_hits weighs
-// (against the light sample at `from` of light set `set`).
+// (against the light sample at `from` of light set `set`), each clamped at `clamp` (0: none).
 template <class Transmit>
 [[gnu::noinline]] Vec3 dedicated_light_hits(const Scene& scene, const SurfacePoint& sp, Vec3 side, Vec3 d, float time,
                                             uint8_t vis, bool weigh, float prev_pdf, Vec3 from, Vec3 from_n,
-                                            uint8_t set, Vec3 beta, const Transmit& transmit) {
+                                            uint8_t set, Vec3 beta, float clamp, const Transmit& transmit) {
   Vec3 sum(0.0f);
   if (scene.dedicated_lights().empty()) return sum;
   const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
@@ -757,7 +769,7 @@ template <class Transmit>
     const Vec3 vis_t = l.cast_shadow ? transmit(shadow, l.shadow_mask) : Vec3(1.0f);
     if (is_black(vis_t)) continue;
     const float w = weigh ? power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, set) * pdf) : 1.0f;
-    const Vec3 c = beta * le * vis_t * w;
+    const Vec3 c = clamp_light(beta * le * vis_t * w, clamp);
     if (is_finite(c)) sum += c;
   }
   return sum;
@@ -1088,6 +1100,13 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   Vec3 lp_dw(0.0f), lp_gw(0.0f);
   bool lp_volume = false;
   int bounce = 0;
+  // Clamping (clamp_light), as Cycles' bounce for film_clamp_light: a light sample at a vertex
+  // after `bounce` scatterings is direct at the camera's first vertex (bounce 0); light a ray
+  // finds, after `bounce` scatterings counting the one it left, is direct up to bounce 1 (the
+  // camera's own, and the first vertex's ray). Transparent crossings are no scatterings.
+  const float clamp_direct = s.clamp_direct, clamp_indirect = s.clamp_indirect;
+  const auto sample_limit = [&]() { return bounce > 0 ? clamp_indirect : clamp_direct; };
+  const auto found_limit = [&]() { return bounce > 1 ? clamp_indirect : clamp_direct; };
   // Shadow catchers, as Cycles' integrator_split_shadow_catcher: the first catcher the camera
   // path meets directly splits it (after the media on the way to it, as Cycles' split after
   // shade_volume). The path goes on as it would without catchers (Combined); then a copy of it
@@ -1205,10 +1224,17 @@ restart: __attribute__((unused));
                 return beta * ratio_track(majorants, ray.org, d, tl, vrng, density);
               };
               L += light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
-                                      mis_n, through_het, mis_set);
+                                      mis_n, through_het, mis_set, nullptr, found_limit());
               lights_counted = true;
             }
+            const Vec3 L1 = L;
             const bool r = delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
+            if (found_limit() > 0.0f) {
+              // The segment's emission is one contribution (Cycles' film_write_volume_emission);
+              // L is left as it was unless the clamp cuts it.
+              const Vec3 e = L - L1, ec = clamp_light(e, found_limit());
+              if (ec.x != e.x || ec.y != e.y || ec.z != e.z) L = L1 + ec;
+            }
             if (kAovs && aov) emit_found(L - L0);  // (the lights and the medium's emission)
             return r;
           };
@@ -1232,10 +1258,12 @@ restart: __attribute__((unused));
                   Vec3 ss = me.sigma_s;
                   const Phase pe_phase = me.n_lobes >= 2 ? choose_lobe(me.n_lobes, me.lobes, vrng.next_float(), ss) : me.phase;
                   if (!is_black(tr)) {
-                    const Vec3 v = beta * tr * ss *
-                                   medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces, medium,
-                                                 u_sel.x, u_pt, ray_state, ray.time, c, &vrng, vset) *
-                                   (1.0f / pe);
+                    const Vec3 v = clamp_light(beta * tr * ss *
+                                                   medium_direct(scene, ray.org + d * te, d, pe_phase,
+                                                                 bounce >= s.max_bounces, medium, u_sel.x, u_pt,
+                                                                 ray_state, ray.time, c, &vrng, vset) *
+                                                   (1.0f / pe),
+                                               sample_limit());
                     L += v;
                     if (kAovs && lp) lp_volume_sample(v);
                   }
@@ -1255,7 +1283,7 @@ restart: __attribute__((unused));
           }
         } else {
           if (!is_black(m->emission)) {
-            const Vec3 v = beta * medium_emission(*m, seg);
+            const Vec3 v = clamp_light(beta * medium_emission(*m, seg), found_limit());
             L += v;
             if constexpr (kAovs)
               if (aov) emit_found(v);
@@ -1304,8 +1332,9 @@ restart: __attribute__((unused));
                     const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
                                                   medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
                                                   eq_mis);
-                    L += w * li;
-                    if (kAovs && lp) lp_volume_sample(w * li);
+                    const Vec3 v = clamp_light(w * li, sample_limit());
+                    L += v;
+                    if (kAovs && lp) lp_volume_sample(v);
                   }
                 }
               }
@@ -1314,7 +1343,7 @@ restart: __attribute__((unused));
             t = sample_free_flight(st, ud.x, ud.y);
             const float pdf_t = t < seg ? free_flight_pdf(st, t) : 0.0f;
             if (eq_pending && !(pdf_t > 0.0f)) {  // no scattering here: the equiangular sample alone
-              const Vec3 v = eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng);
+              const Vec3 v = clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng), sample_limit());
               L += v;
               if (kAovs && lp) lp_volume_sample(v);
               eq_pending = false;
@@ -1330,7 +1359,7 @@ restart: __attribute__((unused));
               }
               if (hits && !(nee && !prev_delta && prev_samples_only)) {
                 const Vec3 v = light_hits<kLinks>(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n,
-                                                  through, mis_set);
+                                                  through, mis_set, nullptr, found_limit());
                 L += v;
                 if (kAovs && lp) lp_found(v);
               }
@@ -1373,12 +1402,15 @@ restart: __attribute__((unused));
               const float a_d = average(vabs(value)), a_e = average(vabs(eq_value));
               const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
               if (vrng.next_float() < p_d)
-                L += beta * nee_weight * medium_light_trace(scene, ls, medium, c, &vrng) * (1.0f / p_d);
+                L += clamp_light(beta * nee_weight * medium_light_trace(scene, ls, medium, c, &vrng) * (1.0f / p_d),
+                                 sample_limit());
               else
-                L += eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d));
+                L += clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d)),
+                                 sample_limit());
             } else {
-              L += beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time, c,
-                                        &vrng, vset, dist_mis) * nee_weight;
+              L += clamp_light(beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time,
+                                                    c, &vrng, vset, dist_mis) * nee_weight,
+                               sample_limit());
             }
           }
           if (kAovs && lp) lp_volume_sample(L - L_scatter);
@@ -1431,7 +1463,7 @@ restart: __attribute__((unused));
       if constexpr (kCaus)
         if (cz_k >= 2 && (!prev_delta || cz_delta) && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng, prev_delta};
       const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
-                                         mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr);
+                                         mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr, found_limit());
       L += lh;
       if constexpr (kAovs) {
         if (lp) lp_found(lh);
@@ -1465,16 +1497,17 @@ restart: __attribute__((unused));
         if (cos_sky > 0.0f) w = power_heuristic(prev_pdf, cos_sky * kInvPi);
       }
       if (!bg_found) bg = scene.background(ray.dir);
+      const Vec3 bg_value = clamp_light(beta * bg * w, found_limit());
       if constexpr (kAovs) {
         if (direct && aov) {
-          aov->environment = beta * bg;
+          aov->environment = clamp_light(beta * bg, found_limit());
           // Alpha is 1 less what reaches the film transparently (the world and holdouts).
           if (s.transparent_background) aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         }
-        if (!(direct && s.transparent_background)) L += beta * bg * w;
-        if (lp && bounce > 0) lp_found(beta * bg * w);
+        if (!(direct && s.transparent_background)) L += bg_value;
+        if (lp && bounce > 0) lp_found(bg_value);
       } else {
-        L += beta * bg * w;  // transparent film always comes with the aov kernel
+        L += bg_value;  // transparent film always comes with the aov kernel
       }
       break;
     }
@@ -1488,7 +1521,7 @@ restart: __attribute__((unused));
         aov->catcher_samples = 1.0f;
         aov->matte = L;
         aov->matte_alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
-        if (s.catcher_background) aov->environment += beta * scene.background(ray.dir);
+        if (s.catcher_background) aov->environment += clamp_light(beta * scene.background(ray.dir), found_limit());
         cs.at = Split{beta, mis_org, mis_n, sky_n, feature_throughput, lp_dw, lp_gw, eta_scale, prev_pdf,
                          length_before, prev_delta, prev_samples_only, emission_only, direct, want_data,
                          want_features, lp_volume, mis_set, ray_vis, diffuse, glossy, transmission, transparent,
@@ -1563,10 +1596,11 @@ restart: __attribute__((unused));
         // same light-sample segment (which saw them through its transmittance).
         w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n, mis_set));
       }
-      L += beta * cl.emission * w;
+      const Vec3 v = clamp_light(beta * cl.emission * w, found_limit());
+      L += v;
       if constexpr (kAovs) {
-        if (direct && aov) aov->emission += beta * cl.emission;
-        else if (lp) lp_found(beta * cl.emission * w);
+        if (direct && aov) aov->emission += clamp_light(beta * cl.emission, found_limit());
+        else if (lp) lp_found(v);
       }
     }
     // Holdout seen directly (also through Transparent BSDFs), as Cycles' film_write_holdout:
@@ -1748,8 +1782,11 @@ restart: __attribute__((unused));
                   const double rho = double(cz->connection_count) * v.lr * d2 / (double(px) * qy);
                   const double rho2 = rho * rho;
                   const float wd = float(rho2 / (1.0 + double(v.eb) * v.eb + rho2));
-                  const Vec3 add = beta * fx * fy * v.beta *
-                                   (std::fabs(cyx) / (d2 * std::fabs(cyl)) * wd * float(double(m) / double(cache->paths)));
+                  // (its light arrives at x after y's scattering: indirect)
+                  const Vec3 add = clamp_light(beta * fx * fy * v.beta *
+                                                   (std::fabs(cyx) / (d2 * std::fabs(cyl)) * wd *
+                                                    float(double(m) / double(cache->paths))),
+                                               clamp_indirect);
                   if (is_finite(add)) L += add;
                 }
               }
@@ -1850,7 +1887,8 @@ restart: __attribute__((unused));
                 w = caustic_mis_weight(ab, rb);
               }
             }
-          const Vec3 v = beta * f * ds.li * vis * (w / ds.pdf);  // for delta lights pdf is the choice probability
+          // (for delta lights pdf is the choice probability)
+          const Vec3 v = clamp_light(beta * f * ds.li * vis * (w / ds.pdf), sample_limit());
           L += v;
           if constexpr (kAovs) {
             if (lp && bounce == 0) {  // the first scattering's: shares of this light direction's value
@@ -2187,7 +2225,7 @@ restart: __attribute__((unused));
     if constexpr (kLinks)
       if (links && !direct && !(kNonDiffuse && (bs.flags & kTransparentLobe)) && !(nee && !prev_delta && prev_samples_only))
         L += dedicated_light_hits(scene, sp, reflection ? ng_out : -ng_out, wi, ray.time, ray_vis,
-                                  nee && !prev_delta, prev_pdf, mis_org, mis_n, mis_set, beta,
+                                  nee && !prev_delta, prev_pdf, mis_org, mis_n, mis_set, beta, found_limit(),
                                   [&](const Ray& r, uint64_t mask) {
                                     if constexpr (kMedia)
                                       if (volumes)
