@@ -39,6 +39,26 @@ def core_has(cls, name):
     return hasattr(getattr(load_addon().core.get_core(), cls), name)
 
 
+class RecordingLayout:
+    """A stand-in for a panel's UILayout: records the properties drawn (each must exist on its
+    data); any other call (column, row, split, ...) returns the layout itself."""
+
+    def __init__(self):
+        self.props = []
+
+    def __getattr__(self, name):
+        if name in {"use_property_split", "use_property_decorate", "active", "enabled"}:
+            raise AttributeError(name)
+        return lambda *a, **kw: self
+
+    def prop(self, data, name, **kw):
+        assert hasattr(data, name), name
+        self.props.append(name)
+
+    def separator(self, **kw):
+        pass
+
+
 def empty_scene_with_camera(resolution=32):
     """The factory-empty scene with a camera at (0, -6, 0) looking at the origin along +y."""
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)

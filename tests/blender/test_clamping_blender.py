@@ -6,7 +6,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, load_addon, open_fixture, render_to_array
+from blender_util import RecordingLayout, core_available, load_addon, open_fixture, render_to_array
 from light_scenes import diffuse_set, emission_material, uv_sphere
 from material_scenes import region_means
 
@@ -45,23 +45,10 @@ def test_settings_have_cycles_names_are_off_and_reach_the_core():
 
 
 def test_light_paths_panel_has_a_clamping_subpanel():
-    class Layout:
-        def __init__(self):
-            self.props = []
-
-        def __getattr__(self, name):
-            if name in {"use_property_split", "use_property_decorate", "active", "enabled"}:
-                raise AttributeError(name)
-            return lambda *a, **kw: self
-
-        def prop(self, data, name, **kw):
-            assert hasattr(data, name), name
-            self.props.append(name)
-
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     panel = ui.PATHLIGHT_RENDER_PT_light_paths_clamping
     assert panel in ui.classes and panel.bl_parent_id == "PATHLIGHT_RENDER_PT_light_paths"
-    layout = Layout()
+    layout = RecordingLayout()
     panel.draw(type("Panel", (), {"layout": layout})(), type("Ctx", (), {"scene": bpy.context.scene}))
     assert tuple(layout.props) == NAMES
 

@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, core_has, load_addon, render_to_array, BOX_FILTER
+from blender_util import RecordingLayout, core_available, core_has, load_addon, render_to_array, BOX_FILTER
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
                           emission_material, empty_scene, load_image, plane, synthetic_hdr, world_image)
 from material_scenes import region_means
@@ -204,21 +204,6 @@ def test_animated_seed_adds_the_frame():
 
 def test_panels_draw_existing_properties():
     """Draw each Pathlight panel into a recording layout: every property it shows exists."""
-    class Layout:
-        def __init__(self):
-            self.props = []
-
-        def __getattr__(self, name):  # column, row, split, ...: return a sub-layout
-            if name in {"use_property_split", "use_property_decorate", "active", "enabled"}:
-                raise AttributeError(name)
-            return lambda *a, **kw: self
-
-        def prop(self, data, name, **kw):
-            assert hasattr(data, name), name
-            self.props.append(name)
-
-        def separator(self, **kw):
-            pass
 
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
@@ -232,7 +217,7 @@ def test_panels_draw_existing_properties():
             context = type("Ctx", (), {"scene": scene, "light": light, "object": obj, "engine": "PATHLIGHT",
                                        "view_layer": scene.view_layers[0]})
             for cls in ui.classes:
-                layout = Layout()
+                layout = RecordingLayout()
                 cls.draw(type("Panel", (), {"layout": layout})(), context)
                 shown.update(layout.props)
     # (Spot size and blend are in Blender's DATA_PT_spot, which Pathlight is added to.)
