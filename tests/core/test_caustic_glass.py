@@ -9,9 +9,9 @@ import re
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, closure, core, quad, region_means, render, uv_sphere
+from core_scenes import add_object, camera, closure, core, quad, render, uv_sphere
 # (the environment with a one-texel sun and the seeds' renders at 48 x 36 of the caustic tests)
-from test_caustic_light_paths import renders, sun_env
+from test_caustic_light_paths import assert_same_within_noise, renders, sun_env
 
 pc = core()
 
@@ -93,11 +93,7 @@ def test_glass_and_mirrors_converge_to_the_path_tracers_image(glass_renders):
     # says little; the few-or-many test below is the exact check).
     _, plain, lt, st = glass_renders
     assert st["caustics"] == "on"
-    assert abs(lt.mean() / plain.mean() - 1.0) < 0.01
-    rp = np.array([region_means(i, 4) for i in plain])
-    rl = np.array([region_means(i, 4) for i in lt])
-    sd = np.sqrt(rp.var(0, ddof=1) / len(rp) + rl.var(0, ddof=1) / len(rl))
-    assert np.all(np.abs(rl.mean(0) - rp.mean(0)) <= np.maximum(3.0 * sd, 0.03 * rp.mean(0)))
+    assert_same_within_noise(plain, lt, regions=4)
 
 
 def test_glass_and_mirrors_light_paths_lower_the_variance(glass_renders):

@@ -8,7 +8,7 @@ less of it; few or many light paths give the same image (the densities agree); d
 import numpy as np
 import pytest
 
-from core_scenes import add_object, closure, core, quad, region_means, uv_sphere
+from core_scenes import add_object, closure, core, quad, uv_sphere
 # (the caustic tests' scenes, cameras, seeds' renders and their converged check)
 from test_caustic_light_paths import (LAMP_CAM, PANEL_CAM, assert_same_within_noise, lens_renders, lensed,
                                       mirror_scene, shaded_panel_scene, sun_env)
@@ -116,11 +116,7 @@ def test_converges_to_the_path_tracers_image(converged):
     kind, plain, lt, st0, st = converged
     assert st["caustics"] == "on" and st0["caustics"] == ""
     assert ("motion blur" in st["features"]) == (kind in ("camera", "caster"))
-    assert abs(lt.mean() / plain.mean() - 1.0) < 0.01
-    rp = np.array([region_means(i, 4) for i in plain])
-    rl = np.array([region_means(i, 4) for i in lt])
-    sd = np.sqrt(rp.var(0, ddof=1) / len(rp) + rl.var(0, ddof=1) / len(rl))
-    assert np.all(np.abs(rl.mean(0) - rp.mean(0)) <= np.maximum(3.0 * sd, 0.03 * rp.mean(0)))
+    assert_same_within_noise(plain, lt, regions=4)
 
 
 def test_lowers_the_variance(converged):
