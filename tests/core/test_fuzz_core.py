@@ -121,7 +121,8 @@ PANORAMA_TYPES = ["EQUIRECTANGULAR", "EQUIANGULAR_CUBEMAP_FACE", "MIRRORBALL", "
                   "FISHEYE_EQUISOLID", "FISHEYE_LENS_POLYNOMIAL", "CENTRAL_CYLINDRICAL", "FISHEYE"]
 SETTINGS_FIELDS = ("width", "height", "samples", "max_bounces", "seed", "threads", "tile_size", "use_nee",
                    "sampler", "adaptive_threshold", "adaptive_min_samples", "time_limit",
-                   "diffuse_bounces", "glossy_bounces", "transmission_bounces")
+                   "diffuse_bounces", "glossy_bounces", "transmission_bounces", "clamp_direct",
+                   "clamp_indirect")
 
 
 def look_at(eye, target):
@@ -391,6 +392,9 @@ def render_fields(draw):
     if draw(st.integers(0, 3)) == 3:
         f["adaptive_threshold"] = draw(st.floats(0, 1) | st.floats(0, 1) | any_float)
         f["adaptive_min_samples"] = draw(st.integers(0, 4))
+    if draw(st.integers(0, 3)) == 3:  # Clamping: tiny limits cut every contribution
+        f["clamp_direct"] = draw(st.floats(0, 4, width=32) | any_float)
+        f["clamp_indirect"] = draw(st.floats(0, 4, width=32) | any_float)
     if draw(st.integers(0, 11)) == 11:  # an invalid or odd value somewhere
         name = draw(st.sampled_from(SETTINGS_FIELDS))
         f[name] = draw(st.integers(-2, 70000) | any_float | st.sampled_from(["x", None]))
