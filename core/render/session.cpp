@@ -481,6 +481,7 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   std::array<Float4, kMaxShaderAovs> shader_aovs;
   const int groups = film_.light_group_count();
   std::vector<Vec3> group_light(static_cast<size_t>(groups));  // (PathAovs::groups: one sample's)
+  const bool scratch = film_.aov_count() > 0 || groups > 0;
   PathCounters counters;
   if (caustics_) counters.filter_area = caustics_->filter_area;  // (the box's; other filters' per sample)
   uint64_t nonfinite = 0, paths = 0;
@@ -519,13 +520,15 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
           continue;
         }
         PathAovs aovs;
-        if (film_.aov_count()) {  // (only renders with shader AOVs clear these)
-          shader_aovs.fill(Float4{});
-          aovs.shader_aovs = shader_aovs.data();
-        }
-        if (groups) {  // (only renders with light groups clear these)
-          std::fill(group_light.begin(), group_light.end(), Vec3(0.0f));
-          aovs.groups = group_light.data();
+        if (scratch) {  // (only renders with shader AOVs or light groups clear these)
+          if (film_.aov_count()) {
+            shader_aovs.fill(Float4{});
+            aovs.shader_aovs = shader_aovs.data();
+          }
+          if (groups) {
+            std::fill(group_light.begin(), group_light.end(), Vec3(0.0f));
+            aovs.groups = group_light.data();
+          }
         }
         if (crypto) crypto_n[size_t(y - y0) * size_t(tw) + size_t(x - x0)] = 0;
         // One independent stream per (seed, pixel, sample): thread- and pass-independent, and
@@ -561,11 +564,14 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         }
         if (caustics_ && caustics_->connections > 0) counters.caustic_cache = &caustic_caches_[size_t(s - s0)];
         Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
-        if (caustics_) L += caustic_splats_[size_t(s - s0)][size_t(y) * size_t(film_.width()) + size_t(x)];
-        if (caustics_ && groups) {  // (the light paths' splats, each to its emitter's group)
-          const size_t pixels = size_t(film_.width()) * size_t(film_.height());
-          const std::vector<Vec3>& gs = caustic_group_splats_[size_t(s - s0)];
-          for (int g = 0; g < groups; ++g) group_light[size_t(g)] += gs[size_t(g) * pixels + size_t(y) * size_t(film_.width()) + size_t(x)];
+        if (caustics_) {
+          L += caustic_splats_[size_t(s - s0)][size_t(y) * size_t(film_.width()) + size_t(x)];
+          if (groups) {  // (the light paths' splats, each to its emitter's group)
+            const size_t pixels = size_t(film_.width()) * size_t(film_.height());
+            const std::vector<Vec3>& gs = caustic_group_splats_[size_t(s - s0)];
+            for (int g = 0; g < groups; ++g)
+              group_light[size_t(g)] += gs[size_t(g) * pixels + size_t(y) * size_t(film_.width()) + size_t(x)];
+          }
         }
         ++paths;
         const float alpha = std::isfinite(aovs.alpha) ? aovs.alpha : 1.0f;

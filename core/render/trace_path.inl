@@ -405,7 +405,7 @@ struct MediumLightSample {
   bool cast_shadow = true;
   uint64_t shadow_mask = kAllLightSets;  // shadow linking
   int max_hits = kShadowHits;            // RayState::shadow_hits
-  uint32_t entry = UINT32_MAX;           // DirectSample::entry (its light group)
+  uint32_t entry;                        // DirectSample::entry (its light group), set with li
 };
 // receiver: the medium's light set (light linking). mis: the point's share where its distance
 // came from one of several strategies (SegmentMis), 1 where it is the only one.
@@ -447,14 +447,23 @@ inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, 
   if (is_black(vis)) return Vec3(0.0f);
   return ls.li * vis * ls.factor;
 }
-// entry (if given): the light sample's DirectSample::entry (its light group), where it drew one.
 Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
                    Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng, uint8_t receiver = 0,
-                   const SegmentMis& mis = SegmentMis{}, uint32_t* entry = nullptr) {
+                   const SegmentMis& mis = SegmentMis{}) {
   MediumLightSample ls;
   if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
     return Vec3(0.0f);
-  if (entry) *entry = ls.entry;
+  return medium_light_trace(scene, ls, medium, c, rng);
+}
+// The same for light groups (pass kernels only): `entry` gets the sample's DirectSample::entry
+// where it drew one (left as it was where not).
+Vec3 medium_direct_entry(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium,
+                         float u_sel, Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng,
+                         uint8_t receiver, const SegmentMis& mis, uint32_t& entry) {
+  MediumLightSample ls;
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
+    return Vec3(0.0f);
+  entry = ls.entry;
   return medium_light_trace(scene, ls, medium, c, rng);
 }
 
@@ -1132,8 +1141,6 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     if constexpr (kAovs) return [&](uint32_t light, Vec3 v) { to_group(scene.light(light).light_group, v); };
     else return NoGroupSink{};
   }();
-  // A light sample's group (DirectSample::entry).
-  const auto entry_group = [&](uint32_t entry) { return lg ? scene.entry_light_group(entry) : -1; };
   int bounce = 0;
   // Clamping (clamp_light), as Cycles' bounce for film_clamp_light: a light sample at a vertex
   // after `bounce` scatterings is direct at the camera's first vertex (bounce 0); light a ray
@@ -1272,7 +1279,8 @@ restart: __attribute__((unused));
             }
             // (its emission: the innermost layer's object's group, as Cycles writes a segment's
             // emission with one object's)
-            if (kAovs && lg) to_group(scene.instance_light_group(medium.inner_instance()), L - L1);
+            if constexpr (kAovs)
+              if (lg) to_group(scene.instance_light_group(medium.inner_instance()), L - L1);
             if (kAovs && aov) emit_found(L - L0);  // (the lights and the medium's emission)
             return r;
           };
@@ -1297,15 +1305,17 @@ restart: __attribute__((unused));
                   const Phase pe_phase = me.n_lobes >= 2 ? choose_lobe(me.n_lobes, me.lobes, vrng.next_float(), ss) : me.phase;
                   if (!is_black(tr)) {
                     uint32_t entry = UINT32_MAX;
-                    const Vec3 v = clamp_light(beta * tr * ss *
-                                                   medium_direct(scene, ray.org + d * te, d, pe_phase,
-                                                                 bounce >= s.max_bounces, medium, u_sel.x, u_pt,
-                                                                 ray_state, ray.time, c, &vrng, vset, SegmentMis{},
-                                                                 kAovs && lg ? &entry : nullptr) *
-                                                   (1.0f / pe),
-                                               sample_limit());
+                    const Vec3 li = kAovs && lg ? medium_direct_entry(scene, ray.org + d * te, d, pe_phase,
+                                                                      bounce >= s.max_bounces, medium, u_sel.x, u_pt,
+                                                                      ray_state, ray.time, c, &vrng, vset, SegmentMis{},
+                                                                      entry)
+                                                : medium_direct(scene, ray.org + d * te, d, pe_phase,
+                                                                bounce >= s.max_bounces, medium, u_sel.x, u_pt,
+                                                                ray_state, ray.time, c, &vrng, vset);
+                    const Vec3 v = clamp_light(beta * tr * ss * li * (1.0f / pe), sample_limit());
                     L += v;
-                    to_group(entry_group(entry), v);
+                    if constexpr (kAovs)
+                      if (lg) to_group(scene.entry_light_group(entry), v);
                     if (kAovs && lp) lp_volume_sample(v);
                   }
                 }
@@ -1383,12 +1393,17 @@ restart: __attribute__((unused));
                     }
                   } else {
                     uint32_t entry = UINT32_MAX;
-                    const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
-                                                  eq_mis, kAovs && lg ? &entry : nullptr);
+                    const Vec3 li = kAovs && lg
+                                        ? medium_direct_entry(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
+                                                              medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng,
+                                                              vset, eq_mis, entry)
+                                        : medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
+                                                        medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
+                                                        eq_mis);
                     const Vec3 v = clamp_light(w * li, sample_limit());
                     L += v;
-                    to_group(entry_group(entry), v);
+                    if constexpr (kAovs)
+                      if (lg) to_group(scene.entry_light_group(entry), v);
                     if (kAovs && lp) lp_volume_sample(v);
                   }
                 }
@@ -1400,7 +1415,8 @@ restart: __attribute__((unused));
             if (eq_pending && !(pdf_t > 0.0f)) {  // no scattering here: the equiangular sample alone
               const Vec3 v = clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng), sample_limit());
               L += v;
-              to_group(entry_group(eq_ls.entry), v);
+              if constexpr (kAovs)
+                if (lg) to_group(scene.entry_light_group(eq_ls.entry), v);
               if (kAovs && lp) lp_volume_sample(v);
               eq_pending = false;
             }
@@ -1461,21 +1477,25 @@ restart: __attribute__((unused));
                 const Vec3 v = clamp_light(beta * nee_weight * medium_light_trace(scene, ls, medium, c, &vrng) * (1.0f / p_d),
                                            sample_limit());
                 L += v;
-                to_group(entry_group(ls.entry), v);
+                if constexpr (kAovs)
+                  if (lg) to_group(scene.entry_light_group(ls.entry), v);
               } else {
                 const Vec3 v = clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d)),
                                            sample_limit());
                 L += v;
-                to_group(entry_group(eq_ls.entry), v);
+                if constexpr (kAovs)
+                  if (lg) to_group(scene.entry_light_group(eq_ls.entry), v);
               }
             } else {
               uint32_t entry = UINT32_MAX;
-              const Vec3 v = clamp_light(beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
-                                                              ray.time, c, &vrng, vset, dist_mis,
-                                                              kAovs && lg ? &entry : nullptr) * nee_weight,
-                                         sample_limit());
+              const Vec3 li = kAovs && lg ? medium_direct_entry(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
+                                                                ray.time, c, &vrng, vset, dist_mis, entry)
+                                          : medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
+                                                          ray.time, c, &vrng, vset, dist_mis);
+              const Vec3 v = clamp_light(beta * li * nee_weight, sample_limit());
               L += v;
-              to_group(entry_group(entry), v);
+              if constexpr (kAovs)
+                if (lg) to_group(scene.entry_light_group(entry), v);
             }
           }
           if (kAovs && lp) lp_volume_sample(L - L_scatter);
@@ -1861,7 +1881,7 @@ restart: __attribute__((unused));
                                                clamp_indirect);
                   if (is_finite(add)) {
                     L += add;
-                    to_group(v.group, add);  // (its light path's emitter's)
+                    if constexpr (kAovs) to_group(v.group, add);  // (its light path's emitter's)
                   }
                 }
               }
