@@ -9,12 +9,15 @@ Pathlight seeds against two Cycles seeds, each group's mean agreed within 0.7 % 
 seeds: within 0.6 %) and the worst 8x8 region's difference from Cycles' mean was 0.42-1.29x
 Cycles' own worst seed-to-seed difference; the test asks 1.5 % and 1.75x."""
 import math
+import tempfile
+from pathlib import Path
 
 import bpy
 import numpy as np
 import pytest
 
-from blender_util import core_available, core_has, empty_scene_with_camera, load_addon, node_material
+from blender_util import (RecordingLayout, core_available, core_has, empty_scene_with_camera, load_addon,
+                          node_material)
 from test_light_passes import plane, render_passes, rgb, sphere
 from light_scenes import world_color
 
@@ -148,14 +151,54 @@ def test_passes_declared_for_the_compositor():
         assert (f"Combined_{name}", 3, "RGB") in sockets
 
 
+class SearchLayout(RecordingLayout):
+    """RecordingLayout that records prop_search(data, name, search_data, search_name) too."""
+
+    def prop_search(self, data, name, search_data, search_name, **kw):
+        assert hasattr(data, name) and hasattr(search_data, search_name), (name, search_name)
+        self.props.append((name, search_name))
+        return self
+
+
 def test_panels_show_the_fields():
     sc = box_scene(16)
     sc.render.engine = 'PATHLIGHT'
-    names = {cls.__name__ for cls in addon.ui.classes}
-    assert {"PATHLIGHT_OBJECT_PT_lightgroup", "PATHLIGHT_WORLD_PT_lightgroup", "PATHLIGHT_VIEWLAYER_PT_lightgroups"} <= names
-    for cls in addon.ui.classes:
-        if cls.__name__ == "PATHLIGHT_VIEWLAYER_PT_lightgroups":
-            assert cls.bl_parent_id == "PATHLIGHT_VIEWLAYER_PT_passes"
+    ui = addon.ui
+    assert ui.PATHLIGHT_VIEWLAYER_PT_lightgroups in ui.classes
+    assert ui.PATHLIGHT_VIEWLAYER_PT_lightgroups.bl_parent_id == "PATHLIGHT_VIEWLAYER_PT_passes"
+    assert ui.PATHLIGHT_OBJECT_PT_lightgroup.bl_parent_id == "OBJECT_PT_shading"  # (Blender's, engine-agnostic)
+    vl = sc.view_layers[0]
+    for panel, owner in ((ui.PATHLIGHT_OBJECT_PT_lightgroup, bpy.data.objects["Key"]),
+                         (ui.PATHLIGHT_WORLD_PT_lightgroup, sc.world)):
+        layout = SearchLayout()
+        ctx = type("Ctx", (), {"object": owner, "world": owner, "view_layer": vl, "engine": 'PATHLIGHT'})
+        assert panel.poll(ctx)
+        panel.draw(type("Panel", (), {"layout": layout})(), ctx)
+        assert layout.props == [("lightgroup", "lightgroups")]
+
+
+def test_an_instance_takes_its_instancers_group_as_cycles():
+    """A collection instance: its emissive object has no Light Group, the instancing empty has
+    one; Cycles (sync_object's b_parent) puts the instance's light in the empty's group."""
+    sc = empty_scene_with_camera(16)
+    coll = bpy.data.collections.new("Lamps")
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0, 0, 0), rotation=(math.pi / 2, 0, 0))
+    panel = bpy.context.active_object
+    panel.data.materials.append(emission("Panel", (1.0, 0.8, 0.6), 2.0))
+    for c in panel.users_collection:
+        c.objects.unlink(panel)
+    coll.objects.link(panel)
+    empty = bpy.data.objects.new("Instancer", None)
+    empty.instance_type, empty.instance_collection = 'COLLECTION', coll
+    sc.collection.objects.link(empty)
+    world_color((0.0, 0.0, 0.0))
+    sc.view_layers[0].lightgroups.add(name="panel")
+    empty.lightgroup = "panel"
+    tmp = Path(tempfile.mkdtemp(prefix="pathlight_lg_"))
+    out = [rgb(render_passes(sc, engine, tmp / f"{engine}.exr", 16), "Combined_panel") for engine in ('CYCLES', 'PATHLIGHT')]
+    cy, ours = out
+    assert cy.mean() > 0.05  # Cycles puts the instance's light in the instancer's group
+    np.testing.assert_allclose(ours.mean(), cy.mean(), rtol=0.02)
 
 
 def test_farm_merge_passes_the_groups_through(tmp_path):
