@@ -255,3 +255,23 @@ def test_shadow_catcher_paths_write_no_group_after_the_split():
     # The floor fills the lower half of the view: there the groups hold nothing.
     assert np.all(total[:6] == 0.0) and comb2[:6].mean() > 0.0
     assert floor.all() and total[-4:].mean() > 0.0  # (the wall above it, lit and seen directly)
+
+
+def test_curves_and_points_emit_into_their_objects_groups():
+    """Curves and point clouds are emitters found by rays alone (no light samples): their
+    emission goes to their set's group."""
+    s = pc.Scene()
+    white = s.add_material("white", (0.7, 0.7, 0.7))
+    add(s, *quad((-3, -3, -1), (6, 0, 0), (0, 6, 0)), white)
+    glow = s.add_material("glow", (0.0, 0.0, 0.0), (2.0, 1.5, 1.0))
+    pts = np.array([[x, 0.0, 0.2 * (x % 2)] for x in np.linspace(-1.0, 1.0, 9)], np.float32)
+    s.add_points(pts, np.full(len(pts), 0.12, np.float32), glow, light_group=0)
+    strands = np.array([[x, 0.5, z] for x in (-0.6, 0.0, 0.6) for z in np.linspace(-0.8, 0.8, 4)], np.float32)
+    s.add_curves(strands, np.array([0, 4, 8, 12], np.int32), np.full(len(strands), 0.05, np.float32), glow,
+                 light_group=1)
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(camera(pc, (0.0, -4.0, 0.5), (0.0, 0.0, 0.0), lens=35.0))
+    s.commit()
+    comb, g, _ = render(s, 32, 24, 8, groups=2)
+    assert_sum(comb, g)
+    assert g[0].mean() > 0.01 and g[1].mean() > 0.005
