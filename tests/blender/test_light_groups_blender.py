@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from blender_util import (RecordingLayout, core_available, core_has, empty_scene_with_camera, load_addon,
-                          node_material)
+                          node_material, render_multilayer_file)
 from test_light_passes import plane, render_passes, rgb, sphere
 from light_scenes import world_color
 
@@ -228,3 +228,37 @@ def test_farm_merge_passes_the_groups_through(tmp_path):
     for k in keys:
         np.testing.assert_allclose(merged[k], whole[k], rtol=2e-5, atol=2e-6)
     assert sum(whole[k].mean() for k in keys) > 0.01
+
+
+def test_persistent_data_follows_group_changes(tmp_path):
+    """With persistent data the add-on keeps its core scene between renders (render_cache): a
+    light, an object and the world moved to other groups (the group list changed too) must
+    show in the next render's passes."""
+    sc = box_scene(16)
+    sc.render.use_persistent_data = True
+    vl = sc.view_layers[0]
+
+    def groups(name):
+        if name == "first":  # (setting the engine again would tag every ID: no reuse after)
+            ch = render_passes(sc, 'PATHLIGHT', tmp_path / f"{name}.exr", 8)
+        else:
+            ch = render_multilayer_file(sc, tmp_path / f"{name}.exr")
+        return {n: rgb(ch, f"Combined_{n}") for n in [g.name for g in vl.lightgroups]}
+
+    try:
+        first = groups("first")
+        bpy.data.objects["Key"].lightgroup = "fill"  # key's light joins fill's group
+        second = groups("second")
+        assert addon.render_cache.SCENE_CACHE.reused  # (the kept scene, its lights replaced)
+        np.testing.assert_allclose(second["fill"], first["key"] + first["fill"], rtol=1e-4, atol=1e-5)
+        assert np.all(second["key"] == 0.0)
+        bpy.data.objects["Glow"].lightgroup = "sky"  # a mesh emitter moves
+        sc.world.lightgroup = "glow"  # and the world
+        vl.lightgroups.add(name="extra")  # the list changes: a new scene
+        third = groups("third")
+        np.testing.assert_allclose(third["sky"], first["glow"], rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(third["glow"], first["sky"], rtol=1e-4, atol=1e-5)
+        assert np.all(third["extra"] == 0.0)
+    finally:
+        sc.render.use_persistent_data = False
+        addon.render_cache.clear()
