@@ -14,6 +14,7 @@ from core_scenes import closure as program
 from test_caustic_connections import CONN, shaded_scene
 from test_caustic_light_paths import mirror_scene
 from test_core_hetero_volumes import cube, linear_program
+from test_light_linking import ALL, mirror_room
 from test_light_tree import lamp_room
 
 pc = core()
@@ -275,3 +276,19 @@ def test_curves_and_points_emit_into_their_objects_groups():
     comb, g, _ = render(s, 32, 24, 8, groups=2)
     assert_sum(comb, g)
     assert g[0].mean() > 0.01 and g[1].mean() > 0.005
+
+
+def test_shadow_linked_lamps_found_by_dedicated_rays_go_to_their_groups():
+    """Shadow-linked lamps with extent are found by dedicated rays (dedicated_light_hits), each
+    handing its light to its own group; the world is black, so the two lamps are all (the
+    area lamp faces away from what the camera sees: the sun's glint in the mirror and the
+    floor, found by dedicated rays only, are most of the image)."""
+    s = mirror_room(ALL & ~(1 << 5))
+    s.set_light_group(0, 0)  # the area lamp
+    s.set_light_group(1, 1)  # the sun
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.commit()
+    comb, g, sess = render(s, 32, 24, 8, groups=2, max_bounces=3)
+    assert "light linking" in sess.stats()["features"]
+    assert_sum(comb, g)
+    assert g[1].mean() > 0.1
