@@ -109,6 +109,8 @@ def _same_geometry(old, new):
         return False
     if getattr(old, "light_links", {}) != getattr(new, "light_links", {}):
         return False  # add_instance sets the objects' light sets
+    if getattr(old, "light_groups", []) != getattr(new, "light_groups", []):
+        return False  # and their light groups' indices (the objects' names: in infos)
     if any(getattr(m, "displacement", None) for m in old.materials + new.materials):
         return False  # displaced vertices follow the materials and the transforms: a new scene
     if getattr(old.uv_sets, "names", None) != getattr(new.uv_sets, "names", None):

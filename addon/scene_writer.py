@@ -20,6 +20,7 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
     build of the core cannot do. material_ids, image_ids: lists that receive the core id of
     each of data.materials and data.images (for live edits and reuse)."""
     warn = warn if warn is not None else (lambda msg: None)
+    groups = getattr(data, "light_groups", None) or []
     scene = pc.Scene()
     for k, grid in enumerate(getattr(data, "volume_grids", [])):
         if scene.add_volume_grid(grid) != k:  # (programs name grids by their index here)
@@ -86,18 +87,19 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
             if random_id is None:
                 random_id = pc.object_random_id(names[k]) if names else 0
             scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id,
-                               shadow_terminator=terminator, **_crypto(info), **_catcher_holdout(info), **extra)
+                               shadow_terminator=terminator, **_crypto(info), **_catcher_holdout(info),
+                               **_light_group(info, groups), **extra)
     curves = getattr(data, "curves", [])
     if curves:
         mats = iter(data.curve_materials)
         add_curves(scene, curves, lambda _material: ids[next(mats)], warn,
-                   pc.object_random_id, getattr(data, "light_links", None))
+                   pc.object_random_id, getattr(data, "light_links", None), groups)
     points = getattr(data, "points", [])
     if points:
         mats = iter(data.point_materials)
         add_points(scene, points, lambda _material: ids[next(mats)], warn, pc.object_random_id,
-                   getattr(data, "light_links", None))
-    add_lights(scene, data.lights)
+                   getattr(data, "light_links", None), groups)
+    add_lights(scene, data.lights, groups)
     set_world(scene, data, warn)
     set_camera(pc, scene, data.camera)
     return scene
@@ -185,6 +187,23 @@ def _catcher_holdout(info):
     return {"shadow_catcher": info[5], "holdout": info[6]} if len(info) > 6 and (info[5] or info[6]) else {}
 
 
+def group_index(groups, name):
+    """The core's light group of an emitter whose Light Group is `name`: its index in the view
+    layer's light groups `groups`, or -1 (none: empty, or a name the view layer does not list,
+    as Cycles' lightgroup map leaves such objects out)."""
+    try:
+        return groups.index(name) if name else -1
+    except ValueError:
+        return -1
+
+
+def _light_group(info, groups):
+    """add_instance / add_curves / add_points keywords of an object's light group
+    (mesh.object_info's eighth entry), only where it is in one."""
+    g = group_index(groups, info[7]) if len(info) > 7 and groups else -1
+    return {"light_group": g} if g >= 0 else {}
+
+
 def _motion_args(entry, k):
     """add_curves / add_points keywords for motion blur of instance k of a CurvesData or
     PointsData: its transform steps and the geometry's deformation steps (export.motion), and
@@ -221,10 +240,12 @@ def _link_sets(links, owners, k):
     return out
 
 
-def add_curves(scene, curves, material_ids, warn, random_id_of=None, links=None):
+def add_curves(scene, curves, material_ids, warn, random_id_of=None, links=None, groups=()):
     """Adds CurvesData `curves` to a core scene; material_ids(material) -> core material id;
     random_id_of(name): the random id of a non-instanced object (Object Info's Random);
-    links: export.light_linking.light_links' dict (object name -> sets and masks) or None."""
+    links: export.light_linking.light_links' dict (object name -> sets and masks) or None;
+    groups: the view layer's light group names (SceneData.light_groups)."""
+    groups = list(groups)
     for c in curves:
         mat = material_ids(c.material)
         infos = c.infos if len(c.infos) == len(c.matrices) else [None] * len(c.matrices)
@@ -258,15 +279,16 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None, links=None)
                     random_id = random_id_of(c.name) if random_id_of else 0
                 scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
                                  color=color, pass_index=pass_index, random_id=random_id, **_crypto(info),
-                                 **_catcher_holdout(info), **extra)
+                                 **_catcher_holdout(info), **_light_group(info, groups), **extra)
             except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
                 warn(f"Curves '{c.name}' not rendered: {e}")
                 break
 
 
-def add_points(scene, points, material_ids, warn, random_id_of=None, links=None):
+def add_points(scene, points, material_ids, warn, random_id_of=None, links=None, groups=()):
     """Adds PointsData `points` to a core scene, one point set per instance; material_ids,
-    random_id_of and links as add_curves'."""
+    random_id_of, links and groups as add_curves'."""
+    groups = list(groups)
     for p in points:
         mat = material_ids(p.material)
         infos = p.infos if len(p.infos) == len(p.matrices) else [None] * len(p.matrices)
@@ -283,7 +305,7 @@ def add_points(scene, points, material_ids, warn, random_id_of=None, links=None)
                 if random_id is None:
                     random_id = random_id_of(p.name) if random_id_of else 0
                 extra.update(color=color, pass_index=pass_index, random_id=random_id, **_crypto(info),
-                             **_catcher_holdout(info))
+                             **_catcher_holdout(info), **_light_group(info, groups))
             try:
                 scene.add_points(p.points, p.radii, mat, matrix=m, **extra)
             except ValueError as e:  # inconsistent arrays: the cloud is left out, Blender goes on
@@ -318,8 +340,10 @@ def _light_image_ids(scene, images):
     return ids
 
 
-def add_lights(scene, lights):
-    """Adds LightData `lights` to a core scene."""
+def add_lights(scene, lights, groups=()):
+    """Adds LightData `lights` to a core scene; groups: the view layer's light group names
+    (SceneData.light_groups) their Light Group is looked up in."""
+    groups = list(groups)
     k = 0  # the core's index of the next analytic light (portals are not lights there)
     for light in lights:
         args = light.args
@@ -331,6 +355,9 @@ def add_lights(scene, lights):
             continue
         if getattr(light, "links", None) is not None:
             scene.set_light_links(k, *light.links)
+        g = group_index(groups, getattr(light, "lightgroup", ""))
+        if g >= 0:  # (so never for older cores)
+            scene.set_light_group(k, g)
         k += 1
 
 
@@ -338,7 +365,7 @@ def replace_lights(scene, lights, world, warn):
     """Replaces a committed core scene's lights (LightData) and world (`world`: what set_world
     reads of SceneData); its next commit() rebuilds only the light distribution."""
     scene.clear_lights()
-    add_lights(scene, lights)
+    add_lights(scene, lights, getattr(world, "light_groups", None) or [])
     set_world(scene, world, warn)
 
 
@@ -354,6 +381,9 @@ def set_world(scene, data, warn):
         scene.set_world_color(data.world_color)
     volume = getattr(data, "world_volume", None)
     scene.set_world_volume(volume)
+    g = group_index(list(getattr(data, "light_groups", None) or []), getattr(data, "world_lightgroup", ""))
+    if g >= 0 or getattr(data, "light_groups", None):  # (so never for older cores without groups)
+        scene.set_world_light_group(g)
 
 
 def set_instance_transforms(scene, moves):

@@ -109,6 +109,13 @@ def shader_aovs(view_layer):
 MAX_SHADER_AOVS = 16  # the core's kMaxShaderAovs
 
 
+def light_group_passes(view_layer):
+    """The view layer's light group passes as (name, channels, channel ids, socket type), in its
+    order (the core's group indices), named and laid out as Cycles': "Combined_<group>", RGB."""
+    from .export import view_layer_lightgroups
+    return [("Combined_" + name, 3, "RGB", 'COLOR') for name in view_layer_lightgroups(view_layer)]
+
+
 # Cryptomatte layers: (view-layer switch, Cycles' pass-name stem, the core's layer name).
 CRYPTO_LAYERS = (
     ("use_pass_cryptomatte_object", "CryptoObject", "object"),
@@ -138,7 +145,7 @@ def update_render_passes(engine, scene, view_layer):
     engine.register_pass(scene, view_layer, "Combined", 4, "RGBA", 'COLOR')
     for name, channels, chan_id, socket, _ in enabled_passes(scene, view_layer) + crypto_passes(view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
-    for name, channels, chan_id, socket in shader_aovs(view_layer):
+    for name, channels, chan_id, socket in shader_aovs(view_layer) + light_group_passes(view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
 
 
@@ -339,6 +346,9 @@ def render(engine, depsgraph):
         settings.passes = [p[0] for p in passes if p[0] != "Sample Count" and p[0] not in empty]
         if aovs:
             settings.shader_aovs = [a[1] for a in aovs]
+        groups = [] if engine.is_preview or scene.pathlight.debug_view == 'BVH' else light_group_passes(view_layer)
+        if groups:
+            settings.light_groups = len(groups)
         if "UV" in names and "" in data.uv_sets.names:
             settings.uv_pass_set = data.uv_sets.names.index("")
         crypto = crypto_passes(view_layer) if hasattr(pc, "cryptomatte_hash") else []
@@ -369,12 +379,12 @@ def render(engine, depsgraph):
         _report_kernel(sess)
         for name, channels, chan_id, _, _ in passes + crypto:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
-        for name, channels, chan_id, _ in aovs:
+        for name, channels, chan_id, _ in aovs + groups:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _, _, width, height = render_border(scene)
         done = _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit,
                     passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs], bvh_view=scene.pathlight.debug_view == 'BVH',
-                    layer=view_layer.name, final_passes=[c[0] for c in crypto])
+                    layer=view_layer.name, final_passes=[c[0] for c in crypto], groups=[g[0] for g in groups])
         _stamp(engine, settings.sample_offset, done,
                cryptomatte_metadata(pc, data, view_layer) if crypto else {})
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
@@ -515,9 +525,11 @@ def _warner(engine):
     return warn
 
 
-def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=(), final_passes=()):
+def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=(), final_passes=(),
+         groups=()):
     """Streams the session's film (and passes) into the render result; returns the samples
-    done. final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at the end."""
+    done. final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at the end.
+    groups: the light group passes' names (film_light_group(i) is group i's)."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     # With a render border, Blender's result is the border's size (it crops, or pastes the
     # border into the frame, itself): the film covers exactly that.
@@ -528,6 +540,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
         combined = render_layer.passes["Combined"]
         targets = [(name, render_layer.passes.get(name)) for name in passes]
         aov_targets = [(i, render_layer.passes.get(name)) for i, name in enumerate(aovs)]
+        group_targets = [(i, render_layer.passes.get(name)) for i, name in enumerate(groups)]
         final_targets = [(name, render_layer.passes.get(name)) for name in final_passes]
         sess.start()
         shown = -1
@@ -545,6 +558,9 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
                 for i, target in aov_targets:  # film_aov(i): shader AOV slot i
                     if target is not None:
                         target.rect.foreach_set(sess.film_aov(i).ravel())
+                for i, target in group_targets:  # film_light_group(i): light group i
+                    if target is not None:
+                        target.rect.foreach_set(sess.film_light_group(i).ravel())
                 engine.update_result(result)
                 shown = info["samples_done"]
             engine.update_progress(info["samples_done"] / max(info["samples_total"], 1))

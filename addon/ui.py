@@ -276,12 +276,72 @@ class PATHLIGHT_OBJECT_PT_shadow_catcher(PathlightPanel, bpy.types.Panel):
         layout = split(self.layout)
         layout.prop(context.object, "is_shadow_catcher")
 
+try:  # Blender's own list of the view layer's light groups (Cycles draws it with this helper)
+    from bl_ui.properties_view_layer import ViewLayerLightgroupsPanelHelper
+except ImportError:  # (an older Blender: no light groups)
+    ViewLayerLightgroupsPanelHelper = None
+
+
+def _lightgroup_field(layout, owner, view_layer):
+    """Cycles' Light Group field: the name, searched among the view layer's groups (any name
+    may be typed; one not in the list renders in no group), and + to add it to the list."""
+    row = layout.row(align=True)
+    row.use_property_decorate = False
+    sub = row.column(align=True)
+    sub.prop_search(owner, "lightgroup", view_layer, "lightgroups", text="Light Group",
+                    results_are_suggestions=True)
+    sub = row.column(align=True)
+    sub.enabled = bool(owner.lightgroup) and not any(g.name == owner.lightgroup for g in view_layer.lightgroups)
+    sub.operator("scene.view_layer_add_lightgroup", icon='ADD', text="").name = owner.lightgroup
+
+
+class PATHLIGHT_OBJECT_PT_lightgroup(PathlightPanel, bpy.types.Panel):
+    """Cycles' Object ▸ Shading ▸ Light Group (Blender's Shading panel is engine-agnostic; the
+    field is drawn by Cycles' add-on)."""
+    bl_label = "Light Group"
+    bl_parent_id = "OBJECT_PT_shading"
+    bl_context = "object"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.object is not None and hasattr(context.object, "lightgroup")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        _lightgroup_field(layout, context.object, context.view_layer)
+
+
+class PATHLIGHT_WORLD_PT_lightgroup(PathlightPanel, bpy.types.Panel):
+    """Cycles' World ▸ Settings ▸ Light Group."""
+    bl_label = "Light Group"
+    bl_context = "world"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.world is not None and hasattr(context.world, "lightgroup")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        _lightgroup_field(layout, context.world, context.view_layer)
+
+
+light_group_classes = (PATHLIGHT_OBJECT_PT_lightgroup, PATHLIGHT_WORLD_PT_lightgroup)
+if ViewLayerLightgroupsPanelHelper is not None:
+    class PATHLIGHT_VIEWLAYER_PT_lightgroups(PathlightPanel, ViewLayerLightgroupsPanelHelper, bpy.types.Panel):
+        """View Layer ▸ Passes ▸ Light Groups, Blender's list (its helper, as Cycles' panel)."""
+        bl_label = "Light Groups"
+        bl_parent_id = "PATHLIGHT_VIEWLAYER_PT_passes"
+        bl_context = "view_layer"
+    light_group_classes += (PATHLIGHT_VIEWLAYER_PT_lightgroups,)
+
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
            PATHLIGHT_RENDER_PT_light_paths_clamping,
            PATHLIGHT_RENDER_PT_film,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
-           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher)
+           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher) + light_group_classes
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles
 # does: output, camera, lens, light, world context, ...) plus EEVEE's node-based material and

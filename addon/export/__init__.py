@@ -45,6 +45,10 @@ class SceneData:
     # Light linking: object name -> (light_set, light_mask, shadow_set, shadow_mask)
     # (export.light_linking); lights carry theirs in LightData.links.
     light_links: dict = field(default_factory=dict)
+    # Light groups (View Layer ▸ Light Groups): the view layer's group names in order (the
+    # core's group indices); the world's group name (World ▸ Settings ▸ Light Group).
+    light_groups: list = field(default_factory=list)
+    world_lightgroup: str = ""
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None, uv_pass=False,
@@ -109,7 +113,27 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                      world_texture(scene.world, warn), table.images.images,
                      table.material_names(), table.uv_sets, world_volume(scene.world, warn),
                      curves, curve_materials, volume_grids, frozenset(table.volume_material_names),
-                     points, point_materials, links)
+                     points, point_materials, links, view_layer_lightgroups(getattr(depsgraph, "view_layer", None)),
+                     world_lightgroup(scene.world))
+
+
+MAX_LIGHT_GROUPS = 64  # the core's kMaxLightGroups
+
+
+def world_lightgroup(world):
+    """World ▸ Settings ▸ Light Group (of the original world: the field tags no depsgraph
+    update), "" without a world."""
+    if world is None:
+        return ""
+    world = getattr(world, "original", None) or world
+    return getattr(world, "lightgroup", "") or ""
+
+
+def view_layer_lightgroups(view_layer):
+    """The names of a view layer's light groups (View Layer ▸ Light Groups), in order: group i
+    is the core's light group i (Cycles numbers them so too). At most MAX_LIGHT_GROUPS."""
+    names = [g.name for g in getattr(view_layer, "lightgroups", ()) if g.name]
+    return names[:MAX_LIGHT_GROUPS]
 
 
 # Measured by tests/core/test_robustness_numeric.py: a 2-unit Cornell box stays correct within noise

@@ -26,6 +26,9 @@ class LightData:
     # The images (shader.ImageData) that args["shader"]'s image ops index (scene_writer adds
     # them and renumbers the ops).
     images: list = None
+    # Object ▸ Shading ▸ Light Group: the name of the view layer's light group it is in ("":
+    # none; a name not in the view layer's list is none too, as Cycles).
+    lightgroup: str = ""
 
 
 @dataclass
@@ -345,6 +348,20 @@ def convert_light(obj, matrix, warn):
     return None
 
 
+def object_lightgroup(instance):
+    """Object ▸ Shading ▸ Light Group of a depsgraph instance: the object's, or where it has
+    none its instancer's (Cycles' sync_object: b_ob's, else b_parent's). Read from the original
+    objects: setting the field tags no depsgraph update, so an evaluated copy made before
+    may still hold the old name."""
+    def group(obj):
+        obj = getattr(obj, "original", None) or obj
+        return getattr(obj, "lightgroup", "") or ""
+    name = group(instance.object)
+    if not name and instance.is_instance and instance.parent is not None:
+        name = group(instance.parent)
+    return name
+
+
 def collect_lights(depsgraph, warn, is_visible):
     """LightData for every visible light instance of the depsgraph (collection instances
     included: each instance carries its own matrix_world)."""
@@ -355,5 +372,6 @@ def collect_lights(depsgraph, warn, is_visible):
             continue
         data = convert_light(obj, instance.matrix_world, warn)
         if data is not None:
+            data.lightgroup = object_lightgroup(instance)
             lights.append(data)
     return lights

@@ -458,7 +458,8 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
 
 def object_info(instance, view_layer=None):
     """(RGBA colour, pass index, random id or None, shadow terminator geometry offset,
-    Cryptomatte names, shadow catcher, holdout) of a depsgraph object instance. The names are
+    Cryptomatte names, shadow catcher, holdout, light group name) of a depsgraph object
+    instance. The names are
     (object, asset) as Cycles gives them: the object's name and its top parent's (its own
     without a parent). Holdout is the object's own or, given the depsgraph's view layer, its
     collection's there too (Cycles' holdout_get)."""
@@ -469,8 +470,9 @@ def object_info(instance, view_layer=None):
     while top.parent is not None:
         top = top.parent
     catcher = bool(getattr(obj, "is_shadow_catcher", False))
+    from .light import object_lightgroup
     return (tuple(obj.color), int(obj.pass_index), random_id, terminator, (obj.name, top.name), catcher,
-            _holdout(instance, view_layer))
+            _holdout(instance, view_layer), object_lightgroup(instance))
 
 
 def _holdout(instance, view_layer):

@@ -412,6 +412,13 @@ void set_cryptomatte(ObjectInfo& info, const py::object& names, const char* what
   info.crypto_asset = cryptomatte_id_of(n[1]);
 }
 
+// A light group index (RenderSettings::light_groups' numbering; -1: none).
+int16_t to_light_group(int g, const char* what) {
+  if (g < -1 || g >= kMaxLightGroups)
+    throw std::invalid_argument(std::string(what) + " light_group takes -1 (none) or 0.." + std::to_string(kMaxLightGroups - 1));
+  return int16_t(g);
+}
+
 // A curve or point set's light linking sets as a receiver and a blocker (0..63; they are no
 // emitters, so no masks).
 void set_link_sets(ObjectInfo& info, int light_set, int shadow_set, const char* what,
@@ -435,9 +442,10 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
                     const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set,
                     const py::object& pass_motion, uint64_t light_mask, uint64_t shadow_mask,
-                    const py::object& pass_points, bool shadow_catcher, bool holdout) {
+                    const py::object& pass_points, bool shadow_catcher, bool holdout, int light_group) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
+  const int16_t group = to_light_group(light_group, "curves");
   if (offsets.ndim() != 1 || offsets.shape(0) < 1) throw std::invalid_argument("curve offsets must have shape (C + 1,)");
   const size_t n = size_t(points.shape(0)), nc = size_t(offsets.shape(0)) - 1;
   if (n > UINT32_MAX / 2 || nc > UINT32_MAX / 2) throw std::invalid_argument("curves are too large");
@@ -501,6 +509,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   cs.pass_points = to_pass_points(pass_points, n, "curves pass_points");
   cs.info.shadow_catcher = shadow_catcher;
   cs.info.holdout = holdout;
+  cs.info.light_group = group;
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -513,9 +522,10 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
                     const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
                     const py::object& cryptomatte, int light_set, int shadow_set, const py::object& pass_motion,
                     uint64_t light_mask, uint64_t shadow_mask, const py::object& pass_points,
-                    bool shadow_catcher, bool holdout) {
+                    bool shadow_catcher, bool holdout, int light_group) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
+  const int16_t group = to_light_group(light_group, "points");
   const size_t n = size_t(points.shape(0));
   if (n > UINT32_MAX / 4) throw std::invalid_argument("the point cloud is too large");
   PointSetData ps;
@@ -555,6 +565,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   ps.pass_points = to_pass_points(pass_points, n, "points pass_points");
   ps.info.shadow_catcher = shadow_catcher;
   ps.info.holdout = holdout;
+  ps.info.light_group = group;
   return self.scene->add_points(std::move(ps));
 }
 
@@ -3245,6 +3256,10 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_readwrite("shader_aovs", &RenderSettings::shader_aovs,
                      "Shader AOVs (the view layer's, in order): the channels of each, 4 (COLOR) or 1 (VALUE); "
                      "the aov_output op writes slot i. Read with Session.film_aov(i).")
+      .def_readwrite("light_groups", &RenderSettings::light_groups,
+                     "Light groups (Cycles' Combined_<name> passes), at most 64: emitters name theirs by index "
+                     "(add_instance / add_curves / add_points' light_group, Scene.set_light_group, "
+                     "set_world_light_group). Read with Session.film_light_group(i).")
       .def_readwrite("uv_pass_set", &RenderSettings::uv_pass_set,
                      "The UV pass's uv set (the active render UV map's global index; -1: none, the pass reads 0).")
       .def_property(
@@ -3346,7 +3361,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
            py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
-           py::arg("shadow_catcher") = false, py::arg("holdout") = false,
+           py::arg("shadow_catcher") = false, py::arg("holdout") = false, py::arg("light_group") = -1,
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes, light_set, shadow_set: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
@@ -3374,7 +3389,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("motion_radii") = py::none(), py::arg("cryptomatte") = py::none(), py::arg("light_set") = 0,
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
            py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
-           py::arg("shadow_catcher") = false, py::arg("holdout") = false,
+           py::arg("shadow_catcher") = false, py::arg("holdout") = false, py::arg("light_group") = -1,
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -3529,13 +3544,32 @@ PYBIND11_MODULE(pathlight_core, m) {
           "light_mask: it lights objects of light set s (add_instance's light_set); bit s of "
           "shadow_mask: objects of shadow set s block it (others let its light pass).")
       .def(
+          "set_light_group",
+          [](PyScene& self, size_t index, int group) {
+            self.check_editable();
+            if (!self.scene->set_light_group(index, to_light_group(group, "light"))) throw std::out_of_range("no such light");
+          },
+          py::arg("index"), py::arg("light_group"),
+          "The light group (Cycles' Light Groups: the Combined_<name> pass its light also goes to; "
+          "RenderSettings.light_groups' index, -1: none) of analytic light `index` (add order).")
+      .def(
+          "set_world_light_group",
+          [](PyScene& self, int group) {
+            self.check_editable();
+            self.scene->set_world_light_group(to_light_group(group, "world"));
+          },
+          py::arg("light_group"),
+          "The world's light group (World ▸ Settings ▸ Light Group; -1: none): the environment's light "
+          "(seen, found by rays, light-sampled, caustic light paths from it).")
+      .def(
           "add_instance",
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
              uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator,
              int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask, const py::object& pass_motion,
-             const py::object& cryptomatte, bool shadow_catcher, bool holdout) {
+             const py::object& cryptomatte, bool shadow_catcher, bool holdout, int light_group) {
             self.check_editable();
             ObjectInfo info;
+            info.light_group = to_light_group(light_group, "instance");
             set_cryptomatte(info, cryptomatte, "instance");
             info.shadow_catcher = shadow_catcher;
             info.holdout = holdout;
@@ -3564,6 +3598,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("shadow_terminator") = 0.0f, py::arg("light_set") = 0, py::arg("light_mask") = kAllLightSets,
           py::arg("shadow_set") = 0, py::arg("shadow_mask") = kAllLightSets, py::arg("pass_motion") = py::none(),
           py::arg("cryptomatte") = py::none(), py::arg("shadow_catcher") = false, py::arg("holdout") = false,
+          py::arg("light_group") = -1,
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
@@ -3577,7 +3612,9 @@ PYBIND11_MODULE(pathlight_core, m) {
           "None: no id). shadow_catcher: Cycles' Shadow Catcher (the camera sees "
           "it only through the shadows and light that other objects cast on it; passes 'Shadow "
           "Catcher', 'Shadow Catcher Matte', 'Shadow Catcher Sample Count'); holdout: Cycles' "
-          "object Holdout (the camera sees through it to a transparent film, alpha 0).")
+          "object Holdout (the camera sees through it to a transparent film, alpha 0). light_group: the "
+          "light group its emission goes to (RenderSettings.light_groups' index; -1: none), as "
+          "add_curves' and add_points'.")
       .def(
           "set_mesh_pass_motion",
           [](PyScene& self, uint32_t mesh, const FloatArray& positions) {
@@ -4303,6 +4340,22 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Shader AOV i (RenderSettings.shader_aovs) as float32 (H, W, channels), row 0 = bottom: the "
           "mean over samples of what the AOV Output ops of the camera path's first surfaces wrote "
           "(COLOR: (r, g, b, 1); VALUE: the value; 0 where nothing was written).")
+      .def(
+          "film_light_group",
+          [](PySession& self, int i) {
+            Film& f = self.session->film();
+            if (i < 0 || i >= f.light_group_count()) throw std::invalid_argument("no light group " + std::to_string(i));
+            FloatArray out({f.height(), f.width(), 3});
+            float* dst = out.mutable_data();
+            {
+              py::gil_scoped_release release;
+              f.read_light_group(i, dst);
+            }
+            return out;
+          },
+          py::arg("i"),
+          "Light group i (RenderSettings.light_groups) as float32 (H, W, 3), row 0 = bottom: Cycles' "
+          "Combined_<name> pass, the light of that group's emitters (times the exposure).")
       .def("film_pass", &film_pass, py::arg("name"),
            "One render pass as float32 (H, W, channels), row 0 = bottom (see render_passes()); "
            "also Cryptomatte's 'CryptoObject00', 'CryptoMaterial01', ... (H, W, 4).");

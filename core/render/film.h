@@ -111,8 +111,9 @@ class Film {
  public:
   // passes: a set of pass_bit()s; exposure scales Combined's RGB and the light passes on reading.
   // aovs: the channels (1 or 4) of each shader AOV plane, kept after the passes' planes.
+  // light_groups: Cycles' light group passes (Combined_<name>), an RGB plane each after those.
   Film(int width, int height, int tile_size, uint32_t passes = 0, float exposure = 1.0f,
-       const std::vector<int>& aovs = {})
+       const std::vector<int>& aovs = {}, int light_groups = 0)
       : w_(width), h_(height), tile_(tile_size), passes_(passes), exposure_(exposure) {
     for (int p = 0; p < kPassCount; ++p) {
       offset_[p] = -1;
@@ -128,6 +129,10 @@ class Film {
       stride_ += ch;
       for (int c = 0; c < ch; ++c) first_.push_back(false);
     }
+    group_offset_ = stride_;
+    group_count_ = std::max(light_groups, 0);
+    stride_ += 3 * group_count_;
+    first_.resize(size_t(stride_), false);
     aux_.assign(size_t(w_) * size_t(h_) * size_t(stride_), 0.0f);  // empty without passes
     mean_.resize(size_t(w_) * size_t(h_));
     count_.assign(size_t(w_) * size_t(h_), 0u);
@@ -160,6 +165,9 @@ class Film {
   int aov_count() const { return int(aov_offset_.size()); }
   int aov_offset(int i) const { return aov_offset_[size_t(i)]; }
   int aov_channels(int i) const { return aov_channels_[size_t(i)]; }
+  // Light group planes (RGB each, after the shader AOVs): group g at light_group_offset() + 3 g.
+  int light_group_count() const { return group_count_; }
+  int light_group_offset() const { return group_offset_; }
 
   // Copies shader AOV plane i (H rows of W * aov_channels(i) floats, bottom-up): the mean of
   // what the samples added (0 where a sample wrote nothing), as Cycles' AOV passes.
@@ -167,6 +175,15 @@ class Film {
     const int ch = aov_channels_[size_t(i)], off = aov_offset_[size_t(i)];
     each_pixel_locked([&](size_t px) {
       for (int c = 0; c < ch; ++c) out[px * size_t(ch) + size_t(c)] = aux_[px * size_t(stride_) + size_t(off + c)];
+    });
+  }
+
+  // Copies light group g's plane (H rows of W RGB floats, bottom-up): the mean of the light its
+  // emitters sent, scaled by the exposure as Combined (Cycles' Combined_<name> passes).
+  void read_light_group(int g, float* out) {
+    const int off = group_offset_ + 3 * g;
+    each_pixel_locked([&](size_t px) {
+      for (int c = 0; c < 3; ++c) out[px * 3 + size_t(c)] = aux_[px * size_t(stride_) + size_t(off + c)] * exposure_;
     });
   }
 
@@ -403,6 +420,7 @@ class Film {
   float exposure_;
   int offset_[kPassCount];
   std::vector<int> aov_offset_, aov_channels_;  // shader AOV planes
+  int group_offset_ = 0, group_count_ = 0;       // light group planes
   int stride_ = 0;
   int crypto_layers_ = 0, crypto_slots_ = 0;
   std::vector<float> crypto_;  // per pixel, layer and slot: (id, weight sum); empty without Cryptomatte

@@ -100,6 +100,7 @@ struct CausticVertex {
   float lr;    // ps prod q_rev / prod q_fwd of the chain: the heuristic's light side
   float eb;    // Pb / Pa at the last smooth vertex (the path tracer's light sample there)
   int k;       // the vertices of the class: y and its smooth chain
+  int group;   // the light group of the light path's emitter (PathAovs::groups; -1: none)
 };
 // The cached vertices of one pixel sample's light paths, in path order, and how many paths
 // there were (the pick among them is weighed by size / paths).
@@ -107,6 +108,9 @@ struct CausticCache {
   std::vector<CausticVertex> v;
   uint64_t paths = 0;
 };
+
+// Light groups a render may keep (RenderSettings::light_groups).
+constexpr int kMaxLightGroups = 64;
 
 struct IntegratorSettings {
   int max_bounces = 12;
@@ -193,6 +197,12 @@ struct IntegratorSettings {
   // background pass for the approximate composite over an opaque film).
   bool shadow_catcher = false;
   bool catcher_background = false;
+  // Light groups (Cycles' Combined_<name> passes): how many the render keeps; the aov kernel
+  // adds each emitter's contribution to PathAovs::groups[its group] too.
+  int light_groups = 0;
+  // Transparent film with the Env pass on: the world seen directly still goes to the world's
+  // group (Cycles evaluates it for the Background pass, and writes its light group then too).
+  bool groups_transparent_world = false;
 };
 
 // Cryptomatte layers (Cycles' CRYPT_OBJECT, CRYPT_MATERIAL, CRYPT_ASSET).
@@ -279,6 +289,12 @@ struct PathAovs {
   float matte_alpha = 1.0f;
   Vec3 catcher{0.0f};
   float catcher_samples = 0.0f;
+  // Light groups (IntegratorSettings::light_groups slots, zeroed by the caller; nullptr: none):
+  // every contribution to the returned radiance from an emitter in group g (a light, an
+  // emissive object, the world, an emitting volume; light samples, rays that find them,
+  // caustic connections) is added to groups[g] too, clamped as it was (Cycles' lightgroup
+  // passes). Not after a shadow catcher split, as Cycles (PATH_RAY_SHADOW_CATCHER_HIT).
+  Vec3* groups = nullptr;
 };
 
 // The general kernel: every feature compiled in.
@@ -325,6 +341,7 @@ std::string kernel_name(uint32_t features);
 struct CausticSplat {
   uint32_t pixel;
   Vec3 value;
+  int group;  // the light group of the light path's emitter (-1: none)
 };
 // With `cache`, each path's rough vertex y (seen by the camera or not) is appended to it too.
 uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_t seed, uint64_t first,

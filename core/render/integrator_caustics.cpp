@@ -149,6 +149,8 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
       const size_t j = cz.sources.sample(rng.next_float());
       if (j > 0) lamp = &cz.lamps[j - 1];
     }
+    // Its light group (the world's for the environment): the splats' and cached vertices'.
+    const int group = lamp ? int(scene.light(lamp->light).light_group) : scene.world_light_group();
     Vec3 wl, beta;
     float ps;
     // A lamp with extent: its light sample's solid-angle density at the first hit towards the
@@ -345,7 +347,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           // rough vertex shades it again from its own side (trace_path.inl).
           if (cache && is_finite(beta) && !is_black(beta)) {
             const double lr = double(ps) * prod_r / prod_f;
-            if (std::isfinite(lr) && lr > 0.0) cache->push_back({sp, wo_l, beta, float(lr), eb, k + 1});
+            if (std::isfinite(lr) && lr > 0.0) cache->push_back({sp, wo_l, beta, float(lr), eb, k + 1, group});
           }
           if (!seen) break;
           const float cos_c = dot(sp.ng, wc), cos_l = dot(sp.ng, wo_l);
@@ -401,7 +403,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
                 const float w = light_weight(rho_f / f);
                 const Vec3 v = clamp_light(base * (ppdf * f * w), splat_limit);
                 if (is_finite(v) && !is_black(v))
-                  out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v});
+                  out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v, group});
               }
             }
             break;
@@ -416,7 +418,7 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
           const int y0 = int(std::ceil(ry - 0.5f - half)), y1 = int(std::ceil(ry - 0.5f + half)) - 1;
           for (int y = std::max(y0, film_y); y <= std::min(y1, film_y + film_h - 1); ++y)
             for (int x = std::max(x0, film_x); x <= std::min(x1, film_x + film_w - 1); ++x)
-              out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v});
+              out.push_back({uint32_t(y - film_y) * uint32_t(film_w) + uint32_t(x - film_x), v, group});
           break;
         }
         if (k + 2 > cz.max_vertices) break;  // (no room for this smooth vertex and a rough one)

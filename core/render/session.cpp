@@ -30,6 +30,7 @@ void validate(const RenderSettings& s) {
   for (int p = 0; p < kPassCount; ++p)
     if (effective_passes(s) & pass_bit(Pass(p))) pass_channels += pass_desc(Pass(p)).channels;
   for (int ch : s.shader_aovs) pass_channels += std::max(ch, 0);
+  pass_channels += 3 * std::max(s.light_groups, 0);
   if (memory > 0.0) max_pixels = std::min(max_pixels, 0.5 * memory / (52.0 + 12.0 * pass_channels));
   if (s.width > 65536 || s.height > 65536 || double(s.width) * double(s.height) > max_pixels)
     throw std::invalid_argument("resolution " + std::to_string(s.width) + "x" + std::to_string(s.height) +
@@ -67,6 +68,8 @@ void validate(const RenderSettings& s) {
     throw std::invalid_argument("at most " + std::to_string(kMaxShaderAovs) + " shader AOVs");
   for (int ch : s.shader_aovs)
     if (ch != 1 && ch != 4) throw std::invalid_argument("a shader AOV has 1 (VALUE) or 4 (COLOR) channels");
+  if (s.light_groups < 0 || s.light_groups > kMaxLightGroups)
+    throw std::invalid_argument("light_groups must be in [0, " + std::to_string(kMaxLightGroups) + "]");
   if (s.cryptomatte >= 8u) throw std::invalid_argument("unknown Cryptomatte layer");
   if (s.cryptomatte && !(s.cryptomatte_depth >= 1 && s.cryptomatte_depth <= 16))
     throw std::invalid_argument("cryptomatte_depth must be in [1, 16]");
@@ -100,7 +103,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     : scene_(std::move(scene)),
       settings_((validate(settings), settings)),
       film_(film_width(settings), film_height(settings), settings.tile_size, film_passes(settings, scene_.get()), settings.exposure,
-            settings.shader_aovs) {
+            settings.shader_aovs, settings.debug_view == DebugView::None ? settings.light_groups : 0) {
   if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
   if (film_.has_pass(Pass::ShadowCatcherMatte)) {
     // Cycles' approximate shadow catcher unless the Shadow Catcher pass is asked for.
@@ -192,6 +195,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
       const int layers = __builtin_popcount(settings_.cryptomatte);
       film_.set_cryptomatte(layers, 2 * ((std::min(16, settings_.cryptomatte_depth) + 1) / 2));
     }
+    integrator_.light_groups = film_.light_group_count();
+    integrator_.groups_transparent_world = (settings_.passes & pass_bit(Pass::Env)) != 0;
     integrator_.mist_start = settings_.mist_start;
     integrator_.mist_depth = settings_.mist_depth;
     integrator_.mist_falloff = settings_.mist_falloff;
@@ -437,6 +442,11 @@ void Session::write_aux(const PathAovs& a, float* out) const {
     float* o = out + film_.aov_offset(i);
     for (int c = 0; c < film_.aov_channels(i); ++c) o[c] = std::isfinite(vals[c]) ? vals[c] : 0.0f;
   }
+  for (int g = 0; g < film_.light_group_count(); ++g) {
+    const Vec3 v = a.groups ? a.groups[g] : Vec3(0.0f);
+    float* o = out + film_.light_group_offset() + 3 * g;
+    for (int c = 0; c < 3; ++c) o[c] = std::isfinite(v[c]) ? v[c] : 0.0f;
+  }
 }
 
 int Session::crypto_layer(uint32_t bit) const {
@@ -469,6 +479,9 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   const bool want_aovs = stride > 0 || settings_.film_transparent || scene_->any_holdout() || crypto;
   const bool bvh_view = settings_.debug_view == DebugView::Bvh;
   std::array<Float4, kMaxShaderAovs> shader_aovs;
+  const int groups = film_.light_group_count();
+  std::vector<Vec3> group_light(static_cast<size_t>(groups));  // (PathAovs::groups: one sample's)
+  const bool scratch = film_.aov_count() > 0 || groups > 0;
   PathCounters counters;
   if (caustics_) counters.filter_area = caustics_->filter_area;  // (the box's; other filters' per sample)
   uint64_t nonfinite = 0, paths = 0;
@@ -507,9 +520,15 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
           continue;
         }
         PathAovs aovs;
-        if (film_.aov_count()) {  // (only renders with shader AOVs clear these)
-          shader_aovs.fill(Float4{});
-          aovs.shader_aovs = shader_aovs.data();
+        if (scratch) {  // (only renders with shader AOVs or light groups clear these)
+          if (film_.aov_count()) {
+            shader_aovs.fill(Float4{});
+            aovs.shader_aovs = shader_aovs.data();
+          }
+          if (groups) {
+            std::fill(group_light.begin(), group_light.end(), Vec3(0.0f));
+            aovs.groups = group_light.data();
+          }
         }
         if (crypto) crypto_n[size_t(y - y0) * size_t(tw) + size_t(x - x0)] = 0;
         // One independent stream per (seed, pixel, sample): thread- and pass-independent, and
@@ -545,7 +564,15 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         }
         if (caustics_ && caustics_->connections > 0) counters.caustic_cache = &caustic_caches_[size_t(s - s0)];
         Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
-        if (caustics_) L += caustic_splats_[size_t(s - s0)][size_t(y) * size_t(film_.width()) + size_t(x)];
+        if (caustics_) {
+          L += caustic_splats_[size_t(s - s0)][size_t(y) * size_t(film_.width()) + size_t(x)];
+          if (groups) {  // (the light paths' splats, each to its emitter's group)
+            const size_t pixels = size_t(film_.width()) * size_t(film_.height());
+            const std::vector<Vec3>& gs = caustic_group_splats_[size_t(s - s0)];
+            for (int g = 0; g < groups; ++g)
+              group_light[size_t(g)] += gs[size_t(g) * pixels + size_t(y) * size_t(film_.width()) + size_t(x)];
+          }
+        }
         ++paths;
         const float alpha = std::isfinite(aovs.alpha) ? aovs.alpha : 1.0f;
         if (is_finite(L)) {
@@ -553,6 +580,7 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         } else {  // dropped and counted: one bad path must not poison a pixel forever
           out = {0.0f, 0.0f, 0.0f, alpha};
           ++nonfinite;
+          std::fill(group_light.begin(), group_light.end(), Vec3(0.0f));  // (its groups with it)
         }
         if (aux) write_aux(aovs, aux);
         if (crypto) {
@@ -812,6 +840,8 @@ void Session::trace_caustics(int s0, int k) {
   const uint64_t n = caustic_paths_, chunks = (n + kChunk - 1) / kChunk;
   const size_t pixels = size_t(film_.width()) * size_t(film_.height());
   caustic_splats_.resize(size_t(k));
+  const int groups = film_.light_group_count();
+  caustic_group_splats_.resize(groups ? size_t(k) : 0);
   const bool lvc = caustics_->connections > 0;
   const uint64_t lvc_chunks = lvc ? std::min(chunks, connection_chunks()) : 0;
   if (lvc) caustic_caches_.resize(size_t(k));
@@ -843,6 +873,13 @@ void Session::trace_caustics(int s0, int k) {
     img.assign(pixels, Vec3(0.0f));
     for (const auto& part : parts)
       for (const CausticSplat& sp : part) img[sp.pixel] += sp.value;
+    if (groups) {
+      std::vector<Vec3>& gi = caustic_group_splats_[size_t(j)];
+      gi.assign(size_t(groups) * pixels, Vec3(0.0f));
+      for (const auto& part : parts)
+        for (const CausticSplat& sp : part)
+          if (sp.group >= 0 && sp.group < groups) gi[size_t(sp.group) * pixels + sp.pixel] += sp.value;
+    }
   }
 }
 

@@ -75,6 +75,10 @@ struct RenderSettings {
   // Shader AOVs (the view layer's, in its order): the channels of each, 4 (COLOR) or 1 (VALUE);
   // AOV Output ops write slot i (at most kMaxShaderAovs).
   std::vector<int> shader_aovs;
+  // Light groups (Cycles' View Layer ▸ Light Groups, Combined_<name> passes): how many; lights,
+  // objects and the world name theirs by index (Light::light_group, ObjectInfo::light_group,
+  // Scene::set_world_light_group). Read with Session.film_light_group(i).
+  int light_groups = 0;
   // Cryptomatte layers (kCryptoObject / kCryptoMaterial / kCryptoAsset bits) and their levels
   // (Blender's pass_cryptomatte_depth, 1..16: id / coverage pairs, two per RGBA pass).
   uint32_t cryptomatte = 0;
@@ -229,6 +233,8 @@ class Session {
   uint64_t caustic_paths_ = 0;  // light paths per pixel sample (the whole film's)
   // The current pass's splats, one film image per sample of it.
   std::vector<std::vector<Vec3>> caustic_splats_;
+  // With light groups: per sample, each group's splats (group g's image at g x pixels).
+  std::vector<std::vector<Vec3>> caustic_group_splats_;
   std::vector<CausticCache> caustic_caches_;  // and its light vertices (connections on)
   void setup_caustics(bool guiding);  // (the constructor's, once)
   void trace_caustics(int s0, int k);

@@ -405,6 +405,7 @@ struct MediumLightSample {
   bool cast_shadow = true;
   uint64_t shadow_mask = kAllLightSets;  // shadow linking
   int max_hits = kShadowHits;            // RayState::shadow_hits
+  uint32_t entry;                        // DirectSample::entry (its light group), set with li
 };
 // receiver: the medium's light set (light linking). mis: the point's share where its distance
 // came from one of several strategies (SegmentMis), 1 where it is the only one.
@@ -433,6 +434,7 @@ inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase&
   ls.shadow_mask = ds.shadow_mask;
   ls.max_hits = ray_state.shadow_hits();
   ls.li = ds.li;
+  ls.entry = ds.entry;
   // (no phase sample can find a delta light, nor follow the last bounce)
   const float w = mis.light_weight(ds.pdf, (ds.delta || last) ? 0.0f : ph);
   ls.factor = ph * w / ds.pdf;
@@ -451,6 +453,17 @@ Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool 
   MediumLightSample ls;
   if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
     return Vec3(0.0f);
+  return medium_light_trace(scene, ls, medium, c, rng);
+}
+// The same for light groups (pass kernels only): `entry` gets the sample's DirectSample::entry
+// where it drew one (left as it was where not).
+Vec3 medium_direct_entry(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium,
+                         float u_sel, Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng,
+                         uint8_t receiver, const SegmentMis& mis, uint32_t& entry) {
+  MediumLightSample ls;
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
+    return Vec3(0.0f);
+  entry = ls.entry;
   return medium_light_trace(scene, ls, medium, c, rng);
 }
 
@@ -685,6 +698,13 @@ struct CausticHitMis {
 // when the other two's are a and b (relative to it): 1 / (1 + a^2 + b^2).
 inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a + b * b); }
 
+// Light groups (PathAovs::groups): light_hits and dedicated_light_hits hand each light's
+// contribution to a sink (light index, value); the kernels without passes take this one, which
+// does nothing (their code stays as without groups).
+struct NoGroupSink {
+  void operator()(uint32_t, Vec3) const {}
+};
+
 // Emission of the analytic lights that a ray crosses before distance t_end (in units of
 // ray.dir; infinite: the ray escaped, and suns with an angle count too), of the lights visible
 // to its kind `vis` (LightVisibility; the camera's: those visible to the camera, else those
@@ -693,11 +713,12 @@ inline float caustic_mis_weight(float a, float b) { return 1.0f / (1.0f + a * a 
 // the same point, as pdf_emitter does for mesh lights; else (camera rays, delta lobes, no
 // light sampling) the full weight. kLinks: light linking, `set` the light set of the point at
 // `from` (lights not linked to it add nothing but to camera rays; its set's pdfs). clamp: each
-// light's contribution clamped at it (clamp_light; 0: none).
-template <bool kLinks = false, class Through>
+// light's contribution clamped at it (clamp_light; 0: none). sink(light, value): each one's
+// contribution (light groups).
+template <bool kLinks = false, class Through, class Sink = NoGroupSink>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
                                   Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0,
-                                  const CausticHitMis* caus = nullptr, float clamp = 0.0f) {
+                                  const CausticHitMis* caus = nullptr, float clamp = 0.0f, const Sink& sink = Sink{}) {
   Vec3 sum(0.0f);
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
@@ -730,7 +751,10 @@ template <bool kLinks = false, class Through>
       }
     }
     const Vec3 c = clamp_light(through(t) * le * w, clamp);
-    if (is_finite(c)) sum += c;
+    if (is_finite(c)) {
+      sum += c;
+      sink(h.index, c);
+    }
   };
   scene.for_hit_lights(ray.org, d, tmax, add);  // (bounding spheres or boxes first)
   if (std::isinf(tmax))
@@ -741,11 +765,13 @@ template <bool kLinks = false, class Through>
 // Shadow-linked lights along a ray leaving surface point sp (side: the normal on its side, d
 // unit): each one the ray's line crosses, seen through a shadow ray that passes the blockers it
 // ignores (`transmit(ray, mask)`), its emission times `beta`, weighted as light_hits weighs
-// (against the light sample at `from` of light set `set`), each clamped at `clamp` (0: none).
-template <class Transmit>
+// (against the light sample at `from` of light set `set`), each clamped at `clamp` (0: none),
+// each handed to sink(light, value) too (light groups).
+template <class Transmit, class Sink = NoGroupSink>
 [[gnu::noinline]] Vec3 dedicated_light_hits(const Scene& scene, const SurfacePoint& sp, Vec3 side, Vec3 d, float time,
                                             uint8_t vis, bool weigh, float prev_pdf, Vec3 from, Vec3 from_n,
-                                            uint8_t set, Vec3 beta, float clamp, const Transmit& transmit) {
+                                            uint8_t set, Vec3 beta, float clamp, const Transmit& transmit,
+                                            const Sink& sink = Sink{}) {
   Vec3 sum(0.0f);
   if (scene.dedicated_lights().empty()) return sum;
   const Vec3 org = offset_ray_origin(sp.p, sp.p_error, side);
@@ -770,7 +796,10 @@ template <class Transmit>
     if (is_black(vis_t)) continue;
     const float w = weigh ? power_heuristic(prev_pdf, scene.light_choice_pmf(from, from_n, h.index, set) * pdf) : 1.0f;
     const Vec3 c = clamp_light(beta * le * vis_t * w, clamp);
-    if (is_finite(c)) sum += c;
+    if (is_finite(c)) {
+      sum += c;
+      sink(h.index, c);
+    }
   }
   return sum;
 }
@@ -1099,6 +1128,19 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   const bool lp = kAovs && aov && s.light_passes;
   Vec3 lp_dw(0.0f), lp_gw(0.0f);
   bool lp_volume = false;
+  // Light groups (PathAovs::groups, pass kernels only): each contribution to L from an emitter
+  // in group g goes to lg[g] too, as it went to L (clamped alike). Null after a shadow catcher
+  // split (Cycles writes no light group past PATH_RAY_SHADOW_CATCHER_HIT).
+  Vec3* lg = kAovs && aov ? aov->groups : nullptr;
+  const auto to_group = [&](int g, Vec3 v) {
+    if constexpr (kAovs)
+      if (lg && g >= 0 && g < s.light_groups) lg[g] += v;  // (a group the render keeps)
+  };
+  // light_hits' sink: the lights' own groups (NoGroupSink, doing nothing, in the other kernels).
+  const auto hit_sink = [&]() {
+    if constexpr (kAovs) return [&](uint32_t light, Vec3 v) { to_group(scene.light(light).light_group, v); };
+    else return NoGroupSink{};
+  }();
   int bounce = 0;
   // Clamping (clamp_light), as Cycles' bounce for film_clamp_light: a light sample at a vertex
   // after `bounce` scatterings is direct at the camera's first vertex (bounce 0); light a ray
@@ -1224,7 +1266,7 @@ restart: __attribute__((unused));
                 return beta * ratio_track(majorants, ray.org, d, tl, vrng, density);
               };
               L += light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
-                                      mis_n, through_het, mis_set, nullptr, found_limit());
+                                      mis_n, through_het, mis_set, nullptr, found_limit(), hit_sink);
               lights_counted = true;
             }
             const Vec3 L1 = L;
@@ -1235,6 +1277,10 @@ restart: __attribute__((unused));
               const Vec3 e = L - L1, ec = clamp_light(e, found_limit());
               if (ec.x != e.x || ec.y != e.y || ec.z != e.z) L = L1 + ec;
             }
+            // (its emission: the innermost layer's object's group, as Cycles writes a segment's
+            // emission with one object's)
+            if constexpr (kAovs)
+              if (lg) to_group(scene.instance_light_group(medium.inner_instance()), L - L1);
             if (kAovs && aov) emit_found(L - L0);  // (the lights and the medium's emission)
             return r;
           };
@@ -1258,13 +1304,18 @@ restart: __attribute__((unused));
                   Vec3 ss = me.sigma_s;
                   const Phase pe_phase = me.n_lobes >= 2 ? choose_lobe(me.n_lobes, me.lobes, vrng.next_float(), ss) : me.phase;
                   if (!is_black(tr)) {
-                    const Vec3 v = clamp_light(beta * tr * ss *
-                                                   medium_direct(scene, ray.org + d * te, d, pe_phase,
-                                                                 bounce >= s.max_bounces, medium, u_sel.x, u_pt,
-                                                                 ray_state, ray.time, c, &vrng, vset) *
-                                                   (1.0f / pe),
-                                               sample_limit());
+                    uint32_t entry = UINT32_MAX;
+                    const Vec3 li = kAovs && lg ? medium_direct_entry(scene, ray.org + d * te, d, pe_phase,
+                                                                      bounce >= s.max_bounces, medium, u_sel.x, u_pt,
+                                                                      ray_state, ray.time, c, &vrng, vset, SegmentMis{},
+                                                                      entry)
+                                                : medium_direct(scene, ray.org + d * te, d, pe_phase,
+                                                                bounce >= s.max_bounces, medium, u_sel.x, u_pt,
+                                                                ray_state, ray.time, c, &vrng, vset);
+                    const Vec3 v = clamp_light(beta * tr * ss * li * (1.0f / pe), sample_limit());
                     L += v;
+                    if constexpr (kAovs)
+                      if (lg) to_group(scene.entry_light_group(entry), v);
                     if (kAovs && lp) lp_volume_sample(v);
                   }
                 }
@@ -1287,6 +1338,18 @@ restart: __attribute__((unused));
             L += v;
             if constexpr (kAovs)
               if (aov) emit_found(v);
+            if constexpr (kAovs)
+              if (lg) {
+                // Each layer's share (the emission is linear in each layer's): its object's group.
+                if (medium.n == 1) {
+                  to_group(scene.instance_light_group(medium.layer[0].instance), v);
+                } else {
+                  for (int i = 0; i < medium.n; ++i)
+                    if (!is_black(medium.layer[i].emission))
+                      to_group(scene.instance_light_group(medium.layer[i].instance),
+                               v * safe_ratio(medium.layer[i].emission, m->emission));
+                }
+              }
           }
           const Vec3 st = m->sigma_a + m->sigma_s;
           if (!is_black(m->sigma_s)) {
@@ -1329,11 +1392,18 @@ restart: __attribute__((unused));
                       eq_pending = !is_black(eq_value);
                     }
                   } else {
-                    const Vec3 li = medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                                  medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
-                                                  eq_mis);
+                    uint32_t entry = UINT32_MAX;
+                    const Vec3 li = kAovs && lg
+                                        ? medium_direct_entry(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
+                                                              medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng,
+                                                              vset, eq_mis, entry)
+                                        : medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
+                                                        medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
+                                                        eq_mis);
                     const Vec3 v = clamp_light(w * li, sample_limit());
                     L += v;
+                    if constexpr (kAovs)
+                      if (lg) to_group(scene.entry_light_group(entry), v);
                     if (kAovs && lp) lp_volume_sample(v);
                   }
                 }
@@ -1345,6 +1415,8 @@ restart: __attribute__((unused));
             if (eq_pending && !(pdf_t > 0.0f)) {  // no scattering here: the equiangular sample alone
               const Vec3 v = clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng), sample_limit());
               L += v;
+              if constexpr (kAovs)
+                if (lg) to_group(scene.entry_light_group(eq_ls.entry), v);
               if (kAovs && lp) lp_volume_sample(v);
               eq_pending = false;
             }
@@ -1359,7 +1431,7 @@ restart: __attribute__((unused));
               }
               if (hits && !(nee && !prev_delta && prev_samples_only)) {
                 const Vec3 v = light_hits<kLinks>(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n,
-                                                  through, mis_set, nullptr, found_limit());
+                                                  through, mis_set, nullptr, found_limit(), hit_sink);
                 L += v;
                 if (kAovs && lp) lp_found(v);
               }
@@ -1401,16 +1473,29 @@ restart: __attribute__((unused));
                 value = beta * nee_weight * ls.li * ls.factor;
               const float a_d = average(vabs(value)), a_e = average(vabs(eq_value));
               const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
-              if (vrng.next_float() < p_d)
-                L += clamp_light(beta * nee_weight * medium_light_trace(scene, ls, medium, c, &vrng) * (1.0f / p_d),
-                                 sample_limit());
-              else
-                L += clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d)),
-                                 sample_limit());
+              if (vrng.next_float() < p_d) {
+                const Vec3 v = clamp_light(beta * nee_weight * medium_light_trace(scene, ls, medium, c, &vrng) * (1.0f / p_d),
+                                           sample_limit());
+                L += v;
+                if constexpr (kAovs)
+                  if (lg) to_group(scene.entry_light_group(ls.entry), v);
+              } else {
+                const Vec3 v = clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d)),
+                                           sample_limit());
+                L += v;
+                if constexpr (kAovs)
+                  if (lg) to_group(scene.entry_light_group(eq_ls.entry), v);
+              }
             } else {
-              L += clamp_light(beta * medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state, ray.time,
-                                                    c, &vrng, vset, dist_mis) * nee_weight,
-                               sample_limit());
+              uint32_t entry = UINT32_MAX;
+              const Vec3 li = kAovs && lg ? medium_direct_entry(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
+                                                                ray.time, c, &vrng, vset, dist_mis, entry)
+                                          : medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
+                                                          ray.time, c, &vrng, vset, dist_mis);
+              const Vec3 v = clamp_light(beta * li * nee_weight, sample_limit());
+              L += v;
+              if constexpr (kAovs)
+                if (lg) to_group(scene.entry_light_group(entry), v);
             }
           }
           if (kAovs && lp) lp_volume_sample(L - L_scatter);
@@ -1463,7 +1548,8 @@ restart: __attribute__((unused));
       if constexpr (kCaus)
         if (cz_k >= 2 && (!prev_delta || cz_delta) && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng, prev_delta};
       const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
-                                         mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr, found_limit());
+                                         mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr, found_limit(),
+                                         hit_sink);
       L += lh;
       if constexpr (kAovs) {
         if (lp) lp_found(lh);
@@ -1506,6 +1592,10 @@ restart: __attribute__((unused));
         }
         if (!(direct && s.transparent_background)) L += bg_value;
         if (lp && bounce > 0) lp_found(bg_value);
+        // (on a transparent film the world seen directly is not in Combined, but Cycles evaluates
+        // it and writes it to the world's group where the Env pass is on: integrate_background)
+        if (lg && (!(direct && s.transparent_background) || s.groups_transparent_world))
+          to_group(scene.world_light_group(), bg_value);
       } else {
         L += bg_value;  // transparent film always comes with the aov kernel
       }
@@ -1518,6 +1608,7 @@ restart: __attribute__((unused));
         // The split, before the catcher is shaded: what the path found so far is the matte's,
         // and the split itself counts as transparent there (film_write_shadow_catcher_bounce_data).
         split = true;
+        lg = nullptr;  // (no light groups past a catcher, as Cycles)
         aov->catcher_samples = 1.0f;
         aov->matte = L;
         aov->matte_alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
@@ -1601,6 +1692,7 @@ restart: __attribute__((unused));
       if constexpr (kAovs) {
         if (direct && aov) aov->emission += clamp_light(beta * cl.emission, found_limit());
         else if (lp) lp_found(v);
+        if (lg) to_group(scene.object_info(sp).light_group, v);  // (the object's, whatever its material)
       }
     }
     // Holdout seen directly (also through Transparent BSDFs), as Cycles' film_write_holdout:
@@ -1787,7 +1879,10 @@ restart: __attribute__((unused));
                                                    (std::fabs(cyx) / (d2 * std::fabs(cyl)) * wd *
                                                     float(double(m) / double(cache->paths))),
                                                clamp_indirect);
-                  if (is_finite(add)) L += add;
+                  if (is_finite(add)) {
+                    L += add;
+                    if constexpr (kAovs) to_group(v.group, add);  // (its light path's emitter's)
+                  }
                 }
               }
             }
@@ -1890,6 +1985,8 @@ restart: __attribute__((unused));
           // (for delta lights pdf is the choice probability)
           const Vec3 v = clamp_light(beta * f * ds.li * vis * (w / ds.pdf), sample_limit());
           L += v;
+          if constexpr (kAovs)
+            if (lg) to_group(nee ? scene.entry_light_group(ds.entry) : scene.world_light_group(), v);  // (sky: the world's)
           if constexpr (kAovs) {
             if (lp && bounce == 0) {  // the first scattering's: shares of this light direction's value
               Vec3 dw, gw;
@@ -2232,7 +2329,8 @@ restart: __attribute__((unused));
                                         return shadow_transmittance(scene, r, medium, true, &vrng, mask, false,
                                                                     ray_state.shadow_hits());
                                     return scene.transmittance_linked(r, mask, ray_state.shadow_hits());
-                                  });
+                                  },
+                                  hit_sink);
     // No roulette after delta lobes (glass, mirrors, transparency): they barely change the
     // throughput, so a roll there (the square root's survival below 1 again) only re-kills
     // what the last rough vertex already rolled for, and amplifies what survives: in glass it

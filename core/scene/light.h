@@ -72,6 +72,9 @@ struct Light {
   // Light and shadow linking (Cycles' light_set_membership / shadow_set_membership): bit s
   // set: the light reaches receivers of light set s / is blocked by objects of shadow set s.
   uint64_t light_mask = ~uint64_t(0), shadow_mask = ~uint64_t(0);
+  // Cycles' light group (View Layer ▸ Light Groups): the Combined_<name> pass its light also
+  // goes to (an index into the render's groups; -1: none).
+  int16_t light_group = -1;
 };
 
 // The IES factor of light l for light leaving it along from_light (world, any length).

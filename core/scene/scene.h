@@ -267,6 +267,9 @@ struct DirectSample {
   bool delta = false;      // no BSDF ray can find this light (delta, or Multiple Importance off): full weight
   bool analytic = false;   // an analytic light (not an emissive triangle or the environment)
   uint32_t light = 0;      // analytic: its index (Scene::light), for the caustic light paths' MIS
+  // Out: the chosen entry of the light choice (Scene::entry_light_group; left unset by the sky's
+  // own samples, which the integrator draws itself).
+  uint32_t entry;
   float choice = 0.0f;     // analytic: the probability of its choice (a factor of pdf)
   bool cast_shadow = true;
   // LightVisibility bits of the ray kinds the chosen light is invisible to: closures of those
@@ -520,6 +523,11 @@ class Scene {
   }
   void add_light(const Light& l) { lights_.push_back(l); committed_ = false; }
   // Light linking of analytic light k (Light::light_mask / shadow_mask); false: no such light.
+  bool set_light_group(size_t k, int16_t group) {
+    if (k >= lights_.size()) return false;
+    lights_[k].light_group = group;
+    return true;  // (read per contribution only: nothing to rebuild)
+  }
   bool set_light_links(size_t k, uint64_t light_mask, uint64_t shadow_mask) {
     if (k >= lights_.size()) return false;
     lights_[k].light_mask = light_mask;
@@ -929,6 +937,21 @@ class Scene {
     const ObjectInfo* info = hit_info(h.inst, h.prim);
     return info ? info->shadow_set : 0;
   }
+  // Light groups (Cycles' View Layer ▸ Light Groups; render/integrator.h PathAovs::groups): the
+  // group index of each emitter, -1: none. The world's (World ▸ Settings ▸ Light Group).
+  void set_world_light_group(int g) { world_group_ = int16_t(g < 0 ? -1 : g); }
+  int world_light_group() const { return world_group_; }
+  // Of light sample entry k (DirectSample::entry): an analytic light's, an emitter group's
+  // object's, the environment's (the world's).
+  int entry_light_group(uint32_t k) const {
+    if (k < lights_.size()) return lights_[k].light_group;
+    if (k == env_index_) return world_group_;
+    const size_t g = size_t(k) - lights_.size();
+    return g < groups_.size() ? object_coords_[emitters_[groups_[g].first].instance].info.light_group : -1;
+  }
+  int instance_light_group(uint32_t instance) const {
+    return instance < object_coords_.size() ? object_coords_[instance].info.light_group : -1;
+  }
   uint64_t emitter_light_mask(uint32_t instance) const {
     return instance < object_coords_.size() ? object_coords_[instance].info.light_mask : kAllLightSets;
   }
@@ -1207,6 +1230,7 @@ class Scene {
   std::vector<EmitterGroup> groups_;
   std::vector<uint32_t> emitter_group_;  // per emitter
   size_t env_index_ = SIZE_MAX;
+  int16_t world_group_ = -1;  // set_world_light_group
   // How sample_direct chooses a light: one distribution over [analytic lights | emitter groups |
   // environment] by power, or the light tree over its finite entries (same indices) with the
   // infinite ones (suns, the environment) beside it: chosen with probability inf_share (their

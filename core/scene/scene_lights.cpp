@@ -594,6 +594,7 @@ bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u
   size_t k;
   float pmf;
   if (!choose_light_t<kTree>(c, p, s.n, u_select, k, pmf) || !(pmf > 0.0f)) return false;
+  s.entry = uint32_t(k);  // (its light group: entry_light_group)
   s.target_normal = Vec3(0.0f);
   if (k < lights_.size()) {
     const Light& l = lights_[k];

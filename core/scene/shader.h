@@ -260,6 +260,9 @@ struct ObjectInfo {
   // light other objects cast on it, render/integrator.h) and Holdout (a camera ray that meets
   // it leaves the film transparent there and stops, as Cycles' SD_OBJECT_HOLDOUT_MASK).
   bool shadow_catcher = false, holdout = false;
+  // Cycles' light group of the object as an emitter (its emission, mesh light samples): the
+  // render's group index, -1: none (render/integrator.h PathAovs::groups).
+  int16_t light_group = -1;
 };
 constexpr uint64_t kAllLightSets = ~uint64_t(0);
 // Shadow rays: the transparent surfaces one passes when no path gives a limit (RayState::
