@@ -642,6 +642,9 @@ void Session::setup_caustics(bool guiding) {
   // scene at the light path's own shutter time. An orthographic pinhole's rays are parallel: a
   // light path meets one with probability 0. A panorama's lens (a disk turned with each ray, a
   // spherical focal surface) has no inverse here.
+  else if (camera_.has_spherical_stereo())
+    off("not with spherical stereo (each camera ray has its own centre of projection, which the "
+        "connections to the camera cannot invert)");
   else if (camera_.is_panoramic() && camera_.has_aperture())
     off("not with a panoramic camera's depth of field");
   else if (camera_.orthographic() && !camera_.has_aperture())
