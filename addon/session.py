@@ -14,7 +14,9 @@ from .core import get_core
 from .export import ExportCancelled, ExportError, export_scene
 from .export.motion import add_motion, add_pass_motion
 from .export.world import warn_open_world_volume
-from .scene_writer import set_build_options, to_core
+from .export.camera import camera_params
+from .export.views import view_camera, view_motion, view_names, view_seed
+from .scene_writer import core_camera, set_build_options, to_core
 
 log = logging.getLogger(__name__)
 
@@ -360,28 +362,70 @@ def render(engine, depsgraph):
                 log.info("scene kept from the last render: %d BVH build(s), %d top-level build(s) so far",
                          stats.get("geometry_builds", 0), stats.get("top_level_builds", 0))
         log.info(bvh_line(stats))
-        sess = pc.Session(core_scene, settings)
         dropped = stats.get("dropped_triangles", 0)
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
-        _report_focus(sess, warn)
-        _report_caustics(sess, warn)
-        _report_kernel(sess)
         for name, channels, chan_id, _, _ in passes + crypto:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         for name, channels, chan_id, _ in aovs:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _, _, width, height = render_border(scene)
-        done = _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit,
-                    passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs], bvh_view=scene.pathlight.debug_view == 'BVH',
-                    layer=view_layer.name, final_passes=[c[0] for c in crypto])
-        _stamp(engine, settings.sample_offset, done,
+        # Multiview (Output > Stereoscopy): one render per view of the one committed scene,
+        # each through its view's camera (as the viewport's camera override: nothing is
+        # exported or rebuilt), with the full sample count, into its view of the result.
+        views = view_names(engine, scene, view_layer.name)
+        seed = settings.seed
+        done = None
+        for index, view in enumerate(views):
+            camera = None
+            if view:
+                settings.seed = view_seed(seed, index)
+                camera = core_camera(pc, _view_fields(engine, scene, depsgraph, data, view, warn))
+            sess = pc.Session(core_scene, settings, camera=camera)
+            _report_focus(sess, warn)
+            _report_caustics(sess, warn)
+            if index == 0:
+                _report_kernel(sess)
+            view_done, cancelled = _run(
+                engine, sess, width, height, time_limit=scene.pathlight.time_limit,
+                passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs],
+                bvh_view=scene.pathlight.debug_view == 'BVH', layer=view_layer.name,
+                final_passes=[c[0] for c in crypto], view=view, view_index=index, view_count=len(views))
+            done = view_done if done is None else min(done, view_done)
+            del sess
+            if cancelled:
+                break
+        _stamp(engine, settings.sample_offset, done or 0,
                cryptomatte_metadata(pc, data, view_layer) if crypto else {})
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
     except Exception as e:  # a bug: keep the traceback in the log, not in Blender's face
         log.exception("render failed")
         engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
+
+
+def _view_fields(engine, scene, depsgraph, data, view, warn):
+    """pc.Camera fields of render view `view`: its camera, model matrix and shift (Blender's
+    multiview functions), spherical stereo, and the scene camera's motion-blur and Vector-pass
+    steps moved by the view's offset."""
+    v = view_camera(engine, scene, depsgraph, view)
+    fields = camera_params(scene, depsgraph, warn, view=v)
+    for key in ("motion", "pass_motion"):
+        steps = data.camera.get(key)
+        if steps is None:
+            continue
+        moved = view_motion(steps, v)
+        if moved is None:
+            warn(f"View '{view}': its camera '{v.camera.name}' is not the scene camera; its "
+                 "motion blur and Vector pass leave out the camera's own motion")
+        else:
+            fields[key] = moved
+    if "shutter_curve" in data.camera:
+        fields["shutter_curve"] = data.camera["shutter_curve"]
+    if fields.get("stereo_eye"):
+        log.info("Pathlight: view '%s' renders with spherical stereo (each ray offset by %.4g)",
+                 view, 0.5 * fields["interocular_distance"])
+    return fields
 
 
 def _add_motion_blur(engine, depsgraph, data, warn):
@@ -461,10 +505,13 @@ def _commit(engine, core_scene, threads, time_limit=0.0):
 
 
 def _report_caustics(sess, warn):
-    # Only where asked for explicitly: the automatic mode's "off (automatic): ..." is silent.
+    # Only where asked for explicitly: the automatic mode's "off (automatic): ..." is silent
+    # (but for spherical stereo, which the log says).
     state = sess.stats().get("caustics", "")
     if state.startswith("off:"):
         warn(f"Caustic Light Paths {state}; rendering without them")
+    elif "spherical stereo" in state:
+        log.info("Pathlight: Caustic Light Paths %s", state)
 
 
 def _report_focus(sess, warn):
@@ -515,27 +562,39 @@ def _warner(engine):
     return warn
 
 
-def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=(), final_passes=()):
-    """Streams the session's film (and passes) into the render result; returns the samples
-    done. final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at the end."""
+def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=(), final_passes=(),
+         view="", view_index=0, view_count=1):
+    """Streams the session's film (and passes) into the render result (its view `view`, or
+    the one view without multiview); returns (samples done, whether the render was
+    cancelled). final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at
+    the end. Progress counts over the views: this is view_index of view_count."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     # With a render border, Blender's result is the border's size (it crops, or pastes the
     # border into the frame, itself): the film covers exactly that.
-    result = engine.begin_result(0, 0, width, height, layer=layer)
+    if view:
+        result = engine.begin_result(0, 0, width, height, layer=layer, view=view)
+    else:
+        result = engine.begin_result(0, 0, width, height, layer=layer)
     info = {"samples_done": 0}
+    view_info = info
+    cancelled = False
     try:
         render_layer = result.layers[0]
-        combined = render_layer.passes["Combined"]
-        targets = [(name, render_layer.passes.get(name)) for name in passes]
-        aov_targets = [(i, render_layer.passes.get(name)) for i, name in enumerate(aovs)]
-        final_targets = [(name, render_layer.passes.get(name)) for name in final_passes]
+
+        def find(name):  # (a result of one view holds that view's passes only)
+            return render_layer.passes.find_by_name(name, view) if view else render_layer.passes.get(name)
+        combined = find("Combined")
+        targets = [(name, find(name)) for name in passes]
+        aov_targets = [(i, find(name)) for i, name in enumerate(aovs)]
+        final_targets = [(name, find(name)) for name in final_passes]
         sess.start()
         shown = -1
         stats_at = -1.0
         while True:
             finished = sess.wait(0.25)
-            info = _progress_info(sess.progress(), time_limit)
-            if info["samples_done"] != shown or finished:
+            view_info = _progress_info(sess.progress(), time_limit)
+            info = _over_views(view_info, view_index, view_count)
+            if view_info["samples_done"] != shown or finished:
                 # film(): float32 (H, W, 4), row 0 = bottom, which is also Blender's order.
                 image = _bvh_heat_map(engine, sess, finished) if bvh_view else sess.film()
                 combined.rect.foreach_set(image.ravel())  # ~400x faster than `rect = `
@@ -546,7 +605,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
                     if target is not None:
                         target.rect.foreach_set(sess.film_aov(i).ravel())
                 engine.update_result(result)
-                shown = info["samples_done"]
+                shown = view_info["samples_done"]
             engine.update_progress(info["samples_done"] / max(info["samples_total"], 1))
             listener = _progress_listener
             # In background mode Blender prints each stats line to stdout: that is the
@@ -561,12 +620,27 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
                 break
             if cancel or engine.test_break():
                 sess.cancel()
+                cancelled = True
     finally:
         if not sess.is_finished():  # an exception above: stop the worker threads
             sess.cancel()
             sess.wait(5.0)
         engine.end_result(result)
-    return info["samples_done"]
+    return view_info["samples_done"], cancelled
+
+
+def _over_views(info, index, count):
+    """Progress info of view `index` of `count` (each with the same sample count) as progress
+    over all views: the samples of the views before count as done."""
+    if count <= 1:
+        return info
+    total = info["samples_total"]
+    done = index * total + info["samples_done"]
+    out = dict(info, samples_done=done, samples_total=count * total)
+    if info["eta_s"] is not None and info["samples_done"]:
+        per_sample = info["elapsed_s"] / info["samples_done"]
+        out["eta_s"] = info["eta_s"] + per_sample * total * (count - 1 - index)
+    return out
 
 
 def _stamp(engine, sample_offset, samples, extra=None):
