@@ -265,9 +265,22 @@ def test_passes_are_written_per_view():
         assert (diff > 1e-3).mean() < 0.01, name
 
 
+def checker_material(name, scale=6.0):
+    mat = diffuse_material(name, (1.0, 1.0, 1.0))
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    checker = nodes.new("ShaderNodeTexChecker")
+    checker.inputs["Scale"].default_value = scale
+    checker.inputs["Color1"].default_value = (0.8, 0.8, 0.8, 1.0)
+    checker.inputs["Color2"].default_value = (0.1, 0.1, 0.1, 1.0)
+    links.new(checker.outputs["Color"], nodes["Diffuse BSDF"].inputs["Color"])
+    return mat
+
+
 def spherical_scene(width=64, height=32):
-    """An equirectangular camera with spherical stereo among objects all around it."""
+    """An equirectangular camera with spherical stereo among objects all around it, over a
+    checkered floor (what the pole merge's lower rows see)."""
     scene = scene_with_objects(width, height)
+    bpy.data.objects["floor"].data.materials[0] = checker_material("checker floor")
     box("back", 0.8, diffuse_material("back", (0.3, 0.8, 0.3)), location=(0.2, -5.5, 0.4))
     box("side", 0.8, diffuse_material("side", (0.8, 0.8, 0.8)), location=(-2.5, -4.0, 0.9))
     cam = camera((0.4, -3.5, 1.0), rotation=(math.pi / 2, 0.0, 0.0))
@@ -310,12 +323,14 @@ def test_a_perspective_off_axis_pair_agrees_with_cycles():
 @needs_core
 @pytest.mark.converged
 def test_an_equirectangular_spherical_stereo_pair_agrees_with_cycles():
-    """Cycles at 1024 spp (stored), Pathlight at 512; pole merge on from 50 to 70 degrees."""
+    """Cycles at 1024 spp (stored), Pathlight at 512; pole merge on from 15 to 35 degrees (low,
+    so that most of the image is faded or merged: without the pole merge the worst region is
+    off by 34 %, with it 0.5 %)."""
     def build():
         scene = spherical_scene()
         st = scene.camera.data.stereo
         st.use_pole_merge = True
-        st.pole_merge_angle_from, st.pole_merge_angle_to = math.radians(50.0), math.radians(70.0)
+        st.pole_merge_angle_from, st.pole_merge_angle_to = math.radians(15.0), math.radians(35.0)
         return scene
     ours = render_to_array(build(), "PATHLIGHT", samples=512, max_bounces=8)
     cycles = render_to_array(build(), "CYCLES", samples=1024, max_bounces=8, **BOX_FILTER)
