@@ -336,3 +336,43 @@ def test_an_equirectangular_spherical_stereo_pair_agrees_with_cycles():
     cycles = render_to_array(build(), "CYCLES", samples=1024, max_bounces=8, **BOX_FILTER)
     for name in ("left", "right"):
         assert_agree(ours[name], cycles[name], f"equirectangular spherical stereo, {name}")
+
+
+@needs_core
+def test_a_farm_merge_keeps_both_views():
+    # Pieces of a stereo frame as multilayer, multiview EXRs (one file, a channel set per view):
+    # `build.py merge` weighs each view's channels and keeps the view names (multiView), by
+    # which Blender reads the merged file as stereo again.
+    import build
+    scene = stereo_scene()
+    render_to_array(scene, samples=2, seed=SEED)  # (the settings)
+    image = scene.render.image_settings
+    image.file_format, image.views_format = 'OPEN_EXR_MULTILAYER', 'MULTIVIEW'
+    with tempfile.TemporaryDirectory(prefix="pathlight_test_") as tmp:
+        pieces = []
+        for offset in (0, 2):
+            scene.pathlight.sample_offset = offset
+            scene.render.filepath = str(Path(tmp) / f"piece{offset}.exr")
+            bpy.ops.render.render(write_still=True, scene=scene.name)
+            pieces.append(scene.render.filepath)
+        out = str(Path(tmp) / "merged.exr")
+        build.merge_exr(pieces, out)
+        files = []
+        for path in pieces + [out]:
+            with OpenEXR.File(path, separate_channels=True) as exr:
+                files.append((exr.header().get("multiView"),
+                              {k: np.array(v.pixels, np.float64) for k, v in exr.channels().items()}))
+    (views_a, a), (_, b), (views_m, m) = files
+    assert list(views_a) == list(views_m) == ["left", "right"]
+    assert sorted(m) == sorted(a) and any(".right." in k for k in m)
+    for k in m:
+        np.testing.assert_allclose(m[k], 0.5 * (a[k] + b[k]), rtol=1e-6, atol=1e-7)
+    assert np.abs(m["ViewLayer.Combined.left.R"] - m["ViewLayer.Combined.right.R"]).max() > 0.05
+
+
+def test_the_in_blender_farm_merge_refuses_several_views():
+    # It reads pieces through Blender's image API, which gives one view: refused, not halved.
+    from addon import farm_merge
+    stereo_scene()
+    with pytest.raises(ValueError, match="build.py merge"):
+        farm_merge.merge_frame(1, [("//a_####", 0, 2), ("//b_####", 2, 2)], "//out_####")
