@@ -175,13 +175,15 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     integrator_.uv_set = settings_.uv_pass_set;
     integrator_.vector_pass = (kept & pass_bit(Pass::Vector)) != 0;
     if (integrator_.vector_pass) {
-      // The cameras of the frames before and after (Cycles' perspective_pre / _post), still.
+      // The cameras of the frames before and after (Cycles' perspective_pre / _post), still:
+      // the scene camera's or an overriding camera's own (a stereo view's steps; the
+      // viewport's camera has none).
       CameraDesc d = view;
       d.motion.clear();
       d.shutter_curve.clear();
       d.use_autofocus = false;
       d.focus_distance = focus_distance_;
-      const bool moves = camera == nullptr && view.pass_motion.size() == 2;
+      const bool moves = view.pass_motion.size() == 2;
       d.matrix_world = moves ? view.pass_motion[0] : view.matrix_world;
       camera_pre_ = Camera(d, settings_.width, settings_.height);
       d.matrix_world = moves ? view.pass_motion[1] : view.matrix_world;

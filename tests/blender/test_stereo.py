@@ -276,6 +276,55 @@ def checker_material(name, scale=6.0):
     return mat
 
 
+def render_passes(scene, stem):
+    """{view file name: {pass.channel: (H, W)}} of a render of `scene` through multilayer EXRs
+    (one per view with multiview on)."""
+    image = scene.render.image_settings
+    image.file_format, image.views_format, image.color_depth = 'OPEN_EXR_MULTILAYER', 'INDIVIDUAL', '32'
+    with tempfile.TemporaryDirectory(prefix="pathlight_test_") as tmp:
+        scene.render.filepath = str(Path(tmp) / f"{stem}.exr")
+        scene.render.use_file_extension = False
+        bpy.ops.render.render(write_still=True, scene=scene.name)
+        return {p.name: read_view_passes(p) for p in Path(tmp).glob("*.exr")}
+
+
+@needs_core
+def test_the_vector_pass_moves_with_each_view():
+    # The camera sliding and turning from frame to frame: each view's motion vectors are those
+    # of its own eye (the camera's steps at the frames around moved by the view's offset), as a
+    # twin parented to the camera at that offset sees them.
+    scene = stereo_scene('TOE', 'CENTER')
+    cam = scene.camera
+    for frame, x, turn in ((1, 0.0, -0.1), (2, 0.4, 0.0), (3, 0.9, 0.12)):
+        cam.location.x, cam.rotation_euler.z = x, turn
+        cam.keyframe_insert("location", frame=frame)
+        cam.keyframe_insert("rotation_euler", frame=frame)
+    scene.frame_set(2)
+    scene.view_layers[0].use_pass_vector = True
+    render_to_array(scene, samples=2, seed=SEED)  # (the settings)
+    views = render_passes(scene, "vec")
+    assert sorted(views) == ["vec_L.exr", "vec_R.exr"]
+    scene.render.use_multiview = False
+    for index, (name, file) in enumerate((("left", "vec_L.exr"), ("right", "vec_R.exr"))):
+        m, shift = hand_view(cam, name == "left")
+        twin = bpy.data.objects.new(f"Twin {name}", cam.data.copy())
+        scene.collection.objects.link(twin)
+        twin.data.shift_x = shift
+        twin.parent = cam
+        twin.matrix_parent_inverse = Matrix.Identity(4)
+        twin.matrix_basis = Matrix((np.linalg.inv(np.array(cam.matrix_world, np.float64)) @ m).tolist())
+        scene.camera = twin
+        scene.pathlight.seed = view_seed(SEED, index)
+        mono = render_passes(scene, "mono")["mono.exr"]
+        scene.camera, scene.pathlight.seed = cam, SEED
+        for ch in "XYZW":
+            ours, want = views[file][f"Vector.{ch}"], mono[f"Vector.{ch}"]
+            assert np.abs(want).max() > 0.5  # the camera moves a few pixels a frame
+            assert np.abs(ours - want).max() < 1e-3, (name, ch, np.abs(ours - want).max())
+    left, right = views["vec_L.exr"]["Vector.X"], views["vec_R.exr"]["Vector.X"]
+    assert np.abs(left - right).max() > 0.05
+
+
 def spherical_scene(width=64, height=32):
     """An equirectangular camera with spherical stereo among objects all around it, over a
     checkered floor (what the pole merge's lower rows see)."""
