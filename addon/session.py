@@ -316,10 +316,16 @@ def render(engine, depsgraph):
             log.info("render cancelled during the export")
             _empty_result(engine, scene, view_layer)
             return
+        # Multiview (Output > Stereoscopy): each view's camera, read at this frame, before the
+        # motion export moves through the frame (whose steps each view's camera takes too).
+        views = view_names(engine, scene, view_layer.name)
+        view_cams = {v: view_camera(engine, scene, depsgraph, v) for v in views if v}
+        others = [c.camera.original for c in view_cams.values()]
         if scene.render.use_motion_blur and not engine.is_preview:
-            _add_motion_blur(engine, depsgraph, data, warn)
+            _add_motion_blur(engine, depsgraph, data, warn, others)
         elif "Vector" in names and not engine.is_preview:
-            _add_pass_motion(engine, depsgraph, data, warn)
+            _add_pass_motion(engine, depsgraph, data, warn, others)
+        view_fields = {v: _view_fields(scene, depsgraph, data, c, warn) for v, c in view_cams.items()}
         kept = render_cache.SCENE_CACHE
         core_scene = kept.scene_for(pc, data, warn) if cache is not None else to_core(pc, data, warn)
         if cache is not None and cache.previous is not None:
@@ -373,14 +379,13 @@ def render(engine, depsgraph):
         # Multiview (Output > Stereoscopy): one render per view of the one committed scene,
         # each through its view's camera (as the viewport's camera override: nothing is
         # exported or rebuilt), with the full sample count, into its view of the result.
-        views = view_names(engine, scene, view_layer.name)
         seed = settings.seed
         done = None
         for index, view in enumerate(views):
             camera = None
             if view:
                 settings.seed = view_seed(seed, index)
-                camera = core_camera(pc, _view_fields(engine, scene, depsgraph, data, view, warn))
+                camera = core_camera(pc, view_fields[view])
             sess = pc.Session(core_scene, settings, camera=camera)
             _report_focus(sess, warn)
             _report_caustics(sess, warn)
@@ -404,35 +409,29 @@ def render(engine, depsgraph):
         engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
 
 
-def _view_fields(engine, scene, depsgraph, data, view, warn):
-    """pc.Camera fields of render view `view`: its camera, model matrix and shift (Blender's
-    multiview functions), spherical stereo, and the scene camera's motion-blur and Vector-pass
-    steps moved by the view's offset."""
-    v = view_camera(engine, scene, depsgraph, view)
+def _view_fields(scene, depsgraph, data, v, warn):
+    """pc.Camera fields of render view ViewCamera `v`: its camera, model matrix and shift
+    (Blender's multiview functions), spherical stereo, and its camera's motion-blur and
+    Vector-pass steps moved by the view's offset from that camera."""
     fields = camera_params(scene, depsgraph, warn, view=v)
-    for key in ("motion", "pass_motion"):
-        steps = data.camera.get(key)
-        if steps is None:
-            continue
-        moved = view_motion(steps, v)
-        if moved is None:
-            warn(f"View '{view}': its camera '{v.camera.name}' is not the scene camera; its "
-                 "motion blur and Vector pass leave out the camera's own motion")
-        else:
-            fields[key] = moved
+    own = scene.camera is not None and v.camera.name == scene.camera.name
+    for key, others in (("motion", "camera_motions"), ("pass_motion", "camera_pass_motions")):
+        steps = data.camera.get(key) if own else getattr(data, others, {}).get(v.camera.name)
+        if steps is not None:
+            fields[key] = view_motion(steps, v)
     if "shutter_curve" in data.camera:
         fields["shutter_curve"] = data.camera["shutter_curve"]
     if fields.get("stereo_eye"):
         log.info("Pathlight: view '%s' renders with spherical stereo (each ray offset by %.4g)",
-                 view, 0.5 * fields["interocular_distance"])
+                 v.name, 0.5 * fields["interocular_distance"])
     return fields
 
 
-def _add_motion_blur(engine, depsgraph, data, warn):
+def _add_motion_blur(engine, depsgraph, data, warn, cameras=()):
     """export.motion.add_motion, never failing the render: on an error the frame renders
     without motion blur, with one warning."""
     try:
-        add_motion(engine, depsgraph, data, warn)
+        add_motion(engine, depsgraph, data, warn, cameras)
     except Exception as e:  # a bug or an unexpected scene: the still frame is still a render
         log.exception("motion blur export failed")
         warn(f"Motion blur could not be exported ({type(e).__name__}: {e}); rendering without it")
@@ -441,13 +440,14 @@ def _add_motion_blur(engine, depsgraph, data, warn):
             mesh.motion_positions = None
             mesh.velocity = None
         data.camera.pop("motion", None)
+        data.camera_motions = {}
 
 
-def _add_pass_motion(engine, depsgraph, data, warn):
+def _add_pass_motion(engine, depsgraph, data, warn, cameras=()):
     """export.motion.add_pass_motion, never failing the render: on an error the Vector pass
     shows the camera's motion at most, with one warning."""
     try:
-        add_pass_motion(engine, depsgraph, data, warn)
+        add_pass_motion(engine, depsgraph, data, warn, cameras)
     except Exception as e:  # a bug or an unexpected scene
         log.exception("Vector pass motion export failed")
         warn(f"The Vector pass's motion could not be exported ({type(e).__name__}: {e}); it stays 0")
@@ -457,6 +457,7 @@ def _add_pass_motion(engine, depsgraph, data, warn):
         for entry in list(getattr(data, "curves", [])) + list(getattr(data, "points", [])):
             entry.pass_motions = [None] * len(entry.matrices)
         data.camera.pop("pass_motion", None)
+        data.camera_pass_motions = {}
 
 
 def _stop_requested(engine, stage, elapsed, time_limit):

@@ -26,8 +26,8 @@ class ViewCamera:
     matrix: np.ndarray  # (4, 4) float64: its model matrix for this view (scale removed)
     shift_x: float  # its horizontal shift for this view (off-axis stereo adds to it)
     stereo: dict = field(default_factory=dict)  # pc.Camera spherical stereo fields, or {}
-    # matrix = camera's scale-free matrix_world @ local: the view's offset, which motion-blur
-    # and Vector-pass steps of the camera take too (None: the view is another camera object)
+    # matrix = camera's scale-free matrix_world @ local: the view's offset from its camera
+    # object, which that camera's motion-blur and Vector-pass steps take too
     local: np.ndarray = None
 
 
@@ -74,18 +74,13 @@ def view_camera(engine, scene, depsgraph, name):
                       use_pole_merge=bool(st.use_pole_merge),
                       pole_merge_angle_from=float(st.pole_merge_angle_from),
                       pole_merge_angle_to=float(st.pole_merge_angle_to))
-    base = scene.camera.evaluated_get(depsgraph) if scene.camera is not None else None
-    local = None
-    if base is not None and base.name == cam.name:
-        local = np.linalg.inv(_scale_free(cam.matrix_world)) @ matrix
+    local = np.linalg.inv(_scale_free(cam.matrix_world)) @ matrix
     return ViewCamera(name, cam, matrix, shift_x, stereo, local)
 
 
 def view_motion(steps, view):
-    """Camera steps (S, 4, 4) of the scene camera (motion blur, Vector pass) moved by the view's
-    offset; None where the view's camera is another object (its motion is not exported)."""
-    if steps is None or view.local is None:
-        return None
+    """Steps (S, 4, 4) of the view's camera object (motion blur, Vector pass) moved by the
+    view's offset from it."""
     return (np.asarray(steps, np.float64) @ view.local).astype(np.float32)
 
 

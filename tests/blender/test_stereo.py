@@ -223,6 +223,34 @@ def test_views_share_one_export_and_progress_counts_over_them(monkeypatch):
     assert done == sorted(done) and any(0 < d <= 3 for d in done)
 
 
+@needs_core
+def test_multiview_cameras_blur_with_their_own_motion():
+    # The right view's camera (not the scene camera) slides over the shutter: its view blurs as
+    # a mono render through it does.
+    scene = scene_with_objects()
+    cams = {}
+    for suffix, loc in (("_L", (-1.0, -4.5, 1.2)), ("_R", (1.5, -4.0, 2.0))):
+        cams[suffix] = camera(loc, look_at=(0.0, 0.0, 0.5))
+        cams[suffix].name = "Cam" + suffix
+    moving = cams["_R"]
+    for frame, x in ((1, 1.5), (2, 2.5)):
+        moving.location.x = x
+        moving.keyframe_insert("location", frame=frame)
+    scene.frame_set(1)
+    scene.camera = cams["_L"]
+    scene.render.use_motion_blur = True
+    scene.render.use_multiview = True
+    scene.render.views_format = 'MULTIVIEW'
+    views = render_to_array(scene, samples=4, seed=SEED)
+    scene.render.use_multiview = False
+    scene.camera = moving
+    mono = render_to_array(scene, samples=4, seed=view_seed(SEED, 1))
+    assert_same_render(views["right"], mono, "multiview motion blur")
+    scene.render.use_motion_blur = False
+    still = render_to_array(scene, samples=4, seed=view_seed(SEED, 1))
+    assert np.abs(still - mono).max() > 0.05  # (it does blur)
+
+
 def read_view_passes(path):
     """{pass.channel: (H, W)} of a multilayer EXR's first layer."""
     with OpenEXR.File(str(path), separate_channels=True) as exr:
