@@ -614,7 +614,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
             now = time.monotonic()
             if not bpy.app.background or (listener is None and (
                     finished or now - stats_at >= 1.0)):
-                engine.update_stats("", _status_line(info, sess))
+                engine.update_stats("", _status_line(info, sess, view))
                 stats_at = now
             cancel = listener is not None and listener(info)  # also sees the final state
             if finished:
@@ -694,9 +694,11 @@ def _progress_info(progress, time_limit):
     return {"samples_done": done, "samples_total": total, "elapsed_s": elapsed, "eta_s": eta}
 
 
-def _status_line(info, sess):
+def _status_line(info, sess, view=""):
     parts = [f"Pathlight | Sample {info['samples_done']}/{info['samples_total']}",
              f"{info['elapsed_s']:.1f} s"]
+    if view:  # (multiview: the samples count over all views)
+        parts.insert(1, f"view {view}")
     if info["eta_s"] is not None and info["samples_done"] < info["samples_total"]:
         parts.append(f"ETA {info['eta_s']:.1f} s")
     stats = sess.stats()
