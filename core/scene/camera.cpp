@@ -243,7 +243,8 @@ Vec3 Camera::pano_to_world(const Frame& f, Vec3 d) const {
   return -f.back * d.x - f.right * d.y + f.up * d.z;
 }
 
-void Camera::spherical_stereo(Vec3& p, Vec3& d) const {
+// (out of line: the mono camera rays stay as small as before)
+[[gnu::noinline]] void Camera::spherical_stereo(Vec3& p, Vec3& d) const {
   float offset = stereo_offset_;
   if (pole_to_ > 0.0f) {
     // Cycles' pole merge: full offset below `from`, none above `to`, a quarter cosine between.
@@ -287,7 +288,7 @@ Ray Camera::generate_pano_in(const Frame& f, float x, float y, Vec2 lens, bool u
     d = raw;  // Cycles' stereo takes the map's direction as it is (a cylinder's is not unit)
   }
   // Spherical stereo in the panorama's own space (z up), after the lens, as Cycles.
-  if (stereo_offset_ != 0.0f) spherical_stereo(p, d);
+  if (stereo_offset_ != 0.0f) [[unlikely]] spherical_stereo(p, d);
   r.dir = normalize(pano_to_world(f, d));
   // Clipping along the ray, as Cycles does for panoramas.
   r.org = f.origin + pano_to_world(f, p) + r.dir * clip_start_;
@@ -556,12 +557,20 @@ Ray Camera::generate_pinhole_in(const Frame& f, float x, float y) const {
   const Vec3 local{px, py, -1.0f};
   const float inv_len = 1.0f / length(local);
   // Unit direction; -local.z * inv_len is the cosine to the view axis.
-  Vec3 dir = (right_ * local.x + up_ * local.y + back_ * local.z) * inv_len;
+  const Vec3 dir = (right_ * local.x + up_ * local.y + back_ * local.z) * inv_len;
   const float z_inv = 1.0f / inv_len;  // distance along the ray per unit of view depth
-  Vec3 org = origin_;
-  // Spherical stereo of a perspective camera: in the world (z up), as Cycles; the clipping
-  // distance keeps the centre ray's cosine, as Cycles'.
-  if (stereo_offset_ != 0.0f) spherical_stereo(org, dir);
+  if (stereo_offset_ != 0.0f) [[unlikely]] return stereo_pinhole(origin_, dir, z_inv);
+  r.org = origin_ + dir * (clip_start_ * z_inv);
+  r.dir = dir;
+  r.tmax = clip_len_ * z_inv;
+  return r;
+}
+
+// Spherical stereo of a perspective pinhole ray: in the world (z up), as Cycles; the clipping
+// distance keeps the centre ray's cosine, as Cycles'. (Out of line: mono rays stay as before.)
+[[gnu::noinline]] Ray Camera::stereo_pinhole(Vec3 org, Vec3 dir, float z_inv) const {
+  spherical_stereo(org, dir);
+  Ray r;
   r.org = org + dir * (clip_start_ * z_inv);
   r.dir = dir;
   r.tmax = clip_len_ * z_inv;
@@ -590,7 +599,7 @@ Ray Camera::generate_in(const Frame& f, float x, float y, Vec2 lens) const {
   r.dir = right_ * dc.x + up_ * dc.y - back_ * dc.z;
   Vec3 lw = origin_ + right_ * L.x + up_ * L.y;
   // Perspective spherical stereo after the lens, in the world (as Cycles; none for orthographic).
-  if (stereo_offset_ != 0.0f && type_ == CameraType::Perspective) {
+  if (stereo_offset_ != 0.0f && type_ == CameraType::Perspective) [[unlikely]] {
     r.dir = normalize(r.dir);
     spherical_stereo(lw, r.dir);
   }

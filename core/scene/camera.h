@@ -211,6 +211,7 @@ class Camera {
  private:
   static Frame frame_of(const Mat4& m);
   Ray generate_pinhole_in(const Frame& f, float x, float y) const;
+  Ray stereo_pinhole(Vec3 org, Vec3 dir, float z_inv) const;
   Ray generate_in(const Frame& f, float x, float y, Vec2 lens) const;
   Ray generate_pano_in(const Frame& f, float x, float y, Vec2 lens, bool use_lens) const;
   // Panorama space -> the frame's world axes, and back.
