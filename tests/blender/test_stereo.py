@@ -154,20 +154,23 @@ def test_each_view_equals_a_mono_render_through_its_camera(mode, pivot, kind):
 def test_multiview_renders_each_view_through_its_suffixed_camera():
     scene = scene_with_objects()
     cams = {}
-    for suffix, loc in (("_L", (-1.0, -4.5, 1.2)), ("_R", (1.5, -4.0, 2.0))):
+    for suffix, loc in (("_L", (-1.0, -4.5, 1.2)), ("_R", (1.5, -4.0, 2.0)), ("_top", (0.0, -1.0, 6.0))):
         cams[suffix] = camera(loc, look_at=(0.0, 0.0, 0.5))
         cams[suffix].name = "Cam" + suffix
     scene.camera = cams["_L"]
     scene.render.use_multiview = True
     scene.render.views_format = 'MULTIVIEW'
+    top = scene.render.views.new("top")  # a custom view, its camera found by its suffix
+    top.file_suffix = "_top"
     views = render_to_array(scene, samples=4, seed=SEED)
-    assert sorted(views) == ["left", "right"]
+    assert list(views) == ["left", "right", "top"]
     scene.render.use_multiview = False
-    for index, (name, suffix) in enumerate((("left", "_L"), ("right", "_R"))):
+    for index, (name, suffix) in enumerate((("left", "_L"), ("right", "_R"), ("top", "_top"))):
         scene.camera = cams[suffix]
         mono = render_to_array(scene, samples=4, seed=view_seed(SEED, index))
         assert np.array_equal(views[name], mono), f"multiview {name}"  # the camera object itself
     assert np.abs(views["left"] - views["right"]).max() > 0.1
+    assert np.abs(views["top"] - views["right"]).max() > 0.1
 
 
 @needs_core
