@@ -388,16 +388,17 @@ def test_spherical_stereo_offsets_every_ray_not_the_camera():
 
 @needs_core
 @pytest.mark.converged
-def test_a_perspective_off_axis_pair_agrees_with_cycles():
-    """Cycles at 1024 spp (stored), Pathlight at 512."""
+@pytest.mark.parametrize("mode", ['OFFAXIS', 'TOE'])
+def test_a_perspective_stereo_pair_agrees_with_cycles(mode):
+    """Cycles at 1024 spp (stored), Pathlight at 512; pivot Center."""
     def build():
-        scene = stereo_scene()
+        scene = stereo_scene(mode)
         scene.render.resolution_x, scene.render.resolution_y = 48, 32
         return scene
     ours = render_to_array(build(), "PATHLIGHT", samples=512, max_bounces=8)
     cycles = render_to_array(build(), "CYCLES", samples=1024, max_bounces=8, **BOX_FILTER)
     for name in ("left", "right"):
-        assert_agree(ours[name], cycles[name], f"off-axis stereo, {name}")
+        assert_agree(ours[name], cycles[name], f"{mode} stereo, {name}")
 
 
 @needs_core
