@@ -11,6 +11,9 @@ class PathlightRenderEngine(bpy.types.RenderEngine):
     bl_use_shading_nodes_custom = False  # use Blender's shader nodes (Principled BSDF, ...)
     bl_use_preview = True  # material preview thumbnails render with Pathlight
     bl_use_eevee_viewport = True  # Material Preview shading uses EEVEE
+    # Stereoscopy: the camera's Spherical Stereo (panoramic and perspective cameras), which the
+    # core's camera does per ray (export/views.py), as Cycles.
+    bl_use_spherical_stereo = True
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)  # required since Blender 4.4

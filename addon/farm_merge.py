@@ -80,6 +80,10 @@ def merge_pieces(pieces, output):
 def merge_frame(frame, pieces, output_pattern):
     """merge_pieces for pieces given as output patterns: [(pattern, sample_offset, samples)]
     with the frame's files named as Blender names them. Returns the merged file's path."""
+    if bpy.context.scene.render.use_multiview:
+        # Blender's image API reads one view of a multiview EXR: the others would be lost.
+        raise ValueError("the scene renders several views (Stereoscopy): merge its pieces with "
+                         "`python3 build.py merge`, which keeps every view")
     output = frame_file(output_pattern, frame)
     merge_pieces([(frame_file(p, frame), o, n) for p, o, n in pieces], output)
     return output

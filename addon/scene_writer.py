@@ -313,12 +313,17 @@ def add_points(scene, points, material_ids, warn, random_id_of=None, links=None,
                 break
 
 
-def set_camera(pc, scene, params):
-    """Sets the camera of a core scene from pc.Camera fields `params`."""
+def core_camera(pc, params):
+    """A pc.Camera with the fields `params`."""
     camera = pc.Camera()
     for name, value in params.items():
         setattr(camera, name, value)
-    scene.set_camera(camera)
+    return camera
+
+
+def set_camera(pc, scene, params):
+    """Sets the camera of a core scene from pc.Camera fields `params`."""
+    scene.set_camera(core_camera(pc, params))
 
 
 # The light node trees' images each core scene holds, by content: lights sent again to a kept

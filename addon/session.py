@@ -14,7 +14,9 @@ from .core import get_core
 from .export import ExportCancelled, ExportError, export_scene
 from .export.motion import add_motion, add_pass_motion
 from .export.world import warn_open_world_volume
-from .scene_writer import set_build_options, to_core
+from .export.camera import camera_params
+from .export.views import view_camera, view_motion, view_names, view_seed
+from .scene_writer import core_camera, set_build_options, to_core
 
 log = logging.getLogger(__name__)
 
@@ -321,10 +323,16 @@ def render(engine, depsgraph):
             log.info("render cancelled during the export")
             _empty_result(engine, scene, view_layer)
             return
+        # Multiview (Output > Stereoscopy): each view's camera, read at this frame, before the
+        # motion export moves through the frame (whose steps each view's camera takes too).
+        views = view_names(engine, scene, view_layer.name)
+        view_cams = {v: view_camera(engine, scene, depsgraph, v) for v in views if v}
+        others = [c.camera.original for c in view_cams.values()]
         if scene.render.use_motion_blur and not engine.is_preview:
-            _add_motion_blur(engine, depsgraph, data, warn)
+            _add_motion_blur(engine, depsgraph, data, warn, others)
         elif "Vector" in names and not engine.is_preview:
-            _add_pass_motion(engine, depsgraph, data, warn)
+            _add_pass_motion(engine, depsgraph, data, warn, others)
+        view_fields = {v: _view_fields(scene, depsgraph, data, c, warn) for v, c in view_cams.items()}
         kept = render_cache.SCENE_CACHE
         core_scene = kept.scene_for(pc, data, warn) if cache is not None else to_core(pc, data, warn)
         if cache is not None and cache.previous is not None:
@@ -370,22 +378,40 @@ def render(engine, depsgraph):
                 log.info("scene kept from the last render: %d BVH build(s), %d top-level build(s) so far",
                          stats.get("geometry_builds", 0), stats.get("top_level_builds", 0))
         log.info(bvh_line(stats))
-        sess = pc.Session(core_scene, settings)
         dropped = stats.get("dropped_triangles", 0)
         if dropped:
             warn(f"{dropped} degenerate triangle(s) skipped")
-        _report_focus(sess, warn)
-        _report_caustics(sess, warn)
-        _report_kernel(sess)
         for name, channels, chan_id, _, _ in passes + crypto:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         for name, channels, chan_id, _ in aovs + groups:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _, _, width, height = render_border(scene)
-        done = _run(engine, sess, width, height, time_limit=scene.pathlight.time_limit,
-                    passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs], bvh_view=scene.pathlight.debug_view == 'BVH',
-                    layer=view_layer.name, final_passes=[c[0] for c in crypto], groups=[g[0] for g in groups])
-        _stamp(engine, settings.sample_offset, done,
+        # Multiview (Output > Stereoscopy): one render per view of the one committed scene,
+        # each through its view's camera (as the viewport's camera override: nothing is
+        # exported or rebuilt), with the full sample count, into its view of the result.
+        seed = settings.seed
+        done = None
+        for index, view in enumerate(views):
+            camera = None
+            if view:
+                settings.seed = view_seed(seed, index)
+                camera = core_camera(pc, view_fields[view])
+            sess = pc.Session(core_scene, settings, camera=camera)
+            _report_focus(sess, warn)
+            _report_caustics(sess, warn)
+            if index == 0:
+                _report_kernel(sess)
+            view_done, cancelled = _run(
+                engine, sess, width, height, time_limit=scene.pathlight.time_limit,
+                passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs],
+                bvh_view=scene.pathlight.debug_view == 'BVH', layer=view_layer.name,
+                final_passes=[c[0] for c in crypto], groups=[g[0] for g in groups], view=view,
+                view_index=index, view_count=len(views))
+            done = view_done if done is None else min(done, view_done)
+            del sess
+            if cancelled:
+                break
+        _stamp(engine, settings.sample_offset, done or 0,
                cryptomatte_metadata(pc, data, view_layer) if crypto else {})
     except (ExportError, RuntimeError, ValueError) as e:  # also the core's C++ exceptions
         engine.report({'ERROR'}, f"Pathlight: {e}")
@@ -394,11 +420,29 @@ def render(engine, depsgraph):
         engine.report({'ERROR'}, f"Pathlight: {type(e).__name__}: {e}")
 
 
-def _add_motion_blur(engine, depsgraph, data, warn):
+def _view_fields(scene, depsgraph, data, v, warn):
+    """pc.Camera fields of render view ViewCamera `v`: its camera, model matrix and shift
+    (Blender's multiview functions), spherical stereo, and its camera's motion-blur and
+    Vector-pass steps moved by the view's offset from that camera."""
+    fields = camera_params(scene, depsgraph, warn, view=v)
+    own = scene.camera is not None and v.camera.name == scene.camera.name
+    for key, others in (("motion", "camera_motions"), ("pass_motion", "camera_pass_motions")):
+        steps = data.camera.get(key) if own else getattr(data, others, {}).get(v.camera.name)
+        if steps is not None:
+            fields[key] = view_motion(steps, v)
+    if "shutter_curve" in data.camera:
+        fields["shutter_curve"] = data.camera["shutter_curve"]
+    if fields.get("stereo_eye"):
+        log.info("Pathlight: view '%s' renders with spherical stereo (each ray offset by %.4g)",
+                 v.name, 0.5 * fields["interocular_distance"])
+    return fields
+
+
+def _add_motion_blur(engine, depsgraph, data, warn, cameras=()):
     """export.motion.add_motion, never failing the render: on an error the frame renders
     without motion blur, with one warning."""
     try:
-        add_motion(engine, depsgraph, data, warn)
+        add_motion(engine, depsgraph, data, warn, cameras)
     except Exception as e:  # a bug or an unexpected scene: the still frame is still a render
         log.exception("motion blur export failed")
         warn(f"Motion blur could not be exported ({type(e).__name__}: {e}); rendering without it")
@@ -407,13 +451,14 @@ def _add_motion_blur(engine, depsgraph, data, warn):
             mesh.motion_positions = None
             mesh.velocity = None
         data.camera.pop("motion", None)
+        data.camera_motions = {}
 
 
-def _add_pass_motion(engine, depsgraph, data, warn):
+def _add_pass_motion(engine, depsgraph, data, warn, cameras=()):
     """export.motion.add_pass_motion, never failing the render: on an error the Vector pass
     shows the camera's motion at most, with one warning."""
     try:
-        add_pass_motion(engine, depsgraph, data, warn)
+        add_pass_motion(engine, depsgraph, data, warn, cameras)
     except Exception as e:  # a bug or an unexpected scene
         log.exception("Vector pass motion export failed")
         warn(f"The Vector pass's motion could not be exported ({type(e).__name__}: {e}); it stays 0")
@@ -423,6 +468,7 @@ def _add_pass_motion(engine, depsgraph, data, warn):
         for entry in list(getattr(data, "curves", [])) + list(getattr(data, "points", [])):
             entry.pass_motions = [None] * len(entry.matrices)
         data.camera.pop("pass_motion", None)
+        data.camera_pass_motions = {}
 
 
 def _stop_requested(engine, stage, elapsed, time_limit):
@@ -471,10 +517,13 @@ def _commit(engine, core_scene, threads, time_limit=0.0):
 
 
 def _report_caustics(sess, warn):
-    # Only where asked for explicitly: the automatic mode's "off (automatic): ..." is silent.
+    # Only where asked for explicitly: the automatic mode's "off (automatic): ..." is silent
+    # (but for spherical stereo, which the log says).
     state = sess.stats().get("caustics", "")
     if state.startswith("off:"):
         warn(f"Caustic Light Paths {state}; rendering without them")
+    elif "spherical stereo" in state:
+        log.info("Pathlight: Caustic Light Paths %s", state)
 
 
 def _report_focus(sess, warn):
@@ -526,29 +575,40 @@ def _warner(engine):
 
 
 def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=(), final_passes=(),
-         groups=()):
-    """Streams the session's film (and passes) into the render result; returns the samples
-    done. final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at the end.
-    groups: the light group passes' names (film_light_group(i) is group i's)."""
+         groups=(), view="", view_index=0, view_count=1):
+    """Streams the session's film (and passes) into the render result (its view `view`, or
+    the one view without multiview); returns (samples done, whether the render was
+    cancelled). final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at
+    the end. groups: the light group passes' names (film_light_group(i) is group i's).
+    Progress counts over the views: this is view_index of view_count."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     # With a render border, Blender's result is the border's size (it crops, or pastes the
     # border into the frame, itself): the film covers exactly that.
-    result = engine.begin_result(0, 0, width, height, layer=layer)
+    if view:
+        result = engine.begin_result(0, 0, width, height, layer=layer, view=view)
+    else:
+        result = engine.begin_result(0, 0, width, height, layer=layer)
     info = {"samples_done": 0}
+    view_info = info
+    cancelled = False
     try:
         render_layer = result.layers[0]
-        combined = render_layer.passes["Combined"]
-        targets = [(name, render_layer.passes.get(name)) for name in passes]
-        aov_targets = [(i, render_layer.passes.get(name)) for i, name in enumerate(aovs)]
-        group_targets = [(i, render_layer.passes.get(name)) for i, name in enumerate(groups)]
-        final_targets = [(name, render_layer.passes.get(name)) for name in final_passes]
+
+        def find(name):  # (a result of one view holds that view's passes only)
+            return render_layer.passes.find_by_name(name, view) if view else render_layer.passes.get(name)
+        combined = find("Combined")
+        targets = [(name, find(name)) for name in passes]
+        aov_targets = [(i, find(name)) for i, name in enumerate(aovs)]
+        group_targets = [(i, find(name)) for i, name in enumerate(groups)]
+        final_targets = [(name, find(name)) for name in final_passes]
         sess.start()
         shown = -1
         stats_at = -1.0
         while True:
             finished = sess.wait(0.25)
-            info = _progress_info(sess.progress(), time_limit)
-            if info["samples_done"] != shown or finished:
+            view_info = _progress_info(sess.progress(), time_limit)
+            info = _over_views(view_info, view_index, view_count)
+            if view_info["samples_done"] != shown or finished:
                 # film(): float32 (H, W, 4), row 0 = bottom, which is also Blender's order.
                 image = _bvh_heat_map(engine, sess, finished) if bvh_view else sess.film()
                 combined.rect.foreach_set(image.ravel())  # ~400x faster than `rect = `
@@ -562,7 +622,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
                     if target is not None:
                         target.rect.foreach_set(sess.film_light_group(i).ravel())
                 engine.update_result(result)
-                shown = info["samples_done"]
+                shown = view_info["samples_done"]
             engine.update_progress(info["samples_done"] / max(info["samples_total"], 1))
             listener = _progress_listener
             # In background mode Blender prints each stats line to stdout: that is the
@@ -570,19 +630,34 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
             now = time.monotonic()
             if not bpy.app.background or (listener is None and (
                     finished or now - stats_at >= 1.0)):
-                engine.update_stats("", _status_line(info, sess))
+                engine.update_stats("", _status_line(info, sess, view))
                 stats_at = now
             cancel = listener is not None and listener(info)  # also sees the final state
             if finished:
                 break
             if cancel or engine.test_break():
                 sess.cancel()
+                cancelled = True
     finally:
         if not sess.is_finished():  # an exception above: stop the worker threads
             sess.cancel()
             sess.wait(5.0)
         engine.end_result(result)
-    return info["samples_done"]
+    return view_info["samples_done"], cancelled
+
+
+def _over_views(info, index, count):
+    """Progress info of view `index` of `count` (each with the same sample count) as progress
+    over all views: the samples of the views before count as done."""
+    if count <= 1:
+        return info
+    total = info["samples_total"]
+    done = index * total + info["samples_done"]
+    out = dict(info, samples_done=done, samples_total=count * total)
+    if info["eta_s"] is not None and info["samples_done"]:
+        per_sample = info["elapsed_s"] / info["samples_done"]
+        out["eta_s"] = info["eta_s"] + per_sample * total * (count - 1 - index)
+    return out
 
 
 def _stamp(engine, sample_offset, samples, extra=None):
@@ -635,9 +710,11 @@ def _progress_info(progress, time_limit):
     return {"samples_done": done, "samples_total": total, "elapsed_s": elapsed, "eta_s": eta}
 
 
-def _status_line(info, sess):
+def _status_line(info, sess, view=""):
     parts = [f"Pathlight | Sample {info['samples_done']}/{info['samples_total']}",
              f"{info['elapsed_s']:.1f} s"]
+    if view:  # (multiview: the samples count over all views)
+        parts.insert(1, f"view {view}")
     if info["eta_s"] is not None and info["samples_done"] < info["samples_total"]:
         parts.append(f"ETA {info['eta_s']:.1f} s")
     stats = sess.stats()

@@ -9,12 +9,18 @@ class ExportError(Exception):
     """The scene cannot be rendered; the message is for the user."""
 
 
-def camera_params(scene, depsgraph, warn):
-    """Dict of pc.Camera fields for the scene's active camera."""
-    if scene.camera is None:
+def camera_params(scene, depsgraph, warn, view=None):
+    """Dict of pc.Camera fields for the scene's active camera, or for a render view's camera
+    (view: an export.views.ViewCamera, multiview: its object, model matrix, shift and spherical
+    stereo)."""
+    if view is not None:
+        cam_obj = view.camera
+        matrix = np.array(view.matrix, np.float32)
+    elif scene.camera is None:
         raise ExportError("The scene has no active camera")
-    cam_obj = scene.camera.evaluated_get(depsgraph)
-    matrix = np.array(cam_obj.matrix_world, np.float32)
+    else:
+        cam_obj = scene.camera.evaluated_get(depsgraph)
+        matrix = np.array(cam_obj.matrix_world, np.float32)
     # Like Cycles, ignore the camera object's scale.
     matrix[:3, :3] /= np.linalg.norm(matrix[:3, :3], axis=0)
     render = scene.render
@@ -37,7 +43,7 @@ def camera_params(scene, depsgraph, warn):
         sensor_width=cam.sensor_width,
         sensor_height=cam.sensor_height,
         sensor_fit=cam.sensor_fit,
-        shift_x=cam.shift_x,
+        shift_x=cam.shift_x if view is None else view.shift_x,
         shift_y=cam.shift_y,
         clip_start=cam.clip_start,
         clip_end=cam.clip_end,
@@ -46,6 +52,8 @@ def camera_params(scene, depsgraph, warn):
         params["ortho_scale"] = cam.ortho_scale
     if cam_type == 'PANO':
         params.update(panorama_params(cam, cam_obj.name, render, warn))
+    if view is not None and view.stereo and cam_type in ('PERSP', 'PANO'):
+        params.update(view.stereo)
     params.update(_dof_params(cam_obj, cam, cam_type, matrix, depsgraph, warn))
     _autofocus_params(scene, params)
     if params.get("use_autofocus") and "aperture_size" not in params:

@@ -143,11 +143,12 @@ def camera_matrix(obj):
     return m
 
 
-def add_motion(engine, depsgraph, data, warn):
+def add_motion(engine, depsgraph, data, warn, cameras=()):
     """Fills SceneData `data` (exported at the current frame) with motion blur: data.camera's
     "motion" and "shutter_curve", and each MeshData's `motions` (per matrix: (S, 4, 4) steps or
     None). Evaluates the depsgraph at the sub-frames (engine.frame_set) and restores the frame.
-    Returns the number of moving objects."""
+    cameras: other camera objects (Multi-View's views) whose steps go to
+    data.camera_motions[name]. Returns the number of moving objects."""
     scene = depsgraph.scene
     render = scene.render
     shutter = float(render.motion_blur_shutter)
@@ -217,6 +218,10 @@ def add_motion(engine, depsgraph, data, warn):
     cam_steps = motion_step_count(cam_obj) if cam_obj is not None and uses_motion_blur(cam_obj) else 0
     if cam_steps:
         counts.add(cam_steps)
+    others = {c.name: (c, motion_step_count(c)) for c in cameras
+              if c is not None and (cam_obj is None or c.name != cam_obj.name) and uses_motion_blur(c)}
+    counts.update(n for _, n in others.values())
+    other_at = {}
     times = sorted({t for n in counts for t in relative_times(n)})
     if not times:
         return 0
@@ -229,6 +234,8 @@ def add_motion(engine, depsgraph, data, warn):
             engine.frame_set(int(f), t - f)
             if cam_steps and cam_obj is not None:
                 cam_at[rel] = camera_matrix(cam_obj.evaluated_get(depsgraph))
+            for name, (c, _n) in others.items():
+                other_at[(name, rel)] = camera_matrix(c.evaluated_get(depsgraph))
             deform_keys = {}  # (an emitter's hair systems with several materials share its key)
             for e, key, _n in shaped_deform.values():
                 deform_keys.setdefault(key, []).append(e)
@@ -312,12 +319,17 @@ def add_motion(engine, depsgraph, data, warn):
         elif not (steps == steps[0]).all():
             data.camera["motion"] = steps
             moving += 1
+    for name, (c, n) in others.items():
+        steps = np.stack([other_at[(name, rel)] for rel in relative_times(n)])
+        if usable_steps(steps) and not (steps == steps[0]).all():
+            data.camera_motions = dict(getattr(data, "camera_motions", {}), **{name: steps})
+            moving += 1
     if moving:
         data.camera["shutter_curve"] = shutter_curve(render)
     return moving
 
 
-def add_pass_motion(engine, depsgraph, data, warn):
+def add_pass_motion(engine, depsgraph, data, warn, cameras=()):
     """The Vector pass's motion, as Cycles' without motion blur (its MOTION_PASS: the depsgraph
     at the frames before and after, frame -+ 1): data.camera["pass_motion"] (2, 4, 4), each
     MeshData's, CurvesData's and PointsData's `pass_motions` (per matrix: (2, 4, 4) or None),
@@ -359,6 +371,7 @@ def add_pass_motion(engine, depsgraph, data, warn):
             shaped_deform.setdefault(keys[0], []).append(entry)
     cam_obj = scene.camera
     matrices, positions, cam_at, shaped_at = {}, {}, {}, {}
+    others = [c for c in cameras if c is not None and (cam_obj is None or c.name != cam_obj.name)]
     final = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
     try:
         for rel in (-1, 1):
@@ -367,6 +380,8 @@ def add_pass_motion(engine, depsgraph, data, warn):
             engine.frame_set(int(f), t - f)
             if cam_obj is not None:
                 cam_at[rel] = camera_matrix(cam_obj.evaluated_get(depsgraph))
+            for c in others:
+                cam_at[(c.name, rel)] = camera_matrix(c.evaluated_get(depsgraph))
             for instance in depsgraph.object_instances:
                 key = instance_key(instance)
                 if key in where:
@@ -417,5 +432,10 @@ def add_pass_motion(engine, depsgraph, data, warn):
         steps = np.stack([cam_at[-1], cam_at[1]])
         if np.isfinite(steps).all() and not (steps == data.camera.get("matrix_world", steps[0])).all():
             data.camera["pass_motion"] = steps
+            moving += 1
+    for c in others:  # Multi-View's other cameras: data.camera_pass_motions[name]
+        steps = np.stack([cam_at[(c.name, -1)], cam_at[(c.name, 1)]])
+        if np.isfinite(steps).all() and not (steps == camera_matrix(c.evaluated_get(depsgraph))).all():
+            data.camera_pass_motions = dict(getattr(data, "camera_pass_motions", {}), **{c.name: steps})
             moving += 1
     return moving

@@ -126,6 +126,8 @@ constexpr EnumNames<SensorFit> kSensorFitNames = {
     {SensorFit::Auto, "AUTO"}, {SensorFit::Horizontal, "HORIZONTAL"}, {SensorFit::Vertical, "VERTICAL"}};
 constexpr EnumNames<CameraType> kCameraTypeNames = {
     {CameraType::Perspective, "PERSP"}, {CameraType::Orthographic, "ORTHO"}, {CameraType::Panoramic, "PANO"}};
+constexpr EnumNames<StereoEye> kStereoEyeNames = {
+    {StereoEye::None, "NONE"}, {StereoEye::Left, "LEFT"}, {StereoEye::Right, "RIGHT"}};
 constexpr EnumNames<PanoramaType> kPanoramaTypeNames = {{PanoramaType::Equirectangular, "EQUIRECTANGULAR"},
                                                         {PanoramaType::EquiangularCubemapFace, "EQUIANGULAR_CUBEMAP_FACE"},
                                                         {PanoramaType::Mirrorball, "MIRRORBALL"},
@@ -286,6 +288,14 @@ void validate_camera(const CameraDesc& c) {
     if (!(c.pano_fit_aspect >= 0.0f)) throw std::invalid_argument("camera pano_fit_aspect must be >= 0");
     if (!(c.pano_viewplane[1] != c.pano_viewplane[0]) || !(c.pano_viewplane[3] != c.pano_viewplane[2]))
       throw std::invalid_argument("camera pano_viewplane must not be empty");
+  }
+  if (c.stereo_eye != StereoEye::None) {
+    if (!std::isfinite(c.interocular_distance) || !(c.interocular_distance >= 0.0f))
+      throw std::invalid_argument("camera interocular_distance must be finite and >= 0");
+    if (!(c.convergence_distance > 0.0f))  // (inf: parallel)
+      throw std::invalid_argument("camera convergence_distance must be positive (inf: parallel)");
+    if (!std::isfinite(c.pole_merge_angle_from) || !std::isfinite(c.pole_merge_angle_to))
+      throw std::invalid_argument("camera pole merge angles must be finite");
   }
   if (!(c.aperture_size >= 0.0f)) throw std::invalid_argument("camera aperture_size must be >= 0");
   if (!(c.focus_distance > 0.0f)) throw std::invalid_argument("camera focus_distance must be positive");
@@ -2975,6 +2985,17 @@ PYBIND11_MODULE(pathlight_core, m) {
           "camera frame is [0, 1]^2 (the viewport's region around the camera border).")
       .def_readwrite("pano_fit_aspect", &CameraDesc::pano_fit_aspect,
                      "Width over height the fisheye sensor is fitted to; 0: the frame's.")
+      .def_property(
+          "stereo_eye", [](const CameraDesc& c) { return enum_name(c.stereo_eye, kStereoEyeNames); },
+          [](CameraDesc& c, const std::string& s) { c.stereo_eye = enum_from_name(s, "stereo_eye", kStereoEyeNames, false); },
+          "Spherical stereo: 'NONE' (mono), 'LEFT' or 'RIGHT' (each ray moves -+ interocular_distance / 2 "
+          "to its side; perspective and panoramic cameras).")
+      .def_readwrite("interocular_distance", &CameraDesc::interocular_distance)
+      .def_readwrite("convergence_distance", &CameraDesc::convergence_distance,
+                     "Spherical stereo: where the eyes' rays meet (inf: parallel).")
+      .def_readwrite("use_pole_merge", &CameraDesc::use_pole_merge)
+      .def_readwrite("pole_merge_angle_from", &CameraDesc::pole_merge_angle_from)
+      .def_readwrite("pole_merge_angle_to", &CameraDesc::pole_merge_angle_to)
       .def_readwrite("aperture_size", &CameraDesc::aperture_size)
       .def_readwrite("focus_distance", &CameraDesc::focus_distance)
       .def_readwrite("aperture_blades", &CameraDesc::aperture_blades)

@@ -178,13 +178,15 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     integrator_.uv_set = settings_.uv_pass_set;
     integrator_.vector_pass = (kept & pass_bit(Pass::Vector)) != 0;
     if (integrator_.vector_pass) {
-      // The cameras of the frames before and after (Cycles' perspective_pre / _post), still.
+      // The cameras of the frames before and after (Cycles' perspective_pre / _post), still:
+      // the scene camera's or an overriding camera's own (a stereo view's steps; the
+      // viewport's camera has none).
       CameraDesc d = view;
       d.motion.clear();
       d.shutter_curve.clear();
       d.use_autofocus = false;
       d.focus_distance = focus_distance_;
-      const bool moves = camera == nullptr && view.pass_motion.size() == 2;
+      const bool moves = view.pass_motion.size() == 2;
       d.matrix_world = moves ? view.pass_motion[0] : view.matrix_world;
       camera_pre_ = Camera(d, settings_.width, settings_.height);
       d.matrix_world = moves ? view.pass_motion[1] : view.matrix_world;
@@ -670,6 +672,9 @@ void Session::setup_caustics(bool guiding) {
   // scene at the light path's own shutter time. An orthographic pinhole's rays are parallel: a
   // light path meets one with probability 0. A panorama's lens (a disk turned with each ray, a
   // spherical focal surface) has no inverse here.
+  else if (camera_.has_spherical_stereo())
+    off("not with spherical stereo (each camera ray has its own centre of projection, which the "
+        "connections to the camera cannot invert)");
   else if (camera_.is_panoramic() && camera_.has_aperture())
     off("not with a panoramic camera's depth of field");
   else if (camera_.orthographic() && !camera_.has_aperture())

@@ -55,6 +55,16 @@ Camera::Camera(const CameraDesc& d, int width, int height) {
   inv_aperture_ratio_ = d.aperture_ratio > 0.0f && std::isfinite(d.aperture_ratio) ? 1.0f / d.aperture_ratio : 1.0f;
   set_focus_distance(d.focus_distance);
 
+  // Spherical stereo, as Cycles: +-half the interocular distance (Cycles' interocular_offset),
+  // perspective and panoramic cameras only (Blender has none for orthographic ones).
+  if (d.stereo_eye != StereoEye::None && type_ != CameraType::Orthographic && std::isfinite(d.interocular_distance)) {
+    stereo_offset_ = 0.5f * d.interocular_distance * (d.stereo_eye == StereoEye::Left ? -1.0f : 1.0f);
+    convergence_ = d.convergence_distance > 0.0f ? d.convergence_distance : kInf;  // (NaN: parallel too)
+    if (d.use_pole_merge && std::isfinite(d.pole_merge_angle_from) && std::isfinite(d.pole_merge_angle_to)) {
+      pole_from_ = d.pole_merge_angle_from;
+      pole_to_ = d.pole_merge_angle_to;
+    }
+  }
   cam_x_ = right_;
   cam_y_ = up_;
   cam_z_ = -back_;
@@ -233,17 +243,37 @@ Vec3 Camera::pano_to_world(const Frame& f, Vec3 d) const {
   return -f.back * d.x - f.right * d.y + f.up * d.z;
 }
 
+// (out of line: the mono camera rays stay as small as before)
+[[gnu::noinline]] void Camera::spherical_stereo(Vec3& p, Vec3& d) const {
+  float offset = stereo_offset_;
+  if (pole_to_ > 0.0f) {
+    // Cycles' pole merge: full offset below `from`, none above `to`, a quarter cosine between.
+    const float altitude = std::fabs(std::asin(std::clamp(d.z, -1.0f, 1.0f)));
+    if (altitude > pole_to_) {
+      offset = 0.0f;
+    } else if (altitude > pole_from_) {
+      offset *= std::cos((altitude - pole_from_) / (pole_to_ - pole_from_) * 0.5f * kPi);
+    }
+  }
+  const Vec3 c = cross(d, Vec3{0.0f, 0.0f, 1.0f});
+  const float l2 = length_sq(c);
+  if (!(l2 > 0.0f)) return;  // straight up or down: no side to move to (Cycles' would be NaN)
+  const Vec3 s = c * (offset / std::sqrt(l2));
+  p = p + s;
+  if (convergence_ < kInf) d = normalize(d * convergence_ - s);
+}
+
 Ray Camera::generate_pano_in(const Frame& f, float x, float y, Vec2 lens, bool use_lens) const {
   Ray r;
-  Vec3 d = pano_direction(x, y);
-  if (d.x == 0.0f && d.y == 0.0f && d.z == 0.0f) {
+  const Vec3 raw = pano_direction(x, y);
+  if (raw.x == 0.0f && raw.y == 0.0f && raw.z == 0.0f) {
     // Outside the lens: no ray (Cycles' tmax 0), the pixel stays black.
     r.org = f.origin;
     r.dir = -f.back;
     r.tmax = 0.0f;
     return r;
   }
-  d = normalize(d);
+  Vec3 d = normalize(raw);
   Vec3 p(0.0f);
   if (use_lens && aperture_ > 0.0f) {
     // Cycles' panorama depth of field: the focal surface is the sphere of radius focus_, the
@@ -254,7 +284,11 @@ Ray Camera::generate_pano_in(const Frame& f, float x, float y, Vec2 lens, bool u
     const Vec3 V = normalize(cross(d, U));
     p = U * (a.x * aperture_) + V * (a.y * aperture_);
     d = normalize(d * focus_ - p);
+  } else if (stereo_offset_ != 0.0f) {
+    d = raw;  // Cycles' stereo takes the map's direction as it is (a cylinder's is not unit)
   }
+  // Spherical stereo in the panorama's own space (z up), after the lens, as Cycles.
+  if (stereo_offset_ != 0.0f) [[unlikely]] spherical_stereo(p, d);
   r.dir = normalize(pano_to_world(f, d));
   // Clipping along the ray, as Cycles does for panoramas.
   r.org = f.origin + pano_to_world(f, p) + r.dir * clip_start_;
@@ -525,7 +559,19 @@ Ray Camera::generate_pinhole_in(const Frame& f, float x, float y) const {
   // Unit direction; -local.z * inv_len is the cosine to the view axis.
   const Vec3 dir = (right_ * local.x + up_ * local.y + back_ * local.z) * inv_len;
   const float z_inv = 1.0f / inv_len;  // distance along the ray per unit of view depth
+  if (stereo_offset_ != 0.0f) [[unlikely]] return stereo_pinhole(origin_, dir, z_inv);
   r.org = origin_ + dir * (clip_start_ * z_inv);
+  r.dir = dir;
+  r.tmax = clip_len_ * z_inv;
+  return r;
+}
+
+// Spherical stereo of a perspective pinhole ray: in the world (z up), as Cycles; the clipping
+// distance keeps the centre ray's cosine, as Cycles'. (Out of line: mono rays stay as before.)
+[[gnu::noinline]] Ray Camera::stereo_pinhole(Vec3 org, Vec3 dir, float z_inv) const {
+  spherical_stereo(org, dir);
+  Ray r;
+  r.org = org + dir * (clip_start_ * z_inv);
   r.dir = dir;
   r.tmax = clip_len_ * z_inv;
   return r;
@@ -551,7 +597,12 @@ Ray Camera::generate_in(const Frame& f, float x, float y, Vec2 lens) const {
   const Vec3 dc = normalize(F - L);
   Ray r;
   r.dir = right_ * dc.x + up_ * dc.y - back_ * dc.z;
-  const Vec3 lw = origin_ + right_ * L.x + up_ * L.y;
+  Vec3 lw = origin_ + right_ * L.x + up_ * L.y;
+  // Perspective spherical stereo after the lens, in the world (as Cycles; none for orthographic).
+  if (stereo_offset_ != 0.0f && type_ == CameraType::Perspective) [[unlikely]] {
+    r.dir = normalize(r.dir);
+    spherical_stereo(lw, r.dir);
+  }
   // Clipping planes stay planes perpendicular to the view axis, for every lens point (Cycles
   // measures the near clip with the pinhole ray's cosine instead: a negligible difference).
   const float z_inv = 1.0f / dc.z;

@@ -29,6 +29,8 @@ enum class PanoramaType {
   FisheyeLensPolynomial,
   CentralCylindrical
 };
+// Which eye a spherical-stereo camera renders (Cycles' Camera::StereoEye).
+enum class StereoEye { None, Left, Right };
 
 struct CameraDesc {
   Mat4 matrix_world;
@@ -70,6 +72,16 @@ struct CameraDesc {
   float pano_viewplane[4] = {0.0f, 1.0f, 0.0f, 1.0f};
   // Width over height (pixel aspect included) the fisheye sensor is fitted to; 0: the frame's.
   float pano_fit_aspect = 0.0f;
+  // Spherical stereo (Blender's camera.stereo with Spherical Stereo; Cycles'
+  // spherical_stereo_transform): a panorama's (or a perspective camera's) every ray starts half
+  // the interocular distance to its own side (left eye -, right eye +; none: mono), and turns
+  // toward the point at convergence_distance along the centre ray (inf: parallel rays). Pole
+  // merge fades the offset out between the two altitudes (radians) toward the poles.
+  StereoEye stereo_eye = StereoEye::None;
+  float interocular_distance = 0.065f;
+  float convergence_distance = 1.95f;
+  bool use_pole_merge = false;
+  float pole_merge_angle_from = kPi / 3.0f, pole_merge_angle_to = 5.0f * kPi / 12.0f;
 };
 
 class Camera {
@@ -100,6 +112,12 @@ class Camera {
   // The Depth pass (Cycles' camera_z_depth): the view depth, or a panorama's distance.
   float z_depth(Vec3 p) const { return type_ == CameraType::Panoramic ? length(p - origin_) : view_depth(p); }
   bool is_panoramic() const { return type_ == CameraType::Panoramic; }
+  // Spherical stereo on: each ray has its own centre of projection (no inverse map here).
+  bool has_spherical_stereo() const { return stereo_offset_ != 0.0f; }
+  // Cycles' spherical_stereo_transform of a ray from p along d, in a space whose +z is up (a
+  // panorama's own space; the world for a perspective camera): p moves sideways by the eye's
+  // offset (faded by the pole merge), d turns toward the convergence point.
+  void spherical_stereo(Vec3& p, Vec3& d) const;
   // The camera's position and unit view axis (at shutter open; the Mist pass measures from them).
   Vec3 origin() const { return origin_; }
   Vec3 forward() const { return -back_; }
@@ -193,6 +211,7 @@ class Camera {
  private:
   static Frame frame_of(const Mat4& m);
   Ray generate_pinhole_in(const Frame& f, float x, float y) const;
+  Ray stereo_pinhole(Vec3 org, Vec3 dir, float z_inv) const;
   Ray generate_in(const Frame& f, float x, float y, Vec2 lens) const;
   Ray generate_pano_in(const Frame& f, float x, float y, Vec2 lens, bool use_lens) const;
   // Panorama space -> the frame's world axes, and back.
@@ -218,6 +237,9 @@ class Camera {
   float range_[4] = {0, 0, 0, 0};  // equirectangular or central cylindrical range
   float fov_ = kPi, fisheye_lens_ = 10.5f, sensor_w_ = 36.0f, sensor_h_ = 24.0f;
   float poly_[5] = {0, 0, 0, 0, 0};
+  // Spherical stereo: the signed sideways offset (0: mono), convergence distance (inf:
+  // parallel), pole merge altitudes (to <= 0: off).
+  float stereo_offset_ = 0.0f, convergence_ = kInf, pole_from_ = -1.0f, pole_to_ = -1.0f;
 };
 
 }  // namespace pl

@@ -104,7 +104,8 @@ def open_fixture(name):
 def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
     """Render `scene` (default: the current one) with `engine` ("PATHLIGHT" or "CYCLES") and
     return its linear RGBA as float32 (H, W, 4), row 0 = TOP row (image order, as in image
-    files and viewers; the core's film and Blender's pass rects have row 0 = bottom).
+    files and viewers; the core's film and Blender's pass rects have row 0 = bottom). With
+    multiview on (Output > Stereoscopy): {view name: RGBA} of every view.
 
     overrides: the engine's settings (scene.pathlight.<name> / scene.cycles.<name>) or else
     scene.render.<name>, e.g. samples=16, seed=3, resolution_percentage=25. For CYCLES,
@@ -149,17 +150,36 @@ def render_to_array(scene=None, engine="PATHLIGHT", **overrides):
     image.color_depth = '32'
     image.exr_codec = 'ZIP'
 
+    views = render_views(scene) if render.use_multiview else []
+    if views:
+        image.views_format = 'INDIVIDUAL'  # one file per view, named with its suffix
+
     def run():
         with tempfile.TemporaryDirectory(prefix="pathlight_test_") as tmp:
             render.filepath = str(Path(tmp) / "render.exr")
             render.use_file_extension = False
             bpy.ops.render.render(write_still=True, scene=scene.name)
+            if views:  # multiview: {"rgba.<view>": image}
+                return {f"rgba.{name}": read_exr(Path(tmp) / f"render{suffix}.exr") for name, suffix in views}
             return {"rgba": read_exr(render.filepath)}
 
     if engine == "CYCLES":
         render.use_file_extension = False
-        return cycles_refs.cached(scene, "rgba", run, refs)["rgba"]
-    return run()["rgba"]
+        out = cycles_refs.cached(scene, "rgba", run, refs)
+    else:
+        out = run()
+    if views:
+        return {name: out[f"rgba.{name}"] for name, _ in views}
+    return out["rgba"]
+
+
+def render_views(scene):
+    """(name, file suffix) of the views a multiview render of `scene` has, in order (Blender's
+    BKE_scene_multiview_is_render_view_active: Stereo 3D's left and right, or every enabled view)."""
+    r = scene.render
+    stereo = r.views_format == 'STEREO_3D'
+    return [(v.name, v.file_suffix) for v in r.views
+            if v.use and (not stereo or v.name in ("left", "right"))]
 
 
 def render_multilayer_file(scene, path, refs=None):

@@ -106,7 +106,8 @@ def merge_exr(inputs, output):
             den += w
         merged[name] = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0).astype(np.float32)
     header = {k: v for k, v in parts[0][1].items()
-              if k in ("compression", "pixelAspectRatio") or not k[:1].islower() or k.startswith("cryptomatte/")}
+              if k in ("compression", "pixelAspectRatio", "multiView") or not k[:1].islower()
+              or k.startswith("cryptomatte/")}  # (multiView: a stereo render's view names)
     total = sum(n for n in file_samples if n is not None) if all(file_samples) else None
     if total is not None:
         header[MERGE_SAMPLES] = str(total)
