@@ -230,7 +230,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
     integrator_.differentials = scene_->features().footprints;
     setup_caustics(guiding);
-    kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr),
+    kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr,
+                                            integrator_.tricks()),
                             settings_.force_general_kernel, kernel_bits_);
     if (guiding) {
       // Müller et al.'s split threshold: cells keep about 12000 records (times the square root
@@ -288,6 +289,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     all.emplace_back("adaptive sampling", settings_.adaptive_threshold > 0.0f);
     all.emplace_back("motion blur", motion_);
     all.emplace_back("guiding", guiding);
+    all.emplace_back("light path tricks", integrator_.tricks());  // clamping
     for (const auto& [n, on] : all) (on ? features_ : unused_features_).push_back(n);
   }
   tile_active_.resize(size_t(film_.tile_count()));
