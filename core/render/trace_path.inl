@@ -994,8 +994,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   constexpr bool kLinks = (F & kKernelLightLinks) != 0;
   constexpr bool kCatcher = (F & kKernelShadowCatcher) != 0;
   constexpr bool kCaus = (F & kKernelCaustics) != 0;
-  // Clamping (the general kernels): without it the clamp limits below are constant 0, and
-  // clamp_light leaves no code.
+  // Clamping, Filter Glossy and the caustics toggles (the general kernels): without them the
+  // clamp limits below are constant 0, and clamp_light leaves no code.
   constexpr bool kTricks = (F & kKernelTricks) != 0;
   // Caustic light tracing: the vertices of the path's L S+ D E prefix so far (0: it is not one),
   // and n Pc / Pa without the light's end: n d01^2 prod q_rev / (p_camera prod q_fwd).
@@ -1108,6 +1108,14 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // finds, after `bounce` scatterings counting the one it left, is direct up to bounce 1 (the
   // camera's own, and the first vertex's ray). Transparent crossings are no scatterings.
   const float clamp_direct = kTricks ? s.clamp_direct : 0.0f, clamp_indirect = kTricks ? s.clamp_indirect : 0.0f;
+  // Filter Glossy: the path's smallest BSDF pdf so far (Cycles' min_ray_pdf: of the unguided
+  // BSDF or phase pdf at each scattering, a delta lobe's its probability times 1e6 as Cycles'
+  // singular pdf; transparent crossings leave it). The caustics toggles: the last scattering
+  // was by a diffuse lobe (Cycles' PATH_RAY_DIFFUSE; transparent crossings keep it).
+  [[maybe_unused]] float blur_min_pdf = kInf;
+  [[maybe_unused]] bool after_diffuse = false;
+  [[maybe_unused]] const uint8_t caustics_off = kTricks ? s.caustics_off : uint8_t(0);
+  [[maybe_unused]] const float filter_glossy = kTricks ? s.filter_glossy : 0.0f;
   // (an object that only the tricks kernels fill: lambdas capturing `bounce` cost the others)
   struct NoLimits {
     float sample() const { return 0.0f; }
@@ -1453,6 +1461,10 @@ restart: __attribute__((unused));
             ray_state.flags = kRayVolume;
             ray_state.depth = uint16_t(std::min(bounce, 65535));
           }
+          if constexpr (kTricks) {  // (Cycles' shade_volume: the phase pdf; a volume scattering is not diffuse)
+            blur_min_pdf = std::min(blur_min_pdf, ph_pdf);
+            after_diffuse = false;
+          }
           if (last) emission_only = true;
           if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
             const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
@@ -1589,8 +1601,17 @@ restart: __attribute__((unused));
     if (s.path_state) ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
     ray_state.emission_only = emission_only;
     if constexpr (kAovs) ray_state.aovs = aov && direct && want_data ? aov->shader_aovs : nullptr;
+    if constexpr (kTricks) cl.caustics_off = after_diffuse ? caustics_off : uint8_t(0);
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
     if constexpr (kAovs) ray_state.aovs = nullptr;
+    if constexpr (kTricks) {
+      // The caustics toggles (a constant material's cached closures: the rest were made without
+      // what they exclude), then Filter Glossy (Cycles' surface_shader_prepare_closures): the
+      // closures every use below samples and evaluates, light samples and MIS included.
+      if (cl.caustics_off) cl.filter_caustics();
+      const float blur = filter_glossy_roughness(filter_glossy, blur_min_pdf);
+      if (blur > 0.0f) cl.blur(blur);
+    }
 
     // Light linking, as Cycles: rays other than the camera's get no emission from a mesh light not
     // linked to the vertex they left, nor from a shadow-linked one (its light samples have the
@@ -2129,6 +2150,7 @@ restart: __attribute__((unused));
       // could not pass there).
       if (!(bs.flags & kTransparentLobe)) {
         prev_delta = true;
+        if constexpr (kTricks) blur_min_pdf = std::min(blur_min_pdf, 1e6f * bs.pdf * ch.pick);  // (Cycles' singular)
         mis_org = sp.p;
         if constexpr (kTree) mis_n = sp.ns;
         if constexpr (kLinks) mis_set = scene.light_set_at(sp);
@@ -2183,6 +2205,7 @@ restart: __attribute__((unused));
         }
       prev_pdf = pdf;
       if (s.path_state) ray_state.min_pdf = std::min(ray_state.min_pdf, pdf);
+      if constexpr (kTricks) blur_min_pdf = std::min(blur_min_pdf, rec_pb);  // (unguided, as Cycles')
       prev_delta = false;
       prev_samples_only = samples_only;
       mis_org = sp.p;
@@ -2199,6 +2222,7 @@ restart: __attribute__((unused));
     } else {
       direct = false;
       want_data = false;
+      if constexpr (kTricks) after_diffuse = (bs.flags & kDiffuseLobe) != 0;
       // Cycles' light visibility: diffuse (any diffuse lobe), glossy reflection, transmission.
       ray_vis = uint8_t(((bs.flags & kTransmit) ? kLightVisTransmission : 0) |
                         ((bs.flags & kDiffuseLobe) ? kLightVisDiffuse : (bs.flags & kTransmit) ? 0 : kLightVisGlossy));
@@ -2314,6 +2338,8 @@ restart: __attribute__((unused));
       mis_set = a.mis_set, ray_vis = a.ray_vis;
       diffuse = a.diffuse, glossy = a.glossy, transmission = a.transmission, transparent = a.transparent;
       volume_count = a.volume_count, bounce = a.bounce;
+      // (a split is at a surface the camera sees directly: no scattering before it)
+      blur_min_pdf = kInf, after_diffuse = false;
       ray_state = a.ray_state, medium = a.medium, vrng = a.vrng, ray = a.ray;
       medium.keep_catchers(scene);  // (Cycles' volume stack re-initialised for the catcher pass)
       sampler = *cs.sampler;

@@ -217,9 +217,12 @@ CASES["guiding"] = (lambda: cornell(pc), {"guiding": True}, {"diffuse", "mesh li
                     "diffuse+env+guiding")
 
 
-# Clamping (kKernelTricks) runs in the general kernels only: the others are compiled without it
-# (docs/design/sampling.md "Clamping").
-for _name, _fields in (("clamping", {"clamp_indirect": 1.0}), ("clamp direct", {"clamp_direct": 2.0})):
+# Clamping, Filter Glossy and the caustics toggles (kKernelTricks) run in the general kernels
+# only: the others are compiled without them (docs/design/sampling.md "Clamping").
+for _name, _fields in (("clamping", {"clamp_indirect": 1.0}), ("clamp direct", {"clamp_direct": 2.0}),
+                       ("filter glossy", {"filter_glossy": 1.0}),
+                       ("no reflective caustics", {"caustics_reflective": False}),
+                       ("no refractive caustics", {"caustics_refractive": False})):
     CASES[_name] = (lambda: cornell(pc), _fields, {"diffuse", "mesh lights", "light path tricks"}, "general")
 CASES["guided clamping"] = (lambda: cornell(pc), {"guiding": True, "clamp_indirect": 1.0},
                             {"diffuse", "mesh lights", "guiding", "light path tricks"}, "general")
