@@ -75,6 +75,31 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "unbiased",
         default=0.0, min=0.0, max=1e8, soft_max=100.0,
     )
+    # Caustics, under Cycles' names (Light Paths > Caustics); Filter Glossy off by default,
+    # unlike Cycles' 1.0, so that renders stay unbiased unless asked.
+    blur_glossy: FloatProperty(
+        name="Filter Glossy",
+        description="Adaptively blur glossy shaders after blurry bounces, to reduce noise at the "
+                    "cost of accuracy, as Cycles' Filter Glossy: after a bounce whose direction was "
+                    "unlikely (diffuse, rough glossy), glossy and glass shaders are made rougher "
+                    "(biased). 0 = off, Pathlight's default (Cycles' is 1.0): unbiased. Anything "
+                    "else turns the caustic light paths off",
+        default=0.0, min=0.0, max=10.0,
+    )
+    caustics_reflective: BoolProperty(
+        name="Reflective Caustics",
+        description="Use reflective caustics, resulting in a brighter image (more noise but added "
+                    "realism), as Cycles: off, glossy reflections are left out where a diffuse "
+                    "bounce led (biased). Off turns the caustic light paths off",
+        default=True,
+    )
+    caustics_refractive: BoolProperty(
+        name="Refractive Caustics",
+        description="Use refractive caustics, resulting in a brighter image (more noise but added "
+                    "realism), as Cycles: off, refractions are left out where a diffuse bounce led "
+                    "(biased). Off turns the caustic light paths off",
+        default=True,
+    )
     seed: IntProperty(
         name="Seed", description="Seed of the random number sequences",
         default=0, min=0,

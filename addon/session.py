@@ -217,6 +217,9 @@ def render_settings(pc, scene, warn=None):
         "transparent_bounces": props.transparent_bounces,
         "clamp_direct": clamp_limit(props.sample_clamp_direct, "Clamp Direct", warn),
         "clamp_indirect": clamp_limit(props.sample_clamp_indirect, "Clamp Indirect", warn),
+        "filter_glossy": clamp_limit(props.blur_glossy, "Filter Glossy", warn),
+        "caustics_reflective": props.caustics_reflective,
+        "caustics_refractive": props.caustics_refractive,
         "filter_type": props.filter_type.lower(),
         "filter_width": props.filter_width,
     }
@@ -258,8 +261,8 @@ def render_settings(pc, scene, warn=None):
 
 
 def clamp_limit(value, label, warn=None):
-    """A Clamping limit for the core: 0 (off) where it is negative or not finite (a property set
-    from Python past its range), with a warning."""
+    """A Clamping limit or Filter Glossy for the core: 0 (off) where it is negative or not finite
+    (a property set from Python past its range), with a warning."""
     value = float(value)
     if math.isfinite(value) and value >= 0.0:
         return value
@@ -517,12 +520,13 @@ def _commit(engine, core_scene, threads, time_limit=0.0):
 
 
 def _report_caustics(sess, warn):
-    # Only where asked for explicitly: the automatic mode's "off (automatic): ..." is silent
-    # (but for spherical stereo, which the log says).
+    # Only where asked for explicitly: the automatic mode's "off (automatic): ..." is silent,
+    # but for spherical stereo, Filter Glossy and the caustics toggles, which turn them off: a
+    # log line.
     state = sess.stats().get("caustics", "")
     if state.startswith("off:"):
         warn(f"Caustic Light Paths {state}; rendering without them")
-    elif "spherical stereo" in state:
+    elif "spherical stereo" in state or state.startswith("off (automatic): not with Filter Glossy"):
         log.info("Pathlight: Caustic Light Paths %s", state)
 
 

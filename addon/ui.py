@@ -87,6 +87,10 @@ class PATHLIGHT_RENDER_PT_light_paths_clamping(PathlightPanel, bpy.types.Panel):
 
 def caustics_in_effect(settings):
     """The Caustics panel's line: which of its settings the render follows."""
+    tricks = (settings.blur_glossy > 0.0 or not settings.caustics_reflective
+              or not settings.caustics_refractive)
+    if tricks and (settings.use_caustic_light_paths or settings.caustic_light_paths_auto):
+        return "Off: not with Filter Glossy or Reflective / Refractive off"
     if settings.use_caustic_light_paths:
         return f"On: {settings.caustic_light_paths:g} light paths per sample"
     if settings.caustic_light_paths_auto:
@@ -97,11 +101,17 @@ def caustics_in_effect(settings):
 class PATHLIGHT_RENDER_PT_light_paths_caustics(PathlightPanel, bpy.types.Panel):
     bl_label = "Caustics"
     bl_parent_id = "PATHLIGHT_RENDER_PT_light_paths"
-    bl_options = {'DEFAULT_CLOSED'}
 
     def draw(self, context):
         layout = split(self.layout)
         settings = context.scene.pathlight
+        # Cycles' own three first, as its Caustics panel lays them out; then Pathlight's light paths.
+        col = layout.column()
+        col.prop(settings, "blur_glossy")
+        col = layout.column(heading="Caustics", align=True)
+        col.prop(settings, "caustics_reflective", text="Reflective")
+        col.prop(settings, "caustics_refractive", text="Refractive")
+        layout.separator()
         layout.prop(settings, "use_caustic_light_paths")
         sub = layout.column()
         sub.active = settings.use_caustic_light_paths

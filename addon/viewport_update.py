@@ -162,7 +162,8 @@ def settings_signature(scene):
     props = scene.pathlight
     names = ("samples", "preview_samples", "max_bounces", "diffuse_bounces", "glossy_bounces",
              "transmission_bounces", "volume_bounces", "transparent_bounces", "sample_clamp_direct",
-             "sample_clamp_indirect", "seed", "sampler", "pixel_pattern", "use_nee", "use_schlick_fresnel",
+             "sample_clamp_indirect", "blur_glossy", "caustics_reflective", "caustics_refractive",
+             "seed", "sampler", "pixel_pattern", "use_nee", "use_schlick_fresnel",
              "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "use_guiding")
     r = scene.render
     curves = getattr(scene, "cycles_curves", None)

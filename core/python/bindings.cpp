@@ -68,11 +68,11 @@ float finite_nonneg(float x, const char* what) {
   return x;
 }
 
-// A Clamping limit (RenderSettings::clamp_direct, clamp_indirect): 0 is off, so a negative or
-// non-finite one is taken as 0 (unclamped), with a Python warning that says so.
-float clamp_setting(float v, const char* what) {
+// A Clamping limit (RenderSettings::clamp_direct, clamp_indirect) or Filter Glossy: 0 is off,
+// so a negative or non-finite one is taken as 0 (off), with a Python warning that says so.
+float clamp_setting(float v, const char* what, const char* off = "no clamping") {
   if (std::isfinite(v) && v >= 0.0f) return v;
-  const std::string msg = std::string(what) + " must be a finite number >= 0 (0: no clamping); " +
+  const std::string msg = std::string(what) + " must be a finite number >= 0 (0: " + off + "); " +
                           std::to_string(v) + " is treated as 0";
   py::module_::import("warnings").attr("warn")(msg);
   return 0.0f;
@@ -1737,8 +1737,15 @@ Pass pass_by_name(const std::string& name) {
   throw std::invalid_argument("unknown render pass '" + name + "' (known: " + known + ")");
 }
 
-// Builds one BSDF from a name and parameters, for the BSDF tests (Mitsuba style).
+Bsdf make_test_bsdf_of(const std::string& kind, const py::dict& p);
+// Builds one BSDF from a name and parameters, for the BSDF tests (Mitsuba style); "blur": Filter
+// Glossy's roughness applied to it (bsdf_blur).
 Bsdf make_test_bsdf(const std::string& kind, const py::dict& p) {
+  Bsdf b = make_test_bsdf_of(kind, p);
+  if (p.contains("blur")) bsdf_blur(b, p["blur"].cast<float>());
+  return b;
+}
+Bsdf make_test_bsdf_of(const std::string& kind, const py::dict& p) {
   auto f = [&](const char* k, float d) { return p.contains(k) ? p[k].cast<float>() : d; };
   auto b = [&](const char* k, bool d) { return p.contains(k) ? p[k].cast<bool>() : d; };
   // "distribution": "ggx" (the default), "beckmann" or (conductor only) "ashikhmin_shirley".
@@ -2773,6 +2780,22 @@ PYBIND11_MODULE(pathlight_core, m) {
       py::arg("kind"), py::arg("params"), py::arg("wo"), py::arg("u"),
       "Samples a BSDF in its local frame (+Z normal): (wi, weight, pdf, flags); flags -1 = no sample.");
   m.def(
+      "caustics_keep",
+      [](const std::string& kind, const py::dict& params, bool reflective, bool refractive) {
+        Bsdf b = make_test_bsdf(kind, params);
+        const uint8_t off =
+            uint8_t((reflective ? 0 : kCausticsNoReflective) | (refractive ? 0 : kCausticsNoRefractive));
+        if (!caustics_keep(b, off)) return py::object(py::none());
+        const auto* d = std::get_if<DielectricBsdf>(&b);
+        return d ? py::object(py::make_tuple(d->reflection, d->transmission)) : py::object(py::bool_(true));
+      },
+      py::arg("kind"), py::arg("params"), py::arg("reflective"), py::arg("refractive"),
+      "Cycles' caustics toggles on one BSDF after a diffuse bounce (caustics_keep): None where they drop "
+      "it, (reflection, transmission) for a dielectric they keep, else True.");
+  m.def("filter_glossy_roughness", &filter_glossy_roughness, py::arg("filter_glossy"), py::arg("min_pdf"),
+        "Filter Glossy's roughness (alpha) at a vertex: sqrt(1 - filter_glossy min_pdf) / 2 where that product "
+        "is below 1, else 0 (filter_glossy: 1 / Cycles' blur_glossy; 0: off).");
+  m.def(
       "sheen_albedo",
       [](float roughness, float cos_view) {
         float albedo;
@@ -3220,6 +3243,22 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](RenderSettings& s, float v) { s.clamp_indirect = clamp_setting(v, "clamp_indirect"); },
           "Cycles' Clamp Indirect (sample_clamp_indirect): the same for light that arrives after more "
           "scatterings (caustic light paths and their connections included); 0 = off (the default)")
+      .def_property(
+          "filter_glossy", [](const RenderSettings& s) { return s.filter_glossy; },
+          [](RenderSettings& s, float v) { s.filter_glossy = clamp_setting(v, "filter_glossy", "no filtering"); },
+          "Cycles' Filter Glossy (blur_glossy, the same number): after blurry bounces (a small smallest BSDF pdf "
+          "along the path, min_ray_pdf), glossy, glass and Principled hair closures are made rougher, by "
+          "sqrt(1 - pdf / this) / 2 at least (alpha): fewer fireflies from caustics, at the cost of accuracy "
+          "(biased). 0 = off (Pathlight's default: unbiased; Cycles' default is 1). Negative or non-finite: 0, "
+          "with a warning. Turns the caustic light paths off")
+      .def_readwrite("caustics_reflective", &RenderSettings::caustics_reflective,
+                     "Cycles' Reflective Caustics (default on): off drops glossy reflection closures (Glossy, "
+                     "Metallic, Principled's metal, specular and coat, glass's reflection) at points a diffuse "
+                     "bounce reached (biased, fewer fireflies). Off turns the caustic light paths off")
+      .def_readwrite("caustics_refractive", &RenderSettings::caustics_refractive,
+                     "Cycles' Refractive Caustics (default on): off drops refraction closures (Refraction, "
+                     "glass's and Principled's transmission) at points a diffuse bounce reached. Off turns the "
+                     "caustic light paths off")
       .def_readwrite("rr_start_bounce", &RenderSettings::rr_start_bounce,
                      "Russian roulette from this bounce on (default 3; 0 rolls at every vertex, as Cycles); "
                      "for measurements, the add-on leaves it")

@@ -150,6 +150,19 @@ struct IntegratorSettings {
   // Cycles' sample_clamp_direct, which its Integrator multiplies by 3 alike).
   float clamp_direct = 0.0f;
   float clamp_indirect = 0.0f;
+  // Cycles' Filter Glossy (docs/design/sampling.md "Filter Glossy and caustics toggles"): 1 /
+  // the setting (Cycles' kintegrator->filter_glossy), 0 = off. Where this times the path's
+  // smallest BSDF pdf so far (min_ray_pdf) is below 1, every microfacet and Principled hair
+  // closure's roughness is raised to at least sqrt(1 - that) / 2 (bsdf_blur).
+  float filter_glossy = 0.0f;
+  // Cycles' Reflective / Refractive Caustics off (kCausticsNoReflective, kCausticsNoRefractive
+  // bits; 0: both on): after a diffuse bounce, glossy reflection (refraction) closures are
+  // dropped (ClosureList::caustics_off).
+  uint8_t caustics_off = 0;
+  // Any of the three: only kernels with kKernelTricks read them (the general ones).
+  bool tricks() const {
+    return clamp_direct > 0.0f || clamp_indirect > 0.0f || filter_glossy > 0.0f || caustics_off != 0;
+  }
   // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not
   // in the returned radiance; it becomes alpha instead. It still lights the scene.
   bool transparent_background = false;
@@ -312,7 +325,11 @@ enum KernelFeature : uint32_t {
   kKernelSubsurface = 32,  // BSSRDF closures: random walks (only the general kernel has them)
   kKernelGuiding = 64,     // path guiding (IntegratorSettings::guide)
   kKernelLightLinks = 128, // light and shadow linking (only the general kernel has them)
-  kKernelAll = 255,        // the general kernel
+  // Cycles' firefly controls (only the general kernels have them): Clamping, Filter Glossy and
+  // the Reflective / Refractive Caustics toggles. Without them the other kernels compile to
+  // what they were before clamping (docs/design/sampling.md "Clamping").
+  kKernelTricks = 1024,
+  kKernelAll = 255 | kKernelTricks,  // the general kernel
   // Shadow catchers: paths split at them. Only in a general kernel of their own (every
   // feature and this one): their code cost the general kernel 2 % of its instructions.
   kKernelShadowCatcher = 256,
@@ -323,7 +340,9 @@ enum KernelFeature : uint32_t {
 using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&, PathCounters&, PathAovs*);
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
 // guiding: the render guides its paths.
-uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding = false, bool caustics = false);
+// tricks: the render clamps, filters glossy closures or drops caustics (IntegratorSettings).
+uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding = false, bool caustics = false,
+                         bool tricks = false);
 // The fastest instantiated kernel that has every feature in `needed` (or the general one when
 // force_general); `chosen` gets its feature bits. Every kernel gives the general one's result.
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen);

@@ -162,6 +162,11 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   const auto clamp_limit = [](float v) { return std::isfinite(v) && v > 0.0f ? 3.0f * v : 0.0f; };
   integrator_.clamp_direct = clamp_limit(settings_.clamp_direct);
   integrator_.clamp_indirect = clamp_limit(settings_.clamp_indirect);
+  // (Cycles' kintegrator->filter_glossy = 1 / blur_glossy; its FLT_MAX for off is 0 here)
+  const float blur = settings_.filter_glossy;
+  integrator_.filter_glossy = std::isfinite(blur) && blur > 0.0f ? 1.0f / blur : 0.0f;
+  integrator_.caustics_off = uint8_t((settings_.caustics_reflective ? 0 : kCausticsNoReflective) |
+                                     (settings_.caustics_refractive ? 0 : kCausticsNoRefractive));
   integrator_.diffuse_bounces = settings_.diffuse_bounces;
   integrator_.glossy_bounces = settings_.glossy_bounces;
   integrator_.transmission_bounces = settings_.transmission_bounces;
@@ -237,7 +242,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
     integrator_.differentials = scene_->features().footprints;
     setup_caustics(guiding);
-    kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr),
+    kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr,
+                                            integrator_.tricks()),
                             settings_.force_general_kernel, kernel_bits_);
     if (guiding) {
       // Müller et al.'s split threshold: cells keep about 12000 records (times the square root
@@ -295,6 +301,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     all.emplace_back("adaptive sampling", settings_.adaptive_threshold > 0.0f);
     all.emplace_back("motion blur", motion_);
     all.emplace_back("guiding", guiding);
+    all.emplace_back("light path tricks", integrator_.tricks());  // clamping, filter glossy, caustics off
     for (const auto& [n, on] : all) (on ? features_ : unused_features_).push_back(n);
   }
   tile_active_.resize(size_t(film_.tile_count()));
@@ -667,6 +674,11 @@ void Session::setup_caustics(bool guiding) {
   if (settings_.debug_view != DebugView::None) off("debug view");
   else if (guiding && settings_.guiding_class_mask != 0) off("not with path classes (a measurement of guiding)");
   else if (film_.has_pass(Pass::ShadowCatcherMatte)) off("not combined with shadow catchers");
+  // Cycles has no light paths: Filter Glossy and the caustics toggles shape what its path tracer
+  // makes of caustics, which light paths would add back unfiltered (docs/design/sampling.md,
+  // "Filter Glossy and caustics toggles").
+  else if (integrator_.filter_glossy > 0.0f || integrator_.caustics_off != 0)
+    off("not with Filter Glossy or the Reflective / Refractive Caustics switched off");
   // A thin lens connects through a point on its aperture (integrator_caustics.cpp), the
   // orthographic one's too; a pinhole panorama through its inverse map, a moving camera or
   // scene at the light path's own shutter time. An orthographic pinhole's rays are parallel: a

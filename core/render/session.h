@@ -43,6 +43,14 @@ struct RenderSettings {
   // light: each channel to the limit); IntegratorSettings::clamp_direct, clamp_indirect. 0 = off,
   // the default (unbiased). Negative or non-finite: 0.
   float clamp_direct = 0.0f, clamp_indirect = 0.0f;
+  // Cycles' Filter Glossy (blur_glossy, the same number; IntegratorSettings::filter_glossy is
+  // 1 / it): 0 = off, Pathlight's default (unbiased; Cycles' is 1). Negative or non-finite: 0.
+  float filter_glossy = 0.0f;
+  // Cycles' Reflective and Refractive Caustics (caustics_reflective, caustics_refractive): off
+  // drops glossy reflection or refraction closures after a diffuse bounce
+  // (IntegratorSettings::caustics_off). With Filter Glossy on or either off, the caustic light
+  // paths (and their connections) are off: their caustics are what these leave out.
+  bool caustics_reflective = true, caustics_refractive = true;
   SamplerType sampler = SamplerType::Sobol;  // 4-D sets in Cycles' order (util/sampler.h)
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic

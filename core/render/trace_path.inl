@@ -604,7 +604,7 @@ inline Vec3 safe_ratio(Vec3 a, Vec3 b) {
 // Cycles' Clamping (film_clamp_light): a contribution to the film whose components' absolute
 // sum exceeds `limit` is scaled down to it, each contribution on its own (limit 0: unchanged,
 // bit for bit). IntegratorSettings::clamp_direct, clamp_indirect.
-inline Vec3 clamp_light(Vec3 v, float limit) {
+[[gnu::always_inline]] inline Vec3 clamp_light(Vec3 v, float limit) {
   if (limit > 0.0f) {
     const float sum = std::fabs(v.x) + std::fabs(v.y) + std::fabs(v.z);
     if (sum > limit) v = v * (limit / sum);
@@ -715,7 +715,7 @@ struct NoGroupSink {
 // `from` (lights not linked to it add nothing but to camera rays; its set's pdfs). clamp: each
 // light's contribution clamped at it (clamp_light; 0: none). sink(light, value): each one's
 // contribution (light groups).
-template <bool kLinks = false, class Through, class Sink = NoGroupSink>
+template <bool kLinks = false, bool kClamp = false, class Through, class Sink = NoGroupSink>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
                                   Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0,
                                   const CausticHitMis* caus = nullptr, float clamp = 0.0f, const Sink& sink = Sink{}) {
@@ -750,7 +750,7 @@ template <bool kLinks = false, class Through, class Sink = NoGroupSink>
         if (ps > 0.0f) w = caustic_mis_weight(pl / prev_pdf, caus->ratio * ps);
       }
     }
-    const Vec3 c = clamp_light(through(t) * le * w, clamp);
+    const Vec3 c = kClamp ? clamp_light(through(t) * le * w, clamp) : through(t) * le * w;
     if (is_finite(c)) {
       sum += c;
       sink(h.index, c);
@@ -1023,6 +1023,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   constexpr bool kLinks = (F & kKernelLightLinks) != 0;
   constexpr bool kCatcher = (F & kKernelShadowCatcher) != 0;
   constexpr bool kCaus = (F & kKernelCaustics) != 0;
+  // Clamping, Filter Glossy and the caustics toggles (the general kernels): without them the
+  // clamp limits below are constant 0, and clamp_light leaves no code.
+  constexpr bool kTricks = (F & kKernelTricks) != 0;
   // Caustic light tracing: the vertices of the path's L S+ D E prefix so far (0: it is not one),
   // and n Pc / Pa without the light's end: n d01^2 prod q_rev / (p_camera prod q_fwd).
   const CausticLight* const cz = kCaus ? s.caustics : nullptr;
@@ -1146,9 +1149,28 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // after `bounce` scatterings is direct at the camera's first vertex (bounce 0); light a ray
   // finds, after `bounce` scatterings counting the one it left, is direct up to bounce 1 (the
   // camera's own, and the first vertex's ray). Transparent crossings are no scatterings.
-  const float clamp_direct = s.clamp_direct, clamp_indirect = s.clamp_indirect;
-  const auto sample_limit = [&]() { return bounce > 0 ? clamp_indirect : clamp_direct; };
-  const auto found_limit = [&]() { return bounce > 1 ? clamp_indirect : clamp_direct; };
+  const float clamp_direct = kTricks ? s.clamp_direct : 0.0f, clamp_indirect = kTricks ? s.clamp_indirect : 0.0f;
+  // Filter Glossy: the path's smallest BSDF pdf so far (Cycles' min_ray_pdf: of the unguided
+  // BSDF or phase pdf at each scattering, a delta lobe's its probability times 1e6 as Cycles'
+  // singular pdf; transparent crossings leave it). The caustics toggles: the last scattering
+  // was by a diffuse lobe (Cycles' PATH_RAY_DIFFUSE; transparent crossings keep it).
+  [[maybe_unused]] float blur_min_pdf = kInf;
+  [[maybe_unused]] bool after_diffuse = false;
+  [[maybe_unused]] const uint8_t caustics_off = kTricks ? s.caustics_off : uint8_t(0);
+  [[maybe_unused]] const float filter_glossy = kTricks ? s.filter_glossy : 0.0f;
+  // (an object that only the tricks kernels fill: lambdas capturing `bounce` cost the others)
+  struct NoLimits {
+    float sample() const { return 0.0f; }
+    float found() const { return 0.0f; }
+  };
+  struct Limits {
+    const int* bounce = nullptr;
+    float direct = 0.0f, indirect = 0.0f;
+    float sample() const { return *bounce > 0 ? indirect : direct; }
+    float found() const { return *bounce > 1 ? indirect : direct; }
+  };
+  std::conditional_t<kTricks, Limits, NoLimits> lim;
+  if constexpr (kTricks) lim = Limits{&bounce, clamp_direct, clamp_indirect};
   // Shadow catchers, as Cycles' integrator_split_shadow_catcher: the first catcher the camera
   // path meets directly splits it (after the media on the way to it, as Cycles' split after
   // shade_volume). The path goes on as it would without catchers (Combined); then a copy of it
@@ -1265,16 +1287,16 @@ restart: __attribute__((unused));
               const auto through_het = [&](float tl) {
                 return beta * ratio_track(majorants, ray.org, d, tl, vrng, density);
               };
-              L += light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
-                                      mis_n, through_het, mis_set, nullptr, found_limit(), hit_sink);
+              L += light_hits<kLinks, kTricks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf, mis_org,
+                                      mis_n, through_het, mis_set, nullptr, lim.found(), hit_sink);
               lights_counted = true;
             }
             const Vec3 L1 = L;
             const bool r = delta_track(majorants, ray.org, d, seg, vrng, density, beta, &L, t, ms, steps);
-            if (found_limit() > 0.0f) {
+            if (lim.found() > 0.0f) {
               // The segment's emission is one contribution (Cycles' film_write_volume_emission);
               // L is left as it was unless the clamp cuts it.
-              const Vec3 e = L - L1, ec = clamp_light(e, found_limit());
+              const Vec3 e = L - L1, ec = clamp_light(e, lim.found());
               if (ec.x != e.x || ec.y != e.y || ec.z != e.z) L = L1 + ec;
             }
             // (its emission: the innermost layer's object's group, as Cycles writes a segment's
@@ -1312,7 +1334,7 @@ restart: __attribute__((unused));
                                                 : medium_direct(scene, ray.org + d * te, d, pe_phase,
                                                                 bounce >= s.max_bounces, medium, u_sel.x, u_pt,
                                                                 ray_state, ray.time, c, &vrng, vset);
-                    const Vec3 v = clamp_light(beta * tr * ss * li * (1.0f / pe), sample_limit());
+                    const Vec3 v = clamp_light(beta * tr * ss * li * (1.0f / pe), lim.sample());
                     L += v;
                     if constexpr (kAovs)
                       if (lg) to_group(scene.entry_light_group(entry), v);
@@ -1334,7 +1356,7 @@ restart: __attribute__((unused));
           }
         } else {
           if (!is_black(m->emission)) {
-            const Vec3 v = clamp_light(beta * medium_emission(*m, seg), found_limit());
+            const Vec3 v = clamp_light(beta * medium_emission(*m, seg), lim.found());
             L += v;
             if constexpr (kAovs)
               if (aov) emit_found(v);
@@ -1400,7 +1422,7 @@ restart: __attribute__((unused));
                                         : medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
                                                         medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
                                                         eq_mis);
-                    const Vec3 v = clamp_light(w * li, sample_limit());
+                    const Vec3 v = clamp_light(w * li, lim.sample());
                     L += v;
                     if constexpr (kAovs)
                       if (lg) to_group(scene.entry_light_group(entry), v);
@@ -1413,7 +1435,7 @@ restart: __attribute__((unused));
             t = sample_free_flight(st, ud.x, ud.y);
             const float pdf_t = t < seg ? free_flight_pdf(st, t) : 0.0f;
             if (eq_pending && !(pdf_t > 0.0f)) {  // no scattering here: the equiangular sample alone
-              const Vec3 v = clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng), sample_limit());
+              const Vec3 v = clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng), lim.sample());
               L += v;
               if constexpr (kAovs)
                 if (lg) to_group(scene.entry_light_group(eq_ls.entry), v);
@@ -1430,8 +1452,8 @@ restart: __attribute__((unused));
                 }
               }
               if (hits && !(nee && !prev_delta && prev_samples_only)) {
-                const Vec3 v = light_hits<kLinks>(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n,
-                                                  through, mis_set, nullptr, found_limit(), hit_sink);
+                const Vec3 v = light_hits<kLinks, kTricks>(scene, ray, t / len, ray_vis, nee && !prev_delta, prev_pdf, mis_org, mis_n,
+                                                  through, mis_set, nullptr, lim.found(), hit_sink);
                 L += v;
                 if (kAovs && lp) lp_found(v);
               }
@@ -1475,13 +1497,13 @@ restart: __attribute__((unused));
               const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
               if (vrng.next_float() < p_d) {
                 const Vec3 v = clamp_light(beta * nee_weight * medium_light_trace(scene, ls, medium, c, &vrng) * (1.0f / p_d),
-                                           sample_limit());
+                                           lim.sample());
                 L += v;
                 if constexpr (kAovs)
                   if (lg) to_group(scene.entry_light_group(ls.entry), v);
               } else {
                 const Vec3 v = clamp_light(eq_w * medium_light_trace(scene, eq_ls, medium, c, &vrng) * (1.0f / (1.0f - p_d)),
-                                           sample_limit());
+                                           lim.sample());
                 L += v;
                 if constexpr (kAovs)
                   if (lg) to_group(scene.entry_light_group(eq_ls.entry), v);
@@ -1492,7 +1514,7 @@ restart: __attribute__((unused));
                                                                 ray.time, c, &vrng, vset, dist_mis, entry)
                                           : medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
                                                           ray.time, c, &vrng, vset, dist_mis);
-              const Vec3 v = clamp_light(beta * li * nee_weight, sample_limit());
+              const Vec3 v = clamp_light(beta * li * nee_weight, lim.sample());
               L += v;
               if constexpr (kAovs)
                 if (lg) to_group(scene.entry_light_group(entry), v);
@@ -1524,6 +1546,10 @@ restart: __attribute__((unused));
             ray_state.flags = kRayVolume;
             ray_state.depth = uint16_t(std::min(bounce, 65535));
           }
+          if constexpr (kTricks) {  // (Cycles' shade_volume: the phase pdf; a volume scattering is not diffuse)
+            blur_min_pdf = std::min(blur_min_pdf, ph_pdf);
+            after_diffuse = false;
+          }
           if (last) emission_only = true;
           if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
             const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
@@ -1547,8 +1573,8 @@ restart: __attribute__((unused));
       CausticHitMis chm;
       if constexpr (kCaus)
         if (cz_k >= 2 && (!prev_delta || cz_delta) && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng, prev_delta};
-      const Vec3 lh = light_hits<kLinks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
-                                         mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr, found_limit(),
+      const Vec3 lh = light_hits<kLinks, kTricks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
+                                         mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr, lim.found(),
                                          hit_sink);
       L += lh;
       if constexpr (kAovs) {
@@ -1583,13 +1609,15 @@ restart: __attribute__((unused));
         if (cos_sky > 0.0f) w = power_heuristic(prev_pdf, cos_sky * kInvPi);
       }
       if (!bg_found) bg = scene.background(ray.dir);
-      const Vec3 bg_value = clamp_light(beta * bg * w, found_limit());
+      // (each use clamped where it is made, as before clamping: a shared value cost the surfaces
+      // kernel without clamping 0.2 % instructions)
       if constexpr (kAovs) {
         if (direct && aov) {
-          aov->environment = clamp_light(beta * bg, found_limit());
+          aov->environment = clamp_light(beta * bg, lim.found());
           // Alpha is 1 less what reaches the film transparently (the world and holdouts).
           if (s.transparent_background) aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         }
+        const Vec3 bg_value = clamp_light(beta * bg * w, lim.found());
         if (!(direct && s.transparent_background)) L += bg_value;
         if (lp && bounce > 0) lp_found(bg_value);
         // (on a transparent film the world seen directly is not in Combined, but Cycles evaluates
@@ -1597,7 +1625,7 @@ restart: __attribute__((unused));
         if (lg && (!(direct && s.transparent_background) || s.groups_transparent_world))
           to_group(scene.world_light_group(), bg_value);
       } else {
-        L += bg_value;  // transparent film always comes with the aov kernel
+        L += clamp_light(beta * bg * w, lim.found());  // transparent film always comes with the aov kernel
       }
       break;
     }
@@ -1612,7 +1640,7 @@ restart: __attribute__((unused));
         aov->catcher_samples = 1.0f;
         aov->matte = L;
         aov->matte_alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
-        if (s.catcher_background) aov->environment += clamp_light(beta * scene.background(ray.dir), found_limit());
+        if (s.catcher_background) aov->environment += clamp_light(beta * scene.background(ray.dir), lim.found());
         cs.at = Split{beta, mis_org, mis_n, sky_n, feature_throughput, lp_dw, lp_gw, eta_scale, prev_pdf,
                          length_before, prev_delta, prev_samples_only, emission_only, direct, want_data,
                          want_features, lp_volume, mis_set, ray_vis, diffuse, glossy, transmission, transparent,
@@ -1664,8 +1692,17 @@ restart: __attribute__((unused));
     if (s.path_state) ray_state.rng = uint32_t(mix64(path_key + uint64_t(bounce)));
     ray_state.emission_only = emission_only;
     if constexpr (kAovs) ray_state.aovs = aov && direct && want_data ? aov->shader_aovs : nullptr;
+    if constexpr (kTricks) cl.caustics_off = after_diffuse ? caustics_off : uint8_t(0);
     scene.shade(sp, hit.b1, hit.b2, wo, cl, ray_state);
     if constexpr (kAovs) ray_state.aovs = nullptr;
+    if constexpr (kTricks) {
+      // The caustics toggles (a constant material's cached closures: the rest were made without
+      // what they exclude), then Filter Glossy (Cycles' surface_shader_prepare_closures): the
+      // closures every use below samples and evaluates, light samples and MIS included.
+      if (cl.caustics_off) cl.filter_caustics();
+      const float blur = filter_glossy_roughness(filter_glossy, blur_min_pdf);
+      if (blur > 0.0f) cl.blur(blur);
+    }
 
     // Light linking, as Cycles: rays other than the camera's get no emission from a mesh light not
     // linked to the vertex they left, nor from a shadow-linked one (its light samples have the
@@ -1687,10 +1724,10 @@ restart: __attribute__((unused));
         // same light-sample segment (which saw them through its transmittance).
         w = power_heuristic(prev_pdf, scene.pdf_emitter(sp, mis_org, sp.p, std::fabs(dot(sp.ng, wo)), mis_n, mis_set));
       }
-      const Vec3 v = clamp_light(beta * cl.emission * w, found_limit());
-      L += v;
+      L += clamp_light(beta * cl.emission * w, lim.found());
       if constexpr (kAovs) {
-        if (direct && aov) aov->emission += clamp_light(beta * cl.emission, found_limit());
+        const Vec3 v = clamp_light(beta * cl.emission * w, lim.found());
+        if (direct && aov) aov->emission += clamp_light(beta * cl.emission, lim.found());
         else if (lp) lp_found(v);
         if (lg) to_group(scene.object_info(sp).light_group, v);  // (the object's, whatever its material)
       }
@@ -1893,7 +1930,10 @@ restart: __attribute__((unused));
     bool sky_here = false;  // this vertex sampled the sky: the BSDF ray's escape is weighed against it
     if ((nee || sky) && (!kNonDiffuse || cl.has_nondelta)) {
       // A light sample: its shadow ray and its weight against the BSDF's sample.
-      const auto add_sample = [&](DirectSample& ds) {
+      // (limit: Clamping's for this vertex's light samples, a parameter, not a capture: naming a
+      // local here grew the closure, and GCC then kept the surfaces kernel's state in memory,
+      // +3 % instructions on the glass Cornell box)
+      const auto add_sample = [&](DirectSample& ds, float limit) {
         const bool above = dot(ds.wi, ng_out) > 0.0f;
         bool reflection = above;
         Vec3 org = sp.p;
@@ -1983,7 +2023,7 @@ restart: __attribute__((unused));
               }
             }
           // (for delta lights pdf is the choice probability)
-          const Vec3 v = clamp_light(beta * f * ds.li * vis * (w / ds.pdf), sample_limit());
+          const Vec3 v = clamp_light(beta * f * ds.li * vis * (w / ds.pdf), limit);
           L += v;
           if constexpr (kAovs)
             if (lg) to_group(nee ? scene.entry_light_group(ds.entry) : scene.world_light_group(), v);  // (sky: the world's)
@@ -2026,15 +2066,15 @@ restart: __attribute__((unused));
         // and their images changed at float rounding.
         DirectSample ds;
         if (nee) {
-          if (draw_light(ds)) add_sample(ds);
+          if (draw_light(ds)) add_sample(ds, lim.sample());
         } else if (draw_sky(ds)) {  // (sky)
-          add_sample(ds);
+          add_sample(ds, lim.sample());
         }
       } else {
         // The diffuse kernels call add_sample once, for either kind of sample: with two calls
         // (above) GCC kept it out of line, which cost the Cornell box 3 % of its instructions.
         DirectSample ds;
-        if (nee ? draw_light(ds) : draw_sky(ds)) add_sample(ds);
+        if (nee ? draw_light(ds) : draw_sky(ds)) add_sample(ds, lim.sample());
       }
     }
     // The last vertex does light samples only; one with a BSSRDF still walks to its exit, which
@@ -2208,6 +2248,7 @@ restart: __attribute__((unused));
       // could not pass there).
       if (!(bs.flags & kTransparentLobe)) {
         prev_delta = true;
+        if constexpr (kTricks) blur_min_pdf = std::min(blur_min_pdf, 1e6f * bs.pdf * ch.pick);  // (Cycles' singular)
         mis_org = sp.p;
         if constexpr (kTree) mis_n = sp.ns;
         if constexpr (kLinks) mis_set = scene.light_set_at(sp);
@@ -2262,6 +2303,7 @@ restart: __attribute__((unused));
         }
       prev_pdf = pdf;
       if (s.path_state) ray_state.min_pdf = std::min(ray_state.min_pdf, pdf);
+      if constexpr (kTricks) blur_min_pdf = std::min(blur_min_pdf, rec_pb);  // (unguided, as Cycles')
       prev_delta = false;
       prev_samples_only = samples_only;
       mis_org = sp.p;
@@ -2278,6 +2320,7 @@ restart: __attribute__((unused));
     } else {
       direct = false;
       want_data = false;
+      if constexpr (kTricks) after_diffuse = (bs.flags & kDiffuseLobe) != 0;
       // Cycles' light visibility: diffuse (any diffuse lobe), glossy reflection, transmission.
       ray_vis = uint8_t(((bs.flags & kTransmit) ? kLightVisTransmission : 0) |
                         ((bs.flags & kDiffuseLobe) ? kLightVisDiffuse : (bs.flags & kTransmit) ? 0 : kLightVisGlossy));
@@ -2322,7 +2365,7 @@ restart: __attribute__((unused));
     if constexpr (kLinks)
       if (links && !direct && !(kNonDiffuse && (bs.flags & kTransparentLobe)) && !(nee && !prev_delta && prev_samples_only))
         L += dedicated_light_hits(scene, sp, reflection ? ng_out : -ng_out, wi, ray.time, ray_vis,
-                                  nee && !prev_delta, prev_pdf, mis_org, mis_n, mis_set, beta, found_limit(),
+                                  nee && !prev_delta, prev_pdf, mis_org, mis_n, mis_set, beta, lim.found(),
                                   [&](const Ray& r, uint64_t mask) {
                                     if constexpr (kMedia)
                                       if (volumes)
@@ -2394,6 +2437,8 @@ restart: __attribute__((unused));
       mis_set = a.mis_set, ray_vis = a.ray_vis;
       diffuse = a.diffuse, glossy = a.glossy, transmission = a.transmission, transparent = a.transparent;
       volume_count = a.volume_count, bounce = a.bounce;
+      // (a split is at a surface the camera sees directly: no scattering before it)
+      blur_min_pdf = kInf, after_diffuse = false;
       ray_state = a.ray_state, medium = a.medium, vrng = a.vrng, ray = a.ray;
       medium.keep_catchers(scene);  // (Cycles' volume stack re-initialised for the catcher pass)
       sampler = *cs.sampler;

@@ -6,6 +6,7 @@
 // outside. eval returns f * |cos(wi)|.
 #pragma once
 #include <string>
+#include <type_traits>
 #include <variant>
 
 #include "scene/ashikhmin_shirley.h"
@@ -456,6 +457,66 @@ namespace pl {
 using Bsdf = std::variant<DiffuseBsdf, ConductorBsdf, DielectricBsdf, TransparentBsdf, TranslucentBsdf, HairChiangBsdf,
                           SubsurfaceBsdf, OrenNayarBsdf, SheenBsdf, VelvetBsdf, ToonBsdf, HairBsdf, HairHuangBsdf,
                           PortalBsdf>;
+
+// Cycles' Reflective / Refractive Caustics switched off (RenderSettings): at a point reached by a
+// diffuse bounce (Cycles' PATH_RAY_DIFFUSE), its svm_node_closure_bsdf skips glossy reflection
+// closures (no reflective caustics) and refraction closures (no refractive ones).
+enum CausticsOff : uint8_t { kCausticsNoReflective = 1, kCausticsNoRefractive = 2 };
+
+// Whether closure b survives the caustics toggles `off` (kCausticsNo* bits) there, trimmed to
+// the lobes it keeps, as Cycles sets them up: glossy reflection (Glossy, Anisotropic, Metallic,
+// Principled's metal, specular and coat: ConductorBsdf; the Toon's glossy) goes without
+// reflective caustics; the Refraction BSDF without refractive ones; glass (Glass, Principled's
+// transmission) loses the lobe of each toggle that is off (Cycles' zero reflection_tint or
+// transmission_tint) and goes when both are. Hair, sheen, diffuse, translucent, subsurface,
+// transparency and portals stay.
+inline bool caustics_keep(ConductorBsdf&, uint8_t off) { return !(off & kCausticsNoReflective); }
+inline bool caustics_keep(DielectricBsdf& d, uint8_t off) {
+  if (off & kCausticsNoReflective) d.reflection = false;
+  if (off & kCausticsNoRefractive) d.transmission = false;
+  return d.reflection || d.transmission;
+}
+inline bool caustics_keep(ToonBsdf& t, uint8_t off) { return !(t.glossy && (off & kCausticsNoReflective)); }
+template <class B>
+inline bool caustics_keep(B&, uint8_t) {
+  return true;
+}
+inline bool caustics_keep(Bsdf& b, uint8_t off) {
+  return std::visit([off](auto& x) { return caustics_keep(x, off); }, b);
+}
+// The closure types caustics_keep may drop or trim (the rest never need the test).
+template <class B>
+constexpr bool kCausticsFiltered = std::is_same_v<B, ConductorBsdf> || std::is_same_v<B, DielectricBsdf> ||
+                                   std::is_same_v<B, ToonBsdf> || std::is_same_v<B, Bsdf>;
+
+// Cycles' bsdf_blur (Filter Glossy): the closure's roughness raised to at least `r` (an alpha),
+// for the microfacet closures (GGX, Beckmann, Ashikhmin-Shirley; reflection, refraction and
+// glass) and the Principled Hair models (Chiang: its longitudinal variances and azimuthal scale,
+// compared with r as Cycles compares them; Huang: its roughness). Others stay. A multiscatter
+// closure keeps the energy compensation of its set-up roughness in its weight, as Cycles ("TODO:
+// Recompute energy preservation after blur?").
+inline void bsdf_blur(Bsdf& b, float r) {
+  if (auto* c = std::get_if<ConductorBsdf>(&b)) {
+    c->alpha = std::max(r, c->alpha);
+    if (c->alpha_y >= 0.0f) c->alpha_y = std::max(r, c->alpha_y);
+  } else if (auto* d = std::get_if<DielectricBsdf>(&b)) {
+    d->alpha = std::max(r, d->alpha);
+    if (d->alpha_y >= 0.0f) d->alpha_y = std::max(r, d->alpha_y);
+  } else if (auto* h = std::get_if<HairChiangBsdf>(&b)) {
+    h->v = std::max(r, h->v);
+    h->s = std::max(r, h->s);
+    h->v_r = std::max(r, h->v_r);
+  } else if (auto* u = std::get_if<HairHuangBsdf>(&b)) {
+    u->roughness = std::max(r, u->roughness);
+  }
+}
+// Filter Glossy's roughness at a vertex (Cycles' surface_shader_prepare_closures): with
+// filter_glossy (1 / the setting, 0: off) times the path's smallest BSDF pdf so far below 1,
+// sqrt(1 - that) / 2; else 0 (no blur).
+inline float filter_glossy_roughness(float filter_glossy, float min_pdf) {
+  const float blur_pdf = filter_glossy * min_pdf;
+  return filter_glossy > 0.0f && blur_pdf < 1.0f ? std::sqrt(1.0f - blur_pdf) * 0.5f : 0.0f;
+}
 
 // The Principled BSDF's GGX lobes first, outside the visit: its dispatch over all the kinds
 // would otherwise cost the default material a little on every evaluation.

@@ -184,12 +184,31 @@ struct ClosureList {
   Vec3 holdout{0.0f};  // Holdout closures' summed weight (Cycles' surface_shader_apply_holdout)
   Vec3 ns{0.0f};       // the shading normal a SetNormal op made (zero: the hit's own)
   bool has_nondelta = false;
+  // Cycles' caustics toggles at this shading point (kCausticsNo* bits): the kernel sets them
+  // where the path's last bounce was diffuse and a toggle is off, else they stay 0. add drops or
+  // trims the closures they exclude as they are made (caustics_keep), so that Principled's
+  // layers below a dropped one are not dimmed by it; filter_caustics does it for a list made
+  // without them (a constant material's cached closures).
+  uint8_t caustics_off = 0;
   // `albedo`: an estimate of how much the BSDF reflects from this view (Cycles' sample weight
   // factor), for choosing among closures; negative: bsdf_albedo_hint's guess.
   // (B: one BSDF type or the Bsdf variant; assigned in place, so a lobe costs the copy of its
   // own bytes, not two copies of the whole variant through a temporary Closure.)
+  // False only where the caustics toggles dropped it.
   template <class B>
-  [[gnu::always_inline]] void add(const B& b, Vec3 weight, const Frame& f, float albedo = -1.0f) {
+  [[gnu::always_inline]] bool add(const B& b, Vec3 weight, const Frame& f, float albedo = -1.0f) {
+    if constexpr (kCausticsFiltered<B>)
+      if (__builtin_expect(caustics_off != 0, 0)) {
+        B kept = b;
+        if (!caustics_keep(kept, caustics_off)) return false;
+        put(kept, weight, f, albedo);
+        return true;
+      }
+    put(b, weight, f, albedo);
+    return true;
+  }
+  template <class B>
+  [[gnu::always_inline]] void put(const B& b, Vec3 weight, const Frame& f, float albedo) {
     if (n >= kMaxClosures || !(max_component(weight) > 0.0f) || !is_finite(weight)) return;
     Closure& d = c[size_t(n++)];
     d.bsdf = b;
@@ -197,6 +216,38 @@ struct ClosureList {
     d.frame = f;
     d.pick = albedo;
     d.delta = bsdf_is_delta(d.bsdf);
+  }
+  // The caustics toggles `caustics_off` applied to the finished list: closures dropped (the
+  // others' choice renormalised, as finalize would have made it without them) or trimmed.
+  void filter_caustics() {
+    int m = 0;
+    float kept = 0.0f;
+    for (int i = 0; i < n; ++i) {
+      Closure& x = c[size_t(i)];
+      if (!caustics_keep(x.bsdf, caustics_off)) continue;
+      kept += x.pick;
+      if (m != i) c[size_t(m)] = x;
+      ++m;
+    }
+    if (m == n) return;
+    n = m;
+    has_nondelta = false;
+    for (int i = 0; i < n; ++i) {
+      c[size_t(i)].pick = kept > 0.0f ? c[size_t(i)].pick / kept : 1.0f / float(n);
+      has_nondelta = has_nondelta || !c[size_t(i)].delta;
+    }
+  }
+  // Filter Glossy at this point: every closure's roughness raised to at least r (bsdf_blur); a
+  // smooth one becomes rough, evaluated and light-sampled as such. Choices stay (Cycles' sample
+  // weights do).
+  void blur(float r) {
+    has_nondelta = false;
+    for (int i = 0; i < n; ++i) {
+      Closure& x = c[size_t(i)];
+      bsdf_blur(x.bsdf, r);
+      x.delta = bsdf_is_delta(x.bsdf);
+      has_nondelta = has_nondelta || !x.delta;
+    }
   }
   bool has_portal() const {
     for (int i = 0; i < n; ++i)

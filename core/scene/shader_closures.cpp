@@ -226,8 +226,9 @@ namespace {
     const float mu_c = std::fabs(dot(fc.n, ctx.wo));
     const EnergyCompensation comp = ggx_reflection_compensation(in.coat_rough, mu_c, Vec3(in.coat_fss));
     const Vec3 albedo = comp.darkening * dielectric_specular_albedo(in.coat_rough, mu_c, c.eta, c.f0);
-    out.add(c, weight * (in.coat * comp.scale), fc, average(albedo));
-    if (!ctx.ray.emission_only) weight = layer_below(weight, albedo * in.coat);
+    // (dropped by Reflective Caustics off, as Cycles skips it: nothing below is dimmed)
+    if (out.add(c, weight * (in.coat * comp.scale), fc, average(albedo)) && !ctx.ray.emission_only)
+      weight = layer_below(weight, albedo * in.coat);
     const Vec3 tint = in.coat_tint;
     if (!(tint.x == 1.0f && tint.y == 1.0f && tint.z == 1.0f)) {
       // Cycles: the tint is the coat's transmittance at normal incidence (unit thickness);
@@ -291,8 +292,7 @@ namespace {
     // With a film Cycles has no table: the film's reflectance seen from the view.
     const Vec3 albedo = darkening * (in.film > kThinFilmCutoff ? thin_film_dielectric(mu, in.film_ior, in.eta, in.film, s.f0)
                                                                : dielectric_specular_albedo(in.rough_a, mu, in.eta, s.f0));
-    out.add(s, sw, fa, average(albedo));
-    weight = layer_below(weight, albedo);
+    if (out.add(s, sw, fa, average(albedo))) weight = layer_below(weight, albedo);  // (as the coat)
   }
   // Subsurface: its normal the glossy one.
   const float ssw = in.sss_weight;

@@ -14,7 +14,7 @@ ALL = set(pc.Scene().stats().get("features", [])) | {
     "volumes", "heterogeneous volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights",
     "environment", "world light", "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree",
     "light hits", "subsurface", "motion blur", "guiding", "shadow terminator", "light linking", "shadow catcher",
-    "holdout objects"}
+    "holdout objects", "light path tricks"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -217,6 +217,17 @@ CASES["guiding"] = (lambda: cornell(pc), {"guiding": True}, {"diffuse", "mesh li
                     "diffuse+env+guiding")
 
 
+# Clamping, Filter Glossy and the caustics toggles (kKernelTricks) run in the general kernels
+# only: the others are compiled without them (docs/design/sampling.md "Clamping").
+for _name, _fields in (("clamping", {"clamp_indirect": 1.0}), ("clamp direct", {"clamp_direct": 2.0}),
+                       ("filter glossy", {"filter_glossy": 1.0}),
+                       ("no reflective caustics", {"caustics_reflective": False}),
+                       ("no refractive caustics", {"caustics_refractive": False})):
+    CASES[_name] = (lambda: cornell(pc), _fields, {"diffuse", "mesh lights", "light path tricks"}, "general")
+CASES["guided clamping"] = (lambda: cornell(pc), {"guiding": True, "clamp_indirect": 1.0},
+                            {"diffuse", "mesh lights", "guiding", "light path tricks"}, "general")
+
+
 def session(build, fields, general, size=24, samples=8):
     return run_session(pc, build(), size, size, samples, threads=2, force_general_kernel=general, **fields)
 
@@ -231,6 +242,15 @@ def test_features_detected_and_kernel_chosen(name):
     # (shadow catchers: the general kernel of their own, which alone splits paths)
     general = "general+catcher" if "shadow catcher" in expected else "general"
     assert session(build, fields, general=True, samples=1).stats()["kernel"] == general
+
+
+def test_a_clamped_render_runs_a_kernel_that_clamps():
+    # The tricks run only where compiled in (kKernelTricks): a clamped render must pick such a
+    # kernel, and clamp there (a kernel without the bit would ignore the limit silently).
+    plain = session(lambda: cornell(pc), {}, general=False)
+    clamped = session(lambda: cornell(pc), {"clamp_indirect": 0.01}, general=False)
+    assert plain.stats()["kernel"] == "diffuse" and clamped.stats()["kernel"] == "general"
+    assert clamped.film()[..., :3].mean() < 0.9 * plain.film()[..., :3].mean()
 
 
 @pytest.mark.parametrize("name", CASES)
