@@ -1619,7 +1619,13 @@ restart: __attribute__((unused));
           want_data = false;
           aov->hit = true;
           aov->position = sp.p;
-          aov->normal = flip ? -sp.ns : sp.ns;
+          // Cycles' surface_shader_average_normal: the closures' normals (bump and normal maps
+          // included) weighted by their mean weights; the surface's own without any.
+          Vec3 an(0.0f);
+          for (int i = 0; i < cl.n; ++i) an += cl.c[size_t(i)].frame.n * std::fabs(average(cl.c[size_t(i)].weight));
+          const float al = length(an);
+          const Vec3 n = al > 0.0f && std::isfinite(al) ? an / al : sp.ns;
+          aov->normal = flip ? -n : n;
           if (s.indices) {
             aov->object_index = scene.object_pass_index(sp);
             aov->material_index = scene.material(sp.material).pass_index;
