@@ -242,6 +242,115 @@ def test_diffuse_direct_bake_matches_cycles_within_noise():
     assert_agree(ours, cycles, "DIFFUSE Direct + Color", region=0.05, whole=0.02)
 
 
+def glossy_bsdf(nodes, links):
+    g = nodes.new("ShaderNodeBsdfGlossy")
+    g.inputs["Color"].default_value = (0.8, 0.6, 0.4, 1.0)
+    g.inputs["Roughness"].default_value = 0.5
+    return g.outputs["BSDF"]
+
+
+def test_glossy_color_bake_matches_cycles():
+    """A Glossy BSDF's Glossy Color (its albedo seen along the normal). (Principled's specular
+    layer reads 0.0403 here where Cycles reads 0.0374: the render passes' Glossy Color of the
+    Principled BSDF, docs/design/bake.md.)"""
+    ours, cycles = bake_pair(glossy_bsdf, "GLOSSY", pass_filter={"COLOR"})
+    assert_exact(ours, cycles, "GLOSSY Color", atol=2e-5)  # measured 2.7e-6
+
+
+def test_shadow_bake_matches_cycles_within_noise():
+    ours, cycles = bake_pair(principled(roughness=0.5), "SHADOW", samples=256, cycles_samples=1024,
+                             world=(0.3, 0.35, 0.4), lights=True)
+    assert_agree(ours, cycles, "SHADOW", region=0.05, whole=0.02)
+
+
+def test_combined_with_part_of_the_filter_matches_cycles_within_noise():
+    """Combined of Diffuse and Glossy, Direct only (no Indirect, no Emit)."""
+    ours, cycles = bake_pair(principled(roughness=0.5), "COMBINED", samples=256, cycles_samples=1024,
+                             world=(0.3, 0.35, 0.4), lights=True, pass_filter={"DIRECT", "DIFFUSE", "GLOSSY"})
+    assert_agree(ours, cycles, "COMBINED Direct Diffuse Glossy", region=0.05, whole=0.02)
+
+
+def test_selected_to_active_matches_cycles():
+    """Selected to Active: Blender casts the cage rays and hands the engine the high-poly
+    object's texels (its own triangles and barycentrics); an object-space checker emitted by the
+    high-poly grid and its positions. Only RGB is compared: the alpha of texels no cage ray hit
+    is whatever Blender's (uninitialised) pixel array says, which changes from run to run."""
+    load_addon()
+
+    def run(engine, bake_type):
+        sc, node, img_c, img_p = bake_scene(principled())
+        low = bpy.context.view_layer.objects.active
+        hi = bpy.data.objects.new("High", grid_mesh(n=8))
+        hi.location, hi.rotation_euler, hi.scale = low.location, low.rotation_euler, low.scale
+        hi.location.z += 0.05
+        sc.collection.objects.link(hi)
+        mat = bpy.data.materials.new("HighMat")
+        mat.use_nodes = True
+        nt = mat.node_tree
+        nt.nodes.clear()
+        out, e = nt.nodes.new("ShaderNodeOutputMaterial"), nt.nodes.new("ShaderNodeEmission")
+        tc, chk = nt.nodes.new("ShaderNodeTexCoord"), nt.nodes.new("ShaderNodeTexChecker")
+        chk.inputs["Scale"].default_value = 4.0
+        nt.links.new(tc.outputs["Object"], chk.inputs["Vector"])
+        nt.links.new(chk.outputs["Color"], e.inputs["Color"])
+        nt.links.new(e.outputs["Emission"], out.inputs["Surface"])
+        hi.data.materials.append(mat)
+        hi.select_set(True)
+        img = img_c if engine == "CYCLES" else img_p
+
+        def bake():
+            return {"rgba": bake_with(sc, node, img, engine, bake_type, 1, use_selected_to_active=True,
+                                      cage_extrusion=0.3)}
+        if engine == "CYCLES":
+            sc.render.engine = "CYCLES"
+            node.image = img
+            return cycles_refs.cached(sc, f"bake s2a {bake_type}", bake)["rgba"]
+        return bake()["rgba"]
+
+    for bake_type in ("EMIT", "POSITION"):
+        cycles, ours = run("CYCLES", bake_type), run("PATHLIGHT", bake_type)
+        assert covered(cycles).sum() > SIZE * SIZE // 2
+        diff = np.abs(ours[..., :3] - cycles[..., :3]).max()
+        print(f"\nSelected to Active {bake_type}: max |diff| {diff:.3g}")
+        assert diff <= 2e-5, f"Selected to Active {bake_type}: max |diff| {diff:.3g}"
+
+
+def test_colour_attribute_target_matches_cycles():
+    """Target Active Color Attribute: Blender bakes one texel per corner (its own seeds)."""
+    def emissive_checker(nodes, links):
+        e, tc, chk = nodes.new("ShaderNodeEmission"), nodes.new("ShaderNodeTexCoord"), nodes.new("ShaderNodeTexChecker")
+        chk.inputs["Scale"].default_value = 3.0
+        links.new(tc.outputs["UV"], chk.inputs["Vector"])
+        links.new(chk.outputs["Color"], e.inputs["Color"])
+        return e.outputs["Emission"]
+
+    def run(engine):
+        sc, _, _, _ = bake_scene(emissive_checker)
+        mesh = bpy.context.view_layer.objects.active.data
+        attr = mesh.color_attributes.new("Col", 'FLOAT_COLOR', 'CORNER')
+        mesh.color_attributes.active_color = attr
+        if engine == "PATHLIGHT":
+            load_addon()
+        sc.render.engine = engine
+        if engine == "CYCLES":
+            _setup_cycles(sc.cycles, 8)
+            sc.cycles.samples = 1
+        else:
+            sc.pathlight.samples = 1
+
+        def bake():
+            bpy.ops.object.bake(type="EMIT", target='VERTEX_COLORS')
+            out = np.empty(len(attr.data) * 4, np.float32)
+            attr.data.foreach_get("color", out)
+            return {"rgba": out.reshape(-1, 4)}
+        return cycles_refs.cached(sc, "bake colour attribute EMIT", bake)["rgba"] if engine == "CYCLES" else bake()["rgba"]
+
+    load_addon()
+    cycles, ours = run("CYCLES"), run("PATHLIGHT")
+    assert len(np.unique(cycles[:, 0])) > 1  # (the checker's two colours)
+    np.testing.assert_allclose(ours, cycles, atol=1e-6)
+
+
 def test_a_failed_bake_reports_and_writes_no_result(monkeypatch):
     """A bake Pathlight refuses fails the operator with Pathlight's message, and no result of
     it reaches the image."""
