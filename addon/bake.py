@@ -215,12 +215,12 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
         if getattr(mesh, "subdivision", None):
             raise BakeError(f"object '{obj.name}' uses adaptive subdivision: its diced triangles are not the "
                             "mesh Blender bakes; apply or disable the subdivision to bake it")
-        if getattr(mesh, "motion_positions", None) is not None:
-            raise BakeError("baking a deforming object with motion blur is not supported; turn motion blur off")
         if pass_type == "SHADOW":  # Cycles: the object as a shadow catcher for this bake
             info = list(mesh.infos[k])
             info[5] = True
             mesh.infos[k] = tuple(info)
+        # (No motion blur in a bake: the frame's geometry, as Cycles' bake rays at the shutter's
+        # middle see it for still objects.)
         core_scene = to_core(pc, data, warn)
         settings = render_settings(pc, scene, warn)
         settings.width, settings.height = width, height
@@ -237,6 +237,10 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
         if not _commit(engine, core_scene, settings.threads, scene.pathlight.time_limit):
             return
         warn_open_world_volume(core_scene.stats(), scene.world, warn)
+        if pass_type == "COMBINED" and not int(pass_filter) & FILTER_EMIT and core_scene.stats().get("emissive_triangles", 0):
+            # Measured (docs/design/bake.md): Cycles then drops the light of emitting meshes too.
+            warn("Combined bake without Emit: Pathlight keeps the light emitting meshes cast on the object "
+                 "(Cycles leaves it out)")
         sess = pc.Session(core_scene, settings,
                           bake={"instance": instance, "triangle": tri, "bary": bary, "differentials": diff,
                                 "mode": mode})

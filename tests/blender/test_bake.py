@@ -351,6 +351,26 @@ def test_colour_attribute_target_matches_cycles():
     np.testing.assert_allclose(ours, cycles, atol=1e-6)
 
 
+def test_combined_without_emit_warns_about_mesh_lights(capfd):
+    """Cycles leaves out the light of emitting meshes from Combined without Emit, Pathlight keeps
+    it (docs/design/bake.md): the bake says so."""
+    load_addon()
+    sc, node, _, img = bake_scene(principled(), lights=True)
+    roof = bpy.data.objects["Roof"]
+    mat = bpy.data.materials.new("Panel")
+    mat.use_nodes = True
+    mat.node_tree.nodes.clear()
+    e = mat.node_tree.nodes.new("ShaderNodeEmission")
+    out = mat.node_tree.nodes.new("ShaderNodeOutputMaterial")
+    mat.node_tree.links.new(e.outputs["Emission"], out.inputs["Surface"])
+    roof.data.materials.append(mat)
+    capfd.readouterr()
+    bake_with(sc, node, img, "PATHLIGHT", "COMBINED", 1, pass_filter={"DIRECT", "INDIRECT", "DIFFUSE"})
+    assert "Combined bake without Emit" in capfd.readouterr().out
+    bake_with(sc, node, img, "PATHLIGHT", "COMBINED", 1)  # (with Emit: no warning)
+    assert "Combined bake without Emit" not in capfd.readouterr().out
+
+
 def test_a_failed_bake_reports_and_writes_no_result(monkeypatch):
     """A bake Pathlight refuses fails the operator with Pathlight's message, and no result of
     it reaches the image."""

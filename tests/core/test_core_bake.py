@@ -213,3 +213,9 @@ def test_bad_bake_input_is_refused():
         bake(s, 0, tri[:10], bary[:10])
     with pytest.raises(ValueError, match="mode"):
         bake(s, 0, tri, bary, mode="normal")
+    nan = bary.copy()
+    nan[3, 0] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        bake(s, 0, tri, nan)
+    with pytest.raises(ValueError, match="finite"):
+        bake(s, 0, tri, bary, diff=np.full((W * H, 4), np.inf, np.float32))
