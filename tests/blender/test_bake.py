@@ -220,6 +220,18 @@ def test_diffuse_color_and_roughness_bakes_match_cycles():
     assert_exact(ours, cycles, "ROUGHNESS (gradient)", atol=1e-5)
 
 
+def test_texel_jitter_matches_cycles():
+    """Samples after the first jitter within the texel by Blender's differentials (converted
+    to Pathlight's barycentrics with u and v): a UV checker's colour at 256 samples (Cycles at
+    1024) agrees per texel, its edges' partial coverage included. Measured max 0.016; with the
+    differentials passed unconverted, 0.126."""
+    ours, cycles = bake_pair(principled(textured=True), "DIFFUSE", samples=256, cycles_samples=1024,
+                             pass_filter={"COLOR"})
+    diff = np.abs(ours - cycles)[..., :3].max()
+    print(f"\njittered DIFFUSE Color: max |diff| {diff:.3g}")
+    assert diff < 0.05
+
+
 def test_environment_bake_matches_cycles():
     ours, cycles = bake_pair(principled(), "ENVIRONMENT", world=(0.2, 0.4, 0.7))
     assert_exact(ours, cycles, "ENVIRONMENT", atol=1e-6)
