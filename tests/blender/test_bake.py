@@ -96,10 +96,14 @@ def bake_with(sc, node, image, engine, bake_type, samples, **kw):
     return np.array(image.pixels[:], np.float32).reshape(SIZE, SIZE, 4)
 
 
-def bake_pair(build, bake_type, samples=1, cycles_samples=None, world=(0.0, 0.0, 0.0), lights=False, **kw):
-    """(Pathlight's, Cycles') bakes of `bake_type` (Cycles' from tests/cycles_refs/ when stored)."""
+def bake_pair(build, bake_type, samples=1, cycles_samples=None, world=(0.0, 0.0, 0.0), lights=False, setup=None,
+              **kw):
+    """(Pathlight's, Cycles') bakes of `bake_type` (Cycles' from tests/cycles_refs/ when stored).
+    setup(scene): more set-up after bake_scene's."""
     load_addon()
     sc, node, img_c, img_p = bake_scene(build, world, lights)
+    if setup is not None:
+        setup(sc)
     sc.render.engine = "CYCLES"
     node.image = img_c
     plain = {k: sorted(v) if isinstance(v, (set, frozenset)) else v for k, v in kw.items()}  # (sets: no fixed order)
@@ -232,9 +236,21 @@ def test_texel_jitter_matches_cycles():
     assert diff < 0.05
 
 
+def sky_world(sc):
+    """The world a Hosek / Wilkie sky: it varies with the direction."""
+    nt = sc.world.node_tree
+    sky = nt.nodes.new("ShaderNodeTexSky")
+    sky.sky_type = 'HOSEK_WILKIE'
+    sky.sun_direction = (0.3, 0.2, 0.6)
+    nt.links.new(sky.outputs["Color"], nt.nodes["Background"].inputs["Color"])
+
+
 def test_environment_bake_matches_cycles():
+    """The world along the direction from the origin to each texel's point."""
     ours, cycles = bake_pair(principled(), "ENVIRONMENT", world=(0.2, 0.4, 0.7))
     assert_exact(ours, cycles, "ENVIRONMENT", atol=1e-6)
+    ours, cycles = bake_pair(principled(), "ENVIRONMENT", setup=sky_world)
+    assert_exact(ours, cycles, "ENVIRONMENT (sky)", atol=2e-6)  # measured 4.2e-7
 
 
 def test_combined_bake_matches_cycles_within_noise():
