@@ -2,6 +2,7 @@
 (docs/design/bake.md): the same object, material and target image baked by both engines."""
 
 import math
+import sys
 
 import bpy
 import numpy as np
@@ -210,6 +211,30 @@ def test_uv_bake_is_the_texels_uv():
     np.testing.assert_allclose(ours[y, x, 1], (y + 0.5) / SIZE, atol=1e-4)
     assert np.all(ours[y, x, 2] == 1.0)
     assert np.all(cycles[..., :3] == 0.0)  # (if Cycles starts baking UV, compare with it instead)
+
+
+def ngon_mesh():
+    """A flat octagon in a ring of quads (an n-gon: Blender's own triangulation, read from
+    loop_triangles at export), UV-mapped by x, y."""
+    verts = [(math.cos(math.pi * k / 4) * r, math.sin(math.pi * k / 4) * r, 0.0) for r in (0.5, 0.95) for k in range(8)]
+    faces = [tuple(range(8))] + [(k, (k + 1) % 8, 8 + (k + 1) % 8, 8 + k) for k in range(8)]
+    me = bpy.data.meshes.new("Ngon")
+    me.from_pydata(verts, [], faces)
+    uv = me.uv_layers.new(name="UVMap")
+    for loop in me.loops:
+        x, y, _ = verts[loop.vertex_index]
+        uv.data[loop.index].uv = (0.5 + 0.5 * x, 0.5 + 0.5 * y)
+    me.update()
+    return me
+
+
+def test_ngon_mesh_bakes_match_cycles(monkeypatch):
+    """The loop triangles of a mesh with an n-gon map to Pathlight's triangles: Position and
+    (flat) Normal exact. (A non-planar flat n-gon's Normal differs: docs/design/bake.md.)"""
+    monkeypatch.setattr(sys.modules[__name__], "grid_mesh", lambda n=4, size=2.0: ngon_mesh())
+    for kind in ("POSITION", "NORMAL"):
+        ours, cycles = bake_pair(principled(), kind)
+        assert_exact(ours, cycles, f"{kind} (n-gon)", atol=1e-6)
 
 
 def test_emit_bake_matches_cycles():
