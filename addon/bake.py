@@ -186,7 +186,8 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
     warn = _warner(engine)
     # A layer name of its own per image: Blender finds the image a result belongs to by it
     # (render_result_to_bake; Cycles names them "bake_%d" alike), so with several target images
-    # each gets its own texels.
+    # each gets its own texels (with the default layer name, bpy 4.5 crashed in the
+    # two-material test).
     _bake_id += 1
     result = engine.begin_result(0, 0, width, height, layer=f"pathlight_bake_{_bake_id}")
     filled = False
