@@ -199,8 +199,9 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
         if primitive is None or differential is None:
             raise BakeError("Blender gave no BakePrimitive / BakeDifferential pass (a Blender older than 4.2?)")
         mode, passes, combine = plan(pass_type, pass_filter)
-        if getattr(depsgraph.scene.render.bake, "view_from", "ABOVE_SURFACE") == 'ACTIVE_CAMERA':
-            raise BakeError("baking with View From 'Active Camera' is not supported; use 'Above Surface'")
+        from_camera = getattr(depsgraph.scene.render.bake, "view_from", "ABOVE_SURFACE") == 'ACTIVE_CAMERA'
+        if from_camera and depsgraph.scene.camera is None:
+            raise BakeError("View From 'Active Camera' needs a scene camera")
         tri, bary, diff = barycentrics(primitive, differential)
         pc = get_core()
         scene = depsgraph.scene
@@ -244,7 +245,7 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
                  "(Cycles leaves it out)")
         sess = pc.Session(core_scene, settings,
                           bake={"instance": instance, "triangle": tri, "bary": bary, "differentials": diff,
-                                "mode": mode})
+                                "mode": mode, "view_from_camera": from_camera})
         _run(engine, sess)
         film = sess.film().reshape(n, 4)
         image = combine(film[:, None, :], lambda name: sess.film_pass(name).reshape(n, 1, -1))

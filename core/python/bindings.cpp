@@ -1848,7 +1848,8 @@ std::shared_ptr<BakeInput> parse_bake(const py::object& obj, const RenderSetting
   const py::dict d = obj.cast<py::dict>();
   for (const auto& kv : d) {
     const std::string k = kv.first.cast<std::string>();
-    if (k != "instance" && k != "triangle" && k != "bary" && k != "differentials" && k != "mode")
+    if (k != "instance" && k != "triangle" && k != "bary" && k != "differentials" && k != "mode" &&
+        k != "view_from_camera")
       throw std::invalid_argument("bake: unknown key '" + k + "'");
   }
   if (!d.contains("instance") || !d.contains("triangle") || !d.contains("bary"))
@@ -1874,6 +1875,7 @@ std::shared_ptr<BakeInput> parse_bake(const py::object& obj, const RenderSetting
   else if (mode == "environment") b->mode = BakeMode::Environment;
   else if (mode == "roughness") b->mode = BakeMode::Roughness;
   else throw std::invalid_argument("bake: mode must be 'surface', 'environment' or 'roughness', not '" + mode + "'");
+  if (d.contains("view_from_camera")) b->view_from_camera = d["view_from_camera"].cast<bool>();
   return b;
 }
 
@@ -4248,7 +4250,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "the weights b1, b2 of the triangle's corners 1 and 2), differentials (float32 (N, 4): db1/dx, "
            "db1/dy, db2/dx, db2/dy; optional), mode ('surface': Combined and the passes from a path that "
            "starts on the texel's surface; 'environment': the world along the direction to the texel's "
-           "point; 'roughness': Cycles' Roughness pass), N = width x height, texel y * width + x.")
+           "point; 'roughness': Cycles' Roughness pass), view_from_camera (bool: seen from the scene's camera, "
+           "Blender's View From 'Active Camera'), N = width x height, texel y * width + x.")
       .def("start", [](PySession& self) { self.session->start(); })
       .def(
           "wait",

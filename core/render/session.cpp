@@ -689,7 +689,19 @@ bool Session::bake_point(size_t texel, uint32_t sample, Vec2 j, Ray& ray, Hit& h
   hit.t = 0.0f;  // the ray starts on the surface: it crosses no light or medium on the way
   scene_->surface_point(hit, sp, 0.5f);
   ray.org = sp.p;
-  ray.dir = -sp.ns;  // seen along the smooth normal, as Cycles' bake ray (P + N towards -N)
+  Vec3 view = sp.ns;  // seen along the smooth normal, as Cycles' bake ray (P + N towards -N)
+  if (b.view_from_camera) {
+    // Cycles' use_camera: towards the camera, at least 0.2 above the smooth normal, leaning to
+    // it on the back side, and never behind the geometric normal.
+    const Vec3 n = sp.ns;
+    Vec3 d = camera_.orthographic() ? -camera_.forward() : normalize(camera_.origin() - sp.p);
+    const float dn = dot(d, n);
+    if (dn <= 0.2f) d = normalize(d - n * (dn - 0.2f));
+    if (dn <= 0.0f) d = normalize(d + (n - d) * (-dn));
+    if (dot(d, sp.ng) <= 1e-5f) d = normalize(d - sp.ng * (dot(d, sp.ng) - 1e-5f));
+    if (is_finite(d)) view = d;
+  }
+  ray.dir = -view;
   ray.tmax = kInf;
   ray.time = 0.5f;
   // The footprint: Cycles' dP = dP/du du + dP/dv dv over the texel, compacted (the mean length).

@@ -178,6 +178,9 @@ struct BakeInput {
   // later ones a point jittered within it, as Cycles); empty: the centre always.
   std::vector<float> differentials;
   BakeMode mode = BakeMode::Surface;
+  // Seen from the camera (Blender's View From 'Active Camera', Cycles' bake use_camera): the
+  // direction to the camera, kept above the smooth normal as Cycles does; else the normal.
+  bool view_from_camera = false;
 };
 
 class GuidingField;
