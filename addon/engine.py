@@ -2,7 +2,7 @@
 
 import bpy
 
-from . import render_cache, session, viewport_draw
+from . import bake, render_cache, session, viewport_draw
 
 
 class PathlightRenderEngine(bpy.types.RenderEngine):
@@ -27,6 +27,9 @@ class PathlightRenderEngine(bpy.types.RenderEngine):
 
     def render(self, depsgraph):
         session.render(self, depsgraph)
+
+    def bake(self, depsgraph, obj, pass_type, pass_filter, width, height):
+        bake.bake(self, depsgraph, obj, pass_type, pass_filter, width, height)
 
     def view_update(self, context, depsgraph):
         viewport_draw.view_update(self, context, depsgraph)

@@ -1870,6 +1870,43 @@ py::object crypto_pass(PySession& self, const std::string& name) {
   return py::none();
 }
 
+// Session's bake dict (see its docstring) as a BakeInput.
+std::shared_ptr<BakeInput> parse_bake(const py::object& obj, const RenderSettings& settings) {
+  using I32 = py::array_t<int32_t, py::array::c_style | py::array::forcecast>;
+  const py::dict d = obj.cast<py::dict>();
+  for (const auto& kv : d) {
+    const std::string k = kv.first.cast<std::string>();
+    if (k != "instance" && k != "triangle" && k != "bary" && k != "differentials" && k != "mode" &&
+        k != "view_from_camera")
+      throw std::invalid_argument("bake: unknown key '" + k + "'");
+  }
+  if (!d.contains("instance") || !d.contains("triangle") || !d.contains("bary"))
+    throw std::invalid_argument("bake: needs instance, triangle and bary");
+  auto b = std::make_shared<BakeInput>();
+  const int64_t inst = d["instance"].cast<int64_t>();
+  if (inst < 0 || inst > int64_t(UINT32_MAX)) throw std::invalid_argument("bake: instance out of range");
+  b->instance = uint32_t(inst);
+  const size_t n = size_t(std::max(settings.width, 0)) * size_t(std::max(settings.height, 0));
+  const I32 tri = I32::ensure(d["triangle"]);
+  const FloatArray bary = FloatArray::ensure(d["bary"]);
+  if (!tri || !bary || size_t(tri.size()) != n || size_t(bary.size()) != 2 * n)
+    throw std::invalid_argument("bake: triangle must be (width x height,) and bary (width x height, 2)");
+  b->triangle.assign(tri.data(), tri.data() + n);
+  b->bary.assign(bary.data(), bary.data() + 2 * n);
+  if (d.contains("differentials") && !d["differentials"].is_none()) {
+    const FloatArray diff = FloatArray::ensure(d["differentials"]);
+    if (!diff || size_t(diff.size()) != 4 * n) throw std::invalid_argument("bake: differentials must be (width x height, 4)");
+    b->differentials.assign(diff.data(), diff.data() + 4 * n);
+  }
+  const std::string mode = d.contains("mode") ? d["mode"].cast<std::string>() : "surface";
+  if (mode == "surface") b->mode = BakeMode::Surface;
+  else if (mode == "environment") b->mode = BakeMode::Environment;
+  else if (mode == "roughness") b->mode = BakeMode::Roughness;
+  else throw std::invalid_argument("bake: mode must be 'surface', 'environment' or 'roughness', not '" + mode + "'");
+  if (d.contains("view_from_camera")) b->view_from_camera = d["view_from_camera"].cast<bool>();
+  return b;
+}
+
 py::object film_pass(PySession& self, const std::string& name) {
   py::object crypto = crypto_pass(self, name);
   if (!crypto.is_none()) return crypto;
@@ -4277,7 +4314,8 @@ PYBIND11_MODULE(pathlight_core, m) {
            "(origins (N,3), directions (N,3), tmax (N,)).");
 
   py::class_<PySession>(m, "Session")
-      .def(py::init([](PyScene& scene, const RenderSettings& settings, const py::object& camera_obj) {
+      .def(py::init([](PyScene& scene, const RenderSettings& settings, const py::object& camera_obj,
+                       const py::object& bake_obj) {
              validate(settings);
              CameraDesc camera;
              const bool override_camera = !camera_obj.is_none();
@@ -4285,7 +4323,9 @@ PYBIND11_MODULE(pathlight_core, m) {
                camera = camera_obj.cast<CameraDesc>();
                validate_camera(camera);
              }
-             if (!override_camera && !scene.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
+             std::shared_ptr<BakeInput> bake;
+             if (!bake_obj.is_none()) bake = parse_bake(bake_obj, settings);
+             if (!override_camera && !bake && !scene.scene->has_camera()) throw std::invalid_argument("the scene has no camera");
              if (!scene.scene->committed()) {
                scene.check_editable();
                bool done;
@@ -4297,10 +4337,18 @@ PYBIND11_MODULE(pathlight_core, m) {
              }
              auto s = std::make_unique<PySession>();
              s->scene = scene.scene;
-             s->session = std::make_unique<Session>(scene.scene, settings, override_camera ? &camera : nullptr);
+             s->session = std::make_unique<Session>(scene.scene, settings, override_camera ? &camera : nullptr, bake);
              return s;
            }),
-           py::arg("scene"), py::arg("settings"), py::arg("camera") = py::none())
+           py::arg("scene"), py::arg("settings"), py::arg("camera") = py::none(), py::arg("bake") = py::none(),
+           "A render of a committed scene (commits it first if needed). camera: a Camera overriding the "
+           "scene's. bake: a bake instead (docs/design/bake.md), a dict: instance (int, add_instance "
+           "order), triangle (int32 (N,): a triangle of its mesh per texel, -1: none), bary (float32 (N, 2): "
+           "the weights b1, b2 of the triangle's corners 1 and 2), differentials (float32 (N, 4): db1/dx, "
+           "db1/dy, db2/dx, db2/dy; optional), mode ('surface': Combined and the passes from a path that "
+           "starts on the texel's surface; 'environment': the world along the direction to the texel's "
+           "point; 'roughness': Cycles' Roughness pass), view_from_camera (bool: seen from the scene's camera, "
+           "Blender's View From 'Active Camera'), N = width x height, texel y * width + x.")
       .def("start", [](PySession& self) { self.session->start(); })
       .def(
           "wait",

@@ -251,6 +251,13 @@ struct PathCounters {
   bool caustic_raster = true;
   // In: the light vertices of this pixel sample (light-vertex connections; null: none).
   const CausticCache* caustic_cache = nullptr;
+  // In: the camera ray's hit, given instead of traced (baking, docs/design/bake.md: the ray
+  // starts on the surface, so it crosses no light or medium on the way). The kernel clears it
+  // when it takes it.
+  const Hit* first_hit = nullptr;
+  // In (with first_hit): the surface's footprint, Cycles' compact dP of the texel (the
+  // direction's spread dd is 0); negative: the camera's.
+  float first_dp = -1.0f;
 };
 
 // What a camera path saw, for render passes (AOVs). trace_path fills it only when the caller

@@ -1,6 +1,8 @@
 #include "render/session.h"
 #include "render/guide_photons.h"
 #include "render/guiding.h"
+#include "scene/microfacet_energy.h"
+#include "util/rng.h"
 
 #include <algorithm>
 #include <array>
@@ -99,12 +101,42 @@ int film_width(const RenderSettings& s) { return s.border_width > 0 ? s.border_w
 int film_height(const RenderSettings& s) { return s.border_height > 0 ? s.border_height : s.height; }
 }  // namespace
 
-Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera)
+Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera,
+                 std::shared_ptr<const BakeInput> bake)
     : scene_(std::move(scene)),
       settings_((validate(settings), settings)),
+      bake_(std::move(bake)),
       film_(film_width(settings), film_height(settings), settings.tile_size, film_passes(settings, scene_.get()), settings.exposure,
             settings.shader_aovs, settings.debug_view == DebugView::None ? settings.light_groups : 0) {
   if (!scene_ || !scene_->committed()) throw std::invalid_argument("scene is not committed");
+  if (bake_) {
+    // A texel's path starts on its surface: no border, and nothing that traces from the camera
+    // (caustic light paths splat through it, guiding trains on camera paths' pixels).
+    const BakeInput& b = *bake_;
+    const size_t n = size_t(settings_.width) * size_t(settings_.height);
+    if (settings_.border_width > 0) throw std::invalid_argument("bake: no render border");
+    if (b.triangle.size() != n || b.bary.size() != 2 * n || (!b.differentials.empty() && b.differentials.size() != 4 * n))
+      throw std::invalid_argument("bake: triangle, bary and differentials must have width x height texels (1, 2, 4 values each)");
+    const std::vector<uint32_t> prims = scene_->instance_prims(b.instance);
+    if (b.instance >= scene_->instance_count())
+      throw std::invalid_argument("bake: unknown instance " + std::to_string(b.instance));
+    bake_prims_.assign(n, UINT32_MAX);
+    for (size_t t = 0; t < n; ++t) {
+      const int32_t tri = b.triangle[t];
+      if (tri < 0) continue;
+      if (size_t(tri) >= prims.size())
+        throw std::invalid_argument("bake: triangle " + std::to_string(tri) + " is not one of the instance's mesh (" +
+                                    std::to_string(prims.size()) + " triangles)");
+      if (!std::isfinite(b.bary[2 * t]) || !std::isfinite(b.bary[2 * t + 1]))
+        throw std::invalid_argument("bake: barycentrics must be finite");
+      bake_prims_[t] = prims[size_t(tri)];  // (UINT32_MAX where the commit dropped it: degenerate)
+    }
+    for (float d : b.differentials)
+      if (!std::isfinite(d)) throw std::invalid_argument("bake: differentials must be finite");
+    settings_.caustic_light_paths = 0.0f;
+    settings_.caustic_light_paths_auto = false;
+    settings_.guiding = false;
+  }
   if (film_.has_pass(Pass::ShadowCatcherMatte)) {
     // Cycles' approximate shadow catcher unless the Shadow Catcher pass is asked for.
     const bool asked = (settings_.passes & pass_bit(Pass::ShadowCatcher)) != 0;
@@ -549,22 +581,52 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
                                   : SobolIndex{pixel, sample};
         Sampler sampler(settings_.sampler, settings_.seed, pixel, sample, si.key, si.index);
         const Vec2 j = sampler.get2d();  // dimension 0: position in the pixel (filter)
-        // Dimension 1: the lens, taken only with an aperture, so pinhole renders keep the
-        // same streams for their paths.
-        const Vec2 lens = camera_.has_aperture() ? sampler.get2d() : Vec2{0.5f, 0.5f};
-        const float jx = filter_.jitter(j.x), jy = filter_.jitter(j.y);
-        const float rx = float(fx) + jx, ry = float(fy) + jy;
-        // The caustic MIS's camera density: the filter's at this offset (the box's is flat).
-        if (caustics_ && caustics_->filter)
-          counters.filter_area = 1.0f / (filter_.density(jx - 0.5f) * filter_.density(jy - 0.5f));
-        // Motion blur: the shutter time from the next dimension, drawn only where something
-        // moves (static scenes keep their streams and their rays).
-        const Ray ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))
-                                : camera_.generate(rx, ry, lens);
-        sampler.align_set();
-        // A panorama's sample whose direction the light tracer maps elsewhere (a filter's tail
-        // past an equirectangular seam or pole) gets no light-path weight.
-        if (caustics_ && camera_.is_panoramic()) counters.caustic_raster = camera_.pano_raster_is_canonical(rx, ry);
+        Ray ray;
+        Hit bake_hit;
+        if (bake_) {
+          // Baking: the texel's surface point (its jitter from dimension 0), seen along its
+          // smooth normal; the data bakes are read off the point itself.
+          SurfacePoint bsp;
+          float dp = 0.0f;
+          if (!bake_point(size_t(fy) * size_t(settings_.width) + size_t(fx), sample, j, ray, bake_hit, bsp, dp)) {
+            out = {0.0f, 0.0f, 0.0f, 0.0f};  // not this object's texel
+            if (aux) write_aux(PathAovs{}, aux);
+            ++paths;
+            continue;
+          }
+          sampler.align_set();
+          if (bake_->mode != BakeMode::Surface) {
+            const Vec3 v = bake_->mode == BakeMode::Roughness ? Vec3(bake_roughness(bsp, -ray.dir))
+                                                              : scene_->background(normalize(bsp.p));
+            out = {v.x, v.y, v.z, 1.0f};
+            if (!is_finite(v)) {
+              out = {0.0f, 0.0f, 0.0f, 1.0f};
+              ++nonfinite;
+            }
+            if (aux) write_aux(PathAovs{}, aux);
+            ++paths;
+            continue;
+          }
+          counters.first_hit = &bake_hit;
+          counters.first_dp = dp;
+        } else {
+          // Dimension 1: the lens, taken only with an aperture, so pinhole renders keep the
+          // same streams for their paths.
+          const Vec2 lens = camera_.has_aperture() ? sampler.get2d() : Vec2{0.5f, 0.5f};
+          const float jx = filter_.jitter(j.x), jy = filter_.jitter(j.y);
+          const float rx = float(fx) + jx, ry = float(fy) + jy;
+          // The caustic MIS's camera density: the filter's at this offset (the box's is flat).
+          if (caustics_ && caustics_->filter)
+            counters.filter_area = 1.0f / (filter_.density(jx - 0.5f) * filter_.density(jy - 0.5f));
+          // Motion blur: the shutter time from the next dimension, drawn only where something
+          // moves (static scenes keep their streams and their rays).
+          ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))
+                        : camera_.generate(rx, ry, lens);
+          sampler.align_set();
+          // A panorama's sample whose direction the light tracer maps elsewhere (a filter's tail
+          // past an equirectangular seam or pole) gets no light-path weight.
+          if (caustics_ && camera_.is_panoramic()) counters.caustic_raster = camera_.pano_raster_is_canonical(rx, ry);
+        }
         if (!(ray.tmax > 0.0f)) {  // outside a panorama's lens: black, as Cycles
           out = {0.0f, 0.0f, 0.0f, 1.0f};
           if (aux) write_aux(PathAovs{}, aux);
@@ -573,6 +635,7 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
         }
         if (caustics_ && caustics_->connections > 0) counters.caustic_cache = &caustic_caches_[size_t(s - s0)];
         Vec3 L = kernel_(*scene_, ray, sampler, integrator_, counters, want_aovs ? &aovs : nullptr);
+        counters.first_hit = nullptr;
         if (caustics_) {
           L += caustic_splats_[size_t(s - s0)][size_t(y) * size_t(film_.width()) + size_t(x)];
           if (groups) {  // (the light paths' splats, each to its emitter's group)
@@ -625,6 +688,107 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
   paths_.fetch_add(paths, std::memory_order_relaxed);
   rays_.fetch_add(counters.rays, std::memory_order_relaxed);
   nonfinite_.fetch_add(nonfinite, std::memory_order_relaxed);
+}
+
+bool Session::bake_point(size_t texel, uint32_t sample, Vec2 j, Ray& ray, Hit& hit, SurfacePoint& sp, float& dp) const {
+  const uint32_t prim = bake_prims_[texel];
+  if (prim == UINT32_MAX) return false;
+  const BakeInput& b = *bake_;
+  float b1 = b.bary[2 * texel], b2 = b.bary[2 * texel + 1];
+  // Exactly at a corner: nudged towards the centre (Cycles' bake_offset_towards_center), so a
+  // ray leaving it does not start on the neighbours' edges.
+  if ((b1 == 0.0f || b1 == 1.0f) && (b2 == 0.0f || b2 == 1.0f)) {
+    b1 += (1.0f / 3.0f - b1) * 1e-4f;
+    b2 += (1.0f / 3.0f - b2) * 1e-4f;
+  }
+  float d[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+  if (!b.differentials.empty()) std::copy_n(&b.differentials[4 * texel], 4, d);
+  if (sample > 0 && !b.differentials.empty()) {
+    // Cycles' bake_jitter_barycentric: a point of the texel, retried (at most 10 times) until it
+    // falls inside the triangle, else the centre.
+    Pcg32 rng;
+    bool rng_set = false;
+    for (int i = 0; i < 10; ++i) {
+      const float u1 = b1 + (j.x - 0.5f) * d[0] + (j.y - 0.5f) * d[1];
+      const float u2 = b2 + (j.x - 0.5f) * d[2] + (j.y - 0.5f) * d[3];
+      if (u1 > 0.0f && u2 > 0.0f && u1 + u2 < 1.0f) {
+        b1 = u1, b2 = u2;
+        break;
+      }
+      if (!rng_set) rng.set(uint64_t(texel) * 0x9E3779B97F4A7C15ULL + sample, 0xB4CEB4CEULL), rng_set = true;
+      j = Vec2{rng.next_float(), rng.next_float()};
+    }
+  }
+  hit.inst = b.instance;
+  hit.prim = prim;
+  hit.b1 = b1;
+  hit.b2 = b2;
+  hit.t = 0.0f;  // the ray starts on the surface: it crosses no light or medium on the way
+  scene_->surface_point(hit, sp, 0.5f);
+  ray.org = sp.p;
+  Vec3 view = sp.ns;  // seen along the smooth normal, as Cycles' bake ray (P + N towards -N)
+  if (b.view_from_camera) {
+    // Cycles' use_camera: towards the camera, at least 0.2 above the smooth normal, leaning to
+    // it on the back side, and never behind the geometric normal.
+    const Vec3 n = sp.ns;
+    Vec3 d = camera_.orthographic() ? -camera_.forward() : normalize(camera_.origin() - sp.p);
+    const float dn = dot(d, n);
+    if (dn <= 0.2f) d = normalize(d - n * (dn - 0.2f));
+    if (dn <= 0.0f) d = normalize(d + (n - d) * (-dn));
+    if (dot(d, sp.ng) <= 1e-5f) d = normalize(d - sp.ng * (dot(d, sp.ng) - 1e-5f));
+    if (is_finite(d)) view = d;
+  }
+  ray.dir = -view;
+  ray.tmax = kInf;
+  ray.time = 0.5f;
+  // The footprint: Cycles' dP = dP/du du + dP/dv dv over the texel, compacted (the mean length).
+  Vec3 v0, v1, v2;
+  dp = 0.0f;
+  if (scene_->instance_triangle(b.instance, prim, v0, v1, v2)) {
+    const Vec3 e1 = v1 - v0, e2 = v2 - v0;
+    const float l = 0.5f * (length(e1 * d[0] + e2 * d[2]) + length(e1 * d[1] + e2 * d[3]));
+    dp = std::isfinite(l) ? l : 0.0f;
+  }
+  return is_finite(sp.p) && is_finite(sp.ns);
+}
+
+float Session::bake_roughness(const SurfacePoint& sp, Vec3 wo) const {
+  // Cycles' surface_shader_average_roughness: the BSDFs' roughness (the square root of alpha,
+  // Oren-Nayar's sigma, 0 for sharp and transparent lobes, 1 for the others without one) averaged
+  // by the closures' mean weights; diffuse lobes have none and are left out; 1 without any.
+  ClosureList cl;
+  RayState rs;
+  rs.camera = integrator_.camera;
+  scene_->shade(sp, sp.b1, sp.b2, wo, cl, rs);
+  float sum = 0.0f, total = 0.0f;
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    float weight = std::fabs(average(c.weight));
+    float r;  // the roughness the pass reads; negative: none
+    if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) {
+      r = std::sqrt(std::sqrt(m->alpha * (m->alpha_y < 0.0f ? m->alpha : m->alpha_y)));
+      // (Cycles' closure weight leaves out the 1 / E Pathlight's carries: see pass_colors)
+      if (m->compensated) weight *= table_2d(tables::ggx_E, r, std::fabs(dot(wo, c.frame.n)), 32, 32);
+    } else if (const auto* g = std::get_if<DielectricBsdf>(&c.bsdf)) {
+      r = std::sqrt(std::sqrt(g->alpha * (g->alpha_y < 0.0f ? g->alpha : g->alpha_y)));
+    } else if (const auto* o = std::get_if<OrenNayarBsdf>(&c.bsdf)) {
+      r = o->a > 0.0f ? o->b / o->a : 0.0f;  // (a = 1 / (pi + (pi / 2 - 2 / 3) sigma), b = sigma a)
+    } else if (std::holds_alternative<TransparentBsdf>(c.bsdf) || std::holds_alternative<PortalBsdf>(c.bsdf)) {
+      r = 0.0f;
+    } else if (std::holds_alternative<DiffuseBsdf>(c.bsdf) || std::holds_alternative<TranslucentBsdf>(c.bsdf) ||
+               std::holds_alternative<SheenBsdf>(c.bsdf) || std::holds_alternative<VelvetBsdf>(c.bsdf) ||
+               std::holds_alternative<SubsurfaceBsdf>(c.bsdf)) {
+      r = -1.0f;  // diffuse lobes (and the BSSRDF, no BSDF in Cycles)
+    } else if (const auto* t = std::get_if<ToonBsdf>(&c.bsdf)) {
+      r = t->glossy ? 1.0f : -1.0f;
+    } else {
+      r = 1.0f;  // hair: no microfacet roughness
+    }
+    if (r < 0.0f || !std::isfinite(r)) continue;
+    sum += weight * r;
+    total += weight;
+  }
+  return total > 0.0f ? sum / total : 1.0f;
 }
 
 namespace {

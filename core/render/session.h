@@ -175,13 +175,35 @@ struct SessionStats {
   std::vector<std::string> features, unused_features;
 };
 
+// Baking (docs/design/bake.md, Cycles' integrator_init_from_bake): the film's pixel (x, y) is
+// texel y * width + x of a bake image, whose path starts on a given point of one instance's
+// surface, seen along its smooth normal, instead of at the camera. Surface: the integrator runs
+// from there (Combined and the render passes, read as for a render); Environment: the world along
+// the direction from the origin to the point; Roughness: Cycles' Roughness pass, the closures'
+// weighted mean roughness.
+enum class BakeMode : uint8_t { Surface, Environment, Roughness };
+struct BakeInput {
+  uint32_t instance = 0;             // the scene instance (add_instance order)
+  std::vector<int32_t> triangle;     // per texel: a triangle of the instance's mesh; -1: no texel
+  std::vector<float> bary;           // per texel: b1, b2, the weights of the triangle's corners 1 and 2
+  // Per texel: db1/dx, db1/dy, db2/dx, db2/dy across the texel (sample 0 takes its centre,
+  // later ones a point jittered within it, as Cycles); empty: the centre always.
+  std::vector<float> differentials;
+  BakeMode mode = BakeMode::Surface;
+  // Seen from the camera (Blender's View From 'Active Camera', Cycles' bake use_camera): the
+  // direction to the camera, kept above the smooth normal as Cycles does; else the normal.
+  bool view_from_camera = false;
+};
+
 class GuidingField;
 struct GuidePhotonSources;
 
 class Session {
  public:
   // camera: overrides the scene's camera (the viewport's view) when not null.
-  Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera = nullptr);
+  // bake: a bake instead of a render (BakeInput; the film is the bake image, no border).
+  Session(std::shared_ptr<const Scene> scene, const RenderSettings& settings, const CameraDesc* camera = nullptr,
+          std::shared_ptr<const BakeInput> bake = nullptr);
   ~Session();
   Session(const Session&) = delete;
   Session& operator=(const Session&) = delete;
@@ -204,6 +226,12 @@ class Session {
   void run();
   // Samples [s0, s1) of band `part` of `parts` of a tile's rows (parts 1: the whole tile).
   void render_tile(int tile, int part, int parts, int s0, int s1);
+  // Baking: texel `texel`'s surface point for sample `sample` (j: its jitter within the texel),
+  // the hit and the ray along the smooth normal onto it, and its footprint (compact dP); false
+  // where the texel has none.
+  bool bake_point(size_t texel, uint32_t sample, Vec2 j, Ray& ray, Hit& hit, SurfacePoint& sp, float& dp) const;
+  // Cycles' Roughness pass at a surface point seen from wo (surface_shader_average_roughness).
+  float bake_roughness(const SurfacePoint& sp, Vec3 wo) const;
   // Lays out one sample's pass values as the film's planes expect them.
   void write_aux(const PathAovs& a, float* out) const;
  public:
@@ -217,6 +245,8 @@ class Session {
 
   std::shared_ptr<const Scene> scene_;
   RenderSettings settings_;
+  std::shared_ptr<const BakeInput> bake_;  // (null: a render)
+  std::vector<uint32_t> bake_prims_;       // per texel: its Hit::prim (UINT32_MAX: none)
   Camera camera_;
   Camera camera_pre_, camera_post_;  // the Vector pass's cameras at the previous and next frames
   PixelFilter filter_;

@@ -1093,7 +1093,8 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
   ray_state.transparent_max = uint16_t(std::min(s.transparent_bounces, 65535));
-  if (s.camera && s.differentials) s.camera->differentials(ray.dir, ray_state.dp, ray_state.dd);  // the pixel's cone
+  if (c.first_hit && c.first_dp >= 0.0f) ray_state.dp = c.first_dp, ray_state.dd = 0.0f;  // a baked texel's
+  else if (s.camera && s.differentials) s.camera->differentials(ray.dir, ray_state.dp, ray_state.dd);  // the pixel's cone
   const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
   bool emission_only = false;
@@ -1222,7 +1223,10 @@ restart: __attribute__((unused));
     ++c.rays;
     // (the catcher path resumes at the split's hit; later rays see the catchers alone)
     bool found;
-    if constexpr (kCatcher) {
+    if (__builtin_expect(c.first_hit != nullptr, 0)) {  // baking: the texel's surface
+      hit = *c.first_hit, found = true;
+      c.first_hit = nullptr;
+    } else if constexpr (kCatcher) {
       if (resume) hit = cs.at->hit, found = true;
       else found = catcher_only ? scene.intersect_catchers(ray, hit) : scene.intersect(ray, hit);
     } else {
@@ -1744,7 +1748,13 @@ restart: __attribute__((unused));
           want_data = false;
           aov->hit = true;
           aov->position = sp.p;
-          aov->normal = flip ? -sp.ns : sp.ns;
+          // Cycles' surface_shader_average_normal: the closures' normals (bump and normal maps
+          // included) weighted by their mean weights; the surface's own without any.
+          Vec3 an(0.0f);
+          for (int i = 0; i < cl.n; ++i) an += cl.c[size_t(i)].frame.n * std::fabs(average(cl.c[size_t(i)].weight));
+          const float al = length(an);
+          const Vec3 n = al > 0.0f && std::isfinite(al) ? an / al : sp.ns;
+          aov->normal = flip ? -n : n;
           if (s.indices) {
             aov->object_index = scene.object_pass_index(sp);
             aov->material_index = scene.material(sp.material).pass_index;

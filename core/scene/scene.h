@@ -693,6 +693,13 @@ class Scene {
     if (h.inst == kPointInstance) return point_bvh_.sphere(h.prim).point;
     return blases_[inst_[h.inst].blas].src_tri[h.prim];
   }
+  // Baking (docs/design/bake.md): the BLAS triangle (Hit::prim) of each triangle of instance
+  // `instance`'s mesh, in the mesh's order: UINT32_MAX where the commit dropped it (degenerate)
+  // or left the instance out. Empty for an unknown instance. After commit.
+  std::vector<uint32_t> instance_prims(uint32_t instance) const;
+  // The world-space corners of BLAS triangle `prim` (Hit::prim) of instance `instance` as
+  // the frame places them (false: no such triangle).
+  bool instance_triangle(uint32_t instance, uint32_t prim, Vec3& v0, Vec3& v1, Vec3& v2) const;
   // The flattened-scene index of a hit triangle (what a single world-space BVH would report).
   uint32_t global_prim(const Hit& h) const {
     if (h.inst == kCurveInstance) return uint32_t(stats_.triangles) + curve_bvh_.piece(h.prim).curve;  // after the triangles

@@ -208,3 +208,33 @@ Vec3 Scene::terminator_lift(const SurfacePoint& sp, Vec3 ng, float amount) const
 }
 
 }  // namespace pl
+
+namespace pl {
+
+std::vector<uint32_t> Scene::instance_prims(uint32_t instance) const {
+  if (instance >= inst_.size() || instance >= instances_.size()) return {};
+  const InstanceData& in = inst_[instance];
+  const MeshData& mesh = meshes_[instances_[instance].mesh];
+  std::vector<uint32_t> out(mesh.triangles.size(), UINT32_MAX);
+  if (in.blas == UINT32_MAX) return out;
+  // The instance's run of its BLAS (merged: [tri_base, tri_base + kept); its own: all of it).
+  const Blas& b = blases_[in.blas];
+  for (uint32_t k = in.tri_base; k < in.tri_base + in.kept && k < b.src_tri.size(); ++k)
+    if (b.src_tri[k] < out.size()) out[b.src_tri[k]] = k;
+  return out;
+}
+
+}  // namespace pl
+
+namespace pl {
+
+bool Scene::instance_triangle(uint32_t instance, uint32_t prim, Vec3& v0, Vec3& v1, Vec3& v2) const {
+  if (instance >= inst_.size()) return false;
+  const InstanceData& in = inst_[instance];
+  if (in.blas == UINT32_MAX || prim >= blases_[in.blas].tris.size()) return false;
+  const TriangleVerts tv = world_triangle(in, blases_[in.blas].tris[prim]);
+  v0 = tv.v0, v1 = tv.v1, v2 = tv.v2;
+  return true;
+}
+
+}  // namespace pl
