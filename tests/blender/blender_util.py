@@ -55,6 +55,10 @@ class RecordingLayout:
         assert hasattr(data, name), name
         self.props.append(name)
 
+    def prop_search(self, data, name, search_data, search_name, **kw):
+        assert hasattr(data, name) and hasattr(search_data, search_name), (name, search_name)
+        self.props.append(name)
+
     def separator(self, **kw):
         pass
 

@@ -208,6 +208,7 @@ def test_panels_draw_existing_properties():
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     obj = bpy.data.objects.new("O", bpy.data.meshes.new("O"))
+    world = bpy.data.worlds.new("W")  # (the light group panels draw the world's field)
     shown = set()
     for light_type in ('POINT', 'SPOT', 'SUN', 'AREA'):
         for shape in ('SQUARE', 'RECTANGLE'):
@@ -215,7 +216,7 @@ def test_panels_draw_existing_properties():
             if light_type == 'AREA':
                 light.shape = shape
             context = type("Ctx", (), {"scene": scene, "light": light, "object": obj, "engine": "PATHLIGHT",
-                                       "view_layer": scene.view_layers[0]})
+                                       "view_layer": scene.view_layers[0], "world": world})
             for cls in ui.classes:
                 layout = RecordingLayout()
                 cls.draw(type("Panel", (), {"layout": layout})(), context)
@@ -227,7 +228,7 @@ def test_panels_draw_existing_properties():
                  "transmission_bounces", "energy", "exposure", "color", "shadow_soft_size",
                  "angle", "shape", "size", "size_y", "use_shadow", "film_exposure",
                  "film_transparent", "debug_view", "use_pass_z", "use_pass_denoising_data",
-                 "use_pass_sample_count", "is_shadow_catcher"):
+                 "use_pass_sample_count", "is_shadow_catcher", "lightgroup"):
         assert name in shown, name
 
 
