@@ -84,31 +84,6 @@ def view_motion(steps, view):
     return (np.asarray(steps, np.float64) @ view.local).astype(np.float32)
 
 
-def _mix(a, b):
-    """Bob Jenkins' final mix of two 32-bit words (Cycles' hash_uint2)."""
-    M = 0xFFFFFFFF
-
-    def rot(x, k):
-        return ((x << k) | (x >> (32 - k))) & M
-    c = (0xdeadbeef + (2 << 2) + 13) & M
-    a, b = (a + c) & M, (b + c) & M
-    c ^= b
-    c = (c - rot(b, 14)) & M
-    a ^= c
-    a = (a - rot(c, 11)) & M
-    b ^= a
-    b = (b - rot(a, 25)) & M
-    c ^= b
-    c = (c - rot(b, 16)) & M
-    a ^= c
-    a = (a - rot(c, 4)) & M
-    b ^= a
-    b = (b - rot(a, 14)) & M
-    c ^= b
-    c = (c - rot(b, 24)) & M
-    return c
-
-
 def view_seed(seed, index):
     """The seed of view `index`: the render's for the first, decorrelated for the others (as
     Cycles' seed += hash_uint2(seed, hash_uint2(index * 0xdeadbeef, 0)); kept within the
@@ -116,4 +91,6 @@ def view_seed(seed, index):
     if index == 0:
         return int(seed)
     s = int(seed) & 0xFFFFFFFF
-    return (s + _mix(s, _mix((index * 0xdeadbeef) & 0xFFFFFFFF, 0))) % (1 << 31)
+    from ..core import get_core
+    h = get_core().hash_uint2
+    return (s + h(s, h((index * 0xdeadbeef) & 0xFFFFFFFF, 0))) % (1 << 31)

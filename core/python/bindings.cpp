@@ -2514,6 +2514,9 @@ PYBIND11_MODULE(pathlight_core, m) {
       },
       py::arg("name"), "Cycles' random id of a (non-instanced) object named `name`.");
   m.def(
+      "hash_uint2", [](uint32_t a, uint32_t b) { return lookup3::hash(a, b); }, py::arg("a"), py::arg("b"),
+      "Cycles' hash_uint2: lookup3 of the two 32-bit words (a view's seed under multiview).");
+  m.def(
       "hash_uint2_to_float", [](uint32_t a, uint32_t b) { return lookup3::to_unit(lookup3::hash(a, b)); },
       py::arg("a"), py::arg("b"),
       "Cycles' hash_uint2_to_float: lookup3 of (a, b) over 0xFFFFFFFF, in float (Particle Info's Random "

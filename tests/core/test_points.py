@@ -348,3 +348,14 @@ def test_moving_cloud_is_hit_where_it_is_at_the_ray_time():
     c = steps[1, :3, 3]
     assert st.intersect(np.array([[c[0], 0, 5]], np.float32), np.array([[0, 0, -1.0]], np.float32), time=0.0)[0][0] \
         == pytest.approx(4.9, abs=1e-4)
+
+
+def test_hash_uint2_is_cycles_lookup3():
+    """The core's hash_uint2 (a view's seed under multiview, addon/export/views.py) is the
+    reference lookup3 above, on the words' edges and a spread of others."""
+    pc = core()
+    rng = np.random.default_rng(5)
+    pairs = [(0, 0), (1, 0), (0, 1), (0xFFFFFFFF, 0xFFFFFFFF)] + [tuple(int(v) for v in p)
+                                                                for p in rng.integers(0, 2**32, (64, 2))]
+    for a, b in pairs:
+        assert pc.hash_uint2(a, b) / float(0xFFFFFFFF) == _hash_uint2_to_float(a, b), (a, b)
