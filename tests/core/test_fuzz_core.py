@@ -122,7 +122,7 @@ PANORAMA_TYPES = ["EQUIRECTANGULAR", "EQUIANGULAR_CUBEMAP_FACE", "MIRRORBALL", "
 SETTINGS_FIELDS = ("width", "height", "samples", "max_bounces", "seed", "threads", "tile_size", "use_nee",
                    "sampler", "adaptive_threshold", "adaptive_min_samples", "time_limit",
                    "diffuse_bounces", "glossy_bounces", "transmission_bounces", "clamp_direct",
-                   "clamp_indirect")
+                   "clamp_indirect", "filter_glossy", "caustics_reflective", "caustics_refractive")
 
 
 def look_at(eye, target):
@@ -395,6 +395,10 @@ def render_fields(draw):
     if draw(st.integers(0, 3)) == 3:  # Clamping: tiny limits cut every contribution
         f["clamp_direct"] = draw(st.floats(0, 4, width=32) | any_float)
         f["clamp_indirect"] = draw(st.floats(0, 4, width=32) | any_float)
+    if draw(st.integers(0, 3)) == 3:  # Filter Glossy and the caustics toggles
+        f["filter_glossy"] = draw(st.floats(0, 4, width=32) | any_float)
+        f["caustics_reflective"] = draw(st.booleans())
+        f["caustics_refractive"] = draw(st.booleans())
     if draw(st.integers(0, 11)) == 11:  # an invalid or odd value somewhere
         name = draw(st.sampled_from(SETTINGS_FIELDS))
         f[name] = draw(st.integers(-2, 70000) | any_float | st.sampled_from(["x", None]))
