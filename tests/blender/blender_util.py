@@ -63,6 +63,24 @@ class RecordingLayout:
         pass
 
 
+def core_session(scene):
+    """The scene rendered to completion by a core Session held by the test, through the add-on's
+    export and render settings as the scene's Pathlight settings stand (for what a Blender
+    render result cannot show: sample counts, timing, the film before Blender's result)."""
+    from addon import session
+    from addon.core import get_core
+    from addon.export import export_scene
+    from addon.scene_writer import to_core
+    pc = get_core()
+    warnings = []
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings.append)
+    sess = pc.Session(to_core(pc, data, warnings.append), session.render_settings(pc, scene))
+    sess.start()
+    while not sess.wait(1.0):
+        pass
+    return sess
+
+
 def empty_scene_with_camera(resolution=32):
     """The factory-empty scene with a camera at (0, -6, 0) looking at the origin along +y."""
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)

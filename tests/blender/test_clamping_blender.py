@@ -6,14 +6,12 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import RecordingLayout, core_available, load_addon, open_fixture, render_to_array
+from blender_util import RecordingLayout, core_available, core_session, load_addon, open_fixture, render_to_array
 from light_scenes import diffuse_set, emission_material, uv_sphere
 from material_scenes import region_means
 
 load_addon()
 from addon import session, ui, viewport_update  # noqa: E402
-from addon.export import export_scene  # noqa: E402
-from addon.scene_writer import to_core  # noqa: E402
 
 needs_core = pytest.mark.skipif(not core_available(), reason="pathlight_core is not built")
 NAMES = ("sample_clamp_direct", "sample_clamp_indirect")
@@ -64,15 +62,7 @@ def firefly_scene(size=32):
 def core_film(scene):
     """The scene rendered by a core Session with the add-on's export and settings (as the
     scene's Pathlight settings stand), row 0 = top as render_to_array's."""
-    from addon.core import get_core
-    pc = get_core()
-    warnings = []
-    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings.append)
-    sess = pc.Session(to_core(pc, data, warnings.append), session.render_settings(pc, scene))
-    sess.start()
-    while not sess.wait(1.0):
-        pass
-    return np.asarray(sess.film())[::-1]
+    return np.asarray(core_session(scene).film())[::-1]
 
 
 @needs_core

@@ -8,7 +8,8 @@ import bpy
 import numpy as np
 import pytest
 
-from blender_util import RecordingLayout, core_available, core_has, load_addon, render_to_array, BOX_FILTER
+from blender_util import (RecordingLayout, core_available, core_has, core_session, load_addon, render_to_array,
+                          BOX_FILTER)
 from light_scenes import (add_light, box, camera, diffuse_material, diffuse_set,
                           emission_material, empty_scene, load_image, plane, synthetic_hdr, world_image)
 from material_scenes import region_means
@@ -283,19 +284,11 @@ def soft_shadow_scene(size=32):
 def core_render(scene, **props):
     """Render through the add-on's export and settings, but with a core Session held here,
     for what a Blender render result cannot show (sample counts, timing)."""
-    from addon.core import get_core
-    pc = get_core()
     # The 1-pixel box, as render_to_array's default (these tests predate the pixel filters).
     props = {"filter_type": 'BOX', "filter_width": 1.0, **props}
     for name, value in props.items():
         setattr(scene.pathlight, name, value)
-    warnings = []
-    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings.append)
-    sess = pc.Session(to_core(pc, data, warnings.append), session.render_settings(pc, scene))
-    sess.start()
-    while not sess.wait(1.0):
-        pass
-    return sess
+    return core_session(scene)
 
 
 @needs_lights
