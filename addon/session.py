@@ -11,7 +11,7 @@ import numpy as np
 
 from . import render_cache
 from .core import get_core
-from .export import ExportCancelled, ExportError, export_scene
+from .export import MAX_LIGHT_GROUPS, ExportCancelled, ExportError, export_scene
 from .export.motion import add_motion, add_pass_motion
 from .export.world import warn_open_world_volume
 from .export.camera import camera_params
@@ -358,6 +358,8 @@ def render(engine, depsgraph):
         if aovs:
             settings.shader_aovs = [a[1] for a in aovs]
         groups = [] if engine.is_preview or scene.pathlight.debug_view == 'BVH' else light_group_passes(view_layer)
+        if len(groups) == MAX_LIGHT_GROUPS and len([g for g in view_layer.lightgroups if g.name]) > MAX_LIGHT_GROUPS:
+            warn(f"Pathlight renders the first {MAX_LIGHT_GROUPS} light groups; the others' passes are not added")
         if groups:
             settings.light_groups = len(groups)
         if "UV" in names and "" in data.uv_sets.names:

@@ -262,3 +262,18 @@ def test_persistent_data_follows_group_changes(tmp_path):
     finally:
         sc.render.use_persistent_data = False
         addon.render_cache.clear()
+
+
+def test_more_groups_than_the_core_keeps_are_warned(tmp_path, caplog):
+    """A view layer with more light groups than the core keeps (64) renders the first 64 passes
+    and says so in the report, not silently."""
+    import logging
+    from addon.export import MAX_LIGHT_GROUPS
+    sc = box_scene(8)
+    for i in range(MAX_LIGHT_GROUPS + 2 - len(sc.view_layers[0].lightgroups)):
+        sc.view_layers[0].lightgroups.add(name=f"extra{i}")
+    with caplog.at_level(logging.WARNING, logger="addon.session"):
+        out = render_passes(sc, 'PATHLIGHT', tmp_path / "many.exr", 1)
+    assert any(f"first {MAX_LIGHT_GROUPS} light groups" in r.getMessage() for r in caplog.records)
+    names = {k.split(".")[0] for k in out if k.startswith("Combined_")}
+    assert len(names) == MAX_LIGHT_GROUPS
