@@ -26,6 +26,8 @@ import logging
 
 import numpy as np
 
+from . import denoise as oidn
+
 from .export import export_scene
 from .export.light import collect_lights
 from .export.light_linking import attach_to_lights, light_links
@@ -64,6 +66,13 @@ class ViewportSession:
         # instancer), and the names that instancers also use (those re-export when moved).
         self.instance_index = {}
         self.instanced_names = frozenset()
+        # Viewport denoising (Open Image Denoise): its settings (None: off), and the last denoised
+        # image (session, samples it shows, image), redone when the samples shown have doubled
+        # since and at the last sample: a denoise costs about as much as many samples.
+        self.denoiser = None
+        self.denoise_start = 1
+        self._denoised = None
+        self.counters["denoises"] = 0
 
     # ------------------------------------------------------------ scene sync
 
@@ -166,6 +175,10 @@ class ViewportSession:
         self._base_settings.sample_offset = 0
         for name, value in pixel_pattern_settings(scene.pathlight, None, viewport=True).items():
             setattr(self._base_settings, name, value)
+        self.denoiser = oidn.settings(scene.pathlight, viewport=True)
+        self.denoise_start = scene.pathlight.preview_denoising_start_sample
+        if self.denoiser is not None:  # the guides it reads
+            self._base_settings.passes = oidn.aux_passes(self.denoiser["input_passes"])
         try:
             self.scene_camera = camera_params(scene, depsgraph, self.warn)
         except Exception:  # no active camera: only the free view can be shown
@@ -288,12 +301,35 @@ class ViewportSession:
 
     def display(self):
         """(film float32 (H, W, 4) row 0 = bottom, samples done) of the best render so far,
-        or None before anything rendered."""
-        if self.full is not None and self.full.progress()["samples_done"] > 0:
-            return self.full.film(), self.full.progress()["samples_done"]
-        if self.low is not None and self.low.progress()["samples_done"] > 0:
-            return self.low.film(), self.low.progress()["samples_done"]
+        or None before anything rendered. With Viewport Denoise, from the start sample on, the
+        film denoised (see _denoise)."""
+        for sess in (self.full, self.low):
+            if sess is not None:
+                done = sess.progress()["samples_done"]
+                if done > 0:
+                    film = sess.film()
+                    if self.denoiser is not None and done >= self.denoise_start:
+                        film = self._denoise(sess, film, done)
+                    return film, done
         return None
+
+    def _denoise(self, sess, film, done):
+        """The film denoised: again when the samples shown have doubled since the last denoise
+        of this session, or it has finished; in between the last denoised image. On a failure the
+        noisy film, with one warning, and no more tries until the settings change."""
+        last = self._denoised
+        finished = sess.is_finished()
+        if last is not None and last[0] is sess and (done < 2 * last[1] and not (finished and done != last[1])):
+            return last[2]
+        try:
+            image, _ = oidn.denoise_film(film, sess.film_pass, **self.denoiser)
+        except (oidn.DenoiseError, ValueError) as e:
+            self.warn(f"Viewport denoising failed, the image is not denoised: {e}")
+            self.denoiser = None
+            return film
+        self.counters["denoises"] += 1
+        self._denoised = (sess, done, image)
+        return image
 
     def stop(self):
         """Cancels the running sessions and drops them (which unlocks the scene for edits)."""
@@ -305,6 +341,7 @@ class ViewportSession:
                 except RuntimeError as e:  # a failed render: nothing more to stop
                     log.warning("viewport render failed: %s", e)
         self.low = self.full = None
+        self._denoised = None
 
     def free(self):
         self.stop()
