@@ -359,3 +359,27 @@ def test_build_py_merge_denoises_with_the_merged_guides(tmp_path):
     truth = 0.1 + 0.5 * wall
     assert rmse(den, truth) < 0.5 * rmse(plain, truth), (rmse(den, truth), rmse(plain, truth))
     np.testing.assert_array_equal(den[..., 3], plain[..., 3])
+
+
+@needs_core
+@needs_oidn
+def test_each_stereo_view_is_denoised(monkeypatch):
+    sc = cornell()
+    sc.render.use_multiview = True
+    sc.render.views_format = 'STEREO_3D'
+    sc.camera.data.stereo.interocular_distance = 0.2
+    noisy = render_to_array(sc, samples=NOISY_SPP, seed=2)
+    shapes = []
+    real = oidn.denoise
+
+    def spy(color, *a, **kw):
+        shapes.append(color.shape)
+        return real(color, *a, **kw)
+
+    monkeypatch.setattr(oidn, "denoise", spy)
+    denoised = render_to_array(sc, samples=NOISY_SPP, seed=2, use_denoising=True)
+    assert set(denoised) == {"left", "right"} and len(shapes) == 2
+    for view in ("left", "right"):
+        assert np.abs(denoised[view] - noisy[view]).max() > 1e-3, view
+        np.testing.assert_array_equal(denoised[view][..., 3], noisy[view][..., 3])
+    assert not np.array_equal(denoised["left"], denoised["right"])
