@@ -383,3 +383,20 @@ def test_each_stereo_view_is_denoised(monkeypatch):
         assert np.abs(denoised[view] - noisy[view]).max() > 1e-3, view
         np.testing.assert_array_equal(denoised[view][..., 3], noisy[view][..., 3])
     assert not np.array_equal(denoised["left"], denoised["right"])
+
+
+@needs_core
+@needs_oidn
+def test_a_cancelled_render_is_denoised_too(tmp_path):
+    from addon import session
+    sc = cornell(use_denoising=True)
+    sc.view_layers[0].pathlight.use_pass_denoising_data = True
+    session.set_progress_listener(lambda info: info.get("samples_done", 0) >= 1)  # Esc after a sample
+    try:
+        out = layers(sc, tmp_path, samples=100000, seed=2)
+    finally:
+        session.set_progress_listener(None)
+    denoised, noisy = out["Combined"], out["Noisy Image"]
+    assert noisy[..., :3].max() > 0
+    assert np.abs(denoised[..., :3] - noisy[..., :3]).max() > 1e-3
+    np.testing.assert_array_equal(denoised[..., 3], noisy[..., 3])
