@@ -388,7 +388,7 @@ class ViewportSession:
                 except RuntimeError as e:  # a failed render: nothing more to stop
                     log.warning("viewport render failed: %s", e)
         self.low = self.full = None
-        self._denoised = None
+        self._denoised = self._job = None  # (a denoise still running is dropped when done)
 
     def free(self):
         self.stop()
