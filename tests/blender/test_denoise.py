@@ -404,3 +404,19 @@ def test_a_cancelled_render_is_denoised_too(tmp_path):
     assert noisy[..., :3].max() > 0
     assert np.abs(denoised[..., :3] - noisy[..., :3]).max() > 1e-3
     np.testing.assert_array_equal(denoised[..., 3], noisy[..., 3])
+
+
+def test_compositor_shows_the_noisy_image_socket():
+    sc = cornell()
+    sc.use_nodes = True
+    rl = sc.node_tree.nodes.new("CompositorNodeRLayers")
+    names = lambda: {s.name for s in rl.outputs if s.enabled}  # noqa: E731
+    sc.view_layers[0].pathlight.use_pass_denoising_data = True
+    rl.update()
+    assert "Denoising Albedo" in names() and "Noisy Image" not in names()
+    sc.pathlight.use_denoising = True  # (its update requeries the passes, as Cycles')
+    rl.update()
+    assert "Noisy Image" in names()
+    sc.view_layers[0].pathlight.use_pass_denoising_data = False
+    rl.update()
+    assert "Noisy Image" not in names()
