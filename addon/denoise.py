@@ -44,6 +44,14 @@ class DenoiseError(RuntimeError):
     """Open Image Denoise could not be loaded or failed; the message says why."""
 
 
+class DenoiseCancelled(DenoiseError):
+    """The caller's cancel() said stop: the image is left as it was (OIDN's output is undefined)."""
+
+
+# bool (*OIDNProgressMonitorFunction)(void* userPtr, double n): False cancels the filter.
+_PROGRESS = ctypes.CFUNCTYPE(ctypes.c_bool, ctypes.c_void_p, ctypes.c_double)
+
+
 def aux_passes(input_passes):
     """The core passes that denoising with `input_passes` reads (besides Combined)."""
     return {'RGB': [], 'RGB_ALBEDO': [ALBEDO_PASS]}.get(input_passes, [ALBEDO_PASS, NORMAL_PASS])
@@ -119,6 +127,7 @@ def _declare(lib):
         "oidnSetFilterInt": ([p, c, i], None),
         "oidnCommitFilter": ([p], None),
         "oidnExecuteFilter": ([p], None),
+        "oidnSetFilterProgressMonitorFunction": ([p, _PROGRESS, p], None),
         "oidnReleaseFilter": ([p], None),
     }
     for name, (args, res) in sigs.items():
@@ -207,14 +216,16 @@ def _set_image(lib, filt, name, arr):
     lib.oidnSetSharedFilterImage(filt, name, arr.ctypes.data, _FORMAT_FLOAT3, w, h, 0, 4 * c, 4 * c * w)
 
 
-def denoise(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH'):
+def denoise(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH', cancel=None):
     """Denoises the RGB of `color` (float32 (H, W, 3 or 4), C-contiguous, scene-linear HDR) in
     place; a fourth channel (alpha) is left as it is. albedo / normal: (H, W, 3) guides (the
     Denoising Albedo / Normal passes) or None; a normal needs an albedo (OIDN's rule). They are
     copied, so the caller's passes are never changed. prefilter as Cycles': 'ACCURATE' first
     denoises the guides with their own filters and then trusts them (cleanAux), 'FAST' uses them
     as they are, noise and all, 'NONE' trusts them as they are (noise-free guides). Returns the
-    seconds it took; DenoiseError (the library's message) when the library is missing or fails."""
+    seconds it took; DenoiseError (the library's message) when the library is missing or fails.
+    cancel: a function polled by the library while it filters (from the calling thread); True
+    stops it: DenoiseCancelled, and `color` is then restored (a partial result is undefined)."""
     _image(color, "color")
     if prefilter not in PREFILTERS or quality not in QUALITIES:
         raise ValueError(f"prefilter {prefilter!r} / quality {quality!r}")
@@ -235,14 +246,22 @@ def denoise(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH
         lib, dev = _device()
         filters = []
 
+        monitor = _PROGRESS(lambda user, n: not cancel()) if cancel is not None else None
+
         def run(filt, what):
             lib.oidnSetFilterInt(filt, b"quality", _QUALITY[quality])
+            if monitor is not None:
+                lib.oidnSetFilterProgressMonitorFunction(filt, monitor, None)
             lib.oidnCommitFilter(filt)
             code, text = _error(lib, dev)
             if code == _ERROR_NONE:
+                if cancel is not None and cancel():
+                    raise DenoiseCancelled("denoising cancelled")
                 lib.oidnExecuteFilter(filt)
                 code, text = _error(lib, dev)
-            if code not in (_ERROR_NONE, _ERROR_CANCELLED):
+            if code == _ERROR_CANCELLED:
+                raise DenoiseCancelled("denoising cancelled")
+            if code != _ERROR_NONE:
                 raise DenoiseError(f"Open Image Denoise failed {what} ({w}x{h}): {text}")
 
         def new_filter():
@@ -252,6 +271,7 @@ def denoise(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH
             filters.append(filt)
             return filt
 
+        saved = color.copy() if cancel is not None else None
         try:
             _error(lib, dev)  # (clear anything left from an earlier call on this thread)
             if prefilter == 'ACCURATE':
@@ -268,6 +288,9 @@ def denoise(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH
             lib.oidnSetFilterBool(filt, b"hdr", True)
             lib.oidnSetFilterBool(filt, b"cleanAux", prefilter in ('NONE', 'ACCURATE'))
             run(filt, "denoising")
+        except DenoiseCancelled:
+            color[...] = saved
+            raise
         finally:
             for filt in filters:
                 lib.oidnReleaseFilter(filt)
@@ -285,13 +308,14 @@ def settings(props, viewport=False):
             "quality": getattr(props, prefix + "quality")}
 
 
-def denoise_film(film, film_pass, input_passes='RGB_ALBEDO_NORMAL', prefilter='ACCURATE', quality='HIGH'):
+def denoise_film(film, film_pass, input_passes='RGB_ALBEDO_NORMAL', prefilter='ACCURATE', quality='HIGH',
+                 cancel=None):
     """A denoised copy of `film` ((H, W, 4) float32, RGBA; alpha kept) with the guides that
     `input_passes` names read through film_pass(name) (a core Session's film_pass). Returns
     (image, seconds)."""
     image = np.array(film, np.float32, order="C", copy=True)
     guides = [film_pass(name) for name in aux_passes(input_passes)]
-    seconds = denoise(image, *guides, prefilter=prefilter, quality=quality)
+    seconds = denoise(image, *guides, prefilter=prefilter, quality=quality, cancel=cancel)
     return image, seconds
 
 

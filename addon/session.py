@@ -185,13 +185,34 @@ def render_denoiser(scene, engine, warn):
 
 def _denoised(engine, sess, image, opts, warn, view=""):
     """Combined denoised (a new array; alpha kept), or None with a warning when the library is
-    missing or fails: the noisy image stays."""
+    missing or fails: the noisy image stays. The filter runs on a worker thread while this one
+    (Blender's) watches for Esc, which stops it (noisy image, log line)."""
     engine.update_stats("", "Pathlight | Denoising" + (f" view {view}" if view else ""))
-    try:
-        out, seconds = oidn.denoise_film(image, sess.film_pass, **opts)
-    except (oidn.DenoiseError, ValueError) as e:
-        warn(f"Denoising failed, the image is not denoised: {e}")
+    stop = threading.Event()
+    box = {}
+
+    def work():
+        try:
+            box["out"] = oidn.denoise_film(image, sess.film_pass, cancel=stop.is_set, **opts)
+        except BaseException as e:  # handed to the engine's thread below
+            box["error"] = e
+
+    worker = threading.Thread(target=work, name="pathlight-denoise", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.1)
+        if not stop.is_set() and engine.test_break():
+            stop.set()
+    error = box.get("error")
+    if isinstance(error, oidn.DenoiseCancelled):
+        log.info("Pathlight: denoising cancelled; the image is not denoised")
         return None
+    if isinstance(error, (oidn.DenoiseError, ValueError)):
+        warn(f"Denoising failed, the image is not denoised: {error}")
+        return None
+    if error is not None:
+        raise error
+    out, seconds = box["out"]
     h, w = image.shape[:2]
     log.info("Pathlight: denoised %dx%d%s in %.2f s (Open Image Denoise: %s)", w, h,
              f" (view {view})" if view else "", seconds, oidn.describe(opts))

@@ -420,3 +420,28 @@ def test_compositor_shows_the_noisy_image_socket():
     sc.view_layers[0].pathlight.use_pass_denoising_data = False
     rl.update()
     assert "Noisy Image" not in names()
+
+
+@needs_oidn
+def test_cancel_stops_the_filter_and_keeps_the_image():
+    rng = np.random.default_rng(5)
+    noisy = rng.random((256, 256, 4)).astype(np.float32)
+    polls = []
+
+    def cancel_soon():  # polled by the library while it filters
+        polls.append(1)
+        return len(polls) > 2
+
+    img = noisy.copy()
+    with pytest.raises(oidn.DenoiseCancelled):
+        oidn.denoise(img, cancel=cancel_soon)
+    assert len(polls) > 2  # the library polled it (not only the check before executing)
+    np.testing.assert_array_equal(img, noisy)
+    with pytest.raises(oidn.DenoiseCancelled):
+        oidn.denoise(img, cancel=lambda: True)
+    np.testing.assert_array_equal(img, noisy)
+    done = noisy.copy()
+    oidn.denoise(done, cancel=lambda: False)
+    plain = noisy.copy()
+    oidn.denoise(plain)
+    np.testing.assert_array_equal(done, plain)
