@@ -210,8 +210,10 @@ def _denoised(engine, sess, image, opts, warn, view=""):
     if isinstance(error, (oidn.DenoiseError, ValueError)):
         warn(f"Denoising failed, the image is not denoised: {error}")
         return None
-    if error is not None:
-        raise error
+    if error is not None:  # a bug: the render is still worth keeping, noisy
+        log.error("denoising failed", exc_info=error)
+        warn(f"Denoising failed, the image is not denoised: {type(error).__name__}: {error}")
+        return None
     out, seconds = box["out"]
     h, w = image.shape[:2]
     log.info("Pathlight: denoised %dx%d%s in %.2f s (Open Image Denoise: %s)", w, h,

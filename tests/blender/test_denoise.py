@@ -108,9 +108,9 @@ def test_each_setting_reaches_the_denoiser(monkeypatch):
     seen = []
     real = oidn.denoise
 
-    def spy(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH'):
+    def spy(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH', **kw):
         seen.append((albedo is not None, normal is not None, prefilter, quality))
-        return real(color, albedo, normal, prefilter=prefilter, quality=quality)
+        return real(color, albedo, normal, prefilter=prefilter, quality=quality, **kw)
 
     monkeypatch.setattr(oidn, "denoise", spy)
     images = {}
