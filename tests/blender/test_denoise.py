@@ -3,6 +3,7 @@ ships it, loaded by addon/denoise.py, driven by the render (addon/session.py) an
 (addon/viewport.py). docs/design/passes.md "Denoising"."""
 
 import logging
+from pathlib import Path
 
 import bpy
 import numpy as np
@@ -216,6 +217,10 @@ def test_library_is_found_beside_bpy():
     found = oidn.library_candidates()
     assert found, "no libOpenImageDenoise in this process or beside bpy / Blender"
     assert all(p.is_file() for p in found)
+    assert any(p.parent.name == "lib" and p.parent.parent.name == "bpy" for p in found), found
+    if oidn.available() is True:  # once loaded, the copy in the process comes first
+        loaded = oidn._loaded_copy()
+        assert loaded is not None and oidn.library_candidates()[0] == Path(loaded)
 
 
 class _FakeSession:
