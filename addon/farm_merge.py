@@ -42,10 +42,13 @@ def _read(path):
         bpy.data.images.remove(img)
 
 
-def merge_pieces(pieces, output):
+def merge_pieces(pieces, output, denoise=None):
     """pieces: [(path, sample_offset, samples)] of one frame; writes their sample-weighted mean
     to `output` (32-bit float RGBA OpenEXR). Refuses overlapping sample ranges (they would count
-    samples twice) and pieces of different sizes. Returns the total number of samples."""
+    samples twice) and pieces of different sizes. denoise: the scene's denoise settings
+    (denoise.settings) or None; the pieces are not denoised (a partial range never is), so the
+    merged frame is, here, from its colour alone (the RGBA pieces carry no albedo or normal).
+    Returns the total number of samples."""
     if not pieces:
         raise ValueError("nothing to merge")
     ranges = sorted((int(o), int(n)) for _, o, n in pieces)
@@ -65,6 +68,8 @@ def merge_pieces(pieces, output):
         acc += int(n) * pixels.astype(np.float64)
         total += int(n)
     acc /= total
+    if denoise is not None:
+        acc = _denoise_merged(acc, size, denoise)
     img = bpy.data.images.new("Pathlight merge", size[0], size[1], alpha=True, float_buffer=True)
     try:
         img.colorspace_settings.name = 'Non-Color'
@@ -77,6 +82,21 @@ def merge_pieces(pieces, output):
     return total
 
 
+def _denoise_merged(pixels, size, opts):
+    """The merged RGBA pixels (flat, Blender's order) denoised from their colour, or as they
+    are, with a message, when Open Image Denoise is missing or fails."""
+    from . import denoise as oidn
+    image = pixels.astype(np.float32).reshape(size[1], size[0], 4)
+    try:
+        seconds = oidn.denoise(image, prefilter=opts["prefilter"], quality=opts["quality"])
+    except (oidn.DenoiseError, ValueError) as e:
+        print(f"Pathlight merge: not denoised: {e}")
+        return pixels
+    print(f"Pathlight merge: denoised the merged frame from its colour alone in {seconds:.2f} s "
+          "(the pieces hold no albedo or normal)")
+    return image.reshape(-1)
+
+
 def merge_frame(frame, pieces, output_pattern):
     """merge_pieces for pieces given as output patterns: [(pattern, sample_offset, samples)]
     with the frame's files named as Blender names them. Returns the merged file's path."""
@@ -85,5 +105,7 @@ def merge_frame(frame, pieces, output_pattern):
         raise ValueError("the scene renders several views (Stereoscopy): merge its pieces with "
                          "`python3 build.py merge`, which keeps every view")
     output = frame_file(output_pattern, frame)
-    merge_pieces([(frame_file(p, frame), o, n) for p, o, n in pieces], output)
+    from .denoise import settings
+    merge_pieces([(frame_file(p, frame), o, n) for p, o, n in pieces], output,
+                 denoise=settings(bpy.context.scene.pathlight))
     return output

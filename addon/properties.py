@@ -16,6 +16,26 @@ def _requery_passes(self, context):
         view_layer.update_render_passes()
 
 
+# Cycles' items (intern/cycles/blender/addon/properties.py), same identifiers and numbers.
+_DENOISE_INPUTS = (
+    ('RGB', "None", "Don't use utility passes for denoising", 1),
+    ('RGB_ALBEDO', "Albedo", "Use albedo pass for denoising", 2),
+    ('RGB_ALBEDO_NORMAL', "Albedo and Normal", "Use albedo and normal passes for denoising", 3),
+)
+_DENOISE_PREFILTERS = (
+    ('NONE', "None", "No prefiltering, use when guiding passes are noise-free", 1),
+    ('FAST', "Fast", "Denoise color and guiding passes together. Improves quality when guiding passes "
+     "are noisy using least amount of extra processing time", 2),
+    ('ACCURATE', "Accurate", "Prefilter noisy guiding passes before denoising color. Improves quality "
+     "when guiding passes are noisy using extra processing time", 3),
+)
+_DENOISE_QUALITIES = (
+    ('HIGH', "High", "High quality", 1),
+    ('BALANCED', "Balanced", "Balanced between performance and quality", 2),
+    ('FAST', "Fast", "High performance", 3),
+)
+
+
 class PathlightSceneSettings(bpy.types.PropertyGroup):
     samples: IntProperty(
         name="Samples", description="Samples per pixel for the final render",
@@ -290,6 +310,49 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         ),
         default='AUTO',
     )
+    # Denoising with Open Image Denoise (addon/denoise.py), under Cycles' names and meanings.
+    use_denoising: BoolProperty(
+        name="Denoise",
+        description="Denoise the rendered image with Open Image Denoise (Blender's own library, as "
+                    "Cycles) after the last sample. Off by default in Pathlight (on in Cycles), so "
+                    "that renders stay unchanged unless asked",
+        default=False, update=_requery_passes,
+    )
+    denoising_input_passes: EnumProperty(
+        name="Passes", description="Passes used by the denoiser to distinguish noise from shader "
+        "and geometry detail",
+        items=_DENOISE_INPUTS, default='RGB_ALBEDO_NORMAL',
+    )
+    denoising_prefilter: EnumProperty(
+        name="Prefilter", description="Prefilter the input passes (albedo, normal) before denoising",
+        items=_DENOISE_PREFILTERS, default='ACCURATE',
+    )
+    denoising_quality: EnumProperty(
+        name="Quality", description="Overall denoising quality (higher: slower)",
+        items=_DENOISE_QUALITIES, default='HIGH',
+    )
+    use_preview_denoising: BoolProperty(
+        name="Viewport Denoise",
+        description="Denoise the viewport's image with Open Image Denoise from the start sample on "
+                    "(when the samples shown have doubled since the last denoise, and at the last)",
+        default=False,
+    )
+    preview_denoising_input_passes: EnumProperty(
+        name="Passes", description="Passes used by the viewport's denoiser",
+        items=_DENOISE_INPUTS, default='RGB_ALBEDO',
+    )
+    preview_denoising_prefilter: EnumProperty(
+        name="Prefilter", description="Prefilter the viewport's input passes before denoising",
+        items=_DENOISE_PREFILTERS, default='FAST',
+    )
+    preview_denoising_quality: EnumProperty(
+        name="Quality", description="Viewport denoising quality (higher: slower)",
+        items=_DENOISE_QUALITIES, default='BALANCED',
+    )
+    preview_denoising_start_sample: IntProperty(
+        name="Start Sample", description="Sample to start denoising the viewport at",
+        default=1, min=1, max=1 << 24, soft_max=4096,
+    )
     use_general_kernel: BoolProperty(
         name="General Kernel",
         description="Render with the general integrator kernel instead of the one specialised for "
@@ -302,7 +365,8 @@ class PathlightViewLayerSettings(bpy.types.PropertyGroup):
     """Passes Blender's view layer has no switch for (the others use view_layer.use_pass_*)."""
     use_pass_denoising_data: BoolProperty(
         name="Denoising Data",
-        description="Denoising Normal and Denoising Albedo passes, for the compositor's Denoise node",
+        description="Denoising Normal and Denoising Albedo passes, for the compositor's Denoise node; "
+                    "with Denoise on, also the Noisy Image pass (Combined before denoising)",
         default=False, update=_requery_passes,
     )
     use_pass_sample_count: BoolProperty(

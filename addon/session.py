@@ -9,6 +9,7 @@ import time
 import bpy
 import numpy as np
 
+from . import denoise as oidn
 from . import render_cache
 from .core import get_core
 from .export import MAX_LIGHT_GROUPS, ExportCancelled, ExportError, export_scene
@@ -149,6 +150,75 @@ def update_render_passes(engine, scene, view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
     for name, channels, chan_id, socket in shader_aovs(view_layer) + light_group_passes(view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
+    if noisy_image_pass(scene, view_layer):
+        engine.register_pass(scene, view_layer, NOISY_IMAGE, 4, "RGBA", 'COLOR')
+
+
+NOISY_IMAGE = "Noisy Image"  # Cycles' pass: Combined before denoising
+
+
+def noisy_image_pass(scene, view_layer):
+    """Whether the view layer gets Cycles' Noisy Image pass: Denoise and Denoising Data on."""
+    return bool(scene.pathlight.use_denoising and view_layer.pathlight.use_pass_denoising_data)
+
+
+def partial_sample_range(props):
+    """Whether this render is one piece of a frame split into sample ranges (docs/farm.md):
+    a Sample Offset, or Frame Samples beyond this piece's end. Such pieces are not denoised."""
+    return props.sample_offset > 0 or props.frame_samples > props.sample_offset + props.samples
+
+
+def render_denoiser(scene, engine, warn):
+    """The final render's denoise settings ({input_passes, prefilter, quality}; None: none),
+    with a log line where Denoise is on but this render is not denoised."""
+    opts = oidn.settings(scene.pathlight)
+    if opts is None or engine.is_preview:  # (material thumbnails: not denoised)
+        return None
+    if scene.pathlight.debug_view == 'BVH':
+        return None
+    if partial_sample_range(scene.pathlight):
+        log.info("Pathlight: Denoise is on, but this render is one piece of a split frame (Sample Offset / "
+                 "Frame Samples): not denoised; denoise the merged frame")
+        return None
+    return opts
+
+
+def _denoised(engine, sess, image, opts, warn, view=""):
+    """Combined denoised (a new array; alpha kept), or None with a warning when the library is
+    missing or fails: the noisy image stays. The filter runs on a worker thread while this one
+    (Blender's) watches for Esc, which stops it (noisy image, log line)."""
+    engine.update_stats("", "Pathlight | Denoising" + (f" view {view}" if view else ""))
+    stop = threading.Event()
+    box = {}
+
+    def work():
+        try:
+            box["out"] = oidn.denoise_film(image, sess.film_pass, cancel=stop.is_set, **opts)
+        except BaseException as e:  # handed to the engine's thread below
+            box["error"] = e
+
+    worker = threading.Thread(target=work, name="pathlight-denoise", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.1)
+        if not stop.is_set() and engine.test_break():
+            stop.set()
+    error = box.get("error")
+    if isinstance(error, oidn.DenoiseCancelled):
+        log.info("Pathlight: denoising cancelled; the image is not denoised")
+        return None
+    if isinstance(error, (oidn.DenoiseError, ValueError)):
+        warn(f"Denoising failed, the image is not denoised: {error}")
+        return None
+    if error is not None:  # a bug: the render is still worth keeping, noisy
+        log.error("denoising failed", exc_info=error)
+        warn(f"Denoising failed, the image is not denoised: {type(error).__name__}: {error}")
+        return None
+    out, seconds = box["out"]
+    h, w = image.shape[:2]
+    log.info("Pathlight: denoised %dx%d%s in %.2f s (Open Image Denoise: %s)", w, h,
+             f" (view {view})" if view else "", seconds, oidn.describe(opts))
+    return out
 
 
 def cryptomatte_metadata(pc, data, view_layer):
@@ -355,6 +425,10 @@ def render(engine, depsgraph):
         if "Vector" in names and "Vector" in empty and not engine.is_preview:
             warn("The Vector pass is written only without motion blur (as Cycles); it stays 0")
         settings.passes = [p[0] for p in passes if p[0] != "Sample Count" and p[0] not in empty]
+        denoiser = render_denoiser(scene, engine, warn)
+        if denoiser is not None:  # its guides, rendered whether or not their passes are shown
+            settings.passes = settings.passes + [n for n in oidn.aux_passes(denoiser["input_passes"])
+                                                 if n not in settings.passes and n in known]
         if aovs:
             settings.shader_aovs = [a[1] for a in aovs]
         groups = [] if engine.is_preview or scene.pathlight.debug_view == 'BVH' else light_group_passes(view_layer)
@@ -390,6 +464,9 @@ def render(engine, depsgraph):
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         for name, channels, chan_id, _ in aovs + groups:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
+        noisy = NOISY_IMAGE if noisy_image_pass(scene, view_layer) and not engine.is_preview else ""
+        if noisy:
+            engine.add_pass(noisy, 4, "RGBA", layer=view_layer.name)
         _, _, width, height = render_border(scene)
         # Multiview (Output > Stereoscopy): one render per view of the one committed scene,
         # each through its view's camera (as the viewport's camera override: nothing is
@@ -411,7 +488,7 @@ def render(engine, depsgraph):
                 passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs],
                 bvh_view=scene.pathlight.debug_view == 'BVH', layer=view_layer.name,
                 final_passes=[c[0] for c in crypto], groups=[g[0] for g in groups], view=view,
-                view_index=index, view_count=len(views))
+                view_index=index, view_count=len(views), denoiser=denoiser, noisy_pass=noisy, warn=warn)
             done = view_done if done is None else min(done, view_done)
             del sess
             if cancelled:
@@ -581,12 +658,14 @@ def _warner(engine):
 
 
 def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=(), final_passes=(),
-         groups=(), view="", view_index=0, view_count=1):
+         groups=(), view="", view_index=0, view_count=1, denoiser=None, noisy_pass="", warn=None):
     """Streams the session's film (and passes) into the render result (its view `view`, or
     the one view without multiview); returns (samples done, whether the render was
     cancelled). final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at
     the end. groups: the light group passes' names (film_light_group(i) is group i's).
-    Progress counts over the views: this is view_index of view_count."""
+    Progress counts over the views: this is view_index of view_count. denoiser: denoise settings
+    ({input_passes, prefilter, quality}) or None; Combined's last image (also after a cancel, as
+    Cycles) is then the denoised one, and noisy_pass (if any) gets the undenoised one."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     # With a render border, Blender's result is the border's size (it crops, or pastes the
     # border into the frame, itself): the film covers exactly that.
@@ -607,6 +686,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
         aov_targets = [(i, find(name)) for i, name in enumerate(aovs)]
         group_targets = [(i, find(name)) for i, name in enumerate(groups)]
         final_targets = [(name, find(name)) for name in final_passes]
+        noisy_target = find(noisy_pass) if noisy_pass else None
         sess.start()
         shown = -1
         stats_at = -1.0
@@ -617,6 +697,11 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
             if view_info["samples_done"] != shown or finished:
                 # film(): float32 (H, W, 4), row 0 = bottom, which is also Blender's order.
                 image = _bvh_heat_map(engine, sess, finished) if bvh_view else sess.film()
+                if finished and noisy_target is not None:
+                    noisy_target.rect.foreach_set(image.ravel())
+                if finished and denoiser is not None:
+                    denoised = _denoised(engine, sess, image, denoiser, warn or _warner(engine), view)
+                    image = image if denoised is None else denoised
                 combined.rect.foreach_set(image.ravel())  # ~400x faster than `rect = `
                 for name, target in targets + (final_targets if finished else []):
                     if target is not None:  # film_pass(): (H, W, channels), same order

@@ -55,6 +55,48 @@ class PATHLIGHT_RENDER_PT_sampling(PathlightPanel, bpy.types.Panel):
         layout.prop(settings, "use_guiding")
 
 
+def draw_denoise(layout, settings, viewport):
+    """The Denoise subpanels' fields, as Cycles' (render: denoising_*, viewport: preview_*)."""
+    prefix = "preview_denoising_" if viewport else "denoising_"
+    layout = split(layout)
+    layout.active = settings.use_preview_denoising if viewport else settings.use_denoising
+    col = layout.column()
+    col.label(text="Denoiser: OpenImageDenoise (CPU)")
+    col.prop(settings, prefix + "input_passes", text="Passes")
+    sub = col.column()
+    sub.active = getattr(settings, prefix + "input_passes") != 'RGB'
+    sub.prop(settings, prefix + "prefilter", text="Prefilter")
+    col.prop(settings, prefix + "quality", text="Quality")
+    if viewport:
+        col.prop(settings, "preview_denoising_start_sample", text="Start Sample")
+
+
+class PATHLIGHT_RENDER_PT_sampling_viewport_denoise(PathlightPanel, bpy.types.Panel):
+    """Cycles' Sampling > Viewport > Denoise: the check box in the header."""
+    bl_label = "Viewport Denoise"
+    bl_parent_id = "PATHLIGHT_RENDER_PT_sampling"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.pathlight, "use_preview_denoising", text="")
+
+    def draw(self, context):
+        draw_denoise(self.layout, context.scene.pathlight, viewport=True)
+
+
+class PATHLIGHT_RENDER_PT_sampling_denoise(PathlightPanel, bpy.types.Panel):
+    """Cycles' Sampling > Render > Denoise."""
+    bl_label = "Denoise"
+    bl_parent_id = "PATHLIGHT_RENDER_PT_sampling"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.pathlight, "use_denoising", text="")
+
+    def draw(self, context):
+        draw_denoise(self.layout, context.scene.pathlight, viewport=False)
+
+
 class PATHLIGHT_RENDER_PT_light_paths(PathlightPanel, bpy.types.Panel):
     bl_label = "Light Paths"
 
@@ -346,7 +388,8 @@ if ViewLayerLightgroupsPanelHelper is not None:
         bl_context = "view_layer"
     light_group_classes += (PATHLIGHT_VIEWLAYER_PT_lightgroups,)
 
-classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
+classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_sampling_viewport_denoise,
+           PATHLIGHT_RENDER_PT_sampling_denoise, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
            PATHLIGHT_RENDER_PT_light_paths_clamping,
            PATHLIGHT_RENDER_PT_film,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,

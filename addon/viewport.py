@@ -23,8 +23,11 @@ here runs on Blender's main thread (the engine callbacks), and only polls the se
 """
 
 import logging
+import threading
 
 import numpy as np
+
+from . import denoise as oidn
 
 from .export import export_scene
 from .export.light import collect_lights
@@ -64,6 +67,19 @@ class ViewportSession:
         # instancer), and the names that instancers also use (those re-export when moved).
         self.instance_index = {}
         self.instanced_names = frozenset()
+        # Viewport denoising (Open Image Denoise): its settings (None: off), and the last denoised
+        # image (session, samples it shows, image), redone when the samples shown have doubled
+        # since and at the last sample: a denoise costs about as much as many samples.
+        # The denoise runs on a worker thread (ctypes releases the GIL; a 1920x1080 one takes
+        # seconds here), so that Blender's UI never waits for it: the image drawn meanwhile is
+        # the last denoised one (the noisy film before the first). denoise_async False: in the
+        # draw call (tests).
+        self.denoiser = None
+        self.denoise_start = 1
+        self.denoise_async = True
+        self._denoised = None
+        self._job = None  # [session, samples, thread, result or exception]
+        self.counters["denoises"] = 0
 
     # ------------------------------------------------------------ scene sync
 
@@ -166,6 +182,10 @@ class ViewportSession:
         self._base_settings.sample_offset = 0
         for name, value in pixel_pattern_settings(scene.pathlight, None, viewport=True).items():
             setattr(self._base_settings, name, value)
+        self.denoiser = oidn.settings(scene.pathlight, viewport=True)
+        self.denoise_start = scene.pathlight.preview_denoising_start_sample
+        if self.denoiser is not None:  # the guides it reads
+            self._base_settings.passes = oidn.aux_passes(self.denoiser["input_passes"])
         try:
             self.scene_camera = camera_params(scene, depsgraph, self.warn)
         except Exception:  # no active camera: only the free view can be shown
@@ -282,18 +302,81 @@ class ViewportSession:
         if self.full is not None:
             if self.full.is_finished():
                 self.full.wait(0.0)
-                return False
+                return self.denoising() or self._denoise_due(self.full)  # (its last denoise drawn)
             return True
         return self.low is not None
 
+    def _denoise_due(self, sess):
+        """Whether the finished session's last image is still to be denoised and drawn."""
+        if self.denoiser is None:
+            return False
+        done = sess.progress()["samples_done"]
+        last = self._denoised
+        return done >= self.denoise_start and not (last is not None and last[0] is sess and last[1] == done)
+
     def display(self):
         """(film float32 (H, W, 4) row 0 = bottom, samples done) of the best render so far,
-        or None before anything rendered."""
-        if self.full is not None and self.full.progress()["samples_done"] > 0:
-            return self.full.film(), self.full.progress()["samples_done"]
-        if self.low is not None and self.low.progress()["samples_done"] > 0:
-            return self.low.film(), self.low.progress()["samples_done"]
+        or None before anything rendered. With Viewport Denoise, from the start sample on, the
+        film denoised (see _denoise)."""
+        for sess in (self.full, self.low):
+            if sess is not None:
+                done = sess.progress()["samples_done"]
+                if done > 0:
+                    film = sess.film()
+                    if self.denoiser is not None and done >= self.denoise_start:
+                        film = self._denoise(sess, film, done)
+                    return film, done
         return None
+
+    def _denoise(self, sess, film, done):
+        """The film denoised: again when the samples shown have doubled since the last denoise
+        of this session, or it has finished; in between the last denoised image. On a failure the
+        noisy film, with one warning, and no more tries until the settings change."""
+        self._collect()
+        if self.denoiser is None:  # (failed just now)
+            return film
+        last = self._denoised if self._denoised is not None and self._denoised[0] is sess else None
+        due = last is None or done >= 2 * last[1] or (sess.is_finished() and done != last[1])
+        if due and (self._job is None or self._job[0] is not sess):
+            # The guides are read here (the core's film_pass copies); the filter runs on its own.
+            guides = [sess.film_pass(name) for name in oidn.aux_passes(self.denoiser["input_passes"])]
+            job = [sess, done, None, None]
+            opts = dict(self.denoiser)
+
+            def work():
+                try:
+                    image = np.array(film, np.float32, order="C", copy=True)
+                    oidn.denoise(image, *guides, prefilter=opts["prefilter"], quality=opts["quality"])
+                    job[3] = image
+                except Exception as e:  # (handed to the drawing thread by _collect)
+                    job[3] = e
+            if self.denoise_async:
+                job[2] = threading.Thread(target=work, name="pathlight-viewport-denoise", daemon=True)
+                self._job = job
+                job[2].start()
+            else:
+                work()
+                self._job = job
+            self._collect()
+            last = self._denoised if self._denoised is not None and self._denoised[0] is sess else None
+        return film if last is None else last[2]
+
+    def _collect(self):
+        """Takes the finished denoise's image (or its failure: one warning, denoising off)."""
+        job = self._job
+        if job is None or (job[2] is not None and job[2].is_alive()):
+            return
+        self._job = None
+        if isinstance(job[3], Exception):
+            self.warn(f"Viewport denoising failed, the image is not denoised: {job[3]}")
+            self.denoiser = None
+        elif job[3] is not None and (job[0] is self.full or job[0] is self.low):
+            self.counters["denoises"] += 1
+            self._denoised = (job[0], job[1], job[3])
+
+    def denoising(self):
+        """True while a denoise runs (the viewport keeps redrawing to show its image)."""
+        return self._job is not None and self._job[2] is not None and self._job[2].is_alive()
 
     def stop(self):
         """Cancels the running sessions and drops them (which unlocks the scene for edits)."""
@@ -305,6 +388,7 @@ class ViewportSession:
                 except RuntimeError as e:  # a failed render: nothing more to stop
                     log.warning("viewport render failed: %s", e)
         self.low = self.full = None
+        self._denoised = self._job = None  # (a denoise still running is dropped when done)
 
     def free(self):
         self.stop()

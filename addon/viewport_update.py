@@ -164,7 +164,9 @@ def settings_signature(scene):
              "transmission_bounces", "volume_bounces", "transparent_bounces", "sample_clamp_direct",
              "sample_clamp_indirect", "blur_glossy", "caustics_reflective", "caustics_refractive",
              "seed", "sampler", "pixel_pattern", "use_nee", "use_schlick_fresnel",
-             "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "use_guiding")
+             "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "use_guiding",
+             "use_preview_denoising", "preview_denoising_input_passes", "preview_denoising_prefilter",
+             "preview_denoising_quality", "preview_denoising_start_sample")
     r = scene.render
     curves = getattr(scene, "cycles_curves", None)
     return (tuple(getattr(props, n, None) for n in names)

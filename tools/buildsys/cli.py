@@ -89,6 +89,9 @@ def parse_args(argv):
                                    "Count pass, else from the Pathlight Samples metadata).")
     p.add_argument("inputs", nargs="+", help="partial renders (.exr)")
     p.add_argument("-o", "--output", required=True, help="merged image to write (.exr)")
+    p.add_argument("--denoise", action="store_true",
+                   help="denoise the merged Combined with Open Image Denoise (Blender's, beside the "
+                        "installed bpy), guided by Denoising Albedo / Normal where the files have them")
 
     p = sub.add_parser("test", parents=[build_opts], help="run the test suite (pytest arguments after --)",
                        description="Run `pytest tests` in .venv; arguments after -- go to pytest, "

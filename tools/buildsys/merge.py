@@ -30,7 +30,8 @@ def cmd_merge(args):
     with Lock():
         ensure_setup()
     argv = [str(VENV_PY), str(ROOT / "build.py"), "_merge",
-            json.dumps({"inputs": [str(p.resolve()) for p in inputs], "output": str(out.resolve())})]
+            json.dumps({"inputs": [str(p.resolve()) for p in inputs], "output": str(out.resolve()),
+                        "denoise": bool(getattr(args, "denoise", False))})]
     sys.stdout.flush()
     os.execve(str(VENV_PY), argv, dict(os.environ))  # numpy and OpenEXR only: no core, no bpy
 
@@ -39,18 +40,24 @@ def internal_merge(argv):
     """`build.py _merge OPTIONS_JSON`: the `merge` command, under .venv's Python."""
     def merge():
         opts = json.loads(argv[0])
-        info = merge_exr(opts["inputs"], opts["output"])
+        info = merge_exr(opts["inputs"], opts["output"], denoise=opts.get("denoise", False))
+        for line in info.get("denoise", []):
+            print(line, flush=True)
         ranges = ", ".join(f"[{a}, {a + n})" if a is not None else f"{n}" for a, n in info["ranges"])
         print(f"Merged {len(opts['inputs'])} renders ({info['samples']} samples: {ranges}; "
               f"weights: {info['weights']}) -> {opts['output']}", flush=True)
     run_internal(merge)
 
 
-def merge_exr(inputs, output):
+def merge_exr(inputs, output, denoise=False):
     """Merges EXR renders of one frame with disjoint sample ranges: every channel is the
     sample-weighted mean of the inputs' channels, a per-pixel sample-count channel (the
     "Sample Count" pass, when the files have one) is summed and weighs its pixels; without it
-    each file weighs by its "Pathlight Samples" header attribute. Returns a summary dict."""
+    each file weighs by its "Pathlight Samples" header attribute. denoise: denoise the merged
+    Combined (pieces of a split frame never are) with Open Image Denoise (addon/denoise.py,
+    Blender's library beside the installed bpy), guided by the merged Denoising Albedo and
+    Normal where the files have them; "Noisy Image" stays the merged noisy one. Returns a
+    summary dict ("denoise": its log lines)."""
     import numpy as np
     import OpenEXR
     parts = []
@@ -105,6 +112,7 @@ def merge_exr(inputs, output):
             num += w * part[2][name]
             den += w
         merged[name] = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0).astype(np.float32)
+    notes = _denoise_merged(merged) if denoise else []
     header = {k: v for k, v in parts[0][1].items()
               if k in ("compression", "pixelAspectRatio", "multiView") or not k[:1].islower()
               or k.startswith("cryptomatte/")}  # (multiView: a stereo render's view names)
@@ -115,7 +123,47 @@ def merge_exr(inputs, output):
             if all(a is not None for a, _ in ranges) else "0"
     OpenEXR.File(header, merged).write(str(output))
     return {"samples": total, "ranges": ranges,
-            "weights": "per-pixel sample counts" if count_names else "samples per file"}
+            "weights": "per-pixel sample counts" if count_names else "samples per file", "denoise": notes}
+
+
+def _guide(merged, prefix, name, chans):
+    """(H, W, 3) of pass `name` under layer prefix `prefix`, grouped or per channel; or None."""
+    import numpy as np
+    if merged.get(prefix + name) is not None and merged[prefix + name].ndim == 3:
+        return merged[prefix + name][..., :3]
+    keys = [f"{prefix}{name}.{c}" for c in chans]
+    if all(k in merged for k in keys):
+        return np.stack([merged[k] for k in keys], -1)
+    return None
+
+
+def _denoise_merged(merged):
+    """Denoises every Combined (RGBA) in `merged` in place; returns log lines."""
+    import importlib.util
+    import numpy as np
+    spec = importlib.util.spec_from_file_location("pathlight_denoise", ROOT / "addon" / "denoise.py")
+    oidn = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(oidn)  # (ctypes and numpy only: no Blender)
+    lines = []
+    for name in list(merged):
+        if not (name == "RGBA" or name.endswith("Combined")) or merged[name].ndim != 3:
+            continue
+        prefix = name[:-len("Combined")] if name.endswith("Combined") else ""
+        albedo = _guide(merged, prefix, "Denoising Albedo", "RGB")
+        normal = _guide(merged, prefix, "Denoising Normal", "XYZ") if albedo is not None else None
+        image = np.ascontiguousarray(merged[name], np.float32).copy()
+        try:
+            seconds = oidn.denoise(image, albedo, normal)
+        except (oidn.DenoiseError, ValueError) as e:
+            lines.append(f"{name}: not denoised: {e}")
+            continue
+        merged[name] = image
+        used = "colour + albedo + normal" if normal is not None else "colour + albedo" if albedo is not None \
+            else "colour only (no Denoising Data passes in the files)"
+        lines.append(f"{name}: denoised ({used}) in {seconds:.2f} s")
+    if not lines:
+        lines.append("nothing denoised: no Combined / RGBA channels")
+    return lines
 
 
 def _merge_cryptomatte(parts, names, weight):
