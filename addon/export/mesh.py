@@ -572,7 +572,11 @@ def mesh_data(obj, mesh, materials, uv_names=None):
     uvs, missing = mesh_uvs(mesh, names, loops) if names else ({}, [])
     attributes, missing_attributes = mesh_attributes(mesh, names, loops) if names else ({}, [])
     wanted = tangent_uv_maps(materials) if names else ()
-    tangents, tangent_problem = mesh_tangents(mesh, names, loops, wanted) if wanted else ({}, None)
+    tangents, tangent_problem = ({}, None)
+    if wanted:  # (MikkTSpace with the normals Pathlight shades with, as Cycles)
+        per_vertex = mesh.normals_domain == 'POINT'
+        tangents, tangent_problem = mesh_tangents(
+            mesh, names, loops, wanted, normals if per_vertex else normals[normal_indices].reshape(-1, 3), per_vertex)
     # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
     # non-finite vertices make it non-finite: then the core's own box of the finite ones.
     texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))
