@@ -19,6 +19,9 @@ distribution (Heitz 2018) seen from the view direction, on a midpoint grid (see 
                          real dielectric Fresnel over the reflected directions that stay above
                          the surface (0 for the rest), which the generalized-Schlick albedo
                          estimate mix(F0, F90, s) reads
+  ggx_gen_schlick_s      the same for Schlick's curve (1 - cos)^e with the exponent
+                         e = 5 (1 - z) / z on the z axis (z = 0.5: e = 5), which Cycles reads at
+                         z = 0.5 for the F82-Tint metals' albedo estimate
 """
 
 import argparse
@@ -185,6 +188,20 @@ def table_gen_schlick_ior_s(n, nx=16, ny=16, nz=16):
     return out
 
 
+def table_gen_schlick_s(n, nx=16, ny=16, nz=16):
+    u1, u2, wt = grid(n)
+    rough = axis(nx, 1e-4, 1.0)
+    mu = axis(ny, 1e-4, 1.0)
+    out = np.zeros((nz, ny, nx))
+    for k, z in enumerate(axis(nz, 1e-4, 0.99)):
+        exponent = 5.0 * (1.0 - z) / z
+        R, M = np.meshgrid(rough, mu, indexing="xy")
+        w, woh = conductor_terms((R * R).reshape(-1, 1), M.reshape(-1, 1), u1, u2)
+        s = (1.0 - np.clip(woh, 0.0, 1.0)) ** exponent
+        out[k] = (np.where(w > 0, s, 0.0) * wt).mean(-1).reshape(ny, nx)
+    return out
+
+
 def compute(n, n_avg, n_mu):
     return {
         "ggx_E": table_ggx_e(n),
@@ -194,6 +211,7 @@ def compute(n, n_avg, n_mu):
         "ggx_glass_inv_E": table_glass_e(n, True),
         "ggx_glass_inv_Eavg": table_glass_eavg(n_avg, n_mu, True),
         "ggx_gen_schlick_ior_s": table_gen_schlick_ior_s(n),
+        "ggx_gen_schlick_s": table_gen_schlick_s(n),
     }
 
 

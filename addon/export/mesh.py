@@ -213,9 +213,70 @@ def mesh_arrays(mesh, corners=True, slots=None):
         normals = np.empty(len(mesh.corner_normals) * 3, np.float32)
         mesh.corner_normals.foreach_get("vector", normals)
         normal_indices = loops.reshape(-1, 3)
+    normals = normals.reshape(-1, 3)
 
-    return (positions, np.ascontiguousarray(triangles, np.int32), normals.reshape(-1, 3),
+    # Cycles shades a flat triangle by its own normal, not its polygon's; custom normals it
+    # reads as they are, on flat faces too (measured in tests/blender/test_flat_faces_cycles.py).
+    if domain == 'FACE' or (domain == 'CORNER' and not mesh.has_custom_normals):
+        flat = (np.ones(n_faces, bool) if domain == 'FACE'
+                else _bool_attribute(mesh, "sharp_face", 'FACE', n_faces))
+        if flat is not None:
+            normals, normal_indices = flat_triangle_normals(positions, triangles, tri_polys, flat,
+                                                            normals, normal_indices)
+
+    return (positions, np.ascontiguousarray(triangles, np.int32), normals,
             np.ascontiguousarray(normal_indices, np.int32), material_indices, loops)
+
+
+# A flat face's triangle keeps the face's normal unless they differ by more than this (per
+# component): planar faces (float rounding, ~1e-7) stay bit for bit as before.
+FLAT_NORMAL_TOLERANCE = 1e-5
+
+
+def flat_triangle_normals(positions, triangles, tri_polys, flat_faces, normals, normal_indices):
+    """(normals, normal_indices) where every triangle of a flat-shaded face (flat_faces: bool
+    per face) that is not planar gets its own geometric normal, as Cycles shades a flat
+    triangle by its own normal (Ng) where Blender gives every corner the polygon's normal. A
+    triangle whose normal equals its face's (within FLAT_NORMAL_TOLERANCE) keeps the face's,
+    so planar faces are unchanged; the new normals are appended and only their triangles'
+    indices change (normal_indices is copied, never written through)."""
+    # Faces of one triangle are planar: only triangles of faces with more than one can differ
+    # (Blender's triangles come in face order, so a face's are neighbours).
+    flat_faces = np.asarray(flat_faces, bool)
+    multi = np.zeros(len(tri_polys), bool)
+    if len(tri_polys) > 1:
+        same = tri_polys[1:] == tri_polys[:-1]
+        multi[1:] = same
+        multi[:-1] |= same
+    if not flat_faces.all():
+        multi &= flat_faces[tri_polys]
+    candidates = np.flatnonzero(multi)
+    if len(candidates) == 0:
+        return normals, normal_indices
+    # Component by component on flat arrays (np.cross, (C, 3, 3) gathers and reductions along
+    # the short axis are several times slower): n = (v1 - v0) x (v2 - v0), normalised.
+    tri = triangles[candidates]
+    i0, i1, i2 = tri[:, 0], tri[:, 1], tri[:, 2]
+    v = [np.ascontiguousarray(positions[:, k]) for k in range(3)]
+    e1 = [v[k][i1] - v[k][i0] for k in range(3)]
+    e2 = [v[k][i2] - v[k][i0] for k in range(3)]
+    n = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+    changed = np.isfinite(inv)  # (a degenerate triangle keeps its face's normal)
+    face_n = normals[normal_indices[candidates, 0]]
+    far = np.zeros(len(candidates), bool)
+    for k in range(3):
+        n[k] *= inv
+        far |= np.abs(n[k] - face_n[:, k]) > FLAT_NORMAL_TOLERANCE
+    changed &= far
+    if not changed.any():
+        return normals, normal_indices
+    which = candidates[changed]
+    normal_indices = np.array(normal_indices, np.int32)  # (a copy: corner indices may be a view of loops)
+    normal_indices[which] = (len(normals) + np.arange(len(which), dtype=np.int32))[:, None]
+    n = np.stack([n[k][changed] for k in range(3)], 1)
+    return np.concatenate([normals, n]), normal_indices
 
 
 def mesh_uvs(mesh, names, loops):
@@ -511,7 +572,11 @@ def mesh_data(obj, mesh, materials, uv_names=None):
     uvs, missing = mesh_uvs(mesh, names, loops) if names else ({}, [])
     attributes, missing_attributes = mesh_attributes(mesh, names, loops) if names else ({}, [])
     wanted = tangent_uv_maps(materials) if names else ()
-    tangents, tangent_problem = mesh_tangents(mesh, names, loops, wanted) if wanted else ({}, None)
+    tangents, tangent_problem = ({}, None)
+    if wanted:  # (MikkTSpace with the normals Pathlight shades with, as Cycles)
+        per_vertex = mesh.normals_domain == 'POINT'
+        tangents, tangent_problem = mesh_tangents(
+            mesh, names, loops, wanted, normals if per_vertex else normals[normal_indices].reshape(-1, 3), per_vertex)
     # The evaluated mesh's texture space (automatic: its bounding box), as Cycles uses it;
     # non-finite vertices make it non-finite: then the core's own box of the finite ones.
     texspace = (tuple(mesh.texspace_location), tuple(mesh.texspace_size))

@@ -41,11 +41,13 @@ def _corner_tangents(mesh):
     return corner
 
 
-def _triangle_tangents(mesh, loops, layer):
+def _triangle_tangents(mesh, loops, layer, normals=None, vertex_normals=False):
     """float32 (T, 3, 4) tangents of the triangles `loops` (corner indices) computed on a
-    temporary mesh of those triangles with the mesh's positions, uvs and corner normals (as
-    Cycles computes them on its triangles): Blender's calc_tangents takes no n-gons. On a
-    mesh of quads it gives calc_tangents' own tangents (within 5e-6 on a UV sphere)."""
+    temporary mesh of those triangles with the mesh's positions and uvs, as Cycles computes them
+    on its triangles (MikkTSpace on the quads gives other tangents where a quad is not planar:
+    up to 7.4e-4 in the mapped normal). normals: the shading normals Cycles hands MikkTSpace,
+    float32 per vertex (vertex_normals) or (T * 3, 3) per triangle corner; None: Blender's
+    corner normals."""
     import bpy  # (only here: the rest of the export module works on plain arrays)
     n_tris = len(loops) // 3
     tmp = bpy.data.meshes.new("pathlight tangents")
@@ -65,29 +67,31 @@ def _triangle_tangents(mesh, loops, layer):
         uv = np.empty(len(mesh.loops) * 2, np.float32)
         layer.uv.foreach_get("vector", uv)
         tmp.uv_layers.new(name="UVMap").uv.foreach_set("vector", uv.reshape(-1, 2)[loops].ravel())
-        normals = np.empty(len(mesh.loops) * 3, np.float32)
-        mesh.corner_normals.foreach_get("vector", normals)
-        tmp.normals_split_custom_set(normals.reshape(-1, 3)[loops])
+        if normals is not None and vertex_normals:
+            tmp.normals_split_custom_set_from_vertices(np.asarray(normals, np.float32).reshape(-1, 3))
+        else:
+            if normals is None:
+                corner = np.empty(len(mesh.loops) * 3, np.float32)
+                mesh.corner_normals.foreach_get("vector", corner)
+                normals = corner.reshape(-1, 3)[loops]
+            tmp.normals_split_custom_set(np.asarray(normals, np.float32).reshape(-1, 3))
         tmp.calc_tangents(uvmap="UVMap")
         return np.ascontiguousarray(_corner_tangents(tmp).reshape(-1, 3, 4))
     finally:
         bpy.data.meshes.remove(tmp)
 
 
-def mesh_tangents(mesh, names, loops, wanted):
+def mesh_tangents(mesh, names, loops, wanted, normals=None, vertex_normals=False):
     """({k: float32 (T, 3, 4)} per-corner tangent (xyz, object space) and bitangent sign (w),
     problem or None) for the uv sets {k: UV map name} whose names are in `wanted`.
-    loops: the triangles' corner indices (mesh_arrays). Meshes with n-gons, which
-    calc_tangents refuses, get their triangles' tangents (_triangle_tangents); should either
-    fail, the core's per-triangle tangents are used and the problem says so."""
+    loops: the triangles' corner indices (mesh_arrays); normals, vertex_normals: the shading
+    normals (_triangle_tangents). MikkTSpace runs on the triangles, as Cycles runs it (on quads
+    Blender's calc_tangents differs where they are not planar); should it fail, the core's
+    per-triangle tangents are used and the problem says so."""
     tangents, cache = {}, {}
     # Names, not layers: calc_tangents adds a corner layer, which leaves earlier uv layer
     # references dangling.
     active = next((layer.name for layer in mesh.uv_layers if layer.active_render), None)
-    sizes = np.empty(len(mesh.polygons), np.int32)
-    mesh.polygons.foreach_get("loop_total", sizes)
-    ngons = bool((sizes > 4).any())
-    computed = False
     for k, name in names.items():
         if isinstance(name, tuple) or name not in wanted:  # attribute sets, or no tangents read
             continue
@@ -96,15 +100,8 @@ def mesh_tangents(mesh, names, loops, wanted):
             continue
         if uv_name not in cache:
             try:
-                if ngons:
-                    cache[uv_name] = _triangle_tangents(mesh, loops, mesh.uv_layers[uv_name])
-                else:
-                    mesh.calc_tangents(uvmap=uv_name)
-                    computed = True
-                    cache[uv_name] = np.ascontiguousarray(_corner_tangents(mesh)[loops].reshape(-1, 3, 4))
+                cache[uv_name] = _triangle_tangents(mesh, loops, mesh.uv_layers[uv_name], normals, vertex_normals)
             except (RuntimeError, ValueError, TypeError) as e:
                 return {}, f"no MikkTSpace tangents ({e}); per-triangle tangents are used"
         tangents[k] = cache[uv_name]
-    if computed:
-        mesh.free_tangents()
     return tangents, None

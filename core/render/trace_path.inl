@@ -471,20 +471,46 @@ inline Vec3 beer(Vec3 sigma, float t) {
   return {std::exp(-sigma.x * t), std::exp(-sigma.y * t), std::exp(-sigma.z * t)};
 }
 
-// How much a closure reflects and transmits in total (Cycles' bsdf_albedo, roughly): the
-// closure weight times the BSDF's own albedo, seen from wo.
+// The table roughness of a lobe: Cycles' sqrt(sqrt(alpha_x alpha_y)) (isotropic: sqrt(alpha)).
+inline float lobe_table_rough(float alpha, float alpha_y) {
+  return alpha_y < 0.0f ? std::sqrt(alpha) : std::sqrt(std::sqrt(alpha * alpha_y));
+}
+
+// A glass lobe's reflected and transmitted albedo seen from wo at |cos| mu (Cycles'
+// bsdf_microfacet_estimate_albedo): the reflection's mean Fresnel from the table (generalized
+// Schlick's mix(F0 tint, 1, s)) where the IOR is above 1 and there is no film, else the Fresnel
+// at the view; the transmission the rest of the Fresnel at the view (before transmission_tint).
+inline void dielectric_albedo(const DielectricBsdf& d, float mu, Vec3& cr, Vec3& ct) {
+  float pr, pt;
+  d.lobes_at(mu, cr, ct, pr, pt);
+  if (d.reflection && d.eta > 1.0f && !(d.film_thickness > kThinFilmCutoff) && !is_black(cr))
+    cr = dielectric_specular_albedo(lobe_table_rough(d.alpha, d.alpha_y), mu, d.eta,
+                                    vmin(d.f0_tint * f0_from_ior(d.eta), Vec3(1.0f)));
+}
+
+// How much a closure reflects and transmits in total (Cycles' bsdf_albedo): the closure weight
+// times the BSDF's own albedo estimated from wo, as Cycles' bsdf_microfacet_estimate_albedo:
+// the tables' mean Fresnel for the generalized-Schlick dielectric (Principled specular, coat,
+// glass reflection) and F82-Tint (metals), without a thin film; the Fresnel at the view for the
+// rest (physical conductors, films, transmission).
 inline Vec3 closure_albedo(const Closure& c, Vec3 wo) {
+  const float mu = std::fabs(dot(wo, c.frame.n));
   if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf)) {
-    // Principled's lobes: their Fresnel at the view (a colour, not just F0, for the specular).
-    if (m->mode == ConductorFresnel::F82Tint || m->mode == ConductorFresnel::Dielectric ||
-        m->mode == ConductorFresnel::Conductor)
-      return c.weight * m->fresnel(std::fabs(dot(wo, c.frame.n)));
+    if (m->mode == ConductorFresnel::Dielectric) {
+      if (m->film_thickness > kThinFilmCutoff) return c.weight * m->fresnel(mu);
+      if (m->eta == 1.0f) return Vec3(0.0f);  // (no reflection: Cycles' is_zero(reflectance))
+      return c.weight * dielectric_specular_albedo(lobe_table_rough(m->alpha, m->alpha_y), mu, m->eta, m->f0);
+    }
+    if (m->mode == ConductorFresnel::F82Tint) {
+      if (is_black(m->fresnel(mu))) return Vec3(0.0f);
+      return c.weight * f82_specular_albedo(lobe_table_rough(m->alpha, m->alpha_y), mu, m->f0);
+    }
+    if (m->mode == ConductorFresnel::Conductor) return c.weight * m->fresnel(mu);
     return c.weight * m->f0;
   }
   if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
     Vec3 cr, ct;
-    float pr, pt;
-    d->lobes_at(std::fabs(dot(wo, c.frame.n)), cr, ct, pr, pt);
+    dielectric_albedo(*d, mu, cr, ct);
     return c.weight * ((d->reflection ? cr : Vec3(0.0f)) + (d->transmission ? d->transmission_tint * ct : Vec3(0.0f)));
   }
   return c.weight;  // diffuse, transparent
@@ -581,22 +607,22 @@ inline Vec3 safe_ratio(Vec3 a, Vec3 b) {
   for (int i = 0; i < cl.n; ++i) {
     const Closure& c = cl.c[size_t(i)];
     if (std::holds_alternative<TransparentBsdf>(c.bsdf) || std::holds_alternative<PortalBsdf>(c.bsdf)) continue;
+    // Cycles' albedo leaves out the 1 / E of the energy compensation (E: the single-scatter
+    // lobe's directional albedo), which Pathlight's closure weight carries.
+    const float cos_n = dot(wo, c.frame.n), mu = std::fabs(cos_n);
     if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) {
       Vec3 cr, ct;
-      float pr, pt;
-      d->lobes_at(std::fabs(dot(wo, c.frame.n)), cr, ct, pr, pt);
-      if (d->reflection) glossy += c.weight * cr;
-      if (d->transmission) transmission += c.weight * d->transmission_tint * ct;
+      dielectric_albedo(*d, mu, cr, ct);
+      const Vec3 w = d->compensated ? c.weight * ggx_glass_E(std::sqrt(d->alpha), mu, cos_n >= 0.0f ? d->eta : 1.0f / d->eta)
+                                    : c.weight;
+      if (d->reflection) glossy += w * cr;
+      if (d->transmission) transmission += w * d->transmission_tint * ct;
       continue;
     }
     const int k = closure_pass_kind(c, true);
     Vec3 a = closure_albedo(c, wo);
-    if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf); m && m->compensated) {
-      // Cycles' albedo leaves out the 1 / E of the energy compensation (E: the single-scatter
-      // lobe's directional albedo), which Pathlight's closure weight carries.
-      const float rough = m->alpha_y < 0.0f ? std::sqrt(m->alpha) : std::sqrt(std::sqrt(m->alpha * m->alpha_y));
-      a *= table_2d(tables::ggx_E, rough, std::fabs(dot(wo, c.frame.n)), 32, 32);
-    }
+    if (const auto* m = std::get_if<ConductorBsdf>(&c.bsdf); m && m->compensated)
+      a *= table_2d(tables::ggx_E, lobe_table_rough(m->alpha, m->alpha_y), mu, 32, 32);
     (k == 0 ? diffuse : k == 1 ? glossy : transmission) += a;
   }
 }

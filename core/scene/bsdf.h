@@ -255,6 +255,9 @@ struct DielectricBsdf {
   // Refraction without the radiance's 1/eta^2, as Cycles' (set on points: a ray refracted into
   // a point never leaves through it, so no exit undoes the scaling as on closed meshes).
   bool unscaled = false;
+  // Its weight carries Cycles' multiscatter energy compensation (1 / E of the glass tables more
+  // than Cycles' closure weight, which the render passes' colours read). In the padding.
+  bool compensated = false;
   Ggx ggx() const { return Ggx{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
   Beckmann beckmann() const { return Beckmann{alpha, alpha_y < 0.0f ? alpha : alpha_y}; }
   // A perfect mirror/refractor below kDeltaAlpha (anisotropic: the two alphas' geometric mean).

@@ -123,10 +123,16 @@ inline EnergyCompensation compensate(float E, float E_avg, Vec3 fss) {
 }
 
 // GGX glass (reflection and transmission) of relative IOR eta (< 1: seen from inside).
+// Its single-scatter albedo E (reflection and transmission) seen from the view at cos `mu`.
+inline float ggx_glass_E(float rough, float mu, float eta) {
+  const bool inv = eta < 1.0f;
+  const float z = ior_table_coord(inv ? 1.0f / eta : eta);
+  return table_3d(inv ? tables::ggx_glass_inv_E : tables::ggx_glass_E, rough, mu, z, 16, 16, 16);
+}
 inline EnergyCompensation ggx_glass_compensation(float rough, float mu, float eta, Vec3 fss) {
   const bool inv = eta < 1.0f;
   const float z = ior_table_coord(inv ? 1.0f / eta : eta);
-  const float E = table_3d(inv ? tables::ggx_glass_inv_E : tables::ggx_glass_E, rough, mu, z, 16, 16, 16);
+  const float E = ggx_glass_E(rough, mu, eta);
   const float E_avg = table_2d(inv ? tables::ggx_glass_inv_Eavg : tables::ggx_glass_Eavg, rough, z, 16, 16);
   return compensate(E, E_avg, fss);
 }
@@ -136,6 +142,13 @@ inline EnergyCompensation ggx_glass_compensation(float rough, float mu, float et
 // view and IOR.
 inline Vec3 dielectric_specular_albedo(float rough, float mu, float eta, Vec3 f0) {
   const float s = table_3d(tables::ggx_gen_schlick_ior_s, rough, mu, ior_table_coord(eta), 16, 16, 16);
+  return f0 + (Vec3(1.0f) - f0) * s;
+}
+
+// Cycles' estimate for F82-Tint (bsdf_microfacet_estimate_albedo; its b term left out, a
+// TODO there): mix(f0, 1, s), s the Schlick table's factor read at z = 0.5 (exponent 5).
+inline Vec3 f82_specular_albedo(float rough, float mu, Vec3 f0) {
+  const float s = table_3d(tables::ggx_gen_schlick_s, rough, mu, 0.5f, 16, 16, 16);
   return f0 + (Vec3(1.0f) - f0) * s;
 }
 

@@ -222,6 +222,7 @@ namespace {
     c.exact = !prog.schlick;
     c.eta = in.coat_eta;
     c.f0 = Vec3(f0_from_ior(c.eta));
+    c.compensated = true;  // (its weight carries comp.scale)
     const Frame fc = op.in[14] != kNoReg ? glossy_frame_at(r, ctx, op.in[14]) : fr;  // (fr: the same inputs)
     const float mu_c = std::fabs(dot(fc.n, ctx.wo));
     const EnergyCompensation comp = ggx_reflection_compensation(in.coat_rough, mu_c, Vec3(in.coat_fss));
@@ -270,6 +271,7 @@ namespace {
     g.film_ior = in.film_ior;
     Vec3 gw = weight * in.transmission;
     if (in.multi) gw *= glass_compensation_at(ctx, g, fr, g.transmission_tint);
+    g.compensated = in.multi;
     out.add(g, gw, fr);
     weight *= 1.0f - in.transmission;
   }
@@ -284,6 +286,7 @@ namespace {
     s.film_thickness = in.film;
     s.film_ior = in.film_ior;
     Vec3 sw = weight, darkening(1.0f);
+    s.compensated = in.multi;
     if (in.multi) {
       const EnergyCompensation c = ggx_reflection_compensation(in.rough_a, mu, in.spec_fss);
       sw *= c.scale;
@@ -462,8 +465,10 @@ void eval_closure_op(const ShaderOp& op, const ShaderProgram& prog, const Float4
       }
       const Frame f = glossy_frame(op.in[4]);
       Vec3 w = clean_color(col(op.in[0]) * col(op.in[1]));
-      if (op.code == OpCode::Glass && multiscatter(op.in[5]))
+      if (op.code == OpCode::Glass && multiscatter(op.in[5])) {
         w *= glass_compensation(b, f, clean_color(col(op.in[1])));
+        b.compensated = true;
+      }
       out.add(b, w, f);
       break;
     }
