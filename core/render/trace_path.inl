@@ -1026,6 +1026,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // Clamping, Filter Glossy and the caustics toggles (the general kernels): without them the
   // clamp limits below are constant 0, and clamp_light leaves no code.
   constexpr bool kTricks = (F & kKernelTricks) != 0;
+  // A bake's given first hit (PathCounters::first_hit): bake sessions run the general kernels
+  // (Session forces them), so the others carry no load and branch per ray for it.
+  constexpr bool kBake = (F & kKernelAll) == kKernelAll;
   // Caustic light tracing: the vertices of the path's L S+ D E prefix so far (0: it is not one),
   // and n Pc / Pa without the light's end: n d01^2 prod q_rev / (p_camera prod q_fwd).
   const CausticLight* const cz = kCaus ? s.caustics : nullptr;
@@ -1093,7 +1096,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
   ray_state.transparent_max = uint16_t(std::min(s.transparent_bounces, 65535));
-  if (c.first_hit && c.first_dp >= 0.0f) ray_state.dp = c.first_dp, ray_state.dd = 0.0f;  // a baked texel's
+  if (kBake && c.first_hit && c.first_dp >= 0.0f) ray_state.dp = c.first_dp, ray_state.dd = 0.0f;  // a baked texel's
   else if (s.camera && s.differentials) s.camera->differentials(ray.dir, ray_state.dp, ray_state.dd);  // the pixel's cone
   const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
@@ -1223,7 +1226,7 @@ restart: __attribute__((unused));
     ++c.rays;
     // (the catcher path resumes at the split's hit; later rays see the catchers alone)
     bool found;
-    if (__builtin_expect(c.first_hit != nullptr, 0)) {  // baking: the texel's surface
+    if (kBake && __builtin_expect(c.first_hit != nullptr, 0)) {  // baking: the texel's surface
       hit = *c.first_hit, found = true;
       c.first_hit = nullptr;
     } else if constexpr (kCatcher) {
