@@ -1008,6 +1008,53 @@ inline bool caustic_delta_lobe(const Bsdf& b, Vec3 w, bool transmit, Vec3& value
   }
 }
 
+// Cold parts of the path kernels, out of line: inlined, code that few vertices run made GCC
+// keep the surfaces kernel's path state in memory (docs/design/kernels.md, "What keeps the hot
+// kernels hot"). Each computes what the kernel computed in place, in the same arithmetic.
+
+// A cosine sample of the sky about ng_out (Scene::samples_world; lights are light-sampled
+// instead): false where its pdf is 0.
+[[gnu::noinline, gnu::cold]] bool sky_light_sample(const Scene& scene, Vec2 u_sky, Vec3 ng_out, DirectSample& ds) {
+  const Vec3 l = sample_cosine_hemisphere(u_sky);
+  ds.pdf = l.z * kInvPi;
+  if (!(ds.pdf > 0.0f)) return false;
+  ds.wi = Frame::from_normal(ng_out).to_world(l);
+  ds.li = scene.world_color();
+  return true;
+}
+
+// A Ray Portal's continuation (Cycles' integrate_surface_ray_portal): from the portal's position
+// along its direction, or from the surface itself where the portal is there.
+[[gnu::noinline, gnu::cold]] void portal_ray(const Scene& scene, const SurfacePoint& sp, const PortalBsdf& portal,
+                                             Vec3 ng_out, Ray& ray) {
+  if (length_sq(sp.p - portal.p) > 1e-9f) {
+    ray.org = portal.p;  // elsewhere: it may find the same surface again
+    ray.self_curve = UINT32_MAX;
+  } else {
+    ray.org = offset_ray_origin(sp.p, sp.p_error, dot(portal.d, ng_out) > 0.0f ? ng_out : -ng_out);
+    ray.self_curve = scene.self_curve(sp);
+  }
+  ray.dir = portal.d;
+  ray.tmax = kInf;
+}
+
+// Cycles' Hair BSDF carries its sample's value along the direction it drew itself
+// (hair_bsdf.h): what that changes in the mixture's value and pdf, where it replaces the
+// closure's evaluation.
+struct HairSampled {
+  Vec3 f;
+  float pdf;
+};
+[[gnu::noinline, gnu::cold]] HairSampled hair_sampled(const Closure& ch, const HairBsdf& hb, Vec3 wo, Vec3 wi) {
+  const Vec3 lo = ch.frame.to_local(wo), li = ch.frame.to_local(wi);
+  float pe, ps;
+  const Vec3 fe = hb.eval(lo, li, pe), fs = hb.eval_sampled(lo, li, ps);
+  return {ch.weight * (fs - fe), ch.pick * (ps - pe)};
+}
+
+// The roulette's number where no light sample drew it (few vertices: without light samples).
+[[gnu::noinline, gnu::cold]] float roulette_number(Sampler& sampler) { return sampler.get2d().x; }
+
 // The path tracer, compiled for the kernel features F (KernelFeature bits): what a scene does
 // not use is left out with if constexpr; kKernelAll is the general kernel.
 template <uint32_t F>
@@ -2066,13 +2113,8 @@ restart: __attribute__((unused));
       };
       const auto draw_sky = [&](DirectSample& ds) __attribute__((always_inline)) {
         const Vec2 u_sky = sampler.get2d();
-        const Vec3 l = sample_cosine_hemisphere(u_sky);
         sky_here = true;
-        ds.pdf = l.z * kInvPi;
-        if (!(ds.pdf > 0.0f)) return false;
-        ds.wi = Frame::from_normal(ng_out).to_world(l);
-        ds.li = scene.world_color();
-        return true;
+        return sky_light_sample(scene, u_sky, ng_out, ds);
       };
       if constexpr (kNonDiffuse) {
         // Two add_sample calls: inlined here (one call) it cost these kernels 0.3-2.5 % more,
@@ -2175,15 +2217,7 @@ restart: __attribute__((unused));
         // A new ray: its length restarts there, from the footprint it hit (Cycles' dP).
         ray_state.dp = ray_state.footprint();
         length_before = 0.0f;
-        if (length_sq(sp.p - portal->p) > 1e-9f) {
-          ray.org = portal->p;  // elsewhere: it may find the same surface again
-          ray.self_curve = UINT32_MAX;
-        } else {
-          ray.org = offset_ray_origin(sp.p, sp.p_error, dot(portal->d, ng_out) > 0.0f ? ng_out : -ng_out);
-          ray.self_curve = scene.self_curve(sp);
-        }
-        ray.dir = portal->d;
-        ray.tmax = kInf;
+        portal_ray(scene, sp, *portal, ng_out, ray);
         continue;
       }
     }
@@ -2280,13 +2314,10 @@ restart: __attribute__((unused));
       }
       if constexpr (kNonDiffuse)
         if (const HairBsdf* hb = std::get_if<HairBsdf>(&ch.bsdf)) {
-          // Cycles' Hair BSDF carries its sample's value along the direction it drew itself
-          // (hair_bsdf.h): that in place of its evaluation, the other closures' unchanged.
-          const Vec3 lo = ch.frame.to_local(wo), li = ch.frame.to_local(wi);
-          float pe, ps;
-          const Vec3 fe = hb->eval(lo, li, pe), fs = hb->eval_sampled(lo, li, ps);
-          f += ch.weight * (fs - fe);
-          pdf += ch.pick * (ps - pe);
+          // Cycles' Hair BSDF: its sampled value in place of its evaluation, the others' unchanged.
+          const HairSampled h = hair_sampled(ch, *hb, wo, wi);
+          f += h.f;
+          pdf += h.pdf;
         }
       float rec_pb = pdf, rec_pg = 0.0f;
       if constexpr (kGuide) {
@@ -2403,7 +2434,7 @@ restart: __attribute__((unused));
       // roulette must not cut; the same value elsewhere)
       const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
       if (sampler.own_roulette()) u_rr = sampler.roulette(bounce);  // (Cycles' PRNG_TERMINATE)
-      else if (u_rr < 0.0f) u_rr = sampler.get2d().x;
+      else if (u_rr < 0.0f) u_rr = roulette_number(sampler);
       if (!(survive > 0.0f) || u_rr >= survive) break;
       beta = beta / survive;
     }
