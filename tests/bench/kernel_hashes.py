@@ -8,7 +8,8 @@ Each line: the render's name, its kernel and the md5 of its film (and of its pas
 groups or bake result where it has some). The renders: test_kernels.py's scenes on their own
 kernel and on the general one, the Cornell fixture (plain, glass, Principled, glass on the
 general kernel, clamped, guided), caustic light paths, light-vertex connections, light groups,
-a fog box with the light passes, a shadow catcher, and a bake."""
+a fog box with the light passes, a shadow catcher, sky samples, a Ray Portal, the Hair BSDF
+and two bakes."""
 import argparse
 import hashlib
 import sys
@@ -37,6 +38,8 @@ from test_caustic_connections import CONN, shaded_scene  # noqa: E402
 from test_caustic_light_paths import mirror_scene  # noqa: E402
 from test_core_light_passes import COMPONENTS, mixed_box  # noqa: E402
 from test_light_groups import studio  # noqa: E402
+from test_ray_portal_core import MIXED, ground_under  # noqa: E402
+from test_world_samples import grove  # noqa: E402
 
 
 def md5(x):
@@ -84,6 +87,18 @@ run("light groups general", studio, groups=4, force_general_kernel=True)
 run("fog box light passes", mixed_box, passes=COMPONENTS + ["Emit", "Env"])
 run("fog box", mixed_box)
 run("shadow catcher", lambda: tk.flagged_cornell(shadow_catcher=True), passes=["Shadow Catcher"])
+# Paths through the kernels' rarer branches: sky samples and a Ray Portal, a sky alone, the
+# Hair BSDF (its sampled value), and both again on the general kernel.
+run("portal under a sky", lambda: ground_under(MIXED))
+run("portal under a sky general", lambda: ground_under(MIXED), force_general_kernel=True)
+run("grove under a sky", lambda: grove(False, True))
+run("hair cards", lambda: tk.with_sphere(lambda s: s.add_shader("hair", [
+    ("const", 0, (0.8, 0.6, 0.4)), ("const", 1, (0.0,)), ("const", 2, (0.3,)), ("const", 3, (0.2,)),
+    ("closure", "hair_reflection", None, {"color": 0, "offset": 1, "roughness_u": 2, "roughness_v": 3})]))())
+run("hair cards general", lambda: tk.with_sphere(lambda s: s.add_shader("hair", [
+    ("const", 0, (0.8, 0.6, 0.4)), ("const", 1, (0.0,)), ("const", 2, (0.3,)), ("const", 3, (0.2,)),
+    ("closure", "hair_reflection", None, {"color": 0, "offset": 1, "roughness_u": 2, "roughness_v": 3})]))(),
+    force_general_kernel=True)
 
 
 def bake_floor(scene):
