@@ -1013,9 +1013,9 @@ inline bool caustic_delta_lobe(const Bsdf& b, Vec3 w, bool transmit, Vec3& value
 // kernels hot"). Each computes what the kernel computed in place, in the same arithmetic.
 
 // A cosine sample of the sky about ng_out (Scene::samples_world; lights are light-sampled
-// instead): false where its pdf is 0.
-[[gnu::noinline, gnu::cold]] bool sky_light_sample(const Scene& scene, Vec2 u_sky, Vec3 ng_out, DirectSample& ds) {
-  const Vec3 l = sample_cosine_hemisphere(u_sky);
+// instead), its numbers the sampler's next two: false where its pdf is 0.
+[[gnu::noinline, gnu::cold]] bool sky_light_sample(const Scene& scene, Sampler& sampler, Vec3 ng_out, DirectSample& ds) {
+  const Vec3 l = sample_cosine_hemisphere(sampler.get2d());
   ds.pdf = l.z * kInvPi;
   if (!(ds.pdf > 0.0f)) return false;
   ds.wi = Frame::from_normal(ng_out).to_world(l);
@@ -2112,9 +2112,8 @@ restart: __attribute__((unused));
         return scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last);
       };
       const auto draw_sky = [&](DirectSample& ds) __attribute__((always_inline)) {
-        const Vec2 u_sky = sampler.get2d();
         sky_here = true;
-        return sky_light_sample(scene, u_sky, ng_out, ds);
+        return sky_light_sample(scene, sampler, ng_out, ds);
       };
       if constexpr (kNonDiffuse) {
         // Two add_sample calls: inlined here (one call) it cost these kernels 0.3-2.5 % more,
