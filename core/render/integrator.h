@@ -253,7 +253,7 @@ struct PathCounters {
   const CausticCache* caustic_cache = nullptr;
   // In: the camera ray's hit, given instead of traced (baking, docs/design/bake.md: the ray
   // starts on the surface, so it crosses no light or medium on the way). The kernel clears it
-  // when it takes it.
+  // when it takes it. Only the general kernels read it (a bake session forces them).
   const Hit* first_hit = nullptr;
   // In (with first_hit): the surface's footprint, Cycles' compact dP of the texel (the
   // direction's spread dd is 0); negative: the camera's.

@@ -268,7 +268,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     }
   }
   {
-    // The kernel: chosen here from what the scene and this render use, never per ray.
+    // The kernel: chosen here from what the scene and this render use, never per ray. A bake
+    // runs a general kernel: only those take its given first hit (PathCounters::first_hit).
     const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent || scene_->any_holdout() ||
                       integrator_.cryptomatte != 0;
     const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
@@ -276,7 +277,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     setup_caustics(guiding);
     kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr,
                                             integrator_.tricks()),
-                            settings_.force_general_kernel, kernel_bits_);
+                            settings_.force_general_kernel || bake_ != nullptr, kernel_bits_);
     if (guiding) {
       // Müller et al.'s split threshold: cells keep about 12000 records (times the square root
       // of an iteration's samples), enough for a quadtree that follows light, not noise.

@@ -1034,6 +1034,53 @@ inline bool caustic_delta_lobe(const Bsdf& b, Vec3 w, bool transmit, Vec3& value
   }
 }
 
+// Cold parts of the path kernels, out of line: inlined, code that few vertices run made GCC
+// keep the surfaces kernel's path state in memory (docs/design/kernels.md, "What keeps the hot
+// kernels hot"). Each computes what the kernel computed in place, in the same arithmetic.
+
+// A cosine sample of the sky about ng_out (Scene::samples_world; lights are light-sampled
+// instead), its numbers the sampler's next two: false where its pdf is 0.
+[[gnu::noinline, gnu::cold]] bool sky_light_sample(const Scene& scene, Sampler& sampler, Vec3 ng_out, DirectSample& ds) {
+  const Vec3 l = sample_cosine_hemisphere(sampler.get2d());
+  ds.pdf = l.z * kInvPi;
+  if (!(ds.pdf > 0.0f)) return false;
+  ds.wi = Frame::from_normal(ng_out).to_world(l);
+  ds.li = scene.world_color();
+  return true;
+}
+
+// A Ray Portal's continuation (Cycles' integrate_surface_ray_portal): from the portal's position
+// along its direction, or from the surface itself where the portal is there.
+[[gnu::noinline, gnu::cold]] void portal_ray(const Scene& scene, const SurfacePoint& sp, const PortalBsdf& portal,
+                                             Vec3 ng_out, Ray& ray) {
+  if (length_sq(sp.p - portal.p) > 1e-9f) {
+    ray.org = portal.p;  // elsewhere: it may find the same surface again
+    ray.self_curve = UINT32_MAX;
+  } else {
+    ray.org = offset_ray_origin(sp.p, sp.p_error, dot(portal.d, ng_out) > 0.0f ? ng_out : -ng_out);
+    ray.self_curve = scene.self_curve(sp);
+  }
+  ray.dir = portal.d;
+  ray.tmax = kInf;
+}
+
+// Cycles' Hair BSDF carries its sample's value along the direction it drew itself
+// (hair_bsdf.h): what that changes in the mixture's value and pdf, where it replaces the
+// closure's evaluation.
+struct HairSampled {
+  Vec3 f;
+  float pdf;
+};
+[[gnu::noinline, gnu::cold]] HairSampled hair_sampled(const Closure& ch, const HairBsdf& hb, Vec3 wo, Vec3 wi) {
+  const Vec3 lo = ch.frame.to_local(wo), li = ch.frame.to_local(wi);
+  float pe, ps;
+  const Vec3 fe = hb.eval(lo, li, pe), fs = hb.eval_sampled(lo, li, ps);
+  return {ch.weight * (fs - fe), ch.pick * (ps - pe)};
+}
+
+// The roulette's number where no light sample drew it (few vertices: without light samples).
+[[gnu::noinline, gnu::cold]] float roulette_number(Sampler& sampler) { return sampler.get2d().x; }
+
 // The path tracer, compiled for the kernel features F (KernelFeature bits): what a scene does
 // not use is left out with if constexpr; kKernelAll is the general kernel.
 template <uint32_t F>
@@ -1052,6 +1099,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // Clamping, Filter Glossy and the caustics toggles (the general kernels): without them the
   // clamp limits below are constant 0, and clamp_light leaves no code.
   constexpr bool kTricks = (F & kKernelTricks) != 0;
+  // A bake's given first hit (PathCounters::first_hit): bake sessions run the general kernels
+  // (Session forces them), so the others carry no load and branch per ray for it.
+  constexpr bool kBake = (F & kKernelAll) == kKernelAll;
   // Caustic light tracing: the vertices of the path's L S+ D E prefix so far (0: it is not one),
   // and n Pc / Pa without the light's end: n d01^2 prod q_rev / (p_camera prod q_fwd).
   const CausticLight* const cz = kCaus ? s.caustics : nullptr;
@@ -1119,7 +1169,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   RayState ray_state;  // what the Light Path node reads: the kind of the last bounce, counts
   ray_state.camera = s.camera;
   ray_state.transparent_max = uint16_t(std::min(s.transparent_bounces, 65535));
-  if (c.first_hit && c.first_dp >= 0.0f) ray_state.dp = c.first_dp, ray_state.dd = 0.0f;  // a baked texel's
+  if (kBake && c.first_hit && c.first_dp >= 0.0f) ray_state.dp = c.first_dp, ray_state.dd = 0.0f;  // a baked texel's
   else if (s.camera && s.differentials) s.camera->differentials(ray.dir, ray_state.dp, ray_state.dd);  // the pixel's cone
   const uint64_t path_key = sampler.path_key();
   float length_before = 0.0f;  // Ray Length runs on through transparent crossings (as Cycles')
@@ -1249,7 +1299,7 @@ restart: __attribute__((unused));
     ++c.rays;
     // (the catcher path resumes at the split's hit; later rays see the catchers alone)
     bool found;
-    if (__builtin_expect(c.first_hit != nullptr, 0)) {  // baking: the texel's surface
+    if (kBake && __builtin_expect(c.first_hit != nullptr, 0)) {  // baking: the texel's surface
       hit = *c.first_hit, found = true;
       c.first_hit = nullptr;
     } else if constexpr (kCatcher) {
@@ -2088,14 +2138,8 @@ restart: __attribute__((unused));
         return scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last);
       };
       const auto draw_sky = [&](DirectSample& ds) __attribute__((always_inline)) {
-        const Vec2 u_sky = sampler.get2d();
-        const Vec3 l = sample_cosine_hemisphere(u_sky);
         sky_here = true;
-        ds.pdf = l.z * kInvPi;
-        if (!(ds.pdf > 0.0f)) return false;
-        ds.wi = Frame::from_normal(ng_out).to_world(l);
-        ds.li = scene.world_color();
-        return true;
+        return sky_light_sample(scene, sampler, ng_out, ds);
       };
       if constexpr (kNonDiffuse) {
         // Two add_sample calls: inlined here (one call) it cost these kernels 0.3-2.5 % more,
@@ -2198,15 +2242,7 @@ restart: __attribute__((unused));
         // A new ray: its length restarts there, from the footprint it hit (Cycles' dP).
         ray_state.dp = ray_state.footprint();
         length_before = 0.0f;
-        if (length_sq(sp.p - portal->p) > 1e-9f) {
-          ray.org = portal->p;  // elsewhere: it may find the same surface again
-          ray.self_curve = UINT32_MAX;
-        } else {
-          ray.org = offset_ray_origin(sp.p, sp.p_error, dot(portal->d, ng_out) > 0.0f ? ng_out : -ng_out);
-          ray.self_curve = scene.self_curve(sp);
-        }
-        ray.dir = portal->d;
-        ray.tmax = kInf;
+        portal_ray(scene, sp, *portal, ng_out, ray);
         continue;
       }
     }
@@ -2303,13 +2339,10 @@ restart: __attribute__((unused));
       }
       if constexpr (kNonDiffuse)
         if (const HairBsdf* hb = std::get_if<HairBsdf>(&ch.bsdf)) {
-          // Cycles' Hair BSDF carries its sample's value along the direction it drew itself
-          // (hair_bsdf.h): that in place of its evaluation, the other closures' unchanged.
-          const Vec3 lo = ch.frame.to_local(wo), li = ch.frame.to_local(wi);
-          float pe, ps;
-          const Vec3 fe = hb->eval(lo, li, pe), fs = hb->eval_sampled(lo, li, ps);
-          f += ch.weight * (fs - fe);
-          pdf += ch.pick * (ps - pe);
+          // Cycles' Hair BSDF: its sampled value in place of its evaluation, the others' unchanged.
+          const HairSampled h = hair_sampled(ch, *hb, wo, wi);
+          f += h.f;
+          pdf += h.pdf;
         }
       float rec_pb = pdf, rec_pg = 0.0f;
       if constexpr (kGuide) {
@@ -2426,7 +2459,7 @@ restart: __attribute__((unused));
       // roulette must not cut; the same value elsewhere)
       const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
       if (sampler.own_roulette()) u_rr = sampler.roulette(bounce);  // (Cycles' PRNG_TERMINATE)
-      else if (u_rr < 0.0f) u_rr = sampler.get2d().x;
+      else if (u_rr < 0.0f) u_rr = roulette_number(sampler);
       if (!(survive > 0.0f) || u_rr >= survive) break;
       beta = beta / survive;
     }

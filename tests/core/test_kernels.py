@@ -253,6 +253,30 @@ def test_a_clamped_render_runs_a_kernel_that_clamps():
     assert clamped.film()[..., :3].mean() < 0.9 * plain.film()[..., :3].mean()
 
 
+@pytest.mark.parametrize("name,instance", [("diffuse", 0), ("glass", 0), ("environment", 1), ("media", 0)])
+def test_a_bake_runs_the_general_kernel(name, instance):
+    # Only the general kernels take a bake's given first hit (PathCounters::first_hit): the
+    # specialised ones are compiled without that per-ray check, so a bake session forces them.
+    build, fields, _, kernel = CASES[name]
+    st = pc.RenderSettings()
+    st.width, st.height, st.samples, st.threads = 4, 4, 2, 2
+    for k, v in fields.items():
+        setattr(st, k, v)
+    # (16 texels on the first triangle of a quad)
+    spec = {"instance": instance, "triangle": np.zeros(16, np.int32), "bary": np.full((16, 2), 0.25, np.float32),
+            "mode": "surface"}
+    s = build()
+    s.commit()
+    sess = pc.Session(s, st, bake=spec)
+    sess.start()
+    while not sess.wait(1.0):
+        pass
+    assert sess.stats()["kernel"] == "general"
+    assert np.asarray(sess.film())[..., :3].max() > 0.0  # (the texels were lit)
+    # (a render of the same scene keeps its own kernel)
+    assert session(build, fields, general=False, samples=1).stats()["kernel"] == kernel
+
+
 @pytest.mark.parametrize("name", CASES)
 def test_specialised_kernel_renders_the_general_kernels_image(name):
     build, fields, _, _ = CASES[name]
