@@ -329,7 +329,7 @@ class PathlightViewLayerSettings(bpy.types.PropertyGroup):
 
 
 # The viewport's Render Pass (Rendered shading): Cycles 4.5's list (its
-# enum_view3d_shading_render_pass, same identifiers, UV left out), plus a light group and a shader
+# enum_view3d_shading_render_pass, same identifiers), plus a light group and a shader
 # AOV of the view layer, named in light_group / aov_name (as EEVEE's View3DShading.aov_name).
 VIEWPORT_PASS_ITEMS = (
     ('', "General", ""),
@@ -355,6 +355,7 @@ VIEWPORT_PASS_ITEMS = (
     ('', "Data", ""),
     ('POSITION', "Position", "Show the Position render pass"),
     ('NORMAL', "Normal", "Show the Normal render pass"),
+    ('UV', "UV", "Show the UV render pass"),
     ('MIST', "Mist", "Show the Mist render pass"),
     ('DENOISING_ALBEDO', "Denoising Albedo", "Albedo pass used by denoiser"),
     ('DENOISING_NORMAL', "Denoising Normal", "Normal pass used by denoiser"),

@@ -46,7 +46,7 @@ VIEW_PASSES = {
     'GLOSSY_DIRECT': "GlossDir", 'GLOSSY_INDIRECT': "GlossInd", 'GLOSSY_COLOR': "GlossCol",
     'TRANSMISSION_DIRECT': "TransDir", 'TRANSMISSION_INDIRECT': "TransInd",
     'TRANSMISSION_COLOR': "TransCol", 'VOLUME_DIRECT': "VolumeDir", 'VOLUME_INDIRECT': "VolumeInd",
-    'POSITION': "Position", 'NORMAL': "Normal", 'MIST': "Mist", 'DENOISING_ALBEDO': "Denoising Albedo",
+    'POSITION': "Position", 'NORMAL': "Normal", 'UV': "UV", 'MIST': "Mist", 'DENOISING_ALBEDO': "Denoising Albedo",
     'DENOISING_NORMAL': "Denoising Normal", 'SAMPLE_COUNT': "Sample Count",
 }
 
@@ -85,6 +85,9 @@ class ViewportSession:
         self.aovs = ()
         self._layer = None
         self._fallbacks = set()
+        # The UV pass needs every mesh's active render UV map exported: only while UV is shown.
+        self.uv_exported = False
+        self.uv_pass_set = None
 
     # ------------------------------------------------------------ scene sync
 
@@ -133,8 +136,11 @@ class ViewportSession:
         # The view layer's AOVs, as a final render exports them (AOV Output nodes write only
         # when a session asks for the AOV: nothing else changes).
         self.aovs = tuple(shader_aovs(view_layer)) if view_layer is not None else ()
-        data = export_scene(depsgraph, self.warn, need_camera=False,
+        uv_pass = self.pass_request[0] == 'UV'
+        data = export_scene(depsgraph, self.warn, need_camera=False, uv_pass=uv_pass,
                             aovs=[(a[0], 'COLOR' if a[1] == 4 else 'VALUE') for a in self.aovs])
+        self.uv_exported = uv_pass
+        self.uv_pass_set = data.uv_sets.names.index("") if uv_pass and "" in data.uv_sets.names else None
         self.light_groups = tuple(getattr(data, "light_groups", None) or ())
         self._layer = _layer_signature(depsgraph)
         ids = []
@@ -259,16 +265,21 @@ class ViewportSession:
 
     # ------------------------------------------------------------ view and render
 
-    def set_pass(self, render_pass, name=""):
+    def set_pass(self, render_pass, name="", depsgraph=None):
         """The Render Pass shown (a VIEW_PASSES id, 'COMBINED', or 'LIGHT_GROUP' / 'AOV' with the
         group's or AOV's name); restarts the render when what it shows changed. Returns True if
-        it restarted."""
+        it restarted. To UV and back re-exports the scene from `depsgraph` (the UV map)."""
         request = (render_pass, name if render_pass in ('LIGHT_GROUP', 'AOV') else "")
         if request == self.pass_request:
             return False
         self.pass_request = request
         if self.scene is None or self.view is None:
             return False  # (restart() resolves it, against the exported view layer)
+        if depsgraph is not None and (render_pass == 'UV') != self.uv_exported:
+            self.stop()
+            self._full_export(depsgraph)
+            self.restart()
+            return True
         if self._resolve() == self.shown:  # (an unknown name shows Combined, as before)
             return False
         self.restart()
@@ -344,6 +355,8 @@ class ViewportSession:
         kind = self.shown[0] if self.shown else None
         if kind == "pass" and self.shown[1] != "Sample Count":  # (the core always counts samples)
             settings.passes = [self.shown[1]]
+            if self.shown[1] == "UV" and self.uv_pass_set is not None:
+                settings.uv_pass_set = self.uv_pass_set
         elif kind == "group":
             settings.light_groups = self.shown[1] + 1
         elif kind == "aov":

@@ -129,7 +129,7 @@ def view_draw(engine, context, depsgraph):
         return
     try:
         vs.check_settings(depsgraph)
-        vs.set_pass(*view_pass(context))
+        vs.set_pass(*view_pass(context), depsgraph=depsgraph)
         vs.set_view(*view_camera(engine, context))
         more = vs.poll()
         shown = vs.display()

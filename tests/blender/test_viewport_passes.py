@@ -72,7 +72,7 @@ def build_scene():
         aov = vl.aovs.add()
         aov.name, aov.type = name, kind
     vl.use_pass_diffuse_color = vl.use_pass_normal = vl.use_pass_mist = True
-    vl.use_pass_ambient_occlusion = vl.use_pass_glossy_direct = True
+    vl.use_pass_ambient_occlusion = vl.use_pass_glossy_direct = vl.use_pass_uv = True
     vl.pathlight.use_pass_sample_count = True
     sc.world.mist_settings.start, sc.world.mist_settings.depth = 2.0, 8.0
     p = sc.pathlight
@@ -140,6 +140,7 @@ CASES = [
     ('DIFFUSE_COLOR', "", "DiffCol", "RGB", 1.0),
     ('NORMAL', "", "Normal", "XYZ", 1.0),
     ('MIST', "", "Mist", "Z", 1.0),
+    ('UV', "", "UV", "UVA", 1.0),
     ('AO', "", "AO", "RGB", 1.0),
     ('GLOSSY_DIRECT', "", "GlossDir", "RGB", 1.0),
     ('SAMPLE_COUNT', "", "Sample Count", "X", 1.0 / SAMPLES),
@@ -236,6 +237,14 @@ def test_switching_the_pass_restarts_and_unknown_names_fall_back():
     assert len(messages) == 2
     assert "light group 'nope'" in messages[0] and "Combined" in messages[0]
     assert "shader AOV 'missing'" in messages[1]
+    # UV needs the meshes' UV maps: to it and back re-exports (from the depsgraph at hand).
+    exports = vs.counters["exports"]
+    dg = bpy.context.evaluated_depsgraph_get()
+    assert vs.set_pass('UV', depsgraph=dg) and vs.counters["exports"] == exports + 1
+    assert vs.shown == ("pass", "UV") and vs.uv_pass_set is not None
+    assert vs.set_pass('NORMAL', depsgraph=dg) and vs.counters["exports"] == exports + 2
+    assert vs.uv_pass_set is None
+    assert vs.set_pass('MIST', depsgraph=dg) and vs.counters["exports"] == exports + 2
     # From a pass to an unknown group: back to Combined, a restart.
     vs.set_pass('MIST')
     assert vs.set_pass('LIGHT_GROUP', "nope") and vs.shown is None
