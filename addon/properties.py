@@ -5,7 +5,7 @@ Threads are not stored here: Blender's own `scene.render.threads_mode` / `thread
 
 import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty,
-                       PointerProperty)
+                       PointerProperty, StringProperty)
 
 
 def _requery_passes(self, context):
@@ -392,7 +392,57 @@ class PathlightViewLayerSettings(bpy.types.PropertyGroup):
     )
 
 
-classes = (PathlightSceneSettings, PathlightViewLayerSettings)
+# The viewport's Render Pass (Rendered shading): Cycles 4.5's list (its
+# enum_view3d_shading_render_pass, same identifiers), plus a light group and a shader
+# AOV of the view layer, named in light_group / aov_name (as EEVEE's View3DShading.aov_name).
+VIEWPORT_PASS_ITEMS = (
+    ('', "General", ""),
+    ('COMBINED', "Combined", "Show the Combined render pass"),
+    ('EMISSION', "Emission", "Show the Emission render pass"),
+    ('BACKGROUND', "Background", "Show the Background render pass"),
+    ('AO', "Ambient Occlusion", "Show the Ambient Occlusion render pass"),
+    ('SHADOW_CATCHER', "Shadow Catcher", "Show the Shadow Catcher render pass"),
+    ('', "Light", ""),
+    ('DIFFUSE_DIRECT', "Diffuse Direct", "Show the Diffuse Direct render pass"),
+    ('DIFFUSE_INDIRECT', "Diffuse Indirect", "Show the Diffuse Indirect render pass"),
+    ('DIFFUSE_COLOR', "Diffuse Color", "Show the Diffuse Color render pass"),
+    ('GLOSSY_DIRECT', "Glossy Direct", "Show the Glossy Direct render pass"),
+    ('GLOSSY_INDIRECT', "Glossy Indirect", "Show the Glossy Indirect render pass"),
+    ('GLOSSY_COLOR', "Glossy Color", "Show the Glossy Color render pass"),
+    ('', "", ""),
+    ('TRANSMISSION_DIRECT', "Transmission Direct", "Show the Transmission Direct render pass"),
+    ('TRANSMISSION_INDIRECT', "Transmission Indirect", "Show the Transmission Indirect render pass"),
+    ('TRANSMISSION_COLOR', "Transmission Color", "Show the Transmission Color render pass"),
+    ('VOLUME_DIRECT', "Volume Direct", "Show the Volume Direct render pass"),
+    ('VOLUME_INDIRECT', "Volume Indirect", "Show the Volume Indirect render pass"),
+    ('LIGHT_GROUP', "Light Group", "Show one light group's pass (View Layer > Light Groups)"),
+    ('', "Data", ""),
+    ('POSITION', "Position", "Show the Position render pass"),
+    ('NORMAL', "Normal", "Show the Normal render pass"),
+    ('UV', "UV", "Show the UV render pass"),
+    ('MIST', "Mist", "Show the Mist render pass"),
+    ('DENOISING_ALBEDO', "Denoising Albedo", "Albedo pass used by denoiser"),
+    ('DENOISING_NORMAL', "Denoising Normal", "Normal pass used by denoiser"),
+    ('SAMPLE_COUNT', "Sample Count", "Per-pixel number of samples"),
+    ('AOV', "Shader AOV", "Show one shader AOV (View Layer > Shader AOV)"),
+)
+
+
+class PathlightView3DShadingSettings(bpy.types.PropertyGroup):
+    """The 3D viewport's Render Pass (View3DShading.pathlight, as Cycles' View3DShading.cycles)."""
+    render_pass: EnumProperty(
+        name="Render Pass", description="Render pass to show in the 3D Viewport",
+        items=VIEWPORT_PASS_ITEMS, default='COMBINED',
+    )
+    light_group: StringProperty(
+        name="Light Group", description="The view layer's light group shown (Render Pass: Light Group)",
+    )
+    aov_name: StringProperty(
+        name="Shader AOV", description="The view layer's shader AOV shown (Render Pass: Shader AOV)",
+    )
+
+
+classes = (PathlightSceneSettings, PathlightViewLayerSettings, PathlightView3DShadingSettings)
 
 
 def register():
@@ -400,9 +450,11 @@ def register():
         bpy.utils.register_class(cls)
     bpy.types.Scene.pathlight = PointerProperty(type=PathlightSceneSettings)
     bpy.types.ViewLayer.pathlight = PointerProperty(type=PathlightViewLayerSettings)
+    bpy.types.View3DShading.pathlight = PointerProperty(type=PathlightView3DShadingSettings)
 
 
 def unregister():
+    del bpy.types.View3DShading.pathlight
     del bpy.types.ViewLayer.pathlight
     del bpy.types.Scene.pathlight
     for cls in reversed(classes):

@@ -388,13 +388,36 @@ if ViewLayerLightgroupsPanelHelper is not None:
         bl_context = "view_layer"
     light_group_classes += (PATHLIGHT_VIEWLAYER_PT_lightgroups,)
 
+class PATHLIGHT_VIEW3D_PT_shading_render_pass(PathlightPanel, bpy.types.Panel):
+    """The shading popover's Render Pass in Rendered mode, as Cycles' CYCLES_VIEW3D_PT_shading_render_pass."""
+    bl_space_type = 'VIEW_3D'
+    bl_region_type = 'HEADER'
+    bl_parent_id = 'VIEW3D_PT_shading'
+    bl_label = "Render Pass"
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES and context.space_data.shading.type == 'RENDERED'
+
+    def draw(self, context):
+        settings = context.space_data.shading.pathlight
+        layout = self.layout
+        layout.prop(settings, "render_pass", text="")
+        view_layer = context.view_layer
+        if settings.render_pass == 'LIGHT_GROUP':
+            layout.prop_search(settings, "light_group", view_layer, "lightgroups", text="")
+        elif settings.render_pass == 'AOV':
+            layout.prop_search(settings, "aov_name", view_layer, "aovs", text="")
+
+
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_sampling_viewport_denoise,
            PATHLIGHT_RENDER_PT_sampling_denoise, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
            PATHLIGHT_RENDER_PT_light_paths_clamping,
            PATHLIGHT_RENDER_PT_film,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
-           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher) + light_group_classes
+           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher,
+           PATHLIGHT_VIEW3D_PT_shading_render_pass) + light_group_classes
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles
 # does: output, camera, lens, light, world context, ...) plus EEVEE's node-based material and

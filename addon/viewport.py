@@ -41,6 +41,18 @@ from .viewport_update import ViewState, curves_signature, plan_updates, settings
 
 log = logging.getLogger(__name__)
 
+# The Render Pass selector (View3DShading.pathlight.render_pass, properties.VIEWPORT_PASS_ITEMS):
+# each entry's core pass (session.PASSES' names); LIGHT_GROUP and AOV name theirs, COMBINED none.
+VIEW_PASSES = {
+    'EMISSION': "Emit", 'BACKGROUND': "Env", 'AO': "AO", 'SHADOW_CATCHER': "Shadow Catcher",
+    'DIFFUSE_DIRECT': "DiffDir", 'DIFFUSE_INDIRECT': "DiffInd", 'DIFFUSE_COLOR': "DiffCol",
+    'GLOSSY_DIRECT': "GlossDir", 'GLOSSY_INDIRECT': "GlossInd", 'GLOSSY_COLOR': "GlossCol",
+    'TRANSMISSION_DIRECT': "TransDir", 'TRANSMISSION_INDIRECT': "TransInd",
+    'TRANSMISSION_COLOR': "TransCol", 'VOLUME_DIRECT': "VolumeDir", 'VOLUME_INDIRECT': "VolumeInd",
+    'POSITION': "Position", 'NORMAL': "Normal", 'UV': "UV", 'MIST': "Mist", 'DENOISING_ALBEDO': "Denoising Albedo",
+    'DENOISING_NORMAL': "Denoising Normal", 'SAMPLE_COUNT': "Sample Count",
+}
+
 LOW_RES_DIVIDER = 4  # the first pass after a change renders at 1/4 resolution ...
 LOW_RES_SAMPLES = 2  # ... with this many samples, then the full resolution takes over
 
@@ -80,6 +92,18 @@ class ViewportSession:
         self._denoised = None
         self._job = None  # [session, samples, thread, result or exception]
         self.counters["denoises"] = 0
+        # The Render Pass asked for (render_pass id, light group or AOV name), what it resolved
+        # to at the last restart (None: Combined; ("pass", name), ("group", i), ("aov", i, channels)),
+        # and the view layer's light groups and shader AOVs of the last export.
+        self.pass_request = ('COMBINED', "")
+        self.shown = None
+        self.light_groups = ()
+        self.aovs = ()
+        self._layer = None
+        self._fallbacks = set()
+        # The UV pass needs every mesh's active render UV map exported: only while UV is shown.
+        self.uv_exported = False
+        self.uv_pass_set = None
 
     # ------------------------------------------------------------ scene sync
 
@@ -95,6 +119,9 @@ class ViewportSession:
             self.restart()
             return None
         plan = plan_updates(updates, self.state, signature)
+        if _layer_signature(depsgraph) != self._layer:
+            # New light groups or AOVs: new group indices and AOV slots in the materials.
+            plan.rebuild_geometry = plan.lights = plan.restart = True
         if plan.nothing:
             return plan
         self.stop()
@@ -120,7 +147,18 @@ class ViewportSession:
         return plan
 
     def _full_export(self, depsgraph):
-        data = export_scene(depsgraph, self.warn, need_camera=False)
+        from .session import shader_aovs
+        view_layer = getattr(depsgraph, "view_layer", None)
+        # The view layer's AOVs, as a final render exports them (AOV Output nodes write only
+        # when a session asks for the AOV: nothing else changes).
+        self.aovs = tuple(shader_aovs(view_layer)) if view_layer is not None else ()
+        uv_pass = self.pass_request[0] == 'UV'
+        data = export_scene(depsgraph, self.warn, need_camera=False, uv_pass=uv_pass,
+                            aovs=[(a[0], 'COLOR' if a[1] == 4 else 'VALUE') for a in self.aovs])
+        self.uv_exported = uv_pass
+        self.uv_pass_set = data.uv_sets.names.index("") if uv_pass and "" in data.uv_sets.names else None
+        self.light_groups = tuple(getattr(data, "light_groups", None) or ())
+        self._layer = _layer_signature(depsgraph)
         ids = []
         scene = to_core(self.pc, data, self.warn, material_ids=ids)
         # Every instance its own transform: moves rebuild the top level only.
@@ -201,6 +239,7 @@ class ViewportSession:
             return False  # (a volume object's compile of it reads its grids: re-export)
         uv_sets = UvSets()
         uv_sets.names = list(self.uv_sets.names) if self.uv_sets is not None else []
+        uv_sets.aovs = dict(getattr(self.uv_sets, "aovs", None) or {})  # (the AOV slots of the export)
         images = ImageTable()
         use_schlick = getattr(depsgraph.scene.pathlight, "use_schlick_fresnel", False)
         data = convert_material(mat, self.warn, images, uv_sets, use_schlick, view_layer_ids(depsgraph),
@@ -213,12 +252,16 @@ class ViewportSession:
 
     def _replace_lights(self, depsgraph):
         """Lights and the world read again; no geometry touched."""
+        from .export import world_lightgroup as read_world_lightgroup
         scene = depsgraph.scene
+        groups = list(self.light_groups)
 
-        class _World:  # what set_world reads of SceneData
+        class _World:  # what set_world (and add_lights: the light groups) read of SceneData
             world_texture = world_texture(scene.world, self.warn)
             world_color = world_color(scene.world, self.warn)
             world_volume = world_volume(scene.world, self.warn)
+            light_groups = groups
+            world_lightgroup = read_world_lightgroup(scene.world)
         lights = attach_to_lights(collect_lights(depsgraph, self.warn, is_visible), light_links(depsgraph, self.warn))
         replace_lights(self.scene, lights, _World, self.warn)
         self.counters["light_updates"] += 1
@@ -229,17 +272,66 @@ class ViewportSession:
         if self.scene is None:
             return False
         signature = settings_signature(depsgraph.scene)
-        if signature == self.state.settings:
+        if signature == self.state.settings and _layer_signature(depsgraph) == self._layer:
             return False
         self.stop()
-        if curves_signature(signature) != curves_signature(self.state.settings):
-            self._full_export(depsgraph)  # ribbons or round curves: new geometry
+        if (curves_signature(signature) != curves_signature(self.state.settings)
+                or _layer_signature(depsgraph) != self._layer):
+            self._full_export(depsgraph)  # ribbons or round curves, light groups, AOVs: re-export
         self._read_scene(depsgraph)
         self.state.settings = signature
         self.restart()
         return True
 
     # ------------------------------------------------------------ view and render
+
+    def set_pass(self, render_pass, name="", depsgraph=None):
+        """The Render Pass shown (a VIEW_PASSES id, 'COMBINED', or 'LIGHT_GROUP' / 'AOV' with the
+        group's or AOV's name); restarts the render when what it shows changed. Returns True if
+        it restarted. To UV and back re-exports the scene from `depsgraph` (the UV map)."""
+        request = (render_pass, name if render_pass in ('LIGHT_GROUP', 'AOV') else "")
+        if request == self.pass_request:
+            return False
+        self.pass_request = request
+        if self.scene is None or self.view is None:
+            return False  # (restart() resolves it, against the exported view layer)
+        if depsgraph is not None and (render_pass == 'UV') != self.uv_exported:
+            self.stop()
+            self._full_export(depsgraph)
+            self.restart()
+            return True
+        if self._resolve() == self.shown:  # (an unknown name shows Combined, as before)
+            return False
+        self.restart()
+        return True
+
+    def _resolve(self):
+        """What pass_request shows with the exported view layer: see `shown`. An unknown light
+        group or AOV, or a pass this core lacks, shows Combined, with one message."""
+        render_pass, name = self.pass_request
+        if render_pass in VIEW_PASSES:
+            core_pass = VIEW_PASSES[render_pass]
+            if core_pass in self.pc.render_passes():
+                return ("pass", core_pass)
+            self._fallback(f"the {core_pass} pass is not rendered by this core; the viewport shows Combined")
+        elif render_pass == 'LIGHT_GROUP':
+            if name in self.light_groups:
+                return ("group", self.light_groups.index(name))
+            self._fallback(f"light group '{name}' is not one of the view layer's light groups; "
+                           "the viewport shows Combined")
+        elif render_pass == 'AOV':
+            names = [a[0] for a in self.aovs]
+            if name in names:
+                i = names.index(name)
+                return ("aov", i, self.aovs[i][1])
+            self._fallback(f"shader AOV '{name}' is not one of the view layer's shader AOVs; "
+                           "the viewport shows Combined")
+        return None
+
+    def _fallback(self, msg):
+        if msg not in self._fallbacks:
+            self._fallbacks.add(msg)
+            self.warn(msg)
 
     def set_view(self, camera, width, height):
         """The viewport's camera (pc.Camera fields, or None = the scene camera) and region
@@ -259,6 +351,7 @@ class ViewportSession:
         self.stop()
         if self.scene is None or self.view is None:
             return
+        self.shown = self._resolve()
         self.counters["restarts"] += 1
         _, width, height = self.view
         if min(width, height) >= 8 * LOW_RES_DIVIDER:  # tiny regions skip the low pass
@@ -277,6 +370,17 @@ class ViewportSession:
                 except (AttributeError, TypeError):
                     pass
         settings.width, settings.height, settings.samples = width, height, samples
+        # Only the pass shown (Combined alone: no pass buffer at all). A light group or AOV
+        # asks for the slots up to its own, which keep the final render's numbering.
+        kind = self.shown[0] if self.shown else None
+        if kind == "pass" and self.shown[1] != "Sample Count":  # (the core always counts samples)
+            settings.passes = [self.shown[1]]
+            if self.shown[1] == "UV" and self.uv_pass_set is not None:
+                settings.uv_pass_set = self.uv_pass_set
+        elif kind == "group":
+            settings.light_groups = self.shown[1] + 1
+        elif kind == "aov":
+            settings.shader_aovs = [a[1] for a in self.aovs[:self.shown[1] + 1]]
         camera = self._camera()
         sess = self.pc.Session(self.scene, settings, camera=camera)
         sess.start()
@@ -316,12 +420,14 @@ class ViewportSession:
 
     def display(self):
         """(film float32 (H, W, 4) row 0 = bottom, samples done) of the best render so far,
-        or None before anything rendered. With Viewport Denoise, from the start sample on, the
-        film denoised (see _denoise)."""
+        or None before anything rendered: Combined, or the pass shown as display_pass makes it.
+        With Viewport Denoise, from the start sample on, Combined denoised (see _denoise)."""
         for sess in (self.full, self.low):
             if sess is not None:
                 done = sess.progress()["samples_done"]
                 if done > 0:
+                    if self.shown:  # a pass other than Combined, as it is (not denoised)
+                        return self._pass_film(sess, done), done
                     film = sess.film()
                     if self.denoiser is not None and done >= self.denoise_start:
                         film = self._denoise(sess, film, done)
@@ -378,6 +484,17 @@ class ViewportSession:
         """True while a denoise runs (the viewport keeps redrawing to show its image)."""
         return self._job is not None and self._job[2] is not None and self._job[2].is_alive()
 
+    def _pass_film(self, sess, samples):
+        kind = self.shown[0] if self.shown else None
+        if kind is None:
+            return sess.film()
+        if kind == "group":
+            return display_pass(sess.film_light_group(self.shown[1]))
+        if kind == "aov":
+            return display_pass(sess.film_aov(self.shown[1]))
+        name = self.shown[1]
+        return display_pass(sess.film_pass(name), 1.0 / samples if name == "Sample Count" else 1.0)
+
     def stop(self):
         """Cancels the running sessions and drops them (which unlocks the scene for edits)."""
         for sess in (self.low, self.full):
@@ -393,6 +510,34 @@ class ViewportSession:
     def free(self):
         self.stop()
         self.scene = None
+
+
+def display_pass(values, scale=1.0):
+    """A pass (H, W, channels) as the RGBA film the viewport draws, as Cycles' viewport shows
+    passes: 1 channel as grey, 3 as RGB, both with alpha 1; 4 as they are. scale: Sample Count's
+    1 / samples (Cycles shows the share of the samples a pixel took)."""
+    values = np.asarray(values, np.float32)
+    if values.ndim == 2:
+        values = values[..., None]
+    h, w, c = values.shape
+    if c == 4:
+        out = values.copy()
+    else:
+        out = np.ones((h, w, 4), np.float32)
+        out[..., :3] = values if c == 3 else values[..., :1]
+    if scale != 1.0:
+        out[..., :3] *= np.float32(scale)
+    return out
+
+
+def _layer_signature(depsgraph):
+    """The view layer's light groups and shader AOVs: a change re-exports (group indices, AOV slots)."""
+    from .export import view_layer_lightgroups
+    from .session import shader_aovs
+    view_layer = getattr(depsgraph, "view_layer", None)
+    if view_layer is None:
+        return ((), ())
+    return tuple(view_layer_lightgroups(view_layer)), tuple(shader_aovs(view_layer))
 
 
 def _freeze(camera):

@@ -96,12 +96,24 @@ def _pano_camera_view(engine, context):
         return None
 
 
+def view_pass(context):
+    """(render_pass, light group or AOV name) of the region's Render Pass selector
+    (View3DShading.pathlight); Combined where the context has no 3D view shading."""
+    shading = getattr(getattr(context, "space_data", None), "shading", None)
+    settings = getattr(shading, "pathlight", None)
+    if settings is None:
+        return 'COMBINED', ""
+    name = {'LIGHT_GROUP': settings.light_group, 'AOV': settings.aov_name}.get(settings.render_pass, "")
+    return settings.render_pass, name
+
+
 def view_update(engine, context, depsgraph):
     try:
         vs = _session(engine)
         if vs is None:
             vs = ViewportSession(get_core(), lambda msg: _report_once(engine, msg))
             engine._pathlight_viewport = vs
+            vs.set_pass(*view_pass(context))
             vs.set_view(*view_camera(engine, context))
             vs.sync(depsgraph)
         else:
@@ -117,6 +129,7 @@ def view_draw(engine, context, depsgraph):
         return
     try:
         vs.check_settings(depsgraph)
+        vs.set_pass(*view_pass(context), depsgraph=depsgraph)
         vs.set_view(*view_camera(engine, context))
         more = vs.poll()
         shown = vs.display()
