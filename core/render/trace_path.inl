@@ -718,9 +718,13 @@ struct NoGroupSink {
 template <bool kLinks = false, bool kClamp = false, bool kFastGI = false, class Through, class Sink = NoGroupSink>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
                                   Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0,
-                                  const CausticHitMis* caus = nullptr, float clamp = 0.0f, const Sink& sink = Sink{},
-                                  bool escaped = false) {
+                                  const CausticHitMis* caus = nullptr, float clamp = 0.0f, const Sink& sink = Sink{}) {
   Vec3 sum(0.0f);
+  // kFastGI: a negative t_end (-0 too) is a ray Fast GI shortened to -t_end that found nothing
+  // there: an escaped ray for the suns. (The other kernels' code and calls are as before.)
+  [[maybe_unused]] bool escaped = false;
+  if constexpr (kFastGI)
+    if (std::signbit(t_end)) t_end = -t_end, escaped = true;
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
   const Vec3 d = ray.dir / len;
@@ -758,7 +762,7 @@ template <bool kLinks = false, bool kClamp = false, bool kFastGI = false, class 
     }
   };
   scene.for_hit_lights(ray.org, d, tmax, add);  // (bounding spheres or boxes first)
-  if (std::isinf(tmax) || (kFastGI && escaped))  // (escaped: a ray Fast GI shortened found nothing)
+  if (std::isinf(tmax) || (kFastGI && escaped))
     for (const Scene::HitLight& h : scene.hit_suns()) add(h);
   return sum;
 }
@@ -1651,10 +1655,10 @@ restart: __attribute__((unused));
       CausticHitMis chm;
       if constexpr (kCaus)
         if (cz_k >= 2 && (!prev_delta || cz_delta) && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng, prev_delta};
-      const float t_end = found ? hit.t : (kFastGI && ao_ray ? ray.tmax : kInf);
+      const float t_end = found ? hit.t : (kFastGI && ao_ray ? -ray.tmax : kInf);
       const Vec3 lh = light_hits<kLinks, kTricks, kFastGI>(scene, ray, t_end, ray_vis, nee && !prev_delta, prev_pdf,
                                          mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr, lim.found(),
-                                         hit_sink, kFastGI && ao_ray && !found);
+                                         hit_sink);
       L += lh;
       if constexpr (kAovs) {
         if (lp) lp_found(lh);

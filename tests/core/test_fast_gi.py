@@ -133,6 +133,24 @@ def test_replace_counts_no_transmission_bounce():
     assert 0.85 * m < centre(through)[0] < m + 0.12
 
 
+def test_a_shortened_ray_that_reaches_nothing_still_finds_the_sun():
+    # A ground plane under a sun with an angle (found by BSDF rays too: light hits) and a black
+    # world: an AO ray that reaches nothing within its distance is an escaped ray, so the sun
+    # counts (Cycles' integrate_distant_lights, unscaled) exactly as for an unbounded AO ray.
+    def scene():
+        s = pc.Scene()
+        m = s.add_material("ground", (0.7, 0.7, 0.7))
+        add_object(s, *quad((-5, -5, 0), (10, 0, 0), (0, 10, 0)), m)
+        s.add_sun_light((0.3, -0.2, 1.0), (3.0, 3.0, 3.0), angle=0.4)
+        s.set_world_color((0.0, 0.0, 0.0))
+        s.set_camera(camera(pc, (0.0, -3.0, 2.0), (0.0, 0.0, 0.0), lens=35.0))
+        return s
+    short, st = film(scene(), samples=16, ao_bounces=1, ao_factor=0.5, ao_distance=1e-3)
+    unbounded, _ = film(scene(), samples=16, ao_bounces=1, ao_factor=0.5, ao_distance=float("inf"))
+    assert "light hits" in st["features"] and short[..., :3].mean() > 0.1
+    assert np.array_equal(short, unbounded)
+
+
 # --- Add -------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("k", [0.5, 1.0])
