@@ -728,7 +728,7 @@ template <bool kLinks = false, bool kClamp = false, bool kFastGI = false, class 
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
   const Vec3 d = ray.dir / len;
-  const float tmax = t_end * len;
+  float tmax = t_end * len;
   const bool camera = vis == kLightVisCamera;
   const bool rects = scene.solid_angle_rect_sampling();
   const auto add = [&](const Scene::HitLight& h) {
@@ -762,7 +762,9 @@ template <bool kLinks = false, bool kClamp = false, bool kFastGI = false, class 
     }
   };
   scene.for_hit_lights(ray.org, d, tmax, add);  // (bounding spheres or boxes first)
-  if (std::isinf(tmax) || (kFastGI && escaped))
+  if constexpr (kFastGI)
+    if (escaped) tmax = kInf;  // (suns lie past any reach: add reads tmax)
+  if (std::isinf(tmax))
     for (const Scene::HitLight& h : scene.hit_suns()) add(h);
   return sum;
 }

@@ -137,9 +137,10 @@ def test_a_shortened_ray_that_reaches_nothing_still_finds_the_sun():
     # A ground plane under a sun with an angle (found by BSDF rays too: light hits) and a black
     # world: an AO ray that reaches nothing within its distance is an escaped ray, so the sun
     # counts (Cycles' integrate_distant_lights, unscaled) exactly as for an unbounded AO ray.
+    # (Principled: a diffuse-only vertex finds such lights by its light samples alone.)
     def scene():
         s = pc.Scene()
-        m = s.add_material("ground", (0.7, 0.7, 0.7))
+        m = s.add_shader("ground", closure("principled", base_color=(0.7, 0.7, 0.7), roughness=0.5))
         add_object(s, *quad((-5, -5, 0), (10, 0, 0), (0, 10, 0)), m)
         s.add_sun_light((0.3, -0.2, 1.0), (3.0, 3.0, 3.0), angle=0.4)
         s.set_world_color((0.0, 0.0, 0.0))
