@@ -120,6 +120,48 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "(biased). Off turns the caustic light paths off",
         default=True,
     )
+    # Fast GI Approximation, under Cycles' names (Light Paths > Fast GI Approximation); its AO
+    # factor and distance are the world's own (world.light_settings), as in Cycles.
+    use_fast_gi: BoolProperty(
+        name="Fast GI Approximation",
+        description="Approximate diffuse indirect light with background tinted ambient occlusion. "
+                    "This provides fast alternative to full global illumination, for interactive "
+                    "viewport rendering or final renders with reduced quality (as Cycles; turns "
+                    "path guiding and the caustic light paths off)",
+        default=False,
+    )
+    fast_gi_method: EnumProperty(
+        name="Fast GI Method", description="Fast GI approximation method",
+        items=(('REPLACE', "Replace", "Replace global illumination with ambient occlusion after a "
+                                      "specified number of bounces"),
+               ('ADD', "Add", "Add ambient occlusion to diffuse surfaces")),
+        default='REPLACE',
+    )
+    ao_bounces: IntProperty(
+        name="AO Bounces",
+        description="After this number of light bounces, use approximate global illumination. 0 "
+                    "disables this feature (viewport)",
+        default=1, min=0, max=1024,
+    )
+    ao_bounces_render: IntProperty(
+        name="AO Bounces Render",
+        description="After this number of light bounces, use approximate global illumination. 0 "
+                    "disables this feature (final render)",
+        default=1, min=0, max=1024,
+    )
+    # Film > Transparent > Transparent Glass, under Cycles' names.
+    film_transparent_glass: BoolProperty(
+        name="Transparent Glass",
+        description="Render transmissive surfaces as transparent, for compositing glass over "
+                    "another background",
+        default=False,
+    )
+    film_transparent_roughness: FloatProperty(
+        name="Transparent Roughness Threshold",
+        description="For transparent transmission, keep surfaces with roughness above the "
+                    "threshold opaque",
+        default=0.1, min=0.0, max=1.0,
+    )
     seed: IntProperty(
         name="Seed", description="Seed of the random number sequences",
         default=0, min=0,

@@ -265,7 +265,22 @@ def render_border(scene, warn=None):
     return x0, y0, x1 - x0, y1 - y0
 
 
-def render_settings(pc, scene, warn=None):
+def fast_gi_settings(scene, viewport=False):
+    """Cycles' Fast GI as its BlenderSync gives it to its Integrator: ao_bounces (the viewport's
+    or the final render's; only Replace uses them), the world's AO factor on Replace or Add
+    (ao_factor / ao_additive_factor), nothing without Fast GI or a world."""
+    props = scene.pathlight
+    world = scene.world
+    if not props.use_fast_gi or world is None:
+        return {"ao_bounces": 0, "ao_factor": 0.0, "ao_additive_factor": 0.0}
+    factor = world.light_settings.ao_factor
+    replace = props.fast_gi_method == 'REPLACE'
+    return {"ao_bounces": props.ao_bounces if viewport else props.ao_bounces_render,
+            "ao_factor": factor if replace else 0.0,
+            "ao_additive_factor": 0.0 if replace else factor}
+
+
+def render_settings(pc, scene, warn=None, viewport=False):
     props = scene.pathlight
     st = pc.RenderSettings()
     st.width, st.height = render_size(scene)
@@ -293,8 +308,11 @@ def render_settings(pc, scene, warn=None):
         "filter_type": props.filter_type.lower(),
         "filter_width": props.filter_width,
     }
+    optional.update(fast_gi_settings(scene, viewport))
     optional.update({
         "film_transparent": scene.render.film_transparent,
+        "film_transparent_glass": props.film_transparent_glass,
+        "film_transparent_roughness": props.film_transparent_roughness,
         "exposure": props.film_exposure,
         "debug_view": props.debug_view.lower(),
     })
@@ -602,11 +620,16 @@ def _report_caustics(sess, warn):
     # Only where asked for explicitly: the automatic mode's "off (automatic): ..." is silent,
     # but for spherical stereo, Filter Glossy and the caustics toggles, which turn them off: a
     # log line.
-    state = sess.stats().get("caustics", "")
+    stats = sess.stats()
+    state = stats.get("caustics", "")
     if state.startswith("off:"):
         warn(f"Caustic Light Paths {state}; rendering without them")
-    elif "spherical stereo" in state or state.startswith("off (automatic): not with Filter Glossy"):
+    elif ("spherical stereo" in state or state.startswith("off (automatic): not with Filter Glossy")
+          or state.startswith("off (automatic): not with Fast GI")):
         log.info("Pathlight: Caustic Light Paths %s", state)
+    guiding = stats.get("guiding", "")
+    if guiding:  # (asked for, off: Fast GI)
+        warn(f"Path Guiding {guiding}; rendering without it")
 
 
 def _report_focus(sess, warn):

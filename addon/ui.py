@@ -164,6 +164,33 @@ class PATHLIGHT_RENDER_PT_light_paths_caustics(PathlightPanel, bpy.types.Panel):
         self.layout.label(text=caustics_in_effect(settings))
 
 
+class PATHLIGHT_RENDER_PT_light_paths_fast_gi(PathlightPanel, bpy.types.Panel):
+    """Cycles' Fast GI Approximation panel, laid out as Cycles lays it out."""
+    bl_label = "Fast GI Approximation"
+    bl_parent_id = "PATHLIGHT_RENDER_PT_light_paths"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.pathlight, "use_fast_gi", text="")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        settings = context.scene.pathlight
+        world = context.scene.world
+        layout.active = settings.use_fast_gi
+        col = layout.column(align=True)
+        col.prop(settings, "fast_gi_method", text="Method")
+        if world:
+            light = world.light_settings
+            col = layout.column(align=True)
+            col.prop(light, "ao_factor", text="AO Factor")
+            col.prop(light, "distance", text="AO Distance")
+        if settings.fast_gi_method == 'REPLACE':
+            col = layout.column(align=True)
+            col.prop(settings, "ao_bounces", text="Viewport Bounces")
+            col.prop(settings, "ao_bounces_render", text="Render Bounces")
+
+
 class PATHLIGHT_RENDER_PT_film(PathlightPanel, bpy.types.Panel):
     bl_label = "Film"
     bl_options = {'DEFAULT_CLOSED'}
@@ -171,7 +198,26 @@ class PATHLIGHT_RENDER_PT_film(PathlightPanel, bpy.types.Panel):
     def draw(self, context):
         layout = split(self.layout)
         layout.prop(context.scene.pathlight, "film_exposure")
-        layout.prop(context.scene.render, "film_transparent", text="Transparent")
+
+
+class PATHLIGHT_RENDER_PT_film_transparency(PathlightPanel, bpy.types.Panel):
+    """Film > Transparent, with Transparent Glass under it as in Cycles."""
+    bl_label = "Transparent"
+    bl_parent_id = "PATHLIGHT_RENDER_PT_film"
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.render, "film_transparent", text="")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        rd = context.scene.render
+        settings = context.scene.pathlight
+        layout.active = rd.film_transparent
+        col = layout.column()
+        col.prop(settings, "film_transparent_glass", text="Transparent Glass")
+        sub = col.column()
+        sub.active = rd.film_transparent and settings.film_transparent_glass
+        sub.prop(settings, "film_transparent_roughness", text="Roughness Threshold")
 
 
 class PATHLIGHT_RENDER_PT_debug(PathlightPanel, bpy.types.Panel):
@@ -412,8 +458,8 @@ class PATHLIGHT_VIEW3D_PT_shading_render_pass(PathlightPanel, bpy.types.Panel):
 
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_sampling_viewport_denoise,
            PATHLIGHT_RENDER_PT_sampling_denoise, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
-           PATHLIGHT_RENDER_PT_light_paths_clamping,
-           PATHLIGHT_RENDER_PT_film,
+           PATHLIGHT_RENDER_PT_light_paths_clamping, PATHLIGHT_RENDER_PT_light_paths_fast_gi,
+           PATHLIGHT_RENDER_PT_film, PATHLIGHT_RENDER_PT_film_transparency,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
            PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher,

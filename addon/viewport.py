@@ -213,7 +213,7 @@ class ViewportSession:
         from .export.camera import camera_params
         from .session import pixel_pattern_settings, render_settings
         scene = depsgraph.scene
-        self._base_settings = render_settings(self.pc, scene)
+        self._base_settings = render_settings(self.pc, scene, viewport=True)
         self._base_settings.samples = scene.pathlight.preview_samples
         self._base_settings.time_limit = 0.0
         self._base_settings.adaptive_threshold = 0.0  # the viewport refines until its samples

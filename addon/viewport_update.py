@@ -166,10 +166,15 @@ def settings_signature(scene):
              "seed", "sampler", "pixel_pattern", "use_nee", "use_schlick_fresnel",
              "use_adaptive_sampling", "adaptive_threshold", "adaptive_min_samples", "use_guiding",
              "use_preview_denoising", "preview_denoising_input_passes", "preview_denoising_prefilter",
-             "preview_denoising_quality", "preview_denoising_start_sample")
+             "preview_denoising_quality", "preview_denoising_start_sample",
+             "use_fast_gi", "fast_gi_method", "ao_bounces", "film_transparent_glass",
+             "film_transparent_roughness")
     r = scene.render
     curves = getattr(scene, "cycles_curves", None)
     return (tuple(getattr(props, n, None) for n in names)
             + (scene.camera.name if scene.camera else "", scene.world.name if scene.world else "",
+               # (the world's AO factor and distance: Fast GI's and the AO pass's)
+               tuple(getattr(scene.world.light_settings, n) for n in ("ao_factor", "distance"))
+               if scene.world else (),
                r.pixel_aspect_x, r.pixel_aspect_y, r.threads,
                ("curves", getattr(curves, "shape", None), getattr(curves, "subdivisions", None))))

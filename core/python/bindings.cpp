@@ -3348,11 +3348,52 @@ PYBIND11_MODULE(pathlight_core, m) {
             s.passes = bits;
           })
       .def_readwrite("film_transparent", &RenderSettings::film_transparent)
+      .def_readwrite("film_transparent_glass", &RenderSettings::film_transparent_glass,
+                     "Cycles' Transparent Glass (with film_transparent): the world seen through transmission "
+                     "no rougher than film_transparent_roughness (glass, refraction) is transparent in alpha "
+                     "and left out of the colour, as through Transparent BSDFs")
+      .def_property(
+          "film_transparent_roughness", [](const RenderSettings& s) { return s.film_transparent_roughness; },
+          [](RenderSettings& s, float v) {
+            s.film_transparent_roughness = clamp_setting(v, "film_transparent_roughness", "smooth glass only");
+          },
+          "Cycles' Roughness Threshold of Transparent Glass (default 0.1): transmission of a closure whose "
+          "roughness (Blender's, its alphas' geometric mean square-rooted) is at most this. Negative or "
+          "non-finite: 0, with a warning")
+      .def_property(
+          "ao_bounces", [](const RenderSettings& s) { return s.ao_bounces; },
+          [](RenderSettings& s, int v) {
+            if (v < 0) {
+              py::module_::import("warnings").attr("warn")("ao_bounces must be >= 0 (0: no Fast GI Replace); " +
+                                                           std::to_string(v) + " is treated as 0");
+              v = 0;
+            }
+            s.ao_bounces = v;
+          },
+          "Cycles' Fast GI Approximation, Replace (its Integrator's ao_bounces: the add-on passes "
+          "ao_bounces_render, or ao_bounces in the viewport): after this many bounces (transmission not "
+          "counted, glossy at most once) the next ray reaches at most ao_distance; a surface there ends the "
+          "path, the world it reaches is times ao_factor. 0 = off (the default), as is ao_factor 0")
+      .def_property(
+          "ao_factor", [](const RenderSettings& s) { return s.ao_factor; },
+          [](RenderSettings& s, float v) { s.ao_factor = clamp_setting(v, "ao_factor", "no Fast GI Replace"); },
+          "Fast GI Replace's factor on the world the AO ray reaches (world.light_settings.ao_factor); 0 turns "
+          "Replace off, as in Cycles. Negative or non-finite: 0, with a warning")
+      .def_property(
+          "ao_additive_factor", [](const RenderSettings& s) { return s.ao_additive_factor; },
+          [](RenderSettings& s, float v) {
+            s.ao_additive_factor = clamp_setting(v, "ao_additive_factor", "no Fast GI Add");
+          },
+          "Cycles' Fast GI Approximation, Add (its Integrator's ao_additive_factor, the world's AO factor): "
+          "every surface adds its diffuse closures' weight times this where a cosine ray of ao_distance "
+          "finds no surface. 0 = off (the default). Negative or non-finite: 0, with a warning")
       .def_readwrite("exposure", &RenderSettings::exposure)
       .def_readwrite("mist_start", &RenderSettings::mist_start)
       .def_readwrite("mist_depth", &RenderSettings::mist_depth)
       .def_readwrite("mist_falloff", &RenderSettings::mist_falloff, "Mist falloff exponent: 1 Linear, 2 Quadratic, 0.5 Inverse Quadratic")
-      .def_readwrite("ao_distance", &RenderSettings::ao_distance)
+      .def_readwrite("ao_distance", &RenderSettings::ao_distance,
+                     "The world's AO distance (world.light_settings.distance, >= 0; infinite: unbounded): the "
+                     "AO pass's rays and Fast GI's (Cycles' ao_bounces_distance)")
       .def_readwrite("shader_aovs", &RenderSettings::shader_aovs,
                      "Shader AOVs (the view layer's, in order): the channels of each, 4 (COLOR) or 1 (VALUE); "
                      "the aov_output op writes slot i. Read with Session.film_aov(i).")
@@ -4399,6 +4440,7 @@ PYBIND11_MODULE(pathlight_core, m) {
              d["autofocus"] = s.autofocus == 0 ? "off" : s.autofocus == 1 ? "hit" : "miss";
              d["kernel"] = s.kernel;
              d["caustics"] = s.caustics;
+             d["guiding"] = s.guiding;
              d["caustic_connections"] = s.caustic_connections;
              d["features"] = s.features;
              d["unused_features"] = s.unused_features;

@@ -68,9 +68,11 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
   return trace_path_t<kKernelAll>(scene, ray, sampler, s, c, aov);
 }
 
-uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding, bool caustics, bool tricks) {
+uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding, bool caustics, bool tricks,
+                         bool fast_gi) {
   uint32_t k = 0;
   if (tricks) k |= kKernelTricks;
+  if (fast_gi) k |= kKernelFastGI;
   if (caustics) k |= kKernelCaustics;
   if (guiding) k |= kKernelGuiding;
   if (f.media) k |= kKernelMedia;

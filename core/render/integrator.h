@@ -163,9 +163,26 @@ struct IntegratorSettings {
   bool tricks() const {
     return clamp_direct > 0.0f || clamp_indirect > 0.0f || filter_glossy > 0.0f || caustics_off != 0;
   }
+  // Cycles' Fast GI Approximation (docs/design/sampling.md "Fast GI approximation"; only kernels
+  // with kKernelFastGI read these). Replace (Cycles' kintegrator->ao_bounces, 0: off): once a
+  // path's bounces, less its transmission bounces and less one if it had glossy ones, reach
+  // ao_bounces (path_state_ao_bounce), its next ray reaches at most ao_distance: a surface there
+  // ends the path (its emission and transparency still count), a ray that reaches no surface
+  // brings the world times ao_factor. Add (ao_additive_factor, 0: off): every surface adds its
+  // diffuse closures' weight times this where a cosine ray of ao_distance finds no surface.
+  int ao_bounces = 0;
+  float ao_factor = 0.0f;
+  float ao_additive_factor = 0.0f;
+  float ao_bounces_distance = 3.40282347e+38f;  // (Cycles' FLT_MAX: unbounded)
+  bool fast_gi() const { return ao_bounces > 0 || ao_additive_factor != 0.0f; }
   // Transparent film: the world seen by camera rays (also through Transparent BSDFs) is not
   // in the returned radiance; it becomes alpha instead. It still lights the scene.
   bool transparent_background = false;
+  // Cycles' Transparent Glass (background.transparent_roughness_squared_threshold; negative:
+  // off): with transparent film, a transmission that is not diffuse and whose closure's
+  // alpha_x alpha_y (Blender's roughness^4) is at most this keeps the path's world transparent
+  // (LABEL_TRANSMIT_TRANSPARENT: PATH_RAY_TRANSPARENT_BACKGROUND stays), as Transparent BSDFs do.
+  float transparent_roughness_squared_threshold = -1.0f;
   // The render's camera, for the shader nodes that read camera space (nullptr: world space).
   const Camera* camera = nullptr;
   // Camera rays carry ray differentials (SceneFeatures::footprints: shaders that read them).
@@ -336,7 +353,10 @@ enum KernelFeature : uint32_t {
   // the Reflective / Refractive Caustics toggles. Without them the other kernels compile to
   // what they were before clamping (docs/design/sampling.md "Clamping").
   kKernelTricks = 1024,
-  kKernelAll = 255 | kKernelTricks,  // the general kernel
+  // Cycles' Fast GI Approximation (IntegratorSettings::ao_bounces, ao_additive_factor): only the
+  // general kernels have it; the others compile to what they were before it.
+  kKernelFastGI = 2048,
+  kKernelAll = 255 | kKernelTricks | kKernelFastGI,  // the general kernel
   // Shadow catchers: paths split at them. Only in a general kernel of their own (every
   // feature and this one): their code cost the general kernel 2 % of its instructions.
   kKernelShadowCatcher = 256,
@@ -348,8 +368,9 @@ using TraceFn = Vec3 (*)(const Scene&, Ray, Sampler&, const IntegratorSettings&,
 // The kernel features a render of a scene with features f needs (aovs: it asks for PathAovs).
 // guiding: the render guides its paths.
 // tricks: the render clamps, filters glossy closures or drops caustics (IntegratorSettings).
+// fast_gi: the render uses Cycles' Fast GI Approximation (IntegratorSettings::fast_gi).
 uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding = false, bool caustics = false,
-                         bool tricks = false);
+                         bool tricks = false, bool fast_gi = false);
 // The fastest instantiated kernel that has every feature in `needed` (or the general one when
 // force_general); `chosen` gets its feature bits. Every kernel gives the general one's result.
 TraceFn select_kernel(uint32_t needed, bool force_general, uint32_t& chosen);

@@ -199,6 +199,17 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   integrator_.filter_glossy = std::isfinite(blur) && blur > 0.0f ? 1.0f / blur : 0.0f;
   integrator_.caustics_off = uint8_t((settings_.caustics_reflective ? 0 : kCausticsNoReflective) |
                                      (settings_.caustics_refractive ? 0 : kCausticsNoRefractive));
+  // Fast GI as Cycles' Integrator::device_update: Replace only with a factor (ao_bounces 0 else).
+  const auto non_negative = [](float v) { return std::isfinite(v) && v > 0.0f ? v : 0.0f; };
+  integrator_.ao_factor = non_negative(settings_.ao_factor);
+  integrator_.ao_bounces = integrator_.ao_factor != 0.0f ? std::max(0, settings_.ao_bounces) : 0;
+  integrator_.ao_additive_factor = non_negative(settings_.ao_additive_factor);
+  integrator_.ao_bounces_distance = settings_.ao_distance;  // (the constructor refuses a negative one)
+  // Transparent Glass (Cycles' Background::device_update): the roughness squared twice.
+  if (settings_.film_transparent && settings_.film_transparent_glass) {
+    const float r = non_negative(settings_.film_transparent_roughness);
+    integrator_.transparent_roughness_squared_threshold = r * r * r * r;
+  }
   integrator_.diffuse_bounces = settings_.diffuse_bounces;
   integrator_.glossy_bounces = settings_.glossy_bounces;
   integrator_.transmission_bounces = settings_.transmission_bounces;
@@ -272,11 +283,14 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     // runs a general kernel: only those take its given first hit (PathCounters::first_hit).
     const bool aovs = film_.aux_stride() > 0 || settings_.film_transparent || scene_->any_holdout() ||
                       integrator_.cryptomatte != 0;
-    const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None;
+    // Fast GI: guiding off (its field would learn the approximation's light; Cycles' own guiding
+    // is not combined with it here either), with the reason in SessionStats::guiding.
+    const bool guiding = settings_.guiding && settings_.debug_view == DebugView::None && !integrator_.fast_gi();
+    if (settings_.guiding && integrator_.fast_gi()) guiding_note_ = "off: not with Fast GI Approximation";
     integrator_.differentials = scene_->features().footprints;
     setup_caustics(guiding);
     kernel_ = select_kernel(kernel_features(scene_->features(), aovs, guiding, caustics_ != nullptr,
-                                            integrator_.tricks()),
+                                            integrator_.tricks(), integrator_.fast_gi()),
                             settings_.force_general_kernel || bake_ != nullptr, kernel_bits_);
     if (guiding) {
       // Müller et al.'s split threshold: cells keep about 12000 records (times the square root
@@ -335,6 +349,7 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
     all.emplace_back("motion blur", motion_);
     all.emplace_back("guiding", guiding);
     all.emplace_back("light path tricks", integrator_.tricks());  // clamping, filter glossy, caustics off
+    all.emplace_back("fast gi", integrator_.fast_gi());
     for (const auto& [n, on] : all) (on ? features_ : unused_features_).push_back(n);
   }
   tile_active_.resize(size_t(film_.tile_count()));
@@ -414,6 +429,7 @@ SessionStats Session::stats() const {
   s.autofocus = autofocus_;
   s.kernel = kernel_name(kernel_bits_);
   s.caustics = caustics_note_;
+  s.guiding = guiding_note_;
   s.caustic_connections = caustics_ ? caustics_->connections : 0;
   s.features = features_;
   s.unused_features = unused_features_;
@@ -844,6 +860,9 @@ void Session::setup_caustics(bool guiding) {
   // "Filter Glossy and caustics toggles").
   else if (integrator_.filter_glossy > 0.0f || integrator_.caustics_off != 0)
     off("not with Filter Glossy or the Reflective / Refractive Caustics switched off");
+  // Fast GI cuts the indirect light short; light paths would bring back what it leaves out.
+  else if (integrator_.fast_gi())
+    off("not with Fast GI Approximation");
   // A thin lens connects through a point on its aperture (integrator_caustics.cpp), the
   // orthographic one's too; a pinhole panorama through its inverse map, a moving camera or
   // scene at the light path's own shutter time. An orthographic pinhole's rays are parallel: a

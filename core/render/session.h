@@ -51,6 +51,17 @@ struct RenderSettings {
   // (IntegratorSettings::caustics_off). With Filter Glossy on or either off, the caustic light
   // paths (and their connections) are off: their caustics are what these leave out.
   bool caustics_reflective = true, caustics_refractive = true;
+  // Cycles' Fast GI Approximation (docs/design/sampling.md "Fast GI approximation"), its
+  // Integrator's sockets: ao_bounces (Replace; the add-on passes ao_bounces_render or, in the
+  // viewport, ao_bounces) and ao_factor (0 turns Replace off, as Cycles), ao_additive_factor
+  // (Add); their rays' length is ao_distance (below, the world's AO distance). Guiding and the
+  // caustic light paths are off with either. Negative or non-finite: 0.
+  int ao_bounces = 0;
+  float ao_factor = 0.0f, ao_additive_factor = 0.0f;
+  // Cycles' film_transparent_glass and film_transparent_roughness (with film_transparent):
+  // the world seen through smooth transmission (roughness at most this) is transparent too.
+  bool film_transparent_glass = false;
+  float film_transparent_roughness = 0.1f;
   SamplerType sampler = SamplerType::Sobol;  // 4-D sets in Cycles' order (util/sampler.h)
   float adaptive_threshold = 0.0f;  // 0 = off
   int adaptive_min_samples = 0;     // 0 = automatic
@@ -169,6 +180,8 @@ struct SessionStats {
   std::string kernel;           // the integrator kernel it runs (kernel_name)
   // Caustic light tracing: "" (not asked for), "on", or why it is off for this render.
   std::string caustics;
+  // Path guiding asked for but off for this render: why ("" where it runs or was not asked for).
+  std::string guiding;
   int caustic_connections = 0;  // light-vertex connections: the rough vertices that connect (0: none)
   // The features of scene and render in use and not in use (SceneFeatures names, then "dof",
   // "pixel filter", "passes", "transparent film", "adaptive sampling").
@@ -268,6 +281,7 @@ class Session {
   uint32_t kernel_bits_ = kKernelAll;
   std::unique_ptr<CausticLight> caustics_;  // (null: off)
   std::string caustics_note_;
+  std::string guiding_note_;
   uint64_t caustic_paths_ = 0;  // light paths per pixel sample (the whole film's)
   // The current pass's splats, one film image per sample of it.
   std::vector<std::vector<Vec3>> caustic_splats_;

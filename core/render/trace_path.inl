@@ -741,15 +741,20 @@ struct NoGroupSink {
 // `from` (lights not linked to it add nothing but to camera rays; its set's pdfs). clamp: each
 // light's contribution clamped at it (clamp_light; 0: none). sink(light, value): each one's
 // contribution (light groups).
-template <bool kLinks = false, bool kClamp = false, class Through, class Sink = NoGroupSink>
+template <bool kLinks = false, bool kClamp = false, bool kFastGI = false, class Through, class Sink = NoGroupSink>
 [[gnu::noinline]] Vec3 light_hits(const Scene& scene, const Ray& ray, float t_end, uint8_t vis, bool weigh, float prev_pdf,
                                   Vec3 from, Vec3 from_n, const Through& through, uint8_t set = 0,
                                   const CausticHitMis* caus = nullptr, float clamp = 0.0f, const Sink& sink = Sink{}) {
   Vec3 sum(0.0f);
+  // kFastGI: a negative t_end (-0 too) is a ray Fast GI shortened to -t_end that found nothing
+  // there: an escaped ray for the suns. (The other kernels' code and calls are as before.)
+  [[maybe_unused]] bool escaped = false;
+  if constexpr (kFastGI)
+    if (std::signbit(t_end)) t_end = -t_end, escaped = true;
   const float len = length(ray.dir);
   if (!(len > 0.0f)) return sum;
   const Vec3 d = ray.dir / len;
-  const float tmax = t_end * len;
+  float tmax = t_end * len;
   const bool camera = vis == kLightVisCamera;
   const bool rects = scene.solid_angle_rect_sampling();
   const auto add = [&](const Scene::HitLight& h) {
@@ -783,6 +788,8 @@ template <bool kLinks = false, bool kClamp = false, class Through, class Sink = 
     }
   };
   scene.for_hit_lights(ray.org, d, tmax, add);  // (bounding spheres or boxes first)
+  if constexpr (kFastGI)
+    if (escaped) tmax = kInf;  // (suns lie past any reach: add reads tmax)
   if (std::isinf(tmax))
     for (const Scene::HitLight& h : scene.hit_suns()) add(h);
   return sum;
@@ -1081,6 +1088,59 @@ struct HairSampled {
 // The roulette's number where no light sample drew it (few vertices: without light samples).
 [[gnu::noinline, gnu::cold]] float roulette_number(Sampler& sampler) { return sampler.get2d().x; }
 
+// Cycles' Transparent Glass (bsdf_sample's LABEL_TRANSMIT_TRANSPARENT): a transmission sampled
+// from closure c that is not diffuse and whose alpha_x alpha_y (bsdf_get_specular_roughness_
+// squared: 0 for delta lobes, 1 for closures without a microfacet roughness) is at most
+// `threshold` (negative: off) keeps the path's world the transparent film's.
+inline bool transmit_transparent(const Closure& c, uint32_t flags, float threshold) {
+  if (!(threshold >= 0.0f) || !(flags & kTransmit) || (flags & kDiffuseLobe)) return false;
+  float r2 = 1.0f;
+  if (c.delta) r2 = 0.0f;
+  else if (const auto* d = std::get_if<DielectricBsdf>(&c.bsdf)) r2 = d->alpha * (d->alpha_y < 0.0f ? d->alpha : d->alpha_y);
+  return r2 <= threshold;
+}
+
+// Fast GI, Add (Cycles' integrate_surface_ao with KERNEL_FEATURE_AO_ADDITIVE): a cosine ray
+// about the diffuse closures' mean normal (surface_shader_ao: CLOSURE_IS_BSDF_DIFFUSE, each
+// normal weighted by its mean weight; the shading normal without any) of at most
+// ao_bounces_distance; where it reaches no surface (transparent ones let it through, as
+// Cycles' shadow ray), the light is the diffuse closures' weight times ao_additive_factor, times
+// the throughput and the surface's alpha (clamped as a light sample at this vertex). Its own
+// random numbers, so the path's sample streams stay as without it. Volumes on the way are not
+// traced (the ray is a surface shadow ray).
+[[gnu::noinline]] inline Vec3 fast_gi_additive(const Scene& scene, const IntegratorSettings& s, const SurfacePoint& sp,
+                                               const ClosureList& cl, Vec3 wo, Vec3 ng_out, Vec3 beta, float time,
+                                               uint64_t path_key, int bounce, float clamp) {
+  Vec3 weight(0.0f), n(0.0f);
+  for (int i = 0; i < cl.n; ++i) {
+    const Closure& c = cl.c[size_t(i)];
+    if (closure_pass_kind(c, true) != 0 || std::holds_alternative<SubsurfaceBsdf>(c.bsdf)) continue;
+    weight += c.weight;
+    // (Cycles' closure normals face the viewer; a translucent closure's the other side)
+    Vec3 cn = dot(c.frame.n, wo) < 0.0f ? -c.frame.n : c.frame.n;
+    if (std::holds_alternative<TranslucentBsdf>(c.bsdf)) cn = -cn;
+    n += cn * std::fabs(average(c.weight));
+  }
+  if (is_black(weight)) return Vec3(0.0f);
+  const float nl = length(n);
+  if (nl > 0.0f && std::isfinite(nl)) n = n / nl;
+  else n = dot(sp.ns, wo) < 0.0f ? -sp.ns : sp.ns;
+  Pcg32 rng(path_key ^ 0xFA57C1A0FA57C1A0ULL, 0x2545F4914F6CDD1DULL + 2u * uint64_t(bounce));
+  const float u1 = rng.next_float(), u2 = rng.next_float();
+  const float r = std::sqrt(u1), phi = 2.0f * kPi * u2;
+  const Frame f = Frame::from_normal(n);
+  Ray ray;
+  ray.dir = f.to_world(Vec3(r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(0.0f, 1.0f - u1))));
+  ray.org = offset_ray_origin(sp.p, sp.p_error, dot(ray.dir, ng_out) > 0.0f ? ng_out : -ng_out);
+  ray.tmax = std::max(s.ao_bounces_distance, 0.0f);
+  ray.time = time;
+  ray.self_curve = scene.self_curve(sp);
+  const Vec3 vis = scene.transmittance(ray, kShadowHits);
+  if (is_black(vis)) return Vec3(0.0f);
+  const Vec3 alpha = vmax(Vec3(0.0f), vmin(Vec3(1.0f), Vec3(1.0f) - cl.transparency()));
+  return clamp_light(beta * alpha * vis, clamp) * weight * s.ao_additive_factor;
+}
+
 // The path tracer, compiled for the kernel features F (KernelFeature bits): what a scene does
 // not use is left out with if constexpr; kKernelAll is the general kernel.
 template <uint32_t F>
@@ -1102,6 +1162,11 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // A bake's given first hit (PathCounters::first_hit): bake sessions run the general kernels
   // (Session forces them), so the others carry no load and branch per ray for it.
   constexpr bool kBake = (F & kKernelAll) == kKernelAll;
+  // Cycles' Fast GI Approximation (the general kernels): without it none of its code is here.
+  constexpr bool kFastGI = (F & kKernelFastGI) != 0;
+  [[maybe_unused]] const int ao_bounces = kFastGI ? s.ao_bounces : 0;
+  [[maybe_unused]] int ao_from_bounce = -1;  // the bounce whose AO ray started at ao_from
+  [[maybe_unused]] Vec3 ao_from(0.0f);
   // Caustic light tracing: the vertices of the path's L S+ D E prefix so far (0: it is not one),
   // and n Pc / Pa without the light's end: n d01^2 prod q_rev / (p_camera prod q_fwd).
   const CausticLight* const cz = kCaus ? s.caustics : nullptr;
@@ -1202,6 +1267,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   // The camera ray and its continuations through Transparent BSDFs: what it finds is "seen
   // directly" (transparent film, Emit, Env and the data passes).
   bool direct = true;
+  // Cycles' PATH_RAY_TRANSPARENT_BACKGROUND: the world this path finds is the transparent film's
+  // (camera rays, Transparent BSDFs, and with Transparent Glass smooth transmission too).
+  bool film_bg = true;
   bool want_data = aov != nullptr, want_features = aov != nullptr;
   Vec3 feature_throughput(1.0f);
   // Light passes (PathAovs::light): the path's pass weights from its first scattering.
@@ -1297,6 +1365,17 @@ restart: __attribute__((unused));
     };
     Hit hit;
     ++c.rays;
+    // Fast GI (Replace), Cycles' path_state_ao_bounce: past ao_bounces (less transmission, and
+    // one glossy bounce) this ray reaches at most ao_bounces_distance from the vertex that sent
+    // it (transparent crossings on the way count towards it, as Cycles keeps its origin).
+    [[maybe_unused]] bool ao_ray = false;
+    if constexpr (kFastGI)
+      if (ao_bounces > 0 && bounce - transmission - (glossy > 0 ? 1 : 0) + 1 > ao_bounces) {
+        ao_ray = true;
+        if (ao_from_bounce != bounce) ao_from = ray.org, ao_from_bounce = bounce;
+        const float left = s.ao_bounces_distance - length(ray.org - ao_from);
+        ray.tmax = std::min(ray.tmax, std::max(left, 0.0f) / length(ray.dir));
+      }
     // (the catcher path resumes at the split's hit; later rays see the catchers alone)
     bool found;
     if (kBake && __builtin_expect(c.first_hit != nullptr, 0)) {  // baking: the texel's surface
@@ -1556,6 +1635,7 @@ restart: __attribute__((unused));
           const Vec3 d = ray.dir / len;
           const Vec3 p = ray.org + d * t;
           direct = false;
+          film_bg = false;
           want_data = false;
           const bool last = bounce >= s.max_bounces;
           float u_rr = u_rr_seg;
@@ -1653,7 +1733,8 @@ restart: __attribute__((unused));
       CausticHitMis chm;
       if constexpr (kCaus)
         if (cz_k >= 2 && (!prev_delta || cz_delta) && !cz->lamps.empty()) chm = {cz, cz_ratio, cz_ng, prev_delta};
-      const Vec3 lh = light_hits<kLinks, kTricks>(scene, ray, found ? hit.t : kInf, ray_vis, nee && !prev_delta, prev_pdf,
+      const float t_end = found ? hit.t : (kFastGI && ao_ray ? -ray.tmax : kInf);
+      const Vec3 lh = light_hits<kLinks, kTricks, kFastGI>(scene, ray, t_end, ray_vis, nee && !prev_delta, prev_pdf,
                                          mis_org, mis_n, through, mis_set, chm.cz ? &chm : nullptr, lim.found(),
                                          hit_sink);
       L += lh;
@@ -1689,20 +1770,22 @@ restart: __attribute__((unused));
         if (cos_sky > 0.0f) w = power_heuristic(prev_pdf, cos_sky * kInvPi);
       }
       if (!bg_found) bg = scene.background(ray.dir);
+      // Fast GI (Replace): the world an AO ray reaches, times ao_factor (Cycles' integrate_background).
+      if constexpr (kFastGI)
+        if (ao_ray) bg = bg * s.ao_factor;
       // (each use clamped where it is made, as before clamping: a shared value cost the surfaces
       // kernel without clamping 0.2 % instructions)
       if constexpr (kAovs) {
-        if (direct && aov) {
-          aov->environment = clamp_light(beta * bg, lim.found());
-          // Alpha is 1 less what reaches the film transparently (the world and holdouts).
-          if (s.transparent_background) aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
-        }
+        if (direct && aov) aov->environment = clamp_light(beta * bg, lim.found());
+        // Alpha is 1 less what reaches the film transparently (the world and holdouts).
+        const bool film_world = film_bg && s.transparent_background;
+        if (film_world && aov) aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         const Vec3 bg_value = clamp_light(beta * bg * w, lim.found());
-        if (!(direct && s.transparent_background)) L += bg_value;
-        if (lp && bounce > 0) lp_found(bg_value);
+        if (!film_world) L += bg_value;
+        if (lp && bounce > 0 && !film_world) lp_found(bg_value);
         // (on a transparent film the world seen directly is not in Combined, but Cycles evaluates
         // it and writes it to the world's group where the Env pass is on: integrate_background)
-        if (lg && (!(direct && s.transparent_background) || s.groups_transparent_world))
+        if (lg && (!film_world || s.groups_transparent_world))
           to_group(scene.world_light_group(), bg_value);
       } else {
         L += clamp_light(beta * bg * w, lim.found());  // transparent film always comes with the aov kernel
@@ -1731,7 +1814,7 @@ restart: __attribute__((unused));
     // A holdout object seen directly, as Cycles' integrate_surface_holdout with
     // SD_OBJECT_HOLDOUT_MASK: the film is transparent where it is, and the path ends there.
     if constexpr (kAovs)
-      if (direct && aov && scene.features().object_holdout && scene.is_object_holdout(hit.inst, hit.prim)) {
+      if (film_bg && aov && scene.features().object_holdout && scene.is_object_holdout(hit.inst, hit.prim)) {
         aov->alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         break;
       }
@@ -1815,7 +1898,7 @@ restart: __attribute__((unused));
     // Holdout seen directly (also through Transparent BSDFs), as Cycles' film_write_holdout:
     // its weight times the throughput leaves the film transparent; other closures go on.
     if constexpr (kAovs)
-      if (direct && aov && !is_black(cl.holdout)) aov->alpha = clampf(aov->alpha - average(beta * cl.holdout), 0.0f, 1.0f);
+      if (film_bg && aov && !is_black(cl.holdout)) aov->alpha = clampf(aov->alpha - average(beta * cl.holdout), 0.0f, 1.0f);
     if (kAovs && aov && (want_data || want_features)) {
       const bool flip = dot(sp.ng, wo) < 0.0f;  // normals face the viewer, as Cycles' sd->N
       if (want_data && direct) {
@@ -1863,6 +1946,23 @@ restart: __attribute__((unused));
       }
     if constexpr (kAovs)
       if (aov && direct && (lp || s.mist || s.ao)) camera_hit_passes(scene, s, sp, cl, wo, beta, path_key, transparent, ray.time, lp, *aov);
+    if constexpr (kFastGI)
+      if (ao_ray) {
+        // Fast GI (Replace), Cycles' integrator_intersect_terminate: a surface the AO ray reaches
+        // ends the path; one with emission or transparency is shaded for those alone (its
+        // emission above; PATH_RAY_TERMINATE_AFTER_TRANSPARENT), and its transparency goes on.
+        const Vec3 tr = cl.transparency();
+        if (emission_only || is_black(tr)) break;
+        beta *= tr;
+        if (!is_finite(beta) || !count_crossing(sp)) break;
+        length_before = ray_state.length;
+        const bool front_ao = dot(sp.ng, wo) > 0.0f;
+        if constexpr (kMedia) medium.cross(scene, sp, front_ao);
+        ray.org = offset_ray_origin(sp.p, sp.p_error, front_ao ? -sp.ng : sp.ng);
+        ray.self_curve = scene.self_curve(sp);
+        ray.tmax = kInf;
+        continue;
+      }
     if (emission_only || cl.n == 0) break;
 
     if constexpr (kCaus) {
@@ -2159,6 +2259,9 @@ restart: __attribute__((unused));
     }
     // The last vertex does light samples only; one with a BSSRDF still walks to its exit, which
     // samples the lights there (Cycles: the walk is no bounce of its own).
+    if constexpr (kFastGI)
+      if (s.ao_additive_factor != 0.0f && !catcher_only)
+        L += fast_gi_additive(scene, s, sp, cl, wo, ng_out, beta, ray.time, path_key, bounce, lim.sample());
     bool sss_here = false;
     if constexpr (kSubsurface)
       for (int i = 0; i < cl.n; ++i) sss_here = sss_here || std::holds_alternative<SubsurfaceBsdf>(cl.c[size_t(i)].bsdf);
@@ -2218,6 +2321,7 @@ restart: __attribute__((unused));
         cl.add(exit_lobe, Vec3(1.0f), exit_frame);
         cl.finalize();
         direct = false;
+        film_bg = false;
         want_data = false;
         sss_exit = true;
       } else if (last && (nee || sky)) {
@@ -2388,6 +2492,9 @@ restart: __attribute__((unused));
       length_before = ray_state.length;
     } else {
       direct = false;
+      // Transparent Glass (Cycles' bsdf_sample: LABEL_TRANSMIT_TRANSPARENT) keeps the film's world
+      if constexpr (kAovs) film_bg = film_bg && transmit_transparent(ch, bs.flags, s.transparent_roughness_squared_threshold);
+      else film_bg = false;
       want_data = false;
       if constexpr (kTricks) after_diffuse = (bs.flags & kDiffuseLobe) != 0;
       // Cycles' light visibility: diffuse (any diffuse lobe), glossy reflection, transmission.
@@ -2502,7 +2609,7 @@ restart: __attribute__((unused));
       feature_throughput = a.feature_throughput, lp_dw = a.lp_dw, lp_gw = a.lp_gw;
       eta_scale = a.eta_scale, prev_pdf = a.prev_pdf, length_before = a.length_before;
       prev_delta = a.prev_delta, prev_samples_only = a.prev_samples_only, emission_only = a.emission_only;
-      direct = a.direct, want_data = a.want_data, want_features = a.want_features, lp_volume = a.lp_volume;
+      direct = a.direct, film_bg = a.direct, want_data = a.want_data, want_features = a.want_features, lp_volume = a.lp_volume;
       mis_set = a.mis_set, ray_vis = a.ray_vis;
       diffuse = a.diffuse, glossy = a.glossy, transmission = a.transmission, transparent = a.transparent;
       volume_count = a.volume_count, bounce = a.bounce;

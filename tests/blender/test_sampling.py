@@ -220,6 +220,8 @@ def test_panels_draw_existing_properties():
                                        "view_layer": scene.view_layers[0], "world": world})
             for cls in ui.classes:
                 layout = RecordingLayout()
+                if hasattr(cls, "draw_header"):  # (a header's switch: Fast GI, Film > Transparent)
+                    cls.draw_header(type("Panel", (), {"layout": layout})(), context)
                 cls.draw(type("Panel", (), {"layout": layout})(), context)
                 shown.update(layout.props)
     # (Spot size and blend are in Blender's DATA_PT_spot, which Pathlight is added to.)
@@ -229,7 +231,8 @@ def test_panels_draw_existing_properties():
                  "transmission_bounces", "energy", "exposure", "color", "shadow_soft_size",
                  "angle", "shape", "size", "size_y", "use_shadow", "film_exposure",
                  "film_transparent", "debug_view", "use_pass_z", "use_pass_denoising_data",
-                 "use_pass_sample_count", "is_shadow_catcher", "lightgroup"):
+                 "use_pass_sample_count", "is_shadow_catcher", "lightgroup", "use_fast_gi", "fast_gi_method",
+                 "ao_bounces_render", "film_transparent_glass", "film_transparent_roughness"):
         assert name in shown, name
 
 

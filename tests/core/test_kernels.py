@@ -14,7 +14,7 @@ ALL = set(pc.Scene().stats().get("features", [])) | {
     "volumes", "heterogeneous volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights",
     "environment", "world light", "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree",
     "light hits", "subsurface", "motion blur", "guiding", "shadow terminator", "light linking", "shadow catcher",
-    "holdout objects", "light path tricks"}
+    "holdout objects", "light path tricks", "fast gi"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -227,6 +227,11 @@ for _name, _fields in (("clamping", {"clamp_indirect": 1.0}), ("clamp direct", {
 CASES["guided clamping"] = (lambda: cornell(pc), {"guiding": True, "clamp_indirect": 1.0},
                             {"diffuse", "mesh lights", "guiding", "light path tricks"}, "general")
 
+# Fast GI (kKernelFastGI) runs in the general kernels only, as the tricks.
+for _name, _fields in (("fast gi replace", {"ao_bounces": 1, "ao_factor": 0.5}),
+                       ("fast gi add", {"ao_additive_factor": 0.5, "ao_distance": 0.3})):
+    CASES[_name] = (lambda: cornell(pc), _fields, {"diffuse", "mesh lights", "fast gi"}, "general")
+
 
 def session(build, fields, general, size=24, samples=8):
     return run_session(pc, build(), size, size, samples, threads=2, force_general_kernel=general, **fields)
@@ -275,6 +280,19 @@ def test_a_bake_runs_the_general_kernel(name, instance):
     assert np.asarray(sess.film())[..., :3].max() > 0.0  # (the texels were lit)
     # (a render of the same scene keeps its own kernel)
     assert session(build, fields, general=False, samples=1).stats()["kernel"] == kernel
+
+
+@pytest.mark.parametrize("fields", [{"ao_bounces": 1, "ao_factor": 0.5},
+                                    {"ao_additive_factor": 0.5, "ao_distance": 0.3}])
+def test_a_fast_gi_render_runs_a_kernel_that_has_it(fields):
+    # Fast GI runs only where compiled in (kKernelFastGI): its render must pick such a kernel
+    # and change the image there (Replace darkens the closed box, Add with rays shorter than the
+    # box brightens it).
+    plain = session(lambda: cornell(pc), {}, general=False).film()[..., :3].mean()
+    fast = session(lambda: cornell(pc), fields, general=False)
+    assert fast.stats()["kernel"] == "general"
+    ratio = fast.film()[..., :3].mean() / plain
+    assert ratio < 0.9 if "ao_bounces" in fields else ratio > 1.1
 
 
 @pytest.mark.parametrize("name", CASES)
