@@ -219,6 +219,8 @@ def test_panels_draw_existing_properties():
             context = type("Ctx", (), {"scene": scene, "light": light, "object": obj, "engine": "PATHLIGHT",
                                        "view_layer": scene.view_layers[0], "world": world})
             for cls in ui.classes:
+                if getattr(cls, "bl_space_type", "PROPERTIES") == 'VIEW_3D':
+                    continue  # (the shading popover's panel reads a 3D view: test_viewport_passes.py)
                 layout = RecordingLayout()
                 if hasattr(cls, "draw_header"):  # (a header's switch: Fast GI, Film > Transparent)
                     cls.draw_header(type("Panel", (), {"layout": layout})(), context)
