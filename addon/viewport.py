@@ -445,15 +445,13 @@ class ViewportSession:
         due = last is None or done >= 2 * last[1] or (sess.is_finished() and done != last[1])
         if due and (self._job is None or self._job[0] is not sess):
             # The guides are read here (the core's film_pass copies); the filter runs on its own.
-            guides = [sess.film_pass(name) for name in oidn.aux_passes(self.denoiser["input_passes"])]
+            guides = {name: sess.film_pass(name) for name in oidn.aux_passes(self.denoiser["input_passes"])}
             job = [sess, done, None, None]
             opts = dict(self.denoiser)
 
             def work():
                 try:
-                    image = np.array(film, np.float32, order="C", copy=True)
-                    oidn.denoise(image, *guides, prefilter=opts["prefilter"], quality=opts["quality"])
-                    job[3] = image
+                    job[3] = oidn.denoise_film(film, guides.__getitem__, **opts)[0]
                 except Exception as e:  # (handed to the drawing thread by _collect)
                     job[3] = e
             if self.denoise_async:
