@@ -173,8 +173,10 @@ def test_packed_and_generated_tiles_match_cycles(folder):
 
 def test_unreadable_tiles_warn_once(folder):
     uv_plane_scene(lambda: udim_image(folder, missing=(1003, 1004)), *UDIM_RANGE)()
+    images = set(bpy.data.images)
     warnings = Warnings()
     data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert set(bpy.data.images) == images  # the temporary tile images are gone
     tile_warnings = [w for w in warnings if "UDIM" in w]
     assert len(tile_warnings) == 1 and "1003" in tile_warnings[0] and "1004" in tile_warnings[0], warnings
     sets = [i for i in data.images if i.tiles]
@@ -229,6 +231,10 @@ def test_missing_frame_warns_and_is_magenta(folder):
     assert any("seq.0008.png" in w and "not found" in w for w in warnings), warnings
     ours = render_to_array(scene, "PATHLIGHT", samples=1, max_bounces=0)
     assert np.allclose(ours[..., :3], MAGENTA, atol=1e-3)
+    tex.image_user.frame_offset = 1  # frame 2: read through a temporary image, removed again
+    images = set(bpy.data.images)
+    export_scene(bpy.context.evaluated_depsgraph_get(), Warnings())
+    assert set(bpy.data.images) == images
 
 
 @pytest.mark.parametrize("duration, start, offset, cyclic", [
