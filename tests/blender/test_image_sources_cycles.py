@@ -31,12 +31,13 @@ def texels(colour, n=4):
     return px
 
 
-def write_png(path, px):
-    img = bpy.data.images.new("pathlight test writer", px.shape[1], px.shape[0], alpha=True)
+def write_png(path, px, float_exr=False):
+    img = bpy.data.images.new("pathlight test writer", px.shape[1], px.shape[0], alpha=True,
+                              float_buffer=float_exr)
     try:
         img.pixels.foreach_set(np.ascontiguousarray(px, np.float32).ravel())
         img.filepath_raw = str(path)
-        img.file_format = 'PNG'
+        img.file_format = 'OPEN_EXR' if float_exr else 'PNG'
         img.save()
     finally:
         bpy.data.images.remove(img)
@@ -48,6 +49,7 @@ def folder(tmp_path_factory):
     for number, colour in TILE_COLOURS.items():
         write_png(d / f"tiles.{number}.png", texels(colour))
         write_png(d / f"packed.{number}.png", texels(colour))
+        write_png(d / f"hdr.{number}.exr", texels(np.array(colour) * 3.0), float_exr=True)
     for frame, colour in FRAME_COLOURS.items():
         write_png(d / f"seq.{frame:04d}.png", texels(colour))
     return d
@@ -169,6 +171,17 @@ def test_packed_and_generated_tiles_match_cycles(folder):
         ours, cycles = render_both(uv_plane_scene(image_fn, (0.0, 0.0), (2.0, 2.0)))
         assert_same(ours, cycles, what)
         assert np.argmax(at(ours, (0.0, 0.0), 1.5, 0.5)) == 1  # tile 1002: green
+
+
+def test_float_tiles_match_cycles(folder):
+    """EXR tiles (scene linear, values above 1)."""
+    def image():
+        img = bpy.data.images.load(str(folder / "hdr.1001.exr"))
+        img.source = 'TILED'
+        return img
+    ours, cycles = render_both(uv_plane_scene(image, (0.0, 0.0), (2.0, 2.0)))
+    assert_same(ours, cycles, "EXR tiles")
+    assert ours.max() > 1.2 and np.argmax(at(ours, (0.0, 0.0), 1.5, 0.5)) == 1
 
 
 def test_unreadable_tiles_warn_once(folder):
