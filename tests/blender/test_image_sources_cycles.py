@@ -50,15 +50,20 @@ def folder(tmp_path_factory):
         write_png(d / f"tiles.{number}.png", texels(colour))
         write_png(d / f"packed.{number}.png", texels(colour))
         write_png(d / f"hdr.{number}.exr", texels(np.array(colour) * 3.0), float_exr=True)
+        px = texels(colour)
+        px[::2, :, 3] = 0.25  # every other row mostly transparent
+        write_png(d / f"alpha.{number}.png", px)
     for frame, colour in FRAME_COLOURS.items():
         write_png(d / f"seq.{frame:04d}.png", texels(colour))
     return d
 
 
-def uv_plane_scene(image_fn, uv_min, uv_max, interpolation='Linear', extension='REPEAT', frame=1):
+def uv_plane_scene(image_fn, uv_min, uv_max, interpolation='Linear', extension='REPEAT', frame=1,
+                   alpha=False):
     """build() of an emissive plane whose UVs run from uv_min to uv_max (a grid of quads with
     corners inside every tile, which Cycles' tile culling reads), image_fn() its Image Texture,
-    seen by an orthographic camera, PX pixels per UV unit."""
+    seen by an orthographic camera, PX pixels per UV unit; alpha: mixed with a Transparent BSDF
+    by the texture's Alpha (which makes Color the unassociated colour)."""
     (u0, v0), (u1, v1) = uv_min, uv_max
 
     def build():
@@ -77,7 +82,14 @@ def uv_plane_scene(image_fn, uv_min, uv_max, interpolation='Linear', extension='
             tex.image_user.frame_start = 1
         emit = nodes.new("ShaderNodeEmission")
         links.new(tex.outputs["Color"], emit.inputs["Color"])
-        links.new(emit.outputs[0], out.inputs["Surface"])
+        if alpha:
+            mix = nodes.new("ShaderNodeMixShader")
+            links.new(tex.outputs["Alpha"], mix.inputs["Fac"])
+            links.new(nodes.new("ShaderNodeBsdfTransparent").outputs[0], mix.inputs[1])
+            links.new(emit.outputs[0], mix.inputs[2])
+            links.new(mix.outputs[0], out.inputs["Surface"])
+        else:
+            links.new(emit.outputs[0], out.inputs["Surface"])
         nx, ny = round(w * 4), round(h * 4)
         verts = [(i * w / nx, j * h / ny, 0.0) for j in range(ny + 1) for i in range(nx + 1)]
         faces = [(j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i)
@@ -182,6 +194,21 @@ def test_float_tiles_match_cycles(folder):
     ours, cycles = render_both(uv_plane_scene(image, (0.0, 0.0), (2.0, 2.0)))
     assert_same(ours, cycles, "EXR tiles")
     assert ours.max() > 1.2 and np.argmax(at(ours, (0.0, 0.0), 1.5, 0.5)) == 1
+
+
+def test_tiles_alpha_matches_cycles(folder):
+    """The Alpha output of a tile set (its own tile set of alpha images) and Color divided by
+    the filtered alpha, as Cycles, with a missing tile's stand-in among them."""
+    def image():
+        img = bpy.data.images.load(str(folder / "alpha.1001.png"))
+        img.source = 'TILED'
+        img.tiles.new(1012)
+        return img
+    ours, cycles = render_both(uv_plane_scene(image, (0.0, 0.0), (2.0, 2.0), alpha=True))
+    assert_same(ours, cycles, "tiles with alpha")
+    opaque = render_to_array(uv_plane_scene(image, (0.0, 0.0), (2.0, 2.0))(), "PATHLIGHT", samples=4,
+                             max_bounces=0)[..., :3]
+    assert np.abs(ours - opaque).mean() > 0.01  # (Color alone: the associated colour)
 
 
 def test_unreadable_tiles_warn_once(folder):

@@ -113,7 +113,9 @@ def _load_tiles(image, problems):
                         f"(as Cycles): {'; '.join(missing)}")
     if not tiles:
         return _missing(f"image '{image.name}' has no UDIM tiles", problems)
-    return _LoadedTiles(tiles, any(t.has_alpha for _, t in tiles), tiles[0][1].unassociate)
+    is_data = space.is_data or space.name == "Non-Color"
+    unassociate = not is_data and image.alpha_mode not in {'CHANNEL_PACKED', 'NONE'}  # (as below)
+    return _LoadedTiles(tiles, any(t.has_alpha for _, t in tiles), unassociate)
 
 
 def _load_image(image, problems, user=None, frame=None, buffer=False):
