@@ -116,7 +116,9 @@ def _same_geometry(old, new):
     if getattr(old.uv_sets, "names", None) != getattr(new.uv_sets, "names", None):
         return False
     if len(old.images) != len(new.images) or any(
-            a.srgb != b.srgb or not np.array_equal(a.pixels, b.pixels)
+            a.srgb != b.srgb or getattr(a, "tiles", ()) != getattr(b, "tiles", ())
+            or (a.pixels is None) != (b.pixels is None)
+            or (a.pixels is not None and not np.array_equal(a.pixels, b.pixels))
             for a, b in zip(old.images, new.images)):
         return False
     for a, b in zip(old.meshes, new.meshes):

@@ -131,8 +131,13 @@ def add_materials(scene, materials, images, warn, image_ids=None):
     scene; returns the core material ids. image_ids: a list that receives the core id of each
     image (put_material needs them to replace a material later). Core builds without shader
     programs get the (base colour, emission) summary."""
-    ids = [scene.add_image(image.pixels, srgb=image.srgb) if image.srgb
-           else scene.add_image(image.pixels) for image in images]
+    ids = []
+    for image in images:  # (a tile set's tiles come before it)
+        if getattr(image, "tiles", ()):
+            ids.append(scene.add_image_tiles([(n, ids[k]) for n, k in image.tiles]))
+        else:
+            ids.append(scene.add_image(image.pixels, srgb=image.srgb) if image.srgb
+                       else scene.add_image(image.pixels))
     if image_ids is not None:
         image_ids.extend(ids)
     return [put_material(scene, m, ids) for m in materials]
@@ -337,6 +342,13 @@ def _light_image_ids(scene, images):
     known = _LIGHT_IMAGES.setdefault(scene, {})
     ids = []
     for image in images:
+        if getattr(image, "tiles", ()):  # a tile set: by its tiles' ids (added before it)
+            tiles = [(n, ids[k]) for n, k in image.tiles]
+            key = ("tiles", tuple(tiles))
+            if key not in known:
+                known[key] = scene.add_image_tiles(tiles)
+            ids.append(known[key])
+            continue
         px = np.ascontiguousarray(image.pixels)
         key = (get_core().hash_buffer(px, 0), px.shape, px.dtype.str, bool(image.srgb))
         if key not in known:

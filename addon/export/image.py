@@ -12,11 +12,24 @@ def srgb_to_linear(c):
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
-def read_pixels(image):
+def read_pixels(image, user=None, frame=None, notes=None):
     """float32 (H, W, C) pixels of a bpy Image with C in 1..4, or (None, why) if it has none.
-    Returns (pixels, None) on success."""
+    Returns (pixels, None) on success. Sequences and movies: the frame ImageUser `user` shows
+    at scene frame `frame` (user None: the file image.filepath names; image_sources.py);
+    `notes` (a list) hears what was approximated."""
+    if image.source in {'SEQUENCE', 'MOVIE'}:
+        from .image_sources import frame_image
+        with frame_image(image, user, frame) as (tmp, why, note):
+            if note and notes is not None:
+                notes.append(note)
+            return (None, why) if tmp is None else read_buffer(tmp)
     if image.source not in {'FILE', 'GENERATED'}:
         return None, f"image '{image.name}' of type {image.source} is not supported"
+    return read_buffer(image)
+
+
+def read_buffer(image):
+    """read_pixels of the buffer Blender holds for `image` now, whatever its source."""
     try:
         width, height = image.size  # loads the image (packed or external) on first access
         n = len(image.pixels)

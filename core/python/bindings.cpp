@@ -3597,6 +3597,26 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("pixels"), py::arg("srgb") = false)
       .def(
+          "add_image_tiles",
+          [](PyScene& self, const std::vector<std::pair<int64_t, int64_t>>& tiles) {
+            self.check_editable();
+            if (tiles.empty()) throw std::invalid_argument("a tile set needs at least one tile");
+            Image set;
+            for (const auto& [number, id] : tiles) {
+              if (number < 1001 || number > 2000)
+                throw std::invalid_argument("UDIM tile number " + std::to_string(number) + " outside 1001..2000");
+              if (id < 0 || size_t(id) >= self.scene->image_count() || !self.scene->images()[size_t(id)].tiles.empty())
+                throw std::invalid_argument("tile " + std::to_string(number) + ": unknown image id " + std::to_string(id));
+              for (const ImageTile& t : set.tiles)
+                if (t.number == number) throw std::invalid_argument("UDIM tile " + std::to_string(number) + " given twice");
+              set.tiles.push_back({int32_t(number), int32_t(id)});
+            }
+            return self.scene->add_image(std::move(set));
+          },
+          py::arg("tiles"),
+          "A UDIM tile set of images added before (tiles: (number, image id) pairs, numbers 1001 + u + 10 v "
+          "in 1001..2000): an image id that Image Texture ops read as Cycles reads a tiled image.")
+      .def(
           "set_material_pass_index",
           [](PyScene& self, uint32_t material, float pass_index) {
             self.check_editable();

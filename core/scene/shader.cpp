@@ -143,7 +143,7 @@ template <bool kSetsNormal>
       case OpCode::ImageTex: {
         const Float4 s = reg(op.in[0]);
         d = op.index >= 0 && size_t(op.index) < images.size()
-                ? image_lookup(images[size_t(op.index)], s.x, s.y, Interp(op.sub), Extension(op.ext), op.clamp)
+                ? image_texture(images, size_t(op.index), s.x, s.y, Interp(op.sub), Extension(op.ext), op.clamp)
                 : Float4{1.0f, 0.0f, 1.0f, 1.0f};  // Blender's "missing texture" magenta
         break;
       }

@@ -24,12 +24,21 @@ struct Float4 {
   Vec3 xyz() const { return {x, y, z}; }
 };
 
+// One tile of a UDIM tile set: its number (1001 + u + 10 v) and the scene image holding it.
+struct ImageTile {
+  int32_t number = 0;
+  int32_t image = 0;
+};
+
 struct Image {
   int w = 0, h = 0;
   std::vector<Float4> px;  // row 0 = bottom
   // px hold sRGB-encoded colour (8-bit textures, as Cycles keeps them): lookups interpolate the
   // encoded values and decode afterwards, so filtering matches Cycles (not linear-then-filter).
   bool srgb = false;
+  // Non-empty: a UDIM tile set (Scene image ids of plain images; w, h, px unused). A lookup
+  // picks the tile from the UV's integer part and reads it at the fractional part.
+  std::vector<ImageTile> tiles;
 };
 
 enum class Interp : uint8_t { Linear, Closest };
@@ -39,6 +48,12 @@ Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension
 // What an Image Texture node reads, in Cycles' order: interpolate the stored (associated)
 // texels, divide by alpha if `unassociate` (Color with the Alpha output in use), then decode sRGB.
 Float4 image_lookup(const Image& img, float u, float v, Interp interp, Extension ext, bool unassociate);
+// The Image Texture node's lookup of `images[id]`: image_lookup, or for a tile set (Cycles'
+// svm_node_tex_image) the tile int(u) + 10 int(v) (truncated: a UV in (-1, 0) reads tile 1001
+// under its extension) at the UV less that, and the missing-texture magenta for a UV outside
+// tiles 0..9 in u and >= 0 in v or in a tile the set lacks.
+Float4 image_texture(const std::vector<Image>& images, size_t id, float u, float v, Interp interp, Extension ext,
+                     bool unassociate);
 float srgb_to_linear(float c);
 
 enum class OpCode : uint8_t {

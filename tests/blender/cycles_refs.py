@@ -20,6 +20,7 @@ Every key a process uses is recorded in build/cycles_refs_used/ with how and the
 import hashlib
 import json
 import os
+import re
 import shutil
 import tempfile
 import time
@@ -89,6 +90,15 @@ MAX_DEPTH = 12
 BIG = 16        # collections longer than this are hashed per property through foreach_get
 NUMERIC = {"FLOAT": np.float64, "INT": np.int64, "BOOLEAN": np.bool_}
 
+
+
+def is_dir_of_tiles(value, lib):
+    """Whether path `value` names UDIM tiles (a <UDIM> or <UVTILE> token) in an existing folder."""
+    try:
+        real = Path(bpy.path.abspath(value, library=lib))
+    except Exception:
+        return False
+    return ("<UDIM>" in real.name or "<UVTILE>" in real.name) and real.parent.is_dir()
 
 
 def _stable_bytes(path):
@@ -256,11 +266,29 @@ class _Walker:
             is_file = False
         if is_file:
             self.put_bytes(f"{path}=<file {real.name!r}>", _stable_bytes(real))
+        elif is_dir_of_tiles(value, lib):  # a UDIM path: every tile file it names
+            real = Path(bpy.path.abspath(value, library=lib))
+            pattern = re.escape(real.name).replace("<UDIM>", r"\d{4}").replace("<UVTILE>", r"u\d+_v\d+")
+            self.put(f"{path}=<tiles {real.name!r}>")
+            self.files(path, real.parent, pattern)
         else:
             self.put(f"{path}={value!r}<not a file>")
 
+    def files(self, path, folder, pattern):
+        """The files of `folder` whose name matches regex `pattern`, by name and content."""
+        for f in sorted(folder.iterdir()):
+            if f.is_file() and re.fullmatch(pattern, f.name):
+                self.put_bytes(f"{path}<{f.name!r}>", _stable_bytes(f))
+
     def special_Image(self, img):
         packed = list(img.packed_files)  # their bytes: struct() hashes every PackedFile
+        if img.source == "SEQUENCE":  # every frame file beside the one the path names
+            real = Path(bpy.path.abspath(img.filepath, library=img.library))
+            runs = list(re.finditer(r"\d+", real.stem))
+            if runs and real.parent.is_dir():
+                last = runs[-1]
+                stem = re.escape(real.stem[:last.start()]) + r"\d+" + re.escape(real.stem[last.end():])
+                self.files("frames", real.parent, stem + re.escape(real.suffix))
         # Generated, packed or edited images: their pixels (a file-backed, unedited image is its
         # file, hashed through its filepath).
         if img.source in ("GENERATED", "VIEWER") or img.is_dirty or len(packed):

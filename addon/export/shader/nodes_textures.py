@@ -11,7 +11,10 @@ class TextureNodes:
     def image_texture(self, node, out, ctx):
         what = f"'{node.name}'"
         image = node.image
-        loaded = self.images.load(image, self.problems) if image is not None else None
+        loaded = None
+        if image is not None:  # (a sequence's or movie's frame: the node's at the scene frame)
+            frame = self.depsgraph.scene.frame_current if self.depsgraph is not None else None
+            loaded = self.images.load(image, self.problems, getattr(node, "image_user", None), frame)
         if image is None:
             self.problem(f"{what} has no image (magenta)")
         if loaded is None:
@@ -23,7 +26,7 @@ class TextureNodes:
         vec = self.value(node.inputs["Vector"], ctx, "vector")
         if vec is None:
             vec = self.uv_value("", what)
-        if node.projection != 'FLAT':
+        if node.projection != 'FLAT':  # (Cycles' Box reads a tiled image's tile 1001 only)
             self.problem(f"{what}: {node.projection.lower()} projection is not supported "
                          "(flat)")
         interp = {"Closest": "CLOSEST"}.get(node.interpolation, "LINEAR")
