@@ -185,6 +185,15 @@ class TextureNodes:
             vec = self.texture_vector(node, ctx)
         else:
             vec = self.object_coords("generated")
+            if getattr(self, "background", False):
+                # A world's sky: the node's Python-only texture mapping as the fast path applies
+                # it (rotations; other settings warned about and ignored).
+                import numpy as np
+                from ..world import _texture_mapping_rotation
+                rot = _texture_mapping_rotation(getattr(node, "texture_mapping", None), what, self.problem)
+                if not np.array_equal(rot, np.eye(3, dtype=np.float32)):
+                    m = np.hstack([rot.astype(np.float32), np.zeros((3, 1), np.float32)])
+                    vec = self.emit("vector", "mapping", self.reg(vec), m)
         key = ("sky", node.as_pointer())
         sky = self.cache.get(key)
         if sky is None:
