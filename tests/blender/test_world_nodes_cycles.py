@@ -170,6 +170,18 @@ def procedural_world(kind):
             nt.links.new(coords.outputs["Object"], mapping.inputs["Vector"])
             nt.links.new(mapping.outputs[0], grad.inputs["Vector"])
             nt.links.new(grad.outputs["Fac"], ramp.inputs["Fac"])
+        elif kind == "window":  # Window coordinates (screen space): a backdrop graded across the frame
+            sep = nt.nodes.new("ShaderNodeSeparateXYZ")
+            nt.links.new(coords.outputs["Window"], sep.inputs[0])
+            nt.links.new(sep.outputs["X"], ramp.inputs["Fac"])
+        elif kind == "camera":  # Camera coordinates' y: graded with the view's height
+            sep = nt.nodes.new("ShaderNodeSeparateXYZ")
+            nt.links.new(coords.outputs["Camera"], sep.inputs[0])
+            map_range = nt.nodes.new("ShaderNodeMapRange")
+            map_range.inputs["From Min"].default_value = -0.8
+            map_range.inputs["From Max"].default_value = 0.8
+            nt.links.new(sep.outputs["Y"], map_range.inputs["Value"])
+            nt.links.new(map_range.outputs[0], ramp.inputs["Fac"])
         else:  # Noise on the direction
             noise = ms.set_inputs(nt.nodes.new("ShaderNodeTexNoise"), Scale=3.0, Detail=4.0)
             nt.links.new(coords.outputs["Generated"], noise.inputs["Vector"])
@@ -247,7 +259,7 @@ def test_hdri_sky_and_textured_strength_added():
     assert_agree(ours, cycles, "HDRI + sky + textured strength")
 
 
-@pytest.mark.parametrize("kind", ["gradient", "spherical", "noise"])
+@pytest.mark.parametrize("kind", ["gradient", "spherical", "noise", "window", "camera"])
 def test_procedural_backdrop(kind):
     program, warnings = exported_program(procedural_world(kind))
     assert program is not None and not warnings, warnings
