@@ -116,3 +116,18 @@ def test_program_errors_are_python_exceptions():
         s.set_world_program(const_program((1, 1, 1)), 7)
     with pytest.raises(ValueError):
         s.world_radiance(np.zeros((1, 3), np.float32))  # not committed
+
+
+def test_light_the_map_does_not_see_is_found_by_rays():
+    # Dark with no ray kind (the map, light samples) but white to diffuse rays: the environment
+    # is no light to sample, BSDF rays find it with weight 1, and the furnace sphere shows 0.8.
+    s = furnace_scene(pc, 0.8)
+    prog = [("light_path", 0, "IS_DIFFUSE_RAY"), ("closure", "emission", None, {"color": 0})]
+    assert s.set_world_program(prog, 32) is True
+    img, stats = render(pc, s, 48, 48, samples=64)
+    assert img[:3, :3, :3].max() == 0.0  # the camera sees the dark world
+    assert abs(img[18:30, 18:30, :3].mean() - 0.8) < 0.01
+    s.commit()
+    _, _, pdf, _ = s.world_sample(np.full((4, 2), 0.5, np.float32))
+    assert not pdf.any()
+    assert stats["nonfinite_samples"] == 0
