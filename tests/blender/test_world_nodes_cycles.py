@@ -302,3 +302,32 @@ def test_fast_path_unchanged_and_unsupported_nodes_warned():
     color, texture, program = export_world(scene.world, warnings)
     assert program is not None
     assert any("Stray Diffuse" in w and "not a world shader" in w for w in warnings), warnings
+
+
+def test_world_program_sent_again_to_a_kept_scene():
+    """The viewport's world edits (scene_writer.replace_lights on a committed scene): a program
+    world replaces the constant one, its HDRI added once however often it is sent."""
+    from addon import scene_writer
+    from addon.core import get_core
+    from addon.export import export_scene
+    pc = get_core()
+    _, nt, out = objects()
+    nt.links.new(background(nt, (0.2, 0.2, 0.2)).outputs[0], out.inputs["Surface"])
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None)
+    assert data.world_program is None
+    core_scene = scene_writer.to_core(pc, data, lambda m: None)
+    core_scene.commit()
+    up = np.array([[0.0, 0.0, 1.0]], np.float32)
+    np.testing.assert_allclose(core_scene.world_radiance(up, camera_ray=True), [[0.2, 0.2, 0.2]], rtol=1e-6)
+    camera_ray_world()()  # (a new file: its world, sent to the kept scene)
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), lambda m: None)
+    assert data.world_program is not None
+    images = core_scene.image_count()
+    for _ in range(2):
+        scene_writer.replace_lights(core_scene, [], data, lambda m: None)
+        core_scene.commit()
+    assert core_scene.image_count() == images + 1
+    seen = core_scene.world_radiance(up, camera_ray=True)[0]
+    np.testing.assert_allclose(seen, (0.9, 0.3, 0.6), rtol=1e-6)  # the camera's colour
+    lit = core_scene.world_radiance(up, camera_ray=False)[0]
+    assert lit[2] > lit[0] > 0.0  # the HDRI's blue sky overhead
