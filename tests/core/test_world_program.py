@@ -131,3 +131,10 @@ def test_light_the_map_does_not_see_is_found_by_rays():
     _, _, pdf, _ = s.world_sample(np.full((4, 2), 0.5, np.float32))
     assert not pdf.any()
     assert stats["nonfinite_samples"] == 0
+
+
+def test_caustic_light_paths_stay_off_for_a_program_world():
+    s = furnace_scene(pc, 0.8)
+    assert s.set_world_program(z_program(), 32) is True
+    _, stats = render(pc, s, 16, 16, samples=4, caustic_light_paths=1.0)
+    assert stats["caustics"].startswith("off") and "program" in stats["caustics"], stats["caustics"]
