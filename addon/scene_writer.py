@@ -389,7 +389,11 @@ def replace_lights(scene, lights, world, warn):
 def set_world(scene, data, warn):
     """Sets the world (texture or colour) of SceneData `data` on a core scene."""
     tex = data.world_texture
-    if isinstance(tex, WorldSky):
+    program = getattr(data, "world_program", None)
+    if program is not None:  # a node tree beyond the fast path's (its images, then the program)
+        ops = remap_images(program.program, _light_image_ids(scene, program.images))
+        scene.set_world_program(ops, program.width, program.height)
+    elif isinstance(tex, WorldSky):
         setter = getattr(scene, f"set_world_{'sky' if tex.kind == 'nishita' else tex.kind}")
         setter(strength=tex.strength, rotation=tex.rotation, **tex.params)
     elif tex is not None:

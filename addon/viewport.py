@@ -35,7 +35,7 @@ from .export.light_linking import attach_to_lights, light_links
 from .export.material import convert_material, view_layer_ids
 from .export.mesh import is_visible
 from .export.shader import ImageTable, UvSets
-from .export.world import world_color, world_texture, world_volume
+from .export.world import export_world, world_volume
 from .scene_writer import put_material, replace_lights, set_build_options, set_instance_transforms, to_core
 from .viewport_update import ViewState, curves_signature, plan_updates, settings_signature
 
@@ -256,9 +256,12 @@ class ViewportSession:
         scene = depsgraph.scene
         groups = list(self.light_groups)
 
+        w_color, w_texture, w_program = export_world(scene.world, self.warn)
+
         class _World:  # what set_world (and add_lights: the light groups) read of SceneData
-            world_texture = world_texture(scene.world, self.warn)
-            world_color = world_color(scene.world, self.warn)
+            world_texture = w_texture
+            world_color = w_color
+            world_program = w_program
             world_volume = world_volume(scene.world, self.warn)
             light_groups = groups
             world_lightgroup = read_world_lightgroup(scene.world)

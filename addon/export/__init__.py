@@ -15,7 +15,7 @@ from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .object_attributes import InstanceAttributes
 from .points import PointsData, collect_points
 from .volume import collect_volumes
-from .world import WorldSky, WorldTexture, world_color, world_texture, world_volume
+from .world import WorldProgram, WorldSky, WorldTexture, export_world, world_volume
 
 __all__ = ("CurvesData", "ExportCancelled", "ExportError", "LightData", "MaterialData", "MeshData",
            "PointsData", "SceneData", "WorldSky", "WorldTexture", "export_scene")
@@ -49,6 +49,7 @@ class SceneData:
     # core's group indices); the world's group name (World ▸ Settings ▸ Light Group).
     light_groups: list = field(default_factory=list)
     world_lightgroup: str = ""
+    world_program: WorldProgram = None  # a world node tree beyond the fast path's (export.world)
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None, uv_pass=False,
@@ -108,13 +109,14 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         warn(f"The scene lies {far:.3g} units from the world origin: beyond {FAR_FROM_ORIGIN:.0e} "
              "units single-precision hit points lose accuracy (shading and shadows may be off "
              "by a few percent); move the scene closer to the origin")
+    w_color, w_texture, w_program = export_world(scene.world, warn)
     return SceneData(meshes, material_slots, table.materials,
-                     world_color(scene.world, warn), camera, lights,
-                     world_texture(scene.world, warn), table.images.images,
+                     w_color, camera, lights,
+                     w_texture, table.images.images,
                      table.material_names(), table.uv_sets, world_volume(scene.world, warn),
                      curves, curve_materials, volume_grids, frozenset(table.volume_material_names),
                      points, point_materials, links, view_layer_lightgroups(getattr(depsgraph, "view_layer", None)),
-                     world_lightgroup(scene.world))
+                     world_lightgroup(scene.world), w_program)
 
 
 MAX_LIGHT_GROUPS = 64  # the core's kMaxLightGroups

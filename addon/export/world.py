@@ -37,6 +37,18 @@ class WorldSky:
     kind: str = "nishita"  # or "preetham", "hosek"
 
 
+@dataclass
+class WorldProgram:
+    """A world whose Surface is not the fast path's graph: its node tree compiled into a
+    program (pc.Scene.set_world_program), evaluated per escaped ray with the ray's Light Path
+    state; a width x height map of it steers the light samples."""
+    program: list
+    images: list  # shader.ImageData the program's image ops index (scene_writer renumbers them)
+    width: int = 1024
+    height: int = 512
+    name: str = ""
+
+
 def sky_params(node):
     """set_world_sky's keyword arguments for a Nishita Sky Texture node."""
     return {"sun_elevation": float(node.sun_elevation), "sun_rotation": float(node.sun_rotation),
@@ -90,6 +102,69 @@ def world_color(world, warn):
         warn(f"World '{world.name}': linked input(s) {', '.join(linked)} of '{node.name}' are "
              "not supported yet; using their constant values")
     return scaled(socket_rgb(color), strength.default_value)
+
+
+def export_world(world, warn):
+    """(constant colour, WorldTexture / WorldSky or None, WorldProgram or None) of a world.
+    Today's fast path (a constant, or Background / Emission of an equirectangular Environment
+    Texture or a Sky Texture through an optional Mapping, times a constant Strength) where the
+    world is exactly that graph, bit for bit as before; any other graph becomes a program, the
+    fast path's warnings standing where the program cannot be compiled."""
+    notes = []
+    color = world_color(world, notes.append)
+    texture = world_texture(world, notes.append)
+    if notes:
+        program = world_program(world, warn)
+        if program is not None:
+            return color, None, program
+    for note in notes:
+        warn(note)
+    return color, texture, None
+
+
+def _map_size(world, tree):
+    """Cycles' background map size: Settings ▸ Sampling's Map Resolution (Manual), else the
+    largest Environment Texture image in the tree, else 1024 x 512 (capped at 4096 x 2048)."""
+    cycles = getattr(world, "cycles", None)
+    method = getattr(cycles, "sampling_method", 'AUTOMATIC')
+    width = height = 0
+    if method == 'MANUAL':
+        res = int(getattr(cycles, "sample_map_resolution", 1024))
+        width, height = res, res // 2
+    else:
+        for node in tree.nodes:
+            image = getattr(node, "image", None) if node.type == 'TEX_ENVIRONMENT' else None
+            if image is not None and image.size[0] > 0 and image.size[1] > 0:
+                width, height = max(width, int(image.size[0])), max(height, int(image.size[1]))
+    if width <= 0 or height <= 0:
+        width, height = 1024, 512
+    width = min(max(width + (width & 1), 8), 4096)
+    height = min(max(height + (height & 1), 4), 2048)
+    return width, height
+
+
+def world_program(world, warn):
+    """WorldProgram of a world's Surface compiled by the shader compiler (its problems warned
+    about, naming the nodes, each with its fallback), or None where it cannot be compiled."""
+    if world is None or not world.use_nodes or world.node_tree is None:
+        return None
+    output = world.node_tree.get_output_node('CYCLES')
+    if output is None or "Surface" not in output.inputs:
+        return None
+    from .shader import ImageTable, UvSets, ShaderCompiler
+    images = ImageTable()
+    compiler = ShaderCompiler(images, UvSets())
+    try:
+        compiled = compiler.compile_world(output, world.name)
+    except Exception as e:  # a compiler bug must not stop the render
+        warn(f"World '{world.name}': its nodes could not be compiled ({type(e).__name__}: {e})")
+        return None
+    if compiler.problems:
+        warn(f"World '{world.name}': " + "; ".join(compiler.problems))
+    if compiled is None:
+        return None
+    width, height = _map_size(world, world.node_tree)
+    return WorldProgram(compiled.program, images.images, width, height, world.name)
 
 
 def world_volume(world, warn):

@@ -4150,6 +4150,98 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           py::arg("color"))
       .def(
+          "set_world_program",
+          [](PyScene& self, const py::list& program, int width, int height) {
+            self.check_editable();
+            if (width < 8 || width > 16384 || width % 2) throw std::invalid_argument("width must be even, 8..16384");
+            if (height <= 0) height = width / 2;
+            if (height < 4 || height > 16384) throw std::invalid_argument("height must be 4..16384");
+            Material mat = make_shader(self, "world", program, py::none(), false);
+            if (!mat.program.varying) {  // a constant world: its colour, as set_world_color
+              ShadingContext ctx;
+              ctx.ng = ctx.ns = ctx.wo = {0.0f, 0.0f, 1.0f};
+              ClosureList out;
+              eval_shader(mat.program, self.scene->images(), ctx, out);
+              self.scene->set_environment(Environment());
+              self.scene->set_world_color(is_finite(out.emission) ? out.emission : Vec3(0.0f));
+              return false;
+            }
+            auto sh = std::make_shared<WorldShader>();
+            sh->program = std::move(mat.program);
+            self.scene->set_environment(Environment(std::move(sh), width, height));
+            return true;
+          },
+          py::arg("program"), py::arg("width") = 1024, py::arg("height") = 0,
+          "The world's Surface as a shader program (add_shader's ops; Background and Emission closures give "
+          "the radiance), evaluated per escaped ray with its Light Path state (P = the direction, N = "
+          "Incoming = -it, as Cycles' background). A map width x height (0: width / 2) of it (no ray kind), baked at "
+          "commit, steers the world's light samples. A constant program becomes the constant world colour "
+          "(returns False; True: a program world).")
+      .def(
+          "world_radiance",
+          [](const PyScene& self, const FloatArray& dirs, bool camera_ray) {
+            if (!self.scene->committed()) throw std::invalid_argument("commit() the scene first");
+            if (dirs.ndim() != 2 || dirs.shape(1) != 3) throw std::invalid_argument("dirs must have shape (N, 3)");
+            const size_t n = size_t(dirs.shape(0));
+            py::array_t<float> out(std::vector<py::ssize_t>{py::ssize_t(n), 3});
+            auto o = out.mutable_unchecked<2>();
+            auto d = dirs.unchecked<2>();
+            RayState rs;
+            rs.flags = camera_ray ? kRayCamera : kRayDiffuse | kRayReflect;
+            rs.depth = camera_ray ? 0 : 1;
+            for (size_t i = 0; i < n; ++i) {
+              const Vec3 v = self.scene->background(Vec3(d(i, 0), d(i, 1), d(i, 2)), &rs);
+              o(i, 0) = v.x, o(i, 1) = v.y, o(i, 2) = v.z;
+            }
+            return out;
+          },
+          py::arg("dirs"), py::arg("camera_ray") = false,
+          "The world's radiance along unit directions (N, 3) for an escaped camera ray, or (camera_ray "
+          "False) a diffuse bounce's ray (committed scene).")
+      .def(
+          "world_sample",
+          [](const PyScene& self, const FloatArray& u, bool cover_all) {
+            if (!self.scene->committed()) throw std::invalid_argument("commit() the scene first");
+            if (u.ndim() != 2 || u.shape(1) != 2) throw std::invalid_argument("u must have shape (N, 2)");
+            const Environment& env = self.scene->environment();
+            const size_t n = size_t(u.shape(0));
+            py::array_t<float> dirs(std::vector<py::ssize_t>{py::ssize_t(n), 3}), rad(std::vector<py::ssize_t>{py::ssize_t(n), 3}),
+                pdfs(std::vector<py::ssize_t>{py::ssize_t(n)}), pdf_of(std::vector<py::ssize_t>{py::ssize_t(n)});
+            auto a = u.unchecked<2>();
+            auto dd = dirs.mutable_unchecked<2>();
+            auto rr = rad.mutable_unchecked<2>();
+            auto pp = pdfs.mutable_unchecked<1>();
+            auto qq = pdf_of.mutable_unchecked<1>();
+            for (size_t i = 0; i < n; ++i) {
+              Vec3 dir(0.0f), li(0.0f);
+              float pdf = 0.0f;
+              if (!env.valid() || !env.sample({a(i, 0), a(i, 1)}, dir, li, pdf, cover_all)) pdf = 0.0f, dir = li = Vec3(0.0f);
+              dd(i, 0) = dir.x, dd(i, 1) = dir.y, dd(i, 2) = dir.z;
+              rr(i, 0) = li.x, rr(i, 1) = li.y, rr(i, 2) = li.z;
+              pp(i) = pdf;
+              qq(i) = env.valid() && pdf > 0.0f ? env.pdf(dir, cover_all) : 0.0f;
+            }
+            return py::make_tuple(dirs, rad, pdfs, pdf_of);
+          },
+          py::arg("u"), py::arg("cover_all") = true,
+          "The environment's own light samples for uniforms u (N, 2): (directions, radiance (no ray kind), the "
+          "sample's pdf, pdf() of its direction); zeros where it has none (committed scene).")
+      .def(
+          "world_pdf",
+          [](const PyScene& self, const FloatArray& dirs, bool cover_all) {
+            if (!self.scene->committed()) throw std::invalid_argument("commit() the scene first");
+            if (dirs.ndim() != 2 || dirs.shape(1) != 3) throw std::invalid_argument("dirs must have shape (N, 3)");
+            const Environment& env = self.scene->environment();
+            const size_t n = size_t(dirs.shape(0));
+            py::array_t<float> out(std::vector<py::ssize_t>{py::ssize_t(n)});
+            auto o = out.mutable_unchecked<1>();
+            auto d = dirs.unchecked<2>();
+            for (size_t i = 0; i < n; ++i) o(i) = env.valid() ? env.pdf(Vec3(d(i, 0), d(i, 1), d(i, 2)), cover_all) : 0.0f;
+            return out;
+          },
+          py::arg("dirs"), py::arg("cover_all") = true,
+          "The environment's own solid-angle pdf along unit directions (N, 3) (committed scene).")
+      .def(
           "set_world_volume",
           [](PyScene& self, const py::object& volume) {
             self.check_editable();

@@ -1,6 +1,7 @@
 #include "render/session.h"
 #include "render/guide_photons.h"
 #include "render/guiding.h"
+#include "scene/light_shader.h"
 #include "scene/microfacet_energy.h"
 #include "util/rng.h"
 
@@ -149,6 +150,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
   // The viewport's camera overrides the scene's (same committed scene, nothing rebuilt).
   const CameraDesc& view = camera ? *camera : scene_->camera_desc();
   camera_ = Camera(view, settings_.width, settings_.height);
+  // A program world's light samples read the render's camera (Texture Coordinate's Window).
+  if (const WorldShader* ws = scene_->environment().world_shader()) ws->camera = &camera_;
   if (view.use_autofocus) {
     // Focus where the pinhole ray through the chosen point first meets a surface, measured
     // along the view axis, so the focal plane passes exactly through that point.
@@ -364,6 +367,8 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
 Session::~Session() {
   cancel_.store(true);
   if (controller_.joinable()) controller_.join();
+  if (const WorldShader* ws = scene_ ? scene_->environment().world_shader() : nullptr)
+    if (ws->camera == &camera_) ws->camera = nullptr;
 }
 
 void Session::cancel() {
@@ -875,6 +880,8 @@ void Session::setup_caustics(bool guiding) {
     off("not with a panoramic camera's depth of field");
   else if (camera_.orthographic() && !camera_.has_aperture())
     off("not with an orthographic camera without depth of field (light paths cannot meet its parallel rays)");
+  else if (env && scene_->environment().program())
+    off("not with a world whose node tree is a program (its Light Path state and map)");
   else if (sf.media || sf.path_state || sf.light_links)
     off("not with volumes, Light Path node state or light linking");
   else if (!env && lamps.empty())

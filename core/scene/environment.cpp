@@ -1,5 +1,7 @@
 #include "scene/light.h"
 
+#include "scene/light_shader.h"
+#include "scene/scene.h"
 #include "util/parallel.h"
 
 namespace pl {
@@ -68,6 +70,58 @@ Environment::Environment(std::shared_ptr<const SkyModel> sky, int w, int h, floa
     const float ce = std::max(0.1f, std::sqrt(std::max(0.0f, 1.0f - sun_dir_.z * sun_dir_.z)));
     if (std::isfinite(power)) avg_lum_ += static_cast<float>(power / ce);
   }
+}
+
+Environment::Environment(std::shared_ptr<WorldShader> program, int w, int h) : w_(w), h_(h) {
+  prog_ = std::move(program);
+}
+
+void Environment::bake(const Scene& scene) {
+  prog_->scene = &scene;
+  // The map: the program at the texel centres with no ray kind (Cycles' background_map bakes
+  // so, by shader evaluation on the equirectangular grid).
+  px_.assign(size_t(w_) * h_, Vec3(0.0f));
+  parallel_ranges(
+      size_t(h_), 0,
+      [&](size_t y0, size_t y1) {
+        for (size_t y = y0; y < y1; ++y) {
+          const float elevation = kPi * ((y + 0.5f) / h_ - 0.5f), ce = std::cos(elevation);
+          for (int x = 0; x < w_; ++x) {
+            const float phi = kPi - 2.0f * kPi * ((x + 0.5f) / w_);
+            const Vec3 t{ce * std::cos(phi), ce * std::sin(phi), std::sin(elevation)};
+            px_[y * w_ + size_t(x)] = vmin(eval_program(t, nullptr), Vec3(1e30f));
+          }
+        }
+      },
+      4);
+  lum_.clear();
+  cell_cos_.clear();
+  full_ = Cells();
+  comp_ = Cells();
+  init_distributions();
+  baked_ = true;
+}
+
+Vec3 Environment::eval_program(Vec3 dir, const RayState* rs) const {
+  const WorldShader& sh = *prog_;
+  ShadingContext ctx;
+  const float len = length(dir);
+  const Vec3 d = len > 0.0f ? dir / len : Vec3(0.0f, 0.0f, 1.0f);
+  ctx.p = d;  // Cycles' shader_setup_from_background: P is the direction
+  ctx.ng = ctx.ns = -d;
+  ctx.wo = -d;  // Incoming
+  ctx.scene = sh.scene;
+  if (rs) {
+    ctx.ray = *rs;
+    ctx.ray.aovs = nullptr;
+  } else {
+    ctx.ray.flags = 0;  // a light sample or the map: no ray kind
+    ctx.ray.camera = sh.camera;
+  }
+  ClosureList out;
+  static const std::vector<Image> no_images;
+  eval_shader(sh.program, sh.scene ? sh.scene->images() : no_images, ctx, out);
+  return is_finite(out.emission) ? vmin(out.emission, Vec3(1e30f)) : Vec3(0.0f);
 }
 
 void Environment::init_distributions() {
@@ -139,7 +193,7 @@ Vec3 Environment::lookup(float u, float v) const {
   return bilinear([&](int x, int y) { return px_[size_t(y) * w_ + x]; }, w_, h_, u, v);
 }
 
-Vec3 Environment::eval(Vec3 dir_world) const {
+Vec3 Environment::eval_map(Vec3 dir_world) const {
   if (sky_) return vmin(sky_->eval(normalize(rot_.vector(dir_world))) * strength_, Vec3(1e30f));
   float u, v;
   to_uv(rot_.vector(dir_world), u, v);
@@ -194,7 +248,7 @@ bool Environment::sample(Vec2 uu, Vec3& dir, Vec3& radiance, float& pdf_out, boo
   if (share <= 0.0f) {
     float u, v;
     if (!sample_cells(cover_all ? full_ : comp_, uu, dir, u, v, pdf_out)) return false;
-    radiance = sky_ ? eval(dir) : lookup(u, v);
+    radiance = sky_ || prog_ ? eval(dir) : lookup(u, v);
     return true;
   }
   // A sky with a sun disc: one of the two strategies, the pdf of their mixture.
@@ -230,10 +284,10 @@ float Environment::pdf(Vec3 dir_world, bool cover_all) const {
   return share * sun_pdf(dir_world) + (1.0f - share) * map;
 }
 
-Vec3 Environment::eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf_out) const {
-  if (sky_ || sun_share(cover_all) > 0.0f) {
+Vec3 Environment::eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf_out, const RayState* rs) const {
+  if (sky_ || prog_ || sun_share(cover_all) > 0.0f) {
     pdf_out = pdf(dir_world, cover_all);
-    return eval(dir_world);
+    return eval(dir_world, rs);
   }
   float u, v;
   to_uv(rot_.vector(dir_world), u, v);

@@ -17,6 +17,9 @@ namespace pl {
 enum class LightType : uint8_t { Point, Spot, Sun, Rect, Ellipse };
 
 struct LightShader;  // scene/light_shader.h: a light's node tree as a program
+struct WorldShader;  // scene/light_shader.h: the world's node tree as a program
+struct RayState;     // scene/shader.h
+class Scene;
 
 // The rays a light is visible to (Cycles' light object Ray Visibility), as bits of
 // Light::visibility and of the kind of a ray that may find it.
@@ -621,15 +624,28 @@ class Environment {
   // (without the sun disc) steers the samples, and the disc, far smaller than a texel, gets
   // its own share of them, uniform in its cone.
   Environment(std::shared_ptr<const SkyModel> sky, int w, int h, float strength, const Mat4& rotation);
+  // The world's node tree as a program (light_shader.h WorldShader), evaluated per direction with
+  // the ray's kind and counts (Cycles' shader_setup_from_background); a w x h equirectangular map
+  // of it, baked by bake() at commit with no ray kind (as Cycles'), steers the samples.
+  Environment(std::shared_ptr<WorldShader> program, int w, int h);
   bool valid() const { return w_ > 0; }
-  Vec3 eval(Vec3 dir_world) const;
+  bool program() const { return bool(prog_); }
+  const WorldShader* world_shader() const { return prog_.get(); }
+  bool needs_bake() const { return prog_ && !baked_; }
+  void bake(const Scene& scene);  // (images and AO: the scene's)
+  // rs: the escaped ray's kind and counts (a program world's Light Path); nullptr: a light
+  // sample's, no ray kind (Cycles' PATH_RAY_EMISSION). Image and sky worlds ignore it.
+  Vec3 eval(Vec3 dir_world, const RayState* rs = nullptr) const {
+    if (prog_) return eval_program(dir_world, rs);
+    return eval_map(dir_world);
+  }
   // Samples a world direction; returns radiance and the solid-angle pdf. cover_all: no BSDF
   // sample follows, so every direction with radiance needs density (else the compensated one).
   bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf, bool cover_all = false) const;
   float pdf(Vec3 dir_world, bool cover_all = false) const;
   // eval() and pdf() of one direction at once (a BSDF ray that escaped): an image map's (u, v)
   // found once, not twice (its atan2 and asin).
-  Vec3 eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf) const;
+  Vec3 eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf, const RayState* rs = nullptr) const;
   // sample() in two steps, for a sky with a sun disc (deferrable): the direction alone, then
   // its radiance and pdf, which cost a light sample more than drawing it (the sky model and
   // the map's pdf) and which a light sample needs only once its shadow ray is clear.
@@ -662,6 +678,8 @@ class Environment {
     float sub = 0.0f;
   };
   Vec3 lookup(float u, float v) const;
+  Vec3 eval_map(Vec3 dir_world) const;
+  Vec3 eval_program(Vec3 dir_world, const RayState* rs) const;
   void to_uv(Vec3 t, float& u, float& v) const;
   // Cell row j (0..h) spans v in [max(0, (j - 0.5) / h), min(1, (j + 0.5) / h)].
   float cell_v0(int j) const { return std::max(0.0f, (j - 0.5f) / h_); }
@@ -677,6 +695,8 @@ class Environment {
   float sun_pdf(Vec3 dir_world) const;
   float sun_share(bool cover_all) const { return cover_all ? sun_share_full_ : sun_share_comp_; }
   std::shared_ptr<const SkyModel> sky_;
+  std::shared_ptr<WorldShader> prog_;
+  bool baked_ = false;
   float strength_ = 1.0f;
   Vec3 sun_dir_;            // texture space
   Vec3 sun_a_, sun_b_;      // a basis about it, for the disc's samples

@@ -20,6 +20,17 @@ struct LightShader {
   const Scene* scene = nullptr;  // images, ambient occlusion (set at commit)
 };
 
+// The world's Surface as a program (Environment's program kind): evaluated per escaped ray and
+// light sample with Cycles' background setup (P = the direction, N = Ng = Incoming = -it, no
+// object); its emission (Background and Emission closures) is the radiance.
+struct WorldShader {
+  ShaderProgram program;
+  const Scene* scene = nullptr;  // images, ambient occlusion (set at commit)
+  // The render's camera (Texture Coordinate's Camera and Window) for light samples and the map;
+  // escaped rays carry their own (RayState::camera). Set by the session; nullptr: none.
+  mutable const Camera* camera = nullptr;
+};
+
 // Cycles' light uv (Parametric and UV outputs; Cycles' "barycentric" (u, v) turned back into
 // the node's (1 - u - v, u)) of light l at its point q, towards unit direction wi from the
 // shaded point, with the emission normal n.

@@ -870,7 +870,11 @@ class Scene {
     return c.dist.empty() ? 0.0f : light_pmf(c, p, n, k);
   }
   // Radiance arriving from the world along a ray that escapes the scene.
-  Vec3 background(Vec3 dir) const { return env_.valid() ? env_.eval(dir) : world_color_; }
+  // rs: the escaped ray's kind and counts, which a program world's Light Path reads (nullptr:
+  // none, as a light sample's).
+  Vec3 background(Vec3 dir, const RayState* rs = nullptr) const {
+    return env_.valid() ? env_.eval(dir, rs) : world_color_;
+  }
   // Picks a light with u_select and samples it from point p.
   // bsdf_follows: a BSDF sample from p will be traced and MIS-weighted against this one; if not,
   // every direction the light can come from must have density here.
@@ -897,7 +901,7 @@ class Scene {
   float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n = Vec3(0.0f), uint8_t set = 0) const;
   float pdf_environment(Vec3 dir, Vec3 from, uint8_t set = 0) const;
   // background(dir) and pdf_environment(dir, from, set) at once (one map look-up).
-  Vec3 background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf) const;
+  Vec3 background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf, const RayState* rs = nullptr) const;
   // The probability that light set `set`'s choice picks the environment; -1: it cannot.
   float environment_pmf(uint8_t set) const;
   // The world's own sampling from p (its choice among lights not included): through the portals

@@ -1,6 +1,7 @@
 // The scene features in use (for kernel choice and logs), found at commit.
 #include "scene/scene.h"
 #include "scene/scene_detail.h"
+#include "scene/light_shader.h"
 
 namespace pl {
 
@@ -138,6 +139,10 @@ void Scene::detect_features() {
       }
     }
   }
+  // A program world reads the escaped ray's state (Light Path) where it has such ops.
+  if (const WorldShader* ws = env_.world_shader())
+    for (const ShaderOp& op : ws->program.ops)
+      f.path_state = f.path_state || op.code == OpCode::LightPath || op.code == OpCode::AmbientOcclusion;
   f.emission = !emitters_.empty();
   f.environment = env_.valid();
   if (world_volume_.has_medium()) f.media = f.volumes = true;

@@ -111,6 +111,7 @@ float Scene::env_choice_weight(float env_power, const std::vector<float>& others
 void Scene::build_lights() {
   for (Light& l : lights_)
     if (l.shader) l.shader->scene = this;  // (images, ambient occlusion: this scene's)
+  if (env_.needs_bake()) env_.bake(*this);  // a program world's map, once its images are in
   any_transparent_ = false;
   any_holdout_ = false;
   for (const Material& m : materials_) {
@@ -920,16 +921,16 @@ float Scene::pdf_environment(Vec3 dir, Vec3 from, uint8_t set) const {
   return pmf < 0.0f ? 0.0f : pmf * world_pdf(from, dir, false);
 }
 
-Vec3 Scene::background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf) const {
+Vec3 Scene::background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf, const RayState* rs) const {
   env_pdf = 0.0f;
   const float pmf = environment_pmf(set);
-  if (pmf < 0.0f) return background(dir);
+  if (pmf < 0.0f) return background(dir, rs);
   if (!portals_.empty() || !env_.valid()) {
     env_pdf = pmf * world_pdf(from, dir, false);
-    return background(dir);
+    return background(dir, rs);
   }
   float p;
-  const Vec3 le = env_.eval_with_pdf(dir, false, p);
+  const Vec3 le = env_.eval_with_pdf(dir, false, p, rs);
   env_pdf = pmf * p;
   return le;
 }

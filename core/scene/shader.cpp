@@ -700,6 +700,31 @@ template <bool kSetsNormal>
         d = {v, v, v, 1.0f};
         break;
       }
+      case OpCode::EnvUv: {
+        const Vec3 v = reg(op.in[0]).xyz();
+        const float len = length(v);
+        const Vec3 c = len > 0.0f && std::isfinite(len) ? v / len : Vec3(0.0f);
+        float u, w;
+        if (op.sub == 0) {  // as Environment::to_uv (Cycles' direction_to_equirectangular)
+          u = (std::atan2(c.y, c.x) - kPi) / (-2.0f * kPi);
+          w = 0.5f + std::asin(clampf(c.z, -1.0f, 1.0f)) / kPi;
+        } else {  // Cycles' direction_to_mirrorball
+          Vec3 m = c;
+          m.y -= 1.0f;
+          const float div = 2.0f * std::sqrt(std::max(-0.5f * m.y, 0.0f));
+          if (div > 0.0f) m = m / div;
+          u = 0.5f * (m.x + 1.0f);
+          w = 0.5f * (m.z + 1.0f);
+        }
+        d = {u, w, 0.0f, 0.0f};
+        break;
+      }
+      case OpCode::BackgroundCamera: {
+        const Camera* cam = ctx.ray.camera;
+        const Vec3 p = cam ? cam->origin() + ctx.p : ctx.p;
+        d = f4(op.sub == 0 ? world_to_camera_point(cam, p) : cam ? cam->to_ndc(p) : Vec3(0.0f), 0.0f);
+        break;
+      }
       case OpCode::TexSky: {
         // Cycles' svm_node_tex_sky reads its vector as it is (not normalised), as the world's.
         const Vec3 c = size_t(op.index) < prog.skies.size() && prog.skies[size_t(op.index)]

@@ -110,6 +110,12 @@ enum class OpCode : uint8_t {
   // The Ray Portal BSDF (a closure): in[0] weight, in[1] colour, in[2] position (kNoReg: the
   // shading point), in[3] direction (kNoReg or zero: the incoming ray's), as PortalBsdf.
   RayPortal,
+  // The Environment Texture's lookup coordinates (Cycles' svm_node_tex_environment): in[0] the
+  // direction (normalised here) to the image's (u, v); sub 0 equirectangular, 1 mirror ball.
+  EnvUv,
+  // Texture Coordinate's Camera (sub 0) and Window (sub 1) of a world: Cycles' background reads
+  // the point camera position + the direction (P is the direction there).
+  BackgroundCamera,
 };
 // Shader AOV slots (view-layer AOVs) a render can keep.
 constexpr int kMaxShaderAovs = 16;

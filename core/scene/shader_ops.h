@@ -314,6 +314,9 @@ inline constexpr OpParam kAovOutput[] = {int_in(F::Index, "aov slot", 0, kMaxSha
 inline constexpr OpParam kLightFalloff[] = {choice(F::Sub, "light falloff output", kLightFalloffOutputs)};
 inline constexpr OpParam kTexIes[] = {of(K::Ies, F::Index, "ies profile")};
 inline constexpr OpParam kTexSky[] = {of(K::Sky, F::Index, "sky")};
+inline constexpr const char* kEnvProjections[] = {"EQUIRECTANGULAR", "MIRROR_BALL"};
+inline constexpr OpParam kEnvUv[] = {choice(F::Sub, "environment projection", kEnvProjections)};
+inline constexpr OpParam kBackgroundCamera[] = {choice(F::Sub, "camera coordinates", kCameraCoordOutputs)};
 }  // namespace schema
 
 // Every value op: its name, OpCode, registers, parameters and program flags. Adding a value op
@@ -391,6 +394,8 @@ inline constexpr ValueOpSchema kValueOps[] = {
     // (not folded: a constant vector still reads the profile or sky, which fold_constant lacks)
     {"tex_ies", OpCode::TexIes, 2, schema::kTexIes, kVarying},  // vector, strength
     {"tex_sky", OpCode::TexSky, 1, schema::kTexSky, kVarying},  // vector
+    {"env_uv", OpCode::EnvUv, 1, schema::kEnvUv},  // direction
+    {"background_camera", OpCode::BackgroundCamera, 0, schema::kBackgroundCamera, kVarying},
 };
 
 // The OpCodes that closure ops (or their companions) produce; every other OpCode is a value op's.

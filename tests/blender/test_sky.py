@@ -211,8 +211,10 @@ def test_export_and_fallbacks():
     np.testing.assert_allclose(data.world_texture.rotation, [[c, -s, 0], [s, c, 0], [0, 0, 1]], atol=1e-6)
     sky.texture_mapping.scale = (2.0, 2.0, 2.0)
     warnings = Warnings()
-    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    # (a program world then, its sky's texture mapping applied as the fast path applies it)
     assert len(warnings) == 1 and "texture mapping scale" in warnings[0], list(warnings)
+    assert data.world_program is not None
     sky.texture_mapping.rotation = (0.0, 0.0, 0.0)
     sky.texture_mapping.scale = (1.0, 1.0, 1.0)
     sky.sky_type = 'PREETHAM'
@@ -232,16 +234,17 @@ def test_export_and_fallbacks():
 
 def test_sky_mapping_scale_warns():
     """A Mapping node's uniform scale of 2 changes Cycles' sky (the lookup vector is read
-    unnormalised; 50 % in a Preetham sky): warned, not silently dropped as for the
-    Environment Texture, which normalises; a scale of -1 is a mirror, no warning."""
+    unnormalised; 50 % in a Preetham sky): the fast path cannot show it, so the world becomes a
+    program (export.world.world_program), which reads the scaled vector as Cycles, without a
+    warning; a scale of -1 is a mirror, the fast path's rotation."""
     empty_scene(8)
     camera((0, 0, 0))
     sky_world(0.8, 'PREETHAM', mapping_rotation=(0.0, 0.0, 0.3), sun_direction=(0.3, 0.5, 0.8))
     mapping = next(n for n in bpy.context.scene.world.node_tree.nodes if n.type == 'MAPPING')
     mapping.inputs["Scale"].default_value = (2.0, 2.0, 2.0)
     warnings = Warnings()
-    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
-    assert len(warnings) == 1 and "Mapping scale" in warnings[0], list(warnings)
+    data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert not warnings and data.world_program is not None and data.world_texture is None, list(warnings)
     mapping.inputs["Scale"].default_value = (-1.0, -1.0, -1.0)
     warnings = Warnings()
     data = export_scene(bpy.context.evaluated_depsgraph_get(), warnings)

@@ -37,6 +37,11 @@ def room(world="constant", portals=()):
         s.set_world_color((SKY,) * 3)
     elif world == "sky":  # Nishita with its sun disc, which shines in through the window
         s.set_world_sky(sun_elevation=np.radians(80.0), sun_rotation=np.radians(30.0), width=256)
+    elif world == "program":  # the map's halves as a world program (Environment's program kind)
+        assert s.set_world_program([
+            ("position", 0), ("separate", 1, 0, 2), ("const", 2, (0.0,)), ("math", 3, 1, 2, "GREATER_THAN", False),
+            ("const", 4, (0.2, 0.2, 0.2)), ("const", 5, (SKY, SKY, SKY)), ("mix", 6, 3, 4, 5, "MIX", False),
+            ("closure", "emission", None, {"color": 6})], 64)
     else:  # a map: SKY over the upper half, dim below (the window sees only the upper part)
         img = np.full((16, 32, 3), 0.2, np.float32)
         img[8:] = SKY
@@ -103,7 +108,7 @@ CASES = {
 QUICK = ("matches the window", "split in two")  # also under the sanitizer (< 3 s there)
 
 
-@pytest.mark.parametrize("world", ["constant", "map"])
+@pytest.mark.parametrize("world", ["constant", "map", "program"])
 @pytest.mark.parametrize("case", [pytest.param(c, marks=[pytest.mark.sanitize] if c in QUICK else []) for c in CASES])
 def test_portal_keeps_the_closed_form(expected, world, case):
     portals, samples = CASES[case]
@@ -120,7 +125,7 @@ def test_portal_keeps_the_closed_form(expected, world, case):
 
 
 @pytest.mark.sanitize
-@pytest.mark.parametrize("world", ["constant", "map"])
+@pytest.mark.parametrize("world", ["constant", "map", "program"])
 def test_portal_lowers_the_variance(expected, world):
     """Per-pixel variance over seeds at 4 spp against the closed form, with and without."""
     def error(portals):

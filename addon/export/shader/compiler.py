@@ -431,6 +431,22 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
             return None
         return CompiledShader(program, None, None, dict(self.uv_used), list(self.problems))
 
+    def compile_world(self, output, name):
+        """CompiledShader of a world's Surface (Background and Emission closures, the values
+        they read, Texture Coordinate as Cycles' background gives it), or None where it cannot
+        be compiled (problems say why)."""
+        self.background = True
+        try:
+            self.shader_input(output.inputs["Surface"], (), None)
+        except _Cycle as e:
+            self.problem(f"node cycle through '{e}'")
+            return None
+        program = allocate_registers(eliminate_dead_code(self.ops))
+        if program is None:
+            self.problem(f"the world's nodes need more than {MAX_REGISTERS} registers")
+            return None
+        return CompiledShader(program, None, None, dict(self.uv_used), list(self.problems))
+
     def _reset(self):
         self.ops = []
         self.nreg = 0

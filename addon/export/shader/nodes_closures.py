@@ -46,6 +46,13 @@ class ClosureNodes:
     def shader_node(self, node, ctx, weight):
         t = node.type
         inp = lambda name, kind: self.input(node, name, ctx, kind)  # noqa: E731
+        if getattr(self, "background", False) and t not in ('MIX_SHADER', 'ADD_SHADER', 'EMISSION'):
+            if t == 'BACKGROUND':  # the world's light: Color times Strength (as Emission)
+                color = self.scale(inp("Color", "color"), inp("Strength", "float"))
+                self.closure("emission", weight, color=self.as_color(color))
+            else:  # Cycles' background shader keeps only its emission
+                self.problem(f"'{node.name}' ({node.bl_idname}) is not a world shader (black, as Cycles)")
+            return
         if t == 'MIX_SHADER':
             fac = self.math("ADD", inp("Fac", "float"), ZERO, clamp=True)
             w2 = self.scale(weight, fac)

@@ -226,6 +226,8 @@ class InputNodes:
         return Val("vector", reg=self.cache[key].reg)
 
     def tex_coord(self, node, oid):
+        if getattr(self, "background", False):
+            return self.background_coord(node, oid)
         if node.from_instancer and oid in ("UV", "Generated"):
             return self.instancer_coords(node, oid)
         if oid == "UV":
@@ -241,6 +243,22 @@ class InputNodes:
         if oid in ("Camera", "Window"):
             return self.camera_coords(oid.upper())
         self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
+        return const_vector((0, 0, 0))
+
+    def background_coord(self, node, oid):
+        """Texture Coordinate in a world (Cycles' svm_node_tex_coord without an object: P is
+        the ray's direction, N = -P): Generated, Object (without an object) and Reflection the
+        direction, Normal -direction, Camera and Window the point camera + direction, UV 0."""
+        if oid == "Object" and node.object is not None:
+            return self.other_object_coords(node.object)
+        if oid in ("Generated", "Object", "Reflection"):
+            return self.position()
+        if oid == "Normal":
+            return self.emit("vector", "normal")
+        if oid in ("Camera", "Window"):
+            return self.emit("vector", "background_camera", oid.upper())
+        if oid != "UV":
+            self.problem(f"'{node.name}': {oid} coordinates are not supported (0)")
         return const_vector((0, 0, 0))
 
     def fresnel_node(self, node, out, ctx):

@@ -136,6 +136,45 @@ class TextureNodes:
             vec = self.emit("vector", "vector_transform", self.reg(incoming), "NORMAL", "WORLD", "OBJECT")
         return self.emit("float", "tex_ies", self.reg(vec), self.reg(strength), profile)
 
+    def environment_texture(self, node, out, ctx):
+        """Cycles' Environment Texture (svm_node_tex_environment): its image looked up along the
+        normalised Vector (equirectangular or mirror ball), Repeat extension. Unlinked, Cycles'
+        LINK_POSITION: the position (a world's: the ray's direction)."""
+        what = f"'{node.name}'"
+        image = node.image
+        loaded = self.images.load(image, self.problems) if image is not None else None
+        if image is None:
+            self.problem(f"{what} has no image (magenta)")
+        if loaded is None:
+            return ONE if out.identifier == "Alpha" else const_color(MISSING_TEXTURE)
+        if out.identifier == "Alpha" and not loaded.has_alpha:
+            return ONE
+        socket = next(s for s in node.inputs if s.identifier == "Vector")
+        vec = self.value(socket, ctx, "vector")
+        if vec is None:
+            vec = self.position()
+        tm = node.texture_mapping
+        if (any(tm.translation) or any(tm.rotation) or tuple(tm.scale) != (1.0, 1.0, 1.0)
+                or tm.use_min or tm.use_max
+                or (tm.mapping_x, tm.mapping_y, tm.mapping_z) != ('X', 'Y', 'Z')):
+            self.problem(f"{what}: its Texture Mapping settings are not supported "
+                         "(ignored; a Mapping node works)")
+        projection = 'MIRROR_BALL' if node.projection == 'MIRROR_BALL' else 'EQUIRECTANGULAR'
+        if node.projection not in ('EQUIRECTANGULAR', 'MIRROR_BALL'):
+            self.problem(f"{what}: {node.projection.lower()} projection is not supported (equirectangular)")
+        uv = self.emit("vector", "env_uv", self.reg(vec), projection)
+        interp = {"Closest": "CLOSEST"}.get(node.interpolation, "LINEAR")
+        if node.interpolation in ("Cubic", "Smart"):
+            self.problem(f"{what}: {node.interpolation} interpolation is approximated by Linear")
+        if out.identifier == "Alpha":
+            index = self.images.index(image, loaded, "alpha")
+            return self.emit("float", "image", self.reg(uv), index, interp, 'REPEAT')
+        index = self.images.index(image, loaded, "color")
+        alpha_out = node.outputs.get("Alpha")
+        if alpha_out is not None and alpha_out.is_linked and loaded.has_alpha and loaded.unassociate:
+            return self.emit("color", "image", self.reg(uv), index, interp, 'REPEAT', True)
+        return self.emit("color", "image", self.reg(uv), index, interp, 'REPEAT')
+
     def sky_texture(self, node, out, ctx):
         """Cycles' Sky Texture in a material (svm_node_tex_sky): the world's sky model read
         along the Vector as it is (unlinked, or Nishita's unavailable socket: Generated
@@ -149,6 +188,15 @@ class TextureNodes:
             vec = self.texture_vector(node, ctx)
         else:
             vec = self.object_coords("generated")
+            if getattr(self, "background", False):
+                # A world's sky: the node's Python-only texture mapping as the fast path applies
+                # it (rotations; other settings warned about and ignored).
+                import numpy as np
+                from ..world import _texture_mapping_rotation
+                rot = _texture_mapping_rotation(getattr(node, "texture_mapping", None), what, self.problem)
+                if not np.array_equal(rot, np.eye(3, dtype=np.float32)):
+                    m = np.hstack([rot.astype(np.float32), np.zeros((3, 1), np.float32)])
+                    vec = self.emit("vector", "mapping", self.reg(vec), m)
         key = ("sky", node.as_pointer())
         sky = self.cache.get(key)
         if sky is None:
@@ -173,5 +221,5 @@ VALUE_NODES = {
     'TEX_NOISE': TextureNodes.noise_texture, 'TEX_WAVE': TextureNodes.wave_texture,
     'TEX_MAGIC': TextureNodes.magic_texture, 'TEX_WHITE_NOISE': TextureNodes.white_noise_texture,
     'TEX_GABOR': TextureNodes.gabor_texture, 'TEX_IES': TextureNodes.ies_texture,
-    'TEX_SKY': TextureNodes.sky_texture,
+    'TEX_SKY': TextureNodes.sky_texture, 'TEX_ENVIRONMENT': TextureNodes.environment_texture,
 }
