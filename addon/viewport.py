@@ -224,6 +224,9 @@ class ViewportSession:
         self.denoise_start = scene.pathlight.preview_denoising_start_sample
         if self.denoiser is not None:  # the guides it reads
             self._base_settings.passes = oidn.aux_passes(self.denoiser["input_passes"])
+            # (with shadow catchers: how the film composes Combined, composed again when denoised)
+            self.denoiser["catcher"] = oidn.catcher_mode(self._base_settings.passes,
+                                                         self._base_settings.film_transparent)
         try:
             self.scene_camera = camera_params(scene, depsgraph, self.warn)
         except Exception:  # no active camera: only the free view can be shown
@@ -446,8 +449,13 @@ class ViewportSession:
         if due and (self._job is None or self._job[0] is not sess):
             # The guides are read here (the core's film_pass copies); the filter runs on its own.
             guides = {name: sess.film_pass(name) for name in oidn.aux_passes(self.denoiser["input_passes"])}
-            job = [sess, done, None, None]
             opts = dict(self.denoiser)
+            if opts.get("catcher") is not None:
+                try:  # the shadow catchers' planes, where the scene has catchers
+                    guides.update({name: sess.film_pass(name) for name in oidn.catcher_pass_names(opts["catcher"])})
+                except ValueError:  # (none in the scene: the core keeps no such planes)
+                    opts["catcher"] = None
+            job = [sess, done, None, None]
 
             def work():
                 try:
