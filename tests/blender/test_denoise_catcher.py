@@ -246,3 +246,39 @@ def test_a_failing_denoise_keeps_every_catcher_pass_noisy(monkeypatch, tmp_path)
     for name in ("Combined", "Shadow Catcher"):
         np.testing.assert_array_equal(got[name], plain[name])
     np.testing.assert_array_equal(got["Noisy Shadow Catcher"], plain["Shadow Catcher"])
+
+
+@pytest.mark.parametrize("transparent", [True, False], ids=["approximate", "over_background"])
+def test_viewport_denoise_composes_the_denoised_planes(transparent):
+    import time
+    from addon.core import get_core
+    from addon.viewport import ViewportSession
+    sc = catcher_scene()
+    configure(sc, transparent, False, False, NOISY_SPP, 2)
+    p = sc.pathlight
+    p.preview_samples, p.use_preview_denoising, p.preview_denoising_start_sample = NOISY_SPP, True, 1
+    vs = ViewportSession(get_core())
+    vs.denoise_async = False
+    vs.set_view(None, 24, 24)  # tiny: no low-resolution pass
+    vs.sync(bpy.context.evaluated_depsgraph_get())
+    try:
+        mode = 'APPROXIMATE' if transparent else 'OVER_BACKGROUND'
+        assert vs.denoiser["catcher"] == mode
+        deadline = time.monotonic() + 120.0
+        while vs.poll() and time.monotonic() < deadline:
+            vs.display()
+            if vs.full is not None:
+                vs.full.wait(0.05)
+            else:
+                time.sleep(0.01)
+        image, n = vs.display()
+        assert n == NOISY_SPP and vs._denoised[1] == NOISY_SPP
+        sess = vs.full
+        opts = {k: v for k, v in vs.denoiser.items() if k != "catcher"}
+        expected, _, passes = oidn.denoise_film(sess.film(), sess.film_pass, catcher=mode, **opts)
+        assert set(passes) == {oidn.SHADOW_CATCHER}
+        np.testing.assert_array_equal(image, expected)
+        # (denoising the composite as an image gives another picture)
+        assert np.abs(image - oidn.denoise_film(sess.film(), sess.film_pass, **opts)[0]).max() > 1e-4
+    finally:
+        vs.free()
