@@ -358,20 +358,24 @@ def settings(props, viewport=False):
 
 
 def denoise_film(film, film_pass, input_passes='RGB_ALBEDO_NORMAL', prefilter='ACCURATE', quality='HIGH',
-                 cancel=None, catcher=None):
+                 cancel=None, catcher=None, use_albedo=True):
     """A denoised copy of `film` ((H, W, 4) float32, RGBA; alpha kept) with the guides that
     `input_passes` names read through film_pass(name) (a core Session's film_pass). catcher:
     how the film composes Combined with shadow catchers (CATCHER_MODES; None: as rendered). With
     a catcher in the scene (film_pass has the Shadow Catcher Matte), as Cycles: the matte is
     denoised with the guides, the Shadow Catcher pass with the normal and a 0.5 albedo, and
     Combined composed again from both (and the noisy Env: Cycles does not denoise the
-    background); without one, `film` itself. Returns (image, seconds, passes): passes
-    {"Shadow Catcher": denoised (H, W, 3)} where a catcher was, else {}."""
+    background); without one, `film` itself (use_albedo False: with a constant 0.5 albedo, as
+    Cycles denoises a Shadow Catcher pass: a Shadow bake). Returns (image, seconds, passes):
+    passes {"Shadow Catcher": denoised (H, W, 3)} where a catcher was, else {}."""
     guides = [film_pass(name) for name in aux_passes(input_passes)]
     planes = _catcher_planes(film_pass, catcher) if catcher is not None else None
     if planes is None:
         image = np.array(film, np.float32, order="C", copy=True)
-        seconds = denoise(image, *guides, prefilter=prefilter, quality=quality, cancel=cancel)
+        if use_albedo:
+            seconds = denoise(image, *guides, prefilter=prefilter, quality=quality, cancel=cancel)
+        else:
+            seconds = denoise_many([(image, False)], *guides, prefilter=prefilter, quality=quality, cancel=cancel)
         return image, seconds, {}
     matte, shadow, env = planes
     seconds = denoise_many([(matte, True), (shadow, False)], *guides, prefilter=prefilter, quality=quality,

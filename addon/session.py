@@ -196,12 +196,12 @@ def render_denoiser(scene, engine, warn):
     return opts
 
 
-def _denoised(engine, sess, image, opts, warn, view=""):
+def _denoised(engine, sess, image, opts, warn, view="", what=""):
     """(Combined denoised (a new array; alpha kept), {pass: denoised}: the Shadow Catcher
     pass where the scene has catchers), or None with a warning when the library is missing or
     fails: the noisy image and passes stay. The filter runs on a worker thread while this one
     (Blender's) watches for Esc, which stops it (noisy image, log line)."""
-    engine.update_stats("", "Pathlight | Denoising" + (f" view {view}" if view else ""))
+    engine.update_stats("", "Pathlight | Denoising" + (f" view {view}" if view else "") + (f" the {what}" if what else ""))
     stop = threading.Event()
     box = {}
 
@@ -230,8 +230,8 @@ def _denoised(engine, sess, image, opts, warn, view=""):
         return None
     out, seconds, passes = box["out"]
     h, w = image.shape[:2]
-    log.info("Pathlight: denoised %dx%d%s in %.2f s (Open Image Denoise: %s%s)", w, h,
-             f" (view {view})" if view else "", seconds, oidn.describe(opts),
+    log.info("Pathlight: denoised %s%dx%d%s in %.2f s (Open Image Denoise: %s%s)", f"the {what} " if what else "",
+             w, h, f" (view {view})" if view else "", seconds, oidn.describe(opts),
              "; the shadow catcher's matte and pass, Combined composed from them" if passes else "")
     return out, passes
 
