@@ -201,7 +201,8 @@ def _denoised(engine, sess, image, opts, warn, view="", what=""):
     pass where the scene has catchers), or None with a warning when the library is missing or
     fails: the noisy image and passes stay. The filter runs on a worker thread while this one
     (Blender's) watches for Esc, which stops it (noisy image, log line)."""
-    engine.update_stats("", "Pathlight | Denoising" + (f" view {view}" if view else "") + (f" the {what}" if what else ""))
+    engine.update_stats("", "Pathlight | Denoising" + (f" view {view}" if view else "")
+                        + (f" the {what}" if what else ""))
     stop = threading.Event()
     box = {}
 

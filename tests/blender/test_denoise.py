@@ -634,3 +634,44 @@ def test_build_py_merge_denoises_the_shadow_catcher_pass_as_cycles(tmp_path):
     oidn.denoise_many([(comb, True), (sc, False)], albedo, normal)
     np.testing.assert_array_equal(den["Shadow Catcher"], sc)
     np.testing.assert_array_equal(den["Combined"], comb)
+
+
+def test_viewport_and_farm_merge_without_the_library_keep_the_noisy_image(monkeypatch, tmp_path, capsys):
+    from addon.farm_merge import merge_pieces
+    from addon.viewport import ViewportSession
+    rng = np.random.default_rng(12)
+    film = np.concatenate([rng.random((16, 16, 3)), np.ones((16, 16, 1))], -1).astype(np.float32)
+
+    def missing():
+        raise oidn.DenoiseError("Open Image Denoise (test) could not be loaded")
+
+    monkeypatch.setattr(oidn, "load_library", missing)
+    oidn.reset()
+    try:
+        vs = ViewportSession(pc=None)
+        vs.denoise_async = False
+        warnings = []
+        vs.warn = warnings.append
+        vs.denoiser = {"input_passes": 'RGB_ALBEDO', "prefilter": 'FAST', "quality": 'BALANCED', "catcher": None}
+        vs.denoise_start = 1
+        vs.full = fake = _FakeSession(film)
+        fake.done = 2
+        for _ in range(3):  # the noisy film, one warning, no more tries
+            image, n = vs.display()
+            np.testing.assert_array_equal(image, film)
+        assert vs.denoiser is None and len(warnings) == 1 and "could not be loaded" in warnings[0], warnings
+        # The in-Blender farm merge: the merged frame as merged, and a line saying why.
+        img = bpy.data.images.new("piece", 16, 16, alpha=True, float_buffer=True)
+        img.colorspace_settings.name = 'Non-Color'
+        img.pixels.foreach_set(film.ravel())
+        img.filepath_raw, img.file_format = str(tmp_path / "p.exr"), 'OPEN_EXR'
+        img.save()
+        bpy.data.images.remove(img)
+        merge_pieces([(str(tmp_path / "p.exr"), 0, 2)], str(tmp_path / "plain.exr"))
+        merge_pieces([(str(tmp_path / "p.exr"), 0, 2)], str(tmp_path / "den.exr"),
+                     denoise={"input_passes": 'RGB', "prefilter": 'NONE', "quality": 'HIGH'})
+    finally:
+        monkeypatch.undo()
+        oidn.reset()
+    np.testing.assert_array_equal(read_exr(tmp_path / "den.exr"), read_exr(tmp_path / "plain.exr"))
+    assert "not denoised" in capsys.readouterr().out
