@@ -69,12 +69,15 @@ def blank_texel(pass_type):
 DENOISED_BAKES = ("COMBINED", "SHADOW")
 
 
-def bake_denoiser(scene, pass_type):
+def bake_denoiser(scene, pass_type, view_layer=None):
     """The denoise settings (denoise.settings) for a bake of `pass_type`, or None where Cycles
-    would not denoise it."""
+    would not denoise it (also where the view layer's Denoising is off)."""
     from . import denoise as oidn
+    from .session import layer_denoising
     opts = oidn.settings(scene.pathlight)
     if opts is None or pass_type not in DENOISED_BAKES:
+        return None
+    if view_layer is not None and not layer_denoising(view_layer):
         return None
     if getattr(scene.render.bake, "target", 'IMAGE_TEXTURES') != 'IMAGE_TEXTURES':
         return None
@@ -251,7 +254,7 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
         settings.film_transparent = True  # Cycles: "Always use transparent background for baking"
         settings.debug_view = "none"
         settings.passes = list(passes)
-        denoiser = bake_denoiser(scene, pass_type)
+        denoiser = bake_denoiser(scene, pass_type, depsgraph.view_layer)
         if denoiser is not None:  # its guides, at the baked points as Cycles writes them
             from .denoise import aux_passes
             settings.passes += [n for n in aux_passes(denoiser["input_passes"]) if n not in settings.passes]

@@ -158,10 +158,16 @@ NOISY_IMAGE = "Noisy Image"  # Cycles' pass: Combined before denoising
 NOISY_SHADOW_CATCHER = "Noisy Shadow Catcher"  # and the Shadow Catcher pass before denoising
 
 
+def layer_denoising(view_layer):
+    """Cycles' View Layer ▸ Denoising: on unless Pathlight's switch or Cycles' own is off."""
+    cycles = getattr(view_layer, "cycles", None)
+    return bool(view_layer.pathlight.use_denoising and getattr(cycles, "use_denoising", True))
+
+
 def noisy_image_pass(scene, view_layer):
-    """Whether the view layer gets Cycles' Noisy Image pass: whenever Denoise is on (Cycles'
-    engine.py list_render_passes, with or without the Denoising Data passes)."""
-    return bool(scene.pathlight.use_denoising)
+    """Whether the view layer gets Cycles' Noisy Image pass: whenever Denoise is on for it
+    (Cycles' engine.py list_render_passes, with or without the Denoising Data passes)."""
+    return bool(scene.pathlight.use_denoising and layer_denoising(view_layer))
 
 
 def noisy_passes(scene, view_layer):
@@ -181,11 +187,13 @@ def partial_sample_range(props):
     return props.sample_offset > 0 or props.frame_samples > props.sample_offset + props.samples
 
 
-def render_denoiser(scene, engine, warn):
+def render_denoiser(scene, engine, warn, view_layer=None):
     """The final render's denoise settings ({input_passes, prefilter, quality}; None: none),
     with a log line where Denoise is on but this render is not denoised."""
     opts = oidn.settings(scene.pathlight)
     if opts is None or engine.is_preview:  # (material thumbnails: not denoised)
+        return None
+    if view_layer is not None and not layer_denoising(view_layer):  # (as Cycles' get_denoise_params)
         return None
     if scene.pathlight.debug_view == 'BVH':
         return None
@@ -459,7 +467,7 @@ def render(engine, depsgraph):
         if "Vector" in names and "Vector" in empty and not engine.is_preview:
             warn("The Vector pass is written only without motion blur (as Cycles); it stays 0")
         settings.passes = [p[0] for p in passes if p[0] != "Sample Count" and p[0] not in empty]
-        denoiser = render_denoiser(scene, engine, warn)
+        denoiser = render_denoiser(scene, engine, warn, view_layer)
         if denoiser is not None:  # its guides, rendered whether or not their passes are shown
             settings.passes = settings.passes + [n for n in oidn.aux_passes(denoiser["input_passes"])
                                                  if n not in settings.passes and n in known]

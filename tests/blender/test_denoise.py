@@ -675,3 +675,23 @@ def test_viewport_and_farm_merge_without_the_library_keep_the_noisy_image(monkey
         oidn.reset()
     np.testing.assert_array_equal(read_exr(tmp_path / "den.exr"), read_exr(tmp_path / "plain.exr"))
     assert "not denoised" in capsys.readouterr().out
+
+
+@needs_core
+def test_a_view_layer_with_denoising_off_is_not_denoised(tmp_path):
+    from blender_util import RecordingLayout
+    from addon import ui
+    sc = cornell(use_denoising=True)
+    plain = layers(sc, tmp_path, "plain.exr", samples=NOISY_SPP, seed=2, use_denoising=False)
+    vl = sc.view_layers[0]
+    assert vl.pathlight.use_denoising and vl.cycles.use_denoising  # (on by default, as Cycles')
+    for owner in (vl.pathlight, vl.cycles):  # Pathlight's switch, or Cycles' own (View Layer ▸ Denoising)
+        owner.use_denoising = False
+        out = layers(sc, tmp_path, "off.exr", samples=NOISY_SPP, seed=2, use_denoising=True)
+        owner.use_denoising = True
+        assert set(out) == {"Combined"}, set(out)  # (no Noisy Image either, as Cycles)
+        np.testing.assert_array_equal(out["Combined"], plain["Combined"])
+    layout = RecordingLayout()
+    context = type("Ctx", (), {"view_layer": vl})
+    ui.PATHLIGHT_VIEWLAYER_PT_denoising.draw_header(type("Panel", (), {"layout": layout})(), context)
+    assert layout.props == ["use_denoising"]
