@@ -282,3 +282,52 @@ def test_viewport_denoise_composes_the_denoised_planes(transparent):
         assert np.abs(image - oidn.denoise_film(sess.film(), sess.film_pass, **opts)[0]).max() > 1e-4
     finally:
         vs.free()
+
+
+def test_viewport_denoises_the_shadow_catcher_pass_shown():
+    # Cycles' viewport shows a pass's denoised variant where it has one: of the passes the
+    # viewport can show, the Shadow Catcher pass (with a 0.5 albedo, as in the render).
+    import time
+    from addon.core import get_core
+    from addon.viewport import ViewportSession, display_pass
+    sc = catcher_scene()
+    configure(sc, True, False, False, NOISY_SPP, 2)
+    p = sc.pathlight
+    p.preview_samples, p.use_preview_denoising, p.preview_denoising_start_sample = NOISY_SPP, True, 1
+    vs = ViewportSession(get_core())
+    vs.denoise_async = False
+    vs.set_view(None, 24, 24)
+    vs.sync(bpy.context.evaluated_depsgraph_get())
+    try:
+        vs.set_pass('SHADOW_CATCHER')
+        assert vs.shown == ("pass", oidn.SHADOW_CATCHER)
+        deadline = time.monotonic() + 120.0
+        while vs.poll() and time.monotonic() < deadline:
+            vs.display()
+            if vs.full is not None:
+                vs.full.wait(0.05)
+            else:
+                time.sleep(0.01)
+        image, n = vs.display()
+        sess = vs.full
+        assert n == NOISY_SPP and vs._denoised[0] is sess
+        noisy = display_pass(sess.film_pass(oidn.SHADOW_CATCHER))
+        opts = {k: v for k, v in vs.denoiser.items() if k != "catcher"}
+        expected = oidn.denoise_film(noisy, sess.film_pass, use_albedo=False, **opts)[0]
+        np.testing.assert_array_equal(image, expected)
+        assert np.abs(image - noisy).max() > 1e-3
+        # Another pass is shown as it is, and the redraws stop with its last sample (they
+        # waited for a denoise that never came, until 2026-12-07).
+        vs.set_pass('AO')
+        deadline = time.monotonic() + 120.0
+        while vs.poll() and time.monotonic() < deadline:
+            vs.display()
+            if vs.full is not None:
+                vs.full.wait(0.05)
+            else:
+                time.sleep(0.01)
+        assert vs.full is not None and vs.full.is_finished() and not vs.poll()
+        image, _ = vs.display()
+        np.testing.assert_array_equal(image, display_pass(vs.full.film_pass("AO")))
+    finally:
+        vs.free()
