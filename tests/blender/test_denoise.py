@@ -602,6 +602,7 @@ def test_build_py_merge_denoises_the_shadow_catcher_pass_as_cycles(tmp_path):
         ch = {f"ViewLayer.Combined.{c}": rgba[..., i] for i, c in enumerate("RGBA")}
         ch.update({f"ViewLayer.Shadow Catcher.{c}": sc[..., i] for i, c in enumerate("RGB")})
         ch.update({f"ViewLayer.Noisy Shadow Catcher.{c}": sc[..., i] for i, c in enumerate("RGB")})
+        ch.update({f"ViewLayer.Combined_key.{c}": rgba[..., i] for i, c in enumerate("RGB")})  # (a light group)
         ch.update({f"ViewLayer.Denoising Albedo.{c}": 0.1 + 0.8 * wall[..., i] for i, c in enumerate("RGB")})
         ch.update({f"ViewLayer.Denoising Normal.{c}": np.full((h, w), float(c == "Z")) for c in "XYZ"})
         path = tmp_path / f"p{k}.exr"
@@ -618,13 +619,14 @@ def test_build_py_merge_denoises_the_shadow_catcher_pass_as_cycles(tmp_path):
         with OpenEXR.File(str(out)) as f:
             chans = f.channels()
             return proc.stdout, {n: np.array(chans[f"ViewLayer.{n}"].pixels)
-                                 for n in ("Combined", "Shadow Catcher", "Noisy Shadow Catcher")}
+                                 for n in ("Combined", "Shadow Catcher", "Noisy Shadow Catcher", "Combined_key")}
 
     _, plain = merge(tmp_path / "plain.exr")
     log_text, den = merge(tmp_path / "den.exr", "--denoise")
     assert "with its Shadow Catcher pass" in log_text, log_text
     assert rmse(den["Shadow Catcher"], shadow) < 0.5 * rmse(plain["Shadow Catcher"], shadow)
     np.testing.assert_array_equal(den["Noisy Shadow Catcher"], plain["Noisy Shadow Catcher"])
+    np.testing.assert_array_equal(den["Combined_key"], plain["Combined_key"])  # (light groups: as Cycles, not)
     # Exactly Cycles' recipe on the merged planes: the guides prefiltered once, the catcher
     # with the normal and a 0.5 albedo, Combined as before.
     comb, sc = plain["Combined"].astype(np.float32).copy(), plain["Shadow Catcher"].astype(np.float32).copy()
