@@ -62,6 +62,29 @@ def blank_texel(pass_type):
     return (0.0, 0.0, 0.0, 1.0)
 
 
+# The bakes Cycles denoises (Pass::get_info's support_denoise: PASS_COMBINED, and
+# PASS_SHADOW_CATCHER for a Shadow bake), to image textures only (sync_integrator: "No denoising
+# support for vertex color baking"). Checked in this bpy's Cycles: Combined and Shadow bakes
+# change with Denoise on, Diffuse, Glossy and AO do not.
+DENOISED_BAKES = ("COMBINED", "SHADOW")
+
+
+def bake_denoiser(scene, pass_type, view_layer=None):
+    """The denoise settings (denoise.settings) for a bake of `pass_type`, or None where Cycles
+    would not denoise it (also where the view layer's Denoising is off)."""
+    from . import denoise as oidn
+    from .session import layer_denoising
+    opts = oidn.settings(scene.pathlight)
+    if opts is None or pass_type not in DENOISED_BAKES:
+        return None
+    if view_layer is not None and not layer_denoising(view_layer):
+        return None
+    if getattr(scene.render.bake, "target", 'IMAGE_TEXTURES') != 'IMAGE_TEXTURES':
+        return None
+    # The Shadow bake is the Shadow Catcher pass: a 0.5 albedo, as Cycles denoises that pass.
+    return dict(opts, use_albedo=pass_type != "SHADOW")
+
+
 class BakeError(Exception):
     """A bake Pathlight cannot do: reported as an error, the image is left alone."""
 
@@ -231,6 +254,10 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
         settings.film_transparent = True  # Cycles: "Always use transparent background for baking"
         settings.debug_view = "none"
         settings.passes = list(passes)
+        denoiser = bake_denoiser(scene, pass_type, depsgraph.view_layer)
+        if denoiser is not None:  # its guides, at the baked points as Cycles writes them
+            from .denoise import aux_passes
+            settings.passes += [n for n in aux_passes(denoiser["input_passes"]) if n not in settings.passes]
         if pass_type == "UV":
             if "" in data.uv_sets.names:
                 settings.uv_pass_set = data.uv_sets.names.index("")
@@ -253,6 +280,8 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
         # Texels of no triangle: Blender copies them too (its blank texels have object id 0,
         # primitive -1), so they get what Cycles gives them.
         image[tri < 0] = blank_texel(pass_type)
+        if denoiser is not None:  # texel space, blank texels and all, as Cycles' bake buffer
+            image = _denoise(engine, sess, image.reshape(height, width, 4), denoiser, warn).reshape(n, 4)
         channels = int(layer.passes["Combined"].channels)
         if channels < 4:  # (Blender's bake targets are RGBA; keep what the pass holds)
             image = image[:, :channels]
@@ -268,6 +297,14 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
     finally:
         # Only a filled result reaches the image: a failed bake leaves it as it was.
         engine.end_result(result, cancel=not filled)
+
+
+def _denoise(engine, sess, image, opts, warn):
+    """The bake's RGBA (H, W, 4) denoised with the render's denoiser (session._denoised: Esc,
+    a missing library or a failure keep it as it is, with a warning)."""
+    from .session import _denoised
+    out = _denoised(engine, sess, np.ascontiguousarray(image), opts, warn, what="bake")
+    return image if out is None else out[0]
 
 
 def _run(engine, sess):

@@ -11,7 +11,10 @@ Only the OIDN 2.x C API is used (include/OpenImageDenoise/oidn.h): one CPU devic
 the process, and "RT" filters on float32 numpy images shared with the library (no copies of
 the colour). ctypes releases the GIL during each call, so a denoise does not block other Python
 threads. Any failure is a DenoiseError with the library's own message: the callers turn it into
-a warning and keep the noisy image (never a crash). docs/design/passes.md "Denoising".
+a warning and keep the noisy image (never a crash). As Cycles (denoiser_oidn.cpp) it denoises
+Combined and, with shadow catchers, the Shadow Catcher Matte and Shadow Catcher passes (the
+latter with a constant 0.5 albedo), and Combined is composed again from them; nothing else.
+docs/design/passes.md "Denoising".
 """
 
 import ctypes
@@ -38,6 +41,15 @@ _ERROR_NONE, _ERROR_CANCELLED = 0, 6
 _QUALITY = {'FAST': 4, 'BALANCED': 5, 'HIGH': 6}
 
 ALBEDO_PASS, NORMAL_PASS = "Denoising Albedo", "Denoising Normal"
+# Shadow catchers (docs/design/passes.md "Shadow catcher and holdout objects"): the planes Cycles
+# denoises besides Combined, and the world behind the catcher that the opaque composite adds.
+SHADOW_CATCHER, MATTE, ENV = "Shadow Catcher", "Shadow Catcher Matte", "Env"
+# How Combined is composed with catchers in the scene (the core's CatcherCombined): the matte
+# alone (the Shadow Catcher pass is asked for), the approximate shadow catcher on a transparent
+# film, or that over the world behind the catcher on an opaque one.
+CATCHER_MODES = ('MATTE', 'APPROXIMATE', 'OVER_BACKGROUND')
+# Cycles' stand-in albedo for passes denoised without one (set_fake_albedo_pass).
+FAKE_ALBEDO = 0.5
 
 
 class DenoiseError(RuntimeError):
@@ -225,23 +237,54 @@ def denoise(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH
     as they are, noise and all, 'NONE' trusts them as they are (noise-free guides). Returns the
     seconds it took; DenoiseError (the library's message) when the library is missing or fails.
     cancel: a function polled by the library while it filters (from the calling thread); True
-    stops it: DenoiseCancelled, and `color` is then restored (a partial result is undefined)."""
-    _image(color, "color")
+    stops it: DenoiseCancelled, and `color` is then restored (a partial result is undefined).
+    Non-finite values (NaN, +-inf) become 0 first, as Cycles' film keeps none (ensure_finite):
+    the library reads NaN as 0 but smears one +inf over the whole image."""
+    return denoise_many([(color, True)], albedo, normal, prefilter=prefilter, quality=quality, cancel=cancel)
+
+
+def _finite(arr, name):
+    """Sets the non-finite values of arr's first three channels to 0 (in place); logs how many."""
+    rgb = arr[..., :3]
+    bad = ~np.isfinite(rgb)
+    count = int(np.count_nonzero(bad))
+    if count:
+        rgb[bad] = 0.0
+        log.warning("Pathlight: %d non-finite value(s) in the %s set to 0 before denoising", count, name)
+    return count
+
+
+def denoise_many(colors, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH', cancel=None):
+    """denoise() of several images of one frame with the same guides, each prefiltered once
+    (as Cycles' OIDNDenoiseContext). colors: [(color, use_albedo)]; use_albedo False denoises
+    that image with a constant 0.5 albedo where there is an albedo guide (Cycles' fake albedo,
+    for the Shadow Catcher pass: its values are not lit by the surfaces' colour) and the normal
+    as for the others. On cancel every image is restored. Returns the seconds it took."""
+    colors = [(_image(c, "color"), bool(a)) for c, a in colors]
     if prefilter not in PREFILTERS or quality not in QUALITIES:
         raise ValueError(f"prefilter {prefilter!r} / quality {quality!r}")
     if normal is not None and albedo is None:
         raise ValueError("a normal guide needs an albedo guide (Open Image Denoise's rule)")
-    h, w = color.shape[:2]
+    if not colors:
+        return 0.0
+    h, w = colors[0][0].shape[:2]
+    if any(c.shape[:2] != (h, w) for c, _ in colors):
+        raise ValueError(f"images of different sizes: {[c.shape for c, _ in colors]}")
     guides = []
     for name, aux in ((b"albedo", albedo), (b"normal", normal)):
         if aux is not None:
             aux = np.ascontiguousarray(np.asarray(aux, np.float32)[..., :3]).copy()
             if aux.shape != (h, w, 3):
-                raise ValueError(f"{name.decode()} is {aux.shape}, the colour {color.shape}")
+                raise ValueError(f"{name.decode()} is {aux.shape}, the colour {colors[0][0].shape}")
             guides.append((name, aux))
     if h == 0 or w == 0:
         return 0.0
     t0 = time.perf_counter()
+    saved = [c.copy() for c, _ in colors] if cancel is not None else None
+    for k, (color, _) in enumerate(colors):
+        _finite(color, "image" if len(colors) == 1 else f"image {k + 1} of {len(colors)}")
+    for name, aux in guides:
+        _finite(aux, f"{name.decode()} guide")
     with _lock:  # one filter at a time on the one device
         lib, dev = _device()
         filters = []
@@ -271,7 +314,7 @@ def denoise(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH
             filters.append(filt)
             return filt
 
-        saved = color.copy() if cancel is not None else None
+        fake = None
         try:
             _error(lib, dev)  # (clear anything left from an earlier call on this thread)
             if prefilter == 'ACCURATE':
@@ -280,16 +323,22 @@ def denoise(color, albedo=None, normal=None, prefilter='ACCURATE', quality='HIGH
                     _set_image(lib, filt, name, aux)
                     _set_image(lib, filt, b"output", aux)
                     run(filt, f"prefiltering the {name.decode()}")
-            filt = new_filter()
-            _set_image(lib, filt, b"color", color)
-            _set_image(lib, filt, b"output", color)  # in place, as Cycles
-            for name, aux in guides:
-                _set_image(lib, filt, name, aux)
-            lib.oidnSetFilterBool(filt, b"hdr", True)
-            lib.oidnSetFilterBool(filt, b"cleanAux", prefilter in ('NONE', 'ACCURATE'))
-            run(filt, "denoising")
+            for color, use_albedo in colors:
+                filt = new_filter()
+                _set_image(lib, filt, b"color", color)
+                _set_image(lib, filt, b"output", color)  # in place, as Cycles
+                for name, aux in guides:
+                    if name == b"albedo" and not use_albedo:
+                        if fake is None:  # (not prefiltered: it is clean)
+                            fake = np.full((h, w, 3), FAKE_ALBEDO, np.float32)
+                        aux = fake
+                    _set_image(lib, filt, name, aux)
+                lib.oidnSetFilterBool(filt, b"hdr", True)
+                lib.oidnSetFilterBool(filt, b"cleanAux", prefilter in ('NONE', 'ACCURATE'))
+                run(filt, "denoising")
         except DenoiseCancelled:
-            color[...] = saved
+            for (color, _), before in zip(colors, saved):
+                color[...] = before
             raise
         finally:
             for filt in filters:
@@ -309,14 +358,78 @@ def settings(props, viewport=False):
 
 
 def denoise_film(film, film_pass, input_passes='RGB_ALBEDO_NORMAL', prefilter='ACCURATE', quality='HIGH',
-                 cancel=None):
+                 cancel=None, catcher=None, use_albedo=True):
     """A denoised copy of `film` ((H, W, 4) float32, RGBA; alpha kept) with the guides that
-    `input_passes` names read through film_pass(name) (a core Session's film_pass). Returns
-    (image, seconds)."""
-    image = np.array(film, np.float32, order="C", copy=True)
+    `input_passes` names read through film_pass(name) (a core Session's film_pass). catcher:
+    how the film composes Combined with shadow catchers (CATCHER_MODES; None: as rendered). With
+    a catcher in the scene (film_pass has the Shadow Catcher Matte), as Cycles: the matte is
+    denoised with the guides, the Shadow Catcher pass with the normal and a 0.5 albedo, and
+    Combined composed again from both (and the noisy Env: Cycles does not denoise the
+    background); without one, `film` itself (use_albedo False: with a constant 0.5 albedo, as
+    Cycles denoises a Shadow Catcher pass: a Shadow bake). Returns (image, seconds, passes):
+    passes {"Shadow Catcher": denoised (H, W, 3)} where a catcher was, else {}."""
     guides = [film_pass(name) for name in aux_passes(input_passes)]
-    seconds = denoise(image, *guides, prefilter=prefilter, quality=quality, cancel=cancel)
-    return image, seconds
+    planes = _catcher_planes(film_pass, catcher) if catcher is not None else None
+    if planes is None:
+        image = np.array(film, np.float32, order="C", copy=True)
+        if use_albedo:
+            seconds = denoise(image, *guides, prefilter=prefilter, quality=quality, cancel=cancel)
+        else:
+            seconds = denoise_many([(image, False)], *guides, prefilter=prefilter, quality=quality, cancel=cancel)
+        return image, seconds, {}
+    matte, shadow, env = planes
+    seconds = denoise_many([(matte, True), (shadow, False)], *guides, prefilter=prefilter, quality=quality,
+                           cancel=cancel)
+    return compose_catcher(matte, shadow, env, catcher), seconds, {SHADOW_CATCHER: shadow}
+
+
+def catcher_mode(passes, film_transparent):
+    """How the core composes Combined with catchers (session.cpp): CATCHER_MODES' entry for a
+    render of `passes` (names) on a transparent film or not."""
+    if SHADOW_CATCHER in passes:
+        return 'MATTE'
+    return 'APPROXIMATE' if film_transparent else 'OVER_BACKGROUND'
+
+
+def catcher_pass_names(catcher):
+    """The film passes denoise_film reads for shadow catchers in `catcher` mode."""
+    return [MATTE, SHADOW_CATCHER] + ([ENV] if catcher == 'OVER_BACKGROUND' else [])
+
+
+def _catcher_planes(film_pass, catcher):
+    """(matte (H, W, 4), shadow catcher (H, W, 3), env (H, W, 3) or None) as writable copies,
+    or None when the film has no catcher planes (no catcher in the scene)."""
+    if catcher not in CATCHER_MODES:
+        raise ValueError(f"catcher {catcher!r}: one of {CATCHER_MODES} or None")
+    try:
+        matte = film_pass(MATTE)
+    except (ValueError, KeyError):  # (the core: not kept; a dict of passes read earlier)
+        return None
+    matte = np.array(matte, np.float32, order="C", copy=True)
+    shadow = np.array(film_pass(SHADOW_CATCHER), np.float32, order="C", copy=True)
+    env = np.asarray(film_pass(ENV), np.float32) if catcher == 'OVER_BACKGROUND' else None
+    return matte, shadow, env
+
+
+def compose_catcher(matte, shadow, env, catcher):
+    """Combined as the core's Film::catcher_combined reads it (Cycles' PassAccessor with
+    film_calculate_shadow_catcher_matte_with_shadow): the matte's colour under its alpha
+    ('MATTE'); under the approximate alpha (1 - a)(1 - average(shadow)) + a ('APPROXIMATE');
+    or that alpha-overed onto env with alpha 1 ('OVER_BACKGROUND'). float32 (H, W, 4)."""
+    out = np.empty(matte.shape[:2] + (4,), np.float32)
+    out[..., :3] = matte[..., :3]
+    alpha = np.clip(matte[..., 3], np.float32(0), np.float32(1))
+    out[..., 3] = alpha
+    if catcher == 'MATTE':
+        return out
+    s = shadow[..., :3]
+    avg = np.clip((s[..., 0] + s[..., 1] + s[..., 2]) * np.float32(1.0 / 3.0), np.float32(0), np.float32(1))
+    alpha_matte = (np.float32(1) - alpha) * (np.float32(1) - avg) + alpha
+    out[..., 3] = alpha_matte
+    if catcher == 'OVER_BACKGROUND' and env is not None:
+        out[..., :3] += env[..., :3] * (np.float32(1) - alpha_matte)[..., None]
+        out[..., 3] = 1.0
+    return out
 
 
 def describe(opts):

@@ -432,6 +432,12 @@ class PathlightViewLayerSettings(bpy.types.PropertyGroup):
                     "what they would without them (multiply the backdrop by it); Combined is then the matte alone",
         default=False, update=_requery_passes,
     )
+    use_denoising: BoolProperty(
+        name="Denoising",
+        description="Denoise this view layer when Sampling ▸ Denoise is on (Cycles' View Layer ▸ Denoising; "
+                    "Cycles' own switch, where set off, turns it off too)",
+        default=True, update=_requery_passes,
+    )
 
 
 # The viewport's Render Pass (Rendered shading): Cycles 4.5's list (its

@@ -150,16 +150,35 @@ def update_render_passes(engine, scene, view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
     for name, channels, chan_id, socket in shader_aovs(view_layer) + light_group_passes(view_layer):
         engine.register_pass(scene, view_layer, name, channels, chan_id, socket)
-    if noisy_image_pass(scene, view_layer):
-        engine.register_pass(scene, view_layer, NOISY_IMAGE, 4, "RGBA", 'COLOR')
+    for name, channels, chan_id in noisy_passes(scene, view_layer):
+        engine.register_pass(scene, view_layer, name, channels, chan_id, 'COLOR')
 
 
 NOISY_IMAGE = "Noisy Image"  # Cycles' pass: Combined before denoising
+NOISY_SHADOW_CATCHER = "Noisy Shadow Catcher"  # and the Shadow Catcher pass before denoising
+
+
+def layer_denoising(view_layer):
+    """Cycles' View Layer ▸ Denoising: on unless Pathlight's switch or Cycles' own is off."""
+    cycles = getattr(view_layer, "cycles", None)
+    return bool(view_layer.pathlight.use_denoising and getattr(cycles, "use_denoising", True))
 
 
 def noisy_image_pass(scene, view_layer):
-    """Whether the view layer gets Cycles' Noisy Image pass: Denoise and Denoising Data on."""
-    return bool(scene.pathlight.use_denoising and view_layer.pathlight.use_pass_denoising_data)
+    """Whether the view layer gets Cycles' Noisy Image pass: whenever Denoise is on for it
+    (Cycles' engine.py list_render_passes, with or without the Denoising Data passes)."""
+    return bool(scene.pathlight.use_denoising and layer_denoising(view_layer))
+
+
+def noisy_passes(scene, view_layer):
+    """[(name, channels, channel ids)] of Cycles' noisy passes for this view layer: Noisy Image
+    with Denoise on, and Noisy Shadow Catcher when the Shadow Catcher pass is on too."""
+    if not noisy_image_pass(scene, view_layer):
+        return []
+    out = [(NOISY_IMAGE, 4, "RGBA")]
+    if _volume_pass(view_layer, "use_pass_shadow_catcher"):
+        out.append((NOISY_SHADOW_CATCHER, 3, "RGB"))
+    return out
 
 
 def partial_sample_range(props):
@@ -168,11 +187,13 @@ def partial_sample_range(props):
     return props.sample_offset > 0 or props.frame_samples > props.sample_offset + props.samples
 
 
-def render_denoiser(scene, engine, warn):
+def render_denoiser(scene, engine, warn, view_layer=None):
     """The final render's denoise settings ({input_passes, prefilter, quality}; None: none),
     with a log line where Denoise is on but this render is not denoised."""
     opts = oidn.settings(scene.pathlight)
     if opts is None or engine.is_preview:  # (material thumbnails: not denoised)
+        return None
+    if view_layer is not None and not layer_denoising(view_layer):  # (as Cycles' get_denoise_params)
         return None
     if scene.pathlight.debug_view == 'BVH':
         return None
@@ -183,11 +204,13 @@ def render_denoiser(scene, engine, warn):
     return opts
 
 
-def _denoised(engine, sess, image, opts, warn, view=""):
-    """Combined denoised (a new array; alpha kept), or None with a warning when the library is
-    missing or fails: the noisy image stays. The filter runs on a worker thread while this one
+def _denoised(engine, sess, image, opts, warn, view="", what=""):
+    """(Combined denoised (a new array; alpha kept), {pass: denoised}: the Shadow Catcher
+    pass where the scene has catchers), or None with a warning when the library is missing or
+    fails: the noisy image and passes stay. The filter runs on a worker thread while this one
     (Blender's) watches for Esc, which stops it (noisy image, log line)."""
-    engine.update_stats("", "Pathlight | Denoising" + (f" view {view}" if view else ""))
+    engine.update_stats("", "Pathlight | Denoising" + (f" view {view}" if view else "")
+                        + (f" the {what}" if what else ""))
     stop = threading.Event()
     box = {}
 
@@ -214,11 +237,12 @@ def _denoised(engine, sess, image, opts, warn, view=""):
         log.error("denoising failed", exc_info=error)
         warn(f"Denoising failed, the image is not denoised: {type(error).__name__}: {error}")
         return None
-    out, seconds = box["out"]
+    out, seconds, passes = box["out"]
     h, w = image.shape[:2]
-    log.info("Pathlight: denoised %dx%d%s in %.2f s (Open Image Denoise: %s)", w, h,
-             f" (view {view})" if view else "", seconds, oidn.describe(opts))
-    return out
+    log.info("Pathlight: denoised %s%dx%d%s in %.2f s (Open Image Denoise: %s%s)", f"the {what} " if what else "",
+             w, h, f" (view {view})" if view else "", seconds, oidn.describe(opts),
+             "; the shadow catcher's matte and pass, Combined composed from them" if passes else "")
+    return out, passes
 
 
 def cryptomatte_metadata(pc, data, view_layer):
@@ -443,10 +467,12 @@ def render(engine, depsgraph):
         if "Vector" in names and "Vector" in empty and not engine.is_preview:
             warn("The Vector pass is written only without motion blur (as Cycles); it stays 0")
         settings.passes = [p[0] for p in passes if p[0] != "Sample Count" and p[0] not in empty]
-        denoiser = render_denoiser(scene, engine, warn)
+        denoiser = render_denoiser(scene, engine, warn, view_layer)
         if denoiser is not None:  # its guides, rendered whether or not their passes are shown
             settings.passes = settings.passes + [n for n in oidn.aux_passes(denoiser["input_passes"])
                                                  if n not in settings.passes and n in known]
+            # With shadow catchers: Combined is composed from the denoised matte and pass.
+            denoiser["catcher"] = oidn.catcher_mode(settings.passes, scene.render.film_transparent)
         if aovs:
             settings.shader_aovs = [a[1] for a in aovs]
         groups = [] if engine.is_preview or scene.pathlight.debug_view == 'BVH' else light_group_passes(view_layer)
@@ -482,9 +508,9 @@ def render(engine, depsgraph):
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         for name, channels, chan_id, _ in aovs + groups:
             engine.add_pass(name, channels, chan_id, layer=view_layer.name)
-        noisy = NOISY_IMAGE if noisy_image_pass(scene, view_layer) and not engine.is_preview else ""
-        if noisy:
-            engine.add_pass(noisy, 4, "RGBA", layer=view_layer.name)
+        noisy = [] if engine.is_preview else noisy_passes(scene, view_layer)
+        for name, channels, chan_id in noisy:
+            engine.add_pass(name, channels, chan_id, layer=view_layer.name)
         _, _, width, height = render_border(scene)
         # Multiview (Output > Stereoscopy): one render per view of the one committed scene,
         # each through its view's camera (as the viewport's camera override: nothing is
@@ -506,7 +532,8 @@ def render(engine, depsgraph):
                 passes=[p[0] for p in passes if p[0] not in empty], aovs=[a[0] for a in aovs],
                 bvh_view=scene.pathlight.debug_view == 'BVH', layer=view_layer.name,
                 final_passes=[c[0] for c in crypto], groups=[g[0] for g in groups], view=view,
-                view_index=index, view_count=len(views), denoiser=denoiser, noisy_pass=noisy, warn=warn)
+                view_index=index, view_count=len(views), denoiser=denoiser,
+                noisy_passes=[n[0] for n in noisy], warn=warn)
             done = view_done if done is None else min(done, view_done)
             del sess
             if cancelled:
@@ -681,14 +708,15 @@ def _warner(engine):
 
 
 def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, layer="", aovs=(), final_passes=(),
-         groups=(), view="", view_index=0, view_count=1, denoiser=None, noisy_pass="", warn=None):
+         groups=(), view="", view_index=0, view_count=1, denoiser=None, noisy_passes=(), warn=None):
     """Streams the session's film (and passes) into the render result (its view `view`, or
     the one view without multiview); returns (samples done, whether the render was
     cancelled). final_passes (Cryptomatte's, sorted per pixel on reading) are written once, at
     the end. groups: the light group passes' names (film_light_group(i) is group i's).
     Progress counts over the views: this is view_index of view_count. denoiser: denoise settings
-    ({input_passes, prefilter, quality}) or None; Combined's last image (also after a cancel, as
-    Cycles) is then the denoised one, and noisy_pass (if any) gets the undenoised one."""
+    ({input_passes, prefilter, quality, catcher}) or None; Combined's last image (also after a
+    cancel, as Cycles) is then the denoised one (and the Shadow Catcher pass's, with catchers),
+    and noisy_passes (Noisy Image, Noisy Shadow Catcher) get the undenoised ones."""
     # Only the view layer being rendered (render() runs once per layer; "" would give them all).
     # With a render border, Blender's result is the border's size (it crops, or pastes the
     # border into the frame, itself): the film covers exactly that.
@@ -709,7 +737,7 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
         aov_targets = [(i, find(name)) for i, name in enumerate(aovs)]
         group_targets = [(i, find(name)) for i, name in enumerate(groups)]
         final_targets = [(name, find(name)) for name in final_passes]
-        noisy_target = find(noisy_pass) if noisy_pass else None
+        noisy_targets = [(name, find(name)) for name in noisy_passes]
         sess.start()
         shown = -1
         stats_at = -1.0
@@ -720,15 +748,20 @@ def _run(engine, sess, width, height, time_limit, passes=(), bvh_view=False, lay
             if view_info["samples_done"] != shown or finished:
                 # film(): float32 (H, W, 4), row 0 = bottom, which is also Blender's order.
                 image = _bvh_heat_map(engine, sess, finished) if bvh_view else sess.film()
-                if finished and noisy_target is not None:
-                    noisy_target.rect.foreach_set(image.ravel())
+                denoised_passes = {}
+                for name, target in noisy_targets if finished else []:
+                    if target is not None:  # (Noisy Shadow Catcher: the pass as rendered)
+                        target.rect.foreach_set((image if name == NOISY_IMAGE else
+                                                 sess.film_pass(oidn.SHADOW_CATCHER)).ravel())
                 if finished and denoiser is not None:
                     denoised = _denoised(engine, sess, image, denoiser, warn or _warner(engine), view)
-                    image = image if denoised is None else denoised
+                    if denoised is not None:
+                        image, denoised_passes = denoised
                 combined.rect.foreach_set(image.ravel())  # ~400x faster than `rect = `
                 for name, target in targets + (final_targets if finished else []):
                     if target is not None:  # film_pass(): (H, W, channels), same order
-                        target.rect.foreach_set(sess.film_pass(name).ravel())
+                        pixels = denoised_passes.get(name)
+                        target.rect.foreach_set((sess.film_pass(name) if pixels is None else pixels).ravel())
                 for i, target in aov_targets:  # film_aov(i): shader AOV slot i
                     if target is not None:
                         target.rect.foreach_set(sess.film_aov(i).ravel())

@@ -434,6 +434,20 @@ if ViewLayerLightgroupsPanelHelper is not None:
         bl_context = "view_layer"
     light_group_classes += (PATHLIGHT_VIEWLAYER_PT_lightgroups,)
 
+class PATHLIGHT_VIEWLAYER_PT_denoising(PathlightPanel, bpy.types.Panel):
+    """Cycles' View Layer ▸ Denoising: whether this view layer's render is denoised."""
+    bl_label = "Denoising"
+    bl_context = "view_layer"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.view_layer.pathlight, "use_denoising", text="")
+
+    def draw(self, context):
+        self.layout.active = context.view_layer.pathlight.use_denoising
+        self.layout.label(text="With Sampling ▸ Denoise on (its settings)")
+
+
 class PATHLIGHT_VIEW3D_PT_shading_render_pass(PathlightPanel, bpy.types.Panel):
     """The shading popover's Render Pass in Rendered mode, as Cycles' CYCLES_VIEW3D_PT_shading_render_pass."""
     bl_space_type = 'VIEW_3D'
@@ -462,7 +476,7 @@ classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_sampling_viewport_d
            PATHLIGHT_RENDER_PT_film, PATHLIGHT_RENDER_PT_film_transparency,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
-           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher,
+           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_VIEWLAYER_PT_denoising, PATHLIGHT_OBJECT_PT_shadow_catcher,
            PATHLIGHT_VIEW3D_PT_shading_render_pass) + light_group_classes
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles

@@ -224,6 +224,9 @@ class ViewportSession:
         self.denoise_start = scene.pathlight.preview_denoising_start_sample
         if self.denoiser is not None:  # the guides it reads
             self._base_settings.passes = oidn.aux_passes(self.denoiser["input_passes"])
+            # (with shadow catchers: how the film composes Combined, composed again when denoised)
+            self.denoiser["catcher"] = oidn.catcher_mode(self._base_settings.passes,
+                                                         self._base_settings.film_transparent)
         try:
             self.scene_camera = camera_params(scene, depsgraph, self.warn)
         except Exception:  # no active camera: only the free view can be shown
@@ -378,6 +381,8 @@ class ViewportSession:
         kind = self.shown[0] if self.shown else None
         if kind == "pass" and self.shown[1] != "Sample Count":  # (the core always counts samples)
             settings.passes = [self.shown[1]]
+            if self._denoises_shown_pass():  # (and the guides it is denoised with)
+                settings.passes += oidn.aux_passes(self.denoiser["input_passes"])
             if self.shown[1] == "UV" and self.uv_pass_set is not None:
                 settings.uv_pass_set = self.uv_pass_set
         elif kind == "group":
@@ -415,8 +420,8 @@ class ViewportSession:
 
     def _denoise_due(self, sess):
         """Whether the finished session's last image is still to be denoised and drawn."""
-        if self.denoiser is None:
-            return False
+        if self.denoiser is None or (self.shown and not self._denoises_shown_pass()):
+            return False  # (a pass shown as it is: nothing to wait for)
         done = sess.progress()["samples_done"]
         last = self._denoised
         return done >= self.denoise_start and not (last is not None and last[0] is sess and last[1] == done)
@@ -430,17 +435,26 @@ class ViewportSession:
                 done = sess.progress()["samples_done"]
                 if done > 0:
                     if self.shown:  # a pass other than Combined, as it is (not denoised)
-                        return self._pass_film(sess, done), done
+                        film = self._pass_film(sess, done)
+                        if self._denoises_shown_pass() and done >= self.denoise_start:
+                            film = self._denoise(sess, film, done, use_albedo=False)
+                        return film, done
                     film = sess.film()
                     if self.denoiser is not None and done >= self.denoise_start:
                         film = self._denoise(sess, film, done)
                     return film, done
         return None
 
-    def _denoise(self, sess, film, done):
+    def _denoises_shown_pass(self):
+        """Whether the pass shown is denoised: the Shadow Catcher pass, as Cycles' viewport
+        shows its denoised variant (the only pass besides Combined that Cycles denoises)."""
+        return self.denoiser is not None and self.shown == ("pass", oidn.SHADOW_CATCHER)
+
+    def _denoise(self, sess, film, done, use_albedo=True):
         """The film denoised: again when the samples shown have doubled since the last denoise
         of this session, or it has finished; in between the last denoised image. On a failure the
-        noisy film, with one warning, and no more tries until the settings change."""
+        noisy film, with one warning, and no more tries until the settings change. use_albedo
+        False: the Shadow Catcher pass shown (a 0.5 albedo, no catcher composite)."""
         self._collect()
         if self.denoiser is None:  # (failed just now)
             return film
@@ -449,8 +463,15 @@ class ViewportSession:
         if due and (self._job is None or self._job[0] is not sess):
             # The guides are read here (the core's film_pass copies); the filter runs on its own.
             guides = {name: sess.film_pass(name) for name in oidn.aux_passes(self.denoiser["input_passes"])}
-            job = [sess, done, None, None]
             opts = dict(self.denoiser)
+            if not use_albedo:
+                opts.update(catcher=None, use_albedo=False)
+            if opts.get("catcher") is not None:
+                try:  # the shadow catchers' planes, where the scene has catchers
+                    guides.update({name: sess.film_pass(name) for name in oidn.catcher_pass_names(opts["catcher"])})
+                except ValueError:  # (none in the scene: the core keeps no such planes)
+                    opts["catcher"] = None
+            job = [sess, done, None, None]
 
             def work():
                 try:

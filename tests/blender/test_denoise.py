@@ -96,10 +96,11 @@ def test_denoised_image_is_deterministic_and_the_guides_need_no_pass(tmp_path):
     a = render_to_array(sc, samples=NOISY_SPP, seed=3, threads=2)
     b = render_to_array(sc, samples=NOISY_SPP, seed=3, threads=1)  # (the film does not depend on them)
     np.testing.assert_array_equal(a, b)
-    # No Denoising Data: no Noisy Image or guide passes in the result, but the guides were used
-    # (an image denoised from its colour alone differs).
+    # No Denoising Data: no guide passes in the result (the Noisy Image is there, as in Cycles,
+    # whenever Denoise is on), but the guides were used (an image denoised from its colour
+    # alone differs).
     out = layers(sc, tmp_path, samples=NOISY_SPP, seed=3)
-    assert set(out) == {"Combined"}, set(out)
+    assert set(out) == {"Combined", "Noisy Image"}, set(out)
     np.testing.assert_array_equal(out["Combined"], a)
     rgb_only = render_to_array(sc, samples=NOISY_SPP, seed=3, denoising_input_passes='RGB')
     assert np.abs(rgb_only - a).max() > 1e-3
@@ -416,20 +417,28 @@ def test_a_cancelled_render_is_denoised_too(tmp_path):
     np.testing.assert_array_equal(denoised[..., 3], noisy[..., 3])
 
 
-def test_compositor_shows_the_noisy_image_socket():
+def test_compositor_shows_the_noisy_sockets():
     sc = cornell()
     sc.use_nodes = True
     rl = sc.node_tree.nodes.new("CompositorNodeRLayers")
     names = lambda: {s.name for s in rl.outputs if s.enabled}  # noqa: E731
-    sc.view_layers[0].pathlight.use_pass_denoising_data = True
+    vl = sc.view_layers[0].pathlight
+    vl.use_pass_denoising_data = True
     rl.update()
     assert "Denoising Albedo" in names() and "Noisy Image" not in names()
     sc.pathlight.use_denoising = True  # (its update requeries the passes, as Cycles')
     rl.update()
-    assert "Noisy Image" in names()
-    sc.view_layers[0].pathlight.use_pass_denoising_data = False
+    assert "Noisy Image" in names() and "Noisy Shadow Catcher" not in names()
+    # As Cycles' engine.py: Noisy Image whenever Denoise is on, Denoising Data or not; Noisy
+    # Shadow Catcher with the Shadow Catcher pass.
+    vl.use_pass_denoising_data = False
+    vl.use_pass_shadow_catcher = True
     rl.update()
-    assert "Noisy Image" not in names()
+    assert {"Noisy Image", "Noisy Shadow Catcher", "Shadow Catcher"} <= names()
+    assert "Denoising Albedo" not in names()
+    sc.pathlight.use_denoising = False
+    rl.update()
+    assert "Noisy Image" not in names() and "Noisy Shadow Catcher" not in names()
 
 
 @needs_oidn
@@ -455,3 +464,236 @@ def test_cancel_stops_the_filter_and_keeps_the_image():
     plain = noisy.copy()
     oidn.denoise(plain)
     np.testing.assert_array_equal(done, plain)
+
+
+@needs_oidn
+def test_non_finite_values_are_zeroed_before_denoising(caplog):
+    rng = np.random.default_rng(9)
+    img = (0.5 + rng.normal(0, 0.1, (32, 32, 4))).astype(np.float32)
+    zeroed = img.copy()
+    zeroed[10, 10, 0] = zeroed[20, 5, 1] = zeroed[3, 30, 2] = 0.0
+    oidn.denoise(zeroed, prefilter='NONE')
+    for bad in (np.inf, np.nan, -np.inf):
+        got = img.copy()
+        got[10, 10, 0] = got[20, 5, 1] = got[3, 30, 2] = bad
+        with caplog.at_level(logging.WARNING, logger="addon.denoise"):
+            oidn.denoise(got, prefilter='NONE')
+        # As Cycles' film, which keeps no non-finite value: 0 there. (Unchanged, the library
+        # reads NaN as 0 but spreads one +inf over the whole image: 2750 of 4096 pixels off by
+        # more than 1 in a 64x64 test.)
+        np.testing.assert_array_equal(got, zeroed)
+        assert any("3 non-finite" in r.getMessage() for r in caplog.records)
+        caplog.clear()
+    # Non-finite guides too (the caller's guide is not changed).
+    albedo = np.full((32, 32, 3), 0.5, np.float32)
+    bad_albedo = albedo.copy()
+    bad_albedo[7, 7] = np.inf
+    a, b = img.copy(), img.copy()
+    oidn.denoise(a, bad_albedo, prefilter='NONE')
+    albedo[7, 7] = 0.0
+    oidn.denoise(b, albedo, prefilter='NONE')
+    np.testing.assert_array_equal(a, b)
+    assert np.isinf(bad_albedo[7, 7]).all()
+
+
+def test_material_previews_are_not_denoised_as_cycles():
+    # Cycles reads a material preview's Denoise from Blender's built-in preview scene, whose
+    # cycles.use_denoising is stored off (docs/design/passes.md); Pathlight's previews likewise
+    # skip the denoiser and its passes whatever the user's scene says.
+    from addon import session
+    sc = cornell(use_denoising=True)
+
+    class Engine:
+        is_preview = True
+
+    class Final:
+        is_preview = False
+
+    assert session.render_denoiser(sc, Engine(), print) is None
+    assert session.render_denoiser(sc, Final(), print) is not None
+    sc.pathlight.use_denoising = False
+    assert session.render_denoiser(sc, Final(), print) is None
+
+
+@needs_core
+@needs_oidn
+def test_light_groups_and_shader_aovs_are_not_denoised(tmp_path):
+    sc = cornell()
+    vl = sc.view_layers[0]
+    vl.lightgroups.add(name="lamp")
+    sc.objects["Light"].lightgroup = "lamp"  # (the emissive ceiling lamp)
+    aov = vl.aovs.add()
+    aov.name, aov.type = "shade", 'COLOR'
+    mat = bpy.data.materials["White"]
+    node = mat.node_tree.nodes.new("ShaderNodeOutputAOV")
+    node.aov_name = "shade"
+    node.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1.0)
+    plain = layers(sc, tmp_path, "plain.exr", samples=NOISY_SPP, seed=2)
+    den = layers(sc, tmp_path, "den.exr", samples=NOISY_SPP, seed=2, use_denoising=True)
+    assert {"Combined_lamp", "shade"} <= set(den)
+    assert plain["Combined_lamp"].max() > 0 and plain["shade"].max() > 0
+    # As Cycles (Pass::get_info: support_denoise only for Combined, not a light group's, and
+    # the shadow catcher passes): these stay as rendered; Combined is denoised.
+    for name in ("Combined_lamp", "shade"):
+        np.testing.assert_array_equal(den[name], plain[name])
+    assert np.abs(den["Combined"] - plain["Combined"]).max() > 1e-3
+
+
+@needs_core
+def test_an_unexpected_error_while_denoising_keeps_the_noisy_image(monkeypatch, caplog):
+    # numpy's own copies of a huge frame can fail where the library would not: MemoryError is
+    # no DenoiseError, and still only a warning.
+    sc = cornell()
+    plain = render_to_array(sc, samples=NOISY_SPP, seed=2)
+
+    def no_memory(*a, **kw):
+        raise MemoryError("Unable to allocate 7.9 GiB for an array")
+
+    monkeypatch.setattr(oidn, "denoise_film", no_memory)
+    with caplog.at_level(logging.WARNING, logger="addon.session"):
+        got = render_to_array(sc, samples=NOISY_SPP, seed=2, use_denoising=True)
+    np.testing.assert_array_equal(got, plain)
+    assert any("not denoised" in r.getMessage() and "MemoryError" in r.getMessage() for r in caplog.records)
+
+
+@needs_oidn
+def test_esc_while_denoising_keeps_the_noisy_image(caplog):
+    from addon import session
+    rng = np.random.default_rng(10)
+    film = rng.random((320, 320, 4)).astype(np.float32)  # (seconds of filtering: Esc comes first)
+
+    class Engine:  # Esc is down from the start: the worker's filter stops at its next poll
+        def __init__(self):
+            self.breaks = 0
+
+        def test_break(self):
+            self.breaks += 1
+            return True
+
+        def update_stats(self, *a):
+            pass
+
+    warnings = []
+    engine = Engine()
+    with caplog.at_level(logging.INFO, logger="addon.session"):
+        out = session._denoised(engine, _FakeSession(film), film, {"input_passes": 'RGB_ALBEDO_NORMAL',
+                                "prefilter": 'ACCURATE', "quality": 'HIGH'}, warnings.append)
+    assert out is None and not warnings
+    assert engine.breaks >= 1
+    assert any("denoising cancelled" in r.getMessage() for r in caplog.records)
+
+
+@needs_oidn
+def test_build_py_merge_denoises_the_shadow_catcher_pass_as_cycles(tmp_path):
+    import subprocess
+    import sys
+    import OpenEXR
+    from blender_util import REPO
+    rng = np.random.default_rng(11)
+    h, w = 24, 32
+    wall = np.zeros((h, w, 3), np.float32)
+    wall[:, w // 2:] = 1.0
+    shadow = np.ones((h, w, 3), np.float32)
+    shadow[6:18, 8:20] = 0.4  # a shadow on the catcher
+    files, pieces = [], []
+    for k in range(2):
+        rgba = np.concatenate([0.1 + 0.5 * wall + rng.normal(0, 0.15, (h, w, 3)), np.ones((h, w, 1))], -1)
+        sc = shadow + rng.normal(0, 0.15, (h, w, 3))
+        ch = {f"ViewLayer.Combined.{c}": rgba[..., i] for i, c in enumerate("RGBA")}
+        ch.update({f"ViewLayer.Shadow Catcher.{c}": sc[..., i] for i, c in enumerate("RGB")})
+        ch.update({f"ViewLayer.Noisy Shadow Catcher.{c}": sc[..., i] for i, c in enumerate("RGB")})
+        ch.update({f"ViewLayer.Combined_key.{c}": rgba[..., i] for i, c in enumerate("RGB")})  # (a light group)
+        ch.update({f"ViewLayer.Denoising Albedo.{c}": 0.1 + 0.8 * wall[..., i] for i, c in enumerate("RGB")})
+        ch.update({f"ViewLayer.Denoising Normal.{c}": np.full((h, w), float(c == "Z")) for c in "XYZ"})
+        path = tmp_path / f"p{k}.exr"
+        OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "Pathlight Samples": "2",
+                      "Pathlight Sample Offset": str(2 * k)},
+                     {n: np.ascontiguousarray(v, np.float32) for n, v in ch.items()}).write(str(path))
+        files.append(str(path))
+        pieces.append((rgba.astype(np.float32), sc.astype(np.float32)))
+
+    def merge(out, *extra):
+        proc = subprocess.run([sys.executable, str(REPO / "build.py"), "merge", *files, "-o", str(out), *extra],
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        with OpenEXR.File(str(out)) as f:
+            chans = f.channels()
+            return proc.stdout, {n: np.array(chans[f"ViewLayer.{n}"].pixels)
+                                 for n in ("Combined", "Shadow Catcher", "Noisy Shadow Catcher", "Combined_key")}
+
+    _, plain = merge(tmp_path / "plain.exr")
+    log_text, den = merge(tmp_path / "den.exr", "--denoise")
+    assert "with its Shadow Catcher pass" in log_text, log_text
+    assert rmse(den["Shadow Catcher"], shadow) < 0.5 * rmse(plain["Shadow Catcher"], shadow)
+    np.testing.assert_array_equal(den["Noisy Shadow Catcher"], plain["Noisy Shadow Catcher"])
+    np.testing.assert_array_equal(den["Combined_key"], plain["Combined_key"])  # (light groups: as Cycles, not)
+    # Exactly Cycles' recipe on the merged planes: the guides prefiltered once, the catcher
+    # with the normal and a 0.5 albedo, Combined as before.
+    comb, sc = plain["Combined"].astype(np.float32).copy(), plain["Shadow Catcher"].astype(np.float32).copy()
+    albedo = 0.1 + 0.8 * wall
+    normal = np.zeros((h, w, 3), np.float32)
+    normal[..., 2] = 1.0
+    oidn.denoise_many([(comb, True), (sc, False)], albedo, normal)
+    np.testing.assert_array_equal(den["Shadow Catcher"], sc)
+    np.testing.assert_array_equal(den["Combined"], comb)
+
+
+def test_viewport_and_farm_merge_without_the_library_keep_the_noisy_image(monkeypatch, tmp_path, capsys):
+    from addon.farm_merge import merge_pieces
+    from addon.viewport import ViewportSession
+    rng = np.random.default_rng(12)
+    film = np.concatenate([rng.random((16, 16, 3)), np.ones((16, 16, 1))], -1).astype(np.float32)
+
+    def missing():
+        raise oidn.DenoiseError("Open Image Denoise (test) could not be loaded")
+
+    monkeypatch.setattr(oidn, "load_library", missing)
+    oidn.reset()
+    try:
+        vs = ViewportSession(pc=None)
+        vs.denoise_async = False
+        warnings = []
+        vs.warn = warnings.append
+        vs.denoiser = {"input_passes": 'RGB_ALBEDO', "prefilter": 'FAST', "quality": 'BALANCED', "catcher": None}
+        vs.denoise_start = 1
+        vs.full = fake = _FakeSession(film)
+        fake.done = 2
+        for _ in range(3):  # the noisy film, one warning, no more tries
+            image, n = vs.display()
+            np.testing.assert_array_equal(image, film)
+        assert vs.denoiser is None and len(warnings) == 1 and "could not be loaded" in warnings[0], warnings
+        # The in-Blender farm merge: the merged frame as merged, and a line saying why.
+        img = bpy.data.images.new("piece", 16, 16, alpha=True, float_buffer=True)
+        img.colorspace_settings.name = 'Non-Color'
+        img.pixels.foreach_set(film.ravel())
+        img.filepath_raw, img.file_format = str(tmp_path / "p.exr"), 'OPEN_EXR'
+        img.save()
+        bpy.data.images.remove(img)
+        merge_pieces([(str(tmp_path / "p.exr"), 0, 2)], str(tmp_path / "plain.exr"))
+        merge_pieces([(str(tmp_path / "p.exr"), 0, 2)], str(tmp_path / "den.exr"),
+                     denoise={"input_passes": 'RGB', "prefilter": 'NONE', "quality": 'HIGH'})
+    finally:
+        monkeypatch.undo()
+        oidn.reset()
+    np.testing.assert_array_equal(read_exr(tmp_path / "den.exr"), read_exr(tmp_path / "plain.exr"))
+    assert "not denoised" in capsys.readouterr().out
+
+
+@needs_core
+def test_a_view_layer_with_denoising_off_is_not_denoised(tmp_path):
+    from blender_util import RecordingLayout
+    from addon import ui
+    sc = cornell(use_denoising=True)
+    plain = layers(sc, tmp_path, "plain.exr", samples=NOISY_SPP, seed=2, use_denoising=False)
+    vl = sc.view_layers[0]
+    assert vl.pathlight.use_denoising and vl.cycles.use_denoising  # (on by default, as Cycles')
+    for owner in (vl.pathlight, vl.cycles):  # Pathlight's switch, or Cycles' own (View Layer ▸ Denoising)
+        owner.use_denoising = False
+        out = layers(sc, tmp_path, "off.exr", samples=NOISY_SPP, seed=2, use_denoising=True)
+        owner.use_denoising = True
+        assert set(out) == {"Combined"}, set(out)  # (no Noisy Image either, as Cycles)
+        np.testing.assert_array_equal(out["Combined"], plain["Combined"])
+    layout = RecordingLayout()
+    context = type("Ctx", (), {"view_layer": vl})
+    ui.PATHLIGHT_VIEWLAYER_PT_denoising.draw_header(type("Panel", (), {"layout": layout})(), context)
+    assert layout.props == ["use_denoising"]

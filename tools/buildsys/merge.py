@@ -56,8 +56,9 @@ def merge_exr(inputs, output, denoise=False):
     each file weighs by its "Pathlight Samples" header attribute. denoise: denoise the merged
     Combined (pieces of a split frame never are) with Open Image Denoise (addon/denoise.py,
     Blender's library beside the installed bpy), guided by the merged Denoising Albedo and
-    Normal where the files have them; "Noisy Image" stays the merged noisy one. Returns a
-    summary dict ("denoise": its log lines)."""
+    Normal where the files have them, and its Shadow Catcher pass as Cycles denoises it;
+    "Noisy Image" and "Noisy Shadow Catcher" stay the merged noisy ones. Returns a summary
+    dict ("denoise": its log lines)."""
     import numpy as np
     import OpenEXR
     parts = []
@@ -138,7 +139,9 @@ def _guide(merged, prefix, name, chans):
 
 
 def _denoise_merged(merged):
-    """Denoises every Combined (RGBA) in `merged` in place; returns log lines."""
+    """Denoises every Combined (RGBA) in `merged` in place, and with it its layer's Shadow
+    Catcher pass where the files have one (as Cycles: the normal guide and a 0.5 albedo); the
+    Noisy Image and Noisy Shadow Catcher passes stay as merged. Returns log lines."""
     import importlib.util
     import numpy as np
     spec = importlib.util.spec_from_file_location("pathlight_denoise", ROOT / "addon" / "denoise.py")
@@ -152,15 +155,25 @@ def _denoise_merged(merged):
         albedo = _guide(merged, prefix, "Denoising Albedo", "RGB")
         normal = _guide(merged, prefix, "Denoising Normal", "XYZ") if albedo is not None else None
         image = np.ascontiguousarray(merged[name], np.float32).copy()
+        jobs = [(name, image, True)]
+        catcher = _guide(merged, prefix, oidn.SHADOW_CATCHER, "RGB") if name != "RGBA" else None
+        if catcher is not None:
+            jobs.append((prefix + oidn.SHADOW_CATCHER, np.ascontiguousarray(catcher, np.float32).copy(), False))
         try:
-            seconds = oidn.denoise(image, albedo, normal)
+            seconds = oidn.denoise_many([(img, use_albedo) for _, img, use_albedo in jobs], albedo, normal)
         except (oidn.DenoiseError, ValueError) as e:
             lines.append(f"{name}: not denoised: {e}")
             continue
-        merged[name] = image
+        for key, img, _ in jobs:
+            if merged.get(key) is not None and merged[key].ndim == 3:
+                merged[key] = img
+            else:  # (channels stored one by one)
+                for i, c in enumerate("RGB"):
+                    merged[f"{key}.{c}"] = np.ascontiguousarray(img[..., i])
         used = "colour + albedo + normal" if normal is not None else "colour + albedo" if albedo is not None \
             else "colour only (no Denoising Data passes in the files)"
-        lines.append(f"{name}: denoised ({used}) in {seconds:.2f} s")
+        also = f" with its {oidn.SHADOW_CATCHER} pass" if catcher is not None else ""
+        lines.append(f"{name}: denoised{also} ({used}) in {seconds:.2f} s")
     if not lines:
         lines.append("nothing denoised: no Combined / RGBA channels")
     return lines
