@@ -367,8 +367,10 @@ Session::Session(std::shared_ptr<const Scene> scene, const RenderSettings& setti
 Session::~Session() {
   cancel_.store(true);
   if (controller_.joinable()) controller_.join();
-  if (const WorldShader* ws = scene_ ? scene_->environment().world_shader() : nullptr)
-    if (ws->camera == &camera_) ws->camera = nullptr;
+  if (const WorldShader* ws = scene_ ? scene_->environment().world_shader() : nullptr) {
+    const Camera* mine = &camera_;  // cleared only if no later session has set its own
+    ws->camera.compare_exchange_strong(mine, nullptr);
+  }
 }
 
 void Session::cancel() {

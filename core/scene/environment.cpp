@@ -116,7 +116,7 @@ Vec3 Environment::eval_program(Vec3 dir, const RayState* rs) const {
     ctx.ray.aovs = nullptr;
   } else {
     ctx.ray.flags = 0;  // a light sample or the map: no ray kind
-    ctx.ray.camera = sh.camera;
+    ctx.ray.camera = sh.camera.load(std::memory_order_relaxed);
   }
   ClosureList out;
   static const std::vector<Image> no_images;

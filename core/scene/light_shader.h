@@ -2,6 +2,8 @@
 // sample and ray hit with the coordinates Cycles' shader_setup_from_sample gives a lamp. Lights
 // without one (or whose tree is constant, folded into Light::color) never get here.
 #pragma once
+#include <atomic>
+
 #include "scene/light.h"
 #include "scene/shader.h"
 
@@ -27,8 +29,10 @@ struct WorldShader {
   ShaderProgram program;
   const Scene* scene = nullptr;  // images, ambient occlusion (set at commit)
   // The render's camera (Texture Coordinate's Camera and Window) for light samples and the map;
-  // escaped rays carry their own (RayState::camera). Set by the session; nullptr: none.
-  mutable const Camera* camera = nullptr;
+  // escaped rays carry their own (RayState::camera). Set by the session; nullptr: none. Atomic:
+  // sessions on one committed scene (the viewport's restarts) set and clear it while another's
+  // threads may still read it.
+  mutable std::atomic<const Camera*> camera{nullptr};
 };
 
 // Cycles' light uv (Parametric and UV outputs; Cycles' "barycentric" (u, v) turned back into
