@@ -540,7 +540,11 @@ class Scene {
   // to measure what the hits gain).
   void set_light_hits(bool on) { light_hits_on_ = on; committed_ = false; }
   bool light_hits_enabled() const { return light_hits_on_; }
-  void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
+  void set_camera(const CameraDesc& c) {
+    camera_ = c;
+    has_camera_ = true;
+    shading_camera_ = Camera(c, 1, 1);
+  }
   // Emissive triangles are light-sampled uniformly in solid angle (default) or, with false,
   // uniformly by area everywhere (the old technique; kept to compare the two in tests).
   void set_solid_angle_triangle_sampling(bool on) { solid_angle_triangles_ = on; }
@@ -795,6 +799,8 @@ class Scene {
   Vec3 world_color() const { return world_color_; }
   const CameraDesc& camera_desc() const { return camera_; }
   bool has_camera() const { return has_camera_; }
+  // The camera's space for programs that no camera ray reaches (lights, volumes): Camera Data.
+  const Camera* shading_camera() const { return has_camera_ ? &shading_camera_ : nullptr; }
 
   bool has_lights() const { return any_lights_; }
   // An analytic light that rays may hit (a compact list built at commit): a bounding sphere for
@@ -1142,6 +1148,7 @@ class Scene {
   ShaderProgram world_volume_;
   CameraDesc camera_;
   bool has_camera_ = false;
+  Camera shading_camera_;  // camera_ without a frame size (only its space is read)
   bool committed_ = false;
   std::atomic<bool> cancel_{false};
   bool geometry_dirty_ = true;

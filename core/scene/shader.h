@@ -95,6 +95,10 @@ enum class OpCode : uint8_t {
   // The Ray Portal BSDF (a closure): in[0] weight, in[1] colour, in[2] position (kNoReg: the
   // shading point), in[3] direction (kNoReg or zero: the incoming ray's), as PortalBsdf.
   RayPortal,
+  // Camera Data (Cycles' svm_node_camera): the shading point in camera space (the ray's
+  // camera, else ShadingContext::scene_camera), sub 0 its direction (View Vector), 1 its z
+  // (View Z Depth), 2 its length (View Distance).
+  CameraData,
 };
 // Shader AOV slots (view-layer AOVs) a render can keep.
 constexpr int kMaxShaderAovs = 16;
@@ -452,6 +456,8 @@ struct ShadingContext {
   // Majorant building: where set, VolumeGrid ops read the grid's largest value (over its
   // channels) in this world box instead of a sample at p.
   const Vec3* grid_bound = nullptr;  // {lo, hi}
+  // The scene's camera where no ray brings one (light and volume programs): Camera Data's.
+  const Camera* scene_camera = nullptr;
 };
 
 // The Ambient Occlusion node's fraction of `samples` rays over the hemisphere about n (cosine
