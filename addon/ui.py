@@ -374,6 +374,26 @@ class PATHLIGHT_OBJECT_PT_shadow_catcher(PathlightPanel, bpy.types.Panel):
         layout = split(self.layout)
         layout.prop(context.object, "is_shadow_catcher")
 
+class PATHLIGHT_OBJECT_PT_fast_gi(PathlightPanel, bpy.types.Panel):
+    """Cycles' Object ▸ Visibility ▸ Fast GI Approximation: the object's own AO Distance
+    (Cycles' object.cycles.ao_distance, which Pathlight reads)."""
+    bl_label = "Fast GI Approximation"
+    bl_context = "object"
+    bl_parent_id = "OBJECT_PT_visibility"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        ob = context.object
+        return super().poll(context) and ob is not None and ob.type != 'LIGHT' and \
+            hasattr(getattr(ob, "cycles", None), "ao_distance")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        layout.active = context.scene.pathlight.use_fast_gi
+        layout.prop(context.object.cycles, "ao_distance")
+
+
 try:  # Blender's own list of the view layer's light groups (Cycles draws it with this helper)
     from bl_ui.properties_view_layer import ViewLayerLightgroupsPanelHelper
 except ImportError:  # (an older Blender: no light groups)
@@ -462,7 +482,7 @@ classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_sampling_viewport_d
            PATHLIGHT_RENDER_PT_film, PATHLIGHT_RENDER_PT_film_transparency,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
-           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher,
+           PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_OBJECT_PT_shadow_catcher, PATHLIGHT_OBJECT_PT_fast_gi,
            PATHLIGHT_VIEW3D_PT_shading_render_pass) + light_group_classes
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles

@@ -1167,6 +1167,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   [[maybe_unused]] const int ao_bounces = kFastGI ? s.ao_bounces : 0;
   [[maybe_unused]] int ao_from_bounce = -1;  // the bounce whose AO ray started at ao_from
   [[maybe_unused]] Vec3 ao_from(0.0f);
+  // The reach of an AO ray from the last surface hit (its object's AO Distance, else the world's;
+  // the world's after a volume scattering), as Cycles' intersect_closest.
+  [[maybe_unused]] float ao_reach = kFastGI ? s.ao_bounces_distance : 0.0f;
   // Caustic light tracing: the vertices of the path's L S+ D E prefix so far (0: it is not one),
   // and n Pc / Pa without the light's end: n d01^2 prod q_rev / (p_camera prod q_fwd).
   const CausticLight* const cz = kCaus ? s.caustics : nullptr;
@@ -1373,7 +1376,7 @@ restart: __attribute__((unused));
       if (ao_bounces > 0 && bounce - transmission - (glossy > 0 ? 1 : 0) + 1 > ao_bounces) {
         ao_ray = true;
         if (ao_from_bounce != bounce) ao_from = ray.org, ao_from_bounce = bounce;
-        const float left = s.ao_bounces_distance - length(ray.org - ao_from);
+        const float left = ao_reach - length(ray.org - ao_from);
         ray.tmax = std::min(ray.tmax, std::max(left, 0.0f) / length(ray.dir));
       }
     // (the catcher path resumes at the split's hit; later rays see the catchers alone)
@@ -1690,6 +1693,7 @@ restart: __attribute__((unused));
           prev_delta = false;
           prev_samples_only = false;
           ray_vis = kLightVisVolume;
+          if constexpr (kFastGI) ao_reach = s.ao_bounces_distance;
           if (kAovs && lp && bounce == 0) lp_volume = true;
           mis_org = p;
           mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
@@ -1820,6 +1824,11 @@ restart: __attribute__((unused));
       }
     SurfacePoint sp;
     scene.surface_point(hit, sp, ray.time, &ray);
+    if constexpr (kFastGI)
+      if (ao_bounces > 0) {
+        const float d = scene.object_info(sp).ao_distance;
+        ao_reach = d > 0.0f ? d : s.ao_bounces_distance;
+      }
     if constexpr (kMedia && kNonDiffuse && !kGuide && !kCatcher) {
       // A volume-only boundary (Material::pass_through), crossed as its Transparent closure
       // would be but without shading it, in the same arithmetic and with the same sample

@@ -318,6 +318,9 @@ struct ObjectInfo {
   // Cycles' light group of the object as an emitter (its emission, mesh light samples): the
   // render's group index, -1: none (render/integrator.h PathAovs::groups).
   int16_t light_group = -1;
+  // Cycles' object AO Distance (Visibility ▸ Fast GI Approximation): the reach of Fast GI's
+  // Replace rays that leave this object's surfaces; 0: the world's.
+  float ao_distance = 0.0f;
 };
 constexpr uint64_t kAllLightSets = ~uint64_t(0);
 // Shadow rays: the transparent surfaces one passes when no path gives a limit (RayState::
