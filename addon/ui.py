@@ -191,6 +191,30 @@ class PATHLIGHT_RENDER_PT_light_paths_fast_gi(PathlightPanel, bpy.types.Panel):
             col.prop(settings, "ao_bounces_render", text="Render Bounces")
 
 
+class PATHLIGHT_RENDER_PT_motion_blur(PathlightPanel, bpy.types.Panel):
+    """Cycles' Motion Blur panel (Blender's own settings, and the rolling shutter under
+    Cycles' names)."""
+    bl_label = "Motion Blur"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.render, "use_motion_blur", text="")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        rd = context.scene.render
+        settings = context.scene.pathlight
+        layout.active = rd.use_motion_blur
+        col = layout.column()
+        col.prop(rd, "motion_blur_position", text="Position")
+        col.prop(rd, "motion_blur_shutter")
+        col.separator()
+        col.prop(settings, "rolling_shutter_type", text="Rolling Shutter")
+        sub = col.column()
+        sub.active = settings.rolling_shutter_type != 'NONE'
+        sub.prop(settings, "rolling_shutter_duration")
+
+
 class PATHLIGHT_RENDER_PT_film(PathlightPanel, bpy.types.Panel):
     bl_label = "Film"
     bl_options = {'DEFAULT_CLOSED'}
@@ -479,6 +503,7 @@ class PATHLIGHT_VIEW3D_PT_shading_render_pass(PathlightPanel, bpy.types.Panel):
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_sampling_viewport_denoise,
            PATHLIGHT_RENDER_PT_sampling_denoise, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
            PATHLIGHT_RENDER_PT_light_paths_clamping, PATHLIGHT_RENDER_PT_light_paths_fast_gi,
+           PATHLIGHT_RENDER_PT_motion_blur,
            PATHLIGHT_RENDER_PT_film, PATHLIGHT_RENDER_PT_film_transparency,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,

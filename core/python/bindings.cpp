@@ -3115,6 +3115,18 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           "Motion blur: the shutter curve's values evenly over the shutter (Cycles samples 256); "
           "empty: a box shutter. Non-finite values count as 0; an all-zero curve is a box.")
+      .def_readwrite("rolling_shutter", &CameraDesc::rolling_shutter,
+                     "Cycles' Rolling Shutter 'TOP' (motion blur only): pixel rows are read from the top "
+                     "of the frame down over the shutter.")
+      .def_property(
+          "rolling_shutter_duration", [](const CameraDesc& c) { return c.rolling_shutter_duration; },
+          [](CameraDesc& c, float v) {
+            if (!std::isfinite(v) || v < 0.0f || v > 1.0f)
+              throw std::invalid_argument("rolling_shutter_duration must be in [0, 1]");
+            c.rolling_shutter_duration = v;
+          },
+          "Cycles' Rolling Shutter Duration (0..1): a row's exposure as a share of the shutter "
+          "(0: each row at one instant, 1: no rolling).")
       .def(
           "shutter_time",
           [](const CameraDesc& c, float u) {
