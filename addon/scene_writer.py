@@ -369,6 +369,9 @@ def add_lights(scene, lights, groups=()):
         g = group_index(groups, getattr(light, "lightgroup", ""))
         if g >= 0:  # (so never for older cores)
             scene.set_light_group(k, g)
+        max_bounces = getattr(light, "max_bounces", 1024)
+        if max_bounces < 1024:  # (only where set: the default reads nothing)
+            scene.set_light_max_bounces(k, max_bounces)
         k += 1
 
 

@@ -332,6 +332,9 @@ class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
                 sub.prop(light, "size_y", text="Y")
             col.prop(light, "spread")
         col.prop(light, "use_shadow", text="Cast Shadow")
+        cycles = getattr(light, "cycles", None)  # Cycles' Max Bounces, which Pathlight reads
+        if cycles is not None and hasattr(cycles, "max_bounces"):
+            col.prop(cycles, "max_bounces")
 
 
 class PATHLIGHT_RENDER_PT_pixel_filter(PathlightPanel, bpy.types.Panel):

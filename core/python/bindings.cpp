@@ -3715,6 +3715,17 @@ PYBIND11_MODULE(pathlight_core, m) {
           "The light group (Cycles' Light Groups: the Combined_<name> pass its light also goes to; "
           "RenderSettings.light_groups' index, -1: none) of analytic light `index` (add order).")
       .def(
+          "set_light_max_bounces",
+          [](PyScene& self, size_t index, int max_bounces) {
+            self.check_editable();
+            if (max_bounces < 0) throw std::invalid_argument("max_bounces must be >= 0");
+            if (!self.scene->set_light_max_bounces(index, max_bounces)) throw std::out_of_range("no such light");
+          },
+          py::arg("index"), py::arg("max_bounces"),
+          "Cycles' light Max Bounces (light.cycles.max_bounces, default 1024) of analytic light `index` "
+          "(add order): light samples at path vertices past this many bounces skip it, as Cycles' "
+          "light_select_reached_max_bounces (rays that find it still count).")
+      .def(
           "set_world_light_group",
           [](PyScene& self, int group) {
             self.check_editable();

@@ -411,11 +411,13 @@ struct MediumLightSample {
 // came from one of several strategies (SegmentMis), 1 where it is the only one.
 inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, float u_sel,
                                 Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls,
-                                uint8_t receiver = 0, const SegmentMis& mis = SegmentMis{}) {
+                                uint8_t receiver = 0, const SegmentMis& mis = SegmentMis{}, int bounce = -1) {
   DirectSample ds;
   ds.path = &ray_state;
   ds.receiver = receiver;
   if (!scene.sample_direct(p, u_sel, u_pt, ds, !last) || (ds.exclude & kLightVisVolume)) return false;
+  // A light's Max Bounces (bounce >= 0: the kKernelTricks kernels' vertices).
+  if (bounce >= 0 && ds.analytic && bounce > scene.light(ds.light).max_bounces) return false;
   const float ph = phase_eval(phase, dot(d, ds.wi));
   if (!(ph > 0.0f) || is_black(ds.li)) return false;
   Ray& shadow = ls.shadow;
@@ -449,9 +451,9 @@ inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, 
 }
 Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
                    Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng, uint8_t receiver = 0,
-                   const SegmentMis& mis = SegmentMis{}) {
+                   const SegmentMis& mis = SegmentMis{}, int bounce = -1) {
   MediumLightSample ls;
-  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis, bounce))
     return Vec3(0.0f);
   return medium_light_trace(scene, ls, medium, c, rng);
 }
@@ -459,9 +461,9 @@ Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool 
 // where it drew one (left as it was where not).
 Vec3 medium_direct_entry(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium,
                          float u_sel, Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng,
-                         uint8_t receiver, const SegmentMis& mis, uint32_t& entry) {
+                         uint8_t receiver, const SegmentMis& mis, uint32_t& entry, int bounce = -1) {
   MediumLightSample ls;
-  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis, bounce))
     return Vec3(0.0f);
   entry = ls.entry;
   return medium_light_trace(scene, ls, medium, c, rng);
@@ -1492,10 +1494,10 @@ restart: __attribute__((unused));
                     const Vec3 li = kAovs && lg ? medium_direct_entry(scene, ray.org + d * te, d, pe_phase,
                                                                       bounce >= s.max_bounces, medium, u_sel.x, u_pt,
                                                                       ray_state, ray.time, c, &vrng, vset, SegmentMis{},
-                                                                      entry)
+                                                                      entry, kTricks ? bounce : -1)
                                                 : medium_direct(scene, ray.org + d * te, d, pe_phase,
                                                                 bounce >= s.max_bounces, medium, u_sel.x, u_pt,
-                                                                ray_state, ray.time, c, &vrng, vset);
+                                                                ray_state, ray.time, c, &vrng, vset, SegmentMis{}, kTricks ? bounce : -1);
                     const Vec3 v = clamp_light(beta * tr * ss * li * (1.0f / pe), lim.sample());
                     L += v;
                     if constexpr (kAovs)
@@ -1570,7 +1572,7 @@ restart: __attribute__((unused));
                   if (s.volume_shared_shadow) {
                     // Traced below: alone, or sharing one shadow ray with the distance sample's.
                     if (medium_light_sample(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls, vset, eq_mis)) {
+                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls, vset, eq_mis, kTricks ? bounce : -1)) {
                       eq_w = w;
                       eq_value = w * eq_ls.li * eq_ls.factor;
                       eq_pending = !is_black(eq_value);
@@ -1580,10 +1582,10 @@ restart: __attribute__((unused));
                     const Vec3 li = kAovs && lg
                                         ? medium_direct_entry(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
                                                               medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng,
-                                                              vset, eq_mis, entry)
+                                                              vset, eq_mis, entry, kTricks ? bounce : -1)
                                         : medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
                                                         medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
-                                                        eq_mis);
+                                                        eq_mis, kTricks ? bounce : -1);
                     const Vec3 v = clamp_light(w * li, lim.sample());
                     L += v;
                     if constexpr (kAovs)
@@ -1654,7 +1656,7 @@ restart: __attribute__((unused));
               // without occluders) that costs almost no variance (docs/design/volumes.md).
               MediumLightSample ls;
               Vec3 value(0.0f);
-              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls, vset, dist_mis))
+              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls, vset, dist_mis, kTricks ? bounce : -1))
                 value = beta * nee_weight * ls.li * ls.factor;
               const float a_d = average(vabs(value)), a_e = average(vabs(eq_value));
               const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
@@ -1674,9 +1676,9 @@ restart: __attribute__((unused));
             } else {
               uint32_t entry = UINT32_MAX;
               const Vec3 li = kAovs && lg ? medium_direct_entry(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
-                                                                ray.time, c, &vrng, vset, dist_mis, entry)
+                                                                ray.time, c, &vrng, vset, dist_mis, entry, kTricks ? bounce : -1)
                                           : medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
-                                                          ray.time, c, &vrng, vset, dist_mis);
+                                                          ray.time, c, &vrng, vset, dist_mis, kTricks ? bounce : -1);
               const Vec3 v = clamp_light(beta * li * nee_weight, lim.sample());
               L += v;
               if constexpr (kAovs)
@@ -2244,6 +2246,9 @@ restart: __attribute__((unused));
         const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
         u_rr = u_sel.y;
         const Vec2 u_pt = sampler.get2d();
+        if constexpr (kTricks)  // Cycles' light_select_reached_max_bounces: the sample is lost
+          return scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last) &&
+                 !(ds.analytic && bounce > scene.light(ds.light).max_bounces);
         return scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last);
       };
       const auto draw_sky = [&](DirectSample& ds) __attribute__((always_inline)) {

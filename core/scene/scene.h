@@ -342,6 +342,9 @@ struct SceneFeatures {
   // Light or shadow linking in use (objects in light sets, lights with set masks): only the
   // general kernel follows them (kKernelLightLinks).
   bool light_links = false;
+  // Some analytic light has a Max Bounces below Cycles' default 1024 (the kKernelTricks
+  // kernels skip its light samples past it).
+  bool light_bounce_limits = false;
   // Shaders read the ray's footprint (Bump's Filter Width, Wireframe in pixels): only then do
   // camera rays carry ray differentials (not a kernel feature: one test per camera ray).
   bool footprints = false;
@@ -527,6 +530,13 @@ class Scene {
     if (k >= lights_.size()) return false;
     lights_[k].light_group = group;
     return true;  // (read per contribution only: nothing to rebuild)
+  }
+  // Cycles' light Max Bounces of analytic light k; false: no such light.
+  bool set_light_max_bounces(size_t k, int max_bounces) {
+    if (k >= lights_.size()) return false;
+    lights_[k].max_bounces = std::max(max_bounces, 0);
+    committed_ = false;  // (the kernel choice reads SceneFeatures::light_bounce_limits)
+    return true;
   }
   bool set_light_links(size_t k, uint64_t light_mask, uint64_t shadow_mask) {
     if (k >= lights_.size()) return false;
