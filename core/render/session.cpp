@@ -872,6 +872,9 @@ void Session::setup_caustics(bool guiding) {
   // A light path's splat lands on rows whose shutter times differ from its own.
   else if (motion_ && camera_.rolling_shutter())
     off("not with a rolling shutter");
+  // A light's Max Bounces limits its light samples; light paths from it would add unlimited light.
+  else if (sf.light_bounce_limits)
+    off("not with a light's Max Bounces");
   // A thin lens connects through a point on its aperture (integrator_caustics.cpp), the
   // orthographic one's too; a pinhole panorama through its inverse map, a moving camera or
   // scene at the light path's own shutter time. An orthographic pinhole's rays are parallel: a

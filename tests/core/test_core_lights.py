@@ -1095,6 +1095,15 @@ def test_light_max_bounces_skips_light_samples_past_it():
     unlimited, stats = film(None)
     assert unlimited / l0 == pytest.approx(2.0, rel=0.03)
     assert "light bounce limits" not in stats["features"]
+    # Caustic light paths would bring a limited light's deeper bounces back: off, with the reason.
+    s = pc.Scene()
+    s.add_material("grey", (0.5, 0.5, 0.5))
+    add_object(s, *quad((-1, -1, 0), (2, 0, 0), (0, 2, 0)), 0)
+    s.add_point_light((0.0, 0.0, 1.0), (1.0, 1.0, 1.0))
+    s.set_light_max_bounces(0, 2)
+    s.set_camera(camera(pc, (0.0, -2.0, 2.0), (0.0, 0.0, 0.0)))
+    _, stats = render(pc, s, 8, 8, samples=1, caustic_light_paths=1.0)
+    assert stats["caustics"] == "off: not with a light's Max Bounces"
     s = pc.Scene()
     s.add_point_light((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
     with pytest.raises(ValueError, match="max_bounces"):
