@@ -149,6 +149,19 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
                     "disables this feature (final render)",
         default=1, min=0, max=1024,
     )
+    # Motion Blur > Rolling Shutter, under Cycles' names.
+    rolling_shutter_type: EnumProperty(
+        name="Shutter Type",
+        description="Type of rolling shutter effect matching CMOS-based cameras",
+        items=(('NONE', "None", "No rolling shutter effect used"),
+               ('TOP', "Top-Bottom", "Sensor is being scanned from top to bottom")),
+        default='NONE',
+    )
+    rolling_shutter_duration: FloatProperty(
+        name="Rolling Shutter Duration",
+        description="Scanline \"exposure\" time for the rolling shutter effect",
+        default=0.1, min=0.0, max=1.0,
+    )
     # Film > Transparent > Transparent Glass, under Cycles' names.
     film_transparent_glass: BoolProperty(
         name="Transparent Glass",

@@ -88,7 +88,7 @@ def to_core(pc, data, warn=None, material_ids=None, image_ids=None):
                 random_id = pc.object_random_id(names[k]) if names else 0
             scene.add_instance(mesh_id, matrix, color=color, pass_index=pass_index, random_id=random_id,
                                shadow_terminator=terminator, **_crypto(info), **_catcher_holdout(info),
-                               **_light_group(info, groups), **extra)
+                               **_ao_distance(info), **_light_group(info, groups), **extra)
     curves = getattr(data, "curves", [])
     if curves:
         mats = iter(data.curve_materials)
@@ -184,6 +184,12 @@ def _crypto(info):
     """add_instance / add_curves / add_points keywords of an object's Cryptomatte names (the
     fifth entry of mesh.object_info's tuple; none in older tuples)."""
     return {"cryptomatte": info[4]} if len(info) > 4 and info[4] is not None else {}
+
+
+def _ao_distance(info):
+    """add_instance / add_curves / add_points keyword of an object's Fast GI AO Distance
+    (mesh.object_info's ninth entry), only where set."""
+    return {"ao_distance": info[8]} if len(info) > 8 and info[8] > 0.0 else {}
 
 
 def _catcher_holdout(info):
@@ -284,7 +290,7 @@ def add_curves(scene, curves, material_ids, warn, random_id_of=None, links=None,
                     random_id = random_id_of(c.name) if random_id_of else 0
                 scene.add_curves(c.points, c.offsets, c.radii, mat, matrix=m, curve_type=c.curve_type,
                                  color=color, pass_index=pass_index, random_id=random_id, **_crypto(info),
-                                 **_catcher_holdout(info), **_light_group(info, groups), **extra)
+                                 **_catcher_holdout(info), **_ao_distance(info), **_light_group(info, groups), **extra)
             except ValueError as e:  # inconsistent arrays: the object is left out, Blender goes on
                 warn(f"Curves '{c.name}' not rendered: {e}")
                 break
@@ -310,7 +316,7 @@ def add_points(scene, points, material_ids, warn, random_id_of=None, links=None,
                 if random_id is None:
                     random_id = random_id_of(p.name) if random_id_of else 0
                 extra.update(color=color, pass_index=pass_index, random_id=random_id, **_crypto(info),
-                             **_catcher_holdout(info), **_light_group(info, groups))
+                             **_catcher_holdout(info), **_ao_distance(info), **_light_group(info, groups))
             try:
                 scene.add_points(p.points, p.radii, mat, matrix=m, **extra)
             except ValueError as e:  # inconsistent arrays: the cloud is left out, Blender goes on
@@ -375,6 +381,9 @@ def add_lights(scene, lights, groups=()):
         g = group_index(groups, getattr(light, "lightgroup", ""))
         if g >= 0:  # (so never for older cores)
             scene.set_light_group(k, g)
+        max_bounces = getattr(light, "max_bounces", 1024)
+        if max_bounces < 1024:  # (only where set: the default reads nothing)
+            scene.set_light_max_bounces(k, max_bounces)
         k += 1
 
 

@@ -557,8 +557,9 @@ def _view_fields(scene, depsgraph, data, v, warn):
         steps = data.camera.get(key) if own else getattr(data, others, {}).get(v.camera.name)
         if steps is not None:
             fields[key] = view_motion(steps, v)
-    if "shutter_curve" in data.camera:
-        fields["shutter_curve"] = data.camera["shutter_curve"]
+    for key in ("shutter_curve", "rolling_shutter", "rolling_shutter_duration"):
+        if key in data.camera:
+            fields[key] = data.camera[key]
     if fields.get("stereo_eye"):
         log.info("Pathlight: view '%s' renders with spherical stereo (each ray offset by %.4g)",
                  v.name, 0.5 * fields["interocular_distance"])

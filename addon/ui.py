@@ -191,6 +191,30 @@ class PATHLIGHT_RENDER_PT_light_paths_fast_gi(PathlightPanel, bpy.types.Panel):
             col.prop(settings, "ao_bounces_render", text="Render Bounces")
 
 
+class PATHLIGHT_RENDER_PT_motion_blur(PathlightPanel, bpy.types.Panel):
+    """Cycles' Motion Blur panel (Blender's own settings, and the rolling shutter under
+    Cycles' names)."""
+    bl_label = "Motion Blur"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw_header(self, context):
+        self.layout.prop(context.scene.render, "use_motion_blur", text="")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        rd = context.scene.render
+        settings = context.scene.pathlight
+        layout.active = rd.use_motion_blur
+        col = layout.column()
+        col.prop(rd, "motion_blur_position", text="Position")
+        col.prop(rd, "motion_blur_shutter")
+        col.separator()
+        col.prop(settings, "rolling_shutter_type", text="Rolling Shutter")
+        sub = col.column()
+        sub.active = settings.rolling_shutter_type != 'NONE'
+        sub.prop(settings, "rolling_shutter_duration")
+
+
 class PATHLIGHT_RENDER_PT_film(PathlightPanel, bpy.types.Panel):
     bl_label = "Film"
     bl_options = {'DEFAULT_CLOSED'}
@@ -308,6 +332,9 @@ class PATHLIGHT_LIGHT_PT_light(PathlightPanel, bpy.types.Panel):
                 sub.prop(light, "size_y", text="Y")
             col.prop(light, "spread")
         col.prop(light, "use_shadow", text="Cast Shadow")
+        cycles = getattr(light, "cycles", None)  # Cycles' Max Bounces, which Pathlight reads
+        if cycles is not None and hasattr(cycles, "max_bounces"):
+            col.prop(cycles, "max_bounces")
 
 
 class PATHLIGHT_RENDER_PT_pixel_filter(PathlightPanel, bpy.types.Panel):
@@ -373,6 +400,26 @@ class PATHLIGHT_OBJECT_PT_shadow_catcher(PathlightPanel, bpy.types.Panel):
     def draw(self, context):
         layout = split(self.layout)
         layout.prop(context.object, "is_shadow_catcher")
+
+class PATHLIGHT_OBJECT_PT_fast_gi(PathlightPanel, bpy.types.Panel):
+    """Cycles' Object ▸ Visibility ▸ Fast GI Approximation: the object's own AO Distance
+    (Cycles' object.cycles.ao_distance, which Pathlight reads)."""
+    bl_label = "Fast GI Approximation"
+    bl_context = "object"
+    bl_parent_id = "OBJECT_PT_visibility"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        ob = context.object
+        return super().poll(context) and ob is not None and ob.type != 'LIGHT' and \
+            hasattr(getattr(ob, "cycles", None), "ao_distance")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        layout.active = context.scene.pathlight.use_fast_gi
+        layout.prop(context.object.cycles, "ao_distance")
+
 
 try:  # Blender's own list of the view layer's light groups (Cycles draws it with this helper)
     from bl_ui.properties_view_layer import ViewLayerLightgroupsPanelHelper
@@ -473,10 +520,12 @@ class PATHLIGHT_VIEW3D_PT_shading_render_pass(PathlightPanel, bpy.types.Panel):
 classes = (PATHLIGHT_RENDER_PT_sampling, PATHLIGHT_RENDER_PT_sampling_viewport_denoise,
            PATHLIGHT_RENDER_PT_sampling_denoise, PATHLIGHT_RENDER_PT_light_paths, PATHLIGHT_RENDER_PT_light_paths_caustics,
            PATHLIGHT_RENDER_PT_light_paths_clamping, PATHLIGHT_RENDER_PT_light_paths_fast_gi,
+           PATHLIGHT_RENDER_PT_motion_blur,
            PATHLIGHT_RENDER_PT_film, PATHLIGHT_RENDER_PT_film_transparency,
            PATHLIGHT_RENDER_PT_pixel_filter, PATHLIGHT_RENDER_PT_autofocus,
            PATHLIGHT_RENDER_PT_performance, PATHLIGHT_RENDER_PT_debug, PATHLIGHT_LIGHT_PT_light,
            PATHLIGHT_VIEWLAYER_PT_passes, PATHLIGHT_VIEWLAYER_PT_denoising, PATHLIGHT_OBJECT_PT_shadow_catcher,
+           PATHLIGHT_OBJECT_PT_fast_gi,
            PATHLIGHT_VIEW3D_PT_shading_render_pass) + light_group_classes
 
 # Pathlight uses Blender's engine-agnostic panels (those listing 'BLENDER_RENDER', as Cycles

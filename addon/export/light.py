@@ -29,6 +29,8 @@ class LightData:
     # Object ▸ Shading ▸ Light Group: the name of the view layer's light group it is in ("":
     # none; a name not in the view layer's list is none too, as Cycles).
     lightgroup: str = ""
+    # Cycles' light Max Bounces (light.cycles.max_bounces; 1024 is Cycles' default).
+    max_bounces: int = 1024
 
 
 @dataclass
@@ -362,6 +364,16 @@ def object_lightgroup(instance):
     return name
 
 
+def light_max_bounces(light):
+    """Cycles' light Max Bounces (light.cycles.max_bounces, 0..1024; 1024 where Cycles' add-on
+    is not there to give one)."""
+    cycles = getattr(light, "cycles", None)
+    try:
+        return max(0, min(int(getattr(cycles, "max_bounces", 1024)), 1024))
+    except (TypeError, ValueError):
+        return 1024
+
+
 def collect_lights(depsgraph, warn, is_visible):
     """LightData for every visible light instance of the depsgraph (collection instances
     included: each instance carries its own matrix_world)."""
@@ -373,5 +385,6 @@ def collect_lights(depsgraph, warn, is_visible):
         data = convert_light(obj, instance.matrix_world, warn)
         if data is not None:
             data.lightgroup = object_lightgroup(instance)
+            data.max_bounces = light_max_bounces(obj.data)
             lights.append(data)
     return lights

@@ -1,5 +1,6 @@
 """Evaluated geometry → numpy arrays, one entry per unique mesh with all its instance matrices."""
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -519,7 +520,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
 
 def object_info(instance, view_layer=None):
     """(RGBA colour, pass index, random id or None, shadow terminator geometry offset,
-    Cryptomatte names, shadow catcher, holdout, light group name) of a depsgraph object
+    Cryptomatte names, shadow catcher, holdout, light group name, AO distance) of a depsgraph object
     instance. The names are
     (object, asset) as Cycles gives them: the object's name and its top parent's (its own
     without a parent). Holdout is the object's own or, given the depsgraph's view layer, its
@@ -533,7 +534,26 @@ def object_info(instance, view_layer=None):
     catcher = bool(getattr(obj, "is_shadow_catcher", False))
     from .light import object_lightgroup
     return (tuple(obj.color), int(obj.pass_index), random_id, terminator, (obj.name, top.name), catcher,
-            _holdout(instance, view_layer), object_lightgroup(instance))
+            _holdout(instance, view_layer), object_lightgroup(instance), ao_distance(instance))
+
+
+def ao_distance(instance):
+    """Cycles' object AO Distance (Object ▸ Visibility ▸ Fast GI Approximation,
+    object.cycles.ao_distance): the object's own, else its instancer's (BlenderSync::sync_object),
+    0 (the world's) where neither has one or Cycles' add-on is not there."""
+    def own(obj):
+        try:
+            d = float(getattr(getattr(obj, "cycles", None), "ao_distance", 0.0))
+        except (TypeError, ValueError, ReferenceError):
+            return 0.0
+        return d if math.isfinite(d) and d > 0.0 else 0.0
+    obj = instance.object
+    d = own(obj)
+    if d == 0.0 and instance.is_instance:
+        parent = instance.parent
+        if parent is not None and parent != obj:
+            d = own(parent)
+    return d
 
 
 def _holdout(instance, view_layer):

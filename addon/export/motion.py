@@ -143,6 +143,16 @@ def camera_matrix(obj):
     return m
 
 
+def rolling_shutter(scene):
+    """pc.Camera fields of Cycles' Rolling Shutter (Render ▸ Motion Blur, under Cycles' names in
+    scene.pathlight): {} where it is off."""
+    settings = getattr(scene, "pathlight", None)
+    if getattr(settings, "rolling_shutter_type", 'NONE') != 'TOP':
+        return {}
+    d = float(settings.rolling_shutter_duration)
+    return {"rolling_shutter": True, "rolling_shutter_duration": min(max(d, 0.0), 1.0) if math.isfinite(d) else 0.0}
+
+
 def add_motion(engine, depsgraph, data, warn, cameras=()):
     """Fills SceneData `data` (exported at the current frame) with motion blur: data.camera's
     "motion" and "shutter_curve", and each MeshData's `motions` (per matrix: (S, 4, 4) steps or
@@ -326,6 +336,7 @@ def add_motion(engine, depsgraph, data, warn, cameras=()):
             moving += 1
     if moving:
         data.camera["shutter_curve"] = shutter_curve(render)
+        data.camera.update(rolling_shutter(scene))
     return moving
 
 

@@ -414,6 +414,10 @@ void read_sets(const py::dict& sets, size_t rows, const char* index_error, const
 float cryptomatte_id_of(const std::string& name) { return cryptomatte_float(murmur3_32(name.data(), name.size(), 0)); }
 
 // An object's Cryptomatte names, (object, asset), or None (no ids).
+// An object's Fast GI AO Distance: 0 (the world's) for a negative or non-finite one, as Cycles'
+// RNA (min 0) never gives.
+float clean_ao_distance(float d) { return std::isfinite(d) && d > 0.0f ? d : 0.0f; }
+
 void set_cryptomatte(ObjectInfo& info, const py::object& names, const char* what) {
   if (names.is_none()) return;
   const auto n = names.cast<std::vector<std::string>>();
@@ -452,7 +456,8 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::dict& point_uvs, const py::object& motion, const py::object& motion_points,
                     const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set,
                     const py::object& pass_motion, uint64_t light_mask, uint64_t shadow_mask,
-                    const py::object& pass_points, bool shadow_catcher, bool holdout, int light_group) {
+                    const py::object& pass_points, bool shadow_catcher, bool holdout, int light_group,
+                    float ao_distance) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   const int16_t group = to_light_group(light_group, "curves");
@@ -520,6 +525,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   cs.info.shadow_catcher = shadow_catcher;
   cs.info.holdout = holdout;
   cs.info.light_group = group;
+  cs.info.ao_distance = clean_ao_distance(ao_distance);
   return self.scene->add_curves(std::move(cs));
 }
 
@@ -532,7 +538,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
                     const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
                     const py::object& cryptomatte, int light_set, int shadow_set, const py::object& pass_motion,
                     uint64_t light_mask, uint64_t shadow_mask, const py::object& pass_points,
-                    bool shadow_catcher, bool holdout, int light_group) {
+                    bool shadow_catcher, bool holdout, int light_group, float ao_distance) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const int16_t group = to_light_group(light_group, "points");
@@ -576,6 +582,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   ps.info.shadow_catcher = shadow_catcher;
   ps.info.holdout = holdout;
   ps.info.light_group = group;
+  ps.info.ao_distance = clean_ao_distance(ao_distance);
   return self.scene->add_points(std::move(ps));
 }
 
@@ -3108,6 +3115,18 @@ PYBIND11_MODULE(pathlight_core, m) {
           },
           "Motion blur: the shutter curve's values evenly over the shutter (Cycles samples 256); "
           "empty: a box shutter. Non-finite values count as 0; an all-zero curve is a box.")
+      .def_readwrite("rolling_shutter", &CameraDesc::rolling_shutter,
+                     "Cycles' Rolling Shutter 'TOP' (motion blur only): pixel rows are read from the top "
+                     "of the frame down over the shutter.")
+      .def_property(
+          "rolling_shutter_duration", [](const CameraDesc& c) { return c.rolling_shutter_duration; },
+          [](CameraDesc& c, float v) {
+            if (!std::isfinite(v) || v < 0.0f || v > 1.0f)
+              throw std::invalid_argument("rolling_shutter_duration must be in [0, 1]");
+            c.rolling_shutter_duration = v;
+          },
+          "Cycles' Rolling Shutter Duration (0..1): a row's exposure as a share of the shutter "
+          "(0: each row at one instant, 1: no rolling).")
       .def(
           "shutter_time",
           [](const CameraDesc& c, float u) {
@@ -3503,6 +3522,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
            py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
            py::arg("shadow_catcher") = false, py::arg("holdout") = false, py::arg("light_group") = -1,
+           py::arg("ao_distance") = 0.0f,
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes, light_set, shadow_set: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
@@ -3516,7 +3536,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            "(stats()['skipped_points']). pass_motion: (2, 4, 4) object-to-world matrices at the previous and "
            "next frames (the Vector pass; None: still). pass_points: (2, N, 3) object-space centres at those "
            "frames (the Vector pass's deformation, Cycles' motion points; None, non-finite or unchanged: "
-           "the points move with pass_motion alone). shadow_catcher, holdout: as add_instance's. "
+           "the points move with pass_motion alone). shadow_catcher, holdout, ao_distance: as add_instance's. "
            "light_mask, shadow_mask: as an emitter, as "
            "add_instance's (rays other than the camera's get its emission only from vertices it lights, "
            "none where it is shadow-linked).")
@@ -3531,6 +3551,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
            py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
            py::arg("shadow_catcher") = false, py::arg("holdout") = false, py::arg("light_group") = -1,
+           py::arg("ao_distance") = 0.0f,
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -3554,7 +3575,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            "pieces than the frame's, leave it undeformed (stats()['motion_rejected']). pass_motion: as add_points'. pass_points: "
            "(2, N, 3) object-space points at the previous and next frames (the Vector pass's deformation: "
            "a hit moves as the point between its segment's two keys, Cycles' motion keys). shadow_catcher, "
-           "holdout: as add_instance's.")
+           "holdout, ao_distance: as add_instance's.")
       .def("displace_mesh", &displace_mesh_arrays, py::arg("positions"), py::arg("triangles"),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("matrix") = py::none(), py::arg("normals") = py::none(), py::arg("normal_indices") = py::none(),
@@ -3714,6 +3735,17 @@ PYBIND11_MODULE(pathlight_core, m) {
           "The light group (Cycles' Light Groups: the Combined_<name> pass its light also goes to; "
           "RenderSettings.light_groups' index, -1: none) of analytic light `index` (add order).")
       .def(
+          "set_light_max_bounces",
+          [](PyScene& self, size_t index, int max_bounces) {
+            self.check_editable();
+            if (max_bounces < 0) throw std::invalid_argument("max_bounces must be >= 0");
+            if (!self.scene->set_light_max_bounces(index, max_bounces)) throw std::out_of_range("no such light");
+          },
+          py::arg("index"), py::arg("max_bounces"),
+          "Cycles' light Max Bounces (light.cycles.max_bounces, default 1024) of analytic light `index` "
+          "(add order): light samples at path vertices past this many bounces skip it, as Cycles' "
+          "light_select_reached_max_bounces (rays that find it still count).")
+      .def(
           "set_world_light_group",
           [](PyScene& self, int group) {
             self.check_editable();
@@ -3727,10 +3759,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
              uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator,
              int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask, const py::object& pass_motion,
-             const py::object& cryptomatte, bool shadow_catcher, bool holdout, int light_group) {
+             const py::object& cryptomatte, bool shadow_catcher, bool holdout, int light_group, float ao_distance) {
             self.check_editable();
             ObjectInfo info;
             info.light_group = to_light_group(light_group, "instance");
+            info.ao_distance = clean_ao_distance(ao_distance);
             set_cryptomatte(info, cryptomatte, "instance");
             info.shadow_catcher = shadow_catcher;
             info.holdout = holdout;
@@ -3759,7 +3792,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("shadow_terminator") = 0.0f, py::arg("light_set") = 0, py::arg("light_mask") = kAllLightSets,
           py::arg("shadow_set") = 0, py::arg("shadow_mask") = kAllLightSets, py::arg("pass_motion") = py::none(),
           py::arg("cryptomatte") = py::none(), py::arg("shadow_catcher") = false, py::arg("holdout") = false,
-          py::arg("light_group") = -1,
+          py::arg("light_group") = -1, py::arg("ao_distance") = 0.0f,
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
@@ -3775,7 +3808,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           "Catcher', 'Shadow Catcher Matte', 'Shadow Catcher Sample Count'); holdout: Cycles' "
           "object Holdout (the camera sees through it to a transparent film, alpha 0). light_group: the "
           "light group its emission goes to (RenderSettings.light_groups' index; -1: none), as "
-          "add_curves' and add_points'.")
+          "add_curves' and add_points'. ao_distance: the object's Fast GI AO Distance (the reach of "
+          "Replace's rays that leave it; 0, negative or non-finite: RenderSettings.ao_distance).")
       .def(
           "set_mesh_pass_motion",
           [](PyScene& self, uint32_t mesh, const FloatArray& positions) {

@@ -71,7 +71,8 @@ Vec3 trace_path(const Scene& scene, Ray ray, Sampler& sampler, const IntegratorS
 uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding, bool caustics, bool tricks,
                          bool fast_gi) {
   uint32_t k = 0;
-  if (tricks) k |= kKernelTricks;
+  // (a light's Max Bounces is one of Cycles' tricks: only those kernels read it)
+  if (tricks || f.light_bounce_limits) k |= kKernelTricks;
   if (fast_gi) k |= kKernelFastGI;
   if (caustics) k |= kKernelCaustics;
   if (guiding) k |= kKernelGuiding;

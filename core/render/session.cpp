@@ -644,8 +644,14 @@ void Session::render_tile(int tile, int part, int parts, int s0, int s1) {
             counters.filter_area = 1.0f / (filter_.density(jx - 0.5f) * filter_.density(jy - 0.5f));
           // Motion blur: the shutter time from the next dimension, drawn only where something
           // moves (static scenes keep their streams and their rays).
-          ray = motion_ ? camera_.generate(rx, ry, lens, camera_.shutter().sample(sampler.get1d()))
-                        : camera_.generate(rx, ry, lens);
+          // A rolling shutter moves each pixel row's times (Cycles' camera_sample).
+          if (motion_) {
+            float t = camera_.shutter().sample(sampler.get1d());
+            if (camera_.rolling_shutter()) t = camera_.rolling_time(t, int(fy));
+            ray = camera_.generate(rx, ry, lens, t);
+          } else {
+            ray = camera_.generate(rx, ry, lens);
+          }
           sampler.align_set();
           // A panorama's sample whose direction the light tracer maps elsewhere (a filter's tail
           // past an equirectangular seam or pole) gets no light-path weight.
@@ -870,6 +876,12 @@ void Session::setup_caustics(bool guiding) {
   // Fast GI cuts the indirect light short; light paths would bring back what it leaves out.
   else if (integrator_.fast_gi())
     off("not with Fast GI Approximation");
+  // A light path's splat lands on rows whose shutter times differ from its own.
+  else if (motion_ && camera_.rolling_shutter())
+    off("not with a rolling shutter");
+  // A light's Max Bounces limits its light samples; light paths from it would add unlimited light.
+  else if (sf.light_bounce_limits)
+    off("not with a light's Max Bounces");
   // A thin lens connects through a point on its aperture (integrator_caustics.cpp), the
   // orthographic one's too; a pinhole panorama through its inverse map, a moving camera or
   // scene at the light path's own shutter time. An orthographic pinhole's rays are parallel: a

@@ -411,11 +411,13 @@ struct MediumLightSample {
 // came from one of several strategies (SegmentMis), 1 where it is the only one.
 inline bool medium_light_sample(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, float u_sel,
                                 Vec2 u_pt, const RayState& ray_state, float time, MediumLightSample& ls,
-                                uint8_t receiver = 0, const SegmentMis& mis = SegmentMis{}) {
+                                uint8_t receiver = 0, const SegmentMis& mis = SegmentMis{}, int bounce = -1) {
   DirectSample ds;
   ds.path = &ray_state;
   ds.receiver = receiver;
   if (!scene.sample_direct(p, u_sel, u_pt, ds, !last) || (ds.exclude & kLightVisVolume)) return false;
+  // A light's Max Bounces (bounce >= 0: the kKernelTricks kernels' vertices).
+  if (bounce >= 0 && ds.analytic && bounce > scene.light(ds.light).max_bounces) return false;
   const float ph = phase_eval(phase, dot(d, ds.wi));
   if (!(ph > 0.0f) || is_black(ds.li)) return false;
   Ray& shadow = ls.shadow;
@@ -449,9 +451,9 @@ inline Vec3 medium_light_trace(const Scene& scene, const MediumLightSample& ls, 
 }
 Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium, float u_sel,
                    Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng, uint8_t receiver = 0,
-                   const SegmentMis& mis = SegmentMis{}) {
+                   const SegmentMis& mis = SegmentMis{}, int bounce = -1) {
   MediumLightSample ls;
-  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis, bounce))
     return Vec3(0.0f);
   return medium_light_trace(scene, ls, medium, c, rng);
 }
@@ -459,9 +461,9 @@ Vec3 medium_direct(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool 
 // where it drew one (left as it was where not).
 Vec3 medium_direct_entry(const Scene& scene, Vec3 p, Vec3 d, const Phase& phase, bool last, const Medium& medium,
                          float u_sel, Vec2 u_pt, const RayState& ray_state, float time, PathCounters& c, Pcg32* rng,
-                         uint8_t receiver, const SegmentMis& mis, uint32_t& entry) {
+                         uint8_t receiver, const SegmentMis& mis, uint32_t& entry, int bounce = -1) {
   MediumLightSample ls;
-  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis))
+  if (!medium_light_sample(scene, p, d, phase, last, u_sel, u_pt, ray_state, time, ls, receiver, mis, bounce))
     return Vec3(0.0f);
   entry = ls.entry;
   return medium_light_trace(scene, ls, medium, c, rng);
@@ -1167,6 +1169,9 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   [[maybe_unused]] const int ao_bounces = kFastGI ? s.ao_bounces : 0;
   [[maybe_unused]] int ao_from_bounce = -1;  // the bounce whose AO ray started at ao_from
   [[maybe_unused]] Vec3 ao_from(0.0f);
+  // The reach of an AO ray from the last surface hit (its object's AO Distance, else the world's;
+  // the world's after a volume scattering), as Cycles' intersect_closest.
+  [[maybe_unused]] float ao_reach = kFastGI ? s.ao_bounces_distance : 0.0f;
   // Caustic light tracing: the vertices of the path's L S+ D E prefix so far (0: it is not one),
   // and n Pc / Pa without the light's end: n d01^2 prod q_rev / (p_camera prod q_fwd).
   const CausticLight* const cz = kCaus ? s.caustics : nullptr;
@@ -1373,7 +1378,7 @@ restart: __attribute__((unused));
       if (ao_bounces > 0 && bounce - transmission - (glossy > 0 ? 1 : 0) + 1 > ao_bounces) {
         ao_ray = true;
         if (ao_from_bounce != bounce) ao_from = ray.org, ao_from_bounce = bounce;
-        const float left = s.ao_bounces_distance - length(ray.org - ao_from);
+        const float left = ao_reach - length(ray.org - ao_from);
         ray.tmax = std::min(ray.tmax, std::max(left, 0.0f) / length(ray.dir));
       }
     // (the catcher path resumes at the split's hit; later rays see the catchers alone)
@@ -1489,10 +1494,10 @@ restart: __attribute__((unused));
                     const Vec3 li = kAovs && lg ? medium_direct_entry(scene, ray.org + d * te, d, pe_phase,
                                                                       bounce >= s.max_bounces, medium, u_sel.x, u_pt,
                                                                       ray_state, ray.time, c, &vrng, vset, SegmentMis{},
-                                                                      entry)
+                                                                      entry, kTricks ? bounce : -1)
                                                 : medium_direct(scene, ray.org + d * te, d, pe_phase,
                                                                 bounce >= s.max_bounces, medium, u_sel.x, u_pt,
-                                                                ray_state, ray.time, c, &vrng, vset);
+                                                                ray_state, ray.time, c, &vrng, vset, SegmentMis{}, kTricks ? bounce : -1);
                     const Vec3 v = clamp_light(beta * tr * ss * li * (1.0f / pe), lim.sample());
                     L += v;
                     if constexpr (kAovs)
@@ -1567,7 +1572,7 @@ restart: __attribute__((unused));
                   if (s.volume_shared_shadow) {
                     // Traced below: alone, or sharing one shadow ray with the distance sample's.
                     if (medium_light_sample(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
-                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls, vset, eq_mis)) {
+                                            vrng.next_float(), ue, ray_state, ray.time, eq_ls, vset, eq_mis, kTricks ? bounce : -1)) {
                       eq_w = w;
                       eq_value = w * eq_ls.li * eq_ls.factor;
                       eq_pending = !is_black(eq_value);
@@ -1577,10 +1582,10 @@ restart: __attribute__((unused));
                     const Vec3 li = kAovs && lg
                                         ? medium_direct_entry(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
                                                               medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng,
-                                                              vset, eq_mis, entry)
+                                                              vset, eq_mis, entry, kTricks ? bounce : -1)
                                         : medium_direct(scene, ray.org + d * te, d, pe_phase, bounce >= s.max_bounces,
                                                         medium, vrng.next_float(), ue, ray_state, ray.time, c, &vrng, vset,
-                                                        eq_mis);
+                                                        eq_mis, kTricks ? bounce : -1);
                     const Vec3 v = clamp_light(w * li, lim.sample());
                     L += v;
                     if constexpr (kAovs)
@@ -1651,7 +1656,7 @@ restart: __attribute__((unused));
               // without occluders) that costs almost no variance (docs/design/volumes.md).
               MediumLightSample ls;
               Vec3 value(0.0f);
-              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls, vset, dist_mis))
+              if (medium_light_sample(scene, p, d, phase, last, u_sel.x, u_pt, ray_state, ray.time, ls, vset, dist_mis, kTricks ? bounce : -1))
                 value = beta * nee_weight * ls.li * ls.factor;
               const float a_d = average(vabs(value)), a_e = average(vabs(eq_value));
               const float p_d = a_d + a_e > 0.0f ? a_d / (a_d + a_e) : 0.0f;
@@ -1671,9 +1676,9 @@ restart: __attribute__((unused));
             } else {
               uint32_t entry = UINT32_MAX;
               const Vec3 li = kAovs && lg ? medium_direct_entry(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
-                                                                ray.time, c, &vrng, vset, dist_mis, entry)
+                                                                ray.time, c, &vrng, vset, dist_mis, entry, kTricks ? bounce : -1)
                                           : medium_direct(scene, p, d, phase, last, medium, u_sel.x, u_pt, ray_state,
-                                                          ray.time, c, &vrng, vset, dist_mis);
+                                                          ray.time, c, &vrng, vset, dist_mis, kTricks ? bounce : -1);
               const Vec3 v = clamp_light(beta * li * nee_weight, lim.sample());
               L += v;
               if constexpr (kAovs)
@@ -1690,6 +1695,7 @@ restart: __attribute__((unused));
           prev_delta = false;
           prev_samples_only = false;
           ray_vis = kLightVisVolume;
+          if constexpr (kFastGI) ao_reach = s.ao_bounces_distance;
           if (kAovs && lp && bounce == 0) lp_volume = true;
           mis_org = p;
           mis_n = Vec3(0.0f);  // a medium point has no normal: the tree chose without one
@@ -1820,6 +1826,11 @@ restart: __attribute__((unused));
       }
     SurfacePoint sp;
     scene.surface_point(hit, sp, ray.time, &ray);
+    if constexpr (kFastGI)
+      if (ao_bounces > 0) {
+        const float d = scene.object_info(sp).ao_distance;
+        ao_reach = d > 0.0f ? d : s.ao_bounces_distance;
+      }
     if constexpr (kMedia && kNonDiffuse && !kGuide && !kCatcher) {
       // A volume-only boundary (Material::pass_through), crossed as its Transparent closure
       // would be but without shading it, in the same arithmetic and with the same sample
@@ -2235,6 +2246,9 @@ restart: __attribute__((unused));
         const Vec2 u_sel = sampler.get2d();  // .y: Russian roulette, below
         u_rr = u_sel.y;
         const Vec2 u_pt = sampler.get2d();
+        if constexpr (kTricks)  // Cycles' light_select_reached_max_bounces: the sample is lost
+          return scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last) &&
+                 !(ds.analytic && bounce > scene.light(ds.light).max_bounces);
         return scene.sample_direct(sp.p, u_sel.x, u_pt, ds, !last);
       };
       const auto draw_sky = [&](DirectSample& ds) __attribute__((always_inline)) {

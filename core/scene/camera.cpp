@@ -28,6 +28,8 @@ Camera::Camera(const CameraDesc& d, int width, int height) {
   for (const Mat4& m : d.motion) moves = moves || std::memcmp(&m, &d.motion[0], sizeof(Mat4)) != 0;
   if (d.motion.size() >= 2 && moves && !decompose_motion(d.motion, motion_)) motion_.clear();
   shutter_.set_curve(d.shutter_curve);
+  rolling_ = d.rolling_shutter;
+  rolling_duration_ = std::isfinite(d.rolling_shutter_duration) ? clampf(d.rolling_shutter_duration, 0.0f, 1.0f) : 0.0f;
 
   const float winx = static_cast<float>(width), winy = static_cast<float>(height);
   winx_ = width > 0 ? winx : 1.0f;

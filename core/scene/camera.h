@@ -57,6 +57,10 @@ struct CameraDesc {
   // also times the objects' motion.
   std::vector<Mat4> motion;
   std::vector<float> shutter_curve;
+  // Cycles' rolling shutter ('TOP': rows read from the top of the frame down) and its
+  // duration (0: every row at one instant; 1: the plain shutter, no rolling).
+  bool rolling_shutter = false;
+  float rolling_shutter_duration = 0.1f;
   // Vector pass: matrix_world at the previous and next frames (2; empty: still).
   std::vector<Mat4> pass_motion;
   // Panoramic cameras (type Panoramic), Blender's fields and units (radians, mm).
@@ -100,6 +104,14 @@ class Camera {
   Ray generate(float x, float y, Vec2 lens, float time) const;
   bool has_motion() const { return !motion_.empty(); }
   const ShutterTable& shutter() const { return shutter_; }
+  // Cycles' camera_sample: the shutter time t of a ray in pixel row `row` (0: the bottom row of
+  // the full frame) under the rolling shutter; t where it is off.
+  bool rolling_shutter() const { return rolling_; }
+  float rolling_time(float t, int row) const {
+    const float r = 1.0f - float(row) / winy_;  // the top row first (0), the bottom last
+    return rolling_duration_ != 0.0f ? (t - 0.5f) * rolling_duration_ + (r - 0.5f) * (1.0f - rolling_duration_) + 0.5f
+                                     : r;
+  }
   // The same ray through the lens centre: what autofocus and the focal plane are defined by.
   Ray generate_pinhole(float x, float y) const;
   bool has_aperture() const { return aperture_ > 0.0f; }
@@ -221,6 +233,8 @@ class Camera {
   float pano_jacobian(Vec3 d) const;
   std::vector<DecomposedTransform> motion_;  // empty: static
   ShutterTable shutter_;
+  bool rolling_ = false;
+  float rolling_duration_ = 0.0f;
   CameraType type_ = CameraType::Perspective;
   Vec3 origin_, right_, up_, back_;  // orthonormal world axes of the camera
   // View plane at distance 1 (perspective) or in world units (orthographic): left, bottom,

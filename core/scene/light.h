@@ -78,6 +78,9 @@ struct Light {
   // Cycles' light group (View Layer ▸ Light Groups): the Combined_<name> pass its light also
   // goes to (an index into the render's groups; -1: none).
   int16_t light_group = -1;
+  // Cycles' light Max Bounces (light.cycles.max_bounces): light samples at path vertices past
+  // this many bounces skip the light (light_select_reached_max_bounces); rays still find it.
+  int max_bounces = 1024;
 };
 
 // The IES factor of light l for light leaving it along from_light (world, any length).

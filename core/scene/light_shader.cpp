@@ -88,6 +88,7 @@ Vec3 light_shader_emission(const Light& l, Vec3 q, Vec3 wi, float dist) {
   ctx.uv_sets = 8;
   ctx.object = &sh.object;
   ctx.scene = sh.scene;
+  ctx.scene_camera = sh.scene ? sh.scene->shading_camera() : nullptr;
   ctx.ray.flags = 0;  // Cycles evaluates a light's shader with no ray kind (PATH_RAY_EMISSION)
   ctx.ray.length = dist;
   ClosureList out;

@@ -342,6 +342,9 @@ struct SceneFeatures {
   // Light or shadow linking in use (objects in light sets, lights with set masks): only the
   // general kernel follows them (kKernelLightLinks).
   bool light_links = false;
+  // Some analytic light has a Max Bounces below Cycles' default 1024 (the kKernelTricks
+  // kernels skip its light samples past it).
+  bool light_bounce_limits = false;
   // Shaders read the ray's footprint (Bump's Filter Width, Wireframe in pixels): only then do
   // camera rays carry ray differentials (not a kernel feature: one test per camera ray).
   bool footprints = false;
@@ -528,6 +531,13 @@ class Scene {
     lights_[k].light_group = group;
     return true;  // (read per contribution only: nothing to rebuild)
   }
+  // Cycles' light Max Bounces of analytic light k; false: no such light.
+  bool set_light_max_bounces(size_t k, int max_bounces) {
+    if (k >= lights_.size()) return false;
+    lights_[k].max_bounces = std::max(max_bounces, 0);
+    committed_ = false;  // (the kernel choice reads SceneFeatures::light_bounce_limits)
+    return true;
+  }
   bool set_light_links(size_t k, uint64_t light_mask, uint64_t shadow_mask) {
     if (k >= lights_.size()) return false;
     lights_[k].light_mask = light_mask;
@@ -540,7 +550,11 @@ class Scene {
   // to measure what the hits gain).
   void set_light_hits(bool on) { light_hits_on_ = on; committed_ = false; }
   bool light_hits_enabled() const { return light_hits_on_; }
-  void set_camera(const CameraDesc& c) { camera_ = c; has_camera_ = true; }
+  void set_camera(const CameraDesc& c) {
+    camera_ = c;
+    has_camera_ = true;
+    shading_camera_ = Camera(c, 1, 1);
+  }
   // Emissive triangles are light-sampled uniformly in solid angle (default) or, with false,
   // uniformly by area everywhere (the old technique; kept to compare the two in tests).
   void set_solid_angle_triangle_sampling(bool on) { solid_angle_triangles_ = on; }
@@ -795,6 +809,8 @@ class Scene {
   Vec3 world_color() const { return world_color_; }
   const CameraDesc& camera_desc() const { return camera_; }
   bool has_camera() const { return has_camera_; }
+  // The camera's space for programs that no camera ray reaches (lights, volumes): Camera Data.
+  const Camera* shading_camera() const { return has_camera_ ? &shading_camera_ : nullptr; }
 
   bool has_lights() const { return any_lights_; }
   // An analytic light that rays may hit (a compact list built at commit): a bounding sphere for
@@ -1146,6 +1162,7 @@ class Scene {
   ShaderProgram world_volume_;
   CameraDesc camera_;
   bool has_camera_ = false;
+  Camera shading_camera_;  // camera_ without a frame size (only its space is read)
   bool committed_ = false;
   std::atomic<bool> cancel_{false};
   bool geometry_dirty_ = true;

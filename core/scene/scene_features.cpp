@@ -31,6 +31,7 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"light tree", f.light_tree},
           {"light hits", f.light_hits},
           {"light linking", f.light_links},
+          {"light bounce limits", f.light_bounce_limits},
           {"subsurface", f.subsurface},
           {"shadow terminator", f.terminator},
           {"shadow catcher", f.shadow_catcher},
@@ -148,7 +149,10 @@ void Scene::detect_features() {
   if (world_volume_.has_medium()) f.media = f.volumes = true;
   f.heterogeneous_volumes = f.heterogeneous_volumes || world_volume_.volume != nullptr;
   f.world_light = !env_.valid() && !is_black(world_color_);
-  for (const Light& l : lights_) f.light_kinds |= 1u << uint32_t(l.type);
+  for (const Light& l : lights_) {
+    f.light_kinds |= 1u << uint32_t(l.type);
+    f.light_bounce_limits = f.light_bounce_limits || l.max_bounces < 1024;
+  }
   f.light_tree = lc_.use_tree;
   for (const LightChoice& c : set_lc_) f.light_tree = f.light_tree || c.use_tree;
   f.light_links = links_;

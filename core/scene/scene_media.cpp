@@ -17,6 +17,7 @@ MediumSample Scene::medium_at_frame(const HeteroMedium& h, Vec3 p, Vec3 dir) con
   ctx.wo = -dir;
   ctx.object = h.instance < object_coords_.size() ? &object_coords_[h.instance] : nullptr;
   ctx.scene = this;
+  ctx.scene_camera = shading_camera();
   ctx.instance = h.instance;
   return eval_volume(*h.program, images_, ctx);
 }
@@ -70,6 +71,7 @@ MediumSample Scene::medium_at_moving(const HeteroMedium& h, Vec3 p, Vec3 dir, fl
   ctx.ng = ctx.ns = Vec3(0.0f);
   ctx.wo = -dir;
   ctx.scene = this;
+  ctx.scene_camera = shading_camera();
   ctx.instance = h.instance;
   ctx.time = time;
   const ObjectCoords* frame = h.instance < object_coords_.size() ? &object_coords_[h.instance] : nullptr;
@@ -284,6 +286,7 @@ void Scene::build_program_majorants(HeteroMedium& h, const Aabb& b, uint32_t ins
           ctx.wo = Vec3{0.0f, 0.0f, -1.0f};
           ctx.object = instance < object_coords_.size() ? &object_coords_[instance] : nullptr;
           ctx.scene = this;
+          ctx.scene_camera = shading_camera();
           ctx.instance = instance;
           ctx.grid_bound = box;
           const MediumSample ms = eval_volume(*h.program, images_, ctx);

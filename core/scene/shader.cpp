@@ -573,6 +573,19 @@ template <bool kSetsNormal>
         d = f4(op.sub == 0 ? world_to_camera_point(cam, p) : cam ? cam->to_ndc(p) : Vec3(0.0f), 0.0f);
         break;
       }
+      case OpCode::CameraData: {
+        // Cycles' svm_node_camera: the shading point (not the camera ray) by worldtocamera, so
+        // also past reflections; in a light's or a volume's program the scene's camera.
+        const Camera* cam = ctx.ray.camera ? ctx.ray.camera : ctx.scene_camera;
+        const Vec3 v = world_to_camera_point(cam, ctx.p);
+        const float len = length(v);
+        if (op.sub == 0) d = f4(len > 0.0f && std::isfinite(len) ? v / len : Vec3(0.0f), 0.0f);
+        else {
+          const float x = op.sub == 1 ? v.z : len;
+          d = Float4{x, x, x, 1.0f};
+        }
+        break;
+      }
       case OpCode::Tangent: {
         // Cycles' svm_node_tangent: radial around an object axis (sub 0-2, from the generated
         // coordinates) or a UV map's (sub 3, uv set `index`), turned like a normal, then made

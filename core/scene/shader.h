@@ -116,6 +116,10 @@ enum class OpCode : uint8_t {
   // Texture Coordinate's Camera (sub 0) and Window (sub 1) of a world: Cycles' background reads
   // the point camera position + the direction (P is the direction there).
   BackgroundCamera,
+  // Camera Data (Cycles' svm_node_camera): the shading point in camera space (the ray's
+  // camera, else ShadingContext::scene_camera), sub 0 its direction (View Vector), 1 its z
+  // (View Z Depth), 2 its length (View Distance).
+  CameraData,
 };
 // Shader AOV slots (view-layer AOVs) a render can keep.
 constexpr int kMaxShaderAovs = 16;
@@ -335,6 +339,9 @@ struct ObjectInfo {
   // Cycles' light group of the object as an emitter (its emission, mesh light samples): the
   // render's group index, -1: none (render/integrator.h PathAovs::groups).
   int16_t light_group = -1;
+  // Cycles' object AO Distance (Visibility ▸ Fast GI Approximation): the reach of Fast GI's
+  // Replace rays that leave this object's surfaces; 0: the world's.
+  float ao_distance = 0.0f;
 };
 constexpr uint64_t kAllLightSets = ~uint64_t(0);
 // Shadow rays: the transparent surfaces one passes when no path gives a limit (RayState::
@@ -473,6 +480,8 @@ struct ShadingContext {
   // Majorant building: where set, VolumeGrid ops read the grid's largest value (over its
   // channels) in this world box instead of a sample at p.
   const Vec3* grid_bound = nullptr;  // {lo, hi}
+  // The scene's camera where no ray brings one (light and volume programs): Camera Data's.
+  const Camera* scene_camera = nullptr;
 };
 
 // The Ambient Occlusion node's fraction of `samples` rays over the hemisphere about n (cosine

@@ -93,6 +93,7 @@ inline constexpr const char* kVectorRotateTypes[] = {"AXIS_ANGLE", "X_AXIS", "Y_
 inline constexpr const char* kVectorTransformTypes[] = {"POINT", "VECTOR", "NORMAL"};
 inline constexpr const char* kTransformSpaces[] = {"WORLD", "OBJECT", "CAMERA"};
 inline constexpr const char* kCameraCoordOutputs[] = {"CAMERA", "WINDOW"};
+inline constexpr const char* kCameraDataOutputs[] = {"VIEW_VECTOR", "VIEW_Z_DEPTH", "VIEW_DISTANCE"};
 inline constexpr const char* kTangentDirections[] = {"X", "Y", "Z", "UV_MAP"};  // X, Y, Z: radial
 inline constexpr const char* kGaborTypes[] = {"2D", "3D"};  // sub 2 and 3 (the dimensions)
 inline constexpr const char* kGaborOutputs[] = {"VALUE", "PHASE", "INTENSITY"};
@@ -284,6 +285,7 @@ inline constexpr OpParam kVectorTransform[] = {choice(F::Sub, "vector transform 
                                                choice(F::Count, "vector transform space", kTransformSpaces)};
 inline constexpr OpParam kCameraCoords[] = {choice(F::Sub, "camera coordinates", kCameraCoordOutputs),
                                             bump_offset(F::Ext)};
+inline constexpr OpParam kCameraData[] = {choice(F::Sub, "camera data output", kCameraDataOutputs)};
 constexpr OpParam tangent_direction() {
   OpParam p = choice(F::Sub, "tangent direction", kTangentDirections);
   p.when = 3;  // UV_MAP
@@ -377,6 +379,7 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"blackbody", OpCode::Blackbody, 1, {}},
     {"wavelength", OpCode::Wavelength, 1, {}},
     {"camera_coords", OpCode::CameraCoords, 0, schema::kCameraCoords, kVarying},
+    {"camera_data", OpCode::CameraData, 0, schema::kCameraData, kVarying},
     {"tangent", OpCode::Tangent, 0, schema::kTangent, kVarying},
     // vector (already less Midlevel, times Scale)
     {"tangent_displacement", OpCode::TangentDisplace, 1, schema::kTangentDisplace, kVarying | kUsesUv},
@@ -406,7 +409,7 @@ inline constexpr OpCode kClosureOpCodes[] = {
     OpCode::Hair,
     OpCode::VolumeOut, OpCode::DisplaceOut, OpCode::RayPortal,
 };
-inline constexpr size_t kOpCodeCount = size_t(OpCode::RayPortal) + 1;  // (the last OpCode)
+inline constexpr size_t kOpCodeCount = size_t(OpCode::CameraData) + 1;  // (the last OpCode)
 
 constexpr bool every_value_opcode_has_an_op() {
   for (size_t c = 0; c < kOpCodeCount; ++c) {

@@ -136,6 +136,57 @@ def test_fast_gi_agrees_with_cycles(case):
     assert abs(cycles[..., :3].mean() / plain[..., :3].mean() - 1.0) > 0.05
 
 
+def room_with_object_distances():
+    """The room with objects' own AO Distances (Object ▸ Visibility ▸ Fast GI Approximation):
+    short on the back wall and the floor, long on the ball."""
+    scene = room()
+    for name, d in (("Back", 0.4), ("Floor", 0.8), ("Ball", 6.0)):
+        bpy.data.objects[name].cycles.ao_distance = d
+    return scene
+
+
+@needs_core
+def test_objects_own_ao_distance_agrees_with_cycles():
+    """Cycles' intersect_closest: an AO ray leaving an object with its own AO Distance reaches
+    that far instead of the world's distance."""
+    settings = CASES["replace 1"]
+    ours, cycles = render_pair(room_with_object_distances, 512, bounces=8, cycles_samples=4096, **settings)
+    assert_agree(ours, cycles, "room, Fast GI replace 1, objects' own AO distances")
+    # (they changed Cycles' image: the world's distance alone gives another)
+    plain = render_pair(room, 16, bounces=8, cycles_samples=4096, **settings)[1]
+    assert abs(cycles[..., :3].mean() / plain[..., :3].mean() - 1.0) > 0.02
+
+
+def test_object_ao_distance_export_and_panel():
+    """The object's own AO Distance, else its instancer's (BlenderSync), reaches add_instance;
+    the panel draws Cycles' property."""
+    from addon.export import mesh as mesh_export
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    own = add_sphere("Own", 0.5, diffuse("A", (0.5, 0.5, 0.5)))
+    own.cycles.ao_distance = 2.5
+    inner = add_sphere("Inner", 0.5, diffuse("B", (0.5, 0.5, 0.5)), location=(3.0, 0.0, 0.0))
+    coll = bpy.data.collections.new("Instanced")
+    coll.objects.link(inner)
+    empty = bpy.data.objects.new("Instancer", None)
+    empty.instance_type, empty.instance_collection = 'COLLECTION', coll
+    empty.cycles.ao_distance = 1.5
+    scene.collection.objects.link(empty)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    found = {}
+    for inst in depsgraph.object_instances:
+        if inst.object.type == 'MESH':
+            found[(inst.object.name, inst.is_instance)] = mesh_export.object_info(inst)[8]
+    assert found[("Own", False)] == pytest.approx(2.5)
+    assert found[("Inner", True)] == pytest.approx(1.5)  # the instancer's
+    assert found[("Inner", False)] == 0.0
+    panel = ui.PATHLIGHT_OBJECT_PT_fast_gi
+    assert panel in ui.classes and panel.bl_parent_id == "OBJECT_PT_visibility"
+    layout = RecordingLayout()
+    panel.draw(type("Panel", (), {"layout": layout})(), type("Ctx", (), {"scene": scene, "object": own}))
+    assert layout.props == ["ao_distance"]
+
+
 def glass_ball():
     """A smooth glass ball over a grey floor lit by the world alone (a sun's glint in the glass
     is fireflies at these counts in both engines), the world seen around and through the ball,

@@ -540,3 +540,58 @@ def test_sun_and_world_light_together():
     img = render_to_array(scene, samples=32)[..., :3]
     expected = 0.5 / math.pi * 2.0 + 0.5 * 0.2  # sun + the world's upper hemisphere
     np.testing.assert_allclose(img.mean(), expected, rtol=0.01)
+
+
+def bounce_room(kind, max_bounces):
+    """A small room (coloured walls, open towards the camera) lit by one light whose Cycles Max
+    Bounces is `max_bounces` (None: Cycles' default): a point light, or an area light with
+    extent (rays find it: its indirect light then comes from those hits alone, MIS-weighted,
+    past the limit, as Cycles)."""
+    import material_scenes as ms
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    scene.render.resolution_x = scene.render.resolution_y = 48
+    scene.render.resolution_percentage = 100
+    wall = ms.diffuse("Wall", (0.75, 0.75, 0.75))
+    ms.add_plane("Floor", 4.0, ms.diffuse("Floor", (0.6, 0.55, 0.5)))
+    ms.add_plane("Back", 4.0, wall, location=(0.0, 2.0, 2.0), rotation_euler=(math.pi / 2, 0.0, 0.0))
+    ms.add_plane("Left", 4.0, ms.diffuse("Red", (0.7, 0.15, 0.1)), location=(-2.0, 0.0, 2.0),
+                 rotation_euler=(0.0, math.pi / 2, 0.0))
+    ms.add_plane("Right", 4.0, ms.diffuse("Green", (0.15, 0.6, 0.2)), location=(2.0, 0.0, 2.0),
+                 rotation_euler=(0.0, -math.pi / 2, 0.0))
+    ms.add_plane("Ceiling", 4.0, wall, location=(0.0, 0.0, 4.0), rotation_euler=(math.pi, 0.0, 0.0))
+    ms.set_world((0.0, 0.0, 0.0))
+    if kind == 'POINT':
+        light = add_light('POINT', location=(0.4, 0.5, 3.0), energy=150.0, shadow_soft_size=0.0)
+    else:
+        light = add_light('AREA', location=(-0.3, 0.6, 3.9), energy=120.0, size=0.8)
+    if max_bounces is not None:
+        light.data.cycles.max_bounces = max_bounces
+    ms.add_camera((0.0, -5.5, 2.0), (0.0, 0.5, 1.8), lens=30.0)
+    return scene
+
+
+@pytest.mark.parametrize("kind, max_bounces", [('POINT', 0), ('POINT', 1), ('AREA', 0)])
+def test_light_max_bounces_agrees_with_cycles(kind, max_bounces):
+    """Light ▸ Max Bounces (light.cycles.max_bounces), as Cycles' light_select_reached_max_bounces:
+    light samples past that many bounces skip the light."""
+    import material_scenes as ms
+    ours, cycles = ms.render_pair(lambda: bounce_room(kind, max_bounces), 512, bounces=8, cycles_samples=4096)
+    ms.assert_agree(ours, cycles, f"room, {kind} light, Max Bounces {max_bounces}")
+    # (the limit changed Cycles' image: without it the room is brighter)
+    plain = ms.render_pair(lambda: bounce_room(kind, None), 16, bounces=8, cycles_samples=4096)[1]
+    assert cycles[..., :3].mean() / plain[..., :3].mean() < 0.9
+
+
+def test_light_max_bounces_export_and_panel():
+    from addon import ui
+    from blender_util import RecordingLayout
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    light = add_light('POINT', energy=10.0)
+    assert export_lights()[0][0].max_bounces == 1024  # Cycles' default: nothing set in the core
+    light.data.cycles.max_bounces = 3
+    light.data.update_tag()  # (an add-on property: the depsgraph copies it on re-evaluation)
+    assert export_lights()[0][0].max_bounces == 3
+    layout = RecordingLayout()
+    ui.PATHLIGHT_LIGHT_PT_light.draw(type("Panel", (), {"layout": layout})(), type("Ctx", (), {"light": light.data}))
+    assert "max_bounces" in layout.props

@@ -1,5 +1,5 @@
 """Motion blur against Cycles in the same bpy (issue 23): Render Properties > Motion Blur with its
-shutter, position and curve; a spinning and moving object, a moving camera. Emission-only
+shutter, position, curve and rolling shutter; a spinning and moving object, a moving camera. Emission-only
 scenes: each pixel is how long a surface covers it over the shutter, so the two engines agree
 within sampling noise of the blur alone."""
 import functools
@@ -158,6 +158,19 @@ def test_shutter_position_and_curve_match_cycles():
     curve.update()
     ours, cycles = render_both(scene, samples=SAMPLES)
     assert_agree(ours, cycles, "start, 0.8, ramp")
+
+
+@pytest.mark.parametrize("duration", [0.0, 0.3])
+def test_rolling_shutter_matches_cycles(duration):
+    """Render ▸ Motion Blur ▸ Rolling Shutter 'TOP' (Cycles' camera_sample: rows read from the
+    top down, each row's shutter shortened to the duration's share): the spinning bar leans."""
+    rolling = dict(rolling_shutter_type='TOP', rolling_shutter_duration=duration)
+    ours = render_to_array(spinning_scene(), "PATHLIGHT", samples=SAMPLES, **rolling, **BOX_FILTER)
+    cycles = render_to_array(spinning_scene(), "CYCLES", samples=SAMPLES, max_bounces=0, **rolling, **BOX_FILTER)
+    assert_agree(ours, cycles, f"rolling shutter, duration {duration}")
+    # (it changed the picture: the plain shutter's is far from it)
+    plain = render_to_array(spinning_scene(), "CYCLES", samples=SAMPLES, max_bounces=0, **BOX_FILTER)
+    assert ms.compare(plain, cycles, floor=0.05)[1] > 0.2
 
 
 def test_moving_camera_matches_cycles():
@@ -319,3 +332,26 @@ def test_lit_deforming_smooth_mesh_matches_cycles():
     ours = render_to_array(scene, "PATHLIGHT", samples=512, max_bounces=3, **BOX_FILTER)
     cycles = render_to_array(scene, "CYCLES", samples=512, max_bounces=3, **BOX_FILTER)
     assert_agree(ours, cycles, "lit deforming ball")
+
+
+def test_rolling_shutter_settings_have_cycles_names_and_panel():
+    """scene.pathlight's rolling shutter under Cycles' names, defaults and choices; the Motion
+    Blur panel draws Cycles' layout; the camera gets the fields only where it is on."""
+    from addon import ui
+    from addon.export.motion import rolling_shutter
+    from blender_util import RecordingLayout
+    scene = base_scene()
+    ours, cycles = scene.pathlight, scene.cycles
+    for name in ("rolling_shutter_type", "rolling_shutter_duration"):
+        assert getattr(ours, name) == pytest.approx(getattr(cycles, name)), name
+    assert ours.bl_rna.properties["rolling_shutter_type"].enum_items.keys() == \
+        cycles.bl_rna.properties["rolling_shutter_type"].enum_items.keys()
+    assert rolling_shutter(scene) == {}
+    ours.rolling_shutter_type, ours.rolling_shutter_duration = 'TOP', 0.25
+    assert rolling_shutter(scene) == {"rolling_shutter": True, "rolling_shutter_duration": pytest.approx(0.25)}
+    panel = ui.PATHLIGHT_RENDER_PT_motion_blur
+    layout = RecordingLayout()
+    panel.draw_header(type("Panel", (), {"layout": layout})(), type("Ctx", (), {"scene": scene}))
+    panel.draw(type("Panel", (), {"layout": layout})(), type("Ctx", (), {"scene": scene}))
+    assert layout.props == ["use_motion_blur", "motion_blur_position", "motion_blur_shutter",
+                            "rolling_shutter_type", "rolling_shutter_duration"]

@@ -448,6 +448,23 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     assert colors == [(tuple(round(x, 4) for x in hair.inputs["Color"].default_value[:3]), 0.4)]
 
 
+def test_point_density_warns_naming_it_and_reads_zero():
+    """The Point Density texture is not supported yet: one warning names it, and it reads what
+    Cycles gives without its object (Density 0, Color black), not its consumer's own value."""
+    mat, nodes, links, out = ms.new_material("Smoke")
+    vol = nodes.new("ShaderNodeVolumePrincipled")
+    pd = nodes.new("ShaderNodeTexPointDensity")
+    links.new(pd.outputs["Density"], vol.inputs["Density"])
+    links.new(pd.outputs["Color"], vol.inputs["Color"])
+    links.new(vol.outputs[0], out.inputs["Volume"])
+    d = nodes.new("ShaderNodeBsdfDiffuse")
+    links.new(pd.outputs["Color"], d.inputs["Color"])
+    links.new(d.outputs[0], out.inputs["Surface"])
+    (closure,), warnings, _ = closures_of(mat)
+    assert len(warnings) == 1 and "Point Density texture is not supported" in warnings[0], warnings
+    assert closure[0] == "diffuse" and tuple(closure[2]["color"][:3]) == approx((0.0, 0.0, 0.0))
+
+
 def test_value_into_shader_socket_is_emission_and_no_output_is_black():
     mat, nodes, links, out = ms.new_material("Glow")
     rgb = nodes.new("ShaderNodeRGB")

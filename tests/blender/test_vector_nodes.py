@@ -1,7 +1,8 @@
 """Vector and colour nodes against Cycles in the same bpy (issue 21): Vector Rotate (every type,
 Invert, linked inputs), Blackbody and Wavelength over their whole range, Vector Transform
 (points, vectors and normals between world, object and camera space), Texture Coordinate's
-Camera and Window (perspective with shift, orthographic), the Geometry node's Tangent and the
+Camera and Window (perspective with shift, orthographic), Camera Data (perspective,
+orthographic, panoramic, past a mirror), the Geometry node's Tangent and the
 Tangent node (radial about each axis, UV map). Each renders planes whose emission is the
 node's output (vectors mapped by s v + o to stay positive: Pathlight's emission is), sampled
 at the pixel centres with one sample, and compares per pixel in the node's own units."""
@@ -215,6 +216,50 @@ def test_camera_and_window_coordinates_match_cycles(output, camera_type):
         w = (ours - offset) / scale
         assert w[-1, 0, 0] < 0.05 and w[-1, 0, 1] < 0.05, w[-1, 0]
         assert w[0, -1, 0] > 0.95 and w[0, -1, 1] > 0.95, w[0, -1]
+
+
+# ---------------------------------------------------------------- Camera Data
+
+@pytest.mark.parametrize("output", ["View Vector", "View Z Depth", "View Distance"])
+@pytest.mark.parametrize("camera_type", ['PERSP', 'ORTHO', 'PANO'])
+def test_camera_data_matches_cycles(output, camera_type):
+    """Camera Data (Cycles' svm_node_camera): the shading point in the camera's space (a
+    panorama's own axes), its direction, z and length, on a tilted plane below a turned camera
+    (an equirectangular panorama sees it below its horizon)."""
+    scale, offset = {"View Vector": (0.5, 0.5), "View Z Depth": (0.05, 2.0),
+                     "View Distance": (0.1, 0.0)}[output]
+
+    def build():
+        scene = new_scene(40, 24, camera_type=camera_type, location=(0.5, -0.6, 5.0),
+                          rotation=(0.15, -0.1, 0.3), ortho_scale=4.5)
+        if camera_type == 'PANO':
+            scene.camera.data.panorama_type = 'EQUIRECTANGULAR'
+        mat = emission_material(f"D{output}", lambda nodes, links: nodes.new("ShaderNodeCameraData").outputs[output],
+                                scale, offset)
+        ms.add_plane("P", 30.0, mat, rotation_euler=(0.2, 0.1, 0.0))
+        return scene
+    ours, cycles = render_both(build)
+    assert_matches(ours, cycles, scale, min_std=0.005)
+
+
+def test_camera_data_past_a_mirror_matches_cycles():
+    """In a mirror the node reads the point the reflected ray found, not the camera ray's hit
+    or the path's length (Cycles' sd->P)."""
+    def build():
+        scene = new_scene(32, location=(0.0, -3.0, 2.0), rotation=(math.radians(60.0), 0.0, 0.0),
+                          camera_type='PERSP')
+        mat, nodes, links, out = ms.new_material("Mirror")
+        glossy = nodes.new("ShaderNodeBsdfGlossy")
+        glossy.inputs["Roughness"].default_value = 0.0
+        links.new(glossy.outputs[0], out.inputs["Surface"])
+        ms.add_plane("Mirror", 20.0, mat)
+        wall = emission_material("Dist", lambda nodes, links: nodes.new("ShaderNodeCameraData").outputs["View Distance"],
+                                 0.1)
+        ms.add_plane("Wall", 30.0, wall, location=(0.0, 6.0, 0.0), rotation_euler=(math.radians(90.0), 0.0, 0.0))
+        return scene
+    ours = render_to_array(build(), "PATHLIGHT", samples=1, max_bounces=2, **CENTRES)[..., :3]
+    cycles = render_to_array(build(), "CYCLES", samples=1, max_bounces=2, **CENTRES)[..., :3]
+    assert_matches(ours, cycles, 0.1, min_std=0.005)
 
 
 # ---------------------------------------------------------------- tangents

@@ -1069,3 +1069,44 @@ def test_area_light_spread_keeps_the_power():
     # 30 degrees: within 0.5 tan 15 = 0.13 of the centre, all of the power is in view
     expected = ALBEDO / np.pi * 5.0 * np.pi * 0.04 / (2.88**2)  # albedo/pi * power / view area
     assert abs(means[2] / expected - 1) < 0.02
+
+
+def test_light_max_bounces_skips_light_samples_past_it():
+    """Cycles' light Max Bounces (light_select_reached_max_bounces): light samples at vertices
+    past that many bounces skip the light. A point light at the centre of a closed diffuse
+    sphere (albedo a = 0.5): vertex k's light sample brings a^k L0, so the camera sees L0 with
+    Max Bounces 0, L0 (1 + a) with 1, and L0 / (1 - a) without a limit."""
+    def film(max_bounces):
+        s = pc.Scene()
+        m = s.add_material("shell", (0.5, 0.5, 0.5))
+        pos, tris, nrm = uv_sphere(1.0, nu=48, nv=24, inward=True)
+        add_object(s, pos, tris, m, nrm)
+        s.add_point_light((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+        if max_bounces is not None:
+            s.set_light_max_bounces(0, max_bounces)
+        s.set_camera(camera(pc, (0.0, -0.2, 0.0), (0.0, 1.0, 0.0), lens=20.0))
+        img, stats = render(pc, s, 16, 16, samples=128, max_bounces=64)
+        return np.asarray(img)[..., :3].mean(), stats
+    l0, stats = film(0)
+    assert stats["kernel"] == "general" and "light bounce limits" in stats["features"]
+    assert l0 == pytest.approx(0.5 / np.pi, rel=0.03)  # a I / (pi R^2) on the unit sphere
+    one, _ = film(1)
+    assert one / l0 == pytest.approx(1.5, rel=0.02)
+    unlimited, stats = film(None)
+    assert unlimited / l0 == pytest.approx(2.0, rel=0.03)
+    assert "light bounce limits" not in stats["features"]
+    # Caustic light paths would bring a limited light's deeper bounces back: off, with the reason.
+    s = pc.Scene()
+    s.add_material("grey", (0.5, 0.5, 0.5))
+    add_object(s, *quad((-1, -1, 0), (2, 0, 0), (0, 2, 0)), 0)
+    s.add_point_light((0.0, 0.0, 1.0), (1.0, 1.0, 1.0))
+    s.set_light_max_bounces(0, 2)
+    s.set_camera(camera(pc, (0.0, -2.0, 2.0), (0.0, 0.0, 0.0)))
+    _, stats = render(pc, s, 8, 8, samples=1, caustic_light_paths=1.0)
+    assert stats["caustics"] == "off: not with a light's Max Bounces"
+    s = pc.Scene()
+    s.add_point_light((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    with pytest.raises(ValueError, match="max_bounces"):
+        s.set_light_max_bounces(0, -1)
+    with pytest.raises(IndexError):
+        s.set_light_max_bounces(1, 3)

@@ -64,6 +64,32 @@ def test_replace_in_a_closed_emitting_room_stops_after_n_bounces(n):
     assert st["kernel"] == "general" and "fast gi" in st["features"]
 
 
+def test_replace_reads_the_objects_own_ao_distance():
+    """Cycles' intersect_closest: an object's own AO Distance (add_instance's ao_distance), where
+    set, is the reach of the AO rays that leave its surfaces instead of the world's. The shell of
+    emission 0.5, albedo 0.5 under a grey world 0.8, factor 0.5, no light samples: a reach past
+    the shell brings its emission (0.5 + 0.25), a reach far shorter the world (0.5 + 0.5 f W)."""
+    def room(ao_distance):
+        s = pc.Scene()
+        m = s.add_material("shell", (0.5, 0.5, 0.5), (0.5, 0.5, 0.5))
+        pos, tris, nrm = uv_sphere(1.0, nu=32, nv=16, inward=True)
+        s.add_instance(s.add_mesh(pos, tris, nrm, None, [m]), np.eye(4, dtype=np.float32),
+                       ao_distance=ao_distance)
+        s.set_world_color((0.8, 0.8, 0.8))
+        s.set_camera(camera(pc, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), lens=20.0))
+        return s
+
+    def check(ao_distance, world_distance, expected):
+        img, _ = film(room(ao_distance), samples=128, ao_bounces=1, ao_factor=0.5,
+                      ao_distance=world_distance, use_nee=False)
+        close(img[..., :3].mean(), expected, img[..., :3].mean(-1).std() / np.sqrt(W * H))
+    check(10.0, 1e-3, 0.75)  # the object's reach, not the world's
+    check(1e-3, 10.0, 0.5 + 0.5 * 0.5 * 0.8)
+    # 0 (Cycles' default), and what Cycles' RNA never gives, are the world's distance.
+    for bad in (0.0, -1.0, float("nan")):
+        check(bad, 1e-3, 0.5 + 0.5 * 0.5 * 0.8)
+
+
 def test_replace_short_distance_brings_the_world_times_the_factor():
     # An AO distance far shorter than the room: every AO ray reaches no surface, so it brings the
     # world times the factor (without light samples: the BSDF ray alone). Le + a f W.

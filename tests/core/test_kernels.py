@@ -14,7 +14,7 @@ ALL = set(pc.Scene().stats().get("features", [])) | {
     "volumes", "heterogeneous volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights",
     "environment", "world light", "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree",
     "light hits", "subsurface", "motion blur", "guiding", "shadow terminator", "light linking", "shadow catcher",
-    "holdout objects", "light path tricks", "fast gi"}
+    "holdout objects", "light path tricks", "fast gi", "light bounce limits"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -184,6 +184,19 @@ def linked_scene():
 
 CASES["light linking"] = (linked_scene, {}, {"diffuse", "point lights", "spot lights", "sun lights", "area lights",
                                              "world light", "light hits", "light linking"}, "general")
+
+
+def bounce_limited_scene():
+    """The lights scene with a light's Max Bounces (one of Cycles' tricks: kKernelTricks, the
+    general kernels only)."""
+    s = lights_scene()
+    s.set_light_max_bounces(0, 1)
+    return s
+
+
+CASES["light bounce limits"] = (bounce_limited_scene, {}, {"diffuse", "point lights", "spot lights", "sun lights",
+                                                           "area lights", "world light", "light hits",
+                                                           "light bounce limits"}, "general")
 
 
 def moving_cornell():

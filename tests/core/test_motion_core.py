@@ -208,6 +208,59 @@ def test_rendered_exposure_follows_the_shutter_curve(camera_motion):
     assert np.abs(box[inside] - BAR / 2).mean() < 0.03 * BAR / 2, box[inside]
 
 
+def rolling_rows(duration, rows=16, samples=8):
+    """Per row of the moving bar's image (row 0 = the bottom) with Cycles' rolling shutter: the
+    bar's centre (world x, the brightness-weighted mean of the column centres)."""
+    s = moving_bar_scene()
+    cam = camera(pc, (0.0, 0.0, 5.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
+    cam.type = "ORTHO"
+    cam.ortho_scale = 2.4
+    if duration is not None:
+        cam.rolling_shutter = True
+        cam.rolling_shutter_duration = duration
+    s.set_camera(cam)
+    st = pc.RenderSettings()
+    st.width, st.height, st.samples = 48, rows, samples
+    st.filter_type, st.filter_width = "box", 1.0
+    sess = pc.Session(s, st)
+    sess.start()
+    while not sess.wait(1.0):
+        pass
+    img = np.asarray(sess.film())[..., 0].astype(np.float64)
+    x = (np.arange(48) + 0.5) / 48 * 2.4 - 1.2
+    return (img * x).sum(axis=1) / img.sum(axis=1), img
+
+
+def test_rolling_shutter_times_each_row_as_cycles():
+    """Cycles' camera_sample with the rolling shutter 'TOP': row y (of H, from the bottom) reads
+    at r = 1 - y / H, mixed with the shutter's own time t by the duration d: (t - 1/2) d +
+    (r - 1/2)(1 - d) + 1/2. The bar (x = 2 time - 1) then leans across the rows: with d = 0 each
+    row sees it at one instant, its centre at 2 r - 1; with d = 1/2 the mean time is the same
+    halfway to 1/2; with d = 1 every row is the plain motion-blurred one."""
+    rows = 16
+    r = 1.0 - np.arange(rows) / rows
+    centre, img = rolling_rows(0.0, rows)
+    assert np.abs(centre - (2.0 * r - 1.0)).max() < 0.02, centre
+    # One instant per row: the bar is sharp there (BAR wide, 8 of the 48 columns lit).
+    assert np.all((img > 0.5).sum(axis=1) <= 9)
+    half, _ = rolling_rows(0.5, rows, samples=64)
+    assert np.abs(half - ((r - 0.5) * 0.5 + 0.5) * 2.0 + 1.0).max() < 0.04, half
+    plain, plain_img = rolling_rows(None, rows, samples=32)
+    full, full_img = rolling_rows(1.0, rows, samples=32)
+    assert np.abs(plain).max() < 0.04 and np.abs(full).max() < 0.04
+    # (the same times up to float rounding, which may move a sample across the bar's edge)
+    assert np.abs(full_img - plain_img).mean() < 1e-3
+
+
+def test_rolling_shutter_duration_is_validated():
+    cam = pc.Camera()
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="rolling_shutter_duration"):
+            cam.rolling_shutter_duration = bad
+    cam.rolling_shutter_duration = 0.25
+    assert cam.rolling_shutter_duration == pytest.approx(0.25)
+
+
 def deform_steps():
     """The box's vertices at three steps: stretched along x, then sheared along y."""
     pos, tris = box_mesh()

@@ -5,7 +5,7 @@ the ops' arguments. The per-pixel comparisons with Cycles are in test_vector_nod
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, quad, render
+from core_scenes import add_object, camera, closure, core, quad, render
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
@@ -47,6 +47,67 @@ def test_camera_space_looks_down_plus_z_and_window_is_centred():
     xs = (np.arange(8) + 0.5) / 8
     assert np.allclose(window[0, :, 0], xs, atol=2e-3), window[0, :, 0]
     assert np.allclose(window[:, 0, 1], xs, atol=2e-3), window[:, 0, 1]
+
+
+def test_camera_data_is_the_shading_point_in_camera_space():
+    """Camera Data (Cycles' svm_node_camera): View Z Depth is 4 over the quad 4 units ahead,
+    View Distance is the camera-space point's length and View Vector its direction (checked
+    against Texture Coordinate's Camera, itself compared with Cycles)."""
+    shift = [("const", 11, (5.0, 5.0, 5.0, 0.0))]  # (emission stays positive)
+
+    def value(which):
+        return emission_of([("camera_data", 12, which)] + shift + [("vector_math", 10, 12, 11, 11, 3, "ADD")]) - 5.0
+    point = emission_of([("camera_coords", 12, "CAMERA")] + shift + [("vector_math", 10, 12, 11, 11, 3, "ADD")]) - 5.0
+    depth, dist, vec = value("VIEW_Z_DEPTH"), value("VIEW_DISTANCE"), value("VIEW_VECTOR")
+    assert np.allclose(depth, 4.0, atol=1e-4)
+    assert np.allclose(dist[..., 0], np.linalg.norm(point, axis=-1), atol=1e-4)
+    assert np.all(dist >= depth - 1e-5) and dist.max() > 4.3  # off the axis: farther than the depth
+    assert np.allclose(vec * dist[..., :1], point, atol=1e-4)
+
+
+def test_camera_data_past_a_mirror_reads_the_point_not_the_ray():
+    """Seen in a mirror (z = 0, the camera 4 above it), a plane at z = 8 is met at (3 x, 3 y, 8)
+    by the camera ray that reflected at (x, y, 0): its View Distance is sqrt(9 (x^2 + y^2) + 16)
+    = sqrt(9 d^2 - 128) for the mirror point's own distance d, not the path's length 3 d."""
+    def film(mirror):
+        s = pc.Scene()
+        emit = s.add_shader("e", [("camera_data", 0, "VIEW_DISTANCE"),
+                                  ("closure", "emission", None, {"color": 0})])
+        if mirror:
+            m = s.add_shader("mirror", closure("glossy", color=(1.0, 1.0, 1.0), roughness=0.0))
+            add_object(s, *quad((-10, -10, 0), (20, 0, 0), (0, 20, 0)), m)
+            add_object(s, *quad((-20, -20, 8), (40, 0, 0), (0, 40, 0)), emit)
+        else:
+            add_object(s, *quad((-10, -10, 0), (20, 0, 0), (0, 20, 0)), emit)
+        s.set_world_color((0.0, 0.0, 0.0))
+        s.set_camera(camera(pc, (0.0, 0.0, 4.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)))
+        img, stats = render(pc, s, 8, 8, samples=1, max_bounces=2, filter_width=0.01)
+        assert stats["nonfinite_samples"] == 0
+        return img[..., 0]
+    d, seen = film(False), film(True)
+    assert np.allclose(seen, np.sqrt(9.0 * d ** 2 - 128.0), rtol=1e-3), (seen, d)
+
+
+def test_camera_data_in_lights_and_volumes_reads_the_scene_camera():
+    """Programs no camera ray reaches: a point light whose strength is its View Distance shines
+    |light - camera| times the plain light; a world Volume whose density is View Z Depth has
+    that depth at every point (the camera 4 above z = 0, looking down)."""
+    from test_core_lights import H_CAM, W, check, expected, plane_scene, point_radiance
+    light = np.array([0.3, -0.2, 1.0])  # (3.02 from the camera, 1.06 from the origin)
+    s = plane_scene()
+    s.add_point_light(light, (10.0, 10.0, 10.0), shader=[("camera_data", 0, "VIEW_DISTANCE"),
+                                                          ("closure", "emission", None, {"color": 0})])
+    img, _ = render(pc, s, W, W, samples=16)
+    r = np.linalg.norm(light - (0.0, 0.0, H_CAM))
+    check(img, expected(lambda p: point_radiance(p, light, 10.0) * r), tol=0.005)
+
+    s = pc.Scene()
+    s.set_world_volume([("camera_data", 0, "VIEW_Z_DEPTH"), ("closure", "volume", None, {"sigma_s": 0})])
+    s.set_camera(camera(pc, (0.0, 0.0, 4.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)))
+    add_object(s, *quad((-1, -1, 0), (2, 0, 0), (0, 2, 0)), s.add_material("grey", (0.5, 0.5, 0.5)))
+    s.commit()
+    for p in ((0.0, 0.0, 1.0), (0.5, -0.3, -0.5), (-0.2, 0.7, 3.5)):
+        assert s.medium_at(-1, 0, p)["sigma_s"] == pytest.approx((4.0 - p[2],) * 3, rel=1e-5)
 
 
 def test_ambient_occlusion_in_the_open_and_over_a_floor():

@@ -389,6 +389,22 @@ class InputNodes:
         return self.emit("float", "wireframe", size, bool(node.use_pixel_size), *extra)
 
 
+    _CAMERA_DATA = {"View Vector": ("vector", "VIEW_VECTOR"), "View Z Depth": ("float", "VIEW_Z_DEPTH"),
+                    "View Distance": ("float", "VIEW_DISTANCE")}
+
+    def camera_data(self, node, out, ctx):
+        """Camera Data: the shading point in the camera's space, as Cycles' svm_node_camera
+        (its direction, z and length; not moved by Bump offsets, as Cycles)."""
+        kind, which = self._CAMERA_DATA.get(out.identifier, (None, None))
+        if kind is None:
+            self.problem(f"'{node.name}': output {out.name} is not supported (0)")
+            return ZERO
+        key = ("camera_data", which)
+        if key not in self.cache:
+            self.cache[key] = self.emit(kind, "camera_data", which)
+        return self.cache[key]
+
+
 # Handlers of ShaderCompiler._VALUE_NODES (node type -> function of compiler, node, output
 # socket, group context).
     def light_falloff(self, node, out, ctx):
@@ -408,5 +424,5 @@ VALUE_NODES = {
     'ATTRIBUTE': InputNodes.attribute_node, 'VOLUME_INFO': InputNodes.volume_info, 'TANGENT': InputNodes.tangent_node,
     'AMBIENT_OCCLUSION': InputNodes.ambient_occlusion, 'BEVEL': InputNodes.bevel,
     'WIREFRAME': InputNodes.wireframe, 'PARTICLE_INFO': InputNodes.particle_info,
-    'LIGHT_FALLOFF': InputNodes.light_falloff,
+    'LIGHT_FALLOFF': InputNodes.light_falloff, 'CAMERA': InputNodes.camera_data,
 }

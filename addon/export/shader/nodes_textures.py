@@ -2,7 +2,7 @@
 Checker, Gradient, Brick and Voronoi are tex_patterns'.)"""
 
 from .images import MISSING_TEXTURE
-from .values import ONE, Val, const_color, const_vector
+from .values import ONE, ZERO, Val, const_color, const_vector
 
 
 class TextureNodes:
@@ -216,10 +216,20 @@ class TextureNodes:
         return self.emit("color", "tex_sky", self.reg(vec), sky)
 
 
+    def point_density_texture(self, node, out, ctx):
+        """Point Density: not supported yet. It reads what Cycles gives a node without its
+        object (Density 0, Color black), so a volume it drives stays empty rather than filling
+        its domain with the consumer's own value; one warning names it."""
+        self.problem(f"'{node.name}': the Point Density texture is not supported yet "
+                     "(Density 0, Color black)")
+        return ZERO if out.identifier == "Density" else const_color((0.0, 0.0, 0.0, 1.0))
+
+
 # Handlers of ShaderCompiler._VALUE_NODES (Image Texture is eval_value_node's).
 VALUE_NODES = {
     'TEX_NOISE': TextureNodes.noise_texture, 'TEX_WAVE': TextureNodes.wave_texture,
     'TEX_MAGIC': TextureNodes.magic_texture, 'TEX_WHITE_NOISE': TextureNodes.white_noise_texture,
     'TEX_GABOR': TextureNodes.gabor_texture, 'TEX_IES': TextureNodes.ies_texture,
     'TEX_SKY': TextureNodes.sky_texture, 'TEX_ENVIRONMENT': TextureNodes.environment_texture,
+    'TEX_POINTDENSITY': TextureNodes.point_density_texture,
 }
