@@ -9,8 +9,8 @@ import bpy
 
 import material_scenes as ms
 from blender_util import BOX_FILTER, Warnings, load_addon, render_to_array
-from test_image_sources_cycles import (assert_same, folder, render_both, udim_image,  # noqa: F401
-                                       uv_plane_scene, write_png)
+from test_image_sources_cycles import (assert_same, folder, nearest_frame, render_both,  # noqa: F401
+                                       udim_image, uv_plane_scene)
 
 load_addon()
 from addon.export import export_scene  # noqa: E402
@@ -141,3 +141,57 @@ def test_box_on_udim_tiles_reads_the_first_tile_as_cycles(folder):  # noqa: F811
     lit = ours[ours.sum(-1) > 0.02]
     assert np.argmax(lit.mean(0)) == 0  # tile 1001's red throughout, no magenta, no green
     assert not np.any(np.all(np.abs(lit - (1.0, 0.0, 1.0)) < 0.05, axis=-1))
+
+
+def world_sequence_scene(folder, frame, program):  # noqa: F811
+    """build() of an empty scene whose world is an Environment Texture of the image sequence
+    seq.####.png (3 frames) at scene frame `frame`; program: through a Gamma node (1.0), which
+    makes it a world program rather than the equirectangular fast path."""
+    def build():
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x, scene.render.resolution_y = 32, 16
+        world = ms.set_world((0.0, 0.0, 0.0))
+        nodes, links = world.node_tree.nodes, world.node_tree.links
+        env = nodes.new("ShaderNodeTexEnvironment")
+        env.image = bpy.data.images.load(str(folder / "seq.0001.png"))
+        env.image.source = 'SEQUENCE'
+        env.image_user.frame_duration, env.image_user.frame_start = 3, 1
+        colour = env.outputs["Color"]
+        if program:
+            gamma = nodes.new("ShaderNodeGamma")
+            gamma.inputs["Gamma"].default_value = 1.0
+            links.new(colour, gamma.inputs["Color"])
+            colour = gamma.outputs[0]
+        links.new(colour, nodes["Background"].inputs["Color"])
+        cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+        cam.data.lens = 12.0
+        cam.rotation_euler = (1.5, 0.0, 0.3)
+        scene.collection.objects.link(cam)
+        scene.camera = cam
+        scene.frame_set(frame)
+        return scene
+    return build
+
+
+def test_world_image_sequence_follows_the_frame_as_cycles(folder):  # noqa: F811
+    """A world program's Environment Texture of an image sequence shows the node's frame at the
+    scene frame, as Cycles."""
+    for frame in (2, 3):
+        ours, cycles = render_both(world_sequence_scene(folder, frame, True))
+        assert_same(ours, cycles, f"world program sequence frame {frame}")
+        assert nearest_frame(ours) == frame
+
+
+def test_world_fast_path_sequence_reads_the_frames_file(folder):  # noqa: F811
+    """The equirectangular fast path renders a sequence at frame N exactly as the still image
+    of frame N's file. (Its filtering of byte images differs from Cycles' before this change:
+    it decodes sRGB before filtering; the program path above is the one compared with Cycles.)"""
+    for frame in (2, 3):
+        scene = world_sequence_scene(folder, frame, False)()
+        seq = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
+        env = bpy.context.scene.world.node_tree.nodes["Environment Texture"]
+        env.image = bpy.data.images.load(str(folder / f"seq.{frame:04d}.png"))
+        still = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
+        assert nearest_frame(seq) == frame
+        assert np.array_equal(seq, still)
