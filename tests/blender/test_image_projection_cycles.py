@@ -195,3 +195,15 @@ def test_world_fast_path_sequence_reads_the_frames_file(folder):  # noqa: F811
         still = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
         assert nearest_frame(seq) == frame
         assert np.array_equal(seq, still)
+
+
+@pytest.mark.parametrize("program", [False, True])
+def test_world_sequence_follows_the_frame_in_an_animation(folder, program):  # noqa: F811
+    """Two frames of one animation (the kept scene of render_cache: persistent data) show the
+    world sequence's two frames."""
+    scene = world_sequence_scene(folder, 2, program)()
+    scene.render.use_persistent_data = True
+    second = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
+    scene.frame_set(3)
+    third = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
+    assert (nearest_frame(second), nearest_frame(third)) == (2, 3)
