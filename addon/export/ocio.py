@@ -360,11 +360,118 @@ def convert(rgb, src, dst, config, depth=0):
     return _from_reference(_to_reference(rgb, a, config, depth), b, config, depth)
 
 
+# ---------------------------------------------------------------- the chain, flattened
+
+_SEPARABLE = {"ExponentTransform", "ExponentWithLinearTransform", "AllocationTransform", "RangeTransform"}
+
+
+def _flatten(t, config, inverse, depth, out):
+    """The primitive transforms (t, inverse) that `t` applies, in order (groups and colour
+    space transforms expanded)."""
+    if depth > 32:
+        raise Unsupported("colour space transforms nest too deep")
+    inv = _inverse_dir(t, inverse)
+    if t["type"] == "GroupTransform":
+        for child in (reversed(t["children"]) if inv else t["children"]):
+            _flatten(child, config, inv, depth + 1, out)
+    elif t["type"] == "ColorSpaceTransform":
+        src, dst = (t["dst"], t["src"]) if inv else (t["src"], t["dst"])
+        _flatten_convert(str(src), str(dst), config, depth + 1, out)
+    else:
+        out.append((t, inverse))
+    return out
+
+
+def _flatten_convert(src, dst, config, depth, out):
+    a, b = _space(config, src), _space(config, dst)
+    if a is b:
+        return out
+    for space, to_ref in ((a, True), (b, False)):
+        own, other = ("to_reference", "from_reference") if to_ref else ("from_reference", "to_reference")
+        if own in space:
+            _flatten(space[own], config, False, depth, out)
+        elif other in space:
+            _flatten(space[other], config, True, depth, out)
+    return out
+
+
+def _linear_part(t, inverse, config):
+    """(M, offset) of an affine step as applied (its direction included), or None."""
+    kind = t["type"]
+    if kind == "MatrixTransform":
+        m = np.array(t.get("matrix", np.eye(4).ravel()), np.float64).reshape(4, 4)[:3, :3]
+        off = _vec4(t.get("offset", 0.0))[:3]
+    elif kind == "BuiltinTransform" and str(t.get("style", "")) in _BUILTIN_PRIMARIES:
+        style = str(t["style"])
+        m = _bradford(_ACES_WHITE, _D65) @ _matrix_from_primaries(_BUILTIN_PRIMARIES[style], _ACES_WHITE)
+        off = np.zeros(3)
+    elif kind == "FileTransform" and str(t["src"]).endswith(".spimtx"):
+        _, m, off = _read_lut(_file(str(t["src"]), config))
+    else:
+        return None
+    if _inverse_dir(t, inverse):
+        mi = np.linalg.inv(m)
+        return mi, -mi @ off
+    return m, off
+
+
+def _separable(t, config):
+    kind = t["type"]
+    return kind in _SEPARABLE or (kind == "FileTransform" and str(t["src"]).endswith(".spi1d"))
+
+
+_LEVELS = np.arange(256, dtype=np.float32) / np.float32(255.0)
+
+
+def _run(steps, rgb, config):
+    """`rgb` (N, 3) float64 through flattened `steps`. Byte values (k / 255) go through the
+    leading per-channel steps as a 256-entry table, and runs of affine steps as one matrix
+    (the same results, less work on big images)."""
+    i = 0
+    if steps and _separable(steps[0][0], config):
+        idx = np.rint(rgb * 255.0)
+        if np.array_equal(_LEVELS[np.clip(idx, 0, 255).astype(np.intp)], rgb.astype(np.float32)):
+            table = np.repeat(_LEVELS.astype(np.float64)[:, None], 3, axis=1)
+            while i < len(steps) and _separable(steps[i][0], config):
+                table = apply(steps[i][0], table, config, steps[i][1])
+                i += 1
+            idx = idx.astype(np.intp)
+            rgb = np.stack([table[idx[:, c], c] for c in range(3)], axis=1)
+    while i < len(steps):
+        part = _linear_part(steps[i][0], steps[i][1], config)
+        if part is None:
+            rgb = apply(steps[i][0], rgb, config, steps[i][1])
+            i += 1
+            continue
+        m, off = part
+        i += 1
+        while i < len(steps):
+            nxt = _linear_part(steps[i][0], steps[i][1], config)
+            if nxt is None:
+                break
+            m, off = nxt[0] @ m, nxt[0] @ off + nxt[1]
+            i += 1
+        rgb = rgb @ m.T + off
+    return rgb
+
+
 def to_scene_linear(rgb, space_name, path=None):
     """float32 `rgb` (..., 3) in colour space `space_name` of the config, in scene linear.
     Raises Unsupported for what this module does not implement."""
     config = load_config(path or config_path())
     linear = str(config["roles"].get("scene_linear", "Linear Rec.709"))
+    steps = _flatten_convert(space_name, linear, config, 0, [])
     flat = np.asarray(rgb, np.float64).reshape(-1, 3)
-    out = convert(flat, space_name, linear, config)
+    for t, inv in steps:  # (fail before any work on what is not implemented)
+        if t["type"] == "FileTransform":
+            lut = _read_lut(_file(str(t["src"]), config))
+            if lut[0] == "lut3d" and _inverse_dir(t, inv):
+                raise Unsupported(f"inverse of 3D LUT '{t['src']}'")
+            if lut[0] == "lut1d" and _inverse_dir(t, inv) and np.any(np.diff(lut[3], axis=0) < 0):
+                raise Unsupported(f"inverse of non-monotonic LUT '{t['src']}'")
+        elif t["type"] not in _SEPARABLE | {"MatrixTransform", "BuiltinTransform"}:
+            raise Unsupported(t["type"])
+        elif t["type"] == "BuiltinTransform" and str(t.get("style", "")) not in _BUILTIN_PRIMARIES:
+            raise Unsupported(f"BuiltinTransform '{t.get('style', '')}'")
+    out = _run(steps, flat, config)
     return out.reshape(np.shape(rgb)).astype(np.float32)
