@@ -96,8 +96,8 @@ def cycles_tube(co):
     return (1.0 - np.arctan2(c[0] / ln, c[1] / ln) / np.pi) * 0.5, (c[2] + 1.0) * 0.5
 
 
-def cycles_box(img, co, n, blend, interp, ext):
-    sn = np.asarray(n, np.float64)
+def _box_weights(sn, blend):
+    """Cycles' Box weights of the three axes for object-space normal `sn`."""
     a = np.abs(sn)
     with np.errstate(invalid="ignore"):  # (a zero normal: NaN, as Cycles)
         a = a / a.sum()
@@ -123,6 +123,12 @@ def cycles_box(img, co, n, blend, interp, ext):
             w = ((2 - limit) * a + (limit - 1)) / (2 * limit - 1)
     else:
         w[0] = 1
+    return w
+
+
+def cycles_box(img, co, n, blend, interp, ext):
+    sn = np.asarray(n, np.float64)
+    w = _box_weights(sn, blend)
     x, y, z = co
     r = np.zeros(4)
     if w[0] > 0:
@@ -256,3 +262,23 @@ def test_bad_box_and_projection_ops_are_refused():
                  [("const", 0, (0.0,)), ("image", 1, 0, img, "SMART", "REPEAT")]):
         with pytest.raises(ValueError):
             s.add_shader("bad", prog + [("closure", "emission", None, {"color": 1})])
+
+
+def test_box_unassociates_each_lookup_before_weighting():
+    """With the Alpha output in use (unassociate), each of Box's lookups is divided by its own
+    filtered alpha before the weights apply, as svm_image_texture does per lookup."""
+    co, n = (0.3, 0.6, 0.2), (0.57, 0.58, 0.4)
+
+    def ops(s, case, unassociate=True):
+        return [("const", 0, co + (0.0,)), ("const", 1, n + (0.0,)),
+                ("image_box", 9, 0, 1, s.add_image(IMG), "LINEAR", "REPEAT", 0.5) + ((True,) if unassociate else ())]
+    got = run(ops, [0])[0]
+    weights = _box_weights(np.asarray(n, np.float64), 0.5)
+    assert (weights > 0).sum() == 3  # (all three lookups take part)
+    want = np.zeros(3)
+    for k, (u, v) in enumerate(((co[1], co[2]), (1 - co[0], co[2]), (1 - co[1], co[0]))):
+        r = cycles_lookup(IMG, u, v, "LINEAR", "REPEAT")
+        want += weights[k] * r[:3] / r[3]
+    assert np.allclose(got, want, atol=3e-5), (got, want)
+    plain = run(lambda s, c: ops(s, c, False), [0])[0]
+    assert not np.allclose(plain, want, atol=1e-3)  # (the division matters here)
