@@ -145,7 +145,9 @@ def add_materials(scene, materials, images, warn, image_ids=None):
 
 def remap_images(ops, image_ids):
     """A program's image ops with their image operands replaced by the core ids image_ids."""
-    return [op[:3] + (image_ids[op[3]],) + op[4:] if op[0] == "image" else op for op in ops]
+    at = {"image": 3, "image_box": 4}  # where the image operand sits (after the registers)
+    return [op[:at[op[0]]] + (image_ids[op[at[op[0]]]],) + op[at[op[0]] + 1:] if op[0] in at else op
+            for op in ops]
 
 
 def put_material(scene, m, image_ids, core_id=None):

@@ -259,7 +259,7 @@ class ViewportSession:
         scene = depsgraph.scene
         groups = list(self.light_groups)
 
-        w_color, w_texture, w_program = export_world(scene.world, self.warn)
+        w_color, w_texture, w_program = export_world(scene.world, self.warn, scene.frame_current)
 
         class _World:  # what set_world (and add_lights: the light groups) read of SceneData
             world_texture = w_texture

@@ -109,7 +109,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         warn(f"The scene lies {far:.3g} units from the world origin: beyond {FAR_FROM_ORIGIN:.0e} "
              "units single-precision hit points lose accuracy (shading and shadows may be off "
              "by a few percent); move the scene closer to the origin")
-    w_color, w_texture, w_program = export_world(scene.world, warn)
+    w_color, w_texture, w_program = export_world(scene.world, warn, scene.frame_current)
     return SceneData(meshes, material_slots, table.materials,
                      w_color, camera, lights,
                      w_texture, table.images.images,

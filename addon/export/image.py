@@ -49,21 +49,27 @@ def rgb_of(buf):
 
 
 def is_srgb_bytes(image):
-    """True for a byte image that Cycles keeps sRGB-encoded (filtered before decoding): not a
-    float buffer, not data, not a linear space. Spaces other than sRGB are approximated so."""
+    """True for a byte image that Cycles keeps sRGB-encoded (filtered before decoding): a byte
+    image in the sRGB space. Byte images in other spaces are converted to scene linear at load
+    (to_scene_linear), as Cycles converts them with OpenColorIO."""
     space = image.colorspace_settings
-    return not (image.is_float or space.is_data or space.name == "Non-Color"
-                or space.name in LINEAR_SPACES)
+    return not (image.is_float or space.is_data) and space.name == "sRGB"
 
 
 def to_scene_linear(image, rgb):
     """Blender gives float images (.exr, .hdr) already in scene linear and byte images as raw
-    byte/255 values in the image's colour space, linearised here as Cycles does.
-    Returns (rgb, note or None) where the note names an unsupported colour space."""
+    byte/255 values in the image's colour space, linearised here as Cycles does: sRGB by its
+    transfer function, other spaces by the transforms of Blender's OCIO config (ocio.py).
+    Returns (rgb, note or None) where the note names a colour space this cannot convert (then
+    decoded as sRGB)."""
     space = image.colorspace_settings
     if image.is_float or space.is_data or space.name == "Non-Color" or space.name in LINEAR_SPACES:
         return rgb, None
-    note = None
-    if space.name != "sRGB":
-        note = f"colour space '{space.name}' of byte image '{image.name}' is not supported (decoded as sRGB)"
-    return srgb_to_linear(rgb), note
+    if space.name == "sRGB":
+        return srgb_to_linear(rgb), None
+    from .ocio import Unsupported, to_scene_linear as ocio_to_scene_linear
+    try:
+        return ocio_to_scene_linear(rgb, space.name), None
+    except (Unsupported, OSError, ValueError) as e:
+        return srgb_to_linear(rgb), (f"colour space '{space.name}' of byte image '{image.name}' is "
+                                     f"not supported ({e}; decoded as sRGB)")

@@ -104,17 +104,18 @@ def world_color(world, warn):
     return scaled(socket_rgb(color), strength.default_value)
 
 
-def export_world(world, warn):
+def export_world(world, warn, frame=None):
     """(constant colour, WorldTexture / WorldSky or None, WorldProgram or None) of a world.
     Today's fast path (a constant, or Background / Emission of an equirectangular Environment
     Texture or a Sky Texture through an optional Mapping, times a constant Strength) where the
     world is exactly that graph, bit for bit as before; any other graph becomes a program, the
-    fast path's warnings standing where the program cannot be compiled."""
+    fast path's warnings standing where the program cannot be compiled. frame: the scene
+    frame, which picks an image sequence's frame (None: the file the image's path names)."""
     notes = []
     color = world_color(world, notes.append)
-    texture = world_texture(world, notes.append)
+    texture = world_texture(world, notes.append, frame)
     if notes:
-        program = world_program(world, warn)
+        program = world_program(world, warn, frame)
         if program is not None:
             return color, None, program
     for note in notes:
@@ -143,7 +144,7 @@ def _map_size(world, tree):
     return width, height
 
 
-def world_program(world, warn):
+def world_program(world, warn, frame=None):
     """WorldProgram of a world's Surface compiled by the shader compiler (its problems warned
     about, naming the nodes, each with its fallback), or None where it cannot be compiled."""
     if world is None or not world.use_nodes or world.node_tree is None:
@@ -154,6 +155,7 @@ def world_program(world, warn):
     from .shader import ImageTable, UvSets, ShaderCompiler
     images = ImageTable()
     compiler = ShaderCompiler(images, UvSets())
+    compiler.frame = frame  # (Environment Textures of image sequences)
     try:
         compiled = compiler.compile_world(output, world.name)
     except Exception as e:  # a compiler bug must not stop the render
@@ -215,7 +217,7 @@ def warn_open_world_volume(stats, world, warn):
              "scene (a room, a large box) for a defined result")
 
 
-def world_texture(world, warn):
+def world_texture(world, warn, frame=None):
     """WorldTexture for a world lit by an equirectangular Environment Texture, WorldSky for a
     Sky Texture, else None
     (then world_color() is the background). Problems are warned about and fall back to the
@@ -262,7 +264,7 @@ def world_texture(world, warn):
         return None
     if source.interpolation != 'Linear':
         warn(f"{what}: {source.interpolation} interpolation is not supported; using Linear")
-    pixels = image_pixels(source.image, what, warn)
+    pixels = image_pixels(source.image, what, warn, getattr(source, "image_user", None), frame)
     if pixels is None:
         return None
     rotation = _vector_rotation(source.inputs["Vector"], what, warn)
@@ -361,15 +363,19 @@ def _vector_rotation(vector_socket, what, warn, unit=False):
 
 # ---------------------------------------------------------------- image pixels
 
-def image_pixels(image, what, warn):
+def image_pixels(image, what, warn, user=None, frame=None):
     """float32 (H, W, 3) scene-linear RGB of a bpy Image (row 0 = bottom), or None (with a
     warning) when there is none or it cannot be read. Blender gives float images (.exr,
     .hdr) already converted to scene linear, and byte images as raw byte/255 values in the
-    image's colour space, which we linearise here (Cycles does the same)."""
+    image's colour space, which we linearise here (Cycles does the same). user, frame: the
+    node's ImageUser and the scene frame (a sequence's frame, as read_pixels)."""
     if image is None:
         warn(f"{what} has no image; using a constant background")
         return None
-    buf, why = read_pixels(image)
+    notes = []
+    buf, why = read_pixels(image, user if frame is not None else None, frame, notes)
+    for note in notes:
+        warn(f"{what}: {note}")
     if buf is None:
         warn(f"{what}: {why}; using a constant background")
         return None

@@ -116,7 +116,7 @@ void Scene::detect_features() {
     f.varying = f.varying || m.program.varying;
     f.subsurface = f.subsurface || m.subsurface;
     for (const ShaderOp& op : m.program.ops) {
-      f.textures = f.textures || op.code == OpCode::ImageTex;
+      f.textures = f.textures || op.code == OpCode::ImageTex || op.code == OpCode::ImageBox;
       f.normal_maps = f.normal_maps || op.code == OpCode::NormalMap || op.code == OpCode::Bump;
       f.footprints = f.footprints || (op.code == OpCode::Bump && m.program.bump_filter_width > 0.0f) ||
                      (op.code == OpCode::Wireframe && op.ext != 0) ||

@@ -147,6 +147,34 @@ template <bool kSetsNormal>
                 : Float4{1.0f, 0.0f, 1.0f, 1.0f};  // Blender's "missing texture" magenta
         break;
       }
+      case OpCode::ImageProj: {
+        const Float4 s = reg(op.in[0]);
+        const Vec3 c{(s.x - 0.5f) * 2.0f, (s.y - 0.5f) * 2.0f, (s.z - 0.5f) * 2.0f};  // texco_remap_square
+        float u = 0.0f, w = 0.0f;
+        if (op.sub == 0) {  // Cycles' map_to_sphere
+          const float l = c.x * c.x + c.y * c.y + c.z * c.z;
+          if (l > 0.0f) {
+            u = c.x == 0.0f && c.y == 0.0f ? 0.0f : 0.5f - std::atan2(c.x, c.y) * (0.5f / kPi);
+            w = 1.0f - std::acos(clampf(c.z / std::sqrt(l), -1.0f, 1.0f)) * (1.0f / kPi);
+          }
+        } else {  // map_to_tube
+          const float len = std::sqrt(c.x * c.x + c.y * c.y);
+          if (len > 0.0f) {
+            u = (1.0f - std::atan2(c.x / len, c.y / len) / kPi) * 0.5f;
+            w = (c.z + 1.0f) * 0.5f;
+          }
+        }
+        d = {u, w, 0.0f, 0.0f};
+        break;
+      }
+      case OpCode::ImageBox: {
+        const Float4 s = reg(op.in[0]);
+        d = op.index >= 0 && size_t(op.index) < images.size()
+                ? image_box(images, size_t(op.index), s.xyz(), reg(op.in[1]).xyz(), op.m[0], Interp(op.sub),
+                            Extension(op.ext), op.clamp)
+                : Float4{1.0f, 0.0f, 1.0f, 1.0f};
+        break;
+      }
       case OpCode::Math: {
         float v = math_op(MathOp(op.sub), reg(op.in[0]).x, reg(op.in[1]).x, reg(op.in[2]).x);
         if (!std::isfinite(v)) v = 0.0f;

@@ -41,8 +41,9 @@ struct Image {
   std::vector<ImageTile> tiles;
 };
 
-enum class Interp : uint8_t { Linear, Closest };
-enum class Extension : uint8_t { Repeat, Extend, Clip };
+// Cubic: Cycles' bicubic B-spline (its CPU kernel's interp_cubic; Smart reads as Cubic there).
+enum class Interp : uint8_t { Linear, Closest, Cubic };
+enum class Extension : uint8_t { Repeat, Extend, Clip, Mirror };
 
 Float4 sample_image(const Image& img, float u, float v, Interp interp, Extension ext);
 // What an Image Texture node reads, in Cycles' order: interpolate the stored (associated)
@@ -55,6 +56,11 @@ Float4 image_lookup(const Image& img, float u, float v, Interp interp, Extension
 Float4 image_texture(const std::vector<Image>& images, size_t id, float u, float v, Interp interp, Extension ext,
                      bool unassociate);
 float srgb_to_linear(float c);
+// Cycles' svm_node_tex_image_box: up to three lookups of image_texture weighted by the
+// object-space normal `n` (Blend `blend`), at (co.y, co.z), (co.x, co.z), (co.y, co.x) flipped by
+// the normal's sign. A tile set reads its first tile only, as Cycles (its first svm slot).
+Float4 image_box(const std::vector<Image>& images, size_t id, Vec3 co, Vec3 n, float blend, Interp interp,
+                 Extension ext, bool unassociate);
 
 enum class OpCode : uint8_t {
   Const, Uv, Position, Normal, Mapping, ImageTex, Math, Mix, RgbToBw, NormalMap,
@@ -120,6 +126,12 @@ enum class OpCode : uint8_t {
   // camera, else ShadingContext::scene_camera), sub 0 its direction (View Vector), 1 its z
   // (View Z Depth), 2 its length (View Distance).
   CameraData,
+  // The Image Texture's Sphere (sub 0) and Tube (sub 1) projections of in[0] (Cycles'
+  // texco_remap_square, then map_to_sphere / map_to_tube) to (u, v, 0, 0).
+  ImageProj,
+  // The Image Texture's Box projection (image_box): in[0] the vector, in[1] the object-space
+  // normal; index, sub, ext, clamp as ImageTex, m[0] the Blend.
+  ImageBox,
 };
 // Shader AOV slots (view-layer AOVs) a render can keep.
 constexpr int kMaxShaderAovs = 16;

@@ -59,12 +59,12 @@ inline constexpr SubOpName kClampOpNames[] = {{"MINMAX", 3}, {"RANGE", 3}};
 
 // The names of the other settings that value ops choose by name, in their enums' or the
 // evaluation's order.
-inline constexpr const char* kInterpOpNames[] = {"LINEAR", "CLOSEST"};
-static_assert(std::size(kInterpOpNames) == size_t(Interp::Closest) + 1, "one name per Interp");
+inline constexpr const char* kInterpOpNames[] = {"LINEAR", "CLOSEST", "CUBIC"};
+static_assert(std::size(kInterpOpNames) == size_t(Interp::Cubic) + 1, "one name per Interp");
 // A grid read's interpolation: its index is the VolumeSampling (volume_grid.h).
 inline constexpr const char* kVolumeInterpOpNames[] = {"CLOSEST", "LINEAR", "CUBIC"};
-inline constexpr const char* kExtensionOpNames[] = {"REPEAT", "EXTEND", "CLIP"};
-static_assert(std::size(kExtensionOpNames) == size_t(Extension::Clip) + 1, "one name per Extension");
+inline constexpr const char* kExtensionOpNames[] = {"REPEAT", "EXTEND", "CLIP", "MIRROR"};
+static_assert(std::size(kExtensionOpNames) == size_t(Extension::Mirror) + 1, "one name per Extension");
 inline constexpr const char* kLightPathOutputs[] = {
     "IS_CAMERA_RAY", "IS_SHADOW_RAY", "IS_DIFFUSE_RAY", "IS_GLOSSY_RAY", "IS_SINGULAR_RAY",
     "IS_REFLECTION_RAY", "IS_TRANSMISSION_RAY", "IS_VOLUME_SCATTER_RAY", "RAY_LENGTH",
@@ -238,6 +238,13 @@ inline constexpr OpParam kImage[] = {of(K::ImageId, F::Index, "image id"),
                                      choice(F::Sub, "interpolation", kInterpOpNames),
                                      choice(F::Ext, "extension", kExtensionOpNames),
                                      optional(flag(F::Clamp, "unassociate alpha"))};
+inline constexpr const char* kImageProjections[] = {"SPHERE", "TUBE"};
+inline constexpr OpParam kImageProj[] = {choice(F::Sub, "image projection", kImageProjections)};
+inline constexpr OpParam kImageBox[] = {of(K::ImageId, F::Index, "image id"),
+                                        choice(F::Sub, "interpolation", kInterpOpNames),
+                                        choice(F::Ext, "extension", kExtensionOpNames),
+                                        finite(F::M0, "box blend"),
+                                        optional(flag(F::Clamp, "unassociate alpha"))};
 inline constexpr OpParam kMath[] = {sub_op(F::Sub, "math op", kMathOpNames), flag(F::Clamp, "clamp")};
 inline constexpr OpParam kMix[] = {sub_op(F::Sub, "mix blend type", kMixOpNames), flag(F::Clamp, "clamp")};
 inline constexpr OpParam kLayerWeight[] = {choice(F::Sub, "layer weight output", kLayerWeightOutputs)};
@@ -342,6 +349,8 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"object_normal", OpCode::ObjectNormal, 0, {}, kVarying},
     {"mapping", OpCode::Mapping, 1, schema::kMapping},
     {"image", OpCode::ImageTex, 1, schema::kImage},
+    {"image_proj", OpCode::ImageProj, 1, schema::kImageProj},
+    {"image_box", OpCode::ImageBox, 2, schema::kImageBox},  // vector, object-space normal
     {"rgb_to_bw", OpCode::RgbToBw, 1, {}},
     {"math", OpCode::Math, 2, schema::kMath},
     {"math3", OpCode::Math, 3, schema::kMath},  // the operations with a third value
@@ -409,7 +418,7 @@ inline constexpr OpCode kClosureOpCodes[] = {
     OpCode::Hair,
     OpCode::VolumeOut, OpCode::DisplaceOut, OpCode::RayPortal,
 };
-inline constexpr size_t kOpCodeCount = size_t(OpCode::CameraData) + 1;  // (the last OpCode)
+inline constexpr size_t kOpCodeCount = size_t(OpCode::ImageBox) + 1;  // (the last OpCode)
 
 constexpr bool every_value_opcode_has_an_op() {
   for (size_t c = 0; c < kOpCodeCount; ++c) {

@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..image import LINEAR_SPACES, is_srgb_bytes, read_buffer, read_pixels, rgb_of, to_scene_linear
+from ..image import is_srgb_bytes, read_buffer, read_pixels, rgb_of, to_scene_linear
 
 MISSING_TEXTURE = (1.0, 0.0, 1.0, 1.0)  # Cycles' magenta for an image that cannot be loaded
 
@@ -93,7 +93,7 @@ def _load_tiles(image, problems):
     from ..image_sources import UDIM_FIRST, UDIM_LAST, tile_image
     tiles, missing = [], []
     space = image.colorspace_settings
-    srgb = not (space.is_data or space.name == "Non-Color" or space.name in LINEAR_SPACES)
+    srgb = not space.is_data and space.name == "sRGB"  # (as is_srgb_bytes)
     for tile in image.tiles:
         number = int(tile.number)
         if not UDIM_FIRST <= number <= UDIM_LAST:
@@ -149,9 +149,6 @@ def _load_image(image, problems, user=None, frame=None, buffer=False):
     mode = image.alpha_mode
     associate = not is_data and mode not in {'CHANNEL_PACKED', 'NONE'}
     if is_srgb_bytes(image):
-        if space.name != "sRGB":
-            problems.append(f"colour space '{space.name}' of byte image '{image.name}' is not "
-                            "supported (decoded as sRGB)")
         to_byte = lambda x: np.clip(np.round(np.nan_to_num(x) * 255.0), 0, 255).astype(np.uint32)  # noqa: E731
         c, a = to_byte(rgb), to_byte(alpha)
         if mode == 'NONE':
@@ -164,10 +161,13 @@ def _load_image(image, problems, user=None, frame=None, buffer=False):
     rgb, note = to_scene_linear(image, rgb)
     if note:
         problems.append(note)
+    # Byte images converted from a wide gamut keep their negative components, as Cycles keeps
+    # OCIO's result (out-of-gamut colours); float images are clamped as before.
+    keep_negative = is_data or not image.is_float
     bad = ~np.isfinite(rgb)
-    if bad.any() or (rgb < 0).any() and not is_data:
+    if bad.any() or (rgb < 0).any() and not keep_negative:
         rgb = np.where(bad, 0.0, rgb)
-        if not is_data:
+        if not keep_negative:
             np.maximum(rgb, 0.0, out=rgb)
     alpha = np.clip(np.nan_to_num(alpha, nan=1.0), 0.0, 1.0)
     if mode == 'NONE':

@@ -13,8 +13,8 @@ class TextureNodes:
         image = node.image
         loaded = None
         if image is not None:  # (a sequence's or movie's frame: the node's at the scene frame)
-            frame = self.depsgraph.scene.frame_current if self.depsgraph is not None else None
-            loaded = self.images.load(image, self.problems, getattr(node, "image_user", None), frame)
+            loaded = self.images.load(image, self.problems, getattr(node, "image_user", None),
+                                      self.scene_frame())
         if image is None:
             self.problem(f"{what} has no image (magenta)")
         if loaded is None:
@@ -26,29 +26,35 @@ class TextureNodes:
         vec = self.value(node.inputs["Vector"], ctx, "vector")
         if vec is None:
             vec = self.uv_value("", what)
-        if node.projection != 'FLAT':  # (Cycles' Box reads a tiled image's tile 1001 only)
-            self.problem(f"{what}: {node.projection.lower()} projection is not supported "
-                         "(flat)")
-        interp = {"Closest": "CLOSEST"}.get(node.interpolation, "LINEAR")
-        if node.interpolation in ("Cubic", "Smart"):
-            self.problem(f"{what}: {node.interpolation} interpolation is approximated by Linear")
-        ext = node.extension
-        if ext == 'MIRROR':
-            self.problem(f"{what}: Mirror extension is not supported (Repeat)")
-            ext = 'REPEAT'
-        if ext not in ('REPEAT', 'EXTEND', 'CLIP'):
-            ext = 'REPEAT'
-        if out.identifier == "Alpha":
-            index = self.images.index(image, loaded, "alpha")
-            return self.emit("float", "image", self.reg(vec), index, interp, ext)
-        # As Cycles: with the Alpha output in use, Color is divided by the filtered alpha.
+        interp = {"Closest": "CLOSEST", "Cubic": "CUBIC", "Smart": "CUBIC"}.get(node.interpolation, "LINEAR")
+        ext = node.extension if node.extension in ('REPEAT', 'EXTEND', 'CLIP', 'MIRROR') else 'REPEAT'
+        projection = node.projection
+        if projection in ('SPHERE', 'TUBE'):  # Cycles maps the vector first, then picks the tile
+            vec = self.emit("vector", "image_proj", self.reg(vec), projection)
+        elif projection != 'FLAT' and projection != 'BOX':
+            self.problem(f"{what}: {projection.lower()} projection is not supported (flat)")
+            projection = 'FLAT'
         alpha_out = node.outputs.get("Alpha")
-        unassociate = (alpha_out is not None and alpha_out.is_linked and loaded.has_alpha
-                       and loaded.unassociate)
-        index = self.images.index(image, loaded, "color")
-        if unassociate:
-            return self.emit("color", "image", self.reg(vec), index, interp, ext, True)
-        return self.emit("color", "image", self.reg(vec), index, interp, ext)
+        if out.identifier == "Alpha":
+            kind, variant, unassociate = "float", "alpha", False
+        else:  # As Cycles: with the Alpha output in use, Color is divided by the filtered alpha.
+            kind, variant = "color", "color"
+            unassociate = (alpha_out is not None and alpha_out.is_linked and loaded.has_alpha
+                           and loaded.unassociate)
+        index = self.images.index(image, loaded, variant)
+        tail = (True,) if unassociate else ()
+        if projection == 'BOX':  # (a tiled image: its first tile only, as Cycles)
+            normal = self.emit("vector", "object_normal")
+            return self.emit(kind, "image_box", self.reg(vec), self.reg(normal), index, interp, ext,
+                             float(node.projection_blend), *tail)
+        return self.emit(kind, "image", self.reg(vec), index, interp, ext, *tail)
+
+    def scene_frame(self):
+        """The frame that animated images show (None: the file their path names)."""
+        frame = getattr(self, "frame", None)
+        if frame is None and self.depsgraph is not None:
+            frame = self.depsgraph.scene.frame_current
+        return frame
 
     # -------------------------------------------------- procedural textures (issue 21)
 
@@ -142,7 +148,10 @@ class TextureNodes:
         LINK_POSITION: the position (a world's: the ray's direction)."""
         what = f"'{node.name}'"
         image = node.image
-        loaded = self.images.load(image, self.problems) if image is not None else None
+        loaded = None
+        if image is not None:  # (a sequence's frame: the node's at the scene frame)
+            loaded = self.images.load(image, self.problems, getattr(node, "image_user", None),
+                                      self.scene_frame())
         if image is None:
             self.problem(f"{what} has no image (magenta)")
         if loaded is None:
@@ -163,9 +172,7 @@ class TextureNodes:
         if node.projection not in ('EQUIRECTANGULAR', 'MIRROR_BALL'):
             self.problem(f"{what}: {node.projection.lower()} projection is not supported (equirectangular)")
         uv = self.emit("vector", "env_uv", self.reg(vec), projection)
-        interp = {"Closest": "CLOSEST"}.get(node.interpolation, "LINEAR")
-        if node.interpolation in ("Cubic", "Smart"):
-            self.problem(f"{what}: {node.interpolation} interpolation is approximated by Linear")
+        interp = {"Closest": "CLOSEST", "Cubic": "CUBIC", "Smart": "CUBIC"}.get(node.interpolation, "LINEAR")
         if out.identifier == "Alpha":
             index = self.images.index(image, loaded, "alpha")
             return self.emit("float", "image", self.reg(uv), index, interp, 'REPEAT')
