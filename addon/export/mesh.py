@@ -453,7 +453,7 @@ class ExportCancelled(Exception):
     """The user cancelled the render while the scene was being exported."""
 
 
-def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, object_attributes=None):
+def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, object_attributes=None, layer=None):
     """All visible geometry of the depsgraph. Instances of the same evaluated geometry (and
     materials) share one MeshData and add only their matrix_world. uv_names(materials) ->
     {global uv-set index: UV map name} says which UV maps to export (none if None).
@@ -461,8 +461,16 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
     should_stop(): asked before each mesh is exported; True raises ExportCancelled.
     object_attributes: an object_attributes.InstanceAttributes whose slots the instances'
     values are resolved for (uv_names compiles a mesh's materials, numbering their slots,
-    when its entry is made)."""
+    when its entry is made). layer: the view layer's view_layer.LayerSettings (read from the
+    depsgraph when None): its Material Override and its Surfaces filter."""
     from .subdivision import adaptive_mesh_data, adaptive_modifier, dicing_context
+    from .view_layer import layer_settings, slot_materials
+    if layer is None:
+        layer = layer_settings(depsgraph)
+    if not layer.use_solid:  # Filter ▸ Surfaces off: Cycles syncs meshes without geometry
+        if cache is not None:
+            cache.end_export()
+        return []
     meshes = {}
     dicing = None  # export.subdivision's camera, made at the first adaptive object
     generated = {}  # instancer -> how many generated geometries of it were exported so far
@@ -473,7 +481,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
         # evaluated surface, next to the original object (which we skip, as Cycles does).
         if obj.type != 'MESH' or not is_visible(instance):
             continue
-        materials = [slot.material for slot in obj.material_slots]
+        materials = slot_materials(obj.material_slots, layer)
         # The evaluated data is shared by all instances of one geometry (and by objects sharing
         # an unmodified mesh); materials can differ per object when slots link to the object.
         key = (obj.data.as_pointer(), tuple(m.as_pointer() if m else 0 for m in materials))
