@@ -527,11 +527,12 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
 
 def object_info(instance, view_layer=None):
     """(RGBA colour, pass index, random id or None, shadow terminator geometry offset,
-    Cryptomatte names, shadow catcher, holdout, light group name) of a depsgraph object
-    instance. The names are
+    Cryptomatte names, shadow catcher, holdout, light group name, indirect only) of a depsgraph
+    object instance. The names are
     (object, asset) as Cycles gives them: the object's name and its top parent's (its own
     without a parent). Holdout is the object's own or, given the depsgraph's view layer, its
-    collection's there too (Cycles' holdout_get)."""
+    collection's there too (Cycles' holdout_get); indirect only (invisible to camera rays) its
+    collection's Indirect Only there, unless it is held out (Cycles' sync_object)."""
     obj = instance.object
     random_id = (instance.random_id & 0xFFFFFFFF) if instance.is_instance else None
     terminator = float(getattr(obj, "shadow_terminator_geometry_offset", 0.0))
@@ -540,8 +541,9 @@ def object_info(instance, view_layer=None):
         top = top.parent
     catcher = bool(getattr(obj, "is_shadow_catcher", False))
     from .light import object_lightgroup
+    holdout = _holdout(instance, view_layer)
     return (tuple(obj.color), int(obj.pass_index), random_id, terminator, (obj.name, top.name), catcher,
-            _holdout(instance, view_layer), object_lightgroup(instance))
+            holdout, object_lightgroup(instance), not holdout and _indirect_only(instance, view_layer))
 
 
 def _holdout(instance, view_layer):
@@ -556,6 +558,19 @@ def _holdout(instance, view_layer):
         except (AttributeError, TypeError, RuntimeError, ReferenceError):
             pass
     return bool(getattr(obj, "is_holdout", False))
+
+
+def _indirect_only(instance, view_layer):
+    """Whether the instance's object (an instancer's, for its instances) is in an Indirect Only
+    collection of the view layer (Cycles' indirect_only_get); as _holdout, only with the
+    depsgraph being exported."""
+    if view_layer is None:
+        return False
+    try:
+        parent = instance.parent if instance.is_instance and instance.parent is not None else instance.object
+        return bool(parent.original.indirect_only_get(view_layer=view_layer))
+    except (AttributeError, TypeError, RuntimeError, ReferenceError):
+        return False
 
 
 def _export_object(obj, materials, uv_names=None):

@@ -165,7 +165,7 @@ def collect_volumes(depsgraph, warn, table, grid_list, layer=None):
         mesh = entry[0]
         mesh.matrices.append(np.array(instance.matrix_world, np.float32))
         mesh.owners.append((obj.name, bool(instance.is_instance)))
-        mesh.infos.append(object_info(instance))
+        mesh.infos.append(object_info(instance, getattr(depsgraph, "view_layer", None)))
         mesh.motion_keys.append(instance_key(instance))
     out = [e for e in entries.values() if e is not None]
     return [e[0] for e in out], [e[1] for e in out]
