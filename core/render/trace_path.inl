@@ -1384,13 +1384,12 @@ restart: __attribute__((unused));
     } else if constexpr (kCatcher) {
       if (resume) hit = cs.at->hit, found = true;
       else found = catcher_only ? scene.intersect_catchers(ray, hit) : scene.intersect(ray, hit);
+      // Indirect Only objects: not there for camera rays (Cycles' visibility without
+      // PATH_RAY_CAMERA); only this kernel steps past them (kernel_features), the others pay nothing.
       if (found && !resume && direct && scene.features().camera_invisible && scene.is_camera_invisible(hit.inst, hit.prim))
         found = scene.intersect_camera_visible(ray, hit);
     } else {
       found = scene.intersect(ray, hit);
-      // Indirect Only objects: not there for camera rays (Cycles' visibility without PATH_RAY_CAMERA).
-      if (found && direct && scene.features().camera_invisible && scene.is_camera_invisible(hit.inst, hit.prim))
-        found = scene.intersect_camera_visible(ray, hit);
     }
     Vec3 sigma(0.0f);
     const Vec3 beta_in = beta;           // (light hits: the throughput at the ray's origin)
