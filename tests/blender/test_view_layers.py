@@ -137,6 +137,21 @@ def test_material_override_export_slots():
     assert {"Red", "Glow", "FloorMat"} <= set(data.material_names)
 
 
+def volume_override_scene():
+    from test_volume_objects import principled_volume, smoke_cube
+    scene = layer_scene()
+    smoke = smoke_cube("Smoke", principled_volume("Fog", density=2.0))
+    smoke.scale = (0.5, 0.5, 0.5)
+    smoke.location = (0.8, -0.8, 0.6)
+    scene.view_layers[0].material_override = clay()
+    return scene
+
+
+def test_material_override_on_a_volume_object_as_cycles():
+    """A volume object takes the (surface-only) override too, as Cycles: the smoke is gone."""
+    pair(volume_override_scene, "material override on a volume object", samples=256)
+
+
 # ------------------------------------------------------------------ World Override
 
 
