@@ -411,3 +411,35 @@ def test_layers_leave_nothing_to_the_next(tmp_path, build):
     finally:
         bpy.context.scene.render.use_persistent_data = False
         render_cache.clear()
+
+
+def test_one_layer_with_persistent_data_follows_its_settings():
+    """One layer with persistent data (the tracked mode, which trusts the depsgraph's updates):
+    setting and clearing the override, or Indirect Only, between renders renders each state as
+    a fresh render does."""
+    from addon import render_cache
+    render_cache.clear()
+    scene = layer_scene()
+    scene.render.use_persistent_data = True
+    layer = scene.view_layers[0]
+    props = layer.layer_collection.children["Props"]
+    try:
+        def shot():
+            return render_to_array(scene, samples=8, max_bounces=BOUNCES)
+
+        def fresh():
+            render_cache.clear()
+            return shot()
+        plain = shot()
+        layer.material_override = clay()
+        np.testing.assert_array_equal(shot(), fresh())
+        layer.material_override = None
+        props.indirect_only = True
+        ghost = shot()
+        np.testing.assert_array_equal(ghost, fresh())
+        props.indirect_only = False
+        np.testing.assert_array_equal(shot(), plain)
+        assert not np.array_equal(ghost, plain)
+    finally:
+        scene.render.use_persistent_data = False
+        render_cache.clear()
