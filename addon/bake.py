@@ -17,6 +17,7 @@ Without a `bake` callback Blender refuses with "Current render engine does not s
 baking" (RE_bake_has_engine).
 """
 
+import dataclasses
 import logging
 import threading
 import time
@@ -25,6 +26,7 @@ import numpy as np
 
 from .core import get_core
 from .export import ExportCancelled, ExportError, export_scene
+from .export.view_layer import layer_settings
 from .export.world import warn_open_world_volume
 
 log = logging.getLogger(__name__)
@@ -229,8 +231,10 @@ def bake(engine, depsgraph, obj, pass_type, pass_filter, width, height):
         pc = get_core()
         scene = depsgraph.scene
         try:
+            # Surfaces always on in a bake, as Cycles (nothing to bake to otherwise).
+            layer_filter = dataclasses.replace(layer_settings(depsgraph), use_solid=True)
             data = export_scene(depsgraph, warn, None, need_camera=False, uv_pass=pass_type == "UV",
-                                should_stop=engine.test_break)
+                                should_stop=engine.test_break, layer=layer_filter)
         except ExportCancelled:
             return
         found = find_instance(data, obj.name)

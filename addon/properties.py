@@ -41,6 +41,14 @@ class PathlightSceneSettings(bpy.types.PropertyGroup):
         name="Samples", description="Samples per pixel for the final render",
         default=128, min=1, max=1 << 24, soft_max=4096,
     )
+    use_layer_samples: EnumProperty(
+        name="Layer Samples", description="How a view layer's own Samples (View Layer ▸ Samples, "
+                                          "0 = the scene's) set its render's sample count",
+        items=(('USE', "Use", "The view layer's samples replace the scene's"),
+               ('BOUNDED', "Bounded", "The view layer's samples, where fewer than the scene's"),
+               ('IGNORE', "Ignore", "The scene's samples for every view layer")),
+        default='USE',
+    )
     time_limit: FloatProperty(
         name="Time Limit", description="Stop rendering after this time (0 = no limit)",
         default=0.0, min=0.0, step=100.0, unit='TIME_ABSOLUTE',

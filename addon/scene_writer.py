@@ -197,7 +197,10 @@ def _ao_distance(info):
 def _catcher_holdout(info):
     """add_instance / add_curves / add_points keywords of an object's Shadow Catcher and Holdout
     (mesh.object_info's sixth and seventh entries), only where set."""
-    return {"shadow_catcher": info[5], "holdout": info[6]} if len(info) > 6 and (info[5] or info[6]) else {}
+    out = {"shadow_catcher": info[5], "holdout": info[6]} if len(info) > 6 and (info[5] or info[6]) else {}
+    if len(info) > 9 and info[9]:  # Indirect Only (mesh.object_info's tenth entry)
+        out["camera_invisible"] = True
+    return out
 
 
 def group_index(groups, name):

@@ -14,6 +14,7 @@ from . import render_cache
 from .core import get_core
 from .export import MAX_LIGHT_GROUPS, ExportCancelled, ExportError, export_scene
 from .export.motion import add_motion, add_pass_motion
+from .export.view_layer import layer_settings, lit_world
 from .export.world import warn_open_world_volume
 from .export.camera import camera_params
 from .export.views import view_camera, view_motion, view_names, view_seed
@@ -289,12 +290,36 @@ def render_border(scene, warn=None):
     return x0, y0, x1 - x0, y1 - y0
 
 
-def fast_gi_settings(scene, viewport=False):
+_SCENE_WORLD = object()  # (render_settings' default: the scene's world)
+
+
+def layer_samples(props, view_layer, warn=None):
+    """(samples, pattern_samples) of a render of `view_layer` whose RenderSettings say
+    (props.samples, the pattern's total), or None where the layer's Samples do not apply: Cycles'
+    rule (blender_session.cpp), the layer's count (0: the scene's) replaces the frame's total
+    under Layer Samples 'USE', only a smaller one under 'BOUNDED', never under 'IGNORE'. A farm
+    piece (Sample Offset, Frame Samples) keeps its range cut at the layer's total, and its blue
+    noise is laid out for that total; adaptive sampling and the time limit stay as they are."""
+    mode = getattr(props, "use_layer_samples", 'USE')
+    n = int(getattr(view_layer, "samples", 0) or 0)
+    if mode == 'IGNORE' or n <= 0:
+        return None
+    offset = props.sample_offset
+    total = props.frame_samples or (offset + props.samples)
+    if mode == 'BOUNDED' and n >= total:
+        return None
+    if not partial_sample_range(props):
+        return n, 0 if not props.frame_samples else n
+    return max(0, min(offset + props.samples, n) - offset), n if props.frame_samples else 0
+
+
+def fast_gi_settings(scene, viewport=False, world=_SCENE_WORLD):
     """Cycles' Fast GI as its BlenderSync gives it to its Integrator: ao_bounces (the viewport's
     or the final render's; only Replace uses them), the world's AO factor on Replace or Add
-    (ao_factor / ao_additive_factor), nothing without Fast GI or a world."""
+    (ao_factor / ao_additive_factor), nothing without Fast GI or a world. world: the view
+    layer's (its World Override, as Cycles' sync_world reads the AO settings), default the scene's."""
     props = scene.pathlight
-    world = scene.world
+    world = scene.world if world is _SCENE_WORLD else world
     if not props.use_fast_gi or world is None:
         return {"ao_bounces": 0, "ao_factor": 0.0, "ao_additive_factor": 0.0}
     factor = world.light_settings.ao_factor
@@ -304,7 +329,9 @@ def fast_gi_settings(scene, viewport=False):
             "ao_additive_factor": 0.0 if replace else factor}
 
 
-def render_settings(pc, scene, warn=None, viewport=False):
+def render_settings(pc, scene, warn=None, viewport=False, world=_SCENE_WORLD):
+    """The core's RenderSettings of the scene. world: the view layer's world (World Override),
+    which Fast GI and the AO distance read; the mist stays the scene world's (Cycles' sync_film)."""
     props = scene.pathlight
     st = pc.RenderSettings()
     st.width, st.height = render_size(scene)
@@ -332,7 +359,7 @@ def render_settings(pc, scene, warn=None, viewport=False):
         "filter_type": props.filter_type.lower(),
         "filter_width": props.filter_width,
     }
-    optional.update(fast_gi_settings(scene, viewport))
+    optional.update(fast_gi_settings(scene, viewport, world))
     optional.update({
         "film_transparent": scene.render.film_transparent,
         "film_transparent_glass": props.film_transparent_glass,
@@ -340,12 +367,14 @@ def render_settings(pc, scene, warn=None, viewport=False):
         "exposure": props.film_exposure,
         "debug_view": props.debug_view.lower(),
     })
+    ao_world = scene.world if world is _SCENE_WORLD else world
     world = scene.world
     if world is not None:  # (no world: Cycles' defaults, which the core's are)
         mist = world.mist_settings
         optional.update(mist_start=mist.start, mist_depth=mist.depth,
-                        mist_falloff=MIST_FALLOFF.get(mist.falloff, 2.0),
-                        ao_distance=world.light_settings.distance)
+                        mist_falloff=MIST_FALLOFF.get(mist.falloff, 2.0))
+    if ao_world is not None:
+        optional.update(ao_distance=ao_world.light_settings.distance)
     optional["force_general_kernel"] = props.use_general_kernel
     optional["guiding"] = props.use_guiding
     # Caustic light tracing (docs/design/sampling.md "Caustics by light tracing"); the core turns
@@ -421,6 +450,9 @@ def render(engine, depsgraph):
         pc = get_core()
         scene = depsgraph.scene
         view_layer = depsgraph.view_layer
+        layer = layer_settings(depsgraph, engine.is_preview)  # overrides and filters
+        # Filter ▸ Motion Blur: the layer's and the scene's (Cycles' view_layer.use_motion_blur).
+        motion_blur = scene.render.use_motion_blur and layer.use_motion_blur
         t0 = time.monotonic()
         passes = enabled_passes(scene, view_layer)
         names = {p[0] for p in passes}
@@ -433,7 +465,7 @@ def render(engine, depsgraph):
             data = export_scene(depsgraph, warn, cache, should_stop=lambda: _stop_requested(
                 engine, "export", time.monotonic() - t0, scene.pathlight.time_limit),
                 uv_pass="UV" in names and not engine.is_preview,
-                aovs=[(a[0], 'COLOR' if a[1] == 4 else 'VALUE') for a in aovs])
+                aovs=[(a[0], 'COLOR' if a[1] == 4 else 'VALUE') for a in aovs], layer=layer)
         except ExportCancelled:
             log.info("render cancelled during the export")
             _empty_result(engine, scene, view_layer)
@@ -443,7 +475,7 @@ def render(engine, depsgraph):
         views = view_names(engine, scene, view_layer.name)
         view_cams = {v: view_camera(engine, scene, depsgraph, v) for v in views if v}
         others = [c.camera.original for c in view_cams.values()]
-        if scene.render.use_motion_blur and not engine.is_preview:
+        if motion_blur and not engine.is_preview:
             _add_motion_blur(engine, depsgraph, data, warn, others)
         elif "Vector" in names and not engine.is_preview:
             _add_pass_motion(engine, depsgraph, data, warn, others)
@@ -453,17 +485,28 @@ def render(engine, depsgraph):
         if cache is not None and cache.previous is not None:
             engine.update_stats("", "Pathlight | meshes: {hits} cached, {misses} exported{kept}".format(
                 **cache.previous, kept=", scene kept" if kept.reused else ""))
-        settings = render_settings(pc, scene, warn)
+        settings = render_settings(pc, scene, warn, world=layer.world)
         if engine.is_preview:  # material thumbnails: small and quick
             settings.samples = min(settings.samples, PREVIEW_SAMPLES)
             settings.sample_offset = 0
             settings.pattern_samples = 0
+        else:
+            counts = layer_samples(scene.pathlight, view_layer)
+            if counts is not None:
+                if counts[0] <= 0:
+                    warn(f"View layer '{view_layer.name}' has {view_layer.samples} samples: this piece's "
+                         f"Sample Offset ({scene.pathlight.sample_offset}) is past them; nothing rendered")
+                    _empty_result(engine, scene, view_layer)
+                    return
+                settings.samples = counts[0]
+                if getattr(settings, "pattern_samples", 0):
+                    settings.pattern_samples = counts[1]
         known = pc.render_passes()
         for p in [p for p in passes if p[0] not in known]:
             warn(f"the {p[0]} pass is not rendered by Pathlight; it stays empty")
             passes.remove(p)
         # Cycles writes no motion vectors with motion blur on: the pass stays 0.
-        empty = {"Vector"} if scene.render.use_motion_blur or engine.is_preview else set()
+        empty = {"Vector"} if motion_blur or engine.is_preview else set()
         if "Vector" in names and "Vector" in empty and not engine.is_preview:
             warn("The Vector pass is written only without motion blur (as Cycles); it stays 0")
         settings.passes = [p[0] for p in passes if p[0] != "Sample Count" and p[0] not in empty]
@@ -494,7 +537,7 @@ def render(engine, depsgraph):
             _empty_result(engine, scene, view_layer)
             return
         stats = core_scene.stats()
-        warn_open_world_volume(stats, scene.world, warn)
+        warn_open_world_volume(stats, lit_world(layer), warn)
         if cache is not None:
             kept.keep(core_scene)
             if kept.reused:

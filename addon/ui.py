@@ -47,6 +47,7 @@ class PATHLIGHT_RENDER_PT_sampling(PathlightPanel, bpy.types.Panel):
         row = col.row(align=True)
         row.prop(settings, "seed")
         row.prop(settings, "use_animated_seed", text="", icon='TIME')
+        col.prop(settings, "use_layer_samples")
         col.prop(settings, "sample_offset")
         sub = col.column(align=True)
         sub.active = settings.sample_offset > 0 or settings.frame_samples > 0

@@ -211,9 +211,10 @@ class ViewportSession:
 
     def _read_scene(self, depsgraph):
         from .export.camera import camera_params
+        from .export.view_layer import layer_world
         from .session import pixel_pattern_settings, render_settings
         scene = depsgraph.scene
-        self._base_settings = render_settings(self.pc, scene, viewport=True)
+        self._base_settings = render_settings(self.pc, scene, viewport=True, world=layer_world(depsgraph))
         self._base_settings.samples = scene.pathlight.preview_samples
         self._base_settings.time_limit = 0.0
         self._base_settings.adaptive_threshold = 0.0  # the viewport refines until its samples
@@ -256,18 +257,19 @@ class ViewportSession:
     def _replace_lights(self, depsgraph):
         """Lights and the world read again; no geometry touched."""
         from .export import world_lightgroup as read_world_lightgroup
-        scene = depsgraph.scene
+        from .export.view_layer import layer_settings, lit_world
+        world = lit_world(layer_settings(depsgraph))  # (World Override, Environment filter)
         groups = list(self.light_groups)
 
-        w_color, w_texture, w_program = export_world(scene.world, self.warn, scene.frame_current)
+        w_color, w_texture, w_program = export_world(world, self.warn, depsgraph.scene.frame_current)
 
         class _World:  # what set_world (and add_lights: the light groups) read of SceneData
             world_texture = w_texture
             world_color = w_color
             world_program = w_program
-            world_volume = world_volume(scene.world, self.warn)
+            world_volume = world_volume(world, self.warn)
             light_groups = groups
-            world_lightgroup = read_world_lightgroup(scene.world)
+            world_lightgroup = read_world_lightgroup(world)
         lights = attach_to_lights(collect_lights(depsgraph, self.warn, is_visible), light_links(depsgraph, self.warn))
         replace_lights(self.scene, lights, _World, self.warn)
         self.counters["light_updates"] += 1
@@ -553,13 +555,29 @@ def display_pass(values, scale=1.0):
 
 
 def _layer_signature(depsgraph):
-    """The view layer's light groups and shader AOVs: a change re-exports (group indices, AOV slots)."""
+    """The view layer's light groups and shader AOVs (group indices, AOV slots), and its
+    overrides and filters (Cycles' viewport renders the view layer too): a change re-exports."""
     from .export import view_layer_lightgroups
+    from .export.view_layer import layer_settings
     from .session import shader_aovs
     view_layer = getattr(depsgraph, "view_layer", None)
     if view_layer is None:
         return ((), ())
-    return tuple(view_layer_lightgroups(view_layer)), tuple(shader_aovs(view_layer))
+    layer = layer_settings(depsgraph)
+    overrides = tuple(x.name if x is not None else "" for x in (layer.material_override, layer.world)) + (
+        layer.use_sky, layer.use_solid, layer.use_strand, layer.use_volumes) + _collection_flags(view_layer)
+    return tuple(view_layer_lightgroups(view_layer)), tuple(shader_aovs(view_layer)), overrides
+
+
+def _collection_flags(view_layer):
+    """(name, holdout, indirect only) of the view layer's collections that have either set."""
+    out, stack = [], list(getattr(getattr(view_layer, "layer_collection", None), "children", ()))
+    while stack:
+        lc = stack.pop()
+        if lc.holdout or lc.indirect_only:
+            out.append((lc.name, lc.holdout, lc.indirect_only))
+        stack.extend(lc.children)
+    return tuple(sorted(out))
 
 
 def _freeze(camera):

@@ -14,6 +14,7 @@ from .material import MaterialData, MaterialTable, view_layer_ids
 from .mesh import ExportCancelled, MeshData, collect_meshes, is_visible
 from .object_attributes import InstanceAttributes
 from .points import PointsData, collect_points
+from .view_layer import layer_settings, lit_world
 from .volume import collect_volumes
 from .world import WorldProgram, WorldSky, WorldTexture, export_world, world_volume
 
@@ -53,7 +54,7 @@ class SceneData:
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None, uv_pass=False,
-                 aovs=()):
+                 aovs=(), layer=None):
     """Everything Pathlight renders, read from the evaluated depsgraph. warn(msg) reports
     unsupported features (each call is one message for the user). mesh_cache: a
     mesh_cache.MeshCache that keeps unchanged meshes' arrays between exports (animation).
@@ -61,8 +62,12 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     renders through its own view). should_stop(): polled between meshes; True raises
     ExportCancelled. uv_pass: every mesh exports its active render UV map for the UV pass
     (data.uv_sets.names.index("") is its uv set). aovs: the view layer's shader AOVs, (name,
-    'COLOR' or 'VALUE') in slot order, that AOV Output nodes write."""
+    'COLOR' or 'VALUE') in slot order, that AOV Output nodes write. layer: the view layer's
+    view_layer.LayerSettings (overrides, filters), read from the depsgraph when None."""
     scene = depsgraph.scene
+    if layer is None:
+        layer = layer_settings(depsgraph)
+    world = lit_world(layer)
     camera = camera_params(scene, depsgraph, warn) if need_camera or scene.camera else {}
     table = MaterialTable(warn, getattr(scene.pathlight, "use_schlick_fresnel", False),
                           view_layer_ids(depsgraph), depsgraph)
@@ -72,7 +77,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         table.pass_uv_set = table.uv_sets.index("")
         if table.pass_uv_set is None:
             warn("The UV pass found no free UV map slot (materials read 8); it stays empty")
-    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop, attributes)
+    meshes = collect_meshes(depsgraph, table.uv_names, mesh_cache, should_stop, attributes, layer)
     # (a mesh without UV map reads 0 in the UV pass, as Cycles, without a warning)
     pass_only = uv_pass and not any("" in m.uv_sets.values() for m in table.materials)
     for mesh in meshes:
@@ -89,12 +94,12 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
             warn(f"Object '{mesh.name}': {mesh.subdivision_problem}")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
     volume_grids = []
-    volume_meshes, volume_slots = collect_volumes(depsgraph, warn, table, volume_grids)
+    volume_meshes, volume_slots = collect_volumes(depsgraph, warn, table, volume_grids, layer)
     meshes += volume_meshes
     material_slots += volume_slots
-    curves = collect_curves(depsgraph, warn, table.index, attributes, table.uv_names)
+    curves = collect_curves(depsgraph, warn, table.index, attributes, table.uv_names, layer)
     curve_materials = [table.index(c.material) for c in curves]
-    points = collect_points(depsgraph, warn, table.index, attributes, table.uv_names)
+    points = collect_points(depsgraph, warn, table.index, attributes, table.uv_names, layer)
     point_materials = [table.index(p.material) for p in points]
     lights = collect_lights(depsgraph, warn, is_visible)
     try:
@@ -109,14 +114,14 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         warn(f"The scene lies {far:.3g} units from the world origin: beyond {FAR_FROM_ORIGIN:.0e} "
              "units single-precision hit points lose accuracy (shading and shadows may be off "
              "by a few percent); move the scene closer to the origin")
-    w_color, w_texture, w_program = export_world(scene.world, warn, scene.frame_current)
+    w_color, w_texture, w_program = export_world(world, warn, scene.frame_current)
     return SceneData(meshes, material_slots, table.materials,
                      w_color, camera, lights,
                      w_texture, table.images.images,
-                     table.material_names(), table.uv_sets, world_volume(scene.world, warn),
+                     table.material_names(), table.uv_sets, world_volume(world, warn),
                      curves, curve_materials, volume_grids, frozenset(table.volume_material_names),
                      points, point_materials, links, view_layer_lightgroups(getattr(depsgraph, "view_layer", None)),
-                     world_lightgroup(scene.world), w_program)
+                     world_lightgroup(world), w_program)
 
 
 MAX_LIGHT_GROUPS = 64  # the core's kMaxLightGroups

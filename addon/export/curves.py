@@ -258,14 +258,20 @@ def _warn_bad_strands(points, offsets, radii, warn, label):
              "no positive radius, fewer than 2 points or zero length; they are not rendered")
 
 
-def collect_curves(depsgraph, warn, material_index=None, object_attributes=None, uv_names=None):
+def collect_curves(depsgraph, warn, material_index=None, object_attributes=None, uv_names=None, layer=None):
     """Every visible Curves object and particle hair system of the depsgraph (instances
     share one CurvesData; an emitter's hair systems one per material).
     material_index(material): compiles a material (numbering the Object / Instancer
     attribute slots it reads) before its instances' values are resolved by
     `object_attributes` (an object_attributes.InstanceAttributes), as collect_meshes does.
     uv_names(materials) -> {uv set: UV map name or attribute key} (MaterialTable.uv_names):
-    the emitter UV maps particle hair materials read."""
+    the emitter UV maps particle hair materials read. layer: the view layer's
+    view_layer.LayerSettings (from the depsgraph when None): Material Override, Curves filter."""
+    from .view_layer import first_material, layer_settings
+    if layer is None:
+        layer = layer_settings(depsgraph)
+    if not layer.use_strand:  # Filter ▸ Curves off: Cycles syncs hair without curves
+        return []
     out = {}
     render = getattr(depsgraph, "mode", 'RENDER') == 'RENDER'
     view_layer = getattr(depsgraph, "view_layer", None)  # (holdout collections)
@@ -273,7 +279,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
     for instance in depsgraph.object_instances:
         obj = instance.object
         if obj.type == 'MESH' and getattr(obj, "particle_systems", None) and _shows_particles(instance):
-            for key, material, arrays, uvs in _particle_hair(obj, render, warn, uv_names):
+            for key, material, arrays, uvs in _particle_hair(obj, render, warn, uv_names, layer.material_override):
                 entry = out.get(key)
                 if entry is None:
                     colours = {k: v for k, v in uvs.items() if v.shape[1] == 4}
@@ -287,7 +293,7 @@ def collect_curves(depsgraph, warn, material_index=None, object_attributes=None,
             continue
         if not is_visible(instance) or obj.type != 'CURVES':
             continue
-        material = obj.material_slots[0].material if len(obj.material_slots) else None
+        material = first_material(obj, layer)
         key = (obj.data.as_pointer(), material.as_pointer() if material is not None else 0)
         entry = out.get(key)
         if entry is None:
@@ -351,7 +357,7 @@ def shape_radius(shape, root, tip, time):
     return r * (root - tip) + tip
 
 
-def _particle_hair(obj, render, warn, uv_names=None):
+def _particle_hair(obj, render, warn, uv_names=None, override=None):
     """[(key, material, (points, offsets, radii, 'catmull_rom'), uvs)] for the hair particle
     systems of the evaluated mesh object `obj` rendered as paths, as Cycles 4.5 exports them:
     the modifier shown for render (or the viewport), only the children when there are any
@@ -388,7 +394,9 @@ def _particle_hair(obj, render, warn, uv_names=None):
             continue
         slot = min(max(int(settings.material) - 1, 0), len(slots) - 1) if len(slots) else -1
         material = slots[slot].material if slot >= 0 else None
-        key = material.as_pointer() if material is not None else 0
+        key = material.as_pointer() if material is not None else 0  # (motion.py matches by it)
+        if override is not None:  # the view layer's Material Override
+            material = override
         names = _emitter_uv_names(obj, material, uv_names, warn, name)
         first, arrays = arrays[0], arrays[1:]
         count = len(arrays[1]) - 1

@@ -454,7 +454,7 @@ class ExportCancelled(Exception):
     """The user cancelled the render while the scene was being exported."""
 
 
-def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, object_attributes=None):
+def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, object_attributes=None, layer=None):
     """All visible geometry of the depsgraph. Instances of the same evaluated geometry (and
     materials) share one MeshData and add only their matrix_world. uv_names(materials) ->
     {global uv-set index: UV map name} says which UV maps to export (none if None).
@@ -462,8 +462,16 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
     should_stop(): asked before each mesh is exported; True raises ExportCancelled.
     object_attributes: an object_attributes.InstanceAttributes whose slots the instances'
     values are resolved for (uv_names compiles a mesh's materials, numbering their slots,
-    when its entry is made)."""
+    when its entry is made). layer: the view layer's view_layer.LayerSettings (read from the
+    depsgraph when None): its Material Override and its Surfaces filter."""
     from .subdivision import adaptive_mesh_data, adaptive_modifier, dicing_context
+    from .view_layer import layer_settings, slot_materials
+    if layer is None:
+        layer = layer_settings(depsgraph)
+    if not layer.use_solid:  # Filter ▸ Surfaces off: Cycles syncs meshes without geometry
+        if cache is not None:
+            cache.end_export()
+        return []
     meshes = {}
     dicing = None  # export.subdivision's camera, made at the first adaptive object
     generated = {}  # instancer -> how many generated geometries of it were exported so far
@@ -474,7 +482,7 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
         # evaluated surface, next to the original object (which we skip, as Cycles does).
         if obj.type != 'MESH' or not is_visible(instance):
             continue
-        materials = [slot.material for slot in obj.material_slots]
+        materials = slot_materials(obj.material_slots, layer)
         # The evaluated data is shared by all instances of one geometry (and by objects sharing
         # an unmodified mesh); materials can differ per object when slots link to the object.
         key = (obj.data.as_pointer(), tuple(m.as_pointer() if m else 0 for m in materials))
@@ -520,11 +528,12 @@ def collect_meshes(depsgraph, uv_names=None, cache=None, should_stop=None, objec
 
 def object_info(instance, view_layer=None):
     """(RGBA colour, pass index, random id or None, shadow terminator geometry offset,
-    Cryptomatte names, shadow catcher, holdout, light group name, AO distance) of a depsgraph object
-    instance. The names are
+    Cryptomatte names, shadow catcher, holdout, light group name, AO distance, indirect only) of
+    a depsgraph object instance. The names are
     (object, asset) as Cycles gives them: the object's name and its top parent's (its own
     without a parent). Holdout is the object's own or, given the depsgraph's view layer, its
-    collection's there too (Cycles' holdout_get)."""
+    collection's there too (Cycles' holdout_get); indirect only (invisible to camera rays) its
+    collection's Indirect Only there, unless it is held out (Cycles' sync_object)."""
     obj = instance.object
     random_id = (instance.random_id & 0xFFFFFFFF) if instance.is_instance else None
     terminator = float(getattr(obj, "shadow_terminator_geometry_offset", 0.0))
@@ -533,8 +542,10 @@ def object_info(instance, view_layer=None):
         top = top.parent
     catcher = bool(getattr(obj, "is_shadow_catcher", False))
     from .light import object_lightgroup
+    holdout = _holdout(instance, view_layer)
     return (tuple(obj.color), int(obj.pass_index), random_id, terminator, (obj.name, top.name), catcher,
-            _holdout(instance, view_layer), object_lightgroup(instance), ao_distance(instance))
+            holdout, object_lightgroup(instance), ao_distance(instance),
+            not holdout and _indirect_only(instance, view_layer))
 
 
 def ao_distance(instance):
@@ -568,6 +579,19 @@ def _holdout(instance, view_layer):
         except (AttributeError, TypeError, RuntimeError, ReferenceError):
             pass
     return bool(getattr(obj, "is_holdout", False))
+
+
+def _indirect_only(instance, view_layer):
+    """Whether the instance's object (an instancer's, for its instances) is in an Indirect Only
+    collection of the view layer (Cycles' indirect_only_get); as _holdout, only with the
+    depsgraph being exported."""
+    if view_layer is None:
+        return False
+    try:
+        parent = instance.parent if instance.is_instance and instance.parent is not None else instance.object
+        return bool(parent.original.indirect_only_get(view_layer=view_layer))
+    except (AttributeError, TypeError, RuntimeError, ReferenceError):
+        return False
 
 
 def _export_object(obj, materials, uv_names=None):

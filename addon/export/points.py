@@ -110,19 +110,22 @@ def point_attributes(cloud, names):
     return out, missing
 
 
-def collect_points(depsgraph, warn, material_index=None, object_attributes=None, uv_names=None):
+def collect_points(depsgraph, warn, material_index=None, object_attributes=None, uv_names=None, layer=None):
     """Every visible point cloud of the depsgraph (instances of one evaluated geometry with one
     material share one PointsData). material_index(material): compiles a material (numbering
     its Object / Instancer attribute slots) before its instances' values are resolved by
     `object_attributes`, as collect_curves does; uv_names(materials) -> {set: name}: the
     attributes its materials read."""
+    from .view_layer import first_material, layer_settings
+    if layer is None:  # (its Material Override; Cycles' filters leave point clouds)
+        layer = layer_settings(depsgraph)
     out = {}
     view_layer = getattr(depsgraph, "view_layer", None)  # (holdout collections)
     for instance in depsgraph.object_instances:
         obj = instance.object
         if obj.type != 'POINTCLOUD' or not is_visible(instance):
             continue
-        material = obj.material_slots[0].material if len(obj.material_slots) else None
+        material = first_material(obj, layer)
         key = (obj.data.as_pointer(), material.as_pointer() if material is not None else 0)
         entry = out.get(key)
         if key not in out:

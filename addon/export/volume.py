@@ -138,16 +138,23 @@ def box_mesh(name, lo, hi, material):
                     np.zeros(len(tris), np.int32), [material])
 
 
-def collect_volumes(depsgraph, warn, table, grid_list):
+def collect_volumes(depsgraph, warn, table, grid_list, layer=None):
     """(MeshData boxes, their material slot lists) of the visible volume objects; their grids
     are appended to grid_list (core VolumeGrid objects; the index is the grid id).
-    table: the export's MaterialTable (volume_index compiles a material for the grids)."""
+    table: the export's MaterialTable (volume_index compiles a material for the grids).
+    layer: the view layer's view_layer.LayerSettings (from the depsgraph when None): its
+    Volumes filter and Material Override (which volume objects take too, as in Cycles)."""
+    from .view_layer import layer_settings
+    if layer is None:
+        layer = layer_settings(depsgraph)
+    if not layer.use_volumes:  # Filter ▸ Volumes off: Cycles syncs volumes without grids
+        return [], []
     entries = {}
     for instance in depsgraph.object_instances:
         obj = instance.object
         if obj.type != 'VOLUME' or not is_visible(instance):
             continue
-        mat = volume_material(obj)
+        mat = layer.material_override if layer.material_override is not None else volume_material(obj)
         scale = density_scale(obj.data, instance.matrix_world)
         key = (obj.data.as_pointer(), mat.as_pointer() if mat else 0, round(scale, 6))
         if key not in entries:
@@ -158,7 +165,7 @@ def collect_volumes(depsgraph, warn, table, grid_list):
         mesh = entry[0]
         mesh.matrices.append(np.array(instance.matrix_world, np.float32))
         mesh.owners.append((obj.name, bool(instance.is_instance)))
-        mesh.infos.append(object_info(instance))
+        mesh.infos.append(object_info(instance, getattr(depsgraph, "view_layer", None)))
         mesh.motion_keys.append(instance_key(instance))
     out = [e for e in entries.values() if e is not None]
     return [e[0] for e in out], [e[1] for e in out]

@@ -457,7 +457,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
                     const py::object& motion_radii, const py::object& cryptomatte, int light_set, int shadow_set,
                     const py::object& pass_motion, uint64_t light_mask, uint64_t shadow_mask,
                     const py::object& pass_points, bool shadow_catcher, bool holdout, int light_group,
-                    float ao_distance) {
+                    float ao_distance, bool camera_invisible) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("curve points must have shape (N, 3)");
   const int16_t group = to_light_group(light_group, "curves");
@@ -524,6 +524,7 @@ uint32_t add_curves(PyScene& self, const FloatArray& points, const IntArray& off
   cs.pass_points = to_pass_points(pass_points, n, "curves pass_points");
   cs.info.shadow_catcher = shadow_catcher;
   cs.info.holdout = holdout;
+  cs.info.camera_invisible = camera_invisible;
   cs.info.light_group = group;
   cs.info.ao_distance = clean_ao_distance(ao_distance);
   return self.scene->add_curves(std::move(cs));
@@ -538,7 +539,8 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
                     const py::object& motion, const py::object& motion_points, const py::object& motion_radii,
                     const py::object& cryptomatte, int light_set, int shadow_set, const py::object& pass_motion,
                     uint64_t light_mask, uint64_t shadow_mask, const py::object& pass_points,
-                    bool shadow_catcher, bool holdout, int light_group, float ao_distance) {
+                    bool shadow_catcher, bool holdout, int light_group, float ao_distance,
+                    bool camera_invisible) {
   self.check_editable();
   if (points.ndim() != 2 || points.shape(1) != 3) throw std::invalid_argument("points must have shape (N, 3)");
   const int16_t group = to_light_group(light_group, "points");
@@ -581,6 +583,7 @@ uint32_t add_points(PyScene& self, const FloatArray& points, const py::object& r
   ps.pass_points = to_pass_points(pass_points, n, "points pass_points");
   ps.info.shadow_catcher = shadow_catcher;
   ps.info.holdout = holdout;
+  ps.info.camera_invisible = camera_invisible;
   ps.info.light_group = group;
   ps.info.ao_distance = clean_ao_distance(ao_distance);
   return self.scene->add_points(std::move(ps));
@@ -3522,7 +3525,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
            py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
            py::arg("shadow_catcher") = false, py::arg("holdout") = false, py::arg("light_group") = -1,
-           py::arg("ao_distance") = 0.0f,
+           py::arg("ao_distance") = 0.0f, py::arg("camera_invisible") = false,
            "Adds a point cloud (Blender's POINTCLOUD), rendered as spheres as Cycles does: points (N, 3), "
            "radii (N; None: 0.01), a material id and the object's 4x4 matrix. color, pass_index, "
            "random_id, attributes, light_set, shadow_set: the object's, as add_curves. point_attributes: {attribute set: (N, 4) "
@@ -3536,7 +3539,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            "(stats()['skipped_points']). pass_motion: (2, 4, 4) object-to-world matrices at the previous and "
            "next frames (the Vector pass; None: still). pass_points: (2, N, 3) object-space centres at those "
            "frames (the Vector pass's deformation, Cycles' motion points; None, non-finite or unchanged: "
-           "the points move with pass_motion alone). shadow_catcher, holdout, ao_distance: as add_instance's. "
+           "the points move with pass_motion alone). shadow_catcher, holdout, ao_distance, camera_invisible: as add_instance's. "
            "light_mask, shadow_mask: as an emitter, as "
            "add_instance's (rays other than the camera's get its emission only from vertices it lights, "
            "none where it is shadow-linked).")
@@ -3551,7 +3554,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            py::arg("shadow_set") = 0, py::arg("pass_motion") = py::none(), py::arg("light_mask") = kAllLightSets,
            py::arg("shadow_mask") = kAllLightSets, py::arg("pass_points") = py::none(),
            py::arg("shadow_catcher") = false, py::arg("holdout") = false, py::arg("light_group") = -1,
-           py::arg("ao_distance") = 0.0f,
+           py::arg("ao_distance") = 0.0f, py::arg("camera_invisible") = false,
            "Adds a Curves object (hair): points (N, 3), offsets (C + 1) into them, radii (N; None: 0.005), "
            "a material id and the object's 4x4 matrix. Traced as round curves (Cycles' 3D curves): "
            "Catmull-Rom strands cut into `subdivisions` cones per segment, poly strands as they are. "
@@ -3575,7 +3578,7 @@ PYBIND11_MODULE(pathlight_core, m) {
            "pieces than the frame's, leave it undeformed (stats()['motion_rejected']). pass_motion: as add_points'. pass_points: "
            "(2, N, 3) object-space points at the previous and next frames (the Vector pass's deformation: "
            "a hit moves as the point between its segment's two keys, Cycles' motion keys). shadow_catcher, "
-           "holdout, ao_distance: as add_instance's.")
+           "holdout, ao_distance, camera_invisible: as add_instance's.")
       .def("displace_mesh", &displace_mesh_arrays, py::arg("positions"), py::arg("triangles"),
            py::arg("material_indices") = py::none(), py::arg("material_slots") = std::vector<int64_t>{},
            py::arg("matrix") = py::none(), py::arg("normals") = py::none(), py::arg("normal_indices") = py::none(),
@@ -3759,9 +3762,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, uint32_t mesh, const FloatArray& matrix, const py::object& color, float pass_index,
              uint32_t random_id, const py::object& motion, const py::object& attributes, float shadow_terminator,
              int light_set, uint64_t light_mask, int shadow_set, uint64_t shadow_mask, const py::object& pass_motion,
-             const py::object& cryptomatte, bool shadow_catcher, bool holdout, int light_group, float ao_distance) {
+             const py::object& cryptomatte, bool shadow_catcher, bool holdout, int light_group, float ao_distance,
+             bool camera_invisible) {
             self.check_editable();
             ObjectInfo info;
+            info.camera_invisible = camera_invisible;
             info.light_group = to_light_group(light_group, "instance");
             info.ao_distance = clean_ao_distance(ao_distance);
             set_cryptomatte(info, cryptomatte, "instance");
@@ -3792,7 +3797,7 @@ PYBIND11_MODULE(pathlight_core, m) {
           py::arg("shadow_terminator") = 0.0f, py::arg("light_set") = 0, py::arg("light_mask") = kAllLightSets,
           py::arg("shadow_set") = 0, py::arg("shadow_mask") = kAllLightSets, py::arg("pass_motion") = py::none(),
           py::arg("cryptomatte") = py::none(), py::arg("shadow_catcher") = false, py::arg("holdout") = false,
-          py::arg("light_group") = -1, py::arg("ao_distance") = 0.0f,
+          py::arg("light_group") = -1, py::arg("ao_distance") = 0.0f, py::arg("camera_invisible") = false,
           "Adds an instance of `mesh` with its object-to-world matrix and what the Object Info node "
           "reads: the object's RGBA colour, pass index and 32-bit random id (Random = id / 2^32). "
           "motion: its matrices at the motion steps over the shutter, (S, 4, 4) with S >= 2 (motion "
@@ -3809,7 +3814,11 @@ PYBIND11_MODULE(pathlight_core, m) {
           "object Holdout (the camera sees through it to a transparent film, alpha 0). light_group: the "
           "light group its emission goes to (RenderSettings.light_groups' index; -1: none), as "
           "add_curves' and add_points'. ao_distance: the object's Fast GI AO Distance (the reach of "
-          "Replace's rays that leave it; 0, negative or non-finite: RenderSettings.ao_distance).")
+          "Replace's rays that leave it; 0, negative or non-finite: RenderSettings.ao_distance). "
+
+          "camera_invisible: Cycles' visibility without camera rays (a "
+          "collection's Indirect Only): camera rays, and their continuations through transparent "
+          "surfaces, pass it; every other ray sees it.")
       .def(
           "set_mesh_pass_motion",
           [](PyScene& self, uint32_t mesh, const FloatArray& positions) {

@@ -83,7 +83,8 @@ uint32_t kernel_features(const SceneFeatures& f, bool aovs, bool guiding, bool c
   if (f.light_tree) k |= kKernelLightTree;
   if (f.subsurface) k |= kKernelSubsurface;
   if (f.light_links) k |= kKernelLightLinks;
-  if (f.shadow_catcher && aovs) k |= kKernelShadowCatcher;
+  // (also the one kernel that steps camera rays past objects they do not see: Indirect Only)
+  if ((f.shadow_catcher && aovs) || f.camera_invisible) k |= kKernelShadowCatcher;
   return k;
 }
 

@@ -868,6 +868,7 @@ void Session::setup_caustics(bool guiding) {
   if (settings_.debug_view != DebugView::None) off("debug view");
   else if (guiding && settings_.guiding_class_mask != 0) off("not with path classes (a measurement of guiding)");
   else if (film_.has_pass(Pass::ShadowCatcherMatte)) off("not combined with shadow catchers");
+  else if (scene_->features().camera_invisible) off("not combined with Indirect Only objects");
   // Cycles has no light paths: Filter Glossy and the caustics toggles shape what its path tracer
   // makes of caustics, which light paths would add back unfiltered (docs/design/sampling.md,
   // "Filter Glossy and caustics toggles").

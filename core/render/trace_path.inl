@@ -1389,6 +1389,10 @@ restart: __attribute__((unused));
     } else if constexpr (kCatcher) {
       if (resume) hit = cs.at->hit, found = true;
       else found = catcher_only ? scene.intersect_catchers(ray, hit) : scene.intersect(ray, hit);
+      // Indirect Only objects: not there for camera rays (Cycles' visibility without
+      // PATH_RAY_CAMERA); only this kernel steps past them (kernel_features), the others pay nothing.
+      if (found && !resume && direct && scene.features().camera_invisible && scene.is_camera_invisible(hit.inst, hit.prim))
+        found = scene.intersect_camera_visible(ray, hit);
     } else {
       found = scene.intersect(ray, hit);
     }

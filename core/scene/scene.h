@@ -358,6 +358,7 @@ struct SceneFeatures {
   // paths), or a holdout (the film's alpha needs the aov kernel).
   bool shadow_catcher = false;
   bool object_holdout = false;
+  bool camera_invisible = false;  // Some object is invisible to camera rays (Indirect Only).
   // Every closure is a diffuse lobe: no delta, glossy, refracting or transparent lobes.
   bool diffuse_only() const { return !glossy && !transmission && !transparent; }
   // Heterogeneous media (Volume programs): delta and ratio tracking through majorant grids
@@ -625,6 +626,14 @@ class Scene {
     const ObjectInfo* info = hit_info(instance, prim);
     return info && info->holdout;
   }
+  bool is_camera_invisible(uint32_t instance, uint32_t prim = 0) const {
+    const ObjectInfo* info = hit_info(instance, prim);
+    return info && info->camera_invisible;
+  }
+  // The closest hit along camera ray `r` on an object camera rays see, given `h` (on one they do
+  // not see): the objects between are stepped past as Cycles' traversal skips them by visibility;
+  // h.t stays a distance along `r` (as given), so media and ray lengths read it as before.
+  bool intersect_camera_visible(const Ray& r, Hit& h) const;
   // Closest hit on shadow catchers only (the catcher path of a split, which sees no other
   // object): other hits are stepped past, and `r` starts past the last of them on return.
   bool intersect_catchers(Ray& r, Hit& h) const;

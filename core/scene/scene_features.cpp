@@ -35,7 +35,8 @@ std::vector<std::pair<const char*, bool>> feature_table(const SceneFeatures& f) 
           {"subsurface", f.subsurface},
           {"shadow terminator", f.terminator},
           {"shadow catcher", f.shadow_catcher},
-          {"holdout objects", f.object_holdout}};
+          {"holdout objects", f.object_holdout},
+          {"indirect only objects", f.camera_invisible}};
 }
 }  // namespace
 
@@ -163,14 +164,17 @@ void Scene::detect_features() {
     if (inst_[i].blas == UINT32_MAX) continue;
     f.shadow_catcher = f.shadow_catcher || object_coords_[i].info.shadow_catcher;
     f.object_holdout = f.object_holdout || object_coords_[i].info.holdout;
+    f.camera_invisible = f.camera_invisible || object_coords_[i].info.camera_invisible;
   }
   for (const CurveSetData& cs : curve_sets_) {
     f.shadow_catcher = f.shadow_catcher || cs.info.shadow_catcher;
     f.object_holdout = f.object_holdout || cs.info.holdout;
+    f.camera_invisible = f.camera_invisible || cs.info.camera_invisible;
   }
   for (const PointSetData& ps : point_sets_) {
     f.shadow_catcher = f.shadow_catcher || ps.info.shadow_catcher;
     f.object_holdout = f.object_holdout || ps.info.holdout;
+    f.camera_invisible = f.camera_invisible || ps.info.camera_invisible;
   }
   features_ = f;
 }

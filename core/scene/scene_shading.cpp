@@ -431,6 +431,22 @@ void orient_hair(ClosureList& out, const SurfacePoint& sp, Vec3 wo, float pixel_
   }
 }
 
+bool Scene::intersect_camera_visible(const Ray& r, Hit& h) const {
+  Ray ray = r;
+  for (int i = 0; i < 64; ++i) {  // bounded, as intersect_catchers
+    if (!is_camera_invisible(h.inst, h.prim)) {
+      const Vec3 p = ray.org + ray.dir * h.t;
+      h.t = dot(p - r.org, r.dir) / dot(r.dir, r.dir);
+      return true;
+    }
+    SurfacePoint sp;
+    surface_point(h, sp, ray.time, &ray);
+    continue_past(ray, sp, dot(ray.dir, sp.ng) > 0.0f ? sp.ng : -sp.ng);
+    if (!intersect(ray, h)) return false;
+  }
+  return false;
+}
+
 bool Scene::intersect_catchers(Ray& r, Hit& h) const {
   for (int i = 0; i < 64; ++i) {  // bounded, as transmittance_through
     if (!intersect(r, h)) return false;

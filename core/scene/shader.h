@@ -348,6 +348,9 @@ struct ObjectInfo {
   // light other objects cast on it, render/integrator.h) and Holdout (a camera ray that meets
   // it leaves the film transparent there and stops, as Cycles' SD_OBJECT_HOLDOUT_MASK).
   bool shadow_catcher = false, holdout = false;
+  // Cycles' object visibility without PATH_RAY_CAMERA (a collection's Indirect Only): camera rays
+  // and their transparent continuations pass it as if it were not there; other rays see it.
+  bool camera_invisible = false;
   // Cycles' light group of the object as an emitter (its emission, mesh light samples): the
   // render's group index, -1: none (render/integrator.h PathAovs::groups).
   int16_t light_group = -1;

@@ -475,3 +475,37 @@ def test_viewport_re_exports_when_a_moved_object_is_also_instanced(scene):
         assert np.array_equal(img, _finish(fresh)[0])
         fresh.free()
         vs.free()
+
+
+@pytest.mark.skipif(not core_has("Scene", "set_shader"), reason="core without live edits")
+def test_viewport_renders_the_view_layers_material_override(scene):
+    """Rendered mode shows the view layer as Cycles' viewport does: a Material Override set or
+    cleared while the viewport runs re-exports, and the image is the override's (red here)."""
+    from addon.core import get_core
+    from addon.viewport import ViewportSession
+    scene.pathlight.preview_samples = 2
+    red = bpy.data.materials.new("Red")
+    red.use_nodes = True
+    red.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (1, 0, 0, 1)
+    cam = bpy.data.objects["Camera"]
+    with Recorder() as rec:
+        rec.take()
+        vs = ViewportSession(get_core())
+        vs.set_view(view_camera_params(np.array(cam.matrix_world.inverted()), _proj(cam, 32, 32), 32, 32, True),
+                    32, 32)
+        dg = bpy.context.evaluated_depsgraph_get()
+        vs.sync(dg)
+        grey, _ = _finish(vs)
+        bpy.context.view_layer.material_override = red
+        bpy.context.view_layer.update()
+        vs.sync(dg, rec.take())
+        overridden, _ = _finish(vs)
+        assert vs.counters["exports"] == 2 and set(vs.material_ids) == {"Red"}
+        lit = grey[..., 0] > 0.02
+        assert overridden[lit][:, 1].mean() < 0.3 * grey[lit][:, 1].mean()
+        bpy.context.view_layer.material_override = None
+        bpy.context.view_layer.update()
+        vs.sync(dg, rec.take())
+        again, _ = _finish(vs)
+        assert vs.counters["exports"] == 3 and np.array_equal(again, grey)
+        vs.free()

@@ -14,7 +14,7 @@ ALL = set(pc.Scene().stats().get("features", [])) | {
     "volumes", "heterogeneous volumes", "mesh lights", "point lights", "spot lights", "sun lights", "area lights",
     "environment", "world light", "dof", "pixel filter", "passes", "transparent film", "adaptive sampling", "light tree",
     "light hits", "subsurface", "motion blur", "guiding", "shadow terminator", "light linking", "shadow catcher",
-    "holdout objects", "light path tricks", "fast gi", "light bounce limits"}
+    "holdout objects", "indirect only objects", "light path tricks", "fast gi", "light bounce limits"}
 
 
 def shader(s, name, kind, sigma=None, **params):
@@ -225,6 +225,9 @@ CASES["shadow catcher"] = (lambda: flagged_cornell(shadow_catcher=True), {},
                            {"diffuse", "mesh lights", "shadow catcher", "passes"}, "general+catcher")
 CASES["holdout object"] = (lambda: flagged_cornell(holdout=True), {},
                            {"diffuse", "mesh lights", "holdout objects"}, "general")
+# Objects camera rays pass (Indirect Only): the catcher kernel alone steps past them.
+CASES["indirect only object"] = (lambda: flagged_cornell(camera_invisible=True), {},
+                                 {"diffuse", "mesh lights", "indirect only objects"}, "general+catcher")
 # Guided renders run the guided kernels (integrator_guided.cpp), which cover every surface.
 CASES["guiding"] = (lambda: cornell(pc), {"guiding": True}, {"diffuse", "mesh lights", "guiding"},
                     "diffuse+env+guiding")
@@ -258,7 +261,7 @@ def test_features_detected_and_kernel_chosen(name):
     assert set(st["unused_features"]) == ALL - expected  # and nothing else is claimed
     assert st["kernel"] == kernel
     # (shadow catchers: the general kernel of their own, which alone splits paths)
-    general = "general+catcher" if "shadow catcher" in expected else "general"
+    general = "general+catcher" if expected & {"shadow catcher", "indirect only objects"} else "general"
     assert session(build, fields, general=True, samples=1).stats()["kernel"] == general
 
 
