@@ -2,7 +2,7 @@
 Checker, Gradient, Brick and Voronoi are tex_patterns'.)"""
 
 from .images import MISSING_TEXTURE
-from .values import ONE, Val, const_color, const_vector
+from .values import ONE, ZERO, Val, const_color, const_vector
 
 
 class TextureNodes:
@@ -215,6 +215,91 @@ class TextureNodes:
             self.cache[key] = sky
         return self.emit("color", "tex_sky", self.reg(vec), sky)
 
+    def point_density_texture(self, node, out, ctx):
+        """Point Density (Cycles' svm_node_tex_voxel): Blender voxelises the particles or vertices
+        (node.calc_point_density over calc_point_density_minmax, in the source object's space);
+        the voxels go to the core as a scene grid read at the Vector (Position by default) in
+        the node's space: World through the source object's transform and bounds, Object in the
+        shading object's generated coordinates. Volumes only, as Cycles
+        (docs/design/volumes.md "Volume Coefficients and Point Density")."""
+        density = out.identifier == "Density"
+        black = ZERO if density else const_color((0.0, 0.0, 0.0, 1.0))
+        if not self.in_volume:
+            # Cycles 4.5 runs svm_node_tex_voxel in volume shaders only: 0 elsewhere (measured).
+            self.problem(f"'{node.name}': the Point Density texture works in volumes only "
+                         "(Density 0, Color black elsewhere, as Cycles)")
+            return black
+        grid = self._point_density_grid(node, density)
+        if grid is None:
+            return black
+        vec = self.value(node.inputs["Vector"], ctx, "vector")
+        if vec is None:
+            vec = self.position()
+        interp = {"Closest": "CLOSEST", "Cubic": "CUBIC"}.get(node.interpolation, "LINEAR")
+        # Object space: the shading object's generated coordinates (Cycles' volume_normalized_position).
+        space = "WORLD" if node.space == 'WORLD' else "TEXTURE"
+        return self.emit("float" if density else "color", "tex_voxel", self.reg(vec), grid,
+                         "FAC" if density else "COLOR", interp, space)
+
+    def _point_density_grid(self, node, density):
+        """The scene grid id of the node's Density (1 channel) or Color (3), made once per node
+        and export; None (with a problem) where there is nothing to read."""
+        what = f"Point Density '{node.name}'"
+        key = ("point_density", node.as_pointer(), density)
+        if key in self.scene_grid_cache:
+            return self.scene_grid_cache[key]
+        grid = None
+        ob = node.object
+        if ob is None:
+            pass  # Cycles: no object, Density 0 and Color black
+        elif self.scene_grids is None or self.depsgraph is None:
+            self.problem(f"{what}: not available here (no scene export; Density 0, Color black)")
+        elif node.point_source == 'PARTICLE_SYSTEM' and node.particle_system is None:
+            pass  # no particle system chosen: nothing (as Cycles)
+        else:
+            grid = self._make_point_density_grid(node, ob, density, what)
+        self.scene_grid_cache[key] = grid
+        return grid
+
+    def _make_point_density_grid(self, node, ob, density, what):
+        import numpy as np
+        from ... import core
+        pc = core.get_core()
+        dg = self.depsgraph
+        res = int(node.resolution)
+        try:
+            node.cache_point_density(depsgraph=dg)
+            lo, hi = (np.asarray(v, np.float64) for v in node.calc_point_density_minmax(depsgraph=dg))
+            pixels = np.asarray(node.calc_point_density(depsgraph=dg), np.float32)
+        except (RuntimeError, TypeError, ValueError) as e:
+            self.problem(f"{what}: Blender could not voxelise its points ({e}); Density 0, Color black")
+            return None
+        if res < 1 or pixels.size != res ** 3 * 4:
+            return None  # nothing cached (an object without points): Cycles reads 0
+        pixels = pixels.reshape(res, res, res, 4)  # [z, y, x, rgba]: Blender's x fastest
+        values = np.ascontiguousarray(pixels[..., 3] if density else pixels[..., :3])
+        # Index -> texture space [0, 1]^3: voxel i's centre at (i + 0.5) / res (Cycles' 3D lookup).
+        m = np.diag([1.0 / res, 1.0 / res, 1.0 / res, 1.0])
+        m[:3, 3] = 0.5 / res
+        if node.space == 'WORLD':
+            # Cycles: texture space = (p_object - min) / (max - min) in the source object's space.
+            size = hi - lo
+            if not np.all(size > 0.0):
+                self.problem(f"{what}: its points' bounds are flat (Density 0, Color black)")
+                return None
+            box = np.eye(4)
+            box[:3, :3] = np.diag(size)
+            box[:3, 3] = lo
+            ev = ob.evaluated_get(dg) if hasattr(ob, "evaluated_get") else ob
+            m = np.asarray(ev.matrix_world, np.float64) @ box @ m
+        try:
+            grid = pc.VolumeGrid.from_dense(values, m)
+        except (RuntimeError, ValueError) as e:
+            self.problem(f"{what}: {e} (Density 0, Color black)")
+            return None
+        self.scene_grids.append(grid)
+        return len(self.scene_grids) - 1
+
 
 # Handlers of ShaderCompiler._VALUE_NODES (Image Texture is eval_value_node's).
 VALUE_NODES = {
@@ -222,4 +307,5 @@ VALUE_NODES = {
     'TEX_MAGIC': TextureNodes.magic_texture, 'TEX_WHITE_NOISE': TextureNodes.white_noise_texture,
     'TEX_GABOR': TextureNodes.gabor_texture, 'TEX_IES': TextureNodes.ies_texture,
     'TEX_SKY': TextureNodes.sky_texture, 'TEX_ENVIRONMENT': TextureNodes.environment_texture,
+    'TEX_POINTDENSITY': TextureNodes.point_density_texture,
 }

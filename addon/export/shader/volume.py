@@ -62,6 +62,9 @@ class VolumeShaders:
         if self.volume_grids is not None:  # a volume object's grids vary: always a program
             return self.volume_program(socket, name)
         n_problems = len(self.problems)
+        # (A cache of its own: values the surface cached may differ in a volume, Point Density's.)
+        saved = (self.in_volume, self.cache)
+        self.in_volume, self.cache = True, {}
         try:
             if node.type == 'VOLUME_ABSORPTION':
                 color = self._const_or_raise(node, "Color", ctx, "color")
@@ -72,6 +75,8 @@ class VolumeShaders:
         except _Varying:
             del self.problems[n_problems:]  # the program reports its own
             return self.volume_program(socket, name)
+        finally:
+            self.in_volume, self.cache = saved
         vol = {k: tuple(float(x) for x in acc[k]) for k in ("sigma_a", "sigma_s", "emission")}
         phases = acc["phases"]
         if len(phases) <= 1 and all(t == "hg" for t, _ in phases):
@@ -107,8 +112,8 @@ class VolumeShaders:
         """The Volume as a program of the core (a list of ops ending in the "volume" closure), or
         the homogeneous dict where every coefficient folded to a constant after all (e.g. a
         constant Blackbody), or None (nothing)."""
-        saved = (self.ops, self.const_regs, self.cache)
-        self.ops, self.const_regs, self.cache = [], {}, {}
+        saved = (self.ops, self.const_regs, self.cache, self.in_volume)
+        self.ops, self.const_regs, self.cache, self.in_volume = [], {}, {}, True
         try:
             acc = {"sigma_a": None, "sigma_s": None, "emission": None, "scatter": []}
             src = self.source(socket, ())
@@ -158,7 +163,7 @@ class VolumeShaders:
                 return None
             return program
         finally:
-            self.ops, self.const_regs, self.cache = saved
+            self.ops, self.const_regs, self.cache, self.in_volume = saved
 
     def _volume_walk(self, node, ctx, acc, visiting, add_node, is_zero):
         """The guard against node cycles and the shader-input walk of both paths (constant and
