@@ -116,6 +116,23 @@ def test_compiler_emits_a_grid_read():
     pd.object = None
     w = Warnings()
     assert convert_material(mat, w, None, None, False).volume is None and len(w) == 0, w
+    # Density and Color of one node: one calc_point_density (Blender frees its cache after
+    # each), two grids; a resolution above the limit: 0, warned; an object without points: 0.
+    pd.object = cloud
+    vol = next(n for n in nodes if n.type == 'PRINCIPLED_VOLUME')
+    links.new(pd.outputs["Color"], vol.inputs["Color"])
+    table = MaterialTable(Warnings(), depsgraph=bpy.context.evaluated_depsgraph_get())
+    table.index(mat)
+    assert [g.channels for g in table.grids] == [3, 1] or [g.channels for g in table.grids] == [1, 3]
+    for res, source, warned in ((201, cloud, True), (40, bpy.data.objects.new("E", bpy.data.meshes.new("E")), False)):
+        if source.name not in bpy.context.scene.collection.objects:
+            bpy.context.scene.collection.objects.link(source)
+        pd.object, pd.resolution = source, res
+        w = Warnings()
+        table = MaterialTable(w, depsgraph=bpy.context.evaluated_depsgraph_get())
+        table.index(mat)
+        assert len(w) == int(warned) and all(g.max_value == 0.0 for g in table.grids), (res, w)
+        assert not warned or table.grids == []
 
 
 def _compare(ours, ref, what, tol, floor=0.25):

@@ -1,8 +1,12 @@
-"""Texture nodes: Image, Noise, Wave, Magic, White Noise and Gabor (a ShaderCompiler mixin;
-Checker, Gradient, Brick and Voronoi are tex_patterns'.)"""
+"""Texture nodes: Image, Noise, Wave, Magic, White Noise, Gabor, Sky, Environment and Point
+Density (a ShaderCompiler mixin; Checker, Gradient, Brick and Voronoi are tex_patterns'.)"""
 
 from .images import MISSING_TEXTURE
 from .values import ONE, ZERO, Val, const_color, const_vector
+
+# Point Density resolutions above this are refused (warned): bpy returns the voxels as a tuple of
+# Python floats, about 1 GB at 200^3.
+MAX_POINT_DENSITY_RESOLUTION = 200
 
 
 class TextureNodes:
@@ -243,30 +247,34 @@ class TextureNodes:
 
     def _point_density_grid(self, node, density):
         """The scene grid id of the node's Density (1 channel) or Color (3), made once per node
-        and export; None (with a problem) where there is nothing to read."""
-        what = f"Point Density '{node.name}'"
+        and export; None (with a problem where it is not Cycles' 0) where there is nothing."""
         key = ("point_density", node.as_pointer(), density)
+        if key not in self.scene_grid_cache:
+            voxels = self._point_density_voxels(node)
+            self.scene_grid_cache[key] = None if voxels is None else \
+                self._add_point_density_grid(node, voxels, density)
+        return self.scene_grid_cache[key]
+
+    def _point_density_voxels(self, node):
+        """(RGBA voxels [z, y, x, 4], index -> texture-space matrix) of a node, read once per
+        export (Blender frees its cache after each calc_point_density), or None."""
+        import numpy as np
+        key = ("point_density voxels", node.as_pointer())
         if key in self.scene_grid_cache:
             return self.scene_grid_cache[key]
-        grid = None
-        ob = node.object
-        if ob is None:
-            pass  # Cycles: no object, Density 0 and Color black
-        elif self.scene_grids is None or self.depsgraph is None:
+        self.scene_grid_cache[key] = None
+        what = f"Point Density '{node.name}'"
+        ob, dg, res = node.object, self.depsgraph, int(node.resolution)
+        if ob is None or (node.point_source == 'PARTICLE_SYSTEM' and node.particle_system is None):
+            return None  # Cycles: nothing to read, Density 0 and Color black
+        if self.scene_grids is None or dg is None:
             self.problem(f"{what}: not available here (no scene export; Density 0, Color black)")
-        elif node.point_source == 'PARTICLE_SYSTEM' and node.particle_system is None:
-            pass  # no particle system chosen: nothing (as Cycles)
-        else:
-            grid = self._make_point_density_grid(node, ob, density, what)
-        self.scene_grid_cache[key] = grid
-        return grid
-
-    def _make_point_density_grid(self, node, ob, density, what):
-        import numpy as np
-        from ... import core
-        pc = core.get_core()
-        dg = self.depsgraph
-        res = int(node.resolution)
+            return None
+        if res > MAX_POINT_DENSITY_RESOLUTION:
+            # bpy hands the voxels over as a tuple of Python floats (32 bytes each): 1 GB at 200^3.
+            self.problem(f"{what}: resolution {res} is above {MAX_POINT_DENSITY_RESOLUTION} "
+                         "(Density 0, Color black)")
+            return None
         try:
             node.cache_point_density(depsgraph=dg)
             lo, hi = (np.asarray(v, np.float64) for v in node.calc_point_density_minmax(depsgraph=dg))
@@ -274,10 +282,8 @@ class TextureNodes:
         except (RuntimeError, TypeError, ValueError) as e:
             self.problem(f"{what}: Blender could not voxelise its points ({e}); Density 0, Color black")
             return None
-        if res < 1 or pixels.size != res ** 3 * 4:
-            return None  # nothing cached (an object without points): Cycles reads 0
-        pixels = pixels.reshape(res, res, res, 4)  # [z, y, x, rgba]: Blender's x fastest
-        values = np.ascontiguousarray(pixels[..., 3] if density else pixels[..., :3])
+        if res < 1 or pixels.size != res ** 3 * 4 or not np.all(hi >= lo):
+            return None  # no points (Blender's bounds stay inverted): Cycles reads 0 too
         # Index -> texture space [0, 1]^3: voxel i's centre at (i + 0.5) / res (Cycles' 3D lookup).
         m = np.diag([1.0 / res, 1.0 / res, 1.0 / res, 1.0])
         m[:3, 3] = 0.5 / res
@@ -285,17 +291,26 @@ class TextureNodes:
             # Cycles: texture space = (p_object - min) / (max - min) in the source object's space.
             size = hi - lo
             if not np.all(size > 0.0):
-                self.problem(f"{what}: its points' bounds are flat (Density 0, Color black)")
+                self.problem(f"{what}: its points' bounds are flat (radius 0?): Density 0, Color black")
                 return None
             box = np.eye(4)
             box[:3, :3] = np.diag(size)
             box[:3, 3] = lo
             ev = ob.evaluated_get(dg) if hasattr(ob, "evaluated_get") else ob
             m = np.asarray(ev.matrix_world, np.float64) @ box @ m
+        voxels = (pixels.reshape(res, res, res, 4), m)  # [z, y, x, rgba]: Blender's x fastest
+        self.scene_grid_cache[key] = voxels
+        return voxels
+
+    def _add_point_density_grid(self, node, voxels, density):
+        import numpy as np
+        from ...core import get_core
+        pixels, m = voxels
+        values = np.ascontiguousarray(pixels[..., 3] if density else pixels[..., :3])
         try:
-            grid = pc.VolumeGrid.from_dense(values, m)
+            grid = get_core().VolumeGrid.from_dense(values, m)
         except (RuntimeError, ValueError) as e:
-            self.problem(f"{what}: {e} (Density 0, Color black)")
+            self.problem(f"Point Density '{node.name}': {e} (Density 0, Color black)")
             return None
         self.scene_grids.append(grid)
         return len(self.scene_grids) - 1
