@@ -93,7 +93,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
         if getattr(mesh, "subdivision_problem", None):
             warn(f"Object '{mesh.name}': {mesh.subdivision_problem}")
     material_slots = [[table.index(m) for m in mesh.materials] for mesh in meshes]
-    volume_grids = []
+    volume_grids = table.grids  # (Point Density textures' grids are already there)
     volume_meshes, volume_slots = collect_volumes(depsgraph, warn, table, volume_grids, layer)
     meshes += volume_meshes
     material_slots += volume_slots

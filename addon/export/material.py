@@ -94,7 +94,7 @@ def convert_material(mat, warn, *args, **kw):
 
 
 def convert_material_data(mat, warn, images=None, uv_sets=None, use_schlick=False, view_layer_ids=(),
-                          depsgraph=None, volume_grids=None, density_scale=1.0):
+                          depsgraph=None, volume_grids=None, density_scale=1.0, scene_grids=None):
     """MaterialData for a bpy Material (or None = empty slot). Calls warn(msg) at most once:
     one message naming everything of the material that is approximated or unsupported.
     images/uv_sets: the scene's ImageTable and UvSets (fresh ones if None)."""
@@ -107,7 +107,7 @@ def convert_material_data(mat, warn, images=None, uv_sets=None, use_schlick=Fals
     base, emission = flat_summary(mat.node_tree)
     try:
         compiled = compile_material(mat, images, uv_sets, view_layer_ids, depsgraph, volume_grids,
-                                    density_scale)
+                                    density_scale, scene_grids)
     except Exception as e:  # a compiler bug must not stop the render
         warn(f"Material '{mat.name}': could not be compiled ({type(e).__name__}: {e}); "
              "using its base colour")
@@ -138,6 +138,7 @@ class MaterialTable:
         self._index = {}
         self._names = {}  # key -> bpy material name
         self.volume_material_names = set()  # materials also compiled for volume objects
+        self.grids = []  # the scene's core grids (volume objects', Point Density textures')
 
     def index(self, mat):
         key = mat.as_pointer() if mat is not None else 0
@@ -145,7 +146,8 @@ class MaterialTable:
             self._index[key] = len(self.materials)
             self._names[key] = mat.name if mat is not None else ""
             self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
-                                                   self.use_schlick, self.view_layer_ids, self.depsgraph))
+                                                   self.use_schlick, self.view_layer_ids, self.depsgraph,
+                                                   scene_grids=self.grids))
         return self._index[key]
 
     def volume_index(self, mat, grids, density_scale=1.0):
@@ -160,7 +162,8 @@ class MaterialTable:
             self.volume_material_names.add(mat.name)
             self.materials.append(convert_material(mat, self.warn, self.images, self.uv_sets,
                                                    self.use_schlick, self.view_layer_ids, self.depsgraph,
-                                                   volume_grids=dict(grids), density_scale=density_scale))
+                                                   volume_grids=dict(grids), density_scale=density_scale,
+                                                   scene_grids=self.grids))
         return self._index[key]
 
     def default_volume(self, grids, density_scale=1.0):

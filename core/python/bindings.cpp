@@ -2086,6 +2086,29 @@ void bind_volume_grids(py::module_& m) {
 
   py::class_<VolumeGrid, std::shared_ptr<VolumeGrid>>(m, "VolumeGrid",
       "One grid of a .vdb file, sparse (8^3 bricks), for sampling in object or index space.")
+      .def_static(
+          "from_dense",
+          [](const FloatArray& values, const py::array_t<double, py::array::c_style | py::array::forcecast>& transform) {
+            // values [z, y, x] or [z, y, x, 3]; transform: 4x4 index -> object (voxel centres at integers)
+            if ((values.ndim() != 3 && values.ndim() != 4) || (values.ndim() == 4 && values.shape(3) != 3))
+              throw std::invalid_argument("from_dense: values must be (nz, ny, nx) or (nz, ny, nx, 3)");
+            if (transform.ndim() != 2 || transform.shape(0) != 4 || transform.shape(1) != 4)
+              throw std::invalid_argument("from_dense: transform must be 4x4");
+            std::array<double, 16> m;
+            for (size_t i = 0; i < 16; ++i) m[i] = transform.data()[i];
+            auto g = std::make_shared<VolumeGrid>();
+            const int ch = values.ndim() == 4 ? 3 : 1;
+            {
+              py::gil_scoped_release release;
+              g->build_dense(ch, int(values.shape(2)), int(values.shape(1)), int(values.shape(0)), values.data());
+            }
+            g->set_transform(m);  // throws on a singular or non-finite transform
+            return g;
+          },
+          py::arg("values"), py::arg("transform"),
+          "A dense grid (the Point Density texture's voxels): values (nz, ny, nx) or (nz, ny, nx, 3) float32, "
+          "x fastest; transform 4x4 index -> object (voxel centres at integer indices). ValueError / "
+          "RuntimeError on bad shapes, sizes or transforms.")
       .def_readonly("name", &VolumeGrid::name)
       .def_readonly("value_type", &VolumeGrid::value_type)
       .def_readonly("grid_class", &VolumeGrid::grid_class)

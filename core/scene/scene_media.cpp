@@ -66,6 +66,25 @@ Float4 read_volume_grid(const ShadingContext& ctx, int id, VolumeSampling interp
   return g->channels() == 1 ? Float4{v[0], v[0], v[0], 1.0f} : Float4{v[0], v[1], v[2], 1.0f};
 }
 
+Float4 read_voxel_texture(const ShadingContext& ctx, int id, VolumeSampling interp, VoxelSpace space, Vec3 v) {
+  const VolumeGrid* g = ctx.scene ? ctx.scene->volume_grid(id) : nullptr;
+  if (!g || g->empty()) return Float4{};
+  if (space != VoxelSpace::World && ctx.object && ctx.object->valid) {
+    v = ctx.object->to_object.point(v);
+    if (space == VoxelSpace::Texture) v = v * ctx.object->gen_scale + ctx.object->gen_offset;
+  }
+  const std::array<double, 16>& m = g->object_to_index();
+  double ijk[3];
+  for (int a = 0; a < 3; ++a) {
+    ijk[a] = m[size_t(a * 4)] * v.x + m[size_t(a * 4 + 1)] * v.y + m[size_t(a * 4 + 2)] * v.z + m[size_t(a * 4 + 3)];
+    // Cycles' clip extension: nothing outside the texture's box (voxel centres at integers).
+    if (!(ijk[a] >= g->active_min()[size_t(a)] - 0.5 && ijk[a] <= g->active_max()[size_t(a)] + 0.5)) return Float4{};
+  }
+  float out[3] = {0.0f, 0.0f, 0.0f};
+  g->sample_index(ijk, interp, out);
+  return g->channels() == 1 ? Float4{out[0], out[0], out[0], 1.0f} : Float4{out[0], out[1], out[2], 1.0f};
+}
+
 MediumSample Scene::medium_at_moving(const HeteroMedium& h, Vec3 p, Vec3 dir, float time) const {
   ShadingContext ctx;
   ctx.ng = ctx.ns = Vec3(0.0f);

@@ -766,6 +766,11 @@ template <bool kSetsNormal>
         d = f4(op.sub == 0 ? world_to_camera_point(cam, p) : cam ? cam->to_ndc(p) : Vec3(0.0f), 0.0f);
         break;
       }
+      case OpCode::TexVoxel:
+        d = attribute_output(read_voxel_texture(ctx, op.index, VolumeSampling(op.ext), VoxelSpace(op.count),
+                                                reg(op.in[0]).xyz()),
+                             op.sub);
+        break;
       case OpCode::TexSky: {
         // Cycles' svm_node_tex_sky reads its vector as it is (not normalised), as the world's.
         const Vec3 c = size_t(op.index) < prog.skies.size() && prog.skies[size_t(op.index)]

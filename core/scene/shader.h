@@ -132,6 +132,10 @@ enum class OpCode : uint8_t {
   // The Image Texture's Box projection (image_box): in[0] the vector, in[1] the object-space
   // normal; index, sub, ext, clamp as ImageTex, m[0] the Blend.
   ImageBox,
+  // The Point Density texture (Cycles' svm_node_tex_voxel): scene voxel grid `index` read at
+  // in[0] taken to the grid's texture space by count (VoxelSpace), sub the output (as
+  // Attribute), ext the interpolation (VolumeSampling); 0 outside the grid's box.
+  TexVoxel,
 };
 // Shader AOV slots (view-layer AOVs) a render can keep.
 constexpr int kMaxShaderAovs = 16;
@@ -509,6 +513,12 @@ enum class VolumeSampling;  // scene/volume_grid.h
 // grid reads (v, v, v, 1), a vector grid (x, y, z, 1); a missing grid 0), or with
 // ctx.grid_bound its maximum over that box. Implemented by the scene (scene_media.cpp).
 Float4 read_volume_grid(const ShadingContext& ctx, int grid, VolumeSampling interp);
+// Point Density: how the vector reaches the grid's own space (its transform maps that space to
+// voxel indices): as it is (0, world space: the grid's transform holds Cycles' texture
+// space), the shading object's space (1), or that object's generated coordinates (2: Cycles'
+// volume_normalized_position, for materials with a volume).
+enum class VoxelSpace : uint8_t { World = 0, Object = 1, Texture = 2 };
+Float4 read_voxel_texture(const ShadingContext& ctx, int grid, VolumeSampling interp, VoxelSpace space, Vec3 v);
 
 // The Bevel node's normal: Cycles' svm_bevel, the smooth normals of the instance's surface
 // within `radius` of the point, found by `samples` short rays (mesh orientation, as ctx.ns).

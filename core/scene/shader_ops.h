@@ -63,6 +63,7 @@ inline constexpr const char* kInterpOpNames[] = {"LINEAR", "CLOSEST", "CUBIC"};
 static_assert(std::size(kInterpOpNames) == size_t(Interp::Cubic) + 1, "one name per Interp");
 // A grid read's interpolation: its index is the VolumeSampling (volume_grid.h).
 inline constexpr const char* kVolumeInterpOpNames[] = {"CLOSEST", "LINEAR", "CUBIC"};
+inline constexpr const char* kVoxelSpaces[] = {"WORLD", "OBJECT", "TEXTURE"};  // VoxelSpace
 inline constexpr const char* kExtensionOpNames[] = {"REPEAT", "EXTEND", "CLIP", "MIRROR"};
 static_assert(std::size(kExtensionOpNames) == size_t(Extension::Mirror) + 1, "one name per Extension");
 inline constexpr const char* kLightPathOutputs[] = {
@@ -317,6 +318,11 @@ inline constexpr OpParam kObjectAttribute[] = {
 inline constexpr OpParam kVolumeGrid[] = {int_in(F::Index, "volume grid id", 0, (1 << 30)),
                                           choice(F::Sub, "attribute output", kAttributeOutputs),
                                           choice(F::Ext, "interpolation", kVolumeInterpOpNames)};
+// Point Density: the grid's id, the output, the interpolation, the space (VoxelSpace).
+inline constexpr OpParam kTexVoxel[] = {int_in(F::Index, "volume grid id", 0, (1 << 30)),
+                                        choice(F::Sub, "attribute output", kAttributeOutputs),
+                                        choice(F::Ext, "interpolation", kVolumeInterpOpNames),
+                                        choice(F::Count, "voxel space", kVoxelSpaces)};
 // AOV Output: the view layer's AOV slot, its type.
 inline constexpr OpParam kAovOutput[] = {int_in(F::Index, "aov slot", 0, kMaxShaderAovs - 1),
                                          choice(F::Sub, "aov type", kAovTypes)};
@@ -408,6 +414,7 @@ inline constexpr ValueOpSchema kValueOps[] = {
     {"tex_sky", OpCode::TexSky, 1, schema::kTexSky, kVarying},  // vector
     {"env_uv", OpCode::EnvUv, 1, schema::kEnvUv},  // direction
     {"background_camera", OpCode::BackgroundCamera, 0, schema::kBackgroundCamera, kVarying},
+    {"tex_voxel", OpCode::TexVoxel, 1, schema::kTexVoxel, kVarying},  // vector (Point Density)
 };
 
 // The OpCodes that closure ops (or their companions) produce; every other OpCode is a value op's.
@@ -418,7 +425,7 @@ inline constexpr OpCode kClosureOpCodes[] = {
     OpCode::Hair,
     OpCode::VolumeOut, OpCode::DisplaceOut, OpCode::RayPortal,
 };
-inline constexpr size_t kOpCodeCount = size_t(OpCode::ImageBox) + 1;  // (the last OpCode)
+inline constexpr size_t kOpCodeCount = size_t(OpCode::TexVoxel) + 1;  // (the last OpCode)
 
 constexpr bool every_value_opcode_has_an_op() {
   for (size_t c = 0; c < kOpCodeCount; ++c) {

@@ -44,6 +44,32 @@ void VolumeGrid::set_transform(const std::array<double, 16>& m) {
   object_to_index_ = inv;
 }
 
+void VolumeGrid::build_dense(int channels, int nx, int ny, int nz, const float* values) {
+  if (channels != 1 && channels != 3) throw std::runtime_error("volume grid: 1 or 3 channels");
+  if (nx <= 0 || ny <= 0 || nz <= 0 || nx > 4096 || ny > 4096 || nz > 4096)
+    throw std::runtime_error("dense volume grid: bad dimensions");
+  std::vector<Leaf> leaves;
+  for (int bz = 0; bz < nz; bz += kBrick)
+    for (int by = 0; by < ny; by += kBrick)
+      for (int bx = 0; bx < nx; bx += kBrick) {
+        Leaf leaf;
+        leaf.origin = {bx, by, bz};
+        leaf.active.fill(0);
+        leaf.values.assign(size_t(kBrickVoxels) * size_t(channels), 0.0f);
+        for (int x = 0; x < kBrick && bx + x < nx; ++x)
+          for (int y = 0; y < kBrick && by + y < ny; ++y)
+            for (int z = 0; z < kBrick && bz + z < nz; ++z) {
+              const int o = x * 64 + y * 8 + z;  // OpenVDB's leaf order
+              leaf.active[size_t(o >> 6)] |= uint64_t(1) << (o & 63);
+              const size_t src = ((size_t(bz + z) * size_t(ny) + size_t(by + y)) * size_t(nx) + size_t(bx + x)) *
+                                 size_t(channels);
+              for (int c = 0; c < channels; ++c) leaf.values[size_t(o) * size_t(channels) + size_t(c)] = values[src + size_t(c)];
+            }
+        leaves.push_back(std::move(leaf));
+      }
+  build(channels, {0.0f, 0.0f, 0.0f}, leaves, {});
+}
+
 void VolumeGrid::build(int channels, const std::array<float, 3>& background, std::vector<Leaf>& leaves,
                        const std::vector<Tile>& tiles, const Limits& limits) {
   if (channels != 1 && channels != 3) throw std::runtime_error("volume grid: 1 or 3 channels");

@@ -54,6 +54,9 @@ class VolumeGrid {
              const std::vector<Tile>& tiles) {
     build(channels, background, leaves, tiles, Limits{});
   }
+  // A dense grid of nx * ny * nz voxels at indices [0, n) (values x fastest, `channels`
+  // floats each; all active, background 0): the Point Density texture's voxels.
+  void build_dense(int channels, int nx, int ny, int nz, const float* values);
   // Row-major 4x4, column-vector convention: object = M * (i, j, k, 1). Throws when singular.
   void set_transform(const std::array<double, 16>& index_to_object);
 

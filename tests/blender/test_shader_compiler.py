@@ -448,9 +448,10 @@ def test_unsupported_nodes_warn_once_naming_each_and_fall_back():
     assert colors == [(tuple(round(x, 4) for x in hair.inputs["Color"].default_value[:3]), 0.4)]
 
 
-def test_point_density_warns_naming_it_and_reads_zero():
-    """The Point Density texture is not supported yet: one warning names it, and it reads what
-    Cycles gives without its object (Density 0, Color black), not its consumer's own value."""
+def test_point_density_on_a_surface_warns_and_reads_zero():
+    """The Point Density texture works in volumes only, as in Cycles 4.5: on a surface one
+    warning names the rule and it reads Density 0 / Color black, not its consumer's own value
+    (test_point_density.py covers it in volumes)."""
     mat, nodes, links, out = ms.new_material("Smoke")
     vol = nodes.new("ShaderNodeVolumePrincipled")
     pd = nodes.new("ShaderNodeTexPointDensity")
@@ -461,7 +462,7 @@ def test_point_density_warns_naming_it_and_reads_zero():
     links.new(pd.outputs["Color"], d.inputs["Color"])
     links.new(d.outputs[0], out.inputs["Surface"])
     (closure,), warnings, _ = closures_of(mat)
-    assert len(warnings) == 1 and "Point Density texture is not supported" in warnings[0], warnings
+    assert len(warnings) == 1 and "Point Density texture works in volumes only" in warnings[0], warnings
     assert closure[0] == "diffuse" and tuple(closure[2]["color"][:3]) == approx((0.0, 0.0, 0.0))
 
 

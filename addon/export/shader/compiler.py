@@ -38,8 +38,13 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
     """Compiles one material's node tree. Use `compile_material`."""
 
     def __init__(self, images, uv_sets, material_index=0, view_layer_ids=(), depsgraph=None,
-                 volume_grids=None):
+                 volume_grids=None, scene_grids=None):
         self.images = images
+        # The export's list of core grids (Point Density textures append theirs; a grid's id
+        # is its index), or None where there is no scene export (previews of one material).
+        self.scene_grids = scene_grids
+        self.scene_grid_cache = {}
+        self.in_volume = False  # compiling the Volume (Point Density reads 0 elsewhere, as Cycles)
         # A volume object's grids, {name: (core grid id, channels)}, or None (any other object):
         # attributes then read grids (nodes_input.grid_value) and the surface is a pass-through.
         self.volume_grids = volume_grids
@@ -457,7 +462,7 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
 
 
 def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, volume_grids=None,
-                     density_scale=1.0):
+                     density_scale=1.0, scene_grids=None):
     """CompiledShader of a bpy Material with nodes, or None when it has no Cycles output.
     view_layer_ids: the rendered view layer, its scene and world (View Layer attributes);
     depsgraph: the render's, for other objects' transforms (Texture Coordinate's Object)."""
@@ -466,7 +471,8 @@ def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, vo
     if output is None:
         return None
     compiler = ShaderCompiler(images, uv_sets, material_index=mat.pass_index,
-                              view_layer_ids=view_layer_ids, depsgraph=depsgraph, volume_grids=volume_grids)
+                              view_layer_ids=view_layer_ids, depsgraph=depsgraph, volume_grids=volume_grids,
+                              scene_grids=scene_grids)
     compiler.volume_density_scale = float(density_scale)
     compiler.volume_interpolation = getattr(getattr(mat, "cycles", None), "volume_interpolation", 'LINEAR')
     return compiler.compile(

@@ -1,8 +1,12 @@
-"""Texture nodes: Image, Noise, Wave, Magic, White Noise and Gabor (a ShaderCompiler mixin;
-Checker, Gradient, Brick and Voronoi are tex_patterns'.)"""
+"""Texture nodes: Image, Noise, Wave, Magic, White Noise, Gabor, Sky, Environment and Point
+Density (a ShaderCompiler mixin; Checker, Gradient, Brick and Voronoi are tex_patterns'.)"""
 
 from .images import MISSING_TEXTURE
 from .values import ONE, ZERO, Val, const_color, const_vector
+
+# Point Density resolutions above this are refused (warned): bpy returns the voxels as a tuple of
+# Python floats, about 1 GB at 200^3.
+MAX_POINT_DENSITY_RESOLUTION = 200
 
 
 class TextureNodes:
@@ -222,14 +226,102 @@ class TextureNodes:
             self.cache[key] = sky
         return self.emit("color", "tex_sky", self.reg(vec), sky)
 
-
     def point_density_texture(self, node, out, ctx):
-        """Point Density: not supported yet. It reads what Cycles gives a node without its
-        object (Density 0, Color black), so a volume it drives stays empty rather than filling
-        its domain with the consumer's own value; one warning names it."""
-        self.problem(f"'{node.name}': the Point Density texture is not supported yet "
-                     "(Density 0, Color black)")
-        return ZERO if out.identifier == "Density" else const_color((0.0, 0.0, 0.0, 1.0))
+        """Point Density (Cycles' svm_node_tex_voxel): Blender voxelises the particles or vertices
+        (node.calc_point_density over calc_point_density_minmax, in the source object's space);
+        the voxels go to the core as a scene grid read at the Vector (Position by default) in
+        the node's space: World through the source object's transform and bounds, Object in the
+        shading object's generated coordinates. Volumes only, as Cycles
+        (docs/design/volumes.md "Volume Coefficients and Point Density")."""
+        density = out.identifier == "Density"
+        black = ZERO if density else const_color((0.0, 0.0, 0.0, 1.0))
+        if not self.in_volume:
+            # Cycles 4.5 runs svm_node_tex_voxel in volume shaders only: 0 elsewhere (measured).
+            self.problem(f"'{node.name}': the Point Density texture works in volumes only "
+                         "(Density 0, Color black elsewhere, as Cycles)")
+            return black
+        grid = self._point_density_grid(node, density)
+        if grid is None:
+            return black
+        vec = self.value(node.inputs["Vector"], ctx, "vector")
+        if vec is None:
+            vec = self.position()
+        interp = {"Closest": "CLOSEST", "Cubic": "CUBIC"}.get(node.interpolation, "LINEAR")
+        # Object space: the shading object's generated coordinates (Cycles' volume_normalized_position).
+        space = "WORLD" if node.space == 'WORLD' else "TEXTURE"
+        return self.emit("float" if density else "color", "tex_voxel", self.reg(vec), grid,
+                         "FAC" if density else "COLOR", interp, space)
+
+    def _point_density_grid(self, node, density):
+        """The scene grid id of the node's Density (1 channel) or Color (3), made once per node
+        and export; None (with a problem where it is not Cycles' 0) where there is nothing."""
+        key = ("point_density", node.as_pointer(), density)
+        if key not in self.scene_grid_cache:
+            voxels = self._point_density_voxels(node)
+            self.scene_grid_cache[key] = None if voxels is None else \
+                self._add_point_density_grid(node, voxels, density)
+        return self.scene_grid_cache[key]
+
+    def _point_density_voxels(self, node):
+        """(RGBA voxels [z, y, x, 4], index -> texture-space matrix) of a node, read once per
+        export (Blender frees its cache after each calc_point_density), or None."""
+        import numpy as np
+        key = ("point_density voxels", node.as_pointer())
+        if key in self.scene_grid_cache:
+            return self.scene_grid_cache[key]
+        self.scene_grid_cache[key] = None
+        what = f"Point Density '{node.name}'"
+        ob, dg, res = node.object, self.depsgraph, int(node.resolution)
+        if ob is None or (node.point_source == 'PARTICLE_SYSTEM' and node.particle_system is None):
+            return None  # Cycles: nothing to read, Density 0 and Color black
+        if self.scene_grids is None or dg is None:
+            self.problem(f"{what}: not available here (no scene export; Density 0, Color black)")
+            return None
+        if res > MAX_POINT_DENSITY_RESOLUTION:
+            # bpy hands the voxels over as a tuple of Python floats (32 bytes each): 1 GB at 200^3.
+            self.problem(f"{what}: resolution {res} is above {MAX_POINT_DENSITY_RESOLUTION} "
+                         "(Density 0, Color black)")
+            return None
+        try:
+            node.cache_point_density(depsgraph=dg)
+            lo, hi = (np.asarray(v, np.float64) for v in node.calc_point_density_minmax(depsgraph=dg))
+            pixels = np.asarray(node.calc_point_density(depsgraph=dg), np.float32)
+        except (RuntimeError, TypeError, ValueError) as e:
+            self.problem(f"{what}: Blender could not voxelise its points ({e}); Density 0, Color black")
+            return None
+        if res < 1 or pixels.size != res ** 3 * 4 or not np.all(hi >= lo):
+            return None  # no points (Blender's bounds stay inverted): Cycles reads 0 too
+        # Index -> texture space [0, 1]^3: voxel i's centre at (i + 0.5) / res (Cycles' 3D lookup).
+        m = np.diag([1.0 / res, 1.0 / res, 1.0 / res, 1.0])
+        m[:3, 3] = 0.5 / res
+        if node.space == 'WORLD':
+            # Cycles: texture space = (p_object - min) / (max - min) in the source object's space.
+            size = hi - lo
+            if not np.all(size > 0.0):
+                self.problem(f"{what}: its points' bounds are flat (radius 0?): Density 0, Color black")
+                return None
+            box = np.eye(4)
+            box[:3, :3] = np.diag(size)
+            box[:3, 3] = lo
+            ev = ob.evaluated_get(dg) if hasattr(ob, "evaluated_get") else ob
+            m = np.asarray(ev.matrix_world, np.float64) @ box @ m
+        voxels = (pixels.reshape(res, res, res, 4), m)  # [z, y, x, rgba]: Blender's x fastest
+        self.scene_grid_cache[key] = voxels
+        return voxels
+
+    def _add_point_density_grid(self, node, voxels, density):
+        import numpy as np
+        from ...core import get_core
+        pixels, m = voxels
+        values = np.ascontiguousarray(pixels[..., 3] if density else pixels[..., :3])
+        try:
+            grid = get_core().VolumeGrid.from_dense(values, m)
+        except (RuntimeError, ValueError) as e:
+            self.problem(f"Point Density '{node.name}': {e} (Density 0, Color black)")
+            return None
+        self.scene_grids.append(grid)
+        return len(self.scene_grids) - 1
+
 
 
 # Handlers of ShaderCompiler._VALUE_NODES (Image Texture is eval_value_node's).

@@ -32,8 +32,9 @@ PHASES = {
 
 
 def _phase_of(node):
-    """(core type, input names) of a Volume Scatter node's phase; Principled Volume's is HG."""
-    if node.type != 'VOLUME_SCATTER':
+    """(core type, input names) of a Volume Scatter or Volume Coefficients node's phase;
+    Principled Volume's is HG."""
+    if node.type not in ('VOLUME_SCATTER', 'VOLUME_COEFFICIENTS'):
         return PHASES['HENYEY_GREENSTEIN']
     return PHASES.get(getattr(node, "phase", 'HENYEY_GREENSTEIN'), PHASES['HENYEY_GREENSTEIN'])
 
@@ -61,6 +62,9 @@ class VolumeShaders:
         if self.volume_grids is not None:  # a volume object's grids vary: always a program
             return self.volume_program(socket, name)
         n_problems = len(self.problems)
+        # (A cache of its own: values the surface cached may differ in a volume, Point Density's.)
+        saved = (self.in_volume, self.cache)
+        self.in_volume, self.cache = True, {}
         try:
             if node.type == 'VOLUME_ABSORPTION':
                 color = self._const_or_raise(node, "Color", ctx, "color")
@@ -71,6 +75,8 @@ class VolumeShaders:
         except _Varying:
             del self.problems[n_problems:]  # the program reports its own
             return self.volume_program(socket, name)
+        finally:
+            self.in_volume, self.cache = saved
         vol = {k: tuple(float(x) for x in acc[k]) for k in ("sigma_a", "sigma_s", "emission")}
         phases = acc["phases"]
         if len(phases) <= 1 and all(t == "hg" for t, _ in phases):
@@ -106,8 +112,8 @@ class VolumeShaders:
         """The Volume as a program of the core (a list of ops ending in the "volume" closure), or
         the homogeneous dict where every coefficient folded to a constant after all (e.g. a
         constant Blackbody), or None (nothing)."""
-        saved = (self.ops, self.const_regs, self.cache)
-        self.ops, self.const_regs, self.cache = [], {}, {}
+        saved = (self.ops, self.const_regs, self.cache, self.in_volume)
+        self.ops, self.const_regs, self.cache, self.in_volume = [], {}, {}, True
         try:
             acc = {"sigma_a": None, "sigma_s": None, "emission": None, "scatter": []}
             src = self.source(socket, ())
@@ -157,7 +163,7 @@ class VolumeShaders:
                 return None
             return program
         finally:
-            self.ops, self.const_regs, self.cache = saved
+            self.ops, self.const_regs, self.cache, self.in_volume = saved
 
     def _volume_walk(self, node, ctx, acc, visiting, add_node, is_zero):
         """The guard against node cycles and the shader-input walk of both paths (constant and
@@ -219,6 +225,19 @@ class VolumeShaders:
             self._acc_add(acc, "sigma_s", ss)
             kind, names = _phase_of(node)
             acc["scatter"].append((ss, kind, [inp(n, "float") if n in node.inputs else ZERO for n in names]))
+        elif t == 'VOLUME_COEFFICIENTS':
+            # Cycles 4.5 svm_node_volume_coefficients: the coefficients are sigma_a, sigma_s and
+            # the emission per unit length, each times the mix weight (no density); negative
+            # values read 0 in the core, as every program's outputs.
+            wc = self.as_color(w)
+            ss = self.mix("MULTIPLY", ONE, inp("Scatter Coefficients", "color"), wc)
+            self._acc_add(acc, "sigma_s", ss)
+            kind, names = _phase_of(node)
+            acc["scatter"].append((ss, kind, [inp(n, "float") if n in node.inputs else ZERO for n in names]))
+            self._acc_add(acc, "sigma_a", self.mix("MULTIPLY", ONE, inp("Absorption Coefficients", "color"), wc))
+            em = self.mix("MULTIPLY", ONE, inp("Emission Coefficients", "color"), wc)
+            if not self.is_zero(em):
+                self._acc_add(acc, "emission", em)
         elif t == 'PRINCIPLED_VOLUME':
             # Cycles' svm_node_principled_volume: scattering colour * density; extinction adds
             # max(1 - colour, 0) max(1 - sqrt(absorption colour), 0) * density; emission
@@ -306,6 +325,15 @@ class VolumeShaders:
             kind, names = _phase_of(node)
             params = tuple(float(const(n, "float")) if n in node.inputs else 0.0 for n in names)
             self._add_scatter(acc, w * c * d, kind, params)
+        elif t == 'VOLUME_COEFFICIENTS':
+            # Cycles 4.5 svm_node_volume_coefficients: sigma_a, sigma_s (of the node's phase)
+            # and emission per unit length, each times the mix weight.
+            kind, names = _phase_of(node)
+            params = tuple(float(const(n, "float")) if n in node.inputs else 0.0 for n in names)
+            ss = self._clean(node, "Scatter Coefficients", const("Scatter Coefficients", "color"))
+            self._add_scatter(acc, w * ss, kind, params)
+            acc["sigma_a"] += w * self._clean(node, "Absorption Coefficients", const("Absorption Coefficients", "color"))
+            acc["emission"] += w * self._clean(node, "Emission Coefficients", const("Emission Coefficients", "color"))
         elif t == 'PRINCIPLED_VOLUME':
             # Cycles' svm_node_principled_volume: scattering colour * density; extinction adds
             # (1 - colour)(1 - sqrt(absorption colour)) * density.
