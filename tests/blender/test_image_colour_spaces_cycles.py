@@ -2,6 +2,7 @@
 scene linear by OpenColorIO with Blender's config (addon/export/ocio.py), against Cycles (which
 converts them with the same library at load; stored references, tests/cycles_refs/): a byte PNG
 of saturated and grey texels on an emissive plane, one render per space."""
+import os
 import sys
 
 import numpy as np
@@ -182,3 +183,26 @@ def test_missing_bindings_warn_and_decode_as_srgb(png, monkeypatch):
         ocio.bindings.cache_clear()
     assert any("ACEScg" in w and "PyOpenColorIO" in w for w in warnings), warnings
     assert np.array_equal(image.pixels[..., :3], srgb_to_linear(raw))
+
+
+def test_bindings_found_as_blender_finds_them(monkeypatch):
+    """The wheel's PyOpenColorIO (not importable as it is) is found under bpy's version folder,
+    with sys.path left as it was; one that Python imports (Blender's own) is taken as it is."""
+    import types
+    for name in [n for n in sys.modules if n.split(".")[0] == "PyOpenColorIO"]:
+        monkeypatch.delitem(sys.modules, name)  # (restored after the test)
+    path = list(sys.path)
+    ocio.bindings.cache_clear()
+    try:
+        found = bindings()
+        folder = os.path.dirname(os.path.dirname(found.__file__))
+        assert found.__file__.startswith(bpy.utils.resource_path('LOCAL'))
+        assert sys.path == path and folder not in sys.path
+        assert found.Config.CreateFromFile(ocio.config_path()).getColorSpace("ACEScg") is not None
+        ocio.bindings.cache_clear()
+        own = types.ModuleType("PyOpenColorIO")
+        monkeypatch.setitem(sys.modules, "PyOpenColorIO", own)
+        monkeypatch.setattr(ocio, "_bindings_dirs", lambda: pytest.fail("looked past the plain import"))
+        assert bindings() is own
+    finally:
+        ocio.bindings.cache_clear()
