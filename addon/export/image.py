@@ -59,9 +59,9 @@ def is_srgb_bytes(image):
 def to_scene_linear(image, rgb):
     """Blender gives float images (.exr, .hdr) already in scene linear and byte images as raw
     byte/255 values in the image's colour space, linearised here as Cycles does: sRGB by its
-    transfer function, other spaces by the transforms of Blender's OCIO config (ocio.py).
-    Returns (rgb, note or None) where the note names a colour space this cannot convert (then
-    decoded as sRGB)."""
+    transfer function, other spaces by OpenColorIO with Blender's config (ocio.py).
+    Returns (rgb, note or None) where the note names a colour space this cannot convert and why
+    (the bindings missing, or no processor for it; then decoded as sRGB)."""
     space = image.colorspace_settings
     if image.is_float or space.is_data or space.name == "Non-Color" or space.name in LINEAR_SPACES:
         return rgb, None
@@ -70,6 +70,6 @@ def to_scene_linear(image, rgb):
     from .ocio import Unsupported, to_scene_linear as ocio_to_scene_linear
     try:
         return ocio_to_scene_linear(rgb, space.name), None
-    except (Unsupported, OSError, ValueError) as e:
+    except (Unsupported, OSError) as e:
         return srgb_to_linear(rgb), (f"colour space '{space.name}' of byte image '{image.name}' is "
                                      f"not supported ({e}; decoded as sRGB)")
