@@ -21,6 +21,26 @@ auto bilinear(F at, int w, int h, float u, float v) {
   return (at(xa, ya) * (1 - tx) + at(xb, ya) * tx) * (1 - ty) + (at(xa, yb) * (1 - tx) + at(xb, yb) * tx) * ty;
 }
 
+// The equirectangular texels' values f(t) at their centres' texture-space directions t, rows in
+// parallel (chunks of `grain` rows), clamped below 1e30 (a procedural sky's or a world program's
+// sampling image).
+template <class F>
+void fill_texels(std::vector<Vec3>& px, int w, int h, size_t grain, F f) {
+  parallel_ranges(
+      size_t(h), 0,
+      [&](size_t y0, size_t y1) {
+        for (size_t y = y0; y < y1; ++y) {
+          const float elevation = kPi * ((y + 0.5f) / h - 0.5f), ce = std::cos(elevation);
+          for (int x = 0; x < w; ++x) {
+            const float phi = kPi - 2.0f * kPi * ((x + 0.5f) / w);
+            const Vec3 t{ce * std::cos(phi), ce * std::sin(phi), std::sin(elevation)};
+            px[y * w + size_t(x)] = vmin(f(t), Vec3(1e30f));
+          }
+        }
+      },
+      grain);
+}
+
 }  // namespace
 
 Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation)
@@ -36,19 +56,7 @@ Environment::Environment(std::shared_ptr<const SkyModel> sky, int w, int h, floa
   strength_ = strength;
   // The sampling image: the sky without its disc at the texel centres.
   px_.resize(size_t(w_) * h_);
-  parallel_ranges(
-      size_t(h_), 0,
-      [&](size_t y0, size_t y1) {
-        for (size_t y = y0; y < y1; ++y) {
-          const float elevation = kPi * ((y + 0.5f) / h_ - 0.5f), ce = std::cos(elevation);
-          for (int x = 0; x < w_; ++x) {
-            const float phi = kPi - 2.0f * kPi * ((x + 0.5f) / w_);
-            const Vec3 t{ce * std::cos(phi), ce * std::sin(phi), std::sin(elevation)};
-            px_[y * w_ + size_t(x)] = vmin(sky_->eval(t, false) * strength_, Vec3(1e30f));
-          }
-        }
-      },
-      16);
+  fill_texels(px_, w_, h_, 16, [&](Vec3 t) { return sky_->eval(t, false) * strength_; });
   init_distributions();
   if (sky_->has_sun()) {
     sun_dir_ = sky_->sun_dir();
@@ -81,19 +89,7 @@ void Environment::bake(const Scene& scene) {
   // The map: the program at the texel centres with no ray kind (Cycles' background_map bakes
   // so, by shader evaluation on the equirectangular grid).
   px_.assign(size_t(w_) * h_, Vec3(0.0f));
-  parallel_ranges(
-      size_t(h_), 0,
-      [&](size_t y0, size_t y1) {
-        for (size_t y = y0; y < y1; ++y) {
-          const float elevation = kPi * ((y + 0.5f) / h_ - 0.5f), ce = std::cos(elevation);
-          for (int x = 0; x < w_; ++x) {
-            const float phi = kPi - 2.0f * kPi * ((x + 0.5f) / w_);
-            const Vec3 t{ce * std::cos(phi), ce * std::sin(phi), std::sin(elevation)};
-            px_[y * w_ + size_t(x)] = vmin(eval_program(t, nullptr), Vec3(1e30f));
-          }
-        }
-      },
-      4);
+  fill_texels(px_, w_, h_, 4, [&](Vec3 t) { return eval_program(t, nullptr); });
   lum_.clear();
   cell_cos_.clear();
   full_ = Cells();

@@ -425,22 +425,17 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
     def compile_light(self, output, name):
         """CompiledShader of a light's node tree (its Light Output's Surface: emission closures
         and the values they read), or None where it cannot be compiled (problems say why)."""
-        try:
-            self.shader_input(output.inputs["Surface"], (), None)
-        except _Cycle as e:
-            self.problem(f"node cycle through '{e}'")
-            return None
-        program = allocate_registers(eliminate_dead_code(self.ops))
-        if program is None:
-            self.problem(f"the light's nodes need more than {MAX_REGISTERS} registers")
-            return None
-        return CompiledShader(program, None, None, dict(self.uv_used), list(self.problems))
+        return self._compile_emission(output, "light")
 
     def compile_world(self, output, name):
         """CompiledShader of a world's Surface (Background and Emission closures, the values
         they read, Texture Coordinate as Cycles' background gives it), or None where it cannot
         be compiled (problems say why)."""
         self.background = True
+        return self._compile_emission(output, "world")
+
+    def _compile_emission(self, output, what):
+        """A light's or world's Surface (emission only) as a CompiledShader, or None."""
         try:
             self.shader_input(output.inputs["Surface"], (), None)
         except _Cycle as e:
@@ -448,7 +443,7 @@ class ShaderCompiler(GraphWalk, InputNodes, MathNodes, ColorNodes, VectorNodes, 
             return None
         program = allocate_registers(eliminate_dead_code(self.ops))
         if program is None:
-            self.problem(f"the world's nodes need more than {MAX_REGISTERS} registers")
+            self.problem(f"the {what}'s nodes need more than {MAX_REGISTERS} registers")
             return None
         return CompiledShader(program, None, None, dict(self.uv_used), list(self.problems))
 
