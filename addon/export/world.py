@@ -113,8 +113,15 @@ def export_world(world, warn, frame=None):
     frame, which picks an image sequence's frame (None: the file the image's path names)."""
     notes = []
     color = world_color(world, notes.append)
+    # A graph the colour already shows beyond the fast path is compiled before the fast path
+    # reads its image: an HDRI is read once, by the program's image table, not twice.
+    tried = bool(notes)
+    if tried:
+        program = world_program(world, warn, frame)
+        if program is not None:
+            return color, None, program
     texture = world_texture(world, notes.append, frame)
-    if notes:
+    if notes and not tried:
         program = world_program(world, warn, frame)
         if program is not None:
             return color, None, program
