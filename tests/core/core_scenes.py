@@ -121,6 +121,22 @@ def render(pc, scene, width=64, height=64, samples=64, **kw):
     return sess.film(), sess.stats()
 
 
+def emission_film(pc, ops_of, reg, size=1, extra=(), cam=None, max_bounces=0):
+    """(film, stats) of a 4x4 quad at z = 0 seen straight down from z = 4, one sample at each
+    pixel's centre (the smallest box filter), whose emission is register `reg` of the value ops
+    ops_of(scene) returns (a function: the ops may add the images they read to the scene).
+    extra: (positions, triangles) of grey objects beside it; cam: another camera."""
+    s = pc.Scene()
+    m = s.add_shader("m", list(ops_of(s)) + [("closure", "emission", None, {"color": reg})])
+    pos, tris = quad((-2, -2, 0), (4, 0, 0), (0, 4, 0))
+    add_object(s, pos, tris, m)
+    for p, t in extra:
+        add_object(s, p, t, s.add_material("grey", (0.5, 0.5, 0.5)))
+    s.set_world_color((0.0, 0.0, 0.0))
+    s.set_camera(cam or camera(pc, (0.0, 0.0, 4.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)))
+    return render(pc, s, size, size, samples=1, max_bounces=max_bounces, filter_width=0.01)
+
+
 def render_lit_mesh(pc, pos, tris, size=24, samples=4, **mesh_kw):
     """The film of one grey mesh (add_mesh's keywords: normals, uvs, ...) lit by a sun and seen
     obliquely from above: for checking that two ways of passing a mesh render alike."""

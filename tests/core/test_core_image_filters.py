@@ -7,7 +7,7 @@ tests/blender/test_image_projection_cycles.py."""
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, quad, render
+from core_scenes import core, emission_film
 
 pc = core()
 pytestmark = pytest.mark.sanitize
@@ -148,14 +148,7 @@ def run(ops_of, cases):
     RGB stands for alpha too.)"""
     out = []
     for case in cases:
-        s = pc.Scene()
-        prog = ops_of(s, case) + [("closure", "emission", None, {"color": 9})]
-        m = s.add_shader("m", prog)
-        pos, tris = quad((-2, -2, 0), (4, 0, 0), (0, 4, 0))
-        add_object(s, pos, tris, m)
-        s.set_world_color((0.0, 0.0, 0.0))
-        s.set_camera(camera(pc, (0.0, 0.0, 4.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)))
-        img, _ = render(pc, s, 1, 1, samples=1, max_bounces=0, filter_width=0.01)
+        img, _ = emission_film(pc, lambda s: ops_of(s, case), 9)
         out.append(img[0, 0, :3])
     return np.array(out)
 

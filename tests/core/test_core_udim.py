@@ -7,7 +7,7 @@ tests/blender/test_image_sources_cycles.py."""
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, core, quad, render
+from core_scenes import core, emission_film
 
 pc = core()
 pytestmark = pytest.mark.sanitize
@@ -22,20 +22,16 @@ MAGENTA = (1.0, 0.0, 1.0)
 def lookups(uvs, interp="LINEAR", ext="REPEAT", plain=False):
     """The Image Texture colours (RGB) at each (u, v) of `uvs` of a tile set 1001 (RED),
     1002 (GREEN), 1011 (BLUE); plain: of the 1001 image alone."""
+    def ops_at(u, v):
+        def ops(s):
+            red = s.add_image(RED)
+            ids = [red, s.add_image(GREEN), s.add_image(BLUE)]
+            tiles = s.add_image_tiles([(1001, ids[0]), (1002, ids[1]), (1011, ids[2])])
+            return [("const", 0, (u, v, 0.0, 0.0)), ("image", 1, 0, red if plain else tiles, interp, ext)]
+        return ops
     out = []
     for u, v in uvs:
-        s = pc.Scene()
-        red = s.add_image(RED)
-        ids = [red, s.add_image(GREEN), s.add_image(BLUE)]
-        tiles = s.add_image_tiles([(1001, ids[0]), (1002, ids[1]), (1011, ids[2])])
-        prog = [("const", 0, (u, v, 0.0, 0.0)), ("image", 1, 0, red if plain else tiles, interp, ext),
-                ("closure", "emission", None, {"color": 1})]
-        m = s.add_shader("m", prog)
-        pos, tris = quad((-2, -2, 0), (4, 0, 0), (0, 4, 0))
-        add_object(s, pos, tris, m)
-        s.set_world_color((0.0, 0.0, 0.0))
-        s.set_camera(camera(pc, (0.0, 0.0, 4.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)))
-        img, _ = render(pc, s, 1, 1, samples=1, max_bounces=0, filter_width=0.01)
+        img, _ = emission_film(pc, ops_at(u, v), 1)
         out.append(img[0, 0, :3])
     return np.array(out)
 

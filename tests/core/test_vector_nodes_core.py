@@ -5,7 +5,7 @@ the ops' arguments. The per-pixel comparisons with Cycles are in test_vector_nod
 import numpy as np
 import pytest
 
-from core_scenes import add_object, camera, closure, core, quad, render
+from core_scenes import add_object, camera, closure, core, emission_film, quad, render
 
 pc = core()
 pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
@@ -14,17 +14,7 @@ pytestmark = pytest.mark.sanitize  # also run on the sanitizer build by .ci/run
 def emission_of(value_ops, size=8, extra=None, cam=None):
     """The film of a 4x4 quad at z = 0 (seen from z = 4, straight down) whose emission is the
     register the ops leave in 10 (their own registers from 0)."""
-    s = pc.Scene()
-    prog = list(value_ops) + [("closure", "emission", None, {"color": 10})]
-    m = s.add_shader("m", prog)
-    pos, tris = quad((-2, -2, 0), (4, 0, 0), (0, 4, 0))
-    add_object(s, pos, tris, m)
-    for p, t in extra or ():
-        add_object(s, p, t, s.add_material("grey", (0.5, 0.5, 0.5)))
-    s.set_world_color((0.0, 0.0, 0.0))
-    s.set_camera(cam or camera(pc, (0.0, 0.0, 4.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0)))
-    # One sample at each pixel's centre (the smallest box filter).
-    img, stats = render(pc, s, size, size, samples=1, max_bounces=0, filter_width=0.01)
+    img, stats = emission_film(pc, lambda s: value_ops, 10, size, extra or (), cam)
     assert stats["nonfinite_samples"] == 0
     return img[..., :3]
 
