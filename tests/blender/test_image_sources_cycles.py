@@ -4,6 +4,8 @@ rendered by Pathlight and compared with Cycles (stored references, tests/cycles_
 emissive plane whose UVs cross the tiles seen straight down by an orthographic camera, so that
 every pixel is a texture lookup. The frame and path arithmetic is checked against Blender's own
 (the evaluated node's ImageUser, Image.filepath_from_user)."""
+import os
+
 import numpy as np
 import pytest
 
@@ -311,44 +313,157 @@ def test_path_tokens():
     assert sequence_path("/a/nodigits.png", 3) == "/a/nodigits3.png"
 
 
-def test_movie_renders_its_first_frame_with_a_warning(tmp_path):
-    """bpy gives a movie's pixels only as the frame it loaded last: Pathlight renders the first
-    frame, and says so at other frames."""
+MOVIE_FRAMES = 3
+
+
+@pytest.fixture(scope="module")
+def movie_file(folder):
+    """A movie of MOVIE_FRAMES frames, frame f the 4 x 4 texels of FRAME_COLOURS[f] as blocks
+    of 4 x 4 pixels (16 x 16: FFmpeg's smallest; lossless: PNG frames in an AVI), written by
+    Blender's sequencer from PNG frames."""
+    for frame, colour in FRAME_COLOURS.items():
+        write_png(folder / f"movie_frame.{frame:04d}.png", np.kron(texels(colour), np.ones((4, 4, 1))))
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
-    scene.render.resolution_x = scene.render.resolution_y = 64
-    scene.render.engine = 'BLENDER_WORKBENCH'
-    scene.display.shading.background_type = 'WORLD'
-    world = bpy.data.worlds.new("W")
-    scene.world = world
-    for f, c in FRAME_COLOURS.items():
-        world.color = c
-        world.keyframe_insert("color", frame=f)
-    cam = bpy.data.objects.new("C", bpy.data.cameras.new("C"))
-    scene.collection.objects.link(cam)
-    scene.camera = cam
+    scene.sequence_editor_create()
+    strip = scene.sequence_editor.strips.new_image("frames", str(folder / "movie_frame.0001.png"), 1, 1)
+    for frame in range(2, MOVIE_FRAMES + 1):
+        strip.elements.append(f"movie_frame.{frame:04d}.png")
+    scene.render.resolution_x = scene.render.resolution_y = 16
+    scene.render.resolution_percentage = 100
+    scene.view_settings.view_transform = 'Standard'
     scene.render.image_settings.file_format = 'FFMPEG'
     scene.render.ffmpeg.format = 'AVI'
     scene.render.ffmpeg.codec = 'PNG'
-    scene.render.filepath = str(tmp_path / "movie.avi")
+    scene.render.filepath = str(folder / "movie.avi")
     scene.render.use_file_extension = False
-    scene.frame_start, scene.frame_end = 1, 3
+    scene.frame_start, scene.frame_end = 1, MOVIE_FRAMES
     bpy.ops.render.render(animation=True)
+    path = folder / "movie.avi"
+    # The same bytes at every run (the stored Cycles reference's key hashes them): FFmpeg's AVI
+    # writer records the time of writing (INFO ICRD, "YYYY/MM/DD hh:mm:ss").
+    data = bytearray(path.read_bytes())
+    at = data.find(b"ICRD")
+    if at >= 0:
+        size = int.from_bytes(data[at + 4:at + 8], "little")
+        data[at + 8:at + 8 + size] = b"2000/01/01 00:00:00\0"[:size].ljust(size, b"\0")
+        path.write_bytes(bytes(data))
+    return path
 
-    def movie():
-        img = bpy.data.images.load(str(tmp_path / "movie.avi"), check_existing=False)
-        img.colorspace_settings.name = "Non-Color"
+
+def movie_image(path, duration=MOVIE_FRAMES, start=1, offset=0, cyclic=False):
+    """image_fn of uv_plane_scene: the movie, its node's Image User set as given."""
+    def image():
+        img = bpy.data.images.load(str(path), check_existing=False)
+        assert img.source == 'MOVIE'
         return img
-    first = movie()
-    expect = np.empty(len(first.pixels), np.float32)
-    first.pixels.foreach_get(expect)
-    expect = expect.reshape(64, 64, 4)[..., :3].mean((0, 1))
-    assert first.source == 'MOVIE' and expect.std() > 0.05
-    for frame, warned in ((1, False), (3, True)):
-        build = uv_plane_scene(movie, (0.0, 0.0), (1.0, 1.0), frame=frame)
-        build()
-        warnings = Warnings()
-        export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
-        assert any("first frame" in w for w in warnings) == warned, warnings
-        ours = render_to_array(bpy.context.scene, "PATHLIGHT", samples=4, max_bounces=0)
-        assert np.allclose(ours[..., :3].mean((0, 1)), expect, atol=0.01), frame
+
+    def user(tex):
+        u = tex.image_user
+        u.frame_duration, u.frame_start, u.frame_offset, u.use_cyclic = duration, start, offset, cyclic
+    image.user = user
+    return image
+
+
+def movie_scene(path, frame, **user):
+    image_fn = movie_image(path, **user)
+    build = uv_plane_scene(image_fn, (0.0, 0.0), (1.0, 1.0), frame=frame)
+
+    def build_movie():
+        scene = build()
+        image_fn.user(bpy.data.materials["Tiles"].node_tree.nodes["Image Texture"])
+        return scene
+    return build_movie
+
+
+def written_frame(folder, frame):
+    """The RGBA of the PNG that became movie frame `frame` (byte/255, row 0 = bottom)."""
+    img = bpy.data.images.load(str(folder / f"movie_frame.{frame:04d}.png"), check_existing=False)
+    try:
+        px = np.empty(len(img.pixels), np.float32)
+        img.pixels.foreach_get(px)
+        return px.reshape(img.size[1], img.size[0], 4)
+    finally:
+        bpy.data.images.remove(img)
+
+
+@pytest.mark.parametrize("scene_frame, user, frame", [
+    (1, {}, 1), (2, {}, 2), (3, {}, 3),
+    (5, dict(start=2, offset=1, cyclic=True), 2),  # cyclic: (5 - 2 + 1) mod 3 = 1, + 1
+    (5, dict(duration=5), 3),  # frame 5 of a 3-frame file: its last
+])
+def test_movie_frames_match_cycles(movie_file, scene_frame, user, frame):
+    """The frame of the node's Image User at the scene frame, as Cycles renders it (64
+    samples: a texel per pixel, Linear, is noisier than the sequences' 4 pixels per texel;
+    the same frame as a PNG renders identically in both engines, measured 2026-12-08)."""
+    ours, cycles = render_both(movie_scene(movie_file, scene_frame, **user), samples=64)
+    assert_same(ours, cycles, f"movie at scene frame {scene_frame} {user}")
+    assert nearest_frame(ours) == frame
+
+
+def test_movie_frame_pixels_are_the_files(movie_file):
+    """The decoded frames are the written frames' bytes exactly, also in the world's
+    Environment Texture (read_pixels), at any order of reading and from the cache."""
+    from addon.export.image import read_pixels
+    from addon.export import image_sources
+    folder = movie_file.parent
+    image_sources.clear_movie_cache()
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    world = bpy.data.worlds.new("W")
+    world.use_nodes = True
+    env = world.node_tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = bpy.data.images.load(str(movie_file), check_existing=False)
+    env.image.colorspace_settings.name = "Non-Color"
+    env.image_user.frame_duration = MOVIE_FRAMES
+    images = set(bpy.data.images)
+    for frame in (3, 1, 2, 3):
+        buf, why = read_pixels(env.image, env.image_user, frame)
+        assert why is None and np.array_equal(buf, written_frame(folder, frame)), frame
+    assert set(bpy.data.images) == images  # (the temporary images are gone)
+
+
+def test_movie_frames_are_decoded_once(movie_file, monkeypatch):
+    """Each (file, frame) is decoded once in a session; a rewritten file is decoded again."""
+    from addon.export import image_sources
+    decoded = []
+    decode = image_sources.decode_movie_frame
+    monkeypatch.setattr(image_sources, "decode_movie_frame",
+                        lambda tmp, frame: (decoded.append(frame), decode(tmp, frame)))
+    image_sources.clear_movie_cache()
+    movie_scene(movie_file, 2)()
+    first = export_scene(bpy.context.evaluated_depsgraph_get(), Warnings())
+    again = export_scene(bpy.context.evaluated_depsgraph_get(), Warnings())
+    assert decoded == [2]
+    assert [i.pixels.tobytes() for i in first.images] == [i.pixels.tobytes() for i in again.images]
+    stat = movie_file.stat()
+    os.utime(movie_file, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    export_scene(bpy.context.evaluated_depsgraph_get(), Warnings())
+    assert decoded == [2, 2]
+
+
+def test_movie_follows_the_frame_in_an_animation(movie_file):
+    """Two frames of one animation (persistent data: the kept scene is rebuilt)."""
+    scene = movie_scene(movie_file, 1)()
+    scene.render.use_persistent_data = True
+    first = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
+    scene.frame_set(3)
+    third = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
+    assert (nearest_frame(first), nearest_frame(third)) == (1, 3)
+
+
+def test_movie_frame_that_cannot_be_decoded_is_the_first_with_a_warning(movie_file, monkeypatch):
+    from addon.export import image_sources
+
+    def fail(tmp, frame):
+        raise RuntimeError("no such frame")
+    image_sources.clear_movie_cache()
+    monkeypatch.setattr(image_sources, "decode_movie_frame", fail)
+    first = render_to_array(movie_scene(movie_file, 1)(), "PATHLIGHT", samples=4, max_bounces=0)
+    movie_scene(movie_file, 3)()
+    images = set(bpy.data.images)
+    warnings = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert set(bpy.data.images) == images
+    assert any("frame 3 cannot be decoded" in w and "first frame" in w for w in warnings), warnings
+    ours = render_to_array(bpy.context.scene, "PATHLIGHT", samples=4, max_bounces=0)
+    assert nearest_frame(ours[..., :3]) == 1 and np.array_equal(ours, first)
