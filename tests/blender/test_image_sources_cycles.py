@@ -467,3 +467,38 @@ def test_movie_frame_that_cannot_be_decoded_is_the_first_with_a_warning(movie_fi
     assert any("frame 3 cannot be decoded" in w and "first frame" in w for w in warnings), warnings
     ours = render_to_array(bpy.context.scene, "PATHLIGHT", samples=4, max_bounces=0)
     assert nearest_frame(ours[..., :3]) == 1 and np.array_equal(ours, first)
+
+
+def test_world_movie_frame_matches_cycles(movie_file):
+    """The world's Environment Texture shows the frame of its Image User at the scene frame,
+    as Cycles (a wide lens along the horizon; 4 x 4 pixel regions)."""
+    def build(frame):
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 32
+        world = bpy.data.worlds.new("W")
+        world.use_nodes = True
+        nt = world.node_tree
+        env = nt.nodes.new("ShaderNodeTexEnvironment")
+        env.image = bpy.data.images.load(str(movie_file), check_existing=False)
+        # (Non-Color: the world fast path filters sRGB bytes after decoding them, Cycles
+        # before, which differs at the checker's hard texel edges: docs/materials.md)
+        env.image.colorspace_settings.name = "Non-Color"
+        env.image_user.frame_duration = MOVIE_FRAMES
+        nt.links.new(env.outputs["Color"], nt.nodes["Background"].inputs["Color"])
+        scene.world = world
+        cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+        cam.data.lens = 12.0
+        cam.rotation_euler = (np.pi / 2, 0.0, 0.3)
+        scene.collection.objects.link(cam)
+        scene.camera = cam
+        scene.frame_set(frame)
+        return scene
+
+    def regions(img):
+        return img[..., :3].reshape(8, 4, 8, 4, 3).mean((1, 3))
+    ours = {f: render_to_array(build(f), "PATHLIGHT", samples=16, max_bounces=0) for f in (1, 3)}
+    cycles = render_to_array(build(3), "CYCLES", samples=16, max_bounces=0, **BOX_FILTER)
+    print(f"\nworld movie frame 3: max region |diff| {np.abs(regions(ours[3]) - regions(cycles)).max():.4f}")
+    np.testing.assert_allclose(regions(ours[3]), regions(cycles), atol=0.02)
+    assert np.abs(regions(ours[3]) - regions(ours[1])).max() > 0.1  # (frame 1 is not frame 3)
