@@ -61,11 +61,12 @@ def folder(tmp_path_factory):
 
 
 def uv_plane_scene(image_fn, uv_min, uv_max, interpolation='Linear', extension='REPEAT', frame=1,
-                   alpha=False):
+                   alpha=False, quads_per_unit=4, mapping=False):
     """build() of an emissive plane whose UVs run from uv_min to uv_max (a grid of quads with
     corners inside every tile, which Cycles' tile culling reads), image_fn() its Image Texture,
     seen by an orthographic camera, PX pixels per UV unit; alpha: mixed with a Transparent BSDF
-    by the texture's Alpha (which makes Color the unassociated colour)."""
+    by the texture's Alpha (which makes Color the unassociated colour); quads_per_unit: the
+    grid's quads per UV unit (0: one quad)."""
     (u0, v0), (u1, v1) = uv_min, uv_max
 
     def build():
@@ -92,7 +93,14 @@ def uv_plane_scene(image_fn, uv_min, uv_max, interpolation='Linear', extension='
             links.new(mix.outputs[0], out.inputs["Surface"])
         else:
             links.new(emit.outputs[0], out.inputs["Surface"])
-        nx, ny = round(w * 4), round(h * 4)
+        if mapping:  # the Vector through a Mapping node: "identity" or with a Z "offset"
+            uv = nodes.new("ShaderNodeTexCoord")
+            mp = nodes.new("ShaderNodeMapping")
+            if mapping == "offset":
+                mp.inputs["Location"].default_value = (0.0, 0.0, 0.5)
+            links.new(uv.outputs["UV"], mp.inputs["Vector"])
+            links.new(mp.outputs["Vector"], tex.inputs["Vector"])
+        nx, ny = max(round(w * quads_per_unit), 1), max(round(h * quads_per_unit), 1)
         verts = [(i * w / nx, j * h / ny, 0.0) for j in range(ny + 1) for i in range(nx + 1)]
         faces = [(j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i)
                  for j in range(ny) for i in range(nx)]
@@ -211,6 +219,39 @@ def test_tiles_alpha_matches_cycles(folder):
     opaque = render_to_array(uv_plane_scene(image, (0.0, 0.0), (2.0, 2.0))(), "PATHLIGHT", samples=4,
                              max_bounces=0)[..., :3]
     assert np.abs(ours - opaque).mean() > 0.01  # (Color alone: the associated colour)
+
+
+@pytest.mark.parametrize("mapping", [None, "identity", "offset"])
+def test_tiles_without_a_uv_corner_are_culled_as_in_cycles(folder, mapping):
+    """One quad whose UVs run from (0, 0) to (3, 1): its corners lie in tiles 1001 and 1003
+    only (u = 3 counts for tile 1003), so Cycles' final render drops tile 1002 of the image
+    (cull_tiles) and reads magenta there, also through an identity Mapping node (which its
+    constant folding bypasses); through any other Mapping the Vector is not a UV map and
+    every tile stays."""
+    build = uv_plane_scene(lambda: udim_image(folder, missing=()), (0.0, 0.0), (3.0, 1.0),
+                           quads_per_unit=0, mapping=mapping)
+    ours, cycles = render_both(build)
+    assert_same(ours, cycles, f"one quad over tiles 1001-1003, mapping {mapping}")
+    middle = at(ours, (0.0, 0.0), 1.5, 0.5)
+    if mapping == "offset":
+        assert np.argmax(middle) == 1, middle  # tile 1002: green
+    else:
+        assert np.allclose(middle, MAGENTA, atol=1e-3), middle
+    assert np.argmax(at(ours, (0.0, 0.0), 0.5, 0.5)) == 0  # tile 1001: red, kept
+
+
+def test_tile_culling_is_for_final_renders_only(folder):
+    """The viewport's export (cull_udim_tiles False) keeps every tile, as Cycles' viewport;
+    the final render's keeps the tiles with a UV corner in them (u = 3, v = 1 count for tile
+    1003: within 1e-6 above a tile's left or lower edge is the tile before)."""
+    uv_plane_scene(lambda: udim_image(folder, missing=()), (0.0, 0.0), (3.0, 1.0), quads_per_unit=0)()
+    for cull, expect in ((False, [1001, 1002, 1011]), (True, [1001])):
+        data = export_scene(bpy.context.evaluated_depsgraph_get(), Warnings(), cull_udim_tiles=cull)
+        sets = [i for i in data.images if i.pixels is None]
+        assert [sorted(n for n, _ in s.tiles) for s in sets] == [expect], cull
+    from addon.export import uv_tiles
+    assert uv_tiles([(0, 0), (3, 1), (1.0000001, 2.5), (-0.5, 0.5), (9.5, 0), (10.0, 0), (2, -1.5)]) \
+        == {1001, 1003, 1021, 1010}
 
 
 def test_unreadable_tiles_warn_once(folder):
