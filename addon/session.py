@@ -465,7 +465,8 @@ def render(engine, depsgraph):
             data = export_scene(depsgraph, warn, cache, should_stop=lambda: _stop_requested(
                 engine, "export", time.monotonic() - t0, scene.pathlight.time_limit),
                 uv_pass="UV" in names and not engine.is_preview,
-                aovs=[(a[0], 'COLOR' if a[1] == 4 else 'VALUE') for a in aovs], layer=layer)
+                aovs=[(a[0], 'COLOR' if a[1] == 4 else 'VALUE') for a in aovs], layer=layer,
+                cull_udim_tiles=True)  # (as Cycles' final renders: its viewport loads every tile)
         except ExportCancelled:
             log.info("render cancelled during the export")
             _empty_result(engine, scene, view_layer)

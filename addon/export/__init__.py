@@ -54,7 +54,7 @@ class SceneData:
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None, uv_pass=False,
-                 aovs=(), layer=None):
+                 aovs=(), layer=None, cull_udim_tiles=False):
     """Everything Pathlight renders, read from the evaluated depsgraph. warn(msg) reports
     unsupported features (each call is one message for the user). mesh_cache: a
     mesh_cache.MeshCache that keeps unchanged meshes' arrays between exports (animation).
@@ -63,7 +63,9 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     ExportCancelled. uv_pass: every mesh exports its active render UV map for the UV pass
     (data.uv_sets.names.index("") is its uv set). aovs: the view layer's shader AOVs, (name,
     'COLOR' or 'VALUE') in slot order, that AOV Output nodes write. layer: the view layer's
-    view_layer.LayerSettings (overrides, filters), read from the depsgraph when None."""
+    view_layer.LayerSettings (overrides, filters), read from the depsgraph when None.
+    cull_udim_tiles: drop the UDIM tiles that no UV corner of a material's meshes lies in, as
+    Cycles' final renders (not its viewport) do (cull_tiles below)."""
     scene = depsgraph.scene
     if layer is None:
         layer = layer_settings(depsgraph)
@@ -101,6 +103,8 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
     curve_materials = [table.index(c.material) for c in curves]
     points = collect_points(depsgraph, warn, table.index, attributes, table.uv_names, layer)
     point_materials = [table.index(p.material) for p in points]
+    if cull_udim_tiles:
+        cull_tiles(table, meshes, material_slots, set(curve_materials) | set(point_materials))
     lights = collect_lights(depsgraph, warn, is_visible)
     try:
         links = light_links(depsgraph, warn)
@@ -122,6 +126,44 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                      curves, curve_materials, volume_grids, frozenset(table.volume_material_names),
                      points, point_materials, links, view_layer_lightgroups(getattr(depsgraph, "view_layer", None)),
                      world_lightgroup(world), w_program)
+
+
+def uv_tiles(uv):
+    """The UDIM tiles that UV corners `uv` (float32 (..., 2)) lie in, as Cycles'
+    Attribute::get_uv_tiles counts them: tile 1001 + int(u) + 10 int(v) (C's truncation) for
+    u in (-1, 10) and v > -1, a corner within 1e-6 above a tile's left or lower edge (u or v
+    > 1) counting for the tile before it."""
+    uv = np.asarray(uv, np.float32).reshape(-1, 2)
+    uv = uv[np.isfinite(uv).all(axis=1) & (np.abs(uv) < 1e6).all(axis=1)]
+    u, v = uv[:, 0], uv[:, 1]
+    x, y = np.trunc(u).astype(np.int64), np.trunc(v).astype(np.int64)
+    ok = (x >= 0) & (y >= 0) & (x < 10)
+    eps = np.float32(1e-6)
+    x = np.where((x > 0) & (u < x.astype(np.float32) + eps), x - 1, x)
+    y = np.where((y > 0) & (v < y.astype(np.float32) + eps), y - 1, y)
+    return set((1001 + 10 * y[ok] + x[ok]).tolist())
+
+
+def cull_tiles(table, meshes, material_slots, other_materials):
+    """Cycles' final renders load, for each Image Texture node of a UDIM image, only the tiles
+    that a UV corner of some geometry using the node's material lies in, on the node's UV map
+    (ImageTextureNode::cull_tiles: every corner of every mesh whose materials include it,
+    whichever faces use it); a lookup in a dropped tile reads magenta. The node's own tile set
+    (ImageTable.tile_owners) loses those tiles here. Materials of curves or point clouds keep
+    every tile (their UVs are not counted here)."""
+    names = list(getattr(table.uv_sets, "names", []))
+    for image_index, (material, uv_map) in table.images.tile_owners.items():
+        m = table.material_index(material)
+        if m is None or m in other_materials or uv_map not in names:
+            continue
+        k = names.index(uv_map)
+        used = set()
+        for mesh, slots in zip(meshes, material_slots):
+            uv = mesh.uvs.get(k) if m in slots else None
+            if uv is not None:
+                used |= uv_tiles(uv)
+        data = table.images.images[image_index]
+        data.tiles = tuple((n, i) for n, i in data.tiles if n in used)
 
 
 MAX_LIGHT_GROUPS = 64  # the core's kMaxLightGroups

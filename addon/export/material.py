@@ -150,6 +150,10 @@ class MaterialTable:
                                                    scene_grids=self.grids))
         return self._index[key]
 
+    def material_index(self, pointer):
+        """The index of the material whose as_pointer() is `pointer`, None if not converted."""
+        return self._index.get(pointer)
+
     def volume_index(self, mat, grids, density_scale=1.0):
         """The index of `mat` compiled for a volume object whose grids are `grids` ({name:
         (core grid id, channels)}): its Volume reads them, its surface lets light through."""

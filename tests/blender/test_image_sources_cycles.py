@@ -4,6 +4,8 @@ rendered by Pathlight and compared with Cycles (stored references, tests/cycles_
 emissive plane whose UVs cross the tiles seen straight down by an orthographic camera, so that
 every pixel is a texture lookup. The frame and path arithmetic is checked against Blender's own
 (the evaluated node's ImageUser, Image.filepath_from_user)."""
+import os
+
 import numpy as np
 import pytest
 
@@ -59,11 +61,12 @@ def folder(tmp_path_factory):
 
 
 def uv_plane_scene(image_fn, uv_min, uv_max, interpolation='Linear', extension='REPEAT', frame=1,
-                   alpha=False):
+                   alpha=False, quads_per_unit=4, mapping=False):
     """build() of an emissive plane whose UVs run from uv_min to uv_max (a grid of quads with
     corners inside every tile, which Cycles' tile culling reads), image_fn() its Image Texture,
     seen by an orthographic camera, PX pixels per UV unit; alpha: mixed with a Transparent BSDF
-    by the texture's Alpha (which makes Color the unassociated colour)."""
+    by the texture's Alpha (which makes Color the unassociated colour); quads_per_unit: the
+    grid's quads per UV unit (0: one quad)."""
     (u0, v0), (u1, v1) = uv_min, uv_max
 
     def build():
@@ -90,7 +93,14 @@ def uv_plane_scene(image_fn, uv_min, uv_max, interpolation='Linear', extension='
             links.new(mix.outputs[0], out.inputs["Surface"])
         else:
             links.new(emit.outputs[0], out.inputs["Surface"])
-        nx, ny = round(w * 4), round(h * 4)
+        if mapping:  # the Vector through a Mapping node: "identity" or with a Z "offset"
+            uv = nodes.new("ShaderNodeTexCoord")
+            mp = nodes.new("ShaderNodeMapping")
+            if mapping == "offset":
+                mp.inputs["Location"].default_value = (0.0, 0.0, 0.5)
+            links.new(uv.outputs["UV"], mp.inputs["Vector"])
+            links.new(mp.outputs["Vector"], tex.inputs["Vector"])
+        nx, ny = max(round(w * quads_per_unit), 1), max(round(h * quads_per_unit), 1)
         verts = [(i * w / nx, j * h / ny, 0.0) for j in range(ny + 1) for i in range(nx + 1)]
         faces = [(j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i)
                  for j in range(ny) for i in range(nx)]
@@ -211,6 +221,39 @@ def test_tiles_alpha_matches_cycles(folder):
     assert np.abs(ours - opaque).mean() > 0.01  # (Color alone: the associated colour)
 
 
+@pytest.mark.parametrize("mapping", [None, "identity", "offset"])
+def test_tiles_without_a_uv_corner_are_culled_as_in_cycles(folder, mapping):
+    """One quad whose UVs run from (0, 0) to (3, 1): its corners lie in tiles 1001 and 1003
+    only (u = 3 counts for tile 1003), so Cycles' final render drops tile 1002 of the image
+    (cull_tiles) and reads magenta there, also through an identity Mapping node (which its
+    constant folding bypasses); through any other Mapping the Vector is not a UV map and
+    every tile stays."""
+    build = uv_plane_scene(lambda: udim_image(folder, missing=()), (0.0, 0.0), (3.0, 1.0),
+                           quads_per_unit=0, mapping=mapping)
+    ours, cycles = render_both(build)
+    assert_same(ours, cycles, f"one quad over tiles 1001-1003, mapping {mapping}")
+    middle = at(ours, (0.0, 0.0), 1.5, 0.5)
+    if mapping == "offset":
+        assert np.argmax(middle) == 1, middle  # tile 1002: green
+    else:
+        assert np.allclose(middle, MAGENTA, atol=1e-3), middle
+    assert np.argmax(at(ours, (0.0, 0.0), 0.5, 0.5)) == 0  # tile 1001: red, kept
+
+
+def test_tile_culling_is_for_final_renders_only(folder):
+    """The viewport's export (cull_udim_tiles False) keeps every tile, as Cycles' viewport;
+    the final render's keeps the tiles with a UV corner in them (u = 3, v = 1 count for tile
+    1003: within 1e-6 above a tile's left or lower edge is the tile before)."""
+    uv_plane_scene(lambda: udim_image(folder, missing=()), (0.0, 0.0), (3.0, 1.0), quads_per_unit=0)()
+    for cull, expect in ((False, [1001, 1002, 1011]), (True, [1001])):
+        data = export_scene(bpy.context.evaluated_depsgraph_get(), Warnings(), cull_udim_tiles=cull)
+        sets = [i for i in data.images if i.pixels is None]
+        assert [sorted(n for n, _ in s.tiles) for s in sets] == [expect], cull
+    from addon.export import uv_tiles
+    assert uv_tiles([(0, 0), (3, 1), (1.0000001, 2.5), (-0.5, 0.5), (9.5, 0), (10.0, 0), (2, -1.5)]) \
+        == {1001, 1003, 1021, 1010}
+
+
 def test_unreadable_tiles_warn_once(folder):
     uv_plane_scene(lambda: udim_image(folder, missing=(1003, 1004)), *UDIM_RANGE)()
     images = set(bpy.data.images)
@@ -311,44 +354,192 @@ def test_path_tokens():
     assert sequence_path("/a/nodigits.png", 3) == "/a/nodigits3.png"
 
 
-def test_movie_renders_its_first_frame_with_a_warning(tmp_path):
-    """bpy gives a movie's pixels only as the frame it loaded last: Pathlight renders the first
-    frame, and says so at other frames."""
+MOVIE_FRAMES = 3
+
+
+@pytest.fixture(scope="module")
+def movie_file(folder):
+    """A movie of MOVIE_FRAMES frames, frame f the 4 x 4 texels of FRAME_COLOURS[f] as blocks
+    of 4 x 4 pixels (16 x 16: FFmpeg's smallest; lossless: PNG frames in an AVI), written by
+    Blender's sequencer from PNG frames."""
+    for frame, colour in FRAME_COLOURS.items():
+        write_png(folder / f"movie_frame.{frame:04d}.png", np.kron(texels(colour), np.ones((4, 4, 1))))
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
-    scene.render.resolution_x = scene.render.resolution_y = 64
-    scene.render.engine = 'BLENDER_WORKBENCH'
-    scene.display.shading.background_type = 'WORLD'
-    world = bpy.data.worlds.new("W")
-    scene.world = world
-    for f, c in FRAME_COLOURS.items():
-        world.color = c
-        world.keyframe_insert("color", frame=f)
-    cam = bpy.data.objects.new("C", bpy.data.cameras.new("C"))
-    scene.collection.objects.link(cam)
-    scene.camera = cam
+    scene.sequence_editor_create()
+    strip = scene.sequence_editor.strips.new_image("frames", str(folder / "movie_frame.0001.png"), 1, 1)
+    for frame in range(2, MOVIE_FRAMES + 1):
+        strip.elements.append(f"movie_frame.{frame:04d}.png")
+    scene.render.resolution_x = scene.render.resolution_y = 16
+    scene.render.resolution_percentage = 100
+    scene.view_settings.view_transform = 'Standard'
     scene.render.image_settings.file_format = 'FFMPEG'
     scene.render.ffmpeg.format = 'AVI'
     scene.render.ffmpeg.codec = 'PNG'
-    scene.render.filepath = str(tmp_path / "movie.avi")
+    scene.render.filepath = str(folder / "movie.avi")
     scene.render.use_file_extension = False
-    scene.frame_start, scene.frame_end = 1, 3
+    scene.frame_start, scene.frame_end = 1, MOVIE_FRAMES
     bpy.ops.render.render(animation=True)
+    path = folder / "movie.avi"
+    # The same bytes at every run (the stored Cycles reference's key hashes them): FFmpeg's AVI
+    # writer records the time of writing (INFO ICRD, "YYYY/MM/DD hh:mm:ss").
+    data = bytearray(path.read_bytes())
+    at = data.find(b"ICRD")
+    if at >= 0:
+        size = int.from_bytes(data[at + 4:at + 8], "little")
+        data[at + 8:at + 8 + size] = b"2000/01/01 00:00:00\0"[:size].ljust(size, b"\0")
+        path.write_bytes(bytes(data))
+    return path
 
-    def movie():
-        img = bpy.data.images.load(str(tmp_path / "movie.avi"), check_existing=False)
-        img.colorspace_settings.name = "Non-Color"
+
+def movie_image(path, duration=MOVIE_FRAMES, start=1, offset=0, cyclic=False):
+    """image_fn of uv_plane_scene: the movie, its node's Image User set as given."""
+    def image():
+        img = bpy.data.images.load(str(path), check_existing=False)
+        assert img.source == 'MOVIE'
         return img
-    first = movie()
-    expect = np.empty(len(first.pixels), np.float32)
-    first.pixels.foreach_get(expect)
-    expect = expect.reshape(64, 64, 4)[..., :3].mean((0, 1))
-    assert first.source == 'MOVIE' and expect.std() > 0.05
-    for frame, warned in ((1, False), (3, True)):
-        build = uv_plane_scene(movie, (0.0, 0.0), (1.0, 1.0), frame=frame)
-        build()
-        warnings = Warnings()
-        export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
-        assert any("first frame" in w for w in warnings) == warned, warnings
-        ours = render_to_array(bpy.context.scene, "PATHLIGHT", samples=4, max_bounces=0)
-        assert np.allclose(ours[..., :3].mean((0, 1)), expect, atol=0.01), frame
+
+    def user(tex):
+        u = tex.image_user
+        u.frame_duration, u.frame_start, u.frame_offset, u.use_cyclic = duration, start, offset, cyclic
+    image.user = user
+    return image
+
+
+def movie_scene(path, frame, **user):
+    image_fn = movie_image(path, **user)
+    build = uv_plane_scene(image_fn, (0.0, 0.0), (1.0, 1.0), frame=frame)
+
+    def build_movie():
+        scene = build()
+        image_fn.user(bpy.data.materials["Tiles"].node_tree.nodes["Image Texture"])
+        return scene
+    return build_movie
+
+
+def written_frame(folder, frame):
+    """The RGBA of the PNG that became movie frame `frame` (byte/255, row 0 = bottom)."""
+    img = bpy.data.images.load(str(folder / f"movie_frame.{frame:04d}.png"), check_existing=False)
+    try:
+        px = np.empty(len(img.pixels), np.float32)
+        img.pixels.foreach_get(px)
+        return px.reshape(img.size[1], img.size[0], 4)
+    finally:
+        bpy.data.images.remove(img)
+
+
+@pytest.mark.parametrize("scene_frame, user, frame", [
+    (1, {}, 1), (2, {}, 2), (3, {}, 3),
+    (5, dict(start=2, offset=1, cyclic=True), 2),  # cyclic: (5 - 2 + 1) mod 3 = 1, + 1
+    (5, dict(duration=5), 3),  # frame 5 of a 3-frame file: its last
+])
+def test_movie_frames_match_cycles(movie_file, scene_frame, user, frame):
+    """The frame of the node's Image User at the scene frame, as Cycles renders it (64
+    samples: a texel per pixel, Linear, is noisier than the sequences' 4 pixels per texel;
+    the same frame as a PNG renders identically in both engines, measured 2026-12-08)."""
+    ours, cycles = render_both(movie_scene(movie_file, scene_frame, **user), samples=64)
+    assert_same(ours, cycles, f"movie at scene frame {scene_frame} {user}")
+    assert nearest_frame(ours) == frame
+
+
+def test_movie_frame_pixels_are_the_files(movie_file):
+    """The decoded frames are the written frames' bytes exactly, also in the world's
+    Environment Texture (read_pixels), at any order of reading and from the cache."""
+    from addon.export.image import read_pixels
+    from addon.export import image_sources
+    folder = movie_file.parent
+    image_sources.clear_movie_cache()
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    world = bpy.data.worlds.new("W")
+    world.use_nodes = True
+    env = world.node_tree.nodes.new("ShaderNodeTexEnvironment")
+    env.image = bpy.data.images.load(str(movie_file), check_existing=False)
+    env.image.colorspace_settings.name = "Non-Color"
+    env.image_user.frame_duration = MOVIE_FRAMES
+    images = set(bpy.data.images)
+    for frame in (3, 1, 2, 3):
+        buf, why = read_pixels(env.image, env.image_user, frame)
+        assert why is None and np.array_equal(buf, written_frame(folder, frame)), frame
+    assert set(bpy.data.images) == images  # (the temporary images are gone)
+
+
+def test_movie_frames_are_decoded_once(movie_file, monkeypatch):
+    """Each (file, frame) is decoded once in a session; a rewritten file is decoded again."""
+    from addon.export import image_sources
+    decoded = []
+    decode = image_sources.decode_movie_frame
+    monkeypatch.setattr(image_sources, "decode_movie_frame",
+                        lambda tmp, frame: (decoded.append(frame), decode(tmp, frame)))
+    image_sources.clear_movie_cache()
+    movie_scene(movie_file, 2)()
+    first = export_scene(bpy.context.evaluated_depsgraph_get(), Warnings())
+    again = export_scene(bpy.context.evaluated_depsgraph_get(), Warnings())
+    assert decoded == [2]
+    assert [i.pixels.tobytes() for i in first.images] == [i.pixels.tobytes() for i in again.images]
+    stat = movie_file.stat()
+    os.utime(movie_file, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    export_scene(bpy.context.evaluated_depsgraph_get(), Warnings())
+    assert decoded == [2, 2]
+
+
+def test_movie_follows_the_frame_in_an_animation(movie_file):
+    """Two frames of one animation (persistent data: the kept scene is rebuilt)."""
+    scene = movie_scene(movie_file, 1)()
+    scene.render.use_persistent_data = True
+    first = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
+    scene.frame_set(3)
+    third = render_to_array(scene, "PATHLIGHT", samples=4, max_bounces=0)[..., :3]
+    assert (nearest_frame(first), nearest_frame(third)) == (1, 3)
+
+
+def test_movie_frame_that_cannot_be_decoded_is_the_first_with_a_warning(movie_file, monkeypatch):
+    from addon.export import image_sources
+
+    def fail(tmp, frame):
+        raise RuntimeError("no such frame")
+    image_sources.clear_movie_cache()
+    monkeypatch.setattr(image_sources, "decode_movie_frame", fail)
+    first = render_to_array(movie_scene(movie_file, 1)(), "PATHLIGHT", samples=4, max_bounces=0)
+    movie_scene(movie_file, 3)()
+    images = set(bpy.data.images)
+    warnings = Warnings()
+    export_scene(bpy.context.evaluated_depsgraph_get(), warnings)
+    assert set(bpy.data.images) == images
+    assert any("frame 3 cannot be decoded" in w and "first frame" in w for w in warnings), warnings
+    ours = render_to_array(bpy.context.scene, "PATHLIGHT", samples=4, max_bounces=0)
+    assert nearest_frame(ours[..., :3]) == 1 and np.array_equal(ours, first)
+
+
+def test_world_movie_frame_matches_cycles(movie_file):
+    """The world's Environment Texture shows the frame of its Image User at the scene frame,
+    as Cycles (a wide lens along the horizon; 4 x 4 pixel regions)."""
+    def build(frame):
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 32
+        world = bpy.data.worlds.new("W")
+        world.use_nodes = True
+        nt = world.node_tree
+        env = nt.nodes.new("ShaderNodeTexEnvironment")
+        env.image = bpy.data.images.load(str(movie_file), check_existing=False)
+        # (Non-Color: the world fast path filters sRGB bytes after decoding them, Cycles
+        # before, which differs at the checker's hard texel edges: docs/materials.md)
+        env.image.colorspace_settings.name = "Non-Color"
+        env.image_user.frame_duration = MOVIE_FRAMES
+        nt.links.new(env.outputs["Color"], nt.nodes["Background"].inputs["Color"])
+        scene.world = world
+        cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+        cam.data.lens = 12.0
+        cam.rotation_euler = (np.pi / 2, 0.0, 0.3)
+        scene.collection.objects.link(cam)
+        scene.camera = cam
+        scene.frame_set(frame)
+        return scene
+
+    def regions(img):
+        return img[..., :3].reshape(8, 4, 8, 4, 3).mean((1, 3))
+    ours = {f: render_to_array(build(f), "PATHLIGHT", samples=16, max_bounces=0) for f in (1, 3)}
+    cycles = render_to_array(build(3), "CYCLES", samples=16, max_bounces=0, **BOX_FILTER)
+    print(f"\nworld movie frame 3: max region |diff| {np.abs(regions(ours[3]) - regions(cycles)).max():.4f}")
+    np.testing.assert_allclose(regions(ours[3]), regions(cycles), atol=0.02)
+    assert np.abs(regions(ours[3]) - regions(ours[1])).max() > 0.1  # (frame 1 is not frame 3)

@@ -468,6 +468,7 @@ def compile_material(mat, images, uv_sets, view_layer_ids=(), depsgraph=None, vo
     compiler = ShaderCompiler(images, uv_sets, material_index=mat.pass_index,
                               view_layer_ids=view_layer_ids, depsgraph=depsgraph, volume_grids=volume_grids,
                               scene_grids=scene_grids)
+    compiler.material_key = mat.as_pointer()  # (owner of the UDIM tile sets it reads)
     compiler.volume_density_scale = float(density_scale)
     compiler.volume_interpolation = getattr(getattr(mat, "cycles", None), "volume_interpolation", 'LINEAR')
     return compiler.compile(

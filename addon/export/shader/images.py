@@ -48,6 +48,9 @@ class ImageTable:
     def __init__(self):
         self.images = []  # ImageData, indexed by the program's image operands
         self._loaded = {}  # image pointer -> _LoadedImage or None (unreadable)
+        # A tile set's index in images -> (material pointer, UV map name) of the one Image
+        # Texture node that reads it, whose tiles cull_tiles may drop (export.udim_culling).
+        self.tile_owners = {}
 
     def load(self, image, problems, user=None, frame=None):
         """_LoadedImage (_LoadedTiles for a tiled image) or None; what went wrong reading it is
@@ -67,14 +70,20 @@ class ImageTable:
         problems.extend(n for n in notes if n not in problems)
         return loaded
 
-    def index(self, image, loaded, variant):
-        if variant not in loaded.indices:
+    def index(self, image, loaded, variant, owner=None):
+        """The index in images of `variant` of `loaded`. owner (tile sets only): (material
+        pointer, UV map name) of a node whose tiles Cycles culls by its material's meshes'
+        UVs: that node gets a tile set of its own (its tiles' images are shared)."""
+        key = variant if owner is None or not isinstance(loaded, _LoadedTiles) else (variant, owner)
+        if key not in loaded.indices:
             if isinstance(loaded, _LoadedTiles):
                 tiles = tuple((n, self.index(image, tile, variant)) for n, tile in loaded.tiles)
-                loaded.indices[variant] = len(self.images)
+                loaded.indices[key] = len(self.images)
                 suffix = "" if variant == "color" else f" ({variant})"
                 self.images.append(ImageData(image.name + suffix, None, tiles=tiles))
-                return loaded.indices[variant]
+                if key != variant:
+                    self.tile_owners[loaded.indices[key]] = owner
+                return loaded.indices[key]
             if variant == "alpha":
                 a = loaded.assoc[..., 3:4]
                 pixels, srgb = np.ascontiguousarray(np.repeat(a, 4, axis=2)), False

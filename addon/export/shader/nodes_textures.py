@@ -45,13 +45,57 @@ class TextureNodes:
             kind, variant = "color", "color"
             unassociate = (alpha_out is not None and alpha_out.is_linked and loaded.has_alpha
                            and loaded.unassociate)
-        index = self.images.index(image, loaded, variant)
+        owner = None
+        if projection != 'BOX' and getattr(loaded, "tiles", None) is not None:
+            uv_map = self.culling_uv_map(node, ctx)
+            material = getattr(self, "material_key", None)
+            owner = None if uv_map is None or material is None else (material, uv_map)
+        index = self.images.index(image, loaded, variant, owner)
         tail = (True,) if unassociate else ()
         if projection == 'BOX':  # (a tiled image: its first tile only, as Cycles)
             normal = self.emit("vector", "object_normal")
             return self.emit(kind, "image_box", self.reg(vec), self.reg(normal), index, interp, ext,
                              float(node.projection_blend), *tail)
         return self.emit(kind, "image", self.reg(vec), index, interp, ext, *tail)
+
+    def culling_uv_map(self, node, ctx):
+        """The UV map whose corners pick the tiles that Cycles' final renders load for Image
+        Texture `node` (ImageTextureNode::cull_tiles): the default one ("") when its Vector is
+        unlinked or the Texture Coordinate's UV, a UV Map node's map; None (every tile) when
+        anything else feeds it."""
+        src = self.source(node.inputs["Vector"], ctx)
+        for _ in range(100):  # (through identity Mapping nodes, which Cycles bypasses)
+            if src is None or src[0] == "default":
+                return ""
+            _, feeder, out, fctx = src
+            if feeder.bl_idname == "ShaderNodeUVMap":
+                return feeder.uv_map or ""
+            if feeder.bl_idname == "ShaderNodeTexCoord" and out.identifier == "UV":
+                return ""
+            if feeder.bl_idname != "ShaderNodeMapping" or not self._identity_mapping(feeder, fctx):
+                return None
+            src = self.source(feeder.inputs["Vector"], fctx)
+        return None
+
+    def _identity_mapping(self, node, ctx):
+        """True for a Mapping node that Cycles' ConstantFolder::fold_mapping bypasses: its
+        Location zero (or type Vector), Rotation zero and Scale one, none of them linked."""
+        if node.vector_type not in ('POINT', 'TEXTURE', 'VECTOR'):
+            return False
+        want = {"Rotation": 0.0, "Scale": 1.0}
+        if node.vector_type != 'VECTOR':
+            want["Location"] = 0.0
+        for name, value in want.items():
+            socket = node.inputs.get(name)
+            if socket is None:
+                continue
+            src = self.source(socket, ctx)
+            if src is not None and src[0] != "default":
+                return False
+            socket = socket if src is None else src[1]
+            if any(float(c) != value for c in socket.default_value):
+                return False
+        return True
 
     def scene_frame(self):
         """The frame that animated images show (None: the file their path names)."""
