@@ -1800,7 +1800,6 @@ Bsdf make_test_bsdf_of(const std::string& kind, const py::dict& p) {
     d.transmission = b("transmission", true);
     d.fresnel_on_transmission = b("fresnel_on_transmission", true);
     d.schlick = b("schlick", false);
-    d.unscaled = b("unscaled", false);  // Cycles' refraction, as on points
     if (p.contains("f0_tint")) d.f0_tint = to_color(p["f0_tint"], "f0_tint");
     d.film_thickness = f("film_thickness", 0.0f);
     d.film_ior = f("film_ior", 1.33f);

@@ -480,9 +480,13 @@ uint64_t trace_caustic_paths(const Scene& scene, const CausticLight& cz, uint64_
             !caustic_delta_lobe(cd.bsdf, wl_c, !reflection, vr, pr, er, orv) || !(pf > 0.0f) || !(pr > 0.0f) ||
             !(dot(of, wl_c) > 0.9999f))
           break;
-        // The light path's throughput: the path tracer's value (f |cos| over its delta) over
-        // this sample's choice, times the delta's Jacobian between the two sides' solid angles
-        // (etap^2 and the shading cosines) and the geometric normal's adjoint cosines.
+        // The light path's throughput: the path tracer's value (f |cos| over its delta: the
+        // lobe's colour, no 1 / etap^2, as Cycles') over this sample's choice, times the delta's
+        // Jacobian between the two sides' solid angles (etap^2 and the shading cosines) and the
+        // geometric normal's adjoint cosines. So importance takes the etap^2 that radiance does
+        // not (the adjoint of a BSDF without the 1 / etap^2 has it): into water from the air
+        // (etap = 1 / 1.33) the light path keeps 1 / 1.33^2, out of glass 1.5^2, and through a
+        // closed object the two cancel (docs/materials.md "Refraction: no 1/eta^2, as Cycles").
         const float cs_l = std::fabs(wl_c.z), cs_c = std::fabs(wi_c.z);
         const float cg_l = std::fabs(dot(sp.ng, wo_l)), cg_c = std::fabs(dot(sp.ng, wi));
         if (!(cs_c > 0.0f) || !(cg_l > 0.0f)) break;

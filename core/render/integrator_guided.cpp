@@ -255,6 +255,10 @@ uint64_t trace_guide_photons(const Scene& scene, GuidePhotonSources& src, Guidin
       const bool reflection = (bs.flags & kReflect) != 0;
       if ((dot(wi, ng_out) > 0.0f) != reflection) break;
       flux = flux * ch.weight * bs.weight / ch.pick;
+      // A photon carries the adjoint: refraction's 1 / etap^2 (etap from the light's side), which
+      // the camera paths' BSDF leaves out, as Cycles' (docs/materials.md "Refraction: no 1/eta^2,
+      // as Cycles"): into glass the flux per solid angle thins, out of it it gathers.
+      if ((bs.flags & kTransmit) && bs.eta != 1.0f) flux = flux / (bs.eta * bs.eta);
       // Russian roulette on the flux (photons start near 1).
       if (bounce >= 2) {
         const float survive = std::min(1.0f, max_component(flux));

@@ -954,9 +954,9 @@ inline bool caustic_unbent(Vec3 ng, Vec3 n, Vec3 w) {
 
 // The lobe of a delta closure (caustic_delta_closure's) that its sample from w (local) takes:
 // reflection or, transmit, refraction; prob its probability there (the Fresnel choice, thin film
-// included), value its sample's weight times prob (f |cos| over the delta: the lobe's colour,
-// refraction's radiance scaled by 1 / etap^2), etap refraction's relative IOR from w's side
-// (1: reflection), out the direction it leaves along (local). False where the lobe cannot be taken.
+// included), value its sample's weight times prob (f |cos| over the delta: the lobe's colour, no
+// 1 / etap^2, as DielectricBsdf's), etap refraction's relative IOR from w's side (1: reflection),
+// out the direction it leaves along (local). False where the lobe cannot be taken.
 inline bool caustic_delta_lobe(const Bsdf& b, Vec3 w, bool transmit, Vec3& value, float& prob, float& etap, Vec3& out) {
   etap = 1.0f;
   if (w.z == 0.0f) return false;
@@ -982,7 +982,7 @@ inline bool caustic_delta_lobe(const Bsdf& b, Vec3 w, bool transmit, Vec3& value
     out = {-wl.x, -wl.y, wl.z};
   } else {
     if (!(pt > 0.0f) || !refract(wl, {0.0f, 0.0f, 1.0f}, d->eta, out, etap) || out.z == 0.0f) return false;
-    value = d->transmission_tint * ct / (d->unscaled ? 1.0f : etap * etap);
+    value = d->transmission_tint * ct;
     prob = pt / (pr + pt);
   }
   if (wl.z != w.z) out.z = -out.z;
@@ -1207,7 +1207,6 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
     if ((class_mask >> path_class.id()) & 1u) L_kept += L - L_flushed;
     L_flushed = L;
   };
-  float eta_scale = 1.0f;   // radiance scaling by refraction, undone for Russian roulette
   float prev_pdf = 0.0f;    // solid-angle pdf of the BSDF sample that produced `ray`
   bool prev_delta = true;   // camera rays and delta lobes: no light sample could find the hit
   bool prev_samples_only = false;  // the last vertex found analytic lights by light samples only
@@ -1332,7 +1331,7 @@ Vec3 trace_path_t(const Scene& scene, Ray ray, Sampler& sampler, const Integrato
   bool split = false, catcher_only = false, resume = false;
   struct Split {
     Vec3 beta, mis_org, mis_n, sky_n, feature_throughput, lp_dw, lp_gw;
-    float eta_scale, prev_pdf, length_before;
+    float prev_pdf, length_before;
     bool prev_delta, prev_samples_only, emission_only, direct, want_data, want_features, lp_volume;
     uint8_t mis_set, ray_vis;
     int diffuse, glossy, transmission, transparent, volume_count, bounce;
@@ -1722,7 +1721,7 @@ restart: __attribute__((unused));
           }
           if (last) emission_only = true;
           if (bounce >= s.rr_start_bounce) {  // as at surfaces, below
-            const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
+            const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta))));
             if (sampler.own_roulette()) u_rr = sampler.roulette(bounce);
             else if (u_rr < 0.0f) u_rr = sampler.get2d().x;
             if (!(survive > 0.0f) || u_rr >= survive) break;
@@ -1814,7 +1813,7 @@ restart: __attribute__((unused));
         aov->matte = L;
         aov->matte_alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
         if (s.catcher_background) aov->environment += clamp_light(beta * scene.background(ray.dir, &ray_state), lim.found());
-        cs.at = Split{beta, mis_org, mis_n, sky_n, feature_throughput, lp_dw, lp_gw, eta_scale, prev_pdf,
+        cs.at = Split{beta, mis_org, mis_n, sky_n, feature_throughput, lp_dw, lp_gw, prev_pdf,
                          length_before, prev_delta, prev_samples_only, emission_only, direct, want_data,
                          want_features, lp_volume, mis_set, ray_vis, diffuse, glossy, transmission, transparent,
                          volume_count, bounce, ray_state, medium, vrng, ray, hit};
@@ -2417,7 +2416,8 @@ restart: __attribute__((unused));
           // Smooth glass or a mirror in the chain (docs/design/sampling.md, "Caustic light paths
           // through glass and mirrors"): the chain's Jacobian cancels between the strategies, so
           // the light path's density over this one's gains the lobe's reverse choice over its
-          // forward one (the closure's pick cancels) and, for refraction, 1 / etap^2.
+          // forward one (the closure's pick cancels) and, for refraction, 1 / etap^2 (a density
+          // ratio: the delta's Jacobian, whatever the BSDF's convention).
           Vec3 v, o;
           float pr = 0.0f, e;
           const bool ok = cz_k >= 2 && !(bs.flags & kTransparentLobe) && caustic_delta_closure(cl) == int(&ch - &cl.c[0]) &&
@@ -2543,13 +2543,9 @@ restart: __attribute__((unused));
       }
       if (last) emission_only = true;  // no light sampling: the limit still ends the path
     }
-    if constexpr (kNonDiffuse) {
-      // (Points refract unscaled, as Cycles: DielectricBsdf::unscaled.)
-      if ((bs.flags & kTransmit) && !(bs.flags & kTransparentLobe) && !sp.point()) eta_scale *= bs.eta * bs.eta;
-      if constexpr (kMedia) {
-        if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
-          medium.cross(scene, sp, front);
-        }
+    if constexpr (kNonDiffuse && kMedia) {
+      if (bs.flags & kTransmit) {  // crossing the surface: entering or leaving its medium
+        medium.cross(scene, sp, front);
       }
     }
 
@@ -2573,16 +2569,17 @@ restart: __attribute__((unused));
     // what the last rough vertex already rolled for, and amplifies what survives: in glass it
     // cut the caustic chains before they reach the light. The next rough vertex rolls instead.
     if (bounce >= s.rr_start_bounce && !(kNonDiffuse && (bs.flags & kDelta))) {
-      // Throughput without the refraction scaling, so paths inside glass are not culled for
-      // carrying compressed radiance (pbrt's etaScale). Its square root, as Cycles: the first
-      // roulette sees the product of three bounces' albedos (0.73^3 = 0.39 in a white Cornell box)
-      // and plain throughput killed most paths there, which in a closed, bright room still carry
-      // a large share of the light. Per-sample variance x rays per path, the equal-time error, is
-      // 11 % lower on the Cornell box (measured with tests/bench/variance_per_sample.py); later
-      // bounces converge to the same survival (the albedo) either way.
+      // The throughput as it is (refraction scales nothing, as in Cycles: no pbrt etaScale to
+      // undo; the decisions are the ones beta times etaScale gave before). Its square root, as
+      // Cycles: the first roulette sees the product of three bounces' albedos (0.73^3 = 0.39 in a
+      // white Cornell box) and plain throughput killed most paths there, which in a closed, bright
+      // room still carry a large share of the light. Per-sample variance x rays per path, the
+      // equal-time error, is 11 % lower on the Cornell box (measured with
+      // tests/bench/variance_per_sample.py); later bounces converge to the same survival (the
+      // albedo) either way.
       // (|beta|: heterogeneous media with majorants too small give signed weights, which the
       // roulette must not cut; the same value elsewhere)
-      const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta)) * eta_scale));
+      const float survive = std::min(1.0f, std::sqrt(max_component(vabs(beta))));
       if (sampler.own_roulette()) u_rr = sampler.roulette(bounce);  // (Cycles' PRNG_TERMINATE)
       else if (u_rr < 0.0f) u_rr = roulette_number(sampler);
       if (!(survive > 0.0f) || u_rr >= survive) break;
@@ -2625,7 +2622,7 @@ restart: __attribute__((unused));
       L = Vec3(0.0f);  // (the copy's light is the catcher pass alone)
       beta = a.beta, mis_org = a.mis_org, mis_n = a.mis_n, sky_n = a.sky_n;
       feature_throughput = a.feature_throughput, lp_dw = a.lp_dw, lp_gw = a.lp_gw;
-      eta_scale = a.eta_scale, prev_pdf = a.prev_pdf, length_before = a.length_before;
+      prev_pdf = a.prev_pdf, length_before = a.length_before;
       prev_delta = a.prev_delta, prev_samples_only = a.prev_samples_only, emission_only = a.emission_only;
       direct = a.direct, film_bg = a.direct, want_data = a.want_data, want_features = a.want_features, lp_volume = a.lp_volume;
       mis_set = a.mis_set, ray_vis = a.ray_vis;

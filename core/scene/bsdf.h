@@ -252,9 +252,6 @@ struct DielectricBsdf {
   // is relative to the outside, as eta.
   float film_thickness = 0.0f, film_ior = 1.33f;
   Microfacet dist = Microfacet::Ggx;  // Ggx or Beckmann
-  // Refraction without the radiance's 1/eta^2, as Cycles' (set on points: a ray refracted into
-  // a point never leaves through it, so no exit undoes the scaling as on closed meshes).
-  bool unscaled = false;
   // Its weight carries Cycles' multiscatter energy compensation (1 / E of the glass tables more
   // than Cycles' closure weight, which the render passes' colours read). In the padding.
   bool compensated = false;
@@ -337,8 +334,11 @@ struct DielectricBsdf {
     const float dwm_dwi = std::fabs(dot(wi, m)) / denom;
     pdf = pdf_m * dwm_dwi * pt / (pr + pt);
     const float ft = t.d * t.g * std::fabs(dot(wi, m) * dot(wo, m) / (wo.z * denom));
-    // Radiance is compressed/expanded across the interface (not in Cycles: unscaled).
-    return transmission_tint * ct * (unscaled ? ft : ft / (etap * etap));
+    // No 1/etap^2 (pbrt's radiance compression across the interface), as Cycles'
+    // bsdf_microfacet_eval: a path's throughput through refraction is the lobe's alone
+    // (docs/materials.md "Refraction: no 1/eta^2, as Cycles"). Light paths, which carry the
+    // adjoint, put the factor back (integrator_caustics.cpp, integrator_guided.cpp).
+    return transmission_tint * ct * ft;
   }
 
   template <class Dist>
@@ -366,7 +366,7 @@ struct DielectricBsdf {
       float etap;
       if (!refract(wo, {0.0f, 0.0f, 1.0f}, eta, s.wi, etap) || s.wi.z == 0.0f) return false;
       s.pdf = pt / (pr + pt);
-      s.weight = transmission_tint * ct * ((pr + pt) / (pt * (unscaled ? 1.0f : etap * etap)));
+      s.weight = transmission_tint * ct * ((pr + pt) / pt);  // (no 1/etap^2, as in eval_with)
       s.flags = kTransmit | kDelta | kGlossyLobe;
       s.eta = etap;
       return true;

@@ -85,11 +85,6 @@ const ObjectCoords* coords_at(const ObjectCoords& frame, const Mat4& to_world, U
   mc->valid = at.valid;
   return mc;
 }
-// Refraction at a point carries no 1/eta^2, as Cycles' (DielectricBsdf::unscaled).
-void unscale_refraction(ClosureList& out) {
-  for (int i = 0; i < out.n; ++i)
-    if (auto* d = std::get_if<DielectricBsdf>(&out.c[size_t(i)].bsdf)) d->unscaled = true;
-}
 }  // namespace
 
 void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureList& out, const RayState& ray) const {
@@ -111,7 +106,6 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       c.frame = bsdf_wants_valid_reflection(c.bsdf) ? Frame::from_normal(valid_specular_normal(sp.ng, wo, sp.ns)) : f;
     }
     if (mat.has_hair) orient_hair(out, sp, wo, hair_pixel_coverage(sp, b1, ray), hair_curve_normal(sp, b1));
-    if (sp.point()) unscale_refraction(out);
     return;
   }
   ShadingContext ctx;
@@ -191,7 +185,6 @@ void Scene::shade(const SurfacePoint& sp, float b1, float b2, Vec3 wo, ClosureLi
       ctx.object = coords_at(point_coords_[set], point_bvh_.moving_transform(sp.tri, sp.time), moved_coords);
     shade_program(mat, ctx, out);
     if (mat.has_hair) orient_hair(out, sp, wo);
-    unscale_refraction(out);
     return;
   }
   const InstanceData& in = inst_[sp.instance];
