@@ -336,8 +336,13 @@ def test_world_program_sent_again_to_a_kept_scene():
 # ---------------------------------------------------------------- the leftovers (worldfix)
 
 def _mix_by(nt, out, fac_socket, when_0, when_1):
-    """Background of colour when_0 where fac_socket is 0 and when_1 where it is 1."""
+    """Background of colour when_0 where fac_socket is 0 and when_1 where it is 1, of Strength
+    the HDRI's luminance: a sun that light samples find (a world of even luminance leaves them
+    next to nothing here, its map compensated for the BSDF rays)."""
     bg = background(nt)
+    bw = nt.nodes.new("ShaderNodeRGBToBW")
+    nt.links.new(env_texture(nt, hdri()).outputs["Color"], bw.inputs[0])
+    nt.links.new(bw.outputs[0], bg.inputs["Strength"])
     mix = nt.nodes.new("ShaderNodeMix")
     mix.data_type = 'RGBA'
     nt.links.new(fac_socket, mix.inputs["Factor"])
@@ -346,24 +351,6 @@ def _mix_by(nt, out, fac_socket, when_0, when_1):
     nt.links.new(mix.outputs[2], bg.inputs["Color"])
     nt.links.new(bg.outputs[0], out.inputs["Surface"])
     return bg
-
-
-def _varying(nt, socket):
-    """`socket`'s value times (Generated z > -2), which is 1: the same value, but a graph that
-    reads the position, which Cycles samples as a light (a world that reads none is no
-    background light there)."""
-    coords = nt.nodes.new("ShaderNodeTexCoord")
-    sep = nt.nodes.new("ShaderNodeSeparateXYZ")
-    nt.links.new(coords.outputs["Generated"], sep.inputs[0])
-    one = nt.nodes.new("ShaderNodeMath")
-    one.operation = 'GREATER_THAN'
-    one.inputs[1].default_value = -2.0
-    nt.links.new(sep.outputs["Z"], one.inputs[0])
-    times = nt.nodes.new("ShaderNodeMath")
-    times.operation = 'MULTIPLY'
-    nt.links.new(socket, times.inputs[0])
-    nt.links.new(one.outputs[0], times.inputs[1])
-    return times.outputs[0]
 
 
 def light_path_world(output, threshold=0.5, sampling='AUTOMATIC', transparent=False):
@@ -381,7 +368,7 @@ def light_path_world(output, threshold=0.5, sampling='AUTOMATIC', transparent=Fa
         gt.operation = 'GREATER_THAN'
         gt.inputs[1].default_value = threshold
         nt.links.new(path.outputs[output], gt.inputs[0])
-        _mix_by(nt, out, _varying(nt, gt.outputs[0]), (1.0, 0.5, 0.1), (0.2, 0.45, 1.0))
+        _mix_by(nt, out, gt.outputs[0], (1.0, 0.5, 0.1), (0.2, 0.45, 1.0))
         if transparent:
             mat, nodes, links, mout = ms.new_material("Veil")
             links.new(nodes.new("ShaderNodeBsdfTransparent").outputs[0], mout.inputs["Surface"])
