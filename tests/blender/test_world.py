@@ -323,6 +323,17 @@ def test_byte_srgb_environment_magnified_matches_cycles(tmp_path):
     np.testing.assert_allclose(ours[..., :3].mean(), ref[..., :3].mean(), rtol=0.005)
 
 
+def test_sampling_method_is_exported(scene, tmp_path):
+    # World ▸ Settings ▸ Sampling Method: None makes the world no light to sample (the core's
+    # world_sampled), Automatic and Manual keep it one; the panel shows it for Pathlight.
+    world = world_image(load_image(marked_image(), directory=tmp_path))
+    bpy.context.scene.world = world
+    for method, sampled in (('NONE', False), ('AUTOMATIC', True), ('MANUAL', True)):
+        world.cycles.sampling_method = method
+        assert export_scene(bpy.context.evaluated_depsgraph_get(), Warnings()).world_sampled is sampled
+    assert hasattr(bpy.types, "PATHLIGHT_WORLD_PT_sampling")
+
+
 def test_hdr_fixture_exports_its_packed_sky():
     open_fixture("hdr_scene")
     warnings = Warnings()

@@ -430,3 +430,16 @@ def test_window_coordinates_of_an_orthographic_camera():
     assert program is not None and not warnings, warnings
     ours, cycles = render_pair(build, 512)
     assert_agree(ours, cycles, "Window, orthographic camera")
+
+
+def test_manual_map_resolution_sizes_the_map():
+    """Sampling Method Manual: its Map Resolution sizes a program world's map (Cycles'
+    map_resolution, width x width / 2); Automatic: the largest Environment Texture image."""
+    scene = camera_ray_world()()
+    scene.world.cycles.sampling_method = 'MANUAL'
+    scene.world.cycles.sample_map_resolution = 256
+    color, texture, program = export_world(scene.world, Warnings())
+    assert (program.width, program.height) == (256, 128)
+    scene.world.cycles.sampling_method = 'AUTOMATIC'
+    color, texture, program = export_world(scene.world, Warnings())
+    assert (program.width, program.height) == (64, 32)  # the HDRI's size
