@@ -4520,7 +4520,8 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, bool on) { self.scene->set_world_sampled(on); },
           "World ▸ Settings ▸ Sampling Method: True (Automatic, Manual; the default) the world map is a light "
           "to sample; False (None) it is not, as Cycles adds no background light then: only rays that escape "
-          "find the world (weight 1), and no caustic light paths start from it. Takes effect at the next commit().")
+          "find the world (weight 1), and no caustic light paths start from it; with portals it is sampled through "
+          "them alone (Cycles' map_weight 0). Takes effect at the next commit().")
       .def_property_readonly("light_tree_active", [](const PyScene& self) { return self.scene->light_tree_active(); },
                              "Whether the last commit() built a light tree that sample_direct uses.")
       .def("stats", &scene_stats)

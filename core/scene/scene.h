@@ -499,7 +499,8 @@ class Scene {
   void set_world_color(Vec3 c) { world_color_ = c; }
   // World ▸ Settings ▸ Sampling Method: on (Automatic, Manual) the world map is a light to
   // sample; off (None) it is not, as Cycles adds no background light then: only rays that escape
-  // find the world, with weight 1 (and no caustic light paths start from it).
+  // find the world, with weight 1 (and no caustic light paths start from it). With portals
+  // Cycles keeps it a light sampled through the portals alone (its map_weight 0), as here.
   void set_world_sampled(bool on) {
     world_sampled_ = on;
     committed_ = false;
