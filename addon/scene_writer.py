@@ -410,10 +410,15 @@ def set_world(scene, data, warn):
     elif isinstance(tex, WorldSky):
         setter = getattr(scene, f"set_world_{'sky' if tex.kind == 'nishita' else tex.kind}")
         setter(strength=tex.strength, rotation=tex.rotation, **tex.params)
+    elif tex is not None and getattr(tex, "encoded", None) is not None:
+        # An 8-bit sRGB image: the core filters the encoded values and decodes after (Cycles).
+        scene.set_world_texture(tex.encoded, tex.strength, tex.rotation, srgb=True)
     elif tex is not None:
         scene.set_world_texture(tex.pixels, tex.strength, tex.rotation)
     else:
         scene.set_world_color(data.world_color)
+    if hasattr(scene, "world_sampled"):  # World ▸ Settings ▸ Sampling Method (None: not a light)
+        scene.world_sampled = bool(getattr(data, "world_sampled", True))
     volume = getattr(data, "world_volume", None)
     scene.set_world_volume(volume)
     g = group_index(list(getattr(data, "light_groups", None) or []), getattr(data, "world_lightgroup", ""))

@@ -473,7 +473,26 @@ class PATHLIGHT_WORLD_PT_lightgroup(PathlightPanel, bpy.types.Panel):
         _lightgroup_field(layout, context.world, context.view_layer)
 
 
-light_group_classes = (PATHLIGHT_OBJECT_PT_lightgroup, PATHLIGHT_WORLD_PT_lightgroup)
+class PATHLIGHT_WORLD_PT_sampling(PathlightPanel, bpy.types.Panel):
+    """Cycles' World ▸ Settings ▸ Surface ▸ Sampling: Method (None: the world is no light to
+    sample, rays alone find it) and Manual's Map Resolution (a node-tree world's sampling map)."""
+    bl_label = "Sampling"
+    bl_context = "world"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.world is not None and hasattr(context.world, "cycles")
+
+    def draw(self, context):
+        layout = split(self.layout)
+        cworld = context.world.cycles
+        layout.prop(cworld, "sampling_method", text="Sampling")
+        if cworld.sampling_method == 'MANUAL':
+            layout.prop(cworld, "sample_map_resolution")
+
+
+light_group_classes = (PATHLIGHT_OBJECT_PT_lightgroup, PATHLIGHT_WORLD_PT_lightgroup, PATHLIGHT_WORLD_PT_sampling)
 if ViewLayerLightgroupsPanelHelper is not None:
     class PATHLIGHT_VIEWLAYER_PT_lightgroups(PathlightPanel, ViewLayerLightgroupsPanelHelper, bpy.types.Panel):
         """View Layer ▸ Passes ▸ Light Groups, Blender's list (its helper, as Cycles' panel)."""

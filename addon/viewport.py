@@ -257,6 +257,7 @@ class ViewportSession:
     def _replace_lights(self, depsgraph):
         """Lights and the world read again; no geometry touched."""
         from .export import world_lightgroup as read_world_lightgroup
+        from .export.world import world_sampled as read_world_sampled
         from .export.view_layer import layer_settings, lit_world
         world = lit_world(layer_settings(depsgraph))  # (World Override, Environment filter)
         groups = list(self.light_groups)
@@ -270,6 +271,7 @@ class ViewportSession:
             world_volume = world_volume(world, self.warn)
             light_groups = groups
             world_lightgroup = read_world_lightgroup(world)
+            world_sampled = read_world_sampled(world)
         lights = attach_to_lights(collect_lights(depsgraph, self.warn, is_visible), light_links(depsgraph, self.warn))
         replace_lights(self.scene, lights, _World, self.warn)
         self.counters["light_updates"] += 1

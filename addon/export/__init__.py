@@ -16,7 +16,7 @@ from .object_attributes import InstanceAttributes
 from .points import PointsData, collect_points
 from .view_layer import layer_settings, lit_world
 from .volume import collect_volumes
-from .world import WorldProgram, WorldSky, WorldTexture, export_world, world_volume
+from .world import WorldProgram, WorldSky, WorldTexture, export_world, world_sampled, world_volume
 
 __all__ = ("CurvesData", "ExportCancelled", "ExportError", "LightData", "MaterialData", "MeshData",
            "PointsData", "SceneData", "WorldSky", "WorldTexture", "export_scene")
@@ -51,6 +51,9 @@ class SceneData:
     light_groups: list = field(default_factory=list)
     world_lightgroup: str = ""
     world_program: WorldProgram = None  # a world node tree beyond the fast path's (export.world)
+    # World ▸ Settings ▸ Sampling Method: Automatic / Manual (True) or None (False: the world is
+    # no light to sample; rays alone find it, as Cycles).
+    world_sampled: bool = True
 
 
 def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop=None, uv_pass=False,
@@ -125,7 +128,7 @@ def export_scene(depsgraph, warn, mesh_cache=None, need_camera=True, should_stop
                      table.material_names(), table.uv_sets, world_volume(world, warn),
                      curves, curve_materials, volume_grids, frozenset(table.volume_material_names),
                      points, point_materials, links, view_layer_lightgroups(getattr(depsgraph, "view_layer", None)),
-                     world_lightgroup(world), w_program)
+                     world_lightgroup(world), w_program, world_sampled(world))
 
 
 def uv_tiles(uv):

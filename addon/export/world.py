@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .material import BLACK, scaled, socket_rgb, surface_node
-from .image import read_pixels, rgb_of, to_scene_linear
+from .image import is_srgb_bytes, read_pixels, rgb_of, to_scene_linear
 
 
 @dataclass
@@ -22,6 +22,9 @@ class WorldTexture:
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3, dtype=np.float32))
     # rotation: world direction d -> lookup direction t = rotation @ d (the core's convention)
     name: str = ""
+    # An 8-bit sRGB image's byte / 255 values (H, W, 3), which the core filters before decoding
+    # them, as Cycles (NODE_IMAGE_COMPRESS_AS_SRGB); None: other images (pixels are what it reads).
+    encoded: np.ndarray = None
 
 
 @dataclass
@@ -128,6 +131,14 @@ def export_world(world, warn, frame=None):
     for note in notes:
         warn(note)
     return color, texture, None
+
+
+def world_sampled(world):
+    """False where World ▸ Settings ▸ Sampling Method is None: Cycles then adds no background
+    light (sync_background_light), so the world is no light to sample and only rays that escape
+    find it (weight 1); True for Automatic and Manual, and without a world."""
+    cycles = getattr(world, "cycles", None) if world is not None else None
+    return getattr(cycles, "sampling_method", 'AUTOMATIC') != 'NONE'
 
 
 def _map_size(world, tree):
@@ -271,12 +282,14 @@ def world_texture(world, warn, frame=None):
         return None
     if source.interpolation != 'Linear':
         warn(f"{what}: {source.interpolation} interpolation is not supported; using Linear")
-    pixels = image_pixels(source.image, what, warn, getattr(source, "image_user", None), frame)
+    encoded = [] if source.image is not None and is_srgb_bytes(source.image) else None
+    pixels = image_pixels(source.image, what, warn, getattr(source, "image_user", None), frame,
+                          encoded)
     if pixels is None:
         return None
     rotation = _vector_rotation(source.inputs["Vector"], what, warn)
     return WorldTexture(pixels, float(node.inputs["Strength"].default_value), rotation,
-                        source.image.name)
+                        source.image.name, encoded[0] if encoded else None)
 
 
 # ---------------------------------------------------------------- the lookup direction
@@ -370,12 +383,14 @@ def _vector_rotation(vector_socket, what, warn, unit=False):
 
 # ---------------------------------------------------------------- image pixels
 
-def image_pixels(image, what, warn, user=None, frame=None):
+def image_pixels(image, what, warn, user=None, frame=None, encoded=None):
     """float32 (H, W, 3) scene-linear RGB of a bpy Image (row 0 = bottom), or None (with a
     warning) when there is none or it cannot be read. Blender gives float images (.exr,
     .hdr) already converted to scene linear, and byte images as raw byte/255 values in the
     image's colour space, which we linearise here (Cycles does the same). user, frame: the
-    node's ImageUser and the scene frame (a sequence's frame, as read_pixels)."""
+    node's ImageUser and the scene frame (a sequence's frame, as read_pixels). encoded: a list
+    that gets the raw byte / 255 RGB before linearising (an sRGB byte image's, which the core
+    filters encoded)."""
     if image is None:
         warn(f"{what} has no image; using a constant background")
         return None
@@ -386,7 +401,10 @@ def image_pixels(image, what, warn, user=None, frame=None):
     if buf is None:
         warn(f"{what}: {why}; using a constant background")
         return None
-    rgb, note = to_scene_linear(image, rgb_of(buf))
+    raw = rgb_of(buf)
+    if encoded is not None:
+        encoded.append(np.clip(np.nan_to_num(raw, nan=0.0), 0.0, 1.0).astype(np.float32))
+    rgb, note = to_scene_linear(image, raw)
     if note:
         warn(f"{what}: {note}")
     if not np.isfinite(rgb).all() or (rgb < 0).any():

@@ -4120,7 +4120,7 @@ PYBIND11_MODULE(pathlight_core, m) {
       .def_property_readonly("portal_count", [](const PyScene& self) { return self.scene->portal_count(); })
       .def(
           "set_world_texture",
-          [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj) {
+          [](PyScene& self, const FloatArray& pixels, float strength, const py::object& rotation_obj, bool srgb) {
             self.check_editable();
             if (pixels.ndim() != 3 || (pixels.shape(2) != 3 && pixels.shape(2) != 4) || pixels.shape(0) < 1 ||
                 pixels.shape(1) < 1)
@@ -4152,13 +4152,18 @@ PYBIND11_MODULE(pathlight_core, m) {
               constant = px[i].x == px[0].x && px[i].y == px[0].y && px[i].z == px[0].z;
             if (constant) {
               self.scene->set_environment(Environment());
-              self.scene->set_world_color(px[0] * k);
+              const Vec3 c = srgb ? Vec3{srgb_to_linear(px[0].x), srgb_to_linear(px[0].y), srgb_to_linear(px[0].z)} : px[0];
+              self.scene->set_world_color(c * k);
               return;
             }
             py::gil_scoped_release release;
-            self.scene->set_environment(Environment(std::move(px), w, h, k, rot));
+            self.scene->set_environment(Environment(std::move(px), w, h, k, rot, srgb));
           },
-          py::arg("pixels"), py::arg("strength") = 1.0f, py::arg("rotation") = py::none())
+          py::arg("pixels"), py::arg("strength") = 1.0f, py::arg("rotation") = py::none(), py::arg("srgb") = false,
+          "An equirectangular world image (H, W, 3 or 4; row 0 = bottom) times strength, turned by rotation "
+          "(world -> texture directions). srgb: the pixels are an 8-bit sRGB image's byte / 255 values, kept "
+          "encoded: lookups interpolate them and decode after (Cycles' NODE_IMAGE_COMPRESS_AS_SRGB); else "
+          "scene-linear values.")
       .def(
           "set_world_sky",
           [](PyScene& self, float sun_elevation, float sun_rotation, float sun_size, float sun_intensity,
@@ -4509,6 +4514,13 @@ PYBIND11_MODULE(pathlight_core, m) {
           [](PyScene& self, bool on) { self.scene->set_world_samples(on); },
           "Light samples of a constant world colour that is the only light, at every surface vertex "
           "besides the BSDF ray (MIS-weighted; the default). False: the BSDF ray alone finds it.")
+      .def_property(
+          "world_sampled", [](const PyScene& self) { return self.scene->world_sampled(); },
+          [](PyScene& self, bool on) { self.scene->set_world_sampled(on); },
+          "World ▸ Settings ▸ Sampling Method: True (Automatic, Manual; the default) the world map is a light "
+          "to sample; False (None) it is not, as Cycles adds no background light then: only rays that escape "
+          "find the world (weight 1), and no caustic light paths start from it; with portals it is sampled through "
+          "them alone (Cycles' map_weight 0). Takes effect at the next commit().")
       .def_property_readonly("light_tree_active", [](const PyScene& self) { return self.scene->light_tree_active(); },
                              "Whether the last commit() built a light tree that sample_direct uses.")
       .def("stats", &scene_stats)

@@ -857,7 +857,8 @@ void Session::setup_caustics(bool guiding) {
   // Where it can be combined exactly with the path tracer; else off, with the reason.
   const SceneFeatures& sf = scene_->features();
   const int k_max = std::min({8, settings_.max_bounces, 1 + std::min(settings_.glossy_bounces, settings_.transmission_bounces)});
-  const bool env = scene_->environment().valid();
+  // (a world that Sampling Method None keeps from being a light sends no light paths either)
+  const bool env = scene_->environment().valid() && scene_->world_sampled();
   const bool nee = settings_.use_nee && scene_->has_lights();
   // The lamps that may send light paths: suns, points, spots and area lamps (with extent, where
   // rays find them), with the settings a light path can follow.

@@ -1761,7 +1761,7 @@ restart: __attribute__((unused));
       float env_pdf = 0.0f;
       if constexpr (kEnv)
         if (nee && !prev_delta) {
-          bg = scene.background_with_pdf(ray.dir, mis_org, mis_set, env_pdf, &ray_state);
+          bg = scene.background_with_pdf(ray.dir, mis_org, mis_set, env_pdf, &ray_state, &ray.org);
           bg_found = true;
           w = power_heuristic(prev_pdf, env_pdf);
         }
@@ -1778,7 +1778,7 @@ restart: __attribute__((unused));
         const float cos_sky = dot(ray.dir, sky_n);  // (a scattered ray's direction is a unit vector)
         if (cos_sky > 0.0f) w = power_heuristic(prev_pdf, cos_sky * kInvPi);
       }
-      if (!bg_found) bg = scene.background(ray.dir, &ray_state);
+      if (!bg_found) bg = scene.background(ray.dir, &ray_state, &ray.org);
       // Fast GI (Replace): the world an AO ray reaches, times ao_factor (Cycles' integrate_background).
       if constexpr (kFastGI)
         if (ao_ray) bg = bg * s.ao_factor;
@@ -1812,7 +1812,7 @@ restart: __attribute__((unused));
         aov->catcher_samples = 1.0f;
         aov->matte = L;
         aov->matte_alpha = clampf(aov->alpha - average(beta), 0.0f, 1.0f);
-        if (s.catcher_background) aov->environment += clamp_light(beta * scene.background(ray.dir, &ray_state), lim.found());
+        if (s.catcher_background) aov->environment += clamp_light(beta * scene.background(ray.dir, &ray_state, &ray.org), lim.found());
         cs.at = Split{beta, mis_org, mis_n, sky_n, feature_throughput, lp_dw, lp_gw, prev_pdf,
                          length_before, prev_delta, prev_samples_only, emission_only, direct, want_data,
                          want_features, lp_volume, mis_set, ray_vis, diffuse, glossy, transmission, transparent,

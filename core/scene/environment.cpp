@@ -1,5 +1,7 @@
 #include "scene/light.h"
 
+#include <limits>
+
 #include "scene/light_shader.h"
 #include "scene/scene.h"
 #include "util/parallel.h"
@@ -43,11 +45,23 @@ void fill_texels(std::vector<Vec3>& px, int w, int h, size_t grain, F f) {
 
 }  // namespace
 
-Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation)
+Environment::Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation, bool srgb)
     : px_(std::move(pixels)), w_(w), h_(h), rot_(rotation) {
+  if (srgb) {
+    // Kept encoded (lookup decodes); the map's weights from the decoded texels.
+    srgb_ = true;
+    strength_ = strength;
+    for (Vec3& c : px_) c = vmin(c, Vec3(1.0f));
+    init_distributions();
+    return;
+  }
   // Kept finite: a texel that overflows with the strength would make samples non-finite.
   for (Vec3& c : px_) c = vmin(c * strength, Vec3(1e30f));
   init_distributions();
+}
+
+Vec3 Environment::decode(Vec3 c) const {
+  return Vec3{srgb_to_linear(c.x), srgb_to_linear(c.y), srgb_to_linear(c.z)} * strength_;
 }
 
 Environment::Environment(std::shared_ptr<const SkyModel> sky, int w, int h, float strength, const Mat4& rotation)
@@ -89,7 +103,7 @@ void Environment::bake(const Scene& scene) {
   // The map: the program at the texel centres with no ray kind (Cycles' background_map bakes
   // so, by shader evaluation on the equirectangular grid).
   px_.assign(size_t(w_) * h_, Vec3(0.0f));
-  fill_texels(px_, w_, h_, 4, [&](Vec3 t) { return eval_program(t, nullptr); });
+  fill_texels(px_, w_, h_, 4, [&](Vec3 t) { return eval_program(t, nullptr, nullptr); });
   lum_.clear();
   cell_cos_.clear();
   full_ = Cells();
@@ -98,7 +112,7 @@ void Environment::bake(const Scene& scene) {
   baked_ = true;
 }
 
-Vec3 Environment::eval_program(Vec3 dir, const RayState* rs) const {
+Vec3 Environment::eval_program(Vec3 dir, const RayState* rs, const Vec3* ray_p) const {
   const WorldShader& sh = *prog_;
   ShadingContext ctx;
   const float len = length(dir);
@@ -107,13 +121,23 @@ Vec3 Environment::eval_program(Vec3 dir, const RayState* rs) const {
   ctx.ng = ctx.ns = -d;
   ctx.wo = -d;  // Incoming
   ctx.scene = sh.scene;
+  ctx.ray_p = ray_p;
   if (rs) {
     ctx.ray = *rs;
     ctx.ray.aovs = nullptr;
+    if (!ctx.ray.camera) ctx.ray.camera = sh.camera.load(std::memory_order_relaxed);
   } else {
-    ctx.ray.flags = 0;  // a light sample or the map: no ray kind
+    // The map (Cycles' background_map: no ray kind, and no Light Path counts, its kernel has
+    // no LIGHT_PATH feature).
+    ctx.ray.flags = 0;
+    ctx.ray.depth = 0;
     ctx.ray.camera = sh.camera.load(std::memory_order_relaxed);
   }
+  // Cycles evaluates a background, for an escaped ray, a light sample or the map alike, with
+  // PATH_RAY_EMISSION added: its svm_node_light_path reads Ray Depth one bounce further there
+  // (the other counts as they are), and shader_setup_from_background's ray length is FLT_MAX.
+  ctx.ray.depth = uint16_t(std::min(int(ctx.ray.depth) + 1, 65535));
+  ctx.ray.length = std::numeric_limits<float>::max();
   ClosureList out;
   static const std::vector<Image> no_images;
   eval_shader(sh.program, sh.scene ? sh.scene->images() : no_images, ctx, out);
@@ -127,7 +151,7 @@ void Environment::init_distributions() {
     const double c = std::cos(kPi * ((y + 0.5) / h_ - 0.5));
     for (int x = 0; x < w_; ++x) {
       const size_t i = size_t(y) * w_ + x;
-      const float l = luminance(px_[i]);
+      const float l = luminance(srgb_ ? decode(px_[i]) : px_[i]);
       lum_[i] = l > 0.0f && std::isfinite(l) ? l : 0.0f;
       lum_sum += lum_[i];
       e_all += c * lum_[i];
@@ -186,7 +210,9 @@ void Environment::to_uv(Vec3 t, float& u, float& v) const {
 
 Vec3 Environment::lookup(float u, float v) const {
   if (!std::isfinite(u) || !std::isfinite(v)) return Vec3(0.0f);  // a NaN direction sees nothing
-  return bilinear([&](int x, int y) { return px_[size_t(y) * w_ + x]; }, w_, h_, u, v);
+  const Vec3 c = bilinear([&](int x, int y) { return px_[size_t(y) * w_ + x]; }, w_, h_, u, v);
+  // An 8-bit sRGB image: filtered encoded, then decoded (Cycles' svm_image_texture).
+  return srgb_ ? decode(c) : c;
 }
 
 Vec3 Environment::eval_map(Vec3 dir_world) const {
@@ -239,16 +265,16 @@ float Environment::sun_pdf(Vec3 dir_world) const {
   return static_cast<float>(1.0 / (2.0 * kPi * sun_one_minus_cos_));
 }
 
-bool Environment::sample(Vec2 uu, Vec3& dir, Vec3& radiance, float& pdf_out, bool cover_all) const {
+bool Environment::sample(Vec2 uu, Vec3& dir, Vec3& radiance, float& pdf_out, bool cover_all, const RayState* rs) const {
   const float share = sun_share(cover_all);
   if (share <= 0.0f) {
     float u, v;
     if (!sample_cells(cover_all ? full_ : comp_, uu, dir, u, v, pdf_out)) return false;
-    radiance = sky_ || prog_ ? eval(dir) : lookup(u, v);
+    radiance = sky_ || prog_ ? eval(dir, rs) : lookup(u, v);
     return true;
   }
   // A sky with a sun disc: one of the two strategies, the pdf of their mixture.
-  return sample_direction(uu, dir, cover_all) && finish_sample(dir, radiance, pdf_out, cover_all);
+  return sample_direction(uu, dir, cover_all) && finish_sample(dir, radiance, pdf_out, cover_all, rs);
 }
 
 bool Environment::sample_direction(Vec2 uu, Vec3& dir, bool cover_all) const {
@@ -280,10 +306,11 @@ float Environment::pdf(Vec3 dir_world, bool cover_all) const {
   return share * sun_pdf(dir_world) + (1.0f - share) * map;
 }
 
-Vec3 Environment::eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf_out, const RayState* rs) const {
+Vec3 Environment::eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf_out, const RayState* rs,
+                                const Vec3* ray_p) const {
   if (sky_ || prog_ || sun_share(cover_all) > 0.0f) {
     pdf_out = pdf(dir_world, cover_all);
-    return eval(dir_world, rs);
+    return eval(dir_world, rs, ray_p);
   }
   float u, v;
   to_uv(rot_.vector(dir_world), u, v);

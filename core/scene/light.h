@@ -622,7 +622,10 @@ class Environment {
  public:
   Environment() = default;
   // pixels: w*h RGB, row 0 = bottom. rotation: world -> texture directions.
-  Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation);
+  // srgb: the pixels are sRGB-encoded (an 8-bit image's byte / 255), interpolated encoded and
+  // decoded after, then scaled by the strength (Cycles' NODE_IMAGE_COMPRESS_AS_SRGB); the map
+  // weighs the decoded texels.
+  Environment(std::vector<Vec3> pixels, int w, int h, float strength, const Mat4& rotation, bool srgb = false);
   // A procedural sky: radiance from the model itself; a w x h equirectangular image of it
   // (without the sun disc) steers the samples, and the disc, far smaller than a texel, gets
   // its own share of them, uniform in its cone.
@@ -636,27 +639,34 @@ class Environment {
   const WorldShader* world_shader() const { return prog_.get(); }
   bool needs_bake() const { return prog_ && !baked_; }
   void bake(const Scene& scene);  // (images and AO: the scene's)
-  // rs: the escaped ray's kind and counts (a program world's Light Path); nullptr: a light
-  // sample's, no ray kind (Cycles' PATH_RAY_EMISSION). Image and sky worlds ignore it.
-  Vec3 eval(Vec3 dir_world, const RayState* rs = nullptr) const {
-    if (prog_) return eval_program(dir_world, rs);
+  // rs: the Light Path state a program world reads: an escaped ray's (its kind and counts) or
+  // a light sample's (no ray kind, the sampling vertex's counts: Scene::light_sample_state);
+  // nullptr: none (the map: no kind, no counts). Cycles evaluates a background with
+  // PATH_RAY_EMISSION added, so Ray Depth reads one more than the counts, and Ray Length
+  // FLT_MAX (eval_program). ray_p: the escaped ray's origin (Window of an orthographic camera's
+  // rays; nullptr: none). Image and sky worlds ignore both.
+  Vec3 eval(Vec3 dir_world, const RayState* rs = nullptr, const Vec3* ray_p = nullptr) const {
+    if (prog_) return eval_program(dir_world, rs, ray_p);
     return eval_map(dir_world);
   }
   // Samples a world direction; returns radiance and the solid-angle pdf. cover_all: no BSDF
   // sample follows, so every direction with radiance needs density (else the compensated one).
-  bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf, bool cover_all = false) const;
+  // rs: the light sample's Light Path state (eval).
+  bool sample(Vec2 u, Vec3& dir, Vec3& radiance, float& pdf, bool cover_all = false,
+              const RayState* rs = nullptr) const;
   float pdf(Vec3 dir_world, bool cover_all = false) const;
   // eval() and pdf() of one direction at once (a BSDF ray that escaped): an image map's (u, v)
   // found once, not twice (its atan2 and asin).
-  Vec3 eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf, const RayState* rs = nullptr) const;
+  Vec3 eval_with_pdf(Vec3 dir_world, bool cover_all, float& pdf, const RayState* rs = nullptr,
+                     const Vec3* ray_p = nullptr) const;
   // sample() in two steps, for a sky with a sun disc (deferrable): the direction alone, then
   // its radiance and pdf, which cost a light sample more than drawing it (the sky model and
   // the map's pdf) and which a light sample needs only once its shadow ray is clear.
   bool deferrable(bool cover_all) const { return sun_share(cover_all) > 0.0f; }
   bool sample_direction(Vec2 u, Vec3& dir, bool cover_all) const;
-  bool finish_sample(Vec3 dir, Vec3& radiance, float& pdf, bool cover_all) const {
+  bool finish_sample(Vec3 dir, Vec3& radiance, float& pdf, bool cover_all, const RayState* rs = nullptr) const {
     pdf = this->pdf(dir, cover_all);
-    radiance = eval(dir);
+    radiance = eval(dir, rs);
     return pdf > 0.0f && std::isfinite(pdf);
   }
   float average_luminance() const { return avg_lum_; }
@@ -681,8 +691,9 @@ class Environment {
     float sub = 0.0f;
   };
   Vec3 lookup(float u, float v) const;
+  Vec3 decode(Vec3 encoded) const;  // an sRGB texel's scene-linear radiance (srgb_)
   Vec3 eval_map(Vec3 dir_world) const;
-  Vec3 eval_program(Vec3 dir_world, const RayState* rs) const;
+  Vec3 eval_program(Vec3 dir_world, const RayState* rs, const Vec3* ray_p) const;
   void to_uv(Vec3 t, float& u, float& v) const;
   // Cell row j (0..h) spans v in [max(0, (j - 0.5) / h), min(1, (j + 0.5) / h)].
   float cell_v0(int j) const { return std::max(0.0f, (j - 0.5f) / h_); }
@@ -700,6 +711,7 @@ class Environment {
   std::shared_ptr<const SkyModel> sky_;
   std::shared_ptr<WorldShader> prog_;
   bool baked_ = false;
+  bool srgb_ = false;  // px_ sRGB-encoded (an 8-bit image), not yet times strength_
   float strength_ = 1.0f;
   Vec3 sun_dir_;            // texture space
   Vec3 sun_a_, sun_b_;      // a basis about it, for the disc's samples

@@ -497,6 +497,15 @@ class Scene {
   }
   size_t portal_count() const { return portals_.size(); }
   void set_world_color(Vec3 c) { world_color_ = c; }
+  // World ▸ Settings ▸ Sampling Method: on (Automatic, Manual) the world map is a light to
+  // sample; off (None) it is not, as Cycles adds no background light then: only rays that escape
+  // find the world, with weight 1 (and no caustic light paths start from it). With portals
+  // Cycles keeps it a light sampled through the portals alone (its map_weight 0), as here.
+  void set_world_sampled(bool on) {
+    world_sampled_ = on;
+    committed_ = false;
+  }
+  bool world_sampled() const { return world_sampled_; }
   // Light samples of the world drawn first and given radiance and pdf only past their shadow
   // ray where that saves work (finish_world_sample; on by default). Off: all at once, as
   // before (the tests' reference: the two render the same image).
@@ -509,7 +518,7 @@ class Scene {
   // not pay: docs/design/sampling.md "Sky samples").
   void set_world_samples(bool on) { world_samples_ = on; }
   bool world_samples() const { return world_samples_; }
-  bool samples_world() const { return world_samples_ && features_.world_light; }
+  bool samples_world() const { return world_samples_ && world_sampled_ && features_.world_light; }
   // The world's Volume: a medium filling all space outside objects' media, the camera starts in
   // it. Homogeneous (its medium fields), or a Volume program (ShaderProgram::volume): then a
   // heterogeneous medium over the scene's bounds (world_hetero(); docs/design/volumes.md
@@ -897,8 +906,9 @@ class Scene {
   // Radiance arriving from the world along a ray that escapes the scene.
   // rs: the escaped ray's kind and counts, which a program world's Light Path reads (nullptr:
   // none, as a light sample's).
-  Vec3 background(Vec3 dir, const RayState* rs = nullptr) const {
-    return env_.valid() ? env_.eval(dir, rs) : world_color_;
+  // ray_p: its origin (a program world's Window for an orthographic camera; nullptr: none).
+  Vec3 background(Vec3 dir, const RayState* rs = nullptr, const Vec3* ray_p = nullptr) const {
+    return env_.valid() ? env_.eval(dir, rs, ray_p) : world_color_;
   }
   // Picks a light with u_select and samples it from point p.
   // bsdf_follows: a BSDF sample from p will be traced and MIS-weighted against this one; if not,
@@ -926,13 +936,24 @@ class Scene {
   float pdf_emitter(const SurfacePoint& sp, Vec3 from, Vec3 at, float cos_l, Vec3 from_n = Vec3(0.0f), uint8_t set = 0) const;
   float pdf_environment(Vec3 dir, Vec3 from, uint8_t set = 0) const;
   // background(dir) and pdf_environment(dir, from, set) at once (one map look-up).
-  Vec3 background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf, const RayState* rs = nullptr) const;
+  Vec3 background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf, const RayState* rs = nullptr,
+                           const Vec3* ray_p = nullptr) const;
   // The probability that light set `set`'s choice picks the environment; -1: it cannot.
   float environment_pmf(uint8_t set) const;
   // The world's own sampling from p (its choice among lights not included): through the portals
   // p is in front of and by the map, or by the map alone (no portal faces p). Radiance, solid-angle
   // pdf; cover_all as Environment::sample. world_pdf: the same density for a direction.
-  bool sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all) const;
+  // rs: the light sample's Light Path state (light_sample_state), which a program world reads.
+  bool sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all,
+                    const RayState* rs = nullptr) const;
+  // What a program world's Light Path reads in a light sample from a vertex whose path state is
+  // `path` (Cycles' light_sample_shader_eval: no ray kind, PATH_RAY_EMISSION, and the vertex's
+  // bounce counts; Environment::eval adds the emission's one to Ray Depth).
+  static RayState light_sample_state(const RayState* path) {
+    RayState rs = path ? *path : RayState{};
+    rs.flags = 0;
+    return rs;
+  }
   // sample_world in two steps: the direction alone (portals' choice included), then its
   // radiance and the mixture's pdf at p.
   bool sample_world_direction(Vec3 p, Vec2 u, Vec3& dir, bool cover_all) const;
@@ -941,7 +962,12 @@ class Scene {
   bool finish_world_sample(DirectSample& s) const {
     const float pdf = world_pdf(s.world_p, s.wi, s.world_cover_all);
     if (!(pdf > 0.0f) || !std::isfinite(pdf)) return false;
-    s.li = env_.eval(s.wi);
+    if (env_.program()) {
+      const RayState rs = light_sample_state(s.path);
+      s.li = env_.eval(s.wi, &rs);
+    } else {
+      s.li = env_.eval(s.wi);
+    }
     s.pdf = pdf * s.world_pmf;
     s.world_pending = false;
     return true;
@@ -1168,6 +1194,7 @@ class Scene {
   Vec3 world_color_{0.0f};
   bool world_samples_ = false;  // opt-in: a furnace loses its zero variance (sampling.md)
   bool defer_world_ = true;     // set_defer_world_samples
+  bool world_sampled_ = true;   // set_world_sampled
   ShaderProgram world_volume_;
   CameraDesc camera_;
   bool has_camera_ = false;

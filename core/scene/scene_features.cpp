@@ -141,10 +141,12 @@ void Scene::detect_features() {
       }
     }
   }
-  // A program world reads the escaped ray's state (Light Path) where it has such ops.
+  // A program world reads the escaped ray's state (Light Path) where it has such ops; Window
+  // the ray's kind too (an orthographic camera's own rays read their origin).
   if (const WorldShader* ws = env_.world_shader())
     for (const ShaderOp& op : ws->program.ops)
-      f.path_state = f.path_state || op.code == OpCode::LightPath || op.code == OpCode::AmbientOcclusion;
+      f.path_state = f.path_state || op.code == OpCode::LightPath || op.code == OpCode::AmbientOcclusion ||
+                     (op.code == OpCode::BackgroundCamera && op.sub != 0);
   f.emission = !emitters_.empty();
   f.environment = env_.valid();
   if (world_volume_.has_medium()) f.media = f.volumes = true;

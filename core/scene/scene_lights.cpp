@@ -258,7 +258,9 @@ void Scene::build_lights() {
     env_from_color_ = true;
   }
   const float env_power = env_.valid() ? 4.0f * kPi * kPi * radius * radius * env_.average_luminance() : 0.0f;
-  const bool env = env_.valid() && env_.average_luminance() > 0.0f;
+  // (Sampling Method None: no light to sample, rays that escape find the world with weight 1;
+  // with portals Cycles keeps the world as a light sampled through them alone: map_weight 0.)
+  const bool env = (world_sampled_ || !portals_.empty()) && env_.valid() && env_.average_luminance() > 0.0f;
   set_lc_.clear();
   if (!links_) {
     if (env) {
@@ -649,7 +651,12 @@ bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u
       return true;
     }
     float pdf;
-    if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows)) return false;
+    if (env_.program()) {  // (its Light Path reads the vertex's counts)
+      const RayState rs = light_sample_state(s.path);
+      if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows, &rs)) return false;
+    } else if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows)) {
+      return false;
+    }
     s.dist = kInf;
     s.pdf = pdf * pmf;
     return true;
@@ -921,16 +928,17 @@ float Scene::pdf_environment(Vec3 dir, Vec3 from, uint8_t set) const {
   return pmf < 0.0f ? 0.0f : pmf * world_pdf(from, dir, false);
 }
 
-Vec3 Scene::background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf, const RayState* rs) const {
+Vec3 Scene::background_with_pdf(Vec3 dir, Vec3 from, uint8_t set, float& env_pdf, const RayState* rs,
+                                const Vec3* ray_p) const {
   env_pdf = 0.0f;
   const float pmf = environment_pmf(set);
-  if (pmf < 0.0f) return background(dir, rs);
+  if (pmf < 0.0f) return background(dir, rs, ray_p);
   if (!portals_.empty() || !env_.valid()) {
     env_pdf = pmf * world_pdf(from, dir, false);
-    return background(dir, rs);
+    return background(dir, rs, ray_p);
   }
   float p;
-  const Vec3 le = env_.eval_with_pdf(dir, false, p, rs);
+  const Vec3 le = env_.eval_with_pdf(dir, false, p, rs, ray_p);
   env_pdf = pmf * p;
   return le;
 }
@@ -958,25 +966,26 @@ double Scene::portal_pdf_sum(Vec3 p, Vec3 dir, size_t skip, int& facing) const {
   return sum;
 }
 
-bool Scene::sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all) const {
-  if (portals_.empty()) return env_.sample(u, dir, li, pdf, cover_all);
+bool Scene::sample_world(Vec3 p, Vec2 u, Vec3& dir, Vec3& li, float& pdf, bool cover_all, const RayState* rs) const {
+  if (portals_.empty()) return env_.sample(u, dir, li, pdf, cover_all, rs);
   int facing = 0;
   for (const Light& portal : portals_) facing += portal_faces(portal, p);
-  if (facing == 0) return env_.sample(u, dir, li, pdf, cover_all);
+  if (facing == 0) return world_sampled_ && env_.sample(u, dir, li, pdf, cover_all, rs);
   if (!sample_world_direction(p, u, dir, cover_all)) return false;
   // The mixture's pdf, as world_pdf (every facing portal the direction crosses counts).
   pdf = world_pdf(p, dir, cover_all);
-  li = env_.eval(dir);
+  li = env_.eval(dir, rs);
   return pdf > 0.0f && std::isfinite(pdf);
 }
 
 bool Scene::sample_world_direction(Vec3 p, Vec2 u, Vec3& dir, bool cover_all) const {
   int facing = 0;
   for (const Light& portal : portals_) facing += portal_faces(portal, p);
-  if (facing == 0) return env_.sample_direction(u, dir, cover_all);
-  // A sky's sun disc keeps its share; the rest is split between the portals and the map.
-  const float sun = env_.sun_fraction(cover_all);
-  const float a = (1.0f - sun) * (env_.cells_samplable(cover_all) ? 0.5f : 1.0f);  // the portals' share
+  if (facing == 0) return world_sampled_ && env_.sample_direction(u, dir, cover_all);
+  // A sky's sun disc keeps its share; the rest is split between the portals and the map
+  // (Sampling Method None: the portals alone).
+  const float sun = world_sampled_ ? env_.sun_fraction(cover_all) : 0.0f;
+  const float a = (1.0f - sun) * (world_sampled_ && env_.cells_samplable(cover_all) ? 0.5f : 1.0f);  // the portals' share
   if (u.x < sun) {
     dir = env_.sample_sun_disc({std::min(u.x / sun, 0x1.fffffep-1f), u.y});
   } else if (u.x < sun + a) {
@@ -1003,9 +1012,9 @@ float Scene::world_pdf(Vec3 p, Vec3 dir, bool cover_all) const {
   if (portals_.empty()) return env_.pdf(dir, cover_all);
   int facing;
   const double portal_pdf = portal_pdf_sum(p, dir, SIZE_MAX, facing);
-  if (facing == 0) return env_.pdf(dir, cover_all);
-  const float sun = env_.sun_fraction(cover_all);
-  const bool map = env_.cells_samplable(cover_all);
+  if (facing == 0) return world_sampled_ ? env_.pdf(dir, cover_all) : 0.0f;
+  const float sun = world_sampled_ ? env_.sun_fraction(cover_all) : 0.0f;
+  const bool map = world_sampled_ && env_.cells_samplable(cover_all);
   const float a = (1.0f - sun) * (map ? 0.5f : 1.0f);
   double pdf = double(a) * portal_pdf / facing;
   if (sun > 0.0f) pdf += double(sun) * env_.sun_disc_pdf(dir);

@@ -761,8 +761,14 @@ template <bool kSetsNormal>
         break;
       }
       case OpCode::BackgroundCamera: {
+        // Cycles' svm_node_tex_coord without an object: Camera is P (the direction) from the
+        // camera's position; Window is camera_world_to_ndc of P, offset by the position for a
+        // perspective camera only (a panorama's reads the direction), and of the ray's origin
+        // for an orthographic camera's own rays (its pixel).
         const Camera* cam = ctx.ray.camera;
-        const Vec3 p = cam ? cam->origin() + ctx.p : ctx.p;
+        Vec3 p = cam ? cam->origin() + ctx.p : ctx.p;
+        if (op.sub != 0 && cam && cam->orthographic())
+          p = (ctx.ray.flags & kRayCamera) && ctx.ray_p ? *ctx.ray_p : ctx.p;
         d = f4(op.sub == 0 ? world_to_camera_point(cam, p) : cam ? cam->to_ndc(p) : Vec3(0.0f), 0.0f);
         break;
       }

@@ -501,6 +501,9 @@ struct ShadingContext {
   const Vec3* grid_bound = nullptr;  // {lo, hi}
   // The scene's camera where no ray brings one (light and volume programs): Camera Data's.
   const Camera* scene_camera = nullptr;
+  // A world program's escaped ray: its origin (Cycles' sd->ray_P, which Window reads for an
+  // orthographic camera's rays); nullptr: none.
+  const Vec3* ray_p = nullptr;
 };
 
 // The Ambient Occlusion node's fraction of `samples` rays over the hemisphere about n (cosine

@@ -276,6 +276,64 @@ def test_byte_srgb_environment_matches_cycles(tmp_path):
     np.testing.assert_allclose(region_means(ours), region_means(ref), rtol=0.01, atol=0.002)
 
 
+def _byte_checker(tmp_path, name="checker", w=16, h=8):
+    """An 8-bit sRGB PNG of black and white texels in a checker (plus a grey column): every
+    texel edge a sharp step, where filtering encoded values and decoding after (Cycles) differs
+    most from filtering decoded ones."""
+    y, x = np.mgrid[0:h, 0:w]
+    grey = ((x + y) % 2).astype(np.float32)
+    grey[:, 3] = 0.5
+    rgba = np.ones((h, w, 4), np.float32)
+    rgba[..., 0] = grey
+    rgba[..., 1] = grey * 0.6
+    rgba[..., 2] = 1.0 - grey
+    img = bpy.data.images.new(name, w, h, alpha=False, float_buffer=False)
+    img.pixels.foreach_set(rgba.ravel())
+    img.filepath_raw = str(tmp_path / f"{name}.png")
+    img.file_format = 'PNG'
+    img.save()
+    return bpy.data.images.load(str(tmp_path / f"{name}.png"))
+
+
+def test_byte_srgb_environment_keeps_its_encoded_texels(scene, tmp_path):
+    # The fast path hands an sRGB byte image's byte / 255 values to the core (which filters
+    # them before decoding), besides the decoded pixels; float and non-sRGB images have none.
+    image = _byte_checker(tmp_path)
+    tex = world_texture(world_image(image), Warnings())
+    assert tex.encoded is not None and tex.encoded.shape == tex.pixels.shape
+    np.testing.assert_allclose(srgb_to_linear(tex.encoded), tex.pixels, atol=1e-6)
+    np.testing.assert_allclose(np.unique(tex.encoded[..., 0]), [0.0, 128 / 255, 1.0], atol=1e-7)
+    image.colorspace_settings.name = "Non-Color"
+    assert world_texture(world_image(image), Warnings()).encoded is None
+    assert world_texture(world_image(load_image(marked_image(), directory=tmp_path)), Warnings()).encoded is None
+
+
+@needs_env
+def test_byte_srgb_environment_magnified_matches_cycles(tmp_path):
+    # A 16 x 8 checker seen through a long lens (a texel spans ~10 pixels): Cycles interpolates
+    # the sRGB bytes and decodes after (svm_image_texture's NODE_IMAGE_COMPRESS_AS_SRGB); a
+    # lookup that decoded first is 1.6x brighter between texel centres.
+    scene = empty_scene(32)
+    world_image(_byte_checker(tmp_path), strength=1.5)
+    camera((0, 0, 0), rotation=(math.pi / 2 - 0.2, 0.0, 0.4), lens=90.0)
+    ours = render_to_array(scene, samples=16)
+    ref = render_to_array(scene, "CYCLES", samples=16, **BOX_FILTER)
+    a, b = region_means(ours), region_means(ref)
+    np.testing.assert_allclose(a, b, rtol=0.02, atol=0.002)
+    np.testing.assert_allclose(ours[..., :3].mean(), ref[..., :3].mean(), rtol=0.005)
+
+
+def test_sampling_method_is_exported(scene, tmp_path):
+    # World ▸ Settings ▸ Sampling Method: None makes the world no light to sample (the core's
+    # world_sampled), Automatic and Manual keep it one; the panel shows it for Pathlight.
+    world = world_image(load_image(marked_image(), directory=tmp_path))
+    bpy.context.scene.world = world
+    for method, sampled in (('NONE', False), ('AUTOMATIC', True), ('MANUAL', True)):
+        world.cycles.sampling_method = method
+        assert export_scene(bpy.context.evaluated_depsgraph_get(), Warnings()).world_sampled is sampled
+    assert hasattr(bpy.types, "PATHLIGHT_WORLD_PT_sampling")
+
+
 def test_hdr_fixture_exports_its_packed_sky():
     open_fixture("hdr_scene")
     warnings = Warnings()

@@ -331,3 +331,115 @@ def test_world_program_sent_again_to_a_kept_scene():
     np.testing.assert_allclose(seen, (0.9, 0.3, 0.6), rtol=1e-6)  # the camera's colour
     lit = core_scene.world_radiance(up, camera_ray=False)[0]
     assert lit[2] > lit[0] > 0.0  # the HDRI's blue sky overhead
+
+
+# ---------------------------------------------------------------- the leftovers (worldfix)
+
+def _mix_by(nt, out, fac_socket, when_0, when_1):
+    """Background of colour when_0 where fac_socket is 0 and when_1 where it is 1, of Strength
+    the HDRI's luminance: a sun that light samples find (a world of even luminance leaves them
+    next to nothing here, its map compensated for the BSDF rays)."""
+    bg = background(nt)
+    bw = nt.nodes.new("ShaderNodeRGBToBW")
+    nt.links.new(env_texture(nt, hdri()).outputs["Color"], bw.inputs[0])
+    nt.links.new(bw.outputs[0], bg.inputs["Strength"])
+    mix = nt.nodes.new("ShaderNodeMix")
+    mix.data_type = 'RGBA'
+    nt.links.new(fac_socket, mix.inputs["Factor"])
+    mix.inputs[6].default_value = (*when_0, 1.0)  # A
+    mix.inputs[7].default_value = (*when_1, 1.0)  # B
+    nt.links.new(mix.outputs[2], bg.inputs["Color"])
+    nt.links.new(bg.outputs[0], out.inputs["Surface"])
+    return bg
+
+
+def light_path_world(output, threshold=0.5, sampling='AUTOMATIC', transparent=False):
+    """A world that is one colour where Light Path `output` exceeds `threshold` and another
+    below, over the floor and spheres. Ray Depth: Cycles evaluates a background one bounce
+    further (camera rays and a first vertex's light samples read 1), so a world that is warm at
+    depth 0 and blue from 1 on is blue for every ray and light sample in Cycles. Transparent
+    Depth: a Transparent plane before the camera makes it 1 at every vertex, for light samples
+    as for the rays. sampling: World ▸ Settings ▸ Sampling Method."""
+    def build():
+        scene, nt, out = objects()
+        scene.world.cycles.sampling_method = sampling
+        path = nt.nodes.new("ShaderNodeLightPath")
+        gt = nt.nodes.new("ShaderNodeMath")
+        gt.operation = 'GREATER_THAN'
+        gt.inputs[1].default_value = threshold
+        nt.links.new(path.outputs[output], gt.inputs[0])
+        _mix_by(nt, out, gt.outputs[0], (1.0, 0.5, 0.1), (0.2, 0.45, 1.0))
+        if transparent:
+            mat, nodes, links, mout = ms.new_material("Veil")
+            links.new(nodes.new("ShaderNodeBsdfTransparent").outputs[0], mout.inputs["Surface"])
+            ms.add_plane("Veil", 6.0, mat, location=(0.0, -4.0, 1.2), rotation_euler=(math.pi / 2, 0.0, 0.0))
+        return scene
+    return build
+
+
+@pytest.mark.parametrize("output,transparent", [("Ray Depth", False), ("Transparent Depth", True)])
+def test_light_path_counts_in_light_samples(output, transparent):
+    """A world's Light Path counts in light samples: Cycles evaluates them with the sampling
+    vertex's counts and Ray Depth one further (light_sample_shader_eval, PATH_RAY_EMISSION),
+    as escaped rays (shade_background); the map has no counts."""
+    build = light_path_world(output, transparent=transparent)
+    program, warnings = exported_program(build)
+    assert program is not None and not warnings, warnings
+    ours, cycles = render_pair(build, 512)
+    assert_agree(ours, cycles, f"world by {output} in light samples")
+
+
+def test_sampling_method_none_is_no_light():
+    """World ▸ Settings ▸ Sampling Method None: Cycles adds no background light, so a world
+    that shows diffuse rays one colour and everything else (light samples too) another lights
+    the diffuse surfaces by the first alone."""
+    build = light_path_world("Is Diffuse Ray", sampling='NONE')
+    program, warnings = exported_program(build)
+    assert program is not None and not warnings, warnings
+    ours, cycles = render_pair(build, 512)
+    assert_agree(ours, cycles, "Sampling Method None (program world)")
+
+
+def test_sampling_method_none_fast_path():
+    """None with the fast path's HDRI: found by the rays alone, with weight 1."""
+    def build():
+        scene, nt, out = objects()
+        scene.world.cycles.sampling_method = 'NONE'
+        bg = background(nt)
+        nt.links.new(env_texture(nt, hdri()).outputs["Color"], bg.inputs["Color"])
+        nt.links.new(bg.outputs[0], out.inputs["Surface"])
+        return scene
+    scene = build()
+    color, texture, program = export_world(scene.world, Warnings())
+    assert program is None and texture is not None
+    ours, cycles = render_pair(build, 1024)
+    assert_agree(ours, cycles, "Sampling Method None (HDRI)")
+
+
+def test_window_coordinates_of_an_orthographic_camera():
+    """Window under an orthographic camera: a camera ray's is its pixel (the ray's origin),
+    any other ray's the direction itself projected (no camera offset), as Cycles'
+    svm_node_tex_coord."""
+    def build():
+        scene = procedural_world("window")()
+        cam = scene.camera.data
+        cam.type = 'ORTHO'
+        cam.ortho_scale = 4.0
+        return scene
+    program, warnings = exported_program(build)
+    assert program is not None and not warnings, warnings
+    ours, cycles = render_pair(build, 512)
+    assert_agree(ours, cycles, "Window, orthographic camera")
+
+
+def test_manual_map_resolution_sizes_the_map():
+    """Sampling Method Manual: its Map Resolution sizes a program world's map (Cycles'
+    map_resolution, width x width / 2); Automatic: the largest Environment Texture image."""
+    scene = camera_ray_world()()
+    scene.world.cycles.sampling_method = 'MANUAL'
+    scene.world.cycles.sample_map_resolution = 256
+    color, texture, program = export_world(scene.world, Warnings())
+    assert (program.width, program.height) == (256, 128)
+    scene.world.cycles.sampling_method = 'AUTOMATIC'
+    color, texture, program = export_world(scene.world, Warnings())
+    assert (program.width, program.height) == (64, 32)  # the HDRI's size

@@ -179,3 +179,24 @@ def test_deferred_world_samples_render_as_eager_ones(world, portals):
     assert rays_deferred == rays_eager
     assert deferred.mean() > 0.01  # the sunlit patch and the skylight
     assert np.abs(deferred - eager).max() <= 1e-5 * max(eager.max(), 1.0), np.abs(deferred - eager).max()
+
+
+@pytest.mark.parametrize("world", ["constant", "map", "program"])
+def test_portals_alone_sample_a_world_of_sampling_none(expected, world):
+    """World ▸ Settings ▸ Sampling Method None (world_sampled False) with portals: Cycles keeps
+    the world a light sampled through the portals alone (map_weight 0): the closed form holds,
+    and the portal still lowers the variance against None without portals (BSDF rays alone)."""
+    def scene(portals):
+        s = room(world, portals)
+        s.world_sampled = False
+        return s
+    img = render(scene(CASES["matches the window"][0]), 64)
+    ratio = img.mean() / expected.mean()
+    assert abs(ratio - 1.0) < 0.015, ratio
+    r = img.reshape(4, 6, 4, 6).mean(axis=(1, 3)) / expected.reshape(4, 6, 4, 6).mean(axis=(1, 3))
+    assert np.abs(r - 1.0).max() < 0.03, r
+
+    def error(portals):
+        return np.mean([((render(scene(portals), 4, seed) - expected) ** 2).mean() for seed in range(4)])
+    without, with_portal = error([]), error(CASES["matches the window"][0])
+    assert with_portal < without / 4.0, (without, with_portal)

@@ -138,3 +138,62 @@ def test_caustic_light_paths_stay_off_for_a_program_world():
     assert s.set_world_program(z_program(), 32) is True
     _, stats = render(pc, s, 16, 16, samples=4, caustic_light_paths=1.0)
     assert stats["caustics"].startswith("off") and "program" in stats["caustics"], stats["caustics"]
+
+
+@pytest.mark.parametrize("kind", ["image", "program"])
+def test_world_not_sampled_is_found_by_rays_alone(kind):
+    # World ▸ Settings ▸ Sampling Method None (Scene.world_sampled False): no light sample picks
+    # the world, and rays that escape find it with weight 1, so the furnace under a varying
+    # world (L = 1 + 0.5 z) still gives the image world's mean.
+    h, w = 128, 256
+    elevation = np.pi * ((np.arange(h) + 0.5) / h - 0.5)
+    px = np.repeat((1.0 + 0.5 * np.sin(elevation))[:, None], w, 1)
+    px = np.repeat(px[..., None], 3, 2).astype(np.float32)
+
+    def scene(sampled):
+        s = furnace_scene(pc, 0.8)
+        if kind == "image":
+            s.set_world_texture(px, 1.0)
+        else:
+            assert s.set_world_program(z_program(), 256) is True
+        assert s.world_sampled is True  # the default
+        s.world_sampled = sampled
+        return s
+
+    off, on = scene(False), scene(True)
+    for s in (off, on):
+        s.commit()
+    pts = np.tile(np.array([[0.0, 0.0, 1.01]], np.float32), (64, 1))
+    u = np.random.default_rng(1).random((64, 3), dtype=np.float32)
+    assert not off.light_samples(pts, u)[0].any()  # no light to sample
+    assert on.light_samples(pts, u)[0].all()
+    ioff, soff = render(pc, off, 48, 48, samples=128)
+    ion, _ = render(pc, on, 48, 48, samples=128)
+    a, b = ioff[16:32, 16:32, :3].mean(), ion[16:32, 16:32, :3].mean()
+    assert abs(a / b - 1.0) < 0.01, (a, b)
+    assert soff["nonfinite_samples"] == 0
+
+
+def depth_program(output):
+    """L = Light Path `output` (a count) + 0.25, grey: what the world reads."""
+    return [("light_path", 0, output), ("const", 1, (0.25,)), ("math", 2, 0, 1, "ADD", False),
+            ("closure", "emission", None, {"color": 2})]
+
+
+def test_world_reads_ray_depth_one_further_as_cycles():
+    # Cycles evaluates a background with PATH_RAY_EMISSION: Ray Depth reads one more than the
+    # ray's bounces (a camera ray 1, a diffuse bounce's 2), the other counts as they are.
+    s = pc.Scene()
+    s.add_material("m", (0.5, 0.5, 0.5))
+    assert s.set_world_program(depth_program("RAY_DEPTH"), 64) is True
+    s.commit()
+    up = np.array([[0.0, 0.0, 1.0]], np.float32)
+    assert s.world_radiance(up, camera_ray=True)[0, 0] == pytest.approx(1.25)
+    assert s.world_radiance(up, camera_ray=False)[0, 0] == pytest.approx(2.25)
+    dirs, rad, pdf, _ = s.world_sample(np.array([[0.3, 0.6]], np.float32))
+    assert rad[0, 0] == pytest.approx(1.25)  # no path: no counts, Ray Depth 1 (Cycles' map)
+    t = pc.Scene()
+    t.add_material("m", (0.5, 0.5, 0.5))
+    assert t.set_world_program(depth_program("DIFFUSE_DEPTH"), 64) is True
+    t.commit()
+    assert t.world_radiance(up, camera_ray=False)[0, 0] == pytest.approx(0.25)  # its 0, no +1
