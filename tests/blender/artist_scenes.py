@@ -858,4 +858,11 @@ def stylised():
     return scene
 
 
-SCENES2 = {"archviz": archviz, "foliage": foliage, "night_street": night_street, "stylised": stylised}
+def archviz_open_window():
+    """The archviz shot without its glass pane (the control of the curtain's difference)."""
+    scene = archviz()
+    bpy.data.objects.remove(bpy.data.objects["Pane"])
+    return scene
+
+
+SCENES2 = {"archviz_open": archviz_open_window, "archviz": archviz, "foliage": foliage, "night_street": night_street, "stylised": stylised}
