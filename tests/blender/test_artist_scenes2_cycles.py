@@ -23,8 +23,8 @@ render_pair = functools.partial(ms.render_pair, bounces=12, cycles_samples=2048)
 @pytest.mark.xfail(strict=True, reason="the translucent curtain beside the Glass/Transparent (Is Shadow "
                    "Ray) window pane is ~3 % brighter than Cycles' where it hangs in front of the wall "
                    "(region 3,4: +3.2 %, +2.3 % with another seed; Cycles against itself 0.4 %); "
-                   "gone without the pane (test_archviz_open_window_matches_cycles) or with a "
-                   "diffuse curtain; cause not found yet (docs/materials.md, Known differences)")
+                   "gone without the pane (test_archviz_open_window_matches_cycles), with a "
+                   "plain Glass pane (no shadow-ray Transparent) or a diffuse curtain; cause not found yet (docs/materials.md, Known differences)")
 def test_archviz_matches_cycles():
     ours, ref = render_pair(art.archviz, 1024)
     ms.assert_agree(ours, ref, "archviz")
