@@ -279,11 +279,9 @@ def cam_dof_blades_motion():
     return scene
 
 
-# The tests' cameras; the equidistant fisheye and the shifted orthographic camera were compared
-# at 64 samples only (docs/materials.md, "Audit 3"): each Cycles reference costs minutes of CPU.
-CAMERAS = {"fisheye_equisolid": cam_fisheye_equisolid, "equirectangular": cam_equirectangular,
+CAMERAS = {"fisheye_equisolid": cam_fisheye_equisolid, "fisheye_equidistant": cam_fisheye_equidistant,
+           "equirectangular": cam_equirectangular, "ortho_shift": cam_ortho_shift,
            "dof_blades_motion": cam_dof_blades_motion}
-MORE_CAMERAS = {"fisheye_equidistant": cam_fisheye_equidistant, "ortho_shift": cam_ortho_shift}
 
 
 # ---------------------------------------------------------------- sci-fi volumes
