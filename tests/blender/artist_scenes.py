@@ -195,7 +195,6 @@ def interior():
     portal = ls.add_light('AREA', "Portal", location=(0, 2, (z0 + z1) / 2), rotation=(-math.pi / 2, 0, 0),
                           shape='RECTANGLE', size=2 * w, size_y=z1 - z0)
     portal.data.cycles.is_portal = True
-    bpy.data.objects.remove(portal)
     vl = scene.view_layers[0]
     for g in ("key", "practical"):
         vl.lightgroups.add(name=g)
