@@ -948,11 +948,13 @@ class Scene {
                     const RayState* rs = nullptr) const;
   // What a program world's Light Path reads in a light sample from a vertex whose path state is
   // `path` (Cycles' light_sample_shader_eval: no ray kind, PATH_RAY_EMISSION, and the vertex's
-  // bounce counts; Environment::eval adds the emission's one to Ray Depth).
-  static RayState light_sample_state(const RayState* path) {
-    RayState rs = path ? *path : RayState{};
-    rs.flags = 0;
-    return rs;
+  // bounce counts; Environment::eval adds the emission's one to Ray Depth), written to `buf`;
+  // nullptr for image, sky and constant worlds, which read none.
+  const RayState* light_sample_state(const RayState* path, RayState& buf) const {
+    if (!env_.program()) return nullptr;
+    buf = path ? *path : RayState{};
+    buf.flags = 0;
+    return &buf;
   }
   // sample_world in two steps: the direction alone (portals' choice included), then its
   // radiance and the mixture's pdf at p.
@@ -962,12 +964,8 @@ class Scene {
   bool finish_world_sample(DirectSample& s) const {
     const float pdf = world_pdf(s.world_p, s.wi, s.world_cover_all);
     if (!(pdf > 0.0f) || !std::isfinite(pdf)) return false;
-    if (env_.program()) {
-      const RayState rs = light_sample_state(s.path);
-      s.li = env_.eval(s.wi, &rs);
-    } else {
-      s.li = env_.eval(s.wi);
-    }
+    RayState rs;
+    s.li = env_.eval(s.wi, light_sample_state(s.path, rs));
     s.pdf = pdf * s.world_pmf;
     s.world_pending = false;
     return true;

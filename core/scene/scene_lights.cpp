@@ -651,12 +651,8 @@ bool Scene::sample_direct_t(const LightChoice& c, Vec3 p, float u_select, Vec2 u
       return true;
     }
     float pdf;
-    if (env_.program()) {  // (its Light Path reads the vertex's counts)
-      const RayState rs = light_sample_state(s.path);
-      if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows, &rs)) return false;
-    } else if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows)) {
-      return false;
-    }
+    RayState rs;  // (a program world's Light Path reads the vertex's counts)
+    if (!sample_world(p, u, s.wi, s.li, pdf, !bsdf_follows, light_sample_state(s.path, rs))) return false;
     s.dist = kInf;
     s.pdf = pdf * pmf;
     return true;
